@@ -1,0 +1,73 @@
+"""Clocks: the only place canguard reads the time.
+
+Nothing under ``protect/`` or ``nodes/`` calls ``time.time()`` or
+``time.monotonic()``; they are handed a :class:`Clock`. Live runs use
+:class:`LiveClock` (epoch seconds, advanced with the monotonic clock so a wall
+clock step cannot jump the models); replay uses :class:`ManualClock` driven by the
+log's own timestamps; tests use :class:`ManualClock` by hand.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Protocol
+
+
+class Clock(Protocol):
+    """Tells the time in the frames' time base (seconds)."""
+
+    def now(self) -> float:
+        """Return the current time in seconds."""
+        ...
+
+
+class ManualClock:
+    """A clock that only moves when told: replay (log time) and tests.
+
+    ``advance_to`` never moves it backwards: a log whose timestamps go back does
+    not make time go back for the models; the step back is counted instead.
+    """
+
+    def __init__(self, start: float = 0.0) -> None:
+        self._now = float(start)
+        self.backward_steps = 0
+
+    def now(self) -> float:
+        """Return the current time."""
+        return self._now
+
+    def set(self, t: float) -> None:
+        """Set the time, backwards included (tests only)."""
+        self._now = float(t)
+
+    def advance(self, dt: float) -> None:
+        """Move forward by ``dt`` seconds (ignored when negative)."""
+        if dt > 0:
+            self._now += dt
+
+    def advance_to(self, t: float) -> None:
+        """Move forward to ``t``; a ``t`` in the past is counted, not applied."""
+        if t > self._now:
+            self._now = t
+        elif t < self._now:
+            self.backward_steps += 1
+
+
+class LiveClock:
+    """Epoch seconds that advance with the monotonic clock.
+
+    The epoch offset is taken once at start, so events line up with a candump
+    of the same bus, yet a wall-clock step (NTP, manual date) does not move
+    canguard's time.
+    """
+
+    def __init__(self) -> None:
+        self._offset = time.time() - time.monotonic()
+
+    def now(self) -> float:
+        """Return the current time in epoch seconds, monotonic."""
+        return time.monotonic() + self._offset
+
+    def to_monotonic(self, t: float) -> float:
+        """Convert a time of this clock back to ``time.monotonic()``'s base."""
+        return t - self._offset

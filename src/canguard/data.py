@@ -1,0 +1,64 @@
+"""The two values that flow through canguard: frames in, samples out.
+
+``Frame`` is what every source (a live python-can bus, a candump log, a python-can
+log reader) yields; it is a ``NamedTuple`` rather than ``can.Message`` because the
+replay fast path makes millions of them and tuple construction is several times
+cheaper. ``Sample`` is one decoded, configured signal value.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+
+class Frame(NamedTuple):
+    """One CAN frame as received or recorded.
+
+    ``t`` is in the frames' time base: epoch seconds as candump writes them
+    (live: the kernel/hardware timestamp python-can reports).
+    ``channel`` is the bus channel name as recorded (``can0``) or, live, the
+    configured bus name.
+    """
+
+    t: float
+    channel: str
+    arbitration_id: int
+    data: bytes
+    is_extended_id: bool = False
+    is_fd: bool = False
+    is_error_frame: bool = False
+    is_remote_frame: bool = False
+    bitrate_switch: bool = False
+    error_state_indicator: bool = False
+    dlc: int = -1
+    """Data length code as recorded; -1 means ``len(data)``. Remote frames carry a DLC and no data."""
+
+
+# Reasons a sample is not a usable value. Guards treat every one of them as unsafe.
+INVALID_NAN = "nan"
+INVALID_INF = "inf"
+INVALID_RANGE = "out_of_range"
+INVALID_LENGTH = "bad_length"
+INVALID_PAYLOAD = "undecodable"
+
+
+class Sample(NamedTuple):
+    """One decoded value of a configured source signal.
+
+    ``signal`` is the role inside the source: ``current`` and ``present`` for
+    battery / current sources, the joint ``name`` for joints sources.
+    ``reason`` is empty for a valid value and names why it is invalid otherwise
+    (``nan``, ``inf``, ``out_of_range``, ``bad_length``, ``undecodable``); an
+    invalid sample carries ``value = nan``.
+    """
+
+    source: str
+    signal: str
+    value: float
+    t: float
+    reason: str = ""
+
+    @property
+    def valid(self) -> bool:
+        """True when the value is a finite, in-range decoded number."""
+        return not self.reason
