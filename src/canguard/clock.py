@@ -20,6 +20,10 @@ class Clock(Protocol):
         """Return the current time in seconds."""
         ...
 
+    def advance_to(self, t: float) -> None:
+        """Move to ``t`` if this clock is driven (replay); live clocks ignore it."""
+        ...
+
 
 class ManualClock:
     """A clock that only moves when told: replay (log time) and tests.
@@ -67,6 +71,9 @@ class LiveClock:
     def now(self) -> float:
         """Return the current time in epoch seconds, monotonic."""
         return time.monotonic() + self._offset
+
+    def advance_to(self, t: float) -> None:
+        """Live time moves by itself: a no-op, so the engine drives both clocks alike."""
 
     def to_monotonic(self, t: float) -> float:
         """Convert a time of this clock back to ``time.monotonic()``'s base."""
