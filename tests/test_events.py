@@ -1,0 +1,279 @@
+"""The event journal: one deterministic JSON line per event, appended, rotated, crash-safe."""
+
+from __future__ import annotations
+
+import errno
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+from typing import Any
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from canguard import events as events_mod
+from canguard.errors import LogFormatError
+from canguard.events import EventJournal, encode_event, journal_files, read_events
+
+SRC = Path(__file__).resolve().parents[1] / "src"
+
+
+def _trip(i: int) -> dict[str, Any]:
+    return {
+        "t": 1_700_000_000.0 + i * 0.001,
+        "event": "trip",
+        "node": "MotorCurrent",
+        "source": "left_drive",
+        "value": 30.0 + i,
+        "threshold": 30.0,
+        "reason": "overcurrent",
+    }
+
+
+class TestEncodeEvent:
+    """encode_event: the exact bytes of one journal line."""
+
+    def test_first_keys_in_fixed_order_then_rest_sorted(self) -> None:
+        """The seven standard keys come first in a fixed order, missing ones as null, extras sorted after."""
+        line = encode_event({"zeta": 1, "event": "start", "alpha": "x", "t": 1.5})
+        assert line == (
+            b'{"t":1.5,"event":"start","node":null,"source":null,"value":null,'
+            b'"threshold":null,"reason":null,"alpha":"x","zeta":1}\n'
+        )
+
+    def test_nan_and_inf_stay_valid_json(self) -> None:
+        """NaN and infinities are written as strings so the line parses as strict JSON."""
+        line = encode_event({"event": "trip", "value": math.nan, "threshold": math.inf, "x": -math.inf})
+        obj = json.loads(line, parse_constant=lambda c: pytest.fail(f"non-standard JSON constant {c}"))
+        assert (obj["value"], obj["threshold"], obj["x"]) == ("nan", "inf", "-inf")
+
+    def test_floats_are_rounded(self) -> None:
+        """Time is kept to the microsecond and values to 10 significant digits."""
+        obj = json.loads(encode_event({"event": "trip", "t": 1700000000.1234567891, "value": 0.1 + 0.2}))
+        assert obj["t"] == 1700000000.123457
+        assert obj["value"] == 0.3
+
+    def test_nested_and_odd_values_are_deterministic(self) -> None:
+        """Nested dicts get sorted keys, bytes become hex and paths their text."""
+        line = encode_event(
+            {"event": "reload", "detail": {"b": 2, "a": 1}, "data": b"\x01\xff", "p": Path("/x")}
+        )
+        assert b'"data":"01ff","detail":{"a":1,"b":2},"p":"/x"' in line
+
+    def test_event_key_is_required(self) -> None:
+        """An event without its 'event' name is refused with a message naming the key."""
+        with pytest.raises(ValueError, match="'event'"):
+            encode_event({"t": 1.0})
+
+    @settings(max_examples=150, deadline=None)
+    @given(
+        st.dictionaries(
+            st.text(max_size=8),
+            st.one_of(st.none(), st.booleans(), st.integers(), st.floats(), st.text(max_size=20)),
+            max_size=8,
+        )
+    )
+    def test_any_event_is_one_strict_json_line(self, extra: dict[str, Any]) -> None:
+        """Whatever the fields hold, the event is exactly one line of strict JSON."""
+        line = encode_event({**extra, "event": "stale"})
+        assert line.endswith(b"\n") and line.count(b"\n") == 1
+        obj = json.loads(line, parse_constant=lambda c: pytest.fail(f"non-standard JSON constant {c}"))
+        assert obj["event"] == "stale"
+        assert list(obj)[:7] == list(events_mod.FIRST_KEYS)
+
+
+class TestEventJournal:
+    """EventJournal: appending, durability, rotation, errors."""
+
+    def test_lines_read_back_in_order(self, tmp_path: Path) -> None:
+        """Events written come back from read_events in the same order with the same fields."""
+        path = tmp_path / "events.jsonl"
+        with EventJournal(path) as j:
+            for i in range(3):
+                j.write(_trip(i))
+        got = read_events(path)
+        assert [e["value"] for e in got] == [30.0, 31.0, 32.0]
+        assert got[0]["reason"] == "overcurrent"
+
+    def test_opening_appends_never_truncates(self, tmp_path: Path) -> None:
+        """A daemon restart keeps the previous run's events and appends after them."""
+        path = tmp_path / "events.jsonl"
+        with EventJournal(path) as j:
+            j.write({"event": "start", "t": 1.0})
+        with EventJournal(path) as j:
+            j.write({"event": "start", "t": 2.0})
+        assert [e["t"] for e in read_events(path)] == [1.0, 2.0]
+
+    def test_same_events_give_byte_identical_files(self, tmp_path: Path) -> None:
+        """Two runs writing the same events produce byte-identical files."""
+        evs = [_trip(i) for i in range(50)] + [{"event": "stop", "t": 5.0, "node": "Guard", "frames": 2}]
+        for name in ("a", "b"):
+            with EventJournal(tmp_path / name) as j:
+                for e in evs:
+                    j.write(dict(reversed(list(e.items()))))  # insertion order must not matter
+        assert (tmp_path / "a").read_bytes() == (tmp_path / "b").read_bytes()
+
+    def test_write_reaches_the_file_before_flush(self, tmp_path: Path) -> None:
+        """A written line is visible in the file at once, without flush or close."""
+        path = tmp_path / "events.jsonl"
+        j = EventJournal(path)
+        j.write({"event": "start", "t": 1.0})
+        assert path.read_bytes().count(b"\n") == 1
+        j.close()
+
+    def test_flush_fsyncs_only_when_something_is_new(
+        self, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+    ) -> None:
+        """flush() fsyncs the file after writes and does nothing when there is nothing new."""
+        j = EventJournal(tmp_path / "events.jsonl")
+        calls: list[int] = []
+        real_fsync = os.fsync
+        monkeypatch.setattr(events_mod.os, "fsync", lambda fd: (calls.append(fd), real_fsync(fd))[1])
+        j.write({"event": "start", "t": 1.0})
+        j.flush()
+        j.flush()
+        assert len(calls) == 1
+        j.close()
+
+    def test_kill_9_loses_no_written_line(self, tmp_path: Path) -> None:
+        """A writer killed by SIGKILL right after write() returned leaves every line in the file."""
+        path = tmp_path / "events.jsonl"
+        code = textwrap.dedent(
+            f"""
+            import sys, time
+            from canguard.events import EventJournal
+            j = EventJournal({str(path)!r}, max_bytes=4096)
+            for i in range(500):
+                j.write({{"event": "trip", "t": float(i), "node": "N", "value": i}})
+            print("written", flush=True)
+            time.sleep(60)
+            """
+        )
+        env = {**os.environ, "PYTHONPATH": str(SRC)}
+        proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, env=env, text=True)
+        try:
+            assert proc.stdout is not None
+            assert proc.stdout.readline().strip() == "written"
+            proc.send_signal(signal.SIGKILL)
+            assert proc.wait(timeout=10) == -signal.SIGKILL
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+        got = read_events(path, include_rotated=True)
+        assert [e["value"] for e in got] == list(range(500))
+
+    def test_rotation_keeps_every_line(self, tmp_path: Path) -> None:
+        """Rotating by size splits the journal into numbered files that together hold every line in order."""
+        path = tmp_path / "events.jsonl"
+        with EventJournal(path, max_bytes=1000) as j:
+            for i in range(100):
+                j.write(_trip(i))
+            assert j.rotations >= 5
+        files = journal_files(path)
+        assert files[-1] == path and files[-2].name == "events.jsonl.1"
+        assert all(f.stat().st_size <= 1000 for f in files)
+        assert [e["value"] for e in read_events(path, include_rotated=True)] == [30.0 + i for i in range(100)]
+
+    def test_rotation_continues_numbering_after_restart(self, tmp_path: Path) -> None:
+        """A restarted daemon rotates on top of existing backups without overwriting any of them."""
+        path = tmp_path / "events.jsonl"
+        for run in range(3):
+            with EventJournal(path, max_bytes=500) as j:
+                for i in range(20):
+                    j.write(_trip(run * 20 + i))
+        assert len(read_events(path, include_rotated=True)) == 60
+
+    def test_backups_limit_is_opt_in(self, tmp_path: Path) -> None:
+        """With backups=2 only the two newest rotated files are kept."""
+        path = tmp_path / "events.jsonl"
+        with EventJournal(path, max_bytes=300, backups=2) as j:
+            for i in range(40):
+                j.write(_trip(i))
+        assert [p.name for p in journal_files(path)] == ["events.jsonl.2", "events.jsonl.1", "events.jsonl"]
+
+    def test_line_larger_than_max_bytes_is_still_written(self, tmp_path: Path) -> None:
+        """An event bigger than max_bytes gets a file of its own instead of being cut or lost."""
+        path = tmp_path / "events.jsonl"
+        with EventJournal(path, max_bytes=50) as j:
+            j.write({"event": "start", "t": 0.0})
+            j.write({"event": "error", "t": 1.0, "reason": "x" * 200})
+        assert [e["event"] for e in read_events(path, include_rotated=True)] == ["start", "error"]
+
+    def test_no_path_only_counts(self, tmp_path: Path) -> None:
+        """A journal without a path counts events and writes nothing."""
+        j = EventJournal(None)
+        j.write({"event": "start"})
+        j.flush()
+        j.close()
+        assert j.lines == 1 and j.bytes_written > 0
+
+    def test_write_after_close_raises(self, tmp_path: Path) -> None:
+        """Writing to a closed journal is a programming error and says so."""
+        j = EventJournal(tmp_path / "e.jsonl")
+        j.close()
+        j.close()
+        with pytest.raises(ValueError, match="closed"):
+            j.write({"event": "exit"})
+
+    def test_bad_arguments_are_refused(self, tmp_path: Path) -> None:
+        """A non-positive max_bytes or backups count is refused at construction."""
+        with pytest.raises(ValueError, match="max_bytes"):
+            EventJournal(tmp_path / "e", max_bytes=0)
+        with pytest.raises(ValueError, match="backups"):
+            EventJournal(tmp_path / "e", backups=0)
+
+    def test_disk_error_is_survived_and_lines_written_later(
+        self, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+    ) -> None:
+        """A full disk neither raises nor tears a line: lines are written, in order, once space returns."""
+        path = tmp_path / "events.jsonl"
+        j = EventJournal(path)
+        j.write({"event": "start", "t": 0.0})
+        real_write = os.write
+        state = {"calls": 0}
+
+        def full_disk(fd: int, data: Any) -> int:
+            state["calls"] += 1
+            if state["calls"] == 1:
+                return real_write(fd, bytes(data)[:5])  # a partial write, then the disk is full
+            raise OSError(errno.ENOSPC, "No space left on device")
+
+        monkeypatch.setattr(events_mod.os, "write", full_disk)
+        j.write({"event": "trip", "t": 1.0})
+        j.write({"event": "stop", "t": 2.0})
+        j.flush()
+        assert j.errors >= 2 and j.pending == 2
+        assert "No space left" in caplog.text
+        monkeypatch.setattr(events_mod.os, "write", real_write)
+        j.write({"event": "recover", "t": 3.0})
+        j.close()
+        assert [e["event"] for e in read_events(path)] == ["start", "trip", "stop", "recover"]
+
+
+class TestReadEvents:
+    """read_events: reading a journal back for tests and replay comparisons."""
+
+    def test_torn_last_line_is_skipped(self, tmp_path: Path) -> None:
+        """A last line without its newline (power cut mid-write) is skipped, earlier lines kept."""
+        path = tmp_path / "events.jsonl"
+        path.write_bytes(encode_event({"event": "start", "t": 1.0}) + b'{"t":2.0,"eve')
+        assert [e["event"] for e in read_events(path)] == ["start"]
+
+    def test_corrupt_line_names_file_and_line(self, tmp_path: Path) -> None:
+        """A line in the middle that is not JSON raises LogFormatError naming file:line."""
+        path = tmp_path / "events.jsonl"
+        path.write_bytes(encode_event({"event": "start"}) + b"garbage\n" + encode_event({"event": "exit"}))
+        with pytest.raises(LogFormatError, match=r"events\.jsonl:2"):
+            read_events(path)
+
+    def test_missing_file_raises(self, tmp_path: Path) -> None:
+        """Reading a journal that does not exist raises FileNotFoundError."""
+        with pytest.raises(FileNotFoundError):
+            read_events(tmp_path / "nope.jsonl", include_rotated=True)
