@@ -13,6 +13,7 @@ models only ever see finite values.
 
 from __future__ import annotations
 
+import math
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
 
@@ -70,3 +71,95 @@ class ProtectionModel(ABC):
     @abstractmethod
     def tripped(self) -> bool:
         """True while the model is tripped (no latch)."""
+
+
+class LatchedModel(ProtectionModel):
+    """Bookkeeping every concrete model shares: tripped state, edge time, peak latch.
+
+    Subclasses implement ``update`` (calling :meth:`_accept` first and
+    :meth:`_set_tripped` to change state) plus :meth:`_threshold_value` and
+    :meth:`_level_pct`. Samples with a non-finite value or time, and samples
+    older than the latest one (``t`` < last ``t``), are ignored and counted in
+    ``out_of_order`` / ``rejected``; a repeated timestamp is a normal sample.
+    """
+
+    reason_tripped: str = REASON_OVERCURRENT
+    """The snapshot reason while tripped."""
+
+    def __init__(self) -> None:
+        self._tripped = False
+        self._latch = False
+        self._since: float | None = None
+        self._value = math.nan
+        self._last_t: float | None = None
+        self.out_of_order = 0
+        """Samples ignored because they were older than the latest one."""
+        self.rejected = 0
+        """Samples ignored because their value or time was not finite."""
+
+    @property
+    def tripped(self) -> bool:
+        """True while the model is tripped (no latch)."""
+        return self._tripped
+
+    @property
+    def last_t(self) -> float | None:
+        """Time of the latest accepted sample, None before any."""
+        return self._last_t
+
+    @property
+    def since(self) -> float | None:
+        """Time of the last trip / recover edge, None if never."""
+        return self._since
+
+    def _accept(self, value: float, t: float) -> float | None:
+        """Return |value| when the sample may be used, None (and count it) when it must be ignored."""
+        if not (math.isfinite(value) and math.isfinite(t)):
+            self.rejected += 1
+            return None
+        if self._last_t is not None and t < self._last_t:
+            self.out_of_order += 1
+            return None
+        return abs(value)
+
+    def _set_tripped(self, tripped: bool, t: float | None) -> bool:
+        """Enter ``tripped``; True on an edge. Arms the peak latch whenever tripped."""
+        if tripped:
+            self._latch = True
+        if tripped == self._tripped:
+            return False
+        self._tripped = tripped
+        self._since = t
+        return True
+
+    @abstractmethod
+    def _threshold_value(self) -> float:
+        """The trip threshold in force, in the snapshot's unit."""
+
+    @abstractmethod
+    def _level_pct(self) -> float:
+        """How close to tripping, in % of the trip level."""
+
+    def _make_snapshot(self, tripped: bool) -> Snapshot:
+        return Snapshot(
+            value=self._value,
+            threshold=self._threshold_value(),
+            level_pct=self._level_pct(),
+            tripped=tripped,
+            since=self._since,
+            reason=self.reason_tripped if tripped else REASON_OK,
+        )
+
+    def poll(self, now: float) -> Snapshot:
+        """The state at tick time ``now``: tripped if tripped at any moment since the last poll.
+
+        The latch then restarts from the present state, so a model still tripped
+        keeps reporting tripped and a spike already over is reported exactly once.
+        """
+        snap = self._make_snapshot(self._tripped or self._latch)
+        self._latch = self._tripped
+        return snap
+
+    def snapshot(self) -> Snapshot:
+        """The present state, without reading or resetting the latch."""
+        return self._make_snapshot(self._tripped)

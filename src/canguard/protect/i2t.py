@@ -1,0 +1,393 @@
+"""I²t protection: how much heat the current has put into the motor.
+
+Two models, chosen per guard node; both trip at 100 % of their trip level and
+recover when the level falls below ``recover_fraction`` (default 0.5) of it.
+
+**Leaky bucket** (:class:`LeakyI2t`, servo-drive style): ``A' = I² − I_cont²``,
+floored at 0; trip level ``S = (I_peak² − I_cont²)·t_peak`` (A²s). From cold at a
+constant ``I > I_cont`` the trip time is ``S / (I² − I_cont²)``; e.g. 12 A peak,
+6 A continuous, 1 s gives S = 108 A²s.
+
+**First-order thermal image** (:class:`ThermalI2t`, IEC 60255-8 / 60255-149):
+``θ' = (I²/I_cont² − θ)/τ``, trip at θ >= 1. From cold ``t = τ·ln(I²/(I² − I_cont²))``;
+from a warm start at a prior steady current ``I_p``, ``t = τ·ln((I² − I_p²)/(I² − I_cont²))``.
+When ``tau_s`` is not given it follows from the leaky model's datasheet figures
+so that both agree at the peak point: ``τ = t_peak / ln(I_peak² / (I_peak² − I_cont²))``.
+An optional ``tau_cool_s`` is used whenever θ is falling (I²/I_cont² < θ). The
+``continuous_a`` given is I_cont itself (the caller multiplies I_rated by k).
+
+**Integration rule.** Each sample's |I| is held (zero-order hold) until the next
+sample, and each interval is integrated with its *exact* solution (linear for the
+leaky bucket, exponential for the thermal image). This is exact for a
+piecewise-constant current, so trip times do not depend on the sample rate
+(irregular sampling included); the trip itself is seen at the first sample at or
+after the moment the level reaches 100 %, i.e. within one sample period of the
+closed forms above.
+
+- A sample older than the latest one (negative dt: clock step back, out-of-order
+  frames) is ignored entirely and counted in ``out_of_order``; a repeated
+  timestamp integrates nothing and only updates the held current.
+- A gap longer than ``max_gap_s`` (give the source's ``max_age_s``) is stale
+  data, not one giant step: the held current is integrated for ``max_gap_s``
+  only (the time it was still known to be valid), and for the rest of the gap the
+  state is frozen (neither heated nor cooled, because nothing is known;
+  meanwhile the staleness guard fails the tree anyway). Counted in ``stale_gaps``.
+- The state is never NaN and never negative; it is also capped at 10⁶ trip
+  levels, so absurd inputs keep it finite.
+
+**Persistence** (see :mod:`canguard.protect.state`): ``export()`` gives a
+JSON-able dict; ``restore(state, downtime_s)`` cools it for the downtime with the
+*saved* model's own law (leaky: ``A − I_cont²·downtime``, floored at 0; thermal:
+``θ·exp(−downtime/τ_cool)``) and takes over the resulting *level* (fraction of
+the trip level). So a state saved under other parameters, or by the other kind of
+model, is not thrown away (that would start cold: not fail safe) but carried over
+as "this close to tripping". A malformed state raises ``ValueError``.
+"""
+
+from __future__ import annotations
+
+import math
+from abc import abstractmethod
+from collections.abc import Mapping
+from typing import Any
+
+from .base import REASON_I2T, LatchedModel
+
+KIND_LEAKY = "leaky"
+KIND_THERMAL = "thermal"
+STATE_VERSION = 1
+MAX_LEVEL = 1e6
+"""The accumulator is capped at this many trip levels (keeps it finite)."""
+
+
+def _positive(name: str, value: float | None) -> float:
+    if value is None:
+        raise ValueError(f"{name} is required")
+    v = float(value)
+    if not math.isfinite(v) or v <= 0:
+        raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
+    return v
+
+
+def _fraction(value: float) -> float:
+    v = float(value)
+    if not 0 < v < 1:
+        raise ValueError(f"recover_fraction must be > 0 and < 1, got {value!r}")
+    return v
+
+
+def _gap(value: float) -> float:
+    v = float(value)
+    if math.isnan(v) or v <= 0:
+        raise ValueError(f"max_gap_s must be > 0 (inf: no limit), got {value!r}")
+    return v
+
+
+def _downtime(downtime_s: float) -> float:
+    """A usable downtime: negative or NaN (clock went back across the restart) counts as none."""
+    d = float(downtime_s)
+    return d if d > 0 else 0.0
+
+
+def _json_float(v: float) -> float | None:
+    return v if math.isfinite(v) else None
+
+
+def _param(params: Mapping[str, Any], name: str) -> float:
+    v = params.get(name)
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        raise ValueError(f"i2t state: parameter {name!r} missing or not a finite number: {v!r}")
+    return float(v)
+
+
+def cooled_level(state: Mapping[str, Any], downtime_s: float) -> float:
+    """The trip-level fraction of an exported state after ``downtime_s`` at zero current.
+
+    Uses the saved model's own parameters and law. ValueError when the state is malformed.
+    """
+    if not isinstance(state, Mapping):
+        raise ValueError(f"i2t state: expected a mapping, got {type(state).__name__}")
+    kind = state.get("kind")
+    params = state.get("params")
+    if not isinstance(params, Mapping):
+        raise ValueError("i2t state: 'params' missing or not a mapping")
+    acc = state.get("accumulator")
+    if isinstance(acc, bool) or not isinstance(acc, (int, float)) or not math.isfinite(acc) or acc < 0:
+        raise ValueError(f"i2t state: 'accumulator' must be a finite number >= 0, got {acc!r}")
+    d = _downtime(downtime_s)
+    if kind == KIND_LEAKY:
+        c = _param(params, "continuous_a")
+        s = (_param(params, "peak_a") ** 2 - c**2) * _param(params, "peak_time_s")
+        if c <= 0 or s <= 0:
+            raise ValueError("i2t state: leaky parameters do not give a positive trip level")
+        return max(0.0, float(acc) - c * c * d) / s
+    if kind == KIND_THERMAL:
+        tau_cool = _param(params, "tau_cool_s")
+        if tau_cool <= 0:
+            raise ValueError("i2t state: tau_cool_s must be > 0")
+        return float(acc) * math.exp(-d / tau_cool)
+    raise ValueError(f"i2t state: unknown kind {kind!r} (expected {KIND_LEAKY!r} or {KIND_THERMAL!r})")
+
+
+class _I2tModel(LatchedModel):
+    """What both I²t models share: sampling, gaps, trip/recover on the level, persistence."""
+
+    kind: str = ""
+    reason_tripped = REASON_I2T
+
+    def __init__(self, continuous_a: float, recover_fraction: float, max_gap_s: float) -> None:
+        super().__init__()
+        self.continuous_a = _positive("continuous_a", continuous_a)
+        self.recover_fraction = _fraction(recover_fraction)
+        self.max_gap_s = _gap(max_gap_s)
+        self._held = math.nan
+        self._acc = 0.0
+        self.stale_gaps = 0
+        """Gaps longer than ``max_gap_s`` seen so far."""
+
+    # -- what each model defines ------------------------------------------------
+
+    @property
+    @abstractmethod
+    def trip_level(self) -> float:
+        """The accumulator value at which the model trips (A²s, or θ = 1)."""
+
+    @abstractmethod
+    def _integrate(self, current_a: float, dt: float) -> None:
+        """Advance the accumulator by ``dt`` > 0 seconds at a constant |I| = ``current_a``."""
+
+    @abstractmethod
+    def params(self) -> dict[str, float | None]:
+        """The model's parameters, JSON-able (inf as None)."""
+
+    @abstractmethod
+    def time_to_trip(self, current_a: float) -> float:
+        """Seconds until a trip from the present state at a constant ``current_a`` (inf: never)."""
+
+    # -- shared -------------------------------------------------------------------
+
+    @property
+    def accumulator(self) -> float:
+        """The raw state: A (A²s) for the leaky bucket, θ for the thermal image."""
+        return self._acc
+
+    @property
+    def level(self) -> float:
+        """The state as a fraction of the trip level (1.0 = trip); may exceed 1."""
+        return self._acc / self.trip_level
+
+    def _set_acc(self, acc: float) -> None:
+        cap = MAX_LEVEL * self.trip_level
+        if math.isnan(acc):  # unreachable by construction; fail safe if it ever happens
+            acc = cap
+        self._acc = min(max(acc, 0.0), cap)
+
+    def update(self, value: float, t: float) -> bool:
+        """Feed one sample; True when the tripped state changed. See the module docstring."""
+        a = self._accept(value, t)
+        if a is None:
+            return False
+        if self._last_t is not None and not math.isnan(self._held):
+            dt = t - self._last_t
+            if dt > self.max_gap_s:
+                self.stale_gaps += 1
+                dt = self.max_gap_s
+            if dt > 0:
+                self._integrate(self._held, dt)
+        self._last_t = t
+        self._value = a
+        self._held = a
+        return self._evaluate(t)
+
+    def _evaluate(self, t: float | None) -> bool:
+        lvl = self.level
+        if lvl >= 1.0:
+            return self._set_tripped(True, t)
+        if self._tripped and lvl < self.recover_fraction:
+            return self._set_tripped(False, t)
+        return False
+
+    def _threshold_value(self) -> float:
+        return self.trip_level
+
+    def _level_pct(self) -> float:
+        return 100.0 * self.level
+
+    def set_hot(self, t: float | None = None) -> None:
+        """Worst case: put the state at the trip level (the model trips; ``t`` becomes ``since``)."""
+        self._set_acc(self.trip_level)
+        self._evaluate(t)
+
+    def reset(self) -> None:
+        """Cold state, not tripped, no samples (tests and an explicit operator reset)."""
+        self._acc = 0.0
+        self._tripped = self._latch = False
+        self._since = None
+        self._last_t = None
+        self._held = self._value = math.nan
+
+    def export(self) -> dict[str, Any]:
+        """The state as a JSON-able dict: kind, version, parameters, accumulator, level, tripped, time."""
+        return {
+            "kind": self.kind,
+            "version": STATE_VERSION,
+            "params": self.params(),
+            "accumulator": self._acc,
+            "level": self.level,
+            "tripped": self._tripped,
+            "t": self._last_t,
+        }
+
+    def restore(self, state: Mapping[str, Any], downtime_s: float) -> None:
+        """Take over an exported state cooled for ``downtime_s`` seconds (see the module docstring).
+
+        The level is carried over even when the saved parameters or kind differ.
+        The model is tripped after it when the cooled level is >= 1, or when the
+        saved model was tripped and the level has not yet fallen below
+        ``recover_fraction``. The sample history restarts (the next sample only
+        sets the held current). ValueError on a malformed state (the model is
+        left unchanged).
+        """
+        lvl = cooled_level(state, downtime_s)
+        was_tripped = state.get("tripped") is True
+        self._set_acc(lvl * self.trip_level)
+        self._last_t = None
+        self._held = self._value = math.nan
+        self._tripped = self.level >= 1.0 or (was_tripped and self.level >= self.recover_fraction)
+        self._latch = self._tripped
+        self._since = None
+
+
+class LeakyI2t(_I2tModel):
+    """Leaky-bucket I²t (servo-drive style); reason ``i2t``.
+
+    ``continuous_a`` (A, > 0), ``peak_a`` (A, > continuous_a), ``peak_time_s`` (s,
+    > 0): trip level S = (peak_a² − continuous_a²)·peak_time_s A²s.
+    ``recover_fraction`` (0..1 exclusive, default 0.5), ``max_gap_s`` (s, default
+    inf; pass the source's max_age_s). ValueError naming the parameter at fault.
+    """
+
+    kind = KIND_LEAKY
+
+    def __init__(
+        self,
+        continuous_a: float,
+        peak_a: float,
+        peak_time_s: float,
+        recover_fraction: float = 0.5,
+        max_gap_s: float = math.inf,
+    ) -> None:
+        super().__init__(continuous_a, recover_fraction, max_gap_s)
+        self.peak_a = _positive("peak_a", peak_a)
+        self.peak_time_s = _positive("peak_time_s", peak_time_s)
+        if self.peak_a <= self.continuous_a:
+            raise ValueError(f"peak_a ({peak_a!r} A) must exceed continuous_a ({continuous_a!r} A)")
+        self._s = (self.peak_a**2 - self.continuous_a**2) * self.peak_time_s
+
+    @property
+    def trip_level(self) -> float:
+        """S = (peak_a² − continuous_a²)·peak_time_s, in A²s."""
+        return self._s
+
+    def _integrate(self, current_a: float, dt: float) -> None:
+        rate = current_a * current_a - self.continuous_a * self.continuous_a
+        if rate != 0:
+            self._set_acc(self._acc + rate * dt)
+
+    def params(self) -> dict[str, float | None]:
+        """continuous_a, peak_a, peak_time_s, recover_fraction, max_gap_s (None = inf)."""
+        return {
+            "continuous_a": self.continuous_a,
+            "peak_a": self.peak_a,
+            "peak_time_s": self.peak_time_s,
+            "recover_fraction": self.recover_fraction,
+            "max_gap_s": _json_float(self.max_gap_s),
+        }
+
+    def time_to_trip(self, current_a: float) -> float:
+        """(S − A) / (I² − I_cont²) from the present A; 0 when already there, inf when I <= I_cont."""
+        if self._acc >= self._s:
+            return 0.0
+        rate = current_a * current_a - self.continuous_a**2
+        return (self._s - self._acc) / rate if rate > 0 else math.inf
+
+
+def thermal_tau(continuous_a: float, peak_a: float, peak_time_s: float) -> float:
+    """τ = t_peak / ln(I_peak² / (I_peak² − I_cont²)).
+
+    The τ with which a cold thermal image trips at ``peak_a`` after ``peak_time_s``.
+    """
+    p2, c2 = peak_a * peak_a, continuous_a * continuous_a
+    return peak_time_s / math.log(p2 / (p2 - c2))
+
+
+class ThermalI2t(_I2tModel):
+    """First-order thermal image (IEC 60255-8); θ in units of the steady state at I_cont; reason ``i2t``.
+
+    ``continuous_a`` (A, > 0) is I_cont = k·I_rated. τ is ``tau_s`` (s) when given,
+    otherwise derived from ``peak_a`` (A, > continuous_a) and ``peak_time_s`` (s) by
+    :func:`thermal_tau`. ``tau_cool_s`` (s, default τ) applies while θ falls.
+    ``recover_fraction`` (default 0.5), ``max_gap_s`` (s, default inf).
+    ValueError naming the parameter at fault, e.g. when neither ``tau_s`` nor
+    both peak figures are given.
+    """
+
+    kind = KIND_THERMAL
+
+    def __init__(
+        self,
+        continuous_a: float,
+        peak_a: float | None = None,
+        peak_time_s: float | None = None,
+        tau_s: float | None = None,
+        tau_cool_s: float | None = None,
+        recover_fraction: float = 0.5,
+        max_gap_s: float = math.inf,
+    ) -> None:
+        super().__init__(continuous_a, recover_fraction, max_gap_s)
+        self.peak_a = None if peak_a is None else _positive("peak_a", peak_a)
+        self.peak_time_s = None if peak_time_s is None else _positive("peak_time_s", peak_time_s)
+        if self.peak_a is not None and self.peak_a <= self.continuous_a:
+            raise ValueError(f"peak_a ({peak_a!r} A) must exceed continuous_a ({continuous_a!r} A)")
+        if tau_s is not None:
+            self.tau_s = _positive("tau_s", tau_s)
+        elif self.peak_a is not None and self.peak_time_s is not None:
+            self.tau_s = thermal_tau(self.continuous_a, self.peak_a, self.peak_time_s)
+        else:
+            raise ValueError(
+                "tau_s is required unless both peak_a and peak_time_s are given "
+                f"(got tau_s=None, peak_a={peak_a!r}, peak_time_s={peak_time_s!r})"
+            )
+        self.tau_cool_s = self.tau_s if tau_cool_s is None else _positive("tau_cool_s", tau_cool_s)
+        self._c2 = self.continuous_a * self.continuous_a
+
+    @property
+    def trip_level(self) -> float:
+        """θ = 1."""
+        return 1.0
+
+    def _integrate(self, current_a: float, dt: float) -> None:
+        q = min(current_a * current_a / self._c2, MAX_LEVEL)
+        tau = self.tau_cool_s if q < self._acc else self.tau_s
+        self._set_acc(q + (self._acc - q) * math.exp(-dt / tau))
+
+    def params(self) -> dict[str, float | None]:
+        """continuous_a, peak_a, peak_time_s, tau_s and tau_cool_s (resolved), recover_fraction, max_gap_s."""
+        return {
+            "continuous_a": self.continuous_a,
+            "peak_a": self.peak_a,
+            "peak_time_s": self.peak_time_s,
+            "tau_s": self.tau_s,
+            "tau_cool_s": self.tau_cool_s,
+            "recover_fraction": self.recover_fraction,
+            "max_gap_s": _json_float(self.max_gap_s),
+        }
+
+    def time_to_trip(self, current_a: float) -> float:
+        """τ·ln((q − θ)/(q − 1)) with q = I²/I_cont², from the present θ; 0 when θ >= 1, inf when q <= 1."""
+        if self._acc >= 1.0:
+            return 0.0
+        q = current_a * current_a / self._c2
+        if q <= 1.0:
+            return math.inf
+        return self.tau_s * math.log((q - self._acc) / (q - 1.0))

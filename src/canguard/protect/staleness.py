@@ -1,0 +1,162 @@
+"""Staleness and validity of one source: is there a usable, fresh value?
+
+:class:`SourceHealth` sees every sample of one configured source (valid or not,
+see :class:`~canguard.data.Sample`) and answers, at any time ``now``, why the
+source cannot be trusted (fail safe: every non-empty reason fails the guard):
+
+=============== ===========================================================
+``no_data``     no sample of that role yet
+``stale``       the latest sample is older than the source's ``max_age_s``
+``not_present`` the source's ``present`` signal was last seen 0
+``nan``/``inf`` the latest sample was NaN / infinite
+``out_of_range`` the latest value lies outside the DBC signal's [min|max]
+``bad_length``/``undecodable`` the latest frame could not be decoded
+=============== ===========================================================
+
+Rules: the *latest* sample of a role decides (a newer valid sample clears an
+invalid reason; an invalid sample does not replace the latest valid value, which
+:meth:`SourceHealth.value` keeps returning). A sample older than the latest one
+of its role (out of order) is counted in ``out_of_order`` and changes nothing;
+a repeated timestamp is a normal sample. When the source has a ``present``
+signal, it gates every value of the source: a check of any role also fails with
+the presence reason. Precedence, per role: ``no_data``, ``stale``, the latest
+sample's invalid reason, ``not_present``.
+"""
+
+from __future__ import annotations
+
+import math
+
+from ..config import SourceConfig
+from ..data import INVALID_INF, INVALID_NAN, INVALID_RANGE, Sample
+from .base import REASON_NO_DATA, REASON_NOT_PRESENT, REASON_OK, REASON_STALE
+
+PRESENT = "present"
+"""The role of a source's presence signal."""
+
+
+class SourceHealth:
+    """Freshness, presence and validity of one source's signals (time is an argument)."""
+
+    def __init__(self, source: SourceConfig) -> None:
+        self.source = source
+        self.max_age_s = float(source.max_age_s)
+        self._value_roles: tuple[str, ...] = source.value_roles
+        self._has_present = source.signal(PRESENT) is not None
+        self._ranges: dict[str, tuple[float | None, float | None]] = {
+            s.role: (s.minimum, s.maximum)
+            for s in source.signals
+            if s.minimum is not None or s.maximum is not None
+        }
+        self._latest_t: dict[str, float] = {}
+        self._invalid: dict[str, str] = {}
+        self._value: dict[str, float] = {}
+        self._valid_t: dict[str, float] = {}
+        self.samples = 0
+        """Samples observed (out-of-order ones included)."""
+        self.invalid_samples = 0
+        """Samples that carried no usable value."""
+        self.out_of_order = 0
+        """Samples ignored because they were older than the latest of their role."""
+
+    @property
+    def name(self) -> str:
+        """The source's configured name."""
+        return self.source.name
+
+    def _check(self, sample: Sample) -> str:
+        """The invalid reason of ``sample``: its own, or NaN / inf / range as seen here."""
+        if sample.reason:
+            return sample.reason
+        v = sample.value
+        if math.isnan(v):
+            return INVALID_NAN
+        if math.isinf(v):
+            return INVALID_INF
+        lo, hi = self._ranges.get(sample.signal, (None, None))
+        if (lo is not None and v < lo) or (hi is not None and v > hi):
+            return INVALID_RANGE
+        return ""
+
+    def observe(self, sample: Sample) -> bool:
+        """Take one sample of this source; True when the source's health reason changed (an edge).
+
+        The reason is compared just before and just after the sample, at the
+        sample's time, so data coming back after a stale spell is an edge too.
+        """
+        self.samples += 1
+        role, t = sample.signal, sample.t
+        latest = self._latest_t.get(role)
+        if math.isnan(t) or (latest is not None and t < latest):
+            self.out_of_order += 1
+            return False
+        before = self.reason(t)
+        bad = self._check(sample)
+        self._latest_t[role] = t
+        self._invalid[role] = bad
+        if bad:
+            self.invalid_samples += 1
+        else:
+            self._value[role] = float(sample.value)
+            self._valid_t[role] = t
+        return self.reason(t) != before
+
+    def _role_reason(self, now: float, role: str) -> str:
+        t = self._latest_t.get(role)
+        if t is None:
+            return REASON_NO_DATA
+        if now - t > self.max_age_s:
+            return REASON_STALE
+        bad = self._invalid.get(role, "")
+        if bad:
+            return bad
+        if role == PRESENT and self._value.get(PRESENT, 0.0) == 0:
+            return REASON_NOT_PRESENT
+        return REASON_OK
+
+    def reason(self, now: float, role: str | None = None) -> str:
+        """Why the source (or its ``role`` signal) cannot be used at ``now``; "" when it can.
+
+        ``role=None`` checks presence and then every value role in config order
+        and returns the first reason found. A named role is checked together
+        with presence when the source has a ``present`` signal.
+        """
+        if self._has_present:
+            r = self._role_reason(now, PRESENT)
+            if r or role == PRESENT:
+                return r
+        if role is not None:
+            return self._role_reason(now, role)
+        for r_name in self._value_roles:
+            r = self._role_reason(now, r_name)
+            if r:
+                return r
+        return REASON_OK
+
+    def reasons(self, now: float) -> dict[str, str]:
+        """The reason of every configured role (``present`` included) at ``now``."""
+        roles = ((PRESENT,) if self._has_present else ()) + self._value_roles
+        return {r: self._role_reason(now, r) for r in roles}
+
+    def ok(self, now: float, role: str | None = None) -> bool:
+        """True when :meth:`reason` is empty."""
+        return not self.reason(now, role)
+
+    def value(self, role: str) -> float:
+        """The latest valid value of ``role`` (however old), NaN if none."""
+        return self._value.get(role, math.nan)
+
+    def last_t(self, role: str) -> float | None:
+        """Time of the latest valid value of ``role``, None if none."""
+        return self._valid_t.get(role)
+
+    def age(self, now: float, role: str | None = None) -> float:
+        """Seconds since the latest valid value of ``role`` (inf if none); ``None``: the oldest value role."""
+        if role is None:
+            return max((self.age(now, r) for r in self._value_roles), default=math.inf)
+        t = self._valid_t.get(role)
+        return math.inf if t is None else now - t
+
+    def values(self, now: float) -> dict[str, float]:
+        """Every value role's latest value, NaN where :meth:`reason` for that role is not empty at ``now``."""
+        return {r: (self.value(r) if not self.reason(now, r) else math.nan) for r in self._value_roles}

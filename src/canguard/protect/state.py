@@ -1,0 +1,235 @@
+"""Heat that survives restarts: the I²t state file.
+
+The file is one small JSON document::
+
+    {"format": "canguard-heat", "version": 1, "t": <save time, s>,
+     "models": {"<key>": <model.export()>, ...}}
+
+- **Save** (:meth:`HeatStore.save`, periodically via :meth:`HeatStore.maybe_save`
+  and on exit): written to a temporary file in the same directory, fsynced, then
+  ``os.replace``-d over the old one (and the directory fsynced), so a crash or a
+  power cut leaves either the old file or the new one, never half of one.
+- **Load** (:meth:`HeatStore.load`): read once. A missing file is a first start:
+  every model starts cold, silently. A corrupt or unreadable file logs a
+  warning naming the file and why, and every model restored from it starts from
+  ``on_corrupt``: ``hot`` (default, fail safe: at the trip level) or ``cold``.
+- **Restore** (:meth:`HeatStore.restore`): the model's saved state cooled for
+  ``now − saved time`` (see :meth:`canguard.protect.i2t.LeakyI2t.restore`). A key
+  the file does not know (a guard added since) starts cold; one whose entry is
+  malformed is treated like a corrupt file, for that model only.
+
+``path=None`` never persists: nothing is read or written (replay starts cold
+unless it is handed a state file).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import math
+import os
+import tempfile
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any, Protocol, runtime_checkable
+
+from ..errors import StateFileError
+
+log = logging.getLogger(__name__)
+
+FORMAT = "canguard-heat"
+VERSION = 1
+ON_CORRUPT = ("hot", "cold")
+
+
+@runtime_checkable
+class HeatModel(Protocol):
+    """What the state file needs of a model: LeakyI2t and ThermalI2t."""
+
+    def export(self) -> dict[str, Any]:
+        """The state as a JSON-able dict."""
+        ...
+
+    def restore(self, state: Mapping[str, Any], downtime_s: float) -> None:
+        """Take over a saved state cooled for ``downtime_s``."""
+        ...
+
+    def set_hot(self, t: float | None = None) -> None:
+        """Put the state at the trip level."""
+        ...
+
+
+class HeatStore:
+    """Saves and restores I²t state to/from one JSON file (``path=None``: never persists).
+
+    ``on_corrupt``: ``"hot"`` (default) or ``"cold"``, the start state of models
+    after a corrupt or unreadable file. ValueError on any other value.
+    """
+
+    def __init__(self, path: Path | str | None, on_corrupt: str = "hot") -> None:
+        if on_corrupt not in ON_CORRUPT:
+            raise ValueError(f"on_corrupt must be 'hot' or 'cold', got {on_corrupt!r}")
+        self.path = None if path is None else Path(path)
+        self.on_corrupt = on_corrupt
+        self._loaded = False
+        self._corrupt: str | None = None
+        self._saved_t: float | None = None
+        self._states: dict[str, Any] = {}
+        self._last_save_t: float | None = None
+        self.saves = 0
+        """Successful saves so far."""
+
+    @property
+    def corrupt(self) -> str | None:
+        """Why the file could not be used (None when it loaded, was missing or was never read)."""
+        return self._corrupt
+
+    @property
+    def saved_t(self) -> float | None:
+        """The save time recorded in the loaded file, None if none."""
+        return self._saved_t
+
+    def load(self, now: float) -> None:
+        """Read the state file once (later calls do nothing); ``now`` is the start time, for the log."""
+        if self._loaded:
+            return
+        self._loaded = True
+        if self.path is None:
+            return
+        try:
+            text = self.path.read_text(encoding="utf-8")
+        except FileNotFoundError:
+            log.info("no I²t state file %s: starting cold", self.path)
+            return
+        except (OSError, UnicodeDecodeError) as exc:
+            self._mark_corrupt(f"cannot read it: {exc}")
+            return
+        try:
+            doc = json.loads(text)
+        except ValueError as exc:
+            self._mark_corrupt(f"not valid JSON: {exc}")
+            return
+        problem = _check_doc(doc)
+        if problem:
+            self._mark_corrupt(problem)
+            return
+        self._saved_t = float(doc["t"])
+        self._states = dict(doc["models"])
+        log.debug("loaded I²t state of %d models from %s (saved %.3f s before %.3f)",
+                  len(self._states), self.path, now - self._saved_t, now)
+
+    def _mark_corrupt(self, why: str) -> None:
+        self._corrupt = why
+        log.warning("I²t state file %s is unusable (%s): models start %s", self.path, why, self.on_corrupt)
+
+    def _apply_corrupt(self, model: HeatModel, now: float) -> None:
+        if self.on_corrupt == "hot":
+            model.set_hot(now)
+
+    def restore(self, key: str, model: Any, now: float) -> None:
+        """Restore ``model`` (a LeakyI2t / ThermalI2t) under ``key``, cooled for ``now`` − saved time.
+
+        Loads the file first if :meth:`load` was not called. TypeError when the
+        model cannot hold heat (no export / restore / set_hot).
+        """
+        if not isinstance(model, HeatModel):
+            raise TypeError(f"model {key!r} ({type(model).__name__}) has no heat state to restore")
+        self.load(now)
+        if self.path is None:
+            return
+        if self._corrupt is not None:
+            self._apply_corrupt(model, now)
+            return
+        state = self._states.get(key)
+        if state is None or self._saved_t is None:
+            return
+        try:
+            model.restore(state, now - self._saved_t)
+        except (ValueError, TypeError, KeyError) as exc:
+            log.warning("I²t state of %r in %s is unusable (%s): it starts %s",
+                        key, self.path, exc, self.on_corrupt)
+            self._apply_corrupt(model, now)
+
+    def save(self, models: Mapping[str, Any], now: float) -> None:
+        """Write every model's state atomically, stamped ``now``. StateFileError when it cannot be written.
+
+        TypeError (before anything is written) when a model cannot hold heat.
+        """
+        if self.path is None:
+            return
+        for key, model in models.items():
+            if not isinstance(model, HeatModel):
+                raise TypeError(f"model {key!r} ({type(model).__name__}) has no heat state to save")
+        doc = {
+            "format": FORMAT,
+            "version": VERSION,
+            "t": now,
+            "models": {key: model.export() for key, model in models.items()},
+        }
+        try:
+            data = json.dumps(doc, allow_nan=False, sort_keys=True, indent=1).encode("utf-8")
+        except ValueError as exc:
+            raise StateFileError(f"cannot encode I²t state for {self.path}: {exc}") from exc
+        _atomic_write(self.path, data)
+        self._last_save_t = now
+        self.saves += 1
+
+    def maybe_save(self, models: Mapping[str, Any], now: float, period_s: float) -> bool:
+        """Save when ``period_s`` has passed since the last save (or none yet, or time went back).
+
+        Returns True when it saved.
+        """
+        if self.path is None:
+            return False
+        last = self._last_save_t
+        if last is not None and 0 <= now - last < period_s:
+            return False
+        self.save(models, now)
+        return True
+
+
+def _check_doc(doc: Any) -> str:
+    """What is wrong with a loaded document, "" when nothing."""
+    if not isinstance(doc, dict):
+        return f"expected a JSON object, got {type(doc).__name__}"
+    if doc.get("format") != FORMAT:
+        return f"'format' is {doc.get('format')!r}, expected {FORMAT!r}"
+    if doc.get("version") != VERSION:
+        return f"unsupported version {doc.get('version')!r} (expected {VERSION})"
+    t = doc.get("t")
+    if isinstance(t, bool) or not isinstance(t, (int, float)) or not math.isfinite(t):
+        return f"'t' must be a finite number, got {t!r}"
+    if not isinstance(doc.get("models"), dict):
+        return "'models' missing or not an object"
+    return ""
+
+
+def _atomic_write(path: Path, data: bytes) -> None:
+    """Temp file in the same directory + fsync + os.replace + directory fsync."""
+    fd = -1
+    tmp = ""
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+        with os.fdopen(fd, "wb") as f:
+            fd = -1  # owned by f now
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+        tmp = ""
+        with contextlib.suppress(OSError):  # not every filesystem lets a directory be fsynced
+            dfd = os.open(path.parent, os.O_RDONLY)
+            try:
+                os.fsync(dfd)
+            finally:
+                os.close(dfd)
+    except OSError as exc:
+        raise StateFileError(f"cannot write I²t state file {path}: {exc}") from exc
+    finally:
+        if fd >= 0:
+            os.close(fd)
+        if tmp:
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
