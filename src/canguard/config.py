@@ -253,6 +253,7 @@ class _Loader:
         self._by_id: dict[int, list[Any]] = {}
         self.bus_names: tuple[str, ...] = ()
         self.sources: dict[str, SourceConfig] = {}
+        self._broken_sources: set[str] = set()
 
     # -- problems ----------------------------------------------------------
     def problem(self, key: str, found: str, expected: str) -> None:
@@ -564,6 +565,11 @@ class _Loader:
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
             self.problem(key, _found(value), f"a number for {sig.name}")
             return None
+        lo, hi = sig.minimum, sig.maximum
+        if (lo is not None and value < lo) or (hi is not None and value > hi):
+            rng = f"[{'-inf' if lo is None else f'{lo:g}'}, {'inf' if hi is None else f'{hi:g}'}]"
+            self.problem(key, repr(value), f"a value of {sig.name} within its DBC range {rng}")
+            return None
         return value
 
     def frame(self, value: Any, key: str) -> FrameSpec | None:
@@ -727,7 +733,7 @@ class _Loader:
         ref: SignalRef | None = None
         if src is not None:
             ref = src.signal(role) if isinstance(role, str) else None
-            if ref is None:
+            if ref is None and source not in self._broken_sources:
                 roles = [s.role for s in src.signals]
                 self.problem(
                     _path(key, "signal"), _found(role), f"a signal role of {source}" + _closest(role, roles)
@@ -819,9 +825,13 @@ class _Loader:
             if not isinstance(name, str) or not name:
                 self.problem(_path("sources", name), _found(name), "a source name (a string)")
                 continue
+            before = len(self.problems)
             src = self.source(name, body)
             if src is not None:
                 self.sources[name] = src
+            if len(self.problems) > before:
+                # Already reported: references to this source must not add follow-on errors.
+                self._broken_sources.add(name)
         tree = self.tree(doc.get("tree"))
         task = self.task(doc.get("task"))
         stop = self.stop(doc.get("stop"))
