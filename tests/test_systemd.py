@@ -1,0 +1,296 @@
+"""sd_notify over a real unix datagram socket, the watchdog policy, and the systemd unit files."""
+
+from __future__ import annotations
+
+import logging
+import os
+import re
+import shutil
+import socket
+import subprocess
+import time
+import uuid
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from canguard.systemd import Notifier, WatchdogPolicy, status_line, watchdog_verdict
+
+SYSTEMD_DIR = Path(__file__).resolve().parents[1] / "systemd"
+ANALYZE = shutil.which("systemd-analyze")
+
+
+@pytest.fixture
+def notify_socket(tmp_path: Path) -> Iterator[tuple[socket.socket, str]]:
+    """A unix datagram socket bound in tmp_path, as systemd's NOTIFY_SOCKET would be."""
+    path = str(tmp_path / "notify.sock")
+    sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    sock.bind(path)
+    sock.settimeout(2.0)
+    yield sock, path
+    sock.close()
+
+
+def _recv(sock: socket.socket) -> bytes:
+    return sock.recv(4096)
+
+
+class TestNotifier:
+    """Notifier: the exact datagrams systemd receives."""
+
+    def test_ready_sends_exact_datagram(self, notify_socket: tuple[socket.socket, str]) -> None:
+        """ready() sends the datagram READY=1, with STATUS= on its own line when given."""
+        sock, path = notify_socket
+        n = Notifier({"NOTIFY_SOCKET": path})
+        assert n.enabled
+        assert n.ready()
+        assert _recv(sock) == b"READY=1"
+        n.ready("running; trips=0")
+        assert _recv(sock) == b"READY=1\nSTATUS=running; trips=0"
+        n.close()
+
+    def test_each_message_is_one_datagram(self, notify_socket: tuple[socket.socket, str]) -> None:
+        """watchdog, status, stopping and reloading each arrive as one exact datagram, in order."""
+        sock, path = notify_socket
+        with Notifier({"NOTIFY_SOCKET": path}) as n:
+            n.watchdog()
+            n.status("line one\nline two")
+            n.stopping()
+            n.reloading(monotonic_usec=123456789)
+            n.stopping("bye")
+        assert [_recv(sock) for _ in range(5)] == [
+            b"WATCHDOG=1",
+            b"STATUS=line one line two",
+            b"STOPPING=1",
+            b"RELOADING=1\nMONOTONIC_USEC=123456789",
+            b"STOPPING=1\nSTATUS=bye",
+        ]
+
+    def test_reloading_uses_the_monotonic_clock(self, notify_socket: tuple[socket.socket, str]) -> None:
+        """RELOADING=1 carries MONOTONIC_USEC of CLOCK_MONOTONIC now, as systemd >= 253 requires."""
+        sock, path = notify_socket
+        before = time_usec()
+        Notifier({"NOTIFY_SOCKET": path}).reloading()
+        after = time_usec()
+        fields = dict(line.split("=", 1) for line in _recv(sock).decode().splitlines())
+        assert fields["RELOADING"] == "1"
+        assert before <= int(fields["MONOTONIC_USEC"]) <= after
+
+    def test_abstract_socket_name(self) -> None:
+        """An @name NOTIFY_SOCKET reaches the abstract unix socket of that name."""
+        name = f"canguard-test-{uuid.uuid4().hex}"
+        sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+        sock.bind("\0" + name)
+        sock.settimeout(2.0)
+        try:
+            assert Notifier({"NOTIFY_SOCKET": "@" + name}).ready()
+            assert sock.recv(4096) == b"READY=1"
+        finally:
+            sock.close()
+
+    def test_without_notify_socket_is_silent_no_op(self) -> None:
+        """Outside systemd every call returns False and nothing is raised or sent."""
+        n = Notifier({})
+        assert not n.enabled
+        assert not any([n.ready(), n.watchdog(), n.status("x"), n.stopping(), n.reloading()])
+        assert n.sent == 0 and n.errors == 0
+
+    def test_default_env_is_the_process_environment(
+        self, notify_socket: tuple[socket.socket, str], monkeypatch: pytest.MonkeyPatch
+    ) -> None:
+        """With no env given, NOTIFY_SOCKET is read from os.environ."""
+        sock, path = notify_socket
+        monkeypatch.setenv("NOTIFY_SOCKET", path)
+        Notifier().watchdog()
+        assert _recv(sock) == b"WATCHDOG=1"
+
+    def test_send_error_never_raises_and_logs_once(
+        self, tmp_path: Path, caplog: pytest.LogCaptureFixture
+    ) -> None:
+        """A socket that is gone makes notify return False, logged at WARNING only the first time."""
+        n = Notifier({"NOTIFY_SOCKET": str(tmp_path / "missing.sock")})
+        with caplog.at_level(logging.DEBUG, logger="canguard.systemd"):
+            assert not n.ready()
+            assert not n.watchdog()
+        warnings = [r for r in caplog.records if r.levelno == logging.WARNING]
+        assert len(warnings) == 1 and "missing.sock" in warnings[0].getMessage()
+        assert n.errors == 2
+
+    def test_unsupported_address_disables(self, caplog: pytest.LogCaptureFixture) -> None:
+        """A NOTIFY_SOCKET that is neither a path nor @name turns notifications off with a warning."""
+        n = Notifier({"NOTIFY_SOCKET": "vsock:2:1234"})
+        assert not n.enabled and not n.ready()
+        assert "vsock" in caplog.text
+
+    def test_watchdog_interval(self) -> None:
+        """WATCHDOG_USEC gives the interval in seconds, unless WATCHDOG_PID names another process."""
+        assert Notifier({"WATCHDOG_USEC": "2000000"}).watchdog_interval_s() == 2.0
+        assert (
+            Notifier({"WATCHDOG_USEC": "2000000", "WATCHDOG_PID": str(os.getpid())}).watchdog_interval_s()
+            == 2.0
+        )
+        assert Notifier({"WATCHDOG_USEC": "2000000", "WATCHDOG_PID": "1"}).watchdog_interval_s() is None
+        assert Notifier({"WATCHDOG_USEC": "0"}).watchdog_interval_s() is None
+        assert Notifier({"WATCHDOG_USEC": "soon"}).watchdog_interval_s() is None
+        assert Notifier({}).watchdog_interval_s() is None
+
+
+def time_usec() -> int:
+    """CLOCK_MONOTONIC in microseconds."""
+    return time.monotonic_ns() // 1000
+
+
+class TestWatchdogVerdict:
+    """watchdog_verdict: the pure decision to feed systemd's watchdog."""
+
+    def test_on_time_and_fresh_is_ok(self) -> None:
+        """A loop that ticked within k periods with no stale unstopped source may feed the watchdog."""
+        assert watchdog_verdict(now=10.025, last_tick=10.0, tick_period_s=0.01, k=3.0).ok
+
+    def test_stalled_loop_is_not_ok(self) -> None:
+        """A loop whose last tick is more than k periods old must not feed the watchdog."""
+        v = watchdog_verdict(now=10.031, last_tick=10.0, tick_period_s=0.01, k=3.0)
+        assert not v and "stalled" in v.reason
+
+    def test_no_tick_yet_is_not_ok(self) -> None:
+        """Before the first tick the daemon is not healthy."""
+        assert watchdog_verdict(now=1.0, last_tick=None, tick_period_s=0.01).reason == "no tick yet"
+
+    def test_stale_source_without_stop_is_not_ok(self) -> None:
+        """A stale source the tree reads that has not caused a stop withholds the ping and is named."""
+        v = watchdog_verdict(10.0, 10.0, 0.01, stale_unstopped=["bms", "bms", "left"])
+        assert not v and v.reason.endswith("bms, left")
+
+    def test_bad_period_is_refused(self) -> None:
+        """A non-positive tick period is a ValueError."""
+        with pytest.raises(ValueError, match="tick_period_s"):
+            watchdog_verdict(1.0, 1.0, 0.0)
+
+
+class TestWatchdogPolicy:
+    """WatchdogPolicy: rate-limited WATCHDOG=1 pings only while healthy."""
+
+    def test_pings_rate_limited_and_withheld_when_stalled(
+        self, notify_socket: tuple[socket.socket, str], caplog: pytest.LogCaptureFixture
+    ) -> None:
+        """Pings go out at most every ping period, stop while the loop stalls and resume after."""
+        sock, path = notify_socket
+        sock.setblocking(False)
+        n = Notifier({"NOTIFY_SOCKET": path, "WATCHDOG_USEC": "2000000"})
+        p = WatchdogPolicy(n, tick_period_s=0.01)
+        assert p.ping_period_s == 1.0
+        for i in range(300):  # 3 s of on-time ticks at 100 Hz
+            t = i * 0.01
+            p.update(t, t)
+        assert p.pings == 3
+        assert not p.update(5.0, 3.0)  # stalled for 2 s
+        assert p.pings == 3 and "loop stalled" in caplog.text
+        assert p.update(5.01, 5.01)
+        assert p.pings == 4
+        datagrams = []
+        while True:
+            try:
+                datagrams.append(sock.recv(4096))
+            except BlockingIOError:
+                break
+        assert datagrams == [b"WATCHDOG=1"] * 4
+
+    def test_stale_unstopped_source_withholds(self) -> None:
+        """A stale source that caused no stop keeps the policy from pinging."""
+        p = WatchdogPolicy(Notifier({}), tick_period_s=0.01, ping_period_s=0.5)
+        assert not p.update(1.0, 1.0, {"bms"})
+        assert p.pings == 0 and "bms" in p.last_verdict.reason
+
+
+class TestStatusLine:
+    """status_line: the STATUS= text."""
+
+    def test_format(self) -> None:
+        """State, trip count and per-bus frame rates appear in a stable order."""
+        assert (
+            status_line("stopped", 2, {"can1": 95.4, "can0": 812.0})
+            == "stopped; trips=2; can0=812 fps can1=95 fps"
+        )
+        assert status_line("running", 0) == "running; trips=0"
+
+
+def _run(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(args, capture_output=True, text=True, timeout=60)
+
+
+def _verify(unit: Path) -> list[str]:
+    """Problems systemd-analyze verify reports about ``unit`` (it exits 0 on mere parse warnings)."""
+    r = _run("systemd-analyze", "verify", "--man=no", str(unit))
+    problems = [line for line in r.stderr.splitlines() if unit.name in line or str(unit) in line]
+    if r.returncode != 0:
+        problems.append(f"exit status {r.returncode}: {r.stderr.strip()}")
+    return problems
+
+
+def _exposure(unit: Path) -> float:
+    r = _run("systemd-analyze", "security", "--offline=true", "--no-pager", str(unit))
+    m = re.search(r"Overall exposure level for \S+: (\d+\.\d+)", r.stdout + r.stderr)
+    assert m, r.stdout + r.stderr
+    return float(m.group(1))
+
+
+def _with_dropin(tmp_path: Path, dropin: str) -> Path:
+    """canguard.service with a drop-in's [Service] lines merged in, as systemd would load it."""
+    unit = (SYSTEMD_DIR / "canguard.service").read_text()
+    extra = (SYSTEMD_DIR / dropin).read_text().split("[Service]", 1)[1]
+    out = tmp_path / "canguard.service"
+    out.write_text(unit.replace("\n[Install]", extra + "\n[Install]"))
+    return out
+
+
+@pytest.mark.skipif(ANALYZE is None, reason="systemd-analyze is not installed on this machine")
+class TestUnitFiles:
+    """systemd/: the units pass systemd-analyze verify and security."""
+
+    @pytest.mark.parametrize("name", ["canguard.service", "canguard-can0.service"])
+    def test_verify_passes(self, name: str) -> None:
+        """systemd-analyze verify reports no problem for the shipped unit as it is."""
+        # verify also checks that ExecStart's binary exists: /usr/bin/env and /usr/sbin/ip
+        # do on any Linux, so the shipped files are verified unchanged.
+        assert _verify(SYSTEMD_DIR / name) == []
+
+    def test_verify_catches_mistakes(self, tmp_path: Path) -> None:
+        """The verify check is not vacuous: a typo in a setting and a missing binary are reported."""
+        text = (SYSTEMD_DIR / "canguard.service").read_text()
+        bad = tmp_path / "canguard.service"
+        bad.write_text(text.replace("Type=notify", "Type=notifyy"))
+        assert any("service type" in p for p in _verify(bad))
+        bad.write_text(text.replace("/usr/bin/env canguard", "/nonexistent/canguard"))
+        assert _verify(bad)
+
+    def test_security_exposure_at_most_2(self) -> None:
+        """systemd-analyze security rates canguard.service's exposure at 2.0 or below."""
+        assert _exposure(SYSTEMD_DIR / "canguard.service") <= 2.0
+
+    def test_metrics_dropin_keeps_exposure_at_most_2(self, tmp_path: Path) -> None:
+        """With the loopback metrics drop-in applied the unit still verifies and rates 2.0 or below."""
+        unit = _with_dropin(tmp_path, "metrics.conf")
+        assert "--metrics 127.0.0.1:9108" in unit.read_text()
+        assert _verify(unit) == []
+        assert _exposure(unit) <= 2.0
+
+    def test_service_keeps_the_can_bus_reachable(self) -> None:
+        """The service allows AF_CAN, binds to can0 and does not hide the host network."""
+        text = (SYSTEMD_DIR / "canguard.service").read_text()
+        settings = dict(
+            line.split("=", 1) for line in text.splitlines() if "=" in line and not line.startswith("#")
+        )
+        assert settings["Type"] == "notify" and settings["NotifyAccess"] == "main"
+        assert set(settings["RestrictAddressFamilies"].split()) == {"AF_CAN", "AF_NETLINK", "AF_UNIX"}
+        assert "PrivateNetwork" not in settings
+        assert settings["BindsTo"] == "sys-subsystem-net-devices-can0.device"
+        assert "sys-subsystem-net-devices-can0.device" in settings["After"]
+        assert settings["ExecStart"].startswith("/usr/bin/env canguard run -c /etc/canguard/canguard.yaml")
+
+    def test_can0_setup_sets_bitrate_and_restart(self) -> None:
+        """Both can0 setups configure 1 Mbit/s with automatic bus-off restart."""
+        oneshot = (SYSTEMD_DIR / "canguard-can0.service").read_text()
+        assert "ip link set can0 type can bitrate 1000000 restart-ms 100" in oneshot
+        network = (SYSTEMD_DIR / "80-can0.network").read_text()
+        assert "Name=can0" in network and "BitRate=1M" in network and "RestartSec=100ms" in network
