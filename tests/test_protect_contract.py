@@ -1,0 +1,140 @@
+"""The contract every protection model passes (Threshold, Hysteresis, LeakyI2t, ThermalI2t)."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from canguard.protect import Hysteresis, LeakyI2t, ProtectionModel, ThermalI2t, Threshold
+from canguard.protect.base import REASON_I2T, REASON_OK, REASON_OVERCURRENT
+
+FACTORIES: dict[str, tuple[Callable[[], ProtectionModel], str]] = {
+    "threshold": (lambda: Threshold(10.0), REASON_OVERCURRENT),
+    "hysteresis": (lambda: Hysteresis(10.0, 5.0), REASON_OVERCURRENT),
+    "leaky_i2t": (lambda: LeakyI2t(6.0, 12.0, 1.0), REASON_I2T),
+    "thermal_i2t": (lambda: ThermalI2t(6.0, 12.0, 1.0), REASON_I2T),
+}
+
+DT = 0.01
+
+
+def run_until(model: ProtectionModel, current: float, t: float, want: bool, limit_s: float) -> float:
+    """Feed ``current`` every DT from ``t`` until ``model.tripped == want``; return the time it did."""
+    end = t + limit_s
+    while t < end:
+        t += DT
+        model.update(current, t)
+        if model.tripped == want:
+            return t
+    raise AssertionError(f"model did not reach tripped={want} within {limit_s} s")
+
+
+@pytest.fixture(params=sorted(FACTORIES))
+def case(request: pytest.FixtureRequest) -> tuple[ProtectionModel, str]:
+    factory, reason = FACTORIES[request.param]
+    return factory(), reason
+
+
+class TestProtectionModelContract:
+    """Every protection model behaves the same way towards the engine and the nodes."""
+
+    def test_is_a_protection_model(self, case: tuple[ProtectionModel, str]) -> None:
+        """Each model implements the ProtectionModel interface."""
+        model, _ = case
+        assert isinstance(model, ProtectionModel)
+        assert model.tripped is False
+
+    def test_edges_match_tripped_state(self, case: tuple[ProtectionModel, str]) -> None:
+        """update returns True exactly when tripped changes, through a trip and a recovery."""
+        model, _ = case
+        seq = [0.0] * 50 + [30.0] * 30 + [0.0] * 1000
+        prev = model.tripped
+        edges = 0
+        for i, current in enumerate(seq):
+            edge = model.update(current, i * DT)
+            assert isinstance(edge, bool)
+            assert edge == (model.tripped != prev)
+            edges += edge
+            prev = model.tripped
+        assert edges == 2
+
+    def test_poll_latches_a_trip_between_polls(self, case: tuple[ProtectionModel, str]) -> None:
+        """A trip and recovery between two polls is reported once at the next poll, then cleared."""
+        model, reason = case
+        assert model.poll(0.0).tripped is False
+        t = run_until(model, 30.0, 0.0, True, 5.0)
+        t = run_until(model, 0.0, t, False, 60.0)
+        assert model.snapshot().tripped is False
+        latched = model.poll(t)
+        assert latched.tripped is True
+        assert latched.reason == reason
+        again = model.poll(t + DT)
+        assert again.tripped is False
+        assert again.reason == REASON_OK
+
+    def test_poll_keeps_reporting_while_tripped(self, case: tuple[ProtectionModel, str]) -> None:
+        """While the model stays tripped every poll reports it, and snapshot never resets the latch."""
+        model, _ = case
+        t = run_until(model, 30.0, 0.0, True, 5.0)
+        assert model.snapshot().tripped is True
+        assert model.poll(t).tripped is True
+        assert model.poll(t).tripped is True
+        assert model.snapshot().since == t
+
+    def test_snapshots_are_finite(self, case: tuple[ProtectionModel, str]) -> None:
+        """After samples, value, threshold and level are finite numbers and level grows with current."""
+        model, _ = case
+        model.update(1.0, 0.0)
+        model.update(1.0, 0.5)
+        low = model.snapshot()
+        model.update(30.0, 0.6)
+        model.update(30.0, 0.62)
+        high = model.snapshot()
+        for snap in (low, high):
+            assert math.isfinite(snap.value) and math.isfinite(snap.threshold)
+            assert math.isfinite(snap.level_pct) and snap.level_pct >= 0
+        assert high.level_pct > low.level_pct
+        assert high.value == 30.0
+
+    def test_out_of_order_samples_are_harmless(self, case: tuple[ProtectionModel, str]) -> None:
+        """Samples older than the latest one change nothing and never report an edge."""
+        model, _ = case
+        for i in range(20):
+            model.update(1.0, 10.0 + i * DT)
+        before = model.snapshot()
+        for t in (0.0, 5.0, 10.0, 10.1):
+            assert model.update(1e6, t) is False
+        assert model.snapshot() == before
+
+    def test_non_finite_values_are_ignored(self, case: tuple[ProtectionModel, str]) -> None:
+        """NaN or infinite values and times never raise nor change the state."""
+        model, _ = case
+        model.update(1.0, 0.0)
+        before = model.snapshot()
+        for v, t in ((math.nan, 1.0), (math.inf, 1.0), (1.0, math.nan), (-math.inf, math.inf)):
+            assert model.update(v, t) is False
+        assert model.snapshot() == before
+
+    @settings(max_examples=25, deadline=None)
+    @given(
+        name=st.sampled_from(sorted(FACTORIES)),
+        samples=st.lists(
+            st.tuples(st.floats(-100, 100), st.floats(0, 10)), min_size=1, max_size=60
+        ),
+    )
+    def test_shuffled_and_duplicated_timestamps_never_raise(
+        self, name: str, samples: list[tuple[float, float]]
+    ) -> None:
+        """Any order of timestamps, duplicates included, keeps edges consistent and snapshots finite."""
+        model = FACTORIES[name][0]()
+        prev = model.tripped
+        for value, t in samples + samples:
+            edge = model.update(value, t)
+            assert edge == (model.tripped != prev)
+            prev = model.tripped
+            snap = model.poll(t)
+            assert math.isfinite(snap.level_pct) and snap.level_pct >= 0
