@@ -25,6 +25,10 @@ REASON_NO_DATA = "no_data"
 REASON_STALE = "stale"
 REASON_NOT_PRESENT = "not_present"
 
+TIME_EPS_S = 1e-9
+"""Tolerance of duration comparisons (``held >= trip_after_s``): timestamps like
+``21 * 0.01`` carry float rounding, and candump resolves microseconds only."""
+
 
 @dataclass(frozen=True)
 class Snapshot:

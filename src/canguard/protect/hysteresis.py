@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import math
 
-from .base import REASON_OVERCURRENT, LatchedModel
+from .base import REASON_OVERCURRENT, TIME_EPS_S, LatchedModel
 from .inrush import InrushBlanking
 from .threshold import check_limit, level_pct
 
@@ -97,7 +97,7 @@ class Hysteresis(LatchedModel):
             if thr is not None and a >= thr:
                 if self._over_since is None:
                     self._over_since = t
-                if t - self._over_since >= self.trip_after_s:
+                if t - self._over_since >= self.trip_after_s - TIME_EPS_S:
                     self._over_since = None
                     return self._set_tripped(True, t)
             else:
@@ -107,7 +107,7 @@ class Hysteresis(LatchedModel):
         if a <= self.recovery_a:
             if self._under_since is None:
                 self._under_since = t
-            if t - self._under_since >= self.recover_after_s:
+            if t - self._under_since >= self.recover_after_s - TIME_EPS_S:
                 self._under_since = None
                 return self._set_tripped(False, t)
         else:

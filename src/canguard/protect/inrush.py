@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import math
 
+from .base import TIME_EPS_S
 from .threshold import check_limit
 
 
@@ -69,7 +70,7 @@ class InrushBlanking:
             if self._below_since is None:
                 self._below_since = t
             return False
-        started = self._below_since is not None and t - self._below_since >= self.inrush_time_s
+        started = self._below_since is not None and t - self._below_since >= self.inrush_time_s - TIME_EPS_S
         self._below_since = None
         if started:
             self._window_start = t
@@ -79,7 +80,7 @@ class InrushBlanking:
     def blanking(self, t: float) -> bool:
         """True when ``t`` lies inside a blanking window."""
         w = self._window_start
-        return w is not None and w <= t < w + self.inrush_time_s
+        return w is not None and w <= t < w + self.inrush_time_s - TIME_EPS_S
 
     def threshold(self, normal: float, t: float) -> float | None:
         """The overcurrent threshold in force at ``t``: ``normal`` outside a window,
