@@ -52,6 +52,7 @@ class SourceHealth:
         self._invalid: dict[str, str] = {}
         self._value: dict[str, float] = {}
         self._valid_t: dict[str, float] = {}
+        self._last_reason = REASON_NO_DATA
         self.samples = 0
         """Samples observed (out-of-order ones included)."""
         self.invalid_samples = 0
@@ -81,8 +82,10 @@ class SourceHealth:
     def observe(self, sample: Sample) -> bool:
         """Take one sample of this source; True when the source's health reason changed (an edge).
 
-        The reason is compared just before and just after the sample, at the
-        sample's time, so data coming back after a stale spell is an edge too.
+        The reason just after the sample (at the sample's time) is compared both
+        with the reason just before it at that time (so data coming back after a
+        stale spell is an edge) and with the reason the previous ``observe`` left
+        (so a source found stale or invalid at this sample is an edge too).
         """
         self.samples += 1
         role, t = sample.signal, sample.t
@@ -99,7 +102,10 @@ class SourceHealth:
         else:
             self._value[role] = float(sample.value)
             self._valid_t[role] = t
-        return self.reason(t) != before
+        after = self.reason(t)
+        edge = after != before or after != self._last_reason
+        self._last_reason = after
+        return edge
 
     def _role_reason(self, now: float, role: str) -> str:
         t = self._latest_t.get(role)
