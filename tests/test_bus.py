@@ -1,0 +1,244 @@
+"""Tests of canguard.bus: opening buses, receiving into the queue, reopening, sending."""
+
+from __future__ import annotations
+
+import itertools
+import logging
+import os
+import subprocess
+import sys
+import threading
+import time
+import uuid
+from pathlib import Path
+
+import can
+import pytest
+
+from canguard.bus import BusReader, open_bus
+from canguard.config import BusConfig
+from canguard.data import Frame
+from canguard.errors import BusError
+
+SRC = Path(__file__).resolve().parents[1] / "src"
+
+
+def virtual(name: str = "main") -> BusConfig:
+    """A virtual bus on a channel no other test uses."""
+    return BusConfig(name=name, kwargs={"interface": "virtual", "channel": f"t-{uuid.uuid4().hex}"})
+
+
+def wait_for(reader: BusReader, n: int, timeout_s: float = 5.0) -> list[tuple[str, Frame]]:
+    """Up to ``n`` queued frames, waiting at most ``timeout_s``."""
+    out: list[tuple[str, Frame]] = []
+    deadline = time.monotonic() + timeout_s
+    while len(out) < n and time.monotonic() < deadline:
+        item = reader.get(0.05)
+        if item is not None:
+            out.append(item)
+    return out
+
+
+class TestOpenBus:
+    """open_bus passes the config to python-can and names the bus at fault."""
+
+    def test_opens_virtual_bus(self) -> None:
+        """A virtual bus config opens into a python-can bus."""
+        bus = open_bus(virtual())
+        try:
+            assert isinstance(bus, can.BusABC)
+        finally:
+            bus.shutdown()
+
+    def test_failure_names_bus_and_interface(self) -> None:
+        """An interface that does not exist gives a BusError naming the bus and the interface, chained."""
+        cfg = BusConfig(name="drives", kwargs={"interface": "nosuchiface", "channel": "can7"})
+        with pytest.raises(BusError, match=r"bus 'drives' \(interface nosuchiface, channel can7\)") as info:
+            open_bus(cfg)
+        assert info.value.__cause__ is not None
+
+
+class TestBusReader:
+    """BusReader receives every frame with its timestamp, reopens after errors, and sends without raising."""
+
+    def test_virtual_round_trip(self) -> None:
+        """Frames sent by a peer arrive as Frames on the queue with the bus name, timestamp and payload."""
+        cfg = virtual("main")
+        peer = can.Bus(**cfg.kwargs)
+        try:
+            with BusReader([cfg]) as reader:
+                sent = [
+                    can.Message(arbitration_id=0x14, data=bytes(range(8)), is_extended_id=False),
+                    can.Message(arbitration_id=0x18FF50E5, data=b"\x01\x02", is_extended_id=True),
+                    can.Message(arbitration_id=0x21, is_remote_frame=True, dlc=4, is_extended_id=False),
+                ]
+                for m in sent:
+                    m.timestamp = time.time()
+                    peer.send(m)
+                got = wait_for(reader, 3)
+                assert [bus for bus, _ in got] == ["main"] * 3
+                frames = [f for _, f in got]
+                assert [(f.arbitration_id, f.data, f.is_extended_id) for f in frames] == [
+                    (0x14, bytes(range(8)), False),
+                    (0x18FF50E5, b"\x01\x02", True),
+                    (0x21, b"", False),
+                ]
+                assert frames[2].is_remote_frame and frames[2].dlc == 4
+                assert all(f.channel == "main" for f in frames)
+                assert all(abs(f.t - time.time()) < 5 for f in frames)
+                assert reader.received["main"] == 3
+        finally:
+            peer.shutdown()
+
+    def test_send_reaches_peer_and_failures_are_counted(self) -> None:
+        """send() delivers to a peer; sending on an unknown bus returns False and is counted, not raised."""
+        cfg = virtual("main")
+        peer = can.Bus(**cfg.kwargs)
+        try:
+            with BusReader({"main": cfg}) as reader:
+                assert reader.send("main", can.Message(arbitration_id=0x02, data=b"", is_extended_id=False))
+                msg = peer.recv(2.0)
+                assert msg is not None and msg.arbitration_id == 0x02
+                assert reader.send("nope", can.Message(arbitration_id=0x02)) is False
+                assert reader.sent["main"] == 1 and reader.send_failures["nope"] == 1
+        finally:
+            peer.shutdown()
+
+    def test_no_frame_lost_under_a_burst(self) -> None:
+        """A burst of 5000 frames sent while nobody drains the queue all arrive, in order."""
+        cfg = virtual("main")
+        peer = can.Bus(**cfg.kwargs)
+        try:
+            with BusReader([cfg]) as reader:
+                for i in range(5000):
+                    peer.send(
+                        can.Message(arbitration_id=0x100, data=i.to_bytes(4, "little"), is_extended_id=False)
+                    )
+                got = wait_for(reader, 5000)
+                assert [int.from_bytes(f.data, "little") for _, f in got] == list(range(5000))
+        finally:
+            peer.shutdown()
+
+    def test_reopens_after_recv_error(self, caplog: pytest.LogCaptureFixture) -> None:
+        """A recv error is logged, reported via on_error, and the bus is reopened and receives again."""
+        cfg = virtual("main")
+        opened: list[can.BusABC] = []
+
+        def opener(c: BusConfig) -> can.BusABC:
+            bus = open_bus(c)
+            if not opened:  # the first bus breaks on its first recv
+
+                def broken(timeout: float | None = None) -> can.Message | None:
+                    raise can.CanOperationError("device went away")
+
+                bus.recv = broken  # type: ignore[method-assign]
+            opened.append(bus)
+            return bus
+
+        errors: list[tuple[str, BaseException]] = []
+        peer = can.Bus(**cfg.kwargs)
+        caplog.set_level(logging.ERROR, logger="canguard.bus")
+        reader = BusReader(
+            [cfg], on_error=lambda n, e: errors.append((n, e)), opener=opener, backoff_min_s=0.01
+        )
+        try:
+            reader.start()
+            deadline = time.monotonic() + 5
+            while reader.reopens["main"] < 1 and time.monotonic() < deadline:
+                time.sleep(0.01)
+            assert reader.reopens["main"] == 1
+            peer.send(can.Message(arbitration_id=0x14, data=b"\x00" * 8, is_extended_id=False))
+            got = wait_for(reader, 1)
+            assert [f.arbitration_id for _, f in got] == [0x14]
+            assert [(n, str(e)) for n, e in errors] == [("main", "device went away")]
+            assert "bus main (virtual, channel" in caplog.text and "device went away" in caplog.text
+            assert reader.alive() == {"main": True}
+        finally:
+            reader.stop()
+            peer.shutdown()
+        assert reader.alive() == {"main": False}
+
+    def test_reopen_backs_off_while_the_bus_stays_away(self) -> None:
+        """While reopening keeps failing, attempts are spaced by a growing delay and stop() still returns."""
+        cfg = virtual("main")
+        attempts: list[float] = []
+        first = threading.Event()
+
+        def opener(c: BusConfig) -> can.BusABC:
+            if not first.is_set():
+                first.set()
+                bus = open_bus(c)
+
+                def broken(timeout: float | None = None) -> can.Message | None:
+                    raise OSError("ENODEV")
+
+                bus.recv = broken  # type: ignore[method-assign]
+                return bus
+            attempts.append(time.monotonic())
+            raise BusError("still gone")
+
+        reader = BusReader([cfg], opener=opener, backoff_min_s=0.02, backoff_max_s=0.16)
+        reader.start()
+        time.sleep(0.8)
+        t0 = time.monotonic()
+        reader.stop()
+        assert time.monotonic() - t0 < 1.0
+        gaps = [b - a for a, b in itertools.pairwise(attempts)]
+        assert len(attempts) >= 3
+        assert gaps[0] < gaps[-1] and max(gaps) < 0.4
+
+    def test_start_failure_closes_opened_buses(self) -> None:
+        """When the second bus does not open, start() raises BusError and the first bus is shut down."""
+        good = virtual("good")
+        bad = BusConfig(name="bad", kwargs={"interface": "nosuchiface"})
+        reader = BusReader([good, bad])
+        with pytest.raises(BusError, match="'bad'"):
+            reader.start()
+        assert reader.alive() == {"good": False, "bad": False}
+
+
+PEER = """
+import sys, time, can
+bus = can.Bus(interface="udp_multicast", channel=sys.argv[1], port=int(sys.argv[2]))
+time.sleep(0.3)
+for i in range(20):
+    bus.send(can.Message(arbitration_id=0x18FF50E5, data=bytes([i] * 8), is_extended_id=True))
+deadline = time.monotonic() + 5.0
+reply = None
+while time.monotonic() < deadline:  # multicast loops our own frames back: wait for the reply's id
+    msg = bus.recv(0.5)
+    if msg is not None and msg.arbitration_id == 0x02:
+        reply = msg
+        break
+print(hex(reply.arbitration_id) if reply else "none", flush=True)
+bus.shutdown()
+"""
+
+
+class TestUdpMulticast:
+    """Two processes exchange frames over python-can's udp_multicast bus."""
+
+    @pytest.mark.slow
+    def test_round_trip_between_processes(self) -> None:
+        """20 frames from a peer process arrive in order; a frame sent back reaches the peer."""
+        pytest.importorskip("msgpack")
+        group, port = "239.74.163.2", 43000 + os.getpid() % 1000
+        cfg = BusConfig(name="udp", kwargs={"interface": "udp_multicast", "channel": group, "port": port})
+        with BusReader([cfg]) as reader:
+            peer = subprocess.Popen(
+                [sys.executable, "-c", PEER, group, str(port)],
+                stdout=subprocess.PIPE,
+                text=True,
+                env={**os.environ, "PYTHONPATH": str(SRC)},
+            )
+            try:
+                got = wait_for(reader, 20, timeout_s=10)
+                assert [f.data[0] for _, f in got] == list(range(20))
+                assert all(f.is_extended_id and f.arbitration_id == 0x18FF50E5 for _, f in got)
+                time.sleep(0.1)
+                assert reader.send("udp", can.Message(arbitration_id=0x02, data=b"", is_extended_id=False))
+                out, _ = peer.communicate(timeout=10)
+            finally:
+                if peer.poll() is None:
+                    peer.kill()
+        assert out.strip() == "0x2"
