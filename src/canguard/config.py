@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import difflib
 import math
+import os
 import re
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -304,7 +305,7 @@ class _Loader:
         if text is None:
             return None
         p = Path(text).expanduser()
-        return p if p.is_absolute() else self.base / p
+        return Path(os.path.normpath(p if p.is_absolute() else self.base / p))
 
     def bus(self, value: Any, key: str) -> str:
         """Resolve a ``bus:`` key (``value`` None = left out)."""
