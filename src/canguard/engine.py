@@ -1,0 +1,335 @@
+"""The engine: frames -> decode -> protection models -> blackboard -> tree -> frames out.
+
+One engine for the daemon and for replay; they differ only in where frames come
+from and in the clock (live: :class:`~canguard.clock.LiveClock`; replay: a
+:class:`~canguard.clock.ManualClock` driven by the log's timestamps). Nothing
+here asks which one it is.
+
+Tick policy (the same live and in replay):
+
+- the tree ticks on a fixed grid of ``1 / tick_hz`` in the clock's time; ticks
+  due before a frame's time run, at their own time, before that frame;
+- a sample that changes a protection model's state (an edge) ticks the tree at
+  once, at the sample's time, so a trip reaches the bus without waiting for the
+  next period;
+- periodic task / stop frames and the stop confirmation deadline are serviced at
+  their own times between ticks.
+
+A gap in time (a daemon stall, a gap in a log) longer than ``MAX_CATCH_UP_S``
+does not replay every missed tick: the grid jumps forward and the jump is counted.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+import py_trees
+
+from .clock import Clock
+from .config import Config
+from .context import Context, FrameSink
+from .data import Frame
+from .decode import Decoder
+from .emit import TaskGate
+
+log = logging.getLogger("canguard.engine")
+
+MAX_CATCH_UP_S = 2.0
+"""Longest stretch of missed ticks the engine replays one by one after a gap."""
+
+
+class EventSink(Protocol):
+    """What the engine writes events to (:class:`~canguard.events.EventJournal` is one)."""
+
+    def write(self, event: Mapping[str, Any]) -> None:
+        """Append one event."""
+        ...
+
+    def flush(self) -> None:
+        """Make every written event durable."""
+        ...
+
+
+@dataclass
+class EngineStats:
+    """Counters of one engine run (the replay summary and the daemon's STATUS read them)."""
+
+    frames: int = 0
+    ticks: int = 0
+    edge_ticks: int = 0
+    skipped_ticks: int = 0
+    tick_errors: int = 0
+    backward_frames: int = 0
+    trips: list[dict[str, Any]] = field(default_factory=list)
+    samples: dict[str, int] = field(default_factory=dict)
+    """Samples decoded per source."""
+    max_abs: dict[tuple[str, str], float] = field(default_factory=dict)
+    """Largest |value| seen per (source, role): for the lowest margin to each threshold."""
+    max_level_pct: dict[str, float] = field(default_factory=dict)
+    """Largest accumulator level (% of trip) per guard node, sampled at ticks."""
+
+
+class Engine:
+    """Runs one config's tree over frames from any source, on any clock."""
+
+    def __init__(
+        self,
+        cfg: Config,
+        clock: Clock,
+        sink: FrameSink,
+        *,
+        events: EventSink | None = None,
+        durable: bool = True,
+        metrics: Any = None,
+        heat: Any = None,
+        on_event: Callable[[dict[str, Any]], None] | None = None,
+    ) -> None:
+        from .tree import load_tree  # the node library pulls in py_trees' parser
+
+        if cfg.tree is None:
+            from .errors import ConfigError
+
+            raise ConfigError(f"{cfg.path}: tree: missing, expected {{file: TREE.xml, main: ID, tick_hz: HZ}}")
+        self.cfg = cfg
+        self.clock = clock
+        self.sink = sink
+        self.events = events
+        self.durable = durable
+        self.metrics = metrics
+        self.heat = heat
+        self.extra_on_event = on_event
+        self.sample_hook: Callable[[Any], None] | None = None
+        """Called with every decoded sample (plots); None keeps the hot path lean."""
+        self.tick_hook: Callable[[float], None] | None = None
+        """Called after every tick with its time (plots)."""
+        self.stats = EngineStats()
+        self.decoder = Decoder(cfg)
+        self.ctx = Context(clock, cfg.sources, sink=sink, actions=cfg.actions, on_event=self._write_event)
+        self.gate = TaskGate(cfg.task, cfg.stop, sink, health=self.ctx.health, on_event=self._gate_event)
+        self.ctx.task = self.gate
+        self.loaded = load_tree(cfg.tree.file, self.ctx, cfg.tree.main)
+        self.root: py_trees.behaviour.Behaviour = self.loaded.root
+        self.period_s = 1.0 / cfg.tree.tick_hz
+        self._next_tick = math.nan
+        self._stale: dict[str, str] = {}
+        self._started_at = math.nan
+        self._dirty = False
+        self._heat_failed = False
+        self._last_frame_t = -math.inf
+        self.first_frame_t = math.nan
+        self.events_seen: list[str] = []
+        """The name of every event written, in order (summaries count stops, escalations...)."""
+        self.last_status = py_trees.common.Status.INVALID
+        self.last_tick_t = math.nan
+
+    # -- life cycle ------------------------------------------------------------------------
+    def start(self, now: float | None = None) -> None:
+        """Begin: the first tick is due at once; heat is restored from the state file."""
+        t = self.clock.now() if now is None else now
+        self.clock.advance_to(t)
+        self._started_at = t
+        self._next_tick = t
+        if self.heat is not None:
+            self.heat.load(t)
+            for key, model in self.ctx.heat_models.items():
+                self.heat.restore(key, model, t)
+        tree = self.cfg.tree
+        self._event({"event": "start", "reason": f"tree {self.loaded.main_id} from {tree.file.name if tree else ''}"})
+
+    def finish(self, reason: str = "end", stop: bool = True) -> None:
+        """End: optionally stop the task (frames out), save heat, write the exit event, flush."""
+        now = self.clock.now()
+        if stop and self.gate.state == TaskGate.RUNNING:
+            self.gate.stop(now, reason=reason)
+        self._save_heat(now, periodic=False)
+        self._event({"event": "exit", "reason": reason})
+        self._flush()
+
+    # -- frames in -------------------------------------------------------------------------
+    def feed(self, bus: str, frame: Frame) -> None:
+        """Process one frame received on ``bus`` at ``frame.t``: ticks due before it run first."""
+        t = frame.t
+        if t >= self._last_frame_t:
+            if self._last_frame_t == -math.inf:
+                self.first_frame_t = t
+            self._last_frame_t = t
+        else:
+            self.stats.backward_frames += 1  # out of order: the models' own rules handle it
+        if t > self.clock.now():  # replay: log time drives the clock; live time runs ahead by itself
+            self.advance(t)
+            self.clock.advance_to(t)
+        self.stats.frames += 1
+        edge = False
+        dispatch = self.ctx.dispatch
+        max_abs = self.stats.max_abs
+        counts = self.stats.samples
+        hook = self.sample_hook
+        for sample in self.decoder.decode(frame, bus):
+            if dispatch(sample):
+                edge = True
+            counts[sample.source] = counts.get(sample.source, 0) + 1
+            if hook is not None:
+                hook(sample)
+            if not sample.reason:
+                key = (sample.source, sample.signal)
+                v = abs(sample.value)
+                if v > max_abs.get(key, -1.0):
+                    max_abs[key] = v
+        if edge:
+            self.stats.edge_ticks += 1
+            self.tick(self.clock.now())
+
+    def next_due(self) -> float:
+        """The next time the engine has something to do (a tick or a gate deadline)."""
+        if math.isnan(self._next_tick):
+            return -math.inf
+        return min(self._next_tick, self.gate.next_deadline())
+
+    def advance(self, now: float) -> None:
+        """Run every tick and gate deadline due up to ``now``, each at its own time."""
+        if math.isnan(self._next_tick):
+            self.start(now)
+        if now - self._next_tick > MAX_CATCH_UP_S:
+            missed = math.floor((now - self._next_tick - MAX_CATCH_UP_S) / self.period_s)
+            if missed > 0:
+                self._next_tick += missed * self.period_s
+                self.stats.skipped_ticks += missed
+        while True:
+            due_gate = self.gate.next_deadline()
+            due = min(self._next_tick, due_gate)
+            if due > now:
+                break
+            self.clock.advance_to(due)
+            if self._next_tick <= due_gate:
+                self.tick(due)
+                self._next_tick += self.period_s
+            else:
+                self.gate.service(due)
+        self._flush()
+
+    # -- the tick --------------------------------------------------------------------------
+    def tick(self, now: float) -> py_trees.common.Status:
+        """Tick the tree once at ``now`` and act on its status."""
+        if self.ctx.tree_start is None:
+            self.ctx.tree_start = now
+        self.gate.begin_tick()
+        t0 = time.perf_counter()
+        try:
+            self.root.tick_once()
+            status = self.root.status
+        except Exception as exc:  # a node that raises must stop the task, not the daemon
+            self.stats.tick_errors += 1
+            log.exception("tree tick failed")
+            self._event({"event": "error", "reason": f"tree tick raised {type(exc).__name__}: {exc}"})
+            status = py_trees.common.Status.FAILURE
+        if self.metrics is not None:
+            self.metrics.observe_tick(time.perf_counter() - t0)
+        self.stats.ticks += 1
+        self.last_status = status
+        self.last_tick_t = now
+        if status == py_trees.common.Status.FAILURE:
+            tip = self.root.tip()
+            node = tip.name if tip is not None else self.root.name
+            self.gate.stop(now, reason=f"tree failed at {node}", node=node)
+        self._watch_sources(now)
+        self._sample_levels()
+        if self.tick_hook is not None:
+            self.tick_hook(now)
+        self.gate.service(now)
+        self._save_heat(now, periodic=True)
+        self._flush()
+        return status
+
+    def _save_heat(self, now: float, periodic: bool) -> None:
+        """Save I²t heat (periodically, or now); a failing save is an event, never a crash."""
+        if self.heat is None or not self.ctx.heat_models:
+            return
+        try:
+            if periodic:
+                self.heat.maybe_save(self.ctx.heat_models, now, self.cfg.state.save_period_s)
+            else:
+                self.heat.save(self.ctx.heat_models, now)
+        except (OSError, ValueError) as exc:
+            if not self._heat_failed:
+                log.error("cannot save I²t state: %s", exc)
+                self._event({"event": "error", "reason": f"cannot save I²t state: {exc}"})
+            self._heat_failed = True
+        else:
+            self._heat_failed = False
+
+    def _watch_sources(self, now: float) -> None:
+        for name, health in self.ctx.health.items():
+            reason = health.reason(now)
+            if reason == "no_data" and now - self._started_at < self.ctx.sources[name].max_age_s:
+                reason = ""  # not yet: every source gets max_age to send its first frame
+            prev = self._stale.get(name, "")
+            if reason != prev:
+                self._stale[name] = reason
+                if reason:
+                    self._event({"event": "stale", "source": name, "reason": reason,
+                                 "read_by_tree": name in self.ctx.read_sources})
+                else:
+                    self._event({"event": "fresh", "source": name, "reason": f"{prev} cleared"})
+            if self.metrics is not None:
+                age = health.age(now, None) if hasattr(health, "age") else math.nan
+                self.metrics.set_sample_age(name, age)
+
+    def _sample_levels(self) -> None:
+        levels = self.stats.max_level_pct
+        for node, model in self.ctx.heat_models.items():
+            pct = model.snapshot().level_pct
+            if pct > levels.get(node, -1.0):
+                levels[node] = pct
+            if self.metrics is not None:
+                self.metrics.set_i2t_level(node, pct)
+
+    # -- watchdog and status ---------------------------------------------------------------
+    def stale_unstopped(self, now: float) -> list[str]:
+        """Sources the tree reads that are stale while the task is not stopped (a blind daemon)."""
+        if self.gate.state == TaskGate.STOPPED:
+            return []
+        return [s for s in self.ctx.read_sources if self.ctx.health[s].reason(now)]
+
+    def status_line(self) -> str:
+        """A one-line summary for systemd's STATUS=."""
+        d = self.decoder
+        return (f"task {self.gate.state}; tree {self.last_status.value}; stops {self.gate.stops}; "
+                f"trips {len(self.stats.trips)}; frames {self.stats.frames} decoded {d.decoded} "
+                f"invalid {d.invalid}")
+
+    # -- events ----------------------------------------------------------------------------
+    def _gate_event(self, event: str, now: float, **fields: Any) -> None:
+        self._event({"t": now, "event": event, **fields})
+
+    def _write_event(self, event: dict[str, Any]) -> None:
+        if event.get("event") == "trip":
+            self.stats.trips.append(event)
+            if self.metrics is not None:
+                self.metrics.trip(str(event.get("node", "")))
+        self._event(event)
+
+    def _event(self, event: dict[str, Any]) -> None:
+        if "t" not in event:
+            event = {"t": self.clock.now(), **event}
+        self.events_seen.append(str(event.get("event")))
+        if self.events is not None:
+            self.events.write(event)
+            self._dirty = True
+        if self.extra_on_event is not None:
+            self.extra_on_event(event)
+
+    def _flush(self) -> None:
+        if self._dirty and self.durable and self.events is not None:
+            self.events.flush()
+            self._dirty = False
+
+    def run_frames(self, frames: Iterable[tuple[str, Frame]]) -> None:
+        """Feed every (bus, frame) in order (replay's loop)."""
+        feed = self.feed
+        for bus, frame in frames:
+            feed(bus, frame)
