@@ -1,0 +1,188 @@
+"""Where the simulated robot's frames go: a candump -L file, or a python-can bus.
+
+:func:`run_on_bus` is the one place in canguard's simulator that reads the wall
+clock: it paces frames to ``time.monotonic()`` so that a live daemon sees them
+at their real rate, and maps frames it receives back to simulated time. The
+robot itself only ever sees simulated time.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import gzip
+import io
+import logging
+import threading
+import time
+from os import PathLike
+from typing import IO, Any
+
+import can
+
+from canguard.data import Frame
+from canguard.sim.robot import SimRobot
+from canguard.sim.scenarios import CAN_ERR_FLAG
+
+log = logging.getLogger(__name__)
+
+MAX_FRAMES_PER_S_1MBIT = 8000
+"""About the most 8-byte standard frames a 1 Mbit/s bus carries per second (~125 bits each)."""
+
+_SLEEP_MIN_S = 0.001  # frames due closer than this are sent at once: batching beats oversleeping
+_RECV_EVERY = 16  # in fast (non-realtime) mode, poll the bus for commands every N frames
+
+
+def format_candump_line(frame: Frame) -> str:
+    """One candump -L line (with newline): ``(%.6f) can0 123#DEADBEEF``.
+
+    Standard ids have 3 hex digits, extended ids 8; error frames carry
+    CAN_ERR_FLAG in an 8-digit id as candump writes them; remote frames end in
+    ``R`` (plus the DLC when given); CAN FD frames use ``##<flags>``.
+    """
+    fid = frame.arbitration_id
+    if frame.is_error_frame:
+        ident = f"{fid | CAN_ERR_FLAG:08X}"
+    elif frame.is_extended_id:
+        ident = f"{fid:08X}"
+    else:
+        ident = f"{fid:03X}"
+    if frame.is_remote_frame:
+        body = "R" if frame.dlc < 0 else f"R{frame.dlc}"
+    elif frame.is_fd:
+        flags = (1 if frame.bitrate_switch else 0) | (2 if frame.error_state_indicator else 0)
+        body = f"#{flags:X}{frame.data.hex().upper()}"
+    else:
+        body = frame.data.hex().upper()
+    return f"({frame.t:.6f}) {frame.channel} {ident}#{body}\n"
+
+
+def _open_text(path: str | PathLike[str], stack: contextlib.ExitStack) -> IO[str]:
+    """Open for writing; ``.gz`` is gzip'd with a zero mtime so the bytes depend on content only."""
+    if str(path).endswith(".gz"):
+        raw = stack.enter_context(open(path, "wb"))  # noqa: SIM115
+        gz = stack.enter_context(gzip.GzipFile(filename="", mode="wb", fileobj=raw, mtime=0))
+        return stack.enter_context(io.TextIOWrapper(gz, encoding="ascii", newline="\n"))
+    return stack.enter_context(open(path, "w", encoding="ascii", newline="\n"))
+
+
+def write_log(path: str | PathLike[str], duration_s: float, **robot_kwargs: Any) -> int:
+    """Simulate ``duration_s`` seconds into a candump -L file; return the number of frames written.
+
+    ``robot_kwargs`` are :class:`SimRobot`'s (``db`` is required). The same
+    arguments always give a byte-identical file (``.gz`` included).
+    """
+    robot = SimRobot(**robot_kwargs)
+    count = 0
+    chunk: list[str] = []
+    fmt = format_candump_line
+    with contextlib.ExitStack() as stack:
+        out = _open_text(path, stack)
+        for frame in robot.frames(duration_s):
+            chunk.append(fmt(frame))
+            if len(chunk) >= 4096:
+                out.write("".join(chunk))
+                count += len(chunk)
+                chunk.clear()
+        out.write("".join(chunk))
+        count += len(chunk)
+    return count
+
+
+def _to_message(frame: Frame) -> can.Message:
+    if frame.is_error_frame:
+        # python-can keeps error-class bits without CAN_ERR_FLAG; is_error_frame says the rest.
+        return can.Message(
+            arbitration_id=frame.arbitration_id & ~CAN_ERR_FLAG & 0x1FFFFFFF,
+            is_extended_id=False,
+            is_error_frame=True,
+            data=frame.data,
+        )
+    return can.Message(
+        arbitration_id=frame.arbitration_id,
+        is_extended_id=frame.is_extended_id,
+        is_remote_frame=frame.is_remote_frame,
+        is_fd=frame.is_fd,
+        data=frame.data,
+    )
+
+
+def _can_send_error_frames(bus: can.BusABC) -> bool:
+    """Error frames are made by CAN controllers, not sent: only software buses pass them on."""
+    return type(bus).__name__ in {"VirtualBus", "UdpMulticastBus"}
+
+
+def run_on_bus(
+    bus: can.BusABC,
+    duration_s: float,
+    *,
+    realtime: bool = True,
+    stop_event: threading.Event | None = None,
+    robot: SimRobot | None = None,
+    **robot_kwargs: Any,
+) -> int:
+    """Run the simulated robot on ``bus`` for ``duration_s`` seconds; return frames sent.
+
+    Frames go out paced to the wall clock (``time.monotonic()``: the one place
+    the simulator reads it) when ``realtime``, as fast as the bus takes them
+    otherwise. Between sends, frames from the bus (canguard's Estop,
+    Set_Axis_State, Clear_Errors) are answered through :meth:`SimRobot.receive`
+    at the simulated time they arrived. Waiting for the next due frame is done
+    in ``bus.recv(timeout)``, so a command is seen within a frame's gap.
+    Error frames are only sent on software buses (virtual, udp_multicast). A
+    send that fails (full transmit queue) is logged, counted as not sent and
+    skipped. ``stop_event`` ends the run early. Pass ``robot`` to reuse one,
+    otherwise ``robot_kwargs`` build a :class:`SimRobot` (``db`` required).
+    """
+    if robot is None:
+        robot = SimRobot(**robot_kwargs)
+    elif robot_kwargs:
+        raise TypeError("run_on_bus: pass either robot or SimRobot arguments, not both")
+    send_errors = _can_send_error_frames(bus)
+    sim0 = robot.now
+    wall0 = time.monotonic()
+    sent = failed = 0
+
+    def sim_now() -> float:
+        return sim0 + (time.monotonic() - wall0)
+
+    def answer(msg: can.Message | None) -> None:
+        while msg is not None:
+            robot.receive(
+                Frame(
+                    sim_now(),
+                    str(msg.channel) if msg.channel is not None else robot.channel,
+                    msg.arbitration_id,
+                    bytes(msg.data),
+                    msg.is_extended_id,
+                    msg.is_fd,
+                    msg.is_error_frame,
+                    msg.is_remote_frame,
+                )
+            )
+            msg = bus.recv(0)
+
+    for n, frame in enumerate(robot.frames(duration_s)):
+        if stop_event is not None and stop_event.is_set():
+            break
+        if realtime:
+            due = wall0 + (frame.t - sim0)
+            while True:
+                wait = due - time.monotonic()
+                if wait < _SLEEP_MIN_S:
+                    answer(bus.recv(0))
+                    break
+                answer(bus.recv(min(wait, 0.05)))
+                if stop_event is not None and stop_event.is_set():
+                    break
+        elif n % _RECV_EVERY == 0:
+            answer(bus.recv(0))
+        if frame.is_error_frame and not send_errors:
+            continue
+        try:
+            bus.send(_to_message(frame))
+            sent += 1
+        except can.CanError as exc:
+            failed += 1
+            if failed == 1 or failed % 1000 == 0:
+                log.warning("simulator: %d frame(s) not sent: %s", failed, exc)
+    return sent

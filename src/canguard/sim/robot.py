@@ -1,0 +1,537 @@
+"""The simulated robot: ODrive-style drivers and a BMS, in simulated time.
+
+Everything is a function of the seed, the scenarios and the frames received:
+one seeded :class:`random.Random`, no global random state, no wall clock. Frames
+come out of a heap of scheduled producers in time order; periodic streams are
+scheduled from their nominal times (start + k·period, plus a seeded jitter of
+0 to 20 µs: a frame is never early), so rates never drift.
+
+The physics is deliberately simple and documented so that tests and example
+logs can assert it:
+
+* Current loop: in CLOSED_LOOP_CONTROL (8) the measured Iq is the setpoint plus
+  Gaussian noise (σ = 0.03 A); after a resume it rises to the setpoint with
+  τ = 20 ms. In IDLE (1) the setpoint is 0 and the current decays with
+  τ = 2 ms (from 60 A below 1 A within 9 ms), noise σ = 0.005 A.
+* Torque = Kt·Iq with Kt = 8.27 / KV = 0.0827 N·m/A (an ODrive motor of 100 KV).
+* Pack current = 2 A base load + Σ|Iq| + noise (σ = 0.05 A); pack voltage =
+  open-circuit voltage of a 13S pack at its state of charge − 0.04 Ω × pack
+  current; SOC starts at 85 % of 20 Ah and falls with the charge drawn.
+* Driver commands (:meth:`SimRobot.receive`): ``Axis*_Estop`` → IDLE with the
+  ESTOP_REQUESTED error set; ``Axis*_Set_Axis_State`` 1 → IDLE; 8 → CLOSED_LOOP
+  only while no error is active (as an ODrive refuses to arm with errors);
+  ``Axis*_Clear_Errors`` clears the errors. Heartbeats (10 Hz) report
+  Axis_Error and Axis_State.
+"""
+
+from __future__ import annotations
+
+import bisect
+import heapq
+import math
+import random
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from dataclasses import dataclass, field
+from os import PathLike
+
+import cantools.database
+
+from canguard.data import Frame
+from canguard.sim.encode import MessageEncoder, build_encoders
+from canguard.sim.scenarios import Scenario, parse_scenario
+
+AXIS_STATE_IDLE = 1
+AXIS_STATE_CLOSED_LOOP = 8
+ERROR_ESTOP_REQUESTED = 0x04000000
+"""ODrive ``ODriveError.ESTOP_REQUESTED``: set by an Estop, cleared by Clear_Errors."""
+
+KT_NM_PER_A = 8.27 / 100.0
+BASE_LOAD_A = 2.0
+PACK_R_OHM = 0.04
+PACK_CELLS = 13
+PACK_CAPACITY_AH = 20.0
+START_SOC_PCT = 85.0
+STOP_TAU_S = 0.002
+RESUME_TAU_S = 0.02
+IQ_NOISE_A = 0.03
+IDLE_NOISE_A = 0.005
+PACK_NOISE_A = 0.05
+JITTER_S = 20e-6
+
+DEFAULT_RATES_HZ: dict[str, float] = {
+    "Get_Iq": 250.0,
+    "Get_Torques": 250.0,
+    "Get_Encoder_Estimates": 100.0,
+    "Get_Bus_Voltage_Current": 20.0,
+    "Heartbeat": 10.0,
+    "BMS_Status": 50.0,
+    "BMS_Temperatures": 1.0,
+}
+"""Frames per second of each periodic message kind (per axis for ``Axis*_`` kinds)."""
+
+AXIS_KINDS = ("Get_Iq", "Get_Torques", "Get_Encoder_Estimates", "Get_Bus_Voltage_Current", "Heartbeat")
+BMS_KINDS = ("BMS_Status", "BMS_Temperatures")
+
+# Duty cycle: one 4 s back-and-forth move per axis, as (start_s, |level| name, sign).
+_CYCLE_S = 4.0
+_RAMP_S = 0.02
+_ACCEL_A, _CRUISE_A, _BRAKE_A, _HOLD_A = 7.0, 2.0, 4.0, 1.0
+_SEGMENTS: tuple[tuple[float, float], ...] = (
+    (0.00, +_ACCEL_A),
+    (0.25, +_CRUISE_A),
+    (0.75, -_BRAKE_A),
+    (1.00, +_HOLD_A),
+    (2.00, -_ACCEL_A),
+    (2.25, -_CRUISE_A),
+    (2.75, +_BRAKE_A),
+    (3.00, +_HOLD_A),
+)
+_SEG_STARTS = [s for s, _ in _SEGMENTS]
+_VMAX_REV_S = 2.0
+_STAGGER_S = 0.5
+
+Producer = Callable[[float], "Frame | None"]
+
+
+@dataclass
+class _Axis:
+    """One simulated ODrive axis' state."""
+
+    index: int
+    scale: float
+    state: int = AXIS_STATE_CLOSED_LOOP
+    errors: int = 0
+    edge_t: float = -math.inf
+    edge_i: float = 0.0
+    pos_rev: float = 0.0
+    enc_t: float = 0.0
+    ids: dict[str, int] = field(default_factory=dict)
+
+
+class _Periodic:
+    """A periodic stream: re-schedules itself from nominal times so its rate never drifts."""
+
+    __slots__ = ("k", "kind", "period_s", "phase_s", "produce", "robot")
+
+    def __init__(
+        self, robot: SimRobot, kind: str, period_s: float, phase_s: float, produce: Producer
+    ) -> None:
+        self.robot = robot
+        self.kind = kind
+        self.period_s = period_s
+        self.phase_s = phase_s
+        self.produce = produce
+        self.k = 0
+
+    def __call__(self, t: float) -> Frame | None:
+        """Produce this period's frame (unless a scenario suppresses it) and schedule the next."""
+        robot = self.robot
+        self.k += 1
+        robot._push(self.phase_s + self.k * self.period_s + robot._jitter(), self)
+        if robot._suppressed(self.kind, t):
+            return None
+        return self.produce(t)
+
+
+class SimRobot:
+    """A deterministic simulated robot: N ODrive CANSimple axes and a BMS on one bus.
+
+    ``db`` is the robot's DBC (a cantools Database or a path to one, with
+    messages ``Axis{n}_Heartbeat``, ``Axis{n}_Get_Iq``, ... and ``BMS_Status``,
+    as in ``dbc/robot.dbc``). ``scenarios`` are names from
+    :data:`canguard.sim.SCENARIOS`, optionally ``name@offset_s``; every one runs
+    over the normal duty cycle. ``rates_hz`` overrides entries of
+    :data:`DEFAULT_RATES_HZ`. Timestamps are ``start_t`` + seconds of
+    simulated time, rounded to microseconds as candump writes them.
+
+    Raises ValueError for an unknown scenario, an axis count the DBC does not
+    have, or a DBC missing one of the messages above.
+    """
+
+    def __init__(
+        self,
+        db: cantools.database.Database | str | PathLike[str],
+        *,
+        axes: int = 4,
+        seed: int = 0,
+        scenarios: Sequence[str] = ("normal",),
+        channel: str = "can0",
+        start_t: float = 1_700_000_000.0,
+        rates_hz: Mapping[str, float] | None = None,
+    ) -> None:
+        if not isinstance(db, cantools.database.Database):
+            loaded = cantools.database.load_file(str(db))
+            if not isinstance(loaded, cantools.database.Database):
+                raise ValueError(f"{db}: not a DBC database")
+            db = loaded
+        if isinstance(scenarios, str):
+            scenarios = (scenarios,)
+        if not 1 <= axes <= 63:
+            raise ValueError(f"axes must be 1..63, got {axes}")
+        self.db = db
+        self.axes = axes
+        self.seed = seed
+        self.channel = channel
+        self.start_t = float(start_t)
+        self.rng = random.Random(seed)
+        self.rates_hz = dict(DEFAULT_RATES_HZ)
+        for kind, rate in (rates_hz or {}).items():
+            if kind not in DEFAULT_RATES_HZ or not rate > 0:
+                raise ValueError(
+                    f"rates_hz: {kind!r}: expected one of {sorted(DEFAULT_RATES_HZ)} with a rate > 0"
+                )
+            self.rates_hz[kind] = float(rate)
+        self.scenarios: list[Scenario] = [parse_scenario(s) for s in scenarios]
+        self._encoders = build_encoders(db)
+        self._by_name: dict[str, MessageEncoder] = {}
+        for name in ("BMS_Status", "BMS_Temperatures"):
+            self._by_name[name] = self._lookup(name)
+        self._axes: list[_Axis] = []
+        self._commands: dict[int, tuple[int, str]] = {}
+        for n in range(axes):
+            ax = _Axis(index=n, scale=self.rng.uniform(0.85, 1.0))
+            for kind in (*AXIS_KINDS, "Estop", "Set_Axis_State", "Clear_Errors", "Get_Error"):
+                enc = self._lookup(f"Axis{n}_{kind}")
+                self._by_name[f"Axis{n}_{kind}"] = enc
+                ax.ids[kind] = enc.frame_id
+            for kind in ("Estop", "Set_Axis_State", "Clear_Errors"):
+                self._commands[ax.ids[kind]] = (n, kind)
+            self._axes.append(ax)
+        self._heartbeats: dict[tuple[int, int, int, int], bytes] = {}
+        self._soc_pct = START_SOC_PCT
+        self._soc_t = 0.0
+        self._alive = 0
+        self._heap: list[tuple[float, int, Producer]] = []
+        self._cmds: list[tuple[float, int, Frame]] = []
+        self._seq = 0
+        self._now = 0.0
+        self._stream_rates: dict[str, float] = {}
+        self._setpoint_hooks = [s for s in self.scenarios if type(s).setpoint is not Scenario.setpoint]
+        self._suppress_hooks = [s for s in self.scenarios if type(s).suppress is not Scenario.suppress]
+        self._add_base_streams()
+        for sc in sorted(self.scenarios, key=lambda s: s.setup_last):
+            sc.setup(self)
+
+    # ------------------------------------------------------------------ public
+
+    @property
+    def now(self) -> float:
+        """The simulated time reached so far (epoch seconds, the frames' time base)."""
+        return self.start_t + self._now
+
+    def frames(self, duration_s: float) -> Iterator[Frame]:
+        """Yield the next ``duration_s`` seconds of frames, in time order.
+
+        Calls continue where the previous one stopped. Frames received with
+        :meth:`receive` while iterating take effect from their time on (or at
+        once, when their time is already past).
+        """
+        end = self._now + float(duration_s)
+        heap = self._heap
+        cmds = self._cmds
+        while heap and heap[0][0] < end:
+            t, _, produce = heapq.heappop(heap)
+            while cmds and cmds[0][0] <= t:
+                self._apply(*self._pop_cmd())
+            self._now = max(self._now, t)
+            frame = produce(t)
+            if frame is not None:
+                yield frame
+        while cmds and cmds[0][0] <= end:
+            self._apply(*self._pop_cmd())
+        self._now = max(self._now, end)
+
+    def receive(self, frame: Frame) -> None:
+        """Answer a frame from the bus as the drivers would (Estop, Set_Axis_State, Clear_Errors).
+
+        Frames for other ids, error and remote frames and wrong lengths are
+        ignored. The command takes effect at ``frame.t`` if that is still ahead
+        of the simulated time, otherwise at once.
+        """
+        if frame.is_error_frame or frame.is_remote_frame or frame.is_extended_id:
+            return
+        if frame.arbitration_id not in self._commands:
+            return
+        t = frame.t - self.start_t
+        if t <= self._now:
+            self._apply(self._now, frame)
+        else:
+            self._seq += 1
+            heapq.heappush(self._cmds, (t, self._seq, frame))
+
+    def axis_state(self, axis: int) -> int:
+        """The ODrive axis state of ``axis`` (1 IDLE, 8 CLOSED_LOOP_CONTROL) at the current time."""
+        return self._axes[axis].state
+
+    def axis_errors(self, axis: int) -> int:
+        """The active error bits of ``axis`` (``ERROR_ESTOP_REQUESTED`` after an Estop)."""
+        return self._axes[axis].errors
+
+    def current_a(self, axis: int) -> float:
+        """The noise-free Iq of ``axis`` at the current time, in amps."""
+        return self._current(self._axes[axis], self._now)
+
+    def nominal_rate_hz(self) -> float:
+        """Frames per second of all periodic streams (scenarios' one-off frames not counted)."""
+        return sum(self._stream_rates.values())
+
+    # --------------------------------------------------- scenario-facing helpers
+
+    def period_s(self, kind: str) -> float:
+        """The period of a periodic message kind (``"BMS_Status"``, ``"Get_Iq"``, ...)."""
+        return 1.0 / self.rates_hz[kind]
+
+    def encoder(self, axis: int | None, kind: str) -> MessageEncoder:
+        """The encoder of ``Axis{axis}_{kind}``, or of the BMS message ``kind`` when axis is None."""
+        return self._by_name[kind if axis is None else f"Axis{axis}_{kind}"]
+
+    def known_ids(self) -> set[int]:
+        """Every arbitration id of the DBC."""
+        return {m.frame_id for m in self.db.messages}
+
+    def schedule_once(self, t: float, produce: Producer) -> None:
+        """Call ``produce(t)`` for one frame at ``t`` seconds from the start."""
+        self._push(t, produce)
+
+    def add_periodic(self, kind: str, period_s: float, phase_s: float, produce: Producer) -> None:
+        """Add a periodic stream: ``produce(t)`` at ``phase_s + k·period_s`` (k = 0, 1, ...)."""
+        self._stream_rates[kind] = self._stream_rates.get(kind, 0.0) + 1.0 / period_s
+        stream = _Periodic(self, kind, period_s, phase_s, produce)
+        self._push(phase_s + self._jitter(), stream)
+
+    def raw_frame(
+        self, t: float, frame_id: int, data: bytes, extended: bool = False, *, error: bool = False
+    ) -> Frame:
+        """A frame with the given id and bytes at ``t`` seconds from the start."""
+        return Frame(round(self.start_t + t, 6), self.channel, frame_id, data, extended, False, error)
+
+    def bms_frame(self, t: float, pack_current_a: float | None = None) -> Frame:
+        """A BMS_Status frame at ``t``; ``pack_current_a`` overrides the measured current (the spike)."""
+        current = self._pack_current(t)
+        dt = max(0.0, t - self._soc_t)
+        self._soc_t = max(self._soc_t, t)
+        self._soc_pct = max(0.0, self._soc_pct - current * dt / (PACK_CAPACITY_AH * 36.0))
+        self._alive = (self._alive + 1) & 0xFF
+        enc = self._by_name["BMS_Status"]
+        data = enc.encode(
+            {
+                "Pack_Current": current if pack_current_a is None else pack_current_a,
+                "Pack_Voltage": self._pack_voltage(current),
+                "State_Of_Charge": self._soc_pct,
+                "Present": 1,
+                "Fault": 0,
+                "Alive_Counter": self._alive,
+            }
+        )
+        return Frame(round(self.start_t + t, 6), self.channel, enc.frame_id, data, enc.is_extended_id)
+
+    # ---------------------------------------------------------------- internals
+
+    def _lookup(self, name: str) -> MessageEncoder:
+        enc = self._encoders.get(name)
+        if enc is None:
+            raise ValueError(f"the DBC has no message {name!r}: the simulator needs ODrive axes and a BMS")
+        return enc
+
+    def _push(self, t: float, produce: Producer) -> None:
+        self._seq += 1
+        heapq.heappush(self._heap, (t, self._seq, produce))
+
+    def _pop_cmd(self) -> tuple[float, Frame]:
+        t, _, frame = heapq.heappop(self._cmds)
+        return t, frame
+
+    def _jitter(self) -> float:
+        return self.rng.uniform(0.0, JITTER_S)
+
+    def _suppressed(self, kind: str, t: float) -> bool:
+        return any(s.suppress(kind, t) for s in self._suppress_hooks)
+
+    def _add_base_streams(self) -> None:
+        n = self.axes
+        makers: dict[str, Callable[[_Axis], Producer]] = {
+            "Get_Iq": self._iq_producer,
+            "Get_Torques": self._torque_producer,
+            "Get_Encoder_Estimates": self._encoder_producer,
+            "Get_Bus_Voltage_Current": self._bus_producer,
+            "Heartbeat": self._heartbeat_producer,
+        }
+        for slot, kind in enumerate(AXIS_KINDS):
+            period = self.period_s(kind)
+            for ax in self._axes:
+                # Spread the axes and kinds over the period so frames do not all collide.
+                phase = period * ((ax.index + slot / len(AXIS_KINDS)) / n)
+                self.add_periodic(kind, period, phase, makers[kind](ax))
+        self.add_periodic("BMS_Status", self.period_s("BMS_Status"), 0.0, self.bms_frame)
+        self.add_periodic(
+            "BMS_Temperatures",
+            self.period_s("BMS_Temperatures"),
+            0.5 * self.period_s("BMS_Status"),
+            self._temps,
+        )
+
+    # Physics ------------------------------------------------------------------
+
+    def _duty(self, ax: _Axis, t: float) -> float:
+        """The duty cycle's current setpoint: trapezoid moves with 20 ms ramps."""
+        u = (t + ax.index * _STAGGER_S) % _CYCLE_S
+        i = bisect.bisect_right(_SEG_STARTS, u) - 1
+        start, level = _SEGMENTS[i]
+        into = u - start
+        if into < _RAMP_S:
+            prev = _SEGMENTS[i - 1][1]
+            level = prev + (level - prev) * into / _RAMP_S
+        return level * ax.scale
+
+    def _velocity(self, ax: _Axis, t: float) -> float:
+        """Velocity of the duty cycle's move (rev/s): trapezoid rising while accelerating."""
+        u = (t + ax.index * _STAGGER_S) % _CYCLE_S
+        sign = 1.0 if u < 2.0 else -1.0
+        u %= 2.0
+        if u < 0.25:
+            v = u / 0.25
+        elif u < 0.75:
+            v = 1.0
+        elif u < 1.0:
+            v = (1.0 - u) / 0.25
+        else:
+            v = 0.0
+        return sign * v * _VMAX_REV_S * ax.scale
+
+    def _setpoint(self, ax: _Axis, t: float) -> float:
+        if ax.state != AXIS_STATE_CLOSED_LOOP:
+            return 0.0
+        iq = self._duty(ax, t)
+        for sc in self._setpoint_hooks:
+            iq = sc.setpoint(ax.index, t, iq)
+        return iq
+
+    def _current(self, ax: _Axis, t: float) -> float:
+        """Noise-free Iq: the setpoint in closed loop (after a resume ramp), a decay when idle."""
+        dt = t - ax.edge_t
+        if ax.state == AXIS_STATE_CLOSED_LOOP:
+            sp = self._setpoint(ax, t)
+            if dt < 10 * RESUME_TAU_S:
+                return sp + (ax.edge_i - sp) * math.exp(-max(dt, 0.0) / RESUME_TAU_S)
+            return sp
+        if dt > 30 * STOP_TAU_S:
+            return 0.0
+        return ax.edge_i * math.exp(-max(dt, 0.0) / STOP_TAU_S)
+
+    def _measured(self, ax: _Axis, t: float) -> float:
+        noise = IQ_NOISE_A if ax.state == AXIS_STATE_CLOSED_LOOP else IDLE_NOISE_A
+        return self._current(ax, t) + self.rng.gauss(0.0, noise)
+
+    def _pack_current(self, t: float) -> float:
+        total = BASE_LOAD_A + sum(abs(self._current(ax, t)) for ax in self._axes)
+        return total + self.rng.gauss(0.0, PACK_NOISE_A)
+
+    def _pack_voltage(self, current_a: float) -> float:
+        ocv = PACK_CELLS * (3.3 + 0.9 * self._soc_pct / 100.0)
+        return ocv - PACK_R_OHM * current_a
+
+    def _set_state(self, ax: _Axis, t: float, state: int) -> None:
+        if state == ax.state:
+            return
+        ax.edge_i = self._current(ax, t)
+        ax.edge_t = t
+        ax.state = state
+
+    def _apply(self, t: float, frame: Frame) -> None:
+        """Apply one driver command at simulated time ``t``."""
+        axis, kind = self._commands[frame.arbitration_id]
+        ax = self._axes[axis]
+        if kind == "Estop":
+            ax.errors |= ERROR_ESTOP_REQUESTED
+            self._set_state(ax, t, AXIS_STATE_IDLE)
+        elif kind == "Clear_Errors":
+            ax.errors = 0
+        elif kind == "Set_Axis_State":
+            if len(frame.data) < 4:
+                return
+            requested = int.from_bytes(frame.data[:4], "little")
+            if requested == AXIS_STATE_IDLE:
+                self._set_state(ax, t, AXIS_STATE_IDLE)
+            elif requested == AXIS_STATE_CLOSED_LOOP and ax.errors == 0:
+                self._set_state(ax, t, AXIS_STATE_CLOSED_LOOP)
+
+    # Producers ----------------------------------------------------------------
+
+    def _iq_producer(self, ax: _Axis) -> Producer:
+        enc = self._by_name[f"Axis{ax.index}_Get_Iq"]
+        fid = enc.frame_id
+
+        def produce(t: float) -> Frame:
+            data = enc.pack(self._setpoint(ax, t), self._measured(ax, t))
+            return self.raw_frame(t, fid, data)
+
+        return produce
+
+    def _torque_producer(self, ax: _Axis) -> Producer:
+        enc = self._by_name[f"Axis{ax.index}_Get_Torques"]
+        fid = enc.frame_id
+
+        def produce(t: float) -> Frame:
+            data = enc.pack(KT_NM_PER_A * self._setpoint(ax, t), KT_NM_PER_A * self._measured(ax, t))
+            return self.raw_frame(t, fid, data)
+
+        return produce
+
+    def _encoder_producer(self, ax: _Axis) -> Producer:
+        enc = self._by_name[f"Axis{ax.index}_Get_Encoder_Estimates"]
+        fid = enc.frame_id
+
+        def produce(t: float) -> Frame:
+            vel = self._velocity(ax, t) if ax.state == AXIS_STATE_CLOSED_LOOP else 0.0
+            ax.pos_rev += vel * max(0.0, t - ax.enc_t)
+            ax.enc_t = max(ax.enc_t, t)
+            return self.raw_frame(t, fid, enc.pack(ax.pos_rev, vel))
+
+        return produce
+
+    def _bus_producer(self, ax: _Axis) -> Producer:
+        enc = self._by_name[f"Axis{ax.index}_Get_Bus_Voltage_Current"]
+        fid = enc.frame_id
+
+        def produce(t: float) -> Frame:
+            iq = abs(self._measured(ax, t))
+            volts = self._pack_voltage(self._pack_current(t)) - 0.1
+            return self.raw_frame(t, fid, enc.pack(volts, iq))
+
+        return produce
+
+    def _heartbeat_producer(self, ax: _Axis) -> Producer:
+        enc = self._by_name[f"Axis{ax.index}_Heartbeat"]
+        fid = enc.frame_id
+
+        def produce(t: float) -> Frame:
+            done = int(ax.state != AXIS_STATE_CLOSED_LOOP or self._velocity(ax, t) == 0.0)
+            key = (ax.index, ax.errors, ax.state, done)
+            data = self._heartbeats.get(key)
+            if data is None:
+                data = enc.encode(
+                    {
+                        "Axis_Error": ax.errors,
+                        "Axis_State": ax.state,
+                        "Procedure_Result": 0,
+                        "Trajectory_Done_Flag": done,
+                    }
+                )
+                self._heartbeats[key] = data
+            return self.raw_frame(t, fid, data)
+
+        return produce
+
+    def _temps(self, t: float) -> Frame:
+        enc = self._by_name["BMS_Temperatures"]
+        cell_v = self._pack_voltage(0.0) / PACK_CELLS
+        data = enc.encode(
+            {
+                "Cell_Temp_Min": 27.0 + self.rng.uniform(0, 1),
+                "Cell_Temp_Max": 30.0 + self.rng.uniform(0, 1),
+                "Cell_Voltage_Min": cell_v - 0.01,
+                "Cell_Voltage_Max": cell_v + 0.01,
+                "Pack_Temp_Delta": 3.0,
+            }
+        )
+        return self.raw_frame(t, enc.frame_id, data, enc.is_extended_id)

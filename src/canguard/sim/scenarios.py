@@ -1,0 +1,335 @@
+"""The simulator's scenarios: what goes wrong, on which axis, and when.
+
+Every scenario runs on top of the normal duty cycle and changes only what its
+docstring says. Times are in seconds from the start of the simulation, shifted
+by the scenario's ``offset_s`` (select ``"spike@10"`` to move the spike ten
+seconds later). Figures are chosen against the bundled config:
+
+* ``/battery_state``: IsCurrentSafe trips above 35 A and recovers below 25 A;
+  ``max_age`` 0.5 s. MultiCurrentMonitoring: BMS 40 A, joint effort 150 N·m.
+* I²t (issue 3, leaky bucket): continuous 10 A, peak 20 A for 1 s gives
+  S = (20² − 10²)·1 = 300 A²s; at 20 A from cold the trip time is
+  300 / (20² − 10²) = 1.0 s. The thermal image with the same figures
+  (τ = 1 / ln(400/300) = 3.48 s) trips after 1.0 s from cold too, earlier
+  when the duty cycle has warmed it.
+
+The normal duty cycle itself (see :mod:`canguard.sim.robot`) keeps every axis
+at |Iq| ≤ 7 A (below the 10 A continuous current, so a leaky I²t stays at 0)
+and the pack current below 18 A.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from typing import TYPE_CHECKING, ClassVar
+
+if TYPE_CHECKING:
+    from canguard.data import Frame
+    from canguard.sim.robot import SimRobot
+
+# linux/can/error.h: the flag candump writes into the id of an error frame, and error classes.
+CAN_ERR_FLAG = 0x20000000
+CAN_ERR_CRTL = 0x00000004
+CAN_ERR_PROT = 0x00000008
+CAN_ERR_BUSERROR = 0x00000080
+CAN_ERR_CRTL_RX_WARNING = 0x04
+CAN_ERR_CRTL_TX_WARNING = 0x08
+CAN_ERR_PROT_BIT = 0x01
+CAN_ERR_PROT_FORM = 0x02
+
+
+def _fixed(
+    robot: SimRobot, frame_id: int, data: bytes, extended: bool = False, *, error: bool = False
+) -> Callable[[float], Frame]:
+    """A producer of one fixed frame."""
+
+    def produce(t: float) -> Frame:
+        return robot.raw_frame(t, frame_id, data, extended, error=error)
+
+    return produce
+
+
+def _random_payload(robot: SimRobot, frame_id: int, dlc: int) -> Callable[[float], Frame]:
+    """A producer of ``dlc`` fresh random bytes (from the robot's seeded generator) on ``frame_id``."""
+
+    def produce(t: float) -> Frame:
+        return robot.raw_frame(t, frame_id, robot.rng.randbytes(dlc))
+
+    return produce
+
+
+class Scenario:
+    """A named disturbance over the normal duty cycle; the base class changes nothing.
+
+    Hooks, all with ``t`` in seconds from the start of the simulation:
+    ``setup`` schedules extra frames, ``setpoint`` may replace an axis' current
+    setpoint, ``suppress`` may drop a periodic frame of a message kind
+    (``"BMS_Status"``, ``"Get_Iq"``, ...).
+    """
+
+    name: ClassVar[str] = ""
+    summary: ClassVar[str] = ""
+    setup_last: ClassVar[bool] = False
+    """True for scenarios that must see every other stream first (``load``)."""
+
+    def __init__(self, offset_s: float = 0.0) -> None:
+        self.offset_s = float(offset_s)
+
+    def setup(self, robot: SimRobot) -> None:
+        """Schedule this scenario's own frames on ``robot`` (called once, before the first frame)."""
+
+    def setpoint(self, axis: int, t: float, iq_a: float) -> float:
+        """The current setpoint of ``axis`` at ``t`` given the duty cycle's ``iq_a``."""
+        return iq_a
+
+    def suppress(self, kind: str, t: float) -> bool:
+        """True to drop the periodic ``kind`` frame due at ``t``."""
+        return False
+
+
+class Normal(Scenario):
+    """Normal duty cycle only: never trips.
+
+    Each axis repeats a 4 s back-and-forth move (accelerate at up to 7 A for
+    0.25 s, cruise at 2 A, brake at 4 A, hold at 1 A), the axes staggered by
+    0.5 s so their accelerations never overlap. Pack current = 2 A base load +
+    Σ|Iq| stays below 18 A, well below the 25 A recovery threshold.
+    """
+
+    name = "normal"
+    summary = "duty cycle only: |Iq| <= 7 A per axis, pack < 18 A; must never trip"
+
+
+class Inrush(Scenario):
+    """Motor start on axis 1 at 1.5 s: Iq = 25 A for 80 ms, then settles into its move.
+
+    Axis 1 stands still (closed loop, 0 A) until ``START_S``; from then its
+    setpoint is ``PEAK_A`` (3.6× its 7 A acceleration current) for
+    ``DURATION_S``, then decays into the duty cycle with τ = 10 ms. While it
+    starts (``START_S`` − 20 ms to ``START_S`` + 200 ms) the other axes hold at
+    most 1 A, as a controller sequencing motor starts does, so the pack current
+    rises above 25 A (≈ 30 A) but stays below the 35 A BMS trip. An axis guard
+    below 25 A trips on axis 1 unless inrush blanking covers at least 0.1 s.
+    """
+
+    name = "inrush"
+    summary = "axis1 starts at 1.5 s: Iq 25 A for 80 ms, then its move; pack ~30 A, < 35 A"
+    AXIS = 1
+    START_S = 1.5
+    PEAK_A = 25.0
+    DURATION_S = 0.08
+    SETTLE_TAU_S = 0.01
+    HOLD_A = 1.0
+
+    def setpoint(self, axis: int, t: float, iq_a: float) -> float:
+        """Zero before the start, the inrush plateau, then a fast decay into the duty cycle."""
+        dt = t - self.offset_s - self.START_S
+        if axis != self.AXIS:
+            if -0.02 <= dt < 0.2:
+                return max(-self.HOLD_A, min(self.HOLD_A, iq_a))
+            return iq_a
+        if dt < 0:
+            return 0.0
+        if dt < self.DURATION_S:
+            return self.PEAK_A
+        return iq_a + (self.PEAK_A - iq_a) * math.exp(-(dt - self.DURATION_S) / self.SETTLE_TAU_S)
+
+
+class Spike(Scenario):
+    """One BMS_Status frame with Pack_Current = 60 A, 10 ms after the BMS frame due at 1.5 s.
+
+    The frame sits between two normal BMS frames (50 Hz, so 10 ms on either
+    side); every other frame is normal. A guard without peak latch can miss it;
+    IsCurrentSafe (35 A) must trip on it.
+    """
+
+    name = "spike"
+    summary = "one BMS frame of 60 A at 1.51 s between two normal ones"
+    AT_S = 1.5
+    CURRENT_A = 60.0
+
+    def setup(self, robot: SimRobot) -> None:
+        """Schedule the spike half a BMS period after the BMS frame due at ``AT_S``."""
+        t = self.offset_s + self.AT_S + robot.period_s("BMS_Status") / 2
+        robot.schedule_once(t, lambda tt: robot.bms_frame(tt, pack_current_a=self.CURRENT_A))
+
+
+class Overload(Scenario):
+    """Sustained 2× continuous current on axis 0: Iq = 20 A from 2.0 s to 5.0 s.
+
+    With continuous 10 A / peak 20 A / 1 s, a leaky I²t from cold trips
+    1.0 s after the start (t = 3.0 s). Before 2.0 s axis 0 runs the duty cycle
+    (|Iq| ≤ 7 A < 10 A, so the leaky bucket is empty). The pack current follows
+    (≈ 22–32 A), below the 35 A BMS trip. After an Estop the axis is idle; if
+    resumed before 5.0 s it overloads again at once.
+    """
+
+    name = "overload"
+    summary = "axis0 at 20 A (2x continuous 10 A) from 2.0 s to 5.0 s: leaky I2t trips at 3.0 s"
+    AXIS = 0
+    START_S = 2.0
+    END_S = 5.0
+    CURRENT_A = 20.0
+
+    def setpoint(self, axis: int, t: float, iq_a: float) -> float:
+        """``CURRENT_A`` on ``AXIS`` inside the overload window."""
+        if axis == self.AXIS and self.START_S <= t - self.offset_s < self.END_S:
+            return self.CURRENT_A
+        return iq_a
+
+
+class Dropout(Scenario):
+    """The BMS falls silent from 2.0 s to 3.5 s: no BMS_Status (nor BMS_Temperatures) frame.
+
+    With 50 Hz BMS frames the gap between the last frame before and the first
+    after is 1.5 s plus one period (≈ 1.52 s); with ``max_age`` 0.5 s the
+    battery data is stale from ≈ 2.48 s until the first frame at 3.5 s.
+    """
+
+    name = "dropout"
+    summary = "no BMS frames from 2.0 s to 3.5 s (stale after max_age 0.5 s)"
+    START_S = 2.0
+    END_S = 3.5
+
+    def suppress(self, kind: str, t: float) -> bool:
+        """Drop every BMS frame inside the window."""
+        return kind.startswith("BMS_") and self.START_S <= t - self.offset_s < self.END_S
+
+
+class Garbage(Scenario):
+    """Bad payloads on configured messages, one every 50 ms from 1.0 s (axis 2, or the last axis).
+
+    1.00 s Get_Iq with Iq_Measured = NaN; 1.05 s Get_Iq with +inf; 1.10 s
+    Get_Iq with 4 bytes (wrong length); 1.15 s BMS_Status with 3 bytes;
+    1.20 s Get_Torques with Torque_Estimate = NaN; 1.25 s 8 random bytes on an
+    id the DBC does not know (0x7E5); 1.30 s random bytes of random length on
+    Axis*_Get_Error (a DBC message no source uses). The normal frames keep
+    coming in between, so each invalid sample is followed by valid ones.
+    """
+
+    name = "garbage"
+    summary = "NaN/inf Iq, wrong-length Iq and BMS frames, NaN torque, random bytes, from 1.0 s (axis2)"
+    AT_S = 1.0
+    STEP_S = 0.05
+    UNKNOWN_ID = 0x7E5
+
+    def setup(self, robot: SimRobot) -> None:
+        """Schedule the seven bad frames."""
+        axis = min(2, robot.axes - 1)
+        t0 = self.offset_s + self.AT_S
+        nan, inf = float("nan"), float("inf")
+        iq = robot.encoder(axis, "Get_Iq")
+        tq = robot.encoder(axis, "Get_Torques")
+        bms = robot.encoder(None, "BMS_Status")
+        err = robot.encoder(axis, "Get_Error")
+        rng = robot.rng
+        bad: list[tuple[int, bool, bytes]] = [
+            (iq.frame_id, False, iq.pack(1.0, nan)),
+            (iq.frame_id, False, iq.pack(1.0, inf)),
+            (iq.frame_id, False, iq.pack(1.0, 1.0)[:4]),
+            (bms.frame_id, True, bms.encode({"Pack_Current": 5.0, "Present": 1})[:3]),
+            (tq.frame_id, False, tq.pack(0.1, nan)),
+            (self.UNKNOWN_ID, False, bytes(rng.getrandbits(8) for _ in range(8))),
+            (err.frame_id, False, bytes(rng.getrandbits(8) for _ in range(rng.randrange(1, 8)))),
+        ]
+        for i, (fid, ext, data) in enumerate(bad):
+            robot.schedule_once(t0 + i * self.STEP_S, _fixed(robot, fid, data, ext))
+
+
+class ErrorBurst(Scenario):
+    """32 CAN error frames 0.2 ms apart from 1.0 s (a 6.4 ms burst).
+
+    Bus errors (bit and form errors, id ``CAN_ERR_FLAG | CAN_ERR_PROT |
+    CAN_ERR_BUSERROR`` = 0x20000088) with the error counters rising by 8 per
+    frame, ending in a controller warning (0x20000084, rx/tx warning), as a
+    loose connector produces. ``Frame.is_error_frame`` is True; the ids carry
+    CAN_ERR_FLAG as candump writes them; python-can's candump reader
+    recognises them as error frames.
+    """
+
+    name = "errorburst"
+    summary = "32 error frames 0.2 ms apart from 1.0 s"
+    AT_S = 1.0
+    COUNT = 32
+    STEP_S = 0.0002
+
+    def setup(self, robot: SimRobot) -> None:
+        """Schedule the burst."""
+        t0 = self.offset_s + self.AT_S
+        for i in range(self.COUNT):
+            counter = min(255, 8 * (i + 1))
+            if i == self.COUNT - 1:
+                arb = CAN_ERR_FLAG | CAN_ERR_CRTL | CAN_ERR_BUSERROR
+                data = bytes(
+                    [0, CAN_ERR_CRTL_RX_WARNING | CAN_ERR_CRTL_TX_WARNING, 0, 0, 0, 0, counter, counter]
+                )
+            else:
+                arb = CAN_ERR_FLAG | CAN_ERR_PROT | CAN_ERR_BUSERROR
+                kind = CAN_ERR_PROT_BIT if i % 2 == 0 else CAN_ERR_PROT_FORM
+                data = bytes([0, 0, kind, 0x0A, 0, 0, counter, counter // 2])
+            robot.schedule_once(t0 + i * self.STEP_S, _fixed(robot, arb, data, error=True))
+
+
+class Load(Scenario):
+    """Background traffic on 40 ids no config uses, from 0 s, up to 8,000 frames/s in total.
+
+    The background rate is the target minus the robot's own nominal rate
+    (≈ 2,570 frames/s with 4 axes), split unevenly over 40 standard ids
+    (0x200–0x7FF, none in the DBC), each with a fixed random DLC and random
+    bytes. 8,000 frames/s of 8-byte standard frames is about a full
+    1 Mbit/s bus.
+    """
+
+    name = "load"
+    summary = "background frames on 40 unconfigured ids: 8,000 frames/s in total"
+    setup_last = True
+    TARGET_FPS = 8000.0
+    IDS = 40
+
+    def setup(self, robot: SimRobot) -> None:
+        """Add the background streams."""
+        rng = robot.rng
+        extra = self.TARGET_FPS - robot.nominal_rate_hz()
+        if extra <= 0:
+            return
+        known = robot.known_ids()
+        ids = rng.sample([i for i in range(0x200, 0x800) if i not in known], self.IDS)
+        weights = [rng.uniform(0.5, 1.5) for _ in ids]
+        total = sum(weights)
+        for fid, w in zip(ids, weights, strict=True):
+            rate = extra * w / total
+            dlc = rng.randrange(0, 9)
+            robot.add_periodic(
+                f"load_{fid:03X}",
+                1.0 / rate,
+                self.offset_s + rng.uniform(0, 1.0 / rate),
+                _random_payload(robot, fid, dlc),
+            )
+
+
+SCENARIO_CLASSES: dict[str, type[Scenario]] = {
+    cls.name: cls for cls in (Normal, Inrush, Spike, Overload, Dropout, Garbage, ErrorBurst, Load)
+}
+"""Every scenario by name, in the order ``--help`` and the demo list them."""
+
+SCENARIOS: dict[str, str] = {name: cls.summary for name, cls in SCENARIO_CLASSES.items()}
+"""Scenario name -> one-line description (for ``--help`` and the demo)."""
+
+
+def parse_scenario(spec: str) -> Scenario:
+    """Build a scenario from ``"name"`` or ``"name@offset_s"`` (e.g. ``"spike@10"``).
+
+    Raises ValueError naming the known scenarios for an unknown name or a bad offset.
+    """
+    name, _, offset = spec.strip().partition("@")
+    cls = SCENARIO_CLASSES.get(name)
+    if cls is None:
+        raise ValueError(f"unknown scenario {name!r}; known: {', '.join(SCENARIO_CLASSES)}")
+    try:
+        offset_s = float(offset) if offset else 0.0
+    except ValueError:
+        raise ValueError(f"scenario {spec!r}: offset after '@' must be seconds, got {offset!r}") from None
+    if not math.isfinite(offset_s) or offset_s < 0:
+        raise ValueError(f"scenario {spec!r}: offset must be a finite number of seconds >= 0")
+    return cls(offset_s)
