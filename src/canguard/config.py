@@ -229,7 +229,12 @@ def _closest(word: Any, choices: Any) -> str:
     names = sorted({str(c) for c in choices})
     if not names:
         return ""
-    near = difflib.get_close_matches(str(word), names, n=3, cutoff=0.5)
+    scored = sorted(
+        ((difflib.SequenceMatcher(None, str(word), n).ratio(), n) for n in names), key=lambda x: -x[0]
+    )
+    best = scored[0][0]
+    # Only names nearly as close as the best one: a clear typo gets one suggestion, not a list.
+    near = [n for r, n in scored[:3] if r >= 0.5 and r >= best - 0.15]
     if near:
         return "; closest: " + ", ".join(near)
     shown = ", ".join(names[:8]) + (", ..." if len(names) > 8 else "")
