@@ -18,7 +18,7 @@ stop and recovery frames, so the loop closes.
 """
 
 from canguard.sim.encode import MessageEncoder
-from canguard.sim.io import MAX_FRAMES_PER_S_1MBIT, format_candump_line, run_on_bus, write_log
+from canguard.sim.io import MAX_FRAMES_PER_S_1MBIT, run_on_bus, write_log
 from canguard.sim.robot import (
     AXIS_STATE_CLOSED_LOOP,
     AXIS_STATE_IDLE,
@@ -41,7 +41,6 @@ __all__ = [
     "MessageEncoder",
     "Scenario",
     "SimRobot",
-    "format_candump_line",
     "parse_scenario",
     "run_on_bus",
     "write_log",

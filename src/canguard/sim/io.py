@@ -20,8 +20,8 @@ from typing import IO, Any
 import can
 
 from canguard.data import Frame
+from canguard.replay import format_candump_line
 from canguard.sim.robot import SimRobot
-from canguard.sim.scenarios import CAN_ERR_FLAG
 
 log = logging.getLogger(__name__)
 
@@ -30,30 +30,6 @@ MAX_FRAMES_PER_S_1MBIT = 8000
 
 _SLEEP_MIN_S = 0.001  # frames due closer than this are sent at once: batching beats oversleeping
 _RECV_EVERY = 16  # in fast (non-realtime) mode, poll the bus for commands every N frames
-
-
-def format_candump_line(frame: Frame) -> str:
-    """One candump -L line (with newline): ``(%.6f) can0 123#DEADBEEF``.
-
-    Standard ids have 3 hex digits, extended ids 8; error frames carry
-    CAN_ERR_FLAG in an 8-digit id as candump writes them; remote frames end in
-    ``R`` (plus the DLC when given); CAN FD frames use ``##<flags>``.
-    """
-    fid = frame.arbitration_id
-    if frame.is_error_frame:
-        ident = f"{fid | CAN_ERR_FLAG:08X}"
-    elif frame.is_extended_id:
-        ident = f"{fid:08X}"
-    else:
-        ident = f"{fid:03X}"
-    if frame.is_remote_frame:
-        body = "R" if frame.dlc < 0 else f"R{frame.dlc}"
-    elif frame.is_fd:
-        flags = (1 if frame.bitrate_switch else 0) | (2 if frame.error_state_indicator else 0)
-        body = f"#{flags:X}{frame.data.hex().upper()}"
-    else:
-        body = frame.data.hex().upper()
-    return f"({frame.t:.6f}) {frame.channel} {ident}#{body}\n"
 
 
 def _open_text(path: str | PathLike[str], stack: contextlib.ExitStack) -> IO[str]:
@@ -74,11 +50,11 @@ def write_log(path: str | PathLike[str], duration_s: float, **robot_kwargs: Any)
     robot = SimRobot(**robot_kwargs)
     count = 0
     chunk: list[str] = []
-    fmt = format_candump_line
+    fmt = format_candump_line  # the replay reader's own writer: read_log gives these frames back
     with contextlib.ExitStack() as stack:
         out = _open_text(path, stack)
         for frame in robot.frames(duration_s):
-            chunk.append(fmt(frame))
+            chunk.append(fmt(frame) + "\n")
             if len(chunk) >= 4096:
                 out.write("".join(chunk))
                 count += len(chunk)
@@ -89,17 +65,11 @@ def write_log(path: str | PathLike[str], duration_s: float, **robot_kwargs: Any)
 
 
 def _to_message(frame: Frame) -> can.Message:
-    if frame.is_error_frame:
-        # python-can keeps error-class bits without CAN_ERR_FLAG; is_error_frame says the rest.
-        return can.Message(
-            arbitration_id=frame.arbitration_id & ~CAN_ERR_FLAG & 0x1FFFFFFF,
-            is_extended_id=False,
-            is_error_frame=True,
-            data=frame.data,
-        )
+    """The python-can message of a frame (error frames keep their class bits, without CAN_ERR_FLAG)."""
     return can.Message(
         arbitration_id=frame.arbitration_id,
         is_extended_id=frame.is_extended_id,
+        is_error_frame=frame.is_error_frame,
         is_remote_frame=frame.is_remote_frame,
         is_fd=frame.is_fd,
         data=frame.data,

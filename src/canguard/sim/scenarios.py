@@ -240,12 +240,13 @@ class Garbage(Scenario):
 class ErrorBurst(Scenario):
     """32 CAN error frames 0.2 ms apart from 1.0 s (a 6.4 ms burst).
 
-    Bus errors (bit and form errors, id ``CAN_ERR_FLAG | CAN_ERR_PROT |
-    CAN_ERR_BUSERROR`` = 0x20000088) with the error counters rising by 8 per
-    frame, ending in a controller warning (0x20000084, rx/tx warning), as a
-    loose connector produces. ``Frame.is_error_frame`` is True; the ids carry
-    CAN_ERR_FLAG as candump writes them; python-can's candump reader
-    recognises them as error frames.
+    Bus errors (bit and form errors, error class ``CAN_ERR_PROT |
+    CAN_ERR_BUSERROR`` = 0x88) with the error counters rising by 8 per frame,
+    ending in a controller warning (class 0x84, rx/tx warning), as a loose
+    connector produces. As :func:`canguard.replay.read_log` reads them back:
+    ``is_error_frame`` and ``is_extended_id`` True, ``arbitration_id`` the
+    class bits without CAN_ERR_FLAG; candump -L writes ``20000088#...``, which
+    python-can's reader also recognises as an error frame.
     """
 
     name = "errorburst"
@@ -260,15 +261,15 @@ class ErrorBurst(Scenario):
         for i in range(self.COUNT):
             counter = min(255, 8 * (i + 1))
             if i == self.COUNT - 1:
-                arb = CAN_ERR_FLAG | CAN_ERR_CRTL | CAN_ERR_BUSERROR
+                arb = CAN_ERR_CRTL | CAN_ERR_BUSERROR
                 data = bytes(
                     [0, CAN_ERR_CRTL_RX_WARNING | CAN_ERR_CRTL_TX_WARNING, 0, 0, 0, 0, counter, counter]
                 )
             else:
-                arb = CAN_ERR_FLAG | CAN_ERR_PROT | CAN_ERR_BUSERROR
+                arb = CAN_ERR_PROT | CAN_ERR_BUSERROR
                 kind = CAN_ERR_PROT_BIT if i % 2 == 0 else CAN_ERR_PROT_FORM
                 data = bytes([0, 0, kind, 0x0A, 0, 0, counter, counter // 2])
-            robot.schedule_once(t0 + i * self.STEP_S, _fixed(robot, arb, data, error=True))
+            robot.schedule_once(t0 + i * self.STEP_S, _fixed(robot, arb, data, True, error=True))
 
 
 class Load(Scenario):
