@@ -15,7 +15,7 @@ from hypothesis import strategies as st
 from canguard import replay
 from canguard.data import Frame
 from canguard.errors import LogFormatError
-from canguard.progress import ProgressBar
+from canguard.progress import ProgressBar, wrap_progress
 from canguard.replay import (
     BadLine,
     ReadStats,
@@ -534,3 +534,20 @@ class TestProgressBar:
         bar = ProgressBar(path.stat().st_size, stream=self._Tty(), min_interval_s=0.0)
         list(read_log(path, progress=bar))
         assert bar.position == path.stat().st_size
+
+    def test_wrap_progress_attaches_to_the_reader(self, tmp_path: Path) -> None:
+        """wrap_progress on a terminal attaches a bar that ends at 100 % once the log is read."""
+        path = _write(tmp_path / "x.log", "".join(f"({i}.000000) can0 123#11\n" for i in range(50)))
+        out = self._Tty()
+        frames = wrap_progress(read_log(path), path, stream=out)
+        assert len(list(frames)) == 50
+        assert "100%" in out.getvalue() and out.getvalue().endswith("x.log\n")
+
+    def test_wrap_progress_off_a_terminal(self, tmp_path: Path) -> None:
+        """Off a terminal wrap_progress returns the reader unchanged and writes nothing."""
+        path = _write(tmp_path / "x.log", "(1.000000) can0 123#11\n")
+        reader = read_log(path)
+        out = io.StringIO()
+        assert wrap_progress(reader, path, stream=out) is reader
+        assert list(reader) and out.getvalue() == ""
+        assert reader.stats.bytes_read == path.stat().st_size

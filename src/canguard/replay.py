@@ -64,8 +64,8 @@ CANDUMP_SUFFIXES = (".log", ".candump", ".txt")
 PYTHON_CAN_SUFFIXES = (".asc", ".blf", ".trc", ".csv", ".mf4")
 _TEXT_PYTHON_CAN = ("asc", "trc", "csv")
 
-CHUNK_CHARS = 1 << 20
-"""Characters read per chunk by the candump reader (about 22,000 lines)."""
+CHUNK_CHARS = 1 << 18
+"""Characters read per chunk by the candump reader (about 5,600 lines; smaller chunks stay in cache)."""
 
 MAX_BAD_EXAMPLES = 5
 """How many bad lines :class:`ReadStats` keeps as examples."""
