@@ -16,9 +16,9 @@ import time
 from collections.abc import Iterator
 from pathlib import Path
 from types import TracebackType
-from typing import TextIO, TypeVar
+from typing import Any, TextIO, TypeVar
 
-_T = TypeVar("_T")
+_FramesT = TypeVar("_FramesT", bound=Iterator[Any])
 
 _BAR_WIDTH = 30
 _MIN_INTERVAL_S = 0.2  # redraw at most five times a second: a terminal write is expensive
@@ -120,7 +120,7 @@ class ProgressBar:
         self.close()
 
 
-def wrap_progress(frames: Iterator[_T], path: str | Path, stream: TextIO | None = None) -> Iterator[_T]:
+def wrap_progress(frames: _FramesT, path: str | Path, stream: TextIO | None = None) -> _FramesT:
     """Show a :class:`ProgressBar` for ``path`` while ``frames`` (from ``read_log``) is consumed.
 
     The bar is attached to the reader itself (its ``progress`` attribute), which
@@ -135,5 +135,5 @@ def wrap_progress(frames: Iterator[_T], path: str | Path, stream: TextIO | None 
         total = 0
     bar = ProgressBar(total, stream, label=p.name)
     if bar.enabled and hasattr(frames, "progress"):
-        frames.progress = bar
+        frames.progress = bar  # a LogFrames (checked by hasattr)
     return frames
