@@ -160,7 +160,9 @@ class Overload(Scenario):
 
     With continuous 10 A / peak 20 A / 1 s, a leaky I²t from cold trips
     1.0 s after the start (t = 3.0 s). Before 2.0 s axis 0 runs the duty cycle
-    (|Iq| ≤ 7 A < 10 A, so the leaky bucket is empty). The pack current follows
+    (|Iq| ≤ 7 A < 10 A, so the leaky bucket is empty); the thermal image with
+    the same figures starts warm from that duty and trips ≈ 0.97 s after the
+    start (t ≈ 2.97 s, seed 0). The pack current follows
     (≈ 22–32 A), below the 35 A BMS trip. After an Estop the axis is idle; if
     resumed before 5.0 s it overloads again at once.
     """
