@@ -1,0 +1,273 @@
+"""The engine in-process on a manual clock: frames in, task / stop frames and events out.
+
+No threads and no buses: frames are fed by hand, time moves only when the test
+moves it, and every frame the engine sends lands in a :class:`LogSink`.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import math
+from collections.abc import Iterator, Mapping
+from pathlib import Path
+from typing import Any
+
+import cantools
+import pytest
+import yaml
+
+from canguard.clock import ManualClock
+from canguard.config import load_config
+from canguard.data import Frame
+from canguard.emit import LogSink, TaskGate
+from canguard.engine import Engine
+from canguard.events import FIRST_KEYS, EventJournal, read_events
+
+REPO = Path(__file__).resolve().parents[1]
+BUNDLED = REPO / "config" / "canguard.yaml"
+DBC = REPO / "dbc" / "robot.dbc"
+
+T0 = 1_700_000_000.0
+"""Epoch seconds, as candump writes them."""
+
+BMS_ID = 0x18FF50E5
+ESTOP_IDS = {node << 5 | 0x02 for node in range(4)}
+SET_STATE_IDS = {node << 5 | 0x07 for node in range(4)}
+CLOSED_LOOP = (8).to_bytes(4, "little")
+IDLE = (1).to_bytes(4, "little")
+
+
+@functools.lru_cache(maxsize=1)
+def _db() -> Any:
+    return cantools.database.load_file(str(DBC))
+
+
+def bms_frame(t: float, current_a: float, present: int = 1) -> Frame:
+    """A BMS_Status frame with ``current_a`` on the pack."""
+    msg = _db().get_message_by_name("BMS_Status")
+    data = msg.encode({"Pack_Current": current_a, "Pack_Voltage": 48.0, "State_Of_Charge": 80.0,
+                       "Present": present, "Fault": 0, "Alive_Counter": 0})
+    return Frame(t, "can0", msg.frame_id, bytes(data), True)
+
+
+def iq_frame(t: float, axis: int, current_a: float) -> Frame:
+    """An AxisN_Get_Iq frame with ``Iq_Measured = current_a``."""
+    msg = _db().get_message_by_name(f"Axis{axis}_Get_Iq")
+    data = msg.encode({"Iq_Setpoint": current_a, "Iq_Measured": current_a})
+    return Frame(t, "can0", msg.frame_id, bytes(data), False)
+
+
+def write_config(tmp: Path, **overrides: Any) -> Path:
+    """The bundled config with absolute paths into ``tmp`` (and ``overrides`` applied at top level)."""
+    doc = yaml.safe_load(BUNDLED.read_text(encoding="utf-8"))
+    doc["dbc"] = [str(DBC)]
+    doc["tree"]["file"] = str((BUNDLED.parent / doc["tree"]["file"]).resolve())
+    doc["events"] = str(tmp / "events.jsonl")
+    doc["state"]["file"] = str(tmp / "i2t_state.json")
+    doc.update(overrides)
+    path = tmp / "canguard.yaml"
+    path.write_text(yaml.safe_dump(doc), encoding="utf-8")
+    return path
+
+
+class ListEvents:
+    """An event sink keeping every event in memory."""
+
+    def __init__(self) -> None:
+        self.events: list[dict[str, Any]] = []
+
+    def write(self, event: Mapping[str, Any]) -> None:
+        """Keep the event."""
+        self.events.append(dict(event))
+
+    def flush(self) -> None:
+        """Nothing to make durable."""
+
+    def named(self, name: str) -> list[dict[str, Any]]:
+        """Every event called ``name``, in order."""
+        return [e for e in self.events if e.get("event") == name]
+
+
+class Rig:
+    """One engine on a manual clock with its sink and events."""
+
+    def __init__(self, tmp: Path, events: Any = None) -> None:
+        self.cfg = load_config(write_config(tmp))
+        self.clock = ManualClock(T0)
+        self.sink = LogSink(self.clock.now, self.cfg.buses)
+        self.events = events if events is not None else ListEvents()
+        self.engine = Engine(self.cfg, self.clock, self.sink, events=self.events)
+        self.engine.start(T0)
+        self.t = T0
+
+    def feed(self, frame: Frame) -> None:
+        """Feed one frame on bus ``main``."""
+        self.engine.feed("main", frame)
+        self.t = max(self.t, frame.t)
+
+    def run(self, until: float, pack_a: float = 10.0, axis0_a: float = 0.5, step_s: float = 0.01) -> None:
+        """Feed BMS and axis0 frames every ``step_s`` up to ``until`` (exclusive), then advance to it."""
+        t = self.t + step_s
+        while t < until - 1e-9:
+            self.feed(bms_frame(t, pack_a))
+            self.feed(iq_frame(t + 0.0005, 0, axis0_a))
+            t += step_s
+        self.advance(until)
+
+    def advance(self, t: float) -> None:
+        """Move the clock to ``t`` and let the engine run what is due."""
+        self.engine.advance(t)
+        self.clock.advance_to(t)
+        self.t = max(self.t, t)
+
+    def sent(self, ids: set[int], since: float = -math.inf, data: bytes | None = None) -> list[Frame]:
+        """Frames sent with one of ``ids`` at or after ``since`` (and with ``data``, when given)."""
+        return [f for f in self.sink.frames
+                if f.arbitration_id in ids and f.t >= since and (data is None or f.data == data)]
+
+    def running(self) -> None:
+        """Bring the task up: fresh, normal currents until task frames flow."""
+        self.run(T0 + 0.1)
+        assert self.engine.gate.state == TaskGate.RUNNING
+        assert self.sent(SET_STATE_IDS, data=CLOSED_LOOP)
+
+
+@pytest.fixture
+def rig(tmp_path: Path) -> Iterator[Rig]:
+    """A running engine on the bundled config."""
+    r = Rig(tmp_path)
+    r.running()
+    yield r
+
+
+class TestEngine:
+    """Engine: the tick policy, task gating, stop confirmation and the events they write."""
+
+    def test_overcurrent_sends_stop_frames_at_the_frame_time(self, rig: Rig) -> None:
+        """An overcurrent frame between two ticks sends every axis' Estop at that frame's own time."""
+        t_over = rig.t + 0.0037  # off the 10 ms tick grid
+        rig.feed(bms_frame(t_over, 40.0))
+        stops = rig.sent(ESTOP_IDS)
+        assert {f.arbitration_id for f in stops} == ESTOP_IDS
+        assert {f.t for f in stops} == {t_over}
+        assert rig.engine.gate.state == TaskGate.STOPPED
+
+    def test_stop_frames_repeat_and_no_task_frames_while_stopped(self, rig: Rig) -> None:
+        """While the pack current stays high, Estops repeat every stop.repeat and task frames stay off."""
+        t_over = rig.t + 0.001
+        rig.feed(bms_frame(t_over, 40.0))
+        rig.run(t_over + 0.16, pack_a=40.0, axis0_a=0.2)
+        axis0_stops = [f.t for f in rig.sent({0x02}, since=t_over)]
+        assert len(axis0_stops) == 4  # at once, +50, +100, +150 ms
+        assert axis0_stops[1] - axis0_stops[0] == pytest.approx(0.05)
+        assert rig.sent(SET_STATE_IDS, since=t_over, data=CLOSED_LOOP) == []
+
+    def test_recovery_resumes_task_frames(self, rig: Rig) -> None:
+        """Back at or below the recovery threshold (25 A) the task frames resume; in between they do not."""
+        t_over = rig.t + 0.001
+        rig.feed(bms_frame(t_over, 40.0))
+        rig.run(t_over + 0.1, pack_a=30.0)  # below the trip level, above the recovery level: hysteresis holds
+        assert rig.sent(SET_STATE_IDS, since=t_over, data=CLOSED_LOOP) == []
+        t_rec = rig.t + 0.002
+        rig.feed(bms_frame(t_rec, 25.0))
+        resumed = rig.sent(SET_STATE_IDS, since=t_rec, data=CLOSED_LOOP)
+        assert {f.arbitration_id for f in resumed} == SET_STATE_IDS
+        assert resumed[0].t == t_rec
+        gate_events = [e["event"] for e in rig.events.events
+                       if e["event"] in ("stop", "resume") and e["t"] >= t_over]
+        assert gate_events == ["stop", "resume"]
+        assert rig.engine.gate.state == TaskGate.RUNNING
+
+    def test_stale_bms_stops_the_task(self, rig: Rig) -> None:
+        """No BMS frame for longer than max_age (0.5 s) stops the task and records a stale event."""
+        last = rig.t
+        rig.advance(last + 0.45)
+        assert rig.engine.gate.state == TaskGate.RUNNING
+        rig.advance(last + 0.6)
+        stops = rig.sent(ESTOP_IDS, since=last)
+        assert stops, "no stop frames after the BMS went silent"
+        assert last + 0.5 <= stops[0].t <= last + 0.5 + rig.engine.period_s + 1e-9
+        stale = [e for e in rig.events.named("stale") if e["source"] == "/battery_state"]
+        assert stale and stale[0]["read_by_tree"] is True
+
+    def test_unconfirmed_stop_escalates_after_the_deadline(self, rig: Rig) -> None:
+        """When axis0's current stays above 1 A, IDLE requests go out 0.2 s after the stop, with an event."""
+        t_over = rig.t + 0.001
+        rig.feed(bms_frame(t_over, 40.0))
+        rig.run(t_over + 0.15, pack_a=40.0, axis0_a=5.0)
+        assert rig.sent(SET_STATE_IDS, data=IDLE) == []
+        rig.run(t_over + 0.3, pack_a=40.0, axis0_a=5.0)
+        idle = rig.sent(SET_STATE_IDS, data=IDLE)
+        assert {f.arbitration_id for f in idle} == SET_STATE_IDS
+        assert idle[0].t == pytest.approx(t_over + 0.2)
+        (esc,) = rig.events.named("escalate")
+        assert esc["source"] == "axis0" and esc["value"] == pytest.approx(5.0) and esc["threshold"] == 1.0
+        assert rig.events.named("confirmed") == []
+
+    def test_confirmed_stop_records_confirmed_and_does_not_escalate(self, rig: Rig) -> None:
+        """When axis0's current falls below 1 A within 0.2 s the stop is confirmed and never escalated."""
+        t_over = rig.t + 0.001
+        rig.feed(bms_frame(t_over, 40.0))
+        rig.feed(iq_frame(t_over + 0.0005, 0, 5.0))
+        rig.run(t_over + 0.05, pack_a=40.0, axis0_a=5.0)
+        rig.feed(iq_frame(t_over + 0.06, 0, 0.3))
+        rig.run(t_over + 0.5, pack_a=40.0, axis0_a=0.3)
+        (conf,) = rig.events.named("confirmed")
+        assert conf["source"] == "axis0" and conf["value"] == pytest.approx(0.3)
+        assert t_over + 0.06 <= conf["t"] <= t_over + 0.2
+        assert rig.events.named("escalate") == []
+        assert rig.sent(SET_STATE_IDS, data=IDLE) == []
+
+    def test_one_frame_spike_between_ticks_still_trips(self, rig: Rig) -> None:
+        """A single 40 A frame followed by a normal one before the next tick still stops the task."""
+        t_spike = rig.t + 0.002
+        rig.feed(bms_frame(t_spike, 40.0))
+        rig.feed(bms_frame(t_spike + 0.001, 10.0))
+        rig.advance(t_spike + 0.05)
+        assert rig.sent(ESTOP_IDS, since=t_spike)
+        trips = rig.events.named("trip")
+        assert trips and trips[0]["value"] == pytest.approx(40.0) and trips[0]["threshold"] == 35.0
+
+    def test_node_exception_fails_safe_and_engine_keeps_going(self, rig: Rig) -> None:
+        """A node that raises fails the tick: stop frames, an error event, and later ticks still run."""
+        guard = next(n for n in rig.engine.root.iterate() if type(n).__name__ == "IsCurrentSafe")
+
+        def boom() -> Any:
+            raise RuntimeError("sensor table corrupt")
+
+        guard.update = boom  # type: ignore[method-assign]
+        t_err = rig.t + 0.002
+        rig.advance(t_err + 0.01)
+        assert rig.sent(ESTOP_IDS, since=t_err)
+        errors = rig.events.named("error")
+        assert errors and "RuntimeError: sensor table corrupt" in errors[0]["reason"]
+        del guard.update  # the node heals: the instance falls back to its class's update
+        ticks = rig.engine.stats.ticks
+        t_ok = rig.t
+        rig.run(t_ok + 0.1)
+        assert rig.engine.stats.ticks > ticks
+        assert rig.sent(SET_STATE_IDS, since=t_ok, data=CLOSED_LOOP)
+        assert rig.engine.gate.state == TaskGate.RUNNING
+
+    def test_events_carry_the_journal_fields(self, tmp_path: Path) -> None:
+        """Every journal line has t, event, node, source, value, threshold and reason; a trip fills them."""
+        journal = EventJournal(tmp_path / "events.jsonl")
+        r = Rig(tmp_path, events=journal)
+        r.running()
+        t_over = r.t + 0.001
+        r.feed(bms_frame(t_over, 40.0))
+        r.run(t_over + 0.3, pack_a=40.0, axis0_a=5.0)
+        r.engine.finish(reason="test over")
+        journal.close()
+        lines = (tmp_path / "events.jsonl").read_text(encoding="utf-8").splitlines()
+        for line in lines:
+            assert tuple(json.loads(line))[: len(FIRST_KEYS)] == FIRST_KEYS
+        events = read_events(tmp_path / "events.jsonl")
+        names = [e["event"] for e in events]
+        assert names[0] == "start" and names[-1] == "exit"
+        assert {"trip", "stop", "escalate"} <= set(names)
+        trip = next(e for e in events if e["event"] == "trip" and e["t"] == pytest.approx(t_over))
+        assert trip["node"] and trip["source"] == "/battery_state"
+        assert trip["value"] == pytest.approx(40.0) and trip["threshold"] == 35.0 and trip["reason"]
+        assert all(T0 <= e["t"] <= r.t for e in events)
