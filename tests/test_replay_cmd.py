@@ -1,0 +1,639 @@
+"""``canguard replay``: the daemon's engine over recorded logs, as a user runs it.
+
+Everything goes through :func:`canguard.cli.main` in-process (stdout / stderr via
+capsys), except one test per exit code of the real console entry
+(``python -m canguard``). Logs are small simulator logs written once per session.
+"""
+
+from __future__ import annotations
+
+import gzip
+import json
+import os
+import re
+import subprocess
+import sys
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import can
+import cantools
+import pytest
+import yaml
+
+from canguard.cli import main
+from canguard.replay_cmd import compare_baseline
+from canguard.sim import write_log
+
+REPO = Path(__file__).resolve().parents[1]
+SRC = REPO / "src"
+BUNDLED = REPO / "config" / "canguard.yaml"
+DBC = REPO / "dbc" / "robot.dbc"
+T0 = 1_700_000_000.0
+"""The simulator's first timestamp (epoch seconds, as candump writes them)."""
+DURATION_S = 3.0
+SUBPROCESS_TIMEOUT_S = 60
+
+Run = Callable[..., tuple[int, str, str]]
+Data = dict[str, Path]
+
+
+# --------------------------------------------------------------------------- helpers and fixtures
+
+
+def make_config(directory: Path, *, extra_bus: bool = False) -> Path:
+    """The bundled config with absolute paths, events and I²t state inside ``directory``.
+
+    ``extra_bus`` adds a second bus ``aux`` (channel can1), so that frames on an
+    unknown channel are no longer routed to the only bus.
+    """
+    doc = yaml.safe_load(BUNDLED.read_text(encoding="utf-8"))
+    doc["dbc"] = [str(DBC)]
+    doc["tree"]["file"] = str((BUNDLED.parent / doc["tree"]["file"]).resolve())
+    doc["events"] = str(directory / "events.jsonl")
+    doc["state"]["file"] = str(directory / "i2t_state.json")
+    if extra_bus:
+        doc["buses"]["aux"] = {"interface": "virtual", "channel": "can1"}
+        for source in doc["sources"].values():
+            source["bus"] = "main"
+        frame_lists = [doc["task"]["frames"], doc["stop"]["frames"], doc["stop"].get("escalate") or []]
+        frame_lists += [a["frames"] for a in doc["actions"].values()]
+        for frames in frame_lists:
+            for frame in frames:
+                frame["bus"] = "main"
+    directory.mkdir(parents=True, exist_ok=True)
+    path = directory / ("canguard-2bus.yaml" if extra_bus else "canguard.yaml")
+    path.write_text(yaml.safe_dump(doc), encoding="utf-8")
+    return path
+
+
+@pytest.fixture(scope="session")
+def data(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    """Configs and simulator logs shared by the whole session (written once, never modified)."""
+    d = tmp_path_factory.mktemp("replay_data")
+    out = {"cfg": make_config(d / "cfg"), "cfg2": make_config(d / "cfg2", extra_bus=True)}
+    for name, scenarios, seed in (("spike", ["spike"], 1), ("normal", ["normal"], 2)):
+        out[name] = d / f"{name}.log"
+        write_log(out[name], DURATION_S, db=str(DBC), scenarios=scenarios, seed=seed)
+    return out
+
+
+@pytest.fixture
+def run(capsys: pytest.CaptureFixture[str]) -> Run:
+    """``run(*argv)`` -> (exit code, stdout, stderr) of ``canguard replay *argv``, in-process."""
+
+    def _run(*argv: Any) -> tuple[int, str, str]:
+        capsys.readouterr()
+        code = main(["replay", *map(str, argv)])
+        out, err = capsys.readouterr()
+        return code, out, err
+
+    return _run
+
+
+def summary_of(run: Run, *argv: Any) -> dict[str, Any]:
+    """The --json summary of a replay that must exit 0."""
+    code, out, err = run(*argv, "--json")
+    assert code == 0, err
+    result: dict[str, Any] = json.loads(out)
+    return result
+
+
+def console(*argv: Any, cwd: Path) -> subprocess.CompletedProcess[str]:
+    """Run the real ``canguard`` entry point (``python -m canguard``) from ``cwd``."""
+    env = {**os.environ, "PYTHONPATH": str(SRC)}
+    return subprocess.run(
+        [sys.executable, "-m", "canguard", *map(str, argv)],
+        cwd=cwd, env=env, capture_output=True, text=True, timeout=SUBPROCESS_TIMEOUT_S, check=False,
+    )
+
+
+def _db() -> Any:
+    return cantools.database.load_file(str(DBC))
+
+
+def bms_line(t: float, current_a: float, channel: str = "can0") -> str:
+    """A candump -L line of a BMS_Status frame carrying ``current_a``."""
+    msg = _db().get_message_by_name("BMS_Status")
+    data = msg.encode({"Pack_Current": current_a, "Pack_Voltage": 48.0, "State_Of_Charge": 80.0,
+                       "Present": 1, "Fault": 0, "Alive_Counter": 0})
+    return f"({t:.6f}) {channel} {msg.frame_id:08X}#{bytes(data).hex().upper()}"
+
+
+def trip_keys(summary: dict[str, Any]) -> list[tuple[str, str, str]]:
+    """The trips of a summary as (node, source, reason), in order."""
+    return [(t["node"], t["source"], t["reason"]) for t in summary["trips"]]
+
+
+def no_traceback(err: str) -> None:
+    """A user error is a message, never a Python traceback."""
+    assert "Traceback" not in err
+
+
+# --------------------------------------------------------------------------- the summary
+
+
+class TestSummary:
+    """The summary: counters, samples, trips with time / node / source / value / threshold, margins."""
+
+    def test_spike_trips_once(self, run: Run, data: Data) -> None:
+        """The 60 A BMS spike at 1.51 s is one trip of IsCurrentSafe on /battery_state at 35 A."""
+        s = summary_of(run, data["spike"], "-c", data["cfg"])
+        [trip] = s["trips"]
+        assert "IsCurrentSafe" in trip["node"]
+        assert trip["source"] == "/battery_state"
+        assert abs(trip["value"]) == pytest.approx(60.0, abs=0.5)
+        assert trip["threshold"] == pytest.approx(35.0)
+        assert trip["t"] == pytest.approx(T0 + 1.51, abs=0.01)
+        assert s["stops"] >= 1
+
+    def test_counters_and_samples(self, run: Run, data: Data) -> None:
+        """Frames read equal the log's lines; every configured source has samples; nothing is invalid."""
+        s = summary_of(run, data["normal"], "-c", data["cfg"])
+        n_lines = len(data["normal"].read_text(encoding="ascii").splitlines())
+        f = s["frames"]
+        assert f["read"] == n_lines
+        assert 0 < f["decoded"] <= f["read"]
+        assert f["invalid"] == 0 and f["bad_lines"] == 0 and f["unmapped"] == 0
+        assert {"/battery_state", "axis0", "axis1", "axis2", "axis3"} <= set(s["samples"])
+        assert s["first_t"] == pytest.approx(T0, abs=0.01)
+        assert s["last_t"] == pytest.approx(T0 + DURATION_S, abs=0.05)
+
+    def test_normal_log_never_trips_and_reports_margin(self, run: Run, data: Data) -> None:
+        """A normal duty cycle has no trip, no stop, and a positive margin to the 35 A threshold."""
+        s = summary_of(run, data["normal"], "-c", data["cfg"])
+        assert s["trips"] == [] and s["stops"] == 0 and s["stopped_s"] == 0
+        [margin] = [m for m in s["margins"] if m["source"] == "/battery_state"]
+        assert margin["threshold"] == pytest.approx(35.0)
+        assert 0 < margin["peak"] < 25.0
+        assert margin["margin"] == pytest.approx(35.0 - margin["peak"], abs=1e-6)
+
+    def test_spike_margin_is_negative(self, run: Run, data: Data) -> None:
+        """A log that tripped shows a peak above the threshold: a negative margin."""
+        s = summary_of(run, data["spike"], "-c", data["cfg"])
+        [margin] = [m for m in s["margins"] if m["source"] == "/battery_state"]
+        assert margin["peak"] == pytest.approx(60.0, abs=0.5)
+        assert margin["margin"] < 0
+
+    def test_text_summary_names_the_trip(self, run: Run, data: Data) -> None:
+        """Without --json the human summary lists the trip with its source, value and threshold."""
+        code, out, _ = run(data["spike"], "-c", data["cfg"])
+        assert code == 0
+        assert "trips: 1" in out
+        [line] = [ln for ln in out.splitlines() if "source=/battery_state" in ln]
+        assert "IsCurrentSafe" in line and "threshold=35" in line
+        assert "lowest margin" in out
+
+    def test_frames_canguard_would_send_are_counted(self, run: Run, data: Data) -> None:
+        """A tripped log sends task frames before the trip and stop frames after it."""
+        s = summary_of(run, data["spike"], "-c", data["cfg"])
+        assert s["frames_sent"] > 0
+
+
+class TestExitCodes:
+    """--fail-on-trip makes replay a CI gate: 1 on a trip, 0 otherwise."""
+
+    def test_fail_on_trip_with_a_trip(self, run: Run, data: Data) -> None:
+        """A spike log with --fail-on-trip exits 1."""
+        code, _, _ = run(data["spike"], "-c", data["cfg"], "--fail-on-trip")
+        assert code == 1
+
+    def test_fail_on_trip_without_a_trip(self, run: Run, data: Data) -> None:
+        """A normal log with --fail-on-trip exits 0."""
+        code, _, _ = run(data["normal"], "-c", data["cfg"], "--fail-on-trip")
+        assert code == 0
+
+    def test_trip_without_the_gate_exits_0(self, run: Run, data: Data) -> None:
+        """Without --fail-on-trip a trip is reported, not an error."""
+        code, _, _ = run(data["spike"], "-c", data["cfg"])
+        assert code == 0
+
+    def test_any_log_of_several_trips_the_gate(self, run: Run, data: Data) -> None:
+        """Over a set of logs, one trip anywhere is exit 1."""
+        code, _, _ = run(data["normal"], data["spike"], "-c", data["cfg"], "--fail-on-trip")
+        assert code == 1
+
+    def test_console_entry_exit_codes(self, data: Data, tmp_path: Path) -> None:
+        """The real console entry, started away from the repo, exits 1 on a trip and 0 on a clean log."""
+        both = console("replay", data["spike"], "-c", data["cfg"], "--fail-on-trip", cwd=tmp_path)
+        assert both.returncode == 1, both.stderr
+        assert "trips: 1" in both.stdout
+        clean = console("replay", data["normal"], "-c", data["cfg"], "--fail-on-trip", cwd=tmp_path)
+        assert clean.returncode == 0, clean.stderr
+
+
+class TestDeterminism:
+    """The same log and config always give byte-identical output."""
+
+    def test_two_runs_identical_bytes(self, run: Run, data: Data, tmp_path: Path) -> None:
+        """Text summary, --json summary, --events and --emit files are identical across two runs."""
+        outputs = []
+        for i in (1, 2):
+            d = tmp_path / str(i)
+            d.mkdir()
+            _, text, _ = run(data["spike"], "-c", data["cfg"])
+            _, js, _ = run(data["spike"], "-c", data["cfg"], "--json",
+                           "--events", d / "events.jsonl", "--emit", d / "emit.log")
+            outputs.append((text, js, (d / "events.jsonl").read_bytes(), (d / "emit.log").read_bytes()))
+        assert outputs[0] == outputs[1]
+        text, js, events, emit = outputs[0]
+        assert text and js and events and emit
+
+    def test_events_are_the_daemons_json_lines(self, run: Run, data: Data, tmp_path: Path) -> None:
+        """--events writes one JSON object per line, with the trip at the log's time."""
+        path = tmp_path / "events.jsonl"
+        code, _, _ = run(data["spike"], "-c", data["cfg"], "--events", path)
+        assert code == 0
+        events = [json.loads(line) for line in path.read_text(encoding="utf-8").splitlines()]
+        trips = [e for e in events if e["event"] == "trip"]
+        assert len(trips) == 1
+        assert trips[0]["source"] == "/battery_state"
+        assert trips[0]["t"] == pytest.approx(T0 + 1.51, abs=0.01)
+        assert [e["t"] for e in events] == sorted(e["t"] for e in events)
+
+
+class TestTimestamps:
+    """Real logs have timestamps that go backwards or repeat: counted, handled, never a crash."""
+
+    def test_backwards_and_repeated_counted(self, run: Run, data: Data, tmp_path: Path) -> None:
+        """One backward and one repeated timestamp in a hand-written log are counted; exit 0."""
+        log = tmp_path / "jumpy.log"
+        times = [100.00, 100.02, 100.01, 100.01, 100.04, 100.06]
+        log.write_text("".join(bms_line(t, 10.0) + "\n" for t in times), encoding="ascii")
+        s = summary_of(run, log, "-c", data["cfg"])
+        assert s["frames"]["read"] == len(times)
+        assert s["frames"]["backward_timestamps"] == 1
+        assert s["frames"]["repeated_timestamps"] == 1
+        assert s["samples"]["/battery_state"] >= len(times)
+
+    def test_clock_jumps_never_crash(self, run: Run, data: Data, tmp_path: Path) -> None:
+        """A jump an hour back and a day forward are handled: the replay ends normally with a summary."""
+        log = tmp_path / "jumps.log"
+        times = [5000.0, 5000.02, 1400.0, 1400.02, 91400.0, 91400.02, 91400.04]
+        log.write_text("".join(bms_line(t, 12.0) + "\n" for t in times), encoding="ascii")
+        code, out, err = run(log, "-c", data["cfg"], "--json")
+        assert code == 0, err
+        s = json.loads(out)
+        assert s["frames"]["read"] == len(times)
+        assert s["frames"]["backward_timestamps"] == 1
+        assert s["last_t"] == pytest.approx(91400.04)
+
+    def test_spike_on_a_repeated_timestamp_still_trips(
+        self, run: Run, data: Data, tmp_path: Path
+    ) -> None:
+        """A 60 A frame sharing its timestamp with the previous frame is not lost: every sample counts."""
+        log = tmp_path / "repeat_spike.log"
+        currents = [(100.0, 10.0), (100.02, 10.0), (100.02, 60.0), (100.04, 10.0)]
+        lines = [bms_line(t, i) for t, i in currents]
+        log.write_text("\n".join(lines) + "\n", encoding="ascii")
+        s = summary_of(run, log, "-c", data["cfg"])
+        assert [t["source"] for t in s["trips"]] == ["/battery_state"]
+        assert s["frames"]["repeated_timestamps"] == 1
+
+
+class TestBadInput:
+    """Bad logs are clear errors (exit 2) or counted warnings, never a traceback."""
+
+    @pytest.fixture
+    def bad_log(self, tmp_path: Path) -> Path:
+        """A candump -L log whose third line is malformed."""
+        log = tmp_path / "bad.log"
+        lines = [bms_line(100.0, 10.0), bms_line(100.02, 10.0), "(100.030000) can0 12G#00"]
+        lines.append(bms_line(100.04, 10.0))
+        log.write_text("\n".join(lines) + "\n", encoding="ascii")
+        return log
+
+    def test_malformed_line_names_file_line_and_text(self, run: Run, data: Data, bad_log: Path) -> None:
+        """A malformed line stops the replay with exit 2 and an error naming file:line and the text."""
+        code, _, err = run(bad_log, "-c", data["cfg"])
+        assert code == 2
+        assert f"{bad_log}:3" in err
+        assert "12G#00" in err
+        no_traceback(err)
+
+    def test_skip_bad_counts_and_continues(self, run: Run, data: Data, bad_log: Path) -> None:
+        """With --skip-bad the malformed line is counted in the summary and the replay exits 0."""
+        s = summary_of(run, bad_log, "-c", data["cfg"], "--skip-bad")
+        assert s["frames"]["bad_lines"] == 1
+        assert s["frames"]["read"] == 3
+
+    def test_skip_bad_shown_in_text(self, run: Run, data: Data, bad_log: Path) -> None:
+        """The human summary says how many bad lines were skipped."""
+        code, out, _ = run(bad_log, "-c", data["cfg"], "--skip-bad")
+        assert code == 0
+        assert "1 bad lines" in out
+
+    def test_empty_log(self, run: Run, data: Data, tmp_path: Path) -> None:
+        """An empty log is exit 2 with an error naming the file."""
+        log = tmp_path / "empty.log"
+        log.write_text("", encoding="ascii")
+        code, _, err = run(log, "-c", data["cfg"])
+        assert code == 2
+        assert str(log) in err and "empty" in err
+        no_traceback(err)
+
+    def test_missing_file(self, run: Run, data: Data, tmp_path: Path) -> None:
+        """A log that does not exist is exit 2 with an error naming it."""
+        log = tmp_path / "nope.log"
+        code, _, err = run(log, "-c", data["cfg"])
+        assert code == 2
+        assert str(log) in err and "no such file" in err
+        no_traceback(err)
+
+    def test_unknown_extension(self, run: Run, data: Data, tmp_path: Path) -> None:
+        """A log with an unknown extension is exit 2 listing the known ones."""
+        log = tmp_path / "capture.pcap"
+        log.write_bytes(b"\0\0")
+        code, _, err = run(log, "-c", data["cfg"])
+        assert code == 2
+        assert str(log) in err and ".asc" in err
+        no_traceback(err)
+
+    def test_frames_matching_no_message_warn(self, run: Run, data: Data, tmp_path: Path) -> None:
+        """A log whose frames match no configured message replays with a warning, not an error."""
+        log = tmp_path / "foreign.log"
+        log.write_text("".join(f"({100 + i / 100:.6f}) can0 7AB#0102\n" for i in range(5)), encoding="ascii")
+        code, out, err = run(log, "-c", data["cfg"])
+        assert code == 0, err
+        assert "no frame of this log matches a configured message" in out
+
+    def test_one_bad_log_of_several(self, run: Run, data: Data, tmp_path: Path) -> None:
+        """A missing log among good ones: the good ones are still reported, the exit code is 2."""
+        code, out, err = run(data["normal"], tmp_path / "missing.log", "-c", data["cfg"])
+        assert code == 2
+        assert f"replay of {data['normal']}" in out
+        assert "missing.log" in err
+
+
+class TestEmit:
+    """--emit writes the frames canguard would have sent as a candump -L log python-can reads."""
+
+    def test_emit_read_back_with_python_can(self, run: Run, data: Data, tmp_path: Path) -> None:
+        """python-can's CanutilsLogReader reads the task frames, then the Estop frames after the trip."""
+        db = _db()
+        estop = {db.get_message_by_name(f"Axis{n}_Estop").frame_id for n in range(4)}
+        set_state = {db.get_message_by_name(f"Axis{n}_Set_Axis_State").frame_id for n in range(4)}
+        emit = tmp_path / "emit.log"
+        s = summary_of(run, data["spike"], "-c", data["cfg"], "--emit", emit)
+        msgs = list(can.CanutilsLogReader(emit))
+        assert len(msgs) == s["frames_sent"]
+        ids = {m.arbitration_id for m in msgs}
+        assert estop <= ids and set_state <= ids
+        assert ids <= estop | set_state | {db.get_message_by_name(f"Axis{n}_Clear_Errors").frame_id
+                                            for n in range(4)}
+        trip_t = s["trips"][0]["t"]
+        first_estop = min(m.timestamp for m in msgs if m.arbitration_id in estop)
+        assert first_estop == pytest.approx(trip_t, abs=1e-3)
+        before = [m for m in msgs if m.timestamp < trip_t]
+        assert before and all(m.arbitration_id in set_state for m in before)
+        for m in before:
+            decoded = db.decode_message(m.arbitration_id, m.data)
+            assert str(decoded["Axis_Requested_State"]) == "CLOSED_LOOP_CONTROL"
+        assert all(m.channel == "can0" for m in msgs)
+
+    def test_no_trip_sends_only_task_frames(self, run: Run, data: Data, tmp_path: Path) -> None:
+        """A clean log emits only the task's Set_Axis_State heartbeat, about every 20 ms."""
+        db = _db()
+        set_state = {db.get_message_by_name(f"Axis{n}_Set_Axis_State").frame_id for n in range(4)}
+        emit = tmp_path / "emit.log"
+        run(data["normal"], "-c", data["cfg"], "--emit", emit)
+        msgs = list(can.CanutilsLogReader(emit))
+        assert {m.arbitration_id for m in msgs} == set_state
+        per_axis = len(msgs) / 4
+        assert per_axis == pytest.approx(DURATION_S / 0.02, rel=0.05)
+
+
+class TestBaseline:
+    """--baseline compares with a saved --json summary: new trips, lost trips, margins that shrank."""
+
+    @pytest.fixture
+    def saved(self, run: Run, data: Data, tmp_path: Path) -> dict[str, Path]:
+        """--json summaries of the spike and normal logs saved to files."""
+        out = {}
+        for name in ("spike", "normal"):
+            code, js, _ = run(data[name], "-c", data["cfg"], "--json")
+            assert code == 0
+            out[name] = tmp_path / f"{name}.json"
+            out[name].write_text(js, encoding="utf-8")
+        return out
+
+    def test_new_trip_and_shrunk_margin(self, run: Run, data: Data, saved: dict[str, Path]) -> None:
+        """Against a clean baseline, the spike log reports a new trip, a shrunk margin and more stops."""
+        code, _, err = run(data["spike"], "-c", data["cfg"], "--baseline", saved["normal"])
+        assert code == 0
+        assert re.search(r"new trip: \S*IsCurrentSafe\S* on /battery_state .*0 -> 1", err), err
+        assert "margin shrank" in err and "/battery_state" in err
+        assert "stops: 0 -> " in err
+
+    def test_lost_trip(self, run: Run, data: Data, saved: dict[str, Path]) -> None:
+        """Against a tripped baseline, a clean log reports the trip as lost and no shrunk margin."""
+        code, _, err = run(data["normal"], "-c", data["cfg"], "--baseline", saved["spike"])
+        assert code == 0
+        assert re.search(r"lost trip: \S*IsCurrentSafe\S* on /battery_state .*1 -> 0", err), err
+        assert "margin shrank" not in err
+
+    def test_same_log_no_change(self, run: Run, data: Data, saved: dict[str, Path]) -> None:
+        """The same log against its own baseline reports no change."""
+        code, _, err = run(data["spike"], "-c", data["cfg"], "--baseline", saved["spike"])
+        assert code == 0
+        assert "no change" in err
+
+    def test_compare_baseline_counts_repeated_trips(self) -> None:
+        """Two trips of a guard where the baseline had one are reported as a new trip (1 -> 2)."""
+        trip = {"node": "G", "source": "s", "reason": "overcurrent"}
+        old = {"trips": [trip], "margins": [], "stops": 1}
+        new = {"trips": [trip, trip], "margins": [], "stops": 1}
+        assert compare_baseline(old, new) == ["new trip: G on s (overcurrent): 1 -> 2"]
+        assert compare_baseline(old, old) == []
+
+    def test_baseline_not_json(self, run: Run, data: Data, tmp_path: Path) -> None:
+        """A baseline that is not a --json summary is exit 2 naming it, not a traceback."""
+        bad = tmp_path / "bad.json"
+        bad.write_text("replay of x.log\n", encoding="utf-8")
+        code, _, err = run(data["spike"], "-c", data["cfg"], "--baseline", bad)
+        assert code == 2
+        assert "bad.json" in err
+        no_traceback(err)
+
+    def test_missing_baseline_file(self, run: Run, data: Data, tmp_path: Path) -> None:
+        """A baseline that does not exist is exit 2 naming it, not a traceback."""
+        code, _, err = run(data["spike"], "-c", data["cfg"], "--baseline", tmp_path / "gone.json")
+        assert code == 2
+        assert "gone.json" in err
+        no_traceback(err)
+
+
+class TestChannelMap:
+    """Log channels reach the config's buses by channel name, by --map, or as the only bus."""
+
+    @pytest.fixture(scope="class")
+    def renamed(self, data: Data, tmp_path_factory: pytest.TempPathFactory) -> Path:
+        """The spike log recorded on a channel called robot0 instead of can0."""
+        log = tmp_path_factory.mktemp("renamed") / "robot0.log"
+        text = data["spike"].read_text(encoding="ascii").replace(" can0 ", " robot0 ")
+        log.write_text(text, encoding="ascii")
+        return log
+
+    def test_only_bus_takes_any_channel(self, run: Run, data: Data, renamed: Path) -> None:
+        """With one configured bus no map is needed: a robot0 log still trips."""
+        s = summary_of(run, renamed, "-c", data["cfg"])
+        assert len(s["trips"]) == 1
+        assert s["unmapped_channels"] == {}
+
+    def test_unmapped_channel_warns(self, run: Run, data: Data, renamed: Path) -> None:
+        """With two buses, robot0 matches neither: its frames are counted and a warning says --map."""
+        code, out, err = run(renamed, "-c", data["cfg2"])
+        assert code == 0, err
+        assert "use --map" in out and "robot0" in out
+        s = summary_of(run, renamed, "-c", data["cfg2"])
+        n = len(renamed.read_text(encoding="ascii").splitlines())
+        assert s["unmapped_channels"] == {"robot0": n}
+        assert s["frames"]["unmapped"] == n
+        assert s["frames"]["decoded"] == 0
+        assert s["trips"] == []
+
+    def test_map_routes_channel(self, run: Run, data: Data, renamed: Path) -> None:
+        """--map robot0=main routes the frames and gives the same trips as the can0 log."""
+        mapped = summary_of(run, renamed, "-c", data["cfg2"], "--map", "robot0=main")
+        direct = summary_of(run, data["spike"], "-c", data["cfg2"])
+        assert mapped["unmapped_channels"] == {}
+        assert mapped["trips"] == direct["trips"] and len(mapped["trips"]) == 1
+
+    def test_can0_is_main_by_channel_name(self, run: Run, data: Data) -> None:
+        """With two buses, can0 frames go to the bus whose channel is can0; --map can0=main is the same."""
+        plain = summary_of(run, data["spike"], "-c", data["cfg2"])
+        mapped = summary_of(run, data["spike"], "-c", data["cfg2"], "--map", "can0=main")
+        assert plain["unmapped_channels"] == {} and len(plain["trips"]) == 1
+        assert plain == mapped
+
+    @pytest.mark.parametrize("item", ["robot0=nowhere", "robot0", "=main"])
+    def test_bad_map(self, run: Run, data: Data, renamed: Path, item: str) -> None:
+        """A --map naming an unknown bus or missing '=' is exit 2 naming the item."""
+        code, _, err = run(renamed, "-c", data["cfg2"], f"--map={item}")
+        assert code == 2
+        assert repr(item) in err
+        no_traceback(err)
+
+
+class TestFormats:
+    """The same frames in another format give the same trips."""
+
+    def test_gz_same_summary(self, run: Run, data: Data, tmp_path: Path) -> None:
+        """A gzip'd copy of a candump log gives the same summary (but for the file name)."""
+        gz = tmp_path / "spike.log.gz"
+        gz.write_bytes(gzip.compress(data["spike"].read_bytes()))
+        a = summary_of(run, data["spike"], "-c", data["cfg"])
+        b = summary_of(run, gz, "-c", data["cfg"])
+        assert a.pop("log") != b.pop("log")
+        assert a == b
+
+    def test_asc_same_trips(self, run: Run, data: Data, tmp_path: Path) -> None:
+        """An ASC log of the same frames (written by python-can) gives the same trips at the same offsets."""
+        asc = tmp_path / "spike.asc"
+        with can.ASCWriter(asc) as writer:
+            for msg in can.CanutilsLogReader(data["spike"]):
+                writer.on_message_received(msg)
+        a = summary_of(run, data["spike"], "-c", data["cfg"])
+        b = summary_of(run, asc, "-c", data["cfg"])
+        assert trip_keys(a) == trip_keys(b) and len(a["trips"]) == 1
+        assert b["trips"][0]["t"] - b["first_t"] == pytest.approx(a["trips"][0]["t"] - a["first_t"], abs=1e-4)
+        assert b["trips"][0]["value"] == a["trips"][0]["value"]
+        assert b["samples"] == a["samples"]
+
+
+class TestJobs:
+    """--jobs N replays logs in parallel processes; outputs stay in input order and identical."""
+
+    def test_jobs_2_equals_jobs_1(self, run: Run, data: Data, tmp_path: Path) -> None:
+        """--jobs 2 over two logs prints the same JSON list and text, in input order, as --jobs 1."""
+        logs = [data["spike"], data["normal"]]
+        one = run(*logs, "-c", data["cfg"], "--json", "--jobs", "1")
+        two = run(*logs, "-c", data["cfg"], "--json", "--jobs", "2")
+        assert one == two and one[0] == 0
+        summaries = json.loads(one[1])
+        assert [s["log"] for s in summaries] == [str(p) for p in logs]
+        text_one = run(*logs, "-c", data["cfg"], "--jobs", "1")
+        text_two = run(*logs, "-c", data["cfg"], "--jobs", "2")
+        assert text_one == text_two
+
+    def test_jobs_write_one_events_file_per_log(self, run: Run, data: Data, tmp_path: Path) -> None:
+        """With several logs, --events FILE becomes one file per log, identical under --jobs 1 and 2."""
+        logs = [data["spike"], data["normal"]]
+        contents = []
+        for jobs in ("1", "2"):
+            d = tmp_path / jobs
+            d.mkdir()
+            code, _, err = run(*logs, "-c", data["cfg"], "--jobs", jobs, "--events", d / "ev.jsonl")
+            assert code == 0, err
+            files = sorted(p.name for p in d.iterdir())
+            assert files == ["ev.normal.log.jsonl", "ev.spike.log.jsonl"]
+            contents.append([(d / f).read_bytes() for f in files])
+        assert contents[0] == contents[1]
+
+
+class TestPlot:
+    """--plot draws the currents, thresholds, I²t levels and stops to .png / .svg / .html."""
+
+    def test_png(self, run: Run, data: Data, tmp_path: Path) -> None:
+        """--plot x.png writes a PNG file."""
+        pytest.importorskip("matplotlib")
+        png = tmp_path / "x.png"
+        code, _, err = run(data["spike"], "-c", data["cfg"], "--plot", png)
+        assert code == 0, err
+        assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+    def test_html(self, run: Run, data: Data, tmp_path: Path) -> None:
+        """--plot x.html writes one HTML page with the SVG inline."""
+        pytest.importorskip("matplotlib")
+        html = tmp_path / "x.html"
+        code, _, err = run(data["spike"], "-c", data["cfg"], "--plot", html)
+        assert code == 0, err
+        text = html.read_text(encoding="utf-8")
+        assert text.lower().startswith("<!doctype html") and "<svg" in text
+
+    def test_unknown_plot_extension(self, run: Run, data: Data, tmp_path: Path) -> None:
+        """--plot x.jpg is exit 2 listing the formats."""
+        code, _, err = run(data["spike"], "-c", data["cfg"], "--plot", tmp_path / "x.jpg")
+        assert code == 2
+        assert ".png" in err and ".html" in err
+        no_traceback(err)
+
+    def test_without_matplotlib(
+        self, run: Run, data: Data, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+    ) -> None:
+        """Without matplotlib, --plot is exit 2 saying how to install it."""
+        monkeypatch.setitem(sys.modules, "matplotlib", None)
+        monkeypatch.setitem(sys.modules, "matplotlib.pyplot", None)
+        code, _, err = run(data["spike"], "-c", data["cfg"], "--plot", tmp_path / "x.png")
+        assert code == 2
+        assert "pip install" in err and "matplotlib" in err
+
+
+class TestLiveParity:
+    """Replay answers what the live daemon did: same trips on the same frames sent over a virtual bus."""
+
+    def test_realtime_matches_offline(self, run: Run, data: Data) -> None:
+        """--realtime (the daemon on python-can's virtual bus) trips the same guards as the offline replay."""
+        offline = summary_of(run, data["spike"], "-c", data["cfg"])
+        code, out, err = run(data["spike"], "-c", data["cfg"], "--realtime", "4", "--json")
+        assert code == 0, err
+        live = json.loads(out)
+        assert live["realtime_speed"] == 4.0
+        assert [(t["node"], t["source"]) for t in live["trips"]] == [
+            (t["node"], t["source"]) for t in offline["trips"]
+        ]
+        assert live["trips"][0]["value"] == pytest.approx(offline["trips"][0]["value"])
+        assert live["samples"]["/battery_state"] == offline["samples"]["/battery_state"]
+
+    def test_realtime_fail_on_trip(self, run: Run, data: Data) -> None:
+        """--realtime with --fail-on-trip exits 1 on the spike log, like the offline replay."""
+        code, _, err = run(data["spike"], "-c", data["cfg"], "--realtime", "8", "--fail-on-trip")
+        assert code == 1, err
+
+    def test_realtime_bad_speed(self, run: Run, data: Data) -> None:
+        """--realtime 0 is exit 2 explaining the speed."""
+        code, _, err = run(data["spike"], "-c", data["cfg"], "--realtime", "0")
+        assert code == 2
+        assert "speed" in err
+
