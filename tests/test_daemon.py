@@ -159,7 +159,8 @@ def child_env(**extra: str) -> dict[str, str]:
 
 def bus_args(bus: dict[str, Any]) -> list[str]:
     """python-can CLI arguments (can.player, can.logger) for a udp_multicast bus."""
-    return ["-i", "udp_multicast", "-c", bus["channel"], "--bus-kwargs", f"port={bus['port']}"]
+    # "--bus-kwargs=..." takes exactly one value; "--bus-kwargs port=..." would swallow what follows.
+    return ["-i", "udp_multicast", "-c", bus["channel"], f"--bus-kwargs=port={bus['port']}"]
 
 
 class Children:
@@ -395,7 +396,8 @@ def scenario(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Scenario]:
         daemon = kids.canguard(config)
         wait_for("the start event", event_after(events, "start"))
         kids.player(bus, tmp / "scenario.log")
-        stale = wait_for("the stale event", event_after(events, "stale", source="/battery_state"))
+        stale = wait_for("the stale event", event_after(events, "stale", source="/battery_state",
+                                                                reason="stale"))
         wait_for("the task to resume after the stale BMS", event_after(events, "resume", after=stale))
         time.sleep(0.2)  # a few task periods on the bus
         daemon.send_signal(signal.SIGTERM)
@@ -435,8 +437,8 @@ class TestRunSubprocess:
         silence = last(f, lambda m: is_bms(m, RECOVERED_A))
         back = first(f, lambda m: is_bms(m, LATER_A))
         assert ids_between(f, silence + 1, back) >= ESTOP_IDS
-        stale = [e for e in scenario.events if e["event"] == "stale"]
-        assert stale[0]["source"] == "/battery_state"
+        stale = [e for e in scenario.events if e["event"] == "stale" and e["source"] == "/battery_state"]
+        assert any(e["reason"] == "stale" and e["read_by_tree"] for e in stale)
 
     def test_sigterm_sends_stop_frames_writes_exit_and_exits_0(self, scenario: Scenario) -> None:
         """SIGTERM while the task runs: the last frames canguard sends are Estops, exit event, exit code 0."""
