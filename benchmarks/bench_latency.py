@@ -1,0 +1,326 @@
+"""Latency from an overcurrent frame sent to the first stop frame received, under background traffic.
+
+Two set-ups, each measured against the bus alone in the same run:
+
+(a) in-process: ``Daemon`` in a thread on python-can's virtual bus, the peer on
+    the same virtual channel, background traffic from a separate thread;
+    the bus alone: peer -> echo thread -> peer on the same channel;
+(b) cross-process: ``canguard run`` as a subprocess over udp_multicast, the peer
+    in this process, background traffic from a separate process;
+    the bus alone: peer -> echo process -> peer over the same group.
+
+Each trial: send a normal-current BMS frame, wait until the task frames resume
+(the guard recovered), wait a random 0-3 ms (so trials do not line up with the
+10 ms tick grid), then send a 40 A BMS frame and time until the first Estop
+arrives. Background: 8,000 frames/s of ids no config uses.
+
+    PYTHONPATH=src python benchmarks/bench_latency.py --trials 1000
+
+Goal context (issue 5): p99 <= 1 ms in-process, <= 2 ms cross-process.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import random
+import signal
+import statistics
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+import uuid
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+REPO = Path(__file__).resolve().parents[1]
+SRC = REPO / "src"
+if str(SRC) not in sys.path:
+    sys.path.insert(0, str(SRC))
+
+import can  # noqa: E402
+import cantools  # noqa: E402
+import yaml  # noqa: E402
+
+BUNDLED = REPO / "config" / "canguard.yaml"
+DBC = REPO / "dbc" / "robot.dbc"
+BMS_ID = 0x18FF50E5
+ESTOP0 = 0x02
+SET_STATE0 = 0x07
+CLOSED_LOOP = (8).to_bytes(4, "little")
+ECHO_REQ, ECHO_REP = 0x7E0, 0x7E1
+BACKGROUND_IDS = range(0x600, 0x680)  # no DBC message, no config source
+
+_db = cantools.database.load_file(str(DBC))
+_bms = _db.get_message_by_name("BMS_Status")
+
+
+def bms_msg(current_a: float) -> can.Message:
+    """A BMS_Status frame with ``current_a`` on the pack."""
+    data = _bms.encode({"Pack_Current": current_a, "Pack_Voltage": 48.0, "State_Of_Charge": 80.0,
+                        "Present": 1, "Fault": 0, "Alive_Counter": 0})
+    return can.Message(arbitration_id=BMS_ID, data=data, is_extended_id=True)
+
+
+def write_config(tmp: Path, bus: dict[str, Any]) -> Path:
+    """The bundled config on ``bus``, with absolute paths and events / state in ``tmp``."""
+    doc = yaml.safe_load(BUNDLED.read_text(encoding="utf-8"))
+    doc["dbc"] = [str(DBC)]
+    doc["tree"]["file"] = str((BUNDLED.parent / doc["tree"]["file"]).resolve())
+    doc["buses"] = {"main": bus}
+    doc["events"] = str(tmp / "events.jsonl")
+    doc["state"]["file"] = str(tmp / "i2t_state.json")
+    path = tmp / "canguard.yaml"
+    path.write_text(yaml.safe_dump(doc), encoding="utf-8")
+    return path
+
+
+def child_env() -> dict[str, str]:
+    """This checkout's src on PYTHONPATH; no systemd variables."""
+    env = {k: v for k, v in os.environ.items() if k not in ("NOTIFY_SOCKET", "WATCHDOG_USEC")}
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(SRC), env.get("PYTHONPATH", "")) if p)
+    return env
+
+
+# -- background traffic and echo, as thread bodies and as child scripts -----------------------
+def background(bus: can.BusABC, fps: float, stop: threading.Event) -> float:
+    """Send ``fps`` frames/s of unconfigured ids in 1 ms batches until ``stop``; return the rate achieved."""
+    msgs = [can.Message(arbitration_id=i, data=bytes(8), is_extended_id=False) for i in BACKGROUND_IDS]
+    sent = 0
+    start = time.perf_counter()
+    while not stop.is_set():
+        due = int((time.perf_counter() - start) * fps)
+        while sent < due:
+            bus.send(msgs[sent % len(msgs)])
+            sent += 1
+        time.sleep(0.001)
+    return sent / (time.perf_counter() - start)
+
+
+def echo(bus: can.BusABC, stop: threading.Event) -> None:
+    """Answer every ECHO_REQ frame with an ECHO_REP frame until ``stop``."""
+    reply = can.Message(arbitration_id=ECHO_REP, data=bytes(8), is_extended_id=False)
+    bus.set_filters([{"can_id": ECHO_REQ, "can_mask": 0x7FF, "extended": False}])
+    while not stop.is_set():
+        msg = bus.recv(0.1)
+        if msg is not None:
+            bus.send(reply)
+
+
+CHILD = """
+import signal, sys, threading
+sys.path.insert(0, {bench_dir!r})
+import can
+from bench_latency import background, echo
+stop = threading.Event()
+signal.signal(signal.SIGTERM, lambda *a: stop.set())
+bus = can.Bus(interface="udp_multicast", channel={group!r}, port={port})
+try:
+    print("ready", flush=True)
+    if {role!r} == "echo":
+        echo(bus, stop)
+    else:
+        print(background(bus, {fps}, stop), flush=True)
+finally:
+    bus.shutdown()
+"""
+
+
+def start_child(role: str, group: str, port: int, fps: float = 0.0) -> subprocess.Popen[str]:
+    """A child process running ``echo`` or ``background`` over udp_multicast."""
+    code = CHILD.format(bench_dir=str(Path(__file__).resolve().parent), group=group, port=port,
+                        role=role, fps=fps)
+    proc = subprocess.Popen([sys.executable, "-c", code], env=child_env(), stdout=subprocess.PIPE, text=True)
+    assert proc.stdout is not None
+    if proc.stdout.readline().strip() != "ready":
+        raise RuntimeError(f"{role} process did not start")
+    return proc
+
+
+# -- the peer's side ---------------------------------------------------------------------------
+def recv_until(bus: can.BusABC, pred: Callable[[can.Message], bool], timeout_s: float = 5.0) -> can.Message:
+    """The first received frame matching ``pred``; RuntimeError after ``timeout_s``."""
+    deadline = time.perf_counter() + timeout_s
+    while True:
+        left = deadline - time.perf_counter()
+        if left <= 0:
+            raise RuntimeError("no answer within %.1f s" % timeout_s)
+        msg = bus.recv(left)
+        if msg is not None and pred(msg):
+            return msg
+
+
+def drain(bus: can.BusABC) -> None:
+    """Drop every frame already received."""
+    while bus.recv(0) is not None:
+        pass
+
+
+def guard_trials(peer: can.BusABC, trials: int, rnd: random.Random) -> list[float]:
+    """Overcurrent -> first Estop latencies (s)."""
+    peer.set_filters([{"can_id": ESTOP0, "can_mask": 0x7FF, "extended": False},
+                      {"can_id": SET_STATE0, "can_mask": 0x7FF, "extended": False}])
+    normal, over = bms_msg(10.0), bms_msg(40.0)
+    out: list[float] = []
+    for _ in range(trials):
+        peer.send(normal)
+        recv_until(peer, lambda m: m.arbitration_id == SET_STATE0 and bytes(m.data) == CLOSED_LOOP)
+        time.sleep(rnd.uniform(0.0, 0.003))
+        drain(peer)
+        t0 = time.perf_counter()
+        peer.send(over)
+        recv_until(peer, lambda m: m.arbitration_id == ESTOP0)
+        out.append(time.perf_counter() - t0)
+    return out
+
+
+def echo_trials(peer: can.BusABC, trials: int, rnd: random.Random) -> list[float]:
+    """Peer -> echo -> peer round trips (s)."""
+    peer.set_filters([{"can_id": ECHO_REP, "can_mask": 0x7FF, "extended": False}])
+    req = can.Message(arbitration_id=ECHO_REQ, data=bytes(8), is_extended_id=False)
+    out: list[float] = []
+    for _ in range(trials):
+        time.sleep(rnd.uniform(0.0, 0.003))
+        drain(peer)
+        t0 = time.perf_counter()
+        peer.send(req)
+        recv_until(peer, lambda m: m.arbitration_id == ECHO_REP)
+        out.append(time.perf_counter() - t0)
+    return out
+
+
+def figures(samples: list[float]) -> dict[str, float]:
+    """p50 / p99 / max in ms."""
+    s = sorted(samples)
+    pick = lambda q: s[min(len(s) - 1, int(round(q * (len(s) - 1))))] * 1e3  # noqa: E731
+    return {"p50": statistics.median(s) * 1e3, "p99": pick(0.99), "max": s[-1] * 1e3}
+
+
+def report(title: str, guard: list[float], bus: list[float], bg_fps: float) -> None:
+    """Print one set-up's figures and the ratios against the bus alone."""
+    g, b = figures(guard), figures(bus)
+    print(f"\n{title}  ({len(guard)} trials, background achieved >= {bg_fps:,.0f} frames/s)")
+    print(f"  {'':34} {'p50 ms':>8} {'p99 ms':>8} {'max ms':>8}")
+    print(f"  {'overcurrent -> first Estop':34} {g['p50']:8.3f} {g['p99']:8.3f} {g['max']:8.3f}")
+    print(f"  {'bus alone: peer -> echo -> peer':34} {b['p50']:8.3f} {b['p99']:8.3f} {b['max']:8.3f}")
+    print(f"  {'ratio canguard / bus alone':34} {g['p50'] / b['p50']:8.1f} {g['p99'] / b['p99']:8.1f} "
+          f"{g['max'] / b['max']:8.1f}")
+
+
+# -- (a) in-process ----------------------------------------------------------------------------
+def in_process(trials: int, fps: float, rnd: random.Random) -> None:
+    """Daemon in a thread on a virtual channel; background and echo threads on the same channel."""
+    from canguard.daemon import Daemon
+    from canguard.systemd import Notifier
+
+    channel = f"bench-{uuid.uuid4().hex[:10]}"
+    with tempfile.TemporaryDirectory() as d:
+        tmp = Path(d)
+        stop = threading.Event()
+        bg_bus = can.Bus(interface="virtual", channel=channel)
+        echo_bus = can.Bus(interface="virtual", channel=channel)
+        peer = can.Bus(interface="virtual", channel=channel)
+        counts: list[float] = []
+        bg = threading.Thread(target=lambda: counts.append(background(bg_bus, fps, stop)), daemon=True)
+        bg.start()
+        echo_thread = threading.Thread(target=echo, args=(echo_bus, stop), daemon=True)
+        echo_thread.start()
+        try:
+            bus_rtt = echo_trials(peer, trials, rnd)
+        finally:
+            stop.set()
+            echo_thread.join(5)
+            bg.join(5)
+        bus_fps = counts[0]
+
+        stop.clear()
+        counts.clear()
+        daemon = Daemon(write_config(tmp, {"interface": "virtual", "channel": channel}),
+                        notifier=Notifier(env={}))
+        run = threading.Thread(target=daemon.run, daemon=True)
+        run.start()
+        bg = threading.Thread(target=lambda: counts.append(background(bg_bus, fps, stop)), daemon=True)
+        bg.start()
+        try:
+            guard = guard_trials(peer, trials, rnd)
+        finally:
+            stop.set()
+            bg.join(5)
+            daemon.request_stop("benchmark over")
+            run.join(10)
+            for b in (bg_bus, echo_bus, peer):
+                b.shutdown()
+        guard_fps = counts[0]
+    report("(a) in-process: Daemon thread, python-can virtual bus", guard, bus_rtt, min(bus_fps, guard_fps))
+
+
+# -- (b) cross-process -------------------------------------------------------------------------
+def cross_process(trials: int, fps: float, rnd: random.Random) -> None:
+    """``canguard run`` subprocess over udp_multicast; background and echo as processes."""
+    group = f"239.{rnd.randint(1, 254)}.{rnd.randint(1, 254)}.{rnd.randint(1, 254)}"
+    port = rnd.randint(20000, 60000)
+    kids: list[subprocess.Popen[str]] = []
+    peer = can.Bus(interface="udp_multicast", channel=group, port=port)
+
+    def measure_background(start: Callable[[], list[float]]) -> tuple[list[float], float]:
+        bg = start_child("background", group, port, fps)
+        kids.append(bg)
+        time.sleep(0.2)
+        samples = start()
+        bg.send_signal(signal.SIGTERM)
+        out, _ = bg.communicate(timeout=10)
+        return samples, float(out.strip() or 0)
+
+    try:
+        with tempfile.TemporaryDirectory() as d:
+            tmp = Path(d)
+            echo_proc = start_child("echo", group, port)
+            kids.append(echo_proc)
+            bus_rtt, bus_fps = measure_background(lambda: echo_trials(peer, trials, rnd))
+            echo_proc.send_signal(signal.SIGTERM)
+            echo_proc.wait(10)
+
+            cfg = write_config(tmp, {"interface": "udp_multicast", "channel": group, "port": port})
+            daemon = subprocess.Popen([sys.executable, "-m", "canguard", "run", "-c", str(cfg)], env=child_env())
+            kids.append(daemon)  # type: ignore[arg-type]
+            events = tmp / "events.jsonl"
+            deadline = time.monotonic() + 30
+            while not (events.exists() and b'"start"' in events.read_bytes()):
+                if time.monotonic() > deadline or daemon.poll() is not None:
+                    raise RuntimeError("canguard run did not start")
+                time.sleep(0.05)
+            guard, guard_fps = measure_background(lambda: guard_trials(peer, trials, rnd))
+            daemon.send_signal(signal.SIGTERM)
+            daemon.wait(10)
+    finally:
+        for k in kids:
+            if k.poll() is None:
+                k.kill()
+            k.wait(10)
+        peer.shutdown()
+    report("(b) cross-process: canguard run subprocess, udp_multicast", guard, bus_rtt, min(bus_fps, guard_fps))
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run both set-ups and print their figures."""
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--trials", type=int, default=1000, help="trials per measurement (default 1000)")
+    ap.add_argument("--fps", type=float, default=8000.0, help="background frames/s (default 8000)")
+    ap.add_argument("--only", choices=("in-process", "cross-process"), help="run one set-up only")
+    ap.add_argument("--seed", type=int, default=1)
+    args = ap.parse_args(argv)
+    rnd = random.Random(args.seed)
+    print(f"python {sys.version.split()[0]}, python-can {can.__version__}, {os.cpu_count()} CPUs, "
+          f"GIL switch interval {sys.getswitchinterval() * 1e3:.1f} ms")
+    if args.only != "cross-process":
+        in_process(args.trials, args.fps, rnd)
+    if args.only != "in-process":
+        cross_process(args.trials, args.fps, rnd)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
