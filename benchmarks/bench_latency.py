@@ -147,7 +147,7 @@ def recv_until(bus: can.BusABC, pred: Callable[[can.Message], bool], timeout_s: 
     while True:
         left = deadline - time.perf_counter()
         if left <= 0:
-            raise RuntimeError("no answer within %.1f s" % timeout_s)
+            raise RuntimeError(f"no answer within {timeout_s:.1f} s")
         msg = bus.recv(left)
         if msg is not None and pred(msg):
             return msg
@@ -195,7 +195,7 @@ def echo_trials(peer: can.BusABC, trials: int, rnd: random.Random) -> list[float
 def figures(samples: list[float]) -> dict[str, float]:
     """p50 / p99 / max in ms."""
     s = sorted(samples)
-    pick = lambda q: s[min(len(s) - 1, int(round(q * (len(s) - 1))))] * 1e3  # noqa: E731
+    pick = lambda q: s[min(len(s) - 1, round(q * (len(s) - 1)))] * 1e3  # noqa: E731
     return {"p50": statistics.median(s) * 1e3, "p99": pick(0.99), "max": s[-1] * 1e3}
 
 
@@ -284,8 +284,9 @@ def cross_process(trials: int, fps: float, rnd: random.Random) -> None:
             echo_proc.wait(10)
 
             cfg = write_config(tmp, {"interface": "udp_multicast", "channel": group, "port": port})
-            daemon = subprocess.Popen([sys.executable, "-m", "canguard", "run", "-c", str(cfg)], env=child_env())
-            kids.append(daemon)  # type: ignore[arg-type]
+            daemon = subprocess.Popen([sys.executable, "-m", "canguard", "run", "-c", str(cfg)],
+                                      env=child_env(), text=True)
+            kids.append(daemon)
             events = tmp / "events.jsonl"
             deadline = time.monotonic() + 30
             while not (events.exists() and b'"start"' in events.read_bytes()):
@@ -301,7 +302,8 @@ def cross_process(trials: int, fps: float, rnd: random.Random) -> None:
                 k.kill()
             k.wait(10)
         peer.shutdown()
-    report("(b) cross-process: canguard run subprocess, udp_multicast", guard, bus_rtt, min(bus_fps, guard_fps))
+    report("(b) cross-process: canguard run subprocess, udp_multicast", guard, bus_rtt,
+           min(bus_fps, guard_fps))
 
 
 def main(argv: list[str] | None = None) -> int:
