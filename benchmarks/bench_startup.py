@@ -1,0 +1,206 @@
+"""Start-up and memory of ``canguard run``.
+
+1. Start to ``READY=1``: ``canguard run`` as a subprocess with a real
+   NOTIFY_SOCKET (a unix datagram socket this script binds), from ``Popen`` to
+   the READY=1 datagram, over ``--runs`` runs (default 5); the peer figure is
+   ``python -c pass`` from ``Popen`` to exit. Goal: <= 1 s.
+2. RSS under load: one daemon fed 8,000 frames/s (a sender process on
+   udp_multicast: BMS at 100 Hz, the rest ids no config uses) for
+   ``--minutes`` (default 10); VmRSS from /proc/PID/status every ``--every``
+   seconds (default 60) and at the end. Goal: <= 80 MB and flat.
+
+    PYTHONPATH=src python benchmarks/bench_startup.py --runs 5 --minutes 10
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import random
+import shutil
+import signal
+import socket
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+REPO = Path(__file__).resolve().parents[1]
+SRC = REPO / "src"
+BUNDLED = REPO / "config" / "canguard.yaml"
+DBC = REPO / "dbc" / "robot.dbc"
+
+SENDER = """
+import sys, time
+import can, cantools
+db = cantools.database.load_file({dbc!r})
+m = db.get_message_by_name("BMS_Status")
+bms = can.Message(arbitration_id=m.frame_id, is_extended_id=True, data=m.encode(dict(
+    Pack_Current=10.0, Pack_Voltage=48.0, State_Of_Charge=80.0, Present=1, Fault=0, Alive_Counter=0)))
+other = [can.Message(arbitration_id=0x600 + i, data=bytes(8)) for i in range(64)]
+batch = [bms] + [other[i % 64] for i in range(int({fps} / 100) - 1)]
+bus = can.Bus(interface="udp_multicast", channel={group!r}, port={port})
+sent, start = 0, time.perf_counter()
+while True:
+    due = int((time.perf_counter() - start) * {fps})
+    while sent < due:
+        bus.send(batch[sent % len(batch)])
+        sent += 1
+    time.sleep(0.001)
+"""
+
+
+def child_env(**extra: str) -> dict[str, str]:
+    """This checkout's src on PYTHONPATH; no systemd variables unless given."""
+    env = {k: v for k, v in os.environ.items() if k not in ("NOTIFY_SOCKET", "WATCHDOG_USEC")}
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(SRC), env.get("PYTHONPATH", "")) if p)
+    env.update(extra)
+    return env
+
+
+def write_config(tmp: Path, bus: dict[str, Any]) -> Path:
+    """The bundled config on ``bus``, with absolute paths and events / state in ``tmp``."""
+    doc = yaml.safe_load(BUNDLED.read_text(encoding="utf-8"))
+    doc["dbc"] = [str(DBC)]
+    doc["tree"]["file"] = str((BUNDLED.parent / doc["tree"]["file"]).resolve())
+    doc["buses"] = {"main": bus}
+    doc["events"] = str(tmp / "events.jsonl")
+    doc["state"]["file"] = str(tmp / "i2t_state.json")
+    path = tmp / "canguard.yaml"
+    path.write_text(yaml.safe_dump(doc), encoding="utf-8")
+    return path
+
+
+def unique_udp(rnd: random.Random) -> dict[str, Any]:
+    """A udp_multicast bus on a random group and port."""
+    group = f"239.{rnd.randint(1, 254)}.{rnd.randint(1, 254)}.{rnd.randint(1, 254)}"
+    return {"interface": "udp_multicast", "channel": group, "port": rnd.randint(20000, 60000)}
+
+
+def vmrss_mb(pid: int) -> float:
+    """VmRSS of ``pid`` in MB (/proc/PID/status)."""
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024
+    return float("nan")
+
+
+def start_to_ready(config: Path, timeout_s: float = 30.0) -> float:
+    """Seconds from Popen of ``canguard run`` to its READY=1 datagram."""
+    d = tempfile.mkdtemp(prefix="cgb")
+    path = os.path.join(d, "notify")
+    sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    proc = None
+    try:
+        sock.bind(path)
+        sock.settimeout(0.5)
+        t0 = time.perf_counter()
+        proc = subprocess.Popen([sys.executable, "-m", "canguard", "run", "-c", str(config)],
+                                env=child_env(NOTIFY_SOCKET=path))
+        while True:
+            if time.perf_counter() - t0 > timeout_s or proc.poll() is not None:
+                raise RuntimeError("canguard run sent no READY=1")
+            try:
+                data = sock.recv(4096).decode()
+            except TimeoutError:
+                continue
+            if "READY=1" in data.split("\n"):
+                return time.perf_counter() - t0
+    finally:
+        if proc is not None and proc.poll() is None:
+            proc.send_signal(signal.SIGTERM)
+            try:
+                proc.wait(10)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait(10)
+        sock.close()
+        shutil.rmtree(d, ignore_errors=True)
+
+
+def python_pass() -> float:
+    """Seconds from Popen of ``python -c pass`` to its exit."""
+    t0 = time.perf_counter()
+    subprocess.run([sys.executable, "-c", "pass"], check=True, env=child_env(), timeout=30)
+    return time.perf_counter() - t0
+
+
+def rss_under_load(config: Path, bus: dict[str, Any], minutes: float, every_s: float, fps: float) -> None:
+    """Print the daemon's VmRSS every ``every_s`` while a sender feeds it ``fps`` frames/s."""
+    kids: list[subprocess.Popen[bytes]] = []
+    try:
+        events = Path(yaml.safe_load(config.read_text())["events"])
+        events.unlink(missing_ok=True)  # the start-up runs wrote theirs there
+        daemon = subprocess.Popen([sys.executable, "-m", "canguard", "run", "-c", str(config)],
+                                  env=child_env())
+        kids.append(daemon)
+        deadline = time.monotonic() + 30
+        while not (events.exists() and b'"start"' in events.read_bytes()):
+            if time.monotonic() > deadline or daemon.poll() is not None:
+                raise RuntimeError("canguard run did not start")
+            time.sleep(0.05)
+        code = SENDER.format(dbc=str(DBC), group=bus["channel"], port=bus["port"], fps=fps)
+        kids.append(subprocess.Popen([sys.executable, "-c", code], env=child_env()))
+        t0 = time.monotonic()
+        end = t0 + minutes * 60
+        print(f"\nRSS of canguard run at {fps:,.0f} frames/s for {minutes:g} min")
+        print(f"  {'t (s)':>7} {'VmRSS MB':>9}")
+        print(f"  {0:7.0f} {vmrss_mb(daemon.pid):9.1f}")
+        samples = []
+        while True:
+            now = time.monotonic()
+            if now >= end:
+                break
+            time.sleep(min(every_s, end - now))
+            rss = vmrss_mb(daemon.pid)
+            samples.append(rss)
+            print(f"  {time.monotonic() - t0:7.0f} {rss:9.1f}", flush=True)
+        if daemon.poll() is not None:
+            raise RuntimeError("canguard run died under load")
+        print(f"  first {samples[0]:.1f} MB, last {samples[-1]:.1f} MB, max {max(samples):.1f} MB")
+    finally:
+        for k in kids:
+            if k.poll() is None:
+                k.send_signal(signal.SIGTERM)
+                try:
+                    k.wait(10)
+                except subprocess.TimeoutExpired:
+                    k.kill()
+                    k.wait(10)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Measure start to READY=1, then RSS under load."""
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--runs", type=int, default=5, help="start-up runs (default 5)")
+    ap.add_argument("--minutes", type=float, default=10.0, help="RSS run length (default 10; 0 skips)")
+    ap.add_argument("--every", type=float, default=60.0, help="seconds between RSS samples (default 60)")
+    ap.add_argument("--fps", type=float, default=8000.0, help="frames/s during the RSS run (default 8000)")
+    args = ap.parse_args(argv)
+    rnd = random.Random()
+    print(f"python {sys.version.split()[0]}, {os.cpu_count()} CPUs")
+    with tempfile.TemporaryDirectory() as d:
+        tmp = Path(d)
+        bus = unique_udp(rnd)
+        config = write_config(tmp, bus)
+        python_pass()  # warm the page cache for both
+        ready = [start_to_ready(config) for _ in range(args.runs)]
+        peer = [python_pass() for _ in range(args.runs)]
+        r, p = statistics.median(ready), statistics.median(peer)
+        print(f"\nstart -> READY=1 over {args.runs} runs (s): median {r:.3f}, min {min(ready):.3f}, "
+              f"max {max(ready):.3f}")
+        print(f"python -c pass (s):                  median {p:.3f}, min {min(peer):.3f}, "
+              f"max {max(peer):.3f}")
+        print(f"ratio canguard READY / python start: {r / p:.1f}")
+        if args.minutes > 0:
+            rss_under_load(config, bus, args.minutes, args.every, args.fps)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
