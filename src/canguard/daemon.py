@@ -49,9 +49,9 @@ class Daemon:
     """Owns the buses, the journal, the engine and the signals of one ``canguard run``."""
 
     def __init__(self, config_path: Path, *, metrics_addr: str | None = None,
-                 notifier: Notifier | None = None) -> None:
+                 notifier: Notifier | None = None, cfg: Config | None = None) -> None:
         self.config_path = config_path
-        self.cfg: Config = load_config(config_path)
+        self.cfg: Config = cfg if cfg is not None else load_config(config_path)
         self.clock = LiveClock()
         self.notifier = notifier if notifier is not None else Notifier()
         self.metrics: Any = None
