@@ -54,7 +54,7 @@ CLOSED_LOOP = (8).to_bytes(4, "little")
 ECHO_REQ, ECHO_REP = 0x7E0, 0x7E1
 BACKGROUND_IDS = range(0x600, 0x680)  # no DBC message, no config source
 
-_db = cantools.database.load_file(str(DBC))
+_db: Any = cantools.database.load_file(str(DBC))
 _bms = _db.get_message_by_name("BMS_Status")
 
 
@@ -165,9 +165,16 @@ def guard_trials(peer: can.BusABC, trials: int, rnd: random.Random) -> list[floa
                       {"can_id": SET_STATE0, "can_mask": 0x7FF, "extended": False}])
     normal, over = bms_msg(10.0), bms_msg(40.0)
     out: list[float] = []
+    resumed = lambda m: m.arbitration_id == SET_STATE0 and bytes(m.data) == CLOSED_LOOP  # noqa: E731
     for _ in range(trials):
-        peer.send(normal)
-        recv_until(peer, lambda m: m.arbitration_id == SET_STATE0 and bytes(m.data) == CLOSED_LOOP)
+        for attempt in range(100):  # resend: the daemon may not have opened its bus yet
+            peer.send(normal)
+            try:
+                recv_until(peer, resumed, timeout_s=0.1)
+                break
+            except RuntimeError:
+                if attempt == 99:
+                    raise
         time.sleep(rnd.uniform(0.0, 0.003))
         drain(peer)
         t0 = time.perf_counter()
