@@ -59,7 +59,7 @@ def _cmd_check(args: argparse.Namespace) -> int:
     print(describe(cfg))
     if cfg.tree is not None:
         report = check_tree(cfg)
-        print(report.text)
+        print(report.text, end="" if report.text.endswith("\n") else "\n")
         for warning in report.warnings:
             print(f"warning: {warning}", file=sys.stderr)
     return 0
@@ -80,11 +80,13 @@ def _cmd_tree(args: argparse.Namespace) -> int:
     from .tree import nodes_model_xml, show_tree
 
     if args.nodes_model is not None:
-        args.nodes_model.write_text(nodes_model_xml(), encoding="utf-8")
+        from .config import load_config
+        from .tree import context_for
+
+        ctx = context_for(load_config(_config_path(args)))
+        args.nodes_model.write_text(nodes_model_xml(ctx), encoding="utf-8")
         print(f"wrote {args.nodes_model}")
-        if args.config is None and args.dot is None:
-            return 0
-    print(show_tree(_config_path(args), dot=args.dot))
+    print(show_tree(_config_path(args), dot=args.dot), end="")
     return 0
 
 

@@ -9,6 +9,7 @@ log's own timestamps; tests use :class:`ManualClock` by hand.
 
 from __future__ import annotations
 
+import math
 import time
 from typing import Protocol
 
@@ -78,3 +79,39 @@ class LiveClock:
     def to_monotonic(self, t: float) -> float:
         """Convert a time of this clock back to ``time.monotonic()``'s base."""
         return t - self._offset
+
+
+class PinnedClock:
+    """The engine's view of a clock: never goes back, and stands still for the length of a tick.
+
+    Live, the wall of time keeps moving while a tick runs; pinning it makes
+    every node of one tick, and every event the tick writes, see the same
+    ``now``, and keeps journal times in order.
+    """
+
+    def __init__(self, inner: Clock) -> None:
+        self.inner = inner
+        self._pinned: float | None = None
+        self._last = -math.inf
+
+    def now(self) -> float:
+        """The pinned time during a tick; otherwise the inner clock's, never below the last pin."""
+        if self._pinned is not None:
+            return self._pinned
+        t = self.inner.now()
+        return t if t > self._last else self._last
+
+    def advance_to(self, t: float) -> None:
+        """Drive the inner clock (replay); live clocks ignore it."""
+        self.inner.advance_to(t)
+
+    def pin(self, t: float) -> float:
+        """Stand still at ``t`` (or at the last pin, if that is later) until :meth:`unpin`; returns the pin."""
+        if t < self._last:
+            t = self._last
+        self._pinned = self._last = t
+        return t
+
+    def unpin(self) -> None:
+        """Let time move again."""
+        self._pinned = None

@@ -26,16 +26,19 @@ import math
 import time
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import py_trees
 
-from .clock import Clock
+from .clock import Clock, PinnedClock
 from .config import Config
 from .context import Context, FrameSink
 from .data import Frame
 from .decode import Decoder
 from .emit import TaskGate
+
+if TYPE_CHECKING:
+    from .tree import GuardView
 
 log = logging.getLogger("canguard.engine")
 
@@ -96,7 +99,8 @@ class Engine:
 
             raise ConfigError(f"{cfg.path}: tree: missing, expected {{file: TREE.xml, main: ID, tick_hz: HZ}}")
         self.cfg = cfg
-        self.clock = clock
+        self.clock = PinnedClock(clock)
+        clock = self.clock
         self.sink = sink
         self.events = events
         self.durable = durable
@@ -109,11 +113,15 @@ class Engine:
         """Called after every tick with its time (plots)."""
         self.stats = EngineStats()
         self.decoder = Decoder(cfg)
-        self.ctx = Context(clock, cfg.sources, sink=sink, actions=cfg.actions, on_event=self._write_event)
+        self.ctx = Context(clock, cfg.sources, sink=sink, actions=cfg.actions, on_event=self._write_event,
+                           stop_frames=cfg.stop.frames)
         self.gate = TaskGate(cfg.task, cfg.stop, sink, health=self.ctx.health, on_event=self._gate_event)
         self.ctx.task = self.gate
         self.loaded = load_tree(cfg.tree.file, self.ctx, cfg.tree.main)
         self.root: py_trees.behaviour.Behaviour = self.loaded.root
+        self._guards = self.loaded.guards()
+        read = [cfg.sources[s].max_age_s for s in self.ctx.read_sources if s in cfg.sources]
+        self._start_grace_s = max(read, default=0.0)
         self.period_s = 1.0 / cfg.tree.tick_hz
         self._next_tick = math.nan
         self._stale: dict[str, str] = {}
@@ -209,12 +217,20 @@ class Engine:
                 self.tick(due)
                 self._next_tick += self.period_s
             else:
-                self.gate.service(due)
+                self.gate.service(self.clock.pin(due))
+                self.clock.unpin()
         self._flush()
 
     # -- the tick --------------------------------------------------------------------------
     def tick(self, now: float) -> py_trees.common.Status:
         """Tick the tree once at ``now`` and act on its status."""
+        now = self.clock.pin(now)
+        try:
+            return self._tick(now)
+        finally:
+            self.clock.unpin()
+
+    def _tick(self, now: float) -> py_trees.common.Status:
         if self.ctx.tree_start is None:
             self.ctx.tree_start = now
         self.gate.begin_tick()
@@ -232,7 +248,7 @@ class Engine:
         self.stats.ticks += 1
         self.last_status = status
         self.last_tick_t = now
-        if status == py_trees.common.Status.FAILURE:
+        if status == py_trees.common.Status.FAILURE and not self._starting(now):
             tip = self.root.tip()
             node = tip.name if tip is not None else self.root.name
             self.gate.stop(now, reason=f"tree failed at {node}", node=node)
@@ -262,6 +278,15 @@ class Engine:
         else:
             self._heat_failed = False
 
+    def _starting(self, now: float) -> bool:
+        """True while the task never ran and the sources still have their first max_age to speak.
+
+        A tree that fails in that window only keeps the task from starting: the
+        drives were never enabled, so no stop frames go out (they would latch an
+        ESTOP error that needs clearing). After it, a failing tree stops, enabled or not.
+        """
+        return self.gate.state == TaskGate.IDLE and now - self._started_at < self._start_grace_s
+
     def _watch_sources(self, now: float) -> None:
         for name, health in self.ctx.health.items():
             reason = health.reason(now)
@@ -287,6 +312,10 @@ class Engine:
                 levels[node] = pct
             if self.metrics is not None:
                 self.metrics.set_i2t_level(node, pct)
+
+    def guards(self) -> list[GuardView]:
+        """Every guarded signal of the tree (node, source, role, kind, model), in tree order."""
+        return self._guards
 
     # -- watchdog and status ---------------------------------------------------------------
     def stale_unstopped(self, now: float) -> list[str]:

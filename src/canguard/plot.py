@@ -94,7 +94,7 @@ class Recorder:
         fig, axes = plt.subplots(rows, 1, figsize=(11, 2.6 * rows), sharex=True, squeeze=False)
         t0 = summary.get("first_t") or 0.0
         end = summary.get("last_t") or t0
-        for ax, (source, role) in zip(axes[:, 0], sources):
+        for ax, (source, role) in zip(axes[:, 0], sources, strict=False):
             ts, vs = self.series[(source, role)]
             ax.plot([t - t0 for t in ts], list(vs), lw=0.8, label=f"{source} {role}")
             for g in guards:

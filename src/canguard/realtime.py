@@ -41,7 +41,7 @@ def replay_realtime(cfg: Config, args: argparse.Namespace) -> int:
         done = threading.Event()
 
         def play(log_path: Any = log_path, stats: ReadStats = stats, player: Any = player,
-                 done: threading.Event = done) -> None:
+                 done: threading.Event = done, daemon: Daemon = daemon) -> None:
             try:
                 start_wall = time.monotonic()
                 start_log = None

@@ -186,8 +186,8 @@ def render_text(s: dict[str, Any]) -> str:
     for t in s["trips"]:
         lines.append(f"    t={t.get('t')} {t.get('node')} source={t.get('source')} value={t.get('value')}"
                      f" threshold={t.get('threshold')} reason={t.get('reason')}")
-    lines.append(f"  stops: {s['stops']}, stopped {s['stopped_s']} s; frames canguard would send: {s['frames_sent']};"
-                 f" stop confirmations {s['confirmations']}, escalations {s['escalations']}")
+    lines.append(f"  stops: {s['stops']}, stopped {s['stopped_s']} s; frames canguard would send: "
+                 f"{s['frames_sent']}; stop confirmations {s['confirmations']}, escalations {s['escalations']}")
     lines.append("  lowest margin to each threshold:")
     for m in s["margins"]:
         if m["margin"] is None:
@@ -248,7 +248,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--baseline", type=Path, metavar="FILE", help="compare with a saved --json summary")
     p.add_argument("--skip-bad", action="store_true", help="count and skip malformed lines instead of stopping")
     p.add_argument("--state", type=Path, metavar="FILE", help="start from this I²t state file (default: cold)")
-    p.add_argument("--plot", type=Path, metavar="FILE", help="plot currents, thresholds, I²t and stops (.png/.svg/.html)")
+    p.add_argument("--plot", type=Path, metavar="FILE",
+                   help="plot currents, thresholds, I²t and stops (.png/.svg/.html)")
     p.add_argument("--jobs", type=int, default=1, metavar="N", help="replay several logs in N processes")
     p.add_argument("--realtime", nargs="?", type=float, const=1.0, default=None, metavar="SPEED",
                    help="send the log onto a configured bus at its pace (x SPEED) with the engine live on it")
@@ -298,7 +299,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
         results = [_job(j) for j in jobs]
     summaries = []
     errors = 0
-    for (_, log, _), (summary, err) in zip(jobs, results):
+    for summary, err in results:
         if summary is None:
             print(f"canguard replay: error:\n{err}", file=sys.stderr)
             errors += 1
@@ -311,7 +312,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
         print(json.dumps(out, indent=2, sort_keys=True))
     if base is not None and summaries:
         base_list = base if isinstance(base, list) else [base]
-        for old, new in zip(base_list, summaries):
+        for old, new in zip(base_list, summaries, strict=False):
             changes = compare_baseline(old, new)
             print(f"baseline {args.baseline} vs {new['log']}: " + ("no change" if not changes else ""),
                   file=sys.stderr)
