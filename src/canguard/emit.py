@@ -170,7 +170,7 @@ class TaskGate:
                 "confirmed", now, source=confirm.source, value=value, threshold=confirm.value,
                 reason=f"{confirm.signal} {confirm.op} {confirm.value} after {now - self.stop_since:.3f} s",
             )
-        elif now - self.stop_since >= confirm.deadline_s:
+        elif now >= self.stop_since + confirm.deadline_s:  # next_deadline()'s own sum: (a + d) - a < d in floats
             self._confirm_pending = False
             if self.stop_cfg.escalate:
                 self.sink.send(self.stop_cfg.escalate, "escalate")
