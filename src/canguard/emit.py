@@ -129,6 +129,14 @@ class TaskGate:
             return nxt
         return math.inf
 
+    def skip_to(self, t: float) -> None:
+        """After a gap in time (a stall, a gap in a log): periodic frames due before ``t`` are due at ``t``.
+
+        The stop confirmation deadline is not moved: it is one deadline, not a period.
+        """
+        self._next_task = max(self._next_task, t)
+        self._next_stop = max(self._next_stop, t)
+
     def stopped_total(self, now: float) -> float:
         """Seconds spent stopped so far, the open interval included."""
         extra = now - self.stop_since if self.state == self.STOPPED and self.stop_since is not None else 0.0

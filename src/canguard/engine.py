@@ -207,6 +207,9 @@ class Engine:
             if missed > 0:
                 self._next_tick += missed * self.period_s
                 self.stats.skipped_ticks += missed
+                # The gate's periodic frames skip the gap too: sent one by one, a day-long gap in a
+                # log was millions of task frames (a replay that never ended).
+                self.gate.skip_to(self._next_tick)
         while True:
             due_gate = self.gate.next_deadline()
             due = min(self._next_tick, due_gate)
