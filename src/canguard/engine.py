@@ -168,6 +168,11 @@ class Engine:
             self._last_frame_t = t
         else:
             self.stats.backward_frames += 1  # out of order: the models' own rules handle it
+        if math.isnan(self._next_tick):
+            # Not started yet (replay): start at this frame and feed it before the first tick, as live,
+            # where the frames queued while the daemon started are fed before its first tick; otherwise
+            # every replay began with a "no_data" trip on the very frame that brings the data.
+            self.start(t)
         if t > self.clock.now():  # replay: log time drives the clock; live time runs ahead by itself
             self.advance(t)
             self.clock.advance_to(t)
