@@ -271,6 +271,17 @@ def _job(args: tuple[Path, Path, ReplayOptions]) -> tuple[dict[str, Any] | None,
         return None, str(exc)
 
 
+def _load_baseline(path: Path) -> Any:
+    """A saved --json summary (one object, or a list for several logs); a clear error otherwise."""
+    try:
+        base = json.loads(path.read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ConfigError(f"--baseline {path}: not a saved `canguard replay --json` summary: {exc}") from None
+    if not isinstance(base, (dict, list)):
+        raise ConfigError(f"--baseline {path}: expected a saved `canguard replay --json` summary (an object)")
+    return base
+
+
 def cmd_replay(args: argparse.Namespace) -> int:
     """Replay every log; print summaries in input order; exit 0, 1 (--fail-on-trip and a trip) or 2."""
     from .cli import default_config
@@ -283,7 +294,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
         return replay_realtime(cfg, args)
     channel_map = parse_map(args.map, cfg)
     many = len(args.logs) > 1
-    base = json.loads(args.baseline.read_text(encoding="utf-8")) if args.baseline else None
+    base = _load_baseline(args.baseline) if args.baseline else None
     jobs = []
     for log in args.logs:
         opts = ReplayOptions(
