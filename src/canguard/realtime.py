@@ -31,7 +31,10 @@ def replay_realtime(cfg: Config, args: argparse.Namespace) -> int:
     if speed <= 0:
         raise ConfigError(f"--realtime {speed}: expected a speed > 0 (1 = the log's own pace)")
     bus_name = args.bus or (next(iter(cfg.buses)) if len(cfg.buses) == 1 else None)
-    if bus_name is None or bus_name not in cfg.buses:
+    if bus_name is None:
+        raise ConfigError(f"--realtime: several buses are configured ({', '.join(cfg.buses)}): "
+                          "name the one to play onto with --bus")
+    if bus_name not in cfg.buses:
         raise ConfigError(f"--bus {args.bus!r}: expected one of the configured buses: {', '.join(cfg.buses)}")
     tripped = False
     for log_path in args.logs:
