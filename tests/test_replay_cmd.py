@@ -631,6 +631,13 @@ class TestLiveParity:
         code, _, err = run(data["spike"], "-c", data["cfg"], "--realtime", "8", "--fail-on-trip")
         assert code == 1, err
 
+    def test_realtime_needs_bus_with_several(self, run: Run, data: Data) -> None:
+        """With two buses, --realtime without --bus is exit 2 asking for --bus and listing the buses."""
+        code, _, err = run(data["spike"], "-c", data["cfg2"], "--realtime", "8")
+        assert code == 2
+        assert "--bus" in err and "main" in err and "aux" in err
+        assert "None" not in err
+
     def test_realtime_bad_speed(self, run: Run, data: Data) -> None:
         """--realtime 0 is exit 2 explaining the speed."""
         code, _, err = run(data["spike"], "-c", data["cfg"], "--realtime", "0")
