@@ -91,6 +91,7 @@ class Context:
         actions: Mapping[str, ActionConfig] | None = None,
         task: TaskGate | None = None,
         on_event: EventCallback | None = None,
+        stop_frames: Sequence[FrameSpec] = (),
     ) -> None:
         self.clock = clock
         self.sources = dict(sources)
@@ -106,6 +107,8 @@ class Context:
         """Time of the tree's first tick, set by the engine."""
         self.heat_models: dict[str, ProtectionModel] = {}
         """I²t models by guard node name: their heat is saved to and restored from the state file."""
+        self.stop_frames: tuple[FrameSpec, ...] = tuple(stop_frames)
+        """The config's stop frames (``stop.frames``), sent by the EmitStop node."""
 
     def now(self) -> float:
         """The engine's time (seconds, the frames' time base)."""

@@ -1,0 +1,122 @@
+"""canguard's node library: py_trees behaviours with typed ports, by BehaviorTree.CPP node ID.
+
+:data:`BUILTIN_NODES` is the closed table of node types canguard itself provides;
+:func:`canguard.tree.build_registry` binds each to a tree's context and extends
+the table with one :class:`~canguard.nodes.actions.ConfiguredAction` per
+``actions:`` entry of the config and with the node types third-party packages
+declare in the ``canguard.nodes`` entry-point group (loaded lazily, only when a
+tree uses them). Node IDs read from XML are only ever looked up in that table:
+nothing is imported or evaluated by a name found in a tree file.
+
+A plug-in node type is a class deriving from :class:`CanguardNode` (or at least
+:class:`py_trees.ports.PortsMixin`) and a py_trees behaviour; when its
+constructor takes ``context=`` it receives the tree's :class:`~canguard.context.Context`.
+"""
+
+from __future__ import annotations
+
+from .actions import ConfiguredAction, EmitStop, ExecuteTask
+from .base import CanguardNode, NodeKind, PortError, port_info
+from .control import (
+    Delay,
+    Fallback,
+    ForceFailure,
+    ForceSuccess,
+    Inverter,
+    Parallel,
+    ReactiveFallback,
+    ReactiveSequence,
+    Repeat,
+    RetryUntilSuccessful,
+    Sequence,
+    SequenceWithMemory,
+    Timeout,
+)
+from .current import GuardNode, IsCurrentNormal, IsCurrentSafe, IsI2tSafe
+from .effort import IsJointEffortNormal
+from .profile import Profile
+from .timing import (
+    DEFAULT_TIMER_KEY,
+    IsCooldownElapsed,
+    IsElapsedSinceEvent,
+    IsElapsedTimeCompare,
+    RecordTime,
+    ResetTimer,
+)
+from .values import IsValueAbove, IsValueBelow
+
+BUILTIN_NODES: dict[str, type[CanguardNode]] = {
+    cls.__name__: cls
+    for cls in (
+        # conditions
+        IsCurrentNormal,
+        IsJointEffortNormal,
+        IsCurrentSafe,
+        IsI2tSafe,
+        IsElapsedTimeCompare,
+        IsElapsedSinceEvent,
+        IsCooldownElapsed,
+        IsValueBelow,
+        IsValueAbove,
+        # actions
+        ExecuteTask,
+        EmitStop,
+        ResetTimer,
+        RecordTime,
+        # decorators
+        Profile,
+        Inverter,
+        ForceSuccess,
+        ForceFailure,
+        RetryUntilSuccessful,
+        Repeat,
+        Timeout,
+        Delay,
+        # controls
+        Sequence,
+        ReactiveSequence,
+        SequenceWithMemory,
+        Fallback,
+        ReactiveFallback,
+        Parallel,
+    )
+}
+"""Every node type canguard provides, by node ID (the closed table)."""
+
+__all__ = [
+    "BUILTIN_NODES",
+    "DEFAULT_TIMER_KEY",
+    "CanguardNode",
+    "ConfiguredAction",
+    "Delay",
+    "EmitStop",
+    "ExecuteTask",
+    "Fallback",
+    "ForceFailure",
+    "ForceSuccess",
+    "GuardNode",
+    "Inverter",
+    "IsCooldownElapsed",
+    "IsCurrentNormal",
+    "IsCurrentSafe",
+    "IsElapsedSinceEvent",
+    "IsElapsedTimeCompare",
+    "IsI2tSafe",
+    "IsJointEffortNormal",
+    "IsValueAbove",
+    "IsValueBelow",
+    "NodeKind",
+    "Parallel",
+    "PortError",
+    "Profile",
+    "ReactiveFallback",
+    "ReactiveSequence",
+    "RecordTime",
+    "Repeat",
+    "ResetTimer",
+    "RetryUntilSuccessful",
+    "Sequence",
+    "SequenceWithMemory",
+    "Timeout",
+    "port_info",
+]

@@ -1,0 +1,171 @@
+"""Every node type declares the ports (names, directions, types, defaults) BehaviorTree.CPP users type."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import pytest
+
+from canguard.nodes import BUILTIN_NODES, CanguardNode, ConfiguredAction
+
+NO = object()
+"""No default: required (or optional without a default where marked)."""
+
+# node ID -> {port: (direction, type, default)}; issue 4's list, plus the extras noted.
+EXPECTED: dict[str, dict[str, tuple[str, type, Any]]] = {
+    "IsCurrentNormal": {"topic_name": ("in", str, NO), "max_current": ("in", float, 30.0)},
+    "IsJointEffortNormal": {"topic_name": ("in", str, NO), "max_effort": ("in", float, 100.0)},
+    "IsCurrentSafe": {
+        "topic_name": ("in", str, NO),
+        "overcurrent_threshold": ("in", float, 35.0),
+        "recovery_threshold": ("in", float, 25.0),
+        "trip_after": ("in", float, 0.0),
+        "recover_after": ("in", float, 0.0),  # extra: the recovery counterpart of trip_after
+        "inrush_time": ("in", float, 0.0),
+        "inrush_threshold": ("in", float, NO),
+        "start_current": ("in", float, NO),
+    },
+    "IsI2tSafe": {
+        "topic_name": ("in", str, NO),
+        "model": ("in", str, "leaky"),
+        "continuous_current": ("in", float, NO),
+        "peak_current": ("in", float, NO),
+        "peak_time": ("in", float, NO),
+        "tau": ("in", float, NO),
+        "tau_cool": ("in", float, NO),  # extra: cooling time constant of the thermal image
+        "k": ("in", float, 1.0),
+        "recover_fraction": ("in", float, 0.5),
+        "level": ("out", float, NO),
+    },
+    "IsElapsedTimeCompare": {
+        "reference_sec": ("in", float, NO),
+        "operator": ("in", str, "GT"),
+        "tolerance": ("in", float, 0.1),
+        "reference": ("in", str, "first_tick"),
+        "timer": ("in", float, NO),
+    },
+    "IsElapsedSinceEvent": {
+        "event_timestamp": ("in", float, NO),
+        "min_elapsed_sec": ("in", float, 0.0),
+        "max_elapsed_sec": ("in", float, math.inf),
+    },
+    "IsCooldownElapsed": {"cooldown_sec": ("in", float, 5.0), "last_execution_time": ("in", float, 0.0)},
+    "ResetTimer": {"timer": ("out", float, NO)},
+    "RecordTime": {"output_time": ("out", float, NO)},
+    "IsValueBelow": {"value": ("in", float, NO), "threshold": ("in", float, NO)},
+    "IsValueAbove": {"value": ("in", float, NO), "threshold": ("in", float, NO)},
+    "Profile": {
+        "last_ms": ("out", float, NO),
+        "avg_ms": ("out", float, NO),
+        "max_ms": ("out", float, NO),
+        "count": ("out", int, NO),
+    },
+    "ExecuteTask": {},
+    "EmitStop": {},
+    "Sequence": {},
+    "ReactiveSequence": {},
+    "SequenceWithMemory": {},
+    "Fallback": {},
+    "ReactiveFallback": {},
+    "Parallel": {"success_count": ("in", int, -1), "failure_count": ("in", int, 1)},
+    "Inverter": {},
+    "ForceSuccess": {},
+    "ForceFailure": {},
+    "RetryUntilSuccessful": {"num_attempts": ("in", int, NO)},
+    "Repeat": {"num_cycles": ("in", int, NO)},
+    "Timeout": {"msec": ("in", float, NO)},
+    "Delay": {"delay_msec": ("in", float, NO)},
+}
+
+REQUIRED = {
+    "IsCurrentNormal": {"topic_name"},
+    "IsJointEffortNormal": {"topic_name"},
+    "IsCurrentSafe": {"topic_name"},
+    "IsI2tSafe": {"topic_name", "continuous_current"},
+    "IsElapsedTimeCompare": {"reference_sec"},
+    "IsElapsedSinceEvent": {"event_timestamp"},
+    "RecordTime": {"output_time"},
+    "IsValueBelow": {"value", "threshold"},
+    "IsValueAbove": {"value", "threshold"},
+    "RetryUntilSuccessful": {"num_attempts"},
+    "Repeat": {"num_cycles"},
+    "Timeout": {"msec"},
+    "Delay": {"delay_msec"},
+}
+
+KINDS = {
+    "Condition": {
+        "IsCurrentNormal",
+        "IsJointEffortNormal",
+        "IsCurrentSafe",
+        "IsI2tSafe",
+        "IsElapsedTimeCompare",
+        "IsElapsedSinceEvent",
+        "IsCooldownElapsed",
+        "IsValueBelow",
+        "IsValueAbove",
+    },
+    "Action": {"ExecuteTask", "EmitStop", "ResetTimer", "RecordTime"},
+    "Decorator": {
+        "Profile",
+        "Inverter",
+        "ForceSuccess",
+        "ForceFailure",
+        "RetryUntilSuccessful",
+        "Repeat",
+        "Timeout",
+        "Delay",
+    },
+    "Control": {
+        "Sequence",
+        "ReactiveSequence",
+        "SequenceWithMemory",
+        "Fallback",
+        "ReactiveFallback",
+        "Parallel",
+    },
+}
+
+
+class TestPorts:
+    """Port declarations of every built-in node type."""
+
+    def test_the_table_covers_every_node(self) -> None:
+        """No node type is missing from this test, none is extra."""
+        assert set(EXPECTED) == set(BUILTIN_NODES)
+
+    @pytest.mark.parametrize("node_id", sorted(EXPECTED))
+    def test_ports_and_defaults(self, node_id: str) -> None:
+        """Names, directions, types and defaults are as documented."""
+        cls = BUILTIN_NODES[node_id]
+        got = {
+            name: (
+                "in" if direction == "input" else "out",
+                info.data_type,
+                info.default_value if info.has_default else NO,
+            )
+            for name, (direction, info) in cls.port_table().items()
+        }
+        assert got == EXPECTED[node_id]
+
+    @pytest.mark.parametrize("node_id", sorted(EXPECTED))
+    def test_required_ports(self, node_id: str) -> None:
+        """Exactly the ports without which the node cannot work are required."""
+        cls = BUILTIN_NODES[node_id]
+        required = {n for n, (_, i) in cls.port_table().items() if i.required and not i.has_default}
+        assert required == REQUIRED.get(node_id, set())
+
+    @pytest.mark.parametrize("node_id", sorted(EXPECTED))
+    def test_kind_and_description(self, node_id: str) -> None:
+        """Each node has its BT.CPP category, a description, and described ports."""
+        cls = BUILTIN_NODES[node_id]
+        assert issubclass(cls, CanguardNode)
+        assert node_id in KINDS[cls.KIND]
+        assert cls.DESCRIPTION
+        assert all(info.description for _, info in cls.port_table().values())
+
+    def test_configured_action_ports(self) -> None:
+        """Every actions: entry has one optional output port, output_time (float)."""
+        ((name, (direction, info)),) = ConfiguredAction.port_table().items()
+        assert (name, direction, info.data_type, info.required) == ("output_time", "output", float, False)
