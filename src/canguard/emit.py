@@ -196,14 +196,20 @@ class TaskGate:
 class LogSink:
     """Keeps sent frames as :class:`Frame` objects (``replay --emit``, tests)."""
 
-    def __init__(self, clock_now: Callable[[], float], buses: Mapping[str, BusConfig]) -> None:
+    def __init__(self, clock_now: Callable[[], float], buses: Mapping[str, BusConfig], keep: bool = True) -> None:
         self._now = clock_now
         self._channel = {name: (b.channel or name) for name, b in buses.items()}
+        self.keep = keep
+        """False: count frames only (a replay without --emit stays flat in memory on long logs)."""
+        self.sent = 0
         self.frames: list[Frame] = []
         self.origins: list[str] = []
 
     def send(self, frames: Sequence[FrameSpec], origin: str) -> None:
-        """Record every frame at the current time."""
+        """Record every frame at the current time (or only count them when ``keep`` is False)."""
+        self.sent += len(frames)
+        if not self.keep:
+            return
         t = self._now()
         for f in frames:
             self.frames.append(

@@ -83,7 +83,7 @@ def replay_one(cfg: Config, log_path: Path, opts: ReplayOptions) -> dict[str, An
     from .replay import ReadStats, read_log
 
     clock = ManualClock()
-    sink = LogSink(clock.now, cfg.buses)
+    sink = LogSink(clock.now, cfg.buses, keep=opts.emit is not None)
     journal = EventJournal(opts.events) if opts.events is not None else None
     heat = HeatStore(opts.state, cfg.state.on_corrupt) if opts.state is not None else None
     engine = Engine(cfg, clock, sink, events=journal, durable=False, heat=heat)
@@ -166,7 +166,7 @@ def build_summary(cfg: Config, log_path: Path, engine: Engine, stats: Any, route
         "confirmations": sum(1 for e in engine.events_seen if e == "confirmed"),
         "margins": margins,
         "first_t": _r(engine.first_frame_t), "last_t": _r(end),
-        "frames_sent": len(engine.sink.frames) if isinstance(engine.sink, LogSink) else 0,
+        "frames_sent": engine.sink.sent if isinstance(engine.sink, LogSink) else 0,
     }
     return summary
 
