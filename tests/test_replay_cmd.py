@@ -392,6 +392,12 @@ class TestEmit:
             assert str(decoded["Axis_Requested_State"]) == "CLOSED_LOOP_CONTROL"
         assert all(m.channel == "can0" for m in msgs)
 
+    def test_frames_sent_same_without_emit(self, run: Run, data: Data, tmp_path: Path) -> None:
+        """The summary counts the frames canguard would send whether or not --emit writes them."""
+        with_emit = summary_of(run, data["spike"], "-c", data["cfg"], "--emit", tmp_path / "emit.log")
+        without = summary_of(run, data["spike"], "-c", data["cfg"])
+        assert without == with_emit and without["frames_sent"] > 0
+
     def test_no_trip_sends_only_task_frames(self, run: Run, data: Data, tmp_path: Path) -> None:
         """A clean log emits only the task's Set_Axis_State heartbeat, about every 20 ms."""
         db = _db()
