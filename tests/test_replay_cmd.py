@@ -632,6 +632,25 @@ class TestLiveParity:
         assert live["trips"][0]["value"] == pytest.approx(offline["trips"][0]["value"])
         assert live["samples"]["/battery_state"] == offline["samples"]["/battery_state"]
 
+    def test_daemon_start_before_first_frame_is_not_a_trip(self, data: Data) -> None:
+        """A daemon whose first ticks precede the first frame (as live) counts no trip, like the replay."""
+        from canguard.clock import ManualClock
+        from canguard.config import load_config
+        from canguard.emit import LogSink
+        from canguard.engine import Engine
+        from canguard.replay import read_log
+
+        cfg = load_config(data["cfg"])
+        clock = ManualClock(T0 - 0.05)
+        engine = Engine(cfg, clock, LogSink(clock.now, cfg.buses))
+        engine.start(T0 - 0.05)  # the daemon is up 50 ms before the first frame
+        engine.advance(T0 - 0.001)
+        for frame in read_log(data["normal"]):
+            engine.feed("main", frame)
+        assert engine.stats.ticks > 0
+        assert engine.stats.trips == []
+        assert engine.gate.stops == 0
+
     def test_realtime_fail_on_trip(self, run: Run, data: Data) -> None:
         """--realtime with --fail-on-trip exits 1 on the spike log, like the offline replay."""
         code, _, err = run(data["spike"], "-c", data["cfg"], "--realtime", "8", "--fail-on-trip")
