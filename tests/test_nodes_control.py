@@ -42,10 +42,7 @@ class TestSequences:
 
     def test_reactive_sequence_rechecks_and_halts(self, tmp_path: Path, log: list) -> None:
         """Every tick re-checks the guard; its FAILURE halts the running child."""
-        body = (
-            '<ReactiveSequence><Scripted name="G" script="S,S,F"/>'
-            '<Scripted name="A" script="R"/></ReactiveSequence>'
-        )
+        body = '<ReactiveSequence><Scripted name="G" script="S,S,F"/><Scripted name="A" script="R"/></ReactiveSequence>'
         assert run(tmp_path, body, 3) == [R, R, F]
         assert log == [("G", "S"), ("A", "R"), ("G", "S"), ("A", "R"), ("G", "F"), ("A", "halt")]
 
@@ -70,10 +67,7 @@ class TestFallbacks:
 
     def test_reactive_fallback_interrupts(self, tmp_path: Path, log: list) -> None:
         """A higher priority that succeeds halts the running lower one."""
-        body = (
-            '<ReactiveFallback><Scripted name="A" script="F,S"/>'
-            '<Scripted name="B" script="R"/></ReactiveFallback>'
-        )
+        body = '<ReactiveFallback><Scripted name="A" script="F,S"/><Scripted name="B" script="R"/></ReactiveFallback>'
         assert run(tmp_path, body, 2) == [R, S]
         assert log == [("A", "F"), ("B", "R"), ("A", "S"), ("B", "halt")]
 
@@ -89,10 +83,7 @@ class TestParallel:
 
     def test_success_count_one_halts_the_others(self, tmp_path: Path, log: list) -> None:
         """One success is enough; the still running child is halted."""
-        body = (
-            '<Parallel success_count="1"><Scripted name="A" script="R"/>'
-            '<Scripted name="B" script="S"/></Parallel>'
-        )
+        body = '<Parallel success_count="1"><Scripted name="A" script="R"/><Scripted name="B" script="S"/></Parallel>'
         assert run(tmp_path, body, 1) == [S]
         assert log == [("A", "R"), ("B", "S"), ("A", "halt")]
 
@@ -107,10 +98,7 @@ class TestParallel:
 
     def test_fails_early_when_success_is_impossible(self, tmp_path: Path, log: list) -> None:
         """With all children needed, one failure fails at once, before later children are ticked."""
-        body = (
-            '<Parallel failure_count="2"><Scripted name="A" script="F"/>'
-            '<Scripted name="B" script="R"/></Parallel>'
-        )
+        body = '<Parallel failure_count="2"><Scripted name="A" script="F"/><Scripted name="B" script="R"/></Parallel>'
         assert run(tmp_path, body, 1) == [F]
         assert log == [("A", "F")]
 
@@ -159,10 +147,7 @@ class TestDecorators:
         rig = Rig()
         rig.load_text(
             tmp_path,
-            xml_tree(
-                '<RetryUntilSuccessful num_attempts="{n}"><Scripted name="A" script="F"/>'
-                "</RetryUntilSuccessful>"
-            ),
+            xml_tree('<RetryUntilSuccessful num_attempts="{n}"><Scripted name="A" script="F"/></RetryUntilSuccessful>'),
         )
         py_trees.blackboard.Blackboard.set("/n", 2)
         assert [rig.tick(), rig.tick()] == [R, F]
@@ -186,9 +171,7 @@ class TestTimeout:
     def test_child_finishing_in_time(self, tmp_path: Path, log: list) -> None:
         """A child that completes before the deadline gives its status; the next run has a fresh timer."""
         rig = Rig()
-        rig.load_text(
-            tmp_path, xml_tree('<Timeout msec="1000"><Scripted name="A" script="R,F,R,R,R"/></Timeout>')
-        )
+        rig.load_text(tmp_path, xml_tree('<Timeout msec="1000"><Scripted name="A" script="R,F,R,R,R"/></Timeout>'))
         out = []
         for t in (0.0, 0.9, 5.0, 5.5, 6.0):
             rig.clock.set(1000.0 + t)
@@ -197,10 +180,7 @@ class TestTimeout:
 
     def test_zero_means_no_limit(self, tmp_path: Path, log: list) -> None:
         """msec=0 never times out."""
-        assert (
-            run(tmp_path, '<Timeout msec="0"><Scripted name="A" script="R"/></Timeout>', 4, dt=100.0)
-            == [R] * 4
-        )
+        assert run(tmp_path, '<Timeout msec="0"><Scripted name="A" script="R"/></Timeout>', 4, dt=100.0) == [R] * 4
 
 
 class TestDelay:

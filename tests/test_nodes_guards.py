@@ -6,6 +6,8 @@ from pathlib import Path
 
 import py_trees
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from canguard.protect.hysteresis import Hysteresis
 from canguard.protect.i2t import LeakyI2t, ThermalI2t
@@ -180,8 +182,7 @@ class TestIsI2tSafe:
         """6 A continuous, 12 A for 1 s: constant 12 A trips after 1 s; {lvl} holds the level in %."""
         rig, node = guard(
             tmp_path,
-            '<IsI2tSafe topic_name="axis0" continuous_current="6" peak_current="12" '
-            'peak_time="1" level="{lvl}"/>',
+            '<IsI2tSafe topic_name="axis0" continuous_current="6" peak_current="12" peak_time="1" level="{lvl}"/>',
         )
         model = node.model  # type: ignore[attr-defined]
         assert isinstance(model, LeakyI2t) and model.trip_level == pytest.approx(108.0)
@@ -221,8 +222,7 @@ class TestIsI2tSafe:
         """model="thermal": I_cont = k * continuous_current; tau given directly."""
         _, node = guard(
             tmp_path,
-            '<IsI2tSafe topic_name="axis0" model="thermal" continuous_current="5" k="1.2" '
-            'tau="30" tau_cool="60"/>',
+            '<IsI2tSafe topic_name="axis0" model="thermal" continuous_current="5" k="1.2" tau="30" tau_cool="60"/>',
         )
         model = node.model  # type: ignore[attr-defined]
         assert isinstance(model, ThermalI2t)
@@ -238,3 +238,32 @@ class TestIsI2tSafe:
         rig.advance(1.0)
         assert rig.tick() == F
         assert rig.trips()[-1]["reason"] == "stale"
+
+
+class TestAgainstTheNote:
+    """IsCurrentSafe agrees with design note 004's C++ logic, sample by sample."""
+
+    @settings(max_examples=60, deadline=None)
+    @given(st.lists(st.floats(min_value=-60.0, max_value=60.0, allow_nan=False), min_size=1, max_size=60))
+    def test_hysteresis_matches_the_note(self, currents: list[float]) -> None:
+        """One sample per tick: FAILURE exactly when the note's is_normal_ is false now or was before the sample.
+
+        The note's node looks only at the latest message; canguard's also reports a trip
+        that held at any moment since the previous tick (the peak latch), i.e. the state
+        before the new sample too.
+        """
+        import tempfile
+
+        py_trees.blackboard.Blackboard.clear()
+        with tempfile.TemporaryDirectory() as tmp:
+            rig, _ = guard(Path(tmp), '<IsCurrentSafe topic_name="/battery_state"/>')
+        normal = True
+        for current in currents:
+            before = normal
+            if abs(current) >= 35.0:
+                normal = False
+            elif abs(current) <= 25.0:
+                normal = True
+            rig.advance(0.01)
+            rig.battery(current)
+            assert rig.tick() == (S if (normal and before) else F), currents

@@ -36,8 +36,7 @@ class TestProfile:
         rig.load_text(
             tmp_path,
             xml_tree(
-                '<Profile last_ms="{l}" avg_ms="{a}" max_ms="{m}" count="{c}">'
-                '<Scripted name="A" script="S"/></Profile>'
+                '<Profile last_ms="{l}" avg_ms="{a}" max_ms="{m}" count="{c}"><Scripted name="A" script="S"/></Profile>'
             ),
         )
         for _ in range(3):
@@ -50,9 +49,7 @@ class TestProfile:
     def test_unwired_outputs_are_not_written(self, tmp_path: Path, log: list) -> None:
         """Only the outputs given in the XML reach the blackboard; the rest are attributes."""
         rig = Rig()
-        loaded = rig.load_text(
-            tmp_path, xml_tree('<Profile last_ms="{l}"><Scripted name="A" script="S"/></Profile>')
-        )
+        loaded = rig.load_text(tmp_path, xml_tree('<Profile last_ms="{l}"><Scripted name="A" script="S"/></Profile>'))
         rig.tick()
         assert BB.exists("/l")
         assert not [k for k in BB.storage if k.endswith(("avg_ms", "max_ms", "count"))]
@@ -83,8 +80,7 @@ class TestProfile:
         loaded = rig.load_text(
             tmp_path,
             xml_tree(
-                '<Sequence><Profile><Scripted name="A" script="S"/></Profile>'
-                '<Scripted name="B" script="S"/></Sequence>'
+                '<Sequence><Profile><Scripted name="A" script="S"/></Profile><Scripted name="B" script="S"/></Sequence>'
             ),
         )
         for _ in range(5):
@@ -119,9 +115,7 @@ class TestExecuteTask:
         rig = Rig()
         rig.load_text(
             tmp_path,
-            xml_tree(
-                '<ReactiveSequence><Scripted name="G" script="S,S,F,F,S"/><ExecuteTask/></ReactiveSequence>'
-            ),
+            xml_tree('<ReactiveSequence><Scripted name="G" script="S,S,F,F,S"/><ExecuteTask/></ReactiveSequence>'),
         )
         statuses = []
         for _ in range(5):
@@ -156,10 +150,7 @@ class TestFrameActions:
         rig = Rig()
         rig.load_text(
             tmp_path,
-            xml_tree(
-                '<Sequence><PerformRecovery output_time="{done}"/>'
-                '<PerformDiagnostics name="diag"/></Sequence>'
-            ),
+            xml_tree('<Sequence><PerformRecovery output_time="{done}"/><PerformDiagnostics name="diag"/></Sequence>'),
         )
         assert rig.tick() == S
         assert [(o, f.label) for o, f in rig.sink.sent] == [

@@ -133,9 +133,7 @@ class TestIsElapsedTimeCompare:
     def test_operator_from_the_blackboard(self, tmp_path: Path) -> None:
         """operator="{op}" is read at tick; an unknown one fails with a message, not an exception."""
         rig = Rig()
-        loaded = rig.load_text(
-            tmp_path, xml_tree('<IsElapsedTimeCompare reference_sec="1" operator="{op}"/>')
-        )
+        loaded = rig.load_text(tmp_path, xml_tree('<IsElapsedTimeCompare reference_sec="1" operator="{op}"/>'))
         BB.set("/op", "LT")
         assert at(rig, 0.0) == [S]
         BB.set("/op", "NEAR")

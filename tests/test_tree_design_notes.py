@@ -228,9 +228,7 @@ class TestCurrentProtectedOperation:
 class TestMultiCurrentMonitoring:
     """Note 004, 4.2: ReactiveSequence[IsCurrentNormal(40), IsJointEffortNormal(150), ContinueOperation]."""
 
-    def healthy(
-        self, rig: Rig, battery: float = 20.0, efforts: tuple[float, ...] = (10.0, -20.0, 30.0, 0.0)
-    ) -> None:
+    def healthy(self, rig: Rig, battery: float = 20.0, efforts: tuple[float, ...] = (10.0, -20.0, 30.0, 0.0)) -> None:
         rig.advance(0.01)
         rig.battery(battery)
         rig.joints(*efforts)
@@ -252,9 +250,7 @@ class TestMultiCurrentMonitoring:
             (10.0, (0.0, -150.5, 0.0, 0.0), "IsJointEffortNormal", "overcurrent"),
         ],
     )
-    def test_fails_on_any_excess(
-        self, battery: float, efforts: tuple[float, ...], node: str, reason: str
-    ) -> None:
+    def test_fails_on_any_excess(self, battery: float, efforts: tuple[float, ...], node: str, reason: str) -> None:
         """BMS |I| > 40 A or any joint |effort| > 150 fails the tree; ContinueOperation does not run."""
         rig = Rig()
         rig.load(TREES / "multi_current_monitoring.xml")

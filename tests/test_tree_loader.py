@@ -124,6 +124,12 @@ class TestSpellings:
         par = loaded.root
         assert par.thresholds() == (1, 2)  # type: ignore[attr-defined]
 
+    def test_groot_palette_in_the_file_is_ignored(self, tmp_path: Path) -> None:
+        """A <TreeNodesModel> saved by Groot next to the trees is informative only."""
+        xml = V4.replace("</root>", '<TreeNodesModel><Action ID="Other"/></TreeNodesModel></root>')
+        loaded = Rig().load_text(tmp_path, xml)
+        assert loaded.tree_ids == ("Main",)
+
     def test_equals_shortcut(self, tmp_path: Path) -> None:
         """{=} means the key named like the port (BT.CPP 4)."""
         rig = Rig()
@@ -149,9 +155,7 @@ class TestMainAndNames:
 
     def test_single_tree_needs_no_main(self, tmp_path: Path) -> None:
         """A file with one tree and no main_tree_to_execute runs that tree."""
-        loaded = Rig().load_text(
-            tmp_path, "<root><BehaviorTree ID='Only'><ExecuteTask/></BehaviorTree></root>"
-        )
+        loaded = Rig().load_text(tmp_path, "<root><BehaviorTree ID='Only'><ExecuteTask/></BehaviorTree></root>")
         assert loaded.main_id == "Only"
 
     def test_several_trees_without_main(self, tmp_path: Path) -> None:
@@ -253,9 +257,7 @@ class TestSubTree:
 
     def test_constant_through_a_subtree_port(self, tmp_path: Path) -> None:
         """A constant given to a SubTree port reaches the node inside as that constant."""
-        xml = self.XML.replace('limit="{left_limit}"', 'limit="15"').replace(
-            'limit="{right_limit}"', 'limit="50"'
-        )
+        xml = self.XML.replace('limit="{left_limit}"', 'limit="15"').replace('limit="{right_limit}"', 'limit="50"')
         rig = Rig()
         loaded = rig.load_text(tmp_path, xml)
         assert loaded.find("Left/IsCurrentNormal").model.max_value == 15.0
@@ -311,8 +313,7 @@ class TestLoadErrors:
             ),
             (
                 '<IsElapsedTimeCompare reference_sec="60" reference="boot"/>',
-                "port reference: unknown value 'boot'; "
-                "expected one of first_tick, tree_start, last_reset, blackboard",
+                "port reference: unknown value 'boot'; expected one of first_tick, tree_start, last_reset, blackboard",
             ),
             (
                 '<IsI2tSafe topic_name="axis0" model="cubic" continuous_current="5"/>',
@@ -424,9 +425,7 @@ class TestLoadErrors:
         assert "no <BehaviorTree> in the file" in load_error(tmp_path, "<root/>")
         tree_a = "<BehaviorTree ID='A'><ExecuteTask/></BehaviorTree>"
         dup = f"<root>\n{tree_a}\n{tree_a}</root>"
-        assert f":3: BehaviorTree A is defined twice (first at {tmp_path / 'tree.xml'}:2)" in load_error(
-            tmp_path, dup
-        )
+        assert f":3: BehaviorTree A is defined twice (first at {tmp_path / 'tree.xml'}:2)" in load_error(tmp_path, dup)
         two = "<root><BehaviorTree ID='A'><ExecuteTask/><ExecuteTask/></BehaviorTree></root>"
         assert "BehaviorTree A must have exactly one root node, found 2" in load_error(tmp_path, two)
         with pytest.raises(TreeError, match="cannot read the tree file"):
@@ -445,9 +444,7 @@ class TestLoadErrors:
           <BehaviorTree ID="A"><SubTree ID="B"/></BehaviorTree>
           <BehaviorTree ID="B"><Sequence><ExecuteTask/><SubTree ID="A"/></Sequence></BehaviorTree>
         </root>"""
-        assert ":3: node SubTree A (BehaviorTree B): SubTree cycle: A -> B -> A" in load_error(
-            tmp_path, cycle
-        )
+        assert ":3: node SubTree A (BehaviorTree B): SubTree cycle: A -> B -> A" in load_error(tmp_path, cycle)
         auto = xml_tree('<SubTree ID="T" _autoremap="true"/>')
         assert '_autoremap="true" is not supported' in load_error(tmp_path, auto)
 
@@ -463,9 +460,7 @@ class TestLoadErrors:
             '<BehaviorTree ID="T"><SubTree ID="Lib"/></BehaviorTree></root>'
         )
         text = load_error(tmp_path, main)
-        assert text.startswith(
-            f"{tmp_path / 'lib.xml'}:3: node IsCurrentNormal (BehaviorTree Lib), port max_current"
-        )
+        assert text.startswith(f"{tmp_path / 'lib.xml'}:3: node IsCurrentNormal (BehaviorTree Lib), port max_current")
 
     def test_include_works(self, tmp_path: Path) -> None:
         """An included tree is usable as a SubTree."""
@@ -487,14 +482,10 @@ class TestLoadErrors:
 
     def test_parser_errors_become_tree_errors(self, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
         """A node constructor that raises inside py_trees' parser gives a TreeError, not a traceback."""
-        monkeypatch.setattr(
-            tree_module, "plugin_entry_points", lambda: {"Broken": FakeEntryPoint("Broken", Broken)}
-        )
+        monkeypatch.setattr(tree_module, "plugin_entry_points", lambda: {"Broken": FakeEntryPoint("Broken", Broken)})
         text = load_error(tmp_path, xml_tree("<Broken/>"))
         assert text.startswith(f"{tmp_path / 'tree.xml'}: BehaviorTree T: ")
-        assert (
-            "Failed to instantiate 'Broken'" in text and "boom" in text and "(Broken at tree.xml:3)" in text
-        )
+        assert "Failed to instantiate 'Broken'" in text and "boom" in text and "(Broken at tree.xml:3)" in text
 
 
 class Broken(py_trees.ports.PortsMixin, py_trees.behaviour.Behaviour, register=False):
@@ -574,9 +565,7 @@ class TestRegistry:
             tmp_path, xml_tree("<X/>")
         )
         monkeypatch.setattr(tree_module, "plugin_entry_points", lambda: {"X": FakeEntryPoint("X", dict)})
-        assert "is not a py_trees.ports.PortsMixin + py_trees Behaviour class" in load_error(
-            tmp_path, xml_tree("<X/>")
-        )
+        assert "is not a py_trees.ports.PortsMixin + py_trees Behaviour class" in load_error(tmp_path, xml_tree("<X/>"))
 
 
 class TestTools:
@@ -623,9 +612,7 @@ class TestTools:
         assert port.text and "(A)" in port.text
         out = by_id["PerformRecovery"].find("output_port[@name='output_time']")
         assert out is not None and out.get("type") == "double"
-        assert (
-            by_id["IsElapsedSinceEvent"].find("input_port[@name='max_elapsed_sec']").get("default") == "inf"
-        )  # type: ignore[union-attr]
+        assert by_id["IsElapsedSinceEvent"].find("input_port[@name='max_elapsed_sec']").get("default") == "inf"  # type: ignore[union-attr]
 
     def test_validate_against_config(self, tmp_path: Path) -> None:
         """Unread sources are reported; an unknown topic_name is an error listing the sources."""

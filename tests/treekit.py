@@ -48,9 +48,7 @@ def sig(role: str, minimum: float | None = None, maximum: float | None = None) -
 
 def source(name: str, kind: SourceKind, roles: Iterable[str], max_age_s: float = 0.5) -> SourceConfig:
     """A configured source with one signal per role."""
-    return SourceConfig(
-        name=name, kind=kind, bus="main", signals=tuple(sig(r) for r in roles), max_age_s=max_age_s
-    )
+    return SourceConfig(name=name, kind=kind, bus="main", signals=tuple(sig(r) for r in roles), max_age_s=max_age_s)
 
 
 def standard_sources(joints: int = 4) -> dict[str, SourceConfig]:
@@ -110,9 +108,7 @@ class Rig:
         self.loaded = load_tree(path, self.ctx, main)
         return self.loaded
 
-    def load_text(
-        self, tmp_path: Path, xml: str, main: str | None = None, name: str = "tree.xml"
-    ) -> LoadedTree:
+    def load_text(self, tmp_path: Path, xml: str, main: str | None = None, name: str = "tree.xml") -> LoadedTree:
         """Write ``xml`` to ``tmp_path/name`` and load it."""
         path = tmp_path / name
         path.write_text(xml, encoding="utf-8")
@@ -210,8 +206,6 @@ class FakeEntryPoint:
 
 def install_scripted(monkeypatch: pytest.MonkeyPatch) -> list[tuple[str, str]]:
     """Make ``<Scripted script=".."/>`` available (as a plug-in) and return its fresh log."""
-    monkeypatch.setattr(
-        tree_module, "plugin_entry_points", lambda: {"Scripted": FakeEntryPoint("Scripted", Scripted)}
-    )
+    monkeypatch.setattr(tree_module, "plugin_entry_points", lambda: {"Scripted": FakeEntryPoint("Scripted", Scripted)})
     Scripted.journal = []
     return Scripted.journal

@@ -97,9 +97,7 @@ def _load_plugin(ep: EntryPoint) -> type[PortsMixin]:
         cls = ep.load()
     except Exception as exc:  # a broken plug-in must name itself, whatever it raised
         raise TreeError(f"node type {ep.name} ({ENTRY_POINT_GROUP} entry point {ep.value}): {exc}") from exc
-    if not (
-        inspect.isclass(cls) and issubclass(cls, PortsMixin) and issubclass(cls, py_trees.behaviour.Behaviour)
-    ):
+    if not (inspect.isclass(cls) and issubclass(cls, PortsMixin) and issubclass(cls, py_trees.behaviour.Behaviour)):
         raise TreeError(
             f"node type {ep.name} ({ENTRY_POINT_GROUP} entry point {ep.value}) is not a "
             "py_trees.ports.PortsMixin + py_trees Behaviour class"
@@ -125,22 +123,16 @@ def build_registry(ctx: Context, only: Collection[str] | None = None) -> Registr
     named like a built-in node is a TreeError; a plug-in named like a built-in or
     an action is ignored (built-ins and the config win).
     """
-    registry: Registry = {
-        node_id: functools.partial(cls, context=ctx) for node_id, cls in BUILTIN_NODES.items()
-    }
+    registry: Registry = {node_id: functools.partial(cls, context=ctx) for node_id, cls in BUILTIN_NODES.items()}
     for name, action in ctx.actions.items():
         if name in registry or name == _SUBTREE:
-            raise TreeError(
-                f"actions: {name!r} is the ID of a built-in node type; give the action another name"
-            )
+            raise TreeError(f"actions: {name!r} is the ID of a built-in node type; give the action another name")
         registry[name] = functools.partial(ConfiguredAction, context=ctx, action=action)
     for name, ep in plugin_entry_points().items():
         if name in registry or (only is not None and name not in only):
             continue
         cls = _load_plugin(ep)
-        registry[name] = (
-            functools.partial(cls, context=ctx) if _takes_context(cls) else functools.partial(cls)
-        )
+        registry[name] = functools.partial(cls, context=ctx) if _takes_context(cls) else functools.partial(cls)
     return registry
 
 
@@ -172,7 +164,7 @@ class NodeInfo:
     """Where a node of a loaded tree comes from."""
 
     node_id: str
-    """Its node type (``IsCurrentSafe``), or the SubTree ID."""
+    """Its node type (``IsCurrentSafe``, ``PerformRecovery``...)."""
     name: str
     """Its readable, unique name (as in events and ``canguard tree``)."""
     file: Path
@@ -281,9 +273,7 @@ def _read_xml(path: Path, where: dict[ET.Element, Where]) -> ET.Element:
         parser.Parse(data, True)
     except xml.parsers.expat.ExpatError as exc:
         msg = xml.parsers.expat.ErrorString(exc.code)
-        raise TreeError(
-            f"{path}:{exc.lineno}: not well-formed XML: {msg} (column {exc.offset + 1})"
-        ) from None
+        raise TreeError(f"{path}:{exc.lineno}: not well-formed XML: {msg} (column {exc.offset + 1})") from None
     return builder.close()
 
 
@@ -320,9 +310,7 @@ class _Loader:
         file, line = self.where.get(elem, (self.path, 0))
         return f"{file}:{line}"
 
-    def error(
-        self, elem: ET.Element, msg: str, tree: str | None = None, port: str | None = None
-    ) -> TreeError:
+    def error(self, elem: ET.Element, msg: str, tree: str | None = None, port: str | None = None) -> TreeError:
         node = elem.tag
         name = elem.attrib.get("name")
         if node == _SUBTREE:
@@ -339,8 +327,7 @@ class _Loader:
         root = _read_xml(self.path, self.where)
         if root.tag != "root":
             raise TreeError(
-                f"{self.at(root)}: the document element is <{root.tag}>, expected <root> "
-                "(BehaviorTree.CPP XML)"
+                f"{self.at(root)}: the document element is <{root.tag}>, expected <root> (BehaviorTree.CPP XML)"
             )
         fmt = root.attrib.get("BTCPP_format")
         if fmt not in (None, "3", "4"):
@@ -358,9 +345,7 @@ class _Loader:
                     raise TreeError(f"{self.at(child)}: <BehaviorTree> without ID")
                 if tree_id in self.trees:
                     first = self.at(self.trees[tree_id])
-                    raise TreeError(
-                        f"{self.at(child)}: BehaviorTree {tree_id} is defined twice (first at {first})"
-                    )
+                    raise TreeError(f"{self.at(child)}: BehaviorTree {tree_id} is defined twice (first at {first})")
                 self.trees[tree_id] = child
             elif tag == "TreeNodesModel":
                 continue  # Groot's palette: informative only
@@ -527,9 +512,7 @@ class _Loader:
             if attr == "name":
                 continue
             if attr.startswith("_"):
-                raise self.error(
-                    elem, f"attribute {attr} (BT.CPP pre/post-conditions) is not supported", tree_id
-                )
+                raise self.error(elem, f"attribute {attr} (BT.CPP pre/post-conditions) is not supported", tree_id)
             if attr not in ports:
                 listing = ", ".join(_closest(attr, ports)) if ports else "(none)"
                 raise self.error(elem, f"unknown port {attr!r}; ports of {node_id}: {listing}", tree_id)
@@ -552,28 +535,20 @@ class _Loader:
                     attr,
                 )
             if attr in key_ports:
-                raise self.error(
-                    elem, f"takes a blackboard key like {{{attr}}}, not {value!r}", tree_id, attr
-                )
+                raise self.error(elem, f"takes a blackboard key like {{{attr}}}, not {value!r}", tree_id, attr)
             try:
                 converted, parsed = convert_str_to_type(value, info.data_type)
             except (ValueError, TypeError):
                 converted, parsed = False, None
             if not converted:
-                raise self.error(
-                    elem, f"{value!r} is not a valid {_type_name(info.data_type)}", tree_id, attr
-                )
+                raise self.error(elem, f"{value!r} is not a valid {_type_name(info.data_type)}", tree_id, attr)
             if isinstance(parsed, float) and math.isnan(parsed):
                 raise self.error(elem, f"{value!r} is not a number", tree_id, attr)
             allowed = choices.get(attr)
             if allowed is not None and parsed not in allowed:
-                raise self.error(
-                    elem, f"unknown value {value!r}; expected one of {', '.join(allowed)}", tree_id, attr
-                )
+                raise self.error(elem, f"unknown value {value!r}; expected one of {', '.join(allowed)}", tree_id, attr)
         missing = [
-            n
-            for n, (_, info) in ports.items()
-            if info.required and not info.has_default and n not in elem.attrib
+            n for n, (_, info) in ports.items() if info.required and not info.has_default and n not in elem.attrib
         ]
         if missing:
             raise self.error(
@@ -610,9 +585,7 @@ class _Loader:
             rewritten = Path(tmp) / self.path.name
             rewritten.write_bytes(ET.tostring(doc, encoding="utf-8"))
             try:
-                return parse_behaviour_tree_xml(
-                    str(rewritten), main_tree_id=main_id, node_registry=self.registry
-                )
+                return parse_behaviour_tree_xml(str(rewritten), main_tree_id=main_id, node_registry=self.registry)
             except TreeError:
                 raise
             except (
