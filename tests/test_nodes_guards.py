@@ -94,7 +94,8 @@ class TestIsJointEffortNormal:
         rig = Rig(sources={"/joint_states": source("/joint_states", "joints", ())})
         rig, _ = guard(tmp_path, '<IsJointEffortNormal topic_name="/joint_states"/>', rig)
         assert rig.tick() == F
-        assert rig.trips()[-1]["reason"] == "no_data"
+        assert rig.failure_reason() == "no_data"
+        assert not rig.trips(), "no data yet fails the guard but is not a trip"
 
     def test_limit_from_the_blackboard(self, tmp_path: Path) -> None:
         """max_effort="{e}" applies to every joint at the next tick."""

@@ -202,6 +202,7 @@ class TestMainAndNames:
         """Events carry the readable name."""
         rig = Rig()
         rig.load_text(tmp_path, xml_tree('<IsCurrentSafe name="pack" topic_name="/battery_state"/>'))
+        rig.battery(50.0)
         rig.tick()
         assert rig.events[-1]["node"] == "pack"
 

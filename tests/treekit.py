@@ -103,6 +103,15 @@ class Rig:
         self.loaded: LoadedTree | None = None
 
     # -- trees -------------------------------------------------------------------------
+    def failure_reason(self) -> str:
+        """Why the tree's last failing guard fails: the last trip's reason, or, before any trip, the
+        reason a never-judged guard gives (no data yet is a failure, not a trip)."""
+        assert self.loaded is not None
+        for node in self.loaded.guard_nodes():
+            if node.ok is None and node.reason:
+                return str(node.reason)
+        return str(self.trips()[-1]["reason"])
+
     def load(self, path: Path, main: str | None = None) -> LoadedTree:
         """Load a tree file for this context."""
         self.loaded = load_tree(path, self.ctx, main)

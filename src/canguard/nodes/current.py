@@ -24,7 +24,7 @@ from typing import Any, ClassVar
 import py_trees
 
 from ..config import SourceConfig, SourceKind
-from ..protect.base import LatchedModel, ProtectionModel
+from ..protect.base import REASON_NO_DATA, LatchedModel, ProtectionModel
 from ..protect.hysteresis import Hysteresis
 from ..protect.i2t import LeakyI2t, ThermalI2t
 from ..protect.inrush import InrushBlanking
@@ -101,9 +101,13 @@ class GuardNode(CanguardNode, py_trees.behaviour.Behaviour):
     def _edge(self, ok: bool, reason: str, role: str, value: float, threshold: float) -> None:
         """Keep a readable feedback message; journal status changes (trip / recover)."""
         prev = self.ok
-        self.ok = ok
         self.reason = reason
         self.feedback_message = "" if ok else f"{reason}: {role} |{value:g}| (threshold {threshold:g})"
+        if prev is None and not ok and reason == REASON_NO_DATA:
+            # Before the source's first sample the guard fails (fail safe) but nothing tripped:
+            # the status stays "never judged", and a source that never speaks is a `stale` event.
+            return
+        self.ok = ok
         if ok is prev or (prev is None and ok):
             return  # same status, another reason: feedback only
         assert self.source is not None
