@@ -27,6 +27,9 @@ from typing import Any, TextIO
 from .config import BusConfig, Config
 from .errors import ConfigError
 
+DEMO_CONFIG = Path(__file__).resolve().parents[2] / "config" / "examples" / "robot_guard.yaml"
+"""The bundled config the demo runs: the whole robot of dbc/robot.dbc guarded by trees/robot_guard.xml."""
+
 DEMO_SCENARIOS = ("normal", "spike@4", "overload@9", "dropout@18", "garbage@24", "errorburst@27", "inrush@30")
 """What the demo's robot does, in seconds from start (see ``canguard simulate -h``)."""
 
@@ -38,7 +41,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         description="Run the simulated robot and the daemon together on a private virtual bus with the bundled "
                     "config; walk through the scenarios; print what tripped, when, and how fast the stop went out.",
     )
-    p.add_argument("-c", "--config", type=Path, default=None, help="YAML config (default: the bundled one)")
+    p.add_argument("-c", "--config", type=Path, default=None,
+                   help="YAML config (default: the bundled config/examples/robot_guard.yaml: the whole robot guarded)")
     p.add_argument("--duration", type=float, default=36.0, metavar="S", help="seconds to run (default 36)")
     p.add_argument("--events", type=Path, default=None, metavar="FILE",
                    help="keep the events here (default: a temporary file, removed at the end)")
@@ -86,7 +90,7 @@ class LiveView:
         if self.tty:
             return
         t = time.monotonic() - self.t0
-        fields = " ".join(f"{k}={ev[k]}" for k in ("node", "source", "value", "threshold", "reason")
+        fields = " ".join(f"{k}={_fmt(ev[k])}" for k in ("node", "source", "value", "threshold", "reason")
                           if ev.get(k) not in (None, ""))
         print(f"[{t:6.2f} s] {ev.get('event')}: {fields}", file=self.out, flush=True)
 
@@ -123,14 +127,13 @@ def cmd_demo(args: argparse.Namespace) -> int:
     """Run the demo; exit 0 when it ran to its end."""
     import can
 
-    from .cli import default_config
     from .config import load_config
     from .daemon import Daemon
     from .sim import run_on_bus
 
     if args.duration <= 0:
         raise ConfigError(f"--duration {args.duration}: expected seconds > 0")
-    cfg_path = args.config if args.config is not None else default_config()
+    cfg_path = args.config if args.config is not None else DEMO_CONFIG
     tmp = tempfile.TemporaryDirectory(prefix="canguard-demo-")
     events = args.events if args.events is not None else Path(tmp.name) / "events.jsonl"
     cfg = demo_config(load_config(cfg_path), events)
@@ -183,6 +186,11 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return code
 
 
+def _fmt(value: Any) -> str:
+    """Numbers to 4 significant digits for the terminal; the journal keeps full precision."""
+    return f"{value:.4g}" if isinstance(value, float) else str(value)
+
+
 def summary_text(engine: Any, trips: list[tuple[float, dict[str, Any]]], stop_walls: list[float],
                  events: Path | None) -> str:
     """What tripped, when, and how fast the stop went out."""
@@ -199,8 +207,8 @@ def summary_text(engine: Any, trips: list[tuple[float, dict[str, Any]]], stop_wa
         after = [s for s in stop_walls if s >= wall - 0.001]
         latency = f"stop frames out {1000 * (after[0] - t):.2f} ms after the frame" if after else \
             "no new stop (already stopped)"
-        lines.append(f"  t={t - first:7.3f} s  {ev.get('node')}  {ev.get('source')}  value={ev.get('value')}  "
-                     f"threshold={ev.get('threshold')}  ({ev.get('reason')}): {latency}")
+        lines.append(f"  t={t - first:7.3f} s  {ev.get('node')}  {ev.get('source')}  value={_fmt(ev.get('value'))}  "
+                     f"threshold={_fmt(ev.get('threshold'))}  ({ev.get('reason')}): {latency}")
     if events is not None:
         lines.append(f"  events: {events}")
     return "\n".join(lines)

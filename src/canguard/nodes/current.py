@@ -349,5 +349,6 @@ class IsI2tSafe(GuardNode):
             reason = snap.reason
         ok = not reason
         if ok is not self.ok or reason != self.reason:
-            self._edge(ok, reason, self.ROLE, snap.value, snap.threshold)
+            # The event compares like with like: the accumulator (A²s, or θ) against its trip level.
+            self._edge(ok, reason, self.ROLE, self.model.accumulator, snap.threshold)
         return SUCCESS if ok else FAILURE
