@@ -350,5 +350,5 @@ class IsI2tSafe(GuardNode):
         ok = not reason
         if ok is not self.ok or reason != self.reason:
             # The event compares like with like: the accumulator (A²s, or θ) against its trip level.
-            self._edge(ok, reason, self.ROLE, self.model.accumulator, snap.threshold)
+            self._edge(ok, reason, self.ROLE, float(getattr(self.model, "accumulator", snap.value)), snap.threshold)
         return SUCCESS if ok else FAILURE
