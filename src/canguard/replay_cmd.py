@@ -100,7 +100,7 @@ def replay_one(cfg: Config, log_path: Path, opts: ReplayOptions) -> dict[str, An
 
         frames = wrap_progress(frames, log_path)
     try:
-        engine.run_frames(router.route(frames))
+        engine.run_log(frames, router.table, router.only, router.unmapped)
         if engine.stats.frames:
             engine.advance(clock.now())
             engine.finish(reason="end of log", stop=False)

@@ -93,8 +93,22 @@ class SourceHealth:
         if math.isnan(t) or (latest is not None and t < latest):
             self.out_of_order += 1
             return False
-        before = self.reason(t)
         bad = self._check(sample)
+        if (
+            not bad
+            and latest is not None
+            and role != PRESENT
+            and t - latest <= self.max_age_s
+            and not self._invalid.get(role)
+        ):
+            # Fast path (the common case): a valid sample of a role that was fresh and valid stays
+            # so, and the other roles did not change: the reason cannot change with it. A role of
+            # another signal going stale in the meantime is a matter of time, which ticks see.
+            self._latest_t[role] = t
+            self._value[role] = float(sample.value)
+            self._valid_t[role] = t
+            return False
+        before = self.reason(t)
         self._latest_t[role] = t
         self._invalid[role] = bad
         if bad:
