@@ -73,6 +73,8 @@ class TaskGate:
         self._next_stop = math.inf
         self._confirm_pending = False
         self._ran_this_tick = False
+        self.explain: Callable[[], str] | None = None
+        """Says why the tree halted the task (the failing guards); set by the engine."""
 
     # -- driven by ExecuteTask -------------------------------------------------------------
     def run(self, node: str, now: float) -> None:
@@ -88,7 +90,8 @@ class TaskGate:
     def halt(self, node: str, now: float) -> None:
         """ExecuteTask was halted: stop the task at once."""
         if self.state == self.RUNNING:
-            self.stop(now, reason=f"{node} halted", node=node)
+            why = self.explain() if self.explain is not None else ""
+            self.stop(now, reason=f"{node} halted" + (f" ({why})" if why else ""), node=node)
 
     # -- driven by the engine --------------------------------------------------------------
     def stop(self, now: float, reason: str, node: str = "") -> None:

@@ -124,6 +124,8 @@ class Engine:
         self.loaded = load_tree(cfg.tree.file, self.ctx, cfg.tree.main)
         self.root: py_trees.behaviour.Behaviour = self.loaded.root
         self._guards = self.loaded.guards()
+        self._guard_nodes = self.loaded.guard_nodes()
+        self.gate.explain = self._explain
         read = [cfg.sources[s].max_age_s for s in self.ctx.read_sources if s in cfg.sources]
         self._start_grace_s = max(read, default=0.0)
         self.period_s = 1.0 / cfg.tree.tick_hz
@@ -264,7 +266,8 @@ class Engine:
         if status == py_trees.common.Status.FAILURE and not self._starting(now):
             tip = self.root.tip()
             node = tip.name if tip is not None else self.root.name
-            self.gate.stop(now, reason=f"tree failed at {node}", node=node)
+            detail = tip.feedback_message if tip is not None else ""
+            self.gate.stop(now, reason=f"tree failed at {node}" + (f": {detail}" if detail else ""), node=node)
         self._watch_sources(now)
         self._sample_levels()
         if self.tick_hook is not None:
@@ -291,6 +294,14 @@ class Engine:
             self._heat_failed = True
         else:
             self._heat_failed = False
+
+    def _explain(self) -> str:
+        """The guards that failed in this tick, with why (for stop events)."""
+        failed = py_trees.common.Status.FAILURE
+        return "; ".join(
+            f"{g.name}: {g.feedback_message}" if g.feedback_message else g.name
+            for g in self._guard_nodes if g.status == failed
+        )
 
     def _starting(self, now: float) -> bool:
         """True while the task never ran and the sources still have their first max_age to speak.
