@@ -24,7 +24,7 @@ from typing import Any, ClassVar
 import py_trees
 
 from ..config import SourceConfig, SourceKind
-from ..protect.base import REASON_NO_DATA, LatchedModel, ProtectionModel
+from ..protect.base import REASON_NO_DATA, LatchedModel, ProtectionModel, Snapshot
 from ..protect.hysteresis import Hysteresis
 from ..protect.i2t import LeakyI2t, ThermalI2t
 from ..protect.inrush import InrushBlanking
@@ -49,6 +49,8 @@ class GuardNode(CanguardNode, py_trees.behaviour.Behaviour):
     CONST_PORTS = frozenset({"topic_name"})
     SOURCE_KINDS: ClassVar[tuple[SourceKind, ...]] = ("battery", "current")
     MODEL_KIND: ClassVar[str] = "threshold"
+    ROLE: ClassVar[str] = "current"
+    """The source signal a single-signal guard reads."""
     model: ProtectionModel
 
     def __init__(self, name: str, **kwargs: Any) -> None:
@@ -81,7 +83,7 @@ class GuardNode(CanguardNode, py_trees.behaviour.Behaviour):
 
     def guarded(self) -> list[tuple[str, ProtectionModel, str]]:
         """``(role, model, kind)`` per guarded signal; kind is ``threshold`` or ``i2t`` (reports, plots)."""
-        return [(getattr(self, "ROLE", "current"), self.model, self.MODEL_KIND)]
+        return [(self.ROLE, self.model, self.MODEL_KIND)]
 
     def _model_error(self, exc: ValueError, names: dict[str, str]) -> PortError:
         """A model's ValueError as a PortError on the port holding the first parameter it names.
@@ -97,6 +99,20 @@ class GuardNode(CanguardNode, py_trees.behaviour.Behaviour):
         for param in sorted(names, key=len, reverse=True):
             text = re.sub(rf"\b{param}\b", names[param], text)
         return PortError(found[min(found)] if found else next(iter(names.values())), text)
+
+    def _judge(self, now: float, snap: Snapshot, reason: str, value: float | None = None) -> py_trees.common.Status:
+        """A port problem (``reason``) first, then the source's health, then the model's latched
+        state: SUCCESS or FAILURE, with status changes journalled. ``value`` overrides the
+        snapshot's value in events."""
+        assert self.health is not None
+        if not reason:
+            reason = self.health.reason(now, self.ROLE)
+            if not reason and snap.tripped:
+                reason = snap.reason
+        ok = not reason
+        if ok is not self.ok or reason != self.reason:
+            self._edge(ok, reason, self.ROLE, snap.value if value is None else value, snap.threshold)
+        return SUCCESS if ok else FAILURE
 
     def _edge(self, ok: bool, reason: str, role: str, value: float, threshold: float) -> None:
         """Keep a readable feedback message; journal status changes (trip / recover)."""
@@ -142,7 +158,6 @@ class IsCurrentNormal(GuardNode):
         "max_current": port_info(float, "maximum allowed |current| (A)", 30.0),
     }
     OUTPUT_PORTS = {}  # noqa: RUF012
-    ROLE = "current"
     model: Threshold
 
     def _build(self, source: SourceConfig) -> None:
@@ -167,16 +182,7 @@ class IsCurrentNormal(GuardNode):
                     reapply(model)
             except ValueError:
                 reason = REASON_BAD_THRESHOLD
-        assert self.health is not None
-        snap = model.poll(now)
-        if not reason:
-            reason = self.health.reason(now, self.ROLE)
-            if not reason and snap.tripped:
-                reason = snap.reason
-        ok = not reason
-        if ok is not self.ok or reason != self.reason:
-            self._edge(ok, reason, self.ROLE, snap.value, snap.threshold)
-        return SUCCESS if ok else FAILURE
+        return self._judge(now, model.poll(now), reason)
 
 
 class IsCurrentSafe(GuardNode):
@@ -204,7 +210,6 @@ class IsCurrentSafe(GuardNode):
     CONST_PORTS = frozenset(
         {"topic_name", "trip_after", "recover_after", "inrush_time", "inrush_threshold", "start_current"}
     )
-    ROLE = "current"
     _NAMES: ClassVar[dict[str, str]] = {
         "overcurrent_a": "overcurrent_threshold",
         "recovery_a": "recovery_threshold",
@@ -259,16 +264,7 @@ class IsCurrentSafe(GuardNode):
                     reapply(model)
             except ValueError:
                 reason = REASON_BAD_THRESHOLD
-        assert self.health is not None
-        snap = model.poll(now)
-        if not reason:
-            reason = self.health.reason(now, self.ROLE)
-            if not reason and snap.tripped:
-                reason = snap.reason
-        ok = not reason
-        if ok is not self.ok or reason != self.reason:
-            self._edge(ok, reason, self.ROLE, snap.value, snap.threshold)
-        return SUCCESS if ok else FAILURE
+        return self._judge(now, model.poll(now), reason)
 
 
 class IsI2tSafe(GuardNode):
@@ -294,7 +290,6 @@ class IsI2tSafe(GuardNode):
     CONST_PORTS = frozenset(INPUT_PORTS)
     CHOICES = {"model": ("leaky", "thermal")}  # noqa: RUF012
     MODEL_KIND = "i2t"
-    ROLE = "current"
     _NAMES: ClassVar[dict[str, str]] = {
         "continuous_a": "continuous_current",
         "peak_a": "peak_current",
@@ -340,15 +335,8 @@ class IsI2tSafe(GuardNode):
     def update(self) -> py_trees.common.Status:
         """Health first, then the I²t state (latched); writes ``level`` when wired."""
         now = self._clock.now()
-        assert self.health is not None
         snap = self.model.poll(now)
         if self._write_level:
             self.write("level", float(snap.level_pct))
-        reason = self.health.reason(now, self.ROLE)
-        if not reason and snap.tripped:
-            reason = snap.reason
-        ok = not reason
-        if ok is not self.ok or reason != self.reason:
-            # The event compares like with like: the accumulator (A²s, or θ) against its trip level.
-            self._edge(ok, reason, self.ROLE, float(getattr(self.model, "accumulator", snap.value)), snap.threshold)
-        return SUCCESS if ok else FAILURE
+        # The event compares like with like: the accumulator (A²s, or θ) against its trip level.
+        return self._judge(now, snap, "", float(getattr(self.model, "accumulator", snap.value)))
