@@ -27,6 +27,7 @@ import can
 from .config import BusConfig
 from .data import Frame
 from .errors import BusError
+from .replay import frame_from_message
 
 log = logging.getLogger("canguard.bus")
 
@@ -84,19 +85,7 @@ def enlarge_receive_buffer(bus: can.BusABC, name: str, size: int = RECEIVE_BUFFE
 
 def to_frame(msg: can.Message, bus_name: str) -> Frame:
     """The :class:`Frame` of a received python-can message; ``channel`` is the bus name."""
-    return Frame(
-        msg.timestamp,
-        bus_name,
-        msg.arbitration_id,
-        bytes(msg.data),
-        msg.is_extended_id,
-        msg.is_fd,
-        msg.is_error_frame,
-        msg.is_remote_frame,
-        msg.bitrate_switch,
-        msg.error_state_indicator,
-        msg.dlc,
-    )
+    return frame_from_message(msg, bus_name)
 
 
 class BusReader:

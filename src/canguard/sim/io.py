@@ -20,7 +20,7 @@ from typing import IO, Any
 import can
 
 from canguard.data import Frame
-from canguard.replay import format_candump_line
+from canguard.replay import format_candump_line, frame_from_message
 from canguard.sim.robot import SimRobot
 
 log = logging.getLogger(__name__)
@@ -117,18 +117,8 @@ def run_on_bus(
 
     def answer(msg: can.Message | None) -> None:
         while msg is not None:
-            robot.receive(
-                Frame(
-                    sim_now(),
-                    str(msg.channel) if msg.channel is not None else robot.channel,
-                    msg.arbitration_id,
-                    bytes(msg.data),
-                    msg.is_extended_id,
-                    msg.is_fd,
-                    msg.is_error_frame,
-                    msg.is_remote_frame,
-                )
-            )
+            channel = str(msg.channel) if msg.channel is not None else robot.channel
+            robot.receive(frame_from_message(msg, channel)._replace(t=sim_now()))
             msg = bus.recv(0)
 
     for n, frame in enumerate(robot.frames(duration_s)):
