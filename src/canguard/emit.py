@@ -107,6 +107,11 @@ class TaskGate:
         self._event("stop", now, node=node, reason=reason)
         self._send_stop(now)
 
+    def resend_stop(self, now: float) -> None:
+        """Send the stop frames again now if the task is stopped (the daemon's exit)."""
+        if self.state == self.STOPPED:
+            self._send_stop(now)
+
     def begin_tick(self) -> None:
         """Called before each tick: tracks whether ExecuteTask ran in it."""
         self._ran_this_tick = False

@@ -160,6 +160,8 @@ class Engine:
         now = self.clock.now()
         if stop and self.gate.state == TaskGate.RUNNING:
             self.gate.stop(now, reason=reason)
+        elif stop and self.gate.state == TaskGate.STOPPED:
+            self.gate.resend_stop(now)  # once more on the way out: the drives hear it last
         self._save_heat(now, periodic=False)
         self._event({"event": "exit", "reason": reason})
         self._flush()
