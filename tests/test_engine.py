@@ -276,3 +276,27 @@ class TestEngine:
         assert trip["node"] and trip["source"] == "/battery_state"
         assert trip["value"] == pytest.approx(40.0) and trip["threshold"] == 35.0 and trip["reason"]
         assert all(T0 <= e["t"] <= r.t + 1e-6 for e in events)  # t is rounded to the microsecond
+
+
+class TestFinish:
+    """What the engine sends and writes on its way out (SIGTERM, end of a demo)."""
+
+    def test_exit_while_running_stops(self, tmp_path: Path) -> None:
+        """Finishing a running task sends the stop frames and ends with an exit event."""
+        rig = Rig(tmp_path)
+        rig.running()
+        before = len(rig.sent(ESTOP_IDS))
+        rig.engine.finish(reason="SIGTERM")
+        assert len(rig.sent(ESTOP_IDS)) == before + len(ESTOP_IDS)
+        assert rig.events.named("exit")[-1]["reason"] == "SIGTERM"
+
+    def test_exit_while_stopped_repeats_the_stop(self, tmp_path: Path) -> None:
+        """Finishing while already stopped sends the stop frames once more, so the drives hear a stop last."""
+        rig = Rig(tmp_path)
+        rig.running()
+        rig.feed(bms_frame(rig.t + 0.001, 60.0))
+        assert rig.engine.gate.state == TaskGate.STOPPED
+        before = len(rig.sent(ESTOP_IDS))
+        rig.engine.finish(reason="SIGTERM")
+        assert len(rig.sent(ESTOP_IDS)) == before + len(ESTOP_IDS)
+        assert rig.sink.frames[-1].arbitration_id in ESTOP_IDS
