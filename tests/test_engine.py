@@ -300,3 +300,18 @@ class TestFinish:
         rig.engine.finish(reason="SIGTERM")
         assert len(rig.sent(ESTOP_IDS)) == before + len(ESTOP_IDS)
         assert rig.sink.frames[-1].arbitration_id in ESTOP_IDS
+
+
+class TestStopConfirmationMagnitude:
+    """stop.confirm's below / above look at the magnitude of a signed current."""
+
+    def test_negative_current_is_not_below(self, tmp_path: Path) -> None:
+        """A drive still pushing -20 A after the stop does not confirm "below 1 A": the stop escalates."""
+        rig = Rig(tmp_path)
+        rig.running()
+        t_stop = rig.t + 0.001
+        rig.feed(bms_frame(t_stop, 60.0))
+        assert rig.engine.gate.state == TaskGate.STOPPED
+        rig.run(t_stop + 0.3, pack_a=30.0, axis0_a=-20.0)  # 30 A: the pack guard stays tripped
+        assert not rig.events.named("confirmed")
+        assert rig.events.named("escalate")

@@ -669,3 +669,29 @@ class TestLiveParity:
         assert code == 2
         assert "speed" in err
 
+
+
+class TestStateFile:
+    """--state: the replay starts from saved I²t heat and never writes the file."""
+
+    def test_warm_start_trips_earlier_and_file_is_untouched(self, run: Run, tmp_path: Path) -> None:
+        """Axis0's bucket saved at 90 % trips the overload before the cold 3.0 s, and the file keeps its bytes."""
+        from canguard.protect.i2t import LeakyI2t
+        from canguard.protect.state import HeatStore
+
+        config = REPO / "config" / "examples" / "robot_guard.yaml"
+        log = REPO / "examples" / "overload.log.gz"
+        t0 = 1_700_000_000.0
+        model = LeakyI2t(10.0, 20.0, 1.0)
+        model.update(20.0, t0 - 0.9)
+        model.update(20.0, t0)  # 0.9 s at 20 A: 90 % of the 300 A²s trip level
+        state = tmp_path / "i2t_state.json"
+        HeatStore(state).save({"Axis0I2t": model}, t0)
+        before = state.read_bytes()
+        cold = summary_of(run, log, "-c", config)
+        warm = summary_of(run, log, "-c", config, "--state", state)
+        assert state.read_bytes() == before
+        [cold_trip] = cold["trips"]
+        [warm_trip] = warm["trips"]
+        assert warm_trip["node"] == cold_trip["node"] == "Axis0I2t"
+        assert warm_trip["t"] < cold_trip["t"] - 0.2

@@ -72,7 +72,9 @@ class Daemon:
         self._bus_errors: queue.SimpleQueue[tuple[str, str]] = queue.SimpleQueue()
         self.exit_reason = "exit"
         self.reader = BusReader(self.cfg.buses, on_error=self._bus_error)
-        self.sink: FrameSink = BusSink(self.reader.send)
+        self.sink: FrameSink = BusSink(
+            self.reader.send, on_error=self.metrics.send_error if self.metrics is not None else None
+        )
         self.engine = self._build_engine(self.cfg)
 
     def _build_engine(self, cfg: Config) -> Engine:

@@ -180,7 +180,10 @@ class TaskGate:
         health = self.health.get(confirm.source)
         value = health.value(confirm.signal) if health is not None else math.nan
         fresh = health is not None and not health.reason(now, confirm.signal)
-        if fresh and _OPS[confirm.op](value, confirm.value):
+        # Ordering conditions (below / above) are on the magnitude: a drive still pushing -20 A
+        # is not "below 1 A". Equality (an axis state) compares the value itself.
+        measured = value if confirm.op in ("==", "!=") else abs(value)
+        if fresh and _OPS[confirm.op](measured, confirm.value):
             self._confirm_pending = False
             self._event(
                 "confirmed", now, source=confirm.source, value=value, threshold=confirm.value,
@@ -249,3 +252,5 @@ class BusSink:
             else:
                 self.failed += 1
                 log.warning("could not send %s (%s) on bus %s", f.label, origin, f.bus)
+                if self.on_error is not None:
+                    self.on_error(f.bus)

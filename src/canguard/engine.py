@@ -90,6 +90,7 @@ class Engine:
         durable: bool = True,
         metrics: Any = None,
         heat: Any = None,
+        save_heat: bool = True,
         on_event: Callable[[dict[str, Any]], None] | None = None,
     ) -> None:
         from .tree import load_tree  # the node library pulls in py_trees' parser
@@ -110,6 +111,8 @@ class Engine:
         self.durable = durable
         self.metrics = metrics
         self.heat = heat
+        self.save_heat = save_heat
+        """False: heat is only restored from the state file, never written (replay reads, never mutates)."""
         self.extra_on_event = on_event
         self.sample_hook: Callable[[Any], None] | None = None
         """Called with every decoded sample (plots); None keeps the hot path lean."""
@@ -282,7 +285,7 @@ class Engine:
 
     def _save_heat(self, now: float, periodic: bool) -> None:
         """Save I²t heat (periodically, or now); a failing save is an event, never a crash."""
-        if self.heat is None or not self.ctx.heat_models:
+        if self.heat is None or not self.save_heat or not self.ctx.heat_models:
             return
         try:
             if periodic:

@@ -58,6 +58,7 @@ EVENT_TYPES = frozenset(
         "confirmed",
         "escalate",
         "stale",
+        "fresh",
         "bus_error",
         "reload",
         "start",

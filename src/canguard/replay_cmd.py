@@ -86,7 +86,7 @@ def replay_one(cfg: Config, log_path: Path, opts: ReplayOptions) -> dict[str, An
     sink = LogSink(clock.now, cfg.buses, keep=opts.emit is not None)
     journal = EventJournal(opts.events) if opts.events is not None else None
     heat = HeatStore(opts.state, cfg.state.on_corrupt) if opts.state is not None else None
-    engine = Engine(cfg, clock, sink, events=journal, durable=False, heat=heat)
+    engine = Engine(cfg, clock, sink, events=journal, durable=False, heat=heat, save_heat=False)
     recorder = None
     if opts.plot is not None:
         from .plot import Recorder
@@ -247,7 +247,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--fail-on-trip", action="store_true", help="exit 1 when any guard tripped (a CI gate)")
     p.add_argument("--baseline", type=Path, metavar="FILE", help="compare with a saved --json summary")
     p.add_argument("--skip-bad", action="store_true", help="count and skip malformed lines instead of stopping")
-    p.add_argument("--state", type=Path, metavar="FILE", help="start from this I²t state file (default: cold)")
+    p.add_argument("--state", type=Path, metavar="FILE",
+                   help="start from the heat in this I²t state file, cooled for the time since it was saved "
+                        "(default: cold); the file is only read")
     p.add_argument("--plot", type=Path, metavar="FILE",
                    help="plot currents, thresholds, I²t and stops (.png/.svg/.html)")
     p.add_argument("--jobs", type=int, default=1, metavar="N", help="replay several logs in N processes")

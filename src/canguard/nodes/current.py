@@ -24,7 +24,7 @@ from typing import Any, ClassVar
 import py_trees
 
 from ..config import SourceConfig, SourceKind
-from ..protect.base import REASON_NO_DATA, LatchedModel, ProtectionModel, Snapshot
+from ..protect.base import REASON_I2T, REASON_NO_DATA, LatchedModel, ProtectionModel, Snapshot
 from ..protect.hysteresis import Hysteresis
 from ..protect.i2t import LeakyI2t, ThermalI2t
 from ..protect.inrush import InrushBlanking
@@ -114,11 +114,15 @@ class GuardNode(CanguardNode, py_trees.behaviour.Behaviour):
             self._edge(ok, reason, self.ROLE, snap.value if value is None else value, snap.threshold)
         return SUCCESS if ok else FAILURE
 
+    def _feedback(self, reason: str, role: str, value: float, threshold: float) -> str:
+        """Why the guard fails, in words (feedback message, stop events)."""
+        return f"{reason}: {role} |{value:g}| (threshold {threshold:g})"
+
     def _edge(self, ok: bool, reason: str, role: str, value: float, threshold: float) -> None:
         """Keep a readable feedback message; journal status changes (trip / recover)."""
         prev = self.ok
         self.reason = reason
-        self.feedback_message = "" if ok else f"{reason}: {role} |{value:g}| (threshold {threshold:g})"
+        self.feedback_message = "" if ok else self._feedback(reason, role, value, threshold)
         if prev is None and not ok and reason == REASON_NO_DATA:
             # Before the source's first sample the guard fails (fail safe) but nothing tripped:
             # the status stays "never judged", and a source that never speaks is a `stale` event.
@@ -331,6 +335,13 @@ class IsI2tSafe(GuardNode):
         self.ctx.subscribe(source.name, self.ROLE, model)
         self.ctx.heat_models[self.name] = model
         self._write_level = self.is_wired("level")
+
+    def _feedback(self, reason: str, role: str, value: float, threshold: float) -> str:
+        """I²t speaks of heat: the accumulator against its trip level, and the current that drives it."""
+        if reason != REASON_I2T:
+            return super()._feedback(reason, role, value, threshold)
+        current = abs(self.health.value(role)) if self.health is not None else math.nan
+        return f"i2t: heat {value:g} of trip level {threshold:g} ({role} |{current:g}|)"
 
     def update(self) -> py_trees.common.Status:
         """Health first, then the I²t state (latched); writes ``level`` when wired."""
