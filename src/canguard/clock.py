@@ -115,3 +115,48 @@ class PinnedClock:
     def unpin(self) -> None:
         """Let time move again."""
         self._pinned = None
+
+
+BOOT_ID_PATH = "/proc/sys/kernel/random/boot_id"
+
+
+class BootClock:
+    """Downtime that a wall-clock step cannot fake: this boot's id and the time since boot.
+
+    The I²t state file is stamped with both. On a restart within the same boot,
+    the downtime is measured with ``CLOCK_BOOTTIME`` (counts suspend, never
+    steps), so an NTP correction after boot, common on robots without a
+    battery-backed clock, is not taken for hours of cooling. After a reboot (or
+    where the kernel offers neither), it falls back to the wall-clock difference.
+    """
+
+    def __init__(self, boot_id_path: str = BOOT_ID_PATH) -> None:
+        self._boot_id_path = boot_id_path
+
+    def boot_id(self) -> str | None:
+        """This boot's id, None where the kernel does not tell."""
+        try:
+            with open(self._boot_id_path, encoding="ascii") as f:
+                return f.read().strip() or None
+        except OSError:
+            return None
+
+    @staticmethod
+    def since_boot() -> float | None:
+        """Seconds since boot (CLOCK_BOOTTIME), None where there is no such clock."""
+        clock = getattr(time, "CLOCK_BOOTTIME", None)
+        return None if clock is None else time.clock_gettime(clock)
+
+    def stamp(self) -> dict[str, object]:
+        """What a save records: ``{"boot_id": ..., "since_boot_s": ...}``."""
+        return {"boot_id": self.boot_id(), "since_boot_s": self.since_boot()}
+
+    def downtime(self, saved: object, wall_downtime_s: float) -> float:
+        """Seconds since a save stamped ``saved``: boot time within one boot, else the wall-clock difference."""
+        if isinstance(saved, dict):
+            boot, since = saved.get("boot_id"), saved.get("since_boot_s")
+            now_since = self.since_boot()
+            if boot is not None and boot == self.boot_id() and isinstance(since, (int, float)) \
+                    and now_since is not None and math.isfinite(since):
+                return max(0.0, now_since - float(since))
+        return wall_downtime_s

@@ -30,7 +30,7 @@ from types import FrameType
 from typing import Any
 
 from .bus import BusReader
-from .clock import LiveClock
+from .clock import BootClock, LiveClock
 from .config import Config, load_config
 from .context import FrameSink
 from .data import Frame
@@ -78,7 +78,7 @@ class Daemon:
         self.engine = self._build_engine(self.cfg)
 
     def _build_engine(self, cfg: Config) -> Engine:
-        heat = HeatStore(cfg.state.file, cfg.state.on_corrupt)
+        heat = HeatStore(cfg.state.file, cfg.state.on_corrupt, clock=BootClock())
         return Engine(cfg, self.clock, self.sink, events=self.journal, durable=True,
                       metrics=self.metrics, heat=heat)
 

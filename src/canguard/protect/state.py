@@ -14,7 +14,10 @@ The file is one small JSON document::
   warning naming the file and why, and every model restored from it starts from
   ``on_corrupt``: ``hot`` (default, fail safe: at the trip level) or ``cold``.
 - **Restore** (:meth:`HeatStore.restore`): the model's saved state cooled for
-  ``now − saved time`` (see :meth:`canguard.protect.i2t.LeakyI2t.restore`). A key
+  the downtime: ``now − saved time``, or, given a ``clock`` that stamps saves
+  (the daemon's :class:`canguard.clock.BootClock`), the time since boot when the
+  save was made in this same boot, so a wall-clock step is never taken for
+  cooling (see :meth:`canguard.protect.i2t.LeakyI2t.restore`). A key
   the file does not know (a guard added since) starts cold; one whose entry is
   malformed is treated like a corrupt file, for that model only.
 
@@ -43,6 +46,18 @@ VERSION = 1
 ON_CORRUPT = ("hot", "cold")
 
 
+class DowntimeClock(Protocol):
+    """Stamps saves and measures downtime (the daemon passes :class:`canguard.clock.BootClock`)."""
+
+    def stamp(self) -> dict[str, object]:
+        """What a save records besides its time."""
+        ...
+
+    def downtime(self, saved: object, wall_downtime_s: float) -> float:
+        """Seconds since the save that recorded ``saved``; ``wall_downtime_s`` when it cannot tell better."""
+        ...
+
+
 @runtime_checkable
 class HeatModel(Protocol):
     """What the state file needs of a model: LeakyI2t and ThermalI2t."""
@@ -67,7 +82,7 @@ class HeatStore:
     after a corrupt or unreadable file. ValueError on any other value.
     """
 
-    def __init__(self, path: Path | str | None, on_corrupt: str = "hot") -> None:
+    def __init__(self, path: Path | str | None, on_corrupt: str = "hot", clock: DowntimeClock | None = None) -> None:
         if on_corrupt not in ON_CORRUPT:
             raise ValueError(f"on_corrupt must be 'hot' or 'cold', got {on_corrupt!r}")
         self.path = None if path is None else Path(path)
@@ -76,6 +91,9 @@ class HeatStore:
         self._corrupt: str | None = None
         self._saved_t: float | None = None
         self._states: dict[str, Any] = {}
+        self._saved_stamp: object = None
+        self.clock = clock
+        """Stamps saves and measures downtime across a wall-clock step; None: ``now − saved time``."""
         self._last_save_t: float | None = None
         self.saves = 0
         """Successful saves so far."""
@@ -116,6 +134,7 @@ class HeatStore:
             return
         self._saved_t = float(doc["t"])
         self._states = dict(doc["models"])
+        self._saved_stamp = doc.get("stamp")
         log.debug("loaded I²t state of %d models from %s (saved %.3f s before %.3f)",
                   len(self._states), self.path, now - self._saved_t, now)
 
@@ -144,8 +163,11 @@ class HeatStore:
         state = self._states.get(key)
         if state is None or self._saved_t is None:
             return
+        downtime = now - self._saved_t
+        if self.clock is not None:
+            downtime = self.clock.downtime(self._saved_stamp, downtime)
         try:
-            model.restore(state, now - self._saved_t)
+            model.restore(state, downtime)
         except (ValueError, TypeError, KeyError) as exc:
             log.warning("I²t state of %r in %s is unusable (%s): it starts %s",
                         key, self.path, exc, self.on_corrupt)
@@ -167,6 +189,8 @@ class HeatStore:
             "t": now,
             "models": {key: model.export() for key, model in models.items()},
         }
+        if self.clock is not None:
+            doc["stamp"] = self.clock.stamp()
         try:
             data = json.dumps(doc, allow_nan=False, sort_keys=True, indent=1).encode("utf-8")
         except ValueError as exc:
