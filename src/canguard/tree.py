@@ -839,7 +839,47 @@ def check_tree(cfg: Config) -> TreeReport:
         f"tree: {loaded.main_id} from {loaded.path} (BTCPP_format {loaded.format_version}), {count} nodes, "
         f"reads {', '.join(sorted(loaded.context.read_sources)) or 'no source'}"
     )
-    return TreeReport(loaded, f"{head}\n{render_text(loaded.root)}", check.warnings())
+    return TreeReport(loaded, f"{head}\n{render_text(loaded.root)}", check.warnings() + guard_coverage(loaded))
+
+
+def _path_to(node: py_trees.behaviour.Behaviour) -> list[py_trees.behaviour.Behaviour]:
+    """``node`` and its ancestors, root last."""
+    path = [node]
+    while path[-1].parent is not None:
+        path.append(path[-1].parent)
+    return path
+
+
+def guard_coverage(loaded: LoadedTree) -> list[str]:
+    """Warnings for guards that are not re-checked while the task runs.
+
+    Under a composite with memory (BT.CPP's Sequence, SequenceWithMemory,
+    Fallback), a guard placed before the branch holding ExecuteTask is ticked
+    once, then skipped while ExecuteTask stays RUNNING: an overcurrent during the
+    task would never stop it. ReactiveSequence re-checks every tick.
+    """
+    from .nodes.actions import ExecuteTask
+
+    tasks = [n for n in loaded.root.iterate() if isinstance(n, ExecuteTask)]
+    out: list[str] = []
+    for guard in loaded.guard_nodes():
+        g_path = _path_to(guard)
+        for task in tasks:
+            t_path = _path_to(task)
+            common = next(a for a in g_path if a in t_path)
+            if not isinstance(common, py_trees.composites.Composite) or not getattr(common, "memory", False):
+                continue
+            g_child = g_path[g_path.index(common) - 1]
+            t_child = t_path[t_path.index(common) - 1]
+            if common.children.index(g_child) < common.children.index(t_child):
+                info = loaded.info(guard)
+                out.append(
+                    f"{info.file}:{info.line}: {guard.name} is checked only before {task.name} starts: under "
+                    f"{common.name} ({loaded.info(common).node_id}, which keeps its place while a child is RUNNING) "
+                    f"it is not ticked again while the task runs; put them under a ReactiveSequence to guard the "
+                    f"task at every tick"
+                )
+    return out
 
 
 def show_tree(config_path: str | Path, dot: str | Path | None = None) -> str:

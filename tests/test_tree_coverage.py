@@ -1,0 +1,48 @@
+"""`canguard check` warns about guards that are not re-checked while the task runs."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from canguard.config import load_config
+from canguard.tree import context_for, guard_coverage, load_tree
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def coverage(tmp_path: Path, body: str) -> list[str]:
+    """guard_coverage() of a one-tree document around ``body``, with the bundled config's sources."""
+    xml = tmp_path / "t.xml"
+    xml.write_text(
+        f'<root BTCPP_format="4" main_tree_to_execute="T"><BehaviorTree ID="T">{body}</BehaviorTree></root>',
+        encoding="utf-8",
+    )
+    cfg = load_config(REPO / "config" / "canguard.yaml")
+    return guard_coverage(load_tree(xml, context_for(cfg)))
+
+
+class TestGuardCoverage:
+    """Guards before ExecuteTask under a composite with memory are flagged; reactive ones are not."""
+
+    @pytest.mark.parametrize("control", ["Sequence", "SequenceWithMemory"])
+    def test_guard_before_task_under_memory(self, tmp_path: Path, control: str) -> None:
+        """Sequence[IsCurrentSafe, ExecuteTask] checks the current once: warned, naming file, line and the fix."""
+        [warning] = coverage(
+            tmp_path, f'<{control}><IsCurrentSafe topic_name="/battery_state"/><ExecuteTask/></{control}>'
+        )
+        assert "t.xml:1:" in warning and "IsCurrentSafe" in warning and "ReactiveSequence" in warning
+
+    def test_reactive_sequence_is_fine(self, tmp_path: Path) -> None:
+        """ReactiveSequence[IsCurrentSafe, ExecuteTask] re-checks every tick: no warning."""
+        assert coverage(
+            tmp_path, '<ReactiveSequence><IsCurrentSafe topic_name="/battery_state"/><ExecuteTask/></ReactiveSequence>'
+        ) == []
+
+    def test_shipped_trees_are_covered(self) -> None:
+        """The bundled and the whole-robot configs guard their task at every tick."""
+        for cfg_path in (REPO / "config" / "canguard.yaml", REPO / "config" / "examples" / "robot_guard.yaml"):
+            cfg = load_config(cfg_path)
+            assert cfg.tree is not None
+            assert guard_coverage(load_tree(cfg.tree.file, context_for(cfg), cfg.tree.main)) == []
