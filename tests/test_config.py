@@ -352,6 +352,172 @@ class TestConfigErrors:
         ]
         assert str(ConfigError(ps)).count("\n") == 5
 
+    def test_frame_value_not_one_of_the_choices(self) -> None:
+        """A number for a signal with VAL_ choices must be one of them: 1.5 is not rounded to 2 (a moving state)."""
+        ps = problems(
+            """
+            task: {frames: [{message: Axis0_Set_Axis_State, signals: {Axis_Requested_State: 5}}]}
+            stop:
+              frames: [{message: Axis0_Set_Axis_State, signals: {Axis_Requested_State: 1.5}}]
+              escalate: [{message: Axis1_Set_Axis_State, signals: {Axis_Requested_State: 1.0000001}}]
+            actions:
+              Park: {frames: [{message: Axis2_Set_Axis_State, signals: {Axis_Requested_State: 7.5}}]}
+            """
+        )
+        choices = (
+            "UNDEFINED (0), IDLE (1), STARTUP_SEQUENCE (2), FULL_CALIBRATION_SEQUENCE (3), "
+            "MOTOR_CALIBRATION (4), ENCODER_INDEX_SEARCH (6), ENCODER_OFFSET_CALIBRATION (7), "
+            "CLOSED_LOOP_CONTROL (8), LOCKIN_SPIN (9), ENCODER_DIR_FIND (10), HOMING (11), "
+            "ENCODER_HALL_POLARITY_CALIBRATION (12), ENCODER_HALL_PHASE_CALIBRATION (13), "
+            "ANTICOGGING_CALIBRATION (14)"
+        )
+        expected = f"expected one of the choices of Axis_Requested_State: {choices}"
+        assert ps == [
+            f"{CFG}: task.frames[0].signals.Axis_Requested_State: found 5, {expected}",
+            f"{CFG}: stop.frames[0].signals.Axis_Requested_State: found 1.5, {expected}",
+            f"{CFG}: stop.escalate[0].signals.Axis_Requested_State: found 1.0000001, {expected}",
+            f"{CFG}: actions.Park.frames[0].signals.Axis_Requested_State: found 7.5, {expected}",
+        ]
+
+    def test_frame_value_not_a_whole_raw_value(self) -> None:
+        """An integer signal takes only whole raw values: 1.25 A in 0.1 A steps is refused, not rounded."""
+        ps = problems(
+            """
+            stop:
+              frames:
+                - {message: BMS_Status, signals: {Pack_Current: 1.25, Alive_Counter: 2.5}}
+                - {message: BMS_Temperatures, signals: {Cell_Temp_Min: -39.5}}
+            """
+        )
+        assert ps == [
+            f"{CFG}: stop.frames[0].signals.Pack_Current: found 1.25, expected a whole raw value: steps of 0.1",
+            f"{CFG}: stop.frames[0].signals.Alive_Counter: found 2.5, expected a whole raw value: steps of 1",
+            f"{CFG}: stop.frames[1].signals.Cell_Temp_Min: found -39.5, "
+            "expected a whole raw value: steps of 1 from -40",
+        ]
+
+    def test_exact_frame_values_still_encode(self) -> None:
+        """Values on the signal's grid (0.3 in 0.1 steps despite float rounding), choices and float signals pass."""
+        cfg = load(
+            """
+            stop:
+              frames:
+                - {message: BMS_Status, signals: {Pack_Current: 0.3, Present: 1}}
+                - {message: Axis0_Set_Axis_State, signals: {Axis_Requested_State: 1.0}}
+                - {message: Axis0_Get_Iq, signals: {Iq_Setpoint: 1.2345}}
+            """
+        )
+        frames = cfg.stop.frames  # type: ignore[attr-defined]
+        assert frames[0].data[:2] == (3).to_bytes(2, "big") and frames[1].data == b"\x01\x00\x00\x00"
+
+    def test_confirm_equals_must_be_a_value_the_signal_carries(self) -> None:
+        """stop.confirm equals: a number that is no choice, or no whole raw value, could never match."""
+        ps = problems(
+            """
+            sources:
+              state0: {kind: current, message: Axis0_Heartbeat, signal: Axis_State}
+              soc: {kind: battery, message: BMS_Status, current: State_Of_Charge}
+            stop:
+              confirm: {source: state0, equals: 1.5, deadline: 0.3}
+            """
+        )
+        assert ps == [
+            f"{CFG}: stop.confirm.equals: found 1.5, expected one of the choices of Axis_State: "
+            "UNDEFINED (0), IDLE (1), STARTUP_SEQUENCE (2), FULL_CALIBRATION_SEQUENCE (3), "
+            "MOTOR_CALIBRATION (4), ENCODER_INDEX_SEARCH (6), ENCODER_OFFSET_CALIBRATION (7), "
+            "CLOSED_LOOP_CONTROL (8), LOCKIN_SPIN (9), ENCODER_DIR_FIND (10), HOMING (11), "
+            "ENCODER_HALL_POLARITY_CALIBRATION (12), ENCODER_HALL_PHASE_CALIBRATION (13), "
+            "ANTICOGGING_CALIBRATION (14)"
+        ]
+        [p] = problems(
+            """
+            sources:
+              soc: {kind: battery, message: BMS_Status, current: State_Of_Charge}
+            stop:
+              confirm: {source: soc, equals: 50.25, deadline: 0.3}
+            """
+        )
+        assert p == f"{CFG}: stop.confirm.equals: found 50.25, expected a whole raw value: steps of 0.5"
+
+    def test_unknown_kind_still_checks_the_rest(self) -> None:
+        """A misspelt kind does not hide the source's bus, max_age, message, signal and effort errors."""
+        ps = problems(
+            """
+            sources:
+              /battery_state: {kind: batery, bus: mian, max_age: 0, message: BMS_Status, current: Pack_Curent}
+              a: {kind: curent, message: Axis0_Get_Iqq, signal: Iq_Measured}
+              j:
+                effort: [{message: Axis0_Get_Torques, signal: Torque_Estimat, name: axis0}]
+                maxage: 1
+            """
+        )
+        assert ps == [
+            f"{CFG}: sources./battery_state.kind: found 'batery', "
+            "expected one of battery, joints, current; closest: battery",
+            f"{CFG}: sources./battery_state.bus: found 'mian', expected a configured bus; closest: main",
+            f"{CFG}: sources./battery_state.max_age: found 0, expected a number > 0 in seconds",
+            f"{CFG}: sources./battery_state.current: found 'Pack_Curent', expected a signal of BMS_Status; "
+            "closest: Pack_Current",
+            f"{CFG}: sources.a.kind: found 'curent', expected one of battery, joints, current; closest: current",
+            f"{CFG}: sources.a.message: found 'Axis0_Get_Iqq', expected a DBC message name or frame id; "
+            "closest: Axis0_Get_Iq, Axis1_Get_Iq, Axis2_Get_Iq",
+            f"{CFG}: sources.j.kind: found nothing, expected one of battery, joints, current; "
+            "known: battery, current, joints",
+            f"{CFG}: sources.j.maxage: found unknown key 'maxage', expected one of kind, bus, max_age, "
+            "message, current, signal, present, effort; closest: max_age",
+            f"{CFG}: sources.j.effort[0].signal: found 'Torque_Estimat', "
+            "expected a signal of Axis0_Get_Torques; closest: Torque_Estimate",
+        ]
+
+    def test_confirm_adds_no_follow_on_error_for_a_broken_source(self) -> None:
+        """A broken source is reported once: stop.confirm naming it adds no source/signal/equals error."""
+        ps = problems(
+            """
+            sources:
+              axis0: {kind: curent, message: Axis0_Get_Iq, signal: Iq_Measured}
+              state0: {kind: current, message: Axis0_Heartbeat, signal: Axis_Stat}
+            stop:
+              confirm: {source: axis0, below: 1, deadline: 0.2}
+            """
+        )
+        assert [p.split(": ")[1] for p in ps] == ["sources.axis0.kind", "sources.state0.signal"]
+        ps = problems(
+            """
+            sources:
+              state0: {kind: current, message: Axis0_Heartbeat, signal: Axis_Stat}
+            stop:
+              confirm: {source: state0, equals: IDLE, deadline: 0.2}
+            """
+        )
+        assert [p.split(": ")[1] for p in ps] == ["sources.state0.signal"]
+
+    def test_confirm_adds_no_follow_on_error_when_the_dbc_fails(self) -> None:
+        """With a DBC that does not load, only the DBC is reported, not stop.confirm.signal."""
+        with pytest.raises(ConfigError) as info:
+            load_config_text(
+                "dbc: nowhere.dbc\nbuses: {main: {interface: virtual}}\n"
+                "sources:\n  axis0: {kind: current, message: Axis0_Get_Iq, signal: Iq_Measured}\n"
+                "stop: {confirm: {source: axis0, signal: current, below: 1, deadline: 0.2}}\n",
+                CFG,
+            )
+        assert [p.split(": ")[1] for p in info.value.problems] == ["dbc[0]"]
+
+    @pytest.mark.parametrize("name", ["ExecuteTask", "IsCurrentSafe", "Sequence", "SubTree"])
+    def test_action_named_like_a_builtin_node(self, name: str) -> None:
+        """An actions: entry may not reuse a built-in node ID; the loader says so with file and key."""
+        ps = problems(f"actions:\n  {name}: {{frames: [{{message: Axis0_Estp}}]}}\n  Park: {{}}\n")
+        assert ps == [
+            f"{CFG}: actions.{name}: found the ID of a built-in node type, expected a new action name",
+            f"{CFG}: actions.{name}.frames[0].message: found 'Axis0_Estp', "
+            "expected a DBC message name or frame id; closest: Axis0_Estop, Axis1_Estop, Axis2_Estop",
+        ]
+
+    def test_missing_tree_file(self) -> None:
+        """A tree.file that does not exist is a config error naming the key and the resolved path."""
+        [p] = problems("tree: {file: trees/nowhere.xml}\n")
+        missing = HERE / "data" / "trees" / "nowhere.xml"
+        assert p == f"{CFG}: tree.file: found '{missing}' (no such file), expected a BehaviorTree.CPP XML file"
+
     def test_unreadable_file(self, tmp_path: Path) -> None:
         """A config path that does not exist is a ConfigError naming it."""
         with pytest.raises(ConfigError, match=r"missing.yaml: found a file that cannot be read"):

@@ -16,7 +16,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import MappingProxyType
-from typing import Any, Literal
+from typing import Any, Literal, cast
 
 import can
 import cantools
@@ -260,6 +260,7 @@ class _Loader:
         self.bus_names: tuple[str, ...] = ()
         self.sources: dict[str, SourceConfig] = {}
         self._broken_sources: set[str] = set()
+        self._sources_ok = True
 
     # -- problems ----------------------------------------------------------
     def problem(self, key: str, found: str, expected: str) -> None:
@@ -497,28 +498,30 @@ class _Loader:
                 _found(kind),
                 "one of battery, joints, current" + _closest(kind, SOURCE_KINDS),
             )
-            return None
+            # Still check what can be checked without the kind: keys of any kind, the bus,
+            # max_age, messages and signal names (the source itself is not built).
+            allowed, required = (*common, "message", "current", "signal", "present", "effort"), ()
         self.mapping(value, key, allowed, required)
         bus = self.bus(value.get("bus"), _path(key, "bus"))
         max_age = self.seconds(value, "max_age", key, 0.5)
         signals: list[SignalRef] = []
-        if kind in ("battery", "current"):
+        known = kind in SOURCE_KINDS
+        if kind in ("battery", "current") or (not known and "message" in value):
             msg = self.message(value["message"], _path(key, "message")) if "message" in value else None
-            roles = (
-                (("current", "current"), ("present", "present"))
-                if kind == "battery"
-                else (
-                    ("current", "signal"),
-                    ("present", "present"),
-                )
-            )
+            roles: tuple[tuple[str, str], ...]
+            if kind == "battery":
+                roles = (("current", "current"), ("present", "present"))
+            elif kind == "current":
+                roles = (("current", "signal"), ("present", "present"))
+            else:
+                roles = (("current", "current"), ("current", "signal"), ("present", "present"))
             for role, k in roles:
                 if msg is None or k not in value:
                     continue
                 sig = self.signal(msg, value[k], _path(key, k))
                 if sig is not None:
                     signals.append(self.signal_ref(role, bus, msg, sig))
-        else:
+        if kind == "joints" or (not known and "effort" in value):
             effort = value.get("effort")
             if not isinstance(effort, list) or not effort:
                 if "effort" in value:
@@ -554,7 +557,11 @@ class _Loader:
                     sig = self.signal(msg, item["signal"], _path(ikey, "signal"))
                     if sig is not None and jname is not None:
                         signals.append(self.signal_ref(jname, ibus, msg, sig))
-        return SourceConfig(name=name, kind=kind, bus=bus, signals=tuple(signals), max_age_s=max_age)
+        if not known:
+            return None
+        return SourceConfig(
+            name=name, kind=cast(SourceKind, kind), bus=bus, signals=tuple(signals), max_age_s=max_age
+        )
 
     def frame_value(self, message: Any, sig_name: Any, value: Any, key: str) -> Any:
         """One ``signals:`` value: a number, or a choice name of a signal with VAL_ choices."""
@@ -562,7 +569,7 @@ class _Loader:
         if sig is None:
             return None
         if isinstance(value, str):
-            choices = {str(v): int(k) for k, v in (sig.choices or {}).items()}
+            choices = _choices(sig)
             if value in choices:
                 return choices[value]
             expected = f"a number or a choice of {sig.name}" if choices else f"a number for {sig.name}"
@@ -576,7 +583,26 @@ class _Loader:
             rng = f"[{'-inf' if lo is None else f'{lo:g}'}, {'inf' if hi is None else f'{hi:g}'}]"
             self.problem(key, repr(value), f"a value of {sig.name} within its DBC range {rng}")
             return None
-        return value
+        return value if self.exact(sig, value, key) else None
+
+    def exact(self, sig: Any, value: float, key: str) -> bool:
+        """Whether the number ``value`` encodes exactly: one of the VAL_ choices, or a whole raw value.
+
+        cantools rounds a raw value silently (1.5 would be sent as 2), so a number a signal
+        cannot carry exactly is a problem, not a guess.
+        """
+        raw = _whole_raw(sig, value)
+        if sig.choices:
+            if raw is not None and raw in sig.choices:
+                return True
+            listed = ", ".join(f"{name} ({number})" for name, number in _choices(sig).items())
+            self.problem(key, repr(value), f"one of the choices of {sig.name}: {listed}")
+            return False
+        if sig.is_float or raw is not None:
+            return True
+        steps = f"steps of {sig.scale:g}" + (f" from {sig.offset:g}" if sig.offset else "")
+        self.problem(key, repr(value), f"a whole raw value: {steps}")
+        return False
 
     def frame(self, value: Any, key: str) -> FrameSpec | None:
         if not isinstance(value, Mapping):
@@ -705,6 +731,9 @@ class _Loader:
             tick_hz = self.number(value["tick_hz"], "tree.tick_hz", positive=True) or tick_hz
         if file is None:
             return None
+        if not file.is_file():
+            what = "a directory" if file.is_dir() else "no such file"
+            self.problem("tree.file", f"{str(file)!r} ({what})", "a BehaviorTree.CPP XML file")
         return TreeConfig(file=file, main=main, tick_hz=tick_hz)
 
     def task(self, value: Any) -> TaskConfig:
@@ -732,14 +761,21 @@ class _Loader:
         role = value.get("signal", "current")
         source = value.get("source")
         src = self.sources.get(source) if isinstance(source, str) else None
-        if "source" in value and src is None:
+        # A source that is already reported broken (or lost its signals to a DBC that did not
+        # load) must not add a follow-on error here: the root cause is reported once.
+        follow_on = (
+            (isinstance(source, str) and source in self._broken_sources)
+            or not self.messages_ok
+            or not self._sources_ok
+        )
+        if "source" in value and src is None and not follow_on:
             self.problem(
                 _path(key, "source"), _found(source), "a configured source" + _closest(source, self.sources)
             )
         ref: SignalRef | None = None
         if src is not None:
             ref = src.signal(role) if isinstance(role, str) else None
-            if ref is None and source not in self._broken_sources:
+            if ref is None and not follow_on:
                 roles = [s.role for s in src.signals]
                 self.problem(
                     _path(key, "signal"), _found(role), f"a signal role of {source}" + _closest(role, roles)
@@ -749,9 +785,11 @@ class _Loader:
         op_name = ops[0]
         raw = value[op_name]
         number: float | None = None
-        if op_name == "equals" and isinstance(raw, str) and ref is not None and self.messages_ok:
-            sig = self._by_name[ref.message].get_signal_by_name(ref.signal)
-            choices = {str(v): int(k) for k, v in (sig.choices or {}).items()}
+        sig = self._by_name[ref.message].get_signal_by_name(ref.signal) if ref is not None else None
+        if op_name == "equals" and isinstance(raw, str) and sig is None:
+            return None  # a choice name of a source or signal already reported
+        if op_name == "equals" and isinstance(raw, str) and sig is not None:
+            choices = _choices(sig)
             if raw in choices:
                 number = float(choices[raw])
             else:
@@ -763,6 +801,9 @@ class _Loader:
                 return None
         else:
             number = self.number(raw, _path(key, op_name))
+            if op_name == "equals" and number is not None and sig is not None:
+                # equals compares decoded values, which only ever take what the signal encodes.
+                number = number if self.exact(sig, number, _path(key, op_name)) else None
         if number is None or src is None or ref is None:
             return None
         return StopConfirm(
@@ -788,11 +829,14 @@ class _Loader:
         if not isinstance(value, Mapping):
             self.problem("actions", _found(value), "a mapping of action node ID -> {frames: [...]}")
             return result
+        builtin = _builtin_node_ids() if value else frozenset()
         for name, body in value.items():
             key = _path("actions", name)
             if not isinstance(name, str) or not _IDENT.fullmatch(name):
                 self.problem(key, _found(name), "an action node ID (letters, digits, underscores)")
                 continue
+            if name in builtin:  # its frames are still checked below
+                self.problem(key, "the ID of a built-in node type", "a new action name")
             if body is None:
                 result[name] = ActionConfig(name=name)
                 continue
@@ -826,6 +870,7 @@ class _Loader:
         raw_sources = doc.get("sources") or {}
         if not isinstance(raw_sources, Mapping):
             self.problem("sources", _found(raw_sources), "a mapping of source name -> source")
+            self._sources_ok = False
             raw_sources = {}
         for name, body in raw_sources.items():
             if not isinstance(name, str) or not name:
@@ -865,6 +910,18 @@ SOURCE_KINDS: tuple[SourceKind, ...] = ("battery", "joints", "current")
 _IDENT = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 
 
+def _builtin_node_ids() -> frozenset[str]:
+    """The IDs of canguard's built-in node types (and SubTree), which ``actions:`` may not reuse.
+
+    The same set :func:`canguard.tree.build_registry` refuses, taken from the node library
+    without building a tree. Imported here, not at the top: the node modules import this
+    module, and ``load_config`` stays light for configs without actions.
+    """
+    from .nodes import BUILTIN_NODES
+
+    return frozenset(BUILTIN_NODES) | {"SubTree"}
+
+
 def _initial(signal: Any) -> Any:
     """The value a signal left out of ``signals:`` takes: its DBC initial value, else 0 (or its minimum)."""
     initial = getattr(signal, "initial", None)
@@ -873,6 +930,26 @@ def _initial(signal: Any) -> Any:
     if signal.minimum is not None and signal.minimum > 0:
         return signal.minimum
     return 0
+
+
+def _physical(signal: Any, raw: int) -> int | float:
+    """The physical value of ``raw`` (``raw * scale + offset``), an int when it is whole."""
+    value = raw * signal.scale + signal.offset
+    return int(value) if float(value).is_integer() else value
+
+
+def _whole_raw(signal: Any, value: float) -> int | None:
+    """The raw value ``(value - offset) / scale`` when it is a whole number (within rounding), else None."""
+    if not signal.scale:
+        return None
+    raw = (value - signal.offset) / signal.scale
+    nearest = round(raw)
+    return nearest if abs(raw - nearest) <= 1e-9 * max(1.0, abs(raw)) else None
+
+
+def _choices(signal: Any) -> dict[str, int | float]:
+    """A signal's VAL_ choices as ``name -> physical value``."""
+    return {str(name): _physical(signal, int(raw)) for raw, name in (signal.choices or {}).items()}
 
 
 def load_config_text(text: str, path: str | Path) -> Config:
