@@ -474,7 +474,8 @@ class TestChannelMap:
     """Log channels reach the config's buses by channel name, by --map, or as the only bus."""
 
     @pytest.fixture(scope="class")
-    def renamed(self, data: Data, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    @classmethod
+    def renamed(cls, data: Data, tmp_path_factory: pytest.TempPathFactory) -> Path:
         """The spike log recorded on a channel called robot0 instead of can0."""
         log = tmp_path_factory.mktemp("renamed") / "robot0.log"
         text = data["spike"].read_text(encoding="ascii").replace(" can0 ", " robot0 ")
