@@ -315,3 +315,23 @@ class TestStopConfirmationMagnitude:
         rig.run(t_stop + 0.3, pack_a=30.0, axis0_a=-20.0)  # 30 A: the pack guard stays tripped
         assert not rig.events.named("confirmed")
         assert rig.events.named("escalate")
+
+
+class TestStopConfirmationAfterTheStop:
+    """Only a sample taken after the stop can confirm it."""
+
+    def test_sample_from_before_the_stop_does_not_confirm(self, tmp_path: Path) -> None:
+        """axis0 at 0.5 A before the trip and silent after it: not confirmed, the stop escalates."""
+        rig = Rig(tmp_path)
+        rig.running()
+        rig.feed(iq_frame(rig.t + 0.0005, 0, 0.5))  # below 1 A, but before the stop
+        t_stop = rig.t + 0.001
+        rig.feed(bms_frame(t_stop, 60.0))
+        assert rig.engine.gate.state == TaskGate.STOPPED
+        t = t_stop
+        while t < t_stop + 0.3:  # BMS stays tripped (30 A: hysteresis holds); axis0 says nothing new
+            t += 0.01
+            rig.feed(bms_frame(t, 30.0))
+        rig.advance(t)
+        assert not rig.events.named("confirmed")
+        assert rig.events.named("escalate")

@@ -180,10 +180,13 @@ class TaskGate:
         health = self.health.get(confirm.source)
         value = health.value(confirm.signal) if health is not None else math.nan
         fresh = health is not None and not health.reason(now, confirm.signal)
+        # Only a sample taken after the stop went out can say the drive obeyed it.
+        last_t = health.last_t(confirm.signal) if health is not None else None
+        after_stop = last_t is not None and last_t > self.stop_since
         # Ordering conditions (below / above) are on the magnitude: a drive still pushing -20 A
         # is not "below 1 A". Equality (an axis state) compares the value itself.
         measured = value if confirm.op in ("==", "!=") else abs(value)
-        if fresh and _OPS[confirm.op](measured, confirm.value):
+        if fresh and after_stop and _OPS[confirm.op](measured, confirm.value):
             self._confirm_pending = False
             self._event(
                 "confirmed", now, source=confirm.source, value=value, threshold=confirm.value,
