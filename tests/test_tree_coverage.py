@@ -46,3 +46,31 @@ class TestGuardCoverage:
             cfg = load_config(cfg_path)
             assert cfg.tree is not None
             assert guard_coverage(load_tree(cfg.tree.file, context_for(cfg), cfg.tree.main)) == []
+
+
+class TestUncoveredTreeRefused:
+    """The daemon and replay refuse a tree whose guard would not be re-checked while the task runs."""
+
+    def test_check_and_replay_exit_2(self, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+        """`canguard check` and `canguard replay` on Sequence[IsCurrentSafe, ExecuteTask] exit 2 naming the fix."""
+        import yaml
+
+        from canguard.cli import main
+
+        xml = tmp_path / "t.xml"
+        xml.write_text(
+            '<root BTCPP_format="4" main_tree_to_execute="T"><BehaviorTree ID="T"><Sequence>'
+            '<IsCurrentSafe topic_name="/battery_state"/><ExecuteTask/></Sequence></BehaviorTree></root>',
+            encoding="utf-8",
+        )
+        doc = yaml.safe_load((REPO / "config" / "canguard.yaml").read_text(encoding="utf-8"))
+        doc["dbc"] = [str(REPO / "dbc" / "robot.dbc")]
+        doc["tree"] = {"file": str(xml), "main": "T", "tick_hz": 100}
+        cfg = tmp_path / "c.yaml"
+        cfg.write_text(yaml.safe_dump(doc), encoding="utf-8")
+        log = tmp_path / "x.log"
+        log.write_text("(1700000000.000000) can0 18FF50E5#0064000000000100\n", encoding="ascii")
+        assert main(["check", "-c", str(cfg)]) == 2
+        assert "ReactiveSequence" in capsys.readouterr().err
+        assert main(["replay", str(log), "-c", str(cfg)]) == 2
+        assert "is checked only before ExecuteTask starts" in capsys.readouterr().err

@@ -93,7 +93,7 @@ class Engine:
         save_heat: bool = True,
         on_event: Callable[[dict[str, Any]], None] | None = None,
     ) -> None:
-        from .tree import load_tree  # the node library pulls in py_trees' parser
+        from .tree import load_tree, require_guard_coverage  # the node library pulls in py_trees' parser
 
         if cfg.tree is None:
             from .errors import ConfigError
@@ -125,6 +125,7 @@ class Engine:
         self.gate = TaskGate(cfg.task, cfg.stop, sink, health=self.ctx.health, on_event=self._gate_event)
         self.ctx.task = self.gate
         self.loaded = load_tree(cfg.tree.file, self.ctx, cfg.tree.main)
+        require_guard_coverage(self.loaded)
         self.root: py_trees.behaviour.Behaviour = self.loaded.root
         self._guards = self.loaded.guards()
         self._guard_nodes = self.loaded.guard_nodes()

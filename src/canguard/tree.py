@@ -839,7 +839,19 @@ def check_tree(cfg: Config) -> TreeReport:
         f"tree: {loaded.main_id} from {loaded.path} (BTCPP_format {loaded.format_version}), {count} nodes, "
         f"reads {', '.join(sorted(loaded.context.read_sources)) or 'no source'}"
     )
-    return TreeReport(loaded, f"{head}\n{render_text(loaded.root)}", check.warnings() + guard_coverage(loaded))
+    require_guard_coverage(loaded)
+    return TreeReport(loaded, f"{head}\n{render_text(loaded.root)}", check.warnings())
+
+
+def require_guard_coverage(loaded: LoadedTree) -> None:
+    """TreeError when a guard would not be re-checked while the task runs (see :func:`guard_coverage`).
+
+    Such a tree would keep sending the task's frames through an overcurrent or
+    a dead sensor: the daemon refuses it rather than run it.
+    """
+    problems = guard_coverage(loaded)
+    if problems:
+        raise TreeError("\n".join(problems))
 
 
 def _path_to(node: py_trees.behaviour.Behaviour) -> list[py_trees.behaviour.Behaviour]:
@@ -876,8 +888,8 @@ def guard_coverage(loaded: LoadedTree) -> list[str]:
                 out.append(
                     f"{info.file}:{info.line}: {guard.name} is checked only before {task.name} starts: under "
                     f"{common.name} ({loaded.info(common).node_id}, which keeps its place while a child is RUNNING) "
-                    f"it is not ticked again while the task runs; put them under a ReactiveSequence to guard the "
-                    f"task at every tick"
+                    f"it is not ticked again while the task runs, so the task would go on through an overcurrent "
+                    f"or a dead sensor; put them under a ReactiveSequence to guard the task at every tick"
                 )
     return out
 
