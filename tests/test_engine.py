@@ -335,3 +335,19 @@ class TestStopConfirmationAfterTheStop:
         rig.advance(t)
         assert not rig.events.named("confirmed")
         assert rig.events.named("escalate")
+
+
+class TestGapInTime:
+    """A long gap (a silent log, a stalled daemon) is ticked through where it matters, then jumped."""
+
+    def test_stale_trip_at_its_own_time_inside_a_long_gap(self, tmp_path: Path) -> None:
+        """BMS silent from 1 s to 12 s: the stale stop is at ~1.5 s (max_age after), and lasts ~10.5 s."""
+        rig = Rig(tmp_path)
+        rig.running()
+        rig.run(T0 + 1.0)
+        last = rig.last_bms_t
+        rig.feed(bms_frame(T0 + 12.0, 10.0))
+        [stop] = rig.events.named("stop")
+        assert last + 0.5 <= stop["t"] <= last + 0.5 + 0.011  # within one tick of the staleness deadline
+        assert rig.engine.stats.skipped_ticks > 0
+        assert rig.engine.gate.stopped_total(T0 + 12.0) == pytest.approx(T0 + 12.0 - stop["t"], abs=0.02)

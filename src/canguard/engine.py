@@ -132,6 +132,9 @@ class Engine:
         self.gate.explain = self._explain
         read = [cfg.sources[s].max_age_s for s in self.ctx.read_sources if s in cfg.sources]
         self._start_grace_s = max(read, default=0.0)
+        ages = [s.max_age_s for s in cfg.sources.values()]
+        self._gap_horizon_s = max(ages, default=0.0) + MAX_CATCH_UP_S
+        """How much of a gap is ticked through before the rest is jumped: every source goes stale in it."""
         self.period_s = 1.0 / cfg.tree.tick_hz
         self._next_tick = math.nan
         self._stale: dict[str, str] = {}
@@ -220,6 +223,9 @@ class Engine:
         if math.isnan(self._next_tick):
             self.start(now)
         if now - self._next_tick > MAX_CATCH_UP_S:
+            # A gap: tick through its beginning, where sources go stale and guards trip at their
+            # own times (max_age after the last frame); then jump the quiet rest of it.
+            self._run_due(min(now, self._next_tick + self._gap_horizon_s))
             missed = math.floor((now - self._next_tick - MAX_CATCH_UP_S) / self.period_s)
             if missed > 0:
                 self._next_tick += missed * self.period_s
@@ -227,6 +233,12 @@ class Engine:
                 # The gate's periodic frames skip the gap too: sent one by one, a day-long gap in a
                 # log was millions of task frames (a replay that never ended).
                 self.gate.skip_to(self._next_tick)
+        self._run_due(now)
+        self._due = min(self._next_tick, self.gate.next_deadline())
+        self._flush()
+
+    def _run_due(self, now: float) -> None:
+        """Every tick and gate deadline due up to ``now``, in time order, each at its own time."""
         while True:
             due_gate = self.gate.next_deadline()
             due = min(self._next_tick, due_gate)
@@ -239,8 +251,6 @@ class Engine:
             else:
                 self.gate.service(self.clock.pin(due))
                 self.clock.unpin()
-        self._due = min(self._next_tick, self.gate.next_deadline())
-        self._flush()
 
     # -- the tick --------------------------------------------------------------------------
     def tick(self, now: float) -> py_trees.common.Status:
