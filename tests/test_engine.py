@@ -92,8 +92,8 @@ class ListEvents:
 class Rig:
     """One engine on a manual clock with its sink and events."""
 
-    def __init__(self, tmp: Path, events: Any = None) -> None:
-        self.cfg = load_config(write_config(tmp))
+    def __init__(self, tmp: Path, events: Any = None, **overrides: Any) -> None:
+        self.cfg = load_config(write_config(tmp, **overrides))
         self.clock = ManualClock(T0)
         self.sink = LogSink(self.clock.now, self.cfg.buses)
         self.events = events if events is not None else ListEvents()
@@ -351,3 +351,39 @@ class TestGapInTime:
         assert last + 0.5 <= stop["t"] <= last + 0.5 + 0.011  # within one tick of the staleness deadline
         assert rig.engine.stats.skipped_ticks > 0
         assert rig.engine.gate.stopped_total(T0 + 12.0) == pytest.approx(T0 + 12.0 - stop["t"], abs=0.02)
+
+
+class TestInhibits:
+    """Backstops the tree cannot talk its way around: a bus down, a stale source the tree reads."""
+
+    def test_bus_down_stops_and_holds_until_it_is_back(self, tmp_path: Path) -> None:
+        """A bus error stops the task at once (bus_error event) and task frames resume only after bus_up."""
+        rig = Rig(tmp_path)
+        rig.running()
+        rig.engine.bus_down("main", "OSError: Network is down")
+        assert rig.engine.gate.state == TaskGate.STOPPED
+        assert rig.events.named("bus_error")[-1]["source"] == "main"
+        t_down = rig.t
+        rig.run(t_down + 0.2)  # healthy data keeps coming (another bus, say): still stopped
+        assert not rig.sent(SET_STATE_IDS, since=t_down + 0.001, data=CLOSED_LOOP)
+        rig.engine.bus_up("main")
+        rig.run(rig.t + 0.05)
+        assert rig.sent(SET_STATE_IDS, since=t_down + 0.2, data=CLOSED_LOOP)
+
+    def test_stale_source_stops_even_a_tree_that_masks_its_guard(self, tmp_path: Path) -> None:
+        """ForceSuccess around the guard hides its failure; the stale BMS still stops the task."""
+        xml = tmp_path / "masked.xml"
+        xml.write_text(
+            '<root BTCPP_format="4" main_tree_to_execute="M"><BehaviorTree ID="M"><ReactiveSequence>'
+            '<ForceSuccess><IsCurrentSafe topic_name="/battery_state"/></ForceSuccess><ExecuteTask/>'
+            '</ReactiveSequence></BehaviorTree></root>',
+            encoding="utf-8",
+        )
+        rig = Rig(tmp_path, tree={"file": str(xml), "main": "M", "tick_hz": 100})
+        rig.running()
+        last = rig.last_bms_t
+        rig.advance(last + 1.0)  # BMS silent for 1 s (max_age 0.5 s)
+        [stop] = rig.events.named("stop")
+        assert "source /battery_state" in stop["reason"]
+        assert last + 0.5 <= stop["t"] <= last + 0.5 + 0.011
+        assert not rig.sent(SET_STATE_IDS, since=stop["t"] + 0.001, data=CLOSED_LOOP)

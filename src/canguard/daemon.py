@@ -69,6 +69,7 @@ class Daemon:
         self._stop = threading.Event()
         self._reload = threading.Event()
         self._last_publish: tuple[float, dict[str, tuple[int, int, int]]] = (time.monotonic(), {})
+        self._down: set[str] = set()
         self._bus_errors: queue.SimpleQueue[tuple[str, str]] = queue.SimpleQueue()
         self.exit_reason = "exit"
         self.reader = BusReader(self.cfg.buses, on_error=self._bus_error)
@@ -137,6 +138,8 @@ class Daemon:
                             break
                 engine.advance(self.clock.now())
                 self._drain_bus_errors(engine)
+                if self._down:
+                    self._check_buses_back(engine)
                 mono = time.monotonic()
                 if wd_interval is not None and mono >= next_wd and self._watchdog_ok(engine):
                     self.notifier.watchdog()
@@ -227,5 +230,13 @@ class Daemon:
                 bus, text = self._bus_errors.get_nowait()
             except queue.Empty:
                 return
-            engine._event({"event": "bus_error", "source": bus, "reason": text})
-            engine._flush()
+            engine.bus_down(bus, text)
+            self._down.add(bus)
+
+    def _check_buses_back(self, engine: Engine) -> None:
+        """A bus the reader reopened releases the task (the tree still decides whether it resumes)."""
+        alive = self.reader.alive()
+        for bus in [b for b in self._down if alive.get(b)]:
+            self._down.discard(bus)
+            engine.bus_up(bus)
+            engine._event({"event": "bus_error", "source": bus, "reason": "reopened"})

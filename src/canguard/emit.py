@@ -73,6 +73,8 @@ class TaskGate:
         self._next_stop = math.inf
         self._confirm_pending = False
         self._ran_this_tick = False
+        self.inhibits: dict[str, str] = {}
+        """Reasons the task may not run whatever the tree says (a bus down, a stale source), by key."""
         self.explain: Callable[[], str] | None = None
         """Says why the tree halted the task (the failing guards); set by the engine."""
 
@@ -80,8 +82,8 @@ class TaskGate:
     def run(self, node: str, now: float) -> None:
         """ExecuteTask was ticked: start (or resume) the task."""
         self._ran_this_tick = True
-        if self.state == self.RUNNING:
-            return
+        if self.state == self.RUNNING or self.inhibits:
+            return  # running already, or held stopped until every inhibit is released
         if self.state == self.STOPPED:
             self._end_stop(now, node)
         self.state = self.RUNNING
@@ -106,6 +108,16 @@ class TaskGate:
         self._confirm_pending = self.stop_cfg.confirm is not None
         self._event("stop", now, node=node, reason=reason)
         self._send_stop(now)
+
+    def inhibit(self, key: str, reason: str, now: float, node: str = "") -> None:
+        """Hold the task stopped for ``key`` (stopping it now if it runs) until :meth:`release`."""
+        self.inhibits[key] = reason
+        if self.state == self.RUNNING:
+            self.stop(now, reason=reason, node=node)
+
+    def release(self, key: str) -> None:
+        """Drop one inhibit; the task resumes when ExecuteTask next runs and no other inhibit is left."""
+        self.inhibits.pop(key, None)
 
     def resend_stop(self, now: float) -> None:
         """Send the stop frames again now if the task is stopped (the daemon's exit)."""

@@ -264,6 +264,9 @@ class Engine:
     def _tick(self, now: float) -> py_trees.common.Status:
         if self.ctx.tree_start is None:
             self.ctx.tree_start = now
+        # Sources first: a stale one holds the task before the tree runs, and one that is fine
+        # again releases it in time for this tick's ExecuteTask.
+        self._watch_sources(now)
         self.gate.begin_tick()
         t0 = time.perf_counter()
         try:
@@ -284,7 +287,6 @@ class Engine:
             node = tip.name if tip is not None else self.root.name
             detail = tip.feedback_message if tip is not None else ""
             self.gate.stop(now, reason=f"tree failed at {node}" + (f": {detail}" if detail else ""), node=node)
-        self._watch_sources(now)
         self._sample_levels()
         if self.tick_hook is not None:
             self.tick_hook(now)
@@ -334,6 +336,13 @@ class Engine:
             if reason == "no_data" and now - self._started_at < self.ctx.sources[name].max_age_s:
                 reason = ""  # not yet: every source gets max_age to send its first frame
             prev = self._stale.get(name, "")
+            if name in self.ctx.read_sources:
+                # Backstop, whatever the tree's shape: a source the tree reads that is stale or
+                # invalid holds the task stopped until it is fine again.
+                if reason:
+                    self.gate.inhibit(f"source {name}", f"source {name}: {reason}", now)
+                elif prev:
+                    self.gate.release(f"source {name}")
             if reason != prev:
                 self._stale[name] = reason
                 if reason:
@@ -353,6 +362,18 @@ class Engine:
                 levels[node] = pct
             if self.metrics is not None:
                 self.metrics.set_i2t_level(node, pct)
+
+    def bus_down(self, bus: str, reason: str) -> None:
+        """A bus went away: the task stops (frames out on the buses still up) until :meth:`bus_up`."""
+        now = self.clock.now()
+        self._event({"event": "bus_error", "source": bus, "reason": reason})
+        self.gate.inhibit(f"bus {bus}", f"bus {bus} down: {reason}", now)
+        self._due = min(self._due, self.gate.next_deadline())
+        self._flush()
+
+    def bus_up(self, bus: str) -> None:
+        """The bus is open again: its inhibit is released (the tree decides whether the task resumes)."""
+        self.gate.release(f"bus {bus}")
 
     def guards(self) -> list[GuardView]:
         """Every guarded signal of the tree (node, source, role, kind, model), in tree order."""
