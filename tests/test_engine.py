@@ -387,3 +387,27 @@ class TestInhibits:
         assert "source /battery_state" in stop["reason"]
         assert last + 0.5 <= stop["t"] <= last + 0.5 + 0.011
         assert not rig.sent(SET_STATE_IDS, since=stop["t"] + 0.001, data=CLOSED_LOOP)
+
+
+class TestReloadCarryOver:
+    """A config reload (SIGHUP) continues the running task; it does not start over blind."""
+
+    def test_running_task_goes_on_and_a_trip_right_after_stops_it(self, tmp_path: Path) -> None:
+        """After the reload the task is still running, counters are kept, and an overcurrent stops it at once."""
+        rig = Rig(tmp_path)
+        rig.running()
+        rig.feed(bms_frame(rig.t + 0.001, 60.0))  # one trip and stop before the reload
+        rig.run(rig.t + 0.1)  # back to normal: the task resumed
+        old = rig.engine
+        assert old.gate.state == TaskGate.RUNNING and old.gate.stops == 1
+        new = Engine(rig.cfg, rig.clock, rig.sink, events=rig.events, previous=old)
+        new.start(rig.t)
+        new.adopt(old)
+        rig.engine = new
+        assert new.gate.state == TaskGate.RUNNING and new.gate.stops == 1 and len(new.stats.trips) == 1
+        rig.run(rig.t + 0.05)  # the new tree judges the carried-over data: no stop, no no-data failure
+        assert new.gate.state == TaskGate.RUNNING
+        t_trip = rig.t + 0.001
+        rig.feed(bms_frame(t_trip, 60.0))  # within max_age of the reload: no start-up grace
+        assert new.gate.state == TaskGate.STOPPED
+        assert rig.sent(ESTOP_IDS, since=t_trip)

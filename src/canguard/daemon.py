@@ -78,10 +78,10 @@ class Daemon:
         )
         self.engine = self._build_engine(self.cfg)
 
-    def _build_engine(self, cfg: Config) -> Engine:
+    def _build_engine(self, cfg: Config, previous: Engine | None = None) -> Engine:
         heat = HeatStore(cfg.state.file, cfg.state.on_corrupt, clock=BootClock())
         return Engine(cfg, self.clock, self.sink, events=self.journal, durable=True,
-                      metrics=self.metrics, heat=heat)
+                      metrics=self.metrics, heat=heat, previous=previous)
 
     # -- signals ---------------------------------------------------------------------------
     def install_signals(self) -> None:
@@ -199,7 +199,7 @@ class Daemon:
             cfg = load_config(self.config_path)
             if dict(cfg.buses) != dict(self.cfg.buses):
                 raise CanguardError("buses changed: a bus change needs a restart (systemctl restart canguard)")
-            new = self._build_engine(cfg)
+            new = self._build_engine(cfg, previous=self.engine)
         except (CanguardError, OSError, ValueError) as exc:
             log.error("reload rejected, keeping the running config: %s", exc)
             self.engine._event({"event": "error", "reason": f"reload rejected: {exc}"})
@@ -207,13 +207,13 @@ class Daemon:
             self.notifier.ready()
             return False
         old = self.engine
-        # The task's state carries over: a stopped robot stays stopped until the new tree recovers it.
-        if old.gate.state == TaskGate.STOPPED:
-            new.gate.stop(self.clock.now(), reason="stopped before reload")
-        if old.heat is not None:
-            old.heat.save(old.ctx.heat_models, self.clock.now())
+        now = self.clock.now()
+        old._save_heat(now, periodic=False)  # the new guards start from the heat the old ones had
         self.cfg, self.engine = cfg, new
-        new.start(self.clock.now())
+        new.start(now)
+        # The task's state, the sources' data and the counters carry over: a running task goes on
+        # (the new tree judges it at its first tick), a stopped one stays stopped until it recovers.
+        new.adopt(old)
         new._event({"event": "reload", "reason": f"config {self.config_path} reloaded"})
         new._flush()
         self.notifier.ready()

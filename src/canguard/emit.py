@@ -119,6 +119,18 @@ class TaskGate:
         """Drop one inhibit; the task resumes when ExecuteTask next runs and no other inhibit is left."""
         self.inhibits.pop(key, None)
 
+    def adopt(self, old: TaskGate) -> None:
+        """Continue where ``old`` is (a config reload): running, stopped or idle, with its deadlines and counts."""
+        self.state = old.state
+        self.stop_since = old.stop_since
+        self.stop_reason = old.stop_reason
+        self.stopped_s = old.stopped_s
+        self.stops = old.stops
+        self.inhibits = dict(old.inhibits)
+        self._next_task = old._next_task
+        self._next_stop = old._next_stop
+        self._confirm_pending = old._confirm_pending and self.stop_cfg.confirm is not None
+
     def resend_stop(self, now: float) -> None:
         """Send the stop frames again now if the task is stopped (the daemon's exit)."""
         if self.state == self.STOPPED:

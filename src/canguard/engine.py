@@ -92,6 +92,7 @@ class Engine:
         heat: Any = None,
         save_heat: bool = True,
         on_event: Callable[[dict[str, Any]], None] | None = None,
+        previous: Engine | None = None,
     ) -> None:
         from .tree import load_tree, require_guard_coverage  # the node library pulls in py_trees' parser
 
@@ -122,6 +123,12 @@ class Engine:
         self.decoder = Decoder(cfg)
         self.ctx = Context(clock, cfg.sources, sink=sink, actions=cfg.actions, on_event=self._write_event,
                            stop_frames=cfg.stop.frames)
+        if previous is not None:
+            # A reload: sources configured as before keep their data, so the new tree does not
+            # start blind (and fail on "no data") while the robot is running.
+            for name, health in previous.ctx.health.items():
+                if previous.ctx.sources.get(name) == self.ctx.sources.get(name):
+                    self.ctx.health[name] = health
         self.gate = TaskGate(cfg.task, cfg.stop, sink, health=self.ctx.health, on_event=self._gate_event)
         self.ctx.task = self.gate
         self.loaded = load_tree(cfg.tree.file, self.ctx, cfg.tree.main)
@@ -161,6 +168,17 @@ class Engine:
                 self.heat.restore(key, model, t)
         tree = self.cfg.tree
         self._event({"event": "start", "reason": f"tree {self.loaded.main_id} from {tree.file.name if tree else ''}"})
+
+    def adopt(self, old: Engine) -> None:
+        """Take over a running engine's task state, counters and source watch (config reload)."""
+        self.gate.adopt(old.gate)
+        self.stats.trips = old.stats.trips
+        self.stats.frames = old.stats.frames
+        self._stale = dict(old._stale)
+        self._started_at = old._started_at
+        self.first_frame_t = old.first_frame_t
+        self._last_frame_t = old._last_frame_t
+        self._due = min(self._next_tick, self.gate.next_deadline())
 
     def finish(self, reason: str = "end", stop: bool = True) -> None:
         """End: optionally stop the task (frames out), save heat, write the exit event, flush."""
