@@ -48,10 +48,11 @@ class TestEncodeEvent:
         )
 
     def test_nan_and_inf_stay_valid_json(self) -> None:
-        """NaN and infinities are written as strings so the line parses as strict JSON."""
+        """NaN and infinities are null in number fields, their text beside them; the line is strict JSON."""
         line = encode_event({"event": "trip", "value": math.nan, "threshold": math.inf, "x": -math.inf})
         obj = json.loads(line, parse_constant=lambda c: pytest.fail(f"non-standard JSON constant {c}"))
-        assert (obj["value"], obj["threshold"], obj["x"]) == ("nan", "inf", "-inf")
+        assert (obj["value"], obj["threshold"], obj["x"]) == (None, None, None)
+        assert (obj["value_text"], obj["threshold_text"], obj["x_text"]) == ("nan", "inf", "-inf")
 
     def test_floats_are_rounded(self) -> None:
         """Time is kept to the microsecond and values to 10 significant digits."""

@@ -19,8 +19,10 @@ Guarantees the daemon relies on:
 - **Deterministic.** The first keys are always ``t, event, node, source, value,
   threshold, reason`` (``null`` when the event has none), then the other keys
   sorted; floats are rounded (``t`` to the microsecond, other values to 10
-  significant digits) and NaN / ±inf are written as the strings ``"nan"``,
-  ``"inf"``, ``"-inf"`` so every line stays valid JSON. The same events give a
+  significant digits). A non-finite top-level number is written as ``null``
+  with its text in ``<key>_text`` (``"value": null, "value_text": "nan"``), so a
+  number field only ever holds a number or null and every line is valid JSON;
+  inside nested values NaN / ±inf are the strings ``"nan"``, ``"inf"``, ``"-inf"``. The same events give a
   byte-identical file on every run, which is what makes replay comparable.
 """
 
@@ -110,6 +112,13 @@ def _normalize(value: Any, key: str = "") -> Any:
     return str(value)  # Path, enums, anything else: its text
 
 
+def _top(value: Any, key: str) -> Any:
+    """A top-level field: like :func:`_normalize`, but a non-finite float is null (its text is beside it)."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return _normalize(value, key)
+
+
 def encode_event(event: Mapping[str, Any]) -> bytes:
     """Encode one event as one JSON line (UTF-8, ending in ``\\n``), deterministically.
 
@@ -117,9 +126,18 @@ def encode_event(event: Mapping[str, Any]) -> bytes:
     """
     if "event" not in event:
         raise ValueError(f"an event needs an 'event' key (trip, recover, ...); got keys {sorted(event)}")
-    out: dict[str, Any] = {k: _normalize(event.get(k), k) for k in FIRST_KEYS}
-    for k, v in sorted(((str(k), v) for k, v in event.items() if k not in FIRST_KEYS), key=lambda kv: kv[0]):
-        out[k] = _normalize(v, k)
+    # A number field stays a number or null: a non-finite value is written as null, and its text
+    # ("nan", "inf", "-inf") goes to "<key>_text", so consumers never meet a string in "value".
+    texts = {
+        f"{k}_text": ("nan" if math.isnan(v) else "inf" if v > 0 else "-inf")
+        for k, v in event.items()
+        if isinstance(v, float) and not math.isfinite(v)
+    }
+    rest = {str(k): v for k, v in event.items() if k not in FIRST_KEYS}
+    rest.update(texts)
+    out: dict[str, Any] = {k: _top(event.get(k), k) for k in FIRST_KEYS}
+    for k, v in sorted(rest.items(), key=lambda kv: kv[0]):
+        out[k] = _top(v, k)
     text = json.dumps(out, ensure_ascii=False, separators=(",", ":"), allow_nan=False)
     return text.encode("utf-8") + b"\n"
 
