@@ -696,3 +696,173 @@ class TestStateFile:
         [warm_trip] = warm["trips"]
         assert warm_trip["node"] == cold_trip["node"] == "Axis0I2t"
         assert warm_trip["t"] < cold_trip["t"] - 0.2
+
+
+class TestRealtimeHonoursFlags:
+    """--realtime runs the daemon on a copy of the config: replay's own flags, not the config's files."""
+
+    def test_writes_neither_config_events_nor_state(self, run: Run, data: Data, tmp_path: Path) -> None:
+        """Without --events / --state the config's events: and state.file stay untouched; --events is used."""
+        cfg = make_config(tmp_path / "cfg")
+        events = tmp_path / "ev.jsonl"
+        code, out, err = run(data["spike"], "-c", cfg, "--realtime", "8", "--json", "--events", events)
+        assert code == 0, err
+        assert not (tmp_path / "cfg" / "events.jsonl").exists()
+        assert not (tmp_path / "cfg" / "i2t_state.json").exists()
+        lines = [json.loads(line) for line in events.read_text(encoding="utf-8").splitlines()]
+        assert any(e["event"] == "trip" for e in lines)
+        assert json.loads(out)["frames_sent"] > 0
+
+    def test_state_is_only_read(self, run: Run, tmp_path: Path) -> None:
+        """--state FILE is read, never written; the config's own state.file (I²t guards) is not written either."""
+        from canguard.protect.i2t import LeakyI2t
+        from canguard.protect.state import HeatStore
+
+        example = REPO / "config" / "examples" / "robot_guard.yaml"
+        doc = yaml.safe_load(example.read_text(encoding="utf-8"))
+        doc["dbc"] = [str((example.parent / f).resolve()) for f in doc["dbc"]]
+        doc["tree"]["file"] = str((example.parent / doc["tree"]["file"]).resolve())
+        doc["events"] = str(tmp_path / "cfg_events.jsonl")
+        doc["state"]["file"] = str(tmp_path / "cfg_state.json")
+        cfg = tmp_path / "robot_guard.yaml"
+        cfg.write_text(yaml.safe_dump(doc), encoding="utf-8")
+        state = tmp_path / "saved_state.json"
+        model = LeakyI2t(10.0, 20.0, 1.0)
+        model.update(20.0, T0)
+        HeatStore(state).save({"Axis0I2t": model}, T0)
+        before = state.read_bytes()
+        code, _, err = run(REPO / "examples" / "overload.log.gz", "-c", cfg, "--realtime", "8", "--state", state)
+        assert code == 0, err
+        assert state.read_bytes() == before
+        assert not (tmp_path / "cfg_state.json").exists()
+        assert not (tmp_path / "cfg_events.jsonl").exists()
+
+    def test_emit_records_the_frames_sent(self, run: Run, data: Data, tmp_path: Path) -> None:
+        """--realtime --emit writes every frame the daemon sent, as a candump -L log python-can reads."""
+        emit = tmp_path / "emit.log"
+        code, out, err = run(data["spike"], "-c", data["cfg"], "--realtime", "8", "--json", "--emit", emit)
+        assert code == 0, err
+        s = json.loads(out)
+        msgs = list(can.CanutilsLogReader(emit))
+        assert s["frames_sent"] > 0 and len(msgs) == s["frames_sent"]
+        db = _db()
+        estop = {db.get_message_by_name(f"Axis{n}_Estop").frame_id for n in range(4)}
+        assert estop & {m.arbitration_id for m in msgs}
+
+    @pytest.mark.parametrize("flag", [["--plot", "x.png"], ["--baseline", "b.json"], ["--jobs", "2"],
+                                      ["--map", "can0=main"]])
+    def test_refuses_flags_it_cannot_honour(self, run: Run, data: Data, tmp_path: Path, flag: list[str]) -> None:
+        """--plot, --baseline, --jobs > 1 and --map with --realtime are exit 2 naming the flag, before any run."""
+        args = [tmp_path / a if a.endswith((".png", ".json")) else a for a in flag]
+        code, out, err = run(data["spike"], data["normal"], "-c", data["cfg"], "--realtime", "8", *args)
+        assert code == 2
+        assert flag[0] in err and "--realtime" in err
+        assert out == ""
+        no_traceback(err)
+
+
+class TestEmitStreams:
+    """--emit writes each frame as it is sent: memory stays flat in the log's length."""
+
+    def test_frames_are_not_kept_in_memory(
+        self, run: Run, data: Data, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+    ) -> None:
+        """The replay's LogSink keeps no frame, and the file still has every frame counted in frames_sent."""
+        import canguard.replay_cmd as replay_cmd
+        from canguard.emit import LogSink
+
+        sinks: list[LogSink] = []
+
+        class Spy(LogSink):
+            def __init__(self, *a: Any, **kw: Any) -> None:
+                super().__init__(*a, **kw)
+                sinks.append(self)
+
+        monkeypatch.setattr(replay_cmd, "LogSink", Spy)
+        emit = tmp_path / "emit.log"
+        s = summary_of(run, data["spike"], "-c", data["cfg"], "--emit", emit)
+        [sink] = sinks
+        assert sink.frames == [] and sink.origins == []
+        assert s["frames_sent"] > 0
+        assert len(emit.read_text(encoding="ascii").splitlines()) == s["frames_sent"] == sink.sent
+
+    def test_streamed_lines_equal_write_candump_of_kept_frames(self, run: Run, data: Data, tmp_path: Path) -> None:
+        """The streamed --emit file has the bytes write_candump gives for the frames a keeping sink holds."""
+        import io
+
+        from canguard.clock import ManualClock
+        from canguard.config import load_config
+        from canguard.emit import LogSink
+        from canguard.engine import Engine
+        from canguard.replay import read_log, write_candump
+
+        emit = tmp_path / "emit.log"
+        code, _, err = run(data["spike"], "-c", data["cfg"], "--emit", emit)
+        assert code == 0, err
+        cfg = load_config(data["cfg"])
+        clock = ManualClock()
+        sink = LogSink(clock.now, cfg.buses)
+        engine = Engine(cfg, clock, sink, durable=False, save_heat=False)
+        engine.run_log(read_log(data["spike"]), {"can0": "main"}, "main", {})
+        engine.advance(clock.now())
+        engine.finish(reason="end of log", stop=False)
+        buf = io.StringIO()
+        write_candump(sink.frames, buf)
+        assert sink.frames and emit.read_bytes() == buf.getvalue().encode("ascii")
+
+    def test_logsink_writes_at_once(self) -> None:
+        """LogSink(out=...) writes a candump -L line per frame as it is sent; keep=False keeps none."""
+        import io
+
+        from canguard.config import BusConfig, FrameSpec
+        from canguard.emit import LogSink
+
+        buf = io.StringIO()
+        sink = LogSink(lambda: 12.5, {"main": BusConfig(name="main", kwargs={"channel": "can0"})},
+                       out=buf, keep=False)
+        spec = FrameSpec(bus="main", arbitration_id=0x123, data=b"\x01\x02", is_extended_id=False, is_fd=False,
+                         label="x")
+        sink.send([spec, spec], "task")
+        assert buf.getvalue() == "(12.500000) can0 123#0102\n" * 2
+        assert sink.sent == 2 and sink.frames == []
+
+
+class TestMergedChannels:
+    """With one bus, the fallback still takes any single channel, but merging several is reported."""
+
+    @pytest.fixture(scope="class")
+    @classmethod
+    def two_channels(cls, tmp_path_factory: pytest.TempPathFactory) -> Path:
+        """A log with BMS frames on can0 and on can1 (can1 is what the only bus would merge in)."""
+        log = tmp_path_factory.mktemp("merged") / "two.log"
+        lines = [bms_line(100.0 + i / 50, 10.0, "can0" if i % 3 else "can1") for i in range(30)]
+        log.write_text("\n".join(lines) + "\n", encoding="ascii")
+        return log
+
+    def test_counted_per_channel_and_warned(self, run: Run, data: Data, two_channels: Path) -> None:
+        """can0 (the bus's channel) and can1 (the fallback) are counted per channel and named in a warning."""
+        s = summary_of(run, two_channels, "-c", data["cfg"])
+        assert s["merged_channels"] == {"can0": 20, "can1": 10}
+        assert s["merged_into"] == "main"
+        code, out, _ = run(two_channels, "-c", data["cfg"])
+        assert code == 0
+        [line] = [ln for ln in out.splitlines() if "merged into" in ln]
+        assert "warning" in line and "can0 (20)" in line and "can1 (10)" in line
+        assert "bus main" in line and "--map" in line
+
+    def test_single_channel_needs_no_map_and_no_warning(self, run: Run, data: Data, tmp_path: Path) -> None:
+        """A log on one channel of any name goes to the only bus with no merge reported."""
+        log = tmp_path / "robot0.log"
+        log.write_text("".join(bms_line(100.0 + i / 50, 10.0, "robot0") + "\n" for i in range(10)),
+                       encoding="ascii")
+        s = summary_of(run, log, "-c", data["cfg"])
+        assert "merged_channels" not in s and "merged_into" not in s
+        assert s["samples"]["/battery_state"] >= 10
+        _, out, _ = run(log, "-c", data["cfg"])
+        assert "merged into" not in out
+
+    def test_map_chooses(self, run: Run, data: Data, two_channels: Path) -> None:
+        """--map can0=main routes explicitly: can1 is left unmapped (and counted), nothing is merged."""
+        s = summary_of(run, two_channels, "-c", data["cfg"], "--map", "can0=main")
+        assert "merged_channels" not in s
+        assert s["unmapped_channels"] == {"can1": 10}

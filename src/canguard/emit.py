@@ -22,7 +22,7 @@ import logging
 import math
 import operator
 from collections.abc import Callable, Mapping, Sequence
-from typing import Any
+from typing import Any, TextIO
 
 from .config import BusConfig, FrameSpec, StopConfig, TaskConfig
 from .context import FrameSink
@@ -232,28 +232,44 @@ class TaskGate:
 
 
 class LogSink:
-    """Keeps sent frames as :class:`Frame` objects (``replay --emit``, tests)."""
+    """Records sent frames: streamed to ``out`` as candump -L lines (``replay --emit``), kept, or counted.
 
-    def __init__(self, clock_now: Callable[[], float], buses: Mapping[str, BusConfig], keep: bool = True) -> None:
+    ``out`` given: each frame is written as one candump -L line at once
+    (:func:`canguard.replay.format_candump_line`), so memory stays flat in the
+    log's length. ``keep`` True: frames are also kept in :attr:`frames` (tests).
+    Either way :attr:`sent` counts every frame.
+    """
+
+    def __init__(
+        self, clock_now: Callable[[], float], buses: Mapping[str, BusConfig], *,
+        out: TextIO | None = None, keep: bool = True,
+    ) -> None:
         self._now = clock_now
         self._channel = {name: (b.channel or name) for name, b in buses.items()}
+        self.out = out
+        """Where each frame is written as a candump -L line as it is sent (None: not written)."""
         self.keep = keep
-        """False: count frames only (a replay without --emit stays flat in memory on long logs)."""
+        """False: do not keep frames in memory (a replay stays flat in memory on long logs)."""
         self.sent = 0
         self.frames: list[Frame] = []
         self.origins: list[str] = []
 
     def send(self, frames: Sequence[FrameSpec], origin: str) -> None:
-        """Record every frame at the current time (or only count them when ``keep`` is False)."""
+        """Count every frame; write it to ``out`` and / or keep it, at the current time."""
         self.sent += len(frames)
-        if not self.keep:
+        out, keep = self.out, self.keep
+        if out is None and not keep:
             return
+        from .replay import format_candump_line
+
         t = self._now()
         for f in frames:
-            self.frames.append(
-                Frame(t, self._channel.get(f.bus, f.bus), f.arbitration_id, f.data, f.is_extended_id, f.is_fd)
-            )
-            self.origins.append(origin)
+            frame = Frame(t, self._channel.get(f.bus, f.bus), f.arbitration_id, f.data, f.is_extended_id, f.is_fd)
+            if out is not None:
+                out.write(format_candump_line(frame) + "\n")
+            if keep:
+                self.frames.append(frame)
+                self.origins.append(origin)
 
 
 class BusSink:

@@ -15,6 +15,7 @@ import math
 import sys
 from collections.abc import Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor
+from contextlib import ExitStack
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -56,14 +57,52 @@ def parse_map(items: Sequence[str], cfg: Config) -> dict[str, str]:
 
 
 class ChannelRouter:
-    """Maps a log's channel names to the config's buses: --map, then bus channels, then the only bus."""
+    """Maps a log's channel names to the config's buses: --map, then bus names and channels, then the only bus.
+
+    The only-bus fallback (one configured bus, no --map) lets a single-channel log on
+    any channel name replay without a map; when it makes that bus take the frames of
+    several channels, :meth:`merged` reports them (a log of can0 and can1 is not one bus).
+    With --map the routing is explicit: a channel neither --map nor a bus names is unmapped.
+    """
 
     def __init__(self, cfg: Config, overrides: dict[str, str]) -> None:
         self.table: dict[str, str] = {b.channel: name for name, b in cfg.buses.items() if b.channel}
         self.table.update({name: name for name in cfg.buses})
         self.table.update(overrides)
-        self.only = next(iter(cfg.buses)) if len(cfg.buses) == 1 else None
+        self.only = next(iter(cfg.buses)) if len(cfg.buses) == 1 and not overrides else None
         self.unmapped: dict[str, int] = {}
+        self.channels: dict[str, int] = {}
+        """Frames per channel given to the only bus (counted by :meth:`watch`; empty without fallback)."""
+
+    def watch(self, frames: Iterator[Frame]) -> Iterator[Frame]:
+        """Pass ``frames`` through, counting them per channel when the only-bus fallback is on."""
+        if self.only is None:
+            return frames
+        return self._count(frames)
+
+    def _count(self, frames: Iterator[Frame]) -> Iterator[Frame]:
+        counts = self.channels
+        last: str | None = None
+        run = 0
+        try:
+            for frame in frames:
+                channel = frame.channel
+                if channel == last:
+                    run += 1
+                else:
+                    if last is not None:
+                        counts[last] = counts.get(last, 0) + run
+                    last, run = channel, 1
+                yield frame
+        finally:
+            if last is not None:
+                counts[last] = counts.get(last, 0) + run
+
+    def merged(self) -> dict[str, int]:
+        """Frames per channel when the fallback merged several channels into the only bus, else {}."""
+        if len(self.channels) < 2 or all(c in self.table for c in self.channels):
+            return {}
+        return dict(sorted(self.channels.items()))
 
     def route(self, frames: Iterator[Frame]) -> Iterator[tuple[str, Frame]]:
         """Yield (bus, frame) for every frame whose channel maps to a bus; count the others."""
@@ -83,35 +122,34 @@ def replay_one(cfg: Config, log_path: Path, opts: ReplayOptions) -> dict[str, An
     from .replay import ReadStats, read_log
 
     clock = ManualClock()
-    sink = LogSink(clock.now, cfg.buses, keep=opts.emit is not None)
     journal = EventJournal(opts.events) if opts.events is not None else None
     heat = HeatStore(opts.state, cfg.state.on_corrupt) if opts.state is not None else None
-    engine = Engine(cfg, clock, sink, events=journal, durable=False, heat=heat, save_heat=False)
-    recorder = None
-    if opts.plot is not None:
-        from .plot import Recorder
-
-        recorder = Recorder(engine)
     stats = ReadStats()
     router = ChannelRouter(cfg, opts.channel_map)
-    frames = read_log(log_path, skip_bad=opts.skip_bad, stats=stats)
+    frames: Iterator[Frame] = read_log(log_path, skip_bad=opts.skip_bad, stats=stats)
     if opts.progress:
         from .progress import wrap_progress
 
-        frames = wrap_progress(frames, log_path)
-    try:
-        engine.run_log(frames, router.table, router.only, router.unmapped)
-        if engine.stats.frames:
-            engine.advance(clock.now())
-            engine.finish(reason="end of log", stop=False)
-    finally:
-        if journal is not None:
-            journal.close()
-    if opts.emit is not None:
-        from .replay import write_candump
+        frames = wrap_progress(frames, log_path)  # attaches to the reader: before any wrapping
+    frames = router.watch(frames)
+    with ExitStack() as stack:
+        # --emit streams each frame to the file as it is sent: memory stays flat in the log's length.
+        out = stack.enter_context(open(opts.emit, "w", encoding="ascii")) if opts.emit is not None else None
+        sink = LogSink(clock.now, cfg.buses, out=out, keep=False)
+        engine = Engine(cfg, clock, sink, events=journal, durable=False, heat=heat, save_heat=False)
+        recorder = None
+        if opts.plot is not None:
+            from .plot import Recorder
 
-        with open(opts.emit, "w", encoding="ascii") as out:
-            write_candump(sink.frames, out)
+            recorder = Recorder(engine)
+        try:
+            engine.run_log(frames, router.table, router.only, router.unmapped)
+            if engine.stats.frames:
+                engine.advance(clock.now())
+                engine.finish(reason="end of log", stop=False)
+        finally:
+            if journal is not None:
+                journal.close()
     summary = build_summary(cfg, log_path, engine, stats, router)
     if recorder is not None and opts.plot is not None:
         recorder.save(opts.plot, summary)
@@ -146,6 +184,7 @@ def build_summary(cfg: Config, log_path: Path, engine: Engine, stats: Any, route
             if math.isfinite(peak) and threshold else None,
         })
     unmapped = dict(sorted(router.unmapped.items()))
+    merged = router.merged()
     summary: dict[str, Any] = {
         "version": SUMMARY_VERSION,
         "log": str(log_path),
@@ -166,8 +205,11 @@ def build_summary(cfg: Config, log_path: Path, engine: Engine, stats: Any, route
         "confirmations": sum(1 for e in engine.events_seen if e == "confirmed"),
         "margins": margins,
         "first_t": _r(engine.first_frame_t), "last_t": _r(end),
-        "frames_sent": engine.sink.sent if isinstance(engine.sink, LogSink) else 0,
+        "frames_sent": getattr(engine.sink, "sent", 0),
     }
+    if merged:  # only then: summaries of logs without a merge keep their shape (committed examples)
+        summary["merged_channels"] = merged
+        summary["merged_into"] = router.only
     return summary
 
 
@@ -199,6 +241,11 @@ def render_text(s: dict[str, Any]) -> str:
     if s["unmapped_channels"]:
         lines.append("  warning: frames on channels no bus takes (use --map CHANNEL=BUS): "
                      + ", ".join(f"{k} ({v})" for k, v in s["unmapped_channels"].items()))
+    if s.get("merged_channels"):
+        hint = ("--realtime plays every channel onto one bus: split the log by channel to choose"
+                if "realtime_speed" in s else "use --map CHANNEL=BUS to choose what each bus takes")
+        lines.append(f"  warning: frames of several channels were merged into bus {s.get('merged_into')} ({hint}): "
+                     + ", ".join(f"{k} ({v})" for k, v in s["merged_channels"].items()))
     if f["read"] and not f["decoded"]:
         lines.append("  warning: no frame of this log matches a configured message")
     return "\n".join(lines)
