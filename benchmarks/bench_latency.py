@@ -189,13 +189,23 @@ def echo_trials(peer: can.BusABC, trials: int, rnd: random.Random) -> list[float
     peer.set_filters([{"can_id": ECHO_REP, "can_mask": 0x7FF, "extended": False}])
     req = can.Message(arbitration_id=ECHO_REQ, data=bytes(8), is_extended_id=False)
     out: list[float] = []
-    for _ in range(trials):
+    lost = 0
+    while len(out) < trials:
         time.sleep(rnd.uniform(0.0, 0.003))
         drain(peer)
         t0 = time.perf_counter()
         peer.send(req)
-        recv_until(peer, lambda m: m.arbitration_id == ECHO_REP)
+        try:
+            recv_until(peer, lambda m: m.arbitration_id == ECHO_REP, timeout_s=0.5)
+        except RuntimeError:
+            # A datagram lost on loopback under load (request or reply): not a latency, try again.
+            lost += 1
+            if lost > trials // 10:
+                raise
+            continue
         out.append(time.perf_counter() - t0)
+    if lost:
+        print(f"  (bus alone: {lost} round trips lost and retried)")
     return out
 
 
