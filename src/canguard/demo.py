@@ -105,7 +105,7 @@ class LiveView:
         self._frames, self._last = frames, mono
         lines = [f"canguard demo  t={mono - self.t0:5.1f} s  task: {engine.gate.state:8s}  "
                  f"trips: {len(engine.stats.trips)}  stops: {engine.gate.stops}  {fps:7.0f} frames/s", ""]
-        lines.append(f"{'guard':28s} {'source':15s} {'value':>9s} {'threshold':>10s} {'level %':>8s}  state")
+        lines.append(f"{'guard':28s} {'source':20s} {'value':>9s} {'threshold':>10s} {'level %':>8s}  state")
         for g in engine.guards():
             health = engine.ctx.health[g.source]
             reason = health.reason(now, g.role)
@@ -113,12 +113,13 @@ class LiveView:
             snap = g.snapshot()
             state = reason or ("TRIPPED" if snap.tripped else "ok")
             thr = g.threshold()
-            lines.append(f"{g.node[:28]:28s} {g.source[:15]:15s} {value:9.2f} "
+            where = g.source if g.role == "current" else f"{g.source}:{g.role}"
+            lines.append(f"{g.node[:28]:28s} {where[:20]:20s} {value:9.2f} "
                          f"{thr if math.isfinite(thr) else float('nan'):10.2f} {snap.level_pct:8.1f}  {state}")
         lines.append("")
         for ev in engine.stats.trips[-5:]:
-            lines.append(f"  trip {ev.get('node')} {ev.get('source')} value={ev.get('value')} "
-                         f"threshold={ev.get('threshold')} ({ev.get('reason')})")
+            lines.append(f"  trip {ev.get('node')} {ev.get('source')} value={_fmt(ev.get('value'))} "
+                         f"threshold={_fmt(ev.get('threshold'))} ({ev.get('reason')})")
         self.out.write("\x1b[H\x1b[2J" + "\n".join(lines) + "\n")
         self.out.flush()
 
