@@ -411,3 +411,20 @@ class TestReloadCarryOver:
         rig.feed(bms_frame(t_trip, 60.0))  # within max_age of the reload: no start-up grace
         assert new.gate.state == TaskGate.STOPPED
         assert rig.sent(ESTOP_IDS, since=t_trip)
+
+    def test_trip_between_the_thresholds_survives_the_reload(self, tmp_path: Path) -> None:
+        """Tripped at 60 A, then 30 A (between 25 and 35) across a reload: the task stays stopped until 25 A."""
+        rig = Rig(tmp_path)
+        rig.running()
+        rig.feed(bms_frame(rig.t + 0.001, 60.0))
+        rig.run(rig.t + 0.05, pack_a=30.0, axis0_a=0.0)
+        old = rig.engine
+        assert old.gate.state == TaskGate.STOPPED
+        new = Engine(rig.cfg, rig.clock, rig.sink, events=rig.events, previous=old)
+        new.start(rig.t)
+        new.adopt(old)
+        rig.engine = new
+        rig.run(rig.t + 0.1, pack_a=30.0, axis0_a=0.0)
+        assert new.gate.state == TaskGate.STOPPED
+        rig.run(rig.t + 0.05, pack_a=20.0, axis0_a=0.0)
+        assert new.gate.state == TaskGate.RUNNING

@@ -172,6 +172,7 @@ class Engine:
     def adopt(self, old: Engine) -> None:
         """Take over a running engine's task state, counters and source watch (config reload)."""
         self.gate.adopt(old.gate)
+        self._carry_trips(old)
         self.stats.trips = old.stats.trips
         self.stats.frames = old.stats.frames
         self._stale = dict(old._stale)
@@ -179,6 +180,26 @@ class Engine:
         self.first_frame_t = old.first_frame_t
         self._last_frame_t = old._last_frame_t
         self._due = min(self._next_tick, self.gate.next_deadline())
+
+    def _carry_trips(self, old: Engine) -> None:
+        """Guards of the new tree start tripped where the same guard of the old tree is tripped.
+
+        Without it, a reload while a hysteresis guard sits between its thresholds (say
+        30 A between 25 and 35) would start the new model untripped and resume the task.
+        I²t guards carry their heat through the state file instead.
+        """
+        from .protect.base import LatchedModel
+
+        old_guards = {g.name: g for g in old._guard_nodes}
+        for guard in self._guard_nodes:
+            before = old_guards.get(guard.name)
+            if before is None or type(before) is not type(guard) or before.topic_name != guard.topic_name:
+                continue
+            old_models = {role: model for role, model, _ in before.guarded()}
+            for role, model, kind in guard.guarded():
+                was = old_models.get(role)
+                if kind == "threshold" and was is not None and was.tripped and isinstance(model, LatchedModel):
+                    model.carry_trip(was.snapshot().since)
 
     def finish(self, reason: str = "end", stop: bool = True) -> None:
         """End: optionally stop the task (frames out), save heat, write the exit event, flush."""

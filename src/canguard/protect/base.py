@@ -126,6 +126,14 @@ class LatchedModel(ProtectionModel):
             return None
         return abs(value)
 
+    def carry_trip(self, since: float | None) -> None:
+        """Start tripped, since ``since``: the model replaces a tripped one (a config reload).
+
+        It then recovers by its own rule (hysteresis: only at the recovery threshold),
+        so a reload never clears a trip by itself.
+        """
+        self._set_tripped(True, since)
+
     def _set_tripped(self, tripped: bool, t: float | None) -> bool:
         """Enter ``tripped``; True on an edge. Arms the peak latch whenever tripped."""
         if tripped:
