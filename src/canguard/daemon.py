@@ -39,7 +39,7 @@ from .engine import Engine
 from .errors import CanguardError
 from .events import EventJournal
 from .protect.state import HeatStore
-from .systemd import Notifier
+from .systemd import Notifier, watchdog_verdict
 
 log = logging.getLogger("canguard.daemon")
 
@@ -70,6 +70,7 @@ class Daemon:
         self._reload = threading.Event()
         self._last_publish: tuple[float, dict[str, tuple[int, int, int]]] = (time.monotonic(), {})
         self._down: set[str] = set()
+        self._watchdog_held = ""
         self._bus_errors: queue.SimpleQueue[tuple[str, str]] = queue.SimpleQueue()
         self.exit_reason = "exit"
         self.reader = BusReader(self.cfg.buses, on_error=self._bus_error)
@@ -188,8 +189,12 @@ class Daemon:
 
     def _watchdog_ok(self, engine: Engine) -> bool:
         now = self.clock.now()
-        on_time = now - engine.last_tick_t <= max(4 * engine.period_s, 0.2)
-        return on_time and not engine.stale_unstopped(now)
+        last = None if math.isnan(engine.last_tick_t) else engine.last_tick_t
+        verdict = watchdog_verdict(now, last, engine.period_s, engine.stale_unstopped(now), k=4.0)
+        if not verdict and verdict.reason != self._watchdog_held:
+            log.warning("watchdog ping held back: %s", verdict.reason)
+        self._watchdog_held = "" if verdict else verdict.reason
+        return bool(verdict)
 
     # -- reload and errors ------------------------------------------------------------------
     def reload(self) -> bool:

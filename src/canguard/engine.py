@@ -463,12 +463,6 @@ class Engine:
             self.events.flush()
             self._dirty = False
 
-    def run_frames(self, frames: Iterable[tuple[str, Frame]]) -> None:
-        """Feed every (bus, frame) in order."""
-        feed = self.feed
-        for bus, frame in frames:
-            feed(bus, frame)
-
     def run_log(
         self, frames: Iterable[Frame], route: Mapping[str, str], default_bus: str | None,
         unmapped: dict[str, int],

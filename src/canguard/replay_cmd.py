@@ -104,16 +104,6 @@ class ChannelRouter:
             return {}
         return dict(sorted(self.channels.items()))
 
-    def route(self, frames: Iterator[Frame]) -> Iterator[tuple[str, Frame]]:
-        """Yield (bus, frame) for every frame whose channel maps to a bus; count the others."""
-        table, only, unmapped = self.table, self.only, self.unmapped
-        for frame in frames:
-            bus = table.get(frame.channel, only)
-            if bus is None:
-                unmapped[frame.channel] = unmapped.get(frame.channel, 0) + 1
-                continue
-            yield bus, frame
-
 
 def replay_one(cfg: Config, log_path: Path, opts: ReplayOptions) -> dict[str, Any]:
     """Replay one log through a fresh engine; returns the summary (JSON-able, deterministic)."""
