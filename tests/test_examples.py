@@ -152,4 +152,4 @@ class TestReadmeCommands:
         assert proc.returncode == 0, proc.stderr
         assert "canguard demo summary" in proc.stdout
         assert "PackCurrent" in proc.stdout and "overcurrent" in proc.stdout  # the spike at 4 s tripped
-        assert "stop frames out" in proc.stdout
+        assert "stop frames out" in proc.stdout and "after the trip's time" in proc.stdout

@@ -204,9 +204,10 @@ def summary_text(engine: Any, trips: list[tuple[float, dict[str, Any]]], stop_wa
              f"{engine.events_seen.count('escalate')}, confirmations {engine.events_seen.count('confirmed')}"]
     for wall, ev in trips:
         t = float(ev.get("t", math.nan))
-        # The trip event's t is the triggering frame's bus timestamp; the stop frame's send time is wall time.
+        # The trip event's t is the triggering frame's bus timestamp (for a stale source: the tick that
+        # found it stale); the stop frame's send time is wall time on the same clock.
         after = [s for s in stop_walls if s >= wall - 0.001]
-        latency = f"stop frames out {1000 * (after[0] - t):.2f} ms after the frame" if after else \
+        latency = f"stop frames out {1000 * (after[0] - t):.2f} ms after the trip's time" if after else \
             "no new stop (already stopped)"
         lines.append(f"  t={t - first:7.3f} s  {ev.get('node')}  {ev.get('source')}  value={_fmt(ev.get('value'))}  "
                      f"threshold={_fmt(ev.get('threshold'))}  ({ev.get('reason')}): {latency}")
