@@ -201,7 +201,7 @@ def summary_text(engine: Any, trips: list[tuple[float, dict[str, Any]]], stop_wa
              f"error frames {engine.decoder.error_frames}; ticks {engine.stats.ticks}",
              f"  trips: {len(trips)}; stops: {engine.gate.stops}; stopped "
              f"{engine.gate.stopped_total(engine.clock.now()):.2f} s; escalations "
-             f"{engine.events_seen.count('escalate')}, confirmations {engine.events_seen.count('confirmed')}"]
+             f"{engine.events_seen['escalate']}, confirmations {engine.events_seen['confirmed']}"]
     for wall, ev in trips:
         t = float(ev.get("t", math.nan))
         # The trip event's t is the triggering frame's bus timestamp (for a stale source: the tick that

@@ -24,6 +24,7 @@ from __future__ import annotations
 import logging
 import math
 import time
+from collections import Counter
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Protocol
@@ -150,8 +151,8 @@ class Engine:
         self._heat_failed = False
         self._last_frame_t = -math.inf
         self.first_frame_t = math.nan
-        self.events_seen: list[str] = []
-        """The name of every event written, in order (summaries count stops, escalations...)."""
+        self.events_seen: Counter[str] = Counter()
+        """How many events of each name were written (summaries count escalations...); bounded, live for weeks."""
         self.last_status = py_trees.common.Status.INVALID
         self.last_tick_t = math.nan
 
@@ -451,7 +452,7 @@ class Engine:
     def _event(self, event: dict[str, Any]) -> None:
         if "t" not in event:
             event = {"t": self.clock.now(), **event}
-        self.events_seen.append(str(event.get("event")))
+        self.events_seen[str(event.get("event"))] += 1
         if self.events is not None:
             self.events.write(event)
             self._dirty = True
