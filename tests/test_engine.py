@@ -428,3 +428,22 @@ class TestReloadCarryOver:
         assert new.gate.state == TaskGate.STOPPED
         rig.run(rig.t + 0.05, pack_a=20.0, axis0_a=0.0)
         assert new.gate.state == TaskGate.RUNNING
+
+
+class TestTripMemoryBound:
+    """Trips are counted without end but kept in memory only up to a bound."""
+
+    def test_trips_beyond_the_bound_are_counted_not_kept(self, tmp_path: Path,
+                                                          monkeypatch: pytest.MonkeyPatch) -> None:
+        """With room for one trip, two trips give trip_count 2 and one kept event."""
+        import canguard.engine as engine_module
+
+        monkeypatch.setattr(engine_module, "MAX_KEPT_TRIPS", 1)
+        rig = Rig(tmp_path)
+        rig.running()
+        for _ in range(2):
+            rig.feed(bms_frame(rig.t + 0.001, 60.0))
+            rig.run(rig.t + 0.05, pack_a=10.0)
+        assert rig.engine.stats.trip_count == 2
+        assert len(rig.engine.stats.trips) == 1
+        assert "trips 2" in rig.engine.status_line()

@@ -104,7 +104,7 @@ class LiveView:
         fps = (frames - self._frames) / max(1e-3, mono - self._last)
         self._frames, self._last = frames, mono
         lines = [f"canguard demo  t={mono - self.t0:5.1f} s  task: {engine.gate.state:8s}  "
-                 f"trips: {len(engine.stats.trips)}  stops: {engine.gate.stops}  {fps:7.0f} frames/s", ""]
+                 f"trips: {engine.stats.trip_count}  stops: {engine.gate.stops}  {fps:7.0f} frames/s", ""]
         lines.append(f"{'guard':28s} {'source':20s} {'value':>9s} {'threshold':>10s} {'level %':>8s}  state")
         for g in engine.guards():
             health = engine.ctx.health[g.source]

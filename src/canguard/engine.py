@@ -43,6 +43,9 @@ if TYPE_CHECKING:
 
 log = logging.getLogger("canguard.engine")
 
+MAX_KEPT_TRIPS = 100_000
+"""Trip events kept in memory for summaries and the live view; later ones are only counted."""
+
 MAX_CATCH_UP_S = 2.0
 """Longest stretch of missed ticks the engine replays one by one after a gap."""
 
@@ -70,6 +73,9 @@ class EngineStats:
     tick_errors: int = 0
     backward_frames: int = 0
     trips: list[dict[str, Any]] = field(default_factory=list)
+    """Every trip event, up to :data:`MAX_KEPT_TRIPS` (a guard flapping for days must not eat the memory)."""
+    trip_count: int = 0
+    """Every trip, kept or not."""
     samples: dict[str, int] = field(default_factory=dict)
     """Samples decoded per source."""
     max_abs: dict[tuple[str, str], float] = field(default_factory=dict)
@@ -175,6 +181,7 @@ class Engine:
         self.gate.adopt(old.gate)
         self._carry_trips(old)
         self.stats.trips = old.stats.trips
+        self.stats.trip_count = old.stats.trip_count
         self.stats.frames = old.stats.frames
         self._stale = dict(old._stale)
         self._started_at = old._started_at
@@ -430,7 +437,7 @@ class Engine:
         """A one-line summary for systemd's STATUS=."""
         d = self.decoder
         return (f"task {self.gate.state}; tree {self.last_status.value}; stops {self.gate.stops}; "
-                f"trips {len(self.stats.trips)}; frames {self.stats.frames} decoded {d.decoded} "
+                f"trips {self.stats.trip_count}; frames {self.stats.frames} decoded {d.decoded} "
                 f"invalid {d.invalid}")
 
     # -- events ----------------------------------------------------------------------------
@@ -444,7 +451,9 @@ class Engine:
         if event.get("event") == "trip" and not (
             event.get("reason") == "no_data" and self._starting(float(event.get("t", self.clock.now())))
         ):
-            self.stats.trips.append(event)
+            self.stats.trip_count += 1
+            if len(self.stats.trips) < MAX_KEPT_TRIPS:
+                self.stats.trips.append(event)
             if self.metrics is not None:
                 self.metrics.trip(str(event.get("node", "")))
         self._event(event)

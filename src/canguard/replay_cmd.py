@@ -189,6 +189,7 @@ def build_summary(cfg: Config, log_path: Path, engine: Engine, stats: Any, route
         "samples": dict(sorted(es.samples.items())),
         "ticks": es.ticks, "edge_ticks": es.edge_ticks, "tick_errors": es.tick_errors,
         "trips": trips,
+        "trip_count": es.trip_count,
         "stops": engine.gate.stops,
         "stopped_s": _r(engine.gate.stopped_total(end), 4),
         "escalations": engine.events_seen["escalate"],
@@ -213,7 +214,8 @@ def render_text(s: dict[str, Any]) -> str:
         f" {f['bad_lines']} bad lines, {f['backward_timestamps']} backward timestamps",
         "  samples: " + (", ".join(f"{k} {v}" for k, v in s["samples"].items()) or "none"),
         f"  ticks: {s['ticks']} ({s['edge_ticks']} on protection edges)",
-        f"  trips: {len(s['trips'])}",
+        f"  trips: {s['trip_count']}" + (f" (the first {len(s['trips'])} listed)"
+                                          if s["trip_count"] > len(s["trips"]) else ""),
     ]
     for t in s["trips"]:
         lines.append(f"    t={t.get('t')} {t.get('node')} source={t.get('source')} value={t.get('value')}"
