@@ -475,7 +475,7 @@ class Engine:
 
     def run_log(
         self, frames: Iterable[Frame], route: Mapping[str, str], default_bus: str | None,
-        unmapped: dict[str, int],
+        unmapped: dict[str, int], channels: dict[str, int] | None = None,
     ) -> None:
         """Feed a recorded log: each frame goes to the bus its channel maps to (``route``, else ``default_bus``).
 
@@ -484,6 +484,8 @@ class Engine:
         ticks and gate deadlines still run at their own times, brought up by the next
         frame that needs them or by the final :meth:`advance`, exactly as if every frame
         had been fed; the first frame is always fed (it starts the engine's clock).
+        ``channels``, when given, counts the frames of each channel (runs of one channel
+        are counted at once: logs come in long runs of one channel).
         """
         feed = self.feed
         wanted = frozenset(self.decoder.keys())
@@ -491,10 +493,20 @@ class Engine:
         stats = self.stats
         last_t = -math.inf
         started = False
+        last_channel: str | None = None
+        run = 0
         for frame in frames:
-            bus = route.get(frame.channel, default_bus)
+            channel = frame.channel
+            if channels is not None:
+                if channel == last_channel:
+                    run += 1
+                else:
+                    if last_channel is not None:
+                        channels[last_channel] = channels.get(last_channel, 0) + run
+                    last_channel, run = channel, 1
+            bus = route.get(channel, default_bus)
             if bus is None:
-                unmapped[frame.channel] = unmapped.get(frame.channel, 0) + 1
+                unmapped[channel] = unmapped.get(channel, 0) + 1
                 continue
             t = frame.t
             if (
@@ -518,6 +530,8 @@ class Engine:
             feed(bus, frame)
             if t > last_t:
                 last_t = t
+        if channels is not None and last_channel is not None:
+            channels[last_channel] = channels.get(last_channel, 0) + run
         if last_t > -math.inf:
             self._drive_clock(last_t)
             if last_t > self._last_frame_t:

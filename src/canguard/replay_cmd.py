@@ -72,31 +72,7 @@ class ChannelRouter:
         self.only = next(iter(cfg.buses)) if len(cfg.buses) == 1 and not overrides else None
         self.unmapped: dict[str, int] = {}
         self.channels: dict[str, int] = {}
-        """Frames per channel given to the only bus (counted by :meth:`watch`; empty without fallback)."""
-
-    def watch(self, frames: Iterator[Frame]) -> Iterator[Frame]:
-        """Pass ``frames`` through, counting them per channel when the only-bus fallback is on."""
-        if self.only is None:
-            return frames
-        return self._count(frames)
-
-    def _count(self, frames: Iterator[Frame]) -> Iterator[Frame]:
-        counts = self.channels
-        last: str | None = None
-        run = 0
-        try:
-            for frame in frames:
-                channel = frame.channel
-                if channel == last:
-                    run += 1
-                else:
-                    if last is not None:
-                        counts[last] = counts.get(last, 0) + run
-                    last, run = channel, 1
-                yield frame
-        finally:
-            if last is not None:
-                counts[last] = counts.get(last, 0) + run
+        """Frames per channel while the only-bus fallback is on (counted by the engine's run_log)."""
 
     def merged(self) -> dict[str, int]:
         """Frames per channel when the fallback merged several channels into the only bus, else {}."""
@@ -121,7 +97,6 @@ def replay_one(cfg: Config, log_path: Path, opts: ReplayOptions) -> dict[str, An
         from .progress import wrap_progress
 
         frames = wrap_progress(frames, log_path)  # attaches to the reader: before any wrapping
-    frames = router.watch(frames)
     with ExitStack() as stack:
         # --emit streams each frame to the file as it is sent: memory stays flat in the log's length.
         out = stack.enter_context(open(opts.emit, "w", encoding="ascii")) if opts.emit is not None else None
@@ -133,7 +108,8 @@ def replay_one(cfg: Config, log_path: Path, opts: ReplayOptions) -> dict[str, An
 
             recorder = Recorder(engine)
         try:
-            engine.run_log(frames, router.table, router.only, router.unmapped)
+            engine.run_log(frames, router.table, router.only, router.unmapped,
+                           router.channels if router.only is not None else None)
             if engine.stats.frames:
                 engine.advance(clock.now())
                 engine.finish(reason="end of log", stop=False)
