@@ -447,3 +447,30 @@ class TestTripMemoryBound:
         assert rig.engine.stats.trip_count == 2
         assert len(rig.engine.stats.trips) == 1
         assert "trips 2" in rig.engine.status_line()
+
+
+class TestStopReasons:
+    """Stop events say which guard failed and why."""
+
+    def test_halt_names_the_failing_guard(self, tmp_path: Path) -> None:
+        """An overcurrent stop's reason names IsCurrentSafe, the overcurrent and the value."""
+        rig = Rig(tmp_path)
+        rig.running()
+        rig.feed(bms_frame(rig.t + 0.001, 60.0))
+        [stop] = rig.events.named("stop")
+        assert "IsCurrentSafe" in stop["reason"] and "overcurrent" in stop["reason"] and "60" in stop["reason"]
+
+
+class TestBusSink:
+    """Frames the bus refuses are counted and reported, never raised."""
+
+    def test_refused_frame_reaches_on_error(self, tmp_path: Path) -> None:
+        """A send that fails counts as failed and calls on_error with the bus name (the metrics hook)."""
+        from canguard.emit import BusSink
+
+        cfg = load_config(write_config(tmp_path))
+        errors: list[str] = []
+        sink = BusSink(lambda bus, msg: False, on_error=errors.append)
+        sink.send(cfg.stop.frames, "stop")
+        assert sink.failed == len(cfg.stop.frames) and sink.sent == 0
+        assert errors == ["main"] * len(cfg.stop.frames)
