@@ -43,9 +43,9 @@ if str(SRC) not in sys.path:
 
 import can  # noqa: E402
 import cantools  # noqa: E402
-import yaml  # noqa: E402
 
-BUNDLED = REPO / "config" / "canguard.yaml"
+from bench_common import write_config  # noqa: E402
+
 DBC = REPO / "dbc" / "robot.dbc"
 BMS_ID = 0x18FF50E5
 ESTOP0 = 0x02
@@ -63,19 +63,6 @@ def bms_msg(current_a: float) -> can.Message:
     data = _bms.encode({"Pack_Current": current_a, "Pack_Voltage": 48.0, "State_Of_Charge": 80.0,
                         "Present": 1, "Fault": 0, "Alive_Counter": 0})
     return can.Message(arbitration_id=BMS_ID, data=data, is_extended_id=True)
-
-
-def write_config(tmp: Path, bus: dict[str, Any]) -> Path:
-    """The bundled config on ``bus``, with absolute paths and events / state in ``tmp``."""
-    doc = yaml.safe_load(BUNDLED.read_text(encoding="utf-8"))
-    doc["dbc"] = [str(DBC)]
-    doc["tree"]["file"] = str((BUNDLED.parent / doc["tree"]["file"]).resolve())
-    doc["buses"] = {"main": bus}
-    doc["events"] = str(tmp / "events.jsonl")
-    doc["state"]["file"] = str(tmp / "i2t_state.json")
-    path = tmp / "canguard.yaml"
-    path.write_text(yaml.safe_dump(doc), encoding="utf-8")
-    return path
 
 
 def child_env() -> dict[str, str]:

@@ -30,9 +30,10 @@ from typing import Any
 
 import yaml
 
+from bench_common import write_config
+
 REPO = Path(__file__).resolve().parents[1]
 SRC = REPO / "src"
-BUNDLED = REPO / "config" / "canguard.yaml"
 DBC = REPO / "dbc" / "robot.dbc"
 
 SENDER = """
@@ -61,19 +62,6 @@ def child_env(**extra: str) -> dict[str, str]:
     env["PYTHONPATH"] = os.pathsep.join(p for p in (str(SRC), env.get("PYTHONPATH", "")) if p)
     env.update(extra)
     return env
-
-
-def write_config(tmp: Path, bus: dict[str, Any]) -> Path:
-    """The bundled config on ``bus``, with absolute paths and events / state in ``tmp``."""
-    doc = yaml.safe_load(BUNDLED.read_text(encoding="utf-8"))
-    doc["dbc"] = [str(DBC)]
-    doc["tree"]["file"] = str((BUNDLED.parent / doc["tree"]["file"]).resolve())
-    doc["buses"] = {"main": bus}
-    doc["events"] = str(tmp / "events.jsonl")
-    doc["state"]["file"] = str(tmp / "i2t_state.json")
-    path = tmp / "canguard.yaml"
-    path.write_text(yaml.safe_dump(doc), encoding="utf-8")
-    return path
 
 
 def unique_udp(rnd: random.Random) -> dict[str, Any]:
