@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import subprocess
+import time
 from pathlib import Path
 from typing import Any
 
@@ -23,3 +25,12 @@ def write_config(tmp: Path, bus: dict[str, Any]) -> Path:
     path = tmp / "canguard.yaml"
     path.write_text(yaml.safe_dump(doc), encoding="utf-8")
     return path
+
+
+def wait_for_start(daemon: subprocess.Popen[Any], events: Path, timeout_s: float = 30.0) -> None:
+    """Wait until a `canguard run` subprocess has journalled its start event; RuntimeError if it never does."""
+    deadline = time.monotonic() + timeout_s
+    while not (events.exists() and b'"start"' in events.read_bytes()):
+        if time.monotonic() > deadline or daemon.poll() is not None:
+            raise RuntimeError("canguard run did not start")
+        time.sleep(0.05)

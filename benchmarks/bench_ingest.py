@@ -30,6 +30,8 @@ from typing import Any
 
 import yaml
 
+from bench_common import wait_for_start
+
 REPO = Path(__file__).resolve().parents[1]
 SRC = REPO / "src"
 BUNDLED = REPO / "config" / "canguard.yaml"
@@ -151,12 +153,7 @@ def main(argv: list[str] | None = None) -> int:
             daemon = subprocess.Popen([sys.executable, "-m", "canguard", "run", "-c", str(cfg),
                                        "--metrics", metrics], env=child_env())
             kids.append(daemon)
-            events = tmp / "events.jsonl"
-            deadline = time.monotonic() + 30
-            while not (events.exists() and b'"start"' in events.read_bytes()):
-                if time.monotonic() > deadline or daemon.poll() is not None:
-                    raise RuntimeError("canguard run did not start")
-                time.sleep(0.05)
+            wait_for_start(daemon, tmp / "events.jsonl")
             senders = []
             for i, (g, p) in enumerate(groups[:4]):
                 code = SENDER.format(dbc=str(DBC), group=g, port=p, index=i, fps=args.fps,

@@ -44,7 +44,7 @@ if str(SRC) not in sys.path:
 import can  # noqa: E402
 import cantools  # noqa: E402
 
-from bench_common import write_config  # noqa: E402
+from bench_common import wait_for_start, write_config  # noqa: E402
 
 DBC = REPO / "dbc" / "robot.dbc"
 BMS_ID = 0x18FF50E5
@@ -291,12 +291,7 @@ def cross_process(trials: int, fps: float, rnd: random.Random) -> None:
             daemon = subprocess.Popen([sys.executable, "-m", "canguard", "run", "-c", str(cfg)],
                                       env=child_env(), text=True)
             kids.append(daemon)
-            events = tmp / "events.jsonl"
-            deadline = time.monotonic() + 30
-            while not (events.exists() and b'"start"' in events.read_bytes()):
-                if time.monotonic() > deadline or daemon.poll() is not None:
-                    raise RuntimeError("canguard run did not start")
-                time.sleep(0.05)
+            wait_for_start(daemon, tmp / "events.jsonl")
             guard, guard_fps = measure_background(lambda: guard_trials(peer, trials, rnd))
             daemon.send_signal(signal.SIGTERM)
             daemon.wait(10)
