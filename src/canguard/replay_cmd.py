@@ -14,7 +14,6 @@ import json
 import math
 import sys
 from collections.abc import Iterator, Sequence
-from concurrent.futures import ProcessPoolExecutor
 from contextlib import ExitStack
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -280,10 +279,11 @@ def _events_path(base: Path | None, log: Path, many: bool) -> Path | None:
     return base.with_name(f"{base.stem}.{log.name}{base.suffix}")
 
 
-def _job(args: tuple[Path, Path, ReplayOptions]) -> tuple[dict[str, Any] | None, str]:
-    cfg_path, log, opts = args
+def _job(args: tuple[Config | Path, Path, ReplayOptions]) -> tuple[dict[str, Any] | None, str]:
+    """Replay one log: with the config loaded by :func:`cmd_replay`, or (a --jobs worker) its path."""
+    cfg, log, opts = args
     try:
-        return replay_one(load_config(cfg_path), log, opts), ""
+        return replay_one(cfg if isinstance(cfg, Config) else load_config(cfg), log, opts), ""
     except CanguardError as exc:
         return None, str(exc)
 
@@ -312,17 +312,23 @@ def cmd_replay(args: argparse.Namespace) -> int:
     channel_map = parse_map(args.map, cfg)
     many = len(args.logs) > 1
     base = _load_baseline(args.baseline) if args.baseline else None
-    jobs = []
+    pool = args.jobs > 1 and many
+    # In this process the config loaded above serves every log; --jobs workers load their own
+    # copy from the path (a Config with its cantools database is not sent to each of them).
+    job_cfg: Config | Path = cfg_path if pool else cfg
+    jobs: list[tuple[Config | Path, Path, ReplayOptions]] = []
     for log in args.logs:
         opts = ReplayOptions(
             channel_map=channel_map, events=_events_path(args.events, log, many),
             emit=_events_path(args.emit, log, many), skip_bad=args.skip_bad, state=args.state,
             plot=_events_path(args.plot, log, many), progress=sys.stderr.isatty() and args.jobs <= 1,
         )
-        jobs.append((cfg_path, log, opts))
-    if args.jobs > 1 and many:
-        with ProcessPoolExecutor(max_workers=args.jobs) as pool:
-            results = list(pool.map(_job, jobs))
+        jobs.append((job_cfg, log, opts))
+    if pool:
+        from concurrent.futures import ProcessPoolExecutor
+
+        with ProcessPoolExecutor(max_workers=args.jobs) as executor:
+            results = list(executor.map(_job, jobs))
     else:
         results = [_job(j) for j in jobs]
     summaries = []

@@ -1,0 +1,72 @@
+"""``canguard replay``'s start-up: the config is read once, and nothing the run does not use is imported."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+import canguard.replay_cmd as replay_cmd
+from canguard.cli import main
+from canguard.config import Config
+from canguard.sim import write_log
+
+REPO = Path(__file__).resolve().parents[1]
+SRC = REPO / "src"
+BUNDLED = REPO / "config" / "canguard.yaml"
+DBC = REPO / "dbc" / "robot.dbc"
+
+
+@pytest.fixture(scope="module")
+def logs(tmp_path_factory: pytest.TempPathFactory) -> list[Path]:
+    """Two short simulator logs (candump -L)."""
+    d = tmp_path_factory.mktemp("startup_logs")
+    out = []
+    for name, seed in (("a", 1), ("b", 2)):
+        path = d / f"{name}.log"
+        write_log(path, 0.5, db=str(DBC), scenarios=["normal"], seed=seed)
+        out.append(path)
+    return out
+
+
+@pytest.mark.parametrize("argv", [["a"], ["a", "b"], ["a", "b", "--jobs", "1"], ["a", "--jobs", "4"]],
+                         ids=["one-log", "two-logs", "two-logs-jobs-1", "one-log-jobs-4"])
+def test_config_is_loaded_once_in_process(
+    argv: list[str], logs: list[Path], monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Without worker processes, the config (YAML, DBC files) is read and validated once for all logs."""
+    calls: list[str] = []
+    real = replay_cmd.load_config
+
+    def counting(path: str | Path) -> Config:
+        calls.append(str(path))
+        return real(path)
+
+    monkeypatch.setattr(replay_cmd, "load_config", counting)
+    by_name = {"a": str(logs[0]), "b": str(logs[1])}
+    code = main(["replay", *(by_name.get(a, a) for a in argv), "-c", str(BUNDLED), "--json"])
+    out, err = capsys.readouterr()
+    assert code == 0, err
+    summaries = json.loads(out)
+    assert len(summaries if isinstance(summaries, list) else [summaries]) == sum(a in by_name for a in argv)
+    assert calls == [str(BUNDLED)]
+
+
+def test_plain_replay_imports_neither_process_pool_nor_matplotlib(logs: list[Path]) -> None:
+    """A replay without --jobs N or --plot does not import concurrent.futures.process or matplotlib."""
+    probe = (
+        "import sys\n"
+        "from canguard.cli import main\n"
+        f"code = main(['replay', {str(logs[0])!r}, '-c', {str(BUNDLED)!r}, '--json'])\n"
+        "mods = ('concurrent.futures.process', 'matplotlib')\n"
+        "print('LOADED', code, *[m for m in mods if m in sys.modules], file=sys.stderr)\n"
+    )
+    env = {**os.environ, "PYTHONPATH": str(SRC)}
+    proc = subprocess.run([sys.executable, "-c", probe], cwd=REPO, env=env, capture_output=True, text=True,
+                          timeout=60, check=False)
+    [line] = [ln for ln in proc.stderr.splitlines() if ln.startswith("LOADED")]
+    assert line == "LOADED 0", proc.stderr
