@@ -129,6 +129,10 @@ class Context:
         """Feed every valid sample of ``source``'s ``role`` signal to ``model`` from now on."""
         self._subscribers.setdefault((source, role), []).append(model)
 
+    def subscribers(self, source: str, role: str) -> list[ProtectionModel]:
+        """The models fed with ``source``'s ``role`` samples, in subscription order."""
+        return list(self._subscribers.get((source, role), ()))
+
     def dispatch(self, sample: Sample) -> bool:
         """Route one sample to its source's health and subscribed models; True on any edge."""
         health = self.health.get(sample.source)

@@ -118,7 +118,7 @@ def _value_sample(source: str, role: str, v: float, t: float, present: bool) -> 
 class _Entry:
     """Everything needed to turn one configured (bus, id, extended) frame into samples."""
 
-    __slots__ = ("fast", "length", "lengths", "message", "outputs", "run")
+    __slots__ = ("fast", "length", "lengths", "message", "outputs", "plan", "run", "unpack")
 
     def __init__(self, message: Any, outputs: list[_Output]) -> None:
         self.message = message
@@ -127,9 +127,16 @@ class _Entry:
         # Accepted payload lengths: the DBC length; a CAN FD frame may carry padding up to the next DLC size.
         padded = next((n for n in _FD_LENGTHS if n >= self.length), self.length)
         self.lengths = frozenset({self.length, padded} if message.is_fd else {self.length})
-        fast = _compile_fast(message, self.outputs)
-        self.fast = fast is not None
-        self.run: _Run = fast if fast is not None else _fallback(message, self.outputs)
+        compiled = _compile_fast(message, self.outputs)
+        self.fast = compiled is not None
+        self.plan: tuple[_Step, ...] | None = None
+        """Struct path: (source, role, index in the raw tuple, scale, offset, identity, present) per output."""
+        self.unpack: Callable[[bytes], tuple[Any, ...]] | None = None
+        """Struct path with one byte order: the unpacker whose tuple ``plan`` indexes (else None)."""
+        if compiled is not None:
+            self.run, self.plan, self.unpack = compiled
+        else:
+            self.run = _fallback(message, self.outputs)
 
 
 def _byte_aligned(signal: Any) -> tuple[int, str, str] | None:
@@ -150,8 +157,16 @@ def _byte_aligned(signal: Any) -> tuple[int, str, str] | None:
     return signal.start // 8, code, ">"
 
 
-def _compile_fast(message: Any, outputs: tuple[_Output, ...]) -> _Run | None:
-    """A struct-based run of ``outputs`` of ``message``, or None when a signal is not eligible."""
+_Step = tuple[str, str, int, float, float, bool, bool]
+
+
+def _compile_fast(
+    message: Any, outputs: tuple[_Output, ...]
+) -> tuple[_Run, tuple[_Step, ...], Callable[[bytes], tuple[Any, ...]] | None] | None:
+    """A struct-based run of ``outputs`` of ``message`` with its plan and single unpacker, or None.
+
+    None when a signal is not eligible (then cantools decodes the message).
+    """
     if message.is_multiplexed() or getattr(message, "is_container", False):
         return None
     wanted = {o.signal for o in outputs}
@@ -184,7 +199,7 @@ def _compile_fast(message: Any, outputs: tuple[_Output, ...]) -> _Run | None:
             index[signal.name] = (n, scale, off, scale == 1 and off == 0)
             n += 1
         structs.append(struct.Struct(fmt))
-    plan = tuple((o.source, o.role, *index[o.signal], o.present) for o in outputs)
+    plan: tuple[_Step, ...] = tuple((o.source, o.role, *index[o.signal], o.present) for o in outputs)
     unpackers = tuple(st.unpack_from for st in structs)
     single = unpackers[0] if len(unpackers) == 1 else None
 
@@ -207,7 +222,7 @@ def _compile_fast(message: Any, outputs: tuple[_Output, ...]) -> _Run | None:
                 out.append(_new(Sample, (source, role, float(v), t, "")))
         return out, bad
 
-    return run
+    return run, plan, single
 
 
 def _fallback(message: Any, outputs: tuple[_Output, ...]) -> _Run:
@@ -257,6 +272,10 @@ class Decoder:
     def keys(self) -> Iterable[tuple[str, int, bool]]:
         """The configured ``(bus, arbitration_id, is_extended_id)`` triples."""
         return self._table.keys()
+
+    def entries(self) -> Iterable[tuple[tuple[str, int, bool], _Entry]]:
+        """Every configured ``(bus, arbitration_id, is_extended_id)`` with its decoding entry."""
+        return self._table.items()
 
     def is_fast(self, bus: str, arbitration_id: int, is_extended_id: bool) -> bool:
         """True when that configured frame is decoded by the precompiled struct path."""

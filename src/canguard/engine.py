@@ -24,9 +24,11 @@ from __future__ import annotations
 import logging
 import math
 import time
+from bisect import bisect_left
 from collections import Counter
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
+from itertools import compress
 from typing import TYPE_CHECKING, Any, Protocol
 
 import py_trees
@@ -39,6 +41,8 @@ from .decode import Decoder
 from .emit import TaskGate
 
 if TYPE_CHECKING:
+    from .replay import Columns
+    from .rows import Handle
     from .tree import GuardView
 
 log = logging.getLogger("canguard.engine")
@@ -161,6 +165,10 @@ class Engine:
         """How many events of each name were written (summaries count escalations...); bounded, live for weeks."""
         self.last_status = py_trees.common.Status.INVALID
         self.last_tick_t = math.nan
+        self._wanted = frozenset(self.decoder.keys())
+        self._row_handles: dict[str, dict[str, Handle | None]] = {}
+        """Per bus: the compiled row handlers of the replay column path (see :mod:`canguard.rows`)."""
+        self._row_flush: dict[str, list[Callable[[], None]]] = {}
 
     # -- life cycle ------------------------------------------------------------------------
     def start(self, now: float | None = None) -> None:
@@ -481,18 +489,40 @@ class Engine:
 
         Frames of no configured message (most of a busy bus) take a short path: they are
         counted as the decoder would count them and never decoded. Nothing else changes:
-        ticks and gate deadlines still run at their own times, brought up by the next
-        frame that needs them or by the final :meth:`advance`, exactly as if every frame
-        had been fed; the first frame is always fed (it starts the engine's clock).
-        ``channels``, when given, counts the frames of each channel (runs of one channel
-        are counted at once: logs come in long runs of one channel).
+        ticks and gate deadlines still run at their own times, brought up by the first
+        frame at or after them, exactly as if every frame had been fed; the first frame
+        is always fed (it starts the engine's clock). ``channels``, when given, counts
+        the frames of each channel.
+
+        ``frames`` may be a reader with a ``chunks()`` method (:func:`canguard.replay.read_log`):
+        a plain candump block (:class:`~canguard.replay.Columns`) of one channel whose
+        timestamps never go back is then worked on as columns: only its configured rows
+        become frames, and its other rows are looked at only where a tick falls due among
+        them (a bisection over the block's timestamps).
         """
+        cursor = _LogCursor(route, default_bus, unmapped, channels)
+        if hasattr(frames, "chunks"):
+            for chunk in frames.chunks():
+                if type(chunk) is list:
+                    self._run_frames(chunk, cursor)
+                elif not self._run_columns(chunk, cursor):
+                    self._run_frames(chunk.frames(), cursor)
+        else:
+            self._run_frames(frames, cursor)
+        last_t = cursor.last_t
+        if last_t > -math.inf:
+            self._drive_clock(last_t)
+            if last_t > self._last_frame_t:
+                self._last_frame_t = last_t
+
+    def _run_frames(self, frames: Iterable[Frame], cursor: _LogCursor) -> None:
+        """:meth:`run_log` over frames one by one."""
         feed = self.feed
-        wanted = frozenset(self.decoder.keys())
+        wanted = self._wanted
         per_bus = self.decoder.per_bus
         stats = self.stats
-        last_t = -math.inf
-        started = False
+        route, default_bus, unmapped, channels = cursor.route, cursor.default_bus, cursor.unmapped, cursor.channels
+        last_t, started = cursor.last_t, cursor.started
         last_channel: str | None = None
         run = 0
         for frame in frames:
@@ -532,7 +562,103 @@ class Engine:
                 last_t = t
         if channels is not None and last_channel is not None:
             channels[last_channel] = channels.get(last_channel, 0) + run
-        if last_t > -math.inf:
-            self._drive_clock(last_t)
-            if last_t > self._last_frame_t:
-                self._last_frame_t = last_t
+        cursor.last_t, cursor.started = last_t, started
+
+    def _run_columns(self, cols: Columns, cursor: _LogCursor) -> bool:
+        """:meth:`run_log` over a plain candump block; False (nothing done) when it must go frame by frame."""
+        if not cursor.started or not cols.ordered or self.sample_hook is not None:
+            return False
+        ts = cols.ts
+        n = cols.n
+        if float(ts[0]) < cursor.last_t:
+            return False  # back in time across blocks: the frame-by-frame rules count it
+        chans = cols.chans
+        channel = chans[0]
+        if chans.count(channel) != n:
+            return False
+        bus = cursor.route.get(channel, cursor.default_bus)
+        counters = self.decoder.per_bus.get(bus) if bus is not None else None
+        if bus is not None and counters is None:
+            return False
+        if cursor.channels is not None:
+            cursor.channels[channel] = cursor.channels.get(channel, 0) + n
+        if bus is None or counters is None:
+            cursor.unmapped[channel] = cursor.unmapped.get(channel, 0) + n
+            return True
+        handles = self._row_handles.get(bus)
+        if handles is None:
+            handles = self._row_handles[bus] = self._compile_rows(bus)
+        rows = list(compress(range(n), map(handles.__contains__, cols.ids))) if handles else []
+        ids, data = cols.ids, cols.data
+        feed = self.feed
+        frame = cols.frame
+        pos = 0
+        for i in rows:
+            t = float(ts[i])
+            if t >= self._due:
+                self._cross(ts, pos, i)  # a tick falls due among the rows before this one, or at it
+                if t >= self._due:
+                    self.advance(t)
+            pos = i + 1
+            handle = handles[ids[i]]
+            edge = handle(data[i], t) if handle is not None else None
+            if edge is None:
+                feed(bus, frame(i))  # the general path: every case, and what the handlers must equal
+            elif edge:
+                self._drive_clock(t)
+                self.stats.edge_ticks += 1
+                self.tick(self.clock.now())
+        self._cross(ts, pos, n)
+        for h in self._row_flush[bus]:
+            h()
+        skipped = n - len(rows)
+        counters.frames += skipped
+        counters.skipped += skipped
+        self.stats.frames += skipped
+        cursor.last_t = float(ts[-1])
+        if cursor.last_t > self._last_frame_t:
+            self._last_frame_t = cursor.last_t
+        return True
+
+    def _cross(self, ts: list[str], lo: int, hi: int) -> None:
+        """Rows ``lo..hi-1`` (ordered, of no configured message): the first at or after the due time brings the ticks.
+
+        What :meth:`feed` does for such a frame, without decoding it; repeated while
+        another due time falls among the rows left.
+        """
+        while lo < hi and float(ts[hi - 1]) >= self._due:
+            k = bisect_left(ts, self._due, lo, hi, key=float)
+            t = float(ts[k])
+            self.advance(t)
+            self._drive_clock(t)
+            lo = k + 1
+
+    def _compile_rows(self, bus: str) -> dict[str, Handle | None]:
+        """Every id text (any letter case) of a message configured on ``bus``, with its row handler or None."""
+        from .replay import candump_id_texts
+        from .rows import compile_row
+
+        counters = self.decoder.per_bus[bus]
+        handles: dict[str, Handle | None] = {}
+        flushes = self._row_flush.setdefault(bus, [])
+        for (b, cid, ext), entry in self.decoder.entries():
+            if b != bus:
+                continue
+            handler = compile_row(entry, counters, self.ctx, self.stats)
+            if handler is not None:
+                flushes.append(handler.flush)
+            for text in candump_id_texts(cid, ext):
+                handles[text] = handler.handle if handler is not None else None
+        return handles
+
+
+@dataclass
+class _LogCursor:
+    """Where :meth:`Engine.run_log` is in a log: routing, counts, the latest time."""
+
+    route: Mapping[str, str]
+    default_bus: str | None
+    unmapped: dict[str, int]
+    channels: dict[str, int] | None
+    last_t: float = -math.inf
+    started: bool = False

@@ -51,8 +51,10 @@ __all__ = [
     "CHUNK_CHARS",
     "PYTHON_CAN_SUFFIXES",
     "BadLine",
+    "Columns",
     "LogFrames",
     "ReadStats",
+    "candump_id_texts",
     "format_candump_line",
     "frame_from_message",
     "log_format",
@@ -141,6 +143,15 @@ class LogFrames(Iterator[Frame]):
         self.stats = stats
         self.progress = progress
         self._frames: Iterator[Frame] = iter(())
+        self._chunks: Iterator[Columns | list[Frame]] = iter(())
+
+    def chunks(self) -> Iterator[Columns | list[Frame]]:
+        """The same frames a block at a time: :class:`Columns` (plain candump blocks) or lists of frames.
+
+        For consumers that work on whole blocks (the replay engine); use either
+        this or the frame iterator, not both.
+        """
+        return self._chunks
 
     def __iter__(self) -> Iterator[Frame]:
         return self._frames
@@ -232,9 +243,11 @@ def read_log(
         raise LogFormatError(f"{p}: cannot read: {exc.strerror or exc}") from None
     frames = LogFrames(p, st, progress)
     if fmt == "candump":
-        frames._frames = _read_candump(p, gz, skip_bad, st, stats is not None, frames)
+        frames._chunks = _candump_chunks(p, gz, skip_bad, st, stats is not None, frames)
+        frames._frames = _flatten(frames._chunks)
     else:
         frames._frames = _read_python_can(p, fmt, gz, st, frames)
+        frames._chunks = _batches(frames._frames)
     return frames
 
 
@@ -243,14 +256,78 @@ def read_log(
 
 _BULK_TABLE = str.maketrans({"(": None, ")": None, " ": "#", "\n": "#"})
 _MARKERS = frozenset("TRtr")
+_HEX_BYTES = b"0123456789abcdefABCDEF"
+_TS_BYTES = b"0123456789."
+_ID_LENGTHS = frozenset((3, 8))
+_DATA_LENGTHS = frozenset(range(0, 17, 2))
 
 
-def _bulk_columns(block: str, n: int) -> tuple[list[float], list[str], list[int], list[bytes], Any] | None:
-    """Parse ``n`` candump -L lines of plain shape at once, or return None if any line is not plain.
+class Columns:
+    """A block of plain candump -L lines, checked, kept as text columns: frames are built on demand.
+
+    Every line has passed the checks the line parser would make; what is left is
+    conversion, which costs only for the rows somebody asks for (:meth:`frame`)
+    or for all of them (:meth:`frames`). ``ts`` are the timestamp texts, all of
+    one width with the dot at one place, so text order is time order;
+    ``ordered`` is True when they never go back (in the block) and distinct texts
+    are distinct floats. ``ids`` are the id texts as written (3 hex digits:
+    standard, 8: extended; any case).
+    """
+
+    __slots__ = ("chans", "data", "ids", "lens", "n", "ordered", "ts")
+
+    def __init__(
+        self, n: int, ts: list[str], chans: list[str], ids: list[str], lens: list[int], data: list[str],
+        ordered: bool,
+    ) -> None:
+        self.n = n
+        self.ts = ts
+        self.chans = chans
+        self.ids = ids
+        self.lens = lens
+        self.data = data
+        self.ordered = ordered
+
+    def t(self, i: int) -> float:
+        """Timestamp of row ``i``."""
+        return float(self.ts[i])
+
+    def frame(self, i: int) -> Frame:
+        """The frame of row ``i``."""
+        id_text = self.ids[i]
+        return _new(Frame, (float(self.ts[i]), self.chans[i], int(id_text, 16), bytes.fromhex(self.data[i]),
+                            len(id_text) == 8, _F, _F, _F, _F, _F, -1))
+
+    def frames(self) -> Iterator[Frame]:
+        """The frames of every row, in order (converted in C-level passes over the columns)."""
+        lens = self.lens
+        ext: Iterable[bool] = map((8).__eq__, lens) if 8 in lens else repeat(_F)
+        return map(
+            _new,
+            repeat(Frame),
+            zip(map(float, self.ts), self.chans, map(int, self.ids, repeat(16)), map(bytes.fromhex, self.data),
+                ext, repeat(_F), repeat(_F), repeat(_F), repeat(_F), repeat(_F), repeat(-1)),
+        )
+
+
+def candump_id_texts(arbitration_id: int, is_extended_id: bool) -> list[str]:
+    """Every way candump -L may write an id: 3 (standard) or 8 (extended) hex digits, letters in any case."""
+    text = f"{arbitration_id:08X}" if is_extended_id else f"{arbitration_id:03X}"
+    variants = [""]
+    for ch in text:
+        cases = {ch.upper(), ch.lower()}
+        variants = [v + c for v in variants for c in sorted(cases)]
+    return variants
+
+
+def _bulk_columns(block: str, n: int) -> Columns | None:
+    """Check ``n`` candump -L lines of plain shape at once, or return None if any line is not plain.
 
     Plain shape: ``(secs.usecs) channel ID#HEX`` with an optional T/R marker on
-    every line, 3- or 8-digit ids, classic data of at most 8 bytes, no error
-    frame. Nothing is returned unless every line passed, so a None costs no frame.
+    every line, timestamps of one width (digits, one dot), 3- or 8-digit ids,
+    classic data of at most 8 bytes, no error frame. Nothing is returned unless
+    every line passed, so a None costs no frame. Each check is one C-level pass
+    over a column; nothing is converted here.
     """
     if not block.isascii() or "\t" in block or block.count("(") != n or block.count(")") != n:
         return None
@@ -260,33 +337,37 @@ def _bulk_columns(block: str, n: int) -> tuple[list[float], list[str], list[int]
         return None
     if k == 5 and not set(tok[4:-1:5]) <= _MARKERS:
         return None
-    id_text = tok[2:-1:k]
-    try:
-        ts = list(map(float, tok[0:-1:k]))
-        ids = list(map(int, id_text, repeat(16)))
-        data = list(map(bytes.fromhex, tok[3:-1:k]))
-    except ValueError:
+    ts = tok[0:-1:k]
+    width = len(ts[0])
+    dot = ts[0].find(".")
+    if not 0 < dot < width - 1 or set(map(len, ts)) != {width}:
         return None
-    if not math.isfinite(sum(ts)) or min(ts) < 0.0:
+    joined = "".join(ts).encode()
+    # n dots in all, one at the same place in each: one per timestamp; the rest digits
+    if joined.count(b".") != n or joined[dot::width].count(b".") != n or joined.translate(None, _TS_BYTES):
         return None
-    joined = "".join(id_text)
-    # int(x, 16) also takes "0x1f", "1_f", "+1": only bare hex digits are a candump id
-    if not joined.isalnum() or "x" in joined or "X" in joined:
-        return None
-    lens = list(map(len, id_text))
+    ids = tok[2:-1:k]
+    lens = list(map(len, ids))
     len_set = set(lens)
-    if not len_set <= {3, 8}:
+    if not len_set <= _ID_LENGTHS or "".join(ids).encode().translate(None, _HEX_BYTES):
         return None
-    top = max(ids)
-    if top > CAN_SFF_MASK:
-        if top > CAN_EFF_MASK:
-            return None  # error frames (or junk flags): the line parser handles them
-        if 3 in len_set and max(compress(ids, map((3).__eq__, lens))) > CAN_SFF_MASK:
+    # ranges by the first digit: standard ids up to 7FF; extended up to 1FFFFFFF (above: error frames, junk)
+    if len_set == {3}:
+        if max(ids)[0] > "7":
             return None
-    if max(map(len, data)) > 8:
+    elif len_set == {8}:
+        if max(ids)[0] > "1":
+            return None
+    else:
+        if max(compress(ids, map((3).__eq__, lens)))[0] > "7":
+            return None
+        if max(compress(ids, map((8).__eq__, lens)))[0] > "1":
+            return None
+    data = tok[3:-1:k]
+    if not set(map(len, data)) <= _DATA_LENGTHS or "".join(data).encode().translate(None, _HEX_BYTES):
         return None
-    ext = map((8).__eq__, lens) if 8 in len_set else repeat(False)
-    return ts, tok[1:-1:k], ids, data, ext
+    ordered = all(map(operator.le, ts, islice(ts, 1, None))) and math.ulp(float(ts[-1])) < 10.0 ** (dot + 1 - width)
+    return Columns(n, ts, tok[1:-1:k], ids, lens, data, ordered)
 
 
 def _is_hex(s: str) -> bool:
@@ -443,16 +524,23 @@ def _open_text(p: Path, gz: bool) -> tuple[io.BufferedReader, TextIO]:
     return raw, io.TextIOWrapper(binary, encoding="utf-8-sig", errors="replace")
 
 
-def _read_candump(
+def _flatten(chunks: Iterator[Columns | list[Frame]]) -> Iterator[Frame]:
+    """The frames of a chunk stream, one by one."""
+    for chunk in chunks:
+        yield from (chunk if type(chunk) is list else chunk.frames())  # type: ignore[union-attr]
+
+
+def _candump_chunks(
     p: Path, gz: bool, skip_bad: bool, st: ReadStats, want_ts_stats: bool, owner: LogFrames
-) -> Iterator[Frame]:
-    """The candump text reader: whole chunks through :func:`_bulk_columns`, the rest line by line."""
+) -> Iterator[Columns | list[Frame]]:
+    """The candump text reader: plain blocks as :class:`Columns`, others as lists of frames parsed line by line."""
     raw, f = _open_text(p, gz)
     frames = 0
     lineno = 0  # lines before the current block
     last_t = -math.inf
     last_was_error = False
     rest = ""
+    lt, eq = operator.lt, operator.eq
     try:
         while True:
             try:
@@ -478,26 +566,31 @@ def _read_candump(
             n = block.count("\n")
             cols = None if last_was_error else _bulk_columns(block, n)
             if cols is not None:
-                ts, chans, ids, data, ext = cols
-                # the usual case, strictly increasing, costs one C-level pass
-                if want_ts_stats and not (last_t < ts[0] and all(map(operator.lt, ts, islice(ts, 1, None)))):
-                    prev = [last_t, *ts[:-1]]
-                    st.backwards_timestamps += sum(map(operator.lt, ts, prev))
-                    st.repeated_timestamps += sum(map(operator.eq, ts, prev))
-                last_t = ts[-1]
+                ts = cols.ts
+                first_t = float(ts[0])
+                if want_ts_stats:
+                    if first_t < last_t:
+                        st.backwards_timestamps += 1
+                    elif first_t == last_t:
+                        st.repeated_timestamps += 1
+                    nxt = islice(ts, 1, None)
+                    if cols.ordered:  # text order is time order; the usual case, increasing, costs one pass
+                        if not all(map(lt, ts, nxt)):
+                            st.repeated_timestamps += sum(map(eq, ts, islice(ts, 1, None)))
+                    else:
+                        times = list(map(float, ts))
+                        st.backwards_timestamps += sum(map(lt, islice(times, 1, None), times))
+                        st.repeated_timestamps += sum(map(eq, islice(times, 1, None), times))
+                last_t = float(ts[-1])
                 frames += n
                 st.lines += n
                 st.frames += n
-                yield from map(
-                    _new,
-                    repeat(Frame),
-                    zip(ts, chans, ids, data, ext, repeat(_F), repeat(_F), repeat(_F), repeat(_F), repeat(_F),
-                        repeat(-1)),
-                )
+                yield cols
             else:
                 lines = block.split("\n")
                 lines.pop()  # the empty string after the block's last newline
                 st.lines += n
+                out: list[Frame] = []
                 for no, line in enumerate(lines, lineno + 1):
                     if last_was_error and line[:1] == "\t":
                         continue  # candump -e explains an error frame on indented lines below it
@@ -505,6 +598,8 @@ def _read_candump(
                         fr = _parse_line(line)
                     except _Bad as bad:
                         if not skip_bad:
+                            if out:
+                                yield out  # every frame before the bad line is processed first
                             raise LogFormatError(f"{p}:{no}: {bad.reason}: {line!r}") from None
                         st.bad_lines += 1
                         if len(st.bad_examples) < MAX_BAD_EXAMPLES:
@@ -521,7 +616,9 @@ def _read_candump(
                     last_t = t
                     frames += 1
                     st.frames += 1
-                    yield fr
+                    out.append(fr)
+                if out:
+                    yield out
             lineno += n
             owner._position(raw.tell())
     finally:
@@ -581,6 +678,15 @@ def _reader_class(fmt: str) -> Callable[[Any], Iterable[can.Message]]:
 
 
 _PROGRESS_EVERY = 4096  # messages between progress updates for python-can readers
+
+
+_BATCH = 4096
+
+
+def _batches(frames: Iterator[Frame]) -> Iterator[list[Frame]]:
+    """``frames`` in lists of up to :data:`_BATCH`."""
+    while batch := list(islice(frames, _BATCH)):
+        yield batch
 
 
 def _read_python_can(p: Path, fmt: str, gz: bool, st: ReadStats, owner: LogFrames) -> Iterator[Frame]:

@@ -61,6 +61,11 @@ class SourceHealth:
         """Samples ignored because they were older than the latest of their role."""
 
     @property
+    def ranges(self) -> dict[str, tuple[float | None, float | None]]:
+        """The DBC [min|max] of each role that has one: values outside are ``out_of_range``."""
+        return self._ranges
+
+    @property
     def name(self) -> str:
         """The source's configured name."""
         return self.source.name

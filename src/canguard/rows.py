@@ -1,0 +1,200 @@
+"""Compiled handlers for the configured rows of a replayed candump block (the replay hot path).
+
+:meth:`Engine.run_log <canguard.engine.Engine.run_log>` works on plain candump
+blocks as text columns (:class:`~canguard.replay.Columns`). For the rows of a
+configured message it calls the :class:`RowHandler` of that message: one
+closure that does, for the common case, exactly what
+:meth:`Engine.feed <canguard.engine.Engine.feed>` does after its tick check —
+decode (struct), :meth:`SourceHealth.observe
+<canguard.protect.staleness.SourceHealth.observe>`'s fast path, the subscribed
+protection models, the per-source sample counts and largest values — with the
+lookups done once, at compile time, and the counters kept in the closure and
+added to the engine's at :meth:`RowHandler.flush`.
+
+The common case is: the payload has the DBC length, every value is finite and
+in the signal's DBC range, and every role of the message was fresh and valid at
+its previous sample, which is not later than this one. Anything else (an
+invalid frame, a source coming back after a stale spell, a presence signal, a
+multiplexed message decoded by cantools) makes the handler return None
+*before changing anything*, and the engine feeds that row as a frame through
+the general path. Both paths leave the same state: tests replay the same logs
+through both and compare every event and summary byte for byte.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from .context import Context
+    from .decode import DecodeCounters, _Entry
+    from .engine import EngineStats
+
+Handle = Callable[[str, float], "bool | None"]
+"""(data hex text, t) -> True on an edge, False, or None: not handled, feed the row as a frame."""
+
+
+class RowHandler:
+    """The compiled path of one configured message on one bus: :attr:`handle`, then :meth:`flush`."""
+
+    __slots__ = ("flush", "handle")
+
+    def __init__(self, handle: Handle, flush: Callable[[], None]) -> None:
+        self.handle = handle
+        self.flush = flush
+
+
+_BIG = 1.7976931348623157e308
+"""The largest float: the default range bounds, so that +-inf fails the range check like NaN does."""
+
+
+def compile_row(entry: _Entry, counters: DecodeCounters, ctx: Context, stats: EngineStats) -> RowHandler | None:
+    """A :class:`RowHandler` for ``entry``'s frames, or None when its outputs need the general path."""
+    if not entry.fast or entry.plan is None or entry.unpack is None:
+        return None
+    outputs = []
+    for source, role, index, scale, offset, identity, present in entry.plan:
+        health = ctx.health.get(source)
+        if present or health is None or role == "present":
+            return None
+        lo, hi = health.ranges.get(role, (None, None))
+        # the decoder's value: float(raw * scale + offset); with a float scale or offset that is already a float
+        exact_float = isinstance(scale, float) or isinstance(offset, float)
+        outputs.append((
+            source, role, index, scale, offset, identity or not exact_float,
+            -_BIG if lo is None else float(lo), _BIG if hi is None else float(hi),
+            health, tuple(ctx.subscribers(source, role)),
+        ))
+    if len(outputs) == 1:
+        return _single(entry, counters, stats, *outputs[0])
+    return _many(entry, counters, stats, outputs)
+
+
+def _count(counters: DecodeCounters, stats: EngineStats, rows: int) -> None:
+    """Count ``rows`` decoded frames: the decoder's and the engine's counters."""
+    counters.frames += rows
+    counters.decoded += rows
+    stats.frames += rows
+
+
+def _count_samples(stats: EngineStats, health: Any, source: str, role: str, rows: int, top: float) -> None:
+    """Count ``rows`` samples of one signal, with the largest |value| among them."""
+    stats.samples[source] = stats.samples.get(source, 0) + rows
+    health.samples += rows
+    key = (source, role)
+    if top > stats.max_abs.get(key, -1.0):
+        stats.max_abs[key] = top
+
+
+def _single(
+    entry: _Entry, counters: DecodeCounters, stats: EngineStats,
+    source: str, role: str, index: int, scale: float, offset: float, to_float: bool,
+    lo: float, hi: float, health: Any, models: tuple[Any, ...],
+) -> RowHandler:
+    """The handler of a message with one configured signal (most of them)."""
+    fromhex = bytes.fromhex
+    unpack = entry.unpack
+    assert unpack is not None
+    lengths = entry.lengths
+    latest_t, invalid, value, valid_t = health._latest_t, health._invalid, health._value, health._valid_t
+    max_age = health.max_age_s
+    seen = 0
+    top = -1.0
+
+    def handle(text: str, t: float) -> bool | None:
+        nonlocal seen, top
+        data = fromhex(text)
+        if len(data) not in lengths:
+            return None
+        raw = unpack(data)[index]
+        v = float(raw * scale + offset) if to_float else raw * scale + offset
+        if not lo <= v <= hi:  # NaN, +-inf and out of range all fail this
+            return None
+        latest = latest_t.get(role)
+        if latest is None or t < latest or t - latest > max_age or invalid.get(role):
+            return None
+        latest_t[role] = t
+        value[role] = v
+        valid_t[role] = t
+        seen += 1
+        a = -v if v < 0.0 else v
+        if a > top:
+            top = a
+        edge = False
+        for model in models:
+            if model.update(v, t):
+                edge = True
+        return edge
+
+    def flush() -> None:
+        nonlocal seen, top
+        if seen:
+            _count(counters, stats, seen)
+            _count_samples(stats, health, source, role, seen, top)
+            seen, top = 0, -1.0
+
+    return RowHandler(handle, flush)
+
+
+def _many(
+    entry: _Entry, counters: DecodeCounters, stats: EngineStats, outputs: list[tuple[Any, ...]],
+) -> RowHandler:
+    """The handler of a message with several configured signals: every one is checked before any is stored."""
+    fromhex = bytes.fromhex
+    unpack = entry.unpack
+    assert unpack is not None
+    lengths = entry.lengths
+    checks = tuple(
+        (role, index, scale, offset, to_float, lo, hi, health._latest_t, health._invalid, health.max_age_s)
+        for _source, role, index, scale, offset, to_float, lo, hi, health, _models in outputs
+    )
+    stores = tuple(
+        (role, models, health._latest_t, health._value, health._valid_t)
+        for _source, role, _i, _s, _o, _f, _lo, _hi, health, models in outputs
+    )
+    tops = [-1.0] * len(outputs)
+    seen = 0
+
+    def handle(text: str, t: float) -> bool | None:
+        nonlocal seen
+        data = fromhex(text)
+        if len(data) not in lengths:
+            return None
+        raws = unpack(data)
+        values = []
+        for role, index, scale, offset, to_float, lo, hi, latest_t, invalid, max_age in checks:
+            raw = raws[index]
+            v = float(raw * scale + offset) if to_float else raw * scale + offset
+            if not lo <= v <= hi:
+                return None
+            latest = latest_t.get(role)
+            if latest is None or t < latest or t - latest > max_age or invalid.get(role):
+                return None
+            values.append(v)
+        seen += 1
+        edge = False
+        for j, (role, models, latest_t, value, valid_t) in enumerate(stores):
+            v = values[j]
+            latest_t[role] = t
+            value[role] = v
+            valid_t[role] = t
+            a = -v if v < 0.0 else v
+            if a > tops[j]:
+                tops[j] = a
+            for model in models:
+                if model.update(v, t):
+                    edge = True
+        return edge
+
+    def flush() -> None:
+        nonlocal seen
+        if not seen:
+            return
+        _count(counters, stats, seen)
+        for j, (source, role, *_rest) in enumerate(outputs):
+            _count_samples(stats, outputs[j][8], source, role, seen, tops[j])
+            tops[j] = -1.0
+        seen = 0
+
+    return RowHandler(handle, flush)
