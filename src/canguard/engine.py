@@ -91,6 +91,9 @@ class EngineStats:
 class Engine:
     """Runs one config's tree over frames from any source, on any clock."""
 
+    columns = True
+    """:meth:`run_log` works on plain candump blocks as columns (False: frame by frame, the reference path)."""
+
     def __init__(
         self,
         cfg: Config,
@@ -501,7 +504,7 @@ class Engine:
         them (a bisection over the block's timestamps).
         """
         cursor = _LogCursor(route, default_bus, unmapped, channels)
-        if hasattr(frames, "chunks"):
+        if self.columns and hasattr(frames, "chunks"):
             for chunk in frames.chunks():
                 if type(chunk) is list:
                     self._run_frames(chunk, cursor)
