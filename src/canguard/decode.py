@@ -118,7 +118,7 @@ def _value_sample(source: str, role: str, v: float, t: float, present: bool) -> 
 class _Entry:
     """Everything needed to turn one configured (bus, id, extended) frame into samples."""
 
-    __slots__ = ("fast", "length", "lengths", "message", "outputs", "plan", "run", "unpack")
+    __slots__ = ("fast", "float_raws", "length", "lengths", "message", "outputs", "plan", "run", "unpack")
 
     def __init__(self, message: Any, outputs: list[_Output]) -> None:
         self.message = message
@@ -133,8 +133,10 @@ class _Entry:
         """Struct path: (source, role, index in the raw tuple, scale, offset, identity, present) per output."""
         self.unpack: Callable[[bytes], tuple[Any, ...]] | None = None
         """Struct path with one byte order: the unpacker whose tuple ``plan`` indexes (else None)."""
+        self.float_raws: tuple[bool, ...] = ()
+        """Struct path: whether each raw value of the unpacked tuple is a float (else an int)."""
         if compiled is not None:
-            self.run, self.plan, self.unpack = compiled
+            self.run, self.plan, self.unpack, self.float_raws = compiled
         else:
             self.run = _fallback(message, self.outputs)
 
@@ -162,8 +164,8 @@ _Step = tuple[str, str, int, float, float, bool, bool]
 
 def _compile_fast(
     message: Any, outputs: tuple[_Output, ...]
-) -> tuple[_Run, tuple[_Step, ...], Callable[[bytes], tuple[Any, ...]] | None] | None:
-    """A struct-based run of ``outputs`` of ``message`` with its plan and single unpacker, or None.
+) -> tuple[_Run, tuple[_Step, ...], Callable[[bytes], tuple[Any, ...]] | None, tuple[bool, ...]] | None:
+    """A struct-based run of ``outputs`` of ``message`` with its plan, single unpacker and float flags, or None.
 
     None when a signal is not eligible (then cantools decodes the message).
     """
@@ -184,6 +186,7 @@ def _compile_fast(
     # One Struct per byte order; every wanted value lands at a known index of the joined raw tuple.
     structs: list[struct.Struct] = []
     index: dict[str, tuple[int, float, float, bool]] = {}
+    floats: list[bool] = []
     n = 0
     for order, items in groups.items():
         items.sort(key=lambda item: item[0])
@@ -197,6 +200,7 @@ def _compile_fast(
             pos = offset + struct.calcsize("<" + code)
             scale, off = signal.scale, signal.offset
             index[signal.name] = (n, scale, off, scale == 1 and off == 0)
+            floats.append(code in "fd")
             n += 1
         structs.append(struct.Struct(fmt))
     plan: tuple[_Step, ...] = tuple((o.source, o.role, *index[o.signal], o.present) for o in outputs)
@@ -222,7 +226,7 @@ def _compile_fast(
                 out.append(_new(Sample, (source, role, float(v), t, "")))
         return out, bad
 
-    return run, plan, single
+    return run, plan, single, tuple(floats)
 
 
 def _fallback(message: Any, outputs: tuple[_Output, ...]) -> _Run:

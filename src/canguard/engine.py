@@ -29,6 +29,7 @@ from collections import Counter
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from itertools import compress
+from operator import itemgetter
 from typing import TYPE_CHECKING, Any, Protocol
 
 import py_trees
@@ -592,25 +593,33 @@ class Engine:
         if handles is None:
             handles = self._row_handles[bus] = self._compile_rows(bus)
         rows = list(compress(range(n), map(handles.__contains__, cols.ids))) if handles else []
-        ids, data = cols.ids, cols.data
+        if rows:
+            # the configured rows' columns, picked in C (itemgetter gives a bare value for one row)
+            pick = itemgetter(*rows) if len(rows) > 1 else lambda seq: (seq[rows[0]],)
+            work = zip(rows, map(float, pick(ts)), map(handles.__getitem__, pick(cols.ids)), pick(cols.data),
+                       strict=True)
+        else:
+            work = zip(())
         feed = self.feed
         frame = cols.frame
         pos = 0
-        for i in rows:
-            t = float(ts[i])
-            if t >= self._due:
+        due = self._due  # handlers never change it; advance, feed and tick may
+        for i, t, handle, text in work:
+            if t >= due:
                 self._cross(ts, pos, i)  # a tick falls due among the rows before this one, or at it
                 if t >= self._due:
                     self.advance(t)
+                due = self._due
             pos = i + 1
-            handle = handles[ids[i]]
-            edge = handle(data[i], t) if handle is not None else None
+            edge = handle(text, t) if handle is not None else None
             if edge is None:
                 feed(bus, frame(i))  # the general path: every case, and what the handlers must equal
+                due = self._due
             elif edge:
                 self._drive_clock(t)
                 self.stats.edge_ticks += 1
                 self.tick(self.clock.now())
+                due = self._due
         self._cross(ts, pos, n)
         for h in self._row_flush[bus]:
             h()

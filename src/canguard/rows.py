@@ -87,54 +87,74 @@ def _count_samples(stats: EngineStats, health: Any, source: str, role: str, rows
         stats.max_abs[key] = top
 
 
+_SINGLE = """
+def handle(text, t):
+    global seen, high, low
+    data = fromhex(text)
+    if len(data) not in lengths:
+        return None
+    v = {value}
+    if not lo <= v <= hi:  # NaN, +-inf and out of range all fail this
+        return None
+    latest = latest_t.get(role)
+    if latest is None or t < latest or t - latest > max_age or invalid.get(role):
+        return None
+    latest_t[role] = t
+    value[role] = v
+    valid_t[role] = t
+    seen += 1
+    if v > high:
+        high = v
+    if v < low:
+        low = v
+    {models}
+"""
+"""The handler of a message with one configured signal, specialised by :func:`_single` (value, models)."""
+
+_VALUE = {
+    "float": "unpack(data)[index]",
+    "int": "float(unpack(data)[index])",
+    "scaled": "unpack(data)[index] * scale + offset",
+    "int_scaled": "float(unpack(data)[index] * scale + offset)",
+}
+_MODELS = {
+    0: "return False",
+    1: "return model.update(v, t)",
+    2: "edge = False\n    for m in models:\n        if m.update(v, t):\n            edge = True\n    return edge",
+}
+
+
 def _single(
     entry: _Entry, counters: DecodeCounters, stats: EngineStats,
     source: str, role: str, index: int, scale: float, offset: float, to_float: bool,
     lo: float, hi: float, health: Any, models: tuple[Any, ...],
 ) -> RowHandler:
-    """The handler of a message with one configured signal (most of them)."""
-    fromhex = bytes.fromhex
-    unpack = entry.unpack
-    assert unpack is not None
-    lengths = entry.lengths
-    latest_t, invalid, value, valid_t = health._latest_t, health._invalid, health._value, health._valid_t
-    max_age = health.max_age_s
-    seen = 0
-    top = -1.0
+    """The handler of a message with one configured signal (most of them), compiled for its value and models.
 
-    def handle(text: str, t: float) -> bool | None:
-        nonlocal seen, top
-        data = fromhex(text)
-        if len(data) not in lengths:
-            return None
-        raw = unpack(data)[index]
-        v = float(raw * scale + offset) if to_float else raw * scale + offset
-        if not lo <= v <= hi:  # NaN, +-inf and out of range all fail this
-            return None
-        latest = latest_t.get(role)
-        if latest is None or t < latest or t - latest > max_age or invalid.get(role):
-            return None
-        latest_t[role] = t
-        value[role] = v
-        valid_t[role] = t
-        seen += 1
-        a = -v if v < 0.0 else v
-        if a > top:
-            top = a
-        edge = False
-        for model in models:
-            if model.update(v, t):
-                edge = True
-        return edge
+    Its counters live in the namespace it runs in (``seen``, ``high``, ``low``): one
+    dict per handler, read and reset by ``flush``.
+    """
+    identity = scale == 1 and offset == 0
+    if identity:
+        kind = "int" if to_float and not entry.float_raws[index] else "float"
+    else:
+        kind = "int_scaled" if to_float else "scaled"
+    env: dict[str, Any] = {
+        "fromhex": bytes.fromhex, "unpack": entry.unpack, "lengths": entry.lengths, "index": index,
+        "scale": scale, "offset": offset, "lo": lo, "hi": hi, "role": role, "max_age": health.max_age_s,
+        "latest_t": health._latest_t, "invalid": health._invalid, "value": health._value,
+        "valid_t": health._valid_t, "models": models, "model": models[0] if models else None,
+        "float": float, "len": len, "seen": 0, "high": -_BIG, "low": _BIG,
+    }
+    exec(_SINGLE.format(value=_VALUE[kind], models=_MODELS[min(len(models), 2)]), env)
 
     def flush() -> None:
-        nonlocal seen, top
-        if seen:
-            _count(counters, stats, seen)
-            _count_samples(stats, health, source, role, seen, top)
-            seen, top = 0, -1.0
+        if env["seen"]:
+            _count(counters, stats, env["seen"])
+            _count_samples(stats, health, source, role, env["seen"], max(env["high"], -env["low"]))
+            env["seen"], env["high"], env["low"] = 0, -_BIG, _BIG
 
-    return RowHandler(handle, flush)
+    return RowHandler(env["handle"], flush)
 
 
 def _many(

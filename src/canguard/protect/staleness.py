@@ -53,6 +53,14 @@ class SourceHealth:
         self._value: dict[str, float] = {}
         self._valid_t: dict[str, float] = {}
         self._last_reason = REASON_NO_DATA
+        self._ok_since = math.nan
+        """When every role was last found usable: the oldest of their latest times (NaN: not known).
+
+        While ``now - _ok_since <= max_age_s`` nothing can be stale, so :meth:`reason` is ""
+        without looking at each role. Only :meth:`observe`'s full path can make a role
+        unusable; it clears this. Its fast path (a fresh valid sample) only makes roles
+        younger, which keeps the shortcut true.
+        """
         self.samples = 0
         """Samples observed (out-of-order ones included)."""
         self.invalid_samples = 0
@@ -121,6 +129,7 @@ class SourceHealth:
         else:
             self._value[role] = float(sample.value)
             self._valid_t[role] = t
+        self._ok_since = math.nan  # this sample may have made a role unusable
         after = self.reason(t)
         edge = after != before or after != self._last_reason
         self._last_reason = after
@@ -146,6 +155,8 @@ class SourceHealth:
         and returns the first reason found. A named role is checked together
         with presence when the source has a ``present`` signal.
         """
+        if now - self._ok_since <= self.max_age_s:
+            return REASON_OK
         if self._has_present:
             r = self._role_reason(now, PRESENT)
             if r or role == PRESENT:
@@ -156,6 +167,8 @@ class SourceHealth:
             r = self._role_reason(now, r_name)
             if r:
                 return r
+        if self._latest_t:
+            self._ok_since = min(self._latest_t.values())
         return REASON_OK
 
     def reasons(self, now: float) -> dict[str, str]:
