@@ -593,13 +593,12 @@ class Engine:
         if handles is None:
             handles = self._row_handles[bus] = self._compile_rows(bus)
         rows = list(compress(range(n), map(handles.__contains__, cols.ids))) if handles else []
+        work: Iterable[tuple[int, float, Handle | None, str]] = ()
         if rows:
             # the configured rows' columns, picked in C (itemgetter gives a bare value for one row)
             pick = itemgetter(*rows) if len(rows) > 1 else lambda seq: (seq[rows[0]],)
             work = zip(rows, map(float, pick(ts)), map(handles.__getitem__, pick(cols.ids)), pick(cols.data),
                        strict=True)
-        else:
-            work = zip(())
         feed = self.feed
         frame = cols.frame
         pos = 0
