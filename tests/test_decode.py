@@ -26,7 +26,7 @@ EXOTIC_MESSAGES = [
     ("Floats", True),
     ("Float_BE", True),
     ("Fd_Aligned", True),
-    ("Odd", False),
+    ("Odd", True),
     ("Muxed", False),
     ("Fd_Odd", False),
 ]

@@ -173,20 +173,24 @@ def _compile_fast(
         return None
     wanted = {o.signal for o in outputs}
     groups: dict[str, list[tuple[int, str, Any]]] = {}
+    index: dict[str, tuple[int, float, float, bool]] = {}
+    floats: list[bool] = []
+    bits: Callable[[bytes], tuple[Any, ...]] | None = None
     for signal in message.signals:
         if signal.name not in wanted:
             continue
         aligned = _byte_aligned(signal)
-        if aligned is None:
-            return None
+        if aligned is None or aligned[0] + struct.calcsize("<" + aligned[1]) > message.length:
+            bits = _bit_fields(message, [s for s in message.signals if s.name in wanted], index, floats)
+            if bits is None:
+                return None
+            break
         offset, code, order = aligned
-        if offset + struct.calcsize("<" + code) > message.length:
-            return None
         groups.setdefault(order, []).append((offset, code, signal))
+    if bits is not None:
+        groups = {}
     # One Struct per byte order; every wanted value lands at a known index of the joined raw tuple.
     structs: list[struct.Struct] = []
-    index: dict[str, tuple[int, float, float, bool]] = {}
-    floats: list[bool] = []
     n = 0
     for order, items in groups.items():
         items.sort(key=lambda item: item[0])
@@ -204,7 +208,7 @@ def _compile_fast(
             n += 1
         structs.append(struct.Struct(fmt))
     plan: tuple[_Step, ...] = tuple((o.source, o.role, *index[o.signal], o.present) for o in outputs)
-    unpackers = tuple(st.unpack_from for st in structs)
+    unpackers = (bits,) if bits is not None else tuple(st.unpack_from for st in structs)
     single = unpackers[0] if len(unpackers) == 1 else None
 
     def run(data: bytes, t: float) -> tuple[list[Sample], bool]:
@@ -227,6 +231,53 @@ def _compile_fast(
         return out, bad
 
     return run, plan, single, tuple(floats)
+
+
+def _bit_fields(
+    message: Any, signals: list[Any], index: dict[str, tuple[int, float, float, bool]], floats: list[bool]
+) -> Callable[[bytes], tuple[int, ...]] | None:
+    """An unpacker of integer signals at any bit position (one int of the payload, shifts and masks), or None.
+
+    Fills ``index`` and ``floats`` like the struct path. None for float signals
+    off byte boundaries and CAN FD messages (whose payload may be padded: the
+    big-endian positions would move), which cantools decodes instead.
+    """
+    if message.is_fd:
+        return None
+    size = int(message.length)
+    specs: list[tuple[bool, int, int, int]] = []
+    for n, signal in enumerate(signals):
+        if signal.is_float or signal.multiplexer_ids or signal.is_multiplexer:
+            return None
+        length = int(signal.length)
+        if signal.byte_order == "little_endian":
+            shift = int(signal.start)  # cantools: the least significant bit, numbered from byte 0 bit 0
+        else:
+            # Motorola: the DBC start bit is the most significant bit, in sawtooth numbering (byte * 8 + bit)
+            byte, bit = divmod(int(signal.start), 8)
+            shift = (size - 1 - byte) * 8 + bit - (length - 1)
+        if shift < 0 or shift + length > size * 8:
+            return None
+        specs.append((signal.byte_order == "little_endian", shift, (1 << length) - 1,
+                      1 << (length - 1) if signal.is_signed else 0))
+        scale, off = signal.scale, signal.offset
+        index[signal.name] = (n, scale, off, scale == 1 and off == 0)
+        floats.append(False)
+    plan = tuple(specs)
+    from_bytes = int.from_bytes
+
+    def unpack(data: bytes) -> tuple[int, ...]:
+        little = from_bytes(data, "little")
+        big = from_bytes(data, "big")
+        out = []
+        for is_little, shift, mask, sign in plan:
+            raw = ((little if is_little else big) >> shift) & mask
+            if raw & sign:
+                raw -= sign << 1
+            out.append(raw)
+        return tuple(out)
+
+    return unpack
 
 
 def _fallback(message: Any, outputs: tuple[_Output, ...]) -> _Run:

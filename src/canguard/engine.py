@@ -576,9 +576,8 @@ class Engine:
         n = cols.n
         if float(ts[0]) < cursor.last_t:
             return False  # back in time across blocks: the frame-by-frame rules count it
-        chans = cols.chans
-        channel = chans[0]
-        if chans.count(channel) != n:
+        channel = cols.channel
+        if channel is None:
             return False
         bus = cursor.route.get(channel, cursor.default_bus)
         counters = self.decoder.per_bus.get(bus) if bus is not None else None
@@ -627,8 +626,8 @@ class Engine:
         counters.skipped += skipped
         self.stats.frames += skipped
         cursor.last_t = float(ts[-1])
-        if cursor.last_t > self._last_frame_t:
-            self._last_frame_t = cursor.last_t
+        if rows and float(ts[rows[-1]]) > self._last_frame_t:
+            self._last_frame_t = float(ts[rows[-1]])  # the last row feed saw, as frame by frame (not ts[-1])
         return True
 
     def _cross(self, ts: list[str], lo: int, hi: int) -> None:
@@ -642,6 +641,7 @@ class Engine:
             t = float(ts[k])
             self.advance(t)
             self._drive_clock(t)
+            self._last_frame_t = t  # as feed: not before it (ordered, from cursor.last_t on)
             lo = k + 1
 
     def _compile_rows(self, bus: str) -> dict[str, Handle | None]:

@@ -273,11 +273,14 @@ class Columns:
     standard, 8: extended; any case).
     """
 
-    __slots__ = ("chans", "data", "ids", "n", "ordered", "ts")
+    __slots__ = ("channel", "chans", "data", "ids", "n", "ordered", "ts")
 
     def __init__(
-        self, n: int, ts: list[str], chans: list[str], ids: list[str], data: list[str], ordered: bool
+        self, n: int, ts: list[str], chans: list[str], ids: list[str], data: list[str], ordered: bool,
+        channel: str | None,
     ) -> None:
+        self.channel = channel
+        """The channel of every row, or None when the block has several."""
         self.n = n
         self.ts = ts
         self.chans = chans
@@ -325,9 +328,12 @@ def _bulk_columns(block: str, n: int) -> Columns | None:
     every line passed, so a None costs no frame. Each check is one C-level pass
     over a column; nothing is converted here.
     """
-    if not block.isascii() or "\t" in block or block.count("(") != n or block.count(")") != n:
+    if not block.isascii() or "\t" in block or block.count("(") != n:
         return None
-    tok = block.translate(_BULK_TABLE).split("#")
+    plain = block.translate(_BULK_TABLE)
+    if len(block) - len(plain) != 2 * n:  # n "(" were deleted: then n ")" too, no more, no less
+        return None
+    tok = plain.split("#")
     k, r = divmod(len(tok) - 1, n)
     if r or not 4 <= k <= 5:
         return None
@@ -355,7 +361,14 @@ def _bulk_columns(block: str, n: int) -> Columns | None:
     if not set(map(len, data)) <= _DATA_LENGTHS or "".join(data).encode().translate(None, _HEX_BYTES):
         return None
     ordered = all(map(operator.le, ts, islice(ts, 1, None))) and math.ulp(float(ts[-1])) < 10.0 ** (dot + 1 - width)
-    return Columns(n, ts, tok[1:-1:k], ids, data, ordered)
+    chans = tok[1:-1:k]
+    first = chans[0]
+    if first.strip(_HEX + ".") and first not in _MARKERS:
+        # a name no other token can equal (timestamps: digits and a dot; ids, data: hex; markers)
+        single = plain.count(f"#{first}#") == n
+    else:
+        single = chans.count(first) == n
+    return Columns(n, ts, chans, ids, data, ordered, first if single else None)
 
 
 def _is_hex(s: str) -> bool:

@@ -56,7 +56,7 @@ def compile_row(entry: _Entry, counters: DecodeCounters, ctx: Context, stats: En
     outputs = []
     for source, role, index, scale, offset, identity, present in entry.plan:
         health = ctx.health.get(source)
-        if present or health is None or role == "present":
+        if health is None:
             return None
         lo, hi = health.ranges.get(role, (None, None))
         # the decoder's value: float(raw * scale + offset); with a float scale or offset that is already a float
@@ -64,10 +64,10 @@ def compile_row(entry: _Entry, counters: DecodeCounters, ctx: Context, stats: En
         outputs.append((
             source, role, index, scale, offset, identity or not exact_float,
             -_BIG if lo is None else float(lo), _BIG if hi is None else float(hi),
-            health, tuple(ctx.subscribers(source, role)),
+            health, tuple(ctx.subscribers(source, role)), present,
         ))
-    if len(outputs) == 1:
-        return _single(entry, counters, stats, *outputs[0])
+    if len(outputs) == 1 and not outputs[0][-1]:
+        return _single(entry, counters, stats, *outputs[0][:-1])
     return _many(entry, counters, stats, outputs)
 
 
@@ -160,18 +160,26 @@ def _single(
 def _many(
     entry: _Entry, counters: DecodeCounters, stats: EngineStats, outputs: list[tuple[Any, ...]],
 ) -> RowHandler:
-    """The handler of a message with several configured signals: every one is checked before any is stored."""
+    """The handler of a message with several configured signals, or a presence signal.
+
+    Every signal is checked before any is stored. A presence sample always takes
+    :meth:`SourceHealth.observe`'s full path, which compares the source's reason
+    before and after it; here it is handled only when that comparison cannot find
+    an edge: the source was usable at this time (``_ok_since``) and said so last
+    (``_last_reason``), and the flag reads 1.
+    """
     fromhex = bytes.fromhex
     unpack = entry.unpack
     assert unpack is not None
     lengths = entry.lengths
     checks = tuple(
-        (role, index, scale, offset, to_float, lo, hi, health._latest_t, health._invalid, health.max_age_s)
-        for _source, role, index, scale, offset, to_float, lo, hi, health, _models in outputs
+        (role, index, 0 if scale == 1 and offset == 0 else 1 if to_float else 2, scale, offset, lo, hi, health,
+         health._latest_t, health._invalid, health.max_age_s, present)
+        for _source, role, index, scale, offset, to_float, lo, hi, health, _models, present in outputs
     )
     stores = tuple(
         (role, models, health._latest_t, health._value, health._valid_t)
-        for _source, role, _i, _s, _o, _f, _lo, _hi, health, models in outputs
+        for _source, role, _i, _s, _o, _f, _lo, _hi, health, models, _p in outputs
     )
     tops = [-1.0] * len(outputs)
     seen = 0
@@ -183,9 +191,14 @@ def _many(
             return None
         raws = unpack(data)
         values = []
-        for role, index, scale, offset, to_float, lo, hi, latest_t, invalid, max_age in checks:
+        for role, index, mode, scale, offset, lo, hi, health, latest_t, invalid, max_age, present in checks:
             raw = raws[index]
-            v = float(raw * scale + offset) if to_float else raw * scale + offset
+            # the decoder's rules: identity float(raw) (-0.0 stays -0.0), else raw * scale + offset, as a float
+            v = float(raw) if mode == 0 else float(raw * scale + offset) if mode == 1 else raw * scale + offset
+            if present:
+                if not v or health._last_reason or not t - health._ok_since <= max_age:
+                    return None
+                v = 1.0
             if not lo <= v <= hi:
                 return None
             latest = latest_t.get(role)
