@@ -43,7 +43,7 @@ from .emit import TaskGate
 
 if TYPE_CHECKING:
     from .replay import Columns
-    from .rows import Handle
+    from .rows import Batch, Handle
     from .tree import GuardView
 
 log = logging.getLogger("canguard.engine")
@@ -173,6 +173,8 @@ class Engine:
         self._row_handles: dict[str, dict[str, Handle | None]] = {}
         """Per bus: the compiled row handlers of the replay column path (see :mod:`canguard.rows`)."""
         self._row_flush: dict[str, list[Callable[[], None]]] = {}
+        self._row_passive: dict[str, dict[str, Batch]] = {}
+        """Per bus: id text -> whole-block path of the messages nobody reads between ticks."""
 
     # -- life cycle ------------------------------------------------------------------------
     def start(self, now: float | None = None) -> None:
@@ -592,6 +594,10 @@ class Engine:
         if handles is None:
             handles = self._row_handles[bus] = self._compile_rows(bus)
         rows = list(compress(range(n), map(handles.__contains__, cols.ids))) if handles else []
+        skipped = n - len(rows)
+        passive = self._row_passive[bus]
+        if passive and rows:
+            rows = self._run_passive(passive, rows, cols)
         work: Iterable[tuple[int, float, Handle | None, str]] = ()
         if rows:
             # the configured rows' columns, picked in C (itemgetter gives a bare value for one row)
@@ -621,7 +627,6 @@ class Engine:
         self._cross(ts, pos, n)
         for h in self._row_flush[bus]:
             h()
-        skipped = n - len(rows)
         counters.frames += skipped
         counters.skipped += skipped
         self.stats.frames += skipped
@@ -629,6 +634,38 @@ class Engine:
         if rows and float(ts[rows[-1]]) > self._last_frame_t:
             self._last_frame_t = float(ts[rows[-1]])  # the last row feed saw, as frame by frame (not ts[-1])
         return True
+
+    @staticmethod
+    def _run_passive(passive: dict[str, Batch], rows: list[int], cols: Columns) -> list[int]:
+        """Take the rows of messages nobody reads between ticks as whole batches; return the rows left to go one by one.
+
+        Runs before any row of the block: a batch stores its message's state as at the
+        end of the block, which every tick in the block reads exactly as it would have
+        read the row-by-row state (see :func:`canguard.rows.compile_passive`).
+        """
+        ids = cols.ids
+        left: list[int] = []
+        groups: dict[Batch, list[int]] = {}
+        for i in rows:
+            batch = passive.get(ids[i])
+            if batch is None:
+                left.append(i)
+            else:
+                group = groups.get(batch)
+                if group is None:
+                    groups[batch] = [i]
+                else:
+                    group.append(i)
+        ts, data = cols.ts, cols.data
+        back = False
+        for batch, group in groups.items():
+            pick = itemgetter(*group) if len(group) > 1 else lambda seq, g=group: (seq[g[0]],)
+            if not batch(list(map(float, pick(ts))), pick(data)):
+                left.extend(group)
+                back = True
+        if back:
+            left.sort()
+        return left
 
     def _cross(self, ts: list[str], lo: int, hi: int) -> None:
         """Rows ``lo..hi-1`` (ordered, of no configured message): the first at or after the due time brings the ticks.
@@ -647,19 +684,27 @@ class Engine:
     def _compile_rows(self, bus: str) -> dict[str, Handle | None]:
         """Every id text (any letter case) of a message configured on ``bus``, with its row handler or None."""
         from .replay import candump_id_texts
-        from .rows import compile_row
+        from .rows import compile_passive, compile_row
 
         counters = self.decoder.per_bus[bus]
         handles: dict[str, Handle | None] = {}
         flushes = self._row_flush.setdefault(bus, [])
+        passive = self._row_passive.setdefault(bus, {})
+        # the stop confirmation reads its source between ticks: not passive
+        readers = set(self.ctx.read_sources)
+        if self.cfg.stop.confirm is not None:
+            readers.add(self.cfg.stop.confirm.source)
         for (b, cid, ext), entry in self.decoder.entries():
             if b != bus:
                 continue
             handler = compile_row(entry, counters, self.ctx, self.stats)
             if handler is not None:
                 flushes.append(handler.flush)
+            batch = compile_passive(entry, counters, self.ctx, self.stats, readers) if self.metrics is None else None
             for text in candump_id_texts(cid, ext):
                 handles[text] = handler.handle if handler is not None else None
+                if batch is not None:
+                    passive[text] = batch
         return handles
 
 

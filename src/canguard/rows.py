@@ -23,7 +23,10 @@ through both and compare every event and summary byte for byte.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import math
+from collections.abc import Callable, Collection
+from itertools import islice
+from operator import itemgetter, sub
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
@@ -151,7 +154,7 @@ def _single(
     def flush() -> None:
         if env["seen"]:
             _count(counters, stats, env["seen"])
-            _count_samples(stats, health, source, role, env["seen"], max(env["high"], -env["low"]))
+            _count_samples(stats, health, source, role, env["seen"], max(abs(env["high"]), abs(env["low"])))
             env["seen"], env["high"], env["low"] = 0, -_BIG, _BIG
 
     return RowHandler(env["handle"], flush)
@@ -231,3 +234,80 @@ def _many(
         seen = 0
 
     return RowHandler(handle, flush)
+
+
+Batch = Callable[[list[float], "tuple[str, ...] | list[str]"], bool]
+"""(times, data hex texts) of one message's rows in a block -> True when taken as a whole, False: do them row by row."""
+
+
+def compile_passive(
+    entry: _Entry, counters: DecodeCounters, ctx: Context, stats: EngineStats, readers: Collection[str]
+) -> Batch | None:
+    """A whole-block path for a message nobody looks at between ticks, or None.
+
+    Such a message feeds only sources no tree node reads (``readers``: the sources
+    the tree reads and the stop confirmation's), no protection model, and no
+    presence signal: what it changes is seen only through its sources' reasons at
+    ticks (``stale`` / ``fresh`` events) and through counters. When every row of a
+    block is valid, in the DBC range, and no two rows (nor the first row and the
+    previous sample) lie more than ``max_age`` apart, every reason at every tick in
+    the block is "" and the state at the end of the block is that of its last row:
+    the batch stores that state at once (before the block's ticks, which then read
+    "fresh" as they would have) and counts the rows in C-level passes. Anything
+    else returns False having changed nothing, and the rows go one by one.
+    """
+    if not entry.fast or entry.plan is None or entry.unpack is None:
+        return None
+    outputs = []
+    for source, role, index, scale, offset, _identity, present in entry.plan:
+        health = ctx.health.get(source)
+        if present or health is None or source in readers or ctx.subscribers(source, role):
+            return None
+        lo, hi = health.ranges.get(role, (None, None))
+        if scale == 1 and offset == 0:
+            mode = 0 if entry.float_raws[index] else 1
+        else:
+            mode = 3 if isinstance(scale, float) or isinstance(offset, float) else 2
+        outputs.append((source, role, itemgetter(index), mode, scale, offset, entry.float_raws[index],
+                        -_BIG if lo is None else float(lo), _BIG if hi is None else float(hi), health))
+    fromhex = bytes.fromhex
+    unpack = entry.unpack
+    lengths = entry.lengths
+    isnan = math.isnan
+
+    def batch(times: list[float], texts: tuple[str, ...] | list[str]) -> bool:
+        payloads = list(map(fromhex, texts))
+        if not set(map(len, payloads)) <= lengths:
+            return False
+        raws = list(map(unpack, payloads))
+        first, last = times[0], times[-1]
+        gap = max(map(sub, islice(times, 1, None), times), default=0.0)
+        found = []
+        for source, role, pick, mode, scale, offset, floats, lo, hi, health in outputs:
+            latest = health._latest_t.get(role)
+            max_age = health.max_age_s
+            if latest is None or first < latest or first - latest > max_age or gap > max_age:
+                return False
+            if health._invalid.get(role):
+                return False
+            values = list(map(pick, raws))
+            if mode == 1:
+                values = list(map(float, values))
+            elif mode == 2:
+                values = [float(r * scale + offset) for r in values]
+            elif mode == 3:
+                values = [r * scale + offset for r in values]
+            low, high = min(values), max(values)
+            if not (lo <= low and high <= hi) or (floats and any(map(isnan, values))):
+                return False  # NaN, +-inf, out of range: the row-by-row path says which and when
+            found.append((source, role, health, values[-1], max(abs(low), abs(high))))
+        rows = len(times)
+        _count(counters, stats, rows)
+        for source, role, health, v, top in found:
+            health._latest_t[role] = last
+            health._value[role] = v
+            health._valid_t[role] = last
+            _count_samples(stats, health, source, role, rows, top)
+        return True
+
+    return batch
