@@ -143,6 +143,29 @@ class TestSourceHealth:
         h.observe(s("current", 2.0, 1.0))
         assert h.value("current") == 2.0 and h.out_of_order == 0
 
+    def test_a_bad_sample_right_after_a_healthy_check_is_seen(self) -> None:
+        """The "nothing can be stale yet" shortcut of reason() never hides a sample that made a role unusable."""
+        h = battery(max_age_s=0.5)
+        h.observe(s("present", 1.0, 0.0))
+        h.observe(s("current", 10.0, 0.0))
+        assert h.reason(0.1) == ""  # healthy: the shortcut is armed
+        assert h.observe(s("current", math.nan, 0.2)) is True
+        assert h.reason(0.2) == "nan" and h.reason(0.2, "current") == "nan"
+        assert h.observe(s("current", 5.0, 0.3)) is True
+        assert h.reason(0.3) == ""
+        assert h.observe(s("present", 0.0, 0.35)) is True
+        assert h.reason(0.35) == "not_present"
+
+    def test_healthy_source_still_goes_stale(self) -> None:
+        """After a healthy check, a role that stops sending is stale max_age later, not sooner, not later."""
+        h = joints()
+        h.observe(s("j1", 1.0, 0.0, source="arm"))
+        h.observe(s("j2", 1.0, 0.2, source="arm"))
+        assert h.reason(0.3) == ""
+        h.observe(s("j2", 1.0, 0.4, source="arm"))  # j1 stays at 0.0
+        assert h.reason(0.5) == ""
+        assert h.reason(0.5000001) == "stale"
+
     def test_joints_source_checks_every_joint(self) -> None:
         """A joints source is healthy only when every joint is fresh; values() lists each joint."""
         h = joints()

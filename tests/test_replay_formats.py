@@ -333,6 +333,38 @@ class TestBadInput:
         msg = str(err.value)
         assert msg.startswith(f"{tmp_path / 'x.log'}:1: ") and reason in msg and repr(line) in msg
 
+    @pytest.mark.parametrize(
+        ("bad", "reason"),
+        [
+            ("({t}) can0 800#11", "standard CAN id '800' is above 7FF"),
+            ("({t}) can0 80000123#11", "above 1FFFFFFF"),
+            ("({t}) can0 12G#11", "bad CAN id '12G'"),
+            ("({t}) can0 123#1", "odd number of hex digits"),
+            ("({t}) can0 123#1G", "is not hex"),
+            ("({t}) can0 123#112233445566778899", "9 data bytes in a classic CAN frame"),
+            ("({t} can0 123#11", "no closing ')'"),
+            ("{t}) can0 123#11", "expected '(secs) channel ID#DATA'"),
+            ("(1547073727.6707.4) can0 123#11", "bad timestamp"),
+            ("(1547073727.) can0 123#11", "bad timestamp"),
+            ("(1547073727.67070x) can0 123#11", "bad timestamp"),
+        ],
+    )
+    def test_one_bad_line_in_a_plain_block(self, tmp_path: Path, bad: str, reason: str) -> None:
+        """A block of plain lines with one bad line in the middle is not taken whole: the bad line is named."""
+        lines = [f"({T0 + i / 1000:.6f}) can0 {0x100 + i % 16:03X}#{i % 256:02X}11" for i in range(100)]
+        lines[49] = bad.format(t=f"{T0 + 0.049:.6f}")
+        with pytest.raises(LogFormatError) as err:
+            _read(tmp_path, "\n".join(lines) + "\n")
+        msg = str(err.value)
+        assert msg.startswith(f"{tmp_path / 'x.log'}:50: ") and reason in msg
+
+    def test_timestamps_of_several_widths_read_right(self, tmp_path: Path) -> None:
+        """Timestamps that gain a digit or have fewer decimals mid-block give the line parser's frames."""
+        lines = [f"({9999.990 + i / 1000:.6f}) can0 123#{i:02X}" for i in range(20)]
+        lines[5] = "(9999.9955) can0 123#05"
+        text = "\n".join(lines) + "\n"
+        assert _read(tmp_path, text) == [replay._parse_line(line) for line in lines]
+
     def test_bad_line_in_a_later_chunk(self, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
         """Line numbers stay right across chunk boundaries."""
         monkeypatch.setattr(replay, "CHUNK_CHARS", 64)
