@@ -261,7 +261,7 @@ _TS_BYTES = b"0123456789."
 _DATA_LENGTHS = frozenset(range(0, 17, 2))
 
 
-class Columns:
+class Columns(NamedTuple):
     """A block of plain candump -L lines, checked, kept as text columns: frames are built on demand.
 
     Every line has passed the checks the line parser would make; what is left is
@@ -273,20 +273,14 @@ class Columns:
     standard, 8: extended; any case).
     """
 
-    __slots__ = ("channel", "chans", "data", "ids", "n", "ordered", "ts")
-
-    def __init__(
-        self, n: int, ts: list[str], chans: list[str], ids: list[str], data: list[str], ordered: bool,
-        channel: str | None,
-    ) -> None:
-        self.channel = channel
-        """The channel of every row, or None when the block has several."""
-        self.n = n
-        self.ts = ts
-        self.chans = chans
-        self.ids = ids
-        self.data = data
-        self.ordered = ordered
+    n: int
+    ts: list[str]
+    chans: list[str]
+    ids: list[str]
+    data: list[str]
+    ordered: bool
+    channel: str | None
+    """The channel of every row, or None when the block has several."""
 
     def t(self, i: int) -> float:
         """Timestamp of row ``i``."""
