@@ -819,3 +819,55 @@ class TestTheComparison:
             mp.setattr(Engine, "_cross", lambda self, ts, lo, hi: None)
             with pytest.raises(AssertionError):
                 compare(load_config(TIMED), log, tmp_path, (300,), min_handled=0)
+
+
+class TestPassiveBatches:
+    """Messages nobody reads between ticks, taken a block at a time: both ways of reading them, the same."""
+
+    @staticmethod
+    def _count_batches(monkeypatch: pytest.MonkeyPatch) -> dict[str, int]:
+        """Count the blocks each passive batch took whole (True) or gave back (False)."""
+        from canguard import rows
+
+        counts = {"taken": 0, "given_back": 0}
+        compile_passive = rows.compile_passive
+
+        def counting(*args: Any, **kwargs: Any) -> Any:
+            batch = compile_passive(*args, **kwargs)
+            if batch is None:
+                return None
+
+            def wrapped(times: list[float], texts: Any) -> bool:
+                took = batch(times, texts)
+                counts["taken" if took else "given_back"] += 1
+                return took
+
+            return wrapped
+
+        monkeypatch.setattr(rows, "compile_passive", counting)
+        return counts
+
+    @pytest.mark.parametrize("strided", [True, False], ids=["joined-payloads", "payload-by-payload"])
+    def test_same_output_on_the_simulator_log(
+        self, sim_log: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, strided: bool
+    ) -> None:
+        """Every scenario (stale BMS, NaN, garbage) on the bundled config: batches taken and given back, same bytes."""
+        from canguard import rows
+
+        if not strided:
+            monkeypatch.setattr(rows, "_strided", lambda entry, indexes: None)
+        counts = self._count_batches(monkeypatch)
+        compare(load_config(BUNDLED), sim_log, tmp_path, (300, 4096), min_handled=0)
+        assert counts["taken"] > 0 and counts["given_back"] > 0, counts
+
+    def test_same_output_on_the_custom_log(
+        self, custom: tuple[Config, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+    ) -> None:
+        """The scripted log's unread source (NaN, a silent spell) read payload by payload: the same."""
+        from canguard import rows
+
+        monkeypatch.setattr(rows, "_strided", lambda entry, indexes: None)
+        counts = self._count_batches(monkeypatch)
+        cfg, log = custom
+        compare(cfg, log, tmp_path, (300, 1009))
+        assert counts["taken"] > 0 and counts["given_back"] > 0, counts

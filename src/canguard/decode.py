@@ -118,7 +118,7 @@ def _value_sample(source: str, role: str, v: float, t: float, present: bool) -> 
 class _Entry:
     """Everything needed to turn one configured (bus, id, extended) frame into samples."""
 
-    __slots__ = ("fast", "float_raws", "length", "lengths", "message", "outputs", "plan", "run", "unpack")
+    __slots__ = ("fast", "fields", "float_raws", "length", "lengths", "message", "outputs", "plan", "run", "unpack")
 
     def __init__(self, message: Any, outputs: list[_Output]) -> None:
         self.message = message
@@ -135,8 +135,10 @@ class _Entry:
         """Struct path with one byte order: the unpacker whose tuple ``plan`` indexes (else None)."""
         self.float_raws: tuple[bool, ...] = ()
         """Struct path: whether each raw value of the unpacked tuple is a float (else an int)."""
+        self.fields: tuple[tuple[int, str, str], ...] = ()
+        """Struct path with one byte order: (byte offset, struct code, byte order) of each raw value."""
         if compiled is not None:
-            self.run, self.plan, self.unpack, self.float_raws = compiled
+            self.run, self.plan, self.unpack, self.float_raws, self.fields = compiled
         else:
             self.run = _fallback(message, self.outputs)
 
@@ -164,8 +166,9 @@ _Step = tuple[str, str, int, float, float, bool, bool]
 
 def _compile_fast(
     message: Any, outputs: tuple[_Output, ...]
-) -> tuple[_Run, tuple[_Step, ...], Callable[[bytes], tuple[Any, ...]] | None, tuple[bool, ...]] | None:
-    """A struct-based run of ``outputs`` of ``message`` with its plan, single unpacker and float flags, or None.
+) -> tuple[_Run, tuple[_Step, ...], Callable[[bytes], tuple[Any, ...]] | None, tuple[bool, ...],
+           tuple[tuple[int, str, str], ...]] | None:
+    """A struct-based run of ``outputs`` of ``message`` with its plan, single unpacker, float flags and fields, or None.
 
     None when a signal is not eligible (then cantools decodes the message).
     """
@@ -175,6 +178,7 @@ def _compile_fast(
     groups: dict[str, list[tuple[int, str, Any]]] = {}
     index: dict[str, tuple[int, float, float, bool]] = {}
     floats: list[bool] = []
+    fields: list[tuple[int, str, str]] = []
     bits: Callable[[bytes], tuple[Any, ...]] | None = None
     for signal in message.signals:
         if signal.name not in wanted:
@@ -205,6 +209,7 @@ def _compile_fast(
             scale, off = signal.scale, signal.offset
             index[signal.name] = (n, scale, off, scale == 1 and off == 0)
             floats.append(code in "fd")
+            fields.append((offset, code, order))
             n += 1
         structs.append(struct.Struct(fmt))
     plan: tuple[_Step, ...] = tuple((o.source, o.role, *index[o.signal], o.present) for o in outputs)
@@ -230,7 +235,7 @@ def _compile_fast(
                 out.append(_new(Sample, (source, role, float(v), t, "")))
         return out, bad
 
-    return run, plan, single, tuple(floats)
+    return run, plan, single, tuple(floats), tuple(fields) if bits is None and len(structs) == 1 else ()
 
 
 def _bit_fields(

@@ -25,10 +25,10 @@ import logging
 import math
 import time
 from bisect import bisect_left
-from collections import Counter
-from collections.abc import Callable, Iterable, Mapping
+from collections import Counter, deque
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
-from itertools import compress
+from itertools import compress, repeat
 from operator import itemgetter
 from typing import TYPE_CHECKING, Any, Protocol
 
@@ -572,7 +572,7 @@ class Engine:
 
     def _run_columns(self, cols: Columns, cursor: _LogCursor) -> bool:
         """:meth:`run_log` over a plain candump block; False (nothing done) when it must go frame by frame."""
-        if not cursor.started or not cols.ordered or self.sample_hook is not None:
+        if not cols.ordered or self.sample_hook is not None:
             return False
         ts = cols.ts
         n = cols.n
@@ -585,28 +585,36 @@ class Engine:
         counters = self.decoder.per_bus.get(bus) if bus is not None else None
         if bus is not None and counters is None:
             return False
-        if cursor.channels is not None:
-            cursor.channels[channel] = cursor.channels.get(channel, 0) + n
         if bus is None or counters is None:
+            if cursor.channels is not None:
+                cursor.channels[channel] = cursor.channels.get(channel, 0) + n
             cursor.unmapped[channel] = cursor.unmapped.get(channel, 0) + n
             return True
+        first = 0
+        if not cursor.started:
+            self._run_frames((cols.frame(0),), cursor)  # the first frame is fed: it starts the engine's clock
+            first = 1
+        if cursor.channels is not None:
+            cursor.channels[channel] = cursor.channels.get(channel, 0) + n - first
         handles = self._row_handles.get(bus)
         if handles is None:
             handles = self._row_handles[bus] = self._compile_rows(bus)
         rows = list(compress(range(n), map(handles.__contains__, cols.ids))) if handles else []
-        skipped = n - len(rows)
+        if first and rows and rows[0] == 0:
+            del rows[0]
+        skipped = n - first - len(rows)
         passive = self._row_passive[bus]
         if passive and rows:
             rows = self._run_passive(passive, rows, cols)
         work: Iterable[tuple[int, float, Handle | None, str]] = ()
         if rows:
             # the configured rows' columns, picked in C (itemgetter gives a bare value for one row)
-            pick = itemgetter(*rows) if len(rows) > 1 else lambda seq: (seq[rows[0]],)
+            pick = _picker(rows)
             work = zip(rows, map(float, pick(ts)), map(handles.__getitem__, pick(cols.ids)), pick(cols.data),
                        strict=True)
         feed = self.feed
         frame = cols.frame
-        pos = 0
+        pos = first
         due = self._due  # handlers never change it; advance, feed and tick may
         for i, t, handle, text in work:
             if t >= due:
@@ -645,21 +653,16 @@ class Engine:
         """
         ids = cols.ids
         left: list[int] = []
-        groups: dict[Batch, list[int]] = {}
-        for i in rows:
-            batch = passive.get(ids[i])
-            if batch is None:
-                left.append(i)
-            else:
-                group = groups.get(batch)
-                if group is None:
-                    groups[batch] = [i]
-                else:
-                    group.append(i)
+        # one list per passive message (shared by its id's spellings); rows dealt out in C
+        lists: dict[Batch, list[int]] = {batch: [] for batch in set(passive.values())}
+        to = {text: lists[batch] for text, batch in passive.items()}
+        pick = _picker(rows)
+        deque(map(list.append, map(to.get, pick(ids), repeat(left)), rows), maxlen=0)
+        groups = {batch: group for batch, group in lists.items() if group}
         ts, data = cols.ts, cols.data
         back = False
         for batch, group in groups.items():
-            pick = itemgetter(*group) if len(group) > 1 else lambda seq, g=group: (seq[g[0]],)
+            pick = _picker(group)
             if not batch(list(map(float, pick(ts))), pick(data)):
                 left.extend(group)
                 back = True
@@ -706,6 +709,14 @@ class Engine:
                 if batch is not None:
                     passive[text] = batch
         return handles
+
+
+def _picker(rows: list[int]) -> Callable[[Sequence[Any]], tuple[Any, ...]]:
+    """``itemgetter(*rows)`` that gives a tuple for one row too (itemgetter then gives the bare value)."""
+    if len(rows) == 1:
+        only = rows[0]
+        return lambda seq: (seq[only],)
+    return itemgetter(*rows)
 
 
 @dataclass

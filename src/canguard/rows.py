@@ -24,6 +24,8 @@ through both and compare every event and summary byte for byte.
 from __future__ import annotations
 
 import math
+import struct
+import sys
 from collections.abc import Callable, Collection
 from itertools import islice
 from operator import itemgetter, sub
@@ -240,6 +242,24 @@ Batch = Callable[[list[float], "tuple[str, ...] | list[str]"], bool]
 """(times, data hex texts) of one message's rows in a block -> True when taken as a whole, False: do them row by row."""
 
 
+def _strided(entry: _Entry, indexes: list[int]) -> list[tuple[Any, int, int]] | None:
+    """(memoryview format, first item, stride) of each raw value, when every one can be read off joined payloads.
+
+    That is: a fixed-length message of the struct path whose fields are native,
+    aligned little-endian numbers on a little-endian host. Else None.
+    """
+    if not entry.fields or entry.lengths != {entry.length} or sys.byteorder != "little":
+        return None
+    out = []
+    for index in indexes:
+        offset, code, order = entry.fields[index]
+        width = struct.calcsize("<" + code)
+        if order != "<" or struct.calcsize("@" + code) != width or offset % width or entry.length % width:
+            return None
+        out.append((code, offset // width, entry.length // width))
+    return out
+
+
 def compile_passive(
     entry: _Entry, counters: DecodeCounters, ctx: Context, stats: EngineStats, readers: Collection[str]
 ) -> Batch | None:
@@ -264,33 +284,44 @@ def compile_passive(
         if present or health is None or source in readers or ctx.subscribers(source, role):
             return None
         lo, hi = health.ranges.get(role, (None, None))
+        # the decoder's value: identity float(raw) (-0.0 kept), else float(raw * scale + offset)
         if scale == 1 and offset == 0:
             mode = 0 if entry.float_raws[index] else 1
         else:
             mode = 3 if isinstance(scale, float) or isinstance(offset, float) else 2
-        outputs.append((source, role, itemgetter(index), mode, scale, offset, entry.float_raws[index],
+        outputs.append((source, role, index, mode, scale, offset, entry.float_raws[index],
                         -_BIG if lo is None else float(lo), _BIG if hi is None else float(hi), health))
     fromhex = bytes.fromhex
     unpack = entry.unpack
     lengths = entry.lengths
     isnan = math.isnan
+    hex_size = 2 * entry.length
+    columns = _strided(entry, [out[2] for out in outputs])
+    picks = [itemgetter(out[2]) for out in outputs]
 
     def batch(times: list[float], texts: tuple[str, ...] | list[str]) -> bool:
-        payloads = list(map(fromhex, texts))
-        if not set(map(len, payloads)) <= lengths:
-            return False
-        raws = list(map(unpack, payloads))
+        raws: list[list[Any]]
+        if columns is not None:  # the payloads joined, each field read off them in one strided pass
+            if set(map(len, texts)) != {hex_size}:
+                return False
+            view = memoryview(fromhex("".join(texts)))
+            raws = [view.cast(code)[start::step].tolist() for code, start, step in columns]
+        else:
+            payloads = list(map(fromhex, texts))
+            if not set(map(len, payloads)) <= lengths:
+                return False
+            unpacked = list(map(unpack, payloads))
+            raws = [list(map(pick, unpacked)) for pick in picks]
         first, last = times[0], times[-1]
         gap = max(map(sub, islice(times, 1, None), times), default=0.0)
         found = []
-        for source, role, pick, mode, scale, offset, floats, lo, hi, health in outputs:
+        for values, (source, role, _i, mode, scale, offset, floats, lo, hi, health) in zip(raws, outputs, strict=True):
             latest = health._latest_t.get(role)
             max_age = health.max_age_s
             if latest is None or first < latest or first - latest > max_age or gap > max_age:
                 return False
             if health._invalid.get(role):
                 return False
-            values = list(map(pick, raws))
             if mode == 1:
                 values = list(map(float, values))
             elif mode == 2:
@@ -301,13 +332,13 @@ def compile_passive(
             if not (lo <= low and high <= hi) or (floats and any(map(isnan, values))):
                 return False  # NaN, +-inf, out of range: the row-by-row path says which and when
             found.append((source, role, health, values[-1], max(abs(low), abs(high))))
-        rows = len(times)
-        _count(counters, stats, rows)
+        count = len(times)
+        _count(counters, stats, count)
         for source, role, health, v, top in found:
             health._latest_t[role] = last
             health._value[role] = v
             health._valid_t[role] = last
-            _count_samples(stats, health, source, role, rows, top)
+            _count_samples(stats, health, source, role, count, top)
         return True
 
     return batch
