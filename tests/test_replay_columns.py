@@ -871,3 +871,22 @@ class TestPassiveBatches:
         cfg, log = custom
         compare(cfg, log, tmp_path, (300, 1009))
         assert counts["taken"] > 0 and counts["given_back"] > 0, counts
+
+    def test_backward_row_after_a_block_ending_on_a_passive_row(self, tmp_path: Path) -> None:
+        """A block whose last configured row was taken by a batch: the next block's earlier row is backward, as fed."""
+        axis0, axis1 = msg_id("Axis0_Get_Iq"), msg_id("Axis1_Get_Iq")  # axis0: the stop confirmation's; axis1: unread
+        bms = msg_id("BMS_Status")
+        rows = []
+        for k in range(100):
+            t = k * 0.01
+            # a healthy battery (the task runs: no stop repeats), axis0 after each 10 ms tick (it brings the
+            # tick), axis1 2 ms later: no tick or task frame falls due at it
+            rows += [Row(t + 0.001, 3 * k, cid=bms, data=bms_data(5.0)),
+                     Row(t + 0.003, 3 * k + 1, cid=axis0, data=iq_data(1.0)),
+                     Row(t + 0.005, 3 * k + 2, cid=axis1, data=iq_data(2.0))]
+        rows.append(Row(0.994, 10_000, cid=axis0, data=iq_data(1.5)))  # before the last axis1 row (0.995): backward
+        rows += [Row(1.0 + k * 0.01, 20_000 + k, cid=axis0, data=iq_data(1.0)) for k in range(20)]
+        log = write_rows(tmp_path / "backward.log", rows, sort=False)
+        cfg = load_config(BUNDLED)
+        [col] = compare(cfg, log, tmp_path, (chunk_starting_at(log, 300),))
+        assert col.state["backward_frames"] == 1

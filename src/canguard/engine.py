@@ -603,12 +603,13 @@ class Engine:
         if first and rows and rows[0] == 0:
             del rows[0]
         skipped = n - first - len(rows)
+        last_row = rows[-1] if rows else -1  # the last row feed would see, passive or not
         passive = self._row_passive[bus]
         if passive and rows:
             rows = self._run_passive(passive, rows, cols)
         work: Iterable[tuple[int, float, Handle | None, str]] = ()
         if rows:
-            # the configured rows' columns, picked in C (itemgetter gives a bare value for one row)
+            # the configured rows' columns, picked in C
             pick = _picker(rows)
             work = zip(rows, map(float, pick(ts)), map(handles.__getitem__, pick(cols.ids)), pick(cols.data),
                        strict=True)
@@ -639,8 +640,8 @@ class Engine:
         counters.skipped += skipped
         self.stats.frames += skipped
         cursor.last_t = float(ts[-1])
-        if rows and float(ts[rows[-1]]) > self._last_frame_t:
-            self._last_frame_t = float(ts[rows[-1]])  # the last row feed saw, as frame by frame (not ts[-1])
+        if last_row >= 0 and float(ts[last_row]) > self._last_frame_t:
+            self._last_frame_t = float(ts[last_row])  # as frame by frame: the last row fed (not ts[-1])
         return True
 
     @staticmethod
