@@ -664,7 +664,7 @@ class Engine:
         back = False
         for batch, group in groups.items():
             pick = _picker(group)
-            if not batch(list(map(float, pick(ts))), pick(data)):
+            if not batch(pick(ts), pick(data)):
                 left.extend(group)
                 back = True
         if back:

@@ -26,7 +26,7 @@ from __future__ import annotations
 import math
 import struct
 import sys
-from collections.abc import Callable, Collection
+from collections.abc import Callable, Collection, Sequence
 from itertools import islice
 from operator import itemgetter, sub
 from typing import TYPE_CHECKING, Any
@@ -238,8 +238,8 @@ def _many(
     return RowHandler(handle, flush)
 
 
-Batch = Callable[[list[float], "tuple[str, ...] | list[str]"], bool]
-"""(times, data hex texts) of one message's rows in a block -> True when taken as a whole, False: do them row by row."""
+Batch = Callable[[Sequence[str], Sequence[str]], bool]
+"""(timestamp texts, data hex texts) of one message's rows in a block -> True: taken whole; False: go row by row."""
 
 
 def _strided(entry: _Entry, indexes: list[int]) -> list[tuple[Any, int, int]] | None:
@@ -299,7 +299,9 @@ def compile_passive(
     columns = _strided(entry, [out[2] for out in outputs])
     picks = [itemgetter(out[2]) for out in outputs]
 
-    def batch(times: list[float], texts: tuple[str, ...] | list[str]) -> bool:
+    min_age = min(out[-1].max_age_s for out in outputs)
+
+    def batch(stamps: Sequence[str], texts: Sequence[str]) -> bool:
         raws: list[list[Any]]
         if columns is not None:  # the payloads joined, each field read off them in one strided pass
             if set(map(len, texts)) != {hex_size}:
@@ -312,8 +314,13 @@ def compile_passive(
                 return False
             unpacked = list(map(unpack, payloads))
             raws = [list(map(pick, unpacked)) for pick in picks]
-        first, last = times[0], times[-1]
-        gap = max(map(sub, islice(times, 1, None), times), default=0.0)
+        first, last = float(stamps[0]), float(stamps[-1])
+        # rows within max_age of each other from first to last: no gap can exceed it (float subtraction is
+        # monotonic); else every gap is computed
+        gap = last - first
+        if gap > min_age:
+            times = list(map(float, stamps))
+            gap = max(map(sub, islice(times, 1, None), times), default=0.0)
         found = []
         for values, (source, role, _i, mode, scale, offset, floats, lo, hi, health) in zip(raws, outputs, strict=True):
             latest = health._latest_t.get(role)
@@ -332,7 +339,7 @@ def compile_passive(
             if not (lo <= low and high <= hi) or (floats and any(map(isnan, values))):
                 return False  # NaN, +-inf, out of range: the row-by-row path says which and when
             found.append((source, role, health, values[-1], max(abs(low), abs(high))))
-        count = len(times)
+        count = len(stamps)
         _count(counters, stats, count)
         for source, role, health, v, top in found:
             health._latest_t[role] = last
