@@ -54,20 +54,40 @@ _BIG = 1.7976931348623157e308
 """The largest float: the default range bounds, so that +-inf fails the range check like NaN does."""
 
 
+def _value_rule(entry: _Entry, index: int, scale: float, offset: float) -> str:
+    """The decoder's value of raw value ``index``, as an expression of ``raw``, ``scale`` and ``offset``.
+
+    :class:`~canguard.decode.Decoder` gives ``float(raw)`` for an identity signal
+    (so -0.0 stays -0.0) and ``float(raw * scale + offset)`` otherwise; the
+    ``float()`` is left out where the value is a float already.
+    """
+    if scale == 1 and offset == 0:
+        return "raw" if entry.float_raws[index] else "float(raw)"
+    if isinstance(scale, float) or isinstance(offset, float):
+        return "raw * scale + offset"
+    return "float(raw * scale + offset)"
+
+
+def _converter(rule: str, scale: float, offset: float) -> Callable[[Any], float] | None:
+    """``rule`` as a function of the raw value; None when the raw value is the value."""
+    if rule == "raw":
+        return None
+    convert: Callable[[Any], float] = eval(f"lambda raw: {rule}", {"scale": scale, "offset": offset, "float": float})
+    return convert
+
+
 def compile_row(entry: _Entry, counters: DecodeCounters, ctx: Context, stats: EngineStats) -> RowHandler | None:
     """A :class:`RowHandler` for ``entry``'s frames, or None when its outputs need the general path."""
     if not entry.fast or entry.plan is None or entry.unpack is None:
         return None
     outputs = []
-    for source, role, index, scale, offset, identity, present in entry.plan:
+    for source, role, index, scale, offset, _identity, present in entry.plan:
         health = ctx.health.get(source)
         if health is None:
             return None
         lo, hi = health.ranges.get(role, (None, None))
-        # the decoder's value: float(raw * scale + offset); with a float scale or offset that is already a float
-        exact_float = isinstance(scale, float) or isinstance(offset, float)
         outputs.append((
-            source, role, index, scale, offset, identity or not exact_float,
+            source, role, index, scale, offset, _value_rule(entry, index, scale, offset),
             -_BIG if lo is None else float(lo), _BIG if hi is None else float(hi),
             health, tuple(ctx.subscribers(source, role)), present,
         ))
@@ -98,6 +118,7 @@ def handle(text, t):
     data = fromhex(text)
     if len(data) not in lengths:
         return None
+    raw = unpack(data)[index]
     v = {value}
     if not lo <= v <= hi:  # NaN, +-inf and out of range all fail this
         return None
@@ -116,12 +137,6 @@ def handle(text, t):
 """
 """The handler of a message with one configured signal, specialised by :func:`_single` (value, models)."""
 
-_VALUE = {
-    "float": "unpack(data)[index]",
-    "int": "float(unpack(data)[index])",
-    "scaled": "unpack(data)[index] * scale + offset",
-    "int_scaled": "float(unpack(data)[index] * scale + offset)",
-}
 _MODELS = {
     0: "return False",
     1: "return model.update(v, t)",
@@ -131,7 +146,7 @@ _MODELS = {
 
 def _single(
     entry: _Entry, counters: DecodeCounters, stats: EngineStats,
-    source: str, role: str, index: int, scale: float, offset: float, to_float: bool,
+    source: str, role: str, index: int, scale: float, offset: float, rule: str,
     lo: float, hi: float, health: Any, models: tuple[Any, ...],
 ) -> RowHandler:
     """The handler of a message with one configured signal (most of them), compiled for its value and models.
@@ -139,11 +154,6 @@ def _single(
     Its counters live in the namespace it runs in (``seen``, ``high``, ``low``): one
     dict per handler, read and reset by ``flush``.
     """
-    identity = scale == 1 and offset == 0
-    if identity:
-        kind = "int" if to_float and not entry.float_raws[index] else "float"
-    else:
-        kind = "int_scaled" if to_float else "scaled"
     env: dict[str, Any] = {
         "fromhex": bytes.fromhex, "unpack": entry.unpack, "lengths": entry.lengths, "index": index,
         "scale": scale, "offset": offset, "lo": lo, "hi": hi, "role": role, "max_age": health.max_age_s,
@@ -151,7 +161,7 @@ def _single(
         "valid_t": health._valid_t, "models": models, "model": models[0] if models else None,
         "float": float, "len": len, "seen": 0, "high": -_BIG, "low": _BIG,
     }
-    exec(_SINGLE.format(value=_VALUE[kind], models=_MODELS[min(len(models), 2)]), env)
+    exec(_SINGLE.format(value=rule, models=_MODELS[min(len(models), 2)]), env)
 
     def flush() -> None:
         if env["seen"]:
@@ -178,13 +188,13 @@ def _many(
     assert unpack is not None
     lengths = entry.lengths
     checks = tuple(
-        (role, index, 0 if scale == 1 and offset == 0 else 1 if to_float else 2, scale, offset, lo, hi, health,
+        (role, index, _converter(rule, scale, offset), lo, hi, health,
          health._latest_t, health._invalid, health.max_age_s, present)
-        for _source, role, index, scale, offset, to_float, lo, hi, health, _models, present in outputs
+        for _source, role, index, scale, offset, rule, lo, hi, health, _models, present in outputs
     )
     stores = tuple(
         (role, models, health._latest_t, health._value, health._valid_t)
-        for _source, role, _i, _s, _o, _f, _lo, _hi, health, models, _p in outputs
+        for _source, role, _i, _s, _o, _rule, _lo, _hi, health, models, _p in outputs
     )
     tops = [-1.0] * len(outputs)
     seen = 0
@@ -196,10 +206,9 @@ def _many(
             return None
         raws = unpack(data)
         values = []
-        for role, index, mode, scale, offset, lo, hi, health, latest_t, invalid, max_age, present in checks:
+        for role, index, convert, lo, hi, health, latest_t, invalid, max_age, present in checks:
             raw = raws[index]
-            # the decoder's rules: identity float(raw) (-0.0 stays -0.0), else raw * scale + offset, as a float
-            v = float(raw) if mode == 0 else float(raw * scale + offset) if mode == 1 else raw * scale + offset
+            v = raw if convert is None else convert(raw)
             if present:
                 if not v or health._last_reason or not t - health._ok_since <= max_age:
                     return None
@@ -284,12 +293,8 @@ def compile_passive(
         if present or health is None or source in readers or ctx.subscribers(source, role):
             return None
         lo, hi = health.ranges.get(role, (None, None))
-        # the decoder's value: identity float(raw) (-0.0 kept), else float(raw * scale + offset)
-        if scale == 1 and offset == 0:
-            mode = 0 if entry.float_raws[index] else 1
-        else:
-            mode = 3 if isinstance(scale, float) or isinstance(offset, float) else 2
-        outputs.append((source, role, index, mode, scale, offset, entry.float_raws[index],
+        convert = _converter(_value_rule(entry, index, scale, offset), scale, offset)
+        outputs.append((source, role, index, convert, entry.float_raws[index],
                         -_BIG if lo is None else float(lo), _BIG if hi is None else float(hi), health))
     fromhex = bytes.fromhex
     unpack = entry.unpack
@@ -322,19 +327,15 @@ def compile_passive(
             times = list(map(float, stamps))
             gap = max(map(sub, islice(times, 1, None), times), default=0.0)
         found = []
-        for values, (source, role, _i, mode, scale, offset, floats, lo, hi, health) in zip(raws, outputs, strict=True):
+        for values, (source, role, _i, convert, floats, lo, hi, health) in zip(raws, outputs, strict=True):
             latest = health._latest_t.get(role)
             max_age = health.max_age_s
             if latest is None or first < latest or first - latest > max_age or gap > max_age:
                 return False
             if health._invalid.get(role):
                 return False
-            if mode == 1:
-                values = list(map(float, values))
-            elif mode == 2:
-                values = [float(r * scale + offset) for r in values]
-            elif mode == 3:
-                values = [r * scale + offset for r in values]
+            if convert is not None:
+                values = list(map(convert, values))
             low, high = min(values), max(values)
             if not (lo <= low and high <= hi) or (floats and any(map(isnan, values))):
                 return False  # NaN, +-inf, out of range: the row-by-row path says which and when
