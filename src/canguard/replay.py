@@ -282,10 +282,6 @@ class Columns(NamedTuple):
     channel: str | None
     """The channel of every row, or None when the block has several."""
 
-    def t(self, i: int) -> float:
-        """Timestamp of row ``i``."""
-        return float(self.ts[i])
-
     def frame(self, i: int) -> Frame:
         """The frame of row ``i``."""
         id_text = self.ids[i]
@@ -519,6 +515,14 @@ def _open_text(p: Path, gz: bool) -> tuple[io.BufferedReader, TextIO]:
     return raw, io.TextIOWrapper(binary, encoding="utf-8-sig", errors="replace")
 
 
+def _note_order(st: ReadStats, t: float, last_t: float) -> None:
+    """Count ``t`` in ``st`` as going back or repeating when it does, against the previous frame's ``last_t``."""
+    if t < last_t:
+        st.backwards_timestamps += 1
+    elif t == last_t:
+        st.repeated_timestamps += 1
+
+
 def _flatten(chunks: Iterator[Columns | list[Frame]]) -> Iterator[Frame]:
     """The frames of a chunk stream, one by one."""
     for chunk in chunks:
@@ -562,12 +566,8 @@ def _candump_chunks(
             cols = None if last_was_error else _bulk_columns(block, n)
             if cols is not None:
                 ts = cols.ts
-                first_t = float(ts[0])
                 if want_ts_stats:
-                    if first_t < last_t:
-                        st.backwards_timestamps += 1
-                    elif first_t == last_t:
-                        st.repeated_timestamps += 1
+                    _note_order(st, float(ts[0]), last_t)
                     nxt = islice(ts, 1, None)
                     if cols.ordered:  # text order is time order; the usual case, increasing, costs one pass
                         if not all(map(lt, ts, nxt)):
@@ -603,12 +603,8 @@ def _candump_chunks(
                     if fr is None:
                         continue
                     last_was_error = fr.is_error_frame
-                    t = fr.t
-                    if t < last_t:
-                        st.backwards_timestamps += 1
-                    elif t == last_t:
-                        st.repeated_timestamps += 1
-                    last_t = t
+                    _note_order(st, fr.t, last_t)
+                    last_t = fr.t
                     frames += 1
                     st.frames += 1
                     out.append(fr)
@@ -709,12 +705,8 @@ def _read_python_can(p: Path, fmt: str, gz: bool, st: ReadStats, owner: LogFrame
                     f"{p}: {name} reader failed after {frames} frames: {type(exc).__name__}: {exc}"
                 ) from exc
             fr = frame_from_message(msg)
-            t = fr.t
-            if t < last_t:
-                st.backwards_timestamps += 1
-            elif t == last_t:
-                st.repeated_timestamps += 1
-            last_t = t
+            _note_order(st, fr.t, last_t)
+            last_t = fr.t
             frames += 1
             st.frames += 1
             if frames % _PROGRESS_EVERY == 0 and not raw.closed:
