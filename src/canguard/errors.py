@@ -11,7 +11,9 @@
      +-- StateFileError (OSError)      an I²t state file that cannot be read or written
 
 Every error also inherits the matching built-in, so callers that only know
-Python's own exceptions still catch them.
+Python's own exceptions still catch them. ConfigError and TreeError carry every
+problem one load found (``problems``), not only the first: ``canguard check``
+prints them all, one ``file:line: ...`` per line (at most :data:`MAX_SHOWN`).
 """
 
 from __future__ import annotations
@@ -23,16 +25,32 @@ class CanguardError(Exception):
     """Base class of every error canguard raises on purpose."""
 
 
+MAX_SHOWN = 100
+"""At most this many problems are printed; the rest are counted ("... and N more")."""
+
+
+def render_problems(problems: Iterable[str], limit: int = MAX_SHOWN) -> str:
+    """``problems`` one per line, the first ``limit`` of them, then ``... and N more``."""
+    lines = list(problems)
+    if len(lines) <= limit:
+        return "\n".join(lines)
+    return "\n".join([*lines[:limit], f"... and {len(lines) - limit} more"])
+
+
 class ConfigError(CanguardError, ValueError):
     """One or more problems in a YAML config file.
 
     ``problems`` holds every problem found (several errors in one file are all
-    reported, not only the first); ``str()`` joins them one per line.
+    reported, not only the first), each as ``file: key: found X, expected Y``;
+    ``located`` holds the same problems with the line of the key in the file
+    (``file:line: key: ...``) when the loader knows it. ``str()`` is the located
+    form, one per line, capped at :data:`MAX_SHOWN`.
     """
 
-    def __init__(self, problems: str | Iterable[str]) -> None:
+    def __init__(self, problems: str | Iterable[str], located: Iterable[str] | None = None) -> None:
         self.problems: list[str] = [problems] if isinstance(problems, str) else list(problems)
-        super().__init__("\n".join(self.problems))
+        self.located: list[str] = list(located) if located is not None else list(self.problems)
+        super().__init__(render_problems(self.located))
 
 
 class DbcError(CanguardError, ValueError):
@@ -40,7 +58,15 @@ class DbcError(CanguardError, ValueError):
 
 
 class TreeError(CanguardError, ValueError):
-    """A behaviour tree that does not load: names the file, line, node and port at fault."""
+    """A behaviour tree that does not load: names the file, line, node and port at fault.
+
+    ``problems`` holds every problem found in one load (each ``file:line: node ...: what``);
+    ``str()`` lists them one per line, capped at :data:`MAX_SHOWN`.
+    """
+
+    def __init__(self, problems: str | Iterable[str]) -> None:
+        self.problems: list[str] = [problems] if isinstance(problems, str) else list(problems)
+        super().__init__(render_problems(self.problems))
 
 
 class LogFormatError(CanguardError, ValueError):
