@@ -245,14 +245,66 @@ def _path(parent: str, key: Any) -> str:
     return f"{parent}.{key}" if parent else str(key)
 
 
+def _key_lines(text: str) -> dict[str, int]:
+    """The line (1-based) of every key path of a YAML document, in the loader's spelling.
+
+    ``sources.axis0.signal`` is the line of the ``signal:`` key, ``task.frames[1]`` the line
+    of the list item; problems name key paths, and this gives them their line in the file.
+    """
+    try:
+        root = yaml.compose(text, Loader=yaml.SafeLoader)
+    except yaml.YAMLError:
+        return {}
+    lines: dict[str, int] = {}
+    constructor = yaml.SafeLoader("")
+
+    def walk(node: yaml.Node, key: str) -> None:
+        if isinstance(node, yaml.MappingNode):
+            for key_node, value_node in node.value:
+                if not isinstance(key_node, yaml.ScalarNode):
+                    continue
+                try:  # the key as the loader sees it (``1:`` is the int 1, as in the problem's path)
+                    name = constructor.construct_object(key_node)
+                except yaml.YAMLError:
+                    name = key_node.value
+                sub = _path(key, name)
+                lines.setdefault(sub, key_node.start_mark.line + 1)
+                walk(value_node, sub)
+        elif isinstance(node, yaml.SequenceNode):
+            for i, item in enumerate(node.value):
+                sub = f"{key}[{i}]"
+                lines.setdefault(sub, item.start_mark.line + 1)
+                walk(item, sub)
+
+    if root is not None:
+        walk(root, "")
+    return lines
+
+
+def _line_of(lines: Mapping[str, int], key: str) -> int | None:
+    """The line of ``key``, else of its nearest enclosing key that is in the file (a missing key)."""
+    k = key
+    while k:
+        if k in lines:
+            return lines[k]
+        cut = max(k.rfind("."), k.rfind("["))
+        if cut <= 0:
+            return None
+        k = k[:cut]
+    return None
+
+
 class _Loader:
     """One pass over one config file, collecting every problem instead of stopping at the first."""
 
-    def __init__(self, path: Path, display: str) -> None:
+    def __init__(self, path: Path, display: str, lines: Mapping[str, int] | None = None) -> None:
         self.path = path
         self.base = path.parent
         self.display = display
         self.problems: list[str] = []
+        self.located: list[str] = []
+        """``problems`` with the line of their key: ``file:line: key: found X, expected Y``."""
+        self.lines: Mapping[str, int] = lines or {}
         self.database: Any = None
         self.messages_ok = False
         self._by_name: dict[str, Any] = {}
@@ -264,8 +316,15 @@ class _Loader:
 
     # -- problems ----------------------------------------------------------
     def problem(self, key: str, found: str, expected: str) -> None:
-        """Record ``file: key: found X, expected Y``."""
+        """Record ``file: key: found X, expected Y`` (and its located form ``file:line: key: ...``)."""
         self.problems.append(f"{self.display}: {key}: found {found}, expected {expected}")
+        line = _line_of(self.lines, key)
+        where = self.display if line is None else f"{self.display}:{line}"
+        self.located.append(f"{where}: {key}: found {found}, expected {expected}")
+
+    def fail(self) -> ConfigError:
+        """The ConfigError listing every problem recorded so far."""
+        return ConfigError(self.problems, self.located)
 
     # -- generic checks ----------------------------------------------------
     def mapping(self, value: Any, key: str, allowed: tuple[str, ...], required: tuple[str, ...] = ()) -> bool:
@@ -864,7 +923,7 @@ class _Loader:
     def config(self, doc: Any) -> Config:
         top = ("dbc", "buses", "sources", "tree", "task", "stop", "actions", "events", "state")
         if not self.mapping(doc, "", top, ("dbc", "buses")):
-            raise ConfigError(self.problems)
+            raise self.fail()
         dbc_files = self.load_dbc(doc["dbc"]) if "dbc" in doc else ()
         buses = self.buses(doc["buses"]) if "buses" in doc else {}
         raw_sources = doc.get("sources") or {}
@@ -890,7 +949,7 @@ class _Loader:
         events = self.file_path(doc["events"], "events") if doc.get("events") is not None else None
         state = self.state(doc.get("state"))
         if self.problems:
-            raise ConfigError(self.problems)
+            raise self.fail()
         return Config(
             path=self.path,
             dbc_files=dbc_files,
@@ -973,7 +1032,7 @@ def load_config_text(text: str, path: str | Path) -> Config:
         raise ConfigError(
             f"{display}: (top level): found an empty file, expected a mapping with dbc, buses, sources"
         )
-    return _Loader(p, display).config(doc)
+    return _Loader(p, display, _key_lines(text)).config(doc)
 
 
 def load_config(path: str | Path) -> Config:
