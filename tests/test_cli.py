@@ -127,12 +127,12 @@ class TestCheck:
     def test_broken_config_lists_every_error(
         self, capsys: pytest.CaptureFixture[str], tmp_path: Path
     ) -> None:
-        """A config with three mistakes exits 2 and prints all three, each with the file and key path."""
+        """A config with three mistakes exits 2 and prints all three, each with the file, line and key path."""
         path = broken_config(tmp_path)
         code, _, err = cli(capsys, "check", "-c", path)
         assert code == 2
         for key in ("evnts", "sources./battery_state.current", "task.period"):
-            assert re.search(rf"{re.escape(str(path))}: {re.escape(key)}: ", err), (key, err)
+            assert re.search(rf"{re.escape(str(path))}:\d+: {re.escape(key)}: ", err), (key, err)
         assert "closest: events" in err and "Pack_Current" in err
         assert "Traceback" not in err
 

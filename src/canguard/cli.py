@@ -152,7 +152,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return func(args)
     except CanguardError as exc:
-        print(f"canguard {args.command}: error:\n{exc}", file=sys.stderr)
+        # ConfigError / TreeError carry every problem of one load: all are printed, one per line.
+        problems = getattr(exc, "problems", None)
+        count = len(problems) if isinstance(problems, list) else 1
+        head = "error" if count <= 1 else f"{count} errors"
+        print(f"canguard {args.command}: {head}:\n{exc}", file=sys.stderr)
         return 2
     except FileNotFoundError as exc:
         print(f"canguard {args.command}: error: {exc.filename or exc}: no such file", file=sys.stderr)

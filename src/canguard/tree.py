@@ -304,8 +304,17 @@ class _Loader:
         self.infos: dict[str, NodeInfo] = {}
         self.registry: Registry = {}
         self.classes: dict[str, type[PortsMixin]] = {}
+        self.errors: list[str] = []
+        """Every problem found so far (one load reports them all, not only the first)."""
+        self.broken_trees: set[str] = set()
+        """BehaviorTrees whose rewrite failed: not validated further (no follow-on errors)."""
 
     # -- errors ------------------------------------------------------------------------
+    def raise_collected(self) -> None:
+        """Raise one TreeError listing every problem collected so far, if there is any."""
+        if self.errors:
+            raise TreeError(self.errors)
+
     def at(self, elem: ET.Element) -> str:
         file, line = self.where.get(elem, (self.path, 0))
         return f"{file}:{line}"
@@ -379,10 +388,16 @@ class _Loader:
             for attr in [a for a in bt.attrib if a.startswith("_")]:
                 del bt.attrib[attr]  # Groot bookkeeping (_fullpath...), meaningless here
             if len(bt) != 1:
-                raise TreeError(
+                self.errors.append(
                     f"{self.at(bt)}: BehaviorTree {tree_id} must have exactly one root node, found {len(bt)}"
                 )
-            self._rewrite(bt[0], tree_id)
+                self.broken_trees.add(tree_id)
+                continue
+            try:
+                self._rewrite(bt[0], tree_id)
+            except TreeError as exc:
+                self.errors.extend(exc.problems)
+                self.broken_trees.add(tree_id)
 
     def _rewrite(self, elem: ET.Element, tree_id: str) -> None:
         if elem.tag in _V3_WRAPPERS:
@@ -433,20 +448,50 @@ class _Loader:
         return chosen
 
     def validate(self) -> None:
+        """Check every node of every tree, collecting every problem (see :meth:`raise_collected`)."""
         counter = 0
+        guards: list[tuple[ET.Element, type, str]] = []
         for tree_id, bt in self.trees.items():
+            if tree_id in self.broken_trees:
+                continue
             subtree_names: dict[str, int] = {}
             for elem in bt[0].iter():
                 if elem.tag == _SUBTREE:
-                    self._check_subtree(elem, tree_id, subtree_names)
+                    try:
+                        self._check_subtree(elem, tree_id, subtree_names)
+                    except TreeError as exc:
+                        self.errors.extend(exc.problems)
                 else:
-                    self._check_node(elem, tree_id)
+                    cls = self._check_node(elem, tree_id)
+                    if cls is not None and issubclass(cls, GuardNode):
+                        guards.append((elem, cls, tree_id))
                     counter += 1
                     token = f"{_TOKEN}{counter}"
                     file, line = self.where.get(elem, (self.path, 0))
                     readable = elem.attrib.get("name") or elem.tag
                     self.infos[token] = NodeInfo(elem.tag, readable, file, line, tree_id)
                     elem.attrib["name"] = token
+        if self.errors:
+            # The tree will not be built, so binding will not resolve the sources: check the
+            # guards' constant topic_name here so an unknown source is in the same report.
+            for elem, cls, tree_id in guards:
+                self._check_source(elem, cls, tree_id)
+
+    def _check_source(self, elem: ET.Element, cls: type, tree_id: str) -> None:
+        """Record a guard's ``topic_name`` that names no configured source of its kinds."""
+        value = elem.attrib.get("topic_name")
+        try:
+            if value is None or is_key(value):
+                return
+        except ValueError:
+            return  # a malformed {key}: already reported
+        read_before = set(self.ctx.read_sources)
+        try:
+            self.ctx.source(value, cls.SOURCE_KINDS)  # type: ignore[attr-defined]
+        except (KeyError, ValueError) as exc:
+            self.errors.append(str(self.error(elem, str(exc.args[0]), tree_id, "topic_name")))
+        finally:
+            self.ctx.read_sources.intersection_update(read_before)  # only a check: nothing is read yet
 
     def _check_subtree(self, elem: ET.Element, tree_id: str, names: dict[str, int]) -> None:
         target = elem.attrib.get("ID")
@@ -492,15 +537,17 @@ class _Loader:
             )
         return match
 
-    def _check_node(self, elem: ET.Element, tree_id: str) -> None:
+    def _check_node(self, elem: ET.Element, tree_id: str) -> type[PortsMixin] | None:
+        """Record every problem of one node (ID, each port, children); its class, or None if unknown."""
         node_id = elem.tag
         cls = self.classes.get(node_id)
         if cls is None:
             known = _closest(node_id, known_node_ids(self.ctx))
-            raise TreeError(
+            self.errors.append(
                 f"{self.at(elem)}: unknown node ID {node_id!r} (BehaviorTree {tree_id}); "
                 f"known node IDs, closest first: {', '.join(known)}"
             )
+            return None
         ports: dict[str, tuple[str, PortInformation]] = {
             **{n: ("input", i) for n, i in cls.input_ports().items()},
             **{n: ("output", i) for n, i in cls.output_ports().items()},
@@ -511,60 +558,82 @@ class _Loader:
         for attr, value in elem.attrib.items():
             if attr == "name":
                 continue
-            if attr.startswith("_"):
-                raise self.error(elem, f"attribute {attr} (BT.CPP pre/post-conditions) is not supported", tree_id)
-            if attr not in ports:
-                listing = ", ".join(_closest(attr, ports)) if ports else "(none)"
-                raise self.error(elem, f"unknown port {attr!r}; ports of {node_id}: {listing}", tree_id)
-            direction, info = ports[attr]
-            match = self._check_key_syntax(elem, attr, value, tree_id)
-            if match:
-                if attr in const_ports:
-                    raise self.error(
-                        elem,
-                        f"takes a constant (it configures the node at load time), not {value}",
-                        tree_id,
-                        attr,
-                    )
-                continue
-            if direction == "output":
-                raise self.error(
-                    elem,
-                    f"an output port takes a blackboard key like {{{attr}}}, not {value!r}",
-                    tree_id,
-                    attr,
-                )
-            if attr in key_ports:
-                raise self.error(elem, f"takes a blackboard key like {{{attr}}}, not {value!r}", tree_id, attr)
             try:
-                converted, parsed = convert_str_to_type(value, info.data_type)
-            except (ValueError, TypeError):
-                converted, parsed = False, None
-            if not converted:
-                raise self.error(elem, f"{value!r} is not a valid {_type_name(info.data_type)}", tree_id, attr)
-            if isinstance(parsed, float) and math.isnan(parsed):
-                raise self.error(elem, f"{value!r} is not a number", tree_id, attr)
-            allowed = choices.get(attr)
-            if allowed is not None and parsed not in allowed:
-                raise self.error(elem, f"unknown value {value!r}; expected one of {', '.join(allowed)}", tree_id, attr)
+                self._check_port(elem, tree_id, attr, value, ports, const_ports, key_ports, choices)
+            except TreeError as exc:
+                self.errors.extend(exc.problems)
         missing = [
             n for n, (_, info) in ports.items() if info.required and not info.has_default and n not in elem.attrib
         ]
         if missing:
-            raise self.error(
+            self.errors.append(str(self.error(
                 elem,
                 f"missing required port {', '.join(missing)} (ports of {node_id}: {', '.join(ports)})",
                 tree_id,
-            )
+            )))
         n = len(elem)
+        kind_error: str | None = None
         if issubclass(cls, py_trees.decorators.Decorator):
             if n != 1:
-                raise self.error(elem, f"a decorator takes exactly one child, found {n}", tree_id)
+                kind_error = f"a decorator takes exactly one child, found {n}"
         elif issubclass(cls, py_trees.composites.Composite):
             if n == 0:
-                raise self.error(elem, "a control node needs at least one child", tree_id)
+                kind_error = "a control node needs at least one child"
         elif n:
-            raise self.error(elem, f"{node_kind(cls).lower()} nodes take no children, found {n}", tree_id)
+            kind_error = f"{node_kind(cls).lower()} nodes take no children, found {n}"
+        if kind_error is not None:
+            self.errors.append(str(self.error(elem, kind_error, tree_id)))
+        return cls
+
+    def _check_port(
+        self,
+        elem: ET.Element,
+        tree_id: str,
+        attr: str,
+        value: str,
+        ports: Mapping[str, tuple[str, PortInformation]],
+        const_ports: Collection[str],
+        key_ports: Collection[str],
+        choices: Mapping[str, tuple[str, ...]],
+    ) -> None:
+        """Raise the TreeError of one attribute of a node (unknown port, bad value...), if any."""
+        node_id = elem.tag
+        if attr.startswith("_"):
+            raise self.error(elem, f"attribute {attr} (BT.CPP pre/post-conditions) is not supported", tree_id)
+        if attr not in ports:
+            listing = ", ".join(_closest(attr, ports)) if ports else "(none)"
+            raise self.error(elem, f"unknown port {attr!r}; ports of {node_id}: {listing}", tree_id)
+        direction, info = ports[attr]
+        match = self._check_key_syntax(elem, attr, value, tree_id)
+        if match:
+            if attr in const_ports:
+                raise self.error(
+                    elem,
+                    f"takes a constant (it configures the node at load time), not {value}",
+                    tree_id,
+                    attr,
+                )
+            return
+        if direction == "output":
+            raise self.error(
+                elem,
+                f"an output port takes a blackboard key like {{{attr}}}, not {value!r}",
+                tree_id,
+                attr,
+            )
+        if attr in key_ports:
+            raise self.error(elem, f"takes a blackboard key like {{{attr}}}, not {value!r}", tree_id, attr)
+        try:
+            converted, parsed = convert_str_to_type(value, info.data_type)
+        except (ValueError, TypeError):
+            converted, parsed = False, None
+        if not converted:
+            raise self.error(elem, f"{value!r} is not a valid {_type_name(info.data_type)}", tree_id, attr)
+        if isinstance(parsed, float) and math.isnan(parsed):
+            raise self.error(elem, f"{value!r} is not a number", tree_id, attr)
+        allowed = choices.get(attr)
+        if allowed is not None and parsed not in allowed:
+            raise self.error(elem, f"unknown value {value!r}; expected one of {', '.join(allowed)}", tree_id, attr)
 
     def check_cycles(self, main_id: str) -> None:
         def visit(tree_id: str, stack: list[str]) -> None:
@@ -636,14 +705,15 @@ class _Loader:
                 try:
                     node.bind()
                 except PortError as exc:
-                    raise TreeError(
+                    self.errors.append(
                         f"{info.file}:{info.line}: node {info.name} (BehaviorTree {info.tree}), "
                         f"port {exc.port}: {exc.message}"
-                    ) from None
+                    )
                 except (ValueError, KeyError, TypeError) as exc:
-                    raise TreeError(
+                    self.errors.append(
                         f"{info.file}:{info.line}: node {info.name} (BehaviorTree {info.tree}): {exc}"
-                    ) from None
+                    )
+        self.raise_collected()  # every node that cannot bind, not only the first
         return LoadedTree(
             root=root,
             tree=py_trees.trees.BehaviourTree(root=root),
@@ -671,9 +741,14 @@ def load_tree(path: str | Path, ctx: Context, main: str | None = None) -> Loaded
     loader = _Loader(Path(path), ctx)
     loader.read()
     loader.rewrite()
-    main_id = loader.choose_main(main)
+    try:
+        main_id = loader.choose_main(main)
+    except TreeError as exc:
+        loader.errors.extend(exc.problems)
+        main_id = ""
     loader.make_registry()
     loader.validate()
+    loader.raise_collected()  # every node problem of every tree at once
     loader.check_cycles(main_id)
     root = loader.parse(main_id)
     return loader.finish(root, main_id)
@@ -705,6 +780,7 @@ def validate_against_config(loaded: LoadedTree, cfg: Config) -> ConfigCheck:
     """
     listing = ", ".join(f"{n} ({s.kind})" for n, s in sorted(cfg.sources.items())) or "(none configured)"
     read: set[str] = set()
+    errors: list[str] = []
     for guard in loaded.guard_nodes():
         info = loaded.info(guard)
         name = guard.topic_name
@@ -712,13 +788,17 @@ def validate_against_config(loaded: LoadedTree, cfg: Config) -> ConfigCheck:
         src = cfg.sources.get(name)
         where = f"{info.file}:{info.line}: node {info.name} (BehaviorTree {info.tree}), port topic_name"
         if src is None:
-            raise TreeError(f"{where}: unknown source {name!r}; configured sources: {listing}")
+            errors.append(f"{where}: unknown source {name!r}; configured sources: {listing}")
+            continue
         if src.kind not in kinds:
-            raise TreeError(
+            errors.append(
                 f"{where}: source {name!r} is of kind {src.kind}, {info.node_id} needs "
                 f"{' or '.join(kinds)}; configured sources: {listing}"
             )
+            continue
         read.add(name)
+    if errors:
+        raise TreeError(errors)
     return ConfigCheck(unread_sources=tuple(n for n in cfg.sources if n not in read))
 
 
