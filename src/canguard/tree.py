@@ -450,7 +450,8 @@ class _Loader:
     def validate(self) -> None:
         """Check every node of every tree, collecting every problem (see :meth:`raise_collected`)."""
         counter = 0
-        guards: list[tuple[ET.Element, type, str]] = []
+        pending: list[tuple[int, str]] = []
+        """Unknown sources, with their place in ``errors``: reported only with other problems."""
         for tree_id, bt in self.trees.items():
             if tree_id in self.broken_trees:
                 continue
@@ -464,7 +465,9 @@ class _Loader:
                 else:
                     cls = self._check_node(elem, tree_id)
                     if cls is not None and issubclass(cls, GuardNode):
-                        guards.append((elem, cls, tree_id))
+                        source_error = self._check_source(elem, cls, tree_id)
+                        if source_error is not None:
+                            pending.append((len(self.errors), source_error))
                     counter += 1
                     token = f"{_TOKEN}{counter}"
                     file, line = self.where.get(elem, (self.path, 0))
@@ -472,26 +475,27 @@ class _Loader:
                     self.infos[token] = NodeInfo(elem.tag, readable, file, line, tree_id)
                     elem.attrib["name"] = token
         if self.errors:
-            # The tree will not be built, so binding will not resolve the sources: check the
-            # guards' constant topic_name here so an unknown source is in the same report.
-            for elem, cls, tree_id in guards:
-                self._check_source(elem, cls, tree_id)
+            # The tree will not be built, so binding (which resolves the sources and reports an
+            # unknown one) will not run: the guards' unknown sources join this report, in place.
+            for place, text in reversed(pending):
+                self.errors.insert(place, text)
 
-    def _check_source(self, elem: ET.Element, cls: type, tree_id: str) -> None:
-        """Record a guard's ``topic_name`` that names no configured source of its kinds."""
+    def _check_source(self, elem: ET.Element, cls: type, tree_id: str) -> str | None:
+        """The problem of a guard's constant ``topic_name`` naming no configured source of its kinds."""
         value = elem.attrib.get("topic_name")
         try:
             if value is None or is_key(value):
-                return
+                return None
         except ValueError:
-            return  # a malformed {key}: already reported
+            return None  # a malformed {key}: already reported
         read_before = set(self.ctx.read_sources)
         try:
             self.ctx.source(value, cls.SOURCE_KINDS)  # type: ignore[attr-defined]
         except (KeyError, ValueError) as exc:
-            self.errors.append(str(self.error(elem, str(exc.args[0]), tree_id, "topic_name")))
+            return str(self.error(elem, str(exc.args[0]), tree_id, "topic_name"))
         finally:
             self.ctx.read_sources.intersection_update(read_before)  # only a check: nothing is read yet
+        return None
 
     def _check_subtree(self, elem: ET.Element, tree_id: str, names: dict[str, int]) -> None:
         target = elem.attrib.get("ID")
