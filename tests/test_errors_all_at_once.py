@@ -226,6 +226,32 @@ class TestTreeErrorsAtOnce:
         assert "must have exactly one root node, found 2" in info.value.problems[0]
         assert "unknown node ID 'Nope'" in info.value.problems[1]
 
+    def test_config_and_tree_mistakes_in_one_check(
+        self, capsys: pytest.CaptureFixture[str], tmp_path: Path
+    ) -> None:
+        """Config mistakes and tree mistakes come in one check; a source or action the config got wrong
+        is not reported again by the tree, an undeclared one is."""
+        text = config_text(extra="actions:\n  Park: {frames: [{message: Nope}]}\n").replace(
+            "kind: current", "kind: curent"
+        )
+        tree = GOOD_TREE.replace(
+            "<ExecuteTask/>",
+            '<IsCurrentNormal topic_name="axis0" max_current="x"/>\n'
+            '      <IsCurrentNormal topic_name="/nowhere"/>\n'
+            "      <Park/>\n"
+            "      <ExecuteTask/>",
+        )
+        path = write(tmp_path, text, tree)
+        code, _, err = cli(capsys, "check", "-c", path)
+        assert code == 2
+        xml = tmp_path / "tree.xml"
+        lines = error_lines(err)
+        assert [line.split(": ", 1)[0] for line in lines] == [f"{path}:6", f"{path}:9", f"{xml}:5", f"{xml}:6"]
+        assert "sources.axis0.kind: found 'curent'" in lines[0]
+        assert "actions.Park.frames[0].message: found 'Nope'" in lines[1]
+        assert "port max_current: 'x' is not a valid float" in lines[2]
+        assert "unknown source '/nowhere'" in lines[3]
+
     @pytest.mark.parametrize("command", ["tree", "replay"])
     def test_other_commands_print_every_tree_error(
         self, capsys: pytest.CaptureFixture[str], tmp_path: Path, command: str

@@ -53,9 +53,17 @@ def _add_check(sub: argparse._SubParsersAction) -> None:
 def _cmd_check(args: argparse.Namespace) -> int:
     from .check import describe
     from .config import load_config
-    from .tree import check_tree
+    from .errors import ConfigError
+    from .tree import check_tree, partial_tree_problems
 
-    cfg = load_config(_config_path(args))
+    try:
+        cfg = load_config(_config_path(args))
+    except ConfigError as exc:
+        # The tree's own mistakes belong in the same report: check it against what did load.
+        tree_problems = partial_tree_problems(exc.partial)
+        if not tree_problems:
+            raise
+        raise ConfigError([*exc.problems, *tree_problems], [*exc.located, *tree_problems]) from None
     print(describe(cfg))
     if cfg.tree is not None:
         report = check_tree(cfg)

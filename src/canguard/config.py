@@ -174,6 +174,26 @@ class Config:
     """The merged ``cantools.database.Database`` of every DBC file."""
 
 
+@dataclass(frozen=True)
+class PartialConfig:
+    """The sound parts of a config that has problems (``ConfigError.partial``).
+
+    ``canguard check`` checks the tree against them, so the tree's mistakes are
+    listed in the same run as the config's.
+    """
+
+    tree: TreeConfig | None
+    """``tree:`` when it names an existing file."""
+    sources: Mapping[str, SourceConfig]
+    """The sources that were built (some may miss signals the config got wrong)."""
+    declared_sources: frozenset[str]
+    """Every source name declared: a tree naming one that was not built is a follow-on error."""
+    sources_ok: bool
+    """False when ``sources:`` itself is unusable: the tree's source names are not checked then."""
+    actions: Mapping[str, ActionConfig]
+    """Every well-formed action node ID declared (with its frames when they loaded)."""
+
+
 # ---------------------------------------------------------------------------
 # The loader. Everything below turns YAML into the dataclasses above.
 # ---------------------------------------------------------------------------
@@ -920,6 +940,27 @@ class _Loader:
             file=file, on_corrupt=on_corrupt, save_period_s=self.seconds(value, "save_period", "state", 5.0)
         )
 
+    def partial(
+        self, doc: Mapping[str, Any], tree: TreeConfig | None, actions: Mapping[str, ActionConfig]
+    ) -> PartialConfig:
+        """What of a config with problems is sound enough to check its tree against."""
+        raw_actions = doc.get("actions")
+        names = [n for n in raw_actions if isinstance(n, str)] if isinstance(raw_actions, Mapping) else []
+        builtin = _builtin_node_ids() if names else frozenset()
+        # An action whose frames are wrong is still an action node ID the tree may use.
+        all_actions = {
+            n: actions.get(n, ActionConfig(name=n)) for n in names if _IDENT.fullmatch(n) and n not in builtin
+        }
+        raw_sources = doc.get("sources")
+        declared = frozenset(str(n) for n in raw_sources) if isinstance(raw_sources, Mapping) else frozenset()
+        return PartialConfig(
+            tree=tree if tree is not None and tree.file.is_file() else None,
+            sources=MappingProxyType(dict(self.sources)),
+            declared_sources=declared,
+            sources_ok=self._sources_ok,
+            actions=MappingProxyType(all_actions),
+        )
+
     def config(self, doc: Any) -> Config:
         top = ("dbc", "buses", "sources", "tree", "task", "stop", "actions", "events", "state")
         if not self.mapping(doc, "", top, ("dbc", "buses")):
@@ -949,7 +990,9 @@ class _Loader:
         events = self.file_path(doc["events"], "events") if doc.get("events") is not None else None
         state = self.state(doc.get("state"))
         if self.problems:
-            raise self.fail()
+            err = self.fail()
+            err.partial = self.partial(doc, tree, actions)
+            raise err
         return Config(
             path=self.path,
             dbc_files=dbc_files,

@@ -19,6 +19,7 @@ prints them all, one ``file:line: ...`` per line (at most :data:`MAX_SHOWN`).
 from __future__ import annotations
 
 from collections.abc import Iterable
+from typing import Any
 
 
 class CanguardError(Exception):
@@ -46,6 +47,9 @@ class ConfigError(CanguardError, ValueError):
     (``file:line: key: ...``) when the loader knows it. ``str()`` is the located
     form, one per line, capped at :data:`MAX_SHOWN`.
     """
+
+    partial: Any = None
+    """The sound parts of the config (a ``canguard.config.PartialConfig``), set by the loader."""
 
     def __init__(self, problems: str | Iterable[str], located: Iterable[str] | None = None) -> None:
         self.problems: list[str] = [problems] if isinstance(problems, str) else list(problems)

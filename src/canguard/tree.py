@@ -55,7 +55,7 @@ from py_trees.parsers.behaviour_tree_xml import XMLParserError, is_key, parse_be
 from py_trees.ports import PortInformation, PortsMixin
 from py_trees.ports_utils import convert_str_to_type
 
-from .config import Config, SourceKind
+from .config import Config, PartialConfig, SourceKind
 from .context import Context
 from .errors import TreeError
 from .nodes import BUILTIN_NODES, CanguardNode, ConfiguredAction, GuardNode, PortError
@@ -308,6 +308,11 @@ class _Loader:
         """Every problem found so far (one load reports them all, not only the first)."""
         self.broken_trees: set[str] = set()
         """BehaviorTrees whose rewrite failed: not validated further (no follow-on errors)."""
+        self.source_check: Literal["with_others", "always", "never"] = "with_others"
+        """When :meth:`validate` checks guards' sources: with other problems (binding checks them
+        otherwise), always (a tree checked without binding), or never (the sources are unknown)."""
+        self.unsure_sources: Collection[str] = ()
+        """Source names a config declares but could not build: not reported as unknown (follow-on)."""
 
     # -- errors ------------------------------------------------------------------------
     def raise_collected(self) -> None:
@@ -330,6 +335,22 @@ class _Loader:
         if port is not None:
             where += f", port {port}"
         return TreeError(f"{self.at(elem)}: {where}: {msg}")
+
+    def check(self, main: str | None) -> str:
+        """Steps 1 to 3: read, rewrite, choose the main tree, validate every node; the main tree's ID.
+
+        Problems are collected in ``errors``; a file that cannot be read or parsed raises at once.
+        """
+        self.read()
+        self.rewrite()
+        try:
+            main_id = self.choose_main(main)
+        except TreeError as exc:
+            self.errors.extend(exc.problems)
+            main_id = ""
+        self.make_registry()
+        self.validate()
+        return main_id
 
     # -- step 1: read, includes ---------------------------------------------------------
     def read(self) -> None:
@@ -474,7 +495,7 @@ class _Loader:
                     readable = elem.attrib.get("name") or elem.tag
                     self.infos[token] = NodeInfo(elem.tag, readable, file, line, tree_id)
                     elem.attrib["name"] = token
-        if self.errors:
+        if self.source_check == "always" or (self.errors and self.source_check == "with_others"):
             # The tree will not be built, so binding (which resolves the sources and reports an
             # unknown one) will not run: the guards' unknown sources join this report, in place.
             for place, text in reversed(pending):
@@ -484,10 +505,12 @@ class _Loader:
         """The problem of a guard's constant ``topic_name`` naming no configured source of its kinds."""
         value = elem.attrib.get("topic_name")
         try:
-            if value is None or is_key(value):
+            if value is None or is_key(value) or self.source_check == "never":
                 return None
         except ValueError:
             return None  # a malformed {key}: already reported
+        if value in self.unsure_sources and value not in self.ctx.sources:
+            return None
         read_before = set(self.ctx.read_sources)
         try:
             self.ctx.source(value, cls.SOURCE_KINDS)  # type: ignore[attr-defined]
@@ -743,15 +766,7 @@ def load_tree(path: str | Path, ctx: Context, main: str | None = None) -> Loaded
     Every problem is a :class:`~canguard.errors.TreeError` naming file and line.
     """
     loader = _Loader(Path(path), ctx)
-    loader.read()
-    loader.rewrite()
-    try:
-        main_id = loader.choose_main(main)
-    except TreeError as exc:
-        loader.errors.extend(exc.problems)
-        main_id = ""
-    loader.make_registry()
-    loader.validate()
+    main_id = loader.check(main)
     loader.raise_collected()  # every node problem of every tree at once
     loader.check_cycles(main_id)
     root = loader.parse(main_id)
@@ -912,6 +927,27 @@ def load_config_tree(cfg: Config, ctx: Context | None = None) -> LoadedTree:
     if cfg.tree is None:
         raise TreeError(f"{cfg.path}: tree: missing, expected {{file: TREE.xml, main: ID, tick_hz: HZ}}")
     return load_tree(cfg.tree.file, ctx if ctx is not None else context_for(cfg), cfg.tree.main)
+
+
+def partial_tree_problems(partial: PartialConfig | None) -> list[str]:
+    """The problems of the tree of a config that has problems itself (``ConfigError.partial``).
+
+    The tree is checked without being built: node IDs, ports, values, children, and the
+    guards' sources against the sources that loaded (a source the config declares but got
+    wrong is not reported again). Empty when the config names no readable tree.
+    """
+    if partial is None or partial.tree is None:
+        return []
+    from .clock import ManualClock
+
+    loader = _Loader(partial.tree.file, Context(ManualClock(), partial.sources, actions=partial.actions))
+    loader.source_check = "always" if partial.sources_ok else "never"
+    loader.unsure_sources = partial.declared_sources
+    try:
+        loader.check(partial.tree.main)
+    except TreeError as exc:  # unreadable or not well-formed XML, a broken include
+        return [*loader.errors, *exc.problems]
+    return loader.errors
 
 
 def check_tree(cfg: Config) -> TreeReport:
