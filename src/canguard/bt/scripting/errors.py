@@ -1,0 +1,41 @@
+"""The one error of the scripting language: where in the script, and what was expected."""
+
+from __future__ import annotations
+
+
+class ScriptError(ValueError):
+    """A script that does not parse (at load) or that fails while it runs (at tick).
+
+    ``message`` says what went wrong and what was expected; ``pos`` is the 0-based
+    offset in the script (``None`` when the error concerns the whole script),
+    ``line`` and ``column`` are 1-based. ``str()`` reads
+    ``column 7: expected ')' ...`` (``line 2, column 3: ...`` for multi-line scripts),
+    so a caller can prefix it with the file, line and attribute the script came from.
+    """
+
+    def __init__(self, message: str, pos: int | None = None, script: str | None = None) -> None:
+        self.message = message
+        self.pos = pos
+        self.script = script
+        self.line: int | None = None
+        self.column: int | None = None
+        if pos is not None and script is not None:
+            before = script[:pos]
+            self.line = before.count("\n") + 1
+            self.column = pos - (before.rfind("\n") + 1) + 1
+        super().__init__(str(self))
+
+    def located(self, script: str) -> ScriptError:
+        """This error with line and column computed against ``script`` (a copy if it had none)."""
+        if self.script is not None:
+            return self
+        err = ScriptError(self.message, self.pos, script)
+        err.__cause__ = self.__cause__
+        return err
+
+    def __str__(self) -> str:
+        if self.column is None:
+            return self.message
+        multiline = self.script is not None and "\n" in self.script
+        where = f"line {self.line}, column {self.column}" if multiline else f"column {self.column}"
+        return f"{where}: {self.message}"

@@ -1,0 +1,344 @@
+"""The syntax tree of a script and its evaluation, with BehaviorTree.CPP 4's semantics.
+
+Each node keeps the offset of its token (an operator's own position) so a
+runtime error names the column. Evaluation never calls Python's eval/exec; it
+walks these nodes. See :mod:`.values` for the typing rules.
+
+Two BT.CPP behaviours worth knowing: ``&&`` and ``||`` evaluate both operands
+(no short-circuit), and comparisons chain (``1 < x < 3`` is ``1 < x and x < 3``).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+from .blackboard import ScriptBlackboard
+from .errors import ScriptError
+from .values import (
+    FLT_EPSILON,
+    INT64_MAX,
+    INT64_MIN,
+    UNSET,
+    convert_for_entry,
+    describe,
+    entry_type,
+    is_number,
+    logic_bool,
+    number_text,
+    string_to_real,
+    to_int64,
+    to_real,
+    type_name,
+)
+
+
+class Env:
+    """What a script runs against: a blackboard and the registered enums (name -> int)."""
+
+    __slots__ = ("bb", "enums")
+
+    def __init__(self, bb: ScriptBlackboard, enums: Mapping[str, int] | None = None) -> None:
+        self.bb = bb
+        self.enums = enums
+
+
+def _not_init(side: str, op: str, pos: int) -> ScriptError:
+    return ScriptError(f"the {side} operand of the operator [{op}] is not initialized", pos)
+
+
+def _real(value: int | float, pos: int) -> float:
+    try:
+        return to_real(value)
+    except ValueError as exc:
+        raise ScriptError(str(exc), pos) from None
+
+
+def _divide(lv: float, rv: float) -> float:
+    """IEEE division, as a C++ double: x/0 is +-inf, 0/0 is nan."""
+    if rv != 0.0:
+        return lv / rv
+    if lv == 0.0 or math.isnan(lv):
+        return math.nan
+    return math.copysign(math.inf, lv) * math.copysign(1.0, rv)
+
+
+@dataclass(frozen=True)
+class Expr:
+    pos: int
+
+    def evaluate(self, env: Env) -> object:
+        raise NotImplementedError
+
+    def names(self, out: set[str]) -> None:
+        """Add the names this expression reads or writes to ``out``."""
+
+
+@dataclass(frozen=True)
+class Literal(Expr):
+    value: object
+
+    def evaluate(self, env: Env) -> object:
+        return self.value
+
+
+@dataclass(frozen=True)
+class Name(Expr):
+    name: str
+
+    def evaluate(self, env: Env) -> object:
+        # a registered enum wins over a blackboard entry of the same name, as in BT.CPP
+        if env.enums is not None and self.name in env.enums:
+            return float(env.enums[self.name])
+        if not env.bb.has(self.name):
+            raise ScriptError(
+                f"variable not found: [{self.name}] (no blackboard entry and no enum of that name)", self.pos
+            )
+        try:
+            return env.bb.get(self.name)
+        except KeyError:
+            return UNSET
+
+    def names(self, out: set[str]) -> None:
+        out.add(self.name)
+
+
+@dataclass(frozen=True)
+class Unary(Expr):
+    op: str  # "-", "~" or "!"
+    operand: Expr
+
+    def evaluate(self, env: Env) -> object:
+        value = self.operand.evaluate(env)
+        if isinstance(value, (int, float)):
+            if self.op == "-":
+                return -_real(value, self.pos)
+            if self.op == "!":
+                return not bool(value)
+            rv = float(value)
+            if math.isnan(rv) or rv > INT64_MAX or rv < INT64_MIN:
+                raise ScriptError(f"{describe(value)} is out of range for the bitwise operator [~]", self.pos)
+            return float(~int(value))
+        if value is UNSET:
+            raise _not_init("right", self.op, self.pos)
+        raise ScriptError(f"the operator [{self.op}] expects a number, got {describe(value)}", self.pos)
+
+    def names(self, out: set[str]) -> None:
+        self.operand.names(out)
+
+
+@dataclass(frozen=True)
+class Binary(Expr):
+    op: str  # + - * / .. & | ^ && ||
+    lhs: Expr
+    rhs: Expr
+
+    def evaluate(self, env: Env) -> object:
+        op = self.op
+        lv = self.lhs.evaluate(env)
+        rv = self.rhs.evaluate(env)
+        if lv is UNSET:
+            raise _not_init("left", op, self.pos)
+        if rv is UNSET:
+            raise _not_init("right", op, self.pos)
+        if isinstance(lv, (int, float)) and isinstance(rv, (int, float)):
+            if op in "+-*/":
+                a, b = _real(lv, self.pos), _real(rv, self.pos)
+                if op == "+":
+                    return a + b
+                if op == "-":
+                    return a - b
+                if op == "*":
+                    return a * b
+                return _divide(a, b)
+            if op in ("&", "|", "^"):
+                li, ri = to_int64(lv), to_int64(rv)
+                if li is None or ri is None:
+                    bad = lv if li is None else rv
+                    raise ScriptError(
+                        f"the bitwise operator [{op}] expects integers, got {describe(bad)}", self.pos
+                    )
+                return float(li & ri if op == "&" else li | ri if op == "|" else li ^ ri)
+            if op in ("&&", "||"):
+                lb, rb = logic_bool(lv), logic_bool(rv)
+                if lb is None or rb is None:
+                    bad = lv if lb is None else rv
+                    raise ScriptError(
+                        f"the logic operator [{op}] expects booleans (or the numbers 0 and 1), got {describe(bad)}",
+                        self.pos,
+                    )
+                return (lb and rb) if op == "&&" else (lb or rb)
+        elif isinstance(lv, str) and isinstance(rv, str) and op in ("+", ".."):
+            return lv + rv
+        elif op == ".." and (isinstance(lv, str) or isinstance(rv, str)) and (is_number(lv) or is_number(rv)):
+            left = lv if isinstance(lv, str) else number_text(lv)  # type: ignore[arg-type]
+            right = rv if isinstance(rv, str) else number_text(rv)  # type: ignore[arg-type]
+            return left + right
+        if op == "..":
+            expected = "at least one string (and otherwise numbers)"
+        elif op in ("+",):
+            expected = "two numbers or two strings"
+        else:
+            expected = "numbers"
+        raise ScriptError(
+            f"operation not permitted: [{op}] between {describe(lv)} and {describe(rv)} (expected {expected})",
+            self.pos,
+        )
+
+    def names(self, out: set[str]) -> None:
+        self.lhs.names(out)
+        self.rhs.names(out)
+
+
+def _compare(op: str, a: object, b: object) -> bool:
+    if op == "==":
+        return abs(a - b) <= FLT_EPSILON if isinstance(a, float) else a == b  # type: ignore[operator]
+    if op == "!=":
+        return not _compare("==", a, b)
+    if op == "<":
+        return a < b  # type: ignore[operator]
+    if op == ">":
+        return a > b  # type: ignore[operator]
+    if op == "<=":
+        return a <= b  # type: ignore[operator]
+    return a >= b  # type: ignore[operator]
+
+
+@dataclass(frozen=True)
+class Compare(Expr):
+    ops: tuple[tuple[str, int], ...]  # (operator, its position), one per pair of operands
+    operands: tuple[Expr, ...]
+
+    def evaluate(self, env: Env) -> object:
+        lv = self.operands[0].evaluate(env)
+        for (op, pos), operand in zip(self.ops, self.operands[1:], strict=True):
+            rv = operand.evaluate(env)
+            if lv is UNSET:
+                raise _not_init("left", op, pos)
+            if rv is UNSET:
+                raise _not_init("right", op, pos)
+            a: object
+            b: object
+            if is_number(lv) and is_number(rv):
+                a, b = _real(lv, pos), _real(rv, pos)  # type: ignore[arg-type]
+            elif isinstance(lv, str) and isinstance(rv, str):
+                a, b = lv, rv
+            elif (isinstance(lv, str) and is_number(rv)) or (is_number(lv) and isinstance(rv, str)):
+                text = lv if isinstance(lv, str) else rv
+                number = string_to_real(text, env.enums)  # type: ignore[arg-type]
+                if number is None:
+                    raise ScriptError(
+                        f"can't compare {describe(text)} with a number: expected a number's text, "
+                        "true, false or an enum name",
+                        pos,
+                    )
+                a = number if isinstance(lv, str) else _real(lv, pos)  # type: ignore[arg-type]
+                b = number if isinstance(rv, str) else _real(rv, pos)  # type: ignore[arg-type]
+            else:
+                raise ScriptError(
+                    f"can't mix different types in a comparison: {describe(lv)} [{op}] {describe(rv)}", pos
+                )
+            if not _compare(op, a, b):
+                return False
+            lv = rv
+        return True
+
+    def names(self, out: set[str]) -> None:
+        for operand in self.operands:
+            operand.names(out)
+
+
+@dataclass(frozen=True)
+class Ternary(Expr):
+    condition: Expr
+    then: Expr
+    otherwise: Expr
+
+    def evaluate(self, env: Env) -> object:
+        value = self.condition.evaluate(env)
+        if isinstance(value, str):
+            chosen = value != ""
+        elif isinstance(value, (int, float)):
+            chosen = value != 0
+        elif value is UNSET:
+            raise _not_init("left", "?", self.pos)
+        else:
+            raise ScriptError(f"the condition of [?] must be a number or a string, got {describe(value)}", self.pos)
+        return self.then.evaluate(env) if chosen else self.otherwise.evaluate(env)
+
+    def names(self, out: set[str]) -> None:
+        self.condition.names(out)
+        self.then.names(out)
+        self.otherwise.names(out)
+
+
+@dataclass(frozen=True)
+class Assign(Expr):
+    op: str  # := = += -= *= /=
+    name: str
+    rhs: Expr
+
+    def evaluate(self, env: Env) -> object:
+        op, key, bb = self.op, self.name, env.bb
+        if not bb.has(key) and op != ":=":
+            raise ScriptError(
+                f"the blackboard entry [{key}] doesn't exist yet; "
+                f"to create it, use the operator [:=] instead of [{op}]",
+                self.pos,
+            )
+        value = self.rhs.evaluate(env)
+        if value is UNSET:
+            raise _not_init("right", op, self.pos)
+        try:
+            current = bb.get(key)
+        except KeyError:
+            current = UNSET
+        declared = bb.declared_type(key) if bb.has(key) else None
+        if op in (":=", "="):
+            result = value if current is UNSET and declared is None else self._convert(value, current, declared, env)
+        else:
+            result = self._compound(value, current, declared, env)
+        bb.set(key, result)
+        return result
+
+    def _convert(self, value: object, current: object, declared: type | None, env: Env) -> object:
+        target = entry_type(current) if current is not UNSET else declared
+        assert target is not None
+        try:
+            return convert_for_entry(value, target, env.enums)
+        except ValueError as exc:
+            what = "holds" if current is not UNSET else "is declared as"
+            raise ScriptError(
+                f"can't assign {describe(value)} to the entry [{self.name}], which {what} {type_name(target)} ({exc})",
+                self.pos,
+            ) from None
+
+    def _compound(self, value: object, current: object, declared: type | None, env: Env) -> object:
+        op = self.op
+        if current is UNSET:
+            raise _not_init("left", op, self.pos)
+        result: object
+        if isinstance(value, (int, float)):
+            if not isinstance(current, (int, float)):
+                raise ScriptError(
+                    f"the operator [{op}] needs a numeric entry, but [{self.name}] holds {describe(current)}", self.pos
+                )
+            a, b = _real(current, self.pos), _real(value, self.pos)
+            result = a + b if op == "+=" else a - b if op == "-=" else a * b if op == "*=" else _divide(a, b)
+        elif isinstance(value, str):
+            if op != "+=":
+                raise ScriptError(f"the operator [{op}] is not supported for strings (only [+=] is)", self.pos)
+            if not isinstance(current, str):
+                raise ScriptError(
+                    f"can't append {describe(value)} to the entry [{self.name}], which holds {describe(current)}",
+                    self.pos,
+                )
+            result = current + value
+        else:
+            raise ScriptError(f"the operator [{op}] expects a number or a string, got {describe(value)}", self.pos)
+        return self._convert(result, current, declared, env)
+
+    def names(self, out: set[str]) -> None:
+        out.add(self.name)
+        self.rhs.names(out)

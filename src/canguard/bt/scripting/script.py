@@ -1,0 +1,108 @@
+"""A parsed script: parse once at load, run at every tick."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import fields
+
+from .blackboard import ScriptBlackboard
+from .errors import ScriptError
+from .expr import Assign, Env, Expr
+from .parser import parse_statements
+from .values import UNSET, as_condition
+
+MAX_DEPTH = 200
+"""Deepest expression tree a script may have (nesting and operator chains); keeps a
+tick's evaluation far from Python's recursion limit."""
+
+
+def _children(expr: Expr) -> list[Expr]:
+    out: list[Expr] = []
+    for f in fields(expr):
+        value = getattr(expr, f.name)
+        if isinstance(value, Expr):
+            out.append(value)
+        elif isinstance(value, tuple):
+            out.extend(v for v in value if isinstance(v, Expr))
+    return out
+
+
+def _depth(expr: Expr) -> int:
+    deepest = 0
+    stack = [(expr, 1)]
+    while stack:
+        node, depth = stack.pop()
+        deepest = max(deepest, depth)
+        stack.extend((child, depth + 1) for child in _children(node))
+    return deepest
+
+
+class Script:
+    """The statements of one script (BT.CPP's ``code``, ``_skipIf`` ... attributes).
+
+    ``run`` evaluates the statements in order against a blackboard and returns the
+    value of the last one (None when that is an entry without a value); a failure is
+    a :class:`ScriptError` naming the column. ``variables`` lists the names the
+    script reads or writes, for validation at load.
+    """
+
+    __slots__ = ("_statements", "text")
+
+    def __init__(self, text: str) -> None:
+        try:
+            statements = parse_statements(text)
+        except RecursionError:
+            raise ScriptError(f"script nested too deeply (more than {MAX_DEPTH} levels)") from None
+        for stmt in statements:
+            if _depth(stmt) > MAX_DEPTH:
+                raise ScriptError(f"expression nested too deeply (more than {MAX_DEPTH} levels)", stmt.pos, text)
+        self.text = text
+        self._statements: tuple[Expr, ...] = tuple(statements)
+
+    def __repr__(self) -> str:
+        return f"Script({self.text!r})"
+
+    def run(self, blackboard: ScriptBlackboard, enums: Mapping[str, int] | None = None) -> object:
+        """Run every statement; the value of the last one."""
+        env = Env(blackboard, enums)
+        try:
+            value: object = None
+            for stmt in self._statements:
+                value = stmt.evaluate(env)
+        except ScriptError as exc:
+            raise exc.located(self.text) from None
+        return None if value is UNSET else value
+
+    def condition(self, blackboard: ScriptBlackboard, enums: Mapping[str, int] | None = None) -> bool:
+        """Run the script and take its value as a boolean (ScriptCondition, ``_skipIf`` ...).
+
+        ScriptError when the value is not boolean-convertible (see :func:`.values.as_condition`).
+        """
+        value = self.run(blackboard, enums)
+        try:
+            return as_condition(value)
+        except ValueError as exc:
+            raise ScriptError(f"{exc} from the script {self.text!r}") from None
+
+    def variables(self, enums: Mapping[str, int] | None = None) -> frozenset[str]:
+        """The blackboard keys the script reads or writes (registered enum names left out)."""
+        names: set[str] = set()
+        for stmt in self._statements:
+            stmt.names(names)
+        return frozenset(n for n in names if enums is None or n not in enums)
+
+    def assigned(self) -> frozenset[str]:
+        """The keys the script writes (with any assignment operator)."""
+        out: set[str] = set()
+        stack: list[Expr] = list(self._statements)
+        while stack:
+            node = stack.pop()
+            if isinstance(node, Assign):
+                out.add(node.name)
+            stack.extend(_children(node))
+        return frozenset(out)
+
+
+def parse(text: str) -> Script:
+    """Parse ``text`` once (at load); ScriptError with the column when it does not parse."""
+    return Script(text)
