@@ -137,6 +137,10 @@ class StopConfig:
     frames: tuple[FrameSpec, ...] = ()
     confirm: StopConfirm | None = None
     escalate: tuple[FrameSpec, ...] = ()
+    min_stop_s: float = 0.0
+    """``stop.min_stop``: a stop lasts at least this long (s), whatever the tree says (0: no minimum)."""
+    release: Literal["auto", "manual"] = "auto"
+    """``stop.release``: ``manual`` also needs a ResetStop node ticked in the releasing tick."""
 
 
 @dataclass(frozen=True)
@@ -145,6 +149,9 @@ class ActionConfig:
 
     name: str
     frames: tuple[FrameSpec, ...] = ()
+    role: Literal["auto", "task", "recovery"] = "auto"
+    """``task``: part of the task (withheld while stopped); ``recovery``: sends during a stop too;
+    ``auto``: task when the tree has no ExecuteTask node, recovery when it has one."""
 
 
 @dataclass(frozen=True)
@@ -892,13 +899,26 @@ class _Loader:
     def stop(self, value: Any) -> StopConfig:
         if value is None:
             return StopConfig()
-        if not self.mapping(value, "stop", ("repeat", "frames", "confirm", "escalate")):
+        if not self.mapping(value, "stop", ("repeat", "frames", "confirm", "escalate", "min_stop", "release")):
             return StopConfig()
+        min_stop = 0.0
+        if "min_stop" in value:
+            raw = value["min_stop"]
+            if isinstance(raw, (int, float)) and not isinstance(raw, bool) and math.isfinite(raw) and raw >= 0:
+                min_stop = float(raw)
+            else:
+                self.problem("stop.min_stop", _found(raw), "a number >= 0 in seconds")
+        release = value.get("release", "auto")
+        if release not in ("auto", "manual"):
+            self.problem("stop.release", _found(release), "auto or manual")
+            release = "auto"
         return StopConfig(
             repeat_s=self.seconds(value, "repeat", "stop", 0.05),
             frames=self.frames(value.get("frames"), "stop.frames"),
             confirm=self.confirm(value.get("confirm")),
             escalate=self.frames(value.get("escalate"), "stop.escalate"),
+            min_stop_s=min_stop,
+            release=release,
         )
 
     def actions(self, value: Any) -> dict[str, ActionConfig]:
@@ -919,10 +939,14 @@ class _Loader:
             if body is None:
                 result[name] = ActionConfig(name=name)
                 continue
-            if not self.mapping(body, key, ("frames",)):
+            if not self.mapping(body, key, ("frames", "role")):
                 continue
+            role = body.get("role", "auto")
+            if role not in ("auto", "task", "recovery"):
+                self.problem(_path(key, "role"), _found(role), "task, recovery or auto")
+                role = "auto"
             result[name] = ActionConfig(
-                name=name, frames=self.frames(body.get("frames"), _path(key, "frames"))
+                name=name, frames=self.frames(body.get("frames"), _path(key, "frames")), role=role
             )
         return result
 

@@ -2,11 +2,18 @@
 
 The :class:`TaskGate` turns the tree's decisions into frames:
 
-- ``run()`` (ExecuteTask ticked): the task runs; task frames go out at once on
-  the first run (or on resume after a stop) and then every ``task.period``.
-- ``halt()`` (ExecuteTask halted) or ``stop()`` (the root returned FAILURE):
-  stop frames go out at once, then every ``stop.repeat`` while the tree keeps
-  failing; task frames resume only when ExecuteTask runs again.
+- ``run()`` (ExecuteTask ticked) or ``action()`` of a task action (an ``actions:``
+  entry whose role is ``task``): the tree asks for the task in this tick. At the
+  tick's end (``end_tick()``) the gate starts or resumes the task when
+  :meth:`TaskGate._release_rule` allows it; ExecuteTask's frames then go out at
+  once and every ``task.period``, a task action's frames in the tick it ran.
+- ``halt()`` (ExecuteTask halted), ``stop()`` (the root returned FAILURE) or an
+  inhibit (a stale source, a bus down): stop frames go out at once, then every
+  ``stop.repeat`` until the stop is released. The stop latches: only
+  :meth:`TaskGate._release_rule` ends it (see README, "Stops").
+- While stopped, task actions' frames are withheld (counted in ``withheld``);
+  recovery actions' frames go out. So in no tick do both task and stop frames go
+  out. A change of what holds the stop is a ``reason`` event.
 - Optional confirmation: after a stop, ``stop.confirm`` (a source signal and a
   condition) must hold within its deadline, or ``stop.escalate`` frames go out
   and an ``escalate`` event is recorded.
@@ -77,17 +84,49 @@ class TaskGate:
         """Reasons the task may not run whatever the tree says (a bus down, a stale source), by key."""
         self.explain: Callable[[], str] | None = None
         """Says why the tree halted the task (the failing guards); set by the engine."""
+        self.tree_has_task = True
+        """False when the tree holds no ExecuteTask and no task action: a tick without FAILURE asks for the task."""
+        self.withheld = 0
+        """Task action frames not sent because the task was stopped (or not started)."""
+        self._asked_by = ""
+        self._reset_this_tick = False
+        self._queued: list[tuple[str, Sequence[FrameSpec], Callable[[str], None] | None]] = []
+        self._cause: tuple[str, str] | None = None
+        """(node, reason) that holds the stop, as last journalled; None right after a stop."""
 
     # -- driven by ExecuteTask -------------------------------------------------------------
     def run(self, node: str, now: float) -> None:
-        """ExecuteTask was ticked: start (or resume) the task."""
+        """ExecuteTask was ticked: the tree asks for the task (started or resumed at the tick's end)."""
         self._ran_this_tick = True
-        if self.state == self.RUNNING or self.inhibits:
-            return  # running already, or held stopped until every inhibit is released
-        if self.state == self.STOPPED:
-            self._end_stop(now, node)
-        self.state = self.RUNNING
-        self._send_task(now)
+        if not self._asked_by:
+            self._asked_by = node
+
+    def action(
+        self, node: str, role: str, frames: Sequence[FrameSpec], now: float,
+        note: Callable[[str], None] | None = None,
+    ) -> None:
+        """A config action was ticked: recovery frames go out now; task frames at the tick's end unless stopped.
+
+        ``note`` is called with what became of the frames (the node's feedback).
+        """
+        if role != "task":
+            if frames:
+                self.sink.send(frames, node)
+            if note is not None:
+                note(f"{len(frames)} frame(s) sent (recovery)")
+            return
+        if not self._asked_by:
+            self._asked_by = node
+        self._queued.append((node, frames, note))
+
+    def reset(self, node: str, now: float) -> str:
+        """ResetStop was ticked: with ``stop.release: manual`` the stop may end in this tick. Says what it did."""
+        self._reset_this_tick = True
+        if self.state != self.STOPPED:
+            return "no stop to reset"
+        if self.stop_cfg.release != "manual":
+            return "stop.release is auto: no reset needed"
+        return "reset requested"
 
     def halt(self, node: str, now: float) -> None:
         """ExecuteTask was halted: stop the task at once."""
@@ -106,6 +145,7 @@ class TaskGate:
         self.stops += 1
         self._next_task = math.inf
         self._confirm_pending = self.stop_cfg.confirm is not None
+        self._cause = None
         self._event("stop", now, node=node, reason=reason)
         self._send_stop(now)
 
@@ -116,7 +156,7 @@ class TaskGate:
             self.stop(now, reason=reason, node=node)
 
     def release(self, key: str) -> None:
-        """Drop one inhibit; the task resumes when ExecuteTask next runs and no other inhibit is left."""
+        """Drop one inhibit; the task resumes when :meth:`_release_rule` next allows it."""
         self.inhibits.pop(key, None)
 
     def adopt(self, old: TaskGate) -> None:
@@ -130,6 +170,8 @@ class TaskGate:
         self._next_task = old._next_task
         self._next_stop = old._next_stop
         self._confirm_pending = old._confirm_pending and self.stop_cfg.confirm is not None
+        self._cause = old._cause
+        self.withheld = old.withheld
 
     def resend_stop(self, now: float) -> None:
         """Send the stop frames again now if the task is stopped (the daemon's exit)."""
@@ -137,8 +179,77 @@ class TaskGate:
             self._send_stop(now)
 
     def begin_tick(self) -> None:
-        """Called before each tick: tracks whether ExecuteTask ran in it."""
+        """Called before each tick: tracks whether the task was asked for and a reset given in it."""
         self._ran_this_tick = False
+        self._asked_by = ""
+        self._reset_this_tick = False
+        self._queued = []
+
+    def end_tick(self, now: float, failed: bool, cause: tuple[str, str] = ("", "")) -> None:
+        """After each tick (and after the engine's :meth:`stop` on FAILURE): start, resume or hold; task frames.
+
+        ``failed``: the root returned FAILURE; ``cause``: (node, reason) of that failure.
+        Task action frames queued in the tick go out only if the task runs at its end.
+        """
+        queued, self._queued = self._queued, []
+        if self.state != self.RUNNING:
+            hold = self._release_rule(now, failed)
+            if not hold:
+                was_stopped = self.state == self.STOPPED
+                if was_stopped:
+                    self._end_stop(now, self._asked_by)
+                self.state = self.RUNNING
+                if self._ran_this_tick:
+                    self._send_task(now)
+            elif self.state == self.STOPPED:
+                self._note_cause(now, cause if failed and cause[1] else ("", hold))
+        running = self.state == self.RUNNING
+        for node, frames, note in queued:
+            if running:
+                if frames:
+                    self.sink.send(frames, node)
+            else:
+                self.withheld += len(frames)
+            if note is not None:
+                note(f"{len(frames)} frame(s) " + ("sent" if running else f"withheld: task {self.state}"))
+
+    def _release_rule(self, now: float, failed: bool) -> str:
+        """THE stop/resume rule: "" when the task may start or resume at the end of this tick, else what holds it.
+
+        All must hold, checked at the end of a tick: (1) the root did not return FAILURE;
+        (2) no inhibit is left (stale source, bus down); (3) the tree asked for the task in
+        this tick (ExecuteTask or a task action ticked; a tree without either asks by not
+        failing); (4) a stop has lasted ``stop.min_stop``; (5) with ``stop.release: manual``,
+        a ResetStop node was ticked in this same tick. (4) and (5) apply to stops only, not
+        to the first start.
+        """
+        if failed:
+            return "tree failed"
+        if self.inhibits:
+            return "; ".join(self.inhibits[k] for k in sorted(self.inhibits))
+        if self.tree_has_task and not self._asked_by:
+            return "task not reached in the tree"
+        if self.state == self.STOPPED:
+            since = self.stop_since if self.stop_since is not None else now
+            if now - since < self.stop_cfg.min_stop_s:
+                return f"stop.min_stop {self.stop_cfg.min_stop_s:g} s not elapsed"
+            if self.stop_cfg.release == "manual" and not self._reset_this_tick:
+                return "stop.release manual: waiting for ResetStop"
+        return ""
+
+    def may_release(self, now: float, failed: bool = False) -> bool:
+        """True when :meth:`_release_rule` lets the task start or resume now."""
+        return not self._release_rule(now, failed)
+
+    def _note_cause(self, now: float, cause: tuple[str, str]) -> None:
+        """Journal a ``reason`` event when what holds the stop changes (the stop event said the first)."""
+        if self._cause is None:
+            self._cause = cause
+            return
+        if cause != self._cause:
+            previous = self._cause[1]
+            self._cause = cause
+            self._event("reason", now, node=cause[0], reason=cause[1], previous=previous)
 
     def service(self, now: float) -> None:
         """After each tick and between ticks: periodic task / stop frames, stop confirmation."""
@@ -182,6 +293,7 @@ class TaskGate:
         self.stop_since = None
         self._next_stop = math.inf
         self._confirm_pending = False
+        self._cause = None
 
     def _send_task(self, now: float) -> None:
         if self.task_cfg.frames:

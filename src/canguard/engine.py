@@ -152,6 +152,9 @@ class Engine:
         self._guards = self.loaded.guards()
         self._guard_nodes = self.loaded.guard_nodes()
         self.gate.explain = self._explain
+        from .nodes.actions import assign_roles
+
+        self.gate.tree_has_task = assign_roles(self.root)
         read = [cfg.sources[s].max_age_s for s in self.ctx.read_sources if s in cfg.sources]
         self._start_grace_s = max(read, default=0.0)
         ages = [s.max_age_s for s in cfg.sources.values()]
@@ -343,11 +346,17 @@ class Engine:
         self.stats.ticks += 1
         self.last_status = status
         self.last_tick_t = now
-        if status == py_trees.common.Status.FAILURE and not self._starting(now):
+        failed = status == py_trees.common.Status.FAILURE
+        cause = ("", "")
+        if failed:
             tip = self.root.tip()
             node = tip.name if tip is not None else self.root.name
-            detail = tip.feedback_message if tip is not None else ""
-            self.gate.stop(now, reason=f"tree failed at {node}" + (f": {detail}" if detail else ""), node=node)
+            if not self._starting(now):
+                detail = tip.feedback_message if tip is not None else ""
+                self.gate.stop(now, reason=f"tree failed at {node}" + (f": {detail}" if detail else ""), node=node)
+            cause = self._failure_cause(node)
+        # The one place a stop may end (TaskGate._release_rule), and task action frames go out or are withheld.
+        self.gate.end_tick(now, failed, cause)
         self._sample_levels()
         if self.tick_hook is not None:
             self.tick_hook(now)
@@ -373,6 +382,18 @@ class Engine:
             self._heat_failed = True
         else:
             self._heat_failed = False
+
+    def _failure_cause(self, tip: str) -> tuple[str, str]:
+        """(node, reason) of a failed tick: the failing guards with why, else the node the tree failed at.
+
+        Made of what only changes at an edge (guard feedback is written at trips and reason
+        changes), so a ``reason`` event marks a real change, not a new sample.
+        """
+        failed = py_trees.common.Status.FAILURE
+        first = next((g.name for g in self._guard_nodes if g.status == failed), "")
+        if first:
+            return first, self._explain()
+        return tip, f"tree failed at {tip}"
 
     def _explain(self) -> str:
         """The guards that failed in this tick, with why (for stop events)."""

@@ -15,7 +15,7 @@ constructor takes ``context=`` it receives the tree's :class:`~canguard.context.
 
 from __future__ import annotations
 
-from .actions import ConfiguredAction, EmitStop, ExecuteTask
+from .actions import ConfiguredAction, EmitStop, ExecuteTask, ResetStop
 from .base import CanguardNode, NodeKind, PortError, port_info
 from .control import (
     Delay,
@@ -61,6 +61,7 @@ BUILTIN_NODES: dict[str, type[CanguardNode]] = {
         # actions
         ExecuteTask,
         EmitStop,
+        ResetStop,
         ResetTimer,
         RecordTime,
         # decorators
@@ -113,6 +114,7 @@ __all__ = [
     "ReactiveSequence",
     "RecordTime",
     "Repeat",
+    "ResetStop",
     "ResetTimer",
     "RetryUntilSuccessful",
     "Sequence",
