@@ -176,7 +176,7 @@ class TestEngine:
         assert rig.sent(SET_STATE_IDS, since=t_over, data=CLOSED_LOOP) == []
         t_rec = rig.t + 0.002
         rig.feed(bms_frame(t_rec, 25.0))
-        rig.advance(t_rec + rig.engine.period_s)  # the guard's latch holds the trip until the next tick
+        rig.advance(t_rec + rig.engine.period_s)  # resumes at t_rec (tests/test_recover_timing.py)
         resumed = rig.sent(SET_STATE_IDS, since=t_rec, data=CLOSED_LOOP)
         assert {f.arbitration_id for f in resumed} == SET_STATE_IDS
         assert resumed[0].t <= t_rec + rig.engine.period_s

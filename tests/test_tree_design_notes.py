@@ -168,13 +168,13 @@ class TestCurrentProtectedOperation:
     def test_trips_above_35_and_recovers_only_at_25(self) -> None:
         """The task runs at 20 A, stops at 36 A, stays stopped down to 25.1 A, runs again from 25 A.
 
-        The tick right after the recovering sample still fails: the model's peak latch
-        reports the tripped spell since the previous tick once (conservative by one tick).
+        The tick right after the recovering sample (25 A) already runs the task: a trip the
+        previous tick reported is not held past the recovery (issue 12, item 5).
         """
         rig = Rig()
         rig.load(TREES / "protected_operation.xml")
         statuses = self.run(rig, [20.0, 34.9, 36.0, 30.0, 25.1, 25.1, 25.0, 25.0, 10.0])
-        assert statuses == [R, R, F, F, F, F, F, R, R]
+        assert statuses == [R, R, F, F, F, F, R, R, R]
         halts = [c for c in rig.task.calls if c[0] == "halt"]
         assert len(halts) == 1 and halts[0][1] == "ExecuteTask"
         assert [(e["event"], e["reason"]) for e in rig.trips()] == [("trip", "overcurrent"), ("recover", "")]

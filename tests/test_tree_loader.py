@@ -245,10 +245,10 @@ class TestSubTree:
         rig.feed("axis0", "current", 20.0)
         assert rig.tick() == F  # Left: 20 A > 10 A
         assert bb.get("/start") == rig.now()
-        bb.set("/left_limit", 25.0)  # read at the next tick; samples before it were judged against 10 A
+        bb.set("/left_limit", 25.0)  # read at the next tick, which judges the latest sample again
         rig.advance(0.1)
-        rig.feed("axis0", "current", 20.0)
-        assert rig.tick() == F
+        rig.feed("axis0", "current", 20.0)  # judged against 10 A: the trip goes on
+        assert rig.tick() == S  # 20 A <= 25 A: recovered at this tick (the trip was reported already)
         rig.advance(0.1)
         rig.feed("axis0", "current", 20.0)
         assert rig.tick() == S

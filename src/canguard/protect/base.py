@@ -135,11 +135,16 @@ class LatchedModel(ProtectionModel):
         self._set_tripped(True, since)
 
     def _set_tripped(self, tripped: bool, t: float | None) -> bool:
-        """Enter ``tripped``; True on an edge. Arms the peak latch whenever tripped."""
-        if tripped:
-            self._latch = True
+        """Enter ``tripped``; True on an edge. A trip edge arms the peak latch.
+
+        Only the edge arms it: a trip the last poll already reported and that lasted up
+        to a recovery must not be reported again after that recovery (issue 12: every
+        recovery came one tick late).
+        """
         if tripped == self._tripped:
             return False
+        if tripped:
+            self._latch = True
         self._tripped = tripped
         self._since = t
         return True
@@ -163,13 +168,14 @@ class LatchedModel(ProtectionModel):
         )
 
     def poll(self, now: float) -> Snapshot:
-        """The state at tick time ``now``: tripped if tripped at any moment since the last poll.
+        """The state at tick time ``now``: tripped if tripped now or if a trip began since the last poll.
 
-        The latch then restarts from the present state, so a model still tripped
-        keeps reporting tripped and a spike already over is reported exactly once.
+        The latch is then cleared: a model still tripped keeps reporting tripped (it is),
+        a spike already over is reported exactly once, and a recovery since the last poll
+        is reported at this poll, the first at or after it (not one poll later).
         """
         snap = self._make_snapshot(self._tripped or self._latch)
-        self._latch = self._tripped
+        self._latch = False
         return snap
 
     def snapshot(self) -> Snapshot:

@@ -103,7 +103,6 @@ class Hysteresis(LatchedModel):
             else:
                 self._over_since = None
             return False
-        self._latch = True
         if a <= self.recovery_a:
             if self._under_since is None:
                 self._under_since = t
