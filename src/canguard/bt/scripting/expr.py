@@ -177,8 +177,10 @@ class Binary(Expr):
             return left + right
         if op == "..":
             expected = "at least one string (and otherwise numbers)"
-        elif op in ("+",):
+        elif op == "+":
             expected = "two numbers or two strings"
+        elif op in ("&&", "||"):
+            expected = "booleans, or the numbers 0 and 1"
         else:
             expected = "numbers"
         raise ScriptError(
