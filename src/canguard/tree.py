@@ -1014,12 +1014,33 @@ def guard_coverage(loaded: LoadedTree) -> list[str]:
     return out
 
 
+def _with_stop_roles(text: str, root: py_trees.behaviour.Behaviour, stop: Any) -> str:
+    """The drawing with, per node, what it does to a stop (LATCH, TASK, RECOVERY...), and the release rule."""
+    from .nodes.actions import stop_roles
+
+    roles = stop_roles(root)
+    lines = text.splitlines()
+    nodes = list(_preorder(root))
+    if len(lines) != len(nodes):  # not the one-line-per-node drawing: leave it as it is
+        return text
+    width = max(len(line) for line in lines) + 2
+    out = [f"{line:<{width}}{roles[n]}".rstrip() if n in roles else line for line, n in zip(lines, nodes, strict=True)]
+    manual = ", with ResetStop ticked (stop.release: manual)" if stop.release == "manual" else ""
+    out.append(
+        f"stop: latches when the tree fails, a LATCH node halts the task or a read source goes stale; released at "
+        f"the end of a tick without FAILURE that reaches the task, no inhibit left, after stop.min_stop "
+        f"{stop.min_stop_s:g} s{manual}"
+    )
+    return "\n".join(out) + "\n"
+
+
 def show_tree(config_path: str | Path, dot: str | Path | None = None) -> str:
     """The text drawing of a config's tree; with ``dot``, also render it there (see :func:`render_dot`)."""
     from .config import load_config
 
-    loaded = load_config_tree(load_config(config_path))
-    text = render_text(loaded.root)
+    cfg = load_config(config_path)
+    loaded = load_config_tree(cfg)
+    text = _with_stop_roles(render_text(loaded.root), loaded.root, cfg.stop)
     if dot is not None:
         text += f"wrote {render_dot(loaded.root, dot)}\n"
     return text

@@ -165,7 +165,7 @@ def _holds(guard: Any) -> str:
     kinds = []
     for _, model, _ in guard.guarded():
         if isinstance(model, Hysteresis):
-            kinds.append(f"holds until |I| <= {model.recovery_a:g} (hysteresis)")
+            kinds.append(f"holds until |I| <= {model.recovery_a:g} A (hysteresis)")
         elif isinstance(model, _I2tModel):
             kinds.append(f"holds until the I²t level < {model.recover_fraction * 100:g} % (i2t)")
         else:

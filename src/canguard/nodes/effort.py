@@ -30,6 +30,8 @@ class IsJointEffortNormal(GuardNode):
     }
     OUTPUT_PORTS = {}  # noqa: RUF012
     SOURCE_KINDS = ("joints",)
+    failed_joint = ""
+    """The joint the feedback names (the first failing one)."""
 
     def _build(self, source: SourceConfig) -> None:
         limit = self.port("max_effort")
@@ -75,7 +77,9 @@ class IsJointEffortNormal(GuardNode):
         if not self.models:
             failed = ("", REASON_NO_DATA, math.nan, math.nan)
         ok = failed is None
-        if ok is not self.ok or (failed is not None and failed[1] != self.reason):
+        # Another joint failing for the same reason is a new cause too (its feedback names the joint).
+        if ok is not self.ok or (failed is not None and (failed[1], failed[0]) != (self.reason, self.failed_joint)):
+            self.failed_joint = failed[0] if failed is not None else ""
             if failed is None:
                 seen = [(m.snapshot(), role) for role, m in self.models if m.last_t is not None]
                 snap, role = max(seen, key=lambda sr: sr[0].value)
