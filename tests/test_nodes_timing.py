@@ -7,7 +7,6 @@ from pathlib import Path
 import py_trees
 import pytest
 
-from canguard.nodes import DEFAULT_TIMER_KEY
 from canguard.nodes.timing import compare
 from treekit import F, Rig, S, xml_tree
 
@@ -48,19 +47,19 @@ class TestCompare:
 class TestIsElapsedTimeCompare:
     """Reference modes and shared timers."""
 
-    def test_first_tick_starts_the_default_timer(self, tmp_path: Path) -> None:
-        """Default reference: the first tick; the default timer key holds it."""
+    def test_first_tick_starts_the_own_timer(self, tmp_path: Path) -> None:
+        """Default reference: the first tick; without a timer port the node's own timer holds it."""
         rig = Rig()
-        rig.load_text(tmp_path, xml_tree('<IsElapsedTimeCompare reference_sec="5"/>'))
+        loaded = rig.load_text(tmp_path, xml_tree('<IsElapsedTimeCompare reference_sec="5"/>'))
         assert at(rig, 0.0, 5.0, 5.01) == [F, F, S]
-        assert BB.get(DEFAULT_TIMER_KEY) == 1000.0
+        assert loaded.root.timer_start() == 1000.0
 
-    def test_nodes_share_the_default_timer(self, tmp_path: Path) -> None:
-        """Two comparisons first ticked at different times still measure from the same start."""
+    def test_nodes_share_a_named_timer(self, tmp_path: Path) -> None:
+        """Two comparisons naming one timer, first ticked at different times, measure from the same start."""
         rig = Rig()
         body = (
-            '<Sequence><IsElapsedTimeCompare name="a" reference_sec="2" operator="GTE"/>'
-            '<IsElapsedTimeCompare name="b" reference_sec="3" operator="LT"/></Sequence>'
+            '<Sequence><IsElapsedTimeCompare name="a" reference_sec="2" operator="GTE" timer="{t}"/>'
+            '<IsElapsedTimeCompare name="b" reference_sec="3" operator="LT" timer="{t}"/></Sequence>'
         )
         rig.load_text(tmp_path, xml_tree(body))
         assert at(rig, 0.0, 2.0, 2.9, 3.0) == [F, S, S, F]  # b first ticks at 2 s yet measures from 0 s
@@ -82,9 +81,9 @@ class TestIsElapsedTimeCompare:
         assert loaded.find("nav").status == F
 
     def test_reset_timer_with_named_timer(self, tmp_path: Path) -> None:
-        """ResetTimer(timer="{nav}") writes now to /nav; the default timer stays."""
+        """ResetTimer(timer="{nav}") writes now to /nav; the comparison's own timer stays."""
         rig = Rig()
-        rig.load_text(
+        loaded = rig.load_text(
             tmp_path,
             xml_tree(
                 '<Sequence><IsElapsedTimeCompare reference_sec="0" operator="GTE"/>'
@@ -92,7 +91,7 @@ class TestIsElapsedTimeCompare:
             ),
         )
         at(rig, 0.0, 3.0)
-        assert BB.get("/nav") == 1003.0 and BB.get(DEFAULT_TIMER_KEY) == 1000.0
+        assert BB.get("/nav") == 1003.0 and loaded.find("IsElapsedTimeCompare").timer_start() == 1000.0
 
     def test_tree_start_reference(self, tmp_path: Path) -> None:
         """reference="tree_start" measures from ctx.tree_start; ResetTimer does not move it."""
@@ -112,10 +111,10 @@ class TestIsElapsedTimeCompare:
         rig = Rig()
         rig.load_text(
             tmp_path,
-            xml_tree('<IsElapsedTimeCompare reference_sec="1" operator="GTE" reference="last_reset"/>'),
+            xml_tree('<IsElapsedTimeCompare reference_sec="1" operator="GTE" reference="last_reset" timer="{t}"/>'),
         )
         assert at(rig, 0.0, 5.0) == [F, F]
-        BB.set(DEFAULT_TIMER_KEY, 1004.5)
+        BB.set("/t", 1004.5)  # as ResetTimer(timer="{t}") would at 4.5 s
         assert at(rig, 5.0, 5.5) == [F, S]
 
     def test_blackboard_reference(self, tmp_path: Path) -> None:

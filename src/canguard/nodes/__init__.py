@@ -36,7 +36,6 @@ from .current import GuardNode, IsCurrentNormal, IsCurrentSafe, IsI2tSafe
 from .effort import IsJointEffortNormal
 from .profile import Profile
 from .timing import (
-    DEFAULT_TIMER_KEY,
     IsCooldownElapsed,
     IsElapsedSinceEvent,
     IsElapsedTimeCompare,
@@ -86,7 +85,6 @@ BUILTIN_NODES: dict[str, type[CanguardNode]] = {
 
 __all__ = [
     "BUILTIN_NODES",
-    "DEFAULT_TIMER_KEY",
     "CanguardNode",
     "ConfiguredAction",
     "Delay",

@@ -4,24 +4,32 @@ Time comes only from ``ctx.now()``: log time in replay, the daemon's monotonic
 epoch clock live, a manual clock in tests. Epoch seconds in a float keep about
 0.1 µs of resolution today, far below any tick period (note 000, "float precision").
 
-**Timers are shared through the blackboard** (note 000 warns that nodes keeping
-private start times drift apart). A timer is a blackboard key holding its start
-time (s). ``timer="{nav_timer}"`` names one; without a ``timer`` port every
-IsElapsedTimeCompare and ResetTimer uses the tree's *default timer* (key
-``/canguard/timers/default``), so the PeriodicHealthCheck tree works exactly as
+**A timer is the node's own unless a key names it** (note 000: each
+IsElapsedTimeCompare keeps its own ``start_time_``, set at its first tick; nodes
+that must agree share a reference through the blackboard). Without a ``timer``
+port an IsElapsedTimeCompare has a private timer: two of them first ticked at
+different times measure from their own first ticks. ``timer="{nav_timer}"``
+names a shared timer: a blackboard key holding its start time (s), read and
+written by every node that names it.
+
+ResetTimer with ``timer`` restarts that key. Without it, it restarts the private
+timers *nearest to it*: those of the IsElapsedTimeCompare nodes without
+``timer`` under its closest ancestor that has any (found at load; none in the
+whole tree is a load error). So the PeriodicHealthCheck tree works exactly as
 written::
 
     Sequence[IsElapsedTimeCompare(reference_sec=60, operator=GTE), PerformDiagnostics, ResetTimer]
 
-- the first tick starts the default timer (reference ``first_tick``), 60 s later
-  the comparison holds, the diagnostics run and ResetTimer restarts the timer;
-  so diagnostics run 60 s after the first tick and then every 60 s.
+- the first tick starts the comparison's timer (reference ``first_tick``), 60 s
+  later the comparison holds, the diagnostics run and ResetTimer restarts it; so
+  diagnostics run 60 s after the first tick and then every 60 s;
+- a second such Sequence elsewhere in the tree keeps its own timer and its own reset.
 
 IsElapsedTimeCompare's ``reference``:
 
 =============== ==================================================================
 ``first_tick``  the timer's start; a timer nobody started yet starts at this tick
-``last_reset``  the timer's start as set by ResetTimer / RecordTime; FAILURE before any
+``last_reset``  the timer's start as set by ResetTimer (or RecordTime on its key); FAILURE before any
 ``tree_start``  the tree's first tick (``ctx.tree_start``; ResetTimer does not move it)
 ``blackboard``  the time stored in the ``timer`` key by another node (required port)
 =============== ==================================================================
@@ -30,23 +38,21 @@ IsElapsedTimeCompare's ``reference``:
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import py_trees
 from py_trees.ports_utils import PortsLogger
 
 from .base import FAILURE, SUCCESS, CanguardNode, PortError, port_info
 
-DEFAULT_TIMER_KEY = "/canguard/timers/default"
-"""Blackboard key of the default timer shared by IsElapsedTimeCompare and ResetTimer."""
-
 OPERATORS = ("GT", "LT", "GTE", "LTE", "EQ")
 REFERENCES = ("first_tick", "tree_start", "last_reset", "blackboard")
 _TIMER = "_timer_start"
-"""Private client key (write access) on the timer's blackboard key."""
+"""Private client key (write access) on a named timer's blackboard key."""
 
 
 class _TimerUser(CanguardNode):
-    """Opens read/write access to the timer key: the one wired to ``timer`` or the default timer."""
+    """A node with a timer: the key wired to ``timer`` (shared), or none (``timer_key`` None)."""
 
     TIMER_PORT = "timer"
 
@@ -56,18 +62,19 @@ class _TimerUser(CanguardNode):
         subtree_namespace: str = "/",
         logger: PortsLogger | None = None,
     ) -> None:
-        """Register the ports, then the timer key (write access, so a first tick can start it)."""
+        """Register the ports, then the named timer's key (write access, so a first tick can start it)."""
         super().setup_ports(port_remappings, subtree_namespace, logger)
         remap = port_remappings or {}
         key = remap.get(self.TIMER_PORT)
+        self.timer_key: str | None = None
         if key is None:
-            key = DEFAULT_TIMER_KEY
+            return
         key = py_trees.blackboard.Blackboard.absolute_name(subtree_namespace, key)
         self.timer_key = key
         self.blackboard_client.register_key(key=_TIMER, access=py_trees.common.Access.WRITE, remap_to=key)
 
-    def timer_start(self) -> float | None:
-        """The timer's start time, None when nobody started it yet (or it holds no number)."""
+    def _shared_start(self) -> float | None:
+        """The named timer's start time, None when nobody started it yet (or it holds no number)."""
         client = self.blackboard_client
         if not client.exists(_TIMER):
             return None
@@ -75,10 +82,6 @@ class _TimerUser(CanguardNode):
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             return None
         return float(value)
-
-    def start_timer(self, now: float) -> None:
-        """(Re)start the timer at ``now``."""
-        self.blackboard_client.set(_TIMER, float(now))
 
 
 def compare(op: str, elapsed: float, reference: float, tolerance: float) -> bool:
@@ -97,7 +100,10 @@ def compare(op: str, elapsed: float, reference: float, tolerance: float) -> bool
 
 
 class IsElapsedTimeCompare(_TimerUser, py_trees.behaviour.Behaviour):
-    """Compares the time elapsed since a reference with ``reference_sec`` (GT, LT, GTE, LTE, EQ)."""
+    """Compares the time elapsed since a reference with ``reference_sec`` (GT, LT, GTE, LTE, EQ).
+
+    Its timer is its own unless ``timer`` names a shared key (module docstring).
+    """
 
     KIND = "Condition"
     DESCRIPTION = "SUCCESS when (now − reference time) <operator> reference_sec"
@@ -108,13 +114,32 @@ class IsElapsedTimeCompare(_TimerUser, py_trees.behaviour.Behaviour):
         "reference": port_info(str, "first_tick, tree_start, last_reset or blackboard", "first_tick"),
         "timer": port_info(
             float,
-            "blackboard key holding the timer's start time (s); default: the tree's shared timer",
+            "blackboard key holding the timer's start time (s), shared by every node naming it; "
+            "default: the node's own timer",
             required=False,
         ),
     }
     OUTPUT_PORTS = {}  # noqa: RUF012
     CHOICES = {"operator": OPERATORS, "reference": REFERENCES}  # noqa: RUF012
     KEY_PORTS = frozenset({"timer"})
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self._own_start: float | None = None
+        """The private timer's start (no ``timer`` port), None until started; kept across halts as in note 000."""
+
+    def timer_start(self) -> float | None:
+        """The timer's start time: the named key's, or the node's own; None when not started yet."""
+        if self.timer_key is None:
+            return self._own_start
+        return self._shared_start()
+
+    def start_timer(self, now: float) -> None:
+        """(Re)start the timer at ``now``: write the named key, or the node's own timer."""
+        if self.timer_key is None:
+            self._own_start = float(now)
+        else:
+            self.blackboard_client.set(_TIMER, float(now))
 
     def bind(self) -> None:
         """``reference="blackboard"`` needs the key to read: a ``timer`` port."""
@@ -139,7 +164,8 @@ class IsElapsedTimeCompare(_TimerUser, py_trees.behaviour.Behaviour):
                     self.start_timer(now)
                     t0 = now
                 elif ref_mode in REFERENCES:
-                    self.feedback_message = f"no reference time yet in {self.timer_key}"
+                    where = f"in {self.timer_key}" if self.timer_key else "(no reset yet by a ResetTimer)"
+                    self.feedback_message = f"no reference time yet {where}"
                     return FAILURE
         if ref_mode not in REFERENCES or t0 is None:
             self.feedback_message = f"unknown reference {ref_mode!r}; expected one of {', '.join(REFERENCES)}"
@@ -212,22 +238,56 @@ class IsCooldownElapsed(CanguardNode, py_trees.behaviour.Behaviour):
 
 
 class ResetTimer(_TimerUser, py_trees.behaviour.Behaviour):
-    """Restarts a timer (the default one without a ``timer`` port); SUCCESS."""
+    """Restarts a timer: the named one, or the nearest own timers (module docstring); SUCCESS."""
 
     KIND = "Action"
-    DESCRIPTION = "restart a timer: write now to its key (default: the tree's shared timer)"
+    DESCRIPTION = "restart a timer: write now to its key (default: the nearest comparisons' own timers)"
     INPUT_PORTS = {}  # noqa: RUF012
     OUTPUT_PORTS = {  # noqa: RUF012
         "timer": port_info(
-            float, "blackboard key of the timer to restart; default: the tree's shared timer", required=False
+            float,
+            "blackboard key of the timer to restart; default: the own timers of the IsElapsedTimeCompare "
+            "nodes without timer under this node's closest ancestor that has any",
+            required=False,
         ),
     }
 
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.targets: list[IsElapsedTimeCompare] = []
+        """The comparisons whose own timers this node restarts (no ``timer`` port)."""
+
+    def bind(self) -> None:
+        """Without ``timer``: find the own timers nearest to this node; none in the tree is an error."""
+        if self.timer_key is not None:
+            return
+        ancestor = self.parent
+        while ancestor is not None:
+            found = [
+                n
+                for n in ancestor.iterate()
+                if isinstance(n, IsElapsedTimeCompare) and n.timer_key is None
+            ]
+            if found:
+                self.targets = found
+                return
+            ancestor = ancestor.parent
+        raise PortError(
+            "timer",
+            "no IsElapsedTimeCompare without a timer port in this tree to restart; "
+            'name the timer to restart (timer="{key}", the same key as the comparison\'s)',
+        )
+
     def update(self) -> py_trees.common.Status:
-        """Write now to the timer's key."""
+        """Write now to the timer's key, or restart the nearest own timers."""
         now = self.ctx.clock.now()
-        self.start_timer(now)
-        self.feedback_message = f"timer {self.timer_key} = {now:.3f}"
+        if self.timer_key is not None:
+            self.blackboard_client.set(_TIMER, float(now))
+            self.feedback_message = f"timer {self.timer_key} = {now:.3f}"
+        else:
+            for node in self.targets:
+                node.start_timer(now)
+            self.feedback_message = f"timers of {', '.join(n.name for n in self.targets)} = {now:.3f}"
         return SUCCESS
 
 
