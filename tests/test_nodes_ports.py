@@ -63,6 +63,7 @@ EXPECTED: dict[str, dict[str, tuple[str, type, Any]]] = {
     },
     "ExecuteTask": {},
     "EmitStop": {},
+    "ResetStop": {},
     "Sequence": {},
     "ReactiveSequence": {},
     "SequenceWithMemory": {},

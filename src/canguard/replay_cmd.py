@@ -19,6 +19,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from py_trees.blackboard import Blackboard
+
 from .clock import ManualClock
 from .config import Config, load_config
 from .data import Frame
@@ -86,6 +88,13 @@ def replay_one(cfg: Config, log_path: Path, opts: ReplayOptions) -> dict[str, An
     from .protect.state import HeatStore
     from .replay import ReadStats, read_log
 
+    # Every log starts from a clean state: py_trees keeps the blackboard in class-level
+    # storage, so keys a previous log's tree wrote (a cooldown's last run, a recorded
+    # time) would otherwise be read by this one (issue 12: a log's summary never
+    # depends on its neighbours or on --jobs).
+    Blackboard.storage.clear()
+    Blackboard.metadata.clear()
+    Blackboard.clients.clear()
     clock = ManualClock()
     journal = EventJournal(opts.events) if opts.events is not None else None
     heat = HeatStore(opts.state, cfg.state.on_corrupt) if opts.state is not None else None

@@ -26,7 +26,7 @@ import py_trees
 from ..config import SourceConfig, SourceKind
 from ..protect.base import REASON_I2T, REASON_NO_DATA, LatchedModel, ProtectionModel, Snapshot
 from ..protect.hysteresis import Hysteresis
-from ..protect.i2t import LeakyI2t, ThermalI2t
+from ..protect.i2t import RATED_OVERLOAD, RATED_OVERLOAD_S, LeakyI2t, ThermalI2t
 from ..protect.inrush import InrushBlanking
 from ..protect.staleness import SourceHealth
 from ..protect.threshold import Threshold
@@ -279,8 +279,12 @@ class IsI2tSafe(GuardNode):
         "topic_name": port_info(str, "source name (battery or current kind) from the config"),
         "model": port_info(str, "leaky (servo-drive bucket) or thermal (IEC 60255-8 image)", "leaky"),
         "continuous_current": port_info(float, "rated continuous current I_rated (A); I_cont = k * I_rated"),
-        "peak_current": port_info(float, "datasheet peak current (A)", required=False),
-        "peak_time": port_info(float, "how long the peak current is allowed from cold (s)", required=False),
+        "peak_current": port_info(
+            float, "datasheet peak current (A); default 1.5 × continuous_current (IEC 60034-1)", required=False
+        ),
+        "peak_time": port_info(
+            float, "how long the peak current is allowed from cold (s); default 120 without peak", required=False
+        ),
         "tau": port_info(
             float, "thermal time constant (s), thermal model; default from the peak figures", required=False
         ),
@@ -309,19 +313,28 @@ class IsI2tSafe(GuardNode):
         k = self.port("k")
         if not (isinstance(k, float) and math.isfinite(k) and k > 0):
             raise PortError("k", f"must be a finite number > 0, got {k!r}")
+        peak, peak_t = self.port("peak_current"), self.port("peak_time")
+        if peak is not None and peak_t is None:
+            raise PortError("peak_time", "required with peak_current (a datasheet peak is a current and a time)")
+        if peak is None and not (kind == "thermal" and self.port("tau") is not None):
+            # No datasheet peak: IEC 60034-1's occasional excess current, 1.5 × the rating for 120 s.
+            peak = RATED_OVERLOAD * cont
+            peak_t = RATED_OVERLOAD_S if peak_t is None else peak_t
+            if peak <= cont * k:
+                raise PortError(
+                    "peak_current",
+                    f"required when k >= {RATED_OVERLOAD:g} (the derived peak {peak:g} A = {RATED_OVERLOAD:g} × "
+                    f"continuous_current must exceed I_cont = k × continuous_current = {cont * k:g} A)",
+                )
         try:
             model: ProtectionModel
             if kind == "leaky":
-                peak, peak_t = self.port("peak_current"), self.port("peak_time")
-                if peak is None or peak_t is None:
-                    missing = "peak_current" if peak is None else "peak_time"
-                    raise PortError(missing, 'required by model="leaky" (trip level (peak² − cont²)·time)')
                 model = LeakyI2t(cont * k, peak, peak_t, self.port("recover_fraction"), source.max_age_s)
             else:
                 model = ThermalI2t(
                     cont * k,
-                    self.port("peak_current"),
-                    self.port("peak_time"),
+                    peak,
+                    peak_t,
                     tau_s=self.port("tau"),
                     tau_cool_s=self.port("tau_cool"),
                     recover_fraction=self.port("recover_fraction"),

@@ -58,6 +58,10 @@ KIND_THERMAL = "thermal"
 STATE_VERSION = 1
 MAX_LEVEL = 1e6
 """The accumulator is capped at this many trip levels (keeps it finite)."""
+RATED_OVERLOAD = 1.5
+"""Without a datasheet peak the peak point is this many times the rating (IEC 60034-1 occasional excess)."""
+RATED_OVERLOAD_S = 120.0
+"""... allowed for this long from cold (IEC 60034-1: 1.5 × I_rated for 2 minutes)."""
 
 
 def _positive(name: str, value: float | None) -> float:

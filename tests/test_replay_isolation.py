@@ -1,0 +1,61 @@
+"""Every log of a replay run starts from a clean state (issue 12, item 1).
+
+``canguard replay a.log b.log`` must give b.log exactly the summary that
+``canguard replay b.log`` gives: no blackboard key, timer, latched trip or task
+gate state carries over from a, and ``--jobs`` changes nothing. Before the fix the
+cooldown_recovery example sent 4 frames on each log alone and 0 on every log after
+the first (its cooldown's last run time stayed on py_trees' class-level blackboard).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from canguard.cli import main
+
+REPO = Path(__file__).resolve().parents[1]
+LOGS = sorted((REPO / "examples").glob("*.log.gz"))
+CONFIGS = sorted((REPO / "config" / "examples").glob("*.yaml")) + [REPO / "config" / "canguard.yaml"]
+
+
+def replay(capsys: pytest.CaptureFixture[str], config: Path, logs: list[Path], *extra: str) -> list[Any]:
+    """Per-log summaries of one ``canguard replay --json`` run, as printed."""
+    capsys.readouterr()
+    rc = main(["replay", "-c", str(config), "--json", *extra, *map(str, logs)])
+    assert rc == 0, capsys.readouterr().err
+    out = json.loads(capsys.readouterr().out)
+    return out if isinstance(out, list) else [out]
+
+
+def test_eight_example_logs() -> None:
+    """The issue's check runs over the eight example logs."""
+    assert len(LOGS) == 8
+
+
+@pytest.mark.parametrize("config", CONFIGS, ids=lambda p: p.stem)
+def test_together_and_reversed_equal_one_by_one(capsys: pytest.CaptureFixture[str], config: Path) -> None:
+    """Each log's summary in a run of all eight (in either order) is byte-identical to its own run."""
+    alone = {s["log"]: json.dumps(s, sort_keys=True) for log in LOGS for s in replay(capsys, config, [log])}
+    for order in (LOGS, LOGS[::-1]):
+        together = replay(capsys, config, order)
+        assert [s["log"] for s in together] == [str(p) for p in order]
+        for s in together:
+            assert json.dumps(s, sort_keys=True) == alone[s["log"]], f"{s['log']} differs after its neighbours"
+
+
+@pytest.mark.parametrize("name", ["cooldown_recovery", "canguard"])
+def test_jobs_2_equals_one_process(capsys: pytest.CaptureFixture[str], name: str) -> None:
+    """--jobs 2 gives the same list as one process (each worker replays several logs)."""
+    config = next(c for c in CONFIGS if c.stem == name)
+    assert replay(capsys, config, LOGS, "--jobs", "2") == replay(capsys, config, LOGS)
+
+
+def test_a_cooldown_starts_cold_on_every_log(capsys: pytest.CaptureFixture[str]) -> None:
+    """The case that leaked: the cooldown example sends its frames on every log, not only the first."""
+    config = next(c for c in CONFIGS if c.stem == "cooldown_recovery")
+    sent = [s["frames_sent"] for s in replay(capsys, config, LOGS)]
+    assert all(n > 0 for n in sent), sent
