@@ -107,7 +107,7 @@ KINDS = {
         "IsValueBelow",
         "IsValueAbove",
     },
-    "Action": {"ExecuteTask", "EmitStop", "ResetTimer", "RecordTime"},
+    "Action": {"ExecuteTask", "EmitStop", "ResetStop", "ResetTimer", "RecordTime"},
     "Decorator": {
         "Profile",
         "Inverter",

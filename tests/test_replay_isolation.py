@@ -19,7 +19,7 @@ from canguard.cli import main
 
 REPO = Path(__file__).resolve().parents[1]
 LOGS = sorted((REPO / "examples").glob("*.log.gz"))
-CONFIGS = sorted((REPO / "config" / "examples").glob("*.yaml")) + [REPO / "config" / "canguard.yaml"]
+CONFIGS = [*sorted((REPO / "config" / "examples").glob("*.yaml")), REPO / "config" / "canguard.yaml"]
 
 
 def replay(capsys: pytest.CaptureFixture[str], config: Path, logs: list[Path], *extra: str) -> list[Any]:

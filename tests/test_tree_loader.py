@@ -385,16 +385,16 @@ class TestLoadErrors:
                 "port start_current: required when inrush_time > 0",
             ),
             (
-                '<IsI2tSafe topic_name="axis0" continuous_current="5"/>',
-                'port peak_current: required by model="leaky"',
+                '<IsI2tSafe topic_name="axis0" continuous_current="5" peak_current="9"/>',
+                "port peak_time: required with peak_current",
             ),
             (
                 '<IsI2tSafe topic_name="axis0" continuous_current="5" peak_current="4" peak_time="1"/>',
                 "port peak_current: peak_current (4.0 A) must exceed continuous_current",
             ),
             (
-                '<IsI2tSafe topic_name="axis0" model="thermal" continuous_current="5"/>',
-                "port tau: tau is required unless both peak_current and peak_time are given",
+                '<IsI2tSafe topic_name="axis0" model="thermal" continuous_current="5" k="2"/>',
+                "port peak_current: required when k >= 1.5",
             ),
             (
                 '<IsElapsedTimeCompare reference_sec="1" reference="blackboard"/>',

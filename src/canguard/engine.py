@@ -40,6 +40,7 @@ from .context import Context, FrameSink
 from .data import Frame
 from .decode import Decoder
 from .emit import TaskGate
+from .protect.base import LatchedModel
 
 if TYPE_CHECKING:
     from .replay import Columns
@@ -196,7 +197,7 @@ class Engine:
     def adopt(self, old: Engine) -> None:
         """Take over a running engine's task state, counters and source watch (config reload)."""
         self.gate.adopt(old.gate)
-        self._carry_trips(old)
+        self._carry_models(old)
         self.stats.trips = old.stats.trips
         self.stats.trip_count = old.stats.trip_count
         self.stats.frames = old.stats.frames
@@ -206,25 +207,25 @@ class Engine:
         self._last_frame_t = old._last_frame_t
         self._due = min(self._next_tick, self.gate.next_deadline())
 
-    def _carry_trips(self, old: Engine) -> None:
-        """Guards of the new tree start tripped where the same guard of the old tree is tripped.
+    def _carry_models(self, old: Engine) -> None:
+        """Each guard of the new tree continues the model state of the same guard in the old tree.
 
-        Without it, a reload while a hysteresis guard sits between its thresholds (say
-        30 A between 25 and 35) would start the new model untripped and resume the task.
-        I²t guards carry their heat through the state file instead.
+        The same guard: same node name, node type and source. Its new model keeps the new
+        parameters and takes over the old model's running state (:meth:`LatchedModel.carry_from`):
+        a trip (a hysteresis guard sitting between its thresholds stays tripped), a running
+        ``trip_after`` / ``recover_after`` timer, an inrush window, I²t heat. Without it a
+        reload that changed a threshold restarted the guard cold (issue 12, item 8).
         """
-        from .protect.base import LatchedModel
-
         old_guards = {g.name: g for g in old._guard_nodes}
         for guard in self._guard_nodes:
             before = old_guards.get(guard.name)
             if before is None or type(before) is not type(guard) or before.topic_name != guard.topic_name:
                 continue
             old_models = {role: model for role, model, _ in before.guarded()}
-            for role, model, kind in guard.guarded():
+            for role, model, _kind in guard.guarded():
                 was = old_models.get(role)
-                if kind == "threshold" and was is not None and was.tripped and isinstance(model, LatchedModel):
-                    model.carry_trip(was.snapshot().since)
+                if was is not None and isinstance(model, LatchedModel):
+                    model.carry_from(was)
 
     def finish(self, reason: str = "end", stop: bool = True) -> None:
         """End: optionally stop the task (frames out), save heat, write the exit event, flush."""

@@ -126,13 +126,22 @@ class LatchedModel(ProtectionModel):
             return None
         return abs(value)
 
-    def carry_trip(self, since: float | None) -> None:
-        """Start tripped, since ``since``: the model replaces a tripped one (a config reload).
+    def carry_from(self, old: ProtectionModel) -> None:
+        """Take over the running state of the model this one replaces (config reload, same guard).
 
-        It then recovers by its own rule (hysteresis: only at the recovery threshold),
-        so a reload never clears a trip by itself.
+        The new model keeps its own parameters (thresholds, times) and continues from where
+        the old one stood: tripped or not and since when, the latest sample, an unreported
+        trip still in the peak latch. Subclasses add what their maths keeps (a running
+        ``trip_after`` timer, I²t heat). A model of another kind carries only this part.
+        A trip is never cleared by a reload: the new model recovers by its own rule.
         """
-        self._set_tripped(True, since)
+        if not isinstance(old, LatchedModel):
+            return
+        self._tripped = old._tripped
+        self._since = old._since
+        self._latch = old._latch
+        self._value = old._value
+        self._last_t = old._last_t
 
     def _set_tripped(self, tripped: bool, t: float | None) -> bool:
         """Enter ``tripped``; True on an edge. A trip edge arms the peak latch.

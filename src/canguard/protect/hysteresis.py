@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import math
 
-from .base import REASON_OVERCURRENT, TIME_EPS_S, LatchedModel
+from .base import REASON_OVERCURRENT, TIME_EPS_S, LatchedModel, ProtectionModel
 from .inrush import InrushBlanking
 from .threshold import check_limit, level_pct
 
@@ -74,6 +74,14 @@ class Hysteresis(LatchedModel):
     def set_thresholds(self, overcurrent_a: float, recovery_a: float) -> None:
         """Change both thresholds at run time (validated like the constructor); used from the next sample."""
         self.overcurrent_a, self.recovery_a = check_thresholds(overcurrent_a, recovery_a)
+
+    def carry_from(self, old: ProtectionModel) -> None:
+        """The base state plus the running persistence timers and the inrush window (see base)."""
+        super().carry_from(old)
+        if isinstance(old, Hysteresis):
+            self._over_since, self._under_since = old._over_since, old._under_since
+            if self.inrush is not None and old.inrush is not None:
+                self.inrush.carry_from(old.inrush)
 
     def threshold_at(self, t: float) -> float | None:
         """The overcurrent threshold in force at ``t`` (None: check off during inrush blanking)."""

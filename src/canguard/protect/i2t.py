@@ -51,7 +51,7 @@ from abc import abstractmethod
 from collections.abc import Mapping
 from typing import Any
 
-from .base import REASON_I2T, LatchedModel
+from .base import REASON_I2T, LatchedModel, ProtectionModel
 
 KIND_LEAKY = "leaky"
 KIND_THERMAL = "thermal"
@@ -185,6 +185,18 @@ class _I2tModel(LatchedModel):
         if math.isnan(acc):  # unreachable by construction; fail safe if it ever happens
             acc = cap
         self._acc = min(max(acc, 0.0), cap)
+
+    def carry_from(self, old: ProtectionModel) -> None:
+        """The base state plus the heat, as a fraction of the trip level (as a restore does), and the held current.
+
+        Thresholds or the model kind may differ: the new model starts exactly as close to
+        tripping as the old one stood, not cold (that would not be fail safe).
+        """
+        super().carry_from(old)
+        if isinstance(old, _I2tModel):
+            self._set_acc(old.level * self.trip_level)
+            self._held = old._held
+            self.stale_gaps = old.stale_gaps
 
     def update(self, value: float, t: float) -> bool:
         """Feed one sample; True when the tripped state changed. See the module docstring."""

@@ -77,6 +77,11 @@ class InrushBlanking:
             self.starts += 1
         return started
 
+    def carry_from(self, old: InrushBlanking) -> None:
+        """Continue the start detection and the open window of the helper this one replaces."""
+        self._below_since, self._window_start, self._last_t = old._below_since, old._window_start, old._last_t
+        self.starts = old.starts
+
     def blanking(self, t: float) -> bool:
         """True when ``t`` lies inside a blanking window."""
         w = self._window_start
