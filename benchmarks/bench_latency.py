@@ -217,8 +217,8 @@ def report(title: str, guard: list[float], bus: list[float], bg_fps: float) -> N
 # -- (a) in-process ----------------------------------------------------------------------------
 def in_process(trials: int, fps: float, rnd: random.Random) -> None:
     """Daemon in a thread on a virtual channel; background and echo threads on the same channel."""
-    from canguard.daemon import Daemon
-    from canguard.systemd import Notifier
+    from canguard.service.daemon import Daemon
+    from canguard.service.systemd import Notifier
 
     channel = f"bench-{uuid.uuid4().hex[:10]}"
     with tempfile.TemporaryDirectory() as d:

@@ -36,7 +36,7 @@ try:
 except ImportError:  # not pip-installed: use the source tree next to this file
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
 
-from canguard.replay import ReadStats, read_log
+from canguard.io.logs import ReadStats, read_log
 
 ODRIVE_CMDS = (0x01, 0x09, 0x14, 0x17, 0x1C)  # heartbeat, encoder estimates, Iq, bus V/I, torques
 BMS_ID = 0x18FF50E5

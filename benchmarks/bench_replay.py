@@ -13,7 +13,7 @@ Then, in one run, it times:
 * ``canguard replay LOG -c config/canguard.yaml --json`` end to end in a
   subprocess (interpreter start-up included), with the subprocess' peak RSS
   (``os.wait4``'s rusage of that child only);
-* the same replay in-process (:func:`canguard.replay_cmd.replay_one`);
+* the same replay in-process (:func:`canguard.cli.replay.replay_one`);
 * ``cantools decode --single-line dbc/robot.dbc < LOG > /dev/null`` (decodes
   and prints; pure Python, so by default timed on a 100,000-frame prefix and
   scaled: the figure is frames/s either way);
@@ -47,8 +47,8 @@ try:
 except ImportError:  # not pip-installed: use the source tree next to this file
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
 
-from canguard.config import load_config
-from canguard.replay_cmd import ReplayOptions, replay_one
+from canguard.cli.replay import ReplayOptions, replay_one
+from canguard.config.loader import load_config
 from canguard.sim import write_log
 
 REPO = Path(__file__).resolve().parents[1]

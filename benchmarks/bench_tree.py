@@ -4,7 +4,7 @@ Run from anywhere (``python benchmarks/bench_tree.py``; the package is found in
 ``src/`` next to this file when it is not installed).
 
 1. **Loader vs bare.** MultiCurrentMonitoring (config/trees/multi_current_monitoring.xml)
-   built by :func:`canguard.tree.load_tree` — ports, context, events, readable
+   built by :func:`canguard.bt.loader.load_tree` — ports, context, events, readable
    names — against the same logic assembled by hand from bare py_trees
    behaviours (no ports, no edge journal): a non-memory Sequence of a battery
    check, a four-joint effort check and an action that sends its (empty) frame
@@ -42,13 +42,13 @@ if str(ROOT / "src") not in sys.path:
 
 import py_trees  # noqa: E402
 
-from canguard.clock import ManualClock  # noqa: E402
-from canguard.config import ActionConfig, SignalRef, SourceConfig  # noqa: E402
-from canguard.context import Context, ListSink  # noqa: E402
-from canguard.data import Sample  # noqa: E402
+from canguard.bt.loader import load_tree  # noqa: E402
+from canguard.config.loader import ActionConfig, SignalRef, SourceConfig  # noqa: E402
+from canguard.engine.clock import ManualClock  # noqa: E402
+from canguard.engine.context import Context, ListSink  # noqa: E402
+from canguard.io.frame import Sample  # noqa: E402
 from canguard.protect.staleness import SourceHealth  # noqa: E402
 from canguard.protect.threshold import Threshold  # noqa: E402
-from canguard.tree import load_tree  # noqa: E402
 
 Status = py_trees.common.Status
 JOINTS = ("axis0", "axis1", "axis2", "axis3")
@@ -190,7 +190,7 @@ class Leaf(py_trees.behaviour.Behaviour):
 
 
 def bench_profile(number: int, repeat: int) -> tuple[float, float, float]:
-    from canguard.nodes.profile import Profile
+    from canguard.bt.nodes.profile import Profile
 
     py_trees.blackboard.Blackboard.clear()
     bare = Leaf("leaf")

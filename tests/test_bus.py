@@ -1,4 +1,4 @@
-"""Tests of canguard.bus: opening buses, receiving into the queue, reopening, sending."""
+"""Tests of canguard.io.bus: opening buses, receiving into the queue, reopening, sending."""
 
 from __future__ import annotations
 
@@ -15,10 +15,10 @@ from pathlib import Path
 import can
 import pytest
 
-from canguard.bus import BusReader, open_bus
-from canguard.config import BusConfig
-from canguard.data import Frame
+from canguard.config.loader import BusConfig
 from canguard.errors import BusError
+from canguard.io.bus import BusReader, open_bus
+from canguard.io.frame import Frame
 
 SRC = Path(__file__).resolve().parents[1] / "src"
 
@@ -137,7 +137,7 @@ class TestBusReader:
 
         errors: list[tuple[str, BaseException]] = []
         peer = can.Bus(**cfg.kwargs)
-        caplog.set_level(logging.ERROR, logger="canguard.bus")
+        caplog.set_level(logging.ERROR, logger="canguard.io.bus")
         reader = BusReader(
             [cfg], on_error=lambda n, e: errors.append((n, e)), opener=opener, backoff_min_s=0.01
         )

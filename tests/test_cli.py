@@ -1,6 +1,6 @@
 """The ``canguard`` command's basics: --version, help on every subcommand, ``check`` and ``tree``.
 
-In-process through :func:`canguard.cli.main` with capsys; the real console entry
+In-process through :func:`canguard.cli.main.main` with capsys; the real console entry
 (``python -m canguard``) runs once, from a directory outside the repo.
 """
 
@@ -17,7 +17,7 @@ import pytest
 import yaml
 
 from canguard import __version__
-from canguard.cli import build_parser, main
+from canguard.cli.main import build_parser, main
 
 REPO = Path(__file__).resolve().parents[1]
 SRC = REPO / "src"

@@ -1,4 +1,4 @@
-"""Tests of canguard.config: the bundled config loads; each mistake names file, key and a hint."""
+"""Tests of canguard.config.loader: the bundled config loads; each mistake names file, key and a hint."""
 
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from canguard.check import describe
-from canguard.config import load_config, load_config_text
+from canguard.cli.check import describe
+from canguard.config.loader import load_config, load_config_text
 from canguard.errors import ConfigError
 
 HERE = Path(__file__).resolve().parent

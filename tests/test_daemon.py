@@ -34,8 +34,8 @@ import cantools
 import pytest
 import yaml
 
-from canguard.daemon import Daemon
-from canguard.systemd import Notifier
+from canguard.service.daemon import Daemon
+from canguard.service.systemd import Notifier
 
 REPO = Path(__file__).resolve().parents[1]
 SRC = REPO / "src"

@@ -1,4 +1,4 @@
-"""Tests of canguard.decode: configured frames decode exactly as cantools decodes them."""
+"""Tests of canguard.decode.decoder: configured frames decode exactly as cantools decodes them."""
 
 from __future__ import annotations
 
@@ -11,9 +11,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from canguard.config import Config, load_config
-from canguard.data import INVALID_INF, INVALID_LENGTH, INVALID_NAN, INVALID_PAYLOAD, Frame, Sample
-from canguard.decode import Decoder
+from canguard.config.loader import Config, load_config
+from canguard.decode.decoder import Decoder
+from canguard.io.frame import INVALID_INF, INVALID_LENGTH, INVALID_NAN, INVALID_PAYLOAD, Frame, Sample
 
 HERE = Path(__file__).resolve().parent
 EXOTIC = HERE / "data" / "foundation_exotic.yaml"

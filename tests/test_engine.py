@@ -17,12 +17,12 @@ import cantools
 import pytest
 import yaml
 
-from canguard.clock import ManualClock
-from canguard.config import load_config
-from canguard.data import Frame
-from canguard.emit import LogSink, TaskGate
-from canguard.engine import Engine
-from canguard.events import FIRST_KEYS, EventJournal, read_events
+from canguard.config.loader import load_config
+from canguard.engine.clock import ManualClock
+from canguard.engine.core import Engine
+from canguard.engine.events import FIRST_KEYS, EventJournal, read_events
+from canguard.engine.gate import LogSink, TaskGate
+from canguard.io.frame import Frame
 
 REPO = Path(__file__).resolve().parents[1]
 BUNDLED = REPO / "config" / "canguard.yaml"
@@ -436,7 +436,7 @@ class TestTripMemoryBound:
     def test_trips_beyond_the_bound_are_counted_not_kept(self, tmp_path: Path,
                                                           monkeypatch: pytest.MonkeyPatch) -> None:
         """With room for one trip, two trips give trip_count 2 and one kept event."""
-        import canguard.engine as engine_module
+        import canguard.engine.core as engine_module
 
         monkeypatch.setattr(engine_module, "MAX_KEPT_TRIPS", 1)
         rig = Rig(tmp_path)
@@ -466,7 +466,7 @@ class TestBusSink:
 
     def test_refused_frame_reaches_on_error(self, tmp_path: Path) -> None:
         """A send that fails counts as failed and calls on_error with the bus name (the metrics hook)."""
-        from canguard.emit import BusSink
+        from canguard.engine.gate import BusSink
 
         cfg = load_config(write_config(tmp_path))
         errors: list[str] = []

@@ -1,7 +1,7 @@
 """Every error at once (issue 12, item 6): one ``canguard check`` lists every mistake of a config,
 its DBC files and its tree, each as ``file:line: key: what was expected``, then exits 2.
 
-In-process through :func:`canguard.cli.main`; every file is written under ``tmp_path``.
+In-process through :func:`canguard.cli.main.main`; every file is written under ``tmp_path``.
 """
 
 from __future__ import annotations
@@ -11,8 +11,8 @@ from pathlib import Path
 
 import pytest
 
-from canguard.cli import main
-from canguard.config import load_config_text
+from canguard.cli.main import main
+from canguard.config.loader import load_config_text
 from canguard.errors import MAX_SHOWN, ConfigError, TreeError, render_problems
 
 REPO = Path(__file__).resolve().parents[1]
@@ -189,8 +189,8 @@ class TestTreeErrorsAtOnce:
             '<IsCurrentSafe topic_name="/bms"/>\n      <IsCurrentNormal topic_name="axis9"/>',
         )
         path = write(tmp_path, config_text(), tree)
-        from canguard.config import load_config
-        from canguard.tree import check_tree
+        from canguard.bt.loader import check_tree
+        from canguard.config.loader import load_config
 
         with pytest.raises(TreeError) as info:
             check_tree(load_config(path))
@@ -216,8 +216,8 @@ class TestTreeErrorsAtOnce:
 </root>
 """
         path = write(tmp_path, config_text(), tree)
-        from canguard.config import load_config
-        from canguard.tree import load_config_tree
+        from canguard.bt.loader import load_config_tree
+        from canguard.config.loader import load_config
 
         with pytest.raises(TreeError) as info:
             load_config_tree(load_config(path))

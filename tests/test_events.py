@@ -17,9 +17,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from canguard import events as events_mod
+from canguard.engine import events as events_mod
+from canguard.engine.events import EventJournal, encode_event, journal_files, read_events
 from canguard.errors import LogFormatError
-from canguard.events import EventJournal, encode_event, journal_files, read_events
 
 SRC = Path(__file__).resolve().parents[1] / "src"
 
@@ -148,7 +148,7 @@ class TestEventJournal:
         code = textwrap.dedent(
             f"""
             import sys, time
-            from canguard.events import EventJournal
+            from canguard.engine.events import EventJournal
             j = EventJournal({str(path)!r}, max_bytes=4096)
             for i in range(500):
                 j.write({{"event": "trip", "t": float(i), "node": "N", "value": i}})

@@ -18,8 +18,8 @@ from typing import Any
 
 import pytest
 
-from canguard.config import load_config
-from canguard.replay_cmd import ReplayOptions, replay_one
+from canguard.cli.replay import ReplayOptions, replay_one
+from canguard.config.loader import load_config
 from canguard.sim import write_log
 
 REPO = Path(__file__).resolve().parents[1]

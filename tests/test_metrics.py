@@ -10,7 +10,7 @@ from collections.abc import Iterator
 
 import pytest
 
-from canguard.metrics import Metrics, MetricsUnavailable, NullMetrics, make_metrics, parse_address
+from canguard.service.metrics import Metrics, MetricsUnavailable, NullMetrics, make_metrics, parse_address
 
 
 def _value(text: str, name: str, labels: str = "") -> float:

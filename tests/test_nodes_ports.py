@@ -7,7 +7,7 @@ from typing import Any
 
 import pytest
 
-from canguard.nodes import BUILTIN_NODES, CanguardNode, ConfiguredAction
+from canguard.bt.nodes import BUILTIN_NODES, CanguardNode, ConfiguredAction
 
 NO = object()
 """No default: required (or optional without a default where marked)."""

@@ -7,7 +7,7 @@ from pathlib import Path
 import py_trees
 import pytest
 
-import canguard.nodes.profile as profile_module
+import canguard.bt.nodes.profile as profile_module
 from treekit import F, R, Rig, S, frame, install_scripted, xml_tree
 
 BB = py_trees.blackboard.Blackboard
@@ -162,7 +162,7 @@ class TestFrameActions:
 
     def test_action_without_frames(self, tmp_path: Path) -> None:
         """An action with no frames succeeds and sends nothing."""
-        from canguard.config import ActionConfig
+        from canguard.config.loader import ActionConfig
 
         rig = Rig(actions=())
         rig.ctx.actions["Noop"] = ActionConfig("Noop")

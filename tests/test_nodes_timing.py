@@ -7,7 +7,7 @@ from pathlib import Path
 import py_trees
 import pytest
 
-from canguard.nodes.timing import compare
+from canguard.bt.nodes.timing import compare
 from treekit import F, Rig, S, xml_tree
 
 BB = py_trees.blackboard.Blackboard

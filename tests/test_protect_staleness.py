@@ -6,8 +6,8 @@ import math
 
 import pytest
 
-from canguard.config import SignalRef, SourceConfig
-from canguard.data import Sample
+from canguard.config.loader import SignalRef, SourceConfig
+from canguard.io.frame import Sample
 from canguard.protect import SourceHealth
 
 

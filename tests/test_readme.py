@@ -31,7 +31,7 @@ class TestNodeReference:
 
     def test_every_builtin_node_is_listed(self) -> None:
         """Every node ID of the closed registry has a row in the generated reference."""
-        from canguard.nodes import BUILTIN_NODES
+        from canguard.bt.nodes import BUILTIN_NODES
 
         text = _script().render()
         for node_id in BUILTIN_NODES:

@@ -17,8 +17,8 @@ from pathlib import Path
 
 import pytest
 
-from canguard.data import Frame
-from canguard.emit import TaskGate
+from canguard.engine.gate import TaskGate
+from canguard.io.frame import Frame
 from test_engine import SET_STATE_IDS, bms_frame
 from test_engine import Rig as EngineRig
 from treekit import F, Rig, S, Status, xml_tree

@@ -14,10 +14,10 @@ from pathlib import Path
 import pytest
 import yaml
 
-from canguard.clock import ManualClock
-from canguard.config import Config, load_config
-from canguard.emit import LogSink, TaskGate
-from canguard.engine import Engine
+from canguard.config.loader import Config, load_config
+from canguard.engine.clock import ManualClock
+from canguard.engine.core import Engine
+from canguard.engine.gate import LogSink, TaskGate
 from canguard.protect.hysteresis import Hysteresis
 from canguard.protect.i2t import LeakyI2t, ThermalI2t
 from canguard.protect.inrush import InrushBlanking

@@ -1,6 +1,6 @@
 """``canguard replay``: the daemon's engine over recorded logs, as a user runs it.
 
-Everything goes through :func:`canguard.cli.main` in-process (stdout / stderr via
+Everything goes through :func:`canguard.cli.main.main` in-process (stdout / stderr via
 capsys), except one test per exit code of the real console entry
 (``python -m canguard``). Logs are small simulator logs written once per session.
 """
@@ -22,8 +22,8 @@ import cantools
 import pytest
 import yaml
 
-from canguard.cli import main
-from canguard.replay_cmd import compare_baseline
+from canguard.cli.main import main
+from canguard.cli.replay import compare_baseline
 from canguard.sim import write_log
 
 REPO = Path(__file__).resolve().parents[1]
@@ -635,11 +635,11 @@ class TestLiveParity:
 
     def test_daemon_start_before_first_frame_is_not_a_trip(self, data: Data) -> None:
         """A daemon whose first ticks precede the first frame (as live) counts no trip, like the replay."""
-        from canguard.clock import ManualClock
-        from canguard.config import load_config
-        from canguard.emit import LogSink
-        from canguard.engine import Engine
-        from canguard.replay import read_log
+        from canguard.config.loader import load_config
+        from canguard.engine.clock import ManualClock
+        from canguard.engine.core import Engine
+        from canguard.engine.gate import LogSink
+        from canguard.io.logs import read_log
 
         cfg = load_config(data["cfg"])
         clock = ManualClock(T0 - 0.05)
@@ -768,8 +768,8 @@ class TestEmitStreams:
         self, run: Run, data: Data, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
     ) -> None:
         """The replay's LogSink keeps no frame, and the file still has every frame counted in frames_sent."""
-        import canguard.replay_cmd as replay_cmd
-        from canguard.emit import LogSink
+        import canguard.cli.replay as replay_cmd
+        from canguard.engine.gate import LogSink
 
         sinks: list[LogSink] = []
 
@@ -790,11 +790,11 @@ class TestEmitStreams:
         """The streamed --emit file has the bytes write_candump gives for the frames a keeping sink holds."""
         import io
 
-        from canguard.clock import ManualClock
-        from canguard.config import load_config
-        from canguard.emit import LogSink
-        from canguard.engine import Engine
-        from canguard.replay import read_log, write_candump
+        from canguard.config.loader import load_config
+        from canguard.engine.clock import ManualClock
+        from canguard.engine.core import Engine
+        from canguard.engine.gate import LogSink
+        from canguard.io.logs import read_log, write_candump
 
         emit = tmp_path / "emit.log"
         code, _, err = run(data["spike"], "-c", data["cfg"], "--emit", emit)
@@ -814,8 +814,8 @@ class TestEmitStreams:
         """LogSink(out=...) writes a candump -L line per frame as it is sent; keep=False keeps none."""
         import io
 
-        from canguard.config import BusConfig, FrameSpec
-        from canguard.emit import LogSink
+        from canguard.config.loader import BusConfig, FrameSpec
+        from canguard.engine.gate import LogSink
 
         buf = io.StringIO()
         sink = LogSink(lambda: 12.5, {"main": BusConfig(name="main", kwargs={"channel": "can0"})},

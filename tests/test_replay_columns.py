@@ -1,9 +1,9 @@
 """The replay column path against the reference path, byte for byte.
 
-:meth:`Engine.run_log <canguard.engine.Engine.run_log>` works on plain candump
+:meth:`Engine.run_log <canguard.engine.core.Engine.run_log>` works on plain candump
 blocks as text columns (``Engine._run_columns``, ``Engine._cross`` and the row
-handlers of :mod:`canguard.rows`); ``Engine.columns = False`` makes it go frame
-by frame through :meth:`Engine.feed <canguard.engine.Engine.feed>`, the
+handlers of :mod:`canguard.engine.rows`); ``Engine.columns = False`` makes it go frame
+by frame through :meth:`Engine.feed <canguard.engine.core.Engine.feed>`, the
 reference. Every test here replays one log through both, with the reader's
 blocks at several sizes (so that block boundaries fall everywhere: at ticks,
 at trips, inside gaps), and compares the summary, the ``--events`` file, the
@@ -36,13 +36,13 @@ import py_trees
 import pytest
 import yaml
 
-import canguard.replay
-import canguard.replay_cmd
-import canguard.rows
-from canguard.config import Config, load_config
-from canguard.engine import Engine
-from canguard.replay import Columns, read_log
-from canguard.replay_cmd import ReplayOptions, replay_one
+import canguard.cli.replay
+import canguard.engine.rows
+import canguard.io.logs
+from canguard.cli.replay import ReplayOptions, replay_one
+from canguard.config.loader import Config, load_config
+from canguard.engine.core import Engine
+from canguard.io.logs import Columns, read_log
 from canguard.sim import write_log
 
 REPO = Path(__file__).resolve().parents[1]
@@ -51,7 +51,7 @@ BUNDLED = REPO / "config" / "canguard.yaml"
 ROBOT_GUARD = REPO / "config" / "examples" / "robot_guard.yaml"
 MULTI = REPO / "config" / "examples" / "multi_current_monitoring.yaml"
 TIMED = REPO / "config" / "examples" / "time_windowed_action.yaml"
-DEFAULT_CHUNK = canguard.replay.CHUNK_CHARS
+DEFAULT_CHUNK = canguard.io.logs.CHUNK_CHARS
 
 SMALL_CHUNKS = (97, 300, 1009, 4096)
 """Block sizes (characters) besides the reader's default: 2 lines a block up to about a hundred."""
@@ -131,8 +131,8 @@ def replay(cfg: Config, log: Path, out: Path, *, columns: bool, chunk: int,
     counts = {"blocks": 0, "handled": 0, "fed": 0}
     handled_ids: set[int] = set()
     run_columns = Engine._run_columns
-    compile_row = canguard.rows.compile_row
-    build_summary = canguard.replay_cmd.build_summary
+    compile_row = canguard.engine.rows.compile_row
+    build_summary = canguard.cli.replay.build_summary
 
     def counted_run_columns(self: Engine, cols: Columns, cursor: Any) -> bool:
         took = run_columns(self, cols, cursor)
@@ -162,9 +162,9 @@ def replay(cfg: Config, log: Path, out: Path, *, columns: bool, chunk: int,
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(Engine, "columns", columns)
         mp.setattr(Engine, "_run_columns", counted_run_columns)
-        mp.setattr(canguard.rows, "compile_row", counted_compile_row)
-        mp.setattr(canguard.replay_cmd, "build_summary", capturing_build_summary)
-        mp.setattr(canguard.replay, "CHUNK_CHARS", chunk)
+        mp.setattr(canguard.engine.rows, "compile_row", counted_compile_row)
+        mp.setattr(canguard.cli.replay, "build_summary", capturing_build_summary)
+        mp.setattr(canguard.io.logs, "CHUNK_CHARS", chunk)
         py_trees.blackboard.Blackboard.clear()  # global: the two runs must not see each other's keys
         summary = replay_one(cfg, log, ReplayOptions(events=events, emit=emit, channel_map=channel_map or {}))
         py_trees.blackboard.Blackboard.clear()
@@ -268,7 +268,7 @@ def mixed_case(text: str, k: int) -> str:
 def chunks_of(log: Path, chunk: int) -> list[Columns | list[Any]]:
     """The reader's blocks of ``log`` at ``chunk`` characters (what run_log receives)."""
     with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(canguard.replay, "CHUNK_CHARS", chunk)
+        mp.setattr(canguard.io.logs, "CHUNK_CHARS", chunk)
         return list(read_log(log).chunks())
 
 
@@ -576,7 +576,7 @@ def chunk_starting_at(log: Path, i: int) -> int:
 
 def sim_lines(seconds: float, channel: str, scenarios: list[str], seed: int) -> list[tuple[float, str]]:
     """(t, candump -L line) of a simulated robot on ``channel``."""
-    from canguard.replay import format_candump_line
+    from canguard.io.logs import format_candump_line
     from canguard.sim import SimRobot
 
     robot = SimRobot(str(DBC), channel=channel, scenarios=scenarios, seed=seed)
@@ -798,7 +798,7 @@ class TestTheComparison:
     def test_catches_a_handler_that_drops_edges(self, custom: tuple[Config, Path], tmp_path: Path) -> None:
         """Row handlers that never report an edge (no edge tick): the comparison fails."""
         cfg, log = custom
-        compile_row = canguard.rows.compile_row
+        compile_row = canguard.engine.rows.compile_row
 
         def edgeless(*args: Any) -> Any:
             handler = compile_row(*args)
@@ -808,7 +808,7 @@ class TestTheComparison:
             return handler
 
         with pytest.MonkeyPatch.context() as mp:
-            mp.setattr(canguard.rows, "compile_row", edgeless)
+            mp.setattr(canguard.engine.rows, "compile_row", edgeless)
             with pytest.raises(AssertionError):
                 compare(cfg, log, tmp_path, (300,))
 
@@ -827,7 +827,7 @@ class TestPassiveBatches:
     @staticmethod
     def _count_batches(monkeypatch: pytest.MonkeyPatch) -> dict[str, int]:
         """Count the blocks each passive batch took whole (True) or gave back (False)."""
-        from canguard import rows
+        from canguard.engine import rows
 
         counts = {"taken": 0, "given_back": 0}
         compile_passive = rows.compile_passive
@@ -852,7 +852,7 @@ class TestPassiveBatches:
         self, sim_log: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, strided: bool
     ) -> None:
         """Every scenario (stale BMS, NaN, garbage) on the bundled config: batches taken and given back, same bytes."""
-        from canguard import rows
+        from canguard.engine import rows
 
         if not strided:
             monkeypatch.setattr(rows, "_strided", lambda entry, indexes: None)
@@ -864,7 +864,7 @@ class TestPassiveBatches:
         self, custom: tuple[Config, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
     ) -> None:
         """The scripted log's unread source (NaN, a silent spell) read payload by payload: the same."""
-        from canguard import rows
+        from canguard.engine import rows
 
         monkeypatch.setattr(rows, "_strided", lambda entry, indexes: None)
         counts = self._count_batches(monkeypatch)

@@ -1,4 +1,4 @@
-"""Log readers and the candump -L writer of canguard.replay (issue 6: formats, bad input, round trips)."""
+"""Log readers and the candump -L writer of canguard.io.logs (issue 6: formats, bad input, round trips)."""
 
 from __future__ import annotations
 
@@ -12,11 +12,10 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from canguard import replay
-from canguard.data import Frame
 from canguard.errors import LogFormatError
-from canguard.progress import ProgressBar, wrap_progress
-from canguard.replay import (
+from canguard.io import logs as replay
+from canguard.io.frame import Frame
+from canguard.io.logs import (
     BadLine,
     ReadStats,
     format_candump_line,
@@ -25,6 +24,7 @@ from canguard.replay import (
     read_log,
     write_candump,
 )
+from canguard.report.progress import ProgressBar, wrap_progress
 
 T0 = 1547073727.670704
 

@@ -15,7 +15,7 @@ from typing import Any
 
 import pytest
 
-from canguard.cli import main
+from canguard.cli.main import main
 
 REPO = Path(__file__).resolve().parents[1]
 LOGS = sorted((REPO / "examples").glob("*.log.gz"))

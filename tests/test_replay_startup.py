@@ -10,9 +10,9 @@ from pathlib import Path
 
 import pytest
 
-import canguard.replay_cmd as replay_cmd
-from canguard.cli import main
-from canguard.config import Config
+import canguard.cli.replay as replay_cmd
+from canguard.cli.main import main
+from canguard.config.loader import Config
 from canguard.sim import write_log
 
 REPO = Path(__file__).resolve().parents[1]
@@ -60,7 +60,7 @@ def test_plain_replay_imports_neither_process_pool_nor_matplotlib(logs: list[Pat
     """A replay without --jobs N or --plot does not import concurrent.futures.process or matplotlib."""
     probe = (
         "import sys\n"
-        "from canguard.cli import main\n"
+        "from canguard.cli.main import main\n"
         f"code = main(['replay', {str(logs[0])!r}, '-c', {str(BUNDLED)!r}, '--json'])\n"
         "mods = ('concurrent.futures.process', 'matplotlib')\n"
         "print('LOADED', code, *[m for m in mods if m in sys.modules], file=sys.stderr)\n"

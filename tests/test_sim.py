@@ -16,8 +16,8 @@ import can
 import cantools
 import pytest
 
-from canguard.data import Frame
-from canguard.replay import read_log
+from canguard.io.frame import Frame
+from canguard.io.logs import read_log
 from canguard.sim import (
     AXIS_STATE_CLOSED_LOOP,
     AXIS_STATE_IDLE,

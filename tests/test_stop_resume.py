@@ -19,15 +19,15 @@ import cantools
 import pytest
 import yaml
 
-from canguard import nodes
-from canguard.clock import ManualClock
-from canguard.config import Config, load_config
-from canguard.data import Frame
-from canguard.emit import LogSink
-from canguard.engine import Engine
+from canguard.bt import nodes
+from canguard.bt.loader import show_tree
+from canguard.bt.nodes.actions import ConfiguredAction
+from canguard.config.loader import Config, load_config
+from canguard.engine.clock import ManualClock
+from canguard.engine.core import Engine
+from canguard.engine.gate import LogSink
 from canguard.errors import ConfigError
-from canguard.nodes.actions import ConfiguredAction
-from canguard.tree import show_tree
+from canguard.io.frame import Frame
 
 REPO = Path(__file__).resolve().parents[1]
 DBC = REPO / "dbc" / "robot.dbc"

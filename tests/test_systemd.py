@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from canguard.systemd import Notifier, WatchdogPolicy, status_line, watchdog_verdict
+from canguard.service.systemd import Notifier, WatchdogPolicy, status_line, watchdog_verdict
 
 SYSTEMD_DIR = Path(__file__).resolve().parents[1] / "systemd"
 ANALYZE = shutil.which("systemd-analyze")
@@ -110,7 +110,7 @@ class TestNotifier:
     ) -> None:
         """A socket that is gone makes notify return False, logged at WARNING only the first time."""
         n = Notifier({"NOTIFY_SOCKET": str(tmp_path / "missing.sock")})
-        with caplog.at_level(logging.DEBUG, logger="canguard.systemd"):
+        with caplog.at_level(logging.DEBUG, logger="canguard.service.systemd"):
             assert not n.ready()
             assert not n.watchdog()
         warnings = [r for r in caplog.records if r.levelno == logging.WARNING]

@@ -6,8 +6,8 @@ from pathlib import Path
 
 import pytest
 
-from canguard.config import load_config
-from canguard.tree import context_for, guard_coverage, load_tree
+from canguard.bt.loader import context_for, guard_coverage, load_tree
+from canguard.config.loader import load_config
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -55,7 +55,7 @@ class TestUncoveredTreeRefused:
         """`canguard check` and `canguard replay` on Sequence[IsCurrentSafe, ExecuteTask] exit 2 naming the fix."""
         import yaml
 
-        from canguard.cli import main
+        from canguard.cli.main import main
 
         xml = tmp_path / "t.xml"
         xml.write_text(

@@ -6,9 +6,9 @@ from pathlib import Path
 
 import pytest
 
-from canguard.config import load_config
+from canguard.bt.loader import check_tree, context_for, load_config_tree, show_tree
+from canguard.config.loader import load_config
 from canguard.errors import TreeError
-from canguard.tree import check_tree, context_for, load_config_tree, show_tree
 from treekit import REPO, TREES
 
 EXAMPLES = sorted((REPO / "config" / "examples").glob("*.yaml"))

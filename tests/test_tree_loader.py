@@ -11,11 +11,8 @@ from typing import Any, ClassVar
 import py_trees
 import pytest
 
-import canguard.tree as tree_module
-from canguard.config import ActionConfig
-from canguard.errors import TreeError
-from canguard.nodes import BUILTIN_NODES, CanguardNode, port_info
-from canguard.tree import (
+import canguard.bt.loader as tree_module
+from canguard.bt.loader import (
     build_registry,
     load_tree,
     nodes_model_xml,
@@ -23,6 +20,9 @@ from canguard.tree import (
     render_text,
     validate_against_config,
 )
+from canguard.bt.nodes import BUILTIN_NODES, CanguardNode, port_info
+from canguard.config.loader import ActionConfig
+from canguard.errors import TreeError
 from treekit import TREES, F, FakeEntryPoint, R, Rig, S, xml_tree
 
 UUID = re.compile(r"[0-9a-f]{8}-[0-9a-f]{4}-[0-9a-f]{4}-[0-9a-f]{4}-[0-9a-f]{12}")
@@ -553,7 +553,7 @@ class TestRegistry:
         rig.load_text(tmp_path, xml_tree('<Sequence><Blink period="2"/></Sequence>'))
         assert calls == ["Blink"]
         assert [rig.tick() for _ in range(3)] == [S, F, S]
-        assert type(rig.loaded.root).__module__ == "canguard.nodes.control"  # type: ignore[union-attr]
+        assert type(rig.loaded.root).__module__ == "canguard.bt.nodes.control"  # type: ignore[union-attr]
 
     def test_broken_plugin_names_itself(self, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
         """A plug-in that fails to import, or is not a ports behaviour, is a TreeError naming it."""

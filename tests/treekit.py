@@ -14,14 +14,14 @@ from typing import Any
 import py_trees
 import pytest
 
-from canguard import tree as tree_module
-from canguard.clock import ManualClock
-from canguard.config import ActionConfig, FrameSpec, SignalRef, SourceConfig, SourceKind
-from canguard.context import Context, ListSink, NullTaskGate
-from canguard.data import Sample
-from canguard.nodes import CanguardNode, port_info
-from canguard.nodes.base import halted
-from canguard.tree import LoadedTree, load_tree
+from canguard.bt import loader as tree_module
+from canguard.bt.loader import LoadedTree, load_tree
+from canguard.bt.nodes import CanguardNode, port_info
+from canguard.bt.nodes.base import halted
+from canguard.config.loader import ActionConfig, FrameSpec, SignalRef, SourceConfig, SourceKind
+from canguard.engine.clock import ManualClock
+from canguard.engine.context import Context, ListSink, NullTaskGate
+from canguard.io.frame import Sample
 
 REPO = Path(__file__).resolve().parents[1]
 TREES = REPO / "config" / "trees"

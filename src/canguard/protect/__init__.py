@@ -7,13 +7,13 @@
 - :class:`SourceHealth`: no data, stale, not present, NaN/inf, out of range.
 """
 
-from .base import LatchedModel, ProtectionModel, Snapshot
-from .hysteresis import Hysteresis
-from .i2t import LeakyI2t, ThermalI2t, thermal_tau
-from .inrush import InrushBlanking
-from .staleness import SourceHealth
-from .state import HeatModel, HeatStore
-from .threshold import Threshold
+from canguard.protect.base import LatchedModel, ProtectionModel, Snapshot
+from canguard.protect.hysteresis import Hysteresis
+from canguard.protect.i2t import LeakyI2t, ThermalI2t, thermal_tau
+from canguard.protect.inrush import InrushBlanking
+from canguard.protect.staleness import SourceHealth
+from canguard.protect.state import HeatModel, HeatStore
+from canguard.protect.threshold import Threshold
 
 __all__ = [
     "HeatModel",

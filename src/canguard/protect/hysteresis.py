@@ -21,9 +21,9 @@ from __future__ import annotations
 
 import math
 
-from .base import REASON_OVERCURRENT, TIME_EPS_S, LatchedModel, ProtectionModel
-from .inrush import InrushBlanking
-from .threshold import check_limit, level_pct
+from canguard.protect.base import REASON_OVERCURRENT, TIME_EPS_S, LatchedModel, ProtectionModel
+from canguard.protect.inrush import InrushBlanking
+from canguard.protect.threshold import check_limit, level_pct
 
 
 def check_thresholds(overcurrent_a: float, recovery_a: float) -> tuple[float, float]:

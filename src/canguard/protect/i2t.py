@@ -51,7 +51,7 @@ from abc import abstractmethod
 from collections.abc import Mapping
 from typing import Any
 
-from .base import REASON_I2T, LatchedModel, ProtectionModel
+from canguard.protect.base import REASON_I2T, LatchedModel, ProtectionModel
 
 KIND_LEAKY = "leaky"
 KIND_THERMAL = "thermal"

@@ -23,8 +23,8 @@ from __future__ import annotations
 
 import math
 
-from .base import TIME_EPS_S
-from .threshold import check_limit
+from canguard.protect.base import TIME_EPS_S
+from canguard.protect.threshold import check_limit
 
 
 class InrushBlanking:

@@ -1,7 +1,7 @@
 """Staleness and validity of one source: is there a usable, fresh value?
 
 :class:`SourceHealth` sees every sample of one configured source (valid or not,
-see :class:`~canguard.data.Sample`) and answers, at any time ``now``, why the
+see :class:`~canguard.io.frame.Sample`) and answers, at any time ``now``, why the
 source cannot be trusted (fail safe: every non-empty reason fails the guard):
 
 =============== ===========================================================
@@ -27,9 +27,9 @@ from __future__ import annotations
 
 import math
 
-from ..config import SourceConfig
-from ..data import INVALID_INF, INVALID_NAN, INVALID_RANGE, Sample
-from .base import REASON_NO_DATA, REASON_NOT_PRESENT, REASON_OK, REASON_STALE
+from canguard.config.loader import SourceConfig
+from canguard.io.frame import INVALID_INF, INVALID_NAN, INVALID_RANGE, Sample
+from canguard.protect.base import REASON_NO_DATA, REASON_NOT_PRESENT, REASON_OK, REASON_STALE
 
 PRESENT = "present"
 """The role of a source's presence signal."""

@@ -15,7 +15,7 @@ The file is one small JSON document::
   ``on_corrupt``: ``hot`` (default, fail safe: at the trip level) or ``cold``.
 - **Restore** (:meth:`HeatStore.restore`): the model's saved state cooled for
   the downtime: ``now − saved time``, or, given a ``clock`` that stamps saves
-  (the daemon's :class:`canguard.clock.BootClock`), the time since boot when the
+  (the daemon's :class:`canguard.engine.clock.BootClock`), the time since boot when the
   save was made in this same boot, so a wall-clock step is never taken for
   cooling (see :meth:`canguard.protect.i2t.LeakyI2t.restore`). A key
   the file does not know (a guard added since) starts cold; one whose entry is
@@ -37,7 +37,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
 
-from ..errors import StateFileError
+from canguard.errors import StateFileError
 
 log = logging.getLogger(__name__)
 
@@ -47,7 +47,7 @@ ON_CORRUPT = ("hot", "cold")
 
 
 class DowntimeClock(Protocol):
-    """Stamps saves and measures downtime (the daemon passes :class:`canguard.clock.BootClock`)."""
+    """Stamps saves and measures downtime (the daemon passes :class:`canguard.engine.clock.BootClock`)."""
 
     def stamp(self) -> dict[str, object]:
         """What a save records besides its time."""

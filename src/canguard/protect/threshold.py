@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 
-from .base import REASON_OVERCURRENT, LatchedModel
+from canguard.protect.base import REASON_OVERCURRENT, LatchedModel
 
 
 def check_limit(name: str, value: float) -> float:

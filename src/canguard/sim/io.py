@@ -19,8 +19,8 @@ from typing import IO, Any
 
 import can
 
-from canguard.data import Frame
-from canguard.replay import format_candump_line, frame_from_message
+from canguard.io.frame import Frame
+from canguard.io.logs import format_candump_line, frame_from_message
 from canguard.sim.robot import SimRobot
 
 log = logging.getLogger(__name__)

@@ -36,7 +36,7 @@ from os import PathLike
 
 import cantools.database
 
-from canguard.data import Frame
+from canguard.io.frame import Frame
 from canguard.sim.encode import MessageEncoder, build_encoders
 from canguard.sim.scenarios import Scenario, parse_scenario
 

@@ -25,7 +25,7 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING, ClassVar
 
 if TYPE_CHECKING:
-    from canguard.data import Frame
+    from canguard.io.frame import Frame
     from canguard.sim.robot import SimRobot
 
 # linux/can/error.h: the flag candump writes into the id of an error frame, and error classes.
@@ -245,7 +245,7 @@ class ErrorBurst(Scenario):
     Bus errors (bit and form errors, error class ``CAN_ERR_PROT |
     CAN_ERR_BUSERROR`` = 0x88) with the error counters rising by 8 per frame,
     ending in a controller warning (class 0x84, rx/tx warning), as a loose
-    connector produces. As :func:`canguard.replay.read_log` reads them back:
+    connector produces. As :func:`canguard.io.logs.read_log` reads them back:
     ``is_error_frame`` and ``is_extended_id`` True, ``arbitration_id`` the
     class bits without CAN_ERR_FLAG; candump -L writes ``20000088#...``, which
     python-can's reader also recognises as an error frame.

@@ -8,9 +8,9 @@ boolean. No Python eval/exec: a tokenizer, a precedence-climbing parser and a
 tree-walking evaluator with BT.CPP 4's typing rules (see :mod:`.values`).
 """
 
-from .blackboard import DictBlackboard, ScriptBlackboard
-from .errors import ScriptError
-from .script import Script, parse
-from .values import UNSET, as_condition
+from canguard.bt.scripting.blackboard import DictBlackboard, ScriptBlackboard
+from canguard.bt.scripting.errors import ScriptError
+from canguard.bt.scripting.script import Script, parse
+from canguard.bt.scripting.values import UNSET, as_condition
 
 __all__ = ["UNSET", "DictBlackboard", "Script", "ScriptBlackboard", "ScriptError", "as_condition", "parse"]

@@ -14,9 +14,9 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 
-from .blackboard import ScriptBlackboard
-from .errors import ScriptError
-from .values import (
+from canguard.bt.scripting.blackboard import ScriptBlackboard
+from canguard.bt.scripting.errors import ScriptError
+from canguard.bt.scripting.values import (
     FLT_EPSILON,
     INT64_MAX,
     INT64_MIN,

@@ -26,10 +26,10 @@ parse error here (BT.CPP only notices when the script runs).
 
 from __future__ import annotations
 
-from .errors import ScriptError
-from .expr import Assign, Binary, Compare, Expr, Literal, Name, Ternary, Unary
-from .lexer import Token, tokenize
-from .values import INT64_MAX
+from canguard.bt.scripting.errors import ScriptError
+from canguard.bt.scripting.expr import Assign, Binary, Compare, Expr, Literal, Name, Ternary, Unary
+from canguard.bt.scripting.lexer import Token, tokenize
+from canguard.bt.scripting.values import INT64_MAX
 
 ASSIGNMENT_OPS = frozenset({":=", "=", "+=", "-=", "*=", "/="})
 COMPARISON_OPS = frozenset({"==", "!=", "<", "<=", ">", ">="})

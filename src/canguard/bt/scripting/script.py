@@ -5,11 +5,11 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import fields
 
-from .blackboard import ScriptBlackboard
-from .errors import ScriptError
-from .expr import Assign, Env, Expr
-from .parser import parse_statements
-from .values import UNSET, as_condition
+from canguard.bt.scripting.blackboard import ScriptBlackboard
+from canguard.bt.scripting.errors import ScriptError
+from canguard.bt.scripting.expr import Assign, Env, Expr
+from canguard.bt.scripting.parser import parse_statements
+from canguard.bt.scripting.values import UNSET, as_condition
 
 MAX_DEPTH = 200
 """Deepest expression tree a script may have (nesting and operator chains); keeps a

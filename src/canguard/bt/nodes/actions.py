@@ -1,0 +1,173 @@
+"""Action nodes: frames handed to the context's sink or task gate.
+
+- **ExecuteTask**: the robot's task. Each tick calls ``ctx.task.run(node, now)``
+  (the gate sends the task's enable / heartbeat frames at its period) and returns
+  RUNNING; a halt (interrupted while RUNNING, e.g. a ReactiveSequence guard
+  failing) calls ``ctx.task.halt(node, now)``, which sends the stop frames.
+- **EmitStop**: sends the config's stop frames (``ctx.stop_frames``) once; SUCCESS.
+- **ConfiguredAction**: one node type per ``actions:`` entry of the config (the
+  node ID is the entry's key, e.g. PerformRecovery): hands its frames to the task
+  gate (``ctx.task.action``), writes ``output_time`` = now when that port is wired,
+  SUCCESS. Its ``role`` says what the gate does with them: a ``task`` action's
+  frames are part of the task (withheld while the task is stopped, and the node's
+  feedback says so), a ``recovery`` action's frames go out during a stop too. The
+  placeholder actions of the design notes (PerformDiagnostics, NavigateToPose,
+  ContinueOperation...) are such entries.
+- **ResetStop**: the explicit reset of ``stop.release: manual``; SUCCESS.
+
+:func:`assign_roles` resolves ``role: auto`` for one tree: an action is part of the
+task when the tree has no ExecuteTask node (the tree's actions are its task, e.g.
+ContinueOperation in MultiCurrentMonitoring), a recovery action when it has one
+(ExecuteTask is the task; the others serve it, e.g. ClearDriveErrors in RobotGuard).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import py_trees
+
+from canguard.bt.nodes.base import RUNNING, SUCCESS, CanguardNode, halted, port_info
+from canguard.config.loader import ActionConfig
+
+
+class ExecuteTask(CanguardNode, py_trees.behaviour.Behaviour):
+    """Runs the task while ticked (RUNNING); stops it when halted."""
+
+    KIND = "Action"
+    DESCRIPTION = "run the robot's task (task frames every period) while ticked; halt stops it"
+    INPUT_PORTS = {}  # noqa: RUF012 - py_trees reads ports as plain class dicts
+    OUTPUT_PORTS = {}  # noqa: RUF012
+
+    def update(self) -> py_trees.common.Status:
+        """Keep the task running."""
+        self.ctx.task.run(self.name, self.ctx.clock.now())
+        return RUNNING
+
+    def terminate(self, new_status: py_trees.common.Status) -> None:
+        """A halt (interrupted while RUNNING) stops the task."""
+        if halted(self, new_status):
+            self.ctx.task.halt(self.name, self.ctx.clock.now())
+
+
+class EmitStop(CanguardNode, py_trees.behaviour.Behaviour):
+    """Sends the config's stop frames; SUCCESS."""
+
+    KIND = "Action"
+    DESCRIPTION = "send the config's stop frames once"
+    INPUT_PORTS = {}  # noqa: RUF012
+    OUTPUT_PORTS = {}  # noqa: RUF012
+
+    def update(self) -> py_trees.common.Status:
+        """Hand the stop frames to the sink."""
+        frames = self.ctx.stop_frames
+        if frames:
+            self.ctx.sink.send(frames, origin=self.name)
+        return SUCCESS
+
+
+class ConfiguredAction(CanguardNode, py_trees.behaviour.Behaviour):
+    """An ``actions:`` entry of the config: sends its frames; writes output_time when wired; SUCCESS."""
+
+    KIND = "Action"
+    DESCRIPTION = "an actions: entry of the config: send its frames"
+    INPUT_PORTS = {}  # noqa: RUF012
+    OUTPUT_PORTS = {  # noqa: RUF012
+        "output_time": port_info(
+            float, "receives the time (s) the action ran, e.g. {last_recovery_time}", required=False
+        ),
+    }
+
+    def __init__(self, name: str, *, action: ActionConfig, **kwargs: Any) -> None:
+        super().__init__(name=name, **kwargs)
+        self.action = action
+        self.role = "task" if action.role == "auto" else action.role
+        """``task`` or ``recovery``; ``auto`` is resolved per tree by :func:`assign_roles`."""
+
+    def update(self) -> py_trees.common.Status:
+        """Hand the frames to the task gate (or straight to the sink without one), note the time."""
+        frames = self.action.frames
+        now = float(self.ctx.clock.now())
+        gate_action = getattr(self.ctx.task, "action", None)
+        if gate_action is None:  # a context without a task gate (tests of single nodes)
+            if frames:
+                self.ctx.sink.send(frames, origin=self.name)
+            self.feedback_message = f"{self.action.name}: {len(frames)} frame(s)"
+        else:
+            gate_action(self.name, self.role, frames, now, self._note)
+        if self._wired:
+            self.write("output_time", now)
+        return SUCCESS
+
+    def _note(self, what: str) -> None:
+        self.feedback_message = f"{self.action.name} ({self.role}): {what}"
+
+
+class ResetStop(CanguardNode, py_trees.behaviour.Behaviour):
+    """The explicit reset of ``stop.release: manual``: the stop may end at the end of this tick; SUCCESS."""
+
+    KIND = "Action"
+    DESCRIPTION = "reset a stop (stop.release: manual): the stop ends at this tick's end if the release rule holds"
+    INPUT_PORTS = {}  # noqa: RUF012
+    OUTPUT_PORTS = {}  # noqa: RUF012
+
+    def update(self) -> py_trees.common.Status:
+        """Ask the gate to release the stop in this tick."""
+        reset = getattr(self.ctx.task, "reset", None)
+        self.feedback_message = reset(self.name, self.ctx.clock.now()) if reset is not None else "no task gate"
+        return SUCCESS
+
+
+def assign_roles(root: py_trees.behaviour.Behaviour) -> bool:
+    """Resolve ``role: auto`` of every config action of the tree; True when the tree has a task.
+
+    auto = ``task`` when the tree holds no ExecuteTask, ``recovery`` when it does.
+    A tree "has a task" when it holds ExecuteTask or an action of role ``task``.
+    """
+    nodes = list(root.iterate())
+    has_execute = any(isinstance(n, ExecuteTask) for n in nodes)
+    has_task = has_execute
+    for n in nodes:
+        if isinstance(n, ConfiguredAction):
+            n.role = n.action.role if n.action.role != "auto" else ("recovery" if has_execute else "task")
+            has_task = has_task or n.role == "task"
+    return has_task
+
+
+def stop_roles(root: py_trees.behaviour.Behaviour) -> dict[py_trees.behaviour.Behaviour, str]:
+    """What each node of the tree does to a stop, in words (``canguard tree``); nodes without a part are left out."""
+    from canguard.bt.nodes.current import GuardNode
+
+    assign_roles(root)
+    out: dict[py_trees.behaviour.Behaviour, str] = {}
+    for n in root.iterate():
+        if isinstance(n, GuardNode):
+            out[n] = "LATCH trips a stop; " + _holds(n)
+        elif isinstance(n, ExecuteTask):
+            out[n] = "TASK task frames; asks to release the stop"
+        elif isinstance(n, ConfiguredAction):
+            out[n] = (
+                "TASK frames withheld while stopped; asks to release the stop" if n.role == "task"
+                else "RECOVERY frames sent during a stop too"
+            )
+        elif isinstance(n, EmitStop):
+            out[n] = "STOP sends the stop frames"
+        elif isinstance(n, ResetStop):
+            out[n] = "RESET releases a manual stop"
+    return out
+
+
+def _holds(guard: Any) -> str:
+    """How long a guard's failure holds: its models' recovery rules."""
+    from canguard.protect.hysteresis import Hysteresis
+    from canguard.protect.i2t import _I2tModel
+
+    kinds = []
+    for _, model, _ in guard.guarded():
+        if isinstance(model, Hysteresis):
+            kinds.append(f"holds until |I| <= {model.recovery_a:g} A (hysteresis)")
+        elif isinstance(model, _I2tModel):
+            kinds.append(f"holds until the I²t level < {model.recover_fraction * 100:g} % (i2t)")
+        else:
+            kinds.append("holds for the tick it fails in (threshold)")
+    return "; ".join(dict.fromkeys(kinds)) or "fails while its source is stale"

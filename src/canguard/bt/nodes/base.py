@@ -1,0 +1,206 @@
+"""What every canguard node shares: typed ports, the context, a load-time ``bind()``.
+
+Every node type is a :class:`py_trees.ports.PortsMixin` + py_trees behaviour
+subclass declaring ``INPUT_PORTS`` / ``OUTPUT_PORTS`` with the names
+BehaviorTree.CPP users type. :class:`CanguardNode` adds:
+
+- ``context=``: the :class:`~canguard.engine.context.Context` of the tree, bound by the
+  registry with ``functools.partial`` (nodes never reach for globals or clocks);
+- no entry in py_trees' global auto-registry (``register=False`` by default):
+  importing canguard must not change what other py_trees users' parsers resolve;
+- port bookkeeping done once at ``setup_ports()``: constant ports (``max_current="40"``)
+  and ports left at their default are read once and cached; only ports wired to a
+  blackboard key (``{key}``) are read again at tick, which keeps a tick as cheap
+  as a bare py_trees behaviour;
+- :meth:`bind`: called by the loader after the whole tree is parsed, so that an
+  error in a port value (recovery above overcurrent, unknown source...) is a
+  load-time :class:`~canguard.errors.TreeError` naming file, line, node and port;
+- class metadata for validation and the Groot2 palette: ``KIND``,
+  ``DESCRIPTION``, ``CONST_PORTS`` (ports that must be constants),
+  ``CHOICES`` (allowed values of string ports).
+
+Output ports are only written when wired (given in the XML): BehaviorTree.CPP
+likewise drops writes to unconnected ports.
+
+**Blackboard fast path.** py_trees' client checks access and resolves the key's
+namespace and remapping on every read and write (3-4 µs per write, measured).
+The access rights and the remapped key of every wired port are fixed once
+``setup_ports()`` has registered them, so :meth:`CanguardNode.port` and
+:meth:`CanguardNode.write` go straight to ``Blackboard.storage`` with the key
+resolved at set-up, with the same type checks. While py_trees' activity stream
+is enabled (a debugging aid) they take the client's path, so the stream stays
+complete.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any, ClassVar, Literal
+
+import py_trees
+from py_trees.blackboard import Blackboard
+from py_trees.ports import CONST_PREFIX, NoDataAvailable, PortInformation, PortsMixin
+from py_trees.ports_utils import PortsLogger
+
+from canguard.engine.context import Context
+
+NodeKind = Literal["Action", "Condition", "Control", "Decorator"]
+
+SUCCESS = py_trees.common.Status.SUCCESS
+FAILURE = py_trees.common.Status.FAILURE
+RUNNING = py_trees.common.Status.RUNNING
+INVALID = py_trees.common.Status.INVALID
+
+
+_MISSING = object()
+
+
+class PortError(ValueError):
+    """A port value a node cannot work with; the loader turns it into a TreeError naming file and line."""
+
+    def __init__(self, port: str, message: str) -> None:
+        self.port = port
+        self.message = message
+        super().__init__(f"port {port}: {message}")
+
+
+def port_info(
+    data_type: Any,
+    description: str,
+    default: Any = None,
+    required: bool | None = None,
+) -> PortInformation:
+    """A :class:`PortInformation`; required unless it has a default (or ``required=False``)."""
+    if required is None:
+        required = default is None
+    return PortInformation(data_type=data_type, required=required, description=description, default_value=default)
+
+
+class CanguardNode(PortsMixin):
+    """Mixin of every canguard node (combine with a py_trees Behaviour / Decorator / Composite)."""
+
+    KIND: ClassVar[NodeKind] = "Action"
+    """The BehaviorTree.CPP node category (Groot2 palette, docs)."""
+    DESCRIPTION: ClassVar[str] = ""
+    """One line for the Groot2 palette and ``canguard tree --nodes-model``."""
+    CONST_PORTS: ClassVar[frozenset[str]] = frozenset()
+    """Input ports that configure the node once at load time: a ``{key}`` there is a load-time error."""
+    KEY_PORTS: ClassVar[frozenset[str]] = frozenset()
+    """Input ports that must be wired to a ``{key}`` (a constant there is a load-time error)."""
+    CHOICES: ClassVar[Mapping[str, tuple[str, ...]]] = {}
+    """Allowed values of string ports, checked at load time for constants."""
+    NEEDS_CONTEXT: ClassVar[bool] = True
+    """False for nodes that work without a :class:`Context` (pure control flow)."""
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        # Stay out of py_trees' global auto-registry: canguard's parser gets an explicit,
+        # closed registry, and importing canguard must not change anybody else's "auto".
+        kwargs.setdefault("register", False)
+        super().__init_subclass__(**kwargs)
+
+    def __init__(self, *args: Any, context: Context | None = None, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        if context is None and self.NEEDS_CONTEXT:
+            raise TypeError(f"{type(self).__name__} needs context= (the registry binds it)")
+        self._context = context
+        self._dynamic: frozenset[str] = frozenset()
+        self._static: dict[str, Any] = {}
+        self._wired: frozenset[str] = frozenset()
+        self._keys: dict[str, str] = {}
+        self._bad_port = ""
+
+    @property
+    def ctx(self) -> Context:
+        """The tree's context (clock, sources, sink, task, events)."""
+        if self._context is None:
+            raise RuntimeError(f"{self.name}: no context")
+        return self._context
+
+    # -- ports ---------------------------------------------------------------------------
+    def setup_ports(
+        self,
+        port_remappings: dict | None = None,
+        subtree_namespace: str = "/",
+        logger: PortsLogger | None = None,
+    ) -> None:
+        """Register the ports (py_trees), then cache constants and note which ports are wired."""
+        super().setup_ports(port_remappings, subtree_namespace, logger)
+        remap = port_remappings or {}
+        self._dynamic = frozenset(p for p in self.input_ports() if p in remap and CONST_PREFIX not in remap[p])
+        self._wired = frozenset(p for p in self.output_ports() if p in remap)
+        self._keys = {p: self._get_blackboard_key(p) for p in self._dynamic | self._wired}
+        static: dict[str, Any] = {}
+        for name in self.input_ports():
+            if name in self._dynamic:
+                continue
+            try:
+                static[name] = self.get_input(name)
+            except NoDataAvailable:
+                continue  # optional port left out: reads give None
+        self._static = static
+
+    def is_wired(self, name: str) -> bool:
+        """True when the port was given in the XML as a ``{key}`` (input) or at all (output)."""
+        return name in self._dynamic or name in self._wired
+
+    def is_given(self, name: str) -> bool:
+        """True when the input port has a value or a key (given, or with a default)."""
+        return name in self._dynamic or name in self._static
+
+    def port(self, name: str) -> Any:
+        """The value of input port ``name``: cached constant/default, or the blackboard's at tick.
+
+        None when a wired key holds nothing yet or holds a value of the wrong type
+        (``self._bad_port`` then says which); an int on a float port is accepted.
+        """
+        if name not in self._dynamic:
+            return self._static.get(name)
+        if Blackboard.activity_stream is None:
+            value = Blackboard.storage.get(self._keys[name], _MISSING)
+            if value is _MISSING:
+                info = self.input_ports()[name]
+                return info.default_value if info.has_default else None
+        else:  # the client's path, so that the activity stream sees the read
+            try:
+                value = self.get_input(name)
+            except NoDataAvailable:
+                return None
+            except TypeError:
+                value = self.blackboard_client.get(name)
+        expected = self.input_ports()[name].data_type
+        if isinstance(value, expected) and (expected is bool or not isinstance(value, bool)):
+            return value
+        if expected is float and isinstance(value, int) and not isinstance(value, bool):
+            return float(value)
+        self._bad_port = f"{name}={value!r} is not {getattr(expected, '__name__', expected)}"
+        return None
+
+    def write(self, name: str, value: Any) -> None:
+        """Write output port ``name`` when it is wired (a no-op otherwise, as in BehaviorTree.CPP)."""
+        if name in self._wired:
+            if Blackboard.activity_stream is None:
+                Blackboard.storage[self._keys[name]] = value
+            else:
+                self._set_output(name, value)
+
+    # -- life cycle ----------------------------------------------------------------------
+    def bind(self) -> None:
+        """Load-time set-up from the ports (models, sources); raise :class:`PortError` on bad values."""
+
+    @classmethod
+    def port_table(cls) -> dict[str, tuple[str, PortInformation]]:
+        """Every port as ``{name: ("input" | "output", info)}``, inputs first."""
+        table: dict[str, tuple[str, PortInformation]] = {n: ("input", i) for n, i in cls.input_ports().items()}
+        table.update({n: ("output", i) for n, i in cls.output_ports().items()})
+        return table
+
+
+def halted(node: py_trees.behaviour.Behaviour, new_status: py_trees.common.Status) -> bool:
+    """True when ``terminate(new_status)`` is a BehaviorTree.CPP *halt*: a RUNNING node interrupted.
+
+    py_trees also stops finished (SUCCESS/FAILURE) children with INVALID each time a
+    composite starts over; BehaviorTree.CPP only halts nodes that are RUNNING. Nodes
+    whose halt has side effects (ExecuteTask stops the task, Profile resets its
+    statistics) act only on a real halt.
+    """
+    return new_status == INVALID and node.status == RUNNING

@@ -1,0 +1,403 @@
+"""Control nodes with BehaviorTree.CPP (v4) semantics, on py_trees composites and decorators.
+
+py_trees' parser only knows ``Sequence`` / ``Selector`` / ``Parallel`` tags with a
+``memory`` attribute, and its decorators take constructor arguments rather than
+ports. canguard registers ports-enabled classes under the BT.CPP names instead,
+mapped onto py_trees where the semantics match and written out where they do not:
+
+======================  ====================================================  ============================
+BT.CPP node             semantics                                             py_trees mapping
+======================  ====================================================  ============================
+Sequence                resume at a RUNNING child; restart after a FAILURE    ``Sequence(memory=True)``
+ReactiveSequence        restart from the first child at every tick            ``Sequence(memory=False)``
+SequenceWithMemory      resume at a RUNNING *or failed* child                 own ``tick``
+Fallback                resume at a RUNNING child; restart after a SUCCESS    ``Selector(memory=True)``
+ReactiveFallback        restart from the first child at every tick            ``Selector(memory=False)``
+Parallel                success_count / failure_count (-1 = all children);    own ``tick`` (py_trees has
+                        finished children wait until the parallel completes   policies, not counts)
+Inverter                SUCCESS <-> FAILURE, RUNNING unchanged                ``decorators.Inverter``
+ForceSuccess            FAILURE -> SUCCESS                                    ``FailureIsSuccess``
+ForceFailure            SUCCESS -> FAILURE                                    ``SuccessIsFailure``
+RetryUntilSuccessful    a FAILURE is retried at the next tick, num_attempts   own ``update`` (-1: forever)
+Repeat                  a SUCCESS is repeated at the next tick, num_cycles    own ``update`` (-1: forever)
+Timeout                 FAILURE (child halted) once ``msec`` have elapsed     own ``tick`` (py_trees reads
+                                                                              ``time.monotonic``)
+Delay                   RUNNING for ``delay_msec``, then the child            own ``tick``
+======================  ====================================================  ============================
+
+Notes on the mapping:
+
+- "Restart / resume" is what py_trees calls memory. BT.CPP's plain ``Sequence``
+  *has* memory for RUNNING children (it does not re-tick earlier children), which
+  is why guards belong under a ReactiveSequence (design note 004).
+- RetryUntilSuccessful and Repeat make one attempt per tick and return RUNNING in
+  between, as BT.CPP 4 does when the tree is ticked periodically (its wake-up
+  signal); a monitoring daemon must not loop inside one tick.
+- SequenceWithMemory keeps its position across a halt, as BT.CPP 4 does.
+- Timeout and Delay read the context's clock, so they work in replay and in tests
+  with a manual clock.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import py_trees
+
+from canguard.bt.nodes.base import FAILURE, INVALID, RUNNING, SUCCESS, CanguardNode, PortError, port_info
+
+Children = list[py_trees.behaviour.Behaviour] | None
+
+
+class _Control(CanguardNode):
+    KIND = "Control"
+    NEEDS_CONTEXT = False
+    INPUT_PORTS: dict = {}  # noqa: RUF012 - py_trees reads ports as plain class dicts
+    OUTPUT_PORTS: dict = {}  # noqa: RUF012
+
+
+class Sequence(_Control, py_trees.composites.Sequence):
+    """BT.CPP Sequence: ticks children in order; resumes at a RUNNING child; restarts after a FAILURE."""
+
+    DESCRIPTION = "children in order; a RUNNING child is resumed (earlier ones not re-ticked)"
+
+    def __init__(self, name: str, children: Children = None, **kwargs: Any) -> None:
+        super().__init__(name=name, memory=True, children=children, **kwargs)
+
+
+class ReactiveSequence(_Control, py_trees.composites.Sequence):
+    """BT.CPP ReactiveSequence: every tick starts at the first child; a failing guard halts a running one."""
+
+    DESCRIPTION = "children in order, from the first at every tick (guards re-checked while a child runs)"
+
+    def __init__(self, name: str, children: Children = None, **kwargs: Any) -> None:
+        super().__init__(name=name, memory=False, children=children, **kwargs)
+
+
+class SequenceWithMemory(_Control, py_trees.composites.Sequence):
+    """BT.CPP SequenceWithMemory: children that succeeded are not ticked again, even after a FAILURE."""
+
+    DESCRIPTION = "children in order; after a FAILURE or RUNNING the next tick resumes at that child"
+
+    def __init__(self, name: str, children: Children = None, **kwargs: Any) -> None:
+        super().__init__(name=name, memory=True, children=children, **kwargs)
+        self.resume_index = 0
+        """Where the next tick starts: kept on FAILURE and RUNNING (and across a halt), 0 after SUCCESS."""
+
+    def tick(self) -> Any:
+        """Resume at ``resume_index``; go back to the first child only once all succeeded."""
+        if self.status != RUNNING:
+            for child in self.children[self.resume_index :]:
+                if child.status != INVALID:
+                    child.stop(INVALID)
+            self.initialise()
+        if not self.children:
+            self.current_child = None
+            self.stop(SUCCESS)
+            yield self
+            return
+        for index in range(self.resume_index, len(self.children)):
+            child = self.children[index]
+            self.current_child = child
+            yield from child.tick()
+            status = child.status
+            if status == RUNNING:
+                self.resume_index = index
+                self.status = RUNNING
+                yield self
+                return
+            if status == FAILURE:
+                self.resume_index = index
+                self.stop(FAILURE)
+                yield self
+                return
+        self.resume_index = 0
+        self.stop(SUCCESS)
+        yield self
+
+
+class Fallback(_Control, py_trees.composites.Selector):
+    """BT.CPP Fallback: children in order until one succeeds; resumes at a RUNNING child."""
+
+    DESCRIPTION = "children in order until one does not fail; a RUNNING child is resumed"
+
+    def __init__(self, name: str, children: Children = None, **kwargs: Any) -> None:
+        super().__init__(name=name, memory=True, children=children, **kwargs)
+
+
+class ReactiveFallback(_Control, py_trees.composites.Selector):
+    """BT.CPP ReactiveFallback: every tick starts at the first child; a higher priority interrupts."""
+
+    DESCRIPTION = "children in order, from the first at every tick (higher priorities interrupt)"
+
+    def __init__(self, name: str, children: Children = None, **kwargs: Any) -> None:
+        super().__init__(name=name, memory=False, children=children, **kwargs)
+
+
+class Parallel(_Control, py_trees.composites.Parallel):
+    """BT.CPP 4 Parallel: SUCCESS at success_count successes, FAILURE at failure_count failures."""
+
+    DESCRIPTION = (
+        "ticks every unfinished child each tick; SUCCESS after success_count successes, FAILURE after "
+        "failure_count failures (negative: children + 1 + n, so -1 = all)"
+    )
+    INPUT_PORTS = {  # noqa: RUF012
+        "success_count": port_info(int, "successes needed (-1: all children)", -1),
+        "failure_count": port_info(int, "failures that fail the parallel (-1: all children)", 1),
+    }
+
+    def __init__(self, name: str, children: Children = None, **kwargs: Any) -> None:
+        policy = py_trees.common.ParallelPolicy.SuccessOnAll(synchronise=False)
+        super().__init__(name=name, policy=policy, children=children, **kwargs)
+        self.finished: dict[int, py_trees.common.Status] = {}
+        """Children that completed during the current run (index -> status), not ticked again."""
+
+    def thresholds(self) -> tuple[int, int]:
+        """(successes needed, failures allowed before failing), negatives resolved against the child count."""
+        n = len(self.children)
+
+        def resolve(v: int) -> int:
+            return max(n + v + 1, 0) if v < 0 else v
+
+        s, f = self.port("success_count"), self.port("failure_count")
+        return resolve(-1 if s is None else s), resolve(1 if f is None else f)
+
+    def bind(self) -> None:
+        """Counts larger than the number of children can never be met: a load-time error."""
+        n = len(self.children)
+        s, f = self.thresholds()
+        if not self.is_wired("success_count") and s > n:
+            raise PortError("success_count", f"{s} successes needed but only {n} children: can never succeed")
+        if not self.is_wired("failure_count") and f > n:
+            raise PortError("failure_count", f"{f} failures needed but only {n} children: can never fail")
+
+    def tick(self) -> Any:
+        """Tick the unfinished children; decide after each one, as BT.CPP does."""
+        if self.status != RUNNING:
+            for child in self.children:
+                if child.status != INVALID:
+                    child.stop(INVALID)
+            self.finished.clear()
+            self.current_child = None
+            self.initialise()
+        n = len(self.children)
+        if not n:
+            self.stop(SUCCESS)
+            yield self
+            return
+        need_s, need_f = self.thresholds()
+        for index, child in enumerate(self.children):
+            if index not in self.finished:
+                yield from child.tick()
+                if child.status in (SUCCESS, FAILURE):
+                    self.finished[index] = child.status
+            successes = sum(1 for s in self.finished.values() if s == SUCCESS)
+            failures = len(self.finished) - successes
+            if successes >= need_s:
+                yield from self._finish(SUCCESS, child)
+                return
+            if n - failures < need_s or failures >= need_f:
+                yield from self._finish(FAILURE, child)
+                return
+        self.current_child = self.children[-1]
+        self.status = RUNNING
+        yield self
+
+    def _finish(self, status: py_trees.common.Status, child: py_trees.behaviour.Behaviour) -> Any:
+        self.current_child = child
+        self.finished.clear()
+        self.stop(status)  # py_trees' Parallel.stop halts the children still RUNNING
+        yield self
+
+
+class _Decorator(CanguardNode):
+    KIND = "Decorator"
+    NEEDS_CONTEXT = False
+    INPUT_PORTS: dict = {}  # noqa: RUF012
+    OUTPUT_PORTS: dict = {}  # noqa: RUF012
+
+
+class Inverter(_Decorator, py_trees.decorators.Inverter):
+    """SUCCESS <-> FAILURE; RUNNING passes."""
+
+    DESCRIPTION = "SUCCESS <-> FAILURE; RUNNING unchanged"
+
+
+class ForceSuccess(_Decorator, py_trees.decorators.FailureIsSuccess):
+    """FAILURE becomes SUCCESS; RUNNING passes."""
+
+    DESCRIPTION = "FAILURE becomes SUCCESS; RUNNING unchanged"
+
+
+class ForceFailure(_Decorator, py_trees.decorators.SuccessIsFailure):
+    """SUCCESS becomes FAILURE; RUNNING passes."""
+
+    DESCRIPTION = "SUCCESS becomes FAILURE; RUNNING unchanged"
+
+
+def _check_count(node: CanguardNode, name: str, low: int) -> None:
+    value = node.port(name)
+    if not node.is_wired(name) and value is not None and value != -1 and value < low:
+        raise PortError(name, f"must be -1 (forever) or >= {low}, got {value}")
+
+
+class RetryUntilSuccessful(_Decorator, py_trees.decorators.Decorator):
+    """Retries a failing child at the next tick, up to num_attempts attempts (-1: forever)."""
+
+    DESCRIPTION = "a FAILURE is retried at the next tick, up to num_attempts attempts (-1: forever)"
+    INPUT_PORTS = {  # noqa: RUF012
+        "num_attempts": port_info(int, "attempts before giving up (-1: forever)"),
+    }
+
+    def __init__(self, name: str, child: py_trees.behaviour.Behaviour, **kwargs: Any) -> None:
+        super().__init__(name=name, child=child, **kwargs)
+        self.failures = 0
+
+    def bind(self) -> None:
+        """num_attempts: -1 or >= 1."""
+        _check_count(self, "num_attempts", 1)
+
+    def initialise(self) -> None:
+        """A new run: no failures yet."""
+        self.failures = 0
+
+    def update(self) -> py_trees.common.Status:
+        """FAILURE -> RUNNING until the attempts are used up."""
+        status = self.decorated.status
+        if status != FAILURE:
+            return status
+        self.failures += 1
+        limit = self.port("num_attempts")
+        if limit is None:
+            return FAILURE
+        if limit < 0 or self.failures < limit:
+            self.feedback_message = f"attempt {self.failures} failed, retrying"
+            return RUNNING
+        self.feedback_message = f"failed {self.failures} time(s)"
+        return FAILURE
+
+
+class Repeat(_Decorator, py_trees.decorators.Decorator):
+    """Repeats a succeeding child at the next tick, num_cycles times (-1: forever); FAILURE stops."""
+
+    DESCRIPTION = "a SUCCESS is repeated at the next tick, num_cycles times (-1: forever); FAILURE ends it"
+    INPUT_PORTS = {  # noqa: RUF012
+        "num_cycles": port_info(int, "successes to collect (-1: forever)"),
+    }
+
+    def __init__(self, name: str, child: py_trees.behaviour.Behaviour, **kwargs: Any) -> None:
+        super().__init__(name=name, child=child, **kwargs)
+        self.successes = 0
+
+    def bind(self) -> None:
+        """num_cycles: -1 or >= 0."""
+        _check_count(self, "num_cycles", 0)
+
+    def initialise(self) -> None:
+        """A new run: no successes yet."""
+        self.successes = 0
+
+    def tick(self) -> Any:
+        """``num_cycles=0`` succeeds without ticking the child (as BT.CPP)."""
+        if self.status != RUNNING and self.port("num_cycles") == 0:
+            self.stop(SUCCESS)
+            yield self
+            return
+        yield from super().tick()
+
+    def update(self) -> py_trees.common.Status:
+        """SUCCESS -> RUNNING until the cycles are done."""
+        status = self.decorated.status
+        if status != SUCCESS:
+            return status
+        self.successes += 1
+        limit = self.port("num_cycles")
+        if limit is None:
+            return FAILURE
+        if limit < 0 or self.successes < limit:
+            self.feedback_message = f"cycle {self.successes} done"
+            return RUNNING
+        return SUCCESS
+
+
+class Timeout(_Decorator, py_trees.decorators.Decorator):
+    """Halts the child and fails once ``msec`` have elapsed on the context's clock."""
+
+    DESCRIPTION = "FAILURE (child halted) when the child is still RUNNING msec after it started"
+    INPUT_PORTS = {  # noqa: RUF012
+        "msec": port_info(float, "time limit (ms, the engine's clock); 0: none"),
+    }
+    NEEDS_CONTEXT = True
+
+    def __init__(self, name: str, child: py_trees.behaviour.Behaviour, **kwargs: Any) -> None:
+        super().__init__(name=name, child=child, **kwargs)
+        self.deadline: float | None = None
+
+    def tick(self) -> Any:
+        """On the first tick start the timer; on a tick at or after the deadline fail without ticking."""
+        now = self.ctx.clock.now()
+        if self.status != RUNNING:
+            msec = self.port("msec")
+            self.deadline = now + msec / 1000.0 if msec else None
+            self.initialise()
+        elif self.deadline is not None and now >= self.deadline:
+            if self.decorated.status == RUNNING:
+                self.decorated.stop(INVALID)
+            self.feedback_message = "timed out"
+            self.stop(FAILURE)
+            yield self
+            return
+        yield from self.decorated.tick()
+        status = self.decorated.status
+        if status != RUNNING:
+            self.stop(status)
+        self.status = status
+        yield self
+
+    def update(self) -> py_trees.common.Status:
+        """The child's status (tick() does the work)."""
+        return self.decorated.status
+
+
+class Delay(_Decorator, py_trees.decorators.Decorator):
+    """RUNNING for ``delay_msec`` on the context's clock, then ticks the child until it completes."""
+
+    DESCRIPTION = "waits delay_msec (RUNNING), then ticks the child; the next run waits again"
+    INPUT_PORTS = {  # noqa: RUF012
+        "delay_msec": port_info(float, "delay before the child is ticked (ms, the engine's clock)"),
+    }
+    NEEDS_CONTEXT = True
+
+    def __init__(self, name: str, child: py_trees.behaviour.Behaviour, **kwargs: Any) -> None:
+        super().__init__(name=name, child=child, **kwargs)
+        self.started: float | None = None
+
+    def tick(self) -> Any:
+        """Wait, then delegate; a completed child ends the run (the next one waits again)."""
+        now = self.ctx.clock.now()
+        if self.status != RUNNING or self.started is None:
+            self.started = now
+            self.initialise()
+        delay = self.port("delay_msec")
+        if delay is None or now - self.started < delay / 1000.0:
+            self.feedback_message = "waiting"
+            self.status = RUNNING
+            yield self
+            return
+        self.feedback_message = ""
+        yield from self.decorated.tick()
+        status = self.decorated.status
+        if status != RUNNING:
+            self.started = None
+            self.stop(status)
+        self.status = status
+        yield self
+
+    def update(self) -> py_trees.common.Status:
+        """The child's status (tick() does the work)."""
+        return self.decorated.status
+
+    def terminate(self, new_status: py_trees.common.Status) -> None:
+        """A halt cancels the wait."""
+        if new_status == INVALID:
+            self.started = None

@@ -1,0 +1,366 @@
+"""Current guards (design note 004): IsCurrentNormal, IsCurrentSafe, IsI2tSafe.
+
+A guard resolves ``topic_name`` to a configured source at load time, builds its
+protection model from its ports, and subscribes it to the context, so the model
+sees *every* sample (a one-frame spike between two ticks is not lost: the
+models' peak latch reports it at the next tick). At tick it returns FAILURE when
+
+- the source cannot be trusted: ``ctx.health[source].reason(now, role)`` is not
+  empty (no data, stale, present = 0, NaN/inf, out of range, undecodable), or
+- the model's ``poll(now)`` says tripped (now, or at any moment since the last tick);
+
+and SUCCESS otherwise. Status edges are journalled with ``ctx.record("trip" |
+"recover", node=, source=, signal=, value=, threshold=, reason=)``; a guard that
+fails on its very first tick records a trip too (the journal then says why the
+task never started). Thresholds given as ``{key}`` are re-read at every tick.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from typing import Any, ClassVar
+
+import py_trees
+
+from canguard.bt.nodes.base import FAILURE, SUCCESS, CanguardNode, PortError, port_info
+from canguard.config.loader import SourceConfig, SourceKind
+from canguard.protect.base import REASON_I2T, REASON_NO_DATA, LatchedModel, ProtectionModel, Snapshot
+from canguard.protect.hysteresis import Hysteresis
+from canguard.protect.i2t import RATED_OVERLOAD, RATED_OVERLOAD_S, LeakyI2t, ThermalI2t
+from canguard.protect.inrush import InrushBlanking
+from canguard.protect.staleness import SourceHealth
+from canguard.protect.threshold import Threshold
+
+REASON_BAD_THRESHOLD = "bad_threshold"
+
+
+def reapply(model: LatchedModel) -> None:
+    """Judge the latest sample again under new thresholds (a repeated timestamp is a normal sample)."""
+    t = model.last_t
+    if t is not None:
+        model.update(model.snapshot().value, t)
+
+
+class GuardNode(CanguardNode, py_trees.behaviour.Behaviour):
+    """Base of the guard conditions: source lookup, health check, edge journal."""
+
+    KIND = "Condition"
+    CONST_PORTS = frozenset({"topic_name"})
+    SOURCE_KINDS: ClassVar[tuple[SourceKind, ...]] = ("battery", "current")
+    MODEL_KIND: ClassVar[str] = "threshold"
+    ROLE: ClassVar[str] = "current"
+    """The source signal a single-signal guard reads."""
+    model: ProtectionModel
+
+    def __init__(self, name: str, **kwargs: Any) -> None:
+        super().__init__(name=name, **kwargs)
+        self.source: SourceConfig | None = None
+        self.health: SourceHealth | None = None
+        self.ok: bool | None = None
+        """The status of the last tick as a bool (None before the first tick)."""
+        self.reason = ""
+        """Why the last tick failed ("" when it succeeded)."""
+
+    @property
+    def topic_name(self) -> str:
+        """The source name given in ``topic_name``."""
+        return str(self.port("topic_name"))
+
+    def bind(self) -> None:
+        """Resolve the source, then build and subscribe the model(s)."""
+        name = self.topic_name
+        try:
+            self.source = self.ctx.source(name, self.SOURCE_KINDS)
+        except (KeyError, ValueError) as exc:
+            raise PortError("topic_name", str(exc.args[0])) from None
+        self.health = self.ctx.health[name]
+        self._clock = self.ctx.clock
+        self._build(self.source)
+
+    def _build(self, source: SourceConfig) -> None:
+        raise NotImplementedError
+
+    def guarded(self) -> list[tuple[str, ProtectionModel, str]]:
+        """``(role, model, kind)`` per guarded signal; kind is ``threshold`` or ``i2t`` (reports, plots)."""
+        return [(self.ROLE, self.model, self.MODEL_KIND)]
+
+    def _model_error(self, exc: ValueError, names: dict[str, str]) -> PortError:
+        """A model's ValueError as a PortError on the port holding the first parameter it names.
+
+        The message is rewritten in port names (``recovery_a`` -> ``recovery_threshold``).
+        """
+        text = str(exc)
+        found = {}
+        for param, port_name in names.items():
+            m = re.search(rf"\b{param}\b", text)
+            if m:
+                found[m.start()] = port_name
+        for param in sorted(names, key=len, reverse=True):
+            text = re.sub(rf"\b{param}\b", names[param], text)
+        return PortError(found[min(found)] if found else next(iter(names.values())), text)
+
+    def _judge(self, now: float, snap: Snapshot, reason: str, value: float | None = None) -> py_trees.common.Status:
+        """A port problem (``reason``) first, then the source's health, then the model's latched
+        state: SUCCESS or FAILURE, with status changes journalled. ``value`` overrides the
+        snapshot's value in events."""
+        assert self.health is not None
+        if not reason:
+            reason = self.health.reason(now, self.ROLE)
+            if not reason and snap.tripped:
+                reason = snap.reason
+        ok = not reason
+        if ok is not self.ok or reason != self.reason:
+            self._edge(ok, reason, self.ROLE, snap.value if value is None else value, snap.threshold)
+        return SUCCESS if ok else FAILURE
+
+    def _feedback(self, reason: str, role: str, value: float, threshold: float) -> str:
+        """Why the guard fails, in words (feedback message, stop events)."""
+        return f"{reason}: {role} |{value:g}| (threshold {threshold:g})"
+
+    def _edge(self, ok: bool, reason: str, role: str, value: float, threshold: float) -> None:
+        """Keep a readable feedback message; journal status changes (trip / recover)."""
+        prev = self.ok
+        self.reason = reason
+        self.feedback_message = "" if ok else self._feedback(reason, role, value, threshold)
+        if prev is None and not ok and reason == REASON_NO_DATA:
+            # Before the source's first sample the guard fails (fail safe) but nothing tripped:
+            # the status stays "never judged", and a source that never speaks is a `stale` event.
+            return
+        self.ok = ok
+        if ok is prev or (prev is None and ok):
+            return  # same status, another reason: feedback only
+        assert self.source is not None
+        if ok:
+            self.ctx.record(
+                "recover",
+                node=self.name,
+                source=self.source.name,
+                signal=role,
+                value=value,
+                threshold=threshold,
+                reason="",
+            )
+        else:
+            self.ctx.record(
+                "trip",
+                node=self.name,
+                source=self.source.name,
+                signal=role,
+                value=value,
+                threshold=threshold,
+                reason=reason,
+            )
+
+
+class IsCurrentNormal(GuardNode):
+    """SUCCESS while the source's current is present, fresh, finite and |I| <= max_current."""
+
+    DESCRIPTION = "SUCCESS while |current| <= max_current and the source is present, fresh and finite"
+    INPUT_PORTS = {  # noqa: RUF012 - py_trees reads ports as plain class dicts
+        "topic_name": port_info(str, "source name (battery or current kind) from the config"),
+        "max_current": port_info(float, "maximum allowed |current| (A)", 30.0),
+    }
+    OUTPUT_PORTS = {}  # noqa: RUF012
+    model: Threshold
+
+    def _build(self, source: SourceConfig) -> None:
+        try:
+            self.model = Threshold(self.port("max_current"))
+        except ValueError as exc:
+            raise PortError("max_current", str(exc).replace("max_value", "max_current")) from None
+        self.ctx.subscribe(source.name, self.ROLE, self.model)
+
+    def update(self) -> py_trees.common.Status:
+        """Health first, then the model's latched state."""
+        now = self._clock.now()
+        model = self.model
+        reason = ""
+        if self._dynamic:
+            limit = self.port("max_current")
+            try:
+                if limit is None:
+                    raise ValueError
+                if limit != model.max_value:
+                    model.set_max(limit)
+                    reapply(model)
+            except ValueError:
+                reason = REASON_BAD_THRESHOLD
+        return self._judge(now, model.poll(now), reason)
+
+
+class IsCurrentSafe(GuardNode):
+    """Overcurrent with hysteresis: trips at >= overcurrent_threshold, recovers at <= recovery_threshold."""
+
+    DESCRIPTION = (
+        "hysteresis overcurrent guard: FAILURE from |I| >= overcurrent_threshold until |I| <= "
+        "recovery_threshold; optional persistence and inrush blanking"
+    )
+    INPUT_PORTS = {  # noqa: RUF012
+        "topic_name": port_info(str, "source name (battery or current kind) from the config"),
+        "overcurrent_threshold": port_info(float, "trip at |I| >= this (A)", 35.0),
+        "recovery_threshold": port_info(float, "recover at |I| <= this (A); <= overcurrent_threshold", 25.0),
+        "trip_after": port_info(float, "the overcurrent must last this long to trip (s)", 0.0),
+        "recover_after": port_info(float, "the recovery must last this long to recover (s)", 0.0),
+        "inrush_time": port_info(float, "inrush blanking window after a motor start (s); 0: off", 0.0),
+        "inrush_threshold": port_info(
+            float, "threshold inside the inrush window (A); absent: no check there", required=False
+        ),
+        "start_current": port_info(
+            float, "|I| above this counts as a motor start (A); needed with inrush_time", required=False
+        ),
+    }
+    OUTPUT_PORTS = {}  # noqa: RUF012
+    CONST_PORTS = frozenset(
+        {"topic_name", "trip_after", "recover_after", "inrush_time", "inrush_threshold", "start_current"}
+    )
+    _NAMES: ClassVar[dict[str, str]] = {
+        "overcurrent_a": "overcurrent_threshold",
+        "recovery_a": "recovery_threshold",
+        "trip_after_s": "trip_after",
+        "recover_after_s": "recover_after",
+        "inrush_time_s": "inrush_time",
+        "inrush_threshold_a": "inrush_threshold",
+        "start_current_a": "start_current",
+    }
+    model: Hysteresis
+
+    def _build(self, source: SourceConfig) -> None:
+        inrush = None
+        inrush_time = self.port("inrush_time")
+        try:
+            if inrush_time:
+                start = self.port("start_current")
+                if start is None:
+                    raise PortError("start_current", "required when inrush_time > 0 (|I| of a motor start)")
+                inrush = InrushBlanking(start, inrush_time, self.port("inrush_threshold"))
+            over = self.port("overcurrent_threshold")
+            rec = self.port("recovery_threshold")
+            if over is None or rec is None:  # wired to keys not written yet: the defaults until they are
+                over, rec = 35.0, 25.0
+            self.model = Hysteresis(
+                over,
+                rec,
+                trip_after_s=self.port("trip_after"),
+                recover_after_s=self.port("recover_after"),
+                inrush=inrush,
+                max_gap_s=source.max_age_s,
+            )
+        except ValueError as exc:
+            if isinstance(exc, PortError):
+                raise
+            raise self._model_error(exc, self._NAMES) from None
+        self.ctx.subscribe(source.name, self.ROLE, self.model)
+
+    def update(self) -> py_trees.common.Status:
+        """Health first, then the hysteresis state (latched)."""
+        now = self._clock.now()
+        model = self.model
+        reason = ""
+        if self._dynamic:
+            over = self.port("overcurrent_threshold")
+            rec = self.port("recovery_threshold")
+            try:
+                if over is None or rec is None:
+                    raise ValueError
+                if over != model.overcurrent_a or rec != model.recovery_a:
+                    model.set_thresholds(over, rec)
+                    reapply(model)
+            except ValueError:
+                reason = REASON_BAD_THRESHOLD
+        return self._judge(now, model.poll(now), reason)
+
+
+class IsI2tSafe(GuardNode):
+    """I²t thermal guard: FAILURE at 100 % of the trip level until it cools below recover_fraction."""
+
+    DESCRIPTION = "I²t guard (leaky bucket or thermal image): FAILURE at 100 % heat until cooled"
+    INPUT_PORTS = {  # noqa: RUF012
+        "topic_name": port_info(str, "source name (battery or current kind) from the config"),
+        "model": port_info(str, "leaky (servo-drive bucket) or thermal (IEC 60255-8 image)", "leaky"),
+        "continuous_current": port_info(float, "rated continuous current I_rated (A); I_cont = k * I_rated"),
+        "peak_current": port_info(
+            float, "datasheet peak current (A); default 1.5 × continuous_current (IEC 60034-1)", required=False
+        ),
+        "peak_time": port_info(
+            float, "how long the peak current is allowed from cold (s); default 120 without peak", required=False
+        ),
+        "tau": port_info(
+            float, "thermal time constant (s), thermal model; default from the peak figures", required=False
+        ),
+        "tau_cool": port_info(float, "cooling time constant (s), thermal model; default tau", required=False),
+        "k": port_info(float, "IEC k factor: I_cont = k * continuous_current", 1.0),
+        "recover_fraction": port_info(float, "recover below this fraction of the trip level", 0.5),
+    }
+    OUTPUT_PORTS = {  # noqa: RUF012
+        "level": port_info(float, "heat in % of the trip level (100 = trip)", required=False),
+    }
+    CONST_PORTS = frozenset(INPUT_PORTS)
+    CHOICES = {"model": ("leaky", "thermal")}  # noqa: RUF012
+    MODEL_KIND = "i2t"
+    _NAMES: ClassVar[dict[str, str]] = {
+        "continuous_a": "continuous_current",
+        "peak_a": "peak_current",
+        "peak_time_s": "peak_time",
+        "tau_cool_s": "tau_cool",
+        "tau_s": "tau",
+        "recover_fraction": "recover_fraction",
+    }
+
+    def _build(self, source: SourceConfig) -> None:
+        kind = self.port("model")
+        cont = self.port("continuous_current")
+        k = self.port("k")
+        if not (isinstance(k, float) and math.isfinite(k) and k > 0):
+            raise PortError("k", f"must be a finite number > 0, got {k!r}")
+        peak, peak_t = self.port("peak_current"), self.port("peak_time")
+        if peak is not None and peak_t is None:
+            raise PortError("peak_time", "required with peak_current (a datasheet peak is a current and a time)")
+        if peak is None and not (kind == "thermal" and self.port("tau") is not None):
+            # No datasheet peak: IEC 60034-1's occasional excess current, 1.5 × the rating for 120 s.
+            peak = RATED_OVERLOAD * cont
+            peak_t = RATED_OVERLOAD_S if peak_t is None else peak_t
+            if peak <= cont * k:
+                raise PortError(
+                    "peak_current",
+                    f"required when k >= {RATED_OVERLOAD:g} (the derived peak {peak:g} A = {RATED_OVERLOAD:g} × "
+                    f"continuous_current must exceed I_cont = k × continuous_current = {cont * k:g} A)",
+                )
+        try:
+            model: ProtectionModel
+            if kind == "leaky":
+                model = LeakyI2t(cont * k, peak, peak_t, self.port("recover_fraction"), source.max_age_s)
+            else:
+                model = ThermalI2t(
+                    cont * k,
+                    peak,
+                    peak_t,
+                    tau_s=self.port("tau"),
+                    tau_cool_s=self.port("tau_cool"),
+                    recover_fraction=self.port("recover_fraction"),
+                    max_gap_s=source.max_age_s,
+                )
+        except ValueError as exc:
+            if isinstance(exc, PortError):
+                raise
+            raise self._model_error(exc, self._NAMES) from None
+        self.model = model
+        self.ctx.subscribe(source.name, self.ROLE, model)
+        self.ctx.heat_models[self.name] = model
+        self._write_level = self.is_wired("level")
+
+    def _feedback(self, reason: str, role: str, value: float, threshold: float) -> str:
+        """I²t speaks of heat: the accumulator against its trip level, and the current that drives it."""
+        if reason != REASON_I2T:
+            return super()._feedback(reason, role, value, threshold)
+        current = abs(self.health.value(role)) if self.health is not None else math.nan
+        return f"i2t: heat {value:g} of trip level {threshold:g} ({role} |{current:g}|)"
+
+    def update(self) -> py_trees.common.Status:
+        """Health first, then the I²t state (latched); writes ``level`` when wired."""
+        now = self._clock.now()
+        snap = self.model.poll(now)
+        if self._write_level:
+            self.write("level", float(snap.level_pct))
+        # The event compares like with like: the accumulator (A²s, or θ) against its trip level.
+        return self._judge(now, snap, "", float(getattr(self.model, "accumulator", snap.value)))

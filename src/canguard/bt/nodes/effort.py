@@ -1,0 +1,89 @@
+"""IsJointEffortNormal (design note 004, section 3.2): every joint's |effort| within a limit.
+
+The joints source of the config lists one DBC signal per joint (JointState.effort
+in the ROS original); each joint gets its own :class:`~canguard.protect.threshold.Threshold`
+fed with every sample. FAILURE when the source has no joints, any joint has no
+usable value (no data, stale, NaN/inf, out of range), or any joint's |effort|
+exceeded ``max_effort`` since the last tick.
+"""
+
+from __future__ import annotations
+
+import math
+
+import py_trees
+
+from canguard.bt.nodes.base import FAILURE, SUCCESS, PortError, port_info
+from canguard.bt.nodes.current import REASON_BAD_THRESHOLD, GuardNode, reapply
+from canguard.config.loader import SourceConfig
+from canguard.protect.base import REASON_NO_DATA, ProtectionModel
+from canguard.protect.threshold import Threshold
+
+
+class IsJointEffortNormal(GuardNode):
+    """SUCCESS while every joint's |effort| <= max_effort and every joint is fresh and finite."""
+
+    DESCRIPTION = "SUCCESS while every joint's |effort| <= max_effort and every joint is fresh and finite"
+    INPUT_PORTS = {  # noqa: RUF012 - py_trees reads ports as plain class dicts
+        "topic_name": port_info(str, "source name (joints kind) from the config"),
+        "max_effort": port_info(float, "maximum allowed |effort| of any joint (N·m or N)", 100.0),
+    }
+    OUTPUT_PORTS = {}  # noqa: RUF012
+    SOURCE_KINDS = ("joints",)
+    failed_joint = ""
+    """The joint the feedback names (the first failing one)."""
+
+    def _build(self, source: SourceConfig) -> None:
+        limit = self.port("max_effort")
+        self.models: list[tuple[str, Threshold]] = []
+        try:
+            for role in source.value_roles:
+                model = Threshold(limit)
+                self.ctx.subscribe(source.name, role, model)
+                self.models.append((role, model))
+        except ValueError as exc:
+            raise PortError("max_effort", str(exc).replace("max_value", "max_effort")) from None
+
+    def guarded(self) -> list[tuple[str, ProtectionModel, str]]:
+        """One ``(joint, model, "threshold")`` per joint."""
+        return [(role, model, "threshold") for role, model in self.models]
+
+    def update(self) -> py_trees.common.Status:
+        """Every joint: health, then its latched limit; the first failing joint names the reason."""
+        now = self._clock.now()
+        health = self.health
+        assert health is not None
+        bad = ""
+        if self._dynamic:
+            limit = self.port("max_effort")
+            try:
+                if limit is None:
+                    raise ValueError
+                for _, m in self.models:
+                    if m.max_value != limit:
+                        m.set_max(limit)
+                        reapply(m)
+            except ValueError:
+                bad = REASON_BAD_THRESHOLD
+        failed: tuple[str, str, float, float] | None = None
+        for role, model in self.models:
+            snap = model.poll(now)  # poll every joint: each latch restarts at every tick
+            if failed is None:
+                reason = bad or health.reason(now, role)
+                if not reason and snap.tripped:
+                    reason = snap.reason
+                if reason:
+                    failed = (role, reason, snap.value, snap.threshold)
+        if not self.models:
+            failed = ("", REASON_NO_DATA, math.nan, math.nan)
+        ok = failed is None
+        # Another joint failing for the same reason is a new cause too (its feedback names the joint).
+        if ok is not self.ok or (failed is not None and (failed[1], failed[0]) != (self.reason, self.failed_joint)):
+            self.failed_joint = failed[0] if failed is not None else ""
+            if failed is None:
+                seen = [(m.snapshot(), role) for role, m in self.models if m.last_t is not None]
+                snap, role = max(seen, key=lambda sr: sr[0].value)
+                self._edge(True, "", role, snap.value, snap.threshold)
+            else:
+                self._edge(False, failed[1], failed[0], failed[2], failed[3])
+        return SUCCESS if ok else FAILURE

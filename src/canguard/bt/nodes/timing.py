@@ -1,0 +1,307 @@
+"""Time conditions and timer actions (design note 000), all on the context's clock.
+
+Time comes only from ``ctx.now()``: log time in replay, the daemon's monotonic
+epoch clock live, a manual clock in tests. Epoch seconds in a float keep about
+0.1 µs of resolution today, far below any tick period (note 000, "float precision").
+
+**A timer is the node's own unless a key names it** (note 000: each
+IsElapsedTimeCompare keeps its own ``start_time_``, set at its first tick; nodes
+that must agree share a reference through the blackboard). Without a ``timer``
+port an IsElapsedTimeCompare has a private timer: two of them first ticked at
+different times measure from their own first ticks. ``timer="{nav_timer}"``
+names a shared timer: a blackboard key holding its start time (s), read and
+written by every node that names it.
+
+ResetTimer with ``timer`` restarts that key. Without it, it restarts the private
+timers *nearest to it*: those of the IsElapsedTimeCompare nodes without
+``timer`` under its closest ancestor that has any (found at load; none in the
+whole tree is a load error). So the PeriodicHealthCheck tree works exactly as
+written::
+
+    Sequence[IsElapsedTimeCompare(reference_sec=60, operator=GTE), PerformDiagnostics, ResetTimer]
+
+- the first tick starts the comparison's timer (reference ``first_tick``), 60 s
+  later the comparison holds, the diagnostics run and ResetTimer restarts it; so
+  diagnostics run 60 s after the first tick and then every 60 s;
+- a second such Sequence elsewhere in the tree keeps its own timer and its own reset.
+
+IsElapsedTimeCompare's ``reference``:
+
+=============== ==================================================================
+``first_tick``  the timer's start; a timer nobody started yet starts at this tick
+``last_reset``  the timer's start as set by ResetTimer (or RecordTime on its key); FAILURE before any
+``tree_start``  the tree's first tick (``ctx.tree_start``; ResetTimer does not move it)
+``blackboard``  the time stored in the ``timer`` key by another node (required port)
+=============== ==================================================================
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import py_trees
+from py_trees.ports_utils import PortsLogger
+
+from canguard.bt.nodes.base import FAILURE, SUCCESS, CanguardNode, PortError, port_info
+
+OPERATORS = ("GT", "LT", "GTE", "LTE", "EQ")
+REFERENCES = ("first_tick", "tree_start", "last_reset", "blackboard")
+_TIMER = "_timer_start"
+"""Private client key (write access) on a named timer's blackboard key."""
+
+
+class _TimerUser(CanguardNode):
+    """A node with a timer: the key wired to ``timer`` (shared), or none (``timer_key`` None)."""
+
+    TIMER_PORT = "timer"
+
+    def setup_ports(
+        self,
+        port_remappings: dict | None = None,
+        subtree_namespace: str = "/",
+        logger: PortsLogger | None = None,
+    ) -> None:
+        """Register the ports, then the named timer's key (write access, so a first tick can start it)."""
+        super().setup_ports(port_remappings, subtree_namespace, logger)
+        remap = port_remappings or {}
+        key = remap.get(self.TIMER_PORT)
+        self.timer_key: str | None = None
+        if key is None:
+            return
+        key = py_trees.blackboard.Blackboard.absolute_name(subtree_namespace, key)
+        self.timer_key = key
+        self.blackboard_client.register_key(key=_TIMER, access=py_trees.common.Access.WRITE, remap_to=key)
+
+    def _shared_start(self) -> float | None:
+        """The named timer's start time, None when nobody started it yet (or it holds no number)."""
+        client = self.blackboard_client
+        if not client.exists(_TIMER):
+            return None
+        value = client.get(_TIMER)
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            return None
+        return float(value)
+
+
+def compare(op: str, elapsed: float, reference: float, tolerance: float) -> bool:
+    """``elapsed <op> reference``; EQ is ``|elapsed − reference| < tolerance``. KeyError on other ops."""
+    if op == "GT":
+        return elapsed > reference
+    if op == "LT":
+        return elapsed < reference
+    if op == "GTE":
+        return elapsed >= reference
+    if op == "LTE":
+        return elapsed <= reference
+    if op == "EQ":
+        return abs(elapsed - reference) < tolerance
+    raise KeyError(op)
+
+
+class IsElapsedTimeCompare(_TimerUser, py_trees.behaviour.Behaviour):
+    """Compares the time elapsed since a reference with ``reference_sec`` (GT, LT, GTE, LTE, EQ).
+
+    Its timer is its own unless ``timer`` names a shared key (module docstring).
+    """
+
+    KIND = "Condition"
+    DESCRIPTION = "SUCCESS when (now − reference time) <operator> reference_sec"
+    INPUT_PORTS = {  # noqa: RUF012 - py_trees reads ports as plain class dicts
+        "reference_sec": port_info(float, "the time to compare the elapsed time with (s)"),
+        "operator": port_info(str, "GT, LT, GTE, LTE or EQ (|elapsed − reference_sec| < tolerance)", "GT"),
+        "tolerance": port_info(float, "tolerance of EQ (s)", 0.1),
+        "reference": port_info(str, "first_tick, tree_start, last_reset or blackboard", "first_tick"),
+        "timer": port_info(
+            float,
+            "blackboard key holding the timer's start time (s), shared by every node naming it; "
+            "default: the node's own timer",
+            required=False,
+        ),
+    }
+    OUTPUT_PORTS = {}  # noqa: RUF012
+    CHOICES = {"operator": OPERATORS, "reference": REFERENCES}  # noqa: RUF012
+    KEY_PORTS = frozenset({"timer"})
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self._own_start: float | None = None
+        """The private timer's start (no ``timer`` port), None until started; kept across halts as in note 000."""
+
+    def timer_start(self) -> float | None:
+        """The timer's start time: the named key's, or the node's own; None when not started yet."""
+        if self.timer_key is None:
+            return self._own_start
+        return self._shared_start()
+
+    def start_timer(self, now: float) -> None:
+        """(Re)start the timer at ``now``: write the named key, or the node's own timer."""
+        if self.timer_key is None:
+            self._own_start = float(now)
+        else:
+            self.blackboard_client.set(_TIMER, float(now))
+
+    def bind(self) -> None:
+        """``reference="blackboard"`` needs the key to read: a ``timer`` port."""
+        if self.port("reference") == "blackboard" and not self.is_wired("timer"):
+            raise PortError("timer", 'required with reference="blackboard" (the key holding the event time)')
+        tol = self.port("tolerance")
+        if tol is not None and not (tol >= 0):
+            raise PortError("tolerance", f"must be >= 0, got {tol!r}")
+
+    def update(self) -> py_trees.common.Status:
+        """Elapsed time since the reference, compared; FAILURE when there is no reference yet."""
+        now = self.ctx.clock.now()
+        ref_mode = self.port("reference")
+        if ref_mode == "tree_start":
+            t0 = self.ctx.tree_start
+            if t0 is None:  # ticked outside the engine: this tick is the tree's start
+                self.ctx.tree_start = t0 = now
+        else:
+            t0 = self.timer_start()
+            if t0 is None:
+                if ref_mode == "first_tick":
+                    self.start_timer(now)
+                    t0 = now
+                elif ref_mode in REFERENCES:
+                    where = f"in {self.timer_key}" if self.timer_key else "(no reset yet by a ResetTimer)"
+                    self.feedback_message = f"no reference time yet {where}"
+                    return FAILURE
+        if ref_mode not in REFERENCES or t0 is None:
+            self.feedback_message = f"unknown reference {ref_mode!r}; expected one of {', '.join(REFERENCES)}"
+            return FAILURE
+        reference = self.port("reference_sec")
+        tolerance = self.port("tolerance")
+        if reference is None or tolerance is None:
+            self.feedback_message = f"no value for reference_sec/tolerance {self._bad_port}".rstrip()
+            return FAILURE
+        elapsed = now - t0
+        op = self.port("operator")
+        try:
+            ok = compare(op, elapsed, reference, tolerance)
+        except KeyError:
+            self.feedback_message = f"unknown operator {op!r}; expected one of {', '.join(OPERATORS)}"
+            return FAILURE
+        self.feedback_message = f"elapsed {elapsed:.3f} s {op} {reference:g} s: {ok}"
+        return SUCCESS if ok else FAILURE
+
+
+class IsElapsedSinceEvent(CanguardNode, py_trees.behaviour.Behaviour):
+    """SUCCESS while min_elapsed_sec <= now − event_timestamp <= max_elapsed_sec."""
+
+    KIND = "Condition"
+    DESCRIPTION = "SUCCESS inside the time window [min_elapsed_sec, max_elapsed_sec] after event_timestamp"
+    INPUT_PORTS = {  # noqa: RUF012
+        "event_timestamp": port_info(float, "time of the event (s), e.g. {mission_start_time}"),
+        "min_elapsed_sec": port_info(float, "window start after the event (s)", 0.0),
+        "max_elapsed_sec": port_info(float, "window end after the event (s)", math.inf),
+    }
+    OUTPUT_PORTS = {}  # noqa: RUF012
+
+    def update(self) -> py_trees.common.Status:
+        """FAILURE outside the window and while no event time has been written."""
+        event = self.port("event_timestamp")
+        lo, hi = self.port("min_elapsed_sec"), self.port("max_elapsed_sec")
+        if event is None or lo is None or hi is None:
+            self.feedback_message = f"no event time yet {self._bad_port}".rstrip()
+            return FAILURE
+        elapsed = self.ctx.clock.now() - event
+        ok = lo <= elapsed <= hi
+        self.feedback_message = f"{elapsed:.3f} s since the event, window [{lo:g}, {hi:g}]"
+        return SUCCESS if ok else FAILURE
+
+
+class IsCooldownElapsed(CanguardNode, py_trees.behaviour.Behaviour):
+    """SUCCESS when never executed (absent or <= 0) or at least cooldown_sec after the last execution."""
+
+    KIND = "Condition"
+    DESCRIPTION = "SUCCESS when the action never ran (time absent or <= 0) or cooldown_sec have passed"
+    INPUT_PORTS = {  # noqa: RUF012
+        "cooldown_sec": port_info(float, "minimum time between two executions (s)", 5.0),
+        "last_execution_time": port_info(float, "time of the last execution (s), e.g. {last_recovery_time}", 0.0),
+    }
+    OUTPUT_PORTS = {}  # noqa: RUF012
+
+    def update(self) -> py_trees.common.Status:
+        """As note 000: a missing or non-positive last time means "never executed"."""
+        last = self.port("last_execution_time")
+        cooldown = self.port("cooldown_sec")
+        if last is None or last <= 0.0:
+            self.feedback_message = "never executed"
+            return SUCCESS
+        if cooldown is None:
+            self.feedback_message = f"no cooldown value {self._bad_port}".rstrip()
+            return FAILURE
+        elapsed = self.ctx.clock.now() - last
+        self.feedback_message = f"{elapsed:.3f} s since the last execution (cooldown {cooldown:g} s)"
+        return SUCCESS if elapsed >= cooldown else FAILURE
+
+
+class ResetTimer(_TimerUser, py_trees.behaviour.Behaviour):
+    """Restarts a timer: the named one, or the nearest own timers (module docstring); SUCCESS."""
+
+    KIND = "Action"
+    DESCRIPTION = "restart a timer: write now to its key (default: the nearest comparisons' own timers)"
+    INPUT_PORTS = {}  # noqa: RUF012
+    OUTPUT_PORTS = {  # noqa: RUF012
+        "timer": port_info(
+            float,
+            "blackboard key of the timer to restart; default: the own timers of the IsElapsedTimeCompare "
+            "nodes without timer under this node's closest ancestor that has any",
+            required=False,
+        ),
+    }
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.targets: list[IsElapsedTimeCompare] = []
+        """The comparisons whose own timers this node restarts (no ``timer`` port)."""
+
+    def bind(self) -> None:
+        """Without ``timer``: find the own timers nearest to this node; none in the tree is an error."""
+        if self.timer_key is not None:
+            return
+        ancestor = self.parent
+        while ancestor is not None:
+            found = [
+                n
+                for n in ancestor.iterate()
+                if isinstance(n, IsElapsedTimeCompare) and n.timer_key is None
+            ]
+            if found:
+                self.targets = found
+                return
+            ancestor = ancestor.parent
+        raise PortError(
+            "timer",
+            "no IsElapsedTimeCompare without a timer port in this tree to restart; "
+            'name the timer to restart (timer="{key}", the same key as the comparison\'s)',
+        )
+
+    def update(self) -> py_trees.common.Status:
+        """Write now to the timer's key, or restart the nearest own timers."""
+        now = self.ctx.clock.now()
+        if self.timer_key is not None:
+            self.blackboard_client.set(_TIMER, float(now))
+            self.feedback_message = f"timer {self.timer_key} = {now:.3f}"
+        else:
+            for node in self.targets:
+                node.start_timer(now)
+            self.feedback_message = f"timers of {', '.join(n.name for n in self.targets)} = {now:.3f}"
+        return SUCCESS
+
+
+class RecordTime(CanguardNode, py_trees.behaviour.Behaviour):
+    """Writes now to ``output_time``; SUCCESS (e.g. {mission_start_time} for IsElapsedSinceEvent)."""
+
+    KIND = "Action"
+    DESCRIPTION = "write the current time (s) to output_time"
+    INPUT_PORTS = {}  # noqa: RUF012
+    OUTPUT_PORTS = {  # noqa: RUF012
+        "output_time": port_info(float, "blackboard key that receives the current time (s)"),
+    }
+
+    def update(self) -> py_trees.common.Status:
+        """Write now."""
+        self._set_output("output_time", float(self.ctx.clock.now()))
+        return SUCCESS

@@ -1,0 +1,102 @@
+"""What ``canguard check`` prints: the config as canguard understood it.
+
+:func:`describe` turns a loaded :class:`~canguard.config.loader.Config` into a plain
+text report: DBC files, buses, each source with its message, frame id, signals,
+units and DBC ranges, and the task / stop / action frames with their payloads.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+
+from canguard.config.loader import Config, FrameSpec, SignalRef
+
+
+def _id(frame_id: int, extended: bool) -> str:
+    return f"0x{frame_id:08X} (extended)" if extended else f"0x{frame_id:03X}"
+
+
+def _range(ref: SignalRef) -> str:
+    if ref.minimum is None and ref.maximum is None:
+        return ""
+    lo = "-inf" if ref.minimum is None else f"{ref.minimum:g}"
+    hi = "inf" if ref.maximum is None else f"{ref.maximum:g}"
+    return f" [{lo} .. {hi}]"
+
+
+def _signal(ref: SignalRef) -> str:
+    unit = f" {ref.unit}" if ref.unit else ""
+    return f"{ref.role} = {ref.signal}{unit}{_range(ref)}"
+
+
+def _frames(title: str, frames: Iterable[FrameSpec]) -> list[str]:
+    frames = list(frames)
+    if not frames:
+        return [f"  {title}: (none)"]
+    lines = [f"  {title}:"]
+    for f in frames:
+        data = f.data.hex(" ") if f.data else "(empty)"
+        fd = " fd" if f.is_fd else ""
+        lines.append(
+            f"    {f.label:<28} bus {f.bus}  id {_id(f.arbitration_id, f.is_extended_id)}{fd}  data {data}"
+        )
+    return lines
+
+
+def describe(cfg: Config) -> str:
+    """The text ``canguard check`` prints for a config that loaded without errors."""
+    lines = [f"config {cfg.path}"]
+    lines.append("dbc:")
+    n_messages = len(cfg.database.messages) if cfg.database is not None else 0
+    lines += [f"  {p}" for p in cfg.dbc_files]
+    lines.append(f"  ({n_messages} messages)")
+
+    lines.append("buses:")
+    for name, bus in cfg.buses.items():
+        extra = {k: v for k, v in bus.kwargs.items() if k not in ("interface", "channel")}
+        more = "".join(f", {k}={v!r}" for k, v in extra.items())
+        lines.append(f"  {name}: interface {bus.interface}, channel {bus.channel}{more}")
+
+    lines.append("sources:")
+    if not cfg.sources:
+        lines.append("  (none)")
+    for name, src in cfg.sources.items():
+        lines.append(f"  {name} ({src.kind}, bus {src.bus}, max_age {src.max_age_s:g} s)")
+        by_message: dict[tuple[str, str], list[SignalRef]] = {}
+        for ref in src.signals:
+            by_message.setdefault((ref.bus, ref.message), []).append(ref)
+        for (ref_bus, message), refs in by_message.items():
+            first = refs[0]
+            where = "" if ref_bus == src.bus else f" on bus {ref_bus}"
+            lines.append(f"    -> {message} id {_id(first.frame_id, first.is_extended_id)}{where}")
+            lines += [f"       {_signal(r)}" for r in refs]
+        if src.kind == "battery" and src.signal("present") is None:
+            lines.append("       present = (a valid frame arrived)")
+
+    if cfg.tree is not None:
+        lines.append(
+            f"tree: {cfg.tree.file} main {cfg.tree.main or '(main_tree_to_execute)'}, {cfg.tree.tick_hz:g} Hz"
+        )
+    else:
+        lines.append("tree: (none)")
+    lines.append(f"task: every {cfg.task.period_s:g} s")
+    lines += _frames("frames", cfg.task.frames)
+    lines.append(f"stop: repeat every {cfg.stop.repeat_s:g} s")
+    lines += _frames("frames", cfg.stop.frames)
+    c = cfg.stop.confirm
+    if c is not None:
+        lines.append(f"  confirm: {c.source}.{c.signal} {c.op} {c.value:g} within {c.deadline_s:g} s")
+        lines += _frames("escalate", cfg.stop.escalate)
+    elif cfg.stop.escalate:
+        lines += _frames("escalate", cfg.stop.escalate)
+    lines.append("actions:")
+    if not cfg.actions:
+        lines.append("  (none)")
+    for name, action in cfg.actions.items():
+        lines += _frames(name, action.frames)
+    lines.append(f"events: {cfg.events or '(none)'}")
+    st = cfg.state
+    lines.append(
+        f"state: {st.file or '(not kept)'}, on_corrupt {st.on_corrupt}, saved every {st.save_period_s:g} s"
+    )
+    return "\n".join(lines)

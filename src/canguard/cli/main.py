@@ -1,0 +1,177 @@
+"""The ``canguard`` command: one subcommand = ``add_parser(sub)`` + a function returning an exit code.
+
+Exit codes: 0 fine; 1 the answer is "no" (``replay --fail-on-trip`` saw a trip);
+2 bad input (config, DBC, tree, log), with every problem printed on stderr.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import sys
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+from canguard import __version__
+from canguard.errors import CanguardError
+
+Handler = Callable[[argparse.Namespace], int]
+
+PACKAGE_DIR = Path(__file__).resolve().parents[1]
+BUNDLED_CONFIG = PACKAGE_DIR.parents[1] / "config" / "canguard.yaml"
+
+
+def default_config() -> Path:
+    """``$CANGUARD_CONFIG``, else /etc/canguard/canguard.yaml when it exists, else the bundled config."""
+    env = os.environ.get("CANGUARD_CONFIG")
+    if env:
+        return Path(env)
+    etc = Path("/etc/canguard/canguard.yaml")
+    return etc if etc.exists() else BUNDLED_CONFIG
+
+
+def _add_config(p: argparse.ArgumentParser) -> None:
+    p.add_argument("-c", "--config", type=Path, default=None,
+                   help="YAML config (default: $CANGUARD_CONFIG, /etc/canguard/canguard.yaml, "
+                        "or the bundled config/canguard.yaml)")
+
+
+def _config_path(args: argparse.Namespace) -> Path:
+    return args.config if args.config is not None else default_config()
+
+
+# -- check -----------------------------------------------------------------------------------
+def _add_check(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("check", help="validate a config, its DBC files and its tree; print what they resolve to",
+                       description="Load the config, its DBC files and its tree; print buses, sources "
+                                   "(message, id, signals, units) and frames; exit 0, or 2 with every error.")
+    _add_config(p)
+    p.set_defaults(func=_cmd_check)
+
+
+def _cmd_check(args: argparse.Namespace) -> int:
+    from canguard.bt.loader import check_tree, partial_tree_problems
+    from canguard.cli.check import describe
+    from canguard.config.loader import load_config
+    from canguard.errors import ConfigError
+
+    try:
+        cfg = load_config(_config_path(args))
+    except ConfigError as exc:
+        # The tree's own mistakes belong in the same report: check it against what did load.
+        tree_problems = partial_tree_problems(exc.partial)
+        if not tree_problems:
+            raise
+        raise ConfigError([*exc.problems, *tree_problems], [*exc.located, *tree_problems]) from None
+    print(describe(cfg))
+    if cfg.tree is not None:
+        report = check_tree(cfg)
+        print(report.text, end="" if report.text.endswith("\n") else "\n")
+        for warning in report.warnings:
+            print(f"warning: {warning}", file=sys.stderr)
+    return 0
+
+
+# -- tree ------------------------------------------------------------------------------------
+def _add_tree(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("tree", help="print the config's behaviour tree; render it; write a Groot2 nodes model",
+                       description="Print the tree of the config (py_trees' unicode display).")
+    _add_config(p)
+    p.add_argument("--dot", type=Path, metavar="FILE", help="render the tree (.dot, or .png/.svg with graphviz)")
+    p.add_argument("--nodes-model", type=Path, metavar="FILE",
+                   help="write a Groot2 <TreeNodesModel> of every canguard node and its ports")
+    p.set_defaults(func=_cmd_tree)
+
+
+def _cmd_tree(args: argparse.Namespace) -> int:
+    from canguard.bt.loader import nodes_model_xml, show_tree
+
+    if args.nodes_model is not None:
+        from canguard.bt.loader import context_for
+        from canguard.config.loader import load_config
+
+        ctx = context_for(load_config(_config_path(args)))
+        args.nodes_model.write_text(nodes_model_xml(ctx), encoding="utf-8")
+        print(f"wrote {args.nodes_model}")
+    print(show_tree(_config_path(args), dot=args.dot), end="")
+    return 0
+
+
+# -- run -------------------------------------------------------------------------------------
+def _add_run(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("run", help="run the daemon on the config's buses (systemd service)",
+                       description="Run the live engine: read the buses, tick the tree, send task / stop "
+                                   "frames. SIGTERM stops cleanly (stop frames out, exit 0); SIGHUP reloads.")
+    _add_config(p)
+    p.add_argument("--metrics", metavar="HOST:PORT", help="serve Prometheus metrics (e.g. 127.0.0.1:9108)")
+    p.add_argument("--duration", type=float, metavar="S", help="stop by itself after S seconds")
+    p.set_defaults(func=_cmd_run)
+
+
+def _cmd_run(args: argparse.Namespace) -> int:
+    from canguard.service.daemon import Daemon
+
+    daemon = Daemon(_config_path(args), metrics_addr=args.metrics)
+    daemon.install_signals()
+    return daemon.run(duration_s=args.duration)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The full argument parser (every subcommand has -h)."""
+    parser = argparse.ArgumentParser(
+        prog="canguard",
+        description="CAN-bus motor-driver monitoring: DBC decoding, protection models, behaviour trees.",
+    )
+    parser.add_argument("--version", action="version", version=f"canguard {__version__}")
+    parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv: debug)")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for add in (_add_run, _add_check, _add_tree):
+        add(sub)
+    for extra in _extra_commands():
+        extra(sub)
+    return parser
+
+
+def _extra_commands() -> list[Callable[[argparse._SubParsersAction], None]]:
+    """Subcommands that live in their own modules (replay, simulate, demo)."""
+    adders: list[Callable[[argparse._SubParsersAction], None]] = []
+    for module in ("cli.replay", "cli.simulate", "cli.demo"):
+        try:
+            mod = __import__(f"canguard.{module}", fromlist=["add_parser"])
+        except ModuleNotFoundError as exc:
+            if exc.name != f"canguard.{module}":
+                raise
+            continue
+        adders.append(mod.add_parser)
+    return adders
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``canguard`` console script; returns the exit code."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    level = logging.WARNING - 10 * min(args.verbose, 2)
+    logging.basicConfig(level=level, format="%(asctime)s %(name)s %(levelname)s: %(message)s")
+    if args.command is None:
+        parser.print_help()
+        return 2
+    func: Handler = args.func
+    try:
+        return func(args)
+    except CanguardError as exc:
+        # ConfigError / TreeError carry every problem of one load: all are printed, one per line.
+        problems = getattr(exc, "problems", None)
+        count = len(problems) if isinstance(problems, list) else 1
+        head = "error" if count <= 1 else f"{count} errors"
+        print(f"canguard {args.command}: {head}:\n{exc}", file=sys.stderr)
+        return 2
+    except FileNotFoundError as exc:
+        print(f"canguard {args.command}: error: {exc.filename or exc}: no such file", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,173 @@
+"""``canguard replay --realtime [SPEED]``: a bench test through the real daemon path.
+
+The log's frames are sent onto a configured bus at the log's pace (like
+can-utils' canplayer; SPEED 2 plays twice as fast) from a second connection to
+that bus, while a :class:`~canguard.service.daemon.Daemon` runs live on the same bus: the
+frames take the same way as on the robot (bus -> receive thread -> engine -> bus).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import sys
+import threading
+import time
+from collections.abc import Sequence
+from contextlib import ExitStack
+from pathlib import Path
+from typing import Any, TextIO
+
+from canguard.config.loader import Config, FrameSpec
+from canguard.engine.core import Engine
+from canguard.engine.gate import LogSink
+from canguard.errors import ConfigError
+from canguard.service.daemon import Daemon
+
+
+class _TeeSink:
+    """The daemon's bus sink, and a :class:`LogSink` writing every frame handed to it (``--emit``)."""
+
+    def __init__(self, inner: Any, record: LogSink) -> None:
+        self.inner = inner
+        self.record = record
+
+    @property
+    def sent(self) -> int:
+        """Frames the daemon's sink put on the bus."""
+        return int(self.inner.sent)
+
+    def send(self, frames: Sequence[FrameSpec], origin: str) -> None:
+        self.record.send(frames, origin)
+        self.inner.send(frames, origin)
+
+
+class _ReplayDaemon(Daemon):
+    """The daemon with replay's promises: I²t heat only read from ``--state`` (never saved), ``--emit``.
+
+    The journal is the config's ``events:``, which :func:`replay_realtime` replaces
+    with ``--events`` (or None) before the daemon is built.
+    """
+
+    def __init__(self, cfg: Config, *, state: Path | None, emit: TextIO | None) -> None:
+        self._state_path = state
+        self._emit = emit
+        super().__init__(cfg.path, cfg=cfg)
+
+    def _build_engine(self, cfg: Config, previous: Engine | None = None) -> Engine:
+        from canguard.engine.clock import BootClock
+        from canguard.protect.state import HeatStore
+
+        if self._emit is not None and not isinstance(self.sink, _TeeSink):
+            self.sink = _TeeSink(self.sink, LogSink(self.clock.now, cfg.buses, out=self._emit, keep=False))
+        engine = super()._build_engine(cfg, previous)
+        engine.heat = (HeatStore(self._state_path, cfg.state.on_corrupt, clock=BootClock())
+                       if self._state_path is not None else None)
+        engine.save_heat = False
+        return engine
+
+
+def _refuse_unsupported(args: argparse.Namespace) -> None:
+    """Exit 2 (ConfigError) on the replay flags --realtime cannot honour, rather than ignoring them."""
+    refused = []
+    if getattr(args, "plot", None) is not None:
+        refused.append("--plot")
+    if getattr(args, "baseline", None) is not None:
+        refused.append("--baseline")
+    if getattr(args, "jobs", 1) > 1:
+        refused.append("--jobs")
+    if getattr(args, "map", None):
+        refused.append("--map (--realtime plays every frame onto --bus)")
+    if refused:
+        raise ConfigError(f"--realtime cannot be combined with {', '.join(refused)}: "
+                          "run the offline replay (without --realtime) for that")
+
+
+def replay_realtime(cfg: Config, args: argparse.Namespace) -> int:
+    """Play each log onto the bus while the daemon runs; print the daemon's summary; exit code as replay.
+
+    The daemon runs on a copy of the config: its journal is ``--events`` (none when not
+    given) and it never writes the I²t ``state.file`` (``--state`` is only read).
+    """
+    import can
+
+    from canguard.cli.replay import ChannelRouter, _events_path, build_summary, render_text
+    from canguard.io.logs import ReadStats, read_log
+
+    _refuse_unsupported(args)
+    speed = float(args.realtime)
+    if speed <= 0:
+        raise ConfigError(f"--realtime {speed}: expected a speed > 0 (1 = the log's own pace)")
+    bus_name = args.bus or (next(iter(cfg.buses)) if len(cfg.buses) == 1 else None)
+    if bus_name is None:
+        raise ConfigError(f"--realtime: several buses are configured ({', '.join(cfg.buses)}): "
+                          "name the one to play onto with --bus")
+    if bus_name not in cfg.buses:
+        raise ConfigError(f"--bus {args.bus!r}: expected one of the configured buses: {', '.join(cfg.buses)}")
+    many = len(args.logs) > 1
+    tripped = False
+    for log_path in args.logs:
+        run_cfg = dataclasses.replace(
+            cfg, events=_events_path(args.events, log_path, many),
+            state=dataclasses.replace(cfg.state, file=None),
+        )
+        emit_path = _events_path(args.emit, log_path, many)
+        stats = ReadStats()
+        frames = read_log(log_path, skip_bad=args.skip_bad, stats=stats)  # a missing file fails here, first
+        channels: dict[str, int] = {}
+        failed: list[Exception] = []
+        with ExitStack() as stack:
+            emit = stack.enter_context(open(emit_path, "w", encoding="ascii")) if emit_path is not None else None
+            daemon = _ReplayDaemon(run_cfg, state=args.state, emit=emit)
+            player = can.Bus(**dict(cfg.buses[bus_name].kwargs))
+            done = threading.Event()
+
+            def play(frames: Any = frames, player: Any = player, done: threading.Event = done,
+                     daemon: Daemon = daemon, channels: dict[str, int] = channels,
+                     failed: list[Exception] = failed) -> None:
+                try:
+                    start_wall = time.monotonic()
+                    start_log = None
+                    for frame in frames:
+                        if frame.is_error_frame:
+                            continue
+                        channels[frame.channel] = channels.get(frame.channel, 0) + 1
+                        if start_log is None:
+                            start_log = frame.t
+                        due = start_wall + (frame.t - start_log) / speed
+                        delay = due - time.monotonic()
+                        if delay > 0.0005:
+                            time.sleep(delay)
+                        player.send(can.Message(
+                            arbitration_id=frame.arbitration_id, data=frame.data,
+                            is_extended_id=frame.is_extended_id, is_fd=frame.is_fd,
+                            is_remote_frame=frame.is_remote_frame, bitrate_switch=frame.bitrate_switch))
+                except Exception as exc:  # a bad line: reported by the main thread, not as a thread traceback
+                    failed.append(exc)
+                finally:
+                    time.sleep(0.2)  # let the last frames reach the daemon
+                    done.set()
+                    daemon.request_stop("end of log")
+
+            thread = threading.Thread(target=play, name="canguard-player", daemon=True)
+            thread.start()
+            try:
+                daemon.run()
+            finally:
+                done.wait(5)
+                player.shutdown()
+        if failed:
+            raise failed[0]
+        router = ChannelRouter(daemon.cfg, {})
+        summary = build_summary(daemon.cfg, log_path, daemon.engine, stats, router)
+        if len(channels) > 1:  # every channel of the log went onto the one bus
+            summary["merged_channels"] = dict(sorted(channels.items()))
+            summary["merged_into"] = bus_name
+        summary["realtime_speed"] = speed
+        tripped = tripped or bool(summary["trips"])
+        print(json.dumps(summary, indent=2, sort_keys=True) if args.json else render_text(summary))
+    if args.fail_on_trip and tripped:
+        return 1
+    print("note: --realtime runs the live daemon; its times follow the wall clock, not the log", file=sys.stderr)
+    return 0

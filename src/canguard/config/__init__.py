@@ -1,0 +1,1 @@
+"""The YAML config: typed, frozen schema and loading with line numbers."""

@@ -1,0 +1,1 @@
+"""DBC loading and the frame decoder: frames to current / effort samples."""

@@ -1,0 +1,152 @@
+"""The context one tree runs in: clock, sources, protection models, frame sink, events.
+
+The engine builds one :class:`Context` per loaded tree and hands it to every node
+(the node registry binds it with ``functools.partial``), so nodes never reach
+for globals, clocks or buses themselves:
+
+- ``now()``: the engine's clock (log time in replay, live time in the daemon).
+- ``health[source]``: a :class:`~canguard.protect.staleness.SourceHealth` per
+  configured source: latest values, freshness, presence, validity.
+- ``subscribe(source, role, model)``: a guard node registers its protection
+  model; ``dispatch(sample)`` (called by the engine for every decoded sample)
+  feeds it, and returns True on an edge so the engine ticks at once.
+- ``sink``: where action nodes hand their frames (the emitter live, a list in tests).
+- ``task``: the task gate ExecuteTask drives (run while ticked, halt on halt).
+- ``record(...)``: guard transitions and other events for the journal.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any, Protocol
+
+from canguard.config.loader import ActionConfig, FrameSpec, SourceConfig, SourceKind
+from canguard.engine.clock import Clock
+from canguard.io.frame import Sample
+from canguard.protect.base import ProtectionModel
+from canguard.protect.staleness import SourceHealth
+
+
+class FrameSink(Protocol):
+    """Takes frames to send; must never block the caller."""
+
+    def send(self, frames: Sequence[FrameSpec], origin: str) -> None:
+        """Queue ``frames`` for sending; ``origin`` names the node or action that sent them."""
+        ...
+
+
+class TaskGate(Protocol):
+    """What ExecuteTask drives: the task's enable / heartbeat frames."""
+
+    def run(self, node: str, now: float) -> None:
+        """ExecuteTask was ticked: the task runs (send task frames every period)."""
+        ...
+
+    def halt(self, node: str, now: float) -> None:
+        """ExecuteTask was halted: the task stops (send stop frames at once)."""
+        ...
+
+
+class ListSink:
+    """A frame sink that keeps what it was given: tests and ``--emit`` dry runs."""
+
+    def __init__(self) -> None:
+        self.sent: list[tuple[str, FrameSpec]] = []
+
+    def send(self, frames: Sequence[FrameSpec], origin: str) -> None:
+        """Append every frame with its origin."""
+        self.sent.extend((origin, f) for f in frames)
+
+    def labels(self) -> list[str]:
+        """The labels of every frame sent, in order."""
+        return [f.label for _, f in self.sent]
+
+
+class NullTaskGate:
+    """A task gate that records calls only (tests, and trees without a task)."""
+
+    def __init__(self) -> None:
+        self.calls: list[tuple[str, str, float]] = []
+
+    def run(self, node: str, now: float) -> None:
+        """Record a run."""
+        self.calls.append(("run", node, now))
+
+    def halt(self, node: str, now: float) -> None:
+        """Record a halt."""
+        self.calls.append(("halt", node, now))
+
+
+EventCallback = Callable[[dict[str, Any]], None]
+
+
+class Context:
+    """Everything a node of one tree may use; built by the engine, shared by all nodes."""
+
+    def __init__(
+        self,
+        clock: Clock,
+        sources: Mapping[str, SourceConfig],
+        sink: FrameSink | None = None,
+        actions: Mapping[str, ActionConfig] | None = None,
+        task: TaskGate | None = None,
+        on_event: EventCallback | None = None,
+        stop_frames: Sequence[FrameSpec] = (),
+    ) -> None:
+        self.clock = clock
+        self.sources = dict(sources)
+        self.sink: FrameSink = sink if sink is not None else ListSink()
+        self.actions = dict(actions or {})
+        self.task: TaskGate = task if task is not None else NullTaskGate()
+        self.on_event = on_event
+        self.health: dict[str, SourceHealth] = {name: SourceHealth(cfg) for name, cfg in self.sources.items()}
+        self._subscribers: dict[tuple[str, str], list[ProtectionModel]] = {}
+        self.read_sources: set[str] = set()
+        """Sources some node of the tree reads (the others only yield ``stale`` events)."""
+        self.tree_start: float | None = None
+        """Time of the tree's first tick, set by the engine."""
+        self.heat_models: dict[str, ProtectionModel] = {}
+        """I²t models by guard node name: their heat is saved to and restored from the state file."""
+        self.stop_frames: tuple[FrameSpec, ...] = tuple(stop_frames)
+        """The config's stop frames (``stop.frames``), sent by the EmitStop node."""
+
+    def now(self) -> float:
+        """The engine's time (seconds, the frames' time base)."""
+        return self.clock.now()
+
+    def source(self, name: str, kinds: tuple[SourceKind, ...]) -> SourceConfig:
+        """The configured source ``name`` of one of ``kinds``; KeyError/ValueError naming the choices."""
+        cfg = self.sources.get(name)
+        if cfg is None:
+            known = ", ".join(sorted(self.sources)) or "(none configured)"
+            raise KeyError(f"unknown source {name!r}; configured sources: {known}")
+        if cfg.kind not in kinds:
+            raise ValueError(f"source {name!r} is of kind {cfg.kind!r}, expected {' or '.join(kinds)}")
+        self.read_sources.add(name)
+        return cfg
+
+    def subscribe(self, source: str, role: str, model: ProtectionModel) -> None:
+        """Feed every valid sample of ``source``'s ``role`` signal to ``model`` from now on."""
+        self._subscribers.setdefault((source, role), []).append(model)
+
+    def subscribers(self, source: str, role: str) -> list[ProtectionModel]:
+        """The models fed with ``source``'s ``role`` samples, in subscription order."""
+        return list(self._subscribers.get((source, role), ()))
+
+    def dispatch(self, sample: Sample) -> bool:
+        """Route one sample to its source's health and subscribed models; True on any edge."""
+        health = self.health.get(sample.source)
+        if health is None:
+            return False
+        edge = health.observe(sample)
+        if sample.reason:
+            return edge
+        for model in self._subscribers.get((sample.source, sample.signal), ()):
+            if model.update(sample.value, sample.t):
+                edge = True
+        return edge
+
+    def record(self, event: str, **fields: Any) -> None:
+        """Report an event (``trip``, ``recover``, ...) with its fields to the journal, if any."""
+        if self.on_event is not None:
+            self.on_event({"t": self.now(), "event": event, **fields})

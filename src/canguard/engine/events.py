@@ -1,0 +1,404 @@
+"""The event journal: guard transitions, stops, stale sources... as JSON lines.
+
+One event is one line of JSON appended to the ``events:`` file of the config::
+
+    {"t":1700000000.123456,"event":"trip","node":"MotorCurrent","source":"left_drive",
+     "value":31.2,"threshold":30.0,"reason":"overcurrent"}
+
+Guarantees the daemon relies on:
+
+- **Nothing written is lost to a crash of the daemon.** :meth:`EventJournal.write`
+  hands the whole line to the kernel with one ``os.write`` on an ``O_APPEND``
+  descriptor before it returns, so a ``kill -9`` right after it loses nothing;
+  :meth:`EventJournal.flush` (the engine calls it once per tick batch) adds
+  ``os.fsync`` so a power cut does not either.
+- **Only appended.** Opening never truncates. Rotation by size renames
+  ``events.jsonl`` to ``events.jsonl.1`` after shifting the older backups up
+  (``.1`` -> ``.2`` -> ``.3`` ...) and by default never deletes one, so every line
+  ever written is kept; the highest number is the oldest file.
+- **Deterministic.** The first keys are always ``t, event, node, source, value,
+  threshold, reason`` (``null`` when the event has none), then the other keys
+  sorted; floats are rounded (``t`` to the microsecond, other values to 10
+  significant digits). A non-finite top-level number is written as ``null``
+  with its text in ``<key>_text`` (``"value": null, "value_text": "nan"``), so a
+  number field only ever holds a number or null and every line is valid JSON;
+  inside nested values NaN / ±inf are the strings ``"nan"``, ``"inf"``, ``"-inf"``. The same events give a
+  byte-identical file on every run, which is what makes replay comparable.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import os
+import threading
+from collections import deque
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+from canguard.errors import LogFormatError
+
+__all__ = [
+    "EVENT_TYPES",
+    "FIRST_KEYS",
+    "EventJournal",
+    "encode_event",
+    "journal_files",
+    "read_events",
+]
+
+log = logging.getLogger(__name__)
+
+EVENT_TYPES = frozenset(
+    {
+        "trip",
+        "recover",
+        "stop",
+        "resume",
+        "confirmed",
+        "escalate",
+        "stale",
+        "fresh",
+        "bus_error",
+        "reload",
+        "start",
+        "exit",
+        "error",
+    }
+)
+"""The event names canguard itself writes (plug-ins may write others)."""
+
+FIRST_KEYS = ("t", "event", "node", "source", "value", "threshold", "reason")
+"""Keys every line carries, in this order; the event's other keys follow, sorted."""
+
+DEFAULT_MAX_BYTES = 16 * 1024 * 1024
+
+_PENDING_MAX = 10_000
+"""Lines kept in memory while the disk refuses them (full, read-only); older ones are dropped then."""
+
+
+def _normalize(value: Any, key: str = "") -> Any:
+    """Make ``value`` JSON-safe and deterministic (rounded floats, sorted nested keys)."""
+    if value is None or isinstance(value, (bool, str)):
+        return value
+    if isinstance(value, int):
+        return int(value)  # IntEnum and friends: their plain number
+    if isinstance(value, float):
+        if math.isnan(value):
+            return "nan"
+        if math.isinf(value):
+            return "inf" if value > 0 else "-inf"
+        if key == "t":
+            # Epoch seconds: microseconds are what candump writes.
+            return round(value, 6)
+        rounded = float(f"{value:.10g}")
+        # Rounding near float max can overflow to inf: keep the exact value then.
+        return rounded if math.isfinite(rounded) else value
+    if isinstance(value, Mapping):
+        return {str(k): _normalize(v, str(k)) for k, v in sorted(value.items(), key=lambda kv: str(kv[0]))}
+    if isinstance(value, (list, tuple)):
+        return [_normalize(v) for v in value]
+    if isinstance(value, (set, frozenset)):
+        return sorted((_normalize(v) for v in value), key=repr)
+    if isinstance(value, (bytes, bytearray)):
+        return bytes(value).hex()
+    if hasattr(value, "__float__") and not isinstance(value, (str, bytes)):
+        try:
+            return _normalize(float(value), key)  # numpy scalars, Decimal
+        except (TypeError, ValueError):
+            pass
+    return str(value)  # Path, enums, anything else: its text
+
+
+def _top(value: Any, key: str) -> Any:
+    """A top-level field: like :func:`_normalize`, but a non-finite float is null (its text is beside it)."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return _normalize(value, key)
+
+
+def encode_event(event: Mapping[str, Any]) -> bytes:
+    """Encode one event as one JSON line (UTF-8, ending in ``\\n``), deterministically.
+
+    Raises ValueError when ``event`` has no ``event`` key.
+    """
+    if "event" not in event:
+        raise ValueError(f"an event needs an 'event' key (trip, recover, ...); got keys {sorted(event)}")
+    # A number field stays a number or null: a non-finite value is written as null, and its text
+    # ("nan", "inf", "-inf") goes to "<key>_text", so consumers never meet a string in "value".
+    texts = {
+        f"{k}_text": ("nan" if math.isnan(v) else "inf" if v > 0 else "-inf")
+        for k, v in event.items()
+        if isinstance(v, float) and not math.isfinite(v)
+    }
+    rest = {str(k): v for k, v in event.items() if k not in FIRST_KEYS}
+    rest.update(texts)
+    out: dict[str, Any] = {k: _top(event.get(k), k) for k in FIRST_KEYS}
+    for k, v in sorted(rest.items(), key=lambda kv: kv[0]):
+        out[k] = _top(v, k)
+    text = json.dumps(out, ensure_ascii=False, separators=(",", ":"), allow_nan=False)
+    return text.encode("utf-8") + b"\n"
+
+
+class EventJournal:
+    """Appends events to a JSON-lines file, rotated by size, keeping every line.
+
+    ``path`` None gives a journal that only counts (``lines``, ``bytes_written``).
+    ``max_bytes`` is the size at which the file is rotated (a line is never split
+    across files, so a file may exceed it by one line); ``backups`` None keeps
+    every rotated file, an integer keeps that many and deletes older ones (opt-in:
+    the issue asks that every line be kept).
+
+    Thread-safe: receive threads may report ``bus_error`` events while the loop writes.
+    Disk errors (full disk, read-only file system) never raise out of
+    :meth:`write` or :meth:`flush`: they are logged once, counted in ``errors``,
+    and the lines are kept in memory (up to 10,000) and written on the next call
+    that succeeds, so a full disk cannot stop the guard.
+    """
+
+    def __init__(
+        self,
+        path: Path | str | None,
+        max_bytes: int = DEFAULT_MAX_BYTES,
+        backups: int | None = None,
+    ) -> None:
+        if max_bytes <= 0:
+            raise ValueError(f"max_bytes must be > 0, got {max_bytes}")
+        if backups is not None and backups < 1:
+            raise ValueError(f"backups must be None (keep all) or >= 1, got {backups}")
+        self.path: Path | None = None if path is None else Path(path)
+        self.max_bytes = int(max_bytes)
+        self.backups = backups
+        self.lines = 0
+        """Events accepted by :meth:`write` (counted also when ``path`` is None)."""
+        self.bytes_written = 0
+        self.rotations = 0
+        self.errors = 0
+        """Disk errors met so far (each logged; only the first of a run at WARNING)."""
+        self.dropped = 0
+        """Lines lost because the disk kept failing and the in-memory backlog overflowed."""
+        self._fd: int | None = None
+        self._size = 0
+        self._dirty = False
+        self._closed = False
+        self._pending: deque[bytes] = deque()
+        self._offset = 0
+        self._failing = False
+        self._lock = threading.Lock()
+        if self.path is not None:
+            self._open()
+
+    # -- file handling -------------------------------------------------------------
+
+    def _open(self) -> None:
+        """Open (create) the file for appending; never truncates."""
+        assert self.path is not None
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        existed = self.path.exists()
+        fd = os.open(self.path, os.O_WRONLY | os.O_APPEND | os.O_CREAT | os.O_CLOEXEC, 0o640)
+        self._fd = fd
+        self._size = os.fstat(fd).st_size
+        if not existed:
+            self._fsync_dir()
+
+    def _fsync_dir(self) -> None:
+        """Make a created or renamed file's directory entry durable."""
+        assert self.path is not None
+        try:
+            dfd = os.open(self.path.parent, os.O_RDONLY | os.O_DIRECTORY)
+        except OSError:
+            return
+        try:
+            os.fsync(dfd)
+        except OSError:
+            pass  # some file systems refuse fsync on directories; the data itself is synced
+        finally:
+            os.close(dfd)
+
+    def _backup(self, n: int) -> Path:
+        assert self.path is not None
+        return self.path.with_name(f"{self.path.name}.{n}")
+
+    def _rotate(self) -> None:
+        """Rename the full file to ``.1`` after shifting older backups up; open a fresh one."""
+        assert self.path is not None and self._fd is not None
+        os.fsync(self._fd)
+        os.close(self._fd)
+        self._fd = None
+        self._dirty = False
+        n = 1
+        while self._backup(n).exists():
+            n += 1
+        # n is the first free number: shift n-1 -> n, ..., 1 -> 2, from the top down, so a
+        # crash half-way leaves a gap in the numbers but never overwrites a file.
+        for i in range(n - 1, 0, -1):
+            os.replace(self._backup(i), self._backup(i + 1))
+        os.replace(self.path, self._backup(1))
+        if self.backups is not None:
+            i = self.backups + 1
+            while self._backup(i).exists():
+                self._backup(i).unlink()
+                i += 1
+        self._fsync_dir()
+        self.rotations += 1
+        self._open()
+
+    def _drain(self) -> None:
+        """Write every pending line (normally just the new one); raises OSError if the disk fails.
+
+        ``_offset`` remembers how much of the first pending line a failed write
+        already put in the file, so a retry completes it instead of repeating it
+        (which would leave a torn line). Rotation only happens between lines.
+        """
+        while self._pending:
+            line = self._pending[0]
+            if self._fd is None:
+                self._open()
+            if self._offset == 0 and self._size > 0 and self._size + len(line) > self.max_bytes:
+                self._rotate()
+            assert self._fd is not None
+            while self._offset < len(line):
+                n = os.write(self._fd, memoryview(line)[self._offset :])
+                self._offset += n
+                self._size += n
+                self._dirty = True
+            self._pending.popleft()
+            self._offset = 0
+
+    def _failed(self, exc: OSError, what: str) -> None:
+        self.errors += 1
+        level = logging.DEBUG if self._failing else logging.WARNING
+        log.log(level, "event journal %s: %s failed: %s (lines kept in memory)", self.path, what, exc)
+        self._failing = True
+        # A failed write may have left a half-open descriptor (e.g. during rotation); reopen later.
+        if self._fd is not None and not self._fd_ok():
+            self._fd = None
+
+    def _fd_ok(self) -> bool:
+        try:
+            os.fstat(self._fd)  # type: ignore[arg-type]
+        except OSError:
+            return False
+        return True
+
+    # -- public API ------------------------------------------------------------------
+
+    def write(self, event: Mapping[str, Any]) -> None:
+        """Append one event as a JSON line, handed to the OS before returning.
+
+        Raises ValueError for an event without an ``event`` key or a closed journal;
+        disk errors are logged and retried, not raised (see the class docstring).
+        """
+        line = encode_event(event)
+        with self._lock:
+            if self._closed:
+                raise ValueError("write to a closed EventJournal")
+            self.lines += 1
+            self.bytes_written += len(line)
+            if self.path is None:
+                return
+            self._pending.append(line)
+            if len(self._pending) > _PENDING_MAX:
+                # Drop the oldest whole line; never the one a failed write half wrote.
+                del self._pending[1 if self._offset else 0]
+                self.dropped += 1
+            try:
+                self._drain()
+            except OSError as exc:
+                self._failed(exc, "write")
+                return
+            if self._failing:
+                log.warning("event journal %s: writing again", self.path)
+                self._failing = False
+
+    def flush(self) -> None:
+        """Make every line written so far durable (``os.fsync``); cheap when nothing is new."""
+        with self._lock:
+            if self.path is None or self._closed:
+                return
+            try:
+                self._drain()
+                if self._dirty and self._fd is not None:
+                    os.fsync(self._fd)
+                    self._dirty = False
+            except OSError as exc:
+                self._failed(exc, "fsync")
+
+    def close(self) -> None:
+        """Flush, fsync and close the file; later writes raise ValueError. Idempotent."""
+        self.flush()
+        with self._lock:
+            self._closed = True
+            if self._fd is not None:
+                try:
+                    os.close(self._fd)
+                finally:
+                    self._fd = None
+            if self._pending:
+                log.error("event journal %s: %d lines could not be written", self.path, len(self._pending))
+
+    @property
+    def closed(self) -> bool:
+        """True once :meth:`close` was called."""
+        return self._closed
+
+    @property
+    def pending(self) -> int:
+        """Lines waiting in memory because the disk refused them."""
+        return len(self._pending)
+
+    def __enter__(self) -> EventJournal:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def journal_files(path: Path | str) -> list[Path]:
+    """The journal's files oldest first: ``path.N`` ... ``path.1``, then ``path`` (existing ones only)."""
+    path = Path(path)
+    numbered: list[tuple[int, Path]] = []
+    for p in path.parent.glob(f"{path.name}.*"):
+        suffix = p.name[len(path.name) + 1 :]
+        if suffix.isdigit():
+            numbered.append((int(suffix), p))
+    files = [p for _, p in sorted(numbered, reverse=True)]
+    if path.exists():
+        files.append(path)
+    return files
+
+
+def read_events(path: Path | str, include_rotated: bool = False) -> list[dict[str, Any]]:
+    """Read a journal back as a list of dicts, in the order written.
+
+    ``include_rotated`` also reads the rotated backups (oldest first). A last line
+    without its newline (a power cut mid-write) is skipped; any other line that is
+    not a JSON object raises :class:`~canguard.errors.LogFormatError` naming file:line.
+    A missing file raises FileNotFoundError.
+    """
+    path = Path(path)
+    files = journal_files(path) if include_rotated else [path]
+    if not files:
+        raise FileNotFoundError(f"no event journal at {path}")
+    events: list[dict[str, Any]] = []
+    for file in files:
+        data = file.read_bytes()
+        lines = data.split(b"\n")
+        torn = lines.pop()  # b"" when the file ends with a newline
+        for lineno, raw in enumerate(lines, 1):
+            if not raw.strip():
+                continue
+            try:
+                obj = json.loads(raw)
+            except ValueError as exc:
+                raise LogFormatError(
+                    f"{file}:{lineno}: not a JSON event line ({exc}): {raw[:80]!r}"
+                ) from None
+            if not isinstance(obj, dict):
+                raise LogFormatError(f"{file}:{lineno}: not a JSON object: {raw[:80]!r}")
+            events.append(obj)
+        if torn.strip():
+            log.warning("%s: skipping a torn last line (%d bytes, no newline)", file, len(torn))
+    return events

@@ -1,0 +1,411 @@
+"""Frames out: the task gate (enable / heartbeat vs stop) and the frame sinks.
+
+The :class:`TaskGate` turns the tree's decisions into frames:
+
+- ``run()`` (ExecuteTask ticked) or ``action()`` of a task action (an ``actions:``
+  entry whose role is ``task``): the tree asks for the task in this tick. At the
+  tick's end (``end_tick()``) the gate starts or resumes the task when
+  :meth:`TaskGate._release_rule` allows it; ExecuteTask's frames then go out at
+  once and every ``task.period``, a task action's frames in the tick it ran.
+- ``halt()`` (ExecuteTask halted), ``stop()`` (the root returned FAILURE) or an
+  inhibit (a stale source, a bus down): stop frames go out at once, then every
+  ``stop.repeat`` until the stop is released. The stop latches: only
+  :meth:`TaskGate._release_rule` ends it (see README, "Stops").
+- While stopped, task actions' frames are withheld (counted in ``withheld``);
+  recovery actions' frames go out. So in no tick do both task and stop frames go
+  out. A change of what holds the stop is a ``reason`` event.
+- Optional confirmation: after a stop, ``stop.confirm`` (a source signal and a
+  condition) must hold within its deadline, or ``stop.escalate`` frames go out
+  and an ``escalate`` event is recorded.
+
+Sinks never block the loop: :class:`BusSink` hands frames to python-can with
+``timeout=0`` and counts failures, :class:`LogSink` keeps them as candump-ready
+:class:`~canguard.io.frame.Frame` objects for ``replay --emit``.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import operator
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any, TextIO
+
+from canguard.config.loader import BusConfig, FrameSpec, StopConfig, TaskConfig
+from canguard.engine.context import FrameSink
+from canguard.io.frame import Frame
+from canguard.protect.staleness import SourceHealth
+
+log = logging.getLogger(__name__)
+
+_OPS: dict[str, Callable[[float, float], bool]] = {
+    "<": operator.lt,
+    "<=": operator.le,
+    ">": operator.gt,
+    ">=": operator.ge,
+    "==": operator.eq,
+    "!=": operator.ne,
+}
+
+EventFn = Callable[..., None]
+
+
+class TaskGate:
+    """Decides which frames go out: the task's while it runs, the stop frames while it is stopped."""
+
+    IDLE = "idle"
+    RUNNING = "running"
+    STOPPED = "stopped"
+
+    def __init__(
+        self,
+        task: TaskConfig,
+        stop: StopConfig,
+        sink: FrameSink,
+        health: Mapping[str, SourceHealth] | None = None,
+        on_event: EventFn | None = None,
+    ) -> None:
+        self.task_cfg = task
+        self.stop_cfg = stop
+        self.sink = sink
+        self.health = health or {}
+        self.on_event = on_event
+        self.state = self.IDLE
+        self.stop_since: float | None = None
+        self.stop_reason = ""
+        self.stopped_s = 0.0
+        """Total time spent stopped (closed intervals only; see :meth:`stopped_total`)."""
+        self.stops = 0
+        self._next_task = math.inf
+        self._next_stop = math.inf
+        self._confirm_pending = False
+        self._ran_this_tick = False
+        self.inhibits: dict[str, str] = {}
+        """Reasons the task may not run whatever the tree says (a bus down, a stale source), by key."""
+        self.explain: Callable[[], str] | None = None
+        """Says why the tree halted the task (the failing guards); set by the engine."""
+        self.tree_has_task = True
+        """False when the tree holds no ExecuteTask and no task action: a tick without FAILURE asks for the task."""
+        self.withheld = 0
+        """Task action frames not sent because the task was stopped (or not started)."""
+        self._asked_by = ""
+        self._reset_this_tick = False
+        self._queued: list[tuple[str, Sequence[FrameSpec], Callable[[str], None] | None]] = []
+        self._cause: tuple[str, str] | None = None
+        """(node, reason) that holds the stop, as last journalled; None right after a stop."""
+
+    # -- driven by ExecuteTask -------------------------------------------------------------
+    def run(self, node: str, now: float) -> None:
+        """ExecuteTask was ticked: the tree asks for the task (started or resumed at the tick's end)."""
+        self._ran_this_tick = True
+        if not self._asked_by:
+            self._asked_by = node
+
+    def action(
+        self, node: str, role: str, frames: Sequence[FrameSpec], now: float,
+        note: Callable[[str], None] | None = None,
+    ) -> None:
+        """A config action was ticked: recovery frames go out now; task frames at the tick's end unless stopped.
+
+        ``note`` is called with what became of the frames (the node's feedback).
+        """
+        if role != "task":
+            if frames:
+                self.sink.send(frames, node)
+            if note is not None:
+                note(f"{len(frames)} frame(s) sent (recovery)")
+            return
+        if not self._asked_by:
+            self._asked_by = node
+        self._queued.append((node, frames, note))
+
+    def reset(self, node: str, now: float) -> str:
+        """ResetStop was ticked: with ``stop.release: manual`` the stop may end in this tick. Says what it did."""
+        self._reset_this_tick = True
+        if self.state != self.STOPPED:
+            return "no stop to reset"
+        if self.stop_cfg.release != "manual":
+            return "stop.release is auto: no reset needed"
+        return "reset requested"
+
+    def halt(self, node: str, now: float) -> None:
+        """ExecuteTask was halted: stop the task at once."""
+        if self.state == self.RUNNING:
+            why = self.explain() if self.explain is not None else ""
+            self.stop(now, reason=f"{node} halted" + (f" ({why})" if why else ""), node=node)
+
+    # -- driven by the engine --------------------------------------------------------------
+    def stop(self, now: float, reason: str, node: str = "") -> None:
+        """Stop the task (idempotent): stop frames at once, then every ``stop.repeat``."""
+        if self.state == self.STOPPED:
+            return
+        self.state = self.STOPPED
+        self.stop_since = now
+        self.stop_reason = reason
+        self.stops += 1
+        self._next_task = math.inf
+        self._confirm_pending = self.stop_cfg.confirm is not None
+        self._cause = None
+        self._event("stop", now, node=node, reason=reason)
+        self._send_stop(now)
+
+    def inhibit(self, key: str, reason: str, now: float, node: str = "") -> None:
+        """Hold the task stopped for ``key`` (stopping it now if it runs) until :meth:`release`."""
+        self.inhibits[key] = reason
+        if self.state == self.RUNNING:
+            self.stop(now, reason=reason, node=node)
+
+    def release(self, key: str) -> None:
+        """Drop one inhibit; the task resumes when :meth:`_release_rule` next allows it."""
+        self.inhibits.pop(key, None)
+
+    def adopt(self, old: TaskGate) -> None:
+        """Continue where ``old`` is (a config reload): running, stopped or idle, with its deadlines and counts."""
+        self.state = old.state
+        self.stop_since = old.stop_since
+        self.stop_reason = old.stop_reason
+        self.stopped_s = old.stopped_s
+        self.stops = old.stops
+        self.inhibits = dict(old.inhibits)
+        self._next_task = old._next_task
+        self._next_stop = old._next_stop
+        self._confirm_pending = old._confirm_pending and self.stop_cfg.confirm is not None
+        self._cause = old._cause
+        self.withheld = old.withheld
+
+    def resend_stop(self, now: float) -> None:
+        """Send the stop frames again now if the task is stopped (the daemon's exit)."""
+        if self.state == self.STOPPED:
+            self._send_stop(now)
+
+    def begin_tick(self) -> None:
+        """Called before each tick: tracks whether the task was asked for and a reset given in it."""
+        self._ran_this_tick = False
+        self._asked_by = ""
+        self._reset_this_tick = False
+        self._queued = []
+
+    def end_tick(self, now: float, failed: bool, cause: tuple[str, str] = ("", "")) -> None:
+        """After each tick (and after the engine's :meth:`stop` on FAILURE): start, resume or hold; task frames.
+
+        ``failed``: the root returned FAILURE; ``cause``: (node, reason) of that failure.
+        Task action frames queued in the tick go out only if the task runs at its end.
+        """
+        queued, self._queued = self._queued, []
+        if self.state != self.RUNNING:
+            hold = self._release_rule(now, failed)
+            if not hold:
+                was_stopped = self.state == self.STOPPED
+                if was_stopped:
+                    self._end_stop(now, self._asked_by)
+                self.state = self.RUNNING
+                if self._ran_this_tick:
+                    self._send_task(now)
+            elif self.state == self.STOPPED:
+                self._note_cause(now, cause if failed and cause[1] else ("", hold))
+        running = self.state == self.RUNNING
+        for node, frames, note in queued:
+            if running:
+                if frames:
+                    self.sink.send(frames, node)
+            else:
+                self.withheld += len(frames)
+            if note is not None:
+                note(f"{len(frames)} frame(s) " + ("sent" if running else f"withheld: task {self.state}"))
+
+    def _release_rule(self, now: float, failed: bool) -> str:
+        """THE stop/resume rule: "" when the task may start or resume at the end of this tick, else what holds it.
+
+        All must hold, checked at the end of a tick: (1) the root did not return FAILURE;
+        (2) no inhibit is left (stale source, bus down); (3) the tree asked for the task in
+        this tick (ExecuteTask or a task action ticked; a tree without either asks by not
+        failing); (4) a stop has lasted ``stop.min_stop``; (5) with ``stop.release: manual``,
+        a ResetStop node was ticked in this same tick. (4) and (5) apply to stops only, not
+        to the first start.
+        """
+        if failed:
+            return "tree failed"
+        if self.inhibits:
+            return "; ".join(self.inhibits[k] for k in sorted(self.inhibits))
+        if self.tree_has_task and not self._asked_by:
+            return "task not reached in the tree"
+        if self.state == self.STOPPED:
+            since = self.stop_since if self.stop_since is not None else now
+            if now - since < self.stop_cfg.min_stop_s:
+                return f"stop.min_stop {self.stop_cfg.min_stop_s:g} s not elapsed"
+            if self.stop_cfg.release == "manual" and not self._reset_this_tick:
+                return "stop.release manual: waiting for ResetStop"
+        return ""
+
+    def may_release(self, now: float, failed: bool = False) -> bool:
+        """True when :meth:`_release_rule` lets the task start or resume now."""
+        return not self._release_rule(now, failed)
+
+    def _note_cause(self, now: float, cause: tuple[str, str]) -> None:
+        """Journal a ``reason`` event when what holds the stop changes (the stop event said the first)."""
+        if self._cause is None:
+            self._cause = cause
+            return
+        if cause != self._cause:
+            previous = self._cause[1]
+            self._cause = cause
+            self._event("reason", now, node=cause[0], reason=cause[1], previous=previous)
+
+    def service(self, now: float) -> None:
+        """After each tick and between ticks: periodic task / stop frames, stop confirmation."""
+        if self.state == self.RUNNING and now >= self._next_task:
+            self._send_task(now)
+        elif self.state == self.STOPPED:
+            if now >= self._next_stop:
+                self._send_stop(now)
+            if self._confirm_pending:
+                self._check_confirm(now)
+
+    def next_deadline(self) -> float:
+        """The earliest time :meth:`service` has something to do (inf when nothing)."""
+        if self.state == self.RUNNING:
+            return self._next_task
+        if self.state == self.STOPPED:
+            nxt = self._next_stop
+            if self._confirm_pending and self.stop_cfg.confirm is not None and self.stop_since is not None:
+                nxt = min(nxt, self.stop_since + self.stop_cfg.confirm.deadline_s)
+            return nxt
+        return math.inf
+
+    def skip_to(self, t: float) -> None:
+        """After a gap in time (a stall, a gap in a log): periodic frames due before ``t`` are due at ``t``.
+
+        The stop confirmation deadline is not moved: it is one deadline, not a period.
+        """
+        self._next_task = max(self._next_task, t)
+        self._next_stop = max(self._next_stop, t)
+
+    def stopped_total(self, now: float) -> float:
+        """Seconds spent stopped so far, the open interval included."""
+        extra = now - self.stop_since if self.state == self.STOPPED and self.stop_since is not None else 0.0
+        return self.stopped_s + max(0.0, extra)
+
+    # -- internals -----------------------------------------------------------------------
+    def _end_stop(self, now: float, node: str) -> None:
+        since = self.stop_since if self.stop_since is not None else now
+        self.stopped_s += max(0.0, now - since)
+        self._event("resume", now, node=node, reason=f"stopped for {now - since:.3f} s")
+        self.stop_since = None
+        self._next_stop = math.inf
+        self._confirm_pending = False
+        self._cause = None
+
+    def _send_task(self, now: float) -> None:
+        if self.task_cfg.frames:
+            self.sink.send(self.task_cfg.frames, "task")
+        # Schedule from the previous deadline when on time, so the period does not drift;
+        # after a late service, restart from now rather than bursting to catch up.
+        nxt = self._next_task + self.task_cfg.period_s
+        self._next_task = nxt if math.isfinite(nxt) and nxt > now else now + self.task_cfg.period_s
+
+    def _send_stop(self, now: float) -> None:
+        if self.stop_cfg.frames:
+            self.sink.send(self.stop_cfg.frames, "stop")
+        self._next_stop = now + self.stop_cfg.repeat_s
+
+    def _check_confirm(self, now: float) -> None:
+        confirm = self.stop_cfg.confirm
+        if confirm is None or self.stop_since is None:
+            self._confirm_pending = False
+            return
+        health = self.health.get(confirm.source)
+        value = health.value(confirm.signal) if health is not None else math.nan
+        fresh = health is not None and not health.reason(now, confirm.signal)
+        # Only a sample taken after the stop went out can say the drive obeyed it.
+        last_t = health.last_t(confirm.signal) if health is not None else None
+        after_stop = last_t is not None and last_t > self.stop_since
+        # Ordering conditions (below / above) are on the magnitude: a drive still pushing -20 A
+        # is not "below 1 A". Equality (an axis state) compares the value itself.
+        measured = value if confirm.op in ("==", "!=") else abs(value)
+        if fresh and after_stop and _OPS[confirm.op](measured, confirm.value):
+            self._confirm_pending = False
+            self._event(
+                "confirmed", now, source=confirm.source, value=value, threshold=confirm.value,
+                reason=f"{confirm.signal} {confirm.op} {confirm.value} after {now - self.stop_since:.3f} s",
+            )
+        elif now >= self.stop_since + confirm.deadline_s:  # next_deadline()'s own sum: (a + d) - a < d in floats
+            self._confirm_pending = False
+            if self.stop_cfg.escalate:
+                self.sink.send(self.stop_cfg.escalate, "escalate")
+            self._event(
+                "escalate", now, source=confirm.source, value=value, threshold=confirm.value,
+                reason=f"not confirmed within {confirm.deadline_s} s: {confirm.signal} {confirm.op} "
+                f"{confirm.value} does not hold",
+            )
+
+    def _event(self, event: str, now: float, **fields: Any) -> None:
+        if self.on_event is not None:
+            self.on_event(event, now, **fields)
+
+
+class LogSink:
+    """Records sent frames: streamed to ``out`` as candump -L lines (``replay --emit``), kept, or counted.
+
+    ``out`` given: each frame is written as one candump -L line at once
+    (:func:`canguard.io.logs.format_candump_line`), so memory stays flat in the
+    log's length. ``keep`` True: frames are also kept in :attr:`frames` (tests).
+    Either way :attr:`sent` counts every frame.
+    """
+
+    def __init__(
+        self, clock_now: Callable[[], float], buses: Mapping[str, BusConfig], *,
+        out: TextIO | None = None, keep: bool = True,
+    ) -> None:
+        self._now = clock_now
+        self._channel = {name: (b.channel or name) for name, b in buses.items()}
+        self.out = out
+        """Where each frame is written as a candump -L line as it is sent (None: not written)."""
+        self.keep = keep
+        """False: do not keep frames in memory (a replay stays flat in memory on long logs)."""
+        self.sent = 0
+        self.frames: list[Frame] = []
+        self.origins: list[str] = []
+
+    def send(self, frames: Sequence[FrameSpec], origin: str) -> None:
+        """Count every frame; write it to ``out`` and / or keep it, at the current time."""
+        self.sent += len(frames)
+        out, keep = self.out, self.keep
+        if out is None and not keep:
+            return
+        from canguard.io.logs import format_candump_line
+
+        t = self._now()
+        for f in frames:
+            frame = Frame(t, self._channel.get(f.bus, f.bus), f.arbitration_id, f.data, f.is_extended_id, f.is_fd)
+            if out is not None:
+                out.write(format_candump_line(frame) + "\n")
+            if keep:
+                self.frames.append(frame)
+                self.origins.append(origin)
+
+
+class BusSink:
+    """Sends frames on live buses without ever blocking the loop; failures are logged and counted."""
+
+    def __init__(self, send: Callable[[str, Any], bool], on_error: EventFn | None = None) -> None:
+        import can  # only the live path needs python-can's Message
+
+        self._message = can.Message
+        self._send = send
+        self.on_error = on_error
+        self.sent = 0
+        self.failed = 0
+
+    def send(self, frames: Sequence[FrameSpec], origin: str) -> None:
+        """Hand each frame to its bus with timeout 0; a full queue or an error is counted, never raised."""
+        for f in frames:
+            msg = self._message(
+                arbitration_id=f.arbitration_id, data=f.data, is_extended_id=f.is_extended_id, is_fd=f.is_fd
+            )
+            if self._send(f.bus, msg):
+                self.sent += 1
+            else:
+                self.failed += 1
+                log.warning("could not send %s (%s) on bus %s", f.label, origin, f.bus)
+                if self.on_error is not None:
+                    self.on_error(f.bus)

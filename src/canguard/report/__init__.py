@@ -1,0 +1,1 @@
+"""Summaries, progress and plots of a run."""

@@ -1,0 +1,134 @@
+"""``replay --plot``: what an engineer looks at first after a trip.
+
+Per guarded source: the current (or effort) over time with its thresholds, the
+I²t level of the guards that integrate it, and the trip and stop intervals
+shaded. matplotlib is an optional extra (``pip install canguard[plot]``).
+``.png`` and ``.svg`` are written by matplotlib; ``.html`` is one page with the
+SVG inline (no JavaScript, opens anywhere).
+"""
+
+from __future__ import annotations
+
+import io
+import math
+from array import array
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from canguard.errors import ConfigError
+
+if TYPE_CHECKING:
+    from canguard.engine.core import Engine
+    from canguard.io.frame import Sample
+
+FORMATS = (".png", ".svg", ".html")
+
+
+def require_matplotlib() -> Any:
+    """Import matplotlib with the Agg backend, or raise a clear error saying how to get it."""
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError as exc:
+        raise ConfigError(
+            "--plot needs matplotlib, an optional extra: pip install 'canguard[plot]' (or pip install matplotlib)"
+        ) from exc
+    return plt
+
+
+class Recorder:
+    """Collects samples, I²t levels and stop intervals from an engine while it runs."""
+
+    def __init__(self, engine: Engine) -> None:
+        self.engine = engine
+        self.series: dict[tuple[str, str], tuple[array, array]] = {}
+        self.levels: dict[str, tuple[array, array]] = {}
+        self.trips: list[tuple[float, str, str]] = []
+        self.stops: list[list[float]] = []
+        engine.sample_hook = self._sample
+        engine.tick_hook = self._tick
+        previous = engine.extra_on_event
+
+        def on_event(ev: dict[str, Any]) -> None:
+            self._event(ev)
+            if previous is not None:
+                previous(ev)
+
+        engine.extra_on_event = on_event
+
+    def _sample(self, s: Sample) -> None:
+        if s.reason or s.signal == "present":
+            return
+        ts, vs = self.series.setdefault((s.source, s.signal), (array("d"), array("d")))
+        ts.append(s.t)
+        vs.append(s.value)
+
+    def _tick(self, now: float) -> None:
+        for node, model in self.engine.ctx.heat_models.items():
+            ts, vs = self.levels.setdefault(node, (array("d"), array("d")))
+            ts.append(now)
+            vs.append(model.snapshot().level_pct)
+
+    def _event(self, ev: dict[str, Any]) -> None:
+        kind = ev.get("event")
+        t = float(ev.get("t", math.nan))
+        if kind == "trip":
+            self.trips.append((t, str(ev.get("node", "")), str(ev.get("source", ""))))
+        elif kind == "stop":
+            self.stops.append([t, math.nan])
+        elif kind == "resume" and self.stops and math.isnan(self.stops[-1][1]):
+            self.stops[-1][1] = t
+
+    def save(self, path: Path, summary: dict[str, Any]) -> None:
+        """Draw and write the figure; the format follows the extension."""
+        suffix = path.suffix.lower()
+        if suffix not in FORMATS:
+            raise ConfigError(f"--plot {path}: unknown extension {suffix!r}, expected one of {', '.join(FORMATS)}")
+        plt = require_matplotlib()
+        guards = self.engine.guards()
+        sources = sorted({(g.source, g.role) for g in guards} & set(self.series)) or sorted(self.series)
+        level_nodes = sorted(self.levels)
+        rows = max(1, len(sources)) + (1 if level_nodes else 0)
+        fig, axes = plt.subplots(rows, 1, figsize=(11, 2.6 * rows), sharex=True, squeeze=False)
+        t0 = summary.get("first_t") or 0.0
+        end = summary.get("last_t") or t0
+        for ax, (source, role) in zip(axes[:, 0], sources, strict=False):
+            ts, vs = self.series[(source, role)]
+            ax.plot([t - t0 for t in ts], list(vs), lw=0.8, label=f"{source} {role}")
+            for g in guards:
+                if (g.source, g.role) == (source, role) and g.kind == "threshold":
+                    thr = g.threshold()
+                    ax.axhline(thr, ls="--", lw=0.8, color="tab:red", label=f"{g.node} {thr:g}")
+                    ax.axhline(-thr, ls="--", lw=0.8, color="tab:red")
+            ax.set_ylabel(role)
+            ax.legend(loc="upper right", fontsize=7)
+        if level_nodes:
+            ax = axes[-1, 0]
+            for node in level_nodes:
+                ts, vs = self.levels[node]
+                ax.plot([t - t0 for t in ts], list(vs), lw=0.8, label=node)
+            ax.axhline(100.0, ls="--", lw=0.8, color="tab:red")
+            ax.set_ylabel("I²t level %")
+            ax.legend(loc="upper right", fontsize=7)
+        for ax in axes[:, 0]:
+            for start, stop in self.stops:
+                ax.axvspan(start - t0, (end if math.isnan(stop) else stop) - t0, color="tab:red", alpha=0.12)
+            for t, _, _ in self.trips:
+                ax.axvline(t - t0, color="tab:red", lw=0.6)
+        axes[-1, 0].set_xlabel(f"time since first frame (s; t0 = {t0:.6f})")
+        fig.suptitle(f"{summary.get('log')}: {len(summary.get('trips', []))} trips, "
+                     f"stopped {summary.get('stopped_s')} s")
+        fig.tight_layout()
+        if suffix == ".html":
+            buf = io.StringIO()
+            fig.savefig(buf, format="svg")
+            path.write_text(
+                "<!doctype html><html><head><meta charset='utf-8'><title>canguard replay</title></head>"
+                f"<body>{buf.getvalue()}</body></html>",
+                encoding="utf-8",
+            )
+        else:
+            fig.savefig(path)
+        plt.close(fig)

@@ -1,0 +1,1 @@
+"""The daemon: live run, systemd notify / watchdog, metrics."""

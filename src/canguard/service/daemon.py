@@ -1,0 +1,247 @@
+"""``canguard run``: the live engine, as a systemd service.
+
+The loop: wait for frames until the engine's next deadline (a tick or a gate
+deadline), feed every frame received, advance the engine to now, and tell
+systemd how things stand:
+
+- ``READY=1`` once every bus is open and the tree loaded;
+- ``WATCHDOG=1`` only while the loop ticks on time and every source the tree
+  reads is fresh or has caused a stop: a stalled or blind daemon gets restarted;
+- ``STATUS=`` once a second with the task state, trips and frame rates;
+- SIGTERM: ``STOPPING=1``, stop frames out, events and I²t heat flushed, exit 0;
+- SIGHUP: reload config and tree; a bad new config is rejected with an
+  ``error`` event and the old one keeps running.
+
+A daemon that dies stops sending the task's frames, so the drivers' own CAN
+timeouts stop the motors (dead-man principle).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import queue
+import signal
+import sys
+import threading
+import time
+from pathlib import Path
+from types import FrameType
+from typing import Any
+
+from canguard.config.loader import Config, load_config
+from canguard.engine.clock import BootClock, LiveClock
+from canguard.engine.context import FrameSink
+from canguard.engine.core import Engine
+from canguard.engine.events import EventJournal
+from canguard.engine.gate import BusSink, TaskGate
+from canguard.errors import CanguardError
+from canguard.io.bus import BusReader
+from canguard.io.frame import Frame
+from canguard.protect.state import HeatStore
+from canguard.service.systemd import Notifier, watchdog_verdict
+
+log = logging.getLogger(__name__)
+
+SWITCH_INTERVAL_S = 0.0005
+"""GIL switch interval while the daemon runs (Python's default is 5 ms)."""
+
+LIVE_SKEW_S = 0.5
+"""A frame timestamp further than this from the daemon's clock is replaced by the receive time."""
+
+
+class Daemon:
+    """Owns the buses, the journal, the engine and the signals of one ``canguard run``."""
+
+    def __init__(self, config_path: Path, *, metrics_addr: str | None = None,
+                 notifier: Notifier | None = None, cfg: Config | None = None) -> None:
+        self.config_path = config_path
+        self.cfg: Config = cfg if cfg is not None else load_config(config_path)
+        self.clock = LiveClock()
+        self.notifier = notifier if notifier is not None else Notifier()
+        self.metrics: Any = None
+        if metrics_addr:
+            from canguard.service.metrics import Metrics
+
+            self.metrics = Metrics()
+            self.metrics.start(metrics_addr)
+        self.journal = EventJournal(self.cfg.events)
+        self._stop = threading.Event()
+        self._reload = threading.Event()
+        self._last_publish: tuple[float, dict[str, tuple[int, int, int]]] = (time.monotonic(), {})
+        self._down: set[str] = set()
+        self._watchdog_held = ""
+        self._bus_errors: queue.SimpleQueue[tuple[str, str]] = queue.SimpleQueue()
+        self.exit_reason = "exit"
+        self.reader = BusReader(self.cfg.buses, on_error=self._bus_error)
+        self.sink: FrameSink = BusSink(
+            self.reader.send, on_error=self.metrics.send_error if self.metrics is not None else None
+        )
+        self.engine = self._build_engine(self.cfg)
+
+    def _build_engine(self, cfg: Config, previous: Engine | None = None) -> Engine:
+        heat = HeatStore(cfg.state.file, cfg.state.on_corrupt, clock=BootClock())
+        return Engine(cfg, self.clock, self.sink, events=self.journal, durable=True,
+                      metrics=self.metrics, heat=heat, previous=previous)
+
+    # -- signals ---------------------------------------------------------------------------
+    def install_signals(self) -> None:
+        """SIGTERM / SIGINT stop the daemon cleanly; SIGHUP reloads the config."""
+        signal.signal(signal.SIGTERM, self._on_term)
+        signal.signal(signal.SIGINT, self._on_term)
+        signal.signal(signal.SIGHUP, self._on_hup)
+
+    def _on_term(self, signum: int, _frame: FrameType | None) -> None:
+        self.exit_reason = signal.Signals(signum).name
+        self._stop.set()
+
+    def _on_hup(self, _signum: int, _frame: FrameType | None) -> None:
+        self._reload.set()
+
+    def request_stop(self, reason: str = "stop requested") -> None:
+        """Ask the loop to end (tests, the demo)."""
+        self.exit_reason = reason
+        self._stop.set()
+
+    # -- the loop --------------------------------------------------------------------------
+    def run(self, duration_s: float | None = None) -> int:
+        """Run until SIGTERM (or ``duration_s``); returns the exit code."""
+        engine = self.engine
+        self.reader.start()
+        engine.start(self.clock.now())
+        self.notifier.ready()
+        self.notifier.status("running: " + engine.status_line())
+        wd_interval = self.notifier.watchdog_interval_s()
+        next_wd = 0.0
+        next_status = time.monotonic() + 1.0
+        end = time.monotonic() + duration_s if duration_s is not None else math.inf
+        q = self.reader.queue
+        # Python hands the GIL between threads every 5 ms by default: a frame received by a
+        # bus thread could wait that long for the loop. 0.5 ms keeps the trip-to-stop tail short.
+        previous_switch = sys.getswitchinterval()
+        sys.setswitchinterval(SWITCH_INTERVAL_S)
+        try:
+            while not self._stop.is_set() and time.monotonic() < end:
+                engine = self.engine
+                now = self.clock.now()
+                wait = min(max(0.0, engine.next_due() - now), 0.05)
+                try:
+                    item = q.get(timeout=wait) if wait > 0 else q.get_nowait()
+                except queue.Empty:
+                    item = None
+                if item is not None:
+                    self._feed(engine, item)
+                    # Drain what else is waiting, but never so long that a tick starves.
+                    for _ in range(512):
+                        try:
+                            self._feed(engine, q.get_nowait())
+                        except queue.Empty:
+                            break
+                engine.advance(self.clock.now())
+                self._drain_bus_errors(engine)
+                if self._down:
+                    self._check_buses_back(engine)
+                mono = time.monotonic()
+                if wd_interval is not None and mono >= next_wd and self._watchdog_ok(engine):
+                    self.notifier.watchdog()
+                    next_wd = mono + wd_interval / 4
+                if mono >= next_status:
+                    self._publish(engine, mono)
+                    next_status = mono + 1.0
+                if self._reload.is_set():
+                    self._reload.clear()
+                    self.reload()
+        finally:
+            sys.setswitchinterval(previous_switch)
+            self.notifier.stopping()
+            self.engine.finish(reason=self.exit_reason)
+            self.reader.stop()
+            self.journal.close()
+        return 0
+
+    def _publish(self, engine: Engine, mono: float) -> None:
+        """Once a second: STATUS= with state, trips and frame rates; counters to the metrics."""
+        rates: dict[str, float] = {}
+        dt = max(1e-3, mono - self._last_publish[0])
+        last = self._last_publish[1]
+        for bus, c in engine.decoder.per_bus.items():
+            prev = last.get(bus, (0, 0, 0))
+            if c.frames < prev[0]:  # a reload started a fresh decoder
+                prev = (0, 0, 0)
+            rates[bus] = (c.frames - prev[0]) / dt
+            if self.metrics is not None:
+                self.metrics.frame_received(bus, c.frames - prev[0])
+                self.metrics.frames_decoded(bus, c.decoded - prev[1])
+                self.metrics.frame_invalid(bus, c.invalid - prev[2])
+            last[bus] = (c.frames, c.decoded, c.invalid)
+        self._last_publish = (mono, last)
+        if self.metrics is not None:
+            self.metrics.set_stop_state(engine.gate.state == TaskGate.STOPPED)
+        fps = ", ".join(f"{bus} {r:.0f} fps" for bus, r in rates.items())
+        self.notifier.status(f"{engine.status_line()}; {fps}")
+
+    def _feed(self, engine: Engine, item: tuple[str, Frame]) -> None:
+        bus, frame = item
+        now = self.clock.now()
+        if abs(frame.t - now) > LIVE_SKEW_S:
+            frame = frame._replace(t=now)  # a bus without sane timestamps: use the receive time
+        engine.feed(bus, frame)
+
+    def _watchdog_ok(self, engine: Engine) -> bool:
+        now = self.clock.now()
+        last = None if math.isnan(engine.last_tick_t) else engine.last_tick_t
+        verdict = watchdog_verdict(now, last, engine.period_s, engine.stale_unstopped(now), k=4.0)
+        if not verdict and verdict.reason != self._watchdog_held:
+            log.warning("watchdog ping held back: %s", verdict.reason)
+        self._watchdog_held = "" if verdict else verdict.reason
+        return bool(verdict)
+
+    # -- reload and errors ------------------------------------------------------------------
+    def reload(self) -> bool:
+        """Load the config and tree again; keep the running ones when the new ones are bad."""
+        self.notifier.reloading()
+        try:
+            cfg = load_config(self.config_path)
+            if dict(cfg.buses) != dict(self.cfg.buses):
+                raise CanguardError("buses changed: a bus change needs a restart (systemctl restart canguard)")
+            new = self._build_engine(cfg, previous=self.engine)
+        except (CanguardError, OSError, ValueError) as exc:
+            log.error("reload rejected, keeping the running config: %s", exc)
+            self.engine._event({"event": "error", "reason": f"reload rejected: {exc}"})
+            self.engine._flush()
+            self.notifier.ready()
+            return False
+        old = self.engine
+        now = self.clock.now()
+        old._save_heat(now, periodic=False)  # the new guards start from the heat the old ones had
+        self.cfg, self.engine = cfg, new
+        new.start(now)
+        # The task's state, the sources' data and the counters carry over: a running task goes on
+        # (the new tree judges it at its first tick), a stopped one stays stopped until it recovers.
+        new.adopt(old)
+        new._event({"event": "reload", "reason": f"config {self.config_path} reloaded"})
+        new._flush()
+        self.notifier.ready()
+        return True
+
+    def _bus_error(self, bus: str, exc: BaseException) -> None:
+        # Called from a receive thread: hand it to the loop, which owns the journal.
+        # The reader reopens the bus with backoff; guards reading its sources go stale and stop the task.
+        self._bus_errors.put((bus, f"{type(exc).__name__}: {exc}"))
+
+    def _drain_bus_errors(self, engine: Engine) -> None:
+        while True:
+            try:
+                bus, text = self._bus_errors.get_nowait()
+            except queue.Empty:
+                return
+            engine.bus_down(bus, text)
+            self._down.add(bus)
+
+    def _check_buses_back(self, engine: Engine) -> None:
+        """A bus the reader reopened releases the task (the tree still decides whether it resumes)."""
+        alive = self.reader.alive()
+        for bus in [b for b in self._down if alive.get(b)]:
+            self._down.discard(bus)
+            engine.bus_up(bus)
+            engine._event({"event": "bus_error", "source": bus, "reason": "reopened"})

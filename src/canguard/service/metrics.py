@@ -1,0 +1,279 @@
+"""Prometheus metrics (``canguard run --metrics 127.0.0.1:9108``; off by default).
+
+The engine calls the same methods on :class:`Metrics` (served over HTTP by
+prometheus-client, on a private registry) or :class:`NullMetrics` (the default:
+every method does nothing), so it never checks whether metrics are on.
+
+prometheus-client is an optional extra (``pip install 'canguard[metrics]'``): it is
+imported only when :class:`Metrics` is built, and its absence is a clear
+:class:`MetricsUnavailable` error rather than an ImportError at start-up.
+
+Metrics served (label in braces)::
+
+    canguard_frames_received_total{bus}     frames read from the bus
+    canguard_frames_decoded_total{bus}      frames decoded into samples
+    canguard_frames_invalid_total{bus}      frames of configured ids that did not decode
+    canguard_send_errors_total{bus}         frames that could not be sent (full TX queue, error)
+    canguard_trips_total{node}              guard trips
+    canguard_stop_active                    1 while the tree stops the task, else 0
+    canguard_tick_duration_seconds          histogram of tree tick durations
+    canguard_i2t_level_percent{node}        I²t heat of each guard, % of its trip level
+    canguard_sample_age_seconds{source}     age of the newest sample of each source
+"""
+
+from __future__ import annotations
+
+import ipaddress
+import threading
+from typing import Any, Protocol
+
+from canguard.errors import CanguardError
+
+__all__ = [
+    "TICK_BUCKETS_S",
+    "Metrics",
+    "MetricsSink",
+    "MetricsUnavailable",
+    "NullMetrics",
+    "make_metrics",
+    "parse_address",
+]
+
+TICK_BUCKETS_S = (25e-6, 50e-6, 100e-6, 250e-6, 500e-6, 1e-3, 2.5e-3, 5e-3, 10e-3, 25e-3, 50e-3, 0.1)
+"""Tick duration histogram buckets: a tick should take well under a millisecond."""
+
+
+class MetricsUnavailable(CanguardError, ImportError):
+    """``--metrics`` was asked for but prometheus-client is not installed."""
+
+
+class MetricsSink(Protocol):
+    """What the engine calls; :class:`Metrics` and :class:`NullMetrics` both implement it."""
+
+    def frame_received(self, bus: str, n: int = 1) -> None: ...
+    def frames_decoded(self, bus: str, n: int) -> None: ...
+    def frame_invalid(self, bus: str, n: int = 1) -> None: ...
+    def send_error(self, bus: str, n: int = 1) -> None: ...
+    def trip(self, node: str) -> None: ...
+    def set_stop_state(self, active: bool) -> None: ...
+    def observe_tick(self, seconds: float) -> None: ...
+    def set_i2t_level(self, node: str, pct: float) -> None: ...
+    def set_sample_age(self, source: str, s: float) -> None: ...
+    def stop(self) -> None: ...
+
+
+def parse_address(addr: str) -> tuple[str, int]:
+    """Split ``"127.0.0.1:9108"`` / ``"[::1]:9108"`` / ``"localhost:9108"`` into (host, port).
+
+    Port 0 asks the OS for a free port. Raises ValueError naming the address and
+    the expected form when the host or port is missing or malformed (an empty host
+    is refused rather than taken as "every interface").
+    """
+    expected = "expected HOST:PORT, e.g. 127.0.0.1:9108 or [::1]:9108"
+    text = addr.strip()
+    if text.startswith("["):
+        host, sep, rest = text[1:].partition("]")
+        if not sep or not rest.startswith(":"):
+            raise ValueError(f"bad metrics address {addr!r}: {expected}")
+        port_text = rest[1:]
+        try:
+            ipaddress.IPv6Address(host)
+        except ValueError:
+            raise ValueError(f"bad metrics address {addr!r}: {host!r} is not an IPv6 address") from None
+    else:
+        host, sep, port_text = text.rpartition(":")
+        if not sep or not host or ":" in host:
+            raise ValueError(f"bad metrics address {addr!r}: {expected}")
+    if not host:
+        raise ValueError(f"bad metrics address {addr!r}: empty host; {expected}")
+    if not port_text.isdigit() or not 0 <= int(port_text) <= 65535:
+        raise ValueError(f"bad metrics address {addr!r}: port {port_text!r} is not a number 0..65535")
+    return host, int(port_text)
+
+
+class NullMetrics:
+    """Metrics off (the default): every method does nothing."""
+
+    def frame_received(self, bus: str, n: int = 1) -> None:
+        """Do nothing."""
+
+    def frames_decoded(self, bus: str, n: int) -> None:
+        """Do nothing."""
+
+    def frame_invalid(self, bus: str, n: int = 1) -> None:
+        """Do nothing."""
+
+    def send_error(self, bus: str, n: int = 1) -> None:
+        """Do nothing."""
+
+    def trip(self, node: str) -> None:
+        """Do nothing."""
+
+    def set_stop_state(self, active: bool) -> None:
+        """Do nothing."""
+
+    def observe_tick(self, seconds: float) -> None:
+        """Do nothing."""
+
+    def set_i2t_level(self, node: str, pct: float) -> None:
+        """Do nothing."""
+
+    def set_sample_age(self, source: str, s: float) -> None:
+        """Do nothing."""
+
+    def stop(self) -> None:
+        """Do nothing."""
+
+
+class Metrics:
+    """canguard's Prometheus metrics on a private ``CollectorRegistry``.
+
+    Building it registers the metrics (raises :class:`MetricsUnavailable` without
+    prometheus-client); :meth:`start` serves them over HTTP. Every update method
+    is thread-safe and cheap (the labelled child of each bus / node / source is
+    looked up once and cached), so the engine may call them per frame.
+    """
+
+    def __init__(self) -> None:
+        try:
+            import prometheus_client as prom
+        except ImportError as exc:
+            raise MetricsUnavailable(
+                "--metrics needs prometheus-client, which is not installed: "
+                "pip install 'canguard[metrics]' (or pip install prometheus-client)"
+            ) from exc
+        self._prom = prom
+        self.registry = prom.CollectorRegistry(auto_describe=True)
+        reg = self.registry
+        self._received = prom.Counter(
+            "canguard_frames_received", "CAN frames read from the bus", ["bus"], registry=reg
+        )
+        self._decoded = prom.Counter(
+            "canguard_frames_decoded", "CAN frames decoded into samples", ["bus"], registry=reg
+        )
+        self._invalid = prom.Counter(
+            "canguard_frames_invalid", "Frames of configured ids that did not decode", ["bus"], registry=reg
+        )
+        self._send_errors = prom.Counter(
+            "canguard_send_errors",
+            "Frames that could not be sent (full TX queue, error)",
+            ["bus"],
+            registry=reg,
+        )
+        self._trips = prom.Counter("canguard_trips", "Guard trips", ["node"], registry=reg)
+        self._stop = prom.Gauge(
+            "canguard_stop_active", "1 while the tree stops the task, else 0", registry=reg
+        )
+        self._tick = prom.Histogram(
+            "canguard_tick_duration_seconds", "Tree tick duration", buckets=TICK_BUCKETS_S, registry=reg
+        )
+        self._i2t = prom.Gauge(
+            "canguard_i2t_level_percent",
+            "I²t heat of each guard, percent of its trip level",
+            ["node"],
+            registry=reg,
+        )
+        self._age = prom.Gauge(
+            "canguard_sample_age_seconds", "Age of the newest sample of each source", ["source"], registry=reg
+        )
+        self._children: dict[tuple[int, str], Any] = {}
+        self._lock = threading.Lock()
+        self._server: Any = None
+        self._thread: threading.Thread | None = None
+        self.host: str | None = None
+        self.port: int | None = None
+        """The port actually served (the OS's choice when started with port 0)."""
+
+    def _child(self, metric: Any, label: str) -> Any:
+        key = (id(metric), label)
+        child = self._children.get(key)
+        if child is None:
+            with self._lock:
+                child = self._children.get(key)
+                if child is None:
+                    child = metric.labels(label)
+                    self._children[key] = child
+        return child
+
+    # -- serving ---------------------------------------------------------------------
+
+    def start(self, addr: str) -> None:
+        """Serve ``/metrics`` over HTTP at ``addr`` (``HOST:PORT``) from a daemon thread.
+
+        Raises ValueError for a malformed address, OSError (naming the address) when
+        it cannot be bound, RuntimeError when already serving.
+        """
+        host, port = parse_address(addr)
+        if self._server is not None:
+            raise RuntimeError(f"metrics already served on {self.host}:{self.port}")
+        try:
+            server, thread = self._prom.start_http_server(port, addr=host, registry=self.registry)
+        except OSError as exc:
+            raise OSError(exc.errno, f"cannot serve metrics on {addr}: {exc.strerror or exc}") from exc
+        self._server, self._thread = server, thread
+        self.host = host
+        self.port = int(server.server_address[1])
+
+    def stop(self) -> None:
+        """Stop serving (idempotent); the metrics themselves keep their values."""
+        if self._server is not None:
+            self._server.shutdown()
+            self._server.server_close()
+            if self._thread is not None:
+                self._thread.join(timeout=5)
+            self._server = self._thread = None
+
+    def render(self) -> bytes:
+        """The metrics in Prometheus' text format, as ``/metrics`` serves them."""
+        return bytes(self._prom.generate_latest(self.registry))
+
+    # -- what the engine calls -------------------------------------------------------
+
+    def frame_received(self, bus: str, n: int = 1) -> None:
+        """Count ``n`` frames read from ``bus``."""
+        self._child(self._received, bus).inc(n)
+
+    def frames_decoded(self, bus: str, n: int) -> None:
+        """Count ``n`` frames of ``bus`` decoded into samples."""
+        if n:
+            self._child(self._decoded, bus).inc(n)
+
+    def frame_invalid(self, bus: str, n: int = 1) -> None:
+        """Count ``n`` frames of ``bus`` with a configured id that did not decode."""
+        self._child(self._invalid, bus).inc(n)
+
+    def send_error(self, bus: str, n: int = 1) -> None:
+        """Count ``n`` frames that could not be sent on ``bus``."""
+        self._child(self._send_errors, bus).inc(n)
+
+    def trip(self, node: str) -> None:
+        """Count one trip of guard ``node``."""
+        self._child(self._trips, node).inc()
+
+    def set_stop_state(self, active: bool) -> None:
+        """1 while the tree stops the task, 0 while the task runs."""
+        self._stop.set(1 if active else 0)
+
+    def observe_tick(self, seconds: float) -> None:
+        """Record the duration of one tree tick."""
+        self._tick.observe(seconds)
+
+    def set_i2t_level(self, node: str, pct: float) -> None:
+        """Set the I²t heat of guard ``node`` in percent of its trip level."""
+        self._child(self._i2t, node).set(pct)
+
+    def set_sample_age(self, source: str, s: float) -> None:
+        """Set the age in seconds of ``source``'s newest sample (``inf`` before the first)."""
+        self._child(self._age, source).set(s)
+
+
+def make_metrics(addr: str | None) -> Metrics | NullMetrics:
+    """:class:`NullMetrics` when ``addr`` is None, else a started :class:`Metrics`.
+
+    Raises as :class:`Metrics` and :meth:`Metrics.start` do.
+    """
+    if addr is None:
+        return NullMetrics()
+    metrics = Metrics()
+    metrics.start(addr)
+    return metrics
