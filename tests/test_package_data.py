@@ -1,0 +1,18 @@
+"""Bundled data resolves through importlib.resources (issue 14)."""
+
+from __future__ import annotations
+
+from canguard.data import data_path
+
+
+def test_bundled_files_resolve_through_the_package() -> None:
+    for parts in [
+        ("config", "canguard.yaml"),
+        ("config", "examples", "robot_guard.yaml"),
+        ("config", "trees", "robot_guard.xml"),
+        ("dbc", "robot.dbc"),
+        ("systemd", "canguard.service"),
+    ]:
+        path = data_path(*parts)
+        assert path.is_file(), path
+        assert path.read_text(encoding="utf-8").strip()
