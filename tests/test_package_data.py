@@ -16,3 +16,12 @@ def test_bundled_files_resolve_through_the_package() -> None:
         path = data_path(*parts)
         assert path.is_file(), path
         assert path.read_text(encoding="utf-8").strip()
+
+
+def test_cli_defaults_come_from_the_package_not_the_checkout() -> None:
+    from canguard.cli.demo import DEMO_CONFIG
+    from canguard.cli.main import BUNDLED_CONFIG
+
+    for path in (BUNDLED_CONFIG, DEMO_CONFIG):
+        assert path.is_file(), path
+        assert "canguard/data/config" in path.as_posix(), path

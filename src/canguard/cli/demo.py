@@ -25,9 +25,10 @@ from pathlib import Path
 from typing import Any, TextIO
 
 from canguard.config.loader import BusConfig, Config
+from canguard.data import data_path
 from canguard.errors import ConfigError
 
-DEMO_CONFIG = Path(__file__).resolve().parents[3] / "config" / "examples" / "robot_guard.yaml"
+DEMO_CONFIG = data_path("config", "examples", "robot_guard.yaml")
 """The bundled config the demo runs: the whole robot of dbc/robot.dbc guarded by trees/robot_guard.xml."""
 
 DEMO_SCENARIOS = ("normal", "spike@4", "overload@9", "dropout@18", "garbage@24", "errorburst@27", "inrush@30")

@@ -14,12 +14,13 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from canguard import __version__
+from canguard.data import data_path
 from canguard.errors import CanguardError
 
 Handler = Callable[[argparse.Namespace], int]
 
 PACKAGE_DIR = Path(__file__).resolve().parents[1]
-BUNDLED_CONFIG = PACKAGE_DIR.parents[1] / "config" / "canguard.yaml"
+BUNDLED_CONFIG = data_path("config", "canguard.yaml")
 
 
 def default_config() -> Path:
