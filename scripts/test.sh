@@ -8,3 +8,4 @@ python3 -m venv .venv
 .venv/bin/ruff check src tests benchmarks
 .venv/bin/mypy
 .venv/bin/python -m pytest -q -p no:cacheprovider "$@"
+scripts/wheel_smoke.sh
