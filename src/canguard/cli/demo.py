@@ -24,6 +24,7 @@ import time
 from pathlib import Path
 from typing import Any, TextIO
 
+from canguard.cli.common import subcommand
 from canguard.config.loader import BusConfig, Config
 from canguard.data import data_path
 from canguard.errors import ConfigError
@@ -37,8 +38,8 @@ DEMO_SCENARIOS = ("normal", "spike@4", "overload@9", "dropout@18", "garbage@24",
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """Register ``canguard demo``."""
-    p = sub.add_parser(
-        "demo", help="the simulated robot and the daemon on a virtual bus, with a live view (no hardware)",
+    p = subcommand(
+        sub, "demo", help="the simulated robot and the daemon on a virtual bus, with a live view (no hardware)",
         description="Run the simulated robot and the daemon together on a private virtual bus with the bundled "
                     "config; walk through the scenarios; print what tripped, when, and how fast the stop went out.",
     )

@@ -1,7 +1,6 @@
 """The ``canguard`` command: one subcommand = ``add_parser(sub)`` + a function returning an exit code.
 
-Exit codes: 0 fine; 1 the answer is "no" (``replay --fail-on-trip`` saw a trip);
-2 bad input (config, DBC, tree, log), with every problem printed on stderr.
+Exit codes: one table, :data:`canguard.cli.common.EXIT_CODES`, printed by every ``-h``.
 """
 
 from __future__ import annotations
@@ -14,37 +13,29 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from canguard import __version__
-from canguard.data import data_path
+from canguard.cli.common import (
+    BUNDLED_CONFIG,
+    EXIT_BAD_INPUT,
+    EXIT_BROKEN_PIPE,
+    EXIT_INTERRUPTED,
+    Formatter,
+    add_global_options,
+    default_config,
+    exit_codes_epilog,
+    subcommand,
+)
+from canguard.cli.common import add_config as _add_config
+from canguard.cli.common import config_path as _config_path
 from canguard.errors import CanguardError
 
 Handler = Callable[[argparse.Namespace], int]
 
-PACKAGE_DIR = Path(__file__).resolve().parents[1]
-BUNDLED_CONFIG = data_path("config", "canguard.yaml")
-
-
-def default_config() -> Path:
-    """``$CANGUARD_CONFIG``, else /etc/canguard/canguard.yaml when it exists, else the bundled config."""
-    env = os.environ.get("CANGUARD_CONFIG")
-    if env:
-        return Path(env)
-    etc = Path("/etc/canguard/canguard.yaml")
-    return etc if etc.exists() else BUNDLED_CONFIG
-
-
-def _add_config(p: argparse.ArgumentParser) -> None:
-    p.add_argument("-c", "--config", type=Path, default=None,
-                   help="YAML config (default: $CANGUARD_CONFIG, /etc/canguard/canguard.yaml, "
-                        "or the bundled config/canguard.yaml)")
-
-
-def _config_path(args: argparse.Namespace) -> Path:
-    return args.config if args.config is not None else default_config()
+__all__ = ["BUNDLED_CONFIG", "build_parser", "default_config", "main", "parse_args"]
 
 
 # -- check -----------------------------------------------------------------------------------
 def _add_check(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("check", help="validate a config, its DBC files and its tree; print what they resolve to",
+    p = subcommand(sub, "check", help="validate a config, its DBC files and its tree; print what they resolve to",
                        description="Load the config, its DBC files and its tree; print buses, sources "
                                    "(message, id, signals, units) and frames; exit 0, or 2 with every error.")
     _add_config(p)
@@ -76,7 +67,7 @@ def _cmd_check(args: argparse.Namespace) -> int:
 
 # -- tree ------------------------------------------------------------------------------------
 def _add_tree(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("tree", help="print the config's behaviour tree; render it; write a Groot2 nodes model",
+    p = subcommand(sub, "tree", help="print the config's behaviour tree; render it; write a Groot2 nodes model",
                        description="Print the tree of the config (py_trees' unicode display).")
     _add_config(p)
     p.add_argument("--dot", type=Path, metavar="FILE", help="render the tree (.dot, or .png/.svg with graphviz)")
@@ -101,7 +92,7 @@ def _cmd_tree(args: argparse.Namespace) -> int:
 
 # -- run -------------------------------------------------------------------------------------
 def _add_run(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("run", help="run the daemon on the config's buses (systemd service)",
+    p = subcommand(sub, "run", help="run the daemon on the config's buses (systemd service)",
                        description="Run the live engine: read the buses, tick the tree, send task / stop "
                                    "frames. SIGTERM stops cleanly (stop frames out, exit 0); SIGHUP reloads.")
     _add_config(p)
@@ -123,9 +114,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="canguard",
         description="CAN-bus motor-driver monitoring: DBC decoding, protection models, behaviour trees.",
+        epilog=exit_codes_epilog(), formatter_class=Formatter,
     )
     parser.add_argument("--version", action="version", version=f"canguard {__version__}")
-    parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv: debug)")
+    add_global_options(parser, in_subcommand=False)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for add in (_add_run, _add_check, _add_tree):
         add(sub)
@@ -137,7 +129,7 @@ def build_parser() -> argparse.ArgumentParser:
 def _extra_commands() -> list[Callable[[argparse._SubParsersAction], None]]:
     """Subcommands that live in their own modules (replay, simulate, demo)."""
     adders: list[Callable[[argparse._SubParsersAction], None]] = []
-    for module in ("cli.replay", "cli.simulate", "cli.demo"):
+    for module in ("cli.replay", "cli.simulate", "cli.demo", "cli.completion"):
         try:
             mod = __import__(f"canguard.{module}", fromlist=["add_parser"])
         except ModuleNotFoundError as exc:
@@ -148,30 +140,54 @@ def _extra_commands() -> list[Callable[[argparse._SubParsersAction], None]]:
     return adders
 
 
+def parse_args(parser: argparse.ArgumentParser, argv: Sequence[str] | None = None) -> argparse.Namespace:
+    """Parse ``argv``; global options count wherever they stand (``-v check -v`` is ``-vv``)."""
+    args = parser.parse_args(argv)
+    args.verbose += getattr(args, "sub_verbose", 0)
+    return args
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``canguard`` console script; returns the exit code."""
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args = parse_args(parser, argv)
     level = logging.WARNING - 10 * min(args.verbose, 2)
     logging.basicConfig(level=level, format="%(asctime)s %(name)s %(levelname)s: %(message)s")
     if args.command is None:
         parser.print_help()
-        return 2
+        return EXIT_BAD_INPUT
     func: Handler = args.func
+    args.root_parser = parser
     try:
-        return func(args)
+        code = func(args)
+        sys.stdout.flush()  # a closed pipe shows here, inside the try, not at interpreter exit
+        return code
+    except BrokenPipeError:
+        return _quiet_broken_pipe()
     except CanguardError as exc:
         # ConfigError / TreeError carry every problem of one load: all are printed, one per line.
         problems = getattr(exc, "problems", None)
         count = len(problems) if isinstance(problems, list) else 1
         head = "error" if count <= 1 else f"{count} errors"
         print(f"canguard {args.command}: {head}:\n{exc}", file=sys.stderr)
-        return 2
+        return EXIT_BAD_INPUT
     except FileNotFoundError as exc:
         print(f"canguard {args.command}: error: {exc.filename or exc}: no such file", file=sys.stderr)
-        return 2
+        return EXIT_BAD_INPUT
     except KeyboardInterrupt:
-        return 130
+        return EXIT_INTERRUPTED
+
+
+def _quiet_broken_pipe() -> int:
+    """The reader of stdout went away (``| head``): end quietly, as a SIGPIPE'd Unix tool does.
+
+    Python's docs' recipe: point stdout at devnull so the interpreter's final flush
+    does not raise again and print a traceback.
+    """
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, sys.stdout.fileno())
+    os.close(devnull)
+    return EXIT_BROKEN_PIPE
 
 
 if __name__ == "__main__":

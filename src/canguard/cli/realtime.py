@@ -46,9 +46,12 @@ class _TeeSink:
 class _ReplayDaemon(Daemon):
     """The daemon with replay's promises: I²t heat only read from ``--state`` (never saved), ``--emit``.
 
-    The journal is the config's ``events:``, which :func:`replay_realtime` replaces
-    with ``--events`` (or None) before the daemon is built.
+    It runs on the bench's bus (often ``virtual``) by design, so the all-virtual refusal of
+    ``canguard run`` under systemd does not apply. The journal is the config's ``events:``,
+    which :func:`replay_realtime` replaces with ``--events`` (or None) before the daemon is built.
     """
+
+    refuse_virtual = False
 
     def __init__(self, cfg: Config, *, state: Path | None, emit: TextIO | None) -> None:
         self._state_path = state
@@ -92,8 +95,10 @@ def replay_realtime(cfg: Config, args: argparse.Namespace) -> int:
     """
     import can
 
-    from canguard.cli.replay import ChannelRouter, _events_path, build_summary, render_text
+    from canguard.cli.common import per_log_path
+    from canguard.engine.routing import ChannelRouter
     from canguard.io.logs import ReadStats, read_log
+    from canguard.report.summary import build_summary, render_text
 
     _refuse_unsupported(args)
     speed = float(args.realtime)
@@ -109,10 +114,10 @@ def replay_realtime(cfg: Config, args: argparse.Namespace) -> int:
     tripped = False
     for log_path in args.logs:
         run_cfg = dataclasses.replace(
-            cfg, events=_events_path(args.events, log_path, many),
+            cfg, events=per_log_path(args.events, log_path, many),
             state=dataclasses.replace(cfg.state, file=None),
         )
-        emit_path = _events_path(args.emit, log_path, many)
+        emit_path = per_log_path(args.emit, log_path, many)
         stats = ReadStats()
         frames = read_log(log_path, skip_bad=args.skip_bad, stats=stats)  # a missing file fails here, first
         channels: dict[str, int] = {}

@@ -6,6 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from canguard.cli.common import default_config, subcommand
 from canguard.errors import ConfigError
 
 
@@ -14,8 +15,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     from canguard.sim import SCENARIOS
 
     scen = "; ".join(f"{k}: {v.splitlines()[0] if v else ''}" for k, v in SCENARIOS.items())
-    p = sub.add_parser(
-        "simulate", help="a simulated robot (ODrive axes + BMS) on a bus or into a candump -L log",
+    p = subcommand(
+        sub, "simulate", help="a simulated robot (ODrive axes + BMS) on a bus or into a candump -L log",
         description="Send the bundled DBC's frames as a robot would, on a configured bus (--bus, answering "
                     "canguard's Estop / Clear_Errors / Set_Axis_State) or into a candump -L file (--out). "
                     f"Scenarios (combine them; NAME@S shifts one by S seconds): {scen}",
@@ -34,7 +35,6 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 def cmd_simulate(args: argparse.Namespace) -> int:
     """Run the simulator; exit 0, or 2 on bad arguments."""
-    from canguard.cli.main import default_config
     from canguard.config.loader import load_config
     from canguard.sim import run_on_bus, write_log
 

@@ -177,6 +177,8 @@ class Config:
     actions: Mapping[str, ActionConfig]
     events: Path | None
     state: StateConfig = field(default_factory=StateConfig)
+    simulation: bool = False
+    """``simulation: true``: the config may guard only ``virtual`` buses under systemd (a bench, not a robot)."""
     database: Any = field(default=None, compare=False, repr=False)
     """The merged ``cantools.database.Database`` of every DBC file."""
 
@@ -986,7 +988,7 @@ class _Loader:
         )
 
     def config(self, doc: Any) -> Config:
-        top = ("dbc", "buses", "sources", "tree", "task", "stop", "actions", "events", "state")
+        top = ("dbc", "buses", "sources", "tree", "task", "stop", "actions", "events", "state", "simulation")
         if not self.mapping(doc, "", top, ("dbc", "buses")):
             raise self.fail()
         dbc_files = self.load_dbc(doc["dbc"]) if "dbc" in doc else ()
@@ -1013,6 +1015,10 @@ class _Loader:
         actions = self.actions(doc.get("actions"))
         events = self.file_path(doc["events"], "events") if doc.get("events") is not None else None
         state = self.state(doc.get("state"))
+        simulation = doc.get("simulation", False)
+        if not isinstance(simulation, bool):
+            self.problem("simulation", _found(simulation), "true or false")
+            simulation = False
         if self.problems:
             err = self.fail()
             err.partial = self.partial(doc, tree, actions)
@@ -1028,6 +1034,7 @@ class _Loader:
             actions=MappingProxyType(actions),
             events=events,
             state=state,
+            simulation=simulation,
             database=self.database,
         )
 

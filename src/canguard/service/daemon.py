@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import logging
 import math
+import os
 import queue
 import signal
 import sys
@@ -35,10 +36,10 @@ from canguard.engine.context import FrameSink
 from canguard.engine.core import Engine
 from canguard.engine.events import EventJournal
 from canguard.engine.gate import BusSink, TaskGate
-from canguard.errors import CanguardError
+from canguard.errors import CanguardError, ConfigError
 from canguard.io.bus import BusReader
 from canguard.io.frame import Frame
-from canguard.protect.state import HeatStore
+from canguard.protect.state import HeatStore, writable_problem
 from canguard.service.systemd import Notifier, watchdog_verdict
 
 log = logging.getLogger(__name__)
@@ -50,13 +51,62 @@ LIVE_SKEW_S = 0.5
 """A frame timestamp further than this from the daemon's clock is replaced by the receive time."""
 
 
+def guarding(cfg: Config) -> str:
+    """What the daemon guards, for STATUS= and the start log: ``guarding main (socketcan can0); 6 sources``."""
+    buses = ", ".join(f"{name} ({b.interface} {b.channel})" if b.channel else f"{name} ({b.interface})"
+                      for name, b in cfg.buses.items())
+    return f"guarding {buses}; {len(cfg.sources)} sources" + ("; simulation" if cfg.simulation else "")
+
+
+def refuse_unguarded(cfg: Config, env: dict[str, str] | os._Environ[str] | None = None) -> None:
+    """Under systemd (``NOTIFY_SOCKET`` set), refuse a config whose buses are all ``virtual``.
+
+    Such a service would start, send READY=1 and feed the watchdog while it guards no
+    motor at all. ``simulation: true`` in the config says that this is intended (a bench).
+    Raises :class:`ConfigError` (exit 2) naming the config and the way out.
+    """
+    env = os.environ if env is None else env
+    if not env.get("NOTIFY_SOCKET") or cfg.simulation or not cfg.buses:
+        return
+    if all(b.interface == "virtual" for b in cfg.buses.values()):
+        names = ", ".join(cfg.buses)
+        raise ConfigError(
+            f"{cfg.path}: buses: every bus ({names}) is interface: virtual, so this service would guard "
+            "no real bus while systemd reports it healthy. For the robot set interface: socketcan and "
+            "channel: can0 (see docs/deploy.md); to run a simulation as a service on purpose, add "
+            "'simulation: true' to the config"
+        )
+
+
+def check_state_file(cfg: Config) -> None:
+    """Exit 2 (ConfigError) at start-up when ``state.file`` cannot be written.
+
+    Otherwise the I²t heat would be lost at the next restart without a word: the
+    guards would then start cold on a hot motor.
+    """
+    path = cfg.state.file
+    if path is None:
+        return
+    why = writable_problem(Path(path))
+    if why:
+        raise ConfigError(f"{cfg.path}: state.file: {path}: cannot be written ({why}): the I²t heat would be "
+                          "lost at the next restart; expected a writable path (the service unit's "
+                          "StateDirectory, /var/lib/canguard)")
+
+
 class Daemon:
     """Owns the buses, the journal, the engine and the signals of one ``canguard run``."""
+
+    refuse_virtual = True
+    """``canguard run`` refuses all-virtual buses under systemd; the realtime replay bench does not."""
 
     def __init__(self, config_path: Path, *, metrics_addr: str | None = None,
                  notifier: Notifier | None = None, cfg: Config | None = None) -> None:
         self.config_path = config_path
         self.cfg: Config = cfg if cfg is not None else load_config(config_path)
+        if self.refuse_virtual:
+            refuse_unguarded(self.cfg)
+        check_state_file(self.cfg)
         self.clock = LiveClock()
         self.notifier = notifier if notifier is not None else Notifier()
         self.metrics: Any = None
@@ -110,7 +160,8 @@ class Daemon:
         self.reader.start()
         engine.start(self.clock.now())
         self.notifier.ready()
-        self.notifier.status("running: " + engine.status_line())
+        log.info("%s", guarding(self.cfg))
+        self.notifier.status(f"running: {engine.status_line()}; {guarding(self.cfg)}")
         wd_interval = self.notifier.watchdog_interval_s()
         next_wd = 0.0
         next_status = time.monotonic() + 1.0
@@ -178,7 +229,7 @@ class Daemon:
         if self.metrics is not None:
             self.metrics.set_stop_state(engine.gate.state == TaskGate.STOPPED)
         fps = ", ".join(f"{bus} {r:.0f} fps" for bus, r in rates.items())
-        self.notifier.status(f"{engine.status_line()}; {fps}")
+        self.notifier.status(f"{engine.status_line()}; {fps}; {guarding(self.cfg)}")
 
     def _feed(self, engine: Engine, item: tuple[str, Frame]) -> None:
         bus, frame = item

@@ -1,0 +1,89 @@
+"""What every ``canguard`` subcommand shares: the config default, global options, exit codes.
+
+One place, so ``-h`` of every subcommand lists the same exit codes and ``-v``
+works before and after the subcommand name (python-can / cantools users type both).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+from pathlib import Path
+from typing import Any
+
+from canguard.data import data_path
+
+BUNDLED_CONFIG = data_path("config", "canguard.yaml")
+
+EXIT_OK = 0
+EXIT_TRIPPED = 1
+EXIT_BAD_INPUT = 2
+EXIT_UNGUARDED = 3
+EXIT_INTERRUPTED = 130
+EXIT_BROKEN_PIPE = 141
+
+EXIT_CODES: tuple[tuple[int, str], ...] = (
+    (EXIT_OK, "fine"),
+    (EXIT_TRIPPED, "replay --fail-on-trip: a guard tripped"),
+    (EXIT_BAD_INPUT, "bad input (config, DBC, tree, log, option, state file): every problem on stderr"),
+    (EXIT_UNGUARDED, "replay --fail-on-trip: a source the config guards got no sample from a log"),
+    (EXIT_INTERRUPTED, "interrupted (Ctrl-C)"),
+    (EXIT_BROKEN_PIPE, "stdout was closed (e.g. | head): output ended early, quietly"),
+)
+
+
+def exit_codes_epilog() -> str:
+    """The exit-code table printed at the end of every ``-h``."""
+    return "exit codes:\n" + "\n".join(f"  {code:<4} {text}" for code, text in EXIT_CODES)
+
+
+def default_config() -> Path:
+    """``$CANGUARD_CONFIG``, else /etc/canguard/canguard.yaml when it exists, else the bundled config."""
+    env = os.environ.get("CANGUARD_CONFIG")
+    if env:
+        return Path(env)
+    etc = Path("/etc/canguard/canguard.yaml")
+    return etc if etc.exists() else BUNDLED_CONFIG
+
+
+def add_config(p: argparse.ArgumentParser) -> None:
+    """``-c/--config``: the YAML config (default: :func:`default_config`)."""
+    p.add_argument("-c", "--config", type=Path, default=None,
+                   help="YAML config (default: $CANGUARD_CONFIG, /etc/canguard/canguard.yaml, "
+                        "or the bundled config/canguard.yaml)")
+
+
+def config_path(args: argparse.Namespace) -> Path:
+    """The config a subcommand uses: ``-c`` or the default."""
+    return args.config if args.config is not None else default_config()
+
+
+def add_global_options(p: argparse.ArgumentParser, *, in_subcommand: bool) -> None:
+    """Options valid anywhere on the command line: ``canguard -v replay`` = ``canguard replay -v``.
+
+    argparse parses a subcommand into a namespace of its own and copies it over the
+    main one, so the subcommand's count has its own name (``sub_verbose``) and
+    :func:`canguard.cli.main.parse_args` adds the two: ``-v replay -v`` is ``-vv``.
+    """
+    dest = "sub_verbose" if in_subcommand else "verbose"
+    p.add_argument("-v", "--verbose", action="count", default=0, dest=dest, help="more log output (-vv: debug)")
+
+
+class Formatter(argparse.RawDescriptionHelpFormatter):
+    """Keeps the epilog's exit-code table as written."""
+
+
+def subcommand(sub: argparse._SubParsersAction, name: str, **kwargs: Any) -> argparse.ArgumentParser:
+    """``sub.add_parser`` with the global options and the exit-code epilog every subcommand shares."""
+    epilog = kwargs.pop("epilog", None)
+    text = exit_codes_epilog() if epilog is None else f"{epilog}\n\n{exit_codes_epilog()}"
+    p: argparse.ArgumentParser = sub.add_parser(name, epilog=text, formatter_class=Formatter, **kwargs)
+    add_global_options(p, in_subcommand=True)
+    return p
+
+
+def per_log_path(base: Path | None, log: Path, many: bool) -> Path | None:
+    """``--events out.jsonl`` for one log of several: ``out.<log name>.jsonl`` (as given for one log)."""
+    if base is None or not many:
+        return base
+    return base.with_name(f"{base.stem}.{log.name}{base.suffix}")

@@ -1,0 +1,52 @@
+"""Which configured bus takes the frames of each channel of a recorded log.
+
+``canguard replay`` and ``canguard replay --realtime`` route the same way: ``--map``
+first, then bus names and the buses' channels, then the only bus.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+from canguard.config.loader import Config
+from canguard.errors import ConfigError
+
+
+def parse_map(items: Sequence[str], cfg: Config) -> dict[str, str]:
+    """``--map can0=main`` items -> {channel: bus}; errors name the item and the configured buses."""
+    out: dict[str, str] = {}
+    for item in items:
+        chan, sep, bus = item.partition("=")
+        if not sep or not chan or not bus:
+            raise ConfigError(f"--map {item!r}: expected CHANNEL=BUS, e.g. can0=main")
+        if bus not in cfg.buses:
+            raise ConfigError(f"--map {item!r}: unknown bus {bus!r}; configured buses: {', '.join(cfg.buses)}")
+        out[chan] = bus
+    return out
+
+
+class ChannelRouter:
+    """Maps a log's channel names to the config's buses: --map, then bus names and channels, then the only bus.
+
+    The only-bus fallback (one configured bus, no --map) lets a single-channel log on
+    any channel name replay without a map; when it makes that bus take the frames of
+    several channels, :meth:`merged` reports them (a log of can0 and can1 is not one bus).
+    With --map the routing is explicit: a channel neither --map nor a bus names is unmapped.
+    """
+
+    def __init__(self, cfg: Config, overrides: dict[str, str]) -> None:
+        self.table: dict[str, str] = {b.channel: name for name, b in cfg.buses.items() if b.channel}
+        self.table.update({name: name for name in cfg.buses})
+        self.table.update(overrides)
+        self.only = next(iter(cfg.buses)) if len(cfg.buses) == 1 and not overrides else None
+        self.unmapped: dict[str, int] = {}
+        self.channels: dict[str, int] = {}
+        """Frames per channel while the only-bus fallback is on (counted by the engine's run_log)."""
+
+    def merged(self) -> dict[str, int]:
+        """Frames per channel when the fallback merged several channels into the only bus, else {}."""
+        if len(self.channels) < 2 or all(c in self.table for c in self.channels):
+            return {}
+        return dict(sorted(self.channels.items()))
+
+

@@ -1,0 +1,152 @@
+"""The summary of one replay: counters, trips, stops, margins and what went unguarded.
+
+Deterministic (the same log and config give byte-identical JSON), printed as text
+or JSON by ``canguard replay`` and compared with a saved one by ``--baseline``.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+from canguard.config.loader import Config
+from canguard.engine.core import Engine
+from canguard.engine.routing import ChannelRouter
+
+SUMMARY_VERSION = 1
+
+
+def _r(x: float, nd: int = 6) -> float | None:
+    """Round for a stable summary; NaN/inf become None so the JSON stays valid."""
+    return None if not math.isfinite(x) else round(x, nd)
+
+
+def unguarded_sources(cfg: Config, samples: dict[str, int]) -> list[str]:
+    """The configured sources this log gave no sample of: their guards judged nothing."""
+    return sorted(name for name in cfg.sources if not samples.get(name))
+
+
+def build_summary(cfg: Config, log_path: Path, engine: Engine, stats: Any, router: ChannelRouter) -> dict[str, Any]:
+    """The summary of one replay: counters, trips, time stopped and the lowest margin to each threshold."""
+    d = engine.decoder
+    es = engine.stats
+    end = engine.clock.now()
+    trips = [
+        {k: (_r(v) if isinstance(v, float) else v) for k, v in ev.items()
+         if k in ("t", "node", "source", "value", "threshold", "reason")}
+        for ev in es.trips
+    ]
+    margins = []
+    for guard in engine.guards():
+        peak = es.max_abs.get((guard.source, guard.role), math.nan) if guard.kind == "threshold" else \
+            es.max_level_pct.get(guard.node, math.nan)
+        threshold = guard.threshold() if guard.kind == "threshold" else 100.0
+        margins.append({
+            "node": guard.node, "source": guard.source, "signal": guard.role, "kind": guard.kind,
+            "threshold": _r(threshold), "peak": _r(peak),
+            "margin": _r(threshold - peak) if math.isfinite(peak) else None,
+            "margin_pct": _r(100.0 * (threshold - peak) / threshold, 2)
+            if math.isfinite(peak) and threshold else None,
+        })
+    unmapped = dict(sorted(router.unmapped.items()))
+    merged = router.merged()
+    summary: dict[str, Any] = {
+        "version": SUMMARY_VERSION,
+        "log": str(log_path),
+        "config": str(cfg.path),
+        "frames": {
+            "read": stats.frames, "decoded": d.decoded, "invalid": d.invalid, "skipped": d.skipped,
+            "unmapped": sum(unmapped.values()), "error_frames": d.error_frames,
+            "remote_frames": d.remote_frames, "bad_lines": stats.bad_lines,
+            "backward_timestamps": stats.backward, "repeated_timestamps": stats.repeated,
+        },
+        "unmapped_channels": unmapped,
+        "samples": dict(sorted(es.samples.items())),
+        "unguarded_sources": unguarded_sources(cfg, es.samples),
+        "ticks": es.ticks, "edge_ticks": es.edge_ticks, "tick_errors": es.tick_errors,
+        "trips": trips,
+        "trip_count": es.trip_count,
+        "stops": engine.gate.stops,
+        "stopped_s": _r(engine.gate.stopped_total(end), 4),
+        "escalations": engine.events_seen["escalate"],
+        "confirmations": engine.events_seen["confirmed"],
+        "margins": margins,
+        "first_t": _r(engine.first_frame_t), "last_t": _r(end),
+        "frames_sent": getattr(engine.sink, "sent", 0),
+    }
+    if merged:  # only then: summaries of logs without a merge keep their shape (committed examples)
+        summary["merged_channels"] = merged
+        summary["merged_into"] = router.only
+    return summary
+
+
+def render_text(s: dict[str, Any]) -> str:
+    """The human summary printed on stdout."""
+    f = s["frames"]
+    lines = [
+        f"replay of {s['log']} with {s['config']}",
+        f"  frames: {f['read']} read, {f['decoded']} decoded, {f['invalid']} invalid, {f['skipped']} skipped"
+        f" (not configured), {f['unmapped']} on unmapped channels, {f['error_frames']} error frames,"
+        f" {f['bad_lines']} bad lines, {f['backward_timestamps']} backward timestamps",
+        "  samples: " + (", ".join(f"{k} {v}" for k, v in s["samples"].items()) or "none"),
+        f"  ticks: {s['ticks']} ({s['edge_ticks']} on protection edges)",
+        f"  trips: {s['trip_count']}" + (f" (the first {len(s['trips'])} listed)"
+                                          if s["trip_count"] > len(s["trips"]) else ""),
+    ]
+    for t in s["trips"]:
+        lines.append(f"    t={t.get('t')} {t.get('node')} source={t.get('source')} value={t.get('value')}"
+                     f" threshold={t.get('threshold')} reason={t.get('reason')}")
+    lines.append(f"  stops: {s['stops']}, stopped {s['stopped_s']} s; frames canguard would send: "
+                 f"{s['frames_sent']}; stop confirmations {s['confirmations']}, escalations {s['escalations']}")
+    lines.append("  lowest margin to each threshold:")
+    for m in s["margins"]:
+        if m["margin"] is None:
+            lines.append(f"    {m['node']} ({m['source']} {m['signal']}): no data")
+        else:
+            unit = "% of trip level" if m["kind"] == "i2t" else ""
+            lines.append(f"    {m['node']} ({m['source']} {m['signal']}): peak {m['peak']} vs threshold "
+                         f"{m['threshold']}{unit}: margin {m['margin']} ({m['margin_pct']} %)")
+    if s["unmapped_channels"]:
+        lines.append("  warning: frames on channels no bus takes (use --map CHANNEL=BUS): "
+                     + ", ".join(f"{k} ({v})" for k, v in s["unmapped_channels"].items()))
+    if s.get("merged_channels"):
+        hint = ("--realtime plays every channel onto one bus: split the log by channel to choose"
+                if "realtime_speed" in s else "use --map CHANNEL=BUS to choose what each bus takes")
+        lines.append(f"  warning: frames of several channels were merged into bus {s.get('merged_into')} ({hint}): "
+                     + ", ".join(f"{k} ({v})" for k, v in s["merged_channels"].items()))
+    if s.get("unguarded_sources"):
+        lines.append("  warning: no sample of " + ", ".join(s["unguarded_sources"])
+                     + ": their guards judged nothing on this log")
+    if f["read"] and not f["decoded"]:
+        lines.append("  warning: no frame of this log matches a configured message")
+    return "\n".join(lines)
+
+
+def compare_baseline(base: dict[str, Any], new: dict[str, Any]) -> list[str]:
+    """What changed against a saved --json summary: new trips, lost trips, margins that shrank."""
+
+    def key(t: dict[str, Any]) -> tuple[str, str, str]:
+        return (str(t.get("node")), str(t.get("source")), str(t.get("reason")))
+
+    out: list[str] = []
+    old_trips = [key(t) for t in base.get("trips", [])]
+    new_trips = [key(t) for t in new.get("trips", [])]
+    for k in sorted(set(new_trips) | set(old_trips)):
+        n_old, n_new = old_trips.count(k), new_trips.count(k)
+        if n_new > n_old:
+            out.append(f"new trip: {k[0]} on {k[1]} ({k[2]}): {n_old} -> {n_new}")
+        elif n_new < n_old:
+            out.append(f"lost trip: {k[0]} on {k[1]} ({k[2]}): {n_old} -> {n_new}")
+    old_m = {(m["node"], m["signal"]): m for m in base.get("margins", [])}
+    for m in new.get("margins", []):
+        o = old_m.get((m["node"], m["signal"]))
+        if o is None or o.get("margin") is None or m.get("margin") is None:
+            continue
+        if m["margin"] < o["margin"] - 1e-9:
+            out.append(f"margin shrank: {m['node']} ({m['source']} {m['signal']}): {o['margin']} -> {m['margin']}")
+    if base.get("stops") != new.get("stops"):
+        out.append(f"stops: {base.get('stops')} -> {new.get('stops')}")
+    return out
+
+
