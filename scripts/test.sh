@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Install canguard with its test extras into .venv, then lint, type-check and test.
+# Install canguard with its test extras into .venv, then lint, type-check, check the layers and test.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 python3 -m venv .venv
@@ -7,5 +7,6 @@ python3 -m venv .venv
 .venv/bin/python -m pip install -q -e ".[test]"
 .venv/bin/ruff check src tests benchmarks
 .venv/bin/mypy
+.venv/bin/lint-imports --no-cache
 .venv/bin/python -m pytest -q -p no:cacheprovider "$@"
 scripts/wheel_smoke.sh

@@ -55,9 +55,9 @@ from py_trees.parsers.behaviour_tree_xml import XMLParserError, is_key, parse_be
 from py_trees.ports import PortInformation, PortsMixin
 from py_trees.ports_utils import convert_str_to_type
 
+from canguard.bt.context import Context
 from canguard.bt.nodes import BUILTIN_NODES, CanguardNode, ConfiguredAction, GuardNode, PortError
 from canguard.config.loader import Config, PartialConfig, SourceKind
-from canguard.engine.context import Context
 from canguard.errors import TreeError
 from canguard.protect.base import ProtectionModel, Snapshot
 
@@ -912,7 +912,7 @@ class TreeReport:
 
 def context_for(cfg: Config, clock: Any = None) -> Context:
     """A context for ``cfg`` (sources, actions, stop frames) on ``clock`` (a ManualClock at 0 by default)."""
-    from canguard.engine.clock import ManualClock
+    from canguard.io.clock import ManualClock
 
     return Context(
         clock if clock is not None else ManualClock(),
@@ -938,7 +938,7 @@ def partial_tree_problems(partial: PartialConfig | None) -> list[str]:
     """
     if partial is None or partial.tree is None:
         return []
-    from canguard.engine.clock import ManualClock
+    from canguard.io.clock import ManualClock
 
     loader = _Loader(partial.tree.file, Context(ManualClock(), partial.sources, actions=partial.actions))
     loader.source_check = "always" if partial.sources_ok else "never"

@@ -59,7 +59,7 @@ class _ReplayDaemon(Daemon):
         super().__init__(cfg.path, cfg=cfg)
 
     def _build_engine(self, cfg: Config, previous: Engine | None = None) -> Engine:
-        from canguard.engine.clock import BootClock
+        from canguard.io.clock import BootClock
         from canguard.protect.state import HeatStore
 
         if self._emit is not None and not isinstance(self.sink, _TeeSink):

@@ -1,7 +1,7 @@
 """``canguard replay``: the daemon's engine over recorded logs.
 
 The same :class:`~canguard.engine.core.Engine` as ``canguard run``, with a
-:class:`~canguard.engine.clock.ManualClock` driven by the log's timestamps and a
+:class:`~canguard.io.clock.ManualClock` driven by the log's timestamps and a
 :class:`~canguard.engine.gate.LogSink` in place of the buses: the answer to "what
 would the daemon have done on this log?". The summary and the events depend
 only on the log and the config, so two runs give byte-identical output.
@@ -30,11 +30,11 @@ from canguard.cli.common import (
     subcommand,
 )
 from canguard.config.loader import Config, load_config
-from canguard.engine.clock import ManualClock
 from canguard.engine.core import Engine
 from canguard.engine.gate import LogSink
 from canguard.engine.routing import ChannelRouter, parse_map
 from canguard.errors import CanguardError, ConfigError
+from canguard.io.clock import ManualClock
 from canguard.io.frame import Frame
 from canguard.report.summary import SUMMARY_VERSION, build_summary, compare_baseline, render_text
 
@@ -74,7 +74,7 @@ def replay_one(cfg: Config, log_path: Path, opts: ReplayOptions) -> dict[str, An
     router = ChannelRouter(cfg, opts.channel_map)
     frames: Iterator[Frame] = read_log(log_path, skip_bad=opts.skip_bad, stats=stats)
     if opts.progress:
-        from canguard.report.progress import wrap_progress
+        from canguard.io.progress import wrap_progress
 
         frames = wrap_progress(frames, log_path)  # attaches to the reader: before any wrapping
     with ExitStack() as stack:

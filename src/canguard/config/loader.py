@@ -22,6 +22,7 @@ import can
 import cantools
 import yaml
 
+from canguard.config.node_ids import RESERVED_NODE_IDS
 from canguard.errors import ConfigError
 
 SourceKind = Literal["battery", "joints", "current"]
@@ -930,7 +931,7 @@ class _Loader:
         if not isinstance(value, Mapping):
             self.problem("actions", _found(value), "a mapping of action node ID -> {frames: [...]}")
             return result
-        builtin = _builtin_node_ids() if value else frozenset()
+        builtin = RESERVED_NODE_IDS if value else frozenset()
         for name, body in value.items():
             key = _path("actions", name)
             if not isinstance(name, str) or not _IDENT.fullmatch(name):
@@ -972,7 +973,7 @@ class _Loader:
         """What of a config with problems is sound enough to check its tree against."""
         raw_actions = doc.get("actions")
         names = [n for n in raw_actions if isinstance(n, str)] if isinstance(raw_actions, Mapping) else []
-        builtin = _builtin_node_ids() if names else frozenset()
+        builtin = RESERVED_NODE_IDS if names else frozenset()
         # An action whose frames are wrong is still an action node ID the tree may use.
         all_actions = {
             n: actions.get(n, ActionConfig(name=n)) for n in names if _IDENT.fullmatch(n) and n not in builtin
@@ -1041,18 +1042,6 @@ class _Loader:
 
 SOURCE_KINDS: tuple[SourceKind, ...] = ("battery", "joints", "current")
 _IDENT = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
-
-
-def _builtin_node_ids() -> frozenset[str]:
-    """The IDs of canguard's built-in node types (and SubTree), which ``actions:`` may not reuse.
-
-    The same set :func:`canguard.bt.loader.build_registry` refuses, taken from the node library
-    without building a tree. Imported here, not at the top: the node modules import this
-    module, and ``load_config`` stays light for configs without actions.
-    """
-    from canguard.bt.nodes import BUILTIN_NODES
-
-    return frozenset(BUILTIN_NODES) | {"SubTree"}
 
 
 def _initial(signal: Any) -> Any:

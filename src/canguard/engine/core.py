@@ -1,8 +1,8 @@
 """The engine: frames -> decode -> protection models -> blackboard -> tree -> frames out.
 
 One engine for the daemon and for replay; they differ only in where frames come
-from and in the clock (live: :class:`~canguard.engine.clock.LiveClock`; replay: a
-:class:`~canguard.engine.clock.ManualClock` driven by the log's timestamps). Nothing
+from and in the clock (live: :class:`~canguard.io.clock.LiveClock`; replay: a
+:class:`~canguard.io.clock.ManualClock` driven by the log's timestamps). Nothing
 here asks which one it is.
 
 Tick policy (the same live and in replay):
@@ -34,11 +34,11 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 import py_trees
 
+from canguard.bt.context import Context, FrameSink
 from canguard.config.loader import Config
 from canguard.decode.decoder import Decoder
-from canguard.engine.clock import Clock, PinnedClock
-from canguard.engine.context import Context, FrameSink
 from canguard.engine.gate import TaskGate
+from canguard.io.clock import Clock, PinnedClock
 from canguard.io.frame import Frame
 from canguard.protect.base import LatchedModel
 

@@ -31,8 +31,8 @@ import operator
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any, TextIO
 
+from canguard.bt.context import FrameSink
 from canguard.config.loader import BusConfig, FrameSpec, StopConfig, TaskConfig
-from canguard.engine.context import FrameSink
 from canguard.io.frame import Frame
 from canguard.protect.staleness import SourceHealth
 

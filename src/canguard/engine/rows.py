@@ -32,8 +32,8 @@ from operator import itemgetter, sub
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
+    from canguard.bt.context import Context
     from canguard.decode.decoder import DecodeCounters, _Entry
-    from canguard.engine.context import Context
     from canguard.engine.core import EngineStats
 
 Handle = Callable[[str, float], "bool | None"]

@@ -41,7 +41,7 @@ from typing import TYPE_CHECKING, Any, NamedTuple, TextIO
 
 from canguard.errors import LogFormatError
 from canguard.io.frame import Frame
-from canguard.report.progress import ProgressBar
+from canguard.io.progress import ProgressBar
 
 if TYPE_CHECKING:
     import can
@@ -221,7 +221,7 @@ def read_log(
     python-can's readers (corrupt BLF, bad ASC...) are re-raised as
     :class:`LogFormatError` naming the file (they cannot be skipped).
     ``progress``, when given, is updated with the file position after each chunk
-    and closed at the end (see also :func:`canguard.report.progress.wrap_progress`).
+    and closed at the end (see also :func:`canguard.io.progress.wrap_progress`).
 
     Raises :class:`LogFormatError` for an unknown extension, a missing file, a
     directory, or a missing optional dependency.

@@ -15,7 +15,7 @@ The file is one small JSON document::
   ``on_corrupt``: ``hot`` (default, fail safe: at the trip level) or ``cold``.
 - **Restore** (:meth:`HeatStore.restore`): the model's saved state cooled for
   the downtime: ``now − saved time``, or, given a ``clock`` that stamps saves
-  (the daemon's :class:`canguard.engine.clock.BootClock`), the time since boot when the
+  (the daemon's :class:`canguard.io.clock.BootClock`), the time since boot when the
   save was made in this same boot, so a wall-clock step is never taken for
   cooling (see :meth:`canguard.protect.i2t.LeakyI2t.restore`). A key
   the file does not know (a guard added since) starts cold; one whose entry is
@@ -47,7 +47,7 @@ ON_CORRUPT = ("hot", "cold")
 
 
 class DowntimeClock(Protocol):
-    """Stamps saves and measures downtime (the daemon passes :class:`canguard.engine.clock.BootClock`)."""
+    """Stamps saves and measures downtime (the daemon passes :class:`canguard.io.clock.BootClock`)."""
 
     def stamp(self) -> dict[str, object]:
         """What a save records besides its time."""

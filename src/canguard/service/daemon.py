@@ -30,14 +30,14 @@ from pathlib import Path
 from types import FrameType
 from typing import Any
 
+from canguard.bt.context import FrameSink
 from canguard.config.loader import Config, load_config
-from canguard.engine.clock import BootClock, LiveClock
-from canguard.engine.context import FrameSink
 from canguard.engine.core import Engine
 from canguard.engine.events import EventJournal
 from canguard.engine.gate import BusSink, TaskGate
 from canguard.errors import CanguardError, ConfigError
 from canguard.io.bus import BusReader
+from canguard.io.clock import BootClock, LiveClock
 from canguard.io.frame import Frame
 from canguard.protect.state import HeatStore, writable_problem
 from canguard.service.systemd import Notifier, watchdog_verdict

@@ -10,7 +10,7 @@ nothing is imported or evaluated by a name found in a tree file.
 
 A plug-in node type is a class deriving from :class:`CanguardNode` (or at least
 :class:`py_trees.ports.PortsMixin`) and a py_trees behaviour; when its
-constructor takes ``context=`` it receives the tree's :class:`~canguard.engine.context.Context`.
+constructor takes ``context=`` it receives the tree's :class:`~canguard.bt.context.Context`.
 """
 
 from __future__ import annotations

@@ -4,7 +4,7 @@ Every node type is a :class:`py_trees.ports.PortsMixin` + py_trees behaviour
 subclass declaring ``INPUT_PORTS`` / ``OUTPUT_PORTS`` with the names
 BehaviorTree.CPP users type. :class:`CanguardNode` adds:
 
-- ``context=``: the :class:`~canguard.engine.context.Context` of the tree, bound by the
+- ``context=``: the :class:`~canguard.bt.context.Context` of the tree, bound by the
   registry with ``functools.partial`` (nodes never reach for globals or clocks);
 - no entry in py_trees' global auto-registry (``register=False`` by default):
   importing canguard must not change what other py_trees users' parsers resolve;
@@ -42,7 +42,7 @@ from py_trees.blackboard import Blackboard
 from py_trees.ports import CONST_PREFIX, NoDataAvailable, PortInformation, PortsMixin
 from py_trees.ports_utils import PortsLogger
 
-from canguard.engine.context import Context
+from canguard.bt.context import Context
 
 NodeKind = Literal["Action", "Condition", "Control", "Decorator"]
 

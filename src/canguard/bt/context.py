@@ -21,7 +21,7 @@ from collections.abc import Callable, Mapping, Sequence
 from typing import Any, Protocol
 
 from canguard.config.loader import ActionConfig, FrameSpec, SourceConfig, SourceKind
-from canguard.engine.clock import Clock
+from canguard.io.clock import Clock
 from canguard.io.frame import Sample
 from canguard.protect.base import ProtectionModel
 from canguard.protect.staleness import SourceHealth

@@ -1,0 +1,33 @@
+"""Node IDs a config's ``actions:`` may not take: BehaviorTree.CPP 4's built-ins and canguard's nodes.
+
+A table of names, not of implementations, so the config layer can refuse an action
+called ``Sequence`` or ``IsCurrentSafe`` (with the file and line of the key) without
+importing the node library above it. ``tests/test_layout.py`` fails when a node type
+registered by :mod:`canguard.bt.nodes` is missing here.
+"""
+
+from __future__ import annotations
+
+BTCPP_BUILTIN_IDS = (
+    # controls
+    "Sequence", "SequenceWithMemory", "SequenceStar", "ReactiveSequence", "Fallback", "ReactiveFallback",
+    "Parallel", "ParallelAll", "IfThenElse", "WhileDoElse", "Switch2", "Switch3", "Switch4", "Switch5",
+    "Switch6", "TryCatch",
+    # decorators
+    "Inverter", "ForceSuccess", "ForceFailure", "RetryUntilSuccessful", "Repeat", "KeepRunningUntilFailure",
+    "RunOnce", "Timeout", "Delay", "Precondition", "SkipUnlessUpdated", "WaitValueUpdate", "LoopInt",
+    "LoopDouble", "LoopString", "LoopBool", "SubTree",
+    # actions and conditions
+    "AlwaysSuccess", "AlwaysFailure", "Script", "ScriptCondition", "SetBlackboard", "UnsetBlackboard",
+    "Sleep", "WasEntryUpdated",
+)
+"""The IDs BehaviorTree.CPP 4's factory registers (``BehaviorTreeFactory`` constructor)."""
+
+CANGUARD_NODE_IDS = (
+    "EmitStop", "ExecuteTask", "IsCooldownElapsed", "IsCurrentNormal", "IsCurrentSafe", "IsElapsedSinceEvent",
+    "IsElapsedTimeCompare", "IsI2tSafe", "IsJointEffortNormal", "IsValueAbove", "IsValueBelow", "Profile",
+    "RecordTime", "ResetStop", "ResetTimer",
+)
+"""canguard's own node types (design notes and the stop rule)."""
+
+RESERVED_NODE_IDS = frozenset(BTCPP_BUILTIN_IDS + CANGUARD_NODE_IDS)
