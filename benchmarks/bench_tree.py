@@ -42,10 +42,10 @@ if str(ROOT / "src") not in sys.path:
 
 import py_trees  # noqa: E402
 
+from canguard.bt.context import Context, ListSink  # noqa: E402
 from canguard.bt.loader import load_tree  # noqa: E402
 from canguard.config.loader import ActionConfig, SignalRef, SourceConfig  # noqa: E402
-from canguard.engine.clock import ManualClock  # noqa: E402
-from canguard.engine.context import Context, ListSink  # noqa: E402
+from canguard.io.clock import ManualClock  # noqa: E402
 from canguard.io.frame import Sample  # noqa: E402
 from canguard.protect.staleness import SourceHealth  # noqa: E402
 from canguard.protect.threshold import Threshold  # noqa: E402

@@ -18,10 +18,10 @@ import pytest
 import yaml
 
 from canguard.config.loader import load_config
-from canguard.engine.clock import ManualClock
 from canguard.engine.core import Engine
 from canguard.engine.events import FIRST_KEYS, EventJournal, read_events
 from canguard.engine.gate import LogSink, TaskGate
+from canguard.io.clock import ManualClock
 from canguard.io.frame import Frame
 
 REPO = Path(__file__).resolve().parents[1]

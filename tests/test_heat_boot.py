@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from canguard.engine.clock import BootClock
+from canguard.io.clock import BootClock
 from canguard.protect.i2t import LeakyI2t
 from canguard.protect.state import HeatStore
 

@@ -15,9 +15,9 @@ import pytest
 import yaml
 
 from canguard.config.loader import Config, load_config
-from canguard.engine.clock import ManualClock
 from canguard.engine.core import Engine
 from canguard.engine.gate import LogSink, TaskGate
+from canguard.io.clock import ManualClock
 from canguard.protect.hysteresis import Hysteresis
 from canguard.protect.i2t import LeakyI2t, ThermalI2t
 from canguard.protect.inrush import InrushBlanking

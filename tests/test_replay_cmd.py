@@ -636,9 +636,9 @@ class TestLiveParity:
     def test_daemon_start_before_first_frame_is_not_a_trip(self, data: Data) -> None:
         """A daemon whose first ticks precede the first frame (as live) counts no trip, like the replay."""
         from canguard.config.loader import load_config
-        from canguard.engine.clock import ManualClock
         from canguard.engine.core import Engine
         from canguard.engine.gate import LogSink
+        from canguard.io.clock import ManualClock
         from canguard.io.logs import read_log
 
         cfg = load_config(data["cfg"])
@@ -791,9 +791,9 @@ class TestEmitStreams:
         import io
 
         from canguard.config.loader import load_config
-        from canguard.engine.clock import ManualClock
         from canguard.engine.core import Engine
         from canguard.engine.gate import LogSink
+        from canguard.io.clock import ManualClock
         from canguard.io.logs import read_log, write_candump
 
         emit = tmp_path / "emit.log"

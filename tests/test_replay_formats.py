@@ -24,7 +24,7 @@ from canguard.io.logs import (
     read_log,
     write_candump,
 )
-from canguard.report.progress import ProgressBar, wrap_progress
+from canguard.io.progress import ProgressBar, wrap_progress
 
 T0 = 1547073727.670704
 

@@ -23,10 +23,10 @@ from canguard.bt import nodes
 from canguard.bt.loader import show_tree
 from canguard.bt.nodes.actions import ConfiguredAction
 from canguard.config.loader import Config, load_config
-from canguard.engine.clock import ManualClock
 from canguard.engine.core import Engine
 from canguard.engine.gate import LogSink
 from canguard.errors import ConfigError
+from canguard.io.clock import ManualClock
 from canguard.io.frame import Frame
 
 REPO = Path(__file__).resolve().parents[1]

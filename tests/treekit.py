@@ -15,12 +15,12 @@ import py_trees
 import pytest
 
 from canguard.bt import loader as tree_module
+from canguard.bt.context import Context, ListSink, NullTaskGate
 from canguard.bt.loader import LoadedTree, load_tree
 from canguard.bt.nodes import CanguardNode, port_info
 from canguard.bt.nodes.base import halted
 from canguard.config.loader import ActionConfig, FrameSpec, SignalRef, SourceConfig, SourceKind
-from canguard.engine.clock import ManualClock
-from canguard.engine.context import Context, ListSink, NullTaskGate
+from canguard.io.clock import ManualClock
 from canguard.io.frame import Sample
 
 REPO = Path(__file__).resolve().parents[1]
