@@ -15,7 +15,7 @@ from pathlib import Path
 import can
 import pytest
 
-from canguard.config.loader import BusConfig
+from canguard.config.schema import BusConfig
 from canguard.errors import BusError
 from canguard.io.bus import BusReader, open_bus
 from canguard.io.frame import Frame

@@ -162,7 +162,7 @@ class TestFrameActions:
 
     def test_action_without_frames(self, tmp_path: Path) -> None:
         """An action with no frames succeeds and sends nothing."""
-        from canguard.config.loader import ActionConfig
+        from canguard.config.schema import ActionConfig
 
         rig = Rig(actions=())
         rig.ctx.actions["Noop"] = ActionConfig("Noop")

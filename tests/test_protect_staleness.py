@@ -6,7 +6,7 @@ import math
 
 import pytest
 
-from canguard.config.loader import SignalRef, SourceConfig
+from canguard.config.schema import SignalRef, SourceConfig
 from canguard.io.frame import Sample
 from canguard.protect import SourceHealth
 

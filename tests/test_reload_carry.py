@@ -14,7 +14,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-from canguard.config.loader import Config, load_config
+from canguard.config.loader import load_config
+from canguard.config.schema import Config
 from canguard.engine.core import Engine
 from canguard.engine.gate import LogSink, TaskGate
 from canguard.io.clock import ManualClock

@@ -814,7 +814,7 @@ class TestEmitStreams:
         """LogSink(out=...) writes a candump -L line per frame as it is sent; keep=False keeps none."""
         import io
 
-        from canguard.config.loader import BusConfig, FrameSpec
+        from canguard.config.schema import BusConfig, FrameSpec
         from canguard.engine.gate import LogSink
 
         buf = io.StringIO()

@@ -40,7 +40,8 @@ import canguard.cli.replay
 import canguard.engine.rows
 import canguard.io.logs
 from canguard.cli.replay import ReplayOptions, replay_one
-from canguard.config.loader import Config, load_config
+from canguard.config.loader import load_config
+from canguard.config.schema import Config
 from canguard.engine.core import Engine
 from canguard.io.logs import Columns, read_log
 from canguard.sim import write_log

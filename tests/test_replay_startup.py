@@ -12,7 +12,7 @@ import pytest
 
 import canguard.cli.replay as replay_cmd
 from canguard.cli.main import main
-from canguard.config.loader import Config
+from canguard.config.schema import Config
 from canguard.sim import write_log
 
 REPO = Path(__file__).resolve().parents[1]

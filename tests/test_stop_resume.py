@@ -22,7 +22,8 @@ import yaml
 from canguard.bt import nodes
 from canguard.bt.loader import show_tree
 from canguard.bt.nodes.actions import ConfiguredAction
-from canguard.config.loader import Config, load_config
+from canguard.config.loader import load_config
+from canguard.config.schema import Config
 from canguard.engine.core import Engine
 from canguard.engine.gate import LogSink
 from canguard.errors import ConfigError

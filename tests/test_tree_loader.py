@@ -21,7 +21,7 @@ from canguard.bt.loader import (
     validate_against_config,
 )
 from canguard.bt.nodes import BUILTIN_NODES, CanguardNode, port_info
-from canguard.config.loader import ActionConfig
+from canguard.config.schema import ActionConfig
 from canguard.errors import TreeError
 from treekit import TREES, F, FakeEntryPoint, R, Rig, S, xml_tree
 

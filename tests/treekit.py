@@ -19,7 +19,7 @@ from canguard.bt.context import Context, ListSink, NullTaskGate
 from canguard.bt.loader import LoadedTree, load_tree
 from canguard.bt.nodes import CanguardNode, port_info
 from canguard.bt.nodes.base import halted
-from canguard.config.loader import ActionConfig, FrameSpec, SignalRef, SourceConfig, SourceKind
+from canguard.config.schema import ActionConfig, FrameSpec, SignalRef, SourceConfig, SourceKind
 from canguard.io.clock import ManualClock
 from canguard.io.frame import Sample
 

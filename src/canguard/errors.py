@@ -49,7 +49,7 @@ class ConfigError(CanguardError, ValueError):
     """
 
     partial: Any = None
-    """The sound parts of the config (a ``canguard.config.loader.PartialConfig``), set by the loader."""
+    """The sound parts of the config (a ``canguard.config.schema.PartialConfig``), set by the loader."""
 
     def __init__(self, problems: str | Iterable[str], located: Iterable[str] | None = None) -> None:
         self.problems: list[str] = [problems] if isinstance(problems, str) else list(problems)

@@ -20,7 +20,7 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any, Protocol
 
-from canguard.config.loader import ActionConfig, FrameSpec, SourceConfig, SourceKind
+from canguard.config.schema import ActionConfig, FrameSpec, SourceConfig, SourceKind
 from canguard.io.clock import Clock
 from canguard.io.frame import Sample
 from canguard.protect.base import ProtectionModel

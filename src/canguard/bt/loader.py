@@ -57,7 +57,7 @@ from py_trees.ports_utils import convert_str_to_type
 
 from canguard.bt.context import Context
 from canguard.bt.nodes import BUILTIN_NODES, CanguardNode, ConfiguredAction, GuardNode, PortError
-from canguard.config.loader import Config, PartialConfig, SourceKind
+from canguard.config.schema import Config, PartialConfig, SourceKind
 from canguard.errors import TreeError
 from canguard.protect.base import ProtectionModel, Snapshot
 

@@ -1,6 +1,6 @@
 """What ``canguard check`` prints: the config as canguard understood it.
 
-:func:`describe` turns a loaded :class:`~canguard.config.loader.Config` into a plain
+:func:`describe` turns a loaded :class:`~canguard.config.schema.Config` into a plain
 text report: DBC files, buses, each source with its message, frame id, signals,
 units and DBC ranges, and the task / stop / action frames with their payloads.
 """
@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 
-from canguard.config.loader import Config, FrameSpec, SignalRef
+from canguard.config.schema import Config, FrameSpec, SignalRef
 
 
 def _id(frame_id: int, extended: bool) -> str:

@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any, TextIO
 
 from canguard.cli.common import subcommand
-from canguard.config.loader import BusConfig, Config
+from canguard.config.schema import BusConfig, Config
 from canguard.data import data_path
 from canguard.errors import ConfigError
 

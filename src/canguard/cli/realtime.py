@@ -19,7 +19,7 @@ from contextlib import ExitStack
 from pathlib import Path
 from typing import Any, TextIO
 
-from canguard.config.loader import Config, FrameSpec
+from canguard.config.schema import Config, FrameSpec
 from canguard.engine.core import Engine
 from canguard.engine.gate import LogSink
 from canguard.errors import ConfigError

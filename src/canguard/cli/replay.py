@@ -29,7 +29,8 @@ from canguard.cli.common import (
     per_log_path,
     subcommand,
 )
-from canguard.config.loader import Config, load_config
+from canguard.config.loader import load_config
+from canguard.config.schema import Config
 from canguard.engine.core import Engine
 from canguard.engine.gate import LogSink
 from canguard.engine.routing import ChannelRouter, parse_map

@@ -1,6 +1,6 @@
 """Frames -> samples: decode only the configured signals of the configured frames.
 
-:class:`Decoder` is built once from a :class:`~canguard.config.loader.Config`. Its
+:class:`Decoder` is built once from a :class:`~canguard.config.schema.Config`. Its
 :meth:`Decoder.decode` is the replay hot path (millions of frames), so:
 
 - frames are filtered with one dict lookup on ``(bus, arbitration_id,
@@ -29,7 +29,7 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
-from canguard.config.loader import Config, SignalRef
+from canguard.config.schema import Config, SignalRef
 from canguard.io.frame import (
     INVALID_INF,
     INVALID_LENGTH,

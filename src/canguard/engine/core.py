@@ -35,7 +35,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 import py_trees
 
 from canguard.bt.context import Context, FrameSink
-from canguard.config.loader import Config
+from canguard.config.schema import Config
 from canguard.decode.decoder import Decoder
 from canguard.engine.gate import TaskGate
 from canguard.io.clock import Clock, PinnedClock

@@ -32,7 +32,7 @@ from collections.abc import Callable, Mapping, Sequence
 from typing import Any, TextIO
 
 from canguard.bt.context import FrameSink
-from canguard.config.loader import BusConfig, FrameSpec, StopConfig, TaskConfig
+from canguard.config.schema import BusConfig, FrameSpec, StopConfig, TaskConfig
 from canguard.io.frame import Frame
 from canguard.protect.staleness import SourceHealth
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from canguard.config.loader import Config
+from canguard.config.schema import Config
 from canguard.errors import ConfigError
 
 

@@ -1,6 +1,6 @@
 """Open the configured python-can buses and receive from them without losing frames.
 
-:func:`open_bus` opens one :class:`~canguard.config.loader.BusConfig` with ``can.Bus``
+:func:`open_bus` opens one :class:`~canguard.config.schema.BusConfig` with ``can.Bus``
 (any interface python-can supports), turning a failure into a
 :class:`~canguard.errors.BusError` that names the bus and the interface.
 
@@ -24,7 +24,7 @@ from collections.abc import Callable, Iterable, Iterator, Mapping
 
 import can
 
-from canguard.config.loader import BusConfig
+from canguard.config.schema import BusConfig
 from canguard.errors import BusError
 from canguard.io.frame import Frame
 from canguard.io.logs import frame_from_message

@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import math
 
-from canguard.config.loader import SourceConfig
+from canguard.config.schema import SourceConfig
 from canguard.io.frame import INVALID_INF, INVALID_NAN, INVALID_RANGE, Sample
 from canguard.protect.base import REASON_NO_DATA, REASON_NOT_PRESENT, REASON_OK, REASON_STALE
 

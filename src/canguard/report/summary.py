@@ -10,7 +10,7 @@ import math
 from pathlib import Path
 from typing import Any
 
-from canguard.config.loader import Config
+from canguard.config.schema import Config
 from canguard.engine.core import Engine
 from canguard.engine.routing import ChannelRouter
 

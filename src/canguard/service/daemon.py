@@ -31,7 +31,8 @@ from types import FrameType
 from typing import Any
 
 from canguard.bt.context import FrameSink
-from canguard.config.loader import Config, load_config
+from canguard.config.loader import load_config
+from canguard.config.schema import Config
 from canguard.engine.core import Engine
 from canguard.engine.events import EventJournal
 from canguard.engine.gate import BusSink, TaskGate

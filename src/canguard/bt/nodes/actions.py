@@ -28,7 +28,7 @@ from typing import Any
 import py_trees
 
 from canguard.bt.nodes.base import RUNNING, SUCCESS, CanguardNode, halted, port_info
-from canguard.config.loader import ActionConfig
+from canguard.config.schema import ActionConfig
 
 
 class ExecuteTask(CanguardNode, py_trees.behaviour.Behaviour):

@@ -24,7 +24,7 @@ from typing import Any, ClassVar
 import py_trees
 
 from canguard.bt.nodes.base import FAILURE, SUCCESS, CanguardNode, PortError, port_info
-from canguard.config.loader import SourceConfig, SourceKind
+from canguard.config.schema import SourceConfig, SourceKind
 from canguard.protect.base import REASON_I2T, REASON_NO_DATA, LatchedModel, ProtectionModel, Snapshot
 from canguard.protect.hysteresis import Hysteresis
 from canguard.protect.i2t import RATED_OVERLOAD, RATED_OVERLOAD_S, LeakyI2t, ThermalI2t

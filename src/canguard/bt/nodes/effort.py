@@ -15,7 +15,7 @@ import py_trees
 
 from canguard.bt.nodes.base import FAILURE, SUCCESS, PortError, port_info
 from canguard.bt.nodes.current import REASON_BAD_THRESHOLD, GuardNode, reapply
-from canguard.config.loader import SourceConfig
+from canguard.config.schema import SourceConfig
 from canguard.protect.base import REASON_NO_DATA, ProtectionModel
 from canguard.protect.threshold import Threshold
 

@@ -1,0 +1,112 @@
+"""The loader's state and its generic checks (mapping, string, number, seconds, path, bus name)."""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+from canguard.config.schema import SourceConfig
+from canguard.config.yamlsrc import _SECONDS_KEYS, _closest, _found, _line_of, _path
+from canguard.errors import ConfigError
+
+
+class _Checks:
+    """One pass over one config file: the problems found so far and the generic checks of a value."""
+
+    def __init__(self, path: Path, display: str, lines: Mapping[str, int] | None = None) -> None:
+        self.path = path
+        self.base = path.parent
+        self.display = display
+        self.problems: list[str] = []
+        self.located: list[str] = []
+        """``problems`` with the line of their key: ``file:line: key: found X, expected Y``."""
+        self.lines: Mapping[str, int] = lines or {}
+        self.database: Any = None
+        self.messages_ok = False
+        self._by_name: dict[str, Any] = {}
+        self._by_id: dict[int, list[Any]] = {}
+        self.bus_names: tuple[str, ...] = ()
+        self.sources: dict[str, SourceConfig] = {}
+        self._broken_sources: set[str] = set()
+        self._sources_ok = True
+
+    # -- problems ----------------------------------------------------------
+    def problem(self, key: str, found: str, expected: str) -> None:
+        """Record ``file: key: found X, expected Y`` (and its located form ``file:line: key: ...``)."""
+        self.problems.append(f"{self.display}: {key}: found {found}, expected {expected}")
+        line = _line_of(self.lines, key)
+        where = self.display if line is None else f"{self.display}:{line}"
+        self.located.append(f"{where}: {key}: found {found}, expected {expected}")
+
+    def fail(self) -> ConfigError:
+        """The ConfigError listing every problem recorded so far."""
+        return ConfigError(self.problems, self.located)
+
+    # -- generic checks ----------------------------------------------------
+    def mapping(self, value: Any, key: str, allowed: tuple[str, ...], required: tuple[str, ...] = ()) -> bool:
+        """Check ``value`` is a mapping with only ``allowed`` keys and every ``required`` one."""
+        if not isinstance(value, Mapping):
+            self.problem(key or "(top level)", _found(value), f"a mapping with keys {', '.join(allowed)}")
+            return False
+        for k in value:
+            if k not in allowed:
+                self.problem(
+                    _path(key, k), f"unknown key {k!r}", f"one of {', '.join(allowed)}" + _closest(k, allowed)
+                )
+        for k in required:
+            if k not in value:
+                self.problem(_path(key, k), "nothing", "a value (required key)")
+        return True
+
+    def string(self, value: Any, key: str, expected: str = "a string") -> str | None:
+        if isinstance(value, str) and value:
+            return value
+        self.problem(key, _found(value), expected)
+        return None
+
+    def number(self, value: Any, key: str, *, positive: bool = False) -> float | None:
+        ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+        if ok and (not positive or value > 0):
+            return float(value)
+        if positive:
+            unit = " in seconds" if key.rsplit(".", 1)[-1] in _SECONDS_KEYS else ""
+            self.problem(key, _found(value), f"a number > 0{unit}")
+        else:
+            self.problem(key, _found(value), "a finite number")
+        return None
+
+    def seconds(self, mapping: Mapping[str, Any], name: str, key: str, default: float) -> float:
+        if name not in mapping:
+            return default
+        value = self.number(mapping[name], _path(key, name), positive=True)
+        return default if value is None else value
+
+    def file_path(self, value: Any, key: str) -> Path | None:
+        text = self.string(value, key, "a file path (relative to the config file or absolute)")
+        if text is None:
+            return None
+        p = Path(text).expanduser()
+        return Path(os.path.normpath(p if p.is_absolute() else self.base / p))
+
+    def bus(self, value: Any, key: str) -> str:
+        """Resolve a ``bus:`` key (``value`` None = left out)."""
+        if value is None:
+            if len(self.bus_names) == 1:
+                return self.bus_names[0]
+            if self.bus_names:
+                self.problem(
+                    key,
+                    "nothing",
+                    f"one of the buses {', '.join(self.bus_names)} (several buses are configured)",
+                )
+            return ""
+        if not isinstance(value, str) or value not in self.bus_names:
+            if self.bus_names:
+                self.problem(key, _found(value), "a configured bus" + _closest(value, self.bus_names))
+            return ""
+        return value
+
+    # -- DBC ---------------------------------------------------------------

@@ -1,0 +1,186 @@
+"""The config's typed, frozen schema: what every other module reads (built by :mod:`.loader`)."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+SourceKind = Literal["battery", "joints", "current"]
+
+
+@dataclass(frozen=True)
+class BusConfig:
+    """One python-can bus: ``kwargs`` are passed to ``can.Bus(**kwargs)`` as given."""
+
+    name: str
+    kwargs: Mapping[str, Any]
+
+    @property
+    def interface(self) -> str:
+        """The python-can interface name (``socketcan``, ``virtual``, ``udp_multicast``...)."""
+        return str(self.kwargs.get("interface", ""))
+
+    @property
+    def channel(self) -> str | None:
+        """The channel as configured (``can0``), or None."""
+        ch = self.kwargs.get("channel")
+        return None if ch is None else str(ch)
+
+
+@dataclass(frozen=True)
+class SignalRef:
+    """One DBC signal a source reads, resolved against the loaded DBC files.
+
+    ``role`` is the name the signal has inside its source: ``current`` or
+    ``present`` for battery / current sources, the joint name for joints.
+    """
+
+    role: str
+    bus: str
+    message: str
+    frame_id: int
+    is_extended_id: bool
+    signal: str
+    unit: str | None = None
+    minimum: float | None = None
+    maximum: float | None = None
+
+
+@dataclass(frozen=True)
+class SourceConfig:
+    """A named source trees refer to with ``topic_name="..."``."""
+
+    name: str
+    kind: SourceKind
+    bus: str
+    signals: tuple[SignalRef, ...]
+    max_age_s: float = 0.5
+
+    def signal(self, role: str) -> SignalRef | None:
+        """The signal with that role, or None."""
+        for s in self.signals:
+            if s.role == role:
+                return s
+        return None
+
+    @property
+    def value_roles(self) -> tuple[str, ...]:
+        """The roles that carry values guards check (every role but ``present``)."""
+        return tuple(s.role for s in self.signals if s.role != "present")
+
+
+@dataclass(frozen=True)
+class FrameSpec:
+    """A frame canguard may send, encoded once at load time."""
+
+    bus: str
+    arbitration_id: int
+    data: bytes
+    is_extended_id: bool = False
+    is_fd: bool = False
+    label: str = ""
+    """The DBC message name, or the hex id of a raw frame (for events and logs)."""
+
+
+@dataclass(frozen=True)
+class TreeConfig:
+    """``tree:``: which BehaviorTree.CPP XML file and tree to run, and how often to tick."""
+
+    file: Path
+    main: str | None = None
+    tick_hz: float = 100.0
+
+
+@dataclass(frozen=True)
+class TaskConfig:
+    """``task:``: frames ExecuteTask sends every ``period_s`` while the task runs."""
+
+    period_s: float = 0.02
+    frames: tuple[FrameSpec, ...] = ()
+
+
+@dataclass(frozen=True)
+class StopConfirm:
+    """``stop.confirm``: the stop counts as obeyed once ``source.signal <op> value`` holds."""
+
+    source: str
+    signal: str
+    op: Literal["<", "<=", ">", ">=", "==", "!="]
+    value: float
+    deadline_s: float
+
+
+@dataclass(frozen=True)
+class StopConfig:
+    """``stop:``: frames sent when the tree stops the task, repeated every ``repeat_s``."""
+
+    repeat_s: float = 0.05
+    frames: tuple[FrameSpec, ...] = ()
+    confirm: StopConfirm | None = None
+    escalate: tuple[FrameSpec, ...] = ()
+    min_stop_s: float = 0.0
+    """``stop.min_stop``: a stop lasts at least this long (s), whatever the tree says (0: no minimum)."""
+    release: Literal["auto", "manual"] = "auto"
+    """``stop.release``: ``manual`` also needs a ResetStop node ticked in the releasing tick."""
+
+
+@dataclass(frozen=True)
+class ActionConfig:
+    """One ``actions:`` entry: an action node ID and the frames it sends when ticked."""
+
+    name: str
+    frames: tuple[FrameSpec, ...] = ()
+    role: Literal["auto", "task", "recovery"] = "auto"
+    """``task``: part of the task (withheld while stopped); ``recovery``: sends during a stop too;
+    ``auto``: task when the tree has no ExecuteTask node, recovery when it has one."""
+
+
+@dataclass(frozen=True)
+class StateConfig:
+    """``state:``: where I²t heat is kept across restarts."""
+
+    file: Path | None = None
+    on_corrupt: Literal["hot", "cold"] = "hot"
+    save_period_s: float = 5.0
+
+
+@dataclass(frozen=True)
+class Config:
+    """The whole validated config file."""
+
+    path: Path
+    dbc_files: tuple[Path, ...]
+    buses: Mapping[str, BusConfig]
+    sources: Mapping[str, SourceConfig]
+    tree: TreeConfig | None
+    task: TaskConfig
+    stop: StopConfig
+    actions: Mapping[str, ActionConfig]
+    events: Path | None
+    state: StateConfig = field(default_factory=StateConfig)
+    simulation: bool = False
+    """``simulation: true``: the config may guard only ``virtual`` buses under systemd (a bench, not a robot)."""
+    database: Any = field(default=None, compare=False, repr=False)
+    """The merged ``cantools.database.Database`` of every DBC file."""
+
+
+@dataclass(frozen=True)
+class PartialConfig:
+    """The sound parts of a config that has problems (``ConfigError.partial``).
+
+    ``canguard check`` checks the tree against them, so the tree's mistakes are
+    listed in the same run as the config's.
+    """
+
+    tree: TreeConfig | None
+    """``tree:`` when it names an existing file."""
+    sources: Mapping[str, SourceConfig]
+    """The sources that were built (some may miss signals the config got wrong)."""
+    declared_sources: frozenset[str]
+    """Every source name declared: a tree naming one that was not built is a follow-on error."""
+    sources_ok: bool
+    """False when ``sources:`` itself is unusable: the tree's source names are not checked then."""
+    actions: Mapping[str, ActionConfig]
+    """Every well-formed action node ID declared (with its frames when they loaded)."""

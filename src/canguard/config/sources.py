@@ -1,0 +1,218 @@
+"""DBC files, messages, signals and the sources that read them."""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any, cast
+
+import cantools
+
+from canguard.config.checks import _Checks
+from canguard.config.schema import SignalRef, SourceConfig, SourceKind
+from canguard.config.yamlsrc import _closest, _found, _path
+
+
+class _Sources(_Checks):
+    """``dbc:`` and ``sources:``: every message and signal resolved against the loaded DBC files."""
+
+    def load_dbc(self, value: Any) -> tuple[Path, ...]:
+        if isinstance(value, str):
+            value = [value]
+        if not isinstance(value, list) or not value:
+            self.problem("dbc", _found(value), "a DBC file path or a non-empty list of them")
+            return ()
+        files: list[Path] = []
+        databases: list[tuple[Path, Any]] = []
+        for i, item in enumerate(value):
+            p = self.file_path(item, f"dbc[{i}]")
+            if p is None:
+                continue
+            files.append(p)
+            try:
+                databases.append((p, cantools.database.load_file(str(p))))
+            except FileNotFoundError:
+                self.problem(f"dbc[{i}]", repr(item), f"an existing DBC file (no such file: {p})")
+            except Exception as exc:  # cantools raises many kinds of parse errors
+                self.problem(f"dbc[{i}]", f"{p} which does not load ({exc})", "a valid DBC file")
+        if len(databases) != len(value):
+            return tuple(files)
+        messages: list[Any] = []
+        where: dict[str, Path] = {}
+        ids: dict[tuple[int, bool], tuple[str, Path]] = {}
+        clash = False
+        for p, db in databases:
+            for m in db.messages:
+                if m.name in where:
+                    self.problem(
+                        "dbc", f"message {m.name!r} in both {where[m.name]} and {p}", "unique message names"
+                    )
+                    clash = True
+                    continue
+                key = (m.frame_id, bool(m.is_extended_frame))
+                if key in ids:
+                    other, op = ids[key]
+                    self.problem(
+                        "dbc",
+                        f"frame id 0x{m.frame_id:X} as {other!r} in {op} and as {m.name!r} in {p}",
+                        "unique frame ids",
+                    )
+                    clash = True
+                    continue
+                where[m.name] = p
+                ids[key] = (m.name, p)
+                messages.append(m)
+        if clash:
+            return tuple(files)
+        if len(databases) == 1:
+            self.database = databases[0][1]
+        else:
+            nodes = [n for _, db in databases for n in db.nodes]
+            self.database = cantools.database.can.Database(messages=messages, nodes=nodes)
+        for m in self.database.messages:
+            self._by_name[m.name] = m
+            self._by_id.setdefault(m.frame_id, []).append(m)
+        self.messages_ok = True
+        return tuple(files)
+
+    def message(self, value: Any, key: str) -> Any:
+        """The cantools message named (or numbered) by ``value``; None after recording a problem."""
+        if not self.messages_ok:
+            return None
+        if isinstance(value, str):
+            if value in self._by_name:
+                return self._by_name[value]
+            text = value.strip().lower()
+            try:
+                number = int(text, 16) if text.startswith("0x") else int(text, 10)
+            except ValueError:
+                self.problem(
+                    key, repr(value), "a DBC message name or frame id" + _closest(value, self._by_name)
+                )
+                return None
+            value = number
+        if isinstance(value, int) and not isinstance(value, bool):
+            found = self._by_id.get(value & 0x1FFFFFFF, [])
+            if len(found) == 1:
+                return found[0]
+            if len(found) > 1:
+                names = ", ".join(m.name for m in found)
+                self.problem(key, f"frame id 0x{value:X} of several messages ({names})", "a message name")
+                return None
+            self.problem(key, f"0x{value:X}", "the frame id of a DBC message")
+            return None
+        self.problem(key, _found(value), "a DBC message name or frame id")
+        return None
+
+    def signal(self, message: Any, value: Any, key: str) -> Any:
+        """The signal ``value`` of ``message``; None after recording a problem."""
+        names = [s.name for s in message.signals]
+        if isinstance(value, str) and value in names:
+            return message.get_signal_by_name(value)
+        self.problem(key, _found(value), f"a signal of {message.name}" + _closest(value, names))
+        return None
+
+    # -- sections ----------------------------------------------------------
+    def signal_ref(self, role: str, bus: str, message: Any, signal: Any) -> SignalRef:
+        return SignalRef(
+            role=role,
+            bus=bus,
+            message=message.name,
+            frame_id=message.frame_id,
+            is_extended_id=bool(message.is_extended_frame),
+            signal=signal.name,
+            unit=signal.unit or None,
+            minimum=None if signal.minimum is None else float(signal.minimum),
+            maximum=None if signal.maximum is None else float(signal.maximum),
+        )
+
+    def source(self, name: str, value: Any) -> SourceConfig | None:
+        key = _path("sources", name)
+        if not isinstance(value, Mapping):
+            self.problem(key, _found(value), "a mapping with kind: battery | joints | current")
+            return None
+        kind = value.get("kind")
+        common = ("kind", "bus", "max_age")
+        allowed: tuple[str, ...]
+        required: tuple[str, ...]
+        if kind == "battery":
+            allowed, required = (*common, "message", "current", "present"), ("message", "current")
+        elif kind == "current":
+            allowed, required = (*common, "message", "signal", "present"), ("message", "signal")
+        elif kind == "joints":
+            allowed, required = (*common, "effort"), ("effort",)
+        else:
+            self.problem(
+                _path(key, "kind"),
+                _found(kind),
+                "one of battery, joints, current" + _closest(kind, SOURCE_KINDS),
+            )
+            # Still check what can be checked without the kind: keys of any kind, the bus,
+            # max_age, messages and signal names (the source itself is not built).
+            allowed, required = (*common, "message", "current", "signal", "present", "effort"), ()
+        self.mapping(value, key, allowed, required)
+        bus = self.bus(value.get("bus"), _path(key, "bus"))
+        max_age = self.seconds(value, "max_age", key, 0.5)
+        signals: list[SignalRef] = []
+        known = kind in SOURCE_KINDS
+        if kind in ("battery", "current") or (not known and "message" in value):
+            msg = self.message(value["message"], _path(key, "message")) if "message" in value else None
+            roles: tuple[tuple[str, str], ...]
+            if kind == "battery":
+                roles = (("current", "current"), ("present", "present"))
+            elif kind == "current":
+                roles = (("current", "signal"), ("present", "present"))
+            else:
+                roles = (("current", "current"), ("current", "signal"), ("present", "present"))
+            for role, k in roles:
+                if msg is None or k not in value:
+                    continue
+                sig = self.signal(msg, value[k], _path(key, k))
+                if sig is not None:
+                    signals.append(self.signal_ref(role, bus, msg, sig))
+        if kind == "joints" or (not known and "effort" in value):
+            effort = value.get("effort")
+            if not isinstance(effort, list) or not effort:
+                if "effort" in value:
+                    self.problem(
+                        _path(key, "effort"), _found(effort), "a non-empty list of {message, signal, name}"
+                    )
+            else:
+                seen: set[str] = set()
+                for i, item in enumerate(effort):
+                    ikey = f"{key}.effort[{i}]"
+                    if not self.mapping(
+                        item, ikey, ("message", "signal", "name", "bus"), ("message", "signal", "name")
+                    ):
+                        continue
+                    jname = item.get("name")
+                    if "name" in item:
+                        if not isinstance(jname, str) or not jname or jname == "present":
+                            self.problem(
+                                _path(ikey, "name"), _found(jname), "a joint name (a string, not 'present')"
+                            )
+                            jname = None
+                        elif jname in seen:
+                            self.problem(
+                                _path(ikey, "name"), f"{jname!r} again", "a joint name unique in the source"
+                            )
+                            jname = None
+                        else:
+                            seen.add(jname)
+                    ibus = bus if "bus" not in item else self.bus(item["bus"], _path(ikey, "bus"))
+                    msg = self.message(item["message"], _path(ikey, "message")) if "message" in item else None
+                    if msg is None or "signal" not in item:
+                        continue
+                    sig = self.signal(msg, item["signal"], _path(ikey, "signal"))
+                    if sig is not None and jname is not None:
+                        signals.append(self.signal_ref(jname, ibus, msg, sig))
+        if not known:
+            return None
+        return SourceConfig(
+            name=name, kind=cast(SourceKind, kind), bus=bus, signals=tuple(signals), max_age_s=max_age
+        )
+
+
+SOURCE_KINDS: tuple[SourceKind, ...] = ("battery", "joints", "current")
+_IDENT = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
