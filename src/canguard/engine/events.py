@@ -28,10 +28,12 @@ Guarantees the daemon relies on:
 
 from __future__ import annotations
 
+import errno
 import json
 import logging
 import math
 import os
+import sys
 import threading
 from collections import deque
 from collections.abc import Mapping
@@ -155,7 +157,10 @@ class EventJournal:
     Disk errors (full disk, read-only file system) never raise out of
     :meth:`write` or :meth:`flush`: they are logged once, counted in ``errors``,
     and the lines are kept in memory (up to 10,000) and written on the next call
-    that succeeds, so a full disk cannot stop the guard.
+    that succeeds, so a full disk cannot stop the guard. A line is in the file
+    whole or not at all (a short write is cut back with ``ftruncate``). Lines that
+    overflow the backlog, and lines still refused at :meth:`close`, are written to
+    stderr (the systemd journal), counted in ``to_stderr``.
     """
 
     def __init__(
@@ -184,7 +189,12 @@ class EventJournal:
         self._dirty = False
         self._closed = False
         self._pending: deque[bytes] = deque()
-        self._offset = 0
+        self._torn = False
+        self._torn_at = 0
+        self.cut_lines = 0
+        """Partial lines cut back out of the file after a short write (each then retried whole)."""
+        self.to_stderr = 0
+        """Lines that could not reach the file and went to stderr instead (dropped or left at close)."""
         self._failing = False
         self._lock = threading.Lock()
         if self.path is not None:
@@ -248,24 +258,48 @@ class EventJournal:
     def _drain(self) -> None:
         """Write every pending line (normally just the new one); raises OSError if the disk fails.
 
-        ``_offset`` remembers how much of the first pending line a failed write
-        already put in the file, so a retry completes it instead of repeating it
-        (which would leave a torn line). Rotation only happens between lines.
+        A line reaches the file whole or not at all: a write that puts only part of it
+        (the disk filled up in the middle) is cut back to the line's start with
+        ``ftruncate`` and the line stays first in the queue, so a later retry writes it
+        whole. Rotation only happens between lines.
         """
         while self._pending:
             line = self._pending[0]
             if self._fd is None:
                 self._open()
-            if self._offset == 0 and self._size > 0 and self._size + len(line) > self.max_bytes:
+            if self._torn:
+                self._cut_torn()
+            if self._size > 0 and self._size + len(line) > self.max_bytes:
                 self._rotate()
             assert self._fd is not None
-            while self._offset < len(line):
-                n = os.write(self._fd, memoryview(line)[self._offset :])
-                self._offset += n
-                self._size += n
-                self._dirty = True
+            start = self._size
+            try:
+                n = os.write(self._fd, line)
+            except OSError:
+                self._size = os.fstat(self._fd).st_size if self._fd_ok() else start
+                if self._size != start:  # some bytes went out before the error
+                    self._torn_at = start
+                    self._torn = True
+                    self._cut_torn()
+                raise
+            if n != len(line):
+                self._size = start + n
+                self._torn_at = start
+                self._torn = True
+                self._cut_torn()
+                raise OSError(errno.ENOSPC, f"{os.strerror(errno.ENOSPC)} (a short write: {n} of {len(line)} "
+                                            "bytes; the partial line was cut back)")
+            self._size += n
+            self._dirty = True
             self._pending.popleft()
-            self._offset = 0
+
+    def _cut_torn(self) -> None:
+        """Remove the part of a line a short write left at the end of the file (``ftruncate``)."""
+        assert self._fd is not None
+        os.ftruncate(self._fd, self._torn_at)
+        self._size = self._torn_at
+        self._torn = False
+        self.cut_lines += 1
 
     def _failed(self, exc: OSError, what: str) -> None:
         self.errors += 1
@@ -301,8 +335,8 @@ class EventJournal:
                 return
             self._pending.append(line)
             if len(self._pending) > _PENDING_MAX:
-                # Drop the oldest whole line; never the one a failed write half wrote.
-                del self._pending[1 if self._offset else 0]
+                # The backlog is full: the oldest line leaves memory for stderr (the systemd journal).
+                self._spill([self._pending.popleft()], "the in-memory backlog is full")
                 self.dropped += 1
             try:
                 self._drain()
@@ -337,7 +371,21 @@ class EventJournal:
                 finally:
                     self._fd = None
             if self._pending:
-                log.error("event journal %s: %d lines could not be written", self.path, len(self._pending))
+                lines = list(self._pending)
+                self._pending.clear()
+                self._spill(lines, "closing while the file refuses them")
+
+    def _spill(self, lines: list[bytes], why: str) -> None:
+        """Lines that cannot reach the file go to stderr (the systemd journal), whole and counted."""
+        self.to_stderr += len(lines)
+        try:
+            sys.stderr.write(f"canguard: event journal {self.path}: {len(lines)} line(s) not written to the file "
+                             f"({why}); here they are:\n")
+            for line in lines:
+                sys.stderr.write("canguard-event " + line.decode("utf-8"))
+            sys.stderr.flush()
+        except (OSError, ValueError):
+            log.error("event journal %s: %d line(s) lost (%s; stderr refused them too)", self.path, len(lines), why)
 
     @property
     def closed(self) -> bool:
