@@ -11,7 +11,8 @@ from typing import Any, ClassVar
 import py_trees
 import pytest
 
-import canguard.bt.loader as tree_module
+import canguard.bt.display as display_module
+import canguard.bt.registry as tree_module
 from canguard.bt.loader import (
     build_registry,
     load_tree,
@@ -586,7 +587,7 @@ class TestTools:
         out = render_dot(loaded.root, tmp_path / "t.dot")
         dot = out.read_text()
         assert dot.startswith("digraph") and "IsJointEffortNormal" in dot and not UUID.search(dot)
-        monkeypatch.setattr(tree_module.shutil, "which", lambda name: None)
+        monkeypatch.setattr(display_module.shutil, "which", lambda name: None)
         with pytest.raises(TreeError, match=r"needs Graphviz's `dot` program.*a \.dot file works without it"):
             render_dot(loaded.root, tmp_path / "t.png")
         with pytest.raises(TreeError, match=r"unknown drawing format '\.jpg'"):

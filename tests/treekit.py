@@ -14,7 +14,7 @@ from typing import Any
 import py_trees
 import pytest
 
-from canguard.bt import loader as tree_module
+from canguard.bt import registry as tree_module
 from canguard.bt.context import Context, ListSink, NullTaskGate
 from canguard.bt.loader import LoadedTree, load_tree
 from canguard.bt.nodes import CanguardNode, port_info

@@ -1,0 +1,115 @@
+"""Building the py_trees tree from the validated XML: names made readable, canguard nodes bound."""
+
+from __future__ import annotations
+
+import re
+import tempfile
+import xml.etree.ElementTree as ET
+from pathlib import Path
+from typing import Any
+
+import py_trees
+from py_trees.parsers.behaviour_tree_xml import XMLParserError, parse_behaviour_tree_xml
+
+from canguard.bt.context import Context
+from canguard.bt.loaded import LoadedTree, NodeInfo, _preorder
+from canguard.bt.nodes import CanguardNode, PortError
+from canguard.bt.registry import _TOKEN
+from canguard.bt.validate import _Validator
+from canguard.errors import TreeError
+
+
+class _Loader(_Validator):
+    """Step 4: parse with py_trees and bind the nodes."""
+
+    def parse(self, main_id: str) -> py_trees.behaviour.Behaviour:
+        doc = ET.Element("root", {"BTCPP_format": "4", "main_tree_to_execute": main_id})
+        doc.extend(self.trees.values())
+        with tempfile.TemporaryDirectory(prefix="canguard-tree-") as tmp:
+            rewritten = Path(tmp) / self.path.name
+            rewritten.write_bytes(ET.tostring(doc, encoding="utf-8"))
+            try:
+                return parse_behaviour_tree_xml(str(rewritten), main_tree_id=main_id, node_registry=self.registry)
+            except TreeError:
+                raise
+            except (
+                XMLParserError,
+                ValueError,
+                KeyError,
+                TypeError,
+                AssertionError,
+                RuntimeError,
+                NotImplementedError,
+            ) as exc:
+                raise TreeError(f"{self.path}: BehaviorTree {main_id}: {self._untoken(str(exc))}") from exc
+
+    def _untoken(self, text: str) -> str:
+        def name(m: re.Match) -> str:
+            info = self.infos.get(m.group(0))
+            return f"{info.node_id} at line {info.line}" if info else m.group(0)
+
+        text = re.sub(re.escape(_TOKEN) + r"\d+", name, text)
+        lines: dict[str, list[str]] = {}
+        for info in self.infos.values():
+            if f"'{info.node_id}'" in text:
+                lines.setdefault(info.node_id, []).append(f"{info.file.name}:{info.line}")
+        hints = "; ".join(f"{node_id} at {', '.join(where)}" for node_id, where in lines.items())
+        return f"{text} ({hints})" if hints else text
+
+    def finish(self, root: py_trees.behaviour.Behaviour, main_id: str) -> LoadedTree:
+        nodes = list(root.iterate())
+        placed: list[tuple[py_trees.behaviour.Behaviour, NodeInfo, str]] = []
+        for node in nodes:
+            parts = node.name.split(".")
+            info = self.infos[parts[-1]]
+            prefix = [p for p in parts[:-1] if p not in self.infos]
+            placed.append((node, info, "/".join([*prefix, info.name])))
+        order = {id(n): i for i, n in enumerate(_preorder(root))}
+        placed.sort(key=lambda t: order[id(t[0])])
+        counts: dict[str, int] = {}
+        loaded_nodes: dict[Any, NodeInfo] = {}
+        for node, info, readable in placed:
+            k = counts.get(readable, 0) + 1
+            counts[readable] = k
+            name = readable if k == 1 else f"{readable}#{k}"
+            node.name = name
+            loaded_nodes[node.id] = NodeInfo(info.node_id, name, info.file, info.line, info.tree)
+        for node, _, _ in placed:
+            if isinstance(node, CanguardNode):
+                info = loaded_nodes[node.id]
+                try:
+                    node.bind()
+                except PortError as exc:
+                    self.errors.append(
+                        f"{info.file}:{info.line}: node {info.name} (BehaviorTree {info.tree}), "
+                        f"port {exc.port}: {exc.message}"
+                    )
+                except (ValueError, KeyError, TypeError) as exc:
+                    self.errors.append(
+                        f"{info.file}:{info.line}: node {info.name} (BehaviorTree {info.tree}): {exc}"
+                    )
+        self.raise_collected()  # every node that cannot bind, not only the first
+        return LoadedTree(
+            root=root,
+            tree=py_trees.trees.BehaviourTree(root=root),
+            main_id=main_id,
+            path=self.path,
+            context=self.ctx,
+            format_version=self.format_version,
+            tree_ids=tuple(self.trees),
+            nodes=loaded_nodes,
+        )
+
+
+def load_tree(path: str | Path, ctx: Context, main: str | None = None) -> LoadedTree:
+    """Load, validate and bind the BehaviorTree.CPP XML tree ``main`` of ``path`` for ``ctx``.
+
+    ``main`` defaults to the root's ``main_tree_to_execute``, or to the only tree.
+    Every problem is a :class:`~canguard.errors.TreeError` naming file and line.
+    """
+    loader = _Loader(Path(path), ctx)
+    main_id = loader.check(main)
+    loader.raise_collected()  # every node problem of every tree at once
+    loader.check_cycles(main_id)
+    root = loader.parse(main_id)
+    return loader.finish(root, main_id)

@@ -1,0 +1,214 @@
+"""A loaded tree against its config: sources, guard coverage, the report of `canguard check`."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import py_trees
+
+from canguard.bt.build import _Loader, load_tree
+from canguard.bt.context import Context
+from canguard.bt.display import render_dot, render_text
+from canguard.bt.loaded import LoadedTree, _preorder
+from canguard.config.schema import Config, PartialConfig, SourceKind
+from canguard.errors import TreeError
+
+
+# ---------------------------------------------------------------------------------------
+# Checks against the config
+# ---------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class ConfigCheck:
+    """What ``canguard check`` reports about a tree and its config beyond hard errors."""
+
+    unread_sources: tuple[str, ...]
+    """Configured sources no node of the tree reads (stale events only)."""
+
+    def warnings(self) -> list[str]:
+        """One line per finding."""
+        return [
+            f"source {name!r} is configured but the tree does not read it (only stale events)"
+            for name in self.unread_sources
+        ]
+
+
+def validate_against_config(loaded: LoadedTree, cfg: Config) -> ConfigCheck:
+    """Check every guard's ``topic_name`` against ``cfg.sources``; report sources nobody reads.
+
+    TreeError (file, line, node, the configured sources with their kinds) when a
+    topic_name names no source, or a source of the wrong kind.
+    """
+    listing = ", ".join(f"{n} ({s.kind})" for n, s in sorted(cfg.sources.items())) or "(none configured)"
+    read: set[str] = set()
+    errors: list[str] = []
+    for guard in loaded.guard_nodes():
+        info = loaded.info(guard)
+        name = guard.topic_name
+        kinds: tuple[SourceKind, ...] = guard.SOURCE_KINDS
+        src = cfg.sources.get(name)
+        where = f"{info.file}:{info.line}: node {info.name} (BehaviorTree {info.tree}), port topic_name"
+        if src is None:
+            errors.append(f"{where}: unknown source {name!r}; configured sources: {listing}")
+            continue
+        if src.kind not in kinds:
+            errors.append(
+                f"{where}: source {name!r} is of kind {src.kind}, {info.node_id} needs "
+                f"{' or '.join(kinds)}; configured sources: {listing}"
+            )
+            continue
+        read.add(name)
+    if errors:
+        raise TreeError(errors)
+    return ConfigCheck(unread_sources=tuple(n for n in cfg.sources if n not in read))
+
+
+
+# ---------------------------------------------------------------------------------------
+# What the CLI calls (canguard check / canguard tree)
+# ---------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class TreeReport:
+    """``canguard check``'s view of the config's tree."""
+
+    loaded: LoadedTree
+    text: str
+    """A summary line and the tree drawing."""
+    warnings: list[str]
+
+
+def context_for(cfg: Config, clock: Any = None) -> Context:
+    """A context for ``cfg`` (sources, actions, stop frames) on ``clock`` (a ManualClock at 0 by default)."""
+    from canguard.io.clock import ManualClock
+
+    return Context(
+        clock if clock is not None else ManualClock(),
+        cfg.sources,
+        actions=cfg.actions,
+        stop_frames=cfg.stop.frames,
+    )
+
+
+def load_config_tree(cfg: Config, ctx: Context | None = None) -> LoadedTree:
+    """Load the tree ``cfg.tree`` names (TreeError when the config has none)."""
+    if cfg.tree is None:
+        raise TreeError(f"{cfg.path}: tree: missing, expected {{file: TREE.xml, main: ID, tick_hz: HZ}}")
+    return load_tree(cfg.tree.file, ctx if ctx is not None else context_for(cfg), cfg.tree.main)
+
+
+def partial_tree_problems(partial: PartialConfig | None) -> list[str]:
+    """The problems of the tree of a config that has problems itself (``ConfigError.partial``).
+
+    The tree is checked without being built: node IDs, ports, values, children, and the
+    guards' sources against the sources that loaded (a source the config declares but got
+    wrong is not reported again). Empty when the config names no readable tree.
+    """
+    if partial is None or partial.tree is None:
+        return []
+    from canguard.io.clock import ManualClock
+
+    loader = _Loader(partial.tree.file, Context(ManualClock(), partial.sources, actions=partial.actions))
+    loader.source_check = "always" if partial.sources_ok else "never"
+    loader.unsure_sources = partial.declared_sources
+    try:
+        loader.check(partial.tree.main)
+    except TreeError as exc:  # unreadable or not well-formed XML, a broken include
+        return [*loader.errors, *exc.problems]
+    return loader.errors
+
+
+def check_tree(cfg: Config) -> TreeReport:
+    """Load and validate the config's tree against the config; TreeError on any problem."""
+    loaded = load_config_tree(cfg)
+    check = validate_against_config(loaded, cfg)
+    count = sum(1 for _ in loaded.root.iterate())
+    head = (
+        f"tree: {loaded.main_id} from {loaded.path} (BTCPP_format {loaded.format_version}), {count} nodes, "
+        f"reads {', '.join(sorted(loaded.context.read_sources)) or 'no source'}"
+    )
+    require_guard_coverage(loaded)
+    return TreeReport(loaded, f"{head}\n{render_text(loaded.root)}", check.warnings())
+
+
+def require_guard_coverage(loaded: LoadedTree) -> None:
+    """TreeError when a guard would not be re-checked while the task runs (see :func:`guard_coverage`).
+
+    Such a tree would keep sending the task's frames through an overcurrent or
+    a dead sensor: the daemon refuses it rather than run it.
+    """
+    problems = guard_coverage(loaded)
+    if problems:
+        raise TreeError("\n".join(problems))
+
+
+def _path_to(node: py_trees.behaviour.Behaviour) -> list[py_trees.behaviour.Behaviour]:
+    """``node`` and its ancestors, root last."""
+    path = [node]
+    while path[-1].parent is not None:
+        path.append(path[-1].parent)
+    return path
+
+
+def guard_coverage(loaded: LoadedTree) -> list[str]:
+    """Warnings for guards that are not re-checked while the task runs.
+
+    Under a composite with memory (BT.CPP's Sequence, SequenceWithMemory,
+    Fallback), a guard placed before the branch holding ExecuteTask is ticked
+    once, then skipped while ExecuteTask stays RUNNING: an overcurrent during the
+    task would never stop it. ReactiveSequence re-checks every tick.
+    """
+    from canguard.bt.nodes.actions import ExecuteTask
+
+    tasks = [n for n in loaded.root.iterate() if isinstance(n, ExecuteTask)]
+    out: list[str] = []
+    for guard in loaded.guard_nodes():
+        g_path = _path_to(guard)
+        for task in tasks:
+            t_path = _path_to(task)
+            common = next(a for a in g_path if a in t_path)
+            if not isinstance(common, py_trees.composites.Composite) or not getattr(common, "memory", False):
+                continue
+            g_child = g_path[g_path.index(common) - 1]
+            t_child = t_path[t_path.index(common) - 1]
+            if common.children.index(g_child) < common.children.index(t_child):
+                info = loaded.info(guard)
+                out.append(
+                    f"{info.file}:{info.line}: {guard.name} is checked only before {task.name} starts: under "
+                    f"{common.name} ({loaded.info(common).node_id}, which keeps its place while a child is RUNNING) "
+                    f"it is not ticked again while the task runs, so the task would go on through an overcurrent "
+                    f"or a dead sensor; put them under a ReactiveSequence to guard the task at every tick"
+                )
+    return out
+
+
+def _with_stop_roles(text: str, root: py_trees.behaviour.Behaviour, stop: Any) -> str:
+    """The drawing with, per node, what it does to a stop (LATCH, TASK, RECOVERY...), and the release rule."""
+    from canguard.bt.nodes.actions import stop_roles
+
+    roles = stop_roles(root)
+    lines = text.splitlines()
+    nodes = list(_preorder(root))
+    if len(lines) != len(nodes):  # not the one-line-per-node drawing: leave it as it is
+        return text
+    width = max(len(line) for line in lines) + 2
+    out = [f"{line:<{width}}{roles[n]}".rstrip() if n in roles else line for line, n in zip(lines, nodes, strict=True)]
+    manual = ", with ResetStop ticked (stop.release: manual)" if stop.release == "manual" else ""
+    out.append(
+        f"stop: latches when the tree fails, a LATCH node halts the task or a read source goes stale; released at "
+        f"the end of a tick without FAILURE that reaches the task, no inhibit left, after stop.min_stop "
+        f"{stop.min_stop_s:g} s{manual}"
+    )
+    return "\n".join(out) + "\n"
+
+
+def show_tree(config_path: str | Path, dot: str | Path | None = None) -> str:
+    """The text drawing of a config's tree; with ``dot``, also render it there (see :func:`render_dot`)."""
+    from canguard.config.loader import load_config
+
+    cfg = load_config(config_path)
+    loaded = load_config_tree(cfg)
+    text = _with_stop_roles(render_text(loaded.root), loaded.root, cfg.stop)
+    if dot is not None:
+        text += f"wrote {render_dot(loaded.root, dot)}\n"
+    return text

@@ -1,0 +1,113 @@
+"""A loaded tree and what the engine and the tools read from it (node info, guard views)."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal, cast
+
+import py_trees
+
+from canguard.bt.context import Context
+from canguard.bt.nodes import GuardNode
+from canguard.protect.base import ProtectionModel, Snapshot
+
+
+# ---------------------------------------------------------------------------------------
+# Loaded tree
+# ---------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class NodeInfo:
+    """Where a node of a loaded tree comes from."""
+
+    node_id: str
+    """Its node type (``IsCurrentSafe``, ``PerformRecovery``...)."""
+    name: str
+    """Its readable, unique name (as in events and ``canguard tree``)."""
+    file: Path
+    line: int
+    tree: str
+    """The ``<BehaviorTree ID>`` it is written in."""
+
+
+GuardKind = Literal["threshold", "i2t"]
+
+
+@dataclass(frozen=True)
+class GuardView:
+    """One guarded signal of a loaded tree, for reports, plots and the demo."""
+
+    node: str
+    """The guard node's readable name."""
+    source: str
+    role: str
+    """The signal's role in the source (``current``, or a joint name)."""
+    kind: GuardKind
+    """``threshold`` (IsCurrentNormal, IsCurrentSafe, IsJointEffortNormal) or ``i2t`` (IsI2tSafe)."""
+    model: ProtectionModel
+
+    def snapshot(self) -> Snapshot:
+        """The model's present state (the peak latch untouched)."""
+        return self.model.snapshot()
+
+    def threshold(self) -> float:
+        """The trip threshold in force (A or N·m; for I²t the trip level of the accumulator)."""
+        return self.model.snapshot().threshold
+
+
+@dataclass
+class LoadedTree:
+    """A parsed, validated and bound tree."""
+
+    root: py_trees.behaviour.Behaviour
+    tree: py_trees.trees.BehaviourTree
+    main_id: str
+    path: Path
+    context: Context
+    format_version: int
+    """4 with ``BTCPP_format="4"``, else 3."""
+    tree_ids: tuple[str, ...]
+    """Every ``<BehaviorTree ID>`` of the document (includes inlined)."""
+    nodes: dict[Any, NodeInfo] = field(default_factory=dict)
+    """NodeInfo by behaviour id (``node.id``)."""
+
+    def tick(self) -> py_trees.common.Status:
+        """Tick the root once (sets ``ctx.tree_start`` at the first tick, as the engine does)."""
+        if self.context.tree_start is None:
+            self.context.tree_start = self.context.now()
+        self.root.tick_once()
+        return self.root.status
+
+    def halt(self) -> None:
+        """Halt the whole tree (every RUNNING node is stopped)."""
+        self.root.stop(py_trees.common.Status.INVALID)
+
+    def find(self, name: str) -> py_trees.behaviour.Behaviour:
+        """The node with that readable name; KeyError listing the names."""
+        for node in self.root.iterate():
+            if node.name == name:
+                return node
+        raise KeyError(f"no node named {name!r}; nodes: {', '.join(n.name for n in self.root.iterate())}")
+
+    def info(self, node: py_trees.behaviour.Behaviour) -> NodeInfo:
+        """Where ``node`` is written."""
+        return self.nodes[node.id]
+
+    def guard_nodes(self) -> list[GuardNode]:
+        """Every guard condition (the nodes that read sources), in tree order."""
+        return [n for n in _preorder(self.root) if isinstance(n, GuardNode)]
+
+    def guards(self) -> list[GuardView]:
+        """One :class:`GuardView` per guarded signal (a joints guard gives one per joint), in tree order."""
+        return [
+            GuardView(node.name, node.topic_name, role, cast("GuardKind", kind), model)
+            for node in self.guard_nodes()
+            for role, model, kind in node.guarded()
+        ]
+
+
+def _preorder(node: py_trees.behaviour.Behaviour) -> Iterator[py_trees.behaviour.Behaviour]:
+    yield node
+    for child in node.children:
+        yield from _preorder(child)

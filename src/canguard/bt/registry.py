@@ -1,0 +1,110 @@
+"""The node registry: canguard's node library, plug-ins (``canguard.nodes`` entry points) and v3 aliases."""
+
+from __future__ import annotations
+
+import functools
+import inspect
+from collections.abc import Collection
+from importlib.metadata import EntryPoint, entry_points
+
+import py_trees
+from py_trees.ports import PortsMixin
+
+from canguard.bt.context import Context
+from canguard.bt.nodes import BUILTIN_NODES, CanguardNode, ConfiguredAction
+from canguard.errors import TreeError
+
+Registry = dict[str, functools.partial]
+
+ENTRY_POINT_GROUP = "canguard.nodes"
+"""Entry-point group through which other packages add node types (``NodeID = "pkg.mod:Class"``)."""
+
+_V3_WRAPPERS = ("Action", "Condition", "Decorator", "Control")
+_TAG_ALIASES = {
+    "SequenceStar": "SequenceWithMemory",
+    "RetryUntilSuccesful": "RetryUntilSuccessful",
+    "SubTreePlus": "SubTree",
+}
+_PORT_ALIASES: dict[str, dict[str, str]] = {
+    "Parallel": {
+        "success_threshold": "success_count",
+        "failure_threshold": "failure_count",
+        "threshold": "success_count",
+    },
+}
+_SUBTREE = "SubTree"
+_TOKEN = "@"
+"""Placeholder node names handed to py_trees are ``@<n>``."""
+
+
+
+# ---------------------------------------------------------------------------------------
+# Registry
+# ---------------------------------------------------------------------------------------
+def plugin_entry_points() -> dict[str, EntryPoint]:
+    """The ``canguard.nodes`` entry points by node ID (not loaded)."""
+    return {ep.name: ep for ep in entry_points(group=ENTRY_POINT_GROUP)}
+
+
+def _load_plugin(ep: EntryPoint) -> type[PortsMixin]:
+    try:
+        cls = ep.load()
+    except Exception as exc:  # a broken plug-in must name itself, whatever it raised
+        raise TreeError(f"node type {ep.name} ({ENTRY_POINT_GROUP} entry point {ep.value}): {exc}") from exc
+    if not (inspect.isclass(cls) and issubclass(cls, PortsMixin) and issubclass(cls, py_trees.behaviour.Behaviour)):
+        raise TreeError(
+            f"node type {ep.name} ({ENTRY_POINT_GROUP} entry point {ep.value}) is not a "
+            "py_trees.ports.PortsMixin + py_trees Behaviour class"
+        )
+    return cls
+
+
+def _takes_context(cls: type) -> bool:
+    if issubclass(cls, CanguardNode):
+        return True
+    try:
+        return "context" in inspect.signature(cls).parameters
+    except (TypeError, ValueError):
+        return False
+
+
+def build_registry(ctx: Context, only: Collection[str] | None = None) -> Registry:
+    """The closed table of node types for one tree: ``{node ID: partial(cls, context=ctx, ...)}``.
+
+    Built-in node types, one :class:`~canguard.bt.nodes.actions.ConfiguredAction` per
+    ``ctx.actions`` entry, and the ``canguard.nodes`` entry points. Plug-ins are
+    imported lazily: only those named in ``only`` (all when None). A config action
+    named like a built-in node is a TreeError; a plug-in named like a built-in or
+    an action is ignored (built-ins and the config win).
+    """
+    registry: Registry = {node_id: functools.partial(cls, context=ctx) for node_id, cls in BUILTIN_NODES.items()}
+    for name, action in ctx.actions.items():
+        if name in registry or name == _SUBTREE:
+            raise TreeError(f"actions: {name!r} is the ID of a built-in node type; give the action another name")
+        registry[name] = functools.partial(ConfiguredAction, context=ctx, action=action)
+    for name, ep in plugin_entry_points().items():
+        if name in registry or (only is not None and name not in only):
+            continue
+        cls = _load_plugin(ep)
+        registry[name] = functools.partial(cls, context=ctx) if _takes_context(cls) else functools.partial(cls)
+    return registry
+
+
+def known_node_ids(ctx: Context | None = None) -> list[str]:
+    """Every node ID a tree may use (built-ins, config actions, plug-ins, SubTree), sorted."""
+    ids = set(BUILTIN_NODES) | set(plugin_entry_points()) | {_SUBTREE}
+    if ctx is not None:
+        ids |= set(ctx.actions)
+    return sorted(ids)
+
+
+def node_kind(cls: type) -> str:
+    """Action, Condition, Control or Decorator."""
+    kind = getattr(cls, "KIND", None)
+    if isinstance(kind, str):
+        return kind
+    if issubclass(cls, py_trees.decorators.Decorator):
+        return "Decorator"
+    if issubclass(cls, py_trees.composites.Composite):
+        return "Control"
+    return "Action"

@@ -1,0 +1,246 @@
+"""Validating every node of a tree against the registry before py_trees sees it."""
+
+from __future__ import annotations
+
+import math
+import re
+import xml.etree.ElementTree as ET
+from collections.abc import Collection, Mapping
+
+import py_trees
+from py_trees.parsers.behaviour_tree_xml import is_key
+from py_trees.ports import PortInformation, PortsMixin
+from py_trees.ports_utils import convert_str_to_type
+
+from canguard.bt.loaded import NodeInfo
+from canguard.bt.nodes import GuardNode
+from canguard.bt.registry import _SUBTREE, _TOKEN, known_node_ids, node_kind
+from canguard.bt.xmlread import _closest, _Reader, _type_name
+from canguard.errors import TreeError
+
+
+class _Validator(_Reader):
+    """Step 3: every node, port, SubTree and cycle checked; every problem collected."""
+
+    def check(self, main: str | None) -> str:
+        """Steps 1 to 3: read, rewrite, choose the main tree, validate every node; the main tree's ID.
+
+        Problems are collected in ``errors``; a file that cannot be read or parsed raises at once.
+        """
+        self.read()
+        self.rewrite()
+        try:
+            main_id = self.choose_main(main)
+        except TreeError as exc:
+            self.errors.extend(exc.problems)
+            main_id = ""
+        self.make_registry()
+        self.validate()
+        return main_id
+
+    def validate(self) -> None:
+        """Check every node of every tree, collecting every problem (see :meth:`raise_collected`)."""
+        counter = 0
+        pending: list[tuple[int, str]] = []
+        """Unknown sources, with their place in ``errors``: reported only with other problems."""
+        for tree_id, bt in self.trees.items():
+            if tree_id in self.broken_trees:
+                continue
+            subtree_names: dict[str, int] = {}
+            for elem in bt[0].iter():
+                if elem.tag == _SUBTREE:
+                    try:
+                        self._check_subtree(elem, tree_id, subtree_names)
+                    except TreeError as exc:
+                        self.errors.extend(exc.problems)
+                else:
+                    cls = self._check_node(elem, tree_id)
+                    if cls is not None and issubclass(cls, GuardNode):
+                        source_error = self._check_source(elem, cls, tree_id)
+                        if source_error is not None:
+                            pending.append((len(self.errors), source_error))
+                    counter += 1
+                    token = f"{_TOKEN}{counter}"
+                    file, line = self.where.get(elem, (self.path, 0))
+                    readable = elem.attrib.get("name") or elem.tag
+                    self.infos[token] = NodeInfo(elem.tag, readable, file, line, tree_id)
+                    elem.attrib["name"] = token
+        if self.source_check == "always" or (self.errors and self.source_check == "with_others"):
+            # The tree will not be built, so binding (which resolves the sources and reports an
+            # unknown one) will not run: the guards' unknown sources join this report, in place.
+            for place, text in reversed(pending):
+                self.errors.insert(place, text)
+
+    def _check_source(self, elem: ET.Element, cls: type, tree_id: str) -> str | None:
+        """The problem of a guard's constant ``topic_name`` naming no configured source of its kinds."""
+        value = elem.attrib.get("topic_name")
+        try:
+            if value is None or is_key(value) or self.source_check == "never":
+                return None
+        except ValueError:
+            return None  # a malformed {key}: already reported
+        if value in self.unsure_sources and value not in self.ctx.sources:
+            return None
+        read_before = set(self.ctx.read_sources)
+        try:
+            self.ctx.source(value, cls.SOURCE_KINDS)  # type: ignore[attr-defined]
+        except (KeyError, ValueError) as exc:
+            return str(self.error(elem, str(exc.args[0]), tree_id, "topic_name"))
+        finally:
+            self.ctx.read_sources.intersection_update(read_before)  # only a check: nothing is read yet
+        return None
+
+    def _check_subtree(self, elem: ET.Element, tree_id: str, names: dict[str, int]) -> None:
+        target = elem.attrib.get("ID")
+        if not target:
+            raise self.error(elem, 'SubTree without ID="..."', tree_id)
+        if target not in self.trees:
+            known = ", ".join(_closest(target, self.trees))
+            raise self.error(elem, f"unknown BehaviorTree {target!r}; trees in the file: {known}", tree_id)
+        if len(elem):
+            raise self.error(elem, "a SubTree takes no child elements (its ports are attributes)", tree_id)
+        for attr, value in elem.attrib.items():
+            if attr in ("ID", "name"):
+                continue
+            if attr.startswith("_"):
+                raise self.error(elem, f"attribute {attr} is not supported", tree_id)
+            self._check_key_syntax(elem, attr, value, tree_id)
+        name = elem.attrib.get("name") or ""
+        explicit = bool(name)
+        name = (name or target).replace(".", "_")
+        n = names.get(name, 0) + 1
+        names[name] = n
+        if n > 1:
+            if explicit:
+                raise self.error(
+                    elem, f"two SubTrees named {name!r} in BehaviorTree {tree_id}: names must differ", tree_id
+                )
+            name = f"{name}_{n}"
+        elem.attrib["name"] = name
+
+    def _check_key_syntax(self, elem: ET.Element, attr: str, value: str, tree_id: str) -> re.Match | None:
+        try:
+            match = is_key(value)
+        except ValueError:
+            raise self.error(
+                elem, f"malformed blackboard reference {value!r} (expected {{key}})", tree_id, attr
+            ) from None
+        if match and match.group(1).startswith("@"):
+            raise self.error(
+                elem,
+                f"{value}: root-blackboard references {{@key}} are not supported; use {{key}}",
+                tree_id,
+                attr,
+            )
+        return match
+
+    def _check_node(self, elem: ET.Element, tree_id: str) -> type[PortsMixin] | None:
+        """Record every problem of one node (ID, each port, children); its class, or None if unknown."""
+        node_id = elem.tag
+        cls = self.classes.get(node_id)
+        if cls is None:
+            known = _closest(node_id, known_node_ids(self.ctx))
+            self.errors.append(
+                f"{self.at(elem)}: unknown node ID {node_id!r} (BehaviorTree {tree_id}); "
+                f"known node IDs, closest first: {', '.join(known)}"
+            )
+            return None
+        ports: dict[str, tuple[str, PortInformation]] = {
+            **{n: ("input", i) for n, i in cls.input_ports().items()},
+            **{n: ("output", i) for n, i in cls.output_ports().items()},
+        }
+        const_ports: Collection[str] = getattr(cls, "CONST_PORTS", frozenset())
+        key_ports: Collection[str] = getattr(cls, "KEY_PORTS", frozenset())
+        choices: Mapping[str, tuple[str, ...]] = getattr(cls, "CHOICES", {})
+        for attr, value in elem.attrib.items():
+            if attr == "name":
+                continue
+            try:
+                self._check_port(elem, tree_id, attr, value, ports, const_ports, key_ports, choices)
+            except TreeError as exc:
+                self.errors.extend(exc.problems)
+        missing = [
+            n for n, (_, info) in ports.items() if info.required and not info.has_default and n not in elem.attrib
+        ]
+        if missing:
+            self.errors.append(str(self.error(
+                elem,
+                f"missing required port {', '.join(missing)} (ports of {node_id}: {', '.join(ports)})",
+                tree_id,
+            )))
+        n = len(elem)
+        kind_error: str | None = None
+        if issubclass(cls, py_trees.decorators.Decorator):
+            if n != 1:
+                kind_error = f"a decorator takes exactly one child, found {n}"
+        elif issubclass(cls, py_trees.composites.Composite):
+            if n == 0:
+                kind_error = "a control node needs at least one child"
+        elif n:
+            kind_error = f"{node_kind(cls).lower()} nodes take no children, found {n}"
+        if kind_error is not None:
+            self.errors.append(str(self.error(elem, kind_error, tree_id)))
+        return cls
+
+    def _check_port(
+        self,
+        elem: ET.Element,
+        tree_id: str,
+        attr: str,
+        value: str,
+        ports: Mapping[str, tuple[str, PortInformation]],
+        const_ports: Collection[str],
+        key_ports: Collection[str],
+        choices: Mapping[str, tuple[str, ...]],
+    ) -> None:
+        """Raise the TreeError of one attribute of a node (unknown port, bad value...), if any."""
+        node_id = elem.tag
+        if attr.startswith("_"):
+            raise self.error(elem, f"attribute {attr} (BT.CPP pre/post-conditions) is not supported", tree_id)
+        if attr not in ports:
+            listing = ", ".join(_closest(attr, ports)) if ports else "(none)"
+            raise self.error(elem, f"unknown port {attr!r}; ports of {node_id}: {listing}", tree_id)
+        direction, info = ports[attr]
+        match = self._check_key_syntax(elem, attr, value, tree_id)
+        if match:
+            if attr in const_ports:
+                raise self.error(
+                    elem,
+                    f"takes a constant (it configures the node at load time), not {value}",
+                    tree_id,
+                    attr,
+                )
+            return
+        if direction == "output":
+            raise self.error(
+                elem,
+                f"an output port takes a blackboard key like {{{attr}}}, not {value!r}",
+                tree_id,
+                attr,
+            )
+        if attr in key_ports:
+            raise self.error(elem, f"takes a blackboard key like {{{attr}}}, not {value!r}", tree_id, attr)
+        try:
+            converted, parsed = convert_str_to_type(value, info.data_type)
+        except (ValueError, TypeError):
+            converted, parsed = False, None
+        if not converted:
+            raise self.error(elem, f"{value!r} is not a valid {_type_name(info.data_type)}", tree_id, attr)
+        if isinstance(parsed, float) and math.isnan(parsed):
+            raise self.error(elem, f"{value!r} is not a number", tree_id, attr)
+        allowed = choices.get(attr)
+        if allowed is not None and parsed not in allowed:
+            raise self.error(elem, f"unknown value {value!r}; expected one of {', '.join(allowed)}", tree_id, attr)
+
+    def check_cycles(self, main_id: str) -> None:
+        def visit(tree_id: str, stack: list[str]) -> None:
+            for elem in self.trees[tree_id].iter(_SUBTREE):
+                target = elem.attrib["ID"]
+                if target in stack:
+                    chain = " -> ".join([*stack[stack.index(target) :], target])
+                    raise self.error(elem, f"SubTree cycle: {chain}", tree_id)
+                visit(target, [*stack, target])
+
+        visit(main_id, [main_id])
+
+    # -- step 4: parse with py_trees --------------------------------------------------------

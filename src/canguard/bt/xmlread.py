@@ -1,0 +1,220 @@
+"""Reading BehaviorTree.CPP XML (with line numbers, includes) and v3 -> v4 rewriting."""
+
+from __future__ import annotations
+
+import difflib
+import xml.etree.ElementTree as ET
+import xml.parsers.expat
+from collections.abc import Collection
+from pathlib import Path
+from typing import Any, Literal, cast
+
+from py_trees.ports import PortsMixin
+
+from canguard.bt.context import Context
+from canguard.bt.loaded import NodeInfo
+from canguard.bt.registry import _PORT_ALIASES, _SUBTREE, _TAG_ALIASES, _TOKEN, _V3_WRAPPERS, Registry, build_registry
+from canguard.errors import TreeError
+
+# ---------------------------------------------------------------------------------------
+# Reading XML with line numbers
+# ---------------------------------------------------------------------------------------
+Where = tuple[Path, int]
+
+
+def _read_xml(path: Path, where: dict[ET.Element, Where]) -> ET.Element:
+    """Parse ``path`` with expat, recording each element's (file, line) in ``where``."""
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise TreeError(f"{path}: cannot read the tree file: {exc.strerror or exc}") from None
+    builder = ET.TreeBuilder()
+    parser = xml.parsers.expat.ParserCreate()
+
+    def start(tag: str, attrs: dict[str, str]) -> None:
+        where[builder.start(tag, attrs)] = (path, parser.CurrentLineNumber)
+
+    parser.StartElementHandler = start
+    parser.EndElementHandler = builder.end
+    try:
+        parser.Parse(data, True)
+    except xml.parsers.expat.ExpatError as exc:
+        msg = xml.parsers.expat.ErrorString(exc.code)
+        raise TreeError(f"{path}:{exc.lineno}: not well-formed XML: {msg} (column {exc.offset + 1})") from None
+    return builder.close()
+
+
+def _closest(word: str, choices: Collection[str]) -> list[str]:
+    """``choices`` sorted by similarity to ``word``, closest first (ties alphabetical)."""
+    lw = word.lower()
+    return sorted(choices, key=lambda c: (-difflib.SequenceMatcher(None, lw, c.lower()).ratio(), c))
+
+
+def _type_name(data_type: Any) -> str:
+    names = {float: "float", int: "int", str: "string", bool: "bool"}
+    return names.get(data_type, getattr(data_type, "__name__", str(data_type)))
+
+
+# ---------------------------------------------------------------------------------------
+# The loader
+# ---------------------------------------------------------------------------------------
+class _Reader:
+    """One load: the document, its trees, the registry, the placeholder names."""
+
+    def __init__(self, path: Path, ctx: Context) -> None:
+        self.path = path
+        self.ctx = ctx
+        self.where: dict[ET.Element, Where] = {}
+        self.trees: dict[str, ET.Element] = {}
+        self.format_version = 3
+        self.main_attr: str | None = None
+        self.infos: dict[str, NodeInfo] = {}
+        self.registry: Registry = {}
+        self.classes: dict[str, type[PortsMixin]] = {}
+        self.errors: list[str] = []
+        """Every problem found so far (one load reports them all, not only the first)."""
+        self.broken_trees: set[str] = set()
+        """BehaviorTrees whose rewrite failed: not validated further (no follow-on errors)."""
+        self.source_check: Literal["with_others", "always", "never"] = "with_others"
+        """When :meth:`validate` checks guards' sources: with other problems (binding checks them
+        otherwise), always (a tree checked without binding), or never (the sources are unknown)."""
+        self.unsure_sources: Collection[str] = ()
+        """Source names a config declares but could not build: not reported as unknown (follow-on)."""
+
+    # -- errors ------------------------------------------------------------------------
+    def raise_collected(self) -> None:
+        """Raise one TreeError listing every problem collected so far, if there is any."""
+        if self.errors:
+            raise TreeError(self.errors)
+
+    def at(self, elem: ET.Element) -> str:
+        file, line = self.where.get(elem, (self.path, 0))
+        return f"{file}:{line}"
+
+    def error(self, elem: ET.Element, msg: str, tree: str | None = None, port: str | None = None) -> TreeError:
+        node = elem.tag
+        name = elem.attrib.get("name")
+        if node == _SUBTREE:
+            node += f" {elem.attrib.get('ID', '')}"
+        elif name and not name.startswith(_TOKEN):
+            node += f' "{name}"'
+        where = f"node {node}" + (f" (BehaviorTree {tree})" if tree else "")
+        if port is not None:
+            where += f", port {port}"
+        return TreeError(f"{self.at(elem)}: {where}: {msg}")
+
+    # -- step 1: read, includes ---------------------------------------------------------
+    def read(self) -> None:
+        root = _read_xml(self.path, self.where)
+        if root.tag != "root":
+            raise TreeError(
+                f"{self.at(root)}: the document element is <{root.tag}>, expected <root> (BehaviorTree.CPP XML)"
+            )
+        fmt = root.attrib.get("BTCPP_format")
+        if fmt not in (None, "3", "4"):
+            raise TreeError(f'{self.at(root)}: BTCPP_format="{fmt}" is not supported (3 or 4)')
+        self.format_version = 4 if fmt == "4" else 3
+        self.main_attr = root.attrib.get("main_tree_to_execute")
+        self._collect(root, self.path, {self.path.resolve()})
+
+    def _collect(self, root: ET.Element, path: Path, seen: set[Path]) -> None:
+        for child in root:
+            tag = child.tag
+            if tag == "BehaviorTree":
+                tree_id = child.attrib.get("ID")
+                if not tree_id:
+                    raise TreeError(f"{self.at(child)}: <BehaviorTree> without ID")
+                if tree_id in self.trees:
+                    first = self.at(self.trees[tree_id])
+                    raise TreeError(f"{self.at(child)}: BehaviorTree {tree_id} is defined twice (first at {first})")
+                self.trees[tree_id] = child
+            elif tag == "TreeNodesModel":
+                continue  # Groot's palette: informative only
+            elif tag.lower() in ("include", "import"):
+                self._include(child, path, seen)
+            else:
+                raise TreeError(
+                    f"{self.at(child)}: unexpected <{tag}> under <root>; expected <BehaviorTree>, "
+                    "<include> or <TreeNodesModel>"
+                )
+
+    def _include(self, elem: ET.Element, path: Path, seen: set[Path]) -> None:
+        if "ros_pkg" in elem.attrib:
+            raise TreeError(f"{self.at(elem)}: <include ros_pkg=...> is not supported; give a path")
+        src = elem.attrib.get("path") or elem.attrib.get("src") or elem.attrib.get("file")
+        if not src:
+            raise TreeError(f'{self.at(elem)}: <{elem.tag}> needs path="other.xml"')
+        target = (path.parent / src) if not Path(src).is_absolute() else Path(src)
+        key = target.resolve()
+        if key in seen:
+            return  # already included (or the including file itself)
+        seen.add(key)
+        inc_root = _read_xml(target, self.where)
+        if inc_root.tag != "root":
+            raise TreeError(f"{self.at(inc_root)}: the document element is <{inc_root.tag}>, expected <root>")
+        self._collect(inc_root, target, seen)
+
+    # -- step 2: rewrite v3 spellings ---------------------------------------------------
+    def rewrite(self) -> None:
+        for tree_id, bt in self.trees.items():
+            for attr in [a for a in bt.attrib if a.startswith("_")]:
+                del bt.attrib[attr]  # Groot bookkeeping (_fullpath...), meaningless here
+            if len(bt) != 1:
+                self.errors.append(
+                    f"{self.at(bt)}: BehaviorTree {tree_id} must have exactly one root node, found {len(bt)}"
+                )
+                self.broken_trees.add(tree_id)
+                continue
+            try:
+                self._rewrite(bt[0], tree_id)
+            except TreeError as exc:
+                self.errors.extend(exc.problems)
+                self.broken_trees.add(tree_id)
+
+    def _rewrite(self, elem: ET.Element, tree_id: str) -> None:
+        if elem.tag in _V3_WRAPPERS:
+            node_id = elem.attrib.pop("ID", None)
+            if not node_id:
+                raise TreeError(f'{self.at(elem)}: <{elem.tag}> without ID="..." (BehaviorTree {tree_id})')
+            elem.tag = node_id
+        elem.tag = _TAG_ALIASES.get(elem.tag, elem.tag)
+        for old, new in _PORT_ALIASES.get(elem.tag, {}).items():
+            if old in elem.attrib and new not in elem.attrib:
+                elem.attrib[new] = elem.attrib.pop(old)
+        for attr in ("__shared_blackboard", "_autoremap", "__autoremap"):
+            value = elem.attrib.pop(attr, None)
+            if value is not None and value.strip().lower() not in ("false", "0"):
+                raise self.error(
+                    elem, f'{attr}="{value}" is not supported: remap the SubTree\'s ports explicitly', tree_id
+                )
+        for attr, value in list(elem.attrib.items()):
+            if value.strip() == "{=}":
+                elem.attrib[attr] = "{" + attr + "}"
+        for child in elem:
+            self._rewrite(child, tree_id)
+
+    # -- registry -------------------------------------------------------------------------
+    def make_registry(self) -> None:
+        used: set[str] = set()
+        for bt in self.trees.values():
+            used.update(e.tag for e in bt.iter() if e is not bt)
+        self.registry = build_registry(self.ctx, only=used)
+        for node_id, entry in self.registry.items():
+            self.classes[node_id] = cast("type[PortsMixin]", entry.func)
+
+    # -- step 3: validation ---------------------------------------------------------------
+    def choose_main(self, main: str | None) -> str:
+        if not self.trees:
+            raise TreeError(f"{self.path}: no <BehaviorTree> in the file")
+        chosen = main or self.main_attr
+        if chosen is None:
+            if len(self.trees) == 1:
+                return next(iter(self.trees))
+            raise TreeError(
+                f"{self.path}: several BehaviorTrees ({', '.join(self.trees)}) and no main_tree_to_execute; "
+                "name the one to run (tree: main: in the config)"
+            )
+        if chosen not in self.trees:
+            known = ", ".join(_closest(chosen, self.trees))
+            raise TreeError(f"{self.path}: no BehaviorTree with ID {chosen!r}; trees in the file: {known}")
+        return chosen
