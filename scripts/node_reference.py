@@ -1,10 +1,10 @@
-"""Print the README's node reference (Markdown) from the node classes themselves.
+"""Print the node reference of docs/trees.md (Markdown) from the node classes themselves.
 
     python scripts/node_reference.py
 
 Two tables: every node ID the tree loader knows (canguard.bt.nodes.BUILTIN_NODES, the
 ``actions:`` entries of a config, SubTree) with its kind and what it does, then every
-port with direction, type, default and meaning (units in the meaning). The README
+port with direction, type, default and meaning (units in the meaning). docs/trees.md
 holds this output between the ``node-reference`` markers; tests/test_readme.py checks
 that the two agree, so the reference cannot drift from the code.
 """

@@ -9,4 +9,3 @@ python3 -m venv .venv
 .venv/bin/mypy
 .venv/bin/lint-imports --no-cache
 .venv/bin/python -m pytest -q -p no:cacheprovider "$@"
-scripts/wheel_smoke.sh

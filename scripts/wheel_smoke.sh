@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Build the wheel, install it into a fresh venv outside the checkout and run
-# the user-facing commands from a temporary directory (issue 14 item 2).
+# the user-facing commands from a temporary directory, each with its documented
+# exit code (issue 14). tests/test_installed_wheel.py runs this script.
 set -euo pipefail
 root="$(cd "$(dirname "$0")/.." && pwd)"
 py="${PYTHON:-$root/.venv/bin/python}"
@@ -8,15 +9,22 @@ work="$(mktemp -d)"
 trap 'rm -rf "$work"' EXIT
 "$py" -m pip wheel -q --no-deps "$root" -w "$work/wheel"
 python3 -m venv "$work/venv"
-"$work/venv/bin/pip" install -q "$work"/wheel/*.whl
+if ! "$work/venv/bin/pip" install -q "$work"/wheel/*.whl >"$work/pip.log" 2>&1; then
+  cat "$work/pip.log" >&2; exit 1
+fi
 cg="$work/venv/bin/canguard"
 cd "$work"
 step() { echo "wheel smoke: $*"; }
 step "--version"; "$cg" --version | grep -q '^canguard '
-step "check"; "$cg" check >/dev/null
+step "check"; "$cg" check >/dev/null 2>&1
 step "tree"; "$cg" tree >/dev/null
-step "demo --duration 3"; timeout 30 "$cg" demo --duration 3 >/dev/null 2>&1
+step "demo --duration 10"; timeout 60 "$cg" demo --duration 10 >/dev/null 2>&1
 step "simulate"; "$cg" simulate --scenario overload --duration 5 --out x.log >/dev/null 2>&1
 test -s x.log
 step "replay"; "$cg" replay x.log >/dev/null 2>&1
+step "init + check -c"; "$cg" init starter >/dev/null; "$cg" check -c starter/canguard.yaml >/dev/null
+step "replay -c starter --fail-on-trip (its I²t guard trips on the overload: exit 1)"
+rc=0; "$cg" replay x.log -c starter/canguard.yaml --fail-on-trip >/dev/null 2>&1 || rc=$?
+test "$rc" = 1
+step "unit"; "$cg" unit | grep -q "^ExecStart=$work/venv/bin/canguard run -c /etc/canguard/canguard.yaml$"
 echo "wheel smoke: ok"

@@ -22,7 +22,7 @@ from canguard.cli.main import build_parser, main, parse_args
 REPO = Path(__file__).resolve().parents[1]
 ROBOT = REPO / "config" / "examples" / "robot_guard.yaml"
 NORMAL = REPO / "examples" / "normal.log.gz"
-SUBCOMMANDS = ("run", "check", "tree", "replay", "simulate", "demo", "completion")
+SUBCOMMANDS = ("run", "check", "tree", "replay", "simulate", "demo", "init", "unit", "completion")
 
 
 def cli(capsys: pytest.CaptureFixture[str], *argv: object) -> tuple[int, str, str]:

@@ -1,4 +1,4 @@
-"""The README's node reference is the output of scripts/node_reference.py, so it cannot drift from the code."""
+"""docs/trees.md's node reference is the output of scripts/node_reference.py, so it cannot drift from the code."""
 
 from __future__ import annotations
 
@@ -19,14 +19,14 @@ def _script() -> ModuleType:
 
 class TestNodeReference:
     def test_readme_table_is_the_generated_one(self) -> None:
-        """The text between the node-reference markers equals `python scripts/node_reference.py`."""
+        """The text between the node-reference markers of docs/trees.md equals `python scripts/node_reference.py`."""
         ref = _script()
-        readme = (ROOT / "README.md").read_text(encoding="utf-8")
-        assert ref.BEGIN in readme and ref.END in readme, "README.md lacks the node-reference markers"
+        readme = (ROOT / "docs" / "trees.md").read_text(encoding="utf-8")
+        assert ref.BEGIN in readme and ref.END in readme, "docs/trees.md lacks the node-reference markers"
         start = readme.index(ref.BEGIN)
         end = readme.index(ref.END) + len(ref.END) + 1
         assert readme[start:end] == ref.render(), (
-            "README.md's node reference is out of date: replace it with `python scripts/node_reference.py`"
+            "docs/trees.md's node reference is out of date: replace it with `python scripts/node_reference.py`"
         )
 
     def test_every_builtin_node_is_listed(self) -> None:

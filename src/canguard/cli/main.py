@@ -129,7 +129,7 @@ def build_parser() -> argparse.ArgumentParser:
 def _extra_commands() -> list[Callable[[argparse._SubParsersAction], None]]:
     """Subcommands that live in their own modules (replay, simulate, demo)."""
     adders: list[Callable[[argparse._SubParsersAction], None]] = []
-    for module in ("cli.replay", "cli.simulate", "cli.demo", "cli.completion"):
+    for module in ("cli.replay", "cli.simulate", "cli.demo", "cli.init", "cli.unit", "cli.completion"):
         try:
             mod = __import__(f"canguard.{module}", fromlist=["add_parser"])
         except ModuleNotFoundError as exc:

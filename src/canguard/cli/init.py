@@ -1,0 +1,98 @@
+"""``canguard init DIR``: a starter config, its tree and a DBC copy, ready to edit and deploy.
+
+The files come from the package (the whole-robot example, ``robot_guard``), so this works
+from any directory after a plain ``pip install``. The written config names its DBC
+and tree relative to itself (the directory can move), the bus as SocketCAN (the
+robot) or ``virtual`` with ``simulation: true`` (a bench), and the files the daemon
+writes under ``--state-dir`` (the unit's StateDirectory, /var/lib/canguard).
+"""
+
+from __future__ import annotations
+
+import argparse
+import re
+import shutil
+from pathlib import Path
+
+from canguard.cli.common import subcommand
+from canguard.data import data_path
+from canguard.errors import ConfigError
+
+EXAMPLE = "robot_guard"
+DEFAULT_STATE_DIR = Path("/var/lib/canguard")
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    """Register ``canguard init``."""
+    p = subcommand(
+        sub, "init", help="write a starter config, tree and DBC into a directory (e.g. /etc/canguard)",
+        description="Write DIR/canguard.yaml (the whole-robot example, with paths fitted to DIR), "
+                    "DIR/robot_guard.xml and DIR/robot.dbc. Edit them for your robot, then "
+                    "`canguard check -c DIR/canguard.yaml`. See docs/deploy.md.",
+    )
+    p.add_argument("dir", type=Path, metavar="DIR")
+    p.add_argument("--channel", default="can0", help="the SocketCAN interface of the bus (default can0)")
+    p.add_argument("--simulation", action="store_true",
+                   help="keep python-can's virtual bus and say 'simulation: true' (a bench, not a robot)")
+    p.add_argument("--state-dir", type=Path, default=None, metavar="PATH",
+                   help="where the daemon writes events and I²t heat (default /var/lib/canguard; "
+                        "with --simulation: DIR)")
+    p.add_argument("--force", action="store_true", help="overwrite files that exist")
+    p.set_defaults(func=cmd_init)
+
+
+def starter_config(text: str, *, channel: str, simulation: bool, state_dir: Path) -> str:
+    """The example config's text with the paths and the bus of a deployment (comments kept)."""
+    def sub(pattern: str, repl: str, s: str) -> str:
+        out, n = re.subn(pattern, repl, s, count=1, flags=re.M)
+        if n != 1:
+            raise ConfigError(f"the bundled {EXAMPLE}.yaml has no line matching {pattern!r}: cannot fit it")
+        return out
+
+    text = sub(r"^dbc: \[[^\]]*\]", "dbc: [robot.dbc]", text)
+    text = sub(r"\{file: [^,]*robot_guard\.xml,", "{file: robot_guard.xml,", text)
+    bus = "{interface: virtual, channel: can0}" if simulation else f"{{interface: socketcan, channel: {channel}}}"
+    text = sub(r"^  main: \{interface: [^}]*\}", f"  main: {bus}", text)
+    text = sub(r"^events: \S+", f"events: {state_dir / 'events.jsonl'}", text)
+    text = sub(r"^state: \{file: [^,]*,", f"state: {{file: {state_dir / 'i2t_state.json'},", text)
+    head = (f"# Written by `canguard init`: {'a simulation on the virtual bus' if simulation else 'the robot'}.\n"
+            "# Edit the sources, thresholds and frames for your drives; check with `canguard check -c <this file>`.\n")
+    if simulation:
+        text += "\nsimulation: true                  # virtual buses only: allowed under systemd on purpose\n"
+    return head + text
+
+
+def cmd_init(args: argparse.Namespace) -> int:
+    """Write the three files; exit 2 naming a file that exists (without --force)."""
+    from canguard.config.loader import load_config
+
+    target: Path = args.dir.expanduser().absolute()
+    state_dir = args.state_dir if args.state_dir is not None else (target if args.simulation else DEFAULT_STATE_DIR)
+    files: dict[Path, str | Path] = {
+        target / "canguard.yaml": starter_config(
+            data_path("config", "examples", f"{EXAMPLE}.yaml").read_text(encoding="utf-8"),
+            channel=args.channel, simulation=args.simulation, state_dir=state_dir.expanduser().absolute(),
+        ),
+        target / "robot_guard.xml": data_path("config", "trees", f"{EXAMPLE}.xml"),
+        target / "robot.dbc": data_path("dbc", "robot.dbc"),
+    }
+    existing = [str(p) for p in files if p.exists()]
+    if existing and not args.force:
+        raise ConfigError("init: " + ", ".join(existing) + ": exists already; expected a new file "
+                          "(use --force to overwrite)")
+    try:
+        target.mkdir(parents=True, exist_ok=True)
+        for path, content in files.items():
+            if isinstance(content, Path):
+                shutil.copyfile(content, path)
+            else:
+                path.write_text(content, encoding="utf-8")
+    except OSError as exc:
+        raise ConfigError(f"init: {exc.filename or target}: cannot be written ({exc.strerror or exc})") from None
+    cfg = load_config(target / "canguard.yaml")  # what we wrote must load: a broken starter is our bug
+    for path in files:
+        print(f"wrote {path}")
+    buses = ", ".join(f"{n} ({b.interface} {b.channel})" for n, b in cfg.buses.items())
+    print(f"buses: {buses}; events and I²t heat in {state_dir}")
+    print(f"next: edit them, then `canguard check -c {target / 'canguard.yaml'}`")
+    return 0

@@ -1,0 +1,28 @@
+"""The installed product, not the checkout (issue 14): scripts/wheel_smoke.sh.
+
+Builds the wheel, installs it into a fresh venv in a temporary directory and runs,
+from there, ``--version``, ``check``, ``tree``, ``demo --duration 10``,
+``simulate --scenario overload --duration 5 --out x.log``, ``replay x.log`` (exit 0
+and, with ``--fail-on-trip``, 1), ``init`` + ``check -c`` and ``unit``. Needs the
+package index (or pip's cache) for the dependencies, like ``scripts/test.sh``.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+@pytest.mark.slow
+def test_installed_wheel_from_another_directory(tmp_path: Path) -> None:
+    """Every step of the smoke script exits as documented."""
+    proc = subprocess.run(["bash", str(REPO / "scripts" / "wheel_smoke.sh")], capture_output=True, text=True,
+                          timeout=240, cwd=tmp_path, env={"PATH": "/usr/bin:/bin", "PYTHON": sys.executable,
+                                                         "HOME": str(Path.home())})
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-3000:]
+    assert proc.stdout.strip().endswith("wheel smoke: ok")
