@@ -38,6 +38,7 @@ import yaml
 
 import canguard.cli.replay
 import canguard.engine.rows
+import canguard.io.candump
 import canguard.io.logs
 from canguard.cli.replay import ReplayOptions, replay_one
 from canguard.config.loader import load_config
@@ -165,7 +166,7 @@ def replay(cfg: Config, log: Path, out: Path, *, columns: bool, chunk: int,
         mp.setattr(Engine, "_run_columns", counted_run_columns)
         mp.setattr(canguard.engine.rows, "compile_row", counted_compile_row)
         mp.setattr(canguard.cli.replay, "build_summary", capturing_build_summary)
-        mp.setattr(canguard.io.logs, "CHUNK_CHARS", chunk)
+        mp.setattr(canguard.io.candump, "CHUNK_CHARS", chunk)
         py_trees.blackboard.Blackboard.clear()  # global: the two runs must not see each other's keys
         summary = replay_one(cfg, log, ReplayOptions(events=events, emit=emit, channel_map=channel_map or {}))
         py_trees.blackboard.Blackboard.clear()
@@ -269,7 +270,7 @@ def mixed_case(text: str, k: int) -> str:
 def chunks_of(log: Path, chunk: int) -> list[Columns | list[Any]]:
     """The reader's blocks of ``log`` at ``chunk`` characters (what run_log receives)."""
     with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(canguard.io.logs, "CHUNK_CHARS", chunk)
+        mp.setattr(canguard.io.candump, "CHUNK_CHARS", chunk)
         return list(read_log(log).chunks())
 
 

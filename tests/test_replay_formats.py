@@ -13,7 +13,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from canguard.errors import LogFormatError
-from canguard.io import logs as replay
+from canguard.io import candump
 from canguard.io.frame import Frame
 from canguard.io.logs import (
     BadLine,
@@ -107,9 +107,9 @@ class TestCandumpCompact:
         lines[133] = "(1547073727.950000) can0 20000080#0000000000000000"
         text = "\n".join(lines) + "\n"
         whole = _read(tmp_path, text)
-        monkeypatch.setattr(replay, "CHUNK_CHARS", 97)
+        monkeypatch.setattr(candump, "CHUNK_CHARS", 97)
         chunked = _read(tmp_path, text, name="y.log")
-        expected = [replay._parse_line(line) for line in lines]
+        expected = [candump._parse_line(line) for line in lines]
         assert whole == chunked == expected
 
 
@@ -363,11 +363,11 @@ class TestBadInput:
         lines = [f"({9999.990 + i / 1000:.6f}) can0 123#{i:02X}" for i in range(20)]
         lines[5] = "(9999.9955) can0 123#05"
         text = "\n".join(lines) + "\n"
-        assert _read(tmp_path, text) == [replay._parse_line(line) for line in lines]
+        assert _read(tmp_path, text) == [candump._parse_line(line) for line in lines]
 
     def test_bad_line_in_a_later_chunk(self, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
         """Line numbers stay right across chunk boundaries."""
-        monkeypatch.setattr(replay, "CHUNK_CHARS", 64)
+        monkeypatch.setattr(candump, "CHUNK_CHARS", 64)
         text = "".join(f"({i}.000000) can0 123#11\n" for i in range(40)) + "(41.0) can0 123#1\n"
         with pytest.raises(LogFormatError, match=r"x\.log:41: odd number"):
             _read(tmp_path, text)
@@ -430,7 +430,7 @@ class TestTimestampStats:
 
     def test_counts_across_chunks(self, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
         """A step back at a chunk boundary is counted too."""
-        monkeypatch.setattr(replay, "CHUNK_CHARS", 40)
+        monkeypatch.setattr(candump, "CHUNK_CHARS", 40)
         ts = [float(i) for i in range(30)]
         ts[15] = 3.0
         stats = ReadStats()
@@ -561,7 +561,7 @@ class TestProgressBar:
 
     def test_reader_reports_the_file_position(self, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
         """read_log moves the bar to the end of the file by the time the log is read."""
-        monkeypatch.setattr(replay, "CHUNK_CHARS", 256)
+        monkeypatch.setattr(candump, "CHUNK_CHARS", 256)
         path = _write(tmp_path / "x.log", "".join(f"({i}.000000) can0 123#11\n" for i in range(200)))
         bar = ProgressBar(path.stat().st_size, stream=self._Tty(), min_interval_s=0.0)
         list(read_log(path, progress=bar))

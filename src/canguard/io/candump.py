@@ -1,0 +1,410 @@
+"""candump text logs (``-L``, ``-l``, plain ``-ta``): the block fast path and the line parser.
+
+A plain ``candump -L`` block is parsed at once with C-level string operations; any
+other block line by line by the general parser, which names the file:line of a bad line."""
+
+from __future__ import annotations
+
+import gzip
+import io
+import math
+import operator
+import zlib
+from collections.abc import Iterator
+from itertools import islice, repeat
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, NamedTuple, TextIO
+
+from canguard.errors import LogFormatError
+from canguard.io.frame import Frame
+from canguard.io.logtypes import (
+    _F,
+    _HEX,
+    CAN_EFF_MASK,
+    CAN_ERR_FLAG,
+    CAN_SFF_MASK,
+    CANFD_BRS,
+    CANFD_ESI,
+    CANFD_LENGTHS,
+    MAX_BAD_EXAMPLES,
+    BadLine,
+    LogFrames,
+    ReadStats,
+    _Bad,
+    _new,
+)
+
+if TYPE_CHECKING:
+    pass
+
+# --------------------------------------------------------------------------- candump text
+
+
+CHUNK_CHARS = 1 << 17
+"""Characters read per chunk by the candump reader (about 2,800 lines: a block stays in the CPU caches)."""
+
+_BULK_TABLE = str.maketrans({"(": None, ")": None, " ": "#", "\n": "#"})
+_MARKERS = frozenset("TRtr")
+_HEX_BYTES = b"0123456789abcdefABCDEF"
+_TS_BYTES = b"0123456789."
+_DATA_LENGTHS = frozenset(range(0, 17, 2))
+
+
+class Columns(NamedTuple):
+    """A block of plain candump -L lines, checked, kept as text columns: frames are built on demand.
+
+    Every line has passed the checks the line parser would make; what is left is
+    conversion, which costs only for the rows somebody asks for (:meth:`frame`)
+    or for all of them (:meth:`frames`). ``ts`` are the timestamp texts, all of
+    one width with the dot at one place, so text order is time order;
+    ``ordered`` is True when they never go back (in the block) and distinct texts
+    are distinct floats. ``ids`` are the id texts as written (3 hex digits:
+    standard, 8: extended; any case).
+    """
+
+    n: int
+    ts: list[str]
+    chans: list[str]
+    ids: list[str]
+    data: list[str]
+    ordered: bool
+    channel: str | None
+    """The channel of every row, or None when the block has several."""
+
+    def frame(self, i: int) -> Frame:
+        """The frame of row ``i``."""
+        id_text = self.ids[i]
+        return _new(Frame, (float(self.ts[i]), self.chans[i], int(id_text, 16), bytes.fromhex(self.data[i]),
+                            len(id_text) == 8, _F, _F, _F, _F, _F, -1))
+
+    def frames(self) -> Iterator[Frame]:
+        """The frames of every row, in order (converted in C-level passes over the columns)."""
+        ext = map((8).__eq__, map(len, self.ids))
+        return map(
+            _new,
+            repeat(Frame),
+            zip(map(float, self.ts), self.chans, map(int, self.ids, repeat(16)), map(bytes.fromhex, self.data),
+                ext, repeat(_F), repeat(_F), repeat(_F), repeat(_F), repeat(_F), repeat(-1)),
+        )
+
+
+def candump_id_texts(arbitration_id: int, is_extended_id: bool) -> list[str]:
+    """Every way candump -L may write an id: 3 (standard) or 8 (extended) hex digits, letters in any case."""
+    text = f"{arbitration_id:08X}" if is_extended_id else f"{arbitration_id:03X}"
+    variants = [""]
+    for ch in text:
+        cases = {ch.upper(), ch.lower()}
+        variants = [v + c for v in variants for c in sorted(cases)]
+    return variants
+
+
+def _bulk_columns(block: str, n: int) -> Columns | None:
+    """Check ``n`` candump -L lines of plain shape at once, or return None if any line is not plain.
+
+    Plain shape: ``(secs.usecs) channel ID#HEX`` with an optional T/R marker on
+    every line, timestamps of one width (digits, one dot), 3- or 8-digit ids,
+    classic data of at most 8 bytes, no error frame. Nothing is returned unless
+    every line passed, so a None costs no frame. Each check is one C-level pass
+    over a column; nothing is converted here.
+    """
+    if not block.isascii() or "\t" in block or block.count("(") != n:
+        return None
+    plain = block.translate(_BULK_TABLE)
+    if len(block) - len(plain) != 2 * n:  # n "(" were deleted: then n ")" too, no more, no less
+        return None
+    tok = plain.split("#")
+    k, r = divmod(len(tok) - 1, n)
+    if r or not 4 <= k <= 5:
+        return None
+    if k == 5 and not set(tok[4:-1:5]) <= _MARKERS:
+        return None
+    ts = tok[0:-1:k]
+    width = len(ts[0])
+    dot = ts[0].find(".")
+    if not 0 < dot < width - 1 or set(map(len, ts)) != {width}:
+        return None
+    joined = "".join(ts).encode()
+    # n dots in all, one at the same place in each: one per timestamp; the rest digits
+    if joined.count(b".") != n or joined[dot::width].count(b".") != n or joined.translate(None, _TS_BYTES):
+        return None
+    ids = tok[2:-1:k]
+    # a busy bus has a few dozen distinct ids in a block: check those, not every row
+    for text in set(ids):
+        size = len(text)
+        if size == 3:
+            if text[0] > "7" or not _is_hex(text):  # standard ids go up to 7FF
+                return None
+        elif size != 8 or text[0] > "1" or not _is_hex(text):  # extended: 1FFFFFFF; above: error frames
+            return None
+    data = tok[3:-1:k]
+    if not set(map(len, data)) <= _DATA_LENGTHS or "".join(data).encode().translate(None, _HEX_BYTES):
+        return None
+    ordered = all(map(operator.le, ts, islice(ts, 1, None))) and math.ulp(float(ts[-1])) < 10.0 ** (dot + 1 - width)
+    chans = tok[1:-1:k]
+    first = chans[0]
+    if first.strip(_HEX + ".") and first not in _MARKERS:
+        # a name no other token can equal (timestamps: digits and a dot; ids, data: hex; markers)
+        single = plain.count(f"#{first}#") == n
+    else:
+        single = chans.count(first) == n
+    return Columns(n, ts, chans, ids, data, ordered, first if single else None)
+
+
+def _is_hex(s: str) -> bool:
+    """True for a non-empty string of hex digits only."""
+    return bool(s) and not s.strip(_HEX)
+
+
+def _hex_data(text: str) -> bytes:
+    if len(text) % 2:
+        raise _Bad(f"odd number of hex digits in data {text!r}")
+    if text and not _is_hex(text):
+        raise _Bad(f"data {text!r} is not hex")
+    return bytes.fromhex(text)
+
+
+def _parse_id(text: str) -> tuple[int, bool, bool]:
+    """``(arbitration_id, is_extended_id, is_error_frame)`` of a candump id field."""
+    if len(text) not in (3, 8) or not _is_hex(text):
+        raise _Bad(f"bad CAN id {text!r}: expected 3 (standard) or 8 (extended) hex digits")
+    cid = int(text, 16)
+    if len(text) == 3:
+        if cid > CAN_SFF_MASK:
+            raise _Bad(f"standard CAN id {text!r} is above 7FF")
+        return cid, False, False
+    if cid & CAN_ERR_FLAG:
+        return cid & CAN_EFF_MASK, True, True
+    if cid > CAN_EFF_MASK:
+        raise _Bad(f"extended CAN id {text!r} is above 1FFFFFFF")
+    return cid, True, False
+
+
+def _parse_timestamp(text: str) -> float:
+    sec, dot, frac = text.partition(".")
+    if sec.isdigit() and sec.isascii() and (not dot or (frac.isdigit() and frac.isascii())):
+        return float(text)
+    if " " in text or ":" in text:
+        raise _Bad("absolute date timestamps (candump -tA) are not supported: record with candump -ta or -L")
+    raise _Bad(f"bad timestamp {text!r}: expected (seconds.microseconds)")
+
+
+def _parse_compact(t: float, channel: str, text: str) -> Frame:
+    """One ``ID#DATA`` field of candump -L: classic, FD (``##F``), remote (``R``/``R8``), error."""
+    id_text, sep, d = text.partition("#")
+    if not sep:
+        raise _Bad("expected ID#DATA")
+    cid, ext, err = _parse_id(id_text)
+    if d[:1] == "#":
+        if d[1:2] == "#":
+            raise _Bad("CAN XL frames are not supported")
+        if len(d) < 2 or not _is_hex(d[1]):
+            raise _Bad("CAN FD frame needs one hex flags digit after '##'")
+        flags = int(d[1], 16)
+        data = _hex_data(d[2:])
+        if len(data) not in CANFD_LENGTHS:
+            raise _Bad(f"{len(data)} data bytes is not a CAN FD length")
+        brs, esi = bool(flags & CANFD_BRS), bool(flags & CANFD_ESI)
+        return _new(Frame, (t, channel, cid, data, ext, True, err, False, brs, esi, -1))
+    if d[:1] in ("R", "r"):
+        dlc_text = d[1:]
+        if not dlc_text:
+            dlc = -1
+        elif len(dlc_text) == 1 and dlc_text in "012345678":
+            dlc = int(dlc_text) or -1
+        else:
+            raise _Bad(f"bad remote frame DLC {dlc_text!r}: expected one digit 0-8")
+        return _new(Frame, (t, channel, cid, b"", ext, False, err, True, False, False, dlc))
+    data_text, underscore, raw_dlc = d.partition("_")
+    data = _hex_data(data_text)
+    if len(data) > 8:
+        raise _Bad(f"{len(data)} data bytes in a classic CAN frame (at most 8; CAN FD frames use '##')")
+    dlc = -1
+    if underscore:
+        # candump's len8_dlc: 8 data bytes with a raw DLC of 9..F
+        if len(data) != 8 or len(raw_dlc) != 1 or raw_dlc not in "9ABCDEFabcdef":
+            raise _Bad(f"bad raw DLC suffix '_{raw_dlc}': expected _9 .. _F after 8 data bytes")
+        dlc = int(raw_dlc, 16)
+    return _new(Frame, (t, channel, cid, data, ext, False, err, False, False, False, dlc))
+
+
+_SHAPE = "expected '(secs) channel ID#DATA' (candump -L) or '(secs) channel ID [len] DATA' (candump -ta)"
+
+
+def _parse_long(t: float | None, ts_text: str, toks: list[str]) -> Frame:
+    """One line of plain candump output: ``can0  123   [8]  11 22 ...`` with a -ta timestamp."""
+    i = 1
+    brs = esi = False
+    if len(toks) > 4 and toks[1] in ("RX", "TX"):  # candump -x: direction and B/E flag columns
+        brs, esi, i = toks[2] == "B", toks[3] == "E", 4
+    if len(toks) < i + 2:
+        raise _Bad(_SHAPE)
+    len_tok = toks[i + 1]
+    if len(len_tok) < 3 or len_tok[0] != "[" or len_tok[-1] != "]":
+        raise _Bad(_SHAPE)
+    if t is None:
+        raise _Bad("plain candump output without timestamps is not supported: record with candump -ta or -L")
+    if len(ts_text.partition(".")[0]) < 10:
+        raise _Bad("relative timestamps (candump -td / -tz) are not supported: record with candump -ta or -L")
+    len_text = len_tok[1:-1]
+    if not (len_text.isdigit() and len_text.isascii()):
+        raise _Bad(f"bad length {len_tok!r}")
+    length = int(len_text)
+    is_fd = len(len_text) == 2  # candump prints [%d] for classic CAN, [%02d] for CAN FD
+    cid, ext, err = _parse_id(toks[i])
+    channel = toks[0]
+    rest = toks[i + 2 :]
+    if rest[:2] == ["remote", "request"]:
+        if len(rest) != 2 or is_fd or length > 8:
+            raise _Bad("bad remote request")
+        return _new(Frame, (t, channel, cid, b"", ext, False, err, True, False, False, length or -1))
+    byte_toks = rest[:length]
+    if len(byte_toks) < length or any(len(b) != 2 for b in byte_toks):
+        raise _Bad(f"[{length}] announces {length} data bytes: expected {length} two-digit hex bytes")
+    data = _hex_data("".join(byte_toks))
+    tail = rest[length:]
+    if tail and not (tail[0][:1] == "'" or (tail[0] == "ERRORFRAME" and err)):
+        raise _Bad(f"unexpected text after the data: {' '.join(tail)!r}")
+    if is_fd:
+        if length not in CANFD_LENGTHS:
+            raise _Bad(f"{length} data bytes is not a CAN FD length")
+    elif length > 8:
+        raise _Bad(f"{length} data bytes in a classic CAN frame (at most 8)")
+    return _new(Frame, (t, channel, cid, data, ext, is_fd, err, False, brs, esi, -1))
+
+
+def _parse_line(line: str) -> Frame | None:
+    """Parse one candump line of any supported shape; None for blank and ``#`` comment lines."""
+    s = line.strip()
+    if not s or s[0] == "#":
+        return None
+    t: float | None = None
+    ts_text = ""
+    if s[0] == "(":
+        close = s.find(")")
+        if close < 0:
+            raise _Bad("timestamp has no closing ')'")
+        ts_text = s[1:close]
+        t = _parse_timestamp(ts_text)
+        toks = s[close + 1 :].split()
+    else:
+        toks = s.split()
+    if len(toks) >= 2 and "#" in toks[1]:
+        if t is None:
+            raise _Bad("missing '(seconds.microseconds)' timestamp")
+        if len(toks) > 3 or (len(toks) == 3 and toks[2] not in _MARKERS):
+            raise _Bad(f"unexpected text after the frame: {' '.join(toks[2:])!r}")
+        return _parse_compact(t, toks[0], toks[1])
+    return _parse_long(t, ts_text, toks)
+
+
+def _open_text(p: Path, gz: bool) -> tuple[io.BufferedReader, TextIO]:
+    raw = open(p, "rb")  # noqa: SIM115 -- closed by the caller's finally
+    binary: Any = gzip.GzipFile(fileobj=raw, mode="rb") if gz else raw
+    # utf-8-sig drops a BOM; errors=replace turns binary junk into malformed lines, not a UnicodeDecodeError
+    return raw, io.TextIOWrapper(binary, encoding="utf-8-sig", errors="replace")
+
+
+def _note_order(st: ReadStats, t: float, last_t: float) -> None:
+    """Count ``t`` in ``st`` as going back or repeating when it does, against the previous frame's ``last_t``."""
+    if t < last_t:
+        st.backwards_timestamps += 1
+    elif t == last_t:
+        st.repeated_timestamps += 1
+
+
+def _flatten(chunks: Iterator[Columns | list[Frame]]) -> Iterator[Frame]:
+    """The frames of a chunk stream, one by one."""
+    for chunk in chunks:
+        yield from (chunk if type(chunk) is list else chunk.frames())  # type: ignore[union-attr]
+
+
+def _candump_chunks(
+    p: Path, gz: bool, skip_bad: bool, st: ReadStats, want_ts_stats: bool, owner: LogFrames
+) -> Iterator[Columns | list[Frame]]:
+    """The candump text reader: plain blocks as :class:`Columns`, others as lists of frames parsed line by line."""
+    raw, f = _open_text(p, gz)
+    frames = 0
+    lineno = 0  # lines before the current block
+    last_t = -math.inf
+    last_was_error = False
+    rest = ""
+    lt, eq = operator.lt, operator.eq
+    try:
+        while True:
+            try:
+                chunk = f.read(CHUNK_CHARS)
+            except (OSError, EOFError, zlib.error) as exc:
+                raise LogFormatError(f"{p}: cannot read{' gzip' if gz else ''} log: {exc}") from None
+            if chunk:
+                block = rest + chunk if rest else chunk
+                cut = block.rfind("\n") + 1
+                if cut == 0:
+                    if len(block) > 4 * CHUNK_CHARS:
+                        raise LogFormatError(
+                            f"{p}:{lineno + 1}: no line break in {len(block)} characters: not a candump log"
+                        )
+                    rest = block
+                    continue
+                rest = block[cut:]
+                block = block[:cut]
+            elif rest:
+                block, rest = rest + "\n", ""
+            else:
+                break
+            n = block.count("\n")
+            cols = None if last_was_error else _bulk_columns(block, n)
+            if cols is not None:
+                ts = cols.ts
+                if want_ts_stats:
+                    _note_order(st, float(ts[0]), last_t)
+                    nxt = islice(ts, 1, None)
+                    if cols.ordered:  # text order is time order; the usual case, increasing, costs one pass
+                        if not all(map(lt, ts, nxt)):
+                            st.repeated_timestamps += sum(map(eq, ts, islice(ts, 1, None)))
+                    else:
+                        times = list(map(float, ts))
+                        st.backwards_timestamps += sum(map(lt, islice(times, 1, None), times))
+                        st.repeated_timestamps += sum(map(eq, islice(times, 1, None), times))
+                last_t = float(ts[-1])
+                frames += n
+                st.lines += n
+                st.frames += n
+                yield cols
+            else:
+                lines = block.split("\n")
+                lines.pop()  # the empty string after the block's last newline
+                st.lines += n
+                out: list[Frame] = []
+                for no, line in enumerate(lines, lineno + 1):
+                    if last_was_error and line[:1] == "\t":
+                        continue  # candump -e explains an error frame on indented lines below it
+                    try:
+                        fr = _parse_line(line)
+                    except _Bad as bad:
+                        if not skip_bad:
+                            if out:
+                                yield out  # every frame before the bad line is processed first
+                            raise LogFormatError(f"{p}:{no}: {bad.reason}: {line!r}") from None
+                        st.bad_lines += 1
+                        if len(st.bad_examples) < MAX_BAD_EXAMPLES:
+                            st.bad_examples.append(BadLine(no, bad.reason, line))
+                        continue
+                    if fr is None:
+                        continue
+                    last_was_error = fr.is_error_frame
+                    _note_order(st, fr.t, last_t)
+                    last_t = fr.t
+                    frames += 1
+                    st.frames += 1
+                    out.append(fr)
+                if out:
+                    yield out
+            lineno += n
+            owner._position(raw.tell())
+    finally:
+        f.close()
+        raw.close()
+        owner._done()
+    if frames == 0:
+        skipped = f" ({st.bad_lines} bad lines skipped)" if st.bad_lines else ""
+        raise LogFormatError(f"{p}: empty log: no frames{skipped}")

@@ -1,0 +1,127 @@
+"""What every log reader shares: statistics, bad lines, the frame stream, format constants."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, NamedTuple
+
+from canguard.io.frame import Frame
+from canguard.io.progress import ProgressBar
+
+if TYPE_CHECKING:
+
+    from canguard.io.candump import Columns
+
+CANDUMP_SUFFIXES = (".log", ".candump", ".txt")
+PYTHON_CAN_SUFFIXES = (".asc", ".blf", ".trc", ".csv", ".mf4")
+_TEXT_PYTHON_CAN = ("asc", "trc", "csv")
+
+
+MAX_BAD_EXAMPLES = 5
+"""How many bad lines :class:`ReadStats` keeps as examples."""
+
+CAN_ERR_FLAG = 0x20000000
+CAN_EFF_MASK = 0x1FFFFFFF
+CAN_SFF_MASK = 0x7FF
+CANFD_BRS = 0x01
+CANFD_ESI = 0x02
+CANFD_LENGTHS = frozenset((0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48, 64))
+
+_HEX = "0123456789abcdefABCDEF"
+_new = tuple.__new__  # builds a Frame from a ready tuple in C: several times cheaper than Frame(...)
+_F = False
+
+
+class BadLine(NamedTuple):
+    """One malformed line: 1-based line number, why it is bad, and its text."""
+
+    lineno: int
+    reason: str
+    text: str
+
+
+@dataclass
+class ReadStats:
+    """What a reader saw; pass one to :func:`read_log` to have it filled in.
+
+    Counts are updated as the log is read (a chunk at a time on the candump fast
+    path) and add up when the same object is passed to several calls.
+    """
+
+    path: str = ""
+    format: str = ""
+    lines: int = 0
+    """Text lines read, blank and comment lines included (0 for binary formats)."""
+    frames: int = 0
+    bad_lines: int = 0
+    """Malformed lines skipped with ``skip_bad=True``."""
+    bad_examples: list[BadLine] = field(default_factory=list)
+    """The first :data:`MAX_BAD_EXAMPLES` bad lines."""
+    backwards_timestamps: int = 0
+    """Frames whose timestamp is earlier than the previous frame's."""
+    repeated_timestamps: int = 0
+    """Frames whose timestamp equals the previous frame's."""
+    bytes_total: int = 0
+    """Size of the file on disk (compressed size for ``.gz``)."""
+    bytes_read: int = 0
+    """Position reached in the file on disk, updated a chunk at a time (drives progress bars)."""
+
+    @property
+    def backward(self) -> int:
+        """Alias of :attr:`backwards_timestamps`."""
+        return self.backwards_timestamps
+
+    @property
+    def repeated(self) -> int:
+        """Alias of :attr:`repeated_timestamps`."""
+        return self.repeated_timestamps
+
+
+class LogFrames(Iterator[Frame]):
+    """The frames of one log, streamed: what :func:`read_log` returns.
+
+    ``for frame in log_frames`` iterates the reader's generator directly (no
+    per-frame wrapper cost). ``stats`` is the :class:`ReadStats` being filled;
+    ``progress`` (settable until iteration ends) is updated with the file
+    position after each chunk and closed when the log has been read.
+    """
+
+    def __init__(self, path: Path, stats: ReadStats, progress: ProgressBar | None) -> None:
+        self.path = path
+        self.stats = stats
+        self.progress = progress
+        self._frames: Iterator[Frame] = iter(())
+        self._chunks: Iterator[Columns | list[Frame]] = iter(())
+
+    def chunks(self) -> Iterator[Columns | list[Frame]]:
+        """The same frames a block at a time: :class:`Columns` (plain candump blocks) or lists of frames.
+
+        For consumers that work on whole blocks (the replay engine); use either
+        this or the frame iterator, not both.
+        """
+        return self._chunks
+
+    def __iter__(self) -> Iterator[Frame]:
+        return self._frames
+
+    def __next__(self) -> Frame:
+        return next(self._frames)
+
+    def _position(self, position: int) -> None:
+        self.stats.bytes_read = position
+        if self.progress is not None:
+            self.progress.update(position)
+
+    def _done(self) -> None:
+        if self.progress is not None:
+            self.progress.close()
+
+
+class _Bad(Exception):
+    """Raised by the line parsers; carries the reason only (the caller adds file:line)."""
+
+    def __init__(self, reason: str) -> None:
+        super().__init__(reason)
+        self.reason = reason
