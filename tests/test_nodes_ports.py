@@ -77,6 +77,18 @@ EXPECTED: dict[str, dict[str, tuple[str, type, Any]]] = {
     "Repeat": {"num_cycles": ("in", int, NO)},
     "Timeout": {"msec": ("in", float, NO)},
     "Delay": {"delay_msec": ("in", float, NO)},
+    # more BehaviorTree.CPP 4 built-ins (canguard.bt.nodes.builtins)
+    "AlwaysSuccess": {},
+    "AlwaysFailure": {},
+    "Script": {"code": ("in", str, NO)},
+    "ScriptCondition": {"code": ("in", str, NO)},
+    "SetBlackboard": {"value": ("in", str, NO), "output_key": ("in", str, NO)},
+    "UnsetBlackboard": {"key": ("in", str, NO)},
+    "Sleep": {"msec": ("in", float, NO)},
+    "KeepRunningUntilFailure": {},
+    "Precondition": {"if": ("in", str, NO), "else": ("in", str, "FAILURE")},
+    "IfThenElse": {},
+    "WhileDoElse": {},
 }
 
 REQUIRED = {
@@ -93,6 +105,12 @@ REQUIRED = {
     "Repeat": {"num_cycles"},
     "Timeout": {"msec"},
     "Delay": {"delay_msec"},
+    "Script": {"code"},
+    "ScriptCondition": {"code"},
+    "SetBlackboard": {"value", "output_key"},
+    "UnsetBlackboard": {"key"},
+    "Sleep": {"msec"},
+    "Precondition": {"if"},
 }
 
 KINDS = {
@@ -106,8 +124,10 @@ KINDS = {
         "IsCooldownElapsed",
         "IsValueBelow",
         "IsValueAbove",
+        "ScriptCondition",
     },
-    "Action": {"ExecuteTask", "EmitStop", "ResetStop", "ResetTimer", "RecordTime"},
+    "Action": {"ExecuteTask", "EmitStop", "ResetStop", "ResetTimer", "RecordTime", "AlwaysSuccess", "AlwaysFailure",
+               "Script", "SetBlackboard", "UnsetBlackboard", "Sleep"},
     "Decorator": {
         "Profile",
         "Inverter",
@@ -117,6 +137,8 @@ KINDS = {
         "Repeat",
         "Timeout",
         "Delay",
+        "KeepRunningUntilFailure",
+        "Precondition",
     },
     "Control": {
         "Sequence",
@@ -125,6 +147,8 @@ KINDS = {
         "Fallback",
         "ReactiveFallback",
         "Parallel",
+        "IfThenElse",
+        "WhileDoElse",
     },
 }
 

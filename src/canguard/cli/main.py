@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import math
 import os
 import sys
 from collections.abc import Callable, Sequence
@@ -26,7 +27,7 @@ from canguard.cli.common import (
 )
 from canguard.cli.common import add_config as _add_config
 from canguard.cli.common import config_path as _config_path
-from canguard.errors import CanguardError
+from canguard.errors import CanguardError, ConfigError
 
 Handler = Callable[[argparse.Namespace], int]
 
@@ -73,11 +74,23 @@ def _add_tree(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--dot", type=Path, metavar="FILE", help="render the tree (.dot, or .png/.svg with graphviz)")
     p.add_argument("--nodes-model", type=Path, metavar="FILE",
                    help="write a Groot2 <TreeNodesModel> of every canguard node and its ports")
+    p.add_argument("file", type=Path, nargs="?", metavar="TREE.xml",
+                   help="a tree file on its own (no config): check it, and with --tick run it dry")
+    p.add_argument("--tick", type=int, default=None, metavar="N", help="with TREE.xml: tick it N times")
+    p.add_argument("--dt", type=float, default=0.1, metavar="S", help="seconds between ticks (default 0.1)")
+    p.add_argument("--main", default=None, metavar="ID", help="with TREE.xml: the BehaviorTree to run")
+    p.add_argument("--json", action="store_true",
+                   help='print {"ticks": [root status per tick], "blackboard": {root entries}}')
     p.set_defaults(func=_cmd_tree)
 
 
 def _cmd_tree(args: argparse.Namespace) -> int:
     from canguard.bt.loader import nodes_model_xml, show_tree
+
+    if args.file is not None:
+        return _dry_run(args)
+    if args.tick is not None or args.json:
+        raise ConfigError("tree: --tick and --json run a tree file on its own: canguard tree TREE.xml --tick N")
 
     if args.nodes_model is not None:
         from canguard.bt.loader import context_for
@@ -87,6 +100,37 @@ def _cmd_tree(args: argparse.Namespace) -> int:
         args.nodes_model.write_text(nodes_model_xml(ctx), encoding="utf-8")
         print(f"wrote {args.nodes_model}")
     print(show_tree(_config_path(args), dot=args.dot), end="")
+    return 0
+
+
+def _dry_run(args: argparse.Namespace) -> int:
+    """``canguard tree TREE.xml [--tick N --dt S] [--json]``: the tree alone, on a manual clock."""
+    import json
+
+    from canguard.bt.dryrun import dry_run
+    from canguard.bt.loader import render_text
+
+    if args.config is not None:
+        raise ConfigError("tree TREE.xml runs the file on its own: leave out -c (or drop TREE.xml to show the "
+                          "config's tree)")
+    if args.tick is not None and args.tick < 0:
+        raise ConfigError(f"--tick {args.tick}: expected a number of ticks >= 0")
+    if not math.isfinite(args.dt) or args.dt <= 0:
+        raise ConfigError(f"--dt {args.dt}: expected seconds > 0")
+    result = dry_run(args.file, args.tick or 0, args.dt, args.main)
+    if args.json:
+        print(json.dumps(result))
+        return 0
+    from canguard.bt.build import load_tree
+    from canguard.bt.context import Context
+    from canguard.bt.dryrun import RecordingTask
+    from canguard.io.clock import ManualClock
+
+    loaded = load_tree(args.file, Context(ManualClock(), {}, task=RecordingTask()), args.main)
+    print(render_text(loaded.root), end="")
+    if args.tick:
+        print("ticks: " + " ".join(result["ticks"]))
+        print("blackboard: " + ", ".join(f"{k}={v!r}" for k, v in result["blackboard"].items()))
     return 0
 
 

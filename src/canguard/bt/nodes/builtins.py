@@ -1,0 +1,337 @@
+"""More of BehaviorTree.CPP 4's built-in nodes, with its IDs, ports and semantics.
+
+======================  ================================================================
+BT.CPP node             semantics (as BT.CPP 4's sources and gtests show)
+======================  ================================================================
+AlwaysSuccess           SUCCESS
+AlwaysFailure           FAILURE
+Script                  runs ``code`` (BT.CPP's scripting language) on the blackboard: SUCCESS;
+                        a script that fails while it runs: FAILURE (BT.CPP throws; a guard
+                        daemon must not crash on a tree's script)
+ScriptCondition         SUCCESS when ``code`` is true, else FAILURE
+SetBlackboard           writes ``value`` to the entry named by ``output_key``: SUCCESS
+UnsetBlackboard         removes the entry ``key``: SUCCESS
+Sleep                   RUNNING until ``msec`` have elapsed on the engine's clock, then SUCCESS
+KeepRunningUntilFailure the child's SUCCESS becomes RUNNING; FAILURE ends it
+IfThenElse              2 or 3 children: the first decides, then the second (SUCCESS) or the
+                        third (FAILURE; FAILURE when there is none); the branch runs to its end
+WhileDoElse             like IfThenElse, but the condition is ticked every time: a change halts
+                        the running branch and switches
+Precondition            ticks its child while ``if`` (a script) is true, else returns ``else``
+======================  ================================================================
+
+Scripts are parsed once, at load (a syntax error is a load error naming the port),
+and read and write the blackboard of the node's (sub)tree.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import py_trees
+from py_trees.blackboard import Blackboard
+
+from canguard.bt.nodes.base import FAILURE, INVALID, RUNNING, SUCCESS, CanguardNode, PortError, port_info
+from canguard.bt.scripting import Script as ParsedScript
+from canguard.bt.scripting import ScriptError, parse
+
+Children = list[py_trees.behaviour.Behaviour] | None
+_STATUS = {"SUCCESS": SUCCESS, "FAILURE": FAILURE, "RUNNING": RUNNING}
+
+
+class TreeBlackboard:
+    """The scripting language's view of py_trees' blackboard, inside one (sub)tree's namespace."""
+
+    def __init__(self, namespace: str) -> None:
+        self.namespace = namespace if namespace.endswith("/") else namespace + "/"
+
+    def _key(self, key: str) -> str:
+        return key if key.startswith("/") else self.namespace + key
+
+    def has(self, key: str) -> bool:
+        return self._key(key) in Blackboard.storage
+
+    def get(self, key: str) -> object:
+        return Blackboard.storage[self._key(key)]
+
+    def set(self, key: str, value: object) -> None:
+        Blackboard.storage[self._key(key)] = value
+
+    def declared_type(self, key: str) -> type | None:
+        return None
+
+    def unset(self, key: str) -> None:
+        Blackboard.storage.pop(self._key(key), None)
+
+
+class _Scripted(CanguardNode):
+    """A node with scripts in ports: parsed at bind, run against its subtree's blackboard."""
+
+    NEEDS_CONTEXT = False
+    INPUT_PORTS: dict = {}  # noqa: RUF012 - py_trees reads ports as plain class dicts
+    OUTPUT_PORTS: dict = {}  # noqa: RUF012
+    SCRIPT_PORTS: tuple[str, ...] = ()
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.scripts: dict[str, ParsedScript] = {}
+        self.board = TreeBlackboard("/")
+
+    def setup_ports(self, port_remappings: dict | None = None, subtree_namespace: str = "/",
+                    logger: Any = None) -> None:
+        """Remember the (sub)tree's namespace: scripts name entries relative to it."""
+        super().setup_ports(port_remappings, subtree_namespace, logger)
+        self.board = TreeBlackboard(subtree_namespace)
+
+    def bind(self) -> None:
+        """Parse every script port once; a syntax error is a load error naming the port and column."""
+        for name in self.SCRIPT_PORTS:
+            text = self.port(name)
+            if text is None:
+                continue
+            try:
+                self.scripts[name] = parse(str(text))
+            except ScriptError as exc:
+                raise PortError(name, f"script {text!r}: {exc}") from None
+
+    def run_script(self, name: str, *, condition: bool = False) -> object:
+        """Run script ``name``; a runtime error is logged in the feedback and re-raised."""
+        script = self.scripts[name]
+        try:
+            return script.condition(self.board) if condition else script.run(self.board)
+        except ScriptError as exc:
+            self.feedback_message = f"{name}: {exc}"
+            raise
+
+
+class AlwaysSuccess(CanguardNode, py_trees.behaviour.Behaviour):
+    """BT.CPP AlwaysSuccess."""
+
+    KIND = "Action"
+    NEEDS_CONTEXT = False
+    DESCRIPTION = "SUCCESS"
+    INPUT_PORTS: dict = {}  # noqa: RUF012
+    OUTPUT_PORTS: dict = {}  # noqa: RUF012
+
+    def update(self) -> py_trees.common.Status:
+        return SUCCESS
+
+
+class AlwaysFailure(CanguardNode, py_trees.behaviour.Behaviour):
+    """BT.CPP AlwaysFailure."""
+
+    KIND = "Action"
+    NEEDS_CONTEXT = False
+    DESCRIPTION = "FAILURE"
+    INPUT_PORTS: dict = {}  # noqa: RUF012
+    OUTPUT_PORTS: dict = {}  # noqa: RUF012
+
+    def update(self) -> py_trees.common.Status:
+        return FAILURE
+
+
+class Script(_Scripted, py_trees.behaviour.Behaviour):
+    """BT.CPP Script: run ``code``; SUCCESS."""
+
+    KIND = "Action"
+    DESCRIPTION = "runs code (BT.CPP scripting) on the blackboard: SUCCESS (FAILURE if it fails at run time)"
+    INPUT_PORTS = {"code": port_info(str, "the script, e.g. count := count + 1")}  # noqa: RUF012
+    SCRIPT_PORTS = ("code",)
+
+    def update(self) -> py_trees.common.Status:
+        try:
+            self.run_script("code")
+        except ScriptError:
+            return FAILURE
+        return SUCCESS
+
+
+class ScriptCondition(_Scripted, py_trees.behaviour.Behaviour):
+    """BT.CPP ScriptCondition: SUCCESS when ``code`` is true."""
+
+    KIND = "Condition"
+    DESCRIPTION = "SUCCESS when code (BT.CPP scripting) is true, else FAILURE"
+    INPUT_PORTS = {"code": port_info(str, "a boolean expression, e.g. battery > 20")}  # noqa: RUF012
+    SCRIPT_PORTS = ("code",)
+
+    def update(self) -> py_trees.common.Status:
+        try:
+            return SUCCESS if self.run_script("code", condition=True) else FAILURE
+        except ScriptError:
+            return FAILURE
+
+
+class SetBlackboard(_Scripted, py_trees.behaviour.Behaviour):
+    """BT.CPP SetBlackboard: ``value`` into the entry named by ``output_key``."""
+
+    KIND = "Action"
+    DESCRIPTION = "writes value into the blackboard entry named by output_key: SUCCESS"
+    INPUT_PORTS = {  # noqa: RUF012
+        "value": port_info(str, "the value (text, as in BT.CPP), or {key} to copy an entry"),
+        "output_key": port_info(str, "the name of the entry to write"),
+    }
+
+    def update(self) -> py_trees.common.Status:
+        key, value = self.port("output_key"), self.port("value")
+        if not key or value is None:
+            self.feedback_message = "no output_key or no value"
+            return FAILURE
+        self.board.set(str(key).strip("{}"), value)
+        return SUCCESS
+
+
+class UnsetBlackboard(_Scripted, py_trees.behaviour.Behaviour):
+    """BT.CPP UnsetBlackboard: remove the entry ``key``."""
+
+    KIND = "Action"
+    DESCRIPTION = "removes the blackboard entry key: SUCCESS"
+    INPUT_PORTS = {"key": port_info(str, "the entry to remove")}  # noqa: RUF012
+
+    def update(self) -> py_trees.common.Status:
+        key = self.port("key")
+        if key:
+            self.board.unset(str(key))
+        return SUCCESS
+
+
+class Sleep(CanguardNode, py_trees.behaviour.Behaviour):
+    """BT.CPP Sleep: RUNNING for ``msec`` on the engine's clock, then SUCCESS."""
+
+    KIND = "Action"
+    NEEDS_CONTEXT = True
+    DESCRIPTION = "RUNNING until msec have elapsed (the engine's clock), then SUCCESS"
+    INPUT_PORTS = {"msec": port_info(float, "how long (ms)")}  # noqa: RUF012
+    OUTPUT_PORTS: dict = {}  # noqa: RUF012
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.until: float | None = None
+
+    def initialise(self) -> None:
+        self.until = self.ctx.clock.now() + (self.port("msec") or 0.0) / 1000.0
+
+    def update(self) -> py_trees.common.Status:
+        if self.until is None or self.ctx.clock.now() >= self.until:
+            return SUCCESS
+        return RUNNING
+
+    def terminate(self, new_status: py_trees.common.Status) -> None:
+        self.until = None if new_status == INVALID else self.until
+
+
+class KeepRunningUntilFailure(CanguardNode, py_trees.decorators.Decorator):
+    """BT.CPP KeepRunningUntilFailure: SUCCESS -> RUNNING; FAILURE ends it."""
+
+    KIND = "Decorator"
+    NEEDS_CONTEXT = False
+    DESCRIPTION = "the child's SUCCESS becomes RUNNING (it is ticked again next time); FAILURE ends it"
+    INPUT_PORTS: dict = {}  # noqa: RUF012
+    OUTPUT_PORTS: dict = {}  # noqa: RUF012
+
+    def update(self) -> py_trees.common.Status:
+        status = self.decorated.status
+        return RUNNING if status == SUCCESS else status
+
+
+class Precondition(_Scripted, py_trees.decorators.Decorator):
+    """BT.CPP Precondition: tick the child while ``if`` holds, else return ``else``."""
+
+    KIND = "Decorator"
+    DESCRIPTION = "ticks the child when the script if is true (and while it runs); else returns else"
+    INPUT_PORTS = {  # noqa: RUF012
+        "if": port_info(str, "the condition (BT.CPP scripting)"),
+        "else": port_info(str, "status when the condition is false: FAILURE, SUCCESS or RUNNING", "FAILURE"),
+    }
+    SCRIPT_PORTS = ("if",)
+
+    def bind(self) -> None:
+        super().bind()
+        if str(self.port("else")).upper() not in _STATUS:
+            raise PortError("else", f"{self.port('else')!r}: expected SUCCESS, FAILURE or RUNNING")
+
+    def tick(self) -> Any:
+        """Check the condition at the start of a run (BT.CPP: not again while the child runs)."""
+        if self.status != RUNNING:
+            try:
+                ok = bool(self.run_script("if", condition=True))
+            except ScriptError:
+                ok = False
+            if not ok:
+                self.stop(_STATUS[str(self.port("else")).upper()])
+                yield self
+                return
+        yield from super().tick()
+
+    def update(self) -> py_trees.common.Status:
+        return self.decorated.status
+
+
+class _Branching(CanguardNode, py_trees.composites.Composite):
+    """IfThenElse / WhileDoElse: the first child decides, the second or third runs."""
+
+    KIND = "Control"
+    NEEDS_CONTEXT = False
+    REACTIVE = False
+    INPUT_PORTS: dict = {}  # noqa: RUF012
+    OUTPUT_PORTS: dict = {}  # noqa: RUF012
+
+    def __init__(self, name: str, children: Children = None, **kwargs: Any) -> None:
+        super().__init__(name=name, children=children, **kwargs)
+        self.branch = 0
+
+    def bind(self) -> None:
+        allowed = (3,) if self.REACTIVE else (2, 3)
+        if len(self.children) not in allowed:
+            want = "3" if self.REACTIVE else "2 or 3"
+            raise PortError("children", f"{type(self).__name__} needs {want} children, has {len(self.children)}")
+
+    def tick(self) -> Any:
+        if self.status != RUNNING:
+            self.branch = 0
+            self.initialise()
+        if self.branch == 0 or self.REACTIVE:
+            cond = self.children[0]
+            yield from cond.tick()
+            if cond.status == RUNNING:
+                self.status = RUNNING
+                yield self
+                return
+            branch = 1 if cond.status == SUCCESS else 2
+            if self.branch and branch != self.branch and self.children[self.branch].status == RUNNING:
+                self.children[self.branch].stop(INVALID)  # WhileDoElse: the condition changed
+            self.branch = branch
+        if self.branch >= len(self.children):
+            self.stop(FAILURE)
+            yield self
+            return
+        child = self.children[self.branch]
+        self.current_child = child
+        yield from child.tick()
+        if child.status == RUNNING:
+            self.status = RUNNING
+        else:
+            self.stop(child.status)
+        yield self
+
+    def stop(self, new_status: py_trees.common.Status = INVALID) -> None:
+        for child in self.children:
+            if child.status == RUNNING:
+                child.stop(INVALID)
+        super().stop(new_status)
+
+
+class IfThenElse(_Branching):
+    """BT.CPP IfThenElse."""
+
+    DESCRIPTION = "first child decides: SUCCESS ticks the second, FAILURE the third (or fails); not re-checked"
+
+
+class WhileDoElse(_Branching):
+    """BT.CPP WhileDoElse."""
+
+    DESCRIPTION = "like IfThenElse, but the first child is ticked every time: a change halts the running branch"
+    REACTIVE = True
+
+
+NODES = (AlwaysSuccess, AlwaysFailure, Script, ScriptCondition, SetBlackboard, UnsetBlackboard, Sleep,
+         KeepRunningUntilFailure, Precondition, IfThenElse, WhileDoElse)
