@@ -1,0 +1,287 @@
+"""Soak: ``canguard run`` for N minutes against a simulated robot, with faults injected at random times.
+
+    python benchmarks/soak.py --minutes 30 [--seed 1] [--json report.json]
+
+The daemon runs as a subprocess (``python -m canguard run``) on python-can's
+``udp_multicast`` bus with the whole-robot example config; this process plays the
+simulated robot on the same bus (``canguard.sim``: 4 ODrive axes + BMS, and the
+``load`` scenario's 40 background ids: about 8,000 frames/s, what a 1 Mbit/s bus
+carries) and injects, at seeded random times, one fault after another:
+
+======================  =============================================  ==========================
+fault                   what is injected                               expected reaction (bound)
+======================  =============================================  ==========================
+spike                   one BMS frame at 60 A                          ``trip`` overcurrent on /battery_state
+overload                axis0 at 2x its continuous current for 3 s     ``trip`` of the I²t guard
+dropout                 no BMS frame for 1.5 s                         ``stale`` /battery_state
+garbage                 NaN/inf, wrong-length and random frames        ``trip`` on axis2 (invalid data)
+errorburst              32 CAN error frames                            no crash; counted
+bad_reload              a config with a mistake, then SIGHUP           ``error`` "reload rejected"
+good_reload             the config back, then SIGHUP                   ``reload``
+======================  =============================================  ==========================
+
+Each reaction must come within ``--bound`` seconds (default 2.0) of the fault's
+scheduled time (wall clock; includes the simulator's own lag on a loaded machine),
+and every trip must be followed by a ``stop`` event at the same tick. After the run:
+every journal line must parse (none torn, none lost between ``start`` and ``exit``),
+the daemon must exit 0 on SIGTERM. The daemon's RSS and CPU are sampled every
+``--sample`` seconds: flat RSS means no leak. Exit status 0 when every check holds.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import random
+import signal
+import statistics
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+REPO = Path(__file__).resolve().parents[1]
+SRC = REPO / "src"
+if str(SRC) not in sys.path:
+    sys.path.insert(0, str(SRC))
+
+import can  # noqa: E402
+import yaml  # noqa: E402
+
+from canguard.config.loader import load_config  # noqa: E402
+from canguard.sim import SimRobot, run_on_bus  # noqa: E402
+
+ROBOT = REPO / "config" / "examples" / "robot_guard.yaml"
+# onset of each simulator scenario after its @offset (see `canguard simulate -h`), and what must follow
+SIM_FAULTS: dict[str, tuple[float, str]] = {
+    "spike": (1.51, "trip:/battery_state"),
+    "overload": (3.0, "trip:axis0"),
+    "dropout": (2.5, "stale:/battery_state"),
+    "garbage": (1.0, "trip:axis2"),
+    "errorburst": (1.0, ""),
+}
+HOST_FAULTS = ("bad_reload", "good_reload")
+SPACING_S = 9.0
+"""At least this long between two faults (an overload lasts 5 s; a trip must recover first)."""
+
+
+@dataclass
+class Fault:
+    kind: str
+    at_s: float  # offset from the robot's start
+    expect: str = ""
+    wall: float = 0.0
+    seen: float | None = None
+    detail: str = ""
+
+
+@dataclass
+class Report:
+    minutes: float
+    faults: list[Fault] = field(default_factory=list)
+    samples: list[tuple[float, float, float]] = field(default_factory=list)  # (s, rss MB, cpu %)
+    lines: int = 0
+    torn: int = 0
+    trips: int = 0
+    trips_without_stop: int = 0
+    exit_code: int | None = None
+    frames_sent: int = 0
+
+
+def schedule(seed: int, duration_s: float) -> list[Fault]:
+    """Faults at random times, SPACING_S apart at least, each kind in turn (shuffled per round)."""
+    rng = random.Random(seed)
+    kinds = [*SIM_FAULTS, "bad_reload"]
+    out: list[Fault] = []
+    t = 5.0
+    while True:
+        rng.shuffle(kinds)
+        for kind in kinds:
+            t += SPACING_S + rng.uniform(0.0, 6.0)
+            if t + 6.0 > duration_s:
+                return out
+            onset, expect = SIM_FAULTS.get(kind, (0.0, "error:reload rejected"))
+            out.append(Fault(kind, t, expect))
+            if kind == "bad_reload":
+                out.append(Fault("good_reload", t + 2.0, "reload:"))
+                t += 2.0
+            else:
+                out[-1].detail = f"onset +{onset} s"
+
+
+def write_config(tmp: Path, bus: dict[str, Any]) -> Path:
+    doc = yaml.safe_load(ROBOT.read_text(encoding="utf-8"))
+    doc["dbc"] = [str((ROBOT.parent / d).resolve()) for d in doc["dbc"]]
+    doc["tree"]["file"] = str((ROBOT.parent / doc["tree"]["file"]).resolve())
+    doc["buses"] = {"main": bus}
+    doc["events"] = str(tmp / "events.jsonl")
+    doc["state"]["file"] = str(tmp / "i2t_state.json")
+    path = tmp / "canguard.yaml"
+    path.write_text(yaml.safe_dump(doc), encoding="utf-8")
+    return path
+
+
+def proc_sample(pid: int, last: tuple[float, float] | None) -> tuple[float, float, tuple[float, float]]:
+    """(RSS MB, CPU % since the last sample, state for the next call) from /proc."""
+    with open(f"/proc/{pid}/status", encoding="ascii") as f:
+        rss_kb = next(int(line.split()[1]) for line in f if line.startswith("VmRSS:"))
+    with open(f"/proc/{pid}/stat", encoding="ascii") as f:
+        fields = f.read().rsplit(")", 1)[1].split()
+    ticks = (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    now = time.monotonic()
+    cpu = 100.0 * (ticks - last[1]) / (now - last[0]) if last else 0.0
+    return rss_kb / 1024.0, cpu, (now, ticks)
+
+
+def read_journal(path: Path) -> tuple[list[dict[str, Any]], int]:
+    """(parsed lines, lines that do not parse)."""
+    events, torn = [], 0
+    for line in path.read_text(encoding="utf-8").splitlines():
+        try:
+            events.append(json.loads(line))
+        except json.JSONDecodeError:
+            torn += 1
+    return events, torn
+
+
+def check(report: Report, events: list[dict[str, Any]], bound_s: float) -> None:
+    """Match each fault with its reaction; count trips without a stop."""
+    for fault in report.faults:
+        if not fault.expect:
+            continue
+        kind, _, what = fault.expect.partition(":")
+        onset = SIM_FAULTS.get(fault.kind, (0.0, ""))[0]
+        due = fault.wall + onset
+        for ev in events:
+            t = ev.get("t")
+            if not isinstance(t, (int, float)) or ev.get("event") != kind or t < due - 0.05:
+                continue
+            text = f"{ev.get('source')} {ev.get('node')} {ev.get('reason')}"
+            if what and what not in text:
+                continue
+            fault.seen = t - due
+            break
+    trip_ts = [ev["t"] for ev in events if ev.get("event") == "trip"]
+    stop_ts = sorted(ev["t"] for ev in events if ev.get("event") == "stop")
+    report.trips = len(trip_ts)
+    # a trip while a stop already holds needs no new stop event; one with no stop at or before it does
+    report.trips_without_stop = sum(1 for t in trip_ts if not any(s <= t + 1e-6 for s in stop_ts))
+
+
+def run(args: argparse.Namespace) -> Report:
+    import random as _r
+
+    rnd = _r.SystemRandom()
+    bus_kwargs = {"interface": "udp_multicast", "channel": f"239.{rnd.randint(1, 254)}.{rnd.randint(1, 254)}."
+                  f"{rnd.randint(1, 254)}", "port": rnd.randint(20000, 60000)}
+    tmp = Path(tempfile.mkdtemp(prefix="canguard-soak-"))
+    cfg_path = write_config(tmp, bus_kwargs)
+    good_text = cfg_path.read_text(encoding="utf-8")
+    duration = args.minutes * 60.0
+    report = Report(args.minutes, schedule(args.seed, duration))
+    env = {**os.environ, "PYTHONPATH": str(SRC)}
+    daemon = subprocess.Popen([sys.executable, "-m", "canguard", "run", "-c", str(cfg_path)], env=env,
+                              stdout=subprocess.DEVNULL, stderr=open(tmp / "daemon.stderr", "w"))  # noqa: SIM115
+    events_path = tmp / "events.jsonl"
+    deadline = time.monotonic() + 30
+    while not (events_path.exists() and b'"start"' in events_path.read_bytes()):
+        if time.monotonic() > deadline or daemon.poll() is not None:
+            raise SystemExit(f"the daemon did not start: {(tmp / 'daemon.stderr').read_text()[-2000:]}")
+        time.sleep(0.1)
+    cfg = load_config(cfg_path)
+    scenarios = ["load", *[f"{f.kind}@{f.at_s:.3f}" for f in report.faults if f.kind in SIM_FAULTS]]
+    robot = SimRobot(db=cfg.database, scenarios=scenarios, seed=args.seed)
+    bus = can.Bus(**bus_kwargs)
+    stop = threading.Event()
+    sent: list[int] = []
+    start_wall = time.time()
+    start_mono = time.monotonic()
+    for f in report.faults:
+        f.wall = start_wall + f.at_s
+    player = threading.Thread(target=lambda: sent.append(run_on_bus(bus, duration, robot=robot, stop_event=stop)),
+                              daemon=True)
+    player.start()
+    host = [f for f in report.faults if f.kind in HOST_FAULTS]
+    last: tuple[float, float] | None = None
+    next_sample = 0.0
+    try:
+        while player.is_alive():
+            elapsed = time.monotonic() - start_mono
+            while host and host[0].at_s <= elapsed:
+                f = host.pop(0)
+                bad = good_text.replace("tick_hz: 100", "tick_hz: -5") if f.kind == "bad_reload" else good_text
+                cfg_path.write_text(bad, encoding="utf-8")
+                daemon.send_signal(signal.SIGHUP)
+            if elapsed >= next_sample:
+                rss, cpu, last = proc_sample(daemon.pid, last)
+                report.samples.append((round(elapsed, 1), round(rss, 1), round(cpu, 1)))
+                next_sample += args.sample
+            if daemon.poll() is not None:
+                raise SystemExit(f"the daemon died: {(tmp / 'daemon.stderr').read_text()[-2000:]}")
+            time.sleep(0.2)
+    finally:
+        stop.set()
+        player.join(timeout=10)
+        bus.shutdown()
+        if daemon.poll() is None:
+            daemon.send_signal(signal.SIGTERM)
+        report.exit_code = daemon.wait(timeout=30)
+    report.frames_sent = sent[0] if sent else 0
+    events, report.torn = read_journal(events_path)
+    report.lines = len(events) + report.torn
+    check(report, events, args.bound)
+    if events and (events[0].get("event") != "start" or events[-1].get("event") != "exit"):
+        report.torn += 1  # the journal must run from start to exit: a missing end is a lost line
+    return report
+
+
+def summarize(report: Report, bound_s: float) -> tuple[dict[str, Any], bool]:
+    judged = [f for f in report.faults if f.expect]
+    late = [f for f in judged if f.seen is None or f.seen > bound_s]
+    delays = [f.seen for f in judged if f.seen is not None]
+    rss = [s[1] for s in report.samples]
+    cpu = [s[2] for s in report.samples[1:]]
+    out = {
+        "minutes": report.minutes,
+        "frames_sent": report.frames_sent,
+        "frames_per_s": round(report.frames_sent / (report.minutes * 60.0)) if report.minutes else 0,
+        "faults": {k: sum(1 for f in report.faults if f.kind == k) for k in [*SIM_FAULTS, *HOST_FAULTS]},
+        "reactions_within_bound": f"{len(judged) - len(late)}/{len(judged)} (bound {bound_s} s)",
+        "reaction_delay_s": {"median": round(statistics.median(delays), 3) if delays else None,
+                             "max": round(max(delays), 3) if delays else None},
+        "late_or_missing": [f"{f.kind}@{f.at_s:.1f}: {f.seen}" for f in late],
+        "journal_lines": report.lines, "torn_or_lost_lines": report.torn,
+        "trips": report.trips, "trips_without_stop": report.trips_without_stop,
+        "rss_mb": {"start": rss[0] if rss else None, "end": rss[-1] if rss else None, "max": max(rss, default=None)},
+        "cpu_percent": {"median": statistics.median(cpu) if cpu else None, "max": max(cpu, default=None)},
+        "daemon_exit": report.exit_code,
+    }
+    ok = not late and report.torn == 0 and report.trips_without_stop == 0 and report.exit_code == 0
+    return out, ok
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--minutes", type=float, default=1.0)
+    ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--bound", type=float, default=2.0, help="seconds from a fault to its reaction (default 2)")
+    ap.add_argument("--sample", type=float, default=10.0, help="seconds between RSS/CPU samples")
+    ap.add_argument("--json", type=Path, default=None, help="write the report here too")
+    args = ap.parse_args(argv)
+    report = run(args)
+    out, ok = summarize(report, args.bound)
+    text = json.dumps(out, indent=2)
+    print(text)
+    if args.json is not None:
+        args.json.write_text(text + "\n", encoding="utf-8")
+    print("soak: ok" if ok else "soak: FAILED", file=sys.stderr)
+    return 0 if ok else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,29 @@
+"""The 1-minute soak (benchmarks/soak.py): daemon subprocess, simulated robot at ~8,000 frames/s, faults injected.
+
+Checks what the 30-minute run checks: every injected fault got its reaction within the
+bound, no journal line torn or lost, every trip followed by a stop, exit 0 on SIGTERM.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+@pytest.mark.slow
+def test_one_minute_soak(tmp_path: Path) -> None:
+    """`python benchmarks/soak.py --minutes 1` passes its own checks."""
+    report = tmp_path / "soak.json"
+    proc = subprocess.run([sys.executable, str(REPO / "benchmarks" / "soak.py"), "--minutes", "1", "--seed", "3",
+                           "--sample", "5", "--json", str(report)], capture_output=True, text=True, timeout=150)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    out = json.loads(report.read_text())
+    judged, total = out["reactions_within_bound"].split()[0].split("/")
+    assert judged == total and int(total) >= 3
+    assert out["torn_or_lost_lines"] == 0 and out["trips_without_stop"] == 0 and out["daemon_exit"] == 0
