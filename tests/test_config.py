@@ -522,3 +522,13 @@ class TestConfigErrors:
         """A config path that does not exist is a ConfigError naming it."""
         with pytest.raises(ConfigError, match=r"missing.yaml: found a file that cannot be read"):
             load_config(tmp_path / "missing.yaml")
+
+
+def test_tilde_of_an_unknown_user_is_a_config_error(tmp_path: Path) -> None:
+    """dbc: [~nosuchuser/x.dbc] is a problem naming the key (found by fuzzing: it was a RuntimeError traceback)."""
+    from canguard.config.loader import load_config_text
+    from canguard.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=r"dbc.*~nosuchuser-canguard/x\.dbc.*existing user"):
+        load_config_text("dbc: [~nosuchuser-canguard/x.dbc]\nbuses: {main: {interface: virtual, channel: c}}\n",
+                         tmp_path / "c.yaml")

@@ -88,7 +88,11 @@ class _Checks:
         text = self.string(value, key, "a file path (relative to the config file or absolute)")
         if text is None:
             return None
-        p = Path(text).expanduser()
+        try:
+            p = Path(text).expanduser()
+        except RuntimeError:  # ~user of a user that does not exist, or no home directory
+            self.problem(key, _found(text), "a file path whose ~ names an existing user's home directory")
+            return None
         return Path(os.path.normpath(p if p.is_absolute() else self.base / p))
 
     def bus(self, value: Any, key: str) -> str:

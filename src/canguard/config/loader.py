@@ -135,6 +135,8 @@ def load_config(path: str | Path) -> Config:
         raise ConfigError(
             f"{path}: found a file that cannot be read ({exc.strerror or exc}), expected a YAML config"
         ) from exc
+    except RuntimeError as exc:  # Path.expanduser: ~user of no such user
+        raise ConfigError(f"{path}: found {exc}, expected a config path whose ~ names an existing user") from exc
     except UnicodeDecodeError as exc:
         raise ConfigError(
             f"{path}: found bytes that are not UTF-8 ({exc.reason}), expected a YAML text file"
