@@ -7,7 +7,7 @@ import math
 import random
 
 import pytest
-from hypothesis import given, settings
+from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from canguard.protect import LeakyI2t, ThermalI2t, thermal_tau
@@ -313,7 +313,7 @@ samples_st = st.lists(
 class TestI2tProperties:
     """Properties that hold for any input sequence."""
 
-    @settings(max_examples=40, deadline=None)
+    @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.differing_executors])
     @given(samples=samples_st, thermal=st.booleans())
     def test_accumulator_never_negative_or_nan(
         self, samples: list[tuple[float, float]], thermal: bool
@@ -327,7 +327,7 @@ class TestI2tProperties:
             assert math.isfinite(model.accumulator) and model.accumulator >= 0
             assert math.isfinite(model.snapshot().level_pct)
 
-    @settings(max_examples=25, deadline=None)
+    @settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.differing_executors])
     @given(
         low=st.floats(6.5, 100.0),
         step=st.floats(0.5, 100.0),
