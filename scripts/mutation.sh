@@ -12,8 +12,11 @@ trap 'rm -rf "$work"' EXIT
 git -C "$root" archive HEAD | tar -x -C "$work"
 cd "$work"
 mutmut="$(dirname "$py")/mutmut"
-"$mutmut" run --max-children "${1:-2}" >/dev/null 2>&1 || true
-"$mutmut" results --all true > results.txt 2>&1 || "$mutmut" results > results.txt 2>&1 || true
+# the mutated copy of the package must win over an editable install of the checkout; the
+# directory must exist when Python starts (a missing sys.path entry is cached as "nothing here")
+mkdir -p mutants/src
+PYTHONPATH="$work/mutants/src" "$mutmut" run --max-children "${1:-2}" > run.log 2>&1 || { tail -20 run.log; exit 1; }
+"$mutmut" results --all true > results.txt 2>&1
 killed=$(grep -c ': killed' results.txt || true)
 total=$(grep -cE ': (killed|survived|timeout|suspicious|no tests|segfault)' results.txt || true)
 grep -E ': (survived|no tests|timeout|suspicious)' results.txt || true
