@@ -8,16 +8,16 @@ root="$(cd "$(dirname "$0")/.." && pwd)"
 py="${PYTHON:-$root/.venv/bin/python}"
 "$py" -m pip show -q mutmut >/dev/null 2>&1 || "$py" -m pip install -q 'mutmut>=3.2'
 work="$(mktemp -d)"
-trap 'rm -rf "$work"' EXIT
+[ -n "${KEEP:-}" ] || trap 'rm -rf "$work"' EXIT
 git -C "$root" archive HEAD | tar -x -C "$work"
 cd "$work"
 mutmut="$(dirname "$py")/mutmut"
-# the mutated copy of the package must win over an editable install of the checkout; the
-# directory must exist when Python starts (a missing sys.path entry is cached as "nothing here")
-mkdir -p mutants/src
-PYTHONPATH="$work/mutants/src" "$mutmut" run --max-children "${1:-2}" > run.log 2>&1 || { tail -20 run.log; exit 1; }
+# mutmut puts ./mutants/src first on sys.path itself (the whole package is copied there, see
+# [tool.mutmut] do_not_mutate); no PYTHONPATH: it would shadow that set-up
+"$mutmut" run --max-children "${1:-2}" > run.log 2>&1 || { tail -20 run.log; exit 1; }
 "$mutmut" results --all true > results.txt 2>&1
 killed=$(grep -c ': killed' results.txt || true)
 total=$(grep -cE ': (killed|survived|timeout|suspicious|no tests|segfault)' results.txt || true)
-grep -E ': (survived|no tests|timeout|suspicious)' results.txt || true
+echo "survivors per module (mutmut show NAME in $work/mutants to see one; set KEEP=1 to keep it):"
+grep -E ': (survived|no tests|timeout|suspicious)' results.txt | sed -E 's/^ *canguard\.protect\.([a-z0-9_]+)\..*: (.*)$/\1 \2/' | sort | uniq -c | sort -rn
 echo "mutation score: ${killed} killed of ${total} mutants"
