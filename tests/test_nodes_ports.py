@@ -89,6 +89,12 @@ EXPECTED: dict[str, dict[str, tuple[str, type, Any]]] = {
     "Precondition": {"if": ("in", str, NO), "else": ("in", str, "FAILURE")},
     "IfThenElse": {},
     "WhileDoElse": {},
+    "Switch2": {"variable": ("in", str, NO), **{f"case_{i}": ("in", str, NO) for i in range(1, 3)}},
+    "Switch3": {"variable": ("in", str, NO), **{f"case_{i}": ("in", str, NO) for i in range(1, 4)}},
+    "Switch4": {"variable": ("in", str, NO), **{f"case_{i}": ("in", str, NO) for i in range(1, 5)}},
+    "Switch5": {"variable": ("in", str, NO), **{f"case_{i}": ("in", str, NO) for i in range(1, 6)}},
+    "Switch6": {"variable": ("in", str, NO), **{f"case_{i}": ("in", str, NO) for i in range(1, 7)}},
+    "ParallelAll": {"max_failures": ("in", int, 1)},
 }
 
 REQUIRED = {
@@ -111,6 +117,11 @@ REQUIRED = {
     "UnsetBlackboard": {"key"},
     "Sleep": {"msec"},
     "Precondition": {"if"},
+    "Switch2": {"variable"},
+    "Switch3": {"variable"},
+    "Switch4": {"variable"},
+    "Switch5": {"variable"},
+    "Switch6": {"variable"},
 }
 
 KINDS = {
@@ -149,6 +160,12 @@ KINDS = {
         "Parallel",
         "IfThenElse",
         "WhileDoElse",
+        "Switch2",
+        "Switch3",
+        "Switch4",
+        "Switch5",
+        "Switch6",
+        "ParallelAll",
     },
 }
 

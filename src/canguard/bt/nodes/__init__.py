@@ -17,6 +17,7 @@ from __future__ import annotations
 
 from canguard.bt.nodes.actions import ConfiguredAction, EmitStop, ExecuteTask, ResetStop
 from canguard.bt.nodes.base import CanguardNode, NodeKind, PortError, port_info
+from canguard.bt.nodes.branches import NODES as BRANCH_NODES
 from canguard.bt.nodes.builtins import NODES as BTCPP_NODES
 from canguard.bt.nodes.control import (
     Delay,
@@ -82,6 +83,7 @@ BUILTIN_NODES: dict[str, type[CanguardNode]] = {
         Parallel,
         # more BehaviorTree.CPP 4 built-ins
         *BTCPP_NODES,
+        *BRANCH_NODES,
     )
 }
 """Every node type canguard provides, by node ID (the closed table)."""

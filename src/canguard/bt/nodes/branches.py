@@ -1,0 +1,213 @@
+"""BehaviorTree.CPP 4 Switch2..Switch6 and ParallelAll, with its IDs, ports and semantics.
+
+======================  ================================================================
+BT.CPP node             semantics (as BT.CPP 4's switch_node.h and parallel_all_node.cpp show)
+======================  ================================================================
+Switch2 .. Switch6      N cases + a default child (the last). Each tick ``variable`` is compared
+                        with ``case_1`` .. ``case_N`` in order: equal as text, or both whole
+                        numbers and equal, or both numbers and equal ("1" == "1.0"); the first
+                        match is ticked, no match (or no variable) ticks the default. When the
+                        match changes while another child runs, that child is halted.
+ParallelAll             ticks every unfinished child each tick until all have finished, then
+                        FAILURE when at least ``max_failures`` failed (negative: children + 1 + n),
+                        else SUCCESS
+======================  ================================================================
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from typing import Any
+
+import py_trees
+from py_trees.blackboard import Blackboard
+
+from canguard.bt.nodes.base import FAILURE, INVALID, RUNNING, SUCCESS, CanguardNode, PortError, port_info
+
+Children = list[py_trees.behaviour.Behaviour] | None
+_INT = re.compile(r"-?[0-9]+\Z")
+_REAL = re.compile(r"-?([0-9]+\.?[0-9]*|\.[0-9]+)([eE][-+]?[0-9]+)?\Z")
+
+
+def _text(value: object) -> str:
+    """A blackboard value as BT.CPP would read it into a string port."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    return str(value)
+
+
+def same_case(variable: str, case: str) -> bool:
+    """BT.CPP's switch comparison: equal text, or equal as integers, or equal as reals."""
+    if variable == case:
+        return True
+    if _INT.match(variable) and _INT.match(case):
+        return int(variable) == int(case)
+    if _REAL.match(variable) and _REAL.match(case):
+        return math.isclose(float(variable), float(case), rel_tol=0.0, abs_tol=0.0)
+    return False
+
+
+class _Switch(CanguardNode, py_trees.composites.Composite):
+    """Switch with ``CASES`` cases and a default child."""
+
+    KIND = "Control"
+    NEEDS_CONTEXT = False
+    CASES = 0
+    INPUT_PORTS: dict = {}  # noqa: RUF012 - py_trees reads ports as plain class dicts
+    OUTPUT_PORTS: dict = {}  # noqa: RUF012
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        ports = {"variable": port_info(str, "the value to compare with the cases (usually {key})")}
+        for i in range(1, cls.CASES + 1):
+            ports[f"case_{i}"] = port_info(str, f"the value that selects child {i}", required=False)
+        cls.INPUT_PORTS = ports
+        cls.OUTPUT_PORTS = {}
+        cls.DESCRIPTION = (f"ticks the child of the first case_1..case_{cls.CASES} equal to variable "
+                           f"(as text or number), else the last (default) child; a change halts the running one")
+        super().__init_subclass__(**kwargs)
+
+    def __init__(self, name: str, children: Children = None, **kwargs: Any) -> None:
+        super().__init__(name=name, children=children, **kwargs)
+        self.running = -1
+
+    def bind(self) -> None:
+        """N cases need N + 1 children (the last is the default): a load error otherwise."""
+        want = self.CASES + 1
+        if len(self.children) != want:
+            raise PortError("children", f"{type(self).__name__} needs {want} children ({self.CASES} cases + "
+                                        f"default), has {len(self.children)}")
+
+    def variable(self) -> str | None:
+        """The variable as text; None when it is wired to an entry that holds nothing."""
+        value = self.port("variable")
+        if value is None and self.is_wired("variable"):
+            value = Blackboard.storage.get(self._keys["variable"])  # any type: compared as text
+        return None if value is None else _text(value)
+
+    def match(self) -> int:
+        """Index of the child to tick: the first matching case, else the default (last)."""
+        variable = self.variable()
+        if variable is not None:
+            for i in range(self.CASES):
+                case = self.port(f"case_{i + 1}")
+                if case is not None and same_case(variable, _text(case)):
+                    return i
+        return self.CASES
+
+    def tick(self) -> Any:
+        if self.status != RUNNING:
+            self.running = -1
+            self.initialise()
+        index = self.match()
+        if self.running not in (-1, index):
+            self.children[self.running].stop(INVALID)
+        child = self.children[index]
+        self.current_child = child
+        yield from child.tick()
+        if child.status == RUNNING:
+            self.running = index
+            self.status = RUNNING
+        else:
+            self.running = -1
+            self.stop(child.status)
+        yield self
+
+    def stop(self, new_status: py_trees.common.Status = INVALID) -> None:
+        for child in self.children:
+            if child.status == RUNNING:
+                child.stop(INVALID)
+        self.running = -1
+        super().stop(new_status)
+
+
+class Switch2(_Switch):
+    """BT.CPP Switch2."""
+
+    CASES = 2
+
+
+class Switch3(_Switch):
+    """BT.CPP Switch3."""
+
+    CASES = 3
+
+
+class Switch4(_Switch):
+    """BT.CPP Switch4."""
+
+    CASES = 4
+
+
+class Switch5(_Switch):
+    """BT.CPP Switch5."""
+
+    CASES = 5
+
+
+class Switch6(_Switch):
+    """BT.CPP Switch6."""
+
+    CASES = 6
+
+
+class ParallelAll(CanguardNode, py_trees.composites.Composite):
+    """BT.CPP ParallelAll: run every child to its end; FAILURE when max_failures of them failed."""
+
+    KIND = "Control"
+    NEEDS_CONTEXT = False
+    DESCRIPTION = ("ticks every unfinished child each tick until all have finished; then FAILURE when at least "
+                   "max_failures failed (negative: children + 1 + n), else SUCCESS")
+    INPUT_PORTS = {  # noqa: RUF012
+        "max_failures": port_info(int, "failures that make it fail (negative: children + 1 + n, -1 = all)", 1),
+    }
+    OUTPUT_PORTS: dict = {}  # noqa: RUF012
+
+    def __init__(self, name: str, children: Children = None, **kwargs: Any) -> None:
+        super().__init__(name=name, children=children, **kwargs)
+        self.finished: dict[int, py_trees.common.Status] = {}
+
+    def threshold(self) -> int:
+        value = self.port("max_failures")
+        value = 1 if value is None else int(value)
+        return max(len(self.children) + value + 1, 0) if value < 0 else value
+
+    def bind(self) -> None:
+        """A threshold above the number of children can never be met (BT.CPP: a logic error)."""
+        if not self.is_wired("max_failures") and self.threshold() > len(self.children):
+            raise PortError("max_failures", f"{self.threshold()} failures needed but only "
+                                            f"{len(self.children)} children: can never fail")
+
+    def tick(self) -> Any:
+        if self.status != RUNNING:
+            for child in self.children:
+                if child.status != INVALID:
+                    child.stop(INVALID)
+            self.finished.clear()
+            self.initialise()
+        for index, child in enumerate(self.children):
+            if index in self.finished:
+                continue
+            self.current_child = child
+            yield from child.tick()
+            if child.status in (SUCCESS, FAILURE):
+                self.finished[index] = child.status
+        if len(self.finished) < len(self.children):
+            self.status = RUNNING
+            yield self
+            return
+        failures = sum(1 for s in self.finished.values() if s == FAILURE)
+        self.finished.clear()
+        self.stop(FAILURE if failures >= self.threshold() else SUCCESS)
+        yield self
+
+    def stop(self, new_status: py_trees.common.Status = INVALID) -> None:
+        for child in self.children:
+            if child.status == RUNNING:
+                child.stop(INVALID)
+        if new_status == INVALID:
+            self.finished.clear()
+        super().stop(new_status)
+
+
+NODES = (Switch2, Switch3, Switch4, Switch5, Switch6, ParallelAll)

@@ -1,0 +1,169 @@
+"""Switch2..Switch6 and ParallelAll (issue 15), after BT.CPP 4's gtest_switch.cpp and gtest_parallel.cpp.
+
+The test names follow the gtest cases. BT.CPP's asynchronous test actions (RUNNING for
+a while, then SUCCESS or FAILURE) are a Sleep on canguard's manual clock, followed by
+AlwaysFailure for the failing ones; a Script records which branch finished.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from py_trees.blackboard import Blackboard
+
+from canguard.bt.context import Context, ListSink
+from canguard.bt.dryrun import RecordingTask, dry_run
+from canguard.bt.loaded import LoadedTree
+from canguard.bt.loader import load_tree
+from canguard.bt.nodes.branches import same_case
+from canguard.errors import TreeError
+from canguard.io.clock import ManualClock
+
+
+def tree(tmp_path: Path, body: str, name: str = "t.xml") -> Path:
+    path = tmp_path / name
+    path.write_text(f'<root BTCPP_format="4" main_tree_to_execute="Main">\n<BehaviorTree ID="Main">\n{body}\n'
+                    "</BehaviorTree>\n</root>\n", encoding="utf-8")
+    return path
+
+
+SWITCH = """<Switch2 variable="{my_var}" case_1="1" case_2="42">
+  <Sequence><Sleep msec="200"/><Script code="done := 'action_1'"/></Sequence>
+  <Sequence><Sleep msec="200"/><Script code="done := 'action_42'"/></Sequence>
+  <Sequence><Sleep msec="200"/><Script code="done := 'action_default'"/></Sequence>
+</Switch2>"""
+
+
+def start(tmp_path: Path, body: str = SWITCH) -> tuple[LoadedTree, ManualClock]:
+    clock = ManualClock()
+    return load_tree(tree(tmp_path, body), Context(clock, {}, sink=ListSink(), task=RecordingTask())), clock
+
+
+def running(loaded: LoadedTree) -> list[int]:
+    """Indexes of the root's children that are RUNNING."""
+    return [i for i, c in enumerate(loaded.root.children) if c.status.name == "RUNNING"]
+
+
+class TestSwitch:
+    @pytest.mark.parametrize(("value", "branch", "done"), [
+        (None, 2, "action_default"),  # DefaultCase: the variable is not set
+        ("1", 0, "action_1"),  # Case1
+        ("42", 1, "action_42"),  # Case2
+        ("none", 2, "action_default"),  # CaseNone
+        (42, 1, "action_42"),  # an int entry matches the text case
+        ("42.0", 1, "action_42"),  # numbers compare as numbers
+    ])
+    def test_case(self, tmp_path: Path, value: object, branch: int, done: str) -> None:
+        """The matching child runs to its end (the others stay idle); the switch returns its status."""
+        loaded, clock = start(tmp_path)
+        if value is not None:
+            Blackboard.storage["/my_var"] = value
+        assert loaded.tick().name == "RUNNING"
+        assert running(loaded) == [branch]
+        clock.set(0.3)
+        assert loaded.tick().name == "SUCCESS"
+        assert Blackboard.storage["/done"] == done
+        assert running(loaded) == []
+
+    def test_case_switch_to_default(self, tmp_path: Path) -> None:
+        """CaseSwitchToDefault: not reactive between ticks; at the next tick the change halts action_1."""
+        loaded, clock = start(tmp_path)
+        Blackboard.storage["/my_var"] = "1"
+        assert loaded.tick().name == "RUNNING"
+        clock.set(0.02)
+        assert loaded.tick().name == "RUNNING"
+        Blackboard.storage["/my_var"] = ""
+        assert running(loaded) == [0]  # nothing happens until the next tick
+        clock.set(0.04)
+        assert loaded.tick().name == "RUNNING"
+        assert running(loaded) == [2]
+        assert loaded.root.children[0].status.name == "INVALID"  # halted
+        clock.set(0.35)
+        assert loaded.tick().name == "SUCCESS"
+        assert Blackboard.storage["/done"] == "action_default"
+
+    def test_case_switch_to_action2(self, tmp_path: Path) -> None:
+        """CaseSwitchToAction2: the variable changes to 42 -> action_1 halted, action_42 runs and ends."""
+        loaded, clock = start(tmp_path)
+        Blackboard.storage["/my_var"] = "1"
+        assert loaded.tick().name == "RUNNING"
+        Blackboard.storage["/my_var"] = "42"
+        clock.set(0.02)
+        assert loaded.tick().name == "RUNNING"
+        assert running(loaded) == [1]
+        clock.set(0.3)
+        assert loaded.tick().name == "SUCCESS"
+        assert Blackboard.storage["/done"] == "action_42"
+
+    def test_action_failure(self, tmp_path: Path) -> None:
+        """ActionFailure: the matched child fails -> the switch fails, nothing keeps running."""
+        loaded, clock = start(tmp_path, """<Switch2 variable="{my_var}" case_1="1" case_2="42">
+  <Sequence><Sleep msec="200"/><AlwaysFailure/></Sequence><AlwaysSuccess/><AlwaysSuccess/>
+</Switch2>""")
+        Blackboard.storage["/my_var"] = "1"
+        assert loaded.tick().name == "RUNNING"
+        clock.set(0.3)
+        assert loaded.tick().name == "FAILURE"
+        assert running(loaded) == []
+
+    def test_switch6_last_case_and_constant_variable(self, tmp_path: Path) -> None:
+        """Switch6 with a constant variable picks case_6; an unset case never matches."""
+        cases = " ".join(f'case_{i}="c{i}"' for i in (1, 2, 3, 4, 6))
+        kids = "".join(f"<Script code=\"hit := {i}\"/>" for i in range(1, 8))
+        path = tree(tmp_path, f'<Switch6 variable="c6" {cases}>{kids}</Switch6>')
+        assert dry_run(path, 1, 0.1) == {"ticks": ["SUCCESS"], "blackboard": {"hit": 6}}
+
+    @pytest.mark.parametrize("kids", [2, 4])
+    def test_wrong_number_of_children_is_a_load_error(self, tmp_path: Path, kids: int) -> None:
+        """Switch2 needs 3 children (2 cases + default): the load fails naming line and counts."""
+        path = tree(tmp_path, '<Switch2 variable="a" case_1="a" case_2="b">' + "<AlwaysSuccess/>" * kids
+                    + "</Switch2>")
+        with pytest.raises(TreeError, match=rf"t.xml:3.*Switch2 needs 3 children .*has {kids}"):
+            dry_run(path, 1, 0.1)
+
+    def test_unknown_case_port_is_a_load_error(self, tmp_path: Path) -> None:
+        """case_3 is not a port of Switch2."""
+        path = tree(tmp_path, '<Switch2 variable="a" case_3="a"><AlwaysSuccess/><AlwaysSuccess/>'
+                              "<AlwaysSuccess/></Switch2>")
+        with pytest.raises(TreeError, match="case_3"):
+            dry_run(path, 1, 0.1)
+
+
+def test_switch_string_equality_rejects_trailing_characters() -> None:
+    """SwitchStringEquality.RejectsTrailingCharacters."""
+    for a, b in [("5", "5"), ("5", "5.0"), ("42", "42"), ("-7", "-7"), ("", "")]:
+        assert same_case(a, b), (a, b)
+    for a, b in [("5abc", "5"), ("42xxxx", "42"), ("1.0junk", "1.0"), ("5 ", "5"), ("none", "1"), ("1", "2")]:
+        assert not same_case(a, b), (a, b)
+
+
+class TestParallelAll:
+    BAD = '<Sequence><Sleep msec="100"/><AlwaysFailure/></Sequence>'
+    GOOD = '<Sequence><Sleep msec="300"/><Script code="good += 1"/></Sequence>'
+
+    @pytest.mark.parametrize(("max_failures", "result"), [("1", "FAILURE"), ("2", "SUCCESS"), ("-1", "SUCCESS")])
+    def test_parallel_all(self, tmp_path: Path, max_failures: str, result: str) -> None:
+        """Parallel.ParallelAll: every child runs to its end, then max_failures decides (-1 = all)."""
+        path = tree(tmp_path, f'<Sequence><Script code="good := 0"/><ParallelAll max_failures="{max_failures}">'
+                              f"{self.BAD}{self.GOOD}{self.GOOD}</ParallelAll></Sequence>")
+        out = dry_run(path, 4, 0.1)
+        assert out["ticks"] == ["RUNNING", "RUNNING", "RUNNING", result]
+        assert out["blackboard"] == {"good": 2}  # both good children finished despite the early failure
+
+    def test_all_fail_with_minus_one(self, tmp_path: Path) -> None:
+        """max_failures=-1 fails only when every child failed."""
+        path = tree(tmp_path, '<ParallelAll max_failures="-1"><AlwaysFailure/><AlwaysFailure/></ParallelAll>')
+        assert dry_run(path, 1, 0.1)["ticks"] == ["FAILURE"]
+
+    def test_finished_children_are_not_ticked_again(self, tmp_path: Path) -> None:
+        """A child that finished waits for the others (it is not re-run each tick)."""
+        path = tree(tmp_path, '<Sequence><Script code="n := 0"/><ParallelAll><Script code="n += 1"/>'
+                              '<Sleep msec="150"/></ParallelAll></Sequence>')
+        assert dry_run(path, 3, 0.1) == {"ticks": ["RUNNING", "RUNNING", "SUCCESS"], "blackboard": {"n": 1}}
+
+    def test_threshold_above_children_is_a_load_error(self, tmp_path: Path) -> None:
+        """BT.CPP: 'Number of children is less than threshold. Can never fail.'"""
+        path = tree(tmp_path, '<ParallelAll max_failures="3"><AlwaysFailure/><AlwaysFailure/></ParallelAll>')
+        with pytest.raises(TreeError, match=r"max_failures.*can never fail"):
+            dry_run(path, 1, 0.1)
