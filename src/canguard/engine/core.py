@@ -24,13 +24,9 @@ from __future__ import annotations
 import logging
 import math
 import time
-from bisect import bisect_left
-from collections import Counter, deque
-from collections.abc import Callable, Iterable, Mapping, Sequence
-from dataclasses import dataclass, field
-from itertools import compress, repeat
-from operator import itemgetter
-from typing import TYPE_CHECKING, Any, Protocol
+from collections import Counter
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any
 
 import py_trees
 
@@ -38,6 +34,9 @@ from canguard.bt.context import Context, FrameSink
 from canguard.config.schema import Config
 from canguard.decode.decoder import Decoder
 from canguard.engine.gate import TaskGate
+from canguard.engine.logrun import LogRunMixin
+from canguard.engine.stats import EngineStats, EventSink
+from canguard.engine.watch import SourceWatchMixin
 from canguard.io.clock import Clock, PinnedClock
 from canguard.io.frame import Frame
 from canguard.protect.base import LatchedModel
@@ -45,7 +44,6 @@ from canguard.protect.base import LatchedModel
 if TYPE_CHECKING:
     from canguard.bt.loader import GuardView
     from canguard.engine.rows import Batch, Handle
-    from canguard.io.logs import Columns
 
 log = logging.getLogger(__name__)
 
@@ -56,41 +54,7 @@ MAX_CATCH_UP_S = 2.0
 """Longest stretch of missed ticks the engine replays one by one after a gap."""
 
 
-class EventSink(Protocol):
-    """What the engine writes events to (:class:`~canguard.engine.events.EventJournal` is one)."""
-
-    def write(self, event: Mapping[str, Any]) -> None:
-        """Append one event."""
-        ...
-
-    def flush(self) -> None:
-        """Make every written event durable."""
-        ...
-
-
-@dataclass
-class EngineStats:
-    """Counters of one engine run (the replay summary and the daemon's STATUS read them)."""
-
-    frames: int = 0
-    ticks: int = 0
-    edge_ticks: int = 0
-    skipped_ticks: int = 0
-    tick_errors: int = 0
-    backward_frames: int = 0
-    trips: list[dict[str, Any]] = field(default_factory=list)
-    """Every trip event, up to :data:`MAX_KEPT_TRIPS` (a guard flapping for days must not eat the memory)."""
-    trip_count: int = 0
-    """Every trip, kept or not."""
-    samples: dict[str, int] = field(default_factory=dict)
-    """Samples decoded per source."""
-    max_abs: dict[tuple[str, str], float] = field(default_factory=dict)
-    """Largest |value| seen per (source, role): for the lowest margin to each threshold."""
-    max_level_pct: dict[str, float] = field(default_factory=dict)
-    """Largest accumulator level (% of trip) per guard node, sampled at ticks."""
-
-
-class Engine:
+class Engine(SourceWatchMixin, LogRunMixin):
     """Runs one config's tree over frames from any source, on any clock."""
 
     columns = True
@@ -404,70 +368,11 @@ class Engine:
             for g in self._guard_nodes if g.status == failed
         )
 
-    def _starting(self, now: float) -> bool:
-        """True while the task never ran and the sources still have their first max_age to speak.
-
-        A tree that fails in that window only keeps the task from starting: the
-        drives were never enabled, so no stop frames go out (they would latch an
-        ESTOP error that needs clearing). After it, a failing tree stops, enabled or not.
-        """
-        return self.gate.state == TaskGate.IDLE and now - self._started_at < self._start_grace_s
-
-    def _watch_sources(self, now: float) -> None:
-        for name, health in self.ctx.health.items():
-            reason = health.reason(now)
-            if reason == "no_data" and now - self._started_at < self.ctx.sources[name].max_age_s:
-                reason = ""  # not yet: every source gets max_age to send its first frame
-            prev = self._stale.get(name, "")
-            if name in self.ctx.read_sources:
-                # Backstop, whatever the tree's shape: a source the tree reads that is stale or
-                # invalid holds the task stopped until it is fine again.
-                if reason:
-                    self.gate.inhibit(f"source {name}", f"source {name}: {reason}", now)
-                elif prev:
-                    self.gate.release(f"source {name}")
-            if reason != prev:
-                self._stale[name] = reason
-                if reason:
-                    self._event({"event": "stale", "source": name, "reason": reason,
-                                 "read_by_tree": name in self.ctx.read_sources})
-                else:
-                    self._event({"event": "fresh", "source": name, "reason": f"{prev} cleared"})
-            if self.metrics is not None:
-                age = health.age(now, None) if hasattr(health, "age") else math.nan
-                self.metrics.set_sample_age(name, age)
-
-    def _sample_levels(self) -> None:
-        levels = self.stats.max_level_pct
-        for node, model in self.ctx.heat_models.items():
-            pct = model.snapshot().level_pct
-            if pct > levels.get(node, -1.0):
-                levels[node] = pct
-            if self.metrics is not None:
-                self.metrics.set_i2t_level(node, pct)
-
-    def bus_down(self, bus: str, reason: str) -> None:
-        """A bus went away: the task stops (frames out on the buses still up) until :meth:`bus_up`."""
-        now = self.clock.now()
-        self._event({"event": "bus_error", "source": bus, "reason": reason})
-        self.gate.inhibit(f"bus {bus}", f"bus {bus} down: {reason}", now)
-        self._due = min(self._due, self.gate.next_deadline())
-        self._flush()
-
-    def bus_up(self, bus: str) -> None:
-        """The bus is open again: its inhibit is released (the tree decides whether the task resumes)."""
-        self.gate.release(f"bus {bus}")
-
     def guards(self) -> list[GuardView]:
         """Every guarded signal of the tree (node, source, role, kind, model), in tree order."""
         return self._guards
 
     # -- watchdog and status ---------------------------------------------------------------
-    def stale_unstopped(self, now: float) -> list[str]:
-        """Sources the tree reads that are stale while the task is not stopped (a blind daemon)."""
-        if self.gate.state == TaskGate.STOPPED:
-            return []
-        return [s for s in self.ctx.read_sources if self.ctx.health[s].reason(now)]
 
     def status_line(self) -> str:
         """A one-line summary for systemd's STATUS=."""
@@ -508,247 +413,3 @@ class Engine:
         if self._dirty and self.durable and self.events is not None:
             self.events.flush()
             self._dirty = False
-
-    def run_log(
-        self, frames: Iterable[Frame], route: Mapping[str, str], default_bus: str | None,
-        unmapped: dict[str, int], channels: dict[str, int] | None = None,
-    ) -> None:
-        """Feed a recorded log: each frame goes to the bus its channel maps to (``route``, else ``default_bus``).
-
-        Frames of no configured message (most of a busy bus) take a short path: they are
-        counted as the decoder would count them and never decoded. Nothing else changes:
-        ticks and gate deadlines still run at their own times, brought up by the first
-        frame at or after them, exactly as if every frame had been fed; the first frame
-        is always fed (it starts the engine's clock). ``channels``, when given, counts
-        the frames of each channel.
-
-        ``frames`` may be a reader with a ``chunks()`` method (:func:`canguard.io.logs.read_log`):
-        a plain candump block (:class:`~canguard.io.logs.Columns`) of one channel whose
-        timestamps never go back is then worked on as columns: only its configured rows
-        become frames, and its other rows are looked at only where a tick falls due among
-        them (a bisection over the block's timestamps).
-        """
-        cursor = _LogCursor(route, default_bus, unmapped, channels)
-        if self.columns and hasattr(frames, "chunks"):
-            for chunk in frames.chunks():
-                if type(chunk) is list:
-                    self._run_frames(chunk, cursor)
-                elif not self._run_columns(chunk, cursor):
-                    self._run_frames(chunk.frames(), cursor)
-        else:
-            self._run_frames(frames, cursor)
-        last_t = cursor.last_t
-        if last_t > -math.inf:
-            self._drive_clock(last_t)
-            if last_t > self._last_frame_t:
-                self._last_frame_t = last_t
-
-    def _run_frames(self, frames: Iterable[Frame], cursor: _LogCursor) -> None:
-        """:meth:`run_log` over frames one by one."""
-        feed = self.feed
-        wanted = self._wanted
-        per_bus = self.decoder.per_bus
-        stats = self.stats
-        route, default_bus, unmapped, channels = cursor.route, cursor.default_bus, cursor.unmapped, cursor.channels
-        last_t, started = cursor.last_t, cursor.started
-        last_channel: str | None = None
-        run = 0
-        for frame in frames:
-            channel = frame.channel
-            if channels is not None:
-                if channel == last_channel:
-                    run += 1
-                else:
-                    if last_channel is not None:
-                        channels[last_channel] = channels.get(last_channel, 0) + run
-                    last_channel, run = channel, 1
-            bus = route.get(channel, default_bus)
-            if bus is None:
-                unmapped[channel] = unmapped.get(channel, 0) + 1
-                continue
-            t = frame.t
-            if (
-                started
-                and (bus, frame.arbitration_id, frame.is_extended_id) not in wanted
-                and not frame.is_error_frame
-                and not frame.is_remote_frame
-                and t < self._due
-            ):
-                counters = per_bus.get(bus)
-                if counters is not None:
-                    counters.frames += 1
-                    counters.skipped += 1
-                    stats.frames += 1
-                    if t >= last_t:
-                        last_t = t
-                    else:
-                        stats.backward_frames += 1
-                    continue
-            started = True
-            feed(bus, frame)
-            if t > last_t:
-                last_t = t
-        if channels is not None and last_channel is not None:
-            channels[last_channel] = channels.get(last_channel, 0) + run
-        cursor.last_t, cursor.started = last_t, started
-
-    def _run_columns(self, cols: Columns, cursor: _LogCursor) -> bool:
-        """:meth:`run_log` over a plain candump block; False (nothing done) when it must go frame by frame."""
-        if not cols.ordered or self.sample_hook is not None:
-            return False
-        ts = cols.ts
-        n = cols.n
-        if float(ts[0]) < cursor.last_t:
-            return False  # back in time across blocks: the frame-by-frame rules count it
-        channel = cols.channel
-        if channel is None:
-            return False
-        bus = cursor.route.get(channel, cursor.default_bus)
-        counters = self.decoder.per_bus.get(bus) if bus is not None else None
-        if bus is not None and counters is None:
-            return False
-        if bus is None or counters is None:
-            if cursor.channels is not None:
-                cursor.channels[channel] = cursor.channels.get(channel, 0) + n
-            cursor.unmapped[channel] = cursor.unmapped.get(channel, 0) + n
-            return True
-        first = 0
-        if not cursor.started:
-            self._run_frames((cols.frame(0),), cursor)  # the first frame is fed: it starts the engine's clock
-            first = 1
-        if cursor.channels is not None:
-            cursor.channels[channel] = cursor.channels.get(channel, 0) + n - first
-        handles = self._row_handles.get(bus)
-        if handles is None:
-            handles = self._row_handles[bus] = self._compile_rows(bus)
-        rows = list(compress(range(n), map(handles.__contains__, cols.ids))) if handles else []
-        if first and rows and rows[0] == 0:
-            del rows[0]
-        skipped = n - first - len(rows)
-        last_row = rows[-1] if rows else -1  # the last row feed would see, passive or not
-        passive = self._row_passive[bus]
-        if passive and rows:
-            rows = self._run_passive(passive, rows, cols)
-        work: Iterable[tuple[int, float, Handle | None, str]] = ()
-        if rows:
-            # the configured rows' columns, picked in C
-            pick = _picker(rows)
-            work = zip(rows, map(float, pick(ts)), map(handles.__getitem__, pick(cols.ids)), pick(cols.data),
-                       strict=True)
-        feed = self.feed
-        frame = cols.frame
-        pos = first
-        due = self._due  # handlers never change it; advance, feed and tick may
-        for i, t, handle, text in work:
-            if t >= due:
-                self._cross(ts, pos, i)  # a tick falls due among the rows before this one, or at it
-                if t >= self._due:
-                    self.advance(t)
-                due = self._due
-            pos = i + 1
-            edge = handle(text, t) if handle is not None else None
-            if edge is None:
-                feed(bus, frame(i))  # the general path: every case, and what the handlers must equal
-                due = self._due
-            elif edge:
-                self._drive_clock(t)
-                self.stats.edge_ticks += 1
-                self.tick(self.clock.now())
-                due = self._due
-        self._cross(ts, pos, n)
-        for h in self._row_flush[bus]:
-            h()
-        counters.frames += skipped
-        counters.skipped += skipped
-        self.stats.frames += skipped
-        cursor.last_t = float(ts[-1])
-        if last_row >= 0 and float(ts[last_row]) > self._last_frame_t:
-            self._last_frame_t = float(ts[last_row])  # as frame by frame: the last row fed (not ts[-1])
-        return True
-
-    @staticmethod
-    def _run_passive(passive: dict[str, Batch], rows: list[int], cols: Columns) -> list[int]:
-        """Take the rows of messages nobody reads between ticks as whole batches; return the rows left to go one by one.
-
-        Runs before any row of the block: a batch stores its message's state as at the
-        end of the block, which every tick in the block reads exactly as it would have
-        read the row-by-row state (see :func:`canguard.engine.rows.compile_passive`).
-        """
-        ids = cols.ids
-        left: list[int] = []
-        # one list per passive message (shared by its id's spellings); rows dealt out in C
-        lists: dict[Batch, list[int]] = {batch: [] for batch in set(passive.values())}
-        to = {text: lists[batch] for text, batch in passive.items()}
-        pick = _picker(rows)
-        deque(map(list.append, map(to.get, pick(ids), repeat(left)), rows), maxlen=0)
-        groups = {batch: group for batch, group in lists.items() if group}
-        ts, data = cols.ts, cols.data
-        back = False
-        for batch, group in groups.items():
-            pick = _picker(group)
-            if not batch(pick(ts), pick(data)):
-                left.extend(group)
-                back = True
-        if back:
-            left.sort()
-        return left
-
-    def _cross(self, ts: list[str], lo: int, hi: int) -> None:
-        """Rows ``lo..hi-1`` (ordered, of no configured message): the first at or after the due time brings the ticks.
-
-        What :meth:`feed` does for such a frame, without decoding it; repeated while
-        another due time falls among the rows left.
-        """
-        while lo < hi and float(ts[hi - 1]) >= self._due:
-            k = bisect_left(ts, self._due, lo, hi, key=float)
-            t = float(ts[k])
-            self.advance(t)
-            self._drive_clock(t)
-            self._last_frame_t = t  # as feed: not before it (ordered, from cursor.last_t on)
-            lo = k + 1
-
-    def _compile_rows(self, bus: str) -> dict[str, Handle | None]:
-        """Every id text (any letter case) of a message configured on ``bus``, with its row handler or None."""
-        from canguard.engine.rows import compile_passive, compile_row
-        from canguard.io.logs import candump_id_texts
-
-        counters = self.decoder.per_bus[bus]
-        handles: dict[str, Handle | None] = {}
-        flushes = self._row_flush.setdefault(bus, [])
-        passive = self._row_passive.setdefault(bus, {})
-        # the stop confirmation reads its source between ticks: not passive
-        readers = set(self.ctx.read_sources)
-        if self.cfg.stop.confirm is not None:
-            readers.add(self.cfg.stop.confirm.source)
-        for (b, cid, ext), entry in self.decoder.entries():
-            if b != bus:
-                continue
-            handler = compile_row(entry, counters, self.ctx, self.stats)
-            if handler is not None:
-                flushes.append(handler.flush)
-            batch = compile_passive(entry, counters, self.ctx, self.stats, readers) if self.metrics is None else None
-            for text in candump_id_texts(cid, ext):
-                handles[text] = handler.handle if handler is not None else None
-                if batch is not None:
-                    passive[text] = batch
-        return handles
-
-
-def _picker(rows: list[int]) -> Callable[[Sequence[Any]], tuple[Any, ...]]:
-    """``itemgetter(*rows)`` that gives a tuple for one row too (itemgetter then gives the bare value)."""
-    if len(rows) == 1:
-        only = rows[0]
-        return lambda seq: (seq[only],)
-    return itemgetter(*rows)
-
-
-@dataclass
-class _LogCursor:
-    """Where :meth:`Engine.run_log` is in a log: routing, counts, the latest time."""
-
-    route: Mapping[str, str]
-    default_bus: str | None
-    unmapped: dict[str, int]
-    channels: dict[str, int] | None
-    last_t: float = -math.inf
-    started: bool = False

@@ -34,7 +34,7 @@ from typing import TYPE_CHECKING, Any
 if TYPE_CHECKING:
     from canguard.bt.context import Context
     from canguard.decode.decoder import DecodeCounters, _Entry
-    from canguard.engine.core import EngineStats
+    from canguard.engine.stats import EngineStats
 
 Handle = Callable[[str, float], "bool | None"]
 """(data hex text, t) -> True on an edge, False, or None: not handled, feed the row as a frame."""

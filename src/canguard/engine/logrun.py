@@ -1,0 +1,304 @@
+"""Replaying a recorded log through the engine: routing, the unconfigured-frame short path, column blocks.
+
+:class:`LogRunMixin` gives :class:`~canguard.engine.core.Engine` its :meth:`run_log`:
+the same :meth:`feed` / :meth:`advance` as live, with frames of no configured message
+counted without decoding and plain candump blocks worked on as text columns
+(:mod:`canguard.engine.rows`). Split from the engine's core so each stays readable;
+the column path is the part issue 16 replaces with a columnar decoder.
+"""
+
+from __future__ import annotations
+
+import math
+from bisect import bisect_left
+from collections import deque
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import dataclass
+from itertools import compress, repeat
+from operator import itemgetter
+from typing import TYPE_CHECKING, Any
+
+import py_trees
+
+from canguard.io.frame import Frame
+
+if TYPE_CHECKING:
+    from canguard.bt.context import Context
+    from canguard.config.schema import Config
+    from canguard.decode.decoder import Decoder
+    from canguard.engine.rows import Batch, Handle
+    from canguard.engine.stats import EngineStats
+    from canguard.io.clock import PinnedClock
+    from canguard.io.logs import Columns
+
+
+class LogRunMixin:
+    """The log-replay half of the engine (see the module docstring)."""
+
+    if TYPE_CHECKING:  # what the engine provides
+        cfg: Config
+        ctx: Context
+        clock: PinnedClock
+        decoder: Decoder
+        stats: EngineStats
+        columns: bool
+        _due: float
+        _last_frame_t: float
+        _drive_clock: Callable[[float], None]
+        _wanted: frozenset[tuple[str, int, bool]]
+        _row_handles: dict[str, dict[str, Handle | None]]
+        _row_flush: dict[str, list[Callable[[], None]]]
+        _row_passive: dict[str, dict[str, Batch]]
+        _dirty: bool
+        durable: bool
+        events: Any
+        metrics: Any
+        extra_on_event: Callable[[dict[str, Any]], None] | None
+        sample_hook: Callable[[Any], None] | None
+
+        def feed(self, bus: str, frame: Frame) -> None: ...
+        def advance(self, now: float) -> None: ...
+        def tick(self, now: float) -> py_trees.common.Status: ...
+
+    def run_log(
+        self, frames: Iterable[Frame], route: Mapping[str, str], default_bus: str | None,
+        unmapped: dict[str, int], channels: dict[str, int] | None = None,
+    ) -> None:
+        """Feed a recorded log: each frame goes to the bus its channel maps to (``route``, else ``default_bus``).
+
+        Frames of no configured message (most of a busy bus) take a short path: they are
+        counted as the decoder would count them and never decoded. Nothing else changes:
+        ticks and gate deadlines still run at their own times, brought up by the first
+        frame at or after them, exactly as if every frame had been fed; the first frame
+        is always fed (it starts the engine's clock). ``channels``, when given, counts
+        the frames of each channel.
+
+        ``frames`` may be a reader with a ``chunks()`` method (:func:`canguard.io.logs.read_log`):
+        a plain candump block (:class:`~canguard.io.logs.Columns`) of one channel whose
+        timestamps never go back is then worked on as columns: only its configured rows
+        become frames, and its other rows are looked at only where a tick falls due among
+        them (a bisection over the block's timestamps).
+        """
+        cursor = _LogCursor(route, default_bus, unmapped, channels)
+        if self.columns and hasattr(frames, "chunks"):
+            for chunk in frames.chunks():
+                if type(chunk) is list:
+                    self._run_frames(chunk, cursor)
+                elif not self._run_columns(chunk, cursor):
+                    self._run_frames(chunk.frames(), cursor)
+        else:
+            self._run_frames(frames, cursor)
+        last_t = cursor.last_t
+        if last_t > -math.inf:
+            self._drive_clock(last_t)
+            if last_t > self._last_frame_t:
+                self._last_frame_t = last_t
+
+    def _run_frames(self, frames: Iterable[Frame], cursor: _LogCursor) -> None:
+        """:meth:`run_log` over frames one by one."""
+        feed = self.feed
+        wanted = self._wanted
+        per_bus = self.decoder.per_bus
+        stats = self.stats
+        route, default_bus, unmapped, channels = cursor.route, cursor.default_bus, cursor.unmapped, cursor.channels
+        last_t, started = cursor.last_t, cursor.started
+        last_channel: str | None = None
+        run = 0
+        for frame in frames:
+            channel = frame.channel
+            if channels is not None:
+                if channel == last_channel:
+                    run += 1
+                else:
+                    if last_channel is not None:
+                        channels[last_channel] = channels.get(last_channel, 0) + run
+                    last_channel, run = channel, 1
+            bus = route.get(channel, default_bus)
+            if bus is None:
+                unmapped[channel] = unmapped.get(channel, 0) + 1
+                continue
+            t = frame.t
+            if (
+                started
+                and (bus, frame.arbitration_id, frame.is_extended_id) not in wanted
+                and not frame.is_error_frame
+                and not frame.is_remote_frame
+                and t < self._due
+            ):
+                counters = per_bus.get(bus)
+                if counters is not None:
+                    counters.frames += 1
+                    counters.skipped += 1
+                    stats.frames += 1
+                    if t >= last_t:
+                        last_t = t
+                    else:
+                        stats.backward_frames += 1
+                    continue
+            started = True
+            feed(bus, frame)
+            if t > last_t:
+                last_t = t
+        if channels is not None and last_channel is not None:
+            channels[last_channel] = channels.get(last_channel, 0) + run
+        cursor.last_t, cursor.started = last_t, started
+
+    def _run_columns(self, cols: Columns, cursor: _LogCursor) -> bool:
+        """:meth:`run_log` over a plain candump block; False (nothing done) when it must go frame by frame."""
+        if not cols.ordered or self.sample_hook is not None:
+            return False
+        ts = cols.ts
+        n = cols.n
+        if float(ts[0]) < cursor.last_t:
+            return False  # back in time across blocks: the frame-by-frame rules count it
+        channel = cols.channel
+        if channel is None:
+            return False
+        bus = cursor.route.get(channel, cursor.default_bus)
+        counters = self.decoder.per_bus.get(bus) if bus is not None else None
+        if bus is not None and counters is None:
+            return False
+        if bus is None or counters is None:
+            if cursor.channels is not None:
+                cursor.channels[channel] = cursor.channels.get(channel, 0) + n
+            cursor.unmapped[channel] = cursor.unmapped.get(channel, 0) + n
+            return True
+        first = 0
+        if not cursor.started:
+            self._run_frames((cols.frame(0),), cursor)  # the first frame is fed: it starts the engine's clock
+            first = 1
+        if cursor.channels is not None:
+            cursor.channels[channel] = cursor.channels.get(channel, 0) + n - first
+        handles = self._row_handles.get(bus)
+        if handles is None:
+            handles = self._row_handles[bus] = self._compile_rows(bus)
+        rows = list(compress(range(n), map(handles.__contains__, cols.ids))) if handles else []
+        if first and rows and rows[0] == 0:
+            del rows[0]
+        skipped = n - first - len(rows)
+        last_row = rows[-1] if rows else -1  # the last row feed would see, passive or not
+        passive = self._row_passive[bus]
+        if passive and rows:
+            rows = self._run_passive(passive, rows, cols)
+        work: Iterable[tuple[int, float, Handle | None, str]] = ()
+        if rows:
+            # the configured rows' columns, picked in C
+            pick = _picker(rows)
+            work = zip(rows, map(float, pick(ts)), map(handles.__getitem__, pick(cols.ids)), pick(cols.data),
+                       strict=True)
+        feed = self.feed
+        frame = cols.frame
+        pos = first
+        due = self._due  # handlers never change it; advance, feed and tick may
+        for i, t, handle, text in work:
+            if t >= due:
+                self._cross(ts, pos, i)  # a tick falls due among the rows before this one, or at it
+                if t >= self._due:
+                    self.advance(t)
+                due = self._due
+            pos = i + 1
+            edge = handle(text, t) if handle is not None else None
+            if edge is None:
+                feed(bus, frame(i))  # the general path: every case, and what the handlers must equal
+                due = self._due
+            elif edge:
+                self._drive_clock(t)
+                self.stats.edge_ticks += 1
+                self.tick(self.clock.now())
+                due = self._due
+        self._cross(ts, pos, n)
+        for h in self._row_flush[bus]:
+            h()
+        counters.frames += skipped
+        counters.skipped += skipped
+        self.stats.frames += skipped
+        cursor.last_t = float(ts[-1])
+        if last_row >= 0 and float(ts[last_row]) > self._last_frame_t:
+            self._last_frame_t = float(ts[last_row])  # as frame by frame: the last row fed (not ts[-1])
+        return True
+
+    @staticmethod
+    def _run_passive(passive: dict[str, Batch], rows: list[int], cols: Columns) -> list[int]:
+        """Take the rows of messages nobody reads between ticks as whole batches; return the rows left to go one by one.
+
+        Runs before any row of the block: a batch stores its message's state as at the
+        end of the block, which every tick in the block reads exactly as it would have
+        read the row-by-row state (see :func:`canguard.engine.rows.compile_passive`).
+        """
+        ids = cols.ids
+        left: list[int] = []
+        # one list per passive message (shared by its id's spellings); rows dealt out in C
+        lists: dict[Batch, list[int]] = {batch: [] for batch in set(passive.values())}
+        to = {text: lists[batch] for text, batch in passive.items()}
+        pick = _picker(rows)
+        deque(map(list.append, map(to.get, pick(ids), repeat(left)), rows), maxlen=0)
+        groups = {batch: group for batch, group in lists.items() if group}
+        ts, data = cols.ts, cols.data
+        back = False
+        for batch, group in groups.items():
+            pick = _picker(group)
+            if not batch(pick(ts), pick(data)):
+                left.extend(group)
+                back = True
+        if back:
+            left.sort()
+        return left
+
+    def _cross(self, ts: list[str], lo: int, hi: int) -> None:
+        """Rows ``lo..hi-1`` (ordered, of no configured message): the first at or after the due time brings the ticks.
+
+        What :meth:`feed` does for such a frame, without decoding it; repeated while
+        another due time falls among the rows left.
+        """
+        while lo < hi and float(ts[hi - 1]) >= self._due:
+            k = bisect_left(ts, self._due, lo, hi, key=float)
+            t = float(ts[k])
+            self.advance(t)
+            self._drive_clock(t)
+            self._last_frame_t = t  # as feed: not before it (ordered, from cursor.last_t on)
+            lo = k + 1
+
+    def _compile_rows(self, bus: str) -> dict[str, Handle | None]:
+        """Every id text (any letter case) of a message configured on ``bus``, with its row handler or None."""
+        from canguard.engine.rows import compile_passive, compile_row
+        from canguard.io.logs import candump_id_texts
+
+        counters = self.decoder.per_bus[bus]
+        handles: dict[str, Handle | None] = {}
+        flushes = self._row_flush.setdefault(bus, [])
+        passive = self._row_passive.setdefault(bus, {})
+        # the stop confirmation reads its source between ticks: not passive
+        readers = set(self.ctx.read_sources)
+        if self.cfg.stop.confirm is not None:
+            readers.add(self.cfg.stop.confirm.source)
+        for (b, cid, ext), entry in self.decoder.entries():
+            if b != bus:
+                continue
+            handler = compile_row(entry, counters, self.ctx, self.stats)
+            if handler is not None:
+                flushes.append(handler.flush)
+            batch = compile_passive(entry, counters, self.ctx, self.stats, readers) if self.metrics is None else None
+            for text in candump_id_texts(cid, ext):
+                handles[text] = handler.handle if handler is not None else None
+                if batch is not None:
+                    passive[text] = batch
+        return handles
+
+def _picker(rows: list[int]) -> Callable[[Sequence[Any]], tuple[Any, ...]]:
+    """``itemgetter(*rows)`` that gives a tuple for one row too (itemgetter then gives the bare value)."""
+    if len(rows) == 1:
+        only = rows[0]
+        return lambda seq: (seq[only],)
+    return itemgetter(*rows)
+
+
+@dataclass
+class _LogCursor:
+    """Where :meth:`Engine.run_log` is in a log: routing, counts, the latest time."""
+
+    route: Mapping[str, str]
+    default_bus: str | None
+    unmapped: dict[str, int]
+    channels: dict[str, int] | None
+    last_t: float = -math.inf
+    started: bool = False

@@ -1,0 +1,41 @@
+"""What the engine counts, and what it writes events to."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+
+class EventSink(Protocol):
+    """What the engine writes events to (:class:`~canguard.engine.events.EventJournal` is one)."""
+
+    def write(self, event: Mapping[str, Any]) -> None:
+        """Append one event."""
+        ...
+
+    def flush(self) -> None:
+        """Make every written event durable."""
+        ...
+
+
+@dataclass
+class EngineStats:
+    """Counters of one engine run (the replay summary and the daemon's STATUS read them)."""
+
+    frames: int = 0
+    ticks: int = 0
+    edge_ticks: int = 0
+    skipped_ticks: int = 0
+    tick_errors: int = 0
+    backward_frames: int = 0
+    trips: list[dict[str, Any]] = field(default_factory=list)
+    """Every trip event, up to :data:`MAX_KEPT_TRIPS` (a guard flapping for days must not eat the memory)."""
+    trip_count: int = 0
+    """Every trip, kept or not."""
+    samples: dict[str, int] = field(default_factory=dict)
+    """Samples decoded per source."""
+    max_abs: dict[tuple[str, str], float] = field(default_factory=dict)
+    """Largest |value| seen per (source, role): for the lowest margin to each threshold."""
+    max_level_pct: dict[str, float] = field(default_factory=dict)
+    """Largest accumulator level (% of trip) per guard node, sampled at ticks."""
