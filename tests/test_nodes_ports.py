@@ -95,6 +95,10 @@ EXPECTED: dict[str, dict[str, tuple[str, type, Any]]] = {
     "Switch5": {"variable": ("in", str, NO), **{f"case_{i}": ("in", str, NO) for i in range(1, 6)}},
     "Switch6": {"variable": ("in", str, NO), **{f"case_{i}": ("in", str, NO) for i in range(1, 7)}},
     "ParallelAll": {"max_failures": ("in", int, 1)},
+    "LoopInt": {"queue": ("in", str, NO), "if_empty": ("in", str, "SUCCESS"), "value": ("out", int, NO)},
+    "LoopDouble": {"queue": ("in", str, NO), "if_empty": ("in", str, "SUCCESS"), "value": ("out", float, NO)},
+    "LoopString": {"queue": ("in", str, NO), "if_empty": ("in", str, "SUCCESS"), "value": ("out", str, NO)},
+    "LoopBool": {"queue": ("in", str, NO), "if_empty": ("in", str, "SUCCESS"), "value": ("out", bool, NO)},
 }
 
 REQUIRED = {
@@ -122,6 +126,10 @@ REQUIRED = {
     "Switch4": {"variable"},
     "Switch5": {"variable"},
     "Switch6": {"variable"},
+    "LoopInt": {"queue"},
+    "LoopDouble": {"queue"},
+    "LoopString": {"queue"},
+    "LoopBool": {"queue"},
 }
 
 KINDS = {
@@ -150,6 +158,10 @@ KINDS = {
         "Delay",
         "KeepRunningUntilFailure",
         "Precondition",
+        "LoopInt",
+        "LoopDouble",
+        "LoopString",
+        "LoopBool",
     },
     "Control": {
         "Sequence",

@@ -36,6 +36,7 @@ from canguard.bt.nodes.control import (
 )
 from canguard.bt.nodes.current import GuardNode, IsCurrentNormal, IsCurrentSafe, IsI2tSafe
 from canguard.bt.nodes.effort import IsJointEffortNormal
+from canguard.bt.nodes.loops import NODES as LOOP_NODES
 from canguard.bt.nodes.profile import Profile
 from canguard.bt.nodes.timing import (
     IsCooldownElapsed,
@@ -84,6 +85,7 @@ BUILTIN_NODES: dict[str, type[CanguardNode]] = {
         # more BehaviorTree.CPP 4 built-ins
         *BTCPP_NODES,
         *BRANCH_NODES,
+        *LOOP_NODES,
     )
 }
 """Every node type canguard provides, by node ID (the closed table)."""

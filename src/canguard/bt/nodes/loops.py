@@ -1,0 +1,144 @@
+"""BehaviorTree.CPP 4 LoopInt / LoopDouble / LoopString / LoopBool (its loop_node.h semantics).
+
+Each tick at which the child is not RUNNING, the next element of ``queue`` is taken
+off the front and written to ``value``; the child is ticked with it. The loop is
+RUNNING while elements remain, FAILURE as soon as the child fails, and ``if_empty``
+(default SUCCESS) when there is nothing left to take (an empty queue never ticks the
+child). ``queue`` is either a constant "1;2;3" (parsed at load; a bad element is a
+load error naming the port) or a blackboard entry holding a list (consumed in place,
+as BT.CPP's shared queue is) or such a string (parsed at the start of the run).
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from typing import Any
+
+import py_trees
+from py_trees.blackboard import Blackboard
+
+from canguard.bt.nodes.base import FAILURE, RUNNING, SUCCESS, CanguardNode, PortError, port_info
+
+_EMPTY = {"SUCCESS": SUCCESS, "FAILURE": FAILURE}
+_BOOLS = {"true": True, "false": False, "1": True, "0": False}
+
+
+def _to_bool(text: str) -> bool:
+    try:
+        return _BOOLS[text.strip().lower()]
+    except KeyError:
+        raise ValueError(f"{text!r} is not a bool (true/false/1/0)") from None
+
+
+class _Loop(CanguardNode, py_trees.decorators.Decorator):
+    """A loop over a queue of ``ITEM`` values."""
+
+    KIND = "Decorator"
+    NEEDS_CONTEXT = False
+    ITEM: type = str
+    INPUT_PORTS: dict = {}  # noqa: RUF012 - py_trees reads ports as plain class dicts
+    OUTPUT_PORTS: dict = {}  # noqa: RUF012
+    CHOICES = {"if_empty": ("SUCCESS", "FAILURE")}  # noqa: RUF012
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        name = cls.ITEM.__name__
+        cls.INPUT_PORTS = {
+            "queue": port_info(str, f"values separated by ';' (e.g. 1;2;3), or {{key}} of a list of {name}"),
+            "if_empty": port_info(str, "status when nothing is left to take: SUCCESS or FAILURE", "SUCCESS"),
+        }
+        cls.OUTPUT_PORTS = {"value": port_info(cls.ITEM, "the element the child is ticked with", required=False)}
+        cls.DESCRIPTION = (f"ticks the child once per element of queue ({name}), written to value; RUNNING while "
+                           "elements remain, FAILURE when the child fails, if_empty when none are left")
+        super().__init_subclass__(**kwargs)
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.static: list[Any] | None = None
+        self.queue: list[Any] | deque[Any] | None = None
+        self.child_running = False
+
+    def parse(self, text: str) -> list[Any]:
+        """'1;2;3' as a list of ITEM (BT.CPP splits on ';'; an empty string is an empty queue)."""
+        if text == "":
+            return []
+        convert = _to_bool if self.ITEM is bool else self.ITEM
+        return [convert(part) for part in text.split(";")]
+
+    def bind(self) -> None:
+        if not self.is_wired("queue"):
+            try:
+                self.static = self.parse(str(self.port("queue") or ""))
+            except ValueError as exc:
+                raise PortError("queue", f"{self.port('queue')!r}: not a list of {self.ITEM.__name__}: {exc}") from None
+
+    def _take(self) -> tuple[bool, Any]:
+        """(True, element) taken off the queue, or (False, None) when there is none."""
+        if self.static is None:
+            raw = Blackboard.storage.get(self._keys["queue"])
+            if isinstance(raw, list | deque):
+                self.queue = raw  # shared: the loop consumes the entry itself
+            elif isinstance(raw, str) and self.queue is None:
+                self.queue = self.parse(raw)
+            elif raw is None or not isinstance(raw, str):
+                raise ValueError(f"queue holds {raw!r}: expected a list or a ';'-separated string")
+        if not self.queue:
+            return False, None
+        item = self.queue.popleft() if isinstance(self.queue, deque) else self.queue.pop(0)
+        return True, item
+
+    def tick(self) -> Any:
+        if self.status != RUNNING:
+            self.child_running = False
+            self.queue = None if self.static is None else list(self.static)
+            self.initialise()
+        if not self.child_running:
+            try:
+                taken, item = self._take()
+            except ValueError as exc:  # BT.CPP throws; the guard fails this node and says why
+                self.feedback_message = str(exc)
+                self.stop(FAILURE)
+                yield self
+                return
+            if not taken:
+                self.stop(_EMPTY[str(self.port("if_empty")).upper()])
+                yield self
+                return
+            self.write("value", item)
+        child = self.decorated
+        yield from child.tick()
+        self.child_running = child.status == RUNNING
+        if child.status == FAILURE:
+            self.stop(FAILURE)
+        else:
+            self.status = RUNNING
+        yield self
+
+    def update(self) -> py_trees.common.Status:
+        return self.status
+
+
+class LoopInt(_Loop):
+    """BT.CPP LoopInt."""
+
+    ITEM = int
+
+
+class LoopDouble(_Loop):
+    """BT.CPP LoopDouble."""
+
+    ITEM = float
+
+
+class LoopString(_Loop):
+    """BT.CPP LoopString."""
+
+    ITEM = str
+
+
+class LoopBool(_Loop):
+    """BT.CPP LoopBool."""
+
+    ITEM = bool
+
+
+NODES = (LoopInt, LoopDouble, LoopString, LoopBool)
