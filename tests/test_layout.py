@@ -19,7 +19,6 @@ import pytest
 SRC = Path(__file__).resolve().parents[1] / "src" / "canguard"
 MAX_LINES = 450
 STILL_BIG = {
-    "sim/robot.py": "the simulated robot's motor model, encoders and bus loop",
 }
 
 

@@ -26,37 +26,35 @@ logs can assert it:
 
 from __future__ import annotations
 
-import bisect
 import heapq
-import math
 import random
 from collections.abc import Callable, Iterator, Mapping, Sequence
-from dataclasses import dataclass, field
 from os import PathLike
 
 import cantools.database
 
 from canguard.io.frame import Frame
 from canguard.sim.encode import MessageEncoder, build_encoders
+from canguard.sim.motion import (  # noqa: F401 - the robot's constants are part of its interface
+    AXIS_STATE_CLOSED_LOOP,
+    AXIS_STATE_IDLE,
+    BASE_LOAD_A,
+    ERROR_ESTOP_REQUESTED,
+    IDLE_NOISE_A,
+    IQ_NOISE_A,
+    JITTER_S,
+    KT_NM_PER_A,
+    PACK_CAPACITY_AH,
+    PACK_CELLS,
+    PACK_NOISE_A,
+    PACK_R_OHM,
+    RESUME_TAU_S,
+    START_SOC_PCT,
+    STOP_TAU_S,
+    MotionMixin,
+    _Axis,
+)
 from canguard.sim.scenarios import Scenario, parse_scenario
-
-AXIS_STATE_IDLE = 1
-AXIS_STATE_CLOSED_LOOP = 8
-ERROR_ESTOP_REQUESTED = 0x04000000
-"""ODrive ``ODriveError.ESTOP_REQUESTED``: set by an Estop, cleared by Clear_Errors."""
-
-KT_NM_PER_A = 8.27 / 100.0
-BASE_LOAD_A = 2.0
-PACK_R_OHM = 0.04
-PACK_CELLS = 13
-PACK_CAPACITY_AH = 20.0
-START_SOC_PCT = 85.0
-STOP_TAU_S = 0.002
-RESUME_TAU_S = 0.02
-IQ_NOISE_A = 0.03
-IDLE_NOISE_A = 0.005
-PACK_NOISE_A = 0.05
-JITTER_S = 20e-6
 
 DEFAULT_RATES_HZ: dict[str, float] = {
     "Get_Iq": 250.0,
@@ -72,40 +70,7 @@ DEFAULT_RATES_HZ: dict[str, float] = {
 AXIS_KINDS = ("Get_Iq", "Get_Torques", "Get_Encoder_Estimates", "Get_Bus_Voltage_Current", "Heartbeat")
 BMS_KINDS = ("BMS_Status", "BMS_Temperatures")
 
-# Duty cycle: one 4 s back-and-forth move per axis, as (start_s, |level| name, sign).
-_CYCLE_S = 4.0
-_RAMP_S = 0.02
-_ACCEL_A, _CRUISE_A, _BRAKE_A, _HOLD_A = 7.0, 2.0, 4.0, 1.0
-_SEGMENTS: tuple[tuple[float, float], ...] = (
-    (0.00, +_ACCEL_A),
-    (0.25, +_CRUISE_A),
-    (0.75, -_BRAKE_A),
-    (1.00, +_HOLD_A),
-    (2.00, -_ACCEL_A),
-    (2.25, -_CRUISE_A),
-    (2.75, +_BRAKE_A),
-    (3.00, +_HOLD_A),
-)
-_SEG_STARTS = [s for s, _ in _SEGMENTS]
-_VMAX_REV_S = 2.0
-_STAGGER_S = 0.5
-
 Producer = Callable[[float], "Frame | None"]
-
-
-@dataclass
-class _Axis:
-    """One simulated ODrive axis' state."""
-
-    index: int
-    scale: float
-    state: int = AXIS_STATE_CLOSED_LOOP
-    errors: int = 0
-    edge_t: float = -math.inf
-    edge_i: float = 0.0
-    pos_rev: float = 0.0
-    enc_t: float = 0.0
-    ids: dict[str, int] = field(default_factory=dict)
 
 
 class _Periodic:
@@ -133,7 +98,7 @@ class _Periodic:
         return self.produce(t)
 
 
-class SimRobot:
+class SimRobot(MotionMixin):
     """A deterministic simulated robot: N ODrive CANSimple axes and a BMS on one bus.
 
     ``db`` is the robot's DBC (a cantools Database or a path to one, with
@@ -371,64 +336,6 @@ class SimRobot:
         )
 
     # Physics ------------------------------------------------------------------
-
-    def _duty(self, ax: _Axis, t: float) -> float:
-        """The duty cycle's current setpoint: trapezoid moves with 20 ms ramps."""
-        u = (t + ax.index * _STAGGER_S) % _CYCLE_S
-        i = bisect.bisect_right(_SEG_STARTS, u) - 1
-        start, level = _SEGMENTS[i]
-        into = u - start
-        if into < _RAMP_S:
-            prev = _SEGMENTS[i - 1][1]
-            level = prev + (level - prev) * into / _RAMP_S
-        return level * ax.scale
-
-    def _velocity(self, ax: _Axis, t: float) -> float:
-        """Velocity of the duty cycle's move (rev/s): trapezoid rising while accelerating."""
-        u = (t + ax.index * _STAGGER_S) % _CYCLE_S
-        sign = 1.0 if u < 2.0 else -1.0
-        u %= 2.0
-        if u < 0.25:
-            v = u / 0.25
-        elif u < 0.75:
-            v = 1.0
-        elif u < 1.0:
-            v = (1.0 - u) / 0.25
-        else:
-            v = 0.0
-        return sign * v * _VMAX_REV_S * ax.scale
-
-    def _setpoint(self, ax: _Axis, t: float) -> float:
-        if ax.state != AXIS_STATE_CLOSED_LOOP:
-            return 0.0
-        iq = self._duty(ax, t)
-        for sc in self._setpoint_hooks:
-            iq = sc.setpoint(ax.index, t, iq)
-        return iq
-
-    def _current(self, ax: _Axis, t: float) -> float:
-        """Noise-free Iq: the setpoint in closed loop (after a resume ramp), a decay when idle."""
-        dt = t - ax.edge_t
-        if ax.state == AXIS_STATE_CLOSED_LOOP:
-            sp = self._setpoint(ax, t)
-            if dt < 10 * RESUME_TAU_S:
-                return sp + (ax.edge_i - sp) * math.exp(-max(dt, 0.0) / RESUME_TAU_S)
-            return sp
-        if dt > 30 * STOP_TAU_S:
-            return 0.0
-        return ax.edge_i * math.exp(-max(dt, 0.0) / STOP_TAU_S)
-
-    def _measured(self, ax: _Axis, t: float) -> float:
-        noise = IQ_NOISE_A if ax.state == AXIS_STATE_CLOSED_LOOP else IDLE_NOISE_A
-        return self._current(ax, t) + self.rng.gauss(0.0, noise)
-
-    def _pack_current(self, t: float) -> float:
-        total = BASE_LOAD_A + sum(abs(self._current(ax, t)) for ax in self._axes)
-        return total + self.rng.gauss(0.0, PACK_NOISE_A)
-
-    def _pack_voltage(self, current_a: float) -> float:
-        ocv = PACK_CELLS * (3.3 + 0.9 * self._soc_pct / 100.0)
-        return ocv - PACK_R_OHM * current_a
 
     def _set_state(self, ax: _Axis, t: float, state: int) -> None:
         if state == ax.state:
