@@ -1,0 +1,127 @@
+"""Decode a whole column of payloads of one message at once (numpy), equal to cantools per frame.
+
+The first piece of issue 16's columnar replay: given the payloads of one configured
+message in a block of a log (an ``(n, length)`` uint8 array), every signal is
+extracted for all rows in a few vectorised operations instead of one
+``decode_message`` call per frame. Covered: Intel and Motorola byte order, signed
+and unsigned, IEEE float (32/64), scale and offset, any length up to 64 bits, classic
+and CAN FD lengths, simple and extended (nested) multiplexing. The contract is
+equality with cantools: ``tests/test_columns_vs_cantools.py`` decodes random
+messages of random DBCs both ways and requires identical values.
+
+Not yet wired into ``canguard replay`` (the per-frame decoder still serves it).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+__all__ = ["ColumnSignal", "decode_columns", "signal_raw"]
+
+
+@dataclass(frozen=True)
+class ColumnSignal:
+    """A decoded signal over the rows of a block."""
+
+    values: np.ndarray
+    """Physical values (float64; int64/uint64 when cantools would give whole numbers: scale 1, offset 0)."""
+    valid: np.ndarray
+    """Rows where the signal is present (always all rows unless it is multiplexed)."""
+
+
+def _bytes_to_uint(payload: np.ndarray, first: int, count: int, big_endian: bool) -> list[np.ndarray]:
+    """The bytes first..first+count-1 of every row as uint64 columns (most significant first if big-endian)."""
+    cols = [payload[:, first + k].astype(np.uint64) for k in range(count)]
+    return cols if big_endian else cols[::-1]
+
+
+def signal_raw(payload: np.ndarray, start: int, length: int, big_endian: bool) -> np.ndarray:
+    """The raw unsigned bits of one signal for every row (uint64), cantools' bit numbering."""
+    if big_endian:
+        # DBC's Motorola start bit is the MSB in "sawtooth" numbering: make it a linear index from byte 0's MSB.
+        lin = (start // 8) * 8 + (7 - start % 8)
+        first, last = lin // 8, (lin + length - 1) // 8
+        drop = (last + 1) * 8 - (lin + length)  # bits below the signal's LSB in the last byte
+    else:
+        first, last = start // 8, (start + length - 1) // 8
+        drop = start % 8
+    cols = _bytes_to_uint(payload, first, last - first + 1, big_endian)  # most significant byte first
+    # Assemble up to 9 bytes (a 64-bit signal not aligned to a byte) without overflowing uint64:
+    # shift out the low `drop` bits byte by byte from the least significant end.
+    raw = np.zeros(payload.shape[0], dtype=np.uint64)
+    shift = 0
+    for col in reversed(cols):  # least significant byte first
+        pos = shift - drop
+        if pos >= 64:
+            break
+        if pos >= 0:
+            raw |= col << np.uint64(pos)
+        else:
+            raw |= col >> np.uint64(-pos)
+        shift += 8
+    if length < 64:
+        raw &= np.uint64((1 << length) - 1)
+    return raw
+
+
+def _physical(sig: Any, raw: np.ndarray) -> np.ndarray:
+    """cantools' decode of one signal from its raw bits: sign, IEEE float, then raw * scale + offset."""
+    if sig.is_float:
+        value = raw.astype(np.uint32).view(np.float32).astype(np.float64) if sig.length == 32 else raw.view(np.float64)
+    elif sig.is_signed:
+        value = raw.view(np.int64)
+        if sig.length < 64:
+            sign = np.int64(1) << np.int64(sig.length - 1)
+            value = (value ^ sign) - sign  # two's complement of the low `length` bits
+    else:
+        value = raw
+    scale, offset = sig.scale, sig.offset
+    if not sig.is_float and scale == 1 and offset == 0:
+        return value  # cantools returns the raw integer
+    if not sig.is_float and isinstance(scale, int) and isinstance(offset, int):
+        # cantools computes raw * scale + offset in Python integers: exact, whatever the size
+        if sig.length + max(abs(scale), 1).bit_length() + 1 < 63 and abs(offset) < 2**61:
+            return value.astype(np.int64) * np.int64(scale) + np.int64(offset)
+        return value.astype(object) * scale + offset
+    return value.astype(np.float64) * scale + offset
+
+
+def decode_columns(message: Any, payload: np.ndarray) -> dict[str, ColumnSignal]:
+    """Every signal of a cantools ``message`` for every row of ``payload`` (``(n, >= message.length)`` uint8).
+
+    Multiplexed signals are valid only in the rows whose multiplexer (and its own
+    multiplexer, for extended multiplexing) selects them; their values elsewhere are
+    meaningless. A row whose multiplexer holds a value no signal is multiplexed on is
+    invalid for every signal (cantools refuses the frame). Choices are not applied
+    (as ``decode_choices=False``).
+    """
+    if payload.ndim != 2 or payload.dtype != np.uint8:
+        raise ValueError(f"payload: expected a 2-D uint8 array, got {payload.dtype} with shape {payload.shape}")
+    if payload.shape[1] < message.length:
+        raise ValueError(f"payload: rows of {payload.shape[1]} bytes, {message.name} needs {message.length}")
+    raws = {sig.name: signal_raw(payload, sig.start, sig.length, sig.byte_order == "big_endian")
+            for sig in message.signals}
+    by_name = {sig.name: sig for sig in message.signals}
+    out: dict[str, ColumnSignal] = {}
+    all_rows = np.ones(payload.shape[0], dtype=bool)
+
+    def valid(sig: Any) -> np.ndarray:
+        if not sig.multiplexer_ids:
+            return all_rows
+        parent = by_name[sig.multiplexer_signal]
+        selector = raws[parent.name]
+        ids = np.asarray(sig.multiplexer_ids, dtype=np.uint64)
+        return valid(parent) & np.isin(selector, ids)
+
+    # cantools refuses a whole frame whose (selected) multiplexer holds a value no signal is multiplexed on
+    undecodable = np.zeros(payload.shape[0], dtype=bool)
+    for mux in (s for s in message.signals if s.is_multiplexer):
+        ids = sorted({i for s in message.signals if s.multiplexer_signal == mux.name for i in s.multiplexer_ids or ()})
+        if ids:
+            undecodable |= valid(mux) & ~np.isin(raws[mux.name], np.asarray(ids, dtype=np.uint64))
+    for sig in message.signals:
+        out[sig.name] = ColumnSignal(_physical(sig, raws[sig.name]), valid(sig) & ~undecodable)
+    return out
