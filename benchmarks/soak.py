@@ -257,7 +257,8 @@ def summarize(report: Report, bound_s: float) -> tuple[dict[str, Any], bool]:
         "late_or_missing": [f"{f.kind}@{f.at_s:.1f}: {f.seen}" for f in late],
         "journal_lines": report.lines, "torn_or_lost_lines": report.torn,
         "trips": report.trips, "trips_without_stop": report.trips_without_stop,
-        "rss_mb": {"start": rss[0] if rss else None, "end": rss[-1] if rss else None, "max": max(rss, default=None)},
+        "rss_mb": {"start": rss[0] if rss else None, "end": rss[-1] if rss else None, "max": max(rss, default=None),
+                   "samples": [[s[0], s[1]] for s in report.samples]},
         "cpu_percent": {"median": statistics.median(cpu) if cpu else None, "max": max(cpu, default=None)},
         "daemon_exit": report.exit_code,
     }
