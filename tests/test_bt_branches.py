@@ -1,4 +1,4 @@
-"""Switch2..Switch6 and ParallelAll (issue 15), after BT.CPP 4's gtest_switch.cpp and gtest_parallel.cpp.
+"""Switch2..Switch6, ParallelAll, TryCatch (issue 15), after BT.CPP 4's gtest_switch/_parallel/_try_catch.cpp.
 
 The test names follow the gtest cases. BT.CPP's asynchronous test actions (RUNNING for
 a while, then SUCCESS or FAILURE) are a Sleep on canguard's manual clock, followed by
@@ -167,3 +167,64 @@ class TestParallelAll:
         path = tree(tmp_path, '<ParallelAll max_failures="3"><AlwaysFailure/><AlwaysFailure/></ParallelAll>')
         with pytest.raises(TreeError, match=r"max_failures.*can never fail"):
             dry_run(path, 1, 0.1)
+
+
+class TestTryCatch:
+    """After gtest_try_catch.cpp; a Script in the catch child records that it ran."""
+
+    CATCH = "<Script code=\"caught := true\"/>"
+
+    @pytest.mark.parametrize(("tries", "result", "caught"), [
+        ("<AlwaysSuccess/><AlwaysSuccess/>", "SUCCESS", False),  # AllTryChildrenSucceed
+        ("<AlwaysFailure/><Script code=\"later := 1\"/>", "FAILURE", True),  # FirstChildFails_CatchExecuted
+        ("<AlwaysSuccess/><AlwaysFailure/>", "FAILURE", True),  # SecondChildFails_CatchExecuted
+        ("<AlwaysSuccess/><AlwaysSuccess/><AlwaysFailure/><AlwaysSuccess/>", "FAILURE", True),  # ManyTryChildren
+        ("<AlwaysSuccess/>", "SUCCESS", False),  # SingleTryChild_Success
+    ])
+    def test_try_children(self, tmp_path: Path, tries: str, result: str, caught: bool) -> None:
+        """The try children run as a sequence; a failure runs the catch child and fails the node."""
+        out = dry_run(tree(tmp_path, f"<TryCatch>{tries}{self.CATCH}</TryCatch>"), 1, 0.1)
+        assert out["ticks"] == [result]
+        assert ("caught" in out["blackboard"]) is caught
+        assert "later" not in out["blackboard"]
+
+    @pytest.mark.parametrize("catch", ["<AlwaysFailure/>", "<AlwaysSuccess/>"])
+    def test_catch_result_does_not_matter(self, tmp_path: Path, catch: str) -> None:
+        """CatchReturnsFailure/CatchReturnsSuccess_NodeStillReturnsFAILURE."""
+        out = dry_run(tree(tmp_path, f"<TryCatch><AlwaysFailure/>{catch}</TryCatch>"), 1, 0.1)
+        assert out["ticks"] == ["FAILURE"]
+
+    def test_try_and_catch_child_running(self, tmp_path: Path) -> None:
+        """TryChildRunning / CatchChildRunning: RUNNING is passed up; the catch runs to its end."""
+        body = ('<TryCatch><Sequence><Sleep msec="150"/><AlwaysFailure/></Sequence>'
+                '<Sequence><Sleep msec="150"/><Script code="caught := true"/></Sequence></TryCatch>')
+        out = dry_run(tree(tmp_path, body), 5, 0.1)  # try fails at 0.2 s, catch sleeps 0.2 .. 0.35 s
+        assert out["ticks"] == ["RUNNING", "RUNNING", "RUNNING", "RUNNING", "FAILURE"]
+        assert out["blackboard"] == {"caught": True}
+
+    def test_minimum_two_children(self, tmp_path: Path) -> None:
+        """MinimumTwoChildren_ParseTimeValidation: one child is a load error."""
+        with pytest.raises(TreeError, match="TryCatch needs at least 2 children"):
+            dry_run(tree(tmp_path, "<TryCatch><AlwaysSuccess/></TryCatch>"), 1, 0.1)
+
+    @pytest.mark.parametrize(("flag", "caught"), [("false", False), ("true", True)])
+    def test_catch_on_halt(self, tmp_path: Path, flag: str, caught: bool) -> None:
+        """CatchOnHalt_Disabled/_Enabled: a halt while trying ticks the catch child only when asked."""
+        body = (f'<ReactiveSequence><ScriptCondition code="go"/><TryCatch catch_on_halt="{flag}">'
+                f'<Sleep msec="500"/>{self.CATCH}</TryCatch></ReactiveSequence>')
+        loaded, clock = start(tmp_path, body)
+        Blackboard.storage["/go"] = True
+        assert loaded.tick().name == "RUNNING"
+        Blackboard.storage["/go"] = False
+        clock.set(0.1)
+        assert loaded.tick().name == "FAILURE"  # the condition halts the TryCatch
+        assert ("/caught" in Blackboard.storage) is caught
+
+    def test_re_execute_after_failure(self, tmp_path: Path) -> None:
+        """ReExecuteAfterFailure: the next tick starts again from the first try child."""
+        body = f'<TryCatch><Script code="n += 1"/><ScriptCondition code="n &gt; 1"/>{self.CATCH}</TryCatch>'
+        loaded, _ = start(tmp_path, body)
+        Blackboard.storage["/n"] = 0
+        assert loaded.tick().name == "FAILURE"
+        assert loaded.tick().name == "SUCCESS"
+        assert Blackboard.storage["/n"] == 2

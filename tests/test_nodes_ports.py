@@ -95,6 +95,7 @@ EXPECTED: dict[str, dict[str, tuple[str, type, Any]]] = {
     "Switch5": {"variable": ("in", str, NO), **{f"case_{i}": ("in", str, NO) for i in range(1, 6)}},
     "Switch6": {"variable": ("in", str, NO), **{f"case_{i}": ("in", str, NO) for i in range(1, 7)}},
     "ParallelAll": {"max_failures": ("in", int, 1)},
+    "TryCatch": {"catch_on_halt": ("in", bool, False)},
     "LoopInt": {"queue": ("in", str, NO), "if_empty": ("in", str, "SUCCESS"), "value": ("out", int, NO)},
     "LoopDouble": {"queue": ("in", str, NO), "if_empty": ("in", str, "SUCCESS"), "value": ("out", float, NO)},
     "LoopString": {"queue": ("in", str, NO), "if_empty": ("in", str, "SUCCESS"), "value": ("out", str, NO)},
@@ -178,6 +179,7 @@ KINDS = {
         "Switch5",
         "Switch6",
         "ParallelAll",
+        "TryCatch",
     },
 }
 

@@ -1,4 +1,4 @@
-"""BehaviorTree.CPP 4 Switch2..Switch6 and ParallelAll, with its IDs, ports and semantics.
+"""BehaviorTree.CPP 4 Switch2..Switch6, ParallelAll and TryCatch, with its IDs, ports and semantics.
 
 ======================  ================================================================
 BT.CPP node             semantics (as BT.CPP 4's switch_node.h and parallel_all_node.cpp show)
@@ -11,6 +11,9 @@ Switch2 .. Switch6      N cases + a default child (the last). Each tick ``variab
 ParallelAll             ticks every unfinished child each tick until all have finished, then
                         FAILURE when at least ``max_failures`` failed (negative: children + 1 + n),
                         else SUCCESS
+TryCatch                all but the last child as a Sequence: SUCCESS when they all succeed; a
+                        FAILURE runs the last (catch) child to its end, then FAILURE;
+                        ``catch_on_halt``: a halt while trying ticks the catch child once
 ======================  ================================================================
 """
 
@@ -210,4 +213,73 @@ class ParallelAll(CanguardNode, py_trees.composites.Composite):
         super().stop(new_status)
 
 
-NODES = (Switch2, Switch3, Switch4, Switch5, Switch6, ParallelAll)
+class TryCatch(CanguardNode, py_trees.composites.Composite):
+    """BT.CPP TryCatch: the first children as a sequence; on a FAILURE, the last (catch) child, then FAILURE."""
+
+    KIND = "Control"
+    NEEDS_CONTEXT = False
+    DESCRIPTION = ("ticks all but the last child as a Sequence (SUCCESS when all succeed); when one fails, the "
+                   "last (catch) child runs to its end and TryCatch fails; catch_on_halt: a halt runs it too")
+    INPUT_PORTS = {  # noqa: RUF012
+        "catch_on_halt": port_info(bool, "when halted while trying, tick the catch child once", False),
+    }
+    OUTPUT_PORTS: dict = {}  # noqa: RUF012
+
+    def __init__(self, name: str, children: Children = None, **kwargs: Any) -> None:
+        super().__init__(name=name, children=children, **kwargs)
+        self.index = 0
+        self.in_catch = False
+
+    def bind(self) -> None:
+        if len(self.children) < 2:
+            raise PortError("children", f"TryCatch needs at least 2 children, has {len(self.children)}")
+
+    def tick(self) -> Any:
+        if self.status != RUNNING:
+            self.index, self.in_catch = 0, False
+            self.initialise()
+        tries = self.children[:-1]
+        while not self.in_catch and self.index < len(tries):
+            child = tries[self.index]
+            self.current_child = child
+            yield from child.tick()
+            if child.status == RUNNING:
+                self.status = RUNNING
+                yield self
+                return
+            if child.status == FAILURE:
+                self.in_catch = True
+                for other in tries:
+                    if other.status != INVALID:
+                        other.stop(INVALID)
+            else:
+                self.index += 1
+        if not self.in_catch:
+            self.stop(SUCCESS)
+            yield self
+            return
+        catch = self.children[-1]
+        self.current_child = catch
+        yield from catch.tick()
+        if catch.status == RUNNING:
+            self.status = RUNNING
+        else:
+            self.stop(FAILURE)
+        yield self
+
+    def stop(self, new_status: py_trees.common.Status = INVALID) -> None:
+        if (new_status == INVALID and self.status == RUNNING and not self.in_catch
+                and self.port("catch_on_halt")):
+            for child in self.children[:-1]:
+                if child.status == RUNNING:
+                    child.stop(INVALID)
+            for _ in self.children[-1].tick():
+                pass
+        for child in self.children:
+            if child.status == RUNNING:
+                child.stop(INVALID)
+        self.index, self.in_catch = 0, False
+        super().stop(new_status)
+
+
+NODES = (Switch2, Switch3, Switch4, Switch5, Switch6, ParallelAll, TryCatch)
