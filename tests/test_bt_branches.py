@@ -228,3 +228,19 @@ class TestTryCatch:
         assert loaded.tick().name == "FAILURE"
         assert loaded.tick().name == "SUCCESS"
         assert Blackboard.storage["/n"] == 2
+
+
+def test_nodes_model_declares_the_new_controls_as_groot2_does() -> None:
+    """The Groot2 model lists Switch2..6 with their case ports and TryCatch's bool default as 'false'."""
+    import xml.etree.ElementTree as ET
+
+    from canguard.bt.loader import nodes_model_xml
+
+    model = ET.fromstring(nodes_model_xml(None, include_plugins=False)).find("TreeNodesModel")
+    assert model is not None
+    by_id = {e.get("ID"): e for e in model}
+    assert [p.get("name") for p in by_id["Switch4"]
+            if p.tag == "input_port"] == ["variable", "case_1", "case_2", "case_3", "case_4"]
+    catch = by_id["TryCatch"].find("input_port")
+    assert catch is not None and catch.get("default") == "false" and by_id["TryCatch"].tag == "Control"
+    assert by_id["ParallelAll"].tag == "Control"

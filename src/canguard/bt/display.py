@@ -53,6 +53,8 @@ _GROOT_TYPES = {float: "double", int: "int", str: "std::string", bool: "bool"}
 
 
 def _default_text(value: Any) -> str:
+    if isinstance(value, bool):  # BT.CPP writes and reads bools as true/false
+        return "true" if value else "false"
     if isinstance(value, float) and math.isinf(value):
         return "inf" if value > 0 else "-inf"
     return str(value)
