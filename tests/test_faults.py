@@ -112,6 +112,8 @@ class TestRefusedSends:
             feeder.current_a = 40.0  # overcurrent: the tree stops the task
             until("a trip", lambda: events(rig, "trip"))
             until("refused stop frames", lambda: rig.faults.refused_sends >= 4 and rig.daemon.sink.failed >= 4)
+            until("the refusal journalled", lambda: any("send refused" in str(e["reason"]) and "(stop)" in
+                                                        str(e["reason"]) for e in events(rig, "bus_error")))
             drain(rig.peer)
             quiet_until = time.monotonic() + 0.3
             while time.monotonic() < quiet_until:  # refused frames do not reach the bus

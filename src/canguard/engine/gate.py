@@ -387,12 +387,15 @@ class LogSink:
 class BusSink:
     """Sends frames on live buses without ever blocking the loop; failures are logged and counted."""
 
-    def __init__(self, send: Callable[[str, Any], bool], on_error: EventFn | None = None) -> None:
+    def __init__(self, send: Callable[[str, Any], bool], on_error: EventFn | None = None,
+                 on_refused: Callable[[str, str, str], None] | None = None) -> None:
         import can  # only the live path needs python-can's Message
 
         self._message = can.Message
         self._send = send
         self.on_error = on_error
+        self.on_refused = on_refused
+        """Called with (bus, frame label, origin) for each refused frame: the daemon journals it."""
         self.sent = 0
         self.failed = 0
 
@@ -409,3 +412,5 @@ class BusSink:
                 log.warning("could not send %s (%s) on bus %s", f.label, origin, f.bus)
                 if self.on_error is not None:
                     self.on_error(f.bus)
+                if self.on_refused is not None:
+                    self.on_refused(f.bus, f.label, origin)

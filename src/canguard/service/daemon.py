@@ -125,8 +125,10 @@ class Daemon:
         self._bus_errors: queue.SimpleQueue[tuple[str, str]] = queue.SimpleQueue()
         self.exit_reason = "exit"
         self.reader = BusReader(self.cfg.buses, on_error=self._bus_error)
+        self._refused_logged: dict[tuple[str, str], float] = {}
         self.sink: FrameSink = BusSink(
-            self.reader.send, on_error=self.metrics.send_error if self.metrics is not None else None
+            self.reader.send, on_error=self.metrics.send_error if self.metrics is not None else None,
+            on_refused=self._send_refused,
         )
         self.engine = self._build_engine(self.cfg)
 
@@ -275,6 +277,22 @@ class Daemon:
         new._flush()
         self.notifier.ready()
         return True
+
+    def _send_refused(self, bus: str, label: str, origin: str) -> None:
+        """A frame the bus refused (full TX queue, bus-off) goes in the journal, once a second per bus and origin.
+
+        A stop frame that never reached the bus is what a safety engineer asks about
+        first; it is sent again every ``stop.repeat``, and this event says it had to be.
+        """
+        now = time.monotonic()
+        key = (bus, origin)
+        if now - self._refused_logged.get(key, -math.inf) < 1.0:
+            return
+        self._refused_logged[key] = now
+        engine = getattr(self, "engine", None)
+        if engine is not None:
+            engine._event({"event": "bus_error", "source": bus,
+                           "reason": f"send refused: {label} ({origin}); sent again at the next repeat"})
 
     def _bus_error(self, bus: str, exc: BaseException) -> None:
         # Called from a receive thread: hand it to the loop, which owns the journal.
