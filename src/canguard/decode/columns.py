@@ -122,6 +122,7 @@ def decode_columns(message: Any, payload: np.ndarray) -> dict[str, ColumnSignal]
         ids = sorted({i for s in message.signals if s.multiplexer_signal == mux.name for i in s.multiplexer_ids or ()})
         if ids:
             undecodable |= valid(mux) & ~np.isin(raws[mux.name], np.asarray(ids, dtype=np.uint64))
-    for sig in message.signals:
-        out[sig.name] = ColumnSignal(_physical(sig, raws[sig.name]), valid(sig) & ~undecodable)
+    with np.errstate(invalid="ignore", over="ignore"):  # NaN payloads and huge scales: as cantools, no warning
+        for sig in message.signals:
+            out[sig.name] = ColumnSignal(_physical(sig, raws[sig.name]), valid(sig) & ~undecodable)
     return out
