@@ -67,3 +67,145 @@ def test_second_trip_and_recovery_with_persistence() -> None:
             edges.append((t, m.tripped))
         t += 0.125
     assert edges == [(0.25, True), (0.625, False), (1.0, True), (1.375, False)]
+
+
+# -- source health (staleness): what a stale/invalid verdict rests on ------------------------------
+import math  # noqa: E402
+
+from canguard.config.schema import SignalRef, SourceConfig  # noqa: E402
+from canguard.io.frame import Sample  # noqa: E402
+from canguard.protect import SourceHealth  # noqa: E402
+
+
+def _ref(role: str, minimum: float | None = None, maximum: float | None = None) -> SignalRef:
+    return SignalRef(role, "can0", "M", 0x100, False, role.upper(), "A", minimum, maximum)
+
+
+def _sample(role: str, value: float, t: float) -> Sample:
+    return Sample("src", role, value, t, "")
+
+
+def _joints(max_age_s: float = 0.5) -> SourceHealth:
+    return SourceHealth(SourceConfig("arm", "joints", "can0", (_ref("j1"), _ref("j2")), max_age_s))
+
+
+def test_every_role_exactly_max_age_old_is_fresh_and_a_bit_older_is_stale() -> None:
+    """reasons() judges each role on its own: 0.5 s old with max_age 0.5 s is fresh, 0.51 s is stale."""
+    h = _joints()
+    h.observe(_sample("j1", 1.0, 1.0))
+    h.observe(_sample("j2", 2.0, 1.0))
+    assert h.reasons(1.5) == {"j1": "", "j2": ""}
+    assert h.reasons(1.51) == {"j1": "stale", "j2": "stale"}
+
+
+def test_a_role_refreshed_on_the_fast_path_keeps_its_time_and_value() -> None:
+    """Many fresh samples: the latest time and value are the last sample's, every role usable."""
+    h = _joints()
+    for i in range(5):
+        h.observe(_sample("j1", float(i), 0.1 * i))
+        h.observe(_sample("j2", 10.0 + i, 0.1 * i + 0.01))
+    assert h.last_t("j1") == 0.1 * 4 and h.last_t("j2") == 0.1 * 4 + 0.01
+    assert h.value("j1") == 4.0 and h.value("j2") == 14.0
+    assert h.reasons(0.45) == {"j1": "", "j2": ""}
+
+
+def test_counters_count_samples_invalid_and_out_of_order() -> None:
+    """Five samples, one NaN, one older than the latest: the counters say exactly that."""
+    h = _joints()
+    for value, t in ((1.0, 0.0), (math.nan, 0.1), (2.0, 0.2), (3.0, 0.15), (4.0, 0.3)):
+        h.observe(_sample("j1", value, t))
+    assert (h.samples, h.invalid_samples, h.out_of_order) == (5, 1, 1)
+
+
+def test_age_of_the_source_is_its_oldest_role() -> None:
+    """age(now) without a role is the age of the oldest value role (the one that goes stale first)."""
+    h = _joints()
+    h.observe(_sample("j1", 1.0, 0.0))
+    h.observe(_sample("j2", 1.0, 1.0))
+    assert h.age(2.0) == 2.0
+    assert h.age(2.0, "j2") == 1.0
+
+
+def test_values_hide_only_the_roles_that_cannot_be_used() -> None:
+    """One joint stale, the other fresh: values() gives NaN for the stale one only."""
+    h = _joints()
+    h.observe(_sample("j1", 1.5, 0.0))
+    h.observe(_sample("j2", 2.5, 1.0))
+    vals = h.values(1.2)
+    assert math.isnan(vals["j1"]) and vals["j2"] == 2.5
+
+
+def test_a_signal_with_only_a_minimum_is_range_checked() -> None:
+    """A DBC range with only a lower bound still makes values below it out_of_range."""
+    h = SourceHealth(SourceConfig("m", "current", "can0", (_ref("current", 0.0, None),), 0.5))
+    assert h.ranges == {"current": (0.0, None)}
+    h.observe(_sample("current", -1.0, 0.0))
+    assert h.reason(0.0) == "out_of_range"
+
+
+# -- I²t: restore boundaries, the held current after a restore, gaps ---------------------------------
+from canguard.protect.i2t import LeakyI2t  # noqa: E402
+
+
+def _heated(level: float, tripped: bool) -> dict[str, object]:
+    """An exported leaky I²t state at ``level`` (fraction of the trip level), tripped or not."""
+    m = LeakyI2t(10.0, 20.0, 1.0)
+    state = m.export()
+    state.update(level=level, accumulator=level * m.trip_level, tripped=tripped)
+    return state
+
+
+def test_restore_trips_at_exactly_the_trip_level() -> None:
+    """A state saved at 100 % comes back tripped; at 99.9 % and not tripped, it does not."""
+    m = LeakyI2t(10.0, 20.0, 1.0)
+    m.restore(_heated(1.0, False), 0.0)
+    assert m.tripped and m.snapshot().tripped
+    m2 = LeakyI2t(10.0, 20.0, 1.0)
+    m2.restore(_heated(0.999, False), 0.0)
+    assert not m2.tripped
+
+
+def test_restore_keeps_a_trip_down_to_exactly_the_recover_fraction() -> None:
+    """Saved tripped at exactly recover_fraction: still tripped; just below it: recovered."""
+    m = LeakyI2t(10.0, 20.0, 1.0, recover_fraction=0.5)
+    m.restore(_heated(0.5, True), 0.0)
+    assert m.tripped
+    m2 = LeakyI2t(10.0, 20.0, 1.0, recover_fraction=0.5)
+    m2.restore(_heated(0.49, True), 0.0)
+    assert not m2.tripped
+
+
+def test_export_restore_round_trip_keeps_the_level() -> None:
+    """Half-heated, exported and restored with no downtime: the same level, samples work after it."""
+    m = LeakyI2t(10.0, 20.0, 1.0)
+    m.update(20.0, 0.0)
+    m.update(20.0, 0.5)
+    level = m.level
+    assert 0.0 < level < 1.0
+    fresh = LeakyI2t(10.0, 20.0, 1.0)
+    fresh.restore(m.export(), 0.0)
+    assert fresh.level == level
+    assert fresh.update(20.0, 10.0) is False  # the first sample after a restore only sets the held current
+    fresh.update(20.0, 10.6)
+    assert fresh.tripped  # and the heat goes on from the restored level: 0.5 + 0.6 s at 2x the rating
+
+
+def test_each_stale_gap_is_counted() -> None:
+    """Two gaps longer than max_gap_s: stale_gaps is 2 (a gap of exactly max_gap_s is not one)."""
+    m = LeakyI2t(10.0, 20.0, 1.0, max_gap_s=0.25)
+    for t in (0.0, 0.25, 1.0, 1.25, 2.0):
+        m.update(5.0, t)
+    assert m.stale_gaps == 2
+
+
+def test_i2t_recovery_reports_its_time() -> None:
+    """since is the recovery's time once the bucket has cooled below recover_fraction."""
+    m = LeakyI2t(10.0, 20.0, 1.0, recover_fraction=0.5)
+    t = 0.0
+    while not m.tripped:
+        m.update(20.0, t)
+        t += 0.125
+    while m.tripped:
+        m.update(0.0, t)
+        t += 0.125
+    assert m.snapshot().since == t - 0.125
