@@ -12,8 +12,8 @@ from pathlib import Path
 import pytest
 from py_trees.blackboard import Blackboard
 
-from canguard.bt.context import Context, ListSink
-from canguard.bt.dryrun import RecordingTask, dry_run
+from canguard.bt.context import Context, ListSink, NullTaskGate
+from canguard.bt.dryrun import dry_run
 from canguard.bt.loaded import LoadedTree
 from canguard.bt.loader import load_tree
 from canguard.bt.nodes.branches import same_case
@@ -37,7 +37,7 @@ SWITCH = """<Switch2 variable="{my_var}" case_1="1" case_2="42">
 
 def start(tmp_path: Path, body: str = SWITCH) -> tuple[LoadedTree, ManualClock]:
     clock = ManualClock()
-    return load_tree(tree(tmp_path, body), Context(clock, {}, sink=ListSink(), task=RecordingTask())), clock
+    return load_tree(tree(tmp_path, body), Context(clock, {}, sink=ListSink(), task=NullTaskGate())), clock
 
 
 def running(loaded: LoadedTree) -> list[int]:

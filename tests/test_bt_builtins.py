@@ -15,12 +15,12 @@ from pathlib import Path
 import pytest
 from py_trees.blackboard import Blackboard
 
-from canguard.bt.context import Context, ListSink
-from canguard.bt.dryrun import RecordingTask, dry_run
+from canguard.bt.context import Context, ListSink, NullTaskGate
+from canguard.bt.dryrun import dry_run
 from canguard.bt.loader import load_tree
-from canguard.cli.main import main
 from canguard.errors import TreeError
 from canguard.io.clock import ManualClock
+from clikit import cli
 
 
 def tree(tmp_path: Path, body: str, name: str = "t.xml") -> Path:
@@ -30,14 +30,6 @@ def tree(tmp_path: Path, body: str, name: str = "t.xml") -> Path:
     return path
 
 
-def cli(capsys: pytest.CaptureFixture[str], *argv: object) -> tuple[int, str, str]:
-    capsys.readouterr()
-    try:
-        code = main([str(a) for a in argv])
-    except SystemExit as exc:
-        code = exc.code if isinstance(exc.code, int) else 2
-    out, err = capsys.readouterr()
-    return code, out, err
 
 
 class TestScriptNodes:
@@ -101,7 +93,7 @@ class TestBranching:
         path = tree(tmp_path, """<IfThenElse><ScriptCondition code="go"/><Sleep msec="250"/>
   <AlwaysFailure/></IfThenElse>""")
         clock = ManualClock()
-        loaded = load_tree(path, Context(clock, {}, sink=ListSink(), task=RecordingTask()))
+        loaded = load_tree(path, Context(clock, {}, sink=ListSink(), task=NullTaskGate()))
         Blackboard.storage["/go"] = True
         assert loaded.tick().name == "RUNNING"
         Blackboard.storage["/go"] = False
@@ -115,7 +107,7 @@ class TestBranching:
         path = tree(tmp_path, """<WhileDoElse><ScriptCondition code="go"/><Sleep msec="250"/>
   <Script code="switched := true"/></WhileDoElse>""")
         clock = ManualClock()
-        loaded = load_tree(path, Context(clock, {}, sink=ListSink(), task=RecordingTask()))
+        loaded = load_tree(path, Context(clock, {}, sink=ListSink(), task=NullTaskGate()))
         Blackboard.storage["/go"] = True
         assert loaded.tick().name == "RUNNING"
         sleep = loaded.root.children[1]

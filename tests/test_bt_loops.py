@@ -12,8 +12,8 @@ from pathlib import Path
 import pytest
 from py_trees.blackboard import Blackboard
 
-from canguard.bt.context import Context, ListSink
-from canguard.bt.dryrun import RecordingTask, dry_run
+from canguard.bt.context import Context, ListSink, NullTaskGate
+from canguard.bt.dryrun import dry_run
 from canguard.bt.loader import load_tree
 from canguard.errors import TreeError
 from canguard.io.clock import ManualClock
@@ -29,7 +29,7 @@ def tree(tmp_path: Path, body: str) -> Path:
 def run(tmp_path: Path, body: str, ticks: int, setup: Callable[[], None] | None = None) -> tuple[list[str], dict]:
     """Tick the tree ``ticks`` times (stopping after the first non-RUNNING); statuses and root entries."""
     Blackboard.storage.clear()
-    loaded = load_tree(tree(tmp_path, body), Context(ManualClock(), {}, sink=ListSink(), task=RecordingTask()))
+    loaded = load_tree(tree(tmp_path, body), Context(ManualClock(), {}, sink=ListSink(), task=NullTaskGate()))
     Blackboard.storage["/seen"] = ""
     if setup:
         setup()

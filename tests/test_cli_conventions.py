@@ -17,7 +17,8 @@ from pathlib import Path
 import pytest
 
 from canguard.cli.common import EXIT_CODES
-from canguard.cli.main import build_parser, main, parse_args
+from canguard.cli.main import build_parser, parse_args
+from clikit import cli
 
 REPO = Path(__file__).resolve().parents[1]
 ROBOT = REPO / "config" / "examples" / "robot_guard.yaml"
@@ -25,15 +26,6 @@ NORMAL = REPO / "examples" / "normal.log.gz"
 SUBCOMMANDS = ("run", "check", "tree", "replay", "simulate", "demo", "init", "unit", "completion")
 
 
-def cli(capsys: pytest.CaptureFixture[str], *argv: object) -> tuple[int, str, str]:
-    """``canguard *argv`` in-process: (exit code, stdout, stderr)."""
-    capsys.readouterr()
-    try:
-        code = main([str(a) for a in argv])
-    except SystemExit as exc:
-        code = exc.code if isinstance(exc.code, int) else 2
-    out, err = capsys.readouterr()
-    return code, out, err
 
 
 def canguard(*argv: object, stdin: bytes | None = None, cwd: Path | None = None) -> subprocess.CompletedProcess[bytes]:

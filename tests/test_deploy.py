@@ -17,22 +17,14 @@ from pathlib import Path
 import pytest
 import yaml
 
-from canguard.cli.main import main
 from canguard.config.loader import load_config
+from clikit import cli
 
 REPO = Path(__file__).resolve().parents[1]
 UNIT = REPO / "systemd" / "canguard.service"
 GUIDE = REPO / "docs" / "deploy.md"
 
 
-def cli(capsys: pytest.CaptureFixture[str], *argv: object) -> tuple[int, str, str]:
-    capsys.readouterr()
-    try:
-        code = main([str(a) for a in argv])
-    except SystemExit as exc:
-        code = exc.code if isinstance(exc.code, int) else 2
-    out, err = capsys.readouterr()
-    return code, out, err
 
 
 def unit_value(text: str, key: str) -> list[str]:

@@ -16,8 +16,7 @@ import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from canguard.bt.context import Context, ListSink
-from canguard.bt.dryrun import RecordingTask
+from canguard.bt.context import Context, ListSink, NullTaskGate
 from canguard.bt.loader import load_tree
 from canguard.bt.nodes import BUILTIN_NODES
 from canguard.config.loader import load_config_text
@@ -143,7 +142,7 @@ def test_any_tree_is_a_tree_or_a_tree_error_with_its_line(tmp_path_factory: Any,
     path = tmp_path_factory.mktemp("tree") / "t.xml"
     path.write_text(f'<root {fmt}main_tree_to_execute="M">\n<BehaviorTree ID="M">\n{body}\n</BehaviorTree>\n</root>\n',
                     encoding="utf-8")
-    ctx = Context(ManualClock(), {}, sink=ListSink(), task=RecordingTask())
+    ctx = Context(ManualClock(), {}, sink=ListSink(), task=NullTaskGate())
     try:
         load_tree(path, ctx)
     except TreeError as exc:
@@ -156,6 +155,6 @@ def test_any_text_as_tree(tmp_path_factory: Any, text: str) -> None:
     path = tmp_path_factory.mktemp("tree") / "t.xml"
     path.write_bytes(text.encode("utf-8", "surrogatepass"))
     try:
-        load_tree(path, Context(ManualClock(), {}, sink=ListSink(), task=RecordingTask()))
+        load_tree(path, Context(ManualClock(), {}, sink=ListSink(), task=NullTaskGate()))
     except TreeError as exc:
         assert str(path) in str(exc)

@@ -18,8 +18,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-from canguard.cli.main import main
 from canguard.config.loader import load_config
+from clikit import cli
 
 REPO = Path(__file__).resolve().parents[1]
 ROBOT = REPO / "config" / "examples" / "robot_guard.yaml"
@@ -27,15 +27,6 @@ NORMAL = REPO / "examples" / "normal.log.gz"
 OVERLOAD = REPO / "examples" / "overload.log.gz"
 
 
-def cli(capsys: pytest.CaptureFixture[str], *argv: object) -> tuple[int, str, str]:
-    """``canguard *argv`` in-process: (exit code, stdout, stderr)."""
-    capsys.readouterr()
-    try:
-        code = main([str(a) for a in argv])
-    except SystemExit as exc:
-        code = exc.code if isinstance(exc.code, int) else 2
-    out, err = capsys.readouterr()
-    return code, out, err
 
 
 def robot_config(directory: Path, **changes: object) -> Path:

@@ -3,7 +3,8 @@
 How an engineer checks a tree before it guards a robot: load it (every problem with
 its line), tick it N times ``dt`` apart, and read the root status after each tick
 and the root blackboard afterwards. ExecuteTask and stop nodes act on a recording
-task gate; nodes that need a configured source say so (use ``-c CONFIG`` for those).
+task gate (:class:`~canguard.bt.context.NullTaskGate`); nodes that need a configured source
+say so (use ``-c CONFIG`` for those).
 """
 
 from __future__ import annotations
@@ -15,21 +16,8 @@ from typing import Any
 from py_trees.blackboard import Blackboard
 
 from canguard.bt.build import load_tree
-from canguard.bt.context import Context, ListSink
+from canguard.bt.context import Context, ListSink, NullTaskGate
 from canguard.io.clock import ManualClock
-
-
-class RecordingTask:
-    """The task gate of a dry run: remembers what ExecuteTask asked for, sends nothing."""
-
-    def __init__(self) -> None:
-        self.calls: list[tuple[str, str, float]] = []
-
-    def run(self, node: str, now: float) -> None:
-        self.calls.append(("run", node, now))
-
-    def halt(self, node: str, now: float) -> None:
-        self.calls.append(("halt", node, now))
 
 
 def _json_value(value: Any) -> Any:
@@ -59,7 +47,7 @@ def dry_run(path: Path, ticks: int, dt: float, main: str | None = None) -> dict[
     Blackboard.metadata.clear()
     Blackboard.clients.clear()
     clock = ManualClock()
-    ctx = Context(clock, {}, sink=ListSink(), actions={}, task=RecordingTask())
+    ctx = Context(clock, {}, sink=ListSink(), actions={}, task=NullTaskGate())
     loaded = load_tree(path, ctx, main)
     statuses = []
     for i in range(ticks):

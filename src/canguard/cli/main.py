@@ -122,11 +122,10 @@ def _dry_run(args: argparse.Namespace) -> int:
         print(json.dumps(result))
         return 0
     from canguard.bt.build import load_tree
-    from canguard.bt.context import Context
-    from canguard.bt.dryrun import RecordingTask
+    from canguard.bt.context import Context, NullTaskGate
     from canguard.io.clock import ManualClock
 
-    loaded = load_tree(args.file, Context(ManualClock(), {}, task=RecordingTask()), args.main)
+    loaded = load_tree(args.file, Context(ManualClock(), {}, task=NullTaskGate()), args.main)
     print(render_text(loaded.root), end="")
     if args.tick:
         print("ticks: " + " ".join(result["ticks"]))
