@@ -194,7 +194,8 @@ def run(args: argparse.Namespace) -> Report:
             raise SystemExit(f"the daemon did not start: {(tmp / 'daemon.stderr').read_text()[-2000:]}")
         time.sleep(0.1)
     cfg = load_config(cfg_path)
-    scenarios = ["load", *[f"{f.kind}@{f.at_s:.3f}" for f in report.faults if f.kind in SIM_FAULTS]]
+    scenarios = [*(["load"] if args.load else []), *[f"{f.kind}@{f.at_s:.3f}" for f in report.faults
+                                                     if f.kind in SIM_FAULTS]]
     robot = SimRobot(db=cfg.database, scenarios=scenarios, seed=args.seed)
     bus = can.Bus(**bus_kwargs)
     stop = threading.Event()
@@ -273,6 +274,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--bound", type=float, default=2.0, help="seconds from a fault to its reaction (default 2)")
     ap.add_argument("--sample", type=float, default=10.0, help="seconds between RSS/CPU samples")
     ap.add_argument("--json", type=Path, default=None, help="write the report here too")
+    ap.add_argument("--no-load", dest="load", action="store_false",
+                    help="without the 40 background ids (~2,000 instead of ~8,000 frames/s): a slow machine")
     args = ap.parse_args(argv)
     report = run(args)
     out, ok = summarize(report, args.bound)
