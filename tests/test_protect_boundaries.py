@@ -209,3 +209,29 @@ def test_i2t_recovery_reports_its_time() -> None:
         m.update(0.0, t)
         t += 0.125
     assert m.snapshot().since == t - 0.125
+
+
+# -- the I²t state file ---------------------------------------------------------------------------
+from pathlib import Path  # noqa: E402
+
+from canguard.protect.state import HeatStore  # noqa: E402
+
+
+def test_corrupt_state_file_starts_hot_at_the_restore_time(tmp_path: Path) -> None:
+    """A corrupt file: the model starts tripped, and its trip is dated at the restore (the events say when)."""
+    path = tmp_path / "i2t.json"
+    path.write_text("{not json")
+    model = LeakyI2t(10.0, 20.0, 1.0)
+    HeatStore(path).restore("Axis0I2t", model, 123.0)
+    assert model.tripped and model.snapshot().since == 123.0
+
+
+def test_periodic_save_once_per_period_boundary(tmp_path: Path) -> None:
+    """maybe_save saves at exactly one period after the last save, not before; time going back saves too."""
+    store = HeatStore(tmp_path / "i2t.json")
+    models = {"A": LeakyI2t(10.0, 20.0, 1.0)}
+    assert store.maybe_save(models, 10.0, 5.0) is True
+    assert store.maybe_save(models, 14.999, 5.0) is False
+    assert store.maybe_save(models, 15.0, 5.0) is True
+    assert store.maybe_save(models, 15.0, 5.0) is False  # the same instant: nothing new
+    assert store.maybe_save(models, 12.0, 5.0) is True  # the clock went back: save rather than wait
