@@ -11,6 +11,7 @@ from typing import Any
 import py_trees
 from py_trees.parsers.behaviour_tree_xml import XMLParserError, parse_behaviour_tree_xml
 
+from canguard.bt import conditions
 from canguard.bt.context import Context
 from canguard.bt.loaded import LoadedTree, NodeInfo, _preorder
 from canguard.bt.nodes import CanguardNode, PortError
@@ -62,6 +63,7 @@ class _Loader(_Validator):
         for node in nodes:
             parts = node.name.split(".")
             info = self.infos[parts[-1]]
+            conditions.install(node, self.conditions.get(parts[-1], {}))
             prefix = [p for p in parts[:-1] if p not in self.infos]
             placed.append((node, info, "/".join([*prefix, info.name])))
         order = {id(n): i for i, n in enumerate(_preorder(root))}

@@ -12,6 +12,8 @@ from py_trees.parsers.behaviour_tree_xml import is_key
 from py_trees.ports import PortInformation, PortsMixin
 from py_trees.ports_utils import convert_str_to_type
 
+from canguard.bt import conditions
+from canguard.bt.conditions import take_conditions
 from canguard.bt.loaded import NodeInfo
 from canguard.bt.nodes import GuardNode
 from canguard.bt.registry import _SUBTREE, _TOKEN, known_node_ids, node_kind
@@ -54,6 +56,10 @@ class _Validator(_Reader):
                     except TreeError as exc:
                         self.errors.extend(exc.problems)
                 else:
+                    scripts, problems = take_conditions(elem.attrib)
+                    cond_file, cond_line = self.where.get(elem, (self.path, 0))
+                    self.errors.extend(f"{cond_file}:{cond_line}: node {elem.tag} (BehaviorTree {tree_id}), {p}"
+                                       for p in problems)
                     cls = self._check_node(elem, tree_id)
                     if cls is not None and issubclass(cls, GuardNode):
                         source_error = self._check_source(elem, cls, tree_id)
@@ -64,6 +70,8 @@ class _Validator(_Reader):
                     file, line = self.where.get(elem, (self.path, 0))
                     readable = elem.attrib.get("name") or elem.tag
                     self.infos[token] = NodeInfo(elem.tag, readable, file, line, tree_id)
+                    if scripts:
+                        self.conditions[token] = scripts
                     elem.attrib["name"] = token
         if self.source_check == "always" or (self.errors and self.source_check == "with_others"):
             # The tree will not be built, so binding (which resolves the sources and reports an
@@ -196,7 +204,9 @@ class _Validator(_Reader):
         """Raise the TreeError of one attribute of a node (unknown port, bad value...), if any."""
         node_id = elem.tag
         if attr.startswith("_"):
-            raise self.error(elem, f"attribute {attr} (BT.CPP pre/post-conditions) is not supported", tree_id)
+            known = ", ".join(conditions.PRE + conditions.POST)
+            raise self.error(elem, f"attribute {attr} (BT.CPP pre/post-conditions) is not supported; "
+                                   f"the supported ones: {known}", tree_id)
         if attr not in ports:
             listing = ", ".join(_closest(attr, ports)) if ports else "(none)"
             raise self.error(elem, f"unknown port {attr!r}; ports of {node_id}: {listing}", tree_id)

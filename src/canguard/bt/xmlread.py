@@ -14,6 +14,7 @@ from py_trees.ports import PortsMixin
 from canguard.bt.context import Context
 from canguard.bt.loaded import NodeInfo
 from canguard.bt.registry import _PORT_ALIASES, _SUBTREE, _TAG_ALIASES, _TOKEN, _V3_WRAPPERS, Registry, build_registry
+from canguard.bt.scripting import Script as ParsedScript
 from canguard.errors import TreeError
 
 # ---------------------------------------------------------------------------------------
@@ -69,6 +70,8 @@ class _Reader:
         self.format_version = 3
         self.main_attr: str | None = None
         self.infos: dict[str, NodeInfo] = {}
+        self.conditions: dict[str, dict[str, ParsedScript]] = {}
+        """Pre/post-condition scripts (``_successIf``...) by node token (see :mod:`.conditions`)."""
         self.registry: Registry = {}
         self.classes: dict[str, type[PortsMixin]] = {}
         self.errors: list[str] = []

@@ -1,0 +1,106 @@
+"""BehaviorTree.CPP 4's pre- and post-conditions on any node: ``_failureIf``, ``_successIf``, ``_onSuccess``...
+
+Scripts in these attributes are parsed once, at load (a syntax error is a load error
+with the file and line), and run on the node's (sub)tree blackboard:
+
+- before a node starts (it is not RUNNING): ``_failureIf`` true → FAILURE, ``_successIf``
+  true → SUCCESS, in that order, without ticking the node (as BT.CPP checks them);
+- after it (also when a pre-condition gave the status, as in BT.CPP's ``executeTick``):
+  ``_onSuccess`` when it returned SUCCESS, ``_onFailure`` when FAILURE, ``_post`` after
+  either; ``_onHalted`` when it is halted while RUNNING.
+
+``_skipIf`` and ``_while`` need BT.CPP's SKIPPED status, which py_trees' controls do not
+have: a tree using them is refused at load with that reason, rather than run differently
+from BT.CPP. A script that fails while it runs counts as false (pre) or is skipped (post)
+and the node's feedback says why.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Mapping
+from typing import Any
+
+import py_trees
+
+from canguard.bt.nodes.base import FAILURE, INVALID, RUNNING, SUCCESS
+from canguard.bt.nodes.builtins import TreeBlackboard
+from canguard.bt.scripting import Script, ScriptError, parse
+
+PRE = ("_failureIf", "_successIf")
+POST = ("_onSuccess", "_onFailure", "_post", "_onHalted")
+UNSUPPORTED = ("_skipIf", "_while")
+ALL = PRE + POST + UNSUPPORTED
+
+
+def take_conditions(attrib: dict[str, str]) -> tuple[dict[str, Script], list[str]]:
+    """Remove the condition attributes from ``attrib``; (parsed scripts, problems as 'attr: why')."""
+    scripts: dict[str, Script] = {}
+    problems: list[str] = []
+    for attr in ALL:
+        text = attrib.pop(attr, None)
+        if text is None:
+            continue
+        if attr in UNSUPPORTED:
+            problems.append(f"{attr}: not supported yet: it needs BT.CPP's SKIPPED status, which canguard's "
+                            "controls do not have (use a Precondition or an IfThenElse)")
+            continue
+        try:
+            scripts[attr] = parse(text)
+        except ScriptError as exc:
+            problems.append(f"{attr}: script {text!r}: {exc}")
+    return scripts, problems
+
+
+def _holds(node: py_trees.behaviour.Behaviour, script: Script, board: TreeBlackboard, attr: str) -> bool:
+    try:
+        return bool(script.condition(board))
+    except ScriptError as exc:
+        node.feedback_message = f"{attr}: {exc}"
+        return False
+
+
+def _run(node: py_trees.behaviour.Behaviour, script: Script | None, board: TreeBlackboard, attr: str) -> None:
+    if script is None:
+        return
+    try:
+        script.run(board)
+    except ScriptError as exc:
+        node.feedback_message = f"{attr}: {exc}"
+
+
+def install(node: py_trees.behaviour.Behaviour, scripts: Mapping[str, Script]) -> None:
+    """Wrap ``node``'s tick and stop with its conditions (instance attributes: the class is untouched)."""
+    if not scripts:
+        return
+    board = TreeBlackboard(getattr(node, "_subtree_namespace", None) or "/")
+    tick, stop = node.tick, node.stop
+
+    def tick_with_conditions() -> Iterator[py_trees.behaviour.Behaviour]:
+        substituted = False
+        if node.status != RUNNING:
+            for attr, status in (("_failureIf", FAILURE), ("_successIf", SUCCESS)):
+                script = scripts.get(attr)
+                if script is not None and _holds(node, script, board, attr):
+                    stop(status)
+                    substituted = True
+                    break
+        if substituted:
+            yield node
+        else:
+            yield from tick()
+        # as BT.CPP's executeTick: the post-conditions follow a completed status, substituted or ticked
+        if node.status == SUCCESS:
+            _run(node, scripts.get("_onSuccess"), board, "_onSuccess")
+        elif node.status == FAILURE:
+            _run(node, scripts.get("_onFailure"), board, "_onFailure")
+        if node.status in (SUCCESS, FAILURE):
+            _run(node, scripts.get("_post"), board, "_post")
+
+    def stop_with_conditions(new_status: Any = INVALID) -> None:
+        halted = new_status == INVALID and node.status == RUNNING
+        stop(new_status)
+        if halted:
+            _run(node, scripts.get("_onHalted"), board, "_onHalted")
+
+    node.tick = tick_with_conditions  # type: ignore[method-assign]
+    node.stop = stop_with_conditions  # type: ignore[method-assign]
