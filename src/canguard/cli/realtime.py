@@ -25,6 +25,9 @@ from canguard.engine.gate import LogSink
 from canguard.errors import ConfigError
 from canguard.service.daemon import Daemon
 
+DRAIN_S = 10.0
+"""Longest wait, after the last frame was played, for the daemon to have fed every frame."""
+
 
 class _TeeSink:
     """The daemon's bus sink, and a :class:`LogSink` writing every frame handed to it (``--emit``)."""
@@ -131,6 +134,7 @@ def replay_realtime(cfg: Config, args: argparse.Namespace) -> int:
             def play(frames: Any = frames, player: Any = player, done: threading.Event = done,
                      daemon: Daemon = daemon, channels: dict[str, int] = channels,
                      failed: list[Exception] = failed) -> None:
+                sent = 0
                 try:
                     start_wall = time.monotonic()
                     start_log = None
@@ -148,10 +152,16 @@ def replay_realtime(cfg: Config, args: argparse.Namespace) -> int:
                             arbitration_id=frame.arbitration_id, data=frame.data,
                             is_extended_id=frame.is_extended_id, is_fd=frame.is_fd,
                             is_remote_frame=frame.is_remote_frame, bitrate_switch=frame.bitrate_switch))
+                        sent += 1
                 except Exception as exc:  # a bad line: reported by the main thread, not as a thread traceback
                     failed.append(exc)
                 finally:
-                    time.sleep(0.2)  # let the last frames reach the daemon
+                    # Stop only once the daemon has fed every frame played (a fixed pause lost the last
+                    # frames on a busy machine); give up after DRAIN_S rather than hang.
+                    deadline = time.monotonic() + DRAIN_S
+                    while daemon.engine.stats.frames < sent and time.monotonic() < deadline:
+                        time.sleep(0.01)
+                    time.sleep(0.05)  # the tick that follows the last frame
                     done.set()
                     daemon.request_stop("end of log")
 
