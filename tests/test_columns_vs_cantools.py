@@ -15,6 +15,7 @@ import os
 from typing import Any
 
 import numpy as np
+import pytest
 from cantools.database.can import Database, Message, Signal
 from cantools.database.conversion import BaseConversion
 from cantools.database.errors import DecodeError
@@ -78,7 +79,8 @@ def message_and_payloads(draw: Any) -> tuple[Message, np.ndarray]:
 def same(a: Any, b: Any) -> bool:
     if isinstance(a, float) or isinstance(b, float):
         a, b = float(a), float(b)
-        return (math.isnan(a) and math.isnan(b)) or np.float64(a).tobytes() == np.float64(b).tobytes() or a == b
+        # equal to the bit: -0.0 is not 0.0 (events print the sign), NaN is NaN
+        return (math.isnan(a) and math.isnan(b)) or np.float64(a).tobytes() == np.float64(b).tobytes()
     return int(a) == int(b)
 
 
@@ -109,3 +111,16 @@ def test_motorola_and_intel_known_values() -> None:
     cols = decode_columns(msg, payload)
     assert int(cols["M"].values[0]) == 0xABC
     assert int(cols["I"].values[0]) == -2
+
+
+@pytest.mark.parametrize("scale", [1, 1.0, 2.0])
+def test_negative_zero_float_keeps_its_sign_as_cantools(scale: float) -> None:
+    """A float32 payload of -0.0: cantools' identity conversion keeps the sign (events print it); a scale may not."""
+
+    sig = Signal("F", 0, 32, conversion=BaseConversion.factory(scale=scale, offset=0, is_float=True))
+    msg = Message(1, "Z", 4, [sig])
+    data = bytes([0, 0, 0, 0x80])  # -0.0, little-endian float32
+    expected = msg.decode(data, decode_choices=False)["F"]
+    got = decode_columns(msg, np.frombuffer(data, dtype=np.uint8).reshape(1, 4))["F"].values[0]
+    assert same(got, expected), (got, expected)
+    assert math.copysign(1.0, float(got)) == math.copysign(1.0, float(expected))

@@ -2,15 +2,15 @@
 
 :meth:`Engine.run_log <canguard.engine.core.Engine.run_log>` works on plain candump
 blocks as text columns (``Engine._run_columns``, ``Engine._cross`` and the row
-handlers of :mod:`canguard.engine.rows`); ``Engine.columns = False`` makes it go frame
+message plans of :mod:`canguard.engine.blocks`); ``Engine.columns = False`` makes it go frame
 by frame through :meth:`Engine.feed <canguard.engine.core.Engine.feed>`, the
 reference. Every test here replays one log through both, with the reader's
 blocks at several sizes (so that block boundaries fall everywhere: at ticks,
 at trips, inside gaps), and compares the summary, the ``--events`` file, the
 ``--emit`` file and the engine's own state (counters, every source's health,
 every guard's model) byte for byte. Each comparison also checks that the column
-path really ran: column blocks taken and rows taken by the compiled handlers,
-none of either in the reference run.
+path really ran: column blocks taken and rows taken by the message plans
+(:mod:`canguard.engine.blocks`), none of either in the reference run.
 
 The logs are written here: a scripted log on a config of many node types and
 value kinds (``custom``: trips and recoveries, NaN / inf / out of range / short
@@ -37,7 +37,7 @@ import pytest
 import yaml
 
 import canguard.cli.replay
-import canguard.engine.rows
+import canguard.engine.blocks
 import canguard.io.candump
 import canguard.io.logs
 from canguard.cli.replay import ReplayOptions, replay_one
@@ -75,11 +75,11 @@ class Outcome:
     column_blocks: int = 0
     """Blocks ``Engine._run_columns`` took (returned True for)."""
     handled_rows: int = 0
-    """Rows a compiled row handler took (returned True or False, not None)."""
+    """Rows a message plan's step took (returned True or False, not None)."""
     fed_rows: int = 0
-    """Rows a compiled row handler gave back to the general path (returned None)."""
+    """Rows a message plan's step gave back to the general path (returned None)."""
     handled_ids: set[int] = field(default_factory=set)
-    """The arbitration ids of the rows the handlers took."""
+    """The arbitration ids of the rows the plans took."""
 
 
 def _r(x: Any) -> Any:
@@ -133,7 +133,7 @@ def replay(cfg: Config, log: Path, out: Path, *, columns: bool, chunk: int,
     counts = {"blocks": 0, "handled": 0, "fed": 0}
     handled_ids: set[int] = set()
     run_columns = Engine._run_columns
-    compile_row = canguard.engine.rows.compile_row
+    compile_plan = canguard.engine.blocks.compile_plan
     build_summary = canguard.cli.replay.build_summary
 
     def counted_run_columns(self: Engine, cols: Columns, cursor: Any) -> bool:
@@ -141,21 +141,21 @@ def replay(cfg: Config, log: Path, out: Path, *, columns: bool, chunk: int,
         counts["blocks"] += took
         return took
 
-    def counted_compile_row(entry: Any, *args: Any) -> Any:
-        handler = compile_row(entry, *args)
-        if handler is not None:
-            inner = handler.handle
+    def counted_compile_plan(entry: Any, *args: Any) -> Any:
+        plan = compile_plan(entry, *args)
+        if plan is not None:
+            inner = plan.step
             frame_id = entry.message.frame_id
 
-            def handle(text: str, t: float) -> bool | None:
-                edge = inner(text, t)
+            def step(values: tuple[float, ...], t: float) -> bool | None:
+                edge = inner(values, t)
                 counts["fed" if edge is None else "handled"] += 1
                 if edge is not None:
                     handled_ids.add(frame_id)
                 return edge
 
-            handler.handle = handle
-        return handler
+            plan.step = step
+        return plan
 
     def capturing_build_summary(cfg: Config, log_path: Path, engine: Engine, *args: Any) -> dict[str, Any]:
         engines.append(engine)
@@ -164,7 +164,7 @@ def replay(cfg: Config, log: Path, out: Path, *, columns: bool, chunk: int,
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(Engine, "columns", columns)
         mp.setattr(Engine, "_run_columns", counted_run_columns)
-        mp.setattr(canguard.engine.rows, "compile_row", counted_compile_row)
+        mp.setattr(canguard.engine.blocks, "compile_plan", counted_compile_plan)
         mp.setattr(canguard.cli.replay, "build_summary", capturing_build_summary)
         mp.setattr(canguard.io.candump, "CHUNK_CHARS", chunk)
         py_trees.blackboard.Blackboard.clear()  # global: the two runs must not see each other's keys
@@ -798,19 +798,19 @@ class TestTheComparison:
     """The comparison itself: it must see a column path that goes wrong."""
 
     def test_catches_a_handler_that_drops_edges(self, custom: tuple[Config, Path], tmp_path: Path) -> None:
-        """Row handlers that never report an edge (no edge tick): the comparison fails."""
+        """Message plans that never report an edge (no edge tick): the comparison fails."""
         cfg, log = custom
-        compile_row = canguard.engine.rows.compile_row
+        compile_plan = canguard.engine.blocks.compile_plan
 
         def edgeless(*args: Any) -> Any:
-            handler = compile_row(*args)
-            if handler is not None:
-                inner = handler.handle
-                handler.handle = lambda text, t: None if inner(text, t) is None else False
-            return handler
+            plan = compile_plan(*args)
+            if plan is not None:
+                inner = plan.step
+                plan.step = lambda values, t: None if inner(values, t) is None else False
+            return plan
 
         with pytest.MonkeyPatch.context() as mp:
-            mp.setattr(canguard.engine.rows, "compile_row", edgeless)
+            mp.setattr(canguard.engine.blocks, "compile_plan", edgeless)
             with pytest.raises(AssertionError):
                 compare(cfg, log, tmp_path, (300,))
 
@@ -828,47 +828,34 @@ class TestPassiveBatches:
 
     @staticmethod
     def _count_batches(monkeypatch: pytest.MonkeyPatch) -> dict[str, int]:
-        """Count the blocks each passive batch took whole (True) or gave back (False)."""
-        from canguard.engine import rows
+        """Count the blocks each passive plan took whole (True) or gave back (False)."""
+        from canguard.engine import blocks
 
         counts = {"taken": 0, "given_back": 0}
-        compile_passive = rows.compile_passive
+        batch = blocks.MessagePlan.batch
 
-        def counting(*args: Any, **kwargs: Any) -> Any:
-            batch = compile_passive(*args, **kwargs)
-            if batch is None:
-                return None
-
-            def wrapped(times: list[float], texts: Any) -> bool:
-                took = batch(times, texts)
+        def counting(self: blocks.MessagePlan, stamps: Any, rows: Any) -> bool:
+            took = batch(self, stamps, rows)
+            if self.passive:
                 counts["taken" if took else "given_back"] += 1
-                return took
+            return took
 
-            return wrapped
-
-        monkeypatch.setattr(rows, "compile_passive", counting)
+        monkeypatch.setattr(blocks.MessagePlan, "batch", counting)
         return counts
 
-    @pytest.mark.parametrize("strided", [True, False], ids=["joined-payloads", "payload-by-payload"])
+    @pytest.mark.parametrize("chunks", [(300, 4096), (1009,)], ids=["small-blocks", "mid-blocks"])
     def test_same_output_on_the_simulator_log(
-        self, sim_log: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, strided: bool
+        self, sim_log: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, chunks: tuple[int, ...]
     ) -> None:
         """Every scenario (stale BMS, NaN, garbage) on the bundled config: batches taken and given back, same bytes."""
-        from canguard.engine import rows
-
-        if not strided:
-            monkeypatch.setattr(rows, "_strided", lambda entry, indexes: None)
         counts = self._count_batches(monkeypatch)
-        compare(load_config(BUNDLED), sim_log, tmp_path, (300, 4096), min_handled=0)
+        compare(load_config(BUNDLED), sim_log, tmp_path, chunks, min_handled=0)
         assert counts["taken"] > 0 and counts["given_back"] > 0, counts
 
     def test_same_output_on_the_custom_log(
         self, custom: tuple[Config, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
     ) -> None:
-        """The scripted log's unread source (NaN, a silent spell) read payload by payload: the same."""
-        from canguard.engine import rows
-
-        monkeypatch.setattr(rows, "_strided", lambda entry, indexes: None)
+        """The scripted log's unread source (NaN, a silent spell): the same."""
         counts = self._count_batches(monkeypatch)
         cfg, log = custom
         compare(cfg, log, tmp_path, (300, 1009))

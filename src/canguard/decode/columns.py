@@ -9,17 +9,20 @@ and CAN FD lengths, simple and extended (nested) multiplexing. The contract is
 equality with cantools: ``tests/test_columns_vs_cantools.py`` decodes random
 messages of random DBCs both ways and requires identical values.
 
-Not yet wired into ``canguard replay`` (the per-frame decoder still serves it).
+``canguard replay`` decodes the configured messages of each candump block with
+:func:`decode_block` (see :mod:`canguard.engine.blocks`); the live daemon decodes
+frame by frame (:mod:`canguard.decode.decoder`).
 """
 
 from __future__ import annotations
 
+from collections.abc import Collection
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-__all__ = ["ColumnSignal", "decode_columns", "signal_raw"]
+__all__ = ["ColumnSignal", "decode_block", "decode_columns", "signal_raw"]
 
 
 @dataclass(frozen=True)
@@ -79,8 +82,8 @@ def _physical(sig: Any, raw: np.ndarray) -> np.ndarray:
     else:
         value = raw
     scale, offset = sig.scale, sig.offset
-    if not sig.is_float and scale == 1 and offset == 0:
-        return value  # cantools returns the raw integer
+    if scale == 1 and offset == 0:
+        return value  # cantools' identity conversion: the raw number as it is (a float -0.0 stays -0.0)
     if not sig.is_float and isinstance(scale, int) and isinstance(offset, int):
         # cantools computes raw * scale + offset in Python integers: exact, whatever the size
         if sig.length + max(abs(scale), 1).bit_length() + 1 < 63 and abs(offset) < 2**61:
@@ -98,31 +101,51 @@ def decode_columns(message: Any, payload: np.ndarray) -> dict[str, ColumnSignal]
     invalid for every signal (cantools refuses the frame). Choices are not applied
     (as ``decode_choices=False``).
     """
+    out, decodable = decode_block(message, payload)
+    return {name: ColumnSignal(sig.values, sig.valid & decodable) for name, sig in out.items()}
+
+
+def decode_block(
+    message: Any, payload: np.ndarray, only: Collection[str] | None = None
+) -> tuple[dict[str, ColumnSignal], np.ndarray]:
+    """The signals ``only`` (default: all) of ``message`` for every row, and the rows cantools would decode.
+
+    As :func:`decode_columns`, but a signal's ``valid`` says only whether its multiplexer
+    selects it; the second value is False in the rows cantools refuses whole (a
+    multiplexer value no signal is multiplexed on). Only the signals asked for, their
+    multiplexers and the multiplexers of the message are extracted.
+    """
     if payload.ndim != 2 or payload.dtype != np.uint8:
         raise ValueError(f"payload: expected a 2-D uint8 array, got {payload.dtype} with shape {payload.shape}")
     if payload.shape[1] < message.length:
         raise ValueError(f"payload: rows of {payload.shape[1]} bytes, {message.name} needs {message.length}")
-    raws = {sig.name: signal_raw(payload, sig.start, sig.length, sig.byte_order == "big_endian")
-            for sig in message.signals}
     by_name = {sig.name: sig for sig in message.signals}
-    out: dict[str, ColumnSignal] = {}
+    raws: dict[str, np.ndarray] = {}
+
+    def raw(sig: Any) -> np.ndarray:
+        got = raws.get(sig.name)
+        if got is None:
+            got = raws[sig.name] = signal_raw(payload, sig.start, sig.length, sig.byte_order == "big_endian")
+        return got
+
     all_rows = np.ones(payload.shape[0], dtype=bool)
 
     def valid(sig: Any) -> np.ndarray:
         if not sig.multiplexer_ids:
             return all_rows
         parent = by_name[sig.multiplexer_signal]
-        selector = raws[parent.name]
         ids = np.asarray(sig.multiplexer_ids, dtype=np.uint64)
-        return valid(parent) & np.isin(selector, ids)
+        return valid(parent) & np.isin(raw(parent), ids)
 
     # cantools refuses a whole frame whose (selected) multiplexer holds a value no signal is multiplexed on
     undecodable = np.zeros(payload.shape[0], dtype=bool)
     for mux in (s for s in message.signals if s.is_multiplexer):
         ids = sorted({i for s in message.signals if s.multiplexer_signal == mux.name for i in s.multiplexer_ids or ()})
         if ids:
-            undecodable |= valid(mux) & ~np.isin(raws[mux.name], np.asarray(ids, dtype=np.uint64))
+            undecodable |= valid(mux) & ~np.isin(raw(mux), np.asarray(ids, dtype=np.uint64))
+    out: dict[str, ColumnSignal] = {}
     with np.errstate(invalid="ignore", over="ignore"):  # NaN payloads and huge scales: as cantools, no warning
         for sig in message.signals:
-            out[sig.name] = ColumnSignal(_physical(sig, raws[sig.name]), valid(sig) & ~undecodable)
-    return out
+            if only is None or sig.name in only:
+                out[sig.name] = ColumnSignal(_physical(sig, raw(sig)), valid(sig))
+    return out, ~undecodable

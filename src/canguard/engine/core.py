@@ -43,7 +43,7 @@ from canguard.protect.base import LatchedModel
 
 if TYPE_CHECKING:
     from canguard.bt.loader import GuardView
-    from canguard.engine.rows import Batch, Handle
+    from canguard.engine.blocks import MessagePlan
 
 log = logging.getLogger(__name__)
 
@@ -138,11 +138,10 @@ class Engine(SourceWatchMixin, LogRunMixin):
         self.last_status = py_trees.common.Status.INVALID
         self.last_tick_t = math.nan
         self._wanted = frozenset(self.decoder.keys())
-        self._row_handles: dict[str, dict[str, Handle | None]] = {}
-        """Per bus: the compiled row handlers of the replay column path (see :mod:`canguard.engine.rows`)."""
-        self._row_flush: dict[str, list[Callable[[], None]]] = {}
-        self._row_passive: dict[str, dict[str, Batch]] = {}
-        """Per bus: id text -> whole-block path of the messages nobody reads between ticks."""
+        self._plans: dict[str, dict[str, MessagePlan | None]] = {}
+        """Per bus: id text -> the column plan of the replay block path (see :mod:`canguard.engine.blocks`)."""
+        self._plan_list: dict[str, list[MessagePlan]] = {}
+        """Per bus: every plan, flushed at the end of each block."""
 
     # -- life cycle ------------------------------------------------------------------------
     def start(self, now: float | None = None) -> None:

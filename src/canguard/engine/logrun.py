@@ -2,16 +2,15 @@
 
 :class:`LogRunMixin` gives :class:`~canguard.engine.core.Engine` its :meth:`run_log`:
 the same :meth:`feed` / :meth:`advance` as live, with frames of no configured message
-counted without decoding and plain candump blocks worked on as text columns
-(:mod:`canguard.engine.rows`). Split from the engine's core so each stays readable;
-the column path is the part issue 16 replaces with a columnar decoder.
+counted without decoding and plain candump blocks worked on as columns, each
+configured message's rows decoded together (:mod:`canguard.engine.blocks`). Split
+from the engine's core so each stays readable.
 """
 
 from __future__ import annotations
 
 import math
 from bisect import bisect_left
-from collections import deque
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from itertools import compress, repeat
@@ -26,7 +25,7 @@ if TYPE_CHECKING:
     from canguard.bt.context import Context
     from canguard.config.schema import Config
     from canguard.decode.decoder import Decoder
-    from canguard.engine.rows import Batch, Handle
+    from canguard.engine.blocks import MessagePlan
     from canguard.engine.stats import EngineStats
     from canguard.io.clock import PinnedClock
     from canguard.io.logs import Columns
@@ -46,9 +45,8 @@ class LogRunMixin:
         _last_frame_t: float
         _drive_clock: Callable[[float], None]
         _wanted: frozenset[tuple[str, int, bool]]
-        _row_handles: dict[str, dict[str, Handle | None]]
-        _row_flush: dict[str, list[Callable[[], None]]]
-        _row_passive: dict[str, dict[str, Batch]]
+        _plans: dict[str, dict[str, MessagePlan | None]]
+        _plan_list: dict[str, list[MessagePlan]]
         _dirty: bool
         durable: bool
         events: Any
@@ -169,37 +167,34 @@ class LogRunMixin:
             first = 1
         if cursor.channels is not None:
             cursor.channels[channel] = cursor.channels.get(channel, 0) + n - first
-        handles = self._row_handles.get(bus)
-        if handles is None:
-            handles = self._row_handles[bus] = self._compile_rows(bus)
-        rows = list(compress(range(n), map(handles.__contains__, cols.ids))) if handles else []
+        plans = self._plans.get(bus)
+        if plans is None:
+            plans = self._plans[bus] = self._compile_plans(bus)
+        ids = cols.ids
+        rows = list(compress(range(n), map(plans.__contains__, ids))) if plans else []
+        remote = cols.remote
+        if remote:  # counted by the decoder as remote frames, configured or not: fed
+            rows = sorted(set(rows).union(remote))
         if first and rows and rows[0] == 0:
             del rows[0]
         skipped = n - first - len(rows)
-        last_row = rows[-1] if rows else -1  # the last row feed would see, passive or not
-        passive = self._row_passive[bus]
-        if passive and rows:
-            rows = self._run_passive(passive, rows, cols)
-        work: Iterable[tuple[int, float, Handle | None, str]] = ()
-        if rows:
-            # the configured rows' columns, picked in C
-            pick = _picker(rows)
-            work = zip(rows, map(float, pick(ts)), map(handles.__getitem__, pick(cols.ids)), pick(cols.data),
-                       strict=True)
+        last_row = rows[-1] if rows else -1  # the last row feed would see, whatever path takes it
+        work = self._decode_rows(plans, rows, cols) if rows else {}
         feed = self.feed
         frame = cols.frame
         pos = first
-        due = self._due  # handlers never change it; advance, feed and tick may
-        for i, t, handle, text in work:
+        due = self._due  # plans never change it; advance, feed and tick may
+        for i, (plan, values) in work.items():
+            t = float(ts[i])
             if t >= due:
                 self._cross(ts, pos, i)  # a tick falls due among the rows before this one, or at it
                 if t >= self._due:
                     self.advance(t)
                 due = self._due
             pos = i + 1
-            edge = handle(text, t) if handle is not None else None
+            edge = plan.step(values, t) if values is not None and plan is not None else None
             if edge is None:
-                feed(bus, frame(i))  # the general path: every case, and what the handlers must equal
+                feed(bus, frame(i))  # the general path: every case, and what the plans must equal
                 due = self._due
             elif edge:
                 self._drive_clock(t)
@@ -207,8 +202,8 @@ class LogRunMixin:
                 self.tick(self.clock.now())
                 due = self._due
         self._cross(ts, pos, n)
-        for h in self._row_flush[bus]:
-            h()
+        for plan in self._plan_list[bus]:
+            plan.flush()
         counters.frames += skipped
         counters.skipped += skipped
         self.stats.frames += skipped
@@ -218,31 +213,50 @@ class LogRunMixin:
         return True
 
     @staticmethod
-    def _run_passive(passive: dict[str, Batch], rows: list[int], cols: Columns) -> list[int]:
-        """Take the rows of messages nobody reads between ticks as whole batches; return the rows left to go one by one.
+    def _decode_rows(
+        plans: Mapping[str, MessagePlan | None], rows: list[int], cols: Columns
+    ) -> dict[int, tuple[MessagePlan | None, tuple[float, ...] | None]]:
+        """The configured rows left to go one by one, in order, each with its plan and decoded values.
 
-        Runs before any row of the block: a batch stores its message's state as at the
-        end of the block, which every tick in the block reads exactly as it would have
-        read the row-by-row state (see :func:`canguard.engine.rows.compile_passive`).
+        Each message's rows are decoded together (:meth:`MessagePlan.decode`); a message
+        nobody reads between ticks may take its rows whole (:meth:`MessagePlan.batch`,
+        before any row of the block: it stores its state as at the end of the block,
+        which every tick in the block reads as it would have read the row-by-row state);
+        rows without a configured signal are only counted; remote rows go to ``feed``.
         """
-        ids = cols.ids
-        left: list[int] = []
-        # one list per passive message (shared by its id's spellings); rows dealt out in C
-        lists: dict[Batch, list[int]] = {batch: [] for batch in set(passive.values())}
-        to = {text: lists[batch] for text, batch in passive.items()}
-        pick = _picker(rows)
-        deque(map(list.append, map(to.get, pick(ids), repeat(left)), rows), maxlen=0)
-        groups = {batch: group for batch, group in lists.items() if group}
-        ts, data = cols.ts, cols.data
-        back = False
-        for batch, group in groups.items():
+        from canguard.engine.blocks import EMPTY  # numpy: imported when a block is first decoded
+
+        ids, data, ts = cols.ids, cols.data, cols.ts
+        groups: dict[MessagePlan | None, list[int]] = {}
+        remote = cols.remote
+        if remote:
+            groups[None] = [i for i in rows if i in remote]
+            rows = [i for i in rows if i not in remote]
+        for i, plan in zip(rows, map(plans.__getitem__, map(ids.__getitem__, rows)), strict=True):
+            group = groups.get(plan)
+            if group is None:
+                groups[plan] = [i]
+            else:
+                group.append(i)
+        work: dict[int, tuple[MessagePlan | None, tuple[float, ...] | None]] = {}
+        for plan, group in groups.items():
+            if plan is None:
+                work.update(zip(group, repeat((None, None))))
+                continue
             pick = _picker(group)
-            if not batch(pick(ts), pick(data)):
-                left.extend(group)
-                back = True
-        if back:
-            left.sort()
-        return left
+            decoded = plan.decode(pick(data))
+            if plan.passive and plan.batch(pick(ts), decoded):
+                continue
+            empty = 0
+            for i, values in zip(group, decoded, strict=True):
+                if values is EMPTY:
+                    empty += 1
+                else:
+                    work[i] = (plan, values)
+            plan.count_empty(empty)
+        if len(groups) > 1:
+            work = dict(sorted(work.items()))
+        return work
 
     def _cross(self, ts: list[str], lo: int, hi: int) -> None:
         """Rows ``lo..hi-1`` (ordered, of no configured message): the first at or after the due time brings the ticks.
@@ -258,31 +272,30 @@ class LogRunMixin:
             self._last_frame_t = t  # as feed: not before it (ordered, from cursor.last_t on)
             lo = k + 1
 
-    def _compile_rows(self, bus: str) -> dict[str, Handle | None]:
-        """Every id text (any letter case) of a message configured on ``bus``, with its row handler or None."""
-        from canguard.engine.rows import compile_passive, compile_row
+    def _compile_plans(self, bus: str) -> dict[str, MessagePlan | None]:
+        """Every id text (any letter case) of a message configured on ``bus``, with its plan or None (feed it)."""
+        from canguard.engine.blocks import compile_plan
         from canguard.io.logs import candump_id_texts
 
         counters = self.decoder.per_bus[bus]
-        handles: dict[str, Handle | None] = {}
-        flushes = self._row_flush.setdefault(bus, [])
-        passive = self._row_passive.setdefault(bus, {})
-        # the stop confirmation reads its source between ticks: not passive
-        readers = set(self.ctx.read_sources)
+        plans: dict[str, MessagePlan | None] = {}
+        made = self._plan_list.setdefault(bus, [])
+        # the stop confirmation reads its source between ticks: not passive; metrics count per frame
+        readers: set[str] | None = set(self.ctx.read_sources)
         if self.cfg.stop.confirm is not None:
+            assert readers is not None
             readers.add(self.cfg.stop.confirm.source)
+        if self.metrics is not None:
+            readers = None
         for (b, cid, ext), entry in self.decoder.entries():
             if b != bus:
                 continue
-            handler = compile_row(entry, counters, self.ctx, self.stats)
-            if handler is not None:
-                flushes.append(handler.flush)
-            batch = compile_passive(entry, counters, self.ctx, self.stats, readers) if self.metrics is None else None
+            plan = compile_plan(entry, counters, self.ctx, self.stats, readers)
+            if plan is not None:
+                made.append(plan)
             for text in candump_id_texts(cid, ext):
-                handles[text] = handler.handle if handler is not None else None
-                if batch is not None:
-                    passive[text] = batch
-        return handles
+                plans[text] = plan
+        return plans
 
 def _picker(rows: list[int]) -> Callable[[Sequence[Any]], tuple[Any, ...]]:
     """``itemgetter(*rows)`` that gives a tuple for one row too (itemgetter then gives the bare value)."""

@@ -48,6 +48,8 @@ _MARKERS = frozenset("TRtr")
 _HEX_BYTES = b"0123456789abcdefABCDEF"
 _TS_BYTES = b"0123456789."
 _DATA_LENGTHS = frozenset(range(0, 17, 2))
+_FD_HEX_LENGTHS = frozenset(2 * n for n in CANFD_LENGTHS)
+_REMOTE = frozenset("Rr")
 
 
 class Columns(NamedTuple):
@@ -70,15 +72,29 @@ class Columns(NamedTuple):
     ordered: bool
     channel: str | None
     """The channel of every row, or None when the block has several."""
+    fd: dict[int, int] | None = None
+    """The CAN FD rows (``ID##F...``) with their flags digit (BRS, ESI); None when the block has none."""
+    remote: dict[int, int] | None = None
+    """The remote frame rows (``ID#R``, ``ID#R4``) with their DLC (-1: none written); their ``data`` is ""."""
 
     def frame(self, i: int) -> Frame:
         """The frame of row ``i``."""
         id_text = self.ids[i]
+        if self.remote is not None and i in self.remote:
+            return _new(Frame, (float(self.ts[i]), self.chans[i], int(id_text, 16), b"", len(id_text) == 8, _F, _F,
+                                True, _F, _F, self.remote[i]))
+        flags = self.fd.get(i) if self.fd is not None else None
+        if flags is not None:
+            return _new(Frame, (float(self.ts[i]), self.chans[i], int(id_text, 16), bytes.fromhex(self.data[i]),
+                                len(id_text) == 8, True, _F, _F, bool(flags & CANFD_BRS), bool(flags & CANFD_ESI),
+                                -1))
         return _new(Frame, (float(self.ts[i]), self.chans[i], int(id_text, 16), bytes.fromhex(self.data[i]),
                             len(id_text) == 8, _F, _F, _F, _F, _F, -1))
 
     def frames(self) -> Iterator[Frame]:
         """The frames of every row, in order (converted in C-level passes over the columns)."""
+        if self.fd or self.remote:
+            return map(self.frame, range(self.n))
         ext = map((8).__eq__, map(len, self.ids))
         return map(
             _new,
@@ -101,14 +117,18 @@ def candump_id_texts(arbitration_id: int, is_extended_id: bool) -> list[str]:
 def _bulk_columns(block: str, n: int) -> Columns | None:
     """Check ``n`` candump -L lines of plain shape at once, or return None if any line is not plain.
 
-    Plain shape: ``(secs.usecs) channel ID#HEX`` with an optional T/R marker on
-    every line, timestamps of one width (digits, one dot), 3- or 8-digit ids,
-    classic data of at most 8 bytes, no error frame. Nothing is returned unless
+    Plain shape: ``(secs.usecs) channel ID#HEX`` or ``ID##FHEX`` (CAN FD: a flags
+    digit, then a CAN FD length of data) with an optional T/R marker on every line,
+    timestamps of one width (digits, one dot), 3- or 8-digit ids, classic data of
+    at most 8 bytes, remote frames (``ID#R``, ``ID#R4``), no error frame. Nothing is returned unless
     every line passed, so a None costs no frame. Each check is one C-level pass
     over a column; nothing is converted here.
     """
-    if not block.isascii() or "\t" in block or block.count("(") != n:
+    if not block.isascii() or "\t" in block or "~" in block or block.count("(") != n:
         return None
+    has_fd = "##" in block
+    if has_fd:
+        block = block.replace("##", "#~")  # one token per field still: "~" + flags + data
     plain = block.translate(_BULK_TABLE)
     if len(block) - len(plain) != 2 * n:  # n "(" were deleted: then n ")" too, no more, no less
         return None
@@ -137,7 +157,27 @@ def _bulk_columns(block: str, n: int) -> Columns | None:
         elif size != 8 or text[0] > "1" or not _is_hex(text):  # extended: 1FFFFFFF; above: error frames
             return None
     data = tok[3:-1:k]
-    if not set(map(len, data)) <= _DATA_LENGTHS or "".join(data).encode().translate(None, _HEX_BYTES):
+    fd: dict[int, int] = {}
+    remote: dict[int, int] = {}
+    if has_fd or "#R" in plain or "#r" in plain:  # CAN FD or remote rows (or only a T/R marker): row by row
+        for i, text in enumerate(data):
+            c = text[:1]
+            if c == "~":
+                if len(text) - 2 not in _FD_HEX_LENGTHS or text[1] not in _HEX:
+                    return None
+                fd[i] = int(text[1], 16)
+                data[i] = text[2:]
+            elif c in _REMOTE:
+                dlc = text[1:]
+                if len(dlc) > 1 or (dlc and dlc not in "012345678"):
+                    return None
+                remote[i] = (int(dlc) or -1) if dlc else -1
+                data[i] = ""
+            elif len(text) not in _DATA_LENGTHS:
+                return None
+    elif not set(map(len, data)) <= _DATA_LENGTHS:
+        return None
+    if "".join(data).encode().translate(None, _HEX_BYTES):
         return None
     ordered = all(map(operator.le, ts, islice(ts, 1, None))) and math.ulp(float(ts[-1])) < 10.0 ** (dot + 1 - width)
     chans = tok[1:-1:k]
@@ -147,7 +187,7 @@ def _bulk_columns(block: str, n: int) -> Columns | None:
         single = plain.count(f"#{first}#") == n
     else:
         single = chans.count(first) == n
-    return Columns(n, ts, chans, ids, data, ordered, first if single else None)
+    return Columns(n, ts, chans, ids, data, ordered, first if single else None, fd or None, remote or None)
 
 
 def _is_hex(s: str) -> bool:

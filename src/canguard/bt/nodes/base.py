@@ -34,7 +34,7 @@ complete.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from typing import Any, ClassVar, Literal
 
 import py_trees
@@ -50,6 +50,7 @@ SUCCESS = py_trees.common.Status.SUCCESS
 FAILURE = py_trees.common.Status.FAILURE
 RUNNING = py_trees.common.Status.RUNNING
 INVALID = py_trees.common.Status.INVALID
+Status = py_trees.common.Status
 
 
 _MISSING = object()
@@ -97,6 +98,14 @@ class CanguardNode(PortsMixin):
         # closed registry, and importing canguard must not change anybody else's "auto".
         kwargs.setdefault("register", False)
         super().__init_subclass__(**kwargs)
+        if issubclass(cls, py_trees.behaviour.Behaviour) and not issubclass(
+            cls, (py_trees.composites.Composite, py_trees.decorators.Decorator)
+        ):
+            # a leaf: py_trees' tick and stop, step for step, without their eager debug strings
+            if cls.tick is py_trees.behaviour.Behaviour.tick:
+                cls.tick = _leaf_tick  # type: ignore[method-assign]
+            if cls.stop is py_trees.behaviour.Behaviour.stop:
+                cls.stop = _leaf_stop  # type: ignore[method-assign]
 
     def __init__(self, *args: Any, context: Context | None = None, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
@@ -193,6 +202,37 @@ class CanguardNode(PortsMixin):
         table: dict[str, tuple[str, PortInformation]] = {n: ("input", i) for n, i in cls.input_ports().items()}
         table.update({n: ("output", i) for n, i in cls.output_ports().items()})
         return table
+
+
+def _leaf_tick(self: py_trees.behaviour.Behaviour) -> Iterator[py_trees.behaviour.Behaviour]:
+    """:meth:`py_trees.behaviour.Behaviour.tick` of a leaf, the same steps in the same order.
+
+    py_trees formats a debug string and builds ``list(Status)`` on every tick and stop,
+    logging on or off: with 20 guards ticked at 100 Hz that was most of a replay's time
+    (issue 16). Here the debug lines are written only when the node's logger would
+    print them (``py_trees.logging.level``).
+    """
+    if py_trees.logging.level < py_trees.logging.Level.INFO:  # py_trees' own module-wide level
+        self.logger.debug(f"{self.__class__.__name__}.tick()")
+    if self.status != RUNNING:
+        self.initialise()
+    new_status = self.update()
+    if type(new_status) is not Status:
+        self.logger.error(f"A behaviour returned an invalid status, setting to INVALID [{new_status}][{self.name}]")
+        new_status = INVALID
+    if new_status != RUNNING:
+        self.stop(new_status)
+    self.status = new_status
+    yield self
+
+
+def _leaf_stop(self: py_trees.behaviour.Behaviour, new_status: Status) -> None:
+    """:meth:`py_trees.behaviour.Behaviour.stop` of a leaf (see :func:`_leaf_tick`)."""
+    if py_trees.logging.level < py_trees.logging.Level.INFO:
+        self.logger.debug(f"{self.__class__.__name__}.stop({new_status})")
+    self.terminate(new_status)
+    self.status = new_status
+    self.iterator = self.tick()
 
 
 def halted(node: py_trees.behaviour.Behaviour, new_status: py_trees.common.Status) -> bool:

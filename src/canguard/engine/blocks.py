@@ -1,0 +1,245 @@
+"""The configured rows of a replayed candump block, decoded as columns (the replay hot path).
+
+:meth:`Engine.run_log <canguard.engine.core.Engine.run_log>` works on plain candump
+blocks (:class:`~canguard.io.logs.Columns`). The rows of each configured message in
+a block are decoded together by :func:`canguard.decode.columns.decode_columns`
+(numpy over the payload column: classic and CAN FD, Intel and Motorola, signed,
+float, scaled, multiplexed), and checked together (NaN, inf, the DBC range, the
+multiplexer). What is left per row is what only the order of samples can decide:
+:meth:`MessagePlan.step` does, for a row whose values all passed, exactly what
+:meth:`Engine.feed <canguard.engine.core.Engine.feed>` does after its tick check —
+:meth:`SourceHealth.observe <canguard.protect.staleness.SourceHealth.observe>`'s
+fast path, the subscribed protection models, the per-source sample counts and
+largest values — with the counters kept in the plan and added to the engine's at
+:meth:`MessagePlan.flush`.
+
+A row the columns cannot take (a wrong length, a payload cantools refuses, an
+invalid value, a source coming back after a stale spell, a presence flag that may
+change the source's reason) goes to ``feed`` as a frame *before anything was
+changed*: the two paths leave the same state, which ``tests/test_replay_columns.py``
+checks byte for byte on every block size. No code is generated.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Collection, Sequence
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from canguard.decode.columns import decode_block
+
+if TYPE_CHECKING:
+    from canguard.bt.context import Context
+    from canguard.decode.decoder import DecodeCounters, _Entry
+    from canguard.engine.stats import EngineStats
+
+EMPTY: tuple[float, ...] = ()
+"""A decoded row with no configured signal in it (a multiplexer page nobody reads): counted, nothing else."""
+
+_BIG = 1.7976931348623157e308
+"""The largest float: the default range bounds, so that +-inf fails the range check like NaN does."""
+
+_EXACT = 2.0**53
+"""Integers below this convert to float exactly in numpy as in Python."""
+
+
+class MessagePlan:
+    """One configured message on one bus: its column decode, its per-row step, its whole-block batch."""
+
+    def __init__(self, entry: _Entry, counters: DecodeCounters, ctx: Context, stats: EngineStats,
+                 readers: Collection[str] | None) -> None:
+        self.entry = entry
+        self.counters = counters
+        self.stats = stats
+        message = entry.message
+        self.message = message
+        self.length = int(message.length)
+        self.hex_size = 2 * self.length
+        self.frame_id = int(message.frame_id)
+        self.outputs: list[tuple[str, str, str, bool, Any, float, float, tuple[Any, ...]]] = []
+        """(source, role, signal, present, health, lo, hi, models) of each configured signal."""
+        for out in entry.outputs:
+            health = ctx.health[out.source]
+            lo, hi = health.ranges.get(out.role, (None, None))
+            self.outputs.append((out.source, out.role, out.signal, out.present, health,
+                                 -_BIG if lo is None else float(lo), _BIG if hi is None else float(hi),
+                                 tuple(ctx.subscribers(out.source, out.role))))
+        self.signals = {o[2] for o in self.outputs}
+        self.multiplexed = bool(message.is_multiplexed())
+        self.single = len(self.outputs) == 1 and not self.outputs[0][3]
+        self.passive = readers is not None and all(
+            not present and source not in readers and not models
+            for source, _r, _s, present, _h, _lo, _hi, models in self.outputs
+        )
+        """Nobody looks at this message between ticks: a block's rows may be taken whole (:meth:`batch`)."""
+        self.min_age = min(o[4].max_age_s for o in self.outputs)
+        self.seen = 0
+        self.empty = 0
+        self.tops = [-1.0] * len(self.outputs)
+
+    # -- the columns -------------------------------------------------------------------
+    def decode(self, texts: Sequence[str]) -> list[tuple[float, ...] | None]:
+        """Each row's configured values (in output order), :data:`EMPTY`, or None: the row goes to ``feed``.
+
+        A row is None when its payload has another length than the DBC's, when cantools
+        would refuse it (a multiplexer value no signal uses), when one of its values is
+        NaN, infinite or outside the DBC range, when a presence flag reads 0, or when it
+        holds some configured signals of a multiplexed message but not all.
+        """
+        n = len(texts)
+        size = self.hex_size
+        if set(map(len, texts)) == {size}:
+            good: list[int] | None = None
+            joined = "".join(texts)
+        else:
+            good = [k for k, text in enumerate(texts) if len(text) == size]
+            joined = "".join([texts[k] for k in good])
+        rows = n if good is None else len(good)
+        result: list[tuple[float, ...] | None]
+        if not rows:
+            return [None] * n
+        payload = np.frombuffer(bytes.fromhex(joined), dtype=np.uint8).reshape(rows, self.length)
+        with np.errstate(invalid="ignore", over="ignore"):
+            decoded, decodable = decode_block(self.message, payload, self.signals)
+            values: list[np.ndarray] = []
+            ok = np.ones(rows, dtype=bool)
+            present_any = np.zeros(rows, dtype=bool)
+            present_all = np.ones(rows, dtype=bool)
+            for _source, _role, signal, present, _h, lo, hi, _m in self.outputs:
+                column = decoded[signal]
+                v = _as_float(column.values)
+                if present:
+                    ok &= np.isfinite(v) & (v != 0.0)
+                    v = np.where(v != 0.0, 1.0, 0.0)
+                ok &= (lo <= v) & (v <= hi)  # NaN and +-inf fail it as the row path's check does
+                present_any |= column.valid
+                present_all &= column.valid
+                values.append(v)
+            ok &= present_all & decodable
+        table = np.column_stack(values).tolist() if values else [[]] * rows
+        found: list[tuple[float, ...] | None] = list(map(tuple, table))
+        for k in np.flatnonzero(~ok).tolist():
+            found[k] = None
+        if self.multiplexed:  # a decodable row with none of our signals on its page: no sample at all
+            for k in np.flatnonzero(~present_any & decodable).tolist():
+                found[k] = EMPTY
+        if good is None:
+            return found
+        result = [None] * n
+        for k, row in zip(good, found, strict=True):
+            result[k] = row
+        return result
+
+    # -- one row -----------------------------------------------------------------------
+    def step(self, values: tuple[float, ...], t: float) -> bool | None:
+        """Take one row's checked values at ``t``: True on an edge, False, or None (changed nothing: feed it)."""
+        outputs = self.outputs
+        for _source, role, _signal, present, health, _lo, _hi, _models in outputs:
+            latest = health._latest_t.get(role)
+            if latest is None or t < latest or t - latest > health.max_age_s or health._invalid.get(role):
+                return None
+            if present and (health._last_reason or not t - health._ok_since <= health.max_age_s):
+                return None
+        self.seen += 1
+        edge = False
+        tops = self.tops
+        for j, (_source, role, _signal, _present, health, _lo, _hi, models) in enumerate(outputs):
+            v = values[j]
+            health._latest_t[role] = t
+            health._value[role] = v
+            health._valid_t[role] = t
+            a = -v if v < 0.0 else v
+            if a > tops[j]:
+                tops[j] = a
+            for model in models:
+                if model.update(v, t):
+                    edge = True
+        return edge
+
+    def count_empty(self, rows: int) -> None:
+        """``rows`` decoded rows that carried none of the configured signals (counted at :meth:`flush`)."""
+        self.empty += rows
+
+    def flush(self) -> None:
+        """Add the rows taken since the last flush to the decoder's and the engine's counters."""
+        rows = self.seen + self.empty
+        if rows:
+            self.counters.frames += rows
+            self.counters.decoded += rows
+            self.stats.frames += rows
+        if self.seen:
+            for j, (source, role, _signal, _present, health, _lo, _hi, _models) in enumerate(self.outputs):
+                _count_samples(self.stats, health, source, role, self.seen, self.tops[j])
+                self.tops[j] = -1.0
+        self.seen = self.empty = 0
+
+    # -- a whole block -----------------------------------------------------------------
+    def batch(self, stamps: Sequence[str], rows: Sequence[tuple[float, ...] | None]) -> bool:
+        """Take a block's rows of a :attr:`passive` message whole; False (nothing changed): go row by row.
+
+        Such a message feeds only sources no tree node reads, no protection model and no
+        presence signal: what it changes is seen only through its sources' reasons at
+        ticks (``stale`` / ``fresh`` events) and through counters. When every row passed
+        the column checks and no two rows (nor the first row and the previous sample) lie
+        more than ``max_age`` apart, every reason at every tick in the block is "" and
+        the state at the end of the block is that of its last row: it is stored at once
+        (before the block's ticks, which then read "fresh" as they would have).
+        """
+        if not self.passive or not all(rows):  # a row to feed (None) or without a sample (EMPTY)
+            return False
+        first, last = float(stamps[0]), float(stamps[-1])
+        gap = last - first
+        if gap > self.min_age:  # else no gap can exceed it (float subtraction is monotonic)
+            times = np.array(stamps, dtype=np.float64)
+            gap = float(np.max(np.diff(times))) if len(times) > 1 else 0.0
+        for _source, role, _signal, _present, health, _lo, _hi, _models in self.outputs:
+            latest = health._latest_t.get(role)
+            if latest is None or first < latest or first - latest > health.max_age_s or gap > health.max_age_s:
+                return False
+            if health._invalid.get(role):
+                return False
+        count = len(rows)
+        self.counters.frames += count
+        self.counters.decoded += count
+        self.stats.frames += count
+        table = np.array(rows, dtype=np.float64)
+        tops = np.max(np.abs(table), axis=0).tolist()
+        final = rows[-1]
+        assert final is not None
+        for j, (source, role, _signal, _present, health, _lo, _hi, _models) in enumerate(self.outputs):
+            health._latest_t[role] = last
+            health._value[role] = final[j]
+            health._valid_t[role] = last
+            _count_samples(self.stats, health, source, role, count, tops[j])
+        return True
+
+
+def _as_float(values: np.ndarray) -> np.ndarray:
+    """Decoded values as float64, each equal to Python's ``float()`` of cantools' value."""
+    if values.dtype == np.float64:
+        return values
+    if values.dtype.kind in "iu" and (values.size == 0 or float(np.max(np.abs(values.astype(np.float64)))) < _EXACT):
+        return values.astype(np.float64)
+    return np.array([float(x) for x in values.tolist()], dtype=np.float64)  # huge integers: Python's rounding
+
+
+def _count_samples(stats: EngineStats, health: Any, source: str, role: str, rows: int, top: float) -> None:
+    """Count ``rows`` samples of one signal, with the largest |value| among them."""
+    stats.samples[source] = stats.samples.get(source, 0) + rows
+    health.samples += rows
+    key = (source, role)
+    if top > stats.max_abs.get(key, -1.0):
+        stats.max_abs[key] = top
+
+
+def compile_plan(entry: _Entry, counters: DecodeCounters, ctx: Context, stats: EngineStats,
+                 readers: Collection[str] | None) -> MessagePlan | None:
+    """The :class:`MessagePlan` of ``entry``'s frames, or None when a source of it is not in the tree's context.
+
+    ``readers``: the sources read between ticks (tree nodes, the stop confirmation);
+    None keeps every message off the whole-block path (the metrics count per frame).
+    """
+    if any(out.source not in ctx.health for out in entry.outputs) or not entry.outputs:
+        return None
+    return MessagePlan(entry, counters, ctx, stats, readers)
