@@ -22,7 +22,7 @@ checks byte for byte on every block size. No code is generated.
 
 from __future__ import annotations
 
-from collections.abc import Collection, Sequence
+from collections.abc import Callable, Collection, Sequence
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -77,6 +77,8 @@ class MessagePlan:
         self.seen = 0
         self.empty = 0
         self.tops = [-1.0] * len(self.outputs)
+        if self.single:
+            self.step = self._single_step()  # type: ignore[method-assign,assignment]
 
     # -- the columns -------------------------------------------------------------------
     def decode(self, texts: Sequence[str]) -> list[tuple[float, ...] | None]:
@@ -133,7 +135,11 @@ class MessagePlan:
 
     # -- one row -----------------------------------------------------------------------
     def step(self, values: tuple[float, ...], t: float) -> bool | None:
-        """Take one row's checked values at ``t``: True on an edge, False, or None (changed nothing: feed it)."""
+        """Take one row's checked values at ``t``: True on an edge, False, or None (changed nothing: feed it).
+
+        Replaced per instance by a closure over the one output when the message has one
+        (most messages): the same steps with the lookups done once.
+        """
         outputs = self.outputs
         for _source, role, _signal, present, health, _lo, _hi, _models in outputs:
             latest = health._latest_t.get(role)
@@ -156,6 +162,34 @@ class MessagePlan:
                 if model.update(v, t):
                     edge = True
         return edge
+
+    def _single_step(self) -> Callable[[tuple[float, ...], float], bool | None]:
+        """:meth:`step` of a message with one configured (non-presence) signal."""
+        _source, role, _signal, _present, health, _lo, _hi, models = self.outputs[0]
+        latest_t, invalid, value, valid_t = health._latest_t, health._invalid, health._value, health._valid_t
+        max_age = health.max_age_s
+        tops = self.tops
+        plan = self
+
+        def step(values: tuple[float, ...], t: float) -> bool | None:
+            latest = latest_t.get(role)
+            if latest is None or t < latest or t - latest > max_age or invalid.get(role):
+                return None
+            v = values[0]
+            latest_t[role] = t
+            value[role] = v
+            valid_t[role] = t
+            plan.seen += 1
+            a = -v if v < 0.0 else v
+            if a > tops[0]:
+                tops[0] = a
+            edge = False
+            for model in models:
+                if model.update(v, t):
+                    edge = True
+            return edge
+
+        return step
 
     def count_empty(self, rows: int) -> None:
         """``rows`` decoded rows that carried none of the configured signals (counted at :meth:`flush`)."""

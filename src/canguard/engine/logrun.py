@@ -13,7 +13,7 @@ import math
 from bisect import bisect_left
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
-from itertools import compress, repeat
+from itertools import compress
 from operator import itemgetter
 from typing import TYPE_CHECKING, Any
 
@@ -179,12 +179,16 @@ class LogRunMixin:
             del rows[0]
         skipped = n - first - len(rows)
         last_row = rows[-1] if rows else -1  # the last row feed would see, whatever path takes it
-        work = self._decode_rows(plans, rows, cols) if rows else {}
+        slots = self._decode_rows(plans, rows, cols) if rows else []
         feed = self.feed
         frame = cols.frame
         pos = first
         due = self._due  # plans never change it; advance, feed and tick may
-        for i, (plan, values) in work.items():
+        for i in rows:
+            item = slots[i]
+            if item is None:
+                continue  # taken whole, or without a configured signal: counted by its plan
+            plan, values = item
             t = float(ts[i])
             if t >= due:
                 self._cross(ts, pos, i)  # a tick falls due among the rows before this one, or at it
@@ -215,8 +219,8 @@ class LogRunMixin:
     @staticmethod
     def _decode_rows(
         plans: Mapping[str, MessagePlan | None], rows: list[int], cols: Columns
-    ) -> dict[int, tuple[MessagePlan | None, tuple[float, ...] | None]]:
-        """The configured rows left to go one by one, in order, each with its plan and decoded values.
+    ) -> list[tuple[MessagePlan | None, tuple[float, ...] | None] | None]:
+        """Per row of the block: its plan and decoded values when it goes one by one (else None).
 
         Each message's rows are decoded together (:meth:`MessagePlan.decode`); a message
         nobody reads between ticks may take its rows whole (:meth:`MessagePlan.batch`,
@@ -238,10 +242,11 @@ class LogRunMixin:
                 groups[plan] = [i]
             else:
                 group.append(i)
-        work: dict[int, tuple[MessagePlan | None, tuple[float, ...] | None]] = {}
+        slots: list[tuple[MessagePlan | None, tuple[float, ...] | None] | None] = [None] * cols.n
         for plan, group in groups.items():
             if plan is None:
-                work.update(zip(group, repeat((None, None))))
+                for i in group:
+                    slots[i] = (None, None)
                 continue
             pick = _picker(group)
             decoded = plan.decode(pick(data))
@@ -252,11 +257,9 @@ class LogRunMixin:
                 if values is EMPTY:
                     empty += 1
                 else:
-                    work[i] = (plan, values)
+                    slots[i] = (plan, values)
             plan.count_empty(empty)
-        if len(groups) > 1:
-            work = dict(sorted(work.items()))
-        return work
+        return slots
 
     def _cross(self, ts: list[str], lo: int, hi: int) -> None:
         """Rows ``lo..hi-1`` (ordered, of no configured message): the first at or after the due time brings the ticks.
