@@ -2,8 +2,8 @@
 
 ``_failureIf`` / ``_successIf`` replace the tick of a node that is not running; ``_onSuccess``,
 ``_onFailure`` and ``_post`` run after a completed status (also a substituted one);
-``_onHalted`` runs when a running node is halted. ``_skipIf`` / ``_while`` need the SKIPPED
-status: refused at load, with the reason.
+``_onHalted`` runs when a running node is halted. ``_skipIf`` / ``_while`` and the SKIPPED
+status: tests/test_bt_skipped.py.
 """
 
 from __future__ import annotations
@@ -73,13 +73,14 @@ def test_on_halted_runs_when_a_running_node_is_halted(tmp_path: Path) -> None:
     assert Blackboard.storage["/halted"] is True
 
 
-@pytest.mark.parametrize("attr", ["_skipIf", "_while"])
-def test_skipped_status_conditions_are_refused_with_the_reason(tmp_path: Path, attr: str) -> None:
-    """_skipIf and _while would need SKIPPED: a load error naming the line, the attribute and why."""
-    path = tree(tmp_path, f'<Sequence>\n<AlwaysSuccess {attr}="true"/>\n</Sequence>')
+def test_skip_if_and_while_do_not_parse_either_a_load_error(tmp_path: Path) -> None:
+    """_skipIf / _while scripts are parsed at load like the others: a bad one names the line and the attribute."""
+    path = tree(tmp_path, '<Sequence>\n<AlwaysSuccess _skipIf="A =="/>\n'
+                          '<AlwaysSuccess _while="&amp;&amp;"/>\n</Sequence>')
     with pytest.raises(TreeError) as err:
         dry_run(path, 1, 0.1)
-    assert f"{path}:4" in str(err.value) and attr in str(err.value) and "SKIPPED" in str(err.value)
+    assert f"{path}:4" in str(err.value) and "_skipIf" in str(err.value)
+    assert f"{path}:5" in str(err.value) and "_while" in str(err.value)
 
 
 def test_a_condition_script_that_does_not_parse_is_a_load_error(tmp_path: Path) -> None:

@@ -47,12 +47,17 @@ class TestSequences:
         assert log == [("G", "S"), ("A", "R"), ("G", "S"), ("A", "R"), ("G", "F"), ("A", "halt")]
 
     def test_sequence_with_memory_resumes_after_failure(self, tmp_path: Path, log: list) -> None:
-        """A failed child is ticked again next time without re-ticking the ones that succeeded."""
+        """A failed child is ticked again next time without re-ticking the ones that succeeded.
+
+        As BT.CPP 4 (sequence_with_memory_node.cpp): after a child that succeeded at once
+        from IDLE it yields RUNNING (the wake-up every factory-built tree has), so A's
+        success and B's first try fall in different ticks.
+        """
         body = (
             '<SequenceWithMemory><Scripted name="A" script="S"/><Scripted name="B" script="F,S,F"/>'
             "</SequenceWithMemory>"
         )
-        assert run(tmp_path, body, 3) == [F, S, F]
+        assert run(tmp_path, body, 5) == [R, F, S, R, F]
         assert log == [("A", "S"), ("B", "F"), ("B", "S"), ("A", "S"), ("B", "F")]
 
 
@@ -116,10 +121,13 @@ class TestDecorators:
 
     @pytest.mark.parametrize(
         ("attempts", "script", "expected"),
-        [("3", "F,F,S", [R, R, S]), ("3", "F", [R, R, F, R]), ("-1", "F", [R] * 5), ("1", "F", [F, F])],
+        [("3", "F,F,S", [R, R, S]), ("3", "F", [R, R, F, R]), ("-1", "F", [R] * 5), ("1", "F", [F, F]),
+         ("3", "R,F,S", [R, S]), ("2", "R,F,F", [R, F])],
     )
     def test_retry(self, tmp_path: Path, log: list, attempts: str, script: str, expected: list) -> None:
-        """One attempt per tick; FAILURE only once the attempts are used up (-1: never)."""
+        """As BT.CPP 4's retry_node.cpp in a factory-built tree: a child that failed at once is retried at the next
+        tick; one that was RUNNING and then failed is retried within the tick; FAILURE once the attempts are used up
+        (-1: never)."""
         body = (
             f'<RetryUntilSuccessful num_attempts="{attempts}">'
             f'<Scripted name="A" script="{script}"/></RetryUntilSuccessful>'
@@ -128,10 +136,11 @@ class TestDecorators:
 
     @pytest.mark.parametrize(
         ("cycles", "script", "expected"),
-        [("3", "S", [R, R, S, R]), ("3", "S,F", [R, F]), ("-1", "S", [R] * 4), ("2", "R,S,S", [R, R, S])],
+        [("3", "S", [R, R, S, R]), ("3", "S,F", [R, F]), ("-1", "S", [R] * 4), ("2", "R,S,S", [R, S])],
     )
     def test_repeat(self, tmp_path: Path, log: list, cycles: str, script: str, expected: list) -> None:
-        """One cycle per tick; a FAILURE ends the repetition."""
+        """As BT.CPP 4's repeat_node.cpp: a child that succeeded at once is repeated at the next tick, one that was
+        RUNNING and then succeeded is repeated within the tick; a FAILURE ends the repetition."""
         body = f'<Repeat num_cycles="{cycles}"><Scripted name="A" script="{script}"/></Repeat>'
         assert run(tmp_path, body, len(expected)) == expected
 

@@ -100,6 +100,12 @@ EXPECTED: dict[str, dict[str, tuple[str, type, Any]]] = {
     "LoopDouble": {"queue": ("in", str, NO), "if_empty": ("in", str, "SUCCESS"), "value": ("out", float, NO)},
     "LoopString": {"queue": ("in", str, NO), "if_empty": ("in", str, "SUCCESS"), "value": ("out", str, NO)},
     "LoopBool": {"queue": ("in", str, NO), "if_empty": ("in", str, "SUCCESS"), "value": ("out", bool, NO)},
+    "AsyncSequence": {},
+    "AsyncFallback": {},
+    "RunOnce": {"then_skip": ("in", bool, True)},
+    "WasEntryUpdated": {"entry": ("in", str, NO)},
+    "SkipUnlessUpdated": {"entry": ("in", str, NO)},
+    "WaitValueUpdate": {"entry": ("in", str, NO)},
 }
 
 REQUIRED = {
@@ -131,6 +137,9 @@ REQUIRED = {
     "LoopDouble": {"queue"},
     "LoopString": {"queue"},
     "LoopBool": {"queue"},
+    "WasEntryUpdated": {"entry"},
+    "SkipUnlessUpdated": {"entry"},
+    "WaitValueUpdate": {"entry"},
 }
 
 KINDS = {
@@ -145,6 +154,7 @@ KINDS = {
         "IsValueBelow",
         "IsValueAbove",
         "ScriptCondition",
+        "WasEntryUpdated",
     },
     "Action": {"ExecuteTask", "EmitStop", "ResetStop", "ResetTimer", "RecordTime", "AlwaysSuccess", "AlwaysFailure",
                "Script", "SetBlackboard", "UnsetBlackboard", "Sleep"},
@@ -163,12 +173,17 @@ KINDS = {
         "LoopDouble",
         "LoopString",
         "LoopBool",
+        "RunOnce",
+        "SkipUnlessUpdated",
+        "WaitValueUpdate",
     },
     "Control": {
         "Sequence",
+        "AsyncSequence",
         "ReactiveSequence",
         "SequenceWithMemory",
         "Fallback",
+        "AsyncFallback",
         "ReactiveFallback",
         "Parallel",
         "IfThenElse",

@@ -342,7 +342,7 @@ class TestLoadErrors:
             ),
             ('<IsValueBelow value="{a" threshold="1"/>', "port value: malformed blackboard reference '{a'"),
             ('<IsValueBelow value="{@a}" threshold="1"/>', "root-blackboard references"),
-            ('<ExecuteTask _skipIf="x"/>', "_skipIf: not supported yet: it needs BT.CPP's SKIPPED status"),
+            ('<ExecuteTask _skipIf="x =="/>', "_skipIf: script 'x =='"),
             ('<ExecuteTask _onSucess="x := 1"/>', "attribute _onSucess (BT.CPP pre/post-conditions) is not supported"),
             (
                 "<Inverter><ExecuteTask/><ExecuteTask/></Inverter>",
@@ -555,7 +555,7 @@ class TestRegistry:
         rig.load_text(tmp_path, xml_tree('<Sequence><Blink period="2"/></Sequence>'))
         assert calls == ["Blink"]
         assert [rig.tick() for _ in range(3)] == [S, F, S]
-        assert type(rig.loaded.root).__module__ == "canguard.bt.nodes.control"  # type: ignore[union-attr]
+        assert type(rig.loaded.root).__module__ == "canguard.bt.nodes.sequences"  # type: ignore[union-attr]
 
     def test_broken_plugin_names_itself(self, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
         """A plug-in that fails to import, or is not a ports behaviour, is a TreeError naming it."""

@@ -4,15 +4,17 @@ Scripts in these attributes are parsed once, at load (a syntax error is a load e
 with the file and line), and run on the node's (sub)tree blackboard:
 
 - before a node starts (it is not RUNNING): ``_failureIf`` true → FAILURE, ``_successIf``
-  true → SUCCESS, in that order, without ticking the node (as BT.CPP checks them);
+  true → SUCCESS, ``_skipIf`` true → SKIPPED, ``_while`` false → SKIPPED, in that order,
+  without ticking the node (as BT.CPP's ``checkPreConditions``);
+- while it runs: ``_while`` false halts it (``_onHalted`` runs) and it returns SKIPPED;
 - after it (also when a pre-condition gave the status, as in BT.CPP's ``executeTick``):
   ``_onSuccess`` when it returned SUCCESS, ``_onFailure`` when FAILURE, ``_post`` after
   either; ``_onHalted`` when it is halted while RUNNING.
 
-``_skipIf`` and ``_while`` need BT.CPP's SKIPPED status, which py_trees' controls do not
-have: a tree using them is refused at load with that reason, rather than run differently
-from BT.CPP. A script that fails while it runs counts as false (pre) or is skipped (post)
-and the node's feedback says why.
+SKIPPED is BT.CPP's: the node stays IDLE and its parent learns it was skipped
+(:data:`canguard.bt.nodes.base.SKIPPED`; sequences and fallbacks go on to the next child,
+a control whose children were all skipped is skipped itself). A script that fails while
+it runs counts as false (pre) or is skipped (post) and the node's feedback says why.
 """
 
 from __future__ import annotations
@@ -22,14 +24,13 @@ from typing import Any
 
 import py_trees
 
-from canguard.bt.nodes.base import FAILURE, INVALID, RUNNING, SUCCESS
+from canguard.bt.nodes.base import FAILURE, INVALID, RUNNING, SKIPPED, SUCCESS, mark_skipped
 from canguard.bt.nodes.builtins import TreeBlackboard
 from canguard.bt.scripting import Script, ScriptError, parse
 
-PRE = ("_failureIf", "_successIf")
+PRE = ("_failureIf", "_successIf", "_skipIf", "_while")
 POST = ("_onSuccess", "_onFailure", "_post", "_onHalted")
-UNSUPPORTED = ("_skipIf", "_while")
-ALL = PRE + POST + UNSUPPORTED
+ALL = PRE + POST
 
 
 def take_conditions(attrib: dict[str, str]) -> tuple[dict[str, Script], list[str]]:
@@ -39,10 +40,6 @@ def take_conditions(attrib: dict[str, str]) -> tuple[dict[str, Script], list[str
     for attr in ALL:
         text = attrib.pop(attr, None)
         if text is None:
-            continue
-        if attr in UNSUPPORTED:
-            problems.append(f"{attr}: not supported yet: it needs BT.CPP's SKIPPED status, which canguard's "
-                            "controls do not have (use a Precondition or an IfThenElse)")
             continue
         try:
             scripts[attr] = parse(text)
@@ -76,19 +73,33 @@ def install(node: py_trees.behaviour.Behaviour, scripts: Mapping[str, Script]) -
     tick, stop = node.tick, node.stop
 
     def tick_with_conditions() -> Iterator[py_trees.behaviour.Behaviour]:
-        substituted = False
+        substituted: Any = None
         if node.status != RUNNING:
-            for attr, status in (("_failureIf", FAILURE), ("_successIf", SUCCESS)):
+            for attr, status in (("_failureIf", FAILURE), ("_successIf", SUCCESS), ("_skipIf", SKIPPED)):
                 script = scripts.get(attr)
                 if script is not None and _holds(node, script, board, attr):
-                    stop(status)
-                    substituted = True
+                    substituted = status
                     break
-        if substituted:
+            else:
+                script = scripts.get("_while")
+                if script is not None and not _holds(node, script, board, "_while"):
+                    substituted = SKIPPED
+        else:
+            script = scripts.get("_while")
+            if script is not None and not _holds(node, script, board, "_while"):
+                substituted = SKIPPED  # halted below (mark_skipped stops it: _onHalted runs)
+        if substituted is SKIPPED:
+            mark_skipped(node)
+            yield node
+            return
+        if substituted is not None:
+            stop(substituted)
             yield node
         else:
             yield from tick()
         # as BT.CPP's executeTick: the post-conditions follow a completed status, substituted or ticked
+        if getattr(node, "skipped", False):
+            return
         if node.status == SUCCESS:
             _run(node, scripts.get("_onSuccess"), board, "_onSuccess")
         elif node.status == FAILURE:

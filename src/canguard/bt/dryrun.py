@@ -52,5 +52,6 @@ def dry_run(path: Path, ticks: int, dt: float, main: str | None = None) -> dict[
     statuses = []
     for i in range(ticks):
         clock.set(i * dt)
-        statuses.append(loaded.tick().name)
+        status = loaded.tick()
+        statuses.append("SKIPPED" if loaded.skipped else status.name)
     return {"ticks": statuses, "blackboard": root_blackboard()}

@@ -76,8 +76,14 @@ class LoadedTree:
         """Tick the root once (sets ``ctx.tree_start`` at the first tick, as the engine does)."""
         if self.context.tree_start is None:
             self.context.tree_start = self.context.now()
+        self.root.skipped = False  # type: ignore[attr-defined]
         self.root.tick_once()
         return self.root.status
+
+    @property
+    def skipped(self) -> bool:
+        """True when the last tick's root returned BT.CPP's SKIPPED (its status then stays INVALID: IDLE)."""
+        return bool(getattr(self.root, "skipped", False))
 
     def halt(self) -> None:
         """Halt the whole tree (every RUNNING node is stopped)."""

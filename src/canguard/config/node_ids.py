@@ -10,7 +10,8 @@ from __future__ import annotations
 
 BTCPP_BUILTIN_IDS = (
     # controls
-    "Sequence", "SequenceWithMemory", "SequenceStar", "ReactiveSequence", "Fallback", "ReactiveFallback",
+    "Sequence", "AsyncSequence", "SequenceWithMemory", "SequenceStar", "ReactiveSequence", "Fallback",
+    "AsyncFallback", "ReactiveFallback",
     "Parallel", "ParallelAll", "IfThenElse", "WhileDoElse", "Switch2", "Switch3", "Switch4", "Switch5",
     "Switch6", "TryCatch",
     # decorators

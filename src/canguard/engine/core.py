@@ -298,6 +298,7 @@ class Engine(SourceWatchMixin, LogRunMixin):
         self.gate.begin_tick()
         t0 = time.perf_counter()
         try:
+            self.root.skipped = False  # type: ignore[attr-defined]  # SKIPPED: status INVALID, neither stop nor task
             self.root.tick_once()
             status = self.root.status
         except Exception as exc:  # a node that raises must stop the task, not the daemon

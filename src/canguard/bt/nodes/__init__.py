@@ -20,6 +20,8 @@ from canguard.bt.nodes.base import CanguardNode, NodeKind, PortError, port_info
 from canguard.bt.nodes.branches import NODES as BRANCH_NODES
 from canguard.bt.nodes.builtins import NODES as BTCPP_NODES
 from canguard.bt.nodes.control import (
+    AsyncFallback,
+    AsyncSequence,
     Delay,
     Fallback,
     ForceFailure,
@@ -37,6 +39,7 @@ from canguard.bt.nodes.control import (
 from canguard.bt.nodes.current import GuardNode, IsCurrentNormal, IsCurrentSafe, IsI2tSafe
 from canguard.bt.nodes.effort import IsJointEffortNormal
 from canguard.bt.nodes.loops import NODES as LOOP_NODES
+from canguard.bt.nodes.once import NODES as ONCE_NODES
 from canguard.bt.nodes.profile import Profile
 from canguard.bt.nodes.timing import (
     IsCooldownElapsed,
@@ -77,15 +80,18 @@ BUILTIN_NODES: dict[str, type[CanguardNode]] = {
         Delay,
         # controls
         Sequence,
+        AsyncSequence,
         ReactiveSequence,
         SequenceWithMemory,
         Fallback,
+        AsyncFallback,
         ReactiveFallback,
         Parallel,
         # more BehaviorTree.CPP 4 built-ins
         *BTCPP_NODES,
         *BRANCH_NODES,
         *LOOP_NODES,
+        *ONCE_NODES,
     )
 }
 """Every node type canguard provides, by node ID (the closed table)."""

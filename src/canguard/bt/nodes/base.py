@@ -34,7 +34,7 @@ complete.
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Generator, Iterator, Mapping
 from typing import Any, ClassVar, Literal
 
 import py_trees
@@ -51,6 +51,32 @@ FAILURE = py_trees.common.Status.FAILURE
 RUNNING = py_trees.common.Status.RUNNING
 INVALID = py_trees.common.Status.INVALID
 Status = py_trees.common.Status
+
+SKIPPED = "SKIPPED"
+"""BehaviorTree.CPP 4's SKIPPED, which py_trees' :class:`~py_trees.common.Status` lacks.
+
+As in BT.CPP, a skipped node keeps (or goes back to) IDLE — py_trees' INVALID — and
+only its parent learns that it was skipped: the node's ``skipped`` flag, which the
+parent clears before each tick of the child (:func:`tick_child`) and reads after it
+(:func:`outcome`)."""
+
+
+def outcome(node: py_trees.behaviour.Behaviour) -> Status | str:
+    """What ``node`` returned to its parent in the tick just done: its status, or :data:`SKIPPED`."""
+    return SKIPPED if getattr(node, "skipped", False) else node.status
+
+
+def tick_child(child: py_trees.behaviour.Behaviour) -> Iterator[py_trees.behaviour.Behaviour]:
+    """Tick ``child`` (a generator, as py_trees ticks), its skipped flag cleared first."""
+    child.skipped = False  # type: ignore[attr-defined]
+    yield from child.tick()
+
+
+def mark_skipped(node: py_trees.behaviour.Behaviour) -> None:
+    """``node`` returns SKIPPED: back to IDLE (halted if it was RUNNING, as BT.CPP's ``_while``), flag set."""
+    if node.status != INVALID:
+        node.stop(INVALID)
+    node.skipped = True  # type: ignore[attr-defined]
 
 
 _MISSING = object()
@@ -106,6 +132,8 @@ class CanguardNode(PortsMixin):
                 cls.tick = _leaf_tick  # type: ignore[method-assign]
             if cls.stop is py_trees.behaviour.Behaviour.stop:
                 cls.stop = _leaf_stop  # type: ignore[method-assign]
+        if issubclass(cls, py_trees.decorators.Decorator) and not getattr(cls.tick, "skip_aware", False):
+            cls.tick = _skip_through(cls.tick)  # type: ignore[method-assign,assignment]
 
     def __init__(self, *args: Any, context: Context | None = None, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
@@ -117,6 +145,8 @@ class CanguardNode(PortsMixin):
         self._wired: frozenset[str] = frozenset()
         self._keys: dict[str, str] = {}
         self._bad_port = ""
+        self.skipped = False
+        """True when the node returned BT.CPP's SKIPPED in its last tick (see :data:`SKIPPED`)."""
 
     @property
     def ctx(self) -> Context:
@@ -224,6 +254,38 @@ def _leaf_tick(self: py_trees.behaviour.Behaviour) -> Iterator[py_trees.behaviou
         self.stop(new_status)
     self.status = new_status
     yield self
+
+
+def _skip_through(
+    tick: Callable[[Any], Iterator[py_trees.behaviour.Behaviour]],
+) -> Callable[[Any], Iterator[py_trees.behaviour.Behaviour]]:
+    """A decorator's tick with BT.CPP's rule for a SKIPPED child: the decorator is SKIPPED too.
+
+    (Inverter, ForceSuccess/Failure, Retry, Repeat, Timeout, Delay, Precondition... all
+    return a skipped child's SKIPPED.) A decorator with ``SKIP_THROUGH = False`` sees the
+    skipped child as it is (IDLE) in its own ``update``.
+    """
+
+    def skip_aware_tick(self: Any) -> Iterator[py_trees.behaviour.Behaviour]:
+        child = self.decorated
+        child.skipped = False
+        self.skipped = False
+        if not getattr(self, "SKIP_THROUGH", True):
+            yield from tick(self)
+            return
+        inner = tick(self)
+        assert isinstance(inner, Generator)
+        for node in inner:
+            if node is child and getattr(child, "skipped", False):
+                inner.close()
+                mark_skipped(self)
+                yield self
+                return
+            yield node
+
+    skip_aware_tick.skip_aware = True  # type: ignore[attr-defined]
+    skip_aware_tick.__doc__ = tick.__doc__
+    return skip_aware_tick
 
 
 def _leaf_stop(self: py_trees.behaviour.Behaviour, new_status: Status) -> None:

@@ -26,7 +26,19 @@ from typing import Any
 import py_trees
 from py_trees.blackboard import Blackboard
 
-from canguard.bt.nodes.base import FAILURE, INVALID, RUNNING, SUCCESS, CanguardNode, PortError, port_info
+from canguard.bt.nodes.base import (
+    FAILURE,
+    INVALID,
+    RUNNING,
+    SKIPPED,
+    SUCCESS,
+    CanguardNode,
+    PortError,
+    mark_skipped,
+    outcome,
+    port_info,
+    tick_child,
+)
 
 Children = list[py_trees.behaviour.Behaviour] | None
 _INT = re.compile(r"-?[0-9]+\Z")
@@ -107,8 +119,11 @@ class _Switch(CanguardNode, py_trees.composites.Composite):
             self.children[self.running].stop(INVALID)
         child = self.children[index]
         self.current_child = child
-        yield from child.tick()
-        if child.status == RUNNING:
+        yield from tick_child(child)
+        if outcome(child) == SKIPPED:  # BT.CPP: the matching child skipped, the switch too
+            self.running = -1
+            mark_skipped(self)
+        elif child.status == RUNNING:
             self.running = index
             self.status = RUNNING
         else:
@@ -188,14 +203,21 @@ class ParallelAll(CanguardNode, py_trees.composites.Composite):
                     child.stop(INVALID)
             self.finished.clear()
             self.initialise()
+        skipped = 0
         for index, child in enumerate(self.children):
             if index in self.finished:
                 continue
             self.current_child = child
-            yield from child.tick()
-            if child.status in (SUCCESS, FAILURE):
+            yield from tick_child(child)
+            if outcome(child) == SKIPPED:
+                skipped += 1
+            elif child.status in (SUCCESS, FAILURE):
                 self.finished[index] = child.status
-        if len(self.finished) < len(self.children):
+        if skipped == len(self.children):  # BT.CPP: all skipped, the parallel too
+            mark_skipped(self)
+            yield self
+            return
+        if skipped + len(self.finished) < len(self.children):
             self.status = RUNNING
             yield self
             return
@@ -229,6 +251,7 @@ class TryCatch(CanguardNode, py_trees.composites.Composite):
         super().__init__(name=name, children=children, **kwargs)
         self.index = 0
         self.in_catch = False
+        self.skipped_count = 0
 
     def bind(self) -> None:
         if len(self.children) < 2:
@@ -239,10 +262,16 @@ class TryCatch(CanguardNode, py_trees.composites.Composite):
             self.index, self.in_catch = 0, False
             self.initialise()
         tries = self.children[:-1]
+        if self.index == 0:
+            self.skipped_count = 0
         while not self.in_catch and self.index < len(tries):
             child = tries[self.index]
             self.current_child = child
-            yield from child.tick()
+            yield from tick_child(child)
+            if outcome(child) == SKIPPED:
+                self.index += 1
+                self.skipped_count += 1
+                continue
             if child.status == RUNNING:
                 self.status = RUNNING
                 yield self
@@ -255,7 +284,11 @@ class TryCatch(CanguardNode, py_trees.composites.Composite):
             else:
                 self.index += 1
         if not self.in_catch:
-            self.stop(SUCCESS)
+            if self.skipped_count == len(tries):  # BT.CPP: every try skipped
+                self.index = 0
+                mark_skipped(self)
+            else:
+                self.stop(SUCCESS)
             yield self
             return
         catch = self.children[-1]

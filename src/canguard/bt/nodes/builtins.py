@@ -31,7 +31,16 @@ from typing import Any
 import py_trees
 from py_trees.blackboard import Blackboard
 
-from canguard.bt.nodes.base import FAILURE, INVALID, RUNNING, SUCCESS, CanguardNode, PortError, port_info
+from canguard.bt.nodes.base import (
+    FAILURE,
+    INVALID,
+    RUNNING,
+    SUCCESS,
+    CanguardNode,
+    PortError,
+    mark_skipped,
+    port_info,
+)
 from canguard.bt.scripting import Script as ParsedScript
 from canguard.bt.scripting import ScriptError, parse
 
@@ -227,10 +236,11 @@ class KeepRunningUntilFailure(CanguardNode, py_trees.decorators.Decorator):
     DESCRIPTION = "the child's SUCCESS becomes RUNNING (it is ticked again next time); FAILURE ends it"
     INPUT_PORTS: dict = {}  # noqa: RUF012
     OUTPUT_PORTS: dict = {}  # noqa: RUF012
+    SKIP_THROUGH = False  # BT.CPP: a skipped child leaves it RUNNING
 
     def update(self) -> py_trees.common.Status:
         status = self.decorated.status
-        return RUNNING if status == SUCCESS else status
+        return RUNNING if status in (SUCCESS, INVALID) else status
 
 
 class Precondition(_Scripted, py_trees.decorators.Decorator):
@@ -240,14 +250,15 @@ class Precondition(_Scripted, py_trees.decorators.Decorator):
     DESCRIPTION = "ticks the child when the script if is true (and while it runs); else returns else"
     INPUT_PORTS = {  # noqa: RUF012
         "if": port_info(str, "the condition (BT.CPP scripting)"),
-        "else": port_info(str, "status when the condition is false: FAILURE, SUCCESS or RUNNING", "FAILURE"),
+        "else": port_info(str, "status when the condition is false: FAILURE, SUCCESS, RUNNING or SKIPPED",
+                          "FAILURE"),
     }
     SCRIPT_PORTS = ("if",)
 
     def bind(self) -> None:
         super().bind()
-        if str(self.port("else")).upper() not in _STATUS:
-            raise PortError("else", f"{self.port('else')!r}: expected SUCCESS, FAILURE or RUNNING")
+        if str(self.port("else")).upper() not in (*_STATUS, "SKIPPED"):
+            raise PortError("else", f"{self.port('else')!r}: expected SUCCESS, FAILURE, RUNNING or SKIPPED")
 
     def tick(self) -> Any:
         """Check the condition at the start of a run (BT.CPP: not again while the child runs)."""
@@ -257,7 +268,11 @@ class Precondition(_Scripted, py_trees.decorators.Decorator):
             except ScriptError:
                 ok = False
             if not ok:
-                self.stop(_STATUS[str(self.port("else")).upper()])
+                otherwise = str(self.port("else")).upper()
+                if otherwise == "SKIPPED":
+                    mark_skipped(self)
+                else:
+                    self.stop(_STATUS[otherwise])
                 yield self
                 return
         yield from super().tick()

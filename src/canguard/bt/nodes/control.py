@@ -8,18 +8,21 @@ mapped onto py_trees where the semantics match and written out where they do not
 ======================  ====================================================  ============================
 BT.CPP node             semantics                                             py_trees mapping
 ======================  ====================================================  ============================
-Sequence                resume at a RUNNING child; restart after a FAILURE    ``Sequence(memory=True)``
-ReactiveSequence        restart from the first child at every tick            ``Sequence(memory=False)``
-SequenceWithMemory      resume at a RUNNING *or failed* child                 own ``tick``
-Fallback                resume at a RUNNING child; restart after a SUCCESS    ``Selector(memory=True)``
-ReactiveFallback        restart from the first child at every tick            ``Selector(memory=False)``
+Sequence                resume at a RUNNING child; restart after a FAILURE    own ``tick`` (``sequences``)
+ReactiveSequence        restart from the first child at every tick            own ``tick``
+SequenceWithMemory      resume at a RUNNING *or failed* child; yields after   own ``tick``
+                        each child that succeeded at once
+AsyncSequence           a Sequence that yields after each instant success     own ``tick``
+AsyncFallback           a Fallback that yields after each instant failure     own ``tick``
+Fallback                resume at a RUNNING child; restart after a SUCCESS    own ``tick``
+ReactiveFallback        restart from the first child at every tick            own ``tick``
 Parallel                success_count / failure_count (-1 = all children);    own ``tick`` (py_trees has
                         finished children wait until the parallel completes   policies, not counts)
 Inverter                SUCCESS <-> FAILURE, RUNNING unchanged                ``decorators.Inverter``
 ForceSuccess            FAILURE -> SUCCESS                                    ``FailureIsSuccess``
 ForceFailure            SUCCESS -> FAILURE                                    ``SuccessIsFailure``
-RetryUntilSuccessful    a FAILURE is retried at the next tick, num_attempts   own ``update`` (-1: forever)
-Repeat                  a SUCCESS is repeated at the next tick, num_cycles    own ``update`` (-1: forever)
+RetryUntilSuccessful    a FAILURE is retried, num_attempts (-1: forever)      own ``tick`` (BT.CPP's loop)
+Repeat                  a SUCCESS is repeated, num_cycles (-1: forever)       own ``tick`` (BT.CPP's loop)
 Timeout                 FAILURE (child halted) once ``msec`` have elapsed     own ``tick`` (py_trees reads
                                                                               ``time.monotonic``)
 Delay                   RUNNING for ``delay_msec``, then the child            own ``tick``
@@ -30,9 +33,13 @@ Notes on the mapping:
 - "Restart / resume" is what py_trees calls memory. BT.CPP's plain ``Sequence``
   *has* memory for RUNNING children (it does not re-tick earlier children), which
   is why guards belong under a ReactiveSequence (design note 004).
-- RetryUntilSuccessful and Repeat make one attempt per tick and return RUNNING in
-  between, as BT.CPP 4 does when the tree is ticked periodically (its wake-up
-  signal); a monitoring daemon must not loop inside one tick.
+- RetryUntilSuccessful and Repeat: a child that completed at once is tried again at
+  the next tick (BT.CPP 4 returns RUNNING and emits its wake-up signal, which every
+  tree built by its factory has: ``Tree::initialize``); a child that was RUNNING and
+  then completed is tried again within the same tick. No tick loops.
+- Every control passes BT.CPP's SKIPPED on: sequences and fallbacks skip a skipped
+  child, a control whose children were all skipped is skipped, a decorator over a
+  skipped child is skipped (KeepRunningUntilFailure stays RUNNING, as BT.CPP).
 - SequenceWithMemory keeps its position across a halt, as BT.CPP 4 does.
 - Timeout and Delay read the context's clock, so they work in replay and in tests
   with a manual clock.
@@ -44,94 +51,30 @@ from typing import Any
 
 import py_trees
 
-from canguard.bt.nodes.base import FAILURE, INVALID, RUNNING, SUCCESS, CanguardNode, PortError, port_info
-
-Children = list[py_trees.behaviour.Behaviour] | None
-
-
-class _Control(CanguardNode):
-    KIND = "Control"
-    NEEDS_CONTEXT = False
-    INPUT_PORTS: dict = {}  # noqa: RUF012 - py_trees reads ports as plain class dicts
-    OUTPUT_PORTS: dict = {}  # noqa: RUF012
-
-
-class Sequence(_Control, py_trees.composites.Sequence):
-    """BT.CPP Sequence: ticks children in order; resumes at a RUNNING child; restarts after a FAILURE."""
-
-    DESCRIPTION = "children in order; a RUNNING child is resumed (earlier ones not re-ticked)"
-
-    def __init__(self, name: str, children: Children = None, **kwargs: Any) -> None:
-        super().__init__(name=name, memory=True, children=children, **kwargs)
-
-
-class ReactiveSequence(_Control, py_trees.composites.Sequence):
-    """BT.CPP ReactiveSequence: every tick starts at the first child; a failing guard halts a running one."""
-
-    DESCRIPTION = "children in order, from the first at every tick (guards re-checked while a child runs)"
-
-    def __init__(self, name: str, children: Children = None, **kwargs: Any) -> None:
-        super().__init__(name=name, memory=False, children=children, **kwargs)
-
-
-class SequenceWithMemory(_Control, py_trees.composites.Sequence):
-    """BT.CPP SequenceWithMemory: children that succeeded are not ticked again, even after a FAILURE."""
-
-    DESCRIPTION = "children in order; after a FAILURE or RUNNING the next tick resumes at that child"
-
-    def __init__(self, name: str, children: Children = None, **kwargs: Any) -> None:
-        super().__init__(name=name, memory=True, children=children, **kwargs)
-        self.resume_index = 0
-        """Where the next tick starts: kept on FAILURE and RUNNING (and across a halt), 0 after SUCCESS."""
-
-    def tick(self) -> Any:
-        """Resume at ``resume_index``; go back to the first child only once all succeeded."""
-        if self.status != RUNNING:
-            for child in self.children[self.resume_index :]:
-                if child.status != INVALID:
-                    child.stop(INVALID)
-            self.initialise()
-        if not self.children:
-            self.current_child = None
-            self.stop(SUCCESS)
-            yield self
-            return
-        for index in range(self.resume_index, len(self.children)):
-            child = self.children[index]
-            self.current_child = child
-            yield from child.tick()
-            status = child.status
-            if status == RUNNING:
-                self.resume_index = index
-                self.status = RUNNING
-                yield self
-                return
-            if status == FAILURE:
-                self.resume_index = index
-                self.stop(FAILURE)
-                yield self
-                return
-        self.resume_index = 0
-        self.stop(SUCCESS)
-        yield self
-
-
-class Fallback(_Control, py_trees.composites.Selector):
-    """BT.CPP Fallback: children in order until one succeeds; resumes at a RUNNING child."""
-
-    DESCRIPTION = "children in order until one does not fail; a RUNNING child is resumed"
-
-    def __init__(self, name: str, children: Children = None, **kwargs: Any) -> None:
-        super().__init__(name=name, memory=True, children=children, **kwargs)
-
-
-class ReactiveFallback(_Control, py_trees.composites.Selector):
-    """BT.CPP ReactiveFallback: every tick starts at the first child; a higher priority interrupts."""
-
-    DESCRIPTION = "children in order, from the first at every tick (higher priorities interrupt)"
-
-    def __init__(self, name: str, children: Children = None, **kwargs: Any) -> None:
-        super().__init__(name=name, memory=False, children=children, **kwargs)
+from canguard.bt.nodes.base import (
+    FAILURE,
+    INVALID,
+    RUNNING,
+    SKIPPED,
+    SUCCESS,
+    CanguardNode,
+    PortError,
+    mark_skipped,
+    outcome,
+    port_info,
+    tick_child,
+)
+from canguard.bt.nodes.sequences import (  # noqa: F401 - the sequence family lives there, named here too
+    AsyncFallback,
+    AsyncSequence,
+    Children,
+    Fallback,
+    ReactiveFallback,
+    ReactiveSequence,
+    Sequence,
+    SequenceWithMemory,
+    _Control,
+)
 
 
 class Parallel(_Control, py_trees.composites.Parallel):
@@ -186,21 +129,29 @@ class Parallel(_Control, py_trees.composites.Parallel):
             yield self
             return
         need_s, need_f = self.thresholds()
+        all_needed = (self.port("success_count") or -1) < 0
+        skipped = 0
         for index, child in enumerate(self.children):
             if index not in self.finished:
-                yield from child.tick()
-                if child.status in (SUCCESS, FAILURE):
+                yield from tick_child(child)
+                if outcome(child) == SKIPPED:
+                    skipped += 1
+                elif child.status in (SUCCESS, FAILURE):
                     self.finished[index] = child.status
             successes = sum(1 for s in self.finished.values() if s == SUCCESS)
             failures = len(self.finished) - successes
-            if successes >= need_s:
+            # BT.CPP: with a negative success_count, skipped children count towards it
+            if successes >= need_s or (all_needed and successes + skipped >= need_s):
                 yield from self._finish(SUCCESS, child)
                 return
             if n - failures < need_s or failures >= need_f:
                 yield from self._finish(FAILURE, child)
                 return
         self.current_child = self.children[-1]
-        self.status = RUNNING
+        if skipped == n:  # every child skipped: the parallel too
+            mark_skipped(self)
+        else:
+            self.status = RUNNING
         yield self
 
     def _finish(self, status: py_trees.common.Status, child: py_trees.behaviour.Behaviour) -> Any:
@@ -242,9 +193,15 @@ def _check_count(node: CanguardNode, name: str, low: int) -> None:
 
 
 class RetryUntilSuccessful(_Decorator, py_trees.decorators.Decorator):
-    """Retries a failing child at the next tick, up to num_attempts attempts (-1: forever)."""
+    """Retries a failing child up to num_attempts attempts (-1: forever), as BT.CPP 4's ``retry_node.cpp``.
 
-    DESCRIPTION = "a FAILURE is retried at the next tick, up to num_attempts attempts (-1: forever)"
+    A child that failed at once (it was not RUNNING) is retried at the next tick: BT.CPP
+    returns RUNNING there and wakes the tree, which every tree its factory builds does. A
+    child that was RUNNING and then failed is retried within the same tick. So a tick
+    never loops: at most two attempts per tick.
+    """
+
+    DESCRIPTION = "a FAILURE is retried (at the next tick), up to num_attempts attempts (-1: forever)"
     INPUT_PORTS = {  # noqa: RUF012
         "num_attempts": port_info(int, "attempts before giving up (-1: forever)"),
     }
@@ -257,30 +214,59 @@ class RetryUntilSuccessful(_Decorator, py_trees.decorators.Decorator):
         """num_attempts: -1 or >= 1."""
         _check_count(self, "num_attempts", 1)
 
-    def initialise(self) -> None:
-        """A new run: no failures yet."""
-        self.failures = 0
+    def terminate(self, new_status: py_trees.common.Status) -> None:
+        """A halt forgets the failures (BT.CPP's ``halt``)."""
+        if new_status == INVALID:
+            self.failures = 0
 
     def update(self) -> py_trees.common.Status:
-        """FAILURE -> RUNNING until the attempts are used up."""
-        status = self.decorated.status
-        if status != FAILURE:
-            return status
-        self.failures += 1
+        """Not used: :meth:`tick` decides (py_trees requires the method)."""
+        return self.status
+
+    def tick(self) -> Any:
+        """BT.CPP's loop: SUCCESS ends it, FAILURE is counted and retried, RUNNING is passed up."""
         limit = self.port("num_attempts")
         if limit is None:
-            return FAILURE
-        if limit < 0 or self.failures < limit:
-            self.feedback_message = f"attempt {self.failures} failed, retrying"
-            return RUNNING
+            self.stop(FAILURE)
+            yield self
+            return
+        child = self.decorated
+        while self.failures < limit or limit == -1:
+            fresh = child.status != RUNNING
+            yield from tick_child(child)
+            status = child.status
+            if status == RUNNING:
+                self.status = RUNNING
+                yield self
+                return
+            if status == SUCCESS:
+                self.failures = 0
+                self.stop(SUCCESS)
+                yield self
+                return
+            self.failures += 1
+            limit = self.port("num_attempts")
+            if limit is None:
+                break
+            if fresh and (self.failures < limit or limit == -1):
+                self.feedback_message = f"attempt {self.failures} failed, retrying"
+                self.status = RUNNING
+                yield self
+                return
         self.feedback_message = f"failed {self.failures} time(s)"
-        return FAILURE
+        self.failures = 0
+        self.stop(FAILURE)
+        yield self
 
 
 class Repeat(_Decorator, py_trees.decorators.Decorator):
-    """Repeats a succeeding child at the next tick, num_cycles times (-1: forever); FAILURE stops."""
+    """Repeats a succeeding child num_cycles times (-1: forever); FAILURE stops, as BT.CPP 4's ``repeat_node.cpp``.
 
-    DESCRIPTION = "a SUCCESS is repeated at the next tick, num_cycles times (-1: forever); FAILURE ends it"
+    As :class:`RetryUntilSuccessful`: a child that succeeded at once is repeated at the
+    next tick, one that was RUNNING and then succeeded is repeated within the tick.
+    """
+
+    DESCRIPTION = "a SUCCESS is repeated (at the next tick), num_cycles times (-1: forever); FAILURE ends it"
     INPUT_PORTS = {  # noqa: RUF012
         "num_cycles": port_info(int, "successes to collect (-1: forever)"),
     }
@@ -293,31 +279,48 @@ class Repeat(_Decorator, py_trees.decorators.Decorator):
         """num_cycles: -1 or >= 0."""
         _check_count(self, "num_cycles", 0)
 
-    def initialise(self) -> None:
-        """A new run: no successes yet."""
-        self.successes = 0
-
-    def tick(self) -> Any:
-        """``num_cycles=0`` succeeds without ticking the child (as BT.CPP)."""
-        if self.status != RUNNING and self.port("num_cycles") == 0:
-            self.stop(SUCCESS)
-            yield self
-            return
-        yield from super().tick()
+    def terminate(self, new_status: py_trees.common.Status) -> None:
+        """A halt forgets the cycles done (BT.CPP's ``halt``)."""
+        if new_status == INVALID:
+            self.successes = 0
 
     def update(self) -> py_trees.common.Status:
-        """SUCCESS -> RUNNING until the cycles are done."""
-        status = self.decorated.status
-        if status != SUCCESS:
-            return status
-        self.successes += 1
+        """Not used: :meth:`tick` decides (py_trees requires the method)."""
+        return self.status
+
+    def tick(self) -> Any:
+        """BT.CPP's loop; ``num_cycles=0`` succeeds without ticking the child."""
         limit = self.port("num_cycles")
         if limit is None:
-            return FAILURE
-        if limit < 0 or self.successes < limit:
-            self.feedback_message = f"cycle {self.successes} done"
-            return RUNNING
-        return SUCCESS
+            self.stop(FAILURE)
+            yield self
+            return
+        child = self.decorated
+        while self.successes < limit or limit == -1:
+            fresh = child.status != RUNNING
+            yield from tick_child(child)
+            status = child.status
+            if status == RUNNING:
+                self.status = RUNNING
+                yield self
+                return
+            if status == FAILURE:
+                self.successes = 0
+                self.stop(FAILURE)
+                yield self
+                return
+            self.successes += 1
+            limit = self.port("num_cycles")
+            if limit is None:
+                break
+            if fresh and (self.successes < limit or limit == -1):
+                self.feedback_message = f"cycle {self.successes} done"
+                self.status = RUNNING
+                yield self
+                return
+        self.successes = 0
+        self.stop(SUCCESS)
+        yield self
 
 
 class Timeout(_Decorator, py_trees.decorators.Decorator):

@@ -1,0 +1,195 @@
+"""BehaviorTree.CPP 4's RunOnce and the entry-update nodes: WasEntryUpdated, SkipUnlessUpdated, WaitValueUpdate.
+
+The entry-update nodes ask whether a blackboard entry was *written* since they last
+looked, as BT.CPP does with each entry's ``sequence_id`` (``updated_action.cpp``,
+``updated_decorator.cpp``): writing the same value again counts as an update.
+py_trees' blackboard keeps no such counter, so :func:`versioned_storage` puts a dict
+that counts writes per key in place of ``Blackboard.storage`` (same keys, same
+values; every writer — scripts, SetBlackboard, output ports, py_trees clients — goes
+through it).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import py_trees
+from py_trees.blackboard import Blackboard
+
+from canguard.bt.nodes.base import (
+    FAILURE,
+    RUNNING,
+    SUCCESS,
+    CanguardNode,
+    mark_skipped,
+    port_info,
+)
+
+
+class _Versioned(dict[str, Any]):
+    """A dict that counts the writes of each key (``versions``): BT.CPP's entry ``sequence_id``."""
+
+    def __init__(self, *args: Any) -> None:
+        super().__init__(*args)
+        self.versions: dict[str, int] = dict.fromkeys(self, 1)
+
+    def __setitem__(self, key: str, value: Any) -> None:
+        super().__setitem__(key, value)
+        self.versions[key] = self.versions.get(key, 0) + 1
+
+    def setdefault(self, key: str, default: Any = None) -> Any:
+        if key not in self:
+            self[key] = default
+        return self[key]
+
+    def update(self, *args: Any, **kwargs: Any) -> None:
+        for key, value in dict(*args, **kwargs).items():
+            self[key] = value
+
+    def clear(self) -> None:
+        super().clear()
+        self.versions.clear()
+
+
+def versioned_storage() -> _Versioned:
+    """``Blackboard.storage`` as a :class:`_Versioned` dict (installed once; the entries are kept)."""
+    storage = Blackboard.storage
+    if not isinstance(storage, _Versioned):
+        storage = _Versioned(storage)
+        Blackboard.storage = storage
+    return storage
+
+
+def _version(node: CanguardNode) -> int | None:
+    """The write count of the node's ``entry`` (None: no such entry), resolved in the node's namespace."""
+    storage = versioned_storage()
+    key = node._keys.get("entry")
+    if key is None:
+        name = str(node.port("entry") or "").strip().strip("{}")
+        namespace = getattr(node, "_subtree_namespace", None) or "/"
+        key = name if name.startswith("/") else namespace.rstrip("/") + "/" + name
+    if key not in storage:
+        return None
+    return storage.versions.get(key, 1)
+
+
+_ENTRY = {"entry": port_info(str, "the blackboard entry to watch ({key} or key)")}
+
+
+class WasEntryUpdated(CanguardNode, py_trees.behaviour.Behaviour):
+    """BT.CPP WasEntryUpdated: SUCCESS when ``entry`` was written since this node last looked, else FAILURE."""
+
+    KIND = "Condition"
+    NEEDS_CONTEXT = False
+    DESCRIPTION = "SUCCESS when the entry was written since the last tick of this node (same value too)"
+    INPUT_PORTS = dict(_ENTRY)  # noqa: RUF012
+    OUTPUT_PORTS: dict = {}  # noqa: RUF012
+
+    def __init__(self, name: str, **kwargs: Any) -> None:
+        super().__init__(name=name, **kwargs)
+        self.seen = 0
+
+    def setup_ports(self, *args: Any, **kwargs: Any) -> None:
+        versioned_storage()
+        super().setup_ports(*args, **kwargs)
+
+    def update(self) -> py_trees.common.Status:
+        current = _version(self)
+        if current is None:
+            return FAILURE
+        previous, self.seen = self.seen, current
+        return SUCCESS if previous != current else FAILURE
+
+
+class _EntryUpdated(CanguardNode, py_trees.decorators.Decorator):
+    """BT.CPP's EntryUpdatedDecorator: tick the child only when ``entry`` was written since the last look."""
+
+    KIND = "Decorator"
+    NEEDS_CONTEXT = False
+    INPUT_PORTS = dict(_ENTRY)  # noqa: RUF012
+    OUTPUT_PORTS: dict = {}  # noqa: RUF012
+    IF_NOT_UPDATED: str = "SKIPPED"
+
+    def __init__(self, name: str, child: py_trees.behaviour.Behaviour, **kwargs: Any) -> None:
+        super().__init__(name=name, child=child, **kwargs)
+        self.seen = 0
+        self.still_running = False
+
+    def setup_ports(self, *args: Any, **kwargs: Any) -> None:
+        versioned_storage()
+        super().setup_ports(*args, **kwargs)
+
+    def tick(self) -> Any:
+        """A running child goes on; else the child runs only after a write (else SKIPPED / RUNNING)."""
+        if not self.still_running:
+            current = _version(self)
+            updated = current is not None and current != self.seen
+            if current is not None:
+                self.seen = current
+            if not updated:
+                if self.IF_NOT_UPDATED == "SKIPPED":
+                    mark_skipped(self)
+                else:
+                    self.status = RUNNING
+                yield self
+                return
+        yield from super().tick()
+        self.still_running = self.status == RUNNING
+
+    def update(self) -> py_trees.common.Status:
+        return self.decorated.status
+
+    def terminate(self, new_status: py_trees.common.Status) -> None:
+        if new_status == py_trees.common.Status.INVALID:
+            self.still_running = False
+
+
+class SkipUnlessUpdated(_EntryUpdated):
+    """BT.CPP SkipUnlessUpdated: the child runs after each write of ``entry``; otherwise SKIPPED."""
+
+    DESCRIPTION = "ticks the child when the entry was written since the last look, else SKIPPED"
+    IF_NOT_UPDATED = "SKIPPED"
+
+
+class WaitValueUpdate(_EntryUpdated):
+    """BT.CPP WaitValueUpdate: RUNNING until ``entry`` is written, then the child."""
+
+    DESCRIPTION = "RUNNING until the entry is written (since the last look), then ticks the child"
+    IF_NOT_UPDATED = "RUNNING"
+
+
+class RunOnce(CanguardNode, py_trees.decorators.Decorator):
+    """BT.CPP RunOnce: the child runs to completion once; then SKIPPED (``then_skip``) or that status forever."""
+
+    KIND = "Decorator"
+    NEEDS_CONTEXT = False
+    DESCRIPTION = "runs the child once; afterwards SKIPPED (then_skip=true) or the child's first result"
+    INPUT_PORTS = {  # noqa: RUF012
+        "then_skip": port_info(bool, "after the first run: true = SKIPPED, false = the status it returned", True),
+    }
+    OUTPUT_PORTS: dict = {}  # noqa: RUF012
+
+    def __init__(self, name: str, child: py_trees.behaviour.Behaviour, **kwargs: Any) -> None:
+        super().__init__(name=name, child=child, **kwargs)
+        self.returned: py_trees.common.Status | None = None
+        """The child's completed status (None until it completed once); kept across halts, as BT.CPP."""
+
+    def tick(self) -> Any:
+        """After the first completed run: SKIPPED, or that run's status, without ticking the child."""
+        if self.returned is not None:
+            if self.port("then_skip") is False:
+                self.stop(self.returned)
+            else:
+                mark_skipped(self)
+            yield self
+            return
+        yield from super().tick()
+
+    def update(self) -> py_trees.common.Status:
+        status = self.decorated.status
+        if status in (SUCCESS, FAILURE):
+            self.returned = status
+        return status
+
+
+NODES = (RunOnce, WasEntryUpdated, SkipUnlessUpdated, WaitValueUpdate)

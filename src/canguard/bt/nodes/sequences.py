@@ -1,0 +1,196 @@
+"""BehaviorTree.CPP 4's sequences and fallbacks (Sequence, AsyncSequence, ReactiveSequence, SequenceWithMemory,
+Fallback, AsyncFallback, ReactiveFallback), SKIPPED included; see :mod:`canguard.bt.nodes.control` for the table."""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar
+
+import py_trees
+
+from canguard.bt.nodes.base import (
+    FAILURE,
+    INVALID,
+    RUNNING,
+    SKIPPED,
+    SUCCESS,
+    CanguardNode,
+    mark_skipped,
+    outcome,
+    tick_child,
+)
+
+Children = list[py_trees.behaviour.Behaviour] | None
+
+
+class _Control(CanguardNode):
+    KIND = "Control"
+    NEEDS_CONTEXT = False
+    INPUT_PORTS: dict = {}  # noqa: RUF012 - py_trees reads ports as plain class dicts
+    OUTPUT_PORTS: dict = {}  # noqa: RUF012
+
+
+class _Ordered(_Control, py_trees.composites.Composite):
+    """BT.CPP 4's sequences and fallbacks, SKIPPED included (``sequence_node.cpp``, ``fallback_node.cpp`` ...).
+
+    ``GO_ON``: the child status that moves to the next child (SUCCESS in a sequence,
+    FAILURE in a fallback); the other completed status ends the run with it. A SKIPPED
+    child is passed over; a run whose children were all skipped is SKIPPED.
+    ``REACTIVE``: every tick starts at the first child, a RUNNING child halts the others.
+    ``ASYNC``: after a child that completed in one tick from IDLE the node returns
+    RUNNING and goes on at the next tick (BT.CPP's wake-up signal, which every tree its
+    factory builds has). ``KEEP_ON_STOP``: the next tick resumes at the child that ended
+    the run (SequenceWithMemory).
+    """
+
+    GO_ON: ClassVar[py_trees.common.Status] = SUCCESS
+    REACTIVE: ClassVar[bool] = False
+    ASYNC: ClassVar[bool] = False
+    KEEP_ON_STOP: ClassVar[bool] = False
+
+    def __init__(self, name: str, children: Children = None, **kwargs: Any) -> None:
+        super().__init__(name=name, children=children, **kwargs)
+        self.index = 0
+        """The child the next tick starts at (not reactive)."""
+        self.skipped_count = 0
+
+    @property
+    def memory(self) -> bool:
+        """py_trees' word: a RUNNING child is resumed without re-ticking the earlier ones (not reactive)."""
+        return not self.REACTIVE
+
+    def terminate(self, new_status: py_trees.common.Status) -> None:
+        """A halt (INVALID) starts over at the first child, as BT.CPP's ``halt`` (SequenceWithMemory keeps it)."""
+        if new_status == INVALID and not self.KEEP_ON_STOP:
+            self.index = 0
+            self.skipped_count = 0
+
+    def tick(self) -> Any:
+        """One tick, child by child (see the class docstring)."""
+        children = self.children
+        n = len(children)
+        if self.status != RUNNING:
+            self.skipped_count = 0
+            # py_trees' way of BT.CPP's resetChildren: a new run starts from IDLE children
+            for child in children[0 if self.REACTIVE else self.index:]:
+                if child.status != INVALID:
+                    child.stop(INVALID)
+            self.initialise()
+        if self.REACTIVE:
+            yield from self._tick_reactive(children)
+            return
+        while self.index < n:
+            child = children[self.index]
+            self.current_child = child
+            before = child.status
+            yield from tick_child(child)
+            result = outcome(child)
+            if result == RUNNING:
+                self.status = RUNNING
+                yield self
+                return
+            if result == SKIPPED:
+                self.index += 1
+                self.skipped_count += 1
+                continue
+            if result != self.GO_ON:  # the run ends with this child's status
+                for later in children[self.index + 1:]:
+                    if later.status != INVALID:
+                        later.stop(INVALID)
+                if not self.KEEP_ON_STOP:
+                    self.index = 0
+                self.stop(child.status)
+                yield self
+                return
+            self.index += 1
+            if self.ASYNC and before == INVALID and self.index < n:
+                self.status = RUNNING
+                yield self
+                return
+        all_skipped = self.skipped_count == n
+        self.index = 0
+        self.skipped_count = 0
+        if all_skipped:
+            mark_skipped(self)
+        else:
+            self.stop(self.GO_ON)
+        yield self
+
+    def _tick_reactive(self, children: list[py_trees.behaviour.Behaviour]) -> Any:
+        all_skipped = True
+        for index, child in enumerate(children):
+            self.current_child = child
+            yield from tick_child(child)
+            result = outcome(child)
+            all_skipped = all_skipped and result == SKIPPED
+            if result == RUNNING or (result != SKIPPED and result != self.GO_ON):
+                # halt the others: a running child interrupted by an earlier one, the rest of the run
+                for i, other in enumerate(children):
+                    if i != index and (other.status == RUNNING or (i > index and other.status != INVALID)):
+                        other.stop(INVALID)
+                if result == RUNNING:
+                    self.status = RUNNING
+                else:
+                    self.stop(child.status)
+                yield self
+                return
+        if all_skipped:
+            mark_skipped(self)
+        else:
+            self.stop(self.GO_ON)
+        yield self
+
+
+class Sequence(_Ordered):
+    """BT.CPP Sequence: ticks children in order; resumes at a RUNNING child; restarts after a FAILURE."""
+
+    DESCRIPTION = "children in order; a RUNNING child is resumed (earlier ones not re-ticked)"
+
+
+class AsyncSequence(_Ordered):
+    """BT.CPP AsyncSequence: a Sequence that returns RUNNING after each child that completed in one tick."""
+
+    DESCRIPTION = "a Sequence that yields (RUNNING) after each child that succeeded at once"
+    ASYNC = True
+
+
+class ReactiveSequence(_Ordered):
+    """BT.CPP ReactiveSequence: every tick starts at the first child; a failing guard halts a running one."""
+
+    DESCRIPTION = "children in order, from the first at every tick (guards re-checked while a child runs)"
+    REACTIVE = True
+
+
+class SequenceWithMemory(_Ordered):
+    """BT.CPP SequenceWithMemory: children that succeeded are not ticked again, even after a FAILURE."""
+
+    DESCRIPTION = "children in order; after a FAILURE or RUNNING the next tick resumes at that child"
+    ASYNC = True  # BT.CPP 4: it always yields after a child that completed at once (sequence_with_memory_node.cpp)
+    KEEP_ON_STOP = True
+
+    @property
+    def resume_index(self) -> int:
+        """Where the next tick starts: kept on FAILURE and RUNNING (and across a halt), 0 after SUCCESS."""
+        return self.index
+
+
+class Fallback(_Ordered):
+    """BT.CPP Fallback: children in order until one succeeds; resumes at a RUNNING child."""
+
+    DESCRIPTION = "children in order until one does not fail; a RUNNING child is resumed"
+    GO_ON = FAILURE
+
+
+class AsyncFallback(_Ordered):
+    """BT.CPP AsyncFallback: a Fallback that returns RUNNING after each child that failed in one tick."""
+
+    DESCRIPTION = "a Fallback that yields (RUNNING) after each child that failed at once"
+    GO_ON = FAILURE
+    ASYNC = True
+
+
+class ReactiveFallback(_Ordered):
+    """BT.CPP ReactiveFallback: every tick starts at the first child; a higher priority interrupts."""
+
+    DESCRIPTION = "children in order, from the first at every tick (higher priorities interrupt)"
+    GO_ON = FAILURE
+    REACTIVE = True
