@@ -15,6 +15,7 @@ from canguard.bt import conditions
 from canguard.bt.context import Context
 from canguard.bt.loaded import LoadedTree, NodeInfo, _preorder
 from canguard.bt.nodes import CanguardNode, PortError
+from canguard.bt.palette import Palette
 from canguard.bt.registry import _TOKEN
 from canguard.bt.validate import _Validator
 from canguard.errors import TreeError
@@ -103,15 +104,39 @@ class _Loader(_Validator):
         )
 
 
-def load_tree(path: str | Path, ctx: Context, main: str | None = None) -> LoadedTree:
+def load_tree(path: str | Path, ctx: Context, main: str | None = None, palette: Palette | None = None) -> LoadedTree:
     """Load, validate and bind the BehaviorTree.CPP XML tree ``main`` of ``path`` for ``ctx``.
 
     ``main`` defaults to the root's ``main_tree_to_execute``, or to the only tree.
+    ``palette``: node types declared by ``--nodes`` files (besides the file's own
+    ``<TreeNodesModel>``); a declared node must be bound (config action or plug-in) to run.
     Every problem is a :class:`~canguard.errors.TreeError` naming file and line.
     """
     loader = _Loader(Path(path), ctx)
+    if palette is not None:
+        loader.palette.nodes.update(palette.nodes)
     main_id = loader.check(main)
+    loader.errors.extend(loader.unbound)
     loader.raise_collected()  # every node problem of every tree at once
     loader.check_cycles(main_id)
+    for elem, attrs in loader.palette_ports:
+        for attr in attrs:  # checked against the palette; the bound config action does not read them
+            elem.attrib.pop(attr, None)
     root = loader.parse(main_id)
     return loader.finish(root, main_id)
+
+
+def validate_tree(path: str | Path, ctx: Context, main: str | None = None,
+                  palette: Palette | None = None) -> tuple[str, list[str]]:
+    """Check a tree file without building it: (main tree ID, why each palette-declared node cannot run yet).
+
+    Every problem of the file (IDs, ports, palette declarations, children, cycles) is a
+    TreeError; a declared node that nothing implements is not a problem here.
+    """
+    loader = _Loader(Path(path), ctx)
+    if palette is not None:
+        loader.palette.nodes.update(palette.nodes)
+    main_id = loader.check(main)
+    loader.raise_collected()
+    loader.check_cycles(main_id)
+    return main_id, list(loader.unbound)

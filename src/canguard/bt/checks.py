@@ -12,6 +12,7 @@ from canguard.bt.build import _Loader, load_tree
 from canguard.bt.context import Context
 from canguard.bt.display import render_dot, render_text
 from canguard.bt.loaded import LoadedTree, _preorder
+from canguard.bt.palette import Palette
 from canguard.config.schema import Config, PartialConfig, SourceKind
 from canguard.errors import TreeError
 
@@ -90,11 +91,11 @@ def context_for(cfg: Config, clock: Any = None) -> Context:
     )
 
 
-def load_config_tree(cfg: Config, ctx: Context | None = None) -> LoadedTree:
-    """Load the tree ``cfg.tree`` names (TreeError when the config has none)."""
+def load_config_tree(cfg: Config, ctx: Context | None = None, palette: Palette | None = None) -> LoadedTree:
+    """Load the tree ``cfg.tree`` names (TreeError when the config has none); ``palette``: ``--nodes`` files."""
     if cfg.tree is None:
         raise TreeError(f"{cfg.path}: tree: missing, expected {{file: TREE.xml, main: ID, tick_hz: HZ}}")
-    return load_tree(cfg.tree.file, ctx if ctx is not None else context_for(cfg), cfg.tree.main)
+    return load_tree(cfg.tree.file, ctx if ctx is not None else context_for(cfg), cfg.tree.main, palette)
 
 
 def partial_tree_problems(partial: PartialConfig | None) -> list[str]:
@@ -118,9 +119,9 @@ def partial_tree_problems(partial: PartialConfig | None) -> list[str]:
     return loader.errors
 
 
-def check_tree(cfg: Config) -> TreeReport:
-    """Load and validate the config's tree against the config; TreeError on any problem."""
-    loaded = load_config_tree(cfg)
+def check_tree(cfg: Config, palette: Palette | None = None) -> TreeReport:
+    """Load and validate the config's tree against the config (and ``--nodes`` palettes); TreeError on any problem."""
+    loaded = load_config_tree(cfg, palette=palette)
     check = validate_against_config(loaded, cfg)
     count = sum(1 for _ in loaded.root.iterate())
     head = (

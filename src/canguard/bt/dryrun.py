@@ -17,6 +17,7 @@ from py_trees.blackboard import Blackboard
 
 from canguard.bt.build import load_tree
 from canguard.bt.context import Context, ListSink, NullTaskGate
+from canguard.bt.palette import Palette
 from canguard.io.clock import ManualClock
 
 
@@ -41,14 +42,16 @@ def root_blackboard() -> dict[str, Any]:
     return dict(sorted(out.items()))
 
 
-def dry_run(path: Path, ticks: int, dt: float, main: str | None = None) -> dict[str, Any]:
-    """Load ``path`` and tick it ``ticks`` times ``dt`` seconds apart (clock from 0)."""
+def dry_run(
+    path: Path, ticks: int, dt: float, main: str | None = None, palette: Palette | None = None
+) -> dict[str, Any]:
+    """Load ``path`` and tick it ``ticks`` times ``dt`` seconds apart (clock from 0); ``palette``: ``--nodes``."""
     Blackboard.storage.clear()
     Blackboard.metadata.clear()
     Blackboard.clients.clear()
     clock = ManualClock()
     ctx = Context(clock, {}, sink=ListSink(), actions={}, task=NullTaskGate())
-    loaded = load_tree(path, ctx, main)
+    loaded = load_tree(path, ctx, main, palette)
     statuses = []
     for i in range(ticks):
         clock.set(i * dt)

@@ -15,7 +15,8 @@ from py_trees.ports_utils import convert_str_to_type
 from canguard.bt import conditions
 from canguard.bt.conditions import take_conditions
 from canguard.bt.loaded import NodeInfo
-from canguard.bt.nodes import GuardNode
+from canguard.bt.nodes import ConfiguredAction, GuardNode
+from canguard.bt.palette import check_node, unbound_message
 from canguard.bt.registry import _SUBTREE, _TOKEN, known_node_ids, node_kind
 from canguard.bt.xmlread import _closest, _Reader, _type_name
 from canguard.errors import TreeError
@@ -146,8 +147,19 @@ class _Validator(_Reader):
         """Record every problem of one node (ID, each port, children); its class, or None if unknown."""
         node_id = elem.tag
         cls = self.classes.get(node_id)
+        decl = self.palette.get(node_id)
+        if decl is not None and (cls is None or issubclass(cls, ConfiguredAction)):
+            # declared by a palette: checked against the declaration; it runs only when bound
+            self.errors.extend(check_node(elem, decl, self.at(elem), tree_id))
+            if cls is None:
+                self.unbound.append(unbound_message(node_id, self.at(elem), decl))
+                return None
+            extra = [a for a in elem.attrib if a in decl.ports]
+            if extra:
+                self.palette_ports.append((elem, extra))
+            return cls
         if cls is None:
-            known = _closest(node_id, known_node_ids(self.ctx))
+            known = _closest(node_id, set(known_node_ids(self.ctx)) | set(self.palette.nodes))
             self.errors.append(
                 f"{self.at(elem)}: unknown node ID {node_id!r} (BehaviorTree {tree_id}); "
                 f"known node IDs, closest first: {', '.join(known)}"

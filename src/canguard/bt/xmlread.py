@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import difflib
 import xml.etree.ElementTree as ET
-import xml.parsers.expat
 from collections.abc import Collection
 from pathlib import Path
 from typing import Any, Literal, cast
@@ -13,36 +12,11 @@ from py_trees.ports import PortsMixin
 
 from canguard.bt.context import Context
 from canguard.bt.loaded import NodeInfo
+from canguard.bt.palette import Palette, read_model
 from canguard.bt.registry import _PORT_ALIASES, _SUBTREE, _TAG_ALIASES, _TOKEN, _V3_WRAPPERS, Registry, build_registry
 from canguard.bt.scripting import Script as ParsedScript
+from canguard.bt.xmlsrc import Where, _read_xml
 from canguard.errors import TreeError
-
-# ---------------------------------------------------------------------------------------
-# Reading XML with line numbers
-# ---------------------------------------------------------------------------------------
-Where = tuple[Path, int]
-
-
-def _read_xml(path: Path, where: dict[ET.Element, Where]) -> ET.Element:
-    """Parse ``path`` with expat, recording each element's (file, line) in ``where``."""
-    try:
-        data = path.read_bytes()
-    except OSError as exc:
-        raise TreeError(f"{path}: cannot read the tree file: {exc.strerror or exc}") from None
-    builder = ET.TreeBuilder()
-    parser = xml.parsers.expat.ParserCreate()
-
-    def start(tag: str, attrs: dict[str, str]) -> None:
-        where[builder.start(tag, attrs)] = (path, parser.CurrentLineNumber)
-
-    parser.StartElementHandler = start
-    parser.EndElementHandler = builder.end
-    try:
-        parser.Parse(data, True)
-    except xml.parsers.expat.ExpatError as exc:
-        msg = xml.parsers.expat.ErrorString(exc.code)
-        raise TreeError(f"{path}:{exc.lineno}: not well-formed XML: {msg} (column {exc.offset + 1})") from None
-    return builder.close()
 
 
 def _closest(word: str, choices: Collection[str]) -> list[str]:
@@ -83,6 +57,12 @@ class _Reader:
         otherwise), always (a tree checked without binding), or never (the sources are unknown)."""
         self.unsure_sources: Collection[str] = ()
         """Source names a config declares but could not build: not reported as unknown (follow-on)."""
+        self.palette = Palette()
+        """Node types declared by ``<TreeNodesModel>`` (in the file, or ``--nodes`` files): see :mod:`.palette`."""
+        self.unbound: list[str] = []
+        """Palette-declared nodes of the tree that nothing implements: why each cannot run."""
+        self.palette_ports: list[tuple[ET.Element, list[str]]] = []
+        """Attributes checked against a palette that the bound class does not read: dropped before parsing."""
 
     # -- errors ------------------------------------------------------------------------
     def raise_collected(self) -> None:
@@ -132,7 +112,7 @@ class _Reader:
                     raise TreeError(f"{self.at(child)}: BehaviorTree {tree_id} is defined twice (first at {first})")
                 self.trees[tree_id] = child
             elif tag == "TreeNodesModel":
-                continue  # Groot's palette: informative only
+                read_model(child, self.where, path, self.palette, self.errors)  # Groot's palette
             elif tag.lower() in ("include", "import"):
                 self._include(child, path, seen)
             else:

@@ -12,6 +12,7 @@ import os
 import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import Any
 
 from canguard import __version__
 from canguard.cli.common import (
@@ -40,7 +41,20 @@ def _add_check(sub: argparse._SubParsersAction) -> None:
                        description="Load the config, its DBC files and its tree; print buses, sources "
                                    "(message, id, signals, units) and frames; exit 0, or 2 with every error.")
     _add_config(p)
+    _add_nodes(p)
     p.set_defaults(func=_cmd_check)
+
+
+def _add_nodes(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--nodes", action="append", default=[], type=Path, metavar="FILE",
+                   help="a Groot2 / BT.CPP palette (<TreeNodesModel>) declaring node types the tree uses; "
+                        "repeatable")
+
+
+def _palette(args: argparse.Namespace) -> Any:
+    from canguard.bt.palette import read_palettes
+
+    return read_palettes(args.nodes) if args.nodes else None
 
 
 def _cmd_check(args: argparse.Namespace) -> int:
@@ -59,7 +73,7 @@ def _cmd_check(args: argparse.Namespace) -> int:
         raise ConfigError([*exc.problems, *tree_problems], [*exc.located, *tree_problems]) from None
     print(describe(cfg))
     if cfg.tree is not None:
-        report = check_tree(cfg)
+        report = check_tree(cfg, _palette(args))
         print(report.text, end="" if report.text.endswith("\n") else "\n")
         for warning in report.warnings:
             print(f"warning: {warning}", file=sys.stderr)
@@ -81,6 +95,7 @@ def _add_tree(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--main", default=None, metavar="ID", help="with TREE.xml: the BehaviorTree to run")
     p.add_argument("--json", action="store_true",
                    help='print {"ticks": [root status per tick], "blackboard": {root entries}}')
+    _add_nodes(p)
     p.set_defaults(func=_cmd_tree)
 
 
@@ -117,15 +132,25 @@ def _dry_run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--tick {args.tick}: expected a number of ticks >= 0")
     if not math.isfinite(args.dt) or args.dt <= 0:
         raise ConfigError(f"--dt {args.dt}: expected seconds > 0")
-    result = dry_run(args.file, args.tick or 0, args.dt, args.main)
+    from canguard.bt.build import validate_tree
+    from canguard.bt.context import Context, NullTaskGate
+    from canguard.io.clock import ManualClock
+
+    palette = _palette(args)
+    if not args.tick:
+        main_id, unbound = validate_tree(args.file, Context(ManualClock(), {}, task=NullTaskGate()), args.main,
+                                         palette)
+        if unbound:  # valid against its palettes; it cannot run until those nodes are bound
+            print(f"{args.file}: BehaviorTree {main_id} is valid; to run it, bind these nodes:")
+            print("\n".join(f"  {why}" for why in unbound))
+            return 0
+    result = dry_run(args.file, args.tick or 0, args.dt, args.main, palette)
     if args.json:
         print(json.dumps(result))
         return 0
     from canguard.bt.build import load_tree
-    from canguard.bt.context import Context, NullTaskGate
-    from canguard.io.clock import ManualClock
 
-    loaded = load_tree(args.file, Context(ManualClock(), {}, task=NullTaskGate()), args.main)
+    loaded = load_tree(args.file, Context(ManualClock(), {}, task=NullTaskGate()), args.main, palette)
     print(render_text(loaded.root), end="")
     if args.tick:
         print("ticks: " + " ".join(result["ticks"]))

@@ -1,0 +1,193 @@
+"""Groot2 / BehaviorTree.CPP palettes: ``<TreeNodesModel>`` declarations of node types canguard does not implement.
+
+A palette is what Groot2 and BT.CPP's ``writeTreeNodesModelXML`` write (Nav2 ships
+``nav2_tree_nodes.xml``)::
+
+    <root BTCPP_format="4">
+      <TreeNodesModel>
+        <Action ID="ComputePathToPose">
+          <input_port name="goal" type="geometry_msgs::msg::PoseStamped">Destination</input_port>
+          <input_port name="planner_id" default="GridBased"/>
+          <output_port name="path"/>
+        </Action>
+        <Decorator ID="RateController"><input_port name="hz" default="10"/></Decorator>
+      </TreeNodesModel>
+    </root>
+
+It may sit inside the tree file or come from ``--nodes FILE``. The tree is then
+validated against it: an unknown node ID, an unknown port, a declared input port
+without default left out, the wrong number of children — each with its file:line.
+Declaring a node does not make canguard able to run it: running needs a config
+action or a ``canguard.nodes`` plug-in of that ID (:func:`unbound`).
+"""
+
+from __future__ import annotations
+
+import xml.etree.ElementTree as ET
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from canguard.bt.xmlsrc import _read_xml
+from canguard.errors import TreeError
+
+KINDS = ("Action", "Condition", "Decorator", "Control", "SubTree")
+"""The node kinds a ``<TreeNodesModel>`` may declare (BT.CPP's ``toStr(NodeType)``)."""
+
+DIRECTIONS = {"input_port": "input", "output_port": "output", "inout_port": "inout"}
+
+Where = tuple[Path, int]
+
+
+@dataclass(frozen=True)
+class PalettePort:
+    """One declared port."""
+
+    name: str
+    direction: str
+    """input, output or inout."""
+    default: str | None
+    type: str
+    description: str
+
+    @property
+    def required(self) -> bool:
+        """An input (or inout) port without a default must be given."""
+        return self.direction != "output" and self.default is None
+
+
+@dataclass(frozen=True)
+class PaletteNode:
+    """One node type a palette declares."""
+
+    node_id: str
+    kind: str
+    ports: Mapping[str, PalettePort]
+    file: Path
+    line: int
+
+    @property
+    def where(self) -> str:
+        return f"{self.file}:{self.line}"
+
+
+@dataclass
+class Palette:
+    """Every node type declared by the palettes of one load, by ID (the first declaration wins)."""
+
+    nodes: dict[str, PaletteNode] = field(default_factory=dict)
+
+    def add(self, node: PaletteNode, problems: list[str]) -> None:
+        first = self.nodes.get(node.node_id)
+        if first is None:
+            self.nodes[node.node_id] = node
+        elif (first.kind, dict(first.ports)) != (node.kind, dict(node.ports)):
+            problems.append(f"{node.where}: {node.kind} {node.node_id} is declared again differently "
+                            f"(first at {first.where})")
+
+    def get(self, node_id: str) -> PaletteNode | None:
+        return self.nodes.get(node_id)
+
+
+def read_model(model: ET.Element, where: Mapping[ET.Element, Where], path: Path,
+               palette: Palette, problems: list[str]) -> None:
+    """Add the node types of one ``<TreeNodesModel>`` element to ``palette``; problems with file:line."""
+
+    def at(elem: ET.Element) -> Where:
+        return where.get(elem, (path, 0))
+
+    for decl in model:
+        file, line = at(decl)
+        if decl.tag not in KINDS:
+            problems.append(f"{file}:{line}: <{decl.tag}> in <TreeNodesModel>: expected one of {', '.join(KINDS)}")
+            continue
+        node_id = decl.attrib.get("ID")
+        if not node_id:
+            problems.append(f"{file}:{line}: <{decl.tag}> in <TreeNodesModel> without ID=\"...\"")
+            continue
+        ports: dict[str, PalettePort] = {}
+        for port in decl:
+            pfile, pline = at(port)
+            if port.tag in ("description", "metadata"):
+                continue
+            direction = DIRECTIONS.get(port.tag)
+            if direction is None:
+                problems.append(f"{pfile}:{pline}: <{port.tag}> in {node_id}: expected "
+                                f"{', '.join(DIRECTIONS)}")
+                continue
+            name = port.attrib.get("name")
+            if not name:
+                problems.append(f"{pfile}:{pline}: <{port.tag}> of {node_id} without name=\"...\"")
+                continue
+            if name in ports:
+                problems.append(f"{pfile}:{pline}: port {name!r} of {node_id} declared twice")
+                continue
+            ports[name] = PalettePort(name, direction, port.attrib.get("default"), port.attrib.get("type", ""),
+                                      (port.text or "").strip())
+        palette.add(PaletteNode(node_id, decl.tag, ports, file, line), problems)
+
+
+def read_palette_file(path: Path, palette: Palette) -> None:
+    """Read a palette file (``--nodes FILE``) into ``palette``; a TreeError listing every problem."""
+    where: dict[ET.Element, Where] = {}
+    root = _read_xml(path, where)
+    problems: list[str] = []
+    models = [root] if root.tag == "TreeNodesModel" else list(root.iter("TreeNodesModel"))
+    if root.tag not in ("root", "TreeNodesModel"):
+        problems.append(f"{path}:{where.get(root, (path, 1))[1]}: the document element is <{root.tag}>, "
+                        "expected <root> holding a <TreeNodesModel> (a Groot2 / BT.CPP palette)")
+    elif not models:
+        problems.append(f"{path}:{where.get(root, (path, 1))[1]}: no <TreeNodesModel> in the palette file")
+    for model in models:
+        read_model(model, where, path, palette, problems)
+    if problems:
+        raise TreeError(problems)
+
+
+def read_palettes(paths: Iterable[Path]) -> Palette:
+    """Every ``--nodes`` file read into one palette; every problem of every file at once."""
+    palette = Palette()
+    problems: list[str] = []
+    for path in paths:
+        try:
+            read_palette_file(Path(path), palette)
+        except TreeError as exc:
+            problems.extend(exc.problems)
+    if problems:
+        raise TreeError(problems)
+    return palette
+
+
+def check_node(elem: ET.Element, decl: PaletteNode, at: str, tree_id: str) -> list[str]:
+    """The problems of one tree node against its palette declaration (ports, children)."""
+    problems = []
+    head = f"{at}: node {elem.tag} (BehaviorTree {tree_id}, declared at {decl.where})"
+    for attr in elem.attrib:
+        if attr == "name" or attr.startswith("_"):
+            continue
+        if attr not in decl.ports:
+            listing = ", ".join(decl.ports) or "(none)"
+            problems.append(f"{head}: unknown port {attr!r}; ports of {elem.tag}: {listing}")
+    missing = [p.name for p in decl.ports.values() if p.required and p.name not in elem.attrib]
+    if missing:
+        problems.append(f"{head}: missing required port {', '.join(missing)} (declared without a default)")
+    n = len(elem)
+    if decl.kind in ("Action", "Condition", "SubTree") and n:
+        problems.append(f"{head}: {decl.kind.lower()} nodes take no children, found {n}")
+    elif decl.kind == "Decorator" and n != 1:
+        problems.append(f"{head}: a decorator takes exactly one child, found {n}")
+    elif decl.kind == "Control" and n == 0:
+        problems.append(f"{head}: a control node needs at least one child")
+    return problems
+
+
+def unbound_message(node_id: str, at: str, decl: PaletteNode) -> str:
+    """Why a palette-declared node cannot run, and how to bind it (an action or condition: two ways)."""
+    plugin = f"a `canguard.nodes` entry point named {node_id} (a Python plug-in)"
+    if decl.kind in ("Decorator", "Control", "SubTree"):
+        how = plugin  # a config action is a leaf: it cannot hold children
+    else:
+        how = (f"an `actions: {node_id}:` entry in the config (its frames are sent when the node is ticked) "
+               f"or {plugin}")
+    return (f"{at}: node {node_id} is declared by a palette ({decl.where}) but canguard does not implement it; "
+            f"to run the tree bind it: {how}")
