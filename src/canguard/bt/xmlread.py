@@ -149,6 +149,8 @@ class _Reader:
                 self.broken_trees.add(tree_id)
                 continue
             try:
+                if self._autoremapped(bt[0]):
+                    bt[0] = self._inline(bt[0], tree_id, (tree_id,))
                 self._rewrite(bt[0], tree_id)
             except TreeError as exc:
                 self.errors.extend(exc.problems)
@@ -170,11 +172,79 @@ class _Reader:
                 raise self.error(
                     elem, f'{attr}="{value}" is not supported: remap the SubTree\'s ports explicitly', tree_id
                 )
+        for i, child in enumerate(elem):
+            if self._autoremapped(child):
+                elem[i] = self._inline(child, tree_id, (tree_id,))
         for attr, value in list(elem.attrib.items()):
             if value.strip() == "{=}":
                 elem.attrib[attr] = "{" + attr + "}"
         for child in elem:
             self._rewrite(child, tree_id)
+
+    @staticmethod
+    def _autoremapped(elem: ET.Element) -> bool:
+        """A ``<SubTree _autoremap="true">`` (v4; v3's ``__autoremap`` too)."""
+        if _TAG_ALIASES.get(elem.tag, elem.tag) != _SUBTREE:
+            return False
+        value = elem.attrib.get("_autoremap", elem.attrib.get("__autoremap"))
+        return value is not None and value.strip().lower() in ("true", "1")
+
+    def _inline(self, sub: ET.Element, tree_id: str, chain: tuple[str, ...]) -> ET.Element:
+        """The subtree of an autoremapped SubTree, copied in its place: it shares the parent's blackboard.
+
+        BT.CPP's ``_autoremap="true"``: every entry the subtree uses is the parent's entry of
+        the same name, unless the SubTree element remaps it to another ``{key}`` or gives it
+        a constant; the copy's ports get those keys renamed or the constant (scripts inside
+        read entries by name: a remapped name there is not renamed). Conditions on the SubTree element (``_skipIf``...) move to
+        the copy's root; its lines stay those of the subtree's definition.
+        """
+        target = sub.attrib.get("ID", "")
+        if target not in self.trees:
+            known = ", ".join(_closest(target, self.trees))
+            raise self.error(sub, f"unknown BehaviorTree {target!r}; trees in the file: {known}", tree_id)
+        if target in chain:
+            raise self.error(sub, f"SubTree cycle: {' -> '.join((*chain, target))}", tree_id)
+        body = self.trees[target]
+        if len(body) != 1:
+            raise self.error(sub, f"BehaviorTree {target} must have exactly one root node", tree_id)
+        rename: dict[str, str] = {}
+        conditions: dict[str, str] = {}
+        for attr, value in sub.attrib.items():
+            if attr in ("ID", "name", "_autoremap", "__autoremap"):
+                continue
+            if attr.startswith("_"):
+                conditions[attr] = value
+                continue
+            text = value.strip()
+            if text == "{=}":
+                continue
+            if text.startswith("{") and text.endswith("}"):
+                rename[attr] = text  # the parent's entry of that name
+            else:
+                rename[attr] = value  # a constant: the subtree's {attr} reads it
+        copy = self._copy(body[0], rename)
+        copy.attrib.update(conditions)
+        for i, child in enumerate(copy):
+            if self._autoremapped(child):
+                copy[i] = self._inline(child, tree_id, (*chain, target))
+        return copy
+
+    def _copy(self, src: ET.Element, rename: dict[str, str]) -> ET.Element:
+        """A deep copy of ``src`` with its lines, ``{key}`` references renamed by ``rename``."""
+        attrib = {}
+        for attr, value in src.attrib.items():
+            text = value.strip()
+            if text.startswith("{") and text.endswith("}") and text[1:-1] in rename:
+                value = rename[text[1:-1]]
+            elif text == "{=}" and attr in rename:
+                value = rename[attr]
+            attrib[attr] = value
+        dst = ET.Element(src.tag, attrib)
+        if src in self.where:
+            self.where[dst] = self.where[src]
+        for child in src:
+            dst.append(self._copy(child, rename))
+        return dst
 
     # -- registry -------------------------------------------------------------------------
     def make_registry(self) -> None:
