@@ -449,7 +449,7 @@ class TestLoadErrors:
         </root>"""
         assert ":3: node SubTree A (BehaviorTree B): SubTree cycle: A -> B -> A" in load_error(tmp_path, cycle)
         auto = xml_tree('<SubTree ID="T" _autoremap="true"/>')
-        assert '_autoremap="true" is not supported' in load_error(tmp_path, auto)
+        assert 'SubTree cycle: T -> T' in load_error(tmp_path, auto)  # an autoremapped SubTree of itself
 
     def test_errors_in_included_files_name_that_file(self, tmp_path: Path) -> None:
         """<include path=...> inlines trees; their errors name the included file and its lines."""
