@@ -63,3 +63,18 @@ def test_a_cycle_of_autoremapped_subtrees_is_a_load_error(tmp_path: Path) -> Non
     with pytest.raises(TreeError) as err:
         dry_run(path, 1, 0.1)
     assert "SubTree cycle" in str(err.value) and f"{path}:" in str(err.value)
+
+
+def test_v3_subtree_remaps_by_bare_name(tmp_path: Path) -> None:
+    """BTCPP_format 3: <SubTree ID="X" out="result"/> maps the port to the parent's entry result (v4: {result})."""
+    path = tmp_path / "v3.xml"
+    path.write_text('<root main_tree_to_execute="Outer">\n<BehaviorTree ID="Outer">\n'
+                    '<SubTree ID="Setter" out="result" q="queue_text"/>\n</BehaviorTree>\n'
+                    '<BehaviorTree ID="Setter"><LoopInt queue="{q}" value="{out}"><AlwaysSuccess/></LoopInt>'
+                    "</BehaviorTree>\n</root>\n", encoding="utf-8")
+    text = path.read_text(encoding="utf-8").replace('<SubTree ID="Setter"', '<Sequence><Script code="queue_text := '
+                                                     "'3;4'\"/><SubTree ID=\"Setter\"").replace(
+        'q="queue_text"/>', 'q="queue_text"/></Sequence>')
+    path.write_text(text, encoding="utf-8")
+    got = dry_run(path, 3, 0.1)
+    assert got["blackboard"]["result"] == 4 and got["ticks"] == ["RUNNING", "RUNNING", "SUCCESS"]

@@ -162,6 +162,13 @@ class _Reader:
             if not node_id:
                 raise TreeError(f'{self.at(elem)}: <{elem.tag}> without ID="..." (BehaviorTree {tree_id})')
             elem.tag = node_id
+        if elem.tag == _SUBTREE and self.format_version == 3:
+            # v3's SubTree (not SubTreePlus) remaps ports to the parent's entries by bare name:
+            # <SubTree ID="MoveRobot" target="move_goal"/> is v4's target="{move_goal}"
+            for attr, value in list(elem.attrib.items()):
+                text = value.strip()
+                if attr not in ("ID", "name") and not attr.startswith("_") and text and text[0] != "{":
+                    elem.attrib[attr] = "{" + text + "}"
         elem.tag = _TAG_ALIASES.get(elem.tag, elem.tag)
         for old, new in _PORT_ALIASES.get(elem.tag, {}).items():
             if old in elem.attrib and new not in elem.attrib:
