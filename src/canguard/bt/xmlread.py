@@ -202,8 +202,9 @@ class _Reader:
         BT.CPP's ``_autoremap="true"``: every entry the subtree uses is the parent's entry of
         the same name, unless the SubTree element remaps it to another ``{key}`` or gives it
         a constant; the copy's ports get those keys renamed or the constant (scripts inside
-        read entries by name: a remapped name there is not renamed). Conditions on the SubTree element (``_skipIf``...) move to
-        the copy's root; its lines stay those of the subtree's definition.
+        read entries by name: a remapped name there is not renamed). Conditions on the SubTree
+        element (``_skipIf``...) move to the copy's root; its lines stay those of the subtree's
+        definition.
         """
         target = sub.attrib.get("ID", "")
         if target not in self.trees:
