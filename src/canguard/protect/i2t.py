@@ -234,14 +234,6 @@ class _I2tModel(LatchedModel):
         self._set_acc(self.trip_level)
         self._evaluate(t)
 
-    def reset(self) -> None:
-        """Cold state, not tripped, no samples (tests and an explicit operator reset)."""
-        self._acc = 0.0
-        self._tripped = self._latch = False
-        self._since = None
-        self._last_t = None
-        self._held = self._value = math.nan
-
     def export(self) -> dict[str, Any]:
         """The state as a JSON-able dict: kind, version, parameters, accumulator, level, tripped, time."""
         return {

@@ -176,10 +176,6 @@ class SourceHealth:
         roles = ((PRESENT,) if self._has_present else ()) + self._value_roles
         return {r: self._role_reason(now, r) for r in roles}
 
-    def ok(self, now: float, role: str | None = None) -> bool:
-        """True when :meth:`reason` is empty."""
-        return not self.reason(now, role)
-
     def value(self, role: str) -> float:
         """The latest valid value of ``role`` (however old), NaN if none."""
         return self._value.get(role, math.nan)
