@@ -128,7 +128,8 @@ class TestRestoreRefuses:
     @pytest.mark.parametrize(("state", "message"), [
         ([1, 2], "i2t state: expected a mapping, got list"),
         ({"kind": "leaky", "accumulator": 0.0}, "i2t state: 'params' missing or not a mapping"),
-        ({"kind": "leaky", "params": {}, "accumulator": -1.0}, "i2t state: 'accumulator' must be a finite number >= 0, got -1.0"),
+        ({"kind": "leaky", "params": {}, "accumulator": -1.0},
+         "i2t state: 'accumulator' must be a finite number >= 0, got -1.0"),
         ({"kind": "leaky", "params": {"continuous_a": 10.0, "peak_a": 5.0, "peak_time_s": 5.0}, "accumulator": 0.0},
          "i2t state: leaky parameters do not give a positive trip level"),
         ({"kind": "leaky", "params": {"continuous_a": -10.0, "peak_a": 20.0, "peak_time_s": 5.0}, "accumulator": 0.0},
