@@ -151,3 +151,62 @@ class TestRestoreRefuses:
                             0.5) == pytest.approx(math.exp(-1.0))
         assert cooled_level({"kind": "leaky", "params": {"continuous_a": 10.0, "peak_a": 20.0, "peak_time_s": 0.5},
                              "accumulator": 150.0}, 0.0) == pytest.approx(1.0)
+
+
+class TestMore:
+    def test_time_to_trip_from_partial_heat(self) -> None:
+        leaky = LeakyI2t(10.0, 20.0, 5.0)  # S = 1500 A²s
+        leaky.update(20.0, 0.0)
+        leaky.update(20.0, 1.0)  # A = 300
+        assert leaky.accumulator == pytest.approx(300.0)
+        assert leaky.time_to_trip(20.0) == pytest.approx(4.0)
+        assert leaky.time_to_trip(10.01) == pytest.approx(1200.0 / (10.01**2 - 100.0))  # a rate below 1 A²
+        thermal = ThermalI2t(10.0, tau_s=30.0)
+        thermal.update(20.0, 0.0)
+        thermal.update(20.0, 3.0)
+        theta = thermal.accumulator
+        assert 0 < theta < 1
+        assert thermal.time_to_trip(20.0) == pytest.approx(30.0 * math.log((4.0 - theta) / 3.0))
+
+    def test_a_rate_of_exactly_one_integrates(self) -> None:
+        """I² − I_cont² = 1 A² exactly (1.25² − 0.75²): the bucket fills by 1 A²s per second."""
+        m = LeakyI2t(0.75, 2.0, 1.0)
+        m.update(1.25, 0.0)
+        m.update(1.25, 2.0)
+        assert m.accumulator == 2.0
+        level = LeakyI2t(0.75, 2.0, 1.0)
+        level.update(0.75, 0.0)
+        level.update(0.75, 2.0)
+        assert level.accumulator == 0.0
+
+    @pytest.mark.parametrize("params", [
+        {"continuous_a": 0.0, "peak_a": 20.0, "peak_time_s": 5.0},
+        {"continuous_a": 10.0, "peak_a": 10.0, "peak_time_s": 5.0},
+    ])
+    def test_a_zero_current_or_trip_level_in_a_state_is_refused(self, params: dict) -> None:
+        with pytest.raises(ValueError) as err:
+            cooled_level({"kind": "leaky", "params": params, "accumulator": 1.0}, 0.0)
+        assert str(err.value) == "i2t state: leaky parameters do not give a positive trip level"
+
+    def test_restoring_a_tripped_state_reports_the_trip_once(self) -> None:
+        hot = LeakyI2t(10.0, 20.0, 5.0)
+        hot.set_hot(3.0)
+        m = LeakyI2t(10.0, 20.0, 5.0)
+        m.restore(hot.export(), 0.0)
+        assert m.tripped and m.since is None
+        assert m.poll(0.0).tripped
+        warm = LeakyI2t(10.0, 20.0, 5.0)
+        warm.update(20.0, 0.0)
+        warm.update(20.0, 1.0)
+        cold = LeakyI2t(10.0, 20.0, 5.0)
+        cold.restore(warm.export(), 0.0)
+        assert not cold.tripped and not cold.poll(0.0).tripped
+
+    def test_a_reload_carries_the_stale_gap_count(self) -> None:
+        old = LeakyI2t(10.0, 20.0, 5.0, max_gap_s=0.1)
+        old.update(20.0, 0.0)
+        old.update(20.0, 1.0)  # a 1 s gap: integrated as 0.1 s, counted
+        new = LeakyI2t(10.0, 20.0, 5.0, max_gap_s=0.1)
+        new.carry_from(old)
+        assert new.stale_gaps == old.stale_gaps == 1
+        assert new.level == old.level

@@ -221,3 +221,8 @@ class TestProblems:
         assert readable_problem(tmp_path) == "not a regular file"
         path.write_text("{}", encoding="utf-8")
         assert readable_problem(path) == ""
+
+
+def test_writable_in_an_existing_directory(tmp_path: Path) -> None:
+    assert writable_problem(tmp_path / "heat.json") == ""
+    assert list(tmp_path.iterdir()) == []
