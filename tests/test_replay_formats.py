@@ -278,6 +278,53 @@ class TestGzip:
             list(read_log(path))
 
 
+class TestXzZstd:
+    """``.xz`` and ``.zst`` like ``.gz``: any format, streaming, the same frames and the same replay."""
+
+    @staticmethod
+    def _compress(data: bytes, suffix: str) -> bytes:
+        import lzma
+
+        import zstandard
+
+        return lzma.compress(data) if suffix == ".xz" else zstandard.ZstdCompressor().compress(data)
+
+    @pytest.mark.parametrize("suffix", [".xz", ".zst"])
+    def test_candump(self, tmp_path: Path, suffix: str) -> None:
+        text = "".join(f"({T0 + i:.6f}) can0 {i:03X}#{i:02X}\n" for i in range(50))
+        plain = _read(tmp_path, text)
+        packed = tmp_path / f"x.log{suffix}"
+        packed.write_bytes(self._compress(text.encode(), suffix))
+        assert list(read_log(packed)) == plain
+        chunks = list(read_log(packed).chunks())
+        assert chunks and all(type(c) is not list for c in chunks), "a compressed plain block left the block path"
+
+    @pytest.mark.parametrize("suffix", [".xz", ".zst"])
+    def test_asc(self, tmp_path: Path, suffix: str) -> None:
+        msgs = _messages()
+        asc = _log_with(can.ASCWriter, tmp_path / "x.asc", msgs)
+        packed = tmp_path / f"x.asc{suffix}"
+        packed.write_bytes(self._compress(asc.read_bytes(), suffix))
+        _same_frames(list(read_log(packed)), msgs, relative=True)
+
+    @pytest.mark.parametrize(("suffix", "kind"), [(".xz", "xz"), (".zst", "zstd")])
+    def test_not_compressed(self, tmp_path: Path, suffix: str, kind: str) -> None:
+        path = tmp_path / f"x.log{suffix}"
+        path.write_bytes(b"(1.0) can0 123#11\n")
+        with pytest.raises(LogFormatError, match=rf"x\.log\{suffix}: cannot read {kind} log"):
+            list(read_log(path))
+
+    def test_zst_without_zstandard_says_how(self, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+        import importlib.util
+
+        path = tmp_path / "x.log.zst"
+        path.write_bytes(b"")
+        real = importlib.util.find_spec
+        monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "zstandard" else real(name))
+        with pytest.raises(LogFormatError, match=r"reading \.zst logs needs zstandard: pip install zstandard"):
+            read_log(path)
+
+
 class TestBadInput:
     """Malformed lines, empty logs, unknown extensions and missing files: clear errors, never tracebacks."""
 

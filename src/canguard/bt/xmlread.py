@@ -165,8 +165,8 @@ class _Reader:
         if elem.tag == _SUBTREE and self.format_version == 3:
             # v3's SubTree (not SubTreePlus) remaps ports to the parent's entries by bare name:
             # <SubTree ID="MoveRobot" target="move_goal"/> is v4's target="{move_goal}"
-            for attr, value in list(elem.attrib.items()):
-                text = value.strip()
+            for attr, given in list(elem.attrib.items()):
+                text = given.strip()
                 if attr not in ("ID", "name") and not attr.startswith("_") and text and text[0] != "{":
                     elem.attrib[attr] = "{" + text + "}"
         elem.tag = _TAG_ALIASES.get(elem.tag, elem.tag)

@@ -37,6 +37,7 @@ from canguard.engine.routing import ChannelRouter, parse_map
 from canguard.errors import CanguardError, ConfigError
 from canguard.io.clock import ManualClock
 from canguard.io.frame import Frame
+from canguard.io.logtypes import COMPRESSIONS
 from canguard.report.summary import SUMMARY_VERSION, build_summary, compare_baseline, render_text
 
 __all__ = ["SUMMARY_VERSION", "ReplayOptions", "build_summary", "compare_baseline", "render_text", "replay_one"]
@@ -106,17 +107,20 @@ def replay_one(cfg: Config, log_path: Path, opts: ReplayOptions) -> dict[str, An
 FORMAT_SUFFIX = {"candump": ".log", "asc": ".asc", "blf": ".blf", "trc": ".trc", "csv": ".csv", "mf4": ".mf4"}
 """``--format`` names and the file suffix each stands for (``.gz`` is recognised on top)."""
 GZIP_MAGIC = b"\x1f\x8b"
+MAGICS = {b"\x1f\x8b": ".gz", b"\xfd7zXZ\x00": ".xz", b"\x28\xb5\x2f\xfd": ".zst"}
+"""How a compressed log on stdin starts, and the suffix that tells the readers."""
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """Register ``canguard replay``."""
     p = subcommand(
-        sub, "replay", help="run the daemon's engine over recorded logs (candump, ASC, BLF, TRC, CSV, MF4, .gz)",
+        sub, "replay",
+        help="run the daemon's engine over recorded logs (candump, ASC, BLF, TRC, CSV, MF4; .gz .xz .zst)",
         description="What would the daemon have done on this log? Runs the same engine with the log's clock.",
     )
     p.add_argument("logs", nargs="+", type=Path, metavar="LOG",
-                   help="candump (-L, -l, plain, -ta), ASC, BLF, TRC, CSV, MF4, optionally .gz; '-' reads stdin "
-                        "(with --format)")
+                   help="candump (-L, -l, plain, -ta), ASC, BLF, TRC, CSV, MF4, optionally .gz, .xz or .zst; "
+                        "'-' reads stdin (with --format)")
     p.add_argument("--format", choices=sorted(FORMAT_SUFFIX), default=None,
                    help="the logs' format, instead of telling it by the file suffix (needed for '-')")
     p.add_argument("-c", "--config", type=Path, default=None, help="YAML config (default: as for `canguard run`)")
@@ -172,8 +176,8 @@ def _as_format(log: Path, fmt: str | None, tmp: Path) -> Path:
         if fmt is None:
             raise ConfigError("replay -: reading a log from stdin needs --format "
                               f"({', '.join(FORMAT_SUFFIX)}): a pipe has no file name to tell it by")
-        head = sys.stdin.buffer.read(2)
-        gz = ".gz" if head == GZIP_MAGIC else ""
+        head = sys.stdin.buffer.read(6)
+        gz = next((suffix for magic, suffix in MAGICS.items() if head.startswith(magic)), "")
         spooled = tmp / f"stdin{FORMAT_SUFFIX[fmt]}{gz}"
         with open(spooled, "wb") as out:
             out.write(head)
@@ -182,7 +186,7 @@ def _as_format(log: Path, fmt: str | None, tmp: Path) -> Path:
         return spooled
     if fmt is None or not log.exists():
         return log  # a missing file: the reader names it as the user wrote it
-    gz = ".gz" if log.suffix.lower() == ".gz" else ""
+    gz = log.suffix.lower() if log.suffix.lower() in COMPRESSIONS else ""
     link = tmp / f"{len(list(tmp.iterdir()))}-{log.stem}{FORMAT_SUFFIX[fmt]}{gz}"
     link.symlink_to(log.resolve())
     return link

@@ -5,11 +5,9 @@ other block line by line by the general parser, which names the file:line of a b
 
 from __future__ import annotations
 
-import gzip
 import io
 import math
 import operator
-import zlib
 from collections.abc import Iterator
 from itertools import islice, repeat
 from pathlib import Path
@@ -32,6 +30,8 @@ from canguard.io.logtypes import (
     ReadStats,
     _Bad,
     _new,
+    decompress_errors,
+    open_decompressed,
 )
 
 if TYPE_CHECKING:
@@ -337,9 +337,9 @@ def _parse_line(line: str) -> Frame | None:
     return _parse_long(t, ts_text, toks)
 
 
-def _open_text(p: Path, gz: bool) -> tuple[io.BufferedReader, TextIO]:
+def _open_text(p: Path, gz: str) -> tuple[io.BufferedReader, TextIO]:
     raw = open(p, "rb")  # noqa: SIM115 -- closed by the caller's finally
-    binary: Any = gzip.GzipFile(fileobj=raw, mode="rb") if gz else raw
+    binary: Any = open_decompressed(raw, gz)
     # utf-8-sig drops a BOM; errors=replace turns binary junk into malformed lines, not a UnicodeDecodeError
     return raw, io.TextIOWrapper(binary, encoding="utf-8-sig", errors="replace")
 
@@ -359,7 +359,7 @@ def _flatten(chunks: Iterator[Columns | list[Frame]]) -> Iterator[Frame]:
 
 
 def _candump_chunks(
-    p: Path, gz: bool, skip_bad: bool, st: ReadStats, want_ts_stats: bool, owner: LogFrames
+    p: Path, gz: str, skip_bad: bool, st: ReadStats, want_ts_stats: bool, owner: LogFrames
 ) -> Iterator[Columns | list[Frame]]:
     """The candump text reader: plain blocks as :class:`Columns`, others as lists of frames parsed line by line."""
     raw, f = _open_text(p, gz)
@@ -373,8 +373,9 @@ def _candump_chunks(
         while True:
             try:
                 chunk = f.read(CHUNK_CHARS)
-            except (OSError, EOFError, zlib.error) as exc:
-                raise LogFormatError(f"{p}: cannot read{' gzip' if gz else ''} log: {exc}") from None
+            except decompress_errors() as exc:
+                kind = {"gz": " gzip", "xz": " xz", "zst": " zstd"}.get(gz, "")
+                raise LogFormatError(f"{p}: cannot read{kind} log: {exc}") from None
             if chunk:
                 block = rest + chunk if rest else chunk
                 cut = block.rfind("\n") + 1

@@ -33,7 +33,7 @@ from typing import TYPE_CHECKING
 
 from canguard.errors import LogFormatError
 from canguard.io.candump import _candump_chunks, _flatten
-from canguard.io.logtypes import CANDUMP_SUFFIXES, PYTHON_CAN_SUFFIXES, LogFrames, ReadStats
+from canguard.io.logtypes import CANDUMP_SUFFIXES, COMPRESSIONS, PYTHON_CAN_SUFFIXES, LogFrames, ReadStats
 from canguard.io.progress import ProgressBar
 from canguard.io.pycan import _batches, _read_python_can
 
@@ -65,24 +65,27 @@ __all__ = [
 # --------------------------------------------------------------------------- format choice
 
 
-def log_format(path: str | Path) -> tuple[str, bool]:
-    """Return ``(format, gzipped)`` for a log path, chosen by extension.
+def log_format(path: str | Path) -> tuple[str, str]:
+    """Return ``(format, compression)`` for a log path, chosen by extension.
 
-    ``format`` is ``candump``, ``asc``, ``blf``, ``trc``, ``csv`` or ``mf4``.
+    ``format`` is ``candump``, ``asc``, ``blf``, ``trc``, ``csv`` or ``mf4``;
+    ``compression`` is ``""``, ``gz``, ``xz`` or ``zst`` (``robot.log.xz``).
     Raises :class:`LogFormatError` for an unknown extension.
     """
     p = Path(path)
     suffix = p.suffix.lower()
-    gz = suffix == ".gz"
-    if gz:
+    compression = ""
+    if suffix in COMPRESSIONS:
+        compression = suffix[1:]
         suffix = Path(p.stem).suffix.lower()
     if suffix in CANDUMP_SUFFIXES:
-        return "candump", gz
+        return "candump", compression
     if suffix in PYTHON_CAN_SUFFIXES:
-        return suffix[1:], gz
+        return suffix[1:], compression
     known = ", ".join(CANDUMP_SUFFIXES + PYTHON_CAN_SUFFIXES)
     raise LogFormatError(
-        f"{p}: unknown log format {(suffix or p.name)!r}: expected one of {known} (optionally + .gz)"
+        f"{p}: unknown log format {(suffix or p.name)!r}: expected one of {known} "
+        f"(optionally + {' / '.join(COMPRESSIONS)})"
     )
 
 
@@ -112,16 +115,18 @@ def read_log(
     directory, or a missing optional dependency.
     """
     p = Path(path)
-    fmt, gz = log_format(p)
+    fmt, gz = log_format(p)  # gz: the compression ("" none)
     if not p.exists():
         raise LogFormatError(f"{p}: no such file")
     if not p.is_file():
         raise LogFormatError(f"{p}: not a regular file")
     if fmt == "mf4" and importlib.util.find_spec("asammdf") is None:
         raise LogFormatError(f"{p}: reading .mf4 logs needs asammdf: pip install 'python-can[mf4]'")
+    if gz == "zst" and importlib.util.find_spec("zstandard") is None:
+        raise LogFormatError(f"{p}: reading .zst logs needs zstandard: pip install zstandard")
     st = stats if stats is not None else ReadStats()
     st.path = str(p)
-    st.format = fmt + (".gz" if gz else "")
+    st.format = fmt + (f".{gz}" if gz else "")
     try:
         st.bytes_total += p.stat().st_size
     except OSError as exc:

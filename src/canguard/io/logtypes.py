@@ -5,7 +5,7 @@ from __future__ import annotations
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 from canguard.io.frame import Frame
 from canguard.io.progress import ProgressBar
@@ -18,6 +18,9 @@ CANDUMP_SUFFIXES = (".log", ".candump", ".txt")
 PYTHON_CAN_SUFFIXES = (".asc", ".blf", ".trc", ".csv", ".mf4")
 _TEXT_PYTHON_CAN = ("asc", "trc", "csv")
 
+
+COMPRESSIONS = (".gz", ".xz", ".zst")
+"""Compressed logs: any format may carry one of these on top (``robot.log.xz``)."""
 
 MAX_BAD_EXAMPLES = 5
 """How many bad lines :class:`ReadStats` keeps as examples."""
@@ -32,6 +35,36 @@ CANFD_LENGTHS = frozenset((0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48, 64
 _HEX = "0123456789abcdefABCDEF"
 _new = tuple.__new__  # builds a Frame from a ready tuple in C: several times cheaper than Frame(...)
 _F = False
+
+
+def open_decompressed(raw: Any, compression: str) -> Any:
+    """A binary file object reading ``raw`` through its ``compression`` ("", "gz", "xz" or "zst")."""
+    if compression == "gz":
+        import gzip
+
+        return gzip.GzipFile(fileobj=raw, mode="rb")
+    if compression == "xz":
+        import lzma
+
+        return lzma.LZMAFile(raw, mode="rb")
+    if compression == "zst":
+        import zstandard  # checked by read_log: a LogFormatError says how to install it
+
+        return zstandard.ZstdDecompressor().stream_reader(raw, read_across_frames=True)
+    return raw
+
+
+def decompress_errors() -> tuple[type[BaseException], ...]:
+    """What reading through a decompressor may raise on data that is not what its suffix says."""
+    import lzma
+    import zlib
+
+    errors: tuple[type[BaseException], ...] = (OSError, EOFError, ValueError, zlib.error, lzma.LZMAError)
+    try:
+        import zstandard
+    except ImportError:
+        return errors
+    return (*errors, zstandard.ZstdError)
 
 
 class BadLine(NamedTuple):

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import gzip
 import io
 import math
 from collections.abc import Callable, Iterable, Iterator
@@ -13,7 +12,7 @@ from typing import TYPE_CHECKING, Any
 from canguard.errors import LogFormatError
 from canguard.io.candump import _note_order
 from canguard.io.frame import Frame
-from canguard.io.logtypes import _TEXT_PYTHON_CAN, LogFrames, ReadStats, _new
+from canguard.io.logtypes import _TEXT_PYTHON_CAN, LogFrames, ReadStats, _new, open_decompressed
 
 if TYPE_CHECKING:
     import can
@@ -77,11 +76,11 @@ def _batches(frames: Iterator[Frame]) -> Iterator[list[Frame]]:
         yield batch
 
 
-def _read_python_can(p: Path, fmt: str, gz: bool, st: ReadStats, owner: LogFrames) -> Iterator[Frame]:
+def _read_python_can(p: Path, fmt: str, gz: str, st: ReadStats, owner: LogFrames) -> Iterator[Frame]:
     """Frames from one of python-can's readers; its errors become LogFormatError naming the file."""
     raw = open(p, "rb")  # noqa: SIM115 -- closed in the finally below
     try:
-        binary: Any = gzip.GzipFile(fileobj=raw, mode="rb") if gz else raw
+        binary: Any = open_decompressed(raw, gz)
         fobj: Any = binary
         if fmt in _TEXT_PYTHON_CAN:
             fobj = io.TextIOWrapper(binary, encoding="utf-8", errors="replace")
