@@ -147,3 +147,42 @@ class TestSourceHealthAfterSamples:
         assert h.age(1.5) == 0.5 and h.age(1.5, "current") == 0.5
         empty = SourceHealth(SourceConfig("x", "current", "can0", (ref("current"),), 0.5))
         assert empty.age(3.0) == math.inf
+
+
+class TestReloadCarries:
+    def test_a_tripped_i2t_model_stays_tripped_since_the_same_time(self) -> None:
+        from canguard.protect.i2t import LeakyI2t
+
+        old = LeakyI2t(10.0, 20.0, 5.0)
+        old.set_hot(7.0)
+        new = LeakyI2t(10.0, 25.0, 5.0)
+        new.carry_from(old)
+        assert new.tripped and new.since == 7.0 and new.level == pytest.approx(1.0)
+
+    def test_a_sample_older_than_the_old_models_last_is_out_of_order(self) -> None:
+        old = Threshold(10.0)
+        old.update(1.0, 5.0)
+        new = Threshold(20.0)
+        new.carry_from(old)
+        new.update(1.0, 4.0)
+        assert new.out_of_order == 1 and new.last_t == 5.0
+
+    def test_inrush_starts_and_a_new_blanking_carry_over(self) -> None:
+        old = Hysteresis(10.0, 5.0, inrush=InrushBlanking(2.0, 0.5))
+        for t, a in [(0.0, 0.0), (0.5, 0.0), (0.6, 5.0)]:
+            old.update(a, t)
+        new = Hysteresis(12.0, 5.0, inrush=InrushBlanking(2.0, 0.5))
+        new.carry_from(old)
+        assert new.inrush is not None and old.inrush is not None and new.inrush.starts == old.inrush.starts == 1
+        plain = Hysteresis(10.0, 5.0)
+        plain.update(3.0, 1.0)
+        added = Hysteresis(10.0, 5.0, inrush=InrushBlanking(2.0, 0.5))
+        added.carry_from(plain)  # blanking added by the reload: nothing to carry, no error
+        assert added.inrush is not None and added.inrush.starts == 0 and added.last_t == 1.0
+
+
+def test_inrush_start_at_a_repeated_timestamp() -> None:
+    b = InrushBlanking(2.0, 0.5)
+    b.observe(0.0, 0.0)
+    b.observe(0.0, 0.5)
+    assert b.observe(5.0, 0.5)  # the same time as the last quiet sample: a normal sample, a start
