@@ -120,7 +120,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("logs", nargs="+", type=Path, metavar="LOG",
                    help="candump (-L, -l, plain, -ta), ASC, BLF, TRC, CSV, MF4, optionally .gz, .xz or .zst; "
-                        "'-' reads stdin (with --format)")
+                        "'-' reads stdin (with --format); a directory, a quoted glob or @LIST (a file of paths) "
+                        "replays every log it names")
     p.add_argument("--format", choices=sorted(FORMAT_SUFFIX), default=None,
                    help="the logs' format, instead of telling it by the file suffix (needed for '-')")
     p.add_argument("-c", "--config", type=Path, default=None, help="YAML config (default: as for `canguard run`)")
@@ -140,6 +141,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--plot", type=Path, metavar="FILE",
                    help="plot currents, thresholds, I²t and stops (.png/.svg/.html)")
     p.add_argument("--jobs", type=int, default=1, metavar="N", help="replay several logs in N processes")
+    p.add_argument("--dask", metavar="SCHEDULER", default=None,
+                   help="replay the logs on a Dask distributed cluster (tcp://host:8786; extra 'fleet')")
+    p.add_argument("--fleet-summary", type=Path, metavar="FILE", default=None,
+                   help="one row per log (status, frames, trips, stops, worst margin): JSON lines, or Parquet "
+                        "for FILE.parquet")
     p.add_argument("--realtime", nargs="?", type=float, const=1.0, default=None, metavar="SPEED",
                    help="send the log onto a configured bus at its pace (x SPEED) with the engine live on it")
     p.add_argument("--bus", default=None, help="with --realtime: the bus to play onto (default: the only bus)")
@@ -211,6 +217,11 @@ def cmd_replay(args: argparse.Namespace) -> int:
     cfg_path = args.config if args.config is not None else default_config()
     cfg = load_config(cfg_path)
     _check_state(args.state)
+    from canguard.cli.fleet import expand_logs
+
+    args.logs = expand_logs(args.logs)
+    if args.dask is not None and args.realtime is not None:
+        raise ConfigError("replay: --dask and --realtime do not go together (a realtime replay plays one log live)")
     if args.logs.count(Path("-")) > 1:
         raise ConfigError("replay: '-' (stdin) can be given once")
     with tempfile.TemporaryDirectory(prefix="canguard-replay-") as tmp:
@@ -227,25 +238,34 @@ def _replay_offline(cfg: Config, cfg_path: Path, args: argparse.Namespace, names
     channel_map = parse_map(args.map, cfg)
     many = len(args.logs) > 1
     base = _load_baseline(args.baseline) if args.baseline else None
-    pool = args.jobs > 1 and many
-    # In this process the config loaded above serves every log; --jobs workers load their own
-    # copy from the path (a Config with its cantools database is not sent to each of them).
+    pool = (args.jobs > 1 and many) or args.dask is not None
+    # In this process the config loaded above serves every log; --jobs / --dask workers load
+    # their own copy from the path (a Config with its cantools database is not sent to each).
     job_cfg: Config | Path = cfg_path if pool else cfg
     jobs: list[tuple[Config | Path, Path, ReplayOptions]] = []
     for log, name in zip(args.logs, names, strict=True):
         opts = ReplayOptions(
             channel_map=channel_map, events=per_log_path(args.events, name, many),
             emit=per_log_path(args.emit, name, many), skip_bad=args.skip_bad, state=args.state,
-            plot=per_log_path(args.plot, name, many), progress=sys.stderr.isatty() and args.jobs <= 1,
+            plot=per_log_path(args.plot, name, many),
+            progress=sys.stderr.isatty() and args.jobs <= 1 and args.dask is None,
         )
         jobs.append((job_cfg, log, opts))
-    if pool:
-        from concurrent.futures import ProcessPoolExecutor
+    if args.dask is not None:
+        from canguard.cli.fleet import run_dask
 
-        with ProcessPoolExecutor(max_workers=args.jobs) as executor:
-            results = list(executor.map(_job, jobs))
+        results = run_dask(args.dask, _job, jobs)
+    elif pool:
+        from canguard.cli.fleet import run_processes
+
+        results = run_processes(args.jobs, _job, jobs)
     else:
         results = [_job(j) for j in jobs]
+    if args.fleet_summary is not None:
+        from canguard.report.fleet import fleet_row, write_fleet_summary
+
+        write_fleet_summary(args.fleet_summary, [fleet_row(str(name), summary, err)
+                                                 for (summary, err), name in zip(results, names, strict=True)])
     summaries = []
     errors = 0
     for (summary, err), name in zip(results, names, strict=True):

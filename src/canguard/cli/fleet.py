@@ -1,0 +1,129 @@
+"""Fleet replay: which logs a ``canguard replay`` names, and running them on a Dask cluster.
+
+``canguard replay`` takes, besides log files, a directory (every log in it, recursively,
+sorted), a quoted glob (``'logs/**/*.log.gz'``) or ``@LIST`` (a text file of log paths, one
+per line, relative to the list; ``#`` comments). ``--jobs N`` replays them in N local
+processes; ``--dask SCHEDULER`` on a Dask distributed cluster (the ``fleet`` extra). Either
+way each log is replayed by the same :func:`canguard.cli.replay.replay_one` from a fresh
+engine, so the summaries are those of a serial run, in the order the logs were given.
+"""
+
+from __future__ import annotations
+
+import glob
+import sys
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+from canguard.errors import ConfigError
+from canguard.io.logtypes import CANDUMP_SUFFIXES, COMPRESSIONS, PYTHON_CAN_SUFFIXES
+
+LOG_SUFFIXES = CANDUMP_SUFFIXES + PYTHON_CAN_SUFFIXES
+
+
+def _is_log(path: Path) -> bool:
+    name = path.name.lower()
+    return any(name.endswith(s + comp) for comp in ("", *COMPRESSIONS) for s in LOG_SUFFIXES)
+
+
+def expand_logs(given: Sequence[Path]) -> list[Path]:
+    """The log files ``given`` names, in order: files as they are, directories, globs and ``@LIST`` files expanded.
+
+    ConfigError naming what matched nothing (an empty directory, a glob without a match,
+    a list file that cannot be read); a missing plain file is left for the reader to name.
+    """
+    out: list[Path] = []
+    for item in given:
+        text = str(item)
+        if text == "-":
+            out.append(item)
+        elif text.startswith("@"):
+            out.extend(_read_list(Path(text[1:])))
+        elif item.is_dir():
+            found = sorted(p for p in item.rglob("*") if p.is_file() and _is_log(p))
+            if not found:
+                raise ConfigError(f"replay: {item}: no log files in the directory (expected {', '.join(LOG_SUFFIXES)}, "
+                                  f"optionally + {' / '.join(COMPRESSIONS)})")
+            out.extend(found)
+        elif any(ch in text for ch in "*?[") and not item.exists():
+            found = sorted(Path(p) for p in glob.glob(text, recursive=True) if Path(p).is_file())
+            if not found:
+                raise ConfigError(f"replay: {text}: the pattern matches no file")
+            out.extend(found)
+        else:
+            out.append(item)
+    return out
+
+
+def _read_list(path: Path) -> list[Path]:
+    try:
+        lines = path.read_text(encoding="utf-8").splitlines()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"replay: @{path}: cannot read the list of logs: {exc}") from None
+    out = []
+    for line in lines:
+        entry = line.split("#", 1)[0].strip()
+        if entry:
+            p = Path(entry)
+            out.append(p if p.is_absolute() else path.parent / p)
+    if not out:
+        raise ConfigError(f"replay: @{path}: the list names no log")
+    return out
+
+
+class Progress:
+    """``N of M logs`` on stderr while a fleet runs (only on a terminal)."""
+
+    def __init__(self, total: int) -> None:
+        self.total = total
+        self.done = 0
+        self.show = sys.stderr.isatty() and total > 1
+
+    def step(self) -> None:
+        self.done += 1
+        if self.show:
+            end = "\n" if self.done == self.total else ""
+            print(f"\rcanguard replay: {self.done} of {self.total} logs", end=end, file=sys.stderr, flush=True)
+
+
+def run_dask(address: str, job: Callable[[Any], Any], jobs: list[Any]) -> list[Any]:
+    """Run ``job`` over ``jobs`` on the Dask scheduler at ``address``; results in the order of ``jobs``.
+
+    One failed log is a failed result (the job returns its error), never a lost fleet.
+    ConfigError when the ``fleet`` extra is missing or the scheduler cannot be reached.
+    """
+    try:
+        from distributed import Client, as_completed
+    except ImportError:
+        raise ConfigError("--dask: running on a Dask cluster needs the fleet extra: "
+                          "pip install 'canguard[fleet]'") from None
+    try:
+        client = Client(address, timeout="10s")
+    except (OSError, TimeoutError) as exc:
+        raise ConfigError(f"--dask {address}: cannot reach the scheduler: {exc}") from None
+    progress = Progress(len(jobs))
+    try:
+        futures = client.map(job, jobs, pure=False)
+        index = {f.key: i for i, f in enumerate(futures)}
+        results: list[Any] = [None] * len(jobs)
+        for future in as_completed(futures):
+            results[index[future.key]] = future.result()
+            progress.step()
+        return results
+    finally:
+        client.close()
+
+
+def run_processes(workers: int, job: Callable[[Any], Any], jobs: list[Any]) -> list[Any]:
+    """Run ``job`` over ``jobs`` in ``workers`` local processes; results in the order of ``jobs``."""
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    progress = Progress(len(jobs))
+    results: list[Any] = [None] * len(jobs)
+    with ProcessPoolExecutor(max_workers=workers) as executor:
+        futures = {executor.submit(job, j): i for i, j in enumerate(jobs)}
+        for future in as_completed(futures):
+            results[futures[future]] = future.result()
+            progress.step()
+    return results
