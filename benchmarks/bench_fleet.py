@@ -1,0 +1,87 @@
+"""Fleet replay: one process vs ``--jobs 2`` vs a Dask LocalCluster of 2 workers, on the same logs, one run.
+
+    python benchmarks/bench_fleet.py [--logs 4] [--frames 600000] [--repeat 2]
+
+Writes ``--logs`` copies of the project's own simulator log (about ``--frames`` frames each),
+then times whole ``canguard replay`` processes (start-up included; the LocalCluster is started
+before the timing and shared by its runs) and checks the three give the same ``--json``.
+Prints the ratios the issue asks for: ``--jobs 2`` / one job (target >= 1.8x) and Dask / ``--jobs 2``
+(target within 15 %).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+SRC = REPO / "src"
+CONFIG = REPO / "config" / "canguard.yaml"
+
+
+def timed(argv: list[str], repeat: int) -> tuple[float, bytes]:
+    best, out = float("inf"), b""
+    env = {**os.environ, "PYTHONPATH": str(SRC)}
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        proc = subprocess.run([sys.executable, "-m", "canguard", *argv], capture_output=True, env=env)
+        elapsed = time.perf_counter() - t0
+        if proc.returncode not in (0, 1):
+            raise RuntimeError(f"canguard {' '.join(argv)}: exit {proc.returncode}: {proc.stderr.decode()[-1500:]}")
+        best, out = min(best, elapsed), proc.stdout
+    return best, out
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--logs", type=int, default=4)
+    ap.add_argument("--frames", type=int, default=600_000)
+    ap.add_argument("--repeat", type=int, default=2)
+    args = ap.parse_args(argv)
+    sys.path.insert(0, str(SRC))
+    from canguard.config.loader import load_config
+    from canguard.sim import write_log
+
+    work = Path(tempfile.mkdtemp(prefix="canguard-fleet-"))
+    try:
+        first = work / "log0.log"
+        write_log(first, args.frames / 8000.0, db=load_config(CONFIG).database, scenarios=("normal", "load"), seed=0)
+        for i in range(1, args.logs):
+            shutil.copy(first, work / f"log{i}.log")
+        with open(first, encoding="ascii") as f:
+            frames = sum(1 for _ in f) * args.logs
+        base = ["replay", str(work), "-c", str(CONFIG), "--json"]
+        serial, out1 = timed(base, args.repeat)
+        jobs2, out2 = timed([*base, "--jobs", "2"], args.repeat)
+        try:
+            from distributed import LocalCluster
+        except ImportError:
+            dask = None
+        else:
+            with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
+                              host="127.0.0.1") as cluster:
+                dask, out3 = timed([*base, "--dask", cluster.scheduler_address], args.repeat)
+            assert out3 == out1, "--dask gave other summaries than the serial run"
+        assert out2 == out1, "--jobs 2 gave other summaries than the serial run"
+        print(f"{args.logs} logs, {frames:,} frames in all (python {sys.version.split()[0]}, {os.cpu_count()} cpus); "
+              f"whole processes, best of {args.repeat}")
+        print("| run | seconds | frames/s | vs one job |")
+        print("| --- | ---: | ---: | ---: |")
+        print(f"| one job | {serial:.2f} | {frames / serial:,.0f} | 1.00x |")
+        print(f"| --jobs 2 | {jobs2:.2f} | {frames / jobs2:,.0f} | {serial / jobs2:.2f}x |")
+        if dask is not None:
+            print(f"| --dask (LocalCluster, 2 workers) | {dask:.2f} | {frames / dask:,.0f} | {serial / dask:.2f}x |")
+            print(f"Dask / --jobs 2 time: {dask / jobs2:.2f} (target <= 1.15)")
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
