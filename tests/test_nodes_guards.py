@@ -6,7 +6,7 @@ from pathlib import Path
 
 import py_trees
 import pytest
-from hypothesis import given, settings
+from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from canguard.protect.hysteresis import Hysteresis
@@ -243,7 +243,8 @@ class TestIsI2tSafe:
 class TestAgainstTheNote:
     """IsCurrentSafe agrees with design note 004's C++ logic, sample by sample."""
 
-    @settings(max_examples=60, deadline=None)
+    # differing_executors: mutmut runs the class's tests through its own trampoline
+    @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.differing_executors])
     @given(st.lists(st.floats(min_value=-60.0, max_value=60.0, allow_nan=False), min_size=1, max_size=60))
     def test_hysteresis_matches_the_note(self, currents: list[float]) -> None:
         """One sample per tick: FAILURE exactly when the note's is_normal_ is false after the sample.
