@@ -199,7 +199,13 @@ def own_shape(out: Path, frames: int) -> tuple[Path, Path, Path]:
     cfg = REPO / "config" / "canguard.yaml"
     log = out / "own.log"
     if not log.exists():
-        write_log(log, frames / 8000.0, db=load_config(cfg).database, scenarios=("normal", "load"), seed=0)
+        db = load_config(cfg).database
+        probe = out / "own-probe.log"
+        write_log(probe, 10.0, db=db, scenarios=("normal", "load"), seed=0)
+        with open(probe, encoding="ascii") as f:
+            rate = sum(1 for _ in f) / 10.0  # the simulator's frames per second
+        probe.unlink()
+        write_log(log, frames / rate, db=db, scenarios=("normal", "load"), seed=0)
     return REPO / "dbc" / "robot.dbc", cfg, log
 
 
