@@ -178,3 +178,17 @@ def test_tree_command_prints_skipped(tmp_path: Path, capsys: pytest.CaptureFixtu
     path = tree(tmp_path, '<Sequence><AlwaysSuccess _skipIf="true"/></Sequence>')
     assert main(["tree", str(path), "--tick", "2", "--json"]) == 0
     assert json.loads(capsys.readouterr().out) == {"ticks": ["SKIPPED", "SKIPPED"], "blackboard": {}}
+
+
+class TestBranches:
+    def test_a_skipped_branch_skips_the_if(self, tmp_path: Path) -> None:
+        got = ticks(tmp_path, '<Sequence><IfThenElse><AlwaysSuccess/><AlwaysFailure _skipIf="true"/></IfThenElse>'
+                              '<Script code="after:=1"/></Sequence>', 1)
+        assert got == {"ticks": ["SUCCESS"], "blackboard": {"after": 1}}
+
+    def test_a_skipped_condition_is_an_error_as_in_bt_cpp(self, tmp_path: Path,
+                                                          capsys: pytest.CaptureFixture[str]) -> None:
+        """BT.CPP throws (if_then_else_node.cpp); a raising tick is a FAILURE that says why (the engine: a stop)."""
+        path = tree(tmp_path, '<IfThenElse><AlwaysSuccess _skipIf="true"/><AlwaysSuccess/></IfThenElse>')
+        assert dry_run(path, 1, 0.1)["ticks"] == ["FAILURE"]
+        assert "its condition (first child) was skipped" in capsys.readouterr().err

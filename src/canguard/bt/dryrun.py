@@ -10,6 +10,7 @@ say so (use ``-c CONFIG`` for those).
 from __future__ import annotations
 
 import math
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -55,6 +56,11 @@ def dry_run(
     statuses = []
     for i in range(ticks):
         clock.set(i * dt)
-        status = loaded.tick()
+        try:
+            status = loaded.tick()
+        except Exception as exc:  # as the engine does: a tick that raises is a FAILURE, and says why
+            print(f"canguard tree: tick {i + 1}: a node raised {type(exc).__name__}: {exc}", file=sys.stderr)
+            statuses.append("FAILURE")
+            continue
         statuses.append("SKIPPED" if loaded.skipped else status.name)
     return {"ticks": statuses, "blackboard": root_blackboard()}

@@ -35,11 +35,14 @@ from canguard.bt.nodes.base import (
     FAILURE,
     INVALID,
     RUNNING,
+    SKIPPED,
     SUCCESS,
     CanguardNode,
     PortError,
     mark_skipped,
+    outcome,
     port_info,
+    tick_child,
 )
 from canguard.bt.scripting import Script as ParsedScript
 from canguard.bt.scripting import ScriptError, parse
@@ -306,7 +309,9 @@ class _Branching(CanguardNode, py_trees.composites.Composite):
             self.initialise()
         if self.branch == 0 or self.REACTIVE:
             cond = self.children[0]
-            yield from cond.tick()
+            yield from tick_child(cond)
+            if outcome(cond) == SKIPPED:  # BT.CPP throws here too: a skipped condition decides nothing
+                raise RuntimeError(f"{type(self).__name__} {self.name}: its condition (first child) was skipped")
             if cond.status == RUNNING:
                 self.status = RUNNING
                 yield self
@@ -321,8 +326,11 @@ class _Branching(CanguardNode, py_trees.composites.Composite):
             return
         child = self.children[self.branch]
         self.current_child = child
-        yield from child.tick()
-        if child.status == RUNNING:
+        yield from tick_child(child)
+        if outcome(child) == SKIPPED:  # the branch skipped: so is this node (BT.CPP returns its status)
+            self.branch = 0
+            mark_skipped(self)
+        elif child.status == RUNNING:
             self.status = RUNNING
         else:
             self.stop(child.status)
