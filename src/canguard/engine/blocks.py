@@ -22,14 +22,15 @@ checks byte for byte on every block size. No code is generated.
 
 from __future__ import annotations
 
+import operator
+import struct
 from collections.abc import Callable, Collection, Sequence
+from itertools import islice
 from typing import TYPE_CHECKING, Any
 
-import numpy as np
-
-from canguard.decode.columns import decode_block
-
 if TYPE_CHECKING:
+    import numpy as np
+
     from canguard.bt.context import Context
     from canguard.decode.decoder import DecodeCounters, _Entry
     from canguard.engine.stats import EngineStats
@@ -74,6 +75,9 @@ class MessagePlan:
         )
         """Nobody looks at this message between ticks: a block's rows may be taken whole (:meth:`batch`)."""
         self.min_age = min(o[4].max_age_s for o in self.outputs)
+        self.rows_struct = _row_struct(entry, self.outputs)
+        """Byte-aligned standard widths in one byte order: the block is read with ``struct.iter_unpack``
+        (C, no numpy); None: the numpy column decoder."""
         self.seen = 0
         self.empty = 0
         self.tops = [-1.0] * len(self.outputs)
@@ -101,6 +105,18 @@ class MessagePlan:
         result: list[tuple[float, ...] | None]
         if not rows:
             return [None] * n
+        if self.rows_struct is not None:
+            taken = _struct_rows(self.rows_struct, bytes.fromhex(joined))
+            if good is None:
+                return taken
+            result = [None] * n
+            for k, row in zip(good, taken, strict=True):
+                result[k] = row
+            return result
+        import numpy as np  # only for messages the struct path cannot read (FD padding, mux, odd bits...)
+
+        from canguard.decode.columns import decode_block
+
         payload = np.frombuffer(bytes.fromhex(joined), dtype=np.uint8).reshape(rows, self.length)
         with np.errstate(invalid="ignore", over="ignore"):
             decoded, decodable = decode_block(self.message, payload, self.signals)
@@ -225,8 +241,8 @@ class MessagePlan:
         first, last = float(stamps[0]), float(stamps[-1])
         gap = last - first
         if gap > self.min_age:  # else no gap can exceed it (float subtraction is monotonic)
-            times = np.array(stamps, dtype=np.float64)
-            gap = float(np.max(np.diff(times))) if len(times) > 1 else 0.0
+            times = list(map(float, stamps))
+            gap = max(map(operator.sub, islice(times, 1, None), times), default=0.0)
         for _source, role, _signal, _present, health, _lo, _hi, _models in self.outputs:
             latest = health._latest_t.get(role)
             if latest is None or first < latest or first - latest > health.max_age_s or gap > health.max_age_s:
@@ -237,8 +253,7 @@ class MessagePlan:
         self.counters.frames += count
         self.counters.decoded += count
         self.stats.frames += count
-        table = np.array(rows, dtype=np.float64)
-        tops = np.max(np.abs(table), axis=0).tolist()
+        tops = [max(abs(row[j]) for row in rows if row) for j in range(len(self.outputs))]
         final = rows[-1]
         assert final is not None
         for j, (source, role, _signal, _present, health, _lo, _hi, _models) in enumerate(self.outputs):
@@ -249,8 +264,76 @@ class MessagePlan:
         return True
 
 
+_Conv = tuple[int, float, float, bool, bool, float, float]
+"""(index in the unpacked row, scale, offset, identity, present, lo, hi) of one output."""
+
+
+def _row_struct(entry: _Entry, outputs: list[tuple[Any, ...]]) -> tuple[struct.Struct, tuple[_Conv, ...]] | None:
+    """A Struct covering a whole payload of ``entry`` and each output's conversion, or None.
+
+    Only for the decoder's struct path with one byte order and one fixed length: then
+    ``iter_unpack`` over a block's joined payloads gives, in C, the raw values the
+    per-frame decoder gets with ``unpack_from`` (the same fields, the same order).
+    """
+    if not entry.fields or entry.plan is None or entry.lengths != {entry.length}:
+        return None
+    orders = {order for _o, _c, order in entry.fields}
+    if len(orders) != 1:
+        return None
+    order = orders.pop()
+    fmt, pos = order, 0
+    for offset, code, _order in entry.fields:  # in offset order, as the decoder built them
+        if offset < pos:
+            return None
+        if offset > pos:
+            fmt += f"{offset - pos}x"
+        fmt += code
+        pos = offset + struct.calcsize(order + code)
+    if pos > entry.length:
+        return None
+    if pos < entry.length:
+        fmt += f"{entry.length - pos}x"
+    conv = tuple(
+        (index, scale, offset, identity, present, lo, hi)
+        for (_s, _r, index, scale, offset, identity, present), (*_x, lo, hi, _m)
+        in zip(entry.plan, outputs, strict=True)
+    )
+    return struct.Struct(fmt), conv
+
+
+def _struct_rows(plan: tuple[struct.Struct, tuple[_Conv, ...]], data: bytes) -> list[tuple[float, ...] | None]:
+    """Each row's values as the per-frame decoder computes them (``raw * scale + offset``, then float), or None.
+
+    None: a NaN or infinite value, one outside the DBC range, or a presence flag at 0 (the row goes to feed).
+    """
+    st, conv = plan
+    raws = list(st.iter_unpack(data))
+    if len(conv) == 1 and not conv[0][4]:
+        index, scale, offset, identity, _present, lo, hi = conv[0]
+        col = [r[index] for r in raws]
+        values = list(map(float, col)) if identity else [float(x * scale + offset) for x in col]
+        return [(v,) if lo <= v <= hi else None for v in values]  # NaN and +-inf fail the range
+    out: list[tuple[float, ...] | None] = []
+    for raw in raws:
+        row: list[float] = []
+        for index, scale, offset, identity, present, lo, hi in conv:
+            x = raw[index]
+            v = float(x if identity else x * scale + offset)
+            if present:
+                if v - v != 0.0 or not v:
+                    break
+                v = 1.0
+            if not lo <= v <= hi:
+                break
+            row.append(v)
+        out.append(tuple(row) if len(row) == len(conv) else None)
+    return out
+
+
 def _as_float(values: np.ndarray) -> np.ndarray:
     """Decoded values as float64, each equal to Python's ``float()`` of cantools' value."""
+    import numpy as np
+
     if values.dtype == np.float64:
         return values
     if values.dtype.kind in "iu" and (values.size == 0 or float(np.max(np.abs(values.astype(np.float64)))) < _EXACT):
