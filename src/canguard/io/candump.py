@@ -11,7 +11,7 @@ import operator
 from collections.abc import Iterator
 from itertools import islice, repeat
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, NamedTuple, TextIO
+from typing import Any, NamedTuple, TextIO
 
 from canguard.errors import LogFormatError
 from canguard.io.frame import Frame
@@ -33,9 +33,6 @@ from canguard.io.logtypes import (
     decompress_errors,
     open_decompressed,
 )
-
-if TYPE_CHECKING:
-    pass
 
 # --------------------------------------------------------------------------- candump text
 
