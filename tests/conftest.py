@@ -7,8 +7,15 @@ from pathlib import Path
 
 import py_trees
 import pytest
+from hypothesis import HealthCheck
+from hypothesis import settings as _hypothesis_settings
 
 REPO = Path(__file__).resolve().parents[1]
+
+# mutmut (scripts/mutation.sh) runs test methods through its own trampoline, which hypothesis
+# reports as "differing executors"; the tests themselves are unchanged by it.
+_hypothesis_settings.register_profile("canguard", suppress_health_check=[HealthCheck.differing_executors])
+_hypothesis_settings.load_profile("canguard")
 
 
 @pytest.fixture(autouse=True)
