@@ -1,0 +1,254 @@
+"""The task gate as the journal and the bus see it: stop and resume events, stop time, resets, halts, confirmation.
+
+Written against the mutants ``SCOPE=gate bash scripts/mutation.sh`` left alive in ``engine/gate.py``:
+each test asserts an event field a user reads in the journal, a frame on the bus, or the stop time a
+summary prints.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import pytest
+
+from canguard.config.schema import FrameSpec, SignalRef, SourceConfig, StopConfig, StopConfirm, TaskConfig
+from canguard.engine.gate import BusSink, LogSink, TaskGate
+from canguard.io.frame import Sample
+from canguard.protect import SourceHealth
+
+STOP = (FrameSpec("main", 0x10, b"\x00", label="Estop"),)
+TASK = (FrameSpec("main", 0x20, b"\x01", label="Enable"),)
+ESCALATE = (FrameSpec("main", 0x30, b"\x02", label="Idle"),)
+
+
+class Recorder:
+    def __init__(self) -> None:
+        self.events: list[tuple[str, float, dict[str, Any]]] = []
+        self.frames: list[tuple[str, str]] = []
+
+    def on_event(self, event: str, now: float, **fields: Any) -> None:
+        self.events.append((event, now, fields))
+
+    def send(self, frames: Any, origin: str) -> None:
+        self.frames.extend((origin, f.label) for f in frames)
+
+    def named(self, name: str) -> list[tuple[float, dict[str, Any]]]:
+        return [(t, f) for e, t, f in self.events if e == name]
+
+
+def gate(rec: Recorder, **stop: Any) -> TaskGate:
+    g = TaskGate(TaskConfig(0.02, TASK), StopConfig(0.05, STOP, **stop), rec, on_event=rec.on_event)
+    return g
+
+
+def tick(g: TaskGate, now: float, *, failed: bool = False, task: bool = True, reset: bool = False) -> None:
+    g.begin_tick()
+    if task:
+        g.run("ExecuteTask", now)
+    if reset:
+        g.reset("ResetStop", now)
+    if failed:
+        g.stop(now, reason="tree failed at Guard", node="Guard")
+    g.end_tick(now, failed, ("Guard", "overcurrent") if failed else ("", ""))
+
+
+class TestStopAndResume:
+    def test_resume_event_names_the_node_and_how_long(self) -> None:
+        rec = Recorder()
+        g = gate(rec)
+        tick(g, 0.0)
+        tick(g, 1.0, failed=True)
+        tick(g, 3.5)
+        [(t, fields)] = rec.named("resume")
+        assert t == 3.5 and fields == {"node": "ExecuteTask", "reason": "stopped for 2.500 s"}
+        assert g.state == TaskGate.RUNNING and g.stop_since is None
+
+    def test_stopped_time_adds_up_over_stops(self) -> None:
+        rec = Recorder()
+        g = gate(rec)
+        tick(g, 0.0)
+        tick(g, 1.0, failed=True)
+        tick(g, 1.25)
+        tick(g, 2.0, failed=True)
+        assert g.stopped_total(2.5) == pytest.approx(0.75)  # 0.25 closed + 0.5 open
+        tick(g, 2.5)
+        assert g.stopped_s == pytest.approx(0.75) and g.stops == 2
+        assert g.stopped_total(10.0) == pytest.approx(0.75)
+
+    def test_min_stop_is_inclusive(self) -> None:
+        rec = Recorder()
+        g = gate(rec, min_stop_s=0.5)
+        tick(g, 0.0)
+        tick(g, 1.0, failed=True)
+        tick(g, 1.25)
+        assert g.state == TaskGate.STOPPED
+        assert rec.named("reason")[-1][1]["reason"] == "stop.min_stop 0.5 s not elapsed"
+        tick(g, 1.5)
+        assert g.state == TaskGate.RUNNING
+
+    def test_what_holds_the_stop_is_journalled_word_for_word(self) -> None:
+        rec = Recorder()
+        g = gate(rec, release="manual")
+        tick(g, 0.0)
+        tick(g, 1.0, failed=True)
+        tick(g, 1.1, task=False)
+        tick(g, 1.2)
+        g.inhibit("bus main", "bus main down: gone", 1.3)
+        g.inhibit("source bms", "bms stale", 1.3)
+        tick(g, 1.3)
+        reasons = [f["reason"] for _t, f in rec.named("reason")]
+        assert reasons == ["task not reached in the tree", "stop.release manual: waiting for ResetStop",
+                           "bus main down: gone; bms stale"]  # by key: bus main, source bms
+        assert rec.named("reason")[0][1]["previous"] == "overcurrent"
+        g.release("bus main")
+        g.release("source bms")
+        assert not g.may_release(1.4) and not g.may_release(1.4, failed=True)
+        g.begin_tick()
+        g.run("ExecuteTask", 1.4)
+        g._reset_this_tick = True
+        assert g.may_release(1.4) and not g.may_release(1.4, failed=True)
+
+    def test_a_stop_resets_and_confirmation_state_after_resume(self) -> None:
+        rec = Recorder()
+        g = gate(rec)
+        tick(g, 0.0)
+        tick(g, 1.0, failed=True)
+        assert g.next_deadline() == pytest.approx(1.05)  # the stop repeat
+        tick(g, 1.2)
+        assert g.next_deadline() == pytest.approx(1.22)  # the task period again, no stop repeat left
+
+
+class TestResetAndHalt:
+    def test_reset_says_what_it_did(self) -> None:
+        rec = Recorder()
+        auto = gate(rec)
+        assert auto.reset("R", 0.0) == "no stop to reset"
+        auto.stop(0.0, reason="x")
+        assert auto.reset("R", 0.0) == "stop.release is auto: no reset needed"
+        manual = gate(rec, release="manual")
+        manual.stop(0.0, reason="x")
+        assert manual.reset("R", 0.0) == "reset requested"
+        tick(manual, 0.1, reset=False)
+        assert manual.state == TaskGate.STOPPED
+        tick(manual, 0.2, reset=True)
+        assert manual.state == TaskGate.RUNNING
+
+    def test_halt_stops_a_running_task_with_why(self) -> None:
+        rec = Recorder()
+        g = gate(rec)
+        g.halt("ExecuteTask", 0.0)
+        assert g.state == TaskGate.IDLE and not rec.named("stop")  # nothing runs: nothing to halt
+        tick(g, 0.0)
+        g.explain = lambda: "Guard: overcurrent"
+        g.halt("ExecuteTask", 0.5)
+        [(t, fields)] = rec.named("stop")
+        assert t == 0.5 and fields == {"node": "ExecuteTask", "reason": "ExecuteTask halted (Guard: overcurrent)"}
+        rec2 = Recorder()
+        g2 = gate(rec2)
+        tick(g2, 0.0)
+        g2.halt("ExecuteTask", 0.5)
+        assert rec2.named("stop")[0][1]["reason"] == "ExecuteTask halted"
+
+
+class TestConfirm:
+    @staticmethod
+    def health() -> SourceHealth:
+        ref = SignalRef("current", "main", "M", 0x1, False, "I", "A", None, None)
+        return SourceHealth(SourceConfig("axis0", "current", "main", (ref,), 0.5))
+
+    def setup(self, rec: Recorder, op: str = "<", value: float = 1.0) -> tuple[TaskGate, SourceHealth]:
+        h = self.health()
+        g = TaskGate(TaskConfig(0.02, TASK),
+                     StopConfig(0.05, STOP, StopConfirm("axis0", "current", op, value, 0.2), ESCALATE),  # type: ignore[arg-type]
+                     rec, health={"axis0": h}, on_event=rec.on_event)
+        return g, h
+
+    def test_confirmed_only_by_a_sample_taken_after_the_stop(self) -> None:
+        rec = Recorder()
+        g, h = self.setup(rec)
+        h.observe(Sample("axis0", "current", 0.5, 1.0))  # low already, but at the stop's own time
+        g.stop(1.0, reason="x")
+        g.service(1.05)
+        assert not rec.named("confirmed")
+        h.observe(Sample("axis0", "current", -0.5, 1.06))
+        g.service(1.07)
+        [(t, fields)] = rec.named("confirmed")
+        assert t == 1.07 and fields == {"source": "axis0", "value": -0.5, "threshold": 1.0,
+                                        "reason": "current < 1.0 after 0.070 s"}
+        g.service(1.3)
+        assert not rec.named("escalate")
+
+    def test_escalates_at_the_deadline_with_frames(self) -> None:
+        rec = Recorder()
+        g, h = self.setup(rec)
+        g.stop(1.0, reason="x")
+        h.observe(Sample("axis0", "current", -20.0, 1.1))  # still pushing: |-20| is not below 1
+        g.service(1.1)
+        assert not rec.named("escalate")
+        assert g.next_deadline() == pytest.approx(1.1 + 0.05)
+        g.service(1.2)
+        [(t, fields)] = rec.named("escalate")
+        assert t == 1.2 and fields["reason"] == "not confirmed within 0.2 s: current < 1.0 does not hold"
+        assert fields["value"] == -20.0 and ("escalate", "Idle") in rec.frames
+        g.service(1.5)
+        assert len(rec.named("escalate")) == 1
+
+    def test_a_stale_source_never_confirms(self) -> None:
+        rec = Recorder()
+        g, h = self.setup(rec)
+        h.observe(Sample("axis0", "current", 0.0, 1.01))
+        g.stop(1.0, reason="x")
+        g.service(1.6)  # the sample is 0.59 s old: stale (max_age 0.5)
+        assert not rec.named("confirmed") and rec.named("escalate")
+
+    def test_equality_compares_the_value_itself(self) -> None:
+        rec = Recorder()
+        g, h = self.setup(rec, "==", -1.0)
+        g.stop(1.0, reason="x")
+        h.observe(Sample("axis0", "current", -1.0, 1.05))
+        g.service(1.06)
+        assert rec.named("confirmed")
+
+    def test_no_pending_confirmation_after_a_resume(self) -> None:
+        rec = Recorder()
+        g, _h = self.setup(rec)
+        tick(g, 0.0)
+        tick(g, 1.0, failed=True)
+        tick(g, 1.1)
+        g.service(2.0)
+        assert not rec.named("escalate") and not rec.named("confirmed")
+
+
+class TestSinks:
+    def test_log_sink_counts_and_keeps_with_the_time_and_channel(self) -> None:
+        from canguard.config.schema import BusConfig
+
+        now = [2.5]
+        sink = LogSink(lambda: now[0], {"main": BusConfig("main", {"interface": "virtual", "channel": "can7"})})
+        sink.send(STOP + TASK, "stop")
+        assert sink.sent == 2 and sink.origins == ["stop", "stop"]
+        assert [(f.t, f.channel, f.arbitration_id, f.data) for f in sink.frames] == [
+            (2.5, "can7", 0x10, b"\x00"), (2.5, "can7", 0x20, b"\x01")]
+        quiet = LogSink(lambda: 0.0, {}, keep=False)
+        quiet.send(STOP, "stop")
+        assert quiet.sent == 1 and quiet.frames == []
+
+    def test_bus_sink_counts_refusals_and_says_which(self) -> None:
+        sent: list[Any] = []
+        errors: list[str] = []
+        refused: list[tuple[str, str, str]] = []
+
+        def send(bus: str, msg: Any) -> bool:
+            sent.append((bus, msg.arbitration_id, bytes(msg.data), msg.is_extended_id))
+            return msg.arbitration_id != 0x20
+
+        sink = BusSink(send, on_error=errors.append, on_refused=lambda b, label, o: refused.append((b, label, o)))
+        sink.send(STOP + TASK, "task")
+        assert (sink.sent, sink.failed) == (1, 1)
+        assert sent == [("main", 0x10, b"\x00", False), ("main", 0x20, b"\x01", False)]
+        assert errors == ["main"] and refused == [("main", "Enable", "task")]
+
+
+def test_next_deadline_idle_is_never() -> None:
+    assert gate(Recorder()).next_deadline() == math.inf
