@@ -23,7 +23,7 @@ tests = ["tests/test_stop_resume.py", "tests/test_nodes_guards.py", "tests/test_
          "tests/test_recover_timing.py", "tests/test_reload_carry.py", "tests/test_i2t_peak_optional.py",
          "tests/test_faults.py", "tests/test_tree_loader.py", "tests/test_errors_all_at_once.py",
          "tests/test_nodes_ports.py", "tests/test_events.py", "tests/test_timers_per_node.py",
-         "tests/test_mutants_gate.py"]
+         "tests/test_mutants_gate.py", "tests/test_mutants_guards.py"]
 text = pathlib.Path("pyproject.toml").read_text()
 text = re.sub(r"do_not_mutate = \[.*?\]", "do_not_mutate = " + repr(files).replace("'", '"'), text, flags=re.S)
 text = re.sub(r"pytest_add_cli_args_test_selection = \[.*?\]",

@@ -313,6 +313,9 @@ class IsI2tSafe(GuardNode):
         k = self.port("k")
         if not (isinstance(k, float) and math.isfinite(k) and k > 0):
             raise PortError("k", f"must be a finite number > 0, got {k!r}")
+        if not (isinstance(cont, float) and math.isfinite(cont) and cont > 0):
+            # said here, before a peak is derived from it (else the error blamed peak_current)
+            raise PortError("continuous_current", f"continuous_current must be a finite number > 0, got {cont!r}")
         peak, peak_t = self.port("peak_current"), self.port("peak_time")
         if peak is not None and peak_t is None:
             raise PortError("peak_time", "required with peak_current (a datasheet peak is a current and a time)")

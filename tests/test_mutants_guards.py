@@ -1,0 +1,80 @@
+"""The guard nodes as a tree author and the journal see them: port errors in port names, trip and recover events.
+
+Written against the mutants ``SCOPE=gate bash scripts/mutation.sh`` left alive in
+``bt/nodes/current.py``: each test asserts a load error a user reads (the port named, the model's
+message in port words) or an event field in the journal.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from treekit import Rig, xml_tree
+
+from canguard.errors import TreeError
+
+
+def load_error(tmp_path: Path, node: str) -> str:
+    rig = Rig()
+    with pytest.raises(TreeError) as err:
+        rig.load_text(tmp_path, xml_tree(f"<ReactiveSequence>{node}<ExecuteTask/></ReactiveSequence>"))
+    return str(err.value)
+
+
+class TestPortErrorsInPortWords:
+    @pytest.mark.parametrize(("node", "port", "message"), [
+        ('<IsCurrentSafe topic_name="/battery_state" overcurrent_threshold="10" recovery_threshold="20"/>',
+         "recovery_threshold", "recovery_threshold (20.0 A) must not exceed overcurrent_threshold (10.0 A)"),
+        ('<IsCurrentSafe topic_name="/battery_state" overcurrent_threshold="-1" recovery_threshold="0"/>',
+         "overcurrent_threshold", "overcurrent_threshold must be a finite number >= 0, got -1.0"),
+        ('<IsCurrentSafe topic_name="/battery_state" overcurrent_threshold="10" recovery_threshold="5" '
+         'trip_after="-1"/>', "trip_after", "trip_after must be a finite number >= 0, got -1.0"),
+        ('<IsCurrentNormal topic_name="/battery_state" max_current="-3"/>',
+         "max_current", "max_current must be a finite number >= 0, got -3.0"),
+        ('<IsI2tSafe topic_name="/battery_state" continuous_current="10" peak_current="5" peak_time="3"/>',
+         "peak_current", "peak_current (5.0 A) must exceed continuous_current (10.0 A)"),
+        ('<IsI2tSafe topic_name="/battery_state" continuous_current="-10"/>',
+         "continuous_current", "continuous_current must be a finite number > 0, got -10.0"),
+        ('<IsI2tSafe topic_name="/battery_state" continuous_current="10" recover_fraction="1.5"/>',
+         "recover_fraction", "recover_fraction must be > 0 and < 1, got 1.5"),
+    ])
+    def test_the_error_names_the_port(self, tmp_path: Path, node: str, port: str, message: str) -> None:
+        text = load_error(tmp_path, node)
+        assert f"port {port}: " in text, text
+        assert message in text, text
+        for model_word in ("overcurrent_a", "recovery_a", "max_value", "continuous_a", "peak_a"):
+            assert model_word not in text, text  # the model's parameter names never reach the user
+
+
+class TestEvents:
+    def test_trip_and_recover_events_carry_node_source_signal_value_threshold(self, tmp_path: Path) -> None:
+        rig = Rig()
+        rig.load_text(tmp_path, xml_tree(
+            '<ReactiveSequence><IsCurrentSafe name="Pack" topic_name="/battery_state" overcurrent_threshold="10" '
+            'recovery_threshold="5"/><ExecuteTask/></ReactiveSequence>'))
+        rig.battery(2.0)
+        rig.tick()
+        rig.advance(0.01)
+        rig.battery(12.0)
+        rig.tick()
+        rig.advance(0.01)
+        rig.battery(3.0)
+        rig.tick()
+        trip, recover = rig.trips()
+        assert {k: trip[k] for k in ("event", "node", "source", "signal", "value", "threshold", "reason")} == {
+            "event": "trip", "node": "Pack", "source": "/battery_state", "signal": "current", "value": 12.0,
+            "threshold": 10.0, "reason": "overcurrent"}
+        assert {k: recover[k] for k in ("event", "node", "source", "signal", "value", "threshold", "reason")} == {
+            "event": "recover", "node": "Pack", "source": "/battery_state", "signal": "current", "value": 3.0,
+            "threshold": 10.0, "reason": ""}
+        assert rig.node("Pack").feedback_message == ""
+
+    def test_feedback_says_why_while_failing(self, tmp_path: Path) -> None:
+        rig = Rig()
+        rig.load_text(tmp_path, xml_tree(
+            '<ReactiveSequence><IsCurrentNormal name="Pack" topic_name="/battery_state" max_current="10"/>'
+            "<ExecuteTask/></ReactiveSequence>"))
+        rig.battery(12.5)
+        rig.tick()
+        assert rig.node("Pack").feedback_message == "overcurrent: current |12.5| (threshold 10)"
