@@ -10,9 +10,9 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-from treekit import Rig, xml_tree
 
 from canguard.errors import TreeError
+from treekit import Rig, xml_tree
 
 
 def load_error(tmp_path: Path, node: str) -> str:
