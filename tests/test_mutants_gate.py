@@ -252,3 +252,68 @@ class TestSinks:
 
 def test_next_deadline_idle_is_never() -> None:
     assert gate(Recorder()).next_deadline() == math.inf
+
+
+class TestMore:
+    def test_a_reload_continues_the_stop(self) -> None:
+        rec = Recorder()
+        h = TestConfirm.health()
+        cfg = StopConfig(0.05, STOP, StopConfirm("axis0", "current", "<", 1.0, 0.2))  # type: ignore[arg-type]
+        old = TaskGate(TaskConfig(0.02, TASK), cfg, rec, health={"axis0": h}, on_event=rec.on_event)
+        tick(old, 0.0)
+        old.inhibit("source bms", "bms stale", 0.5, node="BMS")
+        old.begin_tick()
+        old.action("Work", "task", TASK, 0.6)
+        old.end_tick(0.6, False)
+        new = TaskGate(TaskConfig(0.02, TASK), cfg, rec, health={"axis0": h}, on_event=rec.on_event)
+        new.adopt(old)
+        assert (new.state, new.stop_since, new.stop_reason, new.inhibits, new.withheld, new.stops) == (
+            TaskGate.STOPPED, 0.5, "bms stale", {"source bms": "bms stale"}, 1, 1)
+        assert new.next_deadline() == pytest.approx(0.55)  # the stop repeat, carried
+        new.service(0.7)
+        assert rec.named("escalate")  # the confirmation was still pending: carried too
+        assert rec.named("stop")[0][1] == {"node": "BMS", "reason": "bms stale"}
+        plain = TaskGate(TaskConfig(0.02, TASK), StopConfig(0.05, STOP), rec, on_event=rec.on_event)
+        plain.adopt(old)
+        assert plain.next_deadline() == pytest.approx(0.55)  # no confirmation configured: none pending
+
+    def test_action_notes(self) -> None:
+        rec = Recorder()
+        g = gate(rec)
+        notes: list[str] = []
+        g.begin_tick()
+        g.action("Recover", "recovery", ESCALATE, 0.0, notes.append)
+        g.action("Work", "task", TASK, 0.0, notes.append)
+        g.stop(0.0, reason="x")
+        g.end_tick(0.0, True)
+        assert notes == ["1 frame(s) sent (recovery)", "1 frame(s) withheld: task stopped"]
+        assert ("Recover", "Idle") in rec.frames and ("Work", "Enable") not in rec.frames
+        notes.clear()
+        g2 = gate(Recorder())
+        g2.begin_tick()
+        g2.action("Work", "task", TASK, 0.0, notes.append)
+        g2.end_tick(0.0, False)
+        assert notes == ["1 frame(s) sent"] and g2.state == TaskGate.RUNNING
+
+    def test_a_tree_without_task_nodes_starts_by_not_failing(self) -> None:
+        rec = Recorder()
+        g = gate(rec)
+        tick(g, 0.0, task=False)
+        assert g.state == TaskGate.IDLE  # the tree has a task node that was not reached
+        g.tree_has_task = False
+        tick(g, 0.1, task=False)
+        assert g.state == TaskGate.RUNNING
+
+    def test_periodic_frames_fall_due_exactly_at_their_time(self) -> None:
+        rec = Recorder()
+        g = gate(rec)
+        tick(g, 0.0)
+        assert rec.frames == [("task", "Enable")]
+        g.service(0.019)
+        g.service(0.02)
+        assert rec.frames == [("task", "Enable")] * 2
+        g.stop(0.03, reason="x")
+        g.service(0.079)
+        g.service(0.08)
+        assert rec.frames[-2:] == [("stop", "Estop"), ("stop", "Estop")]
+        assert g.stopped_total(0.09) == pytest.approx(0.06)
