@@ -21,6 +21,7 @@ DATA = REPO / "tests" / "data" / "palette"
 PALETTE = DATA / "nav_nodes.xml"
 NAVIGATE = DATA / "navigate.xml"
 DECLARED = ("ComputePathToPose", "FollowPath", "GoalUpdated", "RateController", "PipelineSequence")
+"""The declared nodes navigate.xml uses (the palette declares one more, PersistentSequence)."""
 
 
 def run(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, str]:
@@ -63,7 +64,7 @@ class TestValidation:
         ('planner_id="GridBased"/>', 'planner_id="GridBased" tolerance="0.5"/>', 6,
          "unknown port 'tolerance'; ports of ComputePathToPose: goal, planner_id, path"),
         ('<FollowPath path="{path}" controller_id="FollowPath"/>', '<FollowPath controller_id="FollowPath"/>', 12,
-         "missing required port path (declared without a default)"),
+         'missing required port path (declared required="true")'),
         ("<GoalUpdated/>", "<GoalUpdated><AlwaysSuccess/></GoalUpdated>", 10,
          "condition nodes take no children, found 1"),
         ("</RateController>", "<AlwaysSuccess/></RateController>", 5, "a decorator takes exactly one child, found 2"),

@@ -15,8 +15,10 @@ A palette is what Groot2 and BT.CPP's ``writeTreeNodesModelXML`` write (Nav2 shi
     </root>
 
 It may sit inside the tree file or come from ``--nodes FILE``. The tree is then
-validated against it: an unknown node ID, an unknown port, a declared input port
-without default left out, the wrong number of children — each with its file:line.
+validated against it: an unknown node ID, an unknown port, the wrong number of
+children, a port declared ``required="true"`` left out — each with its file:line.
+(BT.CPP's palettes do not say which ports are required: a port without ``default``
+may still be optional, as most of Nav2's are.)
 Declaring a node does not make canguard able to run it: running needs a config
 action or a ``canguard.nodes`` plug-in of that ID (:func:`unbound`).
 """
@@ -34,7 +36,8 @@ from canguard.errors import TreeError
 KINDS = ("Action", "Condition", "Decorator", "Control", "SubTree")
 """The node kinds a ``<TreeNodesModel>`` may declare (BT.CPP's ``toStr(NodeType)``)."""
 
-DIRECTIONS = {"input_port": "input", "output_port": "output", "inout_port": "inout"}
+DIRECTIONS = {"input_port": "input", "output_port": "output", "inout_port": "inout", "bidirectional_port": "inout"}
+"""Port elements and their direction (``bidirectional_port``: Groot2's and Nav2's name for inout)."""
 
 Where = tuple[Path, int]
 
@@ -49,11 +52,10 @@ class PalettePort:
     default: str | None
     type: str
     description: str
-
-    @property
-    def required(self) -> bool:
-        """An input (or inout) port without a default must be given."""
-        return self.direction != "output" and self.default is None
+    required: bool = False
+    """BT.CPP's palettes have no notion of a required port (a port without ``default`` may
+    still be optional: Nav2's are); ``required="true"`` on the port element (a canguard
+    extension) makes leaving it out an error."""
 
 
 @dataclass(frozen=True)
@@ -122,8 +124,9 @@ def read_model(model: ET.Element, where: Mapping[ET.Element, Where], path: Path,
             if name in ports:
                 problems.append(f"{pfile}:{pline}: port {name!r} of {node_id} declared twice")
                 continue
+            required = port.attrib.get("required", "").strip().lower() in ("true", "1")
             ports[name] = PalettePort(name, direction, port.attrib.get("default"), port.attrib.get("type", ""),
-                                      (port.text or "").strip())
+                                      (port.text or "").strip(), required and direction != "output")
         palette.add(PaletteNode(node_id, decl.tag, ports, file, line), problems)
 
 
@@ -170,7 +173,7 @@ def check_node(elem: ET.Element, decl: PaletteNode, at: str, tree_id: str) -> li
             problems.append(f"{head}: unknown port {attr!r}; ports of {elem.tag}: {listing}")
     missing = [p.name for p in decl.ports.values() if p.required and p.name not in elem.attrib]
     if missing:
-        problems.append(f"{head}: missing required port {', '.join(missing)} (declared without a default)")
+        problems.append(f"{head}: missing required port {', '.join(missing)} (declared required=\"true\")")
     n = len(elem)
     if decl.kind in ("Action", "Condition", "SubTree") and n:
         problems.append(f"{head}: {decl.kind.lower()} nodes take no children, found {n}")
