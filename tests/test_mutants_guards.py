@@ -38,6 +38,24 @@ class TestPortErrorsInPortWords:
          "continuous_current", "continuous_current must be a finite number > 0, got -10.0"),
         ('<IsI2tSafe topic_name="/battery_state" continuous_current="10" recover_fraction="1.5"/>',
          "recover_fraction", "recover_fraction must be > 0 and < 1, got 1.5"),
+        ('<IsI2tSafe topic_name="/battery_state" continuous_current="10" k="0"/>',
+         "k", "must be a finite number > 0, got 0.0"),
+        ('<IsI2tSafe topic_name="/battery_state" continuous_current="10" peak_current="30"/>',
+         "peak_time", "required with peak_current (a datasheet peak is a current and a time)"),
+        ('<IsI2tSafe topic_name="/battery_state" continuous_current="10" k="1.6"/>',
+         "peak_current", "required when k >= 1.5 (the derived peak 15 A = 1.5 × continuous_current must exceed "
+                         "I_cont = k × continuous_current = 16 A)"),
+        ('<IsI2tSafe topic_name="/battery_state" model="thermal" continuous_current="10" tau="-1"/>',
+         "tau", "tau must be a finite number > 0, got -1.0"),
+        ('<IsCurrentSafe topic_name="/battery_state" overcurrent_threshold="10" recovery_threshold="5" '
+         'inrush_time="0.5"/>', "start_current", "required when inrush_time > 0 (|I| of a motor start)"),
+        ('<IsCurrentSafe topic_name="/battery_state" overcurrent_threshold="10" recovery_threshold="5" '
+         'recover_after="-2"/>', "recover_after", "recover_after must be a finite number >= 0, got -2.0"),
+        ('<IsCurrentSafe topic_name="/battery_state" overcurrent_threshold="10" recovery_threshold="5" '
+         'inrush_time="0.5" start_current="-1"/>', "start_current",
+         "start_current must be a finite number >= 0, got -1.0"),
+        ('<IsCurrentSafe topic_name="/nope" overcurrent_threshold="10" recovery_threshold="5"/>',
+         "topic_name", "unknown source '/nope'"),
     ])
     def test_the_error_names_the_port(self, tmp_path: Path, node: str, port: str, message: str) -> None:
         text = load_error(tmp_path, node)
