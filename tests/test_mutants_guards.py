@@ -96,3 +96,43 @@ class TestEvents:
         rig.battery(12.5)
         rig.tick()
         assert rig.node("Pack").feedback_message == "overcurrent: current |12.5| (threshold 10)"
+
+
+class TestI2tAndDynamic:
+    def test_i2t_trip_speaks_of_heat_and_writes_the_level(self, tmp_path: Path) -> None:
+        rig = Rig()
+        rig.load_text(tmp_path, xml_tree(
+            '<ReactiveSequence><IsI2tSafe name="Heat" topic_name="/battery_state" continuous_current="10" '
+            'peak_current="20" peak_time="1" level="{heat}"/><ExecuteTask/></ReactiveSequence>'))
+        for _ in range(30):  # 20 A: (400 - 100) A²s per second against a trip level of 300 A²s
+            rig.battery(20.0)
+            rig.tick()
+            rig.advance(0.05)
+        [trip] = [e for e in rig.trips() if e["event"] == "trip"]
+        assert trip["reason"] == "i2t" and trip["node"] == "Heat" and trip["threshold"] == 300.0
+        assert trip["value"] >= 300.0  # the heat (A²s) against the trip level, like with like
+        feedback = rig.node("Heat").feedback_message
+        assert feedback.startswith("i2t: heat ") and feedback.endswith("of trip level 300 (current |20|)")
+        from py_trees.blackboard import Blackboard
+
+        assert Blackboard.storage["/heat"] >= 100.0
+
+    def test_a_threshold_from_the_blackboard_is_used_and_a_bad_one_fails_safe(self, tmp_path: Path) -> None:
+        from py_trees.blackboard import Blackboard
+
+        rig = Rig()
+        rig.load_text(tmp_path, xml_tree(
+            '<ReactiveSequence><IsCurrentNormal name="Pack" topic_name="/battery_state" max_current="{limit}"/>'
+            "<ExecuteTask/></ReactiveSequence>"))
+        Blackboard.storage["/limit"] = 10.0
+        rig.battery(12.0)
+        assert rig.tick().name == "FAILURE"
+        Blackboard.storage["/limit"] = 20.0
+        rig.advance(0.01)
+        rig.battery(12.0)
+        assert rig.tick().name == "RUNNING"
+        Blackboard.storage["/limit"] = -5.0
+        rig.advance(0.01)
+        rig.battery(1.0)
+        assert rig.tick().name == "FAILURE"
+        assert rig.node("Pack").reason == "bad_threshold"
