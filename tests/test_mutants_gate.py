@@ -317,3 +317,73 @@ class TestMore:
         g.service(0.08)
         assert rec.frames[-2:] == [("stop", "Estop"), ("stop", "Estop")]
         assert g.stopped_total(0.09) == pytest.approx(0.06)
+
+
+class TestSinkOutput:
+    def test_emit_lines_are_candump_with_the_bus_channel_extended_and_fd(self) -> None:
+        import io
+
+        from canguard.config.schema import BusConfig
+
+        out = io.StringIO()
+        sink = LogSink(lambda: 1.5, {"main": BusConfig("main", {"interface": "virtual", "channel": "can3"})},
+                       out=out, keep=False)
+        sink.send((FrameSpec("main", 0x18FF50E5, b"\x01\x02", is_extended_id=True, label="Ext"),), "task")
+        sink.send((FrameSpec("other", 0x123, bytes(12), is_fd=True, label="Fd"),), "stop")
+        assert sink.sent == 2 and sink.frames == []
+        assert out.getvalue() == ("(1.500000) can3 18FF50E5#0102\n"
+                                  "(1.500000) other 123##0" + "00" * 12 + "\n")
+
+    def test_bus_sink_hands_over_extended_and_fd_and_logs_which_frame(self, caplog: pytest.LogCaptureFixture) -> None:
+        import logging
+
+        got: list[tuple[bool, bool]] = []
+
+        def send(bus: str, msg: Any) -> bool:
+            got.append((msg.is_extended_id, msg.is_fd))
+            return bus == "main"
+
+        sink = BusSink(send)
+        frames = (FrameSpec("main", 0x18FF50E5, b"\x01", is_extended_id=True, label="A"),
+                  FrameSpec("main", 0x1, bytes(12), is_fd=True, label="B"),
+                  FrameSpec("gone", 0x2, b"", label="C"))
+        caplog.set_level(logging.WARNING, logger="canguard.engine.gate")
+        sink.send(frames, "stop")
+        assert got == [(True, False), (False, True), (False, False)]
+        assert (sink.sent, sink.failed) == (2, 1)
+        assert [r.getMessage() for r in caplog.records] == ["could not send C (stop) on bus gone"]
+
+
+class TestScheduleAndConfirm:
+    def test_task_frames_keep_their_grid_and_restart_after_a_late_service(self) -> None:
+        rec = Recorder()
+        g = gate(rec)
+        tick(g, 0.0)
+        assert g.next_deadline() == pytest.approx(0.02)
+        g.service(0.021)  # a little late: the next stays on the grid
+        assert g.next_deadline() == pytest.approx(0.04)
+        g.service(0.1)  # far behind: restart from now, no burst
+        assert g.next_deadline() == pytest.approx(0.12)
+        assert len(rec.frames) == 3
+
+    def test_not_equal_compares_the_value_itself(self) -> None:
+        rec = Recorder()
+        g, h = TestConfirm().setup(rec, "!=", 1.0)
+        g.stop(1.0, reason="x")
+        h.observe(Sample("axis0", "current", -1.0, 1.05))  # |-1| == 1, but -1 != 1: confirmed
+        g.service(1.06)
+        assert rec.named("confirmed")
+
+    def test_only_the_confirm_signal_must_be_fresh(self) -> None:
+        ref_i = SignalRef("current", "main", "M", 0x1, False, "I", "A", None, None)
+        ref_v = SignalRef("voltage", "main", "M", 0x2, False, "V", "V", None, None)
+        h = SourceHealth(SourceConfig("axis0", "current", "main", (ref_i, ref_v), 0.5))
+        rec = Recorder()
+        g = TaskGate(TaskConfig(0.02, TASK),
+                     StopConfig(0.05, STOP, StopConfirm("axis0", "current", "<", 1.0, 0.5)),  # type: ignore[arg-type]
+                     rec, health={"axis0": h}, on_event=rec.on_event)
+        h.observe(Sample("axis0", "voltage", 48.0, 0.0))  # stale by 1.2
+        g.stop(1.0, reason="x")
+        h.observe(Sample("axis0", "current", 0.2, 1.1))
+        g.service(1.2)
+        assert rec.named("confirmed") and not rec.named("escalate")
