@@ -136,3 +136,32 @@ class TestI2tAndDynamic:
         rig.battery(1.0)
         assert rig.tick().name == "FAILURE"
         assert rig.node("Pack").reason == "bad_threshold"
+
+
+class TestInrushAndDefaults:
+    def test_the_inrush_threshold_port_is_in_force_during_a_start(self, tmp_path: Path) -> None:
+        rig = Rig()
+        rig.load_text(tmp_path, xml_tree(
+            '<ReactiveSequence><IsCurrentSafe name="Pack" topic_name="/battery_state" overcurrent_threshold="10" '
+            'recovery_threshold="5" inrush_time="0.5" start_current="2" inrush_threshold="40"/>'
+            "<ExecuteTask/></ReactiveSequence>"))
+        for _ in range(6):  # quiet for 0.5 s
+            rig.battery(0.0)
+            rig.tick()
+            rig.advance(0.1)
+        rig.battery(30.0)  # a motor start: 30 A is under the inrush threshold (40 A)
+        assert rig.tick().name == "RUNNING"
+        rig.advance(0.6)  # the window is over: 30 A is an overcurrent again
+        rig.battery(30.0)
+        assert rig.tick().name == "FAILURE"
+
+    def test_thresholds_on_keys_not_written_yet_use_the_defaults(self, tmp_path: Path) -> None:
+        rig = Rig()
+        rig.load_text(tmp_path, xml_tree(
+            '<ReactiveSequence><IsCurrentSafe name="Pack" topic_name="/battery_state" '
+            'overcurrent_threshold="{over}" recovery_threshold="{rec}"/><ExecuteTask/></ReactiveSequence>'))
+        rig.battery(34.5)  # the keys hold nothing yet: the ports' defaults, 35 / 25 A
+        assert rig.tick().name == "RUNNING"
+        rig.advance(0.01)
+        rig.battery(35.5)
+        assert rig.tick().name == "FAILURE" and rig.trips()[-1]["threshold"] == 35.0
