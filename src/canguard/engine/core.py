@@ -116,6 +116,8 @@ class Engine(SourceWatchMixin, LogRunMixin):
         self.root: py_trees.behaviour.Behaviour = self.loaded.root
         self._guards = self.loaded.guards()
         self._guard_nodes = self.loaded.guard_nodes()
+        self._cover: list[Any] = []
+        """The guards ticked when the task last started: they must keep being ticked (see _watch_guards)."""
         self.gate.explain = self._explain
         from canguard.bt.nodes.actions import assign_roles
 
@@ -321,7 +323,9 @@ class Engine(SourceWatchMixin, LogRunMixin):
                 self.gate.stop(now, reason=f"tree failed at {node}" + (f": {detail}" if detail else ""), node=node)
             cause = self._failure_cause(node)
         # The one place a stop may end (TaskGate._release_rule), and task action frames go out or are withheld.
+        was_running = self.gate.state == TaskGate.RUNNING
         self.gate.end_tick(now, failed, cause)
+        self._watch_guards(now, was_running)
         self._sample_levels()
         if self.tick_hook is not None:
             self.tick_hook(now)

@@ -28,6 +28,9 @@ class SourceWatchMixin:
         _stale: dict[str, str]
         _started_at: float
         _start_grace_s: float
+        _guard_nodes: list[Any]
+        _cover: list[Any]
+        period_s: float
 
         def _event(self, event: dict[str, Any]) -> None: ...
         def _flush(self) -> None: ...
@@ -64,6 +67,30 @@ class SourceWatchMixin:
             if self.metrics is not None:
                 age = health.age(now, None) if hasattr(health, "age") else math.nan
                 self.metrics.set_sample_age(name, age)
+
+    def _watch_guards(self, now: float, was_running: bool) -> None:
+        """Every guard of the tree must keep being ticked while the task runs (safety table row T4).
+
+        A tree can leave its guards behind while the task runs (a RunOnce around a guard, a
+        branch the tree stopped visiting): the models still see every sample, but no failure
+        can reach the tree. When a guard has not been ticked for longer than its source's
+        ``max_age`` (a tick period at least) while the task runs, the task is held stopped
+        (an inhibit, ``guards``, the stop event naming the guards) until every guard is
+        ticked again. Conservative on purpose: a guard in a branch the running tree does not
+        visit stops the task too — guards belong where every tick reaches them (design note 004).
+        """
+        gate = self.gate
+        if gate.state == TaskGate.RUNNING and not was_running:
+            self._cover = list(self._guard_nodes)
+        left = [
+            g for g in self._cover
+            if g.source is not None and now - g.judged_t > max(g.source.max_age_s, self.period_s)
+        ]
+        if left and gate.state == TaskGate.RUNNING:
+            names = ", ".join(g.name for g in left)
+            gate.inhibit("guards", f"guards not ticked while the task runs: {names}", now, node=left[0].name)
+        elif "guards" in gate.inhibits and all(g.judged_t == now for g in self._cover):
+            gate.release("guards")
 
     def _sample_levels(self) -> None:
         levels = self.stats.max_level_pct

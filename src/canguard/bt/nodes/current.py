@@ -61,6 +61,8 @@ class GuardNode(CanguardNode, py_trees.behaviour.Behaviour):
         """The status of the last tick as a bool (None before the first tick)."""
         self.reason = ""
         """Why the last tick failed ("" when it succeeded)."""
+        self.judged_t = math.nan
+        """When the guard was last ticked (the engine checks that the guards of a running task still are)."""
 
     @property
     def topic_name(self) -> str:
@@ -105,6 +107,7 @@ class GuardNode(CanguardNode, py_trees.behaviour.Behaviour):
         state: SUCCESS or FAILURE, with status changes journalled. ``value`` overrides the
         snapshot's value in events."""
         assert self.health is not None
+        self.judged_t = now
         if not reason:
             reason = self.health.reason(now, self.ROLE)
             if not reason and snap.tripped:
