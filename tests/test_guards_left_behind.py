@@ -10,9 +10,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from test_engine import T0, Rig
-
 from canguard.engine.gate import TaskGate
+from test_engine import T0, Rig
 
 LEFT_BEHIND = """<root BTCPP_format="4" main_tree_to_execute="M">
   <BehaviorTree ID="M">
