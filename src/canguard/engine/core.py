@@ -222,6 +222,8 @@ class Engine(SourceWatchMixin, LogRunMixin):
             self.advance(t)
         self._drive_clock(t)  # replay: log time drives the clock; live clocks ignore it
         self.stats.frames += 1
+        if frame.is_error_frame:
+            self.controller_state(bus, frame)
         edge = False
         dispatch = self.ctx.dispatch
         max_abs = self.stats.max_abs

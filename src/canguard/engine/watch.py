@@ -14,6 +14,14 @@ if TYPE_CHECKING:
     from canguard.io.clock import PinnedClock
 
 
+CAN_ERR_CRTL = 0x004
+"""linux/can/error.h: the error class of controller problems (the state is in data[1])."""
+CAN_ERR_CRTL_RX_PASSIVE = 0x10
+CAN_ERR_CRTL_TX_PASSIVE = 0x20
+CAN_ERR_CRTL_ACTIVE = 0x40
+"""The controller is back to error-active."""
+
+
 class SourceWatchMixin:
     """Source freshness and bus health as stops (inhibits), independent of what the tree says."""
 
@@ -109,9 +117,35 @@ class SourceWatchMixin:
         self._due = min(self._due, self.gate.next_deadline())
         self._flush()
 
+    def controller_state(self, bus: str, frame: Any) -> None:
+        """An error frame's controller report (SocketCAN's ``CAN_ERR_CRTL`` class): error-passive holds the task.
+
+        A controller in error-passive has seen so many errors that its frames, our stop frames
+        among them, may no longer get through: journalled (``bus_error``) and the task is held
+        stopped (inhibit ``bus NAME passive``) until the controller reports it is error-active
+        again (``CAN_ERR_CRTL_ACTIVE``, sent by Linux since 5.x) or the bus is reopened.
+        """
+        if not frame.arbitration_id & CAN_ERR_CRTL or len(frame.data) < 2:
+            return
+        state = frame.data[1]
+        key = f"bus {bus} passive"
+        now = self.clock.now()
+        if state & (CAN_ERR_CRTL_RX_PASSIVE | CAN_ERR_CRTL_TX_PASSIVE):
+            if key not in self.gate.inhibits:
+                side = "/".join(s for s, bit in (("rx", CAN_ERR_CRTL_RX_PASSIVE), ("tx", CAN_ERR_CRTL_TX_PASSIVE))
+                                if state & bit)
+                reason = f"bus {bus}: controller error-passive ({side}): frames may not get through"
+                self._event({"event": "bus_error", "source": bus, "reason": reason})
+                self.gate.inhibit(key, reason, now)
+                self._due = min(self._due, self.gate.next_deadline())
+        elif state & CAN_ERR_CRTL_ACTIVE and key in self.gate.inhibits:
+            self._event({"event": "bus_error", "source": bus, "reason": f"bus {bus}: controller error-active again"})
+            self.gate.release(key)
+
     def bus_up(self, bus: str) -> None:
-        """The bus is open again: its inhibit is released (the tree decides whether the task resumes)."""
+        """The bus is open again: its inhibits are released (the tree decides whether the task resumes)."""
         self.gate.release(f"bus {bus}")
+        self.gate.release(f"bus {bus} passive")  # a reopened controller starts error-active
 
     def stale_unstopped(self, now: float) -> list[str]:
         """Sources the tree reads that are stale while the task is not stopped (a blind daemon)."""
