@@ -464,7 +464,7 @@ class TestConfigErrors:
             f"{CFG}: sources.j.kind: found nothing, expected one of battery, joints, current; "
             "known: battery, current, joints",
             f"{CFG}: sources.j.maxage: found unknown key 'maxage', expected one of kind, bus, max_age, "
-            "message, current, signal, present, effort; closest: max_age",
+            "message, current, signal, present, counter, effort; closest: max_age",
             f"{CFG}: sources.j.effort[0].signal: found 'Torque_Estimat', "
             "expected a signal of Axis0_Get_Torques; closest: Torque_Estimate",
         ]

@@ -67,8 +67,8 @@ class SourceConfig:
 
     @property
     def value_roles(self) -> tuple[str, ...]:
-        """The roles that carry values guards check (every role but ``present``)."""
-        return tuple(s.role for s in self.signals if s.role != "present")
+        """The roles that carry values guards check (every role but ``present`` and ``counter``)."""
+        return tuple(s.role for s in self.signals if s.role not in ("present", "counter"))
 
 
 @dataclass(frozen=True)

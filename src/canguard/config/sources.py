@@ -137,9 +137,9 @@ class _Sources(_Checks):
         allowed: tuple[str, ...]
         required: tuple[str, ...]
         if kind == "battery":
-            allowed, required = (*common, "message", "current", "present"), ("message", "current")
+            allowed, required = (*common, "message", "current", "present", "counter"), ("message", "current")
         elif kind == "current":
-            allowed, required = (*common, "message", "signal", "present"), ("message", "signal")
+            allowed, required = (*common, "message", "signal", "present", "counter"), ("message", "signal")
         elif kind == "joints":
             allowed, required = (*common, "effort"), ("effort",)
         else:
@@ -150,7 +150,7 @@ class _Sources(_Checks):
             )
             # Still check what can be checked without the kind: keys of any kind, the bus,
             # max_age, messages and signal names (the source itself is not built).
-            allowed, required = (*common, "message", "current", "signal", "present", "effort"), ()
+            allowed, required = (*common, "message", "current", "signal", "present", "counter", "effort"), ()
         self.mapping(value, key, allowed, required)
         bus = self.bus(value.get("bus"), _path(key, "bus"))
         max_age = self.seconds(value, "max_age", key, 0.5)
@@ -160,11 +160,11 @@ class _Sources(_Checks):
             msg = self.message(value["message"], _path(key, "message")) if "message" in value else None
             roles: tuple[tuple[str, str], ...]
             if kind == "battery":
-                roles = (("current", "current"), ("present", "present"))
+                roles = (("current", "current"), ("present", "present"), ("counter", "counter"))
             elif kind == "current":
-                roles = (("current", "signal"), ("present", "present"))
+                roles = (("current", "signal"), ("present", "present"), ("counter", "counter"))
             else:
-                roles = (("current", "current"), ("current", "signal"), ("present", "present"))
+                roles = (("current", "current"), ("current", "signal"), ("present", "present"), ("counter", "counter"))
             for role, k in roles:
                 if msg is None or k not in value:
                     continue

@@ -69,7 +69,9 @@ class MessagePlan:
         self.signals = {o[2] for o in self.outputs}
         self.multiplexed = bool(message.is_multiplexed())
         self.single = len(self.outputs) == 1 and not self.outputs[0][3]
-        self.passive = readers is not None and all(
+        self.counter = any(role == "counter" for _src, role, *_rest in self.outputs)
+        """An alive counter: every row goes to feed (the counter's full check in SourceHealth.observe)."""
+        self.passive = not self.counter and readers is not None and all(
             not present and source not in readers and not models
             for source, _r, _s, present, _h, _lo, _hi, models in self.outputs
         )
@@ -94,6 +96,8 @@ class MessagePlan:
         holds some configured signals of a multiplexed message but not all.
         """
         n = len(texts)
+        if self.counter:
+            return [None] * n
         size = self.hex_size
         if set(map(len, texts)) == {size}:
             good: list[int] | None = None

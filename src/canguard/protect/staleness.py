@@ -32,6 +32,9 @@ from canguard.io.frame import INVALID_INF, INVALID_NAN, INVALID_RANGE, Sample
 from canguard.protect.base import REASON_NO_DATA, REASON_NOT_PRESENT, REASON_OK, REASON_STALE
 
 PRESENT = "present"
+COUNTER = "counter"
+REASON_FROZEN = "frozen_counter"
+"""The source's alive counter has not changed for longer than ``max_age``: its sender is stuck."""
 """The role of a source's presence signal."""
 
 
@@ -43,6 +46,10 @@ class SourceHealth:
         self.max_age_s = float(source.max_age_s)
         self._value_roles: tuple[str, ...] = source.value_roles
         self._has_present = source.signal(PRESENT) is not None
+        self._counter: float | None = None
+        self._counter_since = math.nan
+        """When the alive counter last changed (its first sample counts as a change)."""
+        self._frozen = False
         self._ranges: dict[str, tuple[float | None, float | None]] = {
             s.role: (s.minimum, s.maximum)
             for s in source.signals
@@ -111,6 +118,7 @@ class SourceHealth:
             not bad
             and latest is not None
             and role != PRESENT
+            and role != COUNTER
             and t - latest <= self.max_age_s
             and not self._invalid.get(role)
         ):
@@ -122,6 +130,11 @@ class SourceHealth:
             self._valid_t[role] = t
             return False
         before = self.reason(t)
+        if role == COUNTER and not bad:
+            value = float(sample.value)
+            if value != self._counter:
+                self._counter, self._counter_since = value, t
+            self._frozen = t - self._counter_since > self.max_age_s
         self._latest_t[role] = t
         self._invalid[role] = bad
         if bad:
@@ -155,6 +168,8 @@ class SourceHealth:
         and returns the first reason found. A named role is checked together
         with presence when the source has a ``present`` signal.
         """
+        if self._frozen:
+            return REASON_FROZEN
         if now - self._ok_since <= self.max_age_s:
             return REASON_OK
         if self._has_present:
