@@ -165,3 +165,20 @@ class TestInrushAndDefaults:
         rig.advance(0.01)
         rig.battery(35.5)
         assert rig.tick().name == "FAILURE" and rig.trips()[-1]["threshold"] == 35.0
+
+
+class TestI2tBoundaries:
+    def test_continuous_current_boundaries(self, tmp_path: Path) -> None:
+        text = load_error(tmp_path, '<IsI2tSafe topic_name="/battery_state" continuous_current="0"/>')
+        assert "port continuous_current: continuous_current must be a finite number > 0, got 0.0" in text
+        rig = Rig()  # 1 A is a valid rating (small drives)
+        rig.load_text(tmp_path, xml_tree('<ReactiveSequence><IsI2tSafe topic_name="/battery_state" '
+                                         'continuous_current="1"/><ExecuteTask/></ReactiveSequence>'))
+
+    def test_a_leaky_model_ignores_tau_and_derives_its_peak(self, tmp_path: Path) -> None:
+        rig = Rig()
+        rig.load_text(tmp_path, xml_tree('<ReactiveSequence><IsI2tSafe name="Heat" topic_name="/battery_state" '
+                                         'model="leaky" continuous_current="10" tau="30"/><ExecuteTask/>'
+                                         "</ReactiveSequence>"))
+        model = rig.node("Heat").model
+        assert model.peak_a == 15.0 and model.peak_time_s == 120.0  # 1.5 x rating for 120 s (IEC 60034-1)
