@@ -79,6 +79,8 @@ def _refuse_unsupported(args: argparse.Namespace) -> None:
     refused = []
     if getattr(args, "plot", None) is not None:
         refused.append("--plot")
+    if getattr(args, "export_signals", None) is not None:
+        refused.append("--export-signals")
     if getattr(args, "baseline", None) is not None:
         refused.append("--baseline")
     if getattr(args, "jobs", 1) > 1:

@@ -38,6 +38,7 @@ from canguard.errors import CanguardError, ConfigError
 from canguard.io.clock import ManualClock
 from canguard.io.frame import Frame
 from canguard.io.logtypes import COMPRESSIONS
+from canguard.report.export import combine_parts, discard_parts, part_path
 from canguard.report.summary import SUMMARY_VERSION, build_summary, compare_baseline, render_text
 
 __all__ = ["SUMMARY_VERSION", "ReplayOptions", "build_summary", "compare_baseline", "render_text", "replay_one"]
@@ -54,6 +55,10 @@ class ReplayOptions:
     state: Path | None = None
     plot: Path | None = None
     progress: bool = False
+    export: Path | None = None
+    """``--export-signals``: this log's part file (see :mod:`canguard.report.export`)."""
+    export_log: str = ""
+    """The ``log`` column of its rows: the log as the user named it."""
 
 
 def replay_one(cfg: Config, log_path: Path, opts: ReplayOptions) -> dict[str, Any]:
@@ -89,6 +94,11 @@ def replay_one(cfg: Config, log_path: Path, opts: ReplayOptions) -> dict[str, An
             from canguard.report.plot import Recorder
 
             recorder = Recorder(engine)
+        if opts.export is not None:
+            from canguard.report.export import SignalExport
+
+            # After the recorder: the export passes every sample on to it.
+            stack.callback(SignalExport(engine, opts.export, opts.export_log or str(log_path)).close)
         try:
             engine.run_log(frames, router.table, router.only, router.unmapped,
                            router.channels if router.only is not None else None)
@@ -140,6 +150,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         "(default: cold); the file is only read")
     p.add_argument("--plot", type=Path, metavar="FILE",
                    help="plot currents, thresholds, I²t and stops (.png/.svg/.html)")
+    p.add_argument("--export-signals", type=Path, metavar="FILE.parquet", default=None,
+                   help="write every decoded sample (log, t, bus, source, signal, value, reason) to a Parquet "
+                        "file, one for all logs (extra 'fleet'; slower than a plain replay)")
     p.add_argument("--jobs", type=int, default=1, metavar="N", help="replay several logs in N processes")
     p.add_argument("--dask", metavar="SCHEDULER", default=None,
                    help="replay the logs on a Dask distributed cluster (tcp://host:8786; extra 'fleet')")
@@ -220,6 +233,10 @@ def cmd_replay(args: argparse.Namespace) -> int:
     from canguard.cli.fleet import expand_logs
 
     args.logs = expand_logs(args.logs)
+    if args.export_signals is not None and args.realtime is None:
+        from canguard.report.export import check_export
+
+        check_export(args.export_signals, dask=args.dask is not None)
     if args.dask is not None and args.realtime is not None:
         raise ConfigError("replay: --dask and --realtime do not go together (a realtime replay plays one log live)")
     if args.logs.count(Path("-")) > 1:
@@ -232,6 +249,20 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
             return replay_realtime(cfg, args)
         return _replay_offline(cfg, cfg_path, args, names)
+
+
+def _run_jobs(args: argparse.Namespace, jobs: list[tuple[Config | Path, Path, ReplayOptions]],
+              pool: bool) -> list[tuple[dict[str, Any] | None, str]]:
+    """Every job's (summary, error), in input order: on Dask, in ``--jobs`` processes or here."""
+    if args.dask is not None:
+        from canguard.cli.fleet import run_dask
+
+        return run_dask(args.dask, _job, jobs)
+    if pool:
+        from canguard.cli.fleet import run_processes
+
+        return run_processes(args.jobs, _job, jobs)
+    return [_job(j) for j in jobs]
 
 
 def _replay_offline(cfg: Config, cfg_path: Path, args: argparse.Namespace, names: list[Path]) -> int:
@@ -249,18 +280,19 @@ def _replay_offline(cfg: Config, cfg_path: Path, args: argparse.Namespace, names
             emit=per_log_path(args.emit, name, many), skip_bad=args.skip_bad, state=args.state,
             plot=per_log_path(args.plot, name, many),
             progress=sys.stderr.isatty() and args.jobs <= 1 and args.dask is None,
+            export=None if args.export_signals is None else part_path(args.export_signals, len(jobs)),
+            export_log=str(name),
         )
         jobs.append((job_cfg, log, opts))
-    if args.dask is not None:
-        from canguard.cli.fleet import run_dask
-
-        results = run_dask(args.dask, _job, jobs)
-    elif pool:
-        from canguard.cli.fleet import run_processes
-
-        results = run_processes(args.jobs, _job, jobs)
-    else:
-        results = [_job(j) for j in jobs]
+    try:
+        results = _run_jobs(args, jobs, pool)
+    except BaseException:
+        discard_parts([opts.export for _, _, opts in jobs])
+        raise
+    if args.export_signals is not None:
+        # In input order; a log that failed contributes no rows (its part may be cut short).
+        combine_parts(args.export_signals, [None if summary is None else opts.export
+                                            for (summary, _), (_, _, opts) in zip(results, jobs, strict=True)])
     if args.fleet_summary is not None:
         from canguard.report.fleet import fleet_row, write_fleet_summary
 

@@ -1,0 +1,184 @@
+"""``replay --export-signals FILE.parquet``: every decoded sample, as a table for pandas / polars.
+
+:class:`SignalExport` hangs on :attr:`Engine.sample_hook <canguard.engine.core.Engine.sample_hook>`
+and sees every sample the engine's models see (valid or not, ``present`` and
+``counter`` roles included). It buffers :data:`BATCH_ROWS` rows, then hands them to a
+:class:`pyarrow.parquet.ParquetWriter` as one record batch (one row group): memory
+stays flat in the log's length.
+
+Each log is written to its own part file next to the target (:func:`part_path`);
+:func:`combine_parts` then renames the only part into place, or copies several, row
+group by row group, into the one file in input order. A ``--jobs`` worker writes its
+log's part like the main process does. pyarrow is an optional extra (``fleet``):
+:func:`require_pyarrow` says how to get it, and nothing here imports it at module level.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from canguard.errors import ConfigError
+
+if TYPE_CHECKING:
+    from canguard.engine.core import Engine
+    from canguard.io.frame import Sample
+
+FLAG = "--export-signals"
+COLUMNS = ("log", "t", "bus", "source", "signal", "value", "reason")
+"""The exported columns, in order."""
+BATCH_ROWS = 65_536
+"""Rows buffered before they are written as one record batch (a Parquet row group)."""
+OUT_OF_RANGE = "out_of_range"
+
+
+def require_pyarrow() -> tuple[Any, Any]:
+    """``(pyarrow, pyarrow.parquet)``, or a ConfigError (exit 2) naming the flag and the extra."""
+    try:
+        import pyarrow as pa
+        import pyarrow.parquet as pq
+    except ImportError:
+        raise ConfigError(f"{FLAG}: writing Parquet needs pyarrow, an optional extra: "
+                          "pip install 'canguard[fleet]' (or pip install pyarrow)") from None
+    return pa, pq
+
+
+def schema(pa: Any) -> Any:
+    """The Parquet schema of the export."""
+    text, real = pa.string(), pa.float64()
+    types = {"log": text, "t": real, "bus": text, "source": text, "signal": text, "value": real, "reason": text}
+    return pa.schema([(c, types[c]) for c in COLUMNS])
+
+
+def check_export(path: Path, *, dask: bool = False) -> None:
+    """Everything ``--export-signals`` needs, checked before any log is replayed (ConfigError: exit 2)."""
+    if dask:
+        raise ConfigError(f"{FLAG} cannot be combined with --dask: the workers of a cluster cannot write "
+                          f"beside {path} on this machine; use --jobs N (local processes) instead")
+    require_pyarrow()
+    check_writable(path)
+
+
+def check_writable(path: Path) -> None:
+    """ConfigError (exit 2) naming ``path`` when the export cannot be written there; leaves nothing behind."""
+    if path.is_dir():
+        raise ConfigError(f"{FLAG} {path}: is a directory, expected a file name such as signals.parquet")
+    existed = path.exists()
+    try:
+        with open(path, "ab"):
+            pass
+        probe = part_path(path, 0)
+        with open(probe, "wb"):
+            pass  # the parts are written beside the target: that directory must take new files
+        probe.unlink()
+    except OSError as exc:
+        raise ConfigError(f"{FLAG} {path}: cannot be written ({exc.strerror or exc})") from None
+    finally:
+        if not existed and path.exists() and path.stat().st_size == 0:
+            path.unlink()
+
+
+def part_path(path: Path, index: int) -> Path:
+    """Where log number ``index`` of the run writes its rows before :func:`combine_parts`."""
+    return path.with_name(f".{path.name}.part{index}")
+
+
+class SignalExport:
+    """Streams every sample an engine decodes into one Parquet file, in bounded memory."""
+
+    def __init__(self, engine: Engine, path: Path, log: str, *, batch_rows: int = BATCH_ROWS) -> None:
+        self.pa, pq = require_pyarrow()
+        self.path = path
+        self.log = log
+        self.batch_rows = batch_rows
+        self.rows = 0
+        self._schema = schema(self.pa)
+        self._writer = pq.ParquetWriter(path, self._schema)
+        self._bus = {name: src.bus for name, src in engine.cfg.sources.items()}
+        # The DBC [min|max] the source's health checks: a value outside is rejected as out_of_range
+        # by the models although the decoder passed it (the decoder does not check ranges).
+        self._ranges = {name: health.ranges for name, health in engine.ctx.health.items()}
+        self._clear()
+        previous = engine.sample_hook  # --plot's recorder, when there is one: both see every sample
+        self._previous: Callable[[Any], None] | None = previous
+        engine.sample_hook = self._sample
+
+    def _clear(self) -> None:
+        self._t: list[float] = []
+        self._source: list[str] = []
+        self._signal: list[str] = []
+        self._value: list[float] = []
+        self._reason: list[str] = []
+
+    def _sample(self, s: Sample) -> None:
+        if self._previous is not None:
+            self._previous(s)
+        reason = s.reason
+        value = s.value
+        if not reason and not math.isnan(value):
+            lo, hi = self._ranges.get(s.source, {}).get(s.signal, (None, None))
+            if (lo is not None and value < lo) or (hi is not None and value > hi):
+                reason = OUT_OF_RANGE
+        self._t.append(s.t)
+        self._source.append(s.source)
+        self._signal.append(s.signal)
+        self._value.append(value)
+        self._reason.append(reason)
+        if len(self._t) >= self.batch_rows:
+            self._flush()
+
+    def _flush(self) -> None:
+        n = len(self._t)
+        if not n:
+            return
+        pa = self.pa
+        bus = self._bus
+        columns = [
+            pa.array([self.log] * n, pa.string()),
+            pa.array(self._t, pa.float64()),
+            pa.array([bus.get(s, "") for s in self._source], pa.string()),
+            pa.array(self._source, pa.string()),
+            pa.array(self._signal, pa.string()),
+            pa.array(self._value, pa.float64()),
+            pa.array(self._reason, pa.string()),
+        ]
+        self._writer.write_batch(pa.RecordBatch.from_arrays(columns, schema=self._schema))
+        self.rows += n
+        self._clear()
+
+    def close(self) -> None:
+        """Write what is buffered and close the file (a valid Parquet file even with no rows)."""
+        self._flush()
+        self._writer.close()
+
+
+def discard_parts(parts: Sequence[Path | None]) -> None:
+    """Remove the part files that exist (a run that did not finish leaves nothing behind)."""
+    for p in parts:
+        if p is not None and p.exists():
+            p.unlink()
+
+
+def combine_parts(path: Path, parts: Sequence[Path | None]) -> int:
+    """Put the parts (in order; None: a log that failed) into ``path``; remove them; the rows written."""
+    kept = [p for p in parts if p is not None and p.exists()]
+    pa, pq = require_pyarrow()
+    try:
+        if len(kept) == 1:
+            rows = int(pq.ParquetFile(kept[0]).metadata.num_rows)
+            os.replace(kept[0], path)
+            return rows
+        rows = 0
+        with pq.ParquetWriter(path, schema(pa)) as writer:
+            for part in kept:
+                source = pq.ParquetFile(part)
+                for i in range(source.num_row_groups):  # one row group at a time: memory stays flat
+                    table = source.read_row_group(i)
+                    writer.write_table(table)
+                    rows += table.num_rows
+        return rows
+    finally:
+        discard_parts(parts)
