@@ -291,8 +291,8 @@ def _replay_offline(cfg: Config, cfg_path: Path, args: argparse.Namespace, names
         raise
     if args.export_signals is not None:
         # In input order; a log that failed contributes no rows (its part may be cut short).
-        combine_parts(args.export_signals, [None if summary is None else opts.export
-                                            for (summary, _), (_, _, opts) in zip(results, jobs, strict=True)])
+        combine_parts(args.export_signals, [opts.export for _, _, opts in jobs if opts.export is not None],
+                      [summary is not None for summary, _ in results])
     if args.fleet_summary is not None:
         from canguard.report.fleet import fleet_row, write_fleet_summary
 

@@ -89,11 +89,11 @@ def part_path(path: Path, index: int) -> Path:
 class SignalExport:
     """Streams every sample an engine decodes into one Parquet file, in bounded memory."""
 
-    def __init__(self, engine: Engine, path: Path, log: str, *, batch_rows: int = BATCH_ROWS) -> None:
+    def __init__(self, engine: Engine, path: Path, log: str, *, batch_rows: int | None = None) -> None:
         self.pa, pq = require_pyarrow()
         self.path = path
         self.log = log
-        self.batch_rows = batch_rows
+        self.batch_rows = batch_rows or BATCH_ROWS
         self.rows = 0
         self._schema = schema(self.pa)
         self._writer = pq.ParquetWriter(path, self._schema)
@@ -162,9 +162,9 @@ def discard_parts(parts: Sequence[Path | None]) -> None:
             p.unlink()
 
 
-def combine_parts(path: Path, parts: Sequence[Path | None]) -> int:
-    """Put the parts (in order; None: a log that failed) into ``path``; remove them; the rows written."""
-    kept = [p for p in parts if p is not None and p.exists()]
+def combine_parts(path: Path, parts: Sequence[Path], ok: Sequence[bool]) -> int:
+    """Put the parts of the logs that replayed (``ok``) into ``path``, in order; remove every part; the rows."""
+    kept = [p for p, good in zip(parts, ok, strict=True) if good and p.exists()]
     pa, pq = require_pyarrow()
     try:
         if len(kept) == 1:
