@@ -51,6 +51,7 @@ class IsJointEffortNormal(GuardNode):
     def update(self) -> py_trees.common.Status:
         """Every joint: health, then its latched limit; the first failing joint names the reason."""
         now = self._clock.now()
+        self.judged_t = now  # the engine checks that a running task's guards keep being ticked (T4)
         health = self.health
         assert health is not None
         bad = ""
