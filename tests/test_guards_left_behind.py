@@ -65,9 +65,8 @@ EFFORT_LEFT_BEHIND = """<root BTCPP_format="4" main_tree_to_execute="M">
 
 def test_an_effort_guard_left_behind_stops_the_task_too(tmp_path: Path) -> None:
     """IsJointEffortNormal counts as ticked like every guard: left behind, it stops the task (it was never checked)."""
-    from test_engine import _db
-
     from canguard.io.frame import Frame
+    from test_engine import _db
 
     rig = rig_with(tmp_path, EFFORT_LEFT_BEHIND)
     t = T0 + 0.001

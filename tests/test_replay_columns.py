@@ -80,6 +80,8 @@ class Outcome:
     """Rows a message plan's step gave back to the general path (returned None)."""
     handled_ids: set[int] = field(default_factory=set)
     """The arbitration ids of the rows the plans took."""
+    quiet_ticks: int = 0
+    """Grid ticks counted, not run (:mod:`canguard.engine.quiet`)."""
 
 
 def _r(x: Any) -> Any:
@@ -123,8 +125,12 @@ def engine_state(engine: Engine) -> dict[str, Any]:
 
 
 def replay(cfg: Config, log: Path, out: Path, *, columns: bool, chunk: int,
-           channel_map: dict[str, str] | None = None) -> Outcome:
-    """Replay ``log`` once (column path on or off, blocks of ``chunk`` characters); instrumented."""
+           channel_map: dict[str, str] | None = None, quiet: bool | None = None) -> Outcome:
+    """Replay ``log`` once (column path on or off, blocks of ``chunk`` characters); instrumented.
+
+    ``quiet``: quiet ticks on or off (default: on with the column path, off for the
+    reference, which then ticks every tick as the live daemon does).
+    """
     events, emit = out / "events.jsonl", out / "emit.log"
     out.mkdir(parents=True, exist_ok=True)
     for p in (events, emit):
@@ -163,6 +169,7 @@ def replay(cfg: Config, log: Path, out: Path, *, columns: bool, chunk: int,
 
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(Engine, "columns", columns)
+        mp.setattr(Engine, "replay_quiet_ticks", columns if quiet is None else quiet)
         mp.setattr(Engine, "_run_columns", counted_run_columns)
         mp.setattr(canguard.engine.blocks, "compile_plan", counted_compile_plan)
         mp.setattr(canguard.cli.replay, "build_summary", capturing_build_summary)
@@ -172,7 +179,8 @@ def replay(cfg: Config, log: Path, out: Path, *, columns: bool, chunk: int,
         py_trees.blackboard.Blackboard.clear()
     [engine] = engines
     return Outcome(json.dumps(summary, sort_keys=True), events.read_bytes(), emit.read_bytes(),
-                   engine_state(engine), counts["blocks"], counts["handled"], counts["fed"], handled_ids)
+                   engine_state(engine), counts["blocks"], counts["handled"], counts["fed"], handled_ids,
+                   engine.stats.quiet_ticks)
 
 
 def _first_difference(a: bytes | str, b: bytes | str, what: str) -> str:
@@ -198,6 +206,10 @@ def compare(cfg: Config, log: Path, out: Path, chunks: tuple[int, ...] = SMALL_C
             channel_map: dict[str, str] | None = None, min_handled: int = 1) -> list[Outcome]:
     """Replay ``log`` through both paths at each block size: equal outputs; returns the column runs.
 
+    The reference goes frame by frame and ticks every tick (the live daemon's way);
+    the column run also counts proven-quiet ticks instead of running them
+    (:mod:`canguard.engine.quiet`), so every comparison here proves both.
+
     The column path must have run (blocks taken, and at least ``min_handled`` rows
     taken by the handlers) at every block size but the reader's default, where a
     small log is one block and the first block always goes frame by frame.
@@ -207,6 +219,7 @@ def compare(cfg: Config, log: Path, out: Path, chunks: tuple[int, ...] = SMALL_C
         ref = replay(cfg, log, out / f"ref-{chunk}", columns=False, chunk=chunk, channel_map=channel_map)
         col = replay(cfg, log, out / f"col-{chunk}", columns=True, chunk=chunk, channel_map=channel_map)
         assert (ref.column_blocks, ref.handled_rows, ref.fed_rows) == (0, 0, 0), "the reference used the column path"
+        assert ref.quiet_ticks == 0, "the reference skipped ticks: it must tick every tick, as the live daemon"
         assert_same(ref, col, f"{log.name} with {Path(str(cfg.path)).name}, blocks of {chunk} chars")
         if chunk != DEFAULT_CHUNK:
             assert col.column_blocks > 0, f"blocks of {chunk}: the column path never ran, so this proves nothing"

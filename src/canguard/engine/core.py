@@ -35,6 +35,7 @@ from canguard.config.schema import Config
 from canguard.decode.decoder import Decoder
 from canguard.engine.gate import TaskGate
 from canguard.engine.logrun import LogRunMixin
+from canguard.engine.quiet import QuietTickMixin
 from canguard.engine.stats import EngineStats, EventSink
 from canguard.engine.watch import SourceWatchMixin
 from canguard.io.clock import Clock, PinnedClock
@@ -54,7 +55,7 @@ MAX_CATCH_UP_S = 2.0
 """Longest stretch of missed ticks the engine replays one by one after a gap."""
 
 
-class Engine(SourceWatchMixin, LogRunMixin):
+class Engine(SourceWatchMixin, LogRunMixin, QuietTickMixin):
     """Runs one config's tree over frames from any source, on any clock."""
 
     columns = True
@@ -144,6 +145,8 @@ class Engine(SourceWatchMixin, LogRunMixin):
         """Per bus: id text -> the column plan of the replay block path (see :mod:`canguard.engine.blocks`)."""
         self._plan_list: dict[str, list[MessagePlan]] = {}
         """Per bus: every plan, flushed at the end of each block."""
+        self._init_quiet()
+        self._q_nodes = self._quiet_tree()
 
     # -- life cycle ------------------------------------------------------------------------
     def start(self, now: float | None = None) -> None:
@@ -278,7 +281,8 @@ class Engine(SourceWatchMixin, LogRunMixin):
                 break
             self.clock.advance_to(due)
             if self._next_tick <= due_gate:
-                self.tick(due)
+                if not self._quiet_tick(due):
+                    self.tick(due)
                 self._next_tick += self.period_s
             else:
                 self.gate.service(self.clock.pin(due))
@@ -296,6 +300,7 @@ class Engine(SourceWatchMixin, LogRunMixin):
     def _tick(self, now: float) -> py_trees.common.Status:
         if self.ctx.tree_start is None:
             self.ctx.tree_start = now
+        events_before = self.events_written
         # Sources first: a stale one holds the task before the tree runs, and one that is fine
         # again releases it in time for this tick's ExecuteTask.
         self._watch_sources(now)
@@ -335,6 +340,7 @@ class Engine(SourceWatchMixin, LogRunMixin):
         self._save_heat(now, periodic=True)
         self._flush()
         self._due = min(self._next_tick, self.gate.next_deadline())
+        self._quiet_check(now, events_before)
         return status
 
     def _save_heat(self, now: float, periodic: bool) -> None:
@@ -409,6 +415,7 @@ class Engine(SourceWatchMixin, LogRunMixin):
         if "t" not in event:
             event = {"t": self.clock.now(), **event}
         self.events_seen[str(event.get("event"))] += 1
+        self.events_written += 1
         if self.events is not None:
             self.events.write(event)
             self._dirty = True

@@ -53,6 +53,8 @@ class LogRunMixin:
         metrics: Any
         extra_on_event: Callable[[dict[str, Any]], None] | None
         sample_hook: Callable[[Any], None] | None
+        elide_ticks: bool
+        replay_quiet_ticks: bool
 
         def feed(self, bus: str, frame: Frame) -> None: ...
         def advance(self, now: float) -> None: ...
@@ -78,6 +80,7 @@ class LogRunMixin:
         them (a bisection over the block's timestamps).
         """
         cursor = _LogCursor(route, default_bus, unmapped, channels)
+        self.elide_ticks = self.replay_quiet_ticks  # grid ticks proven to repeat the last one: counted, not run
         if self.columns and hasattr(frames, "chunks"):
             for chunk in frames.chunks():
                 if type(chunk) is list:

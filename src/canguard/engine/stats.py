@@ -27,6 +27,8 @@ class EngineStats:
     ticks: int = 0
     edge_ticks: int = 0
     skipped_ticks: int = 0
+    quiet_ticks: int = 0
+    """Grid ticks proven to repeat the last tick, counted in ``ticks`` but not run (:mod:`canguard.engine.quiet`)."""
     tick_errors: int = 0
     backward_frames: int = 0
     trips: list[dict[str, Any]] = field(default_factory=list)

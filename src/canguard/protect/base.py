@@ -16,6 +16,7 @@ from __future__ import annotations
 import math
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
+from typing import ClassVar
 
 # Reasons a guard is not satisfied, as they appear in snapshots and events.
 REASON_OK = ""
@@ -53,6 +54,14 @@ class Snapshot:
 
 class ProtectionModel(ABC):
     """A pure state machine over one signal's samples."""
+
+    SAMPLE_DRIVEN: ClassVar[bool] = False
+    """True when the state (and :meth:`poll`'s answer) changes only in :meth:`update`, never with time alone.
+
+    The replay engine counts a tick that would repeat the last one instead of running it
+    (:mod:`canguard.engine.quiet`) only when every model the tree reads says so. A model
+    that cools, counts down or otherwise moves between samples (I²t) leaves it False.
+    """
 
     @abstractmethod
     def update(self, value: float, t: float) -> bool:

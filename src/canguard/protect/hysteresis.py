@@ -49,6 +49,8 @@ class Hysteresis(LatchedModel):
     """
 
     reason_tripped = REASON_OVERCURRENT
+    SAMPLE_DRIVEN = True
+    """Trips and recovers only at samples (the persistence timers and inrush windows are measured at samples)."""
 
     def __init__(
         self,

@@ -36,6 +36,7 @@ class ExecuteTask(CanguardNode, py_trees.behaviour.Behaviour):
 
     KIND = "Action"
     DESCRIPTION = "run the robot's task (task frames every period) while ticked; halt stops it"
+    QUIET_RETICK = True
     INPUT_PORTS = {}  # noqa: RUF012 - py_trees reads ports as plain class dicts
     OUTPUT_PORTS = {}  # noqa: RUF012
 

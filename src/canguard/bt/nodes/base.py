@@ -118,6 +118,11 @@ class CanguardNode(PortsMixin):
     """Allowed values of string ports, checked at load time for constants."""
     NEEDS_CONTEXT: ClassVar[bool] = True
     """False for nodes that work without a :class:`Context` (pure control flow)."""
+    QUIET_RETICK: ClassVar[bool] = False
+    """True when ticking the node again, with the same inputs and its children answering as before,
+    changes nothing and answers as before: no timer, counter, memory or output of its own.
+    The replay engine counts such ticks instead of running them (:mod:`canguard.engine.quiet`)
+    when every node of the tree says so; a guard also needs sample-driven models."""
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
         # Stay out of py_trees' global auto-registry: canguard's parser gets an explicit,

@@ -122,6 +122,7 @@ class AlwaysSuccess(CanguardNode, py_trees.behaviour.Behaviour):
     KIND = "Action"
     NEEDS_CONTEXT = False
     DESCRIPTION = "SUCCESS"
+    QUIET_RETICK = True
     INPUT_PORTS: dict = {}  # noqa: RUF012
     OUTPUT_PORTS: dict = {}  # noqa: RUF012
 
@@ -135,6 +136,7 @@ class AlwaysFailure(CanguardNode, py_trees.behaviour.Behaviour):
     KIND = "Action"
     NEEDS_CONTEXT = False
     DESCRIPTION = "FAILURE"
+    QUIET_RETICK = True
     INPUT_PORTS: dict = {}  # noqa: RUF012
     OUTPUT_PORTS: dict = {}  # noqa: RUF012
 

@@ -172,18 +172,21 @@ class Inverter(_Decorator, py_trees.decorators.Inverter):
     """SUCCESS <-> FAILURE; RUNNING passes."""
 
     DESCRIPTION = "SUCCESS <-> FAILURE; RUNNING unchanged"
+    QUIET_RETICK = True
 
 
 class ForceSuccess(_Decorator, py_trees.decorators.FailureIsSuccess):
     """FAILURE becomes SUCCESS; RUNNING passes."""
 
     DESCRIPTION = "FAILURE becomes SUCCESS; RUNNING unchanged"
+    QUIET_RETICK = True
 
 
 class ForceFailure(_Decorator, py_trees.decorators.SuccessIsFailure):
     """SUCCESS becomes FAILURE; RUNNING passes."""
 
     DESCRIPTION = "SUCCESS becomes FAILURE; RUNNING unchanged"
+    QUIET_RETICK = True
 
 
 def _check_count(node: CanguardNode, name: str, low: int) -> None:

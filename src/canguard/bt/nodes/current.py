@@ -51,6 +51,8 @@ class GuardNode(CanguardNode, py_trees.behaviour.Behaviour):
     MODEL_KIND: ClassVar[str] = "threshold"
     ROLE: ClassVar[str] = "current"
     """The source signal a single-signal guard reads."""
+    QUIET_RETICK = True
+    """A guard answers from its source's health and its models: quiet when the models are sample-driven."""
     model: ProtectionModel
 
     def __init__(self, name: str, **kwargs: Any) -> None:

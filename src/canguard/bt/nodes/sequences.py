@@ -144,6 +144,7 @@ class Sequence(_Ordered):
     """BT.CPP Sequence: ticks children in order; resumes at a RUNNING child; restarts after a FAILURE."""
 
     DESCRIPTION = "children in order; a RUNNING child is resumed (earlier ones not re-ticked)"
+    QUIET_RETICK = True
 
 
 class AsyncSequence(_Ordered):
@@ -157,6 +158,7 @@ class ReactiveSequence(_Ordered):
     """BT.CPP ReactiveSequence: every tick starts at the first child; a failing guard halts a running one."""
 
     DESCRIPTION = "children in order, from the first at every tick (guards re-checked while a child runs)"
+    QUIET_RETICK = True
     REACTIVE = True
 
 
@@ -177,6 +179,7 @@ class Fallback(_Ordered):
     """BT.CPP Fallback: children in order until one succeeds; resumes at a RUNNING child."""
 
     DESCRIPTION = "children in order until one does not fail; a RUNNING child is resumed"
+    QUIET_RETICK = True
     GO_ON = FAILURE
 
 
@@ -192,5 +195,6 @@ class ReactiveFallback(_Ordered):
     """BT.CPP ReactiveFallback: every tick starts at the first child; a higher priority interrupts."""
 
     DESCRIPTION = "children in order, from the first at every tick (higher priorities interrupt)"
+    QUIET_RETICK = True
     GO_ON = FAILURE
     REACTIVE = True

@@ -1,0 +1,189 @@
+"""Quiet ticks: a grid tick proven to repeat the last one is counted, not run (replay; issue 16).
+
+A replay of a long log spends most of its time ticking a tree that answers the same
+thing 100 times a second: 20 guards at 100 Hz were half of a replay's process time.
+BehaviorTree.CPP's answer would be "tick less"; ours must not change a single event,
+frame or summary field. So a grid tick is skipped only when it is *proven* to be an
+exact repetition of the last tick that ran, and the proof is made of three parts:
+
+1. **The tree cannot tell two ticks apart.** Every node is of a type that declares
+   ``QUIET_RETICK`` (no timer, counter, memory or output of its own: the reactive and
+   plain sequences and fallbacks, Inverter, ForceSuccess/Failure, ExecuteTask, the
+   guards), no node carries pre/post conditions or reads or writes the blackboard
+   through a ``{key}``, and every guard's models are ``SAMPLE_DRIVEN`` (their state
+   changes only at samples: threshold and hysteresis; I²t cools with time and is
+   excluded). The tree has no I²t heat, no metrics and no tick hook.
+2. **The last tick was a fixed point.** The tick that ran left every node with the
+   status, feedback, position and SKIPPED flag the tick before it left, wrote no
+   event, and left the task gate in the same state, with the same inhibits and the
+   same cause, in a state whose release rule does not wait on time (running, or held
+   by a failing tree or an inhibit). Ticking the same tree again on the same inputs
+   then gives the same tick again.
+3. **No input changed since.** Every sample that changes what a guard answers (a
+   model's trip or recovery, a source's health reason) is an edge, and an edge ticks
+   the tree at once for real (ending the quiet stretch); no event was written since
+   (a bus error, a controller going error-passive...); and no time-driven change is
+   due: each source's freshness deadline (its roles' latest sample + ``max_age``), the
+   start windows (``no_data`` grace, the start grace), and the "guards left behind"
+   deadline of a guard the fixed-point tick did not reach all lie after the tick (by
+   a microsecond's margin against rounding).
+
+A skipped tick still does what a tick does outside the tree: it is counted, it marks
+the guards it would have ticked as ticked (``judged_t``), and it services the gate's
+periodic frames at its own time. The live daemon ticks every tick (it has the time);
+``tests/test_quiet_ticks.py`` replays random and example logs with and without quiet
+ticks and requires the same summaries, events, frames out and engine state.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any
+
+import py_trees
+
+from canguard.engine.gate import TaskGate
+
+if TYPE_CHECKING:
+    from canguard.bt.context import Context
+    from canguard.engine.stats import EngineStats
+    from canguard.io.clock import PinnedClock
+
+MARGIN_S = 1e-6
+"""A time-driven change is taken to come this much earlier than computed (rounding)."""
+
+
+class QuietTickMixin:
+    """The quiet-tick half of the engine (see the module docstring)."""
+
+    if TYPE_CHECKING:  # what the engine provides
+        ctx: Context
+        clock: PinnedClock
+        gate: TaskGate
+        stats: EngineStats
+        root: py_trees.behaviour.Behaviour
+        metrics: Any
+        tick_hook: Callable[[float], None] | None
+        period_s: float
+        _guard_nodes: list[Any]
+        _started_at: float
+        _start_grace_s: float
+        _next_tick: float
+        _due: float
+
+        def _flush(self) -> None: ...
+
+    elide_ticks = False
+    """On while a recorded log is fed (:meth:`~canguard.engine.logrun.LogRunMixin.run_log`).
+
+    The live daemon ticks every tick: it has the time, and it is the reference the tests hold replay to.
+    """
+    replay_quiet_ticks = True
+    """What :meth:`run_log` sets :attr:`elide_ticks` to (the differential tests turn it off for their reference)."""
+
+    def _init_quiet(self) -> None:
+        self.events_written = 0
+        """Events written so far (a quiet stretch ends at any event)."""
+        self._q_nodes: list[Any] | None = None
+        """The tree's nodes when it may have quiet ticks (see :meth:`_quiet_tree`), else None."""
+        self._q_state: tuple[Any, ...] | None = None
+        """What the last tick that ran left (nodes, gate), to recognise a fixed point."""
+        self._q_until = -math.inf
+        """Grid ticks before this time may be skipped (set by a fixed-point tick)."""
+        self._q_events = -1
+        self._q_gate: tuple[Any, ...] = ()
+        self._q_ticked: list[Any] = []
+        """The guards the fixed-point tick ticked: a skipped tick marks them ticked."""
+
+    def _quiet_tree(self) -> list[Any] | None:
+        """Every node of the tree if each one may be re-ticked quietly (part 1 of the proof), else None."""
+        if self.ctx.heat_models:
+            return None
+        nodes = list(self.root.iterate())
+        for node in nodes:
+            if not getattr(type(node), "QUIET_RETICK", False):
+                return None
+            if "tick" in vars(node) or "stop" in vars(node):  # pre/post conditions wrap the node's tick
+                return None
+            if getattr(node, "_dynamic", None) or getattr(node, "_wired", None):
+                return None
+            guarded = getattr(node, "guarded", None)
+            if guarded is not None and not all(model.SAMPLE_DRIVEN for _, model, _ in guarded()):
+                return None
+        return nodes
+
+    def _quiet_check(self, now: float, events_before: int) -> None:
+        """After a tick that ran: note whether it was a fixed point, and until when nothing can change."""
+        self._q_until = -math.inf
+        nodes = self._q_nodes
+        if nodes is None or not self.elide_ticks or self.metrics is not None or self.tick_hook is not None:
+            self._q_state = None
+            return
+        gate = self.gate
+        state = (
+            tuple((n.status, n.feedback_message, getattr(n, "index", 0), getattr(n, "skipped", False)) for n in nodes),
+            gate.state, tuple(gate.inhibits.items()), gate._cause,
+        )
+        # Belt and braces: the quiet node types answer from their inputs alone, so one tick already
+        # settles them; requiring a repeated state also covers a node whose declaration were wrong.
+        fixed = state == self._q_state and self.events_written == events_before
+        self._q_state = state
+        if not fixed:
+            return
+        failed = self.root.status == py_trees.common.Status.FAILURE
+        if gate.state != TaskGate.RUNNING and not (failed or gate.inhibits):
+            return  # the release rule may wait on time (min_stop) or on a reset
+        self._q_until = self._quiet_horizon(now)
+        self._q_events = self.events_written
+        self._q_gate = (gate.state, dict(gate.inhibits))
+        self._q_ticked = [g for g in self._guard_nodes if g.judged_t == now]
+
+    def _quiet_horizon(self, now: float) -> float:
+        """The earliest time after ``now`` at which time alone may change what a tick sees (part 3).
+
+        Each deadline is taken when it is still ahead by the very test the engine makes
+        (``now - t > max_age`` ...), and then as ``t + max_age``: when rounding puts that
+        sum at or before ``now``, the horizon is in the past and the next tick runs.
+        """
+        horizon = math.inf
+        for health in self.ctx.health.values():
+            max_age = health.max_age_s
+            for t in health._latest_t.values():
+                if not now - t > max_age and t + max_age < horizon:  # not stale yet: stale after t + max_age
+                    horizon = t + max_age
+        start = self._started_at
+        windows = [source.max_age_s for source in self.ctx.sources.values()]  # each source's no_data grace
+        windows.append(self._start_grace_s)  # the start window (Engine._starting)
+        for width in windows:
+            if now - start < width and start + width < horizon:
+                horizon = start + width
+        period = self.period_s
+        for g in self._guard_nodes:
+            if g.source is not None and g.judged_t < now:  # not reached by this tick: "left behind" later
+                limit = max(g.source.max_age_s, period)
+                if not now - g.judged_t > limit and g.judged_t + limit < horizon:
+                    horizon = g.judged_t + limit
+        return horizon - MARGIN_S
+
+    def _quiet_tick(self, now: float) -> bool:
+        """Count the grid tick at ``now`` instead of running it when it is proven quiet; False: run it."""
+        if not (now < self._q_until and self.events_written == self._q_events):
+            return False
+        gate = self.gate
+        state, inhibits = self._q_gate
+        if gate.state != state or gate.inhibits != inhibits:
+            return False
+        self.clock.pin(now)
+        try:
+            self.stats.ticks += 1
+            self.stats.quiet_ticks += 1
+            self.last_tick_t = now
+            for g in self._q_ticked:
+                g.judged_t = now
+            gate.service(now)
+            self._flush()
+            self._due = min(self._next_tick, gate.next_deadline())
+        finally:
+            self.clock.unpin()
+        return True

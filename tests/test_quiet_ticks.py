@@ -1,0 +1,123 @@
+"""Quiet ticks (:mod:`canguard.engine.quiet`): a replay that skips proven-quiet ticks equals one that ticks them all.
+
+The reference ticks every grid tick, as the live daemon does; the replay under test
+counts the ticks proven to repeat the last one instead of running them. Both must
+write the same summary, events and frames and leave the same engine state
+(``tests/test_replay_columns.assert_same``), and the quiet ticks must really have
+happened, or the comparison proves nothing. ``tests/test_replay_random_logs.py``
+makes the same comparison on random DBCs and logs, through ``compare``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import yaml
+
+from canguard.config.loader import load_config
+from canguard.engine.core import Engine
+from canguard.engine.gate import LogSink
+from canguard.io.clock import ManualClock
+from test_replay_columns import BUNDLED, DEFAULT_CHUNK, REPO, assert_same, replay
+from test_replay_random_logs import write_case
+
+EXAMPLES = REPO / "examples"
+PROTECTED = REPO / "config" / "examples" / "protected_operation.yaml"
+LOGS = sorted(EXAMPLES.glob("*.log.gz"))
+
+
+def quiet_and_reference(cfg_path: Path, log: Path, out: Path, *, columns: bool = True) -> tuple[int, int]:
+    """Replay with and without quiet ticks, assert the same outputs; (quiet ticks, all ticks) of the quiet run."""
+    cfg = load_config(cfg_path)
+    ref = replay(cfg, log, out / "ref", columns=False, chunk=DEFAULT_CHUNK, quiet=False)
+    run = replay(cfg, log, out / "quiet", columns=columns, chunk=DEFAULT_CHUNK, quiet=True)
+    assert_same(ref, run, f"{log.name} with {cfg_path.name}, quiet ticks on (columns {columns})")
+    ticks = int(run.state["ticks"])
+    return run.quiet_ticks, ticks
+
+
+class TestSameAsTickingEveryTick:
+    """Example logs (trips, recoveries, dropouts, garbage, error bursts) on the trees that may have quiet ticks."""
+
+    @pytest.mark.parametrize("log", LOGS, ids=[p.name.split(".")[0] for p in LOGS])
+    def test_bundled_config(self, tmp_path: Path, log: Path) -> None:
+        """The bundled config: every example log replays the same, most ticks quiet."""
+        quiet, ticks = quiet_and_reference(BUNDLED, log, tmp_path)
+        assert quiet > ticks // 2, f"only {quiet} of {ticks} ticks were quiet: the comparison proves little"
+
+    @pytest.mark.parametrize("log", LOGS[:4], ids=[p.name.split(".")[0] for p in LOGS[:4]])
+    def test_protected_operation_frame_by_frame(self, tmp_path: Path, log: Path) -> None:
+        """Quiet ticks on the frame-by-frame path too (formats without column blocks) give the same replay."""
+        quiet, _ = quiet_and_reference(PROTECTED, log, tmp_path, columns=False)
+        assert quiet > 0
+
+    def test_the_start_window_closes_at_the_same_tick(self, tmp_path: Path) -> None:
+        """A stop held back by the start window comes at the tick the window closes, rounding included.
+
+        Found by the random-log test: the window's end ``start + max_age`` rounded to the
+        tick's own time, and the quiet path took the window as closed one tick early,
+        so the stop came 20 ms late.
+        """
+        spec = {
+            "messages": [{"id": 16, "ext": False, "fd": False, "length": 8, "muxed": False, "name": "M0",
+                          "signals": [{"name": "S0_0", "start": 0, "length": 16, "motorola": False,
+                                       "signed": False, "float": False, "scale": 1, "offset": 0,
+                                       "page": None}]}],
+            "max_age": 0.03, "over": 5.0, "seed": 0, "frames": 50,
+        }
+        cfg_path, log = write_case(spec, tmp_path / "case")
+        quiet, _ = quiet_and_reference(cfg_path, log, tmp_path)
+        assert quiet > 0
+
+
+def write_tree_config(tmp_path: Path, tree_body: str) -> Path:
+    """The bundled config with its tree replaced by ``tree_body`` (inside a BehaviorTree ID="M")."""
+    doc = yaml.safe_load(BUNDLED.read_text(encoding="utf-8"))
+    doc["dbc"] = [str((BUNDLED.parent / d).resolve()) for d in doc["dbc"]]
+    tree = tmp_path / "tree.xml"
+    tree.write_text(f'<root BTCPP_format="4" main_tree_to_execute="M"><BehaviorTree ID="M">{tree_body}'
+                    "</BehaviorTree></root>\n", encoding="utf-8")
+    doc["tree"] = {"file": str(tree), "main": "M", "tick_hz": 100}
+    doc.pop("events", None)
+    doc.setdefault("state", {})["file"] = str(tmp_path / "state.json")
+    path = tmp_path / "canguard.yaml"
+    path.write_text(yaml.safe_dump(doc), encoding="utf-8")
+    return path
+
+
+GUARD = '<IsCurrentSafe topic_name="/battery_state" overcurrent_threshold="35" recovery_threshold="25"/>'
+
+
+class TestWhichTreesMayBeQuiet:
+    """Only a tree whose every node repeats itself exactly may have quiet ticks; the others tick every tick."""
+
+    @pytest.mark.parametrize(("why", "body"), [
+        ("a timer of its own", f"<ReactiveSequence>{GUARD}<Delay delay_msec=\"100\"><ExecuteTask/></Delay>"
+                               "</ReactiveSequence>"),
+        ("I²t cools with time", '<ReactiveSequence><IsI2tSafe topic_name="axis0" continuous_current="20"/>'
+                                "<ExecuteTask/></ReactiveSequence>"),
+        ("a threshold read from the blackboard",
+         '<ReactiveSequence><IsCurrentSafe topic_name="/battery_state" overcurrent_threshold="{limit}" '
+         'recovery_threshold="25"/><ExecuteTask/></ReactiveSequence>'),
+        ("a pre-condition script", f'<ReactiveSequence>{GUARD}<ExecuteTask _skipIf="false"/></ReactiveSequence>'),
+        ("frames sent at every tick", f"<ReactiveSequence>{GUARD}<PerformRecovery/></ReactiveSequence>"),
+    ])
+    def test_not_quiet(self, tmp_path: Path, why: str, body: str) -> None:
+        """Trees with a node that may answer differently over time, or acts at every tick, tick every tick."""
+        assert build(tmp_path, body)._quiet_tree() is None, why
+
+    def test_guards_sequences_and_task_are_quiet(self, tmp_path: Path) -> None:
+        """Reactive and plain sequences and fallbacks, Inverter/ForceSuccess, guards and ExecuteTask may be quiet."""
+        body = (f"<ReactiveSequence><Fallback>{GUARD}<ForceFailure><AlwaysSuccess/></ForceFailure></Fallback>"
+                f'<Inverter><Inverter><IsCurrentNormal topic_name="axis0" max_current="1000"/></Inverter></Inverter>'
+                '<Sequence><IsJointEffortNormal topic_name="/joint_states" max_effort="150"/></Sequence>'
+                "<ExecuteTask/></ReactiveSequence>")
+        assert build(tmp_path, body)._quiet_tree() is not None
+
+
+def build(tmp_path: Path, body: str) -> Engine:
+    """An engine on the bundled config with ``body`` as its tree (not started)."""
+    cfg = load_config(write_tree_config(tmp_path, body))
+    clock = ManualClock(0.0)
+    return Engine(cfg, clock, LogSink(clock.now, cfg.buses))
