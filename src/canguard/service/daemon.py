@@ -41,6 +41,7 @@ from canguard.io.bus import BusReader
 from canguard.io.clock import BootClock, LiveClock
 from canguard.io.frame import Frame
 from canguard.protect.state import HeatStore, writable_problem
+from canguard.service.blackboard import registered_clients, release_clients, tree_clients
 from canguard.service.systemd import Notifier, watchdog_verdict
 
 log = logging.getLogger(__name__)
@@ -134,8 +135,13 @@ class Daemon:
 
     def _build_engine(self, cfg: Config, previous: Engine | None = None) -> Engine:
         heat = HeatStore(cfg.state.file, cfg.state.on_corrupt, clock=BootClock())
-        return Engine(cfg, self.clock, self.sink, events=self.journal, durable=True,
-                      metrics=self.metrics, heat=heat, previous=previous)
+        before = registered_clients()
+        try:
+            return Engine(cfg, self.clock, self.sink, events=self.journal, durable=True,
+                          metrics=self.metrics, heat=heat, previous=previous)
+        except BaseException:
+            release_clients(registered_clients() - before)  # a tree built half-way leaves no keys behind
+            raise
 
     # -- signals ---------------------------------------------------------------------------
     def install_signals(self) -> None:
@@ -273,6 +279,7 @@ class Daemon:
         # The task's state, the sources' data and the counters carry over: a running task goes on
         # (the new tree judges it at its first tick), a stopped one stays stopped until it recovers.
         new.adopt(old)
+        release_clients(tree_clients(old.root))  # py_trees' blackboard is global: drop the old tree's keys
         new._event({"event": "reload", "reason": f"config {self.config_path} reloaded"})
         new._flush()
         self.notifier.ready()
