@@ -35,7 +35,8 @@ from canguard.errors import LogFormatError
 from canguard.io.candump import _candump_chunks, _flatten
 from canguard.io.logtypes import CANDUMP_SUFFIXES, COMPRESSIONS, PYTHON_CAN_SUFFIXES, LogFrames, ReadStats
 from canguard.io.progress import ProgressBar
-from canguard.io.pycan import _batches, _read_python_can
+from canguard.io.pycan import _read_python_can
+from canguard.io.pycan_blocks import python_can_chunks
 
 if TYPE_CHECKING:
     pass
@@ -136,6 +137,7 @@ def read_log(
         frames._chunks = _candump_chunks(p, gz, skip_bad, st, stats is not None, frames)
         frames._frames = _flatten(frames._chunks)
     else:
+        # two lazy generators over the same file: only the one consumed opens it
         frames._frames = _read_python_can(p, fmt, gz, st, frames)
-        frames._chunks = _batches(frames._frames)
+        frames._chunks = python_can_chunks(p, fmt, gz, st, frames)
     return frames

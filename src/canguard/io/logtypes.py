@@ -129,7 +129,7 @@ class LogFrames(Iterator[Frame]):
         self._chunks: Iterator[Columns | list[Frame]] = iter(())
 
     def chunks(self) -> Iterator[Columns | list[Frame]]:
-        """The same frames a block at a time: :class:`Columns` (plain candump blocks) or lists of frames.
+        """The same frames a block at a time: :class:`Columns` (plain candump blocks, python-can blocks) or lists.
 
         For consumers that work on whole blocks (the replay engine); use either
         this or the frame iterator, not both.

@@ -1,4 +1,4 @@
-"""python-can's own log readers (ASC, BLF, TRC, CSV, MF4) as frame streams."""
+"""python-can's own log readers (ASC, BLF, TRC, CSV, MF4) as frame streams (blocks: :mod:`canguard.io.pycan_blocks`)."""
 
 from __future__ import annotations
 
@@ -67,50 +67,77 @@ def _reader_class(fmt: str) -> Callable[[Any], Iterable[can.Message]]:
 _PROGRESS_EVERY = 4096  # messages between progress updates for python-can readers
 
 
-_BATCH = 4096
+class _Messages:
+    """python-can's reader of one log, opened: its messages, with python-can's errors as LogFormatError.
 
+    ``next_batch`` gives up to ``size`` messages; when the reader fails part-way it
+    gives the messages read before the failure first and raises on the next call,
+    so that every frame before the failure is processed (as the candump reader does).
+    """
 
-def _batches(frames: Iterator[Frame]) -> Iterator[list[Frame]]:
-    """``frames`` in lists of up to :data:`_BATCH`."""
-    while batch := list(islice(frames, _BATCH)):
-        yield batch
+    def __init__(self, p: Path, fmt: str, gz: str) -> None:
+        self.p, self.name = p, fmt.upper()
+        self.raw = open(p, "rb")  # noqa: SIM115 -- closed by close()
+        self.count = 0
+        self._failed: LogFormatError | None = None
+        try:
+            binary: Any = open_decompressed(self.raw, gz)
+            fobj: Any = binary
+            if fmt in _TEXT_PYTHON_CAN:
+                fobj = io.TextIOWrapper(binary, encoding="utf-8", errors="replace")
+            try:
+                self.messages: Iterator[can.Message] = iter(_reader_class(fmt)(fobj))
+            except Exception as exc:  # python-can raises many types for a bad header; none may escape raw
+                raise LogFormatError(f"{p}: not a valid {self.name} log: {type(exc).__name__}: {exc}") from exc
+        except BaseException:
+            self.raw.close()
+            raise
+
+    def next_batch(self, size: int) -> list[can.Message]:
+        """Up to ``size`` messages; [] at the end of the log."""
+        if self._failed is not None:
+            raise self._failed
+        batch: list[can.Message] = []
+        try:
+            batch.extend(islice(self.messages, size))
+        except Exception as exc:  # corrupt input deep inside python-can: name the file instead
+            self._failed = LogFormatError(
+                f"{self.p}: {self.name} reader failed after {self.count + len(batch)} frames: "
+                f"{type(exc).__name__}: {exc}"
+            )
+            self._failed.__cause__ = exc
+            if not batch:
+                raise self._failed from exc
+        self.count += len(batch)
+        return batch
+
+    def position(self, st: ReadStats) -> int:
+        """The position reached in the file on disk (its size once python-can has closed it)."""
+        return st.bytes_total if self.raw.closed else self.raw.tell()
+
+    def close(self) -> None:
+        self.raw.close()
 
 
 def _read_python_can(p: Path, fmt: str, gz: str, st: ReadStats, owner: LogFrames) -> Iterator[Frame]:
     """Frames from one of python-can's readers; its errors become LogFormatError naming the file."""
-    raw = open(p, "rb")  # noqa: SIM115 -- closed in the finally below
+    reader: _Messages | None = None
+    frames = 0
+    last_t = -math.inf
     try:
-        binary: Any = open_decompressed(raw, gz)
-        fobj: Any = binary
-        if fmt in _TEXT_PYTHON_CAN:
-            fobj = io.TextIOWrapper(binary, encoding="utf-8", errors="replace")
-        name = fmt.upper()
-        frames = 0
-        last_t = -math.inf
-        try:
-            messages = iter(_reader_class(fmt)(fobj))
-        except Exception as exc:  # python-can raises many types for a bad header; none may escape raw
-            raise LogFormatError(f"{p}: not a valid {name} log: {type(exc).__name__}: {exc}") from exc
-        while True:
-            try:
-                msg = next(messages)
-            except StopIteration:
-                break
-            except Exception as exc:  # corrupt input deep inside python-can: name the file instead
-                raise LogFormatError(
-                    f"{p}: {name} reader failed after {frames} frames: {type(exc).__name__}: {exc}"
-                ) from exc
-            fr = frame_from_message(msg)
-            _note_order(st, fr.t, last_t)
-            last_t = fr.t
-            frames += 1
-            st.frames += 1
-            if frames % _PROGRESS_EVERY == 0 and not raw.closed:
-                owner._position(raw.tell())
-            yield fr
-        owner._position(st.bytes_total if raw.closed else raw.tell())
+        reader = _Messages(p, fmt, gz)
+        while batch := reader.next_batch(_PROGRESS_EVERY):
+            for msg in batch:
+                fr = frame_from_message(msg)
+                _note_order(st, fr.t, last_t)
+                last_t = fr.t
+                frames += 1
+                st.frames += 1
+                yield fr
+            owner._position(reader.position(st))
     finally:
-        raw.close()
+        if reader is not None:
+            reader.close()
         owner._done()
     if frames == 0:
         raise LogFormatError(f"{p}: empty log: no frames")
