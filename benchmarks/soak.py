@@ -25,12 +25,18 @@ scheduled time (wall clock; includes the simulator's own lag on a loaded machine
 and every trip must be followed by a ``stop`` event at the same tick. After the run:
 every journal line must parse (none torn, none lost between ``start`` and ``exit``),
 the daemon must exit 0 on SIGTERM. The daemon's RSS and CPU are sampled every
-``--sample`` seconds: flat RSS means no leak. Exit status 0 when every check holds.
+``--sample`` seconds; the report gives the RSS growth per third of the run and the
+least-squares slope of its last half (``slope_last_half_mb_per_10min``): about 0 means
+flat. ``--tracemalloc FRAMES`` runs the daemon under tracemalloc
+(``benchmarks/traced_daemon.py``) and adds the traced Python memory, start to end:
+RSS that grows while the traced total stays flat is the allocator, not a leak.
+Exit status 0 when every check holds.
 """
 
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import os
 import random
@@ -91,6 +97,7 @@ class Report:
     trips_without_stop: int = 0
     exit_code: int | None = None
     frames_sent: int = 0
+    trace_dir: str = ""
 
 
 def schedule(seed: int, duration_s: float) -> list[Fault]:
@@ -185,7 +192,14 @@ def run(args: argparse.Namespace) -> Report:
     duration = args.minutes * 60.0
     report = Report(args.minutes, schedule(args.seed, duration))
     env = {**os.environ, "PYTHONPATH": str(SRC)}
-    daemon = subprocess.Popen([sys.executable, "-m", "canguard", "run", "-c", str(cfg_path)], env=env,
+    cmd = [sys.executable, "-m", "canguard"]
+    if args.tracemalloc:
+        trace_dir = args.trace_dir or tmp / "trace"
+        report.trace_dir = str(trace_dir)
+        env.update(CANGUARD_TRACE_DIR=str(trace_dir), CANGUARD_TRACE_FRAMES=str(args.tracemalloc),
+                   CANGUARD_TRACE_EVERY=str(args.sample), CANGUARD_TRACE_SNAPS=args.snapshots)
+        cmd = [sys.executable, str(REPO / "benchmarks" / "traced_daemon.py")]
+    daemon = subprocess.Popen([*cmd, "run", "-c", str(cfg_path)], env=env,
                               stdout=subprocess.DEVNULL, stderr=open(tmp / "daemon.stderr", "w"))  # noqa: SIM115
     events_path = tmp / "events.jsonl"
     deadline = time.monotonic() + 30
@@ -241,6 +255,56 @@ def run(args: argparse.Namespace) -> Report:
     return report
 
 
+def slope_per_10min(points: list[tuple[float, float]]) -> float | None:
+    """Least-squares slope of (seconds, MB) points, in MB per 10 minutes."""
+    if len(points) < 2:
+        return None
+    mx = statistics.fmean(p[0] for p in points)
+    my = statistics.fmean(p[1] for p in points)
+    sxx = sum((p[0] - mx) ** 2 for p in points)
+    if sxx == 0:
+        return None
+    return 600.0 * sum((p[0] - mx) * (p[1] - my) for p in points) / sxx
+
+
+def rss_trend(samples: list[tuple[float, float, float]]) -> dict[str, Any]:
+    """Growth per third of the run (MB, last sample of a third minus the last of the one before) and
+    the least-squares slope of the last half (MB per 10 min): 'is it flat?' answered by one number."""
+    if len(samples) < 4:
+        return {"growth_per_third_mb": None, "slope_last_half_mb_per_10min": None}
+    end = samples[-1][0]
+    edges = [samples[0][1]]
+    for k in (1, 2, 3):
+        edges.append([s[1] for s in samples if s[0] <= end * k / 3][-1])
+    half = [(s[0], s[1]) for s in samples if s[0] >= end / 2]
+    slope = slope_per_10min(half)
+    return {"growth_per_third_mb": [round(b - a, 2) for a, b in itertools.pairwise(edges)],
+            "slope_last_half_mb_per_10min": None if slope is None else round(slope, 3)}
+
+
+def traced_summary(trace_dir: Path) -> dict[str, Any]:
+    """The traced_daemon.py figures: traced MB start, end, max; slope of the last half; malloc_trim lines."""
+    path = trace_dir / "traced.tsv"
+    if not path.exists():
+        return {"error": f"no {path}"}
+    rows = [[float(x) for x in line.split()] for line in path.read_text(encoding="ascii").splitlines() if line]
+    half = [(r[0], r[1]) for r in rows if r[0] >= rows[-1][0] / 2]
+    slope = slope_per_10min(half)
+    out: dict[str, Any] = {"dir": str(trace_dir), "traced_mb": {
+        "start": rows[0][1], "end": rows[-1][1], "max": max(r[1] for r in rows),
+        "slope_last_half_mb_per_10min": None if slope is None else round(slope, 3),
+        "samples": [[r[0], r[1]] for r in rows]},
+        "reader_queue_max": max((int(r[4]) for r in rows if len(r) > 4), default=None),
+        "blackboard_keys_start_end": [int(rows[0][5]), int(rows[-1][5])] if len(rows[0]) > 5 else None,
+        "rss_minus_tracemalloc_own_mb_start_end": [round(r[3] - r[7], 1) for r in (rows[0], rows[-1])]
+        if len(rows[0]) > 7 else None}
+    trim = trace_dir / "trim.tsv"
+    if trim.exists():
+        out["rss_before_after_malloc_trim"] = [[float(x) for x in line.split()]
+                                               for line in trim.read_text(encoding="ascii").splitlines() if line]
+    return out
+
+
 def summarize(report: Report, bound_s: float) -> tuple[dict[str, Any], bool]:
     judged = [f for f in report.faults if f.expect]
     late = [f for f in judged if f.seen is None or f.seen > bound_s]
@@ -259,10 +323,12 @@ def summarize(report: Report, bound_s: float) -> tuple[dict[str, Any], bool]:
         "journal_lines": report.lines, "torn_or_lost_lines": report.torn,
         "trips": report.trips, "trips_without_stop": report.trips_without_stop,
         "rss_mb": {"start": rss[0] if rss else None, "end": rss[-1] if rss else None, "max": max(rss, default=None),
-                   "samples": [[s[0], s[1]] for s in report.samples]},
+                   **rss_trend(report.samples), "samples": [[s[0], s[1]] for s in report.samples]},
         "cpu_percent": {"median": statistics.median(cpu) if cpu else None, "max": max(cpu, default=None)},
         "daemon_exit": report.exit_code,
     }
+    if report.trace_dir:
+        out["tracemalloc"] = traced_summary(Path(report.trace_dir))
     ok = not late and report.torn == 0 and report.trips_without_stop == 0 and report.exit_code == 0
     return out, ok
 
@@ -274,6 +340,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--bound", type=float, default=2.0, help="seconds from a fault to its reaction (default 2)")
     ap.add_argument("--sample", type=float, default=10.0, help="seconds between RSS/CPU samples")
     ap.add_argument("--json", type=Path, default=None, help="write the report here too")
+    ap.add_argument("--tracemalloc", type=int, default=0, metavar="FRAMES",
+                    help="run the daemon under tracemalloc with FRAMES frames per traceback "
+                         "(benchmarks/traced_daemon.py): the report adds the traced total")
+    ap.add_argument("--trace-dir", type=Path, default=None, help="where --tracemalloc writes (default: the run's tmp)")
+    ap.add_argument("--snapshots", default="", metavar="S,S,...",
+                    help="with --tracemalloc: seconds after start at which to dump a snapshot")
     ap.add_argument("--no-load", dest="load", action="store_false",
                     help="without the 40 background ids (~2,000 instead of ~8,000 frames/s): a slow machine")
     args = ap.parse_args(argv)
