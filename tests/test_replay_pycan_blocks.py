@@ -42,9 +42,11 @@ from typing import Any
 import can
 import pytest
 
+import canguard.io.pycan
 import canguard.io.pycan_blocks
 from canguard.config.loader import load_config
 from canguard.config.schema import Config
+from canguard.errors import LogFormatError
 from canguard.io.candump import Columns
 from canguard.io.frame import Frame
 from canguard.io.logs import format_candump_line, read_log
@@ -266,3 +268,39 @@ def test_blocks_are_the_frames(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) 
     assert sum(f.is_error_frame for f in listed) == sum(f.is_error_frame for f in frames) > 0
     assert any(f.dlc == 15 for f in listed)
     assert any(b.remote for b in blocks) and any(b.fd for b in blocks)
+
+
+@pytest.mark.parametrize("blocks", [True, False])
+def test_reader_failure_part_way(blocks: bool, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """python-can failing part-way: every frame before the failure first, then a LogFormatError naming the file."""
+    frames = list(read_log(EXAMPLES / "overload.log.gz"))[:300]
+    path = write_format(frames, tmp_path / "x.blf")
+    whole = list(read_log(path))
+
+    def failing(fmt: str) -> Callable[[Any], Any]:
+        def read(fobj: Any) -> Any:
+            for i, msg in enumerate(can.BLFReader(fobj)):
+                if i == 250:
+                    raise ValueError("corrupt object")
+                yield msg
+        return read
+
+    monkeypatch.setattr(canguard.io.pycan, "_reader_class", failing)
+    got: list[Frame] = []
+    with pytest.raises(LogFormatError, match=r"x\.blf: BLF reader failed after 250 frames: ValueError: corrupt object"):
+        if blocks:
+            for part in read_log(path).chunks():
+                got.extend(part if isinstance(part, list) else part.frames())
+        else:
+            got.extend(read_log(path))
+    assert got == whole[:250]
+
+
+def test_bad_header(tmp_path: Path) -> None:
+    """A file python-can cannot open as its format is a LogFormatError naming it, on either reading."""
+    path = tmp_path / "x.blf"
+    path.write_bytes(b"not a BLF file at all" * 10)
+    with pytest.raises(LogFormatError, match=r"x\.blf: not a valid BLF log"):
+        list(read_log(path).chunks())
+    with pytest.raises(LogFormatError, match=r"x\.blf: not a valid BLF log"):
+        list(read_log(path))
