@@ -54,15 +54,16 @@ class Columns(NamedTuple):
 
     Every line has passed the checks the line parser would make; what is left is
     conversion, which costs only for the rows somebody asks for (:meth:`frame`)
-    or for all of them (:meth:`frames`). ``ts`` are the timestamp texts, all of
-    one width with the dot at one place, so text order is time order;
-    ``ordered`` is True when they never go back (in the block) and distinct texts
-    are distinct floats. ``ids`` are the id texts as written (3 hex digits:
-    standard, 8: extended; any case).
+    or for all of them (:meth:`frames`). ``ts`` are the timestamps: in candump
+    blocks the texts, all of one width with the dot at one place, so text order is
+    time order; in python-can blocks (:mod:`canguard.io.pycan_blocks`) the floats:
+    consumers ask only ``float(ts[i])``. ``ordered`` is True when they never go back
+    (in the block) and distinct texts are distinct floats. ``ids`` are the id texts
+    as written (3 hex digits: standard, 8: extended; any case).
     """
 
     n: int
-    ts: list[str]
+    ts: list[Any]
     chans: list[str]
     ids: list[str]
     data: list[str]

@@ -4,14 +4,15 @@ The replay engine works on :class:`~canguard.io.candump.Columns` blocks (one cha
 timestamps that never go back) as columns; this module gives it python-can's
 messages in that shape, so that every format reaches the column path, not only
 candump logs. Each block of up to :data:`BLOCK` messages is taken apart into columns
-at once (one ``attrgetter`` over the messages), and each row is written the way
-:class:`Columns` holds a candump row and :meth:`Columns.frame` reads it back:
-``ts`` the ``repr`` of the frame's float timestamp (``float`` gives back the same
-float, and distinct floats have distinct texts), ``ids`` 3 (standard) or 8
-(extended) upper-case hex digits, ``data`` the payload as hex text, ``fd`` the
-BRS / ESI flags digit of CAN FD rows, ``remote`` the DLC of remote rows (-1: none).
-``Columns.frame(i)`` is, field for field, what :func:`~canguard.io.pycan.frame_from_message`
-makes of the same message.
+at once (one C-level ``attrgetter`` pass per field), and each row is held the way
+:class:`Columns` holds a candump row and :meth:`Columns.frame` reads it back: ``ids``
+3 (standard) or 8 (extended) upper-case hex digits, ``data`` the payload as hex
+text, ``fd`` the BRS / ESI flags digit of CAN FD rows, ``remote`` the DLC of remote
+rows (-1: none); ``ts`` are the frames' float timestamps themselves (a candump
+block keeps its texts; both give the time with ``float``, which is all the engine
+asks of them; formatting python-can's floats to exact texts cost more than the
+column path saves). ``Columns.frame(i)`` is, field for field, what
+:func:`~canguard.io.pycan.frame_from_message` makes of the same message.
 
 Rows a block cannot hold go as lists of frames (``frame_from_message``), exactly as
 the candump reader sends lines its block parser refuses: error frames, ids out of
@@ -27,7 +28,9 @@ engine takes frame by frame anyway).
 from __future__ import annotations
 
 import math
+import operator
 from collections.abc import Iterator, Sequence
+from itertools import compress
 from operator import attrgetter, eq, le, lt
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -47,47 +50,68 @@ BLOCK = 4096
 MIN_BLOCK = 16
 """Shorter runs of rows a block could hold go as frames."""
 
-_FIELDS = attrgetter(
-    "timestamp", "channel", "arbitration_id", "is_extended_id", "data", "dlc",
-    "is_fd", "is_remote_frame", "is_error_frame", "bitrate_switch", "error_state_indicator",
-)
+_TIMESTAMP, _CHANNEL, _ID, _EXTENDED, _DATA, _DLC = map(
+    attrgetter, ("timestamp", "channel", "arbitration_id", "is_extended_id", "data", "dlc"))
+_FLAGS = tuple(map(attrgetter, ("is_fd", "is_remote_frame", "is_error_frame", "bitrate_switch",
+                                "error_state_indicator")))
+"""The flags of a row a block holds: only CAN FD (with BRS / ESI) and remote rows, with their dict."""
 
 
-def _id_text(key: tuple[Any, Any]) -> str | None:
-    """How candump -L writes the id of ``(arbitration_id, is_extended_id)``; None when it cannot."""
-    cid, ext = int(key[0]), key[1]
-    if ext:
-        return f"{cid:08X}" if 0 <= cid <= CAN_EFF_MASK else None
-    return f"{cid:03X}" if 0 <= cid <= CAN_SFF_MASK else None
+def _texts(cache: dict[Any, str | None], cids: list[Any], extended: bool) -> dict[Any, str | None]:
+    """``cache`` (id -> how candump -L writes it, None when it cannot) completed for ``cids``."""
+    for cid in set(cids) - cache.keys():
+        i = int(cid)
+        if extended:
+            cache[cid] = f"{i:08X}" if 0 <= i <= CAN_EFF_MASK else None
+        else:
+            cache[cid] = f"{i:03X}" if 0 <= i <= CAN_SFF_MASK else None
+    return cache
 
 
 class _Batch:
     """One batch of python-can messages as columns, and which rows a :class:`Columns` block can hold."""
 
-    def __init__(self, msgs: list[can.Message], names: dict[Any, str], ids: dict[tuple[Any, Any], str | None]) -> None:
+    def __init__(self, msgs: list[can.Message], names: dict[Any, str], std: dict[Any, str | None],
+                 ext: dict[Any, str | None]) -> None:
         self.msgs = msgs
         self.n = n = len(msgs)
-        (raw_ts, raw_ch, cids, exts, datas, dlcs, fds, rems, errs, brss, esis) = zip(*map(_FIELDS, msgs), strict=True)
-        self.ts = ts = [float(x or 0.0) for x in raw_ts]  # as frame_from_message: float(msg.timestamp or 0.0)
-        for c in set(raw_ch) - names.keys():
+        raw_ts = list(map(_TIMESTAMP, msgs))
+        if 0.0 in raw_ts or None in raw_ts:  # as frame_from_message: float(msg.timestamp or 0.0)
+            self.ts = ts = [float(x or 0.0) for x in raw_ts]
+        else:
+            self.ts = ts = list(map(float, raw_ts))  # float(x) is x for a float: no new object
+        raw_ch = list(map(_CHANNEL, msgs))
+        distinct = set(raw_ch)
+        for c in distinct - names.keys():
             names[c] = channel_name(c)
-        self.chans = list(map(names.__getitem__, raw_ch))
-        keys = list(zip(cids, exts, strict=True))
-        for k in set(keys) - ids.keys():
-            ids[k] = _id_text(k)
-        self.ids: list[str | None] = list(map(ids.__getitem__, keys))
-        if None in datas:
-            datas = tuple(b"" if d is None else d for d in datas)
+        self.chans = [names[raw_ch[0]]] * n if len(distinct) == 1 else list(map(names.__getitem__, raw_ch))
+        cids = list(map(_ID, msgs))
+        exts = list(map(_EXTENDED, msgs))
+        self.ids: list[str | None]
+        if not any(exts):
+            self.ids = list(map(_texts(std, cids, False).__getitem__, cids))
+        elif all(exts):
+            self.ids = list(map(_texts(ext, cids, True).__getitem__, cids))
+        else:
+            _texts(std, list(compress(cids, map(operator.not_, exts))), False)
+            _texts(ext, list(compress(cids, exts)), True)
+            self.ids = [ext[c] if e else std[c] for c, e in zip(cids, exts, strict=True)]
+        datas = list(map(_DATA, msgs))
         if set(map(type, datas)) == {bytearray}:  # python-can's Message keeps its data as a bytearray
             self.hexes = list(map(bytearray.hex, datas))
         else:
-            self.hexes = [bytes(d).hex() for d in datas]
+            datas = [b"" if d is None else bytes(d) for d in datas]
+            self.hexes = list(map(bytes.hex, datas))
         lens = list(map(len, datas))
+        dlcs = list(map(_DLC, msgs))
+        flags = [list(map(get, msgs)) for get in _FLAGS]
+        fds, rems, errs, brss, esis = flags
         self.fd: dict[int, int] = {}
         self.remote: dict[int, int] = {}
         if (
-            not (any(fds) or any(rems) or any(errs) or any(brss) or any(esis))
-            and lens == list(dlcs) and max(lens) <= 8 and None not in self.ids and math.isfinite(sum(ts))
+            not any(map(any, flags))
+            and lens == dlcs and max(lens) <= 8 and math.isfinite(sum(ts))
+            and ((None not in std.values() and None not in ext.values()) or None not in self.ids)
         ):
             self.good: Sequence[bool] | None = None  # every row
             return
@@ -120,11 +144,10 @@ class _Batch:
         whole = a == 0 and b == n
         fd = {i - a: v for i, v in self.fd.items() if a <= i < b} if self.fd else None
         remote = {i - a: v for i, v in self.remote.items() if a <= i < b} if self.remote else None
-        ts = self.ts if whole else self.ts[a:b]
         ids: list[Any] = self.ids if whole else self.ids[a:b]
         channel = self.chans[a]
-        return Columns(b - a, list(map(repr, ts)), [channel] * (b - a), ids, self.hexes if whole else self.hexes[a:b],
-                       True, channel, fd or None, remote or None)
+        return Columns(b - a, self.ts if whole else self.ts[a:b], [channel] * (b - a), ids,
+                       self.hexes if whole else self.hexes[a:b], True, channel, fd or None, remote or None)
 
     def pieces(self) -> Iterator[Columns | list[Frame]]:
         """The batch as blocks and frame lists, in order."""
@@ -163,11 +186,12 @@ def python_can_chunks(p: Path, fmt: str, gz: str, st: ReadStats, owner: LogFrame
     frames = 0
     last_t = -math.inf
     names: dict[Any, str] = {}
-    ids: dict[tuple[Any, Any], str | None] = {}
+    std: dict[Any, str | None] = {}
+    ext: dict[Any, str | None] = {}
     try:
         reader = _Messages(p, fmt, gz)
         while msgs := reader.next_batch(BLOCK):
-            batch = _Batch(msgs, names, ids)
+            batch = _Batch(msgs, names, std, ext)
             ts = batch.ts
             prev = [last_t, *ts[:-1]]
             st.backwards_timestamps += sum(map(lt, ts, prev))
