@@ -82,6 +82,8 @@ class MessagePlan:
         (C, no numpy); None: the numpy column decoder."""
         self.seen = 0
         self.empty = 0
+        self.settle_ok = False
+        """Its rows may be taken a block at a time (:func:`canguard.engine.settle.may_settle`, set by the engine)."""
         self.tops = [-1.0] * len(self.outputs)
         if self.single:
             self.step = self._single_step()  # type: ignore[method-assign,assignment]

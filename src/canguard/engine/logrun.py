@@ -246,6 +246,7 @@ class LogRunMixin:
             else:
                 group.append(i)
         slots: list[tuple[MessagePlan | None, tuple[float, ...] | None] | None] = [None] * cols.n
+        active: list[tuple[MessagePlan, list[int], list[tuple[float, ...] | None], Callable[[Any], Any]]] = []
         for plan, group in groups.items():
             if plan is None:
                 for i in group:
@@ -255,6 +256,12 @@ class LogRunMixin:
             decoded = plan.decode(pick(data))
             if plan.passive and plan.batch(pick(ts), decoded):
                 continue
+            active.append((plan, group, decoded, pick))
+        if active and None not in groups and _settled(active, ts):
+            for plan, _group, decoded, _pick in active:
+                plan.count_empty(decoded.count(EMPTY))
+            return slots
+        for plan, group, decoded, _pick in active:
             empty = 0
             for i, values in zip(group, decoded, strict=True):
                 if values is EMPTY:
@@ -281,6 +288,7 @@ class LogRunMixin:
     def _compile_plans(self, bus: str) -> dict[str, MessagePlan | None]:
         """Every id text (any letter case) of a message configured on ``bus``, with its plan or None (feed it)."""
         from canguard.engine.blocks import compile_plan
+        from canguard.engine.settle import may_settle
         from canguard.io.logs import candump_id_texts
 
         counters = self.decoder.per_bus[bus]
@@ -288,9 +296,10 @@ class LogRunMixin:
         made = self._plan_list.setdefault(bus, [])
         # the stop confirmation reads its source between ticks: not passive; metrics count per frame
         readers: set[str] | None = set(self.ctx.read_sources)
-        if self.cfg.stop.confirm is not None:
+        confirm = self.cfg.stop.confirm.source if self.cfg.stop.confirm is not None else None
+        if confirm is not None:
             assert readers is not None
-            readers.add(self.cfg.stop.confirm.source)
+            readers.add(confirm)
         if self.metrics is not None:
             readers = None
         for (b, cid, ext), entry in self.decoder.entries():
@@ -298,10 +307,26 @@ class LogRunMixin:
                 continue
             plan = compile_plan(entry, counters, self.ctx, self.stats, readers)
             if plan is not None:
+                plan.settle_ok = may_settle(plan, confirm, self.metrics is not None)
                 made.append(plan)
             for text in candump_id_texts(cid, ext):
                 plans[text] = plan
         return plans
+
+def _settled(active: list[tuple[MessagePlan, list[int], list[Any], Callable[[Any], Any]]], ts: list[str]) -> bool:
+    """Every active message of the block taken whole (:mod:`canguard.engine.settle`), or none of them."""
+    from canguard.engine.settle import prepare, settle
+
+    prepared = []
+    for plan, _group, decoded, pick in active:
+        if not plan.settle_ok:
+            return False
+        ready = prepare(plan, pick(ts), decoded)
+        if ready is None:
+            return False
+        prepared.append(ready)
+    return settle(prepared)
+
 
 def _picker(rows: list[int]) -> Callable[[Sequence[Any]], tuple[Any, ...]]:
     """``itemgetter(*rows)`` that gives a tuple for one row too (itemgetter then gives the bare value)."""

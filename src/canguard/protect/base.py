@@ -135,6 +135,28 @@ class LatchedModel(ProtectionModel):
             return None
         return abs(value)
 
+    def settles(self, low: float, high: float, first_t: float) -> bool:
+        """True when a run of samples, fed one by one, would trip or recover nothing (nothing is changed here).
+
+        The run: samples from ``first_t`` on, in time order, with |values| between ``low``
+        and ``high``. Then the state after the run depends only on its last sample
+        (:meth:`take_run`). Used by the replay's column path (:mod:`canguard.engine.settle`);
+        the default says no.
+        """
+        return False
+
+    def take_run(self, first_t: float, gap_s: float, last: float, last_t: float) -> None:
+        """Take a run :meth:`settles` accepted: the state its samples would have left, from its last one.
+
+        ``gap_s``: the largest time between two samples of the run; ``last`` (signed) at ``last_t``.
+        """
+        self._last_t = last_t
+        self._value = abs(last)
+
+    def _in_order(self, first_t: float) -> bool:
+        """True when a run starting at ``first_t`` would be taken (not counted out of order)."""
+        return self._last_t is None or first_t >= self._last_t
+
     def carry_from(self, old: ProtectionModel) -> None:
         """Take over the running state of the model this one replaces (config reload, same guard).
 

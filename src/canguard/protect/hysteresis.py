@@ -123,6 +123,24 @@ class Hysteresis(LatchedModel):
             self._under_since = None
         return False
 
+    def settles(self, low: float, high: float, first_t: float) -> bool:
+        """A run below the trip threshold (not tripped) or above the recovery one (tripped); never with inrush."""
+        if self.inrush is not None or not self._in_order(first_t):
+            return False
+        return low > self.recovery_a if self._tripped else high < self.overcurrent_a
+
+    def take_run(self, first_t: float, gap_s: float, last: float, last_t: float) -> None:
+        """Such a run restarts its side's persistence timer at every sample: it ends unset.
+
+        The other side's timer is unset already (a trip clears the overcurrent timer, a
+        recovery the recovery timer), so a gap that restarts both changes nothing more.
+        """
+        if self._tripped:
+            self._under_since = None
+        else:
+            self._over_since = None
+        super().take_run(first_t, gap_s, last, last_t)
+
     def _threshold_value(self) -> float:
         thr = self.threshold_at(self._last_t) if self._last_t is not None else self.overcurrent_a
         return math.inf if thr is None else thr

@@ -46,6 +46,12 @@ class Threshold(LatchedModel):
         self._value = a
         return self._set_tripped(a > self.max_value, t)
 
+    def settles(self, low: float, high: float, first_t: float) -> bool:
+        """A run that stays on its side of ``max_value`` (see :meth:`LatchedModel.settles`)."""
+        if not self._in_order(first_t):
+            return False
+        return low > self.max_value if self._tripped else not high > self.max_value
+
     def _threshold_value(self) -> float:
         return self.max_value
 

@@ -1,0 +1,107 @@
+"""Settled blocks: a block whose configured rows change nothing a tick can see is taken whole (replay; issue 16).
+
+Row by row, each configured row of a block updates its source's health and its
+models (:meth:`MessagePlan.step <canguard.engine.blocks.MessagePlan.step>`), a few
+microseconds each: on a log where every frame is configured, most of a replay. Yet
+on most blocks nothing happens: no value crosses a threshold, no source goes stale
+or comes back. Such a block is *settled*: every message's rows are taken at once
+and the state is set to that of its last row, before the block's ticks run.
+
+A block is settled only when, for every configured message in it:
+
+- its rows all passed the column checks (no row for ``feed``: no NaN, range, length
+  or multiplexer problem, no presence flag, no alive counter) and the block has no
+  remote frame nor a message without a plan;
+- no two of its rows, nor its first row and the source's previous sample, lie more
+  than the source's ``max_age`` apart, and the source was usable before it (so its
+  reason is "" at every instant of the block, whichever of its samples a tick sees);
+- every model the rows feed declares, on the run's lowest and highest |value|, that
+  the run trips or recovers nothing (:meth:`~canguard.protect.base.LatchedModel.settle`:
+  threshold and hysteresis without inrush; others decline);
+- its source is not the stop confirmation's (read between ticks) and no metrics
+  count per frame.
+
+Then no edge happens in the block, so it has no edge tick, and every tick in it
+(each at its own time, as before) finds each guard's status, reason and feedback
+as row by row: they change only at edges. Only the model's latest value differs
+before the block's end, and it is read only to word an edge. The differential
+tests (``tests/test_replay_columns.py``, ``tests/test_replay_random_logs.py``,
+``tests/test_quiet_ticks.py``) hold the result to the frame-by-frame engine.
+"""
+
+from __future__ import annotations
+
+import operator
+from collections.abc import Sequence
+from itertools import islice
+from typing import TYPE_CHECKING
+
+from canguard.engine.blocks import EMPTY
+
+if TYPE_CHECKING:
+    from canguard.engine.blocks import MessagePlan
+
+Prepared = tuple["MessagePlan", list[float], list[tuple[float, ...]], float, float]
+"""(plan, row times, row values, first time, largest gap) of a message whose rows may be settled."""
+
+
+def may_settle(plan: MessagePlan, confirm_source: str | None, metrics: bool) -> bool:
+    """True when ``plan``'s rows may ever be settled (the static conditions of the module docstring)."""
+    if metrics or plan.counter or plan.passive:
+        return False
+    for source, _role, _signal, present, _health, _lo, _hi, models in plan.outputs:
+        if present or source == confirm_source or not models:
+            return False
+    return True
+
+
+def prepare(plan: MessagePlan, stamps: Sequence[str], rows: Sequence[tuple[float, ...] | None]) -> Prepared | None:
+    """The rows of one message in a block, checked for settling (nothing changed); None: go row by row."""
+    times: list[float] = []
+    values: list[tuple[float, ...]] = []
+    for stamp, row in zip(stamps, rows, strict=True):
+        if row is None:
+            return None
+        if row is not EMPTY:
+            times.append(float(stamp))
+            values.append(row)
+    if not values:
+        return None
+    first = times[0]
+    gap = max(map(operator.sub, islice(times, 1, None), times), default=0.0)
+    for _source, role, _signal, _present, health, _lo, _hi, _models in plan.outputs:
+        latest = health._latest_t.get(role)
+        max_age = health.max_age_s
+        if latest is None or first < latest or first - latest > max_age or gap > max_age:
+            return None
+        if health._invalid.get(role):
+            return None
+    return plan, times, values, first, gap
+
+
+def settle(prepared: list[Prepared]) -> bool:
+    """Take every prepared message's rows whole if every model agrees; False: nothing changed, go row by row."""
+    runs: list[list[tuple[float, float]]] = []
+    for plan, _times, values, first, _gap in prepared:
+        bounds = []
+        for j, (*_head, models) in enumerate(plan.outputs):
+            column = [abs(row[j]) for row in values]
+            low, high = min(column), max(column)
+            if not all(model.settles(low, high, first) for model in models):
+                return False
+            bounds.append((low, high))
+        runs.append(bounds)
+    for (plan, times, values, first, gap), bounds in zip(prepared, runs, strict=True):
+        last_t = times[-1]
+        final = values[-1]
+        for j, (_source, role, _signal, _present, health, _lo, _hi, models) in enumerate(plan.outputs):
+            for model in models:
+                model.take_run(first, gap, final[j], last_t)
+            health._latest_t[role] = last_t
+            health._value[role] = final[j]
+            health._valid_t[role] = last_t
+            high = bounds[j][1]
+            if high > plan.tops[j]:
+                plan.tops[j] = high
+        plan.seen += len(values)
+    return True
