@@ -300,8 +300,8 @@ def traced_summary(trace_dir: Path) -> dict[str, Any]:
         if len(rows[0]) > 7 else None}
     trim = trace_dir / "trim.tsv"
     if trim.exists():
-        out["rss_before_after_malloc_trim"] = [[float(x) for x in line.split()]
-                                               for line in trim.read_text(encoding="ascii").splitlines() if line]
+        out["at_exit_rss_before_after_malloc_trim_traced_mb"] = [
+            [float(x) for x in line.split()] for line in trim.read_text(encoding="ascii").splitlines() if line]
     return out
 
 

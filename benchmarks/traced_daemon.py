@@ -10,6 +10,11 @@ Benchmarks only: the product has no tracing hook. Environment:
 ``CANGUARD_TRACE_SNAPS``   comma-separated seconds after start at which a snapshot is dumped
                            (``snap_<s>.pickle``; load with ``tracemalloc.Snapshot.load``)
 
+When the daemon exits it dumps ``snap_exit.pickle`` and writes ``trim.tsv``: seconds, RSS MB,
+RSS MB after ``malloc_trim(0)``, traced MB. RSS that falls back when glibc returns its free
+pages was fragmentation, not live objects. (Not at each snapshot: a trim in mid-run would
+change the RSS curve it is meant to explain.)
+
 ``traced.tsv`` has one line per sample: seconds, traced MB (current), traced MB (peak), RSS MB,
 frames waiting in the bus reader's queue (a loop that falls behind looks like a leak), and
 the number of keys and clients in py_trees' global blackboard, and tracemalloc's own memory
@@ -18,9 +23,7 @@ in MB (RSS minus it is about what the daemon takes without tracing).
     python benchmarks/traced_daemon.py --compare snap_120.pickle snap_1700.pickle [N]
 
 prints the N (default 15) allocation sites that grew most from one snapshot to the other.
-At each snapshot it also writes RSS after ``malloc_trim(0)`` (``trim.tsv``): RSS that falls
-back when glibc returns its free pages was fragmentation, not live objects. SIGUSR1 dumps a
-snapshot now (``snap_usr1_<s>.pickle``).
+SIGUSR1 dumps a snapshot now (``snap_usr1_<s>.pickle``).
 """
 
 from __future__ import annotations
@@ -80,12 +83,13 @@ def dump(name: str) -> None:
 
 def trim_line(elapsed: float) -> None:
     before = rss_mb()
+    traced = tracemalloc.get_traced_memory()[0] / 2**20
     try:
         ctypes.CDLL("libc.so.6").malloc_trim(0)
     except (OSError, AttributeError):
         return
     with open(OUT / "trim.tsv", "a", encoding="ascii") as f:
-        f.write(f"{elapsed:.0f}\t{before:.1f}\t{rss_mb():.1f}\n")
+        f.write(f"{elapsed:.0f}\t{before:.1f}\t{rss_mb():.1f}\t{traced:.2f}\n")
 
 
 def sampler() -> None:
@@ -103,7 +107,6 @@ def sampler() -> None:
         if snaps and elapsed >= snaps[0]:
             at = snaps.pop(0)
             dump(f"snap_{at:.0f}")
-            trim_line(elapsed)
         time.sleep(0.5)
 
 
@@ -134,7 +137,10 @@ def main() -> int:
     from canguard.cli.main import main as canguard_main
 
     sys.argv[0] = "canguard"
-    return int(canguard_main() or 0)
+    code = int(canguard_main() or 0)
+    dump("snap_exit")  # the daemon object is still alive (DAEMONS): its engine is in the snapshot
+    trim_line(time.monotonic() - T0)
+    return code
 
 
 if __name__ == "__main__":
