@@ -316,8 +316,10 @@ def _struct_rows(plan: tuple[struct.Struct, tuple[_Conv, ...]], data: bytes) -> 
     raws = list(st.iter_unpack(data))
     if len(conv) == 1 and not conv[0][4]:
         index, scale, offset, identity, _present, lo, hi = conv[0]
-        col = [r[index] for r in raws]
+        col = list(map(operator.itemgetter(index), raws))
         values = list(map(float, col)) if identity else [float(x * scale + offset) for x in col]
+        if all(map(lo.__le__, values)) and all(map(hi.__ge__, values)):  # the common block: all in range (C)
+            return list(zip(values))
         return [(v,) if lo <= v <= hi else None for v in values]  # NaN and +-inf fail the range
     out: list[tuple[float, ...] | None] = []
     for raw in raws:

@@ -13,7 +13,7 @@ import math
 from bisect import bisect_left
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
-from itertools import compress
+from itertools import compress, groupby
 from operator import itemgetter
 from typing import TYPE_CHECKING, Any
 
@@ -183,6 +183,9 @@ class LogRunMixin:
         skipped = n - first - len(rows)
         last_row = rows[-1] if rows else -1  # the last row feed would see, whatever path takes it
         slots = self._decode_rows(plans, rows, cols) if rows else []
+        if slots is None:
+            rows = []  # every row taken whole: only the ticks due in the block are left
+            slots = []
         feed = self.feed
         frame = cols.frame
         pos = first
@@ -222,14 +225,16 @@ class LogRunMixin:
     @staticmethod
     def _decode_rows(
         plans: Mapping[str, MessagePlan | None], rows: list[int], cols: Columns
-    ) -> list[tuple[MessagePlan | None, tuple[float, ...] | None] | None]:
-        """Per row of the block: its plan and decoded values when it goes one by one (else None).
+    ) -> list[tuple[MessagePlan | None, tuple[float, ...] | None] | None] | None:
+        """Per row of the block: its plan and decoded values when it goes one by one (else None); None: no row left.
 
         Each message's rows are decoded together (:meth:`MessagePlan.decode`); a message
         nobody reads between ticks may take its rows whole (:meth:`MessagePlan.batch`,
         before any row of the block: it stores its state as at the end of the block,
         which every tick in the block reads as it would have read the row-by-row state);
-        rows without a configured signal are only counted; remote rows go to ``feed``.
+        rows without a configured signal are only counted; remote rows go to ``feed``. When no
+        configured row of the block can change what a tick sees, every message's rows are
+        taken whole (:mod:`canguard.engine.settle`) and None is returned.
         """
         from canguard.engine.blocks import EMPTY  # numpy: imported when a block is first decoded
 
@@ -239,12 +244,15 @@ class LogRunMixin:
         if remote:
             groups[None] = [i for i in rows if i in remote]
             rows = [i for i in rows if i not in remote]
-        for i, plan in zip(rows, map(plans.__getitem__, map(ids.__getitem__, rows)), strict=True):
+        # rows by id text (a stable sort keeps each id's rows in time order), in C but for one step per id
+        for text, same in groupby(sorted(rows, key=ids.__getitem__), key=ids.__getitem__):
+            plan = plans[text]
             group = groups.get(plan)
             if group is None:
-                groups[plan] = [i]
-            else:
-                group.append(i)
+                groups[plan] = list(same)
+            else:  # another letter case of the same id, or a second message without a plan
+                group.extend(same)
+                group.sort()
         slots: list[tuple[MessagePlan | None, tuple[float, ...] | None] | None] = [None] * cols.n
         active: list[tuple[MessagePlan, list[int], list[tuple[float, ...] | None], Callable[[Any], Any]]] = []
         for plan, group in groups.items():
@@ -260,7 +268,7 @@ class LogRunMixin:
         if active and None not in groups and _settled(active, ts):
             for plan, _group, decoded, _pick in active:
                 plan.count_empty(decoded.count(EMPTY))
-            return slots
+            return None
         for plan, group, decoded, _pick in active:
             empty = 0
             for i, values in zip(group, decoded, strict=True):

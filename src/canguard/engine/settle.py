@@ -33,7 +33,8 @@ from __future__ import annotations
 
 import operator
 from collections.abc import Sequence
-from itertools import islice
+from itertools import compress, islice
+from operator import itemgetter
 from typing import TYPE_CHECKING
 
 from canguard.engine.blocks import EMPTY
@@ -41,8 +42,8 @@ from canguard.engine.blocks import EMPTY
 if TYPE_CHECKING:
     from canguard.engine.blocks import MessagePlan
 
-Prepared = tuple["MessagePlan", list[float], list[tuple[float, ...]], float, float]
-"""(plan, row times, row values, first time, largest gap) of a message whose rows may be settled."""
+Prepared = tuple["MessagePlan", Sequence[tuple[float, ...]], float, float]
+"""(plan, row values, first time, last time) of a message whose rows may be settled."""
 
 
 def may_settle(plan: MessagePlan, confirm_source: str | None, metrics: bool) -> bool:
@@ -57,51 +58,48 @@ def may_settle(plan: MessagePlan, confirm_source: str | None, metrics: bool) -> 
 
 def prepare(plan: MessagePlan, stamps: Sequence[str], rows: Sequence[tuple[float, ...] | None]) -> Prepared | None:
     """The rows of one message in a block, checked for settling (nothing changed); None: go row by row."""
-    times: list[float] = []
-    values: list[tuple[float, ...]] = []
-    for stamp, row in zip(stamps, rows, strict=True):
-        if row is None:
-            return None
-        if row is not EMPTY:
-            times.append(float(stamp))
-            values.append(row)
-    if not values:
+    if None in rows:
         return None
-    first = times[0]
-    gap = max(map(operator.sub, islice(times, 1, None), times), default=0.0)
+    if EMPTY in rows:  # multiplexer pages without a configured signal: counted, no sample
+        keep = list(map(bool, rows))
+        stamps = list(compress(stamps, keep))
+        rows = list(compress(rows, keep))
+        if not rows:
+            return None
+    first, last = float(stamps[0]), float(stamps[-1])
+    if last - first > plan.min_age:  # else no gap can exceed it (float subtraction is monotonic)
+        times = list(map(float, stamps))
+        if max(map(operator.sub, islice(times, 1, None), times)) > plan.min_age:
+            return None
     for _source, role, _signal, _present, health, _lo, _hi, _models in plan.outputs:
         latest = health._latest_t.get(role)
-        max_age = health.max_age_s
-        if latest is None or first < latest or first - latest > max_age or gap > max_age:
+        if latest is None or first < latest or first - latest > health.max_age_s or health._invalid.get(role):
             return None
-        if health._invalid.get(role):
-            return None
-    return plan, times, values, first, gap
+    return plan, rows, first, last  # type: ignore[return-value]  # no None left in rows
 
 
 def settle(prepared: list[Prepared]) -> bool:
     """Take every prepared message's rows whole if every model agrees; False: nothing changed, go row by row."""
-    runs: list[list[tuple[float, float]]] = []
-    for plan, _times, values, first, _gap in prepared:
-        bounds = []
+    runs: list[list[float]] = []
+    for plan, rows, first, _last in prepared:
+        highs = []
         for j, (*_head, models) in enumerate(plan.outputs):
-            column = [abs(row[j]) for row in values]
+            column = list(map(abs, map(itemgetter(j), rows)))
             low, high = min(column), max(column)
             if not all(model.settles(low, high, first) for model in models):
                 return False
-            bounds.append((low, high))
-        runs.append(bounds)
-    for (plan, times, values, first, gap), bounds in zip(prepared, runs, strict=True):
-        last_t = times[-1]
-        final = values[-1]
+            highs.append(high)
+        runs.append(highs)
+    for (plan, rows, _first, last_t), highs in zip(prepared, runs, strict=True):
+        final = rows[-1]
+        tops = plan.tops
         for j, (_source, role, _signal, _present, health, _lo, _hi, models) in enumerate(plan.outputs):
             for model in models:
-                model.take_run(first, gap, final[j], last_t)
+                model.take_run(final[j], last_t)
             health._latest_t[role] = last_t
             health._value[role] = final[j]
             health._valid_t[role] = last_t
-            high = bounds[j][1]
-            if high > plan.tops[j]:
-                plan.tops[j] = high
-        plan.seen += len(values)
+            if highs[j] > tops[j]:
+                tops[j] = highs[j]
+        plan.seen += len(rows)
     return True

@@ -157,7 +157,9 @@ def _bulk_columns(block: str, n: int) -> Columns | None:
     data = tok[3:-1:k]
     fd: dict[int, int] = {}
     remote: dict[int, int] = {}
-    if has_fd or "#R" in plain or "#r" in plain:  # CAN FD or remote rows (or only a T/R marker): row by row
+    joined = "".join(data)  # hex digits only, unless a remote row ("R", "R4") or CAN FD ("~F...")
+    # one-letter searches (memchr): "#R" in the text was a slow search, '#' being on every line 4 times
+    if has_fd or "R" in joined or "r" in joined:  # CAN FD or remote rows: row by row
         for i, text in enumerate(data):
             c = text[:1]
             if c == "~":
@@ -173,18 +175,15 @@ def _bulk_columns(block: str, n: int) -> Columns | None:
                 data[i] = ""
             elif len(text) not in _DATA_LENGTHS:
                 return None
+        joined = "".join(data)
     elif not set(map(len, data)) <= _DATA_LENGTHS:
         return None
-    if "".join(data).encode().translate(None, _HEX_BYTES):
+    if joined.encode().translate(None, _HEX_BYTES):
         return None
     ordered = all(map(operator.le, ts, islice(ts, 1, None))) and math.ulp(float(ts[-1])) < 10.0 ** (dot + 1 - width)
     chans = tok[1:-1:k]
     first = chans[0]
-    if first.strip(_HEX + ".") and first not in _MARKERS:
-        # a name no other token can equal (timestamps: digits and a dot; ids, data: hex; markers)
-        single = plain.count(f"#{first}#") == n
-    else:
-        single = chans.count(first) == n
+    single = chans.count(first) == n
     return Columns(n, ts, chans, ids, data, ordered, first if single else None, fd or None, remote or None)
 
 

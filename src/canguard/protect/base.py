@@ -145,10 +145,10 @@ class LatchedModel(ProtectionModel):
         """
         return False
 
-    def take_run(self, first_t: float, gap_s: float, last: float, last_t: float) -> None:
+    def take_run(self, last: float, last_t: float) -> None:
         """Take a run :meth:`settles` accepted: the state its samples would have left, from its last one.
 
-        ``gap_s``: the largest time between two samples of the run; ``last`` (signed) at ``last_t``.
+        ``last``: the run's last sample (signed), at ``last_t``.
         """
         self._last_t = last_t
         self._value = abs(last)

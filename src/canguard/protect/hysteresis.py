@@ -129,7 +129,7 @@ class Hysteresis(LatchedModel):
             return False
         return low > self.recovery_a if self._tripped else high < self.overcurrent_a
 
-    def take_run(self, first_t: float, gap_s: float, last: float, last_t: float) -> None:
+    def take_run(self, last: float, last_t: float) -> None:
         """Such a run restarts its side's persistence timer at every sample: it ends unset.
 
         The other side's timer is unset already (a trip clears the overcurrent timer, a
@@ -139,7 +139,7 @@ class Hysteresis(LatchedModel):
             self._under_since = None
         else:
             self._over_since = None
-        super().take_run(first_t, gap_s, last, last_t)
+        super().take_run(last, last_t)
 
     def _threshold_value(self) -> float:
         thr = self.threshold_at(self._last_t) if self._last_t is not None else self.overcurrent_a
