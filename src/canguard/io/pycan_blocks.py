@@ -44,8 +44,9 @@ from canguard.io.pycan import _Messages, channel_name, frame_from_message
 if TYPE_CHECKING:
     import can
 
-BLOCK = 4096
-"""Messages taken from python-can's reader at a time (one block when all of them fit)."""
+BLOCK = 2048
+"""Messages taken from python-can's reader at a time (one block when all of them fit; 2048 replayed a
+600 k-frame BLF log 3-5 % faster than 4096 or 1024: caches, and fewer live messages for the garbage collector)."""
 
 MIN_BLOCK = 16
 """Shorter runs of rows a block could hold go as frames."""
