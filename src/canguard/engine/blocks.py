@@ -259,7 +259,7 @@ class MessagePlan:
         self.counters.frames += count
         self.counters.decoded += count
         self.stats.frames += count
-        tops = [max(abs(row[j]) for row in rows if row) for j in range(len(self.outputs))]
+        tops = [max(map(abs, map(operator.itemgetter(j), rows))) for j in range(len(self.outputs))]  # type: ignore[arg-type]
         final = rows[-1]
         assert final is not None
         for j, (source, role, _signal, _present, health, _lo, _hi, _models) in enumerate(self.outputs):

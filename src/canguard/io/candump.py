@@ -157,9 +157,9 @@ def _bulk_columns(block: str, n: int) -> Columns | None:
     data = tok[3:-1:k]
     fd: dict[int, int] = {}
     remote: dict[int, int] = {}
-    joined = "".join(data)  # hex digits only, unless a remote row ("R", "R4") or CAN FD ("~F...")
+    hexes = "".join(data)  # hex digits only, unless a remote row ("R", "R4") or CAN FD ("~F...")
     # one-letter searches (memchr): "#R" in the text was a slow search, '#' being on every line 4 times
-    if has_fd or "R" in joined or "r" in joined:  # CAN FD or remote rows: row by row
+    if has_fd or "R" in hexes or "r" in hexes:  # CAN FD or remote rows: row by row
         for i, text in enumerate(data):
             c = text[:1]
             if c == "~":
@@ -175,10 +175,10 @@ def _bulk_columns(block: str, n: int) -> Columns | None:
                 data[i] = ""
             elif len(text) not in _DATA_LENGTHS:
                 return None
-        joined = "".join(data)
+        hexes = "".join(data)
     elif not set(map(len, data)) <= _DATA_LENGTHS:
         return None
-    if joined.encode().translate(None, _HEX_BYTES):
+    if hexes.encode().translate(None, _HEX_BYTES):
         return None
     ordered = all(map(operator.le, ts, islice(ts, 1, None))) and math.ulp(float(ts[-1])) < 10.0 ** (dot + 1 - width)
     chans = tok[1:-1:k]
