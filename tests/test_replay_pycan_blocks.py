@@ -92,8 +92,12 @@ def write_format(frames: list[Frame], path: Path, brs: Callable[[int, Frame], bo
 
 
 def compressed(path: Path, how: str) -> Path:
-    """``path`` compressed to ``path.gz`` / ``path.xz``."""
+    """``path`` compressed to ``path.gz`` / ``path.xz`` / ``path.zst``."""
     out = path.with_name(path.name + "." + how)
+    if how == "zst":
+        zstandard = pytest.importorskip("zstandard")
+        out.write_bytes(zstandard.ZstdCompressor().compress(path.read_bytes()))
+        return out
     opener: Any = gzip.open if how == "gz" else lzma.open
     with opener(out, "wb") as f:
         f.write(path.read_bytes())
@@ -189,10 +193,10 @@ def test_examples_same_in_every_format(example: str, tmp_path: Path, monkeypatch
 
 
 def test_compressed_formats(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    """.gz and .xz python-can logs reach the column path too, with the plain file's summary."""
+    """.gz, .xz and .zst python-can logs reach the column path too, with the plain file's summary."""
     cfg = load_config(ROBOT_GUARD)
     frames = list(read_log(EXAMPLES / "overload.log.gz"))
-    for fmt, how in (("blf", "gz"), ("asc", "xz"), ("csv", "gz")):
+    for fmt, how in (("blf", "gz"), ("asc", "xz"), ("csv", "gz"), ("trc", "zst")):
         plain = write_format(frames, tmp_path / f"overload.{fmt}")
         want = replay_both(cfg, plain, tmp_path, BLOCK, monkeypatch)
         got = replay_both(cfg, compressed(plain, how), tmp_path, BLOCK, monkeypatch)
