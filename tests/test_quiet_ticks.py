@@ -16,15 +16,13 @@ import pytest
 import yaml
 
 from canguard.config.loader import load_config
-from canguard.engine.core import Engine
-from canguard.engine.gate import LogSink
-from canguard.io.clock import ManualClock
-from test_replay_columns import BUNDLED, DEFAULT_CHUNK, REPO, assert_same, replay
+from test_replay_columns import BUNDLED, DEFAULT_CHUNK, REPO, ROBOT_GUARD, assert_same, replay
 from test_replay_random_logs import write_case
 
 EXAMPLES = REPO / "examples"
 PROTECTED = REPO / "config" / "examples" / "protected_operation.yaml"
 LOGS = sorted(EXAMPLES.glob("*.log.gz"))
+NORMAL = EXAMPLES / "normal.log.gz"
 
 
 def quiet_and_reference(cfg_path: Path, log: Path, out: Path, *, columns: bool = True) -> tuple[int, int]:
@@ -90,13 +88,11 @@ GUARD = '<IsCurrentSafe topic_name="/battery_state" overcurrent_threshold="35" r
 
 
 class TestWhichTreesMayBeQuiet:
-    """Only a tree whose every node repeats itself exactly may have quiet ticks; the others tick every tick."""
+    """Only ticks that reach nodes repeating themselves exactly may be quiet; the rest tick every tick."""
 
     @pytest.mark.parametrize(("why", "body"), [
         ("a timer of its own", f"<ReactiveSequence>{GUARD}<Delay delay_msec=\"100\"><ExecuteTask/></Delay>"
                                "</ReactiveSequence>"),
-        ("I²t cools with time", '<ReactiveSequence><IsI2tSafe topic_name="axis0" continuous_current="20"/>'
-                                "<ExecuteTask/></ReactiveSequence>"),
         ("a threshold read from the blackboard",
          '<ReactiveSequence><IsCurrentSafe topic_name="/battery_state" overcurrent_threshold="{limit}" '
          'recovery_threshold="25"/><ExecuteTask/></ReactiveSequence>'),
@@ -104,20 +100,26 @@ class TestWhichTreesMayBeQuiet:
         ("frames sent at every tick", f"<ReactiveSequence>{GUARD}<PerformRecovery/></ReactiveSequence>"),
     ])
     def test_not_quiet(self, tmp_path: Path, why: str, body: str) -> None:
-        """Trees with a node that may answer differently over time, or acts at every tick, tick every tick."""
-        assert build(tmp_path, body)._quiet_tree() is None, why
+        """A tree that reaches, at every tick of a clean log, a node that may change or act over time ticks every tick.
+
+        (On a log that trips, the ticks where a failing guard keeps the tree from reaching
+        that node may be quiet: ``quiet_and_reference`` holds them to the reference too.)
+        """
+        quiet, ticks = quiet_and_reference(write_tree_config(tmp_path, body), NORMAL, tmp_path)
+        assert ticks > 100 and quiet == 0, why
+
+    @pytest.mark.parametrize("log", [p for p in LOGS if p.name.startswith(("overload", "spike", "dropout"))],
+                             ids=lambda p: p.name.split(".")[0])
+    def test_a_once_only_action_and_i2t_guards(self, tmp_path: Path, log: Path) -> None:
+        """The README's robot guard (I²t guards; PerformRecovery once, then ExecuteTask): the same, mostly quiet."""
+        quiet, ticks = quiet_and_reference(ROBOT_GUARD, log, tmp_path)
+        assert quiet > ticks // 2
 
     def test_guards_sequences_and_task_are_quiet(self, tmp_path: Path) -> None:
-        """Reactive and plain sequences and fallbacks, Inverter/ForceSuccess, guards and ExecuteTask may be quiet."""
+        """Sequences, fallbacks, decorators, guards and ExecuteTask: quiet ticks, the same replay."""
         body = (f"<ReactiveSequence><Fallback>{GUARD}<ForceFailure><AlwaysSuccess/></ForceFailure></Fallback>"
                 f'<Inverter><Inverter><IsCurrentNormal topic_name="axis0" max_current="1000"/></Inverter></Inverter>'
                 '<Sequence><IsJointEffortNormal topic_name="/joint_states" max_effort="150"/></Sequence>'
                 "<ExecuteTask/></ReactiveSequence>")
-        assert build(tmp_path, body)._quiet_tree() is not None
-
-
-def build(tmp_path: Path, body: str) -> Engine:
-    """An engine on the bundled config with ``body`` as its tree (not started)."""
-    cfg = load_config(write_tree_config(tmp_path, body))
-    clock = ManualClock(0.0)
-    return Engine(cfg, clock, LogSink(clock.now, cfg.buses))
+        quiet, ticks = quiet_and_reference(write_tree_config(tmp_path, body), LOGS[0], tmp_path)
+        assert quiet > ticks // 2

@@ -163,8 +163,12 @@ def replay(cfg: Config, log: Path, out: Path, *, columns: bool, chunk: int,
             plan.step = step
         return plan
 
+    boards: list[dict[str, Any]] = []
+
     def capturing_build_summary(cfg: Config, log_path: Path, engine: Engine, *args: Any) -> dict[str, Any]:
         engines.append(engine)
+        boards.append({k: _r(v) for k, v in py_trees.blackboard.Blackboard.storage.items()
+                       if "__const" not in k})  # the keys the tree wrote (not the constants), before the clear
         return build_summary(cfg, log_path, engine, *args)
 
     with pytest.MonkeyPatch.context() as mp:
@@ -178,8 +182,10 @@ def replay(cfg: Config, log: Path, out: Path, *, columns: bool, chunk: int,
         summary = replay_one(cfg, log, ReplayOptions(events=events, emit=emit, channel_map=channel_map or {}))
         py_trees.blackboard.Blackboard.clear()
     [engine] = engines
+    state = engine_state(engine)
+    state["blackboard"] = boards[0]  # what the tree wrote (I²t levels...): quiet ticks must write it too
     return Outcome(json.dumps(summary, sort_keys=True), events.read_bytes(), emit.read_bytes(),
-                   engine_state(engine), counts["blocks"], counts["handled"], counts["fed"], handled_ids,
+                   state, counts["blocks"], counts["handled"], counts["fed"], handled_ids,
                    engine.stats.quiet_ticks)
 
 

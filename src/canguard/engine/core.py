@@ -146,7 +146,7 @@ class Engine(SourceWatchMixin, LogRunMixin, QuietTickMixin):
         self._plan_list: dict[str, list[MessagePlan]] = {}
         """Per bus: every plan, flushed at the end of each block."""
         self._init_quiet()
-        self._q_nodes = self._quiet_tree()
+        self._q_nodes, self._q_loud = self._quiet_tree()
 
     # -- life cycle ------------------------------------------------------------------------
     def start(self, now: float | None = None) -> None:
@@ -308,7 +308,10 @@ class Engine(SourceWatchMixin, LogRunMixin, QuietTickMixin):
         t0 = time.perf_counter()
         try:
             self.root.skipped = False  # type: ignore[attr-defined]  # SKIPPED: status INVALID, neither stop nor task
-            self.root.tick_once()
+            if self._q_loud and self.elide_ticks:  # which nodes the tick reached (the whole tick, as tick_once)
+                self._q_heard = not self._q_loud.isdisjoint(set(self.root.tick()))
+            else:
+                self.root.tick_once()
             status = self.root.status
         except Exception as exc:  # a node that raises must stop the task, not the daemon
             self.stats.tick_errors += 1

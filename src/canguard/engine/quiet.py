@@ -6,13 +6,16 @@ BehaviorTree.CPP's answer would be "tick less"; ours must not change a single ev
 frame or summary field. So a grid tick is skipped only when it is *proven* to be an
 exact repetition of the last tick that ran, and the proof is made of three parts:
 
-1. **The tree cannot tell two ticks apart.** Every node is of a type that declares
-   ``QUIET_RETICK`` (no timer, counter, memory or output of its own: the reactive and
-   plain sequences and fallbacks, Inverter, ForceSuccess/Failure, ExecuteTask, the
-   guards), no node carries pre/post conditions or reads or writes the blackboard
-   through a ``{key}``, and every guard's models are ``SAMPLE_DRIVEN`` (their state
-   changes only at samples: threshold and hysteresis; I²t cools with time and is
-   excluded). The tree has no I²t heat, no metrics and no tick hook.
+1. **The tree cannot tell two ticks apart.** Every node the tick reached is of a
+   type that declares ``QUIET_RETICK`` (no timer, counter, memory or output of its
+   own: the reactive and plain sequences and fallbacks, Inverter, ForceSuccess/Failure,
+   AlwaysSuccess/Failure, ExecuteTask, the guards), carries no pre/post condition,
+   reads no ``{key}`` and writes none but what its quiet re-tick writes again (an I²t
+   guard's ``level``), and every guard's models are ``SAMPLE_DRIVEN`` (their
+   state changes only at samples: threshold, hysteresis, and I²t, whose heat is
+   integrated at samples). Nodes the tick did not reach may be anything (a
+   PerformRecovery before ExecuteTask in a Sequence runs once, then is not reached
+   while the task runs). No metrics, no tick hook.
 2. **The last tick was a fixed point.** The tick that ran left every node with the
    status, feedback, position and SKIPPED flag the tick before it left, wrote no
    event, and left the task gate in the same state, with the same inhibits and the
@@ -29,10 +32,11 @@ exact repetition of the last tick that ran, and the proof is made of three parts
    a microsecond's margin against rounding).
 
 A skipped tick still does what a tick does outside the tree: it is counted, it marks
-the guards it would have ticked as ticked (``judged_t``), and it services the gate's
-periodic frames at its own time. The live daemon ticks every tick (it has the time);
-``tests/test_quiet_ticks.py`` replays random and example logs with and without quiet
-ticks and requires the same summaries, events, frames out and engine state.
+the guards it would have ticked as ticked (``judged_t``), it samples the I²t levels
+(their peak is taken at ticks), and it services the gate's periodic frames at its
+own time. The live daemon ticks every tick (it has the time); ``tests/test_quiet_ticks.py``
+replays random and example logs with and without quiet ticks and requires the same
+summaries, events, frames out and engine state.
 """
 
 from __future__ import annotations
@@ -73,6 +77,8 @@ class QuietTickMixin:
         _due: float
 
         def _flush(self) -> None: ...
+        def _sample_levels(self) -> None: ...
+        def _save_heat(self, now: float, periodic: bool) -> None: ...
 
     elide_ticks = False
     """On while a recorded log is fed (:meth:`~canguard.engine.logrun.LogRunMixin.run_log`).
@@ -85,8 +91,12 @@ class QuietTickMixin:
     def _init_quiet(self) -> None:
         self.events_written = 0
         """Events written so far (a quiet stretch ends at any event)."""
-        self._q_nodes: list[Any] | None = None
-        """The tree's nodes when it may have quiet ticks (see :meth:`_quiet_tree`), else None."""
+        self._q_nodes: list[Any] = []
+        """The tree's nodes (see :meth:`_quiet_tree`)."""
+        self._q_loud: frozenset[Any] = frozenset()
+        """The nodes that may not be re-ticked quietly: a tick that reaches one is no fixed point."""
+        self._q_heard = False
+        """The last tick reached one of :attr:`_q_loud`."""
         self._q_state: tuple[Any, ...] | None = None
         """What the last tick that ran left (nodes, gate), to recognise a fixed point."""
         self._q_until = -math.inf
@@ -96,28 +106,20 @@ class QuietTickMixin:
         self._q_ticked: list[Any] = []
         """The guards the fixed-point tick ticked: a skipped tick marks them ticked."""
 
-    def _quiet_tree(self) -> list[Any] | None:
-        """Every node of the tree if each one may be re-ticked quietly (part 1 of the proof), else None."""
-        if self.ctx.heat_models:
-            return None
+    def _quiet_tree(self) -> tuple[list[Any], frozenset[Any]]:
+        """Every node of the tree, and those that may not be re-ticked quietly (part 1 of the proof).
+
+        A tick that reaches none of the latter may be a fixed point; one that reaches
+        any is never one (a RunOnce, a Delay, an action sending frames at each tick).
+        """
         nodes = list(self.root.iterate())
-        for node in nodes:
-            if not getattr(type(node), "QUIET_RETICK", False):
-                return None
-            if "tick" in vars(node) or "stop" in vars(node):  # pre/post conditions wrap the node's tick
-                return None
-            if getattr(node, "_dynamic", None) or getattr(node, "_wired", None):
-                return None
-            guarded = getattr(node, "guarded", None)
-            if guarded is not None and not all(model.SAMPLE_DRIVEN for _, model, _ in guarded()):
-                return None
-        return nodes
+        return nodes, frozenset(node for node in nodes if not _quiet_node(node))
 
     def _quiet_check(self, now: float, events_before: int) -> None:
         """After a tick that ran: note whether it was a fixed point, and until when nothing can change."""
         self._q_until = -math.inf
         nodes = self._q_nodes
-        if nodes is None or not self.elide_ticks or self.metrics is not None or self.tick_hook is not None:
+        if self._q_heard or not self.elide_ticks or self.metrics is not None or self.tick_hook is not None:
             self._q_state = None
             return
         gate = self.gate
@@ -180,10 +182,27 @@ class QuietTickMixin:
             self.stats.quiet_ticks += 1
             self.last_tick_t = now
             for g in self._q_ticked:
-                g.judged_t = now
+                g.quiet_retick(now)
+            self._sample_levels()  # I²t heat moved with the samples since: its peak is sampled at ticks
             gate.service(now)
+            self._save_heat(now, periodic=True)
             self._flush()
             self._due = min(self._next_tick, gate.next_deadline())
         finally:
             self.clock.unpin()
         return True
+
+
+def _quiet_node(node: Any) -> bool:
+    """True when ``node`` may be re-ticked quietly: its type says so, no conditions, no ``{key}`` read, no
+    output but those its quiet re-tick writes again, sample-driven models."""
+    if not getattr(type(node), "QUIET_RETICK", False):
+        return False
+    if "tick" in vars(node) or "stop" in vars(node):  # pre/post conditions wrap the node's tick
+        return False
+    if getattr(node, "_dynamic", None) or not getattr(node, "_wired", frozenset()) <= getattr(
+        type(node), "QUIET_OUTPUTS", frozenset()
+    ):
+        return False
+    guarded = getattr(node, "guarded", None)
+    return guarded is None or all(model.SAMPLE_DRIVEN for _, model, _ in guarded())

@@ -53,6 +53,8 @@ class GuardNode(CanguardNode, py_trees.behaviour.Behaviour):
     """The source signal a single-signal guard reads."""
     QUIET_RETICK = True
     """A guard answers from its source's health and its models: quiet when the models are sample-driven."""
+    QUIET_OUTPUTS: ClassVar[frozenset[str]] = frozenset()
+    """Output ports a quiet re-tick writes again (:meth:`quiet_retick`); another wired output makes it loud."""
     model: ProtectionModel
 
     def __init__(self, name: str, **kwargs: Any) -> None:
@@ -84,6 +86,10 @@ class GuardNode(CanguardNode, py_trees.behaviour.Behaviour):
 
     def _build(self, source: SourceConfig) -> None:
         raise NotImplementedError
+
+    def quiet_retick(self, now: float) -> None:
+        """What a tick that repeats the last one does besides answering the same (:mod:`canguard.engine.quiet`)."""
+        self.judged_t = now
 
     def guarded(self) -> list[tuple[str, ProtectionModel, str]]:
         """``(role, model, kind)`` per guarded signal; kind is ``threshold`` or ``i2t`` (reports, plots)."""
@@ -303,6 +309,7 @@ class IsI2tSafe(GuardNode):
     CONST_PORTS = frozenset(INPUT_PORTS)
     CHOICES = {"model": ("leaky", "thermal")}  # noqa: RUF012
     MODEL_KIND = "i2t"
+    QUIET_OUTPUTS = frozenset({"level"})
     _NAMES: ClassVar[dict[str, str]] = {
         "continuous_a": "continuous_current",
         "peak_a": "peak_current",
@@ -363,6 +370,12 @@ class IsI2tSafe(GuardNode):
             return super()._feedback(reason, role, value, threshold)
         current = abs(self.health.value(role)) if self.health is not None else math.nan
         return f"i2t: heat {value:g} of trip level {threshold:g} ({role} |{current:g}|)"
+
+    def quiet_retick(self, now: float) -> None:
+        """Ticked again: ``level`` is written again (the heat moved with the samples since)."""
+        super().quiet_retick(now)
+        if self._write_level:
+            self.write("level", float(self.model.snapshot().level_pct))
 
     def update(self) -> py_trees.common.Status:
         """Health first, then the I²t state (latched); writes ``level`` when wired."""
