@@ -2,7 +2,8 @@
 
 :class:`LogRunMixin` gives :class:`~canguard.engine.core.Engine` its :meth:`run_log`:
 the same :meth:`feed` / :meth:`advance` as live, with frames of no configured message
-counted without decoding and plain candump blocks worked on as columns, each
+counted without decoding and column blocks (plain candump text, or python-can
+formats through :mod:`canguard.io.pycan_blocks`) worked on as columns, each
 configured message's rows decoded together (:mod:`canguard.engine.blocks`). Split
 from the engine's core so each stays readable.
 """
@@ -74,8 +75,8 @@ class LogRunMixin:
         the frames of each channel.
 
         ``frames`` may be a reader with a ``chunks()`` method (:func:`canguard.io.logs.read_log`):
-        a plain candump block (:class:`~canguard.io.logs.Columns`) of one channel whose
-        timestamps never go back is then worked on as columns: only its configured rows
+        a column block (:class:`~canguard.io.logs.Columns`: plain candump text, or python-can
+        messages) of one channel whose timestamps never go back is then worked on as columns: only its configured rows
         become frames, and its other rows are looked at only where a tick falls due among
         them (a bisection over the block's timestamps).
         """
@@ -145,7 +146,7 @@ class LogRunMixin:
         cursor.last_t, cursor.started = last_t, started
 
     def _run_columns(self, cols: Columns, cursor: _LogCursor) -> bool:
-        """:meth:`run_log` over a plain candump block; False (nothing done) when it must go frame by frame."""
+        """:meth:`run_log` over a column block; False (nothing done) when it must go frame by frame."""
         if not cols.ordered or self.sample_hook is not None:
             return False
         ts = cols.ts
