@@ -47,6 +47,9 @@ _TS_BYTES = b"0123456789."
 _DATA_LENGTHS = frozenset(range(0, 17, 2))
 _FD_HEX_LENGTHS = frozenset(2 * n for n in CANFD_LENGTHS)
 _REMOTE = frozenset("Rr")
+_GOOD_IDS: set[str] = set()
+"""Id texts already found well formed (a log of 500 ids checked them in every block)."""
+_MAX_GOOD_IDS = 65_536
 
 
 class Columns(NamedTuple):
@@ -146,14 +149,17 @@ def _bulk_columns(block: str, n: int) -> Columns | None:
     if joined.count(b".") != n or joined[dot::width].count(b".") != n or joined.translate(None, _TS_BYTES):
         return None
     ids = tok[2:-1:k]
-    # a busy bus has a few dozen distinct ids in a block: check those, not every row
-    for text in set(ids):
+    # a busy bus has a few dozen distinct ids in a block: check those, not every row, and each once per log
+    fresh = set(ids).difference(_GOOD_IDS)
+    for text in fresh:
         size = len(text)
         if size == 3:
             if text[0] > "7" or not _is_hex(text):  # standard ids go up to 7FF
                 return None
         elif size != 8 or text[0] > "1" or not _is_hex(text):  # extended: 1FFFFFFF; above: error frames
             return None
+    if len(_GOOD_IDS) < _MAX_GOOD_IDS:
+        _GOOD_IDS.update(fresh)
     data = tok[3:-1:k]
     fd: dict[int, int] = {}
     remote: dict[int, int] = {}
