@@ -56,6 +56,7 @@ class LogRunMixin:
         sample_hook: Callable[[Any], None] | None
         elide_ticks: bool
         replay_quiet_ticks: bool
+        _q_fixed: bool
 
         def feed(self, bus: str, frame: Frame) -> None: ...
         def advance(self, now: float) -> None: ...
@@ -183,7 +184,7 @@ class LogRunMixin:
             del rows[0]
         skipped = n - first - len(rows)
         last_row = rows[-1] if rows else -1  # the last row feed would see, whatever path takes it
-        slots = self._decode_rows(plans, rows, cols) if rows else []
+        slots = self._decode_rows(plans, rows, cols, self._q_fixed) if rows else []
         if slots is None:
             rows = []  # every row taken whole: only the ticks due in the block are left
             slots = []
@@ -225,7 +226,7 @@ class LogRunMixin:
 
     @staticmethod
     def _decode_rows(
-        plans: Mapping[str, MessagePlan | None], rows: list[int], cols: Columns
+        plans: Mapping[str, MessagePlan | None], rows: list[int], cols: Columns, settle: bool = False
     ) -> list[tuple[MessagePlan | None, tuple[float, ...] | None] | None] | None:
         """Per row of the block: its plan and decoded values when it goes one by one (else None); None: no row left.
 
@@ -235,7 +236,8 @@ class LogRunMixin:
         which every tick in the block reads as it would have read the row-by-row state);
         rows without a configured signal are only counted; remote rows go to ``feed``. When no
         configured row of the block can change what a tick sees, every message's rows are
-        taken whole (:mod:`canguard.engine.settle`) and None is returned.
+        taken whole (:mod:`canguard.engine.settle`) and None is returned; only with ``settle``
+        (the last tick was a fixed point: no tick in the block changes a guard's status by itself).
         """
         from canguard.engine.blocks import EMPTY  # numpy: imported when a block is first decoded
 
@@ -266,7 +268,7 @@ class LogRunMixin:
             if plan.passive and plan.batch(pick(ts), decoded):
                 continue
             active.append((plan, group, decoded, pick))
-        if active and None not in groups and _settled(active, ts):
+        if settle and active and None not in groups and _settled(active, ts):
             for plan, _group, decoded, _pick in active:
                 plan.count_empty(decoded.count(EMPTY))
             return None

@@ -97,6 +97,9 @@ class QuietTickMixin:
         """The nodes that may not be re-ticked quietly: a tick that reaches one is no fixed point."""
         self._q_heard = False
         """The last tick reached one of :attr:`_q_loud`."""
+        self._q_fixed = False
+        """The last tick that ran was a fixed point reaching no loud node: until an edge, no tick changes a
+        guard's status by itself (a settled block relies on it: :mod:`canguard.engine.settle`)."""
         self._q_state: tuple[Any, ...] | None = None
         """What the last tick that ran left (nodes, gate), to recognise a fixed point."""
         self._q_until = -math.inf
@@ -118,6 +121,7 @@ class QuietTickMixin:
     def _quiet_check(self, now: float, events_before: int) -> None:
         """After a tick that ran: note whether it was a fixed point, and until when nothing can change."""
         self._q_until = -math.inf
+        self._q_fixed = False
         nodes = self._q_nodes
         if self._q_heard or not self.elide_ticks or self.metrics is not None or self.tick_hook is not None:
             self._q_state = None
@@ -133,6 +137,7 @@ class QuietTickMixin:
         self._q_state = state
         if not fixed:
             return
+        self._q_fixed = True
         failed = self.root.status == py_trees.common.Status.FAILURE
         if gate.state != TaskGate.RUNNING and not (failed or gate.inhibits):
             return  # the release rule may wait on time (min_stop) or on a reset

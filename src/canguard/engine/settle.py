@@ -21,10 +21,21 @@ A block is settled only when, for every configured message in it:
 - its source is not the stop confirmation's (read between ticks) and no metrics
   count per frame.
 
+And the tick before the block was a fixed point reaching no loud node (the quiet
+ticks' test, :mod:`canguard.engine.quiet`): every guard it reached reported its
+model's state, no reported trip is waiting in a latch to be followed by its
+recovery, and no timer node may lead the tree to a guard it did not reach.
+
 Then no edge happens in the block, so it has no edge tick, and every tick in it
 (each at its own time, as before) finds each guard's status, reason and feedback
-as row by row: they change only at edges. Only the model's latest value differs
-before the block's end, and it is read only to word an edge. The differential
+as row by row: a guard changes only at an edge, or when time makes another source
+stale (that guard words it with its own, unsettled, values), and then the tree
+reaches fewer guards, never more. Only the settled models' latest values differ
+before the block's end, and they are read only to word a change of their guard.
+The random-log test found the case that needs the fixed point: a guard behind a
+failing one keeps its trip latched; when the first recovers, the next ticks
+report the second's trip and then its recovery, without an edge, worded with its
+value at the tick. The differential
 tests (``tests/test_replay_columns.py``, ``tests/test_replay_random_logs.py``,
 ``tests/test_quiet_ticks.py``) hold the result to the frame-by-frame engine.
 """
