@@ -387,3 +387,121 @@ class TestScheduleAndConfirm:
         h.observe(Sample("axis0", "current", 0.2, 1.1))
         g.service(1.2)
         assert rec.named("confirmed") and not rec.named("escalate")
+
+
+class TestOneByOne:
+    """Written against the survivors of the one-by-one pass (docs/mutants.md, "The guard nodes")."""
+
+    def test_a_stop_or_inhibit_nobody_named_has_an_empty_node(self) -> None:
+        """The daemon's exit stop and a stale source's inhibit name no node: the stop event's node is ""."""
+        rec = Recorder()
+        g = gate(rec)
+        g.stop(1.0, reason="end")
+        rec2 = Recorder()
+        g2 = gate(rec2)
+        tick(g2, 0.0)
+        g2.inhibit("bus main", "bus main down: gone", 0.5)
+        assert rec.named("stop")[0][1] == {"node": "", "reason": "end"}
+        assert rec2.named("stop")[0][1] == {"node": "", "reason": "bus main down: gone"}
+
+    def test_a_reload_keeps_what_holds_the_stop(self) -> None:
+        """After a reload, a new hold is journalled as a change from the cause noted before it."""
+        rec = Recorder()
+        old = gate(rec, release="manual")
+        tick(old, 0.0)
+        tick(old, 1.0, failed=True)
+        new = gate(rec, release="manual")
+        new.adopt(old)
+        tick(new, 1.1)
+        [(t, fields)] = rec.named("reason")
+        assert t == 1.1 and fields == {"node": "", "reason": "stop.release manual: waiting for ResetStop",
+                                       "previous": "overcurrent"}
+
+    def test_a_failed_tick_without_a_named_cause_says_tree_failed(self) -> None:
+        """A FAILURE nobody is named for holds the stop as "tree failed" (the reason event's previous)."""
+        rec = Recorder()
+        g = gate(rec)
+        tick(g, 0.0)
+        g.stop(1.0, reason="x")
+        g.begin_tick()
+        g.end_tick(1.0, True)
+        tick(g, 1.1, task=False)
+        [(_t, fields)] = rec.named("reason")
+        assert fields["previous"] == "tree failed" and fields["reason"] == "task not reached in the tree"
+
+    def test_a_confirmation_done_before_a_reload_is_not_repeated(self) -> None:
+        """An escalation already sent is not sent again by the reloaded gate."""
+        rec = Recorder()
+        g, h = TestConfirm().setup(rec)
+        g.stop(1.0, reason="x")
+        g.service(1.2)
+        assert len(rec.named("escalate")) == 1
+        new = TaskGate(g.task_cfg, g.stop_cfg, rec, health={"axis0": h}, on_event=rec.on_event)
+        new.adopt(g)
+        new.service(1.3)
+        assert len(rec.named("escalate")) == 1 and rec.frames.count(("escalate", "Idle")) == 1
+
+    def test_after_an_escalation_the_next_deadline_is_the_stop_repeat(self) -> None:
+        """Once the confirmation is settled its deadline is no longer due (no busy loop on a past time)."""
+        rec = Recorder()
+        g, _h = TestConfirm().setup(rec)
+        g.stop(1.0, reason="x")
+        g.service(1.2)
+        assert rec.named("escalate")
+        assert g.next_deadline() == pytest.approx(1.25)
+
+    def test_a_confirmation_is_journalled_once(self) -> None:
+        """A confirmed stop is not confirmed again at the next service."""
+        rec = Recorder()
+        g, h = TestConfirm().setup(rec)
+        g.stop(1.0, reason="x")
+        h.observe(Sample("axis0", "current", 0.1, 1.05))
+        g.service(1.06)
+        g.service(1.1)
+        g.service(1.15)
+        assert len(rec.named("confirmed")) == 1
+        assert g.next_deadline() == pytest.approx(1.2)  # the stop repeat
+
+    def test_a_task_action_alone_sends_no_execute_task_frames(self) -> None:
+        """A task started by a task action sends that action's frames, not the periodic task frames."""
+        rec = Recorder()
+        g = gate(rec)
+        g.begin_tick()
+        g.action("Work", "task", TASK, 0.0)
+        g.end_tick(0.0, False)
+        assert g.state == TaskGate.RUNNING
+        assert rec.frames == [("Work", "Enable")] and g.next_deadline() == math.inf
+
+    def test_a_tree_without_task_nodes_resumes_with_an_empty_node(self) -> None:
+        """The resume event of a tree without ExecuteTask or task action names no node ("")."""
+        rec = Recorder()
+        g = gate(rec)
+        g.tree_has_task = False
+        tick(g, 0.0, task=False)
+        g.stop(1.0, reason="x")
+        tick(g, 1.5, task=False)
+        [(t, fields)] = rec.named("resume")
+        assert t == 1.5 and fields == {"node": "", "reason": "stopped for 0.500 s"}
+
+    def test_a_service_exactly_one_period_late_sends_one_frame(self) -> None:
+        """Late by exactly one period: one task frame, the next a full period later (no burst)."""
+        rec = Recorder()
+        g = gate(rec)
+        tick(g, 0.0)
+        g.service(0.04)
+        assert g.next_deadline() == pytest.approx(0.06)
+        g.service(0.04)
+        assert rec.frames == [("task", "Enable")] * 2
+
+    def test_a_gap_in_time_before_the_start_and_after_a_resume(self) -> None:
+        """skip_to (a gap in a log or a stall) works idle and after a resume; the stop repeat is kept after."""
+        rec = Recorder()
+        g = gate(rec)
+        g.skip_to(5.0)
+        tick(g, 5.0)
+        tick(g, 6.0, failed=True)
+        tick(g, 6.5)
+        g.skip_to(10.0)
+        assert g.next_deadline() == pytest.approx(10.0)  # the task frame due in the gap, now
+        g.stop(11.0, reason="x")
+        assert g.next_deadline() == pytest.approx(11.05)

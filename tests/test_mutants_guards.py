@@ -182,3 +182,132 @@ class TestI2tBoundaries:
                                          "</ReactiveSequence>"))
         model = rig.node("Heat").model
         assert model.peak_a == 15.0 and model.peak_time_s == 120.0  # 1.5 x rating for 120 s (IEC 60034-1)
+
+
+class TestOneByOne:
+    """Written against the survivors of the one-by-one pass (docs/mutants.md, "The guard nodes")."""
+
+    def test_feedback_keeps_the_trip_value_while_the_reason_is_the_same(self, tmp_path: Path) -> None:
+        """The feedback (and so a stop's ``reason``) changes at edges only, not with every new sample."""
+        rig = Rig()
+        rig.load_text(tmp_path, xml_tree(
+            '<ReactiveSequence><IsCurrentNormal name="Pack" topic_name="/battery_state" max_current="10"/>'
+            "<ExecuteTask/></ReactiveSequence>"))
+        rig.battery(12.5)
+        rig.tick()
+        rig.advance(0.01)
+        rig.battery(13.0)
+        assert rig.tick().name == "FAILURE"
+        assert rig.node("Pack").feedback_message == "overcurrent: current |12.5| (threshold 10)"
+        assert [e["event"] for e in rig.trips()] == ["trip"]
+
+    def test_a_guard_checks_its_own_signal_only(self, tmp_path: Path) -> None:
+        """A source's other value signal (a voltage never received) does not fail a current guard."""
+        from treekit import source
+
+        rig = Rig(sources={"/battery_state": source("/battery_state", "battery", ("current", "voltage", "present"))})
+        rig.load_text(tmp_path, xml_tree(
+            '<ReactiveSequence><IsCurrentNormal name="Pack" topic_name="/battery_state" max_current="10"/>'
+            "<ExecuteTask/></ReactiveSequence>"))
+        rig.battery(2.0)
+        assert rig.tick().name == "RUNNING"
+        assert rig.node("Pack").reason == "" and not rig.trips()
+
+    def test_an_i2t_guard_on_a_stale_source_says_stale_and_the_signal(self, tmp_path: Path) -> None:
+        """A health failure of an I²t guard is worded like any guard's: the reason, then the signal."""
+        rig = Rig()
+        rig.load_text(tmp_path, xml_tree(
+            '<ReactiveSequence><IsI2tSafe name="Heat" topic_name="/battery_state" continuous_current="10"/>'
+            "<ExecuteTask/></ReactiveSequence>"))
+        rig.battery(5.0)
+        assert rig.tick().name == "RUNNING"
+        rig.advance(1.0)  # max_age 0.5 s
+        assert rig.tick().name == "FAILURE"
+        node = rig.node("Heat")
+        assert node.reason == "stale"
+        assert node.feedback_message.startswith("stale: current |"), node.feedback_message
+
+    def test_a_start_above_the_inrush_threshold_trips(self, tmp_path: Path) -> None:
+        """Inside the inrush window the inrush threshold is checked: 50 A against 40 A trips."""
+        rig = Rig()
+        rig.load_text(tmp_path, xml_tree(
+            '<ReactiveSequence><IsCurrentSafe name="Pack" topic_name="/battery_state" overcurrent_threshold="10" '
+            'recovery_threshold="5" inrush_time="0.5" start_current="2" inrush_threshold="40"/>'
+            "<ExecuteTask/></ReactiveSequence>"))
+        for _ in range(6):  # quiet for 0.5 s
+            rig.battery(0.0)
+            rig.tick()
+            rig.advance(0.1)
+        rig.battery(50.0)
+        assert rig.tick().name == "FAILURE"
+        assert rig.trips()[-1]["value"] == 50.0
+
+    def test_a_threshold_key_of_the_wrong_type_at_load_fails_safe_on_the_defaults(self, tmp_path: Path) -> None:
+        """A key holding text at load: the tree loads; the guard fails (bad_threshold) on 35 / 25 A till it is fixed."""
+        from py_trees.blackboard import Blackboard
+
+        Blackboard.storage["/over"] = "high"
+        rig = Rig()
+        rig.load_text(tmp_path, xml_tree(
+            '<ReactiveSequence><IsCurrentSafe name="Pack" topic_name="/battery_state" '
+            'overcurrent_threshold="{over}" recovery_threshold="20"/><ExecuteTask/></ReactiveSequence>'))
+        rig.battery(1.0)
+        assert rig.tick().name == "FAILURE"
+        trip = rig.trips()[-1]
+        assert (trip["reason"], trip["threshold"]) == ("bad_threshold", 35.0)
+        rig.advance(0.01)
+        rig.battery(40.0)  # an overcurrent under the defaults (35 A) ...
+        rig.tick()
+        rig.advance(0.01)
+        rig.battery(25.5)  # ... not recovered: 25.5 A is above the default recovery (25 A)
+        rig.tick()
+        Blackboard.storage["/over"] = 35.0  # fixed: 35 / 20 A from now on, 25.5 A still an overcurrent
+        rig.advance(0.01)
+        assert rig.tick().name == "FAILURE"
+        assert rig.node("Pack").reason == "overcurrent"
+
+    def test_a_recovery_threshold_changed_alone_is_used(self, tmp_path: Path) -> None:
+        """A new recovery_threshold on the blackboard applies even when overcurrent_threshold stays the same."""
+        from py_trees.blackboard import Blackboard
+
+        Blackboard.storage["/rec"] = 5.0
+        rig = Rig()
+        rig.load_text(tmp_path, xml_tree(
+            '<ReactiveSequence><IsCurrentSafe name="Pack" topic_name="/battery_state" '
+            'overcurrent_threshold="10" recovery_threshold="{rec}"/><ExecuteTask/></ReactiveSequence>'))
+        rig.battery(12.0)
+        assert rig.tick().name == "FAILURE"
+        Blackboard.storage["/rec"] = 8.0
+        rig.advance(0.01)
+        rig.battery(7.0)
+        assert rig.tick().name == "RUNNING"
+        assert rig.trips()[-1]["event"] == "recover"
+
+    def test_a_thermal_model_with_tau_needs_no_peak_even_with_k_above_1_5(self, tmp_path: Path) -> None:
+        """With ``tau`` the thermal image derives no peak, so k = 1.6 without peak_current is no error."""
+        rig = Rig()
+        rig.load_text(tmp_path, xml_tree(
+            '<ReactiveSequence><IsI2tSafe name="Heat" topic_name="/battery_state" model="thermal" '
+            'continuous_current="10" k="1.6" tau="30"/><ExecuteTask/></ReactiveSequence>'))
+        rig.battery(5.0)
+        assert rig.tick().name == "RUNNING"
+
+    def test_a_thermal_recover_fraction_is_checked(self, tmp_path: Path) -> None:
+        """The thermal model gets recover_fraction too: out of range is a load error naming the port."""
+        text = load_error(tmp_path, '<IsI2tSafe topic_name="/battery_state" model="thermal" '
+                                    'continuous_current="10" recover_fraction="1.5"/>')
+        assert "port recover_fraction: recover_fraction must be > 0 and < 1, got 1.5" in text
+
+    @pytest.mark.parametrize("model", ["leaky", "thermal"])
+    def test_a_gap_in_the_samples_heats_for_max_age_only(self, tmp_path: Path, model: str) -> None:
+        """A 2 s gap at 20 A (peak 20 A for 1 s) heats for the source's max_age (0.5 s), not 2 s: no trip."""
+        rig = Rig()
+        rig.load_text(tmp_path, xml_tree(
+            f'<ReactiveSequence><IsI2tSafe name="Heat" topic_name="/battery_state" model="{model}" '
+            'continuous_current="10" peak_current="20" peak_time="1"/><ExecuteTask/></ReactiveSequence>'))
+        rig.battery(20.0)
+        rig.tick()
+        rig.advance(2.0)
+        rig.battery(0.0)
+        assert rig.tick().name == "RUNNING"
+        assert not [e for e in rig.trips() if e["event"] == "trip"]
