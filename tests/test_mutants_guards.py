@@ -311,3 +311,31 @@ class TestOneByOne:
         rig.battery(0.0)
         assert rig.tick().name == "RUNNING"
         assert not [e for e in rig.trips() if e["event"] == "trip"]
+
+
+FALLBACK_GUARDS = """<root BTCPP_format="4" main_tree_to_execute="M">
+  <BehaviorTree ID="M">
+    <ReactiveSequence>
+      <IsCurrentSafe name="Pack" topic_name="/battery_state" overcurrent_threshold="40" recovery_threshold="30"/>
+      <ReactiveFallback>
+        <IsCurrentNormal name="A" topic_name="/battery_state" max_current="40"/>
+        <IsCurrentNormal name="B" topic_name="/battery_state" max_current="45"/>
+      </ReactiveFallback>
+      <ExecuteTask/>
+    </ReactiveSequence>
+  </BehaviorTree>
+</root>
+"""
+
+
+def test_a_guard_never_reached_is_not_left_behind(tmp_path: Path) -> None:
+    """A fallback's second guard, never ticked while the first holds, neither stops the task nor breaks the loop."""
+    from canguard.engine.gate import TaskGate
+    from test_engine import T0
+    from test_engine import Rig as EngineRig
+
+    tree = tmp_path / "tree.xml"
+    tree.write_text(FALLBACK_GUARDS, encoding="utf-8")
+    rig = EngineRig(tmp_path, tree={"file": str(tree), "main": "M", "tick_hz": 100})
+    rig.run(T0 + 1.0)
+    assert rig.engine.gate.state == TaskGate.RUNNING and not rig.events.named("stop")
