@@ -98,6 +98,7 @@ class Report:
     exit_code: int | None = None
     frames_sent: int = 0
     trace_dir: str = ""
+    sim_wall_s: float = 0.0  # how long the simulator took, wall time, to play the run's duration
 
 
 def schedule(seed: int, duration_s: float) -> list[Fault]:
@@ -240,6 +241,7 @@ def run(args: argparse.Namespace) -> Report:
                 raise SystemExit(f"the daemon died: {(tmp / 'daemon.stderr').read_text()[-2000:]}")
             time.sleep(0.2)
     finally:
+        report.sim_wall_s = time.monotonic() - start_mono
         stop.set()
         player.join(timeout=10)
         bus.shutdown()
@@ -315,6 +317,9 @@ def summarize(report: Report, bound_s: float) -> tuple[dict[str, Any], bool]:
         "minutes": report.minutes,
         "frames_sent": report.frames_sent,
         "frames_per_s": round(report.frames_sent / (report.minutes * 60.0)) if report.minutes else 0,
+        # reactions are timed from the fault's scheduled wall time: a simulator that falls behind real
+        # time on a busy machine (its frames paced late) makes every later reaction look that much late
+        "simulator_behind_s_at_end": round(report.sim_wall_s - report.minutes * 60.0, 1),
         "faults": {k: sum(1 for f in report.faults if f.kind == k) for k in [*SIM_FAULTS, *HOST_FAULTS]},
         "reactions_within_bound": f"{len(judged) - len(late)}/{len(judged)} (bound {bound_s} s)",
         "reaction_delay_s": {"median": round(statistics.median(delays), 3) if delays else None,
