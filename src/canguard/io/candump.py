@@ -47,9 +47,7 @@ _TS_BYTES = b"0123456789."
 _DATA_LENGTHS = frozenset(range(0, 17, 2))
 _FD_HEX_LENGTHS = frozenset(2 * n for n in CANFD_LENGTHS)
 _REMOTE = frozenset("Rr")
-_GOOD_IDS: set[str] = set()
-"""Id texts already found well formed (a log of 500 ids checked them in every block)."""
-_MAX_GOOD_IDS = 65_536
+_GOOD_IDS: set[str] = set()  # id texts found well formed (up to 65,536): a 500-id log checked each in every block
 
 
 class Columns(NamedTuple):
@@ -151,14 +149,10 @@ def _bulk_columns(block: str, n: int) -> Columns | None:
     ids = tok[2:-1:k]
     # a busy bus has a few dozen distinct ids in a block: check those, not every row, and each once per log
     fresh = set(ids).difference(_GOOD_IDS)
-    for text in fresh:
-        size = len(text)
-        if size == 3:
-            if text[0] > "7" or not _is_hex(text):  # standard ids go up to 7FF
-                return None
-        elif size != 8 or text[0] > "1" or not _is_hex(text):  # extended: 1FFFFFFF; above: error frames
+    for text in fresh:  # standard ids go up to 7FF, extended ones to 1FFFFFFF (above: error frames)
+        if not _is_hex(text) or (text[0] > "7" if len(text) == 3 else len(text) != 8 or text[0] > "1"):
             return None
-    if len(_GOOD_IDS) < _MAX_GOOD_IDS:
+    if len(_GOOD_IDS) < 65_536:
         _GOOD_IDS.update(fresh)
     data = tok[3:-1:k]
     fd: dict[int, int] = {}
@@ -184,13 +178,12 @@ def _bulk_columns(block: str, n: int) -> Columns | None:
         hexes = "".join(data)
     elif not set(map(len, data)) <= _DATA_LENGTHS:
         return None
-    if hexes.encode().translate(None, _HEX_BYTES):
+    if hexes.encode().translate(None, _HEX_BYTES):  # data: hex digits only
         return None
     ordered = all(map(operator.le, ts, islice(ts, 1, None))) and math.ulp(float(ts[-1])) < 10.0 ** (dot + 1 - width)
     chans = tok[1:-1:k]
-    first = chans[0]
-    single = chans.count(first) == n
-    return Columns(n, ts, chans, ids, data, ordered, first if single else None, fd or None, remote or None)
+    single = chans.count(chans[0]) == n
+    return Columns(n, ts, chans, ids, data, ordered, chans[0] if single else None, fd or None, remote or None)
 
 
 def _is_hex(s: str) -> bool:
