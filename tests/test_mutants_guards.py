@@ -339,3 +339,26 @@ def test_a_guard_never_reached_is_not_left_behind(tmp_path: Path) -> None:
     rig = EngineRig(tmp_path, tree={"file": str(tree), "main": "M", "tick_hz": 100})
     rig.run(T0 + 1.0)
     assert rig.engine.gate.state == TaskGate.RUNNING and not rig.events.named("stop")
+
+
+def test_a_quiet_retick_writes_the_heat_level_again_and_counts_as_ticked(tmp_path: Path) -> None:
+    """A quiet tick (the engine's repeat of the last tick) writes an I²t guard's ``level`` from the heat now, and
+    marks the guard ticked (the engine's left-behind watch reads it)."""
+    from py_trees.blackboard import Blackboard
+
+    rig = Rig()
+    rig.load_text(tmp_path, xml_tree(
+        '<ReactiveSequence><IsI2tSafe name="Heat" topic_name="/battery_state" continuous_current="10" '
+        'peak_current="20" peak_time="1" level="{heat}"/><IsCurrentNormal name="Pack" '
+        'topic_name="/battery_state" max_current="30"/><ExecuteTask/></ReactiveSequence>'))
+    rig.battery(15.0)
+    rig.tick()
+    before = Blackboard.storage["/heat"]
+    rig.advance(0.2)
+    rig.battery(15.0)  # heats: (225 - 100) A²s/s against a trip level of 300 A²s
+    heat, pack = rig.node("Heat"), rig.node("Pack")
+    heat.quiet_retick(rig.now())
+    pack.quiet_retick(rig.now())
+    level = Blackboard.storage["/heat"]
+    assert level == pytest.approx(heat.model.snapshot().level_pct) and level > before
+    assert heat.judged_t == rig.now() and pack.judged_t == rig.now()
