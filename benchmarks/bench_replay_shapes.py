@@ -5,7 +5,9 @@
 For each shape the bench writes, deterministically (seeded), a DBC (built with
 cantools' own API and dumped), a canguard config whose tree guards every configured
 signal, and a candump -L log of about N frames (default 600,000). Then, whole
-processes, interpreter start-up included, best of R runs:
+processes, interpreter start-up included, best of R rounds in which the three take turns
+(wall time and CPU time, user + system, of each process: on a shared machine the CPU ratio
+is the steadier one):
 
 * ``canguard replay LOG -c CONFIG --json`` (decode + protection models + tree);
 * the plain cantools loop (``PEER_LOOP`` below, 15 lines): split each line,
@@ -30,6 +32,7 @@ from __future__ import annotations
 import argparse
 import os
 import random
+import resource
 import shutil
 import subprocess
 import sys
@@ -209,18 +212,32 @@ def own_shape(out: Path, frames: int) -> tuple[Path, Path, Path]:
     return REPO / "dbc" / "robot.dbc", cfg, log
 
 
-def timed(cmd: list[str], repeat: int, stdout: int | None = subprocess.DEVNULL, stdin: Path | None = None) -> float:
-    """Best wall time of ``repeat`` runs of ``cmd``; raises when it fails."""
-    best = float("inf")
+def run_once(cmd: list[str], stdin: Path | None = None) -> tuple[float, float]:
+    """(wall, CPU) seconds of one run of ``cmd`` (CPU: user + system of the child); raises when it fails."""
     env = {**os.environ, "PYTHONPATH": str(SRC)}
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t0 = time.perf_counter()
+    with open(stdin, "rb") if stdin else open(os.devnull, "rb") as inp:
+        proc = subprocess.run(cmd, stdin=inp, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env)
+    elapsed = time.perf_counter() - t0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    if proc.returncode not in (0, 1):
+        raise RuntimeError(f"{' '.join(cmd)}: exit {proc.returncode}: {proc.stderr.decode()[-2000:]}")
+    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    return elapsed, cpu
+
+
+def timed_together(cmds: list[tuple[list[str], Path | None]], repeat: int) -> list[tuple[float, float]]:
+    """Best (wall, CPU) of each command over ``repeat`` rounds, the commands taking turns in each round.
+
+    Taking turns, the peers of one shape meet the same load on a shared machine; CPU time
+    counts what each process did, whatever else ran beside it (wall time does not).
+    """
+    best = [(float("inf"), float("inf"))] * len(cmds)
     for _ in range(repeat):
-        t0 = time.perf_counter()
-        with open(stdin, "rb") if stdin else open(os.devnull, "rb") as inp:
-            proc = subprocess.run(cmd, stdin=inp, stdout=stdout, stderr=subprocess.PIPE, env=env)
-        elapsed = time.perf_counter() - t0
-        if proc.returncode not in (0, 1):
-            raise RuntimeError(f"{' '.join(cmd)}: exit {proc.returncode}: {proc.stderr.decode()[-2000:]}")
-        best = min(best, elapsed)
+        for k, (cmd, stdin) in enumerate(cmds):
+            wall, cpu = run_once(cmd, stdin)
+            best[k] = (min(best[k][0], wall), min(best[k][1], cpu))
     return best
 
 
@@ -244,22 +261,30 @@ def main(argv: list[str] | None = None) -> int:
     for name, what, (dbc, cfg, log) in shapes:
         with open(log, encoding="ascii") as f:
             n = sum(1 for _ in f)
-        t_cg = timed([sys.executable, "-m", "canguard", "replay", str(log), "-c", str(cfg), "--json"], args.repeat)
-        t_ct = timed([sys.executable, str(peer), str(dbc), str(log)], args.repeat)
-        t_l2l = timed([log2long], args.repeat, stdin=log) if log2long else None
+        cmds: list[tuple[list[str], Path | None]] = [
+            ([sys.executable, "-m", "canguard", "replay", str(log), "-c", str(cfg), "--json"], None),
+            ([sys.executable, str(peer), str(dbc), str(log)], None),
+        ]
+        if log2long:
+            cmds.append(([log2long], log))
+        times = timed_together(cmds, args.repeat)
+        t_cg, t_ct = times[0], times[1]
+        t_l2l = times[2] if log2long else None
         rows.append((name, what, n, t_cg, t_ct, t_l2l))
         print(f"measured {name}: {n} frames", file=sys.stderr)
-    rows.sort(key=lambda r: r[4] / r[3])  # worst first: lowest canguard / cantools ratio
-    print(f"\nreplay, whole processes, best of {args.repeat}, {args.frames} frames per log "
-          f"(python {sys.version.split()[0]}, cantools {cantools.__version__}); worst shape first\n")
+    rows.sort(key=lambda r: r[4][0] / r[3][0])  # worst first: lowest canguard / cantools ratio (wall)
+    print(f"\nreplay, whole processes, best of {args.repeat} (the three take turns), {args.frames} frames per log "
+          f"(python {sys.version.split()[0]}, cantools {cantools.__version__}); worst shape first; "
+          "ratios on wall time, then on CPU time (user + system)\n")
     print("| shape | frames | canguard replay | plain cantools loop | log2long "
-          "| canguard / cantools | canguard / log2long |")
-    print("| --- | ---: | ---: | ---: | ---: | ---: | ---: |")
+          "| canguard / cantools | canguard / log2long | CPU: canguard / cantools | CPU: canguard / log2long |")
+    print("| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |")
     for name, what, n, t_cg, t_ct, t_l2l in rows:
-        l2l = f"{n / t_l2l:,.0f} f/s" if t_l2l else "n/a"
-        r_l2l = f"{t_l2l / t_cg:.2f}x" if t_l2l else "n/a"
-        print(f"| {name}: {what} | {n:,} | {n / t_cg:,.0f} f/s | {n / t_ct:,.0f} f/s | {l2l} | "
-              f"{t_ct / t_cg:.2f}x | {r_l2l} |")
+        l2l = f"{n / t_l2l[0]:,.0f} f/s" if t_l2l else "n/a"
+        r_l2l = f"{t_l2l[0] / t_cg[0]:.2f}x" if t_l2l else "n/a"
+        c_l2l = f"{t_l2l[1] / t_cg[1]:.2f}x" if t_l2l else "n/a"
+        print(f"| {name}: {what} | {n:,} | {n / t_cg[0]:,.0f} f/s | {n / t_ct[0]:,.0f} f/s | {l2l} | "
+              f"{t_ct[0] / t_cg[0]:.2f}x | {r_l2l} | {t_ct[1] / t_cg[1]:.2f}x | {c_l2l} |")
     if args.keep is None:
         shutil.rmtree(work, ignore_errors=True)
     return 0
