@@ -142,6 +142,30 @@ class SourceWatchMixin:
             self._event({"event": "bus_error", "source": bus, "reason": f"bus {bus}: controller error-active again"})
             self.gate.release(key)
 
+    def overrun(self, waited_s: float, limit_s: float) -> None:
+        """Frames waited ``waited_s`` in the daemon's receive queue: it is behind its buses, the task stops.
+
+        The models would judge data older than the sources' ``max_age`` as fresh (safety row
+        H2b): held stopped (inhibit ``overrun``, an ``overrun`` event) until :meth:`caught_up`.
+        """
+        if "overrun" in self.gate.inhibits:
+            return
+        now = self.clock.now()
+        reason = (f"frames waited {waited_s:.3f} s in canguard's receive queue (limit {limit_s:.3f} s): "
+                  "the daemon is behind its buses")
+        self._event({"event": "overrun", "reason": reason})
+        self.gate.inhibit("overrun", reason, now)
+        self._due = min(self._due, self.gate.next_deadline())
+        self._flush()
+
+    def caught_up(self, waited_s: float) -> None:
+        """Frames wait no more than ``waited_s`` again: the ``overrun`` inhibit is released."""
+        if "overrun" not in self.gate.inhibits:
+            return
+        self._event({"event": "overrun", "reason": f"caught up: frames wait {waited_s:.3f} s"})
+        self.gate.release("overrun")
+        self._flush()
+
     def bus_up(self, bus: str) -> None:
         """The bus is open again: its inhibits are released (the tree decides whether the task resumes)."""
         self.gate.release(f"bus {bus}")

@@ -21,6 +21,7 @@ import queue
 import socket
 import threading
 from collections.abc import Callable, Iterable, Iterator, Mapping
+from time import monotonic
 
 import can
 
@@ -108,7 +109,8 @@ class BusReader:
     ) -> None:
         configs = list(buses.values()) if isinstance(buses, Mapping) else list(buses)
         self.configs: dict[str, BusConfig] = {c.name: c for c in configs}
-        self.queue: queue.SimpleQueue[tuple[str, Frame]] = queue.SimpleQueue()
+        self.queue: queue.SimpleQueue[tuple[str, Frame, float]] = queue.SimpleQueue()
+        """``(bus_name, frame, received)``: ``received`` is ``time.monotonic()`` when the receive thread got it."""
         self.on_error = on_error
         self.recv_timeout_s = recv_timeout_s
         self.backoff_min_s = backoff_min_s
@@ -178,9 +180,10 @@ class BusReader:
     def get(self, timeout_s: float | None = None) -> tuple[str, Frame] | None:
         """The next ``(bus_name, frame)``, or None after ``timeout_s`` without one."""
         try:
-            return self.queue.get(timeout=timeout_s)
+            name, frame, _received = self.queue.get(timeout=timeout_s)
         except queue.Empty:
             return None
+        return name, frame
 
     def drain(self) -> list[tuple[str, Frame]]:
         """Every ``(bus_name, frame)`` queued right now, without waiting."""
@@ -188,7 +191,8 @@ class BusReader:
         get = self.queue.get_nowait
         try:
             while True:
-                out.append(get())
+                name, frame, _received = get()
+                out.append((name, frame))
         except queue.Empty:
             return out
 
@@ -236,7 +240,7 @@ class BusReader:
                 msg = bus.recv(timeout)
                 if msg is None:
                     continue
-                put((name, to_frame(msg, name)))
+                put((name, to_frame(msg, name), monotonic()))  # when it arrived: how long it then waits
             except Exception as exc:  # the bus went away (or a backend bug): report, close, reopen
                 if stop.is_set():
                     break

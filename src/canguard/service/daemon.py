@@ -50,6 +50,8 @@ SWITCH_INTERVAL_S = 0.0005
 """GIL switch interval while the daemon runs (Python's default is 5 ms)."""
 
 LIVE_SKEW_S = 0.5
+OVERRUN_FLOOR_S = 0.05
+"""The shortest wait in the receive queue that counts as falling behind (scheduling jitter is below it)."""
 """A frame timestamp further than this from the daemon's clock is replaced by the receive time."""
 
 
@@ -132,6 +134,8 @@ class Daemon:
             on_refused=self._send_refused,
         )
         self.engine = self._build_engine(self.cfg)
+        self.overrun_limit_s = overrun_limit(self.cfg)
+        """A frame that waited longer in the receive queue stops the task (:meth:`Engine.overrun`)."""
 
     def _build_engine(self, cfg: Config, previous: Engine | None = None) -> Engine:
         heat = HeatStore(cfg.state.file, cfg.state.on_corrupt, clock=BootClock())
@@ -240,11 +244,16 @@ class Daemon:
         fps = ", ".join(f"{bus} {r:.0f} fps" for bus, r in rates.items())
         self.notifier.status(f"{engine.status_line()}; {fps}; {guarding(self.cfg)}")
 
-    def _feed(self, engine: Engine, item: tuple[str, Frame]) -> None:
-        bus, frame = item
+    def _feed(self, engine: Engine, item: tuple[str, Frame, float]) -> None:
+        bus, frame, received = item
+        waited = time.monotonic() - received
+        if waited > self.overrun_limit_s:
+            engine.overrun(waited, self.overrun_limit_s)  # behind: its data is older than the config allows
+        elif waited < self.overrun_limit_s / 2 and "overrun" in engine.gate.inhibits:
+            engine.caught_up(waited)
         now = self.clock.now()
         if abs(frame.t - now) > LIVE_SKEW_S:
-            frame = frame._replace(t=now)  # a bus without sane timestamps: use the receive time
+            frame = frame._replace(t=now)  # a bus without sane timestamps: use the time it is fed
         engine.feed(bus, frame)
 
     def _watchdog_ok(self, engine: Engine) -> bool:
@@ -275,6 +284,7 @@ class Daemon:
         now = self.clock.now()
         old._save_heat(now, periodic=False)  # the new guards start from the heat the old ones had
         self.cfg, self.engine = cfg, new
+        self.overrun_limit_s = overrun_limit(cfg)
         new.start(now)
         # The task's state, the sources' data and the counters carry over: a running task goes on
         # (the new tree judges it at its first tick), a stopped one stays stopped until it recovers.
@@ -322,3 +332,12 @@ class Daemon:
             self._down.discard(bus)
             engine.bus_up(bus)
             engine._event({"event": "bus_error", "source": bus, "reason": "reopened"})
+
+
+def overrun_limit(cfg: Config) -> float:
+    """How long a frame may wait in canguard's receive queue: the shortest ``max_age`` of the sources.
+
+    A frame that waited longer carries data the config already calls stale, judged as fresh.
+    """
+    ages = [source.max_age_s for source in cfg.sources.values()]
+    return max(OVERRUN_FLOOR_S, min(ages, default=LIVE_SKEW_S))
