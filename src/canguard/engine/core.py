@@ -34,7 +34,7 @@ from canguard.bt.context import Context, FrameSink
 from canguard.config.schema import Config
 from canguard.decode.decoder import Decoder
 from canguard.engine.gate import TaskGate
-from canguard.engine.logrun import LogRunMixin
+from canguard.engine.logrun import MAX_CATCH_UP_S, LogRunMixin
 from canguard.engine.quiet import QuietTickMixin
 from canguard.engine.stats import EngineStats, EventSink
 from canguard.engine.watch import SourceWatchMixin
@@ -51,8 +51,6 @@ log = logging.getLogger(__name__)
 MAX_KEPT_TRIPS = 100_000
 """Trip events kept in memory for summaries and the live view; later ones are only counted."""
 
-MAX_CATCH_UP_S = 2.0
-"""Longest stretch of missed ticks the engine replays one by one after a gap."""
 
 
 class Engine(SourceWatchMixin, LogRunMixin, QuietTickMixin):
@@ -140,6 +138,8 @@ class Engine(SourceWatchMixin, LogRunMixin, QuietTickMixin):
         """How many events of each name were written (summaries count escalations...); bounded, live for weeks."""
         self.last_status = py_trees.common.Status.INVALID
         self.last_tick_t = math.nan
+        self.last_due_run = -math.inf
+        """The time of the last tick or gate deadline run (which row brought it: :meth:`_cross`)."""
         self._wanted = frozenset(self.decoder.keys())
         self._plans: dict[str, dict[str, MessagePlan | None]] = {}
         """Per bus: id text -> the column plan of the replay block path (see :mod:`canguard.engine.blocks`)."""
@@ -280,6 +280,7 @@ class Engine(SourceWatchMixin, LogRunMixin, QuietTickMixin):
             if due > now:
                 break
             self.clock.advance_to(due)
+            self.last_due_run = due
             if self._next_tick <= due_gate:
                 if not self._quiet_tick(due):
                     self.tick(due)

@@ -22,6 +22,9 @@ import py_trees
 
 from canguard.io.frame import Frame
 
+MAX_CATCH_UP_S = 2.0
+"""Longest stretch of missed ticks the engine replays one by one after a gap (see :meth:`Engine.advance`)."""
+
 if TYPE_CHECKING:
     from canguard.bt.context import Context
     from canguard.config.schema import Config
@@ -57,6 +60,8 @@ class LogRunMixin:
         elide_ticks: bool
         replay_quiet_ticks: bool
         _q_fixed: bool
+        _next_tick: float
+        last_due_run: float
 
         def feed(self, bus: str, frame: Frame) -> None: ...
         def advance(self, now: float) -> None: ...
@@ -289,9 +294,17 @@ class LogRunMixin:
         another due time falls among the rows left.
         """
         while lo < hi and float(ts[hi - 1]) >= self._due:
-            k = bisect_left(ts, self._due, lo, hi, key=float)
+            last = float(ts[hi - 1])
+            if last - self._next_tick <= MAX_CATCH_UP_S:
+                # No gap among these rows: one advance runs every due time they bring, each at its own
+                # time, as row by row would (the rows change nothing else); the clock and the last
+                # frame time end at the row that brought the last of them.
+                self.advance(last)
+                k = bisect_left(ts, self.last_due_run, lo, hi, key=float)
+            else:
+                k = bisect_left(ts, self._due, lo, hi, key=float)
+                self.advance(float(ts[k]))
             t = float(ts[k])
-            self.advance(t)
             self._drive_clock(t)
             self._last_frame_t = t  # as feed: not before it (ordered, from cursor.last_t on)
             lo = k + 1
