@@ -138,6 +138,12 @@ def replay_realtime(cfg: Config, args: argparse.Namespace) -> int:
                      failed: list[Exception] = failed) -> None:
                 sent = 0
                 try:
+                    # python-can's virtual bus delivers only to the buses open when a frame is sent: play
+                    # once the daemon's receive threads have theirs open (the first frames were lost at
+                    # random, the drain below then waited DRAIN_S and the source went stale: a second trip).
+                    ready_by = time.monotonic() + DRAIN_S
+                    while not all(daemon.reader.alive().values()) and time.monotonic() < ready_by:
+                        time.sleep(0.005)
                     start_wall = time.monotonic()
                     start_log = None
                     for frame in frames:
