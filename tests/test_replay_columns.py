@@ -56,6 +56,8 @@ TIMED = REPO / "config" / "examples" / "time_windowed_action.yaml"
 DEFAULT_CHUNK = canguard.io.logs.CHUNK_CHARS
 
 SMALL_CHUNKS = (97, 300, 1009, 4096)
+NEVER = 1 << 62
+"""``NUMPY_AFTER_BLOCKS`` that keeps the reader on its text parsers."""
 """Block sizes (characters) besides the reader's default: 2 lines a block up to about a hundred."""
 
 _DB = cantools.database.load_file(str(DBC))
@@ -82,6 +84,8 @@ class Outcome:
     """The arbitration ids of the rows the plans took."""
     quiet_ticks: int = 0
     """Grid ticks counted, not run (:mod:`canguard.engine.quiet`)."""
+    byte_blocks: int = 0
+    """Of :attr:`column_blocks`, those the numpy parser read (:class:`~canguard.io.candump_np.ByteColumns`)."""
 
 
 def _r(x: Any) -> Any:
@@ -125,18 +129,21 @@ def engine_state(engine: Engine) -> dict[str, Any]:
 
 
 def replay(cfg: Config, log: Path, out: Path, *, columns: bool, chunk: int,
-           channel_map: dict[str, str] | None = None, quiet: bool | None = None) -> Outcome:
+           channel_map: dict[str, str] | None = None, quiet: bool | None = None,
+           numpy_after: int = NEVER) -> Outcome:
     """Replay ``log`` once (column path on or off, blocks of ``chunk`` characters); instrumented.
 
     ``quiet``: quiet ticks on or off (default: on with the column path, off for the
-    reference, which then ticks every tick as the live daemon does).
+    reference, which then ticks every tick as the live daemon does). ``numpy_after``:
+    the block from which the reader tries its numpy parser (:mod:`canguard.io.candump_np`);
+    by default never, so the reference reads every line with the text parsers.
     """
     events, emit = out / "events.jsonl", out / "emit.log"
     out.mkdir(parents=True, exist_ok=True)
     for p in (events, emit):
         p.unlink(missing_ok=True)  # the journal appends
     engines: list[Engine] = []
-    counts = {"blocks": 0, "handled": 0, "fed": 0}
+    counts = {"blocks": 0, "handled": 0, "fed": 0, "bytes": 0}
     handled_ids: set[int] = set()
     run_columns = Engine._run_columns
     compile_plan = canguard.engine.blocks.compile_plan
@@ -145,6 +152,7 @@ def replay(cfg: Config, log: Path, out: Path, *, columns: bool, chunk: int,
     def counted_run_columns(self: Engine, cols: Columns, cursor: Any) -> bool:
         took = run_columns(self, cols, cursor)
         counts["blocks"] += took
+        counts["bytes"] += took and type(cols).__name__ == "ByteColumns"
         return took
 
     def counted_compile_plan(entry: Any, *args: Any) -> Any:
@@ -178,6 +186,7 @@ def replay(cfg: Config, log: Path, out: Path, *, columns: bool, chunk: int,
         mp.setattr(canguard.engine.blocks, "compile_plan", counted_compile_plan)
         mp.setattr(canguard.cli.replay, "build_summary", capturing_build_summary)
         mp.setattr(canguard.io.candump, "CHUNK_CHARS", chunk)
+        mp.setattr(canguard.io.candump, "NUMPY_AFTER_BLOCKS", numpy_after)
         py_trees.blackboard.Blackboard.clear()  # global: the two runs must not see each other's keys
         summary = replay_one(cfg, log, ReplayOptions(events=events, emit=emit, channel_map=channel_map or {}))
         py_trees.blackboard.Blackboard.clear()
@@ -186,7 +195,7 @@ def replay(cfg: Config, log: Path, out: Path, *, columns: bool, chunk: int,
     state["blackboard"] = boards[0]  # what the tree wrote (I²t levels...): quiet ticks must write it too
     return Outcome(json.dumps(summary, sort_keys=True), events.read_bytes(), emit.read_bytes(),
                    state, counts["blocks"], counts["handled"], counts["fed"], handled_ids,
-                   engine.stats.quiet_ticks)
+                   engine.stats.quiet_ticks, counts["bytes"])
 
 
 def _first_difference(a: bytes | str, b: bytes | str, what: str) -> str:
@@ -219,16 +228,24 @@ def compare(cfg: Config, log: Path, out: Path, chunks: tuple[int, ...] = SMALL_C
     The column path must have run (blocks taken, and at least ``min_handled`` rows
     taken by the handlers) at every block size but the reader's default, where a
     small log is one block and the first block always goes frame by frame.
+
+    The column runs alternate the reader's two block parsers: the first, third...
+    block size parse every block with numpy (:mod:`canguard.io.candump_np`, from the
+    second block on, so a log mixes both as a long one does), the others with the text
+    parser alone. The reference always reads with the text parsers.
     """
     outcomes = []
-    for chunk in chunks:
+    for k, chunk in enumerate(chunks):
         ref = replay(cfg, log, out / f"ref-{chunk}", columns=False, chunk=chunk, channel_map=channel_map)
-        col = replay(cfg, log, out / f"col-{chunk}", columns=True, chunk=chunk, channel_map=channel_map)
+        col = replay(cfg, log, out / f"col-{chunk}", columns=True, chunk=chunk, channel_map=channel_map,
+                     numpy_after=2 if k % 2 == 0 else NEVER)
         assert (ref.column_blocks, ref.handled_rows, ref.fed_rows) == (0, 0, 0), "the reference used the column path"
         assert ref.quiet_ticks == 0, "the reference skipped ticks: it must tick every tick, as the live daemon"
         assert_same(ref, col, f"{log.name} with {Path(str(cfg.path)).name}, blocks of {chunk} chars")
         if chunk != DEFAULT_CHUNK:
             assert col.column_blocks > 0, f"blocks of {chunk}: the column path never ran, so this proves nothing"
+            if k % 2 == 0 and col.column_blocks > 2:
+                assert col.byte_blocks > 0, f"blocks of {chunk}: the numpy parser never ran, so this proves nothing"
             assert col.handled_rows >= min_handled, f"blocks of {chunk}: the row handlers took {col.handled_rows} rows"
         outcomes.append(col)
     return outcomes
@@ -286,10 +303,11 @@ def mixed_case(text: str, k: int) -> str:
     return "".join(c.lower() if (i + k) % 2 else c.upper() for i, c in enumerate(text))
 
 
-def chunks_of(log: Path, chunk: int) -> list[Columns | list[Any]]:
-    """The reader's blocks of ``log`` at ``chunk`` characters (what run_log receives)."""
+def chunks_of(log: Path, chunk: int, numpy_after: int = NEVER) -> list[Columns | list[Any]]:
+    """The reader's blocks of ``log`` at ``chunk`` characters (what run_log receives); text parsers by default."""
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(canguard.io.candump, "CHUNK_CHARS", chunk)
+        mp.setattr(canguard.io.candump, "NUMPY_AFTER_BLOCKS", numpy_after)
         return list(read_log(log).chunks())
 
 

@@ -28,12 +28,15 @@ from collections.abc import Callable, Collection, Sequence
 from itertools import islice
 from typing import TYPE_CHECKING, Any
 
+from canguard.io.candump_np import ByteColumns
+
 if TYPE_CHECKING:
     import numpy as np
 
     from canguard.bt.context import Context
     from canguard.decode.decoder import DecodeCounters, _Entry
     from canguard.engine.stats import EngineStats
+    from canguard.io.candump import Columns
 
 EMPTY: tuple[float, ...] = ()
 """A decoded row with no configured signal in it (a multiplexer page nobody reads): counted, nothing else."""
@@ -89,30 +92,39 @@ class MessagePlan:
             self.step = self._single_step()  # type: ignore[method-assign,assignment]
 
     # -- the columns -------------------------------------------------------------------
-    def decode(self, texts: Sequence[str]) -> list[tuple[float, ...] | None]:
-        """Each row's configured values (in output order), :data:`EMPTY`, or None: the row goes to ``feed``.
+    def decode(self, cols: Columns | ByteColumns, rows: list[int]) -> list[tuple[float, ...] | None]:
+        """Each of ``rows``' configured values (in output order), :data:`EMPTY`, or None: the row goes to ``feed``.
 
         A row is None when its payload has another length than the DBC's, when cantools
         would refuse it (a multiplexer value no signal uses), when one of its values is
         NaN, infinite or outside the DBC range, when a presence flag reads 0, or when it
         holds some configured signals of a multiplexed message but not all.
         """
-        n = len(texts)
+        n = len(rows)
         if self.counter:
             return [None] * n
         size = self.hex_size
-        if set(map(len, texts)) == {size}:
-            good: list[int] | None = None
-            joined = "".join(texts)
+        good: list[int] | None
+        if isinstance(cols, ByteColumns):
+            good, data = cols.payload(rows, size)  # straight from the block's bytes
         else:
-            good = [k for k, text in enumerate(texts) if len(text) == size]
-            joined = "".join([texts[k] for k in good])
+            texts = list(map(cols.data.__getitem__, rows))
+            if set(map(len, texts)) == {size}:
+                good = None
+                data = bytes.fromhex("".join(texts))
+            else:
+                good = [k for k, text in enumerate(texts) if len(text) == size]
+                data = bytes.fromhex("".join([texts[k] for k in good]))
+        return self._decode_payloads(n, good, data)
+
+    def _decode_payloads(self, n: int, good: list[int] | None, data: bytes) -> list[tuple[float, ...] | None]:
+        """:meth:`decode` of ``n`` rows whose payloads of the DBC's length (``good``: which, None: all) are ``data``."""
         rows = n if good is None else len(good)
         result: list[tuple[float, ...] | None]
         if not rows:
             return [None] * n
         if self.rows_struct is not None:
-            taken = _struct_rows(self.rows_struct, bytes.fromhex(joined))
+            taken = _struct_rows(self.rows_struct, data)
             if good is None:
                 return taken
             result = [None] * n
@@ -123,7 +135,7 @@ class MessagePlan:
 
         from canguard.decode.columns import decode_block
 
-        payload = np.frombuffer(bytes.fromhex(joined), dtype=np.uint8).reshape(rows, self.length)
+        payload = np.frombuffer(data, dtype=np.uint8).reshape(rows, self.length)
         with np.errstate(invalid="ignore", over="ignore"):
             decoded, decodable = decode_block(self.message, payload, self.signals)
             values: list[np.ndarray] = []

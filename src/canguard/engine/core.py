@@ -141,7 +141,7 @@ class Engine(SourceWatchMixin, LogRunMixin, QuietTickMixin):
         self.last_due_run = -math.inf
         """The time of the last tick or gate deadline run (which row brought it: :meth:`_cross`)."""
         self._wanted = frozenset(self.decoder.keys())
-        self._plans: dict[str, dict[str, MessagePlan | None]] = {}
+        self._plans: dict[str, dict[str | int, MessagePlan | None]] = {}
         """Per bus: id text -> the column plan of the replay block path (see :mod:`canguard.engine.blocks`)."""
         self._plan_list: dict[str, list[MessagePlan]] = {}
         """Per bus: every plan, flushed at the end of each block."""

@@ -31,6 +31,7 @@ if TYPE_CHECKING:
     from canguard.decode.decoder import Decoder
     from canguard.engine.blocks import MessagePlan
     from canguard.engine.stats import EngineStats
+    from canguard.io.candump_np import ByteColumns
     from canguard.io.clock import PinnedClock
     from canguard.io.logs import Columns
 
@@ -49,7 +50,7 @@ class LogRunMixin:
         _last_frame_t: float
         _drive_clock: Callable[[float], None]
         _wanted: frozenset[tuple[str, int, bool]]
-        _plans: dict[str, dict[str, MessagePlan | None]]
+        _plans: dict[str, dict[str | int, MessagePlan | None]]
         _plan_list: dict[str, list[MessagePlan]]
         _dirty: bool
         durable: bool
@@ -151,7 +152,7 @@ class LogRunMixin:
             channels[last_channel] = channels.get(last_channel, 0) + run
         cursor.last_t, cursor.started = last_t, started
 
-    def _run_columns(self, cols: Columns, cursor: _LogCursor) -> bool:
+    def _run_columns(self, cols: Columns | ByteColumns, cursor: _LogCursor) -> bool:
         """:meth:`run_log` over a column block; False (nothing done) when it must go frame by frame."""
         if not cols.ordered or self.sample_hook is not None:
             return False
@@ -231,7 +232,8 @@ class LogRunMixin:
 
     @staticmethod
     def _decode_rows(
-        plans: Mapping[str, MessagePlan | None], rows: list[int], cols: Columns, settle: bool = False
+        plans: Mapping[str | int, MessagePlan | None], rows: list[int], cols: Columns | ByteColumns,
+        settle: bool = False,
     ) -> list[tuple[MessagePlan | None, tuple[float, ...] | None] | None] | None:
         """Per row of the block: its plan and decoded values when it goes one by one (else None); None: no row left.
 
@@ -246,7 +248,8 @@ class LogRunMixin:
         """
         from canguard.engine.blocks import EMPTY  # numpy: imported when a block is first decoded
 
-        ids, data, ts = cols.ids, cols.data, cols.ts
+        ids: Sequence[Any] = cols.ids
+        ts = cols.ts
         groups: dict[MessagePlan | None, list[int]] = {}
         remote = cols.remote
         if remote:
@@ -269,7 +272,7 @@ class LogRunMixin:
                     slots[i] = (None, None)
                 continue
             pick = _picker(group)
-            decoded = plan.decode(pick(data))
+            decoded = plan.decode(cols, group)
             if plan.passive and plan.batch(pick(ts), decoded):
                 continue
             active.append((plan, group, decoded, pick))
@@ -287,7 +290,7 @@ class LogRunMixin:
             plan.count_empty(empty)
         return slots
 
-    def _cross(self, ts: list[str], lo: int, hi: int) -> None:
+    def _cross(self, ts: Sequence[Any], lo: int, hi: int) -> None:
         """Rows ``lo..hi-1`` (ordered, of no configured message): the first at or after the due time brings the ticks.
 
         What :meth:`feed` does for such a frame, without decoding it; repeated while
@@ -309,14 +312,15 @@ class LogRunMixin:
             self._last_frame_t = t  # as feed: not before it (ordered, from cursor.last_t on)
             lo = k + 1
 
-    def _compile_plans(self, bus: str) -> dict[str, MessagePlan | None]:
+    def _compile_plans(self, bus: str) -> dict[str | int, MessagePlan | None]:
         """Every id text (any letter case) of a message configured on ``bus``, with its plan or None (feed it)."""
         from canguard.engine.blocks import compile_plan
         from canguard.engine.settle import may_settle
+        from canguard.io.candump_np import id_key
         from canguard.io.logs import candump_id_texts
 
         counters = self.decoder.per_bus[bus]
-        plans: dict[str, MessagePlan | None] = {}
+        plans: dict[str | int, MessagePlan | None] = {}
         made = self._plan_list.setdefault(bus, [])
         # the stop confirmation reads its source between ticks: not passive; metrics count per frame
         readers: set[str] | None = set(self.ctx.read_sources)
@@ -335,9 +339,10 @@ class LogRunMixin:
                 made.append(plan)
             for text in candump_id_texts(cid, ext):
                 plans[text] = plan
+            plans[id_key(cid, ext)] = plan  # the ids of byte blocks (canguard.io.candump_np)
         return plans
 
-def _settled(active: list[tuple[MessagePlan, list[int], list[Any], Callable[[Any], Any]]], ts: list[str]) -> bool:
+def _settled(active: list[tuple[MessagePlan, list[int], list[Any], Callable[[Any], Any]]], ts: Sequence[Any]) -> bool:
     """Every active message of the block taken whole (:mod:`canguard.engine.settle`), or none of them."""
     from canguard.engine.settle import prepare, settle
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 import io
 import math
 import operator
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from itertools import islice, repeat
 from pathlib import Path
 from typing import Any, NamedTuple, TextIO
@@ -39,6 +39,7 @@ from canguard.io.logtypes import (
 
 CHUNK_CHARS = 1 << 17
 """Characters read per chunk by the candump reader (about 2,800 lines: a block stays in the CPU caches)."""
+NUMPY_AFTER_BLOCKS = 8  # blocks from this one on are parsed by numpy first (candump_np): a short log skips its import
 
 _BULK_TABLE = str.maketrans({"(": None, ")": None, " ": "#", "\n": "#"})
 _MARKERS = frozenset("TRtr")
@@ -103,16 +104,6 @@ class Columns(NamedTuple):
         )
 
 
-def candump_id_texts(arbitration_id: int, is_extended_id: bool) -> list[str]:
-    """Every way candump -L may write an id: 3 (standard) or 8 (extended) hex digits, letters in any case."""
-    text = f"{arbitration_id:08X}" if is_extended_id else f"{arbitration_id:03X}"
-    variants = [""]
-    for ch in text:
-        cases = {ch.upper(), ch.lower()}
-        variants = [v + c for v in variants for c in sorted(cases)]
-    return variants
-
-
 def _bulk_columns(block: str, n: int) -> Columns | None:
     """Check ``n`` candump -L lines of plain shape at once, or return None if any line is not plain.
 
@@ -133,7 +124,10 @@ def _bulk_columns(block: str, n: int) -> Columns | None:
         return None
     tok = plain.split("#")
     k, r = divmod(len(tok) - 1, n)
-    if r or not 4 <= k <= 5:
+    if r or not 4 <= k <= 5 or block.count("#") != n:
+        return None
+    # the separator after each id is a "#", not a space (``ID DATA`` splits the same way above)
+    if not all(map(str.endswith, block.split("#"), tok[2:-1:k])):
         return None
     if k == 5 and not set(tok[4:-1:5]) <= _MARKERS:
         return None
@@ -365,6 +359,8 @@ def _candump_chunks(
     last_was_error = False
     rest = ""
     lt, eq = operator.lt, operator.eq
+    blocks = 0
+    by_bytes: Callable[[str, int], Any] | None = None
     try:
         while True:
             try:
@@ -389,7 +385,10 @@ def _candump_chunks(
             else:
                 break
             n = block.count("\n")
-            cols = None if last_was_error else _bulk_columns(block, n)
+            blocks += 1
+            if by_bytes is None and blocks >= NUMPY_AFTER_BLOCKS:  # a long log: numpy's import (60 ms) pays
+                from canguard.io.candump_np import byte_columns as by_bytes
+            cols = None if last_was_error else (by_bytes and by_bytes(block, n)) or _bulk_columns(block, n)
             if cols is not None:
                 ts = cols.ts
                 if want_ts_stats:

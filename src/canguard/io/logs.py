@@ -41,9 +41,9 @@ from canguard.io.pycan_blocks import python_can_chunks
 if TYPE_CHECKING:
     pass
 
-from canguard.io.candump import CHUNK_CHARS, Columns, candump_id_texts
+from canguard.io.candump import CHUNK_CHARS, Columns
 from canguard.io.candump_write import format_candump_line, write_candump
-from canguard.io.logtypes import BadLine
+from canguard.io.logtypes import BadLine, candump_id_texts
 from canguard.io.pycan import frame_from_message
 
 __all__ = [

@@ -158,3 +158,13 @@ class _Bad(Exception):
     def __init__(self, reason: str) -> None:
         super().__init__(reason)
         self.reason = reason
+
+
+def candump_id_texts(arbitration_id: int, is_extended_id: bool) -> list[str]:
+    """Every way candump -L may write an id: 3 (standard) or 8 (extended) hex digits, letters in any case."""
+    text = f"{arbitration_id:08X}" if is_extended_id else f"{arbitration_id:03X}"
+    variants = [""]
+    for ch in text:
+        cases = {ch.upper(), ch.lower()}
+        variants = [v + c for v in variants for c in sorted(cases)]
+    return variants

@@ -1,0 +1,292 @@
+"""Plain candump -L blocks parsed by numpy over the block's bytes: no Python object per field.
+
+:func:`byte_columns` checks a block of ``(secs.usecs) channel ID#HEX`` lines (CAN FD
+``ID##FHEX``, remote ``ID#R`` / ``ID#R4``, an optional T/R marker) with a handful of
+passes over the bytes, and keeps what the replay engine asks for as arrays:
+
+* the timestamps as floats, each equal to Python's ``float()`` of its text: the
+  digits make an exact integer (below 2**53) divided by an exact power of ten, one
+  correctly rounded division, hence the double nearest the written decimal;
+* the ids as integer keys (:func:`id_key`: the id, plus :data:`EXT_KEY` for an
+  extended one), which the engine looks up in its plans as it looks up id texts;
+* where each row's data starts and ends: a message's payloads are read as one
+  ``rows x length`` byte matrix (:meth:`ByteColumns.payload`), never as hex strings.
+
+The block is accepted only when every line passes the checks the text parser
+(:func:`canguard.io.candump._bulk_columns`) makes, with one channel; anything else
+gives None and the caller falls back to that parser, which reports bad lines with
+their file:line. Frames are built only for rows the engine feeds one by one.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+
+import numpy as np
+
+from canguard.io.frame import Frame
+from canguard.io.logtypes import _F, CANFD_BRS, CANFD_ESI, CANFD_LENGTHS, _new
+
+EXT_KEY = 1 << 32
+"""Added to an extended id's value in :attr:`ByteColumns.ids` (standard ids are their value)."""
+
+_HEXVAL = np.full(256, 255, dtype=np.uint8)
+for _i, _c in enumerate(b"0123456789abcdef"):
+    _HEXVAL[_c] = _i
+for _i, _c in enumerate(b"ABCDEF", 10):
+    _HEXVAL[_c] = _i
+_FD_BYTES = np.zeros(65, dtype=bool)
+_FD_BYTES[sorted(CANFD_LENGTHS)] = True
+_ID_WEIGHTS = 16.0 ** np.arange(7, -1, -1)
+_EXACT = 1 << 53
+_MARKERS = frozenset(b"TRtr")
+_FEW = 48
+"""Below this many rows a message's payloads are cut from the text, not gathered by numpy."""
+
+
+def id_key(arbitration_id: int, is_extended_id: bool) -> int:
+    """The key of an id in :attr:`ByteColumns.ids`."""
+    return arbitration_id + EXT_KEY if is_extended_id else arbitration_id
+
+
+class ByteColumns:
+    """A checked block of plain candump -L lines (one channel), as arrays over its bytes.
+
+    The same attributes the engine reads on :class:`canguard.io.candump.Columns`: ``n``,
+    ``ts`` (floats), ``chans``, ``ids`` (integer keys, :func:`id_key`), ``ordered``,
+    ``channel``, ``fd`` and ``remote``; :meth:`frame`, :meth:`frames` and :meth:`payload`.
+    """
+
+    __slots__ = ("_b", "_bounds", "_end", "_start", "_text", "channel", "fd", "ids", "n", "ordered", "remote", "ts")
+
+    def __init__(self, n: int, ts: list[float], ids: list[int], ordered: bool, channel: str,
+                 fd: dict[int, int] | None, remote: dict[int, int] | None, text: str, b: np.ndarray,
+                 start: np.ndarray, end: np.ndarray) -> None:
+        self.n = n
+        self.ts = ts
+        self.ids = ids
+        self.ordered = ordered
+        self.channel: str | None = channel
+        self.fd = fd
+        self.remote = remote
+        self._text = text
+        self._b = b
+        self._start = start
+        self._end = end
+        self._bounds: tuple[list[int], list[int]] | None = None
+
+    @property
+    def chans(self) -> list[str]:
+        """The channel of every row (one channel per block)."""
+        return [self.channel or ""] * self.n
+
+    def frame(self, i: int) -> Frame:
+        """The frame of row ``i``."""
+        key = self.ids[i]
+        ext = key >= EXT_KEY
+        cid = key - EXT_KEY if ext else key
+        if self.remote is not None and i in self.remote:
+            return _new(Frame, (self.ts[i], self.channel, cid, b"", ext, _F, _F, True, _F, _F, self.remote[i]))
+        data = bytes.fromhex(self._text[int(self._start[i]):int(self._end[i])])
+        flags = self.fd.get(i) if self.fd is not None else None
+        if flags is not None:
+            return _new(Frame, (self.ts[i], self.channel, cid, data, ext, True, _F, _F,
+                                bool(flags & CANFD_BRS), bool(flags & CANFD_ESI), -1))
+        return _new(Frame, (self.ts[i], self.channel, cid, data, ext, _F, _F, _F, _F, _F, -1))
+
+    def frames(self) -> Iterator[Frame]:
+        """The frames of every row, in order."""
+        return map(self.frame, range(self.n))
+
+    def payload(self, rows: list[int], size: int) -> tuple[list[int] | None, bytes]:
+        """The payloads of ``rows`` that hold ``size`` hex digits, joined: (their positions in ``rows``, or None
+        when all of them do; the bytes)."""
+        if len(rows) < _FEW:  # a few rows: slicing the text costs less than numpy's calls
+            if self._bounds is None:
+                self._bounds = (self._start.tolist(), self._end.tolist())
+            starts, ends = self._bounds
+            text = self._text
+            texts = [text[starts[i]:ends[i]] for i in rows]
+            if all(len(t) == size for t in texts):
+                return None, bytes.fromhex("".join(texts))
+            fits = [k for k, t in enumerate(texts) if len(t) == size]
+            return fits, bytes.fromhex("".join([texts[k] for k in fits]))
+        idx = np.asarray(rows, dtype=np.intp)
+        start = self._start[idx]
+        fit = self._end[idx] - start == size
+        good: list[int] | None = None
+        if not fit.all():
+            keep = np.flatnonzero(fit)
+            good = keep.tolist()
+            start = start[keep]
+        if not size or not start.size:
+            return good, b""
+        nib = _HEXVAL.take(_rows(self._b, start, size))
+        return good, ((nib[:, 0::2] << 4) | nib[:, 1::2]).tobytes()
+
+
+def byte_columns(text: str, n: int) -> ByteColumns | None:
+    """The block ``text`` of ``n`` lines (each ending in a newline) as :class:`ByteColumns`, or None.
+
+    None when any line is not of the plain shape, when the block has several channels,
+    or when a timestamp does not convert exactly this way (more than 15 significant
+    digits): the caller then uses the text parser.
+    """
+    if n == 0 or not text.isascii() or "\t" in text:
+        return None
+    raw = text.encode("ascii")
+    b = np.frombuffer(raw, dtype=np.uint8)
+    nl = np.flatnonzero(b == 10)
+    if nl.size != n or nl[-1] != b.size - 1:
+        return None
+    start = np.empty(n, dtype=np.intp)
+    start[0] = 0
+    start[1:] = nl[:-1] + 1
+    close = np.flatnonzero(b == 41)
+    if close.size != n or np.count_nonzero(b == 40) != n or not (b[start] == 40).all():
+        return None
+    if not ((close > start) & (close < nl)).all():  # n "(", each opening a line, n ")": one per line
+        return None
+    width = int(close[0] - start[0] - 1)
+    if width < 3 or not (close - start - 1 == width).all():
+        return None
+    ts = _stamps(b, start, width)
+    if ts is None:
+        return None
+    sp = np.flatnonzero(b == 32)
+    markers = sp.size == 3 * n
+    if not markers and sp.size != 2 * n:
+        return None
+    step = 3 if markers else 2
+    sp1, sp2 = sp[0::step], sp[1::step]
+    end = sp[2::step] if markers else nl
+    if not ((sp1 == close + 1) & (sp2 > sp1 + 1) & (end < nl if markers else sp2 < nl)).all():
+        return None
+    if markers and not (set(b[end + 1].tobytes()) <= _MARKERS and (end + 2 == nl).all()):
+        return None
+    channel = _one_channel(b, sp1, sp2)
+    if channel is None:
+        return None
+    hashes = np.flatnonzero(b == 35)
+    j = np.searchsorted(hashes, sp2)
+    if hashes.size < n or j[-1] >= hashes.size:
+        return None
+    h1 = hashes[j]
+    if not (h1 < end).all():
+        return None
+    after = b[h1 + 1]  # "#" for CAN FD, "R" / "r" for a remote frame: h1 + 1 <= end (a newline at worst)
+    is_fd = after == 35
+    nfd = int(np.count_nonzero(is_fd))
+    if hashes.size != n + nfd:  # one "#" per line, two on a CAN FD line: none anywhere else
+        return None
+    keys = _ids(b, sp2, h1)
+    if keys is None:
+        return None
+    data_start = h1 + 1
+    fd: dict[int, int] | None = None
+    remote: dict[int, int] | None = None
+    if nfd:
+        data_start = np.where(is_fd, h1 + 3, data_start)
+        rows = np.flatnonzero(is_fd)
+        if not (h1[rows] + 2 < end[rows]).all():
+            return None
+        flags = _HEXVAL[b[h1[rows] + 2]]
+        if (flags == 255).any():
+            return None
+        fd = dict(zip(rows.tolist(), flags.tolist(), strict=True))
+    is_remote = (after == 82) | (after == 114)
+    if is_remote.any():
+        rows = np.flatnonzero(is_remote)
+        remote = {}
+        for i in rows.tolist():
+            dlc = text[int(h1[i]) + 2:int(end[i])]
+            if len(dlc) > 1 or (dlc and dlc not in "012345678"):
+                return None
+            remote[i] = (int(dlc) or -1) if dlc else -1
+        data_start = np.where(is_remote, end, data_start)
+    lengths = end - data_start
+    if (lengths & 1).any():
+        return None
+    classic = ~is_fd
+    if (lengths[classic] > 16).any() or not _FD_BYTES[np.minimum(lengths[is_fd] // 2, 64)].all() or (
+        lengths[is_fd] > 128
+    ).any():
+        return None
+    # Every byte that is not a hex digit has been found at its place above: "(", ")", the dot,
+    # the spaces, the "#"s, the newline, the marker, the channel's letters, a remote "R". One
+    # more anywhere (in the data, say) and the count differs.
+    known = n * (4 + _others(channel) + markers) + sp.size + hashes.size + len(remote or ())
+    hexes = np.count_nonzero(((b - np.uint8(48)) < 10) | (((b | np.uint8(32)) - np.uint8(97)) < 6))
+    if b.size - hexes != known:
+        return None
+    ordered = bool(n == 1 or (ts[1:] >= ts[:-1]).all())
+    return ByteColumns(n, ts.tolist(), keys.tolist(), ordered, channel, fd, remote, text, b, data_start, end)
+
+
+def _stamps(b: np.ndarray, start: np.ndarray, width: int) -> np.ndarray | None:
+    """The timestamps (``width`` characters after each line's "("), exactly as ``float()`` reads them, or None."""
+    cells = _rows(b, start + 1, width)
+    dots = np.flatnonzero(cells[0] == 46)
+    if dots.size != 1 or not 0 < int(dots[0]) < width - 1 or width - 1 > 16:
+        return None
+    dot = int(dots[0])
+    if not (cells[:, dot] == 46).all():
+        return None
+    digits = cells - np.uint8(48)  # a digit is 0..9, anything else wraps above 9
+    digits[:, dot] = 0
+    if (digits > 9).any():
+        return None
+    # BLAS in float64: every partial sum is an integer below 2**53, so exact in any order
+    weights = np.array([0.0 if k == dot else 10.0 ** (width - 1 - k - (k < dot)) for k in range(width)])
+    whole = digits.astype(np.float64) @ weights
+    if float(whole.max()) >= _EXACT:
+        return None
+    return whole / 10.0 ** (width - 1 - dot)  # exact integer / exact power of ten: one rounding, as float()
+
+
+def _one_channel(b: np.ndarray, sp1: np.ndarray, sp2: np.ndarray) -> str | None:
+    """The one channel name of the block, or None when lines name several."""
+    size = int(sp2[0] - sp1[0] - 1)
+    if not (sp2 - sp1 - 1 == size).all():
+        return None
+    cells = _rows(b, sp1 + 1, size)
+    if not (cells == cells[0]).all():
+        return None
+    return bytes(cells[0]).decode("ascii")
+
+
+def _ids(b: np.ndarray, sp2: np.ndarray, h1: np.ndarray) -> np.ndarray | None:
+    """Each row's id key: 3 hex digits up to 7FF (standard) or 8 up to 1FFFFFFF (extended); None otherwise."""
+    size = h1 - sp2 - 1
+    ext = size == 8
+    if ext.all() or not ext.any():
+        width = 8 if ext[0] else 3
+        if not (size == width).all():
+            return None
+        nib = _HEXVAL.take(_rows(b, h1 - width, width))
+        if (nib == 255).any():
+            return None
+        value = nib.astype(np.float64) @ _ID_WEIGHTS[8 - width:]  # exact: below 2**32
+        if value.max() > (0x1FFFFFFF if width == 8 else 0x7FF):  # above: error frames, or not an id
+            return None
+        return value.astype(np.int64) + (EXT_KEY if width == 8 else 0)
+    if not (ext | (size == 3)).all():
+        return None
+    nib = _HEXVAL.take(_rows(b, h1 - 8, 8))
+    nib[~ext, :5] = 0  # a standard id's 3 digits are the last three cells
+    if (nib == 255).any():
+        return None
+    value = nib.astype(np.float64) @ _ID_WEIGHTS
+    if (value > np.where(ext, 0x1FFFFFFF, 0x7FF)).any():
+        return None
+    return value.astype(np.int64) + ext * np.int64(EXT_KEY)
+
+
+def _rows(b: np.ndarray, pos: np.ndarray, width: int) -> np.ndarray:
+    """The ``width`` bytes at each of ``pos``, as a ``len(pos) x width`` matrix (one copy per row, not per byte)."""
+    return np.ndarray((b.size - width + 1, width), np.uint8, b, 0, (1, 1))[pos]  # as_strided, without its overhead
+
+
+def _others(channel: str) -> int:
+    """How many characters of ``channel`` are not hex digits."""
+    return sum(c not in "0123456789abcdefABCDEF" for c in channel)

@@ -1,0 +1,145 @@
+"""The numpy block parser (canguard.io.candump_np) against the text block parser and Python's float().
+
+The replay of a long candump log reads its blocks with numpy. It must accept exactly the
+blocks the text parser accepts (for one channel), give the same frames, and refuse
+everything else, so that the text parser can name the bad line's file:line.
+"""
+
+from __future__ import annotations
+
+import struct
+
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from canguard.io.candump import _bulk_columns, _parse_line
+from canguard.io.candump_np import EXT_KEY, ByteColumns, byte_columns, id_key
+
+
+def _block(lines: list[str]) -> tuple[str, int]:
+    text = "".join(line + "\n" for line in lines)
+    return text, len(lines)
+
+
+@st.composite
+def plain_lines(draw: st.DrawFn) -> list[str]:
+    """candump -L lines of one channel: classic, CAN FD, remote, extended ids, any letter case, markers."""
+    marker = draw(st.sampled_from(["", " T", " R"]))
+    chan = draw(st.sampled_from(["can0", "vcan1", "c", "slcan12"]))
+    decimals = draw(st.integers(1, 6))
+    secs = draw(st.integers(0, 10**9))
+    ticks = secs * 10**decimals
+    lines = []
+    for _ in range(draw(st.integers(1, 40))):
+        ticks += draw(st.sampled_from([0, 1, 7, 10**decimals]))
+        text = str(ticks).rjust(decimals + 1, "0")
+        stamp = text[:-decimals].rjust(10, "0") + "." + text[-decimals:]  # one width, as candump writes
+        ext = draw(st.booleans())
+        cid = f"{draw(st.integers(0, 0x1FFFFFFF if ext else 0x7FF)):{'08X' if ext else '03X'}}"
+        kind = draw(st.sampled_from(["classic", "classic", "fd", "remote"]))
+        if kind == "fd":
+            size = draw(st.sampled_from([0, 1, 8, 12, 64]))
+            body = f"#{draw(st.integers(0, 15)):X}" + draw(st.binary(min_size=size, max_size=size)).hex()
+        elif kind == "remote":
+            body = draw(st.sampled_from(["R", "r", "R0", "R4", "R8"]))
+        else:
+            body = draw(st.binary(max_size=8)).hex()
+        if draw(st.booleans()):
+            body, cid = body.upper(), cid.lower()
+        lines.append(f"({stamp}) {chan} {cid}#{body}{marker}")
+    return lines
+
+
+@settings(max_examples=300, deadline=None)
+@given(lines=plain_lines())
+def test_plain_blocks_give_the_line_parsers_frames(lines: list[str]) -> None:
+    """Every plain block is taken, and row by row it is what the line parser reads (floats bit for bit)."""
+    cols = byte_columns(*_block(lines))
+    assert isinstance(cols, ByteColumns)
+    expected = [_parse_line(line) for line in lines]
+    assert list(cols.frames()) == expected
+    assert [struct.pack("<d", t) for t in cols.ts] == [struct.pack("<d", f.t) for f in expected]
+    assert cols.ids == [id_key(f.arbitration_id, f.is_extended_id) for f in expected]
+    assert cols.ordered
+
+
+_JUNK = st.sampled_from([*list("()# .\n\tRrTtGgxz~-+_:0189afAF"), "é"])
+
+
+@settings(max_examples=1500, deadline=None)
+@given(lines=plain_lines(), where=st.integers(0, 10**6), junk=_JUNK, how=st.sampled_from(["insert", "replace", "drop"]))
+def test_a_damaged_block_is_refused_as_the_text_parser_refuses_it(
+    lines: list[str], where: int, junk: str, how: str
+) -> None:
+    """One character inserted, replaced or dropped anywhere: numpy takes the block only if the text parser does,
+    and then reads the same frames; a block the text parser takes with one channel, numpy takes too."""
+    text, _ = _block(lines)
+    k = where % len(text)
+    if how == "insert":
+        text = text[:k] + junk + text[k:]
+    elif how == "replace":
+        text = text[:k] + junk + text[k + 1:]
+    else:
+        text = text[:k] + text[k + 1:]
+    if not text.endswith("\n"):
+        text += "\n"
+    n = text.count("\n")
+    ours, theirs = byte_columns(text, n), _bulk_columns(text, n)
+    if theirs is None:
+        assert ours is None, f"numpy took a block the text parser refuses: {text!r}"
+    elif theirs.channel is None or not theirs.ordered:
+        assert ours is None or not ours.ordered or ours.channel == theirs.channel
+    else:
+        assert ours is not None, f"numpy refused a plain block of one channel: {text!r}"
+        assert list(ours.frames()) == list(theirs.frames())
+    if ours is not None and theirs is not None:
+        assert list(ours.frames()) == list(theirs.frames())
+
+
+@settings(max_examples=300, deadline=None)
+@given(secs=st.integers(0, 10**10 - 1), frac=st.integers(0, 10**6 - 1), decimals=st.integers(1, 6))
+def test_timestamps_are_pythons_floats(secs: int, frac: int, decimals: int) -> None:
+    """The timestamp column is float() of the text, to the last bit, up to 16 digits; longer ones are refused."""
+    stamp = f"{secs}.{frac % 10**decimals:0{decimals}d}"
+    cols = byte_columns(f"({stamp}) can0 123#00\n", 1)
+    digits = len(stamp) - 1
+    if digits > 16 or int(stamp.replace(".", "")) >= 2**53:
+        assert cols is None  # the text parser takes it (float() is exact there)
+        assert _bulk_columns(f"({stamp}) can0 123#00\n", 1) is not None
+    else:
+        assert cols is not None
+        assert struct.pack("<d", cols.ts[0]) == struct.pack("<d", float(stamp))
+
+
+def test_several_channels_go_to_the_text_parser() -> None:
+    """A block of two channels is refused (the engine takes blocks of one channel only)."""
+    text, n = _block(["(1.000000) can0 123#00", "(1.000001) can1 123#00"])
+    assert byte_columns(text, n) is None
+    assert _bulk_columns(text, n) is not None
+
+
+def test_error_frames_and_out_of_range_ids_are_refused() -> None:
+    """An id above 7FF in 3 digits, or above 1FFFFFFF in 8 (error frames), is the line parser's to read."""
+    for line in ("(1.000000) can0 800#00", "(1.000000) can0 20000080#0000000000000000", "(1.000000) can0 12#00"):
+        assert byte_columns(line + "\n", 1) is None, line
+
+
+@settings(max_examples=200, deadline=None)
+@given(sizes=st.lists(st.sampled_from([0, 2, 4, 8]), min_size=1, max_size=120), size=st.sampled_from([2, 4, 8]))
+def test_payloads_of_a_message_and_the_rows_of_other_lengths(sizes: list[int], size: int) -> None:
+    """``payload`` joins the rows of the DBC's length and says which they are, for few rows and for many."""
+    lines = [f"(1.{i:06d}) can0 0AB#" + bytes(range(i % 7, i % 7 + n)).hex() for i, n in enumerate(sizes)]
+    cols = byte_columns(*_block(lines))
+    assert cols is not None
+    rows = list(range(len(sizes)))
+    good, data = cols.payload(rows, 2 * size)
+    want = [k for k, n in enumerate(sizes) if n == size]
+    assert good == (None if len(want) == len(sizes) else want)
+    assert data == b"".join(bytes(range(k % 7, k % 7 + size)) for k in want)
+
+
+def test_id_keys() -> None:
+    """Standard ids are their value; extended ones are above every standard one, in any letter case."""
+    cols = byte_columns(*_block(["(1.000000) can0 7fF#", "(1.000001) can0 1aBcDeF0#"]))
+    assert cols is not None
+    assert cols.ids == [0x7FF, 0x1ABCDEF0 + EXT_KEY]
