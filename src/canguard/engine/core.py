@@ -142,6 +142,7 @@ class Engine(SourceWatchMixin, LogRunMixin, QuietTickMixin):
         """The time of the last tick or gate deadline run (which row brought it: :meth:`_cross`)."""
         self._wanted = frozenset(self.decoder.keys())
         self._plans: dict[str, dict[str | int, MessagePlan | None]] = {}
+        self._plan_tables: dict[str, tuple[Any, Any]] = {}  # the integer keys of _plans, for numpy blocks
         """Per bus: id text -> the column plan of the replay block path (see :mod:`canguard.engine.blocks`)."""
         self._plan_list: dict[str, list[MessagePlan]] = {}
         """Per bus: every plan, flushed at the end of each block."""
@@ -284,7 +285,10 @@ class Engine(SourceWatchMixin, LogRunMixin, QuietTickMixin):
             if self._next_tick <= due_gate:
                 if not self._quiet_tick(due):
                     self.tick(due)
-                self._next_tick += self.period_s
+                    self._next_tick += self.period_s
+                else:
+                    self._next_tick += self.period_s
+                    self._quiet_run(now, due_gate)  # the quiet ticks after it, in one go
             else:
                 self.gate.service(self.clock.pin(due))
                 self.clock.unpin()

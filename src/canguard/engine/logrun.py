@@ -51,6 +51,7 @@ class LogRunMixin:
         _drive_clock: Callable[[float], None]
         _wanted: frozenset[tuple[str, int, bool]]
         _plans: dict[str, dict[str | int, MessagePlan | None]]
+        _plan_tables: dict[str, tuple[Any, Any]]
         _plan_list: dict[str, list[MessagePlan]]
         _dirty: bool
         durable: bool
@@ -182,7 +183,14 @@ class LogRunMixin:
         if plans is None:
             plans = self._plans[bus] = self._compile_plans(bus)
         ids = cols.ids
-        rows = list(compress(range(n), map(plans.__contains__, ids))) if plans else []
+        keys = getattr(cols, "keys", None)
+        if keys is not None and plans:  # a numpy block: its configured rows found by numpy
+            table = self._plan_tables.get(bus)
+            if table is None:
+                table = self._plan_tables[bus] = _key_table(plans)
+            rows = _configured_rows(keys, table)
+        else:
+            rows = list(compress(range(n), map(plans.__contains__, ids))) if plans else []
         remote = cols.remote
         if remote:  # counted by the decoder as remote frames, configured or not: fed
             rows = sorted(set(rows).union(remote))
@@ -355,6 +363,30 @@ def _settled(active: list[tuple[MessagePlan, list[int], list[Any], Callable[[Any
             return False
         prepared.append(ready)
     return settle(prepared)
+
+
+_STANDARD = 0x800
+"""Standard ids are below this: their configured rows are found through a table of this size."""
+
+
+def _key_table(plans: Mapping[str | int, Any]) -> tuple[Any, Any]:
+    """The integer keys of ``plans`` (:func:`~canguard.io.candump_np.id_key`): a table of standard ones; all, sorted."""
+    import numpy as np
+
+    known = [k for k in plans if type(k) is int]
+    table = np.zeros(_STANDARD, dtype=bool)
+    table[[k for k in known if k < _STANDARD]] = True
+    return table, np.array(sorted(known), dtype=np.int64)
+
+
+def _configured_rows(keys: Any, tables: tuple[Any, Any]) -> list[int]:
+    """The rows of a numpy block (:class:`~canguard.io.candump_np.ByteColumns`) whose id key has a plan."""
+    import numpy as np
+
+    table, every = tables
+    if keys.size and int(keys.max()) < _STANDARD:
+        return np.flatnonzero(table[keys]).tolist()
+    return np.flatnonzero(np.isin(keys, every)).tolist()
 
 
 def _picker(rows: list[int]) -> Callable[[Sequence[Any]], tuple[Any, ...]]:

@@ -75,6 +75,9 @@ class QuietTickMixin:
         _start_grace_s: float
         _next_tick: float
         _due: float
+        heat: Any
+        save_heat: bool
+        last_due_run: float
 
         def _flush(self) -> None: ...
         def _sample_levels(self) -> None: ...
@@ -181,10 +184,39 @@ class QuietTickMixin:
         state, inhibits = self._q_gate
         if gate.state != state or gate.inhibits != inhibits:
             return False
+        self._count_quiet(now, 1)
+        return True
+
+    def _quiet_run(self, now: float, until: float) -> None:
+        """After a quiet tick: the grid ticks due before ``until`` (and up to ``now``) counted in one go.
+
+        Only while the task runs and no heat is saved: then between two ticks with no frame
+        fed in between a quiet tick changes nothing but what the last of them leaves (the
+        guards' tick times, the counts): ``gate.service`` has nothing due before ``until``
+        (the gate's next deadline) and the heat levels move only with samples. Each tick
+        time is still reached by the same additions as one by one.
+        """
+        if self.gate.state != TaskGate.RUNNING or (self.heat is not None and self.save_heat):
+            return
+        nxt, period, last, count = self._next_tick, self.period_s, 0.0, 0
+        until = min(until, self._q_until)
+        while nxt <= now and nxt < until:
+            last = nxt
+            count += 1
+            nxt += period
+        if count:
+            self.clock.advance_to(last)
+            self.last_due_run = last
+            self._next_tick = nxt
+            self._count_quiet(last, count)
+
+    def _count_quiet(self, now: float, count: int) -> None:
+        """``count`` quiet grid ticks, the last at ``now``."""
+        gate = self.gate
         self.clock.pin(now)
         try:
-            self.stats.ticks += 1
-            self.stats.quiet_ticks += 1
+            self.stats.ticks += count
+            self.stats.quiet_ticks += count
             self.last_tick_t = now
             for g in self._q_ticked:
                 g.quiet_retick(now)
@@ -195,7 +227,6 @@ class QuietTickMixin:
             self._due = min(self._next_tick, gate.next_deadline())
         finally:
             self.clock.unpin()
-        return True
 
 
 def _quiet_node(node: Any) -> bool:

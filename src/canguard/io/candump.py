@@ -30,6 +30,7 @@ from canguard.io.logtypes import (
     ReadStats,
     _Bad,
     _new,
+    count_order,
     decompress_errors,
     open_decompressed,
 )
@@ -358,7 +359,6 @@ def _candump_chunks(
     last_t = -math.inf
     last_was_error = False
     rest = ""
-    lt, eq = operator.lt, operator.eq
     blocks = 0
     by_bytes: Callable[[str, int], Any] | None = None
     try:
@@ -393,14 +393,7 @@ def _candump_chunks(
                 ts = cols.ts
                 if want_ts_stats:
                     _note_order(st, float(ts[0]), last_t)
-                    nxt = islice(ts, 1, None)
-                    if cols.ordered:  # text order is time order; the usual case, increasing, costs one pass
-                        if not all(map(lt, ts, nxt)):
-                            st.repeated_timestamps += sum(map(eq, ts, islice(ts, 1, None)))
-                    else:
-                        times = list(map(float, ts))
-                        st.backwards_timestamps += sum(map(lt, islice(times, 1, None), times))
-                        st.repeated_timestamps += sum(map(eq, islice(times, 1, None), times))
+                    count_order(st, cols)
                 last_t = float(ts[-1])
                 frames += n
                 st.lines += n

@@ -57,7 +57,8 @@ class ByteColumns:
     ``channel``, ``fd`` and ``remote``; :meth:`frame`, :meth:`frames` and :meth:`payload`.
     """
 
-    __slots__ = ("_b", "_bounds", "_end", "_start", "_text", "channel", "fd", "ids", "n", "ordered", "remote", "ts")
+    __slots__ = ("_b", "_bounds", "_end", "_start", "_text", "channel", "fd", "ids", "keys", "n", "order", "ordered",
+                 "remote", "ts")
 
     def __init__(self, n: int, ts: list[float], ids: list[int], ordered: bool, channel: str,
                  fd: dict[int, int] | None, remote: dict[int, int] | None, text: str, b: np.ndarray,
@@ -74,6 +75,10 @@ class ByteColumns:
         self._start = start
         self._end = end
         self._bounds: tuple[list[int], list[int]] | None = None
+        self.order = (0, 0)
+        """Rows whose timestamp goes back, and rows whose timestamp repeats the previous row's (in the block)."""
+        self.keys: np.ndarray | None = None
+        """:attr:`ids` as an array (set by :func:`byte_columns`)."""
 
     @property
     def chans(self) -> list[str]:
@@ -107,7 +112,7 @@ class ByteColumns:
             starts, ends = self._bounds
             text = self._text
             texts = [text[starts[i]:ends[i]] for i in rows]
-            if all(len(t) == size for t in texts):
+            if set(map(len, texts)) == {size}:
                 return None, bytes.fromhex("".join(texts))
             fits = [k for k, t in enumerate(texts) if len(t) == size]
             return fits, bytes.fromhex("".join([texts[k] for k in fits]))
@@ -219,8 +224,12 @@ def byte_columns(text: str, n: int) -> ByteColumns | None:
     hexes = np.count_nonzero(((b - np.uint8(48)) < 10) | (((b | np.uint8(32)) - np.uint8(97)) < 6))
     if b.size - hexes != known:
         return None
-    ordered = bool(n == 1 or (ts[1:] >= ts[:-1]).all())
-    return ByteColumns(n, ts.tolist(), keys.tolist(), ordered, channel, fd, remote, text, b, data_start, end)
+    step = ts[1:] - ts[:-1]
+    backs = int(np.count_nonzero(step < 0))
+    cols = ByteColumns(n, ts.tolist(), keys.tolist(), not backs, channel, fd, remote, text, b, data_start, end)
+    cols.order = (backs, int(np.count_nonzero(step == 0)))
+    cols.keys = keys
+    return cols
 
 
 def _stamps(b: np.ndarray, start: np.ndarray, width: int) -> np.ndarray | None:

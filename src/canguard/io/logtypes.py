@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import operator
 from collections.abc import Iterator
 from dataclasses import dataclass, field
+from itertools import islice
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, NamedTuple
 
@@ -168,3 +170,20 @@ def candump_id_texts(arbitration_id: int, is_extended_id: bool) -> list[str]:
         cases = {ch.upper(), ch.lower()}
         variants = [v + c for v in variants for c in sorted(cases)]
     return variants
+
+
+def count_order(st: ReadStats, cols: Any) -> None:
+    """Add the timestamps of a column block that go back or repeat (within the block) to ``st``."""
+    order = getattr(cols, "order", None)
+    if order is not None:  # counted by numpy (canguard.io.candump_np)
+        st.backwards_timestamps += order[0]
+        st.repeated_timestamps += order[1]
+        return
+    ts = cols.ts
+    if cols.ordered:  # text order is time order; the usual case, increasing, costs one pass
+        if not all(map(operator.lt, ts, islice(ts, 1, None))):
+            st.repeated_timestamps += sum(map(operator.eq, ts, islice(ts, 1, None)))
+    else:
+        times = list(map(float, ts))
+        st.backwards_timestamps += sum(map(operator.lt, islice(times, 1, None), times))
+        st.repeated_timestamps += sum(map(operator.eq, islice(times, 1, None), times))
