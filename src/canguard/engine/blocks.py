@@ -28,8 +28,6 @@ from collections.abc import Callable, Collection, Sequence
 from itertools import islice
 from typing import TYPE_CHECKING, Any
 
-from canguard.io.candump_np import ByteColumns
-
 if TYPE_CHECKING:
     import numpy as np
 
@@ -37,6 +35,7 @@ if TYPE_CHECKING:
     from canguard.decode.decoder import DecodeCounters, _Entry
     from canguard.engine.stats import EngineStats
     from canguard.io.candump import Columns
+    from canguard.io.candump_np import ByteColumns
 
 EMPTY: tuple[float, ...] = ()
 """A decoded row with no configured signal in it (a multiplexer page nobody reads): counted, nothing else."""
@@ -105,8 +104,8 @@ class MessagePlan:
             return [None] * n
         size = self.hex_size
         good: list[int] | None
-        if isinstance(cols, ByteColumns):
-            good, data = cols.payload(rows, size)  # straight from the block's bytes
+        if not isinstance(cols, tuple):  # ByteColumns (numpy, imported only with it): straight from the bytes
+            good, data = cols.payload(rows, size)
         else:
             texts = list(map(cols.data.__getitem__, rows))
             if set(map(len, texts)) == {size}:

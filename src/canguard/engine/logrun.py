@@ -324,8 +324,8 @@ class LogRunMixin:
         """Every id text (any letter case) of a message configured on ``bus``, with its plan or None (feed it)."""
         from canguard.engine.blocks import compile_plan
         from canguard.engine.settle import may_settle
-        from canguard.io.candump_np import id_key
         from canguard.io.logs import candump_id_texts
+        from canguard.io.logtypes import id_key
 
         counters = self.decoder.per_bus[bus]
         plans: dict[str | int, MessagePlan | None] = {}

@@ -25,10 +25,7 @@ from collections.abc import Iterator
 import numpy as np
 
 from canguard.io.frame import Frame
-from canguard.io.logtypes import _F, CANFD_BRS, CANFD_ESI, CANFD_LENGTHS, _new
-
-EXT_KEY = 1 << 32
-"""Added to an extended id's value in :attr:`ByteColumns.ids` (standard ids are their value)."""
+from canguard.io.logtypes import _F, CANFD_BRS, CANFD_ESI, CANFD_LENGTHS, EXT_KEY, _new
 
 _HEXVAL = np.full(256, 255, dtype=np.uint8)
 for _i, _c in enumerate(b"0123456789abcdef"):
@@ -42,11 +39,6 @@ _EXACT = 1 << 53
 _MARKERS = frozenset(b"TRtr")
 _FEW = 48
 """Below this many rows a message's payloads are cut from the text, not gathered by numpy."""
-
-
-def id_key(arbitration_id: int, is_extended_id: bool) -> int:
-    """The key of an id in :attr:`ByteColumns.ids`."""
-    return arbitration_id + EXT_KEY if is_extended_id else arbitration_id
 
 
 class ByteColumns:

@@ -187,3 +187,12 @@ def count_order(st: ReadStats, cols: Any) -> None:
         times = list(map(float, ts))
         st.backwards_timestamps += sum(map(operator.lt, islice(times, 1, None), times))
         st.repeated_timestamps += sum(map(operator.eq, islice(times, 1, None), times))
+
+
+EXT_KEY = 1 << 32
+"""Added to an extended id's value in :attr:`ByteColumns.ids` (standard ids are their value)."""
+
+
+def id_key(arbitration_id: int, is_extended_id: bool) -> int:
+    """The key of an id in :attr:`ByteColumns.ids`."""
+    return arbitration_id + EXT_KEY if is_extended_id else arbitration_id
