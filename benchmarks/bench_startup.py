@@ -10,6 +10,13 @@
    seconds (default 60) and at the end. Goal: <= 80 MB and flat.
 
     PYTHONPATH=src python benchmarks/bench_startup.py --runs 5 --minutes 10
+
+3. With ``--commands N``: the fixed cost of short commands (issue 16), best and median of N
+   whole processes, wall and CPU seconds: ``canguard --help``, ``--version``, ``check``,
+   ``replay`` of a 3-frame log (``--json``), next to ``python -c pass``. ``--src DIR`` times
+   another source tree (a before/after comparison); ``--runs 0`` skips part 1, ``--minutes 0`` part 2.
+
+    python benchmarks/bench_startup.py --commands 10 --runs 0 --minutes 0
 """
 
 from __future__ import annotations
@@ -17,6 +24,7 @@ from __future__ import annotations
 import argparse
 import os
 import random
+import resource
 import shutil
 import signal
 import socket
@@ -118,6 +126,42 @@ def python_pass() -> float:
     return time.perf_counter() - t0
 
 
+TINY_LOG = """(1700000000.000010) can0 18FF50E5#005E147FAA010100
+(1700000000.000010) can0 014#F4CA7A3FC1E66F3F
+(1700000000.000210) can0 01C#ABD0AF3D6C6EB23D
+"""
+
+
+def command_costs(runs: int, tmp: Path, src: Path) -> None:
+    """Best / median wall and CPU seconds of short ``canguard`` commands, whole processes."""
+    log = tmp / "tiny.log"
+    log.write_text(TINY_LOG, encoding="ascii")
+    config = REPO / "config" / "canguard.yaml"
+    commands = {
+        "python -c pass": ["-c", "pass"],
+        "canguard --help": ["-m", "canguard", "--help"],
+        "canguard --version": ["-m", "canguard", "--version"],
+        "canguard check": ["-m", "canguard", "check", "-c", str(config)],
+        "canguard replay (3 frames) --json": ["-m", "canguard", "replay", str(log), "-c", str(config), "--json"],
+    }
+    env = child_env()
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(src), env.get("PYTHONPATH", "")) if p)
+    print(f"\nshort commands, {runs} runs each ({src}): best / median seconds")
+    print("| command | wall | CPU |")
+    print("| --- | ---: | ---: |")
+    for name, argv in commands.items():
+        walls, cpus = [], []
+        for _ in range(runs):
+            before = resource.getrusage(resource.RUSAGE_CHILDREN)
+            t0 = time.perf_counter()
+            subprocess.run([sys.executable, *argv], check=True, env=env, capture_output=True, timeout=60)
+            walls.append(time.perf_counter() - t0)
+            after = resource.getrusage(resource.RUSAGE_CHILDREN)
+            cpus.append(after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime)
+        print(f"| {name} | {min(walls):.3f} / {statistics.median(walls):.3f} "
+              f"| {min(cpus):.3f} / {statistics.median(cpus):.3f} |")
+
+
 def rss_under_load(config: Path, bus: dict[str, Any], minutes: float, every_s: float, fps: float) -> None:
     """Print the daemon's VmRSS every ``every_s`` while a sender feeds it ``fps`` frames/s."""
     kids: list[subprocess.Popen[bytes]] = []
@@ -169,22 +213,30 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--minutes", type=float, default=10.0, help="RSS run length (default 10; 0 skips)")
     ap.add_argument("--every", type=float, default=60.0, help="seconds between RSS samples (default 60)")
     ap.add_argument("--fps", type=float, default=8000.0, help="frames/s during the RSS run (default 8000)")
+    ap.add_argument("--commands", type=int, default=0, metavar="N",
+                    help="time short commands (--help, --version, check, a 3-frame replay) N times each "
+                         "(default 0: not)")
+    ap.add_argument("--src", type=Path, default=SRC,
+                    help="with --commands: the source tree to time (default: this one)")
     args = ap.parse_args(argv)
     rnd = random.Random()
     print(f"python {sys.version.split()[0]}, {os.cpu_count()} CPUs")
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
+        if args.commands > 0:
+            command_costs(args.commands, tmp, args.src.resolve())
         bus = unique_udp(rnd)
         config = write_config(tmp, bus)
         python_pass()  # warm the page cache for both
-        ready = [start_to_ready(config) for _ in range(args.runs)]
-        peer = [python_pass() for _ in range(args.runs)]
-        r, p = statistics.median(ready), statistics.median(peer)
-        print(f"\nstart -> READY=1 over {args.runs} runs (s): median {r:.3f}, min {min(ready):.3f}, "
-              f"max {max(ready):.3f}")
-        print(f"python -c pass (s):                  median {p:.3f}, min {min(peer):.3f}, "
-              f"max {max(peer):.3f}")
-        print(f"ratio canguard READY / python start: {r / p:.1f}")
+        if args.runs > 0:
+            ready = [start_to_ready(config) for _ in range(args.runs)]
+            peer = [python_pass() for _ in range(args.runs)]
+            r, p = statistics.median(ready), statistics.median(peer)
+            print(f"\nstart -> READY=1 over {args.runs} runs (s): median {r:.3f}, min {min(ready):.3f}, "
+                  f"max {max(ready):.3f}")
+            print(f"python -c pass (s):                  median {p:.3f}, min {min(peer):.3f}, "
+                  f"max {max(peer):.3f}")
+            print(f"ratio canguard READY / python start: {r / p:.1f}")
         if args.minutes > 0:
             rss_under_load(config, bus, args.minutes, args.every, args.fps)
     return 0

@@ -32,6 +32,24 @@ EXIT_CODES: tuple[tuple[int, str], ...] = (
 )
 
 
+COMMANDS: dict[str, str] = {
+    "run": "run the daemon on the config's buses (systemd service)",
+    "check": "validate a config, its DBC files and its tree; print what they resolve to",
+    "tree": "print the config's behaviour tree; render it; write a Groot2 nodes model",
+    "replay": "run the daemon's engine over recorded logs (candump, ASC, BLF, TRC, CSV, MF4; .gz .xz .zst)",
+    "simulate": "a simulated robot (ODrive axes + BMS) on a bus or into a candump -L log",
+    "demo": "the simulated robot and the daemon on a virtual bus, with a live view (no hardware)",
+    "init": "write a starter config, tree and DBC into a directory (e.g. /etc/canguard)",
+    "unit": "print the systemd unit for this install (right ExecStart path)",
+    "completion": "print a shell completion script (bash or zsh)",
+}
+"""Every subcommand and its one-line help, in the order ``canguard -h`` lists them.
+
+Here, not in each subcommand's module, so ``canguard -h`` and a command's parse need not
+import every module (:func:`canguard.cli.main.build_parser` builds only the one being run).
+"""
+
+
 def exit_codes_epilog() -> str:
     """The exit-code table printed at the end of every ``-h``."""
     return "exit codes:\n" + "\n".join(f"  {code:<4} {text}" for code, text in EXIT_CODES)
@@ -75,6 +93,7 @@ class Formatter(argparse.RawDescriptionHelpFormatter):
 
 def subcommand(sub: argparse._SubParsersAction, name: str, **kwargs: Any) -> argparse.ArgumentParser:
     """``sub.add_parser`` with the global options and the exit-code epilog every subcommand shares."""
+    kwargs.setdefault("help", COMMANDS[name])
     epilog = kwargs.pop("epilog", None)
     text = exit_codes_epilog() if epilog is None else f"{epilog}\n\n{exit_codes_epilog()}"
     p: argparse.ArgumentParser = sub.add_parser(name, epilog=text, formatter_class=Formatter, **kwargs)

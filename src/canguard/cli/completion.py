@@ -17,7 +17,7 @@ _SHELLS = ("bash", "zsh")
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """Register ``canguard completion``."""
     p = subcommand(
-        sub, "completion", help="print a shell completion script (bash or zsh)",
+        sub, "completion",
         description="Print a completion script for subcommands and options. bash: "
                     "`source <(canguard completion bash)` or save it to "
                     "/etc/bash_completion.d/canguard; zsh: `source <(canguard completion zsh)` in ~/.zshrc.",

@@ -39,7 +39,7 @@ DEMO_SCENARIOS = ("normal", "spike@4", "overload@9", "dropout@18", "garbage@24",
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """Register ``canguard demo``."""
     p = subcommand(
-        sub, "demo", help="the simulated robot and the daemon on a virtual bus, with a live view (no hardware)",
+        sub, "demo",
         description="Run the simulated robot and the daemon together on a private virtual bus with the bundled "
                     "config; walk through the scenarios; print what tripped, when, and how fast the stop went out.",
     )

@@ -25,7 +25,7 @@ DEFAULT_STATE_DIR = Path("/var/lib/canguard")
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """Register ``canguard init``."""
     p = subcommand(
-        sub, "init", help="write a starter config, tree and DBC into a directory (e.g. /etc/canguard)",
+        sub, "init",
         description="Write DIR/canguard.yaml (the whole-robot example, with paths fitted to DIR), "
                     "DIR/robot_guard.xml and DIR/robot.dbc. Edit them for your robot, then "
                     "`canguard check -c DIR/canguard.yaml`. See docs/deploy.md.",

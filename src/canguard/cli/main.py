@@ -14,9 +14,9 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-from canguard import __version__
 from canguard.cli.common import (
     BUNDLED_CONFIG,
+    COMMANDS,
     EXIT_BAD_INPUT,
     EXIT_BROKEN_PIPE,
     EXIT_INTERRUPTED,
@@ -37,7 +37,7 @@ __all__ = ["BUNDLED_CONFIG", "build_parser", "default_config", "main", "parse_ar
 
 # -- check -----------------------------------------------------------------------------------
 def _add_check(sub: argparse._SubParsersAction) -> None:
-    p = subcommand(sub, "check", help="validate a config, its DBC files and its tree; print what they resolve to",
+    p = subcommand(sub, "check",
                        description="Load the config, its DBC files and its tree; print buses, sources "
                                    "(message, id, signals, units) and frames; exit 0, or 2 with every error.")
     _add_config(p)
@@ -82,7 +82,7 @@ def _cmd_check(args: argparse.Namespace) -> int:
 
 # -- tree ------------------------------------------------------------------------------------
 def _add_tree(sub: argparse._SubParsersAction) -> None:
-    p = subcommand(sub, "tree", help="print the config's behaviour tree; render it; write a Groot2 nodes model",
+    p = subcommand(sub, "tree",
                        description="Print the tree of the config (py_trees' unicode display).")
     _add_config(p)
     p.add_argument("--dot", type=Path, metavar="FILE", help="render the tree (.dot, or .png/.svg with graphviz)")
@@ -160,7 +160,7 @@ def _dry_run(args: argparse.Namespace) -> int:
 
 # -- run -------------------------------------------------------------------------------------
 def _add_run(sub: argparse._SubParsersAction) -> None:
-    p = subcommand(sub, "run", help="run the daemon on the config's buses (systemd service)",
+    p = subcommand(sub, "run",
                        description="Run the live engine: read the buses, tick the tree, send task / stop "
                                    "frames. SIGTERM stops cleanly (stop frames out, exit 0); SIGHUP reloads.")
     _add_config(p)
@@ -177,35 +177,74 @@ def _cmd_run(args: argparse.Namespace) -> int:
     return daemon.run(duration_s=args.duration)
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The full argument parser (every subcommand has -h)."""
+class _VersionAction(argparse._VersionAction):
+    """``--version``: the version is looked up when asked for, not at every start (see canguard.__init__)."""
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any,
+                 option_string: str | None = None) -> None:
+        import canguard
+
+        self.version = f"canguard {canguard.__version__}"
+        super().__call__(parser, namespace, values, option_string)
+
+
+_EXTRA_MODULES = ("replay", "simulate", "demo", "init", "unit", "completion")
+"""Subcommands that live in their own module ``canguard.cli.<name>`` (its ``add_parser``)."""
+
+
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The full argument parser (every subcommand has -h).
+
+    With ``command``, only that subcommand is built in full (its module imported); the
+    others are listed by name and help for ``canguard -h`` and its errors: the start-up of
+    one command does not pay for importing every other one (issue 16).
+    """
     parser = argparse.ArgumentParser(
         prog="canguard",
         description="CAN-bus motor-driver monitoring: DBC decoding, protection models, behaviour trees.",
         epilog=exit_codes_epilog(), formatter_class=Formatter,
     )
-    parser.add_argument("--version", action="version", version=f"canguard {__version__}")
+    parser.add_argument("--version", action=_VersionAction)
     add_global_options(parser, in_subcommand=False)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    for add in (_add_run, _add_check, _add_tree):
-        add(sub)
-    for extra in _extra_commands():
-        extra(sub)
+    builtin = {"run": _add_run, "check": _add_check, "tree": _add_tree}
+    for name in COMMANDS:
+        if command is not None and name != command:
+            sub.add_parser(name, help=COMMANDS[name])  # named and listed; never parsed
+            continue
+        add = builtin.get(name) or _module_adder(name)
+        if add is not None:
+            add(sub)
     return parser
 
 
-def _extra_commands() -> list[Callable[[argparse._SubParsersAction], None]]:
-    """Subcommands that live in their own modules (replay, simulate, demo)."""
-    adders: list[Callable[[argparse._SubParsersAction], None]] = []
-    for module in ("cli.replay", "cli.simulate", "cli.demo", "cli.init", "cli.unit", "cli.completion"):
-        try:
-            mod = __import__(f"canguard.{module}", fromlist=["add_parser"])
-        except ModuleNotFoundError as exc:
-            if exc.name != f"canguard.{module}":
-                raise
-            continue
-        adders.append(mod.add_parser)
-    return adders
+def _module_adder(name: str) -> Callable[[argparse._SubParsersAction], None] | None:
+    """``canguard.cli.<name>.add_parser``; None for a subcommand module this install lacks."""
+    if name not in _EXTRA_MODULES:
+        return None
+    module = f"canguard.cli.{name}"
+    try:
+        mod = __import__(module, fromlist=["add_parser"])
+    except ModuleNotFoundError as exc:
+        if exc.name != module:
+            raise
+        return None
+    adder: Callable[[argparse._SubParsersAction], None] = mod.add_parser
+    return adder
+
+
+def _command_in(argv: Sequence[str]) -> str | None:
+    """The subcommand ``argv`` runs, when it can be told before parsing ("" for none); None: build them all.
+
+    The top-level options (-h, --version, -v) take no value, so the first word that is not an
+    option is the subcommand. ``completion`` prints every subcommand's options: it needs them all.
+    """
+    for word in argv:
+        if word == "--":
+            return None
+        if not word.startswith("-"):
+            return word if word in COMMANDS and word != "completion" else None
+    return ""  # no subcommand: -h, --version or the usage need only the names
 
 
 def parse_args(parser: argparse.ArgumentParser, argv: Sequence[str] | None = None) -> argparse.Namespace:
@@ -217,7 +256,7 @@ def parse_args(parser: argparse.ArgumentParser, argv: Sequence[str] | None = Non
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``canguard`` console script; returns the exit code."""
-    parser = build_parser()
+    parser = build_parser(_command_in(sys.argv[1:] if argv is None else argv))
     args = parse_args(parser, argv)
     level = logging.WARNING - 10 * min(args.verbose, 2)
     logging.basicConfig(level=level, format="%(asctime)s %(name)s %(levelname)s: %(message)s")

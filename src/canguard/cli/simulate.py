@@ -16,7 +16,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
     scen = "; ".join(f"{k}: {v.splitlines()[0] if v else ''}" for k, v in SCENARIOS.items())
     p = subcommand(
-        sub, "simulate", help="a simulated robot (ODrive axes + BMS) on a bus or into a candump -L log",
+        sub, "simulate",
         description="Send the bundled DBC's frames as a robot would, on a configured bus (--bus, answering "
                     "canguard's Estop / Clear_Errors / Set_Axis_State) or into a candump -L file (--out). "
                     f"Scenarios (combine them; NAME@S shifts one by S seconds): {scen}",

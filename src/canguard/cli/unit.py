@@ -25,7 +25,7 @@ DEFAULT_CONFIG = Path("/etc/canguard/canguard.yaml")
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """Register ``canguard unit``."""
     p = subcommand(
-        sub, "unit", help="print the systemd unit for this install (right ExecStart path)",
+        sub, "unit",
         description="Print canguard.service with ExecStart pointing at this install's canguard, the "
                     "config path and the CAN interface(s) it binds to.",
     )

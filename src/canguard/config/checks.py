@@ -23,7 +23,7 @@ class _Checks:
         self.problems: list[str] = []
         self.located: list[str] = []
         """``problems`` with the line of their key: ``file:line: key: found X, expected Y``."""
-        self.lines: Mapping[str, int] = lines or {}
+        self.lines: Mapping[str, int] = lines if lines is not None else {}
         self.database: Any = None
         self.messages_ok = False
         self._by_name: dict[str, Any] = {}

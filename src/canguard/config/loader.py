@@ -19,7 +19,7 @@ from canguard.config.node_ids import RESERVED_NODE_IDS
 from canguard.config.schema import ActionConfig, Config, PartialConfig, TreeConfig
 from canguard.config.sections import _Sections
 from canguard.config.sources import _IDENT
-from canguard.config.yamlsrc import _found, _key_lines, _path, _UniqueKeyLoader
+from canguard.config.yamlsrc import _found, _LazyLines, _path, load_yaml
 from canguard.errors import ConfigError
 
 
@@ -108,7 +108,7 @@ def load_config_text(text: str, path: str | Path) -> Config:
     display = str(path)
     p = Path(path).expanduser().absolute()
     try:
-        doc = yaml.load(text, Loader=_UniqueKeyLoader)
+        doc = load_yaml(text)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f"{display}:{mark.line + 1}:{mark.column + 1}" if mark is not None else display
@@ -120,7 +120,7 @@ def load_config_text(text: str, path: str | Path) -> Config:
         raise ConfigError(
             f"{display}: (top level): found an empty file, expected a mapping with dbc, buses, sources"
         )
-    return _Loader(p, display, _key_lines(text)).config(doc)
+    return _Loader(p, display, _LazyLines(text)).config(doc)
 
 
 def load_config(path: str | Path) -> Config:

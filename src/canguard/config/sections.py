@@ -7,8 +7,6 @@ from collections.abc import Mapping
 from types import MappingProxyType
 from typing import Any
 
-import can
-
 from canguard.config.frames import _choices, _Frames
 from canguard.config.node_ids import RESERVED_NODE_IDS
 from canguard.config.schema import (
@@ -23,6 +21,14 @@ from canguard.config.schema import (
 )
 from canguard.config.sources import _IDENT
 from canguard.config.yamlsrc import _CONFIRM_OPS, _closest, _found, _path
+
+
+def _valid_interfaces() -> frozenset[str]:
+    """python-can's interface names, imported when a config names a bus (not at import)."""
+    import can.interfaces
+
+    names: frozenset[str] = can.interfaces.VALID_INTERFACES
+    return names
 
 
 class _Sections(_Frames):
@@ -53,11 +59,11 @@ class _Sections(_Frames):
                     "nothing",
                     "a python-can interface name (socketcan, virtual, ...)",
                 )
-            elif not isinstance(interface, str) or interface not in can.interfaces.VALID_INTERFACES:
+            elif not isinstance(interface, str) or interface not in _valid_interfaces():
                 self.problem(
                     _path(key, "interface"),
                     _found(interface),
-                    "a python-can interface" + _closest(interface, can.interfaces.VALID_INTERFACES),
+                    "a python-can interface" + _closest(interface, _valid_interfaces()),
                 )
             result[name] = BusConfig(name=name, kwargs=MappingProxyType(dict(kwargs)))
         self.bus_names = tuple(result)

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import difflib
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from typing import Any, Literal
 
 import yaml
@@ -41,6 +41,29 @@ _UniqueKeyLoader.add_constructor(
     yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG,
     _construct_unique_mapping,
 )
+
+_FastUniqueKeyLoader: Any = None
+if getattr(yaml, "__with_libyaml__", False):
+
+    class _CUniqueKeyLoader(yaml.CSafeLoader):
+        """The same loader on libyaml's parser (about 8x faster on a config; same constructors)."""
+
+    _CUniqueKeyLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _construct_unique_mapping)
+    _FastUniqueKeyLoader = _CUniqueKeyLoader
+
+
+def load_yaml(text: str) -> Any:
+    """``text`` as :class:`_UniqueKeyLoader` reads it: through libyaml when PyYAML has it.
+
+    Whenever libyaml finds a problem, the pure-Python loader reads the text again, so a
+    config's errors (and whatever it accepts) are those of :class:`_UniqueKeyLoader`.
+    """
+    if _FastUniqueKeyLoader is not None:
+        try:
+            return yaml.load(text, Loader=_FastUniqueKeyLoader)
+        except yaml.YAMLError:
+            pass
+    return yaml.load(text, Loader=_UniqueKeyLoader)
 
 
 def _found(value: Any) -> str:
@@ -113,6 +136,34 @@ def _key_lines(text: str) -> dict[str, int]:
     if root is not None:
         walk(root, "")
     return lines
+
+
+class _LazyLines(Mapping[str, int]):
+    """:func:`_key_lines` of a text, worked out the first time a problem asks for a line.
+
+    A valid config never asks: it is not parsed a second time for line numbers.
+    """
+
+    def __init__(self, text: str) -> None:
+        self._text = text
+        self._lines: dict[str, int] | None = None
+
+    def _get(self) -> dict[str, int]:
+        if self._lines is None:
+            self._lines = _key_lines(self._text)
+        return self._lines
+
+    def __getitem__(self, key: str) -> int:
+        return self._get()[key]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._get())
+
+    def __len__(self) -> int:
+        return len(self._get())
+
+    def __contains__(self, key: object) -> bool:
+        return key in self._get()
 
 
 def _line_of(lines: Mapping[str, int], key: str) -> int | None:

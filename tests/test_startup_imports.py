@@ -1,0 +1,139 @@
+"""Start-up (issue 16): a ``canguard`` command imports what it runs, not every subcommand and library.
+
+The import checks run in a fresh interpreter (a subprocess), so what this test process has
+imported does not hide a heavy import coming back; none of them measures a time.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
+
+import pytest
+
+import canguard
+from canguard.cli.common import COMMANDS
+from canguard.cli.main import _command_in, build_parser, parse_args
+
+REPO = Path(__file__).resolve().parents[1]
+SRC = REPO / "src"
+HEAVY = ("can", "cantools", "yaml", "py_trees", "numpy", "asyncio", "importlib.metadata", "canguard.cli.replay",
+         "canguard.sim", "canguard.engine", "canguard.config")
+
+
+def loaded_after(code: str) -> list[str]:
+    """The modules of :data:`HEAVY` a fresh interpreter has imported after running ``code``."""
+    probe = (
+        "import sys\n"
+        "try:\n"
+        + "".join(f"    {line}\n" for line in code.splitlines())
+        + "except SystemExit:\n    pass\n"
+        f"print('LOADED', *[m for m in {HEAVY!r} if m in sys.modules], file=sys.stderr)\n"
+    )
+    env = {**os.environ, "PYTHONPATH": str(SRC)}
+    proc = subprocess.run([sys.executable, "-c", probe], cwd=REPO, env=env, capture_output=True, text=True,
+                          timeout=60, check=False)
+    [line] = [ln for ln in proc.stderr.splitlines() if ln.startswith("LOADED")]
+    return line.split()[1:]
+
+
+def test_importing_the_cli_imports_no_library() -> None:
+    """``import canguard.cli.main`` (every command's first step) loads neither python-can nor cantools nor yaml."""
+    assert loaded_after("import canguard.cli.main") == []
+
+
+@pytest.mark.parametrize("argv", [["--help"], [], ["-v"], ["run", "-h"], ["check", "-h"], ["tree", "-h"]])
+def test_help_and_usage_import_no_subcommand_module(argv: list[str]) -> None:
+    """``canguard -h`` lists every subcommand without importing one; run/check/tree -h import nothing heavy."""
+    assert loaded_after(f"from canguard.cli.main import main\nmain({argv!r})") == []
+
+
+def test_version_reads_the_metadata_only() -> None:
+    assert loaded_after("from canguard.cli.main import main\nmain(['--version'])") == ["importlib.metadata"]
+
+
+def test_replay_help_does_not_import_the_other_subcommands() -> None:
+    loaded = loaded_after("from canguard.cli.main import main\nmain(['replay', '-h'])")
+    assert "canguard.sim" not in loaded  # simulate's module (its scenarios import the simulator)
+
+
+def test_version_is_the_installed_one() -> None:
+    try:
+        expected = version("canguard")
+    except PackageNotFoundError:
+        expected = "0.0.0+unknown"
+    assert canguard.__version__ == expected
+    from canguard import __version__
+
+    assert __version__ == expected
+    with pytest.raises(AttributeError):
+        _ = canguard.no_such_name
+
+
+# -- the parser built for one command is the full parser for that command ------------------------------
+def _sub(parser: argparse.ArgumentParser) -> dict[str, argparse.ArgumentParser]:
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            return dict(action.choices)
+    raise AssertionError("no subcommands")
+
+
+def test_every_subcommand_is_listed_in_order() -> None:
+    assert list(_sub(build_parser())) == list(COMMANDS)
+    for name in COMMANDS:
+        assert list(_sub(build_parser(name))) == list(COMMANDS)
+    assert build_parser("").format_help() == build_parser().format_help()
+
+
+@pytest.mark.parametrize("name", list(COMMANDS))
+def test_one_command_parser_is_the_full_one_for_it(name: str) -> None:
+    """Help, usage and options of the command being run are those of the full parser."""
+    full, one = _sub(build_parser())[name], _sub(build_parser(name))[name]
+    assert one.format_help() == full.format_help()
+    assert [a.option_strings for a in one._actions] == [a.option_strings for a in full._actions]
+    assert build_parser(name).format_help() == build_parser().format_help()
+
+
+@pytest.mark.parametrize("argv", [
+    ["replay", "a.log", "b.log", "-c", "x.yaml", "--jobs", "2", "--json"],
+    ["-v", "check", "-v", "-c", "x.yaml"],
+    ["tree", "t.xml", "--tick", "3"],
+    ["simulate", "--out", "x.log", "--scenario", "spike@2"],
+    ["init", "/tmp/x"],
+])
+def test_one_command_parser_parses_as_the_full_one(argv: list[str]) -> None:
+    one = vars(parse_args(build_parser(_command_in(argv)), argv))
+    full = vars(parse_args(build_parser(), argv))
+    assert {k: v for k, v in one.items() if k != "func"} == {k: v for k, v in full.items() if k != "func"}
+    assert one["func"] is full["func"]
+
+
+@pytest.mark.parametrize(("argv", "expected"), [
+    ([], ""), (["-h"], ""), (["--version"], ""), (["-v", "-v"], ""),
+    (["replay", "x.log"], "replay"), (["-v", "check"], "check"), (["run"], "run"),
+    (["completion", "bash"], None),  # prints every subcommand's options: all are built
+    (["bogus"], None), (["--", "replay"], None),
+])
+def test_the_command_is_told_before_parsing(argv: list[str], expected: str | None) -> None:
+    assert _command_in(argv) == expected
+
+
+def test_completion_still_completes_every_subcommand_option() -> None:
+    env = {**os.environ, "PYTHONPATH": str(SRC)}
+    proc = subprocess.run([sys.executable, "-m", "canguard", "completion", "bash"], cwd=REPO, env=env,
+                          capture_output=True, text=True, timeout=60, check=True)
+    assert "--fleet-summary" in proc.stdout and "--nodes-model" in proc.stdout and "--scenario" in proc.stdout
+    for name in COMMANDS:
+        assert f"        {name}) opts=" in proc.stdout
+
+
+def test_unknown_command_error_names_every_command() -> None:
+    env = {**os.environ, "PYTHONPATH": str(SRC)}
+    proc = subprocess.run([sys.executable, "-m", "canguard", "bogus"], cwd=REPO, env=env,
+                          capture_output=True, text=True, timeout=60, check=False)
+    assert proc.returncode == 2
+    assert "invalid choice: 'bogus' (choose from " + ", ".join(repr(c) for c in COMMANDS) + ")" in proc.stderr
