@@ -39,6 +39,7 @@ import yaml
 import canguard.cli.replay
 import canguard.engine.blocks
 import canguard.io.candump
+import canguard.io.candump_np
 import canguard.io.logs
 from canguard.cli.replay import ReplayOptions, replay_one
 from canguard.config.loader import load_config
@@ -130,13 +131,14 @@ def engine_state(engine: Engine) -> dict[str, Any]:
 
 def replay(cfg: Config, log: Path, out: Path, *, columns: bool, chunk: int,
            channel_map: dict[str, str] | None = None, quiet: bool | None = None,
-           numpy_after: int = NEVER) -> Outcome:
+           numpy_after: int = NEVER, numpy_rows: int | None = None) -> Outcome:
     """Replay ``log`` once (column path on or off, blocks of ``chunk`` characters); instrumented.
 
     ``quiet``: quiet ticks on or off (default: on with the column path, off for the
     reference, which then ticks every tick as the live daemon does). ``numpy_after``:
     the block from which the reader tries its numpy parser (:mod:`canguard.io.candump_np`);
-    by default never, so the reference reads every line with the text parsers.
+    by default never, so the reference reads every line with the text parsers. ``numpy_rows``:
+    from how many rows of a message in a block numpy reads its payloads (default: the engine's).
     """
     events, emit = out / "events.jsonl", out / "emit.log"
     out.mkdir(parents=True, exist_ok=True)
@@ -187,6 +189,9 @@ def replay(cfg: Config, log: Path, out: Path, *, columns: bool, chunk: int,
         mp.setattr(canguard.cli.replay, "build_summary", capturing_build_summary)
         mp.setattr(canguard.io.candump, "CHUNK_CHARS", chunk)
         mp.setattr(canguard.io.candump, "NUMPY_AFTER_BLOCKS", numpy_after)
+        if numpy_rows is not None:
+            mp.setattr(canguard.engine.blocks, "MIN_ROWS", numpy_rows)
+            mp.setattr(canguard.io.candump_np, "_FEW", numpy_rows)
         py_trees.blackboard.Blackboard.clear()  # global: the two runs must not see each other's keys
         summary = replay_one(cfg, log, ReplayOptions(events=events, emit=emit, channel_map=channel_map or {}))
         py_trees.blackboard.Blackboard.clear()
@@ -232,13 +237,14 @@ def compare(cfg: Config, log: Path, out: Path, chunks: tuple[int, ...] = SMALL_C
     The column runs alternate the reader's two block parsers: the first, third...
     block size parse every block with numpy (:mod:`canguard.io.candump_np`, from the
     second block on, so a log mixes both as a long one does), the others with the text
-    parser alone. The reference always reads with the text parsers.
+    parser alone; the first also has numpy read every message's payloads (however few
+    rows: :mod:`canguard.engine.npstruct`). The reference always reads with the text parsers.
     """
     outcomes = []
     for k, chunk in enumerate(chunks):
         ref = replay(cfg, log, out / f"ref-{chunk}", columns=False, chunk=chunk, channel_map=channel_map)
         col = replay(cfg, log, out / f"col-{chunk}", columns=True, chunk=chunk, channel_map=channel_map,
-                     numpy_after=2 if k % 2 == 0 else NEVER)
+                     numpy_after=2 if k % 2 == 0 else NEVER, numpy_rows=1 if k == 0 else None)
         assert (ref.column_blocks, ref.handled_rows, ref.fed_rows) == (0, 0, 0), "the reference used the column path"
         assert ref.quiet_ticks == 0, "the reference skipped ticks: it must tick every tick, as the live daemon"
         assert_same(ref, col, f"{log.name} with {Path(str(cfg.path)).name}, blocks of {chunk} chars")

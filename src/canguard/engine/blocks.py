@@ -28,6 +28,8 @@ from collections.abc import Callable, Collection, Sequence
 from itertools import islice
 from typing import TYPE_CHECKING, Any
 
+from canguard.engine.npstruct import MIN_ROWS, decode_struct, struct_spec
+
 if TYPE_CHECKING:
     import numpy as np
 
@@ -80,6 +82,8 @@ class MessagePlan:
         """Nobody looks at this message between ticks: a block's rows may be taken whole (:meth:`batch`)."""
         self.min_age = min(o[4].max_age_s for o in self.outputs)
         self.rows_struct = _row_struct(entry, self.outputs)
+        self.np_spec = struct_spec(entry, self.outputs) if self.rows_struct is not None else None
+        """The same signals read by numpy from a numpy block's hex, only their bytes (:mod:`.npstruct`)."""
         """Byte-aligned standard widths in one byte order: the block is read with ``struct.iter_unpack``
         (C, no numpy); None: the numpy column decoder."""
         self.seen = 0
@@ -105,6 +109,8 @@ class MessagePlan:
         size = self.hex_size
         good: list[int] | None
         if not isinstance(cols, tuple):  # ByteColumns (numpy, imported only with it): straight from the bytes
+            if self.np_spec is not None and n >= MIN_ROWS:
+                return decode_struct(cols, rows, size, self.np_spec)
             good, data = cols.payload(rows, size)
         else:
             texts = list(map(cols.data.__getitem__, rows))

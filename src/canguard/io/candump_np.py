@@ -121,6 +121,24 @@ class ByteColumns:
         nib = _HEXVAL.take(_rows(self._b, start, size))
         return good, ((nib[:, 0::2] << 4) | nib[:, 1::2]).tobytes()
 
+    def byte_fields(self, rows: list[int], size: int, spans: list[tuple[int, int]]
+                    ) -> tuple[list[int] | None, list[np.ndarray]]:
+        """Of ``rows`` whose payload holds ``size`` hex digits (which, as :meth:`payload` says): for each
+        ``(byte offset, width)`` of ``spans``, their bytes there as a ``rows x width`` matrix."""
+        idx = np.asarray(rows, dtype=np.intp)
+        start = self._start[idx]
+        fit = self._end[idx] - start == size
+        good: list[int] | None = None
+        if not fit.all():
+            keep = np.flatnonzero(fit)
+            good = keep.tolist()
+            start = start[keep]
+        cells = []
+        for at, width in spans:
+            nib = _HEXVAL.take(_rows(self._b, start + 2 * at, 2 * width))
+            cells.append((nib[:, 0::2] << 4) | nib[:, 1::2])
+        return good, cells
+
 
 def byte_columns(text: str, n: int) -> ByteColumns | None:
     """The block ``text`` of ``n`` lines (each ending in a newline) as :class:`ByteColumns`, or None.
