@@ -115,13 +115,55 @@ def run_dask(address: str, job: Callable[[Any], Any], jobs: list[Any]) -> list[A
         client.close()
 
 
-def run_processes(workers: int, job: Callable[[Any], Any], jobs: list[Any]) -> list[Any]:
-    """Run ``job`` over ``jobs`` in ``workers`` local processes; results in the order of ``jobs``."""
+def _pool_context() -> Any:
+    """'fork' on Linux while this process has one thread: the workers start with what it imported and loaded.
+
+    (Python 3.14 makes 'forkserver' the default, where each worker would import canguard
+    again; forking a process that runs other threads is unsafe, so then the default.)
+    """
+    import multiprocessing
+    import threading
+
+    if sys.platform == "linux" and threading.active_count() == 1:
+        return multiprocessing.get_context("fork")
+    return None
+
+
+_ONE_THREAD = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+"""numpy's BLAS thread pools: one thread each in a worker (as Dask's nanny sets them for its workers)."""
+
+
+def _worker_start() -> None:
+    """A --jobs worker: no BLAS thread pool beside the N workers (a replay does no linear algebra).
+
+    OpenBLAS otherwise starts a thread per core when numpy is imported, and they spin on
+    the cores the other workers replay on. Set before the worker's first log imports numpy;
+    a value the user set is kept.
+    """
+    import os
+
+    for name in _ONE_THREAD:
+        os.environ.setdefault(name, "1")
+
+
+def run_processes(workers: int, job: Callable[[Any], Any], jobs: list[Any],
+                  warm: Sequence[str] = ()) -> list[Any]:
+    """Run ``job`` over ``jobs`` in ``workers`` local processes; results in the order of ``jobs``.
+
+    ``warm``: modules every job imports, imported here first when the workers are forked
+    (once, instead of once per worker).
+    """
+    import importlib
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
+    context = _pool_context()
+    if context is not None:
+        for name in warm:
+            importlib.import_module(name)
     progress = Progress(len(jobs))
     results: list[Any] = [None] * len(jobs)
-    with ProcessPoolExecutor(max_workers=workers) as executor:
+    with ProcessPoolExecutor(max_workers=min(workers, len(jobs)), mp_context=context,
+                             initializer=_worker_start) as executor:
         futures = {executor.submit(job, j): i for i, j in enumerate(jobs)}
         for future in as_completed(futures):
             results[futures[future]] = future.result()

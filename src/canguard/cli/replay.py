@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import uuid
 from collections.abc import Iterator
 from contextlib import ExitStack
 from dataclasses import dataclass, field
@@ -125,7 +126,6 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     """Register ``canguard replay``."""
     p = subcommand(
         sub, "replay",
-        help="run the daemon's engine over recorded logs (candump, ASC, BLF, TRC, CSV, MF4; .gz .xz .zst)",
         description="What would the daemon have done on this log? Runs the same engine with the log's clock.",
     )
     p.add_argument("logs", nargs="+", type=Path, metavar="LOG",
@@ -165,11 +165,38 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=cmd_replay)
 
 
-def _job(args: tuple[Config | Path, Path, ReplayOptions]) -> tuple[dict[str, Any] | None, str]:
-    """Replay one log: with the config loaded by :func:`cmd_replay`, or (a --jobs worker) its path."""
+@dataclass(frozen=True)
+class ConfigRef:
+    """The config of one ``canguard replay`` run, as a --jobs / --dask worker gets it: its path and the run.
+
+    A worker loads it once per run and keeps it for the run's other logs (as the serial run
+    keeps its one Config); ``run`` tells one run from the next on a long-lived Dask worker,
+    so a config edited between two runs is read again.
+    """
+
+    path: Path
+    run: str
+
+
+_CONFIGS: dict[ConfigRef, Config] = {}
+"""This process's config of the current run (at most one): see :func:`_config_of`."""
+
+
+def _config_of(ref: ConfigRef) -> Config:
+    """The Config ``ref`` names: loaded once per process and run (inherited from the parent by a forked pool)."""
+    cfg = _CONFIGS.get(ref)
+    if cfg is None:
+        cfg = load_config(ref.path)
+        _CONFIGS.clear()  # a long-lived Dask worker keeps one run's config, not every run's
+        _CONFIGS[ref] = cfg
+    return cfg
+
+
+def _job(args: tuple[Config | ConfigRef, Path, ReplayOptions]) -> tuple[dict[str, Any] | None, str]:
+    """Replay one log: with the config loaded by :func:`cmd_replay`, or (a --jobs / --dask worker) its reference."""
     cfg, log, opts = args
     try:
-        return replay_one(cfg if isinstance(cfg, Config) else load_config(cfg), log, opts), ""
+        return replay_one(cfg if isinstance(cfg, Config) else _config_of(cfg), log, opts), ""
     except CanguardError as exc:
         return None, str(exc)
 
@@ -251,18 +278,48 @@ def cmd_replay(args: argparse.Namespace) -> int:
         return _replay_offline(cfg, cfg_path, args, names)
 
 
-def _run_jobs(args: argparse.Namespace, jobs: list[tuple[Config | Path, Path, ReplayOptions]],
+def _run_jobs(args: argparse.Namespace, cfg: Config, jobs: list[tuple[Config | ConfigRef, Path, ReplayOptions]],
               pool: bool) -> list[tuple[dict[str, Any] | None, str]]:
-    """Every job's (summary, error), in input order: on Dask, in ``--jobs`` processes or here."""
+    """Every job's (summary, error), in input order: on Dask, in ``--jobs`` processes or here.
+
+    Workers get the logs largest first (the fleet ends sooner than when a big log comes last);
+    the results are put back in input order.
+    """
+    if not pool:
+        return [_job(j) for j in jobs]
+    order = sorted(range(len(jobs)), key=lambda i: -_size(jobs[i][1]))
+    todo = [jobs[i] for i in order]
     if args.dask is not None:
         from canguard.cli.fleet import run_dask
 
-        return run_dask(args.dask, _job, jobs)
-    if pool:
+        done = run_dask(args.dask, _job, todo)
+    else:
         from canguard.cli.fleet import run_processes
 
-        return run_processes(args.jobs, _job, jobs)
-    return [_job(j) for j in jobs]
+        ref = jobs[0][0]
+        assert isinstance(ref, ConfigRef)
+        _CONFIGS.clear()
+        _CONFIGS[ref] = cfg  # forked workers start with it: no worker reads the config again
+        try:
+            done = run_processes(args.jobs, _job, todo, warm=_WORKER_MODULES)
+        finally:
+            _CONFIGS.clear()
+    results: list[tuple[dict[str, Any] | None, str]] = [(None, "")] * len(jobs)
+    for i, result in zip(order, done, strict=True):
+        results[i] = result
+    return results
+
+
+def _size(log: Path) -> int:
+    """Bytes of ``log`` (0 when it cannot be read: its worker names the problem)."""
+    try:
+        return log.stat().st_size
+    except OSError:
+        return 0
+
+
+_WORKER_MODULES = ("canguard.engine.events", "canguard.io.logs", "canguard.protect.state", "canguard.bt.loader")
+"""What :func:`replay_one` imports on a first log: imported once before a forked pool, not in every worker."""
 
 
 def _replay_offline(cfg: Config, cfg_path: Path, args: argparse.Namespace, names: list[Path]) -> int:
@@ -270,10 +327,10 @@ def _replay_offline(cfg: Config, cfg_path: Path, args: argparse.Namespace, names
     many = len(args.logs) > 1
     base = _load_baseline(args.baseline) if args.baseline else None
     pool = (args.jobs > 1 and many) or args.dask is not None
-    # In this process the config loaded above serves every log; --jobs / --dask workers load
-    # their own copy from the path (a Config with its cantools database is not sent to each).
-    job_cfg: Config | Path = cfg_path if pool else cfg
-    jobs: list[tuple[Config | Path, Path, ReplayOptions]] = []
+    # In this process the config loaded above serves every log; --jobs / --dask workers get its
+    # path (a Config with its cantools database is not sent to each) and keep it for the run.
+    job_cfg: Config | ConfigRef = ConfigRef(cfg_path, uuid.uuid4().hex) if pool else cfg
+    jobs: list[tuple[Config | ConfigRef, Path, ReplayOptions]] = []
     for log, name in zip(args.logs, names, strict=True):
         opts = ReplayOptions(
             channel_map=channel_map, events=per_log_path(args.events, name, many),
@@ -285,7 +342,7 @@ def _replay_offline(cfg: Config, cfg_path: Path, args: argparse.Namespace, names
         )
         jobs.append((job_cfg, log, opts))
     try:
-        results = _run_jobs(args, jobs, pool)
+        results = _run_jobs(args, cfg, jobs, pool)
     except BaseException:
         discard_parts([opts.export for _, _, opts in jobs])
         raise

@@ -1,0 +1,113 @@
+"""Fleet replay workers (issue 16): a worker keeps the run's config; the logs go largest first; same results.
+
+``--jobs N`` forks its workers (Linux) after the parent loaded the config, so no worker reads it
+again; a Dask worker reads it once per run (:class:`~canguard.cli.replay.ConfigRef`). The
+results stay those of a serial run, in the order the logs were given, whatever order the
+workers took them in.
+"""
+
+from __future__ import annotations
+
+import json
+import multiprocessing
+import os
+import shutil
+import sys
+from pathlib import Path
+
+import pytest
+
+import canguard.cli.fleet as fleet
+import canguard.cli.replay as replay_cmd
+from canguard.cli.fleet import _ONE_THREAD, _worker_start, run_processes
+from canguard.cli.main import main
+from canguard.config.schema import Config
+
+REPO = Path(__file__).resolve().parents[1]
+CONFIG = REPO / "config" / "examples" / "robot_guard.yaml"
+EXAMPLES = sorted((REPO / "examples").glob("*.log.gz"))
+
+
+@pytest.fixture
+def mixed(tmp_path: Path) -> list[Path]:
+    """Example logs of different sizes, smallest first (the workers take them largest first)."""
+    by_size = sorted(EXAMPLES, key=lambda p: p.stat().st_size)
+    out = []
+    for i, src in enumerate(by_size[:4]):
+        dst = tmp_path / f"{i}-{src.name}"
+        shutil.copy(src, dst)
+        out.append(dst)
+    assert len({p.stat().st_size for p in out}) > 1
+    return out
+
+
+def _run(argv: list[str], capsys: pytest.CaptureFixture[str]) -> str:
+    code = main(argv)
+    out = capsys.readouterr()
+    assert code in (0, 1), out.err
+    return out.out
+
+
+def test_jobs_give_the_serial_results_in_input_order(mixed: list[Path], capsys: pytest.CaptureFixture[str]) -> None:
+    base = ["replay", *map(str, mixed), "-c", str(CONFIG), "--json"]
+    serial = _run(base, capsys)
+    assert _run([*base, "--jobs", "2"], capsys) == serial
+    assert [s["log"] for s in json.loads(serial)] == [str(p) for p in mixed]
+
+
+@pytest.mark.skipif(sys.platform != "linux", reason="workers are forked on Linux only")
+def test_forked_workers_do_not_read_the_config_again(mixed: list[Path], tmp_path: Path,
+                                                     monkeypatch: pytest.MonkeyPatch,
+                                                     capsys: pytest.CaptureFixture[str]) -> None:
+    """Only the parent loads the config: a forked worker that loaded it would write a line here."""
+    record = tmp_path / "loads.txt"
+    real = replay_cmd.load_config
+
+    def recording(path: str | Path) -> Config:
+        with open(record, "a", encoding="utf-8") as f:
+            f.write(f"{path}\n")
+        return real(path)
+
+    monkeypatch.setattr(replay_cmd, "load_config", recording)
+    # Forked even when an earlier test left a thread behind (a Dask cluster's): what a CLI run does.
+    monkeypatch.setattr(fleet, "_pool_context", lambda: multiprocessing.get_context("fork"))
+    _run(["replay", *map(str, mixed), "-c", str(CONFIG), "--json", "--jobs", "2"], capsys)
+    assert record.read_text(encoding="utf-8").splitlines() == [str(CONFIG)]
+    assert replay_cmd._CONFIGS == {}  # the parent does not keep the run's config after it
+
+
+def test_a_worker_reads_the_config_once_per_run(monkeypatch: pytest.MonkeyPatch) -> None:
+    loads: list[Path] = []
+    real = replay_cmd.load_config
+
+    def counting(path: str | Path) -> Config:
+        loads.append(Path(path))
+        return real(path)
+
+    monkeypatch.setattr(replay_cmd, "load_config", counting)
+    monkeypatch.setattr(replay_cmd, "_CONFIGS", {})
+    first, second = replay_cmd.ConfigRef(CONFIG, "run-1"), replay_cmd.ConfigRef(CONFIG, "run-2")
+    cfg = replay_cmd._config_of(first)
+    assert replay_cmd._config_of(first) is cfg
+    assert loads == [CONFIG]
+    assert replay_cmd._config_of(second) is not cfg  # the next run reads the file again (it may have changed)
+    assert loads == [CONFIG, CONFIG]
+    assert list(replay_cmd._CONFIGS) == [second]  # one run's config kept, not every run's
+
+
+def test_worker_start_keeps_blas_to_one_thread_unless_set(monkeypatch: pytest.MonkeyPatch) -> None:
+    for name in _ONE_THREAD:
+        monkeypatch.delenv(name, raising=False)
+    monkeypatch.setenv("OMP_NUM_THREADS", "3")
+    _worker_start()
+    assert os.environ["OPENBLAS_NUM_THREADS"] == "1" and os.environ["MKL_NUM_THREADS"] == "1"
+    assert os.environ["OMP_NUM_THREADS"] == "3"
+
+
+def _square(x: int) -> int:
+    return x * x
+
+
+def test_run_processes_keeps_input_order_with_more_workers_than_jobs() -> None:
+    assert run_processes(4, _square, [3, 1, 2]) == [9, 1, 4]
+    assert run_processes(2, _square, [5], warm=("json",)) == [25]
