@@ -117,6 +117,8 @@ def _bulk_columns(block: str, n: int) -> Columns | None:
     """
     if not block.isascii() or "\t" in block or "~" in block or block.count("(") != n:
         return None
+    if block[:1] != "(" or block.count("\n(") != n - 1:  # every line opens with "("
+        return None
     has_fd = "##" in block
     if has_fd:
         block = block.replace("##", "#~")  # one token per field still: "~" + flags + data
@@ -178,6 +180,8 @@ def _bulk_columns(block: str, n: int) -> Columns | None:
     ordered = all(map(operator.le, ts, islice(ts, 1, None))) and math.ulp(float(ts[-1])) < 10.0 ** (dot + 1 - width)
     chans = tok[1:-1:k]
     single = chans.count(chans[0]) == n
+    if (not chans[0] if single else "" in chans):  # "(t)  ID#..": no channel
+        return None
     return Columns(n, ts, chans, ids, data, ordered, chans[0] if single else None, fd or None, remote or None)
 
 

@@ -144,8 +144,8 @@ def byte_columns(text: str, n: int) -> ByteColumns | None:
     """The block ``text`` of ``n`` lines (each ending in a newline) as :class:`ByteColumns`, or None.
 
     None when any line is not of the plain shape, when the block has several channels,
-    or when a timestamp does not convert exactly this way (more than 15 significant
-    digits): the caller then uses the text parser.
+    or when a timestamp does not convert exactly this way (its digits make 2**53 or more):
+    the caller then uses the text parser.
     """
     if n == 0 or not text.isascii() or "\t" in text:
         return None
@@ -157,42 +157,40 @@ def byte_columns(text: str, n: int) -> ByteColumns | None:
     start = np.empty(n, dtype=np.intp)
     start[0] = 0
     start[1:] = nl[:-1] + 1
-    close = np.flatnonzero(b == 41)
-    if close.size != n or np.count_nonzero(b == 40) != n or not (b[start] == 40).all():
+    # Each field's place follows from the first line's widths (timestamp, channel) and each id's
+    # length (3 or 8); each place is checked, and counts of "(", ")", " " and "#" leave none elsewhere.
+    first = raw[:int(nl[0])]
+    width = first.find(b")") - 1
+    clen = first.find(b" ", width + 3) - width - 3
+    if width < 3 or clen < 1 or np.count_nonzero(b == 40) != n or np.count_nonzero(b == 41) != n:
         return None
-    if not ((close > start) & (close < nl)).all():  # n "(", each opening a line, n ")": one per line
+    close = start + (width + 1)
+    sp1 = close + 1
+    sp2 = sp1 + (clen + 1)
+    if not ((b[start] == 40) & (sp2 < nl)).all() or not ((b[close] == 41) & (b[sp1] == 32) & (b[sp2] == 32)).all():
         return None
-    width = int(close[0] - start[0] - 1)
-    if width < 3 or not (close - start - 1 == width).all():
+    spaces = np.count_nonzero(b == 32)
+    markers = spaces == 3 * n
+    if not markers and spaces != 2 * n:
+        return None
+    end = nl - 2 if markers else nl  # the space before a T/R marker, or the newline
+    if markers and (not ((b[end] == 32) & (end > sp2)).all() or not set(b[nl - 1].tobytes()) <= _MARKERS):
         return None
     ts = _stamps(b, start, width)
     if ts is None:
         return None
-    sp = np.flatnonzero(b == 32)
-    markers = sp.size == 3 * n
-    if not markers and sp.size != 2 * n:
-        return None
-    step = 3 if markers else 2
-    sp1, sp2 = sp[0::step], sp[1::step]
-    end = sp[2::step] if markers else nl
-    if not ((sp1 == close + 1) & (sp2 > sp1 + 1) & (end < nl if markers else sp2 < nl)).all():
-        return None
-    if markers and not (set(b[end + 1].tobytes()) <= _MARKERS and (end + 2 == nl).all()):
-        return None
     channel = _one_channel(b, sp1, sp2)
     if channel is None:
         return None
-    hashes = np.flatnonzero(b == 35)
-    j = np.searchsorted(hashes, sp2)
-    if hashes.size < n or j[-1] >= hashes.size:
-        return None
-    h1 = hashes[j]
-    if not (h1 < end).all():
+    short = b[np.minimum(sp2 + 4, b.size - 1)] == 35  # a 3-digit id, else 8
+    h1 = np.where(short, sp2 + 4, sp2 + 9)
+    if not ((h1 < end) & (b[np.minimum(h1, b.size - 1)] == 35)).all():
         return None
     after = b[h1 + 1]  # "#" for CAN FD, "R" / "r" for a remote frame: h1 + 1 <= end (a newline at worst)
     is_fd = after == 35
     nfd = int(np.count_nonzero(is_fd))
-    if hashes.size != n + nfd:  # one "#" per line, two on a CAN FD line: none anywhere else
+    hashes = np.count_nonzero(b == 35)
+    if hashes != n + nfd:  # one "#" per line, two on a CAN FD line: none anywhere else
         return None
     keys = _ids(b, sp2, h1)
     if keys is None:
@@ -230,7 +228,7 @@ def byte_columns(text: str, n: int) -> ByteColumns | None:
     # Every byte that is not a hex digit has been found at its place above: "(", ")", the dot,
     # the spaces, the "#"s, the newline, the marker, the channel's letters, a remote "R". One
     # more anywhere (in the data, say) and the count differs.
-    known = n * (4 + _others(channel) + markers) + sp.size + hashes.size + len(remote or ())
+    known = n * (4 + _others(channel) + markers) + spaces + hashes + len(remote or ())
     hexes = np.count_nonzero(((b - np.uint8(48)) < 10) | (((b | np.uint8(32)) - np.uint8(97)) < 6))
     if b.size - hexes != known:
         return None
@@ -246,7 +244,7 @@ def _stamps(b: np.ndarray, start: np.ndarray, width: int) -> np.ndarray | None:
     """The timestamps (``width`` characters after each line's "("), exactly as ``float()`` reads them, or None."""
     cells = _rows(b, start + 1, width)
     dots = np.flatnonzero(cells[0] == 46)
-    if dots.size != 1 or not 0 < int(dots[0]) < width - 1 or width - 1 > 16:
+    if dots.size != 1 or not 0 < int(dots[0]) < width - 1 or width - 1 > 22:  # 10**22: the last exact power
         return None
     dot = int(dots[0])
     if not (cells[:, dot] == 46).all():
