@@ -1,12 +1,13 @@
 """``canguard replay`` of one log in each of python-can's formats, against python-can's reader alone.
 
-    python benchmarks/bench_formats.py [--frames N] [--repeat R] [--formats asc,blf,trc,csv] [--keep DIR]
+    python benchmarks/bench_formats.py [--frames N] [--repeat R] [--formats asc,blf,trc,csv,mf4] [--keep DIR]
 
 Writes a candump -L log of about N frames (default 600,000) with ``canguard simulate
 --scenario overload``, converts it with python-can's own writers (``can.Logger``) to
-each format, then times, whole processes with interpreter start-up, best of R runs
-(wall time and CPU time, user + system, of the child: CPU time is what other jobs on
-a shared machine disturb least):
+each format (MF4 only when asammdf is installed: ``pip install -e .[mf4]``), then
+times, whole processes with interpreter start-up, best of R runs (wall time and CPU
+time, user + system, of the child: CPU time is what other jobs on a shared machine
+disturb least):
 
 * ``canguard replay LOG -c config/canguard.yaml --json``: the reader's blocks on the
   column path where it can take them;
@@ -17,13 +18,15 @@ a shared machine disturb least):
 
 "engine" below is replay minus the floor: what canguard adds on top of python-can.
 The summaries of every format and path are checked equal (but for the log's name
-and the first / last timestamps: ASC and TRC timestamps are relative to the start).
+and the first / last timestamps: ASC and TRC timestamps are relative to the start;
+MF4 keeps offsets from the file's start time).
 The table lists the slowest format first.
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import json
 import os
 import resource
@@ -46,6 +49,9 @@ for _msg in can.LogReader(sys.argv[1]):
     n += 1
 print(n)
 """
+
+FORMATS = "asc,blf,trc,csv" + (",mf4" if importlib.util.find_spec("asammdf") else "")
+"""The formats measured by default: MF4 only when asammdf (python-can's MF4 reader and writer) is installed."""
 
 FEED_ONLY = """
 import sys
@@ -97,7 +103,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=600_000)
     ap.add_argument("--repeat", type=int, default=3)
-    ap.add_argument("--formats", default="asc,blf,trc,csv", help="comma-separated (mf4 needs asammdf)")
+    ap.add_argument("--formats", default=FORMATS, help=f"comma-separated (default {FORMATS}; mf4 needs asammdf)")
     ap.add_argument("--keep", type=Path, default=None, help="write the logs here and keep them")
     args = ap.parse_args(argv)
     work = args.keep or Path(tempfile.mkdtemp(prefix="canguard-formats-"))

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import gc
 import io
 import math
+import sys
 from collections.abc import Callable, Iterable, Iterator
 from itertools import islice
 from pathlib import Path
@@ -64,6 +66,23 @@ def _reader_class(fmt: str) -> Callable[[Any], Iterable[can.Message]]:
     return classes[fmt]
 
 
+def _free_quietly(exc: BaseException) -> None:
+    """Free now, without a word, what a reader that failed to open left behind (``exc`` keeps its message).
+
+    asammdf leaves the MDF4 it half-read from a truncated .mf4 in a reference cycle of
+    the traceback's frames; its ``__del__`` fails again (AttributeError: no ``header``)
+    whenever the garbage collector gets to it, which printed "Exception ignored in
+    MDF4.__del__" and a traceback after canguard's one-line error.
+    """
+    exc.__traceback__ = None
+    hook = sys.unraisablehook
+    sys.unraisablehook = lambda _: None
+    try:
+        gc.collect()
+    finally:
+        sys.unraisablehook = hook
+
+
 _PROGRESS_EVERY = 4096  # messages between progress updates for python-can readers
 
 
@@ -88,6 +107,7 @@ class _Messages:
             try:
                 self.messages: Iterator[can.Message] = iter(_reader_class(fmt)(fobj))
             except Exception as exc:  # python-can raises many types for a bad header; none may escape raw
+                _free_quietly(exc)
                 raise LogFormatError(f"{p}: not a valid {self.name} log: {type(exc).__name__}: {exc}") from exc
         except BaseException:
             self.raw.close()
