@@ -235,16 +235,17 @@ def compare(cfg: Config, log: Path, out: Path, chunks: tuple[int, ...] = SMALL_C
     small log is one block and the first block always goes frame by frame.
 
     The column runs alternate the reader's two block parsers: the first, third...
-    block size parse every block with numpy (:mod:`canguard.io.candump_np`, from the
-    second block on, so a log mixes both as a long one does), the others with the text
-    parser alone; the first also has numpy read every message's payloads (however few
-    rows: :mod:`canguard.engine.npstruct`). The reference always reads with the text parsers.
+    block size parse blocks with numpy (:mod:`canguard.io.candump_np`: the first size from
+    the first block on, with numpy reading every message's payloads however few rows,
+    :mod:`canguard.engine.npstruct`; the third from the second block on, so a log mixes both
+    as a long one does), the others with the text parser alone. The reference always reads
+    with the text parsers.
     """
     outcomes = []
     for k, chunk in enumerate(chunks):
         ref = replay(cfg, log, out / f"ref-{chunk}", columns=False, chunk=chunk, channel_map=channel_map)
         col = replay(cfg, log, out / f"col-{chunk}", columns=True, chunk=chunk, channel_map=channel_map,
-                     numpy_after=2 if k % 2 == 0 else NEVER, numpy_rows=1 if k == 0 else None)
+                     numpy_after=(0 if k == 0 else 2) if k % 2 == 0 else NEVER, numpy_rows=1 if k == 0 else None)
         assert (ref.column_blocks, ref.handled_rows, ref.fed_rows) == (0, 0, 0), "the reference used the column path"
         assert ref.quiet_ticks == 0, "the reference skipped ticks: it must tick every tick, as the live daemon"
         assert_same(ref, col, f"{log.name} with {Path(str(cfg.path)).name}, blocks of {chunk} chars")

@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING, Any
 
 import py_trees
 
+from canguard.engine.lanes import LANE, configured_rows, key_table, lane_plans, runs_by_key
 from canguard.io.frame import Frame
 
 MAX_CATCH_UP_S = 2.0
@@ -154,7 +155,11 @@ class LogRunMixin:
         cursor.last_t, cursor.started = last_t, started
 
     def _run_columns(self, cols: Columns | ByteColumns, cursor: _LogCursor) -> bool:
-        """:meth:`run_log` over a column block; False (nothing done) when it must go frame by frame."""
+        """:meth:`run_log` over a column block; False (nothing done) when it must go frame by frame.
+
+        A numpy block may mix channels (``lanes``): each row then goes to its channel's bus,
+        with the plans of that bus (one key per channel and id when the buses differ).
+        """
         if not cols.ordered or self.sample_hook is not None:
             return False
         ts = cols.ts
@@ -162,43 +167,60 @@ class LogRunMixin:
         if float(ts[0]) < cursor.last_t:
             return False  # back in time across blocks: the frame-by-frame rules count it
         channel = cols.channel
+        lanes = getattr(cols, "lanes", None)
         if channel is None:
-            return False
-        bus = cursor.route.get(channel, cursor.default_bus)
-        counters = self.decoder.per_bus.get(bus) if bus is not None else None
-        if bus is not None and counters is None:
-            return False
-        if bus is None or counters is None:
-            if cursor.channels is not None:
-                cursor.channels[channel] = cursor.channels.get(channel, 0) + n
-            cursor.unmapped[channel] = cursor.unmapped.get(channel, 0) + n
-            return True
+            if lanes is None:
+                return False
+            buses: list[str] = []
+            for name in getattr(cols, "channels", ()):
+                found = cursor.route.get(name, cursor.default_bus)
+                if found is None or found not in self.decoder.per_bus:
+                    return False  # a channel of no bus: its rows do not move time; frame by frame
+                buses.append(found)
+            bus = buses[0] if len(set(buses)) == 1 else ""
+        else:
+            routed = cursor.route.get(channel, cursor.default_bus)
+            if routed is not None and routed not in self.decoder.per_bus:
+                return False
+            if routed is None:
+                if cursor.channels is not None:
+                    cursor.channels[channel] = cursor.channels.get(channel, 0) + n
+                cursor.unmapped[channel] = cursor.unmapped.get(channel, 0) + n
+                return True
+            bus = routed
+            buses = [bus]
         first = 0
         if not cursor.started:
             self._run_frames((cols.frame(0),), cursor)  # the first frame is fed: it starts the engine's clock
             first = 1
-        if cursor.channels is not None:
-            cursor.channels[channel] = cursor.channels.get(channel, 0) + n - first
-        plans = self._plans.get(bus)
-        if plans is None:
-            plans = self._plans[bus] = self._compile_plans(bus)
-        ids = cols.ids
+        for b in set(buses):
+            if b not in self._plans:
+                self._plans[b] = self._compile_plans(b)
         keys = getattr(cols, "keys", None)
-        if keys is not None and plans:  # a numpy block: its configured rows found by numpy
-            table = self._plan_tables.get(bus)
-            if table is None:
-                table = self._plan_tables[bus] = _key_table(plans)
-            rows = _configured_rows(keys, table)
-        else:
-            rows = list(compress(range(n), map(plans.__contains__, ids))) if plans else []
+        bus_at: list[str] | None = None
+        if bus:  # one bus
+            plans = self._plans[bus]
+            if keys is not None and plans:  # a numpy block: its configured rows found by numpy
+                table = self._plan_tables.get(bus)
+                if table is None:
+                    table = self._plan_tables[bus] = key_table(plans)
+                rows = configured_rows(keys, table)
+            else:
+                rows = list(compress(range(n), map(plans.__contains__, cols.ids))) if plans else []
+        else:  # channels of several buses: a key per (channel, id)
+            assert lanes is not None and keys is not None
+            plans = lane_plans([self._plans[b] for b in buses])  # type: ignore[assignment]
+            keys = keys + lanes * LANE
+            rows = configured_rows(keys, key_table(plans))
+            bus_at = list(map(buses.__getitem__, lanes.tolist()))
         remote = cols.remote
         if remote:  # counted by the decoder as remote frames, configured or not: fed
             rows = sorted(set(rows).union(remote))
         if first and rows and rows[0] == 0:
             del rows[0]
-        skipped = n - first - len(rows)
+        tally = _lane_tally(cols, rows, first)
         last_row = rows[-1] if rows else -1  # the last row feed would see, whatever path takes it
-        slots = self._decode_rows(plans, rows, cols, self._q_fixed) if rows else []
+        slots = self._decode_rows(plans, rows, cols, self._q_fixed, keys) if rows else []
         if slots is None:
             rows = []  # every row taken whole: only the ticks due in the block are left
             slots = []
@@ -220,7 +242,7 @@ class LogRunMixin:
             pos = i + 1
             edge = plan.step(values, t) if values is not None and plan is not None else None
             if edge is None:
-                feed(bus, frame(i))  # the general path: every case, and what the plans must equal
+                feed(bus if bus_at is None else bus_at[i], frame(i))  # the general path, what plans must equal
                 due = self._due
             elif edge:
                 self._drive_clock(t)
@@ -228,20 +250,36 @@ class LogRunMixin:
                 self.tick(self.clock.now())
                 due = self._due
         self._cross(ts, pos, n)
-        for plan in self._plan_list[bus]:
-            plan.flush()
-        counters.frames += skipped
-        counters.skipped += skipped
-        self.stats.frames += skipped
+        for b in set(buses):
+            for plan in self._plan_list[b]:
+                plan.flush()
+        self._count_lanes(cursor, cols, buses, tally, first)
         cursor.last_t = float(ts[-1])
         if last_row >= 0 and float(ts[last_row]) > self._last_frame_t:
             self._last_frame_t = float(ts[last_row])  # as frame by frame: the last row fed (not ts[-1])
         return True
 
+    def _count_lanes(self, cursor: _LogCursor, cols: Any, buses: list[str], tally: list[tuple[int, int]],
+                     first: int) -> None:
+        """Count a block's rows per channel (``cursor.channels``) and its skipped rows (neither fed nor taken
+        by a plan) per bus, as frame by frame counts them."""
+        lanes = getattr(cols, "lanes", None)
+        channels = cursor.channels
+        for lane, (count, taken) in enumerate(tally):
+            if channels is not None:
+                name = cols.channel if lanes is None else cols.channels[lane]
+                own_first = first if lanes is None or lane == int(lanes[0]) else 0  # counted by _run_frames
+                channels[name] = channels.get(name, 0) + count - own_first
+            skipped = count - taken
+            counters = self.decoder.per_bus[buses[lane]]
+            counters.frames += skipped
+            counters.skipped += skipped
+            self.stats.frames += skipped
+
     @staticmethod
     def _decode_rows(
         plans: Mapping[str | int, MessagePlan | None], rows: list[int], cols: Columns | ByteColumns,
-        settle: bool = False,
+        settle: bool = False, keys: Any = None,
     ) -> list[tuple[MessagePlan | None, tuple[float, ...] | None] | None] | None:
         """Per row of the block: its plan and decoded values when it goes one by one (else None); None: no row left.
 
@@ -263,8 +301,10 @@ class LogRunMixin:
         if remote:
             groups[None] = [i for i in rows if i in remote]
             rows = [i for i in rows if i not in remote]
-        # rows by id text (a stable sort keeps each id's rows in time order), in C but for one step per id
-        for text, same in groupby(sorted(rows, key=ids.__getitem__), key=ids.__getitem__):
+        # rows by id (a stable sort keeps each id's rows in time order), in C but for one step per id
+        runs = runs_by_key(keys, rows) if keys is not None else groupby(
+            sorted(rows, key=ids.__getitem__), key=ids.__getitem__)
+        for text, same in runs:
             plan = plans[text]
             group = groups.get(plan)
             if group is None:
@@ -365,28 +405,20 @@ def _settled(active: list[tuple[MessagePlan, list[int], list[Any], Callable[[Any
     return settle(prepared)
 
 
-_STANDARD = 0x800
-"""Standard ids are below this: their configured rows are found through a table of this size."""
-
-
-def _key_table(plans: Mapping[str | int, Any]) -> tuple[Any, Any]:
-    """The integer keys of ``plans`` (:func:`~canguard.io.candump_np.id_key`): a table of standard ones; all, sorted."""
+def _lane_tally(cols: Any, rows: list[int], first: int) -> list[tuple[int, int]]:
+    """Per channel of a block (one when it has one): its rows, and those fed or taken by a plan (``rows``,
+    and the first row when it went frame by frame)."""
+    lanes = getattr(cols, "lanes", None)
+    if lanes is None:
+        return [(cols.n, len(rows) + first)]
     import numpy as np
 
-    known = [k for k in plans if type(k) is int]
-    table = np.zeros(_STANDARD, dtype=bool)
-    table[[k for k in known if k < _STANDARD]] = True
-    return table, np.array(sorted(known), dtype=np.int64)
-
-
-def _configured_rows(keys: Any, tables: tuple[Any, Any]) -> list[int]:
-    """The rows of a numpy block (:class:`~canguard.io.candump_np.ByteColumns`) whose id key has a plan."""
-    import numpy as np
-
-    table, every = tables
-    if keys.size and int(keys.max()) < _STANDARD:
-        return np.flatnonzero(table[keys]).tolist()
-    return np.flatnonzero(np.isin(keys, every)).tolist()
+    size = len(cols.channels)
+    per_lane = np.bincount(lanes, minlength=size).tolist()
+    taken = np.bincount(lanes[rows], minlength=size).tolist() if rows else [0] * size
+    if first:
+        taken[int(lanes[0])] += 1
+    return list(zip(per_lane, taken, strict=True))
 
 
 def _picker(rows: list[int]) -> Callable[[Sequence[Any]], tuple[Any, ...]]:

@@ -42,24 +42,31 @@ _FEW = 48
 
 
 class ByteColumns:
-    """A checked block of plain candump -L lines (one channel), as arrays over its bytes.
+    """A checked block of plain candump -L lines, as arrays over its bytes.
 
     The same attributes the engine reads on :class:`canguard.io.candump.Columns`: ``n``,
     ``ts`` (floats), ``chans``, ``ids`` (integer keys, :func:`id_key`), ``ordered``,
-    ``channel``, ``fd`` and ``remote``; :meth:`frame`, :meth:`frames` and :meth:`payload`.
+    ``channel``, ``fd`` and ``remote``; :meth:`frame`, :meth:`frames` and :meth:`payload`. A block of
+    several channels (names of one length) has ``channel`` None, their names in ``channels`` and
+    each row's index into them in ``lanes``.
     """
 
-    __slots__ = ("_b", "_bounds", "_end", "_start", "_text", "channel", "fd", "ids", "keys", "n", "order", "ordered",
+    __slots__ = ("_b", "_bounds", "_end", "_row_chans", "_start", "_text", "channel", "channels", "fd", "ids", "keys",
+                 "lanes", "n", "order", "ordered",
                  "remote", "ts")
 
-    def __init__(self, n: int, ts: list[float], ids: list[int], ordered: bool, channel: str,
+    def __init__(self, n: int, ts: list[float], ids: list[int], ordered: bool, channel: str | None,
                  fd: dict[int, int] | None, remote: dict[int, int] | None, text: str, b: np.ndarray,
                  start: np.ndarray, end: np.ndarray) -> None:
         self.n = n
         self.ts = ts
         self.ids = ids
         self.ordered = ordered
-        self.channel: str | None = channel
+        self.channel = channel
+        self.channels: list[str] = [channel] if channel is not None else []
+        self.lanes: np.ndarray | None = None
+        """Each row's index into :attr:`channels` (None: one channel)."""
+        self._row_chans: list[str] | None = None
         self.fd = fd
         self.remote = remote
         self._text = text
@@ -74,22 +81,28 @@ class ByteColumns:
 
     @property
     def chans(self) -> list[str]:
-        """The channel of every row (one channel per block)."""
-        return [self.channel or ""] * self.n
+        """The channel of every row."""
+        if self.channel is not None:
+            return [self.channel] * self.n
+        if self._row_chans is None:
+            assert self.lanes is not None
+            self._row_chans = list(map(self.channels.__getitem__, self.lanes.tolist()))
+        return self._row_chans
 
     def frame(self, i: int) -> Frame:
         """The frame of row ``i``."""
         key = self.ids[i]
         ext = key >= EXT_KEY
         cid = key - EXT_KEY if ext else key
+        channel = self.channel if self.channel is not None else self.chans[i]
         if self.remote is not None and i in self.remote:
-            return _new(Frame, (self.ts[i], self.channel, cid, b"", ext, _F, _F, True, _F, _F, self.remote[i]))
+            return _new(Frame, (self.ts[i], channel, cid, b"", ext, _F, _F, True, _F, _F, self.remote[i]))
         data = bytes.fromhex(self._text[int(self._start[i]):int(self._end[i])])
         flags = self.fd.get(i) if self.fd is not None else None
         if flags is not None:
-            return _new(Frame, (self.ts[i], self.channel, cid, data, ext, True, _F, _F,
+            return _new(Frame, (self.ts[i], channel, cid, data, ext, True, _F, _F,
                                 bool(flags & CANFD_BRS), bool(flags & CANFD_ESI), -1))
-        return _new(Frame, (self.ts[i], self.channel, cid, data, ext, _F, _F, _F, _F, _F, -1))
+        return _new(Frame, (self.ts[i], channel, cid, data, ext, _F, _F, _F, _F, _F, -1))
 
     def frames(self) -> Iterator[Frame]:
         """The frames of every row, in order."""
@@ -143,7 +156,7 @@ class ByteColumns:
 def byte_columns(text: str, n: int) -> ByteColumns | None:
     """The block ``text`` of ``n`` lines (each ending in a newline) as :class:`ByteColumns`, or None.
 
-    None when any line is not of the plain shape, when the block has several channels,
+    None when any line is not of the plain shape, when the block has channels of several name lengths,
     or when a timestamp does not convert exactly this way (its digits make 2**53 or more):
     the caller then uses the text parser.
     """
@@ -179,9 +192,10 @@ def byte_columns(text: str, n: int) -> ByteColumns | None:
     ts = _stamps(b, start, width)
     if ts is None:
         return None
-    channel = _one_channel(b, sp1, sp2)
-    if channel is None:
+    chans = _channels(b, sp1, clen)
+    if chans is None:
         return None
+    names, lanes = chans
     short = b[np.minimum(sp2 + 4, b.size - 1)] == 35  # a 3-digit id, else 8
     h1 = np.where(short, sp2 + 4, sp2 + 9)
     if not ((h1 < end) & (b[np.minimum(h1, b.size - 1)] == 35)).all():
@@ -228,13 +242,18 @@ def byte_columns(text: str, n: int) -> ByteColumns | None:
     # Every byte that is not a hex digit has been found at its place above: "(", ")", the dot,
     # the spaces, the "#"s, the newline, the marker, the channel's letters, a remote "R". One
     # more anywhere (in the data, say) and the count differs.
-    known = n * (4 + _others(channel) + markers) + spaces + hashes + len(remote or ())
+    others = [_others(name) for name in names]
+    letters = n * others[0] if lanes is None else int(np.dot(np.bincount(lanes, minlength=len(names)), others))
+    known = n * (4 + markers) + letters + spaces + hashes + len(remote or ())
     hexes = np.count_nonzero(((b - np.uint8(48)) < 10) | (((b | np.uint8(32)) - np.uint8(97)) < 6))
     if b.size - hexes != known:
         return None
     step = ts[1:] - ts[:-1]
     backs = int(np.count_nonzero(step < 0))
-    cols = ByteColumns(n, ts.tolist(), keys.tolist(), not backs, channel, fd, remote, text, b, data_start, end)
+    cols = ByteColumns(n, ts.tolist(), keys.tolist(), not backs, names[0] if lanes is None else None, fd, remote,
+                       text, b, data_start, end)
+    if lanes is not None:
+        cols.channels, cols.lanes = names, lanes
     cols.order = (backs, int(np.count_nonzero(step == 0)))
     cols.keys = keys
     return cols
@@ -261,15 +280,18 @@ def _stamps(b: np.ndarray, start: np.ndarray, width: int) -> np.ndarray | None:
     return whole / 10.0 ** (width - 1 - dot)  # exact integer / exact power of ten: one rounding, as float()
 
 
-def _one_channel(b: np.ndarray, sp1: np.ndarray, sp2: np.ndarray) -> str | None:
-    """The one channel name of the block, or None when lines name several."""
-    size = int(sp2[0] - sp1[0] - 1)
-    if not (sp2 - sp1 - 1 == size).all():
-        return None
+def _channels(b: np.ndarray, sp1: np.ndarray, size: int) -> tuple[list[str], np.ndarray | None] | None:
+    """The block's channel names and each row's index into them (None: one channel); None: names of more
+    than 6 characters that differ (their lengths are one: the caller placed every field by it)."""
     cells = _rows(b, sp1 + 1, size)
-    if not (cells == cells[0]).all():
+    if (cells == cells[0]).all():
+        return [bytes(cells[0]).decode("ascii")], None
+    if size > 6:
         return None
-    return bytes(cells[0]).decode("ascii")
+    codes = cells.astype(np.float64) @ (256.0 ** np.arange(size - 1, -1, -1))  # exact: below 2**48
+    _codes, first, lanes = np.unique(codes, return_index=True, return_inverse=True)
+    names = [bytes(cells[k]).decode("ascii") for k in first.tolist()]
+    return names, lanes.reshape(-1).astype(np.intp)
 
 
 def _ids(b: np.ndarray, sp2: np.ndarray, h1: np.ndarray) -> np.ndarray | None:

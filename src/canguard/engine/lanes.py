@@ -1,0 +1,61 @@
+"""Which rows of a numpy block the replay engine looks at, and on which bus: numpy over the block's id keys.
+
+A :class:`~canguard.io.candump_np.ByteColumns` block carries its ids as integer keys
+(:func:`~canguard.io.logtypes.id_key`) and, when it mixes channels, each row's channel
+(``lanes``). The engine's plans are per bus; a block whose channels go to several buses is
+looked up with one key per (channel, id): the id key plus the channel's index times :data:`LANE`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+LANE = 1 << 34
+"""Above every id key (extended ids are below 2**33): one key space per channel of a block."""
+
+_STANDARD = 0x800
+"""Standard ids are below this: their configured rows are found through a table of this size."""
+
+
+def key_table(plans: Mapping[str | int, Any]) -> tuple[Any, Any]:
+    """The integer keys of ``plans`` (:func:`~canguard.io.candump_np.id_key`): a table of standard ones; all, sorted."""
+    import numpy as np
+
+    known = [k for k in plans if type(k) is int]
+    table = np.zeros(_STANDARD, dtype=bool)
+    table[[k for k in known if k < _STANDARD]] = True
+    return table, np.array(sorted(known), dtype=np.int64)
+
+
+def configured_rows(keys: Any, tables: tuple[Any, Any]) -> list[int]:
+    """The rows of a numpy block (:class:`~canguard.io.candump_np.ByteColumns`) whose id key has a plan."""
+    import numpy as np
+
+    table, every = tables
+    if keys.size and int(keys.max()) < _STANDARD:
+        return np.flatnonzero(table[keys]).tolist()
+    return np.flatnonzero(np.isin(keys, every)).tolist()
+
+
+def runs_by_key(keys: Any, rows: list[int]) -> list[tuple[int, list[int]]]:
+    """``rows`` of a numpy block grouped by id key, each group in row order (numpy's stable sort)."""
+    import numpy as np
+
+    if not rows:
+        return []
+    picked = np.asarray(rows, dtype=np.intp)
+    of = keys[picked]
+    order = np.argsort(of, kind="stable")
+    ranked = of[order]
+    cuts = (np.flatnonzero(ranked[1:] != ranked[:-1]) + 1).tolist()
+    ordered = picked[order].tolist()
+    bounds = [0, *cuts, len(ordered)]
+    return list(zip(ranked[bounds[:-1]].tolist(), map(ordered.__getitem__, map(slice, bounds, bounds[1:])),
+                    strict=True))
+
+
+def lane_plans(plans_of: list[Mapping[str | int, Any]]) -> dict[int, Any]:
+    """One plan table over the channels of a block: channel ``c``'s id key ``k`` is ``k + c * LANE``."""
+    return {key + lane * LANE: plan for lane, plans in enumerate(plans_of) for key, plan in plans.items()
+            if type(key) is int}
