@@ -22,7 +22,9 @@ Shapes:
   Motorola signals, a multiplexed message with 4 pages, signed Motorola currents;
 * ``many_ids``: 500 distinct standard ids, 10 % configured (one signal each);
 * ``ext_motorola``: extended-id Motorola drive frames + a multiplexed BMS message
-  + noise ids, 30 % configured.
+  + noise ids, 30 % configured;
+* ``two_buses``: a robot's two interfaces interleaved in one log (can0: drives, can1: a
+  multiplexed BMS and body messages), a config of two buses, 45 % configured.
 
 The report lists the shapes slowest (lowest canguard / cantools ratio) first.
 """
@@ -77,6 +79,8 @@ class Shape:
     db: Database
     guarded: list[tuple[str, str]]  # (message, signal) pairs the config's sources read
     frame: Callable[[random.Random, float], tuple[int, bool, bool, bytes]]  # -> id, extended, fd, data
+    channel_of: Callable[[int], str] | None = None  # frame id -> channel (None: all on can0, bus main)
+    bus_of: dict[str, str] | None = None  # message -> bus (main on can0, aux on can1)
 
 
 def sig(name: str, start: int, length: int, *, signed: bool = False, motorola: bool = False,
@@ -164,13 +168,44 @@ def ext_motorola() -> Shape:
     return Shape("ext_motorola", "extended-id Motorola drives + mux BMS + noise, 30 % configured", db, guarded, frame)
 
 
+def two_buses() -> Shape:
+    """A robot with two interfaces interleaved in one log: drives on can0, BMS and body on can1."""
+    drives = list(range(0x140, 0x148))  # 8 drive messages, 4 guarded
+    body = list(range(0x300, 0x306))  # 6 on can1, 2 guarded (a mux BMS among them)
+    msgs = [Message(fid, f"Drv{fid:03X}", 8, [sig("Iq", 0, 16, signed=True), sig("Vel", 16, 16, signed=True)])
+            for fid in drives]
+    msgs += [Message(fid, f"Body{fid:03X}", 8, [sig("Cur", 0, 16, signed=True)]) for fid in body[1:]]
+    bms = [sig("Page", 0, 8, is_mux=True, scale=1)] + [sig(f"P{p}", 8, 16, signed=True, mux_ids=[p]) for p in range(3)]
+    msgs.append(Message(body[0], "BMS", 8, bms))
+    db = Database(messages=msgs)
+    guarded = [(f"Drv{fid:03X}", "Iq") for fid in drives[:4]] + [("BMS", "P0"), (f"Body{body[1]:03X}", "Cur")]
+    noise0, noise1 = list(range(0x500, 0x520)), list(range(0x600, 0x620))
+    on_can1 = set(body) | set(noise1)
+
+    def frame(rng: random.Random, t: float) -> tuple[int, bool, bool, bytes]:
+        r = rng.random()
+        if r < 0.35:
+            return drives[rng.randrange(8)], False, False, small(rng, 8, "little")
+        if r < 0.45:
+            fid = body[rng.randrange(6)]
+            if fid == body[0]:
+                return fid, False, False, bytes([rng.randrange(3)]) + small(rng, 7, "little")
+            return fid, False, False, small(rng, 8, "little")
+        return (noise0 if r < 0.75 else noise1)[rng.randrange(20)], False, False, rng.randbytes(8)
+
+    return Shape("two_buses", "two interfaces interleaved: can0 drives, can1 BMS + body, 2 buses, 45 % configured",
+                 db, guarded, frame, channel_of=lambda fid: "can1" if fid in on_can1 else "can0",
+                 bus_of={m.name: ("aux" if m.frame_id in on_can1 else "main") for m in msgs})
+
+
 def write_shape(shape: Shape, out: Path, frames: int) -> tuple[Path, Path, Path]:
     """DBC, config (+ tree) and log of a shape in ``out``."""
     out.mkdir(parents=True, exist_ok=True)
     dbc = out / f"{shape.name}.dbc"
     dbc.write_text(shape.db.as_dbc_string(), encoding="ascii")
-    sources = "\n".join(f"  s{i}: {{kind: current, bus: main, message: {m}, signal: {s}, max_age: 5}}"
-                        for i, (m, s) in enumerate(shape.guarded))
+    bus_of = shape.bus_of or {}
+    sources = "\n".join(f"  s{i}: {{kind: current, bus: {bus_of.get(m, 'main')}, message: {m}, signal: {s}, "
+                        "max_age: 5}" for i, (m, s) in enumerate(shape.guarded))
     guards = "\n".join(f'      <IsCurrentSafe topic_name="s{i}" overcurrent_threshold="100" recovery_threshold="90"/>'
                        for i in range(len(shape.guarded)))
     tree = out / f"{shape.name}.xml"
@@ -178,7 +213,9 @@ def write_shape(shape: Shape, out: Path, frames: int) -> tuple[Path, Path, Path]
                     f"    <ReactiveSequence>\n{guards}\n      <ExecuteTask/>\n    </ReactiveSequence>\n"
                     "  </BehaviorTree>\n</root>\n", encoding="ascii")
     cfg = out / f"{shape.name}.yaml"
-    cfg.write_text(f"dbc: [{dbc.name}]\nbuses:\n  main: {{interface: virtual, channel: can0}}\nsources:\n{sources}\n"
+    buses = "  main: {interface: virtual, channel: can0}\n" + (
+        "  aux: {interface: virtual, channel: can1}\n" if shape.bus_of else "")
+    cfg.write_text(f"dbc: [{dbc.name}]\nbuses:\n{buses}sources:\n{sources}\n"
                    f"tree: {{file: {tree.name}, main: Main, tick_hz: 100}}\n"
                    "task: {period: 0.02, frames: []}\nstop: {repeat: 0.05, frames: []}\n", encoding="ascii")
     log = out / f"{shape.name}.log"
@@ -190,7 +227,8 @@ def write_shape(shape: Shape, out: Path, frames: int) -> tuple[Path, Path, Path]
             fid, ext, fd, data = shape.frame(rng, t)
             cid = f"{fid:08X}" if ext else f"{fid:03X}"
             sep = "##0" if fd else "#"
-            f.write(f"({t:.6f}) can0 {cid}{sep}{data.hex().upper()}\n")
+            chan = shape.channel_of(fid) if shape.channel_of else "can0"
+            f.write(f"({t:.6f}) {chan} {cid}{sep}{data.hex().upper()}\n")
     return dbc, cfg, log
 
 
@@ -255,7 +293,7 @@ def main(argv: list[str] | None = None) -> int:
     rows = []
     shapes: list[tuple[str, str, tuple[Path, Path, Path]]] = [
         ("own", "the project's own simulator log (classic, Intel, 4 axes + BMS + noise)", own_shape(work, args.frames))]
-    for make in (fd_mux_motorola, many_ids, ext_motorola):
+    for make in (fd_mux_motorola, many_ids, ext_motorola, two_buses):
         s = make()
         shapes.append((s.name, s.what, write_shape(s, work, args.frames)))
     for name, what, (dbc, cfg, log) in shapes:

@@ -121,31 +121,28 @@ class ByteColumns:
                 return None, bytes.fromhex("".join(texts))
             fits = [k for k, t in enumerate(texts) if len(t) == size]
             return fits, bytes.fromhex("".join([texts[k] for k in fits]))
-        idx = np.asarray(rows, dtype=np.intp)
-        start = self._start[idx]
-        fit = self._end[idx] - start == size
-        good: list[int] | None = None
-        if not fit.all():
-            keep = np.flatnonzero(fit)
-            good = keep.tolist()
-            start = start[keep]
+        good, start = self._fitting(rows, size)
         if not size or not start.size:
             return good, b""
         nib = _HEXVAL.take(_rows(self._b, start, size))
         return good, ((nib[:, 0::2] << 4) | nib[:, 1::2]).tobytes()
 
+    def _fitting(self, rows: list[int], size: int) -> tuple[list[int] | None, np.ndarray]:
+        """Which of ``rows`` hold ``size`` hex digits (their positions in ``rows``; None: all), and where
+        their data starts."""
+        idx = np.asarray(rows, dtype=np.intp)
+        start = self._start[idx]
+        fit = self._end[idx] - start == size
+        if fit.all():
+            return None, start
+        keep = np.flatnonzero(fit)
+        return keep.tolist(), start[keep]
+
     def byte_fields(self, rows: list[int], size: int, spans: list[tuple[int, int]]
                     ) -> tuple[list[int] | None, list[np.ndarray]]:
         """Of ``rows`` whose payload holds ``size`` hex digits (which, as :meth:`payload` says): for each
         ``(byte offset, width)`` of ``spans``, their bytes there as a ``rows x width`` matrix."""
-        idx = np.asarray(rows, dtype=np.intp)
-        start = self._start[idx]
-        fit = self._end[idx] - start == size
-        good: list[int] | None = None
-        if not fit.all():
-            keep = np.flatnonzero(fit)
-            good = keep.tolist()
-            start = start[keep]
+        good, start = self._fitting(rows, size)
         cells = []
         for at, width in spans:
             nib = _HEXVAL.take(_rows(self._b, start + 2 * at, 2 * width))
