@@ -391,7 +391,7 @@ def _candump_chunks(
             n = block.count("\n")
             blocks += 1
             if by_bytes is None and blocks >= NUMPY_AFTER_BLOCKS:  # a long log: numpy's import (60 ms) pays
-                from canguard.io.candump_np import byte_columns as by_bytes
+                from canguard.io.candump_long import numpy_block as by_bytes
             cols = None if last_was_error else (by_bytes and by_bytes(block, n)) or _bulk_columns(block, n)
             if cols is not None:
                 ts = cols.ts

@@ -1,0 +1,52 @@
+"""Blocks of ``candump -ta`` lines (the long format) rewritten as candump -L, then read by numpy.
+
+``(1700000000.000010)  can0  014   [8]  F4 CA 7A 3F 1F 32 6C 3F   '..z?.2l?'`` becomes
+``(1700000000.000010) can0 014#F4CA7A3F1F326C3F`` (``[NN]``, two digits: CAN FD, ``ID##0...``):
+one regular-expression pass per block in C, then :func:`canguard.io.candump_np.byte_columns`.
+The line parser (:func:`canguard.io.candump._parse_long`) stays the reference: a block is
+taken only when every line has the plain shape it reads the same way (an absolute timestamp
+of 10+ integer digits, a channel, a 3- or 8-digit id, ``[len]``, exactly ``len`` two-digit
+bytes, then nothing or an ASCII dump starting with ``'``), and the announced lengths are
+checked against the bytes. Anything else (``-x`` columns, remote requests, error frames, tabs,
+indented lines) gives None: the block is then read line by line, bad lines named file:line.
+"""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+
+from canguard.io.candump_np import ByteColumns, byte_columns
+
+_HEAD = r"^\((\d{10,}\.\d+)\)[ ]+([^ \n]+)[ ]+([0-9A-Fa-f]{3}|[0-9A-Fa-f]{8})[ ]+"
+_DATA = r"((?:[ ]+[0-9A-Fa-f]{2})*)(?:[ ]*|[ ]+'[^\n]*)$"
+_CLASSIC = re.compile(_HEAD + r"\[([0-8])\]" + _DATA, re.M)
+_FD = re.compile(_HEAD + r"\[(\d\d)\]" + _DATA, re.M)
+_LENGTH = re.compile(r"\[(\d\d?)\]")
+
+
+def long_columns(text: str, n: int) -> ByteColumns | None:
+    """The block ``text`` of ``n`` candump -ta lines as :class:`ByteColumns`, or None (read it line by line)."""
+    if "[" not in text or "\x01" in text or "\t" in text or "\r" in text:
+        return None
+    lengths = _LENGTH.findall(text)
+    if len(lengths) != n:
+        return None  # a line without [len], or one with two (in its ASCII dump, say)
+    rows, classic = _CLASSIC.subn("(\\1)\x01\\2\x01\\3#\\5", text)
+    if classic != n:
+        rows, fd = _FD.subn("(\\1)\x01\\2\x01\\3##0\\5", rows)
+        if classic + fd != n:
+            return None
+    cols = byte_columns(rows.replace(" ", "").replace("\x01", " "), n)
+    if cols is None:
+        return None
+    announced = np.array(lengths).astype(np.int64)
+    if not (cols._end - cols._start == 2 * announced).all():
+        return None  # [len] announces another number of bytes than the line has
+    return cols
+
+
+def numpy_block(text: str, n: int) -> ByteColumns | None:
+    """A block of candump -L or -ta lines read by numpy, or None (the text parsers read it)."""
+    return long_columns(text, n) if "[" in text else byte_columns(text, n)
