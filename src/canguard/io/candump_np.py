@@ -34,7 +34,8 @@ for _i, _c in enumerate(b"ABCDEF", 10):
     _HEXVAL[_c] = _i
 _FD_BYTES = np.zeros(65, dtype=bool)
 _FD_BYTES[sorted(CANFD_LENGTHS)] = True
-_ID_WEIGHTS = 16.0 ** np.arange(7, -1, -1)
+_U = np.uint64
+_LE64 = np.dtype("<u8")
 _EXACT = 1 << 53
 _MARKERS = frozenset(b"TRtr")
 _FEW = 48
@@ -161,6 +162,8 @@ def byte_columns(text: str, n: int) -> ByteColumns | None:
         return None
     raw = text.encode("ascii")
     b = np.frombuffer(raw, dtype=np.uint8)
+    padded = np.frombuffer(raw + bytes(8), dtype=np.uint8)
+    words = np.ndarray((b.size + 1,), _LE64, padded, 0, (1,))  # words[k]: the 8 bytes from k, little-endian
     nl = np.flatnonzero(b == 10)
     if nl.size != n or nl[-1] != b.size - 1:
         return None
@@ -189,7 +192,7 @@ def byte_columns(text: str, n: int) -> ByteColumns | None:
     ts = _stamps(b, start, width)
     if ts is None:
         return None
-    chans = _channels(b, sp1, clen)
+    chans = _channels(b, words, sp1, clen)
     if chans is None:
         return None
     names, lanes = chans
@@ -203,7 +206,7 @@ def byte_columns(text: str, n: int) -> ByteColumns | None:
     hashes = np.count_nonzero(b == 35)
     if hashes != n + nfd:  # one "#" per line, two on a CAN FD line: none anywhere else
         return None
-    keys = _ids(b, sp2, h1)
+    keys = _ids(words, sp2, h1)
     if keys is None:
         return None
     data_start = h1 + 1
@@ -277,45 +280,70 @@ def _stamps(b: np.ndarray, start: np.ndarray, width: int) -> np.ndarray | None:
     return whole / 10.0 ** (width - 1 - dot)  # exact integer / exact power of ten: one rounding, as float()
 
 
-def _channels(b: np.ndarray, sp1: np.ndarray, size: int) -> tuple[list[str], np.ndarray | None] | None:
+def _channels(b: np.ndarray, words: np.ndarray, sp1: np.ndarray, size: int
+              ) -> tuple[list[str], np.ndarray | None] | None:
     """The block's channel names and each row's index into them (None: one channel); None: names of more
-    than 6 characters that differ (their lengths are one: the caller placed every field by it)."""
-    cells = _rows(b, sp1 + 1, size)
-    if (cells == cells[0]).all():
-        return [bytes(cells[0]).decode("ascii")], None
-    if size > 6:
+    than 8 characters that differ (their lengths are one: the caller placed every field by it)."""
+    if size > 8:
+        cells = _rows(b, sp1 + 1, size)
+        if (cells == cells[0]).all():
+            return [bytes(cells[0]).decode("ascii")], None
         return None
-    codes = cells.astype(np.float64) @ (256.0 ** np.arange(size - 1, -1, -1))  # exact: below 2**48
-    _codes, first, lanes = np.unique(codes, return_index=True, return_inverse=True)
-    names = [bytes(cells[k]).decode("ascii") for k in first.tolist()]
+    codes = words[sp1 + 1] & np.uint64((1 << 8 * size) - 1)  # the name's bytes, little-endian
+    first = int(sp1[0]) + 1
+    if (codes == codes[0]).all():
+        return [bytes(b[first:first + size]).decode("ascii")], None
+    _codes, firsts, lanes = np.unique(codes, return_index=True, return_inverse=True)
+    names = [bytes(b[int(sp1[k]) + 1:int(sp1[k]) + 1 + size]).decode("ascii") for k in firsts.tolist()]
     return names, lanes.reshape(-1).astype(np.intp)
 
 
-def _ids(b: np.ndarray, sp2: np.ndarray, h1: np.ndarray) -> np.ndarray | None:
-    """Each row's id key: 3 hex digits up to 7FF (standard) or 8 up to 1FFFFFFF (extended); None otherwise."""
+def _ids(words: np.ndarray, sp2: np.ndarray, h1: np.ndarray) -> np.ndarray | None:
+    """Each row's id key: 3 hex digits up to 7FF (standard) or 8 up to 1FFFFFFF (extended); None otherwise.
+
+    The digits are read 8 bytes at a time (SWAR on little-endian words); that they are hex digits
+    at all is the caller's non-hex count.
+    """
     size = h1 - sp2 - 1
     ext = size == 8
-    if ext.all() or not ext.any():
-        width = 8 if ext[0] else 3
-        if not (size == width).all():
-            return None
-        nib = _HEXVAL.take(_rows(b, h1 - width, width))
-        if (nib == 255).any():
-            return None
-        value = nib.astype(np.float64) @ _ID_WEIGHTS[8 - width:]  # exact: below 2**32
-        if value.max() > (0x1FFFFFFF if width == 8 else 0x7FF):  # above: error frames, or not an id
-            return None
-        return value.astype(np.int64) + (EXT_KEY if width == 8 else 0)
     if not (ext | (size == 3)).all():
         return None
-    nib = _HEXVAL.take(_rows(b, h1 - 8, 8))
-    nib[~ext, :5] = 0  # a standard id's 3 digits are the last three cells
-    if (nib == 255).any():
+    if ext.all():
+        return _extended(words[h1 - 8])
+    if not ext.any():
+        return _standard(words[h1 - 3])
+    keys = np.empty(h1.size, dtype=np.int64)
+    high, low = _extended(words[h1[ext] - 8]), _standard(words[h1[~ext] - 3])
+    if high is None or low is None:
         return None
-    value = nib.astype(np.float64) @ _ID_WEIGHTS
-    if (value > np.where(ext, 0x1FFFFFFF, 0x7FF)).any():
+    keys[ext] = high
+    keys[~ext] = low
+    return keys
+
+
+def _extended(x: np.ndarray) -> np.ndarray | None:
+    """The keys of 8-digit ids (``x``: their digits' bytes), or None when one is above 1FFFFFFF (error frames)."""
+    nib = _nibbles(x)  # byte k: the k-th digit
+    x = ((nib & _U(0x000F000F000F000F)) << _U(4)) | ((nib >> _U(8)) & _U(0x000F000F000F000F))
+    x = ((x & _U(0x000000FF000000FF)) << _U(8)) | ((x >> _U(16)) & _U(0x000000FF000000FF))
+    value = ((x & _U(0xFFFF)) << _U(16)) | ((x >> _U(32)) & _U(0xFFFF))
+    if (value > _U(0x1FFFFFFF)).any():
         return None
-    return value.astype(np.int64) + ext * np.int64(EXT_KEY)
+    return value.astype(np.int64) + EXT_KEY
+
+
+def _standard(x: np.ndarray) -> np.ndarray | None:
+    """The keys of 3-digit ids (``x``: their digits' bytes, then others), or None when one is above 7FF."""
+    nib = _nibbles(x)
+    value = ((nib & _U(0xF)) << _U(8)) | (((nib >> _U(8)) & _U(0xF)) << _U(4)) | ((nib >> _U(16)) & _U(0xF))
+    if (value > _U(0x7FF)).any():
+        return None
+    return value.astype(np.int64)
+
+
+def _nibbles(x: np.ndarray) -> np.ndarray:
+    """Each byte of ``x``, an ASCII hex digit, as its value (0-9, a-f and A-F alike)."""
+    return (x & _U(0x0F0F0F0F0F0F0F0F)) + ((x >> _U(6)) & _U(0x0101010101010101)) * _U(9)
 
 
 def _rows(b: np.ndarray, pos: np.ndarray, width: int) -> np.ndarray:
