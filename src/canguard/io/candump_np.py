@@ -7,15 +7,18 @@ passes over the bytes, and keeps what the replay engine asks for as arrays:
 * the timestamps as floats, each equal to Python's ``float()`` of its text: the
   digits make an exact integer (below 2**53) divided by an exact power of ten, one
   correctly rounded division, hence the double nearest the written decimal;
-* the ids as integer keys (:func:`id_key`: the id, plus :data:`EXT_KEY` for an
-  extended one), which the engine looks up in its plans as it looks up id texts;
+* the ids as integer keys (:func:`canguard.io.logtypes.id_key`: the id, plus
+  :data:`~canguard.io.logtypes.EXT_KEY` for an extended one), read 8 bytes at a time,
+  which the engine looks up in its plans as it looks up id texts;
+* each row's channel when the block mixes channels (names of one length: ``can0``/``can1``);
 * where each row's data starts and ends: a message's payloads are read as one
   ``rows x length`` byte matrix (:meth:`ByteColumns.payload`), never as hex strings.
 
-The block is accepted only when every line passes the checks the text parser
-(:func:`canguard.io.candump._bulk_columns`) makes, with one channel; anything else
-gives None and the caller falls back to that parser, which reports bad lines with
-their file:line. Frames are built only for rows the engine feeds one by one.
+The block is accepted only when every line passes the checks the line parser makes
+(``tests/test_candump_np.py`` tries damaged blocks); anything else gives None and the
+caller falls back to the text parser, which reports bad lines with their file:line.
+Frames are built only for rows the engine feeds one by one. candump -ta blocks come here
+rewritten as -L (:mod:`canguard.io.candump_long`).
 """
 
 from __future__ import annotations
