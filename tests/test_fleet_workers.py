@@ -19,7 +19,8 @@ import pytest
 
 import canguard.cli.fleet as fleet
 import canguard.cli.replay as replay_cmd
-from canguard.cli.fleet import _ONE_THREAD, _worker_start, run_processes
+from canguard.cli.common import BLAS_THREADS
+from canguard.cli.fleet import _worker_start, run_processes
 from canguard.cli.main import main
 from canguard.config.schema import Config
 
@@ -96,12 +97,33 @@ def test_a_worker_reads_the_config_once_per_run(monkeypatch: pytest.MonkeyPatch)
 
 
 def test_worker_start_keeps_blas_to_one_thread_unless_set(monkeypatch: pytest.MonkeyPatch) -> None:
-    for name in _ONE_THREAD:
+    for name in BLAS_THREADS:
         monkeypatch.delenv(name, raising=False)
     monkeypatch.setenv("OMP_NUM_THREADS", "3")
     _worker_start()
     assert os.environ["OPENBLAS_NUM_THREADS"] == "1" and os.environ["MKL_NUM_THREADS"] == "1"
     assert os.environ["OMP_NUM_THREADS"] == "3"
+
+
+def test_a_canguard_process_starts_no_blas_thread_pool(tmp_path: Path) -> None:
+    """A replay long enough to import numpy runs in one thread: OpenBLAS's pool (a thread per core, spinning
+    beside the replay) is kept to one thread, unless the user asked for more."""
+    import subprocess
+    import sys
+
+    log = tmp_path / "long.log"
+    log.write_text("".join(f"({1700000000 + k / 1000:.6f}) can0 123#0011\n" for k in range(40_000)), encoding="ascii")
+    probe = ("import os, sys\n"
+             "from canguard.cli.main import main\n"
+             f"code = main(['replay', {str(log)!r}, '-c', {str(CONFIG)!r}, '--json'])\n"
+             "assert 'numpy' in sys.modules, 'the replay did not import numpy: this proves nothing'\n"
+             "blas = os.environ.get('OPENBLAS_NUM_THREADS', 'unset')\n"
+             "print(len(os.listdir('/proc/self/task')), blas, file=sys.stderr)\n")
+    env = {k: v for k, v in os.environ.items() if k not in BLAS_THREADS}
+    done = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, env=env, timeout=120)
+    assert done.returncode == 0, done.stderr
+    threads, setting = done.stderr.split()[-2:]
+    assert setting == "1" and threads == "1", done.stderr[-500:]
 
 
 def _square(x: int) -> int:

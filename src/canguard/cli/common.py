@@ -106,3 +106,15 @@ def per_log_path(base: Path | None, log: Path, many: bool) -> Path | None:
     if base is None or not many:
         return base
     return base.with_name(f"{base.stem}.{log.name}{base.suffix}")
+
+
+BLAS_THREADS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+"""numpy's BLAS thread pools (OpenBLAS, OpenMP, MKL)."""
+
+
+def one_blas_thread() -> None:
+    """One thread for each BLAS pool numpy would start, unless the user set one: canguard's numpy work is
+    block by block, never worth a pool, and OpenBLAS starts a thread per core at numpy's import that spins
+    beside the replay (a 600 k-frame replay used ~15 % more CPU with it). Before numpy is imported."""
+    for name in BLAS_THREADS:
+        os.environ.setdefault(name, "1")

@@ -129,21 +129,12 @@ def _pool_context() -> Any:
     return None
 
 
-_ONE_THREAD = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
-"""numpy's BLAS thread pools: one thread each in a worker (as Dask's nanny sets them for its workers)."""
-
-
 def _worker_start() -> None:
-    """A --jobs worker: no BLAS thread pool beside the N workers (a replay does no linear algebra).
+    """A --jobs worker: no BLAS thread pool beside the N workers (:func:`canguard.cli.common.one_blas_thread`;
+    the parent set it for itself already, and a spawned worker starts from its environment)."""
+    from canguard.cli.common import one_blas_thread
 
-    OpenBLAS otherwise starts a thread per core when numpy is imported, and they spin on
-    the cores the other workers replay on. Set before the worker's first log imports numpy;
-    a value the user set is kept.
-    """
-    import os
-
-    for name in _ONE_THREAD:
-        os.environ.setdefault(name, "1")
+    one_blas_thread()
 
 
 def run_processes(workers: int, job: Callable[[Any], Any], jobs: list[Any],

@@ -24,6 +24,7 @@ from canguard.cli.common import (
     add_global_options,
     default_config,
     exit_codes_epilog,
+    one_blas_thread,
     subcommand,
 )
 from canguard.cli.common import add_config as _add_config
@@ -256,6 +257,7 @@ def parse_args(parser: argparse.ArgumentParser, argv: Sequence[str] | None = Non
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``canguard`` console script; returns the exit code."""
+    one_blas_thread()  # before anything imports numpy
     parser = build_parser(_command_in(sys.argv[1:] if argv is None else argv))
     args = parse_args(parser, argv)
     level = logging.WARNING - 10 * min(args.verbose, 2)
