@@ -54,7 +54,7 @@ def _text(lines: list[str]) -> tuple[str, int]:
     return "".join(line + "\n" for line in lines), len(lines)
 
 
-@settings(max_examples=300, deadline=None, derandomize=True)
+@settings(max_examples=150, deadline=None, derandomize=True)
 @given(lines=long_lines())
 def test_plain_long_blocks_are_read_as_the_line_parser_reads_them(lines: list[str]) -> None:
     """Classic and CAN FD, standard (indented or not) and extended ids, any spacing, ASCII dumps: taken."""
@@ -66,7 +66,7 @@ def test_plain_long_blocks_are_read_as_the_line_parser_reads_them(lines: list[st
 _JUNK = st.sampled_from([*"()[]# .\n'RrXx0189afAF", "  "])
 
 
-@settings(max_examples=600, deadline=None, derandomize=True)
+@settings(max_examples=300, deadline=None, derandomize=True)
 @given(lines=long_lines(), where=st.integers(0, 10**6), junk=_JUNK, how=st.sampled_from(["insert", "replace", "drop"]))
 def test_a_damaged_long_block_is_taken_only_when_every_line_reads_the_same(
     lines: list[str], where: int, junk: str, how: str

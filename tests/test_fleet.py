@@ -112,7 +112,11 @@ class TestRuns:
         assert code == 0, err
         assert on_dask == serial
 
-    def test_dask_without_a_scheduler_is_a_clear_error(self, fleet: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    def test_dask_without_a_scheduler_is_a_clear_error(self, fleet: Path, capsys: pytest.CaptureFixture[str],
+                                                        monkeypatch: pytest.MonkeyPatch) -> None:
         pytest.importorskip("distributed")
+        import canguard.cli.fleet
+
+        monkeypatch.setattr(canguard.cli.fleet, "CONNECT_TIMEOUT", "2s")  # the message, not the 10 s wait
         code, _, err = run(["replay", str(fleet), "-c", str(CONFIG), "--dask", "tcp://127.0.0.1:9"], capsys)
         assert code == 2 and "--dask tcp://127.0.0.1:9: cannot reach the scheduler" in err

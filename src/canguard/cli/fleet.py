@@ -99,7 +99,7 @@ def run_dask(address: str, job: Callable[[Any], Any], jobs: list[Any]) -> list[A
         raise ConfigError("--dask: running on a Dask cluster needs the fleet extra: "
                           "pip install 'canguard[fleet]'") from None
     try:
-        client = Client(address, timeout="10s")
+        client = Client(address, timeout=CONNECT_TIMEOUT)
     except (OSError, TimeoutError) as exc:
         raise ConfigError(f"--dask {address}: cannot reach the scheduler: {exc}") from None
     progress = Progress(len(jobs))
@@ -127,6 +127,10 @@ def _pool_context() -> Any:
     if sys.platform == "linux" and threading.active_count() == 1:
         return multiprocessing.get_context("fork")
     return None
+
+
+CONNECT_TIMEOUT = "10s"
+"""How long ``--dask ADDRESS`` tries to reach the scheduler before the run is refused (exit 2)."""
 
 
 def _worker_start() -> None:
