@@ -29,6 +29,7 @@ from itertools import islice
 from typing import TYPE_CHECKING, Any
 
 from canguard.engine.npstruct import MIN_ROWS, decode_struct, struct_spec
+from canguard.io.logtypes import joined_hex
 
 if TYPE_CHECKING:
     import numpy as np
@@ -82,10 +83,10 @@ class MessagePlan:
         """Nobody looks at this message between ticks: a block's rows may be taken whole (:meth:`batch`)."""
         self.min_age = min(o[4].max_age_s for o in self.outputs)
         self.rows_struct = _row_struct(entry, self.outputs)
-        self.np_spec = struct_spec(entry, self.outputs) if self.rows_struct is not None else None
-        """The same signals read by numpy from a numpy block's hex, only their bytes (:mod:`.npstruct`)."""
         """Byte-aligned standard widths in one byte order: the block is read with ``struct.iter_unpack``
         (C, no numpy); None: the numpy column decoder."""
+        self.np_spec = struct_spec(entry, self.outputs) if self.rows_struct is not None else None
+        """The same signals read by numpy from a numpy block's hex, only their bytes (:mod:`.npstruct`)."""
         self.seen = 0
         self.empty = 0
         self.settle_ok = False
@@ -113,13 +114,7 @@ class MessagePlan:
                 return decode_struct(cols, rows, size, self.np_spec)
             good, data = cols.payload(rows, size)
         else:
-            texts = list(map(cols.data.__getitem__, rows))
-            if set(map(len, texts)) == {size}:
-                good = None
-                data = bytes.fromhex("".join(texts))
-            else:
-                good = [k for k, text in enumerate(texts) if len(text) == size]
-                data = bytes.fromhex("".join([texts[k] for k in good]))
+            good, data = joined_hex(list(map(cols.data.__getitem__, rows)), size)
         return self._decode_payloads(n, good, data)
 
     def _decode_payloads(self, n: int, good: list[int] | None, data: bytes) -> list[tuple[float, ...] | None]:

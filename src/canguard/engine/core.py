@@ -142,8 +142,11 @@ class Engine(SourceWatchMixin, LogRunMixin, QuietTickMixin):
         """The time of the last tick or gate deadline run (which row brought it: :meth:`_cross`)."""
         self._wanted = frozenset(self.decoder.keys())
         self._plans: dict[str, dict[str | int, MessagePlan | None]] = {}
-        self._plan_tables: dict[str, tuple[Any, Any]] = {}  # the integer keys of _plans, for numpy blocks
         """Per bus: id text -> the column plan of the replay block path (see :mod:`canguard.engine.blocks`)."""
+        self._plan_tables: dict[str, tuple[Any, Any]] = {}
+        """Per bus: the integer keys of :attr:`_plans`, as numpy blocks look them up (:func:`.lanes.key_table`)."""
+        self._lane_plans: dict[tuple[str, ...], tuple[dict[int, MessagePlan | None], tuple[Any, Any]]] = {}
+        """Per channels-to-buses of a numpy block that mixes buses: its plans and their key table (:mod:`.lanes`)."""
         self._plan_list: dict[str, list[MessagePlan]] = {}
         """Per bus: every plan, flushed at the end of each block."""
         self._init_quiet()

@@ -18,7 +18,7 @@ _STANDARD = 0x800
 """Standard ids are below this: their configured rows are found through a table of this size."""
 
 
-def key_table(plans: Mapping[str | int, Any]) -> tuple[Any, Any]:
+def key_table(plans: Mapping[Any, Any]) -> tuple[Any, Any]:
     """The integer keys of ``plans`` (:func:`~canguard.io.candump_np.id_key`): a table of standard ones; all, sorted."""
     import numpy as np
 

@@ -53,6 +53,7 @@ class LogRunMixin:
         _wanted: frozenset[tuple[str, int, bool]]
         _plans: dict[str, dict[str | int, MessagePlan | None]]
         _plan_tables: dict[str, tuple[Any, Any]]
+        _lane_plans: dict[tuple[str, ...], tuple[dict[int, MessagePlan | None], tuple[Any, Any]]]
         _plan_list: dict[str, list[MessagePlan]]
         _dirty: bool
         durable: bool
@@ -209,9 +210,13 @@ class LogRunMixin:
                 rows = list(compress(range(n), map(plans.__contains__, cols.ids))) if plans else []
         else:  # channels of several buses: a key per (channel, id)
             assert lanes is not None and keys is not None
-            plans = lane_plans([self._plans[b] for b in buses])  # type: ignore[assignment]
+            lane = self._lane_plans.get(tuple(buses))
+            if lane is None:
+                joined = lane_plans([self._plans[b] for b in buses])
+                lane = self._lane_plans[tuple(buses)] = (joined, key_table(joined))
+            plans = lane[0]  # type: ignore[assignment]
             keys = keys + lanes * LANE
-            rows = configured_rows(keys, key_table(plans))
+            rows = configured_rows(keys, lane[1])
             bus_at = list(map(buses.__getitem__, lanes.tolist()))
         remote = cols.remote
         if remote:  # counted by the decoder as remote frames, configured or not: fed

@@ -28,7 +28,7 @@ from collections.abc import Iterator
 import numpy as np
 
 from canguard.io.frame import Frame
-from canguard.io.logtypes import _F, CANFD_BRS, CANFD_ESI, CANFD_LENGTHS, EXT_KEY, _new
+from canguard.io.logtypes import _F, CANFD_BRS, CANFD_ESI, CANFD_LENGTHS, EXT_KEY, _new, joined_hex
 
 _HEXVAL = np.full(256, 255, dtype=np.uint8)
 for _i, _c in enumerate(b"0123456789abcdef"):
@@ -120,11 +120,7 @@ class ByteColumns:
                 self._bounds = (self._start.tolist(), self._end.tolist())
             starts, ends = self._bounds
             text = self._text
-            texts = [text[starts[i]:ends[i]] for i in rows]
-            if set(map(len, texts)) == {size}:
-                return None, bytes.fromhex("".join(texts))
-            fits = [k for k, t in enumerate(texts) if len(t) == size]
-            return fits, bytes.fromhex("".join([texts[k] for k in fits]))
+            return joined_hex([text[starts[i]:ends[i]] for i in rows], size)
         good, start = self._fitting(rows, size)
         if not size or not start.size:
             return good, b""

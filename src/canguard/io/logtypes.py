@@ -196,3 +196,12 @@ EXT_KEY = 1 << 32
 def id_key(arbitration_id: int, is_extended_id: bool) -> int:
     """The key of an id in :attr:`ByteColumns.ids`."""
     return arbitration_id + EXT_KEY if is_extended_id else arbitration_id
+
+
+def joined_hex(texts: list[str], size: int) -> tuple[list[int] | None, bytes]:
+    """The payloads of ``texts`` (hex) that hold ``size`` digits, as bytes one after another: (their positions in
+    ``texts``, or None when all of them do; the bytes)."""
+    if set(map(len, texts)) == {size}:
+        return None, bytes.fromhex("".join(texts))
+    fits = [k for k, text in enumerate(texts) if len(text) == size]
+    return fits, bytes.fromhex("".join([texts[k] for k in fits]))
