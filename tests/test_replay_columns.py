@@ -22,6 +22,7 @@ configs, and a log of three channels on a two-bus config.
 
 from __future__ import annotations
 
+import bisect
 import itertools
 import json
 import math
@@ -612,12 +613,21 @@ def custom_line(log: Path, pred: Callable[[str], bool]) -> int:
 def chunk_starting_at(log: Path, i: int) -> int:
     """A small block size (about 200 to 600 characters) at which a block of ``log`` starts with line ``i``.
 
-    Blocks end at the last line break before each multiple of the size (every line
-    is shorter than the size): line ``i`` starts a block when a multiple falls within it.
+    A block is the next ``size`` characters and the rest of the line the last of them is in
+    (:func:`canguard.io.candump._candump_chunks`): the next block starts at the line after it.
     """
     offsets = line_offsets(log)
-    start, end = offsets[i], offsets[i + 1]
-    return next(c for c in range(200, 600) if any(start <= k * c < end for k in range(start // c, end // c + 1)))
+    target = offsets[i]
+
+    def starts_at(size: int) -> bool:
+        start = 0
+        while start < target:
+            start = offsets[bisect.bisect_right(offsets, start + size - 1)] if start + size < offsets[-1] else -1
+            if start < 0:
+                return False
+        return start == target
+
+    return next(c for c in range(200, 600) if starts_at(c))
 
 
 def sim_lines(seconds: float, channel: str, scenarios: list[str], seed: int) -> list[tuple[float, str]]:

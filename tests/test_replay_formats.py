@@ -464,6 +464,19 @@ class TestBadInput:
             list(read_log(path))
 
 
+    def test_no_line_break(self, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+        """A line longer than four blocks (a binary blob named .log, say) is refused with its line number,
+        after the frames before it; it is not read whole into memory first."""
+        monkeypatch.setattr(candump, "CHUNK_CHARS", 64)
+        path = tmp_path / "blob.log"
+        good = "".join(f"({t:.6f}) can0 123#11\n" for t in (1.0, 2.0, 3.0))
+        path.write_text(good + "A" * 10_000 + "\n(4.000000) can0 123#11\n", encoding="ascii")
+        got: list[float] = []
+        with pytest.raises(LogFormatError, match=r"blob\.log:4: no line break in 320 characters"):
+            for chunk in read_log(path):
+                got.append(chunk.t)
+        assert got == [1.0, 2.0, 3.0]
+
 class TestTimestampStats:
     """Backwards and repeated timestamps are counted, never fatal."""
 

@@ -44,7 +44,7 @@ CHUNK_CHARS = 1 << 19
 Measured on five log shapes of 2 M frames (in-process CPU, interleaved runs, best of 4-6): against
 ``1 << 17`` the replay took 10-20 % less on four shapes and the same on many ids; ``1 << 20`` and
 larger were no faster or slower, as a block's arrays outgrow the 2 MiB L2 cache."""
-NUMPY_AFTER_BLOCKS = 3  # blocks from this one on (after 1 MiB) are parsed by numpy first: a short log skips its import
+NUMPY_AFTER_BLOCKS = 0  # blocks from this one on (after 1 MiB) are parsed by numpy first: a short log skips its import
 
 _BULK_TABLE = str.maketrans({"(": None, ")": None, " ": "#", "\n": "#"})
 _MARKERS = frozenset("TRtr")
@@ -366,32 +366,29 @@ def _candump_chunks(
     lineno = 0  # lines before the current block
     last_t = -math.inf
     last_was_error = False
-    rest = ""
     blocks = 0
     by_bytes: Callable[[str, int], Any] | None = None
+    longest = 4 * CHUNK_CHARS
     try:
         while True:
+            # A block is a chunk and the rest of its last line: one string grown in place, not cut
+            # and joined again (each copy of a large block is pages to fault in again in a process
+            # that gives freed memory back at once, as Dask's workers do).
             try:
-                chunk = f.read(CHUNK_CHARS)
+                block = f.read(CHUNK_CHARS)
+                if block and block[-1] != "\n":
+                    block += f.readline(longest)
             except decompress_errors() as exc:
                 kind = {"gz": " gzip", "xz": " xz", "zst": " zstd"}.get(gz, "")
                 raise LogFormatError(f"{p}: cannot read{kind} log: {exc}") from None
-            if chunk:
-                block = rest + chunk if rest else chunk
-                cut = block.rfind("\n") + 1
-                if cut == 0:
-                    if len(block) > 4 * CHUNK_CHARS:
-                        raise LogFormatError(
-                            f"{p}:{lineno + 1}: no line break in {len(block)} characters: not a candump log"
-                        )
-                    rest = block
-                    continue
-                rest = block[cut:]
-                block = block[:cut]
-            elif rest:
-                block, rest = rest + "\n", ""
-            else:
+            if not block:
                 break
+            if block[-1] != "\n":
+                tail = len(block) - block.rfind("\n") - 1
+                if tail >= longest:
+                    at = lineno + block.count("\n") + 1
+                    raise LogFormatError(f"{p}:{at}: no line break in {tail} characters: not a candump log")
+                block += "\n"  # the last line of the log, without its line break
             n = block.count("\n")
             blocks += 1
             if by_bytes is None and blocks >= NUMPY_AFTER_BLOCKS:  # a long log: numpy's import (60 ms) pays

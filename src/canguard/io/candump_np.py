@@ -23,6 +23,7 @@ rewritten as -L (:mod:`canguard.io.candump_long`).
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Iterator
 
 import numpy as np
@@ -161,9 +162,13 @@ def byte_columns(text: str, n: int) -> ByteColumns | None:
         return None
     raw = text.encode("ascii")
     b = np.frombuffer(raw, dtype=np.uint8)
-    padded = np.frombuffer(raw + bytes(8), dtype=np.uint8)
-    words = np.ndarray((b.size + 1,), _LE64, padded, 0, (1,))  # words[k]: the 8 bytes from k, little-endian
-    nl = np.flatnonzero(b == 10)
+    size = b.size
+    pad, mask, spare = _scratch(size)
+    pad[:size] = b
+    pad[size:size + 8] = 0
+    words = np.ndarray((size + 1,), _LE64, pad, 0, (1,))  # words[k]: the 8 bytes from k, little-endian
+    np.equal(b, 10, out=mask)
+    nl = np.flatnonzero(mask)
     if nl.size != n or nl[-1] != b.size - 1:
         return None
     start = np.empty(n, dtype=np.intp)
@@ -174,14 +179,14 @@ def byte_columns(text: str, n: int) -> ByteColumns | None:
     first = raw[:int(nl[0])]
     width = first.find(b")") - 1
     clen = first.find(b" ", width + 3) - width - 3
-    if width < 3 or clen < 1 or np.count_nonzero(b == 40) != n or np.count_nonzero(b == 41) != n:
+    if width < 3 or clen < 1 or _count(b, 40, mask) != n or _count(b, 41, mask) != n:
         return None
     close = start + (width + 1)
     sp1 = close + 1
     sp2 = sp1 + (clen + 1)
     if not ((b[start] == 40) & (sp2 < nl)).all() or not ((b[close] == 41) & (b[sp1] == 32) & (b[sp2] == 32)).all():
         return None
-    spaces = np.count_nonzero(b == 32)
+    spaces = _count(b, 32, mask)
     markers = spaces == 3 * n
     if not markers and spaces != 2 * n:
         return None
@@ -202,7 +207,7 @@ def byte_columns(text: str, n: int) -> ByteColumns | None:
     after = b[h1 + 1]  # "#" for CAN FD, "R" / "r" for a remote frame: h1 + 1 <= end (a newline at worst)
     is_fd = after == 35
     nfd = int(np.count_nonzero(is_fd))
-    hashes = np.count_nonzero(b == 35)
+    hashes = _count(b, 35, mask)
     if hashes != n + nfd:  # one "#" per line, two on a CAN FD line: none anywhere else
         return None
     keys = _ids(words, sp2, h1)
@@ -244,8 +249,7 @@ def byte_columns(text: str, n: int) -> ByteColumns | None:
     others = [_others(name) for name in names]
     letters = n * others[0] if lanes is None else int(np.dot(np.bincount(lanes, minlength=len(names)), others))
     known = n * (4 + markers) + letters + spaces + hashes + len(remote or ())
-    hexes = np.count_nonzero(((b - np.uint8(48)) < 10) | (((b | np.uint8(32)) - np.uint8(97)) < 6))
-    if b.size - hexes != known:
+    if size - _hex_digits(b, pad[:size], mask, spare) != known:
         return None
     step = ts[1:] - ts[:-1]
     backs = int(np.count_nonzero(step < 0))
@@ -258,8 +262,53 @@ def byte_columns(text: str, n: int) -> ByteColumns | None:
     return cols
 
 
+_LOCAL = threading.local()
+
+
+def _buffer(name: str, count: int, dtype: type) -> np.ndarray:
+    """This thread's scratch array ``name`` of ``count`` items, kept from block to block (see :func:`_scratch`)."""
+    have: np.ndarray | None = getattr(_LOCAL, name, None)
+    if have is None or have.size < count:
+        have = np.empty(count + count // 4 + 64, dtype=dtype)
+        setattr(_LOCAL, name, have)
+    return have[:count]
+
+
+def _scratch(size: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """This thread's scratch for a block of ``size`` bytes: ``size + 8`` bytes, and two masks of ``size``.
+
+    Kept from block to block: the passes over a block's bytes make no new block-sized array,
+    which a process that gives freed memory back to the kernel at once (Dask starts its workers
+    with ``MALLOC_TRIM_THRESHOLD_`` set) would fault in again page by page, every block.
+    """
+    have: np.ndarray | None = getattr(_LOCAL, "pad", None)
+    if have is None or have.size < size + 8:
+        have = _LOCAL.pad = np.empty(size + size // 4 + 64, dtype=np.uint8)
+        _LOCAL.masks = np.empty(have.size, dtype=bool), np.empty(have.size, dtype=bool)
+    first, second = _LOCAL.masks
+    return have, first[:size], second[:size]
+
+
+def _count(b: np.ndarray, byte: int, mask: np.ndarray) -> int:
+    """How many bytes of ``b`` are ``byte`` (``mask``: scratch of ``b``'s size, overwritten)."""
+    np.equal(b, np.uint8(byte), out=mask)
+    return int(np.count_nonzero(mask))
+
+
+def _hex_digits(b: np.ndarray, work: np.ndarray, mask: np.ndarray, spare: np.ndarray) -> int:
+    """How many bytes of ``b`` are hex digits (0-9, a-f, A-F), counted in ``work``/``mask``/``spare`` (overwritten)."""
+    np.subtract(b, np.uint8(48), out=work)
+    np.less(work, np.uint8(10), out=mask)  # a digit; anything else wraps above 9
+    np.bitwise_or(b, np.uint8(32), out=work)
+    np.subtract(work, np.uint8(97), out=work)
+    np.less(work, np.uint8(6), out=spare)  # a-f or A-F
+    np.logical_or(mask, spare, out=mask)
+    return int(np.count_nonzero(mask))
+
+
 def _stamps(b: np.ndarray, start: np.ndarray, width: int) -> np.ndarray | None:
     """The timestamps (``width`` characters after each line's "("), exactly as ``float()`` reads them, or None."""
+    n = start.size
     cells = _rows(b, start + 1, width)
     dots = np.flatnonzero(cells[0] == 46)
     if dots.size != 1 or not 0 < int(dots[0]) < width - 1 or width - 1 > 22:  # 10**22: the last exact power
@@ -267,13 +316,15 @@ def _stamps(b: np.ndarray, start: np.ndarray, width: int) -> np.ndarray | None:
     dot = int(dots[0])
     if not (cells[:, dot] == 46).all():
         return None
-    digits = cells - np.uint8(48)  # a digit is 0..9, anything else wraps above 9
-    digits[:, dot] = 0
-    if (digits > 9).any():
+    np.subtract(cells, np.uint8(48), out=cells)  # a digit is 0..9, anything else wraps above 9
+    cells[:, dot] = 0
+    if int(cells.max()) > 9:
         return None
     # BLAS in float64: every partial sum is an integer below 2**53, so exact in any order
     weights = np.array([0.0 if k == dot else 10.0 ** (width - 1 - k - (k < dot)) for k in range(width)])
-    whole = digits.astype(np.float64) @ weights
+    digits = _buffer("digits", n * width, np.float64).reshape(n, width)
+    np.copyto(digits, cells)
+    whole = digits @ weights
     if float(whole.max()) >= _EXACT:
         return None
     return whole / 10.0 ** (width - 1 - dot)  # exact integer / exact power of ten: one rounding, as float()
