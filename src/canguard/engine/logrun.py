@@ -299,7 +299,6 @@ class LogRunMixin:
         """
         from canguard.engine.blocks import EMPTY  # numpy: imported when a block is first decoded
 
-        ids: Sequence[Any] = cols.ids
         ts = cols.ts
         groups: dict[MessagePlan | None, list[int]] = {}
         remote = cols.remote
@@ -307,8 +306,11 @@ class LogRunMixin:
             groups[None] = [i for i in rows if i in remote]
             rows = [i for i in rows if i not in remote]
         # rows by id (a stable sort keeps each id's rows in time order), in C but for one step per id
-        runs = runs_by_key(keys, rows) if keys is not None else groupby(
-            sorted(rows, key=ids.__getitem__), key=ids.__getitem__)
+        if keys is not None:
+            runs: Any = runs_by_key(keys, rows)
+        else:
+            ids: Sequence[Any] = cols.ids
+            runs = groupby(sorted(rows, key=ids.__getitem__), key=ids.__getitem__)
         for text, same in runs:
             plan = plans[text]
             group = groups.get(plan)

@@ -389,11 +389,15 @@ def _candump_chunks(
                     at = lineno + block.count("\n") + 1
                     raise LogFormatError(f"{p}:{at}: no line break in {tail} characters: not a candump log")
                 block += "\n"  # the last line of the log, without its line break
-            n = block.count("\n")
             blocks += 1
             if by_bytes is None and blocks >= NUMPY_AFTER_BLOCKS:  # a long log: numpy's import (60 ms) pays
                 from canguard.io.candump_long import numpy_block as by_bytes
-            cols = None if last_was_error else (by_bytes and by_bytes(block, n)) or _bulk_columns(block, n)
+            cols = None if last_was_error or by_bytes is None else by_bytes(block, -1)  # it counts the lines
+            if cols is not None:
+                n = cols.n
+            else:
+                n = block.count("\n")
+                cols = None if last_was_error else _bulk_columns(block, n)
             if cols is not None:
                 ts = cols.ts
                 if want_ts_stats:

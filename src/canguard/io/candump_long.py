@@ -27,9 +27,12 @@ _LENGTH = re.compile(r"\[(\d\d?)\]")
 
 
 def long_columns(text: str, n: int) -> ByteColumns | None:
-    """The block ``text`` of ``n`` candump -ta lines as :class:`ByteColumns`, or None (read it line by line)."""
+    """The block ``text`` of ``n`` candump -ta lines (< 0: count them) as :class:`ByteColumns`, or None (read it line
+    by line)."""
     if "[" not in text or "\x01" in text or "\t" in text or "\r" in text:
         return None
+    if n < 0:
+        n = text.count("\n")
     lengths = _LENGTH.findall(text)
     if len(lengths) != n:
         return None  # a line without [len], or one with two (in its ASCII dump, say)

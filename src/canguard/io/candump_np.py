@@ -56,16 +56,18 @@ class ByteColumns:
     each row's index into them in ``lanes``.
     """
 
-    __slots__ = ("_b", "_bounds", "_end", "_row_chans", "_start", "_text", "channel", "channels", "fd", "ids", "keys",
+    __slots__ = ("_b", "_bounds", "_end", "_ids", "_row_chans", "_start", "_text", "channel", "channels", "fd", "keys",
                  "lanes", "n", "order", "ordered",
                  "remote", "ts")
 
-    def __init__(self, n: int, ts: list[float], ids: list[int], ordered: bool, channel: str | None,
+    def __init__(self, n: int, ts: list[float], keys: np.ndarray, ordered: bool, channel: str | None,
                  fd: dict[int, int] | None, remote: dict[int, int] | None, text: str, b: np.ndarray,
                  start: np.ndarray, end: np.ndarray) -> None:
         self.n = n
         self.ts = ts
-        self.ids = ids
+        self.keys = keys
+        """Each row's id key (:func:`~canguard.io.logtypes.id_key`), as an array: the engine looks rows up by it."""
+        self._ids: list[int] | None = None
         self.ordered = ordered
         self.channel = channel
         self.channels: list[str] = [channel] if channel is not None else []
@@ -81,8 +83,14 @@ class ByteColumns:
         self._bounds: tuple[list[int], list[int]] | None = None
         self.order = (0, 0)
         """Rows whose timestamp goes back, and rows whose timestamp repeats the previous row's (in the block)."""
-        self.keys: np.ndarray | None = None
-        """:attr:`ids` as an array (set by :func:`byte_columns`)."""
+
+    @property
+    def ids(self) -> list[int]:
+        """:attr:`keys` as a list, made when first asked for (most blocks never are: a list of every row's key
+        cost ~3 % of a replay)."""
+        if self._ids is None:
+            self._ids = self.keys.tolist()
+        return self._ids
 
     @property
     def chans(self) -> list[str]:
@@ -154,11 +162,11 @@ class ByteColumns:
 def byte_columns(text: str, n: int) -> ByteColumns | None:
     """The block ``text`` of ``n`` lines (each ending in a newline) as :class:`ByteColumns`, or None.
 
-    None when any line is not of the plain shape, when the block has channels of several name lengths,
-    or when a timestamp does not convert exactly this way (its digits make 2**53 or more):
-    the caller then uses the text parser.
+    ``n`` < 0: count them. None when any line is not of the plain shape, when the block has channels
+    of several name lengths, or when a timestamp does not convert exactly this way (its digits
+    make 2**53 or more): the caller then uses the text parser.
     """
-    if n == 0 or not text.isascii() or "\t" in text:
+    if not n or not text.isascii() or "\t" in text:
         return None
     raw = text.encode("ascii")
     b = np.frombuffer(raw, dtype=np.uint8)
@@ -169,7 +177,9 @@ def byte_columns(text: str, n: int) -> ByteColumns | None:
     words = np.ndarray((size + 1,), _LE64, pad, 0, (1,))  # words[k]: the 8 bytes from k, little-endian
     np.equal(b, 10, out=mask)
     nl = np.flatnonzero(mask)
-    if nl.size != n or nl[-1] != b.size - 1:
+    if n < 0:
+        n = nl.size
+    if not n or nl.size != n or nl[-1] != b.size - 1:
         return None
     start = np.empty(n, dtype=np.intp)
     start[0] = 0
@@ -253,12 +263,11 @@ def byte_columns(text: str, n: int) -> ByteColumns | None:
         return None
     step = ts[1:] - ts[:-1]
     backs = int(np.count_nonzero(step < 0))
-    cols = ByteColumns(n, ts.tolist(), keys.tolist(), not backs, names[0] if lanes is None else None, fd, remote,
+    cols = ByteColumns(n, ts.tolist(), keys, not backs, names[0] if lanes is None else None, fd, remote,
                        text, b, data_start, end)
     if lanes is not None:
         cols.channels, cols.lanes = names, lanes
     cols.order = (backs, int(np.count_nonzero(step == 0)))
-    cols.keys = keys
     return cols
 
 
