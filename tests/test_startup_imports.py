@@ -137,3 +137,21 @@ def test_unknown_command_error_names_every_command() -> None:
                           capture_output=True, text=True, timeout=60, check=False)
     assert proc.returncode == 2
     assert "invalid choice: 'bogus' (choose from " + ", ".join(repr(c) for c in COMMANDS) + ")" in proc.stderr
+
+
+def test_short_replay_does_not_import_numpy(tmp_path: Path) -> None:
+    """A short candump log of messages decoded without numpy never imports it (60 ms of a ~0.3 s run); a log of
+    1 MiB or more is read by numpy from its first block."""
+    log = tmp_path / "short.log"
+    lines = ["(1700000000.000000) can0 009#0000204100000000\n", "(1700000000.000000) can0 7FF#00\n"]
+    log.write_text("".join(lines), encoding="ascii")
+    config = REPO / "config" / "canguard.yaml"
+    replay = f"from canguard.cli.main import main\nmain(['replay', '{log}', '-c', '{config}'])"
+    assert "numpy" not in loaded_after(replay)
+    log.write_text("".join(lines[i % 2].replace("000000)", f"{i:06d})") for i in range(30_000)), encoding="ascii")
+    assert log.stat().st_size >= 1 << 20
+    first = ("import sys\nfrom canguard.io.logs import read_log\nassert 'numpy' not in sys.modules\n"
+             f"print(type(next(iter(read_log('{log}').chunks()))).__name__)")
+    proc = subprocess.run([sys.executable, "-c", first], env={**os.environ, "PYTHONPATH": str(SRC)},
+                          capture_output=True, text=True, timeout=60, check=True)
+    assert proc.stdout.strip() == "ByteColumns"

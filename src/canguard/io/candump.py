@@ -8,6 +8,8 @@ from __future__ import annotations
 import io
 import math
 import operator
+import os
+import sys
 from collections.abc import Callable, Iterator
 from itertools import islice, repeat
 from pathlib import Path
@@ -39,12 +41,12 @@ from canguard.io.logtypes import (
 
 
 CHUNK_CHARS = 1 << 19
-"""Characters read per chunk by the candump reader (about 11,000 -L lines).
-
-Measured on five log shapes of 2 M frames (in-process CPU, interleaved runs, best of 4-6): against
-``1 << 17`` the replay took 10-20 % less on four shapes and the same on many ids; ``1 << 20`` and
-larger were no faster or slower, as a block's arrays outgrow the 2 MiB L2 cache."""
-NUMPY_AFTER_BLOCKS = 0  # blocks from this one on (after 1 MiB) are parsed by numpy first: a short log skips its import
+"""Characters per chunk (~11,000 -L lines). Against 1 << 17: 10-20 % less replay time on four of five
+shapes of 2 M frames, the fifth the same; 1 << 20 and more no faster (a block's arrays outgrow L2)."""
+NUMPY_AFTER_BLOCKS: int | None = None
+"""Blocks from this one on (1: all) are parsed by numpy first (:mod:`canguard.io.candump_np`). None: all when
+numpy is loaded already (most DBCs' messages need it) or the file has 1 MiB or more, else from the third, so
+a short log of messages decoded without numpy never imports it (60 ms). An int forces it (tests)."""
 
 _BULK_TABLE = str.maketrans({"(": None, ")": None, " ": "#", "\n": "#"})
 _MARKERS = frozenset("TRtr")
@@ -357,9 +359,8 @@ def _flatten(chunks: Iterator[Columns | list[Frame]]) -> Iterator[Frame]:
         yield from (chunk if type(chunk) is list else chunk.frames())  # type: ignore[union-attr]
 
 
-def _candump_chunks(
-    p: Path, gz: str, skip_bad: bool, st: ReadStats, want_ts_stats: bool, owner: LogFrames
-) -> Iterator[Columns | list[Frame]]:
+def _candump_chunks(p: Path, gz: str, skip_bad: bool, st: ReadStats, want_ts_stats: bool,
+                    owner: LogFrames) -> Iterator[Columns | list[Frame]]:
     """The candump text reader: plain blocks as :class:`Columns`, others as lists of frames parsed line by line."""
     raw, f = _open_text(p, gz)
     frames = 0
@@ -367,13 +368,14 @@ def _candump_chunks(
     last_t = -math.inf
     last_was_error = False
     blocks = 0
+    early = "numpy" in sys.modules or (not gz and os.fstat(raw.fileno()).st_size >= 1 << 20)
+    numpy_from = NUMPY_AFTER_BLOCKS if NUMPY_AFTER_BLOCKS is not None else 1 if early else 3
     by_bytes: Callable[[str, int], Any] | None = None
     longest = 4 * CHUNK_CHARS
     try:
         while True:
-            # A block is a chunk and the rest of its last line: one string grown in place, not cut
-            # and joined again (each copy of a large block is pages to fault in again in a process
-            # that gives freed memory back at once, as Dask's workers do).
+            # A block: a chunk and the rest of its last line, grown in place (no cut and join: fewer
+            # block-sized copies to fault in where freed memory goes back at once, as on Dask workers)
             try:
                 block = f.read(CHUNK_CHARS)
                 if block and block[-1] != "\n":
@@ -390,7 +392,7 @@ def _candump_chunks(
                     raise LogFormatError(f"{p}:{at}: no line break in {tail} characters: not a candump log")
                 block += "\n"  # the last line of the log, without its line break
             blocks += 1
-            if by_bytes is None and blocks >= NUMPY_AFTER_BLOCKS:  # a long log: numpy's import (60 ms) pays
+            if by_bytes is None and blocks >= numpy_from:
                 from canguard.io.candump_long import numpy_block as by_bytes
             cols = None if last_was_error or by_bytes is None else by_bytes(block, -1)  # it counts the lines
             if cols is not None:
