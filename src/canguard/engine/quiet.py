@@ -47,7 +47,7 @@ from typing import TYPE_CHECKING, Any
 
 import py_trees
 
-from canguard.engine.gate import TaskGate
+from canguard.engine.gate import LogSink, TaskGate
 
 if TYPE_CHECKING:
     from canguard.bt.context import Context
@@ -196,15 +196,29 @@ class QuietTickMixin:
         (the gate's next deadline) and the heat levels move only with samples. Each tick
         time is still reached by the same additions as one by one.
         """
-        if self.gate.state != TaskGate.RUNNING or (self.heat is not None and self.save_heat):
+        gate = self.gate
+        if gate.state != TaskGate.RUNNING or (self.heat is not None and self.save_heat):
             return
+        sink = gate.sink
+        counted = isinstance(sink, LogSink) and type(sink) is LogSink and sink.out is None and not sink.keep
         nxt, period, last, count = self._next_tick, self.period_s, 0.0, 0
-        until = min(until, self._q_until)
+        # The task's periodic frames only counted (a replay without --emit): its deadlines among the
+        # ticks change nothing a tick sees, and are sent in one go below; else they end the run.
+        until = self._q_until if counted else min(until, self._q_until)
         while nxt <= now and nxt < until:
             last = nxt
             count += 1
             nxt += period
         if count:
+            if counted:
+                task, task_period, sends = gate._next_task, gate.task_cfg.period_s, 0
+                while task <= last:  # as gate.service at each deadline (a tick at the same time goes first)
+                    sends += 1
+                    task += task_period
+                if sends:
+                    gate._next_task = task
+                    assert isinstance(sink, LogSink)
+                    sink.sent += sends * len(gate.task_cfg.frames)
             self.clock.advance_to(last)
             self.last_due_run = last
             self._next_tick = nxt
