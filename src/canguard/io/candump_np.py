@@ -275,7 +275,12 @@ _LOCAL = threading.local()
 
 
 def _buffer(name: str, count: int, dtype: type) -> np.ndarray:
-    """This thread's scratch array ``name`` of ``count`` items, kept from block to block (see :func:`_scratch`)."""
+    """This thread's scratch array ``name``, ``count`` items, kept from block to block.
+
+    A block's passes over its bytes then make no new block-sized array, which a process that
+    gives freed memory back to the kernel at once (Dask starts its workers with
+    ``MALLOC_TRIM_THRESHOLD_`` set) would fault in again page by page, every block.
+    """
     have: np.ndarray | None = getattr(_LOCAL, name, None)
     if have is None or have.size < count:
         have = np.empty(count + count // 4 + 64, dtype=dtype)
@@ -284,18 +289,8 @@ def _buffer(name: str, count: int, dtype: type) -> np.ndarray:
 
 
 def _scratch(size: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """This thread's scratch for a block of ``size`` bytes: ``size + 8`` bytes, and two masks of ``size``.
-
-    Kept from block to block: the passes over a block's bytes make no new block-sized array,
-    which a process that gives freed memory back to the kernel at once (Dask starts its workers
-    with ``MALLOC_TRIM_THRESHOLD_`` set) would fault in again page by page, every block.
-    """
-    have: np.ndarray | None = getattr(_LOCAL, "pad", None)
-    if have is None or have.size < size + 8:
-        have = _LOCAL.pad = np.empty(size + size // 4 + 64, dtype=np.uint8)
-        _LOCAL.masks = np.empty(have.size, dtype=bool), np.empty(have.size, dtype=bool)
-    first, second = _LOCAL.masks
-    return have, first[:size], second[:size]
+    """Scratch for a block of ``size`` bytes (:func:`_buffer`): ``size + 8`` bytes, and two masks of ``size``."""
+    return _buffer("pad", size + 8, np.uint8), _buffer("mask", size, bool), _buffer("spare", size, bool)
 
 
 def _count(b: np.ndarray, byte: int, mask: np.ndarray) -> int:
