@@ -4,7 +4,8 @@
 
     .log .candump .txt   candump text: ``candump -L`` / ``-l`` lines (the fast path)
                          or plain ``candump -ta`` output
-    .asc .blf .trc .csv  python-can's own readers
+    .asc                 canguard's reader for plain data lines, python-can's for the rest (io.asc_blocks)
+    .blf .trc .csv       python-can's own readers
     .mf4                 python-can's MF4 reader (needs ``python-can[mf4]``)
 
 Every reader streams: the log is read in chunks of :data:`CHUNK_CHARS` characters
@@ -32,6 +33,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from canguard.errors import LogFormatError
+from canguard.io.asc_blocks import asc_chunks
 from canguard.io.candump import _candump_chunks, _flatten
 from canguard.io.logtypes import CANDUMP_SUFFIXES, COMPRESSIONS, PYTHON_CAN_SUFFIXES, LogFrames, ReadStats
 from canguard.io.progress import ProgressBar
@@ -135,6 +137,9 @@ def read_log(
     frames = LogFrames(p, st, progress)
     if fmt == "candump":
         frames._chunks = _candump_chunks(p, gz, skip_bad, st, stats is not None, frames)
+        frames._frames = _flatten(frames._chunks)
+    elif fmt == "asc":  # canguard's own reader, python-can's for whatever it does not take (io.asc_blocks)
+        frames._chunks = asc_chunks(p, gz, st, frames)
         frames._frames = _flatten(frames._chunks)
     else:
         # two lazy generators over the same file: only the one consumed opens it

@@ -181,16 +181,23 @@ class _Batch:
             yield frames
 
 
-def python_can_chunks(p: Path, fmt: str, gz: str, st: ReadStats, owner: LogFrames) -> Iterator[Columns | list[Frame]]:
-    """One of python-can's readers as :class:`Columns` blocks and frame lists; its errors as LogFormatError."""
+def python_can_chunks(p: Path, fmt: str, gz: str, st: ReadStats, owner: LogFrames, skip: int = 0,
+                      last_t: float = -math.inf) -> Iterator[Columns | list[Frame]]:
+    """One of python-can's readers as :class:`Columns` blocks and frame lists; its errors as LogFormatError.
+
+    ``skip``: messages to pass over first, given (and counted) already by another reader of the same file
+    (:mod:`canguard.io.asc_blocks`), the last of them at ``last_t``."""
     reader: _Messages | None = None
-    frames = 0
-    last_t = -math.inf
+    frames = skip
     names: dict[Any, str] = {}
     std: dict[Any, str | None] = {}
     ext: dict[Any, str | None] = {}
     try:
         reader = _Messages(p, fmt, gz)
+        while skip > 0:
+            if not (passed := len(reader.next_batch(min(skip, BLOCK)))):
+                raise LogFormatError(f"{p}: {skip} frames fewer than the first reader read")
+            skip -= passed
         while msgs := reader.next_batch(BLOCK):
             batch = _Batch(msgs, names, std, ext)
             ts = batch.ts
