@@ -438,6 +438,6 @@ def test_replay_summary(tmp_path: Path, odd: str | None, capsys: pytest.CaptureF
     with _spied() as skips:
         ours = summary()
     assert len(skips) == (odd is not None)
-    monkeypatch.setattr(canguard.io.logs, "asc_chunks", _python_can_only)
+    monkeypatch.setattr(canguard.io.asc_blocks, "asc_chunks", _python_can_only)
     assert summary() == ours
     assert ours["frames"]["read"] == 15426 + (odd is not None)

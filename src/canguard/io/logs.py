@@ -33,7 +33,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from canguard.errors import LogFormatError
-from canguard.io.asc_blocks import asc_chunks
 from canguard.io.candump import _candump_chunks, _flatten
 from canguard.io.logtypes import CANDUMP_SUFFIXES, COMPRESSIONS, PYTHON_CAN_SUFFIXES, LogFrames, ReadStats
 from canguard.io.progress import ProgressBar
@@ -139,6 +138,8 @@ def read_log(
         frames._chunks = _candump_chunks(p, gz, skip_bad, st, stats is not None, frames)
         frames._frames = _flatten(frames._chunks)
     elif fmt == "asc":  # canguard's own reader, python-can's for whatever it does not take (io.asc_blocks)
+        from canguard.io.asc_blocks import asc_chunks  # its regexes are compiled for ASC logs only
+
         frames._chunks = asc_chunks(p, gz, st, frames)
         frames._frames = _flatten(frames._chunks)
     else:
