@@ -163,3 +163,32 @@ def test_id_keys() -> None:
     cols = byte_columns(*_block(["(1.000000) can0 7fF#", "(1.000001) can0 1aBcDeF0#"]))
     assert cols is not None
     assert cols.ids == [0x7FF, 0x1ABCDEF0 + EXT_KEY]
+
+
+def test_threads_parse_at_once() -> None:
+    """Each thread has its own scratch (a Dask worker with several threads replays several logs at once):
+    blocks parsed by four threads at the same time read as parsed one after the other."""
+    import threading
+
+    blocks = []
+    for k in range(4):
+        lines = [f"({1_700_000_000 + k}.{i:06d}) can{k} {(k * 97 + i) % 0x7FF:03X}#{i:016X}" for i in range(20_000)]
+        blocks.append(_block(lines))
+    alone = [byte_columns(text, n) for text, n in blocks]
+    assert all(c is not None for c in alone)
+    got: dict[int, list[tuple[list[float], list[int]]]] = {k: [] for k in range(4)}
+
+    def parse(k: int) -> None:
+        for _ in range(6):
+            cols = byte_columns(*blocks[k])
+            assert cols is not None
+            got[k].append((cols.ts, cols.ids))
+
+    threads = [threading.Thread(target=parse, args=(k,)) for k in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    for k, cols in enumerate(alone):
+        assert cols is not None
+        assert got[k] == [(cols.ts, cols.ids)] * 6
