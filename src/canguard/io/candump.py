@@ -44,9 +44,9 @@ CHUNK_CHARS = 1 << 19
 """Characters per chunk (~11,000 -L lines). Against 1 << 17: 10-20 % less replay time on four of five
 shapes of 2 M frames, the fifth the same; 1 << 20 and more no faster (a block's arrays outgrow L2)."""
 NUMPY_AFTER_BLOCKS: int | None = None
-"""Blocks from this one on (1: all) are parsed by numpy first (:mod:`canguard.io.candump_np`). None: all when
-numpy is loaded already (most DBCs' messages need it) or the file has 1 MiB or more, else from the third, so
-a short log of messages decoded without numpy never imports it (60 ms). An int forces it (tests)."""
+"""Blocks from this one on (1: all) are parsed by numpy first (:mod:`canguard.io.candump_np`). None: all for a
+file of 1 MiB or more, else from the third or once numpy is loaded (most DBCs' messages need it), so a short log
+of messages decoded without numpy never imports it (60 ms). An int forces it (tests)."""
 
 _BULK_TABLE = str.maketrans({"(": None, ")": None, " ": "#", "\n": "#"})
 _MARKERS = frozenset("TRtr")
@@ -368,8 +368,8 @@ def _candump_chunks(p: Path, gz: str, skip_bad: bool, st: ReadStats, want_ts_sta
     last_t = -math.inf
     last_was_error = False
     blocks = 0
-    early = "numpy" in sys.modules or (not gz and os.fstat(raw.fileno()).st_size >= 1 << 20)
-    numpy_from = NUMPY_AFTER_BLOCKS if NUMPY_AFTER_BLOCKS is not None else 1 if early else 3
+    auto = NUMPY_AFTER_BLOCKS is None
+    numpy_from = (1 if not gz and os.fstat(raw.fileno()).st_size >= 1 << 20 else 3) if auto else NUMPY_AFTER_BLOCKS or 0
     by_bytes: Callable[[str, int], Any] | None = None
     longest = 4 * CHUNK_CHARS
     try:
@@ -392,7 +392,7 @@ def _candump_chunks(p: Path, gz: str, skip_bad: bool, st: ReadStats, want_ts_sta
                     raise LogFormatError(f"{p}:{at}: no line break in {tail} characters: not a candump log")
                 block += "\n"  # the last line of the log, without its line break
             blocks += 1
-            if by_bytes is None and blocks >= numpy_from:
+            if by_bytes is None and (blocks >= numpy_from or (auto and "numpy" in sys.modules)):  # loaded: it pays
                 from canguard.io.candump_long import numpy_block as by_bytes
             cols = None if last_was_error or by_bytes is None else by_bytes(block, -1)  # it counts the lines
             if cols is not None:
