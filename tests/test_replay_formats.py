@@ -99,6 +99,29 @@ class TestCandumpCompact:
         path.write_bytes(b"(1.0) can0 123#11\r\n(2.0) can0 124#22")
         assert [f.arbitration_id for f in read_log(path)] == [0x123, 0x124]
 
+    @pytest.mark.parametrize("numpy_after", [0, 1 << 62], ids=["numpy", "text"])
+    def test_bom_and_line_ends(self, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, numpy_after: int) -> None:
+        """The reader reads bytes: a UTF-8 byte order mark, Windows and old-Mac line ends, a block edge inside a
+        \\r\\n and a junk byte read as text mode did (the same frames, the bad line at the same number)."""
+        lines = [f"({T0 + i / 1000:.6f}) can0 {i % 0x7FF:03X}#{i % 256:02X}" for i in range(40)]
+        clean = "".join(line + "\n" for line in lines).encode("ascii")
+        monkeypatch.setattr(candump, "NUMPY_AFTER_BLOCKS", numpy_after)
+        for chunk in (64, 1 << 19):
+            monkeypatch.setattr(candump, "CHUNK_CHARS", chunk)
+            expected = list(read_log(self._write(tmp_path, "clean.log", clean)))
+            for name, data in (("bom.log", b"\xef\xbb\xbf" + clean), ("crlf.log", clean.replace(b"\n", b"\r\n")),
+                               ("cr.log", clean.replace(b"\n", b"\r", 7)), ("last.log", clean[:-1])):
+                assert list(read_log(self._write(tmp_path, name, data))) == expected, (name, chunk)
+            junk = clean.replace(b"\n", b"\n\xff\xfe junk\r\n", 1)
+            with pytest.raises(LogFormatError, match=r"junk\.log:2: .*'\ufffd\ufffd junk'"):
+                list(read_log(self._write(tmp_path, "junk.log", junk)))
+
+    @staticmethod
+    def _write(tmp_path: Path, name: str, data: bytes) -> Path:
+        path = tmp_path / name
+        path.write_bytes(data)
+        return path
+
     def test_mixed_chunk_matches_line_parser(self, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
         """With tiny chunks (bulk and line-by-line paths interleaved) the frames are the same."""
         lines = [f"({T0 + i / 1000:.6f}) can{i % 2} {i % 0x7FF:03X}#{i % 256:02X}{'' if i % 7 else 'AA'}"

@@ -5,7 +5,6 @@ other block line by line by the general parser, which names the file:line of a b
 
 from __future__ import annotations
 
-import io
 import math
 import operator
 import os
@@ -13,7 +12,7 @@ import sys
 from collections.abc import Callable, Iterator
 from itertools import islice, repeat
 from pathlib import Path
-from typing import Any, NamedTuple, TextIO
+from typing import Any, NamedTuple
 
 from canguard.errors import LogFormatError
 from canguard.io.frame import Frame
@@ -338,11 +337,10 @@ def _parse_line(line: str) -> Frame | None:
     return _parse_long(t, ts_text, toks)
 
 
-def _open_text(p: Path, gz: str) -> tuple[io.BufferedReader, TextIO]:
-    raw = open(p, "rb")  # noqa: SIM115 -- closed by the caller's finally
-    binary: Any = open_decompressed(raw, gz)
-    # utf-8-sig drops a BOM; errors=replace turns binary junk into malformed lines, not a UnicodeDecodeError
-    return raw, io.TextIOWrapper(binary, encoding="utf-8-sig", errors="replace")
+def _as_text(block: bytes) -> str:
+    """A block's bytes as the text parsers read them: UTF-8 (junk replaced), ``\r\n`` / ``\r`` ending a line."""
+    text = block.decode("utf-8", "replace")
+    return text.replace("\r\n", "\n").replace("\r", "\n") if "\r" in text else text
 
 
 def _note_order(st: ReadStats, t: float, last_t: float) -> None:
@@ -362,7 +360,8 @@ def _flatten(chunks: Iterator[Columns | list[Frame]]) -> Iterator[Frame]:
 def _candump_chunks(p: Path, gz: str, skip_bad: bool, st: ReadStats, want_ts_stats: bool,
                     owner: LogFrames) -> Iterator[Columns | list[Frame]]:
     """The candump text reader: plain blocks as :class:`Columns`, others as lists of frames parsed line by line."""
-    raw, f = _open_text(p, gz)
+    raw = open(p, "rb")  # noqa: SIM115 -- closed in the finally below
+    f: Any = open_decompressed(raw, gz)  # bytes: numpy reads them as they are; the text parsers get _as_text
     frames = 0
     lineno = 0  # lines before the current block
     last_t = -math.inf
@@ -370,27 +369,27 @@ def _candump_chunks(p: Path, gz: str, skip_bad: bool, st: ReadStats, want_ts_sta
     blocks = 0
     auto = NUMPY_AFTER_BLOCKS is None
     numpy_from = (1 if not gz and os.fstat(raw.fileno()).st_size >= 1 << 20 else 3) if auto else NUMPY_AFTER_BLOCKS or 0
-    by_bytes: Callable[[str, int], Any] | None = None
+    by_bytes: Callable[[bytes, int], Any] | None = None
     longest = 4 * CHUNK_CHARS
     try:
         while True:
-            # A block: a chunk and the rest of its last line, grown in place (no cut and join: fewer
-            # block-sized copies to fault in where freed memory goes back at once, as on Dask workers)
+            # a chunk and the rest of its last line, grown in place: no block-sized copies to fault in (Dask)
             try:
                 block = f.read(CHUNK_CHARS)
-                if block and block[-1] != "\n":
+                if block and block[-1] != 10:
                     block += f.readline(longest)
             except decompress_errors() as exc:
                 kind = {"gz": " gzip", "xz": " xz", "zst": " zstd"}.get(gz, "")
                 raise LogFormatError(f"{p}: cannot read{kind} log: {exc}") from None
+            block = block[3:] if not blocks and block[:3] == b"\xef\xbb\xbf" else block  # a UTF-8 BOM
             if not block:
                 break
-            if block[-1] != "\n":
-                tail = len(block) - block.rfind("\n") - 1
+            if block[-1] != 10:
+                tail = len(block) - block.rfind(b"\n") - 1
                 if tail >= longest:
-                    at = lineno + block.count("\n") + 1
+                    at = lineno + _as_text(block).count("\n") + 1
                     raise LogFormatError(f"{p}:{at}: no line break in {tail} characters: not a candump log")
-                block += "\n"  # the last line of the log, without its line break
+                block += b"\n"  # the last line of the log, without its line break
             blocks += 1
             if by_bytes is None and (blocks >= numpy_from or (auto and "numpy" in sys.modules)):  # loaded: it pays
                 from canguard.io.candump_long import numpy_block as by_bytes
@@ -398,8 +397,9 @@ def _candump_chunks(p: Path, gz: str, skip_bad: bool, st: ReadStats, want_ts_sta
             if cols is not None:
                 n = cols.n
             else:
-                n = block.count("\n")
-                cols = None if last_was_error else _bulk_columns(block, n)
+                text = _as_text(block)
+                n = text.count("\n")
+                cols = None if last_was_error else _bulk_columns(text, n)
             if cols is not None:
                 ts = cols.ts
                 if want_ts_stats:
@@ -411,7 +411,7 @@ def _candump_chunks(p: Path, gz: str, skip_bad: bool, st: ReadStats, want_ts_sta
                 st.frames += n
                 yield cols
             else:
-                lines = block.split("\n")
+                lines = text.split("\n")
                 lines.pop()  # the empty string after the block's last newline
                 st.lines += n
                 out: list[Frame] = []

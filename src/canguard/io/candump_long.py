@@ -50,6 +50,8 @@ def long_columns(text: str, n: int) -> ByteColumns | None:
     return cols
 
 
-def numpy_block(text: str, n: int) -> ByteColumns | None:
-    """A block of candump -L or -ta lines read by numpy, or None (the text parsers read it)."""
-    return long_columns(text, n) if "[" in text else byte_columns(text, n)
+def numpy_block(block: bytes, n: int) -> ByteColumns | None:
+    """A block of candump -L or -ta lines (their bytes) read by numpy, or None (the text parsers read it)."""
+    if b"[" not in block:
+        return byte_columns(block, n)
+    return long_columns(block.decode("ascii"), n) if block.isascii() else None

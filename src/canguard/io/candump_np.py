@@ -56,12 +56,13 @@ class ByteColumns:
     each row's index into them in ``lanes``.
     """
 
-    __slots__ = ("_b", "_bounds", "_end", "_ids", "_row_chans", "_start", "_text", "channel", "channels", "fd", "keys",
+    __slots__ = ("_b", "_bounds", "_end", "_ids", "_raw", "_row_chans", "_start", "_str", "channel", "channels", "fd",
+                 "keys",
                  "lanes", "n", "order", "ordered",
                  "remote", "ts")
 
     def __init__(self, n: int, ts: list[float], keys: np.ndarray, ordered: bool, channel: str | None,
-                 fd: dict[int, int] | None, remote: dict[int, int] | None, text: str, b: np.ndarray,
+                 fd: dict[int, int] | None, remote: dict[int, int] | None, raw: bytes, b: np.ndarray,
                  start: np.ndarray, end: np.ndarray) -> None:
         self.n = n
         self.ts = ts
@@ -76,13 +77,21 @@ class ByteColumns:
         self._row_chans: list[str] | None = None
         self.fd = fd
         self.remote = remote
-        self._text = text
+        self._raw = raw
+        self._str: str | None = None
         self._b = b
         self._start = start
         self._end = end
         self._bounds: tuple[list[int], list[int]] | None = None
         self.order = (0, 0)
         """Rows whose timestamp goes back, and rows whose timestamp repeats the previous row's (in the block)."""
+
+    @property
+    def _text(self) -> str:
+        """The block as text, decoded when first asked for (frames built one by one, payloads of a few rows)."""
+        if self._str is None:
+            self._str = self._raw.decode("ascii")
+        return self._str
 
     @property
     def ids(self) -> list[int]:
@@ -159,16 +168,19 @@ class ByteColumns:
         return good, cells
 
 
-def byte_columns(text: str, n: int) -> ByteColumns | None:
-    """The block ``text`` of ``n`` lines (each ending in a newline) as :class:`ByteColumns`, or None.
+def byte_columns(text: str | bytes, n: int) -> ByteColumns | None:
+    """The block ``text`` (its characters or, as the reader gives it, its bytes) of ``n`` lines (each ending in
+    a newline) as :class:`ByteColumns`, or None.
 
     ``n`` < 0: count them. None when any line is not of the plain shape, when the block has channels
     of several name lengths, or when a timestamp does not convert exactly this way (its digits
     make 2**53 or more): the caller then uses the text parser.
     """
-    if not n or not text.isascii() or "\t" in text:
+    if not n or not text.isascii():
         return None
-    raw = text.encode("ascii")
+    raw = text if isinstance(text, bytes) else text.encode("ascii")
+    if b"\t" in raw:
+        return None
     b = np.frombuffer(raw, dtype=np.uint8)
     size = b.size
     pad, mask, spare = _scratch(size)
@@ -240,7 +252,7 @@ def byte_columns(text: str, n: int) -> ByteColumns | None:
         rows = np.flatnonzero(is_remote)
         remote = {}
         for i in rows.tolist():
-            dlc = text[int(h1[i]) + 2:int(end[i])]
+            dlc = raw[int(h1[i]) + 2:int(end[i])].decode("ascii")
             if len(dlc) > 1 or (dlc and dlc not in "012345678"):
                 return None
             remote[i] = (int(dlc) or -1) if dlc else -1
@@ -264,7 +276,7 @@ def byte_columns(text: str, n: int) -> ByteColumns | None:
     step = ts[1:] - ts[:-1]
     backs = int(np.count_nonzero(step < 0))
     cols = ByteColumns(n, ts.tolist(), keys, not backs, names[0] if lanes is None else None, fd, remote,
-                       text, b, data_start, end)
+                       raw, b, data_start, end)
     if lanes is not None:
         cols.channels, cols.lanes = names, lanes
     cols.order = (backs, int(np.count_nonzero(step == 0)))
