@@ -106,7 +106,7 @@ class TestCandumpCompact:
         lines = [f"({T0 + i / 1000:.6f}) can0 {i % 0x7FF:03X}#{i % 256:02X}" for i in range(40)]
         clean = "".join(line + "\n" for line in lines).encode("ascii")
         monkeypatch.setattr(candump, "NUMPY_AFTER_BLOCKS", numpy_after)
-        for chunk in (64, 1 << 19):
+        for chunk in (64, 97, 1 << 19):
             monkeypatch.setattr(candump, "CHUNK_CHARS", chunk)
             expected = list(read_log(self._write(tmp_path, "clean.log", clean)))
             for name, data in (("bom.log", b"\xef\xbb\xbf" + clean), ("crlf.log", clean.replace(b"\n", b"\r\n")),
@@ -312,8 +312,11 @@ class TestXzZstd:
 
         return lzma.compress(data) if suffix == ".xz" else zstandard.ZstdCompressor().compress(data)
 
+    @pytest.mark.parametrize("chunk", [97, 1 << 19])
     @pytest.mark.parametrize("suffix", [".xz", ".zst"])
-    def test_candump(self, tmp_path: Path, suffix: str) -> None:
+    def test_candump(self, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, suffix: str, chunk: int) -> None:
+        """Blocks that end inside a line (completed by a readline through the decompressor) too."""
+        monkeypatch.setattr(candump, "CHUNK_CHARS", chunk)
         text = "".join(f"({T0 + i:.6f}) can0 {i:03X}#{i:02X}\n" for i in range(50))
         plain = _read(tmp_path, text)
         packed = tmp_path / f"x.log{suffix}"

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 import operator
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -52,7 +53,8 @@ def open_decompressed(raw: Any, compression: str) -> Any:
     if compression == "zst":
         import zstandard  # checked by read_log: a LogFormatError says how to install it
 
-        return zstandard.ZstdDecompressor().stream_reader(raw, read_across_frames=True)
+        # buffered: zstandard's reader has no readline (the candump reader completes a block's last line with it)
+        return io.BufferedReader(zstandard.ZstdDecompressor().stream_reader(raw, read_across_frames=True))
     return raw
 
 
