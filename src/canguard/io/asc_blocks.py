@@ -33,7 +33,7 @@ import math
 import re
 from collections.abc import Iterator
 from itertools import compress
-from operator import eq, itemgetter, lt
+from operator import itemgetter
 from pathlib import Path
 from typing import Any
 
@@ -50,7 +50,7 @@ from canguard.io.logtypes import (
     open_decompressed,
 )
 from canguard.io.pycan import channel_name
-from canguard.io.pycan_blocks import _Batch, python_can_chunks
+from canguard.io.pycan_blocks import _Batch, count_batch, python_can_chunks
 
 BLOCK_CHARS = 1 << 17
 """Characters read per block (about 2,000 lines of python-can's ASC writer, as many as pycan_blocks.BLOCK messages;
@@ -201,13 +201,8 @@ def asc_chunks(p: Path, gz: str, st: ReadStats, owner: LogFrames) -> Iterator[Co
                 fallback = True
                 break
             if batch is not None:
-                ts = batch.ts
-                prev = [last_t, *ts[:-1]]
-                st.backwards_timestamps += sum(map(lt, ts, prev))
-                st.repeated_timestamps += sum(map(eq, ts, prev))
-                last_t = ts[-1]
+                last_t = count_batch(st, batch, last_t)
                 frames += batch.n
-                st.frames += batch.n
                 yield from batch.pieces()
             owner._position(raw.tell())
             try:

@@ -181,6 +181,17 @@ class _Batch:
             yield frames
 
 
+def count_batch(st: ReadStats, batch: _Batch, last_t: float) -> float:
+    """Count ``batch``'s frames in ``st``, and its timestamps that go back or repeat (the first against
+    ``last_t``); the batch's last timestamp."""
+    ts = batch.ts
+    prev = [last_t, *ts[:-1]]
+    st.backwards_timestamps += sum(map(lt, ts, prev))
+    st.repeated_timestamps += sum(map(eq, ts, prev))
+    st.frames += batch.n
+    return ts[-1]
+
+
 def python_can_chunks(p: Path, fmt: str, gz: str, st: ReadStats, owner: LogFrames, skip: int = 0,
                       last_t: float = -math.inf) -> Iterator[Columns | list[Frame]]:
     """One of python-can's readers as :class:`Columns` blocks and frame lists; its errors as LogFormatError.
@@ -200,13 +211,8 @@ def python_can_chunks(p: Path, fmt: str, gz: str, st: ReadStats, owner: LogFrame
             skip -= passed
         while msgs := reader.next_batch(BLOCK):
             batch = _Batch(msgs, names, std, ext)
-            ts = batch.ts
-            prev = [last_t, *ts[:-1]]
-            st.backwards_timestamps += sum(map(lt, ts, prev))
-            st.repeated_timestamps += sum(map(eq, ts, prev))
-            last_t = ts[-1]
+            last_t = count_batch(st, batch, last_t)
             frames += batch.n
-            st.frames += batch.n
             yield from batch.pieces()
             owner._position(reader.position(st))
     finally:
