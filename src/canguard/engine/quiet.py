@@ -200,7 +200,7 @@ class QuietTickMixin:
         if gate.state != TaskGate.RUNNING or (self.heat is not None and self.save_heat):
             return
         sink = gate.sink
-        counted = isinstance(sink, LogSink) and type(sink) is LogSink and sink.out is None and not sink.keep
+        counted = isinstance(sink, LogSink) and sink.out is None and not sink.keep
         nxt, period, last, count = self._next_tick, self.period_s, 0.0, 0
         # The task's periodic frames only counted (a replay without --emit): its deadlines among the
         # ticks change nothing a tick sees, and are sent in one go below; else they end the run.

@@ -40,7 +40,7 @@ from canguard.io.logtypes import (
 
 
 CHUNK_CHARS = 1 << 19
-"""Characters per chunk (~11,000 -L lines). Against 1 << 17: 10-20 % less replay time on four of five
+"""Bytes per chunk (~11,000 -L lines). Against 1 << 17: 10-20 % less replay time on four of five
 shapes of 2 M frames, the fifth the same; 1 << 20 and more no faster (a block's arrays outgrow L2)."""
 NUMPY_AFTER_BLOCKS: int | None = None
 """Blocks from this one on (1: all) are parsed by numpy first (:mod:`canguard.io.candump_np`). None: all for a
@@ -338,7 +338,7 @@ def _parse_line(line: str) -> Frame | None:
 
 
 def _as_text(block: bytes) -> str:
-    """A block's bytes as the text parsers read them: UTF-8 (junk replaced), ``\r\n`` / ``\r`` ending a line."""
+    r"""A block's bytes as the text parsers read them: UTF-8 (junk replaced), ``\r\n`` / ``\r`` ending a line."""
     text = block.decode("utf-8", "replace")
     return text.replace("\r\n", "\n").replace("\r", "\n") if "\r" in text else text
 
