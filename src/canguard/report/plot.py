@@ -47,6 +47,8 @@ class Recorder:
         self.levels: dict[str, tuple[array, array]] = {}
         self.trips: list[tuple[float, str, str]] = []
         self.stops: list[list[float]] = []
+        # hooks set before this recorder keep being called (an export, another recorder)
+        self._next_sample, self._next_tick = engine.sample_hook, engine.tick_hook
         engine.sample_hook = self._sample
         engine.tick_hook = self._tick
         previous = engine.extra_on_event
@@ -59,6 +61,8 @@ class Recorder:
         engine.extra_on_event = on_event
 
     def _sample(self, s: Sample) -> None:
+        if self._next_sample is not None:
+            self._next_sample(s)
         if s.reason or s.signal == "present":
             return
         ts, vs = self.series.setdefault((s.source, s.signal), (array("d"), array("d")))
@@ -66,6 +70,8 @@ class Recorder:
         vs.append(s.value)
 
     def _tick(self, now: float) -> None:
+        if self._next_tick is not None:
+            self._next_tick(now)
         for node, model in self.engine.ctx.heat_models.items():
             ts, vs = self.levels.setdefault(node, (array("d"), array("d")))
             ts.append(now)
