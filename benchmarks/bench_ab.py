@@ -26,6 +26,7 @@ import time
 from pathlib import Path
 
 import bench_replay_shapes as shapes
+from bench_common import compiled
 
 REPO = Path(__file__).resolve().parents[1]
 MAKERS = {"fd_mux_motorola": shapes.fd_mux_motorola, "many_ids": shapes.many_ids,
@@ -41,7 +42,7 @@ def export(rev: str, into: Path) -> Path:
             tar.extractall(into / rev.replace("/", "_"), filter="data")
         except TypeError:  # a Python without extraction filters (3.10 before 3.10.12): our own archive
             tar.extractall(into / rev.replace("/", "_"))
-    return into / rev.replace("/", "_") / "src"
+    return compiled(into / rev.replace("/", "_") / "src")
 
 
 def run(src: Path, log: Path, cfg: Path) -> tuple[float, float, str]:
@@ -69,7 +70,7 @@ def main(argv: list[str] | None = None) -> int:
     work = Path(tempfile.mkdtemp(prefix="canguard-ab-"))
     try:
         trees = {f"old ({args.old})": export(args.old, work),
-                 f"new ({args.new or 'working tree'})": export(args.new, work) if args.new else REPO / "src"}
+                 f"new ({args.new or 'working tree'})": export(args.new, work) if args.new else compiled(REPO / "src")}
         print(f"whole processes, the two versions in turn, {args.repeat} rounds, {args.frames:,} frames a log; "
               "seconds as best / median, wall then CPU\n")
         print("| shape | " + " | ".join(trees) + " | new / old (best CPU) |")

@@ -24,6 +24,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from bench_common import compiled
+
 REPO = Path(__file__).resolve().parents[1]
 SRC = REPO / "src"
 CONFIG = REPO / "config" / "canguard.yaml"
@@ -69,7 +71,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--repeat", type=int, default=2)
     ap.add_argument("--src", type=Path, default=SRC, help="the canguard source tree to time (default: this one's)")
     args = ap.parse_args(argv)
-    src = args.src.resolve()
+    src = compiled(args.src.resolve())  # bytecode as an installed wheel has it (bench_common.compiled)
     sys.path.insert(0, str(src))
     from canguard.config.loader import load_config
     from canguard.sim import write_log

@@ -39,6 +39,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from bench_common import compiled
+
 REPO = Path(__file__).resolve().parents[1]
 OWN_READERS = ("asc",)
 """Formats canguard reads with its own block reader (python-can's for what it does not take: io/asc_blocks.py)."""
@@ -110,6 +112,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--formats", default=FORMATS, help=f"comma-separated (default {FORMATS}; mf4 needs asammdf)")
     ap.add_argument("--keep", type=Path, default=None, help="write the logs here and keep them")
     args = ap.parse_args(argv)
+    compiled(REPO / "src")  # bytecode as an installed wheel has it (bench_common.compiled)
     work = args.keep or Path(tempfile.mkdtemp(prefix="canguard-formats-"))
     work.mkdir(parents=True, exist_ok=True)
     log = work / "overload.log"

@@ -47,6 +47,7 @@ try:
 except ImportError:  # not pip-installed: use the source tree next to this file
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
 
+from bench_common import compiled
 from canguard.cli.replay import ReplayOptions, replay_one
 from canguard.config.loader import load_config
 from canguard.sim import write_log
@@ -160,6 +161,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "canguard-bench-replay",
                     help="where generated logs are kept between runs")
     args = ap.parse_args(argv)
+    compiled(SRC)  # bytecode as an installed wheel has it (bench_common.compiled)
 
     log, n = sim_log(args.cache, args.frames)
     print(f"log: {log} ({n:,} frames, {log.stat().st_size / 1e6:.0f} MB); config {CONFIG.relative_to(REPO)}")

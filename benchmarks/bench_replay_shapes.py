@@ -53,6 +53,8 @@ import cantools  # noqa: E402
 from cantools.database.can import Database, Message, Signal  # noqa: E402
 from cantools.database.conversion import BaseConversion  # noqa: E402
 
+from bench_common import compiled  # noqa: E402
+
 PEER_LOOP = '''
 import sys, cantools
 db = cantools.database.load_file(sys.argv[1])
@@ -285,6 +287,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--repeat", type=int, default=2)
     ap.add_argument("--keep", type=Path, default=None, help="write the logs here and keep them")
     args = ap.parse_args(argv)
+    compiled(SRC)  # bytecode as an installed wheel has it (bench_common.compiled)
     work = args.keep or Path(tempfile.mkdtemp(prefix="canguard-shapes-"))
     work.mkdir(parents=True, exist_ok=True)
     peer = work / "peer_loop.py"
