@@ -20,13 +20,16 @@ it runs counts as false (pre) or is skipped (post) and the node's feedback says 
 from __future__ import annotations
 
 from collections.abc import Iterator, Mapping
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import py_trees
 
 from canguard.bt.nodes.base import FAILURE, INVALID, RUNNING, SKIPPED, SUCCESS, mark_skipped
 from canguard.bt.nodes.builtins import TreeBlackboard
-from canguard.bt.scripting import Script, ScriptError, parse
+from canguard.bt.scripting import ScriptError
+
+if TYPE_CHECKING:
+    from canguard.bt.scripting import Script
 
 PRE = ("_failureIf", "_successIf", "_skipIf", "_while")
 POST = ("_onSuccess", "_onFailure", "_post", "_onHalted")
@@ -41,6 +44,8 @@ def take_conditions(attrib: dict[str, str]) -> tuple[dict[str, Script], list[str
         text = attrib.pop(attr, None)
         if text is None:
             continue
+        from canguard.bt.scripting import parse  # the language: only for nodes with conditions
+
         try:
             scripts[attr] = parse(text)
         except ScriptError as exc:

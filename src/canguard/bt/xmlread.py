@@ -6,7 +6,7 @@ import difflib
 import xml.etree.ElementTree as ET
 from collections.abc import Collection
 from pathlib import Path
-from typing import Any, Literal, cast
+from typing import TYPE_CHECKING, Any, Literal, cast
 
 from py_trees.ports import PortsMixin
 
@@ -14,9 +14,11 @@ from canguard.bt.context import Context
 from canguard.bt.loaded import NodeInfo
 from canguard.bt.palette import Palette, read_model
 from canguard.bt.registry import _PORT_ALIASES, _SUBTREE, _TAG_ALIASES, _TOKEN, _V3_WRAPPERS, Registry, build_registry
-from canguard.bt.scripting import Script as ParsedScript
 from canguard.bt.xmlsrc import Where, _read_xml
 from canguard.errors import TreeError
+
+if TYPE_CHECKING:
+    from canguard.bt.scripting import Script as ParsedScript
 
 
 def _closest(word: str, choices: Collection[str]) -> list[str]:

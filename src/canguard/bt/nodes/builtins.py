@@ -26,7 +26,7 @@ and read and write the blackboard of the node's (sub)tree.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import py_trees
 from py_trees.blackboard import Blackboard
@@ -44,8 +44,10 @@ from canguard.bt.nodes.base import (
     port_info,
     tick_child,
 )
-from canguard.bt.scripting import Script as ParsedScript
-from canguard.bt.scripting import ScriptError, parse
+from canguard.bt.scripting import ScriptError
+
+if TYPE_CHECKING:
+    from canguard.bt.scripting import Script as ParsedScript
 
 Children = list[py_trees.behaviour.Behaviour] | None
 _STATUS = {"SUCCESS": SUCCESS, "FAILURE": FAILURE, "RUNNING": RUNNING}
@@ -97,6 +99,8 @@ class _Scripted(CanguardNode):
 
     def bind(self) -> None:
         """Parse every script port once; a syntax error is a load error naming the port and column."""
+        from canguard.bt.scripting import parse  # the language: only for trees with scripts
+
         for name in self.SCRIPT_PORTS:
             text = self.port(name)
             if text is None:
