@@ -11,9 +11,24 @@ import os
 from pathlib import Path
 from typing import Any
 
-from canguard.data import data_path
 
-BUNDLED_CONFIG = data_path("config", "canguard.yaml")
+def bundled_config() -> Path:
+    """The config shipped in the package (``canguard/data/config/canguard.yaml``).
+
+    Looked up when a command needs it (also as the module attribute ``BUNDLED_CONFIG``), not
+    at import: importlib.resources costs every start ~5 ms, and a config given with ``-c``
+    never needs it.
+    """
+    from canguard.data import data_path
+
+    return data_path("config", "canguard.yaml")
+
+
+def __getattr__(name: str) -> Path:
+    if name == "BUNDLED_CONFIG":
+        return bundled_config()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
 
 EXIT_OK = 0
 EXIT_TRIPPED = 1
@@ -61,7 +76,7 @@ def default_config() -> Path:
     if env:
         return Path(env)
     etc = Path("/etc/canguard/canguard.yaml")
-    return etc if etc.exists() else BUNDLED_CONFIG
+    return etc if etc.exists() else bundled_config()
 
 
 def add_config(p: argparse.ArgumentParser) -> None:

@@ -12,16 +12,16 @@ import os
 import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from canguard.cli.common import (
-    BUNDLED_CONFIG,
     COMMANDS,
     EXIT_BAD_INPUT,
     EXIT_BROKEN_PIPE,
     EXIT_INTERRUPTED,
     Formatter,
     add_global_options,
+    bundled_config,
     default_config,
     exit_codes_epilog,
     one_blas_thread,
@@ -31,9 +31,19 @@ from canguard.cli.common import add_config as _add_config
 from canguard.cli.common import config_path as _config_path
 from canguard.errors import CanguardError, ConfigError
 
+if TYPE_CHECKING:
+    from canguard.cli.common import BUNDLED_CONFIG
+
 Handler = Callable[[argparse.Namespace], int]
 
 __all__ = ["BUNDLED_CONFIG", "build_parser", "default_config", "main", "parse_args"]
+
+
+def __getattr__(name: str) -> Path:
+    """``BUNDLED_CONFIG``: :func:`canguard.cli.common.bundled_config`, looked up when asked for."""
+    if name == "BUNDLED_CONFIG":
+        return bundled_config()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 # -- check -----------------------------------------------------------------------------------
