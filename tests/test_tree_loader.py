@@ -528,6 +528,22 @@ class TestRegistry:
         """Importing canguard's nodes leaves py_trees' global ports registry alone."""
         assert not set(BUILTIN_NODES) & set(py_trees.ports.get_ports_registry())
 
+    def test_node_classes_keep_py_trees_port_rules(self, monkeypatch: pytest.MonkeyPatch) -> None:
+        """A node class skips py_trees' subclass hook only where it would do nothing: a port both
+        input and output is still rejected, and ``register=True`` / ``tag=`` still register."""
+        both: ClassVar[dict[str, Any]] = {"x": port_info(int, "x", 1)}
+        with pytest.raises(ValueError, match="Port 'x' appears in both input and output ports"):
+            type("Twice", (CanguardNode, py_trees.behaviour.Behaviour),
+                 {"INPUT_PORTS": both, "OUTPUT_PORTS": both, "update": lambda self: S})
+        monkeypatch.setattr(py_trees.ports, "_REGISTRY", {})  # the classes below leave no trace
+        ports = {"INPUT_PORTS": {}, "OUTPUT_PORTS": {}, "update": lambda self: S}
+        shown = type("CgShown", (CanguardNode, py_trees.behaviour.Behaviour), ports, register=True)
+        tagged = type("CgTagged", (CanguardNode, py_trees.behaviour.Behaviour), ports, tag="CgTag", register=True)
+        hidden = type("CgHidden", (CanguardNode, py_trees.behaviour.Behaviour), ports)
+        registry = py_trees.ports.get_ports_registry()
+        assert registry.get("CgShown") is shown and registry.get("CgTag") is tagged
+        assert "CgHidden" not in registry and hidden.__mro__[1] is CanguardNode
+
     def test_registry_contents(self) -> None:
         """Built-ins plus one entry per config action, each bound to the context."""
         rig = Rig(actions=("PerformRecovery",))
