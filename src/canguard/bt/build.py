@@ -6,7 +6,7 @@ import re
 import tempfile
 import xml.etree.ElementTree as ET
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import py_trees
 from py_trees.parsers.behaviour_tree_xml import XMLParserError, parse_behaviour_tree_xml
@@ -15,10 +15,12 @@ from canguard.bt import conditions
 from canguard.bt.context import Context
 from canguard.bt.loaded import LoadedTree, NodeInfo, _preorder
 from canguard.bt.nodes import CanguardNode, PortError
-from canguard.bt.palette import Palette
 from canguard.bt.registry import _TOKEN
 from canguard.bt.validate import _Validator
 from canguard.errors import TreeError
+
+if TYPE_CHECKING:
+    from canguard.bt.palette import Palette
 
 
 class _Loader(_Validator):

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import py_trees
 
@@ -12,9 +12,11 @@ from canguard.bt.build import _Loader, load_tree
 from canguard.bt.context import Context
 from canguard.bt.display import render_dot, render_text
 from canguard.bt.loaded import LoadedTree, _preorder
-from canguard.bt.palette import Palette
 from canguard.config.schema import Config, PartialConfig, SourceKind
 from canguard.errors import TreeError
+
+if TYPE_CHECKING:
+    from canguard.bt.palette import Palette
 
 
 # ---------------------------------------------------------------------------------------

@@ -12,14 +12,16 @@ from __future__ import annotations
 import math
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from py_trees.blackboard import Blackboard
 
 from canguard.bt.build import load_tree
 from canguard.bt.context import Context, ListSink, NullTaskGate
-from canguard.bt.palette import Palette
 from canguard.io.clock import ManualClock
+
+if TYPE_CHECKING:
+    from canguard.bt.palette import Palette
 
 
 def _json_value(value: Any) -> Any:

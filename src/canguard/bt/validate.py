@@ -16,7 +16,6 @@ from canguard.bt import conditions
 from canguard.bt.conditions import take_conditions
 from canguard.bt.loaded import NodeInfo
 from canguard.bt.nodes import ConfiguredAction, GuardNode
-from canguard.bt.palette import check_node, unbound_message
 from canguard.bt.registry import _SUBTREE, _TOKEN, known_node_ids, node_kind
 from canguard.bt.xmlread import _closest, _Reader, _type_name
 from canguard.errors import TreeError
@@ -147,9 +146,11 @@ class _Validator(_Reader):
         """Record every problem of one node (ID, each port, children); its class, or None if unknown."""
         node_id = elem.tag
         cls = self.classes.get(node_id)
-        decl = self.palette.get(node_id)
+        decl = self.declared(node_id)
         if decl is not None and (cls is None or issubclass(cls, ConfiguredAction)):
             # declared by a palette: checked against the declaration; it runs only when bound
+            from canguard.bt.palette import check_node, unbound_message
+
             self.errors.extend(check_node(elem, decl, self.at(elem), tree_id))
             if cls is None:
                 self.unbound.append(unbound_message(node_id, self.at(elem), decl))

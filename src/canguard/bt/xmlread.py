@@ -12,12 +12,12 @@ from py_trees.ports import PortsMixin
 
 from canguard.bt.context import Context
 from canguard.bt.loaded import NodeInfo
-from canguard.bt.palette import Palette, read_model
 from canguard.bt.registry import _PORT_ALIASES, _SUBTREE, _TAG_ALIASES, _TOKEN, _V3_WRAPPERS, Registry, build_registry
 from canguard.bt.xmlsrc import Where, _read_xml
 from canguard.errors import TreeError
 
 if TYPE_CHECKING:
+    from canguard.bt.palette import Palette, PaletteNode
     from canguard.bt.scripting import Script as ParsedScript
 
 
@@ -59,12 +59,27 @@ class _Reader:
         otherwise), always (a tree checked without binding), or never (the sources are unknown)."""
         self.unsure_sources: Collection[str] = ()
         """Source names a config declares but could not build: not reported as unknown (follow-on)."""
-        self.palette = Palette()
-        """Node types declared by ``<TreeNodesModel>`` (in the file, or ``--nodes`` files): see :mod:`.palette`."""
+        self._palette: Palette | None = None
         self.unbound: list[str] = []
         """Palette-declared nodes of the tree that nothing implements: why each cannot run."""
         self.palette_ports: list[tuple[ET.Element, list[str]]] = []
         """Attributes checked against a palette that the bound class does not read: dropped before parsing."""
+
+    @property
+    def palette(self) -> Palette:
+        """Node types declared by ``<TreeNodesModel>`` (in the file, or ``--nodes`` files): see :mod:`.palette`.
+
+        Made when a palette is first read: a tree without one never imports :mod:`.palette`.
+        """
+        if self._palette is None:
+            from canguard.bt.palette import Palette
+
+            self._palette = Palette()
+        return self._palette
+
+    def declared(self, node_id: str) -> PaletteNode | None:
+        """The palette's declaration of ``node_id`` (None: not declared, or no palette read)."""
+        return None if self._palette is None else self._palette.get(node_id)
 
     # -- errors ------------------------------------------------------------------------
     def raise_collected(self) -> None:
@@ -114,6 +129,8 @@ class _Reader:
                     raise TreeError(f"{self.at(child)}: BehaviorTree {tree_id} is defined twice (first at {first})")
                 self.trees[tree_id] = child
             elif tag == "TreeNodesModel":
+                from canguard.bt.palette import read_model
+
                 read_model(child, self.where, path, self.palette, self.errors)  # Groot's palette
             elif tag.lower() in ("include", "import"):
                 self._include(child, path, seen)
