@@ -28,6 +28,7 @@ from collections.abc import Callable, Collection, Sequence
 from itertools import islice
 from typing import TYPE_CHECKING, Any
 
+from canguard.engine.colrows import ColumnRows, Row, abs_range, clean, last_row
 from canguard.engine.npstruct import MIN_ROWS, decode_struct, struct_spec
 from canguard.io.logtypes import joined_hex
 
@@ -40,8 +41,6 @@ if TYPE_CHECKING:
     from canguard.io.candump import Columns
     from canguard.io.candump_np import ByteColumns
 
-EMPTY: tuple[float, ...] = ()
-"""A decoded row with no configured signal in it (a multiplexer page nobody reads): counted, nothing else."""
 
 _BIG = 1.7976931348623157e308
 """The largest float: the default range bounds, so that +-inf fails the range check like NaN does."""
@@ -96,8 +95,8 @@ class MessagePlan:
             self.step = self._single_step()  # type: ignore[method-assign,assignment]
 
     # -- the columns -------------------------------------------------------------------
-    def decode(self, cols: Columns | ByteColumns, rows: list[int]) -> list[tuple[float, ...] | None]:
-        """Each of ``rows``' configured values (in output order), :data:`EMPTY`, or None: the row goes to ``feed``.
+    def decode(self, cols: Columns | ByteColumns, rows: list[int]) -> Sequence[Row]:
+        """Each of ``rows``' configured values (in output order), ``EMPTY``, or None: the row goes to ``feed``.
 
         A row is None when its payload has another length than the DBC's, when cantools
         would refuse it (a multiplexer value no signal uses), when one of its values is
@@ -117,7 +116,7 @@ class MessagePlan:
             good, data = joined_hex(list(map(cols.data.__getitem__, rows)), size)
         return self._decode_payloads(n, good, data)
 
-    def _decode_payloads(self, n: int, good: list[int] | None, data: bytes) -> list[tuple[float, ...] | None]:
+    def _decode_payloads(self, n: int, good: list[int] | None, data: bytes) -> Sequence[Row]:
         """:meth:`decode` of ``n`` rows whose payloads of the DBC's length (``good``: which, None: all) are ``data``."""
         rows = n if good is None else len(good)
         result: list[tuple[float, ...] | None]
@@ -153,17 +152,12 @@ class MessagePlan:
                 present_all &= column.valid
                 values.append(v)
             ok &= present_all & decodable
-        table = np.column_stack(values).tolist() if values else [[]] * rows
-        found: list[tuple[float, ...] | None] = list(map(tuple, table))
-        for k in np.flatnonzero(~ok).tolist():
-            found[k] = None
-        if self.multiplexed:  # a decodable row with none of our signals on its page: no sample at all
-            for k in np.flatnonzero(~present_any & decodable).tolist():
-                found[k] = EMPTY
+        # a multiplexed message's decodable row with none of our signals on its page: no sample at all
+        found = ColumnRows(rows, values, ~ok, ~present_any & decodable if self.multiplexed else None)
         if good is None:
             return found
         result = [None] * n
-        for k, row in zip(good, found, strict=True):
+        for k, row in zip(good, found.rows(), strict=True):
             result[k] = row
         return result
 
@@ -254,7 +248,7 @@ class MessagePlan:
         the state at the end of the block is that of its last row: it is stored at once
         (before the block's ticks, which then read "fresh" as they would have).
         """
-        if not self.passive or not all(rows):  # a row to feed (None) or without a sample (EMPTY)
+        if not self.passive or not clean(rows):  # a row to feed (None) or without a sample (EMPTY)
             return False
         first, last = float(stamps[0]), float(stamps[-1])
         gap = last - first
@@ -271,9 +265,8 @@ class MessagePlan:
         self.counters.frames += count
         self.counters.decoded += count
         self.stats.frames += count
-        tops = [max(map(abs, map(operator.itemgetter(j), rows))) for j in range(len(self.outputs))]  # type: ignore[arg-type]
-        final = rows[-1]
-        assert final is not None
+        tops = [abs_range(rows, j)[1] for j in range(len(self.outputs))]
+        final = last_row(rows)
         for j, (source, role, _signal, _present, health, _lo, _hi, _models) in enumerate(self.outputs):
             health._latest_t[role] = last
             health._value[role] = final[j]

@@ -297,7 +297,7 @@ class LogRunMixin:
         taken whole (:mod:`canguard.engine.settle`) and None is returned; only with ``settle``
         (the last tick was a fixed point: no tick in the block changes a guard's status by itself).
         """
-        from canguard.engine.blocks import EMPTY  # numpy: imported when a block is first decoded
+        from canguard.engine.colrows import EMPTY, count_empty  # imported when a block is first decoded
 
         ts = cols.ts
         groups: dict[MessagePlan | None, list[int]] = {}
@@ -320,7 +320,7 @@ class LogRunMixin:
                 group.extend(same)
                 group.sort()
         slots: list[tuple[MessagePlan | None, tuple[float, ...] | None] | None] = [None] * cols.n
-        active: list[tuple[MessagePlan, list[int], list[tuple[float, ...] | None], Callable[[Any], Any]]] = []
+        active: list[tuple[MessagePlan, list[int], Sequence[tuple[float, ...] | None], Callable[[Any], Any]]] = []
         for plan, group in groups.items():
             if plan is None:
                 for i in group:
@@ -333,7 +333,7 @@ class LogRunMixin:
             active.append((plan, group, decoded, pick))
         if settle and active and None not in groups and _settled(active, ts):
             for plan, _group, decoded, _pick in active:
-                plan.count_empty(decoded.count(EMPTY))
+                plan.count_empty(count_empty(decoded))
             return None
         for plan, group, decoded, _pick in active:
             empty = 0
@@ -397,7 +397,8 @@ class LogRunMixin:
             plans[id_key(cid, ext)] = plan  # the ids of byte blocks (canguard.io.candump_np)
         return plans
 
-def _settled(active: list[tuple[MessagePlan, list[int], list[Any], Callable[[Any], Any]]], ts: Sequence[Any]) -> bool:
+def _settled(active: list[tuple[MessagePlan, list[int], Sequence[Any], Callable[[Any], Any]]],
+             ts: Sequence[Any]) -> bool:
     """Every active message of the block taken whole (:mod:`canguard.engine.settle`), or none of them."""
     from canguard.engine.settle import prepare, settle
 

@@ -18,9 +18,14 @@ product and sum stays below 2**53; :func:`struct_spec` admits only such signals.
 from __future__ import annotations
 
 import struct
+from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
+from canguard.engine.colrows import ColumnRows, Row
+
 if TYPE_CHECKING:
+    import numpy as np
+
     from canguard.decode.decoder import _Entry
     from canguard.io.candump_np import ByteColumns
 
@@ -62,7 +67,7 @@ def _exact(scale: Any, offset: Any, kind: str) -> bool:
     return all(type(x) is float or (type(x) is int and abs(x) < _INT_EXACT) for x in (scale, offset))
 
 
-def decode_struct(cols: ByteColumns, rows: list[int], size: int, spec: Spec) -> list[tuple[float, ...] | None]:
+def decode_struct(cols: ByteColumns, rows: list[int], size: int, spec: Spec) -> Sequence[Row]:
     """Each row's values (in output order) or None (a row to feed: another length, NaN, out of range, absent)."""
     import numpy as np
 
@@ -70,28 +75,25 @@ def decode_struct(cols: ByteColumns, rows: list[int], size: int, spec: Spec) -> 
     count = len(rows) if good is None else len(good)
     if not count:
         return [None] * len(rows)
-    columns: list[list[float]] = []
+    columns: list[np.ndarray] = []
     ok = np.ones(count, dtype=bool)
     with np.errstate(invalid="ignore", over="ignore"):
         for (_at, _width, dtype, scale, offset, identity, present, lo, hi), cell in zip(spec, cells, strict=True):
-            v = cell.view(dtype)[:, 0].astype(np.float64)
+            v = cell.view(dtype)[:, 0].astype(np.float64)  # a copy: the cells are scratch reused by the next block
             if not identity:
                 v = v * scale + offset
             if present:  # NaN, an infinity or 0: the row goes to feed; else the flag reads 1.0
                 ok &= np.isfinite(v) & (v != 0.0)
                 if not lo <= 1.0 <= hi:
                     ok[:] = False
-                columns.append([1.0] * count)
+                columns.append(np.ones(count))
                 continue
             ok &= (lo <= v) & (v <= hi)  # NaN and +-inf fail it
-            columns.append(v.tolist())
-    found: list[tuple[float, ...] | None] = list(zip(*columns, strict=True))
-    if not ok.all():
-        for k in np.flatnonzero(~ok).tolist():
-            found[k] = None
+            columns.append(v)
+    found = ColumnRows(count, columns, ~ok, None)
     if good is None:
         return found
-    result: list[tuple[float, ...] | None] = [None] * len(rows)
-    for k, row in zip(good, found, strict=True):
+    result: list[Row] = [None] * len(rows)
+    for k, row in zip(good, found.rows(), strict=True):
         result[k] = row
     return result

@@ -44,11 +44,10 @@ from __future__ import annotations
 
 import operator
 from collections.abc import Sequence
-from itertools import compress, islice
-from operator import itemgetter
+from itertools import islice
 from typing import TYPE_CHECKING
 
-from canguard.engine.blocks import EMPTY
+from canguard.engine.colrows import abs_range, has_empty, has_fed, keep_valued, last_row
 
 if TYPE_CHECKING:
     from canguard.engine.blocks import MessagePlan
@@ -69,12 +68,10 @@ def may_settle(plan: MessagePlan, confirm_source: str | None, metrics: bool) -> 
 
 def prepare(plan: MessagePlan, stamps: Sequence[str], rows: Sequence[tuple[float, ...] | None]) -> Prepared | None:
     """The rows of one message in a block, checked for settling (nothing changed); None: go row by row."""
-    if None in rows:
+    if has_fed(rows):
         return None
-    if EMPTY in rows:  # multiplexer pages without a configured signal: counted, no sample
-        keep = list(map(bool, rows))
-        stamps = list(compress(stamps, keep))
-        rows = list(compress(rows, keep))
+    if has_empty(rows):  # multiplexer pages without a configured signal: counted, no sample
+        stamps, rows = keep_valued(stamps, rows)
         if not rows:
             return None
     first, last = float(stamps[0]), float(stamps[-1])
@@ -95,14 +92,13 @@ def settle(prepared: list[Prepared]) -> bool:
     for plan, rows, first, _last in prepared:
         highs = []
         for j, (*_head, models) in enumerate(plan.outputs):
-            column = list(map(abs, map(itemgetter(j), rows)))
-            low, high = min(column), max(column)
+            low, high = abs_range(rows, j)
             if not all(model.settles(low, high, first) for model in models):
                 return False
             highs.append(high)
         runs.append(highs)
     for (plan, rows, _first, last_t), highs in zip(prepared, runs, strict=True):
-        final = rows[-1]
+        final = last_row(rows)
         tops = plan.tops
         for j, (_source, role, _signal, _present, health, _lo, _hi, models) in enumerate(plan.outputs):
             for model in models:
