@@ -39,7 +39,6 @@ from canguard.errors import CanguardError, ConfigError
 from canguard.io.clock import ManualClock
 from canguard.io.frame import Frame
 from canguard.io.logtypes import COMPRESSIONS
-from canguard.report.export import combine_parts, discard_parts, part_path
 from canguard.report.summary import SUMMARY_VERSION, build_summary, compare_baseline, render_text
 
 __all__ = ["SUMMARY_VERSION", "ReplayOptions", "build_summary", "compare_baseline", "render_text", "replay_one"]
@@ -64,7 +63,6 @@ class ReplayOptions:
 
 def replay_one(cfg: Config, log_path: Path, opts: ReplayOptions) -> dict[str, Any]:
     """Replay one log through a fresh engine; returns the summary (JSON-able, deterministic)."""
-    from canguard.engine.events import EventJournal
     from canguard.io.logs import ReadStats, read_log
     from canguard.protect.state import HeatStore
 
@@ -76,7 +74,11 @@ def replay_one(cfg: Config, log_path: Path, opts: ReplayOptions) -> dict[str, An
     Blackboard.metadata.clear()
     Blackboard.clients.clear()
     clock = ManualClock()
-    journal = EventJournal(opts.events) if opts.events is not None else None
+    journal = None
+    if opts.events is not None:
+        from canguard.engine.events import EventJournal
+
+        journal = EventJournal(opts.events)
     heat = HeatStore(opts.state, cfg.state.on_corrupt) if opts.state is not None else None
     stats = ReadStats()
     router = ChannelRouter(cfg, opts.channel_map)
@@ -324,6 +326,8 @@ _WORKER_MODULES = ("canguard.engine.events", "canguard.io.logs", "canguard.prote
 
 def _replay_offline(cfg: Config, cfg_path: Path, args: argparse.Namespace, names: list[Path]) -> int:
     channel_map = parse_map(args.map, cfg)
+    if args.export_signals is not None:
+        from canguard.report import export  # --export-signals only (pyarrow's part files)
     many = len(args.logs) > 1
     base = _load_baseline(args.baseline) if args.baseline else None
     pool = (args.jobs > 1 and many) or args.dask is not None
@@ -337,19 +341,20 @@ def _replay_offline(cfg: Config, cfg_path: Path, args: argparse.Namespace, names
             emit=per_log_path(args.emit, name, many), skip_bad=args.skip_bad, state=args.state,
             plot=per_log_path(args.plot, name, many),
             progress=sys.stderr.isatty() and args.jobs <= 1 and args.dask is None,
-            export=None if args.export_signals is None else part_path(args.export_signals, len(jobs)),
+            export=None if args.export_signals is None else export.part_path(args.export_signals, len(jobs)),
             export_log=str(name),
         )
         jobs.append((job_cfg, log, opts))
     try:
         results = _run_jobs(args, cfg, jobs, pool)
     except BaseException:
-        discard_parts([opts.export for _, _, opts in jobs])
+        if args.export_signals is not None:
+            export.discard_parts([opts.export for _, _, opts in jobs])
         raise
     if args.export_signals is not None:
         # In input order; a log that failed contributes no rows (its part may be cut short).
-        combine_parts(args.export_signals, [opts.export for _, _, opts in jobs if opts.export is not None],
-                      [summary is not None for summary, _ in results])
+        export.combine_parts(args.export_signals, [opts.export for _, _, opts in jobs if opts.export is not None],
+                             [summary is not None for summary, _ in results])
     if args.fleet_summary is not None:
         from canguard.report.fleet import fleet_row, write_fleet_summary
 
