@@ -1,0 +1,77 @@
+"""ColumnRows answers from numpy columns what the per-row tuples would answer (canguard.engine.colrows).
+
+A block taken whole (batch, settle) asks a message's decoded rows whether every row
+passed, each output's smallest and largest |value|, the last row and how many rows
+are EMPTY. These tests build random columns and masks and require every answer to
+equal the one computed from the materialised rows, as the code did before the rows
+were kept as columns. The replay differential tests hold the whole path to the
+frame-by-frame engine; this one pins the pieces, including answers (``has_fed`` on a
+row both fed and EMPTY) whose mistakes would only slow a replay down.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from canguard.engine.colrows import (
+    EMPTY,
+    ColumnRows,
+    abs_range,
+    clean,
+    count_empty,
+    has_empty,
+    has_fed,
+    keep_valued,
+    last_row,
+)
+
+FLOATS = st.floats(allow_nan=False, allow_infinity=False, width=64) | st.sampled_from([0.0, -0.0, 1e308, -5e-324])
+
+
+@st.composite
+def blocks(draw: Any) -> tuple[ColumnRows, list[Any]]:
+    """A ColumnRows and the rows the row decoders built for the same values and masks."""
+    n = draw(st.integers(1, 30))
+    width = draw(st.integers(1, 4))
+    columns = [np.array(draw(st.lists(FLOATS, min_size=n, max_size=n)), dtype=np.float64) for _ in range(width)]
+    fed = np.array(draw(st.lists(st.booleans(), min_size=n, max_size=n)))
+    empty = np.array(draw(st.lists(st.booleans(), min_size=n, max_size=n))) if draw(st.booleans()) else None
+    rows: list[Any] = [tuple(float(c[k]) for c in columns) for k in range(n)]
+    for k in np.flatnonzero(fed).tolist():
+        rows[k] = None
+    if empty is not None:
+        for k in np.flatnonzero(empty).tolist():
+            rows[k] = EMPTY  # EMPTY wins over fed, as in the column decoder
+    return ColumnRows(n, columns, fed, empty), rows
+
+
+@settings(max_examples=300, deadline=None)
+@given(blocks())
+def test_answers_equal_the_rows(block: tuple[ColumnRows, list[Any]]) -> None:
+    found, rows = block
+    assert found.rows() == rows
+    assert list(found) == rows and len(found) == len(rows) and found[-1] == rows[-1]
+    assert found.count(EMPTY) == rows.count(EMPTY) == count_empty(found) == count_empty(rows)
+    assert clean(found) == clean(rows) == all(rows)
+    assert has_fed(found) == has_fed(rows) == (None in rows)
+    assert has_empty(found) == has_empty(rows) == (EMPTY in rows)
+    if all(rows):
+        for j in range(len(rows[0])):
+            column = [abs(row[j]) for row in rows]
+            assert abs_range(found, j) == abs_range(rows, j) == (min(column), max(column))
+        assert last_row(found) == last_row(rows) == rows[-1]
+        assert all(type(v) is float for v in last_row(found) + abs_range(found, 0))
+    if not has_fed(rows):
+        stamps = [float(k) for k in range(len(rows))]
+        assert keep_valued(stamps, found) == keep_valued(stamps, rows)
+
+
+def test_empty_is_the_one_empty_tuple() -> None:
+    """The replay tells EMPTY rows by identity (``values is EMPTY``): the materialised rows must hold it."""
+    found = ColumnRows(2, [np.array([1.0, 2.0])], None, np.array([False, True]))
+    assert found.rows()[1] is EMPTY
+    assert found.rows()[0] == (1.0,)
