@@ -2,11 +2,15 @@
 
 from __future__ import annotations
 
+import importlib
+import inspect
 import math
+import pkgutil
 from typing import Any
 
 import pytest
 
+import canguard.bt.nodes as nodes_package
 from canguard.bt.nodes import BUILTIN_NODES, CanguardNode, ConfiguredAction
 
 NO = object()
@@ -205,6 +209,19 @@ class TestPorts:
     def test_the_table_covers_every_node(self) -> None:
         """No node type is missing from this test, none is extra."""
         assert set(EXPECTED) == set(BUILTIN_NODES)
+
+    def test_the_lazy_table_names_every_node_class(self) -> None:
+        """BUILTIN_NODES imports a node's module when it is looked up: its table names every public node
+        class of the package's modules (bar the bases and the config action), each under its class name."""
+        defined = {}
+        for info in pkgutil.iter_modules(nodes_package.__path__):
+            module = importlib.import_module(f"{nodes_package.__name__}.{info.name}")
+            defined.update({name: obj for name, obj in vars(module).items()
+                            if inspect.isclass(obj) and obj.__module__ == module.__name__
+                            and issubclass(obj, CanguardNode) and not name.startswith("_")})
+        assert set(defined) - {"CanguardNode", "GuardNode", "ConfiguredAction"} == set(BUILTIN_NODES)
+        assert all(BUILTIN_NODES[node_id] is defined[node_id] for node_id in BUILTIN_NODES)
+        assert all(getattr(nodes_package, node_id) is defined[node_id] for node_id in BUILTIN_NODES)
 
     @pytest.mark.parametrize("node_id", sorted(EXPECTED))
     def test_ports_and_defaults(self, node_id: str) -> None:

@@ -74,12 +74,14 @@ def test_plain_replay_imports_neither_process_pool_nor_matplotlib(logs: list[Pat
 
 def test_tree_without_scripts_or_palette_imports_neither(logs: list[Path]) -> None:
     """The bundled tree has no Script node, no pre/post condition and no <TreeNodesModel>: its replay imports
-    neither the scripting language (~5 ms of classes at start-up) nor the palette reader."""
+    neither the scripting language (~5 ms of classes at start-up) nor the palette reader, nor the node
+    families it does not use (BT.CPP's built-ins: Script, Sleep, IfThenElse...)."""
     probe = (
         "import sys\n"
         "from canguard.cli.main import main\n"
         f"code = main(['replay', {str(logs[0])!r}, '-c', {str(BUNDLED)!r}, '--json'])\n"
-        "mods = ('canguard.bt.scripting.script', 'canguard.bt.scripting.expr', 'canguard.bt.palette')\n"
+        "mods = ('canguard.bt.scripting.script', 'canguard.bt.scripting.expr', 'canguard.bt.palette',\n"
+        "        'canguard.bt.nodes.builtins')\n"
         "print('LOADED', code, *[m for m in mods if m in sys.modules], file=sys.stderr)\n"
     )
     env = {**os.environ, "PYTHONPATH": str(SRC)}

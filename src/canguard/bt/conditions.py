@@ -25,10 +25,10 @@ from typing import TYPE_CHECKING, Any
 import py_trees
 
 from canguard.bt.nodes.base import FAILURE, INVALID, RUNNING, SKIPPED, SUCCESS, mark_skipped
-from canguard.bt.nodes.builtins import TreeBlackboard
 from canguard.bt.scripting import ScriptError
 
 if TYPE_CHECKING:
+    from canguard.bt.nodes.builtins import TreeBlackboard
     from canguard.bt.scripting import Script
 
 PRE = ("_failureIf", "_successIf", "_skipIf", "_while")
@@ -74,6 +74,8 @@ def install(node: py_trees.behaviour.Behaviour, scripts: Mapping[str, Script]) -
     """Wrap ``node``'s tick and stop with its conditions (instance attributes: the class is untouched)."""
     if not scripts:
         return
+    from canguard.bt.nodes.builtins import TreeBlackboard  # with the scripts: only for nodes that have some
+
     board = TreeBlackboard(getattr(node, "_subtree_namespace", None) or "/")
     tick, stop = node.tick, node.stop
 

@@ -80,18 +80,22 @@ def build_registry(ctx: Context, only: Collection[str] | None = None) -> Registr
     """The closed table of node types for one tree: ``{node ID: partial(cls, context=ctx, ...)}``.
 
     Built-in node types, one :class:`~canguard.bt.nodes.actions.ConfiguredAction` per
-    ``ctx.actions`` entry, and the ``canguard.nodes`` entry points. Plug-ins are
-    imported lazily: only those named in ``only`` (all when None). A config action
-    named like a built-in node is a TreeError; a plug-in named like a built-in or
+    ``ctx.actions`` entry, and the ``canguard.nodes`` entry points. Built-in and plug-in
+    node types are imported lazily: only those named in ``only`` (all when None). A config
+    action named like a built-in node is a TreeError; a plug-in named like a built-in or
     an action is ignored (built-ins and the config win).
     """
-    registry: Registry = {node_id: functools.partial(cls, context=ctx) for node_id, cls in BUILTIN_NODES.items()}
+    registry: Registry = {
+        node_id: functools.partial(BUILTIN_NODES[node_id], context=ctx)
+        for node_id in BUILTIN_NODES
+        if only is None or node_id in only
+    }
     for name, action in ctx.actions.items():
-        if name in registry or name == _SUBTREE:
+        if name in BUILTIN_NODES or name == _SUBTREE:
             raise TreeError(f"actions: {name!r} is the ID of a built-in node type; give the action another name")
         registry[name] = functools.partial(ConfiguredAction, context=ctx, action=action)
     for name, ep in plugin_entry_points().items():
-        if name in registry or (only is not None and name not in only):
+        if name in BUILTIN_NODES or name in registry or (only is not None and name not in only):
             continue
         cls = _load_plugin(ep)
         registry[name] = functools.partial(cls, context=ctx) if _takes_context(cls) else functools.partial(cls)

@@ -8,6 +8,12 @@ declare in the ``canguard.nodes`` entry-point group (loaded lazily, only when a
 tree uses them). Node IDs read from XML are only ever looked up in that table:
 nothing is imported or evaluated by a name found in a tree file.
 
+The table names each node type's module, and a module is imported when one of its
+classes is first looked up (``BUILTIN_NODES[node_id]``, or ``from canguard.bt.nodes
+import Sequence``): a tree pays at start-up only for the node families it uses
+(creating every class of the library cost ~5 ms). The actions and the current guards,
+which the engine and the loader always need, are imported with the package.
+
 A plug-in node type is a class deriving from :class:`CanguardNode` (or at least
 :class:`py_trees.ports.PortsMixin`) and a py_trees behaviour; when its
 constructor takes ``context=`` it receives the tree's :class:`~canguard.bt.context.Context`.
@@ -15,86 +21,97 @@ constructor takes ``context=`` it receives the tree's :class:`~canguard.bt.conte
 
 from __future__ import annotations
 
+from collections.abc import Iterator, Mapping
+from importlib import import_module
+from typing import TYPE_CHECKING
+
 from canguard.bt.nodes.actions import ConfiguredAction, EmitStop, ExecuteTask, ResetStop
 from canguard.bt.nodes.base import CanguardNode, NodeKind, PortError, port_info
-from canguard.bt.nodes.branches import NODES as BRANCH_NODES
-from canguard.bt.nodes.builtins import NODES as BTCPP_NODES
-from canguard.bt.nodes.control import (
-    AsyncFallback,
-    AsyncSequence,
-    Delay,
-    Fallback,
-    ForceFailure,
-    ForceSuccess,
-    Inverter,
-    Parallel,
-    ReactiveFallback,
-    ReactiveSequence,
-    Repeat,
-    RetryUntilSuccessful,
-    Sequence,
-    SequenceWithMemory,
-    Timeout,
-)
 from canguard.bt.nodes.current import GuardNode, IsCurrentNormal, IsCurrentSafe, IsI2tSafe
-from canguard.bt.nodes.effort import IsJointEffortNormal
-from canguard.bt.nodes.loops import NODES as LOOP_NODES
-from canguard.bt.nodes.once import NODES as ONCE_NODES
-from canguard.bt.nodes.profile import Profile
-from canguard.bt.nodes.timing import (
-    IsCooldownElapsed,
-    IsElapsedSinceEvent,
-    IsElapsedTimeCompare,
-    RecordTime,
-    ResetTimer,
-)
-from canguard.bt.nodes.values import IsValueAbove, IsValueBelow
 
-BUILTIN_NODES: dict[str, type[CanguardNode]] = {
-    cls.__name__: cls
-    for cls in (
-        # conditions
-        IsCurrentNormal,
-        IsJointEffortNormal,
-        IsCurrentSafe,
-        IsI2tSafe,
-        IsElapsedTimeCompare,
-        IsElapsedSinceEvent,
-        IsCooldownElapsed,
-        IsValueBelow,
-        IsValueAbove,
-        # actions
-        ExecuteTask,
-        EmitStop,
-        ResetStop,
-        ResetTimer,
-        RecordTime,
-        # decorators
-        Profile,
-        Inverter,
-        ForceSuccess,
-        ForceFailure,
-        RetryUntilSuccessful,
-        Repeat,
-        Timeout,
+if TYPE_CHECKING:
+    from canguard.bt.nodes.control import (
         Delay,
-        # controls
-        Sequence,
-        AsyncSequence,
-        ReactiveSequence,
-        SequenceWithMemory,
-        Fallback,
-        AsyncFallback,
-        ReactiveFallback,
+        ForceFailure,
+        ForceSuccess,
+        Inverter,
         Parallel,
-        # more BehaviorTree.CPP 4 built-ins
-        *BTCPP_NODES,
-        *BRANCH_NODES,
-        *LOOP_NODES,
-        *ONCE_NODES,
+        Repeat,
+        RetryUntilSuccessful,
+        Timeout,
     )
+    from canguard.bt.nodes.effort import IsJointEffortNormal
+    from canguard.bt.nodes.profile import Profile
+    from canguard.bt.nodes.sequences import (
+        Fallback,
+        ReactiveFallback,
+        ReactiveSequence,
+        Sequence,
+        SequenceWithMemory,
+    )
+    from canguard.bt.nodes.timing import (
+        IsCooldownElapsed,
+        IsElapsedSinceEvent,
+        IsElapsedTimeCompare,
+        RecordTime,
+        ResetTimer,
+    )
+    from canguard.bt.nodes.values import IsValueAbove, IsValueBelow
+
+_MODULES: dict[str, str] = {
+    # conditions
+    "IsCurrentNormal": "current", "IsJointEffortNormal": "effort", "IsCurrentSafe": "current",
+    "IsI2tSafe": "current", "IsElapsedTimeCompare": "timing", "IsElapsedSinceEvent": "timing",
+    "IsCooldownElapsed": "timing", "IsValueBelow": "values", "IsValueAbove": "values",
+    # actions
+    "ExecuteTask": "actions", "EmitStop": "actions", "ResetStop": "actions", "ResetTimer": "timing",
+    "RecordTime": "timing",
+    # decorators
+    "Profile": "profile", "Inverter": "control", "ForceSuccess": "control", "ForceFailure": "control",
+    "RetryUntilSuccessful": "control", "Repeat": "control", "Timeout": "control", "Delay": "control",
+    # controls
+    "Sequence": "sequences", "AsyncSequence": "sequences", "ReactiveSequence": "sequences",
+    "SequenceWithMemory": "sequences", "Fallback": "sequences", "AsyncFallback": "sequences",
+    "ReactiveFallback": "sequences", "Parallel": "control",
+    # more BehaviorTree.CPP 4 built-ins
+    "AlwaysSuccess": "builtins", "AlwaysFailure": "builtins", "Script": "builtins", "ScriptCondition": "builtins",
+    "SetBlackboard": "builtins", "UnsetBlackboard": "builtins", "Sleep": "builtins",
+    "KeepRunningUntilFailure": "builtins", "Precondition": "builtins", "IfThenElse": "builtins",
+    "WhileDoElse": "builtins",
+    "Switch2": "branches", "Switch3": "branches", "Switch4": "branches", "Switch5": "branches",
+    "Switch6": "branches", "ParallelAll": "branches", "TryCatch": "branches",
+    "LoopInt": "loops", "LoopDouble": "loops", "LoopString": "loops", "LoopBool": "loops",
+    "RunOnce": "once", "WasEntryUpdated": "once", "SkipUnlessUpdated": "once", "WaitValueUpdate": "once",
 }
+"""Every node ID canguard provides and the module ``canguard.bt.nodes.<module>`` of its class (named as the ID)."""
+
+
+class _NodeTable(Mapping[str, "type[CanguardNode]"]):
+    """Node ID -> class, in :data:`_MODULES`' order; a class's module is imported when it is first looked up."""
+
+    def __getitem__(self, node_id: str) -> type[CanguardNode]:
+        cls: type[CanguardNode] = getattr(import_module(f"{__name__}.{_MODULES[node_id]}"), node_id)
+        return cls
+
+    def __contains__(self, node_id: object) -> bool:
+        return node_id in _MODULES  # a known ID, without importing its class
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(_MODULES)
+
+    def __len__(self) -> int:
+        return len(_MODULES)
+
+
+BUILTIN_NODES: Mapping[str, type[CanguardNode]] = _NodeTable()
 """Every node type canguard provides, by node ID (the closed table)."""
+
+
+def __getattr__(name: str) -> type[CanguardNode]:
+    if name in _MODULES:
+        return BUILTIN_NODES[name]
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
 
 __all__ = [
     "BUILTIN_NODES",
