@@ -25,10 +25,9 @@ from __future__ import annotations
 import operator
 import struct
 from collections.abc import Callable, Collection, Sequence
-from itertools import islice
 from typing import TYPE_CHECKING, Any
 
-from canguard.engine.colrows import ColumnRows, Row, abs_range, clean, last_row
+from canguard.engine.colrows import ColumnRows, Row, abs_range, clean, last_row, max_gap
 from canguard.engine.npstruct import MIN_ROWS, decode_struct, struct_spec
 from canguard.io.logtypes import joined_hex
 
@@ -253,8 +252,7 @@ class MessagePlan:
         first, last = float(stamps[0]), float(stamps[-1])
         gap = last - first
         if gap > self.min_age:  # else no gap can exceed it (float subtraction is monotonic)
-            times = list(map(float, stamps))
-            gap = max(map(operator.sub, islice(times, 1, None), times), default=0.0)
+            gap = max_gap(stamps)
         for _source, role, _signal, _present, health, _lo, _hi, _models in self.outputs:
             latest = health._latest_t.get(role)
             if latest is None or first < latest or first - latest > health.max_age_s or gap > health.max_age_s:

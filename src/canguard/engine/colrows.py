@@ -18,8 +18,9 @@ from a row that goes to ``feed`` are the same in numpy as in Python.
 
 from __future__ import annotations
 
+import operator
 from collections.abc import Iterator, Sequence
-from itertools import compress
+from itertools import compress, islice
 from operator import itemgetter
 from typing import TYPE_CHECKING, Any
 
@@ -135,6 +136,15 @@ def has_empty(rows: Sequence[Row]) -> bool:
 def count_empty(rows: Sequence[Row]) -> int:
     """How many rows are EMPTY."""
     return rows.count_empty() if type(rows) is ColumnRows else rows.count(EMPTY)
+
+
+def max_gap(stamps: Sequence[Any]) -> float:
+    """The largest step between consecutive ``stamps`` (0.0 for one): ``float()`` of each, subtracted."""
+    if hasattr(stamps, "dtype"):  # a numpy block's float64 times: the same subtractions, in C
+        array: Any = stamps
+        return float((array[1:] - array[:-1]).max()) if len(array) > 1 else 0.0
+    times = list(map(float, stamps))
+    return max(map(operator.sub, islice(times, 1, None), times), default=0.0)
 
 
 def keep_valued(stamps: Sequence[Any], rows: Sequence[Row]) -> tuple[Sequence[Any], Sequence[Row]]:

@@ -163,7 +163,8 @@ class LogRunMixin:
         """
         if not cols.ordered or self.sample_hook is not None:
             return False
-        ts = cols.ts
+        # The timestamps: a numpy block's as an array (its list is made only for rows that go one by one)
+        ts: Any = cols.ts if isinstance(cols, tuple) else cols.stamps
         n = cols.n
         if float(ts[0]) < cursor.last_t:
             return False  # back in time across blocks: the frame-by-frame rules count it
@@ -229,6 +230,8 @@ class LogRunMixin:
         if slots is None:
             rows = []  # every row taken whole: only the ticks due in the block are left
             slots = []
+        elif rows:
+            ts = cols.ts  # read row by row below: as floats
         feed = self.feed
         frame = cols.frame
         pos = first
@@ -299,7 +302,7 @@ class LogRunMixin:
         """
         from canguard.engine.colrows import EMPTY, count_empty  # imported when a block is first decoded
 
-        ts = cols.ts
+        ts: Any = cols.ts if isinstance(cols, tuple) else cols.stamps
         groups: dict[MessagePlan | None, list[int]] = {}
         remote = cols.remote
         if remote:
@@ -429,12 +432,14 @@ def _lane_tally(cols: Any, rows: list[int], first: int) -> list[tuple[int, int]]
     return list(zip(per_lane, taken, strict=True))
 
 
-def _picker(rows: list[int]) -> Callable[[Sequence[Any]], tuple[Any, ...]]:
-    """``itemgetter(*rows)`` that gives a tuple for one row too (itemgetter then gives the bare value)."""
+def _picker(rows: list[int]) -> Callable[[Any], Sequence[Any]]:
+    """The items ``rows`` of a sequence: ``itemgetter(*rows)``, but a tuple for one row too (itemgetter then
+    gives the bare value), and ``take`` for a numpy array."""
     if len(rows) == 1:
         only = rows[0]
         return lambda seq: (seq[only],)
-    return itemgetter(*rows)
+    getter = itemgetter(*rows)
+    return lambda seq: seq.take(rows) if hasattr(seq, "take") else getter(seq)
 
 
 @dataclass

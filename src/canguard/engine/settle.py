@@ -42,12 +42,10 @@ tests (``tests/test_replay_columns.py``, ``tests/test_replay_random_logs.py``,
 
 from __future__ import annotations
 
-import operator
 from collections.abc import Sequence
-from itertools import islice
 from typing import TYPE_CHECKING
 
-from canguard.engine.colrows import abs_range, has_empty, has_fed, keep_valued, last_row
+from canguard.engine.colrows import abs_range, has_empty, has_fed, keep_valued, last_row, max_gap
 
 if TYPE_CHECKING:
     from canguard.engine.blocks import MessagePlan
@@ -75,10 +73,8 @@ def prepare(plan: MessagePlan, stamps: Sequence[str], rows: Sequence[tuple[float
         if not rows:
             return None
     first, last = float(stamps[0]), float(stamps[-1])
-    if last - first > plan.min_age:  # else no gap can exceed it (float subtraction is monotonic)
-        times = list(map(float, stamps))
-        if max(map(operator.sub, islice(times, 1, None), times)) > plan.min_age:
-            return None
+    if last - first > plan.min_age and max_gap(stamps) > plan.min_age:  # else no gap can exceed it (float
+        return None  # subtraction is monotonic)
     for _source, role, _signal, _present, health, _lo, _hi, _models in plan.outputs:
         latest = health._latest_t.get(role)
         if latest is None or first < latest or first - latest > health.max_age_s or health._invalid.get(role):

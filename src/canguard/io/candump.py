@@ -401,7 +401,7 @@ def _candump_chunks(p: Path, gz: str, skip_bad: bool, st: ReadStats, want_ts_sta
                 n = text.count("\n")
                 cols = None if last_was_error else _bulk_columns(text, n)
             if cols is not None:
-                ts = cols.ts
+                ts = cols.ts if isinstance(cols, Columns) else cols.stamps  # numpy's: no list made
                 if want_ts_stats:
                     _note_order(st, float(ts[0]), last_t)
                     count_order(st, cols)
