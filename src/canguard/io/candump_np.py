@@ -120,22 +120,24 @@ class ByteColumns:
         return self._row_chans
 
     def frame(self, i: int) -> Frame:
-        """The frame of row ``i``."""
-        key = self.ids[i]
+        """The frame of row ``i`` (a few rows of a block are: the block's lists are not made for them)."""
+        key = self._ids[i] if self._ids is not None else int(self.keys[i])
+        t = self._ts[i] if self._ts is not None else float(self.stamps[i])
         ext = key >= EXT_KEY
         cid = key - EXT_KEY if ext else key
         channel = self.channel if self.channel is not None else self.chans[i]
         if self.remote is not None and i in self.remote:
-            return _new(Frame, (self.ts[i], channel, cid, b"", ext, _F, _F, True, _F, _F, self.remote[i]))
-        data = bytes.fromhex(self._text[int(self._start[i]):int(self._end[i])])
+            return _new(Frame, (t, channel, cid, b"", ext, _F, _F, True, _F, _F, self.remote[i]))
+        data = bytes.fromhex(self._raw[int(self._start[i]):int(self._end[i])].decode("ascii"))
         flags = self.fd.get(i) if self.fd is not None else None
         if flags is not None:
-            return _new(Frame, (self.ts[i], channel, cid, data, ext, True, _F, _F,
+            return _new(Frame, (t, channel, cid, data, ext, True, _F, _F,
                                 bool(flags & CANFD_BRS), bool(flags & CANFD_ESI), -1))
-        return _new(Frame, (self.ts[i], channel, cid, data, ext, _F, _F, _F, _F, _F, -1))
+        return _new(Frame, (t, channel, cid, data, ext, _F, _F, _F, _F, _F, -1))
 
     def frames(self) -> Iterator[Frame]:
-        """The frames of every row, in order."""
+        """The frames of every row, in order (the block's id and time lists made first: every row is read)."""
+        _made = self.ids, self.ts
         return map(self.frame, range(self.n))
 
     def payload(self, rows: list[int], size: int) -> tuple[list[int] | None, bytes]:
