@@ -101,8 +101,9 @@ class TestCandumpCompact:
 
     @pytest.mark.parametrize("numpy_after", [0, 1 << 62], ids=["numpy", "text"])
     def test_bom_and_line_ends(self, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, numpy_after: int) -> None:
-        """The reader reads bytes: a UTF-8 byte order mark, Windows and old-Mac line ends, a block edge inside a
-        \\r\\n and a junk byte read as text mode did (the same frames, the bad line at the same number)."""
+        """The reader reads bytes: a UTF-8 byte order mark, Windows and old-Mac line ends (some, or every one: a
+        file of lone CRs longer than four blocks, plain or gzip'd), a block edge inside a \\r\\n and a junk byte
+        read as text mode did (the same frames, the bad line at the same number)."""
         lines = [f"({T0 + i / 1000:.6f}) can0 {i % 0x7FF:03X}#{i % 256:02X}" for i in range(40)]
         clean = "".join(line + "\n" for line in lines).encode("ascii")
         monkeypatch.setattr(candump, "NUMPY_AFTER_BLOCKS", numpy_after)
@@ -110,7 +111,9 @@ class TestCandumpCompact:
             monkeypatch.setattr(candump, "CHUNK_CHARS", chunk)
             expected = list(read_log(self._write(tmp_path, "clean.log", clean)))
             for name, data in (("bom.log", b"\xef\xbb\xbf" + clean), ("crlf.log", clean.replace(b"\n", b"\r\n")),
-                               ("cr.log", clean.replace(b"\n", b"\r", 7)), ("last.log", clean[:-1])):
+                               ("cr.log", clean.replace(b"\n", b"\r", 7)), ("last.log", clean[:-1]),
+                               ("allcr.log", clean.replace(b"\n", b"\r")),
+                               ("allcr.log.gz", gzip.compress(clean.replace(b"\n", b"\r")))):
                 assert list(read_log(self._write(tmp_path, name, data))) == expected, (name, chunk)
             junk = clean.replace(b"\n", b"\n\xff\xfe junk\r\n", 1)
             with pytest.raises(LogFormatError, match=r"junk\.log:2: .*'\ufffd\ufffd junk'"):

@@ -27,12 +27,14 @@ from canguard.io.logtypes import (
     CANFD_LENGTHS,
     MAX_BAD_EXAMPLES,
     BadLine,
+    CrLines,
     LogFrames,
     ReadStats,
     _Bad,
     _new,
     count_order,
     decompress_errors,
+    note_order,
     open_decompressed,
 )
 
@@ -343,14 +345,6 @@ def _as_text(block: bytes) -> str:
     return text.replace("\r\n", "\n").replace("\r", "\n") if "\r" in text else text
 
 
-def _note_order(st: ReadStats, t: float, last_t: float) -> None:
-    """Count ``t`` in ``st`` as going back or repeating when it does, against the previous frame's ``last_t``."""
-    if t < last_t:
-        st.backwards_timestamps += 1
-    elif t == last_t:
-        st.repeated_timestamps += 1
-
-
 def _flatten(chunks: Iterator[Columns | list[Frame]]) -> Iterator[Frame]:
     """The frames of a chunk stream, one by one."""
     for chunk in chunks:
@@ -381,6 +375,12 @@ def _candump_chunks(p: Path, gz: str, skip_bad: bool, st: ReadStats, want_ts_sta
             except decompress_errors() as exc:
                 kind = {"gz": " gzip", "xz": " xz", "zst": " zstd"}.get(gz, "")
                 raise LogFormatError(f"{p}: cannot read{kind} log: {exc}") from None
+            if not blocks and b"\n" not in block and b"\r" in block and raw.seekable():
+                if f is not raw:
+                    f.close()  # a decompressor: raw stays open
+                raw.seek(0)  # lines that end in a lone CR (old Mac tools): read again, each CR as a LF
+                f = CrLines(open_decompressed(raw, gz))
+                continue
             block = block[3:] if not blocks and block[:3] == b"\xef\xbb\xbf" else block  # a UTF-8 BOM
             if not block:
                 break
@@ -403,7 +403,7 @@ def _candump_chunks(p: Path, gz: str, skip_bad: bool, st: ReadStats, want_ts_sta
             if cols is not None:
                 ts = cols.ts if isinstance(cols, Columns) else cols.stamps  # numpy's: no list made
                 if want_ts_stats:
-                    _note_order(st, float(ts[0]), last_t)
+                    note_order(st, float(ts[0]), last_t)
                     count_order(st, cols)
                 last_t = float(ts[-1])
                 frames += n
@@ -432,7 +432,7 @@ def _candump_chunks(p: Path, gz: str, skip_bad: bool, st: ReadStats, want_ts_sta
                     if fr is None:
                         continue
                     last_was_error = fr.is_error_frame
-                    _note_order(st, fr.t, last_t)
+                    note_order(st, fr.t, last_t)
                     last_t = fr.t
                     frames += 1
                     st.frames += 1

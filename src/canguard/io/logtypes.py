@@ -58,6 +58,33 @@ def open_decompressed(raw: Any, compression: str) -> Any:
     return raw
 
 
+class CrLines:
+    """A binary log whose lines end in a lone CR (or in any mix of CR, LF and CRLF), read with each ending as LF.
+
+    Through a latin-1 text layer with universal newlines: every other byte comes back as it was.
+    """
+
+    def __init__(self, f: Any) -> None:
+        self._text = io.TextIOWrapper(f, encoding="latin-1", newline=None)
+
+    def read(self, size: int = -1) -> bytes:
+        return self._text.read(size).encode("latin-1")
+
+    def readline(self, size: int = -1) -> bytes:
+        return self._text.readline(size).encode("latin-1")
+
+    def close(self) -> None:
+        self._text.close()
+
+
+def note_order(st: ReadStats, t: float, last_t: float) -> None:
+    """Count ``t`` in ``st`` as going back or repeating when it does, against the previous frame's ``last_t``."""
+    if t < last_t:
+        st.backwards_timestamps += 1
+    elif t == last_t:
+        st.repeated_timestamps += 1
+
+
 def decompress_errors() -> tuple[type[BaseException], ...]:
     """What reading through a decompressor may raise on data that is not what its suffix says."""
     import lzma

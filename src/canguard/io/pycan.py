@@ -12,9 +12,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from canguard.errors import LogFormatError
-from canguard.io.candump import _note_order
 from canguard.io.frame import Frame
-from canguard.io.logtypes import _TEXT_PYTHON_CAN, LogFrames, ReadStats, _new, open_decompressed
+from canguard.io.logtypes import _TEXT_PYTHON_CAN, LogFrames, ReadStats, _new, note_order, open_decompressed
 
 if TYPE_CHECKING:
     import can
@@ -149,7 +148,7 @@ def _read_python_can(p: Path, fmt: str, gz: str, st: ReadStats, owner: LogFrames
         while batch := reader.next_batch(_PROGRESS_EVERY):
             for msg in batch:
                 fr = frame_from_message(msg)
-                _note_order(st, fr.t, last_t)
+                note_order(st, fr.t, last_t)
                 last_t = fr.t
                 frames += 1
                 st.frames += 1
