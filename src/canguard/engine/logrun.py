@@ -14,13 +14,13 @@ import math
 from bisect import bisect_left
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
-from itertools import compress, groupby
-from operator import itemgetter
+from itertools import compress
 from typing import TYPE_CHECKING, Any
 
 import py_trees
 
-from canguard.engine.lanes import LANE, configured_rows, key_table, lane_plans, runs_by_key
+from canguard.engine.blockrows import decode_rows
+from canguard.engine.lanes import LANE, configured_rows, key_table, lane_plans
 from canguard.io.frame import Frame
 
 MAX_CATCH_UP_S = 2.0
@@ -226,7 +226,7 @@ class LogRunMixin:
             del rows[0]
         tally = _lane_tally(cols, rows, first)
         last_row = rows[-1] if rows else -1  # the last row feed would see, whatever path takes it
-        slots = self._decode_rows(plans, rows, cols, self._q_fixed, keys) if rows else []
+        slots = decode_rows(plans, rows, cols, self._q_fixed, keys) if rows else []
         if slots is None:
             rows = []  # every row taken whole: only the ticks due in the block are left
             slots = []
@@ -284,70 +284,6 @@ class LogRunMixin:
             counters.skipped += skipped
             self.stats.frames += skipped
 
-    @staticmethod
-    def _decode_rows(
-        plans: Mapping[str | int, MessagePlan | None], rows: list[int], cols: Columns | ByteColumns,
-        settle: bool = False, keys: Any = None,
-    ) -> list[tuple[MessagePlan | None, tuple[float, ...] | None] | None] | None:
-        """Per row of the block: its plan and decoded values when it goes one by one (else None); None: no row left.
-
-        Each message's rows are decoded together (:meth:`MessagePlan.decode`); a message
-        nobody reads between ticks may take its rows whole (:meth:`MessagePlan.batch`,
-        before any row of the block: it stores its state as at the end of the block,
-        which every tick in the block reads as it would have read the row-by-row state);
-        rows without a configured signal are only counted; remote rows go to ``feed``. When no
-        configured row of the block can change what a tick sees, every message's rows are
-        taken whole (:mod:`canguard.engine.settle`) and None is returned; only with ``settle``
-        (the last tick was a fixed point: no tick in the block changes a guard's status by itself).
-        """
-        from canguard.engine.colrows import EMPTY, count_empty  # imported when a block is first decoded
-
-        ts: Any = cols.ts if isinstance(cols, tuple) else cols.stamps
-        groups: dict[MessagePlan | None, list[int]] = {}
-        remote = cols.remote
-        if remote:
-            groups[None] = [i for i in rows if i in remote]
-            rows = [i for i in rows if i not in remote]
-        # rows by id (a stable sort keeps each id's rows in time order), in C but for one step per id
-        if keys is not None:
-            runs: Any = runs_by_key(keys, rows)
-        else:
-            ids: Sequence[Any] = cols.ids
-            runs = groupby(sorted(rows, key=ids.__getitem__), key=ids.__getitem__)
-        for text, same in runs:
-            plan = plans[text]
-            group = groups.get(plan)
-            if group is None:
-                groups[plan] = list(same)
-            else:  # another letter case of the same id, or a second message without a plan
-                group.extend(same)
-                group.sort()
-        slots: list[tuple[MessagePlan | None, tuple[float, ...] | None] | None] = [None] * cols.n
-        active: list[tuple[MessagePlan, list[int], Sequence[tuple[float, ...] | None], Callable[[Any], Any]]] = []
-        for plan, group in groups.items():
-            if plan is None:
-                for i in group:
-                    slots[i] = (None, None)
-                continue
-            pick = _picker(group)
-            decoded = plan.decode(cols, group)
-            if plan.passive and plan.batch(pick(ts), decoded):
-                continue
-            active.append((plan, group, decoded, pick))
-        if settle and active and None not in groups and _settled(active, ts):
-            for plan, _group, decoded, _pick in active:
-                plan.count_empty(count_empty(decoded))
-            return None
-        for plan, group, decoded, _pick in active:
-            empty = 0
-            for i, values in zip(group, decoded, strict=True):
-                if values is EMPTY:
-                    empty += 1
-                else:
-                    slots[i] = (plan, values)
-            plan.count_empty(empty)
-        return slots
-
     def _cross(self, ts: Sequence[Any], lo: int, hi: int) -> None:
         """Rows ``lo..hi-1`` (ordered, of no configured message): the first at or after the due time brings the ticks.
 
@@ -400,22 +336,6 @@ class LogRunMixin:
             plans[id_key(cid, ext)] = plan  # the ids of byte blocks (canguard.io.candump_np)
         return plans
 
-def _settled(active: list[tuple[MessagePlan, list[int], Sequence[Any], Callable[[Any], Any]]],
-             ts: Sequence[Any]) -> bool:
-    """Every active message of the block taken whole (:mod:`canguard.engine.settle`), or none of them."""
-    from canguard.engine.settle import prepare, settle
-
-    prepared = []
-    for plan, _group, decoded, pick in active:
-        if not plan.settle_ok:
-            return False
-        ready = prepare(plan, pick(ts), decoded)
-        if ready is None:
-            return False
-        prepared.append(ready)
-    return settle(prepared)
-
-
 def _lane_tally(cols: Any, rows: list[int], first: int) -> list[tuple[int, int]]:
     """Per channel of a block (one when it has one): its rows, and those fed or taken by a plan (``rows``,
     and the first row when it went frame by frame)."""
@@ -430,16 +350,6 @@ def _lane_tally(cols: Any, rows: list[int], first: int) -> list[tuple[int, int]]
     if first:
         taken[int(lanes[0])] += 1
     return list(zip(per_lane, taken, strict=True))
-
-
-def _picker(rows: list[int]) -> Callable[[Any], Sequence[Any]]:
-    """The items ``rows`` of a sequence: ``itemgetter(*rows)``, but a tuple for one row too (itemgetter then
-    gives the bare value), and ``take`` for a numpy array."""
-    if len(rows) == 1:
-        only = rows[0]
-        return lambda seq: (seq[only],)
-    getter = itemgetter(*rows)
-    return lambda seq: seq.take(rows) if hasattr(seq, "take") else getter(seq)
 
 
 @dataclass
