@@ -23,6 +23,7 @@ configs, and a log of three channels on a two-bus config.
 from __future__ import annotations
 
 import bisect
+import importlib.util
 import itertools
 import json
 import math
@@ -42,6 +43,7 @@ import canguard.engine.blocks
 import canguard.io.candump
 import canguard.io.candump_np
 import canguard.io.logs
+import canguard.report.export
 from canguard.cli.replay import ReplayOptions, replay_one
 from canguard.config.loader import load_config
 from canguard.config.schema import Config
@@ -59,6 +61,8 @@ DEFAULT_CHUNK = canguard.io.logs.CHUNK_CHARS
 
 SMALL_CHUNKS = (97, 300, 1009, 4096)
 NEVER = 1 << 62
+EXPORT = importlib.util.find_spec("pyarrow") is not None
+"""``compare`` also holds ``--export-signals`` to the frame-by-frame export (pyarrow: the fleet extra, in test)."""
 """``NUMPY_AFTER_BLOCKS`` that keeps the reader on its text parsers."""
 """Block sizes (characters) besides the reader's default: 2 lines a block up to about a hundred."""
 
@@ -90,6 +94,8 @@ class Outcome:
     """Of :attr:`column_blocks`, those the numpy parser read (:class:`~canguard.io.candump_np.ByteColumns`)."""
     emitted: bool = True
     """An ``--emit`` file was written (:attr:`emit`); else sent frames were only counted."""
+    exported: Any = None
+    """With ``--export-signals``: the rows written (floats by repr) and the row groups' sizes."""
 
 
 def _r(x: Any) -> Any:
@@ -135,7 +141,7 @@ def engine_state(engine: Engine) -> dict[str, Any]:
 
 def replay(cfg: Config, log: Path, out: Path, *, columns: bool, chunk: int,
            channel_map: dict[str, str] | None = None, quiet: bool | None = None, emit_frames: bool = True,
-           numpy_after: int = NEVER, numpy_rows: int | None = None) -> Outcome:
+           numpy_after: int = NEVER, numpy_rows: int | None = None, export: bool = False) -> Outcome:
     """Replay ``log`` once (column path on or off, blocks of ``chunk`` characters); instrumented.
 
     ``quiet``: quiet ticks on or off (default: on with the column path, off for the
@@ -145,6 +151,7 @@ def replay(cfg: Config, log: Path, out: Path, *, columns: bool, chunk: int,
     from how many rows of a message in a block numpy reads its payloads (default: the engine's).
     ``emit_frames`` False: no ``--emit`` file, so sent frames are only counted (the quiet runs then
     send the task's periodic frames in one go, :meth:`~canguard.engine.quiet.QuietTickMixin._quiet_run`).
+    ``export``: also ``--export-signals`` (in row groups of 64 rows), read back into :attr:`Outcome.exported`.
     """
     events, emit = out / "events.jsonl", out / "emit.log"
     out.mkdir(parents=True, exist_ok=True)
@@ -199,15 +206,26 @@ def replay(cfg: Config, log: Path, out: Path, *, columns: bool, chunk: int,
             mp.setattr(canguard.engine.blocks, "MIN_ROWS", numpy_rows)
             mp.setattr(canguard.io.candump_np, "_FEW", numpy_rows)
         py_trees.blackboard.Blackboard.clear()  # global: the two runs must not see each other's keys
+        parquet = out / "signals.parquet" if export else None
+        if export:
+            mp.setattr(canguard.report.export, "BATCH_ROWS", 64)
         summary = replay_one(cfg, log, ReplayOptions(events=events, emit=emit if emit_frames else None,
-                                                     channel_map=channel_map or {}))
+                                                     channel_map=channel_map or {}, export=parquet,
+                                                     export_log=log.name))
         py_trees.blackboard.Blackboard.clear()
     [engine] = engines
     state = engine_state(engine)
     state["blackboard"] = boards[0]  # what the tree wrote (I²t levels...): quiet ticks must write it too
+    exported = None
+    if parquet is not None:
+        import pyarrow.parquet as pq
+
+        table = pq.ParquetFile(parquet)
+        groups = [table.metadata.row_group(i).num_rows for i in range(table.num_row_groups)]
+        exported = (_r(table.read().to_pylist()), groups)
     return Outcome(json.dumps(summary, sort_keys=True), events.read_bytes(), emit.read_bytes() if emit_frames else b"",
                    state, counts["blocks"], counts["handled"], counts["fed"], handled_ids,
-                   engine.stats.quiet_ticks, counts["bytes"], emit_frames)
+                   engine.stats.quiet_ticks, counts["bytes"], emit_frames, exported)
 
 
 def _first_difference(a: bytes | str, b: bytes | str, what: str) -> str:
@@ -226,6 +244,13 @@ def assert_same(ref: Outcome, col: Outcome, label: str) -> None:
         if what == "emit" and not col.emitted:
             continue  # a run without --emit (its frames counted in the summary and the state)
         assert a == b, f"{label}: {_first_difference(a, b, what)}"
+    if ref.exported is not None or col.exported is not None:
+        a_rows, b_rows = (ref.exported or ([], []))[0], (col.exported or ([], []))[0]
+        pairs = enumerate(zip(a_rows, b_rows, strict=False))
+        first = next((k for k, (a, b) in pairs if a != b), min(len(a_rows), len(b_rows)))
+        assert ref.exported == col.exported, (
+            f"{label}: --export-signals differs at row {first} of {len(a_rows)} / {len(b_rows)}: "
+            f"{a_rows[first:first + 2]} vs {b_rows[first:first + 2]}")
     diffs = [k for k in ref.state if ref.state[k] != col.state.get(k)]
     detail = {k: (ref.state[k], col.state.get(k)) for k in diffs}
     assert not diffs, f"{label}: engine state differs in {diffs}: {json.dumps(detail)[:2000]}"
@@ -254,10 +279,12 @@ def compare(cfg: Config, log: Path, out: Path, chunks: tuple[int, ...] = SMALL_C
     """
     outcomes = []
     for k, chunk in enumerate(chunks):
-        ref = replay(cfg, log, out / f"ref-{chunk}", columns=False, chunk=chunk, channel_map=channel_map)
+        export = k == 1 and EXPORT  # the second block size also exports every sample (--export-signals)
+        ref = replay(cfg, log, out / f"ref-{chunk}", columns=False, chunk=chunk, channel_map=channel_map,
+                     export=export)
         col = replay(cfg, log, out / f"col-{chunk}", columns=True, chunk=chunk, channel_map=channel_map,
                      numpy_after=(0 if k == 0 else 2) if k % 2 == 0 else NEVER, numpy_rows=1 if k == 0 else None,
-                     emit_frames=k % 2 == 0)
+                     emit_frames=k % 2 == 0, export=export)
         assert (ref.column_blocks, ref.handled_rows, ref.fed_rows) == (0, 0, 0), "the reference used the column path"
         assert ref.quiet_ticks == 0, "the reference skipped ticks: it must tick every tick, as the live daemon"
         assert_same(ref, col, f"{log.name} with {Path(str(cfg.path)).name}, blocks of {chunk} chars")

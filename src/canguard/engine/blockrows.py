@@ -24,7 +24,7 @@ if TYPE_CHECKING:
 
 def decode_rows(
     plans: Mapping[str | int, MessagePlan | None], rows: list[int], cols: Columns | ByteColumns,
-    settle: bool = False, keys: Any = None,
+    settle: bool = False, keys: Any = None, taken: list[tuple[MessagePlan, list[int], Sequence[Any]]] | None = None,
 ) -> list[tuple[MessagePlan | None, tuple[float, ...] | None] | None] | None:
     """Per row of the block: its plan and decoded values when it goes one by one (else None); None: no row left.
 
@@ -36,6 +36,7 @@ def decode_rows(
     configured row of the block can change what a tick sees, every message's rows are
     taken whole (:mod:`canguard.engine.settle`) and None is returned; only with ``settle``
     (the last tick was a fixed point: no tick in the block changes a guard's status by itself).
+    ``taken``, when given, receives each message's (plan, rows, decoded values) (``--export-signals``).
     """
     from canguard.engine.colrows import EMPTY, count_empty  # imported when a block is first decoded
 
@@ -68,6 +69,8 @@ def decode_rows(
             continue
         pick = _picker(group)
         decoded = plan.decode(cols, group)
+        if taken is not None:
+            taken.append((plan, group, decoded))
         if plan.passive and plan.batch(pick(ts), decoded):
             continue
         active.append((plan, group, decoded, pick))

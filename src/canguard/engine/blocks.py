@@ -70,6 +70,8 @@ class MessagePlan:
                                  -_BIG if lo is None else float(lo), _BIG if hi is None else float(hi),
                                  tuple(ctx.subscribers(out.source, out.role))))
         self.signals = {o[2] for o in self.outputs}
+        self.names = [(o[0], o[1]) for o in self.outputs]
+        """(source, role) of each output: the samples a decoded row gives, in order."""
         self.multiplexed = bool(message.is_multiplexed())
         self.single = len(self.outputs) == 1 and not self.outputs[0][3]
         self.counter = any(role == "counter" for _src, role, *_rest in self.outputs)

@@ -96,6 +96,10 @@ class Engine(SourceWatchMixin, LogRunMixin, QuietTickMixin):
         self.extra_on_event = on_event
         self.sample_hook: Callable[[Any], None] | None = None
         """Called with every decoded sample (plots); None keeps the hot path lean."""
+        self.sample_block: Callable[[Any, list[Any], list[tuple[int, Any]]], None] | None = None
+        """Set beside :attr:`sample_hook` by a hook that takes a replay's column blocks whole (``--export-signals``):
+        called once a block with its times, each message's ((source, signal) names, rows, decoded values) and the
+        samples of the rows fed (with their row); None: with a sample hook, blocks go frame by frame."""
         self.tick_hook: Callable[[float], None] | None = None
         """Called after every tick with its time (plots)."""
         self.stats = EngineStats()

@@ -61,6 +61,7 @@ class LogRunMixin:
         metrics: Any
         extra_on_event: Callable[[dict[str, Any]], None] | None
         sample_hook: Callable[[Any], None] | None
+        sample_block: Callable[[Sequence[Any], list[Any], list[tuple[int, Any]]], None] | None
         elide_ticks: bool
         replay_quiet_ticks: bool
         _q_fixed: bool
@@ -161,7 +162,8 @@ class LogRunMixin:
         A numpy block may mix channels (``lanes``): each row then goes to its channel's bus,
         with the plans of that bus (one key per channel and id when the buses differ).
         """
-        if not cols.ordered or self.sample_hook is not None:
+        export = self.sample_block
+        if not cols.ordered or (self.sample_hook is not None and export is None):
             return False
         # The timestamps: a numpy block's as an array (its list is made only for rows that go one by one)
         ts: Any = cols.ts if isinstance(cols, tuple) else cols.stamps
@@ -226,7 +228,8 @@ class LogRunMixin:
             del rows[0]
         tally = _lane_tally(cols, rows, first)
         last_row = rows[-1] if rows else -1  # the last row feed would see, whatever path takes it
-        slots = decode_rows(plans, rows, cols, self._q_fixed, keys) if rows else []
+        taken: list[tuple[MessagePlan, list[int], Sequence[Any]]] | None = [] if export is not None else None
+        slots = decode_rows(plans, rows, cols, self._q_fixed, keys, taken) if rows else []
         if slots is None:
             rows = []  # every row taken whole: only the ticks due in the block are left
             slots = []
@@ -236,6 +239,10 @@ class LogRunMixin:
         frame = cols.frame
         pos = first
         due = self._due  # plans never change it; advance, feed and tick may
+        if taken is not None:  # --export-signals: the samples of fed rows kept with their row, for the block's export
+            fed: list[tuple[int, Any]] = []
+            at = [0]
+            hook, self.sample_hook = self.sample_hook, lambda sample: fed.append((at[0], sample))
         for i in rows:
             item = slots[i]
             if item is None:
@@ -250,6 +257,8 @@ class LogRunMixin:
             pos = i + 1
             edge = plan.step(values, t) if values is not None and plan is not None else None
             if edge is None:
+                if taken is not None:
+                    at[0] = i
                 feed(bus if bus_at is None else bus_at[i], frame(i))  # the general path, what plans must equal
                 due = self._due
             elif edge:
@@ -257,6 +266,10 @@ class LogRunMixin:
                 self.stats.edge_ticks += 1
                 self.tick(self.clock.now())
                 due = self._due
+        if taken is not None:
+            self.sample_hook = hook
+            assert export is not None
+            export(ts, [(plan.names, group, decoded) for plan, group, decoded in taken], fed)
         self._cross(ts, pos, n)
         for b in set(buses):
             for plan in self._plan_list[b]:

@@ -18,6 +18,7 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Callable, Sequence
+from operator import itemgetter
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -105,6 +106,8 @@ class SignalExport:
         previous = engine.sample_hook  # --plot's recorder, when there is one: both see every sample
         self._previous: Callable[[Any], None] | None = previous
         engine.sample_hook = self._sample
+        if previous is None:  # alone: a replay's column blocks are taken whole (the recorder wants every sample)
+            engine.sample_block = self._block
 
     def _clear(self) -> None:
         self._t: list[float] = []
@@ -116,38 +119,70 @@ class SignalExport:
     def _sample(self, s: Sample) -> None:
         if self._previous is not None:
             self._previous(s)
-        reason = s.reason
-        value = s.value
-        if not reason and not math.isnan(value):
-            lo, hi = self._ranges.get(s.source, {}).get(s.signal, (None, None))
-            if (lo is not None and value < lo) or (hi is not None and value > hi):
-                reason = OUT_OF_RANGE
         self._t.append(s.t)
         self._source.append(s.source)
         self._signal.append(s.signal)
-        self._value.append(value)
-        self._reason.append(reason)
+        self._value.append(s.value)
+        self._reason.append(self._reason_of(s))
         if len(self._t) >= self.batch_rows:
             self._flush()
 
+    def _reason_of(self, s: Sample) -> str:
+        """The sample's reason, or ``out_of_range`` for a value the source's DBC range rejects."""
+        reason, value = s.reason, s.value
+        if not reason and not math.isnan(value):
+            lo, hi = self._ranges.get(s.source, {}).get(s.signal, (None, None))
+            if (lo is not None and value < lo) or (hi is not None and value > hi):
+                return OUT_OF_RANGE
+        return reason
+
+    def _block(self, times: Sequence[Any], taken: list[tuple[list[tuple[str, str]], list[int], Sequence[Any]]],
+               fed: list[tuple[int, Sample]]) -> None:
+        """A replay's column block (:attr:`Engine.sample_block`): its samples in row order, as frame by frame.
+
+        ``taken``: per configured message, its outputs' (source, signal), its rows and their decoded
+        values (None: the row was fed, EMPTY: no sample); ``fed``: the samples of the rows fed, with
+        their row. A row decoded but then fed (its source coming back, say) is in both: its samples
+        are the fed ones. The column checks pass only valid, in-range values: their reason is "".
+        """
+        entries: list[tuple[int, int, float, str, str, float, str]] = []
+        fed_rows = {row for row, _s in fed}
+        for names, rows, decoded in taken:
+            for i, values in zip(rows, decoded, strict=True):
+                if values and i not in fed_rows:
+                    t = float(times[i])
+                    entries.extend((i, j, t, source, signal, values[j], "") for j, (source, signal) in enumerate(names))
+        entries.extend((row, k, s.t, s.source, s.signal, s.value, self._reason_of(s)) for k, (row, s) in enumerate(fed))
+        entries.sort(key=itemgetter(0, 1))
+        for _row, _k, t, source, signal, value, reason in entries:
+            self._t.append(t)
+            self._source.append(source)
+            self._signal.append(signal)
+            self._value.append(value)
+            self._reason.append(reason)
+        while len(self._t) >= self.batch_rows:  # the row groups of one sample at a time
+            self._flush()
+
     def _flush(self) -> None:
-        n = len(self._t)
+        n = min(len(self._t), self.batch_rows)
         if not n:
             return
         pa = self.pa
         bus = self._bus
+        source = self._source[:n]
         columns = [
             pa.array([self.log] * n, pa.string()),
-            pa.array(self._t, pa.float64()),
-            pa.array([bus.get(s, "") for s in self._source], pa.string()),
-            pa.array(self._source, pa.string()),
-            pa.array(self._signal, pa.string()),
-            pa.array(self._value, pa.float64()),
-            pa.array(self._reason, pa.string()),
+            pa.array(self._t[:n], pa.float64()),
+            pa.array([bus.get(s, "") for s in source], pa.string()),
+            pa.array(source, pa.string()),
+            pa.array(self._signal[:n], pa.string()),
+            pa.array(self._value[:n], pa.float64()),
+            pa.array(self._reason[:n], pa.string()),
         ]
         self._writer.write_batch(pa.RecordBatch.from_arrays(columns, schema=self._schema))
         self.rows += n
-        self._clear()
+        for column in (self._t, self._source, self._signal, self._value, self._reason):
+            del column[:n]  # a block's samples past a full row group wait for the next
 
     def close(self) -> None:
         """Write what is buffered and close the file (a valid Parquet file even with no rows)."""
