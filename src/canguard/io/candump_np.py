@@ -24,12 +24,13 @@ rewritten as -L (:mod:`canguard.io.candump_long`).
 from __future__ import annotations
 
 import threading
+from binascii import unhexlify
 from collections.abc import Iterator
 
 import numpy as np
 
 from canguard.io.frame import Frame
-from canguard.io.logtypes import _F, CANFD_BRS, CANFD_ESI, CANFD_LENGTHS, EXT_KEY, _new, joined_hex
+from canguard.io.logtypes import _F, CANFD_BRS, CANFD_ESI, CANFD_LENGTHS, EXT_KEY, _new
 
 _HEXVAL = np.full(256, 255, dtype=np.uint8)
 for _i, _c in enumerate(b"0123456789abcdef"):
@@ -56,7 +57,7 @@ class ByteColumns:
     each row's index into them in ``lanes``.
     """
 
-    __slots__ = ("_b", "_bounds", "_end", "_ids", "_raw", "_row_chans", "_start", "_str", "_ts", "channel", "channels",
+    __slots__ = ("_b", "_end", "_ids", "_raw", "_row_chans", "_start", "_ts", "channel", "channels",
                  "fd", "keys", "lanes", "n", "order", "ordered", "remote", "stamps")
 
     def __init__(self, n: int, stamps: np.ndarray, keys: np.ndarray, ordered: bool, channel: str | None,
@@ -78,20 +79,11 @@ class ByteColumns:
         self.fd = fd
         self.remote = remote
         self._raw = raw
-        self._str: str | None = None
         self._b = b
         self._start = start
         self._end = end
-        self._bounds: tuple[list[int], list[int]] | None = None
         self.order = (0, 0)
         """Rows whose timestamp goes back, and rows whose timestamp repeats the previous row's (in the block)."""
-
-    @property
-    def _text(self) -> str:
-        """The block as text, decoded when first asked for (frames built one by one, payloads of a few rows)."""
-        if self._str is None:
-            self._str = self._raw.decode("ascii")
-        return self._str
 
     @property
     def ts(self) -> list[float]:
@@ -143,12 +135,14 @@ class ByteColumns:
     def payload(self, rows: list[int], size: int) -> tuple[list[int] | None, bytes]:
         """The payloads of ``rows`` that hold ``size`` hex digits, joined: (their positions in ``rows``, or None
         when all of them do; the bytes)."""
-        if len(rows) < _FEW:  # a few rows: slicing the text costs less than numpy's calls
-            if self._bounds is None:
-                self._bounds = (self._start.tolist(), self._end.tolist())
-            starts, ends = self._bounds
-            text = self._text
-            return joined_hex([text[starts[i]:ends[i]] for i in rows], size)
+        if len(rows) < _FEW:  # a few rows: slicing the bytes costs less than numpy's calls
+            idx = np.asarray(rows, dtype=np.intp)
+            raw = self._raw
+            pieces = list(map(raw.__getitem__, map(slice, self._start[idx].tolist(), self._end[idx].tolist())))
+            if set(map(len, pieces)) == {size}:
+                return None, unhexlify(b"".join(pieces))  # hex digits all (checked): as bytes.fromhex reads them
+            fits = [k for k, piece in enumerate(pieces) if len(piece) == size]
+            return fits, unhexlify(b"".join([pieces[k] for k in fits]))
         good, start = self._fitting(rows, size)
         if not size or not start.size:
             return good, b""
