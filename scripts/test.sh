@@ -8,7 +8,7 @@ python3 -m venv .venv
 .venv/bin/ruff check src tests benchmarks
 .venv/bin/mypy
 .venv/bin/lint-imports --no-cache
-# Bytecode as a wheel install writes it: the tests start canguard in ~100 subprocesses, and where the
+# Bytecode as a wheel install writes it: the tests start canguard in subprocesses, and where the
 # environment sets PYTHONDONTWRITEBYTECODE=1 each would compile the package from source (~90 ms).
 .venv/bin/python -m compileall -q src
 .venv/bin/python -m pytest -q -p no:cacheprovider "$@"
