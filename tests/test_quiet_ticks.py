@@ -87,6 +87,25 @@ def write_tree_config(tmp_path: Path, tree_body: str) -> Path:
 GUARD = '<IsCurrentSafe topic_name="/battery_state" overcurrent_threshold="35" recovery_threshold="25"/>'
 
 
+class TestTaskDeadlinesBetweenTicks:
+    """The task's periodic frames due at, between and several times within tick periods (a fast heartbeat)."""
+
+    @pytest.mark.parametrize("period", [0.005, 0.004, 0.0125])
+    @pytest.mark.parametrize("log", [NORMAL, EXAMPLES / "overload.log.gz"], ids=["normal", "overload"])
+    def test_same_replay(self, tmp_path: Path, period: float, log: Path) -> None:
+        """Task periods below and above the 10 ms tick: the frames sent, their times, all else as the reference."""
+        doc = yaml.safe_load(BUNDLED.read_text(encoding="utf-8"))
+        doc["dbc"] = [str((BUNDLED.parent / d).resolve()) for d in doc["dbc"]]
+        doc["tree"]["file"] = str((BUNDLED.parent / doc["tree"]["file"]).resolve())
+        doc["task"]["period"] = period
+        doc.pop("events", None)
+        doc.setdefault("state", {})["file"] = str(tmp_path / "state.json")
+        path = tmp_path / "canguard.yaml"
+        path.write_text(yaml.safe_dump(doc), encoding="utf-8")
+        quiet, ticks = quiet_and_reference(path, log, tmp_path)
+        assert quiet > ticks // 2
+
+
 class TestWhichTreesMayBeQuiet:
     """Only ticks that reach nodes repeating themselves exactly may be quiet; the rest tick every tick."""
 
