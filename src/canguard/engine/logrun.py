@@ -243,31 +243,34 @@ class LogRunMixin:
             fed: list[tuple[int, Any]] = []
             at = [0]
             hook, self.sample_hook = self.sample_hook, lambda sample: fed.append((at[0], sample))
-        for i in rows:
-            item = slots[i]
-            if item is None:
-                continue  # taken whole, or without a configured signal: counted by its plan
-            plan, values = item
-            t = float(ts[i])
-            if t >= due:
-                self._cross(ts, pos, i)  # a tick falls due among the rows before this one, or at it
-                if t >= self._due:
-                    self.advance(t)
-                due = self._due
-            pos = i + 1
-            edge = plan.step(values, t) if values is not None and plan is not None else None
-            if edge is None:
-                if taken is not None:
-                    at[0] = i
-                feed(bus if bus_at is None else bus_at[i], frame(i))  # the general path, what plans must equal
-                due = self._due
-            elif edge:
-                self._drive_clock(t)
-                self.stats.edge_ticks += 1
-                self.tick(self.clock.now())
-                due = self._due
+        try:
+            for i in rows:
+                item = slots[i]
+                if item is None:
+                    continue  # taken whole, or without a configured signal: counted by its plan
+                plan, values = item
+                t = float(ts[i])
+                if t >= due:
+                    self._cross(ts, pos, i)  # a tick falls due among the rows before this one, or at it
+                    if t >= self._due:
+                        self.advance(t)
+                    due = self._due
+                pos = i + 1
+                edge = plan.step(values, t) if values is not None and plan is not None else None
+                if edge is None:
+                    if taken is not None:
+                        at[0] = i
+                    feed(bus if bus_at is None else bus_at[i], frame(i))  # the general path, what plans must equal
+                    due = self._due
+                elif edge:
+                    self._drive_clock(t)
+                    self.stats.edge_ticks += 1
+                    self.tick(self.clock.now())
+                    due = self._due
+        finally:
+            if taken is not None:
+                self.sample_hook = hook  # the export's own hook back, whatever the block raised
         if taken is not None:
-            self.sample_hook = hook
             assert export is not None
             export(ts, [(plan.names, group, decoded) for plan, group, decoded in taken], fed)
         self._cross(ts, pos, n)
