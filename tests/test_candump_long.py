@@ -34,7 +34,7 @@ def long_line(stamp: str, chan: str, cid: str, data: bytes, fd: bool, rng: rando
 
 
 @st.composite
-def long_lines(draw: st.DrawFn) -> list[str]:
+def long_lines(draw: st.DrawFn, fd_allowed: bool = True) -> list[str]:
     rng = random.Random(draw(st.integers(0, 2**32)))
     chan = draw(st.sampled_from(["can0", "vcan1"]))
     t = 1_700_000_000_000_000 + draw(st.integers(0, 10**9))
@@ -44,7 +44,7 @@ def long_lines(draw: st.DrawFn) -> list[str]:
         stamp = f"{t // 10**6}.{t % 10**6:06d}"
         ext = draw(st.booleans())
         cid = f"{draw(st.integers(0, 0x1FFFFFFF if ext else 0x7FF)):{'08X' if ext else '03X'}}"
-        fd = draw(st.booleans())
+        fd = fd_allowed and draw(st.booleans())
         size = draw(st.sampled_from(_FD_SIZES)) if fd else draw(st.integers(0, 8))
         lines.append(long_line(stamp, chan, cid, draw(st.binary(min_size=size, max_size=size)), fd, rng))
     return lines
@@ -63,11 +63,21 @@ def test_plain_long_blocks_are_read_as_the_line_parser_reads_them(lines: list[st
     assert list(cols.frames()) == [_parse_line(line) for line in lines]
 
 
+@settings(max_examples=150, deadline=None, derandomize=True)
+@given(lines=long_lines(fd_allowed=False))
+def test_classic_only_blocks_are_read_as_the_line_parser_reads_them(lines: list[str]) -> None:
+    """A block without CAN FD lines takes the joined rewrite (no regex template): the same frames."""
+    cols = long_columns(*_text(lines))
+    assert cols is not None, lines
+    assert list(cols.frames()) == [_parse_line(line) for line in lines]
+
+
 _JUNK = st.sampled_from([*"()[]# .\n'RrXx0189afAF", "  "])
 
 
 @settings(max_examples=300, deadline=None, derandomize=True)
-@given(lines=long_lines(), where=st.integers(0, 10**6), junk=_JUNK, how=st.sampled_from(["insert", "replace", "drop"]))
+@given(lines=st.booleans().flatmap(long_lines), where=st.integers(0, 10**6), junk=_JUNK,
+       how=st.sampled_from(["insert", "replace", "drop"]))
 def test_a_damaged_long_block_is_taken_only_when_every_line_reads_the_same(
     lines: list[str], where: int, junk: str, how: str
 ) -> None:

@@ -22,6 +22,8 @@ from canguard.io.candump_np import ByteColumns, byte_columns
 _HEAD = r"^\((\d{10,}\.\d+)\)[ ]+([^ \n]+)[ ]+([0-9A-Fa-f]{3}|[0-9A-Fa-f]{8})[ ]+"
 _DATA = r"((?:[ ]+[0-9A-Fa-f]{2})*)(?:[ ]*|[ ]+'[^\n]*)$"
 _CLASSIC = re.compile(_HEAD + r"\[([0-8])\]" + _DATA, re.M)
+_CLASSIC_FIELDS = re.compile(_HEAD + r"\[[0-8]\]" + _DATA, re.M)
+"""The same lines, their length not captured: (stamp, channel, id, data) per line, joined in C below."""
 _FD = re.compile(_HEAD + r"\[(\d\d)\]" + _DATA, re.M)
 _LENGTH = re.compile(r"\[(\d\d?)\]")
 
@@ -36,8 +38,11 @@ def long_columns(text: str, n: int) -> ByteColumns | None:
     lengths = _LENGTH.findall(text)
     if len(lengths) != n:
         return None  # a line without [len], or one with two (in its ASCII dump, say)
-    rows, classic = _CLASSIC.subn("(\\1)\x01\\2\x01\\3#\\5", text)
-    if classic != n:
+    found = _CLASSIC_FIELDS.findall(text)
+    if len(found) == n:  # all classic: each line rewritten by %-formatting (re's template runs in Python, ~2 us a line)
+        rows = "\n".join(map("(%s)\x01%s\x01%s#%s".__mod__, found)) + "\n"
+    else:
+        rows, classic = _CLASSIC.subn("(\\1)\x01\\2\x01\\3#\\5", text)
         rows, fd = _FD.subn("(\\1)\x01\\2\x01\\3##0\\5", rows)
         if classic + fd != n:
             return None
