@@ -65,6 +65,16 @@ class ColumnRows(Sequence[Row]):
             self._rows = found
         return self._rows
 
+    def valued(self) -> np.ndarray:
+        """Which rows have their values (neither fed nor EMPTY), as a mask."""
+        import numpy as np
+
+        keep = np.ones(self.n, dtype=bool)
+        for mask in (self.fed, self.empty):
+            if mask is not None:
+                keep &= ~mask
+        return keep
+
     def clean(self) -> bool:
         """Every row has all its values (none to feed, none EMPTY): ``all(rows)``."""
         return self.fed is None and self.empty is None

@@ -20,7 +20,6 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Callable, Sequence
-from operator import itemgetter
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -105,6 +104,8 @@ class SignalExport:
         # by the models although the decoder passed it (the decoder does not check ranges).
         self._ranges = {name: health.ranges for name, health in engine.ctx.health.items()}
         self._clear()
+        self._codes: dict[tuple[str, str, str], int] = {}
+        self._keys: list[tuple[str, str, str]] = []
         previous = engine.sample_hook  # --plot's recorder, when there is one: both see every sample
         self._previous: Callable[[Any], None] | None = previous
         engine.sample_hook = self._sample
@@ -143,27 +144,62 @@ class SignalExport:
         """A replay's column block (:attr:`Engine.sample_block`): its samples in row order, as frame by frame.
 
         ``taken``: per configured message, its outputs' (source, signal), its rows and their decoded
-        values (None: the row was fed, EMPTY: no sample); ``fed``: the samples of the rows fed, with
-        their row. A row decoded but then fed (its source coming back, say) is in both: its samples
-        are the fed ones. The column checks pass only valid, in-range values: their reason is "".
+        values (None: the row was fed, EMPTY: no sample; numpy columns when the decoder kept them);
+        ``fed``: the samples of the rows fed, with their row. A row decoded but then fed (its source
+        coming back, say) is in both: its samples are the fed ones. The column checks pass only valid,
+        in-range values: their reason is "". The samples are laid out row by row, each message's in
+        output order and the fed ones as they came, then put in row order by a stable sort.
         """
-        entries: list[tuple[int, int, float, str, str, float, str]] = []
-        fed_rows = {row for row, _s in fed}
-        for names, rows, decoded in taken:
-            for i, values in zip(rows, decoded, strict=True):
-                if values and i not in fed_rows:
-                    t = float(times[i])
-                    entries.extend((i, j, t, source, signal, values[j], "") for j, (source, signal) in enumerate(names))
-        entries.extend((row, k, s.t, s.source, s.signal, s.value, self._reason_of(s)) for k, (row, s) in enumerate(fed))
-        entries.sort(key=itemgetter(0, 1))
-        for _row, _k, t, source, signal, value, reason in entries:
-            self._t.append(t)
+        import numpy as np
+
+        fed_rows = np.array([row for row, _s in fed], dtype=np.intp)
+        rows, stamps, values, codes = [], [], [], []
+        for names, group, decoded in taken:
+            idx = np.asarray(group, dtype=np.intp)
+            columns = getattr(decoded, "columns", None)
+            if columns is not None:
+                keep = decoded.valued()  # type: ignore[attr-defined]
+                table = np.column_stack(columns)
+            else:
+                keep = np.array([bool(v) for v in decoded], dtype=bool)
+                table = np.array([v for v in decoded if v], dtype=np.float64).reshape(-1, len(names))
+                table = _spread(table, keep)
+            if fed_rows.size:
+                keep &= ~np.isin(idx, fed_rows)
+            if not keep.any():
+                continue
+            width, taken_rows = len(names), idx[keep]
+            rows.append(np.repeat(taken_rows, width))
+            stamps.append(np.repeat(_times_at(times, taken_rows), width))
+            values.append(table[keep].ravel())  # row by row, each row's outputs in order
+            codes.append(np.tile([self._code(name, "") for name in names], taken_rows.size))
+        if fed:
+            rows.append(fed_rows)
+            stamps.append(np.array([s.t for _row, s in fed], dtype=np.float64))
+            values.append(np.array([s.value for _row, s in fed], dtype=np.float64))
+            codes.append(np.array([self._code((s.source, s.signal), self._reason_of(s)) for _row, s in fed]))
+        if not rows:
+            return
+        order = np.argsort(np.concatenate(rows), kind="stable")
+        keys = self._keys
+        for code in np.concatenate(codes)[order].tolist():
+            source, signal, reason = keys[code]
             self._source.append(source)
             self._signal.append(signal)
-            self._value.append(value)
             self._reason.append(reason)
+        self._t.extend(np.concatenate(stamps)[order].tolist())
+        self._value.extend(np.concatenate(values)[order].tolist())
         while len(self._t) >= self.batch_rows:  # the row groups of one sample at a time
             self._flush()
+
+    def _code(self, name: tuple[str, str], reason: str) -> int:
+        """A small number for (source, signal, reason), the same for the whole export."""
+        key = (*name, reason)
+        code = self._codes.get(key)
+        if code is None:
+            code = self._codes[key] = len(self._keys)
+            self._keys.append(key)
+        return code
 
     def _flush(self) -> None:
         n = min(len(self._t), self.batch_rows)
@@ -219,3 +255,21 @@ def combine_parts(path: Path, parts: Sequence[Path], ok: Sequence[bool]) -> int:
         return rows
     finally:
         discard_parts(parts)
+
+
+def _times_at(times: Sequence[Any], rows: Any) -> Any:
+    """The times of ``rows`` as float64: a numpy block's directly, else each ``float()`` of the text or float."""
+    import numpy as np
+
+    if hasattr(times, "dtype"):
+        return times[rows]
+    return np.array([float(times[i]) for i in rows.tolist()], dtype=np.float64)
+
+
+def _spread(table: Any, keep: Any) -> Any:
+    """The rows of ``table`` (one per kept row) placed at the kept rows of a table of ``len(keep)`` rows."""
+    import numpy as np
+
+    full = np.zeros((keep.size, table.shape[1]), dtype=np.float64)
+    full[keep] = table
+    return full
