@@ -56,36 +56,32 @@ def test_config_is_loaded_once_in_process(
     assert calls == [str(BUNDLED)]
 
 
-def test_plain_replay_imports_neither_process_pool_nor_matplotlib(logs: list[Path]) -> None:
-    """A replay without --jobs N or --plot does not import concurrent.futures.process or matplotlib."""
+def replay_loads(log: Path, modules: tuple[str, ...]) -> str:
+    """``LOADED <exit code> <those of modules a replay of log imported>`` from a fresh interpreter."""
     probe = (
         "import sys\n"
         "from canguard.cli.main import main\n"
-        f"code = main(['replay', {str(logs[0])!r}, '-c', {str(BUNDLED)!r}, '--json'])\n"
-        "mods = ('concurrent.futures.process', 'matplotlib')\n"
+        f"code = main(['replay', {str(log)!r}, '-c', {str(BUNDLED)!r}, '--json'])\n"
+        f"mods = {modules!r}\n"
         "print('LOADED', code, *[m for m in mods if m in sys.modules], file=sys.stderr)\n"
     )
     env = {**os.environ, "PYTHONPATH": str(SRC)}
     proc = subprocess.run([sys.executable, "-c", probe], cwd=REPO, env=env, capture_output=True, text=True,
                           timeout=60, check=False)
-    [line] = [ln for ln in proc.stderr.splitlines() if ln.startswith("LOADED")]
-    assert line == "LOADED 0", proc.stderr
+    lines = [ln for ln in proc.stderr.splitlines() if ln.startswith("LOADED")]
+    assert len(lines) == 1, proc.stderr
+    return lines[0]
+
+
+def test_plain_replay_imports_neither_process_pool_nor_matplotlib(logs: list[Path]) -> None:
+    """A replay without --jobs N or --plot does not import concurrent.futures.process or matplotlib."""
+    assert replay_loads(logs[0], ("concurrent.futures.process", "matplotlib")) == "LOADED 0"
 
 
 def test_tree_without_scripts_or_palette_imports_neither(logs: list[Path]) -> None:
     """The bundled tree has no Script node, no pre/post condition and no <TreeNodesModel>: its replay imports
     neither the scripting language (~5 ms of classes at start-up) nor the palette reader, nor the node
     families it does not use (BT.CPP's built-ins: Script, Sleep, IfThenElse...)."""
-    probe = (
-        "import sys\n"
-        "from canguard.cli.main import main\n"
-        f"code = main(['replay', {str(logs[0])!r}, '-c', {str(BUNDLED)!r}, '--json'])\n"
-        "mods = ('canguard.bt.scripting.script', 'canguard.bt.scripting.expr', 'canguard.bt.palette',\n"
-        "        'canguard.bt.nodes.builtins')\n"
-        "print('LOADED', code, *[m for m in mods if m in sys.modules], file=sys.stderr)\n"
-    )
-    env = {**os.environ, "PYTHONPATH": str(SRC)}
-    proc = subprocess.run([sys.executable, "-c", probe], cwd=REPO, env=env, capture_output=True, text=True,
-                          timeout=60, check=False)
-    [line] = [ln for ln in proc.stderr.splitlines() if ln.startswith("LOADED")]
-    assert line == "LOADED 0", proc.stderr
+    modules = ("canguard.bt.scripting.script", "canguard.bt.scripting.expr", "canguard.bt.palette",
+               "canguard.bt.nodes.builtins")
+    assert replay_loads(logs[0], modules) == "LOADED 0"
