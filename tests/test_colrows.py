@@ -59,6 +59,7 @@ def test_answers_equal_the_rows(block: tuple[ColumnRows, list[Any]]) -> None:
     assert clean(found) == clean(rows) == all(rows)
     assert has_fed(found) == has_fed(rows) == (None in rows)
     assert has_empty(found) == has_empty(rows) == (EMPTY in rows)
+    assert found.valued().tolist() == [bool(row) for row in rows]  # the rows an export writes
     if all(rows):
         for j in range(len(rows[0])):
             column = [abs(row[j]) for row in rows]
