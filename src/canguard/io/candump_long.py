@@ -20,7 +20,7 @@ import numpy as np
 from canguard.io.candump_np import ByteColumns, byte_columns
 
 _HEAD = r"^\((\d{10,}\.\d+)\)[ ]+([^ \n]+)[ ]+([0-9A-Fa-f]{3}|[0-9A-Fa-f]{8})[ ]+"
-_DATA = r"((?:[ ]+[0-9A-Fa-f]{2})*)(?:[ ]*|[ ]+'[^\n]*)$"
+_DATA = r"((?:[ ]+[0-9A-Fa-f]{2})*)(?:[ ]+'[^\n]*|[ ]*)$"  # the ASCII dump tried first: no step back on a -a line
 _CLASSIC = re.compile(_HEAD + r"\[([0-8])\]" + _DATA, re.M)
 _CLASSIC_FIELDS = re.compile(_HEAD + r"\[[0-8]\]" + _DATA, re.M)
 """The same lines, their length not captured: (stamp, channel, id, data) per line, joined in C below."""
