@@ -24,13 +24,12 @@ rewritten as -L (:mod:`canguard.io.candump_long`).
 from __future__ import annotations
 
 import threading
-from binascii import unhexlify
 from collections.abc import Iterator
 
 import numpy as np
 
 from canguard.io.frame import Frame
-from canguard.io.logtypes import _F, CANFD_BRS, CANFD_ESI, CANFD_LENGTHS, EXT_KEY, _new
+from canguard.io.logtypes import _F, CANFD_BRS, CANFD_ESI, CANFD_LENGTHS, EXT_KEY, _new, joined_hex
 
 _HEXVAL = np.full(256, 255, dtype=np.uint8)
 for _i, _c in enumerate(b"0123456789abcdef"):
@@ -138,11 +137,9 @@ class ByteColumns:
         if len(rows) < _FEW:  # a few rows: slicing the bytes costs less than numpy's calls
             idx = np.asarray(rows, dtype=np.intp)
             raw = self._raw
-            pieces = list(map(raw.__getitem__, map(slice, self._start[idx].tolist(), self._end[idx].tolist())))
-            if set(map(len, pieces)) == {size}:
-                return None, unhexlify(b"".join(pieces))  # hex digits all (checked): as bytes.fromhex reads them
-            fits = [k for k, piece in enumerate(pieces) if len(piece) == size]
-            return fits, unhexlify(b"".join([pieces[k] for k in fits]))
+            # hex digits all (checked by byte_columns): unhexlify reads them as bytes.fromhex reads their text
+            return joined_hex(list(map(raw.__getitem__, map(slice, self._start[idx].tolist(),
+                                                              self._end[idx].tolist()))), size)
         good, start = self._fitting(rows, size)
         if not size or not start.size:
             return good, b""

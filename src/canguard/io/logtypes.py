@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import io
 import operator
+from binascii import unhexlify
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from itertools import islice
@@ -227,10 +228,14 @@ def id_key(arbitration_id: int, is_extended_id: bool) -> int:
     return arbitration_id + EXT_KEY if is_extended_id else arbitration_id
 
 
-def joined_hex(texts: list[str], size: int) -> tuple[list[int] | None, bytes]:
-    """The payloads of ``texts`` (hex) that hold ``size`` digits, as bytes one after another: (their positions in
-    ``texts``, or None when all of them do; the bytes)."""
-    if set(map(len, texts)) == {size}:
-        return None, bytes.fromhex("".join(texts))
-    fits = [k for k, text in enumerate(texts) if len(text) == size]
-    return fits, bytes.fromhex("".join([texts[k] for k in fits]))
+def joined_hex(texts: list[str] | list[bytes], size: int) -> tuple[list[int] | None, bytes]:
+    """The payloads of ``texts`` (hex, as text or as the bytes of checked digits) that hold ``size`` digits, as bytes
+    one after another: (their positions in ``texts``, or None when all of them do; the bytes)."""
+    fits: list[int] | None = None
+    kept: Any = texts
+    if set(map(len, kept)) != {size}:
+        fits = [k for k, text in enumerate(kept) if len(text) == size]
+        kept = [kept[k] for k in fits]
+    if kept and type(kept[0]) is bytes:
+        return fits, unhexlify(b"".join(kept))
+    return fits, bytes.fromhex("".join(kept))
