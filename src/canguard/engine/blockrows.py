@@ -23,7 +23,7 @@ if TYPE_CHECKING:
 
 
 def decode_rows(
-    plans: Mapping[str | int, MessagePlan | None], rows: list[int], cols: Columns | ByteColumns,
+    plans: Mapping[str | int, MessagePlan | None], rows: list[int], cols: Columns | ByteColumns, ts: Sequence[Any],
     settle: bool = False, keys: Any = None, taken: list[tuple[MessagePlan, list[int], Sequence[Any]]] | None = None,
 ) -> list[tuple[MessagePlan | None, tuple[float, ...] | None] | None] | None:
     """Per row of the block: its plan and decoded values when it goes one by one (else None); None: no row left.
@@ -36,11 +36,11 @@ def decode_rows(
     configured row of the block can change what a tick sees, every message's rows are
     taken whole (:mod:`canguard.engine.settle`) and None is returned; only with ``settle``
     (the last tick was a fixed point: no tick in the block changes a guard's status by itself).
-    ``taken``, when given, receives each message's (plan, rows, decoded values) (``--export-signals``).
+    ``ts``: the block's times (a numpy block's array). ``taken``, when given, receives each message's
+    (plan, rows, decoded values) (``--export-signals``).
     """
     from canguard.engine.colrows import EMPTY, count_empty  # imported when a block is first decoded
 
-    ts: Any = cols.ts if isinstance(cols, tuple) else cols.stamps
     groups: dict[MessagePlan | None, list[int]] = {}
     remote = cols.remote
     if remote:

@@ -229,7 +229,7 @@ class LogRunMixin:
         tally = _lane_tally(cols, rows, first)
         last_row = rows[-1] if rows else -1  # the last row feed would see, whatever path takes it
         taken: list[tuple[MessagePlan, list[int], Sequence[Any]]] | None = [] if export is not None else None
-        slots = decode_rows(plans, rows, cols, self._q_fixed, keys, taken) if rows else []
+        slots = decode_rows(plans, rows, cols, ts, self._q_fixed, keys, taken) if rows else []
         if slots is None:
             rows = []  # every row taken whole: only the ticks due in the block are left
             slots = []
