@@ -27,6 +27,7 @@ from canguard.engine.colrows import (
     has_fed,
     keep_valued,
     last_row,
+    valued_table,
 )
 
 FLOATS = st.floats(allow_nan=False, allow_infinity=False, width=64) | st.sampled_from([0.0, -0.0, 1e308, -5e-324])
@@ -60,6 +61,10 @@ def test_answers_equal_the_rows(block: tuple[ColumnRows, list[Any]]) -> None:
     assert has_fed(found) == has_fed(rows) == (None in rows)
     assert has_empty(found) == has_empty(rows) == (EMPTY in rows)
     assert found.valued().tolist() == [bool(row) for row in rows]  # the rows an export writes
+    for kind in (found, rows):
+        keep, table = valued_table(kind, len(found.columns))
+        assert keep.tolist() == [bool(row) for row in rows]
+        assert [tuple(r) for r in table[keep].tolist()] == [row for row in rows if row]
     if all(rows):
         for j in range(len(rows[0])):
             column = [abs(row[j]) for row in rows]

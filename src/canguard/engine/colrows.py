@@ -133,6 +133,19 @@ def last_row(rows: Sequence[Row]) -> tuple[float, ...]:
     return final
 
 
+def valued_table(rows: Sequence[Row], width: int) -> tuple[np.ndarray, np.ndarray]:
+    """(which rows have their values, a ``len(rows) x width`` float64 table of them; other rows hold zeros)."""
+    import numpy as np
+
+    if type(rows) is ColumnRows:
+        return rows.valued(), np.column_stack(rows.columns)
+    keep = np.array([bool(row) for row in rows], dtype=bool)
+    table = np.zeros((len(rows), width), dtype=np.float64)
+    if keep.any():
+        table[keep] = [row for row in rows if row]
+    return keep, table
+
+
 def has_fed(rows: Sequence[Row]) -> bool:
     """A row goes to feed."""
     return rows.has_fed() if type(rows) is ColumnRows else None in rows

@@ -152,18 +152,13 @@ class SignalExport:
         """
         import numpy as np
 
+        from canguard.engine.colrows import valued_table
+
         fed_rows = np.array([row for row, _s in fed], dtype=np.intp)
         rows, stamps, values, codes = [], [], [], []
         for names, group, decoded in taken:
             idx = np.asarray(group, dtype=np.intp)
-            columns = getattr(decoded, "columns", None)
-            if columns is not None:
-                keep = decoded.valued()  # type: ignore[attr-defined]
-                table = np.column_stack(columns)
-            else:
-                keep = np.array([bool(v) for v in decoded], dtype=bool)
-                table = np.array([v for v in decoded if v], dtype=np.float64).reshape(-1, len(names))
-                table = _spread(table, keep)
+            keep, table = valued_table(decoded, len(names))
             if fed_rows.size:
                 keep &= ~np.isin(idx, fed_rows)
             if not keep.any():
@@ -264,12 +259,3 @@ def _times_at(times: Sequence[Any], rows: Any) -> Any:
     if hasattr(times, "dtype"):
         return times[rows]
     return np.array([float(times[i]) for i in rows.tolist()], dtype=np.float64)
-
-
-def _spread(table: Any, keep: Any) -> Any:
-    """The rows of ``table`` (one per kept row) placed at the kept rows of a table of ``len(keep)`` rows."""
-    import numpy as np
-
-    full = np.zeros((keep.size, table.shape[1]), dtype=np.float64)
-    full[keep] = table
-    return full
