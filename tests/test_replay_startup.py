@@ -85,3 +85,31 @@ def test_tree_without_scripts_or_palette_imports_neither(logs: list[Path]) -> No
     modules = ("canguard.bt.scripting.script", "canguard.bt.scripting.expr", "canguard.bt.palette",
                "canguard.bt.nodes.builtins")
     assert replay_loads(logs[0], modules) == "LOADED 0"
+
+
+def test_process_exit_keeps_every_output_and_the_exit_code(logs: list[Path], tmp_path: Path,
+                                                           capsys: pytest.CaptureFixture[str]) -> None:
+    """``python -m canguard`` (which skips the interpreter's last collections) writes what ``main`` writes:
+    the same stdout, complete event and fleet-summary files, and main's exit code (0, then 2 for a missing log)."""
+    env = {**os.environ, "PYTHONPATH": str(SRC)}
+    outputs = []
+    for how in ("process", "main"):
+        d = tmp_path / how
+        d.mkdir()
+        argv = ["replay", str(logs[0]), str(logs[1]), "-c", str(BUNDLED), "--json",
+                "--events", str(d / "ev.jsonl"), "--fleet-summary", str(d / "fleet.jsonl")]
+        if how == "process":
+            proc = subprocess.run([sys.executable, "-m", "canguard", *argv], cwd=tmp_path, env=env,
+                                  capture_output=True, text=True, timeout=60, check=False)
+            code, out = proc.returncode, proc.stdout
+        else:
+            code = main(argv)
+            out = capsys.readouterr().out
+        assert code == 0
+        files = sorted(p.name for p in d.iterdir())
+        outputs.append((out, files, [(d / f).read_bytes() for f in files]))
+    assert outputs[0] == outputs[1]
+    assert len(outputs[0][1]) == 3  # two event journals (one per log) and the fleet summary
+    missing = subprocess.run([sys.executable, "-m", "canguard", "replay", str(tmp_path / "nope.log"),
+                              "-c", str(BUNDLED)], env=env, capture_output=True, text=True, timeout=60, check=False)
+    assert missing.returncode == 2 and "nope.log" in missing.stderr

@@ -2,6 +2,6 @@
 
 import sys
 
-from canguard.cli.main import main
+from canguard.cli.main import console
 
-sys.exit(main())
+sys.exit(console())
