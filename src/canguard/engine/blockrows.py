@@ -25,6 +25,7 @@ if TYPE_CHECKING:
 def decode_rows(
     plans: Mapping[str | int, MessagePlan | None], rows: list[int], cols: Columns | ByteColumns, ts: Sequence[Any],
     settle: bool = False, keys: Any = None, taken: list[tuple[MessagePlan, list[int], Sequence[Any]]] | None = None,
+    horizon: Callable[[Mapping[int, Mapping[str, float]]], float] | None = None,
 ) -> list[tuple[MessagePlan | None, tuple[float, ...] | None] | None] | None:
     """Per row of the block: its plan and decoded values when it goes one by one (else None); None: no row left.
 
@@ -74,7 +75,7 @@ def decode_rows(
         if plan.passive and plan.batch(pick(ts), decoded):
             continue
         active.append((plan, group, decoded, pick))
-    if settle and active and None not in groups and _settled(active, ts):
+    if settle and active and None not in groups and _settled(active, ts, horizon):
         for plan, _group, decoded, _pick in active:
             plan.count_empty(count_empty(decoded))
         return None
@@ -90,7 +91,7 @@ def decode_rows(
 
 
 def _settled(active: list[tuple[MessagePlan, list[int], Sequence[Any], Callable[[Any], Any]]],
-             ts: Sequence[Any]) -> bool:
+             ts: Sequence[Any], horizon: Callable[[Mapping[int, Mapping[str, float]]], float] | None) -> bool:
     """Every active message of the block taken whole (:mod:`canguard.engine.settle`), or none of them."""
     from canguard.engine.settle import prepare, settle
 
@@ -102,7 +103,7 @@ def _settled(active: list[tuple[MessagePlan, list[int], Sequence[Any], Callable[
         if ready is None:
             return False
         prepared.append(ready)
-    return settle(prepared)
+    return settle(prepared, float(ts[-1]), horizon)
 
 
 def _picker(rows: list[int]) -> Callable[[Any], Sequence[Any]]:

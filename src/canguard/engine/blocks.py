@@ -91,6 +91,10 @@ class MessagePlan:
         self.empty = 0
         self.settle_ok = False
         """Its rows may be taken a block at a time (:func:`canguard.engine.settle.may_settle`, set by the engine)."""
+        self.confirm_read = False
+        """It feeds the stop confirmation's source (set by the engine): it settles only while no tick can stop."""
+        self.present_healths = tuple(o[4] for o in self.outputs if o[3])
+        """The health of each source whose presence flag it carries."""
         self.tops = [-1.0] * len(self.outputs)
         if self.single:
             self.step = self._single_step()  # type: ignore[method-assign,assignment]

@@ -71,6 +71,7 @@ class LogRunMixin:
         def feed(self, bus: str, frame: Frame) -> None: ...
         def advance(self, now: float) -> None: ...
         def tick(self, now: float) -> py_trees.common.Status: ...
+        def _block_horizon(self, fresh: Mapping[int, Mapping[str, float]]) -> float: ...
 
     def run_log(
         self, frames: Iterable[Frame], route: Mapping[str, str], default_bus: str | None,
@@ -229,7 +230,7 @@ class LogRunMixin:
         tally = _lane_tally(cols, rows, first)
         last_row = rows[-1] if rows else -1  # the last row feed would see, whatever path takes it
         taken: list[tuple[MessagePlan, list[int], Sequence[Any]]] | None = [] if export is not None else None
-        slots = decode_rows(plans, rows, cols, ts, self._q_fixed, keys, taken) if rows else []
+        slots = decode_rows(plans, rows, cols, ts, self._q_fixed, keys, taken, self._block_horizon) if rows else []
         if slots is None:
             rows = []  # every row taken whole: only the ticks due in the block are left
             slots = []
@@ -345,7 +346,8 @@ class LogRunMixin:
                 continue
             plan = compile_plan(entry, counters, self.ctx, self.stats, readers)
             if plan is not None:
-                plan.settle_ok = may_settle(plan, confirm, self.metrics is not None)
+                plan.settle_ok = may_settle(plan, self.metrics is not None, self.ctx.read_sources)
+                plan.confirm_read = any(source == confirm for source, *_rest in plan.outputs)
                 made.append(plan)
             for text in candump_id_texts(cid, ext):
                 plans[text] = plan

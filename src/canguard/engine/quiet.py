@@ -42,7 +42,7 @@ summaries, events, frames out and engine state.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import TYPE_CHECKING, Any
 
 import py_trees
@@ -109,6 +109,10 @@ class QuietTickMixin:
         """What the last tick that ran left (nodes, gate), to recognise a fixed point."""
         self._q_until = -math.inf
         """Grid ticks before this time may be skipped (set by a fixed-point tick)."""
+        self._q_now = -math.inf
+        """The time of the fixed-point tick that set :attr:`_q_until`."""
+        self._q_timers = -math.inf
+        """Its horizon but for the sources' staleness (start windows, guards left behind)."""
         self._q_events = -1
         self._q_gate: tuple[Any, ...] = ()
         self._q_ticked: list[Any] = []
@@ -158,12 +162,27 @@ class QuietTickMixin:
         (``now - t > max_age`` ...), and then as ``t + max_age``: when rounding puts that
         sum at or before ``now``, the horizon is in the past and the next tick runs.
         """
+        self._q_now = now
+        self._q_timers = self._timer_horizon(now)
+        return min(self._health_horizon(now, None), self._q_timers) - MARGIN_S
+
+    def _health_horizon(self, now: float, fresh: Mapping[int, Mapping[str, float]] | None) -> float:
+        """When the first source signal not stale at ``now`` goes stale (``fresh``: later latest times, by
+        ``id(health)`` and role)."""
         horizon = math.inf
         for health in self.ctx.health.values():
             max_age = health.max_age_s
-            for t in health._latest_t.values():
+            later = fresh.get(id(health)) if fresh else None
+            for role, t in health._latest_t.items():
+                if later is not None:
+                    t = later.get(role, t)
                 if not now - t > max_age and t + max_age < horizon:  # not stale yet: stale after t + max_age
                     horizon = t + max_age
+        return horizon
+
+    def _timer_horizon(self, now: float) -> float:
+        """When a start window ends or a guard the tick at ``now`` left behind reads as such."""
+        horizon = math.inf
         start = self._started_at
         windows = [source.max_age_s for source in self.ctx.sources.values()]  # each source's no_data grace
         windows.append(self._start_grace_s)  # the start window (Engine._starting)
@@ -176,7 +195,15 @@ class QuietTickMixin:
                 limit = max(g.source.max_age_s, period)
                 if not now - g.judged_t > limit and g.judged_t + limit < horizon:
                     horizon = g.judged_t + limit
-        return horizon - MARGIN_S
+        return horizon
+
+    def _block_horizon(self, fresh: Mapping[int, Mapping[str, float]]) -> float:
+        """The quiet horizon of the last fixed point had the signals in ``fresh`` (by ``id(health)`` and role)
+        been sampled last at those times, as a settled block's rows leave them (:mod:`canguard.engine.settle`);
+        -inf when :meth:`_quiet_through` finds no horizon to extend."""
+        if self._quiet_through() == -math.inf:
+            return -math.inf
+        return min(self._health_horizon(self._q_now, fresh), self._q_timers) - MARGIN_S
 
     def _quiet_tick(self, now: float) -> bool:
         """Count the grid tick at ``now`` instead of running it when it is proven quiet; False: run it."""
@@ -188,6 +215,20 @@ class QuietTickMixin:
             return False
         self._count_quiet(now, 1)
         return True
+
+    def _quiet_through(self) -> float:
+        """Until when every tick is proven quiet, as a settled block of the stop confirmation's source needs
+        (:mod:`canguard.engine.settle`): the last fixed point's horizon, while nothing it saw has changed (no
+        event, the gate as it left it: :meth:`_quiet_tick`'s test) and no stop waits for its confirmation;
+        -inf otherwise."""
+        until = self._q_until
+        gate = self.gate
+        if until == -math.inf or self.events_written != self._q_events or gate._confirm_pending:
+            return -math.inf
+        state, inhibits = self._q_gate
+        if gate.state != state or gate.inhibits != inhibits:
+            return -math.inf
+        return until
 
     def _quiet_advance(self, now: float) -> bool:
         """:meth:`advance` to ``now`` when all that is due up to it is one quiet grid tick; False: nothing done.

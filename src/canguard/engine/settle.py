@@ -17,9 +17,16 @@ A block is settled only when, for every configured message in it:
   reason is "" at every instant of the block, whichever of its samples a tick sees);
 - every model the rows feed declares, on the run's lowest and highest |value|, that
   the run trips or recovers nothing (:meth:`~canguard.protect.base.LatchedModel.settle`:
-  threshold and hysteresis without inrush; others decline);
-- its source is not the stop confirmation's (read between ticks) and no metrics
-  count per frame.
+  threshold and hysteresis without inrush; others decline); a presence flag feeds no
+  model: its rows all read 1 (a 0 goes to ``feed``), the source's other signals are in
+  the same message (so fresh and valid at each row by the checks above), and the
+  source's reason was "" at its last full look (``SourceHealth.observe``);
+- no metrics count per frame;
+- when its source is the stop confirmation's (which reads the value between ticks, while a
+  stop waits for it): no confirmation is pending, and the block ends before the quiet
+  horizon of the last fixed point, counted with the block's rows taken
+  (:meth:`QuietTickMixin._block_horizon <canguard.engine.quiet.QuietTickMixin._block_horizon>`):
+  no tick in it can stop the task and start one.
 
 And the tick before the block was a fixed point reaching no loud node (the quiet
 ticks' test, :mod:`canguard.engine.quiet`): every guard it reached reported its
@@ -42,7 +49,8 @@ tests (``tests/test_replay_columns.py``, ``tests/test_replay_random_logs.py``,
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import math
+from collections.abc import Callable, Collection, Mapping, Sequence
 from typing import TYPE_CHECKING
 
 from canguard.engine.colrows import abs_range, has_empty, has_fed, keep_valued, last_row, max_gap
@@ -54,14 +62,18 @@ Prepared = tuple["MessagePlan", Sequence[tuple[float, ...]], float, float]
 """(plan, row values, first time, last time) of a message whose rows may be settled."""
 
 
-def may_settle(plan: MessagePlan, confirm_source: str | None, metrics: bool) -> bool:
-    """True when ``plan``'s rows may ever be settled (the static conditions of the module docstring)."""
+def may_settle(plan: MessagePlan, metrics: bool, tree_reads: Collection[str]) -> bool:
+    """True when ``plan``'s rows may ever be settled (the static conditions of the module docstring).
+
+    Each signal feeds a model, is a presence flag, or is read by no tree node (only by the stop
+    confirmation: ``plan.confirm_read``, checked block by block).
+    """
     if metrics or plan.counter or plan.passive:
         return False
-    for source, _role, _signal, present, _health, _lo, _hi, models in plan.outputs:
-        if present or source == confirm_source or not models:
-            return False
-    return True
+    own = {role for _source, role, *_rest in plan.outputs}
+    # a presence flag: the source's other signals are in the same message (as sources: configures them)
+    return all((present and own.issuperset(health._value_roles)) or models or source not in tree_reads
+               for source, _role, _signal, present, health, _lo, _hi, models in plan.outputs)
 
 
 def prepare(plan: MessagePlan, stamps: Sequence[str], rows: Sequence[tuple[float, ...] | None]) -> Prepared | None:
@@ -79,11 +91,27 @@ def prepare(plan: MessagePlan, stamps: Sequence[str], rows: Sequence[tuple[float
         latest = health._latest_t.get(role)
         if latest is None or first < latest or first - latest > health.max_age_s or health._invalid.get(role):
             return None
+    for health in plan.present_healths:
+        if health._last_reason:  # the source's reason as its last full look found it (step's own test)
+            return None
     return plan, rows, first, last  # type: ignore[return-value]  # no None left in rows
 
 
-def settle(prepared: list[Prepared]) -> bool:
-    """Take every prepared message's rows whole if every model agrees; False: nothing changed, go row by row."""
+def settle(prepared: list[Prepared], end: float = math.inf,
+           horizon: Callable[[Mapping[int, Mapping[str, float]]], float] | None = None) -> bool:
+    """Take every prepared message's rows whole if every model agrees; False: nothing changed, go row by row.
+
+    ``end``: the block's last time; ``horizon``: :meth:`QuietTickMixin._block_horizon
+    <canguard.engine.quiet.QuietTickMixin._block_horizon>`, which a block feeding the stop
+    confirmation's source must end before.
+    """
+    if any(plan.confirm_read for plan, *_rest in prepared):
+        fresh: dict[int, dict[str, float]] = {}
+        for plan, _rows, _first, last in prepared:
+            for _source, role, _signal, _present, health, *_rest in plan.outputs:
+                fresh.setdefault(id(health), {})[role] = last
+        if horizon is None or not end < horizon(fresh):
+            return False
     runs: list[list[float]] = []
     for plan, rows, first, _last in prepared:
         highs = []
