@@ -106,6 +106,39 @@ class TestTaskDeadlinesBetweenTicks:
         assert quiet > ticks // 2
 
 
+    def test_task_due_again_between_the_tick_and_the_row(self, tmp_path: Path) -> None:
+        """A 4 ms heartbeat on 10 ms ticks, rows 12 and 8 ms apart: a row often comes after a quiet tick whose
+        own task deadline was serviced at the tick and the next one is already due (rows at 17 and 25 ms, the
+        tick at 20 ms, task deadlines at 20 and 24 ms), once with an overcurrent that stops the task. The
+        frames sent (the task's at 24 ms among them) and all else are those of ticking every tick.
+
+        (``_quiet_advance`` services that second deadline at once; left due, the next step would
+        service it at its own time, with the same result: this log reaches that line ~50 times, and
+        removing it alone is not caught.)
+        """
+        from test_replay_columns import Row, bms_data, iq_data, msg_id, write_rows
+
+        doc = yaml.safe_load(BUNDLED.read_text(encoding="utf-8"))
+        doc["dbc"] = [str((BUNDLED.parent / d).resolve()) for d in doc["dbc"]]
+        doc["tree"]["file"] = str((BUNDLED.parent / doc["tree"]["file"]).resolve())
+        doc["task"]["period"] = 0.004
+        doc.pop("events", None)
+        doc.setdefault("state", {})["file"] = str(tmp_path / "state.json")
+        path = tmp_path / "canguard.yaml"
+        path.write_text(yaml.safe_dump(doc), encoding="utf-8")
+        bms, axis0 = msg_id("BMS_Status"), msg_id("Axis0_Get_Iq")
+        rows = [Row(0.0, 0, cid=bms, data=bms_data(5.0))]  # the first frame: ticks and task deadlines count from it
+        for k in range(300):  # a healthy battery and axis0 at 5 and 17 ms of every 20 ms
+            for j, offset in enumerate((0.005, 0.017)):
+                t = 0.02 * k + offset
+                amps = 80.0 if k == 150 and j == 0 else 5.0  # an overcurrent at 3.005 s: the row after such a tick
+                rows += [Row(t, 4 * k + 2 * j + 1, cid=bms, data=bms_data(amps)),
+                         Row(t + 0.0001, 4 * k + 2 * j + 2, cid=axis0, data=iq_data(0.5))]
+        log = write_rows(tmp_path / "heartbeat.log", rows)
+        quiet, ticks = quiet_and_reference(path, log, tmp_path)
+        assert quiet > ticks // 2
+
+
 class TestWhichTreesMayBeQuiet:
     """Only ticks that reach nodes repeating themselves exactly may be quiet; the rest tick every tick."""
 
