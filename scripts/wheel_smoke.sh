@@ -18,7 +18,7 @@ step() { echo "wheel smoke: $*"; }
 step "--version"; "$cg" --version | grep -q '^canguard '
 step "check"; "$cg" check >/dev/null 2>&1
 step "tree"; "$cg" tree >/dev/null
-step "demo --duration 10"; timeout 60 "$cg" demo --duration 10 >/dev/null 2>&1
+step "demo --duration 5"; timeout 60 "$cg" demo --duration 5 >demo.txt 2>&1; grep -q "canguard demo summary" demo.txt
 step "simulate"; "$cg" simulate --scenario overload --duration 5 --out x.log >/dev/null 2>&1
 test -s x.log
 step "replay"; "$cg" replay x.log >/dev/null 2>&1

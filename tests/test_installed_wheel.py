@@ -1,7 +1,7 @@
 """The installed product, not the checkout (issue 14): scripts/wheel_smoke.sh.
 
 Builds the wheel, installs it into a fresh venv in a temporary directory and runs,
-from there, ``--version``, ``check``, ``tree``, ``demo --duration 10``,
+from there, ``--version``, ``check``, ``tree``, ``demo --duration 5`` (to its summary),
 ``simulate --scenario overload --duration 5 --out x.log``, ``replay x.log`` (exit 0
 and, with ``--fail-on-trip``, 1), ``init`` + ``check -c`` and ``unit``. Needs the
 package index (or pip's cache) for the dependencies, like ``scripts/test.sh``.
