@@ -100,20 +100,30 @@ class MessagePlan:
             self.step = self._single_step()  # type: ignore[method-assign,assignment]
 
     # -- the columns -------------------------------------------------------------------
-    def decode(self, cols: Columns | ByteColumns, rows: list[int]) -> Sequence[Row]:
+    def cuts_payloads(self, rows: Any) -> bool:
+        """A numpy block's ``rows`` of this message are decoded from their payloads joined (:meth:`decode` asks
+        ``ByteColumns.payload`` for them, which :func:`canguard.engine.blockrows.decode_rows` may do for several
+        messages at once)."""
+        return not self.counter and (self.np_spec is None or len(rows) < MIN_ROWS)
+
+    def decode(self, cols: Columns | ByteColumns, rows: Any,
+               payload: tuple[list[int] | None, bytes] | None = None) -> Sequence[Row]:
         """Each of ``rows``' configured values (in output order), ``EMPTY``, or None: the row goes to ``feed``.
 
         A row is None when its payload has another length than the DBC's, when cantools
         would refuse it (a multiplexer value no signal uses), when one of its values is
         NaN, infinite or outside the DBC range, when a presence flag reads 0, or when it
-        holds some configured signals of a multiplexed message but not all.
+        holds some configured signals of a multiplexed message but not all. ``payload``: what
+        ``cols.payload(rows, size)`` gives, when already cut (:meth:`cuts_payloads`).
         """
         n = len(rows)
         if self.counter:
             return [None] * n
         size = self.hex_size
         good: list[int] | None
-        if not isinstance(cols, tuple):  # ByteColumns (numpy, imported only with it): straight from the bytes
+        if payload is not None:
+            good, data = payload
+        elif not isinstance(cols, tuple):  # ByteColumns (numpy, imported only with it): straight from the bytes
             if self.np_spec is not None and n >= MIN_ROWS:
                 return decode_struct(cols, rows, size, self.np_spec)
             good, data = cols.payload(rows, size)

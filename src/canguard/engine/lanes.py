@@ -28,28 +28,30 @@ def key_table(plans: Mapping[Any, Any]) -> tuple[Any, Any]:
     return table, np.array(sorted(known), dtype=np.int64)
 
 
-def configured_rows(keys: Any, tables: tuple[Any, Any]) -> list[int]:
-    """The rows of a numpy block (:class:`~canguard.io.candump_np.ByteColumns`) whose id key has a plan."""
+def configured_rows(keys: Any, tables: tuple[Any, Any]) -> Any:
+    """The rows of a numpy block (:class:`~canguard.io.candump_np.ByteColumns`) whose id key has a plan, as an
+    index array (made a list only when the block's rows go one by one)."""
     import numpy as np
 
     table, every = tables
     if keys.size and int(keys.max()) < _STANDARD:
-        return np.flatnonzero(table[keys]).tolist()
-    return np.flatnonzero(np.isin(keys, every)).tolist()
+        return np.flatnonzero(table[keys])
+    return np.flatnonzero(np.isin(keys, every))
 
 
-def runs_by_key(keys: Any, rows: list[int]) -> list[tuple[int, list[int]]]:
-    """``rows`` of a numpy block grouped by id key, each group in row order (numpy's stable sort)."""
+def runs_by_key(keys: Any, rows: Any) -> list[tuple[int, Any]]:
+    """``rows`` of a numpy block (a list or an index array) grouped by id key, each group an index array in row
+    order (numpy's stable sort)."""
     import numpy as np
 
-    if not rows:
+    if not len(rows):
         return []
     picked = np.asarray(rows, dtype=np.intp)
     of = keys[picked]
     order = np.argsort(of, kind="stable")
     ranked = of[order]
     cuts = (np.flatnonzero(ranked[1:] != ranked[:-1]) + 1).tolist()
-    ordered = picked[order].tolist()
+    ordered = picked[order]
     bounds = [0, *cuts, len(ordered)]
     return list(zip(ranked[bounds[:-1]].tolist(), map(ordered.__getitem__, map(slice, bounds, bounds[1:])),
                     strict=True))

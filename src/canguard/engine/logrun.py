@@ -222,20 +222,23 @@ class LogRunMixin:
             keys = keys + lanes * LANE
             rows = configured_rows(keys, lane[1])
             bus_at = list(map(buses.__getitem__, lanes.tolist()))
+        # rows: a list, or a numpy block's index array (a list only if its rows go one by one below)
         remote = cols.remote
         if remote:  # counted by the decoder as remote frames, configured or not: fed
-            rows = sorted(set(rows).union(remote))
-        if first and rows and rows[0] == 0:
-            del rows[0]
+            rows = sorted(set(rows if type(rows) is list else rows.tolist()).union(remote))
+        if first and len(rows) and rows[0] == 0:
+            rows = rows[1:]
         tally = _lane_tally(cols, rows, first)
-        last_row = rows[-1] if rows else -1  # the last row feed would see, whatever path takes it
-        taken: list[tuple[MessagePlan, list[int], Sequence[Any]]] | None = [] if export is not None else None
-        slots = decode_rows(plans, rows, cols, ts, self._q_fixed, keys, taken, self._block_horizon) if rows else []
+        last_row = int(rows[-1]) if len(rows) else -1  # the last row feed would see, whatever path takes it
+        taken: list[tuple[MessagePlan, Any, Sequence[Any]]] | None = [] if export is not None else None
+        slots = decode_rows(plans, rows, cols, ts, self._q_fixed, keys, taken, self._block_horizon) if len(rows) else []
         if slots is None:
             rows = []  # every row taken whole: only the ticks due in the block are left
             slots = []
-        elif rows:
+        elif len(rows):
             ts = cols.ts  # read row by row below: as floats
+            if type(rows) is not list:
+                rows = rows.tolist()
         feed = self.feed
         frame = cols.frame
         pos = first
@@ -354,7 +357,7 @@ class LogRunMixin:
             plans[id_key(cid, ext)] = plan  # the ids of byte blocks (canguard.io.candump_np)
         return plans
 
-def _lane_tally(cols: Any, rows: list[int], first: int) -> list[tuple[int, int]]:
+def _lane_tally(cols: Any, rows: Any, first: int) -> list[tuple[int, int]]:
     """Per channel of a block (one when it has one): its rows, and those fed or taken by a plan (``rows``,
     and the first row when it went frame by frame)."""
     lanes = getattr(cols, "lanes", None)
@@ -364,7 +367,7 @@ def _lane_tally(cols: Any, rows: list[int], first: int) -> list[tuple[int, int]]
 
     size = len(cols.channels)
     per_lane = np.bincount(lanes, minlength=size).tolist()
-    taken = np.bincount(lanes[rows], minlength=size).tolist() if rows else [0] * size
+    taken = np.bincount(lanes[rows], minlength=size).tolist() if len(rows) else [0] * size
     if first:
         taken[int(lanes[0])] += 1
     return list(zip(per_lane, taken, strict=True))

@@ -24,7 +24,9 @@ rewritten as -L (:mod:`canguard.io.candump_long`).
 from __future__ import annotations
 
 import threading
+from bisect import bisect_left
 from collections.abc import Iterator
+from typing import Any
 
 import numpy as np
 
@@ -131,7 +133,7 @@ class ByteColumns:
         _made = self.ids, self.ts
         return map(self.frame, range(self.n))
 
-    def payload(self, rows: list[int], size: int) -> tuple[list[int] | None, bytes]:
+    def payload(self, rows: Any, size: int) -> tuple[list[int] | None, bytes]:
         """The payloads of ``rows`` that hold ``size`` hex digits, joined: (their positions in ``rows``, or None
         when all of them do; the bytes)."""
         if len(rows) < _FEW:  # a few rows: slicing the bytes costs less than numpy's calls
@@ -146,7 +148,27 @@ class ByteColumns:
         nib = _HEXVAL.take(_rows(self._b, start, size))
         return good, ((nib[:, 0::2] << 4) | nib[:, 1::2]).tobytes()
 
-    def _fitting(self, rows: list[int], size: int) -> tuple[list[int] | None, np.ndarray]:
+    def payloads(self, groups: list[Any], size: int) -> list[tuple[list[int] | None, bytes]]:
+        """:meth:`payload` of each of ``groups`` (row lists or index arrays), cut in one pass over all their rows."""
+        good, data = self.payload(np.concatenate(groups), size)
+        width = size // 2
+        out: list[tuple[list[int] | None, bytes]] = []
+        pos = 0
+        if good is None:
+            for group in groups:
+                out.append((None, data[pos * width:(pos + len(group)) * width]))
+                pos += len(group)
+            return out
+        at = 0  # good positions before the group
+        for group in groups:
+            end = pos + len(group)
+            upto = bisect_left(good, end, at)
+            mine = [k - pos for k in good[at:upto]]
+            out.append((None if len(mine) == len(group) else mine, data[at * width:upto * width]))
+            pos, at = end, upto
+        return out
+
+    def _fitting(self, rows: Any, size: int) -> tuple[list[int] | None, np.ndarray]:
         """Which of ``rows`` hold ``size`` hex digits (their positions in ``rows``; None: all), and where
         their data starts."""
         idx = np.asarray(rows, dtype=np.intp)
