@@ -44,7 +44,7 @@ if str(SRC) not in sys.path:
 import can  # noqa: E402
 import cantools  # noqa: E402
 
-from bench_common import wait_for_start, write_config  # noqa: E402
+from bench_common import clean_up_on_sigterm, wait_for_start, write_config  # noqa: E402
 
 DBC = REPO / "dbc" / "robot.dbc"
 BMS_ID = 0x18FF50E5
@@ -313,6 +313,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--only", choices=("in-process", "cross-process"), help="run one set-up only")
     ap.add_argument("--seed", type=int, default=1)
     args = ap.parse_args(argv)
+    clean_up_on_sigterm()  # a killed run stops the daemon and load it started (bench_common)
     rnd = random.Random(args.seed)
     print(f"python {sys.version.split()[0]}, python-can {can.__version__}, {os.cpu_count()} CPUs, "
           f"GIL switch interval {sys.getswitchinterval() * 1e3:.1f} ms")

@@ -38,7 +38,7 @@ from typing import Any
 
 import yaml
 
-from bench_common import compiled, write_config
+from bench_common import clean_up_on_sigterm, compiled, write_config
 
 REPO = Path(__file__).resolve().parents[1]
 SRC = REPO / "src"
@@ -219,6 +219,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--src", type=Path, default=SRC,
                     help="with --commands: the source tree to time (default: this one)")
     args = ap.parse_args(argv)
+    clean_up_on_sigterm()  # a killed run stops the daemon and load it started (bench_common)
     compiled(args.src.resolve())  # bytecode as an installed wheel has it (bench_common.compiled)
     rnd = random.Random()
     print(f"python {sys.version.split()[0]}, {os.cpu_count()} CPUs")

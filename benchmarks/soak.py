@@ -59,6 +59,7 @@ if str(SRC) not in sys.path:
 import can  # noqa: E402
 import yaml  # noqa: E402
 
+from bench_common import clean_up_on_sigterm  # noqa: E402
 from canguard.config.loader import load_config  # noqa: E402
 from canguard.sim import SimRobot, run_on_bus  # noqa: E402
 
@@ -355,6 +356,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--no-load", dest="load", action="store_false",
                     help="without the 40 background ids (~2,000 instead of ~8,000 frames/s): a slow machine")
     args = ap.parse_args(argv)
+    clean_up_on_sigterm()  # a killed run stops the daemon and load it started (bench_common)
     report = run(args)
     out, ok = summarize(report, args.bound)
     text = json.dumps(out, indent=2)
