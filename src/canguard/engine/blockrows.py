@@ -24,7 +24,7 @@ if TYPE_CHECKING:
 
 def decode_rows(
     plans: Mapping[str | int, MessagePlan | None], rows: Any, cols: Columns | ByteColumns, ts: Sequence[Any],
-    settle: bool = False, keys: Any = None, taken: list[tuple[MessagePlan, list[int], Sequence[Any]]] | None = None,
+    settle: bool = False, keys: Any = None, taken: list[tuple[MessagePlan, Any, Sequence[Any]]] | None = None,
     horizon: Callable[[Mapping[int, Mapping[str, float]]], float] | None = None,
 ) -> list[tuple[MessagePlan | None, tuple[float, ...] | None] | None] | None:
     """Per row of the block: its plan and decoded values when it goes one by one (else None); None: no row left.
@@ -107,7 +107,7 @@ def _cut_payloads(cols: Any, groups: dict[MessagePlan | None, Any]
     return cut
 
 
-def _settled(active: list[tuple[MessagePlan, list[int], Sequence[Any], Callable[[Any], Any]]],
+def _settled(active: list[tuple[MessagePlan, Any, Sequence[Any], Callable[[Any], Any]]],
              ts: Sequence[Any], horizon: Callable[[Mapping[int, Mapping[str, float]]], float] | None) -> bool:
     """Every active message of the block taken whole (:mod:`canguard.engine.settle`), or none of them."""
     from canguard.engine.settle import prepare, settle

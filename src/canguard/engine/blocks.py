@@ -124,7 +124,8 @@ class MessagePlan:
         if payload is not None:
             good, data = payload
         elif not isinstance(cols, tuple):  # ByteColumns (numpy, imported only with it): straight from the bytes
-            if self.np_spec is not None and n >= MIN_ROWS:
+            if not self.cuts_payloads(rows):
+                assert self.np_spec is not None
                 return decode_struct(cols, rows, size, self.np_spec)
             good, data = cols.payload(rows, size)
         else:
