@@ -198,6 +198,15 @@ class TestConfigErrors:
             "closest: socketcan"
         )
 
+    def test_built_in_interfaces_are_python_cans(self) -> None:
+        """The interface names a config may give without importing python-can are all the installed one's."""
+        import can.interfaces
+
+        from canguard.config.sections import _BUILT_IN_INTERFACES
+
+        assert _BUILT_IN_INTERFACES <= can.interfaces.VALID_INTERFACES
+        assert {"socketcan", "virtual", "udp_multicast"} <= _BUILT_IN_INTERFACES
+
     def test_frame_value_out_of_range(self) -> None:
         """A signal value outside the DBC range names the signal key and the range."""
         [p] = problems(

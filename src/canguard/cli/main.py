@@ -308,6 +308,9 @@ def console() -> int:
     search for reference cycles among them is skipped. Not in :func:`main`, which tests and
     embedding programs call and go on living after.
     """
+    from canguard.cli.deferred import defer_unused
+
+    defer_unused()
     code = main()
     gc.freeze()
     return code

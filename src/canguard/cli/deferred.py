@@ -1,0 +1,76 @@
+"""Submodules of our dependencies that ``canguard`` commands never use, loaded on first use instead of at import.
+
+``import cantools`` runs ``cantools.tester`` (cantools' bus test harness), which imports
+python-can whole (its interfaces, ``asyncio``, its log readers and writers): ~35 ms of
+every ``canguard replay`` over a candump log, about 6 % of a 2 M-frame replay, for a
+module canguard never touches. ``py_trees`` likewise imports ``py_trees.display`` (and
+with it ``pydot``), used only by ``canguard tree``.
+
+:func:`defer` puts a stand-in for such a module into ``sys.modules`` before its package
+is imported. The package's own ``from . import tester`` then binds the stand-in, and the
+first attribute anyone reads of it runs the real module's code in it (PEP 562's module
+``__getattr__``): ``cantools.tester.Tester`` and ``py_trees.display.unicode_tree`` work as
+before, only later. python-can itself is still imported wherever canguard talks to a bus or
+reads a python-can log format; then nothing is deferred but the harness's own few lines.
+
+Only the ``canguard`` process entry point (:func:`canguard.cli.main.console`) defers:
+a program that imports canguard as a library gets its dependencies as they are.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+import sys
+
+UNUSED = ("cantools.tester", "py_trees.display")
+"""The submodules :func:`defer_unused` defers: none of them is read on a replay, check or daemon run."""
+
+
+def defer(name: str) -> bool:
+    """Load the submodule ``name`` (``package.module``) only when one of its attributes is first read.
+
+    True when deferred; False (nothing changed) when its package is imported already, or
+    is not installed, or keeps the module somewhere other than ``package/module.py``.
+    """
+    package, _, leaf = name.rpartition(".")
+    if not package or package in sys.modules or name in sys.modules:
+        return False
+    try:
+        parent = importlib.util.find_spec(package)  # finds the package without importing it
+    except (ImportError, ValueError):
+        return False
+    if parent is None or not parent.submodule_search_locations:
+        return False
+    spec = None
+    for where in parent.submodule_search_locations:
+        candidate = importlib.util.spec_from_file_location(name, f"{where}/{leaf}.py")
+        if candidate is not None and candidate.origin and os.path.isfile(candidate.origin):
+            spec = candidate
+            break
+    if spec is None or spec.loader is None:
+        return False
+    module = importlib.util.module_from_spec(spec)
+    loader = spec.loader
+
+    def __getattr__(attr: str) -> object:
+        del module.__dict__["__getattr__"]  # the real module's own lookups fail as they would
+        try:
+            loader.exec_module(module)
+        except BaseException:
+            module.__dict__["__getattr__"] = __getattr__  # a failed load is tried again (and fails again) on next use
+            raise
+        try:
+            return module.__dict__[attr]
+        except KeyError:
+            raise AttributeError(f"module {name!r} has no attribute {attr!r}") from None
+
+    module.__dict__["__getattr__"] = __getattr__
+    sys.modules[name] = module
+    return True
+
+
+def defer_unused() -> None:
+    """:func:`defer` every module of :data:`UNUSED`."""
+    for name in UNUSED:
+        defer(name)
