@@ -183,6 +183,8 @@ def test_a_deferred_module_loads_on_first_use() -> None:
         "from cantools.tester import Tester\nassert Tester is tester.Tester\n"
         "try:\n    tester.no_such_name\nexcept AttributeError as e:\n    print(e)\n"
         "print(py_trees.display.unicode_tree(py_trees.behaviours.Success('ok')).rstrip())\n"
+        "assert 'py_trees.demos.action' not in sys.modules\n"  # a deferred package: its submodules come with it
+        "assert py_trees.demos.action.Action.__module__ == 'py_trees.demos.action'\n"
     )
     proc = subprocess.run([sys.executable, "-c", probe], env={**os.environ, "PYTHONPATH": str(SRC)},
                           capture_output=True, text=True, timeout=60, check=True)

@@ -23,15 +23,17 @@ import importlib.util
 import os
 import sys
 
-UNUSED = ("cantools.tester", "py_trees.display")
-"""The submodules :func:`defer_unused` defers: none of them is read on a replay, check or daemon run."""
+UNUSED = ("cantools.tester", "cantools.logreader", "py_trees.display", "py_trees.demos", "py_trees.programs")
+"""The submodules :func:`defer_unused` defers: none of them is read on a replay, check or daemon run (cantools'
+log reader and py_trees' demos and programs are other tools' parts)."""
 
 
 def defer(name: str) -> bool:
     """Load the submodule ``name`` (``package.module``) only when one of its attributes is first read.
 
     True when deferred; False (nothing changed) when its package is imported already, or
-    is not installed, or keeps the module somewhere other than ``package/module.py``.
+    is not installed, or keeps the module somewhere other than ``package/module.py`` or
+    ``package/module/__init__.py``.
     """
     package, _, leaf = name.rpartition(".")
     if not package or package in sys.modules or name in sys.modules:
@@ -44,9 +46,12 @@ def defer(name: str) -> bool:
         return False
     spec = None
     for where in parent.submodule_search_locations:
-        candidate = importlib.util.spec_from_file_location(name, f"{where}/{leaf}.py")
-        if candidate is not None and candidate.origin and os.path.isfile(candidate.origin):
-            spec = candidate
+        if os.path.isfile(f"{where}/{leaf}.py"):
+            spec = importlib.util.spec_from_file_location(name, f"{where}/{leaf}.py")
+        elif os.path.isfile(f"{where}/{leaf}/__init__.py"):  # a package: its submodules import as usual once it runs
+            spec = importlib.util.spec_from_file_location(name, f"{where}/{leaf}/__init__.py",
+                                                          submodule_search_locations=[f"{where}/{leaf}"])
+        if spec is not None:
             break
     if spec is None or spec.loader is None:
         return False
