@@ -22,6 +22,7 @@ from __future__ import annotations
 import importlib.util
 import os
 import sys
+import threading
 
 UNUSED = ("cantools.tester", "cantools.logreader", "py_trees.display", "py_trees.demos", "py_trees.programs")
 """The submodules :func:`defer_unused` defers: none of them is read on a replay, check or daemon run (cantools'
@@ -57,14 +58,18 @@ def defer(name: str) -> bool:
         return False
     module = importlib.util.module_from_spec(spec)
     loader = spec.loader
+    lock = threading.RLock()  # another thread's first use waits for the module's code to have run
+    running: list[bool] = []
 
     def __getattr__(attr: str) -> object:
-        del module.__dict__["__getattr__"]  # the real module's own lookups fail as they would
-        try:
-            loader.exec_module(module)
-        except BaseException:
-            module.__dict__["__getattr__"] = __getattr__  # a failed load is tried again (and fails again) on next use
-            raise
+        with lock:
+            if "__getattr__" in module.__dict__ and not running:  # else: loaded, or being loaded by this thread
+                running.append(True)
+                try:
+                    loader.exec_module(module)  # a failure propagates; the next use tries again
+                finally:
+                    running.clear()
+                module.__dict__.pop("__getattr__", None)
         try:
             return module.__dict__[attr]
         except KeyError:
