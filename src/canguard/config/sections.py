@@ -26,7 +26,7 @@ _BUILT_IN_INTERFACES = frozenset({
     "socketcan", "socketcand", "virtual", "udp_multicast", "slcan", "serial", "gs_usb", "pcan", "kvaser",
     "vector", "ixxat",
 })
-"""Interfaces every python-can canguard supports (>= 4.3) has built in (``tests/test_config_buses.py`` holds
+"""Interfaces every python-can canguard supports (>= 4.3) has built in (``tests/test_config.py`` holds
 them to the installed python-can's): a config naming one of them is accepted without importing python-can,
 which ``canguard replay`` of a candump log otherwise never does (~35 ms of its start, ~0.35 s with ``asammdf``)."""
 
