@@ -1,9 +1,9 @@
 """Fleet replay workers (issue 16): a worker keeps the run's config; the logs go largest first; same results.
 
-``--jobs N`` forks its workers (Linux) after the parent loaded the config, so no worker reads it
-again; a Dask worker reads it once per run (:class:`~canguard.cli.replay.ConfigRef`). The
-results stay those of a serial run, in the order the logs were given, whatever order the
-workers took them in.
+``--jobs N`` forks its workers (Linux, from a process running one thread) after the parent loaded
+the config, so no worker reads it again (spawned workers read it once); a Dask worker reads it
+once per run (:class:`~canguard.cli.replay.ConfigRef`). The results stay those of a serial run,
+in the order the logs were given, whatever order the workers took them in.
 """
 
 from __future__ import annotations
@@ -12,7 +12,9 @@ import json
 import multiprocessing
 import os
 import shutil
+import subprocess
 import sys
+import threading
 from pathlib import Path
 
 import pytest
@@ -108,9 +110,6 @@ def test_worker_start_keeps_blas_to_one_thread_unless_set(monkeypatch: pytest.Mo
 def test_a_canguard_process_starts_no_blas_thread_pool(tmp_path: Path) -> None:
     """A replay long enough to import numpy runs in one thread: OpenBLAS's pool (a thread per core, spinning
     beside the replay) is kept to one thread, unless the user asked for more."""
-    import subprocess
-    import sys
-
     log = tmp_path / "long.log"
     log.write_text("".join(f"({1700000000 + k / 1000:.6f}) can0 123#0011\n" for k in range(40_000)), encoding="ascii")
     probe = ("import os, sys\n"
@@ -133,3 +132,32 @@ def _square(x: int) -> int:
 def test_run_processes_keeps_input_order_with_more_workers_than_jobs() -> None:
     assert run_processes(4, _square, [3, 1, 2]) == [9, 1, 4]
     assert run_processes(2, _square, [5], warm=("json",)) == [25]
+
+
+def test_a_process_running_other_threads_spawns_its_workers(mixed: list[Path],
+                                                           capsys: pytest.CaptureFixture[str]) -> None:
+    """A program that calls canguard while another of its threads runs (a GUI's, a Dask client's) is not
+    forked: a worker could inherit a lock that thread held and hang. Its workers are spawned, read the
+    config themselves and give the serial results."""
+    stop = threading.Event()
+    other = threading.Thread(target=stop.wait, name="embedding-program")
+    other.start()
+    try:
+        assert fleet._pool_context().get_start_method() == "spawn"
+        base = ["replay", *map(str, mixed[:2]), "-c", str(CONFIG), "--json"]
+        assert _run([*base, "--jobs", "2"], capsys) == _run(base, capsys)
+    finally:
+        stop.set()
+        other.join()
+
+
+@pytest.mark.skipif(sys.platform != "linux", reason="workers are forked on Linux only")
+def test_a_single_threaded_process_forks_them() -> None:
+    """As the ``canguard`` command is when it starts a pool: one thread (no BLAS pool either, after numpy)."""
+
+    probe = ("from canguard.cli.common import one_blas_thread\none_blas_thread()\n"
+             "import numpy\nimport canguard.cli.fleet as fleet\nprint(fleet._pool_context().get_start_method())\n")
+    env = {k: v for k, v in os.environ.items() if k not in BLAS_THREADS}
+    done = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, env=env, timeout=60,
+                          check=True)
+    assert done.stdout.strip() == "fork"

@@ -119,17 +119,31 @@ def run_dask(address: str, job: Callable[[Any], Any], jobs: list[Any]) -> list[A
 
 
 def _pool_context() -> Any:
-    """'fork' on Linux while this process has one thread: the workers start with what it imported and loaded.
+    """How ``--jobs`` starts its workers: 'fork' on Linux while this process runs one thread, else 'spawn'.
 
-    (Python 3.14 makes 'forkserver' the default, where each worker would import canguard
-    again; forking a process that runs other threads is unsafe, so then the default.)
+    Forked workers start with what this process imported and loaded (its config included). A
+    process that runs other threads (an embedding program's, a Dask client's, a BLAS pool's) is
+    not forked: a child gets a copy of whatever lock another thread held at that moment, and can
+    hang on it (Python 3.12 warns of it). Such a process's workers are spawned instead: each
+    starts a fresh interpreter and imports canguard and the config itself (~0.2 s more a worker).
+    Python's own default start method is no help here: it is 'fork' on Linux up to 3.13.
     """
     import multiprocessing
+
+    if sys.platform == "linux" and _threads() == 1:
+        return multiprocessing.get_context("fork")
+    return multiprocessing.get_context("spawn")
+
+
+def _threads() -> int:
+    """This process's threads, as the kernel counts them (C libraries' included); Python's count elsewhere."""
+    import os
     import threading
 
-    if sys.platform == "linux" and threading.active_count() == 1:
-        return multiprocessing.get_context("fork")
-    return None
+    try:
+        return len(os.listdir("/proc/self/task"))
+    except OSError:
+        return threading.active_count()
 
 
 CONNECT_TIMEOUT = "10s"
@@ -149,14 +163,14 @@ def run_processes(workers: int, job: Callable[[Any], Any], jobs: list[Any],
     """Run ``job`` over ``jobs`` in ``workers`` local processes; results in the order of ``jobs``.
 
     ``warm``: modules every job imports, imported here first when the workers are forked
-    (once, instead of once per worker).
+    (once, instead of once per worker). How they start: :func:`_pool_context`.
     """
     import gc
     import importlib
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
     context = _pool_context()
-    if context is not None:
+    if context.get_start_method() == "fork":
         for name in warm:
             importlib.import_module(name)
         # What the workers inherit stays out of their collections, whose passes would write to (and so

@@ -37,14 +37,17 @@ BATCH_ROWS = 65_536
 OUT_OF_RANGE = "out_of_range"
 
 
+_NO_PYARROW = (f"{FLAG}: writing Parquet needs pyarrow, an optional extra: "
+               "pip install 'canguard[fleet]' (or pip install pyarrow)")
+
+
 def require_pyarrow() -> tuple[Any, Any]:
     """``(pyarrow, pyarrow.parquet)``, or a ConfigError (exit 2) naming the flag and the extra."""
     try:
         import pyarrow as pa
         import pyarrow.parquet as pq
     except ImportError:
-        raise ConfigError(f"{FLAG}: writing Parquet needs pyarrow, an optional extra: "
-                          "pip install 'canguard[fleet]' (or pip install pyarrow)") from None
+        raise ConfigError(_NO_PYARROW) from None
     return pa, pq
 
 
@@ -60,7 +63,12 @@ def check_export(path: Path, *, dask: bool = False) -> None:
     if dask:
         raise ConfigError(f"{FLAG} cannot be combined with --dask: the workers of a cluster cannot write "
                           f"beside {path} on this machine; use --jobs N (local processes) instead")
-    require_pyarrow()
+    # Found, not imported: pyarrow starts a thread (jemalloc's) at import, and a process running other
+    # threads is not forked for --jobs (canguard.cli.fleet._pool_context). The parts' writers import it.
+    import importlib.util
+
+    if importlib.util.find_spec("pyarrow") is None:
+        raise ConfigError(_NO_PYARROW)
     check_writable(path)
 
 
