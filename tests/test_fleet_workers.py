@@ -9,7 +9,6 @@ in the order the logs were given, whatever order the workers took them in.
 from __future__ import annotations
 
 import json
-import multiprocessing
 import os
 import shutil
 import subprocess
@@ -59,24 +58,32 @@ def test_jobs_give_the_serial_results_in_input_order(mixed: list[Path], capsys: 
 
 
 @pytest.mark.skipif(sys.platform != "linux", reason="workers are forked on Linux only")
-def test_forked_workers_do_not_read_the_config_again(mixed: list[Path], tmp_path: Path,
-                                                     monkeypatch: pytest.MonkeyPatch,
-                                                     capsys: pytest.CaptureFixture[str]) -> None:
-    """Only the parent loads the config: a forked worker that loaded it would write a line here."""
+def test_forked_workers_do_not_read_the_config_again(mixed: list[Path], tmp_path: Path) -> None:
+    """Only the parent loads the config: a forked worker that loaded it would write a line here.
+
+    In a fresh, single-threaded interpreter, as the command runs (this test process may hold an
+    earlier test's threads, and then its workers are spawned: :func:`canguard.cli.fleet._pool_context`).
+    """
     record = tmp_path / "loads.txt"
-    real = replay_cmd.load_config
-
-    def recording(path: str | Path) -> Config:
-        with open(record, "a", encoding="utf-8") as f:
-            f.write(f"{path}\n")
-        return real(path)
-
-    monkeypatch.setattr(replay_cmd, "load_config", recording)
-    # Forked even when an earlier test left a thread behind (a Dask cluster's): what a CLI run does.
-    monkeypatch.setattr(fleet, "_pool_context", lambda: multiprocessing.get_context("fork"))
-    _run(["replay", *map(str, mixed), "-c", str(CONFIG), "--json", "--jobs", "2"], capsys)
+    probe = (
+        "import sys\n"
+        "import canguard.cli.replay as replay_cmd\n"
+        "from canguard.cli.main import main\n"
+        "real = replay_cmd.load_config\n"
+        "def recording(path):\n"
+        f"    with open({str(record)!r}, 'a', encoding='utf-8') as f:\n"
+        "        f.write(f'{path}\\n')\n"
+        "    return real(path)\n"
+        "replay_cmd.load_config = recording\n"
+        f"code = main(['replay', *{[str(p) for p in mixed]!r}, '-c', {str(CONFIG)!r}, '--json', '--jobs', '2'])\n"
+        "assert replay_cmd._CONFIGS == {}, 'the parent kept the run config after it'\n"
+        "sys.exit(code)\n"
+    )
+    env = {k: v for k, v in os.environ.items() if k not in BLAS_THREADS}
+    done = subprocess.run([sys.executable, "-W", "error::DeprecationWarning", "-c", probe], capture_output=True,
+                          text=True, env=env, timeout=120)
+    assert done.returncode in (0, 1), done.stderr[-2000:]
     assert record.read_text(encoding="utf-8").splitlines() == [str(CONFIG)]
-    assert replay_cmd._CONFIGS == {}  # the parent does not keep the run's config after it
 
 
 def test_a_worker_reads_the_config_once_per_run(monkeypatch: pytest.MonkeyPatch) -> None:
