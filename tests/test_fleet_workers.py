@@ -75,6 +75,14 @@ def test_forked_workers_do_not_read_the_config_again(mixed: list[Path], tmp_path
         "        f.write(f'{path}\\n')\n"
         "    return real(path)\n"
         "replay_cmd.load_config = recording\n"
+        "import canguard.cli.fleet as fleet\n"
+        "chosen = fleet._pool_context\n"
+        "def telling():\n"
+        "    context = chosen()\n"
+        f"    with open({str(record)!r}, 'a', encoding='utf-8') as f:\n"
+        "        f.write(f'pool: {context.get_start_method()}\\n')\n"
+        "    return context\n"
+        "fleet._pool_context = telling\n"
         f"code = main(['replay', *{[str(p) for p in mixed]!r}, '-c', {str(CONFIG)!r}, '--json', '--jobs', '2'])\n"
         "assert replay_cmd._CONFIGS == {}, 'the parent kept the run config after it'\n"
         "sys.exit(code)\n"
@@ -83,7 +91,7 @@ def test_forked_workers_do_not_read_the_config_again(mixed: list[Path], tmp_path
     done = subprocess.run([sys.executable, "-W", "error::DeprecationWarning", "-c", probe], capture_output=True,
                           text=True, env=env, timeout=120)
     assert done.returncode in (0, 1), done.stderr[-2000:]
-    assert record.read_text(encoding="utf-8").splitlines() == [str(CONFIG)]
+    assert record.read_text(encoding="utf-8").splitlines() == [str(CONFIG), "pool: fork"]
 
 
 def test_a_worker_reads_the_config_once_per_run(monkeypatch: pytest.MonkeyPatch) -> None:
