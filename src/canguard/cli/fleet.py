@@ -152,10 +152,14 @@ CONNECT_TIMEOUT = "10s"
 
 def _worker_start() -> None:
     """A --jobs worker: no BLAS thread pool beside the N workers (:func:`canguard.cli.common.one_blas_thread`;
-    the parent set it for itself already, and a spawned worker starts from its environment)."""
+    the parent set it for itself already, and a spawned worker starts from its environment); a spawned
+    worker, which imports canguard before its first log, defers what the command would
+    (:mod:`canguard.cli.deferred`; a forked one has its parent's modules, and this changes nothing)."""
     from canguard.cli.common import one_blas_thread
+    from canguard.cli.deferred import defer_unused
 
     one_blas_thread()
+    defer_unused()
 
 
 def run_processes(workers: int, job: Callable[[Any], Any], jobs: list[Any],
