@@ -255,6 +255,9 @@ ODD = [
     ("rx stuck", "   0.008300 1  123 Rxx d 1 01"),
     ("tail in data", "   0.008400 1  123 Rx d 2 01 02x"),
     ("extra bytes", "   0.008500 1  123 Rx d 1 01 02 03"),
+    # after the DLC's bytes: a greedy match (Python 3.10) takes the line, a possessive one hands it over
+    ("tail after the DLC's bytes", "   0.008600 1  123 Rx d 1 01 02x"),
+    ("a 3-digit byte", "   0.008700 1  123 Rx d 2 01 023"),
 ]
 
 

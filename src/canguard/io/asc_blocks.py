@@ -31,6 +31,7 @@ from __future__ import annotations
 import io
 import math
 import re
+import sys
 from collections.abc import Iterator
 from itertools import compress
 from operator import itemgetter
@@ -67,6 +68,13 @@ COMMENT_REGEX = re.compile(r"//.*")
 
 _PLAIN = (r"S*+(\d++\.\d++)S++(\d++)S++([0-9A-Fa-f]++[xX]?+)S++[RT]xS++dS++([0-8])((?:S++[0-9A-Fa-f][0-9A-Fa-f])*+)"
           r"(?:S[^\n]*+)?+\n|([^\n]*+)\n")
+if sys.version_info < (3, 11):
+    # Python 3.10's re has no possessive quantifiers: the greedy ones. They read every field the same (each ends
+    # at a separator it cannot hold); on a line whose data has a malformed token ("02x", "023") a greedy match can
+    # give back whole byte pairs from the end of the data to the trailing text instead of taking the line as not
+    # plain. The bytes kept are still the line's first tokens, so either the DLC check finds them short (python-can's
+    # reader takes the line, as with possessive quantifiers) or they hold the DLC bytes python-can would read.
+    _PLAIN = _PLAIN.replace("*+", "*").replace("++", "+").replace("?+", "?")
 _LINE = re.compile(_PLAIN.replace("S", " "), re.ASCII)
 """One line: a plain data line's timestamp, channel, id, DLC and bytes (each a whole token: nothing is given back
 once matched); or any other line. Spaces separate the fields: blocks without tabs (faster than a class)."""
