@@ -122,6 +122,9 @@ def write_asc(path: Path, msgs: list[can.Message]) -> Path:
 
 def test_regexes_are_python_cans() -> None:
     """The rules copied from python-can's ASCReader are still its own (checked against the installed version)."""
+    if not hasattr(can.io.asc, "ASC_TRIGGER_REGEX"):
+        pytest.skip("python-can before 4.6 keeps its ASC rules inside ASCReader: the file-by-file tests here "
+                    "compare the frames with its reader's")
     assert canguard.io.asc_blocks.ASC_TRIGGER_REGEX.pattern == can.io.asc.ASC_TRIGGER_REGEX.pattern
     assert canguard.io.asc_blocks.ASC_TRIGGER_REGEX.flags == can.io.asc.ASC_TRIGGER_REGEX.flags
     assert canguard.io.asc_blocks.ASC_MESSAGE_REGEX.pattern == can.io.asc.ASC_MESSAGE_REGEX.pattern

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import importlib.util
 import json
 import os
 import random
@@ -160,7 +161,9 @@ def child_env(**extra: str) -> dict[str, str]:
 def bus_args(bus: dict[str, Any]) -> list[str]:
     """python-can CLI arguments (can.player, can.logger) for a udp_multicast bus."""
     # "--bus-kwargs=..." takes exactly one value; "--bus-kwargs port=..." would swallow what follows.
-    return ["-i", "udp_multicast", "-c", bus["channel"], f"--bus-kwargs=port={bus['port']}"]
+    # python-can before 4.6 (no can.cli) has no --bus-kwargs: it passes unknown "--name=value" options to the bus.
+    port = f"--bus-kwargs=port={bus['port']}" if importlib.util.find_spec("can.cli") else f"--port={bus['port']}"
+    return ["-i", "udp_multicast", "-c", bus["channel"], port]
 
 
 class Children:
