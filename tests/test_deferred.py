@@ -72,3 +72,22 @@ def test_nothing_is_deferred_once_the_package_is_imported_or_when_there_is_no_su
 
     assert not defer(f"{package}.slow")
     assert cg_defer_probe.slow.VALUE == 42
+
+
+def test_a_module_with_its_own_getattr_keeps_it_and_runs_once(package: str, tmp_path: Path) -> None:
+    """A deferred module that defines a module ``__getattr__`` (PEP 562) answers through it, from the first use."""
+    root = tmp_path / package  # the fixture's package
+    (root / "lazy.py").write_text(
+        "import cg_defer_probe\ncg_defer_probe.LOADS.append('lazy')\n"
+        "def __getattr__(name):\n    if name == 'ANSWER':\n        return 42\n"
+        "    raise AttributeError(name)\n", encoding="utf-8")
+    (root / "__init__.py").write_text("LOADS = []\nfrom . import lazy\n", encoding="utf-8")
+    assert defer(f"{package}.lazy")
+    import cg_defer_probe
+
+    assert cg_defer_probe.LOADS == []
+    assert cg_defer_probe.lazy.ANSWER == 42  # the first use: through the module's own __getattr__
+    assert cg_defer_probe.lazy.ANSWER == 42
+    with pytest.raises(AttributeError):
+        _ = cg_defer_probe.lazy.missing
+    assert cg_defer_probe.LOADS == ["lazy"]

@@ -62,18 +62,22 @@ def defer(name: str) -> bool:
     running: list[bool] = []
 
     def __getattr__(attr: str) -> object:
+        space = module.__dict__
         with lock:
-            if "__getattr__" in module.__dict__ and not running:  # else: loaded, or being loaded by this thread
+            if space.get("__getattr__") is __getattr__ and not running:  # else: loaded, or loading in this thread
                 running.append(True)
                 try:
                     loader.exec_module(module)  # a failure propagates; the next use tries again
                 finally:
                     running.clear()
-                module.__dict__.pop("__getattr__", None)
-        try:
-            return module.__dict__[attr]
-        except KeyError:
-            raise AttributeError(f"module {name!r} has no attribute {attr!r}") from None
+                if space.get("__getattr__") is __getattr__:  # a module's own __getattr__, if it has one, stays
+                    del space["__getattr__"]
+        if attr in space:
+            return space[attr]
+        own = space.get("__getattr__")
+        if own is not None and own is not __getattr__:
+            return own(attr)
+        raise AttributeError(f"module {name!r} has no attribute {attr!r}")
 
     module.__dict__["__getattr__"] = __getattr__
     sys.modules[name] = module
