@@ -139,12 +139,26 @@ class Context:
         if health is None:
             return False
         edge = health.observe(sample)
+        if sample.signal == "emcy" and health.source.signal("emcy_code") is not None:
+            self._emcy(sample, health)
         if sample.reason:
             return edge
         for model in self._subscribers.get((sample.source, sample.signal), ()):
             if model.update(sample.value, sample.t):
                 edge = True
         return edge
+
+    def _emcy(self, sample: Sample, health: SourceHealth) -> None:
+        """Journal one EMCY frame of a CANopen drive: code, error register, manufacturer bytes."""
+        code, data = health.value("emcy_code"), health.value("emcy_data")
+        fields: dict[str, Any] = {"t": sample.t, "source": sample.source, "value": sample.value}
+        if sample.reason:
+            fields["reason"] = sample.reason
+        else:
+            fields.update(code=f"0x{int(code):04X}", error_register=int(sample.value),
+                          manufacturer=int(data).to_bytes(5, "little").hex().upper(),
+                          reset=int(code) == 0 and int(sample.value) == 0)
+        self.record("emcy", **fields)
 
     def record(self, event: str, **fields: Any) -> None:
         """Report an event (``trip``, ``recover``, ...) with its fields to the journal, if any."""

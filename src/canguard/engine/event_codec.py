@@ -24,6 +24,7 @@ EVENT_TYPES = frozenset(
         "stale",
         "fresh",
         "bus_error",
+        "emcy",
         "reload",
         "start",
         "exit",
