@@ -193,7 +193,7 @@ class CanopenSection:
             pdo, obj = where
             refs.append(self.ref(drive, pdo, role, f"{source}_{role}", obj.start_bit, obj.bits, obj.signed,
                                  obj.is_float, float(scale)))
-        refs.extend(self.health_refs(drive))
+        refs.extend(self.health_refs(drive, where[0] if where is not None else None))
         return drive.bus, max_age, refs
 
     def tpdo_object(self, drive: CanopenDrive, value: Any, key: str) -> tuple[Pdo, MappedObject] | None:
@@ -215,8 +215,12 @@ class CanopenSection:
         self.checks.problem(key, _found(value), f"an object a TPDO of {drive.name} maps ({mapped or 'no TPDO'})")
         return None
 
-    def health_refs(self, drive: CanopenDrive) -> list[SignalRef]:
-        """The drive's heartbeat, EMCY and (statusword mapped) Fault-bit roles of every source it feeds."""
+    def health_refs(self, drive: CanopenDrive, near: Pdo | None) -> list[SignalRef]:
+        """The drive's heartbeat, EMCY and (statusword mapped) Fault-bit roles of every source it feeds.
+
+        The Fault bit is read from ``near`` (the TPDO of the source's own object) when it maps
+        the statusword too, so the bit and the value arrive in one frame.
+        """
         refs = [self.ref(drive, None, ROLE_NMT, f"{drive.name}_nmt_state", 0, 7, False, False, 1.0, drive.heartbeat_id)]
         if drive.name not in self._events:
             # One source per drive carries the EMCY event's fields: one ``emcy`` event per EMCY frame.
@@ -227,7 +231,8 @@ class CanopenSection:
                                  drive.emcy_id))
         refs.append(self.ref(drive, None, ROLE_EMCY, f"{drive.name}_error_register", 16, 8, False, False, 1.0,
                              drive.emcy_id))
-        status = drive.tpdo_of(STATUSWORD, 0)
+        in_near = near.find(STATUSWORD, 0) if near is not None else None
+        status = (near, in_near) if near is not None and in_near is not None else drive.tpdo_of(STATUSWORD, 0)
         if status is not None:
             pdo, obj = status
             refs.append(self.ref(drive, pdo, ROLE_FAULT, f"{drive.name}_fault", obj.start_bit + FAULT_BIT, 1, False,
