@@ -17,15 +17,13 @@ from typing import Any
 import pytest
 import yaml
 
-pytest.importorskip("canopen")
-
-from canguard.cli.check import describe  # noqa: E402
-from canguard.config.loader import load_config  # noqa: E402
-from canguard.engine.core import Engine  # noqa: E402
-from canguard.engine.gate import LogSink, TaskGate  # noqa: E402
-from canguard.errors import ConfigError  # noqa: E402
-from canguard.io.clock import ManualClock  # noqa: E402
-from canguard.io.frame import Frame  # noqa: E402
+from canguard.cli.check import describe
+from canguard.config.loader import load_config
+from canguard.engine.core import Engine
+from canguard.engine.gate import LogSink, TaskGate
+from canguard.errors import ConfigError
+from canguard.io.clock import ManualClock
+from canguard.io.frame import Frame
 
 EDS = Path(__file__).resolve().parent / "data" / "canopen" / "cia402_drive.eds"
 T0 = 1_700_000_000.0
@@ -41,15 +39,15 @@ TREE = """<root BTCPP_format="4" main_tree_to_execute="Drive">
 """
 
 
-def config(tmp: Path, drive: dict[str, Any] | None = None, source: dict[str, Any] | None = None,
-           **top: Any) -> Path:
+def config(tmp: Path, drive: dict[str, Any] | None = None, source: dict[str, Any] | None = None, **top: Any) -> Path:
     """A config with drive ``left`` (node 2) and source ``left_torque`` (0x6077, scale 0.1), no DBC."""
     (tmp / "tree.xml").write_text(TREE, encoding="utf-8")
     doc: dict[str, Any] = {
         "buses": {"main": {"interface": "virtual", "channel": "can0"}},
         "canopen": {"left": {"eds": str(EDS), "node": NODE, "bus": "main", **(drive or {})}},
-        "sources": {"left_torque": {"kind": "current", "canopen": "left", "object": "0x6077", "scale": 0.1,
-                                    **(source or {})}},
+        "sources": {
+            "left_torque": {"kind": "current", "canopen": "left", "object": "0x6077", "scale": 0.1, **(source or {})}
+        },
         "tree": {"file": "tree.xml", "tick_hz": 100},
         "task": {"period": 0.02, "frames": [{"canopen": "left", "command": "enable_operation"}]},
         "stop": {"repeat": 0.05, "frames": [{"canopen": "left", "command": "quick_stop"}]},
@@ -100,9 +98,11 @@ class TestTranslation:
         assert msg.decode(struct.pack("<hh", 7, 250))[ref.signal] == pytest.approx(25.0)
 
     def test_command_and_nmt_frames(self, tmp_path: Path) -> None:
-        """quick_stop / enable_operation: the controlword in RPDO1 with modes of operation at its EDS value; NMT stop."""
-        path = config(tmp_path, stop={"frames": [{"canopen": "left", "command": "quick_stop"},
-                                                 {"canopen": "left", "nmt": "stop"}]})
+        """quick_stop / enable_operation: the controlword in RPDO1, modes of operation at its EDS value; NMT stop."""
+        path = config(
+            tmp_path,
+            stop={"frames": [{"canopen": "left", "command": "quick_stop"}, {"canopen": "left", "nmt": "stop"}]},
+        )
         cfg = load_config(path)
         quick, nmt = cfg.stop.frames
         [enable] = cfg.task.frames
@@ -128,8 +128,9 @@ class TestTranslation:
             ({}, {"max_age": 0.5}, "sources.left_torque.max_age"),
         ],
     )
-    def test_bad_input_names_the_key(self, tmp_path: Path, drive: dict[str, Any], source: dict[str, Any],
-                                     key: str) -> None:
+    def test_bad_input_names_the_key(
+        self, tmp_path: Path, drive: dict[str, Any], source: dict[str, Any], key: str
+    ) -> None:
         """Each mistake is reported with the key at fault."""
         with pytest.raises(ConfigError, match=key.replace(".", r"\.")):
             load_config(config(tmp_path, drive=drive, source=source))

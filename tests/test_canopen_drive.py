@@ -19,15 +19,14 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import can
+import canopen
 import pytest
 import yaml
 
-can = pytest.importorskip("can")
-canopen = pytest.importorskip("canopen")
-
-from canguard.cli.main import main  # noqa: E402
-from canguard.service.daemon import Daemon  # noqa: E402
-from canguard.service.systemd import Notifier  # noqa: E402
+from canguard.cli.main import main
+from canguard.service.daemon import Daemon
+from canguard.service.systemd import Notifier
 
 EDS = Path(__file__).resolve().parent / "data" / "canopen" / "cia402_drive.eds"
 NODE = 2

@@ -156,8 +156,10 @@ class CanopenDrive:
         pdo, _ = found
         payload = 0
         for obj in pdo.objects:
-            value = command if (obj.index, obj.subindex) == (CONTROLWORD, 0) else self.defaults.get(
-                (obj.index, obj.subindex), 0
+            value = (
+                command
+                if (obj.index, obj.subindex) == (CONTROLWORD, 0)
+                else self.defaults.get((obj.index, obj.subindex), 0)
             )
             payload |= _raw_bits(obj, value) << obj.start_bit
         return pdo, payload.to_bytes(pdo.length, "little")
@@ -165,7 +167,8 @@ class CanopenDrive:
     def describe(self) -> list[str]:
         """Lines for ``canguard check``: COB-IDs, which object sits where, heartbeat and EMCY ids."""
         lines = [
-            f"{self.name}: node {self.node} on {self.bus}, {self.eds.name}" + (f" ({self.device})" if self.device else ""),
+            f"{self.name}: node {self.node} on {self.bus}, {self.eds.name}"
+            + (f" ({self.device})" if self.device else ""),
             f"  heartbeat 0x{self.heartbeat_id:03X} every {self.heartbeat_s:g} s (timeout {self.timeout_s:g} s),"
             f" EMCY 0x{self.emcy_id:03X}",
         ]
@@ -226,7 +229,7 @@ class Eds:
     def variable(self, index: int, subindex: int = 0) -> Any:
         """The OD variable ``index:subindex`` (or the variable ``index`` itself), or None."""
         try:
-            entry = self.od[index]
+            entry: Any = self.od[index]
         except KeyError:
             return None
         if hasattr(entry, "subindex") and not hasattr(entry, "subindices"):

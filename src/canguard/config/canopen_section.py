@@ -104,8 +104,15 @@ class CanopenSection:
                 if isinstance(v, (int, float)) and not isinstance(v, bool):
                     defaults[(obj.index, obj.subindex)] = v
         return CanopenDrive(
-            name=name, eds=path, node=node, bus=bus, heartbeat_s=heartbeat, tpdos=tuple(tpdos),
-            rpdos=tuple(rpdos), defaults=defaults, device=eds.device,
+            name=name,
+            eds=path,
+            node=node,
+            bus=bus,
+            heartbeat_s=heartbeat,
+            tpdos=tuple(tpdos),
+            rpdos=tuple(rpdos),
+            defaults=defaults,
+            device=eds.device,
         )
 
     def heartbeat(self, eds: Eds, body: Mapping[str, Any], key: str) -> float | None:
@@ -116,7 +123,8 @@ class CanopenSection:
         if isinstance(ms, int) and ms > 0:
             return ms / 1000.0
         self.checks.problem(
-            _path(key, "heartbeat"), "nothing (the EDS's 0x1017 producer heartbeat time is 0 or absent)",
+            _path(key, "heartbeat"),
+            "nothing (the EDS's 0x1017 producer heartbeat time is 0 or absent)",
             "the drive's heartbeat period in seconds",
         )
         return None
@@ -158,7 +166,9 @@ class CanopenSection:
         if isinstance(parsed, str):
             var = eds.by_name(parsed)
             if var is None:
-                self.checks.problem(key, repr(parsed), f"an object of {eds.path.name} (hex INDEX[:SUB] or ParameterName)")
+                self.checks.problem(
+                    key, repr(parsed), f"an object of {eds.path.name} (hex INDEX[:SUB] or ParameterName)"
+                )
                 return None
             return int(var.index), int(var.subindex)
         if eds.variable(*parsed) is None:
@@ -167,7 +177,9 @@ class CanopenSection:
         return parsed
 
     # -- sources ---------------------------------------------------------------
-    def source_refs(self, source: str, role: str, value: Mapping[str, Any], key: str) -> tuple[str, float, list[SignalRef]]:
+    def source_refs(
+        self, source: str, role: str, value: Mapping[str, Any], key: str
+    ) -> tuple[str, float, list[SignalRef]]:
         """The signals of a ``canopen:`` source: (bus, max_age, [its value, then the drive's health roles])."""
         c = self.checks
         dname = value.get("canopen")
@@ -183,16 +195,30 @@ class CanopenSection:
         if "max_age" in value:
             given = c.number(value["max_age"], _path(key, "max_age"), positive=True)
             if given is not None and given > drive.timeout_s:
-                c.problem(_path(key, "max_age"), f"{given:g}",
-                          f"at most {drive.timeout_s:g} s (1.5 x canopen.{drive.name}.heartbeat: the heartbeat timeout)")
+                c.problem(
+                    _path(key, "max_age"),
+                    f"{given:g}",
+                    f"at most {drive.timeout_s:g} s (1.5 x canopen.{drive.name}.heartbeat: the heartbeat timeout)",
+                )
             elif given is not None:
                 max_age = given
         refs: list[SignalRef] = []
         where = self.tpdo_object(drive, value.get("object"), _path(key, "object"))
         if where is not None:
             pdo, obj = where
-            refs.append(self.ref(drive, pdo, role, f"{source}_{role}", obj.start_bit, obj.bits, obj.signed,
-                                 obj.is_float, float(scale)))
+            refs.append(
+                self.ref(
+                    drive,
+                    pdo,
+                    role,
+                    f"{source}_{role}",
+                    obj.start_bit,
+                    obj.bits,
+                    obj.signed,
+                    obj.is_float,
+                    float(scale),
+                )
+            )
         refs.extend(self.health_refs(drive, where[0] if where is not None else None))
         return drive.bus, max_age, refs
 
@@ -225,25 +251,44 @@ class CanopenSection:
         if drive.name not in self._events:
             # One source per drive carries the EMCY event's fields: one ``emcy`` event per EMCY frame.
             self._events.add(drive.name)
-            refs.append(self.ref(drive, None, ROLE_EMCY_CODE, f"{drive.name}_emcy_code", 0, 16, False, False, 1.0,
-                                 drive.emcy_id))
-            refs.append(self.ref(drive, None, ROLE_EMCY_DATA, f"{drive.name}_emcy_data", 24, 40, False, False, 1.0,
-                                 drive.emcy_id))
-        refs.append(self.ref(drive, None, ROLE_EMCY, f"{drive.name}_error_register", 16, 8, False, False, 1.0,
-                             drive.emcy_id))
+            refs.append(
+                self.ref(
+                    drive, None, ROLE_EMCY_CODE, f"{drive.name}_emcy_code", 0, 16, False, False, 1.0, drive.emcy_id
+                )
+            )
+            refs.append(
+                self.ref(
+                    drive, None, ROLE_EMCY_DATA, f"{drive.name}_emcy_data", 24, 40, False, False, 1.0, drive.emcy_id
+                )
+            )
+        refs.append(
+            self.ref(drive, None, ROLE_EMCY, f"{drive.name}_error_register", 16, 8, False, False, 1.0, drive.emcy_id)
+        )
         in_near = near.find(STATUSWORD, 0) if near is not None else None
         status = (near, in_near) if near is not None and in_near is not None else drive.tpdo_of(STATUSWORD, 0)
         if status is not None:
             pdo, obj = status
-            refs.append(self.ref(drive, pdo, ROLE_FAULT, f"{drive.name}_fault", obj.start_bit + FAULT_BIT, 1, False,
-                                 False, 1.0))
+            refs.append(
+                self.ref(drive, pdo, ROLE_FAULT, f"{drive.name}_fault", obj.start_bit + FAULT_BIT, 1, False, False, 1.0)
+            )
         return refs
 
-    def ref(self, drive: CanopenDrive, pdo: Pdo | None, role: str, signal: str, start: int, bits: int,
-            signed: bool, is_float: bool, scale: float, cob_id: int = 0) -> SignalRef:
+    def ref(
+        self,
+        drive: CanopenDrive,
+        pdo: Pdo | None,
+        role: str,
+        signal: str,
+        start: int,
+        bits: int,
+        signed: bool,
+        is_float: bool,
+        scale: float,
+        cob_id: int = 0,
+    ) -> SignalRef:
         """A SignalRef to ``signal`` of the drive's message at ``cob_id`` (a PDO's), noted for :meth:`messages`."""
-        from cantools.database.conversion import BaseConversion
         from cantools.database.can import Signal
+        from cantools.database.conversion import BaseConversion
 
         if pdo is not None:
             cob_id, label, length = pdo.cob_id, f"{drive.name}_{pdo.name}", pdo.length
@@ -265,8 +310,16 @@ class CanopenSection:
         out = []
         for (dname, cob_id), signals in self._signals.items():
             label, length = self._labels[(dname, cob_id)]
-            out.append(Message(frame_id=cob_id, name=label, length=length, signals=list(signals.values()),
-                               strict=False, bus_name=self.drives[dname].bus))
+            out.append(
+                Message(
+                    frame_id=cob_id,
+                    name=label,
+                    length=length,
+                    signals=list(signals.values()),
+                    strict=False,
+                    bus_name=self.drives[dname].bus,
+                )
+            )
         return out
 
     # -- frames ----------------------------------------------------------------
@@ -291,13 +344,18 @@ class CanopenSection:
         command = value["command"]
         word = COMMANDS.get(command) if isinstance(command, str) else None
         if word is None:
-            c.problem(_path(key, "command"), _found(command), "one of " + ", ".join(COMMANDS) + _closest(command, COMMANDS))
+            c.problem(
+                _path(key, "command"), _found(command), "one of " + ", ".join(COMMANDS) + _closest(command, COMMANDS)
+            )
             return None
         found = drive.command_data(word)
         if found is None:
             mapped = "; ".join(f"{p.name}: {', '.join(o.ref for o in p.objects) or 'nothing'}" for p in drive.rpdos)
-            c.problem(_path(key, "command"), f"{command} for {drive.name}, whose RPDOs do not map 0x6040 ({mapped or 'no RPDO'})",
-                      "a drive with the controlword in an RPDO")
+            c.problem(
+                _path(key, "command"),
+                f"{command} for {drive.name}, whose RPDOs do not map 0x6040 ({mapped or 'no RPDO'})",
+                "a drive with the controlword in an RPDO",
+            )
             return None
         pdo, data = found
         return FrameSpec(drive.bus, pdo.cob_id, data, label=f"{drive.name}.{command}")
