@@ -262,3 +262,28 @@ class TestDriveHealth:
         d.run(0.05)
         assert d.named("trip")
         assert [f for f in d.sink.frames if f.arbitration_id == 0x202 and f.data == bytes([2, 0, 4])]
+
+
+class TestInit:
+    """``canguard init DIR --canopen EDS --node N`` writes a config and tree that check cleanly."""
+
+    def test_init_writes_a_drive_config_that_checks(self, tmp_path: Path) -> None:
+        """The written config guards the mapped torque and current, with the quick stop as its stop frame."""
+        from canguard.cli.main import main
+
+        target = tmp_path / "drive"
+        assert main(["init", str(target), "--canopen", str(EDS), "--node", "5", "--simulation"]) == 0
+        cfg = load_config(target / "canguard.yaml")
+        assert sorted(cfg.sources) == ["drive_current", "drive_torque"]
+        assert cfg.canopen["drive"].node == 5
+        [quick] = cfg.stop.frames
+        assert (quick.arbitration_id, quick.data) == (0x205, bytes([2, 0, 4]))
+        assert main(["check", "-c", str(target / "canguard.yaml")]) == 0
+
+    def test_init_without_node_says_so(self, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+        """``--canopen`` without ``--node`` is an error naming --node, and writes nothing."""
+        from canguard.cli.main import main
+
+        assert main(["init", str(tmp_path / "d"), "--canopen", str(EDS)]) == 2
+        assert "--node" in capsys.readouterr().err
+        assert not (tmp_path / "d").exists()
