@@ -97,6 +97,18 @@ class TestTranslation:
         msg = cfg.database.get_message_by_frame_id(0x182)
         assert msg.decode(struct.pack("<hh", 7, 250))[ref.signal] == pytest.approx(25.0)
 
+    def test_an_object_mapped_but_not_described_is_an_error_only_when_read(self, tmp_path: Path) -> None:
+        """An EDS whose TPDO2 maps 0x6078 without describing it still serves 0x6077; reading 0x6078 is an error."""
+        text = EDS.read_text(encoding="utf-8")
+        start = text.index("[6078]")
+        partial = tmp_path / "partial.eds"
+        end = text.find("\n[", start)
+        partial.write_text(text[:start] + (text[end + 1 :] if end >= 0 else ""), encoding="utf-8")
+        cfg = load_config(config(tmp_path, drive={"eds": str(partial)}))
+        assert cfg.sources["left_torque"].signal("current") is not None
+        with pytest.raises(ConfigError, match=r"0x6078, which TPDO2 maps but partial\.eds does not describe"):
+            load_config(config(tmp_path, drive={"eds": str(partial)}, source={"object": "0x6078"}))
+
     def test_command_and_nmt_frames(self, tmp_path: Path) -> None:
         """quick_stop / enable_operation: the controlword in RPDO1, modes of operation at its EDS value; NMT stop."""
         path = config(

@@ -34,6 +34,8 @@ CONTROLWORD = 0x6040
 STATUSWORD = 0x6041
 FAULT_BIT = 3
 """Statusword bit 3 (CiA 402): Fault."""
+UNDESCRIBED = "(not in the EDS)"
+"""The name of an object a PDO maps that the EDS does not describe (its type, so its sign, is unknown)."""
 HEARTBEAT_FACTOR = 1.5
 """A heartbeat consumer's timeout, in producer heartbeat periods."""
 
@@ -297,7 +299,12 @@ class Eds:
                 if index < 0x1000:  # a dummy entry (data type index): bits that carry nothing
                     start += bits
                     continue
-                objects.append(self.mapped(index, subindex, start, bits))
+                if self.variable(index, subindex) is None:
+                    # Mapped by default but not described (an EDS left incomplete): where it sits is known,
+                    # what it is not; only a source reading it is a problem.
+                    objects.append(MappedObject(index, subindex, UNDESCRIBED, start, bits))
+                else:
+                    objects.append(self.mapped(index, subindex, start, bits))
                 start += bits
             found.append(Pdo(name=f"{prefix}{n + 1}", cob_id=cob & 0x7FF, objects=tuple(objects)))
         return found

@@ -22,6 +22,7 @@ from canguard.config.canopen import (
     STATUSWORD,
     TPDO_COMM,
     TPDO_MAP,
+    UNDESCRIBED,
     CanopenDrive,
     Eds,
     EdsError,
@@ -235,6 +236,12 @@ class CanopenSection:
                         return pdo, obj
         elif parsed is not None:
             found = drive.tpdo_of(*parsed)
+            if found is not None and found[1].name == UNDESCRIBED:
+                self.checks.problem(
+                    key, f"{found[1].ref}, which {found[0].name} maps but {drive.eds.name} does not describe",
+                    "an object the EDS describes (its data type gives its size and sign)",
+                )
+                return None
             if found is not None:
                 return found
         mapped = "; ".join(f"{p.name}: {', '.join(o.ref for o in p.objects) or 'nothing'}" for p in drive.tpdos)
