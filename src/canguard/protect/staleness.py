@@ -53,6 +53,8 @@ REASON_DRIVE_FAULT = "drive_fault"
 GATE_ROLES = (NMT, EMCY, FAULT)
 FULL_ROLES = NON_VALUE_ROLES
 """Roles whose every sample takes :meth:`SourceHealth.observe`'s full path (their value can change a reason)."""
+ROW_ROLES = NON_VALUE_ROLES - {PRESENT}
+"""Roles a replay block cannot take as columns (the presence flag it checks itself): every row is fed."""
 
 
 class SourceHealth:
