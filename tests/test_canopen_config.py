@@ -147,6 +147,28 @@ class TestTranslation:
         with pytest.raises(ConfigError, match=key.replace(".", r"\.")):
             load_config(config(tmp_path, drive=drive, source=source))
 
+    def test_dbc_messages_and_a_drive_mix_on_one_bus(self, tmp_path: Path) -> None:
+        """With a DBC too, its sources and the drive's load side by side in one database."""
+        dbc = Path(__file__).resolve().parents[1] / "dbc" / "robot.dbc"
+        path = config(tmp_path, dbc=[str(dbc)])
+        doc = yaml.safe_load(path.read_text(encoding="utf-8"))
+        doc["sources"]["axis3"] = {"kind": "current", "message": "Axis3_Get_Iq", "signal": "Iq_Measured"}
+        path.write_text(yaml.safe_dump(doc), encoding="utf-8")
+        cfg = load_config(path)
+        names = {m.name for m in cfg.database.messages}
+        assert {"Axis3_Get_Iq", "left_TPDO2", "left_heartbeat", "left_emcy"} <= names
+        assert cfg.sources["axis3"].bus == cfg.sources["left_torque"].bus == "main"
+
+    def test_two_drives_on_one_node_id_clash(self, tmp_path: Path) -> None:
+        """Two drives with the same node id on one bus send on the same COB-IDs: an error naming them."""
+        path = config(tmp_path)
+        doc = yaml.safe_load(path.read_text(encoding="utf-8"))
+        doc["canopen"]["right"] = dict(doc["canopen"]["left"])
+        doc["sources"]["right_torque"] = {**doc["sources"]["left_torque"], "canopen": "right"}
+        path.write_text(yaml.safe_dump(doc), encoding="utf-8")
+        with pytest.raises(ConfigError, match=r"COB-ID 0x282 of right_TPDO2 also message 'left_TPDO2'"):
+            load_config(path)
+
     def test_canopen_is_not_imported_without_a_drive(self, tmp_path: Path) -> None:
         """Loading a config with no ``canopen:`` section never imports the canopen library."""
         repo = Path(__file__).resolve().parents[1]

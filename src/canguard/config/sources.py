@@ -80,19 +80,24 @@ class _Sources(_Checks):
         """Add messages made elsewhere (a CANopen drive's PDOs, heartbeat, EMCY) to the config's database."""
         if not messages:
             return
-        if self.database is None:
-            self.database = cantools.database.can.Database(messages=list(messages))
-        else:
-            taken = {(m.frame_id, bool(m.is_extended_frame)): m.name for m in self.database.messages}
-            for m in messages:
-                other = taken.get((m.frame_id, False))
-                if other is not None:
-                    self.problem("canopen", f"COB-ID 0x{m.frame_id:03X} of {m.name} also DBC message {other!r}",
-                                 "CANopen frames whose ids no DBC message uses")
-                    continue
-                self.database.messages.append(m)
-            self.database.refresh()
+        existing = list(self.database.messages) if self.database is not None else []
+        ids = {(m.frame_id, bool(m.is_extended_frame)): m.name for m in existing}
+        names = {m.name for m in existing}
+        added = []
         for m in messages:
+            other = ids.get((m.frame_id, False))
+            if other is not None or m.name in names:
+                what = f"COB-ID 0x{m.frame_id:03X} of {m.name} also message {other or m.name!r}"
+                self.problem("canopen", what, "CANopen frames whose ids and names no other message uses")
+                continue
+            ids[(m.frame_id, False)], names = m.name, names | {m.name}
+            added.append(m)
+        if self.database is None:
+            self.database = cantools.database.can.Database(messages=added)
+        else:
+            self.database.messages.extend(added)
+            self.database.refresh()
+        for m in added:
             self._by_name[m.name] = m
             self._by_id.setdefault(m.frame_id, []).append(m)
 
