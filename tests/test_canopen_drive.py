@@ -32,7 +32,8 @@ EDS = Path(__file__).resolve().parent / "data" / "canopen" / "cia402_drive.eds"
 NODE = 2
 WAIT_S = 20.0
 """Upper bound for anything a test waits for (a loaded machine is slow, never this slow)."""
-HEARTBEAT_MS = 250
+HEARTBEAT_MS = 500
+"""The drive's heartbeat: its 1.5x timeout (0.75 s) leaves room for a loaded machine's scheduling."""
 OPERATION_ENABLED = 0x0027
 FAULT = 0x0008
 
