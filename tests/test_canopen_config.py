@@ -109,6 +109,17 @@ class TestTranslation:
         with pytest.raises(ConfigError, match=r"0x6078, which TPDO2 maps but partial\.eds does not describe"):
             load_config(config(tmp_path, drive={"eds": str(partial)}, source={"object": "0x6078"}))
 
+    def test_a_dcf_parameter_value_overrides_the_eds_default(self, tmp_path: Path) -> None:
+        """A DCF whose ParameterValue makes TPDO3 valid: the position actual value (0x6064) is then readable."""
+        text = EDS.read_text(encoding="utf-8")
+        head = text.index("[1802sub1]")
+        line = text.index("DefaultValue=$NODEID+0x80000380", head)
+        dcf = tmp_path / "drive.dcf"
+        dcf.write_text(text[:line] + "ParameterValue=$NODEID+0x380\n" + text[line:], encoding="utf-8")
+        cfg = load_config(config(tmp_path, drive={"eds": str(dcf)}, source={"object": "0x6064"}))
+        ref = cfg.sources["left_torque"].signal("current")
+        assert ref is not None and ref.frame_id == 0x382
+
     def test_command_and_nmt_frames(self, tmp_path: Path) -> None:
         """quick_stop / enable_operation: the controlword in RPDO1, modes of operation at its EDS value; NMT stop."""
         path = config(
