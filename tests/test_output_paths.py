@@ -23,6 +23,7 @@ from typing import Any
 
 import pytest
 import yaml
+from tests.clikit import cli
 
 from canguard.io.outputs import output_problem
 
@@ -109,6 +110,33 @@ class TestOutputProblem:
         finally:
             ro.chmod(0o755)
         assert "cannot be written" in why and "belongs to" in why and "mode 0555" in why
+
+
+class TestInProcess:
+    """What needs no second process: a reload keeps --state-dir; an unforeseen OSError is still one line."""
+
+    def test_a_reload_keeps_the_state_dir(self, tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                          monkeypatch: pytest.MonkeyPatch) -> None:
+        """After SIGHUP's reload the journal and state file are still in --state-dir, not where the config says."""
+        from canguard.service.daemon import Daemon
+
+        monkeypatch.delenv("NOTIFY_SOCKET", raising=False)
+        assert cli(capsys, "init", tmp_path / "etc", "--simulation")[0] == 0
+        trial = tmp_path / "trial"
+        daemon = Daemon(tmp_path / "etc" / "canguard.yaml", state_dir=trial)
+        try:
+            assert daemon.reload()
+            assert (daemon.cfg.events, daemon.cfg.state.file) == (trial / "events.jsonl", trial / "i2t_state.json")
+        finally:
+            daemon.reader.stop()
+            daemon.journal.close()
+        assert not (tmp_path / "etc" / "events.jsonl").exists()
+
+    def test_an_unforeseen_os_error_is_one_line(self, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+        """A file no check tried (tree --nodes-model naming a directory) is exit 2 and one line, no traceback."""
+        code, _, err = cli(capsys, "tree", "-c", ROBOT, "--nodes-model", tmp_path)
+        assert code == 2
+        assert err == f"canguard tree: error: {tmp_path}: Is a directory\n"
 
 
 BAD_PATHS = {
