@@ -116,13 +116,11 @@ def state_dir(args: argparse.Namespace, config: Path) -> Path | None:
 
 def run_config(args: argparse.Namespace) -> tuple[Config, Path | None]:
     """The config ``canguard run`` (and ``check``, which judges it the same way) runs, and its state directory."""
-    from canguard.config.loader import load_config
-    from canguard.io.outputs import outputs_in
+    from canguard.io.outputs import load_run_config
 
     path = config_path(args)
-    cfg = load_config(path)
     where = state_dir(args, path)
-    return (cfg if where is None else outputs_in(cfg, where)), where
+    return load_run_config(path, where), where
 
 
 def add_global_options(p: argparse.ArgumentParser, *, in_subcommand: bool) -> None:

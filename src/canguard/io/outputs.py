@@ -28,7 +28,7 @@ from canguard.errors import ConfigError
 if TYPE_CHECKING:
     from canguard.config.schema import Config
 
-__all__ = ["check_config_outputs", "check_output", "output_problem", "outputs_in", "user_state_dir"]
+__all__ = ["check_config_outputs", "check_output", "load_run_config", "output_problem", "outputs_in", "user_state_dir"]
 
 
 def _user(uid: int) -> str:
@@ -163,6 +163,14 @@ def outputs_in(cfg: Config, directory: Path) -> Config:
     state = cfg.state if cfg.state.file is None else dataclasses.replace(cfg.state,
                                                                          file=directory / cfg.state.file.name)
     return dataclasses.replace(cfg, events=events, state=state)
+
+
+def load_run_config(path: Path, state_dir: Path | None) -> Config:
+    """The config at ``path`` as ``canguard run`` runs it (and ``check`` judges it): outputs in ``state_dir`` if set."""
+    from canguard.config.loader import load_config
+
+    cfg = load_config(path)
+    return cfg if state_dir is None else outputs_in(cfg, state_dir)
 
 
 def user_state_dir() -> Path:

@@ -31,7 +31,6 @@ from types import FrameType
 from typing import Any
 
 from canguard.bt.context import FrameSink
-from canguard.config.loader import load_config
 from canguard.config.schema import Config
 from canguard.engine.core import Engine
 from canguard.engine.events import EventJournal
@@ -40,7 +39,7 @@ from canguard.errors import CanguardError, ConfigError
 from canguard.io.bus import BusReader
 from canguard.io.clock import BootClock, LiveClock
 from canguard.io.frame import Frame
-from canguard.io.outputs import check_config_outputs, outputs_in
+from canguard.io.outputs import check_config_outputs, load_run_config
 from canguard.protect.state import HeatStore
 from canguard.service.blackboard import registered_clients, release_clients, tree_clients
 from canguard.service.systemd import Notifier, watchdog_verdict
@@ -136,8 +135,7 @@ class Daemon:
 
     def load(self) -> Config:
         """The config file as this daemon runs it (its outputs moved to :attr:`state_dir`, when set)."""
-        cfg = load_config(self.config_path)
-        return cfg if self.state_dir is None else outputs_in(cfg, self.state_dir)
+        return load_run_config(self.config_path, self.state_dir)
 
     # -- signals ---------------------------------------------------------------------------
     def install_signals(self) -> None:
