@@ -138,6 +138,13 @@ class TestReader:
         _, err = read_until_error(tmp_path / "unsized-cut.blf", True)
         assert f"the file ends at byte {cut_at}, 50 bytes into" in str(err)
 
+    def test_not_a_blf_is_not_called_truncated(self, tmp_path: Path) -> None:
+        """A file that is not BLF at all is 'not a valid BLF log', not a cut one."""
+        path = tmp_path / "text.blf"
+        path.write_bytes(b"this is not a BLF file, only some text\n" * 10)
+        with pytest.raises(LogFormatError, match=r"text\.blf: not a valid BLF log"):
+            list(read_log(path))
+
     def test_a_cut_blf_gz_still_says_so(self, whole: Path, tmp_path: Path) -> None:
         """A .blf.gz cut short fails too (gzip's own end-of-stream check), naming the file."""
         packed = gzip.compress(whole.read_bytes())

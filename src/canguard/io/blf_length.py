@@ -42,6 +42,7 @@ class BlfLength:
         self._skip = 0  # bytes of the current object (or of the file header) still to come
         self._pad = 0  # of them, the padding that follows the object
         self._object: tuple[int, int, int] | None = None  # the object being read: start, size, type
+        self._lost = False  # a header without its signature: not BLF framing (python-can says what it is)
 
     def read(self, size: int = -1) -> bytes:
         """Read from the file; what comes back advances the framing."""
@@ -57,7 +58,7 @@ class BlfLength:
 
     def _follow(self, data: bytes) -> None:
         view = memoryview(data)
-        while view:
+        while view and not self._lost:
             if self._skip:
                 n = min(self._skip, len(view))
                 self._skip -= n
@@ -77,14 +78,16 @@ class BlfLength:
     def _header_done(self) -> None:
         """A whole header has been read: what follows it, and how long."""
         if not self._header_size:  # the file header's first bytes: its size; the rest is skipped
-            _, self._header_size = _FILE_HEADER.unpack(self._head)
+            signature, self._header_size = _FILE_HEADER.unpack(self._head)
+            self._lost = signature != b"LOGG"
             self._header_size = max(self._header_size, _FILE_HEADER.size)
             self._skip = self._header_size - _FILE_HEADER.size
             self._pad = 0
             self._head = b""
             self._object = (0, self._header_size, -1)
             return
-        _, _, _, size, kind = _OBJ_HEADER.unpack(self._head)
+        signature, _, _, size, kind = _OBJ_HEADER.unpack(self._head)
+        self._lost = signature != b"LOBJ"
         start = self.pos - _OBJ_HEADER.size
         self._head = b""
         self._pad = size % 4
@@ -99,8 +102,9 @@ class BlfLength:
         self.file_size = file_size if file_size > self._header_size else 0
 
     def cut(self) -> str:
-        """Why the file read so far is not whole ("" when it is, or when its end has not been reached)."""
-        if not self.ended:
+        """Why the file read so far is not whole ("" when it is, when its end has not been reached, or when it is
+        not BLF framing at all: python-can's reader says what is wrong then)."""
+        if not self.ended or self._lost:
             return ""
         if self._header_size == 0 or (self._object is not None and self._object[2] == -1):
             return f"the file ends at byte {self.pos}, inside its file header"
