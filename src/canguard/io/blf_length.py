@@ -14,6 +14,7 @@ nothing to hold the file to: then only the framing is checked.
 
 from __future__ import annotations
 
+import io
 import struct
 from typing import Any
 
@@ -55,6 +56,11 @@ class BlfLength:
     def close(self) -> None:
         """Close the file."""
         self.raw.close()
+
+    def write(self, data: bytes) -> int:
+        """Refused, as by any file opened for reading; python-can before 4.6 takes an object for a file (and not
+        for a path to open) only when it has both ``read`` and ``write``."""
+        raise io.UnsupportedOperation("write")
 
     def _follow(self, data: bytes) -> None:
         view = memoryview(data)
