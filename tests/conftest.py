@@ -48,6 +48,7 @@ def installed_canguard(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """
     import fcntl
     import os
+    import shutil
     import subprocess
     import sys
 
@@ -59,7 +60,15 @@ def installed_canguard(tmp_path_factory: pytest.TempPathFactory) -> Path:
         fcntl.flock(lock, fcntl.LOCK_EX)
         if not exe.exists():
             work = root / "installed-wheel"
-            steps = ([sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", str(REPO), "-w", str(work / "wheel")],
+            # Built from a copy: setuptools builds in the source tree (build/), where the smoke script
+            # (scripts/wheel_smoke.sh) may be building at the same time. The copy resolves the package's
+            # symlinks to the checkout's config/, dbc/ and systemd/ and leaves out what a run left there.
+            source = work / "source"
+            shutil.copytree(REPO / "src", source / "src", ignore=shutil.ignore_patterns(
+                "__pycache__", "*.egg-info", "events.jsonl*", "i2t_state.json*"))
+            for name in ("pyproject.toml", "README.md", "LICENSE"):
+                shutil.copy2(REPO / name, source / name)
+            steps = ([sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", str(source), "-w", str(work / "wheel")],
                      [sys.executable, "-m", "venv", str(work / "venv")],
                      [str(work / "venv" / "bin" / "pip"), "install", "-q", "--find-links", str(work / "wheel"),
                       "--only-binary", "canguard", "canguard"])
