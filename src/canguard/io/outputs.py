@@ -42,12 +42,12 @@ def _user(uid: int) -> str:
 
 
 def _whose(path: Path) -> str:
-    """``belongs to root (mode 0755) and canguard runs as alice``: what a refused permission depends on."""
+    """``: PATH belongs to root (mode 0755) and canguard runs as alice``: what a refused permission depends on."""
     try:
         st = path.stat()
     except OSError:
         return ""
-    return (f"{path} belongs to {_user(st.st_uid)} (mode {stat.S_IMODE(st.st_mode):04o}) and canguard runs as "
+    return (f": {path} belongs to {_user(st.st_uid)} (mode {stat.S_IMODE(st.st_mode):04o}) and canguard runs as "
             f"{_user(os.geteuid())}")
 
 
@@ -69,7 +69,7 @@ def _new_file_problem(directory: Path, target: Path) -> str:
         what = "its directory" if directory == target.parent else f"the directories up to {target.parent}"
         reason = exc.strerror or str(exc)
         if exc.errno in (errno.EACCES, errno.EPERM):
-            return f"{what} cannot be written: {reason}: {_whose(directory)}"
+            return f"{what} cannot be written: {reason}{_whose(directory)}"
         return f"{what} cannot be written ({directory}: {reason})"
     os.close(fd)
     os.unlink(probe)
@@ -85,7 +85,7 @@ def _append_problem(path: Path) -> str:
         if exc.errno not in (errno.EACCES, errno.EPERM):
             return f"it cannot be opened for writing ({reason})"
         me = _user(os.geteuid())
-        return (f"it cannot be appended to ({reason}): {_whose(path)}; move it aside (sudo mv {path} "
+        return (f"it cannot be appended to ({reason}){_whose(path)}; move it aside (sudo mv {path} "
                 f"{path}.old) or give it to {me} (sudo chown {me} {path})")
     os.close(fd)
     return ""
