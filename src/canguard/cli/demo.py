@@ -131,11 +131,13 @@ def cmd_demo(args: argparse.Namespace) -> int:
     import can
 
     from canguard.config.loader import load_config
+    from canguard.io.outputs import check_output
     from canguard.service.daemon import Daemon
     from canguard.sim import run_on_bus
 
     if args.duration <= 0:
         raise ConfigError(f"--duration {args.duration}: expected seconds > 0")
+    check_output(args.events, "--events", beside=True, makes_dirs=True)
     cfg_path = args.config if args.config is not None else DEMO_CONFIG
     tmp = tempfile.TemporaryDirectory(prefix="canguard-demo-")
     events = args.events if args.events is not None else Path(tmp.name) / "events.jsonl"

@@ -22,10 +22,12 @@ from canguard.cli.common import (
     EXIT_INTERRUPTED,
     Formatter,
     add_global_options,
+    add_state_dir,
     bundled_config,
     default_config,
     exit_codes_epilog,
     one_blas_thread,
+    run_config,
     subcommand,
 )
 from canguard.cli.common import add_config as _add_config
@@ -53,6 +55,7 @@ def _add_check(sub: argparse._SubParsersAction) -> None:
                        description="Load the config, its DBC files and its tree; print buses, sources "
                                    "(message, id, signals, units) and frames; exit 0, or 2 with every error.")
     _add_config(p)
+    add_state_dir(p)
     _add_nodes(p)
     p.set_defaults(func=_cmd_check)
 
@@ -72,17 +75,18 @@ def _palette(args: argparse.Namespace) -> Any:
 def _cmd_check(args: argparse.Namespace) -> int:
     from canguard.bt.loader import check_tree, partial_tree_problems
     from canguard.cli.check import describe
-    from canguard.config.loader import load_config
     from canguard.errors import ConfigError
+    from canguard.io.outputs import check_config_outputs
 
     try:
-        cfg = load_config(_config_path(args))
+        cfg, _ = run_config(args)
     except ConfigError as exc:
         # The tree's own mistakes belong in the same report: check it against what did load.
         tree_problems = partial_tree_problems(exc.partial)
         if not tree_problems:
             raise
         raise ConfigError([*exc.problems, *tree_problems], [*exc.located, *tree_problems]) from None
+    check_config_outputs(cfg)  # what `canguard run` refuses at start, refused here
     print(describe(cfg))
     if cfg.tree is not None:
         report = check_tree(cfg, _palette(args))
@@ -178,13 +182,20 @@ def _add_run(sub: argparse._SubParsersAction) -> None:
     _add_config(p)
     p.add_argument("--metrics", metavar="HOST:PORT", help="serve Prometheus metrics (e.g. 127.0.0.1:9108)")
     p.add_argument("--duration", type=float, metavar="S", help="stop by itself after S seconds")
+    add_state_dir(p)
     p.set_defaults(func=_cmd_run)
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
     from canguard.service.daemon import Daemon
 
-    daemon = Daemon(_config_path(args), metrics_addr=args.metrics)
+    cfg, where = run_config(args)
+    if where is not None:  # not where the config says: say where, before anything is written
+        why = ("--state-dir" if args.state_dir is not None
+               else "the bundled config is read-only; choose with -c CONFIG or --state-dir DIR")
+        print(f"canguard run: events {cfg.events or '(none)'}, I²t state {cfg.state.file or '(not kept)'} ({why})",
+              file=sys.stderr, flush=True)
+    daemon = Daemon(_config_path(args), cfg=cfg, state_dir=where, metrics_addr=args.metrics)
     daemon.install_signals()
     return daemon.run(duration_s=args.duration)
 
@@ -293,6 +304,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_BAD_INPUT
     except FileNotFoundError as exc:
         print(f"canguard {args.command}: error: {exc.filename or exc}: no such file", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except OSError as exc:  # a file the checks before the run could not foresee (a race, a disk gone)
+        where = f"{exc.filename}: " if exc.filename else ""
+        print(f"canguard {args.command}: error: {where}{exc.strerror or exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except KeyboardInterrupt:
         return EXIT_INTERRUPTED

@@ -252,6 +252,18 @@ def _check_state(path: Path | None) -> None:
                           "`canguard run` (its state.file); leave --state out to start cold")
 
 
+def _check_outputs(args: argparse.Namespace) -> None:
+    """Every file the replay writes, tried before the first log is read: one line and exit 2, not a traceback."""
+    from canguard.io.outputs import check_output
+
+    many = len(args.logs) > 1
+    for log in args.logs:
+        check_output(per_log_path(args.events, log, many), "--events", beside=True, makes_dirs=True)
+        check_output(per_log_path(args.emit, log, many), "--emit")
+        check_output(per_log_path(args.plot, log, many), "--plot")
+    check_output(args.fleet_summary, "--fleet-summary")
+
+
 def cmd_replay(args: argparse.Namespace) -> int:
     """Replay every log; print summaries in input order; exit 0, 1 (a trip), 3 (unguarded) or 2."""
     import tempfile
@@ -262,6 +274,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
     from canguard.cli.fleet import expand_logs
 
     args.logs = expand_logs(args.logs)
+    _check_outputs(args)
     if args.export_signals is not None and args.realtime is None:
         from canguard.report.export import check_export
 
