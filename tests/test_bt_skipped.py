@@ -160,17 +160,16 @@ class TestEntryUpdated:
 
 class TestAsync:
     def test_async_sequence_yields_after_each_instant_success(self, tmp_path: Path) -> None:
-        """AsyncSequence: RUNNING after each child that succeeded at once; the plain Sequence runs them all."""
-        got = ticks(tmp_path, '<AsyncSequence><Script code="a:=1"/><Script code="b:=1"/></AsyncSequence>', 1)
-        assert got == {"ticks": ["RUNNING"], "blackboard": {"a": 1}}
-        plain = tmp_path / "p"
-        plain.mkdir()
-        assert dry_run(tree(plain, '<Sequence><Script code="a:=1"/><Script code="b:=1"/></Sequence>'),
-                       1, 0.1) == {"ticks": ["SUCCESS"], "blackboard": {"a": 1, "b": 1}}
+        """AsyncSequence: RUNNING after each child that succeeded at once; tickOnce wakes up and finishes it."""
+        path = tree(tmp_path, '<AsyncSequence><Script code="a:=1"/><Script code="b:=1"/></AsyncSequence>')
+        assert dry_run(path, 1, 0.1, exactly_once=True) == {"ticks": ["RUNNING"], "blackboard": {"a": 1}}
+        assert dry_run(path, 1, 0.1) == {"ticks": ["SUCCESS"], "blackboard": {"a": 1, "b": 1}}
 
     def test_async_fallback_yields_after_each_instant_failure(self, tmp_path: Path) -> None:
-        got = ticks(tmp_path, '<AsyncFallback><AlwaysFailure/><Script code="b:=1"/></AsyncFallback>', 2)
-        assert got == {"ticks": ["RUNNING", "SUCCESS"], "blackboard": {"b": 1}}
+        """AsyncFallback: RUNNING after a child that failed at once; tickOnce ticks it again in the same tick."""
+        path = tree(tmp_path, '<AsyncFallback><AlwaysFailure/><Script code="b:=1"/></AsyncFallback>')
+        assert dry_run(path, 2, 0.1, exactly_once=True) == {"ticks": ["RUNNING", "SUCCESS"], "blackboard": {"b": 1}}
+        assert dry_run(path, 2, 0.1) == {"ticks": ["SUCCESS", "SUCCESS"], "blackboard": {"b": 1}}
 
 
 def test_tree_command_prints_skipped(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -17,6 +17,7 @@ from canguard.bt.loaded import LoadedTree, NodeInfo, _preorder
 from canguard.bt.nodes import CanguardNode, PortError
 from canguard.bt.registry import _TOKEN
 from canguard.bt.validate import _Validator
+from canguard.bt.wakeup import WakeUpSignal
 from canguard.errors import TreeError
 
 if TYPE_CHECKING:
@@ -94,6 +95,10 @@ class _Loader(_Validator):
                         f"{info.file}:{info.line}: node {info.name} (BehaviorTree {info.tree}): {exc}"
                     )
         self.raise_collected()  # every node that cannot bind, not only the first
+        wake_up = WakeUpSignal()
+        for node, _, _ in placed:  # BT.CPP's factory gives every node of a tree its wake-up signal
+            if isinstance(node, CanguardNode):
+                node.wake_up = wake_up
         return LoadedTree(
             root=root,
             tree=py_trees.trees.BehaviourTree(root=root),
@@ -103,6 +108,7 @@ class _Loader(_Validator):
             format_version=self.format_version,
             tree_ids=tuple(self.trees),
             nodes=loaded_nodes,
+            wake_up=wake_up,
         )
 
 

@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING, Any
 
 import py_trees
 
-from canguard.bt.nodes.base import FAILURE, INVALID, RUNNING, SKIPPED, SUCCESS, mark_skipped
+from canguard.bt.nodes.base import FAILURE, INVALID, RUNNING, SKIPPED, SUCCESS, mark_skipped, note_script_error
 from canguard.bt.scripting import ScriptError
 
 if TYPE_CHECKING:
@@ -57,7 +57,7 @@ def _holds(node: py_trees.behaviour.Behaviour, script: Script, board: TreeBlackb
     try:
         return bool(script.condition(board))
     except ScriptError as exc:
-        node.feedback_message = f"{attr}: {exc}"
+        note_script_error(node, attr, script.text, exc)
         return False
 
 
@@ -67,7 +67,7 @@ def _run(node: py_trees.behaviour.Behaviour, script: Script | None, board: TreeB
     try:
         script.run(board)
     except ScriptError as exc:
-        node.feedback_message = f"{attr}: {exc}"
+        note_script_error(node, attr, script.text, exc)
 
 
 def install(node: py_trees.behaviour.Behaviour, scripts: Mapping[str, Script]) -> None:

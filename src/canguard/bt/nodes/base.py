@@ -43,6 +43,7 @@ from py_trees.ports import CONST_PREFIX, NoDataAvailable, PortInformation, Ports
 from py_trees.ports_utils import PortsLogger
 
 from canguard.bt.context import Context
+from canguard.bt.wakeup import WakeUpSignal
 
 NodeKind = Literal["Action", "Condition", "Control", "Decorator"]
 
@@ -77,6 +78,15 @@ def mark_skipped(node: py_trees.behaviour.Behaviour) -> None:
     if node.status != INVALID:
         node.stop(INVALID)
     node.skipped = True  # type: ignore[attr-defined]
+
+
+def note_script_error(node: py_trees.behaviour.Behaviour, attr: str, script: str, error: Exception) -> None:
+    """A script of ``node`` failed while it ran: its feedback, and ``script_error`` for ``canguard tree --tick``.
+
+    (BT.CPP throws out of ``tickOnce()``; canguard fails the node, or counts a condition as false, and says why.)
+    """
+    node.feedback_message = f"{attr}: {error}"
+    node.script_error = f"{attr} {script!r}: {error}"  # type: ignore[attr-defined]
 
 
 _MISSING = object()
@@ -128,6 +138,9 @@ class CanguardNode(PortsMixin):
     changes nothing and answers as before: no timer, counter, memory or output of its own.
     The replay engine counts such ticks instead of running them (:mod:`canguard.engine.quiet`)
     when every node of the tree says so; a guard also needs sample-driven models."""
+
+    wake_up: WakeUpSignal | None = None
+    """The tree's wake-up signal, given to every node at load (BT.CPP's ``setWakeUpInstance``)."""
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
         # Stay out of py_trees' global auto-registry: canguard's parser gets an explicit,
@@ -237,6 +250,22 @@ class CanguardNode(PortsMixin):
                 Blackboard.storage[self._keys[name]] = value
             else:
                 self._set_output(name, value)
+
+    # -- wake-up -------------------------------------------------------------------------
+    def emit_wake_up(self) -> None:
+        """Ask ``tickOnce()`` to tick the root again at once (BT.CPP's ``emitWakeUpSignal``)."""
+        if self.wake_up is not None:
+            self.wake_up.emit()
+
+    def arm_timer(self, deadline: float) -> None:
+        """A timer that emits the wake-up signal once the engine's clock reaches ``deadline`` (s)."""
+        if self.wake_up is not None:
+            self.wake_up.arm(self, deadline)
+
+    def cancel_timer(self) -> None:
+        """Drop this node's timer (halted or completed)."""
+        if self.wake_up is not None:
+            self.wake_up.cancel(self)
 
     # -- life cycle ----------------------------------------------------------------------
     def bind(self) -> None:

@@ -40,6 +40,7 @@ from canguard.bt.nodes.base import (
     CanguardNode,
     PortError,
     mark_skipped,
+    note_script_error,
     outcome,
     port_info,
     tick_child,
@@ -116,7 +117,7 @@ class _Scripted(CanguardNode):
         try:
             return script.condition(self.board) if condition else script.run(self.board)
         except ScriptError as exc:
-            self.feedback_message = f"{name}: {exc}"
+            note_script_error(self, name, script.text, exc)
             raise
 
 
@@ -226,7 +227,10 @@ class Sleep(CanguardNode, py_trees.behaviour.Behaviour):
         self.until: float | None = None
 
     def initialise(self) -> None:
-        self.until = self.ctx.clock.now() + (self.port("msec") or 0.0) / 1000.0
+        msec = self.port("msec") or 0.0
+        self.until = self.ctx.clock.now() + msec / 1000.0
+        if msec > 0:  # BT.CPP: its timer wakes the tree up when it expires
+            self.arm_timer(self.until)
 
     def update(self) -> py_trees.common.Status:
         if self.until is None or self.ctx.clock.now() >= self.until:
@@ -235,6 +239,7 @@ class Sleep(CanguardNode, py_trees.behaviour.Behaviour):
 
     def terminate(self, new_status: py_trees.common.Status) -> None:
         self.until = None if new_status == INVALID else self.until
+        self.cancel_timer()
 
 
 class KeepRunningUntilFailure(CanguardNode, py_trees.decorators.Decorator):
