@@ -117,10 +117,22 @@ class TestBranching:
         assert Blackboard.storage["/switched"] is True
         assert sleep.status.name == "INVALID"  # halted
 
-    def test_while_do_else_needs_three_children(self, tmp_path: Path) -> None:
-        """Two children: a load error naming the node."""
-        path = tree(tmp_path, "<WhileDoElse><AlwaysSuccess/><AlwaysSuccess/></WhileDoElse>")
-        with pytest.raises(TreeError, match="WhileDoElse needs 3 children"):
+    def test_while_do_else_takes_two_children(self, tmp_path: Path) -> None:
+        """Two children, as BT.CPP accepts: the condition's FAILURE fails the node and halts the running branch."""
+        path = tree(tmp_path, """<WhileDoElse><ScriptCondition code="go"/>
+  <Sleep msec="250" _onHalted="halted := true"/></WhileDoElse>""")
+        clock = ManualClock()
+        loaded = load_tree(path, Context(clock, {}))
+        Blackboard.storage["/go"] = True
+        assert loaded.tick().name == "RUNNING"
+        Blackboard.storage["/go"] = False
+        assert loaded.tick().name == "FAILURE"
+        assert Blackboard.storage["/halted"] is True
+
+    def test_while_do_else_needs_two_or_three_children(self, tmp_path: Path) -> None:
+        """One child: a load error naming the node."""
+        path = tree(tmp_path, "<WhileDoElse><AlwaysSuccess/></WhileDoElse>")
+        with pytest.raises(TreeError, match="WhileDoElse needs 2 or 3 children"):
             dry_run(path, 1, 0.1)
 
 
@@ -182,3 +194,18 @@ class TestDryRunCommand:
         """--tick belongs to TREE.xml: with a config it is exit 2 saying how to use it."""
         code, _, err = cli(capsys, "tree", "--tick", "2")
         assert code == 2 and "canguard tree TREE.xml --tick N" in err
+
+
+class TestCounts:
+    """Repeat / RetryUntilSuccessful counts BT.CPP accepts."""
+
+    def test_retry_zero_attempts_fails_without_ticking(self, tmp_path: Path) -> None:
+        """num_attempts="0": FAILURE at once, the child never ticked (retry_node.cpp)."""
+        path = tree(tmp_path, '<RetryUntilSuccessful num_attempts="0"><Script code="ticked := 1"/>'
+                              "</RetryUntilSuccessful>")
+        assert dry_run(path, 1, 0.1) == {"ticks": ["FAILURE"], "blackboard": {}}
+
+    def test_repeat_zero_cycles_succeeds_without_ticking(self, tmp_path: Path) -> None:
+        """num_cycles="0": SUCCESS at once, the child never ticked (repeat_node.cpp)."""
+        path = tree(tmp_path, '<Repeat num_cycles="0"><Script code="ticked := 1"/></Repeat>')
+        assert dry_run(path, 1, 0.1) == {"ticks": ["SUCCESS"], "blackboard": {}}

@@ -407,10 +407,6 @@ class TestLoadErrors:
                 '<Parallel success_count="3"><ExecuteTask/><ExecuteTask/></Parallel>',
                 "port success_count: 3 successes needed but only 2 children: can never succeed",
             ),
-            (
-                '<RetryUntilSuccessful num_attempts="0"><ExecuteTask/></RetryUntilSuccessful>',
-                "port num_attempts: must be -1 (forever) or >= 1, got 0",
-            ),
         ],
     )
     def test_bind_errors(self, tmp_path: Path, body: str, expected: str) -> None:

@@ -15,8 +15,8 @@ Sleep                   RUNNING until ``msec`` have elapsed on the engine's cloc
 KeepRunningUntilFailure the child's SUCCESS becomes RUNNING; FAILURE ends it
 IfThenElse              2 or 3 children: the first decides, then the second (SUCCESS) or the
                         third (FAILURE; FAILURE when there is none); the branch runs to its end
-WhileDoElse             like IfThenElse, but the condition is ticked every time: a change halts
-                        the running branch and switches
+WhileDoElse             like IfThenElse (2 or 3 children), but the condition is ticked every
+                        time: a change halts the running branch and switches
 Precondition            ticks its child while ``if`` (a script) is true, else returns ``else``
 ======================  ================================================================
 
@@ -309,10 +309,8 @@ class _Branching(CanguardNode, py_trees.composites.Composite):
         self.branch = 0
 
     def bind(self) -> None:
-        allowed = (3,) if self.REACTIVE else (2, 3)
-        if len(self.children) not in allowed:
-            want = "3" if self.REACTIVE else "2 or 3"
-            raise PortError("children", f"{type(self).__name__} needs {want} children, has {len(self.children)}")
+        if len(self.children) not in (2, 3):  # BT.CPP: both take 2 or 3 (without a third, a FAILURE fails)
+            raise PortError("children", f"{type(self).__name__} needs 2 or 3 children, has {len(self.children)}")
 
     def tick(self) -> Any:
         if self.status != RUNNING:

@@ -190,12 +190,6 @@ class ForceFailure(_Decorator, py_trees.decorators.SuccessIsFailure):
     QUIET_RETICK = True
 
 
-def _check_count(node: CanguardNode, name: str, low: int) -> None:
-    value = node.port(name)
-    if not node.is_wired(name) and value is not None and value != -1 and value < low:
-        raise PortError(name, f"must be -1 (forever) or >= {low}, got {value}")
-
-
 class RetryUntilSuccessful(_Decorator, py_trees.decorators.Decorator):
     """Retries a failing child up to num_attempts attempts (-1: forever), as BT.CPP 4's ``retry_node.cpp``.
 
@@ -207,16 +201,12 @@ class RetryUntilSuccessful(_Decorator, py_trees.decorators.Decorator):
 
     DESCRIPTION = "a FAILURE is retried, up to num_attempts attempts (-1: forever)"
     INPUT_PORTS = {  # noqa: RUF012
-        "num_attempts": port_info(int, "attempts before giving up (-1: forever)"),
+        "num_attempts": port_info(int, "attempts before giving up (-1: forever; 0: FAILURE, the child not ticked)"),
     }
 
     def __init__(self, name: str, child: py_trees.behaviour.Behaviour, **kwargs: Any) -> None:
         super().__init__(name=name, child=child, **kwargs)
         self.failures = 0
-
-    def bind(self) -> None:
-        """num_attempts: -1 or >= 1."""
-        _check_count(self, "num_attempts", 1)
 
     def terminate(self, new_status: py_trees.common.Status) -> None:
         """A halt forgets the failures (BT.CPP's ``halt``)."""
@@ -274,16 +264,12 @@ class Repeat(_Decorator, py_trees.decorators.Decorator):
 
     DESCRIPTION = "a SUCCESS is repeated, num_cycles times (-1: forever); FAILURE ends it"
     INPUT_PORTS = {  # noqa: RUF012
-        "num_cycles": port_info(int, "successes to collect (-1: forever)"),
+        "num_cycles": port_info(int, "successes to collect (-1: forever; 0: SUCCESS, the child not ticked)"),
     }
 
     def __init__(self, name: str, child: py_trees.behaviour.Behaviour, **kwargs: Any) -> None:
         super().__init__(name=name, child=child, **kwargs)
         self.successes = 0
-
-    def bind(self) -> None:
-        """num_cycles: -1 or >= 0."""
-        _check_count(self, "num_cycles", 0)
 
     def terminate(self, new_status: py_trees.common.Status) -> None:
         """A halt forgets the cycles done (BT.CPP's ``halt``)."""
