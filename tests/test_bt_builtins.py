@@ -114,7 +114,7 @@ class TestBranching:
         Blackboard.storage["/go"] = False
         clock.set(0.1)
         assert loaded.tick().name == "SUCCESS"
-        assert Blackboard.storage["/switched"] is True
+        assert Blackboard.storage["/switched"] == 1.0  # BT.CPP: true is the real 1.0
         assert sleep.status.name == "INVALID"  # halted
 
     def test_while_do_else_takes_two_children(self, tmp_path: Path) -> None:
@@ -127,7 +127,7 @@ class TestBranching:
         assert loaded.tick().name == "RUNNING"
         Blackboard.storage["/go"] = False
         assert loaded.tick().name == "FAILURE"
-        assert Blackboard.storage["/halted"] is True
+        assert Blackboard.storage["/halted"] == 1.0  # BT.CPP: true is the real 1.0
 
     def test_while_do_else_needs_two_or_three_children(self, tmp_path: Path) -> None:
         """One child: a load error naming the node."""
@@ -209,3 +209,12 @@ class TestCounts:
         """num_cycles="0": SUCCESS at once, the child never ticked (repeat_node.cpp)."""
         path = tree(tmp_path, '<Repeat num_cycles="0"><Script code="ticked := 1"/></Repeat>')
         assert dry_run(path, 1, 0.1) == {"ticks": ["SUCCESS"], "blackboard": {}}
+
+    def test_counts_and_flags_computed_by_scripts(self, tmp_path: Path) -> None:
+        """Script results are reals (1 + 1 is 2.0, true is 1.0): int and bool ports take them, as BT.CPP casts them."""
+        path = tree(tmp_path, '<Sequence><Script code="k := 1 + 1; n := 0; skip := false"/>'
+                              '<Repeat num_cycles="{k}"><Script code="n += 1"/></Repeat>'
+                              '<RunOnce then_skip="{skip}"><Script code="once := 1"/></RunOnce></Sequence>')
+        got = dry_run(path, 2, 0.1)
+        assert got["ticks"] == ["SUCCESS", "SUCCESS"]
+        assert got["blackboard"] == {"k": 2.0, "n": 2, "once": 1, "skip": 0.0}

@@ -70,7 +70,7 @@ def test_on_halted_runs_when_a_running_node_is_halted(tmp_path: Path) -> None:
     Blackboard.storage["/go"] = False
     clock.set(0.1)
     loaded.tick()
-    assert Blackboard.storage["/halted"] is True
+    assert Blackboard.storage["/halted"] == 1.0  # BT.CPP: true is the real 1.0
 
 
 def test_skip_if_and_while_do_not_parse_either_a_load_error(tmp_path: Path) -> None:

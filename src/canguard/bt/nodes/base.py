@@ -92,6 +92,18 @@ def note_script_error(node: py_trees.behaviour.Behaviour, attr: str, script: str
 _MISSING = object()
 
 
+def _number_as(expected: Any, value: Any) -> Any:
+    """BT.CPP's lossless number casts: a real 0/1 (a script's true/false) on a bool port, an integral real on an
+    int port; None when there is none."""
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        return None
+    if expected is bool and value in (0, 1):
+        return bool(value)
+    if expected is int and isinstance(value, float) and value.is_integer():
+        return int(value)
+    return None
+
+
 class PortError(ValueError):
     """A port value a node cannot work with; the loader turns it into a TreeError naming file and line."""
 
@@ -219,7 +231,8 @@ class CanguardNode(PortsMixin):
         """The value of input port ``name``: cached constant/default, or the blackboard's at tick.
 
         None when a wired key holds nothing yet or holds a value of the wrong type
-        (``self._bad_port`` then says which); an int on a float port is accepted.
+        (``self._bad_port`` then says which); an int on a float port is accepted, and
+        so are the numbers BT.CPP casts without loss (a real 0/1 on a bool port, an integral real on an int port).
         """
         if name not in self._dynamic:
             return self._static.get(name)
@@ -240,6 +253,9 @@ class CanguardNode(PortsMixin):
             return value
         if expected is float and isinstance(value, int) and not isinstance(value, bool):
             return float(value)
+        converted = _number_as(expected, value)
+        if converted is not None:
+            return converted
         self._bad_port = f"{name}={value!r} is not {getattr(expected, '__name__', expected)}"
         return None
 
