@@ -9,13 +9,16 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import py_trees
+from py_trees.blackboard import Blackboard
 from py_trees.parsers.behaviour_tree_xml import XMLParserError, parse_behaviour_tree_xml
 
 from canguard.bt import conditions
 from canguard.bt.context import Context
 from canguard.bt.loaded import LoadedTree, NodeInfo, _preorder
 from canguard.bt.nodes import CanguardNode, PortError
+from canguard.bt.nodes.builtins import TreeBlackboard, _Scripted
 from canguard.bt.registry import _TOKEN
+from canguard.bt.scopes import subtree_scopes
 from canguard.bt.validate import _Validator
 from canguard.bt.wakeup import WakeUpSignal
 from canguard.errors import TreeError
@@ -48,6 +51,14 @@ class _Loader(_Validator):
             ) as exc:
                 raise TreeError(f"{self.path}: BehaviorTree {main_id}: {self._untoken(str(exc))}") from exc
 
+    def scoped_boards(self, main_id: str) -> dict[str, TreeBlackboard]:
+        """The scripts' blackboard view of every SubTree instance's scope; its literal entries created."""
+        boards = {}
+        for namespace, scope in subtree_scopes(self.trees, main_id).items():
+            Blackboard.storage.update(scope.literals)
+            boards[namespace] = TreeBlackboard(namespace, scope)
+        return boards
+
     def _untoken(self, text: str) -> str:
         def name(m: re.Match) -> str:
             info = self.infos.get(m.group(0))
@@ -64,10 +75,15 @@ class _Loader(_Validator):
     def finish(self, root: py_trees.behaviour.Behaviour, main_id: str) -> LoadedTree:
         nodes = list(root.iterate())
         placed: list[tuple[py_trees.behaviour.Behaviour, NodeInfo, str]] = []
+        boards = self.scoped_boards(main_id)
         for node in nodes:
             parts = node.name.split(".")
             info = self.infos[parts[-1]]
-            conditions.install(node, self.conditions.get(parts[-1], {}))
+            namespace = (getattr(node, "_subtree_namespace", None) or "/").rstrip("/") + "/"
+            board = boards.get(namespace, boards["/"])
+            if isinstance(node, _Scripted):
+                node.board = board
+            conditions.install(node, self.conditions.get(parts[-1], {}), board)
             prefix = [p for p in parts[:-1] if p not in self.infos]
             placed.append((node, info, "/".join([*prefix, info.name])))
         order = {id(n): i for i, n in enumerate(_preorder(root))}

@@ -70,13 +70,11 @@ def _run(node: py_trees.behaviour.Behaviour, script: Script | None, board: TreeB
         note_script_error(node, attr, script.text, exc)
 
 
-def install(node: py_trees.behaviour.Behaviour, scripts: Mapping[str, Script]) -> None:
-    """Wrap ``node``'s tick and stop with its conditions (instance attributes: the class is untouched)."""
+def install(node: py_trees.behaviour.Behaviour, scripts: Mapping[str, Script], board: TreeBlackboard) -> None:
+    """Wrap ``node``'s tick and stop with its conditions, run on ``board`` (instance attributes: the class
+    is untouched)."""
     if not scripts:
         return
-    from canguard.bt.nodes.builtins import TreeBlackboard  # with the scripts: only for nodes that have some
-
-    board = TreeBlackboard(getattr(node, "_subtree_namespace", None) or "/")
     tick, stop = node.tick, node.stop
 
     def tick_with_conditions() -> Iterator[py_trees.behaviour.Behaviour]:

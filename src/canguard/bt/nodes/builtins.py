@@ -9,7 +9,8 @@ Script                  runs ``code`` (BT.CPP's scripting language) on the black
                         a script that fails while it runs: FAILURE (BT.CPP throws; a guard
                         daemon must not crash on a tree's script)
 ScriptCondition         SUCCESS when ``code`` is true, else FAILURE
-SetBlackboard           writes ``value`` to the entry named by ``output_key``: SUCCESS
+SetBlackboard           writes ``value`` to the entry named by ``output_key``: SUCCESS (``value="{src}"``
+                        copies the entry with its type)
 UnsetBlackboard         removes the entry ``key``: SUCCESS
 Sleep                   RUNNING until ``msec`` have elapsed on the engine's clock, then SUCCESS
 KeepRunningUntilFailure the child's SUCCESS becomes RUNNING; FAILURE ends it
@@ -45,23 +46,30 @@ from canguard.bt.nodes.base import (
     port_info,
     tick_child,
 )
+from canguard.bt.scopes import Scope
 from canguard.bt.scripting import ScriptError
 
 if TYPE_CHECKING:
     from canguard.bt.scripting import Script as ParsedScript
 
 Children = list[py_trees.behaviour.Behaviour] | None
+_NOTHING = object()
 _STATUS = {"SUCCESS": SUCCESS, "FAILURE": FAILURE, "RUNNING": RUNNING}
 
 
 class TreeBlackboard:
-    """The scripting language's view of py_trees' blackboard, inside one (sub)tree's namespace."""
+    """The scripting language's view of py_trees' blackboard, inside one (sub)tree's scope.
 
-    def __init__(self, namespace: str) -> None:
+    A name is the scope's entry (its namespace), or, when the SubTree element remaps it
+    (``input="{x}"``), the parent's entry it aliases; ``@name`` is the root's.
+    """
+
+    def __init__(self, namespace: str, scope: Scope | None = None) -> None:
         self.namespace = namespace if namespace.endswith("/") else namespace + "/"
+        self.scope = scope if scope is not None else Scope(self.namespace)
 
     def _key(self, key: str) -> str:
-        return key if key.startswith("/") else self.namespace + key
+        return self.scope.key(key)
 
     def has(self, key: str) -> bool:
         return self._key(key) in Blackboard.storage
@@ -191,9 +199,12 @@ class SetBlackboard(_Scripted, py_trees.behaviour.Behaviour):
     }
 
     def update(self) -> py_trees.common.Status:
-        key, value = self.port("output_key"), self.port("value")
-        if not key or value is None:
-            self.feedback_message = "no output_key or no value"
+        key = self.port("output_key")
+        # value="{src}": BT.CPP copies the source entry's value, with its type
+        wired = self.is_wired("value")
+        value = Blackboard.storage.get(self._keys["value"], _NOTHING) if wired else self.port("value")
+        if not key or value is None or value is _NOTHING:
+            self.feedback_message = "no output_key or no value (the entry value names does not exist)"
             return FAILURE
         self.board.set(str(key).strip("{}"), value)
         return SUCCESS

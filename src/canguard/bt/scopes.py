@@ -1,0 +1,90 @@
+"""The blackboard scope of each SubTree instance: BT.CPP's remapping entries, for scripts and SetBlackboard.
+
+In BT.CPP a ``<SubTree ID="S" input="{x}" lit="5"/>`` gets a blackboard of its own whose
+``input`` entry *is* the parent's ``x`` (a remapping entry: every read and write, by a port,
+a script or ``SetBlackboard``, goes to the parent's entry) and whose ``lit`` entry is created
+from the literal, typed as BT.CPP's ``xml_parsing.cpp`` types it (an integer, else a real,
+else a string). ``@key`` names the root blackboard's entry from any depth.
+
+py_trees' parser already gives each SubTree instance a namespace (``/S/``) and resolves the
+*ports* of the nodes inside through the element's remappings. This module gives the rest of
+the nodes — scripts, pre/post conditions, SetBlackboard / UnsetBlackboard — the same view:
+one :class:`Scope` per namespace, which turns a name used inside into the storage key.
+(``_autoremap="true"`` subtrees are inlined into their parent's scope at load, see
+:mod:`canguard.bt.xmlread`.)
+"""
+
+from __future__ import annotations
+
+import re
+import xml.etree.ElementTree as ET
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+_INT = re.compile(r"-?[0-9]+\Z")
+_REAL = re.compile(r"-?([0-9]+\.?[0-9]*|\.[0-9]+)([eE][-+]?[0-9]+)?\Z")
+
+SUBTREE = "SubTree"
+
+
+def typed_literal(text: str) -> int | float | str:
+    """A literal port value on a SubTree element as BT.CPP stores it: an integer, else a real, else the text."""
+    if _INT.match(text):
+        return int(text)
+    if _REAL.match(text):
+        return float(text)
+    return text
+
+
+@dataclass
+class Scope:
+    """The names of one SubTree instance's blackboard (``namespace``: py_trees' namespace of it)."""
+
+    namespace: str
+    aliases: dict[str, str] = field(default_factory=dict)
+    """Local name -> the storage key of the parent's entry it remaps to."""
+    literals: dict[str, int | float | str] = field(default_factory=dict)
+    """Local entries created from literal values on the SubTree element (storage key -> value)."""
+
+    def key(self, name: str) -> str:
+        """The storage key of entry ``name`` as seen from this scope (``@name``: the root's)."""
+        if name.startswith("@"):
+            return "/" + name[1:]
+        if name.startswith("/"):
+            return name
+        alias = self.aliases.get(name)
+        return alias if alias is not None else self.namespace + name
+
+
+def subtree_scopes(trees: Mapping[str, ET.Element], main_id: str) -> dict[str, Scope]:
+    """Every SubTree instance's scope under the tree ``main_id``, by namespace (``/`` is the main tree's).
+
+    ``trees``: the validated ``<BehaviorTree>`` elements by ID, every SubTree element named
+    (the validator gives each a unique ``name``, which py_trees uses for its namespace).
+    """
+    root = Scope("/")
+    scopes = {"/": root}
+
+    def walk(elem: ET.Element, scope: Scope) -> None:
+        for child in elem:
+            if child.tag != SUBTREE:
+                walk(child, scope)
+                continue
+            target = child.attrib.get("ID", "")
+            sub = Scope(scope.namespace + child.attrib.get("name", target) + "/")
+            for attr, value in child.attrib.items():
+                if attr in ("ID", "name") or attr.startswith("_"):
+                    continue
+                text = value.strip()
+                if text.startswith("{") and text.endswith("}"):
+                    inner = text[1:-1].strip()
+                    sub.aliases[attr] = scope.key(attr if inner == "=" else inner)
+                else:
+                    sub.literals[sub.namespace + attr] = typed_literal(value)
+            scopes[sub.namespace] = sub
+            if target in trees:
+                walk(trees[target], sub)
+
+    if main_id in trees:
+        walk(trees[main_id], root)
+    return scopes
