@@ -9,8 +9,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import pytest
+
 from canguard.bt.dryrun import dry_run
 from canguard.bt.scopes import typed_literal
+from canguard.errors import TreeError
 
 DOUBLER = """
   <BehaviorTree ID="Doubler">
@@ -69,3 +72,25 @@ class TestLiterals:
         """As xml_parsing.cpp: an integer, else a real, else the text."""
         assert [typed_literal(t) for t in ("5", "-3", "0.5", "1e3", "1;2;3", "abc", "")] == [
             5, -3, 0.5, 1000.0, "1;2;3", "abc", ""]
+
+
+class TestConditionsOnTheElement:
+    COUNT = """
+  <BehaviorTree ID="Count">
+    <Script code="k += 1"/>
+  </BehaviorTree>
+"""
+
+    def test_pre_and_post_conditions_on_a_subtree(self, tmp_path: Path) -> None:
+        """_skipIf / _onSuccess on <SubTree> apply to it and run on the parent's blackboard (BT.CPP's SubTree node)."""
+        main = ('<Sequence><Script code="go := 0; n := 0"/>'
+                '<SubTree ID="Count" name="first" k="{n}" _skipIf="go == 0" _onSuccess="after := n"/>'
+                '<Script code="go := 1"/>'
+                '<SubTree ID="Count" name="second" k="{n}" _skipIf="go == 0" _onSuccess="after := n"/></Sequence>')
+        got = dry_run(tree(tmp_path, main, self.COUNT), 1, 0.1)
+        assert got == {"ticks": ["SUCCESS"], "blackboard": {"after": 1, "go": 1, "n": 1}}
+
+    def test_a_bad_condition_script_is_a_load_error(self, tmp_path: Path) -> None:
+        """A condition on a <SubTree> that does not parse names the file, line and attribute."""
+        with pytest.raises(TreeError, match=r"t.xml:3: SubTree Count \(BehaviorTree M\), _skipIf: script"):
+            dry_run(tree(tmp_path, '<SubTree ID="Count" k="{n}" _skipIf="go =="/>', self.COUNT), 1, 0.1)

@@ -54,10 +54,31 @@ class _Loader(_Validator):
     def scoped_boards(self, main_id: str) -> dict[str, TreeBlackboard]:
         """The scripts' blackboard view of every SubTree instance's scope; its literal entries created."""
         boards = {}
-        for namespace, scope in subtree_scopes(self.trees, main_id).items():
+        self.scopes = subtree_scopes(self.trees, main_id)
+        for namespace, scope in self.scopes.items():
             Blackboard.storage.update(scope.literals)
             boards[namespace] = TreeBlackboard(namespace, scope)
         return boards
+
+    def install_subtree_conditions(self, nodes: list[py_trees.behaviour.Behaviour],
+                                   boards: dict[str, TreeBlackboard]) -> None:
+        """Pre/post conditions written on a ``<SubTree>`` element wrap its instance's root node.
+
+        BT.CPP puts them on the SubTree node, whose child is the subtree's root and whose
+        blackboard is the parent's: so they are checked before the root's own and run on the
+        parent's scope.
+        """
+        def namespace(node: py_trees.behaviour.Behaviour | None) -> str:
+            return (getattr(node, "_subtree_namespace", None) or "/").rstrip("/") + "/"
+
+        for ns, scope in self.scopes.items():
+            scripts = self.subtree_conditions.get(scope.element) if scope.element is not None else None
+            if not scripts:
+                continue
+            for node in nodes:  # the instance's root: the one node of its scope whose parent is outside it
+                if namespace(node).startswith(ns) and not namespace(node.parent).startswith(ns):
+                    conditions.install(node, scripts, boards[scope.parent])
+                    break
 
     def _untoken(self, text: str) -> str:
         def name(m: re.Match) -> str:
@@ -86,6 +107,7 @@ class _Loader(_Validator):
             conditions.install(node, self.conditions.get(parts[-1], {}), board)
             prefix = [p for p in parts[:-1] if p not in self.infos]
             placed.append((node, info, "/".join([*prefix, info.name])))
+        self.install_subtree_conditions(nodes, boards)
         order = {id(n): i for i, n in enumerate(_preorder(root))}
         placed.sort(key=lambda t: order[id(t[0])])
         counts: dict[str, int] = {}

@@ -45,6 +45,10 @@ class Scope:
     """Local name -> the storage key of the parent's entry it remaps to."""
     literals: dict[str, int | float | str] = field(default_factory=dict)
     """Local entries created from literal values on the SubTree element (storage key -> value)."""
+    parent: str = ""
+    """The namespace of the tree the SubTree element is written in ("" for the main tree's scope)."""
+    element: ET.Element | None = None
+    """The ``<SubTree>`` element (None for the main tree's scope)."""
 
     def key(self, name: str) -> str:
         """The storage key of entry ``name`` as seen from this scope (``@name``: the root's)."""
@@ -71,7 +75,7 @@ def subtree_scopes(trees: Mapping[str, ET.Element], main_id: str) -> dict[str, S
                 walk(child, scope)
                 continue
             target = child.attrib.get("ID", "")
-            sub = Scope(scope.namespace + child.attrib.get("name", target) + "/")
+            sub = Scope(scope.namespace + child.attrib.get("name", target) + "/", parent=scope.namespace, element=child)
             for attr, value in child.attrib.items():
                 if attr in ("ID", "name") or attr.startswith("_"):
                     continue

@@ -51,6 +51,12 @@ class _Validator(_Reader):
             subtree_names: dict[str, int] = {}
             for elem in bt[0].iter():
                 if elem.tag == _SUBTREE:
+                    scripts, problems = take_conditions(elem.attrib)  # BT.CPP: they apply to the SubTree node
+                    cond_file, cond_line = self.where.get(elem, (self.path, 0))
+                    self.errors.extend(f"{cond_file}:{cond_line}: SubTree {elem.attrib.get('ID')} (BehaviorTree "
+                                       f"{tree_id}), {p}" for p in problems)
+                    if scripts:
+                        self.subtree_conditions[elem] = scripts
                     try:
                         self._check_subtree(elem, tree_id, subtree_names)
                     except TreeError as exc:

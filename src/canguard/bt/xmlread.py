@@ -48,6 +48,8 @@ class _Reader:
         self.infos: dict[str, NodeInfo] = {}
         self.conditions: dict[str, dict[str, ParsedScript]] = {}
         """Pre/post-condition scripts (``_successIf``...) by node token (see :mod:`.conditions`)."""
+        self.subtree_conditions: dict[ET.Element, dict[str, ParsedScript]] = {}
+        """Pre/post-condition scripts on ``<SubTree>`` elements (run on the parent's blackboard)."""
         self.registry: Registry = {}
         self.classes: dict[str, type[PortsMixin]] = {}
         self.errors: list[str] = []
