@@ -94,3 +94,21 @@ class TestConditionsOnTheElement:
         """A condition on a <SubTree> that does not parse names the file, line and attribute."""
         with pytest.raises(TreeError, match=r"t.xml:3: SubTree Count \(BehaviorTree M\), _skipIf: script"):
             dry_run(tree(tmp_path, '<SubTree ID="Count" k="{n}" _skipIf="go =="/>', self.COUNT), 1, 0.1)
+
+
+class TestEntryTypes:
+    def test_one_entry_two_port_types_is_a_load_error(self, tmp_path: Path) -> None:
+        """An int port and a string port on one entry: refused at load, naming both places (xml_parsing.cpp)."""
+        main = ('<Sequence><LoopInt queue="1;2" value="{v}"><AlwaysSuccess/></LoopInt>'
+                '<LoopString queue="a;b" value="{v}"><AlwaysSuccess/></LoopString></Sequence>')
+        with pytest.raises(TreeError, match=r"port value: the entry \[v\] was created with type \[int\] "
+                                            r"\(.*t.xml:3, node LoopInt\) and is used here as \[std::string\]"):
+            dry_run(tree(tmp_path, main, ""), 1, 0.1)
+
+    def test_a_string_first_converts_and_any_type_ports_do_not_count(self, tmp_path: Path) -> None:
+        """A string port first, then an int one, is accepted (BT.CPP converts from strings); so are BT::Any ports."""
+        main = ('<Sequence><LoopString queue="3" value="{v}"><AlwaysSuccess/></LoopString>'
+                '<LoopInt queue="4" value="{v}"><AlwaysSuccess/></LoopInt>'
+                '<SkipUnlessUpdated entry="{w}"><LoopInt queue="5" value="{w}"><AlwaysSuccess/></LoopInt>'
+                "</SkipUnlessUpdated></Sequence>")
+        assert dry_run(tree(tmp_path, main, ""), 1, 0.1)["ticks"] == ["RUNNING"]

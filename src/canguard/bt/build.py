@@ -80,6 +80,33 @@ class _Loader(_Validator):
                     conditions.install(node, scripts, boards[scope.parent])
                     break
 
+    def check_entry_types(self, nodes: list[py_trees.behaviour.Behaviour], infos: dict[Any, NodeInfo]) -> None:
+        """BT.CPP's rule: the first typed port wired to an entry fixes its type; another type later is an error.
+
+        (``xml_parsing.cpp``: unless the first was a string, which converts to anything; ports of any
+        type, :attr:`~canguard.bt.nodes.base.CanguardNode.UNTYPED_PORTS`, neither fix nor check it.)
+        """
+        first: dict[str, tuple[type, str]] = {}
+        for node in nodes:  # in tree order, as BT.CPP creates them
+            if not isinstance(node, CanguardNode):
+                continue
+            info = infos[node.id]
+            table = node.port_table()
+            for port, key in node.wired_keys().items():
+                if port in node.UNTYPED_PORTS or port not in table:
+                    continue
+                kind = table[port][1].data_type
+                if key not in first:
+                    first[key] = (kind, f"{info.file}:{info.line}, node {info.name}")
+                    continue
+                was, at = first[key]
+                if was is not kind and was is not str:
+                    self.errors.append(
+                        f"{info.file}:{info.line}: node {info.name} (BehaviorTree {info.tree}), port {port}: the "
+                        f"entry [{key.lstrip('/')}] was created with type [{_type_name(was)}] ({at}) and is used "
+                        f"here as [{_type_name(kind)}]; one entry has one type (as in BT.CPP)"
+                    )
+
     def _untoken(self, text: str) -> str:
         def name(m: re.Match) -> str:
             info = self.infos.get(m.group(0))
@@ -118,6 +145,7 @@ class _Loader(_Validator):
             name = readable if k == 1 else f"{readable}#{k}"
             node.name = name
             loaded_nodes[node.id] = NodeInfo(info.node_id, name, info.file, info.line, info.tree)
+        self.check_entry_types([n for n, _, _ in placed], loaded_nodes)
         for node, _, _ in placed:
             if isinstance(node, CanguardNode):
                 info = loaded_nodes[node.id]
@@ -148,6 +176,11 @@ class _Loader(_Validator):
             nodes=loaded_nodes,
             wake_up=wake_up,
         )
+
+
+def _type_name(kind: type) -> str:
+    names = {int: "int", float: "double", str: "std::string", bool: "bool"}
+    return names.get(kind, getattr(kind, "__name__", str(kind)))
 
 
 def load_tree(path: str | Path, ctx: Context, main: str | None = None, palette: Palette | None = None) -> LoadedTree:

@@ -140,6 +140,9 @@ class CanguardNode(PortsMixin):
     CONST_PORTS: ClassVar[frozenset[str]] = frozenset()
     """Input ports that configure the node once at load time: a ``{key}`` there is a load-time error."""
     KEY_PORTS: ClassVar[frozenset[str]] = frozenset()
+    UNTYPED_PORTS: ClassVar[frozenset[str]] = frozenset()
+    """Ports that take an entry of any type (BT.CPP's ``AnyTypeAllowed`` / ``BT::Any``): they neither fix
+    nor check the type of the entry they are wired to (see :func:`canguard.bt.build` entry types)."""
     """Input ports that must be wired to a ``{key}`` (a constant there is a load-time error)."""
     CHOICES: ClassVar[Mapping[str, tuple[str, ...]]] = {}
     """Allowed values of string ports, checked at load time for constants."""
@@ -222,6 +225,10 @@ class CanguardNode(PortsMixin):
     def is_wired(self, name: str) -> bool:
         """True when the port was given in the XML as a ``{key}`` (input) or at all (output)."""
         return name in self._dynamic or name in self._wired
+
+    def wired_keys(self) -> dict[str, str]:
+        """The storage key of every port wired to a ``{key}`` (inputs) or given (outputs), by port name."""
+        return dict(self._keys)
 
     def is_given(self, name: str) -> bool:
         """True when the input port has a value or a key (given, or with a default)."""

@@ -193,6 +193,7 @@ class SetBlackboard(_Scripted, py_trees.behaviour.Behaviour):
 
     KIND = "Action"
     DESCRIPTION = "writes value into the blackboard entry named by output_key: SUCCESS"
+    UNTYPED_PORTS = frozenset({"value", "output_key"})  # BT.CPP: AnyTypeAllowed
     INPUT_PORTS = {  # noqa: RUF012
         "value": port_info(str, "the value (text, as in BT.CPP), or {key} to copy an entry"),
         "output_key": port_info(str, "the name of the entry to write"),
@@ -215,6 +216,7 @@ class UnsetBlackboard(_Scripted, py_trees.behaviour.Behaviour):
 
     KIND = "Action"
     DESCRIPTION = "removes the blackboard entry key: SUCCESS"
+    UNTYPED_PORTS = frozenset({"key"})
     INPUT_PORTS = {"key": port_info(str, "the entry to remove")}  # noqa: RUF012
 
     def update(self) -> py_trees.common.Status:

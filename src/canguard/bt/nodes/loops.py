@@ -41,6 +41,7 @@ class _Loop(CanguardNode, py_trees.decorators.Decorator):
     OUTPUT_PORTS: dict = {}  # noqa: RUF012
     CHOICES = {"if_empty": ("SUCCESS", "FAILURE", "SKIPPED")}  # noqa: RUF012
     SKIP_THROUGH = False  # BT.CPP's loop_node.h: a skipped child leaves the loop RUNNING
+    UNTYPED_PORTS = frozenset({"queue"})  # BT.CPP: an untyped BidirectionalPort (a list, a vector or a string)
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
         name = cls.ITEM.__name__
