@@ -129,6 +129,9 @@ class _Loader(_Validator):
             info = self.infos[parts[-1]]
             namespace = (getattr(node, "_subtree_namespace", None) or "/").rstrip("/") + "/"
             board = boards.get(namespace, boards["/"])
+            private = self.private_tokens.get(parts[-1])
+            if private:  # a node of an inlined _autoremap subtree: its _keys are its own
+                board = TreeBlackboard(namespace, board.scope.with_private(private))
             if isinstance(node, _Scripted):
                 node.board = board
             conditions.install(node, self.conditions.get(parts[-1], {}), board)

@@ -49,6 +49,13 @@ class Scope:
     """The namespace of the tree the SubTree element is written in ("" for the main tree's scope)."""
     element: ET.Element | None = None
     """The ``<SubTree>`` element (None for the main tree's scope)."""
+    private: str = ""
+    """In an inlined ``_autoremap`` subtree: the path its ``_`` entries live under (BT.CPP keeps them in the
+    subtree; see :mod:`canguard.bt.xmlread`)."""
+
+    def with_private(self, private: str) -> Scope:
+        """This scope as seen from an inlined ``_autoremap`` subtree whose ``_`` entries live under ``private``."""
+        return Scope(self.namespace, self.aliases, {}, self.parent, self.element, private)
 
     def key(self, name: str) -> str:
         """The storage key of entry ``name`` as seen from this scope (``@name``: the root's)."""
@@ -56,6 +63,8 @@ class Scope:
             return "/" + name[1:]
         if name.startswith("/"):
             return name
+        if self.private and name.startswith("_"):
+            return self.namespace + self.private + "/" + name
         alias = self.aliases.get(name)
         return alias if alias is not None else self.namespace + name
 

@@ -78,6 +78,8 @@ class _Validator(_Reader):
                     self.infos[token] = NodeInfo(elem.tag, readable, file, line, tree_id)
                     if scripts:
                         self.conditions[token] = scripts
+                    if elem in self.private:
+                        self.private_tokens[token] = self.private[elem]
                     elem.attrib["name"] = token
         if self.source_check == "always" or (self.errors and self.source_check == "with_others"):
             # The tree will not be built, so binding (which resolves the sources and reports an
