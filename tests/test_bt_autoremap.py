@@ -95,3 +95,15 @@ def test_private_keys_are_not_remapped(tmp_path: Path) -> None:
 </root>""", encoding="utf-8")
     got = dry_run(path, 2, 0.1)
     assert got == {"ticks": ["RUNNING", "SUCCESS"], "blackboard": {"_p": 1, "after": 1, "got": 7, "shared": 2}}
+
+
+def test_a_script_follows_a_port_remapped_on_the_element(tmp_path: Path) -> None:
+    """_autoremap with inside="{x}": a script's inside is the parent's x (BT.CPP's remapping entry)."""
+    path = tmp_path / "r.xml"
+    path.write_text("""<root BTCPP_format="4" main_tree_to_execute="M">
+  <BehaviorTree ID="M">
+    <Sequence><Script code="x := 3"/><SubTree ID="C" _autoremap="true" inside="{x}" k="10"/></Sequence>
+  </BehaviorTree>
+  <BehaviorTree ID="C"><Script code="inside += 1; z := inside + k"/></BehaviorTree>
+</root>""", encoding="utf-8")
+    assert dry_run(path, 1, 0.1) == {"ticks": ["SUCCESS"], "blackboard": {"x": 4, "z": 14.0}}

@@ -218,3 +218,13 @@ class TestCounts:
         got = dry_run(path, 2, 0.1)
         assert got["ticks"] == ["SUCCESS", "SUCCESS"]
         assert got["blackboard"] == {"k": 2.0, "n": 2, "once": 1, "skip": 0.0}
+
+
+class TestSetBlackboardTypes:
+    def test_text_into_a_typed_entry_is_parsed_to_its_type(self, tmp_path: Path) -> None:
+        """SetBlackboard value="7" over an integer entry writes the integer 7; words there fail the node."""
+        path = tree(tmp_path, '<Sequence><Script code="a := 1"/><SetBlackboard output_key="a" value="7"/>'
+                              '<Script code="b := a * 2"/></Sequence>')
+        assert dry_run(path, 1, 0.1) == {"ticks": ["SUCCESS"], "blackboard": {"a": 7, "b": 14.0}}
+        path.write_text(path.read_text().replace('value="7"', 'value="seven"'))
+        assert dry_run(path, 1, 0.1) == {"ticks": ["FAILURE"], "blackboard": {"a": 1}}

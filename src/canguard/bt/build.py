@@ -129,9 +129,11 @@ class _Loader(_Validator):
             info = self.infos[parts[-1]]
             namespace = (getattr(node, "_subtree_namespace", None) or "/").rstrip("/") + "/"
             board = boards.get(namespace, boards["/"])
-            private = self.private_tokens.get(parts[-1])
-            if private:  # a node of an inlined _autoremap subtree: its _keys are its own
-                board = TreeBlackboard(namespace, board.scope.with_private(private))
+            inline = self.private_tokens.get(parts[-1])
+            if inline is not None:  # a node of an inlined _autoremap subtree: its ports and _keys
+                scope = board.scope.inlined(inline)
+                Blackboard.storage.update({k: v for k, v in scope.literals.items() if k not in Blackboard.storage})
+                board = TreeBlackboard(namespace, scope)
             if isinstance(node, _Scripted):
                 node.board = board
             conditions.install(node, self.conditions.get(parts[-1], {}), board)

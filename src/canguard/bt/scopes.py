@@ -36,6 +36,18 @@ def typed_literal(text: str) -> int | float | str:
     return text
 
 
+@dataclass(frozen=True)
+class Inline:
+    """An inlined ``_autoremap`` subtree instance: where its ``_`` entries live, and its element's ports."""
+
+    private: str
+    """The path (under the parent's namespace) of its ``_private`` entries and its literal ports."""
+    remaps: Mapping[str, str]
+    """Port -> the parent's entry name it remaps to (``out="{result}"``)."""
+    literals: Mapping[str, str]
+    """Port -> the literal text given on the element (``q="7;8"``): a typed entry of the instance."""
+
+
 @dataclass
 class Scope:
     """The names of one SubTree instance's blackboard (``namespace``: py_trees' namespace of it)."""
@@ -53,9 +65,15 @@ class Scope:
     """In an inlined ``_autoremap`` subtree: the path its ``_`` entries live under (BT.CPP keeps them in the
     subtree; see :mod:`canguard.bt.xmlread`)."""
 
-    def with_private(self, private: str) -> Scope:
-        """This scope as seen from an inlined ``_autoremap`` subtree whose ``_`` entries live under ``private``."""
-        return Scope(self.namespace, self.aliases, {}, self.parent, self.element, private)
+    def inlined(self, inline: Inline) -> Scope:
+        """This scope as seen from inside an inlined ``_autoremap`` subtree: its remapped ports are aliases of
+        the parent's entries, its literal ports and ``_`` entries its own."""
+        own = self.namespace + inline.private + "/"
+        aliases = dict(self.aliases)
+        aliases.update({port: self.key(name) for port, name in inline.remaps.items()})
+        aliases.update({port: own + port for port in inline.literals})
+        literals = {own + port: typed_literal(text) for port, text in inline.literals.items()}
+        return Scope(self.namespace, aliases, literals, self.parent, self.element, inline.private)
 
     def key(self, name: str) -> str:
         """The storage key of entry ``name`` as seen from this scope (``@name``: the root's)."""

@@ -13,6 +13,7 @@ from py_trees.ports import PortsMixin
 from canguard.bt.context import Context
 from canguard.bt.loaded import NodeInfo
 from canguard.bt.registry import _PORT_ALIASES, _SUBTREE, _TAG_ALIASES, _TOKEN, _V3_WRAPPERS, Registry, build_registry
+from canguard.bt.scopes import Inline
 from canguard.bt.xmlsrc import Where, _read_xml
 from canguard.errors import TreeError
 
@@ -50,9 +51,9 @@ class _Reader:
         """Pre/post-condition scripts (``_successIf``...) by node token (see :mod:`.conditions`)."""
         self.subtree_conditions: dict[ET.Element, dict[str, ParsedScript]] = {}
         """Pre/post-condition scripts on ``<SubTree>`` elements (run on the parent's blackboard)."""
-        self.private: dict[ET.Element, str] = {}
-        """Elements of an inlined ``_autoremap`` subtree -> the scope path of its ``_private`` entries."""
-        self.private_tokens: dict[str, str] = {}
+        self.private: dict[ET.Element, Inline] = {}
+        """Elements of an inlined ``_autoremap`` subtree -> that instance (its ``_private`` entries, its ports)."""
+        self.private_tokens: dict[str, Inline] = {}
         """The same, by node token (set by the validator)."""
         self._inlined = 0
         self.registry: Registry = {}
@@ -258,14 +259,16 @@ class _Reader:
                 rename[attr] = value  # a constant: the subtree's {attr} reads it
         self._inlined += 1
         private = f"{target}_autoremap{self._inlined}"  # BT.CPP: _autoremap never maps a key starting with _
-        copy = self._copy(body[0], rename, private)
+        remaps = {port: value.strip()[1:-1].strip() for port, value in rename.items() if value.strip().startswith("{")}
+        literals = {port: value for port, value in rename.items() if port not in remaps}
+        copy = self._copy(body[0], rename, Inline(private, remaps, literals))
         copy.attrib.update(conditions)
         for i, child in enumerate(copy):
             if self._autoremapped(child):
                 copy[i] = self._inline(child, tree_id, (*chain, target))
         return copy
 
-    def _copy(self, src: ET.Element, rename: dict[str, str], private: str) -> ET.Element:
+    def _copy(self, src: ET.Element, rename: dict[str, str], inline: Inline) -> ET.Element:
         """A deep copy of ``src`` with its lines, ``{key}`` references renamed by ``rename``, ``{_key}`` ones
         moved to the copy's own ``private`` scope."""
         attrib = {}
@@ -275,14 +278,14 @@ class _Reader:
             if text.startswith("{") and text.endswith("}") and inner in rename:
                 value = rename[inner]
             elif text.startswith("{") and text.endswith("}") and inner.startswith("_"):
-                value = "{" + private + "/" + inner + "}"
+                value = "{" + inline.private + "/" + inner + "}"
             attrib[attr] = value
         dst = ET.Element(src.tag, attrib)
-        self.private[dst] = private
+        self.private[dst] = inline
         if src in self.where:
             self.where[dst] = self.where[src]
         for child in src:
-            dst.append(self._copy(child, rename, private))
+            dst.append(self._copy(child, rename, inline))
         return dst
 
     # -- registry -------------------------------------------------------------------------

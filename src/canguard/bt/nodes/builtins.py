@@ -207,7 +207,18 @@ class SetBlackboard(_Scripted, py_trees.behaviour.Behaviour):
         if not key or value is None or value is _NOTHING:
             self.feedback_message = "no output_key or no value (the entry value names does not exist)"
             return FAILURE
-        self.board.set(str(key).strip("{}"), value)
+        name = str(key).strip("{}")
+        if not wired and self.board.has(name):  # BT.CPP: text into a typed entry is parsed to its type
+            from canguard.bt.scripting.values import convert_for_entry, entry_type
+
+            target = entry_type(self.board.get(name))
+            if target is not str:
+                try:
+                    value = convert_for_entry(value, target, None)
+                except ValueError as exc:
+                    self.feedback_message = f"can't convert {value!r} for the entry [{name}]: {exc}"
+                    return FAILURE
+        self.board.set(name, value)
         return SUCCESS
 
 
