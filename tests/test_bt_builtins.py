@@ -228,3 +228,11 @@ class TestSetBlackboardTypes:
         assert dry_run(path, 1, 0.1) == {"ticks": ["SUCCESS"], "blackboard": {"a": 7, "b": 14.0}}
         path.write_text(path.read_text().replace('value="7"', 'value="seven"'))
         assert dry_run(path, 1, 0.1) == {"ticks": ["FAILURE"], "blackboard": {"a": 1}}
+
+    def test_a_text_entry_on_an_int_port_is_parsed(self, tmp_path: Path) -> None:
+        """k := '2' drives Repeat num_cycles="{k}" (BT.CPP parses a string entry to the port's type); 'two' fails."""
+        path = tree(tmp_path, '<Sequence><Script code="k := \'2\'; n := 0"/>'
+                              '<Repeat num_cycles="{k}"><Script code="n += 1"/></Repeat></Sequence>')
+        assert dry_run(path, 1, 0.1) == {"ticks": ["SUCCESS"], "blackboard": {"k": "2", "n": 2}}
+        path.write_text(path.read_text().replace("'2'", "'two'"))
+        assert dry_run(path, 1, 0.1)["ticks"] == ["FAILURE"]

@@ -92,9 +92,18 @@ def note_script_error(node: py_trees.behaviour.Behaviour, attr: str, script: str
 _MISSING = object()
 
 
+_BOOL_TEXT = {"true": True, "false": False, "1": True, "0": False}
+
+
 def _number_as(expected: Any, value: Any) -> Any:
-    """BT.CPP's lossless number casts: a real 0/1 (a script's true/false) on a bool port, an integral real on an
-    int port; None when there is none."""
+    """BT.CPP's casts on reading a port: a real 0/1 (a script's true/false) on a bool port, an integral real on
+    an int port, a string entry parsed to the port's type (``convertFromString``); None when there is none."""
+    if isinstance(value, str) and expected in (int, float, bool) and "_" not in value:
+        text = value.strip()
+        try:
+            return _BOOL_TEXT[text.lower()] if expected is bool else expected(text)
+        except (KeyError, ValueError):
+            return None
     if isinstance(value, bool) or not isinstance(value, int | float):
         return None
     if expected is bool and value in (0, 1):
@@ -239,7 +248,8 @@ class CanguardNode(PortsMixin):
 
         None when a wired key holds nothing yet or holds a value of the wrong type
         (``self._bad_port`` then says which); an int on a float port is accepted, and
-        so are the numbers BT.CPP casts without loss (a real 0/1 on a bool port, an integral real on an int port).
+        so are the values BT.CPP casts (a real 0/1 on a bool port, an integral real on an int port, a string
+        entry parsed to the port's type).
         """
         if name not in self._dynamic:
             return self._static.get(name)
