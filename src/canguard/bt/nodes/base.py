@@ -106,6 +106,8 @@ def _number_as(expected: Any, value: Any) -> Any:
             return None
     if isinstance(value, bool) or not isinstance(value, int | float):
         return None
+    if expected is str:  # BT.CPP's Any to string: std::to_string, so reals with %f
+        return f"{value:f}" if isinstance(value, float) else str(value)
     if expected is bool and value in (0, 1):
         return bool(value)
     if expected is int and isinstance(value, float) and value.is_integer():
@@ -249,7 +251,7 @@ class CanguardNode(PortsMixin):
         None when a wired key holds nothing yet or holds a value of the wrong type
         (``self._bad_port`` then says which); an int on a float port is accepted, and
         so are the values BT.CPP casts (a real 0/1 on a bool port, an integral real on an int port, a string
-        entry parsed to the port's type).
+        entry parsed to the port's type, a number on a string port as ``std::to_string`` writes it).
         """
         if name not in self._dynamic:
             return self._static.get(name)
