@@ -23,6 +23,7 @@ from __future__ import annotations
 import json
 import math
 import re
+import xml.etree.ElementTree as ET
 from pathlib import Path
 from typing import Any
 
@@ -31,6 +32,16 @@ import pytest
 from canguard.cli.main import main
 
 CORPUS = Path(__file__).resolve().parent / "data" / "btcpp"
+# What BehaviorTree.CPP 4.10's BehaviorTreeFactory registers (src/bt_factory.cpp; SequenceStar only
+# with USE_BTCPP3_OLD_NAMES): the corpus must use each of them.
+BTCPP_BUILTINS = (
+    "Fallback", "AsyncFallback", "Sequence", "AsyncSequence", "SequenceWithMemory", "Parallel", "ParallelAll",
+    "ReactiveSequence", "ReactiveFallback", "IfThenElse", "WhileDoElse", "TryCatch", "Inverter",
+    "RetryUntilSuccessful", "KeepRunningUntilFailure", "Repeat", "Timeout", "Delay", "RunOnce", "ForceSuccess",
+    "ForceFailure", "AlwaysSuccess", "AlwaysFailure", "Script", "ScriptCondition", "SetBlackboard", "Sleep",
+    "UnsetBlackboard", "SubTree", "Precondition", "Switch2", "Switch3", "Switch4", "Switch5", "Switch6",
+    "LoopInt", "LoopBool", "LoopDouble", "LoopString", "WasEntryUpdated", "SkipUnlessUpdated", "WaitValueUpdate",
+)
 ORACLE_LINE = re.compile(r"<!-- oracle: ticks=(\d+)( exactly-once)? -->")
 
 WAKE_UP = ("tickOnce(): BT.CPP ticks the root again while a wake-up signal is pending (Repeat, "
@@ -214,6 +225,14 @@ class TestCorpus:
         recordings = {p.stem for p in CORPUS.glob("*.json")}
         assert trees == recordings
         assert len(trees) >= 150
+
+    def test_every_btcpp_builtin_node_is_ticked(self) -> None:
+        """Each node type BT.CPP's factory registers appears in a tree of the corpus that BT.CPP loaded."""
+        used: set[str] = set()
+        for tree in CORPUS.glob("*.xml"):
+            if json.loads(tree.with_suffix(".json").read_text(encoding="utf-8"))["error"] is None:
+                used.update(element.tag for element in ET.parse(tree).iter())
+        assert set(BTCPP_BUILTINS) - used == set()
 
     def test_recordings_follow_the_oracle_line(self) -> None:
         """Each recording used the tick mode its tree asks for and stopped only at its tick count or at an error."""
