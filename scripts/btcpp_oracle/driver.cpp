@@ -181,11 +181,27 @@ Json errorJson(const std::string& phase, int tick, const std::string& message)
   return err;
 }
 
-}  // namespace
-
-int main(int argc, char** argv)
+// BT.CPP prints diagnostics on std::cout (e.g. the blackboard's entries when a port's
+// type clashes); while it runs they go to stderr, so stdout holds only the JSON.
+class CoutToCerr
 {
-  const Options opt = parseArgs(argc, argv);
+public:
+  CoutToCerr() : saved_(std::cout.rdbuf(std::cerr.rdbuf()))
+  {}
+  ~CoutToCerr()
+  {
+    std::cout.rdbuf(saved_);
+  }
+  CoutToCerr(const CoutToCerr&) = delete;
+  CoutToCerr& operator=(const CoutToCerr&) = delete;
+
+private:
+  std::streambuf* saved_;
+};
+
+Json run(const Options& opt)
+{
+  const CoutToCerr quiet;
 
   Json out = Json::object();
   out["btcpp"] = opt.source.empty() ? std::string(BT::LibraryVersionString()) : opt.source;
@@ -204,8 +220,7 @@ int main(int argc, char** argv)
   catch(const std::exception& exc)
   {
     out["error"] = errorJson("load", 0, exc.what());
-    std::cout << out.dump(2) << std::endl;
-    return 0;
+    return out;
   }
 
   for(int i = 0; i < opt.ticks; i++)
@@ -224,6 +239,15 @@ int main(int argc, char** argv)
   Json types = Json::object();
   out["blackboard"] = rootBlackboard(*tree, types);
   out["types"] = types;
+  return out;
+}
+
+}  // namespace
+
+int main(int argc, char** argv)
+{
+  const Options opt = parseArgs(argc, argv);
+  const Json out = run(opt);
   std::cout << out.dump(2) << std::endl;
   return 0;
 }

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# Re-record the BehaviorTree.CPP corpus: build BT.CPP (static; no Groot2/ZeroMQ, SQLite,
-# tests, examples or tools) from a source checkout, build the oracle driver against it,
+# Re-record the BehaviorTree.CPP corpus: build the oracle driver together with BT.CPP from a
+# source checkout (static; no Groot2/ZeroMQ, SQLite, tests, examples or tools: CMakeLists.txt),
 # and run every tests/data/btcpp/*.xml through it, writing the .json next to each tree.
 # Fetches nothing.
 #
@@ -32,16 +32,9 @@ commit=$(git -C "$src" rev-parse HEAD 2>/dev/null || echo unknown)
 source="BehaviorTree.CPP $version $commit"
 echo "recording with $source" >&2
 
-cmake -S "$src" -B "$build/lib" -DCMAKE_BUILD_TYPE=Release \
-    -DBTCPP_SHARED_LIBS=OFF -DBTCPP_BUILD_TOOLS=OFF -DBTCPP_EXAMPLES=OFF -DBUILD_TESTING=OFF \
-    -DBTCPP_GROOT_INTERFACE=OFF -DBTCPP_SQLITE_LOGGING=OFF \
-    -DCMAKE_INSTALL_PREFIX="$build/install" >/dev/null
-cmake --build "$build/lib" -j "$jobs" >/dev/null
-cmake --install "$build/lib" >/dev/null
-
-cmake -S "$here" -B "$build/driver" -DCMAKE_BUILD_TYPE=Release -DCMAKE_PREFIX_PATH="$build/install" >/dev/null
-cmake --build "$build/driver" -j "$jobs" >/dev/null
-driver="$build/driver/btcpp_oracle"
+cmake -S "$here" -B "$build" -DCMAKE_BUILD_TYPE=Release -DBTCPP_SOURCE_DIR="$src" >/dev/null
+cmake --build "$build" --target btcpp_oracle -j "$jobs" >/dev/null
+driver="$build/btcpp_oracle"
 
 count=0
 for tree in "$corpus"/*.xml; do
@@ -55,8 +48,13 @@ for tree in "$corpus"/*.xml; do
     if [[ $header == *exactly-once* ]]; then
         args+=(--exactly-once)
     fi
-    # The driver runs in the corpus directory so relative <include path=...> resolve as in the test.
-    (cd "$corpus" && "$driver" "$(basename "$tree")" "${args[@]}") >"${tree%.xml}.json"
+    # The driver runs in the corpus directory, given ./NAME.xml (BT.CPP takes the absolute path of
+    # the file's directory, which fails on an empty one), so no recording holds a path of this machine.
+    # A tree whose tickOnce() never returns (it wakes itself for ever) would hang the recording.
+    if ! (cd "$corpus" && timeout 60 "$driver" "./$(basename "$tree")" "${args[@]}") >"${tree%.xml}.json"; then
+        echo "$tree: the driver failed or did not finish in 60 s" >&2
+        exit 1
+    fi
     count=$((count + 1))
 done
 echo "recorded $count trees into $corpus" >&2
