@@ -44,105 +44,27 @@ BTCPP_BUILTINS = (
 )
 ORACLE_LINE = re.compile(r"<!-- oracle: ticks=(\d+)( exactly-once)? -->")
 
-WAKE_UP = ("tickOnce(): BT.CPP ticks the root again while a wake-up signal is pending (Repeat, "
-           "RetryUntilSuccessful, SequenceWithMemory, AsyncSequence, AsyncFallback after a child that completed "
-           "at once); canguard ticks the root once")
-EXACTLY_ONCE = "canguard tree has no --exactly-once (BT.CPP's tickExactlyOnce()) yet"
-SUBTREE_PORTS = ("SubTree ports are blackboard remappings in BT.CPP (the subtree's entry is an alias of the "
-                 "parent's, a literal becomes an entry); canguard renames {key} attributes only, so scripts and "
-                 "SetBlackboard inside do not reach the parent's entry")
-ROOT_KEYS = "@key reads and writes the root blackboard from any depth in BT.CPP; canguard does not reach it"
-SUBTREE_CONDITIONS = "pre/post conditions on a <SubTree> element are valid in BT.CPP; canguard refuses them"
-SCRIPT_REALS = ("script values: true/false and the results of comparisons and ! are the reals 1.0/0.0 in BT.CPP "
-                "(printed 1.000000); canguard keeps them as booleans")
-TYPE_CLASH = ("typed entries: one key used by an int port and by a string port is a load error in BT.CPP; "
-              "canguard runs it")
-SET_COPY = ("SetBlackboard value={src} copies the typed value in BT.CPP; canguard's value port is text and "
-            "copies nothing (FAILURE)")
 SET_TEXT_ANY = ("SetBlackboard writing text into an entry that has no port type (a Script's, or one it copies "
                 "from a Script's): BT.CPP parses the text with that type, which leaves the entry without a "
                 "value; canguard writes the text")
-INT_PORT_CONVERTS = ("an int port ({k}) reads a real or numeric-text entry converted to int in BT.CPP; canguard's "
-                     "Repeat fails")
 
 # tree -> why canguard does not (yet) do what BehaviorTree.CPP does with it
 KNOWN_DIFFERENCES: dict[str, str] = {
-    "action_set_blackboard_copy_double": SET_COPY,
-    "action_set_blackboard_copy_int": SET_COPY,
     "action_set_blackboard_copy_string": SET_TEXT_ANY,
     "action_set_blackboard_copy_string_read": SET_TEXT_ANY,
     "action_set_blackboard_overwrite_bad": SET_TEXT_ANY,
     "action_set_blackboard_overwrite_int": SET_TEXT_ANY,
-    "async_fallback_exactly_once": EXACTLY_ONCE,
-    "async_fallback_wakeup": WAKE_UP,
-    "async_sequence_exactly_once": EXACTLY_ONCE,
-    "async_sequence_failure": WAKE_UP,
-    "async_sequence_wakeup": WAKE_UP,
     "load_duplicate_tree_id": ("BT.CPP accepts two BehaviorTrees with one ID (the last one wins); canguard refuses "
                                "the file"),
-    "loop_empty_skipped": "BT.CPP accepts if_empty=\"SKIPPED\" on the Loop nodes; canguard refuses it",
-    "loop_int_and_string_value": TYPE_CLASH,
-    "loop_int_exactly_once": EXACTLY_ONCE,
     "post_failure_in_script": ("a post-condition that fails at run time (= on a missing entry) throws out of "
                                "tickOnce() in BT.CPP; canguard ignores the error and returns SUCCESS"),
     "pre_unknown_entry": ("a pre-condition reading a missing entry throws out of tickOnce() in BT.CPP; canguard "
                           "takes it as false and ticks the node (SUCCESS)"),
     "precondition_false_running": ("Precondition else=\"RUNNING\": BT.CPP checks `if` again at the next tick "
                                    "(still false: RUNNING); canguard ticks the child"),
-    "repeat_failure_ends": WAKE_UP,
-    "repeat_from_entry": WAKE_UP,
     "repeat_real_cycles": "BT.CPP reads num_cycles=\"2.5\" as an int; canguard refuses the file",
-    "repeat_three_exactly_once": EXACTLY_ONCE,
-    "repeat_three_wakeup": WAKE_UP,
-    "retry_from_entry": WAKE_UP,
-    "retry_succeeds_third": WAKE_UP,
-    "retry_three_exactly_once": EXACTLY_ONCE,
-    "retry_three_failures": WAKE_UP,
-    "retry_zero_attempts": ("BT.CPP accepts num_attempts=\"0\" on RetryUntilSuccessful (FAILURE without ticking "
-                            "the child); canguard refuses it"),
-    "script_and_or": f"{SCRIPT_REALS}; && on numbers other than booleans throws in BT.CPP",
-    "script_compare_bool_entries": SCRIPT_REALS,
-    "script_compare_int_double": SCRIPT_REALS,
-    "script_compare_numbers": SCRIPT_REALS,
-    "script_compare_string_number": SCRIPT_REALS,
-    "script_compare_strings": SCRIPT_REALS,
-    "script_concat_true": SCRIPT_REALS,
-    "script_not": SCRIPT_REALS,
-    "script_true_false": SCRIPT_REALS,
-    "sequence_with_memory_exactly_once": EXACTLY_ONCE,
-    "sequence_with_memory_failure": WAKE_UP,
-    "sequence_with_memory_wakeup": WAKE_UP,
-    "subtree_autoremap_private": "_autoremap never maps keys starting with _ in BT.CPP; canguard shares them",
-    "subtree_autoremap_with_port": SUBTREE_PORTS,
-    "subtree_literal_port": SUBTREE_PORTS,
-    "subtree_literal_text": SUBTREE_PORTS,
-    "subtree_nested_remap": SUBTREE_PORTS,
-    "subtree_post_on_success": SUBTREE_CONDITIONS,
-    "subtree_precondition_skip": SUBTREE_CONDITIONS,
-    "subtree_remap_condition": SUBTREE_PORTS,
-    "subtree_remap_in": SUBTREE_PORTS,
-    "subtree_remap_inout": SUBTREE_PORTS,
-    "subtree_remap_out": SUBTREE_PORTS,
-    "subtree_remap_same_name": SUBTREE_PORTS,
-    "subtree_remap_set_blackboard": SUBTREE_PORTS,
-    "subtree_remap_type_clash": TYPE_CLASH,
-    "subtree_repeat_wakeup": f"{WAKE_UP}; {SUBTREE_PORTS}",
-    "subtree_root_key_nested": ROOT_KEYS,
-    "subtree_root_key_port": ROOT_KEYS,
-    "subtree_root_key_read": ROOT_KEYS,
-    "subtree_root_key_write": ROOT_KEYS,
-    "subtree_running": SUBTREE_PORTS,
-    "subtree_twice": SUBTREE_PORTS,
-    "typed_double_to_int_port": INT_PORT_CONVERTS,
-    "typed_run_once_bool_entry": SCRIPT_REALS,
-    "typed_script_string_to_int_port": INT_PORT_CONVERTS,
     "typed_script_word_to_int_port": ("an entry typed int by a port refuses a script's text in BT.CPP (the script "
                                       "throws); canguard stores the text"),
-    "wakeup_async_in_repeat": WAKE_UP,
-    "wakeup_repeat_in_reactive": WAKE_UP,
-    "wakeup_retry_in_fallback": WAKE_UP,
-    "while_do_else_two_children": "BT.CPP accepts WhileDoElse with two children; canguard refuses it",
-    "while_do_else_two_children_true": "BT.CPP accepts WhileDoElse with two children; canguard refuses it",
 }
 
 
