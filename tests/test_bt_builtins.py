@@ -233,6 +233,7 @@ class TestSetBlackboardTypes:
         """k := '2' drives Repeat num_cycles="{k}" (BT.CPP parses a string entry to the port's type); 'two' fails."""
         path = tree(tmp_path, '<Sequence><Script code="k := \'2\'; n := 0"/>'
                               '<Repeat num_cycles="{k}"><Script code="n += 1"/></Repeat></Sequence>')
-        assert dry_run(path, 1, 0.1) == {"ticks": ["SUCCESS"], "blackboard": {"k": "2", "n": 2}}
+        # the entry is an int, as Repeat's port declared it: the script's '2' is parsed (BT.CPP's converter)
+        assert dry_run(path, 1, 0.1) == {"ticks": ["SUCCESS"], "blackboard": {"k": 2, "n": 2}}
         path.write_text(path.read_text().replace("'2'", "'two'"))
-        assert dry_run(path, 1, 0.1)["ticks"] == ["FAILURE"]
+        assert dry_run(path, 1, 0.1) == {"ticks": ["FAILURE"], "blackboard": {}}  # the script fails

@@ -186,14 +186,17 @@ def test_real_into_integer_entry_is_an_error_and_leaves_it_unchanged() -> None:
     assert run("speed = 2", bb) == 2.0 and type(bb.values["speed"]) is float
 
 
-def test_declared_type_applies_to_an_empty_entry() -> None:
+def test_declared_type_applies_to_a_string_into_an_empty_entry() -> None:
+    """BT.CPP: an entry a port declared (no value yet) takes a number as it is, and parses a string to its type."""
     bb = Board()
     bb.types["limit"] = int
-    assert "which is declared as an integer" in str(error("limit = 0.5", bb))
-    assert run("limit = 0x10", bb) == 16
+    assert "which is declared as an integer" in str(error("limit = 'half'", bb))
+    assert run("limit = '16'", bb) == 16 and type(bb.values["limit"]) is int
+    bb.types["ratio"] = int
+    assert run("ratio = 0.5", bb) == 0.5  # Any::copyInto into an empty entry copies the value as it is
     bb.types["flag"] = bool
-    assert "expected true, false, 0 or 1" in str(error("flag = 2", bb))
-    assert run("flag = 1", bb) is True
+    assert "expected true, false, 0 or 1" in str(error("flag = '2'", bb))
+    assert run("flag = 'true'", bb) is True
 
 
 # ParserTest.NotInitializedComparison

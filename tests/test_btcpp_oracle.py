@@ -56,15 +56,7 @@ KNOWN_DIFFERENCES: dict[str, str] = {
     "action_set_blackboard_overwrite_int": SET_TEXT_ANY,
     "load_duplicate_tree_id": ("BT.CPP accepts two BehaviorTrees with one ID (the last one wins); canguard refuses "
                                "the file"),
-    "post_failure_in_script": ("a post-condition that fails at run time (= on a missing entry) throws out of "
-                               "tickOnce() in BT.CPP; canguard ignores the error and returns SUCCESS"),
-    "pre_unknown_entry": ("a pre-condition reading a missing entry throws out of tickOnce() in BT.CPP; canguard "
-                          "takes it as false and ticks the node (SUCCESS)"),
-    "precondition_false_running": ("Precondition else=\"RUNNING\": BT.CPP checks `if` again at the next tick "
-                                   "(still false: RUNNING); canguard ticks the child"),
     "repeat_real_cycles": "BT.CPP reads num_cycles=\"2.5\" as an int; canguard refuses the file",
-    "typed_script_word_to_int_port": ("an entry typed int by a port refuses a script's text in BT.CPP (the script "
-                                      "throws); canguard stores the text"),
 }
 
 

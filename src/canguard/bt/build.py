@@ -55,9 +55,10 @@ class _Loader(_Validator):
         """The scripts' blackboard view of every SubTree instance's scope; its literal entries created."""
         boards = {}
         self.scopes = subtree_scopes(self.trees, main_id)
+        self.entry_types: dict[str, type] = {}  # filled by check_entry_types
         for namespace, scope in self.scopes.items():
             Blackboard.storage.update(scope.literals)
-            boards[namespace] = TreeBlackboard(namespace, scope)
+            boards[namespace] = TreeBlackboard(namespace, scope, self.entry_types)
         return boards
 
     def install_subtree_conditions(self, nodes: list[py_trees.behaviour.Behaviour],
@@ -98,6 +99,8 @@ class _Loader(_Validator):
                 kind = table[port][1].data_type
                 if key not in first:
                     first[key] = (kind, f"{info.file}:{info.line}, node {info.name}")
+                    if kind in (int, float, bool):  # scripts then assign to it with its type
+                        self.entry_types[key] = kind
                     continue
                 was, at = first[key]
                 if was is not kind and was is not str:
@@ -133,7 +136,7 @@ class _Loader(_Validator):
             if inline is not None:  # a node of an inlined _autoremap subtree: its ports and _keys
                 scope = board.scope.inlined(inline)
                 Blackboard.storage.update({k: v for k, v in scope.literals.items() if k not in Blackboard.storage})
-                board = TreeBlackboard(namespace, scope)
+                board = TreeBlackboard(namespace, scope, self.entry_types)
             if isinstance(node, _Scripted):
                 node.board = board
             conditions.install(node, self.conditions.get(parts[-1], {}), board)

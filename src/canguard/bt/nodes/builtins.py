@@ -27,6 +27,7 @@ and read and write the blackboard of the node's (sub)tree.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any
 
 import py_trees
@@ -64,15 +65,18 @@ class TreeBlackboard:
     (``input="{x}"``), the parent's entry it aliases; ``@name`` is the root's.
     """
 
-    def __init__(self, namespace: str, scope: Scope | None = None) -> None:
+    def __init__(self, namespace: str, scope: Scope | None = None, declared: Mapping[str, type] | None = None) -> None:
         self.namespace = namespace if namespace.endswith("/") else namespace + "/"
         self.scope = scope if scope is not None else Scope(self.namespace)
+        self.declared: Mapping[str, type] = declared if declared is not None else {}
+        """Entries a typed port fixed the type of, by storage key (BT.CPP creates them at load)."""
 
     def _key(self, key: str) -> str:
         return self.scope.key(key)
 
     def has(self, key: str) -> bool:
-        return self._key(key) in Blackboard.storage
+        full = self._key(key)
+        return full in Blackboard.storage or full in self.declared
 
     def get(self, key: str) -> object:
         return Blackboard.storage[self._key(key)]
@@ -81,7 +85,7 @@ class TreeBlackboard:
         Blackboard.storage[self._key(key)] = value
 
     def declared_type(self, key: str) -> type | None:
-        return None
+        return self.declared.get(self._key(key))
 
     def unset(self, key: str) -> None:
         Blackboard.storage.pop(self._key(key), None)
@@ -299,8 +303,8 @@ class Precondition(_Scripted, py_trees.decorators.Decorator):
             raise PortError("else", f"{self.port('else')!r}: expected SUCCESS, FAILURE, RUNNING or SKIPPED")
 
     def tick(self) -> Any:
-        """Check the condition at the start of a run (BT.CPP: not again while the child runs)."""
-        if self.status != RUNNING:
+        """Check the condition unless the child is running (BT.CPP: also again after else="RUNNING")."""
+        if self.status != RUNNING or self.decorated.status != RUNNING:
             try:
                 ok = bool(self.run_script("if", condition=True))
             except ScriptError:
@@ -309,6 +313,8 @@ class Precondition(_Scripted, py_trees.decorators.Decorator):
                 otherwise = str(self.port("else")).upper()
                 if otherwise == "SKIPPED":
                     mark_skipped(self)
+                elif otherwise == "RUNNING":
+                    self.status = RUNNING
                 else:
                     self.stop(_STATUS[otherwise])
                 yield self

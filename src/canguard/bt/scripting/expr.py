@@ -298,7 +298,10 @@ class Assign(Expr):
             current = UNSET
         declared = bb.declared_type(key) if bb.has(key) else None
         if op in (":=", "="):
-            result = value if current is UNSET and declared is None else self._convert(value, current, declared, env)
+            # BT.CPP (ExprAssignment, Any::copyInto): an entry without a value takes any value as it is, but
+            # a string into one a port declared as a number is parsed to that type
+            as_is = current is UNSET and (declared is None or not isinstance(value, str) or declared is str)
+            result = value if as_is else self._convert(value, current, declared, env)
         else:
             result = self._compound(value, current, declared, env)
         bb.set(key, result)
