@@ -16,9 +16,8 @@ from canguard.bt import conditions
 from canguard.bt.context import Context
 from canguard.bt.loaded import LoadedTree, NodeInfo, _preorder
 from canguard.bt.nodes import CanguardNode, PortError
-from canguard.bt.nodes.builtins import TreeBlackboard, _Scripted
 from canguard.bt.registry import _TOKEN
-from canguard.bt.scopes import subtree_scopes
+from canguard.bt.scopes import TreeBlackboard, subtree_scopes
 from canguard.bt.validate import _Validator
 from canguard.bt.wakeup import WakeUpSignal
 from canguard.errors import TreeError
@@ -137,8 +136,8 @@ class _Loader(_Validator):
                 scope = board.scope.inlined(inline)
                 Blackboard.storage.update({k: v for k, v in scope.literals.items() if k not in Blackboard.storage})
                 board = TreeBlackboard(namespace, scope, self.entry_types)
-            if isinstance(node, _Scripted):
-                node.board = board
+            if isinstance(node, CanguardNode) and node.USES_BOARD:
+                node.board = board  # type: ignore[attr-defined]
             conditions.install(node, self.conditions.get(parts[-1], {}), board)
             prefix = [p for p in parts[:-1] if p not in self.infos]
             placed.append((node, info, "/".join([*prefix, info.name])))

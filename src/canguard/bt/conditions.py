@@ -29,7 +29,7 @@ from canguard.bt.nodes.base import FAILURE, INVALID, RUNNING, SKIPPED, SUCCESS, 
 from canguard.bt.scripting import ScriptError
 
 if TYPE_CHECKING:
-    from canguard.bt.nodes.builtins import TreeBlackboard
+    from canguard.bt.scopes import TreeBlackboard
     from canguard.bt.scripting import Script
 
 PRE = ("_failureIf", "_successIf", "_skipIf", "_while")

@@ -21,6 +21,8 @@ import xml.etree.ElementTree as ET
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
+from py_trees.blackboard import Blackboard
+
 _INT = re.compile(r"-?[0-9]+\Z")
 _REAL = re.compile(r"-?([0-9]+\.?[0-9]*|\.[0-9]+)([eE][-+]?[0-9]+)?\Z")
 
@@ -119,3 +121,36 @@ def subtree_scopes(trees: Mapping[str, ET.Element], main_id: str) -> dict[str, S
     if main_id in trees:
         walk(trees[main_id], root)
     return scopes
+
+
+class TreeBlackboard:
+    """The scripting language's view of py_trees' blackboard, inside one (sub)tree's scope.
+
+    A name is the scope's entry (its namespace), or, when the SubTree element remaps it
+    (``input="{x}"``), the parent's entry it aliases; ``@name`` is the root's.
+    """
+
+    def __init__(self, namespace: str, scope: Scope | None = None, declared: Mapping[str, type] | None = None) -> None:
+        self.namespace = namespace if namespace.endswith("/") else namespace + "/"
+        self.scope = scope if scope is not None else Scope(self.namespace)
+        self.declared: Mapping[str, type] = declared if declared is not None else {}
+        """Entries a typed port fixed the type of, by storage key (BT.CPP creates them at load)."""
+
+    def _key(self, key: str) -> str:
+        return self.scope.key(key)
+
+    def has(self, key: str) -> bool:
+        full = self._key(key)
+        return full in Blackboard.storage or full in self.declared
+
+    def get(self, key: str) -> object:
+        return Blackboard.storage[self._key(key)]
+
+    def set(self, key: str, value: object) -> None:
+        Blackboard.storage[self._key(key)] = value
+
+    def declared_type(self, key: str) -> type | None:
+        return self.declared.get(self._key(key))
+
+    def unset(self, key: str) -> None:
+        Blackboard.storage.pop(self._key(key), None)

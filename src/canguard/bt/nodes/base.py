@@ -151,6 +151,9 @@ class CanguardNode(PortsMixin):
     CONST_PORTS: ClassVar[frozenset[str]] = frozenset()
     """Input ports that configure the node once at load time: a ``{key}`` there is a load-time error."""
     KEY_PORTS: ClassVar[frozenset[str]] = frozenset()
+    USES_BOARD: ClassVar[bool] = False
+    """True for nodes with a ``board`` (:class:`~canguard.bt.scopes.TreeBlackboard`) the loader sets to
+    their scope's: scripts, SetBlackboard, UnsetBlackboard."""
     UNTYPED_PORTS: ClassVar[frozenset[str]] = frozenset()
     """Ports that take an entry of any type (BT.CPP's ``AnyTypeAllowed`` / ``BT::Any``): they neither fix
     nor check the type of the entry they are wired to (see :func:`canguard.bt.build` entry types)."""

@@ -27,7 +27,6 @@ and read and write the blackboard of the node's (sub)tree.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any
 
 import py_trees
@@ -47,7 +46,7 @@ from canguard.bt.nodes.base import (
     port_info,
     tick_child,
 )
-from canguard.bt.scopes import Scope
+from canguard.bt.scopes import TreeBlackboard
 from canguard.bt.scripting import ScriptError
 
 if TYPE_CHECKING:
@@ -58,39 +57,6 @@ _NOTHING = object()
 _STATUS = {"SUCCESS": SUCCESS, "FAILURE": FAILURE, "RUNNING": RUNNING}
 
 
-class TreeBlackboard:
-    """The scripting language's view of py_trees' blackboard, inside one (sub)tree's scope.
-
-    A name is the scope's entry (its namespace), or, when the SubTree element remaps it
-    (``input="{x}"``), the parent's entry it aliases; ``@name`` is the root's.
-    """
-
-    def __init__(self, namespace: str, scope: Scope | None = None, declared: Mapping[str, type] | None = None) -> None:
-        self.namespace = namespace if namespace.endswith("/") else namespace + "/"
-        self.scope = scope if scope is not None else Scope(self.namespace)
-        self.declared: Mapping[str, type] = declared if declared is not None else {}
-        """Entries a typed port fixed the type of, by storage key (BT.CPP creates them at load)."""
-
-    def _key(self, key: str) -> str:
-        return self.scope.key(key)
-
-    def has(self, key: str) -> bool:
-        full = self._key(key)
-        return full in Blackboard.storage or full in self.declared
-
-    def get(self, key: str) -> object:
-        return Blackboard.storage[self._key(key)]
-
-    def set(self, key: str, value: object) -> None:
-        Blackboard.storage[self._key(key)] = value
-
-    def declared_type(self, key: str) -> type | None:
-        return self.declared.get(self._key(key))
-
-    def unset(self, key: str) -> None:
-        Blackboard.storage.pop(self._key(key), None)
-
-
 class _Scripted(CanguardNode):
     """A node with scripts in ports: parsed at bind, run against its subtree's blackboard."""
 
@@ -98,6 +64,7 @@ class _Scripted(CanguardNode):
     INPUT_PORTS: dict = {}  # noqa: RUF012 - py_trees reads ports as plain class dicts
     OUTPUT_PORTS: dict = {}  # noqa: RUF012
     SCRIPT_PORTS: tuple[str, ...] = ()
+    USES_BOARD = True
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
