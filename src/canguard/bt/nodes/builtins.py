@@ -182,8 +182,11 @@ class SetBlackboard(_Scripted, py_trees.behaviour.Behaviour):
         if not wired and self.board.has(name):  # BT.CPP: text into a typed entry is parsed to its type
             from canguard.bt.scripting.values import convert_for_entry, entry_type
 
-            target = entry_type(self.board.get(name))
-            if target is not str:
+            try:
+                target: type | None = entry_type(self.board.get(name))
+            except KeyError:  # declared by a typed port, no value yet
+                target = self.board.declared_type(name)
+            if target is not None and target is not str:
                 try:
                     value = convert_for_entry(value, target, None)
                 except ValueError as exc:
