@@ -112,3 +112,18 @@ class TestEntryTypes:
                 '<SkipUnlessUpdated entry="{w}"><LoopInt queue="5" value="{w}"><AlwaysSuccess/></LoopInt>'
                 "</SkipUnlessUpdated></Sequence>")
         assert dry_run(tree(tmp_path, main, ""), 1, 0.1)["ticks"] == ["RUNNING"]
+
+
+def test_root_keys_in_ports_from_any_depth(tmp_path: Path) -> None:
+    """{@limit} in a port inside a SubTree is the root's entry (BT.CPP), as @limit in a script."""
+    extra = """
+  <BehaviorTree ID="C">
+    <Sequence>
+      <LoopInt queue="4;5" value="{@limit}"><AlwaysSuccess/></LoopInt>
+      <Script code="@limit_copy := @limit"/>
+    </Sequence>
+  </BehaviorTree>
+"""
+    got = dry_run(tree(tmp_path, '<Sequence><SubTree ID="C"/><Script code="seen := limit_copy"/></Sequence>', extra),
+                  3, 0.1)
+    assert got == {"ticks": ["RUNNING", "RUNNING", "SUCCESS"], "blackboard": {"limit": 5, "limit_copy": 5, "seen": 5}}

@@ -342,7 +342,6 @@ class TestLoadErrors:
                 "port timer: takes a blackboard key like {timer}",
             ),
             ('<IsValueBelow value="{a" threshold="1"/>', "port value: malformed blackboard reference '{a'"),
-            ('<IsValueBelow value="{@a}" threshold="1"/>', "root-blackboard references"),
             ('<ExecuteTask _skipIf="x =="/>', "_skipIf: script 'x =='"),
             ('<ExecuteTask _onSucess="x := 1"/>', "attribute _onSucess (BT.CPP pre/post-conditions) is not supported"),
             (

@@ -152,6 +152,9 @@ class _Loader(_Validator):
             name = readable if k == 1 else f"{readable}#{k}"
             node.name = name
             loaded_nodes[node.id] = NodeInfo(info.node_id, name, info.file, info.line, info.tree)
+        for node, _, _ in placed:
+            if isinstance(node, CanguardNode):
+                node.resolve_root_keys()
         self.check_entry_types([n for n, _, _ in placed], loaded_nodes)
         for node, _, _ in placed:
             if isinstance(node, CanguardNode):

@@ -141,13 +141,6 @@ class _Validator(_Reader):
             raise self.error(
                 elem, f"malformed blackboard reference {value!r} (expected {{key}})", tree_id, attr
             ) from None
-        if match and match.group(1).startswith("@"):
-            raise self.error(
-                elem,
-                f"{value}: root-blackboard references {{@key}} are not supported; use {{key}}",
-                tree_id,
-                attr,
-            )
         return match
 
     def _check_node(self, elem: ET.Element, tree_id: str) -> type[PortsMixin] | None:

@@ -240,6 +240,16 @@ class CanguardNode(PortsMixin):
         """True when the port was given in the XML as a ``{key}`` (input) or at all (output)."""
         return name in self._dynamic or name in self._wired
 
+    def resolve_root_keys(self) -> None:
+        """``{@key}`` (BT.CPP's root blackboard, from any depth): wired ports go to the root's entry ``/key``.
+
+        (py_trees' parser resolves ``{@key}`` inside its namespace, ``/Sub/@key``; the loader calls this once.)
+        """
+        for port, key in self._keys.items():
+            last = key.rsplit("/", 1)[-1]
+            if last.startswith("@"):
+                self._keys[port] = "/" + last[1:]
+
     def wired_keys(self) -> dict[str, str]:
         """The storage key of every port wired to a ``{key}`` (inputs) or given (outputs), by port name."""
         return dict(self._keys)
