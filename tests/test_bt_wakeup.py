@@ -122,3 +122,44 @@ class TestCommand:
         assert json.loads(captured.out)["ticks"] == ["FAILURE"]
         assert f"{path}:3: node Bad: script code 'missing = 3'" in captured.err
         assert "doesn't exist yet" in captured.err
+
+
+class TestEngine:
+    def test_the_engine_ticks_once_unless_woken_up_and_journals_a_capped_tick(self, tmp_path: Path) -> None:
+        """The daemon's tick is tickOnce(): a Repeat of 3 over a Script finishes in one tick; a tree that keeps
+        waking itself is cut at the bound and one error event says so, and the loop goes on."""
+        import yaml
+        from py_trees.blackboard import Blackboard
+
+        from canguard.config.loader import load_config
+        from canguard.engine.core import Engine
+        from canguard.engine.gate import LogSink
+
+        repo = Path(__file__).resolve().parents[1]
+        bundled = repo / "config" / "canguard.yaml"
+        xml = tmp_path / "tree.xml"
+        xml.write_text('<root BTCPP_format="4" main_tree_to_execute="T"><BehaviorTree ID="T"><Sequence>'
+                       '<Script code="n := 0"/><Repeat num_cycles="3"><Script code="n += 1"/></Repeat>'
+                       '<Repeat num_cycles="-1"><AlwaysSuccess/></Repeat></Sequence></BehaviorTree></root>',
+                       encoding="utf-8")
+        doc = yaml.safe_load(bundled.read_text(encoding="utf-8"))
+        doc["dbc"] = [str(repo / "dbc" / "robot.dbc")]
+        doc["tree"] = {"file": str(xml), "main": "T", "tick_hz": 100}
+        doc["events"] = str(tmp_path / "events.jsonl")
+        doc["state"]["file"] = str(tmp_path / "i2t.json")
+        cfg_path = tmp_path / "c.yaml"
+        cfg_path.write_text(yaml.safe_dump(doc), encoding="utf-8")
+        cfg = load_config(cfg_path)
+        clock = ManualClock(1000.0)
+        events: list[dict[str, Any]] = []
+        engine = Engine(cfg, clock, LogSink(clock.now, cfg.buses), on_event=events.append)
+        engine.start(1000.0)
+        engine.advance(1000.0)
+        assert engine.stats.ticks == 1
+        assert Blackboard.storage["/n"] == 3  # the three cycles in the first tick
+        for i in range(1, 4):
+            engine.advance(1000.0 + i * 0.01)
+            clock.advance_to(1000.0 + i * 0.01)
+        assert engine.stats.ticks == 4  # capped ticks return: the loop is not starved
+        capped = [e for e in events if e.get("event") == "error" and "kept waking itself" in str(e.get("reason"))]
+        assert len(capped) == 1
