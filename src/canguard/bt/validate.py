@@ -51,6 +51,12 @@ class _Validator(_Reader):
             subtree_names: dict[str, int] = {}
             for elem in bt[0].iter():
                 if elem.tag == _SUBTREE:
+                    scripts, problems = take_conditions(elem.attrib)  # BT.CPP: they apply to the SubTree node
+                    cond_file, cond_line = self.where.get(elem, (self.path, 0))
+                    self.errors.extend(f"{cond_file}:{cond_line}: SubTree {elem.attrib.get('ID')} (BehaviorTree "
+                                       f"{tree_id}), {p}" for p in problems)
+                    if scripts:
+                        self.subtree_conditions[elem] = scripts
                     try:
                         self._check_subtree(elem, tree_id, subtree_names)
                     except TreeError as exc:
@@ -72,6 +78,8 @@ class _Validator(_Reader):
                     self.infos[token] = NodeInfo(elem.tag, readable, file, line, tree_id)
                     if scripts:
                         self.conditions[token] = scripts
+                    if elem in self.private:
+                        self.private_tokens[token] = self.private[elem]
                     elem.attrib["name"] = token
         if self.source_check == "always" or (self.errors and self.source_check == "with_others"):
             # The tree will not be built, so binding (which resolves the sources and reports an
@@ -133,13 +141,6 @@ class _Validator(_Reader):
             raise self.error(
                 elem, f"malformed blackboard reference {value!r} (expected {{key}})", tree_id, attr
             ) from None
-        if match and match.group(1).startswith("@"):
-            raise self.error(
-                elem,
-                f"{value}: root-blackboard references {{@key}} are not supported; use {{key}}",
-                tree_id,
-                attr,
-            )
         return match
 
     def _check_node(self, elem: ET.Element, tree_id: str) -> type[PortsMixin] | None:

@@ -13,6 +13,7 @@ from py_trees.ports import PortsMixin
 from canguard.bt.context import Context
 from canguard.bt.loaded import NodeInfo
 from canguard.bt.registry import _PORT_ALIASES, _SUBTREE, _TAG_ALIASES, _TOKEN, _V3_WRAPPERS, Registry, build_registry
+from canguard.bt.scopes import Inline
 from canguard.bt.xmlsrc import Where, _read_xml
 from canguard.errors import TreeError
 
@@ -48,6 +49,13 @@ class _Reader:
         self.infos: dict[str, NodeInfo] = {}
         self.conditions: dict[str, dict[str, ParsedScript]] = {}
         """Pre/post-condition scripts (``_successIf``...) by node token (see :mod:`.conditions`)."""
+        self.subtree_conditions: dict[ET.Element, dict[str, ParsedScript]] = {}
+        """Pre/post-condition scripts on ``<SubTree>`` elements (run on the parent's blackboard)."""
+        self.private: dict[ET.Element, Inline] = {}
+        """Elements of an inlined ``_autoremap`` subtree -> that instance (its ``_private`` entries, its ports)."""
+        self.private_tokens: dict[str, Inline] = {}
+        """The same, by node token (set by the validator)."""
+        self._inlined = 0
         self.registry: Registry = {}
         self.classes: dict[str, type[PortsMixin]] = {}
         self.errors: list[str] = []
@@ -249,28 +257,35 @@ class _Reader:
                 rename[attr] = text  # the parent's entry of that name
             else:
                 rename[attr] = value  # a constant: the subtree's {attr} reads it
-        copy = self._copy(body[0], rename)
+        self._inlined += 1
+        private = f"{target}_autoremap{self._inlined}"  # BT.CPP: _autoremap never maps a key starting with _
+        remaps = {port: value.strip()[1:-1].strip() for port, value in rename.items() if value.strip().startswith("{")}
+        literals = {port: value for port, value in rename.items() if port not in remaps}
+        copy = self._copy(body[0], rename, Inline(private, remaps, literals))
         copy.attrib.update(conditions)
         for i, child in enumerate(copy):
             if self._autoremapped(child):
                 copy[i] = self._inline(child, tree_id, (*chain, target))
         return copy
 
-    def _copy(self, src: ET.Element, rename: dict[str, str]) -> ET.Element:
-        """A deep copy of ``src`` with its lines, ``{key}`` references renamed by ``rename``."""
+    def _copy(self, src: ET.Element, rename: dict[str, str], inline: Inline) -> ET.Element:
+        """A deep copy of ``src`` with its lines, ``{key}`` references renamed by ``rename``, ``{_key}`` ones
+        moved to the copy's own ``private`` scope."""
         attrib = {}
         for attr, value in src.attrib.items():
             text = value.strip()
-            if text.startswith("{") and text.endswith("}") and text[1:-1] in rename:
-                value = rename[text[1:-1]]
-            elif text == "{=}" and attr in rename:
-                value = rename[attr]
+            inner = attr if text == "{=}" else text[1:-1].strip()
+            if text.startswith("{") and text.endswith("}") and inner in rename:
+                value = rename[inner]
+            elif text.startswith("{") and text.endswith("}") and inner.startswith("_"):
+                value = "{" + inline.private + "/" + inner + "}"
             attrib[attr] = value
         dst = ET.Element(src.tag, attrib)
+        self.private[dst] = inline
         if src in self.where:
             self.where[dst] = self.where[src]
         for child in src:
-            dst.append(self._copy(child, rename))
+            dst.append(self._copy(child, rename, inline))
         return dst
 
     # -- registry -------------------------------------------------------------------------

@@ -106,7 +106,11 @@ def _add_tree(sub: argparse._SubParsersAction) -> None:
                    help="write a Groot2 <TreeNodesModel> of every canguard node and its ports")
     p.add_argument("file", type=Path, nargs="?", metavar="TREE.xml",
                    help="a tree file on its own (no config): check it, and with --tick run it dry")
-    p.add_argument("--tick", type=int, default=None, metavar="N", help="with TREE.xml: tick it N times")
+    p.add_argument("--tick", type=int, default=None, metavar="N",
+                   help="with TREE.xml: tick it N times, each as BT.CPP's tickOnce() (the root is ticked "
+                        "again while a node has emitted its wake-up signal)")
+    p.add_argument("--exactly-once", action="store_true",
+                   help="with --tick: each tick as BT.CPP's tickExactlyOnce() (no re-tick on a wake-up)")
     p.add_argument("--dt", type=float, default=0.1, metavar="S", help="seconds between ticks (default 0.1)")
     p.add_argument("--main", default=None, metavar="ID", help="with TREE.xml: the BehaviorTree to run")
     p.add_argument("--json", action="store_true",
@@ -120,8 +124,9 @@ def _cmd_tree(args: argparse.Namespace) -> int:
 
     if args.file is not None:
         return _dry_run(args)
-    if args.tick is not None or args.json:
-        raise ConfigError("tree: --tick and --json run a tree file on its own: canguard tree TREE.xml --tick N")
+    if args.tick is not None or args.json or args.exactly_once:
+        raise ConfigError("tree: --tick, --exactly-once and --json run a tree file on its own: "
+                          "canguard tree TREE.xml --tick N")
 
     if args.nodes_model is not None:
         from canguard.bt.loader import context_for
@@ -160,7 +165,7 @@ def _dry_run(args: argparse.Namespace) -> int:
             print(f"{args.file}: BehaviorTree {main_id} is valid; to run it, bind these nodes:")
             print("\n".join(f"  {why}" for why in unbound))
             return 0
-    result = dry_run(args.file, args.tick or 0, args.dt, args.main, palette)
+    result = dry_run(args.file, args.tick or 0, args.dt, args.main, palette, exactly_once=args.exactly_once)
     if args.json:
         print(json.dumps(result))
         return 0
