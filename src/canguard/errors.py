@@ -18,6 +18,7 @@ prints them all, one ``file:line: ...`` per line (at most :data:`MAX_SHOWN`).
 
 from __future__ import annotations
 
+import difflib
 from collections.abc import Iterable
 from typing import Any
 
@@ -36,6 +37,47 @@ def render_problems(problems: Iterable[str], limit: int = MAX_SHOWN) -> str:
     if len(lines) <= limit:
         return "\n".join(lines)
     return "\n".join([*lines[:limit], f"... and {len(lines) - limit} more"])
+
+
+QUOTE_CHARS = 100
+"""An error quotes at most this many characters of a line or a value it found (then its length)."""
+
+
+def _printable(text: str, limit: int) -> tuple[str, bool]:
+    """``text`` with control characters escaped (``\\x00``), cut to ``limit`` characters; True when cut."""
+    out: list[str] = []
+    n = 0
+    for c in text:
+        shown = c if c.isprintable() else repr(c)[1:-1]
+        n += len(shown)
+        if n > limit:
+            return "".join(out), True
+        out.append(shown)
+    return "".join(out), False
+
+
+def clip(text: str, limit: int = QUOTE_CHARS) -> str:
+    """``text`` on one printable line of at most about ``limit`` characters; a longer one is cut, with its length.
+
+    For messages quoted inside an error (a library's exception text): escapes count towards
+    the limit, so a line of NUL bytes shows ``limit // 4`` of them.
+    """
+    shown, cut = _printable(text, limit)
+    return f"{shown}... ({len(text)} characters in all)" if cut else shown
+
+
+def quote(text: str, limit: int = QUOTE_CHARS) -> str:
+    """``text`` in quotes, as :func:`clip` shows it: a bad line or value, however long or binary, on one line."""
+    shown, cut = _printable(text, limit)
+    return f"'{shown}'... ({len(text)} characters in all)" if cut else f"'{shown}'"
+
+
+def closest(word: str, choices: Iterable[str], n: int = 5, cutoff: float = 0.5) -> list[str]:
+    """The ``n`` choices nearest to ``word`` (case ignored, difflib's ratio >= ``cutoff``), closest first."""
+    by_lower: dict[str, str] = {}
+    for c in sorted(choices):
+        by_lower.setdefault(c.lower(), c)
+    return [by_lower[c] for c in difflib.get_close_matches(word.lower(), list(by_lower), n=n, cutoff=cutoff)]
 
 
 class ConfigError(CanguardError, ValueError):

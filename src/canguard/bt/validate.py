@@ -18,7 +18,11 @@ from canguard.bt.loaded import NodeInfo
 from canguard.bt.nodes import ConfiguredAction, GuardNode
 from canguard.bt.registry import _SUBTREE, _TOKEN, known_node_ids, node_kind
 from canguard.bt.xmlread import _closest, _Reader, _type_name
-from canguard.errors import TreeError
+from canguard.errors import TreeError, closest
+
+NEAR_NODE_IDS = 5
+"""An unknown node ID is answered with at most this many known ones, the closest (not all ~60)."""
+LIST_NODE_IDS = "`canguard tree --nodes-model FILE` writes every one with its ports"
 
 
 class _Validator(_Reader):
@@ -160,10 +164,11 @@ class _Validator(_Reader):
                 self.palette_ports.append((elem, extra))
             return cls
         if cls is None:
-            known = _closest(node_id, set(known_node_ids(self.ctx)) | set(self.palette.nodes))
+            known = set(known_node_ids(self.ctx)) | set(self.palette.nodes)
+            near = closest(node_id, known, NEAR_NODE_IDS) or _closest(node_id, known)[:NEAR_NODE_IDS]
             self.errors.append(
                 f"{self.at(elem)}: unknown node ID {node_id!r} (BehaviorTree {tree_id}); "
-                f"known node IDs, closest first: {', '.join(known)}"
+                f"known node IDs, closest first: {', '.join(near)} ({len(known)} in all: {LIST_NODE_IDS})"
             )
             return None
         ports: dict[str, tuple[str, PortInformation]] = {

@@ -362,9 +362,10 @@ def _replay_offline(cfg: Config, cfg_path: Path, args: argparse.Namespace, names
                                                  for (summary, err), name in zip(results, names, strict=True)])
     summaries = []
     errors = 0
-    for (summary, err), name in zip(results, names, strict=True):
+    for (summary, err), name, log in zip(results, names, args.logs, strict=True):
         if summary is None:
-            print(f"canguard replay: error:\n{err}", file=sys.stderr)
+            # the name the user gave (`-` for stdin), not the spool file or link it was read through
+            print(f"canguard replay: error:\n{err.replace(str(log), str(name))}", file=sys.stderr)
             errors += 1
             continue
         if args.format is not None or str(name) == "-":

@@ -12,6 +12,25 @@ import cantools
 from canguard.config.checks import _Checks
 from canguard.config.schema import SignalRef, SourceConfig, SourceKind
 from canguard.config.yamlsrc import _closest, _found, _path
+from canguard.errors import clip, quote
+
+_SNIFF_BYTES = 4096
+"""How much of a DBC that does not load is looked at to tell binary data from a text with a syntax error."""
+
+
+def _not_loaded(path: Path, exc: Exception) -> str:
+    """Why a DBC file did not load, printable and short: binary data is named as such, not echoed."""
+    try:
+        with path.open("rb") as f:
+            head = f.read(_SNIFF_BYTES)
+    except OSError as err:
+        return f"cannot be read ({err.strerror or err})"
+    text = head.decode("utf-8", errors="replace")
+    odd = sum(1 for c in text if c == "\ufffd" or (not c.isprintable() and c not in "\t\r\n"))
+    if b"\0" in head or odd > len(text) // 20:
+        start = quote(head.decode("utf-8", "backslashreplace"), 40)
+        return f"is not a DBC file: binary data, not text (it starts {start})"
+    return f"does not load ({clip(str(exc))})"
 
 
 class _Sources(_Checks):
@@ -35,7 +54,7 @@ class _Sources(_Checks):
             except FileNotFoundError:
                 self.problem(f"dbc[{i}]", repr(item), f"an existing DBC file (no such file: {p})")
             except Exception as exc:  # cantools raises many kinds of parse errors
-                self.problem(f"dbc[{i}]", f"{p} which does not load ({exc})", "a valid DBC file")
+                self.problem(f"dbc[{i}]", f"{p} which {_not_loaded(p, exc)}", "a valid DBC file")
         if len(databases) != len(value):
             return tuple(files)
         messages: list[Any] = []

@@ -11,7 +11,7 @@ from itertools import islice
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from canguard.errors import LogFormatError
+from canguard.errors import LogFormatError, clip
 from canguard.io.frame import Frame
 from canguard.io.logtypes import _TEXT_PYTHON_CAN, LogFrames, ReadStats, _new, note_order, open_decompressed
 
@@ -107,7 +107,9 @@ class _Messages:
                 self.messages: Iterator[can.Message] = iter(_reader_class(fmt)(fobj))
             except Exception as exc:  # python-can raises many types for a bad header; none may escape raw
                 _free_quietly(exc)
-                raise LogFormatError(f"{p}: not a valid {self.name} log: {type(exc).__name__}: {exc}") from exc
+                raise LogFormatError(
+                    f"{p}: not a valid {self.name} log: {type(exc).__name__}: {clip(str(exc))}"
+                ) from exc
         except BaseException:
             self.raw.close()
             raise
@@ -122,7 +124,7 @@ class _Messages:
         except Exception as exc:  # corrupt input deep inside python-can: name the file instead
             self._failed = LogFormatError(
                 f"{self.p}: {self.name} reader failed after {self.count + len(batch)} frames: "
-                f"{type(exc).__name__}: {exc}"
+                f"{type(exc).__name__}: {clip(str(exc))}"
             )
             self._failed.__cause__ = exc
             if not batch:
