@@ -122,3 +122,17 @@ class TestNotADbc:
         proc = canguard(tmp_path, "check", "-c", config)
         line = next(x for x in text_of(proc).splitlines() if "junk.dbc" in x)
         assert "which does not load (" in line and "characters in all)" in line and len(line) < 400
+
+
+class TestBadConfigValue:
+    """A config value that is wrong is quoted capped too."""
+
+    def test_a_100k_value(self, tmp_path: Path, config: Path) -> None:
+        """A 100 kB bus interface name gives one short error line naming the file, line and key."""
+        text = config.read_text(encoding="utf-8").replace("interface: virtual", "interface: " + "v" * 100_000)
+        config.write_text(text, encoding="utf-8")
+        proc = canguard(tmp_path, "check", "-c", config)
+        line = next(x for x in text_of(proc).splitlines() if "buses.main.interface" in x)
+        assert proc.returncode == 2
+        assert line.startswith(f"{config}:7: buses.main.interface: found 'vvvv")
+        assert "(100000 characters in all)" in line and len(line) < 500

@@ -72,12 +72,16 @@ def quote(text: str, limit: int = QUOTE_CHARS) -> str:
     return f"'{shown}'... ({len(text)} characters in all)" if cut else f"'{shown}'"
 
 
-def closest(word: str, choices: Iterable[str], n: int = 5, cutoff: float = 0.5) -> list[str]:
-    """The ``n`` choices nearest to ``word`` (case ignored, difflib's ratio >= ``cutoff``), closest first."""
-    by_lower: dict[str, str] = {}
-    for c in sorted(choices):
-        by_lower.setdefault(c.lower(), c)
-    return [by_lower[c] for c in difflib.get_close_matches(word.lower(), list(by_lower), n=n, cutoff=cutoff)]
+def closest(word: str, choices: Iterable[str], n: int = 5, cutoff: float = 0.5, spread: float = 1.0) -> list[str]:
+    """The ``n`` choices nearest to ``word``, closest first: case ignored, difflib's similarity >= ``cutoff``
+    and within ``spread`` of the best one (a small spread gives a clear typo one answer, not a list)."""
+    scored = sorted(
+        (-difflib.SequenceMatcher(None, word.lower(), c.lower()).ratio(), c) for c in set(choices)
+    )
+    if not scored:
+        return []
+    best = -scored[0][0]
+    return [c for r, c in scored[:n] if -r >= cutoff and -r >= best - spread]
 
 
 class ConfigError(CanguardError, ValueError):

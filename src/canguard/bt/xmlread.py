@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import difflib
 import xml.etree.ElementTree as ET
 from collections.abc import Collection
 from pathlib import Path
@@ -14,7 +13,7 @@ from canguard.bt.context import Context
 from canguard.bt.loaded import NodeInfo
 from canguard.bt.registry import _PORT_ALIASES, _SUBTREE, _TAG_ALIASES, _TOKEN, _V3_WRAPPERS, Registry, build_registry
 from canguard.bt.xmlsrc import Where, _read_xml
-from canguard.errors import TreeError
+from canguard.errors import TreeError, closest
 
 if TYPE_CHECKING:
     from canguard.bt.palette import Palette, PaletteNode
@@ -22,9 +21,8 @@ if TYPE_CHECKING:
 
 
 def _closest(word: str, choices: Collection[str]) -> list[str]:
-    """``choices`` sorted by similarity to ``word``, closest first (ties alphabetical)."""
-    lw = word.lower()
-    return sorted(choices, key=lambda c: (-difflib.SequenceMatcher(None, lw, c.lower()).ratio(), c))
+    """Every one of ``choices``, closest to ``word`` first (ties alphabetical): short lists (trees, ports)."""
+    return closest(word, choices, n=len(choices), cutoff=0.0)
 
 
 def _type_name(data_type: Any) -> str:

@@ -11,7 +11,7 @@ import cantools
 
 from canguard.config.checks import _Checks
 from canguard.config.schema import SignalRef, SourceConfig, SourceKind
-from canguard.config.yamlsrc import _closest, _found, _path
+from canguard.config.yamlsrc import _closest, _found, _path, _shown
 from canguard.errors import clip, quote
 
 _SNIFF_BYTES = 4096
@@ -52,7 +52,7 @@ class _Sources(_Checks):
             try:
                 databases.append((p, cantools.database.load_file(str(p))))
             except FileNotFoundError:
-                self.problem(f"dbc[{i}]", repr(item), f"an existing DBC file (no such file: {p})")
+                self.problem(f"dbc[{i}]", _shown(item), f"an existing DBC file (no such file: {p})")
             except Exception as exc:  # cantools raises many kinds of parse errors
                 self.problem(f"dbc[{i}]", f"{p} which {_not_loaded(p, exc)}", "a valid DBC file")
         if len(databases) != len(value):
@@ -107,7 +107,7 @@ class _Sources(_Checks):
                 number = int(text, 16) if text.startswith("0x") else int(text, 10)
             except ValueError:
                 self.problem(
-                    key, repr(value), "a DBC message name or frame id" + _closest(value, self._by_name)
+                    key, _shown(value), "a DBC message name or frame id" + _closest(value, self._by_name)
                 )
                 return None
             value = number
