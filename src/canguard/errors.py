@@ -14,6 +14,10 @@ Every error also inherits the matching built-in, so callers that only know
 Python's own exceptions still catch them. ConfigError and TreeError carry every
 problem one load found (``problems``), not only the first: ``canguard check``
 prints them all, one ``file:line: ...`` per line (at most :data:`MAX_SHOWN`).
+
+The words of an error come from here too: :func:`quote` / :func:`clip` show a bad
+line or value capped to one printable line with its length, :func:`closest` the few
+known names nearest to a misspelt one.
 """
 
 from __future__ import annotations
