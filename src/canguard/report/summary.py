@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 from canguard.config.schema import Config
 from canguard.engine.core import Engine
@@ -123,30 +123,48 @@ def render_text(s: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
-def compare_baseline(base: dict[str, Any], new: dict[str, Any]) -> list[str]:
-    """What changed against a saved --json summary: new trips, lost trips, margins that shrank."""
+class Change(NamedTuple):
+    """One difference from a saved summary; ``regression`` when ``--fail-on-regression`` fails on it."""
+
+    text: str
+    regression: bool
+
+
+def diff_baseline(base: dict[str, Any], new: dict[str, Any], margin_tolerance_pct: float = 0.0) -> list[Change]:
+    """What changed against a saved --json summary: new trips, lost trips, margins that shrank, stop counts.
+
+    A trip gained or lost is a regression; so is a margin that shrank by more than
+    ``margin_tolerance_pct`` percent of its guard's threshold (a shrink at all, with the default 0).
+    Stop counts follow from the trips and are reported only.
+    """
 
     def key(t: dict[str, Any]) -> tuple[str, str, str]:
         return (str(t.get("node")), str(t.get("source")), str(t.get("reason")))
 
-    out: list[str] = []
+    out: list[Change] = []
     old_trips = [key(t) for t in base.get("trips", [])]
     new_trips = [key(t) for t in new.get("trips", [])]
     for k in sorted(set(new_trips) | set(old_trips)):
         n_old, n_new = old_trips.count(k), new_trips.count(k)
-        if n_new > n_old:
-            out.append(f"new trip: {k[0]} on {k[1]} ({k[2]}): {n_old} -> {n_new}")
-        elif n_new < n_old:
-            out.append(f"lost trip: {k[0]} on {k[1]} ({k[2]}): {n_old} -> {n_new}")
+        if n_new != n_old:
+            what = "new trip" if n_new > n_old else "lost trip"
+            out.append(Change(f"{what}: {k[0]} on {k[1]} ({k[2]}): {n_old} -> {n_new}", True))
     old_m = {(m["node"], m["signal"]): m for m in base.get("margins", [])}
     for m in new.get("margins", []):
         o = old_m.get((m["node"], m["signal"]))
         if o is None or o.get("margin") is None or m.get("margin") is None:
             continue
-        if m["margin"] < o["margin"] - 1e-9:
-            out.append(f"margin shrank: {m['node']} ({m['source']} {m['signal']}): {o['margin']} -> {m['margin']}")
+        shrink = o["margin"] - m["margin"]
+        if shrink > 1e-9:
+            threshold = abs(m.get("threshold") or 0.0)
+            pct = 100.0 * shrink / threshold if threshold else math.inf
+            out.append(Change(f"margin shrank: {m['node']} ({m['source']} {m['signal']}): {o['margin']} -> "
+                              f"{m['margin']} ({pct:.4g} % of the threshold)", pct > margin_tolerance_pct))
     if base.get("stops") != new.get("stops"):
-        out.append(f"stops: {base.get('stops')} -> {new.get('stops')}")
+        out.append(Change(f"stops: {base.get('stops')} -> {new.get('stops')}", False))
     return out
 
 
+def compare_baseline(base: dict[str, Any], new: dict[str, Any]) -> list[str]:
+    """The words of :func:`diff_baseline`: new trips, lost trips, margins that shrank, stop counts."""
+    return [c.text for c in diff_baseline(base, new)]
