@@ -96,3 +96,15 @@ class TestLinkCheck:
 def test_relative_links_resolve(doc: Path) -> None:
     """Every relative link of README.md and docs/*.md reaches a file of the repository, and its heading."""
     assert broken(doc) == []
+
+
+_ROUND = re.compile(r"\b(?:sessions?|issues?|rounds?)[ -]\d+\b|\b(?:the|this) session\b|\bthe issue's\b", re.I)
+
+
+@pytest.mark.parametrize("doc", DOCS, ids=lambda p: str(p.relative_to(REPO)))
+def test_figures_dated_not_by_development_round(doc: Path) -> None:
+    """Users read the product's docs: figures carry a date and a commit, not "session 9" or "issue 16"."""
+    text = doc.read_text(encoding="utf-8")
+    found = [f"{doc.relative_to(REPO)}:{text.count(chr(10), 0, m.start()) + 1}: {m.group(0)}"
+             for m in _ROUND.finditer(text)]
+    assert found == []
