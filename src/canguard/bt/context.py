@@ -125,6 +125,12 @@ class Context:
         self.read_sources.add(name)
         return cfg
 
+    def unit(self, source: str, role: str) -> str:
+        """The DBC unit of ``source``'s ``role`` signal (empty when unknown or unitless)."""
+        cfg = self.sources.get(source)
+        ref = cfg.signal(role) if cfg is not None else None
+        return (ref.unit or "") if ref is not None else ""
+
     def subscribe(self, source: str, role: str, model: ProtectionModel) -> None:
         """Feed every valid sample of ``source``'s ``role`` signal to ``model`` from now on."""
         self._subscribers.setdefault((source, role), []).append(model)
