@@ -81,6 +81,16 @@ class TestBadLogLine:
         assert proc.returncode == 2
         assert "\n-:51: expected '(secs) channel ID#DATA'" in err and "canguard-replay-" not in err
 
+    def test_stdin_is_named_dash_in_realtime(self, tmp_path: Path, config: Path, good_lines: bytes) -> None:
+        """``replay - --realtime`` names the log ``-`` in its summary and in the error of a bad line."""
+        good = canguard(tmp_path, "replay", "-", "--format", "candump", "--realtime", "50", "-c", config,
+                        stdin=good_lines)
+        bad = canguard(tmp_path, "replay", "-", "--format", "candump", "--realtime", "50", "-c", config,
+                       stdin=good_lines + b"(1.0) can0 XYZ\n")
+        assert good.returncode == 0 and good.stdout.decode().startswith("replay of - with ")
+        assert bad.returncode == 2 and "\n-:51: expected '(secs) channel ID#DATA'" in text_of(bad)
+        assert "canguard-replay-" not in good.stdout.decode() + text_of(good) + text_of(bad)
+
 
 class TestUnknownNodeId:
     """A typo in a node ID is answered with the few closest IDs, not all of them."""

@@ -37,7 +37,7 @@ from canguard.config.schema import Config
 from canguard.engine.core import Engine
 from canguard.engine.gate import LogSink
 from canguard.engine.routing import ChannelRouter, parse_map
-from canguard.errors import CanguardError, ConfigError
+from canguard.errors import CanguardError, ConfigError, LogFormatError
 from canguard.io.clock import ManualClock
 from canguard.io.frame import Frame
 from canguard.io.logtypes import COMPRESSIONS
@@ -248,6 +248,13 @@ def _as_format(log: Path, fmt: str | None, tmp: Path) -> Path:
     return link
 
 
+def _as_named(text: str, read: list[Path], names: list[Path]) -> str:
+    """``text`` speaking of each log by the name the user gave (``-`` for stdin), not the spool file or link read."""
+    for path, name in zip(read, names, strict=True):
+        text = text.replace(str(path), str(name))
+    return text
+
+
 def _check_state(path: Path | None) -> None:
     """``--state`` is only read: a path that cannot be read is exit 2 now, not a silent cold start."""
     if path is None:
@@ -316,7 +323,10 @@ def cmd_replay(args: argparse.Namespace) -> int:
         if args.realtime is not None:
             from canguard.cli.realtime import replay_realtime
 
-            return replay_realtime(cfg, args)
+            try:
+                return replay_realtime(cfg, args, names)
+            except LogFormatError as exc:  # named as the user named the log (`-`), not as the spool file
+                raise LogFormatError(_as_named(str(exc), args.logs, names)) from None
         return _replay_offline(cfg, cfg_path, args, names)
 
 
@@ -404,8 +414,7 @@ def _replay_offline(cfg: Config, cfg_path: Path, args: argparse.Namespace, names
     errors = 0
     for (summary, err), name, log in zip(results, names, args.logs, strict=True):
         if summary is None:
-            # the name the user gave (`-` for stdin), not the spool file or link it was read through
-            print(f"canguard replay: error:\n{err.replace(str(log), str(name))}", file=sys.stderr)
+            print(f"canguard replay: error:\n{_as_named(err, [log], [name])}", file=sys.stderr)
             errors += 1
             continue
         if args.format is not None or str(name) == "-":
