@@ -146,3 +146,19 @@ class TestBadConfigValue:
         assert proc.returncode == 2
         assert line.startswith(f"{config}:7: buses.main.interface: found 'vvvv")
         assert "(100000 characters in all)" in line and len(line) < 500
+
+
+class TestBadTreeValue:
+    """A tree's attribute that is wrong is quoted capped too."""
+
+    @pytest.mark.parametrize("attr", ['overcurrent_threshold="35.0"', 'topic_name="/battery_state"'])
+    def test_a_100k_attribute(self, tmp_path: Path, config: Path, attr: str) -> None:
+        """A 100 kB port value (a number, a source name) gives one short error naming the file, line and port."""
+        tree = tmp_path / "robot_guard.xml"
+        name = attr.split("=")[0]
+        tree.write_text(tree.read_text(encoding="utf-8").replace(attr, f'{name}="{"9/" * 50_000}"', 1),
+                        encoding="utf-8")
+        proc = canguard(tmp_path, "check", "-c", config)
+        line = next(x for x in text_of(proc).splitlines() if f"port {name}" in x)
+        assert proc.returncode == 2
+        assert line.startswith(f"{tree}:15: ") and "(100000 characters in all)" in line and len(line) < 500

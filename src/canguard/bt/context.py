@@ -21,6 +21,7 @@ from collections.abc import Callable, Mapping, Sequence
 from typing import Any, Protocol
 
 from canguard.config.schema import ActionConfig, FrameSpec, SourceConfig, SourceKind
+from canguard.errors import quote
 from canguard.io.clock import Clock
 from canguard.io.frame import Sample
 from canguard.protect.base import ProtectionModel
@@ -119,7 +120,7 @@ class Context:
         cfg = self.sources.get(name)
         if cfg is None:
             known = ", ".join(sorted(self.sources)) or "(none configured)"
-            raise KeyError(f"unknown source {name!r}; configured sources: {known}")
+            raise KeyError(f"unknown source {quote(name)}; configured sources: {known}")
         if cfg.kind not in kinds:
             raise ValueError(f"source {name!r} is of kind {cfg.kind!r}, expected {' or '.join(kinds)}")
         self.read_sources.add(name)

@@ -13,7 +13,7 @@ from canguard.bt.context import Context
 from canguard.bt.loaded import NodeInfo
 from canguard.bt.registry import _PORT_ALIASES, _SUBTREE, _TAG_ALIASES, _TOKEN, _V3_WRAPPERS, Registry, build_registry
 from canguard.bt.xmlsrc import Where, _read_xml
-from canguard.errors import TreeError, closest
+from canguard.errors import TreeError, closest, quote
 
 if TYPE_CHECKING:
     from canguard.bt.palette import Palette, PaletteNode
@@ -226,7 +226,7 @@ class _Reader:
         target = sub.attrib.get("ID", "")
         if target not in self.trees:
             known = ", ".join(_closest(target, self.trees))
-            raise self.error(sub, f"unknown BehaviorTree {target!r}; trees in the file: {known}", tree_id)
+            raise self.error(sub, f"unknown BehaviorTree {quote(target)}; trees in the file: {known}", tree_id)
         if target in chain:
             raise self.error(sub, f"SubTree cycle: {' -> '.join((*chain, target))}", tree_id)
         body = self.trees[target]
@@ -294,5 +294,5 @@ class _Reader:
             )
         if chosen not in self.trees:
             known = ", ".join(_closest(chosen, self.trees))
-            raise TreeError(f"{self.path}: no BehaviorTree with ID {chosen!r}; trees in the file: {known}")
+            raise TreeError(f"{self.path}: no BehaviorTree with ID {quote(chosen)}; trees in the file: {known}")
         return chosen
