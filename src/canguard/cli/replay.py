@@ -299,7 +299,7 @@ def _report_baseline(args: argparse.Namespace, base: Any, summaries: list[dict[s
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
-    """Replay every log; print summaries in input order; exit 0, 1 (a trip), 3 (unguarded) or 2."""
+    """Replay every log; print summaries in input order; exit 0, 1 (a trip, or a regression), 3 (unguarded) or 2."""
     import tempfile
 
     cfg_path = args.config if args.config is not None else default_config()
