@@ -1,4 +1,4 @@
-"""The docs hold: every relative link in README.md and docs/ reaches a file of the repository and,
+"""The docs hold: every relative link in README.md, docs/ and benchmarks/ reaches a file of the repository and,
 with ``#anchor``, a heading of it (GitHub's anchors); the docs date figures, not development rounds.
 
 No network: links to http(s) and mailto are not followed.
@@ -14,7 +14,7 @@ from urllib.parse import unquote
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
-DOCS = [REPO / "README.md", *sorted((REPO / "docs").glob("*.md"))]
+DOCS = [REPO / "README.md", *sorted((REPO / "docs").glob("*.md")), *sorted((REPO / "benchmarks").glob("*.md"))]
 
 _FENCE = re.compile(r"^(```|~~~).*?^\1", re.M | re.S)
 _CODE = re.compile(r"`[^`\n]*`")
@@ -94,7 +94,7 @@ class TestLinkCheck:
 
 @pytest.mark.parametrize("doc", DOCS, ids=lambda p: str(p.relative_to(REPO)))
 def test_relative_links_resolve(doc: Path) -> None:
-    """Every relative link of README.md and docs/*.md reaches a file of the repository, and its heading."""
+    """Every relative link of README.md, docs/*.md and benchmarks/*.md reaches a file here, and its heading."""
     assert broken(doc) == []
 
 
