@@ -27,6 +27,7 @@ import py_trees
 
 from canguard.bt.nodes.base import FAILURE, INVALID, RUNNING, SKIPPED, SUCCESS, mark_skipped, note_script_error
 from canguard.bt.scripting import ScriptError
+from canguard.errors import quote
 
 if TYPE_CHECKING:
     from canguard.bt.scopes import TreeBlackboard
@@ -50,7 +51,7 @@ def take_conditions(attrib: dict[str, str]) -> tuple[dict[str, Script], list[str
         try:
             scripts[attr] = parse(text)
         except ScriptError as exc:
-            problems.append(f"{attr}: script {text!r}: {exc}")
+            problems.append(f"{attr}: script {quote(text)}: {exc}")
     return scripts, problems
 
 

@@ -13,6 +13,7 @@ from canguard.bt.context import Context
 from canguard.bt.nodes import GuardNode
 from canguard.bt.wakeup import MAX_RETICKS, Ticked, WakeUpSignal, tick_once
 from canguard.protect.base import ProtectionModel, Snapshot
+from canguard.units import I2T_LIMIT_PCT
 
 
 # ---------------------------------------------------------------------------------------
@@ -47,6 +48,18 @@ class GuardView:
     kind: GuardKind
     """``threshold`` (IsCurrentNormal, IsCurrentSafe, IsJointEffortNormal) or ``i2t`` (IsI2tSafe)."""
     model: ProtectionModel
+    unit: str = ""
+    """The signal's unit as the DBC gives it (``A``, ``Nm``; empty when it gives none)."""
+
+    @property
+    def threshold_unit(self) -> str:
+        """The unit of :meth:`threshold` and of the value a trip event compares with it (I²t: A²s or θ)."""
+        return self.model.THRESHOLD_UNIT or self.unit
+
+    @property
+    def margin_unit(self) -> str:
+        """The unit of the replay summary's peak, threshold and margin (I²t: % of its limit)."""
+        return I2T_LIMIT_PCT if self.kind == "i2t" else self.unit
 
     def snapshot(self) -> Snapshot:
         """The model's present state (the peak latch untouched)."""
@@ -120,7 +133,8 @@ class LoadedTree:
     def guards(self) -> list[GuardView]:
         """One :class:`GuardView` per guarded signal (a joints guard gives one per joint), in tree order."""
         return [
-            GuardView(node.name, node.topic_name, role, cast("GuardKind", kind), model)
+            GuardView(node.name, node.topic_name, role, cast("GuardKind", kind), model,
+                      self.context.unit(node.topic_name, role))
             for node in self.guard_nodes()
             for role, model, kind in node.guarded()
         ]

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import difflib
 import xml.etree.ElementTree as ET
 from collections.abc import Collection
 from pathlib import Path
@@ -15,7 +14,7 @@ from canguard.bt.loaded import NodeInfo
 from canguard.bt.registry import _PORT_ALIASES, _SUBTREE, _TAG_ALIASES, _TOKEN, _V3_WRAPPERS, Registry, build_registry
 from canguard.bt.scopes import Inline
 from canguard.bt.xmlsrc import Where, _read_xml
-from canguard.errors import TreeError
+from canguard.errors import TreeError, closest, quote
 
 if TYPE_CHECKING:
     from canguard.bt.palette import Palette, PaletteNode
@@ -23,9 +22,8 @@ if TYPE_CHECKING:
 
 
 def _closest(word: str, choices: Collection[str]) -> list[str]:
-    """``choices`` sorted by similarity to ``word``, closest first (ties alphabetical)."""
-    lw = word.lower()
-    return sorted(choices, key=lambda c: (-difflib.SequenceMatcher(None, lw, c.lower()).ratio(), c))
+    """Every one of ``choices``, closest to ``word`` first (ties alphabetical): short lists (trees, ports)."""
+    return closest(word, choices, n=len(choices), cutoff=0.0)
 
 
 def _type_name(data_type: Any) -> str:
@@ -236,7 +234,7 @@ class _Reader:
         target = sub.attrib.get("ID", "")
         if target not in self.trees:
             known = ", ".join(_closest(target, self.trees))
-            raise self.error(sub, f"unknown BehaviorTree {target!r}; trees in the file: {known}", tree_id)
+            raise self.error(sub, f"unknown BehaviorTree {quote(target)}; trees in the file: {known}", tree_id)
         if target in chain:
             raise self.error(sub, f"SubTree cycle: {' -> '.join((*chain, target))}", tree_id)
         body = self.trees[target]
@@ -311,5 +309,5 @@ class _Reader:
             )
         if chosen not in self.trees:
             known = ", ".join(_closest(chosen, self.trees))
-            raise TreeError(f"{self.path}: no BehaviorTree with ID {chosen!r}; trees in the file: {known}")
+            raise TreeError(f"{self.path}: no BehaviorTree with ID {quote(chosen)}; trees in the file: {known}")
         return chosen

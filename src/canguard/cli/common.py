@@ -35,6 +35,8 @@ def __getattr__(name: str) -> Path:
 
 EXIT_OK = 0
 EXIT_TRIPPED = 1
+EXIT_REGRESSED = 1
+"""replay --fail-on-regression: worse than --baseline (the same code as a trip: a CI gate failed)."""
 EXIT_BAD_INPUT = 2
 EXIT_UNGUARDED = 3
 EXIT_INTERRUPTED = 130
@@ -42,7 +44,8 @@ EXIT_BROKEN_PIPE = 141
 
 EXIT_CODES: tuple[tuple[int, str], ...] = (
     (EXIT_OK, "fine"),
-    (EXIT_TRIPPED, "replay --fail-on-trip: a guard tripped"),
+    (EXIT_TRIPPED, "replay --fail-on-trip: a guard tripped; --fail-on-regression: a trip gained or lost, "
+                   "or a margin shrank, against --baseline"),
     (EXIT_BAD_INPUT, "bad input (config, DBC, tree, log, option, state file): every problem on stderr"),
     (EXIT_UNGUARDED, "replay --fail-on-trip: a source the config guards got no sample from a log"),
     (EXIT_INTERRUPTED, "interrupted (Ctrl-C)"),

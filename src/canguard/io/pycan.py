@@ -11,7 +11,7 @@ from itertools import islice
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from canguard.errors import LogFormatError
+from canguard.errors import LogFormatError, clip
 from canguard.io.blf_length import BlfLength
 from canguard.io.frame import Frame
 from canguard.io.logtypes import _TEXT_PYTHON_CAN, LogFrames, ReadStats, _new, note_order, open_decompressed
@@ -115,7 +115,9 @@ class _Messages:
                 cut = self._cut(0)
                 if cut is not None:
                     raise cut from exc
-                raise LogFormatError(f"{p}: not a valid {self.name} log: {type(exc).__name__}: {exc}") from exc
+                raise LogFormatError(
+                    f"{p}: not a valid {self.name} log: {type(exc).__name__}: {clip(str(exc))}"
+                ) from exc
             self.messages: Iterator[can.Message] = iter(reader)
             if self.length is not None:
                 self.length.note_file_size(int(getattr(reader, "file_size", 0) or 0))
@@ -142,7 +144,7 @@ class _Messages:
             # python-can fails on a cut object header (struct.error): then the cut is the news
             self._failed = self._cut(self.count + len(batch)) or LogFormatError(
                 f"{self.p}: {self.name} reader failed after {self.count + len(batch)} frames: "
-                f"{type(exc).__name__}: {exc}"
+                f"{type(exc).__name__}: {clip(str(exc))}"
             )
             self._failed.__cause__ = exc
             if not batch:

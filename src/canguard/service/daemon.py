@@ -35,6 +35,7 @@ from canguard.config.schema import Config
 from canguard.engine.core import Engine
 from canguard.engine.events import EventJournal
 from canguard.engine.gate import BusSink, TaskGate
+from canguard.engine.ratelimit import held_note
 from canguard.errors import CanguardError, ConfigError
 from canguard.io.bus import BusReader
 from canguard.io.clock import BootClock, LiveClock
@@ -114,7 +115,6 @@ class Daemon:
         self._bus_errors: queue.SimpleQueue[tuple[str, str]] = queue.SimpleQueue()
         self.exit_reason = "exit"
         self.reader = BusReader(self.cfg.buses, on_error=self._bus_error)
-        self._refused_logged: dict[tuple[str, str], float] = {}
         self.sink: FrameSink = BusSink(
             self.reader.send, on_error=self.metrics.send_error if self.metrics is not None else None,
             on_refused=self._send_refused,
@@ -285,21 +285,18 @@ class Daemon:
         self.notifier.ready()
         return True
 
-    def _send_refused(self, bus: str, label: str, origin: str) -> None:
-        """A frame the bus refused (full TX queue, bus-off) goes in the journal, once a second per bus and origin.
+    def _send_refused(self, bus: str, label: str, origin: str, held: int) -> None:
+        """A frame the bus refused (full TX queue, bus-off) goes in the journal, as often as on stderr.
 
         A stop frame that never reached the bus is what a safety engineer asks about
         first; it is sent again every ``stop.repeat``, and this event says it had to be.
+        The sink reports once a second per bus and origin; ``held`` counts the refusals since.
         """
-        now = time.monotonic()
-        key = (bus, origin)
-        if now - self._refused_logged.get(key, -math.inf) < 1.0:
-            return
-        self._refused_logged[key] = now
         engine = getattr(self, "engine", None)
         if engine is not None:
             engine._event({"event": "bus_error", "source": bus,
-                           "reason": f"send refused: {label} ({origin}); sent again at the next repeat"})
+                           "reason": f"send refused: {label} ({origin}); sent again at the next repeat"
+                                     f"{held_note(held)}"})
 
     def _bus_error(self, bus: str, exc: BaseException) -> None:
         # Called from a receive thread: hand it to the loop, which owns the journal.
