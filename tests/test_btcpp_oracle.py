@@ -51,12 +51,15 @@ EXACTLY_ONCE = "canguard tree has no --exactly-once (BT.CPP's tickExactlyOnce())
 SUBTREE_PORTS = ("SubTree ports are blackboard remappings in BT.CPP (the subtree's entry is an alias of the "
                  "parent's, a literal becomes an entry); canguard renames {key} attributes only, so scripts and "
                  "SetBlackboard inside do not reach the parent's entry")
-ROOT_KEYS = "@key reads and writes the root blackboard from any depth in BT.CPP; canguard does not reach it"
+ROOT_KEYS = ("@key reads and writes the root blackboard from any depth in BT.CPP (in the main tree too: @x is "
+             "the entry x); canguard does not reach it")
 SUBTREE_CONDITIONS = "pre/post conditions on a <SubTree> element are valid in BT.CPP; canguard refuses them"
 SCRIPT_REALS = ("script values: true/false and the results of comparisons and ! are the reals 1.0/0.0 in BT.CPP "
                 "(printed 1.000000); canguard keeps them as booleans")
 TYPE_CLASH = ("typed entries: one key used by an int port and by a string port is a load error in BT.CPP; "
               "canguard runs it")
+TYPE_CLASH_NUMBERS = ("typed entries: one key used by a double port and then by an int port is a load error in "
+                      "BT.CPP; canguard runs it")
 SET_COPY = ("SetBlackboard value={src} copies the typed value in BT.CPP; canguard's value port is text and "
             "copies nothing (FAILURE)")
 SET_TEXT_ANY = ("SetBlackboard writing text into an entry that has no port type (a Script's, or one it copies "
@@ -77,6 +80,7 @@ KNOWN_DIFFERENCES: dict[str, str] = {
     "async_fallback_wakeup": WAKE_UP,
     "async_sequence_exactly_once": EXACTLY_ONCE,
     "async_sequence_failure": WAKE_UP,
+    "async_sequence_failure_exactly_once": EXACTLY_ONCE,
     "async_sequence_wakeup": WAKE_UP,
     "load_duplicate_tree_id": ("BT.CPP accepts two BehaviorTrees with one ID (the last one wins); canguard refuses "
                                "the file"),
@@ -96,10 +100,13 @@ KNOWN_DIFFERENCES: dict[str, str] = {
     "repeat_three_wakeup": WAKE_UP,
     "retry_from_entry": WAKE_UP,
     "retry_succeeds_third": WAKE_UP,
+    "retry_succeeds_third_exactly_once": EXACTLY_ONCE,
     "retry_three_exactly_once": EXACTLY_ONCE,
     "retry_three_failures": WAKE_UP,
     "retry_zero_attempts": ("BT.CPP accepts num_attempts=\"0\" on RetryUntilSuccessful (FAILURE without ticking "
                             "the child); canguard refuses it"),
+    "root_key_port_at_root": ROOT_KEYS,
+    "root_key_script_at_root": ROOT_KEYS,
     "script_and_or": f"{SCRIPT_REALS}; && on numbers other than booleans throws in BT.CPP",
     "script_compare_bool_entries": SCRIPT_REALS,
     "script_compare_int_double": SCRIPT_REALS,
@@ -129,6 +136,7 @@ KNOWN_DIFFERENCES: dict[str, str] = {
     "subtree_remap_same_name": SUBTREE_PORTS,
     "subtree_remap_set_blackboard": SUBTREE_PORTS,
     "subtree_remap_type_clash": TYPE_CLASH,
+    "subtree_repeat_exactly_once": EXACTLY_ONCE,
     "subtree_repeat_wakeup": f"{WAKE_UP}; {SUBTREE_PORTS}",
     "subtree_root_key_nested": ROOT_KEYS,
     "subtree_root_key_port": ROOT_KEYS,
@@ -139,6 +147,7 @@ KNOWN_DIFFERENCES: dict[str, str] = {
     "subtree_siblings_share_entry": SUBTREE_PORTS,
     "subtree_twice": SUBTREE_PORTS,
     "typed_double_to_int_port": INT_PORT_CONVERTS,
+    "typed_loop_double_to_int_port": TYPE_CLASH_NUMBERS,
     "typed_run_once_bool_entry": SCRIPT_REALS,
     "typed_script_string_to_int_port": INT_PORT_CONVERTS,
     "typed_script_word_to_int_port": ("an entry typed int by a port refuses a script's text in BT.CPP (the script "
@@ -146,6 +155,7 @@ KNOWN_DIFFERENCES: dict[str, str] = {
     "typed_set_blackboard_text_to_int_port": INT_PORT_CONVERTS,
     "wakeup_async_in_repeat": WAKE_UP,
     "wakeup_repeat_in_reactive": WAKE_UP,
+    "wakeup_repeat_in_reactive_exactly_once": EXACTLY_ONCE,
     "wakeup_retry_in_fallback": WAKE_UP,
     "while_do_else_two_children": "BT.CPP accepts WhileDoElse with two children; canguard refuses it",
     "while_do_else_two_children_true": "BT.CPP accepts WhileDoElse with two children; canguard refuses it",
