@@ -149,6 +149,7 @@ class TestTranslation:
             ({"pdo": {"TPDO9": ["0x6077"]}}, {}, "canopen.left.pdo.TPDO9"),
             ({}, {"canopen": "right"}, "sources.left_torque.canopen"),
             ({}, {"max_age": 0.5}, "sources.left_torque.max_age"),
+            ({}, {"scale": float("nan")}, "sources.left_torque.scale"),
         ],
     )
     def test_bad_input_names_the_key(

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import re
 import struct
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -321,6 +321,3 @@ class Eds:
             raise EdsError(f"{pdo.name} would carry {start} bits, more than the 64 of a CAN frame")
         return Pdo(name=pdo.name, cob_id=pdo.cob_id, objects=tuple(mapped))
 
-
-Problem = Callable[[str, str, str], None]
-"""Records ``key: found X, expected Y`` (the loader's ``problem``)."""

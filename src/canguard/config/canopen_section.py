@@ -8,6 +8,7 @@ hands those messages to the loader, which adds them to the config's database.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any
 
@@ -189,8 +190,8 @@ class CanopenSection:
             c.problem(_path(key, "canopen"), _found(dname), "a drive of canopen:" + _closest(dname, list(self.drives)))
             return "", 0.5, []
         scale = value.get("scale", 1.0)
-        if isinstance(scale, bool) or not isinstance(scale, (int, float)) or scale == 0:
-            c.problem(_path(key, "scale"), _found(scale), "a number other than 0")
+        if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not math.isfinite(scale) or scale == 0:
+            c.problem(_path(key, "scale"), _found(scale), "a finite number other than 0")
             scale = 1.0
         max_age = drive.timeout_s
         if "max_age" in value:
