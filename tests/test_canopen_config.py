@@ -259,7 +259,7 @@ class TestDriveHealth:
         assert d.named("fresh")[-1]["reason"] == "no_heartbeat cleared"
 
     def test_nmt_state_other_than_operational_is_not_present(self, tmp_path: Path) -> None:
-        """A heartbeat saying pre-operational (0x7F) or stopped (0x04) makes the source ``not_present``."""
+        """Heartbeat state pre-operational (0x7F) or stopped (0x04): ``not_present``; each change an ``nmt`` event."""
         d = Drive(tmp_path)
         d.up()
         for state in (0x7F, 0x04):
@@ -270,6 +270,9 @@ class TestDriveHealth:
         d.nmt = 5
         d.run(0.2)
         assert d.health.reason(d.t) == ""
+        changes = [(e["previous"], e["state"]) for e in d.named("nmt")]
+        assert changes == [(None, "operational"), ("operational", "pre_operational"),
+                           ("pre_operational", "stopped"), ("stopped", "operational")]
 
     def test_emcy_fails_the_guard_until_the_error_reset(self, tmp_path: Path) -> None:
         """An EMCY with a non-zero error register: ``emcy`` event and reason; code 0 register 0 clears it."""

@@ -80,6 +80,11 @@ class NullTaskGate:
 
 EventCallback = Callable[[dict[str, Any]], None]
 
+_DRIVE_EVENT_ROLES = frozenset({"nmt", "emcy"})
+"""A CANopen drive's roles whose samples are journalled (``nmt`` on a change, ``emcy`` each)."""
+NMT_STATES = {0x00: "boot_up", 0x04: "stopped", 0x05: "operational", 0x7F: "pre_operational"}
+"""The NMT states a heartbeat carries (CiA 301), by value."""
+
 
 class Context:
     """Everything a node of one tree may use; built by the engine, shared by all nodes."""
@@ -145,15 +150,28 @@ class Context:
         health = self.health.get(sample.source)
         if health is None:
             return False
+        if sample.signal in _DRIVE_EVENT_ROLES and health.source.signal("emcy_code") is not None:
+            self._drive_event(sample, health)  # before observe: an NMT state change is seen against the last one
         edge = health.observe(sample)
-        if sample.signal == "emcy" and health.source.signal("emcy_code") is not None:
-            self._emcy(sample, health)
         if sample.reason:
             return edge
         for model in self._subscribers.get((sample.source, sample.signal), ()):
             if model.update(sample.value, sample.t):
                 edge = True
         return edge
+
+    def _drive_event(self, sample: Sample, health: SourceHealth) -> None:
+        """Journal a CANopen drive's EMCY frames and NMT state changes (from its first source only)."""
+        if sample.signal == "emcy":
+            self._emcy(sample, health)
+            return
+        before = health.value("nmt")
+        if sample.reason or sample.value == before:
+            return
+        state = int(sample.value)
+        self.record("nmt", t=sample.t, source=sample.source, value=state,
+                    state=NMT_STATES.get(state, f"0x{state:02X}"),
+                    previous=None if before != before else NMT_STATES.get(int(before), f"0x{int(before):02X}"))
 
     def _emcy(self, sample: Sample, health: SourceHealth) -> None:
         """Journal one EMCY frame of a CANopen drive: code, error register, manufacturer bytes."""

@@ -25,6 +25,7 @@ EVENT_TYPES = frozenset(
         "fresh",
         "bus_error",
         "emcy",
+        "nmt",
         "reload",
         "start",
         "exit",
