@@ -109,6 +109,19 @@ class TestTranslation:
         with pytest.raises(ConfigError, match=r"0x6078, which TPDO2 maps but partial\.eds does not describe"):
             load_config(config(tmp_path, drive={"eds": str(partial)}, source={"object": "0x6078"}))
 
+    def test_a_dummy_mapping_entry_takes_its_bits(self, tmp_path: Path) -> None:
+        """A dummy entry (a data type index, here UNSIGNED8) in a TPDO mapping shifts the objects after it."""
+        text = EDS.read_text(encoding="utf-8")
+        at = text.index("DefaultValue=0x60410010", text.index("[1A01sub1]"))
+        dummy = tmp_path / "dummy.eds"
+        dummy.write_text(text[:at] + "DefaultValue=0x00050008" + text[at + len("DefaultValue=0x60410010") :],
+                         encoding="utf-8")
+        cfg = load_config(config(tmp_path, drive={"eds": str(dummy)}))
+        ref = cfg.sources["left_torque"].signal("current")
+        assert ref is not None and ref.frame_id == 0x282
+        payload = bytes([0xAA]) + struct.pack("<hh", 250, 0)
+        assert cfg.database.get_message_by_frame_id(0x282).decode(payload)[ref.signal] == pytest.approx(25.0)
+
     def test_a_dcf_parameter_value_overrides_the_eds_default(self, tmp_path: Path) -> None:
         """A DCF whose ParameterValue makes TPDO3 valid: the position actual value (0x6064) is then readable."""
         text = EDS.read_text(encoding="utf-8")
