@@ -129,7 +129,7 @@ class TestConfigErrors:
     def test_unknown_key_with_closest(self) -> None:
         """A misspelt key is an error suggesting the right one."""
         assert problems("tre: {file: x.xml}\n") == [
-            f"{CFG}: tre: found unknown key 'tre', expected one of dbc, buses, sources, tree, "
+            f"{CFG}: tre: found unknown key 'tre', expected one of dbc, buses, canopen, sources, tree, "
             "task, stop, actions, events, state, simulation; closest: tree"
         ]
 

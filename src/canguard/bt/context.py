@@ -80,6 +80,11 @@ class NullTaskGate:
 
 EventCallback = Callable[[dict[str, Any]], None]
 
+_DRIVE_EVENT_ROLES = frozenset({"nmt", "emcy"})
+"""A CANopen drive's roles whose samples are journalled (``nmt`` on a change, ``emcy`` each)."""
+NMT_STATES = {0x00: "boot_up", 0x04: "stopped", 0x05: "operational", 0x7F: "pre_operational"}
+"""The NMT states a heartbeat carries (CiA 301), by value."""
+
 
 class Context:
     """Everything a node of one tree may use; built by the engine, shared by all nodes."""
@@ -145,6 +150,8 @@ class Context:
         health = self.health.get(sample.source)
         if health is None:
             return False
+        if sample.signal in _DRIVE_EVENT_ROLES and health.source.signal("emcy_code") is not None:
+            self._drive_event(sample, health)  # before observe: an NMT state change is seen against the last one
         edge = health.observe(sample)
         if sample.reason:
             return edge
@@ -152,6 +159,31 @@ class Context:
             if model.update(sample.value, sample.t):
                 edge = True
         return edge
+
+    def _drive_event(self, sample: Sample, health: SourceHealth) -> None:
+        """Journal a CANopen drive's EMCY frames and NMT state changes (from its first source only)."""
+        if sample.signal == "emcy":
+            self._emcy(sample, health)
+            return
+        before = health.value("nmt")
+        if sample.reason or sample.value == before:
+            return
+        state = int(sample.value)
+        self.record("nmt", t=sample.t, source=sample.source, value=state,
+                    state=NMT_STATES.get(state, f"0x{state:02X}"),
+                    previous=None if before != before else NMT_STATES.get(int(before), f"0x{int(before):02X}"))
+
+    def _emcy(self, sample: Sample, health: SourceHealth) -> None:
+        """Journal one EMCY frame of a CANopen drive: code, error register, manufacturer bytes."""
+        code, data = health.value("emcy_code"), health.value("emcy_data")
+        fields: dict[str, Any] = {"t": sample.t, "source": sample.source, "value": sample.value}
+        if sample.reason:
+            fields["reason"] = sample.reason
+        else:
+            fields.update(code=f"0x{int(code):04X}", error_register=int(sample.value),
+                          manufacturer=int(data).to_bytes(5, "little").hex().upper(),
+                          reset=int(code) == 0 and int(sample.value) == 0)
+        self.record("emcy", **fields)
 
     def record(self, event: str, **fields: Any) -> None:
         """Report an event (``trip``, ``recover``, ...) with its fields to the journal, if any."""

@@ -57,6 +57,11 @@ def describe(cfg: Config) -> str:
         more = "".join(f", {k}={v!r}" for k, v in extra.items())
         lines.append(f"  {name}: interface {bus.interface}, channel {bus.channel}{more}")
 
+    if cfg.canopen:
+        lines.append("canopen:")
+        for drive in cfg.canopen.values():
+            lines += [f"  {line}" for line in drive.describe()]
+
     lines.append("sources:")
     if not cfg.sources:
         lines.append("  (none)")

@@ -37,6 +37,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--state-dir", type=Path, default=None, metavar="PATH",
                    help="where the daemon writes events and I²t heat (default /var/lib/canguard; "
                         "with --simulation: DIR)")
+    p.add_argument("--canopen", type=Path, default=None, metavar="EDS",
+                   help="instead: a config and tree for one CANopen drive from its EDS (with --node)")
+    p.add_argument("--node", type=int, default=None, metavar="N", help="with --canopen: the drive's node id 1..127")
     p.add_argument("--force", action="store_true", help="overwrite files that exist")
     p.set_defaults(func=cmd_init)
 
@@ -62,20 +65,40 @@ def starter_config(text: str, *, channel: str, simulation: bool, state_dir: Path
     return head + text
 
 
+def canopen_files(args: argparse.Namespace, target: Path, state_dir: Path) -> dict[Path, str | Path]:
+    """``--canopen EDS --node N``: the drive's config and tree, and a copy of its EDS."""
+    from canguard.cli.init_canopen import drive_files
+
+    eds: Path = args.canopen.expanduser().absolute()
+    if args.node is None or not 1 <= args.node <= 127:
+        raise ConfigError(f"init --canopen: --node: found {args.node}, expected the drive's node id 1..127")
+    if not eds.is_file():
+        raise ConfigError(f"init --canopen: {eds}: no such file, expected the drive's EDS")
+    texts = drive_files(eds, args.node, bus="can0" if args.simulation else args.channel,
+                        state_dir=state_dir.expanduser().absolute(), simulation=args.simulation)
+    files: dict[Path, str | Path] = {target / name: text for name, text in texts.items()}
+    files[target / eds.name] = eds
+    return files
+
+
 def cmd_init(args: argparse.Namespace) -> int:
     """Write the three files; exit 2 naming a file that exists (without --force)."""
     from canguard.config.loader import load_config
 
     target: Path = args.dir.expanduser().absolute()
     state_dir = args.state_dir if args.state_dir is not None else (target if args.simulation else DEFAULT_STATE_DIR)
-    files: dict[Path, str | Path] = {
-        target / "canguard.yaml": starter_config(
-            data_path("config", "examples", f"{EXAMPLE}.yaml").read_text(encoding="utf-8"),
-            channel=args.channel, simulation=args.simulation, state_dir=state_dir.expanduser().absolute(),
-        ),
-        target / "robot_guard.xml": data_path("config", "trees", f"{EXAMPLE}.xml"),
-        target / "robot.dbc": data_path("dbc", "robot.dbc"),
-    }
+    files: dict[Path, str | Path]
+    if args.canopen is not None:
+        files = canopen_files(args, target, state_dir)
+    else:
+        files = {
+            target / "canguard.yaml": starter_config(
+                data_path("config", "examples", f"{EXAMPLE}.yaml").read_text(encoding="utf-8"),
+                channel=args.channel, simulation=args.simulation, state_dir=state_dir.expanduser().absolute(),
+            ),
+            target / "robot_guard.xml": data_path("config", "trees", f"{EXAMPLE}.xml"),
+            target / "robot.dbc": data_path("dbc", "robot.dbc"),
+        }
     existing = [str(p) for p in files if p.exists()]
     if existing and not args.force:
         raise ConfigError("init: " + ", ".join(existing) + ": exists already; expected a new file "

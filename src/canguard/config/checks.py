@@ -6,11 +6,14 @@ import math
 import os
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from canguard.config.schema import SourceConfig
 from canguard.config.yamlsrc import _SECONDS_KEYS, _closest, _found, _line_of, _path, _shown
 from canguard.errors import ConfigError
+
+if TYPE_CHECKING:
+    from canguard.config.canopen_section import CanopenSection
 
 
 class _Checks:
@@ -32,6 +35,8 @@ class _Checks:
         self.sources: dict[str, SourceConfig] = {}
         self._broken_sources: set[str] = set()
         self._sources_ok = True
+        self.canopen: CanopenSection | None = None
+        """The ``canopen:`` drives, when the config has any."""
 
     # -- problems ----------------------------------------------------------
     def problem(self, key: str, found: str, expected: str) -> None:

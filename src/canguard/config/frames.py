@@ -59,6 +59,11 @@ class _Frames(_Sources):
         if not isinstance(value, Mapping):
             self.problem(key, _found(value), "a frame: {message, signals, bus} or {id, data, bus, extended}")
             return None
+        if "canopen" in value:
+            if self.canopen is None:
+                self.problem(_path(key, "canopen"), _found(value["canopen"]), "a drive of canopen: (none configured)")
+                return None
+            return self.canopen.frame(value, key)
         if "message" in value:
             self.mapping(value, key, ("message", "signals", "bus"), ("message",))
             bus = self.bus(value.get("bus"), _path(key, "bus"))

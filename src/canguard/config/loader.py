@@ -48,11 +48,18 @@ class _Loader(_Sections):
         )
 
     def config(self, doc: Any) -> Config:
-        top = ("dbc", "buses", "sources", "tree", "task", "stop", "actions", "events", "state", "simulation")
-        if not self.mapping(doc, "", top, ("dbc", "buses")):
+        top = ("dbc", "buses", "canopen", "sources", "tree", "task", "stop", "actions", "events", "state",
+               "simulation")
+        # dbc: is optional when the drives come from canopen: (every source and frame may then use them)
+        if not self.mapping(doc, "", top, ("buses",) if "canopen" in doc else ("dbc", "buses")):
             raise self.fail()
         dbc_files = self.load_dbc(doc["dbc"]) if "dbc" in doc else ()
         buses = self.buses(doc["buses"]) if "buses" in doc else {}
+        if "canopen" in doc:
+            from canguard.config.canopen_section import CanopenSection
+
+            self.canopen = CanopenSection(self)
+            self.canopen.load(doc["canopen"])
         raw_sources = doc.get("sources") or {}
         if not isinstance(raw_sources, Mapping):
             self.problem("sources", _found(raw_sources), "a mapping of source name -> source")
@@ -69,6 +76,8 @@ class _Loader(_Sections):
             if len(self.problems) > before:
                 # Already reported: references to this source must not add follow-on errors.
                 self._broken_sources.add(name)
+        if self.canopen is not None:
+            self.add_messages(self.canopen.messages())
         tree = self.tree(doc.get("tree"))
         task = self.task(doc.get("task"))
         stop = self.stop(doc.get("stop"))
@@ -96,6 +105,7 @@ class _Loader(_Sections):
             state=state,
             simulation=simulation,
             database=self.database,
+            canopen=MappingProxyType(dict(self.canopen.drives) if self.canopen is not None else {}),
         )
 
 

@@ -5,9 +5,15 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
+
+if TYPE_CHECKING:
+    from canguard.config.canopen import CanopenDrive
 
 SourceKind = Literal["battery", "joints", "current"]
+
+NON_VALUE_ROLES = frozenset({"present", "counter", "nmt", "emcy", "emcy_code", "emcy_data", "fault"})
+"""Roles that say whether a source can be trusted rather than carry a value a guard checks."""
 
 
 @dataclass(frozen=True)
@@ -67,8 +73,8 @@ class SourceConfig:
 
     @property
     def value_roles(self) -> tuple[str, ...]:
-        """The roles that carry values guards check (every role but ``present`` and ``counter``)."""
-        return tuple(s.role for s in self.signals if s.role not in ("present", "counter"))
+        """The roles that carry values guards check (every role but ``present``, ``counter`` and a drive's health)."""
+        return tuple(s.role for s in self.signals if s.role not in NON_VALUE_ROLES)
 
 
 @dataclass(frozen=True)
@@ -163,7 +169,9 @@ class Config:
     simulation: bool = False
     """``simulation: true``: the config may guard only ``virtual`` buses under systemd (a bench, not a robot)."""
     database: Any = field(default=None, compare=False, repr=False)
-    """The merged ``cantools.database.Database`` of every DBC file."""
+    """The merged ``cantools.database.Database`` of every DBC file (and of the ``canopen:`` drives' frames)."""
+    canopen: Mapping[str, CanopenDrive] = field(default_factory=dict)
+    """``canopen:``: the CANopen drives by name, resolved against their EDS."""
 
 
 @dataclass(frozen=True)

@@ -10,7 +10,7 @@ from typing import Any, cast
 import cantools
 
 from canguard.config.checks import _Checks
-from canguard.config.schema import SignalRef, SourceConfig, SourceKind
+from canguard.config.schema import NON_VALUE_ROLES, SignalRef, SourceConfig, SourceKind
 from canguard.config.yamlsrc import _closest, _found, _path, _shown
 from canguard.errors import clip, quote
 
@@ -95,6 +95,31 @@ class _Sources(_Checks):
         self.messages_ok = True
         return tuple(files)
 
+    def add_messages(self, messages: list[Any]) -> None:
+        """Add messages made elsewhere (a CANopen drive's PDOs, heartbeat, EMCY) to the config's database."""
+        if not messages:
+            return
+        existing = list(self.database.messages) if self.database is not None else []
+        ids = {(m.frame_id, bool(m.is_extended_frame)): m.name for m in existing}
+        names = {m.name for m in existing}
+        added = []
+        for m in messages:
+            other = ids.get((m.frame_id, False))
+            if other is not None or m.name in names:
+                what = f"COB-ID 0x{m.frame_id:03X} of {m.name} also message {other or m.name!r}"
+                self.problem("canopen", what, "CANopen frames whose ids and names no other message uses")
+                continue
+            ids[(m.frame_id, False)], names = m.name, names | {m.name}
+            added.append(m)
+        if self.database is None:
+            self.database = cantools.database.can.Database(messages=added)
+        else:
+            self.database.messages.extend(added)
+            self.database.refresh()
+        for m in added:
+            self._by_name[m.name] = m
+            self._by_id.setdefault(m.frame_id, []).append(m)
+
     def message(self, value: Any, key: str) -> Any:
         """The cantools message named (or numbered) by ``value``; None after recording a problem."""
         if not self.messages_ok:
@@ -152,6 +177,8 @@ class _Sources(_Checks):
             self.problem(key, _found(value), "a mapping with kind: battery | joints | current")
             return None
         kind = value.get("kind")
+        if "canopen" in value:
+            return self.canopen_source(name, kind, value, key)
         common = ("kind", "bus", "max_age")
         allowed: tuple[str, ...]
         required: tuple[str, ...]
@@ -207,9 +234,10 @@ class _Sources(_Checks):
                         continue
                     jname = item.get("name")
                     if "name" in item:
-                        if not isinstance(jname, str) or not jname or jname == "present":
+                        if not isinstance(jname, str) or not jname or jname in NON_VALUE_ROLES:
                             self.problem(
-                                _path(ikey, "name"), _found(jname), "a joint name (a string, not 'present')"
+                                _path(ikey, "name"), _found(jname),
+                                "a joint name (a string, not " + ", ".join(sorted(NON_VALUE_ROLES)) + ")",
                             )
                             jname = None
                         elif jname in seen:
@@ -231,6 +259,19 @@ class _Sources(_Checks):
         return SourceConfig(
             name=name, kind=cast(SourceKind, kind), bus=bus, signals=tuple(signals), max_age_s=max_age
         )
+
+
+    def canopen_source(self, name: str, kind: Any, value: Mapping[str, Any], key: str) -> SourceConfig | None:
+        """A source reading an object of a ``canopen:`` drive (``kind: current``)."""
+        self.mapping(value, key, ("kind", "canopen", "object", "scale", "max_age"), ("kind", "canopen", "object"))
+        if kind != "current":
+            self.problem(_path(key, "kind"), _found(kind), "current (a source of a canopen: drive)")
+            return None
+        if self.canopen is None:
+            self.problem(_path(key, "canopen"), _found(value.get("canopen")), "a drive of canopen: (none configured)")
+            return None
+        bus, max_age, signals = self.canopen.source_refs(name, "current", value, key)
+        return SourceConfig(name=name, kind="current", bus=bus, signals=tuple(signals), max_age_s=max_age)
 
 
 SOURCE_KINDS: tuple[SourceKind, ...] = ("battery", "joints", "current")

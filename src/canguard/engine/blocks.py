@@ -30,6 +30,7 @@ from typing import TYPE_CHECKING, Any
 from canguard.engine.colrows import ColumnRows, Row, abs_range, clean, last_row, max_gap
 from canguard.engine.npstruct import MIN_ROWS, decode_struct, struct_spec
 from canguard.io.logtypes import joined_hex
+from canguard.protect.staleness import ROW_ROLES
 
 if TYPE_CHECKING:
     import numpy as np
@@ -74,8 +75,8 @@ class MessagePlan:
         """(source, role) of each output: the samples a decoded row gives, in order."""
         self.multiplexed = bool(message.is_multiplexed())
         self.single = len(self.outputs) == 1 and not self.outputs[0][3]
-        self.counter = any(role == "counter" for _src, role, *_rest in self.outputs)
-        """An alive counter: every row goes to feed (the counter's full check in SourceHealth.observe)."""
+        self.counter = any(role in ROW_ROLES for _src, role, *_rest in self.outputs)
+        """An alive counter or a drive's health role: every row goes to feed (SourceHealth.observe's full check)."""
         self.passive = not self.counter and readers is not None and all(
             not present and source not in readers and not models
             for source, _r, _s, present, _h, _lo, _hi, models in self.outputs

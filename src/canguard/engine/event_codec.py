@@ -24,6 +24,8 @@ EVENT_TYPES = frozenset(
         "stale",
         "fresh",
         "bus_error",
+        "emcy",
+        "nmt",
         "reload",
         "start",
         "exit",

@@ -11,7 +11,15 @@ source cannot be trusted (fail safe: every non-empty reason fails the guard):
 ``nan``/``inf`` the latest sample was NaN / infinite
 ``out_of_range`` the latest value lies outside the DBC signal's [min|max]
 ``bad_length``/``undecodable`` the latest frame could not be decoded
+``no_heartbeat`` (CANopen) the drive's heartbeat is older than ``max_age_s``
+``not_present`` (CANopen) also: the drive's NMT state is not operational
+``emcy``        (CANopen) the drive's last EMCY had a non-zero error register
+``drive_fault`` (CANopen) the drive's statusword has its Fault bit set
 =============== ===========================================================
+
+A CANopen drive's sources carry its health as roles (``nmt``, ``emcy``,
+``fault``) that gate every value of the source the way ``present`` does; they
+are checked first, in that order. No EMCY yet is fine (an EMCY never goes stale).
 
 Rules: the *latest* sample of a role decides (a newer valid sample clears an
 invalid reason; an invalid sample does not replace the latest valid value, which
@@ -27,7 +35,7 @@ from __future__ import annotations
 
 import math
 
-from canguard.config.schema import SourceConfig
+from canguard.config.schema import NON_VALUE_ROLES, SourceConfig
 from canguard.io.frame import INVALID_INF, INVALID_NAN, INVALID_RANGE, Sample
 from canguard.protect.base import REASON_NO_DATA, REASON_NOT_PRESENT, REASON_OK, REASON_STALE
 
@@ -36,6 +44,17 @@ COUNTER = "counter"
 REASON_FROZEN = "frozen_counter"
 """The source's alive counter has not changed for longer than ``max_age``: its sender is stuck."""
 """The role of a source's presence signal."""
+NMT, EMCY, FAULT = "nmt", "emcy", "fault"
+"""A CANopen drive's health roles: NMT state (from the heartbeat), EMCY error register, statusword Fault bit."""
+NMT_OPERATIONAL = 5
+REASON_NO_HEARTBEAT = "no_heartbeat"
+REASON_EMCY = "emcy"
+REASON_DRIVE_FAULT = "drive_fault"
+GATE_ROLES = (NMT, EMCY, FAULT)
+FULL_ROLES = NON_VALUE_ROLES
+"""Roles whose every sample takes :meth:`SourceHealth.observe`'s full path (their value can change a reason)."""
+ROW_ROLES = NON_VALUE_ROLES - {PRESENT}
+"""Roles a replay block cannot take as columns (the presence flag it checks itself): every row is fed."""
 
 
 class SourceHealth:
@@ -46,6 +65,7 @@ class SourceHealth:
         self.max_age_s = float(source.max_age_s)
         self._value_roles: tuple[str, ...] = source.value_roles
         self._has_present = source.signal(PRESENT) is not None
+        self._gates = tuple(r for r in GATE_ROLES if source.signal(r) is not None)
         self._counter: float | None = None
         self._counter_since = math.nan
         """When the alive counter last changed (its first sample counts as a change)."""
@@ -117,8 +137,7 @@ class SourceHealth:
         if (
             not bad
             and latest is not None
-            and role != PRESENT
-            and role != COUNTER
+            and role not in FULL_ROLES
             and t - latest <= self.max_age_s
             and not self._invalid.get(role)
         ):
@@ -148,7 +167,25 @@ class SourceHealth:
         self._last_reason = after
         return edge
 
+    def _gate_reason(self, now: float, role: str) -> str:
+        """The reason a drive health role gives: heartbeat missing or not operational, EMCY, Fault bit."""
+        t = self._latest_t.get(role)
+        if role == EMCY:
+            return REASON_EMCY if t is not None and (self._invalid.get(role) or self._value.get(role, 0.0)) else ""
+        if t is None:
+            return REASON_NO_DATA
+        if now - t > self.max_age_s:
+            return REASON_NO_HEARTBEAT if role == NMT else REASON_STALE
+        bad = self._invalid.get(role, "")
+        if bad:
+            return bad
+        if role == NMT:
+            return REASON_NOT_PRESENT if self._value.get(NMT) != NMT_OPERATIONAL else REASON_OK
+        return REASON_DRIVE_FAULT if self._value.get(FAULT, 0.0) else REASON_OK
+
     def _role_reason(self, now: float, role: str) -> str:
+        if role in GATE_ROLES:
+            return self._gate_reason(now, role)
         t = self._latest_t.get(role)
         if t is None:
             return REASON_NO_DATA
@@ -172,6 +209,10 @@ class SourceHealth:
             return REASON_FROZEN
         if now - self._ok_since <= self.max_age_s:
             return REASON_OK
+        for gate in self._gates:
+            r = self._gate_reason(now, gate)
+            if r or role == gate:
+                return r
         if self._has_present:
             r = self._role_reason(now, PRESENT)
             if r or role == PRESENT:
@@ -188,7 +229,7 @@ class SourceHealth:
 
     def reasons(self, now: float) -> dict[str, str]:
         """The reason of every configured role (``present`` included) at ``now``."""
-        roles = ((PRESENT,) if self._has_present else ()) + self._value_roles
+        roles = self._gates + ((PRESENT,) if self._has_present else ()) + self._value_roles
         return {r: self._role_reason(now, r) for r in roles}
 
     def value(self, role: str) -> float:

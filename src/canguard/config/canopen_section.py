@@ -1,0 +1,369 @@
+"""The loader's ``canopen:`` section: drives from their EDS, sources reading their objects, their frames.
+
+:class:`CanopenSection` is composed into the config loader (it uses only the
+loader's public checks). Sources with ``canopen:`` get signals of messages this
+section builds (see :mod:`canguard.config.canopen`); :meth:`CanopenSection.messages`
+hands those messages to the loader, which adds them to the config's database.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from typing import TYPE_CHECKING, Any
+
+from canguard.config.canopen import (
+    COMMANDS,
+    FAULT_BIT,
+    NMT_COMMANDS,
+    NMT_ID,
+    PRODUCER_HEARTBEAT,
+    RPDO_COMM,
+    RPDO_MAP,
+    STATUSWORD,
+    TPDO_COMM,
+    TPDO_MAP,
+    UNDESCRIBED,
+    CanopenDrive,
+    Eds,
+    EdsError,
+    MappedObject,
+    Pdo,
+    parse_object,
+)
+from canguard.config.schema import FrameSpec, SignalRef
+from canguard.config.yamlsrc import _closest, _found, _path
+
+if TYPE_CHECKING:
+    from canguard.config.checks import _Checks
+
+ROLE_NMT = "nmt"
+"""A CANopen source's heartbeat role: the drive's NMT state."""
+ROLE_EMCY = "emcy"
+"""A CANopen source's EMCY role: the error register of the drive's last EMCY."""
+ROLE_EMCY_CODE = "emcy_code"
+ROLE_EMCY_DATA = "emcy_data"
+ROLE_FAULT = "fault"
+"""A CANopen source's statusword Fault bit (when a TPDO maps 0x6041)."""
+
+
+class CanopenSection:
+    """``canopen:`` drives and what sources and frames take from them."""
+
+    def __init__(self, checks: _Checks) -> None:
+        self.checks = checks
+        self.drives: dict[str, CanopenDrive] = {}
+        self._signals: dict[tuple[str, int], dict[str, Any]] = {}
+        """Per (drive, COB-ID): signal name -> cantools Signal, for the messages built at the end."""
+        self._labels: dict[tuple[str, int], tuple[str, int]] = {}
+        """Per (drive, COB-ID): (message name, payload length)."""
+        self._events: set[str] = set()
+        """Drives whose EMCY event roles a source already carries (one ``emcy`` event per EMCY frame)."""
+
+    # -- canopen: --------------------------------------------------------------
+    def load(self, value: Any) -> None:
+        """Read every ``canopen:`` drive (problems recorded, broken drives left out)."""
+        if not isinstance(value, Mapping):
+            self.checks.problem("canopen", _found(value), "a mapping of drive name -> {eds, node, bus, heartbeat, pdo}")
+            return
+        for name, body in value.items():
+            key = _path("canopen", name)
+            if not isinstance(name, str) or not name:
+                self.checks.problem(key, _found(name), "a drive name (a string)")
+                continue
+            drive = self.drive(name, body, key)
+            if drive is not None:
+                self.drives[name] = drive
+
+    def drive(self, name: str, body: Any, key: str) -> CanopenDrive | None:
+        c = self.checks
+        if not c.mapping(body, key, ("eds", "node", "bus", "heartbeat", "pdo"), ("eds", "node")):
+            return None
+        node = body.get("node")
+        if isinstance(node, bool) or not isinstance(node, int) or not 1 <= node <= 127:
+            c.problem(_path(key, "node"), _found(node), "a CANopen node id 1..127")
+            return None
+        bus = c.bus(body.get("bus"), _path(key, "bus"))
+        path = c.file_path(body["eds"], _path(key, "eds"))
+        if path is None:
+            return None
+        try:
+            eds = Eds(path, node)
+            tpdos = eds.pdos(TPDO_COMM, TPDO_MAP, "TPDO")
+            rpdos = eds.pdos(RPDO_COMM, RPDO_MAP, "RPDO")
+        except EdsError as exc:
+            c.problem(_path(key, "eds"), repr(str(body["eds"])) + f" ({exc})", "a readable EDS or DCF file")
+            return None
+        if "pdo" in body:
+            tpdos = self.overrides(eds, tpdos, body["pdo"], _path(key, "pdo"))
+        heartbeat = self.heartbeat(eds, body, key)
+        if heartbeat is None:
+            return None
+        defaults: dict[tuple[int, int], int | float] = {}
+        for pdo in rpdos:
+            for obj in pdo.objects:
+                v = eds.value(obj.index, obj.subindex)
+                if isinstance(v, (int, float)) and not isinstance(v, bool):
+                    defaults[(obj.index, obj.subindex)] = v
+        return CanopenDrive(
+            name=name,
+            eds=path,
+            node=node,
+            bus=bus,
+            heartbeat_s=heartbeat,
+            tpdos=tuple(tpdos),
+            rpdos=tuple(rpdos),
+            defaults=defaults,
+            device=eds.device,
+        )
+
+    def heartbeat(self, eds: Eds, body: Mapping[str, Any], key: str) -> float | None:
+        """``heartbeat:`` (s), else the EDS's producer heartbeat time (0x1017, ms) when it is not 0."""
+        if "heartbeat" in body:
+            return self.checks.number(body["heartbeat"], _path(key, "heartbeat"), positive=True)
+        ms = eds.value(PRODUCER_HEARTBEAT)
+        if isinstance(ms, int) and ms > 0:
+            return ms / 1000.0
+        self.checks.problem(
+            _path(key, "heartbeat"),
+            "nothing (the EDS's 0x1017 producer heartbeat time is 0 or absent)",
+            "the drive's heartbeat period in seconds",
+        )
+        return None
+
+    def overrides(self, eds: Eds, tpdos: list[Pdo], value: Any, key: str) -> list[Pdo]:
+        """``pdo: {TPDO3: [objects...]}``: those TPDOs map these objects instead, in order."""
+        if not isinstance(value, Mapping):
+            self.checks.problem(key, _found(value), "a mapping of TPDO name -> list of objects")
+            return tpdos
+        by_name = {p.name: p for p in tpdos}
+        out = dict(by_name)
+        for pname, objects in value.items():
+            pkey = _path(key, pname)
+            if pname not in by_name:
+                self.checks.problem(pkey, _found(pname), "a TPDO of the EDS" + _closest(pname, list(by_name)))
+                continue
+            if not isinstance(objects, list) or not objects:
+                self.checks.problem(pkey, _found(objects), "a non-empty list of objects ('0x6041', '0x6077:0')")
+                continue
+            refs: list[tuple[int, int]] = []
+            for i, item in enumerate(objects):
+                ref = self.resolve(eds, item, f"{pkey}[{i}]")
+                if ref is not None:
+                    refs.append(ref)
+            if len(refs) != len(objects):
+                continue
+            try:
+                out[pname] = eds.override(by_name[pname], refs)
+            except EdsError as exc:
+                self.checks.problem(pkey, str(exc), "objects that fit in 8 bytes")
+        return [out[p.name] for p in tpdos]
+
+    def resolve(self, eds: Eds, value: Any, key: str) -> tuple[int, int] | None:
+        """``value`` (hex ``INDEX[:SUB]`` or a ParameterName) as (index, subindex) of an object of ``eds``."""
+        parsed = parse_object(value)
+        if parsed is None:
+            self.checks.problem(key, _found(value), "an object: INDEX or INDEX:SUB in hex, or its EDS ParameterName")
+            return None
+        if isinstance(parsed, str):
+            var = eds.by_name(parsed)
+            if var is None:
+                self.checks.problem(
+                    key, repr(parsed), f"an object of {eds.path.name} (hex INDEX[:SUB] or ParameterName)"
+                )
+                return None
+            return int(var.index), int(var.subindex)
+        if eds.variable(*parsed) is None:
+            self.checks.problem(key, f"0x{parsed[0]:04X}:{parsed[1]:02X}", f"an object of {eds.path.name}")
+            return None
+        return parsed
+
+    # -- sources ---------------------------------------------------------------
+    def source_refs(
+        self, source: str, role: str, value: Mapping[str, Any], key: str
+    ) -> tuple[str, float, list[SignalRef]]:
+        """The signals of a ``canopen:`` source: (bus, max_age, [its value, then the drive's health roles])."""
+        c = self.checks
+        dname = value.get("canopen")
+        drive = self.drives.get(dname) if isinstance(dname, str) else None
+        if drive is None:
+            c.problem(_path(key, "canopen"), _found(dname), "a drive of canopen:" + _closest(dname, list(self.drives)))
+            return "", 0.5, []
+        scale = value.get("scale", 1.0)
+        if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not math.isfinite(scale) or scale == 0:
+            c.problem(_path(key, "scale"), _found(scale), "a finite number other than 0")
+            scale = 1.0
+        max_age = drive.timeout_s
+        if "max_age" in value:
+            given = c.number(value["max_age"], _path(key, "max_age"), positive=True)
+            if given is not None and given > drive.timeout_s:
+                c.problem(
+                    _path(key, "max_age"),
+                    f"{given:g}",
+                    f"at most {drive.timeout_s:g} s (1.5 x canopen.{drive.name}.heartbeat: the heartbeat timeout)",
+                )
+            elif given is not None:
+                max_age = given
+        refs: list[SignalRef] = []
+        where = self.tpdo_object(drive, value.get("object"), _path(key, "object"))
+        if where is not None:
+            pdo, obj = where
+            refs.append(
+                self.ref(
+                    drive,
+                    pdo,
+                    role,
+                    f"{source}_{role}",
+                    obj.start_bit,
+                    obj.bits,
+                    obj.signed,
+                    obj.is_float,
+                    float(scale),
+                )
+            )
+        refs.extend(self.health_refs(drive, where[0] if where is not None else None))
+        return drive.bus, max_age, refs
+
+    def tpdo_object(self, drive: CanopenDrive, value: Any, key: str) -> tuple[Pdo, MappedObject] | None:
+        """The TPDO that maps ``object:`` and where; else a problem naming the TPDOs and what they map."""
+        if value is None:
+            self.checks.problem(key, "nothing", "the object the source reads (hex INDEX[:SUB] or ParameterName)")
+            return None
+        parsed = parse_object(value)
+        if isinstance(parsed, str):
+            for pdo in drive.tpdos:
+                for obj in pdo.objects:
+                    if obj.name.casefold() == parsed.casefold():
+                        return pdo, obj
+        elif parsed is not None:
+            found = drive.tpdo_of(*parsed)
+            if found is not None and found[1].name == UNDESCRIBED:
+                self.checks.problem(
+                    key, f"{found[1].ref}, which {found[0].name} maps but {drive.eds.name} does not describe",
+                    "an object the EDS describes (its data type gives its size and sign)",
+                )
+                return None
+            if found is not None:
+                return found
+        mapped = "; ".join(f"{p.name}: {', '.join(o.ref for o in p.objects) or 'nothing'}" for p in drive.tpdos)
+        self.checks.problem(key, _found(value), f"an object a TPDO of {drive.name} maps ({mapped or 'no TPDO'})")
+        return None
+
+    def health_refs(self, drive: CanopenDrive, near: Pdo | None) -> list[SignalRef]:
+        """The drive's heartbeat, EMCY and (statusword mapped) Fault-bit roles of every source it feeds.
+
+        The Fault bit is read from ``near`` (the TPDO of the source's own object) when it maps
+        the statusword too, so the bit and the value arrive in one frame.
+        """
+        refs = [self.ref(drive, None, ROLE_NMT, f"{drive.name}_nmt_state", 0, 7, False, False, 1.0, drive.heartbeat_id)]
+        if drive.name not in self._events:
+            # One source per drive carries the EMCY event's fields: one ``emcy`` event per EMCY frame.
+            self._events.add(drive.name)
+            refs.append(
+                self.ref(
+                    drive, None, ROLE_EMCY_CODE, f"{drive.name}_emcy_code", 0, 16, False, False, 1.0, drive.emcy_id
+                )
+            )
+            refs.append(
+                self.ref(
+                    drive, None, ROLE_EMCY_DATA, f"{drive.name}_emcy_data", 24, 40, False, False, 1.0, drive.emcy_id
+                )
+            )
+        refs.append(
+            self.ref(drive, None, ROLE_EMCY, f"{drive.name}_error_register", 16, 8, False, False, 1.0, drive.emcy_id)
+        )
+        in_near = near.find(STATUSWORD, 0) if near is not None else None
+        status = (near, in_near) if near is not None and in_near is not None else drive.tpdo_of(STATUSWORD, 0)
+        if status is not None:
+            pdo, obj = status
+            refs.append(
+                self.ref(drive, pdo, ROLE_FAULT, f"{drive.name}_fault", obj.start_bit + FAULT_BIT, 1, False, False, 1.0)
+            )
+        return refs
+
+    def ref(
+        self,
+        drive: CanopenDrive,
+        pdo: Pdo | None,
+        role: str,
+        signal: str,
+        start: int,
+        bits: int,
+        signed: bool,
+        is_float: bool,
+        scale: float,
+        cob_id: int = 0,
+    ) -> SignalRef:
+        """A SignalRef to ``signal`` of the drive's message at ``cob_id`` (a PDO's), noted for :meth:`messages`."""
+        from cantools.database.can import Signal
+        from cantools.database.conversion import BaseConversion
+
+        if pdo is not None:
+            cob_id, label, length = pdo.cob_id, f"{drive.name}_{pdo.name}", pdo.length
+        elif cob_id == drive.heartbeat_id:
+            label, length = f"{drive.name}_heartbeat", 1
+        else:
+            label, length = f"{drive.name}_emcy", 8
+        self._labels[(drive.name, cob_id)] = (label, length)
+        conversion = BaseConversion.factory(scale=scale, offset=0, is_float=is_float)
+        self._signals.setdefault((drive.name, cob_id), {})[signal] = Signal(
+            signal, start, bits, "little_endian", is_signed=signed, conversion=conversion
+        )
+        return SignalRef(role=role, bus=drive.bus, message=label, frame_id=cob_id, is_extended_id=False, signal=signal)
+
+    def messages(self) -> list[Any]:
+        """The cantools messages of every drive frame a source reads (built once every source is read)."""
+        from cantools.database.can import Message
+
+        out = []
+        for (dname, cob_id), signals in self._signals.items():
+            label, length = self._labels[(dname, cob_id)]
+            out.append(
+                Message(
+                    frame_id=cob_id,
+                    name=label,
+                    length=length,
+                    signals=list(signals.values()),
+                    strict=False,
+                    bus_name=self.drives[dname].bus,
+                )
+            )
+        return out
+
+    # -- frames ----------------------------------------------------------------
+    def frame(self, value: Mapping[str, Any], key: str) -> FrameSpec | None:
+        """``{canopen: left, command: quick_stop}`` (the controlword in its RPDO) or ``{canopen: left, nmt: stop}``."""
+        c = self.checks
+        c.mapping(value, key, ("canopen", "command", "nmt"), ("canopen",))
+        dname = value.get("canopen")
+        drive = self.drives.get(dname) if isinstance(dname, str) else None
+        if drive is None:
+            c.problem(_path(key, "canopen"), _found(dname), "a drive of canopen:" + _closest(dname, list(self.drives)))
+            return None
+        if ("command" in value) == ("nmt" in value):
+            c.problem(key, "both or neither of command and nmt", "one of command: (CiA 402) or nmt:")
+            return None
+        if "nmt" in value:
+            cs = NMT_COMMANDS.get(value["nmt"]) if isinstance(value["nmt"], str) else None
+            if cs is None:
+                c.problem(_path(key, "nmt"), _found(value["nmt"]), "one of " + ", ".join(NMT_COMMANDS))
+                return None
+            return FrameSpec(drive.bus, NMT_ID, bytes([cs, drive.node]), label=f"{drive.name}.nmt_{value['nmt']}")
+        command = value["command"]
+        word = COMMANDS.get(command) if isinstance(command, str) else None
+        if word is None:
+            c.problem(
+                _path(key, "command"), _found(command), "one of " + ", ".join(COMMANDS) + _closest(command, COMMANDS)
+            )
+            return None
+        found = drive.command_data(word)
+        if found is None:
+            mapped = "; ".join(f"{p.name}: {', '.join(o.ref for o in p.objects) or 'nothing'}" for p in drive.rpdos)
+            c.problem(
+                _path(key, "command"),
+                f"{command} for {drive.name}, whose RPDOs do not map 0x6040 ({mapped or 'no RPDO'})",
+                "a drive with the controlword in an RPDO",
+            )
+            return None
+        pdo, data = found
+        return FrameSpec(drive.bus, pdo.cob_id, data, label=f"{drive.name}.{command}")
