@@ -22,6 +22,7 @@ from canguard.cli.common import (
     EXIT_INTERRUPTED,
     Formatter,
     add_global_options,
+    add_monitor_options,
     bundled_config,
     default_config,
     exit_codes_epilog,
@@ -178,13 +179,14 @@ def _add_run(sub: argparse._SubParsersAction) -> None:
     _add_config(p)
     p.add_argument("--metrics", metavar="HOST:PORT", help="serve Prometheus metrics (e.g. 127.0.0.1:9108)")
     p.add_argument("--duration", type=float, metavar="S", help="stop by itself after S seconds")
+    add_monitor_options(p)
     p.set_defaults(func=_cmd_run)
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
     from canguard.service.daemon import Daemon
 
-    daemon = Daemon(_config_path(args), metrics_addr=args.metrics)
+    daemon = Daemon(_config_path(args), metrics_addr=args.metrics, http=args.http, groot2=args.groot2)
     daemon.install_signals()
     return daemon.run(duration_s=args.duration)
 

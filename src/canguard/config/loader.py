@@ -48,7 +48,8 @@ class _Loader(_Sections):
         )
 
     def config(self, doc: Any) -> Config:
-        top = ("dbc", "buses", "sources", "tree", "task", "stop", "actions", "events", "state", "simulation")
+        top = ("dbc", "buses", "sources", "tree", "task", "stop", "actions", "events", "state", "simulation",
+               "monitor")
         if not self.mapping(doc, "", top, ("dbc", "buses")):
             raise self.fail()
         dbc_files = self.load_dbc(doc["dbc"]) if "dbc" in doc else ()
@@ -75,6 +76,7 @@ class _Loader(_Sections):
         actions = self.actions(doc.get("actions"))
         events = self.file_path(doc["events"], "events") if doc.get("events") is not None else None
         state = self.state(doc.get("state"))
+        monitor = self.monitor(doc.get("monitor"))
         simulation = doc.get("simulation", False)
         if not isinstance(simulation, bool):
             self.problem("simulation", _found(simulation), "true or false")
@@ -94,6 +96,7 @@ class _Loader(_Sections):
             actions=MappingProxyType(actions),
             events=events,
             state=state,
+            monitor=monitor,
             simulation=simulation,
             database=self.database,
         )

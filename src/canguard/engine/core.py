@@ -26,7 +26,7 @@ import math
 import time
 from collections import Counter
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 import py_trees
 
@@ -51,6 +51,13 @@ log = logging.getLogger(__name__)
 MAX_KEPT_TRIPS = 100_000
 """Trip events kept in memory for summaries and the live view; later ones are only counted."""
 
+
+
+class TickObserver(Protocol):
+    """What watches the engine tick by tick (:class:`canguard.service.monitor.snapshot.Observer`)."""
+
+    def publish(self, engine: Engine, now: float) -> None:
+        """Called at the end of each tick; must neither raise nor wait."""
 
 
 class Engine(SourceWatchMixin, LogRunMixin, QuietTickMixin):
@@ -102,6 +109,8 @@ class Engine(SourceWatchMixin, LogRunMixin, QuietTickMixin):
         samples of the rows fed (with their row); None: with a sample hook, blocks go frame by frame."""
         self.tick_hook: Callable[[float], None] | None = None
         """Called after every tick with its time (plots)."""
+        self.observer: TickObserver | None = None
+        """Told after every tick (the live monitors: it builds an immutable snapshot from public accessors)."""
         self.stats = EngineStats()
         self.decoder = Decoder(cfg)
         self.ctx = Context(clock, cfg.sources, sink=sink, actions=cfg.actions, on_event=self._write_event,
@@ -358,6 +367,8 @@ class Engine(SourceWatchMixin, LogRunMixin, QuietTickMixin):
         self._flush()
         self._due = min(self._next_tick, self.gate.next_deadline())
         self._quiet_check(now, events_before)
+        if self.observer is not None:
+            self.observer.publish(self, now)
         return status
 
     def _save_heat(self, now: float, periodic: bool) -> None:
