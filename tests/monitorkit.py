@@ -30,6 +30,7 @@ from canguard.service.systemd import Notifier
 REPO = Path(__file__).resolve().parents[1]
 DEMO = REPO / "config" / "examples" / "robot_guard.yaml"
 DBC = REPO / "dbc" / "robot.dbc"
+TREE = REPO / "config" / "trees" / "robot_guard.xml"
 BMS_ID = 0x18FF50E5
 ESTOP_IDS = {node << 5 | 0x02 for node in range(4)}
 WAIT_S = 20.0
