@@ -26,7 +26,7 @@ import math
 import time
 from collections import Counter
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Any
 
 import py_trees
 
@@ -36,7 +36,7 @@ from canguard.decode.decoder import Decoder
 from canguard.engine.gate import TaskGate
 from canguard.engine.logrun import MAX_CATCH_UP_S, LogRunMixin
 from canguard.engine.quiet import QuietTickMixin
-from canguard.engine.stats import EngineStats, EventSink
+from canguard.engine.stats import EngineStats, EventSink, TickObserver
 from canguard.engine.watch import SourceWatchMixin
 from canguard.io.clock import Clock, PinnedClock
 from canguard.io.frame import Frame
@@ -51,13 +51,6 @@ log = logging.getLogger(__name__)
 MAX_KEPT_TRIPS = 100_000
 """Trip events kept in memory for summaries and the live view; later ones are only counted."""
 
-
-
-class TickObserver(Protocol):
-    """What watches the engine tick by tick (:class:`canguard.service.monitor.snapshot.Observer`)."""
-
-    def publish(self, engine: Engine, now: float) -> None:
-        """Called at the end of each tick; must neither raise nor wait."""
 
 
 class Engine(SourceWatchMixin, LogRunMixin, QuietTickMixin):
