@@ -136,8 +136,8 @@ class TestReadOnlyAndToken:
                 assert err.value.code == 401
                 with pytest.raises(urllib.error.HTTPError):
                     w.get(path, headers={"Authorization": "Bearer wrong"})
-                assert w.get(path, headers={"Authorization": "Bearer s3cret"})
-                assert w.get(path + "?token=s3cret")
+                assert "tree" in w.get(path, headers={"Authorization": "Bearer s3cret"})
+                assert "tree" in w.get(path + "?token=s3cret")
 
 
 def test_stalled_clients_do_not_delay_a_stop(tmp_path: Path) -> None:
@@ -159,8 +159,8 @@ def test_stalled_clients_do_not_delay_a_stop(tmp_path: Path) -> None:
         greedy.connect(f"tcp://127.0.0.1:{w.groot2}")
         for i in range(200):
             greedy.send_multipart([b"", bytes([2, ord("T")]) + i.to_bytes(4, "little")], zmq.NOBLOCK)
-        seq = w.status()["seq"]  # let ~40 status documents (~300 kB) pile up behind the stalled readers
-        wait_for("the status stream to move on", lambda: w.status()["seq"] >= seq + 40)
+        seq = w.status()["seq"]  # let ~20 status documents (~100 kB) pile up behind the stalled readers
+        wait_for("the status stream to move on", lambda: w.status()["seq"] >= seq + 20)
         peer = w.peer
         peer.set_filters([{"can_id": i, "can_mask": 0x7FF, "extended": False} for i in ESTOP_IDS])
         while peer.recv(0) is not None:

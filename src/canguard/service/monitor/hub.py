@@ -21,11 +21,12 @@ from typing import Any
 from canguard.engine.event_codec import encode_event
 from canguard.service.monitor.snapshot import TickSnapshot, status_name
 
-POLL_S = 0.02
-"""How often the dispatcher looks for a new snapshot or event (a change reaches a page within ~this + its RTT)."""
+POLL_S = 0.05
+"""How often the dispatcher looks for a new snapshot or event (a change reaches a page within ~this + its RTT):
+at most 20 status documents a second, whatever the engine does."""
 KEEP_EVENTS = 500
 """Journal events kept for clients; a client further behind loses the oldest."""
-STATUS_EVENTS = 50
+STATUS_EVENTS = 30
 """Journal events ``/api/status`` carries."""
 
 
@@ -39,7 +40,9 @@ class Hub:
         self._blackboard_until = -math.inf
         self._cond = threading.Condition()
         self._version = 0
-        self._doc: tuple[int, bytes] = (0, b"{}")
+        self._normalized: dict[int, dict[str, Any]] = {}
+        """Events as the journal writes them, by sequence number (each is normalized once)."""
+        self._doc: tuple[int, bytes] = (0, json.dumps(self.status()).encode())
         self._closed = threading.Event()
         self._thread: threading.Thread | None = None
 
@@ -108,10 +111,10 @@ class Hub:
             self._thread.join(2)
 
     def _dispatch(self) -> None:
-        seen: tuple[TickSnapshot | None, int] = (None, 0)
-        while not self._closed.wait(POLL_S):
+        seen: tuple[TickSnapshot | None, int] | None = None  # the first document goes out at once
+        while seen is None or not self._closed.wait(POLL_S):
             now = (self._latest, self._event_seq)
-            if now[0] is seen[0] and now[1] == seen[1]:
+            if seen is not None and now[0] is seen[0] and now[1] == seen[1]:
                 continue
             seen = now
             doc = json.dumps(self.status(), allow_nan=False, separators=(",", ":")).encode()
@@ -123,11 +126,21 @@ class Hub:
     def status(self) -> dict[str, Any]:
         """The ``/api/status`` document: tree, task, guards, events."""
         snap = self._latest
-        events = [json.loads(encode_event(ev)) for _, ev in list(self._events)[-STATUS_EVENTS:]]
+        events = [self._journal_form(seq, ev) for seq, ev in list(self._events)[-STATUS_EVENTS:]]
         if snap is None:
             return {"tree": None, "task": None, "guards": [], "events": events}
         return {"t": snap.t, "seq": snap.seq, "tree": tree_document(snap), "task": task_document(snap, events),
                 "guards": [guard_document(g) for g in snap.guards], "events": events}
+
+
+    def _journal_form(self, seq: int, event: dict[str, Any]) -> dict[str, Any]:
+        """``event`` as its journal line reads (JSON-safe, rounded), computed once per event."""
+        form = self._normalized.get(seq)
+        if form is None:
+            form = json.loads(encode_event(event))
+            self._normalized = {k: v for k, v in self._normalized.items() if k > seq - KEEP_EVENTS}
+            self._normalized[seq] = form
+        return form
 
 
 def _number(x: float) -> float | None:
