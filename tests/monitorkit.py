@@ -177,3 +177,31 @@ def running(watched: Watched) -> bool:
     """True once the task runs (every source fresh, the tree asked for the task)."""
     task = watched.status().get("task")
     return bool(task) and task["state"] == "running"
+
+
+@contextlib.contextmanager
+def real_signals(daemon: Daemon) -> Iterator[None]:
+    """The daemon's own SIGTERM/SIGINT/SIGHUP handlers in this (main) thread, the previous ones back at exit."""
+    import signal
+
+    old = {s: signal.getsignal(s) for s in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP)}
+    daemon.install_signals()
+    try:
+        yield
+    finally:
+        for sig, handler in old.items():
+            signal.signal(sig, handler)
+
+
+def sighup_with_threshold(watched: Watched, tmp: Path, threshold: str) -> None:
+    """Point the config at a copy of the tree with PackCurrent's threshold changed, then SIGHUP this process."""
+    import os
+    import signal
+
+    tree = tmp / "robot_guard_reloaded.xml"
+    tree.write_text(TREE.read_text(encoding="utf-8").replace('overcurrent_threshold="35.0"',
+                                                             f'overcurrent_threshold="{threshold}"'), encoding="utf-8")
+    doc = yaml.safe_load(watched.config.read_text(encoding="utf-8"))
+    doc["tree"]["file"] = str(tree)
+    watched.config.write_text(yaml.safe_dump(doc, allow_unicode=True), encoding="utf-8")
+    os.kill(os.getpid(), signal.SIGHUP)

@@ -20,7 +20,7 @@ import msgpack
 import pytest
 import zmq
 
-from monitorkit import DEMO_GUARDS, Watched, running, wait_for, watched_daemon
+from monitorkit import DEMO_GUARDS, Watched, real_signals, running, sighup_with_threshold, wait_for, watched_daemon
 
 FAILURE = 3
 
@@ -130,6 +130,22 @@ class TestStatus:
         first, _ = client.request("T")
         second, _ = client.request("S")
         assert first == second
+
+
+def test_reload_gives_groot2_the_new_tree(tmp_path: Path) -> None:
+    """After a SIGHUP reload the replies carry a new tree UUID, and FULLTREE the new tree's attributes."""
+    with watched_daemon(tmp_path, groot2=True) as w, real_signals(w.daemon):
+        wait_for("the task to run", lambda: running(w))
+        client = Groot2Client(w.groot2)
+        try:
+            before, [xml] = client.request("T")
+            assert b'overcurrent_threshold="35.0"' in xml
+            sighup_with_threshold(w, tmp_path, "30.0")
+            wait_for("a new tree UUID", lambda: client.request("S")[0] != before)
+            _, [xml] = client.request("T")
+            assert b'overcurrent_threshold="30.0"' in xml
+        finally:
+            client.close()
 
 
 class TestBlackboard:

@@ -22,7 +22,6 @@ import logging
 import struct
 import threading
 import time
-import uuid
 from typing import Any
 
 import zmq
@@ -55,7 +54,6 @@ class Groot2Monitor:
         port = self._bind(address)
         self.address = Address(address.host, port)
         """Where the REP socket listens (PUB: port + 1)."""
-        self._uuids: dict[int, bytes] = {}
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._serve, name="canguard-monitor-groot2", daemon=True)
 
@@ -122,7 +120,7 @@ class Groot2Monitor:
         if snap is None:
             return [b"error", b"the tree has not ticked yet"]
         layout = snap.layout
-        header = HEADER.pack(PROTOCOL_ID, kind, request_id) + self._tree_uuid(layout)
+        header = HEADER.pack(PROTOCOL_ID, kind, request_id) + layout.uuid
         letter = chr(kind)
         if letter == "T":
             return [header, layout.xml.encode()]
@@ -139,13 +137,6 @@ class Groot2Monitor:
         if letter in "IRUNrt":
             return [b"error", READ_ONLY.encode()]
         return [b"error", b"Request not recognized"]
-
-    def _tree_uuid(self, layout: TreeLayout) -> bytes:
-        """A random UUID per tree (a reload gives a new one: Groot2 then asks for the new tree)."""
-        key = id(layout)
-        if key not in self._uuids:
-            self._uuids = {key: uuid.uuid4().bytes}
-        return self._uuids[key]
 
     def _root_entries(self) -> dict[str, Any]:
         """The root blackboard as the engine's next snapshots carry it once asked for (waits up to 0.3 s)."""

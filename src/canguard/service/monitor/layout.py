@@ -9,6 +9,7 @@ XML, as BT.CPP's ``WriteTreeToXML(tree, add_metadata=true, add_builtin_models=tr
 
 from __future__ import annotations
 
+import uuid
 import xml.etree.ElementTree as ET
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -70,6 +71,8 @@ class TreeLayout:
         self.behaviours: tuple[py_trees.behaviour.Behaviour | None, ...] = tuple(n.behaviour for n in self.nodes)
         """Whose status each UID shows, in UID order (what a snapshot reads per tick)."""
         self.xml = self._fulltree_xml(context)
+        self.uuid = uuid.uuid4().bytes
+        """The tree's 16-byte id in Groot2's replies: a reload's new tree has a new one, so Groot2 asks for it."""
 
     # -- building ----------------------------------------------------------------------------
     def _new(self, node_id: str, name: str, behaviour: Any, **kw: Any) -> LayoutNode:

@@ -125,17 +125,20 @@ class _Handler(BaseHTTPRequestHandler):
             self.wfile.write(body)
 
     # -- streams -----------------------------------------------------------------------------
-    def _open_stream(self) -> None:
+    def _open_stream(self) -> bool:
+        """Send a stream's headers; False for HEAD (no body follows)."""
         self.send_response(200)
         self.send_header("Content-Type", "text/event-stream")
         self.send_header("Cache-Control", "no-store")
         self.send_header("X-Accel-Buffering", "no")
         self.end_headers()
         self.close_connection = True  # a stream ends with its connection
+        return self.command != "HEAD"
 
     def _stream_status(self) -> None:
         hub = self.server.hub
-        self._open_stream()
+        if not self._open_stream():
+            return
         sent = -1
         while not hub.closed:
             version, doc = hub.status_document()
@@ -149,7 +152,8 @@ class _Handler(BaseHTTPRequestHandler):
 
     def _stream_events(self) -> None:
         hub = self.server.hub
-        self._open_stream()
+        if not self._open_stream():
+            return
         cursor = 0
         version = -1
         while not hub.closed:
