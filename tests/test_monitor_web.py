@@ -62,7 +62,7 @@ class TestStatus:
 
     def test_shape_and_every_guard_of_the_demo_tree(self, watched: Watched) -> None:
         """The document has tree, task, guards and events; each guard the issue's fields; every demo guard is there."""
-        doc = watched.status()
+        doc = first_status(watched, lambda d: all(g["status"] == "ok" for g in d["guards"]))
         assert {"tree", "task", "guards", "events"} <= set(doc)
         assert {g["name"] for g in doc["guards"]} == set(DEMO_GUARDS)
         for guard in doc["guards"]:
@@ -144,7 +144,11 @@ class TestReadOnlyAndToken:
 
 
 def test_stalled_clients_do_not_delay_a_stop(tmp_path: Path) -> None:
-    """Streams nobody reads and a Groot2 client that never takes its replies leave the stop frames on time."""
+    """Streams nobody reads and a Groot2 client that never takes its replies leave the stop frames on time.
+
+    A loop held up by a stalled write would wait out the server's 5 s send timeout: the Estop must come
+    well before that (2 s leaves a loaded machine its slack; bench_latency measures the real tail).
+    """
     import zmq
 
     with watched_daemon(tmp_path, groot2=True) as w:
@@ -171,9 +175,9 @@ def test_stalled_clients_do_not_delay_a_stop(tmp_path: Path) -> None:
         sent = time.monotonic()
         w.trip()
         msg: can.Message | None = None
-        while msg is None and time.monotonic() - sent < 1.0:
+        while msg is None and time.monotonic() - sent < 2.0:
             msg = peer.recv(0.05)
-        assert msg is not None and msg.arbitration_id in ESTOP_IDS, "no Estop within 1 s while clients stalled"
+        assert msg is not None and msg.arbitration_id in ESTOP_IDS, "no Estop within 2 s while clients stalled"
         assert w.status()["task"]["state"] == "stopped"  # and a fresh client is still served
         greedy.close()
         ctx.term()

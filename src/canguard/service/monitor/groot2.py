@@ -82,15 +82,26 @@ class Groot2Monitor:
         self._thread.start()
 
     def close(self) -> None:
-        """Stop serving and close the sockets."""
+        """Stop serving: the thread closes its sockets as it ends (never waited for longer than 2 s)."""
         self._stop.set()
-        self._thread.join(2)
+        if self._thread.is_alive():
+            self._thread.join(2)
+        else:  # never started
+            self._close_sockets()
+
+    def _close_sockets(self) -> None:
         self._server.close(0)
         self._publisher.close(0)
         self._context.term()
 
     # -- serving --------------------------------------------------------------------------------
     def _serve(self) -> None:
+        try:
+            self._loop()
+        finally:
+            self._close_sockets()  # ZeroMQ sockets belong to the thread that uses them
+
+    def _loop(self) -> None:
         zmq = self._zmq
         poller = zmq.Poller()
         poller.register(self._server, zmq.POLLIN)

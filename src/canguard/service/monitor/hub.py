@@ -21,9 +21,9 @@ from typing import Any
 from canguard.engine.event_codec import encode_event
 from canguard.service.monitor.snapshot import TickSnapshot, status_name
 
-POLL_S = 0.05
+POLL_S = 0.04
 """How often the dispatcher looks for a new snapshot or event (a change reaches a page within ~this + its RTT):
-at most 20 status documents a second, whatever the engine does."""
+at most 25 status documents a second, whatever the engine does."""
 KEEP_EVENTS = 500
 """Journal events kept for clients; a client further behind loses the oldest."""
 STATUS_EVENTS = 30
