@@ -31,6 +31,7 @@ from typing import TYPE_CHECKING, Any
 import py_trees
 
 from canguard.bt.context import Context, FrameSink
+from canguard.bt.wakeup import tick_once
 from canguard.config.schema import Config
 from canguard.decode.decoder import Decoder
 from canguard.engine.gate import TaskGate
@@ -323,12 +324,12 @@ class Engine(SourceWatchMixin, LogRunMixin, QuietTickMixin):
         self.gate.begin_tick()
         t0 = time.perf_counter()
         try:
-            self.root.skipped = False  # type: ignore[attr-defined]  # SKIPPED: status INVALID, neither stop nor task
-            if self._q_loud and self.elide_ticks:  # which nodes the tick reached (the whole tick, as tick_once)
-                self._q_heard = not self._q_loud.isdisjoint(set(self.root.tick()))
-            else:
-                self.root.tick_once()
-            status = self.root.status
+            # BT.CPP's tickOnce (re-ticked while a wake-up is pending, bounded); SKIPPED: INVALID, neither stop
+            # nor task; with quiet ticks, which nodes the tick reached
+            ticked = tick_once(self.loaded, collect=bool(self._q_loud and self.elide_ticks))
+            if ticked.reached is not None:
+                self._q_heard = not self._q_loud.isdisjoint(ticked.reached)
+            status = ticked.status
         except Exception as exc:  # a node that raises must stop the task, not the daemon
             self.stats.tick_errors += 1
             log.exception("tree tick failed")

@@ -52,6 +52,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from canguard.protect.base import REASON_I2T, LatchedModel, ProtectionModel
+from canguard.units import AMPERE2_SECOND, THETA
 
 KIND_LEAKY = "leaky"
 KIND_THERMAL = "thermal"
@@ -278,6 +279,7 @@ class LeakyI2t(_I2tModel):
     """
 
     kind = KIND_LEAKY
+    THRESHOLD_UNIT = AMPERE2_SECOND
 
     def __init__(
         self,
@@ -343,6 +345,7 @@ class ThermalI2t(_I2tModel):
     """
 
     kind = KIND_THERMAL
+    THRESHOLD_UNIT = THETA
 
     def __init__(
         self,
