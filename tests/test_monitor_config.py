@@ -105,3 +105,18 @@ def test_daemon_without_monitor_imports_no_server(tmp_path: Path) -> None:
     proc = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=60,
                           check=True)
     assert proc.stdout.strip() == ""
+
+
+def test_network_page_says_so_at_start(caplog: pytest.LogCaptureFixture) -> None:
+    """A page bound to every interface says at start that the network reaches it and that requests need the token."""
+    from canguard.config.schema import MonitorConfig
+    from canguard.service.monitor import Monitor
+
+    monitor = Monitor(MonitorConfig(http="0.0.0.0:0", token="s3cret"))
+    try:
+        with caplog.at_level("WARNING", logger="canguard.service.monitor"):
+            monitor.start()
+    finally:
+        monitor.close()
+    [said] = [r.getMessage() for r in caplog.records if "status page" in r.getMessage()]
+    assert "reachable from the network" in said and "Bearer" in said

@@ -14,7 +14,7 @@ from typing import Any
 import can
 import pytest
 
-from monitorkit import DEMO_GUARDS, ESTOP_IDS, Watched, running, wait_for, watched_daemon
+from monitorkit import DEMO_GUARDS, ESTOP_IDS, WAIT_S, Watched, running, wait_for, watched_daemon
 
 GUARD_FIELDS = {"name", "source", "value", "unit", "threshold", "margin", "status"}
 
@@ -183,3 +183,23 @@ def test_stalled_clients_do_not_delay_a_stop(tmp_path: Path) -> None:
         ctx.term()
         for s in stalled:
             s.close()
+
+
+def test_a_failing_monitor_never_stops_the_guard(tmp_path: Path, caplog: pytest.LogCaptureFixture,
+                                                 monkeypatch: pytest.MonkeyPatch) -> None:
+    """When publishing a snapshot raises, the tick goes on: the trip still sends the Estop, and the log says why."""
+    with watched_daemon(tmp_path) as w:
+        wait_for("the task to run", lambda: running(w))
+
+        def broken(snapshot: object) -> None:
+            raise RuntimeError("monitor broke")
+
+        monkeypatch.setattr(w.daemon.monitor.hub, "put", broken)
+        peer = w.peer
+        peer.set_filters([{"can_id": i, "can_mask": 0x7FF, "extended": False} for i in ESTOP_IDS])
+        while peer.recv(0) is not None:
+            pass
+        w.trip()
+        msg = peer.recv(WAIT_S)
+        assert msg is not None and msg.arbitration_id in ESTOP_IDS
+    assert any("monitor snapshot failed" in r.getMessage() for r in caplog.records)
