@@ -161,28 +161,29 @@ def test_stalled_clients_do_not_delay_a_stop(tmp_path: Path) -> None:
             s.sendall(f"GET {path} HTTP/1.1\r\nHost: x\r\nAccept: text/event-stream\r\n\r\n".encode())
             stalled.append(s)  # never read: its server thread blocks in a send, not the engine
         ctx = zmq.Context()
-        greedy = ctx.socket(zmq.DEALER)  # asks and never reads the replies
-        greedy.setsockopt(zmq.LINGER, 0)
-        greedy.connect(f"tcp://127.0.0.1:{w.groot2}")
-        for i in range(200):
-            greedy.send_multipart([b"", bytes([2, ord("T")]) + i.to_bytes(4, "little")], zmq.NOBLOCK)
-        seq = w.status()["seq"]  # let ~20 status documents (~100 kB) pile up behind the stalled readers
-        wait_for("the status stream to move on", lambda: w.status()["seq"] >= seq + 20)
-        peer = w.peer
-        peer.set_filters([{"can_id": i, "can_mask": 0x7FF, "extended": False} for i in ESTOP_IDS])
-        while peer.recv(0) is not None:
-            pass
-        sent = time.monotonic()
-        w.trip()
-        msg: can.Message | None = None
-        while msg is None and time.monotonic() - sent < 2.0:
-            msg = peer.recv(0.05)
-        assert msg is not None and msg.arbitration_id in ESTOP_IDS, "no Estop within 2 s while clients stalled"
-        assert w.status()["task"]["state"] == "stopped"  # and a fresh client is still served
-        greedy.close()
-        ctx.term()
-        for s in stalled:
-            s.close()
+        try:
+            greedy = ctx.socket(zmq.DEALER)  # asks and never reads the replies
+            greedy.setsockopt(zmq.LINGER, 0)
+            greedy.connect(f"tcp://127.0.0.1:{w.groot2}")
+            for i in range(200):
+                greedy.send_multipart([b"", bytes([2, ord("T")]) + i.to_bytes(4, "little")], zmq.NOBLOCK)
+            seq = w.status()["seq"]  # let ~20 status documents (~100 kB) pile up behind the stalled readers
+            wait_for("the status stream to move on", lambda: w.status()["seq"] >= seq + 20)
+            peer = w.peer
+            peer.set_filters([{"can_id": i, "can_mask": 0x7FF, "extended": False} for i in ESTOP_IDS])
+            while peer.recv(0) is not None:
+                pass
+            sent = time.monotonic()
+            w.trip()
+            msg: can.Message | None = None
+            while msg is None and time.monotonic() - sent < 2.0:
+                msg = peer.recv(0.05)
+            assert msg is not None and msg.arbitration_id in ESTOP_IDS, "no Estop within 2 s while clients stalled"
+            assert w.status()["task"]["state"] == "stopped"  # and a fresh client is still served
+        finally:
+            ctx.destroy(linger=0)
+            for s in stalled:
+                s.close()
 
 
 def test_a_failing_monitor_never_stops_the_guard(tmp_path: Path, caplog: pytest.LogCaptureFixture,
