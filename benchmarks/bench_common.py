@@ -36,14 +36,16 @@ def compiled(src: Path) -> Path:
     return src
 
 
-def write_config(tmp: Path, bus: dict[str, Any]) -> Path:
-    """The bundled config on ``bus``, with absolute paths and events / state in ``tmp``."""
+def write_config(tmp: Path, bus: dict[str, Any], monitor: dict[str, Any] | None = None) -> Path:
+    """The bundled config on ``bus``, with absolute paths and events / state in ``tmp`` (and ``monitor:``)."""
     doc = yaml.safe_load(BUNDLED.read_text(encoding="utf-8"))
     doc["dbc"] = [str(DBC)]
     doc["tree"]["file"] = str((BUNDLED.parent / doc["tree"]["file"]).resolve())
     doc["buses"] = {"main": bus}
     doc["events"] = str(tmp / "events.jsonl")
     doc["state"]["file"] = str(tmp / "i2t_state.json")
+    if monitor:
+        doc["monitor"] = monitor
     path = tmp / "canguard.yaml"
     path.write_text(yaml.safe_dump(doc), encoding="utf-8")
     return path

@@ -2,6 +2,12 @@
 # Install canguard with its test extras into .venv, then lint, type-check, check the layers and test.
 set -euo pipefail
 cd "$(dirname "$0")/.."
+# The status page's browser tests drive Debian's chromium through chromedriver: install them where missing.
+if ! { command -v chromium && command -v chromedriver; } >/dev/null 2>&1 && command -v apt-get >/dev/null 2>&1; then
+  sudo=""; [ "$(id -u)" = 0 ] || sudo="sudo -n"
+  { $sudo apt-get update -qq && DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq chromium chromium-driver; } \
+    >/dev/null 2>&1 || echo "test.sh: could not install chromium + chromium-driver: the browser tests will skip" >&2
+fi
 python3 -m venv .venv
 .venv/bin/python -m pip install -q --upgrade pip
 .venv/bin/python -m pip install -q -e ".[test]"

@@ -19,6 +19,8 @@ step "--version"; "$cg" --version | grep -q '^canguard '
 step "check"; "$cg" check >/dev/null 2>&1
 step "tree"; "$cg" tree >/dev/null
 step "demo --duration 5"; timeout 60 "$cg" demo --duration 5 >demo.txt 2>&1; grep -q "canguard demo summary" demo.txt
+step "the status page is in the wheel"
+"$work/venv/bin/python" -c "from canguard.data import data_path; assert data_path('monitor', 'index.html').is_file()"
 step "simulate"; "$cg" simulate --scenario overload --duration 5 --out x.log >/dev/null 2>&1
 test -s x.log
 step "replay"; "$cg" replay x.log >/dev/null 2>&1

@@ -130,7 +130,7 @@ class TestConfigErrors:
         """A misspelt key is an error suggesting the right one."""
         assert problems("tre: {file: x.xml}\n") == [
             f"{CFG}: tre: found unknown key 'tre', expected one of dbc, buses, canopen, sources, tree, "
-            "task, stop, actions, events, state, simulation; closest: tree"
+            "task, stop, actions, events, state, simulation, monitor; closest: tree"
         ]
 
     def test_unknown_nested_key(self) -> None:

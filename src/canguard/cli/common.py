@@ -168,3 +168,13 @@ def one_blas_thread() -> None:
     beside the replay (a 600 k-frame replay used ~15 % more CPU with it). Before numpy is imported."""
     for name in BLAS_THREADS:
         os.environ.setdefault(name, "1")
+
+
+def add_monitor_options(p: argparse.ArgumentParser) -> None:
+    """``--http HOST:PORT`` and ``--groot2 PORT``: the live monitors (``monitor:`` in the config)."""
+    p.add_argument("--http", metavar="HOST:PORT",
+                   help="serve the status page and its JSON API (e.g. 127.0.0.1:8470; config monitor.http); "
+                        "a non-loopback address needs monitor.token")
+    p.add_argument("--groot2", metavar="PORT",
+                   help="serve Groot2's monitor (BehaviorTree.CPP's publisher protocol: ZeroMQ REP on PORT, PUB on "
+                        "PORT+1; config monitor.groot2; needs the 'monitor' extra)")

@@ -24,7 +24,7 @@ import time
 from pathlib import Path
 from typing import Any, TextIO
 
-from canguard.cli.common import subcommand
+from canguard.cli.common import add_monitor_options, subcommand
 from canguard.config.schema import BusConfig, Config
 from canguard.data import data_path
 from canguard.errors import ConfigError
@@ -50,6 +50,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--events", type=Path, default=None, metavar="FILE",
                    help="keep the events here (default: a temporary file, removed at the end)")
     p.add_argument("--seed", type=int, default=0, help="the simulated robot's random seed")
+    add_monitor_options(p)
     p.set_defaults(func=cmd_demo)
 
 
@@ -147,7 +148,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     tmp = tempfile.TemporaryDirectory(prefix="canguard-demo-")
     events = args.events if args.events is not None else Path(tmp.name) / "events.jsonl"
     cfg = demo_config(load_config(cfg_path), events)
-    daemon = Daemon(cfg_path, cfg=cfg)
+    daemon = Daemon(cfg_path, cfg=cfg, http=args.http, groot2=args.groot2)
     sink = _TimedSink(daemon.sink)
     daemon.sink = sink
     daemon.engine = daemon._build_engine(cfg)

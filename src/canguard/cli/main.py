@@ -22,6 +22,7 @@ from canguard.cli.common import (
     EXIT_INTERRUPTED,
     Formatter,
     add_global_options,
+    add_monitor_options,
     add_state_dir,
     bundled_config,
     default_config,
@@ -188,6 +189,7 @@ def _add_run(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--metrics", metavar="HOST:PORT", help="serve Prometheus metrics (e.g. 127.0.0.1:9108)")
     p.add_argument("--duration", type=float, metavar="S", help="stop by itself after S seconds")
     add_state_dir(p)
+    add_monitor_options(p)
     p.set_defaults(func=_cmd_run)
 
 
@@ -200,7 +202,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
                else "the bundled config is read-only; choose with -c CONFIG or --state-dir DIR")
         print(f"canguard run: events {cfg.events or '(none)'}, I²t state {cfg.state.file or '(not kept)'} ({why})",
               file=sys.stderr, flush=True)
-    daemon = Daemon(_config_path(args), cfg=cfg, state_dir=where, metrics_addr=args.metrics)
+    daemon = Daemon(_config_path(args), cfg=cfg, state_dir=where, metrics_addr=args.metrics, http=args.http,
+                    groot2=args.groot2)
     daemon.install_signals()
     return daemon.run(duration_s=args.duration)
 

@@ -55,6 +55,7 @@ class _ReplayDaemon(Daemon):
     """
 
     refuse_virtual = False
+    watch = False
 
     def __init__(self, cfg: Config, *, state: Path | None, emit: TextIO | None) -> None:
         self._state_path = state

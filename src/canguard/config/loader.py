@@ -49,7 +49,7 @@ class _Loader(_Sections):
 
     def config(self, doc: Any) -> Config:
         top = ("dbc", "buses", "canopen", "sources", "tree", "task", "stop", "actions", "events", "state",
-               "simulation")
+               "simulation", "monitor")
         # dbc: is optional when the drives come from canopen: (every source and frame may then use them)
         if not self.mapping(doc, "", top, ("buses",) if "canopen" in doc else ("dbc", "buses")):
             raise self.fail()
@@ -84,6 +84,7 @@ class _Loader(_Sections):
         actions = self.actions(doc.get("actions"))
         events = self.file_path(doc["events"], "events") if doc.get("events") is not None else None
         state = self.state(doc.get("state"))
+        monitor = self.monitor(doc.get("monitor"))
         simulation = doc.get("simulation", False)
         if not isinstance(simulation, bool):
             self.problem("simulation", _found(simulation), "true or false")
@@ -103,6 +104,7 @@ class _Loader(_Sections):
             actions=MappingProxyType(actions),
             events=events,
             state=state,
+            monitor=monitor,
             simulation=simulation,
             database=self.database,
             canopen=MappingProxyType(dict(self.canopen.drives) if self.canopen is not None else {}),

@@ -153,6 +153,18 @@ class StateConfig:
 
 
 @dataclass(frozen=True)
+class MonitorConfig:
+    """``monitor:``: the status page and the Groot2 monitor (both off unless configured)."""
+
+    http: str | None = None
+    """``HOST:PORT`` of the status page (``GET /``, ``/api/status``, ``/api/events``)."""
+    token: str | None = None
+    """The bearer token the page and its API require; needed when ``http`` is not loopback."""
+    groot2: str | None = None
+    """``PORT`` or ``HOST:PORT`` of the Groot2 monitor (REP on PORT, PUB on PORT + 1)."""
+
+
+@dataclass(frozen=True)
 class Config:
     """The whole validated config file."""
 
@@ -166,6 +178,7 @@ class Config:
     actions: Mapping[str, ActionConfig]
     events: Path | None
     state: StateConfig = field(default_factory=StateConfig)
+    monitor: MonitorConfig = field(default_factory=MonitorConfig)
     simulation: bool = False
     """``simulation: true``: the config may guard only ``virtual`` buses under systemd (a bench, not a robot)."""
     database: Any = field(default=None, compare=False, repr=False)

@@ -8,10 +8,12 @@ from types import MappingProxyType
 from typing import Any
 
 from canguard.config.frames import _choices, _Frames
+from canguard.config.monitor import needs_token, parse_address
 from canguard.config.node_ids import RESERVED_NODE_IDS
 from canguard.config.schema import (
     ActionConfig,
     BusConfig,
+    MonitorConfig,
     SignalRef,
     StateConfig,
     StopConfig,
@@ -44,7 +46,7 @@ def _is_interface(name: str) -> bool:
 
 
 class _Sections(_Frames):
-    """``buses:``, ``tree:``, ``task:``, ``stop:``, ``actions:``, ``state:``."""
+    """``buses:``, ``tree:``, ``task:``, ``stop:``, ``actions:``, ``state:``, ``monitor:``."""
 
     def buses(self, value: Any) -> dict[str, BusConfig]:
         result: dict[str, BusConfig] = {}
@@ -242,3 +244,28 @@ class _Sections(_Frames):
         return StateConfig(
             file=file, on_corrupt=on_corrupt, save_period_s=self.seconds(value, "save_period", "state", 5.0)
         )
+
+    def monitor(self, value: Any) -> MonitorConfig:
+        if value is None:
+            return MonitorConfig()
+        if not self.mapping(value, "monitor", ("http", "token", "groot2")):
+            return MonitorConfig()
+        found: dict[str, str | None] = {"http": None, "groot2": None}
+        for key, span in (("http", 1), ("groot2", 2)):
+            if value.get(key) is None:
+                continue
+            address = parse_address(value[key], port_span=span)
+            if isinstance(address, str):
+                self.problem(f"monitor.{key}", _found(value[key]), address)
+            else:
+                found[key] = str(address)
+        token = value.get("token")
+        if token is not None and not (isinstance(token, str) and token.strip()):
+            self.problem("monitor.token", _found(token), "a bearer token (a non-empty string)")
+            token = None
+        http = parse_address(found["http"]) if found["http"] else None
+        if http is not None and not isinstance(http, str) and needs_token(http, token) and "token" not in value:
+            self.problem("monitor.token", "nothing",
+                         f"a bearer token: monitor.http {http} is not loopback, so the page would be open to the "
+                         "network (or bind monitor.http to 127.0.0.1)")
+        return MonitorConfig(http=found["http"], token=token, groot2=found["groot2"])

@@ -37,7 +37,7 @@ from canguard.decode.decoder import Decoder
 from canguard.engine.gate import TaskGate
 from canguard.engine.logrun import MAX_CATCH_UP_S, LogRunMixin
 from canguard.engine.quiet import QuietTickMixin
-from canguard.engine.stats import EngineStats, EventSink
+from canguard.engine.stats import EngineStats, EventSink, TickObserver
 from canguard.engine.watch import SourceWatchMixin
 from canguard.io.clock import Clock, PinnedClock
 from canguard.io.frame import Frame
@@ -103,6 +103,8 @@ class Engine(SourceWatchMixin, LogRunMixin, QuietTickMixin):
         samples of the rows fed (with their row); None: with a sample hook, blocks go frame by frame."""
         self.tick_hook: Callable[[float], None] | None = None
         """Called after every tick with its time (plots)."""
+        self.observer: TickObserver | None = None
+        """Told after every tick (the live monitors: it builds an immutable snapshot from public accessors)."""
         self.stats = EngineStats()
         self.decoder = Decoder(cfg)
         self.ctx = Context(clock, cfg.sources, sink=sink, actions=cfg.actions, on_event=self._write_event,
@@ -359,6 +361,8 @@ class Engine(SourceWatchMixin, LogRunMixin, QuietTickMixin):
         self._flush()
         self._due = min(self._next_tick, self.gate.next_deadline())
         self._quiet_check(now, events_before)
+        if self.observer is not None:
+            self.observer.publish(self, now)
         return status
 
     def _save_heat(self, now: float, periodic: bool) -> None:

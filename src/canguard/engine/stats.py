@@ -19,6 +19,14 @@ class EventSink(Protocol):
         ...
 
 
+class TickObserver(Protocol):
+    """What watches the engine tick by tick (the live monitors: :class:`canguard.service.monitor.snapshot.Observer`)."""
+
+    def publish(self, engine: Any, now: float) -> None:
+        """Called with the engine at the end of each tick; must neither raise nor wait."""
+        ...
+
+
 @dataclass
 class EngineStats:
     """Counters of one engine run (the replay summary and the daemon's STATUS read them)."""

@@ -31,11 +31,13 @@ from types import FrameType
 from typing import Any
 
 from canguard.bt.context import FrameSink
+from canguard.config.monitor import with_overrides
 from canguard.config.schema import Config
 from canguard.engine.core import Engine
 from canguard.engine.events import EventJournal
 from canguard.engine.gate import BusSink, TaskGate
 from canguard.engine.ratelimit import held_note
+from canguard.engine.stats import EventSink
 from canguard.errors import CanguardError, ConfigError
 from canguard.io.bus import BusReader
 from canguard.io.clock import BootClock, LiveClock
@@ -89,8 +91,12 @@ class Daemon:
     refuse_virtual = True
     """``canguard run`` refuses all-virtual buses under systemd; the realtime replay bench does not."""
 
+    watch = True
+    """The config's ``monitor:`` is served; the realtime replay bench serves none."""
+
     def __init__(self, config_path: Path, *, metrics_addr: str | None = None,
-                 notifier: Notifier | None = None, cfg: Config | None = None, state_dir: Path | None = None) -> None:
+                 notifier: Notifier | None = None, cfg: Config | None = None, state_dir: Path | None = None,
+                 http: str | None = None, groot2: str | None = None) -> None:
         self.config_path = config_path
         self.state_dir = state_dir
         """``--state-dir``: the journal and the I²t state file go there, at start and at every reload."""
@@ -107,6 +113,15 @@ class Daemon:
             self.metrics = Metrics()
             self.metrics.start(metrics_addr)
         self.journal = EventJournal(self.cfg.events)
+        self.events: EventSink = self.journal
+        self.monitor: Any = None
+        """The status page / Groot2 monitor (:mod:`canguard.service.monitor`, imported only when configured)."""
+        watched = with_overrides(self.cfg.monitor, http=http, groot2=groot2)  # --http / --groot2
+        if self.watch and (watched.http or watched.groot2):
+            from canguard.service.monitor import Monitor
+
+            self.monitor = Monitor(watched)
+            self.events = self.monitor.tee(self.journal)
         self._stop = threading.Event()
         self._reload = threading.Event()
         self._last_publish: tuple[float, dict[str, tuple[int, int, int]]] = (time.monotonic(), {})
@@ -119,7 +134,12 @@ class Daemon:
             self.reader.send, on_error=self.metrics.send_error if self.metrics is not None else None,
             on_refused=self._send_refused,
         )
-        self.engine = self._build_engine(self.cfg)
+        try:
+            self.engine = self._build_engine(self.cfg)
+        except BaseException:
+            if self.monitor is not None:
+                self.monitor.close()
+            raise
         self.overrun_limit_s = overrun_limit(self.cfg)
         """A frame that waited longer in the receive queue stops the task (:meth:`Engine.overrun`)."""
 
@@ -127,8 +147,11 @@ class Daemon:
         heat = HeatStore(cfg.state.file, cfg.state.on_corrupt, clock=BootClock())
         before = registered_clients()
         try:
-            return Engine(cfg, self.clock, self.sink, events=self.journal, durable=True,
-                          metrics=self.metrics, heat=heat, previous=previous)
+            engine = Engine(cfg, self.clock, self.sink, events=self.events, durable=True,
+                            metrics=self.metrics, heat=heat, previous=previous)
+            if self.monitor is not None:
+                self.monitor.attach(engine)
+            return engine
         except BaseException:
             release_clients(registered_clients() - before)  # a tree built half-way leaves no keys behind
             raise
@@ -160,6 +183,8 @@ class Daemon:
     def run(self, duration_s: float | None = None) -> int:
         """Run until SIGTERM (or ``duration_s``); returns the exit code."""
         engine = self.engine
+        if self.monitor is not None:
+            self.monitor.start()
         self.reader.start()
         engine.start(self.clock.now())
         self.notifier.ready()
@@ -211,6 +236,8 @@ class Daemon:
             self.engine.finish(reason=self.exit_reason)
             self.reader.stop()
             self.journal.close()
+            if self.monitor is not None:
+                self.monitor.close()
         return 0
 
     def _publish(self, engine: Engine, mono: float) -> None:

@@ -1,0 +1,105 @@
+"""``monitor:``: where the status page and the Groot2 monitor listen, checked once for the config and the CLI.
+
+``http: "HOST:PORT"`` (the page; loopback unless the config says otherwise), ``token:`` (the bearer
+token a non-loopback page requires), ``groot2: PORT`` or ``"HOST:PORT"`` (BehaviorTree.CPP's Groot2
+publisher protocol: REP on PORT, PUB on PORT + 1). Port 0 asks the system for a free port.
+"""
+
+from __future__ import annotations
+
+import ipaddress
+from dataclasses import dataclass, replace
+
+from canguard.config.schema import MonitorConfig
+from canguard.errors import ConfigError
+
+LOOPBACK = "127.0.0.1"
+"""Where a monitor given only a port listens."""
+
+
+@dataclass(frozen=True)
+class Address:
+    """A host and a TCP port to listen on."""
+
+    host: str
+    port: int
+
+    @property
+    def loopback(self) -> bool:
+        """True when only this machine can connect (127.0.0.0/8, ::1, ``localhost``)."""
+        return is_loopback(self.host)
+
+    def __str__(self) -> str:
+        return f"[{self.host}]:{self.port}" if ":" in self.host else f"{self.host}:{self.port}"
+
+
+def is_loopback(host: str) -> bool:
+    """True for a loopback address or ``localhost``; False for anything reachable from the network."""
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+def parse_address(value: object, *, port_span: int = 1) -> Address | str:
+    """``"HOST:PORT"``, ``"[V6]:PORT"`` or a bare port (loopback) as an :class:`Address`; else what was expected.
+
+    ``port_span``: how many consecutive ports the server takes (Groot2: 2, PORT and PORT + 1).
+    """
+    expected = "HOST:PORT (e.g. 127.0.0.1:8470) or a port number"
+    top = 65535 - (port_span - 1)
+    if isinstance(value, int) and not isinstance(value, bool):
+        host, port_text = LOOPBACK, str(value)
+    elif isinstance(value, str) and value:
+        if value.isdigit():
+            host, port_text = LOOPBACK, value
+        else:
+            host, sep, port_text = value.rpartition(":")
+            host = host[1:-1] if host.startswith("[") and host.endswith("]") else host
+            if not sep or not host:
+                return expected
+    else:
+        return expected
+    if not port_text.isdigit() or int(port_text) > top:
+        return f"a port number 0..{top} (0: any free port)"
+    if host != "localhost" and not _is_ip(host):
+        return "a numeric IP address or localhost as HOST (0.0.0.0 for every interface)"
+    return Address(host, int(port_text))
+
+
+def _is_ip(host: str) -> bool:
+    try:
+        ipaddress.ip_address(host)
+    except ValueError:
+        return False
+    return True
+
+
+def needs_token(address: Address, token: str | None) -> bool:
+    """True when a page at ``address`` would be reachable from the network without a bearer token."""
+    return not address.loopback and not token
+
+
+def with_overrides(monitor: MonitorConfig, *, http: str | None = None, groot2: str | None = None) -> MonitorConfig:
+    """The config's ``monitor:`` with ``--http`` / ``--groot2`` in place of its addresses.
+
+    Raises :class:`ConfigError` naming the flag: a malformed address, or a page that would be
+    open to the network without ``monitor.token``.
+    """
+    found = {"http": monitor.http, "groot2": monitor.groot2}
+    for flag, key, given, span in (("--http", "http", http, 1), ("--groot2", "groot2", groot2, 2)):
+        if given is None:
+            continue
+        address = parse_address(given, port_span=span)
+        if isinstance(address, str):
+            raise ConfigError(f"{flag} {given!r}: expected {address}")
+        found[key] = str(address)
+    if http is not None and found["http"]:
+        address = parse_address(found["http"])
+        if isinstance(address, Address) and needs_token(address, monitor.token):
+            raise ConfigError(f"--http {http}: not a loopback address, so the page would be open to the network: "
+                              "set monitor.token in the config (every request then needs it as a bearer token), "
+                              "or use 127.0.0.1")
+    return replace(monitor, http=found["http"], groot2=found["groot2"])

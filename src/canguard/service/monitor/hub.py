@@ -1,0 +1,198 @@
+"""Between the engine and the monitors: the latest snapshot, the last journal events, and who to wake.
+
+The engine's side (:meth:`Hub.put`, :meth:`Hub.event`) only assigns a reference or appends to a
+bounded deque: it takes no lock and waits for no one. A dispatcher thread looks for news every
+:data:`POLL_S`, renders the status document once per change (shared by every client), and wakes
+the clients' threads. A client that reads slowly skips snapshots (it always gets the latest) and,
+past :data:`KEEP_EVENTS`, loses the oldest events (it is told how many): nothing it does reaches
+the engine.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import threading
+import time
+from collections import deque
+from collections.abc import Mapping
+from typing import Any
+
+from canguard.engine.event_codec import encode_event
+from canguard.service.monitor.snapshot import TickSnapshot, status_name
+
+POLL_S = 0.04
+"""How often the dispatcher looks for a new snapshot or event (a change reaches a page within ~this + its RTT):
+at most 25 status documents a second, whatever the engine does."""
+KEEP_EVENTS = 500
+"""Journal events kept for clients; a client further behind loses the oldest."""
+STATUS_EVENTS = 30
+"""Journal events ``/api/status`` carries."""
+
+
+class Hub:
+    """The latest :class:`TickSnapshot` and journal events, for any number of monitor threads."""
+
+    def __init__(self) -> None:
+        self._latest: TickSnapshot | None = None
+        self._events: deque[tuple[int, dict[str, Any]]] = deque(maxlen=KEEP_EVENTS)
+        self._event_seq = 0
+        self._blackboard_until = -math.inf
+        self._cond = threading.Condition()
+        self._version = 0
+        self._normalized: dict[int, dict[str, Any]] = {}
+        """Events as the journal writes them, by sequence number (each is normalized once)."""
+        self._doc: tuple[int, bytes] = (0, json.dumps(self.status()).encode())
+        self._closed = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    # -- the engine's side: never blocks -------------------------------------------------------
+    def put(self, snapshot: TickSnapshot) -> None:
+        """Publish the latest snapshot (the engine's thread)."""
+        self._latest = snapshot
+
+    def event(self, event: Mapping[str, Any]) -> None:
+        """Keep one journal event (the engine's thread; a bounded deque drops the oldest)."""
+        self._event_seq += 1
+        self._events.append((self._event_seq, dict(event)))
+
+    def blackboard_wanted(self) -> bool:
+        """True while a monitor has asked for the blackboard within the last second."""
+        return time.monotonic() < self._blackboard_until
+
+    # -- the monitors' side ----------------------------------------------------------------------
+    def want_blackboard(self) -> None:
+        """Ask the engine to put the root blackboard into its snapshots for the next second."""
+        self._blackboard_until = time.monotonic() + 1.0
+
+    def latest(self) -> TickSnapshot | None:
+        """The latest published snapshot (None before the first tick)."""
+        return self._latest
+
+    def events_after(self, seq: int) -> tuple[list[tuple[int, dict[str, Any]]], int]:
+        """Events newer than ``seq`` as (seq, event), and how many of them were already dropped."""
+        kept = list(self._events)  # one C-level copy: atomic against the engine's appends
+        newer = [item for item in kept if item[0] > seq]
+        first = newer[0][0] if newer else self._event_seq + 1
+        return newer, max(0, first - seq - 1)
+
+    @property
+    def event_seq(self) -> int:
+        """The sequence number of the newest event."""
+        return self._event_seq
+
+    def status_document(self) -> tuple[int, bytes]:
+        """(version, ``/api/status`` JSON) as of the latest change."""
+        return self._doc
+
+    def wait(self, version: int, timeout: float) -> int:
+        """Wait until something changed after ``version`` (or ``timeout`` s, or close); the version now."""
+        with self._cond:
+            self._cond.wait_for(lambda: self._version != version or self._closed.is_set(), timeout)
+            return self._version
+
+    @property
+    def closed(self) -> bool:
+        """True once :meth:`close` ran: client threads end."""
+        return self._closed.is_set()
+
+    # -- the dispatcher ----------------------------------------------------------------------------
+    def start(self) -> None:
+        """Start the dispatcher thread."""
+        self._thread = threading.Thread(target=self._dispatch, name="canguard-monitor-hub", daemon=True)
+        self._thread.start()
+
+    def close(self) -> None:
+        """Stop the dispatcher and wake every client so it can end."""
+        self._closed.set()
+        with self._cond:
+            self._cond.notify_all()
+        if self._thread is not None:
+            self._thread.join(2)
+
+    def _dispatch(self) -> None:
+        seen: tuple[TickSnapshot | None, int] | None = None  # the first document goes out at once
+        while seen is None or not self._closed.wait(POLL_S):
+            now = (self._latest, self._event_seq)
+            if seen is not None and now[0] is seen[0] and now[1] == seen[1]:
+                continue
+            seen = now
+            doc = json.dumps(self.status(), allow_nan=False, separators=(",", ":")).encode()
+            with self._cond:
+                self._version += 1
+                self._doc = (self._version, doc)
+                self._cond.notify_all()
+
+    def status(self) -> dict[str, Any]:
+        """The ``/api/status`` document: tree, task, guards, events."""
+        snap = self._latest
+        events = [self._journal_form(seq, ev) for seq, ev in list(self._events)[-STATUS_EVENTS:]]
+        if snap is None:
+            return {"tree": None, "task": None, "guards": [], "events": events}
+        return {"t": snap.t, "seq": snap.seq, "tree": tree_document(snap), "task": task_document(snap, events),
+                "guards": [guard_document(g) for g in snap.guards], "events": events}
+
+
+    def _journal_form(self, seq: int, event: dict[str, Any]) -> dict[str, Any]:
+        """``event`` as its journal line reads (JSON-safe, rounded), computed once per event."""
+        form = self._normalized.get(seq)
+        if form is None:
+            form = json.loads(encode_event(event))
+            self._normalized = {k: v for k, v in self._normalized.items() if k > seq - KEEP_EVENTS}
+            self._normalized[seq] = form
+        return form
+
+
+def _number(x: float) -> float | None:
+    return x if isinstance(x, (int, float)) and math.isfinite(x) else None
+
+
+def tree_document(snap: TickSnapshot) -> dict[str, Any]:
+    """The tree with each node's status: ``{"main", "status", "root": {uid, type, name, status, children}}``."""
+    codes = snap.codes
+
+    def node(n: Any) -> dict[str, Any]:
+        out = n.as_json()
+        _fill(out, codes)
+        return out
+
+    root = node(snap.layout.root)
+    return {"main": snap.layout.main_id, "status": root["status"], "root": root}
+
+
+def _fill(out: dict[str, Any], codes: tuple[int, ...]) -> None:
+    out["status"] = status_name(codes[out["uid"] - 1])
+    for child in out["children"]:
+        _fill(child, codes)
+
+
+def task_document(snap: TickSnapshot, events: list[dict[str, Any]]) -> dict[str, Any]:
+    """State, since when, stopped by which guard and why, what holds it, confirmation / escalation."""
+    task = snap.task
+    stopped = task.state == "stopped"
+    confirmation = None
+    if stopped and task.since is not None:
+        confirmation = "pending" if snap.confirm else None
+        for ev in events:
+            if ev.get("event") in ("confirmed", "escalate") and (ev.get("t") or 0) >= task.since - 1e-6:
+                confirmation = "confirmed" if ev["event"] == "confirmed" else "escalated"
+    return {
+        "state": task.state,
+        "since": _number(task.since) if stopped and task.since is not None else None,
+        "for_s": _number(snap.t - task.since) if stopped and task.since is not None else None,
+        "reason": task.reason if stopped else "",
+        "guards": list(task.stopped_by) if stopped else [],
+        "failing": list(task.failing),
+        "holding": [{"key": k, "reason": r} for k, r in task.holding],
+        "stops": task.stops,
+        "confirmation": confirmation,
+    }
+
+
+def guard_document(g: Any) -> dict[str, Any]:
+    """One guard: the issue's fields (name, source, value, unit, threshold, margin, status) and more."""
+    return {
+        "name": g.name, "source": g.source, "value": _number(g.value), "unit": g.unit,
+        "threshold": _number(g.threshold), "margin": _number(g.margin), "status": g.status,
+        "role": g.role, "kind": g.kind, "heat_pct": _number(g.heat_pct), "reason": g.reason,
+    }

@@ -1,0 +1,195 @@
+"""What the engine publishes once per tick: an immutable snapshot, built from public accessors.
+
+:class:`Observer` is the engine's ``observer``: the engine calls :meth:`Observer.publish` at the
+end of each tick, in its own thread. It reads the node statuses through py_trees (``status``), the
+guards through their :class:`~canguard.bt.loader.GuardView` (model snapshot, source health) and the
+task gate's public state, and hands a frozen :class:`TickSnapshot` to the :class:`~.hub.Hub` by
+assigning one reference: no lock, no queue, nothing a monitor thread could hold up. The statuses are
+read at every tick (cheap, so Groot2 sees every change of a node, and a stop is published in the tick it
+happens); the guards' values at most every :data:`GUARD_PERIOD_S` (a stop is published at once
+with the values as last read, the fresh ones follow), which bounds what the monitors
+cost the loop however busy the tree is (~13 model snapshots, a fraction of a millisecond, 12.5
+times a second).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import py_trees
+
+from canguard.bt.dryrun import root_blackboard
+from canguard.protect.i2t import ThermalI2t
+
+if TYPE_CHECKING:
+    from canguard.engine.core import Engine
+    from canguard.service.monitor.hub import Hub
+    from canguard.service.monitor.layout import TreeLayout
+
+log = logging.getLogger(__name__)
+
+GUARD_PERIOD_S = 0.08
+"""Longest time between two snapshots of the guards' values while nothing else changes."""
+
+IDLE, RUNNING, SUCCESS, FAILURE, SKIPPED = 0, 1, 2, 3, 4
+"""BehaviorTree.CPP's ``NodeStatus`` values (Groot2's STATUS carries them; ``10 + s``: idle after ``s``)."""
+STATUS_NAMES = ("IDLE", "RUNNING", "SUCCESS", "FAILURE", "SKIPPED")
+
+_CODES = {
+    py_trees.common.Status.RUNNING: RUNNING,
+    py_trees.common.Status.SUCCESS: SUCCESS,
+    py_trees.common.Status.FAILURE: FAILURE,
+}
+
+
+def status_name(code: int) -> str:
+    """``SUCCESS``, ``IDLE``... for a status code (an idle-after code reads ``IDLE``)."""
+    return STATUS_NAMES[code] if 0 <= code < len(STATUS_NAMES) else "IDLE"
+
+
+@dataclass(frozen=True)
+class GuardState:
+    """One guarded signal at one tick (the fields of ``/api/status``'s ``guards``)."""
+
+    name: str
+    role: str
+    kind: str
+    source: str
+    value: float
+    """|value| the guard last saw (threshold guards), or the I²t accumulator (``i2t``)."""
+    unit: str
+    threshold: float
+    """The trip threshold in force (inrush included), in ``unit``."""
+    heat_pct: float
+    """How close to tripping, in % of the trip level (the I²t heat for ``i2t`` guards)."""
+    status: str
+    """``ok``, ``tripped``, or why the source cannot be used (``stale``, ``no_data``, ``nan``...)."""
+    reason: str
+
+    @property
+    def margin(self) -> float:
+        """How far below the threshold the value is (negative: above it), in ``unit``; NaN when unknown."""
+        return self.threshold - self.value
+
+
+@dataclass(frozen=True)
+class TaskState:
+    """The task gate at one tick."""
+
+    state: str
+    since: float | None
+    """When the running stop began (engine time, epoch seconds live), None when not stopped."""
+    reason: str
+    stops: int
+    holding: tuple[tuple[str, str], ...]
+    """What holds the task besides the tree (a stale source, a bus down, an overrun): (key, reason)."""
+    failing: tuple[str, ...]
+    """The guard nodes that failed in this tick."""
+    stopped_by: tuple[str, ...]
+    """The guard nodes that had failed in the tick the running stop began."""
+
+
+@dataclass(frozen=True)
+class TickSnapshot:
+    """Everything the monitors show of one tick; never changed once published."""
+
+    seq: int
+    t: float
+    layout: TreeLayout
+    codes: tuple[int, ...]
+    """Per UID (``codes[uid - 1]``), BT.CPP's status code."""
+    task: TaskState
+    guards: tuple[GuardState, ...]
+    confirm: bool
+    """True when ``stop.confirm`` is configured (a stop then waits for its confirmation)."""
+    blackboard: dict[str, Any] | None
+    """The root blackboard's entries, when a monitor asked for them lately; else None."""
+
+
+class Observer:
+    """The engine's per-tick publication point for the monitors (one per engine: a reload attaches a new one)."""
+
+    def __init__(self, engine: Engine, layout: TreeLayout, hub: Hub) -> None:
+        self.layout = layout
+        self.hub = hub
+        self._guards = engine.guards()
+        self._guard_nodes = engine.loaded.guard_nodes()
+        self._units = [_unit(engine, g) for g in self._guards]
+        self._last_active = [IDLE] * len(layout.behaviours)
+        self._seq = 0
+        self._key: tuple[Any, ...] = ()
+        self._guard_states: tuple[GuardState, ...] = ()
+        self._guards_at = -math.inf
+        self._stops = -1
+        self._stopped_by: tuple[str, ...] = ()
+        self._failed = False
+
+    def publish(self, engine: Engine, now: float) -> None:
+        """Called by the engine after each tick: publish this tick's snapshot (never raises, never waits)."""
+        try:
+            self._publish(engine, now)
+        except Exception:  # a monitor must never take the loop down with it
+            if not self._failed:
+                log.exception("monitor snapshot failed; the monitors show the last good one")
+            self._failed = True
+
+    def _publish(self, engine: Engine, now: float) -> None:
+        codes = self._codes()
+        gate = engine.gate
+        failing = tuple(g.name for g in self._guard_nodes if g.status == py_trees.common.Status.FAILURE)
+        if gate.stops != self._stops:
+            self._stops = gate.stops
+            self._stopped_by = failing
+        key = (codes, gate.state, gate.stops, engine.events_written, gate.stop_reason)
+        mono = time.monotonic()
+        stale = mono - self._guards_at >= GUARD_PERIOD_S
+        if key == self._key and not stale:
+            return
+        if stale:  # a node's status or an event in between: published at once, with the guards as last read
+            self._guard_states = tuple(self._guard_state(engine, i, now) for i in range(len(self._guards)))
+            self._guards_at = mono
+        self._key = key
+        self._seq += 1
+        task = TaskState(gate.state, gate.stop_since, gate.stop_reason, gate.stops, tuple(gate.inhibits.items()),
+                         failing, self._stopped_by)
+        blackboard = root_blackboard() if self.hub.blackboard_wanted() else None
+        self.hub.put(TickSnapshot(self._seq, now, self.layout, codes, task, self._guard_states,
+                                  engine.cfg.stop.confirm is not None, blackboard))
+
+    def _codes(self) -> tuple[int, ...]:
+        out = []
+        last = self._last_active
+        for i, node in enumerate(self.layout.behaviours):
+            if node is None:
+                out.append(IDLE)
+                continue
+            code = SKIPPED if getattr(node, "skipped", False) else _CODES.get(node.status, IDLE)
+            if code == IDLE:
+                code = 10 + last[i] if last[i] != IDLE else IDLE  # BT.CPP: IDLE after SUCCESS is 12
+            else:
+                last[i] = code
+            out.append(code)
+        return tuple(out)
+
+    def _guard_state(self, engine: Engine, i: int, now: float) -> GuardState:
+        g = self._guards[i]
+        snap = g.snapshot()
+        health = engine.ctx.health.get(g.source)
+        why = health.reason(now, g.role) if health is not None else "no_data"
+        value = snap.threshold * snap.level_pct / 100.0 if g.kind == "i2t" else snap.value
+        status = why or ("tripped" if snap.tripped else "ok")
+        return GuardState(g.node, g.role, g.kind, g.source, value, self._units[i], snap.threshold, snap.level_pct,
+                          status, why or snap.reason)
+
+
+def _unit(engine: Engine, guard: Any) -> str:
+    """The unit of a guard's value and threshold: the DBC signal's unit, A²s or θ for I²t."""
+    if guard.kind == "i2t":
+        return "θ" if isinstance(guard.model, ThermalI2t) else "A²s"
+    source = engine.cfg.sources.get(guard.source)
+    ref = source.signal(guard.role) if source is not None else None
+    return (ref.unit or "") if ref is not None else ""

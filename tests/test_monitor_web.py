@@ -1,0 +1,206 @@
+"""The status page's API against a live daemon: the JSON shape, the streams, read-only, the token, stalled clients."""
+
+from __future__ import annotations
+
+import json
+import socket
+import time
+import urllib.error
+import urllib.request
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import can
+import pytest
+
+from monitorkit import DEMO_GUARDS, ESTOP_IDS, WAIT_S, Watched, running, wait_for, watched_daemon
+
+GUARD_FIELDS = {"name", "source", "value", "unit", "threshold", "margin", "status"}
+
+
+@pytest.fixture
+def watched(tmp_path: Path) -> Iterator[Watched]:
+    """The demo's daemon with its status page, running its task."""
+    with watched_daemon(tmp_path) as w:
+        wait_for("the task to run", lambda: running(w))
+        yield w
+
+
+def sse(url: str, headers: dict[str, str] | None = None, timeout_s: float = 10.0) -> Iterator[tuple[str, str]]:
+    """(event name, data) of each server-sent event read from ``url``."""
+    req = urllib.request.Request(url, headers={"Accept": "text/event-stream", **(headers or {})})
+    with urllib.request.urlopen(req, timeout=timeout_s) as resp:
+        assert resp.headers.get_content_type() == "text/event-stream"
+        name, data = "message", []
+        for raw in resp:
+            line = raw.decode().rstrip("\n")
+            if not line:
+                if data:
+                    yield name, "\n".join(data)
+                name, data = "message", []
+            elif line.startswith("event: "):
+                name = line[7:]
+            elif line.startswith("data: "):
+                data.append(line[6:])
+
+
+def first_status(w: Watched, pred: Any, timeout_s: float = 10.0) -> dict[str, Any]:
+    """The first document of the status stream for which ``pred`` holds."""
+    deadline = time.monotonic() + timeout_s
+    for name, data in sse(w.http + "/api/status"):
+        if name == "status":
+            doc = json.loads(data)
+            if doc.get("task") and pred(doc):
+                return doc
+        assert time.monotonic() < deadline, "the status stream never showed the expected state"
+    raise AssertionError("the status stream ended")
+
+
+class TestStatus:
+    """``GET /api/status``."""
+
+    def test_shape_and_every_guard_of_the_demo_tree(self, watched: Watched) -> None:
+        """The document has tree, task, guards and events; each guard the issue's fields; every demo guard is there."""
+        doc = first_status(watched, lambda d: all(g["status"] == "ok" for g in d["guards"]))
+        assert {"tree", "task", "guards", "events"} <= set(doc)
+        assert {g["name"] for g in doc["guards"]} == set(DEMO_GUARDS)
+        for guard in doc["guards"]:
+            assert set(guard) >= GUARD_FIELDS
+        pack = next(g for g in doc["guards"] if g["name"] == "PackCurrent")
+        assert (pack["source"], pack["unit"], pack["threshold"], pack["status"]) == ("/battery_state", "A", 35.0, "ok")
+        assert pack["margin"] == pytest.approx(35.0 - pack["value"])
+        heat = next(g for g in doc["guards"] if g["name"] == "Axis0I2t")
+        assert heat["unit"] == "A²s" and 0.0 <= heat["heat_pct"] < 100.0
+        assert doc["task"]["state"] == "running"
+        assert doc["tree"]["main"] == "RobotGuard" and doc["tree"]["root"]["name"] == "Guards"
+        assert [e["event"] for e in doc["events"]][:1] == ["start"]
+
+    def test_trip_shows_stop_guard_reason_and_confirmation(self, watched: Watched) -> None:
+        """After an overcurrent the stream shows the task stopped by PackCurrent, why, and the confirmation."""
+        watched.trip()
+        doc = first_status(watched, lambda d: d["task"]["state"] == "stopped")
+        task = doc["task"]
+        assert task["guards"] == ["PackCurrent"]
+        assert "PackCurrent" in task["reason"] and "overcurrent" in task["reason"]
+        assert task["since"] is not None and task["confirmation"] in ("pending", "confirmed", "escalated")
+        doc = first_status(watched, lambda d: d["task"]["confirmation"] != "pending")
+        # the simulated drives obey the Estop, mostly before the deadline: the page says what the journal says
+        verdict = next(e["event"] for e in map(json.loads, watched.events.read_text().splitlines())
+                       if e["event"] in ("confirmed", "escalate"))
+        assert doc["task"]["confirmation"] == {"confirmed": "confirmed", "escalate": "escalated"}[verdict]
+
+    def test_unknown_path_is_404(self, watched: Watched) -> None:
+        """A path the monitor does not serve answers 404, naming the ones it does."""
+        with pytest.raises(urllib.error.HTTPError) as err:
+            watched.get("/api/nothing")
+        assert err.value.code == 404
+
+
+class TestEvents:
+    """``GET /api/events``."""
+
+    def test_streams_the_journal_trip_and_stop(self, watched: Watched) -> None:
+        """The stream replays the kept events, then the trip and the stop as the journal writes them."""
+        seen: list[dict[str, Any]] = []
+        tripped = False
+        for name, data in sse(watched.http + "/api/events"):
+            assert name == "message"
+            seen.append(json.loads(data))
+            if not tripped and seen[-1]["event"] == "start":
+                watched.trip()
+                tripped = True
+            if seen[-1]["event"] == "stop":
+                break
+        trip = next(e for e in seen if e["event"] == "trip")
+        assert (trip["node"], trip["reason"]) == ("PackCurrent", "overcurrent")
+        journal = [json.loads(line)["event"] for line in watched.events.read_text().splitlines()]
+        assert [e["event"] for e in seen] == journal[:len(seen)]
+
+
+class TestReadOnlyAndToken:
+    """Nothing changes what canguard does; a token guards every request."""
+
+    @pytest.mark.parametrize("method", ["POST", "PUT", "DELETE", "PATCH"])
+    def test_writes_are_refused(self, watched: Watched, method: str) -> None:
+        """Every method but GET/HEAD is 405, and the task keeps running."""
+        req = urllib.request.Request(watched.http + "/api/status", data=b"{}", method=method)
+        with pytest.raises(urllib.error.HTTPError) as err:
+            urllib.request.urlopen(req, timeout=5)
+        assert err.value.code == 405 and "GET" in err.value.headers["Allow"]
+        assert watched.status()["task"]["state"] == "running"
+
+    def test_token_is_required_when_set(self, tmp_path: Path) -> None:
+        """With monitor.token, a request without it is 401; the bearer header or ?token= opens every path."""
+        with watched_daemon(tmp_path, token="s3cret", robot=False) as w:
+            for path in ("/", "/api/status"):
+                with pytest.raises(urllib.error.HTTPError) as err:
+                    w.get(path)
+                assert err.value.code == 401
+                with pytest.raises(urllib.error.HTTPError):
+                    w.get(path, headers={"Authorization": "Bearer wrong"})
+                assert "tree" in w.get(path, headers={"Authorization": "Bearer s3cret"})
+                assert "tree" in w.get(path + "?token=s3cret")
+
+
+def test_stalled_clients_do_not_delay_a_stop(tmp_path: Path) -> None:
+    """Streams nobody reads and a Groot2 client that never takes its replies leave the stop frames on time.
+
+    A loop held up by a stalled write would wait out the server's 5 s send timeout: the Estop must come
+    well before that (2 s leaves a loaded machine its slack; bench_latency measures the real tail).
+    """
+    import zmq
+
+    with watched_daemon(tmp_path, groot2=True) as w:
+        wait_for("the task to run", lambda: running(w))
+        port = int(w.http.rsplit(":", 1)[1])
+        stalled = []
+        for path in ("/api/status", "/api/events") * 4:
+            s = socket.create_connection(("127.0.0.1", port))
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1024)
+            s.sendall(f"GET {path} HTTP/1.1\r\nHost: x\r\nAccept: text/event-stream\r\n\r\n".encode())
+            stalled.append(s)  # never read: its server thread blocks in a send, not the engine
+        ctx = zmq.Context()
+        try:
+            greedy = ctx.socket(zmq.DEALER)  # asks and never reads the replies
+            greedy.setsockopt(zmq.LINGER, 0)
+            greedy.connect(f"tcp://127.0.0.1:{w.groot2}")
+            for i in range(200):
+                greedy.send_multipart([b"", bytes([2, ord("T")]) + i.to_bytes(4, "little")], zmq.NOBLOCK)
+            seq = w.status()["seq"]  # let ~20 status documents (~100 kB) pile up behind the stalled readers
+            wait_for("the status stream to move on", lambda: w.status()["seq"] >= seq + 20)
+            peer = w.peer
+            peer.set_filters([{"can_id": i, "can_mask": 0x7FF, "extended": False} for i in ESTOP_IDS])
+            while peer.recv(0) is not None:
+                pass
+            sent = time.monotonic()
+            w.trip()
+            msg: can.Message | None = None
+            while msg is None and time.monotonic() - sent < 2.0:
+                msg = peer.recv(0.05)
+            assert msg is not None and msg.arbitration_id in ESTOP_IDS, "no Estop within 2 s while clients stalled"
+            assert w.status()["task"]["state"] == "stopped"  # and a fresh client is still served
+        finally:
+            ctx.destroy(linger=0)
+            for s in stalled:
+                s.close()
+
+
+def test_a_failing_monitor_never_stops_the_guard(tmp_path: Path, caplog: pytest.LogCaptureFixture,
+                                                 monkeypatch: pytest.MonkeyPatch) -> None:
+    """When publishing a snapshot raises, the tick goes on: the trip still sends the Estop, and the log says why."""
+    with watched_daemon(tmp_path) as w:
+        wait_for("the task to run", lambda: running(w))
+
+        def broken(snapshot: object) -> None:
+            raise RuntimeError("monitor broke")
+
+        monkeypatch.setattr(w.daemon.monitor.hub, "put", broken)
+        peer = w.peer
+        peer.set_filters([{"can_id": i, "can_mask": 0x7FF, "extended": False} for i in ESTOP_IDS])
+        while peer.recv(0) is not None:
+            pass
+        w.trip()
+        msg = peer.recv(WAIT_S)
+        assert msg is not None and msg.arbitration_id in ESTOP_IDS
+    assert any("monitor snapshot failed" in r.getMessage() for r in caplog.records)
