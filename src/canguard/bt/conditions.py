@@ -70,6 +70,32 @@ def _run(node: py_trees.behaviour.Behaviour, script: Script | None, board: TreeB
         node.feedback_message = f"{attr}: {exc}"
 
 
+def _preconditions(node: py_trees.behaviour.Behaviour, scripts: Mapping[str, Script], board: Any) -> Any:
+    """The status a pre-condition gives the node instead of ticking it (None: tick it), as BT.CPP's
+    ``checkPreConditions``: ``_failureIf``, ``_successIf``, ``_skipIf`` before a tick, ``_while`` always."""
+    if node.status != RUNNING:
+        for attr, status in (("_failureIf", FAILURE), ("_successIf", SUCCESS), ("_skipIf", SKIPPED)):
+            script = scripts.get(attr)
+            if script is not None and _holds(node, script, board, attr):
+                return status
+    script = scripts.get("_while")
+    if script is not None and not _holds(node, script, board, "_while"):
+        return SKIPPED  # a running node is halted (mark_skipped stops it: _onHalted runs)
+    return None
+
+
+def _postconditions(node: py_trees.behaviour.Behaviour, scripts: Mapping[str, Script], board: Any) -> None:
+    """As BT.CPP's executeTick: the post-conditions follow a completed status, substituted or ticked."""
+    if getattr(node, "skipped", False):
+        return
+    if node.status == SUCCESS:
+        _run(node, scripts.get("_onSuccess"), board, "_onSuccess")
+    elif node.status == FAILURE:
+        _run(node, scripts.get("_onFailure"), board, "_onFailure")
+    if node.status in (SUCCESS, FAILURE):
+        _run(node, scripts.get("_post"), board, "_post")
+
+
 def install(node: py_trees.behaviour.Behaviour, scripts: Mapping[str, Script]) -> None:
     """Wrap ``node``'s tick and stop with its conditions (instance attributes: the class is untouched)."""
     if not scripts:
@@ -80,21 +106,7 @@ def install(node: py_trees.behaviour.Behaviour, scripts: Mapping[str, Script]) -
     tick, stop = node.tick, node.stop
 
     def tick_with_conditions() -> Iterator[py_trees.behaviour.Behaviour]:
-        substituted: Any = None
-        if node.status != RUNNING:
-            for attr, status in (("_failureIf", FAILURE), ("_successIf", SUCCESS), ("_skipIf", SKIPPED)):
-                script = scripts.get(attr)
-                if script is not None and _holds(node, script, board, attr):
-                    substituted = status
-                    break
-            else:
-                script = scripts.get("_while")
-                if script is not None and not _holds(node, script, board, "_while"):
-                    substituted = SKIPPED
-        else:
-            script = scripts.get("_while")
-            if script is not None and not _holds(node, script, board, "_while"):
-                substituted = SKIPPED  # halted below (mark_skipped stops it: _onHalted runs)
+        substituted = _preconditions(node, scripts, board)
         if substituted is SKIPPED:
             mark_skipped(node)
             yield node
@@ -104,15 +116,7 @@ def install(node: py_trees.behaviour.Behaviour, scripts: Mapping[str, Script]) -
             yield node
         else:
             yield from tick()
-        # as BT.CPP's executeTick: the post-conditions follow a completed status, substituted or ticked
-        if getattr(node, "skipped", False):
-            return
-        if node.status == SUCCESS:
-            _run(node, scripts.get("_onSuccess"), board, "_onSuccess")
-        elif node.status == FAILURE:
-            _run(node, scripts.get("_onFailure"), board, "_onFailure")
-        if node.status in (SUCCESS, FAILURE):
-            _run(node, scripts.get("_post"), board, "_post")
+        _postconditions(node, scripts, board)
 
     def stop_with_conditions(new_status: Any = INVALID) -> None:
         halted = new_status == INVALID and node.status == RUNNING

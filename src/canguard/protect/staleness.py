@@ -209,3 +209,37 @@ class SourceHealth:
     def values(self, now: float) -> dict[str, float]:
         """Every value role's latest value, NaN where :meth:`reason` for that role is not empty at ``now``."""
         return {r: (self.value(r) if not self.reason(now, r) else math.nan) for r in self._value_roles}
+
+    # -- rows that cannot change the reason, taken at once (the engine's block path) --------------
+    @property
+    def value_roles(self) -> tuple[str, ...]:
+        """The source's value roles, in config order (``present`` and ``counter`` are not value roles)."""
+        return self._value_roles
+
+    @property
+    def last_reason(self) -> str:
+        """The reason the last sample :meth:`observe` looked at fully left ("" usable)."""
+        return self._last_reason
+
+    def latest_times(self) -> dict[str, float]:
+        """Each role's latest sample time, valid or not (a copy)."""
+        return dict(self._latest_t)
+
+    def fresh_valid(self, role: str, t: float) -> bool:
+        """True when a valid sample of ``role`` at ``t`` cannot change the reason (:meth:`observe`'s fast path).
+
+        The role's latest sample is valid, not after ``t`` and at most ``max_age_s`` before it.
+        """
+        latest = self._latest_t.get(role)
+        return latest is not None and latest <= t and t - latest <= self.max_age_s and not self._invalid.get(role)
+
+    def settled(self, t: float) -> bool:
+        """True when the source was usable at its last full look and every role is fresh at ``t`` (a presence
+        flag of 1 at ``t`` then changes nothing)."""
+        return not self._last_reason and t - self._ok_since <= self.max_age_s
+
+    def take(self, role: str, t: float, value: float) -> None:
+        """Take a valid sample of ``role`` for which :meth:`fresh_valid` holds: it only becomes the latest."""
+        self._latest_t[role] = t
+        self._value[role] = value
+        self._valid_t[role] = t
