@@ -137,6 +137,8 @@ def in_order(t: FloatArray, finite: npt.NDArray[np.bool_], last_t: float | None)
     latest accepted time before each sample is the running maximum of the usable times
     (and of ``last_t``).
     """
+    if t.size == 0:
+        return finite
     usable = np.where(finite, t, -np.inf)
     before = np.empty_like(usable)
     before[0] = -np.inf if last_t is None else last_t

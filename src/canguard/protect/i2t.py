@@ -431,17 +431,16 @@ class ThermalI2t(_I2tModel):
         """θ ← q + (θ − q)·exp(−dt/τ) per step, q = I²/I_cont² (capped), τ the cooling one while q < θ.
 
         The time constant depends on the state (heating or cooling), so the steps run
-        one after the other, over plain floats with both decay factors computed as columns.
+        one after the other, over plain floats (the columns prepared by numpy).
         """
         with np.errstate(invalid="ignore", over="ignore"):
             q = np.minimum(held * held / self._c2, MAX_LEVEL)
-        heat = np.exp(-dt / self.tau_s).tolist()
-        cool = np.exp(-dt / self.tau_cool_s).tolist()
+        tau_heat, tau_cool, exp = self.tau_s, self.tau_cool_s, math.exp
         out = []
         theta = self._acc
-        for qi, d, eh, ec in zip(q.tolist(), dt.tolist(), heat, cool, strict=True):
+        for qi, d in zip(q.tolist(), dt.tolist(), strict=True):
             if d > 0:
-                theta = qi + (theta - qi) * (ec if qi < theta else eh)
+                theta = qi + (theta - qi) * exp(-d / (tau_cool if qi < theta else tau_heat))
                 theta = min(max(theta, 0.0), MAX_LEVEL)
             out.append(theta)
         return np.asarray(out, dtype=np.float64)

@@ -159,7 +159,8 @@ class SourceHealth:
                 prev_bad[kept[1:]] = bad[kept[:-1]] != ""
             if kept.size:
                 prev_t[kept[0]], prev_bad[kept[0]] = prev_t[0], prev_bad[0]
-            full &= (bad != "") | ~(t - prev_t <= self.max_age_s) | prev_bad
+            with np.errstate(invalid="ignore"):  # inf - inf: an infinite time is never fresh
+                full &= (bad != "") | ~(t - prev_t <= self.max_age_s) | prev_bad
         edges: list[int] = []
         reasons_after: list[str] = []
         taken, done = t.size, 0
