@@ -1,22 +1,60 @@
-"""What every protection model is: a pure, per-sample state machine.
+"""What every protection model is: a pure state machine that advances over runs of samples.
 
-Models see every valid sample of the signal they guard (``update``), take time
-as an argument (never from a clock), and report their state at tick time
-(``poll``) with a *peak latch*: a trip that happened at any moment since the
-previous poll is reported even when the current sample is back to normal, so a
-one-frame spike between two ticks is never lost.
+**The run API** (what the engine calls; the only way samples reach a model):
+
+``model.advance(times, values, *, until_edge=False) -> Run``
+
+- A *run* is a stretch of samples of the one signal the model guards, in arrival
+  order: two equal-length 1-D arrays (anything ``numpy.asarray`` takes), ``times``
+  in seconds (the engine's clock or the log's timestamps) and ``values`` in the
+  signal's unit (A, or N·m; signed: the model takes |value|). A run may hold one
+  sample (the live bus) or millions (a log); it is copied to float64 internally.
+- The returned :class:`Run` says where the model's tripped state changed: the
+  positions in the run (``index``), their times (``t``), and the state entered at
+  each (``tripped``); ``taken`` is how many samples were consumed and ``peak`` the
+  largest |value| among them (every sample counts: reports take their lowest
+  margin from it). With ``until_edge=True`` the model stops right after the first
+  sample at which its state changed (``taken`` = that position + 1, at most one
+  edge returned): the engine ticks the tree there (the tree may change a model's
+  thresholds, and :meth:`ProtectionModel.poll` must see the state of that moment)
+  and calls ``advance`` again with the rest of the run.
+- State carries between runs: a run continues exactly where the previous one
+  stopped (timers, I²t heat, the held current, the inrush window, the peak latch),
+  so feeding a run whole, sample by sample (runs of one), or split at any points
+  gives the same edges at the same samples and the same state; floating-point
+  results agree within 1e-9 relative (the tests hold it against the per-sample
+  reference maths kept in ``tests/reference_models.py``).
+- :meth:`ProtectionModel.update` is :meth:`~ProtectionModel.advance` on a run of one.
+- Bad samples never raise and never corrupt the state: a sample whose value or
+  time is NaN/±inf is ignored and counted in ``rejected``; a sample older than the
+  latest accepted one (a negative time step: clock stepped back, out-of-order
+  frames) is ignored and counted in ``out_of_order``; a repeated timestamp is a
+  normal sample (zero time step). A huge time step is taken as it is by the
+  threshold models; the models with a ``max_gap_s`` (hysteresis timers, I²t)
+  treat a longer gap as stale data (see each model). Mismatched or non-1-D
+  arrays raise ValueError naming both shapes.
+
+Models take time as an argument (never from a clock), and report their state at
+tick time (``poll``) with a *peak latch*: a trip that happened at any moment
+since the previous poll is reported even when the current sample is back to
+normal, so a one-frame spike between two ticks is never lost.
 
 Invalid data (no sample, stale, present = false, NaN/inf, out of range) is
 tracked by :class:`canguard.protect.staleness.SourceHealth`, not by the models:
-models only ever see finite values.
+the engine feeds models only valid samples (the models' own filter above is the
+fail-safe against anything else).
 """
 
 from __future__ import annotations
 
 import math
 from abc import ABC, abstractmethod
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import ClassVar
+
+import numpy as np
+import numpy.typing as npt
 
 # Reasons a guard is not satisfied, as they appear in snapshots and events.
 REASON_OK = ""
@@ -29,6 +67,14 @@ REASON_NOT_PRESENT = "not_present"
 TIME_EPS_S = 1e-9
 """Tolerance of duration comparisons (``held >= trip_after_s``): timestamps like
 ``21 * 0.01`` carry float rounding, and candump resolves microseconds only."""
+
+FloatArray = npt.NDArray[np.float64]
+IndexArray = npt.NDArray[np.intp]
+
+_FIRST_CHUNK = 64
+"""With ``until_edge``, a run is scanned in chunks starting this long and doubling, so
+stopping at an early edge costs little and a run without edges costs a few passes."""
+_LAST_CHUNK = 1 << 16
 
 
 @dataclass(frozen=True)
@@ -52,25 +98,130 @@ class Snapshot:
     reason: str
 
 
+@dataclass(frozen=True)
+class Run:
+    """What :meth:`ProtectionModel.advance` did with a run of samples.
+
+    ``index``: positions in the run (int) of the samples at which the tripped state
+    changed, ascending. ``t``: their times (s). ``tripped``: the state entered at
+    each (they alternate). ``taken``: samples consumed from the start of the run
+    (all of them unless ``until_edge`` stopped early). ``peak``: the largest |value|
+    among the taken samples the model accepted, NaN when none.
+    """
+
+    index: IndexArray
+    t: FloatArray
+    tripped: npt.NDArray[np.bool_]
+    taken: int
+    peak: float
+
+    @property
+    def changed(self) -> bool:
+        """True when the run changed the tripped state at least once (an edge: tick the tree)."""
+        return bool(self.index.size)
+
+
+def as_run(times: npt.ArrayLike, values: npt.ArrayLike) -> tuple[FloatArray, FloatArray]:
+    """Both columns of a run as float64 arrays; ValueError when they are not 1-D of one length."""
+    t = np.asarray(times, dtype=np.float64)
+    v = np.asarray(values, dtype=np.float64)
+    if t.ndim != 1 or t.shape != v.shape:
+        raise ValueError(f"a run needs 1-D times and values of one length, got shapes {t.shape} and {v.shape}")
+    return t, v
+
+
+def in_order(t: FloatArray, finite: npt.NDArray[np.bool_], last_t: float | None) -> npt.NDArray[np.bool_]:
+    """Which samples are not older than the latest accepted one before them (``finite``: the usable ones).
+
+    A finite sample that is ignored as out of order is older than an accepted one, so the
+    latest accepted time before each sample is the running maximum of the usable times
+    (and of ``last_t``).
+    """
+    if t.size == 0:
+        return finite
+    usable = np.where(finite, t, -np.inf)
+    before = np.empty_like(usable)
+    before[0] = -np.inf if last_t is None else last_t
+    if usable.size > 1:
+        np.maximum.accumulate(usable[:-1], out=before[1:])
+        np.maximum(before[1:], before[0], out=before[1:])
+    return finite & (t >= before)
+
+
+def toggles(state: npt.NDArray[np.bool_], before: bool) -> IndexArray:
+    """Positions where the boolean column ``state`` differs from its previous entry (``before`` for the first)."""
+    if state.size == 0:
+        return np.empty(0, dtype=np.intp)
+    changed = np.empty(state.size, dtype=bool)
+    changed[0] = bool(state[0]) != before
+    np.not_equal(state[1:], state[:-1], out=changed[1:])
+    return np.flatnonzero(changed)
+
+
+def last_marked(mark: npt.NDArray[np.bool_]) -> IndexArray:
+    """For each position, the latest position at or before it where ``mark`` is set (-1: none yet)."""
+    pos = np.where(mark, np.arange(mark.size), -1)
+    np.maximum.accumulate(pos, out=pos)
+    return pos
+
+
+def hold(on: npt.NDArray[np.bool_], off: npt.NDArray[np.bool_], before: bool) -> npt.NDArray[np.bool_]:
+    """A set/reset latch over a column: True from an ``on`` sample, False from an ``off`` one, else held.
+
+    ``on`` wins where both are set; ``before`` is the state before the first sample.
+    """
+    pos = last_marked(on | off)
+    out = np.where(pos >= 0, on[np.maximum(pos, 0)], before)
+    return np.asarray(out, dtype=bool)
+
+
+def run_starts(cond: npt.NDArray[np.bool_], breaks: npt.NDArray[np.bool_], t: FloatArray,
+               before: float | None) -> tuple[IndexArray, FloatArray]:
+    """Where each stretch of consecutive ``cond`` samples began: (position, time) per sample.
+
+    A stretch ends at a sample without ``cond`` and before a sample with ``breaks`` set (a
+    gap). ``before``: the start time of a stretch already running before the first sample
+    (None: none), which a first sample with ``cond`` and no break continues (position -1).
+    Entries of samples without ``cond`` are meaningless.
+    """
+    begins = cond.copy()
+    begins[1:] &= ~cond[:-1] | breaks[1:]
+    if before is not None and cond.size and not breaks[0]:
+        begins[0] = False
+    pos = last_marked(begins)
+    when = np.where(pos >= 0, t[np.maximum(pos, 0)], math.nan if before is None else before)
+    return pos, when
+
+
+@dataclass
+class Scan:
+    """A model's pure look at a run of accepted samples (nothing changed yet).
+
+    ``state``: the tripped state right after each sample. ``commit(k)``: take the
+    model's own state (timers, heat, ...) as it stands right after sample ``k``.
+    """
+
+    state: npt.NDArray[np.bool_]
+    commit: Callable[[int], None]
+
+
 class ProtectionModel(ABC):
     """A pure state machine over one signal's samples."""
 
     SAMPLE_DRIVEN: ClassVar[bool] = False
-    """True when the state (and :meth:`poll`'s answer) changes only in :meth:`update`, never with time alone.
+    """True when the state (and :meth:`poll`'s answer) changes only with samples, never with time alone.
 
-    The replay engine counts a tick that would repeat the last one instead of running it
-    (:mod:`canguard.engine.quiet`) only when every model the tree reads says so. A model
-    that cools, counts down or otherwise moves between samples (I²t) leaves it False.
+    Read only by the replay engine's quiet-tick shortcut (:mod:`canguard.engine.quiet`).
+    Every model here changes state only at samples, so every one sets it True.
     """
 
     @abstractmethod
-    def update(self, value: float, t: float) -> bool:
-        """Feed one finite sample (signed; the model takes |value|) taken at time ``t``.
+    def advance(self, times: npt.ArrayLike, values: npt.ArrayLike, *, until_edge: bool = False) -> Run:
+        """Advance over a run of samples (see the module docstring); where the tripped state changed."""
 
-        Returns True when the tripped state changed (an edge: the engine ticks
-        the tree at once). Out-of-order (``t`` earlier than the last sample) and
-        repeated timestamps never raise and never corrupt the state.
-        """
+    def update(self, value: float, t: float) -> bool:
+        """Feed one sample (a run of one); True when the tripped state changed (an edge)."""
+        return self.advance((t,), (value,)).changed
 
     @abstractmethod
     def poll(self, now: float) -> Snapshot:
@@ -87,13 +238,12 @@ class ProtectionModel(ABC):
 
 
 class LatchedModel(ProtectionModel):
-    """Bookkeeping every concrete model shares: tripped state, edge time, peak latch.
+    """Bookkeeping every concrete model shares: the run filter, tripped state, edge time, peak latch.
 
-    Subclasses implement ``update`` (calling :meth:`_accept` first and
-    :meth:`_set_tripped` to change state) plus :meth:`_threshold_value` and
-    :meth:`_level_pct`. Samples with a non-finite value or time, and samples
-    older than the latest one (``t`` < last ``t``), are ignored and counted in
-    ``out_of_order`` / ``rejected``; a repeated timestamp is a normal sample.
+    Subclasses implement :meth:`_scan` (their maths over a run of accepted samples) plus
+    :meth:`_threshold_value` and :meth:`_level_pct`. Samples with a non-finite value or
+    time, and samples older than the latest one (``t`` < last ``t``), are ignored and
+    counted in ``out_of_order`` / ``rejected``; a repeated timestamp is a normal sample.
     """
 
     reason_tripped: str = REASON_OVERCURRENT
@@ -125,15 +275,54 @@ class LatchedModel(ProtectionModel):
         """Time of the last trip / recover edge, None if never."""
         return self._since
 
-    def _accept(self, value: float, t: float) -> float | None:
-        """Return |value| when the sample may be used, None (and count it) when it must be ignored."""
-        if not (math.isfinite(value) and math.isfinite(t)):
-            self.rejected += 1
-            return None
-        if self._last_t is not None and t < self._last_t:
-            self.out_of_order += 1
-            return None
-        return abs(value)
+    # -- the run ------------------------------------------------------------------------
+
+    def advance(self, times: npt.ArrayLike, values: npt.ArrayLike, *, until_edge: bool = False) -> Run:
+        """Advance over a run of samples; see :mod:`canguard.protect.base` for the contract."""
+        t, v = as_run(times, values)
+        if not until_edge or t.size <= _FIRST_CHUNK:
+            return self._advance(t, v, until_edge)
+        start, size, peak = 0, _FIRST_CHUNK, math.nan
+        while True:
+            end = min(t.size, start + size)
+            part = self._advance(t[start:end], v[start:end], True)
+            peak = float(np.fmax(peak, part.peak))
+            if part.changed or end == t.size:
+                return Run(part.index + start, part.t, part.tripped, start + part.taken, peak)
+            start, size = end, min(2 * size, _LAST_CHUNK)
+
+    def _advance(self, t: FloatArray, v: FloatArray, until_edge: bool) -> Run:
+        finite = np.isfinite(v) & np.isfinite(t)
+        ok = in_order(t, finite, self._last_t)
+        picked = np.flatnonzero(ok)
+        scan = self._scan(t[picked], np.abs(v[picked])) if picked.size else None
+        edges = toggles(scan.state, self._tripped) if scan is not None else np.empty(0, dtype=np.intp)
+        last = picked.size - 1
+        if until_edge and edges.size:
+            edges = edges[:1]
+            last = int(edges[0])
+        taken = int(picked[last]) + 1 if until_edge and edges.size else t.size
+        self.rejected += int(np.count_nonzero(~finite[:taken]))
+        self.out_of_order += int(np.count_nonzero(finite[:taken] & ~ok[:taken]))
+        if scan is None or last < 0:
+            return Run(edges, np.empty(0), np.empty(0, dtype=bool), taken, math.nan)
+        at = picked[edges]
+        entered = scan.state[edges]
+        scan.commit(last)
+        self._last_t = float(t[picked[last]])
+        self._value = abs(float(v[picked[last]]))
+        if edges.size:
+            self._tripped = bool(entered[-1])
+            self._since = float(t[at[-1]])
+            self._latch = self._latch or bool(entered.any())
+        peak = float(np.abs(v[picked[: last + 1]]).max())
+        return Run(at, t[at], entered, taken, peak)
+
+    @abstractmethod
+    def _scan(self, t: FloatArray, a: FloatArray) -> Scan:
+        """The model's maths over accepted samples (times ``t``, |values| ``a``); must not change ``self``."""
+
+    # -- the replay's settle shortcut (kept while the engine still calls it) ------------
 
     def settles(self, low: float, high: float, first_t: float) -> bool:
         """True when a run of samples, fed one by one, would trip or recover nothing (nothing is changed here).
@@ -168,18 +357,18 @@ class LatchedModel(ProtectionModel):
         """
         if not isinstance(old, LatchedModel):
             return
-        self._tripped = old._tripped
-        self._since = old._since
-        self._latch = old._latch
-        self._value = old._value
-        self._last_t = old._last_t
+        self._tripped, self._since, self._latch, self._value, self._last_t = old.running()
+
+    def running(self) -> tuple[bool, float | None, bool, float, float | None]:
+        """What a reload carries of every model: (tripped, since, peak latch armed, latest |value|, latest time)."""
+        return self._tripped, self._since, self._latch, self._value, self._last_t
 
     def _set_tripped(self, tripped: bool, t: float | None) -> bool:
-        """Enter ``tripped``; True on an edge. A trip edge arms the peak latch.
+        """Enter ``tripped`` outside a run (restore, worst case); True on an edge. A trip edge arms the latch.
 
         Only the edge arms it: a trip the last poll already reported and that lasted up
-        to a recovery must not be reported again after that recovery (issue 12: every
-        recovery came one tick late).
+        to a recovery must not be reported again after that recovery (every recovery
+        would come one tick late).
         """
         if tripped == self._tripped:
             return False

@@ -51,7 +51,9 @@ from abc import abstractmethod
 from collections.abc import Mapping
 from typing import Any
 
-from canguard.protect.base import REASON_I2T, LatchedModel, ProtectionModel
+import numpy as np
+
+from canguard.protect.base import REASON_I2T, FloatArray, LatchedModel, ProtectionModel, Scan, hold
 
 KIND_LEAKY = "leaky"
 KIND_THERMAL = "thermal"
@@ -133,6 +135,43 @@ def cooled_level(state: Mapping[str, Any], downtime_s: float) -> float:
     raise ValueError(f"i2t state: unknown kind {kind!r} (expected {KIND_LEAKY!r} or {KIND_THERMAL!r})")
 
 
+def _next_where(mask: np.ndarray) -> np.ndarray:
+    """For each position, the first position at or after it where ``mask`` is set (``len``: none)."""
+    n = mask.size
+    pos = np.where(mask, np.arange(n), n)
+    return np.minimum.accumulate(pos[::-1])[::-1]
+
+
+def clamped_sum(start: float, steps: FloatArray, cap: float) -> FloatArray:
+    """The running sum ``acc ← min(max(acc + step, 0), cap)`` from ``start``, after each step.
+
+    Exactly the float results of adding one step after the other: between the samples
+    where a bound is hit, a sequential ``numpy.add.accumulate`` from the last value adds
+    in the same order; at a bound the sum restarts from it, and the steps that keep it
+    there (<= 0 at the floor, >= 0 at the cap) are skipped as a block. The scan runs in
+    windows that double while no bound is hit, so a run costs a few passes.
+    """
+    n = steps.size
+    out = np.empty(n)
+    rise, fall = _next_where(steps > 0), _next_where(steps < 0)
+    acc, pos, size = float(start), 0, 64
+    while pos < n:
+        end = min(n, pos + size)
+        run = np.add.accumulate(np.concatenate(((acc,), steps[pos:end])))[1:]
+        hit = np.flatnonzero(~((run >= 0.0) & (run <= cap)))
+        if not hit.size:
+            out[pos:end] = run
+            acc, pos, size = float(run[-1]), end, 2 * size
+            continue
+        p = pos + int(hit[0])
+        out[pos:p] = run[: p - pos]
+        acc = 0.0 if run[p - pos] < 0.0 else cap
+        stay = int((rise if acc == 0.0 else fall)[p + 1]) if p + 1 < n else n
+        out[p:stay] = acc
+        pos, size = stay, 64
+    return out
+
+
 class _I2tModel(LatchedModel):
     """What both I²t models share: sampling, gaps, trip/recover on the level, persistence."""
 
@@ -159,8 +198,8 @@ class _I2tModel(LatchedModel):
         """The accumulator value at which the model trips (A²s, or θ = 1)."""
 
     @abstractmethod
-    def _integrate(self, current_a: float, dt: float) -> None:
-        """Advance the accumulator by ``dt`` > 0 seconds at a constant |I| = ``current_a``."""
+    def _accumulate(self, held: FloatArray, dt: FloatArray) -> FloatArray:
+        """The accumulator after each step: |I| = ``held[i]`` for ``dt[i]`` s (0: no step), from the present one."""
 
     @abstractmethod
     def params(self) -> dict[str, float | None]:
@@ -176,6 +215,11 @@ class _I2tModel(LatchedModel):
     def accumulator(self) -> float:
         """The raw state: A (A²s) for the leaky bucket, θ for the thermal image."""
         return self._acc
+
+    @property
+    def held_a(self) -> float:
+        """The |I| held since the latest sample (A; NaN before any sample and after a restore)."""
+        return self._held
 
     @property
     def level(self) -> float:
@@ -197,33 +241,37 @@ class _I2tModel(LatchedModel):
         super().carry_from(old)
         if isinstance(old, _I2tModel):
             self._set_acc(old.level * self.trip_level)
-            self._held = old._held
+            self._held = old.held_a
             self.stale_gaps = old.stale_gaps
 
-    def update(self, value: float, t: float) -> bool:
-        """Feed one sample; True when the tripped state changed. See the module docstring."""
-        a = self._accept(value, t)
-        if a is None:
-            return False
-        if self._last_t is not None and not math.isnan(self._held):
-            dt = t - self._last_t
-            if dt > self.max_gap_s:
-                self.stale_gaps += 1
-                dt = self.max_gap_s
-            if dt > 0:
-                self._integrate(self._held, dt)
-        self._last_t = t
-        self._value = a
-        self._held = a
-        return self._evaluate(t)
+    def _scan(self, t: FloatArray, a: FloatArray) -> Scan:
+        """Each sample's |I| held until the next, integrated exactly per interval; trip/recover on the level.
 
-    def _evaluate(self, t: float | None) -> bool:
-        lvl = self.level
-        if lvl >= 1.0:
-            return self._set_tripped(True, t)
-        if self._tripped and lvl < self.recover_fraction:
-            return self._set_tripped(False, t)
-        return False
+        The time steps are the time column's differences (the first against the
+        previous run's last sample), cut to ``max_gap_s`` (a stale gap) and zero where
+        nothing is integrated (before any sample, a repeated timestamp). The model's
+        :meth:`_accumulate` turns them into the accumulator after each sample; the
+        tripped state is then a set/reset latch on the level column.
+        """
+        held = np.empty(a.size)
+        held[0] = self._held
+        held[1:] = a[:-1]
+        dt = np.empty(a.size)
+        dt[0] = math.nan if self._last_t is None else t[0] - self._last_t
+        np.subtract(t[1:], t[:-1], out=dt[1:])
+        stale = dt > self.max_gap_s
+        stale[0] &= not math.isnan(self._held)
+        dt = np.where(np.isnan(held) | ~(dt > 0), 0.0, np.minimum(dt, self.max_gap_s))
+        acc = self._accumulate(held, dt)
+        level = acc / self.trip_level
+        state = hold(level >= 1.0, level < self.recover_fraction, self._tripped)
+
+        def commit(k: int) -> None:
+            self._acc = float(acc[k])
+            self._held = float(a[k])
+            self.stale_gaps += int(np.count_nonzero(stale[: k + 1]))
+
+        return Scan(state, commit)
 
     def _threshold_value(self) -> float:
         return self.trip_level
@@ -234,7 +282,7 @@ class _I2tModel(LatchedModel):
     def set_hot(self, t: float | None = None) -> None:
         """Worst case: put the state at the trip level (the model trips; ``t`` becomes ``since``)."""
         self._set_acc(self.trip_level)
-        self._evaluate(t)
+        self._set_tripped(True, t)
 
     def export(self) -> dict[str, Any]:
         """The state as a JSON-able dict: kind, version, parameters, accumulator, level, tripped, time."""
@@ -299,10 +347,13 @@ class LeakyI2t(_I2tModel):
         """S = (peak_a² − continuous_a²)·peak_time_s, in A²s."""
         return self._s
 
-    def _integrate(self, current_a: float, dt: float) -> None:
-        rate = current_a * current_a - self.continuous_a * self.continuous_a
-        if rate != 0:
-            self._set_acc(self._acc + rate * dt)
+    def _accumulate(self, held: FloatArray, dt: FloatArray) -> FloatArray:
+        """A running sum of ``(I² − I_cont²)·dt`` floored at 0 and capped (see :func:`clamped_sum`)."""
+        c2 = self.continuous_a * self.continuous_a
+        with np.errstate(invalid="ignore", over="ignore"):
+            rate = held * held - c2
+            steps = np.where(dt > 0, rate * dt, 0.0)
+        return clamped_sum(self._acc, steps, MAX_LEVEL * self._s)
 
     def params(self) -> dict[str, float | None]:
         """continuous_a, peak_a, peak_time_s, recover_fraction, max_gap_s (None = inf)."""
@@ -376,10 +427,23 @@ class ThermalI2t(_I2tModel):
         """θ = 1."""
         return 1.0
 
-    def _integrate(self, current_a: float, dt: float) -> None:
-        q = min(current_a * current_a / self._c2, MAX_LEVEL)
-        tau = self.tau_cool_s if q < self._acc else self.tau_s
-        self._set_acc(q + (self._acc - q) * math.exp(-dt / tau))
+    def _accumulate(self, held: FloatArray, dt: FloatArray) -> FloatArray:
+        """θ ← q + (θ − q)·exp(−dt/τ) per step, q = I²/I_cont² (capped), τ the cooling one while q < θ.
+
+        The time constant depends on the state (heating or cooling), so the steps run
+        one after the other, over plain floats (the columns prepared by numpy).
+        """
+        with np.errstate(invalid="ignore", over="ignore"):
+            q = np.minimum(held * held / self._c2, MAX_LEVEL)
+        tau_heat, tau_cool, exp = self.tau_s, self.tau_cool_s, math.exp
+        out = []
+        theta = self._acc
+        for qi, d in zip(q.tolist(), dt.tolist(), strict=True):
+            if d > 0:
+                theta = qi + (theta - qi) * exp(-d / (tau_cool if qi < theta else tau_heat))
+                theta = min(max(theta, 0.0), MAX_LEVEL)
+            out.append(theta)
+        return np.asarray(out, dtype=np.float64)
 
     def params(self) -> dict[str, float | None]:
         """continuous_a, peak_a, peak_time_s, tau_s and tau_cool_s (resolved), recover_fraction, max_gap_s."""
