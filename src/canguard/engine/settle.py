@@ -25,7 +25,7 @@ A block is settled only when, for every configured message in it:
 - when its source is the stop confirmation's (which reads the value between ticks, while a
   stop waits for it): no confirmation is pending, and the block ends before the quiet
   horizon of the last fixed point, counted with the block's rows taken
-  (:meth:`QuietTickMixin._block_horizon <canguard.engine.quiet.QuietTickMixin._block_horizon>`):
+  (:meth:`QuietTicks.block_horizon <canguard.engine.quiet.QuietTicks.block_horizon>`):
   no tick in it can stop the task and start one.
 
 And the tick before the block was a fixed point reaching no loud node (the quiet
@@ -100,8 +100,8 @@ def settle(prepared: list[Prepared], end: float = math.inf,
            horizon: Callable[[Mapping[int, Mapping[str, float]]], float] | None = None) -> bool:
     """Take every prepared message's rows whole if every model agrees; False: nothing changed, go row by row.
 
-    ``end``: the block's last time; ``horizon``: :meth:`QuietTickMixin._block_horizon
-    <canguard.engine.quiet.QuietTickMixin._block_horizon>`, which a block feeding the stop
+    ``end``: the block's last time; ``horizon``: :meth:`QuietTicks.block_horizon
+    <canguard.engine.quiet.QuietTicks.block_horizon>`, which a block feeding the stop
     confirmation's source must end before.
     """
     if any(plan.confirm_read for plan, *_rest in prepared):
