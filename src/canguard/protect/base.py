@@ -71,10 +71,12 @@ TIME_EPS_S = 1e-9
 FloatArray = npt.NDArray[np.float64]
 IndexArray = npt.NDArray[np.intp]
 
-_FIRST_CHUNK = 64
+_FIRST_CHUNK = 1024
 """With ``until_edge``, a run is scanned in chunks starting this long and doubling, so
 stopping at an early edge costs little and a run without edges costs a few passes."""
 _LAST_CHUNK = 1 << 16
+"""A long run is scanned in chunks of at most this many samples: the temporary columns
+stay in the CPU cache and memory stays flat however long the run."""
 
 
 @dataclass(frozen=True)
@@ -280,16 +282,24 @@ class LatchedModel(ProtectionModel):
     def advance(self, times: npt.ArrayLike, values: npt.ArrayLike, *, until_edge: bool = False) -> Run:
         """Advance over a run of samples; see :mod:`canguard.protect.base` for the contract."""
         t, v = as_run(times, values)
-        if not until_edge or t.size <= _FIRST_CHUNK:
+        if t.size <= _FIRST_CHUNK:
             return self._advance(t, v, until_edge)
-        start, size, peak = 0, _FIRST_CHUNK, math.nan
-        while True:
-            end = min(t.size, start + size)
-            part = self._advance(t[start:end], v[start:end], True)
-            peak = float(np.fmax(peak, part.peak))
-            if part.changed or end == t.size:
-                return Run(part.index + start, part.t, part.tripped, start + part.taken, peak)
-            start, size = end, min(2 * size, _LAST_CHUNK)
+        parts: list[tuple[int, Run]] = []
+        start, size = 0, _FIRST_CHUNK if until_edge else _LAST_CHUNK
+        while start < t.size:
+            part = self._advance(t[start : start + size], v[start : start + size], until_edge)
+            parts.append((start, part))
+            start += part.taken
+            if until_edge and part.changed:
+                break
+            size = min(2 * size, _LAST_CHUNK)
+        return Run(
+            np.concatenate([p.index + at for at, p in parts]),
+            np.concatenate([p.t for _, p in parts]),
+            np.concatenate([p.tripped for _, p in parts]),
+            start,
+            float(np.fmax.reduce([p.peak for _, p in parts])),
+        )
 
     def _advance(self, t: FloatArray, v: FloatArray, until_edge: bool) -> Run:
         finite = np.isfinite(v) & np.isfinite(t)

@@ -172,6 +172,26 @@ def clamped_sum(start: float, steps: FloatArray, cap: float) -> FloatArray:
     return out
 
 
+def thermal_steps(theta: float, q: list[float], dt: list[float], tau_heat: float, tau_cool: float) -> list[float]:
+    """θ after each step ``θ ← q + (θ − q)·exp(−dt/τ)`` (no step where dt is 0), clamped to [0, MAX_LEVEL].
+
+    τ is ``tau_cool`` while ``q < θ`` (cooling), else ``tau_heat``. Plain floats: the state
+    picks the time constant, so the steps run one after the other.
+    """
+    exp = math.exp
+    out = []
+    append = out.append
+    for qi, d in zip(q, dt, strict=True):
+        if d > 0.0:
+            theta = qi + (theta - qi) * exp(-d / (tau_cool if qi < theta else tau_heat))
+            if theta < 0.0:
+                theta = 0.0
+            elif theta > MAX_LEVEL:
+                theta = MAX_LEVEL
+        append(theta)
+    return out
+
+
 class _I2tModel(LatchedModel):
     """What both I²t models share: sampling, gaps, trip/recover on the level, persistence."""
 
@@ -435,15 +455,7 @@ class ThermalI2t(_I2tModel):
         """
         with np.errstate(invalid="ignore", over="ignore"):
             q = np.minimum(held * held / self._c2, MAX_LEVEL)
-        tau_heat, tau_cool, exp = self.tau_s, self.tau_cool_s, math.exp
-        out = []
-        theta = self._acc
-        for qi, d in zip(q.tolist(), dt.tolist(), strict=True):
-            if d > 0:
-                theta = qi + (theta - qi) * exp(-d / (tau_cool if qi < theta else tau_heat))
-                theta = min(max(theta, 0.0), MAX_LEVEL)
-            out.append(theta)
-        return np.asarray(out, dtype=np.float64)
+        return np.asarray(thermal_steps(self._acc, q.tolist(), dt.tolist(), self.tau_s, self.tau_cool_s))
 
     def params(self) -> dict[str, float | None]:
         """continuous_a, peak_a, peak_time_s, tau_s and tau_cool_s (resolved), recover_fraction, max_gap_s."""
