@@ -13,6 +13,7 @@ measured in the same run. Both must find the same edges. Best of ``--repeat``.
 from __future__ import annotations
 
 import argparse
+import functools
 import sys
 import time
 from collections.abc import Callable
@@ -24,8 +25,9 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from canguard.protect import Hysteresis, InrushBlanking, LeakyI2t, ThermalI2t, Threshold  # noqa: E402
 from tests.reference_models import RefHysteresis, RefI2t, RefInrush, RefThreshold  # noqa: E402
+
+from canguard.protect import Hysteresis, InrushBlanking, LeakyI2t, ThermalI2t, Threshold  # noqa: E402
 
 CASES: dict[str, tuple[Callable[[], Any], Callable[[], Any]]] = {
     "threshold": (lambda: Threshold(30.0), lambda: RefThreshold(max_value=30.0)),
@@ -100,9 +102,9 @@ def main() -> int:
     print(f"{'model':<18} {'edges':>6} {'per-sample s':>13} {'one run s':>10} {'x':>7} {'at edges s':>11} {'x':>7}")
     bad = 0
     for name, (make, make_ref) in CASES.items():
-        ref_s, want = best(lambda: per_sample(make_ref, tl, vl), args.repeat)
-        run_s, got = best(lambda: one_run(make, t, v), args.repeat)
-        edge_s, got_edges = best(lambda: edge_runs(make, t, v), args.repeat)
+        ref_s, want = best(functools.partial(per_sample, make_ref, tl, vl), args.repeat)
+        run_s, got = best(functools.partial(one_run, make, t, v), args.repeat)
+        edge_s, got_edges = best(functools.partial(edge_runs, make, t, v), args.repeat)
         same = got == want == got_edges
         bad += not same
         print(f"{name:<18} {len(want):>6} {ref_s:>13.3f} {run_s:>10.3f} {ref_s / run_s:>7.1f} "

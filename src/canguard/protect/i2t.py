@@ -179,7 +179,7 @@ def thermal_steps(theta: float, q: list[float], dt: list[float], tau_heat: float
     picks the time constant, so the steps run one after the other.
     """
     exp = math.exp
-    out = []
+    out: list[float] = []
     append = out.append
     for qi, d in zip(q, dt, strict=True):
         if d > 0.0:
