@@ -115,6 +115,28 @@ class SourceHealth:
         return self._ranges
 
     @property
+    def value_roles(self) -> tuple[str, ...]:
+        """The source's value roles in config order (``present`` and ``counter`` are not values)."""
+        return self._value_roles
+
+    @property
+    def last_reason(self) -> str:
+        """The source's reason as the latest sample that could change it left it ("" = usable)."""
+        return self._last_reason
+
+    def latest_t(self, role: str) -> float | None:
+        """Time of the latest sample of ``role``, valid or not (None: none yet); a run's samples must not be older."""
+        return self._latest_t.get(role)
+
+    def latest_times(self) -> dict[str, float]:
+        """Time of the latest sample of every role seen so far (a copy)."""
+        return dict(self._latest_t)
+
+    def invalid_reason(self, role: str) -> str:
+        """The invalid reason of the latest sample of ``role`` ("" when it was valid or there was none)."""
+        return self._invalid.get(role, "")
+
+    @property
     def name(self) -> str:
         """The source's configured name."""
         return self.source.name
