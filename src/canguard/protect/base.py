@@ -77,6 +77,8 @@ stopping at an early edge costs little and a run without edges costs a few passe
 _LAST_CHUNK = 1 << 16
 """A long run is scanned in chunks of at most this many samples: the temporary columns
 stay in the CPU cache and memory stays flat however long the run."""
+_NO_EDGES = np.empty(0, dtype=np.intp)
+_NO_EDGES.flags.writeable = False
 
 
 @dataclass(frozen=True)
@@ -139,8 +141,8 @@ def in_order(t: FloatArray, finite: npt.NDArray[np.bool_], last_t: float | None)
     latest accepted time before each sample is the running maximum of the usable times
     (and of ``last_t``).
     """
-    if t.size == 0:
-        return finite
+    if t.size <= 1:
+        return finite if last_t is None or t.size == 0 else finite & (t >= last_t)
     usable = np.where(finite, t, -np.inf)
     before = np.empty_like(usable)
     before[0] = -np.inf if last_t is None else last_t
@@ -152,8 +154,8 @@ def in_order(t: FloatArray, finite: npt.NDArray[np.bool_], last_t: float | None)
 
 def toggles(state: npt.NDArray[np.bool_], before: bool) -> IndexArray:
     """Positions where the boolean column ``state`` differs from its previous entry (``before`` for the first)."""
-    if state.size == 0:
-        return np.empty(0, dtype=np.intp)
+    if state.size <= 1:
+        return np.flatnonzero(state != before)
     changed = np.empty(state.size, dtype=bool)
     changed[0] = bool(state[0]) != before
     np.not_equal(state[1:], state[:-1], out=changed[1:])
@@ -304,29 +306,37 @@ class LatchedModel(ProtectionModel):
     def _advance(self, t: FloatArray, v: FloatArray, until_edge: bool) -> Run:
         finite = np.isfinite(v) & np.isfinite(t)
         ok = in_order(t, finite, self._last_t)
-        picked = np.flatnonzero(ok)
-        scan = self._scan(t[picked], np.abs(v[picked])) if picked.size else None
-        edges = toggles(scan.state, self._tripped) if scan is not None else np.empty(0, dtype=np.intp)
+        everything = bool(ok.all())
+        picked = np.arange(t.size) if everything else np.flatnonzero(ok)
+        if not picked.size:
+            self._count_ignored(finite, ok, t.size)
+            return Run(_NO_EDGES, np.empty(0), np.empty(0, dtype=bool), t.size, math.nan)
+        ta = t if everything else t[picked]
+        a = np.abs(v if everything else v[picked])
+        scan = self._scan(ta, a)
+        edges = toggles(scan.state, self._tripped)
         last = picked.size - 1
+        taken = t.size
         if until_edge and edges.size:
             edges = edges[:1]
             last = int(edges[0])
-        taken = int(picked[last]) + 1 if until_edge and edges.size else t.size
-        self.rejected += int(np.count_nonzero(~finite[:taken]))
-        self.out_of_order += int(np.count_nonzero(finite[:taken] & ~ok[:taken]))
-        if scan is None or last < 0:
-            return Run(edges, np.empty(0), np.empty(0, dtype=bool), taken, math.nan)
-        at = picked[edges]
+            taken = int(picked[last]) + 1
+        if not everything:
+            self._count_ignored(finite, ok, taken)
         entered = scan.state[edges]
         scan.commit(last)
-        self._last_t = float(t[picked[last]])
-        self._value = abs(float(v[picked[last]]))
+        self._last_t = float(ta[last])
+        self._value = float(a[last])
         if edges.size:
             self._tripped = bool(entered[-1])
-            self._since = float(t[at[-1]])
+            self._since = float(ta[edges[-1]])
             self._latch = self._latch or bool(entered.any())
-        peak = float(np.abs(v[picked[: last + 1]]).max())
-        return Run(at, t[at], entered, taken, peak)
+        return Run(picked[edges], ta[edges], entered, taken, float(a[: last + 1].max()))
+
+    def _count_ignored(self, finite: npt.NDArray[np.bool_], ok: npt.NDArray[np.bool_], taken: int) -> None:
+        """Count the first ``taken`` samples' ignored ones: not finite, or out of order."""
+        self.rejected += int(np.count_nonzero(~finite[:taken]))
+        self.out_of_order += int(np.count_nonzero(finite[:taken] & ~ok[:taken]))
 
     @abstractmethod
     def _scan(self, t: FloatArray, a: FloatArray) -> Scan:

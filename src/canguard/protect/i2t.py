@@ -153,7 +153,7 @@ def clamped_sum(start: float, steps: FloatArray, cap: float) -> FloatArray:
     """
     n = steps.size
     out = np.empty(n)
-    rise, fall = _next_where(steps > 0), _next_where(steps < 0)
+    stays: tuple[np.ndarray, np.ndarray] | None = None  # where each bound is left, found at the first hit
     acc, pos, size = float(start), 0, 64
     while pos < n:
         end = min(n, pos + size)
@@ -166,7 +166,12 @@ def clamped_sum(start: float, steps: FloatArray, cap: float) -> FloatArray:
         p = pos + int(hit[0])
         out[pos:p] = run[: p - pos]
         acc = 0.0 if run[p - pos] < 0.0 else cap
-        stay = int((rise if acc == 0.0 else fall)[p + 1]) if p + 1 < n else n
+        if p + 1 == n:
+            out[p] = acc
+            break
+        if stays is None:
+            stays = _next_where(steps > 0), _next_where(steps < 0)
+        stay = int(stays[acc != 0.0][p + 1])
         out[p:stay] = acc
         pos, size = stay, 64
     return out
