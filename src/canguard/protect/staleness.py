@@ -114,23 +114,9 @@ class SourceHealth:
         """The DBC [min|max] of each role that has one: values outside are ``out_of_range``."""
         return self._ranges
 
-    @property
-    def value_roles(self) -> tuple[str, ...]:
-        """The source's value roles in config order (``present`` and ``counter`` are not values)."""
-        return self._value_roles
-
-    @property
-    def last_reason(self) -> str:
-        """The source's reason as the latest sample that could change it left it ("" = usable)."""
-        return self._last_reason
-
     def latest_t(self, role: str) -> float | None:
         """Time of the latest sample of ``role``, valid or not (None: none yet); a run's samples must not be older."""
         return self._latest_t.get(role)
-
-    def latest_times(self) -> dict[str, float]:
-        """Time of the latest sample of every role seen so far (a copy)."""
-        return dict(self._latest_t)
 
     def invalid_reason(self, role: str) -> str:
         """The invalid reason of the latest sample of ``role`` ("" when it was valid or there was none)."""
@@ -226,8 +212,7 @@ class SourceHealth:
         kept = np.flatnonzero(ok[start:end])
         if kept.size:
             k = start + int(kept[-1])
-            self._latest_t[role] = self._valid_t[role] = float(t[k])
-            self._value[role] = float(v[k])
+            self.take(role, float(t[k]), float(v[k]))
 
     def _full_step(self, role: str, t: float, value: float, bad: str) -> bool:
         """One sample that may change the reason; True on an edge (see :meth:`observe_run`)."""
@@ -310,3 +295,37 @@ class SourceHealth:
     def values(self, now: float) -> dict[str, float]:
         """Every value role's latest value, NaN where :meth:`reason` for that role is not empty at ``now``."""
         return {r: (self.value(r) if not self.reason(now, r) else math.nan) for r in self._value_roles}
+
+    # -- rows that cannot change the reason, taken at once (the engine's block path) --------------
+    @property
+    def value_roles(self) -> tuple[str, ...]:
+        """The source's value roles, in config order (``present`` and ``counter`` are not value roles)."""
+        return self._value_roles
+
+    @property
+    def last_reason(self) -> str:
+        """The reason the last sample :meth:`observe` looked at fully left ("" usable)."""
+        return self._last_reason
+
+    def latest_times(self) -> dict[str, float]:
+        """Each role's latest sample time, valid or not (a copy)."""
+        return dict(self._latest_t)
+
+    def fresh_valid(self, role: str, t: float) -> bool:
+        """True when a valid sample of ``role`` at ``t`` cannot change the reason (:meth:`observe`'s fast path).
+
+        The role's latest sample is valid, not after ``t`` and at most ``max_age_s`` before it.
+        """
+        latest = self._latest_t.get(role)
+        return latest is not None and latest <= t and t - latest <= self.max_age_s and not self._invalid.get(role)
+
+    def settled(self, t: float) -> bool:
+        """True when the source was usable at its last full look and every role is fresh at ``t`` (a presence
+        flag of 1 at ``t`` then changes nothing)."""
+        return not self._last_reason and t - self._ok_since <= self.max_age_s
+
+    def take(self, role: str, t: float, value: float) -> None:
+        """Take a valid sample of ``role`` for which :meth:`fresh_valid` holds: it only becomes the latest."""
+        self._latest_t[role] = t
+        self._value[role] = value
+        self._valid_t[role] = t
