@@ -155,11 +155,11 @@ def in_order(t: FloatArray, finite: npt.NDArray[np.bool_], last_t: float | None)
 def toggles(state: npt.NDArray[np.bool_], before: bool) -> IndexArray:
     """Positions where the boolean column ``state`` differs from its previous entry (``before`` for the first)."""
     if state.size <= 1:
-        return np.flatnonzero(state != before)
+        return (state != before).nonzero()[0]
     changed = np.empty(state.size, dtype=bool)
     changed[0] = bool(state[0]) != before
     np.not_equal(state[1:], state[:-1], out=changed[1:])
-    return np.flatnonzero(changed)
+    return changed.nonzero()[0]
 
 
 def last_marked(mark: npt.NDArray[np.bool_]) -> IndexArray:
@@ -307,7 +307,7 @@ class LatchedModel(ProtectionModel):
         finite = np.isfinite(v) & np.isfinite(t)
         ok = in_order(t, finite, self._last_t)
         everything = bool(ok.all())
-        picked = np.arange(t.size) if everything else np.flatnonzero(ok)
+        picked = np.arange(t.size) if everything else ok.nonzero()[0]
         if not picked.size:
             self._count_ignored(finite, ok, t.size)
             return Run(_NO_EDGES, np.empty(0), np.empty(0, dtype=bool), t.size, math.nan)

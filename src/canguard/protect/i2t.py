@@ -158,7 +158,7 @@ def clamped_sum(start: float, steps: FloatArray, cap: float) -> FloatArray:
     while pos < n:
         end = min(n, pos + size)
         run = np.add.accumulate(np.concatenate(((acc,), steps[pos:end])))[1:]
-        hit = np.flatnonzero(~((run >= 0.0) & (run <= cap)))
+        hit = (~((run >= 0.0) & (run <= cap))).nonzero()[0]
         if not hit.size:
             out[pos:end] = run
             acc, pos, size = float(run[-1]), end, 2 * size

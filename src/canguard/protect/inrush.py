@@ -121,7 +121,7 @@ class InrushBlanking:
         """
         t, a = as_run(times, abs_values)
         ok = in_order(t, np.isfinite(a) & np.isfinite(t), self._last_t)
-        picked = np.flatnonzero(ok)
+        picked = ok.nonzero()[0]
         out = np.zeros(t.size, dtype=bool)
         if picked.size:
             scan = self.scan(t[picked], np.abs(a[picked]))

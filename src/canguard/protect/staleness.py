@@ -161,7 +161,7 @@ class SourceHealth:
             latest = self._latest_t.get(role)
             prev_t[0] = math.nan if latest is None else latest
             prev_bad[0] = bool(self._invalid.get(role))
-            kept = np.flatnonzero(ok)
+            kept = ok.nonzero()[0]
             if kept.size > 1:  # the previous accepted sample of each accepted one
                 prev_t[kept[1:]] = t[kept[:-1]]
                 prev_bad[kept[1:]] = bad[kept[:-1]] != ""
@@ -172,7 +172,7 @@ class SourceHealth:
         edges: list[int] = []
         reasons_after: list[str] = []
         taken, done = t.size, 0
-        for i in np.flatnonzero(full).tolist():
+        for i in full.nonzero()[0].tolist():
             self._take_quiet(role, t, v, ok, done, i)
             done = i + 1
             if self._full_step(role, float(t[i]), float(v[i]), str(bad[i])):
@@ -209,7 +209,7 @@ class SourceHealth:
     def _take_quiet(self, role: str, t: FloatArray, v: FloatArray, ok: npt.NDArray[np.bool_],
                     start: int, end: int) -> None:
         """Samples ``start`` to ``end`` (excluded) that change nothing but the latest value: take the last."""
-        kept = np.flatnonzero(ok[start:end])
+        kept = ok[start:end].nonzero()[0]
         if kept.size:
             k = start + int(kept[-1])
             self.take(role, float(t[k]), float(v[k]))
