@@ -280,3 +280,30 @@ def test_a_timer_starts_after_the_edge_that_stopped_it(cuts: list[int]) -> None:
     model = Hysteresis(10.0, 10.0, trip_after_s=0.1)
     assert feed(model, t, v, cuts, False) == want
     assert_same_state(model, ref)
+
+
+def test_source_health_says_its_state_publicly() -> None:
+    """The latest time, invalid reason and last reason of a role are readable without touching private state."""
+    health, _ref = _health_ref(("current",), False)
+    assert health.value_roles == ("current",) and health.latest_t("current") is None
+    run = health.observe_run("current", [0.0, 0.01, 0.02, 0.03], [1.0, 2.0, 99.0, 3.0])
+    assert run.index.tolist() == [0, 2, 3] and run.reasons == ("", "out_of_range", "")
+    assert health.latest_t("current") == 0.03 and health.invalid_reason("current") == ""
+    assert health.value("current") == 3.0 and health.last_reason == ""
+    assert health.latest_times() == {"current": 0.03}
+    health.observe_run("current", [0.04], [math.nan])
+    assert health.invalid_reason("current") == "nan" and health.value("current") == 3.0
+
+
+def test_heat_after_a_long_run_survives_a_restart() -> None:
+    """The heat a long run leaves is what the reference reaches, and a restored model starts from that level."""
+    t, v = np.arange(200_000) * 1e-3, np.where(np.arange(200_000) % 20_000 < 9_000, 13.0, 2.0)
+    for make, make_ref in ((lambda: LeakyI2t(6.0, 12.0, 3.0), lambda: RefI2t(kind="leaky", peak_time_s=3.0)),
+                           (lambda: ThermalI2t(6.0, tau_s=3.0, tau_cool_s=6.0),
+                            lambda: RefI2t(kind="thermal", tau_s=3.0, tau_cool_s=6.0))):
+        model, ref = make(), make_ref()
+        assert model.advance(t, v).index.tolist() == reference_edges(ref, t, v)
+        assert close(model.accumulator, ref.acc, model.trip_level) and model.level > 0.1
+        restored = make()
+        restored.restore(model.export(), 0.0)
+        assert close(restored.level, model.level) and restored.tripped == model.tripped

@@ -71,10 +71,14 @@ TIME_EPS_S = 1e-9
 FloatArray = npt.NDArray[np.float64]
 IndexArray = npt.NDArray[np.intp]
 
-_FIRST_CHUNK = 64
+_FIRST_CHUNK = 1024
 """With ``until_edge``, a run is scanned in chunks starting this long and doubling, so
 stopping at an early edge costs little and a run without edges costs a few passes."""
 _LAST_CHUNK = 1 << 16
+"""A long run is scanned in chunks of at most this many samples: the temporary columns
+stay in the CPU cache and memory stays flat however long the run."""
+_NO_EDGES = np.empty(0, dtype=np.intp)
+_NO_EDGES.flags.writeable = False
 
 
 @dataclass(frozen=True)
@@ -137,8 +141,8 @@ def in_order(t: FloatArray, finite: npt.NDArray[np.bool_], last_t: float | None)
     latest accepted time before each sample is the running maximum of the usable times
     (and of ``last_t``).
     """
-    if t.size == 0:
-        return finite
+    if t.size <= 1:
+        return finite if last_t is None or t.size == 0 else finite & (t >= last_t)
     usable = np.where(finite, t, -np.inf)
     before = np.empty_like(usable)
     before[0] = -np.inf if last_t is None else last_t
@@ -150,12 +154,12 @@ def in_order(t: FloatArray, finite: npt.NDArray[np.bool_], last_t: float | None)
 
 def toggles(state: npt.NDArray[np.bool_], before: bool) -> IndexArray:
     """Positions where the boolean column ``state`` differs from its previous entry (``before`` for the first)."""
-    if state.size == 0:
-        return np.empty(0, dtype=np.intp)
+    if state.size <= 1:
+        return (state != before).nonzero()[0]
     changed = np.empty(state.size, dtype=bool)
     changed[0] = bool(state[0]) != before
     np.not_equal(state[1:], state[:-1], out=changed[1:])
-    return np.flatnonzero(changed)
+    return changed.nonzero()[0]
 
 
 def last_marked(mark: npt.NDArray[np.bool_]) -> IndexArray:
@@ -280,43 +284,59 @@ class LatchedModel(ProtectionModel):
     def advance(self, times: npt.ArrayLike, values: npt.ArrayLike, *, until_edge: bool = False) -> Run:
         """Advance over a run of samples; see :mod:`canguard.protect.base` for the contract."""
         t, v = as_run(times, values)
-        if not until_edge or t.size <= _FIRST_CHUNK:
+        if t.size <= _FIRST_CHUNK:
             return self._advance(t, v, until_edge)
-        start, size, peak = 0, _FIRST_CHUNK, math.nan
-        while True:
-            end = min(t.size, start + size)
-            part = self._advance(t[start:end], v[start:end], True)
-            peak = float(np.fmax(peak, part.peak))
-            if part.changed or end == t.size:
-                return Run(part.index + start, part.t, part.tripped, start + part.taken, peak)
-            start, size = end, min(2 * size, _LAST_CHUNK)
+        parts: list[tuple[int, Run]] = []
+        start, size = 0, _FIRST_CHUNK if until_edge else _LAST_CHUNK
+        while start < t.size:
+            part = self._advance(t[start : start + size], v[start : start + size], until_edge)
+            parts.append((start, part))
+            start += part.taken
+            if until_edge and part.changed:
+                break
+            size = min(2 * size, _LAST_CHUNK)
+        return Run(
+            np.concatenate([p.index + at for at, p in parts]),
+            np.concatenate([p.t for _, p in parts]),
+            np.concatenate([p.tripped for _, p in parts]),
+            start,
+            float(np.fmax.reduce([p.peak for _, p in parts])),
+        )
 
     def _advance(self, t: FloatArray, v: FloatArray, until_edge: bool) -> Run:
         finite = np.isfinite(v) & np.isfinite(t)
         ok = in_order(t, finite, self._last_t)
-        picked = np.flatnonzero(ok)
-        scan = self._scan(t[picked], np.abs(v[picked])) if picked.size else None
-        edges = toggles(scan.state, self._tripped) if scan is not None else np.empty(0, dtype=np.intp)
+        everything = bool(ok.all())
+        picked = np.arange(t.size) if everything else ok.nonzero()[0]
+        if not picked.size:
+            self._count_ignored(finite, ok, t.size)
+            return Run(_NO_EDGES, np.empty(0), np.empty(0, dtype=bool), t.size, math.nan)
+        ta = t if everything else t[picked]
+        a = np.abs(v if everything else v[picked])
+        scan = self._scan(ta, a)
+        edges = toggles(scan.state, self._tripped)
         last = picked.size - 1
+        taken = t.size
         if until_edge and edges.size:
             edges = edges[:1]
             last = int(edges[0])
-        taken = int(picked[last]) + 1 if until_edge and edges.size else t.size
-        self.rejected += int(np.count_nonzero(~finite[:taken]))
-        self.out_of_order += int(np.count_nonzero(finite[:taken] & ~ok[:taken]))
-        if scan is None or last < 0:
-            return Run(edges, np.empty(0), np.empty(0, dtype=bool), taken, math.nan)
-        at = picked[edges]
+            taken = int(picked[last]) + 1
+        if not everything:
+            self._count_ignored(finite, ok, taken)
         entered = scan.state[edges]
         scan.commit(last)
-        self._last_t = float(t[picked[last]])
-        self._value = abs(float(v[picked[last]]))
+        self._last_t = float(ta[last])
+        self._value = float(a[last])
         if edges.size:
             self._tripped = bool(entered[-1])
-            self._since = float(t[at[-1]])
+            self._since = float(ta[edges[-1]])
             self._latch = self._latch or bool(entered.any())
-        peak = float(np.abs(v[picked[: last + 1]]).max())
-        return Run(at, t[at], entered, taken, peak)
+        return Run(picked[edges], ta[edges], entered, taken, float(a[: last + 1].max()))
+
+    def _count_ignored(self, finite: npt.NDArray[np.bool_], ok: npt.NDArray[np.bool_], taken: int) -> None:
+        """Count the first ``taken`` samples' ignored ones: not finite, or out of order."""
+        self.rejected += int(np.count_nonzero(~finite[:taken]))
+        self.out_of_order += int(np.count_nonzero(finite[:taken] & ~ok[:taken]))
 
     @abstractmethod
     def _scan(self, t: FloatArray, a: FloatArray) -> Scan:

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 import numpy.typing as npt
@@ -63,13 +64,27 @@ class _Side:
     t: FloatArray
     before: float | None
     hold_s: float
-    begin: IndexArray = field(init=False)
-    began: FloatArray = field(init=False)
     ready: IndexArray = field(init=False)
 
     def __post_init__(self) -> None:
-        self.begin, self.began = run_starts(self.cond, self.gap, self.t, self.before)
-        self.ready = np.flatnonzero(self.cond & (self.t - self.began >= self.hold_s - TIME_EPS_S))
+        if self.hold_s <= TIME_EPS_S:  # no persistence: every sample meeting the condition is ready
+            self.ready = self.cond.nonzero()[0]
+        else:
+            self.ready = (self.cond & (self.t - self.began >= self.hold_s - TIME_EPS_S)).nonzero()[0]
+
+    @cached_property
+    def _stretches(self) -> tuple[IndexArray, FloatArray]:
+        return run_starts(self.cond, self.gap, self.t, self.before)
+
+    @property
+    def begin(self) -> IndexArray:
+        """Where the stretch each sample belongs to began (-1: carried in from the previous run)."""
+        return self._stretches[0]
+
+    @property
+    def began(self) -> FloatArray:
+        """When the stretch each sample belongs to began."""
+        return self._stretches[1]
 
     def next_ready(self, pos: int, after_edge: bool) -> int | None:
         """The first sample from ``pos`` on at which the condition has held long enough (None: none).
@@ -81,7 +96,7 @@ class _Side:
         if k == self.ready.size:
             return None
         j = int(self.ready[k])
-        if not after_edge or self.begin[j] >= pos:
+        if not after_edge or self.hold_s <= TIME_EPS_S or self.begin[j] >= pos:
             return j
         rest = self.ready[k:]
         same = rest[self.begin[rest] == self.begin[j]]

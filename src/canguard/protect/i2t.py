@@ -53,6 +53,7 @@ from typing import Any
 
 import numpy as np
 
+from canguard.protect.accumulate import clamped_sum, thermal_steps
 from canguard.protect.base import REASON_I2T, FloatArray, LatchedModel, ProtectionModel, Scan, hold
 
 KIND_LEAKY = "leaky"
@@ -133,43 +134,6 @@ def cooled_level(state: Mapping[str, Any], downtime_s: float) -> float:
             raise ValueError("i2t state: tau_cool_s must be > 0")
         return float(acc) * math.exp(-d / tau_cool)
     raise ValueError(f"i2t state: unknown kind {kind!r} (expected {KIND_LEAKY!r} or {KIND_THERMAL!r})")
-
-
-def _next_where(mask: np.ndarray) -> np.ndarray:
-    """For each position, the first position at or after it where ``mask`` is set (``len``: none)."""
-    n = mask.size
-    pos = np.where(mask, np.arange(n), n)
-    return np.minimum.accumulate(pos[::-1])[::-1]
-
-
-def clamped_sum(start: float, steps: FloatArray, cap: float) -> FloatArray:
-    """The running sum ``acc ← min(max(acc + step, 0), cap)`` from ``start``, after each step.
-
-    Exactly the float results of adding one step after the other: between the samples
-    where a bound is hit, a sequential ``numpy.add.accumulate`` from the last value adds
-    in the same order; at a bound the sum restarts from it, and the steps that keep it
-    there (<= 0 at the floor, >= 0 at the cap) are skipped as a block. The scan runs in
-    windows that double while no bound is hit, so a run costs a few passes.
-    """
-    n = steps.size
-    out = np.empty(n)
-    rise, fall = _next_where(steps > 0), _next_where(steps < 0)
-    acc, pos, size = float(start), 0, 64
-    while pos < n:
-        end = min(n, pos + size)
-        run = np.add.accumulate(np.concatenate(((acc,), steps[pos:end])))[1:]
-        hit = np.flatnonzero(~((run >= 0.0) & (run <= cap)))
-        if not hit.size:
-            out[pos:end] = run
-            acc, pos, size = float(run[-1]), end, 2 * size
-            continue
-        p = pos + int(hit[0])
-        out[pos:p] = run[: p - pos]
-        acc = 0.0 if run[p - pos] < 0.0 else cap
-        stay = int((rise if acc == 0.0 else fall)[p + 1]) if p + 1 < n else n
-        out[p:stay] = acc
-        pos, size = stay, 64
-    return out
 
 
 class _I2tModel(LatchedModel):
@@ -435,15 +399,7 @@ class ThermalI2t(_I2tModel):
         """
         with np.errstate(invalid="ignore", over="ignore"):
             q = np.minimum(held * held / self._c2, MAX_LEVEL)
-        tau_heat, tau_cool, exp = self.tau_s, self.tau_cool_s, math.exp
-        out = []
-        theta = self._acc
-        for qi, d in zip(q.tolist(), dt.tolist(), strict=True):
-            if d > 0:
-                theta = qi + (theta - qi) * exp(-d / (tau_cool if qi < theta else tau_heat))
-                theta = min(max(theta, 0.0), MAX_LEVEL)
-            out.append(theta)
-        return np.asarray(out, dtype=np.float64)
+        return np.asarray(thermal_steps(self._acc, q.tolist(), dt.tolist(), self.tau_s, self.tau_cool_s, MAX_LEVEL))
 
     def params(self) -> dict[str, float | None]:
         """continuous_a, peak_a, peak_time_s, tau_s and tau_cool_s (resolved), recover_fraction, max_gap_s."""

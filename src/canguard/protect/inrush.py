@@ -26,12 +26,21 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
 from canguard.protect.base import TIME_EPS_S, FloatArray, as_run, in_order, last_marked, run_starts
 from canguard.protect.threshold import check_limit
+
+
+def in_window(start: Any, t: Any, length_s: float) -> Any:
+    """``start <= t < start + length_s`` (the end less TIME_EPS_S), for floats or numpy columns alike.
+
+    A NaN start (no window) is never in force.
+    """
+    return (start <= t) & (t < start + length_s - TIME_EPS_S)
 
 
 @dataclass(frozen=True)
@@ -103,7 +112,7 @@ class InrushBlanking:
         latest = last_marked(started)
         before = math.nan if self._window_start is None else self._window_start
         window = np.where(latest >= 0, t[np.maximum(latest, 0)], before)
-        blanking = (window <= t) & (t < window + self.inrush_time_s - TIME_EPS_S)
+        blanking = in_window(window, t, self.inrush_time_s)
         return InrushScan(self, t, below, since, started, window, blanking)
 
     def take_scan(self, scan: InrushScan, k: int) -> None:
@@ -121,7 +130,7 @@ class InrushBlanking:
         """
         t, a = as_run(times, abs_values)
         ok = in_order(t, np.isfinite(a) & np.isfinite(t), self._last_t)
-        picked = np.flatnonzero(ok)
+        picked = ok.nonzero()[0]
         out = np.zeros(t.size, dtype=bool)
         if picked.size:
             scan = self.scan(t[picked], np.abs(a[picked]))
@@ -144,7 +153,7 @@ class InrushBlanking:
     def blanking(self, t: float) -> bool:
         """True when ``t`` lies inside a blanking window."""
         w = self._window_start
-        return w is not None and w <= t < w + self.inrush_time_s - TIME_EPS_S
+        return w is not None and bool(in_window(w, t, self.inrush_time_s))
 
     def threshold(self, normal: float, t: float) -> float | None:
         """The overcurrent threshold in force at ``t``: ``normal`` outside a window,

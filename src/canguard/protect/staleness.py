@@ -114,6 +114,14 @@ class SourceHealth:
         """The DBC [min|max] of each role that has one: values outside are ``out_of_range``."""
         return self._ranges
 
+    def latest_t(self, role: str) -> float | None:
+        """Time of the latest sample of ``role``, valid or not (None: none yet); a run's samples must not be older."""
+        return self._latest_t.get(role)
+
+    def invalid_reason(self, role: str) -> str:
+        """The invalid reason of the latest sample of ``role`` ("" when it was valid or there was none)."""
+        return self._invalid.get(role, "")
+
     @property
     def name(self) -> str:
         """The source's configured name."""
@@ -153,7 +161,7 @@ class SourceHealth:
             latest = self._latest_t.get(role)
             prev_t[0] = math.nan if latest is None else latest
             prev_bad[0] = bool(self._invalid.get(role))
-            kept = np.flatnonzero(ok)
+            kept = ok.nonzero()[0]
             if kept.size > 1:  # the previous accepted sample of each accepted one
                 prev_t[kept[1:]] = t[kept[:-1]]
                 prev_bad[kept[1:]] = bad[kept[:-1]] != ""
@@ -164,7 +172,7 @@ class SourceHealth:
         edges: list[int] = []
         reasons_after: list[str] = []
         taken, done = t.size, 0
-        for i in np.flatnonzero(full).tolist():
+        for i in full.nonzero()[0].tolist():
             self._take_quiet(role, t, v, ok, done, i)
             done = i + 1
             if self._full_step(role, float(t[i]), float(v[i]), str(bad[i])):
@@ -201,11 +209,10 @@ class SourceHealth:
     def _take_quiet(self, role: str, t: FloatArray, v: FloatArray, ok: npt.NDArray[np.bool_],
                     start: int, end: int) -> None:
         """Samples ``start`` to ``end`` (excluded) that change nothing but the latest value: take the last."""
-        kept = np.flatnonzero(ok[start:end])
+        kept = ok[start:end].nonzero()[0]
         if kept.size:
             k = start + int(kept[-1])
-            self._latest_t[role] = self._valid_t[role] = float(t[k])
-            self._value[role] = float(v[k])
+            self.take(role, float(t[k]), float(v[k]))
 
     def _full_step(self, role: str, t: float, value: float, bad: str) -> bool:
         """One sample that may change the reason; True on an edge (see :meth:`observe_run`)."""
