@@ -78,3 +78,32 @@ def test_v3_subtree_remaps_by_bare_name(tmp_path: Path) -> None:
     path.write_text(text, encoding="utf-8")
     got = dry_run(path, 3, 0.1)
     assert got["blackboard"]["result"] == 4 and got["ticks"] == ["RUNNING", "RUNNING", "SUCCESS"]
+
+
+def test_private_keys_are_not_remapped(tmp_path: Path) -> None:
+    """BT.CPP: _autoremap never maps a key starting with '_': the subtree's _p and _q are its own."""
+    path = tmp_path / "p.xml"
+    path.write_text("""<root BTCPP_format="4" main_tree_to_execute="M">
+  <BehaviorTree ID="M">
+    <Sequence><Script code="_p := 1; shared := 1"/><SubTree ID="S" _autoremap="true"/>
+      <Script code="after := _p"/></Sequence>
+  </BehaviorTree>
+  <BehaviorTree ID="S">
+    <Sequence><Script code="_p := 100; shared := shared + 1"/>
+      <LoopInt queue="7" value="{_q}"><Script code="got := _q"/></LoopInt></Sequence>
+  </BehaviorTree>
+</root>""", encoding="utf-8")
+    got = dry_run(path, 2, 0.1)
+    assert got == {"ticks": ["RUNNING", "SUCCESS"], "blackboard": {"_p": 1, "after": 1, "got": 7, "shared": 2}}
+
+
+def test_a_script_follows_a_port_remapped_on_the_element(tmp_path: Path) -> None:
+    """_autoremap with inside="{x}": a script's inside is the parent's x (BT.CPP's remapping entry)."""
+    path = tmp_path / "r.xml"
+    path.write_text("""<root BTCPP_format="4" main_tree_to_execute="M">
+  <BehaviorTree ID="M">
+    <Sequence><Script code="x := 3"/><SubTree ID="C" _autoremap="true" inside="{x}" k="10"/></Sequence>
+  </BehaviorTree>
+  <BehaviorTree ID="C"><Script code="inside += 1; z := inside + k"/></BehaviorTree>
+</root>""", encoding="utf-8")
+    assert dry_run(path, 1, 0.1) == {"ticks": ["SUCCESS"], "blackboard": {"x": 4, "z": 14.0}}

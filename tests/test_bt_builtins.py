@@ -114,13 +114,25 @@ class TestBranching:
         Blackboard.storage["/go"] = False
         clock.set(0.1)
         assert loaded.tick().name == "SUCCESS"
-        assert Blackboard.storage["/switched"] is True
+        assert Blackboard.storage["/switched"] == 1.0  # BT.CPP: true is the real 1.0
         assert sleep.status.name == "INVALID"  # halted
 
-    def test_while_do_else_needs_three_children(self, tmp_path: Path) -> None:
-        """Two children: a load error naming the node."""
-        path = tree(tmp_path, "<WhileDoElse><AlwaysSuccess/><AlwaysSuccess/></WhileDoElse>")
-        with pytest.raises(TreeError, match="WhileDoElse needs 3 children"):
+    def test_while_do_else_takes_two_children(self, tmp_path: Path) -> None:
+        """Two children, as BT.CPP accepts: the condition's FAILURE fails the node and halts the running branch."""
+        path = tree(tmp_path, """<WhileDoElse><ScriptCondition code="go"/>
+  <Sleep msec="250" _onHalted="halted := true"/></WhileDoElse>""")
+        clock = ManualClock()
+        loaded = load_tree(path, Context(clock, {}))
+        Blackboard.storage["/go"] = True
+        assert loaded.tick().name == "RUNNING"
+        Blackboard.storage["/go"] = False
+        assert loaded.tick().name == "FAILURE"
+        assert Blackboard.storage["/halted"] == 1.0  # BT.CPP: true is the real 1.0
+
+    def test_while_do_else_needs_two_or_three_children(self, tmp_path: Path) -> None:
+        """One child: a load error naming the node."""
+        path = tree(tmp_path, "<WhileDoElse><AlwaysSuccess/></WhileDoElse>")
+        with pytest.raises(TreeError, match="WhileDoElse needs 2 or 3 children"):
             dry_run(path, 1, 0.1)
 
 
@@ -182,3 +194,46 @@ class TestDryRunCommand:
         """--tick belongs to TREE.xml: with a config it is exit 2 saying how to use it."""
         code, _, err = cli(capsys, "tree", "--tick", "2")
         assert code == 2 and "canguard tree TREE.xml --tick N" in err
+
+
+class TestCounts:
+    """Repeat / RetryUntilSuccessful counts BT.CPP accepts."""
+
+    def test_retry_zero_attempts_fails_without_ticking(self, tmp_path: Path) -> None:
+        """num_attempts="0": FAILURE at once, the child never ticked (retry_node.cpp)."""
+        path = tree(tmp_path, '<RetryUntilSuccessful num_attempts="0"><Script code="ticked := 1"/>'
+                              "</RetryUntilSuccessful>")
+        assert dry_run(path, 1, 0.1) == {"ticks": ["FAILURE"], "blackboard": {}}
+
+    def test_repeat_zero_cycles_succeeds_without_ticking(self, tmp_path: Path) -> None:
+        """num_cycles="0": SUCCESS at once, the child never ticked (repeat_node.cpp)."""
+        path = tree(tmp_path, '<Repeat num_cycles="0"><Script code="ticked := 1"/></Repeat>')
+        assert dry_run(path, 1, 0.1) == {"ticks": ["SUCCESS"], "blackboard": {}}
+
+    def test_counts_and_flags_computed_by_scripts(self, tmp_path: Path) -> None:
+        """Script results are reals (1 + 1 is 2.0, true is 1.0): int and bool ports take them, as BT.CPP casts them."""
+        path = tree(tmp_path, '<Sequence><Script code="k := 1 + 1; n := 0; skip := false"/>'
+                              '<Repeat num_cycles="{k}"><Script code="n += 1"/></Repeat>'
+                              '<RunOnce then_skip="{skip}"><Script code="once := 1"/></RunOnce></Sequence>')
+        got = dry_run(path, 2, 0.1)
+        assert got["ticks"] == ["SUCCESS", "SUCCESS"]
+        assert got["blackboard"] == {"k": 2.0, "n": 2, "once": 1, "skip": 0.0}
+
+
+class TestSetBlackboardTypes:
+    def test_text_into_a_typed_entry_is_parsed_to_its_type(self, tmp_path: Path) -> None:
+        """SetBlackboard value="7" over an integer entry writes the integer 7; words there fail the node."""
+        path = tree(tmp_path, '<Sequence><Script code="a := 1"/><SetBlackboard output_key="a" value="7"/>'
+                              '<Script code="b := a * 2"/></Sequence>')
+        assert dry_run(path, 1, 0.1) == {"ticks": ["SUCCESS"], "blackboard": {"a": 7, "b": 14.0}}
+        path.write_text(path.read_text().replace('value="7"', 'value="seven"'))
+        assert dry_run(path, 1, 0.1) == {"ticks": ["FAILURE"], "blackboard": {"a": 1}}
+
+    def test_a_text_entry_on_an_int_port_is_parsed(self, tmp_path: Path) -> None:
+        """k := '2' drives Repeat num_cycles="{k}" (BT.CPP parses a string entry to the port's type); 'two' fails."""
+        path = tree(tmp_path, '<Sequence><Script code="k := \'2\'; n := 0"/>'
+                              '<Repeat num_cycles="{k}"><Script code="n += 1"/></Repeat></Sequence>')
+        # the entry is an int, as Repeat's port declared it: the script's '2' is parsed (BT.CPP's converter)
+        assert dry_run(path, 1, 0.1) == {"ticks": ["SUCCESS"], "blackboard": {"k": 2, "n": 2}}
+        path.write_text(path.read_text().replace("'2'", "'two'"))
+        assert dry_run(path, 1, 0.1) == {"ticks": ["FAILURE"], "blackboard": {}}  # the script fails

@@ -70,7 +70,7 @@ def test_on_halted_runs_when_a_running_node_is_halted(tmp_path: Path) -> None:
     Blackboard.storage["/go"] = False
     clock.set(0.1)
     loaded.tick()
-    assert Blackboard.storage["/halted"] is True
+    assert Blackboard.storage["/halted"] == 1.0  # BT.CPP: true is the real 1.0
 
 
 def test_skip_if_and_while_do_not_parse_either_a_load_error(tmp_path: Path) -> None:
@@ -89,3 +89,13 @@ def test_a_condition_script_that_does_not_parse_is_a_load_error(tmp_path: Path) 
     with pytest.raises(TreeError) as err:
         dry_run(path, 1, 0.1)
     assert f"{path}:4" in str(err.value) and "_successIf" in str(err.value)
+
+
+def test_a_condition_script_that_fails_fails_the_node(tmp_path: Path) -> None:
+    """Fail-safe for BT.CPP's throw: a pre-condition on a missing entry, or a failing _onSuccess, fails the node."""
+    from canguard.bt.dryrun import dry_run
+
+    path = tree(tmp_path, '<Sequence><AlwaysSuccess _skipIf="nope == 1"/><Script code="after := 1"/></Sequence>')
+    assert dry_run(path, 1, 0.1) == {"ticks": ["FAILURE"], "blackboard": {}}
+    path.write_text(path.read_text().replace('_skipIf="nope == 1"', '_onSuccess="x = 1"'))
+    assert dry_run(path, 1, 0.1) == {"ticks": ["FAILURE"], "blackboard": {}}

@@ -74,6 +74,28 @@ def test_empty_queue_returns(tmp_path: Path, if_empty: str, status: str) -> None
     assert "ticked" not in board
 
 
+def test_empty_queue_skipped(tmp_path: Path) -> None:
+    """if_empty="SKIPPED" (BT.CPP accepts it): an exhausted loop is skipped and its Sequence goes on."""
+    body = ('<Sequence><LoopInt queue="1" if_empty="SKIPPED" value="{val}"><Script code="ticked := val"/></LoopInt>'
+            '<Script code="after := 1"/></Sequence>')
+    path = tree(tmp_path, body)
+    assert dry_run(path, 2, 0.1) == {"ticks": ["RUNNING", "SUCCESS"], "blackboard": {"after": 1, "ticked": 1,
+                                                                                   "val": 1}}
+    path.write_text(path.read_text().replace('queue="1"', 'queue=""'))
+    assert dry_run(path, 1, 0.1)["ticks"] == ["SUCCESS"]
+    path.write_text(path.read_text().replace("<Sequence>", "").replace("</Sequence>", "")
+                    .replace('<Script code="after := 1"/>', ""))
+    assert dry_run(path, 1, 0.1) == {"ticks": ["SKIPPED"], "blackboard": {}}
+
+
+def test_skipped_child_keeps_the_loop_running(tmp_path: Path) -> None:
+    """A skipped child does not skip the loop (loop_node.h): it takes the next element at the next tick."""
+    body = '<LoopInt queue="1;2" value="{val}"><Script code="n := val" _skipIf="val == 1"/></LoopInt>'
+    ticks, board = run(tmp_path, body, 5)
+    assert ticks == ["RUNNING", "RUNNING", "SUCCESS"]
+    assert board["n"] == 2
+
+
 def test_child_failure_stops_loop(tmp_path: Path) -> None:
     """ChildFailure_StopsLoop: the child fails on the third element -> FAILURE, no fourth tick."""
     body = f'<LoopInt queue="1;2;3;4" value="{{val}}"><Sequence>{RECORD}<ScriptCondition code="val != 3"/>' \

@@ -53,8 +53,8 @@ def error(text: str, bb: Board | None = None, enums: dict[str, int] | None = Non
         ("3e2", 300.0),
         ("3e-2", 0.03),
         ("'hello world '", "hello world "),
-        ("true", True),
-        ("false", False),
+        ("true", 1.0),  # BT.CPP 4: the boolean literals are reals
+        ("false", 0.0),
         ("-628", -628.0),
         ("-3.14", -3.14),
     ],
@@ -143,33 +143,33 @@ def test_equations_assignment_operators_and_types() -> None:
     assert "[new_var] doesn't exist yet" in str(err) and "[:=]" in str(err)
     assert "new_var" not in bb.values
 
-    assert run("x < y", bb) is True
-    assert run("y > x", bb) is True
-    assert run("y != x", bb) is True
-    assert run("y == x", bb) is False
-    assert run(" 'hello' == 'hello'", bb) is True
-    assert run(" 'hello' != 'world'", bb) is True
-    assert run(" 'hello' < 'world'", bb) is True
-    assert run(" 'hello' > 'world'", bb) is False
+    assert run("x < y", bb) == 1.0
+    assert run("y > x", bb) == 1.0
+    assert run("y != x", bb) == 1.0
+    assert run("y == x", bb) == 0.0
+    assert run(" 'hello' == 'hello'", bb) == 1.0
+    assert run(" 'hello' != 'world'", bb) == 1.0
+    assert run(" 'hello' < 'world'", bb) == 1.0
+    assert run(" 'hello' > 'world'", bb) == 0.0
     assert run("y == x ? 'T' : 'F'", bb) == "F"
     assert run("y != x ? 'T' : 'F'", bb) == "T"
-    assert run("y == 5", bb) is True and run("x == 3", bb) is True
+    assert run("y == 5", bb) == 1.0 and run("x == 3", bb) == 1.0
     assert run(" 'true' ", bb) == "true"
 
     run("v1:= true; v2:= false", bb)
-    assert bb.values["v1"] is True and bb.values["v2"] is False
-    assert run(" v2 = true ", bb) is True
-    assert run(" v2 = !false ", bb) is True
-    assert run(" v2 = !v2 ", bb) is False
-    assert run("v1 && v2", bb) is False
-    assert run("v1 || v2", bb) is True
-    assert run("(y == x) && (x == 3)", bb) is False
-    assert run("(y == x) || (x == 3)", bb) is True
-    assert run(" y == x  &&  x == 3 ", bb) is False
-    assert run(" y == x  ||  x == 3 ", bb) is True
+    assert bb.values == {**bb.values, "v1": 1.0, "v2": 0.0} and type(bb.values["v1"]) is float
+    assert run(" v2 = true ", bb) == 1.0
+    assert run(" v2 = !false ", bb) == 1.0
+    assert run(" v2 = !v2 ", bb) == 0.0
+    assert run("v1 && v2", bb) == 0.0
+    assert run("v1 || v2", bb) == 1.0
+    assert run("(y == x) && (x == 3)", bb) == 0.0
+    assert run("(y == x) || (x == 3)", bb) == 1.0
+    assert run(" y == x  &&  x == 3 ", bb) == 0.0
+    assert run(" y == x  ||  x == 3 ", bb) == 1.0
     # a string compared with a number is read as a number
-    assert run(" par1:='3'; par2:=3; par1==par2", bb) is True
-    assert run(" par1:='3'; par2:=4; par1!=par2", bb) is True
+    assert run(" par1:='3'; par2:=3; par1==par2", bb) == 1.0
+    assert run(" par1:='3'; par2:=4; par1!=par2", bb) == 1.0
 
 
 def test_real_into_integer_entry_is_an_error_and_leaves_it_unchanged() -> None:
@@ -186,14 +186,17 @@ def test_real_into_integer_entry_is_an_error_and_leaves_it_unchanged() -> None:
     assert run("speed = 2", bb) == 2.0 and type(bb.values["speed"]) is float
 
 
-def test_declared_type_applies_to_an_empty_entry() -> None:
+def test_declared_type_applies_to_a_string_into_an_empty_entry() -> None:
+    """BT.CPP: an entry a port declared (no value yet) takes a number as it is, and parses a string to its type."""
     bb = Board()
     bb.types["limit"] = int
-    assert "which is declared as an integer" in str(error("limit = 0.5", bb))
-    assert run("limit = 0x10", bb) == 16
+    assert "which is declared as an integer" in str(error("limit = 'half'", bb))
+    assert run("limit = '16'", bb) == 16 and type(bb.values["limit"]) is int
+    bb.types["ratio"] = int
+    assert run("ratio = 0.5", bb) == 0.5  # Any::copyInto into an empty entry copies the value as it is
     bb.types["flag"] = bool
-    assert "expected true, false, 0 or 1" in str(error("flag = 2", bb))
-    assert run("flag = 1", bb) is True
+    assert "expected true, false, 0 or 1" in str(error("flag = '2'", bb))
+    assert run("flag = 'true'", bb) is True
 
 
 # ParserTest.NotInitializedComparison
@@ -209,11 +212,11 @@ def test_enums() -> None:
     enums = {"RED": 1, "BLUE": 3, "GREEN": 5, "THE_ANSWER": 42}
     bb = Board()
     run("A:=RED; B:=RED; C:=BLUE; D:=THE_ANSWER", bb, enums)
-    assert run("A==B", bb, enums) is True
-    assert run("A!=C", bb, enums) is True
+    assert run("A==B", bb, enums) == 1.0
+    assert run("A!=C", bb, enums) == 1.0
     assert (bb.values["A"], bb.values["C"], bb.values["D"]) == (1, 3, 42)
     # a string compared with a number may be an enum's name
-    assert run("name := 'GREEN'; name == 5", bb, enums) is True
+    assert run("name := 'GREEN'; name == 5", bb, enums) == 1.0
     assert parse("A := RED + x").variables(enums) == {"A", "x"}
     assert "variable not found: [RED]" in str(error("A := RED", Board()))
 
@@ -244,11 +247,11 @@ def test_string_concatenation() -> None:
 
 # ParserTest.CompareWithNegativeNumber_Issue832
 def test_compare_with_negative_number() -> None:
-    assert run("A:=0; A!=-1") is True
-    assert run("A:=-1; A!=-1") is False
-    assert run("A:=0; A==-1") is False
-    assert run("A:=0; A>-1") is True
-    assert run("A:=0; A<-1") is False
+    assert run("A:=0; A!=-1") == 1.0
+    assert run("A:=-1; A!=-1") == 0.0
+    assert run("A:=0; A==-1") == 0.0
+    assert run("A:=0; A>-1") == 1.0
+    assert run("A:=0; A<-1") == 0.0
 
 
 # ParserTest.ChainedComparisons
@@ -258,7 +261,8 @@ def test_compare_with_negative_number() -> None:
      ("5 == 5 != 3", True), ("1 <= 2 <= 3", True), ("3 >= 2 >= 1", True), ("3 < 2 < 5", False)],
 )
 def test_chained_comparisons(text: str, value: bool) -> None:
-    assert run(text) is value
+    result = run(text)
+    assert result == float(value) and type(result) is float  # BT.CPP: a comparison is the real 1.0 or 0.0
 
 
 # ParserTest.OperatorPrecedence
@@ -272,11 +276,19 @@ def test_operator_precedence(text: str, value: object) -> None:
     assert run(text) == value
 
 
+def test_logic_results_are_reals_and_concatenate_as_reals() -> None:
+    """BT.CPP 4: true, false, comparisons and logic operators are the reals 1.0 / 0.0, so `..` prints them with %f."""
+    assert run("'t' .. true") == "t1.000000"
+    assert run("'f' .. (1 > 2)") == "f0.000000"
+    assert run("'n' .. !false .. (true && true)") == "n1.0000001.000000"
+    assert all(type(run(text)) is float for text in ("true", "1 < 2", "!0", "1 || 0"))
+
+
 # ParserTest.UnaryOperators
 def test_unary_operators() -> None:
-    assert run("!true") is False
-    assert run("!false") is True
-    assert run("!!true") is True
+    assert run("!true") == 0.0
+    assert run("!false") == 1.0
+    assert run("!!true") == 1.0
     assert run("~0") == -1
     assert run("~0x0F & 0xFF") == 0xF0
     assert run("-(3 + 2)") == -5.0
@@ -311,8 +323,8 @@ def test_multiple_statements() -> None:
 
 
 def test_logic_operators_typing() -> None:
-    assert run("1 && 0") is False
-    assert run("2.5 && 1") is True  # a real is true when not zero
+    assert run("1 && 0") == 0.0
+    assert run("2.5 && 1") == 1.0  # a real is true when not zero
     assert "expects booleans" in str(error("2 && 1"))  # an integer must be 0 or 1
     assert "expected booleans" in str(error("'a' || true"))
     # both sides are evaluated (BT.CPP has no short-circuit)
@@ -329,11 +341,11 @@ def test_division_by_zero_gives_ieee_values() -> None:
 
 
 def test_comparison_of_mixed_types() -> None:
-    assert run("'true' == 1") is True
+    assert run("'true' == 1") == 1.0
     assert "can't compare the string 'abc' with a number" in str(error("'abc' < 1"))
     bb = Board(obj=object())
     assert "can't mix different types" in str(error("obj == 1", bb))
-    assert run("0.1 + 0.2 == 0.3") is True  # reals equal within float epsilon, as BT.CPP
+    assert run("0.1 + 0.2 == 0.3") == 1.0  # reals equal within float epsilon, as BT.CPP
 
 
 @pytest.mark.parametrize(
@@ -396,6 +408,6 @@ def test_condition_needs_a_boolean_convertible_result() -> None:
 
 def test_root_blackboard_names_and_assignment_value() -> None:
     bb = Board()
-    assert run("@armed := true; @armed", bb) is True
-    assert bb.values == {"@armed": True}
+    assert run("@armed := true; @armed", bb) == 1.0
+    assert bb.values == {"@armed": 1.0}
     assert run("a := b := 2", bb) == 2 and bb.values["a"] == bb.values["b"] == 2

@@ -48,15 +48,13 @@ class TestSkipIf:
         root_skipped.mkdir()
         assert dry_run(tree(root_skipped, body), 2, 0.1)["ticks"] == ["SKIPPED", "SKIPPED"]
 
-    def test_conditions_on_a_subtree_element_are_refused_with_the_line(self, tmp_path: Path) -> None:
-        """Not yet supported (gtest SkippingLogic.SkipSubtree): a clear load error, never a tree that runs otherwise."""
-        from canguard.errors import TreeError
-
-        sub = '<BehaviorTree ID="sub"><Script code="in_sub:=1"/></BehaviorTree>\n'
+    def test_skip_if_on_a_subtree_element(self, tmp_path: Path) -> None:
+        """gtest SkippingLogic.SkipSubtree: _skipIf on <SubTree> skips it (BT.CPP accepts it; canguard refused it)."""
+        sub = '<BehaviorTree ID="sub"><Script code="@in_sub:=1"/></BehaviorTree>\n'
         path = tree(tmp_path, '<Sequence><Script code="data:=true"/><SubTree ID="sub" _skipIf="data"/></Sequence>', sub)
-        with pytest.raises(TreeError) as err:
-            dry_run(path, 1, 0.1)
-        assert f"{path}:3" in str(err.value) and "_skipIf" in str(err.value)
+        assert dry_run(path, 1, 0.1) == {"ticks": ["SUCCESS"], "blackboard": {"data": 1.0}}
+        path.write_text(path.read_text().replace("data:=true", "data:=false"))
+        assert dry_run(path, 1, 0.1) == {"ticks": ["SUCCESS"], "blackboard": {"data": 0.0, "in_sub": 1}}
 
     def test_reactive_sequence_goes_on_past_a_skipped_guard(self, tmp_path: Path) -> None:
         """gtest SkippingLogic.SkippingReactiveSequence: the skipped node is never ticked, the task runs."""
@@ -160,17 +158,16 @@ class TestEntryUpdated:
 
 class TestAsync:
     def test_async_sequence_yields_after_each_instant_success(self, tmp_path: Path) -> None:
-        """AsyncSequence: RUNNING after each child that succeeded at once; the plain Sequence runs them all."""
-        got = ticks(tmp_path, '<AsyncSequence><Script code="a:=1"/><Script code="b:=1"/></AsyncSequence>', 1)
-        assert got == {"ticks": ["RUNNING"], "blackboard": {"a": 1}}
-        plain = tmp_path / "p"
-        plain.mkdir()
-        assert dry_run(tree(plain, '<Sequence><Script code="a:=1"/><Script code="b:=1"/></Sequence>'),
-                       1, 0.1) == {"ticks": ["SUCCESS"], "blackboard": {"a": 1, "b": 1}}
+        """AsyncSequence: RUNNING after each child that succeeded at once; tickOnce wakes up and finishes it."""
+        path = tree(tmp_path, '<AsyncSequence><Script code="a:=1"/><Script code="b:=1"/></AsyncSequence>')
+        assert dry_run(path, 1, 0.1, exactly_once=True) == {"ticks": ["RUNNING"], "blackboard": {"a": 1}}
+        assert dry_run(path, 1, 0.1) == {"ticks": ["SUCCESS"], "blackboard": {"a": 1, "b": 1}}
 
     def test_async_fallback_yields_after_each_instant_failure(self, tmp_path: Path) -> None:
-        got = ticks(tmp_path, '<AsyncFallback><AlwaysFailure/><Script code="b:=1"/></AsyncFallback>', 2)
-        assert got == {"ticks": ["RUNNING", "SUCCESS"], "blackboard": {"b": 1}}
+        """AsyncFallback: RUNNING after a child that failed at once; tickOnce ticks it again in the same tick."""
+        path = tree(tmp_path, '<AsyncFallback><AlwaysFailure/><Script code="b:=1"/></AsyncFallback>')
+        assert dry_run(path, 2, 0.1, exactly_once=True) == {"ticks": ["RUNNING", "SUCCESS"], "blackboard": {"b": 1}}
+        assert dry_run(path, 2, 0.1) == {"ticks": ["SUCCESS", "SUCCESS"], "blackboard": {"b": 1}}
 
 
 def test_tree_command_prints_skipped(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -150,9 +150,10 @@ class TestCompletion:
 
     @pytest.mark.skipif(shutil.which("bash") is None, reason="needs bash")
     def test_bash(self, script: str) -> None:
-        """re -> replay; replay --fail -> --fail-on-trip; replay --format is an option; completion z -> zsh."""
+        """re -> replay; replay --fail -> both gates; replay --format is an option; completion z -> zsh."""
         assert self.complete(script, "canguard", "re") == ["replay"]
-        assert self.complete(script, "canguard", "-v", "replay", "--fail") == ["--fail-on-trip"]
+        assert self.complete(script, "canguard", "-v", "replay", "--fail") == ["--fail-on-regression", "--fail-on-trip"]
+        assert self.complete(script, "canguard", "replay", "--margin") == ["--margin-tolerance"]
         assert "--format" in self.complete(script, "canguard", "replay", "--")
         assert self.complete(script, "canguard", "completion", "z") == ["zsh"]
 

@@ -243,7 +243,8 @@ class TestSinks:
             sent.append((bus, msg.arbitration_id, bytes(msg.data), msg.is_extended_id))
             return msg.arbitration_id != 0x20
 
-        sink = BusSink(send, on_error=errors.append, on_refused=lambda b, label, o: refused.append((b, label, o)))
+        sink = BusSink(send, on_error=errors.append,
+                       on_refused=lambda b, label, o, held: refused.append((b, label, o)))
         sink.send(STOP + TASK, "task")
         assert (sink.sent, sink.failed) == (1, 1)
         assert sent == [("main", 0x10, b"\x00", False), ("main", 0x20, b"\x01", False)]

@@ -112,7 +112,7 @@ class TestI2tAndDynamic:
         assert trip["reason"] == "i2t" and trip["node"] == "Heat" and trip["threshold"] == 300.0
         assert trip["value"] >= 300.0  # the heat (A²s) against the trip level, like with like
         feedback = rig.node("Heat").feedback_message
-        assert feedback.startswith("i2t: heat ") and feedback.endswith("of trip level 300 (current |20|)")
+        assert feedback.startswith("i2t: heat ") and feedback.endswith("A²s of trip level 300 A²s (current |20|)")
         from py_trees.blackboard import Blackboard
 
         assert Blackboard.storage["/heat"] >= 100.0

@@ -18,7 +18,7 @@ import pytest
 
 from canguard.errors import StateFileError
 from canguard.protect.i2t import LeakyI2t
-from canguard.protect.state import HeatStore, readable_problem, writable_problem
+from canguard.protect.state import HeatStore, readable_problem
 
 LOGGER = "canguard.protect.state"
 
@@ -203,27 +203,9 @@ class TestFileOnDisk:
 
 
 class TestProblems:
-    def test_writable(self, tmp_path: Path) -> None:
-        path = tmp_path / "new" / "dir" / "heat.json"
-        assert writable_problem(path) == ""
-        assert path.parent.is_dir() and list(path.parent.iterdir()) == []  # the probe is removed
-
-    def test_writable_a_directory(self, tmp_path: Path) -> None:
-        assert writable_problem(tmp_path) == "it is a directory, expected a file path"
-
-    def test_writable_under_a_file(self, tmp_path: Path) -> None:
-        (tmp_path / "f").write_text("x", encoding="utf-8")
-        why = writable_problem(tmp_path / "f" / "heat.json")
-        assert why in ("File exists", "Not a directory"), why
-
     def test_readable(self, tmp_path: Path) -> None:
         path = tmp_path / "heat.json"
         assert readable_problem(path) == "no such file"
         assert readable_problem(tmp_path) == "not a regular file"
         path.write_text("{}", encoding="utf-8")
         assert readable_problem(path) == ""
-
-
-def test_writable_in_an_existing_directory(tmp_path: Path) -> None:
-    assert writable_problem(tmp_path / "heat.json") == ""
-    assert list(tmp_path.iterdir()) == []

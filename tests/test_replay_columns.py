@@ -659,7 +659,7 @@ def chunk_starting_at(log: Path, i: int) -> int:
     """A small block size (about 200 to 600 characters) at which a block of ``log`` starts with line ``i``.
 
     A block is the next ``size`` characters and the rest of the line the last of them is in
-    (:func:`canguard.io.candump._candump_chunks`): the next block starts at the line after it.
+    (:func:`canguard.io.candump.candump_chunks`): the next block starts at the line after it.
     """
     offsets = line_offsets(log)
     target = offsets[i]

@@ -278,12 +278,12 @@ class TestLoadErrors:
     """Every load-time error is a TreeError naming file, line, node and port."""
 
     def test_unknown_node_lists_known_ids_closest_first(self, tmp_path: Path) -> None:
-        """A typo names the file and line, and the closest known IDs come first."""
+        """A typo names the file and line, and the few closest known IDs come first, not all of them."""
         text = load_error(tmp_path, xml_tree('\n<Condition ID="IsCurentSafe" topic_name="/battery_state"/>'))
         assert text.startswith(f"{tmp_path / 'tree.xml'}:4: unknown node ID 'IsCurentSafe' (BehaviorTree T)")
-        known = text.split("closest first: ")[1].split(", ")
-        assert known[0] == "IsCurrentSafe"
-        assert {"IsCurrentNormal", "ExecuteTask", "PerformRecovery", "SubTree"} <= set(known)
+        known = text.split("closest first: ")[1].split(" (")[0].split(", ")
+        assert known[0] == "IsCurrentSafe" and "IsCurrentNormal" in known
+        assert len(known) <= 5 and "ExecuteTask" not in known
 
     def test_unknown_port_lists_the_ports(self, tmp_path: Path) -> None:
         """An unknown port lists the node's ports, closest first."""
@@ -342,7 +342,6 @@ class TestLoadErrors:
                 "port timer: takes a blackboard key like {timer}",
             ),
             ('<IsValueBelow value="{a" threshold="1"/>', "port value: malformed blackboard reference '{a'"),
-            ('<IsValueBelow value="{@a}" threshold="1"/>', "root-blackboard references"),
             ('<ExecuteTask _skipIf="x =="/>', "_skipIf: script 'x =='"),
             ('<ExecuteTask _onSucess="x := 1"/>', "attribute _onSucess (BT.CPP pre/post-conditions) is not supported"),
             (
@@ -406,10 +405,6 @@ class TestLoadErrors:
             (
                 '<Parallel success_count="3"><ExecuteTask/><ExecuteTask/></Parallel>',
                 "port success_count: 3 successes needed but only 2 children: can never succeed",
-            ),
-            (
-                '<RetryUntilSuccessful num_attempts="0"><ExecuteTask/></RetryUntilSuccessful>',
-                "port num_attempts: must be -1 (forever) or >= 1, got 0",
             ),
         ],
     )

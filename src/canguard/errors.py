@@ -14,10 +14,15 @@ Every error also inherits the matching built-in, so callers that only know
 Python's own exceptions still catch them. ConfigError and TreeError carry every
 problem one load found (``problems``), not only the first: ``canguard check``
 prints them all, one ``file:line: ...`` per line (at most :data:`MAX_SHOWN`).
+
+The words of an error come from here too: :func:`quote` / :func:`clip` show a bad
+line or value capped to one printable line with its length, :func:`closest` the few
+known names nearest to a misspelt one.
 """
 
 from __future__ import annotations
 
+import difflib
 from collections.abc import Iterable
 from typing import Any
 
@@ -36,6 +41,51 @@ def render_problems(problems: Iterable[str], limit: int = MAX_SHOWN) -> str:
     if len(lines) <= limit:
         return "\n".join(lines)
     return "\n".join([*lines[:limit], f"... and {len(lines) - limit} more"])
+
+
+QUOTE_CHARS = 100
+"""An error quotes at most this many characters of a line or a value it found (then its length)."""
+
+
+def _printable(text: str, limit: int) -> tuple[str, bool]:
+    """``text`` with control characters escaped (``\\x00``), cut to ``limit`` characters; True when cut."""
+    out: list[str] = []
+    n = 0
+    for c in text:
+        shown = c if c.isprintable() else repr(c)[1:-1]
+        n += len(shown)
+        if n > limit:
+            return "".join(out), True
+        out.append(shown)
+    return "".join(out), False
+
+
+def clip(text: str, limit: int = QUOTE_CHARS) -> str:
+    """``text`` on one printable line of at most about ``limit`` characters; a longer one is cut, with its length.
+
+    For messages quoted inside an error (a library's exception text): escapes count towards
+    the limit, so a line of NUL bytes shows ``limit // 4`` of them.
+    """
+    shown, cut = _printable(text, limit)
+    return f"{shown}... ({len(text)} characters in all)" if cut else shown
+
+
+def quote(text: str, limit: int = QUOTE_CHARS) -> str:
+    """``text`` in quotes, as :func:`clip` shows it: a bad line or value, however long or binary, on one line."""
+    shown, cut = _printable(text, limit)
+    return f"'{shown}'... ({len(text)} characters in all)" if cut else f"'{shown}'"
+
+
+def closest(word: str, choices: Iterable[str], n: int = 5, cutoff: float = 0.5, spread: float = 1.0) -> list[str]:
+    """The ``n`` choices nearest to ``word``, closest first: case ignored, difflib's similarity >= ``cutoff``
+    and within ``spread`` of the best one (a small spread gives a clear typo one answer, not a list)."""
+    scored = sorted(
+        (-difflib.SequenceMatcher(None, word.lower(), c.lower()).ratio(), c) for c in set(choices)
+    )
+    if not scored:
+        return []
+    best = -scored[0][0]
+    return [c for r, c in scored[:n] if -r >= cutoff and -r >= best - spread]
 
 
 class ConfigError(CanguardError, ValueError):

@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import py_trees
+from py_trees.blackboard import Blackboard
 from py_trees.parsers.behaviour_tree_xml import XMLParserError, parse_behaviour_tree_xml
 
 from canguard.bt import conditions
@@ -16,7 +17,9 @@ from canguard.bt.context import Context
 from canguard.bt.loaded import LoadedTree, NodeInfo, _preorder
 from canguard.bt.nodes import CanguardNode, PortError
 from canguard.bt.registry import _TOKEN
+from canguard.bt.scopes import TreeBlackboard, subtree_scopes
 from canguard.bt.validate import _Validator
+from canguard.bt.wakeup import WakeUpSignal
 from canguard.errors import TreeError
 
 if TYPE_CHECKING:
@@ -47,6 +50,65 @@ class _Loader(_Validator):
             ) as exc:
                 raise TreeError(f"{self.path}: BehaviorTree {main_id}: {self._untoken(str(exc))}") from exc
 
+    def scoped_boards(self, main_id: str) -> dict[str, TreeBlackboard]:
+        """The scripts' blackboard view of every SubTree instance's scope; its literal entries created."""
+        boards = {}
+        self.scopes = subtree_scopes(self.trees, main_id)
+        self.entry_types: dict[str, type] = {}  # filled by check_entry_types
+        for namespace, scope in self.scopes.items():
+            Blackboard.storage.update(scope.literals)
+            boards[namespace] = TreeBlackboard(namespace, scope, self.entry_types)
+        return boards
+
+    def install_subtree_conditions(self, nodes: list[py_trees.behaviour.Behaviour],
+                                   boards: dict[str, TreeBlackboard]) -> None:
+        """Pre/post conditions written on a ``<SubTree>`` element wrap its instance's root node.
+
+        BT.CPP puts them on the SubTree node, whose child is the subtree's root and whose
+        blackboard is the parent's: so they are checked before the root's own and run on the
+        parent's scope.
+        """
+        def namespace(node: py_trees.behaviour.Behaviour | None) -> str:
+            return (getattr(node, "_subtree_namespace", None) or "/").rstrip("/") + "/"
+
+        for ns, scope in self.scopes.items():
+            scripts = self.subtree_conditions.get(scope.element) if scope.element is not None else None
+            if not scripts:
+                continue
+            for node in nodes:  # the instance's root: the one node of its scope whose parent is outside it
+                if namespace(node).startswith(ns) and not namespace(node.parent).startswith(ns):
+                    conditions.install(node, scripts, boards[scope.parent])
+                    break
+
+    def check_entry_types(self, nodes: list[py_trees.behaviour.Behaviour], infos: dict[Any, NodeInfo]) -> None:
+        """BT.CPP's rule: the first typed port wired to an entry fixes its type; another type later is an error.
+
+        (``xml_parsing.cpp``: unless the first was a string, which converts to anything; ports of any
+        type, :attr:`~canguard.bt.nodes.base.CanguardNode.UNTYPED_PORTS`, neither fix nor check it.)
+        """
+        first: dict[str, tuple[type, str]] = {}
+        for node in nodes:  # in tree order, as BT.CPP creates them
+            if not isinstance(node, CanguardNode):
+                continue
+            info = infos[node.id]
+            table = node.port_table()
+            for port, key in node.wired_keys().items():
+                if port in node.UNTYPED_PORTS or port not in table:
+                    continue
+                kind = table[port][1].data_type
+                if key not in first:
+                    first[key] = (kind, f"{info.file}:{info.line}, node {info.name}")
+                    if kind in (int, float, bool):  # scripts then assign to it with its type
+                        self.entry_types[key] = kind
+                    continue
+                was, at = first[key]
+                if was is not kind and was is not str:
+                    self.errors.append(
+                        f"{info.file}:{info.line}: node {info.name} (BehaviorTree {info.tree}), port {port}: the "
+                        f"entry [{key.lstrip('/')}] was created with type [{_type_name(was)}] ({at}) and is used "
+                        f"here as [{_type_name(kind)}]; one entry has one type (as in BT.CPP)"
+                    )
+
     def _untoken(self, text: str) -> str:
         def name(m: re.Match) -> str:
             info = self.infos.get(m.group(0))
@@ -63,12 +125,23 @@ class _Loader(_Validator):
     def finish(self, root: py_trees.behaviour.Behaviour, main_id: str) -> LoadedTree:
         nodes = list(root.iterate())
         placed: list[tuple[py_trees.behaviour.Behaviour, NodeInfo, str]] = []
+        boards = self.scoped_boards(main_id)
         for node in nodes:
             parts = node.name.split(".")
             info = self.infos[parts[-1]]
-            conditions.install(node, self.conditions.get(parts[-1], {}))
+            namespace = (getattr(node, "_subtree_namespace", None) or "/").rstrip("/") + "/"
+            board = boards.get(namespace, boards["/"])
+            inline = self.private_tokens.get(parts[-1])
+            if inline is not None:  # a node of an inlined _autoremap subtree: its ports and _keys
+                scope = board.scope.inlined(inline)
+                Blackboard.storage.update({k: v for k, v in scope.literals.items() if k not in Blackboard.storage})
+                board = TreeBlackboard(namespace, scope, self.entry_types)
+            if isinstance(node, CanguardNode) and node.USES_BOARD:
+                node.board = board  # type: ignore[attr-defined]
+            conditions.install(node, self.conditions.get(parts[-1], {}), board)
             prefix = [p for p in parts[:-1] if p not in self.infos]
             placed.append((node, info, "/".join([*prefix, info.name])))
+        self.install_subtree_conditions(nodes, boards)
         order = {id(n): i for i, n in enumerate(_preorder(root))}
         placed.sort(key=lambda t: order[id(t[0])])
         counts: dict[str, int] = {}
@@ -79,6 +152,10 @@ class _Loader(_Validator):
             name = readable if k == 1 else f"{readable}#{k}"
             node.name = name
             loaded_nodes[node.id] = NodeInfo(info.node_id, name, info.file, info.line, info.tree)
+        for node, _, _ in placed:
+            if isinstance(node, CanguardNode):
+                node.resolve_root_keys()
+        self.check_entry_types([n for n, _, _ in placed], loaded_nodes)
         for node, _, _ in placed:
             if isinstance(node, CanguardNode):
                 info = loaded_nodes[node.id]
@@ -94,6 +171,10 @@ class _Loader(_Validator):
                         f"{info.file}:{info.line}: node {info.name} (BehaviorTree {info.tree}): {exc}"
                     )
         self.raise_collected()  # every node that cannot bind, not only the first
+        wake_up = WakeUpSignal()
+        for node, _, _ in placed:  # BT.CPP's factory gives every node of a tree its wake-up signal
+            if isinstance(node, CanguardNode):
+                node.wake_up = wake_up
         return LoadedTree(
             root=root,
             tree=py_trees.trees.BehaviourTree(root=root),
@@ -103,7 +184,13 @@ class _Loader(_Validator):
             format_version=self.format_version,
             tree_ids=tuple(self.trees),
             nodes=loaded_nodes,
+            wake_up=wake_up,
         )
+
+
+def _type_name(kind: type) -> str:
+    names = {int: "int", float: "double", str: "std::string", bool: "bool"}
+    return names.get(kind, getattr(kind, "__name__", str(kind)))
 
 
 def load_tree(path: str | Path, ctx: Context, main: str | None = None, palette: Palette | None = None) -> LoadedTree:

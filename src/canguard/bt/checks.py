@@ -13,7 +13,7 @@ from canguard.bt.context import Context
 from canguard.bt.display import render_dot, render_text
 from canguard.bt.loaded import LoadedTree, _preorder
 from canguard.config.schema import Config, PartialConfig, SourceKind
-from canguard.errors import TreeError
+from canguard.errors import TreeError, quote
 
 if TYPE_CHECKING:
     from canguard.bt.palette import Palette
@@ -32,7 +32,7 @@ class ConfigCheck:
     def warnings(self) -> list[str]:
         """One line per finding."""
         return [
-            f"source {name!r} is configured but the tree does not read it (only stale events)"
+            f"source {quote(name)} is configured but the tree does not read it (only stale events)"
             for name in self.unread_sources
         ]
 
@@ -53,11 +53,11 @@ def validate_against_config(loaded: LoadedTree, cfg: Config) -> ConfigCheck:
         src = cfg.sources.get(name)
         where = f"{info.file}:{info.line}: node {info.name} (BehaviorTree {info.tree}), port topic_name"
         if src is None:
-            errors.append(f"{where}: unknown source {name!r}; configured sources: {listing}")
+            errors.append(f"{where}: unknown source {quote(name)}; configured sources: {listing}")
             continue
         if src.kind not in kinds:
             errors.append(
-                f"{where}: source {name!r} is of kind {src.kind}, {info.node_id} needs "
+                f"{where}: source {quote(name)} is of kind {src.kind}, {info.node_id} needs "
                 f"{' or '.join(kinds)}; configured sources: {listing}"
             )
             continue

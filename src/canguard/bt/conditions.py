@@ -14,7 +14,8 @@ with the file and line), and run on the node's (sub)tree blackboard:
 SKIPPED is BT.CPP's: the node stays IDLE and its parent learns it was skipped
 (:data:`canguard.bt.nodes.base.SKIPPED`; sequences and fallbacks go on to the next child,
 a control whose children were all skipped is skipped itself). A script that fails while
-it runs counts as false (pre) or is skipped (post) and the node's feedback says why.
+it runs (BT.CPP throws out of the tick) fails the node, fail-safe, and the node's feedback
+says why; one in ``_onHalted`` is only reported.
 """
 
 from __future__ import annotations
@@ -24,11 +25,12 @@ from typing import TYPE_CHECKING, Any
 
 import py_trees
 
-from canguard.bt.nodes.base import FAILURE, INVALID, RUNNING, SKIPPED, SUCCESS, mark_skipped
+from canguard.bt.nodes.base import FAILURE, INVALID, RUNNING, SKIPPED, SUCCESS, mark_skipped, note_script_error
 from canguard.bt.scripting import ScriptError
+from canguard.errors import quote
 
 if TYPE_CHECKING:
-    from canguard.bt.nodes.builtins import TreeBlackboard
+    from canguard.bt.scopes import TreeBlackboard
     from canguard.bt.scripting import Script
 
 PRE = ("_failureIf", "_successIf", "_skipIf", "_while")
@@ -49,30 +51,36 @@ def take_conditions(attrib: dict[str, str]) -> tuple[dict[str, Script], list[str
         try:
             scripts[attr] = parse(text)
         except ScriptError as exc:
-            problems.append(f"{attr}: script {text!r}: {exc}")
+            problems.append(f"{attr}: script {quote(text)}: {exc}")
     return scripts, problems
+
+
+class _ScriptFailed(Exception):
+    """A pre-condition script failed while it ran: the node fails (BT.CPP throws out of the tick)."""
 
 
 def _holds(node: py_trees.behaviour.Behaviour, script: Script, board: TreeBlackboard, attr: str) -> bool:
     try:
         return bool(script.condition(board))
     except ScriptError as exc:
-        node.feedback_message = f"{attr}: {exc}"
-        return False
+        note_script_error(node, attr, script.text, exc)
+        raise _ScriptFailed from None
 
 
-def _run(node: py_trees.behaviour.Behaviour, script: Script | None, board: TreeBlackboard, attr: str) -> None:
+def _run(node: py_trees.behaviour.Behaviour, script: Script | None, board: TreeBlackboard, attr: str) -> bool:
+    """Run a post-condition script; False when it failed (its error noted on the node)."""
     if script is None:
-        return
+        return True
     try:
         script.run(board)
     except ScriptError as exc:
-        node.feedback_message = f"{attr}: {exc}"
+        note_script_error(node, attr, script.text, exc)
+        return False
+    return True
 
 
-def _preconditions(node: py_trees.behaviour.Behaviour, scripts: Mapping[str, Script], board: Any) -> Any:
-    """The status a pre-condition gives the node instead of ticking it (None: tick it), as BT.CPP's
-    ``checkPreConditions``: ``_failureIf``, ``_successIf``, ``_skipIf`` before a tick, ``_while`` always."""
+def _precondition(node: py_trees.behaviour.Behaviour, scripts: Mapping[str, Script], board: TreeBlackboard) -> Any:
+    """The status BT.CPP's ``checkPreConditions`` substitutes (None: tick the node)."""
     if node.status != RUNNING:
         for attr, status in (("_failureIf", FAILURE), ("_successIf", SUCCESS), ("_skipIf", SKIPPED)):
             script = scripts.get(attr)
@@ -80,33 +88,26 @@ def _preconditions(node: py_trees.behaviour.Behaviour, scripts: Mapping[str, Scr
                 return status
     script = scripts.get("_while")
     if script is not None and not _holds(node, script, board, "_while"):
-        return SKIPPED  # a running node is halted (mark_skipped stops it: _onHalted runs)
+        return SKIPPED  # while running: halted below (mark_skipped stops it: _onHalted runs)
     return None
 
 
-def _postconditions(node: py_trees.behaviour.Behaviour, scripts: Mapping[str, Script], board: Any) -> None:
-    """As BT.CPP's executeTick: the post-conditions follow a completed status, substituted or ticked."""
-    if getattr(node, "skipped", False):
-        return
-    if node.status == SUCCESS:
-        _run(node, scripts.get("_onSuccess"), board, "_onSuccess")
-    elif node.status == FAILURE:
-        _run(node, scripts.get("_onFailure"), board, "_onFailure")
-    if node.status in (SUCCESS, FAILURE):
-        _run(node, scripts.get("_post"), board, "_post")
-
-
-def install(node: py_trees.behaviour.Behaviour, scripts: Mapping[str, Script]) -> None:
-    """Wrap ``node``'s tick and stop with its conditions (instance attributes: the class is untouched)."""
+def install(node: py_trees.behaviour.Behaviour, scripts: Mapping[str, Script], board: TreeBlackboard) -> None:
+    """Wrap ``node``'s tick and stop with its conditions, run on ``board`` (instance attributes: the class
+    is untouched)."""
     if not scripts:
         return
-    from canguard.bt.nodes.builtins import TreeBlackboard  # with the scripts: only for nodes that have some
-
-    board = TreeBlackboard(getattr(node, "_subtree_namespace", None) or "/")
     tick, stop = node.tick, node.stop
 
     def tick_with_conditions() -> Iterator[py_trees.behaviour.Behaviour]:
-        substituted = _preconditions(node, scripts, board)
+        try:
+            substituted = _precondition(node, scripts, board)
+        except _ScriptFailed:  # fail-safe: the node fails (halted first if it was running)
+            if node.status == RUNNING:
+                stop_with_conditions(INVALID)
+            stop(FAILURE)
+            yield node
+            return
         if substituted is SKIPPED:
             mark_skipped(node)
             yield node
@@ -116,7 +117,12 @@ def install(node: py_trees.behaviour.Behaviour, scripts: Mapping[str, Script]) -
             yield node
         else:
             yield from tick()
-        _postconditions(node, scripts, board)
+        # as BT.CPP's executeTick: the post-conditions follow a completed status, substituted or ticked
+        if getattr(node, "skipped", False) or node.status not in (SUCCESS, FAILURE):
+            return
+        first = "_onSuccess" if node.status == SUCCESS else "_onFailure"
+        if not (_run(node, scripts.get(first), board, first) and _run(node, scripts.get("_post"), board, "_post")):
+            node.status = FAILURE  # a post-condition that fails fails the node (BT.CPP throws)
 
     def stop_with_conditions(new_status: Any = INVALID) -> None:
         halted = new_status == INVALID and node.status == RUNNING

@@ -21,6 +21,7 @@ from collections.abc import Callable, Mapping, Sequence
 from typing import Any, Protocol
 
 from canguard.config.schema import ActionConfig, FrameSpec, SourceConfig, SourceKind
+from canguard.errors import quote
 from canguard.io.clock import Clock
 from canguard.io.frame import Sample
 from canguard.protect.base import ProtectionModel
@@ -119,11 +120,17 @@ class Context:
         cfg = self.sources.get(name)
         if cfg is None:
             known = ", ".join(sorted(self.sources)) or "(none configured)"
-            raise KeyError(f"unknown source {name!r}; configured sources: {known}")
+            raise KeyError(f"unknown source {quote(name)}; configured sources: {known}")
         if cfg.kind not in kinds:
             raise ValueError(f"source {name!r} is of kind {cfg.kind!r}, expected {' or '.join(kinds)}")
         self.read_sources.add(name)
         return cfg
+
+    def unit(self, source: str, role: str) -> str:
+        """The DBC unit of ``source``'s ``role`` signal (empty when unknown or unitless)."""
+        cfg = self.sources.get(source)
+        ref = cfg.signal(role) if cfg is not None else None
+        return (ref.unit or "") if ref is not None else ""
 
     def subscribe(self, source: str, role: str, model: ProtectionModel) -> None:
         """Feed every valid sample of ``source``'s ``role`` signal to ``model`` from now on."""

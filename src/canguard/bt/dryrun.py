@@ -21,6 +21,7 @@ from canguard.bt.context import Context, ListSink, NullTaskGate
 from canguard.io.clock import ManualClock
 
 if TYPE_CHECKING:
+    from canguard.bt.loaded import LoadedTree
     from canguard.bt.palette import Palette
 
 
@@ -45,24 +46,52 @@ def root_blackboard() -> dict[str, Any]:
     return dict(sorted(out.items()))
 
 
+def _script_errors(loaded: LoadedTree) -> list[str]:
+    """Every script that failed in the tick just done: the node, where it is written, the script and why."""
+    out = []
+    for node in loaded.root.iterate():
+        error = getattr(node, "script_error", None)
+        if error:
+            info = loaded.nodes.get(node.id)
+            where = f"{info.file}:{info.line}: " if info is not None else ""
+            out.append(f"{where}node {node.name}: script {error}")
+            node.script_error = None  # type: ignore[attr-defined]
+    return out
+
+
 def dry_run(
-    path: Path, ticks: int, dt: float, main: str | None = None, palette: Palette | None = None
+    path: Path,
+    ticks: int,
+    dt: float,
+    main: str | None = None,
+    palette: Palette | None = None,
+    *,
+    exactly_once: bool = False,
 ) -> dict[str, Any]:
-    """Load ``path`` and tick it ``ticks`` times ``dt`` seconds apart (clock from 0); ``palette``: ``--nodes``."""
+    """Load ``path`` and tick it ``ticks`` times ``dt`` seconds apart (clock from 0); ``palette``: ``--nodes``.
+
+    Each tick is BT.CPP's ``tickOnce()`` (the root re-ticked while a wake-up is pending), or
+    ``tickExactlyOnce()`` with ``exactly_once``. A script that fails while it runs fails its
+    node (or counts as false), as in the daemon; stderr names the node and the script.
+    """
     Blackboard.storage.clear()
     Blackboard.metadata.clear()
     Blackboard.clients.clear()
     clock = ManualClock()
-    ctx = Context(clock, {}, sink=ListSink(), actions={}, task=NullTaskGate())
+    ctx = Context(clock, {}, sink=ListSink(), actions={}, task=NullTaskGate(),
+                  on_event=lambda event: print(f"canguard tree: {event.get('reason')}", file=sys.stderr))
     loaded = load_tree(path, ctx, main, palette)
     statuses = []
     for i in range(ticks):
         clock.set(i * dt)
         try:
-            status = loaded.tick()
+            ticked = loaded.tick_once(exactly_once=exactly_once)
         except Exception as exc:  # as the engine does: a tick that raises is a FAILURE, and says why
             print(f"canguard tree: tick {i + 1}: a node raised {type(exc).__name__}: {exc}", file=sys.stderr)
             statuses.append("FAILURE")
             continue
-        statuses.append("SKIPPED" if loaded.skipped else status.name)
+        finally:
+            for line in _script_errors(loaded):
+                print(f"canguard tree: tick {i + 1}: {line}", file=sys.stderr)
+        statuses.append("SKIPPED" if ticked.skipped else ticked.status.name)
     return {"ticks": statuses, "blackboard": root_blackboard()}

@@ -11,7 +11,9 @@ import py_trees
 
 from canguard.bt.context import Context
 from canguard.bt.nodes import GuardNode
+from canguard.bt.wakeup import MAX_RETICKS, Ticked, WakeUpSignal, tick_once
 from canguard.protect.base import ProtectionModel, Snapshot
+from canguard.units import I2T_LIMIT_PCT
 
 
 # ---------------------------------------------------------------------------------------
@@ -46,6 +48,18 @@ class GuardView:
     kind: GuardKind
     """``threshold`` (IsCurrentNormal, IsCurrentSafe, IsJointEffortNormal) or ``i2t`` (IsI2tSafe)."""
     model: ProtectionModel
+    unit: str = ""
+    """The signal's unit as the DBC gives it (``A``, ``Nm``; empty when it gives none)."""
+
+    @property
+    def threshold_unit(self) -> str:
+        """The unit of :meth:`threshold` and of the value a trip event compares with it (I²t: A²s or θ)."""
+        return self.model.THRESHOLD_UNIT or self.unit
+
+    @property
+    def margin_unit(self) -> str:
+        """The unit of the replay summary's peak, threshold and margin (I²t: % of its limit)."""
+        return I2T_LIMIT_PCT if self.kind == "i2t" else self.unit
 
     def snapshot(self) -> Snapshot:
         """The model's present state (the peak latch untouched)."""
@@ -71,14 +85,26 @@ class LoadedTree:
     """Every ``<BehaviorTree ID>`` of the document (includes inlined)."""
     nodes: dict[Any, NodeInfo] = field(default_factory=dict)
     """NodeInfo by behaviour id (``node.id``)."""
+    wake_up: WakeUpSignal = field(default_factory=WakeUpSignal)
+    """The wake-up signal every node of the tree shares (see :mod:`canguard.bt.wakeup`)."""
 
     def tick(self) -> py_trees.common.Status:
-        """Tick the root once (sets ``ctx.tree_start`` at the first tick, as the engine does)."""
+        """Tick the root exactly once, BT.CPP's ``tickExactlyOnce()`` (sets ``ctx.tree_start`` at the first tick)."""
+        return self.tick_once(exactly_once=True).status
+
+    def tick_once(self, max_reticks: int = MAX_RETICKS, *, exactly_once: bool = False) -> Ticked:
+        """BT.CPP's ``tickOnce()``: the root ticked, and again while a wake-up is pending (bounded)."""
         if self.context.tree_start is None:
             self.context.tree_start = self.context.now()
-        self.root.skipped = False  # type: ignore[attr-defined]
-        self.root.tick_once()
-        return self.root.status
+        return tick_once(self, max_reticks, exactly_once=exactly_once)
+
+    def now(self) -> float:
+        """The tree's clock (the context's)."""
+        return self.context.now()
+
+    def record(self, event: str, **fields: Any) -> None:
+        """Journal an event through the context."""
+        self.context.record(event, **fields)
 
     @property
     def skipped(self) -> bool:
@@ -107,7 +133,8 @@ class LoadedTree:
     def guards(self) -> list[GuardView]:
         """One :class:`GuardView` per guarded signal (a joints guard gives one per joint), in tree order."""
         return [
-            GuardView(node.name, node.topic_name, role, cast("GuardKind", kind), model)
+            GuardView(node.name, node.topic_name, role, cast("GuardKind", kind), model,
+                      self.context.unit(node.topic_name, role))
             for node in self.guard_nodes()
             for role, model, kind in node.guarded()
         ]

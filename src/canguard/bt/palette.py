@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from canguard.bt.xmlsrc import _read_xml
-from canguard.errors import TreeError
+from canguard.errors import TreeError, quote
 
 KINDS = ("Action", "Condition", "Decorator", "Control", "SubTree")
 """The node kinds a ``<TreeNodesModel>`` may declare (BT.CPP's ``toStr(NodeType)``)."""
@@ -122,7 +122,7 @@ def read_model(model: ET.Element, where: Mapping[ET.Element, Where], path: Path,
                 problems.append(f"{pfile}:{pline}: <{port.tag}> of {node_id} without name=\"...\"")
                 continue
             if name in ports:
-                problems.append(f"{pfile}:{pline}: port {name!r} of {node_id} declared twice")
+                problems.append(f"{pfile}:{pline}: port {quote(name)} of {node_id} declared twice")
                 continue
             required = port.attrib.get("required", "").strip().lower() in ("true", "1")
             ports[name] = PalettePort(name, direction, port.attrib.get("default"), port.attrib.get("type", ""),
@@ -170,7 +170,7 @@ def check_node(elem: ET.Element, decl: PaletteNode, at: str, tree_id: str) -> li
             continue
         if attr not in decl.ports:
             listing = ", ".join(decl.ports) or "(none)"
-            problems.append(f"{head}: unknown port {attr!r}; ports of {elem.tag}: {listing}")
+            problems.append(f"{head}: unknown port {quote(attr)}; ports of {elem.tag}: {listing}")
     missing = [p.name for p in decl.ports.values() if p.required and p.name not in elem.attrib]
     if missing:
         problems.append(f"{head}: missing required port {', '.join(missing)} (declared required=\"true\")")

@@ -18,7 +18,11 @@ from canguard.bt.loaded import NodeInfo
 from canguard.bt.nodes import ConfiguredAction, GuardNode
 from canguard.bt.registry import _SUBTREE, _TOKEN, known_node_ids, node_kind
 from canguard.bt.xmlread import _closest, _Reader, _type_name
-from canguard.errors import TreeError
+from canguard.errors import TreeError, closest, quote
+
+NEAR_NODE_IDS = 5
+"""An unknown node ID is answered with at most this many known ones, the closest (not all ~60)."""
+LIST_NODE_IDS = "`canguard tree --nodes-model FILE` writes every one with its ports"
 
 
 class _Validator(_Reader):
@@ -51,6 +55,12 @@ class _Validator(_Reader):
             subtree_names: dict[str, int] = {}
             for elem in bt[0].iter():
                 if elem.tag == _SUBTREE:
+                    scripts, problems = take_conditions(elem.attrib)  # BT.CPP: they apply to the SubTree node
+                    cond_file, cond_line = self.where.get(elem, (self.path, 0))
+                    self.errors.extend(f"{cond_file}:{cond_line}: SubTree {elem.attrib.get('ID')} (BehaviorTree "
+                                       f"{tree_id}), {p}" for p in problems)
+                    if scripts:
+                        self.subtree_conditions[elem] = scripts
                     try:
                         self._check_subtree(elem, tree_id, subtree_names)
                     except TreeError as exc:
@@ -72,6 +82,8 @@ class _Validator(_Reader):
                     self.infos[token] = NodeInfo(elem.tag, readable, file, line, tree_id)
                     if scripts:
                         self.conditions[token] = scripts
+                    if elem in self.private:
+                        self.private_tokens[token] = self.private[elem]
                     elem.attrib["name"] = token
         if self.source_check == "always" or (self.errors and self.source_check == "with_others"):
             # The tree will not be built, so binding (which resolves the sources and reports an
@@ -104,7 +116,7 @@ class _Validator(_Reader):
             raise self.error(elem, 'SubTree without ID="..."', tree_id)
         if target not in self.trees:
             known = ", ".join(_closest(target, self.trees))
-            raise self.error(elem, f"unknown BehaviorTree {target!r}; trees in the file: {known}", tree_id)
+            raise self.error(elem, f"unknown BehaviorTree {quote(target)}; trees in the file: {known}", tree_id)
         if len(elem):
             raise self.error(elem, "a SubTree takes no child elements (its ports are attributes)", tree_id)
         for attr, value in elem.attrib.items():
@@ -121,7 +133,7 @@ class _Validator(_Reader):
         if n > 1:
             if explicit:
                 raise self.error(
-                    elem, f"two SubTrees named {name!r} in BehaviorTree {tree_id}: names must differ", tree_id
+                    elem, f"two SubTrees named {quote(name)} in BehaviorTree {tree_id}: names must differ", tree_id
                 )
             name = f"{name}_{n}"
         elem.attrib["name"] = name
@@ -131,15 +143,8 @@ class _Validator(_Reader):
             match = is_key(value)
         except ValueError:
             raise self.error(
-                elem, f"malformed blackboard reference {value!r} (expected {{key}})", tree_id, attr
+                elem, f"malformed blackboard reference {quote(value)} (expected {{key}})", tree_id, attr
             ) from None
-        if match and match.group(1).startswith("@"):
-            raise self.error(
-                elem,
-                f"{value}: root-blackboard references {{@key}} are not supported; use {{key}}",
-                tree_id,
-                attr,
-            )
         return match
 
     def _check_node(self, elem: ET.Element, tree_id: str) -> type[PortsMixin] | None:
@@ -160,10 +165,11 @@ class _Validator(_Reader):
                 self.palette_ports.append((elem, extra))
             return cls
         if cls is None:
-            known = _closest(node_id, set(known_node_ids(self.ctx)) | set(self.palette.nodes))
+            known = set(known_node_ids(self.ctx)) | set(self.palette.nodes)
+            near = closest(node_id, known, NEAR_NODE_IDS) or _closest(node_id, known)[:NEAR_NODE_IDS]
             self.errors.append(
-                f"{self.at(elem)}: unknown node ID {node_id!r} (BehaviorTree {tree_id}); "
-                f"known node IDs, closest first: {', '.join(known)}"
+                f"{self.at(elem)}: unknown node ID {quote(node_id)} (BehaviorTree {tree_id}); "
+                f"known node IDs, closest first: {', '.join(near)} ({len(known)} in all: {LIST_NODE_IDS})"
             )
             return None
         ports: dict[str, tuple[str, PortInformation]] = {
@@ -222,7 +228,7 @@ class _Validator(_Reader):
                                    f"the supported ones: {known}", tree_id)
         if attr not in ports:
             listing = ", ".join(_closest(attr, ports)) if ports else "(none)"
-            raise self.error(elem, f"unknown port {attr!r}; ports of {node_id}: {listing}", tree_id)
+            raise self.error(elem, f"unknown port {quote(attr)}; ports of {node_id}: {listing}", tree_id)
         direction, info = ports[attr]
         match = self._check_key_syntax(elem, attr, value, tree_id)
         if match:
@@ -237,23 +243,23 @@ class _Validator(_Reader):
         if direction == "output":
             raise self.error(
                 elem,
-                f"an output port takes a blackboard key like {{{attr}}}, not {value!r}",
+                f"an output port takes a blackboard key like {{{attr}}}, not {quote(value)}",
                 tree_id,
                 attr,
             )
         if attr in key_ports:
-            raise self.error(elem, f"takes a blackboard key like {{{attr}}}, not {value!r}", tree_id, attr)
+            raise self.error(elem, f"takes a blackboard key like {{{attr}}}, not {quote(value)}", tree_id, attr)
         try:
             converted, parsed = convert_str_to_type(value, info.data_type)
         except (ValueError, TypeError):
             converted, parsed = False, None
         if not converted:
-            raise self.error(elem, f"{value!r} is not a valid {_type_name(info.data_type)}", tree_id, attr)
+            raise self.error(elem, f"{quote(value)} is not a valid {_type_name(info.data_type)}", tree_id, attr)
         if isinstance(parsed, float) and math.isnan(parsed):
-            raise self.error(elem, f"{value!r} is not a number", tree_id, attr)
+            raise self.error(elem, f"{quote(value)} is not a number", tree_id, attr)
         allowed = choices.get(attr)
         if allowed is not None and parsed not in allowed:
-            raise self.error(elem, f"unknown value {value!r}; expected one of {', '.join(allowed)}", tree_id, attr)
+            raise self.error(elem, f"unknown value {quote(value)}; expected one of {', '.join(allowed)}", tree_id, attr)
 
     def check_cycles(self, main_id: str) -> None:
         def visit(tree_id: str, stack: list[str]) -> None:

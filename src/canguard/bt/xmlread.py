@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import difflib
 import xml.etree.ElementTree as ET
 from collections.abc import Collection
 from pathlib import Path
@@ -13,8 +12,9 @@ from py_trees.ports import PortsMixin
 from canguard.bt.context import Context
 from canguard.bt.loaded import NodeInfo
 from canguard.bt.registry import _PORT_ALIASES, _SUBTREE, _TAG_ALIASES, _TOKEN, _V3_WRAPPERS, Registry, build_registry
+from canguard.bt.scopes import Inline
 from canguard.bt.xmlsrc import Where, _read_xml
-from canguard.errors import TreeError
+from canguard.errors import TreeError, closest, quote
 
 if TYPE_CHECKING:
     from canguard.bt.palette import Palette, PaletteNode
@@ -22,9 +22,8 @@ if TYPE_CHECKING:
 
 
 def _closest(word: str, choices: Collection[str]) -> list[str]:
-    """``choices`` sorted by similarity to ``word``, closest first (ties alphabetical)."""
-    lw = word.lower()
-    return sorted(choices, key=lambda c: (-difflib.SequenceMatcher(None, lw, c.lower()).ratio(), c))
+    """Every one of ``choices``, closest to ``word`` first (ties alphabetical): short lists (trees, ports)."""
+    return closest(word, choices, n=len(choices), cutoff=0.0)
 
 
 def _type_name(data_type: Any) -> str:
@@ -48,6 +47,13 @@ class _Reader:
         self.infos: dict[str, NodeInfo] = {}
         self.conditions: dict[str, dict[str, ParsedScript]] = {}
         """Pre/post-condition scripts (``_successIf``...) by node token (see :mod:`.conditions`)."""
+        self.subtree_conditions: dict[ET.Element, dict[str, ParsedScript]] = {}
+        """Pre/post-condition scripts on ``<SubTree>`` elements (run on the parent's blackboard)."""
+        self.private: dict[ET.Element, Inline] = {}
+        """Elements of an inlined ``_autoremap`` subtree -> that instance (its ``_private`` entries, its ports)."""
+        self.private_tokens: dict[str, Inline] = {}
+        """The same, by node token (set by the validator)."""
+        self._inlined = 0
         self.registry: Registry = {}
         self.classes: dict[str, type[PortsMixin]] = {}
         self.errors: list[str] = []
@@ -228,7 +234,7 @@ class _Reader:
         target = sub.attrib.get("ID", "")
         if target not in self.trees:
             known = ", ".join(_closest(target, self.trees))
-            raise self.error(sub, f"unknown BehaviorTree {target!r}; trees in the file: {known}", tree_id)
+            raise self.error(sub, f"unknown BehaviorTree {quote(target)}; trees in the file: {known}", tree_id)
         if target in chain:
             raise self.error(sub, f"SubTree cycle: {' -> '.join((*chain, target))}", tree_id)
         body = self.trees[target]
@@ -249,28 +255,35 @@ class _Reader:
                 rename[attr] = text  # the parent's entry of that name
             else:
                 rename[attr] = value  # a constant: the subtree's {attr} reads it
-        copy = self._copy(body[0], rename)
+        self._inlined += 1
+        private = f"{target}_autoremap{self._inlined}"  # BT.CPP: _autoremap never maps a key starting with _
+        remaps = {port: value.strip()[1:-1].strip() for port, value in rename.items() if value.strip().startswith("{")}
+        literals = {port: value for port, value in rename.items() if port not in remaps}
+        copy = self._copy(body[0], rename, Inline(private, remaps, literals))
         copy.attrib.update(conditions)
         for i, child in enumerate(copy):
             if self._autoremapped(child):
                 copy[i] = self._inline(child, tree_id, (*chain, target))
         return copy
 
-    def _copy(self, src: ET.Element, rename: dict[str, str]) -> ET.Element:
-        """A deep copy of ``src`` with its lines, ``{key}`` references renamed by ``rename``."""
+    def _copy(self, src: ET.Element, rename: dict[str, str], inline: Inline) -> ET.Element:
+        """A deep copy of ``src`` with its lines, ``{key}`` references renamed by ``rename``, ``{_key}`` ones
+        moved to the copy's own ``private`` scope."""
         attrib = {}
         for attr, value in src.attrib.items():
             text = value.strip()
-            if text.startswith("{") and text.endswith("}") and text[1:-1] in rename:
-                value = rename[text[1:-1]]
-            elif text == "{=}" and attr in rename:
-                value = rename[attr]
+            inner = attr if text == "{=}" else text[1:-1].strip()
+            if text.startswith("{") and text.endswith("}") and inner in rename:
+                value = rename[inner]
+            elif text.startswith("{") and text.endswith("}") and inner.startswith("_"):
+                value = "{" + inline.private + "/" + inner + "}"
             attrib[attr] = value
         dst = ET.Element(src.tag, attrib)
+        self.private[dst] = inline
         if src in self.where:
             self.where[dst] = self.where[src]
         for child in src:
-            dst.append(self._copy(child, rename))
+            dst.append(self._copy(child, rename, inline))
         return dst
 
     # -- registry -------------------------------------------------------------------------
@@ -296,5 +309,5 @@ class _Reader:
             )
         if chosen not in self.trees:
             known = ", ".join(_closest(chosen, self.trees))
-            raise TreeError(f"{self.path}: no BehaviorTree with ID {chosen!r}; trees in the file: {known}")
+            raise TreeError(f"{self.path}: no BehaviorTree with ID {quote(chosen)}; trees in the file: {known}")
         return chosen

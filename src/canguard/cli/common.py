@@ -9,7 +9,10 @@ from __future__ import annotations
 import argparse
 import os
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from canguard.config.schema import Config
 
 
 def bundled_config() -> Path:
@@ -32,6 +35,8 @@ def __getattr__(name: str) -> Path:
 
 EXIT_OK = 0
 EXIT_TRIPPED = 1
+EXIT_REGRESSED = 1
+"""replay --fail-on-regression: worse than --baseline (the same code as a trip: a CI gate failed)."""
 EXIT_BAD_INPUT = 2
 EXIT_UNGUARDED = 3
 EXIT_INTERRUPTED = 130
@@ -39,7 +44,8 @@ EXIT_BROKEN_PIPE = 141
 
 EXIT_CODES: tuple[tuple[int, str], ...] = (
     (EXIT_OK, "fine"),
-    (EXIT_TRIPPED, "replay --fail-on-trip: a guard tripped"),
+    (EXIT_TRIPPED, "replay --fail-on-trip: a guard tripped; --fail-on-regression: a trip gained or lost, "
+                   "or a margin shrank, against --baseline"),
     (EXIT_BAD_INPUT, "bad input (config, DBC, tree, log, option, state file): every problem on stderr"),
     (EXIT_UNGUARDED, "replay --fail-on-trip: a source the config guards got no sample from a log"),
     (EXIT_INTERRUPTED, "interrupted (Ctrl-C)"),
@@ -89,6 +95,35 @@ def add_config(p: argparse.ArgumentParser) -> None:
 def config_path(args: argparse.Namespace) -> Path:
     """The config a subcommand uses: ``-c`` or the default."""
     return args.config if args.config is not None else default_config()
+
+
+def add_state_dir(p: argparse.ArgumentParser) -> None:
+    """``--state-dir DIR``: the daemon's events and I²t state in DIR instead of where the config says."""
+    p.add_argument("--state-dir", type=Path, default=None, metavar="DIR",
+                   help="write the event journal and the I²t state file into DIR (the config's file names "
+                        "kept), e.g. a trial run beside a service's own files; the bundled config's go to "
+                        "$XDG_STATE_HOME/canguard (~/.local/state/canguard) unless this says otherwise")
+
+
+def state_dir(args: argparse.Namespace, config: Path) -> Path | None:
+    """Where a run of ``config`` keeps its events and heat, when not where the config says: ``--state-dir``, or,
+    for the bundled config (inside the installed package: read-only material), the user's state directory."""
+    if getattr(args, "state_dir", None) is not None:
+        return Path(args.state_dir)
+    if args.config is None and config == bundled_config():
+        from canguard.io.outputs import user_state_dir
+
+        return user_state_dir()
+    return None
+
+
+def run_config(args: argparse.Namespace) -> tuple[Config, Path | None]:
+    """The config ``canguard run`` (and ``check``, which judges it the same way) runs, and its state directory."""
+    from canguard.io.outputs import load_run_config
+
+    path = config_path(args)
+    where = state_dir(args, path)
+    return load_run_config(path, where), where
 
 
 def add_global_options(p: argparse.ArgumentParser, *, in_subcommand: bool) -> None:

@@ -28,6 +28,7 @@ from canguard.cli.common import subcommand
 from canguard.config.schema import BusConfig, Config
 from canguard.data import data_path
 from canguard.errors import ConfigError
+from canguard.units import quantity
 
 DEMO_CONFIG = data_path("config", "examples", "robot_guard.yaml")
 """The bundled config the demo runs: the whole robot of dbc/robot.dbc guarded by trees/robot_guard.xml."""
@@ -92,8 +93,9 @@ class LiveView:
         if self.tty:
             return
         t = time.monotonic() - self.t0
-        fields = " ".join(f"{k}={_fmt(ev[k])}" for k in ("node", "source", "value", "threshold", "reason")
-                          if ev.get(k) not in (None, ""))
+        unit = trip_unit(self.daemon.engine, ev)
+        fields = " ".join(f"{k}={_fmt(ev[k], unit if k in ('value', 'threshold') else None)}"
+                          for k in ("node", "source", "value", "threshold", "reason") if ev.get(k) not in (None, ""))
         print(f"[{t:6.2f} s] {ev.get('event')}: {fields}", file=self.out, flush=True)
 
     def draw(self) -> None:
@@ -107,7 +109,7 @@ class LiveView:
         self._frames, self._last = frames, mono
         lines = [f"canguard demo  t={mono - self.t0:5.1f} s  task: {engine.gate.state:8s}  "
                  f"trips: {engine.stats.trip_count}  stops: {engine.gate.stops}  {fps:7.0f} frames/s", ""]
-        lines.append(f"{'guard':28s} {'source':20s} {'value':>9s} {'threshold':>10s} {'level %':>8s}  state")
+        lines.append(f"{'guard':28s} {'source':20s} {'value':>10s} {'threshold':>12s} {'level':>8s}  state")
         for g in engine.guards():
             health = engine.ctx.health[g.source]
             reason = health.reason(now, g.role)
@@ -116,12 +118,15 @@ class LiveView:
             state = reason or ("TRIPPED" if snap.tripped else "ok")
             thr = g.threshold()
             where = g.source if g.role == "current" else f"{g.source}:{g.role}"
-            lines.append(f"{g.node[:28]:28s} {where[:20]:20s} {value:9.2f} "
-                         f"{thr if math.isfinite(thr) else float('nan'):10.2f} {snap.level_pct:8.1f}  {state}")
+            # the value is the signal's (A, Nm); an I²t guard's threshold is its trip level (A²s or θ)
+            lines.append(f"{g.node[:28]:28s} {where[:20]:20s} {_fmt(value, g.unit):>10s} "
+                         f"{_fmt(thr if math.isfinite(thr) else math.nan, g.threshold_unit):>12s} "
+                         f"{_fmt(snap.level_pct, '%'):>8s}  {state}")
         lines.append("")
         for ev in engine.stats.trips[-5:]:
-            lines.append(f"  trip {ev.get('node')} {ev.get('source')} value={_fmt(ev.get('value'))} "
-                         f"threshold={_fmt(ev.get('threshold'))} ({ev.get('reason')})")
+            unit = trip_unit(engine, ev)
+            lines.append(f"  trip {ev.get('node')} {ev.get('source')} value={_fmt(ev.get('value'), unit)} "
+                         f"threshold={_fmt(ev.get('threshold'), unit)} ({ev.get('reason')})")
         self.out.write("\x1b[H\x1b[2J" + "\n".join(lines) + "\n")
         self.out.flush()
 
@@ -131,11 +136,13 @@ def cmd_demo(args: argparse.Namespace) -> int:
     import can
 
     from canguard.config.loader import load_config
+    from canguard.io.outputs import check_output
     from canguard.service.daemon import Daemon
     from canguard.sim import run_on_bus
 
     if args.duration <= 0:
         raise ConfigError(f"--duration {args.duration}: expected seconds > 0")
+    check_output(args.events, "--events", beside=True, makes_dirs=True)
     cfg_path = args.config if args.config is not None else DEMO_CONFIG
     tmp = tempfile.TemporaryDirectory(prefix="canguard-demo-")
     events = args.events if args.events is not None else Path(tmp.name) / "events.jsonl"
@@ -189,9 +196,17 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return code
 
 
-def _fmt(value: Any) -> str:
-    """Numbers to 4 significant digits for the terminal; the journal keeps full precision."""
-    return f"{value:.4g}" if isinstance(value, float) else str(value)
+def _fmt(value: Any, unit: str | None = None) -> str:
+    """Numbers to 4 significant digits, with their unit, for the terminal; the journal keeps full precision."""
+    return quantity(value, unit, 4) if isinstance(value, float) else str(value)
+
+
+def trip_unit(engine: Any, ev: dict[str, Any]) -> str:
+    """The unit of a trip event's value and threshold: its guard's threshold unit (A, Nm, A²s, θ)."""
+    for g in engine.guards():
+        if (g.node, g.role) == (ev.get("node"), ev.get("signal")):
+            return str(g.threshold_unit)
+    return ""
 
 
 def summary_text(engine: Any, trips: list[tuple[float, dict[str, Any]]], stop_walls: list[float],
@@ -211,8 +226,10 @@ def summary_text(engine: Any, trips: list[tuple[float, dict[str, Any]]], stop_wa
         after = [s for s in stop_walls if s >= wall - 0.001]
         latency = f"stop frames out {1000 * (after[0] - t):.2f} ms after the trip's time" if after else \
             "no new stop (already stopped)"
-        lines.append(f"  t={t - first:7.3f} s  {ev.get('node')}  {ev.get('source')}  value={_fmt(ev.get('value'))}  "
-                     f"threshold={_fmt(ev.get('threshold'))}  ({ev.get('reason')}): {latency}")
+        unit = trip_unit(engine, ev)
+        lines.append(f"  t={t - first:7.3f} s  {ev.get('node')}  {ev.get('source')}  "
+                     f"value={_fmt(ev.get('value'), unit)}  threshold={_fmt(ev.get('threshold'), unit)}  "
+                     f"({ev.get('reason')}): {latency}")
     if events is not None:
         lines.append(f"  events: {events}")
     return "\n".join(lines)

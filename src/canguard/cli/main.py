@@ -22,10 +22,12 @@ from canguard.cli.common import (
     EXIT_INTERRUPTED,
     Formatter,
     add_global_options,
+    add_state_dir,
     bundled_config,
     default_config,
     exit_codes_epilog,
     one_blas_thread,
+    run_config,
     subcommand,
 )
 from canguard.cli.common import add_config as _add_config
@@ -53,6 +55,7 @@ def _add_check(sub: argparse._SubParsersAction) -> None:
                        description="Load the config, its DBC files and its tree; print buses, sources "
                                    "(message, id, signals, units) and frames; exit 0, or 2 with every error.")
     _add_config(p)
+    add_state_dir(p)
     _add_nodes(p)
     p.set_defaults(func=_cmd_check)
 
@@ -72,17 +75,18 @@ def _palette(args: argparse.Namespace) -> Any:
 def _cmd_check(args: argparse.Namespace) -> int:
     from canguard.bt.loader import check_tree, partial_tree_problems
     from canguard.cli.check import describe
-    from canguard.config.loader import load_config
     from canguard.errors import ConfigError
+    from canguard.io.outputs import check_config_outputs
 
     try:
-        cfg = load_config(_config_path(args))
+        cfg, _ = run_config(args)
     except ConfigError as exc:
         # The tree's own mistakes belong in the same report: check it against what did load.
         tree_problems = partial_tree_problems(exc.partial)
         if not tree_problems:
             raise
         raise ConfigError([*exc.problems, *tree_problems], [*exc.located, *tree_problems]) from None
+    check_config_outputs(cfg)  # what `canguard run` refuses at start, refused here
     print(describe(cfg))
     if cfg.tree is not None:
         report = check_tree(cfg, _palette(args))
@@ -102,7 +106,11 @@ def _add_tree(sub: argparse._SubParsersAction) -> None:
                    help="write a Groot2 <TreeNodesModel> of every canguard node and its ports")
     p.add_argument("file", type=Path, nargs="?", metavar="TREE.xml",
                    help="a tree file on its own (no config): check it, and with --tick run it dry")
-    p.add_argument("--tick", type=int, default=None, metavar="N", help="with TREE.xml: tick it N times")
+    p.add_argument("--tick", type=int, default=None, metavar="N",
+                   help="with TREE.xml: tick it N times, each as BT.CPP's tickOnce() (the root is ticked "
+                        "again while a node has emitted its wake-up signal)")
+    p.add_argument("--exactly-once", action="store_true",
+                   help="with --tick: each tick as BT.CPP's tickExactlyOnce() (no re-tick on a wake-up)")
     p.add_argument("--dt", type=float, default=0.1, metavar="S", help="seconds between ticks (default 0.1)")
     p.add_argument("--main", default=None, metavar="ID", help="with TREE.xml: the BehaviorTree to run")
     p.add_argument("--json", action="store_true",
@@ -116,8 +124,9 @@ def _cmd_tree(args: argparse.Namespace) -> int:
 
     if args.file is not None:
         return _dry_run(args)
-    if args.tick is not None or args.json:
-        raise ConfigError("tree: --tick and --json run a tree file on its own: canguard tree TREE.xml --tick N")
+    if args.tick is not None or args.json or args.exactly_once:
+        raise ConfigError("tree: --tick, --exactly-once and --json run a tree file on its own: "
+                          "canguard tree TREE.xml --tick N")
 
     if args.nodes_model is not None:
         from canguard.bt.loader import context_for
@@ -156,7 +165,7 @@ def _dry_run(args: argparse.Namespace) -> int:
             print(f"{args.file}: BehaviorTree {main_id} is valid; to run it, bind these nodes:")
             print("\n".join(f"  {why}" for why in unbound))
             return 0
-    result = dry_run(args.file, args.tick or 0, args.dt, args.main, palette)
+    result = dry_run(args.file, args.tick or 0, args.dt, args.main, palette, exactly_once=args.exactly_once)
     if args.json:
         print(json.dumps(result))
         return 0
@@ -178,13 +187,20 @@ def _add_run(sub: argparse._SubParsersAction) -> None:
     _add_config(p)
     p.add_argument("--metrics", metavar="HOST:PORT", help="serve Prometheus metrics (e.g. 127.0.0.1:9108)")
     p.add_argument("--duration", type=float, metavar="S", help="stop by itself after S seconds")
+    add_state_dir(p)
     p.set_defaults(func=_cmd_run)
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
     from canguard.service.daemon import Daemon
 
-    daemon = Daemon(_config_path(args), metrics_addr=args.metrics)
+    cfg, where = run_config(args)
+    if where is not None:  # not where the config says: say where, before anything is written
+        why = ("--state-dir" if args.state_dir is not None
+               else "the bundled config is read-only; choose with -c CONFIG or --state-dir DIR")
+        print(f"canguard run: events {cfg.events or '(none)'}, I²t state {cfg.state.file or '(not kept)'} ({why})",
+              file=sys.stderr, flush=True)
+    daemon = Daemon(_config_path(args), cfg=cfg, state_dir=where, metrics_addr=args.metrics)
     daemon.install_signals()
     return daemon.run(duration_s=args.duration)
 
@@ -293,6 +309,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_BAD_INPUT
     except FileNotFoundError as exc:
         print(f"canguard {args.command}: error: {exc.filename or exc}: no such file", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except OSError as exc:  # a file the checks before the run could not foresee (a race, a disk gone)
+        where = f"{exc.filename}: " if exc.filename else ""
+        print(f"canguard {args.command}: error: {where}{exc.strerror or exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except KeyboardInterrupt:
         return EXIT_INTERRUPTED

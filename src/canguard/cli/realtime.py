@@ -103,11 +103,12 @@ def _play_bus(cfg: Config, args: argparse.Namespace) -> str:
     return str(bus_name)
 
 
-def replay_realtime(cfg: Config, args: argparse.Namespace) -> int:
+def replay_realtime(cfg: Config, args: argparse.Namespace, names: list[Path] | None = None) -> int:
     """Play each log onto the bus while the daemon runs; print the daemon's summary; exit code as replay.
 
     The daemon runs on a copy of the config: its journal is ``--events`` (none when not
-    given) and it never writes the I²t ``state.file`` (``--state`` is only read).
+    given) and it never writes the I²t ``state.file`` (``--state`` is only read). ``names``
+    are the logs as the user gave them (``-`` for stdin), for the summaries and per-log files.
     """
     import can
 
@@ -123,12 +124,12 @@ def replay_realtime(cfg: Config, args: argparse.Namespace) -> int:
     bus_name = _play_bus(cfg, args)
     many = len(args.logs) > 1
     tripped = False
-    for log_path in args.logs:
+    for log_path, name in zip(args.logs, names or args.logs, strict=True):
         run_cfg = dataclasses.replace(
-            cfg, events=per_log_path(args.events, log_path, many),
+            cfg, events=per_log_path(args.events, name, many),
             state=dataclasses.replace(cfg.state, file=None),
         )
-        emit_path = per_log_path(args.emit, log_path, many)
+        emit_path = per_log_path(args.emit, name, many)
         stats = ReadStats()
         frames = read_log(log_path, skip_bad=args.skip_bad, stats=stats)  # a missing file fails here, first
         channels: dict[str, int] = {}
@@ -189,7 +190,7 @@ def replay_realtime(cfg: Config, args: argparse.Namespace) -> int:
         if failed:
             raise failed[0]
         router = ChannelRouter(daemon.cfg, {})
-        summary = build_summary(daemon.cfg, log_path, daemon.engine, stats, router)
+        summary = build_summary(daemon.cfg, name, daemon.engine, stats, router)
         if len(channels) > 1:  # every channel of the log went onto the one bus
             summary["merged_channels"] = dict(sorted(channels.items()))
             summary["merged_into"] = bus_name

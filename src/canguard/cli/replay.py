@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 import uuid
 from collections.abc import Iterator
@@ -24,6 +25,7 @@ from py_trees.blackboard import Blackboard
 from canguard.cli.common import (
     EXIT_BAD_INPUT,
     EXIT_OK,
+    EXIT_REGRESSED,
     EXIT_TRIPPED,
     EXIT_UNGUARDED,
     default_config,
@@ -35,11 +37,11 @@ from canguard.config.schema import Config
 from canguard.engine.core import Engine
 from canguard.engine.gate import LogSink
 from canguard.engine.routing import ChannelRouter, parse_map
-from canguard.errors import CanguardError, ConfigError
+from canguard.errors import CanguardError, ConfigError, LogFormatError
 from canguard.io.clock import ManualClock
 from canguard.io.frame import Frame
 from canguard.io.logtypes import COMPRESSIONS
-from canguard.report.summary import SUMMARY_VERSION, build_summary, compare_baseline, render_text
+from canguard.report.summary import SUMMARY_VERSION, build_summary, compare_baseline, diff_baseline, render_text
 
 __all__ = ["SUMMARY_VERSION", "ReplayOptions", "build_summary", "compare_baseline", "render_text", "replay_one"]
 
@@ -146,6 +148,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="exit 1 when any guard tripped, 3 when a configured source got no sample "
                         "(a CI gate that never passes on a log it did not look at)")
     p.add_argument("--baseline", type=Path, metavar="FILE", help="compare with a saved --json summary")
+    p.add_argument("--fail-on-regression", action="store_true",
+                   help="with --baseline: exit 1 when a log gains or loses a trip, or a margin shrinks by more "
+                        "than --margin-tolerance")
+    p.add_argument("--margin-tolerance", type=float, default=0.0, metavar="PCT",
+                   help="with --fail-on-regression: how far a margin may shrink, in %% of its guard's threshold "
+                        "(default 0: not at all)")
     p.add_argument("--skip-bad", action="store_true", help="count and skip malformed lines instead of stopping")
     p.add_argument("--state", type=Path, metavar="FILE",
                    help="start from the heat in this I²t state file, cooled for the time since it was saved "
@@ -240,6 +248,13 @@ def _as_format(log: Path, fmt: str | None, tmp: Path) -> Path:
     return link
 
 
+def _as_named(text: str, read: list[Path], names: list[Path]) -> str:
+    """``text`` speaking of each log by the name the user gave (``-`` for stdin), not the spool file or link read."""
+    for path, name in zip(read, names, strict=True):
+        text = text.replace(str(path), str(name))
+    return text
+
+
 def _check_state(path: Path | None) -> None:
     """``--state`` is only read: a path that cannot be read is exit 2 now, not a silent cold start."""
     if path is None:
@@ -252,8 +267,51 @@ def _check_state(path: Path | None) -> None:
                           "`canguard run` (its state.file); leave --state out to start cold")
 
 
+def _check_outputs(args: argparse.Namespace) -> None:
+    """Every file the replay writes, tried before the first log is read: one line and exit 2, not a traceback."""
+    from canguard.io.outputs import check_output
+
+    many = len(args.logs) > 1
+    for log in args.logs:
+        check_output(per_log_path(args.events, log, many), "--events", beside=True, makes_dirs=True)
+        check_output(per_log_path(args.emit, log, many), "--emit")
+        check_output(per_log_path(args.plot, log, many), "--plot")
+    check_output(args.fleet_summary, "--fleet-summary")
+
+
+def _check_regression_gate(args: argparse.Namespace) -> None:
+    """``--fail-on-regression`` needs something to regress from; a tolerance is a finite percentage >= 0."""
+    if args.fail_on_regression and args.baseline is None:
+        raise ConfigError("replay: --fail-on-regression needs --baseline FILE (a saved `canguard replay --json`)")
+    tol = args.margin_tolerance
+    if not (math.isfinite(tol) and tol >= 0):
+        raise ConfigError(f"--margin-tolerance {tol}: expected a percentage of the threshold >= 0")
+
+
+def _report_baseline(args: argparse.Namespace, base: Any, summaries: list[dict[str, Any]]) -> bool:
+    """Print on stderr what changed per log against ``base``; True when anything is a regression.
+
+    Logs are paired with the baseline's summaries in order; a count that differs is itself
+    a regression (a gate cannot pass on logs it has nothing to compare with).
+    """
+    base_list = base if isinstance(base, list) else [base]
+    regressed = len(base_list) != len(summaries)
+    if regressed:
+        print(f"baseline {args.baseline}: {len(base_list)} summaries, this run {len(summaries)}: "
+              "logs are paired in order; the unpaired are not compared", file=sys.stderr)
+    for old, new in zip(base_list, summaries, strict=False):
+        changes = diff_baseline(old, new, args.margin_tolerance)
+        print(f"baseline {args.baseline} vs {new['log']}: " + ("no change" if not changes else ""),
+              file=sys.stderr)
+        for c in changes:
+            print(f"  {c.text}" + (" (regression)" if c.regression and args.fail_on_regression else ""),
+                  file=sys.stderr)
+        regressed = regressed or any(c.regression for c in changes)
+    return regressed
+
+
 def cmd_replay(args: argparse.Namespace) -> int:
-    """Replay every log; print summaries in input order; exit 0, 1 (a trip), 3 (unguarded) or 2."""
+    """Replay every log; print summaries in input order; exit 0, 1 (a trip, or a regression), 3 (unguarded) or 2."""
     import tempfile
 
     cfg_path = args.config if args.config is not None else default_config()
@@ -262,6 +320,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
     from canguard.cli.fleet import expand_logs
 
     args.logs = expand_logs(args.logs)
+    _check_outputs(args)
     if args.export_signals is not None and args.realtime is None:
         from canguard.report.export import check_export
 
@@ -270,13 +329,17 @@ def cmd_replay(args: argparse.Namespace) -> int:
         raise ConfigError("replay: --dask and --realtime do not go together (a realtime replay plays one log live)")
     if args.logs.count(Path("-")) > 1:
         raise ConfigError("replay: '-' (stdin) can be given once")
+    _check_regression_gate(args)
     with tempfile.TemporaryDirectory(prefix="canguard-replay-") as tmp:
         names = list(args.logs)
         args.logs = [_as_format(log, args.format, Path(tmp)) for log in names]
         if args.realtime is not None:
             from canguard.cli.realtime import replay_realtime
 
-            return replay_realtime(cfg, args)
+            try:
+                return replay_realtime(cfg, args, names)
+            except LogFormatError as exc:  # named as the user named the log (`-`), not as the spool file
+                raise LogFormatError(_as_named(str(exc), args.logs, names)) from None
         return _replay_offline(cfg, cfg_path, args, names)
 
 
@@ -329,9 +392,9 @@ def _report(args: argparse.Namespace, results: list[tuple[dict[str, Any] | None,
     """Print each log's summary (or error), the baseline's changes; the exit code."""
     summaries = []
     errors = 0
-    for (summary, err), name in zip(results, names, strict=True):
+    for (summary, err), name, log in zip(results, names, args.logs, strict=True):
         if summary is None:
-            print(f"canguard replay: error:\n{err}", file=sys.stderr)
+            print(f"canguard replay: error:\n{_as_named(err, [log], [name])}", file=sys.stderr)
             errors += 1
             continue
         if args.format is not None or str(name) == "-":
@@ -345,16 +408,11 @@ def _report(args: argparse.Namespace, results: list[tuple[dict[str, Any] | None,
     if args.json:
         out: Any = summaries[0] if len(summaries) == 1 and not many else summaries
         print(json.dumps(out, indent=2, sort_keys=True))
-    if base is not None and summaries:
-        base_list = base if isinstance(base, list) else [base]
-        for old, new in zip(base_list, summaries, strict=False):
-            changes = compare_baseline(old, new)
-            print(f"baseline {args.baseline} vs {new['log']}: " + ("no change" if not changes else ""),
-                  file=sys.stderr)
-            for c in changes:
-                print(f"  {c}", file=sys.stderr)
+    regressed = base is not None and summaries and _report_baseline(args, base, summaries)
     if errors:
         return EXIT_BAD_INPUT
+    if args.fail_on_regression and regressed:
+        return EXIT_REGRESSED
     if args.fail_on_trip and any(s["trips"] for s in summaries):
         return EXIT_TRIPPED
     if args.fail_on_trip and any(s["unguarded_sources"] for s in summaries):

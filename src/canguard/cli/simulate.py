@@ -41,6 +41,9 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     cfg = load_config(args.config if args.config is not None else default_config())
     if args.duration <= 0:
         raise ConfigError(f"--duration {args.duration}: expected seconds > 0")
+    from canguard.io.outputs import check_output
+
+    check_output(args.out, "--out")
     scenarios = tuple(args.scenario) or ("normal",)
     kwargs = {"db": cfg.database, "scenarios": scenarios, "seed": args.seed, "axes": args.axes}
     try:

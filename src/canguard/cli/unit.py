@@ -1,9 +1,12 @@
-"""``canguard unit``: the systemd unit for this install, with the right ExecStart.
+"""``canguard unit``: the systemd unit for this install, with the right ExecStart; the CAN link's networkd file.
 
 The shipped ``canguard.service`` runs ``/opt/canguard/bin/canguard`` (the venv of
 docs/deploy.md). Installed elsewhere (pipx, another venv), this prints the same unit
 with the path of the canguard that runs this command, so nobody edits paths by hand:
-``canguard unit | sudo tee /etc/systemd/system/canguard.service``.
+``canguard unit | sudo tee /etc/systemd/system/canguard.service``. The files live inside
+the installed package, where nobody should have to look for them: ``--network`` prints
+``80-can0.network`` (systemd-networkd brings the CAN link up) and ``--write DIR`` writes
+both into DIR under their shipped names, as a checkout's ``systemd/`` holds them.
 """
 
 from __future__ import annotations
@@ -34,6 +37,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--channel", action="append", default=None, metavar="CANx",
                    help="a CAN interface the service starts and stops with (repeatable; default can0)")
     p.add_argument("--metrics", metavar="HOST:PORT", help="serve Prometheus metrics there (loopback only)")
+    what = p.add_mutually_exclusive_group()
+    what.add_argument("--network", action="store_true",
+                      help="print the systemd-networkd file that brings the channel(s) up instead "
+                           "(/etc/systemd/network/80-can0.network)")
+    what.add_argument("--write", type=Path, default=None, metavar="DIR",
+                      help="write canguard.service and 80-can0.network into DIR (made if missing) instead of "
+                           "printing, e.g. `canguard unit --write systemd` for docs/deploy.md's install lines")
     p.set_defaults(func=cmd_unit)
 
 
@@ -66,9 +76,33 @@ def render_unit(text: str, *, exe: str, config: Path, channels: list[str], metri
     return text
 
 
+def render_network(text: str, channels: list[str]) -> str:
+    """The shipped ``80-can0.network`` matching ``channels`` (networkd's ``Name=`` takes several)."""
+    text, n = re.subn(r"^Name=can0$", f"Name={' '.join(channels)}", text, flags=re.M)
+    if n != 1:
+        raise ConfigError("the shipped 80-can0.network has no single Name=can0 line")
+    return text
+
+
+NETWORK_FILE = "80-can0.network"
+UNIT_FILE = "canguard.service"
+
+
 def cmd_unit(args: argparse.Namespace) -> int:
-    """Print the unit."""
-    shipped = data_path("systemd", "canguard.service").read_text(encoding="utf-8")
-    print(render_unit(shipped, exe=this_canguard(), config=args.config.absolute(),
-                      channels=args.channel or ["can0"], metrics=args.metrics), end="")
+    """Print the unit (or the network file), or write both into a directory."""
+    channels = args.channel or ["can0"]
+    unit = render_unit(data_path("systemd", UNIT_FILE).read_text(encoding="utf-8"), exe=this_canguard(),
+                       config=args.config.absolute(), channels=channels, metrics=args.metrics)
+    network = render_network(data_path("systemd", NETWORK_FILE).read_text(encoding="utf-8"), channels)
+    if args.write is None:
+        print(network if args.network else unit, end="")
+        return 0
+    from canguard.io.outputs import check_output
+
+    for name, text in ((UNIT_FILE, unit), (NETWORK_FILE, network)):
+        target = args.write / name
+        check_output(target, "--write", makes_dirs=True)
+        target.parent.mkdir(parents=True, exist_ok=True)
+        target.write_text(text, encoding="utf-8")
+        print(f"wrote {target}")
     return 0

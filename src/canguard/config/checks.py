@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from canguard.config.schema import SourceConfig
-from canguard.config.yamlsrc import _SECONDS_KEYS, _closest, _found, _line_of, _path
+from canguard.config.yamlsrc import _SECONDS_KEYS, _closest, _found, _line_of, _path, _shown
 from canguard.errors import ConfigError
 
 
@@ -54,7 +54,7 @@ class _Checks:
         for k in value:
             if k not in allowed:
                 self.problem(
-                    _path(key, k), f"unknown key {k!r}", f"one of {', '.join(allowed)}" + _closest(k, allowed)
+                    _path(key, k), f"unknown key {_shown(k)}", f"one of {', '.join(allowed)}" + _closest(k, allowed)
                 )
         for k in required:
             if k not in value:

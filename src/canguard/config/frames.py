@@ -8,7 +8,7 @@ from typing import Any
 
 from canguard.config.schema import FrameSpec
 from canguard.config.sources import _Sources
-from canguard.config.yamlsrc import _FD_LENGTHS, _closest, _found, _path
+from canguard.config.yamlsrc import _FD_LENGTHS, _closest, _found, _path, _shown
 
 
 class _Frames(_Sources):
@@ -24,7 +24,7 @@ class _Frames(_Sources):
             if value in choices:
                 return choices[value]
             expected = f"a number or a choice of {sig.name}" if choices else f"a number for {sig.name}"
-            self.problem(key, repr(value), expected + (_closest(value, choices) if choices else ""))
+            self.problem(key, _shown(value), expected + (_closest(value, choices) if choices else ""))
             return None
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
             self.problem(key, _found(value), f"a number for {sig.name}")
@@ -32,7 +32,7 @@ class _Frames(_Sources):
         lo, hi = sig.minimum, sig.maximum
         if (lo is not None and value < lo) or (hi is not None and value > hi):
             rng = f"[{'-inf' if lo is None else f'{lo:g}'}, {'inf' if hi is None else f'{hi:g}'}]"
-            self.problem(key, repr(value), f"a value of {sig.name} within its DBC range {rng}")
+            self.problem(key, _shown(value), f"a value of {sig.name} within its DBC range {rng}")
             return None
         return value if self.exact(sig, value, key) else None
 
@@ -47,12 +47,12 @@ class _Frames(_Sources):
             if raw is not None and raw in sig.choices:
                 return True
             listed = ", ".join(f"{name} ({number})" for name, number in _choices(sig).items())
-            self.problem(key, repr(value), f"one of the choices of {sig.name}: {listed}")
+            self.problem(key, _shown(value), f"one of the choices of {sig.name}: {listed}")
             return False
         if sig.is_float or raw is not None:
             return True
         steps = f"steps of {sig.scale:g}" + (f" from {sig.offset:g}" if sig.offset else "")
-        self.problem(key, repr(value), f"a whole raw value: {steps}")
+        self.problem(key, _shown(value), f"a whole raw value: {steps}")
         return False
 
     def frame(self, value: Any, key: str) -> FrameSpec | None:
@@ -117,7 +117,7 @@ class _Frames(_Sources):
             try:
                 raw_id = int(raw_id, 0)
             except ValueError:
-                self.problem(_path(key, "id"), repr(raw_id), "a frame id (an int or '0x...')")
+                self.problem(_path(key, "id"), _shown(raw_id), "a frame id (an int or '0x...')")
                 return None
         if isinstance(raw_id, bool) or not isinstance(raw_id, int) or not 0 <= raw_id <= 0x1FFFFFFF:
             self.problem(_path(key, "id"), _found(raw_id), "a frame id 0..0x1FFFFFFF")

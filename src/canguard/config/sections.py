@@ -20,7 +20,7 @@ from canguard.config.schema import (
     TreeConfig,
 )
 from canguard.config.sources import _IDENT
-from canguard.config.yamlsrc import _CONFIRM_OPS, _closest, _found, _path
+from canguard.config.yamlsrc import _CONFIRM_OPS, _closest, _found, _path, _shown
 
 _BUILT_IN_INTERFACES = frozenset({
     "socketcan", "socketcand", "virtual", "udp_multicast", "slcan", "serial", "gs_usb", "pcan", "kvaser",
@@ -160,7 +160,7 @@ class _Sections(_Frames):
             else:
                 self.problem(
                     _path(key, op_name),
-                    repr(raw),
+                    _shown(raw),
                     f"a number or a choice of {sig.name}" + _closest(raw, choices),
                 )
                 return None

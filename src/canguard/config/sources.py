@@ -11,7 +11,26 @@ import cantools
 
 from canguard.config.checks import _Checks
 from canguard.config.schema import SignalRef, SourceConfig, SourceKind
-from canguard.config.yamlsrc import _closest, _found, _path
+from canguard.config.yamlsrc import _closest, _found, _path, _shown
+from canguard.errors import clip, quote
+
+_SNIFF_BYTES = 4096
+"""How much of a DBC that does not load is looked at to tell binary data from a text with a syntax error."""
+
+
+def _not_loaded(path: Path, exc: Exception) -> str:
+    """Why a DBC file did not load, printable and short: binary data is named as such, not echoed."""
+    try:
+        with path.open("rb") as f:
+            head = f.read(_SNIFF_BYTES)
+    except OSError as err:
+        return f"cannot be read ({err.strerror or err})"
+    text = head.decode("utf-8", errors="replace")
+    odd = sum(1 for c in text if c == "\ufffd" or (not c.isprintable() and c not in "\t\r\n"))
+    if b"\0" in head or odd > len(text) // 20:
+        start = quote(head.decode("utf-8", "backslashreplace"), 40)
+        return f"is not a DBC file: binary data, not text (it starts {start})"
+    return f"does not load ({clip(str(exc))})"
 
 
 class _Sources(_Checks):
@@ -33,9 +52,9 @@ class _Sources(_Checks):
             try:
                 databases.append((p, cantools.database.load_file(str(p))))
             except FileNotFoundError:
-                self.problem(f"dbc[{i}]", repr(item), f"an existing DBC file (no such file: {p})")
+                self.problem(f"dbc[{i}]", _shown(item), f"an existing DBC file (no such file: {p})")
             except Exception as exc:  # cantools raises many kinds of parse errors
-                self.problem(f"dbc[{i}]", f"{p} which does not load ({exc})", "a valid DBC file")
+                self.problem(f"dbc[{i}]", f"{p} which {_not_loaded(p, exc)}", "a valid DBC file")
         if len(databases) != len(value):
             return tuple(files)
         messages: list[Any] = []
@@ -88,7 +107,7 @@ class _Sources(_Checks):
                 number = int(text, 16) if text.startswith("0x") else int(text, 10)
             except ValueError:
                 self.problem(
-                    key, repr(value), "a DBC message name or frame id" + _closest(value, self._by_name)
+                    key, _shown(value), "a DBC message name or frame id" + _closest(value, self._by_name)
                 )
                 return None
             value = number

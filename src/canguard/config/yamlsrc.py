@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
-import difflib
 from collections.abc import Iterator, Mapping
 from typing import Any, Literal
 
 import yaml
+
+from canguard.errors import clip, closest, quote
 
 # ---------------------------------------------------------------------------
 # The loader. Everything below turns YAML into the dataclasses above.
@@ -66,6 +67,11 @@ def load_yaml(text: str) -> Any:
     return yaml.load(text, Loader=_UniqueKeyLoader)
 
 
+def _shown(value: Any) -> str:
+    """A value as an error quotes it: a string capped (:func:`canguard.errors.quote`), else its repr, capped."""
+    return quote(value) if isinstance(value, str) else clip(repr(value))
+
+
 def _found(value: Any) -> str:
     """How a found value reads in an error message."""
     if value is None:
@@ -73,7 +79,7 @@ def _found(value: Any) -> str:
     if isinstance(value, bool):
         return f"{value!r} (a boolean)"
     if isinstance(value, (str, int, float)):
-        return repr(value)
+        return _shown(value)
     if isinstance(value, Mapping):
         return "a mapping"
     if isinstance(value, list):
@@ -86,12 +92,7 @@ def _closest(word: Any, choices: Any) -> str:
     names = sorted({str(c) for c in choices})
     if not names:
         return ""
-    scored = sorted(
-        ((difflib.SequenceMatcher(None, str(word), n).ratio(), n) for n in names), key=lambda x: -x[0]
-    )
-    best = scored[0][0]
-    # Only names nearly as close as the best one: a clear typo gets one suggestion, not a list.
-    near = [n for r, n in scored[:3] if r >= 0.5 and r >= best - 0.15]
+    near = closest(str(word), names, n=3, spread=0.15)
     if near:
         return "; closest: " + ", ".join(near)
     shown = ", ".join(names[:8]) + (", ..." if len(names) > 8 else "")

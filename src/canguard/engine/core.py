@@ -363,9 +363,9 @@ class Engine:
         self.gate.begin_tick()
         t0 = time.perf_counter()
         try:
-            self.root.skipped = False  # type: ignore[attr-defined]  # SKIPPED: status INVALID, neither stop nor task
-            self.quiet.tick_root()
-            status = self.root.status
+            # BT.CPP's tickOnce (re-ticked while a wake-up is pending, bounded); SKIPPED: INVALID, neither stop
+            # nor task; with quiet ticks, which nodes the tick reached
+            status = self.quiet.tick_root(self.loaded)
         except Exception as exc:  # a node that raises must stop the task, not the daemon
             self.stats.tick_errors += 1
             log.exception("tree tick failed")

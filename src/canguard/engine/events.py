@@ -40,7 +40,7 @@ from pathlib import Path
 from typing import Any
 
 from canguard.engine.event_codec import EVENT_TYPES, FIRST_KEYS, encode_event
-from canguard.errors import LogFormatError
+from canguard.errors import LogFormatError, quote
 
 __all__ = [
     "EVENT_TYPES",
@@ -356,12 +356,15 @@ def read_events(path: Path | str, include_rotated: bool = False) -> list[dict[st
             try:
                 obj = json.loads(raw)
             except ValueError as exc:
-                raise LogFormatError(
-                    f"{file}:{lineno}: not a JSON event line ({exc}): {raw[:80]!r}"
-                ) from None
+                raise LogFormatError(f"{file}:{lineno}: not a JSON event line ({exc}): {_shown(raw)}") from None
             if not isinstance(obj, dict):
-                raise LogFormatError(f"{file}:{lineno}: not a JSON object: {raw[:80]!r}")
+                raise LogFormatError(f"{file}:{lineno}: not a JSON object: {_shown(raw)}")
             events.append(obj)
         if torn.strip():
             log.warning("%s: skipping a torn last line (%d bytes, no newline)", file, len(torn))
     return events
+
+
+def _shown(raw: bytes) -> str:
+    """A journal line as an error quotes it: capped, its length said, bytes that are not UTF-8 replaced."""
+    return quote(raw.decode("utf-8", errors="replace"))

@@ -28,11 +28,13 @@ from __future__ import annotations
 import logging
 import math
 import operator
+import time
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any, TextIO
 
 from canguard.bt.context import FrameSink
 from canguard.config.schema import BusConfig, FrameSpec, StopConfig, TaskConfig
+from canguard.engine.ratelimit import RateLimit, held_note
 from canguard.io.frame import Frame
 from canguard.protect.staleness import SourceHealth
 
@@ -419,17 +421,25 @@ class LogSink:
 
 
 class BusSink:
-    """Sends frames on live buses without ever blocking the loop; failures are logged and counted."""
+    """Sends frames on live buses without ever blocking the loop; failures are logged and counted.
+
+    A bus that went away refuses every frame: each refusal is counted (``failed``, ``on_error``),
+    but reported (the stderr warning and ``on_refused``, the daemon's journal event) once a
+    second per bus and origin, each report saying how many it stands for (:mod:`.ratelimit`).
+    """
 
     def __init__(self, send: Callable[[str, Any], bool], on_error: EventFn | None = None,
-                 on_refused: Callable[[str, str, str], None] | None = None) -> None:
+                 on_refused: Callable[[str, str, str, int], None] | None = None,
+                 now: Callable[[], float] = time.monotonic) -> None:
         import can  # only the live path needs python-can's Message
 
         self._message = can.Message
         self._send = send
         self.on_error = on_error
         self.on_refused = on_refused
-        """Called with (bus, frame label, origin) for each refused frame: the daemon journals it."""
+        """Called with (bus, frame label, origin, refusals held back before it) per reported refusal."""
+        self._now = now
+        self.reports = RateLimit()
         self.sent = 0
         self.failed = 0
 
@@ -441,10 +451,13 @@ class BusSink:
             )
             if self._send(f.bus, msg):
                 self.sent += 1
-            else:
-                self.failed += 1
-                log.warning("could not send %s (%s) on bus %s", f.label, origin, f.bus)
-                if self.on_error is not None:
-                    self.on_error(f.bus)
-                if self.on_refused is not None:
-                    self.on_refused(f.bus, f.label, origin)
+                continue
+            self.failed += 1
+            if self.on_error is not None:
+                self.on_error(f.bus)
+            held = self.reports.allow((f.bus, origin), self._now())
+            if held is None:
+                continue
+            log.warning("could not send %s (%s) on bus %s%s", f.label, origin, f.bus, held_note(held))
+            if self.on_refused is not None:
+                self.on_refused(f.bus, f.label, origin, held)

@@ -47,6 +47,7 @@ from typing import TYPE_CHECKING, Any
 
 import py_trees
 
+from canguard.bt.wakeup import tick_once
 from canguard.engine.gate import TaskGate
 
 if TYPE_CHECKING:
@@ -101,12 +102,13 @@ class QuietTicks:
         self.ticked: list[Any] = []
         """The guards the fixed-point tick ticked: a skipped tick marks them ticked."""
 
-    def tick_root(self) -> None:
-        """Tick the tree once, noting whether the tick reached a loud node (the whole tick, as ``tick_once``)."""
-        if self.loud and self.elide:
-            self._heard = not self.loud.isdisjoint(set(self.root.tick()))
-        else:
-            self.root.tick_once()
+    def tick_root(self, loaded: Any) -> py_trees.common.Status:
+        """Tick the tree as BT.CPP's ``tickOnce()`` (:func:`canguard.bt.wakeup.tick_once`), noting whether the
+        tick reached a loud node; the root's status."""
+        ticked = tick_once(loaded, collect=bool(self.loud and self.elide))
+        if ticked.reached is not None:
+            self._heard = not self.loud.isdisjoint(ticked.reached)
+        return ticked.status
 
     def after_tick(self, now: float, events_before: int, watched: bool) -> None:
         """After a tick that ran: note whether it was a fixed point, and until when nothing can change.

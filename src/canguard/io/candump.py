@@ -13,7 +13,7 @@ from itertools import repeat
 from pathlib import Path
 from typing import Any, NamedTuple
 
-from canguard.errors import LogFormatError
+from canguard.errors import LogFormatError, quote
 from canguard.io.frame import Frame
 from canguard.io.logtypes import (
     _F,
@@ -381,7 +381,7 @@ class _CandumpReader:
                 if not self.skip_bad:
                     if out:
                         yield out  # every frame before the bad line is processed first
-                    raise LogFormatError(f"{self.p}:{no}: {bad.reason}: {line!r}") from None
+                    raise LogFormatError(f"{self.p}:{no}: {bad.reason}: {quote(line)}") from None
                 st.bad_lines += 1
                 if len(st.bad_examples) < MAX_BAD_EXAMPLES:
                     st.bad_examples.append(BadLine(no, bad.reason, line))

@@ -10,7 +10,8 @@ from itertools import islice
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from canguard.errors import LogFormatError
+from canguard.errors import LogFormatError, clip
+from canguard.io.blf_length import BlfLength
 from canguard.io.frame import Frame
 from canguard.io.logtypes import _TEXT_PYTHON_CAN, ReadStats, _new, open_decompressed
 
@@ -97,19 +98,39 @@ class _Messages:
         self.raw = open(p, "rb")  # noqa: SIM115 -- closed by close()
         self.count = 0
         self._failed: LogFormatError | None = None
+        self.length: BlfLength | None = None
+        """A BLF's framing, followed as python-can reads it: where a cut file ends (:mod:`canguard.io.blf_length`)."""
         try:
             binary: Any = open_decompressed(self.raw, gz)
+            if fmt == "blf":
+                binary = self.length = BlfLength(binary)
             fobj: Any = binary
             if fmt in _TEXT_PYTHON_CAN:
                 fobj = io.TextIOWrapper(binary, encoding="utf-8", errors="replace")
             try:
-                self.messages: Iterator[can.Message] = iter(_reader_class(fmt)(fobj))
+                reader = _reader_class(fmt)(fobj)
             except Exception as exc:  # python-can raises many types for a bad header; none may escape raw
                 _free_quietly(exc)
-                raise LogFormatError(f"{p}: not a valid {self.name} log: {type(exc).__name__}: {exc}") from exc
+                cut = self._cut(0)
+                if cut is not None:
+                    raise cut from exc
+                raise LogFormatError(
+                    f"{p}: not a valid {self.name} log: {type(exc).__name__}: {clip(str(exc))}"
+                ) from exc
+            self.messages: Iterator[can.Message] = iter(reader)
+            if self.length is not None:
+                self.length.note_file_size(int(getattr(reader, "file_size", 0) or 0))
         except BaseException:
             self.raw.close()
             raise
+
+    def _cut(self, read: int) -> LogFormatError | None:
+        """A LogFormatError (exit 2, as a truncated .gz gives) when the log ended where its framing says it may
+        not, after ``read`` frames; None when it is whole (or not a BLF)."""
+        why = self.length.cut() if self.length is not None else ""
+        if not why:
+            return None
+        return LogFormatError(f"{self.p}: truncated {self.name} log: {why}; {read} frames were read before the cut")
 
     def next_batch(self, size: int) -> list[can.Message]:
         """Up to ``size`` messages; [] at the end of the log."""
@@ -119,13 +140,19 @@ class _Messages:
         try:
             batch.extend(islice(self.messages, size))
         except Exception as exc:  # corrupt input deep inside python-can: name the file instead
-            self._failed = LogFormatError(
+            # python-can fails on a cut object header (struct.error): then the cut is the news
+            self._failed = self._cut(self.count + len(batch)) or LogFormatError(
                 f"{self.p}: {self.name} reader failed after {self.count + len(batch)} frames: "
-                f"{type(exc).__name__}: {exc}"
+                f"{type(exc).__name__}: {clip(str(exc))}"
             )
             self._failed.__cause__ = exc
             if not batch:
                 raise self._failed from exc
+        else:
+            if len(batch) < size:  # the end of the log: python-can stops quietly where the file stops
+                self._failed = self._cut(self.count + len(batch))
+                if self._failed is not None and not batch:
+                    raise self._failed
         self.count += len(batch)
         return batch
 

@@ -212,6 +212,8 @@ class Scan:
 class ProtectionModel(ABC):
     """A pure state machine over one signal's samples."""
 
+    THRESHOLD_UNIT: ClassVar[str | None] = None
+    """The unit of :attr:`Snapshot.threshold` when it is not the value's own (I²t: A²s or θ)."""
     SAMPLE_DRIVEN: ClassVar[bool] = False
     """True when the state (and :meth:`poll`'s answer) changes only with samples, never with time alone.
 

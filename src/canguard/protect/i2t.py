@@ -55,6 +55,7 @@ import numpy as np
 
 from canguard.protect.accumulate import clamped_sum, thermal_steps
 from canguard.protect.base import REASON_I2T, FloatArray, LatchedModel, ProtectionModel, Scan, hold
+from canguard.units import AMPERE2_SECOND, THETA
 
 KIND_LEAKY = "leaky"
 KIND_THERMAL = "thermal"
@@ -290,6 +291,7 @@ class LeakyI2t(_I2tModel):
     """
 
     kind = KIND_LEAKY
+    THRESHOLD_UNIT = AMPERE2_SECOND
 
     def __init__(
         self,
@@ -358,6 +360,7 @@ class ThermalI2t(_I2tModel):
     """
 
     kind = KIND_THERMAL
+    THRESHOLD_UNIT = THETA
 
     def __init__(
         self,

@@ -213,25 +213,6 @@ class HeatStore:
         return True
 
 
-def writable_problem(path: Path) -> str:
-    """Why the state file ``path`` cannot be written ("" when it can), found by trying it.
-
-    Creates the missing parent directories and a temp file beside ``path`` (removed
-    again), the way :func:`_atomic_write` will: permission bits alone do not tell
-    (root, read-only mounts, a file where a directory should be).
-    """
-    if path.is_dir():
-        return "it is a directory, expected a file path"
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".probe", dir=path.parent)
-        os.close(fd)
-        os.unlink(tmp)
-    except OSError as exc:
-        return exc.strerror or str(exc)
-    return ""
-
-
 def readable_problem(path: Path) -> str:
     """Why the state file ``path`` cannot be read ("" when it can)."""
     if not path.exists():

@@ -73,22 +73,10 @@ def check_export(path: Path, *, dask: bool = False) -> None:
 
 
 def check_writable(path: Path) -> None:
-    """ConfigError (exit 2) naming ``path`` when the export cannot be written there; leaves nothing behind."""
-    if path.is_dir():
-        raise ConfigError(f"{FLAG} {path}: is a directory, expected a file name such as signals.parquet")
-    existed = path.exists()
-    try:
-        with open(path, "ab"):
-            pass
-        probe = part_path(path, 0)
-        with open(probe, "wb"):
-            pass  # the parts are written beside the target: that directory must take new files
-        probe.unlink()
-    except OSError as exc:
-        raise ConfigError(f"{FLAG} {path}: cannot be written ({exc.strerror or exc})") from None
-    finally:
-        if not existed and path.exists() and path.stat().st_size == 0:
-            path.unlink()
+    """ConfigError (exit 2) naming ``path`` when the export cannot be written there (nor its parts beside it)."""
+    from canguard.io.outputs import check_output
+
+    check_output(path, FLAG, beside=True, expected="a file name such as signals.parquet in a writable directory")
 
 
 def part_path(path: Path, index: int) -> Path:

@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from canguard.errors import ConfigError
+from canguard.units import I2T_LIMIT_PCT, quantity
 
 if TYPE_CHECKING:
     from canguard.engine.core import Engine
@@ -106,9 +107,10 @@ class Recorder:
             for g in guards:
                 if (g.source, g.role) == (source, role) and g.kind == "threshold":
                     thr = g.threshold()
-                    ax.axhline(thr, ls="--", lw=0.8, color="tab:red", label=f"{g.node} {thr:g}")
+                    ax.axhline(thr, ls="--", lw=0.8, color="tab:red", label=f"{g.node} {quantity(thr, g.unit)}")
                     ax.axhline(-thr, ls="--", lw=0.8, color="tab:red")
-            ax.set_ylabel(role)
+            unit = next((g.unit for g in guards if (g.source, g.role) == (source, role) and g.unit), "")
+            ax.set_ylabel(f"{role} ({unit})" if unit else role)
             ax.legend(loc="upper right", fontsize=7)
         if level_nodes:
             ax = axes[-1, 0]
@@ -116,7 +118,7 @@ class Recorder:
                 ts, vs = self.levels[node]
                 ax.plot([t - t0 for t in ts], list(vs), lw=0.8, label=node)
             ax.axhline(100.0, ls="--", lw=0.8, color="tab:red")
-            ax.set_ylabel("I²t level %")
+            ax.set_ylabel(f"I²t level ({I2T_LIMIT_PCT})")
             ax.legend(loc="upper right", fontsize=7)
         for ax in axes[:, 0]:
             for start, stop in self.stops:

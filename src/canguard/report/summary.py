@@ -8,11 +8,12 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 from canguard.config.schema import Config
 from canguard.engine.core import Engine
 from canguard.engine.routing import ChannelRouter
+from canguard.units import I2T_LIMIT_PCT, quantity
 
 SUMMARY_VERSION = 1
 
@@ -32,19 +33,22 @@ def build_summary(cfg: Config, log_path: Path, engine: Engine, stats: Any, route
     d = engine.decoder
     es = engine.stats
     end = engine.clock.now()
+    guards = engine.guards()
+    units = {(g.node, g.role): g.threshold_unit for g in guards}
     trips = [
-        {k: (_r(v) if isinstance(v, float) else v) for k, v in ev.items()
-         if k in ("t", "node", "source", "value", "threshold", "reason")}
+        {**{k: (_r(v) if isinstance(v, float) else v) for k, v in ev.items()
+            if k in ("t", "node", "source", "value", "threshold", "reason")},
+         "unit": units.get((str(ev.get("node")), str(ev.get("signal"))), "")}
         for ev in es.trips
     ]
     margins = []
-    for guard in engine.guards():
+    for guard in guards:
         peak = es.max_abs.get((guard.source, guard.role), math.nan) if guard.kind == "threshold" else \
             es.max_level_pct.get(guard.node, math.nan)
         threshold = guard.threshold() if guard.kind == "threshold" else 100.0
         margins.append({
             "node": guard.node, "source": guard.source, "signal": guard.role, "kind": guard.kind,
-            "threshold": _r(threshold), "peak": _r(peak),
+            "threshold": _r(threshold), "peak": _r(peak), "unit": guard.margin_unit,
             "margin": _r(threshold - peak) if math.isfinite(peak) else None,
             "margin_pct": _r(100.0 * (threshold - peak) / threshold, 2)
             if math.isfinite(peak) and threshold else None,
@@ -95,18 +99,15 @@ def render_text(s: dict[str, Any]) -> str:
                                           if s["trip_count"] > len(s["trips"]) else ""),
     ]
     for t in s["trips"]:
-        lines.append(f"    t={t.get('t')} {t.get('node')} source={t.get('source')} value={t.get('value')}"
-                     f" threshold={t.get('threshold')} reason={t.get('reason')}")
+        unit = t.get("unit")
+        lines.append(f"    t={t.get('t')} {t.get('node')} source={t.get('source')}"
+                     f" value={quantity(t.get('value'), unit)} threshold={quantity(t.get('threshold'), unit)}"
+                     f" reason={t.get('reason')}")
     lines.append(f"  stops: {s['stops']}, stopped {s['stopped_s']} s; frames canguard would send: "
                  f"{s['frames_sent']}; stop confirmations {s['confirmations']}, escalations {s['escalations']}")
     lines.append("  lowest margin to each threshold:")
     for m in s["margins"]:
-        if m["margin"] is None:
-            lines.append(f"    {m['node']} ({m['source']} {m['signal']}): no data")
-        else:
-            unit = "% of trip level" if m["kind"] == "i2t" else ""
-            lines.append(f"    {m['node']} ({m['source']} {m['signal']}): peak {m['peak']} vs threshold "
-                         f"{m['threshold']}{unit}: margin {m['margin']} ({m['margin_pct']} %)")
+        lines.append(f"    {m['node']} ({m['source']} {m['signal']}): {render_margin(m)}")
     if s["unmapped_channels"]:
         lines.append("  warning: frames on channels no bus takes (use --map CHANNEL=BUS): "
                      + ", ".join(f"{k} ({v})" for k, v in s["unmapped_channels"].items()))
@@ -123,30 +124,63 @@ def render_text(s: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
-def compare_baseline(base: dict[str, Any], new: dict[str, Any]) -> list[str]:
-    """What changed against a saved --json summary: new trips, lost trips, margins that shrank."""
+class Change(NamedTuple):
+    """One difference from a saved summary; ``regression`` when ``--fail-on-regression`` fails on it."""
+
+    text: str
+    regression: bool
+
+
+def diff_baseline(base: dict[str, Any], new: dict[str, Any], margin_tolerance_pct: float = 0.0) -> list[Change]:
+    """What changed against a saved --json summary: new trips, lost trips, margins that shrank, stop counts.
+
+    A trip gained or lost is a regression; so is a margin that shrank by more than
+    ``margin_tolerance_pct`` percent of its guard's threshold (a shrink at all, with the default 0).
+    Stop counts follow from the trips and are reported only.
+    """
 
     def key(t: dict[str, Any]) -> tuple[str, str, str]:
         return (str(t.get("node")), str(t.get("source")), str(t.get("reason")))
 
-    out: list[str] = []
+    out: list[Change] = []
     old_trips = [key(t) for t in base.get("trips", [])]
     new_trips = [key(t) for t in new.get("trips", [])]
     for k in sorted(set(new_trips) | set(old_trips)):
         n_old, n_new = old_trips.count(k), new_trips.count(k)
-        if n_new > n_old:
-            out.append(f"new trip: {k[0]} on {k[1]} ({k[2]}): {n_old} -> {n_new}")
-        elif n_new < n_old:
-            out.append(f"lost trip: {k[0]} on {k[1]} ({k[2]}): {n_old} -> {n_new}")
+        if n_new != n_old:
+            what = "new trip" if n_new > n_old else "lost trip"
+            out.append(Change(f"{what}: {k[0]} on {k[1]} ({k[2]}): {n_old} -> {n_new}", True))
     old_m = {(m["node"], m["signal"]): m for m in base.get("margins", [])}
     for m in new.get("margins", []):
         o = old_m.get((m["node"], m["signal"]))
         if o is None or o.get("margin") is None or m.get("margin") is None:
             continue
-        if m["margin"] < o["margin"] - 1e-9:
-            out.append(f"margin shrank: {m['node']} ({m['source']} {m['signal']}): {o['margin']} -> {m['margin']}")
+        shrink = o["margin"] - m["margin"]
+        if shrink > 1e-9:
+            threshold = abs(m.get("threshold") or 0.0)
+            pct = 100.0 * shrink / threshold if threshold else math.inf
+            unit = m.get("unit")
+            out.append(Change(f"margin shrank: {m['node']} ({m['source']} {m['signal']}): "
+                              f"{quantity(o['margin'], unit)} -> {quantity(m['margin'], unit)} "
+                              f"({pct:.4g} % of the threshold)", pct > margin_tolerance_pct))
     if base.get("stops") != new.get("stops"):
-        out.append(f"stops: {base.get('stops')} -> {new.get('stops')}")
+        out.append(Change(f"stops: {base.get('stops')} -> {new.get('stops')}", False))
     return out
 
 
+def render_margin(m: dict[str, Any]) -> str:
+    """One guard's lowest margin in words, every figure with its unit (``peak 31.6 A vs threshold 35 A: ...``).
+
+    A summary saved before margins carried a unit prints the numbers alone.
+    """
+    if m.get("margin") is None:
+        return "no data"
+    unit = m.get("unit")
+    pct = "" if unit == I2T_LIMIT_PCT else f" ({m.get('margin_pct')} % of the threshold)"
+    return (f"peak {quantity(m['peak'], unit)} vs threshold {quantity(m['threshold'], unit)}: "
+            f"margin {quantity(m['margin'], unit)}{pct}")
+
+
+def compare_baseline(base: dict[str, Any], new: dict[str, Any]) -> list[str]:
+    """The words of :func:`diff_baseline`: new trips, lost trips, margins that shrank, stop counts."""
+    return [c.text for c in diff_baseline(base, new)]

@@ -31,16 +31,17 @@ from types import FrameType
 from typing import Any
 
 from canguard.bt.context import FrameSink
-from canguard.config.loader import load_config
 from canguard.config.schema import Config
 from canguard.engine.core import Engine
 from canguard.engine.events import EventJournal
 from canguard.engine.gate import BusSink, TaskGate
+from canguard.engine.ratelimit import held_note
 from canguard.errors import CanguardError, ConfigError
 from canguard.io.bus import BusReader
 from canguard.io.clock import BootClock, LiveClock
 from canguard.io.frame import Frame
-from canguard.protect.state import HeatStore, writable_problem
+from canguard.io.outputs import check_config_outputs, load_run_config
+from canguard.protect.state import HeatStore
 from canguard.service.blackboard import registered_clients, release_clients, tree_clients
 from canguard.service.systemd import Notifier, watchdog_verdict
 
@@ -82,22 +83,6 @@ def refuse_unguarded(cfg: Config, env: dict[str, str] | os._Environ[str] | None 
         )
 
 
-def check_state_file(cfg: Config) -> None:
-    """Exit 2 (ConfigError) at start-up when ``state.file`` cannot be written.
-
-    Otherwise the I²t heat would be lost at the next restart without a word: the
-    guards would then start cold on a hot motor.
-    """
-    path = cfg.state.file
-    if path is None:
-        return
-    why = writable_problem(Path(path))
-    if why:
-        raise ConfigError(f"{cfg.path}: state.file: {path}: cannot be written ({why}): the I²t heat would be "
-                          "lost at the next restart; expected a writable path (the service unit's "
-                          "StateDirectory, /var/lib/canguard)")
-
-
 class Daemon:
     """Owns the buses, the journal, the engine and the signals of one ``canguard run``."""
 
@@ -105,12 +90,14 @@ class Daemon:
     """``canguard run`` refuses all-virtual buses under systemd; the realtime replay bench does not."""
 
     def __init__(self, config_path: Path, *, metrics_addr: str | None = None,
-                 notifier: Notifier | None = None, cfg: Config | None = None) -> None:
+                 notifier: Notifier | None = None, cfg: Config | None = None, state_dir: Path | None = None) -> None:
         self.config_path = config_path
-        self.cfg: Config = cfg if cfg is not None else load_config(config_path)
+        self.state_dir = state_dir
+        """``--state-dir``: the journal and the I²t state file go there, at start and at every reload."""
+        self.cfg: Config = cfg if cfg is not None else self.load()
         if self.refuse_virtual:
             refuse_unguarded(self.cfg)
-        check_state_file(self.cfg)
+        check_config_outputs(self.cfg)
         self.clock = LiveClock()
         self.notifier = notifier if notifier is not None else Notifier()
         self.metrics: Any = None
@@ -128,7 +115,6 @@ class Daemon:
         self._bus_errors: queue.SimpleQueue[tuple[str, str]] = queue.SimpleQueue()
         self.exit_reason = "exit"
         self.reader = BusReader(self.cfg.buses, on_error=self._bus_error)
-        self._refused_logged: dict[tuple[str, str], float] = {}
         self.sink: FrameSink = BusSink(
             self.reader.send, on_error=self.metrics.send_error if self.metrics is not None else None,
             on_refused=self._send_refused,
@@ -146,6 +132,10 @@ class Daemon:
         except BaseException:
             release_clients(registered_clients() - before)  # a tree built half-way leaves no keys behind
             raise
+
+    def load(self) -> Config:
+        """The config file as this daemon runs it (its outputs moved to :attr:`state_dir`, when set)."""
+        return load_run_config(self.config_path, self.state_dir)
 
     # -- signals ---------------------------------------------------------------------------
     def install_signals(self) -> None:
@@ -270,7 +260,7 @@ class Daemon:
         """Load the config and tree again; keep the running ones when the new ones are bad."""
         self.notifier.reloading()
         try:
-            cfg = load_config(self.config_path)
+            cfg = self.load()
             if dict(cfg.buses) != dict(self.cfg.buses):
                 raise CanguardError("buses changed: a bus change needs a restart (systemctl restart canguard)")
             new = self.build_engine(cfg, previous=self.engine)
@@ -295,21 +285,18 @@ class Daemon:
         self.notifier.ready()
         return True
 
-    def _send_refused(self, bus: str, label: str, origin: str) -> None:
-        """A frame the bus refused (full TX queue, bus-off) goes in the journal, once a second per bus and origin.
+    def _send_refused(self, bus: str, label: str, origin: str, held: int) -> None:
+        """A frame the bus refused (full TX queue, bus-off) goes in the journal, as often as on stderr.
 
         A stop frame that never reached the bus is what a safety engineer asks about
         first; it is sent again every ``stop.repeat``, and this event says it had to be.
+        The sink reports once a second per bus and origin; ``held`` counts the refusals since.
         """
-        now = time.monotonic()
-        key = (bus, origin)
-        if now - self._refused_logged.get(key, -math.inf) < 1.0:
-            return
-        self._refused_logged[key] = now
         engine = getattr(self, "engine", None)
         if engine is not None:
             engine.journal.write({"event": "bus_error", "source": bus,
-                           "reason": f"send refused: {label} ({origin}); sent again at the next repeat"})
+                                  "reason": f"send refused: {label} ({origin}); sent again at the next repeat"
+                                            f"{held_note(held)}"})
 
     def _bus_error(self, bus: str, exc: BaseException) -> None:
         # Called from a receive thread: hand it to the loop, which owns the journal.

@@ -43,6 +43,7 @@ from py_trees.ports import CONST_PREFIX, NoDataAvailable, PortInformation, Ports
 from py_trees.ports_utils import PortsLogger
 
 from canguard.bt.context import Context
+from canguard.bt.wakeup import WakeUpSignal
 
 NodeKind = Literal["Action", "Condition", "Control", "Decorator"]
 
@@ -79,7 +80,39 @@ def mark_skipped(node: py_trees.behaviour.Behaviour) -> None:
     node.skipped = True  # type: ignore[attr-defined]
 
 
+def note_script_error(node: py_trees.behaviour.Behaviour, attr: str, script: str, error: Exception) -> None:
+    """A script of ``node`` failed while it ran: its feedback, and ``script_error`` for ``canguard tree --tick``.
+
+    (BT.CPP throws out of ``tickOnce()``; canguard fails the node, or counts a condition as false, and says why.)
+    """
+    node.feedback_message = f"{attr}: {error}"
+    node.script_error = f"{attr} {script!r}: {error}"  # type: ignore[attr-defined]
+
+
 _MISSING = object()
+
+
+_BOOL_TEXT = {"true": True, "false": False, "1": True, "0": False}
+
+
+def _number_as(expected: Any, value: Any) -> Any:
+    """BT.CPP's casts on reading a port: a real 0/1 (a script's true/false) on a bool port, an integral real on
+    an int port, a string entry parsed to the port's type (``convertFromString``); None when there is none."""
+    if isinstance(value, str) and expected in (int, float, bool) and "_" not in value:
+        text = value.strip()
+        try:
+            return _BOOL_TEXT[text.lower()] if expected is bool else expected(text)
+        except (KeyError, ValueError):
+            return None
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        return None
+    if expected is str:  # BT.CPP's Any to string: std::to_string, so reals with %f
+        return f"{value:f}" if isinstance(value, float) else str(value)
+    if expected is bool and value in (0, 1):
+        return bool(value)
+    if expected is int and isinstance(value, float) and value.is_integer():
+        return int(value)
+    return None
 
 
 class PortError(ValueError):
@@ -118,6 +151,12 @@ class CanguardNode(PortsMixin):
     CONST_PORTS: ClassVar[frozenset[str]] = frozenset()
     """Input ports that configure the node once at load time: a ``{key}`` there is a load-time error."""
     KEY_PORTS: ClassVar[frozenset[str]] = frozenset()
+    USES_BOARD: ClassVar[bool] = False
+    """True for nodes with a ``board`` (:class:`~canguard.bt.scopes.TreeBlackboard`) the loader sets to
+    their scope's: scripts, SetBlackboard, UnsetBlackboard."""
+    UNTYPED_PORTS: ClassVar[frozenset[str]] = frozenset()
+    """Ports that take an entry of any type (BT.CPP's ``AnyTypeAllowed`` / ``BT::Any``): they neither fix
+    nor check the type of the entry they are wired to (see :func:`canguard.bt.build` entry types)."""
     """Input ports that must be wired to a ``{key}`` (a constant there is a load-time error)."""
     CHOICES: ClassVar[Mapping[str, tuple[str, ...]]] = {}
     """Allowed values of string ports, checked at load time for constants."""
@@ -128,6 +167,9 @@ class CanguardNode(PortsMixin):
     changes nothing and answers as before: no timer, counter, memory or output of its own.
     The replay engine counts such ticks instead of running them (:mod:`canguard.engine.quiet`)
     when every node of the tree says so; a guard also needs sample-driven models."""
+
+    wake_up: WakeUpSignal | None = None
+    """The tree's wake-up signal, given to every node at load (BT.CPP's ``setWakeUpInstance``)."""
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
         # Stay out of py_trees' global auto-registry: canguard's parser gets an explicit,
@@ -202,6 +244,20 @@ class CanguardNode(PortsMixin):
         """True when the port was given in the XML as a ``{key}`` (input) or at all (output)."""
         return name in self._dynamic or name in self._wired
 
+    def resolve_root_keys(self) -> None:
+        """``{@key}`` (BT.CPP's root blackboard, from any depth): wired ports go to the root's entry ``/key``.
+
+        (py_trees' parser resolves ``{@key}`` inside its namespace, ``/Sub/@key``; the loader calls this once.)
+        """
+        for port, key in self._keys.items():
+            last = key.rsplit("/", 1)[-1]
+            if last.startswith("@"):
+                self._keys[port] = "/" + last[1:]
+
+    def wired_keys(self) -> dict[str, str]:
+        """The storage key of every port wired to a ``{key}`` (inputs) or given (outputs), by port name."""
+        return dict(self._keys)
+
     def is_given(self, name: str) -> bool:
         """True when the input port has a value or a key (given, or with a default)."""
         return name in self._dynamic or name in self._static
@@ -210,7 +266,9 @@ class CanguardNode(PortsMixin):
         """The value of input port ``name``: cached constant/default, or the blackboard's at tick.
 
         None when a wired key holds nothing yet or holds a value of the wrong type
-        (``self._bad_port`` then says which); an int on a float port is accepted.
+        (``self._bad_port`` then says which); an int on a float port is accepted, and
+        so are the values BT.CPP casts (a real 0/1 on a bool port, an integral real on an int port, a string
+        entry parsed to the port's type, a number on a string port as ``std::to_string`` writes it).
         """
         if name not in self._dynamic:
             return self._static.get(name)
@@ -231,6 +289,9 @@ class CanguardNode(PortsMixin):
             return value
         if expected is float and isinstance(value, int) and not isinstance(value, bool):
             return float(value)
+        converted = _number_as(expected, value)
+        if converted is not None:
+            return converted
         self._bad_port = f"{name}={value!r} is not {getattr(expected, '__name__', expected)}"
         return None
 
@@ -241,6 +302,22 @@ class CanguardNode(PortsMixin):
                 Blackboard.storage[self._keys[name]] = value
             else:
                 self._set_output(name, value)
+
+    # -- wake-up -------------------------------------------------------------------------
+    def emit_wake_up(self) -> None:
+        """Ask ``tickOnce()`` to tick the root again at once (BT.CPP's ``emitWakeUpSignal``)."""
+        if self.wake_up is not None:
+            self.wake_up.emit()
+
+    def arm_timer(self, deadline: float) -> None:
+        """A timer that emits the wake-up signal once the engine's clock reaches ``deadline`` (s)."""
+        if self.wake_up is not None:
+            self.wake_up.arm(self, deadline)
+
+    def cancel_timer(self) -> None:
+        """Drop this node's timer (halted or completed)."""
+        if self.wake_up is not None:
+            self.wake_up.cancel(self)
 
     # -- life cycle ----------------------------------------------------------------------
     def bind(self) -> None:

@@ -49,6 +49,8 @@ def _text(value: object) -> str:
     """A blackboard value as BT.CPP would read it into a string port."""
     if isinstance(value, bool):
         return "true" if value else "false"
+    if isinstance(value, float):
+        return f"{value:f}"  # std::to_string
     return str(value)
 
 

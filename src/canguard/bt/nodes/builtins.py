@@ -9,14 +9,15 @@ Script                  runs ``code`` (BT.CPP's scripting language) on the black
                         a script that fails while it runs: FAILURE (BT.CPP throws; a guard
                         daemon must not crash on a tree's script)
 ScriptCondition         SUCCESS when ``code`` is true, else FAILURE
-SetBlackboard           writes ``value`` to the entry named by ``output_key``: SUCCESS
+SetBlackboard           writes ``value`` to the entry named by ``output_key``: SUCCESS (``value="{src}"``
+                        copies the entry with its type)
 UnsetBlackboard         removes the entry ``key``: SUCCESS
 Sleep                   RUNNING until ``msec`` have elapsed on the engine's clock, then SUCCESS
 KeepRunningUntilFailure the child's SUCCESS becomes RUNNING; FAILURE ends it
 IfThenElse              2 or 3 children: the first decides, then the second (SUCCESS) or the
                         third (FAILURE; FAILURE when there is none); the branch runs to its end
-WhileDoElse             like IfThenElse, but the condition is ticked every time: a change halts
-                        the running branch and switches
+WhileDoElse             like IfThenElse (2 or 3 children), but the condition is ticked every
+                        time: a change halts the running branch and switches
 Precondition            ticks its child while ``if`` (a script) is true, else returns ``else``
 ======================  ================================================================
 
@@ -40,42 +41,20 @@ from canguard.bt.nodes.base import (
     CanguardNode,
     PortError,
     mark_skipped,
+    note_script_error,
     outcome,
     port_info,
     tick_child,
 )
+from canguard.bt.scopes import TreeBlackboard
 from canguard.bt.scripting import ScriptError
 
 if TYPE_CHECKING:
     from canguard.bt.scripting import Script as ParsedScript
 
 Children = list[py_trees.behaviour.Behaviour] | None
+_NOTHING = object()
 _STATUS = {"SUCCESS": SUCCESS, "FAILURE": FAILURE, "RUNNING": RUNNING}
-
-
-class TreeBlackboard:
-    """The scripting language's view of py_trees' blackboard, inside one (sub)tree's namespace."""
-
-    def __init__(self, namespace: str) -> None:
-        self.namespace = namespace if namespace.endswith("/") else namespace + "/"
-
-    def _key(self, key: str) -> str:
-        return key if key.startswith("/") else self.namespace + key
-
-    def has(self, key: str) -> bool:
-        return self._key(key) in Blackboard.storage
-
-    def get(self, key: str) -> object:
-        return Blackboard.storage[self._key(key)]
-
-    def set(self, key: str, value: object) -> None:
-        Blackboard.storage[self._key(key)] = value
-
-    def declared_type(self, key: str) -> type | None:
-        return None
-
-    def unset(self, key: str) -> None:
-        Blackboard.storage.pop(self._key(key), None)
 
 
 class _Scripted(CanguardNode):
@@ -85,6 +64,7 @@ class _Scripted(CanguardNode):
     INPUT_PORTS: dict = {}  # noqa: RUF012 - py_trees reads ports as plain class dicts
     OUTPUT_PORTS: dict = {}  # noqa: RUF012
     SCRIPT_PORTS: tuple[str, ...] = ()
+    USES_BOARD = True
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
@@ -116,7 +96,7 @@ class _Scripted(CanguardNode):
         try:
             return script.condition(self.board) if condition else script.run(self.board)
         except ScriptError as exc:
-            self.feedback_message = f"{name}: {exc}"
+            note_script_error(self, name, script.text, exc)
             raise
 
 
@@ -184,17 +164,35 @@ class SetBlackboard(_Scripted, py_trees.behaviour.Behaviour):
 
     KIND = "Action"
     DESCRIPTION = "writes value into the blackboard entry named by output_key: SUCCESS"
+    UNTYPED_PORTS = frozenset({"value", "output_key"})  # BT.CPP: AnyTypeAllowed
     INPUT_PORTS = {  # noqa: RUF012
         "value": port_info(str, "the value (text, as in BT.CPP), or {key} to copy an entry"),
         "output_key": port_info(str, "the name of the entry to write"),
     }
 
     def update(self) -> py_trees.common.Status:
-        key, value = self.port("output_key"), self.port("value")
-        if not key or value is None:
-            self.feedback_message = "no output_key or no value"
+        key = self.port("output_key")
+        # value="{src}": BT.CPP copies the source entry's value, with its type
+        wired = self.is_wired("value")
+        value = Blackboard.storage.get(self._keys["value"], _NOTHING) if wired else self.port("value")
+        if not key or value is None or value is _NOTHING:
+            self.feedback_message = "no output_key or no value (the entry value names does not exist)"
             return FAILURE
-        self.board.set(str(key).strip("{}"), value)
+        name = str(key).strip("{}")
+        if not wired and self.board.has(name):  # BT.CPP: text into a typed entry is parsed to its type
+            from canguard.bt.scripting.values import convert_for_entry, entry_type
+
+            try:
+                target: type | None = entry_type(self.board.get(name))
+            except KeyError:  # declared by a typed port, no value yet
+                target = self.board.declared_type(name)
+            if target is not None and target is not str:
+                try:
+                    value = convert_for_entry(value, target, None)
+                except ValueError as exc:
+                    self.feedback_message = f"can't convert {value!r} for the entry [{name}]: {exc}"
+                    return FAILURE
+        self.board.set(name, value)
         return SUCCESS
 
 
@@ -203,6 +201,7 @@ class UnsetBlackboard(_Scripted, py_trees.behaviour.Behaviour):
 
     KIND = "Action"
     DESCRIPTION = "removes the blackboard entry key: SUCCESS"
+    UNTYPED_PORTS = frozenset({"key"})
     INPUT_PORTS = {"key": port_info(str, "the entry to remove")}  # noqa: RUF012
 
     def update(self) -> py_trees.common.Status:
@@ -226,7 +225,10 @@ class Sleep(CanguardNode, py_trees.behaviour.Behaviour):
         self.until: float | None = None
 
     def initialise(self) -> None:
-        self.until = self.ctx.clock.now() + (self.port("msec") or 0.0) / 1000.0
+        msec = self.port("msec") or 0.0
+        self.until = self.ctx.clock.now() + msec / 1000.0
+        if msec > 0:  # BT.CPP: its timer wakes the tree up when it expires
+            self.arm_timer(self.until)
 
     def update(self) -> py_trees.common.Status:
         if self.until is None or self.ctx.clock.now() >= self.until:
@@ -235,6 +237,7 @@ class Sleep(CanguardNode, py_trees.behaviour.Behaviour):
 
     def terminate(self, new_status: py_trees.common.Status) -> None:
         self.until = None if new_status == INVALID else self.until
+        self.cancel_timer()
 
 
 class KeepRunningUntilFailure(CanguardNode, py_trees.decorators.Decorator):
@@ -270,8 +273,8 @@ class Precondition(_Scripted, py_trees.decorators.Decorator):
             raise PortError("else", f"{self.port('else')!r}: expected SUCCESS, FAILURE, RUNNING or SKIPPED")
 
     def tick(self) -> Any:
-        """Check the condition at the start of a run (BT.CPP: not again while the child runs)."""
-        if self.status != RUNNING:
+        """Check the condition unless the child is running (BT.CPP: also again after else="RUNNING")."""
+        if self.status != RUNNING or self.decorated.status != RUNNING:
             try:
                 ok = bool(self.run_script("if", condition=True))
             except ScriptError:
@@ -280,6 +283,8 @@ class Precondition(_Scripted, py_trees.decorators.Decorator):
                 otherwise = str(self.port("else")).upper()
                 if otherwise == "SKIPPED":
                     mark_skipped(self)
+                elif otherwise == "RUNNING":
+                    self.status = RUNNING
                 else:
                     self.stop(_STATUS[otherwise])
                 yield self
@@ -304,10 +309,8 @@ class _Branching(CanguardNode, py_trees.composites.Composite):
         self.branch = 0
 
     def bind(self) -> None:
-        allowed = (3,) if self.REACTIVE else (2, 3)
-        if len(self.children) not in allowed:
-            want = "3" if self.REACTIVE else "2 or 3"
-            raise PortError("children", f"{type(self).__name__} needs {want} children, has {len(self.children)}")
+        if len(self.children) not in (2, 3):  # BT.CPP: both take 2 or 3 (without a third, a FAILURE fails)
+            raise PortError("children", f"{type(self).__name__} needs 2 or 3 children, has {len(self.children)}")
 
     def tick(self) -> Any:
         if self.status != RUNNING:

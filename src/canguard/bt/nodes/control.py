@@ -33,10 +33,11 @@ Notes on the mapping:
 - "Restart / resume" is what py_trees calls memory. BT.CPP's plain ``Sequence``
   *has* memory for RUNNING children (it does not re-tick earlier children), which
   is why guards belong under a ReactiveSequence (design note 004).
-- RetryUntilSuccessful and Repeat: a child that completed at once is tried again at
-  the next tick (BT.CPP 4 returns RUNNING and emits its wake-up signal, which every
-  tree built by its factory has: ``Tree::initialize``); a child that was RUNNING and
-  then completed is tried again within the same tick. No tick loops.
+- RetryUntilSuccessful and Repeat: after a child that completed at once they return
+  RUNNING and emit the tree's wake-up signal (BT.CPP 4, which gives every tree its
+  factory builds one: ``Tree::initialize``), so ``tickOnce()`` ticks the root again at
+  once (:mod:`canguard.bt.wakeup`); a child that was RUNNING and then completed is tried
+  again within the same pass.
 - Every control passes BT.CPP's SKIPPED on: sequences and fallbacks skip a skipped
   child, a control whose children were all skipped is skipped, a decorator over a
   skipped child is skipped (KeepRunningUntilFailure stays RUNNING, as BT.CPP).
@@ -189,33 +190,23 @@ class ForceFailure(_Decorator, py_trees.decorators.SuccessIsFailure):
     QUIET_RETICK = True
 
 
-def _check_count(node: CanguardNode, name: str, low: int) -> None:
-    value = node.port(name)
-    if not node.is_wired(name) and value is not None and value != -1 and value < low:
-        raise PortError(name, f"must be -1 (forever) or >= {low}, got {value}")
-
-
 class RetryUntilSuccessful(_Decorator, py_trees.decorators.Decorator):
     """Retries a failing child up to num_attempts attempts (-1: forever), as BT.CPP 4's ``retry_node.cpp``.
 
-    A child that failed at once (it was not RUNNING) is retried at the next tick: BT.CPP
-    returns RUNNING there and wakes the tree, which every tree its factory builds does. A
-    child that was RUNNING and then failed is retried within the same tick. So a tick
-    never loops: at most two attempts per tick.
+    A child that failed at once (it was not RUNNING) is retried at the next pass: BT.CPP
+    returns RUNNING there and emits the wake-up signal, so ``tickOnce()`` ticks the root
+    again at once. A child that was RUNNING and then failed is retried within the same
+    pass. So one pass makes at most two attempts.
     """
 
-    DESCRIPTION = "a FAILURE is retried (at the next tick), up to num_attempts attempts (-1: forever)"
+    DESCRIPTION = "a FAILURE is retried, up to num_attempts attempts (-1: forever)"
     INPUT_PORTS = {  # noqa: RUF012
-        "num_attempts": port_info(int, "attempts before giving up (-1: forever)"),
+        "num_attempts": port_info(int, "attempts before giving up (-1: forever; 0: FAILURE, the child not ticked)"),
     }
 
     def __init__(self, name: str, child: py_trees.behaviour.Behaviour, **kwargs: Any) -> None:
         super().__init__(name=name, child=child, **kwargs)
         self.failures = 0
-
-    def bind(self) -> None:
-        """num_attempts: -1 or >= 1."""
-        _check_count(self, "num_attempts", 1)
 
     def terminate(self, new_status: py_trees.common.Status) -> None:
         """A halt forgets the failures (BT.CPP's ``halt``)."""
@@ -253,6 +244,7 @@ class RetryUntilSuccessful(_Decorator, py_trees.decorators.Decorator):
                 break
             if fresh and (self.failures < limit or limit == -1):
                 self.feedback_message = f"attempt {self.failures} failed, retrying"
+                self.emit_wake_up()
                 self.status = RUNNING
                 yield self
                 return
@@ -265,22 +257,19 @@ class RetryUntilSuccessful(_Decorator, py_trees.decorators.Decorator):
 class Repeat(_Decorator, py_trees.decorators.Decorator):
     """Repeats a succeeding child num_cycles times (-1: forever); FAILURE stops, as BT.CPP 4's ``repeat_node.cpp``.
 
-    As :class:`RetryUntilSuccessful`: a child that succeeded at once is repeated at the
-    next tick, one that was RUNNING and then succeeded is repeated within the tick.
+    As :class:`RetryUntilSuccessful`: after a child that succeeded at once it returns RUNNING
+    and wakes the tree up (the next pass repeats it), one that was RUNNING and then
+    succeeded is repeated within the pass.
     """
 
-    DESCRIPTION = "a SUCCESS is repeated (at the next tick), num_cycles times (-1: forever); FAILURE ends it"
+    DESCRIPTION = "a SUCCESS is repeated, num_cycles times (-1: forever); FAILURE ends it"
     INPUT_PORTS = {  # noqa: RUF012
-        "num_cycles": port_info(int, "successes to collect (-1: forever)"),
+        "num_cycles": port_info(int, "successes to collect (-1: forever; 0: SUCCESS, the child not ticked)"),
     }
 
     def __init__(self, name: str, child: py_trees.behaviour.Behaviour, **kwargs: Any) -> None:
         super().__init__(name=name, child=child, **kwargs)
         self.successes = 0
-
-    def bind(self) -> None:
-        """num_cycles: -1 or >= 0."""
-        _check_count(self, "num_cycles", 0)
 
     def terminate(self, new_status: py_trees.common.Status) -> None:
         """A halt forgets the cycles done (BT.CPP's ``halt``)."""
@@ -318,6 +307,7 @@ class Repeat(_Decorator, py_trees.decorators.Decorator):
                 break
             if fresh and (self.successes < limit or limit == -1):
                 self.feedback_message = f"cycle {self.successes} done"
+                self.emit_wake_up()
                 self.status = RUNNING
                 yield self
                 return
@@ -345,6 +335,8 @@ class Timeout(_Decorator, py_trees.decorators.Decorator):
         if self.status != RUNNING:
             msec = self.port("msec")
             self.deadline = now + msec / 1000.0 if msec else None
+            if self.deadline is not None:
+                self.arm_timer(self.deadline)  # BT.CPP: the timer wakes the tree up when it expires
             self.initialise()
         elif self.deadline is not None and now >= self.deadline:
             if self.decorated.status == RUNNING:
@@ -356,6 +348,7 @@ class Timeout(_Decorator, py_trees.decorators.Decorator):
         yield from self.decorated.tick()
         status = self.decorated.status
         if status != RUNNING:
+            self.cancel_timer()
             self.stop(status)
         self.status = status
         yield self
@@ -363,6 +356,11 @@ class Timeout(_Decorator, py_trees.decorators.Decorator):
     def update(self) -> py_trees.common.Status:
         """The child's status (tick() does the work)."""
         return self.decorated.status
+
+    def terminate(self, new_status: py_trees.common.Status) -> None:
+        """A halt cancels the timer."""
+        if new_status == INVALID:
+            self.cancel_timer()
 
 
 class Delay(_Decorator, py_trees.decorators.Decorator):
@@ -381,10 +379,12 @@ class Delay(_Decorator, py_trees.decorators.Decorator):
     def tick(self) -> Any:
         """Wait, then delegate; a completed child ends the run (the next one waits again)."""
         now = self.ctx.clock.now()
+        delay = self.port("delay_msec")
         if self.status != RUNNING or self.started is None:
             self.started = now
+            if delay is not None:
+                self.arm_timer(now + delay / 1000.0)  # BT.CPP: the timer wakes the tree up when it expires
             self.initialise()
-        delay = self.port("delay_msec")
         if delay is None or now - self.started < delay / 1000.0:
             self.feedback_message = "waiting"
             self.status = RUNNING
@@ -407,3 +407,4 @@ class Delay(_Decorator, py_trees.decorators.Decorator):
         """A halt cancels the wait."""
         if new_status == INVALID:
             self.started = None
+            self.cancel_timer()

@@ -31,6 +31,7 @@ from canguard.protect.i2t import RATED_OVERLOAD, RATED_OVERLOAD_S, LeakyI2t, The
 from canguard.protect.inrush import InrushBlanking
 from canguard.protect.staleness import SourceHealth
 from canguard.protect.threshold import Threshold
+from canguard.units import quantity
 
 REASON_BAD_THRESHOLD = "bad_threshold"
 
@@ -125,9 +126,16 @@ class GuardNode(CanguardNode, py_trees.behaviour.Behaviour):
             self._edge(ok, reason, self.ROLE, snap.value if value is None else value, snap.threshold)
         return SUCCESS if ok else FAILURE
 
+    def _units(self, role: str) -> tuple[str, str]:
+        """The unit of ``role``'s signal (A, Nm) and of its model's threshold (the same, or A²s / θ for I²t)."""
+        unit = self.ctx.unit(self.source.name, role) if self.source is not None else ""
+        model = next((m for r, m, _ in self.guarded() if r == role), None)
+        return unit, (model.THRESHOLD_UNIT if model is not None else None) or unit
+
     def _feedback(self, reason: str, role: str, value: float, threshold: float) -> str:
-        """Why the guard fails, in words (feedback message, stop events)."""
-        return f"{reason}: {role} |{value:g}| (threshold {threshold:g})"
+        """Why the guard fails, in words, each figure with its unit (feedback message, stop events)."""
+        unit = self._units(role)[1]
+        return f"{reason}: {role} |{quantity(value, unit)}| (threshold {quantity(threshold, unit)})"
 
     def _edge(self, ok: bool, reason: str, role: str, value: float, threshold: float) -> None:
         """Keep a readable feedback message; journal status changes (trip / recover)."""
@@ -369,7 +377,9 @@ class IsI2tSafe(GuardNode):
         if reason != REASON_I2T:
             return super()._feedback(reason, role, value, threshold)
         current = abs(self.health.value(role)) if self.health is not None else math.nan
-        return f"i2t: heat {value:g} of trip level {threshold:g} ({role} |{current:g}|)"
+        amps, heat = self._units(role)
+        return (f"i2t: heat {quantity(value, heat)} of trip level {quantity(threshold, heat)} "
+                f"({role} |{quantity(current, amps)}|)")
 
     def quiet_retick(self, now: float) -> None:
         """Ticked again: ``level`` is written again (the heat moved with the samples since)."""

@@ -3,9 +3,10 @@
 Each tick at which the child is not RUNNING, the next element of ``queue`` is taken
 off the front and written to ``value``; the child is ticked with it. The loop is
 RUNNING while elements remain, FAILURE as soon as the child fails, and ``if_empty``
-(default SUCCESS) when there is nothing left to take (an empty queue never ticks the
-child). ``queue`` is either a constant "1;2;3" (parsed at load; a bad element is a
-load error naming the port) or a blackboard entry holding a list (consumed in place,
+(default SUCCESS; FAILURE or SKIPPED) when there is nothing left to take (an empty queue
+never ticks the child). A skipped child leaves the loop RUNNING, as in BT.CPP.
+``queue`` is either a constant "1;2;3" (parsed at load; a bad element is a load error
+naming the port) or a blackboard entry holding a list (consumed in place,
 as BT.CPP's shared queue is) or such a string (parsed at the start of the run).
 """
 
@@ -17,9 +18,9 @@ from typing import Any
 import py_trees
 from py_trees.blackboard import Blackboard
 
-from canguard.bt.nodes.base import FAILURE, RUNNING, SUCCESS, CanguardNode, PortError, port_info
+from canguard.bt.nodes.base import FAILURE, RUNNING, SKIPPED, SUCCESS, CanguardNode, PortError, mark_skipped, port_info
 
-_EMPTY = {"SUCCESS": SUCCESS, "FAILURE": FAILURE}
+_EMPTY: dict[str, py_trees.common.Status | str] = {"SUCCESS": SUCCESS, "FAILURE": FAILURE, "SKIPPED": SKIPPED}
 _BOOLS = {"true": True, "false": False, "1": True, "0": False}
 
 
@@ -38,13 +39,16 @@ class _Loop(CanguardNode, py_trees.decorators.Decorator):
     ITEM: type = str
     INPUT_PORTS: dict = {}  # noqa: RUF012 - py_trees reads ports as plain class dicts
     OUTPUT_PORTS: dict = {}  # noqa: RUF012
-    CHOICES = {"if_empty": ("SUCCESS", "FAILURE")}  # noqa: RUF012
+    CHOICES = {"if_empty": ("SUCCESS", "FAILURE", "SKIPPED")}  # noqa: RUF012
+    SKIP_THROUGH = False  # BT.CPP's loop_node.h: a skipped child leaves the loop RUNNING
+    UNTYPED_PORTS = frozenset({"queue"})  # BT.CPP: an untyped BidirectionalPort (a list, a vector or a string)
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
         name = cls.ITEM.__name__
         cls.INPUT_PORTS = {
             "queue": port_info(str, f"values separated by ';' (e.g. 1;2;3), or {{key}} of a list of {name}"),
-            "if_empty": port_info(str, "status when nothing is left to take: SUCCESS or FAILURE", "SUCCESS"),
+            "if_empty": port_info(str, "status when nothing is left to take: SUCCESS, FAILURE or SKIPPED",
+                                  "SUCCESS"),
         }
         cls.OUTPUT_PORTS = {"value": port_info(cls.ITEM, "the element the child is ticked with", required=False)}
         cls.DESCRIPTION = (f"ticks the child once per element of queue ({name}), written to value; RUNNING while "
@@ -100,7 +104,11 @@ class _Loop(CanguardNode, py_trees.decorators.Decorator):
                 yield self
                 return
             if not taken:
-                self.stop(_EMPTY[str(self.port("if_empty")).upper()])
+                status = _EMPTY[str(self.port("if_empty")).upper()]
+                if isinstance(status, py_trees.common.Status):
+                    self.stop(status)
+                else:
+                    mark_skipped(self)
                 yield self
                 return
             self.write("value", item)

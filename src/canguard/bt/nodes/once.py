@@ -83,6 +83,7 @@ class WasEntryUpdated(CanguardNode, py_trees.behaviour.Behaviour):
     NEEDS_CONTEXT = False
     DESCRIPTION = "SUCCESS when the entry was written since the last tick of this node (same value too)"
     INPUT_PORTS = dict(_ENTRY)  # noqa: RUF012
+    UNTYPED_PORTS = frozenset({"entry"})  # BT.CPP: InputPort<BT::Any>
     OUTPUT_PORTS: dict = {}  # noqa: RUF012
 
     def __init__(self, name: str, **kwargs: Any) -> None:
@@ -107,6 +108,7 @@ class _EntryUpdated(CanguardNode, py_trees.decorators.Decorator):
     KIND = "Decorator"
     NEEDS_CONTEXT = False
     INPUT_PORTS = dict(_ENTRY)  # noqa: RUF012
+    UNTYPED_PORTS = frozenset({"entry"})  # BT.CPP: InputPort<BT::Any>
     OUTPUT_PORTS: dict = {}  # noqa: RUF012
     IF_NOT_UPDATED: str = "SKIPPED"
 

@@ -103,6 +103,7 @@ class _Ordered(_Control, py_trees.composites.Composite):
                 return
             self.index += 1
             if self.ASYNC and before == INVALID and self.index < n:
+                self.emit_wake_up()
                 self.status = RUNNING
                 yield self
                 return

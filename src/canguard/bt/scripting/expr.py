@@ -115,7 +115,7 @@ class Unary(Expr):
             if self.op == "-":
                 return -_real(value, self.pos)
             if self.op == "!":
-                return not bool(value)
+                return float(not bool(value))  # BT.CPP: logic results are the reals 1.0 / 0.0
             rv = float(value)
             if math.isnan(rv) or rv > INT64_MAX or rv < INT64_MIN:
                 raise ScriptError(f"{describe(value)} is out of range for the bitwise operator [~]", self.pos)
@@ -168,7 +168,7 @@ class Binary(Expr):
                         f"the logic operator [{op}] expects booleans (or the numbers 0 and 1), got {describe(bad)}",
                         self.pos,
                     )
-                return (lb and rb) if op == "&&" else (lb or rb)
+                return float((lb and rb) if op == "&&" else (lb or rb))
         elif isinstance(lv, str) and isinstance(rv, str) and op in ("+", ".."):
             return lv + rv
         elif op == ".." and (isinstance(lv, str) or isinstance(rv, str)) and (is_number(lv) or is_number(rv)):
@@ -246,9 +246,9 @@ class Compare(Expr):
                     f"can't mix different types in a comparison: {describe(lv)} [{op}] {describe(rv)}", pos
                 )
             if not _compare(op, a, b):
-                return False
+                return 0.0  # BT.CPP: a comparison is the real 1.0 or 0.0
             lv = rv
-        return True
+        return 1.0
 
     def names(self, out: set[str]) -> None:
         for operand in self.operands:
@@ -302,7 +302,10 @@ class Assign(Expr):
             current = UNSET
         declared = bb.declared_type(key) if bb.has(key) else None
         if op in (":=", "="):
-            result = value if current is UNSET and declared is None else self._convert(value, current, declared, env)
+            # BT.CPP (ExprAssignment, Any::copyInto): an entry without a value takes any value as it is, but
+            # a string into one a port declared as a number is parsed to that type
+            as_is = current is UNSET and (declared is None or not isinstance(value, str) or declared is str)
+            result = value if as_is else self._convert(value, current, declared, env)
         else:
             result = self._compound(value, current, declared, env)
         bb.set(key, result)

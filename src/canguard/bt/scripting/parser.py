@@ -160,8 +160,8 @@ class _Parser:
             return Literal(tok.pos, float(tok.text))
         if kind == "str":
             return Literal(tok.pos, tok.text)
-        if kind == "bool":
-            return Literal(tok.pos, tok.text == "true")
+        if kind == "bool":  # BT.CPP 4: the literals true / false are the reals 1.0 / 0.0
+            return Literal(tok.pos, 1.0 if tok.text == "true" else 0.0)
         if kind == "name":
             return Name(tok.pos, tok.text)
         if kind == "error":

@@ -1,0 +1,127 @@
+"""Is a BLF log whole? Its file header and object headers say how much should follow.
+
+python-can's BLF reader stops quietly where the file stops: a log cut in half replays
+as half a log. :class:`BlfLength` sits between the file and python-can's reader and
+follows the file's framing as the reader reads it (no second pass over the file): the
+file header gives its own size and the size of the whole file; each object header
+(``LOBJ``) its object's size, followed by ``size % 4`` padding bytes. At the end of
+the file, :meth:`BlfLength.cut` tells whether it ended inside the file header, an
+object header or an object (a log container cut in half), or before the size the file
+header records (a cut between two objects). A file header whose size field was never
+filled in (a writer that did not finish, or one that could not seek back) records
+nothing to hold the file to: then only the framing is checked.
+"""
+
+from __future__ import annotations
+
+import io
+import struct
+from typing import Any
+
+__all__ = ["BlfLength"]
+
+_FILE_HEADER = struct.Struct("<4sL")
+"""The start of the file header: signature ``LOGG``, the header's size."""
+_OBJ_HEADER = struct.Struct("<4sHHLL")
+"""An object's base header: signature ``LOBJ``, header size, header version, object size, object type."""
+_LOG_CONTAINER = 10
+
+
+class BlfLength:
+    """A binary file object that follows the BLF framing of what is read through it (``read`` and ``close``)."""
+
+    def __init__(self, raw: Any) -> None:
+        self.raw = raw
+        self.pos = 0
+        """Bytes read so far."""
+        self.ended = False
+        """A read came back short: the file ended there."""
+        self.file_size = 0
+        """The file size the file header records (0: none recorded yet)."""
+        self._head = b""  # the bytes of the header being read (file header first, then each object's)
+        self._header_size = 0  # the file header's size, once its first 8 bytes are in
+        self._skip = 0  # bytes of the current object (or of the file header) still to come
+        self._pad = 0  # of them, the padding that follows the object
+        self._object: tuple[int, int, int] | None = None  # the object being read: start, size, type
+        self._lost = False  # a header without its signature: not BLF framing (python-can says what it is)
+
+    def read(self, size: int = -1) -> bytes:
+        """Read from the file; what comes back advances the framing."""
+        data: bytes = self.raw.read(size)
+        if size is None or size < 0 or len(data) < size:
+            self.ended = True
+        self._follow(data)
+        return data
+
+    def close(self) -> None:
+        """Close the file."""
+        self.raw.close()
+
+    def write(self, data: bytes) -> int:
+        """Refused, as by any file opened for reading; python-can before 4.6 takes an object for a file (and not
+        for a path to open) only when it has both ``read`` and ``write``."""
+        raise io.UnsupportedOperation("write")
+
+    def _follow(self, data: bytes) -> None:
+        view = memoryview(data)
+        while view and not self._lost:
+            if self._skip:
+                n = min(self._skip, len(view))
+                self._skip -= n
+                self.pos += n
+                view = view[n:]
+                if not self._skip:
+                    self._object = None
+                continue
+            need = (_FILE_HEADER.size if not self._header_size else _OBJ_HEADER.size) - len(self._head)
+            n = min(need, len(view))
+            self._head += bytes(view[:n])
+            self.pos += n
+            view = view[n:]
+            if n == need:
+                self._header_done()
+
+    def _header_done(self) -> None:
+        """A whole header has been read: what follows it, and how long."""
+        if not self._header_size:  # the file header's first bytes: its size; the rest is skipped
+            signature, self._header_size = _FILE_HEADER.unpack(self._head)
+            self._lost = signature != b"LOGG"
+            self._header_size = max(self._header_size, _FILE_HEADER.size)
+            self._skip = self._header_size - _FILE_HEADER.size
+            self._pad = 0
+            self._head = b""
+            self._object = (0, self._header_size, -1)
+            return
+        signature, _, _, size, kind = _OBJ_HEADER.unpack(self._head)
+        self._lost = signature != b"LOBJ"
+        start = self.pos - _OBJ_HEADER.size
+        self._head = b""
+        self._pad = size % 4
+        self._skip = max(size - _OBJ_HEADER.size, 0) + self._pad
+        self._object = (start, size, kind) if self._skip else None
+
+    def note_file_size(self, file_size: int) -> None:
+        """The file size the file header records (python-can's reader has it): held against the end.
+
+        A writer that never came back to fill it in leaves the header's own size there.
+        """
+        self.file_size = file_size if file_size > self._header_size else 0
+
+    def cut(self) -> str:
+        """Why the file read so far is not whole ("" when it is, when its end has not been reached, or when it is
+        not BLF framing at all: python-can's reader says what is wrong then)."""
+        if not self.ended or self._lost:
+            return ""
+        if self._header_size == 0 or (self._object is not None and self._object[2] == -1):
+            return f"the file ends at byte {self.pos}, inside its file header"
+        if self._head:
+            start = self.pos - len(self._head)
+            return f"the file ends at byte {self.pos}, inside the header of the object at byte {start}"
+        if self._object is not None and self._skip > self._pad:
+            start, size, kind = self._object
+            what = "log container" if kind == _LOG_CONTAINER else f"object (type {kind})"
+            return (f"the file ends at byte {self.pos}, {self.pos - start} bytes into the {size}-byte {what} "
+                    f"at byte {start}")
+        if self.file_size and self.pos < self.file_size:
+            return f"the file ends at byte {self.pos}; its header says {self.file_size}"
+        return ""

@@ -1,0 +1,190 @@
+"""Files canguard writes: can they be written there? Asked before anything runs, answered in words.
+
+Every file canguard writes (the event journal, the I²t state file, ``--emit``, ``simulate
+--out``, ``--events`` of a replay or the demo) is checked here first, by
+:func:`output_problem`, so a path that cannot be written is one line naming the path and
+what is wrong (exit 2), never a traceback half-way through a run; ``canguard check`` asks
+the same question of a config (:func:`check_config_outputs`) that ``canguard run`` asks
+at start, so a config that passes the check does not fail at start for its paths.
+
+Writability is found by trying, not from permission bits (root ignores them; a read-only
+mount or a file where a directory should be refuses everyone). Nothing is left behind:
+missing directories are not created (the writers create them), a probe file made to try
+a directory is removed, an existing file is opened for appending and closed unchanged.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import errno
+import os
+import stat
+import tempfile
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from canguard.errors import ConfigError
+
+if TYPE_CHECKING:
+    from canguard.config.schema import Config
+
+__all__ = ["check_config_outputs", "check_output", "load_run_config", "output_problem", "outputs_in", "user_state_dir"]
+
+
+def _user(uid: int) -> str:
+    """The name of user ``uid`` (its number when it has none, e.g. a systemd dynamic user that has gone)."""
+    try:
+        import pwd
+
+        return pwd.getpwuid(uid).pw_name
+    except (ImportError, KeyError):
+        return str(uid)
+
+
+def _whose(path: Path) -> str:
+    """``: PATH belongs to root (mode 0755) and canguard runs as alice``: what a refused permission depends on."""
+    try:
+        st = path.stat()
+    except OSError:
+        return ""
+    return (f": {path} belongs to {_user(st.st_uid)} (mode {stat.S_IMODE(st.st_mode):04o}) and canguard runs as "
+            f"{_user(os.geteuid())}")
+
+
+def _existing_ancestor(path: Path) -> Path:
+    """The nearest of ``path``'s parents that exists (``/`` at worst)."""
+    parent = path.parent
+    while not parent.exists() and parent != parent.parent:
+        parent = parent.parent
+    return parent
+
+
+def _new_file_problem(directory: Path, target: Path) -> str:
+    """Why ``directory`` takes no new file (or, when it is not ``target``'s parent, no new directory)."""
+    if not directory.is_dir():
+        return f"{directory} is a file, expected a directory"
+    try:
+        fd, probe = tempfile.mkstemp(prefix=".canguard-probe-", dir=directory)
+    except OSError as exc:
+        what = "its directory" if directory == target.parent else f"the directories up to {target.parent}"
+        reason = exc.strerror or str(exc)
+        if exc.errno in (errno.EACCES, errno.EPERM):
+            return f"{what} cannot be written: {reason}{_whose(directory)}"
+        return f"{what} cannot be written ({directory}: {reason})"
+    os.close(fd)
+    os.unlink(probe)
+    return ""
+
+
+def _append_problem(path: Path) -> str:
+    """Why the existing regular file ``path`` cannot be appended to, with whose it is and the ways out."""
+    try:
+        fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CLOEXEC)
+    except OSError as exc:
+        reason = exc.strerror or str(exc)
+        if exc.errno not in (errno.EACCES, errno.EPERM):
+            return f"it cannot be opened for writing ({reason})"
+        me = _user(os.geteuid())
+        return (f"it cannot be appended to ({reason}){_whose(path)}; move it aside (sudo mv {path} "
+                f"{path}.old) or give it to {me} (sudo chown {me} {path})")
+    os.close(fd)
+    return ""
+
+
+def output_problem(path: Path, *, beside: bool = False, makes_dirs: bool = False) -> str:
+    """Why canguard cannot write the file ``path`` ("" when it can), found by trying it.
+
+    An existing regular file must open for appending (a file that exists is never
+    truncated here); a file still to be made needs a directory that takes a new file.
+    ``makes_dirs``: the writer makes missing directories (the journal, the state file), so
+    the nearest existing one must take a new directory; otherwise a missing directory is
+    the problem. ``beside``: the writer also makes new files in the same directory even
+    when ``path`` exists (the journal's rotation, the state file's atomic replace). A
+    device or a pipe (``/dev/stdout``) is taken as writable.
+    """
+    path = Path(os.path.abspath(path))
+    if path.is_dir():
+        return "it is a directory, expected a file path"
+    if path.exists():
+        if not path.is_file():
+            return ""  # a device or a FIFO: opening one to try it could block or consume
+        why = _append_problem(path)
+        if why or not beside:
+            return why
+    ancestor = _existing_ancestor(path)
+    if ancestor != path.parent and ancestor.is_dir() and not makes_dirs:
+        return f"its directory {path.parent} does not exist"
+    return _new_file_problem(ancestor, path)
+
+
+def check_output(path: Path | None, flag: str, *, beside: bool = False, makes_dirs: bool = False,
+                 expected: str = "") -> None:
+    """Before a command writes ``path`` (given by ``flag``): :class:`ConfigError` (exit 2) when it cannot.
+
+    The message is ``{flag} {path}: cannot be written: {why}`` (``; expected ...`` when given);
+    ``beside`` and ``makes_dirs`` as for :func:`output_problem`.
+    """
+    if path is None:
+        return
+    why = output_problem(path, beside=beside, makes_dirs=makes_dirs)
+    if why:
+        raise ConfigError(f"{flag} {path}: cannot be written: {why}" + (f"; expected {expected}" if expected else ""))
+
+
+def check_config_outputs(cfg: Config) -> None:
+    """Every file a config makes the daemon write (``events``, ``state.file``), as ``canguard run`` needs them.
+
+    One :class:`ConfigError` listing every path that cannot be written, each with its key;
+    ``canguard check`` and the daemon's start both call this.
+    """
+    problems = []
+    for key, path, what in (
+        ("events", cfg.events, "the event journal would be lost"),
+        ("state.file", cfg.state.file, "the I²t heat would be lost at the next restart"),
+    ):
+        if path is None:
+            continue
+        why = output_problem(path, beside=True, makes_dirs=True)
+        if why:
+            problems.append(f"{cfg.path}: {key}: {path}: cannot be written, {what}: {why} (or write it elsewhere: "
+                            "run --state-dir DIR)")
+    if problems:
+        raise ConfigError(problems)
+
+
+def outputs_in(cfg: Config, directory: Path) -> Config:
+    """``cfg`` with its event journal and I²t state file in ``directory`` (their file names kept).
+
+    For ``canguard run --state-dir`` (a trial run beside a service's own files) and for the
+    bundled config, which lives inside the installed package: read-only material.
+    """
+    directory = Path(os.path.abspath(directory))
+    events = None if cfg.events is None else directory / cfg.events.name
+    state = cfg.state if cfg.state.file is None else dataclasses.replace(cfg.state,
+                                                                         file=directory / cfg.state.file.name)
+    return dataclasses.replace(cfg, events=events, state=state)
+
+
+def load_run_config(path: Path, state_dir: Path | None) -> Config:
+    """The config at ``path`` as ``canguard run`` runs it (and ``check`` judges it): outputs in ``state_dir`` if set."""
+    from canguard.config.loader import load_config
+
+    cfg = load_config(path)
+    return cfg if state_dir is None else outputs_in(cfg, state_dir)
+
+
+def user_state_dir() -> Path:
+    """``$XDG_STATE_HOME/canguard``, by default ``~/.local/state/canguard`` (the XDG base directory spec).
+
+    A relative ``$XDG_STATE_HOME`` is ignored, as the spec says. :class:`ConfigError` when there is
+    no home directory to default to.
+    """
+    xdg = os.environ.get("XDG_STATE_HOME", "")
+    if xdg and os.path.isabs(xdg):
+        return Path(xdg) / "canguard"
+    try:
+        return Path.home() / ".local" / "state" / "canguard"
+    except RuntimeError:
+        raise ConfigError("no home directory to keep the bundled config's events and I²t state in "
+                          "(~/.local/state/canguard): set XDG_STATE_HOME, or give --state-dir DIR or -c CONFIG"
+                          ) from None
