@@ -71,9 +71,10 @@ TIME_EPS_S = 1e-9
 FloatArray = npt.NDArray[np.float64]
 IndexArray = npt.NDArray[np.intp]
 
-_FIRST_CHUNK = 1024
-"""With ``until_edge``, a run is scanned in chunks starting this long and doubling, so
-stopping at an early edge costs little and a run without edges costs a few passes."""
+_FIRST_CHUNK = 16
+"""With ``until_edge``, a run is scanned in chunks that double from twice the typical distance
+at which the previous stops found their edge (a running average; at least this many samples):
+chattering edges cost a short scan each, rare ones a few passes over the run."""
 _LAST_CHUNK = 1 << 16
 """A long run is scanned in chunks of at most this many samples: the temporary columns
 stay in the CPU cache and memory stays flat however long the run."""
@@ -263,6 +264,7 @@ class LatchedModel(ProtectionModel):
         """Samples ignored because they were older than the latest one."""
         self.rejected = 0
         """Samples ignored because their value or time was not finite."""
+        self._reach = _LAST_CHUNK // 64
 
     @property
     def tripped(self) -> bool:
@@ -284,15 +286,17 @@ class LatchedModel(ProtectionModel):
     def advance(self, times: npt.ArrayLike, values: npt.ArrayLike, *, until_edge: bool = False) -> Run:
         """Advance over a run of samples; see :mod:`canguard.protect.base` for the contract."""
         t, v = as_run(times, values)
-        if t.size <= _FIRST_CHUNK:
-            return self._advance(t, v, until_edge)
+        size = max(_FIRST_CHUNK, 2 * self._reach) if until_edge else _LAST_CHUNK
+        if t.size <= size:
+            return self._stopped(self._advance(t, v, until_edge), until_edge)
         parts: list[tuple[int, Run]] = []
-        start, size = 0, _FIRST_CHUNK if until_edge else _LAST_CHUNK
+        start = 0
         while start < t.size:
             part = self._advance(t[start : start + size], v[start : start + size], until_edge)
             parts.append((start, part))
             start += part.taken
             if until_edge and part.changed:
+                self._reach = (self._reach + start) // 2
                 break
             size = min(2 * size, _LAST_CHUNK)
         return Run(
@@ -302,6 +306,12 @@ class LatchedModel(ProtectionModel):
             start,
             float(np.fmax.reduce([p.peak for _, p in parts])),
         )
+
+    def _stopped(self, run: Run, until_edge: bool) -> Run:
+        """Remember how far a stop at an edge had to look (averaged: the next scan starts at twice that)."""
+        if until_edge and run.changed:
+            self._reach = (self._reach + run.taken) // 2
+        return run
 
     def _advance(self, t: FloatArray, v: FloatArray, until_edge: bool) -> Run:
         finite = np.isfinite(v) & np.isfinite(t)
