@@ -180,22 +180,32 @@ def hold(on: npt.NDArray[np.bool_], off: npt.NDArray[np.bool_], before: bool) ->
     return np.asarray(out, dtype=bool)
 
 
-def run_starts(cond: npt.NDArray[np.bool_], breaks: npt.NDArray[np.bool_], t: FloatArray,
-               before: float | None) -> tuple[IndexArray, FloatArray]:
-    """Where each stretch of consecutive ``cond`` samples began: (position, time) per sample.
+def stretch_begins(cond: npt.NDArray[np.bool_], breaks: npt.NDArray[np.bool_], before: float | None
+                   ) -> npt.NDArray[np.bool_]:
+    """The samples that begin a stretch of consecutive ``cond`` samples.
 
     A stretch ends at a sample without ``cond`` and before a sample with ``breaks`` set (a
     gap). ``before``: the start time of a stretch already running before the first sample
-    (None: none), which a first sample with ``cond`` and no break continues (position -1).
-    Entries of samples without ``cond`` are meaningless.
+    (None: none), which a first sample with ``cond`` and no break continues (no begin there).
     """
     begins = cond.copy()
     begins[1:] &= ~cond[:-1] | breaks[1:]
     if before is not None and cond.size and not breaks[0]:
         begins[0] = False
-    pos = last_marked(begins)
-    when = np.where(pos >= 0, t[np.maximum(pos, 0)], math.nan if before is None else before)
-    return pos, when
+    return begins
+
+
+def stretch_start_times(begins: npt.NDArray[np.bool_], cond: npt.NDArray[np.bool_], t: FloatArray,
+                        before: float | None) -> FloatArray:
+    """When the stretch each ``cond`` sample belongs to began (entries of other samples are meaningless).
+
+    The times are in order, so the latest begin's time is the running maximum of the begins'
+    times, ``before`` standing for the stretch carried in (it is not later than any sample).
+    """
+    marks = np.where(begins, t, -np.inf)
+    if before is not None and cond.size and cond[0] and not begins[0]:
+        marks[0] = before
+    return np.maximum.accumulate(marks)
 
 
 @dataclass
