@@ -26,18 +26,8 @@ from functools import cached_property
 import numpy as np
 import numpy.typing as npt
 
-from canguard.protect.base import (
-    REASON_OVERCURRENT,
-    TIME_EPS_S,
-    FloatArray,
-    IndexArray,
-    LatchedModel,
-    ProtectionModel,
-    Scan,
-    last_marked,
-    stretch_begins,
-    stretch_start_times,
-)
+from canguard.protect.base import REASON_OVERCURRENT, TIME_EPS_S, LatchedModel, ProtectionModel, Scan
+from canguard.protect.columns import FloatArray, IndexArray, last_marked, stretch_begins, stretch_start_times
 from canguard.protect.inrush import InrushBlanking
 from canguard.protect.threshold import check_limit, level_pct
 

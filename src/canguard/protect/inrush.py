@@ -31,15 +31,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from canguard.protect.base import (
-    TIME_EPS_S,
-    FloatArray,
-    as_run,
-    in_order,
-    last_marked,
-    stretch_begins,
-    stretch_start_times,
-)
+from canguard.protect.base import TIME_EPS_S
+from canguard.protect.columns import FloatArray, as_run, in_order, last_marked, stretch_begins, stretch_start_times
 from canguard.protect.threshold import check_limit
 
 
