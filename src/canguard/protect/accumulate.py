@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 
-from canguard.protect.base import FloatArray
+from canguard.protect.columns import FloatArray
 
 
 def next_where(mask: np.ndarray) -> np.ndarray:

@@ -56,6 +56,8 @@ from typing import ClassVar
 import numpy as np
 import numpy.typing as npt
 
+from canguard.protect.columns import FloatArray, IndexArray, as_run, in_order, toggles
+
 # Reasons a guard is not satisfied, as they appear in snapshots and events.
 REASON_OK = ""
 REASON_OVERCURRENT = "overcurrent"
@@ -68,12 +70,11 @@ TIME_EPS_S = 1e-9
 """Tolerance of duration comparisons (``held >= trip_after_s``): timestamps like
 ``21 * 0.01`` carry float rounding, and candump resolves microseconds only."""
 
-FloatArray = npt.NDArray[np.float64]
-IndexArray = npt.NDArray[np.intp]
 
-_FIRST_CHUNK = 1024
-"""With ``until_edge``, a run is scanned in chunks starting this long and doubling, so
-stopping at an early edge costs little and a run without edges costs a few passes."""
+_FIRST_CHUNK = 16
+"""With ``until_edge``, a run is scanned in chunks that double from twice the typical distance
+at which the previous stops found their edge (a running average; at least this many samples):
+chattering edges cost a short scan each, rare ones a few passes over the run."""
 _LAST_CHUNK = 1 << 16
 """A long run is scanned in chunks of at most this many samples: the temporary columns
 stay in the CPU cache and memory stays flat however long the run."""
@@ -123,78 +124,6 @@ class Run:
     def changed(self) -> bool:
         """True when the run changed the tripped state at least once (an edge: tick the tree)."""
         return bool(self.index.size)
-
-
-def as_run(times: npt.ArrayLike, values: npt.ArrayLike) -> tuple[FloatArray, FloatArray]:
-    """Both columns of a run as float64 arrays; ValueError when they are not 1-D of one length."""
-    t = np.asarray(times, dtype=np.float64)
-    v = np.asarray(values, dtype=np.float64)
-    if t.ndim != 1 or t.shape != v.shape:
-        raise ValueError(f"a run needs 1-D times and values of one length, got shapes {t.shape} and {v.shape}")
-    return t, v
-
-
-def in_order(t: FloatArray, finite: npt.NDArray[np.bool_], last_t: float | None) -> npt.NDArray[np.bool_]:
-    """Which samples are not older than the latest accepted one before them (``finite``: the usable ones).
-
-    A finite sample that is ignored as out of order is older than an accepted one, so the
-    latest accepted time before each sample is the running maximum of the usable times
-    (and of ``last_t``).
-    """
-    if t.size <= 1:
-        return finite if last_t is None or t.size == 0 else finite & (t >= last_t)
-    usable = np.where(finite, t, -np.inf)
-    before = np.empty_like(usable)
-    before[0] = -np.inf if last_t is None else last_t
-    if usable.size > 1:
-        np.maximum.accumulate(usable[:-1], out=before[1:])
-        np.maximum(before[1:], before[0], out=before[1:])
-    return finite & (t >= before)
-
-
-def toggles(state: npt.NDArray[np.bool_], before: bool) -> IndexArray:
-    """Positions where the boolean column ``state`` differs from its previous entry (``before`` for the first)."""
-    if state.size <= 1:
-        return (state != before).nonzero()[0]
-    changed = np.empty(state.size, dtype=bool)
-    changed[0] = bool(state[0]) != before
-    np.not_equal(state[1:], state[:-1], out=changed[1:])
-    return changed.nonzero()[0]
-
-
-def last_marked(mark: npt.NDArray[np.bool_]) -> IndexArray:
-    """For each position, the latest position at or before it where ``mark`` is set (-1: none yet)."""
-    pos = np.where(mark, np.arange(mark.size), -1)
-    np.maximum.accumulate(pos, out=pos)
-    return pos
-
-
-def hold(on: npt.NDArray[np.bool_], off: npt.NDArray[np.bool_], before: bool) -> npt.NDArray[np.bool_]:
-    """A set/reset latch over a column: True from an ``on`` sample, False from an ``off`` one, else held.
-
-    ``on`` wins where both are set; ``before`` is the state before the first sample.
-    """
-    pos = last_marked(on | off)
-    out = np.where(pos >= 0, on[np.maximum(pos, 0)], before)
-    return np.asarray(out, dtype=bool)
-
-
-def run_starts(cond: npt.NDArray[np.bool_], breaks: npt.NDArray[np.bool_], t: FloatArray,
-               before: float | None) -> tuple[IndexArray, FloatArray]:
-    """Where each stretch of consecutive ``cond`` samples began: (position, time) per sample.
-
-    A stretch ends at a sample without ``cond`` and before a sample with ``breaks`` set (a
-    gap). ``before``: the start time of a stretch already running before the first sample
-    (None: none), which a first sample with ``cond`` and no break continues (position -1).
-    Entries of samples without ``cond`` are meaningless.
-    """
-    begins = cond.copy()
-    begins[1:] &= ~cond[:-1] | breaks[1:]
-    if before is not None and cond.size and not breaks[0]:
-        begins[0] = False
-    pos = last_marked(begins)
-    when = np.where(pos >= 0, t[np.maximum(pos, 0)], math.nan if before is None else before)
-    return pos, when
 
 
 @dataclass
@@ -265,6 +194,7 @@ class LatchedModel(ProtectionModel):
         """Samples ignored because they were older than the latest one."""
         self.rejected = 0
         """Samples ignored because their value or time was not finite."""
+        self._reach = _LAST_CHUNK // 64
 
     @property
     def tripped(self) -> bool:
@@ -286,15 +216,17 @@ class LatchedModel(ProtectionModel):
     def advance(self, times: npt.ArrayLike, values: npt.ArrayLike, *, until_edge: bool = False) -> Run:
         """Advance over a run of samples; see :mod:`canguard.protect.base` for the contract."""
         t, v = as_run(times, values)
-        if t.size <= _FIRST_CHUNK:
-            return self._advance(t, v, until_edge)
+        size = max(_FIRST_CHUNK, 2 * self._reach) if until_edge else _LAST_CHUNK
+        if t.size <= size:
+            return self._stopped(self._advance(t, v, until_edge), until_edge)
         parts: list[tuple[int, Run]] = []
-        start, size = 0, _FIRST_CHUNK if until_edge else _LAST_CHUNK
+        start = 0
         while start < t.size:
             part = self._advance(t[start : start + size], v[start : start + size], until_edge)
             parts.append((start, part))
             start += part.taken
             if until_edge and part.changed:
+                self._reach = (self._reach + start) // 2
                 break
             size = min(2 * size, _LAST_CHUNK)
         return Run(
@@ -304,6 +236,12 @@ class LatchedModel(ProtectionModel):
             start,
             float(np.fmax.reduce([p.peak for _, p in parts])),
         )
+
+    def _stopped(self, run: Run, until_edge: bool) -> Run:
+        """Remember how far a stop at an edge had to look (averaged: the next scan starts at twice that)."""
+        if until_edge and run.changed:
+            self._reach = (self._reach + run.taken) // 2
+        return run
 
     def _advance(self, t: FloatArray, v: FloatArray, until_edge: bool) -> Run:
         finite = np.isfinite(v) & np.isfinite(t)

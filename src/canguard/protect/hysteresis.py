@@ -26,16 +26,8 @@ from functools import cached_property
 import numpy as np
 import numpy.typing as npt
 
-from canguard.protect.base import (
-    REASON_OVERCURRENT,
-    TIME_EPS_S,
-    FloatArray,
-    IndexArray,
-    LatchedModel,
-    ProtectionModel,
-    Scan,
-    run_starts,
-)
+from canguard.protect.base import REASON_OVERCURRENT, TIME_EPS_S, LatchedModel, ProtectionModel, Scan
+from canguard.protect.columns import FloatArray, IndexArray, last_marked, stretch_begins, stretch_start_times
 from canguard.protect.inrush import InrushBlanking
 from canguard.protect.threshold import check_limit, level_pct
 
@@ -73,18 +65,18 @@ class _Side:
             self.ready = (self.cond & (self.t - self.began >= self.hold_s - TIME_EPS_S)).nonzero()[0]
 
     @cached_property
-    def _stretches(self) -> tuple[IndexArray, FloatArray]:
-        return run_starts(self.cond, self.gap, self.t, self.before)
+    def _begins(self) -> npt.NDArray[np.bool_]:
+        return stretch_begins(self.cond, self.gap, self.before)
 
-    @property
+    @cached_property
+    def began(self) -> FloatArray:
+        """When the stretch each sample belongs to began (meaningless where the condition fails)."""
+        return stretch_start_times(self._begins, self.cond, self.t, self.before)
+
+    @cached_property
     def begin(self) -> IndexArray:
         """Where the stretch each sample belongs to began (-1: carried in from the previous run)."""
-        return self._stretches[0]
-
-    @property
-    def began(self) -> FloatArray:
-        """When the stretch each sample belongs to began."""
-        return self._stretches[1]
+        return last_marked(self._begins)
 
     def next_ready(self, pos: int, after_edge: bool) -> int | None:
         """The first sample from ``pos`` on at which the condition has held long enough (None: none).

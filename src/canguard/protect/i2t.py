@@ -54,7 +54,8 @@ from typing import Any
 import numpy as np
 
 from canguard.protect.accumulate import clamped_sum, thermal_steps
-from canguard.protect.base import REASON_I2T, FloatArray, LatchedModel, ProtectionModel, Scan, hold
+from canguard.protect.base import REASON_I2T, LatchedModel, ProtectionModel, Scan
+from canguard.protect.columns import FloatArray, hold
 from canguard.units import AMPERE2_SECOND, THETA
 
 KIND_LEAKY = "leaky"

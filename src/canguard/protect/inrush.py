@@ -31,7 +31,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from canguard.protect.base import TIME_EPS_S, FloatArray, as_run, in_order, last_marked, run_starts
+from canguard.protect.base import TIME_EPS_S
+from canguard.protect.columns import FloatArray, as_run, in_order, last_marked, stretch_begins, stretch_start_times
 from canguard.protect.threshold import check_limit
 
 
@@ -99,8 +100,8 @@ class InrushBlanking:
         :meth:`InrushScan.commit` then takes the state after any of its samples.
         """
         below = a <= self.start_current_a
-        no_breaks = np.zeros(a.size, dtype=bool)
-        _pos, since = run_starts(below, no_breaks, t, self._below_since)
+        begins = stretch_begins(below, np.zeros(a.size, dtype=bool), self._below_since)
+        since = stretch_start_times(begins, below, t, self._below_since)
         was_below = np.empty(a.size, dtype=bool)
         quiet = np.empty(a.size)
         if a.size:

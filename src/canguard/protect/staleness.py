@@ -34,16 +34,8 @@ import numpy.typing as npt
 
 from canguard.config.schema import SourceConfig
 from canguard.io.frame import INVALID_INF, INVALID_NAN, INVALID_RANGE, Sample
-from canguard.protect.base import (
-    REASON_NO_DATA,
-    REASON_NOT_PRESENT,
-    REASON_OK,
-    REASON_STALE,
-    FloatArray,
-    IndexArray,
-    as_run,
-    in_order,
-)
+from canguard.protect.base import REASON_NO_DATA, REASON_NOT_PRESENT, REASON_OK, REASON_STALE
+from canguard.protect.columns import FloatArray, IndexArray, as_run, in_order
 
 PRESENT = "present"
 COUNTER = "counter"

@@ -10,7 +10,8 @@ from __future__ import annotations
 
 import math
 
-from canguard.protect.base import REASON_OVERCURRENT, FloatArray, LatchedModel, Scan
+from canguard.protect.base import REASON_OVERCURRENT, LatchedModel, Scan
+from canguard.protect.columns import FloatArray
 
 
 def check_limit(name: str, value: float) -> float:
