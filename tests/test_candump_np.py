@@ -13,8 +13,9 @@ import struct
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from canguard.io.candump import _bulk_columns, _parse_line
+from canguard.io.candump import _parse_line
 from canguard.io.candump_np import ByteColumns, byte_columns
+from canguard.io.frame import Frame
 from canguard.io.logtypes import EXT_KEY, _Bad, id_key
 
 
@@ -74,11 +75,11 @@ _JUNK = st.sampled_from([*list("()# .\n\tRrTtGgxz~-+_:0189afAF"), "é"])
 
 @settings(max_examples=DAMAGED, deadline=None, derandomize=DAMAGED <= 600)
 @given(lines=plain_lines(), where=st.integers(0, 10**6), junk=_JUNK, how=st.sampled_from(["insert", "replace", "drop"]))
-def test_a_damaged_block_is_refused_as_the_text_parser_refuses_it(
+def test_a_damaged_block_is_refused_as_the_line_parser_refuses_it(
     lines: list[str], where: int, junk: str, how: str
 ) -> None:
-    """One character inserted, replaced or dropped anywhere: a block either block parser takes is read line by
-    line the same (every line well formed); a block the text block parser takes with one channel, numpy takes too."""
+    """One character inserted, replaced or dropped anywhere: a block numpy takes is read line by line the same
+    (every line well formed)."""
     text, _ = _block(lines)
     k = where % len(text)
     if how == "insert":
@@ -90,22 +91,13 @@ def test_a_damaged_block_is_refused_as_the_text_parser_refuses_it(
     if not text.endswith("\n"):
         text += "\n"
     n = text.count("\n")
-    ours, theirs = byte_columns(text, n), _bulk_columns(text, n)
+    ours = byte_columns(text, n)
     if ours is not None:
         try:
             expected = [_parse_line(line) for line in text.splitlines()]
         except _Bad as bad:
             raise AssertionError(f"numpy took a block with a bad line ({bad.reason}): {text!r}") from None
         assert list(ours.frames()) == expected
-    if theirs is not None:
-        try:
-            expected = [_parse_line(line) for line in text.splitlines()]
-        except _Bad as bad:
-            raise AssertionError(f"the text block parser took a bad line ({bad.reason}): {text!r}") from None
-        assert list(theirs.frames()) == expected
-        exact = max(int(str(t).replace(".", "")) for t in theirs.ts) < 2**53  # else numpy leaves it, by design
-        if exact and len(set(map(len, theirs.chans))) == 1 and (len(theirs.chans[0]) <= 6 or theirs.channel):
-            assert ours is not None, f"numpy refused a plain block (one channel name length): {text!r}"
 
 
 @settings(max_examples=300, deadline=None, derandomize=True)
@@ -117,8 +109,8 @@ def test_timestamps_are_pythons_floats(secs: int, frac: int, decimals: int, zero
     stamp = "0" * zeros + f"{secs}.{frac % 10**decimals:0{decimals}d}"
     cols = byte_columns(f"({stamp}) can0 123#00\n", 1)
     if int(stamp.replace(".", "")) >= 2**53:
-        assert cols is None  # the text parser takes it (float() is exact there)
-        assert _bulk_columns(f"({stamp}) can0 123#00\n", 1) is not None
+        assert cols is None  # the line parser takes it (float() is exact there)
+        assert _parse_line(f"({stamp}) can0 123#00") is not None
     else:
         assert cols is not None
         assert struct.pack("<d", cols.ts[0]) == struct.pack("<d", float(stamp))
@@ -135,7 +127,8 @@ def test_several_channels_of_one_name_length_are_one_block() -> None:
     assert list(cols.frames()) == [_parse_line(line) for line in lines]
     text, n = _block(["(1.000000) can0 123#00", "(1.000001) can10 123#00"])
     assert byte_columns(text, n) is None
-    assert _bulk_columns(text, n) is not None
+    assert [_parse_line(line) for line in text.splitlines()] == [
+        Frame(1.0, "can0", 0x123, b"\x00"), Frame(1.000001, "can10", 0x123, b"\x00")]
 
 
 def test_error_frames_and_out_of_range_ids_are_refused() -> None:

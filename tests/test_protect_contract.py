@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 import math
 from collections.abc import Callable
 
@@ -22,14 +23,35 @@ FACTORIES: dict[str, tuple[Callable[[], ProtectionModel], str]] = {
 DT = 0.01
 
 
-def run_until(model: ProtectionModel, current: float, t: float, want: bool, limit_s: float) -> float:
-    """Feed ``current`` every DT from ``t`` until ``model.tripped == want``; return the time it did."""
-    end = t + limit_s
-    while t < end:
-        t += DT
-        model.update(current, t)
-        if model.tripped == want:
-            return t
+MODES = ("runs_of_one", "long_runs")
+"""How the tests feed the models: sample by sample (``update``), or whole runs (``advance``)."""
+
+
+def feed(model: ProtectionModel, mode: str, values: list[float], times: list[float]) -> list[bool]:
+    """Feed the samples as ``mode`` says; per sample, True where the tripped state changed."""
+    if mode == "runs_of_one":
+        return [model.update(v, t) for v, t in zip(values, times, strict=True)]
+    edges = [False] * len(values)
+    for i in model.advance(times, values).index.tolist():
+        edges[i] = True
+    return edges
+
+
+def run_until(model: ProtectionModel, mode: str, current: float, t: float, want: bool, limit_s: float) -> float:
+    """Feed ``current`` every DT from ``t`` until ``model.tripped == want``; return the time it did.
+
+    ``long_runs``: one run over the whole time limit, stopped at its first edge.
+    """
+    times = [t + DT * k for k in range(1, round(limit_s / DT) + 1)]
+    if mode == "runs_of_one":
+        for now in times:
+            model.update(current, now)
+            if model.tripped == want:
+                return now
+    else:
+        run = model.advance(times, [current] * len(times), until_edge=True)
+        if run.changed and model.tripped == want:
+            return float(run.t[0])
     raise AssertionError(f"model did not reach tripped={want} within {limit_s} s")
 
 
@@ -37,6 +59,11 @@ def run_until(model: ProtectionModel, current: float, t: float, want: bool, limi
 def case(request: pytest.FixtureRequest) -> tuple[ProtectionModel, str]:
     factory, reason = FACTORIES[request.param]
     return factory(), reason
+
+
+@pytest.fixture(params=MODES)
+def mode(request: pytest.FixtureRequest) -> str:
+    return str(request.param)
 
 
 class TestProtectionModelContract:
@@ -62,12 +89,24 @@ class TestProtectionModelContract:
             prev = model.tripped
         assert edges == 2
 
-    def test_poll_latches_a_trip_between_polls(self, case: tuple[ProtectionModel, str]) -> None:
+    def test_a_long_run_finds_the_same_edges(self, case: tuple[ProtectionModel, str]) -> None:
+        """advance over the whole run reports the trip and the recovery at the samples update does."""
+        model, _ = case
+        seq = [0.0] * 50 + [30.0] * 30 + [0.0] * 1000
+        times = [i * DT for i in range(len(seq))]
+        fresh = copy.deepcopy(model)
+        run = model.advance(times, seq)
+        per_sample = [i for i, (v, t) in enumerate(zip(seq, times, strict=True)) if fresh.update(v, t)]
+        assert run.index.tolist() == per_sample and len(per_sample) == 2
+        assert run.tripped.tolist() == [True, False] and run.t.tolist() == [times[i] for i in per_sample]
+        assert model.snapshot() == fresh.snapshot()
+
+    def test_poll_latches_a_trip_between_polls(self, case: tuple[ProtectionModel, str], mode: str) -> None:
         """A trip and recovery between two polls is reported once at the next poll, then cleared."""
         model, reason = case
         assert model.poll(0.0).tripped is False
-        t = run_until(model, 30.0, 0.0, True, 5.0)
-        t = run_until(model, 0.0, t, False, 60.0)
+        t = run_until(model, mode, 30.0, 0.0, True, 5.0)
+        t = run_until(model, mode, 0.0, t, False, 60.0)
         assert model.snapshot().tripped is False
         latched = model.poll(t)
         assert latched.tripped is True
@@ -76,23 +115,21 @@ class TestProtectionModelContract:
         assert again.tripped is False
         assert again.reason == REASON_OK
 
-    def test_poll_keeps_reporting_while_tripped(self, case: tuple[ProtectionModel, str]) -> None:
+    def test_poll_keeps_reporting_while_tripped(self, case: tuple[ProtectionModel, str], mode: str) -> None:
         """While the model stays tripped every poll reports it, and snapshot never resets the latch."""
         model, _ = case
-        t = run_until(model, 30.0, 0.0, True, 5.0)
+        t = run_until(model, mode, 30.0, 0.0, True, 5.0)
         assert model.snapshot().tripped is True
         assert model.poll(t).tripped is True
         assert model.poll(t).tripped is True
         assert model.snapshot().since == t
 
-    def test_snapshots_are_finite(self, case: tuple[ProtectionModel, str]) -> None:
+    def test_snapshots_are_finite(self, case: tuple[ProtectionModel, str], mode: str) -> None:
         """After samples, value, threshold and level are finite numbers and level grows with current."""
         model, _ = case
-        model.update(1.0, 0.0)
-        model.update(1.0, 0.5)
+        feed(model, mode, [1.0, 1.0], [0.0, 0.5])
         low = model.snapshot()
-        model.update(30.0, 0.6)
-        model.update(30.0, 0.62)
+        feed(model, mode, [30.0, 30.0], [0.6, 0.62])
         high = model.snapshot()
         for snap in (low, high):
             assert math.isfinite(snap.value) and math.isfinite(snap.threshold)
@@ -100,23 +137,21 @@ class TestProtectionModelContract:
         assert high.level_pct > low.level_pct
         assert high.value == 30.0
 
-    def test_out_of_order_samples_are_harmless(self, case: tuple[ProtectionModel, str]) -> None:
+    def test_out_of_order_samples_are_harmless(self, case: tuple[ProtectionModel, str], mode: str) -> None:
         """Samples older than the latest one change nothing and never report an edge."""
         model, _ = case
-        for i in range(20):
-            model.update(1.0, 10.0 + i * DT)
+        feed(model, mode, [1.0] * 20, [10.0 + i * DT for i in range(20)])
         before = model.snapshot()
-        for t in (0.0, 5.0, 10.0, 10.1):
-            assert model.update(1e6, t) is False
+        assert feed(model, mode, [1e6] * 4, [0.0, 5.0, 10.0, 10.1]) == [False] * 4
         assert model.snapshot() == before
 
-    def test_non_finite_values_are_ignored(self, case: tuple[ProtectionModel, str]) -> None:
+    def test_non_finite_values_are_ignored(self, case: tuple[ProtectionModel, str], mode: str) -> None:
         """NaN or infinite values and times never raise nor change the state."""
         model, _ = case
-        model.update(1.0, 0.0)
+        feed(model, mode, [1.0], [0.0])
         before = model.snapshot()
-        for v, t in ((math.nan, 1.0), (math.inf, 1.0), (1.0, math.nan), (-math.inf, math.inf)):
-            assert model.update(v, t) is False
+        bad = feed(model, mode, [math.nan, math.inf, 1.0, -math.inf], [1.0, 1.0, math.nan, math.inf])
+        assert bad == [False] * 4
         assert model.snapshot() == before
 
     # differing_executors: pytest makes a new instance of the class per run; mutmut runs the

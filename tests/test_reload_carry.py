@@ -97,10 +97,10 @@ def test_i2t_heat_crosses_a_reload_without_a_state_file(tmp_path: Path) -> None:
     """Heat at 64 % of the trip level stays 64 % after a reload that changed continuous_current (no state file)."""
     rig = Reloadable(tmp_path, HEAT.format(cont=10))
     rig.pack(40.0, 3.0)  # leaky: (1600 - 100) A² each second of (3600 - 100) * 2 = 7000 A²s: 64 %
-    old_level = rig.engine._guard_nodes[0].model.level
+    old_level = rig.engine.guard_nodes[0].model.level
     assert 0.6 < old_level < 0.7
     new = rig.reload(HEAT.format(cont=12))
-    model = new._guard_nodes[0].model
+    model = new.guard_nodes[0].model
     assert model.continuous_a == 12.0
     assert model.level == pytest.approx(old_level)
     rig.pack(40.0, 2.0)  # the rest, 36 % of (3600 - 144) * 2 A²s, takes 1.7 s at 40 A; from cold 4.7 s

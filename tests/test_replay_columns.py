@@ -1,7 +1,7 @@
 """The replay column path against the reference path, byte for byte.
 
 :meth:`Engine.run_log <canguard.engine.core.Engine.run_log>` works on plain candump
-blocks as text columns (``Engine._run_columns``, ``Engine._cross`` and the row
+blocks as text columns (``LogRun._run_columns``, ``LogRun._cross`` and the row
 message plans of :mod:`canguard.engine.blocks`); ``Engine.columns = False`` makes it go frame
 by frame through :meth:`Engine.feed <canguard.engine.core.Engine.feed>`, the
 reference. Every test here replays one log through both, with the reader's
@@ -48,7 +48,9 @@ from canguard.cli.replay import ReplayOptions, replay_one
 from canguard.config.loader import load_config
 from canguard.config.schema import Config
 from canguard.engine.core import Engine
+from canguard.engine.logrun import LogRun
 from canguard.io.logs import Columns, read_log
+from canguard.io.logtypes import id_key
 from canguard.sim import write_log
 
 REPO = Path(__file__).resolve().parents[1]
@@ -81,7 +83,7 @@ class Outcome:
     emit: bytes
     state: dict[str, Any]
     column_blocks: int = 0
-    """Blocks ``Engine._run_columns`` took (returned True for)."""
+    """Blocks ``LogRun._run_columns`` took (returned True for)."""
     handled_rows: int = 0
     """Rows a message plan's step took (returned True or False, not None)."""
     fed_rows: int = 0
@@ -135,7 +137,7 @@ def engine_state(engine: Engine) -> dict[str, Any]:
         "health": health, "models": models, "now": engine.clock.now(), "last_tick_t": engine.last_tick_t,
         "first_frame_t": engine.first_frame_t, "gate": engine.gate.state, "stops": engine.gate.stops,
         "next_task": engine.gate._next_task, "next_stop": engine.gate._next_stop, "sent": engine.gate.sink.sent,
-        "stale": engine._stale, "events_seen": dict(engine.events_seen),
+        "stale": engine.watch.stale, "events_seen": dict(engine.events_seen),
     })
 
 
@@ -150,7 +152,7 @@ def replay(cfg: Config, log: Path, out: Path, *, columns: bool, chunk: int,
     by default never, so the reference reads every line with the text parsers. ``numpy_rows``:
     from how many rows of a message in a block numpy reads its payloads (default: the engine's).
     ``emit_frames`` False: no ``--emit`` file, so sent frames are only counted (the quiet runs then
-    send the task's periodic frames in one go, :meth:`~canguard.engine.quiet.QuietTickMixin._quiet_run`).
+    send the task's periodic frames in one go, :meth:`~canguard.engine.core.Engine._quiet_run`).
     ``export``: also ``--export-signals`` (in row groups of 64 rows), read back into :attr:`Outcome.exported`.
     """
     events, emit = out / "events.jsonl", out / "emit.log"
@@ -160,11 +162,11 @@ def replay(cfg: Config, log: Path, out: Path, *, columns: bool, chunk: int,
     engines: list[Engine] = []
     counts = {"blocks": 0, "handled": 0, "fed": 0, "bytes": 0}
     handled_ids: set[int] = set()
-    run_columns = Engine._run_columns
+    run_columns = LogRun._run_columns
     compile_plan = canguard.engine.blocks.compile_plan
     build_summary = canguard.cli.replay.build_summary
 
-    def counted_run_columns(self: Engine, cols: Columns, cursor: Any) -> bool:
+    def counted_run_columns(self: LogRun, cols: Columns, cursor: Any) -> bool:
         took = run_columns(self, cols, cursor)
         counts["blocks"] += took
         counts["bytes"] += took and type(cols).__name__ == "ByteColumns"
@@ -197,7 +199,7 @@ def replay(cfg: Config, log: Path, out: Path, *, columns: bool, chunk: int,
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(Engine, "columns", columns)
         mp.setattr(Engine, "replay_quiet_ticks", columns if quiet is None else quiet)
-        mp.setattr(Engine, "_run_columns", counted_run_columns)
+        mp.setattr(LogRun, "_run_columns", counted_run_columns)
         mp.setattr(canguard.engine.blocks, "compile_plan", counted_compile_plan)
         mp.setattr(canguard.cli.replay, "build_summary", capturing_build_summary)
         mp.setattr(canguard.io.candump, "CHUNK_CHARS", chunk)
@@ -270,12 +272,11 @@ def compare(cfg: Config, log: Path, out: Path, chunks: tuple[int, ...] = SMALL_C
 
     The column runs at the second, fourth... block size write no ``--emit`` file: their frames
     are only counted, as a replay without ``--emit`` does (emitted frames are compared at the others).
-    The column runs alternate the reader's two block parsers: the first, third...
-    block size parse blocks with numpy (:mod:`canguard.io.candump_np`: the first size from
-    the first block on, with numpy reading every message's payloads however few rows,
-    :mod:`canguard.engine.npstruct`; the third from the second block on, so a log mixes both
-    as a long one does), the others with the text parser alone. The reference always reads
-    with the text parsers.
+    The column runs parse blocks with numpy (:mod:`canguard.io.candump_np`): the first size from
+    the first block on, with numpy reading every message's payloads however few rows
+    (:mod:`canguard.engine.npstruct`); the third from the second block on, so a log mixes
+    line-parsed and numpy blocks as a short one does; the others from the first block on. The
+    reference always reads line by line.
     """
     outcomes = []
     for k, chunk in enumerate(chunks):
@@ -283,14 +284,14 @@ def compare(cfg: Config, log: Path, out: Path, chunks: tuple[int, ...] = SMALL_C
         ref = replay(cfg, log, out / f"ref-{chunk}", columns=False, chunk=chunk, channel_map=channel_map,
                      export=export)
         col = replay(cfg, log, out / f"col-{chunk}", columns=True, chunk=chunk, channel_map=channel_map,
-                     numpy_after=(0 if k == 0 else 2) if k % 2 == 0 else NEVER, numpy_rows=1 if k == 0 else None,
+                     numpy_after=(0 if k == 0 else 2) if k % 2 == 0 else 1, numpy_rows=1 if k == 0 else None,
                      emit_frames=k % 2 == 0, export=export)
         assert (ref.column_blocks, ref.handled_rows, ref.fed_rows) == (0, 0, 0), "the reference used the column path"
         assert ref.quiet_ticks == 0, "the reference skipped ticks: it must tick every tick, as the live daemon"
         assert_same(ref, col, f"{log.name} with {Path(str(cfg.path)).name}, blocks of {chunk} chars")
         if chunk != DEFAULT_CHUNK:
             assert col.column_blocks > 0, f"blocks of {chunk}: the column path never ran, so this proves nothing"
-            if k % 2 == 0 and col.column_blocks > 2:
+            if col.column_blocks > 2:
                 assert col.byte_blocks > 0, f"blocks of {chunk}: the numpy parser never ran, so this proves nothing"
             assert col.handled_rows >= min_handled, f"blocks of {chunk}: the row handlers took {col.handled_rows} rows"
         outcomes.append(col)
@@ -349,8 +350,9 @@ def mixed_case(text: str, k: int) -> str:
     return "".join(c.lower() if (i + k) % 2 else c.upper() for i, c in enumerate(text))
 
 
-def chunks_of(log: Path, chunk: int, numpy_after: int = NEVER) -> list[Columns | list[Any]]:
-    """The reader's blocks of ``log`` at ``chunk`` characters (what run_log receives); text parsers by default."""
+def chunks_of(log: Path, chunk: int, numpy_after: int = 0) -> list[Any]:
+    """The reader's blocks of ``log`` at ``chunk`` characters (what run_log receives); numpy from the first block
+    by default."""
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(canguard.io.candump, "CHUNK_CHARS", chunk)
         mp.setattr(canguard.io.candump, "NUMPY_AFTER_BLOCKS", numpy_after)
@@ -503,6 +505,44 @@ def _probe_multi(a_raw: int, b_raw: int, c_raw: int) -> str:
     return struct.pack("<hHi", a_raw, b_raw, c_raw).hex().upper()
 
 
+def _axis0_rows(add: Callable[..., None], rows: list[Row], cid: str, t: float, k: int) -> None:
+    """Step ``k`` of :func:`custom_rows` for axis0 + axis0_sp (one message, two sources)."""
+    # axis0 + axis0_sp (one message, two sources): inrush, -0.0 while stopped (the stop
+    # confirmation reports it), a hysteresis trip, NaN / inf / out of range / short payloads,
+    # a setpoint out of range, short and long silences, repeated and backward timestamps.
+    meas: float = 5.0
+    sp = 1.0
+    if k < 40:
+        meas = 0.0
+    elif k < 52:
+        meas = 30.0
+    elif 100 <= k < 130 or 600 <= k < 620:
+        meas = -0.0
+    elif 200 <= k < 215:
+        meas = 28.0
+    elif 215 <= k < 240:
+        meas = 12.0
+    special = {250: math.nan, 251: math.inf, 252: -math.inf, 253: 100.0}
+    if k in special:
+        meas = special[k]
+    if 300 <= k < 310:
+        sp = 100.0
+    if not (420 <= k < 425 or 430 <= k < 445):
+        data = iq_data(meas, sp)
+        if k == 254:
+            data = data[:8]
+        elif k == 255:
+            data = ""
+        add(t + 0.001, cid, data, k)
+    if k == 460:  # the same timestamp again, twice
+        add(t + 0.001, cid, iq_data(3.0), k)
+        add(t + 0.001, "7E5", "00", k)
+    if k in (470, 475):  # older than axis0's latest sample: out of order for its health and models
+        rows.append(Row(round(t - 0.0093, 6), BACKWARD + k, cid=cid, data=iq_data(4.0)))
+    if k == 485:  # older than the unconfigured row before it only (written after it, see custom_log)
+        rows.append(Row(round(t + 0.0022, 6), BACKWARD + k, cid=cid, data=iq_data(4.5)))
+
+
 def custom_rows() -> list[Row]:
     """The scripted log of :func:`custom_config` (see the comments for what each step range does)."""
     xdb = cantools.database.load_string(EXTRA_DBC, "dbc")
@@ -535,40 +575,7 @@ def custom_rows() -> list[Row]:
             data = bms_data(amps, present=0 if 500 <= k < 520 else 1)
             add(t, ids["BMS_Status"], data[:6] if k == 540 else data, k)
         add(t + 0.0005, "7E5", "0102030405060708", k)  # unconfigured, letters in the id
-        # axis0 + axis0_sp (one message, two sources): inrush, -0.0 while stopped (the stop
-        # confirmation reports it), a hysteresis trip, NaN / inf / out of range / short payloads,
-        # a setpoint out of range, short and long silences, repeated and backward timestamps.
-        meas: float = 5.0
-        sp = 1.0
-        if k < 40:
-            meas = 0.0
-        elif k < 52:
-            meas = 30.0
-        elif 100 <= k < 130 or 600 <= k < 620:
-            meas = -0.0
-        elif 200 <= k < 215:
-            meas = 28.0
-        elif 215 <= k < 240:
-            meas = 12.0
-        special = {250: nan, 251: inf, 252: -inf, 253: 100.0}
-        if k in special:
-            meas = special[k]
-        if 300 <= k < 310:
-            sp = 100.0
-        if not (420 <= k < 425 or 430 <= k < 445):
-            data = iq_data(meas, sp)
-            if k == 254:
-                data = data[:8]
-            elif k == 255:
-                data = ""
-            add(t + 0.001, ids["Axis0_Get_Iq"], data, k)
-        if k == 460:  # the same timestamp again, twice
-            add(t + 0.001, ids["Axis0_Get_Iq"], iq_data(3.0), k)
-            add(t + 0.001, "7E5", "00", k)
-        if k in (470, 475):  # older than axis0's latest sample: out of order for its health and models
-            rows.append(Row(round(t - 0.0093, 6), BACKWARD + k, cid=ids["Axis0_Get_Iq"], data=iq_data(4.0)))
-        if k == 485:  # older than the unconfigured row before it only (written after it, see custom_log)
-            rows.append(Row(round(t + 0.0022, 6), BACKWARD + k, cid=ids["Axis0_Get_Iq"], data=iq_data(4.5)))
+        _axis0_rows(add, rows, ids["Axis0_Get_Iq"], t, k)
         # axis1: leaky I²t heats from 250, trips near 328, cools from 330; silent (stale) 450..480.
         if not 450 <= k < 480:
             add(t + 0.002, ids["Axis1_Get_Iq"], iq_data(22.0 if 250 <= k < 330 else 0.0 if k >= 330 else 3.0), k)
@@ -652,7 +659,7 @@ def chunk_starting_at(log: Path, i: int) -> int:
     """A small block size (about 200 to 600 characters) at which a block of ``log`` starts with line ``i``.
 
     A block is the next ``size`` characters and the rest of the line the last of them is in
-    (:func:`canguard.io.candump._candump_chunks`): the next block starts at the line after it.
+    (:func:`canguard.io.candump.candump_chunks`): the next block starts at the line after it.
     """
     offsets = line_offsets(log)
     target = offsets[i]
@@ -775,15 +782,15 @@ class TestCustomLog:
         """In blocks of 300 characters the reader gives every kind of block run_log tells apart."""
         _, log = custom
         blocks = chunks_of(log, 300)
-        cols = [b for b in blocks if isinstance(b, Columns)]
+        cols = [b for b in blocks if not isinstance(b, list)]
         assert any(isinstance(b, list) for b in blocks)  # T/R markers starting and ending, the new digit
         assert any(not c.ordered for c in cols)  # a row back in time inside a block
-        assert {len(c.ts[0]) for c in cols} == {11, 12}  # 9999.xxxxxx and 10000.xxxxxx
-        ids = {i for c in cols for i in c.ids}
-        assert {"18ff50e5", "014", "0cfefffe"} <= ids and any(i != i.upper() != i.lower() for i in ids)
+        assert any(c.stamps[0] < 10000.0 for c in cols) and any(c.stamps[0] >= 10000.0 for c in cols)
+        keys = {int(k) for c in cols for k in c.keys.tolist()}
+        assert {id_key(0x18FF50E5, True), 0x014, id_key(0x0CFEFFFE, True)} <= keys
         marked = [ln for ln in log.read_text(encoding="ascii").splitlines() if ln.endswith(" R")]
         first, last = (float(ln[1:ln.index(")")]) for ln in (marked[0], marked[-1]))
-        assert any(first <= float(c.ts[0]) and float(c.ts[-1]) <= last for c in cols)  # blocks of marked lines
+        assert any(first <= float(c.stamps[0]) and float(c.stamps[-1]) <= last for c in cols)  # marked lines
 
     @pytest.mark.parametrize("chunk", [*SMALL_CHUNKS, DEFAULT_CHUNK])
     def test_same_output(self, custom: tuple[Config, Path], tmp_path: Path, chunk: int) -> None:
@@ -823,13 +830,13 @@ class TestCustomLog:
         i = custom_line(log, preds[what])
         chunk = chunk_starting_at(log, i)
         blocks = chunks_of(log, chunk)
-        firsts = itertools.accumulate((b.n if isinstance(b, Columns) else len(b) for b in blocks), initial=0)
+        firsts = itertools.accumulate((len(b) if isinstance(b, list) else b.n for b in blocks), initial=0)
         j = list(firsts).index(i)  # the block that starts with line i
         start = blocks[j]
-        assert isinstance(start, Columns) and start.ts[0] == lines[i][1:lines[i].index(")")], what
+        assert not isinstance(start, list) and float(start.stamps[0]) == float(lines[i][1:lines[i].index(")")]), what
         if what.startswith("backward"):
             before = blocks[j - 1]
-            assert float(start.ts[0]) < (float(before.ts[-1]) if isinstance(before, Columns) else before[-1].t)
+            assert float(start.stamps[0]) < (before[-1].t if isinstance(before, list) else float(before.stamps[-1]))
         compare(cfg, log, tmp_path, (chunk,))
 
 
@@ -863,7 +870,7 @@ class TestChannels:
         assert summary["unmapped_channels"]["can2"] > 0
         assert {t["source"] for t in summary["trips"]} >= {"/battery_state", "axis0"}
         blocks = chunks_of(log, chunk)
-        singles = {b.channel for b in blocks if isinstance(b, Columns)}
+        singles = {b.channel for b in blocks if not isinstance(b, list)}
         assert {"can0", "can1", None} <= singles  # blocks of one channel each, and mixed ones
         assert chunk > 300 or "can2" in singles
 
@@ -910,7 +917,7 @@ class TestTheComparison:
         """A _cross that brings no tick among unconfigured rows (ticks come late, at the next configured row)."""
         _, log = custom
         with pytest.MonkeyPatch.context() as mp:
-            mp.setattr(Engine, "_cross", lambda self, ts, lo, hi: None)
+            mp.setattr(LogRun, "_cross", lambda self, ts, lo, hi: None)
             with pytest.raises(AssertionError):
                 compare(load_config(TIMED), log, tmp_path, (300,), min_handled=0)
 

@@ -100,7 +100,7 @@ class TestCandumpCompact:
         path.write_bytes(b"(1.0) can0 123#11\r\n(2.0) can0 124#22")
         assert [f.arbitration_id for f in read_log(path)] == [0x123, 0x124]
 
-    @pytest.mark.parametrize("numpy_after", [0, 1 << 62], ids=["numpy", "text"])
+    @pytest.mark.parametrize("numpy_after", [0, 1 << 62], ids=["numpy", "lines"])
     def test_bom_and_line_ends(self, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, numpy_after: int) -> None:
         """The reader reads bytes: a UTF-8 byte order mark, Windows and old-Mac line ends (some, or every one: a
         file of lone CRs longer than four blocks, plain or gzip'd), a block edge inside a \\r\\n and a junk byte

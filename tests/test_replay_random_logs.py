@@ -294,14 +294,11 @@ def candump_lines(draw: st.DrawFn) -> list[str]:
 
 @settings(max_examples=max(EXAMPLES * 20, 100), deadline=None, derandomize=EXAMPLES <= 100,
           suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
-@given(lines=candump_lines(), chunk=st.sampled_from([64, 300, 4096]), numpy=st.booleans())
-def test_blocks_read_the_same_frames_as_the_line_parser(
-    tmp_path_factory: Any, lines: list[str], chunk: int, numpy: bool
-) -> None:
-    """CAN FD and remote rows are read by the block reader (no line-by-line fallback) as the line parser reads them.
+@given(lines=candump_lines(), chunk=st.sampled_from([64, 300, 4096]))
+def test_blocks_read_the_same_frames_as_the_line_parser(tmp_path_factory: Any, lines: list[str], chunk: int) -> None:
+    """CAN FD and remote rows are read by the block parser (no line-by-line fallback) as the line parser reads them.
 
-    With ``numpy`` every block is parsed by :mod:`canguard.io.candump_np` (and must be: one channel,
-    plain lines), else by the text block parser."""
+    Every block is parsed by :mod:`canguard.io.candump_np` (and must be: one channel, plain lines)."""
     import pytest
 
     import canguard.io.candump
@@ -312,7 +309,7 @@ def test_blocks_read_the_same_frames_as_the_line_parser(
     path.write_text("\n".join(lines) + "\n", encoding="ascii")
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(canguard.io.candump, "CHUNK_CHARS", chunk)
-        mp.setattr(canguard.io.candump, "NUMPY_AFTER_BLOCKS", 0 if numpy else 1 << 62)
+        mp.setattr(canguard.io.candump, "NUMPY_AFTER_BLOCKS", 0)
         got, lists, kinds = [], 0, set()
         for block in read_log(path).chunks():
             lists += type(block) is list
@@ -320,4 +317,4 @@ def test_blocks_read_the_same_frames_as_the_line_parser(
             got.extend(block if type(block) is list else block.frames())
     assert got == [_parse_line(line) for line in lines]
     assert lists == 0, "a block of plain candump -L lines went line by line"
-    assert kinds == ({"ByteColumns"} if numpy else {"Columns"}), kinds
+    assert kinds == {"ByteColumns"}, kinds

@@ -151,7 +151,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     daemon = Daemon(cfg_path, cfg=cfg, http=args.http, groot2=args.groot2)
     sink = _TimedSink(daemon.sink)
     daemon.sink = sink
-    daemon.engine = daemon._build_engine(cfg)
+    daemon.engine = daemon.build_engine(cfg)
     out = sys.stdout
     view = LiveView(daemon, out, tty=out.isatty())
     trip_walls: list[tuple[float, dict[str, Any]]] = []

@@ -19,9 +19,8 @@ from typing import Any
 
 from canguard.cli.heap import lean_after
 from canguard.errors import ConfigError
-from canguard.io.logtypes import CANDUMP_SUFFIXES, COMPRESSIONS, PYTHON_CAN_SUFFIXES
-
-LOG_SUFFIXES = CANDUMP_SUFFIXES + PYTHON_CAN_SUFFIXES
+from canguard.io.logs import LOG_SUFFIXES
+from canguard.io.logtypes import COMPRESSIONS
 
 
 def _is_log(path: Path) -> bool:

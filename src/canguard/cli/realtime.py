@@ -62,13 +62,13 @@ class _ReplayDaemon(Daemon):
         self._emit = emit
         super().__init__(cfg.path, cfg=cfg)
 
-    def _build_engine(self, cfg: Config, previous: Engine | None = None) -> Engine:
+    def build_engine(self, cfg: Config, previous: Engine | None = None) -> Engine:
         from canguard.io.clock import BootClock
         from canguard.protect.state import HeatStore
 
         if self._emit is not None and not isinstance(self.sink, _TeeSink):
             self.sink = _TeeSink(self.sink, LogSink(self.clock.now, cfg.buses, out=self._emit, keep=False))
-        engine = super()._build_engine(cfg, previous)
+        engine = super().build_engine(cfg, previous)
         engine.heat = (HeatStore(self._state_path, cfg.state.on_corrupt, clock=BootClock())
                        if self._state_path is not None else None)
         engine.save_heat = False
@@ -93,6 +93,17 @@ def _refuse_unsupported(args: argparse.Namespace) -> None:
                           "run the offline replay (without --realtime) for that")
 
 
+def _play_bus(cfg: Config, args: argparse.Namespace) -> str:
+    """The configured bus the log is played onto (``--bus``, or the only one)."""
+    bus_name = args.bus or (next(iter(cfg.buses)) if len(cfg.buses) == 1 else None)
+    if bus_name is None:
+        raise ConfigError(f"--realtime: several buses are configured ({', '.join(cfg.buses)}): "
+                          "name the one to play onto with --bus")
+    if bus_name not in cfg.buses:
+        raise ConfigError(f"--bus {args.bus!r}: expected one of the configured buses: {', '.join(cfg.buses)}")
+    return str(bus_name)
+
+
 def replay_realtime(cfg: Config, args: argparse.Namespace, names: list[Path] | None = None) -> int:
     """Play each log onto the bus while the daemon runs; print the daemon's summary; exit code as replay.
 
@@ -111,12 +122,7 @@ def replay_realtime(cfg: Config, args: argparse.Namespace, names: list[Path] | N
     speed = float(args.realtime)
     if speed <= 0:
         raise ConfigError(f"--realtime {speed}: expected a speed > 0 (1 = the log's own pace)")
-    bus_name = args.bus or (next(iter(cfg.buses)) if len(cfg.buses) == 1 else None)
-    if bus_name is None:
-        raise ConfigError(f"--realtime: several buses are configured ({', '.join(cfg.buses)}): "
-                          "name the one to play onto with --bus")
-    if bus_name not in cfg.buses:
-        raise ConfigError(f"--bus {args.bus!r}: expected one of the configured buses: {', '.join(cfg.buses)}")
+    bus_name = _play_bus(cfg, args)
     many = len(args.logs) > 1
     tripped = False
     for log_path, name in zip(args.logs, names or args.logs, strict=True):

@@ -387,6 +387,39 @@ _WORKER_MODULES = ("canguard.engine.events", "canguard.io.logs", "canguard.prote
 """What :func:`replay_one` imports on a first log: imported once before a forked pool, not in every worker."""
 
 
+def _report(args: argparse.Namespace, results: list[tuple[dict[str, Any] | None, str]], names: list[Path], base: Any,
+            many: bool) -> int:
+    """Print each log's summary (or error), the baseline's changes; the exit code."""
+    summaries = []
+    errors = 0
+    for (summary, err), name, log in zip(results, names, args.logs, strict=True):
+        if summary is None:
+            print(f"canguard replay: error:\n{_as_named(err, [log], [name])}", file=sys.stderr)
+            errors += 1
+            continue
+        if args.format is not None or str(name) == "-":
+            summary["log"] = str(name)  # the name the user gave, not the spool file or link
+        summaries.append(summary)
+        for source in summary["unguarded_sources"]:
+            print(f"canguard replay: warning: {name}: source {source!r} got no sample (no frame of its message "
+                  "on a channel a bus takes): its guards judged nothing on this log", file=sys.stderr)
+        if not args.json:
+            print(render_text(summary))
+    if args.json:
+        out: Any = summaries[0] if len(summaries) == 1 and not many else summaries
+        print(json.dumps(out, indent=2, sort_keys=True))
+    regressed = base is not None and summaries and _report_baseline(args, base, summaries)
+    if errors:
+        return EXIT_BAD_INPUT
+    if args.fail_on_regression and regressed:
+        return EXIT_REGRESSED
+    if args.fail_on_trip and any(s["trips"] for s in summaries):
+        return EXIT_TRIPPED
+    if args.fail_on_trip and any(s["unguarded_sources"] for s in summaries):
+        return EXIT_UNGUARDED
+    return EXIT_OK
+
+
 def _replay_offline(cfg: Config, cfg_path: Path, args: argparse.Namespace, names: list[Path]) -> int:
     channel_map = parse_map(args.map, cfg)
     if args.export_signals is not None:
@@ -423,31 +456,4 @@ def _replay_offline(cfg: Config, cfg_path: Path, args: argparse.Namespace, names
 
         write_fleet_summary(args.fleet_summary, [fleet_row(str(name), summary, err)
                                                  for (summary, err), name in zip(results, names, strict=True)])
-    summaries = []
-    errors = 0
-    for (summary, err), name, log in zip(results, names, args.logs, strict=True):
-        if summary is None:
-            print(f"canguard replay: error:\n{_as_named(err, [log], [name])}", file=sys.stderr)
-            errors += 1
-            continue
-        if args.format is not None or str(name) == "-":
-            summary["log"] = str(name)  # the name the user gave, not the spool file or link
-        summaries.append(summary)
-        for source in summary["unguarded_sources"]:
-            print(f"canguard replay: warning: {name}: source {source!r} got no sample (no frame of its message "
-                  "on a channel a bus takes): its guards judged nothing on this log", file=sys.stderr)
-        if not args.json:
-            print(render_text(summary))
-    if args.json:
-        out: Any = summaries[0] if len(summaries) == 1 and not many else summaries
-        print(json.dumps(out, indent=2, sort_keys=True))
-    regressed = base is not None and summaries and _report_baseline(args, base, summaries)
-    if errors:
-        return EXIT_BAD_INPUT
-    if args.fail_on_regression and regressed:
-        return EXIT_REGRESSED
-    if args.fail_on_trip and any(s["trips"] for s in summaries):
-        return EXIT_TRIPPED
-    if args.fail_on_trip and any(s["unguarded_sources"] for s in summaries):
-        return EXIT_UNGUARDED
-    return EXIT_OK
+    return _report(args, results, names, base, many)

@@ -65,78 +65,86 @@ class _Frames(_Sources):
                 return None
             return self.canopen.frame(value, key)
         if "message" in value:
-            self.mapping(value, key, ("message", "signals", "bus"), ("message",))
-            bus = self.bus(value.get("bus"), _path(key, "bus"))
-            msg = self.message(value["message"], _path(key, "message"))
-            signals = value.get("signals", {})
-            if signals is None:
-                signals = {}
-            if not isinstance(signals, Mapping):
-                self.problem(_path(key, "signals"), _found(signals), "a mapping of signal name -> value")
-                return None
-            if msg is None:
-                return None
-            data: dict[str, Any] = {s.name: _initial(s) for s in msg.signals}
-            ok = True
-            for sname, sval in signals.items():
-                v = self.frame_value(msg, sname, sval, _path(_path(key, "signals"), sname))
-                if v is None:
-                    ok = False
-                else:
-                    data[sname] = v
-            if not ok:
-                return None
-            try:
-                payload = msg.encode(data, scaling=True, padding=False, strict=True)
-            except Exception as exc:  # cantools EncodeError / ValueError / KeyError
-                given = ", ".join(f"{k}={v!r}" for k, v in signals.items()) or "no signals"
-                self.problem(
-                    _path(key, "signals"),
-                    f"{given}, which does not encode ({exc})",
-                    f"values within the ranges of {msg.name}'s signals",
-                )
-                return None
-            return FrameSpec(
-                bus=bus,
-                arbitration_id=msg.frame_id,
-                data=bytes(payload),
-                is_extended_id=bool(msg.is_extended_frame),
-                is_fd=bool(msg.is_fd),
-                label=msg.name,
-            )
+            return self._dbc_frame(value, key)
         if "id" in value:
-            self.mapping(value, key, ("id", "data", "bus", "extended", "fd"), ("id",))
-            bus = self.bus(value.get("bus"), _path(key, "bus"))
-            raw_id = value["id"]
-            if isinstance(raw_id, str):
-                try:
-                    raw_id = int(raw_id, 0)
-                except ValueError:
-                    self.problem(_path(key, "id"), _shown(raw_id), "a frame id (an int or '0x...')")
-                    return None
-            if isinstance(raw_id, bool) or not isinstance(raw_id, int) or not 0 <= raw_id <= 0x1FFFFFFF:
-                self.problem(_path(key, "id"), _found(raw_id), "a frame id 0..0x1FFFFFFF")
-                return None
-            extended = value.get("extended", raw_id > 0x7FF)
-            if not isinstance(extended, bool):
-                self.problem(_path(key, "extended"), _found(extended), "true or false")
-                return None
-            if not extended and raw_id > 0x7FF:
-                self.problem(
-                    _path(key, "id"), f"0x{raw_id:X}", "a standard frame id 0..0x7FF (or extended: true)"
-                )
-                return None
-            fd = value.get("fd", False)
-            if not isinstance(fd, bool):
-                self.problem(_path(key, "fd"), _found(fd), "true or false")
-                return None
-            payload_b = self.raw_data(value.get("data", ""), _path(key, "data"), fd)
-            if payload_b is None:
-                return None
-            label = f"0x{raw_id:08X}" if extended else f"0x{raw_id:03X}"
-            return FrameSpec(bus, raw_id, payload_b, is_extended_id=extended, is_fd=fd, label=label)
+            return self._raw_frame(value, key)
         self.problem(key, "a mapping without 'message' or 'id'", "a frame: {message, signals} or {id, data}")
         return None
+
+    def _dbc_frame(self, value: Mapping[str, Any], key: str) -> FrameSpec | None:
+        """A frame of a DBC message: ``{message, signals, bus}`` (unset signals at their initial values)."""
+        self.mapping(value, key, ("message", "signals", "bus"), ("message",))
+        bus = self.bus(value.get("bus"), _path(key, "bus"))
+        msg = self.message(value["message"], _path(key, "message"))
+        signals = value.get("signals", {})
+        if signals is None:
+            signals = {}
+        if not isinstance(signals, Mapping):
+            self.problem(_path(key, "signals"), _found(signals), "a mapping of signal name -> value")
+            return None
+        if msg is None:
+            return None
+        data: dict[str, Any] = {s.name: _initial(s) for s in msg.signals}
+        ok = True
+        for sname, sval in signals.items():
+            v = self.frame_value(msg, sname, sval, _path(_path(key, "signals"), sname))
+            if v is None:
+                ok = False
+            else:
+                data[sname] = v
+        if not ok:
+            return None
+        try:
+            payload = msg.encode(data, scaling=True, padding=False, strict=True)
+        except Exception as exc:  # cantools EncodeError / ValueError / KeyError
+            given = ", ".join(f"{k}={v!r}" for k, v in signals.items()) or "no signals"
+            self.problem(
+                _path(key, "signals"),
+                f"{given}, which does not encode ({exc})",
+                f"values within the ranges of {msg.name}'s signals",
+            )
+            return None
+        return FrameSpec(
+            bus=bus,
+            arbitration_id=msg.frame_id,
+            data=bytes(payload),
+            is_extended_id=bool(msg.is_extended_frame),
+            is_fd=bool(msg.is_fd),
+            label=msg.name,
+        )
+
+    def _raw_frame(self, value: Mapping[str, Any], key: str) -> FrameSpec | None:
+        """A raw frame: ``{id, data, bus, extended, fd}``."""
+        self.mapping(value, key, ("id", "data", "bus", "extended", "fd"), ("id",))
+        bus = self.bus(value.get("bus"), _path(key, "bus"))
+        raw_id = value["id"]
+        if isinstance(raw_id, str):
+            try:
+                raw_id = int(raw_id, 0)
+            except ValueError:
+                self.problem(_path(key, "id"), _shown(raw_id), "a frame id (an int or '0x...')")
+                return None
+        if isinstance(raw_id, bool) or not isinstance(raw_id, int) or not 0 <= raw_id <= 0x1FFFFFFF:
+            self.problem(_path(key, "id"), _found(raw_id), "a frame id 0..0x1FFFFFFF")
+            return None
+        extended = value.get("extended", raw_id > 0x7FF)
+        if not isinstance(extended, bool):
+            self.problem(_path(key, "extended"), _found(extended), "true or false")
+            return None
+        if not extended and raw_id > 0x7FF:
+            self.problem(
+                _path(key, "id"), f"0x{raw_id:X}", "a standard frame id 0..0x7FF (or extended: true)"
+            )
+            return None
+        fd = value.get("fd", False)
+        if not isinstance(fd, bool):
+            self.problem(_path(key, "fd"), _found(fd), "true or false")
+            return None
+        payload_b = self.raw_data(value.get("data", ""), _path(key, "data"), fd)
+        if payload_b is None:
+            return None
+        label = f"0x{raw_id:08X}" if extended else f"0x{raw_id:03X}"
+        return FrameSpec(bus, raw_id, payload_b, is_extended_id=extended, is_fd=fd, label=label)
 
     def raw_data(self, value: Any, key: str, fd: bool) -> bytes | None:
         if value is None:

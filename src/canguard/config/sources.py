@@ -171,6 +171,66 @@ class _Sources(_Checks):
             maximum=None if signal.maximum is None else float(signal.maximum),
         )
 
+    def _message_signals(self, key: str, value: Mapping[str, Any], kind: Any, bus: str) -> list[SignalRef]:
+        """The signals of a source of one message (battery, current; any kind when the kind is unknown)."""
+        signals: list[SignalRef] = []
+        msg = self.message(value["message"], _path(key, "message")) if "message" in value else None
+        roles: tuple[tuple[str, str], ...]
+        if kind == "battery":
+            roles = (("current", "current"), ("present", "present"), ("counter", "counter"))
+        elif kind == "current":
+            roles = (("current", "signal"), ("present", "present"), ("counter", "counter"))
+        else:
+            roles = (("current", "current"), ("current", "signal"), ("present", "present"), ("counter", "counter"))
+        for role, k in roles:
+            if msg is None or k not in value:
+                continue
+            sig = self.signal(msg, value[k], _path(key, k))
+            if sig is not None:
+                signals.append(self.signal_ref(role, bus, msg, sig))
+        return signals
+
+    def _effort_signals(self, key: str, value: Mapping[str, Any], bus: str) -> list[SignalRef]:
+        """The joints of a ``joints`` source (``effort:``), each a signal named by its joint."""
+        signals: list[SignalRef] = []
+        effort = value.get("effort")
+        if not isinstance(effort, list) or not effort:
+            if "effort" in value:
+                self.problem(
+                    _path(key, "effort"), _found(effort), "a non-empty list of {message, signal, name}"
+                )
+        else:
+            seen: set[str] = set()
+            for i, item in enumerate(effort):
+                ikey = f"{key}.effort[{i}]"
+                if not self.mapping(
+                    item, ikey, ("message", "signal", "name", "bus"), ("message", "signal", "name")
+                ):
+                    continue
+                jname = item.get("name")
+                if "name" in item:
+                    if not isinstance(jname, str) or not jname or jname in NON_VALUE_ROLES:
+                        self.problem(
+                            _path(ikey, "name"), _found(jname),
+                            "a joint name (a string, not " + ", ".join(sorted(NON_VALUE_ROLES)) + ")",
+                        )
+                        jname = None
+                    elif jname in seen:
+                        self.problem(
+                            _path(ikey, "name"), f"{jname!r} again", "a joint name unique in the source"
+                        )
+                        jname = None
+                    else:
+                        seen.add(jname)
+                ibus = bus if "bus" not in item else self.bus(item["bus"], _path(ikey, "bus"))
+                msg = self.message(item["message"], _path(ikey, "message")) if "message" in item else None
+                if msg is None or "signal" not in item:
+                    continue
+                sig = self.signal(msg, item["signal"], _path(ikey, "signal"))
+                if sig is not None and jname is not None:
+                    signals.append(self.signal_ref(jname, ibus, msg, sig))
+        return signals
+
     def source(self, name: str, value: Any) -> SourceConfig | None:
         key = _path("sources", name)
         if not isinstance(value, Mapping):
@@ -203,57 +263,9 @@ class _Sources(_Checks):
         signals: list[SignalRef] = []
         known = kind in SOURCE_KINDS
         if kind in ("battery", "current") or (not known and "message" in value):
-            msg = self.message(value["message"], _path(key, "message")) if "message" in value else None
-            roles: tuple[tuple[str, str], ...]
-            if kind == "battery":
-                roles = (("current", "current"), ("present", "present"), ("counter", "counter"))
-            elif kind == "current":
-                roles = (("current", "signal"), ("present", "present"), ("counter", "counter"))
-            else:
-                roles = (("current", "current"), ("current", "signal"), ("present", "present"), ("counter", "counter"))
-            for role, k in roles:
-                if msg is None or k not in value:
-                    continue
-                sig = self.signal(msg, value[k], _path(key, k))
-                if sig is not None:
-                    signals.append(self.signal_ref(role, bus, msg, sig))
+            signals.extend(self._message_signals(key, value, kind, bus))
         if kind == "joints" or (not known and "effort" in value):
-            effort = value.get("effort")
-            if not isinstance(effort, list) or not effort:
-                if "effort" in value:
-                    self.problem(
-                        _path(key, "effort"), _found(effort), "a non-empty list of {message, signal, name}"
-                    )
-            else:
-                seen: set[str] = set()
-                for i, item in enumerate(effort):
-                    ikey = f"{key}.effort[{i}]"
-                    if not self.mapping(
-                        item, ikey, ("message", "signal", "name", "bus"), ("message", "signal", "name")
-                    ):
-                        continue
-                    jname = item.get("name")
-                    if "name" in item:
-                        if not isinstance(jname, str) or not jname or jname in NON_VALUE_ROLES:
-                            self.problem(
-                                _path(ikey, "name"), _found(jname),
-                                "a joint name (a string, not " + ", ".join(sorted(NON_VALUE_ROLES)) + ")",
-                            )
-                            jname = None
-                        elif jname in seen:
-                            self.problem(
-                                _path(ikey, "name"), f"{jname!r} again", "a joint name unique in the source"
-                            )
-                            jname = None
-                        else:
-                            seen.add(jname)
-                    ibus = bus if "bus" not in item else self.bus(item["bus"], _path(ikey, "bus"))
-                    msg = self.message(item["message"], _path(ikey, "message")) if "message" in item else None
-                    if msg is None or "signal" not in item:
-                        continue
-                    sig = self.signal(msg, item["signal"], _path(ikey, "signal"))
-                    if sig is not None and jname is not None:
-                        signals.append(self.signal_ref(jname, ibus, msg, sig))
+            signals.extend(self._effort_signals(key, value, bus))
         if not known:
             return None
         return SourceConfig(

@@ -164,6 +164,31 @@ def _byte_aligned(signal: Any) -> tuple[int, str, str] | None:
 _Step = tuple[str, str, int, float, float, bool, bool]
 
 
+def _structs(groups: dict[str, list[tuple[int, str, Any]]], index: dict[str, tuple[int, float, float, bool]],
+             floats: list[bool], fields: list[tuple[int, str, str]]) -> list[struct.Struct] | None:
+    """One Struct per byte order of ``groups``' (offset, code, signal) fields; every wanted value lands at a
+    known index of the joined raw tuple (filled in ``index``, ``floats``, ``fields``). None: fields overlap."""
+    structs: list[struct.Struct] = []
+    n = 0
+    for order, items in groups.items():
+        items.sort(key=lambda item: item[0])
+        fmt, pos = order, 0
+        for offset, code, signal in items:
+            if offset < pos:  # overlapping signals: one Struct cannot express it
+                return None
+            if offset > pos:
+                fmt += f"{offset - pos}x"
+            fmt += code
+            pos = offset + struct.calcsize("<" + code)
+            scale, off = signal.scale, signal.offset
+            index[signal.name] = (n, scale, off, scale == 1 and off == 0)
+            floats.append(code in "fd")
+            fields.append((offset, code, order))
+            n += 1
+        structs.append(struct.Struct(fmt))
+    return structs
+
+
 def _compile_fast(
     message: Any, outputs: tuple[_Output, ...]
 ) -> tuple[_Run, tuple[_Step, ...], Callable[[bytes], tuple[Any, ...]] | None, tuple[bool, ...],
@@ -191,27 +216,9 @@ def _compile_fast(
             break
         offset, code, order = aligned
         groups.setdefault(order, []).append((offset, code, signal))
-    if bits is not None:
-        groups = {}
-    # One Struct per byte order; every wanted value lands at a known index of the joined raw tuple.
-    structs: list[struct.Struct] = []
-    n = 0
-    for order, items in groups.items():
-        items.sort(key=lambda item: item[0])
-        fmt, pos = order, 0
-        for offset, code, signal in items:
-            if offset < pos:  # overlapping signals: one Struct cannot express it
-                return None
-            if offset > pos:
-                fmt += f"{offset - pos}x"
-            fmt += code
-            pos = offset + struct.calcsize("<" + code)
-            scale, off = signal.scale, signal.offset
-            index[signal.name] = (n, scale, off, scale == 1 and off == 0)
-            floats.append(code in "fd")
-            fields.append((offset, code, order))
-            n += 1
-        structs.append(struct.Struct(fmt))
+    structs = _structs({} if bits is not None else groups, index, floats, fields)
+    if structs is None:
+        return None
     plan: tuple[_Step, ...] = tuple((o.source, o.role, *index[o.signal], o.present) for o in outputs)
     unpackers = (bits,) if bits is not None else tuple(st.unpack_from for st in structs)
     single = unpackers[0] if len(unpackers) == 1 else None

@@ -1,6 +1,6 @@
 """A column block's configured rows, decoded message by message (the replay hot path; issue 16).
 
-:func:`decode_rows` is what :meth:`LogRunMixin._run_columns <canguard.engine.logrun.LogRunMixin._run_columns>`
+:func:`decode_rows` is what :meth:`LogRun._run_columns <canguard.engine.logrun.LogRun._run_columns>`
 asks of a block: each configured message's rows decoded together
 (:meth:`MessagePlan.decode <canguard.engine.blocks.MessagePlan.decode>`), the rows of a
 message nobody reads between ticks taken whole, or, when no configured row can change

@@ -187,19 +187,14 @@ class MessagePlan:
         """
         outputs = self.outputs
         for _source, role, _signal, present, health, _lo, _hi, _models in outputs:
-            latest = health._latest_t.get(role)
-            if latest is None or t < latest or t - latest > health.max_age_s or health._invalid.get(role):
-                return None
-            if present and (health._last_reason or not t - health._ok_since <= health.max_age_s):
+            if not health.fresh_valid(role, t) or (present and not health.settled(t)):
                 return None
         self.seen += 1
         edge = False
         tops = self.tops
         for j, (_source, role, _signal, _present, health, _lo, _hi, models) in enumerate(outputs):
             v = values[j]
-            health._latest_t[role] = t
-            health._value[role] = v
-            health._valid_t[role] = t
+            health.take(role, t, v)
             a = -v if v < 0.0 else v
             if a > tops[j]:
                 tops[j] = a
@@ -211,19 +206,15 @@ class MessagePlan:
     def _single_step(self) -> Callable[[tuple[float, ...], float], bool | None]:
         """:meth:`step` of a message with one configured (non-presence) signal."""
         _source, role, _signal, _present, health, _lo, _hi, models = self.outputs[0]
-        latest_t, invalid, value, valid_t = health._latest_t, health._invalid, health._value, health._valid_t
-        max_age = health.max_age_s
+        fresh, take = health.fresh_valid, health.take
         tops = self.tops
         plan = self
 
         def step(values: tuple[float, ...], t: float) -> bool | None:
-            latest = latest_t.get(role)
-            if latest is None or t < latest or t - latest > max_age or invalid.get(role):
+            if not fresh(role, t):
                 return None
             v = values[0]
-            latest_t[role] = t
-            value[role] = v
-            valid_t[role] = t
+            take(role, t, v)
             plan.seen += 1
             a = -v if v < 0.0 else v
             if a > tops[0]:
@@ -272,10 +263,7 @@ class MessagePlan:
         if gap > self.min_age:  # else no gap can exceed it (float subtraction is monotonic)
             gap = max_gap(stamps)
         for _source, role, _signal, _present, health, _lo, _hi, _models in self.outputs:
-            latest = health._latest_t.get(role)
-            if latest is None or first < latest or first - latest > health.max_age_s or gap > health.max_age_s:
-                return False
-            if health._invalid.get(role):
+            if not health.fresh_valid(role, first) or gap > health.max_age_s:
                 return False
         count = len(rows)
         self.counters.frames += count
@@ -284,9 +272,7 @@ class MessagePlan:
         tops = [abs_range(rows, j)[1] for j in range(len(self.outputs))]
         final = last_row(rows)
         for j, (source, role, _signal, _present, health, _lo, _hi, _models) in enumerate(self.outputs):
-            health._latest_t[role] = last
-            health._value[role] = final[j]
-            health._valid_t[role] = last
+            health.take(role, last, final[j])
             _count_samples(self.stats, health, source, role, count, tops[j])
         return True
 

@@ -274,6 +274,40 @@ class TaskGate:
             return nxt
         return math.inf
 
+    @property
+    def cause(self) -> tuple[str, str] | None:
+        """(node, reason) of what holds the stop now, as the last ``reason`` event said; None: not stopped."""
+        return self._cause
+
+    @property
+    def confirm_pending(self) -> bool:
+        """A stop waits for its confirmation (``stop.confirm``)."""
+        return self._confirm_pending
+
+    @property
+    def next_task_t(self) -> float:
+        """When the task's periodic frames are next due (inf: not running)."""
+        return self._next_task
+
+    @property
+    def counts_only(self) -> bool:
+        """Its frames are only counted (a replay without ``--emit``): nobody reads them as they go."""
+        sink = self.sink
+        return isinstance(sink, LogSink) and sink.out is None and not sink.keep
+
+    def count_task_through(self, last: float) -> None:
+        """The task's periodic sends due up to ``last`` counted at once, as :meth:`service` at each deadline
+        would count them; only while :attr:`counts_only` (quiet replay ticks)."""
+        task, period, sends = self._next_task, self.task_cfg.period_s, 0
+        while task <= last:  # as service at each deadline (a tick at the same time goes first)
+            sends += 1
+            task += period
+        if sends:
+            self._next_task = task
+            sink = self.sink
+            assert isinstance(sink, LogSink)
+            sink.sent += sends * len(self.task_cfg.frames)
+
     def skip_to(self, t: float) -> None:
         """After a gap in time (a stall, a gap in a log): periodic frames due before ``t`` are due at ``t``.
 

@@ -1,11 +1,11 @@
 """Replaying a recorded log through the engine: routing, the unconfigured-frame short path, column blocks.
 
-:class:`LogRunMixin` gives :class:`~canguard.engine.core.Engine` its :meth:`run_log`:
-the same :meth:`feed` / :meth:`advance` as live, with frames of no configured message
+:class:`LogRun` is what :meth:`Engine.run_log <canguard.engine.core.Engine.run_log>` calls:
+the engine's own :meth:`feed` / :meth:`advance` as live, with frames of no configured message
 counted without decoding and column blocks (plain candump text, or python-can
 formats through :mod:`canguard.io.pycan_blocks`) worked on as columns, each
-configured message's rows decoded together (:mod:`canguard.engine.blocks`). Split
-from the engine's core so each stays readable.
+configured message's rows decoded together (:mod:`canguard.engine.blocks`). It talks
+to the engine through its public interface only.
 """
 
 from __future__ import annotations
@@ -15,9 +15,7 @@ from bisect import bisect_left
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from itertools import compress
-from typing import TYPE_CHECKING, Any
-
-import py_trees
+from typing import TYPE_CHECKING, Any, Protocol
 
 from canguard.engine.blockrows import decode_rows
 from canguard.engine.lanes import LANE, configured_rows, key_table, lane_plans
@@ -27,53 +25,66 @@ MAX_CATCH_UP_S = 2.0
 """Longest stretch of missed ticks the engine replays one by one after a gap (see :meth:`Engine.advance`)."""
 
 if TYPE_CHECKING:
+    import py_trees
+
     from canguard.bt.context import Context
     from canguard.config.schema import Config
     from canguard.decode.decoder import Decoder
     from canguard.engine.blocks import MessagePlan
+    from canguard.engine.quiet import QuietTicks
     from canguard.engine.stats import EngineStats
     from canguard.io.candump_np import ByteColumns
     from canguard.io.clock import PinnedClock
     from canguard.io.logs import Columns
 
 
-class LogRunMixin:
-    """The log-replay half of the engine (see the module docstring)."""
+class Engine(Protocol):
+    """What :class:`LogRun` asks of the engine (:class:`canguard.engine.core.Engine` is one)."""
 
-    if TYPE_CHECKING:  # what the engine provides
-        cfg: Config
-        ctx: Context
-        clock: PinnedClock
-        decoder: Decoder
-        stats: EngineStats
-        columns: bool
-        _due: float
-        _last_frame_t: float
-        _drive_clock: Callable[[float], None]
-        _wanted: frozenset[tuple[str, int, bool]]
-        _plans: dict[str, dict[str | int, MessagePlan | None]]
-        _plan_tables: dict[str, tuple[Any, Any]]
-        _lane_plans: dict[tuple[str, ...], tuple[dict[int, MessagePlan | None], tuple[Any, Any]]]
-        _plan_list: dict[str, list[MessagePlan]]
-        _dirty: bool
-        durable: bool
-        events: Any
-        metrics: Any
-        extra_on_event: Callable[[dict[str, Any]], None] | None
-        sample_hook: Callable[[Any], None] | None
-        sample_block: Callable[[Sequence[Any], list[Any], list[tuple[int, Any]]], None] | None
-        elide_ticks: bool
-        replay_quiet_ticks: bool
-        _q_fixed: bool
-        _next_tick: float
-        last_due_run: float
+    cfg: Config
+    decoder: Decoder
+    stats: EngineStats
+    ctx: Context
+    metrics: Any
+    quiet: QuietTicks
+    clock: PinnedClock
+    columns: bool
+    replay_quiet_ticks: bool
+    elide_ticks: bool
+    sample_hook: Callable[[Any], None] | None
+    sample_block: Callable[[Any, list[Any], list[tuple[int, Any]]], None] | None
+    last_due_run: float
 
-        def feed(self, bus: str, frame: Frame) -> None: ...
-        def advance(self, now: float) -> None: ...
-        def tick(self, now: float) -> py_trees.common.Status: ...
-        def _block_horizon(self, fresh: Mapping[int, Mapping[str, float]]) -> float: ...
+    @property
+    def due(self) -> float: ...
+    @property
+    def next_tick_t(self) -> float: ...
+    def feed(self, bus: str, frame: Frame) -> None: ...
+    def advance(self, now: float) -> None: ...
+    def tick(self, now: float) -> py_trees.common.Status: ...
+    def drive_clock(self, t: float) -> None: ...
+    def frame_time(self, t: float) -> None: ...
 
-    def run_log(
+
+class LogRun:
+    """Feeds a recorded log to one engine (see the module docstring); it keeps its message plans per bus."""
+
+    def __init__(self, engine: Engine) -> None:
+        self.engine = engine
+        self.decoder = engine.decoder
+        self.stats = engine.stats
+        self.ctx = engine.ctx
+        self._wanted = frozenset(self.decoder.keys())
+        self._plans: dict[str, dict[str | int, MessagePlan | None]] = {}
+        """Per bus: id text -> the column plan of the replay block path (see :mod:`canguard.engine.blocks`)."""
+        self._plan_tables: dict[str, tuple[Any, Any]] = {}
+        """Per bus: the integer keys of :attr:`_plans`, as numpy blocks look them up (:func:`.lanes.key_table`)."""
+        self._lane_plans: dict[tuple[str, ...], tuple[dict[int, MessagePlan | None], tuple[Any, Any]]] = {}
+        """Per channels-to-buses of a numpy block that mixes buses: its plans and their key table (:mod:`.lanes`)."""
+        self._plan_list: dict[str, list[MessagePlan]] = {}
+        """Per bus: every plan, flushed at the end of each block."""
+
+    def run(
         self, frames: Iterable[Frame], route: Mapping[str, str], default_bus: str | None,
         unmapped: dict[str, int], channels: dict[str, int] | None = None,
     ) -> None:
@@ -93,8 +104,9 @@ class LogRunMixin:
         them (a bisection over the block's timestamps).
         """
         cursor = _LogCursor(route, default_bus, unmapped, channels)
-        self.elide_ticks = self.replay_quiet_ticks  # grid ticks proven to repeat the last one: counted, not run
-        if self.columns and hasattr(frames, "chunks"):
+        engine = self.engine
+        engine.elide_ticks = engine.replay_quiet_ticks  # grid ticks proven to repeat the last one: counted, not run
+        if engine.columns and hasattr(frames, "chunks"):
             for chunk in frames.chunks():
                 if type(chunk) is list:
                     self._run_frames(chunk, cursor)
@@ -104,13 +116,13 @@ class LogRunMixin:
             self._run_frames(frames, cursor)
         last_t = cursor.last_t
         if last_t > -math.inf:
-            self._drive_clock(last_t)
-            if last_t > self._last_frame_t:
-                self._last_frame_t = last_t
+            engine.drive_clock(last_t)
+            engine.frame_time(last_t)
 
     def _run_frames(self, frames: Iterable[Frame], cursor: _LogCursor) -> None:
-        """:meth:`run_log` over frames one by one."""
-        feed = self.feed
+        """:meth:`run` over frames one by one."""
+        engine = self.engine
+        feed = engine.feed
         wanted = self._wanted
         per_bus = self.decoder.per_bus
         stats = self.stats
@@ -137,7 +149,7 @@ class LogRunMixin:
                 and (bus, frame.arbitration_id, frame.is_extended_id) not in wanted
                 and not frame.is_error_frame
                 and not frame.is_remote_frame
-                and t < self._due
+                and t < engine.due
             ):
                 counters = per_bus.get(bus)
                 if counters is not None:
@@ -158,70 +170,28 @@ class LogRunMixin:
         cursor.last_t, cursor.started = last_t, started
 
     def _run_columns(self, cols: Columns | ByteColumns, cursor: _LogCursor) -> bool:
-        """:meth:`run_log` over a column block; False (nothing done) when it must go frame by frame.
+        """:meth:`run` over a column block; False (nothing done) when it must go frame by frame.
 
         A numpy block may mix channels (``lanes``): each row then goes to its channel's bus,
         with the plans of that bus (one key per channel and id when the buses differ).
         """
-        export = self.sample_block
-        if not cols.ordered or (self.sample_hook is not None and export is None):
+        engine = self.engine
+        export = engine.sample_block
+        if not cols.ordered or (engine.sample_hook is not None and export is None):
             return False
         # The timestamps: a numpy block's as an array (its list is made only for rows that go one by one)
         ts: Any = cols.ts if isinstance(cols, tuple) else cols.stamps
-        n = cols.n
         if float(ts[0]) < cursor.last_t:
             return False  # back in time across blocks: the frame-by-frame rules count it
-        channel = cols.channel
-        lanes = getattr(cols, "lanes", None)
-        if channel is None:
-            if lanes is None:
-                return False
-            buses: list[str] = []
-            for name in getattr(cols, "channels", ()):
-                found = cursor.route.get(name, cursor.default_bus)
-                if found is None or found not in self.decoder.per_bus:
-                    return False  # a channel of no bus: its rows do not move time; frame by frame
-                buses.append(found)
-            bus = buses[0] if len(set(buses)) == 1 else ""
-        else:
-            routed = cursor.route.get(channel, cursor.default_bus)
-            if routed is not None and routed not in self.decoder.per_bus:
-                return False
-            if routed is None:
-                if cursor.channels is not None:
-                    cursor.channels[channel] = cursor.channels.get(channel, 0) + n
-                cursor.unmapped[channel] = cursor.unmapped.get(channel, 0) + n
-                return True
-            bus = routed
-            buses = [bus]
+        buses = self._route(cols, cursor)
+        if type(buses) is bool:
+            return buses
+        assert isinstance(buses, list)
         first = 0
         if not cursor.started:
             self._run_frames((cols.frame(0),), cursor)  # the first frame is fed: it starts the engine's clock
             first = 1
-        for b in set(buses):
-            if b not in self._plans:
-                self._plans[b] = self._compile_plans(b)
-        keys = getattr(cols, "keys", None)
-        bus_at: list[str] | None = None
-        if bus:  # one bus
-            plans = self._plans[bus]
-            if keys is not None and plans:  # a numpy block: its configured rows found by numpy
-                table = self._plan_tables.get(bus)
-                if table is None:
-                    table = self._plan_tables[bus] = key_table(plans)
-                rows = configured_rows(keys, table)
-            else:
-                rows = list(compress(range(n), map(plans.__contains__, cols.ids))) if plans else []
-        else:  # channels of several buses: a key per (channel, id)
-            assert lanes is not None and keys is not None
-            lane = self._lane_plans.get(tuple(buses))
-            if lane is None:
-                joined = lane_plans([self._plans[b] for b in buses])
-                lane = self._lane_plans[tuple(buses)] = (joined, key_table(joined))
-            plans = lane[0]  # type: ignore[assignment]
-            keys = keys + lanes * LANE
-            rows = configured_rows(keys, lane[1])
-            bus_at = list(map(buses.__getitem__, lanes.tolist()))
+        plans, rows, keys, bus_at = self._configured(cols, buses)
         # rows: a list, or a numpy block's index array (a list only if its rows go one by one below)
         remote = cols.remote
         if remote:  # counted by the decoder as remote frames, configured or not: fed
@@ -231,7 +201,8 @@ class LogRunMixin:
         tally = _lane_tally(cols, rows, first)
         last_row = int(rows[-1]) if len(rows) else -1  # the last row feed would see, whatever path takes it
         taken: list[tuple[MessagePlan, Any, Sequence[Any]]] | None = [] if export is not None else None
-        slots = decode_rows(plans, rows, cols, ts, self._q_fixed, keys, taken, self._block_horizon) if len(rows) else []
+        quiet = engine.quiet
+        slots = decode_rows(plans, rows, cols, ts, quiet.fixed, keys, taken, quiet.block_horizon) if len(rows) else []
         if slots is None:
             rows = []  # every row taken whole: only the ticks due in the block are left
             slots = []
@@ -239,16 +210,86 @@ class LogRunMixin:
             ts = cols.ts  # read row by row below: as floats
             if type(rows) is not list:
                 rows = rows.tolist()
-        feed = self.feed
-        frame = cols.frame
-        pos = first
-        due = self._due  # plans never change it; advance, feed and tick may
-        if taken is not None:  # --export-signals: the samples of fed rows kept with their row, for the block's export
+        walk = _Walk(cols, ts, rows, slots, buses[0] if bus_at is None else "", bus_at)
+        if taken is None:
+            pos = self._walk(walk, first, None)
+        else:  # --export-signals: the samples of fed rows kept with their row, for the block's export
+            assert export is not None
             fed: list[tuple[int, Any]] = []
+            pos = self._walk(walk, first, fed)
+            export(ts, [(plan.names, group, decoded) for plan, group, decoded in taken], fed)
+        self._cross(ts, pos, cols.n)
+        for b in set(buses):
+            for plan in self._plan_list[b]:
+                plan.flush()
+        self._count_lanes(cursor, cols, buses, tally, first)
+        cursor.last_t = float(ts[-1])
+        if last_row >= 0:
+            engine.frame_time(float(ts[last_row]))  # as frame by frame: the last row fed (not ts[-1])
+        return True
+
+    def _route(self, cols: Columns | ByteColumns, cursor: _LogCursor) -> list[str] | bool:
+        """The bus of each of a block's channels (lanes), or of its one channel; True: the block's channel maps
+        to no bus (its rows counted as unmapped: done); False: it must go frame by frame."""
+        channel = cols.channel
+        if channel is None:
+            if getattr(cols, "lanes", None) is None:
+                return False
+            buses: list[str] = []
+            for name in getattr(cols, "channels", ()):
+                found = cursor.route.get(name, cursor.default_bus)
+                if found is None or found not in self.decoder.per_bus:
+                    return False  # a channel of no bus: its rows do not move time; frame by frame
+                buses.append(found)
+            return buses
+        routed = cursor.route.get(channel, cursor.default_bus)
+        if routed is None:
+            n = cols.n
+            if cursor.channels is not None:
+                cursor.channels[channel] = cursor.channels.get(channel, 0) + n
+            cursor.unmapped[channel] = cursor.unmapped.get(channel, 0) + n
+            return True
+        return [routed] if routed in self.decoder.per_bus else False
+
+    def _configured(self, cols: Columns | ByteColumns, buses: list[str]) -> tuple[Any, Any, Any, list[str] | None]:
+        """(plans, the block's rows of configured messages, the keys its plans are looked up by, each row's bus
+        when its channels go to several buses)."""
+        for b in set(buses):
+            if b not in self._plans:
+                self._plans[b] = self._compile_plans(b)
+        keys = getattr(cols, "keys", None)
+        if len(set(buses)) == 1:  # one bus
+            bus = buses[0]
+            plans = self._plans[bus]
+            if keys is not None and plans:  # a numpy block: its configured rows found by numpy
+                table = self._plan_tables.get(bus)
+                if table is None:
+                    table = self._plan_tables[bus] = key_table(plans)
+                return plans, configured_rows(keys, table), keys, None
+            rows = list(compress(range(cols.n), map(plans.__contains__, cols.ids))) if plans else []
+            return plans, rows, keys, None
+        lanes = getattr(cols, "lanes", None)  # channels of several buses: a key per (channel, id)
+        assert lanes is not None and keys is not None
+        lane = self._lane_plans.get(tuple(buses))
+        if lane is None:
+            joined = lane_plans([self._plans[b] for b in buses])
+            lane = self._lane_plans[tuple(buses)] = (joined, key_table(joined))
+        keys = keys + lanes * LANE
+        return lane[0], configured_rows(keys, lane[1]), keys, list(map(buses.__getitem__, lanes.tolist()))
+
+    def _walk(self, walk: _Walk, first: int, fed: list[tuple[int, Any]] | None) -> int:
+        """A block's configured rows in time order: ticks due among them, each row taken by its plan or fed
+        (``fed``: the samples of fed rows, with their row, for ``--export-signals``); the row after the last
+        row walked."""
+        engine = self.engine
+        if fed is not None:
             at = [0]
-            hook, self.sample_hook = self.sample_hook, lambda sample: fed.append((at[0], sample))
+            hook, engine.sample_hook = engine.sample_hook, lambda sample: fed.append((at[0], sample))
+        feed, frame, ts, slots, bus, bus_at = engine.feed, walk.cols.frame, walk.ts, walk.slots, walk.bus, walk.bus_at
+        pos = first
+        due = engine.due  # plans never change it; advance, feed and tick may
         try:
-            for i in rows:
+            for i in walk.rows:
                 item = slots[i]
                 if item is None:
                     continue  # taken whole, or without a configured signal: counted by its plan
@@ -256,36 +297,23 @@ class LogRunMixin:
                 t = float(ts[i])
                 if t >= due:
                     self._cross(ts, pos, i)  # a tick falls due among the rows before this one, or at it
-                    if t >= self._due:
-                        self.advance(t)
-                    due = self._due
+                    if t >= engine.due:
+                        engine.advance(t)
                 pos = i + 1
                 edge = plan.step(values, t) if values is not None and plan is not None else None
                 if edge is None:
-                    if taken is not None:
+                    if fed is not None:
                         at[0] = i
                     feed(bus if bus_at is None else bus_at[i], frame(i))  # the general path, what plans must equal
-                    due = self._due
                 elif edge:
-                    self._drive_clock(t)
+                    engine.drive_clock(t)
                     self.stats.edge_ticks += 1
-                    self.tick(self.clock.now())
-                    due = self._due
+                    engine.tick(engine.clock.now())
+                due = engine.due
         finally:
-            if taken is not None:
-                self.sample_hook = hook  # the export's own hook back, whatever the block raised
-        if taken is not None:
-            assert export is not None
-            export(ts, [(plan.names, group, decoded) for plan, group, decoded in taken], fed)
-        self._cross(ts, pos, n)
-        for b in set(buses):
-            for plan in self._plan_list[b]:
-                plan.flush()
-        self._count_lanes(cursor, cols, buses, tally, first)
-        cursor.last_t = float(ts[-1])
-        if last_row >= 0 and float(ts[last_row]) > self._last_frame_t:
-            self._last_frame_t = float(ts[last_row])  # as frame by frame: the last row fed (not ts[-1])
-        return True
+            if fed is not None:
+                engine.sample_hook = hook  # the export's own hook back, whatever the block raised
+        return pos
 
     def _count_lanes(self, cursor: _LogCursor, cols: Any, buses: list[str], tally: list[tuple[int, int]],
                      first: int) -> None:
@@ -310,20 +338,21 @@ class LogRunMixin:
         What :meth:`feed` does for such a frame, without decoding it; repeated while
         another due time falls among the rows left.
         """
-        while lo < hi and float(ts[hi - 1]) >= self._due:
+        engine = self.engine
+        while lo < hi and float(ts[hi - 1]) >= engine.due:
             last = float(ts[hi - 1])
-            if last - self._next_tick <= MAX_CATCH_UP_S:
+            if last - engine.next_tick_t <= MAX_CATCH_UP_S:
                 # No gap among these rows: one advance runs every due time they bring, each at its own
                 # time, as row by row would (the rows change nothing else); the clock and the last
                 # frame time end at the row that brought the last of them.
-                self.advance(last)
-                k = bisect_left(ts, self.last_due_run, lo, hi, key=float)
+                engine.advance(last)
+                k = bisect_left(ts, engine.last_due_run, lo, hi, key=float)
             else:
-                k = bisect_left(ts, self._due, lo, hi, key=float)
-                self.advance(float(ts[k]))
+                k = bisect_left(ts, engine.due, lo, hi, key=float)
+                engine.advance(float(ts[k]))
             t = float(ts[k])
-            self._drive_clock(t)
-            self._last_frame_t = t  # as feed: not before it (ordered, from cursor.last_t on)
+            engine.drive_clock(t)
+            engine.frame_time(t)  # as feed: not before it (ordered, from cursor.last_t on)
             lo = k + 1
 
     def _compile_plans(self, bus: str) -> dict[str | int, MessagePlan | None]:
@@ -338,18 +367,20 @@ class LogRunMixin:
         made = self._plan_list.setdefault(bus, [])
         # the stop confirmation reads its source between ticks: not passive; metrics count per frame
         readers: set[str] | None = set(self.ctx.read_sources)
-        confirm = self.cfg.stop.confirm.source if self.cfg.stop.confirm is not None else None
+        cfg = self.engine.cfg
+        metrics = self.engine.metrics is not None
+        confirm = cfg.stop.confirm.source if cfg.stop.confirm is not None else None
         if confirm is not None:
             assert readers is not None
             readers.add(confirm)
-        if self.metrics is not None:
+        if metrics:
             readers = None
         for (b, cid, ext), entry in self.decoder.entries():
             if b != bus:
                 continue
             plan = compile_plan(entry, counters, self.ctx, self.stats, readers)
             if plan is not None:
-                plan.settle_ok = may_settle(plan, self.metrics is not None, self.ctx.read_sources)
+                plan.settle_ok = may_settle(plan, metrics, self.ctx.read_sources)
                 plan.confirm_read = any(source == confirm for source, *_rest in plan.outputs)
                 made.append(plan)
             for text in candump_id_texts(cid, ext):
@@ -371,6 +402,19 @@ def _lane_tally(cols: Any, rows: Any, first: int) -> list[tuple[int, int]]:
     if first:
         taken[int(lanes[0])] += 1
     return list(zip(per_lane, taken, strict=True))
+
+
+@dataclass
+class _Walk:
+    """A column block's rows as :meth:`LogRun._walk` takes them."""
+
+    cols: Any
+    ts: Any
+    rows: Any
+    slots: Any
+    bus: str
+    """The bus of every row, or "" when they go to several (``bus_at``)."""
+    bus_at: list[str] | None
 
 
 @dataclass

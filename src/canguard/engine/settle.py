@@ -25,7 +25,7 @@ A block is settled only when, for every configured message in it:
 - when its source is the stop confirmation's (which reads the value between ticks, while a
   stop waits for it): no confirmation is pending, and the block ends before the quiet
   horizon of the last fixed point, counted with the block's rows taken
-  (:meth:`QuietTickMixin._block_horizon <canguard.engine.quiet.QuietTickMixin._block_horizon>`):
+  (:meth:`QuietTicks.block_horizon <canguard.engine.quiet.QuietTicks.block_horizon>`):
   no tick in it can stop the task and start one.
 
 And the tick before the block was a fixed point reaching no loud node (the quiet
@@ -72,7 +72,7 @@ def may_settle(plan: MessagePlan, metrics: bool, tree_reads: Collection[str]) ->
         return False
     own = {role for _source, role, *_rest in plan.outputs}
     # a presence flag: the source's other signals are in the same message (as sources: configures them)
-    return all((present and own.issuperset(health._value_roles)) or models or source not in tree_reads
+    return all((present and own.issuperset(health.value_roles)) or models or source not in tree_reads
                for source, _role, _signal, present, health, _lo, _hi, models in plan.outputs)
 
 
@@ -88,11 +88,10 @@ def prepare(plan: MessagePlan, stamps: Sequence[str], rows: Sequence[tuple[float
     if last - first > plan.min_age and max_gap(stamps) > plan.min_age:  # else no gap can exceed it (float
         return None  # subtraction is monotonic)
     for _source, role, _signal, _present, health, _lo, _hi, _models in plan.outputs:
-        latest = health._latest_t.get(role)
-        if latest is None or first < latest or first - latest > health.max_age_s or health._invalid.get(role):
+        if not health.fresh_valid(role, first):
             return None
     for health in plan.present_healths:
-        if health._last_reason:  # the source's reason as its last full look found it (step's own test)
+        if health.last_reason:  # the source's reason as its last full look found it (step's own test)
             return None
     return plan, rows, first, last  # type: ignore[return-value]  # no None left in rows
 
@@ -101,8 +100,8 @@ def settle(prepared: list[Prepared], end: float = math.inf,
            horizon: Callable[[Mapping[int, Mapping[str, float]]], float] | None = None) -> bool:
     """Take every prepared message's rows whole if every model agrees; False: nothing changed, go row by row.
 
-    ``end``: the block's last time; ``horizon``: :meth:`QuietTickMixin._block_horizon
-    <canguard.engine.quiet.QuietTickMixin._block_horizon>`, which a block feeding the stop
+    ``end``: the block's last time; ``horizon``: :meth:`QuietTicks.block_horizon
+    <canguard.engine.quiet.QuietTicks.block_horizon>`, which a block feeding the stop
     confirmation's source must end before.
     """
     if any(plan.confirm_read for plan, *_rest in prepared):
@@ -127,9 +126,7 @@ def settle(prepared: list[Prepared], end: float = math.inf,
         for j, (_source, role, _signal, _present, health, _lo, _hi, models) in enumerate(plan.outputs):
             for model in models:
                 model.take_run(final[j], last_t)
-            health._latest_t[role] = last_t
-            health._value[role] = final[j]
-            health._valid_t[role] = last_t
+            health.take(role, last_t, final[j])
             if highs[j] > tops[j]:
                 tops[j] = highs[j]
         plan.seen += len(rows)

@@ -10,6 +10,7 @@ from canguard.engine.gate import TaskGate
 if TYPE_CHECKING:
     from canguard.bt.context import Context
     from canguard.config.schema import Config
+    from canguard.engine.journal import Journal
     from canguard.engine.stats import EngineStats
     from canguard.io.clock import PinnedClock
 
@@ -22,42 +23,55 @@ CAN_ERR_CRTL_ACTIVE = 0x40
 """The controller is back to error-active."""
 
 
-class SourceWatchMixin:
-    """Source freshness and bus health as stops (inhibits), independent of what the tree says."""
+class SourceWatch:
+    """Source freshness and bus health as stops (inhibits), independent of what the tree says.
 
-    if TYPE_CHECKING:  # what the engine provides
-        cfg: Config
-        ctx: Context
-        clock: PinnedClock
-        gate: TaskGate
-        stats: EngineStats
-        metrics: Any
-        _due: float
-        _stale: dict[str, str]
-        _started_at: float
-        _start_grace_s: float
-        _guard_nodes: list[Any]
-        _cover: list[Any]
-        period_s: float
+    Owned by the engine; it holds the task through the gate (:meth:`TaskGate.inhibit`) and
+    says why in the journal. Whatever moves the gate's deadlines, the engine reads them
+    again after each call (:meth:`TaskGate.next_deadline`).
+    """
 
-        def _event(self, event: dict[str, Any]) -> None: ...
-        def _flush(self) -> None: ...
+    def __init__(self, cfg: Config, ctx: Context, gate: TaskGate, journal: Journal, stats: EngineStats,
+                 metrics: Any, clock: PinnedClock, guard_nodes: list[Any], period_s: float) -> None:
+        self.ctx = ctx
+        self.gate = gate
+        self.journal = journal
+        self.stats = stats
+        self.metrics = metrics
+        self.clock = clock
+        self.guard_nodes = guard_nodes
+        self.period_s = period_s
+        read = [cfg.sources[s].max_age_s for s in ctx.read_sources if s in cfg.sources]
+        self.start_grace_s = max(read, default=0.0)
+        """How long after the start a failing tree only keeps the task from starting (:meth:`starting`)."""
+        self.started_at = math.nan
+        """When the engine started (set by :meth:`Engine.start <canguard.engine.core.Engine.start>`)."""
+        self.stale: dict[str, str] = {}
+        """Each source's reason as the last tick saw it ("" fresh)."""
+        self.cover: list[Any] = []
+        """The guards ticked when the task last started: they must keep being ticked (see :meth:`guards`)."""
 
-    def _starting(self, now: float) -> bool:
+    def adopt(self, old: SourceWatch) -> None:
+        """Continue ``old``'s watch (config reload): the sources' reasons and the start time."""
+        self.stale = dict(old.stale)
+        self.started_at = old.started_at
+
+    def starting(self, now: float) -> bool:
         """True while the task never ran and the sources still have their first max_age to speak.
 
         A tree that fails in that window only keeps the task from starting: the
         drives were never enabled, so no stop frames go out (they would latch an
         ESTOP error that needs clearing). After it, a failing tree stops, enabled or not.
         """
-        return self.gate.state == TaskGate.IDLE and now - self._started_at < self._start_grace_s
+        return self.gate.state == TaskGate.IDLE and now - self.started_at < self.start_grace_s
 
-    def _watch_sources(self, now: float) -> None:
+    def sources(self, now: float) -> None:
+        """At a tick: each source's reason; a source the tree reads holds the task while it is stale."""
         for name, health in self.ctx.health.items():
             reason = health.reason(now)
-            if reason == "no_data" and now - self._started_at < self.ctx.sources[name].max_age_s:
+            if reason == "no_data" and now - self.started_at < self.ctx.sources[name].max_age_s:
                 reason = ""  # not yet: every source gets max_age to send its first frame
-            prev = self._stale.get(name, "")
+            prev = self.stale.get(name, "")
             if name in self.ctx.read_sources:
                 # Backstop, whatever the tree's shape: a source the tree reads that is stale or
                 # invalid holds the task stopped until it is fine again.
@@ -66,17 +80,17 @@ class SourceWatchMixin:
                 elif prev:
                     self.gate.release(f"source {name}")
             if reason != prev:
-                self._stale[name] = reason
+                self.stale[name] = reason
                 if reason:
-                    self._event({"event": "stale", "source": name, "reason": reason,
+                    self.journal.write({"event": "stale", "source": name, "reason": reason,
                                  "read_by_tree": name in self.ctx.read_sources})
                 else:
-                    self._event({"event": "fresh", "source": name, "reason": f"{prev} cleared"})
+                    self.journal.write({"event": "fresh", "source": name, "reason": f"{prev} cleared"})
             if self.metrics is not None:
                 age = health.age(now, None) if hasattr(health, "age") else math.nan
                 self.metrics.set_sample_age(name, age)
 
-    def _watch_guards(self, now: float, was_running: bool) -> None:
+    def guards(self, now: float, was_running: bool) -> None:
         """Every guard of the tree must keep being ticked while the task runs (safety table row T4).
 
         A tree can leave its guards behind while the task runs (a RunOnce around a guard, a
@@ -89,18 +103,19 @@ class SourceWatchMixin:
         """
         gate = self.gate
         if gate.state == TaskGate.RUNNING and not was_running:
-            self._cover = list(self._guard_nodes)
+            self.cover = list(self.guard_nodes)
         left = [
-            g for g in self._cover
+            g for g in self.cover
             if g.source is not None and now - g.judged_t > max(g.source.max_age_s, self.period_s)
         ]
         if left and gate.state == TaskGate.RUNNING:
             names = ", ".join(g.name for g in left)
             gate.inhibit("guards", f"guards not ticked while the task runs: {names}", now, node=left[0].name)
-        elif "guards" in gate.inhibits and all(g.judged_t == now for g in self._cover):
+        elif "guards" in gate.inhibits and all(g.judged_t == now for g in self.cover):
             gate.release("guards")
 
-    def _sample_levels(self) -> None:
+    def sample_levels(self) -> None:
+        """The I²t levels at a tick: their peaks (summaries) and metrics."""
         levels = self.stats.max_level_pct
         for node, model in self.ctx.heat_models.items():
             pct = model.snapshot().level_pct
@@ -112,10 +127,9 @@ class SourceWatchMixin:
     def bus_down(self, bus: str, reason: str) -> None:
         """A bus went away: the task stops (frames out on the buses still up) until :meth:`bus_up`."""
         now = self.clock.now()
-        self._event({"event": "bus_error", "source": bus, "reason": reason})
+        self.journal.write({"event": "bus_error", "source": bus, "reason": reason})
         self.gate.inhibit(f"bus {bus}", f"bus {bus} down: {reason}", now)
-        self._due = min(self._due, self.gate.next_deadline())
-        self._flush()
+        self.journal.flush()
 
     def controller_state(self, bus: str, frame: Any) -> None:
         """An error frame's controller report (SocketCAN's ``CAN_ERR_CRTL`` class): error-passive holds the task.
@@ -135,11 +149,11 @@ class SourceWatchMixin:
                 side = "/".join(s for s, bit in (("rx", CAN_ERR_CRTL_RX_PASSIVE), ("tx", CAN_ERR_CRTL_TX_PASSIVE))
                                 if state & bit)
                 reason = f"bus {bus}: controller error-passive ({side}): frames may not get through"
-                self._event({"event": "bus_error", "source": bus, "reason": reason})
+                self.journal.write({"event": "bus_error", "source": bus, "reason": reason})
                 self.gate.inhibit(key, reason, now)
-                self._due = min(self._due, self.gate.next_deadline())
         elif state & CAN_ERR_CRTL_ACTIVE and key in self.gate.inhibits:
-            self._event({"event": "bus_error", "source": bus, "reason": f"bus {bus}: controller error-active again"})
+            again = f"bus {bus}: controller error-active again"
+            self.journal.write({"event": "bus_error", "source": bus, "reason": again})
             self.gate.release(key)
 
     def overrun(self, waited_s: float, limit_s: float) -> None:
@@ -153,18 +167,17 @@ class SourceWatchMixin:
         now = self.clock.now()
         reason = (f"frames waited {waited_s:.3f} s in canguard's receive queue (limit {limit_s:.3f} s): "
                   "the daemon is behind its buses")
-        self._event({"event": "overrun", "reason": reason})
+        self.journal.write({"event": "overrun", "reason": reason})
         self.gate.inhibit("overrun", reason, now)
-        self._due = min(self._due, self.gate.next_deadline())
-        self._flush()
+        self.journal.flush()
 
     def caught_up(self, waited_s: float) -> None:
         """Frames wait no more than ``waited_s`` again: the ``overrun`` inhibit is released."""
         if "overrun" not in self.gate.inhibits:
             return
-        self._event({"event": "overrun", "reason": f"caught up: frames wait {waited_s:.3f} s"})
+        self.journal.write({"event": "overrun", "reason": f"caught up: frames wait {waited_s:.3f} s"})
         self.gate.release("overrun")
-        self._flush()
+        self.journal.flush()
 
     def bus_up(self, bus: str) -> None:
         """The bus is open again: its inhibits are released (the tree decides whether the task resumes)."""

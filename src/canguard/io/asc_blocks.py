@@ -212,7 +212,7 @@ def asc_chunks(p: Path, gz: str, st: ReadStats, owner: LogFrames) -> Iterator[Co
                 last_t = count_batch(st, batch, last_t)
                 frames += batch.n
                 yield from batch.pieces()
-            owner._position(raw.tell())
+            owner.reached(raw.tell())
             try:
                 block = _block(f)
             except decompress_errors():
@@ -222,7 +222,7 @@ def asc_chunks(p: Path, gz: str, st: ReadStats, owner: LogFrames) -> Iterator[Co
             f.close()
         raw.close()
         if not fallback:
-            owner._done()
+            owner.finished()
     if fallback:  # the rest of the file is python-can's, which passes over the frames given already
         yield from python_can_chunks(p, "asc", gz, st, owner, skip=frames, last_t=last_t)
     elif frames == 0:

@@ -6,11 +6,10 @@ other block line by line by the general parser, which names the file:line of a b
 from __future__ import annotations
 
 import math
-import operator
 import os
 import sys
 from collections.abc import Callable, Iterator
-from itertools import islice, repeat
+from itertools import repeat
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -49,14 +48,7 @@ NUMPY_AFTER_BLOCKS: int | None = None
 file of 1 MiB or more, else from the third or once numpy is loaded (most DBCs' messages need it), so a short log
 of messages decoded without numpy never imports it (60 ms). An int forces it (tests)."""
 
-_BULK_TABLE = str.maketrans({"(": None, ")": None, " ": "#", "\n": "#"})
 _MARKERS = frozenset("TRtr")
-_HEX_BYTES = b"0123456789abcdefABCDEF"
-_TS_BYTES = b"0123456789."
-_DATA_LENGTHS = frozenset(range(0, 17, 2))
-_FD_HEX_LENGTHS = frozenset(2 * n for n in CANFD_LENGTHS)
-_REMOTE = frozenset("Rr")
-_GOOD_IDS: set[str] = set()  # id texts found well formed (up to 65,536): a 500-id log checked each in every block
 
 
 class Columns(NamedTuple):
@@ -110,86 +102,6 @@ class Columns(NamedTuple):
             zip(map(float, self.ts), self.chans, map(int, self.ids, repeat(16)), map(bytes.fromhex, self.data),
                 ext, repeat(_F), repeat(_F), repeat(_F), repeat(_F), repeat(_F), repeat(-1)),
         )
-
-
-def _bulk_columns(block: str, n: int) -> Columns | None:
-    """Check ``n`` candump -L lines of plain shape at once, or return None if any line is not plain.
-
-    Plain shape: ``(secs.usecs) channel ID#HEX`` or ``ID##FHEX`` (CAN FD: a flags
-    digit, then a CAN FD length of data) with an optional T/R marker on every line,
-    timestamps of one width (digits, one dot), 3- or 8-digit ids, classic data of
-    at most 8 bytes, remote frames (``ID#R``, ``ID#R4``), no error frame. Nothing is returned unless
-    every line passed, so a None costs no frame. Each check is one C-level pass
-    over a column; nothing is converted here.
-    """
-    if not block.isascii() or "\t" in block or "~" in block or block.count("(") != n:
-        return None
-    if block[:1] != "(" or block.count("\n(") != n - 1:  # every line opens with "("
-        return None
-    has_fd = "##" in block
-    if has_fd:
-        block = block.replace("##", "#~")  # one token per field still: "~" + flags + data
-    plain = block.translate(_BULK_TABLE)
-    if len(block) - len(plain) != 2 * n:  # n "(" were deleted: then n ")" too, no more, no less
-        return None
-    tok = plain.split("#")
-    k, r = divmod(len(tok) - 1, n)
-    if r or not 4 <= k <= 5 or block.count("#") != n:
-        return None
-    # the separator after each id is a "#", not a space (``ID DATA`` splits the same way above)
-    if not all(map(str.endswith, block.split("#"), tok[2:-1:k])):
-        return None
-    if k == 5 and not set(tok[4:-1:5]) <= _MARKERS:
-        return None
-    ts = tok[0:-1:k]
-    width = len(ts[0])
-    dot = ts[0].find(".")
-    if not 0 < dot < width - 1 or set(map(len, ts)) != {width}:
-        return None
-    joined = "".join(ts).encode()
-    # n dots in all, one at the same place in each: one per timestamp; the rest digits
-    if joined.count(b".") != n or joined[dot::width].count(b".") != n or joined.translate(None, _TS_BYTES):
-        return None
-    ids = tok[2:-1:k]
-    # a busy bus has a few dozen distinct ids in a block: check those, not every row, and each once per log
-    fresh = set(ids).difference(_GOOD_IDS)
-    for text in fresh:  # standard ids go up to 7FF, extended ones to 1FFFFFFF (above: error frames)
-        if not _is_hex(text) or (text[0] > "7" if len(text) == 3 else len(text) != 8 or text[0] > "1"):
-            return None
-    if len(_GOOD_IDS) < 65_536:
-        _GOOD_IDS.update(fresh)
-    data = tok[3:-1:k]
-    fd: dict[int, int] = {}
-    remote: dict[int, int] = {}
-    hexes = "".join(data)  # hex digits only, unless a remote row ("R", "R4") or CAN FD ("~F...")
-    # one-letter searches (memchr): "#R" in the text was a slow search, '#' being on every line 4 times
-    if has_fd or "R" in hexes or "r" in hexes:  # CAN FD or remote rows: row by row
-        for i, text in enumerate(data):
-            c = text[:1]
-            if c == "~":
-                if len(text) - 2 not in _FD_HEX_LENGTHS or text[1] not in _HEX:
-                    return None
-                fd[i] = int(text[1], 16)
-                data[i] = text[2:]
-            elif c in _REMOTE:
-                dlc = text[1:]
-                if len(dlc) > 1 or (dlc and dlc not in "012345678"):
-                    return None
-                remote[i] = (int(dlc) or -1) if dlc else -1
-                data[i] = ""
-            elif len(text) not in _DATA_LENGTHS:
-                return None
-        hexes = "".join(data)
-    elif not set(map(len, data)) <= _DATA_LENGTHS:
-        return None
-    if hexes.encode().translate(None, _HEX_BYTES):  # data: hex digits only
-        return None
-    ordered = all(map(operator.le, ts, islice(ts, 1, None))) and math.ulp(float(ts[-1])) < 10.0 ** (dot + 1 - width)
-    chans = tok[1:-1:k]
-    single = chans.count(chans[0]) == n
-    if (not chans[0] if single else "" in chans):  # "(t)  ID#..": no channel
-        return None
-    return Columns(n, ts, chans, ids, data, ordered, chans[0] if single else None, fd or None, remote or None)
 
 
 def _is_hex(s: str) -> bool:
@@ -345,106 +257,143 @@ def _as_text(block: bytes) -> str:
     return text.replace("\r\n", "\n").replace("\r", "\n") if "\r" in text else text
 
 
-def _flatten(chunks: Iterator[Columns | list[Frame]]) -> Iterator[Frame]:
-    """The frames of a chunk stream, one by one."""
-    for chunk in chunks:
-        yield from (chunk if type(chunk) is list else chunk.frames())  # type: ignore[union-attr]
-
-
-def _candump_chunks(p: Path, gz: str, skip_bad: bool, st: ReadStats, want_ts_stats: bool,
-                    owner: LogFrames) -> Iterator[Columns | list[Frame]]:
-    """The candump text reader: plain blocks as :class:`Columns`, others as lists of frames parsed line by line."""
-    raw = open(p, "rb")  # noqa: SIM115 -- closed in the finally below
-    f: Any = open_decompressed(raw, gz)  # bytes: numpy reads them as they are; the text parsers get _as_text
-    frames = 0
-    lineno = 0  # lines before the current block
-    last_t = -math.inf
-    last_was_error = False
-    blocks = 0
-    auto = NUMPY_AFTER_BLOCKS is None
-    numpy_from = (1 if not gz and os.fstat(raw.fileno()).st_size >= 1 << 20 else 3) if auto else NUMPY_AFTER_BLOCKS or 0
-    by_bytes: Callable[[bytes, int], Any] | None = None
-    longest = 4 * CHUNK_CHARS
+def candump_chunks(p: Path, gz: str, skip_bad: bool, st: ReadStats, want_ts_stats: bool,
+                   owner: LogFrames) -> Iterator[Columns | list[Frame]]:
+    """The candump text reader: plain blocks read by numpy (:mod:`canguard.io.candump_np`), others as lists of
+    frames parsed line by line (:func:`_parse_line`, which names the file:line of a bad line)."""
+    reader = _CandumpReader(p, gz, skip_bad, st, want_ts_stats)
     try:
+        for block in reader.blocks():
+            cols = reader.numpy(block)
+            if cols is not None:
+                yield cols
+            else:
+                yield from reader.lines(block)
+            owner.reached(reader.position())
+    finally:
+        reader.close()
+        owner.finished()
+    if reader.frames == 0:
+        skipped = f" ({st.bad_lines} bad lines skipped)" if st.bad_lines else ""
+        raise LogFormatError(f"{p}: empty log: no frames{skipped}")
+
+
+class _CandumpReader:
+    """One candump text log, read a block of whole lines at a time (see :func:`candump_chunks`)."""
+
+    def __init__(self, p: Path, gz: str, skip_bad: bool, st: ReadStats, want_ts_stats: bool) -> None:
+        self.p, self.gz, self.skip_bad, self.st, self.want_ts_stats = p, gz, skip_bad, st, want_ts_stats
+        self.raw = open(p, "rb")  # noqa: SIM115 -- closed by close()
+        self.f: Any = open_decompressed(self.raw, gz)  # bytes: numpy reads them as they are; lines get _as_text
+        self.frames = 0
+        self.lineno = 0
+        """Lines before the current block."""
+        self.last_t = -math.inf
+        self.last_was_error = False
+        self.count = 0
+        """Blocks read."""
+        auto = NUMPY_AFTER_BLOCKS is None
+        big = not gz and os.fstat(self.raw.fileno()).st_size >= 1 << 20
+        self.numpy_from = (1 if big else 3) if auto else NUMPY_AFTER_BLOCKS or 0
+        self.auto = auto
+        self.by_bytes: Callable[[bytes, int], Any] | None = None
+
+    def position(self) -> int:
+        """The position reached in the file on disk."""
+        return self.raw.tell()
+
+    def close(self) -> None:
+        self.f.close()
+        self.raw.close()
+
+    def _read(self, longest: int) -> bytes:
+        """A chunk and the rest of its last line, grown in place: no block-sized copies to fault in (Dask)."""
+        try:
+            block: bytes = self.f.read(CHUNK_CHARS)
+            if block and block[-1] != 10:
+                block += self.f.readline(longest)
+        except decompress_errors() as exc:
+            kind = {"gz": " gzip", "xz": " xz", "zst": " zstd"}.get(self.gz, "")
+            raise LogFormatError(f"{self.p}: cannot read{kind} log: {exc}") from None
+        return block
+
+    def blocks(self) -> Iterator[bytes]:
+        """The log's blocks of whole lines, each ending in a line break."""
+        longest = 4 * CHUNK_CHARS
         while True:
-            # a chunk and the rest of its last line, grown in place: no block-sized copies to fault in (Dask)
-            try:
-                block = f.read(CHUNK_CHARS)
-                if block and block[-1] != 10:
-                    block += f.readline(longest)
-            except decompress_errors() as exc:
-                kind = {"gz": " gzip", "xz": " xz", "zst": " zstd"}.get(gz, "")
-                raise LogFormatError(f"{p}: cannot read{kind} log: {exc}") from None
-            if not blocks and b"\n" not in block and b"\r" in block and raw.seekable():
-                if f is not raw:
-                    f.close()  # a decompressor: raw stays open
+            block = self._read(longest)
+            raw = self.raw
+            if not self.count and b"\n" not in block and b"\r" in block and raw.seekable():
+                if self.f is not raw:
+                    self.f.close()  # a decompressor: raw stays open
                 raw.seek(0)  # lines that end in a lone CR (old Mac tools): read again, each CR as a LF
-                f = CrLines(open_decompressed(raw, gz))
+                self.f = CrLines(open_decompressed(raw, self.gz))
                 continue
-            block = block[3:] if not blocks and block[:3] == b"\xef\xbb\xbf" else block  # a UTF-8 BOM
+            block = block[3:] if not self.count and block[:3] == b"\xef\xbb\xbf" else block  # a UTF-8 BOM
             if not block:
-                break
+                return
             if block[-1] != 10:
                 tail = len(block) - block.rfind(b"\n") - 1
                 if tail >= longest:
-                    at = lineno + _as_text(block).count("\n") + 1
-                    raise LogFormatError(f"{p}:{at}: no line break in {tail} characters: not a candump log")
+                    at = self.lineno + _as_text(block).count("\n") + 1
+                    raise LogFormatError(f"{self.p}:{at}: no line break in {tail} characters: not a candump log")
                 block += b"\n"  # the last line of the log, without its line break
-            blocks += 1
-            if by_bytes is None and (blocks >= numpy_from or (auto and "numpy" in sys.modules)):  # loaded: it pays
-                from canguard.io.candump_long import numpy_block as by_bytes
-            cols = None if last_was_error or by_bytes is None else by_bytes(block, -1)  # it counts the lines
-            if cols is not None:
-                n = cols.n
-            else:
-                text = _as_text(block)
-                n = text.count("\n")
-                cols = None if last_was_error else _bulk_columns(text, n)
-            if cols is not None:
-                ts = cols.ts if isinstance(cols, Columns) else cols.stamps  # numpy's: no list made
-                if want_ts_stats:
-                    note_order(st, float(ts[0]), last_t)
-                    count_order(st, cols)
-                last_t = float(ts[-1])
-                frames += n
-                st.lines += n
-                st.frames += n
-                yield cols
-            else:
-                lines = text.split("\n")
-                lines.pop()  # the empty string after the block's last newline
-                st.lines += n
-                out: list[Frame] = []
-                for no, line in enumerate(lines, lineno + 1):
-                    if last_was_error and line[:1] == "\t":
-                        continue  # candump -e explains an error frame on indented lines below it
-                    try:
-                        fr = _parse_line(line)
-                    except _Bad as bad:
-                        if not skip_bad:
-                            if out:
-                                yield out  # every frame before the bad line is processed first
-                            raise LogFormatError(f"{p}:{no}: {bad.reason}: {quote(line)}") from None
-                        st.bad_lines += 1
-                        if len(st.bad_examples) < MAX_BAD_EXAMPLES:
-                            st.bad_examples.append(BadLine(no, bad.reason, line))
-                        continue
-                    if fr is None:
-                        continue
-                    last_was_error = fr.is_error_frame
-                    note_order(st, fr.t, last_t)
-                    last_t = fr.t
-                    frames += 1
-                    st.frames += 1
-                    out.append(fr)
-                if out:
-                    yield out
-            lineno += n
-            owner._position(raw.tell())
-    finally:
-        f.close()
-        raw.close()
-        owner._done()
-    if frames == 0:
-        skipped = f" ({st.bad_lines} bad lines skipped)" if st.bad_lines else ""
-        raise LogFormatError(f"{p}: empty log: no frames{skipped}")
+            self.count += 1
+            yield block
+
+    def numpy(self, block: bytes) -> Any:
+        """The block read by numpy (counted), or None: its lines are parsed one by one."""
+        if self.by_bytes is None and (self.count >= self.numpy_from or (self.auto and "numpy" in sys.modules)):
+            from canguard.io.candump_long import numpy_block  # loaded: it pays
+
+            self.by_bytes = numpy_block
+        if self.last_was_error or self.by_bytes is None:
+            return None
+        cols = self.by_bytes(block, -1)  # it counts the lines
+        if cols is None:
+            return None
+        n, st = cols.n, self.st
+        ts = cols.stamps  # numpy's: no list made
+        if self.want_ts_stats:
+            note_order(st, float(ts[0]), self.last_t)
+            count_order(st, cols)
+        self.last_t = float(ts[-1])
+        self.frames += n
+        self.lineno += n
+        st.lines += n
+        st.frames += n
+        return cols
+
+    def lines(self, block: bytes) -> Iterator[list[Frame]]:
+        """The block's frames parsed line by line (a bad line raises, or is counted with ``skip_bad``)."""
+        text = _as_text(block)
+        lines = text.split("\n")
+        lines.pop()  # the empty string after the block's last newline
+        st = self.st
+        st.lines += len(lines)
+        out: list[Frame] = []
+        for no, line in enumerate(lines, self.lineno + 1):
+            if self.last_was_error and line[:1] == "\t":
+                continue  # candump -e explains an error frame on indented lines below it
+            try:
+                fr = _parse_line(line)
+            except _Bad as bad:
+                if not self.skip_bad:
+                    if out:
+                        yield out  # every frame before the bad line is processed first
+                    raise LogFormatError(f"{self.p}:{no}: {bad.reason}: {quote(line)}") from None
+                st.bad_lines += 1
+                if len(st.bad_examples) < MAX_BAD_EXAMPLES:
+                    st.bad_examples.append(BadLine(no, bad.reason, line))
+                continue
+            if fr is None:
+                continue
+            self.last_was_error = fr.is_error_frame
+            note_order(st, fr.t, self.last_t)
+            self.last_t = fr.t
+            self.frames += 1
+            st.frames += 1
+            out.append(fr)
+        self.lineno += len(lines)
+        if out:
+            yield out

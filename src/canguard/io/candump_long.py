@@ -50,7 +50,7 @@ def long_columns(text: str, n: int) -> ByteColumns | None:
     if cols is None:
         return None
     announced = np.array(lengths).astype(np.int64)
-    if not (cols._end - cols._start == 2 * announced).all():
+    if not (cols.hex_lengths() == 2 * announced).all():
         return None  # [len] announces another number of bytes than the line has
     return cols
 

@@ -133,6 +133,10 @@ class ByteColumns:
         _made = self.ids, self.ts
         return map(self.frame, range(self.n))
 
+    def hex_lengths(self) -> np.ndarray:
+        """Each row's payload length in hex digits (twice its bytes)."""
+        return self._end - self._start
+
     def payload(self, rows: Any, size: int) -> tuple[list[int] | None, bytes]:
         """The payloads of ``rows`` that hold ``size`` hex digits, joined: (their positions in ``rows``, or None
         when all of them do; the bytes)."""
@@ -216,11 +220,54 @@ def byte_columns(text: str | bytes, n: int) -> ByteColumns | None:
         n = nl.size
     if not n or nl.size != n or nl[-1] != b.size - 1:
         return None
+    layout = _layout(raw, b, mask, nl, n)
+    if layout is None:
+        return None
+    start, width, clen, sp1, sp2, end, spaces = layout
+    markers = spaces == 3 * n
+    ts = _stamps(b, start, width)
+    if ts is None:
+        return None
+    chans = _channels(b, words, sp1, clen)
+    if chans is None:
+        return None
+    names, lanes = chans
+    found = _id_fields(b, words, mask, sp2, end, n)
+    if found is None:
+        return None
+    h1, after, hashes, keys = found
+    payloads = _payloads(raw, b, h1, end, after, hashes - n)
+    if payloads is None:
+        return None
+    data_start, fd, remote = payloads
+    # Every byte that is not a hex digit has been found at its place above: "(", ")", the dot,
+    # the spaces, the "#"s, the newline, the marker, the channel's letters, a remote "R". One
+    # more anywhere (in the data, say) and the count differs.
+    others = [_others(name) for name in names]
+    letters = n * others[0] if lanes is None else int(np.dot(np.bincount(lanes, minlength=len(names)), others))
+    known = n * (4 + markers) + letters + spaces + hashes + len(remote or ())
+    if size - _hex_digits(b, pad[:size], mask, spare) != known:
+        return None
+    step = ts[1:] - ts[:-1]
+    backs = int(np.count_nonzero(step < 0))
+    cols = ByteColumns(n, ts, keys, not backs, names[0] if lanes is None else None, fd, remote,
+                       raw, b, data_start, end)
+    if lanes is not None:
+        cols.channels, cols.lanes = names, lanes
+    cols.order = (backs, int(np.count_nonzero(step == 0)))
+    return cols
+
+
+def _layout(raw: bytes, b: np.ndarray, mask: np.ndarray, nl: np.ndarray, n: int) -> tuple[Any, ...] | None:
+    """Where each line's fields are: (line starts, timestamp width, channel length, the space before the
+    channel, the space before the id, where each line's data ends, the block's spaces); None: not plain.
+
+    Each field's place follows from the first line's widths (timestamp, channel) and each id's
+    length (3 or 8); each place is checked, and counts of "(", ")", " " and "#" leave none elsewhere.
+    """
     start = np.empty(n, dtype=np.intp)
     start[0] = 0
     start[1:] = nl[:-1] + 1
-    # Each field's place follows from the first line's widths (timestamp, channel) and each id's
-    # length (3 or 8); each place is checked, and counts of "(", ")", " " and "#" leave none elsewhere.
     first = raw[:int(nl[0])]
     width = first.find(b")") - 1
     clen = first.find(b" ", width + 3) - width - 3
@@ -238,72 +285,77 @@ def byte_columns(text: str | bytes, n: int) -> ByteColumns | None:
     end = nl - 2 if markers else nl  # the space before a T/R marker, or the newline
     if markers and (not ((b[end] == 32) & (end > sp2)).all() or not set(b[nl - 1].tobytes()) <= _MARKERS):
         return None
-    ts = _stamps(b, start, width)
-    if ts is None:
-        return None
-    chans = _channels(b, words, sp1, clen)
-    if chans is None:
-        return None
-    names, lanes = chans
+    return start, width, clen, sp1, sp2, end, spaces
+
+
+def _id_fields(b: np.ndarray, words: np.ndarray, mask: np.ndarray, sp2: np.ndarray, end: np.ndarray, n: int
+               ) -> tuple[np.ndarray, np.ndarray, int, np.ndarray] | None:
+    """(where each line's "#" after the id is, the byte after it, the block's "#"s, the id keys); None: not plain."""
     short = b[np.minimum(sp2 + 4, b.size - 1)] == 35  # a 3-digit id, else 8
     h1 = np.where(short, sp2 + 4, sp2 + 9)
     if not ((h1 < end) & (b[np.minimum(h1, b.size - 1)] == 35)).all():
         return None
     after = b[h1 + 1]  # "#" for CAN FD, "R" / "r" for a remote frame: h1 + 1 <= end (a newline at worst)
-    is_fd = after == 35
-    nfd = int(np.count_nonzero(is_fd))
     hashes = _count(b, 35, mask)
-    if hashes != n + nfd:  # one "#" per line, two on a CAN FD line: none anywhere else
+    if hashes != n + int(np.count_nonzero(after == 35)):  # one "#" per line, two on a CAN FD line: none elsewhere
         return None
     keys = _ids(words, sp2, h1)
     if keys is None:
         return None
+    return h1, after, hashes, keys
+
+
+def _payloads(raw: bytes, b: np.ndarray, h1: np.ndarray, end: np.ndarray, after: np.ndarray, nfd: int
+              ) -> tuple[np.ndarray, dict[int, int] | None, dict[int, int] | None] | None:
+    """(where each row's data starts, the CAN FD rows' flags, the remote rows' DLCs); None: not plain."""
     data_start = h1 + 1
+    is_fd = after == 35
     fd: dict[int, int] | None = None
     remote: dict[int, int] | None = None
     if nfd:
         data_start = np.where(is_fd, h1 + 3, data_start)
-        rows = np.flatnonzero(is_fd)
-        if not (h1[rows] + 2 < end[rows]).all():
+        fd = _fd_flags(b, h1, end, is_fd)
+        if fd is None:
             return None
-        flags = _HEXVAL[b[h1[rows] + 2]]
-        if (flags == 255).any():
-            return None
-        fd = dict(zip(rows.tolist(), flags.tolist(), strict=True))
     is_remote = (after == 82) | (after == 114)
     if is_remote.any():
-        rows = np.flatnonzero(is_remote)
-        remote = {}
-        for i in rows.tolist():
-            dlc = raw[int(h1[i]) + 2:int(end[i])].decode("ascii")
-            if len(dlc) > 1 or (dlc and dlc not in "012345678"):
-                return None
-            remote[i] = (int(dlc) or -1) if dlc else -1
+        remote = _remote_dlcs(raw, h1, end, is_remote)
+        if remote is None:
+            return None
         data_start = np.where(is_remote, end, data_start)
-    lengths = end - data_start
+    if not _lengths_ok(end - data_start, is_fd):
+        return None
+    return data_start, fd, remote
+
+
+def _fd_flags(b: np.ndarray, h1: np.ndarray, end: np.ndarray, is_fd: np.ndarray) -> dict[int, int] | None:
+    """The flags digit (BRS, ESI) of each CAN FD row (``ID##F...``); None: one is not a hex digit."""
+    rows = np.flatnonzero(is_fd)
+    if not (h1[rows] + 2 < end[rows]).all():
+        return None
+    flags = _HEXVAL[b[h1[rows] + 2]]
+    if (flags == 255).any():
+        return None
+    return dict(zip(rows.tolist(), flags.tolist(), strict=True))
+
+
+def _remote_dlcs(raw: bytes, h1: np.ndarray, end: np.ndarray, is_remote: np.ndarray) -> dict[int, int] | None:
+    """The DLC of each remote row (``ID#R``, ``ID#R4``; -1: none written); None: a DLC that is no digit 0-8."""
+    remote = {}
+    for i in np.flatnonzero(is_remote).tolist():
+        dlc = raw[int(h1[i]) + 2:int(end[i])].decode("ascii")
+        if len(dlc) > 1 or (dlc and dlc not in "012345678"):
+            return None
+        remote[i] = (int(dlc) or -1) if dlc else -1
+    return remote
+
+
+def _lengths_ok(lengths: np.ndarray, is_fd: np.ndarray) -> bool:
+    """Each row's data (hex digits) is whole bytes of a CAN length: up to 8 classic, a CAN FD length for FD."""
     if (lengths & 1).any():
-        return None
-    classic = ~is_fd
-    if (lengths[classic] > 16).any() or not _FD_BYTES[np.minimum(lengths[is_fd] // 2, 64)].all() or (
-        lengths[is_fd] > 128
-    ).any():
-        return None
-    # Every byte that is not a hex digit has been found at its place above: "(", ")", the dot,
-    # the spaces, the "#"s, the newline, the marker, the channel's letters, a remote "R". One
-    # more anywhere (in the data, say) and the count differs.
-    others = [_others(name) for name in names]
-    letters = n * others[0] if lanes is None else int(np.dot(np.bincount(lanes, minlength=len(names)), others))
-    known = n * (4 + markers) + letters + spaces + hashes + len(remote or ())
-    if size - _hex_digits(b, pad[:size], mask, spare) != known:
-        return None
-    step = ts[1:] - ts[:-1]
-    backs = int(np.count_nonzero(step < 0))
-    cols = ByteColumns(n, ts, keys, not backs, names[0] if lanes is None else None, fd, remote,
-                       raw, b, data_start, end)
-    if lanes is not None:
-        cols.channels, cols.lanes = names, lanes
-    cols.order = (backs, int(np.count_nonzero(step == 0)))
-    return cols
+        return False
+    fd = lengths[is_fd]
+    return not ((lengths[~is_fd] > 16).any() or not _FD_BYTES[np.minimum(fd // 2, 64)].all() or (fd > 128).any())
 
 
 _LOCAL = threading.local()

@@ -29,31 +29,27 @@ the way python-can's candump writer names them: ``0`` -> ``can0``.
 from __future__ import annotations
 
 import importlib.util
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 from canguard.errors import LogFormatError
-from canguard.io.candump import _candump_chunks, _flatten
-from canguard.io.logtypes import CANDUMP_SUFFIXES, COMPRESSIONS, PYTHON_CAN_SUFFIXES, LogFrames, ReadStats
+from canguard.io.candump import CHUNK_CHARS, Columns, candump_chunks
+from canguard.io.candump_write import format_candump_line, write_candump
+from canguard.io.logtypes import COMPRESSIONS, BadLine, Chunk, LogFrames, ReadStats, candump_id_texts
 from canguard.io.progress import ProgressBar
-from canguard.io.pycan import _read_python_can
+from canguard.io.pycan import frame_from_message
 from canguard.io.pycan_blocks import python_can_chunks
 
-if TYPE_CHECKING:
-    pass
-
-from canguard.io.candump import CHUNK_CHARS, Columns
-from canguard.io.candump_write import format_candump_line, write_candump
-from canguard.io.logtypes import BadLine, candump_id_texts
-from canguard.io.pycan import frame_from_message
-
 __all__ = [
-    "CANDUMP_SUFFIXES",
     "CHUNK_CHARS",
-    "PYTHON_CAN_SUFFIXES",
+    "LOG_READERS",
+    "LOG_SUFFIXES",
     "BadLine",
     "Columns",
+    "LogFormat",
     "LogFrames",
+    "LogRequest",
     "ReadStats",
     "candump_id_texts",
     "format_candump_line",
@@ -64,7 +60,86 @@ __all__ = [
 ]
 
 
-# --------------------------------------------------------------------------- format choice
+# --------------------------------------------------------------------------- the readers, by suffix
+
+
+@dataclass(frozen=True)
+class LogRequest:
+    """What :func:`read_log` asks of a format's reader."""
+
+    path: Path
+    compression: str
+    """The compression: "" (none), ``gz``, ``xz`` or ``zst``."""
+    stats: ReadStats
+    skip_bad: bool
+    """Malformed lines are counted in ``stats`` and skipped, not raised (text formats that check their lines)."""
+    order_stats: bool
+    """The caller reads ``stats``' timestamp order counts (a reader may spare counting them otherwise)."""
+
+
+@dataclass(frozen=True)
+class LogFormat:
+    """One log format: its name and the reader that gives its blocks (column blocks or lists of frames)."""
+
+    name: str
+    read: Callable[[LogRequest, LogFrames], Iterator[Chunk]]
+    needs: tuple[str, str] | None = None
+    """(module, how to install it) of an optional dependency, checked before the log is opened."""
+
+
+def _read_candump(req: LogRequest, owner: LogFrames) -> Iterator[Chunk]:
+    return candump_chunks(req.path, req.compression, req.skip_bad, req.stats, req.order_stats, owner)
+
+
+def _read_asc(req: LogRequest, owner: LogFrames) -> Iterator[Chunk]:
+    from canguard.io.asc_blocks import asc_chunks  # its regexes are compiled for ASC logs only
+
+    return asc_chunks(req.path, req.compression, req.stats, owner)
+
+
+def _python_can(name: str, needs: tuple[str, str] | None = None) -> LogFormat:
+    def read(req: LogRequest, owner: LogFrames) -> Iterator[Chunk]:
+        return python_can_chunks(req.path, name, req.compression, req.stats, owner)
+
+    return LogFormat(name, read, needs)
+
+
+_CANDUMP = LogFormat("candump", _read_candump)
+
+LOG_READERS: dict[str, LogFormat] = {
+    ".log": _CANDUMP,
+    ".candump": _CANDUMP,
+    ".txt": _CANDUMP,
+    ".asc": LogFormat("asc", _read_asc),  # canguard's reader for plain data lines, python-can's for the rest
+    ".blf": _python_can("blf"),
+    ".trc": _python_can("trc"),
+    ".csv": _python_can("csv"),
+    ".mf4": _python_can("mf4", ("asammdf", "pip install 'python-can[mf4]'")),
+}
+"""The log readers keyed by file suffix (as python-can's ``MESSAGE_READERS``): a format is one entry."""
+
+LOG_SUFFIXES = tuple(LOG_READERS)
+"""Every suffix :func:`read_log` reads (each may carry a compression on top: :data:`COMPRESSIONS`)."""
+
+_COMPRESSORS = {"zst": ("zstandard", "pip install zstandard")}
+"""Compressions that need an optional dependency."""
+
+
+def _reader(path: Path) -> tuple[LogFormat, str]:
+    """The format of ``path`` by its suffix, and its compression ("" none)."""
+    suffix = path.suffix.lower()
+    compression = ""
+    if suffix in COMPRESSIONS:
+        compression = suffix[1:]
+        suffix = Path(path.stem).suffix.lower()
+    found = LOG_READERS.get(suffix)
+    if found is None:
+        known = ", ".join(LOG_SUFFIXES)
+        raise LogFormatError(
+            f"{path}: unknown log format {(suffix or path.name)!r}: expected one of {known} "
+            f"(optionally + {' / '.join(COMPRESSIONS)})"
+        )
+    return found, compression
 
 
 def log_format(path: str | Path) -> tuple[str, str]:
@@ -74,21 +149,14 @@ def log_format(path: str | Path) -> tuple[str, str]:
     ``compression`` is ``""``, ``gz``, ``xz`` or ``zst`` (``robot.log.xz``).
     Raises :class:`LogFormatError` for an unknown extension.
     """
-    p = Path(path)
-    suffix = p.suffix.lower()
-    compression = ""
-    if suffix in COMPRESSIONS:
-        compression = suffix[1:]
-        suffix = Path(p.stem).suffix.lower()
-    if suffix in CANDUMP_SUFFIXES:
-        return "candump", compression
-    if suffix in PYTHON_CAN_SUFFIXES:
-        return suffix[1:], compression
-    known = ", ".join(CANDUMP_SUFFIXES + PYTHON_CAN_SUFFIXES)
-    raise LogFormatError(
-        f"{p}: unknown log format {(suffix or p.name)!r}: expected one of {known} "
-        f"(optionally + {' / '.join(COMPRESSIONS)})"
-    )
+    fmt, compression = _reader(Path(path))
+    return fmt.name, compression
+
+
+def _require(p: Path, what: str, needs: tuple[str, str] | None) -> None:
+    """Raise :class:`LogFormatError` when the optional module ``needs`` names is not installed."""
+    if needs is not None and importlib.util.find_spec(needs[0]) is None:
+        raise LogFormatError(f"{p}: reading {what} logs needs {needs[0]}: {needs[1]}")
 
 
 def read_log(
@@ -117,33 +185,19 @@ def read_log(
     directory, or a missing optional dependency.
     """
     p = Path(path)
-    fmt, gz = log_format(p)  # gz: the compression ("" none)
+    fmt, gz = _reader(p)  # gz: the compression ("" none)
     if not p.exists():
         raise LogFormatError(f"{p}: no such file")
     if not p.is_file():
         raise LogFormatError(f"{p}: not a regular file")
-    if fmt == "mf4" and importlib.util.find_spec("asammdf") is None:
-        raise LogFormatError(f"{p}: reading .mf4 logs needs asammdf: pip install 'python-can[mf4]'")
-    if gz == "zst" and importlib.util.find_spec("zstandard") is None:
-        raise LogFormatError(f"{p}: reading .zst logs needs zstandard: pip install zstandard")
+    _require(p, f".{fmt.name}", fmt.needs)
+    _require(p, f".{gz}", _COMPRESSORS.get(gz))
     st = stats if stats is not None else ReadStats()
     st.path = str(p)
-    st.format = fmt + (f".{gz}" if gz else "")
+    st.format = fmt.name + (f".{gz}" if gz else "")
     try:
         st.bytes_total += p.stat().st_size
     except OSError as exc:
         raise LogFormatError(f"{p}: cannot read: {exc.strerror or exc}") from None
-    frames = LogFrames(p, st, progress)
-    if fmt == "candump":
-        frames._chunks = _candump_chunks(p, gz, skip_bad, st, stats is not None, frames)
-        frames._frames = _flatten(frames._chunks)
-    elif fmt == "asc":  # canguard's own reader, python-can's for whatever it does not take (io.asc_blocks)
-        from canguard.io.asc_blocks import asc_chunks  # its regexes are compiled for ASC logs only
-
-        frames._chunks = asc_chunks(p, gz, st, frames)
-        frames._frames = _flatten(frames._chunks)
-    else:
-        # two lazy generators over the same file: only the one consumed opens it
-        frames._frames = _read_python_can(p, fmt, gz, st, frames)
-        frames._chunks = python_can_chunks(p, fmt, gz, st, frames)
-    return frames
+    request = LogRequest(p, gz, st, skip_bad, stats is not None)
+    return LogFrames(p, st, progress, lambda owner: fmt.read(request, owner))

@@ -15,11 +15,12 @@ from canguard.io.frame import Frame
 from canguard.io.progress import ProgressBar
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
 
-    from canguard.io.candump import Columns
+Chunk = Any
+"""A block of a log as a reader gives it: a column block (``Columns``, ``ByteColumns``: they have ``frames()``)
+or a list of :class:`~canguard.io.frame.Frame`."""
 
-CANDUMP_SUFFIXES = (".log", ".candump", ".txt")
-PYTHON_CAN_SUFFIXES = (".asc", ".blf", ".trc", ".csv", ".mf4")
 _TEXT_PYTHON_CAN = ("asc", "trc", "csv")
 
 
@@ -153,15 +154,16 @@ class LogFrames(Iterator[Frame]):
     position after each chunk and closed when the log has been read.
     """
 
-    def __init__(self, path: Path, stats: ReadStats, progress: ProgressBar | None) -> None:
+    def __init__(self, path: Path, stats: ReadStats, progress: ProgressBar | None,
+                 read: Callable[[LogFrames], Iterator[Chunk]] | None = None) -> None:
         self.path = path
         self.stats = stats
         self.progress = progress
-        self._frames: Iterator[Frame] = iter(())
-        self._chunks: Iterator[Columns | list[Frame]] = iter(())
+        self._chunks: Iterator[Chunk] = read(self) if read is not None else iter(())
+        self._frames: Iterator[Frame] = flatten(self._chunks)
 
-    def chunks(self) -> Iterator[Columns | list[Frame]]:
-        """The same frames a block at a time: :class:`Columns` (plain candump blocks, python-can blocks) or lists.
+    def chunks(self) -> Iterator[Chunk]:
+        """The same frames a block at a time: column blocks (plain candump blocks, python-can blocks) or lists.
 
         For consumers that work on whole blocks (the replay engine); use either
         this or the frame iterator, not both.
@@ -174,14 +176,22 @@ class LogFrames(Iterator[Frame]):
     def __next__(self) -> Frame:
         return next(self._frames)
 
-    def _position(self, position: int) -> None:
+    def reached(self, position: int) -> None:
+        """The reader got to ``position`` in the file on disk (statistics, progress bar)."""
         self.stats.bytes_read = position
         if self.progress is not None:
             self.progress.update(position)
 
-    def _done(self) -> None:
+    def finished(self) -> None:
+        """The reader is done with the file (the progress bar closes)."""
         if self.progress is not None:
             self.progress.close()
+
+
+def flatten(chunks: Iterator[Chunk]) -> Iterator[Frame]:
+    """The frames of a chunk stream, one by one."""
+    for chunk in chunks:
+        yield from (chunk if type(chunk) is list else chunk.frames())
 
 
 class _Bad(Exception):

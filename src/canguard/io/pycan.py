@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import gc
 import io
-import math
 import sys
 from collections.abc import Callable, Iterable, Iterator
 from itertools import islice
@@ -14,7 +13,7 @@ from typing import TYPE_CHECKING, Any
 from canguard.errors import LogFormatError, clip
 from canguard.io.blf_length import BlfLength
 from canguard.io.frame import Frame
-from canguard.io.logtypes import _TEXT_PYTHON_CAN, LogFrames, ReadStats, _new, note_order, open_decompressed
+from canguard.io.logtypes import _TEXT_PYTHON_CAN, ReadStats, _new, open_decompressed
 
 if TYPE_CHECKING:
     import can
@@ -163,27 +162,3 @@ class _Messages:
 
     def close(self) -> None:
         self.raw.close()
-
-
-def _read_python_can(p: Path, fmt: str, gz: str, st: ReadStats, owner: LogFrames) -> Iterator[Frame]:
-    """Frames from one of python-can's readers; its errors become LogFormatError naming the file."""
-    reader: _Messages | None = None
-    frames = 0
-    last_t = -math.inf
-    try:
-        reader = _Messages(p, fmt, gz)
-        while batch := reader.next_batch(_PROGRESS_EVERY):
-            for msg in batch:
-                fr = frame_from_message(msg)
-                note_order(st, fr.t, last_t)
-                last_t = fr.t
-                frames += 1
-                st.frames += 1
-                yield fr
-            owner._position(reader.position(st))
-    finally:
-        if reader is not None:
-            reader.close()
-        owner._done()
-    if frames == 0:
-        raise LogFormatError(f"{p}: empty log: no frames")

@@ -214,10 +214,10 @@ def python_can_chunks(p: Path, fmt: str, gz: str, st: ReadStats, owner: LogFrame
             last_t = count_batch(st, batch, last_t)
             frames += batch.n
             yield from batch.pieces()
-            owner._position(reader.position(st))
+            owner.reached(reader.position(st))
     finally:
         if reader is not None:
             reader.close()
-        owner._done()
+        owner.finished()
     if frames == 0:
         raise LogFormatError(f"{p}: empty log: no frames")

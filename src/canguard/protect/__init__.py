@@ -1,4 +1,7 @@
-"""Protection models: pure, per-sample state machines that take time as an argument.
+"""Protection models: pure state machines that take time as an argument and advance over runs of samples.
+
+Every model's one entry point is ``advance(times, values) -> Run`` (a sample is a run of one);
+:mod:`canguard.protect.base` describes the contract.
 
 - :class:`Threshold`: a plain limit with a peak latch (IsCurrentNormal, IsJointEffortNormal).
 - :class:`Hysteresis`: trip / recovery thresholds, optional persistence and inrush blanking (IsCurrentSafe).
@@ -7,15 +10,16 @@
 - :class:`SourceHealth`: no data, stale, not present, NaN/inf, out of range.
 """
 
-from canguard.protect.base import LatchedModel, ProtectionModel, Snapshot
+from canguard.protect.base import LatchedModel, ProtectionModel, Run, Snapshot
 from canguard.protect.hysteresis import Hysteresis
 from canguard.protect.i2t import LeakyI2t, ThermalI2t, thermal_tau
 from canguard.protect.inrush import InrushBlanking
-from canguard.protect.staleness import SourceHealth
+from canguard.protect.staleness import HealthRun, SourceHealth
 from canguard.protect.state import HeatModel, HeatStore
 from canguard.protect.threshold import Threshold
 
 __all__ = [
+    "HealthRun",
     "HeatModel",
     "HeatStore",
     "Hysteresis",
@@ -23,6 +27,7 @@ __all__ = [
     "LatchedModel",
     "LeakyI2t",
     "ProtectionModel",
+    "Run",
     "Snapshot",
     "SourceHealth",
     "ThermalI2t",

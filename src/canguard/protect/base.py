@@ -1,22 +1,62 @@
-"""What every protection model is: a pure, per-sample state machine.
+"""What every protection model is: a pure state machine that advances over runs of samples.
 
-Models see every valid sample of the signal they guard (``update``), take time
-as an argument (never from a clock), and report their state at tick time
-(``poll``) with a *peak latch*: a trip that happened at any moment since the
-previous poll is reported even when the current sample is back to normal, so a
-one-frame spike between two ticks is never lost.
+**The run API** (what the engine calls; the only way samples reach a model):
+
+``model.advance(times, values, *, until_edge=False) -> Run``
+
+- A *run* is a stretch of samples of the one signal the model guards, in arrival
+  order: two equal-length 1-D arrays (anything ``numpy.asarray`` takes), ``times``
+  in seconds (the engine's clock or the log's timestamps) and ``values`` in the
+  signal's unit (A, or N·m; signed: the model takes |value|). A run may hold one
+  sample (the live bus) or millions (a log); it is copied to float64 internally.
+- The returned :class:`Run` says where the model's tripped state changed: the
+  positions in the run (``index``), their times (``t``), and the state entered at
+  each (``tripped``); ``taken`` is how many samples were consumed and ``peak`` the
+  largest |value| among them (every sample counts: reports take their lowest
+  margin from it). With ``until_edge=True`` the model stops right after the first
+  sample at which its state changed (``taken`` = that position + 1, at most one
+  edge returned): the engine ticks the tree there (the tree may change a model's
+  thresholds, and :meth:`ProtectionModel.poll` must see the state of that moment)
+  and calls ``advance`` again with the rest of the run.
+- State carries between runs: a run continues exactly where the previous one
+  stopped (timers, I²t heat, the held current, the inrush window, the peak latch),
+  so feeding a run whole, sample by sample (runs of one), or split at any points
+  gives the same edges at the same samples and the same state; floating-point
+  results agree within 1e-9 relative (the tests hold it against the per-sample
+  reference maths kept in ``tests/reference_models.py``).
+- :meth:`ProtectionModel.update` is :meth:`~ProtectionModel.advance` on a run of one.
+- Bad samples never raise and never corrupt the state: a sample whose value or
+  time is NaN/±inf is ignored and counted in ``rejected``; a sample older than the
+  latest accepted one (a negative time step: clock stepped back, out-of-order
+  frames) is ignored and counted in ``out_of_order``; a repeated timestamp is a
+  normal sample (zero time step). A huge time step is taken as it is by the
+  threshold models; the models with a ``max_gap_s`` (hysteresis timers, I²t)
+  treat a longer gap as stale data (see each model). Mismatched or non-1-D
+  arrays raise ValueError naming both shapes.
+
+Models take time as an argument (never from a clock), and report their state at
+tick time (``poll``) with a *peak latch*: a trip that happened at any moment
+since the previous poll is reported even when the current sample is back to
+normal, so a one-frame spike between two ticks is never lost.
 
 Invalid data (no sample, stale, present = false, NaN/inf, out of range) is
 tracked by :class:`canguard.protect.staleness.SourceHealth`, not by the models:
-models only ever see finite values.
+the engine feeds models only valid samples (the models' own filter above is the
+fail-safe against anything else).
 """
 
 from __future__ import annotations
 
 import math
 from abc import ABC, abstractmethod
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import ClassVar
+
+import numpy as np
+import numpy.typing as npt
+
+from canguard.protect.columns import FloatArray, IndexArray, as_run, in_order, toggles
 
 # Reasons a guard is not satisfied, as they appear in snapshots and events.
 REASON_OK = ""
@@ -29,6 +69,17 @@ REASON_NOT_PRESENT = "not_present"
 TIME_EPS_S = 1e-9
 """Tolerance of duration comparisons (``held >= trip_after_s``): timestamps like
 ``21 * 0.01`` carry float rounding, and candump resolves microseconds only."""
+
+
+_FIRST_CHUNK = 16
+"""With ``until_edge``, a run is scanned in chunks that double from twice the typical distance
+at which the previous stops found their edge (a running average; at least this many samples):
+chattering edges cost a short scan each, rare ones a few passes over the run."""
+_LAST_CHUNK = 1 << 16
+"""A long run is scanned in chunks of at most this many samples: the temporary columns
+stay in the CPU cache and memory stays flat however long the run."""
+_NO_EDGES = np.empty(0, dtype=np.intp)
+_NO_EDGES.flags.writeable = False
 
 
 @dataclass(frozen=True)
@@ -52,27 +103,60 @@ class Snapshot:
     reason: str
 
 
+@dataclass(frozen=True)
+class Run:
+    """What :meth:`ProtectionModel.advance` did with a run of samples.
+
+    ``index``: positions in the run (int) of the samples at which the tripped state
+    changed, ascending. ``t``: their times (s). ``tripped``: the state entered at
+    each (they alternate). ``taken``: samples consumed from the start of the run
+    (all of them unless ``until_edge`` stopped early). ``peak``: the largest |value|
+    among the taken samples the model accepted, NaN when none.
+    """
+
+    index: IndexArray
+    t: FloatArray
+    tripped: npt.NDArray[np.bool_]
+    taken: int
+    peak: float
+
+    @property
+    def changed(self) -> bool:
+        """True when the run changed the tripped state at least once (an edge: tick the tree)."""
+        return bool(self.index.size)
+
+
+@dataclass
+class Scan:
+    """A model's pure look at a run of accepted samples (nothing changed yet).
+
+    ``state``: the tripped state right after each sample. ``commit(k)``: take the
+    model's own state (timers, heat, ...) as it stands right after sample ``k``.
+    """
+
+    state: npt.NDArray[np.bool_]
+    commit: Callable[[int], None]
+
+
 class ProtectionModel(ABC):
     """A pure state machine over one signal's samples."""
 
     THRESHOLD_UNIT: ClassVar[str | None] = None
     """The unit of :attr:`Snapshot.threshold` when it is not the value's own (I²t: A²s or θ)."""
     SAMPLE_DRIVEN: ClassVar[bool] = False
-    """True when the state (and :meth:`poll`'s answer) changes only in :meth:`update`, never with time alone.
+    """True when the state (and :meth:`poll`'s answer) changes only with samples, never with time alone.
 
-    The replay engine counts a tick that would repeat the last one instead of running it
-    (:mod:`canguard.engine.quiet`) only when every model the tree reads says so. A model
-    that cools, counts down or otherwise moves between samples (I²t) leaves it False.
+    Read only by the replay engine's quiet-tick shortcut (:mod:`canguard.engine.quiet`).
+    Every model here changes state only at samples, so every one sets it True.
     """
 
     @abstractmethod
-    def update(self, value: float, t: float) -> bool:
-        """Feed one finite sample (signed; the model takes |value|) taken at time ``t``.
+    def advance(self, times: npt.ArrayLike, values: npt.ArrayLike, *, until_edge: bool = False) -> Run:
+        """Advance over a run of samples (see the module docstring); where the tripped state changed."""
 
-        Returns True when the tripped state changed (an edge: the engine ticks
-        the tree at once). Out-of-order (``t`` earlier than the last sample) and
-        repeated timestamps never raise and never corrupt the state.
-        """
+    def update(self, value: float, t: float) -> bool:
+        """Feed one sample (a run of one); True when the tripped state changed (an edge)."""
+        return self.advance((t,), (value,)).changed
 
     @abstractmethod
     def poll(self, now: float) -> Snapshot:
@@ -89,13 +173,12 @@ class ProtectionModel(ABC):
 
 
 class LatchedModel(ProtectionModel):
-    """Bookkeeping every concrete model shares: tripped state, edge time, peak latch.
+    """Bookkeeping every concrete model shares: the run filter, tripped state, edge time, peak latch.
 
-    Subclasses implement ``update`` (calling :meth:`_accept` first and
-    :meth:`_set_tripped` to change state) plus :meth:`_threshold_value` and
-    :meth:`_level_pct`. Samples with a non-finite value or time, and samples
-    older than the latest one (``t`` < last ``t``), are ignored and counted in
-    ``out_of_order`` / ``rejected``; a repeated timestamp is a normal sample.
+    Subclasses implement :meth:`_scan` (their maths over a run of accepted samples) plus
+    :meth:`_threshold_value` and :meth:`_level_pct`. Samples with a non-finite value or
+    time, and samples older than the latest one (``t`` < last ``t``), are ignored and
+    counted in ``out_of_order`` / ``rejected``; a repeated timestamp is a normal sample.
     """
 
     reason_tripped: str = REASON_OVERCURRENT
@@ -111,6 +194,7 @@ class LatchedModel(ProtectionModel):
         """Samples ignored because they were older than the latest one."""
         self.rejected = 0
         """Samples ignored because their value or time was not finite."""
+        self._reach = _LAST_CHUNK // 64
 
     @property
     def tripped(self) -> bool:
@@ -127,15 +211,78 @@ class LatchedModel(ProtectionModel):
         """Time of the last trip / recover edge, None if never."""
         return self._since
 
-    def _accept(self, value: float, t: float) -> float | None:
-        """Return |value| when the sample may be used, None (and count it) when it must be ignored."""
-        if not (math.isfinite(value) and math.isfinite(t)):
-            self.rejected += 1
-            return None
-        if self._last_t is not None and t < self._last_t:
-            self.out_of_order += 1
-            return None
-        return abs(value)
+    # -- the run ------------------------------------------------------------------------
+
+    def advance(self, times: npt.ArrayLike, values: npt.ArrayLike, *, until_edge: bool = False) -> Run:
+        """Advance over a run of samples; see :mod:`canguard.protect.base` for the contract."""
+        t, v = as_run(times, values)
+        size = max(_FIRST_CHUNK, 2 * self._reach) if until_edge else _LAST_CHUNK
+        if t.size <= size:
+            return self._stopped(self._advance(t, v, until_edge), until_edge)
+        parts: list[tuple[int, Run]] = []
+        start = 0
+        while start < t.size:
+            part = self._advance(t[start : start + size], v[start : start + size], until_edge)
+            parts.append((start, part))
+            start += part.taken
+            if until_edge and part.changed:
+                self._reach = (self._reach + start) // 2
+                break
+            size = min(2 * size, _LAST_CHUNK)
+        return Run(
+            np.concatenate([p.index + at for at, p in parts]),
+            np.concatenate([p.t for _, p in parts]),
+            np.concatenate([p.tripped for _, p in parts]),
+            start,
+            float(np.fmax.reduce([p.peak for _, p in parts])),
+        )
+
+    def _stopped(self, run: Run, until_edge: bool) -> Run:
+        """Remember how far a stop at an edge had to look (averaged: the next scan starts at twice that)."""
+        if until_edge and run.changed:
+            self._reach = (self._reach + run.taken) // 2
+        return run
+
+    def _advance(self, t: FloatArray, v: FloatArray, until_edge: bool) -> Run:
+        finite = np.isfinite(v) & np.isfinite(t)
+        ok = in_order(t, finite, self._last_t)
+        everything = bool(ok.all())
+        picked = np.arange(t.size) if everything else ok.nonzero()[0]
+        if not picked.size:
+            self._count_ignored(finite, ok, t.size)
+            return Run(_NO_EDGES, np.empty(0), np.empty(0, dtype=bool), t.size, math.nan)
+        ta = t if everything else t[picked]
+        a = np.abs(v if everything else v[picked])
+        scan = self._scan(ta, a)
+        edges = toggles(scan.state, self._tripped)
+        last = picked.size - 1
+        taken = t.size
+        if until_edge and edges.size:
+            edges = edges[:1]
+            last = int(edges[0])
+            taken = int(picked[last]) + 1
+        if not everything:
+            self._count_ignored(finite, ok, taken)
+        entered = scan.state[edges]
+        scan.commit(last)
+        self._last_t = float(ta[last])
+        self._value = float(a[last])
+        if edges.size:
+            self._tripped = bool(entered[-1])
+            self._since = float(ta[edges[-1]])
+            self._latch = self._latch or bool(entered.any())
+        return Run(picked[edges], ta[edges], entered, taken, float(a[: last + 1].max()))
+
+    def _count_ignored(self, finite: npt.NDArray[np.bool_], ok: npt.NDArray[np.bool_], taken: int) -> None:
+        """Count the first ``taken`` samples' ignored ones: not finite, or out of order."""
+        self.rejected += int(np.count_nonzero(~finite[:taken]))
+        self.out_of_order += int(np.count_nonzero(finite[:taken] & ~ok[:taken]))
+
+    @abstractmethod
+    def _scan(self, t: FloatArray, a: FloatArray) -> Scan:
+        """The model's maths over accepted samples (times ``t``, |values| ``a``); must not change ``self``."""
+
+    # -- the replay's settle shortcut (kept while the engine still calls it) ------------
 
     def settles(self, low: float, high: float, first_t: float) -> bool:
         """True when a run of samples, fed one by one, would trip or recover nothing (nothing is changed here).
@@ -170,18 +317,18 @@ class LatchedModel(ProtectionModel):
         """
         if not isinstance(old, LatchedModel):
             return
-        self._tripped = old._tripped
-        self._since = old._since
-        self._latch = old._latch
-        self._value = old._value
-        self._last_t = old._last_t
+        self._tripped, self._since, self._latch, self._value, self._last_t = old.running()
+
+    def running(self) -> tuple[bool, float | None, bool, float, float | None]:
+        """What a reload carries of every model: (tripped, since, peak latch armed, latest |value|, latest time)."""
+        return self._tripped, self._since, self._latch, self._value, self._last_t
 
     def _set_tripped(self, tripped: bool, t: float | None) -> bool:
-        """Enter ``tripped``; True on an edge. A trip edge arms the peak latch.
+        """Enter ``tripped`` outside a run (restore, worst case); True on an edge. A trip edge arms the latch.
 
         Only the edge arms it: a trip the last poll already reported and that lasted up
-        to a recovery must not be reported again after that recovery (issue 12: every
-        recovery came one tick late).
+        to a recovery must not be reported again after that recovery (every recovery
+        would come one tick late).
         """
         if tripped == self._tripped:
             return False

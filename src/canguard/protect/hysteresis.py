@@ -20,8 +20,14 @@ when it has none). Recovery is never blanked.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass, field
+from functools import cached_property
 
-from canguard.protect.base import REASON_OVERCURRENT, TIME_EPS_S, LatchedModel, ProtectionModel
+import numpy as np
+import numpy.typing as npt
+
+from canguard.protect.base import REASON_OVERCURRENT, TIME_EPS_S, LatchedModel, ProtectionModel, Scan
+from canguard.protect.columns import FloatArray, IndexArray, last_marked, stretch_begins, stretch_start_times
 from canguard.protect.inrush import InrushBlanking
 from canguard.protect.threshold import check_limit, level_pct
 
@@ -36,6 +42,67 @@ def check_thresholds(overcurrent_a: float, recovery_a: float) -> tuple[float, fl
             "the current must fall below the trip threshold to recover"
         )
     return over, rec
+
+
+@dataclass
+class _Side:
+    """One persistence timer over a run: its condition, the stretches meeting it, where it is ready.
+
+    ``before``: the timer's start carried in from the previous run (None: not running).
+    """
+
+    cond: npt.NDArray[np.bool_]
+    gap: npt.NDArray[np.bool_]
+    t: FloatArray
+    before: float | None
+    hold_s: float
+    ready: IndexArray = field(init=False)
+
+    def __post_init__(self) -> None:
+        if self.hold_s <= TIME_EPS_S:  # no persistence: every sample meeting the condition is ready
+            self.ready = self.cond.nonzero()[0]
+        else:
+            self.ready = (self.cond & (self.t - self.began >= self.hold_s - TIME_EPS_S)).nonzero()[0]
+
+    @cached_property
+    def _begins(self) -> npt.NDArray[np.bool_]:
+        return stretch_begins(self.cond, self.gap, self.before)
+
+    @cached_property
+    def began(self) -> FloatArray:
+        """When the stretch each sample belongs to began (meaningless where the condition fails)."""
+        return stretch_start_times(self._begins, self.cond, self.t, self.before)
+
+    @cached_property
+    def begin(self) -> IndexArray:
+        """Where the stretch each sample belongs to began (-1: carried in from the previous run)."""
+        return last_marked(self._begins)
+
+    def next_ready(self, pos: int, after_edge: bool) -> int | None:
+        """The first sample from ``pos`` on at which the condition has held long enough (None: none).
+
+        ``after_edge``: an edge happened at ``pos - 1``, so a stretch running through it
+        counts from ``pos`` only.
+        """
+        k = int(np.searchsorted(self.ready, pos))
+        if k == self.ready.size:
+            return None
+        j = int(self.ready[k])
+        if not after_edge or self.hold_s <= TIME_EPS_S or self.begin[j] >= pos:
+            return j
+        rest = self.ready[k:]
+        same = rest[self.begin[rest] == self.begin[j]]
+        hits = same[self.t[same] - self.t[pos] >= self.hold_s - TIME_EPS_S]
+        if hits.size:
+            return int(hits[0])
+        return self.next_ready(int(same[-1]) + 1, False)
+
+    def since(self, k: int, floor: float | None) -> float | None:
+        """The timer's start right after sample ``k`` (no edge at ``k``); ``floor``: the sample after the last edge."""
+        if not self.cond[k]:
+            return None
+        began = float(self.began[k])
+        return began if floor is None else max(began, floor)
 
 
 class Hysteresis(LatchedModel):
@@ -81,9 +148,14 @@ class Hysteresis(LatchedModel):
         """The base state plus the running persistence timers and the inrush window (see base)."""
         super().carry_from(old)
         if isinstance(old, Hysteresis):
-            self._over_since, self._under_since = old._over_since, old._under_since
+            self._over_since, self._under_since = old.timers
             if self.inrush is not None and old.inrush is not None:
                 self.inrush.carry_from(old.inrush)
+
+    @property
+    def timers(self) -> tuple[float | None, float | None]:
+        """The running persistence timers: since when the overcurrent, and the recovery, held (None: not running)."""
+        return self._over_since, self._under_since
 
     def threshold_at(self, t: float) -> float | None:
         """The overcurrent threshold in force at ``t`` (None: check off during inrush blanking)."""
@@ -91,37 +163,59 @@ class Hysteresis(LatchedModel):
             return self.overcurrent_a
         return self.inrush.threshold(self.overcurrent_a, t)
 
-    def update(self, value: float, t: float) -> bool:
-        """Feed one sample; True when the tripped state changed."""
-        a = self._accept(value, t)
-        if a is None:
-            return False
-        if self._last_t is not None and t - self._last_t > self.max_gap_s:
-            self._over_since = self._under_since = None
-        self._last_t = t
-        self._value = a
-        if self.inrush is not None:
-            self.inrush.observe(a, t)
-        if not self._tripped:
-            thr = self.threshold_at(t)
-            if thr is not None and a >= thr:
-                if self._over_since is None:
-                    self._over_since = t
-                if t - self._over_since >= self.trip_after_s - TIME_EPS_S:
-                    self._over_since = None
-                    return self._set_tripped(True, t)
+    def _scan(self, t: FloatArray, a: FloatArray) -> Scan:
+        """The trip and recovery conditions as columns, their held times as stretches, the edges one by one.
+
+        Over a run the overcurrent condition (|I| >= the threshold in force) and the
+        recovery one (|I| <= ``recovery_a``) do not depend on the state; each persistence
+        timer runs from the start of the current stretch of samples meeting its condition
+        (a gap over ``max_gap_s`` or a sample failing it starts a new stretch), counted no
+        earlier than the sample after the latest edge (an edge stops the other timer).
+        """
+        gap = np.empty(a.size, dtype=bool)
+        gap[0] = self._last_t is not None and t[0] - self._last_t > self.max_gap_s
+        np.greater(np.diff(t), self.max_gap_s, out=gap[1:])
+        inrush = self.inrush.scan(t, a) if self.inrush is not None else None
+        over = a >= self.overcurrent_a
+        if inrush is not None:
+            if self.inrush_threshold_a is None:
+                over &= ~inrush.blanking
             else:
-                self._over_since = None
-            return False
-        if a <= self.recovery_a:
-            if self._under_since is None:
-                self._under_since = t
-            if t - self._under_since >= self.recover_after_s - TIME_EPS_S:
-                self._under_since = None
-                return self._set_tripped(False, t)
-        else:
-            self._under_since = None
-        return False
+                over = np.where(inrush.blanking, a >= self.inrush_threshold_a, over)
+        sides = (
+            _Side(over, gap, t, None if self._tripped else self._over_since, self.trip_after_s),
+            _Side(a <= self.recovery_a, gap, t, self._under_since if self._tripped else None, self.recover_after_s),
+        )
+        state = np.empty(a.size, dtype=bool)
+        edges: list[int] = []
+        tripped, pos = self._tripped, 0
+        while pos < a.size:
+            j = sides[tripped].next_ready(pos, bool(edges))
+            if j is None:
+                state[pos:] = tripped
+                break
+            state[pos:j] = tripped
+            tripped = not tripped
+            state[j] = tripped
+            edges.append(j)
+            pos = j + 1
+        marks = np.asarray(edges, dtype=np.intp)
+
+        def commit(k: int) -> None:
+            if inrush is not None:
+                inrush.commit(k)
+            n = int(np.searchsorted(marks, k, side="right"))
+            floor = t[marks[n - 1] + 1] if n and marks[n - 1] < k else None
+            now_tripped = bool(state[k])
+            self._over_since = None if now_tripped or (n and marks[n - 1] == k) else sides[0].since(k, floor)
+            self._under_since = None if not now_tripped or (n and marks[n - 1] == k) else sides[1].since(k, floor)
+
+        return Scan(state, commit)
+
+    @property
+    def inrush_threshold_a(self) -> float | None:
+        """The overcurrent threshold inside an inrush window (None: no check there, or no inrush helper)."""
+        return None if self.inrush is None else self.inrush.inrush_threshold_a
 
     def settles(self, low: float, high: float, first_t: float) -> bool:
         """A run below the trip threshold (not tripped) or above the recovery one (tripped); never with inrush."""

@@ -51,7 +51,11 @@ from abc import abstractmethod
 from collections.abc import Mapping
 from typing import Any
 
-from canguard.protect.base import REASON_I2T, LatchedModel, ProtectionModel
+import numpy as np
+
+from canguard.protect.accumulate import clamped_sum, thermal_steps
+from canguard.protect.base import REASON_I2T, LatchedModel, ProtectionModel, Scan
+from canguard.protect.columns import FloatArray, hold
 from canguard.units import AMPERE2_SECOND, THETA
 
 KIND_LEAKY = "leaky"
@@ -160,8 +164,8 @@ class _I2tModel(LatchedModel):
         """The accumulator value at which the model trips (A²s, or θ = 1)."""
 
     @abstractmethod
-    def _integrate(self, current_a: float, dt: float) -> None:
-        """Advance the accumulator by ``dt`` > 0 seconds at a constant |I| = ``current_a``."""
+    def _accumulate(self, held: FloatArray, dt: FloatArray) -> FloatArray:
+        """The accumulator after each step: |I| = ``held[i]`` for ``dt[i]`` s (0: no step), from the present one."""
 
     @abstractmethod
     def params(self) -> dict[str, float | None]:
@@ -177,6 +181,11 @@ class _I2tModel(LatchedModel):
     def accumulator(self) -> float:
         """The raw state: A (A²s) for the leaky bucket, θ for the thermal image."""
         return self._acc
+
+    @property
+    def held_a(self) -> float:
+        """The |I| held since the latest sample (A; NaN before any sample and after a restore)."""
+        return self._held
 
     @property
     def level(self) -> float:
@@ -198,33 +207,37 @@ class _I2tModel(LatchedModel):
         super().carry_from(old)
         if isinstance(old, _I2tModel):
             self._set_acc(old.level * self.trip_level)
-            self._held = old._held
+            self._held = old.held_a
             self.stale_gaps = old.stale_gaps
 
-    def update(self, value: float, t: float) -> bool:
-        """Feed one sample; True when the tripped state changed. See the module docstring."""
-        a = self._accept(value, t)
-        if a is None:
-            return False
-        if self._last_t is not None and not math.isnan(self._held):
-            dt = t - self._last_t
-            if dt > self.max_gap_s:
-                self.stale_gaps += 1
-                dt = self.max_gap_s
-            if dt > 0:
-                self._integrate(self._held, dt)
-        self._last_t = t
-        self._value = a
-        self._held = a
-        return self._evaluate(t)
+    def _scan(self, t: FloatArray, a: FloatArray) -> Scan:
+        """Each sample's |I| held until the next, integrated exactly per interval; trip/recover on the level.
 
-    def _evaluate(self, t: float | None) -> bool:
-        lvl = self.level
-        if lvl >= 1.0:
-            return self._set_tripped(True, t)
-        if self._tripped and lvl < self.recover_fraction:
-            return self._set_tripped(False, t)
-        return False
+        The time steps are the time column's differences (the first against the
+        previous run's last sample), cut to ``max_gap_s`` (a stale gap) and zero where
+        nothing is integrated (before any sample, a repeated timestamp). The model's
+        :meth:`_accumulate` turns them into the accumulator after each sample; the
+        tripped state is then a set/reset latch on the level column.
+        """
+        held = np.empty(a.size)
+        held[0] = self._held
+        held[1:] = a[:-1]
+        dt = np.empty(a.size)
+        dt[0] = math.nan if self._last_t is None else t[0] - self._last_t
+        np.subtract(t[1:], t[:-1], out=dt[1:])
+        stale = dt > self.max_gap_s
+        stale[0] &= not math.isnan(self._held)
+        dt = np.where(np.isnan(held) | ~(dt > 0), 0.0, np.minimum(dt, self.max_gap_s))
+        acc = self._accumulate(held, dt)
+        level = acc / self.trip_level
+        state = hold(level >= 1.0, level < self.recover_fraction, self._tripped)
+
+        def commit(k: int) -> None:
+            self._acc = float(acc[k])
+            self._held = float(a[k])
+            self.stale_gaps += int(np.count_nonzero(stale[: k + 1]))
+
+        return Scan(state, commit)
 
     def _threshold_value(self) -> float:
         return self.trip_level
@@ -235,7 +248,7 @@ class _I2tModel(LatchedModel):
     def set_hot(self, t: float | None = None) -> None:
         """Worst case: put the state at the trip level (the model trips; ``t`` becomes ``since``)."""
         self._set_acc(self.trip_level)
-        self._evaluate(t)
+        self._set_tripped(True, t)
 
     def export(self) -> dict[str, Any]:
         """The state as a JSON-able dict: kind, version, parameters, accumulator, level, tripped, time."""
@@ -301,10 +314,13 @@ class LeakyI2t(_I2tModel):
         """S = (peak_a² − continuous_a²)·peak_time_s, in A²s."""
         return self._s
 
-    def _integrate(self, current_a: float, dt: float) -> None:
-        rate = current_a * current_a - self.continuous_a * self.continuous_a
-        if rate != 0:
-            self._set_acc(self._acc + rate * dt)
+    def _accumulate(self, held: FloatArray, dt: FloatArray) -> FloatArray:
+        """A running sum of ``(I² − I_cont²)·dt`` floored at 0 and capped (see :func:`clamped_sum`)."""
+        c2 = self.continuous_a * self.continuous_a
+        with np.errstate(invalid="ignore", over="ignore"):
+            rate = held * held - c2
+            steps = np.where(dt > 0, rate * dt, 0.0)
+        return clamped_sum(self._acc, steps, MAX_LEVEL * self._s)
 
     def params(self) -> dict[str, float | None]:
         """continuous_a, peak_a, peak_time_s, recover_fraction, max_gap_s (None = inf)."""
@@ -379,10 +395,15 @@ class ThermalI2t(_I2tModel):
         """θ = 1."""
         return 1.0
 
-    def _integrate(self, current_a: float, dt: float) -> None:
-        q = min(current_a * current_a / self._c2, MAX_LEVEL)
-        tau = self.tau_cool_s if q < self._acc else self.tau_s
-        self._set_acc(q + (self._acc - q) * math.exp(-dt / tau))
+    def _accumulate(self, held: FloatArray, dt: FloatArray) -> FloatArray:
+        """θ ← q + (θ − q)·exp(−dt/τ) per step, q = I²/I_cont² (capped), τ the cooling one while q < θ.
+
+        The time constant depends on the state (heating or cooling), so the steps run
+        one after the other, over plain floats (the columns prepared by numpy).
+        """
+        with np.errstate(invalid="ignore", over="ignore"):
+            q = np.minimum(held * held / self._c2, MAX_LEVEL)
+        return np.asarray(thermal_steps(self._acc, q.tolist(), dt.tolist(), self.tau_s, self.tau_cool_s, MAX_LEVEL))
 
     def params(self) -> dict[str, float | None]:
         """continuous_a, peak_a, peak_time_s, tau_s and tau_cool_s (resolved), recover_fraction, max_gap_s."""

@@ -34,10 +34,16 @@ sample's invalid reason, ``not_present``.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
 
 from canguard.config.schema import NON_VALUE_ROLES, SourceConfig
 from canguard.io.frame import INVALID_INF, INVALID_NAN, INVALID_RANGE, Sample
 from canguard.protect.base import REASON_NO_DATA, REASON_NOT_PRESENT, REASON_OK, REASON_STALE
+from canguard.protect.columns import FloatArray, IndexArray, as_run, in_order
 
 PRESENT = "present"
 COUNTER = "counter"
@@ -55,6 +61,26 @@ FULL_ROLES = NON_VALUE_ROLES
 """Roles whose every sample takes :meth:`SourceHealth.observe`'s full path (their value can change a reason)."""
 ROW_ROLES = NON_VALUE_ROLES - {PRESENT}
 """Roles a replay block cannot take as columns (the presence flag it checks itself): every row is fed."""
+
+
+@dataclass(frozen=True)
+class HealthRun:
+    """What :meth:`SourceHealth.observe_run` did with a run of samples.
+
+    ``index``: positions in the run of the samples at which the source's reason changed
+    (an edge: tick the tree). ``t``: their times (s). ``reasons``: the source's reason
+    right after each ("" = usable). ``taken``: samples consumed (all unless ``until_edge``).
+    """
+
+    index: IndexArray
+    t: FloatArray
+    reasons: tuple[str, ...]
+    taken: int
+
+    @property
+    def changed(self) -> bool:
+        """True when the run changed the source's reason at least once."""
+        return bool(self.index.size)
 
 
 class SourceHealth:
@@ -100,57 +126,110 @@ class SourceHealth:
         """The DBC [min|max] of each role that has one: values outside are ``out_of_range``."""
         return self._ranges
 
+    def latest_t(self, role: str) -> float | None:
+        """Time of the latest sample of ``role``, valid or not (None: none yet); a run's samples must not be older."""
+        return self._latest_t.get(role)
+
+    def invalid_reason(self, role: str) -> str:
+        """The invalid reason of the latest sample of ``role`` ("" when it was valid or there was none)."""
+        return self._invalid.get(role, "")
+
     @property
     def name(self) -> str:
         """The source's configured name."""
         return self.source.name
 
-    def _check(self, sample: Sample) -> str:
-        """The invalid reason of ``sample``: its own, or NaN / inf / range as seen here."""
-        if sample.reason:
-            return sample.reason
-        v = sample.value
-        if math.isnan(v):
-            return INVALID_NAN
-        if math.isinf(v):
-            return INVALID_INF
-        lo, hi = self._ranges.get(sample.signal, (None, None))
-        if (lo is not None and v < lo) or (hi is not None and v > hi):
-            return INVALID_RANGE
-        return ""
-
     def observe(self, sample: Sample) -> bool:
-        """Take one sample of this source; True when the source's health reason changed (an edge).
+        """Take one sample of this source (a run of one); True when the source's health reason changed (an edge)."""
+        return self.observe_run(sample.signal, (sample.t,), (sample.value,), (sample.reason,)).changed
 
-        The reason just after the sample (at the sample's time) is compared both
-        with the reason just before it at that time (so data coming back after a
-        stale spell is an edge) and with the reason the previous ``observe`` left
-        (so a source found stale or invalid at this sample is an edge too).
+    def observe_run(self, role: str, times: npt.ArrayLike, values: npt.ArrayLike,
+                    reasons: Sequence[str] | None = None, *, until_edge: bool = False) -> HealthRun:
+        """Take a run of samples of one ``role`` of this source, in arrival order; where the reason changed.
+
+        ``times`` (s) and ``values`` are columns of one length; ``reasons``, when given,
+        each sample's own invalid reason ("" when the decoder found none; see
+        :class:`~canguard.io.frame.Sample`). A sample whose time is NaN or older than the
+        latest of its role is counted in ``out_of_order`` and changes nothing; a NaN, inf
+        or out-of-range value is invalid (it never replaces the latest valid value).
+
+        At each sample the reason just after it (at its time) is compared both with the
+        reason just before it at that time (so data coming back after a stale spell is
+        an edge) and with the reason the previous sample left (so a source found stale or
+        invalid at a sample is an edge too). Most samples cannot change anything: a valid
+        sample of a value role within ``max_age_s`` of a valid previous one only becomes
+        the latest (another role going stale meanwhile is a matter of time, which ticks
+        see); they are taken as a block, the others one by one.
+
+        With ``until_edge`` the run stops right after the first edge (``taken``). The
+        result gives the edges' positions, times and the reason after each.
         """
-        self.samples += 1
-        role, t = sample.signal, sample.t
-        latest = self._latest_t.get(role)
-        if math.isnan(t) or (latest is not None and t < latest):
-            self.out_of_order += 1
-            return False
-        bad = self._check(sample)
-        if (
-            not bad
-            and latest is not None
-            and role not in FULL_ROLES
-            and t - latest <= self.max_age_s
-            and not self._invalid.get(role)
-        ):
-            # Fast path (the common case): a valid sample of a role that was fresh and valid stays
-            # so, and the other roles did not change: the reason cannot change with it. A role of
-            # another signal going stale in the meantime is a matter of time, which ticks see.
-            self._latest_t[role] = t
-            self._value[role] = float(sample.value)
-            self._valid_t[role] = t
-            return False
+        t, v = as_run(times, values)
+        bad = self._invalid_codes(role, v, reasons)
+        ok = in_order(t, ~np.isnan(t), self._latest_t.get(role))
+        full = ok.copy()
+        if role not in FULL_ROLES and t.size:
+            prev_t, prev_bad = np.empty(t.size), np.empty(t.size, dtype=bool)
+            latest = self._latest_t.get(role)
+            prev_t[0] = math.nan if latest is None else latest
+            prev_bad[0] = bool(self._invalid.get(role))
+            kept = ok.nonzero()[0]
+            if kept.size > 1:  # the previous accepted sample of each accepted one
+                prev_t[kept[1:]] = t[kept[:-1]]
+                prev_bad[kept[1:]] = bad[kept[:-1]] != ""
+            if kept.size:
+                prev_t[kept[0]], prev_bad[kept[0]] = prev_t[0], prev_bad[0]
+            with np.errstate(invalid="ignore"):  # inf - inf: an infinite time is never fresh
+                full &= (bad != "") | ~(t - prev_t <= self.max_age_s) | prev_bad
+        edges: list[int] = []
+        reasons_after: list[str] = []
+        taken, done = t.size, 0
+        for i in full.nonzero()[0].tolist():
+            self._take_quiet(role, t, v, ok, done, i)
+            done = i + 1
+            if self._full_step(role, float(t[i]), float(v[i]), str(bad[i])):
+                edges.append(i)
+                reasons_after.append(self._last_reason)
+                if until_edge:
+                    taken = i + 1
+                    break
+        self._take_quiet(role, t, v, ok, done, taken)
+        self.samples += taken
+        self.out_of_order += int(np.count_nonzero(~ok[:taken]))
+        at = np.asarray(edges, dtype=np.intp)
+        return HealthRun(at, t[at], tuple(reasons_after), taken)
+
+    def _invalid_codes(self, role: str, v: FloatArray, reasons: Sequence[str] | None) -> npt.NDArray[np.str_]:
+        """Each sample's invalid reason: its own, or NaN / inf / range as seen here ("" when valid)."""
+        lo, hi = self._ranges.get(role, (None, None))
+        with np.errstate(invalid="ignore"):
+            out = np.where(np.isnan(v), INVALID_NAN, np.where(np.isinf(v), INVALID_INF, ""))
+            if lo is not None or hi is not None:
+                outside = np.zeros(v.size, dtype=bool)
+                if lo is not None:
+                    outside |= v < lo
+                if hi is not None:
+                    outside |= v > hi
+                out = np.where((out == "") & outside, INVALID_RANGE, out)
+        if reasons is not None:
+            own = np.asarray(reasons, dtype=str)
+            if own.shape != v.shape:
+                raise ValueError(f"reasons: expected one per sample ({v.size}), got {own.size}")
+            out = np.where(own != "", own, out)
+        return out
+
+    def _take_quiet(self, role: str, t: FloatArray, v: FloatArray, ok: npt.NDArray[np.bool_],
+                    start: int, end: int) -> None:
+        """Samples ``start`` to ``end`` (excluded) that change nothing but the latest value: take the last."""
+        kept = ok[start:end].nonzero()[0]
+        if kept.size:
+            k = start + int(kept[-1])
+            self.take(role, float(t[k]), float(v[k]))
+
+    def _full_step(self, role: str, t: float, value: float, bad: str) -> bool:
+        """One sample that may change the reason; True on an edge (see :meth:`observe_run`)."""
         before = self.reason(t)
         if role == COUNTER and not bad:
-            value = float(sample.value)
             if value != self._counter:
                 self._counter, self._counter_since = value, t
             self._frozen = t - self._counter_since > self.max_age_s
@@ -159,7 +238,7 @@ class SourceHealth:
         if bad:
             self.invalid_samples += 1
         else:
-            self._value[role] = float(sample.value)
+            self._value[role] = value
             self._valid_t[role] = t
         self._ok_since = math.nan  # this sample may have made a role unusable
         after = self.reason(t)
@@ -250,3 +329,37 @@ class SourceHealth:
     def values(self, now: float) -> dict[str, float]:
         """Every value role's latest value, NaN where :meth:`reason` for that role is not empty at ``now``."""
         return {r: (self.value(r) if not self.reason(now, r) else math.nan) for r in self._value_roles}
+
+    # -- rows that cannot change the reason, taken at once (the engine's block path) --------------
+    @property
+    def value_roles(self) -> tuple[str, ...]:
+        """The source's value roles, in config order (``present`` and ``counter`` are not value roles)."""
+        return self._value_roles
+
+    @property
+    def last_reason(self) -> str:
+        """The reason the last sample :meth:`observe` looked at fully left ("" usable)."""
+        return self._last_reason
+
+    def latest_times(self) -> dict[str, float]:
+        """Each role's latest sample time, valid or not (a copy)."""
+        return dict(self._latest_t)
+
+    def fresh_valid(self, role: str, t: float) -> bool:
+        """True when a valid sample of ``role`` at ``t`` cannot change the reason (:meth:`observe`'s fast path).
+
+        The role's latest sample is valid, not after ``t`` and at most ``max_age_s`` before it.
+        """
+        latest = self._latest_t.get(role)
+        return latest is not None and latest <= t and t - latest <= self.max_age_s and not self._invalid.get(role)
+
+    def settled(self, t: float) -> bool:
+        """True when the source was usable at its last full look and every role is fresh at ``t`` (a presence
+        flag of 1 at ``t`` then changes nothing)."""
+        return not self._last_reason and t - self._ok_since <= self.max_age_s
+
+    def take(self, role: str, t: float, value: float) -> None:
+        """Take a valid sample of ``role`` for which :meth:`fresh_valid` holds: it only becomes the latest."""
+        self._latest_t[role] = t
+        self._value[role] = value
+        self._valid_t[role] = t

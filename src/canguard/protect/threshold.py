@@ -10,7 +10,8 @@ from __future__ import annotations
 
 import math
 
-from canguard.protect.base import REASON_OVERCURRENT, LatchedModel
+from canguard.protect.base import REASON_OVERCURRENT, LatchedModel, Scan
+from canguard.protect.columns import FloatArray
 
 
 def check_limit(name: str, value: float) -> float:
@@ -37,14 +38,9 @@ class Threshold(LatchedModel):
         """Change the limit at run time (validated like the constructor); applies from the next sample."""
         self.max_value = check_limit("max_value", max_value)
 
-    def update(self, value: float, t: float) -> bool:
-        """Feed one sample; True when the tripped state changed."""
-        a = self._accept(value, t)
-        if a is None:
-            return False
-        self._last_t = t
-        self._value = a
-        return self._set_tripped(a > self.max_value, t)
+    def _scan(self, t: FloatArray, a: FloatArray) -> Scan:
+        """Tripped after each sample exactly when its |value| exceeds the limit: no state beyond that."""
+        return Scan(a > self.max_value, _keep)
 
     def settles(self, low: float, high: float, first_t: float) -> bool:
         """A run that stays on its side of ``max_value`` (see :meth:`LatchedModel.settles`)."""
@@ -57,6 +53,10 @@ class Threshold(LatchedModel):
 
     def _level_pct(self) -> float:
         return level_pct(self._value, self.max_value)
+
+
+def _keep(_k: int) -> None:
+    """Nothing of a plain limit's own to carry past a sample."""
 
 
 def level_pct(value: float, threshold: float | None) -> float:

@@ -135,7 +135,7 @@ class Daemon:
             on_refused=self._send_refused,
         )
         try:
-            self.engine = self._build_engine(self.cfg)
+            self.engine = self.build_engine(self.cfg)
         except BaseException:
             if self.monitor is not None:
                 self.monitor.close()
@@ -143,7 +143,7 @@ class Daemon:
         self.overrun_limit_s = overrun_limit(self.cfg)
         """A frame that waited longer in the receive queue stops the task (:meth:`Engine.overrun`)."""
 
-    def _build_engine(self, cfg: Config, previous: Engine | None = None) -> Engine:
+    def build_engine(self, cfg: Config, previous: Engine | None = None) -> Engine:
         heat = HeatStore(cfg.state.file, cfg.state.on_corrupt, clock=BootClock())
         before = registered_clients()
         try:
@@ -290,16 +290,16 @@ class Daemon:
             cfg = self.load()
             if dict(cfg.buses) != dict(self.cfg.buses):
                 raise CanguardError("buses changed: a bus change needs a restart (systemctl restart canguard)")
-            new = self._build_engine(cfg, previous=self.engine)
+            new = self.build_engine(cfg, previous=self.engine)
         except (CanguardError, OSError, ValueError) as exc:
             log.error("reload rejected, keeping the running config: %s", exc)
-            self.engine._event({"event": "error", "reason": f"reload rejected: {exc}"})
-            self.engine._flush()
+            self.engine.journal.write({"event": "error", "reason": f"reload rejected: {exc}"})
+            self.engine.journal.flush()
             self.notifier.ready()
             return False
         old = self.engine
         now = self.clock.now()
-        old._save_heat(now, periodic=False)  # the new guards start from the heat the old ones had
+        old.store_heat(now)  # the new guards start from the heat the old ones had
         self.cfg, self.engine = cfg, new
         self.overrun_limit_s = overrun_limit(cfg)
         new.start(now)
@@ -307,8 +307,8 @@ class Daemon:
         # (the new tree judges it at its first tick), a stopped one stays stopped until it recovers.
         new.adopt(old)
         release_clients(tree_clients(old.root))  # py_trees' blackboard is global: drop the old tree's keys
-        new._event({"event": "reload", "reason": f"config {self.config_path} reloaded"})
-        new._flush()
+        new.journal.write({"event": "reload", "reason": f"config {self.config_path} reloaded"})
+        new.journal.flush()
         self.notifier.ready()
         return True
 
@@ -321,9 +321,9 @@ class Daemon:
         """
         engine = getattr(self, "engine", None)
         if engine is not None:
-            engine._event({"event": "bus_error", "source": bus,
-                           "reason": f"send refused: {label} ({origin}); sent again at the next repeat"
-                                     f"{held_note(held)}"})
+            engine.journal.write({"event": "bus_error", "source": bus,
+                                  "reason": f"send refused: {label} ({origin}); sent again at the next repeat"
+                                            f"{held_note(held)}"})
 
     def _bus_error(self, bus: str, exc: BaseException) -> None:
         # Called from a receive thread: hand it to the loop, which owns the journal.
@@ -345,7 +345,7 @@ class Daemon:
         for bus in [b for b in self._down if alive.get(b)]:
             self._down.discard(bus)
             engine.bus_up(bus)
-            engine._event({"event": "bus_error", "source": bus, "reason": "reopened"})
+            engine.journal.write({"event": "bus_error", "source": bus, "reason": "reopened"})
 
 
 def overrun_limit(cfg: Config) -> float:

@@ -14,6 +14,7 @@ import io
 import logging
 import threading
 import time
+from collections.abc import Callable
 from os import PathLike
 from typing import IO, Any
 
@@ -81,6 +82,19 @@ def _can_send_error_frames(bus: can.BusABC) -> bool:
     return type(bus).__name__ in {"VirtualBus", "UdpMulticastBus"}
 
 
+def _pace(bus: can.BusABC, due: float, answer: Callable[[can.Message | None], None],
+          stop_event: threading.Event | None) -> None:
+    """Wait until the monotonic clock reaches ``due``, answering the bus' frames meanwhile."""
+    while True:
+        wait = due - time.monotonic()
+        if wait < _SLEEP_MIN_S:
+            answer(bus.recv(0))
+            return
+        answer(bus.recv(min(wait, 0.05)))
+        if stop_event is not None and stop_event.is_set():
+            return
+
+
 def run_on_bus(
     bus: can.BusABC,
     duration_s: float,
@@ -125,15 +139,7 @@ def run_on_bus(
         if stop_event is not None and stop_event.is_set():
             break
         if realtime:
-            due = wall0 + (frame.t - sim0)
-            while True:
-                wait = due - time.monotonic()
-                if wait < _SLEEP_MIN_S:
-                    answer(bus.recv(0))
-                    break
-                answer(bus.recv(min(wait, 0.05)))
-                if stop_event is not None and stop_event.is_set():
-                    break
+            _pace(bus, wall0 + (frame.t - sim0), answer, stop_event)
         elif n % _RECV_EVERY == 0:
             answer(bus.recv(0))
         if frame.is_error_frame and not send_errors:

@@ -6,10 +6,7 @@ import bisect
 import math
 import random
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
-
-if TYPE_CHECKING:
-    from canguard.sim.scenarios import Scenario
+from typing import TYPE_CHECKING, Protocol
 
 AXIS_STATE_IDLE = 1
 AXIS_STATE_CLOSED_LOOP = 8
@@ -63,13 +60,20 @@ class _Axis:
     ids: dict[str, int] = field(default_factory=dict)
 
 
+class SetpointHook(Protocol):
+    """What the motion asks of a scenario (:class:`canguard.sim.scenarios.Scenario` is one)."""
+
+    def setpoint(self, axis: int, t: float, iq_a: float) -> float:
+        """The current setpoint of ``axis`` at ``t`` given the duty cycle's ``iq_a``."""
+
+
 class MotionMixin:
     """Setpoints, currents and the pack of :class:`~canguard.sim.robot.SimRobot` (pure functions of time and state)."""
 
     if TYPE_CHECKING:  # what the robot provides
         rng: random.Random
         _axes: list[_Axis]
-        _setpoint_hooks: list[Scenario]
+        _setpoint_hooks: list[SetpointHook]
         _soc_pct: float
 
     def _duty(self, ax: _Axis, t: float) -> float:

@@ -54,7 +54,7 @@ from canguard.sim.motion import (  # noqa: F401 - the robot's constants are part
     MotionMixin,
     _Axis,
 )
-from canguard.sim.scenarios import Scenario, parse_scenario
+from canguard.sim.scenarios import Producer, Scenario, parse_scenario
 
 DEFAULT_RATES_HZ: dict[str, float] = {
     "Get_Iq": 250.0,
@@ -69,8 +69,6 @@ DEFAULT_RATES_HZ: dict[str, float] = {
 
 AXIS_KINDS = ("Get_Iq", "Get_Torques", "Get_Encoder_Estimates", "Get_Bus_Voltage_Current", "Heartbeat")
 BMS_KINDS = ("BMS_Status", "BMS_Temperatures")
-
-Producer = Callable[[float], "Frame | None"]
 
 
 class _Periodic:
@@ -92,8 +90,8 @@ class _Periodic:
         """Produce this period's frame (unless a scenario suppresses it) and schedule the next."""
         robot = self.robot
         self.k += 1
-        robot._push(self.phase_s + self.k * self.period_s + robot._jitter(), self)
-        if robot._suppressed(self.kind, t):
+        robot.schedule_once(self.phase_s + self.k * self.period_s + robot.jitter_s(), self)
+        if robot.suppressed(self.kind, t):
             return None
         return self.produce(t)
 
@@ -262,7 +260,7 @@ class SimRobot(MotionMixin):
         """Add a periodic stream: ``produce(t)`` at ``phase_s + k·period_s`` (k = 0, 1, ...)."""
         self._stream_rates[kind] = self._stream_rates.get(kind, 0.0) + 1.0 / period_s
         stream = _Periodic(self, kind, period_s, phase_s, produce)
-        self._push(phase_s + self._jitter(), stream)
+        self._push(phase_s + self.jitter_s(), stream)
 
     def raw_frame(
         self, t: float, frame_id: int, data: bytes, extended: bool = False, *, error: bool = False
@@ -306,10 +304,12 @@ class SimRobot(MotionMixin):
         t, _, frame = heapq.heappop(self._cmds)
         return t, frame
 
-    def _jitter(self) -> float:
+    def jitter_s(self) -> float:
+        """A random delay of a periodic frame (a real bus' scheduling jitter)."""
         return self.rng.uniform(0.0, JITTER_S)
 
-    def _suppressed(self, kind: str, t: float) -> bool:
+    def suppressed(self, kind: str, t: float) -> bool:
+        """True when a scenario drops the periodic ``kind`` frame due at ``t``."""
         return any(s.suppress(kind, t) for s in self._suppress_hooks)
 
     def _add_base_streams(self) -> None:

@@ -63,7 +63,7 @@ def versioned_storage() -> _Versioned:
 def _version(node: CanguardNode) -> int | None:
     """The write count of the node's ``entry`` (None: no such entry), resolved in the node's namespace."""
     storage = versioned_storage()
-    key = node._keys.get("entry")
+    key = node.wired_key("entry")
     if key is None:
         name = str(node.port("entry") or "").strip().strip("{}")
         namespace = getattr(node, "_subtree_namespace", None) or "/"

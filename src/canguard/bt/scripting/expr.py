@@ -175,22 +175,26 @@ class Binary(Expr):
             left = lv if isinstance(lv, str) else number_text(lv)  # type: ignore[arg-type]
             right = rv if isinstance(rv, str) else number_text(rv)  # type: ignore[arg-type]
             return left + right
-        if op == "..":
-            expected = "at least one string (and otherwise numbers)"
-        elif op == "+":
-            expected = "two numbers or two strings"
-        elif op in ("&&", "||"):
-            expected = "booleans, or the numbers 0 and 1"
-        else:
-            expected = "numbers"
-        raise ScriptError(
-            f"operation not permitted: [{op}] between {describe(lv)} and {describe(rv)} (expected {expected})",
-            self.pos,
-        )
+        raise _not_permitted(op, lv, rv, self.pos)
 
     def names(self, out: set[str]) -> None:
         self.lhs.names(out)
         self.rhs.names(out)
+
+
+def _not_permitted(op: str, lv: object, rv: object, pos: int) -> ScriptError:
+    """The error of a binary operator ``op`` given operands it does not take."""
+    if op == "..":
+        expected = "at least one string (and otherwise numbers)"
+    elif op == "+":
+        expected = "two numbers or two strings"
+    elif op in ("&&", "||"):
+        expected = "booleans, or the numbers 0 and 1"
+    else:
+        expected = "numbers"
+    return ScriptError(
+        f"operation not permitted: [{op}] between {describe(lv)} and {describe(rv)} (expected {expected})", pos
+    )
 
 
 def _compare(op: str, a: object, b: object) -> bool:

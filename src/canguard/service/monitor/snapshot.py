@@ -144,7 +144,7 @@ class Observer:
         if gate.stops != self._stops:
             self._stops = gate.stops
             self._stopped_by = failing
-        key = (codes, gate.state, gate.stops, engine.events_written, gate.stop_reason)
+        key = (codes, gate.state, gate.stops, engine.journal.written, gate.stop_reason)
         mono = time.monotonic()
         stale = mono - self._guards_at >= GUARD_PERIOD_S
         if key == self._key and not stale:

@@ -1,0 +1,309 @@
+"""The models' run methods against the per-sample reference maths: same edges at the same samples, same state."""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from tests.reference_models import RefHealth, RefHysteresis, RefI2t, RefInrush, RefLatched, RefThreshold
+
+from canguard.config.schema import SignalRef, SourceConfig
+from canguard.protect import Hysteresis, InrushBlanking, LeakyI2t, SourceHealth, ThermalI2t, Threshold
+from canguard.protect.base import LatchedModel
+from canguard.protect.staleness import COUNTER, PRESENT
+
+REL = 1e-9
+
+# A time step: mostly a regular one, sometimes repeated, backwards, huge, or not a number.
+STEPS = st.one_of(
+    st.floats(0.001, 0.05),
+    st.floats(0.001, 0.05),
+    st.floats(0.001, 0.05),
+    st.just(0.0),
+    st.floats(-2.0, -1e-6),
+    st.floats(1.0, 1e7),
+    st.sampled_from([math.nan, math.inf, -math.inf]),
+)
+# A value: around the thresholds the factories use, sometimes exactly on one, huge, or not a number.
+VALUES = st.one_of(
+    st.floats(-40.0, 40.0),
+    st.floats(-40.0, 40.0),
+    st.sampled_from([0.0, 5.0, 6.0, 10.0, 12.0, -10.0, 1e200, math.nan, math.inf, -math.inf]),
+)
+
+
+@st.composite
+def streams(draw: st.DrawFn, max_size: int = 300) -> tuple[np.ndarray, np.ndarray]:
+    """Times (running sums of random steps; a bad step gives one bad time) and values of one signal."""
+    steps = draw(st.lists(STEPS, min_size=1, max_size=max_size))
+    values = draw(st.lists(VALUES, min_size=len(steps), max_size=len(steps)))
+    times, t = [], 0.0
+    for step in steps:
+        if math.isfinite(step):
+            t += step
+            times.append(t)
+        else:
+            times.append(step)
+    return np.array(times), np.array(values)
+
+
+Pair = tuple[Callable[[], LatchedModel], Callable[[], RefLatched]]
+
+
+@st.composite
+def pairs(draw: st.DrawFn) -> tuple[str, Pair]:
+    """A model kind with random parameters, and the reference with the same ones."""
+    kind = draw(st.sampled_from(["threshold", "hysteresis", "inrush", "leaky", "thermal"]))
+    if kind == "threshold":
+        limit = draw(st.sampled_from([0.0, 10.0, 12.5]))
+        return kind, (lambda: Threshold(limit), lambda: RefThreshold(max_value=limit))
+    gap = draw(st.sampled_from([math.inf, 0.1, 2.0]))
+    if kind in ("hysteresis", "inrush"):
+        over = draw(st.sampled_from([10.0, 12.0]))
+        rec = draw(st.sampled_from([5.0, over]))
+        trip_after = draw(st.sampled_from([0.0, 0.02, 0.1]))
+        rec_after = draw(st.sampled_from([0.0, 0.03, 0.2]))
+        if kind == "hysteresis":
+            return kind, (lambda: Hysteresis(over, rec, trip_after, rec_after, max_gap_s=gap),
+                          lambda: RefHysteresis(overcurrent_a=over, recovery_a=rec, trip_after_s=trip_after,
+                                                recover_after_s=rec_after, max_gap_s=gap))
+        inrush_thr = draw(st.sampled_from([None, 3.0, 20.0]))
+        start, window = draw(st.sampled_from([2.0, 6.0])), draw(st.sampled_from([0.0, 0.05, 0.2]))
+        return kind, (
+            lambda: Hysteresis(over, rec, trip_after, rec_after, InrushBlanking(start, window, inrush_thr),
+                               max_gap_s=gap),
+            lambda: RefHysteresis(overcurrent_a=over, recovery_a=rec, trip_after_s=trip_after,
+                                  recover_after_s=rec_after, max_gap_s=gap,
+                                  inrush=RefInrush(start, window, inrush_thr)),
+        )
+    frac = draw(st.sampled_from([0.5, 0.9]))
+    if kind == "leaky":
+        peak_time = draw(st.sampled_from([0.05, 1.0, 3.0]))
+        return kind, (lambda: LeakyI2t(6.0, 12.0, peak_time, frac, gap),
+                      lambda: RefI2t(kind="leaky", peak_time_s=peak_time, recover_fraction=frac, max_gap_s=gap))
+    tau, cool = draw(st.sampled_from([0.05, 1.0])), draw(st.sampled_from([None, 0.3, 5.0]))
+    return kind, (lambda: ThermalI2t(6.0, tau_s=tau, tau_cool_s=cool, recover_fraction=frac, max_gap_s=gap),
+                  lambda: RefI2t(kind="thermal", tau_s=tau, tau_cool_s=tau if cool is None else cool,
+                                 recover_fraction=frac, max_gap_s=gap))
+
+
+def reference_edges(ref: Any, times: np.ndarray, values: np.ndarray) -> list[int]:
+    """The samples at which the reference's tripped state changed."""
+    return [i for i, (t, v) in enumerate(zip(times.tolist(), values.tolist(), strict=True)) if ref.update(v, t)]
+
+
+def feed(model: LatchedModel, times: np.ndarray, values: np.ndarray, cuts: list[int], until_edge: bool) -> list[int]:
+    """Feed the samples as runs split at ``cuts``, stopping at each edge if asked; the edges' positions."""
+    edges: list[int] = []
+    bounds = [0, *sorted(set(cuts)), len(times)]
+    for lo, hi in itertools.pairwise(bounds):
+        pos = lo
+        while pos < hi:
+            was = model.tripped
+            run = model.advance(times[pos:hi], values[pos:hi], until_edge=until_edge)
+            assert run.tripped.tolist() == [was == (k % 2 == 1) for k in range(run.index.size)]
+            assert run.changed == bool(run.index.size) and (not until_edge or run.index.size <= 1)
+            edges.extend((pos + run.index).tolist())
+            assert run.taken > 0
+            pos += run.taken
+    return edges
+
+
+def close(a: float | None, b: float | None, scale: float = 1.0) -> bool:
+    """Equal within 1e-9 relative (of the larger or of ``scale``), None and NaN equal to themselves."""
+    if a is None or b is None:
+        return a is b
+    if math.isnan(a) or math.isnan(b):
+        return math.isnan(a) and math.isnan(b)
+    return math.isclose(a, b, rel_tol=REL, abs_tol=REL * scale)
+
+
+def assert_same_state(model: LatchedModel, ref: Any) -> None:
+    """The model's state is the reference's: tripped, edge time, latest sample, counters, maths state."""
+    assert model.tripped == ref.tripped
+    assert close(model.since, ref.since)
+    assert close(model.last_t, ref.last_t)
+    assert close(model.snapshot().value, ref.value)
+    assert (model.rejected, model.out_of_order) == (ref.rejected, ref.out_of_order)
+    if isinstance(model, (LeakyI2t, ThermalI2t)):
+        assert close(model.accumulator, ref.acc, model.trip_level)
+        assert close(model.held_a, ref.held)
+        assert model.stale_gaps == ref.stale_gaps
+    if isinstance(model, Hysteresis):
+        over, under = model.timers
+        assert close(over, ref.over_since) and close(under, ref.under_since)
+        if model.inrush is not None:
+            assert close(model.inrush.window_start, ref.inrush.window_start)
+            assert model.inrush.starts == ref.inrush.starts
+
+
+SETTINGS = settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+
+
+@SETTINGS
+@given(pair=pairs(), stream=streams(), data=st.data())
+def test_runs_match_the_per_sample_reference(pair: tuple[str, Pair], stream: tuple[np.ndarray, np.ndarray],
+                                             data: st.DataObject) -> None:
+    """Runs of one, one long run and a run split at random points all trip and recover where the reference does."""
+    _kind, (make, make_ref) = pair
+    times, values = stream
+    ref = make_ref()
+    want = reference_edges(ref, times, values)
+    n = len(times)
+    cuts = data.draw(st.lists(st.integers(1, max(1, n - 1)), max_size=8)) if n > 1 else []
+    for split, until_edge in (([], False), (list(range(1, n)), False), (cuts, False), (cuts, True)):
+        model = make()
+        assert feed(model, times, values, split, until_edge) == want
+        assert_same_state(model, ref)
+
+
+@SETTINGS
+@given(pair=pairs(), stream=streams(max_size=120), data=st.data())
+def test_a_reload_carries_mid_run(pair: tuple[str, Pair], stream: tuple[np.ndarray, np.ndarray],
+                                  data: st.DataObject) -> None:
+    """A model that takes over another's state between two runs continues as if nothing happened."""
+    _kind, (make, make_ref) = pair
+    times, values = stream
+    ref = make_ref()
+    want = reference_edges(ref, times, values)
+    cut = data.draw(st.integers(0, len(times)))
+    first = make()
+    edges = (first.advance(times[:cut], values[:cut]).index).tolist()
+    second = make()
+    second.carry_from(first)
+    edges += (cut + second.advance(times[cut:], values[cut:]).index).tolist()
+    assert edges == want
+    assert second.tripped == ref.tripped
+
+
+def test_until_edge_stops_right_after_the_edge() -> None:
+    """With until_edge a run stops at the first edge, so a poll there sees the trip, and the rest continues."""
+    model = Threshold(10.0)
+    t = np.arange(1000) * 0.01
+    v = np.where((t > 5.0) & (t < 5.05), 20.0, 1.0)
+    first = model.advance(t, v, until_edge=True)
+    assert first.index.tolist() == [501] and first.taken == 502 and first.tripped.tolist() == [True]
+    assert model.poll(t[501]).tripped
+    rest = model.advance(t[first.taken:], v[first.taken:], until_edge=True)
+    assert (first.taken + rest.index).tolist() == [505] and not model.tripped
+    assert rest.tripped.tolist() == [False]
+
+
+def test_peak_sees_every_sample() -> None:
+    """A run's peak is the largest |value| of any accepted sample, a one-sample spike included."""
+    model = LeakyI2t(6.0, 12.0, 1.0)
+    v = np.ones(10_000)
+    v[7_777] = -33.0
+    v[8_000] = math.nan
+    assert model.advance(np.arange(10_000) * 1e-3, v).peak == 33.0
+
+
+def test_mismatched_columns_are_refused() -> None:
+    """Times and values of different lengths raise a ValueError naming both shapes; the state is untouched."""
+    model = Hysteresis(10.0, 5.0)
+    with pytest.raises(ValueError, match=r"\(3,\) and \(2,\)"):
+        model.advance([0.0, 1.0, 2.0], [1.0, 2.0])
+    assert model.last_t is None
+
+
+def test_inrush_run_matches_per_sample() -> None:
+    """The inrush helper finds the same starts over a run as sample by sample."""
+    rng = np.random.default_rng(7)
+    t = np.cumsum(rng.uniform(0.0, 0.05, 3000))
+    a = rng.choice([0.0, 1.0, 8.0, 30.0], 3000)
+    ref = RefInrush(2.0, 0.1, 20.0)
+    want = [i for i in range(3000) if ref.observe(float(a[i]), float(t[i]))]
+    helper = InrushBlanking(2.0, 0.1, 20.0)
+    assert np.flatnonzero(helper.advance(t, a)).tolist() == want
+    assert helper.starts == ref.starts and helper.window_start == ref.window_start
+
+
+def _health_ref(role_names: tuple[str, ...], present: bool) -> tuple[SourceHealth, RefHealth]:
+    roles = (*role_names, *((PRESENT,) if present else ()), COUNTER)
+    signals = tuple(SignalRef(r, "can0", "M", 0x10, False, r.upper(), "", -50.0 if r == "current" else None,
+                              50.0 if r == "current" else None) for r in roles)
+    cfg = SourceConfig("src", "current", "can0", signals, 0.1)
+    health = SourceHealth(cfg)
+    ranges = {r: (-50.0, 50.0) for r in roles if r == "current"}
+    return health, RefHealth(0.1, cfg.value_roles, present, ranges)
+
+
+@SETTINGS
+@given(stream=streams(), roles=st.lists(st.sampled_from(["current", PRESENT, COUNTER]), min_size=300,
+                                        max_size=300),
+       present=st.booleans(), data=st.data())
+def test_source_health_runs_match_the_reference(stream: tuple[np.ndarray, np.ndarray], roles: list[str],
+                                                present: bool, data: st.DataObject) -> None:
+    """Runs of one role's samples find the reason edges of the sample-by-sample reference, at the same samples."""
+    times, values = stream
+    with np.errstate(invalid="ignore"):  # few distinct counter values; NaN and inf stay
+        values = np.where(np.isfinite(values), np.round(values) % 3.0, values)
+    roles = [r if present or r != PRESENT else "current" for r in roles[: len(times)]]
+    health, ref = _health_ref(("current",), present)
+    want = [i for i, (r, t, v) in enumerate(zip(roles, times.tolist(), values.tolist(), strict=True))
+            if ref.observe(r, t, v)]
+    until_edge = data.draw(st.booleans())
+    got: list[int] = []
+    start = 0
+    while start < len(times):  # runs of consecutive samples of one role
+        end = start
+        while end < len(times) and roles[end] == roles[start]:
+            end += 1
+        pos = start
+        while pos < end:
+            run = health.observe_run(roles[start], times[pos:end], values[pos:end], until_edge=until_edge)
+            got.extend((pos + run.index).tolist())
+            pos += run.taken
+        start = end
+    assert got == want
+    assert (health.samples, health.invalid_samples, health.out_of_order) == (
+        ref.samples, ref.invalid_samples, ref.out_of_order)
+    now = float(np.nanmax(np.where(np.isfinite(times), times, np.nan))) if np.isfinite(times).any() else 0.0
+    assert health.reason(now) == ref.reason(now)
+    assert close(health.value("current"), ref.values.get("current", math.nan))
+
+
+@pytest.mark.parametrize("cuts", [[], [12], list(range(1, 40))])
+def test_a_timer_starts_after_the_edge_that_stopped_it(cuts: list[int]) -> None:
+    """A sample that both recovers and overcurrents (equal thresholds) restarts the trip timer at the next sample."""
+    t = np.round(np.arange(40) * 0.01, 6)
+    v = np.where(t <= 0.1, 20.0, 10.0)
+    ref = RefHysteresis(overcurrent_a=10.0, recovery_a=10.0, trip_after_s=0.1)
+    want = reference_edges(ref, t, v)
+    assert want[:2] == [10, 11]  # tripped after 0.1 s at 20 A, recovered at 10 A (<= recovery_a)
+    model = Hysteresis(10.0, 10.0, trip_after_s=0.1)
+    assert feed(model, t, v, cuts, False) == want
+    assert_same_state(model, ref)
+
+
+def test_source_health_says_its_state_publicly() -> None:
+    """The latest time, invalid reason and last reason of a role are readable without touching private state."""
+    health, _ref = _health_ref(("current",), False)
+    assert health.value_roles == ("current",) and health.latest_t("current") is None
+    run = health.observe_run("current", [0.0, 0.01, 0.02, 0.03], [1.0, 2.0, 99.0, 3.0])
+    assert run.index.tolist() == [0, 2, 3] and run.reasons == ("", "out_of_range", "")
+    assert health.latest_t("current") == 0.03 and health.invalid_reason("current") == ""
+    assert health.value("current") == 3.0 and health.last_reason == ""
+    assert health.latest_times() == {"current": 0.03}
+    health.observe_run("current", [0.04], [math.nan])
+    assert health.invalid_reason("current") == "nan" and health.value("current") == 3.0
+
+
+def test_heat_after_a_long_run_survives_a_restart() -> None:
+    """The heat a long run leaves is what the reference reaches, and a restored model starts from that level."""
+    t, v = np.arange(200_000) * 1e-3, np.where(np.arange(200_000) % 20_000 < 9_000, 13.0, 2.0)
+    for make, make_ref in ((lambda: LeakyI2t(6.0, 12.0, 3.0), lambda: RefI2t(kind="leaky", peak_time_s=3.0)),
+                           (lambda: ThermalI2t(6.0, tau_s=3.0, tau_cool_s=6.0),
+                            lambda: RefI2t(kind="thermal", tau_s=3.0, tau_cool_s=6.0))):
+        model, ref = make(), make_ref()
+        assert model.advance(t, v).index.tolist() == reference_edges(ref, t, v)
+        assert close(model.accumulator, ref.acc, model.trip_level) and model.level > 0.1
+        restored = make()
+        restored.restore(model.export(), 0.0)
+        assert close(restored.level, model.level) and restored.tripped == model.tripped
