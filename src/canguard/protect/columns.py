@@ -1,4 +1,4 @@
-"""Column helpers of the models' run maths: a run's columns, its order filter, edges, latches and stretches.
+"""Column helpers of the models' run screens: a run's columns, the short-run check, its order filter, marks.
 
 Every helper works on the samples of one run (1-D numpy columns, times in order where it
 says so) and has no state of its own.
@@ -40,15 +40,6 @@ def in_order(t: FloatArray, finite: npt.NDArray[np.bool_], last_t: float | None)
     return finite & (t >= before)
 
 
-def toggles(state: npt.NDArray[np.bool_], before: bool) -> IndexArray:
-    """Positions where the boolean column ``state`` differs from its previous entry (``before`` for the first)."""
-    if state.size <= 1:
-        return (state != before).nonzero()[0]
-    changed = np.empty(state.size, dtype=bool)
-    changed[0] = bool(state[0]) != before
-    np.not_equal(state[1:], state[:-1], out=changed[1:])
-    return changed.nonzero()[0]
-
 
 def last_marked(mark: npt.NDArray[np.bool_]) -> IndexArray:
     """For each position, the latest position at or before it where ``mark`` is set (-1: none yet)."""
@@ -57,39 +48,25 @@ def last_marked(mark: npt.NDArray[np.bool_]) -> IndexArray:
     return pos
 
 
-def hold(on: npt.NDArray[np.bool_], off: npt.NDArray[np.bool_], before: bool) -> npt.NDArray[np.bool_]:
-    """A set/reset latch over a column: True from an ``on`` sample, False from an ``off`` one, else held.
 
-    ``on`` wins where both are set; ``before`` is the state before the first sample.
+
+
+def short_run(times: npt.ArrayLike, values: npt.ArrayLike, most: int) -> tuple[list[float], list[float]] | None:
+    """A run of at most ``most`` samples as two lists of Python floats (no numpy on the way); None otherwise.
+
+    Lists and tuples of numbers of one length, and 1-D numpy columns, qualify; anything
+    else (long, mismatched, nested) is None and goes to :func:`as_run`, which converts or explains.
     """
-    pos = last_marked(on | off)
-    out = np.where(pos >= 0, on[np.maximum(pos, 0)], before)
-    return np.asarray(out, dtype=bool)
-
-
-def stretch_begins(cond: npt.NDArray[np.bool_], breaks: npt.NDArray[np.bool_], before: float | None
-                   ) -> npt.NDArray[np.bool_]:
-    """The samples that begin a stretch of consecutive ``cond`` samples.
-
-    A stretch ends at a sample without ``cond`` and before a sample with ``breaks`` set (a
-    gap). ``before``: the start time of a stretch already running before the first sample
-    (None: none), which a first sample with ``cond`` and no break continues (no begin there).
-    """
-    begins = cond.copy()
-    begins[1:] &= ~cond[:-1] | breaks[1:]
-    if before is not None and cond.size and not breaks[0]:
-        begins[0] = False
-    return begins
-
-
-def stretch_start_times(begins: npt.NDArray[np.bool_], cond: npt.NDArray[np.bool_], t: FloatArray,
-                        before: float | None) -> FloatArray:
-    """When the stretch each ``cond`` sample belongs to began (entries of other samples are meaningless).
-
-    The times are in order, so the latest begin's time is the running maximum of the begins'
-    times, ``before`` standing for the stretch carried in (it is not later than any sample).
-    """
-    marks = np.where(begins, t, -np.inf)
-    if before is not None and cond.size and cond[0] and not begins[0]:
-        marks[0] = before
-    return np.maximum.accumulate(marks)
+    if isinstance(times, (tuple, list)) and isinstance(values, (tuple, list)):
+        if not len(times) == len(values) <= most:
+            return None
+    elif isinstance(times, np.ndarray) and isinstance(values, np.ndarray):
+        if times.ndim == values.ndim == 1 and times.size == values.size <= most:
+            return times.astype(np.float64).tolist(), values.astype(np.float64).tolist()
+        return None
+    else:
+        return None
+    try:
+        return [float(x) for x in times], [float(x) for x in values]
+    except (TypeError, ValueError):
+        return None
