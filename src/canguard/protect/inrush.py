@@ -108,8 +108,9 @@ class InrushBlanking:
     def starts_in(self, t: FloatArray, a: FloatArray) -> list[int]:
         """Feed accepted |I| samples (finite, in order); the positions of the motor starts among them.
 
-        Only a sample on the other side of ``start_current_a`` than the one before it can
-        change anything but the latest time, so only those go to :meth:`observe`.
+        The screen: only a sample rising above ``start_current_a`` after a stretch at or
+        below it that began long enough before can be a start; those go to :meth:`observe`
+        (the kernel decides), the state before each taken from the stretches' start times.
         """
         if not t.size:
             return []
@@ -117,8 +118,19 @@ class InrushBlanking:
         flips = np.empty(a.size, dtype=bool)
         flips[0] = bool(below[0]) != (self._below_since is not None)
         np.not_equal(below[1:], below[:-1], out=flips[1:])
-        started = [int(j) for j in flips.nonzero()[0] if self.observe(float(a[j]), float(t[j]))]
+        began = np.maximum.accumulate(np.where(flips & below, t, -np.inf))
+        if self._below_since is not None:
+            np.maximum(began, self._below_since, out=began)
+        rises = flips & ~below
+        rises[rises] = t[rises] - began[rises] >= self.inrush_time_s - TIME_EPS_S
+        started: list[int] = []
+        for j in rises.nonzero()[0].tolist():
+            self._last_t = float(t[j - 1]) if j else self._last_t
+            self._below_since = float(began[j])
+            if self.observe(float(a[j]), float(t[j])):
+                started.append(j)
         self._last_t = float(t[-1])
+        self._below_since = float(began[-1]) if below[-1] else None
         return started
 
     def windows(self, t: FloatArray, started: list[int], before: float | None) -> FloatArray:
