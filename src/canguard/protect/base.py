@@ -65,7 +65,17 @@ from typing import ClassVar
 import numpy as np
 import numpy.typing as npt
 
-from canguard.protect.columns import FloatArray, IndexArray, as_run, in_order, short_run
+from canguard.protect.columns import (
+    EMPTY_INDEX,
+    EMPTY_STATES,
+    EMPTY_TIMES,
+    SHORT_RUN,
+    FloatArray,
+    IndexArray,
+    as_run,
+    in_order,
+    short_run,
+)
 
 # Reasons a guard is not satisfied, as they appear in snapshots and events.
 REASON_OK = ""
@@ -87,15 +97,6 @@ samples): chattering edges cost a short screen each, rare ones a few passes over
 _LAST_CHUNK = 1 << 16
 """A long run is screened in chunks of at most this many samples: the temporary columns
 stay in the CPU cache and memory stays flat however long the run."""
-SHORT_RUN = 48
-"""Runs of at most this many samples skip the numpy screen: every sample goes to the model's kernel
-(measured: below a few dozen samples the screen's fixed numpy calls cost more than the kernel)."""
-_NO_EDGES = np.empty(0, dtype=np.intp)
-_NO_EDGES.flags.writeable = False
-_NO_TIMES = np.empty(0)
-_NO_TIMES.flags.writeable = False
-_NO_STATES = np.empty(0, dtype=bool)
-_NO_STATES.flags.writeable = False
 
 
 def _alternate(last: bool, n: int) -> list[bool]:
@@ -338,7 +339,7 @@ class LatchedModel(ProtectionModel):
                     taken = i + 1
                     break
         if not index:
-            return Run(_NO_EDGES, _NO_TIMES, _NO_STATES, taken, peak)
+            return Run(EMPTY_INDEX, EMPTY_TIMES, EMPTY_STATES, taken, peak)
         return Run(np.array(index, dtype=np.intp), np.array([times[i] for i in index]),
                    np.array(_alternate(self._tripped, len(index))), taken, peak)
 
@@ -350,7 +351,7 @@ class LatchedModel(ProtectionModel):
         picked = np.arange(t.size) if everything else ok.nonzero()[0]
         if not picked.size:
             self._count_ignored(finite, ok, t.size)
-            return Run(_NO_EDGES, _NO_TIMES, _NO_STATES, t.size, math.nan)
+            return Run(EMPTY_INDEX, EMPTY_TIMES, EMPTY_STATES, t.size, math.nan)
         ta = t if everything else t[picked]
         a = np.abs(v if everything else v[picked])
         edges, last = self._walk(ta, a, until_edge)

@@ -12,6 +12,16 @@ import numpy.typing as npt
 FloatArray = npt.NDArray[np.float64]
 IndexArray = npt.NDArray[np.intp]
 
+SHORT_RUN = 48
+"""Runs of at most this many samples skip the numpy screen: every sample goes to the kernel
+(below a few dozen samples the screen's fixed numpy calls cost more than the kernel)."""
+EMPTY_INDEX = np.empty(0, dtype=np.intp)
+EMPTY_INDEX.flags.writeable = False
+EMPTY_TIMES = np.empty(0)
+EMPTY_TIMES.flags.writeable = False
+EMPTY_STATES = np.empty(0, dtype=bool)
+EMPTY_STATES.flags.writeable = False
+
 
 def as_run(times: npt.ArrayLike, values: npt.ArrayLike) -> tuple[FloatArray, FloatArray]:
     """Both columns of a run as float64 arrays; ValueError when they are not 1-D of one length."""
