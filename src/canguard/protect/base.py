@@ -326,12 +326,13 @@ class LatchedModel(ProtectionModel):
         index: list[int] = []
         peak = math.nan
         taken = len(times)
+        sample = self._sample
         for i in range(taken):
             v = values[i]
-            edge = self._sample(times[i], v)
+            edge = sample(times[i], v)
             if edge is None:
                 continue
-            if not abs(v) <= peak:
+            if not -peak <= v <= peak:
                 peak = abs(v)
             if edge:
                 index.append(i)

@@ -77,6 +77,6 @@ def short_run(times: npt.ArrayLike, values: npt.ArrayLike, most: int) -> tuple[l
     else:
         return None
     try:
-        return [float(x) for x in times], [float(x) for x in values]
+        return list(map(float, times)), list(map(float, values))
     except (TypeError, ValueError):
         return None
