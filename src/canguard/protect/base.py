@@ -59,7 +59,6 @@ from __future__ import annotations
 import math
 from abc import ABC, abstractmethod
 from collections.abc import Sequence
-from dataclasses import dataclass
 from typing import ClassVar
 
 import numpy as np
@@ -71,11 +70,13 @@ from canguard.protect.columns import (
     EMPTY_TIMES,
     SHORT_RUN,
     FloatArray,
-    IndexArray,
+    Screen,
+    alternate,
     as_run,
     in_order,
     short_run,
 )
+from canguard.protect.results import Run, Snapshot
 
 # Reasons a guard is not satisfied, as they appear in snapshots and events.
 REASON_OK = ""
@@ -97,90 +98,6 @@ samples): chattering edges cost a short screen each, rare ones a few passes over
 _LAST_CHUNK = 1 << 16
 """A long run is screened in chunks of at most this many samples: the temporary columns
 stay in the CPU cache and memory stays flat however long the run."""
-
-
-def _alternate(last: bool, n: int) -> list[bool]:
-    """The states entered at ``n`` alternating edges, the last one entering ``last``."""
-    return [last == ((n - 1 - i) % 2 == 0) for i in range(n)]
-
-
-@dataclass(frozen=True)
-class Snapshot:
-    """A model's state, small enough for events, metrics and plots.
-
-    ``value``: the latest |value| the model saw (A, or N·m), NaN before any.
-    ``threshold``: the trip threshold in force (same unit as value; for I²t the
-    trip level of the accumulator, A²s or θ = 1).
-    ``level_pct``: how close to tripping, in % of the trip level (100 = trip).
-    ``tripped``: True while tripped (or, from ``poll``, tripped at any moment since the last poll).
-    ``since``: time of the last trip / recover edge, None if never.
-    ``reason``: "" when fine, otherwise why not (``overcurrent``, ``i2t``, ...).
-    """
-
-    value: float
-    threshold: float
-    level_pct: float
-    tripped: bool
-    since: float | None
-    reason: str
-
-
-@dataclass(slots=True)
-class Run:
-    """What :meth:`ProtectionModel.advance` did with a run of samples.
-
-    ``index``: positions in the run (int) of the samples at which the tripped state
-    changed, ascending. ``t``: their times (s). ``tripped``: the state entered at
-    each (they alternate). ``taken``: samples consumed from the start of the run
-    (all of them unless ``until_edge`` stopped early). ``peak``: the largest |value|
-    among the taken samples the model accepted, NaN when none. A result: read it, never
-    change it (not frozen only because a frozen dataclass costs a run of one ~1 µs more).
-    """
-
-    index: IndexArray
-    t: FloatArray
-    tripped: npt.NDArray[np.bool_]
-    taken: int
-    peak: float
-
-    @property
-    def changed(self) -> bool:
-        """True when the run changed the tripped state at least once (an edge: tick the tree)."""
-        return bool(self.index.size)
-
-
-class Screen(ABC):
-    """A model's numpy look at a long run of accepted samples: where its kernel can change something.
-
-    Samples the screen passes over are *quiet*: fed to the kernel one by one they would
-    change nothing but what :meth:`LatchedModel._rest` takes from the screen.
-    """
-
-    @abstractmethod
-    def next(self, pos: int, tripped: bool) -> int:
-        """The first sample at or after ``pos`` the kernel must see, the model at rest in ``tripped``.
-
-        The run's length when there is none.
-        """
-
-
-class Marks(Screen):
-    """A screen by two marked columns: where the kernel must look while clear, and while tripped.
-
-    ``clear``: positions (ascending) of the samples that may trip the model or start a timer
-    when it is not tripped; ``tripped``: those that may recover it or start a timer when it is.
-    """
-
-    def __init__(self, clear: npt.NDArray[np.bool_], tripped: npt.NDArray[np.bool_]) -> None:
-        self.size = clear.size
-        self.clear = clear.nonzero()[0]
-        self.tripped = tripped.nonzero()[0]
-
-    def next(self, pos: int, tripped: bool) -> int:
-        """The first marked sample at or after ``pos`` in the column of ``tripped``."""
-        marks = self.tripped if tripped else self.clear
-        k = int(marks.searchsorted(pos))
-        return int(marks[k]) if k < marks.size else self.size
 
 
 class ProtectionModel(ABC):
@@ -342,7 +259,7 @@ class LatchedModel(ProtectionModel):
         if not index:
             return Run(EMPTY_INDEX, EMPTY_TIMES, EMPTY_STATES, taken, peak)
         return Run(np.array(index, dtype=np.intp), np.array([times[i] for i in index]),
-                   np.array(_alternate(self._tripped, len(index))), taken, peak)
+                   np.array(alternate(self._tripped, len(index))), taken, peak)
 
     def _advance_long(self, t: FloatArray, v: FloatArray, until_edge: bool) -> Run:
         """A long run: filtered with numpy, screened, the candidates fed to the kernel."""
@@ -360,7 +277,7 @@ class LatchedModel(ProtectionModel):
         if not everything:
             self._count_ignored(finite, ok, taken)
         at = np.array(edges, dtype=np.intp)
-        return Run(picked[at], ta[at], np.array(_alternate(self._tripped, len(edges))), taken,
+        return Run(picked[at], ta[at], np.array(alternate(self._tripped, len(edges))), taken,
                    float(a[: last + 1].max()))
 
     def _walk(self, t: FloatArray, a: FloatArray, until_edge: bool) -> tuple[list[int], int]:

@@ -6,6 +6,8 @@ says so) and has no state of its own.
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
+
 import numpy as np
 import numpy.typing as npt
 
@@ -80,3 +82,42 @@ def short_run(times: npt.ArrayLike, values: npt.ArrayLike, most: int) -> tuple[l
         return list(map(float, times)), list(map(float, values))
     except (TypeError, ValueError):
         return None
+
+
+def alternate(last: bool, n: int) -> list[bool]:
+    """The states entered at ``n`` alternating edges, the last one entering ``last``."""
+    return [last == ((n - 1 - i) % 2 == 0) for i in range(n)]
+
+
+class Screen(ABC):
+    """A model's numpy look at a long run of accepted samples: where its kernel can change something.
+
+    Samples the screen passes over are *quiet*: fed to the kernel one by one they would
+    change nothing but what the model's ``_rest`` takes from the screen.
+    """
+
+    @abstractmethod
+    def next(self, pos: int, tripped: bool) -> int:
+        """The first sample at or after ``pos`` the kernel must see, the model at rest in ``tripped``.
+
+        The run's length when there is none.
+        """
+
+
+class Marks(Screen):
+    """A screen by two marked columns: where the kernel must look while clear, and while tripped.
+
+    ``clear``: positions (ascending) of the samples that may trip the model or start a timer
+    when it is not tripped; ``tripped``: those that may recover it or start a timer when it is.
+    """
+
+    def __init__(self, clear: npt.NDArray[np.bool_], tripped: npt.NDArray[np.bool_]) -> None:
+        self.size = clear.size
+        self.clear = clear.nonzero()[0]
+        self.tripped = tripped.nonzero()[0]
+
+    def next(self, pos: int, tripped: bool) -> int:
+        """The first marked sample at or after ``pos`` in the column of ``tripped``."""
+        marks = self.tripped if tripped else self.clear
+        k = int(marks.searchsorted(pos))
+        return int(marks[k]) if k < marks.size else self.size

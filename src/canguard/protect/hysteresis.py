@@ -23,8 +23,8 @@ import math
 
 import numpy as np
 
-from canguard.protect.base import REASON_OVERCURRENT, TIME_EPS_S, LatchedModel, Marks, ProtectionModel, Screen
-from canguard.protect.columns import FloatArray, IndexArray
+from canguard.protect.base import REASON_OVERCURRENT, TIME_EPS_S, LatchedModel, ProtectionModel
+from canguard.protect.columns import FloatArray, IndexArray, Marks, Screen
 from canguard.protect.inrush import InrushBlanking, in_window
 from canguard.protect.threshold import check_limit, level_pct
 

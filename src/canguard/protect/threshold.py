@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import math
 
-from canguard.protect.base import REASON_OVERCURRENT, LatchedModel, Marks
-from canguard.protect.columns import FloatArray
+from canguard.protect.base import REASON_OVERCURRENT, LatchedModel
+from canguard.protect.columns import FloatArray, Marks
 
 
 def check_limit(name: str, value: float) -> float:
