@@ -388,3 +388,27 @@ def test_a_short_run_makes_no_numpy_call(monkeypatch: pytest.MonkeyPatch) -> Non
         assert not model.update(1.0, 0.0)
         assert model.advance((0.01, 0.02), (30.0, 30.0)).taken == 2
         assert model.tripped == isinstance(model, (Threshold, Hysteresis))
+
+
+@SETTINGS
+@given(stream=streams(), lengths=st.lists(st.integers(1, 120), min_size=1, max_size=4), until_edge=st.booleans())
+def test_source_health_long_and_short_runs_match_the_reference(stream: tuple[np.ndarray, np.ndarray],
+                                                               lengths: list[int], until_edge: bool) -> None:
+    """One role's samples in runs of 1..120 (short ones one by one, long ones screened) find the reference's edges."""
+    times, values = stream
+    health, ref = _health_ref(("current",), False)
+    want = [i for i, (t, v) in enumerate(zip(times.tolist(), values.tolist(), strict=True))
+            if ref.observe("current", t, v)]
+    got: list[int] = []
+    pos, k = 0, 0
+    while pos < len(times):
+        end = min(len(times), pos + lengths[k % len(lengths)])
+        k += 1
+        while pos < end:
+            run = health.observe_run("current", times[pos:end], values[pos:end], until_edge=until_edge)
+            got.extend((pos + run.index).tolist())
+            pos += run.taken
+    assert got == want
+    assert (health.samples, health.invalid_samples, health.out_of_order) == (
+        ref.samples, ref.invalid_samples, ref.out_of_order)
+    assert close(health.value("current"), ref.values.get("current", math.nan))
