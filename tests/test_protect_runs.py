@@ -307,3 +307,108 @@ def test_heat_after_a_long_run_survives_a_restart() -> None:
         restored = make()
         restored.restore(model.export(), 0.0)
         assert close(restored.level, model.level) and restored.tripped == model.tripped
+
+
+def feed_lists(model: LatchedModel, times: np.ndarray, values: np.ndarray, lengths: list[int],
+               until_edge: bool) -> list[int]:
+    """Feed the samples as Python lists in runs of the given lengths (cycled), stopping at edges if asked."""
+    tl, vl = times.tolist(), values.tolist()
+    edges: list[int] = []
+    pos, k = 0, 0
+    while pos < len(tl):
+        end = min(len(tl), pos + lengths[k % len(lengths)])
+        k += 1
+        while pos < end:
+            run = model.advance(tl[pos:end], vl[pos:end], until_edge=until_edge)
+            edges.extend((pos + run.index).tolist())
+            pos += run.taken
+    return edges
+
+
+class TestShortRuns:
+    """The differential tests on short runs (1..70 samples), which a model takes without its numpy screen."""
+
+    @SETTINGS
+    @given(pair=pairs(), stream=streams(max_size=70), data=st.data())
+    def test_short_runs_match_the_per_sample_reference(self, pair: tuple[str, Pair],
+                                                       stream: tuple[np.ndarray, np.ndarray],
+                                                       data: st.DataObject) -> None:
+        """A short stream whole, as runs of one, split and stopped at edges trips where the reference does."""
+        _kind, (make, make_ref) = pair
+        times, values = stream
+        ref = make_ref()
+        want = reference_edges(ref, times, values)
+        n = len(times)
+        cuts = data.draw(st.lists(st.integers(1, max(1, n - 1)), max_size=8)) if n > 1 else []
+        for split, until_edge in (([], False), ([], True), (list(range(1, n)), False), (cuts, True)):
+            model = make()
+            assert feed(model, times, values, split, until_edge) == want
+            assert_same_state(model, ref)
+
+    @SETTINGS
+    @given(pair=pairs(), stream=streams(max_size=300),
+           lengths=st.lists(st.integers(1, 70), min_size=1, max_size=6), until_edge=st.booleans())
+    def test_runs_either_side_of_the_screen_agree(self, pair: tuple[str, Pair], stream: tuple[np.ndarray, np.ndarray],
+                                                  lengths: list[int], until_edge: bool) -> None:
+        """Runs of 1..70 samples as lists, some short (no screen) and some long (screened), follow the reference."""
+        _kind, (make, make_ref) = pair
+        times, values = stream
+        ref = make_ref()
+        want = reference_edges(ref, times, values)
+        model = make()
+        assert feed_lists(model, times, values, lengths, until_edge) == want
+        assert_same_state(model, ref)
+
+    @SETTINGS
+    @given(pair=pairs(), stream=streams(max_size=70))
+    def test_update_is_a_run_of_one(self, pair: tuple[str, Pair], stream: tuple[np.ndarray, np.ndarray]) -> None:
+        """update(value, t) gives the edges and state of advance over the same sample as a run of one."""
+        _kind, (make, _make_ref) = pair
+        times, values = stream
+        by_update, by_run = make(), make()
+        for t, v in zip(times.tolist(), values.tolist(), strict=True):
+            run = by_run.advance((t,), (v,))
+            assert by_update.update(v, t) == run.changed
+            assert (by_update.tripped, by_update.since) == (by_run.tripped, by_run.since)
+            assert by_update.last_t == by_run.last_t
+            assert math.isnan(run.peak) or run.peak == abs(v)
+
+
+def test_a_short_run_makes_no_numpy_call(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A run of one sample (the live bus) reaches every model's kernel without building a numpy column."""
+    models = [Threshold(10.0), Hysteresis(10.0, 5.0, 0.01, 0.01, InrushBlanking(2.0, 0.1, 20.0), max_gap_s=0.5),
+              LeakyI2t(6.0, 12.0, 1.0), ThermalI2t(6.0, tau_s=1.0)]
+
+    def refuse(*_args: object, **_kwargs: object) -> None:
+        raise AssertionError("a numpy column was built for a short run")
+
+    monkeypatch.setattr(np, "asarray", refuse)
+    monkeypatch.setattr(np, "isfinite", refuse)
+    for model in models:
+        assert not model.update(1.0, 0.0)
+        assert model.advance((0.01, 0.02), (30.0, 30.0)).taken == 2
+        assert model.tripped == isinstance(model, (Threshold, Hysteresis))
+
+
+@SETTINGS
+@given(stream=streams(), lengths=st.lists(st.integers(1, 120), min_size=1, max_size=4), until_edge=st.booleans())
+def test_source_health_long_and_short_runs_match_the_reference(stream: tuple[np.ndarray, np.ndarray],
+                                                               lengths: list[int], until_edge: bool) -> None:
+    """One role's samples in runs of 1..120 (short ones one by one, long ones screened) find the reference's edges."""
+    times, values = stream
+    health, ref = _health_ref(("current",), False)
+    want = [i for i, (t, v) in enumerate(zip(times.tolist(), values.tolist(), strict=True))
+            if ref.observe("current", t, v)]
+    got: list[int] = []
+    pos, k = 0, 0
+    while pos < len(times):
+        end = min(len(times), pos + lengths[k % len(lengths)])
+        k += 1
+        while pos < end:
+            run = health.observe_run("current", times[pos:end], values[pos:end], until_edge=until_edge)
+            got.extend((pos + run.index).tolist())
+            pos += run.taken
+    assert got == want
+    assert (health.samples, health.invalid_samples, health.out_of_order) == (
+        ref.samples, ref.invalid_samples, ref.out_of_order)
+    assert close(health.value("current"), ref.values.get("current", math.nan))

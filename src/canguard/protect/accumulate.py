@@ -8,6 +8,7 @@ trips at the same samples as its samples fed one by one.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
@@ -21,12 +22,12 @@ def next_where(mask: np.ndarray) -> np.ndarray:
     return np.minimum.accumulate(pos[::-1])[::-1]
 
 
-def clamped_sum(start: float, steps: FloatArray, cap: float) -> FloatArray:
-    """The running sum ``acc ← min(max(acc + step, 0), cap)`` from ``start``, after each step.
+def clamped_sum(start: float, steps: FloatArray, cap: float, add: Callable[[float, float], float]) -> FloatArray:
+    """The running sum ``acc ← add(acc, step)`` from ``start``, after each step; ``add`` bounds it to [0, ``cap``].
 
-    Exactly the float results of adding one step after the other: between the samples
-    where a bound is hit, a sequential ``numpy.add.accumulate`` from the last value adds
-    in the same order; at a bound the sum restarts from it, and the steps that keep it
+    Exactly the float results of ``add`` one step after the other (the kernel): between the
+    samples where a bound is hit, a sequential ``numpy.add.accumulate`` from the last value adds
+    in the same order; at a bound ``add`` itself takes the step, and the steps that keep it
     there (<= 0 at the floor, >= 0 at the cap) are skipped as a block. The scan runs in
     windows that double while no bound is hit, so a run costs a few passes.
     """
@@ -44,7 +45,7 @@ def clamped_sum(start: float, steps: FloatArray, cap: float) -> FloatArray:
             continue
         p = pos + int(hit[0])
         out[pos:p] = run[: p - pos]
-        acc = 0.0 if run[p - pos] < 0.0 else cap
+        acc = add(float(out[p - 1]) if p > pos else acc, float(steps[p]))
         if p + 1 == n:
             out[p] = acc
             break
@@ -56,7 +57,7 @@ def clamped_sum(start: float, steps: FloatArray, cap: float) -> FloatArray:
     return out
 
 
-def thermal_steps(theta: float, q: list[float], dt: list[float], tau_heat: float, tau_cool: float,
+def thermal_steps(theta: float, q: Sequence[float], dt: Sequence[float], tau_heat: float, tau_cool: float,
                   cap: float) -> list[float]:
     """θ after each step ``θ ← q + (θ − q)·exp(−dt/τ)`` (no step where dt is 0), clamped to [0, ``cap``].
 

@@ -5,10 +5,10 @@
 ``model.advance(times, values, *, until_edge=False) -> Run``
 
 - A *run* is a stretch of samples of the one signal the model guards, in arrival
-  order: two equal-length 1-D arrays (anything ``numpy.asarray`` takes), ``times``
+  order: two equal-length 1-D columns (lists, tuples, anything ``numpy.asarray`` takes), ``times``
   in seconds (the engine's clock or the log's timestamps) and ``values`` in the
   signal's unit (A, or N·m; signed: the model takes |value|). A run may hold one
-  sample (the live bus) or millions (a log); it is copied to float64 internally.
+  sample (the live bus) or millions (a log); a long one is copied to float64.
 - The returned :class:`Run` says where the model's tripped state changed: the
   positions in the run (``index``), their times (``t``), and the state entered at
   each (``tripped``); ``taken`` is how many samples were consumed and ``peak`` the
@@ -25,6 +25,15 @@
   results agree within 1e-9 relative (the tests hold it against the per-sample
   reference maths kept in ``tests/reference_models.py``).
 - :meth:`ProtectionModel.update` is :meth:`~ProtectionModel.advance` on a run of one.
+
+**One kernel.** Each model's decision logic is one scalar step over Python floats (the
+state machine a sample goes through). A short run (up to :data:`SHORT_RUN` samples; lists,
+tuples or numpy columns) feeds every sample to it with no numpy call; a long run is first
+*screened* with numpy for the few samples where the kernel can change something (a
+sample over a limit, a level crossing, the other side of the start current), the kernel
+runs on those and on the samples after them while a timer runs, and the quiet stretches
+between are taken whole from the screen. Both ways are the same maths, so they agree by
+construction; the tests still hold them to the reference.
 - Bad samples never raise and never corrupt the state: a sample whose value or
   time is NaN/±inf is ignored and counted in ``rejected``; a sample older than the
   latest accepted one (a negative time step: clock stepped back, out-of-order
@@ -49,14 +58,25 @@ from __future__ import annotations
 
 import math
 from abc import ABC, abstractmethod
-from collections.abc import Callable
-from dataclasses import dataclass
+from collections.abc import Sequence
 from typing import ClassVar
 
 import numpy as np
 import numpy.typing as npt
 
-from canguard.protect.columns import FloatArray, IndexArray, as_run, in_order, toggles
+from canguard.protect.columns import (
+    EMPTY_INDEX,
+    EMPTY_STATES,
+    EMPTY_TIMES,
+    SHORT_RUN,
+    FloatArray,
+    Screen,
+    alternate,
+    as_run,
+    in_order,
+    short_run,
+)
+from canguard.protect.results import Run, Snapshot
 
 # Reasons a guard is not satisfied, as they appear in snapshots and events.
 REASON_OK = ""
@@ -72,70 +92,12 @@ TIME_EPS_S = 1e-9
 
 
 _FIRST_CHUNK = 16
-"""With ``until_edge``, a run is scanned in chunks that double from twice the typical distance
-at which the previous stops found their edge (a running average; at least this many samples):
-chattering edges cost a short scan each, rare ones a few passes over the run."""
+"""With ``until_edge``, a long run is screened in chunks that double from twice the typical
+distance at which the previous stops found their edge (a running average; at least this many
+samples): chattering edges cost a short screen each, rare ones a few passes over the run."""
 _LAST_CHUNK = 1 << 16
-"""A long run is scanned in chunks of at most this many samples: the temporary columns
+"""A long run is screened in chunks of at most this many samples: the temporary columns
 stay in the CPU cache and memory stays flat however long the run."""
-_NO_EDGES = np.empty(0, dtype=np.intp)
-_NO_EDGES.flags.writeable = False
-
-
-@dataclass(frozen=True)
-class Snapshot:
-    """A model's state, small enough for events, metrics and plots.
-
-    ``value``: the latest |value| the model saw (A, or N·m), NaN before any.
-    ``threshold``: the trip threshold in force (same unit as value; for I²t the
-    trip level of the accumulator, A²s or θ = 1).
-    ``level_pct``: how close to tripping, in % of the trip level (100 = trip).
-    ``tripped``: True while tripped (or, from ``poll``, tripped at any moment since the last poll).
-    ``since``: time of the last trip / recover edge, None if never.
-    ``reason``: "" when fine, otherwise why not (``overcurrent``, ``i2t``, ...).
-    """
-
-    value: float
-    threshold: float
-    level_pct: float
-    tripped: bool
-    since: float | None
-    reason: str
-
-
-@dataclass(frozen=True)
-class Run:
-    """What :meth:`ProtectionModel.advance` did with a run of samples.
-
-    ``index``: positions in the run (int) of the samples at which the tripped state
-    changed, ascending. ``t``: their times (s). ``tripped``: the state entered at
-    each (they alternate). ``taken``: samples consumed from the start of the run
-    (all of them unless ``until_edge`` stopped early). ``peak``: the largest |value|
-    among the taken samples the model accepted, NaN when none.
-    """
-
-    index: IndexArray
-    t: FloatArray
-    tripped: npt.NDArray[np.bool_]
-    taken: int
-    peak: float
-
-    @property
-    def changed(self) -> bool:
-        """True when the run changed the tripped state at least once (an edge: tick the tree)."""
-        return bool(self.index.size)
-
-
-@dataclass
-class Scan:
-    """A model's pure look at a run of accepted samples (nothing changed yet).
-
-    ``state``: the tripped state right after each sample. ``commit(k)``: take the
-    model's own state (timers, heat, ...) as it stands right after sample ``k``.
-    """
-
-    state: npt.NDArray[np.bool_]
-    commit: Callable[[int], None]
 
 
 class ProtectionModel(ABC):
@@ -212,17 +174,26 @@ class LatchedModel(ProtectionModel):
         return self._since
 
     # -- the run ------------------------------------------------------------------------
+    #
+    # One kernel, two ways to reach it. The model's decision logic is one scalar step
+    # (:meth:`_step`, Python floats). A short run feeds every accepted sample to it; a long
+    # run is first screened with numpy (:meth:`_screen`) for the few samples where the
+    # kernel can change something, the quiet stretches between them taken whole
+    # (:meth:`_rest`), so both give the same state and edges at the same samples.
 
     def advance(self, times: npt.ArrayLike, values: npt.ArrayLike, *, until_edge: bool = False) -> Run:
         """Advance over a run of samples; see :mod:`canguard.protect.base` for the contract."""
+        few = short_run(times, values, SHORT_RUN)
+        if few is not None:
+            return self._advance_few(few[0], few[1], until_edge)
         t, v = as_run(times, values)
         size = max(_FIRST_CHUNK, 2 * self._reach) if until_edge else _LAST_CHUNK
         if t.size <= size:
-            return self._stopped(self._advance(t, v, until_edge), until_edge)
+            return self._stopped(self._advance_long(t, v, until_edge), until_edge)
         parts: list[tuple[int, Run]] = []
         start = 0
         while start < t.size:
-            part = self._advance(t[start : start + size], v[start : start + size], until_edge)
+            part = self._advance_long(t[start : start + size], v[start : start + size], until_edge)
             parts.append((start, part))
             start += part.taken
             if until_edge and part.changed:
@@ -237,41 +208,105 @@ class LatchedModel(ProtectionModel):
             float(np.fmax.reduce([p.peak for _, p in parts])),
         )
 
+    def update(self, value: float, t: float) -> bool:
+        """Feed one sample: :meth:`advance`'s short-run step on a run of one, without building the :class:`Run`."""
+        return self._sample(float(t), float(value)) is True
+
     def _stopped(self, run: Run, until_edge: bool) -> Run:
         """Remember how far a stop at an edge had to look (averaged: the next scan starts at twice that)."""
         if until_edge and run.changed:
             self._reach = (self._reach + run.taken) // 2
         return run
 
-    def _advance(self, t: FloatArray, v: FloatArray, until_edge: bool) -> Run:
+    def _feed(self, t: float, a: float, tripped: bool) -> bool:
+        """Record an accepted sample the kernel left in ``tripped``; True on an edge (time and latch taken)."""
+        self._last_t = t
+        self._value = a
+        if tripped == self._tripped:
+            return False
+        self._tripped = tripped
+        self._since = t
+        self._latch = self._latch or tripped
+        return True
+
+    def _sample(self, t: float, v: float) -> bool | None:
+        """One sample of a short run: None when ignored (counted), else True on an edge."""
+        if not (math.isfinite(t) and math.isfinite(v)):
+            self.rejected += 1
+            return None
+        if self._last_t is not None and t < self._last_t:
+            self.out_of_order += 1
+            return None
+        a = abs(v)
+        return self._feed(t, a, self._step(t, a))
+
+    def _advance_few(self, times: Sequence[float], values: Sequence[float], until_edge: bool) -> Run:
+        """A short run: every sample filtered and fed to the kernel, no numpy on the way."""
+        index: list[int] = []
+        peak = math.nan
+        taken = len(times)
+        sample = self._sample
+        for i in range(taken):
+            v = values[i]
+            edge = sample(times[i], v)
+            if edge is None:
+                continue
+            if not -peak <= v <= peak:
+                peak = abs(v)
+            if edge:
+                index.append(i)
+                if until_edge:
+                    taken = i + 1
+                    break
+        if not index:
+            return Run(EMPTY_INDEX, EMPTY_TIMES, EMPTY_STATES, taken, peak)
+        return Run(np.array(index, dtype=np.intp), np.array([times[i] for i in index]),
+                   np.array(alternate(self._tripped, len(index))), taken, peak)
+
+    def _advance_long(self, t: FloatArray, v: FloatArray, until_edge: bool) -> Run:
+        """A long run: filtered with numpy, screened, the candidates fed to the kernel."""
         finite = np.isfinite(v) & np.isfinite(t)
         ok = in_order(t, finite, self._last_t)
         everything = bool(ok.all())
         picked = np.arange(t.size) if everything else ok.nonzero()[0]
         if not picked.size:
             self._count_ignored(finite, ok, t.size)
-            return Run(_NO_EDGES, np.empty(0), np.empty(0, dtype=bool), t.size, math.nan)
+            return Run(EMPTY_INDEX, EMPTY_TIMES, EMPTY_STATES, t.size, math.nan)
         ta = t if everything else t[picked]
         a = np.abs(v if everything else v[picked])
-        scan = self._scan(ta, a)
-        edges = toggles(scan.state, self._tripped)
-        last = picked.size - 1
-        taken = t.size
-        if until_edge and edges.size:
-            edges = edges[:1]
-            last = int(edges[0])
-            taken = int(picked[last]) + 1
+        edges, last = self._walk(ta, a, until_edge)
+        taken = int(picked[last]) + 1 if until_edge and edges else t.size
         if not everything:
             self._count_ignored(finite, ok, taken)
-        entered = scan.state[edges]
-        scan.commit(last)
-        self._last_t = float(ta[last])
-        self._value = float(a[last])
-        if edges.size:
-            self._tripped = bool(entered[-1])
-            self._since = float(ta[edges[-1]])
-            self._latch = self._latch or bool(entered.any())
-        return Run(picked[edges], ta[edges], entered, taken, float(a[: last + 1].max()))
+        at = np.array(edges, dtype=np.intp)
+        return Run(picked[at], ta[at], np.array(alternate(self._tripped, len(edges))), taken,
+                   float(a[: last + 1].max()))
+
+    def _walk(self, t: FloatArray, a: FloatArray, until_edge: bool) -> tuple[list[int], int]:
+        """Feed a long run's candidates to the kernel; the edges' positions and the last sample taken."""
+        n = a.size
+        screen = self._screen(t, a)
+        edges: list[int] = []
+        pos = 0
+        while pos < n:
+            j = screen.next(pos, self._tripped) if self._at_rest() else pos
+            if j > pos:
+                self._rest(screen, pos, j - 1)
+                self._last_t = float(t[j - 1])
+                self._value = float(a[j - 1])
+            while j < n:
+                tj, aj = float(t[j]), float(a[j])
+                if self._feed(tj, aj, self._step_at(screen, j, tj, aj)):
+                    edges.append(j)
+                    if until_edge:
+                        self._finish(screen, j)
+                        return edges, j
+                j += 1
+                if self._at_rest():
+                    break
+            pos = j
+        self._finish(screen, n - 1)
+        return edges, n - 1
 
     def _count_ignored(self, finite: npt.NDArray[np.bool_], ok: npt.NDArray[np.bool_], taken: int) -> None:
         """Count the first ``taken`` samples' ignored ones: not finite, or out of order."""
@@ -279,8 +314,29 @@ class LatchedModel(ProtectionModel):
         self.out_of_order += int(np.count_nonzero(finite[:taken] & ~ok[:taken]))
 
     @abstractmethod
-    def _scan(self, t: FloatArray, a: FloatArray) -> Scan:
-        """The model's maths over accepted samples (times ``t``, |values| ``a``); must not change ``self``."""
+    def _step(self, t: float, a: float) -> bool:
+        """The kernel: take one accepted sample (|value| ``a`` at ``t``, ``self._last_t`` the previous one).
+
+        Returns the tripped state right after it; the base records edges, time and value.
+        """
+
+    def _step_at(self, screen: Screen, j: int, t: float, a: float) -> bool:
+        """The kernel on sample ``j`` of a screened run (a model may take columns the screen holds)."""
+        return self._step(t, a)
+
+    @abstractmethod
+    def _screen(self, t: FloatArray, a: FloatArray) -> Screen:
+        """A numpy screen of a long run of accepted samples, from the present state (nothing changed)."""
+
+    def _rest(self, screen: Screen, first: int, last: int) -> None:
+        """Take the quiet samples ``first`` .. ``last`` of the screened run (the base sets time and value)."""
+
+    def _finish(self, screen: Screen, last: int) -> None:
+        """The walk over a screened run ended right after its sample ``last``: take what the screen still holds."""
+
+    def _at_rest(self) -> bool:
+        """True when the screen may take over again: no timer or other state the kernel must follow."""
+        return True
 
     # -- the replay's settle shortcut (kept while the engine still calls it) ------------
 

@@ -1,4 +1,4 @@
-"""Column helpers of the models' run maths: a run's columns, its order filter, edges, latches and stretches.
+"""Column helpers of the models' run screens: a run's columns, the short-run check, its order filter, marks.
 
 Every helper works on the samples of one run (1-D numpy columns, times in order where it
 says so) and has no state of its own.
@@ -6,11 +6,23 @@ says so) and has no state of its own.
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
+
 import numpy as np
 import numpy.typing as npt
 
 FloatArray = npt.NDArray[np.float64]
 IndexArray = npt.NDArray[np.intp]
+
+SHORT_RUN = 48
+"""Runs of at most this many samples skip the numpy screen: every sample goes to the kernel
+(below a few dozen samples the screen's fixed numpy calls cost more than the kernel)."""
+EMPTY_INDEX = np.empty(0, dtype=np.intp)
+EMPTY_INDEX.flags.writeable = False
+EMPTY_TIMES = np.empty(0)
+EMPTY_TIMES.flags.writeable = False
+EMPTY_STATES = np.empty(0, dtype=bool)
+EMPTY_STATES.flags.writeable = False
 
 
 def as_run(times: npt.ArrayLike, values: npt.ArrayLike) -> tuple[FloatArray, FloatArray]:
@@ -40,15 +52,6 @@ def in_order(t: FloatArray, finite: npt.NDArray[np.bool_], last_t: float | None)
     return finite & (t >= before)
 
 
-def toggles(state: npt.NDArray[np.bool_], before: bool) -> IndexArray:
-    """Positions where the boolean column ``state`` differs from its previous entry (``before`` for the first)."""
-    if state.size <= 1:
-        return (state != before).nonzero()[0]
-    changed = np.empty(state.size, dtype=bool)
-    changed[0] = bool(state[0]) != before
-    np.not_equal(state[1:], state[:-1], out=changed[1:])
-    return changed.nonzero()[0]
-
 
 def last_marked(mark: npt.NDArray[np.bool_]) -> IndexArray:
     """For each position, the latest position at or before it where ``mark`` is set (-1: none yet)."""
@@ -57,39 +60,64 @@ def last_marked(mark: npt.NDArray[np.bool_]) -> IndexArray:
     return pos
 
 
-def hold(on: npt.NDArray[np.bool_], off: npt.NDArray[np.bool_], before: bool) -> npt.NDArray[np.bool_]:
-    """A set/reset latch over a column: True from an ``on`` sample, False from an ``off`` one, else held.
 
-    ``on`` wins where both are set; ``before`` is the state before the first sample.
+
+
+def short_run(times: npt.ArrayLike, values: npt.ArrayLike, most: int) -> tuple[list[float], list[float]] | None:
+    """A run of at most ``most`` samples as two lists of Python floats (no numpy on the way); None otherwise.
+
+    Lists and tuples of numbers of one length, and 1-D numpy columns, qualify; anything
+    else (long, mismatched, nested) is None and goes to :func:`as_run`, which converts or explains.
     """
-    pos = last_marked(on | off)
-    out = np.where(pos >= 0, on[np.maximum(pos, 0)], before)
-    return np.asarray(out, dtype=bool)
+    if isinstance(times, (tuple, list)) and isinstance(values, (tuple, list)):
+        if not len(times) == len(values) <= most:
+            return None
+    elif isinstance(times, np.ndarray) and isinstance(values, np.ndarray):
+        if times.ndim == values.ndim == 1 and times.size == values.size <= most:
+            return times.astype(np.float64).tolist(), values.astype(np.float64).tolist()
+        return None
+    else:
+        return None
+    try:
+        return list(map(float, times)), list(map(float, values))
+    except (TypeError, ValueError):
+        return None
 
 
-def stretch_begins(cond: npt.NDArray[np.bool_], breaks: npt.NDArray[np.bool_], before: float | None
-                   ) -> npt.NDArray[np.bool_]:
-    """The samples that begin a stretch of consecutive ``cond`` samples.
+def alternate(last: bool, n: int) -> list[bool]:
+    """The states entered at ``n`` alternating edges, the last one entering ``last``."""
+    return [last == ((n - 1 - i) % 2 == 0) for i in range(n)]
 
-    A stretch ends at a sample without ``cond`` and before a sample with ``breaks`` set (a
-    gap). ``before``: the start time of a stretch already running before the first sample
-    (None: none), which a first sample with ``cond`` and no break continues (no begin there).
+
+class Screen(ABC):
+    """A model's numpy look at a long run of accepted samples: where its kernel can change something.
+
+    Samples the screen passes over are *quiet*: fed to the kernel one by one they would
+    change nothing but what the model's ``_rest`` takes from the screen.
     """
-    begins = cond.copy()
-    begins[1:] &= ~cond[:-1] | breaks[1:]
-    if before is not None and cond.size and not breaks[0]:
-        begins[0] = False
-    return begins
+
+    @abstractmethod
+    def next(self, pos: int, tripped: bool) -> int:
+        """The first sample at or after ``pos`` the kernel must see, the model at rest in ``tripped``.
+
+        The run's length when there is none.
+        """
 
 
-def stretch_start_times(begins: npt.NDArray[np.bool_], cond: npt.NDArray[np.bool_], t: FloatArray,
-                        before: float | None) -> FloatArray:
-    """When the stretch each ``cond`` sample belongs to began (entries of other samples are meaningless).
+class Marks(Screen):
+    """A screen by two marked columns: where the kernel must look while clear, and while tripped.
 
-    The times are in order, so the latest begin's time is the running maximum of the begins'
-    times, ``before`` standing for the stretch carried in (it is not later than any sample).
+    ``clear``: positions (ascending) of the samples that may trip the model or start a timer
+    when it is not tripped; ``tripped``: those that may recover it or start a timer when it is.
     """
-    marks = np.where(begins, t, -np.inf)
-    if before is not None and cond.size and cond[0] and not begins[0]:
-        marks[0] = before
-    return np.maximum.accumulate(marks)
+
+    def __init__(self, clear: npt.NDArray[np.bool_], tripped: npt.NDArray[np.bool_]) -> None:
+        self.size = clear.size
+        self.clear = clear.nonzero()[0]
+        self.tripped = tripped.nonzero()[0]
+
+    def next(self, pos: int, tripped: bool) -> int:
+        """The first marked sample at or after ``pos`` in the column of ``tripped``."""
+        marks = self.tripped if tripped else self.clear
+        k = int(marks.searchsorted(pos))
+        return int(marks[k]) if k < marks.size else self.size

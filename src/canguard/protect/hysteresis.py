@@ -20,15 +20,12 @@ when it has none). Recovery is never blanked.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
-from functools import cached_property
 
 import numpy as np
-import numpy.typing as npt
 
-from canguard.protect.base import REASON_OVERCURRENT, TIME_EPS_S, LatchedModel, ProtectionModel, Scan
-from canguard.protect.columns import FloatArray, IndexArray, last_marked, stretch_begins, stretch_start_times
-from canguard.protect.inrush import InrushBlanking
+from canguard.protect.base import REASON_OVERCURRENT, TIME_EPS_S, LatchedModel, ProtectionModel
+from canguard.protect.columns import FloatArray, IndexArray, Marks, Screen
+from canguard.protect.inrush import InrushBlanking, in_window
 from canguard.protect.threshold import check_limit, level_pct
 
 
@@ -44,65 +41,22 @@ def check_thresholds(overcurrent_a: float, recovery_a: float) -> tuple[float, fl
     return over, rec
 
 
-@dataclass
-class _Side:
-    """One persistence timer over a run: its condition, the stretches meeting it, where it is ready.
+class _Screen(Marks):
+    """A long run screened for the hysteresis kernel: the threshold in force and the gaps at each sample.
 
-    ``before``: the timer's start carried in from the previous run (None: not running).
+    ``thr``: the overcurrent threshold in force (inf: no check, inrush blanking).
+    ``gaps``: how many gaps over ``max_gap_s`` lie before or at each sample.
+    ``inrush``: the inrush helper's state before the run (None: no helper).
     """
 
-    cond: npt.NDArray[np.bool_]
-    gap: npt.NDArray[np.bool_]
-    t: FloatArray
-    before: float | None
-    hold_s: float
-    ready: IndexArray = field(init=False)
-
-    def __post_init__(self) -> None:
-        if self.hold_s <= TIME_EPS_S:  # no persistence: every sample meeting the condition is ready
-            self.ready = self.cond.nonzero()[0]
-        else:
-            self.ready = (self.cond & (self.t - self.began >= self.hold_s - TIME_EPS_S)).nonzero()[0]
-
-    @cached_property
-    def _begins(self) -> npt.NDArray[np.bool_]:
-        return stretch_begins(self.cond, self.gap, self.before)
-
-    @cached_property
-    def began(self) -> FloatArray:
-        """When the stretch each sample belongs to began (meaningless where the condition fails)."""
-        return stretch_start_times(self._begins, self.cond, self.t, self.before)
-
-    @cached_property
-    def begin(self) -> IndexArray:
-        """Where the stretch each sample belongs to began (-1: carried in from the previous run)."""
-        return last_marked(self._begins)
-
-    def next_ready(self, pos: int, after_edge: bool) -> int | None:
-        """The first sample from ``pos`` on at which the condition has held long enough (None: none).
-
-        ``after_edge``: an edge happened at ``pos - 1``, so a stretch running through it
-        counts from ``pos`` only.
-        """
-        k = int(np.searchsorted(self.ready, pos))
-        if k == self.ready.size:
-            return None
-        j = int(self.ready[k])
-        if not after_edge or self.hold_s <= TIME_EPS_S or self.begin[j] >= pos:
-            return j
-        rest = self.ready[k:]
-        same = rest[self.begin[rest] == self.begin[j]]
-        hits = same[self.t[same] - self.t[pos] >= self.hold_s - TIME_EPS_S]
-        if hits.size:
-            return int(hits[0])
-        return self.next_ready(int(same[-1]) + 1, False)
-
-    def since(self, k: int, floor: float | None) -> float | None:
-        """The timer's start right after sample ``k`` (no edge at ``k``); ``floor``: the sample after the last edge."""
-        if not self.cond[k]:
-            return None
-        began = float(self.began[k])
-        return began if floor is None else max(began, floor)
+    def __init__(self, t: FloatArray, a: FloatArray, thr: FloatArray, recovery_a: float, gaps: IndexArray,
+                 inrush: tuple[float | None, float | None, float | None, int] | None) -> None:
+        super().__init__(a >= thr, a <= recovery_a)
+        self.t = t
+        self.a = a
+        self.thr = thr
+        self.gaps = gaps
+        self.inrush = inrush
 
 
 class Hysteresis(LatchedModel):
@@ -163,54 +117,81 @@ class Hysteresis(LatchedModel):
             return self.overcurrent_a
         return self.inrush.threshold(self.overcurrent_a, t)
 
-    def _scan(self, t: FloatArray, a: FloatArray) -> Scan:
-        """The trip and recovery conditions as columns, their held times as stretches, the edges one by one.
+    def _step(self, t: float, a: float) -> bool:
+        """One sample: the inrush helper sees it first, then the kernel decides on the threshold it gives."""
+        thr = self.overcurrent_a
+        if self.inrush is not None:
+            self.inrush.observe(a, t)
+            in_force = self.inrush.threshold(thr, t)
+            thr = math.inf if in_force is None else in_force
+        return self._decide(t, a, thr)
 
-        Over a run the overcurrent condition (|I| >= the threshold in force) and the
-        recovery one (|I| <= ``recovery_a``) do not depend on the state; each persistence
-        timer runs from the start of the current stretch of samples meeting its condition
-        (a gap over ``max_gap_s`` or a sample failing it starts a new stretch), counted no
-        earlier than the sample after the latest edge (an edge stops the other timer).
+    def _decide(self, t: float, a: float, thr: float) -> bool:
+        """The kernel: the tripped state after a sample ``a`` at ``t`` with ``thr`` the threshold in force.
+
+        A gap over ``max_gap_s`` restarts both timers; each side's timer runs from the
+        first sample meeting its condition and the edge comes once it has held long enough.
         """
+        if self._last_t is not None and t - self._last_t > self.max_gap_s:
+            self._over_since = self._under_since = None
+        if not self._tripped:
+            if a < thr:
+                self._over_since = None
+                return False
+            if self._over_since is None:
+                self._over_since = t
+            if t - self._over_since >= self.trip_after_s - TIME_EPS_S:
+                self._over_since = None
+                return True
+            return False
+        if a > self.recovery_a:
+            self._under_since = None
+            return True
+        if self._under_since is None:
+            self._under_since = t
+        if t - self._under_since >= self.recover_after_s - TIME_EPS_S:
+            self._under_since = None
+            return False
+        return True
+
+    def _screen(self, t: FloatArray, a: FloatArray) -> _Screen:
+        """The threshold in force at each sample (the inrush helper run over the run first) and the gaps."""
         gap = np.empty(a.size, dtype=bool)
         gap[0] = self._last_t is not None and t[0] - self._last_t > self.max_gap_s
         np.greater(np.diff(t), self.max_gap_s, out=gap[1:])
-        inrush = self.inrush.scan(t, a) if self.inrush is not None else None
-        over = a >= self.overcurrent_a
-        if inrush is not None:
-            if self.inrush_threshold_a is None:
-                over &= ~inrush.blanking
-            else:
-                over = np.where(inrush.blanking, a >= self.inrush_threshold_a, over)
-        sides = (
-            _Side(over, gap, t, None if self._tripped else self._over_since, self.trip_after_s),
-            _Side(a <= self.recovery_a, gap, t, self._under_since if self._tripped else None, self.recover_after_s),
-        )
-        state = np.empty(a.size, dtype=bool)
-        edges: list[int] = []
-        tripped, pos = self._tripped, 0
-        while pos < a.size:
-            j = sides[tripped].next_ready(pos, bool(edges))
-            if j is None:
-                state[pos:] = tripped
-                break
-            state[pos:j] = tripped
-            tripped = not tripped
-            state[j] = tripped
-            edges.append(j)
-            pos = j + 1
-        marks = np.asarray(edges, dtype=np.intp)
+        thr = np.full(a.size, self.overcurrent_a)
+        inrush = None
+        if self.inrush is not None:
+            before = self.inrush.running()
+            started = self.inrush.starts_in(t, a)
+            window = self.inrush.windows(t, started, before[1])
+            blank = self.inrush_threshold_a
+            thr[in_window(window, t, self.inrush.inrush_time_s)] = math.inf if blank is None else blank
+            inrush = before
+        return _Screen(t, a, thr, self.recovery_a, np.cumsum(gap), inrush)
 
-        def commit(k: int) -> None:
-            if inrush is not None:
-                inrush.commit(k)
-            n = int(np.searchsorted(marks, k, side="right"))
-            floor = t[marks[n - 1] + 1] if n and marks[n - 1] < k else None
-            now_tripped = bool(state[k])
-            self._over_since = None if now_tripped or (n and marks[n - 1] == k) else sides[0].since(k, floor)
-            self._under_since = None if not now_tripped or (n and marks[n - 1] == k) else sides[1].since(k, floor)
+    def _step_at(self, screen: Screen, j: int, t: float, a: float) -> bool:
+        """The kernel with the threshold the screen found in force at sample ``j``."""
+        assert isinstance(screen, _Screen)
+        return self._decide(t, a, float(screen.thr[j]))
 
-        return Scan(state, commit)
+    def _rest(self, screen: Screen, first: int, last: int) -> None:
+        """Quiet samples keep the resting timer unset; a gap among them restarts the other one too."""
+        assert isinstance(screen, _Screen)
+        if screen.gaps[last] - (screen.gaps[first - 1] if first else 0) > 0:
+            self._over_since = self._under_since = None
+
+    def _at_rest(self) -> bool:
+        """No persistence timer running on the side the state is on."""
+        return (self._under_since if self._tripped else self._over_since) is None
+
+    def _finish(self, screen: Screen, last: int) -> None:
+        """A walk stopped before the run's end leaves the inrush helper right after sample ``last`` too."""
+        assert isinstance(screen, _Screen)
+        if self.inrush is None or screen.inrush is None or last == screen.size - 1:
+            return
+        self.inrush.resume(screen.inrush)
+        self.inrush.starts_in(screen.t[: last + 1], screen.a[: last + 1])
 
     @property
     def inrush_threshold_a(self) -> float | None:

@@ -52,14 +52,14 @@ from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from canguard.protect.accumulate import clamped_sum, thermal_steps
-from canguard.protect.base import REASON_I2T, LatchedModel, ProtectionModel, Scan
-from canguard.protect.columns import FloatArray, hold
+from canguard.protect.base import REASON_I2T, LatchedModel, ProtectionModel
+from canguard.protect.columns import FloatArray, IndexArray, Marks, Screen
+from canguard.protect.state import KIND_LEAKY, KIND_THERMAL, cooled_level
 from canguard.units import AMPERE2_SECOND, THETA
 
-KIND_LEAKY = "leaky"
-KIND_THERMAL = "thermal"
 STATE_VERSION = 1
 MAX_LEVEL = 1e6
 """The accumulator is capped at this many trip levels (keeps it finite)."""
@@ -92,50 +92,22 @@ def _gap(value: float) -> float:
     return v
 
 
-def _downtime(downtime_s: float) -> float:
-    """A usable downtime: negative or NaN (clock went back across the restart) counts as none."""
-    d = float(downtime_s)
-    return d if d > 0 else 0.0
-
-
 def _json_float(v: float) -> float | None:
     return v if math.isfinite(v) else None
 
 
-def _param(params: Mapping[str, Any], name: str) -> float:
-    v = params.get(name)
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-        raise ValueError(f"i2t state: parameter {name!r} missing or not a finite number: {v!r}")
-    return float(v)
+class _Screen(Marks):
+    """A long run screened for the I²t kernel: the accumulator after each sample and the stale gaps up to it.
 
-
-def cooled_level(state: Mapping[str, Any], downtime_s: float) -> float:
-    """The trip-level fraction of an exported state after ``downtime_s`` at zero current.
-
-    Uses the saved model's own parameters and law. ValueError when the state is malformed.
+    Marked: where the level reaches 1 (may trip) and where it is below ``recover_fraction`` (may recover).
     """
-    if not isinstance(state, Mapping):
-        raise ValueError(f"i2t state: expected a mapping, got {type(state).__name__}")
-    kind = state.get("kind")
-    params = state.get("params")
-    if not isinstance(params, Mapping):
-        raise ValueError("i2t state: 'params' missing or not a mapping")
-    acc = state.get("accumulator")
-    if isinstance(acc, bool) or not isinstance(acc, (int, float)) or not math.isfinite(acc) or acc < 0:
-        raise ValueError(f"i2t state: 'accumulator' must be a finite number >= 0, got {acc!r}")
-    d = _downtime(downtime_s)
-    if kind == KIND_LEAKY:
-        c = _param(params, "continuous_a")
-        s = (_param(params, "peak_a") ** 2 - c**2) * _param(params, "peak_time_s")
-        if c <= 0 or s <= 0:
-            raise ValueError("i2t state: leaky parameters do not give a positive trip level")
-        return max(0.0, float(acc) - c * c * d) / s
-    if kind == KIND_THERMAL:
-        tau_cool = _param(params, "tau_cool_s")
-        if tau_cool <= 0:
-            raise ValueError("i2t state: tau_cool_s must be > 0")
-        return float(acc) * math.exp(-d / tau_cool)
-    raise ValueError(f"i2t state: unknown kind {kind!r} (expected {KIND_LEAKY!r} or {KIND_THERMAL!r})")
+
+    def __init__(self, a: FloatArray, acc: FloatArray, trip: npt.NDArray[np.bool_], low: npt.NDArray[np.bool_],
+                 stale: IndexArray) -> None:
+        super().__init__(trip, low)
+        self.a = a
+        self.acc = acc
+        self.stale = stale
 
 
 class _I2tModel(LatchedModel):
@@ -165,7 +137,14 @@ class _I2tModel(LatchedModel):
 
     @abstractmethod
     def _accumulate(self, held: FloatArray, dt: FloatArray) -> FloatArray:
-        """The accumulator after each step: |I| = ``held[i]`` for ``dt[i]`` s (0: no step), from the present one."""
+        """The accumulator after each step: |I| = ``held[i]`` for ``dt[i]`` s (0: no step), from the present one.
+
+        The same floats as :meth:`_integrate` one step after the other (the screen of long runs).
+        """
+
+    @abstractmethod
+    def _integrate(self, held: float, dt: float) -> float:
+        """The accumulator after ``dt`` > 0 s at a constant ``held`` A from the present one (the kernel's step)."""
 
     @abstractmethod
     def params(self) -> dict[str, float | None]:
@@ -210,14 +189,33 @@ class _I2tModel(LatchedModel):
             self._held = old.held_a
             self.stale_gaps = old.stale_gaps
 
-    def _scan(self, t: FloatArray, a: FloatArray) -> Scan:
-        """Each sample's |I| held until the next, integrated exactly per interval; trip/recover on the level.
+    def _step(self, t: float, a: float) -> bool:
+        """The kernel: integrate the held |I| up to ``t`` (a stale gap cut to ``max_gap_s``), hold ``a``, decide.
+
+        Trips when the level reaches 1, recovers when it falls below ``recover_fraction``.
+        """
+        if self._last_t is not None and not math.isnan(self._held):
+            dt = t - self._last_t
+            if dt > self.max_gap_s:
+                self.stale_gaps += 1
+                dt = self.max_gap_s
+            if dt > 0:
+                self._acc = self._integrate(self._held, dt)
+        self._held = a
+        return self._decide(self._acc / self.trip_level)
+
+    def _decide(self, level: float) -> bool:
+        """The tripped state at ``level``: tripped from 1 on, recovered below ``recover_fraction``, else held."""
+        if level >= 1.0:
+            return True
+        return self._tripped and level >= self.recover_fraction
+
+    def _screen(self, t: FloatArray, a: FloatArray) -> _Screen:
+        """The accumulator after each sample (see :meth:`_accumulate`), marked where the level can flip the state.
 
         The time steps are the time column's differences (the first against the
         previous run's last sample), cut to ``max_gap_s`` (a stale gap) and zero where
-        nothing is integrated (before any sample, a repeated timestamp). The model's
-        :meth:`_accumulate` turns them into the accumulator after each sample; the
-        tripped state is then a set/reset latch on the level column.
+        nothing is integrated (before any sample, a repeated timestamp).
         """
         held = np.empty(a.size)
         held[0] = self._held
@@ -230,14 +228,14 @@ class _I2tModel(LatchedModel):
         dt = np.where(np.isnan(held) | ~(dt > 0), 0.0, np.minimum(dt, self.max_gap_s))
         acc = self._accumulate(held, dt)
         level = acc / self.trip_level
-        state = hold(level >= 1.0, level < self.recover_fraction, self._tripped)
+        return _Screen(a, acc, level >= 1.0, level < self.recover_fraction, np.cumsum(stale))
 
-        def commit(k: int) -> None:
-            self._acc = float(acc[k])
-            self._held = float(a[k])
-            self.stale_gaps += int(np.count_nonzero(stale[: k + 1]))
-
-        return Scan(state, commit)
+    def _rest(self, screen: Screen, first: int, last: int) -> None:
+        """Quiet samples: the accumulator the screen found after the last one, its current held, its stale gaps."""
+        assert isinstance(screen, _Screen)
+        self._acc = float(screen.acc[last])
+        self._held = float(screen.a[last])
+        self.stale_gaps += int(screen.stale[last] - (screen.stale[first - 1] if first else 0))
 
     def _threshold_value(self) -> float:
         return self.trip_level
@@ -320,7 +318,19 @@ class LeakyI2t(_I2tModel):
         with np.errstate(invalid="ignore", over="ignore"):
             rate = held * held - c2
             steps = np.where(dt > 0, rate * dt, 0.0)
-        return clamped_sum(self._acc, steps, MAX_LEVEL * self._s)
+        return clamped_sum(self._acc, steps, MAX_LEVEL * self._s, self._add)
+
+    def _integrate(self, held: float, dt: float) -> float:
+        """A + (I² − I_cont²)·dt, floored at 0 and capped."""
+        return self._add(self._acc, (held * held - self.continuous_a * self.continuous_a) * dt)
+
+    def _add(self, acc: float, step: float) -> float:
+        """The leaky sum's one step: ``acc + step`` floored at 0 and capped at MAX_LEVEL trip levels."""
+        out = acc + step
+        if out < 0.0:
+            return 0.0
+        cap = MAX_LEVEL * self._s
+        return cap if not out <= cap else out
 
     def params(self) -> dict[str, float | None]:
         """continuous_a, peak_a, peak_time_s, recover_fraction, max_gap_s (None = inf)."""
@@ -404,6 +414,11 @@ class ThermalI2t(_I2tModel):
         with np.errstate(invalid="ignore", over="ignore"):
             q = np.minimum(held * held / self._c2, MAX_LEVEL)
         return np.asarray(thermal_steps(self._acc, q.tolist(), dt.tolist(), self.tau_s, self.tau_cool_s, MAX_LEVEL))
+
+    def _integrate(self, held: float, dt: float) -> float:
+        """θ after one step (the same :func:`thermal_steps` the screen runs over a column)."""
+        q = min(held * held / self._c2, MAX_LEVEL)
+        return thermal_steps(self._acc, (q,), (dt,), self.tau_s, self.tau_cool_s, MAX_LEVEL)[0]
 
     def params(self) -> dict[str, float | None]:
         """continuous_a, peak_a, peak_time_s, tau_s and tau_cool_s (resolved), recover_fraction, max_gap_s."""

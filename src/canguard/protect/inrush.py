@@ -15,24 +15,23 @@ when canguard starts is checked against the normal threshold. Dips shorter than
 ``inrush_time_s`` do not re-arm the blanking, so a chattering current cannot keep
 the check off. I²t models are not blanked: heat is heat.
 
-Over a run of samples the starts are a column computation: the stretches of
-samples at or below ``start_current_a`` and their start times, a start where such
-a stretch long enough ends, and the window in force at each sample the latest
-start before it. This is a helper of :class:`~canguard.protect.hysteresis.Hysteresis`,
+One kernel decides (:meth:`InrushBlanking.observe`, one sample); over a long run
+numpy only screens for the samples on the other side of ``start_current_a`` than
+the one before them (nothing else changes the state), and the window in force at
+each sample is the latest start before it. This is a helper of :class:`~canguard.protect.hysteresis.Hysteresis`,
 not a protection model itself.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
 from canguard.protect.base import TIME_EPS_S
-from canguard.protect.columns import FloatArray, as_run, in_order, last_marked, stretch_begins, stretch_start_times
+from canguard.protect.columns import FloatArray, as_run, in_order, last_marked
 from canguard.protect.threshold import check_limit
 
 
@@ -42,27 +41,6 @@ def in_window(start: Any, t: Any, length_s: float) -> Any:
     A NaN start (no window) is never in force.
     """
     return (start <= t) & (t < start + length_s - TIME_EPS_S)
-
-
-@dataclass(frozen=True)
-class InrushScan:
-    """Inrush blanking over a run of samples (nothing changed yet): see :meth:`InrushBlanking.scan`.
-
-    ``started``: the samples that are motor starts. ``blanking``: the samples inside a
-    blanking window. ``window_start``: the window start in force at each sample (NaN: none).
-    """
-
-    helper: InrushBlanking
-    t: FloatArray
-    below: npt.NDArray[np.bool_]
-    below_since: FloatArray
-    started: npt.NDArray[np.bool_]
-    window_start: FloatArray
-    blanking: npt.NDArray[np.bool_]
-
-    def commit(self, k: int) -> None:
-        """Give the helper the state right after sample ``k`` of the scanned run."""
-        self.helper.take_scan(self, k)
 
 
 class InrushBlanking:
@@ -94,35 +72,26 @@ class InrushBlanking:
         """Time of the latest recognised motor start, None if none yet."""
         return self._window_start
 
-    def scan(self, t: FloatArray, a: FloatArray) -> InrushScan:
-        """Starts and windows over accepted |I| samples ``a`` at times ``t`` (in order, finite); nothing changes.
+    def observe(self, abs_value: float, t: float) -> bool:
+        """Feed one |I| sample at ``t`` (a run of one); True when it is a motor start (opens a window).
 
-        :meth:`InrushScan.commit` then takes the state after any of its samples.
+        The kernel of the start detection: a sample older than the latest one, or not
+        finite, is ignored (never a start).
         """
-        below = a <= self.start_current_a
-        begins = stretch_begins(below, np.zeros(a.size, dtype=bool), self._below_since)
-        since = stretch_start_times(begins, below, t, self._below_since)
-        was_below = np.empty(a.size, dtype=bool)
-        quiet = np.empty(a.size)
-        if a.size:
-            was_below[0] = self._below_since is not None
-            was_below[1:] = below[:-1]
-            quiet[0] = math.nan if self._below_since is None else self._below_since
-            quiet[1:] = since[:-1]
-        started = ~below & was_below & (t - quiet >= self.inrush_time_s - TIME_EPS_S)
-        latest = last_marked(started)
-        before = math.nan if self._window_start is None else self._window_start
-        window = np.where(latest >= 0, t[np.maximum(latest, 0)], before)
-        blanking = in_window(window, t, self.inrush_time_s)
-        return InrushScan(self, t, below, since, started, window, blanking)
-
-    def take_scan(self, scan: InrushScan, k: int) -> None:
-        """Take the state right after sample ``k`` of a run this helper scanned."""
-        self._last_t = float(scan.t[k])
-        self._below_since = float(scan.below_since[k]) if scan.below[k] else None
-        w = float(scan.window_start[k])
-        self._window_start = None if math.isnan(w) else w
-        self.starts += int(np.count_nonzero(scan.started[: k + 1]))
+        a, t = float(abs_value), float(t)
+        if not (math.isfinite(a) and math.isfinite(t)) or (self._last_t is not None and t < self._last_t):
+            return False
+        self._last_t = t
+        if a <= self.start_current_a:
+            if self._below_since is None:
+                self._below_since = t
+            return False
+        started = self._below_since is not None and t - self._below_since >= self.inrush_time_s - TIME_EPS_S
+        self._below_since = None
+        if started:
+            self._window_start = t
+            self.starts += 1
+        return started
 
     def advance(self, times: npt.ArrayLike, abs_values: npt.ArrayLike) -> npt.NDArray[np.bool_]:
         """Feed a run of |I| samples; which of them are motor starts (each opens a window).
@@ -133,19 +102,54 @@ class InrushBlanking:
         ok = in_order(t, np.isfinite(a) & np.isfinite(t), self._last_t)
         picked = ok.nonzero()[0]
         out = np.zeros(t.size, dtype=bool)
-        if picked.size:
-            scan = self.scan(t[picked], np.abs(a[picked]))
-            scan.commit(picked.size - 1)
-            out[picked] = scan.started
+        out[picked[self.starts_in(t[picked], np.abs(a[picked]))]] = True
         return out
 
-    def observe(self, abs_value: float, t: float) -> bool:
-        """Feed one |I| sample at ``t`` (a run of one); True when it is a motor start (opens a window)."""
-        return bool(self.advance((t,), (abs_value,))[0])
+    def starts_in(self, t: FloatArray, a: FloatArray) -> list[int]:
+        """Feed accepted |I| samples (finite, in order); the positions of the motor starts among them.
+
+        The screen: only a sample rising above ``start_current_a`` after a stretch at or
+        below it that began long enough before can be a start; those go to :meth:`observe`
+        (the kernel decides), the state before each taken from the stretches' start times.
+        """
+        if not t.size:
+            return []
+        below = a <= self.start_current_a
+        flips = np.empty(a.size, dtype=bool)
+        flips[0] = bool(below[0]) != (self._below_since is not None)
+        np.not_equal(below[1:], below[:-1], out=flips[1:])
+        began = np.maximum.accumulate(np.where(flips & below, t, -np.inf))
+        if self._below_since is not None:
+            np.maximum(began, self._below_since, out=began)
+        rises = flips & ~below
+        rises[rises] = t[rises] - began[rises] >= self.inrush_time_s - TIME_EPS_S
+        started: list[int] = []
+        for j in rises.nonzero()[0].tolist():
+            self._last_t = float(t[j - 1]) if j else self._last_t
+            self._below_since = float(began[j])
+            if self.observe(float(a[j]), float(t[j])):
+                started.append(j)
+        self._last_t = float(t[-1])
+        self._below_since = float(began[-1]) if below[-1] else None
+        return started
+
+    def windows(self, t: FloatArray, started: list[int], before: float | None) -> FloatArray:
+        """The window start in force at each of the samples at times ``t`` (NaN: none), given its starts.
+
+        ``before``: the window start in force before the first sample.
+        """
+        mark = np.zeros(t.size, dtype=bool)
+        mark[started] = True
+        latest = last_marked(mark)
+        return np.where(latest >= 0, t[np.maximum(latest, 0)], math.nan if before is None else before)
 
     def carry_from(self, old: InrushBlanking) -> None:
         """Continue the start detection and the open window of the helper this one replaces."""
         self._below_since, self._window_start, self._last_t, self.starts = old.running()
+
+    def resume(self, state: tuple[float | None, float | None, float | None, int]) -> None:
+        """Go back to a state :meth:`running` gave (quiet since, window start, latest time, starts so far)."""
+        self._below_since, self._window_start, self._last_t, self.starts = state
 
     def running(self) -> tuple[float | None, float | None, float | None, int]:
         """What a reload carries: (quiet since, window start, latest time, starts so far)."""

@@ -43,7 +43,16 @@ import numpy.typing as npt
 from canguard.config.schema import NON_VALUE_ROLES, SourceConfig
 from canguard.io.frame import INVALID_INF, INVALID_NAN, INVALID_RANGE, Sample
 from canguard.protect.base import REASON_NO_DATA, REASON_NOT_PRESENT, REASON_OK, REASON_STALE
-from canguard.protect.columns import FloatArray, IndexArray, as_run, in_order
+from canguard.protect.columns import (
+    EMPTY_INDEX,
+    EMPTY_TIMES,
+    SHORT_RUN,
+    FloatArray,
+    IndexArray,
+    as_run,
+    in_order,
+    short_run,
+)
 
 PRESENT = "present"
 COUNTER = "counter"
@@ -63,13 +72,14 @@ ROW_ROLES = NON_VALUE_ROLES - {PRESENT}
 """Roles a replay block cannot take as columns (the presence flag it checks itself): every row is fed."""
 
 
-@dataclass(frozen=True)
+@dataclass(slots=True)
 class HealthRun:
     """What :meth:`SourceHealth.observe_run` did with a run of samples.
 
     ``index``: positions in the run of the samples at which the source's reason changed
     (an edge: tick the tree). ``t``: their times (s). ``reasons``: the source's reason
     right after each ("" = usable). ``taken``: samples consumed (all unless ``until_edge``).
+    A result: read it, never change it.
     """
 
     index: IndexArray
@@ -141,7 +151,7 @@ class SourceHealth:
 
     def observe(self, sample: Sample) -> bool:
         """Take one sample of this source (a run of one); True when the source's health reason changed (an edge)."""
-        return self.observe_run(sample.signal, (sample.t,), (sample.value,), (sample.reason,)).changed
+        return self._observe_one(sample.signal, float(sample.t), float(sample.value), sample.reason) is True
 
     def observe_run(self, role: str, times: npt.ArrayLike, values: npt.ArrayLike,
                     reasons: Sequence[str] | None = None, *, until_edge: bool = False) -> HealthRun:
@@ -164,8 +174,15 @@ class SourceHealth:
         With ``until_edge`` the run stops right after the first edge (``taken``). The
         result gives the edges' positions, times and the reason after each.
         """
+        few = short_run(times, values, SHORT_RUN)
+        if few is not None:
+            return self._observe_few(role, few[0], few[1], reasons, until_edge)
         t, v = as_run(times, values)
-        bad = self._invalid_codes(role, v, reasons)
+        own = self._own_reasons(v.size, reasons)
+        suspect = self._suspects(role, v, own)
+        bad = np.full(v.size, "", dtype=object)
+        for i in suspect.nonzero()[0].tolist():
+            bad[i] = self._invalid_code(role, float(v[i]), "" if own is None else str(own[i]))
         ok = in_order(t, ~np.isnan(t), self._latest_t.get(role))
         full = ok.copy()
         if role not in FULL_ROLES and t.size:
@@ -199,23 +216,72 @@ class SourceHealth:
         at = np.asarray(edges, dtype=np.intp)
         return HealthRun(at, t[at], tuple(reasons_after), taken)
 
-    def _invalid_codes(self, role: str, v: FloatArray, reasons: Sequence[str] | None) -> npt.NDArray[np.str_]:
-        """Each sample's invalid reason: its own, or NaN / inf / range as seen here ("" when valid)."""
+    def _observe_one(self, role: str, t: float, value: float, own: str) -> bool | None:
+        """The kernel: one sample of ``role``; None when out of order (counted), else True on an edge."""
+        self.samples += 1
+        latest = self._latest_t.get(role)
+        if math.isnan(t) or (latest is not None and t < latest):
+            self.out_of_order += 1
+            return None
+        bad = self._invalid_code(role, value, own)
+        if not bad and role not in (PRESENT, COUNTER) and self.fresh_valid(role, t):
+            self.take(role, t, value)
+            return False
+        return self._full_step(role, t, value, bad)
+
+    def _observe_few(self, role: str, times: list[float], values: list[float], reasons: Sequence[str] | None,
+                     until_edge: bool) -> HealthRun:
+        """A short run: every sample through :meth:`_observe_one`, no numpy on the way."""
+        if reasons is not None and len(reasons) != len(values):
+            raise ValueError(f"reasons: expected one per sample ({len(values)}), got {len(reasons)}")
+        edges: list[int] = []
+        after: list[str] = []
+        taken = len(times)
+        for i in range(taken):
+            if self._observe_one(role, times[i], values[i], "" if reasons is None else reasons[i]):
+                edges.append(i)
+                after.append(self._last_reason)
+                if until_edge:
+                    taken = i + 1
+                    break
+        if not edges:
+            return HealthRun(EMPTY_INDEX, EMPTY_TIMES, (), taken)
+        return HealthRun(np.array(edges, dtype=np.intp), np.array([times[i] for i in edges]), tuple(after), taken)
+
+    def _invalid_code(self, role: str, value: float, own: str) -> str:
+        """A sample's invalid reason: its own, else NaN / inf / out of the role's range ("" when valid)."""
+        if own:
+            return own
+        if math.isnan(value):
+            return INVALID_NAN
+        if math.isinf(value):
+            return INVALID_INF
         lo, hi = self._ranges.get(role, (None, None))
+        if (lo is not None and value < lo) or (hi is not None and value > hi):
+            return INVALID_RANGE
+        return ""
+
+    @staticmethod
+    def _own_reasons(size: int, reasons: Sequence[str] | None) -> npt.NDArray[np.str_] | None:
+        """The samples' own invalid reasons as a column (None: none given); ValueError when not one per sample."""
+        if reasons is None:
+            return None
+        own = np.asarray(reasons, dtype=str)
+        if own.shape != (size,):
+            raise ValueError(f"reasons: expected one per sample ({size}), got {own.size}")
+        return own
+
+    def _suspects(self, role: str, v: FloatArray, own: npt.NDArray[np.str_] | None) -> npt.NDArray[np.bool_]:
+        """The screen: samples that may be invalid (not finite, out of range, or with a reason of their own)."""
+        lo, hi = self._ranges.get(role, (None, None))
+        out = ~np.isfinite(v)
         with np.errstate(invalid="ignore"):
-            out = np.where(np.isnan(v), INVALID_NAN, np.where(np.isinf(v), INVALID_INF, ""))
-            if lo is not None or hi is not None:
-                outside = np.zeros(v.size, dtype=bool)
-                if lo is not None:
-                    outside |= v < lo
-                if hi is not None:
-                    outside |= v > hi
-                out = np.where((out == "") & outside, INVALID_RANGE, out)
-        if reasons is not None:
-            own = np.asarray(reasons, dtype=str)
-            if own.shape != v.shape:
-                raise ValueError(f"reasons: expected one per sample ({v.size}), got {own.size}")
-            out = np.where(own != "", own, out)
+            if lo is not None:
+                out |= v < lo
+            if hi is not None:
+                out |= v > hi
+        if own is not None:
+            out |= own != ""
         return out
 
     def _take_quiet(self, role: str, t: FloatArray, v: FloatArray, ok: npt.NDArray[np.bool_],

@@ -39,6 +39,52 @@ from typing import Any, Protocol, runtime_checkable
 
 from canguard.errors import StateFileError
 
+KIND_LEAKY = "leaky"
+KIND_THERMAL = "thermal"
+
+
+def _downtime(downtime_s: float) -> float:
+    """A usable downtime: negative or NaN (clock went back across the restart) counts as none."""
+    d = float(downtime_s)
+    return d if d > 0 else 0.0
+
+
+def _param(params: Mapping[str, Any], name: str) -> float:
+    v = params.get(name)
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        raise ValueError(f"i2t state: parameter {name!r} missing or not a finite number: {v!r}")
+    return float(v)
+
+
+def cooled_level(state: Mapping[str, Any], downtime_s: float) -> float:
+    """The trip-level fraction of an exported state after ``downtime_s`` at zero current.
+
+    Uses the saved model's own parameters and law. ValueError when the state is malformed.
+    """
+    if not isinstance(state, Mapping):
+        raise ValueError(f"i2t state: expected a mapping, got {type(state).__name__}")
+    kind = state.get("kind")
+    params = state.get("params")
+    if not isinstance(params, Mapping):
+        raise ValueError("i2t state: 'params' missing or not a mapping")
+    acc = state.get("accumulator")
+    if isinstance(acc, bool) or not isinstance(acc, (int, float)) or not math.isfinite(acc) or acc < 0:
+        raise ValueError(f"i2t state: 'accumulator' must be a finite number >= 0, got {acc!r}")
+    d = _downtime(downtime_s)
+    if kind == KIND_LEAKY:
+        c = _param(params, "continuous_a")
+        s = (_param(params, "peak_a") ** 2 - c**2) * _param(params, "peak_time_s")
+        if c <= 0 or s <= 0:
+            raise ValueError("i2t state: leaky parameters do not give a positive trip level")
+        return max(0.0, float(acc) - c * c * d) / s
+    if kind == KIND_THERMAL:
+        tau_cool = _param(params, "tau_cool_s")
+        if tau_cool <= 0:
+            raise ValueError("i2t state: tau_cool_s must be > 0")
+        return float(acc) * math.exp(-d / tau_cool)
+    raise ValueError(f"i2t state: unknown kind {kind!r} (expected {KIND_LEAKY!r} or {KIND_THERMAL!r})")
+
+
 log = logging.getLogger(__name__)
 
 FORMAT = "canguard-heat"

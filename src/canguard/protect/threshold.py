@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import math
 
-from canguard.protect.base import REASON_OVERCURRENT, LatchedModel, Scan
-from canguard.protect.columns import FloatArray
+from canguard.protect.base import REASON_OVERCURRENT, LatchedModel
+from canguard.protect.columns import FloatArray, Marks
 
 
 def check_limit(name: str, value: float) -> float:
@@ -38,9 +38,14 @@ class Threshold(LatchedModel):
         """Change the limit at run time (validated like the constructor); applies from the next sample."""
         self.max_value = check_limit("max_value", max_value)
 
-    def _scan(self, t: FloatArray, a: FloatArray) -> Scan:
-        """Tripped after each sample exactly when its |value| exceeds the limit: no state beyond that."""
-        return Scan(a > self.max_value, _keep)
+    def _step(self, t: float, a: float) -> bool:
+        """Tripped after a sample exactly when its |value| exceeds the limit: no state beyond that."""
+        return a > self.max_value
+
+    def _screen(self, t: FloatArray, a: FloatArray) -> Marks:
+        """Only a sample on the other side of the limit changes anything."""
+        over = a > self.max_value
+        return Marks(over, ~over)
 
     def settles(self, low: float, high: float, first_t: float) -> bool:
         """A run that stays on its side of ``max_value`` (see :meth:`LatchedModel.settles`)."""
@@ -53,10 +58,6 @@ class Threshold(LatchedModel):
 
     def _level_pct(self) -> float:
         return level_pct(self._value, self.max_value)
-
-
-def _keep(_k: int) -> None:
-    """Nothing of a plain limit's own to carry past a sample."""
 
 
 def level_pct(value: float, threshold: float | None) -> float:
