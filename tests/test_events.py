@@ -147,13 +147,13 @@ class TestEventJournal:
         path = tmp_path / "events.jsonl"
         code = textwrap.dedent(
             f"""
-            import sys, time
+            import signal
             from canguard.engine.events import EventJournal
             j = EventJournal({str(path)!r}, max_bytes=4096)
             for i in range(500):
                 j.write({{"event": "trip", "t": float(i), "node": "N", "value": i}})
             print("written", flush=True)
-            time.sleep(60)
+            signal.pause()  # until the SIGKILL
             """
         )
         env = {**os.environ, "PYTHONPATH": str(SRC)}
