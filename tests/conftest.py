@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -36,3 +37,11 @@ def _clean_blackboard() -> Iterator[None]:
 def repo() -> Path:
     """The repository root (tests never depend on the current directory)."""
     return REPO
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Under pytest-xdist (scripts/test.sh), the slow tests come first: they mostly wait on subprocesses and
+    the clock (the soak, the installed wheel, the live daemon), so one worker waits on them while the others
+    run the rest, rather than all waiting at the end. Every worker sorts alike (a stable sort)."""
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        items.sort(key=lambda item: item.get_closest_marker("slow") is None)
