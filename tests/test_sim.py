@@ -29,6 +29,7 @@ from canguard.sim import (
     run_on_bus,
     write_log,
 )
+from waitkit import WAIT_S
 
 DBC = Path(__file__).resolve().parents[1] / "dbc" / "robot.dbc"
 START = 1_700_000_000.0
@@ -427,7 +428,8 @@ class TestRunOnBus:
             thread.start()
             received: list[can.Message] = []
             estop_at = None
-            while time.time() - t0 < 2.0 and (thread.is_alive() or estop_at is None):
+            # until the run ends (on a busy machine it may take longer than its 0.6 s), within WAIT_S
+            while time.time() - t0 < WAIT_S and (thread.is_alive() or estop_at is None):
                 msg = ctl.recv(0.01)
                 if msg is not None:
                     received.append(msg)
@@ -436,7 +438,7 @@ class TestRunOnBus:
                         can.Message(arbitration_id=_ids(db, "Axis0_Estop"), is_extended_id=False, data=b"")
                     )
                     estop_at = time.time()
-            thread.join(2.0)
+            thread.join(WAIT_S)
             while (msg := ctl.recv(0)) is not None:
                 received.append(msg)
         assert estop_at is not None and result and result[0] == len(received)
