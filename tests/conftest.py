@@ -12,8 +12,7 @@ from hypothesis import HealthCheck
 from hypothesis import settings as _hypothesis_settings
 
 from canguard.cli.common import one_blas_thread
-
-REPO = Path(__file__).resolve().parents[1]
+from checkout import REPO
 
 # As every canguard command does before numpy is imported: no BLAS thread pool, so this process is
 # single-threaded where a test forks (--jobs forks only then: canguard.cli.fleet._pool_context).

@@ -10,7 +10,6 @@ import sys
 import threading
 import time
 import uuid
-from pathlib import Path
 
 import can
 import pytest
@@ -19,10 +18,9 @@ from canguard.config.schema import BusConfig
 from canguard.errors import BusError
 from canguard.io.bus import BusReader, open_bus
 from canguard.io.frame import Frame
+from checkout import SRC
 from test_daemon import unique_udp
 from waitkit import wait_until
-
-SRC = Path(__file__).resolve().parents[1] / "src"
 
 
 def virtual(name: str = "main") -> BusConfig:

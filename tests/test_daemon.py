@@ -36,10 +36,9 @@ import yaml
 
 from canguard.service.daemon import Daemon
 from canguard.service.systemd import Notifier
+from checkout import REPO, SRC
 from waitkit import WAIT_S, receive_until, wait_until
 
-REPO = Path(__file__).resolve().parents[1]
-SRC = REPO / "src"
 BUNDLED = REPO / "config" / "canguard.yaml"
 DBC = REPO / "dbc" / "robot.dbc"
 

@@ -20,8 +20,7 @@ from hypothesis import strategies as st
 from canguard.engine import events as events_mod
 from canguard.engine.events import EventJournal, encode_event, journal_files, read_events
 from canguard.errors import LogFormatError
-
-SRC = Path(__file__).resolve().parents[1] / "src"
+from checkout import SRC
 
 
 def _trip(i: int) -> dict[str, Any]:

@@ -16,7 +16,9 @@ from pathlib import Path
 import grimp
 import pytest
 
-SRC = Path(__file__).resolve().parents[1] / "src" / "canguard"
+from checkout import REPO
+
+SRC = REPO / "src" / "canguard"
 MAX_LINES = 450
 STILL_BIG = {
 }

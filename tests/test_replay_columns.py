@@ -51,8 +51,8 @@ from canguard.config.schema import Config
 from canguard.engine.core import Engine
 from canguard.io.logs import Columns, read_log
 from canguard.sim import write_log
+from checkout import REPO
 
-REPO = Path(__file__).resolve().parents[1]
 DBC = REPO / "dbc" / "robot.dbc"
 BUNDLED = REPO / "config" / "canguard.yaml"
 ROBOT_GUARD = REPO / "config" / "examples" / "robot_guard.yaml"

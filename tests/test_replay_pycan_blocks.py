@@ -50,10 +50,10 @@ from canguard.errors import LogFormatError
 from canguard.io.candump import Columns
 from canguard.io.frame import Frame
 from canguard.io.logs import format_candump_line, read_log
+from checkout import REPO
 from test_replay_columns import DEFAULT_CHUNK, ROBOT_GUARD, assert_same, reference, replay
 from test_replay_random_logs import write_case
 
-REPO = Path(__file__).resolve().parents[1]
 EXAMPLES = REPO / "examples"
 FORMATS = ("asc", "blf", "trc", "csv")
 BLOCK = canguard.io.pycan_blocks.BLOCK

@@ -29,9 +29,10 @@ from canguard.sim import (
     run_on_bus,
     write_log,
 )
+from checkout import REPO
 from waitkit import WAIT_S
 
-DBC = Path(__file__).resolve().parents[1] / "dbc" / "robot.dbc"
+DBC = REPO / "dbc" / "robot.dbc"
 START = 1_700_000_000.0
 
 
