@@ -17,4 +17,7 @@ python3 -m venv .venv
 # Bytecode as a wheel install writes it: the tests start canguard in subprocesses, and where the
 # environment sets PYTHONDONTWRITEBYTECODE=1 each would compile the package from source (~90 ms).
 .venv/bin/python -m compileall -q src
-.venv/bin/python -m pytest -q -p no:cacheprovider "$@"
+# In parallel (pytest-xdist): a worker per core and one more, since the slow tests, which mostly wait on
+# subprocesses and the clock, start first (tests/conftest.py) and leave a core half idle meanwhile; worksteal
+# evens out tests of very different lengths. `bash scripts/test.sh -n 0` runs them in one process.
+.venv/bin/python -m pytest -q -p no:cacheprovider -n "$(( $(nproc) + 1 ))" --dist worksteal "$@"

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -11,8 +12,7 @@ from hypothesis import HealthCheck
 from hypothesis import settings as _hypothesis_settings
 
 from canguard.cli.common import one_blas_thread
-
-REPO = Path(__file__).resolve().parents[1]
+from checkout import REPO
 
 # As every canguard command does before numpy is imported: no BLAS thread pool, so this process is
 # single-threaded where a test forks (--jobs forks only then: canguard.cli.fleet._pool_context).
@@ -77,3 +77,11 @@ def installed_canguard(tmp_path_factory: pytest.TempPathFactory) -> Path:
                 if proc.returncode != 0:
                     pytest.fail(f"{' '.join(argv)}: exit {proc.returncode}\n{proc.stdout[-2000:]}{proc.stderr[-3000:]}")
     return exe
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Under pytest-xdist (scripts/test.sh), the slow tests come first: they mostly wait on subprocesses and
+    the clock (the soak, the installed wheel, the live daemon), so one worker waits on them while the others
+    run the rest, rather than all waiting at the end. Every worker sorts alike (a stable sort)."""
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        items.sort(key=lambda item: item.get_closest_marker("slow") is None)

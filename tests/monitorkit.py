@@ -26,8 +26,8 @@ import yaml
 
 from canguard.service.daemon import Daemon
 from canguard.service.systemd import Notifier
+from checkout import REPO
 
-REPO = Path(__file__).resolve().parents[1]
 DEMO = REPO / "config" / "examples" / "robot_guard.yaml"
 DBC = REPO / "dbc" / "robot.dbc"
 TREE = REPO / "config" / "trees" / "robot_guard.xml"

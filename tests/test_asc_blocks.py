@@ -38,8 +38,8 @@ from canguard.io.frame import Frame
 from canguard.io.logs import read_log
 from canguard.io.logtypes import LogFrames, ReadStats
 from canguard.io.pycan_blocks import python_can_chunks
+from checkout import REPO
 
-REPO = Path(__file__).resolve().parents[1]
 STATS = ("frames", "lines", "bad_lines", "backwards_timestamps", "repeated_timestamps")
 """What both readers must count alike (``bytes_read`` is the progress position, read a block at a time)."""
 

@@ -20,8 +20,8 @@ import pytest
 
 from canguard.errors import LogFormatError
 from canguard.io.logs import read_log
+from checkout import REPO
 
-REPO = Path(__file__).resolve().parents[1]
 ROBOT = REPO / "config" / "examples" / "robot_guard.yaml"
 FILE_HEADER_SIZE = 144
 OBJ = struct.Struct("<4sHHLL")

@@ -20,6 +20,7 @@ from canguard.bt.loader import load_tree
 from canguard.bt.wakeup import MAX_RETICKS
 from canguard.cli.main import main
 from canguard.io.clock import ManualClock
+from checkout import REPO
 
 
 def tree(tmp_path: Path, body: str) -> Path:
@@ -135,7 +136,7 @@ class TestEngine:
         from canguard.engine.core import Engine
         from canguard.engine.gate import LogSink
 
-        repo = Path(__file__).resolve().parents[1]
+        repo = REPO
         bundled = repo / "config" / "canguard.yaml"
         xml = tmp_path / "tree.xml"
         xml.write_text('<root BTCPP_format="4" main_tree_to_execute="T"><BehaviorTree ID="T"><Sequence>'

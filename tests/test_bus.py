@@ -10,7 +10,6 @@ import sys
 import threading
 import time
 import uuid
-from pathlib import Path
 
 import can
 import pytest
@@ -19,8 +18,9 @@ from canguard.config.schema import BusConfig
 from canguard.errors import BusError
 from canguard.io.bus import BusReader, open_bus
 from canguard.io.frame import Frame
-
-SRC = Path(__file__).resolve().parents[1] / "src"
+from checkout import SRC
+from test_daemon import unique_udp
+from waitkit import wait_until
 
 
 def virtual(name: str = "main") -> BusConfig:
@@ -28,14 +28,16 @@ def virtual(name: str = "main") -> BusConfig:
     return BusConfig(name=name, kwargs={"interface": "virtual", "channel": f"t-{uuid.uuid4().hex}"})
 
 
-def wait_for(reader: BusReader, n: int, timeout_s: float = 5.0) -> list[tuple[str, Frame]]:
-    """Up to ``n`` queued frames, waiting at most ``timeout_s``."""
+def frames_from(reader: BusReader, n: int) -> list[tuple[str, Frame]]:
+    """The next ``n`` frames on the reader's queue, as soon as they are there."""
     out: list[tuple[str, Frame]] = []
-    deadline = time.monotonic() + timeout_s
-    while len(out) < n and time.monotonic() < deadline:
-        item = reader.get(0.05)
-        if item is not None:
+
+    def enough() -> bool:
+        while len(out) < n and (item := reader.get(0.05)) is not None:
             out.append(item)
+        return len(out) >= n
+
+    wait_until(enough, what=f"{n} frames on the reader's queue")
     return out
 
 
@@ -75,7 +77,7 @@ class TestBusReader:
                 for m in sent:
                     m.timestamp = time.time()
                     peer.send(m)
-                got = wait_for(reader, 3)
+                got = frames_from(reader, 3)
                 assert [bus for bus, _ in got] == ["main"] * 3
                 frames = [f for _, f in got]
                 assert [(f.arbitration_id, f.data, f.is_extended_id) for f in frames] == [
@@ -114,7 +116,7 @@ class TestBusReader:
                     peer.send(
                         can.Message(arbitration_id=0x100, data=i.to_bytes(4, "little"), is_extended_id=False)
                     )
-                got = wait_for(reader, 5000)
+                got = frames_from(reader, 5000)
                 assert [int.from_bytes(f.data, "little") for _, f in got] == list(range(5000))
         finally:
             peer.shutdown()
@@ -143,12 +145,10 @@ class TestBusReader:
         )
         try:
             reader.start()
-            deadline = time.monotonic() + 5
-            while reader.reopens["main"] < 1 and time.monotonic() < deadline:
-                time.sleep(0.01)
+            wait_until(lambda: reader.reopens["main"] >= 1, what="the bus reopened")
             assert reader.reopens["main"] == 1
             peer.send(can.Message(arbitration_id=0x14, data=b"\x00" * 8, is_extended_id=False))
-            got = wait_for(reader, 1)
+            got = frames_from(reader, 1)
             assert [f.arbitration_id for _, f in got] == [0x14]
             assert [(n, str(e)) for n, e in errors] == [("main", "device went away")]
             assert "bus main (virtual, channel" in caplog.text and "device went away" in caplog.text
@@ -179,7 +179,7 @@ class TestBusReader:
 
         reader = BusReader([cfg], opener=opener, backoff_min_s=0.02, backoff_max_s=0.16)
         reader.start()
-        time.sleep(0.8)
+        wait_until(lambda: len(attempts) >= 6, what="six attempts to reopen")  # the delay reaches its cap
         t0 = time.monotonic()
         reader.stop()
         assert time.monotonic() - t0 < 1.0
@@ -200,7 +200,6 @@ class TestBusReader:
 PEER = """
 import sys, time, can
 bus = can.Bus(interface="udp_multicast", channel=sys.argv[1], port=int(sys.argv[2]))
-time.sleep(0.3)
 for i in range(20):
     bus.send(can.Message(arbitration_id=0x18FF50E5, data=bytes([i] * 8), is_extended_id=True))
 deadline = time.monotonic() + 5.0
@@ -222,8 +221,9 @@ class TestUdpMulticast:
     def test_round_trip_between_processes(self) -> None:
         """20 frames from a peer process arrive in order; a frame sent back reaches the peer."""
         pytest.importorskip("msgpack")
-        group, port = "239.74.163.2", 43000 + os.getpid() % 1000
-        cfg = BusConfig(name="udp", kwargs={"interface": "udp_multicast", "channel": group, "port": port})
+        udp = unique_udp()
+        group, port = udp["channel"], udp["port"]
+        cfg = BusConfig(name="udp", kwargs=udp)
         with BusReader([cfg]) as reader:
             peer = subprocess.Popen(
                 [sys.executable, "-c", PEER, group, str(port)],
@@ -232,10 +232,9 @@ class TestUdpMulticast:
                 env={**os.environ, "PYTHONPATH": str(SRC)},
             )
             try:
-                got = wait_for(reader, 20, timeout_s=10)
+                got = frames_from(reader, 20)
                 assert [f.data[0] for _, f in got] == list(range(20))
                 assert all(f.is_extended_id and f.arbitration_id == 0x18FF50E5 for _, f in got)
-                time.sleep(0.1)
                 assert reader.send("udp", can.Message(arbitration_id=0x02, data=b"", is_extended_id=False))
                 out, _ = peer.communicate(timeout=10)
             finally:

@@ -24,6 +24,7 @@ from canguard.engine.gate import LogSink, TaskGate
 from canguard.errors import ConfigError
 from canguard.io.clock import ManualClock
 from canguard.io.frame import Frame
+from checkout import REPO
 
 EDS = Path(__file__).resolve().parent / "data" / "canopen" / "cia402_drive.eds"
 T0 = 1_700_000_000.0
@@ -174,7 +175,7 @@ class TestTranslation:
 
     def test_dbc_messages_and_a_drive_mix_on_one_bus(self, tmp_path: Path) -> None:
         """With a DBC too, its sources and the drive's load side by side in one database."""
-        dbc = Path(__file__).resolve().parents[1] / "dbc" / "robot.dbc"
+        dbc = REPO / "dbc" / "robot.dbc"
         path = config(tmp_path, dbc=[str(dbc)])
         doc = yaml.safe_load(path.read_text(encoding="utf-8"))
         doc["sources"]["axis3"] = {"kind": "current", "message": "Axis3_Get_Iq", "signal": "Iq_Measured"}
@@ -196,7 +197,7 @@ class TestTranslation:
 
     def test_canopen_is_not_imported_without_a_drive(self, tmp_path: Path) -> None:
         """Loading a config with no ``canopen:`` section never imports the canopen library."""
-        repo = Path(__file__).resolve().parents[1]
+        repo = REPO
         code = (
             "import sys\nfrom canguard.config.loader import load_config\n"
             f"load_config({str(repo / 'config' / 'canguard.yaml')!r})\n"

@@ -18,9 +18,8 @@ import yaml
 
 from canguard import __version__
 from canguard.cli.main import build_parser, main
+from checkout import REPO, SRC
 
-REPO = Path(__file__).resolve().parents[1]
-SRC = REPO / "src"
 BUNDLED = REPO / "config" / "canguard.yaml"
 DBC = REPO / "dbc" / "robot.dbc"
 SUBCOMMANDS = ("run", "check", "tree", "replay", "simulate", "demo", "init", "unit", "completion")

@@ -18,9 +18,9 @@ import pytest
 
 from canguard.cli.common import EXIT_CODES
 from canguard.cli.main import build_parser, parse_args
+from checkout import REPO
 from clikit import cli
 
-REPO = Path(__file__).resolve().parents[1]
 ROBOT = REPO / "config" / "examples" / "robot_guard.yaml"
 NORMAL = REPO / "examples" / "normal.log.gz"
 SUBCOMMANDS = ("run", "check", "tree", "replay", "simulate", "demo", "init", "unit", "completion")

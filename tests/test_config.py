@@ -10,9 +10,9 @@ import pytest
 from canguard.cli.check import describe
 from canguard.config.loader import load_config, load_config_text
 from canguard.errors import ConfigError
+from checkout import REPO
 
-HERE = Path(__file__).resolve().parent
-REPO = HERE.parent
+HERE = REPO / "tests"
 ROBOT_DBC = REPO / "dbc" / "robot.dbc"
 CFG = (
     HERE / "data" / "foundation_test.yaml"

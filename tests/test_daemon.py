@@ -23,7 +23,6 @@ import subprocess
 import sys
 import tempfile
 import threading
-import time
 import uuid
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
@@ -37,9 +36,9 @@ import yaml
 
 from canguard.service.daemon import Daemon
 from canguard.service.systemd import Notifier
+from checkout import REPO, SRC
+from waitkit import WAIT_S, receive_until, wait_until
 
-REPO = Path(__file__).resolve().parents[1]
-SRC = REPO / "src"
 BUNDLED = REPO / "config" / "canguard.yaml"
 DBC = REPO / "dbc" / "robot.dbc"
 
@@ -48,9 +47,6 @@ ESTOP_IDS = {node << 5 | 0x02 for node in range(4)}
 SET_STATE_IDS = {node << 5 | 0x07 for node in range(4)}
 CLOSED_LOOP = (8).to_bytes(4, "little")
 SENT_BY_CANGUARD = ESTOP_IDS | SET_STATE_IDS
-
-WAIT_S = 20.0
-"""Upper bound for anything a test waits for (a loaded CI machine is slow, never this slow)."""
 
 
 # -- frames ----------------------------------------------------------------------------------
@@ -126,18 +122,6 @@ def read_events(path: Path) -> list[dict[str, Any]]:
     return [json.loads(line) for line in text.splitlines(keepends=True) if line.endswith("\n")]
 
 
-def wait_for(what: str, predicate: Callable[[], Any], timeout_s: float = WAIT_S) -> Any:
-    """Poll ``predicate`` until it returns something truthy; fail naming ``what`` after ``timeout_s``."""
-    deadline = time.monotonic() + timeout_s
-    while True:
-        value = predicate()
-        if value:
-            return value
-        if time.monotonic() > deadline:
-            pytest.fail(f"timed out after {timeout_s} s waiting for {what}")
-        time.sleep(0.02)
-
-
 def event_after(path: Path, name: str, after: int = 0, **fields: Any) -> Callable[[], int | None]:
     """A predicate: the index of the first event ``name`` (with ``fields``) at or after index ``after``."""
     def find() -> int | None:
@@ -164,6 +148,45 @@ def bus_args(bus: dict[str, Any]) -> list[str]:
     # python-can before 4.6 (no can.cli) has no --bus-kwargs: it passes unknown "--name=value" options to the bus.
     port = f"--bus-kwargs=port={bus['port']}" if importlib.util.find_spec("can.cli") else f"--port={bus['port']}"
     return ["-i", "udp_multicast", "-c", bus["channel"], port]
+
+
+def socket_inodes(pid: int) -> set[str]:
+    """The inodes of the sockets process ``pid`` holds open."""
+    inodes = set()
+    for fd in Path(f"/proc/{pid}/fd").iterdir():
+        with contextlib.suppress(OSError):  # an fd closed meanwhile
+            target = os.readlink(fd)
+            if target.startswith("socket:["):
+                inodes.add(target[len("socket:["):-1])
+    return inodes
+
+
+def read_everything(pid: int) -> bool:
+    """True when process ``pid`` sleeps with nothing in the receive queues of its UDP sockets (Linux /proc).
+
+    A process that sleeps with empty queues has taken every datagram delivered so far off its
+    sockets and handled it: can.logger has written each to its file, and will lose none on SIGINT.
+    """
+    state = Path(f"/proc/{pid}/stat").read_text(encoding="ascii").rsplit(")", 1)[1].split()[0]
+    inodes = socket_inodes(pid)
+    queued = 0
+    for table in ("/proc/net/udp", "/proc/net/udp6"):
+        with contextlib.suppress(FileNotFoundError):
+            for line in Path(table).read_text(encoding="ascii").splitlines()[1:]:
+                cols = line.split()  # sl local rem st tx_queue:rx_queue tr:when retrnsmt uid timeout inode ...
+                if cols[9] in inodes:
+                    queued += int(cols[4].split(":")[1], 16)
+    return state == "S" and queued == 0
+
+
+@contextlib.contextmanager
+def watching(bus: dict[str, Any]) -> Iterator[can.BusABC]:
+    """A udp_multicast bus of this process on ``bus``: it receives what is sent from now on."""
+    watch = can.Bus(interface="udp_multicast", channel=bus["channel"], port=bus["port"])
+    try:
+        yield watch
+    finally:
+        watch.shutdown()
 
 
 class Children:
@@ -194,7 +217,8 @@ class Children:
     def logger(self, bus: dict[str, Any], out: Path) -> subprocess.Popen[bytes]:
         """``python -m can.logger`` recording the bus to ``out`` (candump -L); returns once connected."""
         proc = self.start("logger", [sys.executable, "-m", "can.logger", *bus_args(bus), "-f", str(out)])
-        wait_for("can.logger to connect", lambda: "Connected to" in self.output("logger") or proc.poll())
+        wait_until(lambda: "Connected to" in self.output("logger") or proc.poll() is not None,
+                   what="can.logger to connect")
         assert proc.poll() is None, self.output("logger")
         return proc
 
@@ -204,7 +228,8 @@ class Children:
 
     @staticmethod
     def stop_logger(proc: subprocess.Popen[bytes]) -> None:
-        """SIGINT the logger so it flushes and closes its file."""
+        """SIGINT the logger once it has read every frame already on its socket, so it writes them and closes."""
+        wait_until(lambda: read_everything(proc.pid), what="can.logger to read the frames waiting on its socket")
         proc.send_signal(signal.SIGINT)
         proc.wait(timeout=10)
 
@@ -319,16 +344,6 @@ def inproc(tmp_path: Path) -> Iterator[InProcess]:
     assert result == [0]
 
 
-def receive_until(bus: can.BusABC, pred: Callable[[can.Message], bool], what: str) -> can.Message:
-    """Receive on ``bus`` until a frame matches ``pred``; fail naming ``what`` after WAIT_S."""
-    deadline = time.monotonic() + WAIT_S
-    while time.monotonic() < deadline:
-        msg = bus.recv(0.1)
-        if msg is not None and pred(msg):
-            return msg
-    pytest.fail(f"no {what} received within {WAIT_S} s")
-
-
 class TestDaemonInProcess:
     """Daemon.run in a thread on python-can's virtual bus, a peer bus on the same channel."""
 
@@ -397,15 +412,15 @@ def scenario(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Scenario]:
         ])
         logger = kids.logger(bus, tmp / "recorded.log")
         daemon = kids.canguard(config)
-        wait_for("the start event", event_after(events, "start"))
+        wait_until(event_after(events, "start"), what="the start event")
         kids.player(bus, tmp / "scenario.log")
-        stale = wait_for("the stale event", event_after(events, "stale", source="/battery_state",
-                                                                reason="stale"))
-        wait_for("the task to resume after the stale BMS", event_after(events, "resume", after=stale))
-        time.sleep(0.2)  # a few task periods on the bus
+        stale = wait_until(event_after(events, "stale", source="/battery_state",
+                                                                reason="stale"), what="the stale event")
+        wait_until(event_after(events, "resume", after=stale), what="the task to resume after the stale BMS")
+        with watching(bus) as watch:
+            receive_until(watch, is_task, "a task frame after the resume")
         daemon.send_signal(signal.SIGTERM)
         rc = daemon.wait(timeout=WAIT_S)
-        time.sleep(0.3)  # let the logger take the last frames off the socket
         kids.stop_logger(logger)
         yield Scenario(recorded(tmp / "recorded.log"), read_events(events), rc, kids.output("canguard"))
     finally:
@@ -467,33 +482,32 @@ class TestRunReload:
         events = tmp_path / "events.jsonl"
         logger = children.logger(bus, tmp_path / "recorded.log")
         daemon = children.canguard(config)
-        wait_for("the start event", event_after(events, "start"))
+        wait_until(event_after(events, "start"), what="the start event")
 
         def slower(doc: dict[str, Any]) -> None:
             doc["tree"]["tick_hz"] = 50
 
         write_config(tmp_path, bus, edit=slower)
         daemon.send_signal(signal.SIGHUP)
-        reloaded = wait_for("the reload event", event_after(events, "reload"))
+        reloaded = wait_until(event_after(events, "reload"), what="the reload event")
 
         def typo(doc: dict[str, Any]) -> None:
             doc["sources"]["/battery_state"]["message"] = "BMS_Statuz"
 
         write_config(tmp_path, bus, edit=typo)
         daemon.send_signal(signal.SIGHUP)
-        rejected = wait_for("the error event", event_after(events, "error", after=reloaded))
+        rejected = wait_until(event_after(events, "error", after=reloaded), what="the error event")
         error = read_events(events)[rejected - 1]
         assert "BMS_Statuz" in error["reason"] and "rejected" in error["reason"]
         assert daemon.poll() is None, children.output("canguard")
 
         write_candump(tmp_path / "over.log", [(0.0, 0.4, NORMAL_A), (0.4, 0.8, OVER_A)])
         children.player(bus, tmp_path / "over.log")
-        wait_for("a trip after the rejected reload",
-                 event_after(events, "trip", after=rejected, value=OVER_A))
-        time.sleep(0.2)
+        wait_until(event_after(events, "trip", after=rejected, value=OVER_A), what="a trip after the rejected reload")
+        with watching(bus) as watch:  # it hears only what is sent after the trip
+            receive_until(watch, is_stop, "an Estop after the trip")
         daemon.send_signal(signal.SIGTERM)
         assert daemon.wait(timeout=WAIT_S) == 0
-        time.sleep(0.2)
         children.stop_logger(logger)
         f = recorded(tmp_path / "recorded.log")
         over = first(f, lambda m: is_bms(m, OVER_A))
@@ -518,14 +532,13 @@ def notify_socket() -> Iterator[tuple[socket.socket, str]]:
 
 def notifications_until(sock: socket.socket, seen: list[str], field: str) -> None:
     """Receive datagrams into ``seen`` (one field per entry) until ``field`` is among them."""
-    deadline = time.monotonic() + WAIT_S
-    while field not in seen:
-        if time.monotonic() > deadline:
-            pytest.fail(f"no {field} within {WAIT_S} s; got {seen}")
-        try:
+
+    def arrived() -> bool:
+        with contextlib.suppress(TimeoutError):  # the socket's own timeout: look again
             seen.extend(sock.recv(4096).decode().split("\n"))
-        except TimeoutError:
-            continue
+        return field in seen
+
+    wait_until(arrived, what=f"{field} from sd_notify")
 
 
 @pytest.mark.slow
@@ -562,9 +575,9 @@ class TestRunKill:
         phases = [(0.06 * i, 0.06 * i + 0.06, OVER_A if i % 2 else NORMAL_A) for i in range(100)]
         write_candump(tmp_path / "flapping.log", phases)
         daemon = children.canguard(write_config(tmp_path, bus))
-        wait_for("the start event", event_after(events, "start"))
+        wait_until(event_after(events, "start"), what="the start event")
         children.player(bus, tmp_path / "flapping.log")
-        wait_for("20 events", lambda: len(read_events(events)) >= 20)
+        wait_until(lambda: len(read_events(events)) >= 20, what="20 events")
         before = events.read_bytes()
         daemon.kill()
         daemon.wait(timeout=WAIT_S)

@@ -5,7 +5,6 @@ from __future__ import annotations
 import math
 import random
 import struct
-from pathlib import Path
 
 import pytest
 from hypothesis import given, settings
@@ -15,10 +14,11 @@ from canguard.config.loader import load_config
 from canguard.config.schema import Config
 from canguard.decode.decoder import Decoder
 from canguard.io.frame import INVALID_INF, INVALID_LENGTH, INVALID_NAN, INVALID_PAYLOAD, Frame, Sample
+from checkout import REPO
 
-HERE = Path(__file__).resolve().parent
+HERE = REPO / "tests"
 EXOTIC = HERE / "data" / "foundation_exotic.yaml"
-BUNDLED = HERE.parent / "config" / "canguard.yaml"
+BUNDLED = REPO / "config" / "canguard.yaml"
 
 # (message, expected decoder path) for every message of the exotic test DBC
 EXOTIC_MESSAGES = [

@@ -18,9 +18,9 @@ import pytest
 import yaml
 
 from canguard.config.loader import load_config
+from checkout import REPO
 from clikit import cli
 
-REPO = Path(__file__).resolve().parents[1]
 UNIT = REPO / "systemd" / "canguard.service"
 GUIDE = REPO / "docs" / "deploy.md"
 

@@ -13,7 +13,8 @@ from urllib.parse import unquote
 
 import pytest
 
-REPO = Path(__file__).resolve().parents[1]
+from checkout import REPO
+
 DOCS = [REPO / "README.md", *sorted((REPO / "docs").glob("*.md")), *sorted((REPO / "benchmarks").glob("*.md"))]
 
 _FENCE = re.compile(r"^(```|~~~).*?^\1", re.M | re.S)

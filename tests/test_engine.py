@@ -23,8 +23,8 @@ from canguard.engine.events import FIRST_KEYS, EventJournal, read_events
 from canguard.engine.gate import LogSink, TaskGate
 from canguard.io.clock import ManualClock
 from canguard.io.frame import Frame
+from checkout import REPO
 
-REPO = Path(__file__).resolve().parents[1]
 BUNDLED = REPO / "config" / "canguard.yaml"
 DBC = REPO / "dbc" / "robot.dbc"
 

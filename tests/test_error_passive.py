@@ -11,6 +11,7 @@ from pathlib import Path
 
 from canguard.engine.gate import TaskGate
 from canguard.io.frame import Frame
+from checkout import REPO
 from test_engine import Rig
 
 
@@ -55,7 +56,7 @@ def test_replay_of_a_log_with_an_error_passive_report(tmp_path: Path, capsys: ob
     from test_engine import write_config
 
     cfg = write_config(tmp_path)
-    src = Path(__file__).resolve().parents[1] / "examples" / "load.log.gz"
+    src = REPO / "examples" / "load.log.gz"
     import gzip
 
     with gzip.open(src, "rt", encoding="ascii") as f:

@@ -14,8 +14,8 @@ import pytest
 from canguard.cli.main import main
 from canguard.config.loader import load_config_text
 from canguard.errors import MAX_SHOWN, ConfigError, TreeError, render_problems
+from checkout import REPO
 
-REPO = Path(__file__).resolve().parents[1]
 DBC = REPO / "dbc" / "robot.dbc"
 
 GOOD_TREE = """\

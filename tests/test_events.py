@@ -20,8 +20,7 @@ from hypothesis import strategies as st
 from canguard.engine import events as events_mod
 from canguard.engine.events import EventJournal, encode_event, journal_files, read_events
 from canguard.errors import LogFormatError
-
-SRC = Path(__file__).resolve().parents[1] / "src"
+from checkout import SRC
 
 
 def _trip(i: int) -> dict[str, Any]:
@@ -147,13 +146,13 @@ class TestEventJournal:
         path = tmp_path / "events.jsonl"
         code = textwrap.dedent(
             f"""
-            import sys, time
+            import signal
             from canguard.engine.events import EventJournal
             j = EventJournal({str(path)!r}, max_bytes=4096)
             for i in range(500):
                 j.write({{"event": "trip", "t": float(i), "node": "N", "value": i}})
             print("written", flush=True)
-            time.sleep(60)
+            signal.pause()  # until the SIGKILL
             """
         )
         env = {**os.environ, "PYTHONPATH": str(SRC)}

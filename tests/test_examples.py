@@ -21,8 +21,8 @@ import pytest
 from canguard.cli.replay import ReplayOptions, replay_one
 from canguard.config.loader import load_config
 from canguard.sim import write_log
+from checkout import REPO
 
-REPO = Path(__file__).resolve().parents[1]
 EXAMPLES = REPO / "examples"
 CONFIG = REPO / "config" / "examples" / "robot_guard.yaml"
 SCENARIOS = ("normal", "inrush", "spike", "overload", "dropout", "garbage", "errorburst", "load")

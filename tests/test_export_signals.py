@@ -20,10 +20,11 @@ import cantools
 import pytest
 from tests.clikit import cli
 
+from checkout import REPO
+
 pa = pytest.importorskip("pyarrow")
 pq = pytest.importorskip("pyarrow.parquet")
 
-REPO = Path(__file__).resolve().parents[1]
 CFG = REPO / "config" / "examples" / "robot_guard.yaml"
 DBC = REPO / "dbc" / "robot.dbc"
 OVERLOAD = REPO / "examples" / "overload.log.gz"

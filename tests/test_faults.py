@@ -9,9 +9,8 @@ from __future__ import annotations
 
 import functools
 import threading
-import time
 import uuid
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -24,7 +23,8 @@ from canguard.io.bus import BusReader
 from canguard.service.daemon import Daemon
 from canguard.service.systemd import Notifier
 from canguard.sim.faults import Faults, faulty_opener
-from test_daemon import BMS_ID, WAIT_S, BmsFeeder, is_stop, is_task, read_events, write_config
+from test_daemon import BMS_ID, BmsFeeder, is_stop, is_task, read_events, write_config
+from waitkit import receive_until, wait_until
 
 
 @dataclass
@@ -58,23 +58,6 @@ def rig(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[Rig]:
     assert result == [0]
 
 
-def until(what: str, cond: Callable[[], object]) -> None:
-    deadline = time.monotonic() + WAIT_S
-    while not cond():
-        if time.monotonic() > deadline:
-            pytest.fail(f"not within {WAIT_S} s: {what}")
-        time.sleep(0.01)
-
-
-def receive(bus: can.BusABC, pred: Callable[[can.Message], bool], what: str) -> can.Message:
-    deadline = time.monotonic() + WAIT_S
-    while time.monotonic() < deadline:
-        msg = bus.recv(0.1)
-        if msg is not None and pred(msg):
-            return msg
-    pytest.fail(f"no {what} within {WAIT_S} s")
-
-
 def drain(bus: can.BusABC) -> None:
     """Forget what the peer received so far: the next frame it reads is a new one."""
     while bus.recv(0) is not None:
@@ -90,16 +73,17 @@ class TestBusOff:
 
     def test_bus_off_stops_and_recovery_releases(self, rig: Rig) -> None:
         with BmsFeeder(rig.peer):
-            receive(rig.peer, is_task, "task frame before the fault")
+            receive_until(rig.peer, is_task, "task frame before the fault")
             rig.faults.bus_off = True
-            until("a bus_error event naming bus-off", lambda: any("bus-off" in str(e["reason"])
-                                                                  for e in events(rig, "bus_error")))
-            until("the task gate stopped", lambda: rig.daemon.engine.gate.state == TaskGate.STOPPED)
+            wait_until(lambda: any("bus-off" in str(e["reason"]) for e in events(rig, "bus_error")),
+                       what="a bus_error event naming bus-off")
+            wait_until(lambda: rig.daemon.engine.gate.state == TaskGate.STOPPED, what="the task gate stopped")
             rig.faults.bus_off = False
-            until("the bus reopened", lambda: any(e["reason"] == "reopened" for e in events(rig, "bus_error")))
-            until("the task resumed", lambda: rig.daemon.engine.gate.state != TaskGate.STOPPED)
+            wait_until(lambda: any(e["reason"] == "reopened" for e in events(rig, "bus_error")),
+                       what="the bus reopened")
+            wait_until(lambda: rig.daemon.engine.gate.state != TaskGate.STOPPED, what="the task resumed")
             drain(rig.peer)
-            receive(rig.peer, is_task, "task frame after the bus came back")
+            receive_until(rig.peer, is_task, "task frame after the bus came back")
 
 
 class TestRefusedSends:
@@ -107,20 +91,25 @@ class TestRefusedSends:
 
     def test_stop_frames_refused_then_delivered(self, rig: Rig) -> None:
         with BmsFeeder(rig.peer) as feeder:
-            receive(rig.peer, is_task, "task frame before the fault")
+            receive_until(rig.peer, is_task, "task frame before the fault")
             rig.faults.fail_sends = -1
             feeder.current_a = 40.0  # overcurrent: the tree stops the task
-            until("a trip", lambda: events(rig, "trip"))
-            until("refused stop frames", lambda: rig.faults.refused_sends >= 4 and rig.daemon.sink.failed >= 4)
-            until("the refusal journalled", lambda: any("send refused" in str(e["reason"]) and "(stop)" in
-                                                        str(e["reason"]) for e in events(rig, "bus_error")))
+            wait_until(lambda: events(rig, "trip"), what="a trip")
+            wait_until(lambda: rig.faults.refused_sends >= 4 and rig.daemon.sink.failed >= 4,
+                       what="refused stop frames")
+            wait_until(lambda: any("send refused" in str(e["reason"]) and "(stop)" in str(e["reason"])
+                                   for e in events(rig, "bus_error")), what="the refusal journalled")
             drain(rig.peer)
-            quiet_until = time.monotonic() + 0.3
-            while time.monotonic() < quiet_until:  # refused frames do not reach the bus
-                msg = rig.peer.recv(0.05)
-                assert msg is None or not is_stop(msg)
+            refused = rig.faults.refused_sends
+
+            def refused_again() -> bool:
+                msg = rig.peer.recv(0.01)
+                assert msg is None or not is_stop(msg), "a refused stop frame reached the bus"
+                return rig.faults.refused_sends >= refused + 8
+
+            wait_until(refused_again, what="two more rounds of stop frames refused")
             rig.faults.fail_sends = 0
-            receive(rig.peer, is_stop, "a stop frame once the bus takes frames again")
+            receive_until(rig.peer, is_stop, "a stop frame once the bus takes frames again")
 
 
 class TestErrorFramesAndLoss:
@@ -128,21 +117,22 @@ class TestErrorFramesAndLoss:
 
     def test_error_frames_counted_task_goes_on(self, rig: Rig) -> None:
         with BmsFeeder(rig.peer):
-            receive(rig.peer, is_task, "task frame")
+            receive_until(rig.peer, is_task, "task frame")
             rig.faults.error_frames = 32
-            until("32 error frames counted", lambda: rig.daemon.engine.decoder.error_frames >= 32)
+            wait_until(lambda: rig.daemon.engine.decoder.error_frames >= 32, what="32 error frames counted")
             drain(rig.peer)
-            receive(rig.peer, is_task, "task frame after the error burst")
+            receive_until(rig.peer, is_task, "task frame after the error burst")
         assert not events(rig, "trip")
 
     def test_lost_bms_frames_go_stale_and_stop(self, rig: Rig) -> None:
         with BmsFeeder(rig.peer):
-            receive(rig.peer, is_task, "task frame")
+            receive_until(rig.peer, is_task, "task frame")
             rig.faults.drop_ids = {BMS_ID}
-            until("/battery_state stale", lambda: any(e["source"] == "/battery_state" for e in events(rig, "stale")))
-            until("the task gate stopped", lambda: rig.daemon.engine.gate.state == TaskGate.STOPPED)
+            wait_until(lambda: any(e["source"] == "/battery_state" for e in events(rig, "stale")),
+                       what="/battery_state stale")
+            wait_until(lambda: rig.daemon.engine.gate.state == TaskGate.STOPPED, what="the task gate stopped")
             rig.faults.drop_ids = set()
-            until("fresh again", lambda: any(e["source"] == "/battery_state" for e in events(rig, "fresh")))
-            until("the task resumed", lambda: rig.daemon.engine.gate.state != TaskGate.STOPPED)
+            wait_until(lambda: any(e["source"] == "/battery_state" for e in events(rig, "fresh")), what="fresh again")
+            wait_until(lambda: rig.daemon.engine.gate.state != TaskGate.STOPPED, what="the task resumed")
             drain(rig.peer)
-            receive(rig.peer, is_task, "task frame after the source is fresh again")
+            receive_until(rig.peer, is_task, "task frame after the source is fresh again")

@@ -15,8 +15,8 @@ import pytest
 from canguard.cli.fleet import expand_logs
 from canguard.cli.main import main
 from canguard.errors import ConfigError
+from checkout import REPO
 
-REPO = Path(__file__).resolve().parents[1]
 CONFIG = REPO / "config" / "examples" / "robot_guard.yaml"
 EXAMPLES = sorted((REPO / "examples").glob("*.log.gz"))
 

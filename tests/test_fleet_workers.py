@@ -24,8 +24,8 @@ from canguard.cli.common import BLAS_THREADS
 from canguard.cli.fleet import _worker_start, run_processes
 from canguard.cli.main import main
 from canguard.config.schema import Config
+from checkout import REPO
 
-REPO = Path(__file__).resolve().parents[1]
 CONFIG = REPO / "config" / "examples" / "robot_guard.yaml"
 EXAMPLES = sorted((REPO / "examples").glob("*.log.gz"))
 

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import copy
 import os
-from pathlib import Path
 from typing import Any
 
 import yaml
@@ -23,8 +22,8 @@ from canguard.config.loader import load_config_text
 from canguard.errors import ConfigError, LogFormatError, TreeError
 from canguard.io.clock import ManualClock
 from canguard.io.logs import ReadStats, read_log
+from checkout import REPO
 
-REPO = Path(__file__).resolve().parents[1]
 EXAMPLES = int(os.environ.get("CANGUARD_FUZZ_EXAMPLES", "150"))
 FUZZ = settings(max_examples=EXAMPLES, deadline=None, derandomize=EXAMPLES <= 1000,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])

@@ -18,7 +18,9 @@ from pathlib import Path
 import grimp
 import pytest
 
-SRC = Path(__file__).resolve().parents[1] / "src" / "canguard"
+from checkout import REPO
+
+SRC = REPO / "src" / "canguard"
 
 
 def test_layers_contract_is_kept() -> None:

@@ -12,10 +12,9 @@ import yaml
 
 from canguard.config.loader import load_config
 from canguard.errors import ConfigError
+from checkout import REPO
 from clikit import cli
 from monitorkit import write_demo_config
-
-REPO = Path(__file__).resolve().parents[1]
 
 
 def config_with(tmp_path: Path, monitor: object) -> Path:

@@ -19,9 +19,9 @@ import pytest
 import yaml
 
 from canguard.config.loader import load_config
+from checkout import REPO
 from clikit import cli
 
-REPO = Path(__file__).resolve().parents[1]
 ROBOT = REPO / "config" / "examples" / "robot_guard.yaml"
 NORMAL = REPO / "examples" / "normal.log.gz"
 OVERLOAD = REPO / "examples" / "overload.log.gz"

@@ -26,8 +26,8 @@ import yaml
 from tests.clikit import cli
 
 from canguard.io.outputs import output_problem
+from checkout import REPO
 
-REPO = Path(__file__).resolve().parents[1]
 NORMAL = REPO / "examples" / "normal.log.gz"
 ROBOT = REPO / "config" / "examples" / "robot_guard.yaml"
 IS_ROOT = hasattr(os, "geteuid") and os.geteuid() == 0

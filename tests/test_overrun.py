@@ -27,9 +27,9 @@ from test_daemon import (
     is_stop,
     is_task,
     read_events,
-    receive_until,
     write_config,
 )
+from waitkit import receive_until, wait_until
 
 
 def overruns(path: Path) -> list[str]:
@@ -49,9 +49,7 @@ class TestOverrun:
             late = Frame(daemon.clock.now(), "main", BMS_ID, bms_data(10.0), True)
             daemon.reader.queue.put(("main", late, time.monotonic() - 2 * limit))  # waited twice the limit
             receive_until(peer, is_stop, "Estop once the daemon is behind")
-            deadline = time.monotonic() + 10
-            while time.monotonic() < deadline and len(overruns(inproc.events)) < 2:
-                time.sleep(0.05)
+            wait_until(lambda: len(overruns(inproc.events)) >= 2, what="the overrun event and its caught-up one")
             receive_until(peer, is_task, "task frame once caught up")
         first, second = overruns(inproc.events)[:2]
         assert first.startswith("frames waited ") and f"(limit {limit:.3f} s)" in first
@@ -64,7 +62,9 @@ class TestOverrun:
         """A daemon that keeps up with its bus never reports an overrun."""
         with BmsFeeder(inproc.peer):
             receive_until(inproc.peer, is_task, "task frame")
-            time.sleep(0.5)
+            stats = inproc.daemon.engine.stats
+            read = stats.frames
+            wait_until(lambda: stats.frames >= read + 100, what="the daemon to read 100 more frames")
         assert overruns(inproc.events) == []
         assert inproc.daemon.engine.gate.state == TaskGate.RUNNING
 

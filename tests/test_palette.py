@@ -15,8 +15,8 @@ import pytest
 import yaml
 
 from canguard.cli.main import main
+from checkout import REPO
 
-REPO = Path(__file__).resolve().parents[1]
 DATA = REPO / "tests" / "data" / "palette"
 PALETTE = DATA / "nav_nodes.xml"
 NAVIGATE = DATA / "navigate.xml"

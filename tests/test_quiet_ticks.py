@@ -16,7 +16,8 @@ import pytest
 import yaml
 
 from canguard.config.loader import load_config
-from test_replay_columns import BUNDLED, DEFAULT_CHUNK, REPO, ROBOT_GUARD, assert_same, replay
+from checkout import REPO
+from test_replay_columns import BUNDLED, DEFAULT_CHUNK, ROBOT_GUARD, assert_same, replay
 from test_replay_random_logs import write_case
 
 EXAMPLES = REPO / "examples"

@@ -3,14 +3,13 @@
 from __future__ import annotations
 
 import importlib.util
-from pathlib import Path
 from types import ModuleType
 
-ROOT = Path(__file__).resolve().parents[1]
+from checkout import REPO
 
 
 def _script() -> ModuleType:
-    spec = importlib.util.spec_from_file_location("node_reference", ROOT / "scripts" / "node_reference.py")
+    spec = importlib.util.spec_from_file_location("node_reference", REPO / "scripts" / "node_reference.py")
     assert spec is not None and spec.loader is not None
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
@@ -21,7 +20,7 @@ class TestNodeReference:
     def test_readme_table_is_the_generated_one(self) -> None:
         """The text between the node-reference markers of docs/trees.md equals `python scripts/node_reference.py`."""
         ref = _script()
-        readme = (ROOT / "docs" / "trees.md").read_text(encoding="utf-8")
+        readme = (REPO / "docs" / "trees.md").read_text(encoding="utf-8")
         assert ref.BEGIN in readme and ref.END in readme, "docs/trees.md lacks the node-reference markers"
         start = readme.index(ref.BEGIN)
         end = readme.index(ref.END) + len(ref.END) + 1

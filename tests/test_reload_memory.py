@@ -20,8 +20,8 @@ from canguard.engine.core import Engine
 from canguard.service.blackboard import tree_clients
 from canguard.service.daemon import Daemon
 from canguard.service.systemd import Notifier
+from checkout import REPO
 
-REPO = Path(__file__).resolve().parents[1]
 ROBOT = REPO / "config" / "examples" / "robot_guard.yaml"
 RELOADS = 12
 

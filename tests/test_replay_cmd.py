@@ -25,9 +25,8 @@ import yaml
 from canguard.cli.main import main
 from canguard.cli.replay import compare_baseline
 from canguard.sim import write_log
+from checkout import REPO, SRC
 
-REPO = Path(__file__).resolve().parents[1]
-SRC = REPO / "src"
 BUNDLED = REPO / "config" / "canguard.yaml"
 DBC = REPO / "dbc" / "robot.dbc"
 T0 = 1_700_000_000.0

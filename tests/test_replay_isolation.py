@@ -16,8 +16,8 @@ from typing import Any
 import pytest
 
 from canguard.cli.main import main
+from checkout import REPO
 
-REPO = Path(__file__).resolve().parents[1]
 LOGS = sorted((REPO / "examples").glob("*.log.gz"))
 CONFIGS = [*sorted((REPO / "config" / "examples").glob("*.yaml")), REPO / "config" / "canguard.yaml"]
 

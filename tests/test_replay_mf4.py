@@ -37,6 +37,7 @@ from canguard.config.loader import load_config
 from canguard.io.candump import Columns
 from canguard.io.frame import Frame
 from canguard.io.logs import ReadStats, format_candump_line, frame_from_message, read_log
+from checkout import SRC
 from test_replay_columns import (
     DEFAULT_CHUNK,
     compare,
@@ -48,8 +49,6 @@ from test_replay_columns import (
 pytest.importorskip("asammdf", reason="MF4 logs need asammdf: pip install -e '.[test,mf4]' (not in the test extra:"
                     " with it, `import can` imports asammdf and pandas, +0.35 s on every canguard process)")
 
-REPO = Path(__file__).resolve().parents[1]
-SRC = REPO / "src"
 T0 = 1_700_000_000.25
 FD_LENGTHS = (0, 3, 8, 12, 16, 20, 24, 32, 48, 64)
 SMALL_BLOCK = 97

@@ -50,10 +50,10 @@ from canguard.errors import LogFormatError
 from canguard.io.candump import Columns
 from canguard.io.frame import Frame
 from canguard.io.logs import format_candump_line, read_log
-from test_replay_columns import DEFAULT_CHUNK, ROBOT_GUARD, assert_same, replay
+from checkout import REPO
+from test_replay_columns import DEFAULT_CHUNK, ROBOT_GUARD, assert_same, reference, replay
 from test_replay_random_logs import write_case
 
-REPO = Path(__file__).resolve().parents[1]
 EXAMPLES = REPO / "examples"
 FORMATS = ("asc", "blf", "trc", "csv")
 BLOCK = canguard.io.pycan_blocks.BLOCK
@@ -112,9 +112,8 @@ def replay_both(cfg: Config, log: Path, out: Path, block: int, monkeypatch: pyte
     blocks of a log full of frames no block holds may have none).
     """
     monkeypatch.setattr(canguard.io.pycan_blocks, "BLOCK", block)
-    ref = replay(cfg, log, out / f"ref-{log.name}-{block}", columns=False, chunk=DEFAULT_CHUNK)
+    ref = reference(cfg, log, out / f"ref-{log.name}")  # frame by frame: one run serves every block size
     col = replay(cfg, log, out / f"col-{log.name}-{block}", columns=True, chunk=DEFAULT_CHUNK)
-    assert (ref.column_blocks, ref.handled_rows) == (0, 0), "the reference used the column path"
     assert_same(ref, col, f"{log.name}, blocks of {block} messages")
     if columns and block == BLOCK:
         assert col.column_blocks > 0, f"{log.name}: the column path never ran: this proves nothing"
@@ -138,21 +137,23 @@ def twin(frames: list[Frame], path: Path) -> Path:
 
 
 def check_format(cfg: Config, path: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
-                 candump_can: bool = True) -> dict[str, Any]:
-    """(a), (b) and (c) of the module docstring for one log: equal; (b)'s summary at the reader's block size.
+                 candump_can: bool = True) -> tuple[dict[str, Any], list[Frame]]:
+    """(a), (b) and (c) of the module docstring for one log: equal; (b)'s summary at the reader's block size,
+    and the frames the format gave back.
 
     ``candump_can=False``: (b) and (c) only, and no column block required: for the frames
     of CSV's FD log, classic frames of 64 bytes, which neither candump nor a block holds.
     """
     summaries = [replay_both(cfg, path, tmp_path, block, monkeypatch, columns=candump_can)
                  for block in (BLOCK, SMALL_BLOCK)]
+    frames = list(read_log(path))
     if candump_can:
-        candump = replay(cfg, twin(list(read_log(path)), tmp_path / f"{path.name}.twin.log"), tmp_path / "twin",
+        candump = replay(cfg, twin(frames, tmp_path / f"{path.name}.twin.log"), tmp_path / "twin",
                          columns=True, chunk=DEFAULT_CHUNK)
         want = json.loads(candump.summary)
         for block, got in zip((BLOCK, SMALL_BLOCK), summaries, strict=True):
             assert dict(got, log="") == dict(want, log=""), f"{path.name}, blocks of {block}: not its candump twin's"
-    return summaries[0]
+    return summaries[0], frames
 
 
 def same_but_time_base(got: dict[str, Any], want: dict[str, Any], tick: float) -> None:
@@ -185,8 +186,8 @@ def test_examples_same_in_every_format(example: str, tmp_path: Path, monkeypatch
         assert original["trip_count"] >= 1 and original["stops"] >= 1, "the example should trip"
     for fmt in FORMATS:
         path = write_format(frames, tmp_path / f"{example}.{fmt}")
-        got = check_format(cfg, path, tmp_path, monkeypatch)
-        if len(list(read_log(path))) == len(frames):  # python-can's TRC writer drops error frames
+        got, read = check_format(cfg, path, tmp_path, monkeypatch)
+        if len(read) == len(frames):  # python-can's TRC writer drops error frames
             same_but_time_base(got, original, 1.0 / cfg.tree.tick_hz)
         else:
             assert fmt == "trc" and example == "errorburst", f"{path.name}: frames lost"
@@ -219,9 +220,9 @@ def test_fd_and_remote_frames(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -
     assert original["frames"]["remote_frames"] > 20
     for fmt in FORMATS:
         path = write_format(frames, tmp_path / f"fd.{fmt}", brs)
-        got = check_format(cfg, path, tmp_path, monkeypatch, candump_can=fmt != "csv")
+        got, read = check_format(cfg, path, tmp_path, monkeypatch, candump_can=fmt != "csv")
         if fmt in ("asc", "blf"):  # they carry FD, BRS and remote frames: the same frames but for the time base
-            assert [f._replace(t=0.0) for f in read_log(path)] == [f._replace(t=0.0) for f in with_brs]
+            assert [f._replace(t=0.0) for f in read] == [f._replace(t=0.0) for f in with_brs]
             same_but_time_base(got, original, 1.0 / cfg.tree.tick_hz)
 
 

@@ -14,9 +14,8 @@ import canguard.cli.replay as replay_cmd
 from canguard.cli.main import main
 from canguard.config.schema import Config
 from canguard.sim import write_log
+from checkout import REPO, SRC
 
-REPO = Path(__file__).resolve().parents[1]
-SRC = REPO / "src"
 BUNDLED = REPO / "config" / "canguard.yaml"
 DBC = REPO / "dbc" / "robot.dbc"
 

@@ -9,9 +9,9 @@ from __future__ import annotations
 
 import ast
 import re
-from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
+from checkout import REPO
+
 DOC = REPO / "docs" / "safety.md"
 TEST_ID = re.compile(r"`(tests/[\w/]+\.py(?:::\w+)+)`")
 

@@ -29,8 +29,10 @@ from canguard.sim import (
     run_on_bus,
     write_log,
 )
+from checkout import REPO
+from waitkit import WAIT_S
 
-DBC = Path(__file__).resolve().parents[1] / "dbc" / "robot.dbc"
+DBC = REPO / "dbc" / "robot.dbc"
 START = 1_700_000_000.0
 
 
@@ -374,10 +376,12 @@ class TestWriteLog:
         assert a == (tmp_path / "b.log").read_bytes()
         assert a != (tmp_path / "c.log").read_bytes()
 
-    def test_gzip_logs_are_deterministic_too(self, db: cantools.database.Database, tmp_path: Path) -> None:
-        """A ``.gz`` path writes gzip whose bytes depend only on the arguments."""
+    def test_gzip_logs_are_deterministic_too(self, db: cantools.database.Database, tmp_path: Path,
+                                             monkeypatch: pytest.MonkeyPatch) -> None:
+        """A ``.gz`` path writes gzip whose bytes depend only on the arguments, not on when it was written."""
         write_log(tmp_path / "a.log.gz", 1.0, db=str(DBC))
-        time.sleep(1.1)  # a gzip header with a wall-clock mtime would now differ
+        an_hour_later = time.time() + 3600.0
+        monkeypatch.setattr(time, "time", lambda: an_hour_later)  # a gzip header with a wall-clock mtime would differ
         write_log(tmp_path / "b.log.gz", 1.0, db=str(DBC))
         assert (tmp_path / "a.log.gz").read_bytes() == (tmp_path / "b.log.gz").read_bytes()
 
@@ -425,7 +429,8 @@ class TestRunOnBus:
             thread.start()
             received: list[can.Message] = []
             estop_at = None
-            while time.time() - t0 < 2.0 and (thread.is_alive() or estop_at is None):
+            # until the run ends (on a busy machine it may take longer than its 0.6 s), within WAIT_S
+            while time.time() - t0 < WAIT_S and (thread.is_alive() or estop_at is None):
                 msg = ctl.recv(0.01)
                 if msg is not None:
                     received.append(msg)
@@ -434,7 +439,7 @@ class TestRunOnBus:
                         can.Message(arbitration_id=_ids(db, "Axis0_Estop"), is_extended_id=False, data=b"")
                     )
                     estop_at = time.time()
-            thread.join(2.0)
+            thread.join(WAIT_S)
             while (msg := ctl.recv(0)) is not None:
                 received.append(msg)
         assert estop_at is not None and result and result[0] == len(received)

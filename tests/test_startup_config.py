@@ -15,8 +15,8 @@ import yaml
 import canguard.config.yamlsrc as yamlsrc
 from canguard.config.loader import load_config, load_config_text
 from canguard.errors import ConfigError
+from checkout import REPO
 
-REPO = Path(__file__).resolve().parents[1]
 CONFIGS = sorted(p for p in (REPO / "config").rglob("*.yaml")) + sorted((REPO / "tests" / "data").glob("*.yaml"))
 
 

@@ -18,9 +18,8 @@ import pytest
 import canguard
 from canguard.cli.common import COMMANDS
 from canguard.cli.main import _command_in, build_parser, parse_args
+from checkout import REPO, SRC
 
-REPO = Path(__file__).resolve().parents[1]
-SRC = REPO / "src"
 HEAVY = ("can", "cantools", "yaml", "py_trees", "numpy", "asyncio", "importlib.metadata", "canguard.cli.replay",
          "canguard.sim", "canguard.engine", "canguard.config")
 

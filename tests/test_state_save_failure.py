@@ -17,8 +17,8 @@ from canguard.engine.core import Engine
 from canguard.engine.gate import LogSink
 from canguard.io.clock import ManualClock
 from canguard.protect.state import HeatStore
+from checkout import REPO
 
-REPO = Path(__file__).resolve().parents[1]
 ROBOT = REPO / "config" / "examples" / "robot_guard.yaml"
 T0 = 1_700_000_000.0
 

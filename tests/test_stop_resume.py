@@ -29,8 +29,8 @@ from canguard.engine.gate import LogSink
 from canguard.errors import ConfigError
 from canguard.io.clock import ManualClock
 from canguard.io.frame import Frame
+from checkout import REPO
 
-REPO = Path(__file__).resolve().parents[1]
 DBC = REPO / "dbc" / "robot.dbc"
 T0 = 1_700_000_000.0
 SEEDS = [*sorted((REPO / "config" / "examples").glob("*.yaml")), REPO / "config" / "canguard.yaml"]

@@ -17,8 +17,9 @@ from pathlib import Path
 import pytest
 
 from canguard.service.systemd import Notifier, WatchdogPolicy, status_line, watchdog_verdict
+from checkout import REPO
 
-SYSTEMD_DIR = Path(__file__).resolve().parents[1] / "systemd"
+SYSTEMD_DIR = REPO / "systemd"
 ANALYZE = shutil.which("systemd-analyze")
 
 

@@ -8,8 +8,7 @@ import pytest
 
 from canguard.bt.loader import context_for, guard_coverage, load_tree
 from canguard.config.loader import load_config
-
-REPO = Path(__file__).resolve().parents[1]
+from checkout import REPO
 
 
 def coverage(tmp_path: Path, body: str) -> list[str]:

@@ -9,7 +9,8 @@ import pytest
 from canguard.bt.loader import check_tree, context_for, load_config_tree, show_tree
 from canguard.config.loader import load_config
 from canguard.errors import TreeError
-from treekit import REPO, TREES
+from checkout import REPO
+from treekit import TREES
 
 EXAMPLES = sorted((REPO / "config" / "examples").glob("*.yaml"))
 

@@ -14,7 +14,8 @@ import pytest
 
 from canguard.engine.ratelimit import RateLimit
 from test_daemon import BmsFeeder, read_events
-from test_faults import Rig, rig, until
+from test_faults import Rig, rig
+from waitkit import wait_until
 
 __all__ = ["rig"]  # the fixture, imported for its name
 
@@ -40,16 +41,17 @@ class TestRefusedFlood:
         caplog.set_level(logging.WARNING, logger="canguard.engine.gate")
         sink = rig.daemon.sink
         with BmsFeeder(rig.peer):
-            until("the task runs", lambda: sink.sent >= 8)
+            wait_until(what="the task runs", predicate=lambda: sink.sent >= 8)
             rig.faults.fail_sends = -1
             start = time.monotonic()
-            until("a warning counting the held-back refusals",
+            wait_until(what="a warning counting the held-back refusals", predicate=
                   lambda: any("more like it held back" in r.getMessage() for r in caplog.records))
             rig.faults.fail_sends = 0
             seconds = time.monotonic() - start
             sent = sink.sent
-            until("a frame sent again", lambda: sink.sent > sent)  # no refusal after this: the counts hold still
-            until("the refusal journalled",
+            # no refusal after this: the counts hold still
+            wait_until(what="a frame sent again", predicate=lambda: sink.sent > sent)
+            wait_until(what="the refusal journalled", predicate=
                   lambda: any("send refused" in str(e.get("reason")) for e in read_events(rig.events)))
         warnings = [r.getMessage() for r in caplog.records if r.getMessage().startswith("could not send")]
         assert sink.failed >= 50

@@ -22,8 +22,8 @@ from canguard.bt.nodes.base import halted
 from canguard.config.schema import ActionConfig, FrameSpec, SignalRef, SourceConfig, SourceKind
 from canguard.io.clock import ManualClock
 from canguard.io.frame import Sample
+from checkout import REPO
 
-REPO = Path(__file__).resolve().parents[1]
 TREES = REPO / "config" / "trees"
 
 Status = py_trees.common.Status
