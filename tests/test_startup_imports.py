@@ -209,3 +209,23 @@ def test_models_fed_sample_by_sample_import_no_numpy() -> None:
     assert "numpy" not in loaded_after(feed)
     long_run = "assert [f().advance(t, v).index.tolist() for f in make] == edges\n"
     assert "numpy" in loaded_after(feed + long_run)
+
+
+def test_short_replay_of_decoded_samples_imports_no_numpy(tmp_path: Path) -> None:
+    """A short replay whose frames decode (models and source health fed, the tree ticked on edges) never
+    imports numpy."""
+    import gzip
+
+    with gzip.open(REPO / "examples" / "inrush.log.gz", "rt", encoding="ascii") as f:
+        lines = [next(f) for _ in range(400)]
+    log = tmp_path / "short.log"
+    log.write_text("".join(lines), encoding="ascii")
+    config = REPO / "config" / "canguard.yaml"
+    replay = (
+        "import contextlib, io, json\nfrom canguard.cli.main import main\nout = io.StringIO()\n"
+        "with contextlib.redirect_stdout(out):\n"
+        f"    assert main(['replay', '{log}', '-c', '{config}', '--json']) == 0\n"
+        "summary = json.loads(out.getvalue())\n"
+        "assert summary['samples']['axis0'] > 0 and summary['edge_ticks'] > 0, summary\n"
+    )
+    assert "numpy" not in loaded_after(replay)
