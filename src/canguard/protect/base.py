@@ -33,7 +33,9 @@ tuples or numpy columns) feeds every sample to it with no numpy call; a long run
 sample over a limit, a level crossing, the other side of the start current), the kernel
 runs on those and on the samples after them while a timer runs, and the quiet stretches
 between are taken whole from the screen. Both ways are the same maths, so they agree by
-construction; the tests still hold them to the reference.
+construction; the tests still hold them to the reference. Importing the models, and feeding
+them with :meth:`~ProtectionModel.update` (what the engine does), never imports numpy: it comes
+with the first long run or numpy column, or the first :class:`Run` (whose columns are numpy arrays).
 - Bad samples never raise and never corrupt the state: a sample whose value or
   time is NaN/±inf is ignored and counted in ``rejected``; a sample older than the
   latest accepted one (a negative time step: clock stepped back, out-of-order
