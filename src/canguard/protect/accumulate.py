@@ -9,14 +9,18 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING
 
-import numpy as np
+if TYPE_CHECKING:
+    import numpy as np
 
-from canguard.protect.columns import FloatArray
+    from canguard.protect.columns import FloatArray
 
 
 def next_where(mask: np.ndarray) -> np.ndarray:
     """For each position, the first position at or after it where ``mask`` is set (``len``: none)."""
+    import numpy as np
+
     n = mask.size
     pos = np.where(mask, np.arange(n), n)
     return np.minimum.accumulate(pos[::-1])[::-1]
@@ -31,6 +35,8 @@ def clamped_sum(start: float, steps: FloatArray, cap: float, add: Callable[[floa
     there (<= 0 at the floor, >= 0 at the cap) are skipped as a block. The scan runs in
     windows that double while no bound is hit, so a run costs a few passes.
     """
+    import numpy as np
+
     n = steps.size
     out = np.empty(n)
     stays: tuple[np.ndarray, np.ndarray] | None = None  # where each bound is left, found at the first hit

@@ -33,7 +33,9 @@ tuples or numpy columns) feeds every sample to it with no numpy call; a long run
 sample over a limit, a level crossing, the other side of the start current), the kernel
 runs on those and on the samples after them while a timer runs, and the quiet stretches
 between are taken whole from the screen. Both ways are the same maths, so they agree by
-construction; the tests still hold them to the reference.
+construction; the tests still hold them to the reference. Importing the models, and feeding
+them with :meth:`~ProtectionModel.update` (what the engine does), never imports numpy: it comes
+with the first long run or numpy column, or the first :class:`Run` (whose columns are numpy arrays).
 - Bad samples never raise and never corrupt the state: a sample whose value or
   time is NaN/±inf is ignored and counted in ``rejected``; a sample older than the
   latest accepted one (a negative time step: clock stepped back, out-of-order
@@ -59,24 +61,24 @@ from __future__ import annotations
 import math
 from abc import ABC, abstractmethod
 from collections.abc import Sequence
-from typing import ClassVar
-
-import numpy as np
-import numpy.typing as npt
+from typing import TYPE_CHECKING, ClassVar
 
 from canguard.protect.columns import (
-    EMPTY_INDEX,
-    EMPTY_STATES,
-    EMPTY_TIMES,
+    NO_EDGES,
     SHORT_RUN,
-    FloatArray,
     Screen,
     alternate,
     as_run,
     in_order,
+    no_edges,
     short_run,
 )
 from canguard.protect.results import Run, Snapshot
+
+if TYPE_CHECKING:
+    import numpy.typing as npt
+
+    from canguard.protect.columns import BoolArray, FloatArray
 
 # Reasons a guard is not satisfied, as they appear in snapshots and events.
 REASON_OK = ""
@@ -186,6 +188,8 @@ class LatchedModel(ProtectionModel):
         few = short_run(times, values, SHORT_RUN)
         if few is not None:
             return self._advance_few(few[0], few[1], until_edge)
+        import numpy as np
+
         t, v = as_run(times, values)
         size = max(_FIRST_CHUNK, 2 * self._reach) if until_edge else _LAST_CHUNK
         if t.size <= size:
@@ -259,19 +263,24 @@ class LatchedModel(ProtectionModel):
                     taken = i + 1
                     break
         if not index:
-            return Run(EMPTY_INDEX, EMPTY_TIMES, EMPTY_STATES, taken, peak)
+            no_index, no_times, no_states = (NO_EDGES or no_edges())[0]  # numpy's empty columns, once built
+            return Run(no_index, no_times, no_states, taken, peak)
+        import numpy as np
+
         return Run(np.array(index, dtype=np.intp), np.array([times[i] for i in index]),
                    np.array(alternate(self._tripped, len(index))), taken, peak)
 
     def _advance_long(self, t: FloatArray, v: FloatArray, until_edge: bool) -> Run:
         """A long run: filtered with numpy, screened, the candidates fed to the kernel."""
+        import numpy as np
+
         finite = np.isfinite(v) & np.isfinite(t)
         ok = in_order(t, finite, self._last_t)
         everything = bool(ok.all())
         picked = np.arange(t.size) if everything else ok.nonzero()[0]
         if not picked.size:
             self._count_ignored(finite, ok, t.size)
-            return Run(EMPTY_INDEX, EMPTY_TIMES, EMPTY_STATES, t.size, math.nan)
+            return Run(*no_edges()[0], t.size, math.nan)
         ta = t if everything else t[picked]
         a = np.abs(v if everything else v[picked])
         edges, last = self._walk(ta, a, until_edge)
@@ -308,8 +317,10 @@ class LatchedModel(ProtectionModel):
         self._finish(screen, n - 1)
         return edges, n - 1
 
-    def _count_ignored(self, finite: npt.NDArray[np.bool_], ok: npt.NDArray[np.bool_], taken: int) -> None:
+    def _count_ignored(self, finite: BoolArray, ok: BoolArray, taken: int) -> None:
         """Count the first ``taken`` samples' ignored ones: not finite, or out of order."""
+        import numpy as np
+
         self.rejected += int(np.count_nonzero(~finite[:taken]))
         self.out_of_order += int(np.count_nonzero(finite[:taken] & ~ok[:taken]))
 

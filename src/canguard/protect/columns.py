@@ -7,26 +7,41 @@ says so) and has no state of its own.
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
+from typing import TYPE_CHECKING
 
-import numpy as np
-import numpy.typing as npt
+if TYPE_CHECKING:  # numpy is imported by the first long run (or numpy column), not by importing the models
+    import numpy as np
+    import numpy.typing as npt
 
-FloatArray = npt.NDArray[np.float64]
-IndexArray = npt.NDArray[np.intp]
+    FloatArray = npt.NDArray[np.float64]
+    IndexArray = npt.NDArray[np.intp]
+    BoolArray = npt.NDArray[np.bool_]
 
 SHORT_RUN = 48
 """Runs of at most this many samples skip the numpy screen: every sample goes to the kernel
 (below a few dozen samples the screen's fixed numpy calls cost more than the kernel)."""
-EMPTY_INDEX = np.empty(0, dtype=np.intp)
-EMPTY_INDEX.flags.writeable = False
-EMPTY_TIMES = np.empty(0)
-EMPTY_TIMES.flags.writeable = False
-EMPTY_STATES = np.empty(0, dtype=bool)
-EMPTY_STATES.flags.writeable = False
+NO_EDGES: list[tuple[IndexArray, FloatArray, BoolArray]] = []
+"""The read-only empty index, times and states columns of a run without an edge, once :func:`no_edges` has
+built them (empty until then: building them imports numpy). A short run reads them as
+``(NO_EDGES or no_edges())[0]``: no call after the first time."""
+
+
+def no_edges() -> list[tuple[IndexArray, FloatArray, BoolArray]]:
+    """:data:`NO_EDGES`, its columns built at the first call."""
+    if not NO_EDGES:
+        import numpy as np
+
+        index, times, states = np.empty(0, dtype=np.intp), np.empty(0), np.empty(0, dtype=bool)
+        for column in (index, times, states):
+            column.flags.writeable = False
+        NO_EDGES.append((index, times, states))
+    return NO_EDGES
 
 
 def as_run(times: npt.ArrayLike, values: npt.ArrayLike) -> tuple[FloatArray, FloatArray]:
     """Both columns of a run as float64 arrays; ValueError when they are not 1-D of one length."""
+    import numpy as np
+
     t = np.asarray(times, dtype=np.float64)
     v = np.asarray(values, dtype=np.float64)
     if t.ndim != 1 or t.shape != v.shape:
@@ -34,7 +49,7 @@ def as_run(times: npt.ArrayLike, values: npt.ArrayLike) -> tuple[FloatArray, Flo
     return t, v
 
 
-def in_order(t: FloatArray, finite: npt.NDArray[np.bool_], last_t: float | None) -> npt.NDArray[np.bool_]:
+def in_order(t: FloatArray, finite: BoolArray, last_t: float | None) -> BoolArray:
     """Which samples are not older than the latest accepted one before them (``finite``: the usable ones).
 
     A finite sample that is ignored as out of order is older than an accepted one, so the
@@ -43,6 +58,8 @@ def in_order(t: FloatArray, finite: npt.NDArray[np.bool_], last_t: float | None)
     """
     if t.size <= 1:
         return finite if last_t is None or t.size == 0 else finite & (t >= last_t)
+    import numpy as np
+
     usable = np.where(finite, t, -np.inf)
     before = np.empty_like(usable)
     before[0] = -np.inf if last_t is None else last_t
@@ -53,8 +70,10 @@ def in_order(t: FloatArray, finite: npt.NDArray[np.bool_], last_t: float | None)
 
 
 
-def last_marked(mark: npt.NDArray[np.bool_]) -> IndexArray:
+def last_marked(mark: BoolArray) -> IndexArray:
     """For each position, the latest position at or before it where ``mark`` is set (-1: none yet)."""
+    import numpy as np
+
     pos = np.where(mark, np.arange(mark.size), -1)
     np.maximum.accumulate(pos, out=pos)
     return pos
@@ -72,11 +91,12 @@ def short_run(times: npt.ArrayLike, values: npt.ArrayLike, most: int) -> tuple[l
     if isinstance(times, (tuple, list)) and isinstance(values, (tuple, list)):
         if not len(times) == len(values) <= most:
             return None
-    elif isinstance(times, np.ndarray) and isinstance(values, np.ndarray):
-        if times.ndim == values.ndim == 1 and times.size == values.size <= most:
-            return times.astype(np.float64).tolist(), values.astype(np.float64).tolist()
-        return None
     else:
+        import numpy as np  # not lists: numpy columns, or anything as_run converts (with numpy)
+
+        if (isinstance(times, np.ndarray) and isinstance(values, np.ndarray)
+                and times.ndim == values.ndim == 1 and times.size == values.size <= most):
+            return times.astype(np.float64).tolist(), values.astype(np.float64).tolist()
         return None
     try:
         return list(map(float, times)), list(map(float, values))
@@ -111,7 +131,7 @@ class Marks(Screen):
     when it is not tripped; ``tripped``: those that may recover it or start a timer when it is.
     """
 
-    def __init__(self, clear: npt.NDArray[np.bool_], tripped: npt.NDArray[np.bool_]) -> None:
+    def __init__(self, clear: BoolArray, tripped: BoolArray) -> None:
         self.size = clear.size
         self.clear = clear.nonzero()[0]
         self.tripped = tripped.nonzero()[0]

@@ -20,13 +20,15 @@ when it has none). Recovery is never blanked.
 from __future__ import annotations
 
 import math
-
-import numpy as np
+from typing import TYPE_CHECKING
 
 from canguard.protect.base import REASON_OVERCURRENT, TIME_EPS_S, LatchedModel, ProtectionModel
-from canguard.protect.columns import FloatArray, IndexArray, Marks, Screen
+from canguard.protect.columns import Marks, Screen
 from canguard.protect.inrush import InrushBlanking, in_window
 from canguard.protect.threshold import check_limit, level_pct
+
+if TYPE_CHECKING:
+    from canguard.protect.columns import FloatArray, IndexArray
 
 
 def check_thresholds(overcurrent_a: float, recovery_a: float) -> tuple[float, float]:
@@ -156,6 +158,8 @@ class Hysteresis(LatchedModel):
 
     def _screen(self, t: FloatArray, a: FloatArray) -> _Screen:
         """The threshold in force at each sample (the inrush helper run over the run first) and the gaps."""
+        import numpy as np
+
         gap = np.empty(a.size, dtype=bool)
         gap[0] = self._last_t is not None and t[0] - self._last_t > self.max_gap_s
         np.greater(np.diff(t), self.max_gap_s, out=gap[1:])

@@ -49,16 +49,16 @@ from __future__ import annotations
 import math
 from abc import abstractmethod
 from collections.abc import Mapping
-from typing import Any
-
-import numpy as np
-import numpy.typing as npt
+from typing import TYPE_CHECKING, Any
 
 from canguard.protect.accumulate import clamped_sum, thermal_steps
 from canguard.protect.base import REASON_I2T, LatchedModel, ProtectionModel
-from canguard.protect.columns import FloatArray, IndexArray, Marks, Screen
+from canguard.protect.columns import Marks, Screen
 from canguard.protect.state import KIND_LEAKY, KIND_THERMAL, cooled_level
 from canguard.units import AMPERE2_SECOND, THETA
+
+if TYPE_CHECKING:
+    from canguard.protect.columns import BoolArray, FloatArray, IndexArray
 
 STATE_VERSION = 1
 MAX_LEVEL = 1e6
@@ -102,7 +102,7 @@ class _Screen(Marks):
     Marked: where the level reaches 1 (may trip) and where it is below ``recover_fraction`` (may recover).
     """
 
-    def __init__(self, a: FloatArray, acc: FloatArray, trip: npt.NDArray[np.bool_], low: npt.NDArray[np.bool_],
+    def __init__(self, a: FloatArray, acc: FloatArray, trip: BoolArray, low: BoolArray,
                  stale: IndexArray) -> None:
         super().__init__(trip, low)
         self.a = a
@@ -217,6 +217,8 @@ class _I2tModel(LatchedModel):
         previous run's last sample), cut to ``max_gap_s`` (a stale gap) and zero where
         nothing is integrated (before any sample, a repeated timestamp).
         """
+        import numpy as np
+
         held = np.empty(a.size)
         held[0] = self._held
         held[1:] = a[:-1]
@@ -314,6 +316,8 @@ class LeakyI2t(_I2tModel):
 
     def _accumulate(self, held: FloatArray, dt: FloatArray) -> FloatArray:
         """A running sum of ``(I² − I_cont²)·dt`` floored at 0 and capped (see :func:`clamped_sum`)."""
+        import numpy as np
+
         c2 = self.continuous_a * self.continuous_a
         with np.errstate(invalid="ignore", over="ignore"):
             rate = held * held - c2
@@ -411,6 +415,8 @@ class ThermalI2t(_I2tModel):
         The time constant depends on the state (heating or cooling), so the steps run
         one after the other, over plain floats (the columns prepared by numpy).
         """
+        import numpy as np
+
         with np.errstate(invalid="ignore", over="ignore"):
             q = np.minimum(held * held / self._c2, MAX_LEVEL)
         return np.asarray(thermal_steps(self._acc, q.tolist(), dt.tolist(), self.tau_s, self.tau_cool_s, MAX_LEVEL))

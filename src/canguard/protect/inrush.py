@@ -25,14 +25,16 @@ not a protection model itself.
 from __future__ import annotations
 
 import math
-from typing import Any
-
-import numpy as np
-import numpy.typing as npt
+from typing import TYPE_CHECKING, Any
 
 from canguard.protect.base import TIME_EPS_S
-from canguard.protect.columns import FloatArray, as_run, in_order, last_marked
+from canguard.protect.columns import as_run, in_order, last_marked
 from canguard.protect.threshold import check_limit
+
+if TYPE_CHECKING:
+    import numpy.typing as npt
+
+    from canguard.protect.columns import BoolArray, FloatArray
 
 
 def in_window(start: Any, t: Any, length_s: float) -> Any:
@@ -93,11 +95,13 @@ class InrushBlanking:
             self.starts += 1
         return started
 
-    def advance(self, times: npt.ArrayLike, abs_values: npt.ArrayLike) -> npt.NDArray[np.bool_]:
+    def advance(self, times: npt.ArrayLike, abs_values: npt.ArrayLike) -> BoolArray:
         """Feed a run of |I| samples; which of them are motor starts (each opens a window).
 
         Samples older than the latest one, and non-finite ones, are ignored (never a start).
         """
+        import numpy as np
+
         t, a = as_run(times, abs_values)
         ok = in_order(t, np.isfinite(a) & np.isfinite(t), self._last_t)
         picked = ok.nonzero()[0]
@@ -112,6 +116,8 @@ class InrushBlanking:
         below it that began long enough before can be a start; those go to :meth:`observe`
         (the kernel decides), the state before each taken from the stretches' start times.
         """
+        import numpy as np
+
         if not t.size:
             return []
         below = a <= self.start_current_a
@@ -138,6 +144,8 @@ class InrushBlanking:
 
         ``before``: the window start in force before the first sample.
         """
+        import numpy as np
+
         mark = np.zeros(t.size, dtype=bool)
         mark[started] = True
         latest = last_marked(mark)

@@ -3,11 +3,10 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
-import numpy as np
-import numpy.typing as npt
-
-from canguard.protect.columns import FloatArray, IndexArray
+if TYPE_CHECKING:
+    from canguard.protect.columns import BoolArray, FloatArray, IndexArray
 
 
 @dataclass(frozen=True)
@@ -45,7 +44,7 @@ class Run:
 
     index: IndexArray
     t: FloatArray
-    tripped: npt.NDArray[np.bool_]
+    tripped: BoolArray
     taken: int
     peak: float
 

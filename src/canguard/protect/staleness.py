@@ -36,23 +36,18 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-
-import numpy as np
-import numpy.typing as npt
+from typing import TYPE_CHECKING
 
 from canguard.config.schema import NON_VALUE_ROLES, SourceConfig
 from canguard.io.frame import INVALID_INF, INVALID_NAN, INVALID_RANGE, Sample
 from canguard.protect.base import REASON_NO_DATA, REASON_NOT_PRESENT, REASON_OK, REASON_STALE
-from canguard.protect.columns import (
-    EMPTY_INDEX,
-    EMPTY_TIMES,
-    SHORT_RUN,
-    FloatArray,
-    IndexArray,
-    as_run,
-    in_order,
-    short_run,
-)
+from canguard.protect.columns import NO_EDGES, SHORT_RUN, as_run, in_order, no_edges, short_run
+
+if TYPE_CHECKING:
+    import numpy as np
+    import numpy.typing as npt
+
+    from canguard.protect.columns import BoolArray, FloatArray, IndexArray
 
 PRESENT = "present"
 COUNTER = "counter"
@@ -177,6 +172,8 @@ class SourceHealth:
         few = short_run(times, values, SHORT_RUN)
         if few is not None:
             return self._observe_few(role, few[0], few[1], reasons, until_edge)
+        import numpy as np
+
         t, v = as_run(times, values)
         own = self._own_reasons(v.size, reasons)
         suspect = self._suspects(role, v, own)
@@ -245,7 +242,10 @@ class SourceHealth:
                     taken = i + 1
                     break
         if not edges:
-            return HealthRun(EMPTY_INDEX, EMPTY_TIMES, (), taken)
+            no_index, no_times, _ = (NO_EDGES or no_edges())[0]  # numpy's empty columns, once built
+            return HealthRun(no_index, no_times, (), taken)
+        import numpy as np
+
         return HealthRun(np.array(edges, dtype=np.intp), np.array([times[i] for i in edges]), tuple(after), taken)
 
     def _invalid_code(self, role: str, value: float, own: str) -> str:
@@ -264,6 +264,8 @@ class SourceHealth:
     @staticmethod
     def _own_reasons(size: int, reasons: Sequence[str] | None) -> npt.NDArray[np.str_] | None:
         """The samples' own invalid reasons as a column (None: none given); ValueError when not one per sample."""
+        import numpy as np
+
         if reasons is None:
             return None
         own = np.asarray(reasons, dtype=str)
@@ -271,8 +273,10 @@ class SourceHealth:
             raise ValueError(f"reasons: expected one per sample ({size}), got {own.size}")
         return own
 
-    def _suspects(self, role: str, v: FloatArray, own: npt.NDArray[np.str_] | None) -> npt.NDArray[np.bool_]:
+    def _suspects(self, role: str, v: FloatArray, own: npt.NDArray[np.str_] | None) -> BoolArray:
         """The screen: samples that may be invalid (not finite, out of range, or with a reason of their own)."""
+        import numpy as np
+
         lo, hi = self._ranges.get(role, (None, None))
         out = ~np.isfinite(v)
         with np.errstate(invalid="ignore"):
@@ -284,7 +288,7 @@ class SourceHealth:
             out |= own != ""
         return out
 
-    def _take_quiet(self, role: str, t: FloatArray, v: FloatArray, ok: npt.NDArray[np.bool_],
+    def _take_quiet(self, role: str, t: FloatArray, v: FloatArray, ok: BoolArray,
                     start: int, end: int) -> None:
         """Samples ``start`` to ``end`` (excluded) that change nothing but the latest value: take the last."""
         kept = ok[start:end].nonzero()[0]

@@ -9,9 +9,13 @@ two ticks is still reported at the next tick (design note 004, section 5.1).
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 from canguard.protect.base import REASON_OVERCURRENT, LatchedModel
-from canguard.protect.columns import FloatArray, Marks
+from canguard.protect.columns import Marks
+
+if TYPE_CHECKING:
+    from canguard.protect.columns import FloatArray
 
 
 def check_limit(name: str, value: float) -> float:
