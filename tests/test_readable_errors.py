@@ -122,7 +122,8 @@ class TestNotADbc:
         assert proc.returncode == 2
         line = next(x for x in err.splitlines() if "junk.dbc" in x)
         assert f"{junk} which is not a DBC file: binary data, not text" in line
-        assert line.isprintable() and len(line) < 300
+        # short whatever the test's own directory: the paths are the user's, the rest is canguard's
+        assert line.isprintable() and len(line.replace(str(tmp_path), "")) < 220
 
     def test_text_with_a_huge_bad_line(self, tmp_path: Path, config: Path) -> None:
         """A text DBC with a 50 kB bad line gives the parser's complaint capped, with its length."""

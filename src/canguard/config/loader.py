@@ -51,7 +51,8 @@ class _Loader(_Sections):
         top = ("dbc", "buses", "canopen", "sources", "tree", "task", "stop", "actions", "events", "state",
                "simulation", "monitor")
         # dbc: is optional when the drives come from canopen: (every source and frame may then use them)
-        if not self.mapping(doc, "", top, ("buses",) if "canopen" in doc else ("dbc", "buses")):
+        required = ("buses",) if isinstance(doc, dict) and "canopen" in doc else ("dbc", "buses")
+        if not self.mapping(doc, "", top, required):
             raise self.fail()
         dbc_files = self.load_dbc(doc["dbc"]) if "dbc" in doc else ()
         buses = self.buses(doc["buses"]) if "buses" in doc else {}

@@ -18,7 +18,7 @@ import logging
 import math
 import time
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 import py_trees
 
@@ -27,10 +27,17 @@ from canguard.protect.i2t import ThermalI2t
 
 if TYPE_CHECKING:
     from canguard.engine.core import Engine
-    from canguard.service.monitor.hub import Hub
     from canguard.service.monitor.layout import TreeLayout
 
 log = logging.getLogger(__name__)
+
+
+class SnapshotSink(Protocol):
+    """Where snapshots go (:class:`canguard.service.monitor.hub.Hub`): never blocks the engine's thread."""
+
+    def blackboard_wanted(self) -> bool: ...
+
+    def put(self, snapshot: TickSnapshot) -> None: ...
 
 GUARD_PERIOD_S = 0.08
 """Longest time between two snapshots of the guards' values while nothing else changes."""
@@ -113,7 +120,7 @@ class TickSnapshot:
 class Observer:
     """The engine's per-tick publication point for the monitors (one per engine: a reload attaches a new one)."""
 
-    def __init__(self, engine: Engine, layout: TreeLayout, hub: Hub) -> None:
+    def __init__(self, engine: Engine, layout: TreeLayout, hub: SnapshotSink) -> None:
         self.layout = layout
         self.hub = hub
         self._guards = engine.guards()
