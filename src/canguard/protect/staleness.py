@@ -221,7 +221,7 @@ class SourceHealth:
             self.out_of_order += 1
             return None
         bad = self._invalid_code(role, value, own)
-        if not bad and role not in (PRESENT, COUNTER) and self.fresh_valid(role, t):
+        if not bad and role not in FULL_ROLES and self.fresh_valid(role, t):
             self.take(role, t, value)
             return False
         return self._full_step(role, t, value, bad)
