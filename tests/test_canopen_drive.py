@@ -27,9 +27,8 @@ import yaml
 from canguard.cli.main import main
 from canguard.service.daemon import Daemon
 from canguard.service.systemd import Notifier
+from test_canopen_config import EDS, NODE, TREE
 
-EDS = Path(__file__).resolve().parent / "data" / "canopen" / "cia402_drive.eds"
-NODE = 2
 WAIT_S = 20.0
 """Upper bound for anything a test waits for (a loaded machine is slow, never this slow)."""
 HEARTBEAT_MS = 500
@@ -37,15 +36,6 @@ HEARTBEAT_MS = 500
 OPERATION_ENABLED = 0x0027
 FAULT = 0x0008
 
-TREE = """<root BTCPP_format="4" main_tree_to_execute="Drive">
-  <BehaviorTree ID="Drive">
-    <ReactiveSequence>
-      <IsCurrentSafe topic_name="left_torque" overcurrent_threshold="35.0" recovery_threshold="25.0"/>
-      <ExecuteTask/>
-    </ReactiveSequence>
-  </BehaviorTree>
-</root>
-"""
 
 
 def write_config(tmp: Path, channel: str, stop: list[dict[str, Any]]) -> Path:
