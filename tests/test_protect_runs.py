@@ -115,6 +115,23 @@ def feed(model: LatchedModel, times: np.ndarray, values: np.ndarray, cuts: list[
     return edges
 
 
+def assert_ways_follow_the_reference(pair: tuple[str, Pair], stream: tuple[np.ndarray, np.ndarray],
+                                     data: st.DataObject, ways: tuple[tuple[str, bool], ...]) -> None:
+    """Feed ``stream`` to fresh models each way (whole, as runs of one, cut at drawn points; with or without
+    until_edge): every way gives the reference's edges and ends in its state."""
+    _kind, (make, make_ref) = pair
+    times, values = stream
+    ref = make_ref()
+    want = reference_edges(ref, times, values)
+    n = len(times)
+    cuts = data.draw(st.lists(st.integers(1, max(1, n - 1)), max_size=8)) if n > 1 else []
+    splits = {"whole": [], "ones": list(range(1, n)), "cuts": cuts}
+    for way, until_edge in ways:
+        model = make()
+        assert feed(model, times, values, splits[way], until_edge) == want
+        assert_same_state(model, ref)
+
+
 def close(a: float | None, b: float | None, scale: float = 1.0) -> bool:
     """Equal within 1e-9 relative (of the larger or of ``scale``), None and NaN equal to themselves."""
     if a is None or b is None:
@@ -151,16 +168,8 @@ SETTINGS = settings(max_examples=150, deadline=None, suppress_health_check=[Heal
 def test_runs_match_the_per_sample_reference(pair: tuple[str, Pair], stream: tuple[np.ndarray, np.ndarray],
                                              data: st.DataObject) -> None:
     """Runs of one, one long run and a run split at random points all trip and recover where the reference does."""
-    _kind, (make, make_ref) = pair
-    times, values = stream
-    ref = make_ref()
-    want = reference_edges(ref, times, values)
-    n = len(times)
-    cuts = data.draw(st.lists(st.integers(1, max(1, n - 1)), max_size=8)) if n > 1 else []
-    for split, until_edge in (([], False), (list(range(1, n)), False), (cuts, False), (cuts, True)):
-        model = make()
-        assert feed(model, times, values, split, until_edge) == want
-        assert_same_state(model, ref)
+    assert_ways_follow_the_reference(pair, stream, data, (("whole", False), ("ones", False), ("cuts", False),
+                                                          ("cuts", True)))
 
 
 @SETTINGS
@@ -334,16 +343,8 @@ class TestShortRuns:
                                                        stream: tuple[np.ndarray, np.ndarray],
                                                        data: st.DataObject) -> None:
         """A short stream whole, as runs of one, split and stopped at edges trips where the reference does."""
-        _kind, (make, make_ref) = pair
-        times, values = stream
-        ref = make_ref()
-        want = reference_edges(ref, times, values)
-        n = len(times)
-        cuts = data.draw(st.lists(st.integers(1, max(1, n - 1)), max_size=8)) if n > 1 else []
-        for split, until_edge in (([], False), ([], True), (list(range(1, n)), False), (cuts, True)):
-            model = make()
-            assert feed(model, times, values, split, until_edge) == want
-            assert_same_state(model, ref)
+        assert_ways_follow_the_reference(pair, stream, data, (("whole", False), ("whole", True), ("ones", False),
+                                                              ("cuts", True)))
 
     @SETTINGS
     @given(pair=pairs(), stream=streams(max_size=300),
