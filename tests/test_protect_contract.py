@@ -175,3 +175,22 @@ class TestProtectionModelContract:
             prev = model.tripped
             snap = model.poll(t)
             assert math.isfinite(snap.level_pct) and snap.level_pct >= 0
+
+
+class TestTimeMovesModelsOnlyThroughSamples:
+    """The engine counts a quiet grid tick instead of running it only because no model changes with time alone."""
+
+    @pytest.mark.parametrize("current", [0.0, 8.0, 30.0])
+    def test_polls_without_samples_answer_the_same(self, case: tuple[ProtectionModel, str], current: float) -> None:
+        """After any history, polls at later and later times (no sample between) give the same state."""
+        model, _ = case
+        for k in range(60):
+            model.update(current if k >= 20 else 0.0, k * DT)
+        model.poll(60 * DT)  # the peak latch is reset by a poll: compare the polls after it
+        first = model.poll(61 * DT)
+        for later in (62 * DT, 1.0, 10.0, 1000.0):
+            again = model.poll(later)
+            assert (again.tripped, again.reason, again.value, again.threshold) == (
+                first.tripped, first.reason, first.value, first.threshold)
+            assert again.level_pct == first.level_pct or (math.isnan(again.level_pct) and math.isnan(first.level_pct))
+        assert model.snapshot().tripped == model.tripped

@@ -1,4 +1,4 @@
-"""Quiet ticks: a grid tick proven to repeat the last one is counted, not run (replay; issue 16).
+"""Quiet ticks: a grid tick proven to repeat the last one is counted, not run (while a log is fed).
 
 A replay of a long log spends most of its time ticking a tree that answers the same
 thing 100 times a second: 20 guards at 100 Hz were half of a replay's process time.
@@ -11,9 +11,8 @@ exact repetition of the last tick that ran, and the proof is made of three parts
    own: the reactive and plain sequences and fallbacks, Inverter, ForceSuccess/Failure,
    AlwaysSuccess/Failure, ExecuteTask, the guards), carries no pre/post condition,
    reads no ``{key}`` and writes none but what its quiet re-tick writes again (an I²t
-   guard's ``level``), and every guard's models are ``SAMPLE_DRIVEN`` (their
-   state changes only at samples: threshold, hysteresis, and I²t, whose heat is
-   integrated at samples). Nodes the tick did not reach may be anything (a
+   guard's ``level``); a guard's models change state only at samples (the
+   contract of every protection model: :mod:`canguard.protect.base`). Nodes the tick did not reach may be anything (a
    PerformRecovery before ExecuteTask in a Sequence runs once, then is not reached
    while the task runs). No metrics, no tick hook.
 2. **The last tick was a fixed point.** The tick that ran left every node with the
@@ -217,7 +216,7 @@ class QuietTicks:
 
 def _quiet_node(node: Any) -> bool:
     """True when ``node`` may be re-ticked quietly: its type says so, no conditions, no ``{key}`` read, no
-    output but those its quiet re-tick writes again, sample-driven models."""
+    output but those its quiet re-tick writes again (a guard's models move only with samples: their contract)."""
     if not getattr(type(node), "QUIET_RETICK", False):
         return False
     if "tick" in vars(node) or "stop" in vars(node):  # pre/post conditions wrap the node's tick
@@ -229,5 +228,4 @@ def _quiet_node(node: Any) -> bool:
         quiet_outputs: frozenset[str] = getattr(type(node), "QUIET_OUTPUTS", frozenset())
         if not {port for port in node.output_ports() if wired(port)} <= quiet_outputs:
             return False
-    guarded = getattr(node, "guarded", None)
-    return guarded is None or all(model.SAMPLE_DRIVEN for _, model, _ in guarded())
+    return True

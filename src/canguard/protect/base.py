@@ -45,6 +45,13 @@ with the first long run or numpy column, or the first :class:`Run` (whose column
   treat a longer gap as stale data (see each model). Mismatched or non-1-D
   arrays raise ValueError naming both shapes.
 
+**Time moves a model only through samples.** Every model's state (and what
+:meth:`ProtectionModel.poll` answers, but for the latch it resets) changes at samples
+only, never with time alone: the persistence timers, inrush windows and I²t heat are
+measured at samples (the previous current held until the next one). The engine relies on
+it to count a grid tick that is proven to repeat the last one instead of running it
+(:mod:`canguard.engine.quiet`); ``tests/test_protect_contract.py`` holds every model to it.
+
 Models take time as an argument (never from a clock), and report their state at
 tick time (``poll``) with a *peak latch*: a trip that happened at any moment
 since the previous poll is reported even when the current sample is back to
@@ -107,13 +114,6 @@ class ProtectionModel(ABC):
 
     THRESHOLD_UNIT: ClassVar[str | None] = None
     """The unit of :attr:`Snapshot.threshold` when it is not the value's own (I²t: A²s or θ)."""
-    SAMPLE_DRIVEN: ClassVar[bool] = False
-    """True when the state (and :meth:`poll`'s answer) changes only with samples, never with time alone.
-
-    Read only by the replay engine's quiet-tick shortcut (:mod:`canguard.engine.quiet`).
-    Every model here changes state only at samples, so every one sets it True.
-    """
-
     @abstractmethod
     def advance(self, times: npt.ArrayLike, values: npt.ArrayLike, *, until_edge: bool = False) -> Run:
         """Advance over a run of samples (see the module docstring); where the tripped state changed."""

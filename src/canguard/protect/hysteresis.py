@@ -72,9 +72,6 @@ class Hysteresis(LatchedModel):
     """
 
     reason_tripped = REASON_OVERCURRENT
-    SAMPLE_DRIVEN = True
-    """Trips and recovers only at samples (the persistence timers and inrush windows are measured at samples)."""
-
     def __init__(
         self,
         overcurrent_a: float = 35.0,

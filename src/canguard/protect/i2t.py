@@ -115,9 +115,6 @@ class _I2tModel(LatchedModel):
 
     kind: str = ""
     reason_tripped = REASON_I2T
-    SAMPLE_DRIVEN = True
-    """The heat is integrated at samples (the previous current held until the next one), never at a poll."""
-
     def __init__(self, continuous_a: float, recover_fraction: float, max_gap_s: float) -> None:
         super().__init__()
         self.continuous_a = _positive("continuous_a", continuous_a)

@@ -29,9 +29,6 @@ def check_limit(name: str, value: float) -> float:
 class Threshold(LatchedModel):
     """Tripped while |value| > ``max_value`` (A, or N·m for efforts); reason ``overcurrent``."""
 
-    SAMPLE_DRIVEN = True
-    """Trips and recovers only at samples."""
-
     reason_tripped = REASON_OVERCURRENT
 
     def __init__(self, max_value: float) -> None:

@@ -165,8 +165,9 @@ class CanguardNode(PortsMixin):
     QUIET_RETICK: ClassVar[bool] = False
     """True when ticking the node again, with the same inputs and its children answering as before,
     changes nothing and answers as before: no timer, counter, memory or output of its own.
-    The replay engine counts such ticks instead of running them (:mod:`canguard.engine.quiet`)
-    when every node of the tree says so; a guard also needs sample-driven models."""
+    A property of the node's own logic, not of a mode: the engine counts a grid tick instead of running
+    it when every node the last tick reached says so and the proof of :mod:`canguard.engine.quiet` holds
+    (a guard's models move only with samples: the contract of :mod:`canguard.protect.base`)."""
 
     wake_up: WakeUpSignal | None = None
     """The tree's wake-up signal, given to every node at load (BT.CPP's ``setWakeUpInstance``)."""
