@@ -23,14 +23,11 @@ from __future__ import annotations
 
 from collections.abc import Collection, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
-from canguard.decode.rows import ColumnRows
-
-if TYPE_CHECKING:
-    from canguard.decode.message import Output
+from canguard.decode.rows import ColumnRows, Row
 
 __all__ = ["ColumnSignal", "check_column", "checked_rows", "decode_block", "decode_columns", "field_rows",
            "signal_raw"]
@@ -175,18 +172,20 @@ def check_column(v: np.ndarray, present: bool, lo: float, hi: float, ok: np.ndar
     return v
 
 
-def checked_rows(message: Any, payload: np.ndarray, outputs: Sequence[Output], multiplexed: bool) -> ColumnRows:
-    """The checked rows of ``outputs`` (their signals of ``message``) over ``payload`` (``(n, length)`` uint8)."""
+def checked_rows(message: Any, payload: np.ndarray, names: Sequence[str], limits: Sequence[tuple[bool, float, float]],
+                 multiplexed: bool) -> ColumnRows:
+    """The checked rows of the signals ``names`` of ``message`` (each with its (present, lo, hi)) over ``payload``
+    (``(n, length)`` uint8)."""
     rows = payload.shape[0]
     with np.errstate(invalid="ignore", over="ignore"):
-        decoded, decodable = decode_block(message, payload, {o.signal for o in outputs})
+        decoded, decodable = decode_block(message, payload, set(names))
         values: list[np.ndarray] = []
         ok = np.ones(rows, dtype=bool)
         present_any = np.zeros(rows, dtype=bool)
         present_all = np.ones(rows, dtype=bool)
-        for out in outputs:
-            column = decoded[out.signal]
-            values.append(check_column(_as_float(column.values), out.present, out.lo, out.hi, ok))
+        for name, (present, lo, hi) in zip(names, limits, strict=True):
+            column = decoded[name]
+            values.append(check_column(_as_float(column.values), present, lo, hi, ok))
             present_any |= column.valid
             present_all &= column.valid
         ok &= present_all & decodable
@@ -195,7 +194,7 @@ def checked_rows(message: Any, payload: np.ndarray, outputs: Sequence[Output], m
 
 
 def field_rows(cells: list[np.ndarray], n: int, spec: Sequence[tuple[int, int, str, Any, Any, bool]],
-               limits: Sequence[tuple[bool, float, float]]) -> ColumnRows | list[None]:
+               limits: Sequence[tuple[bool, float, float]]) -> Sequence[Row]:
     """The checked rows of byte-aligned signals from their bytes: ``cells[j]``, the ``n x width`` bytes of output
     ``j`` (spec: byte offset, width, numpy dtype, scale, offset, identity)."""
     if not n:

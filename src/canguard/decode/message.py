@@ -203,7 +203,8 @@ class MessageDecoder:
             from canguard.decode.columns import checked_rows
 
             payload = np.frombuffer(data, dtype=np.uint8).reshape(n, self.length)
-            return checked_rows(self.message, payload, self.outputs, self.multiplexed)
+            return checked_rows(self.message, payload, [o.signal for o in self.outputs], self._limits,
+                                self.multiplexed)
         size = self.length
         return list(map(self._row, map(data.__getitem__, map(slice, range(0, n * size, size),
                                                                   range(size, n * size + 1, size)))))
