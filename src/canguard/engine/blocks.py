@@ -2,10 +2,10 @@
 
 :meth:`Engine.run_log <canguard.engine.core.Engine.run_log>` works on plain candump
 blocks (:class:`~canguard.io.logs.Columns`). The rows of each configured message in
-a block are decoded together by :func:`canguard.decode.columns.decode_columns`
-(numpy over the payload column: classic and CAN FD, Intel and Motorola, signed,
-float, scaled, multiplexed), and checked together (NaN, inf, the DBC range, the
-multiplexer). What is left per row is what only the order of samples can decide:
+a block are decoded and checked together (NaN, inf, the DBC range, the presence
+flag, the multiplexer page) by the message's
+:class:`~canguard.decode.message.MessageDecoder`, the same object that decodes a
+live frame. What is left per row is what only the order of samples can decide:
 :meth:`MessagePlan.step` does, for a row whose values all passed, exactly what
 :meth:`Engine.feed <canguard.engine.core.Engine.feed>` does after its tick check —
 :meth:`SourceHealth.observe <canguard.protect.staleness.SourceHealth.observe>`'s
