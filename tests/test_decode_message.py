@@ -110,8 +110,11 @@ def test_explain_agrees_with_the_row(case: tuple[Message, np.ndarray, list[Outpu
     decoder = MessageDecoder(msg, outputs)
     for raw in payload:
         data = bytes(raw)
-        row = decoder.decode(data, 1)[0]
+        rows = decoder.decode(data, 1)
+        row = rows[0]
         reason, cells = decoder.explain(data)
+        if not row:
+            assert rows.verdicts[0] == (reason, cells)  # type: ignore[attr-defined]
         if row:
             assert reason == ""
             assert [float(v).hex() for _j, v, _w in cells] == [float(v).hex() for v in row]

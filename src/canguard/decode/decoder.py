@@ -27,7 +27,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 
 from canguard.config.schema import Config, SignalRef
-from canguard.decode.message import MessageDecoder, Output
+from canguard.decode.message import Checked, MessageDecoder, Output
 from canguard.decode.rows import EMPTY
 from canguard.io.frame import INVALID_INF, INVALID_LENGTH, INVALID_NAN, INVALID_PAYLOAD, Frame, Sample
 
@@ -164,14 +164,16 @@ class Decoder:
             counters.skipped += 1
             return []
         t = frame.t
-        row = entry.decode(frame.data, 1)[0]
+        rows = entry.decode(frame.data, 1)
+        row = rows[0]
         if row:
             counters.decoded += 1
-            return [_new(Sample, (o.source, o.role, v, t, "")) for o, v in zip(entry.outputs, row, strict=True)]
+            return [_new(Sample, (source, role, v, t, "")) for (source, role), v in zip(entry.names, row, strict=True)]
+        assert isinstance(rows, Checked)  # a block of one is read by the scalar kernel
+        reason, cells = rows.verdicts[0]
         if row is EMPTY:  # a multiplexer page that carries none of the configured signals
             counters.decoded += 1
             return []
-        reason, cells = entry.explain(frame.data)
         if reason in (INVALID_LENGTH, INVALID_PAYLOAD):
             return self._invalid(entry, t, reason, counters)
         outputs = entry.outputs

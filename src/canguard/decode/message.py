@@ -128,6 +128,10 @@ def check_cell(v: Any, present: bool, lo: float, hi: float) -> tuple[float, str]
     return v, ""
 
 
+_BAD_LENGTH = Verdict(INVALID_LENGTH, [])
+_UNDECODABLE = Verdict(INVALID_PAYLOAD, [])
+
+
 # Reads one payload's configured values (None: a signal off this payload's multiplexer page); raises when refused.
 _Scalar = Callable[[bytes], Sequence[Any]]
 # Reads a block's joined payloads into checked rows, given each output's (present, lo, hi).
@@ -137,8 +141,8 @@ _Block = Callable[[bytes, tuple[tuple[bool, float, float], ...]], list[Row]]
 class MessageDecoder:
     """Decodes the configured signals of one message, a block of payloads at a time (a frame is a block of one)."""
 
-    __slots__ = ("_iter", "_limits", "_scalar", "_spec", "_structs", "length", "lengths", "message",
-                 "multiplexed", "outputs", "signals", "spans", "strategy")
+    __slots__ = ("_fast", "_iter", "_limits", "_scalar", "_spec", "_structs", "length", "lengths", "message",
+                 "multiplexed", "names", "outputs", "signals", "spans", "strategy")
 
     def __init__(self, message: Any, outputs: Sequence[Output]) -> None:
         self.message = message
@@ -148,10 +152,13 @@ class MessageDecoder:
         padded = next((n for n in _FD_LENGTHS if n >= self.length), self.length)
         self.lengths = frozenset({self.length, padded} if message.is_fd else {self.length})
         self.signals = frozenset(o.signal for o in self.outputs)
+        self.names = tuple((o.source, o.role) for o in self.outputs)
+        """(source, role) of each output: the samples a row gives, in order."""
         self.multiplexed = bool(message.is_multiplexed())
         self._limits = tuple((o.present, o.lo, o.hi) for o in self.outputs)
         self._structs: tuple[struct.Struct, ...] = ()
         self._iter: _Block | None = None
+        self._fast: Callable[[bytes], tuple[float, ...] | None] | None = None
         self._spec: tuple[tuple[int, int, str, Any, Any, bool], ...] | None = None
         self.spans: list[tuple[int, int]] | None = None
         """(byte offset, width) of each configured signal when numpy reads a block from their bytes alone."""
@@ -163,6 +170,8 @@ class MessageDecoder:
             self._structs, index, self._spec = compiled
             self._scalar = _struct_scalar(self._structs, [index[o.signal] for o in self.outputs])
             self._iter = _struct_iter(self._structs, [index[o.signal] for o in self.outputs])
+            self._fast = _struct_fast(self._structs, [index[o.signal] for o in self.outputs], self._limits,
+                                      self.lengths)
             if self._spec is not None:
                 self.spans = [(at, width) for at, width, *_ in self._spec]
             return
@@ -186,15 +195,25 @@ class MessageDecoder:
 
         ``data``: the payloads joined, each of the DBC length (one payload may have any
         length: a wrong one gives None); or, when :meth:`reads_fields`, the ``n x width``
-        uint8 matrices of :attr:`spans` in order. :meth:`explain` says why a row is None.
+        uint8 matrices of :attr:`spans` in order. Rows read by the scalar kernel (always a
+        block of one) come as :class:`Checked`: its ``verdicts`` say why a row is not a tuple
+        (:meth:`explain` says it of any payload).
         """
+        if n == 1 and not isinstance(data, list):  # a frame: no Checked built for a valid row (the live path)
+            fast = self._fast
+            if fast is not None and (valid := fast(data)) is not None:
+                return [valid]
+            found = self._row(data)
+            if not isinstance(found, Verdict):
+                return [found]
+            rows = Checked()
+            rows.add(found)
+            return rows
         if isinstance(data, list):
             from canguard.decode.columns import field_rows
 
             assert self._spec is not None
             return field_rows(data, n, self._spec, self._limits)
-        if n == 1:
-            return [self._row(data)]
         if self._iter is not None:
             return self._iter(data, self._limits)
         if self.strategy == BITS and n >= VECTOR_ROWS:
@@ -206,35 +225,39 @@ class MessageDecoder:
             return checked_rows(self.message, payload, [o.signal for o in self.outputs], self._limits,
                                 self.multiplexed)
         size = self.length
-        return list(map(self._row, map(data.__getitem__, map(slice, range(0, n * size, size),
-                                                                  range(size, n * size + 1, size)))))
+        return self._checked(list(map(data.__getitem__, map(slice, range(0, n * size, size),
+                                                            range(size, n * size + 1, size)))))
 
-    def _row(self, data: bytes) -> Row:
-        """One payload's checked row (the scalar kernel)."""
+    def _checked(self, payloads: list[bytes]) -> Checked:
+        """The scalar kernel's rows of ``payloads``, with the verdict of each row that is not a tuple."""
+        rows = Checked()
+        for data in payloads:
+            rows.add(self._row(data))
+        return rows
+
+    def _row(self, data: bytes) -> tuple[float, ...] | Verdict:
+        """One payload's checked values, or the verdict on it (the scalar kernel)."""
         if len(data) not in self.lengths:
-            return None
+            return _BAD_LENGTH
         try:
             values = self._scalar(data)
         except Exception:  # any payload cantools (or struct) cannot decode: the row is invalid, never raise
-            return None
+            return _UNDECODABLE
         row = []
         for v, (present, lo, hi) in zip(values, self._limits, strict=True):
             if v is None:  # off this payload's multiplexer page
-                return EMPTY if all(x is None for x in values) else None
-            value, why = check_cell(v, present, lo, hi)
-            if why:
-                return None
-            row.append(value)
+                return self._verdict(values)
+            if present or v - v != 0.0 or not lo <= v <= hi:  # check_cell's cases, screened in one test
+                value, why = check_cell(v, present, lo, hi)
+                if why:
+                    return self._verdict(values)
+                row.append(value)
+            else:
+                row.append(float(v))
         return tuple(row)
 
-    def explain(self, data: bytes) -> Verdict:
-        """Why ``data``'s row is what :meth:`decode` gives, with each value as a sample carries it."""
-        if len(data) not in self.lengths:
-            return Verdict(INVALID_LENGTH, [])
-        try:
-            values = self._scalar(data)
-        except Exception:  # as in _row: a refused payload is a reason, never an exception
-            return Verdict(INVALID_PAYLOAD, [])
+    def _verdict(self, values: Sequence[Any]) -> Verdict:
+        """Why decoded ``values`` do not make a row, with each value on the payload's page as a sample carries it."""
         cells = []
         reason = ""
         for j, (v, (present, lo, hi)) in enumerate(zip(values, self._limits, strict=True)):
@@ -245,6 +268,32 @@ class MessageDecoder:
         if not cells:
             return Verdict(NO_SIGNAL, cells)
         return Verdict(reason or (OTHER_PAGE if len(cells) < len(values) else ""), cells)
+
+    def explain(self, data: bytes) -> Verdict:
+        """Why ``data``'s row is what :meth:`decode` gives, with each value as a sample carries it."""
+        found = self._row(data)
+        if isinstance(found, Verdict):
+            return found
+        return Verdict("", [(j, v, "") for j, v in enumerate(found)])
+
+
+class Checked(list[Row]):
+    """Rows of the scalar kernel: a list, and ``verdicts``: the :class:`Verdict` of each row (by position) that
+    is not a tuple."""
+
+    __slots__ = ("verdicts",)
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.verdicts: dict[int, Verdict] = {}
+
+    def add(self, found: tuple[float, ...] | Verdict) -> None:
+        """Append a row: ``found``'s values, or EMPTY / None with its verdict kept."""
+        if isinstance(found, Verdict):
+            self.verdicts[len(self)] = found
+            self.append(EMPTY if found.reason == NO_SIGNAL else None)
+        else:
+            self.append(found)
 
 
 # -- struct ---------------------------------------------------------------------------------
@@ -373,6 +422,24 @@ def _struct_iter(structs: tuple[struct.Struct, ...], plan: list[_Index]) -> _Blo
     return rows
 
 
+def _struct_fast(structs: tuple[struct.Struct, ...], plan: list[_Index], limits: tuple[tuple[bool, float, float], ...],
+                 lengths: frozenset[int]) -> Callable[[bytes], tuple[float, ...] | None] | None:
+    """The struct kernel's valid row of one payload of one plain signal (the common live frame) in one step, or
+    None when the payload's row is anything else (the caller then takes the general path); None: not one signal."""
+    if len(structs) != 1 or len(plan) != 1 or limits[0][0]:
+        return None
+    unpack = structs[0].unpack_from
+    (i, scale, off, identity), (_present, lo, hi) = plan[0], limits[0]
+
+    def row(data: bytes) -> tuple[float, ...] | None:
+        if len(data) not in lengths:
+            return None
+        v = float(unpack(data)[i] if identity else unpack(data)[i] * scale + off)
+        return (v,) if lo <= v <= hi else None  # NaN and +-inf fail the range: check_cell then names them
+
+    return row
+
+
 def _joined(*parts: tuple[Any, ...]) -> tuple[Any, ...]:
     """The raw tuples of one payload read by several Structs, one after the other."""
     return sum(parts, ())
@@ -414,7 +481,11 @@ def _field(signal: Any, size: int) -> _Field | None:
     return signal.byte_order == "little_endian", shift, (1 << length) - 1, sign, code
 
 
-def _pages(message: Any, signal: Any) -> tuple[tuple[str, frozenset[int]], ...]:
+_Pages = tuple[tuple[str, frozenset[int]], ...]
+"""The (multiplexer, values) conditions that select a signal."""
+
+
+def _pages(message: Any, signal: Any) -> _Pages:
     """The (multiplexer, values) conditions that select ``signal``, outermost last."""
     by_name = {s.name: s for s in message.signals}
     out = []
@@ -424,8 +495,7 @@ def _pages(message: Any, signal: Any) -> tuple[tuple[str, frozenset[int]], ...]:
     return tuple(out)
 
 
-def _refusals(message: Any, muxes: list[Any]) -> tuple[tuple[str, tuple[tuple[str, frozenset[int]], ...],
-                                                            frozenset[int]], ...]:
+def _refusals(message: Any, muxes: list[Any]) -> tuple[tuple[str, _Pages, frozenset[int]], ...]:
     """Per multiplexer: its name, the pages that select it, and the values some signal is multiplexed on
     (cantools refuses a payload whose selected multiplexer holds another)."""
     out = []
@@ -452,28 +522,55 @@ def _bits_kernel(message: Any, wanted: list[Any], size: int) -> _Scalar | None:
         fields[name] = spec
     reads = tuple((fields[s.name], s.scale, s.offset, s.scale == 1 and s.offset == 0, _pages(message, s))
                   for s in wanted)
-    checks = _refusals(message, muxes)
-    mux_fields = tuple((name, fields[name]) for name in {m.name for m in muxes})
-    from_bytes = int.from_bytes
-    unpack = struct.unpack
+    if not muxes:
+        return _plain_reader(tuple(read[:4] for read in reads), size)
+    return _mux_reader(reads, _refusals(message, muxes), tuple((m.name, fields[m.name]) for m in muxes), size)
 
-    def raw(little: int, big: int, spec: _Field) -> Any:
-        is_little, shift, mask, sign, code = spec
-        value = ((little if is_little else big) >> shift) & mask
-        if code:
-            return unpack(code, value.to_bytes(8 if code == "<d" else 4, "little"))[0]
-        if value & sign:
-            value -= sign << 1
-        return value
 
-    def selected(pages: tuple[tuple[str, frozenset[int]], ...], mux: dict[str, Any]) -> bool:
+_from_bytes = int.from_bytes
+_unpack = struct.unpack
+
+
+def _raw(little: int, big: int, spec: _Field) -> Any:
+    """One signal's raw value (signed, or the IEEE float its bits hold) from the payload read as ints both ways."""
+    is_little, shift, mask, sign, code = spec
+    value = ((little if is_little else big) >> shift) & mask
+    if code:
+        return _unpack(code, value.to_bytes(8 if code == "<d" else 4, "little"))[0]
+    if value & sign:
+        value -= sign << 1
+    return value
+
+
+def _plain_reader(reads: tuple[tuple[_Field, Any, Any, bool], ...], size: int) -> _Scalar:
+    """The bit maths of a message without multiplexing: each signal's raw value, scaled."""
+
+    def read(data: bytes) -> list[Any]:
+        if len(data) != size:
+            data = data[:size]  # CAN FD padding: cantools reads the DBC length
+        little, big = _from_bytes(data, "little"), _from_bytes(data, "big")
+        out: list[Any] = []
+        for spec, scale, off, identity in reads:
+            value = _raw(little, big, spec)
+            out.append(value if identity else value * scale + off)
+        return out
+
+    return read
+
+
+def _mux_reader(reads: tuple[tuple[_Field, Any, Any, bool, _Pages], ...],
+                checks: tuple[tuple[str, _Pages, frozenset[int]], ...], mux_fields: tuple[tuple[str, _Field], ...],
+                size: int) -> _Scalar:
+    """The bit maths of a multiplexed message: refused pages raise; a signal off the payload's page is None."""
+
+    def selected(pages: _Pages, mux: dict[str, Any]) -> bool:
         return all(mux[name] in ids for name, ids in pages)
 
     def read(data: bytes) -> list[Any]:
         if len(data) != size:
             data = data[:size]  # CAN FD padding: cantools reads the DBC length
-        little, big = from_bytes(data, "little"), from_bytes(data, "big")
-        mux = {name: raw(little, big, spec) for name, spec in mux_fields}
+        little, big = _from_bytes(data, "little"), _from_bytes(data, "big")
+        mux = {name: _raw(little, big, spec) for name, spec in mux_fields}
         for name, pages, ids in checks:
             if selected(pages, mux) and mux[name] not in ids:
                 raise ValueError(f"multiplexer {name} = {mux[name]}: no signal is multiplexed on it")
@@ -482,7 +579,7 @@ def _bits_kernel(message: Any, wanted: list[Any], size: int) -> _Scalar | None:
             if pages and not selected(pages, mux):
                 out.append(None)
                 continue
-            value = raw(little, big, spec)
+            value = _raw(little, big, spec)
             out.append(value if identity else value * scale + off)
         return out
 
