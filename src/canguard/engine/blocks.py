@@ -63,10 +63,8 @@ class MessagePlan:
             self.outputs.append((out.source, out.role, out.signal, out.present, health,
                                  -_BIG if lo is None else float(lo), _BIG if hi is None else float(hi),
                                  tuple(ctx.subscribers(out.source, out.role))))
-        self.signals = {o[2] for o in self.outputs}
         self.names = [(o[0], o[1]) for o in self.outputs]
         """(source, role) of each output: the samples a decoded row gives, in order."""
-        self.multiplexed = bool(message.is_multiplexed())
         self.single = len(self.outputs) == 1 and not self.outputs[0][3]
         self.counter = any(role in ROW_ROLES for _src, role, *_rest in self.outputs)
         """An alive counter or a drive's health role: every row goes to feed (SourceHealth.observe's full check)."""
