@@ -168,6 +168,9 @@ class Decoder:
         row = rows[0]
         if row:
             counters.decoded += 1
+            if len(row) == 1:  # most messages: one configured signal
+                (source, role), = entry.names
+                return [_new(Sample, (source, role, row[0], t, ""))]
             return [_new(Sample, (source, role, v, t, "")) for (source, role), v in zip(entry.names, row, strict=True)]
         assert isinstance(rows, Checked)  # a block of one is read by the scalar kernel
         reason, cells = rows.verdicts[0]
