@@ -535,15 +535,18 @@ _from_bytes = int.from_bytes
 _unpack = struct.unpack
 
 
+def _convert(value: int, sign: int, code: str) -> Any:
+    """A field's bits as cantools reads them: the IEEE float they hold, or a negative two's complement."""
+    if code:
+        return _unpack(code, value.to_bytes(8 if code == "<d" else 4, "little"))[0]
+    return value - (sign << 1)
+
+
 def _raw(little: int, big: int, spec: _Field) -> Any:
     """One signal's raw value (signed, or the IEEE float its bits hold) from the payload read as ints both ways."""
     is_little, shift, mask, sign, code = spec
     value = ((little if is_little else big) >> shift) & mask
-    if code:
-        return _unpack(code, value.to_bytes(8 if code == "<d" else 4, "little"))[0]
-    if value & sign:
-        value -= sign << 1
-    return value
+    return _convert(value, sign, code) if code or value & sign else value
 
 
 def _plain_reader(reads: tuple[tuple[_Field, Any, Any, bool], ...], size: int) -> _Scalar:
@@ -554,8 +557,10 @@ def _plain_reader(reads: tuple[tuple[_Field, Any, Any, bool], ...], size: int) -
             data = data[:size]  # CAN FD padding: cantools reads the DBC length
         little, big = _from_bytes(data, "little"), _from_bytes(data, "big")
         out: list[Any] = []
-        for spec, scale, off, identity in reads:
-            value = _raw(little, big, spec)
+        for (is_little, shift, mask, sign, code), scale, off, identity in reads:
+            value = ((little if is_little else big) >> shift) & mask  # _raw, inline: the live path's common message
+            if code or value & sign:
+                value = _convert(value, sign, code)
             out.append(value if identity else value * scale + off)
         return out
 
