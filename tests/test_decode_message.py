@@ -218,3 +218,15 @@ class TestReasons:
         assert decoder.explain(bytes([0, 9, 0, 0, 0, 0, 0, 0])) == (OTHER_PAGE, [(0, 9.0, "")])
         assert decoder.explain(bytes([2, 9, 0, 0, 0, 0, 0, 0])) == (NO_SIGNAL, [])
         assert decoder.explain(bytes([3, 9, 0, 0, 0, 0, 0, 0])).reason == INVALID_PAYLOAD
+
+
+def test_a_padded_can_fd_payload_reads_as_cantools_reads_it() -> None:
+    """A CAN FD message of 10 bytes sent padded to 12: the bit fields read the DBC's 10, as cantools does."""
+    msg = _message(_sig("M", 7, 20, byte_order="big_endian", is_signed=True, scale=0.5),
+                   _sig("L", 60, 12), length=10, fd=True)
+    decoder = MessageDecoder(msg, [Output("x", "m", "M", False), Output("x", "l", "L", False)])
+    assert decoder.strategy == "bits" and decoder.lengths == {10, 12}
+    data = bytes(range(0xA1, 0xAB)) + b"\xff\xff"
+    want = msg.decode(data, decode_choices=False)
+    assert decoder.decode(data, 1) == [(float(want["M"]), float(want["L"]))]
+    assert decoder.explain(data[:11]).reason == INVALID_LENGTH
