@@ -1,4 +1,4 @@
-"""ColumnRows answers from numpy columns what the per-row tuples would answer (canguard.engine.colrows).
+"""ColumnRows answers from numpy columns what the per-row tuples would answer (canguard.decode.rows).
 
 A block taken whole (batch, settle) asks a message's decoded rows whether every row
 passed, each output's smallest and largest |value|, the last row and how many rows
@@ -17,7 +17,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from canguard.engine.colrows import (
+from canguard.decode.rows import (
     EMPTY,
     ColumnRows,
     abs_range,

@@ -1,4 +1,4 @@
-"""Byte-aligned signals read by numpy from numpy blocks (canguard.engine.npstruct), held to the per-frame engine.
+"""Byte-aligned signals read by numpy from numpy blocks (MessageDecoder's field kernel), held to the per-frame engine.
 
 A battery message whose presence flag is a whole byte, with a float32 voltage-like
 current and integer raws under integer and float scales, replayed with numpy reading
@@ -19,7 +19,6 @@ from cantools.database.can import Database, Message, Signal
 from cantools.database.conversion import BaseConversion
 
 from canguard.config.loader import load_config
-from canguard.engine.npstruct import struct_spec
 from test_replay_columns import compare
 
 
@@ -102,8 +101,8 @@ def test_the_dbc_goes_the_numpy_way(tmp_path: Path) -> None:
     entries = list(decoder.entries())
     assert len(entries) == 2
     for (_bus, _cid, _ext), entry in entries:
-        outputs = [(o.source, o.role, o.signal, o.present, None, -1e308, 1e308, ()) for o in entry.outputs]
-        assert struct_spec(entry, outputs) is not None, entry.message.name
+        assert entry.strategy == "struct", entry.message.name
+        assert entry.reads_fields(48) and not entry.reads_fields(47), entry.message.name
 
 
 def test_numpy_struct_reads_equal_the_per_frame_engine(tmp_path: Path) -> None:

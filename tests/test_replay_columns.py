@@ -40,6 +40,7 @@ import pytest
 import yaml
 
 import canguard.cli.replay
+import canguard.decode.message
 import canguard.engine.blocks
 import canguard.io.candump
 import canguard.io.candump_np
@@ -206,7 +207,7 @@ def replay(cfg: Config, log: Path, out: Path, *, columns: bool, chunk: int,
         mp.setattr(canguard.io.candump, "CHUNK_CHARS", chunk)
         mp.setattr(canguard.io.candump, "NUMPY_AFTER_BLOCKS", numpy_after)
         if numpy_rows is not None:
-            mp.setattr(canguard.engine.blocks, "MIN_ROWS", numpy_rows)
+            mp.setattr(canguard.decode.message, "VECTOR_ROWS", numpy_rows)
             mp.setattr(canguard.io.candump_np, "_FEW", numpy_rows)
         py_trees.blackboard.Blackboard.clear()  # global: the two runs must not see each other's keys
         parquet = out / "signals.parquet" if export else None
@@ -305,10 +306,10 @@ def compare(cfg: Config, log: Path, out: Path, chunks: tuple[int, ...] = SMALL_C
     The column runs at the second, fourth... block size write no ``--emit`` file: their frames
     are only counted, as a replay without ``--emit`` does (emitted frames are compared at the others).
     The column runs parse blocks with numpy (:mod:`canguard.io.candump_np`): the first size from
-    the first block on, with numpy reading every message's payloads however few rows
-    (:mod:`canguard.engine.npstruct`); the third from the second block on, so a log mixes
-    line-parsed and numpy blocks as a short one does; the others from the first block on. The
-    reference always reads line by line.
+    the first block on, with numpy reading every message's payloads however few rows (the
+    vectorised kernels of :class:`canguard.decode.message.MessageDecoder`); the third from the
+    second block on, so a log mixes line-parsed and numpy blocks as a short one does; the others
+    from the first block on. The reference always reads line by line.
     """
     outcomes = []
     ref = reference(cfg, log, out, channel_map=channel_map, export=EXPORT and len(chunks) > 1)

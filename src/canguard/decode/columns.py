@@ -1,28 +1,39 @@
 """Decode a whole column of payloads of one message at once (numpy), equal to cantools per frame.
 
-The first piece of issue 16's columnar replay: given the payloads of one configured
-message in a block of a log (an ``(n, length)`` uint8 array), every signal is
-extracted for all rows in a few vectorised operations instead of one
-``decode_message`` call per frame. Covered: Intel and Motorola byte order, signed
-and unsigned, IEEE float (32/64), scale and offset, any length up to 64 bits, classic
-and CAN FD lengths, simple and extended (nested) multiplexing. The contract is
-equality with cantools: ``tests/test_columns_vs_cantools.py`` decodes random
+The vectorised kernels of :class:`canguard.decode.message.MessageDecoder` (imported only
+when a block is large enough to be worth numpy). Given the payloads of one message in a
+block (an ``(n, length)`` uint8 array), every signal is extracted for all rows in a few
+vectorised operations instead of one decode per frame. Covered: Intel and Motorola byte
+order, signed and unsigned, IEEE float (32/64), scale and offset, any length up to 64
+bits, classic and CAN FD lengths, simple and extended (nested) multiplexing. The
+contract is equality with cantools: ``tests/test_columns_vs_cantools.py`` decodes random
 messages of random DBCs both ways and requires identical values.
 
-``canguard replay`` decodes the configured messages of each candump block with
-:func:`decode_block` (see :mod:`canguard.engine.blocks`); the live daemon decodes
-frame by frame (:mod:`canguard.decode.decoder`).
+:func:`checked_rows` checks the configured signals' columns as
+:func:`~canguard.decode.message.check_cell` checks one value (:func:`check_column`);
+:func:`field_rows` does the same for byte-aligned signals read by numpy from only their
+bytes of a numpy block's hex (a 64-byte CAN FD frame of which one signal is configured
+costs the 4 hex digits of that signal, not 128). Exactness there: the raw values are
+integers of at most 32 bits or IEEE floats, and numpy's float64 product and sum round as
+Python's do; where Python computes in exact integers (an integer scale and offset), the
+decoder admits the signal only when every product and sum stays below 2**53.
 """
 
 from __future__ import annotations
 
-from collections.abc import Collection
+from collections.abc import Collection, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-__all__ = ["ColumnSignal", "decode_block", "decode_columns", "signal_raw"]
+from canguard.decode.rows import ColumnRows, Row
+
+__all__ = ["ColumnSignal", "check_column", "checked_rows", "decode_block", "decode_columns", "field_rows",
+           "signal_raw"]
+
+_EXACT = 2.0**53
+"""Integers below this convert to float exactly in numpy as in Python."""
 
 
 @dataclass(frozen=True)
@@ -149,3 +160,61 @@ def decode_block(
             if only is None or sig.name in only:
                 out[sig.name] = ColumnSignal(_physical(sig, raw(sig)), valid(sig))
     return out, ~undecodable
+
+
+def check_column(v: np.ndarray, present: bool, lo: float, hi: float, ok: np.ndarray) -> np.ndarray:
+    """:func:`~canguard.decode.message.check_cell` over a column: the values as rows carry them (float64); the
+    rows where a value is unusable are cleared in ``ok``."""
+    if present:
+        ok &= np.isfinite(v) & (v != 0.0)
+        v = np.where(v != 0.0, 1.0, 0.0)
+    ok &= (lo <= v) & (v <= hi)  # NaN and +-inf fail it, as the scalar check's
+    return v
+
+
+def checked_rows(message: Any, payload: np.ndarray, names: Sequence[str], limits: Sequence[tuple[bool, float, float]],
+                 multiplexed: bool) -> ColumnRows:
+    """The checked rows of the signals ``names`` of ``message`` (each with its (present, lo, hi)) over ``payload``
+    (``(n, length)`` uint8)."""
+    rows = payload.shape[0]
+    with np.errstate(invalid="ignore", over="ignore"):
+        decoded, decodable = decode_block(message, payload, set(names))
+        values: list[np.ndarray] = []
+        ok = np.ones(rows, dtype=bool)
+        present_any = np.zeros(rows, dtype=bool)
+        present_all = np.ones(rows, dtype=bool)
+        for name, (present, lo, hi) in zip(names, limits, strict=True):
+            column = decoded[name]
+            values.append(check_column(_as_float(column.values), present, lo, hi, ok))
+            present_any |= column.valid
+            present_all &= column.valid
+        ok &= present_all & decodable
+    # a multiplexed message's decodable row with none of our signals on its page: no sample at all (EMPTY)
+    return ColumnRows(rows, values, ~ok, ~present_any & decodable if multiplexed else None)
+
+
+def field_rows(cells: list[np.ndarray], n: int, spec: Sequence[tuple[int, int, str, Any, Any, bool]],
+               limits: Sequence[tuple[bool, float, float]]) -> Sequence[Row]:
+    """The checked rows of byte-aligned signals from their bytes: ``cells[j]``, the ``n x width`` bytes of output
+    ``j`` (spec: byte offset, width, numpy dtype, scale, offset, identity)."""
+    if not n:
+        return []
+    columns: list[np.ndarray] = []
+    ok = np.ones(n, dtype=bool)
+    with np.errstate(invalid="ignore", over="ignore"):
+        for (_at, _width, dtype, scale, offset, identity), (present, lo, hi), cell in zip(
+                spec, limits, cells, strict=True):
+            v = cell.view(dtype)[:, 0].astype(np.float64)  # a copy: the cells are scratch reused by the next block
+            if not identity:
+                v = v * scale + offset
+            columns.append(check_column(v, present, lo, hi, ok))
+    return ColumnRows(n, columns, ~ok, None)
+
+
+def _as_float(values: np.ndarray) -> np.ndarray:
+    """Decoded values as float64, each equal to Python's ``float()`` of cantools' value."""
+    if values.dtype == np.float64:
+        return values
+    if values.dtype.kind in "iu" and (values.size == 0 or float(np.max(np.abs(values.astype(np.float64)))) < _EXACT):
+        return values.astype(np.float64)
+    return np.array([float(x) for x in values.tolist()], dtype=np.float64)  # huge integers: Python's rounding

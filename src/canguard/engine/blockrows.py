@@ -40,7 +40,7 @@ def decode_rows(
     ``ts``: the block's times (a numpy block's array). ``taken``, when given, receives each message's
     (plan, rows, decoded values) (``--export-signals``).
     """
-    from canguard.engine.colrows import EMPTY, count_empty  # imported when a block is first decoded
+    from canguard.decode.rows import EMPTY, count_empty  # imported when a block is first decoded
 
     groups: dict[MessagePlan | None, Any] = {}  # each message's rows: a list, or a numpy block's index array
     remote = cols.remote

@@ -2,10 +2,10 @@
 
 :meth:`Engine.run_log <canguard.engine.core.Engine.run_log>` works on plain candump
 blocks (:class:`~canguard.io.logs.Columns`). The rows of each configured message in
-a block are decoded together by :func:`canguard.decode.columns.decode_columns`
-(numpy over the payload column: classic and CAN FD, Intel and Motorola, signed,
-float, scaled, multiplexed), and checked together (NaN, inf, the DBC range, the
-multiplexer). What is left per row is what only the order of samples can decide:
+a block are decoded and checked together (NaN, inf, the DBC range, the presence
+flag, the multiplexer page) by the message's
+:class:`~canguard.decode.message.MessageDecoder`, the same object that decodes a
+live frame. What is left per row is what only the order of samples can decide:
 :meth:`MessagePlan.step` does, for a row whose values all passed, exactly what
 :meth:`Engine.feed <canguard.engine.core.Engine.feed>` does after its tick check —
 :meth:`SourceHealth.observe <canguard.protect.staleness.SourceHealth.observe>`'s
@@ -22,21 +22,17 @@ checks byte for byte on every block size. No code is generated.
 
 from __future__ import annotations
 
-import operator
-import struct
 from collections.abc import Callable, Collection, Sequence
 from typing import TYPE_CHECKING, Any
 
-from canguard.engine.colrows import ColumnRows, Row, abs_range, clean, last_row, max_gap
-from canguard.engine.npstruct import MIN_ROWS, decode_struct, struct_spec
+from canguard.decode.rows import Row, abs_range, clean, last_row, max_gap, placed
 from canguard.io.logtypes import joined_hex
 from canguard.protect.staleness import ROW_ROLES
 
 if TYPE_CHECKING:
-    import numpy as np
-
     from canguard.bt.context import Context
-    from canguard.decode.decoder import DecodeCounters, _Entry
+    from canguard.decode.decoder import DecodeCounters
+    from canguard.decode.message import MessageDecoder
     from canguard.engine.stats import EngineStats
     from canguard.io.candump import Columns
     from canguard.io.candump_np import ByteColumns
@@ -45,14 +41,11 @@ if TYPE_CHECKING:
 _BIG = 1.7976931348623157e308
 """The largest float: the default range bounds, so that +-inf fails the range check like NaN does."""
 
-_EXACT = 2.0**53
-"""Integers below this convert to float exactly in numpy as in Python."""
-
 
 class MessagePlan:
     """One configured message on one bus: its column decode, its per-row step, its whole-block batch."""
 
-    def __init__(self, entry: _Entry, counters: DecodeCounters, ctx: Context, stats: EngineStats,
+    def __init__(self, entry: MessageDecoder, counters: DecodeCounters, ctx: Context, stats: EngineStats,
                  readers: Collection[str] | None) -> None:
         self.entry = entry
         self.counters = counters
@@ -70,10 +63,8 @@ class MessagePlan:
             self.outputs.append((out.source, out.role, out.signal, out.present, health,
                                  -_BIG if lo is None else float(lo), _BIG if hi is None else float(hi),
                                  tuple(ctx.subscribers(out.source, out.role))))
-        self.signals = {o[2] for o in self.outputs}
         self.names = [(o[0], o[1]) for o in self.outputs]
         """(source, role) of each output: the samples a decoded row gives, in order."""
-        self.multiplexed = bool(message.is_multiplexed())
         self.single = len(self.outputs) == 1 and not self.outputs[0][3]
         self.counter = any(role in ROW_ROLES for _src, role, *_rest in self.outputs)
         """An alive counter or a drive's health role: every row goes to feed (SourceHealth.observe's full check)."""
@@ -83,11 +74,6 @@ class MessagePlan:
         )
         """Nobody looks at this message between ticks: a block's rows may be taken whole (:meth:`batch`)."""
         self.min_age = min(o[4].max_age_s for o in self.outputs)
-        self.rows_struct = _row_struct(entry, self.outputs)
-        """Byte-aligned standard widths in one byte order: the block is read with ``struct.iter_unpack``
-        (C, no numpy); None: the numpy column decoder."""
-        self.np_spec = struct_spec(entry, self.outputs) if self.rows_struct is not None else None
-        """The same signals read by numpy from a numpy block's hex, only their bytes (:mod:`.npstruct`)."""
         self.seen = 0
         self.empty = 0
         self.settle_ok = False
@@ -104,79 +90,40 @@ class MessagePlan:
     def cuts_payloads(self, rows: Any) -> bool:
         """A numpy block's ``rows`` of this message are decoded from their payloads joined (:meth:`decode` asks
         ``ByteColumns.payload`` for them, which :func:`canguard.engine.blockrows.decode_rows` may do for several
-        messages at once)."""
-        return not self.counter and (self.np_spec is None or len(rows) < MIN_ROWS)
+        messages at once); False: from the bytes of its signals alone (or not at all)."""
+        return not self.counter and not self.entry.reads_fields(len(rows))
 
     def decode(self, cols: Columns | ByteColumns, rows: Any,
                payload: tuple[list[int] | None, bytes] | None = None) -> Sequence[Row]:
         """Each of ``rows``' configured values (in output order), ``EMPTY``, or None: the row goes to ``feed``.
 
-        A row is None when its payload has another length than the DBC's, when cantools
-        would refuse it (a multiplexer value no signal uses), when one of its values is
-        NaN, infinite or outside the DBC range, when a presence flag reads 0, or when it
-        holds some configured signals of a multiplexed message but not all. ``payload``: what
-        ``cols.payload(rows, size)`` gives, when already cut (:meth:`cuts_payloads`).
+        The rows :meth:`MessageDecoder.decode <canguard.decode.message.MessageDecoder.decode>`
+        gives (None: a wrong length, a payload cantools would refuse, a value NaN, infinite
+        or outside the DBC range, a presence flag at 0, some configured signals of a
+        multiplexed message but not all); every row when the message carries an alive counter
+        or a drive's health role. ``payload``: what ``cols.payload(rows, size)`` gives, when
+        already cut (:meth:`cuts_payloads`).
         """
         n = len(rows)
         if self.counter:
             return [None] * n
         size = self.hex_size
         good: list[int] | None
+        data: Any
         if payload is not None:
             good, data = payload
         elif not isinstance(cols, tuple):  # ByteColumns (numpy, imported only with it): straight from the bytes
-            if not self.cuts_payloads(rows):
-                assert self.np_spec is not None
-                return decode_struct(cols, rows, size, self.np_spec)
-            good, data = cols.payload(rows, size)
+            if self.cuts_payloads(rows):
+                good, data = cols.payload(rows, size)
+            else:
+                assert self.entry.spans is not None
+                good, data = cols.byte_fields(rows, size, self.entry.spans)
         else:
             good, data = joined_hex(list(map(cols.data.__getitem__, rows)), size)
-        return self._decode_payloads(n, good, data)
-
-    def _decode_payloads(self, n: int, good: list[int] | None, data: bytes) -> Sequence[Row]:
-        """:meth:`decode` of ``n`` rows whose payloads of the DBC's length (``good``: which, None: all) are ``data``."""
-        rows = n if good is None else len(good)
-        result: list[tuple[float, ...] | None]
-        if not rows:
+        count = n if good is None else len(good)
+        if not count:
             return [None] * n
-        if self.rows_struct is not None:
-            taken = _struct_rows(self.rows_struct, data)
-            if good is None:
-                return taken
-            result = [None] * n
-            for k, row in zip(good, taken, strict=True):
-                result[k] = row
-            return result
-        import numpy as np  # only for messages the struct path cannot read (FD padding, mux, odd bits...)
-
-        from canguard.decode.columns import decode_block
-
-        payload = np.frombuffer(data, dtype=np.uint8).reshape(rows, self.length)
-        with np.errstate(invalid="ignore", over="ignore"):
-            decoded, decodable = decode_block(self.message, payload, self.signals)
-            values: list[np.ndarray] = []
-            ok = np.ones(rows, dtype=bool)
-            present_any = np.zeros(rows, dtype=bool)
-            present_all = np.ones(rows, dtype=bool)
-            for _source, _role, signal, present, _h, lo, hi, _m in self.outputs:
-                column = decoded[signal]
-                v = _as_float(column.values)
-                if present:
-                    ok &= np.isfinite(v) & (v != 0.0)
-                    v = np.where(v != 0.0, 1.0, 0.0)
-                ok &= (lo <= v) & (v <= hi)  # NaN and +-inf fail it as the row path's check does
-                present_any |= column.valid
-                present_all &= column.valid
-                values.append(v)
-            ok &= present_all & decodable
-        # a multiplexed message's decodable row with none of our signals on its page: no sample at all
-        found = ColumnRows(rows, values, ~ok, ~present_any & decodable if self.multiplexed else None)
-        if good is None:
-            return found
-        result = [None] * n
-        for k, row in zip(good, found.rows(), strict=True):
-            result[k] = row
-        return result
+        return placed(n, good, self.entry.decode(data, count))
 
     # -- one row -----------------------------------------------------------------------
     def step(self, values: tuple[float, ...], t: float) -> bool | None:
@@ -277,85 +224,6 @@ class MessagePlan:
         return True
 
 
-_Conv = tuple[int, float, float, bool, bool, float, float]
-"""(index in the unpacked row, scale, offset, identity, present, lo, hi) of one output."""
-
-
-def _row_struct(entry: _Entry, outputs: list[tuple[Any, ...]]) -> tuple[struct.Struct, tuple[_Conv, ...]] | None:
-    """A Struct covering a whole payload of ``entry`` and each output's conversion, or None.
-
-    Only for the decoder's struct path with one byte order and one fixed length: then
-    ``iter_unpack`` over a block's joined payloads gives, in C, the raw values the
-    per-frame decoder gets with ``unpack_from`` (the same fields, the same order).
-    """
-    if not entry.fields or entry.plan is None or entry.lengths != {entry.length}:
-        return None
-    orders = {order for _o, _c, order in entry.fields}
-    if len(orders) != 1:
-        return None
-    order = orders.pop()
-    fmt, pos = order, 0
-    for offset, code, _order in entry.fields:  # in offset order, as the decoder built them
-        if offset < pos:
-            return None
-        if offset > pos:
-            fmt += f"{offset - pos}x"
-        fmt += code
-        pos = offset + struct.calcsize(order + code)
-    if pos > entry.length:
-        return None
-    if pos < entry.length:
-        fmt += f"{entry.length - pos}x"
-    conv = tuple(
-        (index, scale, offset, identity, present, lo, hi)
-        for (_s, _r, index, scale, offset, identity, present), (*_x, lo, hi, _m)
-        in zip(entry.plan, outputs, strict=True)
-    )
-    return struct.Struct(fmt), conv
-
-
-def _struct_rows(plan: tuple[struct.Struct, tuple[_Conv, ...]], data: bytes) -> list[tuple[float, ...] | None]:
-    """Each row's values as the per-frame decoder computes them (``raw * scale + offset``, then float), or None.
-
-    None: a NaN or infinite value, one outside the DBC range, or a presence flag at 0 (the row goes to feed).
-    """
-    st, conv = plan
-    raws = list(st.iter_unpack(data))
-    if len(conv) == 1 and not conv[0][4]:
-        index, scale, offset, identity, _present, lo, hi = conv[0]
-        col = list(map(operator.itemgetter(index), raws))
-        values = list(map(float, col)) if identity else [float(x * scale + offset) for x in col]
-        if all(map(lo.__le__, values)) and all(map(hi.__ge__, values)):  # the common block: all in range (C)
-            return list(zip(values))
-        return [(v,) if lo <= v <= hi else None for v in values]  # NaN and +-inf fail the range
-    out: list[tuple[float, ...] | None] = []
-    for raw in raws:
-        row: list[float] = []
-        for index, scale, offset, identity, present, lo, hi in conv:
-            x = raw[index]
-            v = float(x if identity else x * scale + offset)
-            if present:
-                if v - v != 0.0 or not v:
-                    break
-                v = 1.0
-            if not lo <= v <= hi:
-                break
-            row.append(v)
-        out.append(tuple(row) if len(row) == len(conv) else None)
-    return out
-
-
-def _as_float(values: np.ndarray) -> np.ndarray:
-    """Decoded values as float64, each equal to Python's ``float()`` of cantools' value."""
-    import numpy as np
-
-    if values.dtype == np.float64:
-        return values
-    if values.dtype.kind in "iu" and (values.size == 0 or float(np.max(np.abs(values.astype(np.float64)))) < _EXACT):
-        return values.astype(np.float64)
-    return np.array([float(x) for x in values.tolist()], dtype=np.float64)  # huge integers: Python's rounding
-
-
 def _count_samples(stats: EngineStats, health: Any, source: str, role: str, rows: int, top: float) -> None:
     """Count ``rows`` samples of one signal, with the largest |value| among them."""
     stats.samples[source] = stats.samples.get(source, 0) + rows
@@ -365,7 +233,7 @@ def _count_samples(stats: EngineStats, health: Any, source: str, role: str, rows
         stats.max_abs[key] = top
 
 
-def compile_plan(entry: _Entry, counters: DecodeCounters, ctx: Context, stats: EngineStats,
+def compile_plan(entry: MessageDecoder, counters: DecodeCounters, ctx: Context, stats: EngineStats,
                  readers: Collection[str] | None) -> MessagePlan | None:
     """The :class:`MessagePlan` of ``entry``'s frames, or None when a source of it is not in the tree's context.
 

@@ -53,7 +53,7 @@ import math
 from collections.abc import Callable, Collection, Mapping, Sequence
 from typing import TYPE_CHECKING
 
-from canguard.engine.colrows import abs_range, has_empty, has_fed, keep_valued, last_row, max_gap
+from canguard.decode.rows import abs_range, has_empty, has_fed, keep_valued, last_row, max_gap
 
 if TYPE_CHECKING:
     from canguard.engine.blocks import MessagePlan

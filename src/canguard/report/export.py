@@ -148,7 +148,7 @@ class SignalExport:
         """
         import numpy as np
 
-        from canguard.engine.colrows import valued_table
+        from canguard.decode.rows import valued_table
 
         fed_rows = np.array([row for row, _s in fed], dtype=np.intp)
         rows, stamps, values, codes = [], [], [], []

@@ -1,9 +1,10 @@
-"""A message's decoded rows in a block, kept as numpy columns until a row is asked for (replay; issue 16).
+"""A message's decoded rows in a block, kept as numpy columns until a row is asked for.
 
-The numpy decoders (:func:`canguard.engine.npstruct.decode_struct`, the column
-decoder behind :meth:`MessagePlan._decode_payloads <canguard.engine.blocks.MessagePlan._decode_payloads>`)
-give one float64 column per configured signal. Row by row, each row becomes a tuple
-of Python floats. Most blocks never need those tuples: a block taken whole
+What :meth:`MessageDecoder.decode <canguard.decode.message.MessageDecoder.decode>` gives:
+per row the configured values in output order (a tuple), :data:`EMPTY`, or None (the
+row is invalid and goes to the engine's ``feed``). Its numpy kernels give one float64
+column per configured signal (:class:`ColumnRows`); row by row, each row becomes a
+tuple of Python floats. Most blocks never need those tuples: a block taken whole
 (:meth:`MessagePlan.batch <canguard.engine.blocks.MessagePlan.batch>`,
 :mod:`canguard.engine.settle`) reads only whether every row passed, each column's
 smallest and largest ``|value|``, the last row and the count. :class:`ColumnRows`
@@ -176,3 +177,13 @@ def keep_valued(stamps: Sequence[Any], rows: Sequence[Row]) -> tuple[Sequence[An
         rows = rows.rows()
     keep = list(map(bool, rows))
     return list(compress(stamps, keep)), list(compress(rows, keep))
+
+
+def placed(n: int, good: list[int] | None, found: Sequence[Row]) -> Sequence[Row]:
+    """``n`` rows of which those at positions ``good`` (None: all) are ``found``; the others None (to feed)."""
+    if good is None:
+        return found
+    result: list[Row] = [None] * n
+    for k, row in zip(good, found.rows() if type(found) is ColumnRows else found, strict=True):
+        result[k] = row
+    return result
