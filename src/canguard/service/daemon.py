@@ -53,9 +53,11 @@ SWITCH_INTERVAL_S = 0.0005
 """GIL switch interval while the daemon runs (Python's default is 5 ms)."""
 
 LIVE_SKEW_S = 0.5
+"""A frame timestamp further than this from the daemon's clock is replaced by the receive time."""
 OVERRUN_FLOOR_S = 0.05
 """The shortest wait in the receive queue that counts as falling behind (scheduling jitter is below it)."""
-"""A frame timestamp further than this from the daemon's clock is replaced by the receive time."""
+DRAIN = 512
+"""Frames taken from the receive queue after the first, at most, before the engine advances to now."""
 
 
 def guarding(cfg: Config) -> str:
@@ -209,13 +211,7 @@ class Daemon:
                 except queue.Empty:
                     item = None
                 if item is not None:
-                    self._feed(engine, item)
-                    # Drain what else is waiting, but never so long that a tick starves.
-                    for _ in range(512):
-                        try:
-                            self._feed(engine, q.get_nowait())
-                        except queue.Empty:
-                            break
+                    self._take(engine, item, q)
                 engine.advance(self.clock.now())
                 self._drain_bus_errors(engine)
                 if self._down:
@@ -261,8 +257,26 @@ class Daemon:
         fps = ", ".join(f"{bus} {r:.0f} fps" for bus, r in rates.items())
         self.notifier.status(f"{engine.status_line()}; {fps}; {guarding(self.cfg)}")
 
-    def _feed(self, engine: Engine, item: tuple[str, Frame, float]) -> None:
-        bus, frame, received = item
+    def _take(self, engine: Engine, item: tuple[str, Frame, float], q: queue.SimpleQueue[tuple[str, Frame, float]]
+              ) -> None:
+        """``item`` and what else is waiting (up to :data:`DRAIN` frames, so that a tick never starves) as blocks
+        of frames in arrival order, one per run of frames of one bus, each through :meth:`Engine.take`."""
+        bus, block = item[0], [self._arrived(engine, item)]
+        for _ in range(DRAIN):
+            try:
+                item = q.get_nowait()
+            except queue.Empty:
+                break
+            if item[0] != bus:
+                engine.take(bus, block)
+                bus, block = item[0], []
+            block.append(self._arrived(engine, item))
+        engine.take(bus, block)
+
+    def _arrived(self, engine: Engine, item: tuple[str, Frame, float]) -> Frame:
+        """A frame taken from the receive queue: how long it waited (an overrun stops the task), its time (a bus
+        without sane timestamps: the time it is taken)."""
+        _bus, frame, received = item
         waited = time.monotonic() - received
         if waited > self.overrun_limit_s:
             engine.overrun(waited, self.overrun_limit_s)  # behind: its data is older than the config allows
@@ -270,8 +284,8 @@ class Daemon:
             engine.caught_up(waited)
         now = self.clock.now()
         if abs(frame.t - now) > LIVE_SKEW_S:
-            frame = frame._replace(t=now)  # a bus without sane timestamps: use the time it is fed
-        engine.feed(bus, frame)
+            frame = frame._replace(t=now)
+        return frame
 
     def _watchdog_ok(self, engine: Engine) -> bool:
         now = self.clock.now()
