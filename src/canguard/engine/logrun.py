@@ -130,7 +130,7 @@ class LogRun:
         :meth:`~canguard.engine.blocks.MessagePlan.take_samples`), and the counts are added at the end.
         """
         try:
-            if isinstance(block, (list, tuple)) or not hasattr(block, "ordered"):
+            if not hasattr(block, "ordered"):  # frames (a Columns block is a tuple too)
                 self._run_frames(block, cursor)
             else:
                 cols: Any = block
