@@ -80,7 +80,7 @@ class MessagePlan:
         self.multiplexed = bool(message.is_multiplexed())
         self.single = len(self.outputs) == 1
         self.counter = any(role in ROW_ROLES for _src, role, *_rest in self.outputs)
-        """An alive counter or a drive's health role: every row goes to feed (SourceHealth.observe's full check)."""
+        """An alive counter or a drive's health role: every row goes to the frame decoder (its journal events)."""
         self.passive = not self.counter and readers is not None and all(
             not present and source not in readers and not models
             for source, _r, _s, present, _h, _lo, _hi, models in self.outputs
@@ -120,7 +120,7 @@ class MessagePlan:
 
     def decode(self, cols: Columns | ByteColumns, rows: Any,
                payload: tuple[list[int] | None, bytes] | None = None) -> Sequence[Row]:
-        """Each of ``rows``' configured values (in output order), ``EMPTY``, or None: the row goes to ``feed``.
+        """Each of ``rows``' configured values (in output order), ``EMPTY``, or None: the row goes to the frame decoder.
 
         A row is None when its payload has another length than the DBC's, when cantools
         would refuse it (a multiplexer value no signal uses), when one of its values is
@@ -280,7 +280,7 @@ class MessagePlan:
         the state at the end of the block is that of its last row: it is stored at once
         (before the block's ticks, which then read "fresh" as they would have).
         """
-        if not self.passive or not clean(rows):  # a row to feed (None) or without a sample (EMPTY)
+        if not self.passive or not clean(rows):  # a row for the frame decoder (None) or without a sample (EMPTY)
             return False
         first, last = float(stamps[0]), float(stamps[-1])
         gap = last - first
@@ -341,7 +341,7 @@ def _row_struct(entry: _Entry, outputs: list[tuple[Any, ...]]) -> tuple[struct.S
 def _struct_rows(plan: tuple[struct.Struct, tuple[_Conv, ...]], data: bytes) -> list[tuple[float, ...] | None]:
     """Each row's values as the per-frame decoder computes them (``raw * scale + offset``, then float), or None.
 
-    None: a NaN or infinite value, one outside the DBC range, or a presence flag at 0 (the row goes to feed).
+    None: a NaN or infinite value, one outside the DBC range, or a presence flag at 0 (for the frame decoder).
     """
     st, conv = plan
     raws = list(st.iter_unpack(data))

@@ -200,7 +200,7 @@ class Engine:
         self._drive_clock(t)
 
     def frame_time(self, t: float) -> None:
-        """A frame at ``t`` was taken without :meth:`feed` (a log block's rows): the latest frame time moves."""
+        """A frame at ``t`` was taken without :meth:`arrive` (a column block's rows): the latest frame time moves."""
         if t > self._last_frame_t:
             self._last_frame_t = t
 
@@ -596,7 +596,7 @@ class Engine:
         self, frames: Iterable[Frame], route: Mapping[str, str], default_bus: str | None,
         unmapped: dict[str, int], channels: dict[str, int] | None = None,
     ) -> None:
-        """Feed a recorded log through :class:`LogRun` (the same :meth:`feed` / :meth:`advance` as live)."""
+        """Take a recorded log's blocks, each channel routed to a bus, through :class:`LogRun` (as :meth:`take`)."""
         self._runner().run(frames, route, default_bus, unmapped, channels)
 
     def _runner(self) -> LogRun:

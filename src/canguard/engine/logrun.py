@@ -249,7 +249,7 @@ class LogRun:
         if first and len(rows) and rows[0] == 0:
             rows = rows[1:]
         tally = _lane_tally(cols, rows, first)
-        last_row = int(rows[-1]) if len(rows) else -1  # the last row feed would see, whatever path takes it
+        last_row = int(rows[-1]) if len(rows) else -1  # the last row frame by frame would see, whatever path takes it
         taken: list[tuple[MessagePlan, Any, Sequence[Any]]] | None = [] if export is not None else None
         quiet = engine.quiet
         slots = decode_rows(plans, rows, cols, ts, quiet.fixed, keys, taken, quiet.block_horizon) if len(rows) else []
@@ -338,7 +338,7 @@ class LogRun:
         decoded, frame, ts, slots = self._decoded, walk.cols.frame, walk.ts, walk.slots
         bus, bus_at = walk.bus, walk.bus_at
         pos = first
-        due = engine.due  # plans never change it; advance, feed and tick may
+        due = engine.due  # plans never change it; advance and tick may
         try:
             for i in walk.rows:
                 item = slots[i]
@@ -386,7 +386,7 @@ class LogRun:
     def _cross(self, ts: Sequence[Any], lo: int, hi: int) -> None:
         """Rows ``lo..hi-1`` (ordered, of no configured message): the first at or after the due time brings the ticks.
 
-        What :meth:`feed` does for such a frame, without decoding it; repeated while
+        What :meth:`Engine.arrive` does for such a frame, without decoding it; repeated while
         another due time falls among the rows left.
         """
         engine = self.engine
@@ -403,11 +403,11 @@ class LogRun:
                 engine.advance(float(ts[k]))
             t = float(ts[k])
             engine.drive_clock(t)
-            engine.frame_time(t)  # as feed: not before it (ordered, from cursor.last_t on)
+            engine.frame_time(t)  # as arrive: not before it (ordered, from cursor.last_t on)
             lo = k + 1
 
     def _compile_plans(self, bus: str) -> dict[str | int, MessagePlan | None]:
-        """Every id text (any letter case) of a message configured on ``bus``, with its plan or None (feed it)."""
+        """Every id text (any letter case) of a message configured on ``bus``, with its plan, or None."""
         from canguard.engine.blocks import compile_plan
         from canguard.engine.settle import may_settle
         from canguard.io.logs import candump_id_texts

@@ -1,7 +1,7 @@
 """``canguard run``: the live engine, as a systemd service.
 
 The loop: wait for frames until the engine's next deadline (a tick or a gate
-deadline), feed every frame received, advance the engine to now, and tell
+deadline), take the frames received as blocks (:meth:`Engine.take`), advance the engine to now, and tell
 systemd how things stand:
 
 - ``READY=1`` once every bus is open and the tree loaded;
