@@ -151,8 +151,8 @@ class Engine:
         self.last_tick_t = math.nan
         self.last_due_run = -math.inf
         """The time of the last tick or gate deadline run (which row brought it: :meth:`_cross`)."""
-        self._log_run: LogRun | None = None
-        """The block runner (made at the first block; it keeps its message plans)."""
+        self._blocks = LogRun(self)
+        """The block runner (it keeps its message plans, compiled at the first block of each bus)."""
         self._live = LogCursor({}, None, {}, None)
         """Where :meth:`take` is: every frame goes to the bus it is given for."""
 
@@ -275,7 +275,7 @@ class Engine:
         """
         cursor = self._live
         cursor.default_bus = bus
-        self._runner().take(block, cursor)
+        self._blocks.take(block, cursor)
 
     def feed(self, bus: str, frame: Frame) -> None:
         """Process one frame received on ``bus`` at ``frame.t``: :meth:`take` of a block of one."""
@@ -597,10 +597,4 @@ class Engine:
         unmapped: dict[str, int], channels: dict[str, int] | None = None,
     ) -> None:
         """Take a recorded log's blocks, each channel routed to a bus, through :class:`LogRun` (as :meth:`take`)."""
-        self._runner().run(frames, route, default_bus, unmapped, channels)
-
-    def _runner(self) -> LogRun:
-        """The block runner (made at the first block; it keeps its message plans)."""
-        if self._log_run is None:
-            self._log_run = LogRun(self)
-        return self._log_run
+        self._blocks.run(frames, route, default_bus, unmapped, channels)

@@ -88,7 +88,9 @@ class LogRun:
         self._lane_plans: dict[tuple[str, ...], tuple[dict[int, MessagePlan | None], tuple[Any, Any]]] = {}
         """Per channels-to-buses of a numpy block that mixes buses: its plans and their key table (:mod:`.lanes`)."""
         self._plan_list: dict[str, list[MessagePlan]] = {}
-        """Per bus: every plan, flushed at the end of each block."""
+        """Per bus: every plan, flushed at the end of each column block of the bus."""
+        self._touched: set[MessagePlan] = set()
+        """The plans that took frames decoded by the frame decoder in this block (flushed at its end)."""
 
     def run(
         self, frames: Iterable[Frame], route: Mapping[str, str], default_bus: str | None,
@@ -137,9 +139,9 @@ class LogRun:
                 if not self._run_columns(cols, cursor):
                     self._run_frames(cols.frames(), cursor)
         finally:
-            for plans in self._plan_list.values():
-                for plan in plans:
-                    plan.flush()
+            touched = self._touched
+            while touched:
+                touched.pop().flush()
 
     def _run_frames(self, frames: Iterable[Frame], cursor: LogCursor) -> None:
         """:meth:`run` over frames one by one."""
@@ -217,6 +219,7 @@ class LogRun:
             plans = self._plans[bus] = self._compile_plans(bus)
         plan = plans[id_key(frame.arbitration_id, frame.is_extended_id)]
         assert plan is not None  # the decoder gives samples only of a configured message
+        self._touched.add(plan)
         return plan.take_samples(samples)
 
     def _run_columns(self, cols: Columns | ByteColumns, cursor: LogCursor) -> bool:
