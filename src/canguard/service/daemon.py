@@ -260,32 +260,32 @@ class Daemon:
     def _take(self, engine: Engine, item: tuple[str, Frame, float], q: queue.SimpleQueue[tuple[str, Frame, float]]
               ) -> None:
         """``item`` and what else is waiting (up to :data:`DRAIN` frames, so that a tick never starves) as blocks
-        of frames in arrival order, one per run of frames of one bus, each through :meth:`Engine.take`."""
-        bus, block = item[0], [self._arrived(engine, item)]
-        for _ in range(DRAIN):
-            try:
-                item = q.get_nowait()
-            except queue.Empty:
-                break
-            if item[0] != bus:
+        of frames in arrival order through :meth:`Engine.take`: a block ends where the bus changes, and before a
+        frame whose wait in the queue starts or ends an overrun (which then comes after the frames before it)."""
+        bus: str = item[0]
+        block: list[Frame] = []
+        for k in range(DRAIN + 1):
+            if k:
+                try:
+                    item = q.get_nowait()
+                except queue.Empty:
+                    break
+            name, frame, received = item
+            waited = time.monotonic() - received
+            held = "overrun" in engine.gate.inhibits
+            behind = not held and waited > self.overrun_limit_s  # its data is older than the config allows
+            back = held and waited < self.overrun_limit_s / 2
+            if block and (name != bus or behind or back):
                 engine.take(bus, block)
-                bus, block = item[0], []
-            block.append(self._arrived(engine, item))
+                block = []
+            bus = name
+            if behind:
+                engine.overrun(waited, self.overrun_limit_s)
+            elif back:
+                engine.caught_up(waited)
+            now = self.clock.now()
+            block.append(frame._replace(t=now) if abs(frame.t - now) > LIVE_SKEW_S else frame)  # insane stamps
         engine.take(bus, block)
-
-    def _arrived(self, engine: Engine, item: tuple[str, Frame, float]) -> Frame:
-        """A frame taken from the receive queue: how long it waited (an overrun stops the task), its time (a bus
-        without sane timestamps: the time it is taken)."""
-        _bus, frame, received = item
-        waited = time.monotonic() - received
-        if waited > self.overrun_limit_s:
-            engine.overrun(waited, self.overrun_limit_s)  # behind: its data is older than the config allows
-        elif waited < self.overrun_limit_s / 2 and "overrun" in engine.gate.inhibits:
-            engine.caught_up(waited)
-        now = self.clock.now()
-        if abs(frame.t - now) > LIVE_SKEW_S:
-            frame = frame._replace(t=now)
-        return frame
 
     def _watchdog_ok(self, engine: Engine) -> bool:
         now = self.clock.now()
