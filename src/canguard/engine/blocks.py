@@ -255,6 +255,8 @@ class MessagePlan:
             self.counters.frames += rows
             self.counters.decoded += rows
             self.stats.frames += rows
+        elif not any(self.sampled):
+            return  # nothing taken since the last flush (most plans, most blocks)
         seen, sampled, tops = self.seen, self.sampled, self.tops
         max_abs, counts = self.stats.max_abs, self.stats.samples
         for j, (source, role, *_rest) in enumerate(self.outputs):
