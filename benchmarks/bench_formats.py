@@ -11,8 +11,8 @@ disturb least):
 
 * ``canguard replay LOG -c config/canguard.yaml --json``: the reader's blocks on the
   column path where it can take them;
-* the same with ``Engine.columns = False``: every frame through ``Engine.feed``
-  (the reference path; before issue 16 item 3 python-can logs always went this way);
+* the same with ``Engine.columns = False``: every frame a block of one, as a quiet live bus
+  gives them (the reference path; before issue 16 item 3 python-can logs always went this way);
 * python-can's reader alone iterating the file (``READER_LOOP``): the floor, since
   replay cannot be faster than reading the messages.
 

@@ -23,6 +23,7 @@ import subprocess
 import sys
 import tempfile
 import threading
+import time
 import uuid
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
@@ -34,6 +35,7 @@ import cantools
 import pytest
 import yaml
 
+from canguard.io.frame import Frame
 from canguard.service.daemon import Daemon
 from canguard.service.systemd import Notifier
 from checkout import REPO, SRC
@@ -359,6 +361,21 @@ class TestDaemonInProcess:
             receive_until(inproc.peer, is_task, "task frame after recovery")
         names = [e["event"] for e in read_events(inproc.events)]
         assert "trip" in names and "recover" in names
+
+    def test_one_frame_spike_inside_a_burst_still_stops(self, inproc: InProcess) -> None:
+        """Frames queued together are taken as one block, and a one-frame overcurrent in its middle still trips."""
+        daemon = inproc.daemon
+        with BmsFeeder(inproc.peer):
+            receive_until(inproc.peer, is_task, "task frame")
+            t0, queued = daemon.clock.now(), time.monotonic()
+            for k in range(101):  # put at once: the loop drains them as one block
+                current_a = 40.0 if k == 60 else 10.0
+                daemon.reader.queue.put(("main", Frame(t0 + k * 1e-5, "main", BMS_ID, bms_data(current_a), True),
+                                         queued))
+            receive_until(inproc.peer, is_stop, "Estop after the one-frame spike")
+            wait_until(event_after(inproc.events, "recover"), what="the recovery at the next frame")
+        trips = [e for e in read_events(inproc.events) if e["event"] == "trip"]
+        assert [e["node"] for e in trips] == ["IsCurrentSafe"] and "40" in json.dumps(trips[0])
 
     def test_request_stop_sends_stop_frames_and_writes_exit(self, tmp_path: Path) -> None:
         """Stopping a running daemon sends the stop frames and ends the journal with an exit event."""

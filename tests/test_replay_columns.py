@@ -1,17 +1,20 @@
-"""The replay column path against the reference path, byte for byte.
+"""A log in blocks of N against the same frames in blocks of one, byte for byte.
 
-:meth:`Engine.run_log <canguard.engine.core.Engine.run_log>` works on plain candump
-blocks as text columns (``LogRun._run_columns``, ``LogRun._cross`` and the row
-message plans of :mod:`canguard.engine.blocks`); ``Engine.columns = False`` makes it go frame
-by frame through :meth:`Engine.feed <canguard.engine.core.Engine.feed>`, the
-reference. Every test here replays one log through both, the column path with the
-reader's blocks at several sizes (so that block boundaries fall everywhere: at ticks,
-at trips, inside gaps), the reference once (its frames go one at a time whatever the
-block size), and compares the summary, the ``--events`` file, the
-``--emit`` file and the engine's own state (counters, every source's health,
-every guard's model) byte for byte. Each comparison also checks that the column
-path really ran: column blocks taken and rows taken by the message plans
-(:mod:`canguard.engine.blocks`), none of either in the reference run.
+There is one engine path: :meth:`Engine.take <canguard.engine.core.Engine.take>` (the live
+daemon's) and :meth:`Engine.run_log <canguard.engine.core.Engine.run_log>` take blocks of
+frames through the same row step (:meth:`MessagePlan.step <canguard.engine.blocks.MessagePlan.step>`
+for a row the column decoder read whole, :meth:`MessagePlan.take_samples
+<canguard.engine.blocks.MessagePlan.take_samples>` for a row the frame decoder read; both the
+sources' health and the models through :class:`~canguard.bt.context.SampleRoute`). A column
+block (``LogRun._run_columns``, ``LogRun._cross``) takes N rows at once;
+``Engine.columns = False`` gives the engine every frame on its own, a block of one, as a quiet
+live bus does: the reference. Every test here replays one log both ways, the column blocks at
+several sizes (so that block boundaries fall everywhere: at ticks, at trips, inside gaps), the
+blocks of one once (whatever the reader's block size), and compares the summary, the ``--events``
+file, the ``--emit`` file and the engine's own state (counters, every source's health, every
+guard's model) byte for byte: live and replay agree. Each comparison also checks that the
+column path really ran: column blocks taken and rows taken by the message plans'
+column step, none of either in the reference run.
 
 The logs are written here: a scripted log on a config of many node types and
 value kinds (``custom``: trips and recoveries, NaN / inf / out of range / short
@@ -87,9 +90,10 @@ class Outcome:
     column_blocks: int = 0
     """Blocks ``LogRun._run_columns`` took (returned True for)."""
     handled_rows: int = 0
-    """Rows a message plan's step took (returned True or False, not None)."""
+    """Rows of column blocks a message plan's step took as decoded by the column decoder."""
     fed_rows: int = 0
-    """Rows a message plan's step gave back to the general path (returned None)."""
+    """Rows of column blocks the column decoder left to the frame decoder (an invalid value, a presence flag
+    at 0, an alive counter...), taken by :meth:`MessagePlan.take_samples`."""
     handled_ids: set[int] = field(default_factory=set)
     """The arbitration ids of the rows the plans took."""
     quiet_ticks: int = 0
@@ -162,14 +166,18 @@ def replay(cfg: Config, log: Path, out: Path, *, columns: bool, chunk: int,
     for p in (events, emit):
         p.unlink(missing_ok=True)  # the journal appends
     engines: list[Engine] = []
-    counts = {"blocks": 0, "handled": 0, "fed": 0, "bytes": 0}
+    counts = {"blocks": 0, "handled": 0, "fed": 0, "bytes": 0, "in_block": 0}
     handled_ids: set[int] = set()
     run_columns = LogRun._run_columns
     compile_plan = canguard.engine.blocks.compile_plan
     build_summary = canguard.cli.replay.build_summary
 
     def counted_run_columns(self: LogRun, cols: Columns, cursor: Any) -> bool:
-        took = run_columns(self, cols, cursor)
+        counts["in_block"] = 1
+        try:
+            took = run_columns(self, cols, cursor)
+        finally:
+            counts["in_block"] = 0
         counts["blocks"] += took
         counts["bytes"] += took and type(cols).__name__ == "ByteColumns"
         return took
@@ -177,17 +185,20 @@ def replay(cfg: Config, log: Path, out: Path, *, columns: bool, chunk: int,
     def counted_compile_plan(entry: Any, *args: Any) -> Any:
         plan = compile_plan(entry, *args)
         if plan is not None:
-            inner = plan.step
+            inner, inner_samples = plan.step, plan.take_samples
             frame_id = entry.message.frame_id
 
-            def step(values: tuple[float, ...], t: float) -> bool | None:
-                edge = inner(values, t)
-                counts["fed" if edge is None else "handled"] += 1
-                if edge is not None:
-                    handled_ids.add(frame_id)
-                return edge
+            def step(values: tuple[float, ...], t: float) -> bool:
+                counts["handled"] += 1
+                handled_ids.add(frame_id)
+                return inner(values, t)
+
+            def take_samples(samples: Any) -> bool:
+                counts["fed"] += counts["in_block"]
+                return inner_samples(samples)
 
             plan.step = step
+            plan.take_samples = take_samples
         return plan
 
     boards: list[dict[str, Any]] = []
@@ -828,7 +839,7 @@ class TestCustomLog:
         cfg, log = custom
         [col] = compare(cfg, log, tmp_path, (chunk,))
         if chunk != DEFAULT_CHUNK:
-            assert col.fed_rows > 0  # and the handlers gave rows back to the general path
+            assert col.fed_rows > 0  # and the column decoder left rows to the frame decoder
             handled = {cfg.database.get_message_by_frame_id(i).name for i in col.handled_ids}
             assert handled >= HANDLED, HANDLED - handled
 

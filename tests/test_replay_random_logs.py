@@ -1,10 +1,11 @@
-"""Random DBCs, random logs: the column path of ``canguard replay`` equals the live per-frame engine.
+"""Random DBCs, random logs: a log in blocks of N leaves what the same frames in blocks of one leave.
 
-Issue 16's contract: the replay decodes each block's configured messages as columns
-(:mod:`canguard.engine.blocks`), the daemon feeds frame by frame
-(:meth:`Engine.feed <canguard.engine.core.Engine.feed>`); on any log the two must
-write the same events, send the same frames and leave the same state. Hypothesis
-draws a DBC (classic and CAN FD, standard and extended ids, Intel and Motorola,
+One engine path: every block of frames, a live bus's drained queue (one frame on a quiet
+bus) or thousands from a log, goes through :meth:`Engine.take <canguard.engine.core.Engine.take>`'s
+row step; the column blocks of a replay decode each configured message's rows at once
+(:mod:`canguard.engine.blocks`). On any log, blocks of N and blocks of one must write the
+same events, send the same frames and leave the same state: that is also live against replay.
+Hypothesis draws a DBC (classic and CAN FD, standard and extended ids, Intel and Motorola,
 signed and unsigned, scaled and offset, float, simple multiplexing), a config that
 guards some of its signals (hysteresis thresholds inside the values drawn, so
 trips and recoveries happen) and a log (payloads of any bytes, big values,
@@ -244,7 +245,8 @@ recovers, the next ticks report the second's trip, then its recovery, without an
                                  HealthCheck.data_too_large])
 @given(spec=scenarios())
 @example(spec=LATCHED_BEHIND)
-def test_random_log_same_through_columns_and_feed(tmp_path_factory: Any, spec: dict[str, Any]) -> None:
+def test_random_log_same_in_blocks_of_n_and_of_one(tmp_path_factory: Any, spec: dict[str, Any]) -> None:
+    """A random log on a random DBC: column blocks of two sizes give the bytes and state of blocks of one."""
     out = tmp_path_factory.mktemp("rand")
     cfg_path, log = write_case(spec, out)
     compare(load_config(cfg_path), log, out, (300, 2048), min_handled=0)

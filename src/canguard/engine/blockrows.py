@@ -33,7 +33,7 @@ def decode_rows(
     nobody reads between ticks may take its rows whole (:meth:`MessagePlan.batch`,
     before any row of the block: it stores its state as at the end of the block,
     which every tick in the block reads as it would have read the row-by-row state);
-    rows without a configured signal are only counted; remote rows go to ``feed``. When no
+    rows without a configured signal are only counted; remote rows go to the frame decoder. When no
     configured row of the block can change what a tick sees, every message's rows are
     taken whole (:mod:`canguard.engine.settle`) and None is returned; only with ``settle``
     (the last tick was a fixed point: no tick in the block changes a guard's status by itself).

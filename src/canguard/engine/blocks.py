@@ -1,23 +1,27 @@
-"""The configured rows of a replayed candump block, decoded as columns (the replay hot path).
+"""A configured message on one bus: its rows decoded as columns, and its row step (live and replay).
 
-:meth:`Engine.run_log <canguard.engine.core.Engine.run_log>` works on plain candump
-blocks (:class:`~canguard.io.logs.Columns`). The rows of each configured message in
-a block are decoded and checked together (NaN, inf, the DBC range, the presence
-flag, the multiplexer page) by the message's
-:class:`~canguard.decode.message.MessageDecoder`, the same object that decodes a
-live frame. What is left per row is what only the order of samples can decide:
-:meth:`MessagePlan.step` does, for a row whose values all passed, exactly what
-:meth:`Engine.feed <canguard.engine.core.Engine.feed>` does after its tick check —
-:meth:`SourceHealth.observe <canguard.protect.staleness.SourceHealth.observe>`'s
-fast path, the subscribed protection models, the per-source sample counts and
-largest values — with the counters kept in the plan and added to the engine's at
-:meth:`MessagePlan.flush`.
+A block of frames (:meth:`Engine.take <canguard.engine.core.Engine.take>`: a live bus's
+queue drained, or a log's block) reaches the engine's block runner
+(:class:`~canguard.engine.logrun.LogRun`). In a column block (:class:`~canguard.io.logs.Columns`,
+:class:`~canguard.io.candump_np.ByteColumns`) the rows of each configured message are
+decoded together (:meth:`MessagePlan.decode`: the message's :class:`~canguard.decode.message.MessageDecoder`,
+the same object that decodes a live frame; checked together: NaN, inf, the DBC range, the
+multiplexer, presence flags).
 
-A row the columns cannot take (a wrong length, a payload cantools refuses, an
-invalid value, a source coming back after a stale spell, a presence flag that may
-change the source's reason) goes to ``feed`` as a frame *before anything was
-changed*: the two paths leave the same state, which ``tests/test_replay_columns.py``
-checks byte for byte on every block size. No code is generated.
+Then each row, in time order, takes the message's **row step**, the one way a frame's
+samples change anything: :meth:`MessagePlan.step` for a row the column decoder read whole,
+:meth:`MessagePlan.take_samples` for a row the frame decoder
+(:meth:`Decoder.decode <canguard.decode.decoder.Decoder.decode>`) read: a frame of a
+frame-list block (live, a block of one on a quiet bus), or a row the column decoder leaves to
+it (a wrong length, a payload cantools refuses, an invalid value with its reason, a presence
+flag at 0, a multiplexer page with part of the signals, an alive counter or a drive's health
+roles, a remote frame). Both hand each sample to its source role's
+:class:`~canguard.bt.context.SampleRoute` (the source's health, then its protection models)
+and count it; the counts reach the decoder's and the engine's counters at :meth:`MessagePlan.flush`.
+
+A message nobody reads between ticks may take a block's rows whole (:meth:`MessagePlan.batch`),
+and a block that changes nothing a tick sees is taken whole (:mod:`canguard.engine.settle`).
+No code is generated.
 """
 
 from __future__ import annotations
@@ -36,6 +40,7 @@ if TYPE_CHECKING:
     from canguard.engine.stats import EngineStats
     from canguard.io.candump import Columns
     from canguard.io.candump_np import ByteColumns
+    from canguard.io.frame import Sample
 
 
 _BIG = 1.7976931348623157e308
@@ -65,9 +70,9 @@ class MessagePlan:
                                  tuple(ctx.subscribers(out.source, out.role))))
         self.names = [(o[0], o[1]) for o in self.outputs]
         """(source, role) of each output: the samples a decoded row gives, in order."""
-        self.single = len(self.outputs) == 1 and not self.outputs[0][3]
+        self.single = len(self.outputs) == 1
         self.counter = any(role in ROW_ROLES for _src, role, *_rest in self.outputs)
-        """An alive counter or a drive's health role: every row goes to feed (SourceHealth.observe's full check)."""
+        """An alive counter or a drive's health role: every row goes to the frame decoder (its journal events)."""
         self.passive = not self.counter and readers is not None and all(
             not present and source not in readers and not models
             for source, _r, _s, present, _h, _lo, _hi, models in self.outputs
@@ -83,6 +88,13 @@ class MessagePlan:
         self.present_healths = tuple(o[4] for o in self.outputs if o[3])
         """The health of each source whose presence flag it carries."""
         self.tops = [-1.0] * len(self.outputs)
+        """The largest |value| of each output's valid samples since the last :meth:`flush`."""
+        self.sampled = [0] * len(self.outputs)
+        """Each output's samples taken through :meth:`take_samples` since the last :meth:`flush`."""
+        self.routes = tuple(ctx.route(source, role) for source, role, *_rest in self.outputs)
+        """Each output's sample step (the same objects :meth:`Context.dispatch` uses)."""
+        self.index = {(source, role): j for j, (source, role, *_rest) in enumerate(self.outputs)}
+        """Each output's index by (source, role): where a decoded sample goes."""
         if self.single:
             self.step = self._single_step()  # type: ignore[method-assign,assignment]
 
@@ -95,7 +107,7 @@ class MessagePlan:
 
     def decode(self, cols: Columns | ByteColumns, rows: Any,
                payload: tuple[list[int] | None, bytes] | None = None) -> Sequence[Row]:
-        """Each of ``rows``' configured values (in output order), ``EMPTY``, or None: the row goes to ``feed``.
+        """Each of ``rows``' configured values (in output order), ``EMPTY``, or None: the row goes to the frame decoder.
 
         The rows :meth:`MessageDecoder.decode <canguard.decode.message.MessageDecoder.decode>`
         gives (None: a wrong length, a payload cantools would refuse, a value NaN, infinite
@@ -125,70 +137,85 @@ class MessagePlan:
             return [None] * n
         return placed(n, good, self.entry.decode(data, count))
 
-    # -- one row -----------------------------------------------------------------------
-    def step(self, values: tuple[float, ...], t: float) -> bool | None:
-        """Take one row's checked values at ``t``: True on an edge, False, or None (changed nothing: feed it).
+    # -- one row: the row step (every frame of this message, live or replayed, takes it) -------
+    def step(self, values: tuple[float, ...], t: float) -> bool:
+        """Take one row the column decoder found whole and valid (one value per output) at ``t``; True on an edge.
 
-        Replaced per instance by a closure over the one output when the message has one
-        (most messages): the same steps with the lookups done once.
+        Each value takes its source role's step (:meth:`SampleRoute.take
+        <canguard.bt.context.SampleRoute.take>`: the source's health, then its models), as
+        :meth:`take_samples` does for a row the frame decoder decoded. Replaced per instance
+        by a closure over the one output when the message has one (most messages).
         """
-        outputs = self.outputs
-        for _source, role, _signal, present, health, _lo, _hi, _models in outputs:
-            if not health.fresh_valid(role, t) or (present and not health.settled(t)):
-                return None
         self.seen += 1
         edge = False
         tops = self.tops
-        for j, (_source, role, _signal, _present, health, _lo, _hi, models) in enumerate(outputs):
+        for j, route in enumerate(self.routes):
             v = values[j]
-            health.take(role, t, v)
+            if route.take(v, t):
+                edge = True
             a = -v if v < 0.0 else v
             if a > tops[j]:
                 tops[j] = a
-            for model in models:
-                if model.update(v, t):
-                    edge = True
         return edge
 
-    def _single_step(self) -> Callable[[tuple[float, ...], float], bool | None]:
-        """:meth:`step` of a message with one configured (non-presence) signal."""
-        _source, role, _signal, _present, health, _lo, _hi, models = self.outputs[0]
-        fresh, take = health.fresh_valid, health.take
+    def _single_step(self) -> Callable[[tuple[float, ...], float], bool]:
+        """:meth:`step` of a message with one configured signal, the lookups done once."""
+        take = self.routes[0].take
         tops = self.tops
         plan = self
 
-        def step(values: tuple[float, ...], t: float) -> bool | None:
-            if not fresh(role, t):
-                return None
-            v = values[0]
-            take(role, t, v)
+        def step(values: tuple[float, ...], t: float) -> bool:
             plan.seen += 1
+            v = values[0]
             a = -v if v < 0.0 else v
             if a > tops[0]:
                 tops[0] = a
-            edge = False
-            for model in models:
-                if model.update(v, t):
-                    edge = True
-            return edge
+            return take(v, t)
 
         return step
+
+    def take_samples(self, samples: Sequence[Sample]) -> bool:
+        """Take the samples the frame decoder made of one frame of this message (any reason, any subset of
+        the outputs, in output order); True on an edge. Counted here; the frame itself by the decoder."""
+        edge = False
+        index = self.index
+        for sample in samples:
+            j = index[sample.source, sample.signal]
+            reason = sample.reason
+            v = sample.value
+            if self.routes[j].take(v, sample.t, reason):
+                edge = True
+            self.sampled[j] += 1
+            if not reason:
+                a = -v if v < 0.0 else v
+                if a > self.tops[j]:
+                    self.tops[j] = a
+        return edge
 
     def count_empty(self, rows: int) -> None:
         """``rows`` decoded rows that carried none of the configured signals (counted at :meth:`flush`)."""
         self.empty += rows
 
     def flush(self) -> None:
-        """Add the rows taken since the last flush to the decoder's and the engine's counters."""
+        """Add the rows and samples taken since the last flush to the decoder's and the engine's counters."""
         rows = self.seen + self.empty
         if rows:
             self.counters.frames += rows
             self.counters.decoded += rows
             self.stats.frames += rows
-        if self.seen:
-            for j, (source, role, _signal, _present, health, _lo, _hi, _models) in enumerate(self.outputs):
-                _count_samples(self.stats, health, source, role, self.seen, self.tops[j])
-                self.tops[j] = -1.0
+        elif not any(self.sampled):
+            return  # nothing taken since the last flush (most plans, most blocks)
+        seen, sampled, tops = self.seen, self.sampled, self.tops
+        max_abs, counts = self.stats.max_abs, self.stats.samples
+        for j, (source, role, *_rest) in enumerate(self.outputs):
+            n = seen + sampled[j]
+            if n:
+                counts[source] = counts.get(source, 0) + n
+                key = (source, role)
+                if tops[j] > max_abs.get(key, -1.0):
+                    max_abs[key] = tops[j]
+                tops[j] = -1.0
+                sampled[j] = 0
         self.seen = self.empty = 0
 
     # -- a whole block -----------------------------------------------------------------
@@ -203,7 +230,7 @@ class MessagePlan:
         the state at the end of the block is that of its last row: it is stored at once
         (before the block's ticks, which then read "fresh" as they would have).
         """
-        if not self.passive or not clean(rows):  # a row to feed (None) or without a sample (EMPTY)
+        if not self.passive or not clean(rows):  # a row for the frame decoder (None) or without a sample (EMPTY)
             return False
         first, last = float(stamps[0]), float(stamps[-1])
         gap = last - first

@@ -35,7 +35,7 @@ from canguard.config.schema import Config
 from canguard.decode.decoder import Decoder
 from canguard.engine.gate import TaskGate
 from canguard.engine.journal import Journal
-from canguard.engine.logrun import MAX_CATCH_UP_S, LogRun
+from canguard.engine.logrun import MAX_CATCH_UP_S, LogCursor, LogRun
 from canguard.engine.quiet import QuietTicks
 from canguard.engine.stats import EngineStats, EventSink, TickObserver
 from canguard.engine.watch import SourceWatch
@@ -45,6 +45,8 @@ from canguard.protect.base import LatchedModel
 
 if TYPE_CHECKING:
     from canguard.bt.loader import GuardView
+    from canguard.io.candump import Columns
+    from canguard.io.candump_np import ByteColumns
 
 log = logging.getLogger(__name__)
 
@@ -59,11 +61,12 @@ class Engine:
     Built from parts with public interfaces: the task gate (:class:`TaskGate`: frames out, the stop
     rule), the journal (:class:`Journal`: every event), the source watch (:class:`SourceWatch`:
     stale sources, buses down), the quiet-tick proof (:class:`QuietTicks`) and the log runner
-    (:class:`LogRun`: a recorded log's blocks through the same :meth:`feed` / :meth:`advance`).
+    (:class:`LogRun`: every block of frames, live or recorded, through one row step: :meth:`take`).
     """
 
     columns = True
-    """:meth:`run_log` works on plain candump blocks as columns (False: frame by frame, the reference path)."""
+    """:meth:`run_log` takes a log's column blocks as columns (False: every frame a block of one, as a quiet live
+    bus gives them: the differential tests' reference)."""
     replay_quiet_ticks = True
     """What :meth:`run_log` sets :attr:`elide_ticks` to (the differential tests turn it off for their reference)."""
 
@@ -148,8 +151,10 @@ class Engine:
         self.last_tick_t = math.nan
         self.last_due_run = -math.inf
         """The time of the last tick or gate deadline run (which row brought it: :meth:`_cross`)."""
-        self._log_run: LogRun | None = None
-        """The runner of recorded logs (made at the first :meth:`run_log`; it keeps its message plans)."""
+        self._blocks = LogRun(self)
+        """The block runner (it keeps its message plans, compiled at the first block of each bus)."""
+        self._live = LogCursor({}, None, {}, None)
+        """Where :meth:`take` is: every frame goes to the bus it is given for."""
 
     # -- the parts' state, as the others read it ---------------------------------------------
     @property
@@ -195,7 +200,7 @@ class Engine:
         self._drive_clock(t)
 
     def frame_time(self, t: float) -> None:
-        """A frame at ``t`` was taken without :meth:`feed` (a log block's rows): the latest frame time moves."""
+        """A frame at ``t`` was taken without :meth:`arrive` (a column block's rows): the latest frame time moves."""
         if t > self._last_frame_t:
             self._last_frame_t = t
 
@@ -258,9 +263,27 @@ class Engine:
         self.journal.flush()
 
     # -- frames in -------------------------------------------------------------------------
+    def take(self, bus: str, block: Iterable[Frame] | Columns | ByteColumns) -> None:
+        """Process a block of frames received on ``bus``, in order: the one way frames come in.
+
+        The live daemon drains its receive queue into a block (one frame on a quiet bus);
+        a recorded log gives blocks of thousands (:meth:`run_log`, which routes each of its
+        channels to a bus). Every frame goes through the same steps (:class:`LogRun`): the
+        ticks and gate deadlines due before it run first, at their own times, then its
+        message's row step (the sources' health, the protection models), then a tick at
+        once when it changed a model's or a source's state.
+        """
+        cursor = self._live
+        cursor.default_bus = bus
+        self._blocks.take(block, cursor)
+
     def feed(self, bus: str, frame: Frame) -> None:
-        """Process one frame received on ``bus`` at ``frame.t``: ticks due before it run first."""
-        t = frame.t
+        """Process one frame received on ``bus`` at ``frame.t``: :meth:`take` of a block of one."""
+        self.take(bus, (frame,))
+
+    def arrive(self, t: float) -> None:
+        """A frame at ``t`` comes in: the latest frame time moves (or it is counted as out of order), the engine
+        starts at the first one, the ticks and gate deadlines due before it run, the clock moves to it."""
         if t >= self._last_frame_t:
             if self._last_frame_t == -math.inf:
                 self.first_frame_t = t
@@ -275,28 +298,12 @@ class Engine:
         if t >= self._due:  # a tick or a gate deadline is due before this frame
             self.advance(t)
         self._drive_clock(t)  # replay: log time drives the clock; live clocks ignore it
-        self.stats.frames += 1
-        if frame.is_error_frame:
-            self.controller_state(bus, frame)
-        edge = False
-        dispatch = self.ctx.dispatch
-        max_abs = self.stats.max_abs
-        counts = self.stats.samples
-        hook = self.sample_hook
-        for sample in self.decoder.decode(frame, bus):
-            if dispatch(sample):
-                edge = True
-            counts[sample.source] = counts.get(sample.source, 0) + 1
-            if hook is not None:
-                hook(sample)
-            if not sample.reason:
-                key = (sample.source, sample.signal)
-                v = abs(sample.value)
-                if v > max_abs.get(key, -1.0):
-                    max_abs[key] = v
-        if edge:
-            self.stats.edge_ticks += 1
-            self.tick(self.clock.now())
+
+    def edge_tick(self, t: float) -> None:
+        """A sample at ``t`` changed a model's or a source's state: the tree ticks at once."""
+        self._drive_clock(t)
+        self.stats.edge_ticks += 1
+        self.tick(self.clock.now())
 
     def next_due(self) -> float:
         """The next time the engine has something to do (a tick or a gate deadline)."""
@@ -589,7 +596,5 @@ class Engine:
         self, frames: Iterable[Frame], route: Mapping[str, str], default_bus: str | None,
         unmapped: dict[str, int], channels: dict[str, int] | None = None,
     ) -> None:
-        """Feed a recorded log through :class:`LogRun` (the same :meth:`feed` / :meth:`advance` as live)."""
-        if self._log_run is None:
-            self._log_run = LogRun(self)
-        self._log_run.run(frames, route, default_bus, unmapped, channels)
+        """Take a recorded log's blocks, each channel routed to a bus, through :class:`LogRun` (as :meth:`take`)."""
+        self._blocks.run(frames, route, default_bus, unmapped, channels)

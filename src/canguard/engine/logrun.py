@@ -1,11 +1,14 @@
-"""Replaying a recorded log through the engine: routing, the unconfigured-frame short path, column blocks.
+"""The engine's block runner: every block of frames, live or recorded, goes through it.
 
-:class:`LogRun` is what :meth:`Engine.run_log <canguard.engine.core.Engine.run_log>` calls:
-the engine's own :meth:`feed` / :meth:`advance` as live, with frames of no configured message
-counted without decoding and column blocks (plain candump text, or python-can
-formats through :mod:`canguard.io.pycan_blocks`) worked on as columns, each
-configured message's rows decoded together (:mod:`canguard.engine.blocks`). It talks
-to the engine through its public interface only.
+:class:`LogRun` is what :meth:`Engine.take <canguard.engine.core.Engine.take>` (the live
+daemon's blocks, a frame on a quiet bus) and :meth:`Engine.run_log
+<canguard.engine.core.Engine.run_log>` (a recorded log's blocks, each channel routed to a
+bus) call. A block is frames, or a column block (plain candump text, numpy byte blocks, or
+python-can formats through :mod:`canguard.io.pycan_blocks`) whose configured rows are
+decoded per message at once. Frames of no configured message are counted without decoding
+while nothing is due; every configured row takes its message's row step
+(:mod:`canguard.engine.blocks`), with the ticks and gate deadlines due before it run
+first and a tick at once after an edge. It talks to the engine through its public interface only.
 """
 
 from __future__ import annotations
@@ -20,6 +23,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 from canguard.engine.blockrows import decode_rows
 from canguard.engine.lanes import LANE, configured_rows, key_table, lane_plans
 from canguard.io.frame import Frame
+from canguard.io.logtypes import id_key
 
 MAX_CATCH_UP_S = 2.0
 """Longest stretch of missed ticks the engine replays one by one after a gap (see :meth:`Engine.advance`)."""
@@ -59,7 +63,9 @@ class Engine(Protocol):
     def due(self) -> float: ...
     @property
     def next_tick_t(self) -> float: ...
-    def feed(self, bus: str, frame: Frame) -> None: ...
+    def arrive(self, t: float) -> None: ...
+    def edge_tick(self, t: float) -> None: ...
+    def controller_state(self, bus: str, frame: Frame) -> None: ...
     def advance(self, now: float) -> None: ...
     def tick(self, now: float) -> py_trees.common.Status: ...
     def drive_clock(self, t: float) -> None: ...
@@ -82,7 +88,9 @@ class LogRun:
         self._lane_plans: dict[tuple[str, ...], tuple[dict[int, MessagePlan | None], tuple[Any, Any]]] = {}
         """Per channels-to-buses of a numpy block that mixes buses: its plans and their key table (:mod:`.lanes`)."""
         self._plan_list: dict[str, list[MessagePlan]] = {}
-        """Per bus: every plan, flushed at the end of each block."""
+        """Per bus: every plan, flushed at the end of each column block of the bus."""
+        self._touched: set[MessagePlan] = set()
+        """The plans that took frames decoded by the frame decoder in this block (flushed at its end)."""
 
     def run(
         self, frames: Iterable[Frame], route: Mapping[str, str], default_bus: str | None,
@@ -103,26 +111,42 @@ class LogRun:
         become frames, and its other rows are looked at only where a tick falls due among
         them (a bisection over the block's timestamps).
         """
-        cursor = _LogCursor(route, default_bus, unmapped, channels)
+        cursor = LogCursor(route, default_bus, unmapped, channels)
         engine = self.engine
         engine.elide_ticks = engine.replay_quiet_ticks  # grid ticks proven to repeat the last one: counted, not run
-        if engine.columns and hasattr(frames, "chunks"):
-            for chunk in frames.chunks():
-                if type(chunk) is list:
-                    self._run_frames(chunk, cursor)
-                elif not self._run_columns(chunk, cursor):
-                    self._run_frames(chunk.frames(), cursor)
-        else:
-            self._run_frames(frames, cursor)
+        chunks: Iterable[Any] = frames.chunks() if engine.columns and hasattr(frames, "chunks") else (frames,)
+        for chunk in chunks:
+            self.take(chunk, cursor)
         last_t = cursor.last_t
         if last_t > -math.inf:
             engine.drive_clock(last_t)
             engine.frame_time(last_t)
 
-    def _run_frames(self, frames: Iterable[Frame], cursor: _LogCursor) -> None:
+    def take(self, block: Iterable[Frame] | Columns | ByteColumns, cursor: LogCursor) -> None:
+        """One block of frames through the engine, whatever its source: a live bus's queue drained (frames), a
+        log's block (column blocks, or frames where the reader could not make one).
+
+        A column block is taken as columns (:meth:`_run_columns`) when its rows are in order; else, and for
+        frames, row by row (:meth:`_run_frames`). Either way each configured row takes its message's row step
+        (:meth:`MessagePlan.step <canguard.engine.blocks.MessagePlan.step>` /
+        :meth:`~canguard.engine.blocks.MessagePlan.take_samples`), and the counts are added at the end.
+        """
+        try:
+            if not hasattr(block, "ordered"):  # frames (a Columns block is a tuple too)
+                self._run_frames(block, cursor)
+            else:
+                cols: Any = block
+                if not self._run_columns(cols, cursor):
+                    self._run_frames(cols.frames(), cursor)
+        finally:
+            touched = self._touched
+            while touched:
+                touched.pop().flush()
+
+    def _run_frames(self, frames: Iterable[Frame], cursor: LogCursor) -> None:
         """:meth:`run` over frames one by one."""
         engine = self.engine
-        feed = engine.feed
+        take_frame = self._frame
         wanted = self._wanted
         per_bus = self.decoder.per_bus
         stats = self.stats
@@ -162,14 +186,43 @@ class LogRun:
                         stats.backward_frames += 1
                     continue
             started = True
-            feed(bus, frame)
+            take_frame(bus, frame)
             if t > last_t:
                 last_t = t
         if channels is not None and last_channel is not None:
             channels[last_channel] = channels.get(last_channel, 0) + run
         cursor.last_t, cursor.started = last_t, started
 
-    def _run_columns(self, cols: Columns | ByteColumns, cursor: _LogCursor) -> bool:
+    def _frame(self, bus: str, frame: Frame) -> None:
+        """One frame received on ``bus`` at ``frame.t``: the ticks due before it first, then its row step."""
+        engine = self.engine
+        engine.arrive(frame.t)
+        if self._decoded(bus, frame):
+            engine.edge_tick(frame.t)
+
+    def _decoded(self, bus: str, frame: Frame) -> bool:
+        """A frame decoded by the frame decoder (:meth:`Decoder.decode`: every reason, error and remote frames,
+        unconfigured ids counted) and its samples through its message's row step; True on an edge."""
+        engine = self.engine
+        self.stats.frames += 1
+        if frame.is_error_frame:
+            engine.controller_state(bus, frame)
+        samples = self.decoder.decode(frame, bus)
+        if not samples:
+            return False
+        hook = engine.sample_hook
+        if hook is not None:
+            for sample in samples:
+                hook(sample)
+        plans = self._plans.get(bus)
+        if plans is None:
+            plans = self._plans[bus] = self._compile_plans(bus)
+        plan = plans[id_key(frame.arbitration_id, frame.is_extended_id)]
+        assert plan is not None  # the decoder gives samples only of a configured message
+        self._touched.add(plan)
+        return plan.take_samples(samples)
+
+    def _run_columns(self, cols: Columns | ByteColumns, cursor: LogCursor) -> bool:
         """:meth:`run` over a column block; False (nothing done) when it must go frame by frame.
 
         A numpy block may mix channels (``lanes``): each row then goes to its channel's bus,
@@ -199,7 +252,7 @@ class LogRun:
         if first and len(rows) and rows[0] == 0:
             rows = rows[1:]
         tally = _lane_tally(cols, rows, first)
-        last_row = int(rows[-1]) if len(rows) else -1  # the last row feed would see, whatever path takes it
+        last_row = int(rows[-1]) if len(rows) else -1  # the last row frame by frame would see, whatever path takes it
         taken: list[tuple[MessagePlan, Any, Sequence[Any]]] | None = [] if export is not None else None
         quiet = engine.quiet
         slots = decode_rows(plans, rows, cols, ts, quiet.fixed, keys, taken, quiet.block_horizon) if len(rows) else []
@@ -228,7 +281,7 @@ class LogRun:
             engine.frame_time(float(ts[last_row]))  # as frame by frame: the last row fed (not ts[-1])
         return True
 
-    def _route(self, cols: Columns | ByteColumns, cursor: _LogCursor) -> list[str] | bool:
+    def _route(self, cols: Columns | ByteColumns, cursor: LogCursor) -> list[str] | bool:
         """The bus of each of a block's channels (lanes), or of its one channel; True: the block's channel maps
         to no bus (its rows counted as unmapped: done); False: it must go frame by frame."""
         channel = cols.channel
@@ -285,9 +338,10 @@ class LogRun:
         if fed is not None:
             at = [0]
             hook, engine.sample_hook = engine.sample_hook, lambda sample: fed.append((at[0], sample))
-        feed, frame, ts, slots, bus, bus_at = engine.feed, walk.cols.frame, walk.ts, walk.slots, walk.bus, walk.bus_at
+        decoded, frame, ts, slots = self._decoded, walk.cols.frame, walk.ts, walk.slots
+        bus, bus_at = walk.bus, walk.bus_at
         pos = first
-        due = engine.due  # plans never change it; advance, feed and tick may
+        due = engine.due  # plans never change it; advance and tick may
         try:
             for i in walk.rows:
                 item = slots[i]
@@ -300,22 +354,22 @@ class LogRun:
                     if t >= engine.due:
                         engine.advance(t)
                 pos = i + 1
-                edge = plan.step(values, t) if values is not None and plan is not None else None
-                if edge is None:
+                if values is not None and plan is not None:
+                    edge = plan.step(values, t)
+                else:  # a row the column decoder leaves to the frame decoder (its reason, a remote frame...)
                     if fed is not None:
                         at[0] = i
-                    feed(bus if bus_at is None else bus_at[i], frame(i))  # the general path, what plans must equal
-                elif edge:
                     engine.drive_clock(t)
-                    self.stats.edge_ticks += 1
-                    engine.tick(engine.clock.now())
+                    edge = decoded(bus if bus_at is None else bus_at[i], frame(i))
+                if edge:
+                    engine.edge_tick(t)
                 due = engine.due
         finally:
             if fed is not None:
                 engine.sample_hook = hook  # the export's own hook back, whatever the block raised
         return pos
 
-    def _count_lanes(self, cursor: _LogCursor, cols: Any, buses: list[str], tally: list[tuple[int, int]],
+    def _count_lanes(self, cursor: LogCursor, cols: Any, buses: list[str], tally: list[tuple[int, int]],
                      first: int) -> None:
         """Count a block's rows per channel (``cursor.channels``) and its skipped rows (neither fed nor taken
         by a plan) per bus, as frame by frame counts them."""
@@ -335,7 +389,7 @@ class LogRun:
     def _cross(self, ts: Sequence[Any], lo: int, hi: int) -> None:
         """Rows ``lo..hi-1`` (ordered, of no configured message): the first at or after the due time brings the ticks.
 
-        What :meth:`feed` does for such a frame, without decoding it; repeated while
+        What :meth:`Engine.arrive` does for such a frame, without decoding it; repeated while
         another due time falls among the rows left.
         """
         engine = self.engine
@@ -352,15 +406,14 @@ class LogRun:
                 engine.advance(float(ts[k]))
             t = float(ts[k])
             engine.drive_clock(t)
-            engine.frame_time(t)  # as feed: not before it (ordered, from cursor.last_t on)
+            engine.frame_time(t)  # as arrive: not before it (ordered, from cursor.last_t on)
             lo = k + 1
 
     def _compile_plans(self, bus: str) -> dict[str | int, MessagePlan | None]:
-        """Every id text (any letter case) of a message configured on ``bus``, with its plan or None (feed it)."""
+        """Every id text (any letter case) of a message configured on ``bus``, with its plan, or None."""
         from canguard.engine.blocks import compile_plan
         from canguard.engine.settle import may_settle
         from canguard.io.logs import candump_id_texts
-        from canguard.io.logtypes import id_key
 
         counters = self.decoder.per_bus[bus]
         plans: dict[str | int, MessagePlan | None] = {}
@@ -418,8 +471,8 @@ class _Walk:
 
 
 @dataclass
-class _LogCursor:
-    """Where :meth:`Engine.run_log` is in a log: routing, counts, the latest time."""
+class LogCursor:
+    """Where a stream of blocks is (a log, or a live bus): routing, counts, the latest time."""
 
     route: Mapping[str, str]
     default_bus: str | None

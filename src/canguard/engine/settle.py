@@ -127,6 +127,7 @@ def settle(prepared: list[Prepared], end: float = math.inf,
             for model in models:
                 model.take_run(final[j], last_t)
             health.take(role, last_t, final[j])
+            health.samples += len(rows)
             if highs[j] > tops[j]:
                 tops[j] = highs[j]
         plan.seen += len(rows)

@@ -67,6 +67,11 @@ ROW_ROLES = NON_VALUE_ROLES - {PRESENT}
 """Roles a replay block cannot take as columns (the presence flag it checks itself): every row is fed."""
 
 
+_BIG = 1.7976931348623157e308
+"""The largest float: open range bounds, so that +-inf (and NaN) fail the range test of the usual sample."""
+_ANY = (-_BIG, _BIG)
+
+
 @dataclass(slots=True)
 class HealthRun:
     """What :meth:`SourceHealth.observe_run` did with a run of samples.
@@ -106,6 +111,9 @@ class SourceHealth:
             for s in source.signals
             if s.minimum is not None or s.maximum is not None
         }
+        self._limits = {role: (-_BIG if lo is None else float(lo), _BIG if hi is None else float(hi))
+                        for role, (lo, hi) in self._ranges.items()}
+        """Each ranged role's bounds as floats (the largest float where open: +-inf and NaN fail them too)."""
         self._latest_t: dict[str, float] = {}
         self._invalid: dict[str, str] = {}
         self._value: dict[str, float] = {}
@@ -146,7 +154,7 @@ class SourceHealth:
 
     def observe(self, sample: Sample) -> bool:
         """Take one sample of this source (a run of one); True when the source's health reason changed (an edge)."""
-        return self._observe_one(sample.signal, float(sample.t), float(sample.value), sample.reason) is True
+        return self.observe_one(sample.signal, float(sample.t), float(sample.value), sample.reason)
 
     def observe_run(self, role: str, times: npt.ArrayLike, values: npt.ArrayLike,
                     reasons: Sequence[str] | None = None, *, until_edge: bool = False) -> HealthRun:
@@ -213,13 +221,29 @@ class SourceHealth:
         at = np.asarray(edges, dtype=np.intp)
         return HealthRun(at, t[at], tuple(reasons_after), taken)
 
-    def _observe_one(self, role: str, t: float, value: float, own: str) -> bool | None:
-        """The kernel: one sample of ``role``; None when out of order (counted), else True on an edge."""
+    def observe_one(self, role: str, t: float, value: float, own: str = "") -> bool:
+        """One sample of ``role`` at ``t`` (:meth:`observe_run` on a run of one); True on an edge.
+
+        ``own``: the sample's own invalid reason ("" when its decoder found none). A sample
+        out of order (NaN time, older than the latest of its role) is counted and changes nothing.
+        The usual sample (valid, within ``max_age_s`` of a valid previous one of a value role)
+        only becomes the latest, checked in one expression.
+        """
         self.samples += 1
         latest = self._latest_t.get(role)
-        if math.isnan(t) or (latest is not None and t < latest):
+        if latest is not None:
+            if not t >= latest:  # older than the latest, or a NaN time
+                self.out_of_order += 1
+                return False
+            lo, hi = self._limits.get(role, _ANY)
+            if not own and lo <= value <= hi and t - latest <= self.max_age_s and role not in FULL_ROLES \
+                    and not self._invalid.get(role):
+                self._latest_t[role] = self._valid_t[role] = t
+                self._value[role] = value
+                return False
+        elif t != t:
             self.out_of_order += 1
-            return None
+            return False
         bad = self._invalid_code(role, value, own)
         if not bad and role not in FULL_ROLES and self.fresh_valid(role, t):
             self.take(role, t, value)
@@ -228,14 +252,14 @@ class SourceHealth:
 
     def _observe_few(self, role: str, times: list[float], values: list[float], reasons: Sequence[str] | None,
                      until_edge: bool) -> HealthRun:
-        """A short run: every sample through :meth:`_observe_one`, no numpy on the way."""
+        """A short run: every sample through :meth:`observe_one`, no numpy on the way."""
         if reasons is not None and len(reasons) != len(values):
             raise ValueError(f"reasons: expected one per sample ({len(values)}), got {len(reasons)}")
         edges: list[int] = []
         after: list[str] = []
         taken = len(times)
         for i in range(taken):
-            if self._observe_one(role, times[i], values[i], "" if reasons is None else reasons[i]):
+            if self.observe_one(role, times[i], values[i], "" if reasons is None else reasons[i]):
                 edges.append(i)
                 after.append(self._last_reason)
                 if until_edge:
@@ -422,11 +446,6 @@ class SourceHealth:
         """
         latest = self._latest_t.get(role)
         return latest is not None and latest <= t and t - latest <= self.max_age_s and not self._invalid.get(role)
-
-    def settled(self, t: float) -> bool:
-        """True when the source was usable at its last full look and every role is fresh at ``t`` (a presence
-        flag of 1 at ``t`` then changes nothing)."""
-        return not self._last_reason and t - self._ok_since <= self.max_age_s
 
     def take(self, role: str, t: float, value: float) -> None:
         """Take a valid sample of ``role`` for which :meth:`fresh_valid` holds: it only becomes the latest."""

@@ -1,7 +1,7 @@
 """``canguard run``: the live engine, as a systemd service.
 
 The loop: wait for frames until the engine's next deadline (a tick or a gate
-deadline), feed every frame received, advance the engine to now, and tell
+deadline), take the frames received as blocks (:meth:`Engine.take`), advance the engine to now, and tell
 systemd how things stand:
 
 - ``READY=1`` once every bus is open and the tree loaded;
@@ -53,9 +53,11 @@ SWITCH_INTERVAL_S = 0.0005
 """GIL switch interval while the daemon runs (Python's default is 5 ms)."""
 
 LIVE_SKEW_S = 0.5
+"""A frame timestamp further than this from the daemon's clock is replaced by the receive time."""
 OVERRUN_FLOOR_S = 0.05
 """The shortest wait in the receive queue that counts as falling behind (scheduling jitter is below it)."""
-"""A frame timestamp further than this from the daemon's clock is replaced by the receive time."""
+DRAIN = 512
+"""Frames taken from the receive queue after the first, at most, before the engine advances to now."""
 
 
 def guarding(cfg: Config) -> str:
@@ -209,13 +211,7 @@ class Daemon:
                 except queue.Empty:
                     item = None
                 if item is not None:
-                    self._feed(engine, item)
-                    # Drain what else is waiting, but never so long that a tick starves.
-                    for _ in range(512):
-                        try:
-                            self._feed(engine, q.get_nowait())
-                        except queue.Empty:
-                            break
+                    self._take(engine, item, q)
                 engine.advance(self.clock.now())
                 self._drain_bus_errors(engine)
                 if self._down:
@@ -261,17 +257,35 @@ class Daemon:
         fps = ", ".join(f"{bus} {r:.0f} fps" for bus, r in rates.items())
         self.notifier.status(f"{engine.status_line()}; {fps}; {guarding(self.cfg)}")
 
-    def _feed(self, engine: Engine, item: tuple[str, Frame, float]) -> None:
-        bus, frame, received = item
-        waited = time.monotonic() - received
-        if waited > self.overrun_limit_s:
-            engine.overrun(waited, self.overrun_limit_s)  # behind: its data is older than the config allows
-        elif waited < self.overrun_limit_s / 2 and "overrun" in engine.gate.inhibits:
-            engine.caught_up(waited)
-        now = self.clock.now()
-        if abs(frame.t - now) > LIVE_SKEW_S:
-            frame = frame._replace(t=now)  # a bus without sane timestamps: use the time it is fed
-        engine.feed(bus, frame)
+    def _take(self, engine: Engine, item: tuple[str, Frame, float], q: queue.SimpleQueue[tuple[str, Frame, float]]
+              ) -> None:
+        """``item`` and what else is waiting (up to :data:`DRAIN` frames, so that a tick never starves) as blocks
+        of frames in arrival order through :meth:`Engine.take`: a block ends where the bus changes, and before a
+        frame whose wait in the queue starts or ends an overrun (which then comes after the frames before it)."""
+        bus: str = item[0]
+        block: list[Frame] = []
+        for k in range(DRAIN + 1):
+            if k:
+                try:
+                    item = q.get_nowait()
+                except queue.Empty:
+                    break
+            name, frame, received = item
+            waited = time.monotonic() - received
+            held = "overrun" in engine.gate.inhibits
+            behind = not held and waited > self.overrun_limit_s  # its data is older than the config allows
+            back = held and waited < self.overrun_limit_s / 2
+            if block and (name != bus or behind or back):
+                engine.take(bus, block)
+                block = []
+            bus = name
+            if behind:
+                engine.overrun(waited, self.overrun_limit_s)
+            elif back:
+                engine.caught_up(waited)
+            now = self.clock.now()
+            block.append(frame._replace(t=now) if abs(frame.t - now) > LIVE_SKEW_S else frame)  # insane stamps
+        engine.take(bus, block)
 
     def _watchdog_ok(self, engine: Engine) -> bool:
         now = self.clock.now()
