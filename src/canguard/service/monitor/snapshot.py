@@ -3,8 +3,9 @@
 :class:`Observer` is the engine's ``observer``: the engine calls :meth:`Observer.publish` at the
 end of each tick, in its own thread. It reads the node statuses through py_trees (``status``), the
 guards through their :class:`~canguard.bt.loader.GuardView` (model snapshot, source health) and the
-task gate's public state, and hands a frozen :class:`TickSnapshot` to the :class:`~.hub.Hub` by
-assigning one reference: no lock, no queue, nothing a monitor thread could hold up. The statuses are
+task gate's public state, and hands a frozen :class:`TickSnapshot` to the monitor process's
+:class:`~.link.ChildLink`, which sends it without waiting (or keeps it for its next try): no lock, no
+thread of the monitors in the daemon, nothing a monitor could hold up. The statuses are
 read at every tick (cheap, so Groot2 sees every change of a node, and a stop is published in the tick it
 happens); the guards' values at most every :data:`GUARD_PERIOD_S` (a stop is published at once
 with the values as last read, the fresh ones follow), which bounds what the monitors
@@ -27,13 +28,13 @@ from canguard.protect.i2t import ThermalI2t
 
 if TYPE_CHECKING:
     from canguard.engine.core import Engine
-    from canguard.service.monitor.layout import TreeLayout
+    from canguard.service.monitor.layout import LayoutRecord, TreeLayout
 
 log = logging.getLogger(__name__)
 
 
 class SnapshotSink(Protocol):
-    """Where snapshots go (:class:`canguard.service.monitor.hub.Hub`): never blocks the engine's thread."""
+    """Where snapshots go (:class:`canguard.service.monitor.link.ChildLink`): never blocks the engine's thread."""
 
     def blackboard_wanted(self) -> bool: ...
 
@@ -106,7 +107,7 @@ class TickSnapshot:
 
     seq: int
     t: float
-    layout: TreeLayout
+    layout: LayoutRecord
     codes: tuple[int, ...]
     """Per UID (``codes[uid - 1]``), BT.CPP's status code."""
     task: TaskState
@@ -164,7 +165,7 @@ class Observer:
         task = TaskState(gate.state, gate.stop_since, gate.stop_reason, gate.stops, tuple(gate.inhibits.items()),
                          failing, self._stopped_by)
         blackboard = root_blackboard() if self.hub.blackboard_wanted() else None
-        self.hub.put(TickSnapshot(self._seq, now, self.layout, codes, task, self._guard_states,
+        self.hub.put(TickSnapshot(self._seq, now, self.layout.record, codes, task, self._guard_states,
                                   engine.cfg.stop.confirm is not None, blackboard))
 
     def _codes(self) -> tuple[int, ...]:

@@ -1,0 +1,199 @@
+"""The daemon's side of its monitor process: start it, hand it snapshots and events, never wait for it.
+
+The status page's server, its JSON, the server-sent events and Groot2's sockets run in a process of
+their own (``python -m canguard.service.monitor.server``), so none of their work can take the
+daemon's interpreter (its GIL) from the loop. What the loop does here, in the tick that published
+something, is the minimum: pickle one small record (the latest snapshot, the new journal events)
+and offer it to a non-blocking socket. At most one every :data:`MIN_PERIOD_S`; a socket that
+cannot take it now keeps the record for the next try, where a newer snapshot replaces it (latest
+wins; events wait in a bounded deque, the oldest dropped). A monitor process that dies is logged
+once and forgotten: the guard goes on. It is ended when the daemon ends.
+"""
+
+from __future__ import annotations
+
+import errno
+import json
+import logging
+import os
+import socket
+import subprocess
+import sys
+import time
+from collections import deque
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+from canguard.config.monitor import Address
+from canguard.config.schema import MonitorConfig
+from canguard.errors import ConfigError
+from canguard.service.monitor import wire
+from canguard.service.monitor.layout import LayoutRecord
+from canguard.service.monitor.snapshot import TickSnapshot
+
+log = logging.getLogger(__name__)
+
+MIN_PERIOD_S = 0.02
+"""Shortest time between two records sent (Groot2 polls STATUS at up to 50 Hz; the page redraws at most 12.5 Hz)."""
+KEEP_EVENTS = 500
+"""Journal events kept for a monitor process that is behind; past that the oldest are dropped (it says how many)."""
+START_TIMEOUT_S = 30.0
+"""How long the daemon waits at start for its monitor process to listen (a loaded robot takes seconds)."""
+BLACKBOARD_S = 1.0
+"""How long a Groot2 request for the blackboard puts it in the snapshots."""
+
+
+class ChildLink:
+    """The monitor process and the socket to it, as the engine's snapshot sink (:class:`.snapshot.SnapshotSink`)."""
+
+    def __init__(self, settings: MonitorConfig) -> None:
+        self._sock, theirs = wire.socket_pair()
+        try:
+            self._proc = _spawn(theirs)
+        finally:
+            theirs.close()
+        self.http: Address | None = None
+        """Where the status page listens (the port the system gave for port 0), when served."""
+        self.groot2: Address | None = None
+        """Where Groot2's REP socket listens (PUB: port + 1), when served."""
+        try:
+            self._start(settings)
+        except BaseException:
+            self.close()
+            raise
+        self._sock.setblocking(False)
+        self._latest: TickSnapshot | None = None
+        self._layout: LayoutRecord | None = None
+        """The layout the monitor process has (or is being sent)."""
+        self._events: deque[tuple[int, dict[str, Any]]] = deque(maxlen=KEEP_EVENTS)
+        self._event_seq = 0
+        self._outbox: deque[bytes] = deque()
+        """Frames of a message begun but not all taken by the socket: they go first, in order."""
+        self._sent_at = -1.0
+        self._blackboard_until = -1.0
+        self._dead = False
+
+    # -- start and end ---------------------------------------------------------------------------
+    def _start(self, settings: MonitorConfig) -> None:
+        """Tell the process what to serve; wait until it listens (its addresses) or says why it cannot."""
+        self._sock.sendall(json.dumps({"http": settings.http, "groot2": settings.groot2,
+                                       "token": settings.token}).encode())  # never on its command line
+        self._sock.settimeout(START_TIMEOUT_S)
+        try:
+            data = self._sock.recv(65536)
+        except TimeoutError:
+            raise ConfigError(f"monitor: the monitor process did not start within {START_TIMEOUT_S:.0f} s") from None
+        if not data:
+            code = self._proc.wait(5)
+            raise ConfigError(f"monitor: the monitor process ended at start (exit code {code}; its error is above)")
+        doc = wire.read_answer(data)
+        if "error" in doc:
+            raise ConfigError(str(doc["error"]))
+        ready = doc["ready"]
+        self.http = Address(*ready["http"]) if ready.get("http") else None
+        self.groot2 = Address(*ready["groot2"]) if ready.get("groot2") else None
+
+    def close(self) -> None:
+        """End the monitor process (it also ends by itself when the daemon's end of the socket closes)."""
+        self._sock.close()
+        if self._proc.poll() is None:
+            self._proc.terminate()
+            try:
+                self._proc.wait(2)
+            except subprocess.TimeoutExpired:
+                self._proc.kill()
+                self._proc.wait(2)
+
+    @property
+    def pid(self) -> int:
+        """The monitor process's id."""
+        return self._proc.pid
+
+    # -- the engine's side: never blocks ---------------------------------------------------------
+    def put(self, snapshot: TickSnapshot) -> None:
+        """Publish the latest snapshot: sent now when the socket takes it and the last was long enough ago."""
+        self._latest = snapshot
+        mono = time.monotonic()
+        if mono - self._sent_at >= MIN_PERIOD_S and not self._dead:
+            self._flush(mono)
+
+    def event(self, event: Mapping[str, Any]) -> None:
+        """Keep one journal event for the next record (a bounded deque: the oldest go when the process is behind)."""
+        self._event_seq += 1
+        self._events.append((self._event_seq, dict(event)))
+
+    def blackboard_wanted(self) -> bool:
+        """True while a Groot2 client has asked for the blackboard within the last second."""
+        if not self._dead:
+            self._read_requests()
+        return time.monotonic() < self._blackboard_until
+
+    # -- sending -----------------------------------------------------------------------------------
+    def _flush(self, mono: float) -> None:
+        try:
+            if not self._send_outbox():
+                return
+            snap = self._latest
+            if snap is not None and snap.layout is not self._layout:
+                self._layout = snap.layout  # once per tree: the monitor process keeps it
+                self._outbox.extend(wire.frames(("layout", snap.layout)))
+                if not self._send_outbox():
+                    return
+            events = list(self._events)
+            record = None if snap is None else (snap.seq, snap.t, snap.codes, snap.task, snap.guards, snap.confirm,
+                                                snap.blackboard)
+            self._outbox.extend(wire.frames(("tick", events, record)))
+            for _ in events:
+                self._events.popleft()
+            self._sent_at = mono
+            self._send_outbox()
+        except OSError as exc:
+            self._died(exc)
+
+    def _send_outbox(self) -> bool:
+        """Send the frames waiting, in order; False when the socket cannot take more now."""
+        out = self._outbox
+        while out:
+            try:
+                self._sock.send(out[0])
+            except BlockingIOError:
+                return False
+            out.popleft()
+        return True
+
+    def _read_requests(self) -> None:
+        try:
+            while True:
+                data = self._sock.recv(64)
+                if not data:
+                    raise ConnectionResetError(errno.ECONNRESET, "the monitor process closed its socket")
+                if data == wire.WANT_BLACKBOARD:
+                    self._blackboard_until = time.monotonic() + BLACKBOARD_S
+        except BlockingIOError:
+            return
+        except OSError as exc:
+            self._died(exc)
+
+    def _died(self, exc: OSError) -> None:
+        """The monitor process is gone: say so once, stop sending; the guard goes on."""
+        self._dead = True
+        self._outbox.clear()
+        self._events.clear()
+        code = self._proc.poll()
+        log.error("the monitor process (pid %d) %s (%s): the status page and Groot2's monitor are gone; "
+                  "the guard goes on", self._proc.pid,
+                  "is not answering" if code is None else f"ended with exit code {code}", exc)
+
+
+def _spawn(theirs: socket.socket) -> subprocess.Popen[bytes]:
+    """``python -m canguard.service.monitor.server FD``, finding this canguard whatever sys.path the daemon has."""
+    import canguard
+
+    env = dict(os.environ)
+    here = str(Path(canguard.__file__).resolve().parents[1])
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (here, env.get("PYTHONPATH", "")) if p)
+    env.pop("NOTIFY_SOCKET", None)  # systemd's messages are the daemon's to send
+    env.pop("WATCHDOG_USEC", None)
+    return subprocess.Popen([sys.executable, "-m", "canguard.service.monitor.server", str(theirs.fileno())],
+                            pass_fds=(theirs.fileno(),), stdin=subprocess.DEVNULL, env=env)
