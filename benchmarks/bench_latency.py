@@ -365,6 +365,7 @@ def watched_block(trials: int, fps: float, rnd: random.Random, browser: Browser 
         run = threading.Thread(target=daemon.run, daemon=True)
         run.start()
         poller: Groot2Poller | None = None
+        bg: threading.Thread | None = None
         try:
             if watch:
                 deadline = time.monotonic() + 10
@@ -383,6 +384,8 @@ def watched_block(trials: int, fps: float, rnd: random.Random, browser: Browser 
             rendered = browser.rendered() - before if browser is not None and watch else 0
         finally:
             stop.set()
+            if bg is not None:
+                bg.join(5)  # before its bus is shut down
             if poller is not None:
                 polls = poller.close()
                 print(f"  (watched block: the page drew up to snapshot +{rendered}, Groot2 got {polls} STATUS replies)")

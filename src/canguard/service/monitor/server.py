@@ -5,7 +5,8 @@ shows on a command line), starts the status page (:mod:`.web`) and Groot2's moni
 (:mod:`.groot2`) around a :class:`~.hub.Hub`, answers with where they listen (or why they cannot),
 then feeds the hub with what the daemon sends until the daemon's end of the socket closes (the
 daemon ended, however it ended) or SIGTERM. SIGINT and SIGHUP are the daemon's: a Ctrl-C in a
-terminal reaches both processes, and the daemon ends this one as it stops.
+terminal reaches both processes, and the daemon ends this one as it stops. It runs :data:`NICE`
+steps below the daemon's CPU priority.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ from __future__ import annotations
 import contextlib
 import json
 import logging
+import os
 import signal
 import socket
 import sys
@@ -24,9 +26,12 @@ from canguard.errors import ConfigError
 from canguard.service.monitor import wire
 from canguard.service.monitor.hub import Hub
 from canguard.service.monitor.layout import LayoutRecord
-from canguard.service.monitor.snapshot import TickSnapshot
+from canguard.service.monitor.snapshot import GuardState, TaskState, TickSnapshot
 
 log = logging.getLogger("canguard.service.monitor")
+
+NICE = 10
+"""How much lower than the daemon's this process's CPU priority is: on a busy robot the loop gets the CPU first."""
 
 
 class MonitorServer:
@@ -38,6 +43,7 @@ class MonitorServer:
         self.web: Any = None
         self.groot2: Any = None
         self._layout: LayoutRecord | None = None
+        self._guards: tuple[GuardState, ...] = ()
         try:
             if settings.get("http"):
                 self.web = _web(_address(settings["http"]), self.hub, settings.get("token"))
@@ -71,13 +77,17 @@ class MonitorServer:
         """One message of the daemon: a tree's layout, or the journal events and latest snapshot of a tick."""
         if message[0] == "layout":
             self._layout = message[1]
+            self._guards = ()
             return
         _, events, record = message
         for seq, event in events:
             self.hub.event(event, seq)
         if record is not None and self._layout is not None:
             seq, t, codes, task, guards, confirm, blackboard = record
-            self.hub.put(TickSnapshot(seq, t, self._layout, codes, task, guards, confirm, blackboard))
+            if guards is not None:  # else: as in the last snapshot
+                self._guards = tuple(GuardState(*g) for g in guards)
+            self.hub.put(TickSnapshot(seq, t, self._layout, tuple(codes), TaskState(*task), self._guards, confirm,
+                                      blackboard))
 
     def _ask_blackboard(self) -> None:
         with contextlib.suppress(OSError):  # the daemon is busy or gone: no blackboard this time
@@ -131,6 +141,8 @@ def main(argv: list[str] | None = None) -> int:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGHUP, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, _on_term)
+    with contextlib.suppress(OSError):
+        os.nice(NICE)
     logging.basicConfig(level=logging.WARNING, format="canguard monitor: %(levelname)s %(name)s: %(message)s")
     sock = socket.socket(fileno=int(args[0]))
     settings = json.loads(sock.recv(65536).decode() or "{}")

@@ -28,6 +28,14 @@ WANT_BLACKBOARD = b"B"
 """Monitor process → daemon: a Groot2 client asked for the blackboard (put it in the snapshots for 1 s)."""
 
 
+def fields(record: Any) -> tuple[Any, ...]:
+    """A frozen dataclass's field values in their order (``type(record)(*fields(record))`` rebuilds it).
+
+    Pickling plain tuples takes a third of the time pickling the dataclasses does.
+    """
+    return tuple(vars(record).values())
+
+
 def socket_pair() -> tuple[socket.socket, socket.socket]:
     """(the daemon's end, the monitor process's end); neither is inherited by other children."""
     ours, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
