@@ -4,7 +4,7 @@ The status page's server, its JSON, the server-sent events and Groot2's sockets 
 their own (``python -m canguard.service.monitor.server``), so none of their work can take the
 daemon's interpreter (its GIL) from the loop. What the loop does here, in the tick that published
 something, is the minimum: pickle one small record (the latest snapshot, the new journal events)
-and offer it to a non-blocking socket. At most one every :data:`MIN_PERIOD_S`; a socket that
+and offer it to a non-blocking socket. At most one every 20 ms (the Observer's bound); a socket that
 cannot take it now keeps the record for the next try, where a newer snapshot replaces it (latest
 wins; events wait in a bounded deque, the oldest dropped). A monitor process that dies is logged
 once and forgotten: the guard goes on. It is ended when the daemon ends.
@@ -34,8 +34,6 @@ from canguard.service.monitor.snapshot import GuardState, TickSnapshot
 
 log = logging.getLogger(__name__)
 
-MIN_PERIOD_S = 0.02
-"""Shortest time between two records sent (Groot2 polls STATUS at up to 50 Hz; the page redraws at most 12.5 Hz)."""
 KEEP_EVENTS = 500
 """Journal events kept for a monitor process that is behind; past that the oldest are dropped (it says how many)."""
 START_TIMEOUT_S = 30.0
@@ -71,8 +69,7 @@ class ChildLink:
         self._events: deque[tuple[int, dict[str, Any]]] = deque(maxlen=KEEP_EVENTS)
         self._event_seq = 0
         self._outbox: deque[bytes] = deque()
-        """Frames of a message begun but not all taken by the socket: they go first, in order."""
-        self._sent_at = -1.0
+        """The frames of a large message begun but not all taken by the socket: they go first, in order."""
         self._blackboard_until = -1.0
         self._dead = False
 
@@ -114,11 +111,10 @@ class ChildLink:
 
     # -- the engine's side: never blocks ---------------------------------------------------------
     def put(self, snapshot: TickSnapshot) -> None:
-        """Publish the latest snapshot: sent now when the socket takes it and the last was long enough ago."""
+        """Publish the latest snapshot (at most every ``snapshot.PERIOD_S``): sent now if the socket takes it."""
         self._latest = snapshot
-        mono = time.monotonic()
-        if mono - self._sent_at >= MIN_PERIOD_S and not self._dead:
-            self._flush(mono)
+        if not self._dead:
+            self._flush()
 
     def event(self, event: Mapping[str, Any]) -> None:
         """Keep one journal event for the next record (a bounded deque: the oldest go when the process is behind)."""
@@ -132,31 +128,39 @@ class ChildLink:
         return time.monotonic() < self._blackboard_until
 
     # -- sending -----------------------------------------------------------------------------------
-    def _flush(self, mono: float) -> None:
+    def _flush(self) -> None:
+        """Offer the layout (once per tree), then the events and latest snapshot; what is not taken stays for later."""
         try:
-            if not self._send_outbox():
-                return
             snap = self._latest
             if snap is not None and snap.layout is not self._layout:
+                if not self._offer(wire.frames(("layout", snap.layout))):
+                    return
                 self._layout = snap.layout  # once per tree: the monitor process keeps it
                 self._guards = None
-                self._outbox.extend(wire.frames(("layout", snap.layout)))
-                if not self._send_outbox():
-                    return
             events = list(self._events)
-            self._outbox.extend(wire.frames(("tick", events, None if snap is None else self._record(snap))))
-            for _ in events:
-                self._events.popleft()
-            self._sent_at = mono
-            self._send_outbox()
+            if self._offer(wire.frames(("tick", events, None if snap is None else self._record(snap)))):
+                for _ in events:
+                    self._events.popleft()
+                self._guards = None if snap is None else snap.guards
         except OSError as exc:
             self._died(exc)
 
+    def _offer(self, frames: list[bytes]) -> bool:
+        """Send one message (the rest of a large one as the socket takes it); False: nothing of it was taken."""
+        if not self._send_outbox():
+            return False
+        try:
+            self._sock.send(frames[0])
+        except BlockingIOError:
+            return False  # the monitor process is behind: this record is dropped, the next one is newer
+        self._outbox.extend(frames[1:])
+        self._send_outbox()
+        return True
+
     def _record(self, snap: TickSnapshot) -> tuple[Any, ...]:
-        """The snapshot as plain tuples (a third of the pickling time of the dataclasses); guards only when new."""
+        """The snapshot as plain tuples (a fifth of the pickling time of the dataclasses); guards only when new."""
         guards = None
         if snap.guards is not self._guards:  # the Observer reads them every 80 ms, and reuses the tuple between
-            self._guards = snap.guards
             guards = tuple(wire.fields(g) for g in snap.guards)
         return (snap.seq, snap.t, bytes(snap.codes), wire.fields(snap.task), guards, snap.confirm, snap.blackboard)
 
