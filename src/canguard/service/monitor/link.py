@@ -2,12 +2,13 @@
 
 The status page's server, its JSON, the server-sent events and Groot2's sockets run in a process of
 their own (``python -m canguard.service.monitor.server``), so none of their work can take the
-daemon's interpreter (its GIL) from the loop. What the loop does here, in the tick that published
-something, is the minimum: pickle one small record (the latest snapshot, the new journal events)
-and offer it to a non-blocking socket. At most one every 20 ms (the Observer's bound); a socket that
-cannot take it now keeps the record for the next try, where a newer snapshot replaces it (latest
-wins; events wait in a bounded deque, the oldest dropped). A monitor process that dies is logged
-once and forgotten: the guard goes on. It is ended when the daemon ends.
+daemon's interpreter (its GIL) from the loop. The loop's part here is the minimum: it assigns the
+latest snapshot's reference (no lock it could wait on, no system call: a system call hands the GIL
+to another thread, and getting it back can take the loop a switch interval). A sender thread of
+this module looks for news every :data:`POLL_S`, pickles a small record (the new journal events, the latest snapshot as
+plain tuples) and offers it to a non-blocking socket; one the socket cannot take now is dropped for
+the next, newer one (latest wins; events wait in a bounded deque, the oldest dropped). A monitor
+process that dies is logged once and forgotten: the guard goes on. It is ended when the daemon ends.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ import os
 import socket
 import subprocess
 import sys
+import threading
 import time
 from collections import deque
 from collections.abc import Mapping
@@ -38,6 +40,8 @@ KEEP_EVENTS = 500
 """Journal events kept for a monitor process that is behind; past that the oldest are dropped (it says how many)."""
 START_TIMEOUT_S = 30.0
 """How long the daemon waits at start for its monitor process to listen (a loaded robot takes seconds)."""
+POLL_S = 0.02
+"""How often the sender thread looks for a new snapshot, new events and the monitor process's requests."""
 BLACKBOARD_S = 1.0
 """How long a Groot2 request for the blackboard puts it in the snapshots."""
 
@@ -70,8 +74,11 @@ class ChildLink:
         self._event_seq = 0
         self._outbox: deque[bytes] = deque()
         """The frames of a large message begun but not all taken by the socket: they go first, in order."""
+        self._sent: TickSnapshot | None = None
         self._blackboard_until = -1.0
-        self._dead = False
+        self._closing = False
+        self._thread = threading.Thread(target=self._send_loop, name="canguard-monitor-link", daemon=True)
+        self._thread.start()
 
     # -- start and end ---------------------------------------------------------------------------
     def _start(self, settings: MonitorConfig) -> None:
@@ -95,6 +102,10 @@ class ChildLink:
 
     def close(self) -> None:
         """End the monitor process (it also ends by itself when the daemon's end of the socket closes)."""
+        self._closing = True
+        thread = getattr(self, "_thread", None)
+        if thread is not None:
+            thread.join(2)
         self._sock.close()
         if self._proc.poll() is None:
             self._proc.terminate()
@@ -109,12 +120,10 @@ class ChildLink:
         """The monitor process's id."""
         return self._proc.pid
 
-    # -- the engine's side: never blocks ---------------------------------------------------------
+    # -- the engine's side: no lock, no system call, no wait -------------------------------------
     def put(self, snapshot: TickSnapshot) -> None:
-        """Publish the latest snapshot (at most every ``snapshot.PERIOD_S``): sent now if the socket takes it."""
+        """Publish the latest snapshot (at most every ``snapshot.PERIOD_S``): one reference assigned."""
         self._latest = snapshot
-        if not self._dead:
-            self._flush()
 
     def event(self, event: Mapping[str, Any]) -> None:
         """Keep one journal event for the next record (a bounded deque: the oldest go when the process is behind)."""
@@ -123,27 +132,39 @@ class ChildLink:
 
     def blackboard_wanted(self) -> bool:
         """True while a Groot2 client has asked for the blackboard within the last second."""
-        if not self._dead:
-            self._read_requests()
         return time.monotonic() < self._blackboard_until
 
-    # -- sending -----------------------------------------------------------------------------------
+    # -- the sender thread -------------------------------------------------------------------------
+    def _send_loop(self) -> None:
+        """Send what the engine published, read the monitor process's requests; end on close or its death."""
+        while not self._closing:
+            time.sleep(POLL_S)  # polled: a wake-up from the engine would take a lock the engine could wait on
+            try:
+                self._read_requests()
+                self._flush()
+            except OSError as exc:
+                if not self._closing:
+                    self._died(exc)
+                return
+
     def _flush(self) -> None:
-        """Offer the layout (once per tree), then the events and latest snapshot; what is not taken stays for later."""
-        try:
-            snap = self._latest
-            if snap is not None and snap.layout is not self._layout:
-                if not self._offer(wire.frames(("layout", snap.layout))):
-                    return
-                self._layout = snap.layout  # once per tree: the monitor process keeps it
-                self._guards = None
-            events = list(self._events)
-            if self._offer(wire.frames(("tick", events, None if snap is None else self._record(snap)))):
-                for _ in events:
-                    self._events.popleft()
-                self._guards = None if snap is None else snap.guards
-        except OSError as exc:
-            self._died(exc)
+        """Offer the layout (once per tree), then the events and latest snapshot; what is not taken waits for later."""
+        if not self._send_outbox():  # the rest of a large message first
+            return
+        snap = self._latest
+        if snap is not None and snap.layout is not self._layout:
+            if not self._offer(wire.frames(("layout", snap.layout))):
+                return
+            self._layout = snap.layout  # once per tree: the monitor process keeps it
+            self._guards = None
+        if snap is self._sent and not self._events:
+            return
+        events = list(self._events)
+        if self._offer(wire.frames(("tick", events, None if snap is None else self._record(snap)))):
+            for _ in events:
+                self._events.popleft()
+            self._sent = snap
+            self._guards = None if snap is None else snap.guards
 
     def _offer(self, frames: list[bytes]) -> bool:
         """Send one message (the rest of a large one as the socket takes it); False: nothing of it was taken."""
@@ -176,23 +197,18 @@ class ChildLink:
         return True
 
     def _read_requests(self) -> None:
-        try:
-            while True:
+        while True:
+            try:
                 data = self._sock.recv(64)
-                if not data:
-                    raise ConnectionResetError(errno.ECONNRESET, "the monitor process closed its socket")
-                if data == wire.WANT_BLACKBOARD:
-                    self._blackboard_until = time.monotonic() + BLACKBOARD_S
-        except BlockingIOError:
-            return
-        except OSError as exc:
-            self._died(exc)
+            except BlockingIOError:
+                return
+            if not data:
+                raise ConnectionResetError(errno.ECONNRESET, "the monitor process closed its socket")
+            if data == wire.WANT_BLACKBOARD:
+                self._blackboard_until = time.monotonic() + BLACKBOARD_S
 
     def _died(self, exc: OSError) -> None:
         """The monitor process is gone: say so once, stop sending; the guard goes on."""
-        self._dead = True
-        self._outbox.clear()
-        self._events.clear()
         code = self._proc.poll()
         log.error("the monitor process (pid %d) %s (%s): the status page and Groot2's monitor are gone; "
                   "the guard goes on", self._proc.pid,
