@@ -11,7 +11,7 @@ STATUS at 50 Hz, 8,000 background frames/s, the trip and resume trials), with
 - :meth:`Observer.publish` on the engine's thread: calls per second, wall and CPU time per call
   (``time.perf_counter`` / ``time.thread_time`` around it: benchmarks only, the product has no hook).
 
-    PYTHONPATH=src python benchmarks/bench_monitor_cost.py --rounds 3 --trials 300
+    PYTHONPATH=src python benchmarks/bench_monitor_cost.py --blocks 3 --trials 300
     python benchmarks/bench_monitor_cost.py --tree /path/to/other/checkout   # the same for another commit
 """
 
@@ -52,8 +52,8 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--tree", type=Path, default=Path(__file__).resolve().parents[1],
                     help="the checkout whose src/ and benchmarks/bench_latency.py to use (default: this one)")
-    ap.add_argument("--rounds", type=int, default=3)
-    ap.add_argument("--trials", type=int, default=300, help="trip trials per round")
+    ap.add_argument("--blocks", type=int, default=3, help="watched blocks (a fresh daemon each)")
+    ap.add_argument("--trials", type=int, default=300, help="trip trials per block")
     args = ap.parse_args(argv)
     sys.path[:0] = [str(args.tree / "src"), str(args.tree / "benchmarks")]
     import bench_latency
@@ -70,7 +70,7 @@ def main(argv: list[str] | None = None) -> int:
     snapshot.Observer.publish = timed  # type: ignore[method-assign]
     rnd = random.Random(1)
     cpu_s = wall_s = 0.0
-    for r in range(args.rounds):
+    for r in range(args.blocks):
         seen: dict[int, tuple[str, float]] = {}
         stop = threading.Event()
 
@@ -88,10 +88,10 @@ def main(argv: list[str] | None = None) -> int:
         used = sum(c for name, c in seen.values() if name.startswith(THREAD_PREFIX))
         cpu_s += used
         wall_s += wall
-        print(f"round {r}: the monitors' threads in the daemon's process used {used / wall * 100:.2f} % of the run")
+        print(f"block {r}: the monitors' threads in the daemon's process used {used / wall * 100:.2f} % of the run")
     w = sorted(c[0] for c in calls)
     c = sorted(c[1] for c in calls)
-    print(f"{args.tree} ({args.rounds} rounds of {args.trials} trials, load {os.getloadavg()[0]:.1f})")
+    print(f"{args.tree} ({args.blocks} blocks of {args.trials} trials, load {os.getloadavg()[0]:.1f})")
     print(f"  monitor threads in the daemon's process: {cpu_s / wall_s * 100:.2f} % CPU of the wall time")
     print(f"  Observer.publish on the engine's thread: {len(calls) / wall_s:.0f}/s, wall mean "
           f"{statistics.mean(w) * 1e6:.1f} us, p99 {w[int(0.99 * (len(w) - 1))] * 1e6:.1f} us; CPU mean "
