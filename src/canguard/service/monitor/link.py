@@ -208,8 +208,11 @@ class ChildLink:
                 self._blackboard_until = time.monotonic() + BLACKBOARD_S
 
     def _died(self, exc: OSError) -> None:
-        """The monitor process is gone: say so once, stop sending; the guard goes on."""
-        code = self._proc.poll()
+        """The monitor process is gone: say so once, stop sending; the guard goes on (this is the sender's thread)."""
+        try:
+            code: int | None = self._proc.wait(1)  # its socket closes a moment before it can be reaped
+        except subprocess.TimeoutExpired:
+            code = None
         log.error("the monitor process (pid %d) %s (%s): the status page and Groot2's monitor are gone; "
                   "the guard goes on", self._proc.pid,
                   "is not answering" if code is None else f"ended with exit code {code}", exc)
