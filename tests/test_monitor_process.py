@@ -77,3 +77,33 @@ def test_the_monitor_process_ends_when_the_daemon_is_killed(tmp_path: Path) -> N
         if daemon.poll() is None:
             daemon.kill()
             daemon.wait(WAIT_S)
+
+
+def test_a_port_in_use_names_the_address_and_leaves_no_process() -> None:
+    """A page address already taken is a ConfigError naming it and why, and the monitor process it started is gone."""
+    import socket
+
+    from canguard.config.schema import MonitorConfig
+    from canguard.errors import ConfigError
+    from canguard.service.monitor import Monitor
+
+    taken = socket.socket()
+    try:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        before = set(children())
+        with pytest.raises(ConfigError, match=rf"status page on 127\.0\.0\.1:{port}: cannot listen"):
+            Monitor(MonitorConfig(http=f"127.0.0.1:{port}"))
+        assert set(children()) <= before
+    finally:
+        taken.close()
+
+
+def children() -> list[int]:
+    """The ids of this process's living children."""
+    out = []
+    for task in os.listdir(f"/proc/{os.getpid()}/task"):
+        with open(f"/proc/{os.getpid()}/task/{task}/children", encoding="ascii") as f:
+            out += [int(pid) for pid in f.read().split() if not gone(int(pid))]
+    return out
