@@ -77,6 +77,7 @@ class ChildLink:
         self._sent: TickSnapshot | None = None
         self._blackboard_until = -1.0
         self._closing = False
+        self._failed = False
         self._thread = threading.Thread(target=self._send_loop, name="canguard-monitor-link", daemon=True)
         self._thread.start()
 
@@ -146,6 +147,12 @@ class ChildLink:
                 if not self._closing:
                     self._died(exc)
                 return
+            except Exception:  # a record that cannot be pickled: dropped, the next one goes
+                if not self._failed:
+                    log.exception("a monitor record could not be sent; the monitors show the last good one")
+                self._failed = True
+                self._events.clear()
+                self._sent = self._latest
 
     def _flush(self) -> None:
         """Offer the layout (once per tree), then the events and latest snapshot; what is not taken waits for later."""
