@@ -5,10 +5,11 @@ their own (``python -m canguard.service.monitor.server``), so none of their work
 daemon's interpreter (its GIL) from the loop. The loop's part here is the minimum: it assigns the
 latest snapshot's reference (no lock it could wait on, no system call: a system call hands the GIL
 to another thread, and getting it back can take the loop a switch interval). A sender thread of
-this module looks for news every :data:`POLL_S`, pickles a small record (the new journal events, the latest snapshot as
-plain tuples) and offers it to a non-blocking socket; one the socket cannot take now is dropped for
-the next, newer one (latest wins; events wait in a bounded deque, the oldest dropped). A monitor
-process that dies is logged once and forgotten: the guard goes on. It is ended when the daemon ends.
+this module looks for news every :data:`POLL_S`, pickles a small record (the new journal events,
+the latest snapshot as plain tuples) and offers it to a non-blocking socket; one the socket cannot
+take now is dropped for the next, newer one (latest wins; events wait in a bounded deque, the
+oldest dropped). A monitor process that dies is logged once and forgotten: the guard goes on. It
+is ended when the daemon ends.
 """
 
 from __future__ import annotations
