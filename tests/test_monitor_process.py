@@ -6,6 +6,7 @@ import os
 import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -44,6 +45,31 @@ def test_a_killed_monitor_process_is_logged_once_and_the_guard_goes_on(
         assert msg is not None and msg.arbitration_id in ESTOP_IDS
         [text] = said()  # once, however many snapshots the engine published since
         assert f"pid {pid}" in text and "exit code -9" in text and "the guard goes on" in text
+
+
+def test_a_frozen_monitor_process_neither_delays_a_stop_nor_shows_stale_news_after(tmp_path: Path) -> None:
+    """SIGSTOP to the monitor process: a trip still stops on time; once it runs again, the page shows the stop."""
+    with watched_daemon(tmp_path, groot2=True) as w:
+        wait_for("the task to run", lambda: running(w))
+        pid = w.daemon.monitor.hub.pid
+        os.kill(pid, signal.SIGSTOP)
+        try:
+            peer = w.peer
+            peer.set_filters([{"can_id": i, "can_mask": 0x7FF, "extended": False} for i in ESTOP_IDS])
+            while peer.recv(0) is not None:
+                pass
+            sent = time.monotonic()
+            w.trip()
+            msg = None
+            while msg is None and time.monotonic() - sent < 2.0:
+                msg = peer.recv(0.05)
+            assert msg is not None and msg.arbitration_id in ESTOP_IDS, "no Estop within 2 s with the monitors frozen"
+            stops = w.daemon.engine.gate.stops
+            ticks = w.daemon.engine.stats.ticks  # 50 more: more snapshots than the socket holds for it
+            wait_for("the engine to tick on", lambda: w.daemon.engine.stats.ticks >= ticks + 50)
+        finally:
+            os.kill(pid, signal.SIGCONT)
+        wait_for("the page to show the stop", lambda: w.status()["task"]["stops"] >= stops)
 
 
 def test_the_monitor_process_ends_with_the_daemon(tmp_path: Path) -> None:
