@@ -365,6 +365,7 @@ def watched_block(trials: int, fps: float, rnd: random.Random, browser: Browser 
         run = threading.Thread(target=daemon.run, daemon=True)
         run.start()
         poller: Groot2Poller | None = None
+        bg: threading.Thread | None = None
         try:
             if watch:
                 deadline = time.monotonic() + 10
@@ -383,6 +384,8 @@ def watched_block(trials: int, fps: float, rnd: random.Random, browser: Browser 
             rendered = browser.rendered() - before if browser is not None and watch else 0
         finally:
             stop.set()
+            if bg is not None:
+                bg.join(5)  # before its bus is shut down
             if poller is not None:
                 polls = poller.close()
                 print(f"  (watched block: the page drew up to snapshot +{rendered}, Groot2 got {polls} STATUS replies)")
@@ -472,6 +475,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--fps", type=float, default=8000.0, help="background frames/s (default 8000)")
     ap.add_argument("--only", choices=("in-process", "cross-process", "watched"), help="run one set-up only")
     ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--blocks", type=int, default=4,
+                    help="(c) alternating unwatched/watched blocks the trials are split into (default 4; more "
+                         "spread a shared machine's changing load over both)")
     ap.add_argument("--no-browser", action="store_true",
                     help="(c) without the browser: the daemon's own monitor threads' cost, not chromium's CPU")
     args = ap.parse_args(argv)
@@ -484,7 +490,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.only is None or args.only == "cross-process":
         cross_process(args.trials, args.fps, rnd)
     if args.only is None or args.only == "watched":
-        watched(args.trials, args.fps, rnd, browser=not args.no_browser)
+        watched(args.trials, args.fps, rnd, blocks=args.blocks, browser=not args.no_browser)
     return 0
 
 

@@ -1,12 +1,14 @@
 """Watching the daemon live: the status page (:mod:`.web`) and Groot2's monitor (:mod:`.groot2`).
 
 The engine publishes one immutable snapshot per tick (:class:`.snapshot.Observer`, the engine's
-``observer``); the journal's events are copied on their way to it (:class:`EventTee`). Both land
-in a :class:`.hub.Hub` without a lock; the servers run in their own threads and read only the
-hub. Nothing here can change what canguard does, nor make the loop wait.
+``observer``); the journal's events are copied on their way to it (:class:`EventTee`). Both go to
+:class:`.link.ChildLink`, which hands them without waiting to a process of their own
+(:mod:`.server`): the servers, their JSON and their sockets never take the daemon's interpreter
+from the loop. Nothing there can change what canguard does, nor make the loop wait.
 
 Imported only when a monitor is configured (``monitor:``, ``--http``, ``--groot2``): the
-daemon's start-up without one does not pay for ``http.server`` or ``zmq``.
+daemon's start-up without one does not pay for it, and the daemon never imports ``http.server``
+or ``zmq`` (the monitor process does).
 """
 
 from __future__ import annotations
@@ -15,11 +17,9 @@ import logging
 from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any
 
-from canguard.config.monitor import Address, parse_address
 from canguard.config.schema import MonitorConfig
-from canguard.errors import ConfigError
-from canguard.service.monitor.hub import Hub
 from canguard.service.monitor.layout import TreeLayout
+from canguard.service.monitor.link import ChildLink
 from canguard.service.monitor.snapshot import Observer
 
 if TYPE_CHECKING:
@@ -34,7 +34,7 @@ __all__ = ["EventTee", "Monitor"]
 class EventTee:
     """The daemon's journal, and a copy of each event for the monitors (the journal first)."""
 
-    def __init__(self, journal: EventSink, hub: Hub) -> None:
+    def __init__(self, journal: EventSink, hub: ChildLink) -> None:
         self.journal = journal
         self.hub = hub
 
@@ -49,36 +49,27 @@ class EventTee:
 
 
 class Monitor:
-    """The configured monitors of one daemon: started once, attached to each engine it runs."""
+    """The configured monitors of one daemon: their process started once, attached to each engine it runs.
+
+    Raises :class:`~canguard.errors.ConfigError` when a server cannot listen (naming the address and why).
+    """
 
     def __init__(self, settings: MonitorConfig) -> None:
         self.settings = settings
-        self.hub = Hub()
-        self.web: Any = None
-        self.groot2: Any = None
-        try:
-            if settings.http:
-                self.web = _web(_address(settings.http), self.hub, settings.token)
-            if settings.groot2:
-                self.groot2 = _groot2(_address(settings.groot2, port_span=2), self.hub)
-        except BaseException:
-            self.close()
-            raise
+        self.hub = ChildLink(settings)
+        """The monitor process, as the engine's snapshot sink."""
 
     def start(self) -> None:
-        """Start serving; say where (and that a non-loopback page needs its token)."""
-        self.hub.start()
-        if self.web is not None:
-            self.web.start()
-            addr = self.web.address
+        """Say where the monitors listen (and that a page on the network needs its token)."""
+        addr = self.hub.http
+        if addr is not None:
             if addr.loopback:
                 log.warning("status page on http://%s/ (this machine only)", addr)
             else:
                 log.warning("status page on http://%s/ reachable from the network: every request needs "
                             "'Authorization: Bearer <monitor.token>' (or ?token=<monitor.token>)", addr)
-        if self.groot2 is not None:
-            self.groot2.start()
-            addr = self.groot2.address
+        addr = self.hub.groot2
+        if addr is not None:
             where = "this machine only" if addr.loopback else "reachable from the network, read-only, no token"
             log.warning("Groot2 monitor on %s (REP %d, PUB %d; %s)", addr, addr.port, addr.port + 1, where)
 
@@ -92,38 +83,5 @@ class Monitor:
         return EventTee(journal, self.hub)
 
     def close(self) -> None:
-        """Stop every server and thread."""
+        """End the monitor process."""
         self.hub.close()
-        for server in (self.web, self.groot2):
-            if server is not None:
-                server.close()
-
-
-def _address(text: str, port_span: int = 1) -> Address:
-    address = parse_address(text, port_span=port_span)
-    if isinstance(address, str):  # validated by the config loader / with_overrides already
-        raise ConfigError(f"monitor address {text!r}: expected {address}")
-    return address
-
-
-def _web(address: Address, hub: Hub, token: str | None) -> Any:
-    from canguard.service.monitor.web import WebMonitor
-
-    try:
-        return WebMonitor(address, hub, token)
-    except OSError as exc:
-        raise ConfigError(f"status page on {address}: cannot listen ({exc.strerror or exc})") from exc
-
-
-def _groot2(address: Address, hub: Hub) -> Any:
-    try:
-        from canguard.service.monitor.groot2 import Groot2Monitor
-    except ModuleNotFoundError as exc:
-        if exc.name != "zmq":
-            raise
-        raise ConfigError(f"Groot2 monitor on {address}: needs pyzmq, which is not installed: "
-                          "pip install 'canguard[monitor]'") from None
-    try:
-        return Groot2Monitor(address, hub)
-    except Exception as exc:  # zmq.ZMQError: address in use, no such interface
-        raise ConfigError(f"Groot2 monitor on {address}: cannot listen ({exc})") from exc

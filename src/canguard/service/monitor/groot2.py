@@ -28,7 +28,7 @@ import zmq
 
 from canguard.config.monitor import Address
 from canguard.service.monitor.hub import Hub
-from canguard.service.monitor.layout import TreeLayout
+from canguard.service.monitor.layout import LayoutRecord
 
 log = logging.getLogger(__name__)
 
@@ -160,7 +160,7 @@ class Groot2Monitor:
             if time.monotonic() > deadline or self._stop.wait(0.01):
                 return {}
 
-    def _blackboards(self, layout: TreeLayout, names: str) -> bytes:
+    def _blackboards(self, layout: LayoutRecord, names: str) -> bytes:
         """MessagePack of the asked blackboards that exist: the main tree's is the root blackboard."""
         import msgpack
 
@@ -168,8 +168,8 @@ class Groot2Monitor:
         out: dict[str, Any] = {}
         if layout.main_id in wanted:
             out[layout.main_id] = self._root_entries()
-        for instance in layout.instances[1:]:
-            if instance.path in wanted:
-                out[instance.path] = {}  # a subtree's entries are remapped onto the root's (see docs)
+        for path in layout.paths:
+            if path in wanted:
+                out[path] = {}  # a subtree's entries are remapped onto the root's (see docs)
         packed: bytes = msgpack.packb(out)
         return packed

@@ -1,7 +1,8 @@
-"""Between the engine and the monitors: the latest snapshot, the last journal events, and who to wake.
+"""In the monitor process: the latest snapshot, the last journal events, and who to wake.
 
-The engine's side (:meth:`Hub.put`, :meth:`Hub.event`) only assigns a reference or appends to a
-bounded deque: it takes no lock and waits for no one. A dispatcher thread looks for news every
+The receiving side (:meth:`Hub.put`, :meth:`Hub.event`, the thread reading the daemon's socket in
+:mod:`.server`) only assigns a reference or appends to a bounded deque: it takes no lock and waits
+for no one. A dispatcher thread looks for news every
 :data:`POLL_S`, renders the status document once per change (shared by every client), and wakes
 the clients' threads. A client that reads slowly skips snapshots (it always gets the latest) and,
 past :data:`KEEP_EVENTS`, loses the oldest events (it is told how many): nothing it does reaches
@@ -15,7 +16,7 @@ import math
 import threading
 import time
 from collections import deque
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any
 
 from canguard.engine.event_codec import encode_event
@@ -33,7 +34,9 @@ STATUS_EVENTS = 30
 class Hub:
     """The latest :class:`TickSnapshot` and journal events, for any number of monitor threads."""
 
-    def __init__(self) -> None:
+    def __init__(self, ask_blackboard: Callable[[], None] | None = None) -> None:
+        self._ask_blackboard = ask_blackboard
+        """Tells the daemon that a monitor wants the blackboard in its snapshots."""
         self._latest: TickSnapshot | None = None
         self._events: deque[tuple[int, dict[str, Any]]] = deque(maxlen=KEEP_EVENTS)
         self._event_seq = 0
@@ -46,14 +49,14 @@ class Hub:
         self._closed = threading.Event()
         self._thread: threading.Thread | None = None
 
-    # -- the engine's side: never blocks -------------------------------------------------------
+    # -- the daemon's side: never blocks --------------------------------------------------------
     def put(self, snapshot: TickSnapshot) -> None:
-        """Publish the latest snapshot (the engine's thread)."""
+        """Publish the latest snapshot."""
         self._latest = snapshot
 
-    def event(self, event: Mapping[str, Any]) -> None:
-        """Keep one journal event (the engine's thread; a bounded deque drops the oldest)."""
-        self._event_seq += 1
+    def event(self, event: Mapping[str, Any], seq: int | None = None) -> None:
+        """Keep one journal event, numbered ``seq`` by the daemon (a gap: events it dropped); the oldest go."""
+        self._event_seq = self._event_seq + 1 if seq is None else seq
         self._events.append((self._event_seq, dict(event)))
 
     def blackboard_wanted(self) -> bool:
@@ -64,6 +67,8 @@ class Hub:
     def want_blackboard(self) -> None:
         """Ask the engine to put the root blackboard into its snapshots for the next second."""
         self._blackboard_until = time.monotonic() + 1.0
+        if self._ask_blackboard is not None:
+            self._ask_blackboard()
 
     def latest(self) -> TickSnapshot | None:
         """The latest published snapshot (None before the first tick)."""
@@ -149,21 +154,15 @@ def _number(x: float) -> float | None:
 
 def tree_document(snap: TickSnapshot) -> dict[str, Any]:
     """The tree with each node's status: ``{"main", "status", "root": {uid, type, name, status, children}}``."""
-    codes = snap.codes
-
-    def node(n: Any) -> dict[str, Any]:
-        out = n.as_json()
-        _fill(out, codes)
-        return out
-
-    root = node(snap.layout.root)
+    root = _with_status(snap.layout.tree, snap.codes)
     return {"main": snap.layout.main_id, "status": root["status"], "root": root}
 
 
-def _fill(out: dict[str, Any], codes: tuple[int, ...]) -> None:
-    out["status"] = status_name(codes[out["uid"] - 1])
-    for child in out["children"]:
-        _fill(child, codes)
+def _with_status(node: dict[str, Any], codes: tuple[int, ...]) -> dict[str, Any]:
+    """A copy of the static ``node`` and its children, each with its status (the static tree stays as it is)."""
+    out = {**node, "status": status_name(codes[node["uid"] - 1])}
+    out["children"] = [_with_status(child, codes) for child in node["children"]]
+    return out
 
 
 def task_document(snap: TickSnapshot, events: list[dict[str, Any]]) -> dict[str, Any]:

@@ -49,6 +49,21 @@ class LayoutNode:
         return out
 
 
+@dataclass(frozen=True)
+class LayoutRecord:
+    """What the monitor process needs of a :class:`TreeLayout`: plain data, sent to it once per tree."""
+
+    main_id: str
+    tree: dict[str, Any]
+    """The static tree: ``{uid, type, name, children}`` (:meth:`LayoutNode.as_json`); statuses come per snapshot."""
+    xml: str
+    """Groot2's FULLTREE XML."""
+    uuid: bytes
+    """The tree's 16-byte id in Groot2's replies."""
+    paths: tuple[str, ...]
+    """The ``_fullpath`` of each subtree instance (Groot2's BLACKBOARD names them)."""
+
+
 @dataclass
 class _Instance:
     tree_id: str
@@ -73,6 +88,9 @@ class TreeLayout:
         self.xml = self._fulltree_xml(context)
         self.uuid = uuid.uuid4().bytes
         """The tree's 16-byte id in Groot2's replies: a reload's new tree has a new one, so Groot2 asks for it."""
+        self.record = LayoutRecord(self.main_id, self.root.as_json(), self.xml, self.uuid,
+                                   tuple(i.path for i in self.instances[1:]))
+        """The plain-data form the snapshots carry (the monitor process has no tree of its own)."""
 
     # -- building ----------------------------------------------------------------------------
     def _new(self, node_id: str, name: str, behaviour: Any, **kw: Any) -> LayoutNode:

@@ -3,13 +3,15 @@
 :class:`Observer` is the engine's ``observer``: the engine calls :meth:`Observer.publish` at the
 end of each tick, in its own thread. It reads the node statuses through py_trees (``status``), the
 guards through their :class:`~canguard.bt.loader.GuardView` (model snapshot, source health) and the
-task gate's public state, and hands a frozen :class:`TickSnapshot` to the :class:`~.hub.Hub` by
-assigning one reference: no lock, no queue, nothing a monitor thread could hold up. The statuses are
-read at every tick (cheap, so Groot2 sees every change of a node, and a stop is published in the tick it
-happens); the guards' values at most every :data:`GUARD_PERIOD_S` (a stop is published at once
-with the values as last read, the fresh ones follow), which bounds what the monitors
-cost the loop however busy the tree is (~13 model snapshots, a fraction of a millisecond, 12.5
-times a second).
+task gate's public state, and hands a frozen :class:`TickSnapshot` to the monitor process's
+:class:`~.link.ChildLink`, which sends it without waiting (or keeps it for its next try): no lock, no
+thread of the monitors in the daemon, nothing a monitor could hold up. A snapshot is taken when
+something changed (a node's status, the task's state, an event) and at most every :data:`PERIOD_S`
+(the first tick after that: a stop reaches the monitors within 20 ms, with the guards that stopped
+it read in its own tick); the guards' values at most every :data:`GUARD_PERIOD_S` (a change in
+between is published with the values as last read). That bounds what the monitors cost the loop
+however fast the tree ticks: at most 50 snapshots a second (the node statuses, ~13 model snapshots
+12.5 times a second).
 """
 
 from __future__ import annotations
@@ -27,18 +29,21 @@ from canguard.protect.i2t import ThermalI2t
 
 if TYPE_CHECKING:
     from canguard.engine.core import Engine
-    from canguard.service.monitor.layout import TreeLayout
+    from canguard.service.monitor.layout import LayoutRecord, TreeLayout
 
 log = logging.getLogger(__name__)
 
 
 class SnapshotSink(Protocol):
-    """Where snapshots go (:class:`canguard.service.monitor.hub.Hub`): never blocks the engine's thread."""
+    """Where snapshots go (:class:`canguard.service.monitor.link.ChildLink`): never blocks the engine's thread."""
 
     def blackboard_wanted(self) -> bool: ...
 
     def put(self, snapshot: TickSnapshot) -> None: ...
 
+PERIOD_S = 0.02
+"""Shortest time between two snapshots: a change is published in the first tick this long after the last one
+(Groot2 polls STATUS at up to 50 Hz; the page redraws at most 12.5 times a second)."""
 GUARD_PERIOD_S = 0.08
 """Longest time between two snapshots of the guards' values while nothing else changes."""
 
@@ -106,7 +111,7 @@ class TickSnapshot:
 
     seq: int
     t: float
-    layout: TreeLayout
+    layout: LayoutRecord
     codes: tuple[int, ...]
     """Per UID (``codes[uid - 1]``), BT.CPP's status code."""
     task: TaskState
@@ -131,6 +136,7 @@ class Observer:
         self._key: tuple[Any, ...] = ()
         self._guard_states: tuple[GuardState, ...] = ()
         self._guards_at = -math.inf
+        self._next_at = -math.inf
         self._stops = -1
         self._stopped_by: tuple[str, ...] = ()
         self._failed = False
@@ -145,27 +151,34 @@ class Observer:
             self._failed = True
 
     def _publish(self, engine: Engine, now: float) -> None:
-        codes = self._codes()
         gate = engine.gate
-        failing = tuple(g.name for g in self._guard_nodes if g.status == py_trees.common.Status.FAILURE)
-        if gate.stops != self._stops:
+        if gate.stops != self._stops:  # read in the tick the stop began, however soon the next snapshot is due
             self._stops = gate.stops
-            self._stopped_by = failing
-        key = (codes, gate.state, gate.stops, engine.journal.written, gate.stop_reason)
+            self._stopped_by = self._failing()
         mono = time.monotonic()
+        if mono < self._next_at:  # the one bound on what the monitors cost the loop, however fast it ticks
+            return
+        codes = self._codes()
+        failing = self._failing()
+        key = (codes, gate.state, gate.stops, engine.journal.written, gate.stop_reason)
         stale = mono - self._guards_at >= GUARD_PERIOD_S
         if key == self._key and not stale:
             return
         if stale:  # a node's status or an event in between: published at once, with the guards as last read
             self._guard_states = tuple(self._guard_state(engine, i, now) for i in range(len(self._guards)))
             self._guards_at = mono
+        self._next_at = mono + PERIOD_S
         self._key = key
         self._seq += 1
         task = TaskState(gate.state, gate.stop_since, gate.stop_reason, gate.stops, tuple(gate.inhibits.items()),
                          failing, self._stopped_by)
         blackboard = root_blackboard() if self.hub.blackboard_wanted() else None
-        self.hub.put(TickSnapshot(self._seq, now, self.layout, codes, task, self._guard_states,
+        self.hub.put(TickSnapshot(self._seq, now, self.layout.record, codes, task, self._guard_states,
                                   engine.cfg.stop.confirm is not None, blackboard))
+
+    def _failing(self) -> tuple[str, ...]:
+        """The guard nodes that failed in the tick just done."""
+        return tuple(g.name for g in self._guard_nodes if g.status == py_trees.common.Status.FAILURE)
 
     def _codes(self) -> tuple[int, ...]:
         out = []

@@ -1,0 +1,239 @@
+"""The daemon's side of its monitor process: start it, hand it snapshots and events, never wait for it.
+
+The status page's server, its JSON, the server-sent events and Groot2's sockets run in a process of
+their own (``python -m canguard.service.monitor.server``), so none of their work can take the
+daemon's interpreter (its GIL) from the loop. The loop's part here is the minimum: it assigns the
+latest snapshot's reference (no lock it could wait on, no system call: a system call hands the GIL
+to another thread, and getting it back can take the loop a switch interval). A sender thread of
+this module looks for news every :data:`POLL_S`, pickles a small record (the new journal events,
+the latest snapshot as plain tuples) and offers it to a non-blocking socket; one the socket cannot
+take now is dropped for the next, newer one (latest wins; events wait in a bounded deque, the
+oldest dropped). A monitor process that dies is logged once and forgotten: the guard goes on. It
+is ended when the daemon ends.
+"""
+
+from __future__ import annotations
+
+import errno
+import json
+import logging
+import os
+import socket
+import subprocess
+import sys
+import threading
+import time
+from collections import deque
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+from canguard.config.monitor import Address
+from canguard.config.schema import MonitorConfig
+from canguard.errors import ConfigError
+from canguard.service.monitor import wire
+from canguard.service.monitor.layout import LayoutRecord
+from canguard.service.monitor.snapshot import GuardState, TickSnapshot
+
+log = logging.getLogger(__name__)
+
+KEEP_EVENTS = 500
+"""Journal events kept for a monitor process that is behind; past that the oldest are dropped (it says how many)."""
+START_TIMEOUT_S = 30.0
+"""How long the daemon waits at start for its monitor process to listen (a loaded robot takes seconds)."""
+POLL_S = 0.02
+"""How often the sender thread looks for a new snapshot, new events and the monitor process's requests."""
+BLACKBOARD_S = 1.0
+"""How long a Groot2 request for the blackboard puts it in the snapshots."""
+
+
+class ChildLink:
+    """The monitor process and the socket to it, as the engine's snapshot sink (:class:`.snapshot.SnapshotSink`)."""
+
+    def __init__(self, settings: MonitorConfig) -> None:
+        self._sock, theirs = wire.socket_pair()
+        try:
+            self._proc = _spawn(theirs)
+        finally:
+            theirs.close()
+        self.http: Address | None = None
+        """Where the status page listens (the port the system gave for port 0), when served."""
+        self.groot2: Address | None = None
+        """Where Groot2's REP socket listens (PUB: port + 1), when served."""
+        try:
+            self._start(settings)
+        except BaseException:
+            self.close()
+            raise
+        self._sock.setblocking(False)
+        self._latest: TickSnapshot | None = None
+        self._layout: LayoutRecord | None = None
+        """The layout the monitor process has (or is being sent)."""
+        self._guards: tuple[GuardState, ...] | None = None
+        """The guards' states the monitor process has (or is being sent)."""
+        self._events: deque[tuple[int, dict[str, Any]]] = deque(maxlen=KEEP_EVENTS)
+        self._event_seq = 0
+        self._outbox: deque[bytes] = deque()
+        """The frames of a large message begun but not all taken by the socket: they go first, in order."""
+        self._sent: TickSnapshot | None = None
+        self._blackboard_until = -1.0
+        self._closing = False
+        self._failed = False
+        self._thread = threading.Thread(target=self._send_loop, name="canguard-monitor-link", daemon=True)
+        self._thread.start()
+
+    # -- start and end ---------------------------------------------------------------------------
+    def _start(self, settings: MonitorConfig) -> None:
+        """Tell the process what to serve; wait until it listens (its addresses) or says why it cannot."""
+        self._sock.sendall(json.dumps({"http": settings.http, "groot2": settings.groot2,
+                                       "token": settings.token}).encode())  # never on its command line
+        self._sock.settimeout(START_TIMEOUT_S)
+        try:
+            data = self._sock.recv(65536)
+        except TimeoutError:
+            raise ConfigError(f"monitor: the monitor process did not start within {START_TIMEOUT_S:.0f} s") from None
+        if not data:
+            code = self._proc.wait(5)
+            raise ConfigError(f"monitor: the monitor process ended at start (exit code {code}; its error is above)")
+        doc = wire.read_answer(data)
+        if "error" in doc:
+            raise ConfigError(str(doc["error"]))
+        ready = doc["ready"]
+        self.http = Address(*ready["http"]) if ready.get("http") else None
+        self.groot2 = Address(*ready["groot2"]) if ready.get("groot2") else None
+
+    def close(self) -> None:
+        """End the monitor process (it also ends by itself when the daemon's end of the socket closes)."""
+        self._closing = True
+        thread = getattr(self, "_thread", None)
+        if thread is not None:
+            thread.join(2)
+        self._sock.close()
+        if self._proc.poll() is None:
+            self._proc.terminate()
+            try:
+                self._proc.wait(2)
+            except subprocess.TimeoutExpired:
+                self._proc.kill()
+                self._proc.wait(2)
+
+    @property
+    def pid(self) -> int:
+        """The monitor process's id."""
+        return self._proc.pid
+
+    # -- the engine's side: no lock, no system call, no wait -------------------------------------
+    def put(self, snapshot: TickSnapshot) -> None:
+        """Publish the latest snapshot (at most every ``snapshot.PERIOD_S``): one reference assigned."""
+        self._latest = snapshot
+
+    def event(self, event: Mapping[str, Any]) -> None:
+        """Keep one journal event for the next record (a bounded deque: the oldest go when the process is behind)."""
+        self._event_seq += 1
+        self._events.append((self._event_seq, dict(event)))
+
+    def blackboard_wanted(self) -> bool:
+        """True while a Groot2 client has asked for the blackboard within the last second."""
+        return time.monotonic() < self._blackboard_until
+
+    # -- the sender thread -------------------------------------------------------------------------
+    def _send_loop(self) -> None:
+        """Send what the engine published, read the monitor process's requests; end on close or its death."""
+        while not self._closing:
+            time.sleep(POLL_S)  # polled: a wake-up from the engine would take a lock the engine could wait on
+            try:
+                self._read_requests()
+                self._flush()
+            except OSError as exc:
+                if not self._closing:
+                    self._died(exc)
+                return
+            except Exception:  # a record that cannot be pickled: dropped, the next one goes
+                if not self._failed:
+                    log.exception("a monitor record could not be sent; the monitors show the last good one")
+                self._failed = True
+                self._events.clear()
+                self._sent = self._latest
+
+    def _flush(self) -> None:
+        """Offer the layout (once per tree), then the events and latest snapshot; what is not taken waits for later."""
+        if not self._send_outbox():  # the rest of a large message first
+            return
+        snap = self._latest
+        if snap is not None and snap.layout is not self._layout:
+            if not self._offer(wire.frames(("layout", snap.layout))):
+                return
+            self._layout = snap.layout  # once per tree: the monitor process keeps it
+            self._guards = None
+        if snap is self._sent and not self._events:
+            return
+        events = list(self._events)
+        if self._offer(wire.frames(("tick", events, None if snap is None else self._record(snap)))):
+            for _ in events:
+                self._events.popleft()
+            self._sent = snap
+            self._guards = None if snap is None else snap.guards
+
+    def _offer(self, frames: list[bytes]) -> bool:
+        """Send one message (the rest of a large one as the socket takes it); False: nothing of it was taken."""
+        if not self._send_outbox():
+            return False
+        try:
+            self._sock.send(frames[0])
+        except BlockingIOError:
+            return False  # the monitor process is behind: this record is dropped, the next one is newer
+        self._outbox.extend(frames[1:])
+        self._send_outbox()
+        return True
+
+    def _record(self, snap: TickSnapshot) -> tuple[Any, ...]:
+        """The snapshot as plain tuples (a fifth of the pickling time of the dataclasses); guards only when new."""
+        guards = None
+        if snap.guards is not self._guards:  # the Observer reads them every 80 ms, and reuses the tuple between
+            guards = tuple(wire.fields(g) for g in snap.guards)
+        return (snap.seq, snap.t, bytes(snap.codes), wire.fields(snap.task), guards, snap.confirm, snap.blackboard)
+
+    def _send_outbox(self) -> bool:
+        """Send the frames waiting, in order; False when the socket cannot take more now."""
+        out = self._outbox
+        while out:
+            try:
+                self._sock.send(out[0])
+            except BlockingIOError:
+                return False
+            out.popleft()
+        return True
+
+    def _read_requests(self) -> None:
+        while True:
+            try:
+                data = self._sock.recv(64)
+            except BlockingIOError:
+                return
+            if not data:
+                raise ConnectionResetError(errno.ECONNRESET, "the monitor process closed its socket")
+            if data == wire.WANT_BLACKBOARD:
+                self._blackboard_until = time.monotonic() + BLACKBOARD_S
+
+    def _died(self, exc: OSError) -> None:
+        """The monitor process is gone: say so once, stop sending; the guard goes on (this is the sender's thread)."""
+        try:
+            code: int | None = self._proc.wait(1)  # its socket closes a moment before it can be reaped
+        except subprocess.TimeoutExpired:
+            code = None
+        log.error("the monitor process (pid %d) %s (%s): the status page and Groot2's monitor are gone; "
+                  "the guard goes on", self._proc.pid,
+                  "is not answering" if code is None else f"ended with exit code {code}", exc)
+
+
+def _spawn(theirs: socket.socket) -> subprocess.Popen[bytes]:
+    """``python -m canguard.service.monitor.server FD``, finding this canguard whatever sys.path the daemon has."""
+    import canguard
+
+    env = dict(os.environ)
+    here = str(Path(canguard.__file__).resolve().parents[1])
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (here, env.get("PYTHONPATH", "")) if p)
+    env.pop("NOTIFY_SOCKET", None)  # systemd's messages are the daemon's to send
+    env.pop("WATCHDOG_USEC", None)
+    return subprocess.Popen([sys.executable, "-m", "canguard.service.monitor.server", str(theirs.fileno())],
+                            pass_fds=(theirs.fileno(),), stdin=subprocess.DEVNULL, env=env)

@@ -1,0 +1,164 @@
+"""The monitor process: ``python -m canguard.service.monitor.server FD``, started by the daemon (:mod:`.link`).
+
+It reads what to serve from the socket ``FD`` (the daemon's settings, as JSON: the token never
+shows on a command line), starts the status page (:mod:`.web`) and Groot2's monitor
+(:mod:`.groot2`) around a :class:`~.hub.Hub`, answers with where they listen (or why they cannot),
+then feeds the hub with what the daemon sends until the daemon's end of the socket closes (the
+daemon ended, however it ended) or SIGTERM. SIGINT and SIGHUP are the daemon's: a Ctrl-C in a
+terminal reaches both processes, and the daemon ends this one as it stops. It runs :data:`NICE`
+steps below the daemon's CPU priority.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import os
+import signal
+import socket
+import sys
+from types import FrameType
+from typing import Any
+
+from canguard.config.monitor import Address, parse_address
+from canguard.errors import ConfigError
+from canguard.service.monitor import wire
+from canguard.service.monitor.hub import Hub
+from canguard.service.monitor.layout import LayoutRecord
+from canguard.service.monitor.snapshot import GuardState, TaskState, TickSnapshot
+
+log = logging.getLogger("canguard.service.monitor")
+
+NICE = 10
+"""How much lower than the daemon's this process's CPU priority is: on a busy robot the loop gets the CPU first."""
+
+
+class MonitorServer:
+    """The servers of one monitor process and the hub they read, fed from the daemon's socket."""
+
+    def __init__(self, sock: socket.socket, settings: dict[str, Any]) -> None:
+        self.sock = sock
+        self.hub = Hub(ask_blackboard=self._ask_blackboard)
+        self.web: Any = None
+        self.groot2: Any = None
+        self._layout: LayoutRecord | None = None
+        self._guards: tuple[GuardState, ...] = ()
+        try:
+            if settings.get("http"):
+                self.web = _web(_address(settings["http"]), self.hub, settings.get("token"))
+            if settings.get("groot2"):
+                self.groot2 = _groot2(_address(settings["groot2"], port_span=2), self.hub)
+        except BaseException:
+            self.close()
+            raise
+
+    def addresses(self) -> dict[str, Any]:
+        """Where each server listens: ``{"http": [host, port] | None, "groot2": [host, port] | None}``."""
+        return {name: [server.address.host, server.address.port] if server is not None else None
+                for name, server in (("http", self.web), ("groot2", self.groot2))}
+
+    def serve(self) -> None:
+        """Start the servers, then feed the hub until the daemon's end closes."""
+        self.hub.start()
+        for server in (self.web, self.groot2):
+            if server is not None:
+                server.start()
+        assembler = wire.Assembler()
+        while True:
+            frame = self.sock.recv(wire.FRAME_BYTES + 64)
+            if not frame:
+                return  # the daemon ended
+            done, message = assembler.feed(frame)
+            if done:
+                self.receive(message)
+
+    def receive(self, message: tuple[Any, ...]) -> None:
+        """One message of the daemon: a tree's layout, or the journal events and latest snapshot of a tick."""
+        if message[0] == "layout":
+            self._layout = message[1]
+            self._guards = ()
+            return
+        _, events, record = message
+        for seq, event in events:
+            self.hub.event(event, seq)
+        if record is not None and self._layout is not None:
+            seq, t, codes, task, guards, confirm, blackboard = record
+            if guards is not None:  # else: as in the last snapshot
+                self._guards = tuple(GuardState(*g) for g in guards)
+            self.hub.put(TickSnapshot(seq, t, self._layout, tuple(codes), TaskState(*task), self._guards, confirm,
+                                      blackboard))
+
+    def _ask_blackboard(self) -> None:
+        with contextlib.suppress(OSError):  # the daemon is busy or gone: no blackboard this time
+            self.sock.send(wire.WANT_BLACKBOARD, socket.MSG_DONTWAIT)
+
+    def close(self) -> None:
+        """Stop every server and thread."""
+        self.hub.close()
+        for server in (self.web, self.groot2):
+            if server is not None:
+                server.close()
+
+
+def _address(text: str, port_span: int = 1) -> Address:
+    address = parse_address(text, port_span=port_span)
+    if isinstance(address, str):  # validated by the config loader / with_overrides already
+        raise ConfigError(f"monitor address {text!r}: expected {address}")
+    return address
+
+
+def _web(address: Address, hub: Hub, token: str | None) -> Any:
+    from canguard.service.monitor.web import WebMonitor
+
+    try:
+        return WebMonitor(address, hub, token)
+    except OSError as exc:
+        raise ConfigError(f"status page on {address}: cannot listen ({exc.strerror or exc})") from exc
+
+
+def _groot2(address: Address, hub: Hub) -> Any:
+    try:
+        from canguard.service.monitor.groot2 import Groot2Monitor
+    except ModuleNotFoundError as exc:
+        if exc.name != "zmq":
+            raise
+        raise ConfigError(f"Groot2 monitor on {address}: needs pyzmq, which is not installed: "
+                          "pip install 'canguard[monitor]'") from None
+    try:
+        return Groot2Monitor(address, hub)
+    except Exception as exc:  # zmq.ZMQError: address in use, no such interface
+        raise ConfigError(f"Groot2 monitor on {address}: cannot listen ({exc})") from exc
+
+
+def _on_term(_signum: int, _frame: FrameType | None) -> None:
+    raise SystemExit(0)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Serve the monitors for the daemon at the other end of socket ``argv[0]``; 0 when it ended, 2 on bad settings."""
+    args = sys.argv[1:] if argv is None else argv
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGHUP, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, _on_term)
+    with contextlib.suppress(OSError):
+        os.nice(NICE)
+    logging.basicConfig(level=logging.WARNING, format="canguard monitor: %(levelname)s %(name)s: %(message)s")
+    sock = socket.socket(fileno=int(args[0]))
+    settings = json.loads(sock.recv(65536).decode() or "{}")
+    try:
+        server = MonitorServer(sock, settings)
+    except ConfigError as exc:
+        wire.answer(sock, {"error": str(exc)})
+        return 2
+    try:
+        wire.answer(sock, {"ready": server.addresses()})
+        server.serve()
+    finally:
+        server.close()
+        sock.close()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
