@@ -121,7 +121,7 @@ class TestGuideMatchesUnit:
         assert f"check -c {config}" in guide
         assert unit_value(unit, "StateDirectory") == ["canguard"] and "/var/lib/canguard" in guide
         assert unit_value(unit, "ConfigurationDirectory") == ["canguard"] and f"init {Path(config).parent}" in guide
-        for name in ("80-can0.network", "canguard.service", "metrics.conf"):
+        for name in ("80-can0.network", "canguard.service", "metrics.conf", "monitor.conf"):
             assert (REPO / "systemd" / name).exists() and f"systemd/{name}" in guide
 
     def test_metrics_dropin_runs_the_same_program(self) -> None:

@@ -289,6 +289,15 @@ class TestUnitFiles:
         assert _verify(unit) == []
         assert _exposure(unit) <= 1.2
 
+    def test_monitor_dropin_opens_loopback_ip_only(self, tmp_path: Path) -> None:
+        """With the monitors' drop-in the unit verifies, allows IP sockets to localhost only, rates <= 1.2."""
+        unit = _with_dropin(tmp_path, "monitor.conf")
+        text = unit.read_text()
+        assert "RestrictAddressFamilies=AF_INET AF_INET6" in text and "IPAddressAllow=localhost" in text
+        assert "IPAddressDeny=any" in text
+        assert _verify(unit) == []
+        assert _exposure(unit) <= 1.2
+
     def test_service_keeps_the_can_bus_reachable(self) -> None:
         """The service allows AF_CAN, binds to can0 and does not hide the host network."""
         text = (SYSTEMD_DIR / "canguard.service").read_text()
