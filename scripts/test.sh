@@ -10,14 +10,27 @@ if ! { command -v chromium && command -v chromedriver; } >/dev/null 2>&1 && comm
 fi
 python3 -m venv .venv
 .venv/bin/python -m pip install -q --upgrade pip
-.venv/bin/python -m pip install -q -e ".[test]"
+# pip byte-compiles what it installs one file after another (~25 s of CPU): compileall does it on every core,
+# and, as pip does, leaves a file that does not compile (another Python's, a template) to its source.
+.venv/bin/python -m pip install -q --no-compile -e ".[test]"
+.venv/bin/python -m compileall -q -j 0 .venv/lib/python*/site-packages >/dev/null || true
 .venv/bin/ruff check src tests benchmarks
-.venv/bin/mypy
 .venv/bin/lint-imports --no-cache
 # Bytecode as a wheel install writes it: the tests start canguard in subprocesses, and where the
 # environment sets PYTHONDONTWRITEBYTECODE=1 each would compile the package from source (~90 ms).
 .venv/bin/python -m compileall -q src
+# mypy (~15 s of CPU on one core) checks the package while the tests run, which leave a core idle now and
+# then; its report and exit code come after theirs, and either failing fails the script.
+mypy_out="$(mktemp)"
+.venv/bin/mypy >"$mypy_out" 2>&1 & mypy_pid=$!
+trap 'kill "$mypy_pid" 2>/dev/null || true; rm -f "$mypy_out"' EXIT
 # In parallel (pytest-xdist): a worker per core and one more, since the slow tests, which mostly wait on
 # subprocesses and the clock, start first (tests/conftest.py) and leave a core half idle meanwhile; worksteal
 # evens out tests of very different lengths. `bash scripts/test.sh -n 0` runs them in one process.
-.venv/bin/python -m pytest -q -p no:cacheprovider -n "$(( $(nproc) + 1 ))" --dist worksteal "$@"
+status=0
+.venv/bin/python -m pytest -q -p no:cacheprovider -n "$(( $(nproc) + 1 ))" --dist worksteal "$@" || status=$?
+mypy_status=0
+wait "$mypy_pid" || mypy_status=$?
+cat "$mypy_out"
+[ "$mypy_status" = 0 ] || { echo "test.sh: mypy failed (exit $mypy_status)" >&2; [ "$status" != 0 ] || status=$mypy_status; }
+exit "$status"

@@ -42,40 +42,28 @@ def repo() -> Path:
 def installed_canguard(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The ``canguard`` of this checkout's wheel, installed into a fresh venv outside the checkout.
 
-    Built once per test run: pytest-xdist workers share the session's base directory and
-    take turns under a lock, so the first one builds and the others use it. Needs the
-    package index (or pip's cache) for the dependencies, as ``scripts/test.sh`` does.
+    Built once per test run (``scripts/install_wheel.sh``): pytest-xdist workers share the
+    session's base directory and take turns under a lock, so the first one builds and the
+    others use it. Needs the package index (or pip's cache) for the dependencies, as
+    ``scripts/test.sh`` does.
     """
     import fcntl
-    import os
-    import shutil
     import subprocess
     import sys
 
     root = tmp_path_factory.getbasetemp()
     if os.environ.get("PYTEST_XDIST_WORKER"):
         root = root.parent  # the run's directory, shared by its workers (each has its own basetemp below it)
-    exe = root / "installed-wheel" / "venv" / "bin" / "canguard"
+    work = root / "installed-wheel"
+    exe = work / "venv" / "bin" / "canguard"
     with open(root / "installed-wheel.lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
         if not exe.exists():
-            work = root / "installed-wheel"
-            # Built from a copy: setuptools builds in the source tree (build/), where the smoke script
-            # (scripts/wheel_smoke.sh) may be building at the same time. The copy resolves the package's
-            # symlinks to the checkout's config/, dbc/ and systemd/ and leaves out what a run left there.
-            source = work / "source"
-            shutil.copytree(REPO / "src", source / "src", ignore=shutil.ignore_patterns(
-                "__pycache__", "*.egg-info", "events.jsonl*", "i2t_state.json*"))
-            for name in ("pyproject.toml", "README.md", "LICENSE"):
-                shutil.copy2(REPO / name, source / name)
-            steps = ([sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", str(source), "-w", str(work / "wheel")],
-                     [sys.executable, "-m", "venv", str(work / "venv")],
-                     [str(work / "venv" / "bin" / "pip"), "install", "-q", "--find-links", str(work / "wheel"),
-                      "--only-binary", "canguard", "canguard"])
-            for argv in steps:
-                proc = subprocess.run(argv, capture_output=True, text=True, timeout=600, cwd=work.parent)
-                if proc.returncode != 0:
-                    pytest.fail(f"{' '.join(argv)}: exit {proc.returncode}\n{proc.stdout[-2000:]}{proc.stderr[-3000:]}")
+            argv = ["bash", str(REPO / "scripts" / "install_wheel.sh"), str(work)]
+            proc = subprocess.run(argv, capture_output=True, text=True, timeout=600, cwd=root,
+                                  env={**os.environ, "PYTHON": sys.executable})
+            if proc.returncode != 0:
+                pytest.fail(f"{' '.join(argv)}: exit {proc.returncode}\n{proc.stdout[-2000:]}{proc.stderr[-3000:]}")
     return exe
 
 
