@@ -350,14 +350,19 @@ class Browser:
         return {k: int(v) for k, v in (self.driver.execute_script("return window.__work || {}") or {}).items()}
 
     def show(self, url: str) -> None:
-        """Open the page and wait until it has drawn a few documents (the page settled, as one left open)."""
+        """Open the page and wait until it shows the server's latest document (settled, as a page left open)."""
+        import json
+        import urllib.request
+
         self.driver.get(url)
         deadline = time.monotonic() + 30
-        first = 0
-        while not first or self.rendered() < first + 10:
+        while True:
+            with urllib.request.urlopen(url + "api/status", timeout=5) as answer:
+                latest = int(json.load(answer).get("seq") or 0)
+            if latest and self.rendered() >= latest:
+                return
             if time.monotonic() > deadline:
                 raise RuntimeError("the page did not render")
-            first = first or self.rendered()
             time.sleep(0.05)
 
     def blank(self) -> None:
@@ -409,6 +414,7 @@ def watched_block(trials: int, fps: float, rnd: random.Random, browser: Browser 
         run.start()
         poller: Groot2Poller | None = None
         bg: threading.Thread | None = None
+        rendered = 0
         try:
             if watch:
                 deadline = time.monotonic() + 10
