@@ -350,17 +350,10 @@ class Browser:
         return {k: int(v) for k, v in (self.driver.execute_script("return window.__work || {}") or {}).items()}
 
     def show(self, url: str) -> None:
-        """Open the page and wait until it shows the server's latest document (settled, as a page left open)."""
-        import json
-        import urllib.request
-
+        """Open the page and wait until it drew its first document (the server sends more only when one changed)."""
         self.driver.get(url)
         deadline = time.monotonic() + 30
-        while True:
-            with urllib.request.urlopen(url + "api/status", timeout=5) as answer:
-                latest = int(json.load(answer).get("seq") or 0)
-            if latest and self.rendered() >= latest:
-                return
+        while not self.rendered():
             if time.monotonic() > deadline:
                 raise RuntimeError("the page did not render")
             time.sleep(0.05)
