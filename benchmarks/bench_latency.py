@@ -276,13 +276,18 @@ sock.connect("tcp://127.0.0.1:{port}")
 polls = 0
 while not stop.wait(1.0 / {hz}):
     sock.send_multipart([bytes([2, ord("S")]) + polls.to_bytes(4, "little")])
+    while not stop.is_set() and not sock.poll(100):
+        pass
+    if stop.is_set():
+        break
     sock.recv_multipart()
     polls += 1
     if polls == 1:
         print("ready", flush=True)
 print(polls, flush=True)
 """
-"""A Groot2 stand-in: STATUS requests at ``hz`` (the header's framing), until SIGTERM; prints how many."""
+"""A Groot2 stand-in: STATUS requests at ``hz`` (the header's framing), until SIGTERM; prints how many replies
+it got (a reply still awaited at SIGTERM does not keep it waiting)."""
 
 
 class Browser:
@@ -306,15 +311,51 @@ class Browser:
         """The sequence number of the snapshot the page shows (0 before it showed one)."""
         return int(self.driver.execute_script("return document.body.dataset.seq || 0") or 0)
 
+    def cpu_s(self) -> float:
+        """CPU seconds (user + system) of chromedriver's descendants so far: chromium's processes (``/proc``)."""
+        tick = os.sysconf("SC_CLK_TCK")
+        parents: dict[int, int] = {}
+        times: dict[int, float] = {}
+        for stat in Path("/proc").glob("[0-9]*/stat"):
+            try:
+                fields = stat.read_text().rsplit(")", 1)[1].split()
+            except (OSError, IndexError):
+                continue  # ended meanwhile
+            pid = int(stat.parent.name)
+            parents[pid] = int(fields[1])
+            times[pid] = (int(fields[11]) + int(fields[12])) / tick
+        kids = {self.driver.service.process.pid}
+        grew = True
+        while grew:
+            more = {pid for pid, ppid in parents.items() if ppid in kids} - kids
+            grew = bool(more)
+            kids |= more
+        kids.discard(self.driver.service.process.pid)
+        return sum(times.get(pid, 0.0) for pid in kids)
+
+    def count_work(self) -> None:
+        """Count from now on the page's draws and its DOM writes (nodes added or removed, texts and attributes set)."""
+        self.driver.execute_script("""
+            const w = window.__work = {draws: 0, nodes: 0, writes: 0};
+            const size = (n) => 1 + (n.querySelectorAll ? n.querySelectorAll("*").length : 0);
+            new MutationObserver((records) => { for (const r of records) {
+              if (r.type === "childList") { for (const n of r.addedNodes) w.nodes += size(n);
+                                            for (const n of r.removedNodes) w.nodes += size(n); }
+              else if (r.attributeName === "data-seq") w.draws += 1;
+              else w.writes += 1;
+            } }).observe(document.body, {subtree: true, childList: true, characterData: true, attributes: true});""")
+
+    def work(self) -> dict[str, int]:
+        """What :meth:`count_work` counted: draws, DOM nodes added or removed, other writes."""
+        return {k: int(v) for k, v in (self.driver.execute_script("return window.__work || {}") or {}).items()}
+
     def show(self, url: str) -> None:
-        """Open the page and wait until it has drawn a few documents (the page settled, as one left open)."""
+        """Open the page and wait until it drew its first document (the server sends more only when one changed)."""
         self.driver.get(url)
         deadline = time.monotonic() + 30
-        first = 0
-        while not first or self.rendered() < first + 10:
+        while not self.rendered():
             if time.monotonic() > deadline:
                 raise RuntimeError("the page did not render")
-            first = first or self.rendered()
             time.sleep(0.05)
 
     def blank(self) -> None:
@@ -366,6 +407,7 @@ def watched_block(trials: int, fps: float, rnd: random.Random, browser: Browser 
         run.start()
         poller: Groot2Poller | None = None
         bg: threading.Thread | None = None
+        rendered = 0
         try:
             if watch:
                 deadline = time.monotonic() + 10
@@ -380,8 +422,21 @@ def watched_block(trials: int, fps: float, rnd: random.Random, browser: Browser 
             bg = threading.Thread(target=background, args=(bg_bus, fps, stop), daemon=True)
             bg.start()
             before = browser.rendered() if browser is not None and watch else 0
+            if browser is not None and watch:
+                browser.count_work()
+            cpu0, wall0 = (browser.cpu_s() if browser is not None else 0.0), time.perf_counter()
             guard = guard_trials(peer, trials, rnd)
+            wall = time.perf_counter() - wall0
+            if browser is not None:
+                cpu = browser.cpu_s() - cpu0
+                print(f"  ({'watched' if watch else 'unwatched'} block: chromium CPU {100 * cpu / wall:.1f} % of one "
+                      f"core over {wall:.1f} s of trials)")
             rendered = browser.rendered() - before if browser is not None and watch else 0
+            if browser is not None and watch:
+                work = browser.work()
+                print(f"  (the page: {work.get('draws', 0) / wall:.1f} draws/s, "
+                      f"{work.get('nodes', 0) / max(1, work.get('draws', 0)):.0f} DOM nodes added or removed and "
+                      f"{work.get('writes', 0) / max(1, work.get('draws', 0)):.0f} other writes per draw)")
         finally:
             stop.set()
             if bg is not None:

@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import contextlib
+import itertools
 import json
 import socket
+import threading
 import time
 import urllib.error
 import urllib.request
@@ -95,6 +98,24 @@ class TestStatus:
         with pytest.raises(urllib.error.HTTPError) as err:
             watched.get("/api/nothing")
         assert err.value.code == 404
+
+
+    def test_stream_sends_a_document_only_when_more_than_its_time_changed(self, tmp_path: Path) -> None:
+        """A silent robot: snapshots go on (GET sees them), the stream sends none that only moved in time."""
+        with watched_daemon(tmp_path, robot=False) as w:
+            docs: list[dict[str, Any]] = []
+
+            def read() -> None:
+                with contextlib.suppress(OSError):  # the stream ends with the daemon
+                    docs.extend(json.loads(data) for name, data in sse(w.http + "/api/status") if name == "status")
+
+            threading.Thread(target=read, daemon=True).start()
+            first = wait_for("the stream's first document", lambda: next((d for d in docs if d.get("task")), None))
+            wait_for("20 more snapshots", lambda: w.status()["seq"] >= first["seq"] + 20)
+            sent = [d for d in list(docs) if d.get("task")]
+            timeless = [{**d, "t": None, "seq": None, "task": {**d["task"], "for_s": None}} for d in sent]
+            assert all(a != b for a, b in itertools.pairwise(timeless))
+            assert len(sent) < 10
 
 
 class TestEvents:
@@ -204,4 +225,5 @@ def test_a_failing_monitor_never_stops_the_guard(tmp_path: Path, caplog: pytest.
         w.trip()
         msg = peer.recv(WAIT_S)
         assert msg is not None and msg.arbitration_id in ESTOP_IDS
-    assert any("monitor snapshot failed" in r.getMessage() for r in caplog.records)
+        # the stop's snapshot is taken in a tick after the Estop went out: wait for it, not for the daemon's end
+        wait_for("the log to say why", lambda: any("monitor snapshot failed" in r.getMessage() for r in caplog.records))

@@ -87,7 +87,7 @@ class Hub:
         return self._event_seq
 
     def status_document(self) -> tuple[int, bytes]:
-        """(version, ``/api/status`` JSON) as of the latest change."""
+        """(version, ``/api/status`` JSON): the latest document, its version bumped when more than its time changed."""
         return self._doc
 
     def wait(self, version: int, timeout: float) -> int:
@@ -117,16 +117,21 @@ class Hub:
 
     def _dispatch(self) -> None:
         seen: tuple[TickSnapshot | None, int] | None = None  # the first document goes out at once
+        shown: dict[str, Any] | None = None
         while seen is None or not self._closed.wait(POLL_S):
             now = (self._latest, self._event_seq)
             if seen is not None and now[0] is seen[0] and now[1] == seen[1]:
                 continue
             seen = now
-            doc = json.dumps(self.status(), allow_nan=False, separators=(",", ":")).encode()
+            status = self.status()
+            doc = json.dumps(status, allow_nan=False, separators=(",", ":")).encode()
+            news = _shown(status)
             with self._cond:
-                self._version += 1
-                self._doc = (self._version, doc)
-                self._cond.notify_all()
+                if news != shown:  # streams get a document when what a page shows changed, not its clock alone
+                    self._version += 1
+                    self._cond.notify_all()
+                self._doc = (self._version, doc)  # a plain GET always gets the latest
+            shown = news
 
     def status(self) -> dict[str, Any]:
         """The ``/api/status`` document: tree, task, guards, events."""
@@ -146,6 +151,12 @@ class Hub:
             self._normalized = {k: v for k, v in self._normalized.items() if k > seq - KEEP_EVENTS}
             self._normalized[seq] = form
         return form
+
+
+def _shown(status: dict[str, Any]) -> dict[str, Any]:
+    """``status`` without what changes with the clock alone (the page counts a stop's duration itself)."""
+    task = status.get("task")
+    return {**status, "t": None, "seq": None, "task": {**task, "for_s": None} if task else task}
 
 
 def _number(x: float) -> float | None:

@@ -43,7 +43,7 @@ class SnapshotSink(Protocol):
 
 PERIOD_S = 0.02
 """Shortest time between two snapshots: a change is published in the first tick this long after the last one
-(Groot2 polls STATUS at up to 50 Hz; the page redraws at most 12.5 times a second)."""
+(Groot2 polls STATUS at up to 50 Hz; the page draws at most 10 times a second)."""
 GUARD_PERIOD_S = 0.08
 """Longest time between two snapshots of the guards' values while nothing else changes."""
 
