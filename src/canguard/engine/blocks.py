@@ -95,6 +95,8 @@ class MessagePlan:
         """Each output's sample step (the same objects :meth:`Context.dispatch` uses)."""
         self.index = {(source, role): j for j, (source, role, *_rest) in enumerate(self.outputs)}
         """Each output's index by (source, role): where a decoded sample goes."""
+        self.valid_row = entry.valid_row
+        """The message decoder's valid row of one payload (bound once: every live frame asks it)."""
         if self.single:
             self.step = self._single_step()  # type: ignore[method-assign,assignment]
 
@@ -173,6 +175,20 @@ class MessagePlan:
             return take(v, t)
 
         return step
+
+    def take_payload(self, data: bytes, t: float) -> bool | None:
+        """One frame's payload at ``t`` through :meth:`step` when its row is whole and valid
+        (:attr:`MessageDecoder.valid_row <canguard.decode.message.MessageDecoder.valid_row>`); True on an edge.
+
+        None: nothing taken, the frame decoder must take the frame (a row with a reason, a multiplexer page
+        without the configured signals, a message whose every row goes to it: :attr:`counter`).
+        """
+        if self.counter:
+            return None
+        row = self.valid_row(data)
+        if row is None:
+            return None
+        return self.step(row, t)
 
     def take_samples(self, samples: Sequence[Sample]) -> bool:
         """Take the samples the frame decoder made of one frame of this message (any reason, any subset of

@@ -201,9 +201,23 @@ class LogRun:
             engine.edge_tick(frame.t)
 
     def _decoded(self, bus: str, frame: Frame) -> bool:
-        """A frame decoded by the frame decoder (:meth:`Decoder.decode`: every reason, error and remote frames,
-        unconfigured ids counted) and its samples through its message's row step; True on an edge."""
+        """A frame through its message's row step; True on an edge.
+
+        A frame of a configured message whose row is whole and valid (the common live frame)
+        takes :meth:`MessagePlan.take_payload <canguard.engine.blocks.MessagePlan.take_payload>`:
+        decoded and checked in one step, counted by its plan. Any other (an invalid row, error and
+        remote frames, unconfigured ids, a sample hook) goes to the frame decoder
+        (:meth:`Decoder.decode`: every reason counted) and its samples to the plan's row step.
+        """
         engine = self.engine
+        if not (frame.is_error_frame or frame.is_remote_frame) and engine.sample_hook is None:
+            plans = self._plans.get(bus)
+            if plans is None and bus in self.decoder.per_bus:
+                plans = self._plans[bus] = self._compile_plans(bus)
+            plan = plans.get(id_key(frame.arbitration_id, frame.is_extended_id)) if plans is not None else None
+            if plan is not None and (edge := plan.take_payload(frame.data, frame.t)) is not None:
+                self._touched.add(plan)
+                return edge
         self.stats.frames += 1
         if frame.is_error_frame:
             engine.controller_state(bus, frame)
