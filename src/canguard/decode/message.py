@@ -603,7 +603,7 @@ def _bits_fast(message: Any, wanted: list[Any], limits: tuple[tuple[bool, float,
         big = _from_bytes(data, "big") if want_big else 0
         out = []
         for is_little, shift, mask, sign, code, scale, off, identity, present, lo, hi in reads:
-            value = ((little if is_little else big) >> shift) & mask
+            value: Any = ((little if is_little else big) >> shift) & mask
             if code or value & sign:
                 value = _convert(value, sign, code)
             if not identity:
