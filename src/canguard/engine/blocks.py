@@ -70,6 +70,8 @@ class MessagePlan:
                                  tuple(ctx.subscribers(out.source, out.role))))
         self.names = [(o[0], o[1]) for o in self.outputs]
         """(source, role) of each output: the samples a decoded row gives, in order."""
+        self.keys = tuple((source, (source, role)) for source, role in self.names)
+        """(source, (source, role)) of each output: where :meth:`flush` counts it."""
         self.single = len(self.outputs) == 1
         self.counter = any(role in ROW_ROLES for _src, role, *_rest in self.outputs)
         """An alive counter or a drive's health role: every row goes to the frame decoder (its journal events)."""
@@ -214,25 +216,28 @@ class MessagePlan:
 
     def flush(self) -> None:
         """Add the rows and samples taken since the last flush to the decoder's and the engine's counters."""
-        rows = self.seen + self.empty
+        seen = self.seen
+        rows = seen + self.empty
         if rows:
-            self.counters.frames += rows
-            self.counters.decoded += rows
+            counters = self.counters
+            counters.frames += rows
+            counters.decoded += rows
             self.stats.frames += rows
+            self.seen = self.empty = 0
         elif not any(self.sampled):
             return  # nothing taken since the last flush (most plans, most blocks)
-        seen, sampled, tops = self.seen, self.sampled, self.tops
-        max_abs, counts = self.stats.max_abs, self.stats.samples
-        for j, (source, role, *_rest) in enumerate(self.outputs):
+        sampled, tops = self.sampled, self.tops
+        stats = self.stats
+        max_abs, counts = stats.max_abs, stats.samples
+        for j, (source, key) in enumerate(self.keys):
             n = seen + sampled[j]
             if n:
                 counts[source] = counts.get(source, 0) + n
-                key = (source, role)
-                if tops[j] > max_abs.get(key, -1.0):
-                    max_abs[key] = tops[j]
+                top = tops[j]
+                if top > max_abs.get(key, -1.0):
+                    max_abs[key] = top
                 tops[j] = -1.0
                 sampled[j] = 0
-        self.seen = self.empty = 0
 
     # -- a whole block -----------------------------------------------------------------
     def batch(self, stamps: Sequence[str], rows: Sequence[tuple[float, ...] | None]) -> bool:
