@@ -595,9 +595,10 @@ def _bits_fast(message: Any, wanted: list[Any], limits: tuple[tuple[bool, float,
     want_big = not all(step[0] for step in reads)
 
     def row(data: bytes) -> tuple[float, ...] | None:
-        if len(data) not in lengths:
-            return None
-        if len(data) != size:
+        n = len(data)
+        if n != size:
+            if n not in lengths:
+                return None
             data = data[:size]  # CAN FD padding: cantools reads the DBC length
         little = _from_bytes(data, "little") if want_little else 0
         big = _from_bytes(data, "big") if want_big else 0
