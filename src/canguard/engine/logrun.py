@@ -152,15 +152,12 @@ class LogRun:
     def _run_frames(self, frames: Iterable[Frame], cursor: LogCursor) -> None:
         """:meth:`run` over frames one by one."""
         engine = self.engine
-        decoded = self._decoded
         wanted = self._wanted
-        per_bus = self.decoder.per_bus
-        stats = self.stats
-        route, default_bus, unmapped, channels = cursor.route, cursor.default_bus, cursor.unmapped, cursor.channels
+        route, default_bus, channels = cursor.route, cursor.default_bus, cursor.channels
         last_t, started = cursor.last_t, cursor.started
         last_channel: str | None = None
         run = 0
-        for frame in frames:
+        for frame in frames:  # what a frame reads once is not bound before the loop: a block of one is the live frame
             channel = frame.channel
             if channels is not None:
                 if channel == last_channel:
@@ -169,9 +166,9 @@ class LogRun:
                     if last_channel is not None:
                         channels[last_channel] = channels.get(last_channel, 0) + run
                     last_channel, run = channel, 1
-            bus = route.get(channel, default_bus)
+            bus = route.get(channel, default_bus) if route else default_bus
             if bus is None:
-                unmapped[channel] = unmapped.get(channel, 0) + 1
+                cursor.unmapped[channel] = cursor.unmapped.get(channel, 0) + 1
                 continue
             t = frame.t
             if (
@@ -181,10 +178,11 @@ class LogRun:
                 and not frame.is_remote_frame
                 and t < engine.due
             ):
-                counters = per_bus.get(bus)
+                counters = self.decoder.per_bus.get(bus)
                 if counters is not None:
                     counters.frames += 1
                     counters.skipped += 1
+                    stats = self.stats
                     stats.frames += 1
                     if t >= last_t:
                         last_t = t
@@ -193,7 +191,7 @@ class LogRun:
                     continue
             started = True
             engine.arrive(t)  # the ticks due before it first, then its row step, then a tick at once on an edge
-            if decoded(bus, frame):
+            if self._decoded(bus, frame):
                 engine.edge_tick(t)
             if t > last_t:
                 last_t = t
