@@ -83,7 +83,7 @@ def configured(draw: Any) -> tuple[Message, np.ndarray, list[Output]]:
 @settings(max_examples=EXAMPLES, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(case=configured())
 def test_every_kernel_gives_cantools_rows(case: tuple[Message, np.ndarray, list[Output]]) -> None:
-    """Scalar, iter_unpack, numpy columns and numpy fields give the same rows, each what cantools' value makes."""
+    """Scalar, fused, iter_unpack, numpy columns and numpy fields give the same rows, each what cantools' gives."""
     msg, payload, outputs = case
     decoder = MessageDecoder(msg, outputs)
     n = payload.shape[0]
@@ -91,6 +91,8 @@ def test_every_kernel_gives_cantools_rows(case: tuple[Message, np.ndarray, list[
     want = _key([_expected(msg, outputs, bytes(row)) for row in payload])
     one_by_one = [decoder.decode(bytes(row), 1)[0] for row in payload]
     assert _key(one_by_one) == want, decoder.strategy
+    valid = [decoder.valid_row(bytes(row)) for row in payload]  # the live frame's one step: a valid row or None
+    assert _key(valid) == [row or None for row in want], decoder.strategy
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(canguard.decode.message, "VECTOR_ROWS", 10**9)
         assert _key(decoder.decode(data, n)) == want, decoder.strategy

@@ -189,8 +189,9 @@ def replay(cfg: Config, log: Path, out: Path, *, columns: bool, chunk: int,
             frame_id = entry.message.frame_id
 
             def step(values: tuple[float, ...], t: float) -> bool:
-                counts["handled"] += 1
-                handled_ids.add(frame_id)
+                if counts["in_block"]:  # a column block's row (a frame's valid row takes the step too)
+                    counts["handled"] += 1
+                    handled_ids.add(frame_id)
                 return inner(values, t)
 
             def take_samples(samples: Any) -> bool:

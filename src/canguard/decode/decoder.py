@@ -23,12 +23,12 @@ reports those itself.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 
 from canguard.config.schema import Config, SignalRef
 from canguard.decode.message import Checked, MessageDecoder, Output
-from canguard.decode.rows import EMPTY
+from canguard.decode.rows import EMPTY, Row
 from canguard.io.frame import INVALID_INF, INVALID_LENGTH, INVALID_NAN, INVALID_PAYLOAD, Frame, Sample
 
 _NAN = math.nan
@@ -164,17 +164,27 @@ class Decoder:
             counters.skipped += 1
             return []
         t = frame.t
-        rows = entry.decode(frame.data, 1)
-        row = rows[0]
-        if row:
-            counters.decoded += 1
-            if len(row) == 1:  # most messages: one configured signal
-                (source, role), = entry.names
-                return [_new(Sample, (source, role, row[0], t, ""))]
-            return [_new(Sample, (source, role, v, t, "")) for (source, role), v in zip(entry.names, row, strict=True)]
+        row = entry.valid_row(frame.data)  # the common frame: its row whole and valid, in one step
+        if row is None:
+            rows = entry.decode(frame.data, 1)
+            if not rows[0]:
+                return self._explained(entry, rows, t, counters)
+            row = rows[0]
+        counters.decoded += 1
+        if len(row) == 1:  # most messages: one configured signal
+            (source, role), = entry.names
+            return [_new(Sample, (source, role, row[0], t, ""))]
+        out = []  # a loop, not a comprehension: no function object per frame (Python < 3.12)
+        for (source, role), v in zip(entry.names, row, strict=True):
+            out.append(_new(Sample, (source, role, v, t, "")))
+        return out
+
+    def _explained(self, entry: MessageDecoder, rows: Sequence[Row], t: float,
+                   counters: DecodeCounters) -> list[Sample]:
+        """The samples of one frame whose row is not a tuple of valid values (EMPTY or None), with its reasons."""
         assert isinstance(rows, Checked)  # a block of one is read by the scalar kernel
         reason, cells = rows.verdicts[0]
-        if row is EMPTY:  # a multiplexer page that carries none of the configured signals
+        if rows[0] is EMPTY:  # a multiplexer page that carries none of the configured signals
             counters.decoded += 1
             return []
         if reason in (INVALID_LENGTH, INVALID_PAYLOAD):

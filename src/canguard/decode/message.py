@@ -146,7 +146,7 @@ class MessageDecoder:
     """Decodes the configured signals of one message, a block of payloads at a time (a frame is a block of one)."""
 
     __slots__ = ("_fast", "_iter", "_limits", "_scalar", "_spec", "_structs", "length", "lengths", "message",
-                 "multiplexed", "names", "outputs", "signals", "spans", "strategy")
+                 "multiplexed", "names", "outputs", "signals", "spans", "strategy", "valid_row")
 
     def __init__(self, message: Any, outputs: Sequence[Output]) -> None:
         self.message = message
@@ -172,20 +172,23 @@ class MessageDecoder:
         if compiled is not None:
             self.strategy = STRUCT
             self._structs, index, self._spec = compiled
-            self._scalar = _struct_scalar(self._structs, [index[o.signal] for o in self.outputs])
-            self._iter = _struct_iter(self._structs, [index[o.signal] for o in self.outputs])
-            self._fast = _struct_fast(self._structs, [index[o.signal] for o in self.outputs], self._limits,
-                                      self.lengths)
+            plan = [index[o.signal] for o in self.outputs]
+            self._scalar = _struct_scalar(self._structs, plan)
+            self._iter = _struct_iter(self._structs, plan)
+            self._fast = _struct_fast(self._structs, plan, self._limits, self.lengths)
             if self._spec is not None:
                 self.spans = [(at, width) for at, width, *_ in self._spec]
-            return
-        bits = _bits_kernel(message, wanted, self.length)
-        if bits is not None:
+        elif (bits := _bits_kernel(message, wanted, self.length)) is not None:
             self.strategy = BITS
             self._scalar = bits
+            self._fast = _bits_fast(message, wanted, self._limits, self.lengths)
         else:
             self.strategy = CANTOOLS
             self._scalar = _cantools_kernel(message, [o.signal for o in self.outputs])
+        self.valid_row: Callable[[bytes], tuple[float, ...] | None] = (
+            self._fast if self._fast is not None else self._valid_of_row)
+        """One payload's row when it is whole and valid (the common live frame), else None (:meth:`decode` says
+        why): the fused kernel of a plain message, decoded and checked in one step, where there is one."""
 
     # -- what a caller asks before decoding ------------------------------------------------
     def reads_fields(self, rows: int) -> bool:
@@ -238,6 +241,11 @@ class MessageDecoder:
         for data in payloads:
             rows.add(self._row(data))
         return rows
+
+    def _valid_of_row(self, data: bytes) -> tuple[float, ...] | None:
+        """:attr:`valid_row` of a message without a fused kernel: the scalar kernel's row, when valid."""
+        found = self._row(data)
+        return None if isinstance(found, Verdict) or not found else found
 
     def _row(self, data: bytes) -> tuple[float, ...] | Verdict:
         """One payload's checked values, or the verdict on it (the scalar kernel)."""
@@ -565,6 +573,52 @@ def _plain_reader(reads: tuple[tuple[_Field, Any, Any, bool], ...], size: int) -
         return out
 
     return read
+
+
+def _bits_fast(message: Any, wanted: list[Any], limits: tuple[tuple[bool, float, float], ...],
+               lengths: frozenset[int]) -> Callable[[bytes], tuple[float, ...] | None] | None:
+    """The bit maths' valid row of one payload of a message without multiplexing, read and checked in one step
+    (what :func:`_plain_reader` reads, then :meth:`MessageDecoder._row`'s checks), or None when the payload's
+    row is anything else (the caller then takes the general path); None: a multiplexed or container message."""
+    if message.is_multiplexed() or getattr(message, "is_container", False):
+        return None
+    size = int(message.length)
+    steps = []
+    for signal, (present, lo, hi) in zip(wanted, limits, strict=True):
+        spec = _field(signal, size)
+        if spec is None:
+            return None
+        scale, off = signal.scale, signal.offset
+        steps.append((*spec, scale, off, scale == 1 and off == 0, present, lo, hi))
+    reads = tuple(steps)
+    want_little = any(step[0] for step in reads)
+    want_big = not all(step[0] for step in reads)
+
+    def row(data: bytes) -> tuple[float, ...] | None:
+        n = len(data)
+        if n != size:
+            if n not in lengths:
+                return None
+            data = data[:size]  # CAN FD padding: cantools reads the DBC length
+        little = _from_bytes(data, "little") if want_little else 0
+        big = _from_bytes(data, "big") if want_big else 0
+        out = []
+        for is_little, shift, mask, sign, code, scale, off, identity, present, lo, hi in reads:
+            value: Any = ((little if is_little else big) >> shift) & mask
+            if code or value & sign:
+                value = _convert(value, sign, code)
+            if not identity:
+                value = value * scale + off
+            if present:
+                if value - value != 0.0 or not value:
+                    return None  # NaN, +-inf or 0: check_cell names it
+                value = 1.0
+            if not lo <= value <= hi:  # NaN and +-inf fail the range (compared before float(), as _row does)
+                return None
+            out.append(float(value))
+        return tuple(out)
+
+    return row
 
 
 def _mux_reader(reads: tuple[tuple[_Field, Any, Any, bool, _Pages], ...],

@@ -70,6 +70,8 @@ class MessagePlan:
                                  tuple(ctx.subscribers(out.source, out.role))))
         self.names = [(o[0], o[1]) for o in self.outputs]
         """(source, role) of each output: the samples a decoded row gives, in order."""
+        self.keys = tuple((source, (source, role)) for source, role in self.names)
+        """(source, (source, role)) of each output: where :meth:`flush` counts it."""
         self.single = len(self.outputs) == 1
         self.counter = any(role in ROW_ROLES for _src, role, *_rest in self.outputs)
         """An alive counter or a drive's health role: every row goes to the frame decoder (its journal events)."""
@@ -95,6 +97,8 @@ class MessagePlan:
         """Each output's sample step (the same objects :meth:`Context.dispatch` uses)."""
         self.index = {(source, role): j for j, (source, role, *_rest) in enumerate(self.outputs)}
         """Each output's index by (source, role): where a decoded sample goes."""
+        self.valid_row = entry.valid_row
+        """The message decoder's valid row of one payload (bound once: every live frame asks it)."""
         if self.single:
             self.step = self._single_step()  # type: ignore[method-assign,assignment]
 
@@ -174,6 +178,20 @@ class MessagePlan:
 
         return step
 
+    def take_payload(self, data: bytes, t: float) -> bool | None:
+        """One frame's payload at ``t`` through :meth:`step` when its row is whole and valid
+        (:attr:`MessageDecoder.valid_row <canguard.decode.message.MessageDecoder.valid_row>`); True on an edge.
+
+        None: nothing taken, the frame decoder must take the frame (a row with a reason, a multiplexer page
+        without the configured signals, a message whose every row goes to it: :attr:`counter`).
+        """
+        if self.counter:
+            return None
+        row = self.valid_row(data)
+        if row is None:
+            return None
+        return self.step(row, t)
+
     def take_samples(self, samples: Sequence[Sample]) -> bool:
         """Take the samples the frame decoder made of one frame of this message (any reason, any subset of
         the outputs, in output order); True on an edge. Counted here; the frame itself by the decoder."""
@@ -198,25 +216,28 @@ class MessagePlan:
 
     def flush(self) -> None:
         """Add the rows and samples taken since the last flush to the decoder's and the engine's counters."""
-        rows = self.seen + self.empty
+        seen = self.seen
+        rows = seen + self.empty
         if rows:
-            self.counters.frames += rows
-            self.counters.decoded += rows
+            counters = self.counters
+            counters.frames += rows
+            counters.decoded += rows
             self.stats.frames += rows
+            self.seen = self.empty = 0
         elif not any(self.sampled):
             return  # nothing taken since the last flush (most plans, most blocks)
-        seen, sampled, tops = self.seen, self.sampled, self.tops
-        max_abs, counts = self.stats.max_abs, self.stats.samples
-        for j, (source, role, *_rest) in enumerate(self.outputs):
+        sampled, tops = self.sampled, self.tops
+        stats = self.stats
+        max_abs, counts = stats.max_abs, stats.samples
+        for j, (source, key) in enumerate(self.keys):
             n = seen + sampled[j]
             if n:
                 counts[source] = counts.get(source, 0) + n
-                key = (source, role)
-                if tops[j] > max_abs.get(key, -1.0):
-                    max_abs[key] = tops[j]
+                top = tops[j]
+                if top > max_abs.get(key, -1.0):
+                    max_abs[key] = top
                 tops[j] = -1.0
                 sampled[j] = 0
-        self.seen = self.empty = 0
 
     # -- a whole block -----------------------------------------------------------------
     def batch(self, stamps: Sequence[str], rows: Sequence[tuple[float, ...] | None]) -> bool:

@@ -94,8 +94,9 @@ class Engine:
         self.clock = PinnedClock(clock)
         self._drive_clock = clock.advance_to
         """The inner clock's advance (a no-op live): called per frame, so bound once."""
-        self._due = -math.inf
-        """Earliest time a tick or gate deadline is due: frames before it skip :meth:`advance`."""
+        self.due = -math.inf
+        """Earliest time a tick or gate deadline is due: a frame before it changes nothing but the models (it
+        skips :meth:`advance`). Read it; the engine sets it (a plain attribute: every frame reads it)."""
         clock = self.clock
         self.sink = sink
         self.journal = Journal(clock.now, events, durable=durable, on_event=on_event)
@@ -181,11 +182,6 @@ class Engine:
         self.quiet.elide = on
 
     @property
-    def due(self) -> float:
-        """Earliest time a tick or gate deadline is due: a frame before it changes nothing but the models."""
-        return self._due
-
-    @property
     def next_tick_t(self) -> float:
         """When the next grid tick is due (NaN before the start)."""
         return self._next_tick
@@ -229,7 +225,7 @@ class Engine:
         self.watch.adopt(old.watch)
         self.first_frame_t = old.first_frame_t
         self._last_frame_t = old.last_frame_t
-        self._due = min(self._next_tick, self.gate.next_deadline())
+        self.due = min(self._next_tick, self.gate.next_deadline())
 
     def _carry_models(self, old: Engine) -> None:
         """Each guard of the new tree continues the model state of the same guard in the old tree.
@@ -279,7 +275,9 @@ class Engine:
 
     def feed(self, bus: str, frame: Frame) -> None:
         """Process one frame received on ``bus`` at ``frame.t``: :meth:`take` of a block of one."""
-        self.take(bus, (frame,))
+        cursor = self._live
+        cursor.default_bus = bus
+        self._blocks.take((frame,), cursor)
 
     def arrive(self, t: float) -> None:
         """A frame at ``t`` comes in: the latest frame time moves (or it is counted as out of order), the engine
@@ -290,12 +288,12 @@ class Engine:
             self._last_frame_t = t
         else:
             self.stats.backward_frames += 1  # out of order: the models' own rules handle it
-        if math.isnan(self._next_tick):
+        if self._next_tick != self._next_tick:  # NaN: math.isnan, without its lookups (every frame asks)
             # Not started yet (replay): start at this frame and feed it before the first tick, as live,
             # where the frames queued while the daemon started are fed before its first tick; otherwise
             # every replay began with a "no_data" trip on the very frame that brings the data.
             self.start(t)
-        if t >= self._due:  # a tick or a gate deadline is due before this frame
+        if t >= self.due:  # a tick or a gate deadline is due before this frame
             self.advance(t)
         self._drive_clock(t)  # replay: log time drives the clock; live clocks ignore it
 
@@ -329,7 +327,7 @@ class Engine:
                 # log was millions of task frames (a replay that never ended).
                 self.gate.skip_to(self._next_tick)
         self._run_due(now)
-        self._due = min(self._next_tick, self.gate.next_deadline())
+        self.due = min(self._next_tick, self.gate.next_deadline())
         self.journal.flush()
 
     def _run_due(self, now: float) -> None:
@@ -404,7 +402,7 @@ class Engine:
         self.gate.service(now)
         self.store_heat(now, periodic=True)
         self.journal.flush()
-        self._due = min(self._next_tick, self.gate.next_deadline())
+        self.due = min(self._next_tick, self.gate.next_deadline())
         self.quiet.after_tick(now, events_before, self.metrics is not None or self.tick_hook is not None)
         if self.observer is not None:
             self.observer.publish(self, now)
@@ -438,7 +436,7 @@ class Engine:
         self._next_tick = after
         if gate.next_deadline() <= now:  # the task serviced at the tick is due again already: the loop goes on
             self._run_due(now)
-        self._due = min(self._next_tick, gate.next_deadline())
+        self.due = min(self._next_tick, gate.next_deadline())
         self.journal.flush()
         return True
 
@@ -486,7 +484,7 @@ class Engine:
             gate.service(now)
             self.store_heat(now, periodic=True)
             self.journal.flush()
-            self._due = min(self._next_tick, gate.next_deadline())
+            self.due = min(self._next_tick, gate.next_deadline())
         finally:
             self.clock.unpin()
 
@@ -562,7 +560,7 @@ class Engine:
 
     # -- the watch over inputs (the daemon's calls) ------------------------------------------
     def _deadlines_moved(self) -> None:
-        self._due = min(self._due, self.gate.next_deadline())
+        self.due = min(self.due, self.gate.next_deadline())
 
     def bus_down(self, bus: str, reason: str) -> None:
         """A bus went away: the task stops (frames out on the buses still up) until :meth:`bus_up`."""

@@ -25,6 +25,10 @@ from canguard.engine.lanes import LANE, configured_rows, key_table, lane_plans
 from canguard.io.frame import Frame
 from canguard.io.logtypes import id_key
 
+_FRAME_LISTS = (tuple, list)
+"""The exact types of a block of frames (a live bus's drained queue, :meth:`Engine.feed`'s block of one): told
+apart from a column block (a tuple subclass) without asking for its attributes."""
+
 MAX_CATCH_UP_S = 2.0
 """Longest stretch of missed ticks the engine replays one by one after a gap (see :meth:`Engine.advance`)."""
 
@@ -59,8 +63,7 @@ class Engine(Protocol):
     sample_block: Callable[[Any, list[Any], list[tuple[int, Any]]], None] | None
     last_due_run: float
 
-    @property
-    def due(self) -> float: ...
+    due: float
     @property
     def next_tick_t(self) -> float: ...
     def arrive(self, t: float) -> None: ...
@@ -89,6 +92,8 @@ class LogRun:
         """Per channels-to-buses of a numpy block that mixes buses: its plans and their key table (:mod:`.lanes`)."""
         self._plan_list: dict[str, list[MessagePlan]] = {}
         """Per bus: every plan, flushed at the end of each column block of the bus."""
+        self._by_key: dict[tuple[str, int, bool], MessagePlan] = {}
+        """Every plan by the decoder's key, ``(bus, arbitration_id, is_extended_id)``: a frame's plan in one lookup."""
         self._touched: set[MessagePlan] = set()
         """The plans that took frames decoded by the frame decoder in this block (flushed at its end)."""
 
@@ -132,8 +137,9 @@ class LogRun:
         :meth:`~canguard.engine.blocks.MessagePlan.take_samples`), and the counts are added at the end.
         """
         try:
-            if not hasattr(block, "ordered"):  # frames (a Columns block is a tuple too)
-                self._run_frames(block, cursor)
+            if type(block) in _FRAME_LISTS or not hasattr(block, "ordered"):  # frames (a Columns block is a tuple too)
+                frames: Any = block
+                self._run_frames(frames, cursor)
             else:
                 cols: Any = block
                 if not self._run_columns(cols, cursor):
@@ -146,15 +152,12 @@ class LogRun:
     def _run_frames(self, frames: Iterable[Frame], cursor: LogCursor) -> None:
         """:meth:`run` over frames one by one."""
         engine = self.engine
-        take_frame = self._frame
         wanted = self._wanted
-        per_bus = self.decoder.per_bus
-        stats = self.stats
-        route, default_bus, unmapped, channels = cursor.route, cursor.default_bus, cursor.unmapped, cursor.channels
+        route, default_bus, channels = cursor.route, cursor.default_bus, cursor.channels
         last_t, started = cursor.last_t, cursor.started
         last_channel: str | None = None
         run = 0
-        for frame in frames:
+        for frame in frames:  # what a frame reads once is not bound before the loop: a block of one is the live frame
             channel = frame.channel
             if channels is not None:
                 if channel == last_channel:
@@ -163,9 +166,9 @@ class LogRun:
                     if last_channel is not None:
                         channels[last_channel] = channels.get(last_channel, 0) + run
                     last_channel, run = channel, 1
-            bus = route.get(channel, default_bus)
+            bus = route.get(channel, default_bus) if route else default_bus
             if bus is None:
-                unmapped[channel] = unmapped.get(channel, 0) + 1
+                cursor.unmapped[channel] = cursor.unmapped.get(channel, 0) + 1
                 continue
             t = frame.t
             if (
@@ -175,10 +178,11 @@ class LogRun:
                 and not frame.is_remote_frame
                 and t < engine.due
             ):
-                counters = per_bus.get(bus)
+                counters = self.decoder.per_bus.get(bus)
                 if counters is not None:
                     counters.frames += 1
                     counters.skipped += 1
+                    stats = self.stats
                     stats.frames += 1
                     if t >= last_t:
                         last_t = t
@@ -186,24 +190,34 @@ class LogRun:
                         stats.backward_frames += 1
                     continue
             started = True
-            take_frame(bus, frame)
+            engine.arrive(t)  # the ticks due before it first, then its row step, then a tick at once on an edge
+            if self._decoded(bus, frame):
+                engine.edge_tick(t)
             if t > last_t:
                 last_t = t
         if channels is not None and last_channel is not None:
             channels[last_channel] = channels.get(last_channel, 0) + run
         cursor.last_t, cursor.started = last_t, started
 
-    def _frame(self, bus: str, frame: Frame) -> None:
-        """One frame received on ``bus`` at ``frame.t``: the ticks due before it first, then its row step."""
-        engine = self.engine
-        engine.arrive(frame.t)
-        if self._decoded(bus, frame):
-            engine.edge_tick(frame.t)
-
     def _decoded(self, bus: str, frame: Frame) -> bool:
-        """A frame decoded by the frame decoder (:meth:`Decoder.decode`: every reason, error and remote frames,
-        unconfigured ids counted) and its samples through its message's row step; True on an edge."""
+        """A frame through its message's row step; True on an edge.
+
+        A frame of a configured message whose row is whole and valid (the common live frame)
+        takes :meth:`MessagePlan.take_payload <canguard.engine.blocks.MessagePlan.take_payload>`:
+        decoded and checked in one step, counted by its plan. Any other (an invalid row, error and
+        remote frames, unconfigured ids, a sample hook) goes to the frame decoder
+        (:meth:`Decoder.decode`: every reason counted) and its samples to the plan's row step.
+        """
         engine = self.engine
+        if not (frame.is_error_frame or frame.is_remote_frame) and engine.sample_hook is None:
+            key = (bus, frame.arbitration_id, frame.is_extended_id)
+            plan = self._by_key.get(key)
+            if plan is None and key in self._wanted and bus not in self._plans:
+                self._plans[bus] = self._compile_plans(bus)
+                plan = self._by_key.get(key)
+            if plan is not None and (edge := plan.take_payload(frame.data, frame.t)) is not None:
+                self._touched.add(plan)
+                return edge
         self.stats.frames += 1
         if frame.is_error_frame:
             engine.controller_state(bus, frame)
@@ -436,6 +450,7 @@ class LogRun:
                 plan.settle_ok = may_settle(plan, metrics, self.ctx.read_sources)
                 plan.confirm_read = any(source == confirm for source, *_rest in plan.outputs)
                 made.append(plan)
+                self._by_key[b, cid, ext] = plan
             for text in candump_id_texts(cid, ext):
                 plans[text] = plan
             plans[id_key(cid, ext)] = plan  # the ids of byte blocks (canguard.io.candump_np)
