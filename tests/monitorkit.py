@@ -96,6 +96,19 @@ class Watched:
         doc: dict[str, Any] = self.get("/api/status")
         return doc
 
+    def trip_until_estop(self, within_s: float) -> can.Message | None:
+        """Trip (:meth:`trip`), the peer listening for Estop frames only: the first within ``within_s``, or None."""
+        peer = self.peer
+        peer.set_filters([{"can_id": i, "can_mask": 0x7FF, "extended": False} for i in ESTOP_IDS])
+        while peer.recv(0) is not None:  # Estops of earlier stops: not this trip's
+            pass
+        sent = time.monotonic()
+        self.trip()
+        msg: can.Message | None = None
+        while msg is None and time.monotonic() - sent < within_s:
+            msg = peer.recv(0.05)
+        return msg
+
     def trip(self, current_a: float = 60.0) -> None:
         """A BMS frame far over PackCurrent's 35 A threshold, from the peer."""
         msg = _db().get_message_by_name("BMS_Status")

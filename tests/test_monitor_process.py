@@ -6,7 +6,6 @@ import os
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
@@ -36,12 +35,7 @@ def test_a_killed_monitor_process_is_logged_once_and_the_guard_goes_on(
             return [r.getMessage() for r in caplog.records if "monitor process" in r.getMessage()]
 
         wait_for("the daemon to say the monitor process died", said)
-        peer = w.peer
-        peer.set_filters([{"can_id": i, "can_mask": 0x7FF, "extended": False} for i in ESTOP_IDS])
-        while peer.recv(0) is not None:
-            pass
-        w.trip()
-        msg = peer.recv(WAIT_S)
+        msg = w.trip_until_estop(WAIT_S)
         assert msg is not None and msg.arbitration_id in ESTOP_IDS
         [text] = said()  # once, however many snapshots the engine published since
         assert f"pid {pid}" in text and "exit code -9" in text and "the guard goes on" in text
@@ -54,15 +48,7 @@ def test_a_frozen_monitor_process_neither_delays_a_stop_nor_shows_stale_news_aft
         pid = w.daemon.monitor.hub.pid
         os.kill(pid, signal.SIGSTOP)
         try:
-            peer = w.peer
-            peer.set_filters([{"can_id": i, "can_mask": 0x7FF, "extended": False} for i in ESTOP_IDS])
-            while peer.recv(0) is not None:
-                pass
-            sent = time.monotonic()
-            w.trip()
-            msg = None
-            while msg is None and time.monotonic() - sent < 2.0:
-                msg = peer.recv(0.05)
+            msg = w.trip_until_estop(2.0)
             assert msg is not None and msg.arbitration_id in ESTOP_IDS, "no Estop within 2 s with the monitors frozen"
             stops = w.daemon.engine.gate.stops
             ticks = w.daemon.engine.stats.ticks  # 50 more: more snapshots than the socket holds for it

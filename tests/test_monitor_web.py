@@ -14,7 +14,6 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-import can
 import pytest
 
 from monitorkit import DEMO_GUARDS, ESTOP_IDS, WAIT_S, Watched, running, wait_for, watched_daemon
@@ -190,15 +189,7 @@ def test_stalled_clients_do_not_delay_a_stop(tmp_path: Path) -> None:
                 greedy.send_multipart([b"", bytes([2, ord("T")]) + i.to_bytes(4, "little")], zmq.NOBLOCK)
             seq = w.status()["seq"]  # let ~20 status documents (~100 kB) pile up behind the stalled readers
             wait_for("the status stream to move on", lambda: w.status()["seq"] >= seq + 20)
-            peer = w.peer
-            peer.set_filters([{"can_id": i, "can_mask": 0x7FF, "extended": False} for i in ESTOP_IDS])
-            while peer.recv(0) is not None:
-                pass
-            sent = time.monotonic()
-            w.trip()
-            msg: can.Message | None = None
-            while msg is None and time.monotonic() - sent < 2.0:
-                msg = peer.recv(0.05)
+            msg = w.trip_until_estop(2.0)
             assert msg is not None and msg.arbitration_id in ESTOP_IDS, "no Estop within 2 s while clients stalled"
             # and a fresh client is still served: the page shows the stop once the monitor process has it
             wait_for("the page to show the stop", lambda: w.status()["task"]["state"] == "stopped")
@@ -218,12 +209,7 @@ def test_a_failing_monitor_never_stops_the_guard(tmp_path: Path, caplog: pytest.
             raise RuntimeError("monitor broke")
 
         monkeypatch.setattr(w.daemon.monitor.hub, "put", broken)
-        peer = w.peer
-        peer.set_filters([{"can_id": i, "can_mask": 0x7FF, "extended": False} for i in ESTOP_IDS])
-        while peer.recv(0) is not None:
-            pass
-        w.trip()
-        msg = peer.recv(WAIT_S)
+        msg = w.trip_until_estop(WAIT_S)
         assert msg is not None and msg.arbitration_id in ESTOP_IDS
         # the stop's snapshot is taken in a tick after the Estop went out: wait for it, not for the daemon's end
         wait_for("the log to say why", lambda: any("monitor snapshot failed" in r.getMessage() for r in caplog.records))
