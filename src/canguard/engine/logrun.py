@@ -209,13 +209,10 @@ class LogRun:
         (:meth:`Decoder.decode`: every reason counted) and its samples to the plan's row step.
         """
         engine = self.engine
-        if not (frame.is_error_frame or frame.is_remote_frame) and engine.sample_hook is None:
-            key = (bus, frame.arbitration_id, frame.is_extended_id)
-            plan = self._by_key.get(key)
-            if plan is None and key in self._wanted and bus not in self._plans:
-                self._plans[bus] = self._compile_plans(bus)
-                plan = self._by_key.get(key)
-            if plan is not None and (edge := plan.take_payload(frame.data, frame.t)) is not None:
+        plan = None if frame.is_error_frame or frame.is_remote_frame else self._plan_of(bus, frame)
+        if plan is not None and engine.sample_hook is None:
+            edge = plan.take_payload(frame.data, frame.t)
+            if edge is not None:
                 self._touched.add(plan)
                 return edge
         self.stats.frames += 1
@@ -228,13 +225,18 @@ class LogRun:
         if hook is not None:
             for sample in samples:
                 hook(sample)
-        plans = self._plans.get(bus)
-        if plans is None:
-            plans = self._plans[bus] = self._compile_plans(bus)
-        plan = plans[id_key(frame.arbitration_id, frame.is_extended_id)]
-        assert plan is not None  # the decoder gives samples only of a configured message
+        assert plan is not None  # the decoder gives samples only of a configured message's data frame
         self._touched.add(plan)
         return plan.take_samples(samples)
+
+    def _plan_of(self, bus: str, frame: Frame) -> MessagePlan | None:
+        """The plan of a frame's message on ``bus`` (its bus's plans made at its first frame); None: not configured."""
+        key = (bus, frame.arbitration_id, frame.is_extended_id)
+        plan = self._by_key.get(key)
+        if plan is None and key in self._wanted and bus not in self._plans:
+            self._plans[bus] = self._compile_plans(bus)
+            plan = self._by_key.get(key)
+        return plan
 
     def _run_columns(self, cols: Columns | ByteColumns, cursor: LogCursor) -> bool:
         """:meth:`run` over a column block; False (nothing done) when it must go frame by frame.
