@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import signal
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -17,6 +18,12 @@ from checkout import REPO
 # As every canguard command does before numpy is imported: no BLAS thread pool, so this process is
 # single-threaded where a test forks (--jobs forks only then: canguard.cli.fleet._pool_context).
 one_blas_thread()
+
+# A shell without job control starts `cmd &` with SIGINT ignored, and every child inherits that: a
+# Python child then never installs its KeyboardInterrupt handler, so can.logger, stopped with SIGINT to
+# write out its file, would never stop. Children of the tests get the default disposition back.
+if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 # mutmut (scripts/mutation.sh) runs test methods through its own trampoline, which hypothesis
 # reports as "differing executors"; the tests themselves are unchanged by it.

@@ -31,8 +31,12 @@ from test_canopen_config import EDS, NODE, TREE
 
 WAIT_S = 20.0
 """Upper bound for anything a test waits for (a loaded machine is slow, never this slow)."""
-HEARTBEAT_MS = 500
-"""The drive's heartbeat: its 1.5x timeout (0.75 s) leaves room for a loaded machine's scheduling."""
+HEARTBEAT_MS = 1000
+"""The drive's heartbeat: its 1.5x timeout leaves 0.5 s for a loaded machine's scheduling.
+
+A live daemon judges a heartbeat missing when it has not *received* one in time; the log
+only knows when each was sent. A heartbeat stuck in a starved thread past the timeout is a
+gap live and none in the log, so the slack must exceed the worst scheduling delay."""
 OPERATION_ENABLED = 0x0027
 FAULT = 0x0008
 
@@ -118,9 +122,15 @@ class Bench:
         return int(self.node.rpdo[1]["Controlword"].raw)
 
     def write_log(self, path: Path) -> Path:
-        """The recorded bus as a candump -L log."""
+        """The recorded bus from the daemon's start on, as a candump -L log.
+
+        The drive runs before the daemon starts; frames from before the start event would
+        give the replay a beginning (and a first gap) the live daemon never saw.
+        """
         self.drain()
-        lines = [f"({m.timestamp:.6f}) can0 {m.arbitration_id:03X}#{bytes(m.data).hex().upper()}" for m in self.frames]
+        start = next(e["t"] for e in self.journal() if e["event"] == "start")
+        lines = [f"({m.timestamp:.6f}) can0 {m.arbitration_id:03X}#{bytes(m.data).hex().upper()}"
+                 for m in self.frames if m.timestamp >= start]
         path.write_text("\n".join(lines) + "\n", encoding="utf-8")
         return path
 

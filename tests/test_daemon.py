@@ -299,14 +299,17 @@ class BmsFeeder:
     def __init__(self, bus: can.BusABC) -> None:
         self.bus = bus
         self.current_a = 10.0
+        self.held = threading.Lock()
+        """Held by the feeder while it sends; a test that holds it knows no frame of the feeder is being sent."""
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="bms-feeder", daemon=True)
 
     def _run(self) -> None:
         while not self._stop.wait(0.01):
-            bms = bms_data(self.current_a)
-            self.bus.send(can.Message(arbitration_id=BMS_ID, data=bms, is_extended_id=True))
-            self.bus.send(can.Message(arbitration_id=0x14, data=iq_data(0.5), is_extended_id=False))
+            with self.held:
+                bms = bms_data(self.current_a)
+                self.bus.send(can.Message(arbitration_id=BMS_ID, data=bms, is_extended_id=True))
+                self.bus.send(can.Message(arbitration_id=0x14, data=iq_data(0.5), is_extended_id=False))
 
     def __enter__(self) -> BmsFeeder:
         self._thread.start()
@@ -365,13 +368,14 @@ class TestDaemonInProcess:
     def test_one_frame_spike_inside_a_burst_still_stops(self, inproc: InProcess) -> None:
         """Frames queued together are taken as one block, and a one-frame overcurrent in its middle still trips."""
         daemon = inproc.daemon
-        with BmsFeeder(inproc.peer):
+        with BmsFeeder(inproc.peer) as feeder:
             receive_until(inproc.peer, is_task, "task frame")
-            t0, queued = daemon.clock.now(), time.monotonic()
-            for k in range(101):  # put at once: the loop drains them as one block
-                current_a = 40.0 if k == 60 else 10.0
-                daemon.reader.queue.put(("main", Frame(t0 + k * 1e-5, "main", BMS_ID, bms_data(current_a), True),
-                                         queued))
+            with feeder.held:  # no feeder frame newer than the burst may come between its frames
+                t0, queued = daemon.clock.now(), time.monotonic()
+                for k in range(101):  # put at once: the loop drains them as one block
+                    current_a = 40.0 if k == 60 else 10.0
+                    frame = Frame(t0 + k * 1e-5, "main", BMS_ID, bms_data(current_a), True)
+                    daemon.reader.queue.put(("main", frame, queued))
             receive_until(inproc.peer, is_stop, "Estop after the one-frame spike")
             wait_until(event_after(inproc.events, "recover"), what="the recovery at the next frame")
         trips = [e for e in read_events(inproc.events) if e["event"] == "trip"]
