@@ -2,7 +2,10 @@
 
 The loop: wait for frames until the engine's next deadline (a tick or a gate
 deadline), take the frames received as blocks (:meth:`Engine.take`), advance the engine to now, and tell
-systemd how things stand:
+systemd how things stand. Where every bus has a socket (SocketCAN, udp_multicast) the loop's own thread
+waits on it and drains it (:class:`~canguard.io.bus.BusReader` ``direct``): a frame reaches the engine
+without a thread hand-off, which was most of the trip-to-stop tail. Other buses get a reader thread each
+and a queue in between.
 
 - ``READY=1`` once every bus is open and the tree loaded;
 - ``WATCHDOG=1`` only while the loop ticks on time and every source the tree
@@ -55,9 +58,9 @@ SWITCH_INTERVAL_S = 0.0005
 LIVE_SKEW_S = 0.5
 """A frame timestamp further than this from the daemon's clock is replaced by the receive time."""
 OVERRUN_FLOOR_S = 0.05
-"""The shortest wait in the receive queue that counts as falling behind (scheduling jitter is below it)."""
+"""The shortest wait between arrival and the engine that counts as falling behind (jitter is below it)."""
 DRAIN = 512
-"""Frames taken from the receive queue after the first, at most, before the engine advances to now."""
+"""Frames received after the first, at most, before the engine advances to now."""
 
 
 def guarding(cfg: Config) -> str:
@@ -131,7 +134,7 @@ class Daemon:
         self._watchdog_held = ""
         self._bus_errors: queue.SimpleQueue[tuple[str, str]] = queue.SimpleQueue()
         self.exit_reason = "exit"
-        self.reader = BusReader(self.cfg.buses, on_error=self._bus_error)
+        self.reader = BusReader(self.cfg.buses, on_error=self._bus_error, direct=True)
         self.sink: FrameSink = BusSink(
             self.reader.send, on_error=self.metrics.send_error if self.metrics is not None else None,
             on_refused=self._send_refused,
@@ -143,7 +146,7 @@ class Daemon:
                 self.monitor.close()
             raise
         self.overrun_limit_s = overrun_limit(self.cfg)
-        """A frame that waited longer in the receive queue stops the task (:meth:`Engine.overrun`)."""
+        """A frame that waited longer since it arrived stops the task (:meth:`Engine.overrun`)."""
 
     def build_engine(self, cfg: Config, previous: Engine | None = None) -> Engine:
         heat = HeatStore(cfg.state.file, cfg.state.on_corrupt, clock=BootClock())
@@ -196,22 +199,18 @@ class Daemon:
         next_wd = 0.0
         next_status = time.monotonic() + 1.0
         end = time.monotonic() + duration_s if duration_s is not None else math.inf
-        q = self.reader.queue
+        receive = self.reader.receive
         # Python hands the GIL between threads every 5 ms by default: a frame received by a
-        # bus thread could wait that long for the loop. 0.5 ms keeps the trip-to-stop tail short.
+        # bus thread (or the monitor's) could wait that long for the loop. 0.5 ms keeps the tail short.
         previous_switch = sys.getswitchinterval()
         sys.setswitchinterval(SWITCH_INTERVAL_S)
         try:
             while not self._stop.is_set() and time.monotonic() < end:
                 engine = self.engine
                 now = self.clock.now()
-                wait = min(max(0.0, engine.next_due() - now), 0.05)
-                try:
-                    item = q.get(timeout=wait) if wait > 0 else q.get_nowait()
-                except queue.Empty:
-                    item = None
-                if item is not None:
-                    self._take(engine, item, q)
+                items = receive(min(max(0.0, engine.next_due() - now), 0.05), DRAIN + 1)
+                if items:
+                    self._take(engine, items)
                 engine.advance(self.clock.now())
                 self._drain_bus_errors(engine)
                 if self._down:
@@ -257,20 +256,13 @@ class Daemon:
         fps = ", ".join(f"{bus} {r:.0f} fps" for bus, r in rates.items())
         self.notifier.status(f"{engine.status_line()}; {fps}; {guarding(self.cfg)}")
 
-    def _take(self, engine: Engine, item: tuple[str, Frame, float], q: queue.SimpleQueue[tuple[str, Frame, float]]
-              ) -> None:
-        """``item`` and what else is waiting (up to :data:`DRAIN` frames, so that a tick never starves) as blocks
-        of frames in arrival order through :meth:`Engine.take`: a block ends where the bus changes, and before a
-        frame whose wait in the queue starts or ends an overrun (which then comes after the frames before it)."""
-        bus: str = item[0]
+    def _take(self, engine: Engine, items: list[tuple[str, Frame, float]]) -> None:
+        """The frames received (up to :data:`DRAIN` + 1, so that a tick never starves) as blocks of frames in
+        arrival order through :meth:`Engine.take`: a block ends where the bus changes, and before a frame whose
+        wait since it arrived starts or ends an overrun (which then comes after the frames before it)."""
+        bus: str = items[0][0]
         block: list[Frame] = []
-        for k in range(DRAIN + 1):
-            if k:
-                try:
-                    item = q.get_nowait()
-                except queue.Empty:
-                    break
-            name, frame, received = item
+        for name, frame, received in items:
             waited = time.monotonic() - received
             held = "overrun" in engine.gate.inhibits
             behind = not held and waited > self.overrun_limit_s  # its data is older than the config allows
@@ -363,7 +355,7 @@ class Daemon:
 
 
 def overrun_limit(cfg: Config) -> float:
-    """How long a frame may wait in canguard's receive queue: the shortest ``max_age`` of the sources.
+    """How long a frame may wait between its arrival and the engine: the shortest ``max_age`` of the sources.
 
     A frame that waited longer carries data the config already calls stale, judged as fresh.
     """
