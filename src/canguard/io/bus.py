@@ -286,11 +286,14 @@ class BusReader:
     # -- receiving directly -------------------------------------------------
     def _receive_direct(self, timeout_s: float | None, limit: int) -> list[tuple[str, Frame, float]]:
         """Wait on the open buses' sockets, then drain each ready one with ``recv(0)``; reopen buses due."""
+        if self._stop.is_set():
+            return []
         now = monotonic()
         if any(bus is None for bus in self._buses.values()):
             self._reopen_due(now)
-            due = min(self._reopen_at[n] for n, bus in self._buses.items() if bus is None)
-            timeout_s = max(0.0, min(math.inf if timeout_s is None else timeout_s, due - now))
+            due = min((self._reopen_at[n] for n, bus in self._buses.items() if bus is None), default=math.inf)
+            wait = max(0.0, min(math.inf if timeout_s is None else timeout_s, due - now))
+            timeout_s = None if wait == math.inf else wait
         fds = [self._fds[name] for name, bus in self._buses.items() if bus is not None]
         try:
             ready, _, _ = select.select(fds, [], [], timeout_s)
