@@ -122,6 +122,22 @@ class TestDirectReceive:
             assert got[0][1].arbitration_id == 0x125
             assert reader.alive() == {cfg.name: True}
 
+    def test_two_buses_come_out_in_arrival_order(self) -> None:
+        """Frames sent alternately on two buses come out of one receive() in the order they arrived."""
+        first, second = udp_config("a"), udp_config("b")
+        peers = [can.Bus(**first.kwargs), can.Bus(**second.kwargs)]
+        try:
+            with BusReader([first, second], direct=True) as reader:
+                assert reader.direct
+                for i in range(20):
+                    peers[i % 2].send(can.Message(arbitration_id=0x127, data=bytes([i]), is_extended_id=False))
+                got = collect(reader, 20)
+            assert [f.data[0] for _, f, _ in got] == list(range(20))
+            assert [name for name, _, _ in got] == ["a", "b"] * 10
+        finally:
+            for peer in peers:
+                peer.shutdown()
+
     def test_a_bus_without_a_socket_keeps_its_receive_thread(self) -> None:
         """A virtual bus has no file descriptor: direct=True falls back to a receive thread, same receive()."""
         cfg = BusConfig(name="virt", kwargs={"interface": "virtual", "channel": f"t-{time.monotonic_ns()}"})

@@ -302,9 +302,10 @@ class BusReader:
         if not ready:
             return []
         out: list[tuple[str, Frame, float]] = []
+        share = max(1, limit // len(ready))  # a busy bus does not starve the others
         for name, fd in self._fds.items():
             if fd in ready and self._buses[name] is not None:
-                self._drain_bus(name, limit - len(out), out)
+                self._drain_bus(name, share, out)
         if len(ready) > 1:
             out.sort(key=lambda item: item[2])  # buses drained one after the other: back to arrival order
         return out
