@@ -314,6 +314,8 @@ class BusReader:
         """Append up to ``limit`` frames the kernel holds for bus ``name``; a failure closes the bus."""
         bus = self._buses[name]
         assert bus is not None
+        now = monotonic()
+        offset = time.time() - now  # wall clock minus monotonic: a wall-clock stamp to monotonic's base
         got = 0
         try:
             while got < limit:
@@ -321,23 +323,17 @@ class BusReader:
                 if msg is None:
                     break
                 got += 1
-                out.append((name, to_frame(msg, name), self._arrival(name, msg)))
+                frame = to_frame(msg, name)
+                wall = self._wall_stamps[name]
+                if wall is None:  # the bus's first frame: does it stamp with the wall clock?
+                    wall = self._wall_stamps[name] = abs(frame.t - offset - now) < WALL_STAMP_S
+                out.append((name, frame, min(frame.t - offset, now) if wall else now))
         except Exception as exc:  # the bus went away (or a backend bug): report, close, reopen later
             self._failed(name, exc)
             self._reopen_at[name] = monotonic() + self._delay[name]
         if got:
             self.received[name] += got
             self._delay[name] = self.backoff_min_s
-
-    def _arrival(self, name: str, msg: can.Message) -> float:
-        """When ``msg`` arrived, on ``time.monotonic()``'s base: its kernel stamp when the bus stamps with the
-        wall clock (decided on the bus's first frame), else now."""
-        now = monotonic()
-        age = time.time() - float(msg.timestamp or 0.0)
-        wall = self._wall_stamps[name]
-        if wall is None:
-            wall = self._wall_stamps[name] = abs(age) < WALL_STAMP_S
-        return now - age if wall and age > 0 else now
 
     def _reopen_due(self, now: float) -> None:
         """Try once to reopen each closed bus whose backoff delay has passed; a failure doubles its delay."""

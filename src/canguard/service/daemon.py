@@ -61,6 +61,9 @@ OVERRUN_FLOOR_S = 0.05
 """The shortest wait between arrival and the engine that counts as falling behind (jitter is below it)."""
 DRAIN = 512
 """Frames received after the first, at most, before the engine advances to now."""
+DRAIN_DIRECT = 32
+"""The same where the loop reads the sockets itself: each read costs tens of microseconds, and a frame
+that trips waits for the reads after it in its batch before the engine sees it (512: up to ~15 ms)."""
 
 
 def guarding(cfg: Config) -> str:
@@ -200,6 +203,7 @@ class Daemon:
         next_status = time.monotonic() + 1.0
         end = time.monotonic() + duration_s if duration_s is not None else math.inf
         receive = self.reader.receive
+        batch = DRAIN_DIRECT if self.reader.direct else DRAIN + 1
         # Python hands the GIL between threads every 5 ms by default: a frame received by a
         # bus thread (or the monitor's) could wait that long for the loop. 0.5 ms keeps the tail short.
         previous_switch = sys.getswitchinterval()
@@ -208,7 +212,7 @@ class Daemon:
             while not self._stop.is_set() and time.monotonic() < end:
                 engine = self.engine
                 now = self.clock.now()
-                items = receive(min(max(0.0, engine.next_due() - now), 0.05), DRAIN + 1)
+                items = receive(min(max(0.0, engine.next_due() - now), 0.05), batch)
                 if items:
                     self._take(engine, items)
                 engine.advance(self.clock.now())
@@ -257,9 +261,10 @@ class Daemon:
         self.notifier.status(f"{engine.status_line()}; {fps}; {guarding(self.cfg)}")
 
     def _take(self, engine: Engine, items: list[tuple[str, Frame, float]]) -> None:
-        """The frames received (up to :data:`DRAIN` + 1, so that a tick never starves) as blocks of frames in
-        arrival order through :meth:`Engine.take`: a block ends where the bus changes, and before a frame whose
-        wait since it arrived starts or ends an overrun (which then comes after the frames before it)."""
+        """The frames received (up to :data:`DRAIN` + 1 or :data:`DRAIN_DIRECT`, so that a tick never starves) as
+        blocks of frames in arrival order through :meth:`Engine.take`: a block ends where the bus changes, and
+        before a frame whose wait since it arrived starts or ends an overrun (which then comes after the frames
+        before it)."""
         bus: str = items[0][0]
         block: list[Frame] = []
         for name, frame, received in items:
