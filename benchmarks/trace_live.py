@@ -18,6 +18,9 @@ Hops, per trial:
 ``back``     send returned -> kernel receive stamp in the peer's socket
 ``peer``     that stamp -> the peer's ``recv`` returned it
 ``total``    the peer's send call -> the peer's ``recv`` returned the stop frame (bench_latency's figure)
+
+and ``fsync``: every ``os.fsync`` of the daemon (the journal's durability), and ``in fsync``: for
+the trials whose overcurrent frame arrived while one ran, how much of it was still to run.
 """
 
 from __future__ import annotations
@@ -75,6 +78,16 @@ def daemon_main(out: str, argv: list[str]) -> int:
         return ok
 
     busmod.BusReader.send = stamped_send  # type: ignore[method-assign]
+    fsync = os.fsync
+
+    def stamped_fsync(fd: int) -> None:
+        t = time.time()
+        try:
+            fsync(fd)
+        finally:
+            marks.append(("fsync", t, time.time()))
+
+    os.fsync = stamped_fsync  # the journal's durability, in whichever thread calls it
     from canguard.cli.main import main as canguard_main
 
     sys.argv = ["canguard", *argv]
@@ -121,14 +134,19 @@ def hops(peer_marks: list[dict[str, float]], marks: list[list[Any]]) -> dict[str
     """Each trial's hops: the daemon's first stamps of each kind inside the trial's window."""
     out: dict[str, list[float]] = {k: [] for k in ("wire", "recv", "queue", "engine", "send", "back", "peer",
                                                    "total")}
+    syncs = [(m[1], m[2]) for m in marks if m[0] == "fsync"]
+    out["fsync"] = [end - start for start, end in syncs]
+    out["in fsync"] = []
     for tr in peer_marks:
-        inside = [m for m in marks if tr["t0"] - 1e-4 <= m[1] <= tr["got"]]
+        inside = [m for m in marks if tr["t0"] - 1e-4 <= m[1] <= tr["got"] and m[0] != "fsync"]
         first = {}
         for kind, t, extra in inside:
             first.setdefault(kind, (t, extra))
         if len(first) < 3:
             continue
         (recv_t, rx_t), (take_t, _), (send_t, sent_t) = first["recv"], first["take"], first["send"]
+        # the overcurrent frame arrived while the journal's fsync ran: the part of it still to run
+        out["in fsync"] += [end - rx_t for start, end in syncs if start <= rx_t < end]
         for key, value in (("wire", rx_t - tr["t0"]), ("recv", recv_t - rx_t), ("queue", take_t - recv_t),
                            ("engine", send_t - take_t), ("send", sent_t - send_t), ("back", tr["rx"] - sent_t),
                            ("peer", tr["got"] - tr["rx"]), ("total", tr["got"] - tr["t0"])):
@@ -183,10 +201,11 @@ def main(argv: list[str] | None = None) -> int:
     by_hop = hops(peer_marks, marks)
     print(f"python {sys.version.split()[0]}, {os.cpu_count()} CPUs; {len(by_hop['total'])} of {args.trials} "
           f"trials matched; background {args.fps:,.0f} frames/s")
-    print(f"  {'hop':8} {'p50 ms':>8} {'p99 ms':>8} {'max ms':>8}")
+    print(f"  {'hop':9} {'p50 ms':>8} {'p99 ms':>8} {'max ms':>8} {'count':>6}")
     for key, values in by_hop.items():
         if values:
-            print(f"  {key:8} {pct(values, 0.5):8.3f} {pct(values, 0.99):8.3f} {max(values) * 1e3:8.3f}")
+            print(f"  {key:9} {pct(values, 0.5):8.3f} {pct(values, 0.99):8.3f} {max(values) * 1e3:8.3f} "
+                  f"{len(values):6d}")
     return 0
 
 

@@ -7,6 +7,8 @@ caller's thread; a bus without one (python-can's virtual bus) keeps its receive 
 
 from __future__ import annotations
 
+import errno
+import os
 import threading
 import time
 from collections.abc import Iterator
@@ -16,6 +18,7 @@ import can
 import pytest
 
 from canguard.config.schema import BusConfig
+from canguard.engine.events import EventJournal, read_events
 from canguard.engine.gate import TaskGate
 from canguard.io.bus import BusReader, open_bus
 from canguard.io.frame import Frame
@@ -176,3 +179,66 @@ class TestDaemonReceivesDirectly:
             thread.join(10)
             peer.shutdown()
         assert result == [0]
+
+
+class TestJournalSyncsInBackground:
+    """The live daemon's journal fsyncs in a thread of its own, so the loop never waits for the disk."""
+
+    @pytest.fixture
+    def fsyncs(self, monkeypatch: pytest.MonkeyPatch) -> list[str]:
+        """The name of the thread of every os.fsync from now on."""
+        seen: list[str] = []
+        real = os.fsync
+
+        def recording(fd: int) -> None:
+            seen.append(threading.current_thread().name)
+            real(fd)
+
+        monkeypatch.setattr(os, "fsync", recording)
+        return seen
+
+    def test_flush_leaves_the_fsync_to_the_sync_thread(self, tmp_path: Path, fsyncs: list[str]) -> None:
+        """flush() returns without syncing; the sync thread syncs the file soon after."""
+        journal = EventJournal(tmp_path / "events.jsonl", sync_in_background=True)
+        try:
+            fsyncs.clear()  # creating the file synced its directory
+            journal.write({"event": "trip", "reason": "overcurrent"})
+            journal.flush()
+            assert threading.current_thread().name not in fsyncs
+            wait_until(lambda: "canguard-journal-fsync" in fsyncs, what="the sync thread's fsync")
+        finally:
+            journal.close()
+
+    def test_close_syncs_every_line_and_ends_the_thread(self, tmp_path: Path, fsyncs: list[str]) -> None:
+        """close() syncs in the caller before it returns, and the sync thread is gone."""
+        journal = EventJournal(tmp_path / "events.jsonl", sync_in_background=True)
+        for k in range(5):
+            journal.write({"event": "stop", "reason": f"stop {k}"})
+        journal.flush()
+        journal.close()
+        assert fsyncs and fsyncs[-1] == threading.current_thread().name
+        assert not [t for t in threading.enumerate() if t.name == "canguard-journal-fsync" and t.is_alive()]
+        assert [e["reason"] for e in read_events(tmp_path / "events.jsonl")] == [f"stop {k}" for k in range(5)]
+
+    def test_a_failed_background_fsync_is_counted_and_tried_again(self, tmp_path: Path,
+                                                                monkeypatch: pytest.MonkeyPatch) -> None:
+        """An fsync the disk refuses is counted as an error and done again at the next flush."""
+        journal = EventJournal(tmp_path / "events.jsonl", sync_in_background=True)
+        real = os.fsync
+        calls: list[bool] = []
+
+        def failing_once(fd: int) -> None:
+            calls.append(not calls)
+            if len(calls) == 1:
+                raise OSError(errno.EIO, "I/O error")
+            real(fd)
+
+        monkeypatch.setattr(os, "fsync", failing_once)
+        try:
+            journal.write({"event": "trip", "reason": "overcurrent"})
+            journal.flush()
+            wait_until(lambda: journal.errors == 1, what="the failed fsync counted")
+            journal.flush()
+            wait_until(lambda: len(calls) >= 2, what="the fsync tried again")
+        finally:
+            journal.close()

@@ -120,7 +120,7 @@ class Daemon:
 
             self.metrics = Metrics()
             self.metrics.start(metrics_addr)
-        self.journal = EventJournal(self.cfg.events)
+        self.journal = EventJournal(self.cfg.events, sync_in_background=True)  # the loop never waits for a disk
         self.events: EventSink = self.journal
         self.monitor: Any = None
         """The status page / Groot2 monitor (:mod:`canguard.service.monitor`, imported only when configured)."""
@@ -147,6 +147,7 @@ class Daemon:
         except BaseException:
             if self.monitor is not None:
                 self.monitor.close()
+            self.journal.close()  # and its sync thread
             raise
         self.overrun_limit_s = overrun_limit(self.cfg)
         """A frame that waited longer since it arrived stops the task (:meth:`Engine.overrun`)."""
