@@ -11,8 +11,11 @@ or the kernel's receive stamp (``SO_TIMESTAMPNS``, the same clock), so the two p
 Hops, per trial:
 
 ``wire``     peer's send call -> kernel receive stamp in the daemon's socket
-``recv``     that stamp -> python-can's ``recv`` returned the message to canguard
-``queue``    recv returned -> its block entered ``Engine.take`` (the receive queue, the loop's drain)
+``recv``     that stamp -> python-can's ``recv`` returned the message to canguard (a reader thread's, or,
+             where the loop reads the socket itself, the loop's: then it holds the loop's wake-up and
+             whatever the loop was still doing, a tick, other frames)
+``queue``    recv returned -> its block entered ``Engine.take`` (the reader thread's queue and the loop's
+             drain; or the socket reads after it in the same batch)
 ``engine``   ``Engine.take`` entered -> the stop frame handed to the bus (decode, models, tree, gate)
 ``send``     the send call itself
 ``back``     send returned -> kernel receive stamp in the peer's socket
@@ -20,7 +23,9 @@ Hops, per trial:
 ``total``    the peer's send call -> the peer's ``recv`` returned the stop frame (bench_latency's figure)
 
 and ``fsync``: every ``os.fsync`` of the daemon (the journal's durability), and ``in fsync``: for
-the trials whose overcurrent frame arrived while one ran, how much of it was still to run.
+the trials whose overcurrent frame arrived while one ran, how much of it was still to run (what the
+frame waited for where the loop itself syncs; where a thread of the journal's own syncs, the loop
+does not wait for it and the figure only says how often the two overlapped).
 """
 
 from __future__ import annotations
