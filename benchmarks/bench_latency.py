@@ -166,8 +166,8 @@ def guard_trials(peer: can.BusABC, trials: int, rnd: random.Random) -> list[floa
             except RuntimeError:
                 if attempt == 99:
                     raise RuntimeError("the task frames did not resume within 10 s: the daemon holds the task "
-                                       "stopped (an 'overrun' event in its journal says it is behind its buses: "
-                                       "the machine is too busy for this background rate)") from None
+                                       "stopped (look for an 'overrun' event in its journal: it fell behind its buses, "
+                                       "e.g. on a machine too busy for this background rate)") from None
         time.sleep(rnd.uniform(0.0, 0.003))
         drain(peer)
         t0 = time.perf_counter()
