@@ -141,6 +141,24 @@ class TestDirectReceive:
             for peer in peers:
                 peer.shutdown()
 
+    def test_a_descriptor_that_is_no_socket_keeps_the_receive_thread(self) -> None:
+        """A bus whose descriptor is not a socket (a serial adapter's tty: python-can buffers it) is not direct."""
+        cfg = BusConfig(name="serial", kwargs={"interface": "virtual", "channel": f"t-{time.monotonic_ns()}"})
+        read_end, write_end = os.pipe()
+
+        def opener(c: BusConfig) -> can.BusABC:
+            bus = open_bus(c)
+            bus.fileno = lambda: read_end  # type: ignore[method-assign]
+            return bus
+
+        try:
+            with BusReader([cfg], direct=True, opener=opener) as reader:
+                assert not reader.direct
+                assert [t for t in threading.enumerate() if t.name == "canguard-bus-serial"]
+        finally:
+            os.close(read_end)
+            os.close(write_end)
+
     def test_a_bus_without_a_socket_keeps_its_receive_thread(self) -> None:
         """A virtual bus has no file descriptor: direct=True falls back to a receive thread, same receive()."""
         cfg = BusConfig(name="virt", kwargs={"interface": "virtual", "channel": f"t-{time.monotonic_ns()}"})

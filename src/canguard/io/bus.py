@@ -7,7 +7,7 @@
 :class:`BusReader` receives in one of two ways; :meth:`BusReader.receive` gives
 ``(bus_name, frame, received)`` in arrival order either way:
 
-- **Direct** (``direct=True`` and every bus has a file descriptor: SocketCAN,
+- **Direct** (``direct=True`` and every bus has a socket (:func:`bus_fileno`): SocketCAN,
   udp_multicast): no thread. The caller's thread waits on the buses' sockets with
   ``select`` until a frame arrives or its own deadline passes, then drains what the
   kernel holds with ``recv(0)``. The kernel's socket buffer is the receive queue, so
@@ -33,9 +33,11 @@ from __future__ import annotations
 
 import logging
 import math
+import os
 import queue
 import select
 import socket
+import stat
 import threading
 import time
 from collections.abc import Callable, Iterable, Iterator, Mapping
@@ -103,12 +105,19 @@ def enlarge_receive_buffer(bus: can.BusABC, name: str, size: int = RECEIVE_BUFFE
 
 
 def bus_fileno(bus: can.BusABC) -> int:
-    """The file descriptor ``select`` can wait on for ``bus``'s frames, or -1 when it has none."""
+    """The socket ``select`` can wait on for ``bus``'s frames, or -1 when it has none.
+
+    Only a socket counts (SocketCAN, udp_multicast: the kernel holds every frame until python-can
+    reads it). A serial adapter's descriptor (slcan, serial) does not: python-can reads several
+    frames from it at once and keeps the rest, which a ``select`` on the descriptor cannot see.
+    """
     try:
         fd = bus.fileno()
-    except (NotImplementedError, OSError, AttributeError):
+        if not isinstance(fd, int) or fd < 0 or not stat.S_ISSOCK(os.fstat(fd).st_mode):
+            return -1
+    except (NotImplementedError, OSError, AttributeError, ValueError):
         return -1
-    return fd if isinstance(fd, int) else -1
+    return fd
 
 
 WALL_STAMP_S = 1.0
@@ -126,7 +135,7 @@ class BusReader:
 
     Use as a context manager, or call :meth:`start` and :meth:`stop`; take frames
     with :meth:`receive`. ``direct=True`` lets the caller's thread receive when every
-    bus has a file descriptor (:attr:`direct` says whether it does, once started).
+    bus has a socket (:attr:`direct` says whether it does, once started).
     Counters (by bus name): :attr:`received`, :attr:`sent`, :attr:`send_failures`,
     :attr:`recv_errors`, :attr:`reopens`.
     """
@@ -349,7 +358,7 @@ class BusReader:
             fd = bus_fileno(opened)
             if fd < 0:  # cannot happen for the same interface; fail loudly rather than never receive
                 _shutdown(opened, name)
-                raise BusError(f"bus {name!r} reopened without a file descriptor to wait on")
+                raise BusError(f"bus {name!r} reopened without a socket to wait on")
             self._fds[name] = fd
             self._wall_stamps[name] = None
 
