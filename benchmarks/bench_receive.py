@@ -1,6 +1,6 @@
 """CPU per frame of receiving alone: ``BusReader.receive`` reading its socket itself vs a receive thread.
 
-    python benchmarks/bench_receive.py [--seconds 5] [--fps 8000] [--rounds 2]
+    python benchmarks/bench_receive.py [--seconds 5] [--fps 8000] [--rounds 3]
 
 One python-can udp_multicast sender process at ``--fps`` (bench_latency's background); in this
 process a :class:`~canguard.io.bus.BusReader` on the same group, ``direct=True`` (the daemon's loop
@@ -54,7 +54,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seconds", type=float, default=5.0)
     ap.add_argument("--fps", type=float, default=8000.0)
-    ap.add_argument("--rounds", type=int, default=2)
+    ap.add_argument("--rounds", type=int, default=3, help="turns each way (default 3)")
     args = ap.parse_args(argv)
     rnd = random.Random()
     group, port = f"239.{rnd.randint(1, 254)}.{rnd.randint(1, 254)}.{rnd.randint(1, 254)}", rnd.randint(20000, 60000)
