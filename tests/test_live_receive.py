@@ -35,6 +35,11 @@ def udp_config(name: str = "main") -> BusConfig:
     return BusConfig(name=name, kwargs=unique_udp())
 
 
+def threads_named(name_prefix: str = "canguard-bus-") -> set[threading.Thread]:
+    """The threads alive now whose names start so (compared before and after: other tests may leave theirs ending)."""
+    return {t for t in threading.enumerate() if t.name.startswith(name_prefix) and t.is_alive()}
+
+
 def collect(reader: BusReader, n: int) -> list[tuple[str, Frame, float]]:
     """The next ``n`` frames :meth:`BusReader.receive` gives, as soon as they are there."""
     out: list[tuple[str, Frame, float]] = []
@@ -64,9 +69,10 @@ class TestDirectReceive:
     def test_frames_arrive_in_order_without_a_receive_thread(self, udp: tuple[BusConfig, can.BusABC]) -> None:
         """Frames from a peer come out of receive() in the order sent, and no receive thread is started."""
         cfg, peer = udp
+        before = threads_named()
         with BusReader([cfg], direct=True) as reader:
             assert reader.direct
-            assert not [t for t in threading.enumerate() if t.name == f"canguard-bus-{cfg.name}"]
+            assert not threads_named() - before
             for i in range(50):
                 peer.send(can.Message(arbitration_id=0x123, data=bytes([i]) * 8, is_extended_id=False))
             got = collect(reader, 50)
@@ -154,7 +160,7 @@ class TestDirectReceive:
         try:
             with BusReader([cfg], direct=True, opener=opener) as reader:
                 assert not reader.direct
-                assert [t for t in threading.enumerate() if t.name == "canguard-bus-serial"]
+                assert threads_named("canguard-bus-serial")
         finally:
             os.close(read_end)
             os.close(write_end)
@@ -166,7 +172,7 @@ class TestDirectReceive:
         try:
             with BusReader([cfg], direct=True) as reader:
                 assert not reader.direct
-                assert [t for t in threading.enumerate() if t.name == "canguard-bus-virt"]
+                assert threads_named("canguard-bus-virt")
                 peer.send(can.Message(arbitration_id=0x126, data=b"", is_extended_id=False))
                 assert collect(reader, 1)[0][1].arbitration_id == 0x126
         finally:
@@ -182,13 +188,14 @@ class TestDaemonReceivesDirectly:
         daemon = Daemon(write_config(tmp_path, bus), notifier=Notifier(env={}))
         peer = can.Bus(**bus)
         result: list[int] = []
+        before = threads_named()
         thread = threading.Thread(target=lambda: result.append(daemon.run()), name="daemon", daemon=True)
         thread.start()
         try:
             with BmsFeeder(peer) as feeder:
                 receive_until(peer, is_task, "task frame while the current is normal")
                 assert daemon.reader.direct
-                assert not [t for t in threading.enumerate() if t.name.startswith("canguard-bus-")]
+                assert not threads_named() - before
                 feeder.current_a = 40.0
                 receive_until(peer, is_stop, "Estop after the overcurrent")
             assert daemon.engine.gate.state == TaskGate.STOPPED
@@ -229,13 +236,14 @@ class TestJournalSyncsInBackground:
 
     def test_close_syncs_every_line_and_ends_the_thread(self, tmp_path: Path, fsyncs: list[str]) -> None:
         """close() syncs in the caller before it returns, and the sync thread is gone."""
+        before = threads_named("canguard-journal-fsync")
         journal = EventJournal(tmp_path / "events.jsonl", sync_in_background=True)
         for k in range(5):
             journal.write({"event": "stop", "reason": f"stop {k}"})
         journal.flush()
         journal.close()
         assert fsyncs and fsyncs[-1] == threading.current_thread().name
-        assert not [t for t in threading.enumerate() if t.name == "canguard-journal-fsync" and t.is_alive()]
+        assert not threads_named("canguard-journal-fsync") - before
         assert [e["reason"] for e in read_events(tmp_path / "events.jsonl")] == [f"stop {k}" for k in range(5)]
 
     def test_a_failed_background_fsync_is_counted_and_tried_again(self, tmp_path: Path,
