@@ -119,6 +119,17 @@ def cpu_s(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / CLK_TCK
 
 
+def run_delay_s(pid: int) -> float:
+    """Seconds the threads of ``pid`` spent runnable but waiting for a CPU (/proc/PID/task/*/schedstat)."""
+    total = 0
+    for stat in Path(f"/proc/{pid}/task").glob("*/schedstat"):
+        try:
+            total += int(stat.read_text().split()[1])
+        except (OSError, IndexError, ValueError):
+            continue  # a thread that ended meanwhile
+    return total / 1e9
+
+
 def scrape(addr: str) -> dict[str, float]:
     """canguard_frames_received_total by bus from the daemon's /metrics."""
     text = urllib.request.urlopen(f"http://{addr}/metrics", timeout=5).read().decode()
@@ -166,9 +177,9 @@ def main(argv: list[str] | None = None) -> int:
                 assert s.stdout is not None
                 if s.stdout.readline().strip() != "ready":
                     raise RuntimeError("a sender did not start")
-            cpu0, t0 = cpu_s(daemon.pid), time.perf_counter()
+            cpu0, t0, wait0 = cpu_s(daemon.pid), time.perf_counter(), run_delay_s(daemon.pid)
             results = [s.communicate(timeout=args.seconds + 60)[0].split() for s in senders]
-            cpu1, t1 = cpu_s(daemon.pid), time.perf_counter()
+            cpu1, t1, wait1 = cpu_s(daemon.pid), time.perf_counter(), run_delay_s(daemon.pid)
             time.sleep(2.5)  # the daemon publishes its counters once a second
             after = scrape(metrics)
             daemon.send_signal(signal.SIGTERM)
@@ -193,6 +204,8 @@ def main(argv: list[str] | None = None) -> int:
     print(f"  total sent {total_sent:.0f}, lost {total_lost:.0f} ({pct:.3f} %)")
     print(f"  canguard CPU: {cpu1 - cpu0:.1f} s in {t1 - t0:.1f} s = {100 * (cpu1 - cpu0) / (t1 - t0):.0f} % "
           f"of one core")
+    print(f"  canguard waited for a CPU (runnable, not running): {wait1 - wait0:.1f} s, summed over its threads")
+    print(f"  frames received per canguard CPU-second: {(total_sent - total_lost) / max(1e-9, cpu1 - cpu0):,.0f}")
     return 0
 
 

@@ -165,7 +165,9 @@ def guard_trials(peer: can.BusABC, trials: int, rnd: random.Random) -> list[floa
                 break
             except RuntimeError:
                 if attempt == 99:
-                    raise
+                    raise RuntimeError("the task frames did not resume within 10 s: the daemon holds the task "
+                                       "stopped (look for an 'overrun' event in its journal: it fell behind its buses, "
+                                       "e.g. on a machine too busy for this background rate)") from None
         time.sleep(rnd.uniform(0.0, 0.003))
         drain(peer)
         t0 = time.perf_counter()

@@ -3,7 +3,7 @@
 The log's frames are sent onto a configured bus at the log's pace (like
 can-utils' canplayer; SPEED 2 plays twice as fast) from a second connection to
 that bus, while a :class:`~canguard.service.daemon.Daemon` runs live on the same bus: the
-frames take the same way as on the robot (bus -> receive thread -> engine -> bus).
+frames take the same way as on the robot (bus -> receive -> engine -> bus).
 """
 
 from __future__ import annotations

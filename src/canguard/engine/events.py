@@ -11,7 +11,11 @@ Guarantees the daemon relies on:
   hands the whole line to the kernel with one ``os.write`` on an ``O_APPEND``
   descriptor before it returns, so a ``kill -9`` right after it loses nothing;
   :meth:`EventJournal.flush` (the engine calls it once per tick batch) adds
-  ``os.fsync`` so a power cut does not either.
+  ``os.fsync`` so a power cut does not either. The live daemon's journal
+  (``sync_in_background=True``) hands that ``fsync`` to a thread of its own: a
+  disk that takes milliseconds to sync (an SD card, a busy disk) must not hold up
+  the loop that receives the next frame; the lines are durable a sync later, and
+  :meth:`EventJournal.close` still syncs before it returns.
 - **Only appended.** Opening never truncates. Rotation by size renames
   ``events.jsonl`` to ``events.jsonl.1`` after shifting the older backups up
   (``.1`` -> ``.2`` -> ``.3`` ...) and by default never deletes one, so every line
@@ -83,6 +87,8 @@ class EventJournal:
         path: Path | str | None,
         max_bytes: int = DEFAULT_MAX_BYTES,
         backups: int | None = None,
+        *,
+        sync_in_background: bool = False,
     ) -> None:
         if max_bytes <= 0:
             raise ValueError(f"max_bytes must be > 0, got {max_bytes}")
@@ -114,6 +120,12 @@ class EventJournal:
         self._lock = threading.Lock()
         if self.path is not None:
             self._open()
+        self._sync_due = threading.Event()
+        self._sync_stop = False
+        self._syncer: threading.Thread | None = None
+        if sync_in_background and self.path is not None:
+            self._syncer = threading.Thread(target=self._sync_loop, name="canguard-journal-fsync", daemon=True)
+            self._syncer.start()
 
     # -- file handling -------------------------------------------------------------
 
@@ -270,13 +282,46 @@ class EventJournal:
             try:
                 self._drain()
                 if self._dirty and self._fd is not None:
+                    if self._syncer is not None:
+                        self._sync_due.set()  # the sync thread waits for the disk, the caller does not
+                        return
                     os.fsync(self._fd)
                     self._dirty = False
             except OSError as exc:
                 self._failed(exc, "fsync")
 
+    def _sync_loop(self) -> None:
+        """The sync thread: ``fsync`` a duplicate of the file's descriptor, outside the lock, when asked."""
+        while True:
+            self._sync_due.wait()
+            self._sync_due.clear()
+            if self._sync_stop:
+                return
+            with self._lock:
+                if not self._dirty or self._fd is None:
+                    continue
+                try:
+                    fd = os.dup(self._fd)  # rotation may close the journal's own descriptor meanwhile
+                except OSError as exc:
+                    self._failed(exc, "fsync")
+                    continue
+                self._dirty = False
+            try:
+                os.fsync(fd)
+            except OSError as exc:
+                with self._lock:
+                    self._dirty = True
+                    self._failed(exc, "fsync")
+            finally:
+                os.close(fd)
+
     def close(self) -> None:
         """Flush, fsync and close the file; later writes raise ValueError. Idempotent."""
+        if self._syncer is not None:  # from here on flush() syncs itself, before close returns
+            self._sync_stop = True
+            self._sync_due.set()
+            self._syncer.join()
+            self._syncer = None
         self.flush()
         with self._lock:
             self._closed = True

@@ -4,22 +4,42 @@
 (any interface python-can supports), turning a failure into a
 :class:`~canguard.errors.BusError` that names the bus and the interface.
 
-:class:`BusReader` runs one daemon thread per bus. Each thread does nothing but
-``bus.recv(timeout)``, build a :class:`~canguard.io.frame.Frame` (keeping the
-message's kernel / hardware timestamp) and put ``(bus_name, frame)`` on one
-unbounded :class:`queue.SimpleQueue` the engine drains, so no frame is dropped
-while the engine is busy. A receive error is logged on ``canguard.io.bus``, handed
-to ``on_error(bus_name, exc)``, and the bus is closed and reopened with
-exponential backoff (``backoff_min_s`` .. ``backoff_max_s``, reset by the next
-frame received): never a silent hang, never a dead thread.
+:class:`BusReader` receives in one of two ways; :meth:`BusReader.receive` gives
+``(bus_name, frame, received)`` in arrival order either way:
+
+- **Direct** (``direct=True`` and every bus has a socket (:func:`bus_fileno`): SocketCAN,
+  udp_multicast): no thread. The caller's thread waits on the buses' sockets with
+  ``select`` until a frame arrives or its own deadline passes, then drains what the
+  kernel holds with ``recv(0)``. The kernel's socket buffer is the receive queue, so
+  a frame costs no thread hand-off: no queue, no waiting for the GIL held by
+  another thread. ``received`` is the kernel's receive stamp (on ``time.monotonic()``'s
+  base) whenever the bus stamps with the wall clock, so a wait in the kernel's buffer
+  counts as a wait.
+- **Threads** (otherwise: python-can's ``virtual`` bus, vendor drivers with their own
+  queues): one daemon thread per bus does nothing but ``bus.recv(timeout)``, build a
+  :class:`~canguard.io.frame.Frame` and put it on one unbounded
+  :class:`queue.SimpleQueue`, so no frame is dropped while the engine is busy;
+  ``received`` is when the thread got it.
+
+Each frame keeps the message's kernel / hardware timestamp. A receive error is
+logged on ``canguard.io.bus``, handed to ``on_error(bus_name, exc)``, and the bus is
+closed and reopened with exponential backoff (``backoff_min_s`` .. ``backoff_max_s``,
+reset by the next frame received): never a silent hang, never a dead thread. In the
+direct way a reopen is tried from :meth:`BusReader.receive` when its delay has passed,
+so the caller never sleeps through a backoff.
 """
 
 from __future__ import annotations
 
 import logging
+import math
+import os
 import queue
+import select
 import socket
+import stat
 import threading
+import time
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from time import monotonic
 
@@ -84,6 +104,27 @@ def enlarge_receive_buffer(bus: can.BusABC, name: str, size: int = RECEIVE_BUFFE
     return granted
 
 
+def bus_fileno(bus: can.BusABC) -> int:
+    """The socket ``select`` can wait on for ``bus``'s frames, or -1 when it has none.
+
+    Only a socket counts (SocketCAN, udp_multicast: the kernel holds every frame until python-can
+    reads it). A serial adapter's descriptor (slcan, serial) does not: python-can reads several
+    frames from it at once and keeps the rest, which a ``select`` on the descriptor cannot see.
+    """
+    try:
+        fd = bus.fileno()
+        if not isinstance(fd, int) or fd < 0 or not stat.S_ISSOCK(os.fstat(fd).st_mode):
+            return -1
+    except (NotImplementedError, OSError, AttributeError, ValueError):
+        return -1
+    return fd
+
+
+WALL_STAMP_S = 1.0
+"""A bus whose first frame's stamp is this close to the wall clock stamps with it (its later stamps are
+taken as arrival times); other buses' frames arrive when canguard receives them."""
+
+
 def to_frame(msg: can.Message, bus_name: str) -> Frame:
     """The :class:`Frame` of a received python-can message; ``channel`` is the bus name."""
     return frame_from_message(msg, bus_name)
@@ -92,8 +133,10 @@ def to_frame(msg: can.Message, bus_name: str) -> Frame:
 class BusReader:
     """Receives from every configured bus on its own daemon thread into one queue.
 
-    Use as a context manager, or call :meth:`start` and :meth:`stop`. Counters
-    (by bus name): :attr:`received`, :attr:`sent`, :attr:`send_failures`,
+    Use as a context manager, or call :meth:`start` and :meth:`stop`; take frames
+    with :meth:`receive`. ``direct=True`` lets the caller's thread receive when every
+    bus has a socket (:attr:`direct` says whether it does, once started).
+    Counters (by bus name): :attr:`received`, :attr:`sent`, :attr:`send_failures`,
     :attr:`recv_errors`, :attr:`reopens`.
     """
 
@@ -106,6 +149,7 @@ class BusReader:
         backoff_min_s: float = 0.1,
         backoff_max_s: float = 5.0,
         opener: Opener = open_bus,
+        direct: bool = False,
     ) -> None:
         configs = list(buses.values()) if isinstance(buses, Mapping) else list(buses)
         self.configs: dict[str, BusConfig] = {c.name: c for c in configs}
@@ -116,6 +160,14 @@ class BusReader:
         self.backoff_min_s = backoff_min_s
         self.backoff_max_s = backoff_max_s
         self._opener = opener
+        self._direct_wanted = direct
+        self.direct = False
+        """True once started without threads: :meth:`receive` waits on the buses' sockets itself."""
+        self._started = False
+        self._fds: dict[str, int] = {}
+        self._wall_stamps: dict[str, bool | None] = dict.fromkeys(self.configs)
+        self._reopen_at: dict[str, float] = dict.fromkeys(self.configs, 0.0)
+        self._delay: dict[str, float] = dict.fromkeys(self.configs, backoff_min_s)
         self._buses: dict[str, can.BusABC | None] = dict.fromkeys(self.configs)
         self._threads: dict[str, threading.Thread] = {}
         self._stop = threading.Event()
@@ -128,12 +180,12 @@ class BusReader:
 
     # -- life cycle --------------------------------------------------------
     def start(self) -> None:
-        """Open every bus, then start one receive thread per bus.
+        """Open every bus, then start one receive thread per bus (none when receiving directly).
 
         Raises :class:`BusError` for the first bus that does not open (the buses
         already opened are shut down again).
         """
-        if self._threads:
+        if self._started:
             raise RuntimeError("BusReader already started")
         self._stop.clear()
         try:
@@ -142,6 +194,12 @@ class BusReader:
         except Exception:
             self._shutdown_all()
             raise
+        self._started = True
+        fds = {name: bus_fileno(bus) for name, bus in self._buses.items() if bus is not None}
+        self.direct = self._direct_wanted and bool(fds) and min(fds.values()) >= 0
+        if self.direct:
+            self._fds = fds
+            return
         for name in self.configs:
             t = threading.Thread(target=self._run, args=(name,), name=f"canguard-bus-{name}", daemon=True)
             self._threads[name] = t
@@ -155,6 +213,7 @@ class BusReader:
             if t.is_alive():
                 log.warning("bus thread %s did not stop within %.1f s", t.name, timeout_s)
         self._threads.clear()
+        self._started = False
         self._shutdown_all()
 
     def __enter__(self) -> BusReader:
@@ -166,35 +225,44 @@ class BusReader:
 
     @property
     def running(self) -> bool:
-        """True while the receive threads run."""
-        return bool(self._threads) and not self._stop.is_set()
+        """True while receiving (threads running, or started to receive directly)."""
+        return self._started and not self._stop.is_set()
 
     def alive(self) -> dict[str, bool]:
-        """Whether each bus's thread is alive and its bus currently open."""
+        """Whether each bus is received from (its thread alive, or receiving directly) and currently open."""
         return {
-            name: (name in self._threads and self._threads[name].is_alive() and self._buses[name] is not None)
+            name: (self._buses[name] is not None and self._started
+                   and (self.direct or (name in self._threads and self._threads[name].is_alive())))
             for name in self.configs
         }
 
     # -- consuming ---------------------------------------------------------
-    def get(self, timeout_s: float | None = None) -> tuple[str, Frame] | None:
-        """The next ``(bus_name, frame)``, or None after ``timeout_s`` without one."""
+    def receive(self, timeout_s: float | None, limit: int) -> list[tuple[str, Frame, float]]:
+        """Up to ``limit`` frames as ``(bus_name, frame, received)`` in arrival order, waiting up to ``timeout_s``
+        (None: without end) for the first; ``received`` is on ``time.monotonic()``'s base. Empty on timeout."""
+        if self.direct:
+            return self._receive_direct(timeout_s, limit)
         try:
-            name, frame, _received = self.queue.get(timeout=timeout_s)
+            first = self.queue.get(timeout=timeout_s) if timeout_s is None or timeout_s > 0 else self.queue.get_nowait()
         except queue.Empty:
-            return None
-        return name, frame
-
-    def drain(self) -> list[tuple[str, Frame]]:
-        """Every ``(bus_name, frame)`` queued right now, without waiting."""
-        out: list[tuple[str, Frame]] = []
+            return []
+        out = [first]
         get = self.queue.get_nowait
         try:
-            while True:
-                name, frame, _received = get()
-                out.append((name, frame))
+            while len(out) < limit:
+                out.append(get())
         except queue.Empty:
-            return out
+            pass
+        return out
+
+    def get(self, timeout_s: float | None = None) -> tuple[str, Frame] | None:
+        """The next ``(bus_name, frame)``, or None after ``timeout_s`` without one."""
+        got = self.receive(timeout_s, 1)
+        return (got[0][0], got[0][1]) if got else None
+
+    def drain(self) -> list[tuple[str, Frame]]:
+        """Every ``(bus_name, frame)`` received right now, without waiting."""
+        return [(name, frame) for name, frame, _received in self.receive(0.0, 1 << 62)]
 
     def __iter__(self) -> Iterator[tuple[str, Frame]]:
         """``(bus_name, frame)`` as they arrive, until :meth:`stop`."""
@@ -223,6 +291,76 @@ class BusReader:
             return False
         self.sent[bus_name] += 1
         return True
+
+    # -- receiving directly -------------------------------------------------
+    def _receive_direct(self, timeout_s: float | None, limit: int) -> list[tuple[str, Frame, float]]:
+        """Wait on the open buses' sockets, then drain each ready one with ``recv(0)``; reopen buses due."""
+        if self._stop.is_set():
+            return []
+        now = monotonic()
+        if any(bus is None for bus in self._buses.values()):
+            self._reopen_due(now)
+            due = min((self._reopen_at[n] for n, bus in self._buses.items() if bus is None), default=math.inf)
+            wait = max(0.0, min(math.inf if timeout_s is None else timeout_s, due - now))
+            timeout_s = None if wait == math.inf else wait
+        fds = [self._fds[name] for name, bus in self._buses.items() if bus is not None]
+        try:
+            ready, _, _ = select.select(fds, [], [], timeout_s)
+        except (OSError, ValueError):  # a socket closed under us: each recv below says which
+            ready = fds
+        if not ready:
+            return []
+        out: list[tuple[str, Frame, float]] = []
+        share = max(1, limit // len(ready))  # a busy bus does not starve the others
+        for name, fd in self._fds.items():
+            if fd in ready and self._buses[name] is not None:
+                self._drain_bus(name, share, out)
+        if len(ready) > 1:
+            out.sort(key=lambda item: item[2])  # buses drained one after the other: back to arrival order
+        return out
+
+    def _drain_bus(self, name: str, limit: int, out: list[tuple[str, Frame, float]]) -> None:
+        """Append up to ``limit`` frames the kernel holds for bus ``name``; a failure closes the bus."""
+        bus = self._buses[name]
+        assert bus is not None
+        now = monotonic()
+        offset = time.time() - now  # wall clock minus monotonic: a wall-clock stamp to monotonic's base
+        got = 0
+        try:
+            while got < limit:
+                msg = bus.recv(0)
+                if msg is None:
+                    break
+                got += 1
+                frame = to_frame(msg, name)
+                wall = self._wall_stamps[name]
+                if wall is None:  # the bus's first frame: does it stamp with the wall clock?
+                    wall = self._wall_stamps[name] = abs(frame.t - offset - now) < WALL_STAMP_S
+                out.append((name, frame, min(frame.t - offset, now) if wall else now))
+        except Exception as exc:  # the bus went away (or a backend bug): report, close, reopen later
+            self._failed(name, exc)
+            self._reopen_at[name] = monotonic() + self._delay[name]
+        if got:
+            self.received[name] += got
+            self._delay[name] = self.backoff_min_s
+
+    def _reopen_due(self, now: float) -> None:
+        """Try once to reopen each closed bus whose backoff delay has passed; a failure doubles its delay."""
+        for name, bus in self._buses.items():
+            if bus is not None or now < self._reopen_at[name]:
+                continue
+            delay = self._delay[name]
+            self._delay[name] = min(delay * 2, self.backoff_max_s)
+            opened = self._open_once(name, delay)
+            if opened is None:
+                self._reopen_at[name] = now + delay
+                continue
+            fd = bus_fileno(opened)
+            if fd < 0:  # cannot happen for the same interface; fail loudly rather than never receive
+                _shutdown(opened, name)
+                raise BusError(f"bus {name!r} reopened without a socket to wait on")
+            self._fds[name] = fd
+            self._wall_stamps[name] = None
 
     # -- the receive threads -----------------------------------------------
     def _run(self, name: str) -> None:
@@ -269,20 +407,26 @@ class BusReader:
 
     def _reopen(self, name: str, delay: float) -> bool:
         """Try once to reopen ``name``; on failure wait ``delay`` (or until stopped)."""
+        if self._open_once(name, delay) is not None:
+            return True
+        self._stop.wait(delay)
+        return False
+
+    def _open_once(self, name: str, delay: float) -> can.BusABC | None:
+        """Try once to reopen ``name``; the bus, or None (logged, saying when the next try is)."""
         try:
             bus = self._opener(self.configs[name])
         except Exception as exc:
             log.warning("bus %s: reopen failed (%s); retrying in %.1f s", name, exc, delay)
-            self._stop.wait(delay)
-            return False
+            return None
         if self._stop.is_set():
             _shutdown(bus, name)
-            return False
+            return None
         with self._lock:
             self._buses[name] = bus
         self.reopens[name] += 1
         log.info("bus %s reopened", name)
-        return True
+        return bus
 
     def _shutdown_all(self) -> None:
         with self._lock:

@@ -2,7 +2,12 @@
 
 The loop: wait for frames until the engine's next deadline (a tick or a gate
 deadline), take the frames received as blocks (:meth:`Engine.take`), advance the engine to now, and tell
-systemd how things stand:
+systemd how things stand. Where every bus has a socket (SocketCAN, udp_multicast) the loop's own thread
+waits on it and drains it (:class:`~canguard.io.bus.BusReader` ``direct``): a frame reaches the engine
+without a thread hand-off (a queue, and the GIL passed between threads). Other buses get a reader thread
+each and a queue in between. The journal's ``fsync`` runs in a thread of its own
+(:class:`~canguard.engine.events.EventJournal` ``sync_in_background``): a trip that comes while the disk
+syncs the last events is not held up by it.
 
 - ``READY=1`` once every bus is open and the tree loaded;
 - ``WATCHDOG=1`` only while the loop ticks on time and every source the tree
@@ -55,9 +60,12 @@ SWITCH_INTERVAL_S = 0.0005
 LIVE_SKEW_S = 0.5
 """A frame timestamp further than this from the daemon's clock is replaced by the receive time."""
 OVERRUN_FLOOR_S = 0.05
-"""The shortest wait in the receive queue that counts as falling behind (scheduling jitter is below it)."""
+"""The shortest wait between arrival and the engine that counts as falling behind (jitter is below it)."""
 DRAIN = 512
-"""Frames taken from the receive queue after the first, at most, before the engine advances to now."""
+"""Frames received after the first, at most, before the engine advances to now."""
+DRAIN_DIRECT = 32
+"""The same where the loop reads the sockets itself: each read costs tens of microseconds, and a frame
+that trips waits for the reads after it in its batch before the engine sees it (512: up to ~15 ms)."""
 
 
 def guarding(cfg: Config) -> str:
@@ -114,7 +122,7 @@ class Daemon:
 
             self.metrics = Metrics()
             self.metrics.start(metrics_addr)
-        self.journal = EventJournal(self.cfg.events)
+        self.journal = EventJournal(self.cfg.events, sync_in_background=True)  # the loop never waits for a disk
         self.events: EventSink = self.journal
         self.monitor: Any = None
         """The status page / Groot2 monitor (:mod:`canguard.service.monitor`, imported only when configured)."""
@@ -131,7 +139,7 @@ class Daemon:
         self._watchdog_held = ""
         self._bus_errors: queue.SimpleQueue[tuple[str, str]] = queue.SimpleQueue()
         self.exit_reason = "exit"
-        self.reader = BusReader(self.cfg.buses, on_error=self._bus_error)
+        self.reader = BusReader(self.cfg.buses, on_error=self._bus_error, direct=True)
         self.sink: FrameSink = BusSink(
             self.reader.send, on_error=self.metrics.send_error if self.metrics is not None else None,
             on_refused=self._send_refused,
@@ -141,9 +149,10 @@ class Daemon:
         except BaseException:
             if self.monitor is not None:
                 self.monitor.close()
+            self.journal.close()  # and its sync thread
             raise
         self.overrun_limit_s = overrun_limit(self.cfg)
-        """A frame that waited longer in the receive queue stops the task (:meth:`Engine.overrun`)."""
+        """A frame that waited longer since it arrived stops the task (:meth:`Engine.overrun`)."""
 
     def build_engine(self, cfg: Config, previous: Engine | None = None) -> Engine:
         heat = HeatStore(cfg.state.file, cfg.state.on_corrupt, clock=BootClock())
@@ -196,22 +205,19 @@ class Daemon:
         next_wd = 0.0
         next_status = time.monotonic() + 1.0
         end = time.monotonic() + duration_s if duration_s is not None else math.inf
-        q = self.reader.queue
+        receive = self.reader.receive
+        batch = DRAIN_DIRECT if self.reader.direct else DRAIN + 1
         # Python hands the GIL between threads every 5 ms by default: a frame received by a
-        # bus thread could wait that long for the loop. 0.5 ms keeps the trip-to-stop tail short.
+        # bus thread (or the monitor's) could wait that long for the loop. 0.5 ms keeps the tail short.
         previous_switch = sys.getswitchinterval()
         sys.setswitchinterval(SWITCH_INTERVAL_S)
         try:
             while not self._stop.is_set() and time.monotonic() < end:
                 engine = self.engine
                 now = self.clock.now()
-                wait = min(max(0.0, engine.next_due() - now), 0.05)
-                try:
-                    item = q.get(timeout=wait) if wait > 0 else q.get_nowait()
-                except queue.Empty:
-                    item = None
-                if item is not None:
-                    self._take(engine, item, q)
+                items = receive(min(max(0.0, engine.next_due() - now), 0.05), batch)
+                if items:
+                    self._take(engine, items)
                 engine.advance(self.clock.now())
                 self._drain_bus_errors(engine)
                 if self._down:
@@ -257,20 +263,14 @@ class Daemon:
         fps = ", ".join(f"{bus} {r:.0f} fps" for bus, r in rates.items())
         self.notifier.status(f"{engine.status_line()}; {fps}; {guarding(self.cfg)}")
 
-    def _take(self, engine: Engine, item: tuple[str, Frame, float], q: queue.SimpleQueue[tuple[str, Frame, float]]
-              ) -> None:
-        """``item`` and what else is waiting (up to :data:`DRAIN` frames, so that a tick never starves) as blocks
-        of frames in arrival order through :meth:`Engine.take`: a block ends where the bus changes, and before a
-        frame whose wait in the queue starts or ends an overrun (which then comes after the frames before it)."""
-        bus: str = item[0]
+    def _take(self, engine: Engine, items: list[tuple[str, Frame, float]]) -> None:
+        """The frames received (up to :data:`DRAIN` + 1 or :data:`DRAIN_DIRECT`, so that a tick never starves) as
+        blocks of frames in arrival order through :meth:`Engine.take`: a block ends where the bus changes, and
+        before a frame whose wait since it arrived starts or ends an overrun (which then comes after the frames
+        before it)."""
+        bus: str = items[0][0]
         block: list[Frame] = []
-        for k in range(DRAIN + 1):
-            if k:
-                try:
-                    item = q.get_nowait()
-                except queue.Empty:
-                    break
-            name, frame, received = item
+        for name, frame, received in items:
             waited = time.monotonic() - received
             held = "overrun" in engine.gate.inhibits
             behind = not held and waited > self.overrun_limit_s  # its data is older than the config allows
@@ -363,7 +363,7 @@ class Daemon:
 
 
 def overrun_limit(cfg: Config) -> float:
-    """How long a frame may wait in canguard's receive queue: the shortest ``max_age`` of the sources.
+    """How long a frame may wait between its arrival and the engine: the shortest ``max_age`` of the sources.
 
     A frame that waited longer carries data the config already calls stale, judged as fresh.
     """

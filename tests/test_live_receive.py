@@ -1,0 +1,270 @@
+"""The live receive path without a thread hand-off: ``BusReader(direct=True)`` and the daemon on it.
+
+A bus with a socket (udp_multicast here, SocketCAN on the robot) is waited on and drained by the
+caller's thread; a bus without one (python-can's virtual bus) keeps its receive thread. Both give
+``(bus, frame, received)`` through :meth:`BusReader.receive`.
+"""
+
+from __future__ import annotations
+
+import errno
+import os
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import can
+import pytest
+
+from canguard.config.schema import BusConfig
+from canguard.engine.events import EventJournal, read_events
+from canguard.engine.gate import TaskGate
+from canguard.io.bus import BusReader, open_bus
+from canguard.io.frame import Frame
+from canguard.service.daemon import Daemon
+from canguard.service.systemd import Notifier
+from test_daemon import BmsFeeder, is_stop, is_task, unique_udp, write_config
+from waitkit import receive_until, wait_until
+
+pytest.importorskip("msgpack")  # python-can's udp_multicast needs it
+
+
+def udp_config(name: str = "main") -> BusConfig:
+    """A udp_multicast bus on a group and port no other test uses."""
+    return BusConfig(name=name, kwargs=unique_udp())
+
+
+def threads_named(name_prefix: str = "canguard-bus-") -> set[threading.Thread]:
+    """The threads alive now whose names start so (compared before and after: other tests may leave theirs ending)."""
+    return {t for t in threading.enumerate() if t.name.startswith(name_prefix) and t.is_alive()}
+
+
+def collect(reader: BusReader, n: int) -> list[tuple[str, Frame, float]]:
+    """The next ``n`` frames :meth:`BusReader.receive` gives, as soon as they are there."""
+    out: list[tuple[str, Frame, float]] = []
+
+    def enough() -> bool:
+        out.extend(reader.receive(0.05, n - len(out)))
+        return len(out) >= n
+
+    wait_until(enough, what=f"{n} frames from the reader")
+    return out
+
+
+@pytest.fixture
+def udp() -> Iterator[tuple[BusConfig, can.BusABC]]:
+    """A udp_multicast bus config and a peer bus on it."""
+    cfg = udp_config()
+    peer = can.Bus(**cfg.kwargs)
+    try:
+        yield cfg, peer
+    finally:
+        peer.shutdown()
+
+
+class TestDirectReceive:
+    """BusReader(direct=True) on a bus with a socket: the caller's thread receives."""
+
+    def test_frames_arrive_in_order_without_a_receive_thread(self, udp: tuple[BusConfig, can.BusABC]) -> None:
+        """Frames from a peer come out of receive() in the order sent, and no receive thread is started."""
+        cfg, peer = udp
+        before = threads_named()
+        with BusReader([cfg], direct=True) as reader:
+            assert reader.direct
+            assert not threads_named() - before
+            for i in range(50):
+                peer.send(can.Message(arbitration_id=0x123, data=bytes([i]) * 8, is_extended_id=False))
+            got = collect(reader, 50)
+            assert [f.data[0] for _, f, _ in got] == list(range(50))
+            assert {name for name, _, _ in got} == {cfg.name}
+            assert reader.received[cfg.name] == 50
+            assert reader.alive() == {cfg.name: True}
+        assert reader.alive() == {cfg.name: False}
+
+    def test_a_frame_that_waited_in_the_kernel_counts_its_wait(self, udp: tuple[BusConfig, can.BusABC]) -> None:
+        """A frame left in the socket's buffer is received with the time it arrived, not the time it was read."""
+        cfg, peer = udp
+        with BusReader([cfg], direct=True) as reader:
+            peer.send(can.Message(arbitration_id=0x124, data=b"\x01", is_extended_id=False))
+            collect(reader, 1)  # the bus's first frame tells that it stamps with the wall clock
+            sent = time.monotonic()
+            peer.send(can.Message(arbitration_id=0x124, data=b"\x02", is_extended_id=False))
+            time.sleep(0.2)  # the loop is busy elsewhere: the frame waits in the kernel's buffer
+            read = time.monotonic()
+            ((_, frame, received),) = collect(reader, 1)
+        assert frame.data == b"\x02"
+        assert sent - 0.05 <= received < read - 0.1
+
+    def test_a_receive_error_is_reported_and_the_bus_reopened(self, udp: tuple[BusConfig, can.BusABC]) -> None:
+        """A failing recv is handed to on_error, the bus is reopened after its backoff, and frames come again."""
+        cfg, peer = udp
+        opened: list[can.BusABC] = []
+
+        def opener(c: BusConfig) -> can.BusABC:
+            bus = open_bus(c)
+            if not opened:  # the first bus breaks on its first recv
+
+                def broken(timeout: float | None = None) -> can.Message | None:
+                    raise can.CanOperationError("interface went down")
+
+                bus.recv = broken  # type: ignore[method-assign]
+            opened.append(bus)
+            return bus
+
+        errors: list[tuple[str, str]] = []
+        reader = BusReader([cfg], direct=True, opener=opener, backoff_min_s=0.01,
+                           on_error=lambda n, e: errors.append((n, str(e))))
+        with reader:
+            assert reader.direct
+            msg = can.Message(arbitration_id=0x125, data=b"\x07", is_extended_id=False)
+
+            def reopened() -> bool:
+                peer.send(msg)  # something to read, so that the broken recv is called
+                reader.receive(0.02, 10)
+                return reader.reopens[cfg.name] >= 1
+
+            wait_until(reopened, what="the bus reopened")
+            assert errors == [(cfg.name, "interface went down")]
+            peer.send(msg)
+            got = collect(reader, 1)
+            assert got[0][1].arbitration_id == 0x125
+            assert reader.alive() == {cfg.name: True}
+
+    def test_two_buses_come_out_in_arrival_order(self) -> None:
+        """Frames sent alternately on two buses come out of one receive() in the order they arrived."""
+        first, second = udp_config("a"), udp_config("b")
+        peers = [can.Bus(**first.kwargs), can.Bus(**second.kwargs)]
+        try:
+            with BusReader([first, second], direct=True) as reader:
+                assert reader.direct
+                for i in range(20):
+                    peers[i % 2].send(can.Message(arbitration_id=0x127, data=bytes([i]), is_extended_id=False))
+                got = collect(reader, 20)
+            assert [f.data[0] for _, f, _ in got] == list(range(20))
+            assert [name for name, _, _ in got] == ["a", "b"] * 10
+        finally:
+            for peer in peers:
+                peer.shutdown()
+
+    def test_a_descriptor_that_is_no_socket_keeps_the_receive_thread(self) -> None:
+        """A bus whose descriptor is not a socket (a serial adapter's tty: python-can buffers it) is not direct."""
+        cfg = BusConfig(name="serial", kwargs={"interface": "virtual", "channel": f"t-{time.monotonic_ns()}"})
+        read_end, write_end = os.pipe()
+
+        def opener(c: BusConfig) -> can.BusABC:
+            bus = open_bus(c)
+            bus.fileno = lambda: read_end  # type: ignore[method-assign]
+            return bus
+
+        try:
+            with BusReader([cfg], direct=True, opener=opener) as reader:
+                assert not reader.direct
+                assert threads_named("canguard-bus-serial")
+        finally:
+            os.close(read_end)
+            os.close(write_end)
+
+    def test_a_bus_without_a_socket_keeps_its_receive_thread(self) -> None:
+        """A virtual bus has no file descriptor: direct=True falls back to a receive thread, same receive()."""
+        cfg = BusConfig(name="virt", kwargs={"interface": "virtual", "channel": f"t-{time.monotonic_ns()}"})
+        peer = can.Bus(**cfg.kwargs)
+        try:
+            with BusReader([cfg], direct=True) as reader:
+                assert not reader.direct
+                assert threads_named("canguard-bus-virt")
+                peer.send(can.Message(arbitration_id=0x126, data=b"", is_extended_id=False))
+                assert collect(reader, 1)[0][1].arbitration_id == 0x126
+        finally:
+            peer.shutdown()
+
+
+class TestDaemonReceivesDirectly:
+    """Daemon.run on a udp_multicast bus receives in its own thread and still trips."""
+
+    def test_overcurrent_brings_the_estop_without_a_receive_thread(self, tmp_path: Path) -> None:
+        """On a bus with a socket the daemon starts no receive thread, and a peer's overcurrent stops the task."""
+        bus = unique_udp()
+        daemon = Daemon(write_config(tmp_path, bus), notifier=Notifier(env={}))
+        peer = can.Bus(**bus)
+        result: list[int] = []
+        before = threads_named()
+        thread = threading.Thread(target=lambda: result.append(daemon.run()), name="daemon", daemon=True)
+        thread.start()
+        try:
+            with BmsFeeder(peer) as feeder:
+                receive_until(peer, is_task, "task frame while the current is normal")
+                assert daemon.reader.direct
+                assert not threads_named() - before
+                feeder.current_a = 40.0
+                receive_until(peer, is_stop, "Estop after the overcurrent")
+            assert daemon.engine.gate.state == TaskGate.STOPPED
+        finally:
+            daemon.request_stop("test over")
+            thread.join(10)
+            peer.shutdown()
+        assert result == [0]
+
+
+class TestJournalSyncsInBackground:
+    """The live daemon's journal fsyncs in a thread of its own, so the loop never waits for the disk."""
+
+    @pytest.fixture
+    def fsyncs(self, monkeypatch: pytest.MonkeyPatch) -> list[str]:
+        """The name of the thread of every os.fsync from now on."""
+        seen: list[str] = []
+        real = os.fsync
+
+        def recording(fd: int) -> None:
+            seen.append(threading.current_thread().name)
+            real(fd)
+
+        monkeypatch.setattr(os, "fsync", recording)
+        return seen
+
+    def test_flush_leaves_the_fsync_to_the_sync_thread(self, tmp_path: Path, fsyncs: list[str]) -> None:
+        """flush() returns without syncing; the sync thread syncs the file soon after."""
+        journal = EventJournal(tmp_path / "events.jsonl", sync_in_background=True)
+        try:
+            fsyncs.clear()  # creating the file synced its directory
+            journal.write({"event": "trip", "reason": "overcurrent"})
+            journal.flush()
+            assert threading.current_thread().name not in fsyncs
+            wait_until(lambda: "canguard-journal-fsync" in fsyncs, what="the sync thread's fsync")
+        finally:
+            journal.close()
+
+    def test_close_syncs_every_line_and_ends_the_thread(self, tmp_path: Path, fsyncs: list[str]) -> None:
+        """close() syncs in the caller before it returns, and the sync thread is gone."""
+        before = threads_named("canguard-journal-fsync")
+        journal = EventJournal(tmp_path / "events.jsonl", sync_in_background=True)
+        for k in range(5):
+            journal.write({"event": "stop", "reason": f"stop {k}"})
+        journal.flush()
+        journal.close()
+        assert fsyncs and fsyncs[-1] == threading.current_thread().name
+        assert not threads_named("canguard-journal-fsync") - before
+        assert [e["reason"] for e in read_events(tmp_path / "events.jsonl")] == [f"stop {k}" for k in range(5)]
+
+    def test_a_failed_background_fsync_is_counted_and_tried_again(self, tmp_path: Path,
+                                                                monkeypatch: pytest.MonkeyPatch) -> None:
+        """An fsync the disk refuses is counted as an error and done again at the next flush."""
+        journal = EventJournal(tmp_path / "events.jsonl", sync_in_background=True)
+        real = os.fsync
+        calls: list[bool] = []
+
+        def failing_once(fd: int) -> None:
+            calls.append(not calls)
+            if len(calls) == 1:
+                raise OSError(errno.EIO, "I/O error")
+            real(fd)
+
+        monkeypatch.setattr(os, "fsync", failing_once)
+        try:
+            journal.write({"event": "trip", "reason": "overcurrent"})
+            journal.flush()
+            wait_until(lambda: journal.errors == 1, what="the failed fsync counted")
+            journal.flush()
+            wait_until(lambda: len(calls) >= 2, what="the fsync tried again")
+        finally:
+            journal.close()
