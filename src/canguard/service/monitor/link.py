@@ -64,6 +64,8 @@ class ChildLink:
             self.close()
             raise
         self._sock.setblocking(False)
+        self._io = wire.GilHoldingSocket(self._sock)
+        """The engine's thread sends and reads through it without letting go of the GIL."""
         self._latest: TickSnapshot | None = None
         self._layout: LayoutRecord | None = None
         """The layout the monitor process has (or is being sent)."""
@@ -102,6 +104,7 @@ class ChildLink:
     def close(self) -> None:
         """End the monitor process (it also ends by itself when the daemon's end of the socket closes)."""
         self._closing = True
+        self._gone = True  # nothing is sent on the descriptor once closed (the system may reuse its number)
         self._sock.close()
         if self._proc.poll() is None:
             self._proc.terminate()
@@ -178,9 +181,7 @@ class ChildLink:
         """Send one message (the rest of a large one as the socket takes it); False: nothing of it was taken."""
         if not self._send_outbox():
             return False
-        try:
-            self._sock.send(frames[0])
-        except BlockingIOError:
+        if not self._io.send(frames[0]):
             return False  # the monitor process is behind: this record is dropped, the next one is newer
         self._outbox.extend(frames[1:])
         self._send_outbox()
@@ -197,9 +198,7 @@ class ChildLink:
         """Send the frames waiting, in order; False when the socket cannot take more now."""
         out = self._outbox
         while out:
-            try:
-                self._sock.send(out[0])
-            except BlockingIOError:
+            if not self._io.send(out[0]):
                 return False
             out.popleft()
         return True
@@ -207,9 +206,8 @@ class ChildLink:
     def _read_requests(self) -> None:
         """Take the monitor process's requests (a Groot2 client wants the blackboard); never waits."""
         while True:
-            try:
-                data = self._sock.recv(64)
-            except BlockingIOError:
+            data = self._io.recv()
+            if data is None:
                 return
             if not data:
                 raise ConnectionResetError(errno.ECONNRESET, "the monitor process closed its socket")
