@@ -141,3 +141,28 @@ def test_the_monitor_process_runs_below_the_daemon() -> None:
             assert os.getpriority(os.PRIO_PROCESS, tid) == min(19, ours + 10)
     finally:
         monitor.close()
+
+
+def test_sends_to_the_monitor_process_never_wait_and_a_gone_one_is_an_error() -> None:
+    """The daemon's end takes whole messages while there is room, refuses the next at once, and raises once closed."""
+    from canguard.service.monitor import wire
+
+    ours, theirs = wire.socket_pair()
+    try:
+        ours.setblocking(False)
+        end = wire.GilHoldingSocket(ours)
+        assert end.recv() is None  # nothing asked
+        theirs.send(wire.WANT_BLACKBOARD)
+        assert end.recv() == wire.WANT_BLACKBOARD
+        sent = 0
+        while end.send(b"x" * 1000):  # the monitor process reads nothing: its buffer fills, no send waits
+            sent += 1
+            assert sent < 100_000
+        assert sent > 10 and theirs.recv(2000) == b"x" * 1000  # whole messages, one per send
+        theirs.close()
+        with pytest.raises(OSError):
+            end.send(b"x")
+        assert end.recv() == b""  # the other end closed
+    finally:
+        ours.close()
+        theirs.close()
