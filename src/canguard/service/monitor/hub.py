@@ -1,12 +1,12 @@
 """In the monitor process: the latest snapshot, the last journal events, and who to wake.
 
 The receiving side (:meth:`Hub.put`, :meth:`Hub.event`, the thread reading the daemon's socket in
-:mod:`.server`) only assigns a reference or appends to a bounded deque: it takes no lock and waits
-for no one. A dispatcher thread looks for news every
-:data:`POLL_S`, renders the status document once per change (shared by every client), and wakes
-the clients' threads. A client that reads slowly skips snapshots (it always gets the latest) and,
-past :data:`KEEP_EVENTS`, loses the oldest events (it is told how many): nothing it does reaches
-the engine.
+:mod:`.server`) only assigns a reference, or encodes an event once and appends it to a bounded
+deque: it takes no lock and waits for no one. A dispatcher thread looks for news every
+:data:`POLL_S`, renders the status document once per change and at most every :data:`DOCUMENT_S`
+(shared by every client), and wakes the clients' threads. A client that reads slowly skips
+snapshots (it always gets the latest) and, past :data:`KEEP_EVENTS`, loses the oldest events (it
+is told how many): nothing it does reaches the engine.
 """
 
 from __future__ import annotations
@@ -22,9 +22,12 @@ from typing import Any
 from canguard.engine.event_codec import encode_event
 from canguard.service.monitor.snapshot import TickSnapshot, status_name
 
-POLL_S = 0.04
-"""How often the dispatcher looks for a new snapshot or event (a change reaches a page within ~this + its RTT):
-at most 25 status documents a second, whatever the engine does."""
+POLL_S = 0.02
+"""How often the dispatcher looks for a new snapshot or event."""
+DOCUMENT_S = 0.1
+"""Shortest time between two status documents: the page draws no more often (its ``MIN_REDRAW_MS``), so a
+browser parses no document it would not draw; at most 10 a second, whatever the engine does. A change
+reaches a page within this + :data:`POLL_S` + the engine's 20 ms + an animation frame + its RTT."""
 KEEP_EVENTS = 500
 """Journal events kept for clients; a client further behind loses the oldest."""
 STATUS_EVENTS = 30
@@ -118,10 +121,12 @@ class Hub:
     def _dispatch(self) -> None:
         seen: tuple[TickSnapshot | None, int] | None = None  # the first document goes out at once
         shown: dict[str, Any] | None = None
+        due = -math.inf
         while seen is None or not self._closed.wait(POLL_S):
             now = (self._latest, self._event_seq)
-            if seen is not None and now[0] is seen[0] and now[1] == seen[1]:
+            if (seen is not None and now[0] is seen[0] and now[1] == seen[1]) or time.monotonic() < due:
                 continue
+            due = time.monotonic() + DOCUMENT_S
             seen = now
             status = self.status()
             doc = json.dumps(status, allow_nan=False, separators=(",", ":")).encode()
