@@ -8,7 +8,8 @@ most every 20 ms) it pickles a small record (the new journal events, the snapsho
 and offers it to a non-blocking socket; one the socket cannot take now is dropped for the next,
 newer one (latest wins; events wait in a bounded deque, the oldest dropped). No thread of the
 monitors runs in the daemon: none competes with the loop for the GIL, and the loop never sleeps
-waiting for one to hand it back. A monitor process that dies is logged once and forgotten: the
+waiting for one to hand it back (the socket calls keep the GIL too: :class:`.wire.GilHoldingSocket`).
+A monitor process that dies is logged once (by a thread started for that alone) and forgotten: the
 guard goes on. It is ended when the daemon ends.
 """
 
