@@ -44,6 +44,9 @@ START_TIMEOUT_S = 30.0
 """How long the daemon waits at start for its monitor process to listen (a loaded robot takes seconds)."""
 BLACKBOARD_S = 1.0
 """How long a Groot2 request for the blackboard puts it in the snapshots."""
+REQUESTS_S = 0.1
+"""How often the engine's hand-over also reads the monitor process's requests (Groot2 waits 0.3 s for a blackboard;
+a system call per snapshot costs the loop more than the requests are worth)."""
 
 
 class ChildLink:
@@ -81,6 +84,7 @@ class ChildLink:
         self._closing = False
         self._failed = False
         self._gone = False
+        self._requests_at = 0.0
 
     # -- start and end ---------------------------------------------------------------------------
     def _start(self, settings: MonitorConfig) -> None:
@@ -141,7 +145,10 @@ class ChildLink:
         if self._gone or (self._latest is self._sent and not self._events and not self._outbox):
             return
         try:
-            self._read_requests()
+            now = time.monotonic()
+            if now >= self._requests_at:
+                self._requests_at = now + REQUESTS_S
+                self._read_requests()
             self._flush()
         except OSError as exc:
             self._gone = True
