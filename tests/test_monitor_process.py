@@ -119,3 +119,50 @@ def children() -> list[int]:
         with open(f"/proc/{os.getpid()}/task/{task}/children", encoding="ascii") as f:
             out += [int(pid) for pid in f.read().split() if not gone(int(pid))]
     return out
+
+
+def test_the_monitor_process_runs_below_the_daemon() -> None:
+    """Every thread of the monitor process is SCHED_BATCH (never preempts the daemon on waking), 10 nice steps nicer."""
+    from canguard.config.schema import MonitorConfig
+    from canguard.service.monitor import Monitor
+
+    monitor = Monitor(MonitorConfig(http="127.0.0.1:0"))
+    try:
+        pid = monitor.hub.pid
+        ours = os.getpriority(os.PRIO_PROCESS, 0)
+
+        def threads() -> list[int]:
+            tids = [int(t) for t in os.listdir(f"/proc/{pid}/task")]
+            return tids if len(tids) > 1 else []  # its servers' threads started too
+
+        tids = wait_for("the monitor process's threads", threads)
+        for tid in tids:
+            assert os.sched_getscheduler(tid) == os.SCHED_BATCH
+            assert os.getpriority(os.PRIO_PROCESS, tid) == min(19, ours + 10)
+    finally:
+        monitor.close()
+
+
+def test_sends_to_the_monitor_process_never_wait_and_a_gone_one_is_an_error() -> None:
+    """The daemon's end takes whole messages while there is room, refuses the next at once, and raises once closed."""
+    from canguard.service.monitor import wire
+
+    ours, theirs = wire.socket_pair()
+    try:
+        ours.setblocking(False)
+        end = wire.GilHoldingSocket(ours)
+        assert end.recv() is None  # nothing asked
+        theirs.send(wire.WANT_BLACKBOARD)
+        assert end.recv() == wire.WANT_BLACKBOARD
+        sent = 0
+        while end.send(b"x" * 1000):  # the monitor process reads nothing: its buffer fills, no send waits
+            sent += 1
+            assert sent < 100_000
+        assert sent > 10 and theirs.recv(2000) == b"x" * 1000  # whole messages, one per send
+        theirs.close()
+        with pytest.raises(OSError):
+            end.send(b"x")
+        assert end.recv() == b""  # the other end closed
+    finally:
+        ours.close()
+        theirs.close()

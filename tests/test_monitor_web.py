@@ -117,6 +117,19 @@ class TestStatus:
             assert len(sent) < 10
 
 
+    def test_stream_sends_no_more_documents_than_the_page_draws(self, watched: Watched) -> None:
+        """A busy robot's stream carries at most one document per 100 ms (the page's redraw), yet keeps moving."""
+        docs = 0
+        start = time.monotonic()
+        for name, _ in sse(watched.http + "/api/status"):
+            docs += name == "status"
+            if time.monotonic() - start >= 3.0:
+                break
+        elapsed = time.monotonic() - start
+        assert docs <= elapsed / 0.1 + 2  # the first at once, then one per 100 ms at most
+        assert docs >= 5  # the guards' values move: the page is told
+
+
 class TestEvents:
     """``GET /api/events``."""
 

@@ -298,6 +298,16 @@ class TestUnitFiles:
         assert _verify(unit) == []
         assert _exposure(unit) <= 1.2
 
+    def test_monitor_dropin_puts_the_daemon_before_its_monitor_process(self, tmp_path: Path) -> None:
+        """The monitors' drop-in raises the daemon 10 nice steps and starts its children back at 0 (reset on fork)."""
+        unit = _with_dropin(tmp_path, "monitor.conf")
+        text = unit.read_text()
+        assert re.search(r"^Nice=-10$", text, re.MULTILINE)
+        # without a policy set, systemd never makes the call that carries the reset-on-fork flag
+        assert "CPUSchedulingPolicy=other" in text and "CPUSchedulingResetOnFork=yes" in text
+        assert "RestrictRealtime=yes" in text  # no real-time policy crept in
+        assert _verify(unit) == []
+
     def test_service_keeps_the_can_bus_reachable(self) -> None:
         """The service allows AF_CAN, binds to can0 and does not hide the host network."""
         text = (SYSTEMD_DIR / "canguard.service").read_text()

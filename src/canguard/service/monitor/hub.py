@@ -1,12 +1,12 @@
 """In the monitor process: the latest snapshot, the last journal events, and who to wake.
 
 The receiving side (:meth:`Hub.put`, :meth:`Hub.event`, the thread reading the daemon's socket in
-:mod:`.server`) only assigns a reference or appends to a bounded deque: it takes no lock and waits
-for no one. A dispatcher thread looks for news every
-:data:`POLL_S`, renders the status document once per change (shared by every client), and wakes
-the clients' threads. A client that reads slowly skips snapshots (it always gets the latest) and,
-past :data:`KEEP_EVENTS`, loses the oldest events (it is told how many): nothing it does reaches
-the engine.
+:mod:`.server`) only assigns a reference, or encodes an event once and appends it to a bounded
+deque: it takes no lock and waits for no one. A dispatcher thread looks for news every
+:data:`POLL_S`, renders the status document once per change and at most every :data:`DOCUMENT_S`
+(shared by every client), and wakes the clients' threads. A client that reads slowly skips
+snapshots (it always gets the latest) and, past :data:`KEEP_EVENTS`, loses the oldest events (it
+is told how many): nothing it does reaches the engine.
 """
 
 from __future__ import annotations
@@ -22,9 +22,12 @@ from typing import Any
 from canguard.engine.event_codec import encode_event
 from canguard.service.monitor.snapshot import TickSnapshot, status_name
 
-POLL_S = 0.04
-"""How often the dispatcher looks for a new snapshot or event (a change reaches a page within ~this + its RTT):
-at most 25 status documents a second, whatever the engine does."""
+POLL_S = 0.02
+"""How often the dispatcher looks for a new snapshot or event."""
+DOCUMENT_S = 0.1
+"""Shortest time between two status documents: the page draws no more often (its ``MIN_REDRAW_MS``), so a
+browser parses no document it would not draw; at most 10 a second, whatever the engine does. A change
+reaches a page within this + :data:`POLL_S` + the engine's 20 ms + an animation frame + its RTT."""
 KEEP_EVENTS = 500
 """Journal events kept for clients; a client further behind loses the oldest."""
 STATUS_EVENTS = 30
@@ -38,13 +41,12 @@ class Hub:
         self._ask_blackboard = ask_blackboard
         """Tells the daemon that a monitor wants the blackboard in its snapshots."""
         self._latest: TickSnapshot | None = None
-        self._events: deque[tuple[int, dict[str, Any]]] = deque(maxlen=KEEP_EVENTS)
+        self._events: deque[tuple[int, bytes, dict[str, Any]]] = deque(maxlen=KEEP_EVENTS)
+        """(seq, journal line, the line as JSON): each event is encoded once, as it arrives."""
         self._event_seq = 0
         self._blackboard_until = -math.inf
         self._cond = threading.Condition()
         self._version = 0
-        self._normalized: dict[int, dict[str, Any]] = {}
-        """Events as the journal writes them, by sequence number (each is normalized once)."""
         self._doc: tuple[int, bytes] = (0, json.dumps(self.status()).encode())
         self._closed = threading.Event()
         self._thread: threading.Thread | None = None
@@ -56,8 +58,9 @@ class Hub:
 
     def event(self, event: Mapping[str, Any], seq: int | None = None) -> None:
         """Keep one journal event, numbered ``seq`` by the daemon (a gap: events it dropped); the oldest go."""
+        line = encode_event(event)  # as the journal writes it (JSON-safe, rounded)
         self._event_seq = self._event_seq + 1 if seq is None else seq
-        self._events.append((self._event_seq, dict(event)))
+        self._events.append((self._event_seq, line, json.loads(line)))
 
     def blackboard_wanted(self) -> bool:
         """True while a monitor has asked for the blackboard within the last second."""
@@ -74,10 +77,10 @@ class Hub:
         """The latest published snapshot (None before the first tick)."""
         return self._latest
 
-    def events_after(self, seq: int) -> tuple[list[tuple[int, dict[str, Any]]], int]:
-        """Events newer than ``seq`` as (seq, event), and how many of them were already dropped."""
+    def events_after(self, seq: int) -> tuple[list[tuple[int, bytes]], int]:
+        """Events newer than ``seq`` as (seq, journal line), and how many of them were already dropped."""
         kept = list(self._events)  # one C-level copy: atomic against the engine's appends
-        newer = [item for item in kept if item[0] > seq]
+        newer = [(n, line) for n, line, _ in kept if n > seq]
         first = newer[0][0] if newer else self._event_seq + 1
         return newer, max(0, first - seq - 1)
 
@@ -118,10 +121,12 @@ class Hub:
     def _dispatch(self) -> None:
         seen: tuple[TickSnapshot | None, int] | None = None  # the first document goes out at once
         shown: dict[str, Any] | None = None
+        due = -math.inf
         while seen is None or not self._closed.wait(POLL_S):
             now = (self._latest, self._event_seq)
-            if seen is not None and now[0] is seen[0] and now[1] == seen[1]:
+            if (seen is not None and now[0] is seen[0] and now[1] == seen[1]) or time.monotonic() < due:
                 continue
+            due = time.monotonic() + DOCUMENT_S
             seen = now
             status = self.status()
             doc = json.dumps(status, allow_nan=False, separators=(",", ":")).encode()
@@ -136,21 +141,11 @@ class Hub:
     def status(self) -> dict[str, Any]:
         """The ``/api/status`` document: tree, task, guards, events."""
         snap = self._latest
-        events = [self._journal_form(seq, ev) for seq, ev in list(self._events)[-STATUS_EVENTS:]]
+        events = [form for _, _, form in list(self._events)[-STATUS_EVENTS:]]
         if snap is None:
             return {"tree": None, "task": None, "guards": [], "events": events}
         return {"t": snap.t, "seq": snap.seq, "tree": tree_document(snap), "task": task_document(snap, events),
                 "guards": [guard_document(g) for g in snap.guards], "events": events}
-
-
-    def _journal_form(self, seq: int, event: dict[str, Any]) -> dict[str, Any]:
-        """``event`` as its journal line reads (JSON-safe, rounded), computed once per event."""
-        form = self._normalized.get(seq)
-        if form is None:
-            form = json.loads(encode_event(event))
-            self._normalized = {k: v for k, v in self._normalized.items() if k > seq - KEEP_EVENTS}
-            self._normalized[seq] = form
-        return form
 
 
 def _shown(status: dict[str, Any]) -> dict[str, Any]:

@@ -2,14 +2,15 @@
 
 The status page's server, its JSON, the server-sent events and Groot2's sockets run in a process of
 their own (``python -m canguard.service.monitor.server``), so none of their work can take the
-daemon's interpreter (its GIL) from the loop. The loop's part here is the minimum: it assigns the
-latest snapshot's reference (no lock it could wait on, no system call: a system call hands the GIL
-to another thread, and getting it back can take the loop a switch interval). A sender thread of
-this module looks for news every :data:`POLL_S`, pickles a small record (the new journal events,
-the latest snapshot as plain tuples) and offers it to a non-blocking socket; one the socket cannot
-take now is dropped for the next, newer one (latest wins; events wait in a bounded deque, the
-oldest dropped). A monitor process that dies is logged once and forgotten: the guard goes on. It
-is ended when the daemon ends.
+daemon's interpreter (its GIL) from the loop. The loop's part here is small and comes after its
+tick, when the tick's stop frames are already on the bus: when the engine publishes a snapshot (at
+most every 20 ms) it pickles a small record (the new journal events, the snapshot as plain tuples)
+and offers it to a non-blocking socket; one the socket cannot take now is dropped for the next,
+newer one (latest wins; events wait in a bounded deque, the oldest dropped). No thread of the
+monitors runs in the daemon: none competes with the loop for the GIL, and the loop never sleeps
+waiting for one to hand it back (the socket calls keep the GIL too: :class:`.wire.GilHoldingSocket`).
+A monitor process that dies is logged once (by a thread started for that alone) and forgotten: the
+guard goes on. It is ended when the daemon ends.
 """
 
 from __future__ import annotations
@@ -41,10 +42,11 @@ KEEP_EVENTS = 500
 """Journal events kept for a monitor process that is behind; past that the oldest are dropped (it says how many)."""
 START_TIMEOUT_S = 30.0
 """How long the daemon waits at start for its monitor process to listen (a loaded robot takes seconds)."""
-POLL_S = 0.02
-"""How often the sender thread looks for a new snapshot, new events and the monitor process's requests."""
 BLACKBOARD_S = 1.0
 """How long a Groot2 request for the blackboard puts it in the snapshots."""
+REQUESTS_S = 0.1
+"""How often the engine's hand-over also reads the monitor process's requests (Groot2 waits 0.3 s for a blackboard;
+a system call per snapshot costs the loop more than the requests are worth)."""
 
 
 class ChildLink:
@@ -66,6 +68,8 @@ class ChildLink:
             self.close()
             raise
         self._sock.setblocking(False)
+        self._io = wire.GilHoldingSocket(self._sock)
+        """The engine's thread sends and reads through it without letting go of the GIL."""
         self._latest: TickSnapshot | None = None
         self._layout: LayoutRecord | None = None
         """The layout the monitor process has (or is being sent)."""
@@ -79,8 +83,8 @@ class ChildLink:
         self._blackboard_until = -1.0
         self._closing = False
         self._failed = False
-        self._thread = threading.Thread(target=self._send_loop, name="canguard-monitor-link", daemon=True)
-        self._thread.start()
+        self._gone = False
+        self._requests_at = 0.0
 
     # -- start and end ---------------------------------------------------------------------------
     def _start(self, settings: MonitorConfig) -> None:
@@ -105,9 +109,7 @@ class ChildLink:
     def close(self) -> None:
         """End the monitor process (it also ends by itself when the daemon's end of the socket closes)."""
         self._closing = True
-        thread = getattr(self, "_thread", None)
-        if thread is not None:
-            thread.join(2)
+        self._gone = True  # nothing is sent on the descriptor once closed (the system may reuse its number)
         self._sock.close()
         if self._proc.poll() is None:
             self._proc.terminate()
@@ -122,39 +124,48 @@ class ChildLink:
         """The monitor process's id."""
         return self._proc.pid
 
-    # -- the engine's side: no lock, no system call, no wait -------------------------------------
+    # -- the engine's side: after its tick (the stop frames are out), never waiting -----------------
     def put(self, snapshot: TickSnapshot) -> None:
-        """Publish the latest snapshot (at most every ``snapshot.PERIOD_S``): one reference assigned."""
+        """Publish the latest snapshot (at most every ``snapshot.PERIOD_S``) and offer it to the monitor process."""
         self._latest = snapshot
+        self.flush()
 
     def event(self, event: Mapping[str, Any]) -> None:
         """Keep one journal event for the next record (a bounded deque: the oldest go when the process is behind)."""
         self._event_seq += 1
         self._events.append((self._event_seq, dict(event)))
 
+    def flush(self) -> None:
+        """Offer what the monitor process has not had yet: one non-blocking send, or nothing when all is sent.
+
+        A record the socket cannot take now is dropped for the next, newer one (the engine calls this
+        again in its next ticks); what a dead monitor process leaves is reported once, by a thread of its
+        own (reaping the process may take a moment the loop must not wait).
+        """
+        if self._gone or (self._latest is self._sent and not self._events and not self._outbox):
+            return
+        try:
+            now = time.monotonic()
+            if now >= self._requests_at:
+                self._requests_at = now + REQUESTS_S
+                self._read_requests()
+            self._flush()
+        except OSError as exc:
+            self._gone = True
+            if not self._closing:
+                threading.Thread(target=self._died, args=(exc,), name="canguard-monitor-gone", daemon=True).start()
+        except Exception:  # a record that cannot be pickled: dropped, the next one goes
+            if not self._failed:
+                log.exception("a monitor record could not be sent; the monitors show the last good one")
+            self._failed = True
+            self._events.clear()
+            self._sent = self._latest
+
     def blackboard_wanted(self) -> bool:
         """True while a Groot2 client has asked for the blackboard within the last second."""
         return time.monotonic() < self._blackboard_until
 
-    # -- the sender thread -------------------------------------------------------------------------
-    def _send_loop(self) -> None:
-        """Send what the engine published, read the monitor process's requests; end on close or its death."""
-        while not self._closing:
-            time.sleep(POLL_S)  # polled: a wake-up from the engine would take a lock the engine could wait on
-            try:
-                self._read_requests()
-                self._flush()
-            except OSError as exc:
-                if not self._closing:
-                    self._died(exc)
-                return
-            except Exception:  # a record that cannot be pickled: dropped, the next one goes
-                if not self._failed:
-                    log.exception("a monitor record could not be sent; the monitors show the last good one")
-                self._failed = True
-                self._events.clear()
-                self._sent = self._latest
-
+    # -- sending -----------------------------------------------------------------------------------
     def _flush(self) -> None:
         """Offer the layout (once per tree), then the events and latest snapshot; what is not taken waits for later."""
         if not self._send_outbox():  # the rest of a large message first
@@ -178,9 +189,7 @@ class ChildLink:
         """Send one message (the rest of a large one as the socket takes it); False: nothing of it was taken."""
         if not self._send_outbox():
             return False
-        try:
-            self._sock.send(frames[0])
-        except BlockingIOError:
+        if not self._io.send(frames[0]):
             return False  # the monitor process is behind: this record is dropped, the next one is newer
         self._outbox.extend(frames[1:])
         self._send_outbox()
@@ -197,18 +206,16 @@ class ChildLink:
         """Send the frames waiting, in order; False when the socket cannot take more now."""
         out = self._outbox
         while out:
-            try:
-                self._sock.send(out[0])
-            except BlockingIOError:
+            if not self._io.send(out[0]):
                 return False
             out.popleft()
         return True
 
     def _read_requests(self) -> None:
+        """Take the monitor process's requests (a Groot2 client wants the blackboard); never waits."""
         while True:
-            try:
-                data = self._sock.recv(64)
-            except BlockingIOError:
+            data = self._io.recv()
+            if data is None:
                 return
             if not data:
                 raise ConnectionResetError(errno.ECONNRESET, "the monitor process closed its socket")
@@ -216,7 +223,7 @@ class ChildLink:
                 self._blackboard_until = time.monotonic() + BLACKBOARD_S
 
     def _died(self, exc: OSError) -> None:
-        """The monitor process is gone: say so once, stop sending; the guard goes on (this is the sender's thread)."""
+        """The monitor process is gone: say so once; the guard goes on (a thread of its own, started once)."""
         try:
             code: int | None = self._proc.wait(1)  # its socket closes a moment before it can be reaped
         except subprocess.TimeoutExpired:

@@ -5,8 +5,8 @@ shows on a command line), starts the status page (:mod:`.web`) and Groot2's moni
 (:mod:`.groot2`) around a :class:`~.hub.Hub`, answers with where they listen (or why they cannot),
 then feeds the hub with what the daemon sends until the daemon's end of the socket closes (the
 daemon ended, however it ended) or SIGTERM. SIGINT and SIGHUP are the daemon's: a Ctrl-C in a
-terminal reaches both processes, and the daemon ends this one as it stops. It runs :data:`NICE`
-steps below the daemon's CPU priority.
+terminal reaches both processes, and the daemon ends this one as it stops. It runs below the
+daemon's CPU priority (:func:`lower_priority`).
 """
 
 from __future__ import annotations
@@ -131,6 +131,21 @@ def _groot2(address: Address, hub: Hub) -> Any:
         raise ConfigError(f"Groot2 monitor on {address}: cannot listen ({exc})") from exc
 
 
+def lower_priority() -> None:
+    """Put this process below the daemon: ``SCHED_BATCH`` and :data:`NICE` steps nicer, where the system allows.
+
+    Called before any thread starts (they inherit it). ``SCHED_BATCH``: the kernel never lets this process
+    preempt another on waking (a snapshot or a request arriving while the daemon runs waits for the daemon's
+    time slice), and nice 10 gives it a tenth of the daemon's share when both want the CPU. Not
+    ``SCHED_IDLE``: that would starve the page whenever the CPUs are busy, when a person most needs it.
+    A unit that filters the calls (``SystemCallFilter=~@resources``) leaves it at the daemon's priority.
+    """
+    with contextlib.suppress(OSError, AttributeError):  # AttributeError: not Linux
+        os.sched_setscheduler(0, os.SCHED_BATCH, os.sched_param(0))
+    with contextlib.suppress(OSError):
+        os.nice(NICE)
+
+
 def _on_term(_signum: int, _frame: FrameType | None) -> None:
     raise SystemExit(0)
 
@@ -141,8 +156,7 @@ def main(argv: list[str] | None = None) -> int:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGHUP, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, _on_term)
-    with contextlib.suppress(OSError):
-        os.nice(NICE)
+    lower_priority()
     logging.basicConfig(level=logging.WARNING, format="canguard monitor: %(levelname)s %(name)s: %(message)s")
     sock = socket.socket(fileno=int(args[0]))
     settings = json.loads(sock.recv(65536).decode() or "{}")

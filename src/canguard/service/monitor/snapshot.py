@@ -4,8 +4,9 @@
 end of each tick, in its own thread. It reads the node statuses through py_trees (``status``), the
 guards through their :class:`~canguard.bt.loader.GuardView` (model snapshot, source health) and the
 task gate's public state, and hands a frozen :class:`TickSnapshot` to the monitor process's
-:class:`~.link.ChildLink`, which sends it without waiting (or keeps it for its next try): no lock, no
-thread of the monitors in the daemon, nothing a monitor could hold up. A snapshot is taken when
+:class:`~.link.ChildLink`, which sends it without waiting (or drops it for the next one): no lock, no
+thread of the monitors in the daemon, nothing a monitor could hold up; and all of it after the tick
+acted (its stop frames are out before a snapshot is taken). A snapshot is taken when
 something changed (a node's status, the task's state, an event) and at most every :data:`PERIOD_S`
 (the first tick after that: a stop reaches the monitors within 20 ms, with the guards that stopped
 it read in its own tick); the guards' values at most every :data:`GUARD_PERIOD_S` (a change in
@@ -40,6 +41,8 @@ class SnapshotSink(Protocol):
     def blackboard_wanted(self) -> bool: ...
 
     def put(self, snapshot: TickSnapshot) -> None: ...
+
+    def flush(self) -> None: ...
 
 PERIOD_S = 0.02
 """Shortest time between two snapshots: a change is published in the first tick this long after the last one
@@ -163,6 +166,7 @@ class Observer:
         key = (codes, gate.state, gate.stops, engine.journal.written, gate.stop_reason)
         stale = mono - self._guards_at >= GUARD_PERIOD_S
         if key == self._key and not stale:
+            self.hub.flush()  # what the monitor process could not take before goes now
             return
         if stale:  # a node's status or an event in between: published at once, with the guards as last read
             self._guard_states = tuple(self._guard_state(engine, i, now) for i in range(len(self._guards)))

@@ -22,7 +22,6 @@ from urllib.parse import parse_qs, urlsplit
 
 from canguard.config.monitor import Address
 from canguard.data import data_path
-from canguard.engine.event_codec import encode_event
 from canguard.service.monitor.hub import Hub
 
 log = logging.getLogger(__name__)
@@ -160,8 +159,8 @@ class _Handler(BaseHTTPRequestHandler):
             events, lost = hub.events_after(cursor)
             if lost:
                 self.wfile.write(b"event: lost\ndata: " + json.dumps({"events": lost}).encode() + b"\n\n")
-            for seq, ev in events:
-                self.wfile.write(b"id: %d\ndata: " % seq + encode_event(ev).rstrip(b"\n") + b"\n\n")
+            for seq, line in events:
+                self.wfile.write(b"id: %d\ndata: " % seq + line.rstrip(b"\n") + b"\n\n")
                 cursor = seq
             self.wfile.flush()
             new = hub.wait(version, KEEPALIVE_S)

@@ -14,7 +14,10 @@ from the side the network can reach.
 
 from __future__ import annotations
 
+import ctypes
+import errno
 import json
+import os
 import pickle
 import socket
 from typing import Any
@@ -34,6 +37,52 @@ def fields(record: Any) -> tuple[Any, ...]:
     Pickling plain tuples takes a third of the time pickling the dataclasses does.
     """
     return tuple(vars(record).values())
+
+
+class GilHoldingSocket:
+    """Non-blocking send and receive on a socket's descriptor that keep the calling thread's GIL.
+
+    ``socket.send`` releases the GIL around its system call, as every blocking-capable call does: a
+    thread waiting for the GIL takes it, and the caller then waits for it back (on a busy machine,
+    for the scheduler to run it again; measured on the daemon's engine thread: a snapshot's hand-over
+    went from 26 to 97 µs on average, 1.5 ms at p99). These calls go through :class:`ctypes.PyDLL`,
+    which keeps the GIL: on a non-blocking local socket they return within microseconds, whatever
+    the other end does (``EAGAIN`` when it is behind).
+    """
+
+    _libc = ctypes.PyDLL(None, use_errno=True)
+    _send = _libc.send
+    _send.argtypes = (ctypes.c_int, ctypes.c_char_p, ctypes.c_size_t, ctypes.c_int)
+    _send.restype = ctypes.c_ssize_t
+    _recv = _libc.recv
+    _recv.argtypes = (ctypes.c_int, ctypes.c_char_p, ctypes.c_size_t, ctypes.c_int)
+    _recv.restype = ctypes.c_ssize_t
+
+    def __init__(self, sock: socket.socket) -> None:
+        self._fd = sock.fileno()
+        self._buf = ctypes.create_string_buffer(64)
+
+    def send(self, data: bytes) -> bool:
+        """Send one message whole; False when the socket cannot take it now. OSError when the other end is gone."""
+        if self._send(self._fd, data, len(data), socket.MSG_DONTWAIT | socket.MSG_NOSIGNAL) >= 0:
+            return True
+        return _again()
+
+    def recv(self) -> bytes | None:
+        """One short message (at most 64 bytes), b"" when the other end closed, None when none waits."""
+        n = self._recv(self._fd, self._buf, len(self._buf), socket.MSG_DONTWAIT)
+        if n >= 0:
+            return self._buf.raw[:n]
+        _again()
+        return None
+
+
+def _again() -> bool:
+    """False for ``EAGAIN`` (nothing done, try later); OSError for any other error of the call just made."""
+    code = ctypes.get_errno()
+    if code in (errno.EAGAIN, errno.EWOULDBLOCK, errno.EINTR):
+        return False
+    raise OSError(code, os.strerror(code))
 
 
 def socket_pair() -> tuple[socket.socket, socket.socket]:
