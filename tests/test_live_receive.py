@@ -131,6 +131,48 @@ class TestDirectReceive:
             assert got[0][1].arbitration_id == 0x125
             assert reader.alive() == {cfg.name: True}
 
+    def test_a_bus_is_taken_as_wall_stamped_once_one_frame_says_so(self) -> None:
+        """A first frame read long after its stamp (a starved daemon) does not make the bus's later stamps ignored."""
+        import socket
+
+        cfg = BusConfig(name="stamped", kwargs={"interface": "virtual", "channel": f"w-{time.monotonic_ns()}"})
+        ours, theirs = socket.socketpair()
+        waiting: list[can.Message] = []
+
+        def opener(c: BusConfig) -> can.BusABC:
+            bus = open_bus(c)
+            bus.fileno = ours.fileno  # type: ignore[method-assign]
+
+            def recv(timeout: float | None = None) -> can.Message | None:
+                if not waiting:
+                    return None
+                ours.recv(1)
+                return waiting.pop(0)
+
+            bus.recv = recv  # type: ignore[method-assign]
+            return bus
+
+        def arrive(stamp: float) -> None:
+            waiting.append(can.Message(timestamp=stamp, arbitration_id=0x128, data=b"\x01", is_extended_id=False))
+            theirs.send(b"x")
+
+        try:
+            with BusReader([cfg], direct=True, opener=opener) as reader:
+                assert reader.direct
+                arrive(time.time() - 5.0)  # stamped 5 s before it is read: no proof of a wall-clock stamp
+                ((_, _, first),) = collect(reader, 1)
+                assert abs(first - time.monotonic()) < 1.0  # so it arrived when read
+                arrive(time.time() - 0.3)  # waited 0.3 s in the kernel: a wall-clock stamp
+                ((_, _, second),) = collect(reader, 1)
+                arrive(time.time() - 3.0)  # from now on a stamp is an arrival time, however old
+                ((_, _, third),) = collect(reader, 1)
+                read = time.monotonic()
+            assert 0.2 < read - second < 1.0
+            assert read - third > 2.5
+        finally:
+            ours.close()
+            theirs.close()
+
     def test_two_buses_come_out_in_arrival_order(self) -> None:
         """Frames sent alternately on two buses come out of one receive() in the order they arrived."""
         first, second = udp_config("a"), udp_config("b")

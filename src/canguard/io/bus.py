@@ -121,8 +121,9 @@ def bus_fileno(bus: can.BusABC) -> int:
 
 
 WALL_STAMP_S = 1.0
-"""A bus whose first frame's stamp is this close to the wall clock stamps with it (its later stamps are
-taken as arrival times); other buses' frames arrive when canguard receives them."""
+"""A bus one of whose frames has a stamp this close to the wall clock stamps with it: from that frame on,
+its stamps are taken as arrival times. Until then (a bus that stamps otherwise, or a daemon starved for
+longer than this when its first frames came) its frames arrive when canguard receives them."""
 
 
 def to_frame(msg: can.Message, bus_name: str) -> Frame:
@@ -334,7 +335,7 @@ class BusReader:
                 got += 1
                 frame = to_frame(msg, name)
                 wall = self._wall_stamps[name]
-                if wall is None:  # the bus's first frame: does it stamp with the wall clock?
+                if not wall:  # until one of its frames says so: does the bus stamp with the wall clock?
                     wall = self._wall_stamps[name] = abs(frame.t - offset - now) < WALL_STAMP_S
                 out.append((name, frame, min(frame.t - offset, now) if wall else now))
         except Exception as exc:  # the bus went away (or a backend bug): report, close, reopen later
