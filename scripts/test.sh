@@ -8,14 +8,25 @@ if ! { command -v chromium && command -v chromedriver; } >/dev/null 2>&1 && comm
   { $sudo apt-get update -qq && DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq chromium chromium-driver; } \
     >/dev/null 2>&1 || echo "test.sh: could not install chromium + chromium-driver: the browser tests will skip" >&2
 fi
-python3 -m venv .venv
-.venv/bin/python -m pip install -q --upgrade pip
+# The venv without ensurepip's pip (~7 s of CPU: it installs and byte-compiles an older pip, which is then
+# upgraded): where this Python's pip can install into another environment (pip >= 22.3, --python), it
+# installs the newest pip there together with the package.
+if python3 -m pip --help 2>/dev/null | grep -q -- '--python <python>'; then
+  python3 -m venv --without-pip .venv
+  pip=(python3 -m pip --python .venv/bin/python)
+  extra=(--no-compile --upgrade pip)
+else
+  python3 -m venv .venv
+  .venv/bin/python -m pip install -q --upgrade pip
+  pip=(.venv/bin/python -m pip)
+  extra=(--no-compile)
+fi
 # pip byte-compiles all it installs (~5,200 files, ~35 s of CPU); the tests import about a sixth of them.
 # Instead each module is compiled when first imported and its bytecode written then, also where the
 # environment sets PYTHONDONTWRITEBYTECODE=1 (the tests start canguard in subprocesses, and each would
 # compile the package from source again).
 unset PYTHONDONTWRITEBYTECODE
-.venv/bin/python -m pip install -q --no-compile -e ".[test]"
+"${pip[@]}" install -q "${extra[@]}" -e ".[test]"
 .venv/bin/ruff check src tests benchmarks
 .venv/bin/lint-imports --no-cache
 # mypy (~15 s of CPU on one core) checks the package while the tests run, which leave a core idle now and
