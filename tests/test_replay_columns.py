@@ -254,7 +254,7 @@ def _first_difference(a: bytes | str, b: bytes | str, what: str) -> str:
 
 
 _REFERENCES: dict[tuple[Any, ...], Outcome] = {}
-"""Reference runs of this process, by config, log and options (:func:`reference`); the last few only."""
+"""Reference runs of this process, by config, log and options (:func:`reference`); the last eight only."""
 
 
 def reference(cfg: Config, log: Path, out: Path, *, channel_map: dict[str, str] | None = None,
@@ -276,7 +276,7 @@ def reference(cfg: Config, log: Path, out: Path, *, channel_map: dict[str, str] 
                      export=export)
         assert (ref.column_blocks, ref.handled_rows, ref.fed_rows) == (0, 0, 0), "the reference used the column path"
         assert ref.quiet_ticks == 0, "the reference skipped ticks: it must tick every tick, as the live daemon"
-        while len(_REFERENCES) >= 4:
+        while len(_REFERENCES) >= 8:
             del _REFERENCES[next(iter(_REFERENCES))]
         _REFERENCES[(*where, export)] = ref
     return ref
@@ -303,7 +303,7 @@ def assert_same(ref: Outcome, col: Outcome, label: str) -> None:
 
 
 def compare(cfg: Config, log: Path, out: Path, chunks: tuple[int, ...] = SMALL_CHUNKS, *,
-            channel_map: dict[str, str] | None = None, min_handled: int = 1) -> list[Outcome]:
+            channel_map: dict[str, str] | None = None, min_handled: int = 1, variant: int = 0) -> list[Outcome]:
     """Replay ``log`` through both paths at each block size: equal outputs; returns the column runs.
 
     The reference goes frame by frame and ticks every tick (the live daemon's way);
@@ -321,11 +321,13 @@ def compare(cfg: Config, log: Path, out: Path, chunks: tuple[int, ...] = SMALL_C
     the first block on, with numpy reading every message's payloads however few rows (the
     vectorised kernels of :class:`canguard.decode.message.MessageDecoder`); the third from the
     second block on, so a log mixes line-parsed and numpy blocks as a short one does; the others
-    from the first block on. The reference always reads line by line.
+    from the first block on. The reference always reads line by line. ``variant``: the first block size
+    runs as the ``variant``-th (0 first, 1 second...), and the next ones as the next, so that a test
+    comparing at one block size can choose which of these ways it runs.
     """
     outcomes = []
-    ref = reference(cfg, log, out, channel_map=channel_map, export=EXPORT and len(chunks) > 1)
-    for k, chunk in enumerate(chunks):
+    ref = reference(cfg, log, out, channel_map=channel_map, export=EXPORT and variant <= 1 < variant + len(chunks))
+    for k, chunk in enumerate(chunks, start=variant):
         export = k == 1 and EXPORT  # the second block size also exports every sample (--export-signals)
         col = replay(cfg, log, out / f"col-{chunk}", columns=True, chunk=chunk, channel_map=channel_map,
                      numpy_after=(0 if k == 0 else 2) if k % 2 == 0 else 1, numpy_rows=1 if k == 0 else None,
@@ -834,7 +836,7 @@ class TestCustomLog:
         first, last = (float(ln[1:ln.index(")")]) for ln in (marked[0], marked[-1]))
         assert any(first <= float(c.stamps[0]) and float(c.stamps[-1]) <= last for c in cols)  # marked lines
 
-    @pytest.mark.parametrize("chunk", [*SMALL_CHUNKS, DEFAULT_CHUNK])
+    @pytest.mark.parametrize("chunk", [*SMALL_CHUNKS[1:], DEFAULT_CHUNK])
     def test_same_output(self, custom: tuple[Config, Path], tmp_path: Path, chunk: int) -> None:
         """Both paths give the same summary, events, frames and engine state."""
         cfg, log = custom
@@ -902,15 +904,20 @@ def count_passive_batches(monkeypatch: pytest.MonkeyPatch) -> dict[str, int]:
 class TestSimulator:
     """Simulator logs (every scenario on a loaded bus) on the bundled configs."""
 
-    @pytest.mark.parametrize("config", [BUNDLED, ROBOT_GUARD, MULTI], ids=lambda p: p.stem)
-    def test_same_output(self, sim_log: Path, tmp_path: Path, config: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    # The bundled config at three block sizes and ways of reading, the other two at one each (compare's
+    # variant): blocks of 300 characters of this 48,000-frame log cost several times all the rest.
+    @pytest.mark.parametrize(("config", "chunks", "variant"), [
+        (BUNDLED, (300, 4096, DEFAULT_CHUNK), 0), (ROBOT_GUARD, (4096,), 2), (MULTI, (1009,), 0),
+    ], ids=["canguard", "robot_guard", "multi_current_monitoring"])
+    def test_same_output(self, sim_log: Path, tmp_path: Path, config: Path, chunks: tuple[int, ...], variant: int,
+                         monkeypatch: pytest.MonkeyPatch) -> None:
         """Trips (hysteresis, inrush, I²t, thresholds), stale BMS, garbage and error frames: the same.
 
         On the bundled config, passive batches (stale BMS, NaN, garbage) are both taken and given back.
         """
         counts = count_passive_batches(monkeypatch)
         cfg = load_config(config)
-        cols = compare(cfg, sim_log, tmp_path, (300, 4096, DEFAULT_CHUNK))
+        cols = compare(cfg, sim_log, tmp_path, chunks, variant=variant)
         summary = json.loads(cols[0].summary)
         assert summary["trip_count"] > 0 and summary["frames"]["error_frames"] == 32
         if config == BUNDLED:
@@ -942,19 +949,19 @@ class TestChannels:
     def test_map(self, channels: tuple[Config, Path], tmp_path: Path) -> None:
         """--map can2=aux can1=main: can2 blocks reach aux, can1's go to main."""
         cfg, log = channels
-        [col] = compare(cfg, log, tmp_path, (300,), channel_map={"can2": "aux", "can1": "main"})
+        [col] = compare(cfg, log, tmp_path, (1009,), channel_map={"can2": "aux", "can1": "main"})
         assert json.loads(col.summary)["unmapped_channels"] == {}
 
     def test_only_bus_merges_channels(self, channels: tuple[Config, Path], tmp_path: Path) -> None:
         """One bus, no --map: every channel goes to it, counted per channel (merged_channels)."""
         _, log = channels
-        [col] = compare(load_config(BUNDLED), log, tmp_path, (300,))
+        [col] = compare(load_config(BUNDLED), log, tmp_path, (1009,))
         assert set(json.loads(col.summary)["merged_channels"]) == {"can0", "can1", "can2"}
 
     def test_map_leaves_a_channel_unmapped(self, channels: tuple[Config, Path], tmp_path: Path) -> None:
         """One bus with --map can2=main: can0 goes to it by its channel, can1 to no bus (whole blocks unmapped)."""
         _, log = channels
-        [col] = compare(load_config(BUNDLED), log, tmp_path, (300,), channel_map={"can2": "main"})
+        [col] = compare(load_config(BUNDLED), log, tmp_path, (1009,), channel_map={"can2": "main"})
         assert set(json.loads(col.summary)["unmapped_channels"]) == {"can1"}
 
 

@@ -40,14 +40,14 @@ def test_eight_example_logs() -> None:
 
 
 @pytest.mark.parametrize("config", [c for c in CONFIGS if c.stem not in TIMED], ids=lambda p: p.stem)
-def test_together_and_reversed_equal_one_by_one(capsys: pytest.CaptureFixture[str], config: Path) -> None:
-    """Each log's summary in a run of all eight (in either order) is byte-identical to its own run."""
+def test_together_equal_one_by_one(capsys: pytest.CaptureFixture[str], config: Path) -> None:
+    """Each log's summary in one run of all eight, the first again after them, is byte-identical to its own run."""
     alone = {s["log"]: json.dumps(s, sort_keys=True) for log in LOGS for s in replay(capsys, config, [log])}
-    for order in (LOGS, LOGS[::-1]):
-        together = replay(capsys, config, order)
-        assert [s["log"] for s in together] == [str(p) for p in order]
-        for s in together:
-            assert json.dumps(s, sort_keys=True) == alone[s["log"]], f"{s['log']} differs after its neighbours"
+    order = [*LOGS, LOGS[0]]  # one run in which every log follows another (the first log twice)
+    together = replay(capsys, config, order)
+    assert [s["log"] for s in together] == [str(p) for p in order]
+    for s in together:
+        assert json.dumps(s, sort_keys=True) == alone[s["log"]], f"{s['log']} differs after its neighbours"
 
 
 @pytest.mark.parametrize("name", ["cooldown_recovery", "canguard"])

@@ -294,7 +294,7 @@ def candump_lines(draw: st.DrawFn) -> list[str]:
     return lines
 
 
-@settings(max_examples=max(EXAMPLES * 20, 100), deadline=None, derandomize=EXAMPLES <= 100,
+@settings(max_examples=max(EXAMPLES * 8, 96), deadline=None, derandomize=EXAMPLES <= 100,
           suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
 @given(lines=candump_lines(), chunk=st.sampled_from([64, 300, 4096]))
 def test_blocks_read_the_same_frames_as_the_line_parser(tmp_path_factory: Any, lines: list[str], chunk: int) -> None:
