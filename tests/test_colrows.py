@@ -74,6 +74,8 @@ def test_answers_equal_the_rows(block: tuple[ColumnRows, list[Any]]) -> None:
     if not has_fed(rows):
         stamps = [float(k) for k in range(len(rows))]
         assert keep_valued(stamps, found) == keep_valued(stamps, rows)
+        times, kept = keep_valued(np.array(stamps), found)  # a numpy block's: kept as columns
+        assert (times.tolist(), list(kept)) == keep_valued(stamps, rows)
 
 
 def test_empty_is_the_one_empty_tuple() -> None:

@@ -11,7 +11,8 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
-LANE = 1 << 34
+_LANE_BITS = 34
+LANE = 1 << _LANE_BITS
 """Above every id key (extended ids are below 2**33): one key space per channel of a block."""
 
 _STANDARD = 0x800
@@ -19,12 +20,13 @@ _STANDARD = 0x800
 
 
 def key_table(plans: Mapping[Any, Any]) -> tuple[Any, Any]:
-    """The integer keys of ``plans`` (:func:`~canguard.io.candump_np.id_key`): a table of standard ones; all, sorted."""
+    """The integer keys of ``plans`` (:func:`~canguard.io.candump_np.id_key`, plus a channel's :data:`LANE`s): a
+    table of the standard ones, :data:`_STANDARD` entries per channel; all, sorted."""
     import numpy as np
 
     known = [k for k in plans if type(k) is int]
-    table = np.zeros(_STANDARD, dtype=bool)
-    table[[k for k in known if k < _STANDARD]] = True
+    table = np.zeros(_STANDARD * (1 + max((k // LANE for k in known), default=0)), dtype=bool)
+    table[[k // LANE * _STANDARD + k % LANE for k in known if k % LANE < _STANDARD]] = True
     return table, np.array(sorted(known), dtype=np.int64)
 
 
@@ -34,8 +36,14 @@ def configured_rows(keys: Any, tables: tuple[Any, Any]) -> Any:
     import numpy as np
 
     table, every = tables
-    if keys.size and int(keys.max()) < _STANDARD:
-        return np.flatnonzero(table[keys])
+    if keys.size:
+        top = int(keys.max())
+        if top < _STANDARD:
+            return np.flatnonzero(table[keys])
+        if top < LANE * (table.size // _STANDARD):  # several channels: standard ids on each?
+            ids = keys & (LANE - 1)
+            if int(ids.max()) < _STANDARD:
+                return np.flatnonzero(table[(keys >> _LANE_BITS) * _STANDARD + ids])
     return np.flatnonzero(np.isin(keys, every))
 
 
