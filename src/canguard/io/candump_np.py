@@ -235,7 +235,7 @@ def byte_columns(text: str | bytes, n: int) -> ByteColumns | None:
         n = nl.size
     if not n or nl.size != n or nl[-1] != b.size - 1:
         return None
-    layout = _layout(raw, b, mask, nl, n)
+    layout = _layout(raw, b, nl, n)
     if layout is None:
         return None
     start, width, clen, sp1, sp2, end, spaces = layout
@@ -247,7 +247,9 @@ def byte_columns(text: str | bytes, n: int) -> ByteColumns | None:
     if chans is None:
         return None
     names, lanes = chans
-    found = _id_fields(b, words, mask, sp2, end, n)
+    if any(c in name for name in names for c in "()#"):
+        return None  # a channel's letters are not counted as fields are: the text parser decides
+    found = _id_fields(b, words, sp2, end, n)
     if found is None:
         return None
     h1, after, hashes, keys = found
@@ -257,7 +259,7 @@ def byte_columns(text: str | bytes, n: int) -> ByteColumns | None:
     data_start, flags, remote = payloads
     # Every byte that is not a hex digit has been found at its place above: "(", ")", the dot,
     # the spaces, the "#"s, the newline, the marker, the channel's letters, a remote "R". One
-    # more anywhere (in the data, say) and the count differs.
+    # more anywhere (in the data, say, or a second "(" or "#") and the count differs.
     others = [_others(name) for name in names]
     letters = n * others[0] if lanes is None else int(np.dot(np.bincount(lanes, minlength=len(names)), others))
     known = n * (4 + markers) + letters + spaces + hashes + len(remote or ())
@@ -273,12 +275,13 @@ def byte_columns(text: str | bytes, n: int) -> ByteColumns | None:
     return cols
 
 
-def _layout(raw: bytes, b: np.ndarray, mask: np.ndarray, nl: np.ndarray, n: int) -> tuple[Any, ...] | None:
+def _layout(raw: bytes, b: np.ndarray, nl: np.ndarray, n: int) -> tuple[Any, ...] | None:
     """Where each line's fields are: (line starts, timestamp width, channel length, the space before the
     channel, the space before the id, where each line's data ends, the block's spaces); None: not plain.
 
     Each field's place follows from the first line's widths (timestamp, channel) and each id's
-    length (3 or 8); each place is checked, and counts of "(", ")", " " and "#" leave none elsewhere.
+    length (3 or 8); each place is checked. That "(", ")", " " and "#" are nowhere else is the caller's count
+    of the bytes that are not hex digits (no count of each: four passes over the block's bytes fewer).
     """
     start = np.empty(n, dtype=np.intp)
     start[0] = 0
@@ -286,34 +289,32 @@ def _layout(raw: bytes, b: np.ndarray, mask: np.ndarray, nl: np.ndarray, n: int)
     first = raw[:int(nl[0])]
     width = first.find(b")") - 1
     clen = first.find(b" ", width + 3) - width - 3
-    if width < 3 or clen < 1 or _count(b, 40, mask) != n or _count(b, 41, mask) != n:
+    if width < 3 or clen < 1 or nl[0] < 2:
         return None
     close = start + (width + 1)
     sp1 = close + 1
     sp2 = sp1 + (clen + 1)
     if not ((b[start] == 40) & (sp2 < nl)).all() or not ((b[close] == 41) & (b[sp1] == 32) & (b[sp2] == 32)).all():
         return None
-    spaces = _count(b, 32, mask)
-    markers = spaces == 3 * n
-    if not markers and spaces != 2 * n:
-        return None
+    markers = bool(b[nl[0] - 2] == 32)  # as the first line ends (" T"), or its data does: every line is checked
+    spaces = (3 if markers else 2) * n
     end = nl - 2 if markers else nl  # the space before a T/R marker, or the newline
     if markers and (not ((b[end] == 32) & (end > sp2)).all() or not set(b[nl - 1].tobytes()) <= _MARKERS):
         return None
     return start, width, clen, sp1, sp2, end, spaces
 
 
-def _id_fields(b: np.ndarray, words: np.ndarray, mask: np.ndarray, sp2: np.ndarray, end: np.ndarray, n: int
+def _id_fields(b: np.ndarray, words: np.ndarray, sp2: np.ndarray, end: np.ndarray, n: int
                ) -> tuple[np.ndarray, np.ndarray, int, np.ndarray] | None:
-    """(where each line's "#" after the id is, the byte after it, the block's "#"s, the id keys); None: not plain."""
+    """(where each line's "#" after the id is, the byte after it, the block's "#"s at their places, the id keys);
+    None: not plain."""
     short = b[np.minimum(sp2 + 4, b.size - 1)] == 35  # a 3-digit id, else 8
     h1 = np.where(short, sp2 + 4, sp2 + 9)
     if not ((h1 < end) & (b[np.minimum(h1, b.size - 1)] == 35)).all():
         return None
     after = b[h1 + 1]  # "#" for CAN FD, "R" / "r" for a remote frame: h1 + 1 <= end (a newline at worst)
-    hashes = _count(b, 35, mask)
-    if hashes != n + int(np.count_nonzero(after == 35)):  # one "#" per line, two on a CAN FD line: none elsewhere
-        return None
+    hashes = n + int(np.count_nonzero(after == 35))  # one "#" per line, two on a CAN FD line; none elsewhere:
+    # the caller's count of the bytes that are not hex digits
     keys = _ids(words, sp2, h1)
     if keys is None:
         return None
@@ -398,12 +399,6 @@ def _buffer(name: str, count: int, dtype: type) -> np.ndarray:
 def _scratch(size: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Scratch for a block of ``size`` bytes (:func:`_buffer`): ``size + 8`` bytes, and two masks of ``size``."""
     return _buffer("pad", size + 8, np.uint8), _buffer("mask", size, bool), _buffer("spare", size, bool)
-
-
-def _count(b: np.ndarray, byte: int, mask: np.ndarray) -> int:
-    """How many bytes of ``b`` are ``byte`` (``mask``: scratch of ``b``'s size, overwritten)."""
-    np.equal(b, np.uint8(byte), out=mask)
-    return int(np.count_nonzero(mask))
 
 
 def _hex_digits(b: np.ndarray, work: np.ndarray, mask: np.ndarray, spare: np.ndarray) -> int:
