@@ -38,7 +38,7 @@ for _i, _c in enumerate(b"0123456789abcdef"):
     _HEXVAL[_c] = _i
 for _i, _c in enumerate(b"ABCDEF", 10):
     _HEXVAL[_c] = _i
-_FD_BYTES = np.zeros(65, dtype=bool)
+_FD_BYTES = np.zeros(66, dtype=bool)  # [65]: any length above 64 bytes
 _FD_BYTES[sorted(CANFD_LENGTHS)] = True
 _U = np.uint64
 _LE64 = np.dtype("<u8")
@@ -340,7 +340,7 @@ def _payloads(raw: bytes, b: np.ndarray, h1: np.ndarray, end: np.ndarray, after:
         if remote is None:
             return None
         data_start = np.where(is_remote, end, data_start)
-    if not _lengths_ok(end - data_start, is_fd):
+    if not _lengths_ok(end - data_start, is_fd, nfd):
         return None
     return data_start, flags, remote
 
@@ -371,12 +371,15 @@ def _remote_dlcs(raw: bytes, h1: np.ndarray, end: np.ndarray, is_remote: np.ndar
     return remote
 
 
-def _lengths_ok(lengths: np.ndarray, is_fd: np.ndarray) -> bool:
-    """Each row's data (hex digits) is whole bytes of a CAN length: up to 8 classic, a CAN FD length for FD."""
+def _lengths_ok(lengths: np.ndarray, is_fd: np.ndarray, nfd: int) -> bool:
+    """Each row's data (hex digits) is whole bytes of a CAN length: up to 8 classic, a CAN FD length for FD
+    (``nfd``: how many rows are CAN FD). Over every row: no selection of each kind's rows."""
     if (lengths & 1).any():
         return False
-    fd = lengths[is_fd]
-    return not ((lengths[~is_fd] > 16).any() or not _FD_BYTES[np.minimum(fd // 2, 64)].all() or (fd > 128).any())
+    if not nfd:
+        return not (lengths > 16).any()
+    fd_ok = _FD_BYTES.take(np.minimum(lengths >> 1, 65))
+    return not (((lengths > 16) & ~is_fd) | (~fd_ok & is_fd)).any()
 
 
 _LOCAL = threading.local()
