@@ -15,6 +15,9 @@ _LANE_BITS = 34
 LANE = 1 << _LANE_BITS
 """Above every id key (extended ids are below 2**33): one key space per channel of a block."""
 
+_RADIX = 1 << 16
+"""Keys of a block spanning fewer values than this are sorted as 16-bit offsets (:func:`runs_by_key`)."""
+
 _STANDARD = 0x800
 """Standard ids are below this: their configured rows are found through a table of this size."""
 
@@ -56,7 +59,11 @@ def runs_by_key(keys: Any, rows: Any) -> list[tuple[int, Any]]:
         return []
     picked = np.asarray(rows, dtype=np.intp)
     of = keys[picked]
-    order = np.argsort(of, kind="stable")
+    low = int(of.min())
+    if int(of.max()) - low < _RADIX:  # numpy sorts 16-bit integers stably by radix: ~3x faster than int64's
+        order = np.argsort((of - low).astype(np.uint16), kind="stable")
+    else:
+        order = np.argsort(of, kind="stable")
     ranked = of[order]
     cuts = (np.flatnonzero(ranked[1:] != ranked[:-1]) + 1).tolist()
     ordered = picked[order]
