@@ -59,17 +59,27 @@ def runs_by_key(keys: Any, rows: Any) -> list[tuple[int, Any]]:
         return []
     picked = np.asarray(rows, dtype=np.intp)
     of = keys[picked]
-    low = int(of.min())
-    if int(of.max()) - low < _RADIX:  # numpy sorts 16-bit integers stably by radix: ~3x faster than int64's
-        order = np.argsort((of - low).astype(np.uint16), kind="stable")
-    else:
-        order = np.argsort(of, kind="stable")
+    order = np.argsort(_radix_keys(of), kind="stable")
     ranked = of[order]
     cuts = (np.flatnonzero(ranked[1:] != ranked[:-1]) + 1).tolist()
     ordered = picked[order]
     bounds = [0, *cuts, len(ordered)]
     return list(zip(ranked[bounds[:-1]].tolist(), map(ordered.__getitem__, map(slice, bounds, bounds[1:])),
                     strict=True))
+
+
+def _radix_keys(of: Any) -> Any:
+    """Keys ordered as ``of`` (id keys, plus :data:`LANE`s), as 16-bit integers where they fit, which numpy sorts
+    stably by radix (~3x faster than int64 keys): offsets from the lowest, or (channel, standard id) packed."""
+    import numpy as np
+
+    low = int(of.min())
+    if int(of.max()) - low < _RADIX:
+        return (of - low).astype(np.uint16)
+    ids = of & (LANE - 1)
+    if int(ids.max()) < _STANDARD and int(of.max()) < LANE * (_RADIX // _STANDARD):
+        return ((of >> _LANE_BITS) * _STANDARD + ids).astype(np.uint16)
+    return of
 
 
 def lane_plans(plans_of: list[Mapping[str | int, Any]]) -> dict[int, Any]:
