@@ -884,6 +884,22 @@ class TestCustomLog:
         compare(cfg, log, tmp_path, (chunk,))
 
 
+def count_shared_fields(monkeypatch: pytest.MonkeyPatch) -> list[int]:
+    """Count the messages whose rows were decoded together with another's of the same layout, block by block."""
+    from canguard.engine import blockrows
+
+    counts: list[int] = []
+    shared = blockrows._shared_fields
+
+    def counting(cols: Any, groups: Any) -> Any:
+        decoded = shared(cols, groups)
+        counts.append(len(decoded))
+        return decoded
+
+    monkeypatch.setattr(blockrows, "_shared_fields", counting)
+    return counts
+
+
 def count_passive_batches(monkeypatch: pytest.MonkeyPatch) -> dict[str, int]:
     """Count the blocks each passive plan (messages nobody reads between ticks) took whole or gave back."""
     from canguard.engine import blocks
@@ -992,6 +1008,17 @@ class TestTheComparison:
             mp.setattr(LogRun, "_cross", lambda self, ts, lo, hi: None)
             with pytest.raises(AssertionError):
                 compare(load_config(TIMED), log, tmp_path, (300,), min_handled=0)
+
+
+class TestSharedFields:
+    """Messages of one layout (the four axes' frames) in a numpy block, decoded as one over all their rows."""
+
+    def test_same_output_on_the_simulator_log(self, sim_log: Path, tmp_path: Path,
+                                              monkeypatch: pytest.MonkeyPatch) -> None:
+        """Every scenario (trips, NaN, garbage rows among them) on the robot guard config: the same bytes."""
+        counts = count_shared_fields(monkeypatch)
+        compare(load_config(ROBOT_GUARD), sim_log, tmp_path, (65536,))
+        assert max(counts, default=0) >= 2, counts
 
 
 class TestPassiveBatches:

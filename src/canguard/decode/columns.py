@@ -34,6 +34,8 @@ __all__ = ["ColumnSignal", "check_column", "checked_rows", "decode_block", "deco
 
 _EXACT = 2.0**53
 """Integers below this convert to float exactly in numpy as in Python."""
+_FEW_IDS = 8
+"""Up to this many multiplexer ids are matched by one comparison each (:func:`_member`)."""
 
 
 @dataclass(frozen=True)
@@ -145,21 +147,31 @@ def decode_block(
         if not sig.multiplexer_ids:
             return all_rows
         parent = by_name[sig.multiplexer_signal]
-        ids = np.asarray(sig.multiplexer_ids, dtype=np.uint64)
-        return valid(parent) & np.isin(raw(parent), ids)
+        return valid(parent) & _member(raw(parent), sig.multiplexer_ids)
 
     # cantools refuses a whole frame whose (selected) multiplexer holds a value no signal is multiplexed on
     undecodable = np.zeros(payload.shape[0], dtype=bool)
     for mux in (s for s in message.signals if s.is_multiplexer):
         ids = sorted({i for s in message.signals if s.multiplexer_signal == mux.name for i in s.multiplexer_ids or ()})
         if ids:
-            undecodable |= valid(mux) & ~np.isin(raw(mux), np.asarray(ids, dtype=np.uint64))
+            undecodable |= valid(mux) & ~_member(raw(mux), ids)
     out: dict[str, ColumnSignal] = {}
     with np.errstate(invalid="ignore", over="ignore"):  # NaN payloads and huge scales: as cantools, no warning
         for sig in message.signals:
             if only is None or sig.name in only:
                 out[sig.name] = ColumnSignal(_physical(sig, raw(sig)), valid(sig))
     return out, ~undecodable
+
+
+def _member(raw: np.ndarray, ids: Sequence[int]) -> np.ndarray:
+    """Which of the raw multiplexer values ``raw`` (uint64) are one of ``ids``: ``np.isin``, but one comparison per
+    id for a few (a multiplexer's pages; ``np.isin``'s set-up cost more than its work on a block's rows)."""
+    if len(ids) > _FEW_IDS:
+        return np.isin(raw, np.asarray(ids, dtype=np.uint64))
+    found = np.zeros(raw.shape, dtype=bool)
+    for page in ids:
+        found |= raw == np.uint64(page)
+    return found
 
 
 def check_column(v: np.ndarray, present: bool, lo: float, hi: float, ok: np.ndarray) -> np.ndarray:

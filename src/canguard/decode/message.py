@@ -145,8 +145,8 @@ _Block = Callable[[bytes, tuple[tuple[bool, float, float], ...]], list[Row]]
 class MessageDecoder:
     """Decodes the configured signals of one message, a block of payloads at a time (a frame is a block of one)."""
 
-    __slots__ = ("_fast", "_iter", "_limits", "_scalar", "_spec", "_structs", "length", "lengths", "message",
-                 "multiplexed", "names", "outputs", "signals", "spans", "strategy", "valid_row")
+    __slots__ = ("_fast", "_iter", "_limits", "_scalar", "_spec", "_structs", "fields_key", "length", "lengths",
+                 "message", "multiplexed", "names", "outputs", "signals", "spans", "strategy", "valid_row")
 
     def __init__(self, message: Any, outputs: Sequence[Output]) -> None:
         self.message = message
@@ -166,6 +166,9 @@ class MessageDecoder:
         self._spec: tuple[tuple[int, int, str, Any, Any, bool], ...] | None = None
         self.spans: list[tuple[int, int]] | None = None
         """(byte offset, width) of each configured signal when numpy reads a block from their bytes alone."""
+        self.fields_key: tuple[Any, ...] | None = None
+        """With :attr:`spans`: what decoding those bytes depends on (length, fields, checks). Messages with equal
+        keys decode a block's fields in the same way: as one message over all their rows together."""
         by_name = {s.name: s for s in message.signals}
         wanted = [by_name[o.signal] for o in self.outputs]
         compiled = _struct_kernel(message, wanted)
@@ -178,6 +181,7 @@ class MessageDecoder:
             self._fast = _struct_fast(self._structs, plan, self._limits, self.lengths)
             if self._spec is not None:
                 self.spans = [(at, width) for at, width, *_ in self._spec]
+                self.fields_key = (self.length, self._spec, self._limits)
         elif (bits := _bits_kernel(message, wanted, self.length)) is not None:
             self.strategy = BITS
             self._scalar = bits

@@ -76,6 +76,22 @@ class ColumnRows(Sequence[Row]):
                 keep &= ~mask
         return keep
 
+    def split(self, sizes: Sequence[int]) -> list[ColumnRows]:
+        """The rows cut in consecutive parts of ``sizes`` rows (summing to :attr:`n`), each rows of its own."""
+        parts = []
+        at = 0
+        for size in sizes:
+            cut = slice(at, at + size)
+            parts.append(ColumnRows(size, [column[cut] for column in self.columns],
+                                    None if self.fed is None else self.fed[cut],
+                                    None if self.empty is None else self.empty[cut]))
+            at += size
+        return parts
+
+    def valued_rows(self, keep: np.ndarray) -> ColumnRows:
+        """The rows ``keep`` (a mask: :meth:`valued`, or fewer) as rows of their own, each with its values."""
+        return ColumnRows(int(keep.sum()), [column[keep] for column in self.columns], None, None)
+
     def clean(self) -> bool:
         """Every row has all its values (none to feed, none EMPTY): ``all(rows)``."""
         return self.fed is None and self.empty is None
@@ -172,8 +188,15 @@ def max_gap(stamps: Sequence[Any]) -> float:
 
 
 def keep_valued(stamps: Sequence[Any], rows: Sequence[Row]) -> tuple[Sequence[Any], Sequence[Row]]:
-    """The stamps and rows of the rows that are not EMPTY (rows with no row to feed)."""
+    """The stamps and rows of the rows that are not EMPTY (rows with no row to feed).
+
+    A numpy block's (stamps an array, rows :class:`ColumnRows`) stay numpy: no tuple made per row (a multiplexed
+    message of which one page is read, every block)."""
     if type(rows) is ColumnRows:
+        if hasattr(stamps, "dtype"):
+            valued = rows.valued()
+            array: Any = stamps
+            return array[valued], rows.valued_rows(valued)
         rows = rows.rows()
     keep = list(map(bool, rows))
     return list(compress(stamps, keep)), list(compress(rows, keep))

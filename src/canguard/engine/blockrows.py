@@ -14,6 +14,7 @@ from itertools import groupby
 from operator import itemgetter
 from typing import TYPE_CHECKING, Any
 
+from canguard.decode.rows import ColumnRows
 from canguard.engine.lanes import runs_by_key
 
 if TYPE_CHECKING:
@@ -62,14 +63,14 @@ def decode_rows(
             groups[plan] = sorted([*group, *same])
     slots: list[tuple[MessagePlan | None, tuple[float, ...] | None] | None] = [None] * cols.n
     active: list[tuple[MessagePlan, Any, Sequence[tuple[float, ...] | None], Callable[[Any], Any]]] = []
-    cut = _cut_payloads(cols, groups) if keys is not None else {}
+    together = _decoded_together(cols, groups) if keys is not None else {}
     for plan, group in groups.items():
         if plan is None:
             for i in list(group):
                 slots[i] = (None, None)
             continue
         pick = _picker(group)
-        decoded = plan.decode(cols, group, cut.get(plan))
+        decoded = together[plan] if plan in together else plan.decode(cols, group)
         if taken is not None:
             taken.append((plan, group, decoded))
         if plan.passive and plan.batch(pick(ts), decoded):
@@ -90,6 +91,16 @@ def decode_rows(
     return slots
 
 
+def _decoded_together(cols: Any, groups: dict[MessagePlan | None, Any]) -> dict[MessagePlan, Sequence[Any]]:
+    """The decoded rows of the block's messages decoded together with others (a numpy block's): those read from
+    their payloads cut together (:func:`_cut_payloads`), those read from their fields decoded as one
+    (:func:`_shared_fields`)."""
+    decoded = _shared_fields(cols, groups)
+    for plan, payload in _cut_payloads(cols, groups).items():
+        decoded[plan] = plan.decode(cols, groups[plan], payload)
+    return decoded
+
+
 def _cut_payloads(cols: Any, groups: dict[MessagePlan | None, Any]
                   ) -> dict[MessagePlan, tuple[list[int] | None, bytes]]:
     """The payloads of the block's messages that are decoded from them (:meth:`MessagePlan.cuts_payloads`), cut
@@ -105,6 +116,33 @@ def _cut_payloads(cols: Any, groups: dict[MessagePlan | None, Any]
             for (plan, _group), payload in zip(members, cols.payloads([g for _p, g in members], size), strict=True):
                 cut[plan] = payload
     return cut
+
+
+def _shared_fields(cols: Any, groups: dict[MessagePlan | None, Any]) -> dict[MessagePlan, Sequence[Any]]:
+    """The decoded rows of the block's messages that are read from their signals' bytes in the same way
+    (:meth:`MessagePlan.fields_key`) as others: each such set decoded as one message over all their rows, then
+    cut per message (four drives' messages of one layout: one decode, not four)."""
+    alike: dict[tuple[Any, ...], list[tuple[MessagePlan, Any]]] = {}
+    for plan, group in groups.items():
+        if plan is not None and (key := plan.fields_key(group)) is not None:
+            alike.setdefault(key, []).append((plan, group))
+    decoded: dict[MessagePlan, Sequence[Any]] = {}
+    for members in alike.values():
+        if len(members) < 2:
+            continue
+        import numpy as np
+
+        lead = members[0][0]
+        assert lead.entry.spans is not None
+        rows = np.concatenate([group for _plan, group in members])
+        good, cells = cols.byte_fields(rows, lead.hex_size, lead.entry.spans)
+        if good is not None:
+            continue  # a row of another length among them: each message decoded on its own
+        together = lead.entry.decode(cells, len(rows))
+        assert isinstance(together, ColumnRows)
+        for (plan, _group), part in zip(members, together.split([len(g) for _p, g in members]), strict=True):
+            decoded[plan] = part
+    return decoded
 
 
 def _settled(active: list[tuple[MessagePlan, Any, Sequence[Any], Callable[[Any], Any]]],

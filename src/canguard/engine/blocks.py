@@ -109,6 +109,15 @@ class MessagePlan:
         messages at once); False: from the bytes of its signals alone (or not at all)."""
         return not self.counter and not self.entry.reads_fields(len(rows))
 
+    def fields_key(self, rows: Any) -> tuple[Any, ...] | None:
+        """What decoding ``rows`` of a numpy block from their signals' bytes depends on
+        (:attr:`MessageDecoder.fields_key <canguard.decode.message.MessageDecoder.fields_key>`); None: they are
+        not decoded so (see :meth:`decode`). Messages of equal keys may have their rows decoded together
+        (:func:`canguard.engine.blockrows.decode_rows`)."""
+        if self.counter or not self.entry.reads_fields(len(rows)):
+            return None
+        return self.entry.fields_key
+
     def decode(self, cols: Columns | ByteColumns, rows: Any,
                payload: tuple[list[int] | None, bytes] | None = None) -> Sequence[Row]:
         """Each of ``rows``' configured values (in output order), ``EMPTY``, or None: the row goes to the frame decoder.

@@ -11,20 +11,25 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
-LANE = 1 << 34
+_LANE_BITS = 34
+LANE = 1 << _LANE_BITS
 """Above every id key (extended ids are below 2**33): one key space per channel of a block."""
+
+_RADIX = 1 << 16
+"""Keys of a block spanning fewer values than this are sorted as 16-bit offsets (:func:`runs_by_key`)."""
 
 _STANDARD = 0x800
 """Standard ids are below this: their configured rows are found through a table of this size."""
 
 
 def key_table(plans: Mapping[Any, Any]) -> tuple[Any, Any]:
-    """The integer keys of ``plans`` (:func:`~canguard.io.candump_np.id_key`): a table of standard ones; all, sorted."""
+    """The integer keys of ``plans`` (:func:`~canguard.io.candump_np.id_key`, plus a channel's :data:`LANE`s): a
+    table of the standard ones, :data:`_STANDARD` entries per channel; all, sorted."""
     import numpy as np
 
     known = [k for k in plans if type(k) is int]
-    table = np.zeros(_STANDARD, dtype=bool)
-    table[[k for k in known if k < _STANDARD]] = True
+    table = np.zeros(_STANDARD * (1 + max((k // LANE for k in known), default=0)), dtype=bool)
+    table[[k // LANE * _STANDARD + k % LANE for k in known if k % LANE < _STANDARD]] = True
     return table, np.array(sorted(known), dtype=np.int64)
 
 
@@ -34,8 +39,14 @@ def configured_rows(keys: Any, tables: tuple[Any, Any]) -> Any:
     import numpy as np
 
     table, every = tables
-    if keys.size and int(keys.max()) < _STANDARD:
-        return np.flatnonzero(table[keys])
+    if keys.size:
+        top = int(keys.max())
+        if top < _STANDARD:
+            return np.flatnonzero(table[keys])
+        if top < LANE * (table.size // _STANDARD):  # several channels: standard ids on each?
+            ids = keys & (LANE - 1)
+            if int(ids.max()) < _STANDARD:
+                return np.flatnonzero(table[(keys >> _LANE_BITS) * _STANDARD + ids])
     return np.flatnonzero(np.isin(keys, every))
 
 
@@ -48,13 +59,27 @@ def runs_by_key(keys: Any, rows: Any) -> list[tuple[int, Any]]:
         return []
     picked = np.asarray(rows, dtype=np.intp)
     of = keys[picked]
-    order = np.argsort(of, kind="stable")
+    order = np.argsort(_radix_keys(of), kind="stable")
     ranked = of[order]
     cuts = (np.flatnonzero(ranked[1:] != ranked[:-1]) + 1).tolist()
     ordered = picked[order]
     bounds = [0, *cuts, len(ordered)]
     return list(zip(ranked[bounds[:-1]].tolist(), map(ordered.__getitem__, map(slice, bounds, bounds[1:])),
                     strict=True))
+
+
+def _radix_keys(of: Any) -> Any:
+    """Keys ordered as ``of`` (id keys, plus :data:`LANE`s), as 16-bit integers where they fit, which numpy sorts
+    stably by radix (~3x faster than int64 keys): offsets from the lowest, or (channel, standard id) packed."""
+    import numpy as np
+
+    low = int(of.min())
+    if int(of.max()) - low < _RADIX:
+        return (of - low).astype(np.uint16)
+    ids = of & (LANE - 1)
+    if int(ids.max()) < _STANDARD and int(of.max()) < LANE * (_RADIX // _STANDARD):
+        return ((of >> _LANE_BITS) * _STANDARD + ids).astype(np.uint16)
+    return of
 
 
 def lane_plans(plans_of: list[Mapping[str | int, Any]]) -> dict[int, Any]:

@@ -260,7 +260,7 @@ class LogRun:
         if not cursor.started:
             self._run_frames((cols.frame(0),), cursor)  # the first frame is fed: it starts the engine's clock
             first = 1
-        plans, rows, keys, bus_at = self._configured(cols, buses)
+        plans, rows, keys, lanes = self._configured(cols, buses)
         # rows: a list, or a numpy block's index array (a list only if its rows go one by one below)
         remote = cols.remote
         if remote:  # counted by the decoder as remote frames, configured or not: fed
@@ -279,7 +279,7 @@ class LogRun:
             ts = cols.ts  # read row by row below: as floats
             if type(rows) is not list:
                 rows = rows.tolist()
-        walk = _Walk(cols, ts, rows, slots, buses[0] if bus_at is None else "", bus_at)
+        walk = _Walk(cols, ts, rows, slots, buses[0] if lanes is None else "", buses, lanes)
         if taken is None:
             pos = self._walk(walk, first, None)
         else:  # --export-signals: the samples of fed rows kept with their row, for the block's export
@@ -320,9 +320,9 @@ class LogRun:
             return True
         return [routed] if routed in self.decoder.per_bus else False
 
-    def _configured(self, cols: Columns | ByteColumns, buses: list[str]) -> tuple[Any, Any, Any, list[str] | None]:
-        """(plans, the block's rows of configured messages, the keys its plans are looked up by, each row's bus
-        when its channels go to several buses)."""
+    def _configured(self, cols: Columns | ByteColumns, buses: list[str]) -> tuple[Any, Any, Any, Any]:
+        """(plans, the block's rows of configured messages, the keys its plans are looked up by, each row's
+        channel (an index into ``buses``) when its channels go to several buses, else None)."""
         for b in set(buses):
             if b not in self._plans:
                 self._plans[b] = self._compile_plans(b)
@@ -344,7 +344,7 @@ class LogRun:
             joined = lane_plans([self._plans[b] for b in buses])
             lane = self._lane_plans[tuple(buses)] = (joined, key_table(joined))
         keys = keys + lanes * LANE
-        return lane[0], configured_rows(keys, lane[1]), keys, list(map(buses.__getitem__, lanes.tolist()))
+        return lane[0], configured_rows(keys, lane[1]), keys, lanes
 
     def _walk(self, walk: _Walk, first: int, fed: list[tuple[int, Any]] | None) -> int:
         """A block's configured rows in time order: ticks due among them, each row taken by its plan or fed
@@ -355,7 +355,7 @@ class LogRun:
             at = [0]
             hook, engine.sample_hook = engine.sample_hook, lambda sample: fed.append((at[0], sample))
         decoded, frame, ts, slots = self._decoded, walk.cols.frame, walk.ts, walk.slots
-        bus, bus_at = walk.bus, walk.bus_at
+        bus, buses, lanes = walk.bus, walk.buses, walk.lanes
         pos = first
         due = engine.due  # plans never change it; advance and tick may
         try:
@@ -376,7 +376,7 @@ class LogRun:
                     if fed is not None:
                         at[0] = i
                     engine.drive_clock(t)
-                    edge = decoded(bus if bus_at is None else bus_at[i], frame(i))
+                    edge = decoded(bus if lanes is None else buses[lanes[i]], frame(i))
                 if edge:
                     engine.edge_tick(t)
                 due = engine.due
@@ -483,8 +483,11 @@ class _Walk:
     rows: Any
     slots: Any
     bus: str
-    """The bus of every row, or "" when they go to several (``bus_at``)."""
-    bus_at: list[str] | None
+    """The bus of every row, or "" when they go to several (``lanes``)."""
+    buses: list[str]
+    """The bus of each of the block's channels."""
+    lanes: Any
+    """Each row's channel, an index into :attr:`buses`, when the block's channels go to several buses; else None."""
 
 
 @dataclass

@@ -38,12 +38,16 @@ for _i, _c in enumerate(b"0123456789abcdef"):
     _HEXVAL[_c] = _i
 for _i, _c in enumerate(b"ABCDEF", 10):
     _HEXVAL[_c] = _i
-_FD_BYTES = np.zeros(65, dtype=bool)
+_FD_BYTES = np.zeros(66, dtype=bool)  # [65]: any length above 64 bytes
 _FD_BYTES[sorted(CANFD_LENGTHS)] = True
 _U = np.uint64
 _LE64 = np.dtype("<u8")
 _EXACT = 1 << 53
+_MAX_STANDARD = 0x7FF
+_MAX_EXTENDED = 0x1FFFFFFF
 _MARKERS = frozenset(b"TRtr")
+_CLASSIC = 255
+"""A classic row's CAN FD flags (:attr:`ByteColumns._flags`): no hex digit's value."""
 _FEW = 48
 """Below this many rows a message's payloads are cut from the text, not gathered by numpy."""
 
@@ -58,11 +62,11 @@ class ByteColumns:
     each row's index into them in ``lanes``.
     """
 
-    __slots__ = ("_b", "_end", "_ids", "_raw", "_row_chans", "_start", "_ts", "channel", "channels",
-                 "fd", "keys", "lanes", "n", "order", "ordered", "remote", "stamps")
+    __slots__ = ("_b", "_end", "_fd", "_flags", "_ids", "_raw", "_row_chans", "_start", "_ts", "channel",
+                 "channels", "keys", "lanes", "n", "order", "ordered", "remote", "stamps")
 
     def __init__(self, n: int, stamps: np.ndarray, keys: np.ndarray, ordered: bool, channel: str | None,
-                 fd: dict[int, int] | None, remote: dict[int, int] | None, raw: bytes, b: np.ndarray,
+                 flags: np.ndarray | None, remote: dict[int, int] | None, raw: bytes, b: np.ndarray,
                  start: np.ndarray, end: np.ndarray) -> None:
         self.n = n
         self.stamps = stamps
@@ -77,7 +81,9 @@ class ByteColumns:
         self.lanes: np.ndarray | None = None
         """Each row's index into :attr:`channels` (None: one channel)."""
         self._row_chans: list[str] | None = None
-        self.fd = fd
+        self._flags = flags
+        """Each row's CAN FD flags digit (BRS, ESI), :data:`_CLASSIC` on a classic row; None: no CAN FD row."""
+        self._fd: dict[int, int] | None = None
         self.remote = remote
         self._raw = raw
         self._b = b
@@ -93,6 +99,15 @@ class ByteColumns:
         if self._ts is None:
             self._ts = self.stamps.tolist()
         return self._ts
+
+    @property
+    def fd(self) -> dict[int, int] | None:
+        """The CAN FD rows' flags (BRS, ESI) by row, made when first asked for (a frame reads its own row's; a
+        dict of every FD row, made per block, was ~4 % of a replay of an all-FD log); None: no CAN FD row."""
+        if self._fd is None and self._flags is not None:
+            rows = np.flatnonzero(self._flags != _CLASSIC)
+            self._fd = dict(zip(rows.tolist(), self._flags[rows].tolist(), strict=True))
+        return self._fd
 
     @property
     def ids(self) -> list[int]:
@@ -122,8 +137,8 @@ class ByteColumns:
         if self.remote is not None and i in self.remote:
             return _new(Frame, (t, channel, cid, b"", ext, _F, _F, True, _F, _F, self.remote[i]))
         data = bytes.fromhex(self._raw[int(self._start[i]):int(self._end[i])].decode("ascii"))
-        flags = self.fd.get(i) if self.fd is not None else None
-        if flags is not None:
+        flags = int(self._flags[i]) if self._flags is not None else _CLASSIC
+        if flags != _CLASSIC:
             return _new(Frame, (t, channel, cid, data, ext, True, _F, _F,
                                 bool(flags & CANFD_BRS), bool(flags & CANFD_ESI), -1))
         return _new(Frame, (t, channel, cid, data, ext, _F, _F, _F, _F, _F, -1))
@@ -220,7 +235,7 @@ def byte_columns(text: str | bytes, n: int) -> ByteColumns | None:
         n = nl.size
     if not n or nl.size != n or nl[-1] != b.size - 1:
         return None
-    layout = _layout(raw, b, mask, nl, n)
+    layout = _layout(raw, b, nl, n)
     if layout is None:
         return None
     start, width, clen, sp1, sp2, end, spaces = layout
@@ -232,17 +247,19 @@ def byte_columns(text: str | bytes, n: int) -> ByteColumns | None:
     if chans is None:
         return None
     names, lanes = chans
-    found = _id_fields(b, words, mask, sp2, end, n)
+    if any(c in name for name in names for c in "()#"):
+        return None  # a channel's letters are not counted as fields are: the text parser decides
+    found = _id_fields(b, words, sp2, end, n)
     if found is None:
         return None
     h1, after, hashes, keys = found
     payloads = _payloads(raw, b, h1, end, after, hashes - n)
     if payloads is None:
         return None
-    data_start, fd, remote = payloads
+    data_start, flags, remote = payloads
     # Every byte that is not a hex digit has been found at its place above: "(", ")", the dot,
     # the spaces, the "#"s, the newline, the marker, the channel's letters, a remote "R". One
-    # more anywhere (in the data, say) and the count differs.
+    # more anywhere (in the data, say, or a second "(" or "#") and the count differs.
     others = [_others(name) for name in names]
     letters = n * others[0] if lanes is None else int(np.dot(np.bincount(lanes, minlength=len(names)), others))
     known = n * (4 + markers) + letters + spaces + hashes + len(remote or ())
@@ -250,7 +267,7 @@ def byte_columns(text: str | bytes, n: int) -> ByteColumns | None:
         return None
     step = ts[1:] - ts[:-1]
     backs = int(np.count_nonzero(step < 0))
-    cols = ByteColumns(n, ts, keys, not backs, names[0] if lanes is None else None, fd, remote,
+    cols = ByteColumns(n, ts, keys, not backs, names[0] if lanes is None else None, flags, remote,
                        raw, b, data_start, end)
     if lanes is not None:
         cols.channels, cols.lanes = names, lanes
@@ -258,12 +275,13 @@ def byte_columns(text: str | bytes, n: int) -> ByteColumns | None:
     return cols
 
 
-def _layout(raw: bytes, b: np.ndarray, mask: np.ndarray, nl: np.ndarray, n: int) -> tuple[Any, ...] | None:
+def _layout(raw: bytes, b: np.ndarray, nl: np.ndarray, n: int) -> tuple[Any, ...] | None:
     """Where each line's fields are: (line starts, timestamp width, channel length, the space before the
     channel, the space before the id, where each line's data ends, the block's spaces); None: not plain.
 
     Each field's place follows from the first line's widths (timestamp, channel) and each id's
-    length (3 or 8); each place is checked, and counts of "(", ")", " " and "#" leave none elsewhere.
+    length (3 or 8); each place is checked. That "(", ")", " " and "#" are nowhere else is the caller's count
+    of the bytes that are not hex digits (no count of each: four passes over the block's bytes fewer).
     """
     start = np.empty(n, dtype=np.intp)
     start[0] = 0
@@ -271,34 +289,32 @@ def _layout(raw: bytes, b: np.ndarray, mask: np.ndarray, nl: np.ndarray, n: int)
     first = raw[:int(nl[0])]
     width = first.find(b")") - 1
     clen = first.find(b" ", width + 3) - width - 3
-    if width < 3 or clen < 1 or _count(b, 40, mask) != n or _count(b, 41, mask) != n:
+    if width < 3 or clen < 1 or nl[0] < 2:
         return None
     close = start + (width + 1)
     sp1 = close + 1
     sp2 = sp1 + (clen + 1)
     if not ((b[start] == 40) & (sp2 < nl)).all() or not ((b[close] == 41) & (b[sp1] == 32) & (b[sp2] == 32)).all():
         return None
-    spaces = _count(b, 32, mask)
-    markers = spaces == 3 * n
-    if not markers and spaces != 2 * n:
-        return None
+    markers = bool(b[nl[0] - 2] == 32)  # as the first line ends (" T"), or its data does: every line is checked
+    spaces = (3 if markers else 2) * n
     end = nl - 2 if markers else nl  # the space before a T/R marker, or the newline
     if markers and (not ((b[end] == 32) & (end > sp2)).all() or not set(b[nl - 1].tobytes()) <= _MARKERS):
         return None
     return start, width, clen, sp1, sp2, end, spaces
 
 
-def _id_fields(b: np.ndarray, words: np.ndarray, mask: np.ndarray, sp2: np.ndarray, end: np.ndarray, n: int
+def _id_fields(b: np.ndarray, words: np.ndarray, sp2: np.ndarray, end: np.ndarray, n: int
                ) -> tuple[np.ndarray, np.ndarray, int, np.ndarray] | None:
-    """(where each line's "#" after the id is, the byte after it, the block's "#"s, the id keys); None: not plain."""
+    """(where each line's "#" after the id is, the byte after it, the block's "#"s at their places, the id keys);
+    None: not plain."""
     short = b[np.minimum(sp2 + 4, b.size - 1)] == 35  # a 3-digit id, else 8
     h1 = np.where(short, sp2 + 4, sp2 + 9)
     if not ((h1 < end) & (b[np.minimum(h1, b.size - 1)] == 35)).all():
         return None
     after = b[h1 + 1]  # "#" for CAN FD, "R" / "r" for a remote frame: h1 + 1 <= end (a newline at worst)
-    hashes = _count(b, 35, mask)
-    if hashes != n + int(np.count_nonzero(after == 35)):  # one "#" per line, two on a CAN FD line: none elsewhere
-        return None
+    hashes = n + int(np.count_nonzero(after == 35))  # one "#" per line, two on a CAN FD line; none elsewhere:
+    # the caller's count of the bytes that are not hex digits
     keys = _ids(words, sp2, h1)
     if keys is None:
         return None
@@ -306,16 +322,17 @@ def _id_fields(b: np.ndarray, words: np.ndarray, mask: np.ndarray, sp2: np.ndarr
 
 
 def _payloads(raw: bytes, b: np.ndarray, h1: np.ndarray, end: np.ndarray, after: np.ndarray, nfd: int
-              ) -> tuple[np.ndarray, dict[int, int] | None, dict[int, int] | None] | None:
-    """(where each row's data starts, the CAN FD rows' flags, the remote rows' DLCs); None: not plain."""
+              ) -> tuple[np.ndarray, np.ndarray | None, dict[int, int] | None] | None:
+    """(where each row's data starts, each row's CAN FD flags (None: no CAN FD row), the remote rows' DLCs);
+    None: not plain."""
     data_start = h1 + 1
     is_fd = after == 35
-    fd: dict[int, int] | None = None
+    flags: np.ndarray | None = None
     remote: dict[int, int] | None = None
     if nfd:
         data_start = np.where(is_fd, h1 + 3, data_start)
-        fd = _fd_flags(b, h1, end, is_fd)
-        if fd is None:
+        flags = _fd_flags(b, h1, end, is_fd)
+        if flags is None:
             return None
     is_remote = (after == 82) | (after == 114)
     if is_remote.any():
@@ -323,20 +340,24 @@ def _payloads(raw: bytes, b: np.ndarray, h1: np.ndarray, end: np.ndarray, after:
         if remote is None:
             return None
         data_start = np.where(is_remote, end, data_start)
-    if not _lengths_ok(end - data_start, is_fd):
+    if not _lengths_ok(end - data_start, is_fd, nfd):
         return None
-    return data_start, fd, remote
+    return data_start, flags, remote
 
 
-def _fd_flags(b: np.ndarray, h1: np.ndarray, end: np.ndarray, is_fd: np.ndarray) -> dict[int, int] | None:
-    """The flags digit (BRS, ESI) of each CAN FD row (``ID##F...``); None: one is not a hex digit."""
-    rows = np.flatnonzero(is_fd)
-    if not (h1[rows] + 2 < end[rows]).all():
+def _fd_flags(b: np.ndarray, h1: np.ndarray, end: np.ndarray, is_fd: np.ndarray) -> np.ndarray | None:
+    """Each row's flags digit (BRS, ESI) when it is CAN FD (``ID##F...``), else :data:`_CLASSIC`; None: the
+    digit of a CAN FD row is missing or not a hex digit.
+
+    Over every row (a classic row's byte there is read and dropped): no index array of the FD rows."""
+    at = h1 + 2
+    if ((at >= end) & is_fd).any():
         return None
-    flags = _HEXVAL[b[h1[rows] + 2]]
-    if (flags == 255).any():
+    flags = _HEXVAL.take(b.take(np.minimum(at, b.size - 1)))  # _HEXVAL gives _CLASSIC (255) to a non-hex byte
+    if ((flags == _CLASSIC) & is_fd).any():
         return None
-    return dict(zip(rows.tolist(), flags.tolist(), strict=True))
+    flags[~is_fd] = _CLASSIC
+    return flags
 
 
 def _remote_dlcs(raw: bytes, h1: np.ndarray, end: np.ndarray, is_remote: np.ndarray) -> dict[int, int] | None:
@@ -350,12 +371,15 @@ def _remote_dlcs(raw: bytes, h1: np.ndarray, end: np.ndarray, is_remote: np.ndar
     return remote
 
 
-def _lengths_ok(lengths: np.ndarray, is_fd: np.ndarray) -> bool:
-    """Each row's data (hex digits) is whole bytes of a CAN length: up to 8 classic, a CAN FD length for FD."""
+def _lengths_ok(lengths: np.ndarray, is_fd: np.ndarray, nfd: int) -> bool:
+    """Each row's data (hex digits) is whole bytes of a CAN length: up to 8 classic, a CAN FD length for FD
+    (``nfd``: how many rows are CAN FD). Over every row: no selection of each kind's rows."""
     if (lengths & 1).any():
         return False
-    fd = lengths[is_fd]
-    return not ((lengths[~is_fd] > 16).any() or not _FD_BYTES[np.minimum(fd // 2, 64)].all() or (fd > 128).any())
+    if not nfd:
+        return not (lengths > 16).any()
+    fd_ok = _FD_BYTES.take(np.minimum(lengths >> 1, 65))
+    return not (((lengths > 16) & ~is_fd) | (~fd_ok & is_fd)).any()
 
 
 _LOCAL = threading.local()
@@ -378,12 +402,6 @@ def _buffer(name: str, count: int, dtype: type) -> np.ndarray:
 def _scratch(size: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Scratch for a block of ``size`` bytes (:func:`_buffer`): ``size + 8`` bytes, and two masks of ``size``."""
     return _buffer("pad", size + 8, np.uint8), _buffer("mask", size, bool), _buffer("spare", size, bool)
-
-
-def _count(b: np.ndarray, byte: int, mask: np.ndarray) -> int:
-    """How many bytes of ``b`` are ``byte`` (``mask``: scratch of ``b``'s size, overwritten)."""
-    np.equal(b, np.uint8(byte), out=mask)
-    return int(np.count_nonzero(mask))
 
 
 def _hex_digits(b: np.ndarray, work: np.ndarray, mask: np.ndarray, spare: np.ndarray) -> int:
@@ -432,11 +450,27 @@ def _channels(b: np.ndarray, words: np.ndarray, sp1: np.ndarray, size: int
         return None
     codes = words[sp1 + 1] & np.uint64((1 << 8 * size) - 1)  # the name's bytes, little-endian
     first = int(sp1[0]) + 1
-    if (codes == codes[0]).all():
+    same = codes == codes[0]
+    if same.all():
         return [bytes(b[first:first + size]).decode("ascii")], None
-    _codes, firsts, lanes = np.unique(codes, return_index=True, return_inverse=True)
+    lanes = _two_lanes(codes, same)
+    if lanes is None:
+        _codes, firsts, lanes = np.unique(codes, return_index=True, return_inverse=True)
+        lanes = lanes.reshape(-1).astype(np.intp)
+    else:
+        firsts = np.array([int(np.argmax(lanes == 0)), int(np.argmax(lanes))])
     names = [bytes(b[int(sp1[k]) + 1:int(sp1[k]) + 1 + size]).decode("ascii") for k in firsts.tolist()]
-    return names, lanes.reshape(-1).astype(np.intp)
+    return names, lanes
+
+
+def _two_lanes(codes: np.ndarray, same: np.ndarray) -> np.ndarray | None:
+    """Each row's lane when the block has exactly two channels (``same``: the rows of the first row's), as
+    ``np.unique`` numbers them (the lower code first), without its sort; None: more than two."""
+    other = codes[int(np.argmin(same))]
+    second = codes == other
+    if not (same | second).all():
+        return None
+    return (second if other > codes[0] else same).astype(np.intp)
 
 
 def _ids(words: np.ndarray, sp2: np.ndarray, h1: np.ndarray) -> np.ndarray | None:
@@ -453,33 +487,42 @@ def _ids(words: np.ndarray, sp2: np.ndarray, h1: np.ndarray) -> np.ndarray | Non
         return _extended(words[h1 - 8])
     if not ext.any():
         return _standard(words[h1 - 3])
-    keys = np.empty(h1.size, dtype=np.int64)
-    high, low = _extended(words[h1[ext] - 8]), _standard(words[h1[~ext] - 3])
-    if high is None or low is None:
+    # Both read on every row (the bytes before a short id, or after a long one's first three, read and
+    # dropped): numpy's boolean selections of each kind's rows cost more than the arithmetic they save.
+    high, low = _extended_values(words[h1 - 8]), _standard_values(words[h1 - 3])
+    if ((high > _U(_MAX_EXTENDED)) & ext).any() or ((low > _U(_MAX_STANDARD)) & ~ext).any():
         return None
-    keys[ext] = high
-    keys[~ext] = low
-    return keys
+    return np.where(ext, high.astype(np.int64) + EXT_KEY, low.astype(np.int64))
 
 
 def _extended(x: np.ndarray) -> np.ndarray | None:
     """The keys of 8-digit ids (``x``: their digits' bytes), or None when one is above 1FFFFFFF (error frames)."""
-    nib = _nibbles(x)  # byte k: the k-th digit
-    x = ((nib & _U(0x000F000F000F000F)) << _U(4)) | ((nib >> _U(8)) & _U(0x000F000F000F000F))
-    x = ((x & _U(0x000000FF000000FF)) << _U(8)) | ((x >> _U(16)) & _U(0x000000FF000000FF))
-    value = ((x & _U(0xFFFF)) << _U(16)) | ((x >> _U(32)) & _U(0xFFFF))
-    if (value > _U(0x1FFFFFFF)).any():
+    value = _extended_values(x)
+    if (value > _U(_MAX_EXTENDED)).any():
         return None
     return value.astype(np.int64) + EXT_KEY
 
 
 def _standard(x: np.ndarray) -> np.ndarray | None:
     """The keys of 3-digit ids (``x``: their digits' bytes, then others), or None when one is above 7FF."""
-    nib = _nibbles(x)
-    value = ((nib & _U(0xF)) << _U(8)) | (((nib >> _U(8)) & _U(0xF)) << _U(4)) | ((nib >> _U(16)) & _U(0xF))
-    if (value > _U(0x7FF)).any():
+    value = _standard_values(x)
+    if (value > _U(_MAX_STANDARD)).any():
         return None
     return value.astype(np.int64)
+
+
+def _extended_values(x: np.ndarray) -> np.ndarray:
+    """The values of 8 hex digits (``x``: their bytes, little-endian words), unchecked."""
+    nib = _nibbles(x)  # byte k: the k-th digit
+    x = ((nib & _U(0x000F000F000F000F)) << _U(4)) | ((nib >> _U(8)) & _U(0x000F000F000F000F))
+    x = ((x & _U(0x000000FF000000FF)) << _U(8)) | ((x >> _U(16)) & _U(0x000000FF000000FF))
+    return ((x & _U(0xFFFF)) << _U(16)) | ((x >> _U(32)) & _U(0xFFFF))
+
+
+def _standard_values(x: np.ndarray) -> np.ndarray:
+    """The values of 3 hex digits (``x``: their bytes, then others, little-endian words), unchecked."""
+    nib = _nibbles(x)
+    return ((nib & _U(0xF)) << _U(8)) | (((nib >> _U(8)) & _U(0xF)) << _U(4)) | ((nib >> _U(16)) & _U(0xF))
 
 
 def _nibbles(x: np.ndarray) -> np.ndarray:
