@@ -487,12 +487,15 @@ def _ids(words: np.ndarray, sp2: np.ndarray, h1: np.ndarray) -> np.ndarray | Non
         return _extended(words[h1 - 8])
     if not ext.any():
         return _standard(words[h1 - 3])
-    # Both read on every row (the bytes before a short id, or after a long one's first three, read and
-    # dropped): numpy's boolean selections of each kind's rows cost more than the arithmetic they save.
-    high, low = _extended_values(words[h1 - 8]), _standard_values(words[h1 - 3])
-    if ((high > _U(_MAX_EXTENDED)) & ext).any() or ((low > _U(_MAX_STANDARD)) & ~ext).any():
+    # One read of the 8 bytes before each "#", over every row: a long id's digits, or a short id's
+    # three after five bytes that are read and dropped. Each byte lands in its own nibble of the
+    # value, so a short id is its low 12 bits whatever the bytes before it (numpy's boolean
+    # selections of each kind's rows cost more than the arithmetic they save).
+    value = _extended_values(words[h1 - 8])
+    low = value & _U(0xFFF)
+    if ((value > _U(_MAX_EXTENDED)) & ext).any() or ((low > _U(_MAX_STANDARD)) & ~ext).any():
         return None
-    return np.where(ext, high.astype(np.int64) + EXT_KEY, low.astype(np.int64))
+    return np.where(ext, value.astype(np.int64) + EXT_KEY, low.astype(np.int64))
 
 
 def _extended(x: np.ndarray) -> np.ndarray | None:
