@@ -158,6 +158,19 @@ def test_id_keys() -> None:
     assert cols.ids == [0x7FF, 0x1ABCDEF0 + EXT_KEY]
 
 
+def test_mixed_id_lengths_read_as_the_line_parser_does() -> None:
+    """A block of 3- and 8-digit ids, in any letter case, reads each id as the line parser does, and one id
+    out of range (a short one above 7FF, a long one above 1FFFFFFF) leaves the block to the line parser."""
+    lines = ["(1.000000) can0 7fF#01", "(1.000001) can0 1aBcDeF0#02", "(1.000002) can0 000#",
+             "(1.000003) can0 00000000#03", "(1.000004) can0 5A3#0405", "(1.000005) can0 1FFFFFFF#"]
+    cols = byte_columns(*_block(lines))
+    assert cols is not None
+    assert cols.ids == [0x7FF, 0x1ABCDEF0 + EXT_KEY, 0, EXT_KEY, 0x5A3, 0x1FFFFFFF + EXT_KEY]
+    assert list(cols.frames()) == [_parse_line(line) for line in lines]
+    for bad in ("(1.000006) can0 800#00", "(1.000006) can0 20000080#00"):
+        assert byte_columns(*_block([*lines, bad])) is None, bad
+
+
 def test_threads_parse_at_once() -> None:
     """Each thread has its own scratch (a Dask worker with several threads replays several logs at once):
     blocks parsed by four threads at the same time read as parsed one after the other."""

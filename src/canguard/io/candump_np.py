@@ -42,6 +42,8 @@ _FD_BYTES = np.zeros(66, dtype=bool)  # [65]: any length above 64 bytes
 _FD_BYTES[sorted(CANFD_LENGTHS)] = True
 _U = np.uint64
 _LE64 = np.dtype("<u8")
+_U16 = np.uint16
+_LE16 = np.dtype("<u2")
 _EXACT = 1 << 53
 _MAX_STANDARD = 0x7FF
 _MAX_EXTENDED = 0x1FFFFFFF
@@ -164,8 +166,7 @@ class ByteColumns:
         good, start = self._fitting(rows, size)
         if not size or not start.size:
             return good, b""
-        nib = _HEXVAL.take(_rows(self._b, start, size))
-        return good, ((nib[:, 0::2] << 4) | nib[:, 1::2]).tobytes()
+        return good, _hex_bytes(_rows(self._b, start, size)).tobytes()
 
     def payloads(self, groups: list[Any], size: int) -> list[tuple[list[int] | None, bytes]]:
         """:meth:`payload` of each of ``groups`` (row lists or index arrays), cut in one pass over all their rows."""
@@ -205,8 +206,7 @@ class ByteColumns:
         good, start = self._fitting(rows, size)
         cells = []
         for at, width in spans:
-            nib = _HEXVAL.take(_rows(self._b, start + 2 * at, 2 * width))
-            cells.append((nib[:, 0::2] << 4) | nib[:, 1::2])
+            cells.append(_hex_bytes(_rows(self._b, start + 2 * at, 2 * width)))
         return good, cells
 
 
@@ -487,12 +487,15 @@ def _ids(words: np.ndarray, sp2: np.ndarray, h1: np.ndarray) -> np.ndarray | Non
         return _extended(words[h1 - 8])
     if not ext.any():
         return _standard(words[h1 - 3])
-    # Both read on every row (the bytes before a short id, or after a long one's first three, read and
-    # dropped): numpy's boolean selections of each kind's rows cost more than the arithmetic they save.
-    high, low = _extended_values(words[h1 - 8]), _standard_values(words[h1 - 3])
-    if ((high > _U(_MAX_EXTENDED)) & ext).any() or ((low > _U(_MAX_STANDARD)) & ~ext).any():
+    # One read of the 8 bytes before each "#", over every row: a long id's digits, or a short id's
+    # three after five bytes that are read and dropped. Each byte lands in its own nibble of the
+    # value, so a short id is its low 12 bits whatever the bytes before it (numpy's boolean
+    # selections of each kind's rows cost more than the arithmetic they save).
+    value = _extended_values(words[h1 - 8])
+    low = value & _U(0xFFF)
+    if ((value > _U(_MAX_EXTENDED)) & ext).any() or ((low > _U(_MAX_STANDARD)) & ~ext).any():
         return None
-    return np.where(ext, high.astype(np.int64) + EXT_KEY, low.astype(np.int64))
+    return np.where(ext, value.astype(np.int64) + EXT_KEY, low.astype(np.int64))
 
 
 def _extended(x: np.ndarray) -> np.ndarray | None:
@@ -528,6 +531,17 @@ def _standard_values(x: np.ndarray) -> np.ndarray:
 def _nibbles(x: np.ndarray) -> np.ndarray:
     """Each byte of ``x``, an ASCII hex digit, as its value (0-9, a-f and A-F alike)."""
     return (x & _U(0x0F0F0F0F0F0F0F0F)) + ((x >> _U(6)) & _U(0x0101010101010101)) * _U(9)
+
+
+def _hex_bytes(cells: np.ndarray) -> np.ndarray:
+    """The bytes that the rows of ``cells`` spell (hex digits, checked by :func:`byte_columns`, an even number
+    a row, C-contiguous): a ``rows x half as many`` matrix.
+
+    Two digits at a time, as little-endian 16-bit words (the first digit in the low byte), in
+    arithmetic: a table lookup (``take``) first widens every digit to an index."""
+    pairs = cells.view(_LE16)
+    nib = (pairs & _U16(0x0F0F)) + ((pairs >> _U16(6)) & _U16(0x0101)) * _U16(9)  # each byte: its digit's value
+    return ((nib << _U16(4)) | (nib >> _U16(8))).astype(np.uint8)  # the low byte: first digit * 16 + second
 
 
 def _rows(b: np.ndarray, pos: np.ndarray, width: int) -> np.ndarray:
