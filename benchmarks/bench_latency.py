@@ -543,16 +543,29 @@ def with_background(group: str, port: int, fps: float, trials: Callable[[], list
     return samples, float(out.strip() or 0)
 
 
+def deployed_priority(nice: int) -> None:
+    """This process at ``nice``, its children back at nice 0: as systemd/monitor.conf starts the daemon
+    (``Nice=-10``, ``CPUSchedulingResetOnFork=yes``). Runs in the child between fork and exec."""
+    os.setpriority(os.PRIO_PROCESS, 0, nice)
+    os.sched_setscheduler(0, os.SCHED_OTHER | os.SCHED_RESET_ON_FORK, os.sched_param(0))
+
+
 class DaemonProcess:
     """``canguard run`` as a subprocess on a udp_multicast group, config and journal in ``tmp``; its stderr is
     passed on and kept (it says there where its monitors listen)."""
 
-    def __init__(self, tmp: Path, group: str, port: int, monitor: dict[str, Any] | None = None) -> None:
+    def __init__(self, tmp: Path, group: str, port: int, monitor: dict[str, Any] | None = None,
+                 nice: int = 0) -> None:
         tmp.mkdir(parents=True, exist_ok=True)
         cfg = write_config(tmp, {"interface": "udp_multicast", "channel": group, "port": port}, monitor)
         self.said: list[str] = []
-        self.proc = subprocess.Popen([sys.executable, "-m", "canguard", "run", "-c", str(cfg)],
-                                     env=child_env(), text=True, stderr=subprocess.PIPE)
+        try:
+            self.proc = subprocess.Popen([sys.executable, "-m", "canguard", "run", "-c", str(cfg)],
+                                         env=child_env(), text=True, stderr=subprocess.PIPE,
+                                         preexec_fn=functools.partial(deployed_priority, nice) if nice else None)
+        except (OSError, subprocess.SubprocessError) as exc:
+            raise RuntimeError(f"canguard run at nice {nice} did not start ({exc}): a negative nice needs root "
+                               "or CAP_SYS_NICE; --nice 0 runs it at this process's priority") from exc
         self.relay = threading.Thread(target=self.pass_on, daemon=True)
         self.relay.start()
         try:
@@ -609,10 +622,11 @@ def cross_process(trials: int, fps: float, rnd: random.Random) -> None:
 
 # -- (d) watched cross-process: the product as deployed, watched --------------------------------
 def watched_cross(trials: int, fps: float, rnd: random.Random, blocks: int = 4, browser: bool = True,
-                  fresh: bool = False) -> None:
+                  fresh: bool = False, nice: int = -10) -> None:
     """(b)'s ``canguard run`` subprocess with its monitors on ephemeral loopback ports, in alternating unwatched
     and watched blocks: the same daemon throughout, the page and the Groot2 poller opened and closed per block
-    (``fresh``: a new daemon per block, with ``monitor:`` in its config only in watched blocks)."""
+    (``fresh``: a new daemon per block, with ``monitor:`` in its config only in watched blocks). The daemon runs
+    at ``nice`` (-10 and reset on fork, as systemd/monitor.conf runs it)."""
     per = max(1, trials // blocks)
     group, port = multicast_group(rnd)
     monitor = {"http": "127.0.0.1:0", "groot2": "127.0.0.1:0"}
@@ -626,11 +640,11 @@ def watched_cross(trials: int, fps: float, rnd: random.Random, blocks: int = 4, 
         chromium = Browser(tmp) if browser else None
         try:
             if not fresh:
-                shared = DaemonProcess(tmp / "daemon", group, port, monitor)
+                shared = DaemonProcess(tmp / "daemon", group, port, monitor, nice)
             for block in range(blocks):
                 for watch in (False, True):
                     daemon = shared or DaemonProcess(tmp / f"daemon-{block}-{int(watch)}", group, port,
-                                                     monitor if watch else None)
+                                                     monitor if watch else None, nice)
                     try:
                         at = daemon.monitors() if watch else None
                         trials_of = functools.partial(guard_trials, peer, per, rnd)
@@ -647,7 +661,7 @@ def watched_cross(trials: int, fps: float, rnd: random.Random, blocks: int = 4, 
             if chromium is not None:
                 chromium.close()
             peer.shutdown()
-    how = "a fresh daemon per block" if fresh else "one daemon, watchers per block"
+    how = f"{'a fresh daemon per block' if fresh else 'one daemon, watchers per block'}, daemon at nice {nice}"
     print_watched(f"(d) watched vs unwatched, canguard run subprocess, udp_multicast ({how})", plain, seen, blocks,
                   min(rates), browser)
 
@@ -667,6 +681,9 @@ def main(argv: list[str] | None = None) -> int:
                          "spread a shared machine's changing load over both)")
     ap.add_argument("--no-browser", action="store_true",
                     help="(c), (d) without the browser: the monitors' own cost, not chromium's CPU")
+    ap.add_argument("--nice", type=int, default=-10,
+                    help="(d) the daemon's nice value, reset to 0 in its children (default -10: as "
+                         "systemd/monitor.conf runs it; a negative value needs root or CAP_SYS_NICE)")
     ap.add_argument("--fresh-daemons", action="store_true",
                     help="(d) a new daemon per block, monitors configured only in the watched ones (default: "
                          "one daemon with its monitors throughout, the watchers come and go)")
@@ -683,7 +700,7 @@ def main(argv: list[str] | None = None) -> int:
         watched(args.trials, args.fps, rnd, blocks=args.blocks, browser=not args.no_browser)
     if args.only is None or args.only == "watched-cross":
         watched_cross(args.trials, args.fps, rnd, blocks=args.blocks, browser=not args.no_browser,
-                      fresh=args.fresh_daemons)
+                      fresh=args.fresh_daemons, nice=args.nice)
     return 0
 
 
