@@ -622,11 +622,13 @@ def cross_process(trials: int, fps: float, rnd: random.Random) -> None:
 
 # -- (d) watched cross-process: the product as deployed, watched --------------------------------
 def watched_cross(trials: int, fps: float, rnd: random.Random, blocks: int = 4, browser: bool = True,
-                  fresh: bool = False, nice: int = -10) -> None:
+                  fresh: bool = False, nice: int = -10,
+                  on_block: Callable[[bool, list[float]], None] | None = None) -> None:
     """(b)'s ``canguard run`` subprocess with its monitors on ephemeral loopback ports, in alternating unwatched
     and watched blocks: the same daemon throughout, the page and the Groot2 poller opened and closed per block
     (``fresh``: a new daemon per block, with ``monitor:`` in its config only in watched blocks). The daemon runs
-    at ``nice`` (-10 and reset on fork, as systemd/monitor.conf runs it)."""
+    at ``nice`` (-10 and reset on fork, as systemd/monitor.conf runs it). ``on_block(watched, samples)`` is called
+    after each block."""
     per = max(1, trials // blocks)
     group, port = multicast_group(rnd)
     monitor = {"http": "127.0.0.1:0", "groot2": "127.0.0.1:0"}
@@ -655,6 +657,8 @@ def watched_cross(trials: int, fps: float, rnd: random.Random, blocks: int = 4, 
                             daemon.stop()
                     (seen if watch else plain).extend(samples)
                     rates.append(rate)
+                    if on_block is not None:
+                        on_block(watch, samples)
         finally:
             if shared is not None:
                 shared.stop()
