@@ -491,8 +491,12 @@ def watched_block(trials: int, fps: float, rnd: random.Random, browser: Browser 
         bg = threading.Thread(target=background, args=(bg_bus, fps, stop), daemon=True)
         try:
             at = wait_addresses(said, run.is_alive) if watch else None
-            bg.start()
-            return watched_trials(lambda: guard_trials(peer, trials, rnd), browser, at)
+
+            def loaded_trials() -> list[float]:
+                bg.start()  # once the page is open, as before the watchers' pieces were shared with (d)
+                return guard_trials(peer, trials, rnd)
+
+            return watched_trials(loaded_trials, browser, at)
         finally:
             stop.set()
             if bg.is_alive():
