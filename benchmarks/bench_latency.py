@@ -388,9 +388,14 @@ class Groot2Poller:
             raise RuntimeError("the Groot2 poller got no STATUS reply")
 
     def close(self) -> int:
-        """Stop it; how many STATUS replies it got."""
+        """Stop it; how many STATUS replies it got (-1: it did not end on SIGTERM within 10 s and was killed)."""
         self.proc.send_signal(signal.SIGTERM)
-        out, _ = self.proc.communicate(timeout=10)
+        try:
+            out, _ = self.proc.communicate(timeout=10)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()  # stuck in a zmq call: not left running to load the next measurements
+            self.proc.communicate()
+            return -1
         return int(out.strip() or 0)
 
 
