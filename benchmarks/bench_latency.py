@@ -305,7 +305,9 @@ it got (a reply still awaited at SIGTERM does not keep it waiting)."""
 class Browser:
     """One headless chromium for the whole run (its start-up is not measured), showing a page or about:blank."""
 
-    def __init__(self, tmp: Path) -> None:
+    def __init__(self, tmp: Path, raise_priority: bool = True) -> None:
+        """``raise_priority`` False: chromium without CAP_SYS_NICE (``setpriv``), as a user's browser runs; run as
+        root, chromium raises its display threads to nice -8."""
         import shutil
 
         from selenium import webdriver
@@ -313,6 +315,12 @@ class Browser:
 
         options = webdriver.ChromeOptions()
         options.binary_location = shutil.which("chromium") or "chromium"
+        if not raise_priority:
+            wrapper = tmp / "chromium-no-sys-nice"
+            wrapper.write_text(f'#!/bin/sh\nexec setpriv --bounding-set -sys_nice {options.binary_location} "$@"\n',
+                               encoding="utf-8")
+            wrapper.chmod(0o755)
+            options.binary_location = str(wrapper)
         for arg in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
                     "--disable-background-networking", "--no-first-run", f"--user-data-dir={tmp / 'profile'}"):
             options.add_argument(arg)
@@ -632,7 +640,7 @@ def cross_process(trials: int, fps: float, rnd: random.Random) -> None:
 # -- (d) watched cross-process: the product as deployed, watched --------------------------------
 def watched_cross(trials: int, fps: float, rnd: random.Random, blocks: int = 4, browser: bool = True,
                   fresh: bool = False, nice: int = -10,
-                  on_block: Callable[[bool, list[float]], None] | None = None) -> None:
+                  on_block: Callable[[bool, list[float]], None] | None = None, raise_priority: bool = True) -> None:
     """(b)'s ``canguard run`` subprocess with its monitors on ephemeral loopback ports, in alternating unwatched
     and watched blocks: the same daemon throughout, the page and the Groot2 poller opened and closed per block
     (``fresh``: a new daemon per block, with ``monitor:`` in its config only in watched blocks). The daemon runs
@@ -648,7 +656,7 @@ def watched_cross(trials: int, fps: float, rnd: random.Random, blocks: int = 4, 
     shared: DaemonProcess | None = None
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
-        chromium = Browser(tmp) if browser else None
+        chromium = Browser(tmp, raise_priority) if browser else None
         try:
             if not fresh:
                 shared = DaemonProcess(tmp / "daemon", group, port, monitor, nice)
@@ -697,6 +705,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--nice", type=int, default=-10,
                     help="(d) the daemon's nice value, reset to 0 in its children (default -10: as "
                          "systemd/monitor.conf runs it; a negative value needs root or CAP_SYS_NICE)")
+    ap.add_argument("--browser-unprivileged", action="store_true",
+                    help="(d) chromium without CAP_SYS_NICE (setpriv), as a user's browser: run as root it raises "
+                         "its display threads to nice -8, next to the daemon's -10")
     ap.add_argument("--fresh-daemons", action="store_true",
                     help="(d) a new daemon per block, monitors configured only in the watched ones (default: "
                          "one daemon with its monitors throughout, the watchers come and go)")
@@ -713,7 +724,7 @@ def main(argv: list[str] | None = None) -> int:
         watched(args.trials, args.fps, rnd, blocks=args.blocks, browser=not args.no_browser)
     if args.only is None or args.only == "watched-cross":
         watched_cross(args.trials, args.fps, rnd, blocks=args.blocks, browser=not args.no_browser,
-                      fresh=args.fresh_daemons, nice=args.nice)
+                      fresh=args.fresh_daemons, nice=args.nice, raise_priority=not args.browser_unprivileged)
     return 0
 
 
