@@ -18,6 +18,7 @@ Figures are in % of one CPU over the block's wall time; per block, then the mean
 
     python benchmarks/bench_watch_breakdown.py --blocks 3 --trials 300
     python benchmarks/bench_watch_breakdown.py --tree /tmp/old   # another checkout's src and bench_latency
+    python benchmarks/bench_watch_breakdown.py --cross   # bench_latency's (d): the deployed daemon, a process
 """
 
 from __future__ import annotations
@@ -80,6 +81,10 @@ def _kind(pid: int, procs: dict[int, tuple[int, str]]) -> str | None:
     cmdline = (_read(f"/proc/{pid}/cmdline") or "").replace("\0", " ")
     if "canguard.service.monitor.server" in cmdline:
         return "monitor process"
+    if "canguard run" in cmdline:
+        return "daemon process"
+    if "'background' ==" in cmdline:
+        return "bench background process"
     if "zmq.REQ" in cmdline:
         return "Groot2 poller"
     if any(procs[c][1].startswith(("chrom", "chromedriver")) for c in chain):
@@ -153,6 +158,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--blocks", type=int, default=3, help="unwatched + watched block pairs")
     ap.add_argument("--trials", type=int, default=300, help="trip trials per block")
     ap.add_argument("--no-browser", action="store_true", help="without chromium")
+    ap.add_argument("--cross", action="store_true",
+                    help="bench_latency's (d) instead: one `canguard run` process on udp_multicast at nice -10, "
+                         "the watchers per block (its loop, bus reads and journal thread are 'daemon process')")
     args = ap.parse_args(argv)
     sys.path[:0] = [str(args.tree / "src"), str(args.tree / "benchmarks")]
     import tempfile
@@ -166,19 +174,26 @@ def main(argv: list[str] | None = None) -> int:
     busy: dict[bool, list[float]] = defaultdict(list)
     p99: dict[bool, list[float]] = defaultdict(list)
     threading.current_thread().name = "peer (bench main)"
-    with tempfile.TemporaryDirectory() as d:
-        browser = None if args.no_browser else bench_latency.Browser(Path(d))
-        try:
-            for _ in range(args.blocks):
-                for watch in (False, True):
-                    lat = bench_latency.watched_block(args.trials, 8000.0, rnd, browser, watch=watch)
-                    for kind, share in window.shares.items():
-                        table[watch, kind].append(share)
-                    busy[watch].append(window.busy_pct)
-                    p99[watch].append(bench_latency.figures(lat)["p99"])
-        finally:
-            if browser is not None:
-                browser.close()
+
+    def record(watch: bool, lat: list[float]) -> None:
+        for kind, share in window.shares.items():
+            table[watch, kind].append(share)
+        busy[watch].append(window.busy_pct)
+        p99[watch].append(bench_latency.figures(lat)["p99"])
+
+    if args.cross:
+        bench_latency.watched_cross(args.blocks * args.trials, 8000.0, rnd, blocks=args.blocks,
+                                    browser=not args.no_browser, on_block=record)
+    else:
+        with tempfile.TemporaryDirectory() as d:
+            browser = None if args.no_browser else bench_latency.Browser(Path(d))
+            try:
+                for _ in range(args.blocks):
+                    for watch in (False, True):
+                        record(watch, bench_latency.watched_block(args.trials, 8000.0, rnd, browser, watch=watch))
+            finally:
+                if browser is not None:
+                    browser.close()
     print(f"\n{args.tree}: {args.blocks} block pairs of {args.trials} trials, {os.cpu_count()} CPUs, "
           f"load {os.getloadavg()[0]:.1f}; % of one CPU, mean over blocks (CPU used / waited runnable)")
     kinds = sorted({k for _, k in table}, key=lambda k: -statistics.mean(c for c, _ in table[True, k] or [(0, 0)]))
