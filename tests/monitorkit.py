@@ -102,19 +102,54 @@ class Watched:
         peer.set_filters([{"can_id": i, "can_mask": 0x7FF, "extended": False} for i in ESTOP_IDS])
         while peer.recv(0) is not None:  # Estops of earlier stops: not this trip's
             pass
+        self.wait_running()
         sent = time.monotonic()
         self.trip()
-        msg: can.Message | None = None
+        msg = peer.recv(0.05)  # the Estop of a trip that took longer than within_s still counts as late, below
         while msg is None and time.monotonic() - sent < within_s:
             msg = peer.recv(0.05)
-        return msg
+        return msg if msg is not None and msg.timestamp - peer_time(sent) <= within_s else None
+
+    def wait_running(self) -> None:
+        """Wait until the task runs (or is stopped already): the start window is over."""
+        gate = self.daemon.engine.gate
+        wait_for("the task to run", lambda: gate.state in (gate.RUNNING, gate.STOPPED))
 
     def trip(self, current_a: float = 60.0) -> None:
-        """A BMS frame far over PackCurrent's 35 A threshold, from the peer."""
+        """A BMS frame far over PackCurrent's 35 A threshold, from the peer, once the task runs; again until it stops.
+
+        In the start window a failing tree holds the task idle rather than stopping it, so the frame
+        goes once the task runs. And the simulated robot sends its own BMS frames on the same virtual
+        channel from another thread: python-can stamps a frame before it queues it, so the peer's frame
+        can arrive after a newer one of the robot's and be an out-of-order sample, which changes nothing
+        (the daemon is right to ignore it). So the frame is sent again until the task has stopped.
+        """
+        self.wait_running()
         msg = _db().get_message_by_name("BMS_Status")
         data = msg.encode({"Pack_Current": current_a, "Pack_Voltage": 48.0, "State_Of_Charge": 80.0,
                            "Present": 1, "Fault": 0, "Alive_Counter": 0})
-        self.peer.send(can.Message(arbitration_id=BMS_ID, data=data, is_extended_id=True))
+        frame = can.Message(arbitration_id=BMS_ID, data=data, is_extended_id=True)
+        deadline = time.monotonic() + WAIT_S
+        while True:
+            self.peer.send(frame)
+            if wait_stopped(self.daemon, 0.25) or time.monotonic() > deadline:
+                return
+
+
+def peer_time(mono: float) -> float:
+    """A ``time.monotonic()`` reading on the wall-clock base python-can's virtual bus stamps frames with."""
+    return time.time() - (time.monotonic() - mono)
+
+
+def wait_stopped(daemon: Daemon, timeout_s: float) -> bool:
+    """True once the daemon's task is stopped, waiting at most ``timeout_s``."""
+    gate = daemon.engine.gate
+    deadline = time.monotonic() + timeout_s
+    while gate.state != gate.STOPPED:
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.005)
+    return True
 
 
 _DB: list[Any] = []
