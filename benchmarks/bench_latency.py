@@ -160,26 +160,31 @@ def drain(bus: can.BusABC) -> None:
         pass
 
 
+def ready_for_trial(peer: can.BusABC, normal: can.Message, rnd: random.Random) -> None:
+    """Send normal BMS frames until the task frames resume, wait a random 0-3 ms, drop what the peer holds."""
+    resumed = lambda m: m.arbitration_id == SET_STATE0 and bytes(m.data) == CLOSED_LOOP  # noqa: E731
+    for attempt in range(100):  # resend: the daemon may not have opened its bus yet
+        peer.send(normal)
+        try:
+            recv_until(peer, resumed, timeout_s=0.1)
+            break
+        except RuntimeError:
+            if attempt == 99:
+                raise RuntimeError("the task frames did not resume within 10 s: the daemon holds the task "
+                                   "stopped (look for an 'overrun' event in its journal: it fell behind its buses, "
+                                   "e.g. on a machine too busy for this background rate)") from None
+    time.sleep(rnd.uniform(0.0, 0.003))
+    drain(peer)
+
+
 def guard_trials(peer: can.BusABC, trials: int, rnd: random.Random) -> list[float]:
     """Overcurrent -> first Estop latencies (s)."""
     peer.set_filters([{"can_id": ESTOP0, "can_mask": 0x7FF, "extended": False},
                       {"can_id": SET_STATE0, "can_mask": 0x7FF, "extended": False}])
     normal, over = bms_msg(10.0), bms_msg(40.0)
     out: list[float] = []
-    resumed = lambda m: m.arbitration_id == SET_STATE0 and bytes(m.data) == CLOSED_LOOP  # noqa: E731
     for _ in range(trials):
-        for attempt in range(100):  # resend: the daemon may not have opened its bus yet
-            peer.send(normal)
-            try:
-                recv_until(peer, resumed, timeout_s=0.1)
-                break
-            except RuntimeError:
-                if attempt == 99:
-                    raise RuntimeError("the task frames did not resume within 10 s: the daemon holds the task "
-                                       "stopped (look for an 'overrun' event in its journal: it fell behind its buses, "
-                                       "e.g. on a machine too busy for this background rate)") from None
-        time.sleep(rnd.uniform(0.0, 0.003))
-        drain(peer)
+        ready_for_trial(peer, normal, rnd)
         t0 = time.perf_counter()
         peer.send(over)
         recv_until(peer, lambda m: m.arbitration_id == ESTOP0)

@@ -110,24 +110,14 @@ def pct(values: list[float], q: float) -> float:
 
 def trials(peer: Any, n: int, rnd: random.Random) -> list[dict[str, float]]:
     """bench_latency's guard trials, keeping the peer's stamps of each."""
-    from bench_latency import CLOSED_LOOP, SET_STATE0, bms_msg, drain, recv_until
+    from bench_latency import SET_STATE0, bms_msg, ready_for_trial, recv_until
 
     peer.set_filters([{"can_id": ESTOP0, "can_mask": 0x7FF, "extended": False},
                       {"can_id": SET_STATE0, "can_mask": 0x7FF, "extended": False}])
     normal, over = bms_msg(10.0), bms_msg(40.0)
-    resumed = lambda m: m.arbitration_id == SET_STATE0 and bytes(m.data) == CLOSED_LOOP  # noqa: E731
     out: list[dict[str, float]] = []
     for _ in range(n):
-        for attempt in range(100):
-            peer.send(normal)
-            try:
-                recv_until(peer, resumed, timeout_s=0.1)
-                break
-            except RuntimeError:
-                if attempt == 99:
-                    raise
-        time.sleep(rnd.uniform(0.0, 0.003))
-        drain(peer)
+        ready_for_trial(peer, normal, rnd)
         t0 = time.time()
         peer.send(over)
         msg = recv_until(peer, lambda m: m.arbitration_id == ESTOP0)
