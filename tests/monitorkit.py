@@ -111,9 +111,8 @@ class Watched:
         return msg if msg is not None and msg.timestamp - peer_time(sent) <= within_s else None
 
     def wait_running(self) -> None:
-        """Wait until the task runs (or is stopped already): the start window is over."""
-        gate = self.daemon.engine.gate
-        wait_for("the task to run", lambda: gate.state in (gate.RUNNING, gate.STOPPED))
+        """Wait until the task runs: the start window is over, and no other stop holds it."""
+        wait_for("the task to run", lambda: self.daemon.engine.gate.state == self.daemon.engine.gate.RUNNING)
 
     def trip(self, current_a: float = 60.0) -> None:
         """A BMS frame far over PackCurrent's 35 A threshold, from the peer, once the task runs; again until it stops.
