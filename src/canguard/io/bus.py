@@ -324,26 +324,37 @@ class BusReader:
         """Append up to ``limit`` frames the kernel holds for bus ``name``; a failure closes the bus."""
         bus = self._buses[name]
         assert bus is not None
-        now = monotonic()
-        offset = time.time() - now  # wall clock minus monotonic: a wall-clock stamp to monotonic's base
-        got = 0
+        msgs: list[can.Message] = []
+        recv = bus.recv
         try:
-            while got < limit:
-                msg = bus.recv(0)
+            while len(msgs) < limit:
+                msg = recv(0)
                 if msg is None:
                     break
-                got += 1
-                frame = to_frame(msg, name)
-                wall = self._wall_stamps[name]
-                if not wall:  # until one of its frames says so: does the bus stamp with the wall clock?
-                    wall = self._wall_stamps[name] = abs(frame.t - offset - now) < WALL_STAMP_S
-                out.append((name, frame, min(frame.t - offset, now) if wall else now))
+                msgs.append(msg)
         except Exception as exc:  # the bus went away (or a backend bug): report, close, reopen later
             self._failed(name, exc)
             self._reopen_at[name] = monotonic() + self._delay[name]
-        if got:
-            self.received[name] += got
-            self._delay[name] = self.backoff_min_s
+        if msgs:
+            self.admit(name, msgs, out)
+
+    def admit(self, name: str, msgs: list[can.Message], out: list[tuple[str, Frame, float]]) -> None:
+        """Append the messages just received from bus ``name`` to ``out`` as ``(name, frame, received)``; count them.
+
+        ``received`` is the message's kernel stamp on ``time.monotonic()``'s base (never after now) once the
+        bus is found to stamp with the wall clock (:data:`WALL_STAMP_S`), else now.
+        """
+        now = monotonic()
+        offset = time.time() - now  # wall clock minus monotonic: a wall-clock stamp to monotonic's base
+        wall = self._wall_stamps[name]
+        for msg in msgs:
+            frame = to_frame(msg, name)
+            t = frame.t - offset
+            if not wall:  # until one of its frames says so: does the bus stamp with the wall clock?
+                wall = self._wall_stamps[name] = abs(t - now) < WALL_STAMP_S
+            out.append((name, frame, (now if now < t else t) if wall else now))  # min(t, now), NaN kept
+        self.received[name] += len(msgs)
+        self._delay[name] = self.backoff_min_s
 
     def _reopen_due(self, now: float) -> None:
         """Try once to reopen each closed bus whose backoff delay has passed; a failure doubles its delay."""

@@ -217,7 +217,7 @@ class Daemon:
                 now = self.clock.now()
                 items = receive(min(max(0.0, engine.next_due() - now), 0.05), batch)
                 if items:
-                    self._take(engine, items)
+                    self.take_received(engine, items)
                 engine.advance(self.clock.now())
                 self._drain_bus_errors(engine)
                 if self._down:
@@ -263,7 +263,7 @@ class Daemon:
         fps = ", ".join(f"{bus} {r:.0f} fps" for bus, r in rates.items())
         self.notifier.status(f"{engine.status_line()}; {fps}; {guarding(self.cfg)}")
 
-    def _take(self, engine: Engine, items: list[tuple[str, Frame, float]]) -> None:
+    def take_received(self, engine: Engine, items: list[tuple[str, Frame, float]]) -> None:
         """The frames received (up to :data:`DRAIN` + 1 or :data:`DRAIN_DIRECT`, so that a tick never starves) as
         blocks of frames in arrival order through :meth:`Engine.take`: a block ends where the bus changes, and
         before a frame whose wait since it arrived starts or ends an overrun (which then comes after the frames
