@@ -55,14 +55,14 @@ def daemon_main(out: str, argv: list[str]) -> int:
     from canguard.io import bus as busmod
 
     marks: list[tuple[str, float, float]] = []
-    to_frame = busmod.to_frame
+    to_frames = busmod.to_frames
 
-    def stamped_frame(msg: Any, name: str) -> Any:
-        if msg.arbitration_id == BMS_ID:
-            marks.append(("recv", time.time(), float(msg.timestamp)))
-        return to_frame(msg, name)
+    def stamped_frames(msgs: Any, name: str) -> Any:
+        now = time.time()
+        marks.extend(("recv", now, float(msg.timestamp)) for msg in msgs if msg.arbitration_id == BMS_ID)
+        return to_frames(msgs, name)
 
-    busmod.to_frame = stamped_frame  # type: ignore[assignment]
+    busmod.to_frames = stamped_frames  # type: ignore[assignment]
     from canguard.engine.core import Engine
 
     take = Engine.take

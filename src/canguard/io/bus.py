@@ -48,7 +48,7 @@ import can
 from canguard.config.schema import BusConfig
 from canguard.errors import BusError
 from canguard.io.frame import Frame
-from canguard.io.logs import frame_from_message
+from canguard.io.pycan import frames_from_messages
 
 log = logging.getLogger(__name__)
 
@@ -126,9 +126,9 @@ its stamps are taken as arrival times. Until then (a bus that stamps otherwise, 
 longer than this when its first frames came) its frames arrive when canguard receives them."""
 
 
-def to_frame(msg: can.Message, bus_name: str) -> Frame:
-    """The :class:`Frame` of a received python-can message; ``channel`` is the bus name."""
-    return frame_from_message(msg, bus_name)
+def to_frames(msgs: list[can.Message], bus_name: str) -> list[Frame]:
+    """The :class:`Frame` s of python-can messages received on a bus; their ``channel`` is the bus name."""
+    return frames_from_messages(msgs, bus_name)
 
 
 class BusReader:
@@ -347,8 +347,11 @@ class BusReader:
         now = monotonic()
         offset = time.time() - now  # wall clock minus monotonic: a wall-clock stamp to monotonic's base
         wall = self._wall_stamps[name]
-        for msg in msgs:
-            frame = to_frame(msg, name)
+        frames = to_frames(msgs, name)
+        if wall:  # the usual batch: min(stamp, now) with NaN kept, as below
+            out.extend([(name, frame, now if now < (t := frame.t - offset) else t) for frame in frames])
+            frames = []
+        for frame in frames:
             t = frame.t - offset
             if not wall:  # until one of its frames says so: does the bus stamp with the wall clock?
                 wall = self._wall_stamps[name] = abs(t - now) < WALL_STAMP_S
@@ -390,7 +393,7 @@ class BusReader:
                 msg = bus.recv(timeout)
                 if msg is None:
                     continue
-                put((name, to_frame(msg, name), monotonic()))  # when it arrived: how long it then waits
+                put((name, to_frames([msg], name)[0], monotonic()))  # when it arrived: how long it then waits
             except Exception as exc:  # the bus went away (or a backend bug): report, close, reopen
                 if stop.is_set():
                     break

@@ -32,11 +32,19 @@ def channel_name(channel: Any) -> str:
 
 def frame_from_message(msg: can.Message, channel: str | None = None) -> Frame:
     """Convert a ``can.Message`` to a :class:`Frame` (``channel`` overrides the message's)."""
-    data = bytes(msg.data) if msg.data is not None else b""
-    dlc = msg.dlc if msg.dlc != len(data) else -1
-    return _new(
-        Frame,
-        (
+    return frames_from_messages((msg,), channel)[0]
+
+
+def frames_from_messages(msgs: Iterable[can.Message], channel: str | None = None) -> list[Frame]:
+    """Convert ``can.Message`` objects to :class:`Frame` s (``channel`` overrides each message's): a live bus's
+    batch in one call. A remote frame keeps its DLC; a data frame's DLC is -1 when it is the data's length."""
+    out: list[Frame] = []
+    append = out.append
+    for msg in msgs:
+        data = bytes(msg.data) if msg.data is not None else b""
+        dlc = msg.dlc
+        remote = bool(msg.is_remote_frame)
+        append(_new(Frame, (
             float(msg.timestamp or 0.0),
             channel_name(msg.channel) if channel is None else channel,
             int(msg.arbitration_id),
@@ -44,12 +52,12 @@ def frame_from_message(msg: can.Message, channel: str | None = None) -> Frame:
             bool(msg.is_extended_id),
             bool(msg.is_fd),
             bool(msg.is_error_frame),
-            bool(msg.is_remote_frame),
+            remote,
             bool(msg.bitrate_switch),
             bool(msg.error_state_indicator),
-            -1 if dlc == 0 and msg.is_remote_frame else dlc,
-        ),
-    )
+            -1 if dlc == len(data) or (dlc == 0 and remote) else dlc,
+        )))
+    return out
 
 
 def _reader_class(fmt: str) -> Callable[[Any], Iterable[can.Message]]:

@@ -31,6 +31,8 @@ import signal
 import sys
 import threading
 import time
+from itertools import groupby
+from operator import itemgetter
 from pathlib import Path
 from types import FrameType
 from typing import Any
@@ -267,23 +269,32 @@ class Daemon:
         """The frames received (up to :data:`DRAIN` + 1 or :data:`DRAIN_DIRECT`, so that a tick never starves) as
         blocks of frames in arrival order through :meth:`Engine.take`: a block ends where the bus changes, and
         before a frame whose wait since it arrived starts or ends an overrun (which then comes after the frames
-        before it)."""
+        before it). A frame's wait and the skew of its stamp are judged at the time the batch is taken."""
+        mono = time.monotonic()
+        now = self.clock.now()
+        limit = self.overrun_limit_s
+        stamps = [frame.t for _name, frame, _received in items]
+        if ("overrun" not in engine.gate.inhibits and not mono - min(r for _n, _f, r in items) > limit
+                and min(stamps) >= now - LIVE_SKEW_S and max(stamps) <= now + LIVE_SKEW_S):
+            # the usual batch: no frame starts an overrun, every stamp is sane: blocks end where the bus changes
+            for bus, group in groupby(items, key=itemgetter(0)):
+                engine.take(bus, [frame for _name, frame, _received in group])
+            return
         bus: str = items[0][0]
         block: list[Frame] = []
         for name, frame, received in items:
-            waited = time.monotonic() - received
+            waited = mono - received
             held = "overrun" in engine.gate.inhibits
-            behind = not held and waited > self.overrun_limit_s  # its data is older than the config allows
-            back = held and waited < self.overrun_limit_s / 2
+            behind = not held and waited > limit  # its data is older than the config allows
+            back = held and waited < limit / 2
             if block and (name != bus or behind or back):
                 engine.take(bus, block)
                 block = []
             bus = name
             if behind:
-                engine.overrun(waited, self.overrun_limit_s)
+                engine.overrun(waited, limit)
             elif back:
                 engine.caught_up(waited)
-            now = self.clock.now()
             block.append(frame._replace(t=now) if abs(frame.t - now) > LIVE_SKEW_S else frame)  # insane stamps
         engine.take(bus, block)
 
