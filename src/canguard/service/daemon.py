@@ -277,8 +277,8 @@ class Daemon:
         if ("overrun" not in engine.gate.inhibits and not mono - min(r for _n, _f, r in items) > limit
                 and min(stamps) >= now - LIVE_SKEW_S and max(stamps) <= now + LIVE_SKEW_S):
             # the usual batch: no frame starts an overrun, every stamp is sane: blocks end where the bus changes
-            for bus, group in groupby(items, key=itemgetter(0)):
-                engine.take(bus, [frame for _name, frame, _received in group])
+            for run_bus, run in groupby(items, key=itemgetter(0)):
+                engine.take(run_bus, [frame for _name, frame, _received in run])
             return
         bus: str = items[0][0]
         block: list[Frame] = []
