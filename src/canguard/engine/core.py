@@ -26,6 +26,7 @@ import math
 import time
 from collections import Counter
 from collections.abc import Callable, Iterable, Mapping
+from types import MappingProxyType
 from typing import TYPE_CHECKING, Any
 
 import py_trees
@@ -52,6 +53,9 @@ log = logging.getLogger(__name__)
 
 MAX_KEPT_TRIPS = 100_000
 """Trip events kept in memory for summaries and the live view; later ones are only counted."""
+
+_NO_ROUTE: Mapping[str, str] = MappingProxyType({})
+"""The live cursor's route while a block is given for one bus: every frame goes to that bus."""
 
 
 
@@ -154,7 +158,9 @@ class Engine:
         """The time of the last tick or gate deadline run (which row brought it: :meth:`_cross`)."""
         self._blocks = LogRun(self)
         """The block runner (it keeps its message plans, compiled at the first block of each bus)."""
-        self._live = LogCursor({}, None, {}, None)
+        self._live = LogCursor(_NO_ROUTE, None, {}, None)
+        self._bus_names = {name: name for name in cfg.buses}
+        """Each bus by its own name: the route of a frame whose channel names its bus (:meth:`take` of None)."""
         """Where :meth:`take` is: every frame goes to the bus it is given for."""
 
     # -- the parts' state, as the others read it ---------------------------------------------
@@ -259,7 +265,7 @@ class Engine:
         self.journal.flush()
 
     # -- frames in -------------------------------------------------------------------------
-    def take(self, bus: str, block: Iterable[Frame] | Columns | ByteColumns) -> None:
+    def take(self, bus: str | None, block: Iterable[Frame] | Columns | ByteColumns) -> None:
         """Process a block of frames received on ``bus``, in order: the one way frames come in.
 
         The live daemon drains its receive queue into a block (one frame on a quiet bus);
@@ -267,16 +273,21 @@ class Engine:
         channels to a bus). Every frame goes through the same steps (:class:`LogRun`): the
         ticks and gate deadlines due before it run first, at their own times, then its
         message's row step (the sources' health, the protection models), then a tick at
-        once when it changed a model's or a source's state.
+        once when it changed a model's or a source's state. ``bus`` None: each frame's
+        ``channel`` is the name of its bus (a live batch drained from several buses, merged
+        in arrival order); a frame of no configured bus is counted as unmapped.
         """
         cursor = self._live
-        cursor.default_bus = bus
+        if bus is None:
+            cursor.route, cursor.default_bus = self._bus_names, None
+        else:
+            cursor.route, cursor.default_bus = _NO_ROUTE, bus
         self._blocks.take(block, cursor)
 
     def feed(self, bus: str, frame: Frame) -> None:
         """Process one frame received on ``bus`` at ``frame.t``: :meth:`take` of a block of one."""
         cursor = self._live
-        cursor.default_bus = bus
+        cursor.route, cursor.default_bus = _NO_ROUTE, bus
         self._blocks.take((frame,), cursor)
 
     def arrive(self, t: float) -> None:
@@ -313,6 +324,9 @@ class Engine:
         """Run every tick and gate deadline due up to ``now``, each at its own time."""
         if now < self.quiet.until and self._quiet_advance(now):
             return  # one quiet grid tick of a replay, in fewer steps
+        if now < self.due:  # nothing due (due is never later than the next tick or gate deadline): most live calls
+            self.journal.flush()
+            return
         if math.isnan(self._next_tick):
             self.start(now)
         if now - self._next_tick > MAX_CATCH_UP_S:

@@ -150,54 +150,81 @@ class LogRun:
                 touched.pop().flush()
 
     def _run_frames(self, frames: Iterable[Frame], cursor: LogCursor) -> None:
-        """:meth:`run` over frames one by one."""
+        """:meth:`run` over frames one by one.
+
+        A frame of no configured message before anything is due is counted without decoding; such frames are
+        counted together (:meth:`_count_skipped`) before the next frame that is fed, and at the end.
+        """
         engine = self.engine
         wanted = self._wanted
+        per_bus = self.decoder.per_bus
         route, default_bus, channels = cursor.route, cursor.default_bus, cursor.channels
         last_t, started = cursor.last_t, cursor.started
         last_channel: str | None = None
         run = 0
-        for frame in frames:  # what a frame reads once is not bound before the loop: a block of one is the live frame
-            channel = frame.channel
-            if channels is not None:
-                if channel == last_channel:
-                    run += 1
-                else:
-                    if last_channel is not None:
-                        channels[last_channel] = channels.get(last_channel, 0) + run
-                    last_channel, run = channel, 1
-            bus = route.get(channel, default_bus) if route else default_bus
-            if bus is None:
-                cursor.unmapped[channel] = cursor.unmapped.get(channel, 0) + 1
-                continue
-            t = frame.t
-            if (
-                started
-                and (bus, frame.arbitration_id, frame.is_extended_id) not in wanted
-                and not frame.is_error_frame
-                and not frame.is_remote_frame
-                and t < engine.due
-            ):
-                counters = self.decoder.per_bus.get(bus)
-                if counters is not None:
-                    counters.frames += 1
-                    counters.skipped += 1
-                    stats = self.stats
-                    stats.frames += 1
+        due = engine.due  # only feeding a frame (arrive, its row step, an edge tick) moves it
+        counted: str | None = None  # the bus of the skipped frames not yet counted
+        skipped = backward = 0
+        try:
+            for frame in frames:  # what a frame reads once is not bound before the loop: a block of one is live
+                channel = frame.channel
+                if channels is not None:
+                    if channel == last_channel:
+                        run += 1
+                    else:
+                        if last_channel is not None:
+                            channels[last_channel] = channels.get(last_channel, 0) + run
+                        last_channel, run = channel, 1
+                bus = route.get(channel, default_bus) if route else default_bus
+                if bus is None:
+                    cursor.unmapped[channel] = cursor.unmapped.get(channel, 0) + 1
+                    continue
+                t = frame.t
+                if (
+                    started
+                    and t < due
+                    and (bus, frame.arbitration_id, frame.is_extended_id) not in wanted
+                    and not frame.is_error_frame
+                    and not frame.is_remote_frame
+                    and bus in per_bus
+                ):
+                    if bus != counted:
+                        if skipped:
+                            self._count_skipped(counted, skipped, backward)
+                        counted, skipped, backward = bus, 0, 0
+                    skipped += 1
                     if t >= last_t:
                         last_t = t
                     else:
-                        stats.backward_frames += 1
+                        backward += 1
                     continue
-            started = True
-            engine.arrive(t)  # the ticks due before it first, then its row step, then a tick at once on an edge
-            if self._decoded(bus, frame):
-                engine.edge_tick(t)
-            if t > last_t:
-                last_t = t
+                if skipped:
+                    self._count_skipped(counted, skipped, backward)
+                    skipped = backward = 0
+                started = True
+                engine.arrive(t)  # the ticks due before it first, then its row step, then a tick at once on an edge
+                if self._decoded(bus, frame):
+                    engine.edge_tick(t)
+                if t > last_t:
+                    last_t = t
+                due = engine.due
+        finally:
+            if skipped:
+                self._count_skipped(counted, skipped, backward)
         if channels is not None and last_channel is not None:
             channels[last_channel] = channels.get(last_channel, 0) + run
         cursor.last_t, cursor.started = last_t, started
+
+    def _count_skipped(self, bus: str | None, frames: int, backward: int) -> None:
+        """Count ``frames`` frames of bus ``bus`` taken without decoding (``backward`` of them out of order), as
+        the decoder would have counted them."""
+        assert bus is not None
+        counters = self.decoder.per_bus[bus]
+        counters.frames += frames
+        counters.skipped += frames
+        stats = self.stats
+        stats.frames += frames
+        stats.backward_frames += backward
 
     def _decoded(self, bus: str, frame: Frame) -> bool:
         """A frame through its message's row step; True on an edge.

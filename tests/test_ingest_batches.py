@@ -1,0 +1,115 @@
+"""A live batch on its way in: python-can messages to frames, the reader's receive stamps, several buses merged.
+
+The daemon's loop drains its buses (:class:`~canguard.io.bus.BusReader`), turns each bus's messages into
+frames at once (:meth:`BusReader.admit`) and hands the batch, merged by kernel stamp, to the engine
+(:meth:`Daemon.take_received`). These tests hold each step to what a frame taken alone gives.
+"""
+
+from __future__ import annotations
+
+import time
+import uuid
+from pathlib import Path
+from typing import Any
+
+import can
+
+from canguard.config.schema import BusConfig
+from canguard.io.bus import BusReader
+from canguard.io.frame import Frame
+from canguard.io.pycan import frame_from_message, frames_from_messages
+from canguard.service.daemon import Daemon
+from canguard.service.systemd import Notifier
+from test_daemon import BMS_ID, bms_data, write_config
+
+
+def _two_buses(doc: dict[str, Any]) -> None:
+    """The battery on bus ``b``; everything else, and every frame canguard sends, on bus ``a``."""
+    suffix = uuid.uuid4().hex[:12]
+    doc["buses"] = {"a": {"interface": "virtual", "channel": f"ingest-a-{suffix}"},
+                    "b": {"interface": "virtual", "channel": f"ingest-b-{suffix}"}}
+    for name, source in doc["sources"].items():
+        source["bus"] = "b" if name == "/battery_state" else "a"
+    for section in (doc["task"], doc["stop"]):
+        for frame in section["frames"]:
+            frame["bus"] = "a"
+    for frame in doc["stop"].get("escalate", []):
+        frame["bus"] = "a"
+    for action in doc.get("actions", {}).values():
+        for frame in action["frames"]:
+            frame["bus"] = "a"
+
+
+class TestFramesFromMessages:
+    def test_a_batch_gives_the_frames_each_message_gives_alone(self) -> None:
+        """Every kind of message (data, extended, remote with a DLC, CAN FD, error, no data) converts in a batch
+        to exactly the frame it converts to alone."""
+        msgs = [
+            can.Message(timestamp=1.5, arbitration_id=0x123, data=b"\x01\x02", channel=0),
+            can.Message(timestamp=1.6, arbitration_id=0x18FF50E5, data=bytes(8), is_extended_id=True),
+            can.Message(timestamp=1.7, arbitration_id=0x7FF, is_remote_frame=True, dlc=4),
+            can.Message(timestamp=1.8, arbitration_id=0x10, data=bytes(12), is_fd=True, bitrate_switch=True),
+            can.Message(timestamp=1.9, arbitration_id=0x0, is_error_frame=True, data=b"\x04"),
+            can.Message(timestamp=0.0, arbitration_id=0x20, data=None, channel="vcan1"),
+        ]
+        assert frames_from_messages(msgs) == [frame_from_message(m) for m in msgs]
+        assert frames_from_messages(msgs, "main") == [frame_from_message(m, "main") for m in msgs]
+        assert frames_from_messages(msgs)[2].dlc == 4 and frames_from_messages(msgs)[0].channel == "can0"
+
+
+class TestAdmit:
+    def test_wall_clock_stamps_become_arrival_times_never_after_now(self) -> None:
+        """A bus stamping with the wall clock: a frame that waited 50 ms in the kernel is seen as arrived 50 ms
+        ago (its wait counts), one stamped in the future as arrived now; both are counted as received."""
+        reader = BusReader([BusConfig(name="main", kwargs={"interface": "virtual", "channel": "unused"})])
+        wall, mono = time.time(), time.monotonic()
+        msgs = [can.Message(timestamp=wall - 0.05, arbitration_id=0x600, data=bytes(8)),
+                can.Message(timestamp=wall + 0.2, arbitration_id=0x601, data=bytes(8))]
+        out: list[tuple[str, Frame, float]] = []
+        reader.admit("main", msgs, out)
+        after = time.monotonic()
+        assert [(name, frame.arbitration_id, frame.t) for name, frame, _ in out] == [
+            ("main", 0x600, wall - 0.05), ("main", 0x601, wall + 0.2)]
+        assert mono - 0.05 - 0.01 < out[0][2] < mono - 0.05 + 0.01
+        assert mono <= out[1][2] <= after
+        assert reader.received["main"] == 2
+
+    def test_stamps_of_another_clock_arrive_when_received(self) -> None:
+        """A bus whose stamps are not the wall clock (a device's own counter): its frames arrive when read."""
+        reader = BusReader([BusConfig(name="main", kwargs={"interface": "virtual", "channel": "unused"})])
+        before = time.monotonic()
+        out: list[tuple[str, Frame, float]] = []
+        reader.admit("main", [can.Message(timestamp=5.0, arbitration_id=0x600, data=bytes(8))], out)
+        assert before <= out[0][2] <= time.monotonic()
+        assert out[0][1].t == 5.0
+
+
+class TestMergedBuses:
+    def test_interleaved_buses_in_one_batch_reach_their_own_bus(self, tmp_path: Path) -> None:
+        """Frames of two buses merged by arrival in one batch are counted on their own bus, and the battery's
+        frames on its bus feed the battery source (the last value is the battery's current)."""
+        daemon = Daemon(write_config(tmp_path, {}, edit=_two_buses), notifier=Notifier(env={}))
+        engine = daemon.engine
+        try:
+            engine.start(daemon.clock.now())
+            past = time.time() - 0.01  # stamps 10 ms old: merged by them, in the order they alternate
+            msgs = {
+                "a": [can.Message(timestamp=past + i * 1e-4, arbitration_id=0x600 + i, data=bytes(8))
+                      for i in range(3)],
+                "b": [can.Message(timestamp=past + i * 1e-4 + 5e-5, arbitration_id=BMS_ID, is_extended_id=True,
+                                  data=bms_data(12.0 + i)) for i in range(3)],
+            }
+            items: list[tuple[str, Frame, float]] = []
+            for bus, batch in msgs.items():
+                daemon.reader.admit(bus, batch, items)
+            items.sort(key=lambda item: item[2])
+            assert [name for name, _f, _r in items] == ["a", "b"] * 3
+            daemon.take_received(engine, items)
+            counts = engine.decoder.per_bus
+            assert (counts["a"].frames, counts["a"].decoded) == (3, 0)
+            assert (counts["b"].frames, counts["b"].decoded) == (3, 3)
+            battery = engine.ctx.health["/battery_state"]
+            assert battery.value("current") == 14.0
+        finally:
+            engine.finish(reason="test over")
+            daemon.journal.close()
