@@ -10,17 +10,19 @@ BMS or one axis' two configured frames, the rest ids no config uses), in two pha
    :data:`~canguard.service.daemon.DRAIN_DIRECT` per wake-up shared among the ready buses, as the
    daemon's reader does. Its CPU (``time.process_time``) is python-can's receive; the messages are
    kept as they were drained: a wake-up's blocks of ``can.Message`` per bus, and when it came.
-2. **canguard's path.** The same messages, drained as a daemon that keeps up would drain them (it
-   wakes ``--latency-ms`` after the first frame waiting, by the kernel's stamps, and takes what has
-   arrived, up to DRAIN_DIRECT shared among the ready buses), or with ``--as-drained`` the wake-ups of
-   phase 1 as they were (on a busy machine: full batches of frames seconds old, which the daemon
-   answers with overrun stops). Each wake-up at its own offset from the start (every timestamp moved by
-   the same amount), through the daemon's own objects: a
-   :class:`~canguard.service.daemon.Daemon` built from the config (its buses opened: it sends on its own), its
-   reader's :meth:`~canguard.io.bus.BusReader.admit` (messages to frames, the buses' blocks merged by
-   kernel stamp), :meth:`~canguard.service.daemon.Daemon.take_received` (the blocks through
-   ``Engine.take``) and ``Engine.advance`` to now, as the daemon's loop calls them. CPU is this
-   thread's (``time.thread_time``) around those calls only; the waits between wake-ups cost none.
+2. **canguard's path.** The frames the senders send (``--frames sent``, the default: their pattern at
+   ``--fps`` for ``--seconds``, made into ``can.Message`` by python-can's own udp_multicast unpack, so a
+   busy machine that starves the senders in phase 1 does not thin them out), drained as a daemon that
+   keeps up would drain them: it wakes ``--latency-ms`` after the first frame waiting (by the kernel's
+   stamp) and takes what has arrived, up to DRAIN_DIRECT shared among the ready buses. ``--frames
+   received``: phase 1's messages drained so; ``--frames as-drained``: phase 1's wake-ups as they were
+   (on a busy machine full batches of frames seconds old, which the daemon answers with overrun stops).
+   Each wake-up at its own offset from the start (every stamp moved by the same amount), through the
+   daemon's own objects: a :class:`~canguard.service.daemon.Daemon` built from the config (its buses
+   opened: it sends on its own), its reader's :meth:`~canguard.io.bus.BusReader.admit` (messages to
+   frames, the buses' blocks merged by kernel stamp), :meth:`~canguard.service.daemon.Daemon.take_received`
+   (the blocks through ``Engine.take``) and ``Engine.advance`` to now, as the daemon's loop calls them. CPU
+   is this thread's (``time.thread_time``) around those calls only; the waits between wake-ups cost none.
 
 Printed: frames, CPU and frames per CPU-second of each phase, canguard's split (admit / take /
 advance), and both together: what the whole daemon would reach if it spent nothing else.
@@ -45,6 +47,8 @@ from typing import Any
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(HERE.parent / "src"))
+
+import can  # noqa: E402
 
 from bench_common import clean_up_on_sigterm  # noqa: E402
 from bench_ingest import DBC, SENDER, child_env, write_config  # noqa: E402
@@ -107,6 +111,49 @@ def record(groups: list[tuple[str, int]], fps: float, seconds: float) -> tuple[l
     return wakes, cpu, wall, time.time() - time.monotonic()
 
 
+BURST_S = 0.001
+"""A sender's loop sends what is due, then sleeps 1 ms: its frames come in bursts this far apart."""
+SEND_GAP_S = 15e-6
+"""Between two frames of a burst (a python-can send)."""
+
+
+def nominal(fps: float, seconds: float, offset: float) -> list[Wake]:
+    """The frames bench_ingest's four senders send at ``fps`` each for ``seconds``, as python-can's
+    udp_multicast receive makes them (its own ``pack_message`` / ``unpack_message``), stamped from now on:
+    per bus a burst every :data:`BURST_S` (a random phase per bus), :data:`SEND_GAP_S` between frames.
+
+    Given as one wake-up per bus holding all of its messages (:func:`kept_up` drains them); ``offset``: the
+    wall clock minus the monotonic clock."""
+    import cantools
+    from can.interfaces.udp_multicast.utils import pack_message, unpack_message
+
+    db = cantools.database.load_file(str(DBC))
+
+    def enc(name: str, **values: float) -> can.Message:
+        m = db.get_message_by_name(name)
+        return can.Message(arbitration_id=m.frame_id, data=m.encode(values), is_extended_id=m.is_extended_frame)
+
+    rnd = random.Random(1)
+    start = time.time() + 0.5
+    got: list[tuple[str, list[Any]]] = []
+    per_burst = max(1, round(fps * BURST_S))
+    for index in range(4):
+        configured = [enc("BMS_Status", Pack_Current=10.0, Pack_Voltage=48.0, State_Of_Charge=80.0, Present=1,
+                          Fault=0, Alive_Counter=0)] if index == 0 else []
+        configured += [enc(f"Axis{index}_Get_Iq", Iq_Setpoint=2.0, Iq_Measured=2.0),
+                       enc(f"Axis{index}_Get_Torques", Torque_Target=1.0, Torque_Estimate=1.0)]
+        other = [can.Message(arbitration_id=0x600 + i, data=bytes(8)) for i in range(64)]
+        per_10ms = int(fps / 100)
+        packed = [pack_message(m) for m in configured + [other[i % 64] for i in range(per_10ms - len(configured))]]
+        phase = rnd.uniform(0.0, BURST_S)
+        msgs = [unpack_message(packed[k % len(packed)], check=True,
+                               replace={"timestamp": start + phase + (k // per_burst) * BURST_S
+                                        + (k % per_burst) * SEND_GAP_S})
+                for k in range(int(fps * seconds))]
+        got.append((f"in{index}", msgs))
+    return [(start - offset, got)]
+
+
 def kept_up(wakes: list[Wake], offset: float, latency_s: float) -> list[Wake]:
     """The recorded messages as a daemon that keeps up would drain them: it wakes ``latency_s`` after the first
     frame waiting (its kernel stamp) and drains each ready bus, up to DRAIN_DIRECT shared among them."""
@@ -134,8 +181,9 @@ def kept_up(wakes: list[Wake], offset: float, latency_s: float) -> list[Wake]:
         out.append((now - offset, got))
 
 
-def replay(daemon: Daemon, wakes: list[Wake], offset: float) -> tuple[float, float, float, int]:
-    """Phase 2: every wake-up's blocks through the daemon's path at their own pace; CPU s of (admit, take, advance).
+def replay(daemon: Daemon, wakes: list[Wake], offset: float) -> tuple[float, float, float, int, float]:
+    """Phase 2: every wake-up's blocks through the daemon's path at their own pace; CPU s of (admit, take, advance),
+    frames, and how late (s) the latest wake-up came (this process starved of a CPU).
 
     ``offset``: the recording's wall clock minus its monotonic clock."""
     reader, engine, clock = daemon.reader, daemon.engine, daemon.clock
@@ -143,6 +191,7 @@ def replay(daemon: Daemon, wakes: list[Wake], offset: float) -> tuple[float, flo
     cpu = time.thread_time
     t_admit = t_take = t_advance = 0.0
     frames = 0
+    late = 0.0
     start = time.monotonic() + 0.05
     # a stamp s (recorded wall clock) was s - offset on the recording's monotonic clock; moved to this phase's
     stamp_shift = (time.time() - time.monotonic()) - offset + start - wakes[0][0]
@@ -154,6 +203,8 @@ def replay(daemon: Daemon, wakes: list[Wake], offset: float) -> tuple[float, flo
         delay = start + (at - wakes[0][0]) - time.monotonic()
         if delay > 0:
             time.sleep(delay)
+        else:
+            late = max(late, -delay)
         c0 = cpu()
         items: list[Any] = []
         for name, msgs in got:
@@ -170,7 +221,7 @@ def replay(daemon: Daemon, wakes: list[Wake], offset: float) -> tuple[float, flo
         t_take += c2 - c1
         t_advance += c3 - c2
         frames += len(items)
-    return t_admit, t_take, t_advance, frames
+    return t_admit, t_take, t_advance, frames, late
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -178,9 +229,10 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seconds", type=float, default=10.0, help="how long to receive (default 10)")
     ap.add_argument("--fps", type=float, default=8000.0, help="frames/s per bus (default 8000)")
-    ap.add_argument("--as-drained", action="store_true",
-                    help="phase 2 takes the wake-ups as phase 1 drained them (a starved receiver's: full batches of "
-                         "old frames) instead of as a daemon that keeps up would (default)")
+    ap.add_argument("--frames", choices=("sent", "received", "as-drained"), default="sent",
+                    help="phase 2's frames: what the senders send at --fps (default; the senders' pattern, made by "
+                         "python-can's own udp_multicast unpack), what phase 1 received, drained as a daemon that "
+                         "keeps up would, or phase 1's wake-ups as they were (a starved receiver's)")
     ap.add_argument("--latency-ms", type=float, default=0.2,
                     help="kept-up shape: the wake-up this long after the first frame waiting (default 0.2)")
     ap.add_argument("--profile", action="store_true", help="phase 2 under cProfile; print its top functions")
@@ -193,10 +245,12 @@ def main(argv: list[str] | None = None) -> int:
         tmp = Path(d)
         cfg = write_config(tmp, groups[:4], groups[4])
         wakes, rx_cpu, rx_wall, offset = record(groups[:4], args.fps, args.seconds)
-        n = sum(len(msgs) for _at, got in wakes for _name, msgs in got)
+        n = sum(len(msgs) for _at, got in wakes for _name, msgs in got)  # received in phase 1
         if not n:
             raise SystemExit("no frame received")
-        if not args.as_drained:
+        if args.frames == "sent":
+            wakes = kept_up(nominal(args.fps, args.seconds, offset), offset, args.latency_ms / 1e3)
+        elif args.frames == "received":
             wakes = kept_up(wakes, offset, args.latency_ms / 1e3)
         ages = sorted(at + offset - float(m.timestamp) for at, got in wakes for _name, msgs in got for m in msgs)
         env_before = os.environ.pop("NOTIFY_SOCKET", None)
@@ -217,24 +271,25 @@ def main(argv: list[str] | None = None) -> int:
             daemon.journal.close()
             if env_before is not None:
                 os.environ["NOTIFY_SOCKET"] = env_before
-    t_admit, t_take, t_advance, frames = parts
+    t_admit, t_take, t_advance, frames, late = parts
     own = t_admit + t_take + t_advance
     sizes = sorted(len(msgs) for _at, got in wakes for _name, msgs in got)
     print(f"python {sys.version.split()[0]}, {os.cpu_count()} CPUs; 4 udp_multicast buses x {args.fps:,.0f} "
           f"frames/s for {args.seconds:g} s; {frames} frames in {len(wakes)} wake-ups, "
-          f"{len(sizes)} bus blocks (median {sizes[len(sizes) // 2]}, max {sizes[-1]} frames)")
+          f"{len(sizes)} bus blocks (median {sizes[len(sizes) // 2]}, max {sizes[-1]} frames); "
+          f"the latest wake-up {1e3 * late:.1f} ms late")
     print(f"  age of a frame when drained (kernel stamp to wake-up): p50 {1e3 * ages[len(ages) // 2]:.1f} ms, "
           f"p99 {1e3 * ages[int(0.99 * len(ages))]:.1f} ms")
-    print(f"  python-can receive (select + recv):  {rx_cpu:6.2f} CPU s in {rx_wall:.1f} s  "
-          f"{n / max(rx_cpu, 1e-9):12,.0f} frames/CPU-s  {1e6 * rx_cpu / n:6.2f} us/frame")
+    print(f"  python-can receive (select + recv):  {rx_cpu:6.2f} CPU s  {n / max(rx_cpu, 1e-9):12,.0f} frames/CPU-s  "
+          f"{1e6 * rx_cpu / n:6.2f} us/frame ({n} frames received in {rx_wall:.1f} s)")
     print(f"  canguard's path (admit+take+advance): {own:6.2f} CPU s  "
           f"{frames / max(own, 1e-9):12,.0f} frames/CPU-s  {1e6 * own / frames:6.2f} us/frame")
     for label, part in (("admit (messages to frames, merge)", t_admit), ("take_received (Engine.take)", t_take),
                         ("Engine.advance (ticks)", t_advance)):
         print(f"    {label:36} {part:6.2f} CPU s  {1e6 * part / frames:6.2f} us/frame")
-    both = rx_cpu + own
-    print(f"  both: {1e6 * both / frames:.2f} us/frame = {frames / max(both, 1e-9):,.0f} frames/CPU-s; "
-          f"canguard's share {100 * own / both:.0f} %")
+    rx_us, own_us = 1e6 * rx_cpu / n, 1e6 * own / frames
+    print(f"  both: {rx_us + own_us:.2f} us/frame = {1e6 / (rx_us + own_us):,.0f} frames/CPU-s; "
+          f"canguard's share {100 * own_us / (rx_us + own_us):.0f} %")
     if args.profile:
         pstats.Stats(prof).sort_stats("tottime").print_stats(30)
     return 0
