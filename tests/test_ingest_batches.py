@@ -15,7 +15,7 @@ from typing import Any
 import can
 
 from canguard.config.schema import BusConfig
-from canguard.io.bus import BusReader
+from canguard.io.bus import WALL_STAMP_S, BusReader
 from canguard.io.frame import Frame
 from canguard.io.pycan import frame_from_message, frames_from_messages
 from canguard.service.daemon import Daemon
@@ -84,7 +84,40 @@ class TestAdmit:
         assert out[0][1].t == 5.0
 
 
+def _interleaved(daemon: Daemon, age_s: float) -> list[tuple[str, Frame, float]]:
+    """A batch of three unconfigured frames of bus ``a`` and three BMS frames (12, 13, 14 A) of bus ``b``,
+    alternating, stamped ``age_s`` ago, as the reader gives it."""
+    past = time.time() - age_s
+    msgs = {
+        "a": [can.Message(timestamp=past + i * 1e-4, arbitration_id=0x600 + i, data=bytes(8)) for i in range(3)],
+        "b": [can.Message(timestamp=past + i * 1e-4 + 5e-5, arbitration_id=BMS_ID, is_extended_id=True,
+                          data=bms_data(12.0 + i)) for i in range(3)],
+    }
+    items: list[tuple[str, Frame, float]] = []
+    for bus, batch in msgs.items():
+        daemon.reader.admit(bus, batch, items)
+    items.sort(key=lambda item: item[2])
+    assert [name for name, _f, _r in items] == ["a", "b"] * 3
+    return items
+
+
 class TestMergedBuses:
+    def test_a_late_batch_of_two_buses_starts_an_overrun_and_loses_no_frame(self, tmp_path: Path) -> None:
+        """Frames of two buses that waited longer than the sources allow stop the task for an overrun, and
+        every frame is still counted on its own bus and decoded."""
+        daemon = Daemon(write_config(tmp_path, {}, edit=_two_buses), notifier=Notifier(env={}))
+        engine = daemon.engine
+        try:
+            engine.start(daemon.clock.now())
+            assert daemon.overrun_limit_s < WALL_STAMP_S  # stamps older than the limit still read as the wall clock's
+            daemon.take_received(engine, _interleaved(daemon, (daemon.overrun_limit_s + WALL_STAMP_S) / 2))
+            assert "overrun" in engine.gate.inhibits
+            counts = engine.decoder.per_bus
+            assert (counts["a"].frames, counts["b"].frames, counts["b"].decoded) == (3, 3, 3)
+        finally:
+            engine.finish(reason="test over")
+            daemon.journal.close()
+
     def test_interleaved_buses_in_one_batch_reach_their_own_bus(self, tmp_path: Path) -> None:
         """Frames of two buses merged by arrival in one batch are counted on their own bus, and the battery's
         frames on its bus feed the battery source (the last value is the battery's current)."""
@@ -92,18 +125,7 @@ class TestMergedBuses:
         engine = daemon.engine
         try:
             engine.start(daemon.clock.now())
-            past = time.time() - 0.01  # stamps 10 ms old: merged by them, in the order they alternate
-            msgs = {
-                "a": [can.Message(timestamp=past + i * 1e-4, arbitration_id=0x600 + i, data=bytes(8))
-                      for i in range(3)],
-                "b": [can.Message(timestamp=past + i * 1e-4 + 5e-5, arbitration_id=BMS_ID, is_extended_id=True,
-                                  data=bms_data(12.0 + i)) for i in range(3)],
-            }
-            items: list[tuple[str, Frame, float]] = []
-            for bus, batch in msgs.items():
-                daemon.reader.admit(bus, batch, items)
-            items.sort(key=lambda item: item[2])
-            assert [name for name, _f, _r in items] == ["a", "b"] * 3
+            items = _interleaved(daemon, 0.01)  # 10 ms old: merged by their stamps, in the order they alternate
             daemon.take_received(engine, items)
             counts = engine.decoder.per_bus
             assert (counts["a"].frames, counts["a"].decoded) == (3, 0)

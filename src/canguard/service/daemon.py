@@ -272,34 +272,35 @@ class Daemon:
 
     def take_received(self, engine: Engine, items: list[tuple[str, Frame, float]]) -> None:
         """The frames received (up to :data:`DRAIN` + 1 or :data:`DRAIN_DIRECT`, so that a tick never starves) as
-        blocks of frames in arrival order through :meth:`Engine.take`: one block when no frame's wait since it
-        arrived starts an overrun and no stamp is insane; else a block ends where the bus changes, and before a
-        frame whose wait starts or ends an overrun (which then comes after the frames before it). A frame's wait
-        and the skew of its stamp are judged at the time the batch is taken."""
+        blocks of frames in arrival order through :meth:`Engine.take`: one block, unless a frame's wait since it
+        arrived starts or ends an overrun (a block ends before it: it then comes after the frames before it).
+        The frames of several buses go as one block when each frame's channel names its bus (as
+        :class:`~canguard.io.bus.BusReader` gives them), else a block also ends where the bus changes. A
+        frame's wait and the skew of its stamp are judged at the time the batch is taken."""
         mono = time.monotonic()
         now = self.clock.now()
         limit = self.overrun_limit_s
         frames = list(map(_FRAME, items))
+        names = list(map(_BUS, items))
+        split = False  # a block ends where the bus changes
+        target: str | None = names[0]
+        if names.count(target) != len(names):
+            target = None  # several buses in one block: each frame goes to the bus its channel names
+            split = not all(map(eq, names, map(_CHANNEL, frames)))
         stamps = list(map(_STAMP, frames))
-        if ("overrun" not in engine.gate.inhibits and not mono - min(map(_RECEIVED, items)) > limit
+        if (not split and "overrun" not in engine.gate.inhibits and not mono - min(map(_RECEIVED, items)) > limit
                 and min(stamps) >= now - LIVE_SKEW_S and max(stamps) <= now + LIVE_SKEW_S):
-            # the usual batch: no frame starts an overrun, every stamp is sane: one block
-            first = items[0][0]
-            if all(name == first for name in map(_BUS, items)):
-                engine.take(first, frames)
-                return
-            if all(map(eq, map(_BUS, items), map(_CHANNEL, frames))):  # BusReader's frames: channel = bus name
-                engine.take(None, frames)  # several buses merged: each frame goes to the bus its channel names
-                return
-        bus: str = items[0][0]
+            engine.take(target, frames)  # the usual batch: no overrun starts, every stamp sane: one block
+            return
+        bus = names[0]
         block: list[Frame] = []
         for name, frame, received in items:
             waited = mono - received
             held = "overrun" in engine.gate.inhibits
             behind = not held and waited > limit  # its data is older than the config allows
             back = held and waited < limit / 2
-            if block and (name != bus or behind or back):
-                engine.take(bus, block)
+            if block and ((split and name != bus) or behind or back):
+                engine.take(bus if split else target, block)
                 block = []
             bus = name
             if behind:
@@ -307,7 +308,7 @@ class Daemon:
             elif back:
                 engine.caught_up(waited)
             block.append(frame._replace(t=now) if abs(frame.t - now) > LIVE_SKEW_S else frame)  # insane stamps
-        engine.take(bus, block)
+        engine.take(bus if split else target, block)
 
     def _watchdog_ok(self, engine: Engine) -> bool:
         now = self.clock.now()
