@@ -1,6 +1,6 @@
 """canguard's own CPU per frame of ingest, beside python-can's receive of the same frames (same run).
 
-    python benchmarks/bench_ingest_engine.py [--seconds 10] [--fps 8000] [--profile]
+    python benchmarks/bench_ingest_engine.py [--seconds 10] [--fps 8000] [--profile] [--count N]
 
 bench_ingest's set-up (four udp_multicast buses, one sender process each at ``--fps``: per 10 ms the
 BMS or one axis' two configured frames, the rest ids no config uses), in two phases:
@@ -224,6 +224,68 @@ def replay(daemon: Daemon, wakes: list[Wake], offset: float) -> tuple[float, flo
     return t_admit, t_take, t_advance, frames, late
 
 
+class StepClock:
+    """A live clock (``advance_to`` a no-op, as :class:`~canguard.io.clock.LiveClock`'s) that moves only when set:
+    ``--count`` steps it to each wake-up's time, so every run ticks the same ticks however slow it runs."""
+
+    def __init__(self, t: float) -> None:
+        self.t = t
+
+    def now(self) -> float:
+        """The time it was set to."""
+        return self.t
+
+    def advance_to(self, t: float) -> None:
+        """Live time moves by itself: nothing to do."""
+
+
+class SteppedDaemon(Daemon):
+    """The daemon on a :class:`StepClock` (benchmarks only)."""
+
+    step_clock = StepClock(1000.0)
+
+    def build_engine(self, cfg: Any, previous: Any = None) -> Any:
+        self.clock = self.step_clock  # type: ignore[assignment]
+        return super().build_engine(cfg, previous)
+
+
+def count(cfg: Path, frames: int, fps: float) -> tuple[float, int]:
+    """``--count``: the first ``frames`` frames the senders send, through the same calls as :func:`replay` but
+    without waiting, the clock stepped to each wake-up (stamps on its own time base, not the wall clock's, so
+    the reader takes them as arriving when read); CPU s of this thread and frames taken."""
+    seconds = frames / (4 * fps)
+    wakes = kept_up(nominal(fps, seconds, 0.0), 0.0, 0.0002) if frames else []
+    clock = SteppedDaemon.step_clock
+    clock.t = wakes[0][0] - 0.01 if wakes else 1000.0
+    shift = 1000.0 - clock.t  # the synthetic stamps moved to 1000 s: far from the wall clock
+    clock.t += shift
+    daemon = SteppedDaemon(cfg)
+    reader, engine = daemon.reader, daemon.engine
+    reader.start()  # the task's frames go out on its output bus, as in phase 2
+    try:
+        engine.start(clock.now())
+        cpu0 = time.thread_time()
+        n = 0
+        for at, got in wakes:
+            clock.t = at + shift
+            items: list[Any] = []
+            for name, msgs in got:
+                for msg in msgs:
+                    msg.timestamp += shift
+                reader.admit(name, msgs, items)
+            if len(got) > 1:
+                items.sort(key=lambda item: item[2])
+            daemon.take_received(engine, items)
+            engine.advance(clock.now())
+            n += len(items)
+        cpu = time.thread_time() - cpu0
+    finally:
+        engine.finish(reason="benchmark end")
+        reader.stop()
+        daemon.journal.close()
+    return cpu, n
+
+
 def main(argv: list[str] | None = None) -> int:
     """Record, then replay through canguard's path; print both phases' frames per CPU-second."""
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -235,9 +297,22 @@ def main(argv: list[str] | None = None) -> int:
                          "keeps up would, or phase 1's wake-ups as they were (a starved receiver's)")
     ap.add_argument("--latency-ms", type=float, default=0.2,
                     help="kept-up shape: the wake-up this long after the first frame waiting (default 0.2)")
+    ap.add_argument("--count", type=int, default=None, metavar="N",
+                    help="no sockets, no waiting: the first N frames the senders send through canguard's path, the "
+                         "clock stepped to each wake-up (for instruction counts: valgrind --tool=cachegrind "
+                         "--cache-sim=no, N frames minus 0); prints CPU per frame")
     ap.add_argument("--profile", action="store_true", help="phase 2 under cProfile; print its top functions")
     args = ap.parse_args(argv)
     clean_up_on_sigterm()
+    if args.count is not None:
+        with tempfile.TemporaryDirectory() as d:
+            rnd = random.Random()
+            groups = [(f"239.{rnd.randint(1, 254)}.{rnd.randint(1, 254)}.{i + 1}", rnd.randint(20000, 60000))
+                      for i in range(5)]
+            cpu, n = count(write_config(Path(d), groups[:4], groups[4]), args.count, args.fps)
+        print(f"--count {args.count}: {n} frames, {cpu:.3f} CPU s, "
+              f"{1e6 * cpu / max(n, 1):.2f} us/frame ({n / max(cpu, 1e-9):,.0f} frames/CPU-s)")
+        return 0
     rnd = random.Random()
     groups = [(f"239.{rnd.randint(1, 254)}.{rnd.randint(1, 254)}.{i + 1}", rnd.randint(20000, 60000))
               for i in range(5)]
