@@ -249,10 +249,11 @@ class SteppedDaemon(Daemon):
         return super().build_engine(cfg, previous)
 
 
-def count(cfg: Path, frames: int, fps: float) -> tuple[float, int]:
+def count(cfg: Path, frames: int, fps: float, dry: bool) -> tuple[float, int]:
     """``--count``: the first ``frames`` frames the senders send, through the same calls as :func:`replay` but
     without waiting, the clock stepped to each wake-up (stamps on its own time base, not the wall clock's, so
-    the reader takes them as arriving when read); CPU s of this thread and frames taken."""
+    the reader takes them as arriving when read); CPU s of this thread and frames taken. ``dry``: everything
+    but taking them (what to subtract from an instruction count)."""
     seconds = frames / (4 * fps)
     wakes = kept_up(nominal(fps, seconds, 0.0), 0.0, 0.0002) if frames else []
     clock = SteppedDaemon.step_clock
@@ -266,7 +267,7 @@ def count(cfg: Path, frames: int, fps: float) -> tuple[float, int]:
         engine.start(clock.now())
         cpu0 = time.thread_time()
         n = 0
-        for at, got in wakes:
+        for at, got in [] if dry else wakes:
             clock.t = at + shift
             items: list[Any] = []
             for name, msgs in got:
@@ -300,7 +301,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--count", type=int, default=None, metavar="N",
                     help="no sockets, no waiting: the first N frames the senders send through canguard's path, the "
                          "clock stepped to each wake-up (for instruction counts: valgrind --tool=cachegrind "
-                         "--cache-sim=no, N frames minus 0); prints CPU per frame")
+                         "--cache-sim=no, N frames minus N with --dry); prints CPU per frame")
+    ap.add_argument("--dry", action="store_true", help="with --count: make the N frames, take none")
     ap.add_argument("--profile", action="store_true", help="phase 2 under cProfile; print its top functions")
     args = ap.parse_args(argv)
     clean_up_on_sigterm()
@@ -309,7 +311,7 @@ def main(argv: list[str] | None = None) -> int:
             rnd = random.Random()
             groups = [(f"239.{rnd.randint(1, 254)}.{rnd.randint(1, 254)}.{i + 1}", rnd.randint(20000, 60000))
                       for i in range(5)]
-            cpu, n = count(write_config(Path(d), groups[:4], groups[4]), args.count, args.fps)
+            cpu, n = count(write_config(Path(d), groups[:4], groups[4]), args.count, args.fps, args.dry)
         print(f"--count {args.count}: {n} frames, {cpu:.3f} CPU s, "
               f"{1e6 * cpu / max(n, 1):.2f} us/frame ({n / max(cpu, 1e-9):,.0f} frames/CPU-s)")
         return 0
