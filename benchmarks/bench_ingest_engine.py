@@ -224,6 +224,10 @@ def replay(daemon: Daemon, wakes: list[Wake], offset: float) -> tuple[float, flo
     return t_admit, t_take, t_advance, frames, late
 
 
+WARM_UP = 4000
+"""Frames ``--count`` takes before it counts."""
+
+
 class StepClock:
     """A live clock (``advance_to`` a no-op, as :class:`~canguard.io.clock.LiveClock`'s) that moves only when set:
     ``--count`` steps it to each wake-up's time, so every run ticks the same ticks however slow it runs."""
@@ -252,11 +256,13 @@ class SteppedDaemon(Daemon):
 def count(cfg: Path, frames: int, fps: float, dry: bool) -> tuple[float, int]:
     """``--count``: the first ``frames`` frames the senders send, through the same calls as :func:`replay` but
     without waiting, the clock stepped to each wake-up (stamps on its own time base, not the wall clock's, so
-    the reader takes them as arriving when read); CPU s of this thread and frames taken. ``dry``: everything
-    but taking them (what to subtract from an instruction count)."""
-    seconds = frames / (4 * fps)
+    the reader takes them as arriving when read), after a warm-up of :data:`WARM_UP` frames (which brings in
+    what the first blocks import and compile); CPU s of this thread and frames taken after the warm-up.
+    ``dry``: everything but taking the ``frames`` (the baseline an instruction count subtracts)."""
+    seconds = (WARM_UP + frames) / (4 * fps)
     wakes = kept_up(nominal(fps, seconds, 0.0), 0.0, 0.0002) if frames else []
     clock = SteppedDaemon.step_clock
+    taken = False
     clock.t = wakes[0][0] - 0.01 if wakes else 1000.0
     shift = 1000.0 - clock.t  # the synthetic stamps moved to 1000 s: far from the wall clock
     clock.t += shift
@@ -265,9 +271,13 @@ def count(cfg: Path, frames: int, fps: float, dry: bool) -> tuple[float, int]:
     reader.start()  # the task's frames go out on its output bus, as in phase 2
     try:
         engine.start(clock.now())
-        cpu0 = time.thread_time()
         n = 0
-        for at, got in [] if dry else wakes:
+        cpu0 = time.thread_time()
+        for at, got in wakes:
+            if n >= WARM_UP and (dry or not taken):
+                if dry:
+                    break
+                taken, n, cpu0 = True, 0, time.thread_time()
             clock.t = at + shift
             items: list[Any] = []
             for name, msgs in got:
@@ -284,7 +294,7 @@ def count(cfg: Path, frames: int, fps: float, dry: bool) -> tuple[float, int]:
         engine.finish(reason="benchmark end")
         reader.stop()
         daemon.journal.close()
-    return cpu, n
+    return (cpu, n) if taken else (0.0, 0)
 
 
 def main(argv: list[str] | None = None) -> int:
