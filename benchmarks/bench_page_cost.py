@@ -122,27 +122,6 @@ class _Handler(http.server.BaseHTTPRequestHandler):
             return  # the page was closed
 
 
-def chromium_cpu(browser: bl.Browser) -> dict[int, float]:
-    """{pid: CPU seconds} of chromium's processes (chromedriver's descendants)."""
-    tick = os.sysconf("SC_CLK_TCK")
-    parents: dict[int, int] = {}
-    times: dict[int, float] = {}
-    for stat in Path("/proc").glob("[0-9]*/stat"):
-        try:
-            fields = stat.read_text().rsplit(")", 1)[1].split()
-        except (OSError, IndexError):
-            continue  # ended meanwhile
-        pid = int(stat.parent.name)
-        parents[pid] = int(fields[1])
-        times[pid] = (int(fields[11]) + int(fields[12])) / tick
-    root = browser.driver.service.process.pid
-    kids = {root}
-    while more := {pid for pid, ppid in parents.items() if ppid in kids} - kids:
-        kids |= more
-    kids.discard(root)
-    return {pid: times[pid] for pid in kids}
-
-
 def measure(pages: list[Path], docs: list[str], hz: float, seconds: float, rounds: int) -> None:
     """Each page fed ``docs`` at ``hz``, ``rounds`` times interleaved; chromium's CPU in % of one core."""
     results: dict[str, list[float]] = {str(p): [] for p in pages}
@@ -156,9 +135,9 @@ def measure(pages: list[Path], docs: list[str], hz: float, seconds: float, round
                     try:
                         browser.show(f"http://127.0.0.1:{server.server_address[1]}/")
                         time.sleep(3.0)  # the previous page's renderer ends, this one settles
-                        before, t0 = chromium_cpu(browser), time.perf_counter()
+                        before, t0 = browser.cpu_by_pid(), time.perf_counter()
                         time.sleep(seconds)
-                        after, wall = chromium_cpu(browser), time.perf_counter() - t0
+                        after, wall = browser.cpu_by_pid(), time.perf_counter() - t0
                     finally:
                         browser.blank()
                         server.shutdown()
