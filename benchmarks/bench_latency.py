@@ -336,8 +336,10 @@ class Browser:
         """The sequence number of the snapshot the page shows (0 before it showed one)."""
         return int(self.driver.execute_script("return document.body.dataset.seq || 0") or 0)
 
-    def cpu_s(self) -> float:
-        """CPU seconds (user + system) of chromedriver's descendants so far: chromium's processes (``/proc``)."""
+    def cpu_by_pid(self) -> dict[int, float]:
+        """{pid: CPU seconds (user + system)} of chromedriver's descendants: chromium's processes (``/proc``).
+
+        Take differences per pid: a renderer that ends meanwhile must not take its CPU off the sum."""
         tick = os.sysconf("SC_CLK_TCK")
         parents: dict[int, int] = {}
         times: dict[int, float] = {}
@@ -356,7 +358,7 @@ class Browser:
             grew = bool(more)
             kids |= more
         kids.discard(self.driver.service.process.pid)
-        return sum(times.get(pid, 0.0) for pid in kids)
+        return {pid: times.get(pid, 0.0) for pid in kids}
 
     def count_work(self) -> None:
         """Count from now on the page's draws and its DOM writes (nodes added or removed, texts and attributes set)."""
@@ -450,11 +452,11 @@ def watched_trials(trials: Callable[[], list[float]], browser: Browser | None,
         before = browser.rendered() if browser is not None and at is not None else 0
         if browser is not None and at is not None:
             browser.count_work()
-        cpu0, wall0 = (browser.cpu_s() if browser is not None else 0.0), time.perf_counter()
+        cpu0, wall0 = (browser.cpu_by_pid() if browser is not None else {}), time.perf_counter()
         guard = trials()
         wall = time.perf_counter() - wall0
-        if browser is not None:
-            cpu = browser.cpu_s() - cpu0
+        if browser is not None:  # per process: a renderer that ended meanwhile takes none of the block's CPU away
+            cpu = sum(s - cpu0.get(pid, 0.0) for pid, s in browser.cpu_by_pid().items())
             print(f"  ({label} block: chromium CPU {100 * cpu / wall:.1f} % of one core over {wall:.1f} s of trials)")
         if browser is not None and at is not None:
             rendered = browser.rendered() - before

@@ -16,6 +16,7 @@ from typing import Any
 
 import pytest
 
+from canguard.service.monitor.hub import DOCUMENT_S
 from monitorkit import DEMO_GUARDS, ESTOP_IDS, WAIT_S, Watched, running, wait_for, watched_daemon
 
 GUARD_FIELDS = {"name", "source", "value", "unit", "threshold", "margin", "status"}
@@ -118,7 +119,7 @@ class TestStatus:
 
 
     def test_stream_sends_no_more_documents_than_the_page_draws(self, watched: Watched) -> None:
-        """A busy robot's stream carries at most one document per 100 ms (the page's redraw), yet keeps moving."""
+        """A busy robot's stream carries at most one document per ``DOCUMENT_S`` (125 ms), yet keeps moving."""
         docs = 0
         start = time.monotonic()
         for name, _ in sse(watched.http + "/api/status"):
@@ -126,7 +127,7 @@ class TestStatus:
             if time.monotonic() - start >= 3.0:
                 break
         elapsed = time.monotonic() - start
-        assert docs <= elapsed / 0.1 + 2  # the first at once, then one per 100 ms at most
+        assert docs <= elapsed / DOCUMENT_S + 2  # the first at once, then one per DOCUMENT_S at most
         assert docs >= 5  # the guards' values move: the page is told
 
 
