@@ -5,7 +5,9 @@
 # *.egg-info into the tree it builds, where another build may be running; the copy resolves the
 # package's links to the checkout's config/, dbc/ and systemd/ and leaves out what a run left there.
 # The venv is made without pip (ensurepip costs ~5 s of CPU): $PYTHON's pip installs into it
-# (pip --python), with the dependencies from the package index or pip's cache.
+# (pip --python), with the dependencies from the package index or pip's cache, not byte-compiled
+# (~5 s of CPU for every module of the dependencies): a command compiles what it imports when it
+# first runs, and writes that bytecode into the venv for the next.
 set -euo pipefail
 root="$(cd "$(dirname "$0")/.." && pwd)"
 py="${PYTHON:-$root/.venv/bin/python}"
@@ -18,5 +20,5 @@ find "$dest/source/src" \( -name __pycache__ -o -name '*.egg-info' -o -name 'eve
 cp "$root/pyproject.toml" "$root/README.md" "$root/LICENSE" "$dest/source/"
 "$py" -m pip wheel -q --no-deps "$dest/source" -w "$dest/wheel"
 python3 -m venv --without-pip "$dest/venv"
-"$py" -m pip --python "$dest/venv/bin/python" install -q "$dest"/wheel/canguard-*.whl
+"$py" -m pip --python "$dest/venv/bin/python" install -q --no-compile "$dest"/wheel/canguard-*.whl
 test -x "$dest/venv/bin/canguard"

@@ -19,7 +19,12 @@ step() { echo "wheel smoke: $*"; }
 step "--version"; "$cg" --version | grep -q '^canguard '
 step "check"; "$cg" check >/dev/null 2>&1
 step "tree"; "$cg" tree >/dev/null
-step "demo --duration 5"; timeout 60 "$cg" demo --duration 5 >demo.txt 2>&1; grep -q "canguard demo summary" demo.txt
+# without a terminal (stdin /dev/null), to its end: the summary, the spike at 4 s tripped PackCurrent, the
+# stop frames went out after the trip
+step "demo --duration 6 (headless)"; timeout 60 "$cg" demo --duration 6 </dev/null >demo.txt 2>&1
+grep -q "canguard demo summary" demo.txt
+grep -q "PackCurrent" demo.txt; grep -q "overcurrent" demo.txt
+grep -q "stop frames out" demo.txt; grep -q "after the trip's time" demo.txt
 step "the status page is in the wheel"
 "$venv/bin/python" -c "from canguard.data import data_path; assert data_path('monitor', 'index.html').is_file()"
 step "simulate"; "$cg" simulate --scenario overload --duration 5 --out x.log >/dev/null 2>&1

@@ -22,6 +22,8 @@ from typing import Any
 
 import can
 import cantools
+import py_trees
+import pytest
 import yaml
 
 from canguard.service.daemon import Daemon
@@ -171,7 +173,11 @@ def _logged_port(messages: list[str], label: str) -> int:
 @contextlib.contextmanager
 def watched_daemon(tmp: Path, *, http: bool = True, groot2: bool = False, token: str | None = None,
                    robot: bool = True) -> Iterator[Watched]:
-    """The demo's daemon in a thread with its monitors on ephemeral loopback ports; stopped at exit."""
+    """The demo's daemon in a thread with its monitors on ephemeral loopback ports; stopped at exit.
+
+    py_trees' blackboard is global: it is cleared before the daemon builds its tree and after it stops,
+    so a daemon shared by a module's tests (:func:`shared_daemon`) holds it alone while it runs.
+    """
     import logging
 
     from canguard.sim import run_on_bus
@@ -190,6 +196,7 @@ def watched_daemon(tmp: Path, *, http: bool = True, groot2: bool = False, token:
     handler.emit = lambda record: records.append(record.getMessage())  # type: ignore[method-assign]
     logger = logging.getLogger("canguard.service.monitor")
     logger.addHandler(handler)
+    py_trees.blackboard.Blackboard.clear()
     daemon = Daemon(config, notifier=Notifier(env={}))
     peer = can.Bus(interface="virtual", channel=channel)
     robot_bus = can.Bus(interface="virtual", channel=channel)
@@ -216,6 +223,7 @@ def watched_daemon(tmp: Path, *, http: bool = True, groot2: bool = False, token:
             sim.join(5)
         peer.shutdown()
         robot_bus.shutdown()
+        py_trees.blackboard.Blackboard.clear()
     assert not thread.is_alive(), "Daemon.run did not return after request_stop"
     assert result == [0]
 
@@ -252,3 +260,17 @@ def sighup_with_threshold(watched: Watched, tmp: Path, threshold: str) -> None:
     doc["tree"]["file"] = str(tree)
     watched.config.write_text(yaml.safe_dump(doc, allow_unicode=True), encoding="utf-8")
     os.kill(os.getpid(), signal.SIGHUP)
+
+
+@contextlib.contextmanager
+def shared_daemon(factory: pytest.TempPathFactory, **monitors: Any) -> Iterator[Watched]:
+    """One :func:`watched_daemon`, its task running, for the tests of a module that only read it.
+
+    Starting a daemon with its monitor process costs more CPU than such a test. A module that shares
+    one overrides conftest's autouse ``_clean_blackboard`` with one that does nothing: clearing py_trees'
+    global blackboard between its tests would clear the running tree's; :func:`watched_daemon` clears it
+    around each daemon instead.
+    """
+    with watched_daemon(factory.mktemp("shared-daemon"), **monitors) as w:
+        wait_for("the task to run", lambda: running(w))
+        yield w

@@ -69,12 +69,12 @@ class TestExitCodesInHelp:
 class TestStdin:
     """`canguard replay -` reads the log from stdin; --format names its format."""
 
-    def test_stdin_gives_the_file_summary(self) -> None:
+    def test_stdin_gives_the_file_summary(self, capsys: pytest.CaptureFixture[str]) -> None:
         """candump -L piped in (plain or gzip) = the same summary as the file, logged as '-'."""
         plain = gzip.decompress(NORMAL.read_bytes())
-        from_file = canguard("replay", NORMAL, "-c", ROBOT, "--json")
-        assert from_file.returncode == 0, from_file.stderr
-        expected = json.loads(from_file.stdout)
+        code, out, err = cli(capsys, "replay", NORMAL, "-c", ROBOT, "--json")  # the file: in-process is enough
+        assert code == 0, err
+        expected = json.loads(out)
         for data in (plain, NORMAL.read_bytes()):
             piped = canguard("replay", "-", "--format", "candump", "-c", ROBOT, "--json", stdin=data)
             assert piped.returncode == 0, piped.stderr
@@ -102,13 +102,24 @@ class TestStdin:
         assert summary["frames"]["decoded"] > 0
 
 
+@pytest.fixture(scope="module")
+def short_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The first 600 frames of the normal example (every message of the robot, some of each): a pipe closes as
+    early on a short log as on a long one, and replaying it costs little."""
+    path = tmp_path_factory.mktemp("short") / "normal_600.log"
+    lines = gzip.decompress(NORMAL.read_bytes()).splitlines(keepends=True)[:600]
+    path.write_bytes(b"".join(lines))
+    return path
+
+
 class TestClosedPipe:
     """`canguard replay ... | head` ends quietly."""
 
-    def test_closed_stdout_is_141_without_traceback(self) -> None:
+    def test_closed_stdout_is_141_without_traceback(self, short_log: Path) -> None:
         """The reader closes the pipe at once: exit 141 (like a SIGPIPE'd tool), nothing on stderr."""
         env = {**os.environ, "PYTHONPATH": str(REPO / "src")}
-        proc = subprocess.Popen([sys.executable, "-m", "canguard", "replay", NORMAL, NORMAL, "-c", ROBOT, "--json"],
+        proc = subprocess.Popen([sys.executable, "-m", "canguard", "replay", short_log, short_log, "-c", ROBOT,
+                                 "--json"],
                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env)
         assert proc.stdout is not None and proc.stderr is not None
         proc.stdout.close()
@@ -117,9 +128,10 @@ class TestClosedPipe:
         assert b"Traceback" not in err and b"BrokenPipe" not in err
 
     @pytest.mark.skipif(shutil.which("head") is None, reason="needs head(1)")
-    def test_pipe_into_head(self) -> None:
+    def test_pipe_into_head(self, short_log: Path) -> None:
         """Through a shell pipe: head prints the first line, the pipeline's stderr stays clean."""
-        cmd = (f"{sys.executable} -m canguard replay {NORMAL} {NORMAL} {NORMAL} -c {ROBOT} --json | head -n 1; "
+        logs = f"{short_log} {short_log} {short_log}"
+        cmd = (f"{sys.executable} -m canguard replay {logs} -c {ROBOT} --json | head -n 1; "
                "echo \"rc=${PIPESTATUS[0]}\"")
         proc = subprocess.run(["bash", "-c", cmd], capture_output=True, timeout=120,
                               env={**os.environ, "PYTHONPATH": str(REPO / "src")})
@@ -157,8 +169,8 @@ class TestCompletion:
         assert "--format" in self.complete(script, "canguard", "replay", "--")
         assert self.complete(script, "canguard", "completion", "z") == ["zsh"]
 
-    def test_zsh_loads_the_bash_function(self) -> None:
+    def test_zsh_loads_the_bash_function(self, capsys: pytest.CaptureFixture[str]) -> None:
         """zsh's script goes through bashcompinit and registers the same function."""
-        proc = canguard("completion", "zsh")
-        assert proc.returncode == 0
-        assert b"bashcompinit" in proc.stdout and b"complete -o filenames -F _canguard canguard" in proc.stdout
+        code, out, _ = cli(capsys, "completion", "zsh")  # the bash script above comes from a real process
+        assert code == 0
+        assert "bashcompinit" in out and "complete -o filenames -F _canguard canguard" in out

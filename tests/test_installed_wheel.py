@@ -2,7 +2,8 @@
 
 On the wheel built and installed into a fresh venv outside the checkout (the ``installed_canguard``
 fixture: scripts/install_wheel.sh, as the smoke script does on its own), runs
-from there, ``--version``, ``check``, ``tree``, ``demo --duration 5`` (to its summary),
+from there, ``--version``, ``check``, ``tree``, ``demo --duration 6`` without a terminal (to its summary:
+the spike at 4 s trips PackCurrent and the stop frames go out),
 ``simulate --scenario overload --duration 5 --out x.log``, ``replay x.log`` (exit 0
 and, with ``--fail-on-trip``, 1), ``init`` + ``check -c`` and ``unit``, from a temporary directory.
 """

@@ -28,9 +28,11 @@ from selenium.webdriver.chrome.service import Service  # noqa: E402
 from selenium.webdriver.support.ui import WebDriverWait  # noqa: E402
 
 
-@pytest.fixture
-def browser(tmp_path: Path) -> Iterator[Any]:
-    """A headless chromium with a profile of its own in ``tmp_path``, no network but loopback."""
+@pytest.fixture(scope="module")
+def browser(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Any]:
+    """A headless chromium with a profile of its own, no network but loopback: one for the module's tests
+    (starting chromium costs more CPU than a test), each test opening its own daemon's page."""
+    tmp_path = tmp_path_factory.mktemp("chromium")
     options = webdriver.ChromeOptions()
     options.binary_location = str(CHROMIUM)
     for arg in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
@@ -50,7 +52,10 @@ def page(tmp_path: Path, browser: Any) -> Iterator[tuple[Watched, Any]]:
     with watched_daemon(tmp_path) as w:
         wait_for("the task to run", lambda: running(w))
         browser.get(w.http + "/")
-        yield w, browser
+        try:
+            yield w, browser
+        finally:
+            browser.get("about:blank")  # the next test's page starts from nothing of this one's
 
 
 # The page redraws at each update: read it in one script call, never through element handles that go stale.
@@ -113,4 +118,5 @@ def test_page_keeps_working_after_sighup_reload(tmp_path: Path, browser: Any) ->
         wait_for("the task to run again", lambda: running(w))
         WebDriverWait(browser, 10).until(lambda d: text_of(d, "task-state") == "running")
         reason, after_ms = stop_reason_shown(browser, w)
+        browser.get("about:blank")
         assert "threshold 30" in reason and after_ms < 1000.0

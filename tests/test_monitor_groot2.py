@@ -20,7 +20,16 @@ import msgpack
 import pytest
 import zmq
 
-from monitorkit import DEMO_GUARDS, Watched, real_signals, running, sighup_with_threshold, wait_for, watched_daemon
+from monitorkit import (
+    DEMO_GUARDS,
+    Watched,
+    real_signals,
+    running,
+    shared_daemon,
+    sighup_with_threshold,
+    wait_for,
+    watched_daemon,
+)
 
 FAILURE = 3
 
@@ -65,9 +74,34 @@ class Groot2Client:
         self.ctx.destroy(linger=0)
 
 
+@pytest.fixture(autouse=True)
+def _clean_blackboard() -> Iterator[None]:
+    """Not cleared between this module's tests: the shared daemon's tree holds it (monitorkit.shared_daemon)."""
+    yield
+
+
+@pytest.fixture(scope="module")
+def shared(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Watched]:
+    """The demo's daemon with its Groot2 monitor (and page), its task running, for the tests that only ask."""
+    with shared_daemon(tmp_path_factory, groot2=True) as w:
+        yield w
+
+
 @pytest.fixture
-def groot(tmp_path: Path) -> Iterator[tuple[Watched, Groot2Client]]:
-    """The demo's daemon with its Groot2 monitor (and page), and a client connected to it."""
+def groot(shared: Watched) -> Iterator[tuple[Watched, Groot2Client]]:
+    """The shared daemon, its task running (again, after any stop late frames on a loaded machine caused), and a
+    client of its own connected to it."""
+    wait_for("the task to run", lambda: running(shared))
+    client = Groot2Client(shared.groot2)
+    try:
+        yield shared, client
+    finally:
+        client.close()
+
+
+@pytest.fixture
+def own_groot(tmp_path: Path) -> Iterator[tuple[Watched, Groot2Client]]:
+    """A daemon of the test's own with its Groot2 monitor, its task running, and a client connected to it."""
     with watched_daemon(tmp_path, groot2=True) as w:
         wait_for("the task to run", lambda: running(w))
         client = Groot2Client(w.groot2)
@@ -109,9 +143,9 @@ class TestFullTree:
 class TestStatus:
     """STATUS (``S``)."""
 
-    def test_one_entry_per_node_and_failures_show(self, groot: tuple[Watched, Groot2Client]) -> None:
+    def test_one_entry_per_node_and_failures_show(self, own_groot: tuple[Watched, Groot2Client]) -> None:
         """STATUS lists every FULLTREE uid; with the robot silent, the guards show FAILURE."""
-        w, client = groot
+        w, client = own_groot
         _, [xml] = client.request("T")
         uids = uids_by_name(xml.decode())
         status = client.statuses()

@@ -17,14 +17,20 @@ from typing import Any
 import pytest
 
 from canguard.service.monitor.hub import DOCUMENT_S
-from monitorkit import DEMO_GUARDS, ESTOP_IDS, WAIT_S, Watched, running, wait_for, watched_daemon
+from monitorkit import DEMO_GUARDS, ESTOP_IDS, WAIT_S, Watched, running, shared_daemon, wait_for, watched_daemon
 
 GUARD_FIELDS = {"name", "source", "value", "unit", "threshold", "margin", "status"}
 
 
+@pytest.fixture(autouse=True)
+def _clean_blackboard() -> Iterator[None]:
+    """Not cleared between this module's tests: the shared daemon's tree holds it (monitorkit.shared_daemon)."""
+    yield
+
+
 @pytest.fixture
-def watched(tmp_path: Path) -> Iterator[Watched]:
-    """The demo's daemon with its status page, running its task."""
+def own(tmp_path: Path) -> Iterator[Watched]:
+    """A daemon of the test's own with its status page, running its task (the test trips it)."""
     with watched_daemon(tmp_path) as w:
         wait_for("the task to run", lambda: running(w))
         yield w
@@ -60,8 +66,21 @@ def first_status(w: Watched, pred: Any, timeout_s: float = 10.0) -> dict[str, An
     raise AssertionError("the status stream ended")
 
 
-class TestStatus:
-    """``GET /api/status``."""
+@pytest.fixture(scope="class")
+def shared(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Watched]:
+    """The demo's daemon with its status page, running its task, while the tests of one class run."""
+    with shared_daemon(tmp_path_factory) as w:
+        yield w
+
+
+class TestWhileRunning:
+    """Requests that only read a running daemon: one daemon for them all (the class's), its task running."""
+
+    @pytest.fixture
+    def watched(self, shared: Watched) -> Watched:
+        """The shared daemon, its task running (again, after any stop a loaded machine's late frames caused)."""
+        wait_for("the task to run", lambda: running(shared))
+        return shared
 
     def test_shape_and_every_guard_of_the_demo_tree(self, watched: Watched) -> None:
         """The document has tree, task, guards and events; each guard the issue's fields; every demo guard is there."""
@@ -79,26 +98,50 @@ class TestStatus:
         assert doc["tree"]["main"] == "RobotGuard" and doc["tree"]["root"]["name"] == "Guards"
         assert [e["event"] for e in doc["events"]][:1] == ["start"]
 
-    def test_trip_shows_stop_guard_reason_and_confirmation(self, watched: Watched) -> None:
-        """After an overcurrent the stream shows the task stopped by PackCurrent, why, and the confirmation."""
-        watched.trip()
-        doc = first_status(watched, lambda d: d["task"]["state"] == "stopped")
-        task = doc["task"]
-        assert task["guards"] == ["PackCurrent"]
-        assert "PackCurrent" in task["reason"] and "overcurrent" in task["reason"]
-        assert task["since"] is not None and task["confirmation"] in ("pending", "confirmed", "escalated")
-        doc = first_status(watched, lambda d: d["task"]["confirmation"] != "pending")
-        # the simulated drives obey the Estop, mostly before the deadline: the page says what the journal says
-        verdict = next(e["event"] for e in map(json.loads, watched.events.read_text().splitlines())
-                       if e["event"] in ("confirmed", "escalate"))
-        assert doc["task"]["confirmation"] == {"confirmed": "confirmed", "escalate": "escalated"}[verdict]
-
     def test_unknown_path_is_404(self, watched: Watched) -> None:
         """A path the monitor does not serve answers 404, naming the ones it does."""
         with pytest.raises(urllib.error.HTTPError) as err:
             watched.get("/api/nothing")
         assert err.value.code == 404
 
+    def test_stream_sends_no_more_documents_than_the_page_draws(self, watched: Watched) -> None:
+        """A busy robot's stream carries at most one document per ``DOCUMENT_S`` (125 ms), yet keeps moving."""
+        docs = 0
+        start = time.monotonic()
+        for name, _ in sse(watched.http + "/api/status"):
+            docs += name == "status"
+            if time.monotonic() - start >= 3.0:
+                break
+        elapsed = time.monotonic() - start
+        assert docs <= elapsed / DOCUMENT_S + 2  # the first at once, then one per DOCUMENT_S at most
+        assert docs >= 5  # the guards' values move: the page is told
+
+    @pytest.mark.parametrize("method", ["POST", "PUT", "DELETE", "PATCH"])
+    def test_writes_are_refused(self, watched: Watched, method: str) -> None:
+        """Every method but GET/HEAD is 405, and the task keeps running."""
+        req = urllib.request.Request(watched.http + "/api/status", data=b"{}", method=method)
+        with pytest.raises(urllib.error.HTTPError) as err:
+            urllib.request.urlopen(req, timeout=5)
+        assert err.value.code == 405 and "GET" in err.value.headers["Allow"]
+        assert watched.status()["task"]["state"] == "running"
+
+
+class TestStatus:
+    """``GET /api/status``."""
+
+    def test_trip_shows_stop_guard_reason_and_confirmation(self, own: Watched) -> None:
+        """After an overcurrent the stream shows the task stopped by PackCurrent, why, and the confirmation."""
+        own.trip()
+        doc = first_status(own, lambda d: d["task"]["state"] == "stopped")
+        task = doc["task"]
+        assert task["guards"] == ["PackCurrent"]
+        assert "PackCurrent" in task["reason"] and "overcurrent" in task["reason"]
+        assert task["since"] is not None and task["confirmation"] in ("pending", "confirmed", "escalated")
+        doc = first_status(own, lambda d: d["task"]["confirmation"] != "pending")
+        # the simulated drives obey the Estop, mostly before the deadline: the page says what the journal says
+        verdict = next(e["event"] for e in map(json.loads, own.events.read_text().splitlines())
+                       if e["event"] in ("confirmed", "escalate"))
+        assert doc["task"]["confirmation"] == {"confirmed": "confirmed", "escalate": "escalated"}[verdict]
 
     def test_stream_sends_a_document_only_when_more_than_its_time_changed(self, tmp_path: Path) -> None:
         """A silent robot: snapshots go on (GET sees them), the stream sends none that only moved in time."""
@@ -118,51 +161,29 @@ class TestStatus:
             assert len(sent) < 10
 
 
-    def test_stream_sends_no_more_documents_than_the_page_draws(self, watched: Watched) -> None:
-        """A busy robot's stream carries at most one document per ``DOCUMENT_S`` (125 ms), yet keeps moving."""
-        docs = 0
-        start = time.monotonic()
-        for name, _ in sse(watched.http + "/api/status"):
-            docs += name == "status"
-            if time.monotonic() - start >= 3.0:
-                break
-        elapsed = time.monotonic() - start
-        assert docs <= elapsed / DOCUMENT_S + 2  # the first at once, then one per DOCUMENT_S at most
-        assert docs >= 5  # the guards' values move: the page is told
-
-
 class TestEvents:
     """``GET /api/events``."""
 
-    def test_streams_the_journal_trip_and_stop(self, watched: Watched) -> None:
+    def test_streams_the_journal_trip_and_stop(self, own: Watched) -> None:
         """The stream replays the kept events, then the trip and the stop as the journal writes them."""
         seen: list[dict[str, Any]] = []
         tripped = False
-        for name, data in sse(watched.http + "/api/events"):
+        for name, data in sse(own.http + "/api/events"):
             assert name == "message"
             seen.append(json.loads(data))
             if not tripped and seen[-1]["event"] == "start":
-                watched.trip()
+                own.trip()
                 tripped = True
             if seen[-1]["event"] == "stop" and any(e["event"] == "trip" for e in seen):
                 break  # a stop before the task first ran (a source not yet fresh) is not the trip's
         trip = next(e for e in seen if e["event"] == "trip")
         assert (trip["node"], trip["reason"]) == ("PackCurrent", "overcurrent")
-        journal = [json.loads(line)["event"] for line in watched.events.read_text().splitlines()]
+        journal = [json.loads(line)["event"] for line in own.events.read_text().splitlines()]
         assert [e["event"] for e in seen] == journal[:len(seen)]
 
 
 class TestReadOnlyAndToken:
     """Nothing changes what canguard does; a token guards every request."""
-
-    @pytest.mark.parametrize("method", ["POST", "PUT", "DELETE", "PATCH"])
-    def test_writes_are_refused(self, watched: Watched, method: str) -> None:
-        """Every method but GET/HEAD is 405, and the task keeps running."""
-        req = urllib.request.Request(watched.http + "/api/status", data=b"{}", method=method)
-        with pytest.raises(urllib.error.HTTPError) as err:
-            urllib.request.urlopen(req, timeout=5)
-        assert err.value.code == 405 and "GET" in err.value.headers["Allow"]
-        assert watched.status()["task"]["state"] == "running"
 
     def test_token_is_required_when_set(self, tmp_path: Path) -> None:
         """With monitor.token, a request without it is 401; the bearer header or ?token= opens every path."""
