@@ -418,19 +418,27 @@ def _python_can_only(p: Path, gz: str, st: ReadStats, owner: LogFrames) -> Itera
     return python_can_chunks(p, "asc", gz, st, owner)
 
 
-@pytest.mark.parametrize("odd", [None, "   3.000000 1  ErrorFrame"])
-def test_replay_summary(tmp_path: Path, odd: str | None, capsys: pytest.CaptureFixture[str],
-                        monkeypatch: pytest.MonkeyPatch) -> None:
-    """``canguard replay LOG.asc --json``: the same summary with canguard's reader as with python-can's alone."""
-    log, candump = tmp_path / "overload.asc", tmp_path / "overload.log"
+@pytest.fixture(scope="module")
+def overload_asc(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The overload example log written as ASC by python-can's writer (once for the module: 15,000 frames)."""
+    d = tmp_path_factory.mktemp("asc_overload")
+    log, candump = d / "overload.asc", d / "overload.log"
     candump.write_bytes(gzip.decompress((REPO / "examples" / "overload.log.gz").read_bytes()))
     with can.Logger(str(log)) as writer:
         for msg in can.CanutilsLogReader(str(candump)):
             writer.on_message_received(msg)
+    return log
+
+
+@pytest.mark.parametrize("odd", [None, "   3.000000 1  ErrorFrame"])
+def test_replay_summary(tmp_path: Path, overload_asc: Path, odd: str | None, capsys: pytest.CaptureFixture[str],
+                        monkeypatch: pytest.MonkeyPatch) -> None:
+    """``canguard replay LOG.asc --json``: the same summary with canguard's reader as with python-can's alone."""
+    log = tmp_path / "overload.asc"
+    lines = overload_asc.read_text().splitlines(keepends=True)
     if odd is not None:
-        lines = log.read_text().splitlines(keepends=True)
         lines.insert(len(lines) // 2, odd + "\n")
-        log.write_text("".join(lines))
+    log.write_text("".join(lines))
     argv = ["replay", str(log), "-c", str(REPO / "config" / "examples" / "robot_guard.yaml"), "--json"]
 
     def summary() -> dict[str, Any]:

@@ -159,7 +159,7 @@ def test_replay_of_a_cut_blf_fails_and_keeps_its_events(installed_canguard: Path
     """`canguard replay half.blf --events ev.jsonl --fail-on-trip` from the installed wheel: exit 2, one line naming
     the file and the frames read, no traceback, no summary; the events of the half it read are kept."""
     sim = tmp_path / "overload.log"
-    proc = subprocess.run([str(installed_canguard), "simulate", "--scenario", "overload", "--duration", "20", "--out",
+    proc = subprocess.run([str(installed_canguard), "simulate", "--scenario", "overload", "--duration", "8", "--out",
                            str(sim)], capture_output=True, text=True, timeout=120, cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr
     full = write_blf(tmp_path / "overload.blf", list(can.LogReader(str(sim))))

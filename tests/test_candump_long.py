@@ -54,7 +54,7 @@ def _text(lines: list[str]) -> tuple[str, int]:
     return "".join(line + "\n" for line in lines), len(lines)
 
 
-@settings(max_examples=150, deadline=None, derandomize=True)
+@settings(max_examples=60, deadline=None, derandomize=True)
 @given(lines=long_lines())
 def test_plain_long_blocks_are_read_as_the_line_parser_reads_them(lines: list[str]) -> None:
     """Classic and CAN FD, standard (indented or not) and extended ids, any spacing, ASCII dumps: taken."""
@@ -63,7 +63,7 @@ def test_plain_long_blocks_are_read_as_the_line_parser_reads_them(lines: list[st
     assert list(cols.frames()) == [_parse_line(line) for line in lines]
 
 
-@settings(max_examples=150, deadline=None, derandomize=True)
+@settings(max_examples=60, deadline=None, derandomize=True)
 @given(lines=long_lines(fd_allowed=False))
 def test_classic_only_blocks_are_read_as_the_line_parser_reads_them(lines: list[str]) -> None:
     """A block without CAN FD lines takes the joined rewrite (no regex template): the same frames."""

@@ -74,16 +74,14 @@ class TestRuns:
                                                      capsys: pytest.CaptureFixture[str]) -> None:
         """--jobs 2 gives the serial summaries; a corrupt log is reported, the others are not lost."""
         code, serial, _ = run(["replay", str(fleet), "-c", str(CONFIG), "--json"], capsys)
-        assert code == 0
-        code, jobs, _ = run(["replay", str(fleet), "-c", str(CONFIG), "--json", "--jobs", "2"], capsys)
-        assert code == 0 and jobs == serial
+        assert code == 0 and len(json.loads(serial)) == 3
         bad = fleet / "day2" / "broken.log.gz"
         bad.write_bytes(b"this is not gzip")
         table = tmp_path / "fleet.jsonl"
         code, out, err = run(["replay", str(fleet), "-c", str(CONFIG), "--json", "--jobs", "2",
                               "--fleet-summary", str(table)], capsys)
         assert code == 2 and "broken.log.gz: cannot read gzip log" in err
-        assert len(json.loads(out)) == 3
+        assert out == serial  # the workers' summaries of the three good logs, byte for byte, in order
         rows = [json.loads(line) for line in table.read_text(encoding="utf-8").splitlines()]
         assert [r["status"] for r in rows] == ["ok", "ok", "failed", "ok"]
         failed = rows[2]
