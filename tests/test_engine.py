@@ -474,3 +474,35 @@ class TestBusSink:
         sink.send(cfg.stop.frames, "stop")
         assert sink.failed == len(cfg.stop.frames) and sink.sent == 0
         assert errors == ["main"] * len(cfg.stop.frames)
+
+
+class TestTickOnARowsTime:
+    """A replay's column path runs a tick due at a row's own time before that row, as frame by frame does."""
+
+    def test_source_back_on_the_tick_it_goes_stale(self, tmp_path: Path) -> None:
+        """BMS silent and back on the very tick where it is 0.516 s old (max_age 0.5 s): that tick trips it stale."""
+        from test_replay_columns import DBC, ROBOT_GUARD, compare, sim_lines
+
+        doc = yaml.safe_load(ROBOT_GUARD.read_text(encoding="utf-8"))
+        doc["dbc"] = [str(DBC)]
+        doc["tree"]["file"] = str((ROBOT_GUARD.parent / doc["tree"]["file"]).resolve())
+        doc["tree"]["tick_hz"] = 64  # ticks 1/64 s apart from a whole second: exact in binary and in 6 decimals
+        doc["events"] = str(tmp_path / "events.jsonl")
+        doc["state"]["file"] = str(tmp_path / "i2t_state.json")
+        cfg_path = tmp_path / "tick64.yaml"
+        cfg_path.write_text(yaml.safe_dump(doc), encoding="utf-8")
+        bms = f"{cantools.database.load_file(str(DBC)).get_message_by_name('BMS_Status').frame_id:03X}#"
+        sim = sim_lines(1.75, "can0", ["normal"], 3)
+        t0 = 1_700_000_000.0
+        rows = [(round(t - sim[0][0] + t0, 6), line[line.index(")"):]) for t, line in sim]
+        last = max(t for t, rest in rows if bms in rest and t <= t0 + 1.0)  # then silent
+        back = t0 + (math.floor((last + 0.5 - t0) * 64) + 1) / 64  # the first tick that finds it over 0.5 s old
+        returning = next(rest for t, rest in rows if bms in rest and t > back)
+        kept = [(t, rest) for t, rest in rows if bms not in rest or not last < t <= back + 0.1]
+        assert back not in {t for t, _ in kept}, "the returning frame must be the only row on that tick"
+        log = tmp_path / "bms-back-on-a-tick.log"
+        log.write_text("".join(f"({t:.6f}{rest}\n" for t, rest in sorted([*kept, (back, returning)],
+                                                                         key=lambda row: row[0])), encoding="ascii")
+        [col] = compare(load_config(cfg_path), log, tmp_path / "runs", (4096,))
+        trips = json.loads(col.summary)["trips"]
+        assert [(t["node"], t["reason"], t["t"]) for t in trips] == [("PackCurrent", "stale", back)]
