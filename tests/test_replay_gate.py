@@ -3,6 +3,10 @@
 Exit 1 when a log gains or loses a trip, or a margin shrinks by more than
 ``--margin-tolerance`` (% of the guard's threshold); 0 otherwise; without the flag
 the comparison is only reported.
+
+The exit codes 1 (a regression) and 2 (no baseline) come from a real process started
+in another directory; the other cases call the same entry point in-process
+(``canguard.cli.main.main``), which returns the code the process exits with.
 """
 
 from __future__ import annotations
@@ -14,6 +18,8 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+
+from canguard.cli.main import main
 
 pytestmark = pytest.mark.slow
 
@@ -31,6 +37,21 @@ def replay(tmp_path: Path, repo: Path) -> Any:
 
     def run(name: str, *more: object) -> subprocess.CompletedProcess[str]:
         return canguard(tmp_path, "replay", repo / "examples" / f"{name}.log.gz", "-c", config, *more)
+
+    return run
+
+
+@pytest.fixture
+def replay_here(repo: Path, capsys: pytest.CaptureFixture[str]) -> Any:
+    """The same replay through ``canguard.cli.main.main`` in this process: its exit code, stdout and stderr."""
+    config = repo / "config" / "examples" / "robot_guard.yaml"
+
+    def run(name: str, *more: object) -> subprocess.CompletedProcess[str]:
+        argv = ["replay", str(repo / "examples" / f"{name}.log.gz"), "-c", str(config), *map(str, more)]
+        capsys.readouterr()
+        code = main(argv)
+        out, err = capsys.readouterr()
+        return subprocess.CompletedProcess(argv, code, out, err)
 
     return run
 
@@ -57,42 +78,42 @@ class TestFailOnRegression:
         assert proc.returncode == 1, proc.stderr
         assert "new trip: PackCurrent on /battery_state (overcurrent): 0 -> 1 (regression)" in proc.stderr
 
-    def test_report_only_without_the_flag(self, tmp_path: Path, repo: Path, replay: Any) -> None:
+    def test_report_only_without_the_flag(self, tmp_path: Path, repo: Path, replay_here: Any) -> None:
         """Without --fail-on-regression the same comparison is reported and the exit stays 0."""
         base = write(tmp_path, saved(tmp_path, repo, "normal"))
-        proc = replay("spike", "--baseline", base)
+        proc = replay_here("spike", "--baseline", base)
         assert proc.returncode == 0 and "new trip: PackCurrent" in proc.stderr
 
-    def test_lost_trip_fails(self, tmp_path: Path, repo: Path, replay: Any) -> None:
+    def test_lost_trip_fails(self, tmp_path: Path, repo: Path, replay_here: Any) -> None:
         """The clean log against the spike log's baseline exits 1: a trip that no longer happens counts."""
         base = write(tmp_path, saved(tmp_path, repo, "spike"))
-        proc = replay("normal", "--baseline", base, "--fail-on-regression")
+        proc = replay_here("normal", "--baseline", base, "--fail-on-regression")
         assert proc.returncode == 1 and "lost trip: PackCurrent" in proc.stderr
 
-    def test_unchanged_passes(self, tmp_path: Path, repo: Path, replay: Any) -> None:
+    def test_unchanged_passes(self, tmp_path: Path, repo: Path, replay_here: Any) -> None:
         """A log against its own saved summary exits 0 with --fail-on-regression."""
         base = write(tmp_path, saved(tmp_path, repo, "spike"))
-        proc = replay("spike", "--baseline", base, "--fail-on-regression")
+        proc = replay_here("spike", "--baseline", base, "--fail-on-regression")
         assert proc.returncode == 0, proc.stderr
         assert "no change" in proc.stderr
 
     @pytest.mark.parametrize(("tolerance", "code"), [(None, 1), ("0.5", 1), ("2", 0)])
-    def test_margin_tolerance(self, tmp_path: Path, repo: Path, replay: Any, tolerance: str | None,
+    def test_margin_tolerance(self, tmp_path: Path, repo: Path, replay_here: Any, tolerance: str | None,
                               code: int) -> None:
         """A margin 1 % of its threshold below the baseline's fails at tolerance 0 and 0.5 %, passes at 2 %."""
         base = saved(tmp_path, repo, "normal")
         pack = next(m for m in base["margins"] if m["node"] == "PackCurrent")
         pack["margin"] += 0.01 * pack["threshold"]
         more = () if tolerance is None else ("--margin-tolerance", tolerance)
-        proc = replay("normal", "--baseline", write(tmp_path, base), "--fail-on-regression", *more)
+        proc = replay_here("normal", "--baseline", write(tmp_path, base), "--fail-on-regression", *more)
         assert proc.returncode == code, proc.stderr
         assert "margin shrank: PackCurrent (/battery_state current)" in proc.stderr
         assert "(1 % of the threshold)" in proc.stderr
 
-    def test_baseline_of_other_length_fails(self, tmp_path: Path, repo: Path, replay: Any) -> None:
+    def test_baseline_of_other_length_fails(self, tmp_path: Path, repo: Path, replay_here: Any) -> None:
         """A baseline of two summaries for one log cannot vouch for it: exit 1, saying so."""
         one = saved(tmp_path, repo, "normal")
-        proc = replay("normal", "--baseline", write(tmp_path, [one, one]), "--fail-on-regression")
+        proc = replay_here("normal", "--baseline", write(tmp_path, [one, one]), "--fail-on-regression")
         assert proc.returncode == 1 and "2 summaries, this run 1" in proc.stderr
 
     def test_needs_a_baseline(self, tmp_path: Path, replay: Any) -> None:
