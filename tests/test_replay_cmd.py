@@ -7,7 +7,9 @@ capsys), except one test per exit code of the real console entry
 
 from __future__ import annotations
 
+import contextlib
 import gzip
+import io
 import json
 import os
 import re
@@ -409,19 +411,23 @@ class TestEmit:
         assert per_axis == pytest.approx(DURATION_S / 0.02, rel=0.05)
 
 
+@pytest.fixture(scope="module")
+def saved(data: Data, tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    """--json summaries of the spike and normal logs saved to files (once: the tests only read them)."""
+    directory = tmp_path_factory.mktemp("baselines")
+    out = {}
+    for name in ("spike", "normal"):
+        printed = io.StringIO()
+        with contextlib.redirect_stdout(printed), contextlib.redirect_stderr(io.StringIO()):
+            code = main(["replay", str(data[name]), "-c", str(data["cfg"]), "--json"])
+        assert code == 0
+        out[name] = directory / f"{name}.json"
+        out[name].write_text(printed.getvalue(), encoding="utf-8")
+    return out
+
+
 class TestBaseline:
     """--baseline compares with a saved --json summary: new trips, lost trips, margins that shrank."""
-
-    @pytest.fixture
-    def saved(self, run: Run, data: Data, tmp_path: Path) -> dict[str, Path]:
-        """--json summaries of the spike and normal logs saved to files."""
-        out = {}
-        for name in ("spike", "normal"):
-            code, js, _ = run(data[name], "-c", data["cfg"], "--json")
-            assert code == 0
-            out[name] = tmp_path / f"{name}.json"
-            out[name].write_text(js, encoding="utf-8")
-        return out
 
     def test_new_trip_and_shrunk_margin(self, run: Run, data: Data, saved: dict[str, Path]) -> None:
         """Against a clean baseline, the spike log reports a new trip, a shrunk margin and more stops."""
