@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from canguard.engine import events as events_mod
@@ -71,7 +71,12 @@ class TestEncodeEvent:
         with pytest.raises(ValueError, match="'event'"):
             encode_event({"t": 1.0})
 
-    @settings(max_examples=150, deadline=None)
+    # The corners first, every run (non-finite numbers in a first key and in another, a float whose
+    # rounding overflows, the time key, line breaks in keys and text), then random events around them.
+    @example({"value": math.nan, "threshold": math.inf, "peak": -math.inf, "big": 1.7976931348623157e308,
+              "t": 0.1 + 0.2, "a\nb": "x\ny\u2028z", "event": None, "n": 2**70, "ok": True, "none": None})
+    @example({})
+    @settings(max_examples=40, deadline=None)
     @given(
         st.dictionaries(
             st.text(max_size=8),

@@ -11,6 +11,8 @@ a regular file), or run the command as ``nobody`` (when root) instead of chmod.
 
 from __future__ import annotations
 
+import contextlib
+import io
 import os
 import re
 import shutil
@@ -25,6 +27,7 @@ import pytest
 import yaml
 from tests.clikit import cli
 
+from canguard.cli.main import main
 from canguard.io.outputs import output_problem
 from checkout import REPO
 
@@ -42,15 +45,23 @@ def canguard(exe: Path | str, *args: object, cwd: Path, env: dict[str, str] | No
                           env={**base, **(env or {})}, **kwargs)
 
 
-def bench_config(exe: Path | str, directory: Path, **changes: Any) -> Path:
-    """``canguard init DIR --simulation`` (a virtual bus, events and state in DIR), then ``changes``."""
-    proc = canguard(exe, "init", directory, "--simulation", cwd=directory.parent)
-    assert proc.returncode == 0, proc.stderr
+def bench_config(directory: Path, **changes: Any) -> Path:
+    """``canguard init DIR --simulation`` (a virtual bus, events and state in DIR), then ``changes``.
+
+    In-process: init is the setting here, not the subject (the wheel smoke runs the installed ``init``)."""
+    with contextlib.redirect_stdout(io.StringIO()):
+        assert main(["init", str(directory), "--simulation"]) == 0
     path = directory / "canguard.yaml"
     doc = yaml.safe_load(path.read_text(encoding="utf-8"))
     doc.update(changes)
     path.write_text(yaml.safe_dump(doc), encoding="utf-8")
     return path
+
+
+def in_process(capsys: pytest.CaptureFixture[str], *args: object) -> subprocess.CompletedProcess[str]:
+    """``canguard *args`` through the same entry point in this process, as a finished process would report it."""
+    code, out, err = cli(capsys, *args)
+    return subprocess.CompletedProcess([str(a) for a in args], code, out, err)
 
 
 def one_line_error(proc: subprocess.CompletedProcess[str], command: str, *needles: str) -> str:
@@ -139,6 +150,12 @@ class TestInProcess:
         assert err == f"canguard tree: error: {tmp_path}: Is a directory\n"
 
 
+FLAGS = [
+    ("replay", NORMAL, "-c", ROBOT, "--events"),
+    ("replay", NORMAL, "-c", ROBOT, "--emit"),
+    ("demo", "--duration", "1", "--events"),
+    ("simulate", "--duration", "1", "--out"),
+]
 BAD_PATHS = {
     "a directory": lambda tmp: tmp,
     "below a regular file": lambda tmp: tmp / "file" / "x.out",
@@ -160,35 +177,38 @@ class TestCommands:
                                                        bad: str) -> None:
         """`run` and `check` both exit 2 with the same line naming events: and the path (check passed before)."""
         target = BAD_PATHS[bad](where)
-        cfg = bench_config(installed_canguard, where / "etc", events=str(target))
+        cfg = bench_config(where / "etc", events=str(target))
         run = canguard(installed_canguard, "run", "-c", cfg, "--duration", "0.5", cwd=where)
         check = canguard(installed_canguard, "check", "-c", cfg, cwd=where)
         line = one_line_error(run, "run", f"{cfg}: events: {target}: cannot be written")
         assert one_line_error(check, "check", f"{cfg}: events: {target}") == line
 
     @pytest.mark.parametrize("bad", list(BAD_PATHS))
-    def test_check_refuses_a_state_file_run_refuses(self, installed_canguard: Path, where: Path, bad: str) -> None:
+    def test_check_refuses_a_state_file_run_refuses(self, installed_canguard: Path, where: Path, bad: str,
+                                                    capsys: pytest.CaptureFixture[str]) -> None:
         """state.file that cannot be written: `check` exits 2 naming the key, as `run` does at start."""
         target = BAD_PATHS[bad](where)
-        cfg = bench_config(installed_canguard, where / "etc")
+        cfg = bench_config(where / "etc")
         doc = yaml.safe_load(cfg.read_text())
         doc["state"]["file"] = str(target)
         cfg.write_text(yaml.safe_dump(doc))
         for command, *more in (("check",), ("run", "--duration", "0.5")):
-            proc = canguard(installed_canguard, command, "-c", cfg, *more, cwd=where)
+            argv = (command, "-c", cfg, *more)
+            # each command and each bad path once from the installed wheel, the other pairs in-process
+            installed = (command == "check") == (bad == "a directory")
+            proc = canguard(installed_canguard, *argv, cwd=where) if installed else in_process(capsys, *argv)
             one_line_error(proc, command, f"state.file: {target}: cannot be written")
 
     @pytest.mark.parametrize("bad", list(BAD_PATHS))
-    @pytest.mark.parametrize("argv", [
-        ("replay", NORMAL, "-c", ROBOT, "--events"),
-        ("replay", NORMAL, "-c", ROBOT, "--emit"),
-        ("demo", "--duration", "1", "--events"),
-        ("simulate", "--duration", "1", "--out"),
-    ], ids=["replay --events", "replay --emit", "demo --events", "simulate --out"])
-    def test_a_flag(self, installed_canguard: Path, where: Path, argv: tuple[object, ...], bad: str) -> None:
+    @pytest.mark.parametrize("argv", FLAGS, ids=["replay --events", "replay --emit", "demo --events", "simulate --out"])
+    def test_a_flag(self, installed_canguard: Path, where: Path, argv: tuple[object, ...], bad: str,
+                    capsys: pytest.CaptureFixture[str]) -> None:
         """The flag and the path in one line, exit 2, before anything ran (no summary on stdout)."""
         target = BAD_PATHS[bad](where)
-        proc = canguard(installed_canguard, *argv, target, cwd=where)
+        # each flag and each bad path from the installed wheel, alternately; the other half in-process
+        installed = (FLAGS.index(argv) + list(BAD_PATHS).index(bad)) % 2 == 0
+        proc = canguard(installed_canguard, *argv, target, cwd=where) if installed else \
+            in_process(capsys, *argv, target)
         line = one_line_error(proc, str(argv[0]), f"{argv[-1]} {target}: cannot be written")
         assert ("is a directory" in line) if bad == "a directory" else (f"{where / 'file'} is a file" in line)
         assert proc.stdout == ""
@@ -231,7 +251,7 @@ class TestOtherUser:
 
     def test_a_journal_someone_else_owns(self, shared_dir: Path) -> None:
         """The daemon's error says whose the journal is, its mode, and how to fix it (mv aside or chown)."""
-        cfg = bench_config(Path(sys.executable).with_name("canguard"), shared_dir / "etc")
+        cfg = bench_config(shared_dir / "etc")
         cfg.chmod(0o644)
         os.chown(cfg.parent, NOBODY, NOBODY)  # nobody's directory; only the journal in it is root's
         journal = shared_dir / "etc" / "events.jsonl"
@@ -256,7 +276,7 @@ class TestOtherUser:
         guide = (REPO / "docs" / "deploy.md").read_text(encoding="utf-8")
         [trial] = re.findall(r"^/opt/canguard/bin/canguard (run -c /etc/canguard/canguard\.yaml .*)$", guide, re.M)
         assert "--state-dir" in trial and "sudo" not in trial
-        cfg = bench_config(Path(sys.executable).with_name("canguard"), shared_dir / "etc")
+        cfg = bench_config(shared_dir / "etc")
         cfg.chmod(0o644)
         trial_dir = shared_dir / "trial"
         trial_dir.mkdir()

@@ -1,5 +1,8 @@
 """Errors a person can read: run as a user runs canguard (a subprocess, from another directory).
 
+The log-line errors and two config errors run as a separate process; the other ``check`` errors run
+through the same entry point in this process (:func:`checked`): the words are the subject there.
+
 A bad line is quoted capped, with its length; an unknown node ID gets the few closest
 known IDs and a way to list them all; a file that is not a DBC is named as such, not
 echoed; a log read from stdin is called ``-``.
@@ -13,6 +16,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from tests.clikit import cli
 
 pytestmark = pytest.mark.slow
 
@@ -23,6 +27,12 @@ def canguard(cwd: Path, *argv: object, stdin: bytes = b"") -> subprocess.Complet
         [sys.executable, "-m", "canguard", *map(str, argv)], cwd=cwd, input=stdin, capture_output=True,
         timeout=120, check=False,
     )
+
+
+def checked(capsys: pytest.CaptureFixture[str], config: Path) -> tuple[int, str]:
+    """``canguard check -c config`` in this process: (exit code, stderr)."""
+    code, _, err = cli(capsys, "check", "-c", config)
+    return code, err
 
 
 def text_of(proc: subprocess.CompletedProcess[bytes]) -> str:
@@ -125,26 +135,27 @@ class TestNotADbc:
         # short whatever the test's own directory: the paths are the user's, the rest is canguard's
         assert line.isprintable() and len(line.replace(str(tmp_path), "")) < 220
 
-    def test_text_with_a_huge_bad_line(self, tmp_path: Path, config: Path) -> None:
+    def test_text_with_a_huge_bad_line(self, config: Path, capsys: pytest.CaptureFixture[str]) -> None:
         """A text DBC with a 50 kB bad line gives the parser's complaint capped, with its length."""
-        (tmp_path / "junk.dbc").write_text('VERSION ""\nBO_ x' + "Z" * 50_000 + "\n", encoding="utf-8")
+        (config.parent / "junk.dbc").write_text('VERSION ""\nBO_ x' + "Z" * 50_000 + "\n", encoding="utf-8")
         text = config.read_text(encoding="utf-8")
         config.write_text("dbc: [junk.dbc]\n" + text.split("\n", 4)[4], encoding="utf-8")
-        proc = canguard(tmp_path, "check", "-c", config)
-        line = next(x for x in text_of(proc).splitlines() if "junk.dbc" in x)
+        code, err = checked(capsys, config)
+        line = next(x for x in err.splitlines() if "junk.dbc" in x)
+        assert code == 2
         assert "which does not load (" in line and "characters in all)" in line and len(line) < 400
 
 
 class TestBadConfigValue:
     """A config value that is wrong is quoted capped too."""
 
-    def test_a_100k_value(self, tmp_path: Path, config: Path) -> None:
+    def test_a_100k_value(self, config: Path, capsys: pytest.CaptureFixture[str]) -> None:
         """A 100 kB bus interface name gives one short error line naming the file, line and key."""
         text = config.read_text(encoding="utf-8").replace("interface: virtual", "interface: " + "v" * 100_000)
         config.write_text(text, encoding="utf-8")
-        proc = canguard(tmp_path, "check", "-c", config)
-        line = next(x for x in text_of(proc).splitlines() if "buses.main.interface" in x)
-        assert proc.returncode == 2
+        code, err = checked(capsys, config)
+        line = next(x for x in err.splitlines() if "buses.main.interface" in x)
+        assert code == 2
         assert line.startswith(f"{config}:7: buses.main.interface: found 'vvvv")
         assert "(100000 characters in all)" in line and len(line) < 500
 
@@ -153,13 +164,14 @@ class TestBadTreeValue:
     """A tree's attribute that is wrong is quoted capped too."""
 
     @pytest.mark.parametrize("attr", ['overcurrent_threshold="35.0"', 'topic_name="/battery_state"'])
-    def test_a_100k_attribute(self, tmp_path: Path, config: Path, attr: str) -> None:
+    def test_a_100k_attribute(self, tmp_path: Path, config: Path, attr: str,
+                              capsys: pytest.CaptureFixture[str]) -> None:
         """A 100 kB port value (a number, a source name) gives one short error naming the file, line and port."""
         tree = tmp_path / "robot_guard.xml"
         name = attr.split("=")[0]
         tree.write_text(tree.read_text(encoding="utf-8").replace(attr, f'{name}="{"9/" * 50_000}"', 1),
                         encoding="utf-8")
-        proc = canguard(tmp_path, "check", "-c", config)
-        line = next(x for x in text_of(proc).splitlines() if f"port {name}" in x)
-        assert proc.returncode == 2
+        code, err = checked(capsys, config)
+        line = next(x for x in err.splitlines() if f"port {name}" in x)
+        assert code == 2
         assert line.startswith(f"{tree}:15: ") and "(100000 characters in all)" in line and len(line) < 500
