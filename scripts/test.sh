@@ -34,10 +34,6 @@ unset PYTHONDONTWRITEBYTECODE
 mypy_out="$(mktemp)"
 .venv/bin/mypy >"$mypy_out" 2>&1 & mypy_pid=$!
 trap 'kill "$mypy_pid" 2>/dev/null || true; rm -f "$mypy_out"' EXIT
-# One collection pass writes pytest's rewritten test modules (and the package's bytecode) once, beside mypy on the
-# other core; without it every xdist worker rewrites and compiles all of them at the same moment (~15 CPU-s more,
-# ~10 s more wall on 2 cores, measured on a fresh clone).
-.venv/bin/python -m pytest -q -p no:cacheprovider --collect-only -n 0 tests >/dev/null 2>&1 || true  # the run below reports errors
 # In parallel (pytest-xdist): a worker per core and one more, since the slow tests, which mostly wait on
 # subprocesses and the clock, start first (tests/conftest.py) and leave a core half idle meanwhile; worksteal
 # evens out tests of very different lengths. `bash scripts/test.sh -n 0` runs them in one process.
