@@ -248,16 +248,42 @@ def _health_ref(role_names: tuple[str, ...], present: bool) -> tuple[SourceHealt
 def test_source_health_runs_match_the_reference(stream: tuple[np.ndarray, np.ndarray], present: bool,
                                                 data: st.DataObject) -> None:
     """Runs of one role's samples find the reason edges of the sample-by-sample reference, at the same samples."""
+    roles = data.draw(st.lists(st.sampled_from(["current", PRESENT, COUNTER]), min_size=len(stream[0]),
+                               max_size=len(stream[0])))  # one role a sample
+    assert_health_runs_follow_the_reference(stream, roles, present, data.draw(st.booleans()))
+
+
+def _long_run(bad_at: int, value: float, gap_at: int = -1) -> tuple[np.ndarray, np.ndarray]:
+    """60 samples 10 ms apart at 1 A (a run past the short-run screen), ``value`` at ``bad_at``, and from ``gap_at``
+    on every time 0.3 s later (a gap longer than the source's 0.1 s ``max_age``)."""
+    t = np.round(np.arange(60) * 0.01, 6)
+    if gap_at >= 0:
+        t[gap_at:] += 0.3
+    v = np.ones(60)
+    v[bad_at] = value
+    return t, v
+
+
+@pytest.mark.parametrize("stream", [_long_run(10, math.nan), _long_run(30, 99.0), _long_run(59, math.inf),
+                                    _long_run(20, math.nan, gap_at=21), _long_run(20, 1.0, gap_at=40)],
+                         ids=["nan then good", "out of range then good", "inf last", "nan then a gap", "a gap"])
+def test_source_health_long_runs_of_one_role_match_the_reference(stream: tuple[np.ndarray, np.ndarray]) -> None:
+    """In one long run of one role (judged as columns), a good sample after an invalid one or after a gap is the
+    edge back to fresh, as sample by sample."""
+    assert_health_runs_follow_the_reference(stream, ["current"] * 60, False, False)
+
+
+def assert_health_runs_follow_the_reference(stream: tuple[np.ndarray, np.ndarray], roles: list[str], present: bool,
+                                            until_edge: bool) -> None:
+    """``SourceHealth.observe_run`` over each run of consecutive samples of one role gives the reference's reason
+    edges at the same samples, and ends in its counts, reason and value."""
     times, values = stream
     with np.errstate(invalid="ignore"):  # few distinct counter values; NaN and inf stay
         values = np.where(np.isfinite(values), np.round(values) % 3.0, values)
-    roles = data.draw(st.lists(st.sampled_from(["current", PRESENT, COUNTER]), min_size=len(times),
-                               max_size=len(times)))  # one role a sample
     roles = [r if present or r != PRESENT else "current" for r in roles]
     health, ref = _health_ref(("current",), present)
     want = [i for i, (r, t, v) in enumerate(zip(roles, times.tolist(), values.tolist(), strict=True))
             if ref.observe(r, t, v)]
-    until_edge = data.draw(st.booleans())
     got: list[int] = []
     start = 0
     while start < len(times):  # runs of consecutive samples of one role
