@@ -159,9 +159,9 @@ class Engine:
         self._blocks = LogRun(self)
         """The block runner (it keeps its message plans, compiled at the first block of each bus)."""
         self._live = LogCursor(_NO_ROUTE, None, {}, None)
+        """Where :meth:`take` is: every frame goes to the bus it is given for, or by :attr:`_bus_names`."""
         self._bus_names = {name: name for name in cfg.buses}
         """Each bus by its own name: the route of a frame whose channel names its bus (:meth:`take` of None)."""
-        """Where :meth:`take` is: every frame goes to the bus it is given for."""
 
     # -- the parts' state, as the others read it ---------------------------------------------
     @property

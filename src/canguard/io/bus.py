@@ -347,11 +347,7 @@ class BusReader:
         now = monotonic()
         offset = time.time() - now  # wall clock minus monotonic: a wall-clock stamp to monotonic's base
         wall = self._wall_stamps[name]
-        frames = to_frames(msgs, name)
-        if wall:  # the usual batch: min(stamp, now) with NaN kept, as below
-            out.extend([(name, frame, now if now < (t := frame.t - offset) else t) for frame in frames])
-            frames = []
-        for frame in frames:
+        for frame in to_frames(msgs, name):
             t = frame.t - offset
             if not wall:  # until one of its frames says so: does the bus stamp with the wall clock?
                 wall = self._wall_stamps[name] = abs(t - now) < WALL_STAMP_S
