@@ -9,6 +9,7 @@ after ``s``, as the publisher writes them).
 
 from __future__ import annotations
 
+import contextlib
 import json
 import random
 import struct
@@ -87,28 +88,30 @@ def shared(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Watched]:
         yield w
 
 
-@pytest.fixture
-def groot(shared: Watched) -> Iterator[tuple[Watched, Groot2Client]]:
-    """The shared daemon, its task running (again, after any stop late frames on a loaded machine caused), and a
-    client of its own connected to it."""
-    wait_for("the task to run", lambda: running(shared))
-    client = Groot2Client(shared.groot2)
+@contextlib.contextmanager
+def connected(w: Watched) -> Iterator[tuple[Watched, Groot2Client]]:
+    """Once ``w``'s task runs (again, after any stop late frames on a loaded machine caused), ``w`` and a Groot2
+    client of its own connected to it; the client is closed after."""
+    wait_for("the task to run", lambda: running(w))
+    client = Groot2Client(w.groot2)
     try:
-        yield shared, client
+        yield w, client
     finally:
         client.close()
 
 
 @pytest.fixture
+def groot(shared: Watched) -> Iterator[tuple[Watched, Groot2Client]]:
+    """The shared daemon, its task running, and a client of its own connected to it."""
+    with connected(shared) as pair:
+        yield pair
+
+
+@pytest.fixture
 def own_groot(tmp_path: Path) -> Iterator[tuple[Watched, Groot2Client]]:
     """A daemon of the test's own with its Groot2 monitor, its task running, and a client connected to it."""
-    with watched_daemon(tmp_path, groot2=True) as w:
-        wait_for("the task to run", lambda: running(w))
-        client = Groot2Client(w.groot2)
-        try:
-            yield w, client
-        finally:
-            client.close()
+    with watched_daemon(tmp_path, groot2=True) as w, connected(w) as pair:
+        yield pair
 
 
 def uids_by_name(xml: str) -> dict[str, int]:
