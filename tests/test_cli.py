@@ -6,6 +6,7 @@ In-process through :func:`canguard.cli.main.main` with capsys; the real console 
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import subprocess
@@ -184,3 +185,25 @@ class TestTree:
         assert ports["overcurrent_threshold"].get("type") == "double"
         assert by_id["ExecuteTask"].tag == "Action"
         assert not UUID.search(path.read_text(encoding="utf-8"))
+
+
+class TestSimulateOut:
+    """``canguard simulate --out`` writes only what replay reads back under that name."""
+
+    @pytest.mark.parametrize(("name", "says"), [("o.asc", "as asc"), ("o.log.xz", "as candump + xz"),
+                                                ("o.blf", "as blf")])
+    def test_a_name_replay_would_read_as_another_format_is_refused(self, capsys: pytest.CaptureFixture[str],
+                                                                   tmp_path: Path, name: str, says: str) -> None:
+        """A candump log under an .asc, .blf or .xz name (replay would find no frames) is exit 2, nothing written."""
+        code, _, err = cli(capsys, "simulate", "--duration", "0.1", "--out", tmp_path / name)
+        assert code == 2
+        assert f"--out {tmp_path / name}: simulate writes candump -L logs" in err and says in err
+        assert "Traceback" not in err and not (tmp_path / name).exists()
+
+    def test_a_candump_name_replays_what_was_written(self, capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+        """A .log.gz is written and replay reads every frame of it."""
+        code, out, _ = cli(capsys, "simulate", "--duration", "0.2", "--out", tmp_path / "o.log.gz")
+        assert code == 0
+        written = int(re.search(r"wrote (\d+) frames", out).group(1))  # type: ignore[union-attr]
+        code, out, _ = cli(capsys, "replay", "--json", tmp_path / "o.log.gz")
+        assert code in (0, 1) and json.loads(out)["frames"]["read"] == written

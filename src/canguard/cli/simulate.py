@@ -24,7 +24,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("-c", "--config", type=Path, default=None, help="YAML config (its DBC and buses)")
     where = p.add_mutually_exclusive_group(required=True)
     where.add_argument("--bus", metavar="NAME", help="a bus of the config to run on, in real time")
-    where.add_argument("--out", type=Path, metavar="FILE", help="write a candump -L log (.gz compresses)")
+    where.add_argument("--out", type=Path, metavar="FILE",
+                       help="write a candump -L log: FILE.log, or FILE.log.gz compressed (replay reads a log by its "
+                            "suffix)")
     p.add_argument("--scenario", action="append", default=[], metavar="NAME[@S]",
                    help=f"one of {', '.join(SCENARIOS)} (repeatable; default: normal)")
     p.add_argument("--duration", type=float, default=10.0, metavar="S", help="simulated seconds (default 10)")
@@ -44,6 +46,14 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     from canguard.io.outputs import check_output
 
     check_output(args.out, "--out")
+    if args.out is not None:
+        from canguard.io.logs import log_format
+
+        fmt, compression = log_format(args.out)  # an unknown suffix: a LogFormatError naming the known ones
+        if fmt != "candump" or compression not in ("", "gz"):
+            as_read = fmt + (f" + {compression}" if compression else "")
+            raise ConfigError(f"--out {args.out}: simulate writes candump -L logs, plain or gzip'd: name it .log or "
+                              f".log.gz (replay would read this name as {as_read})")
     scenarios = tuple(args.scenario) or ("normal",)
     kwargs = {"db": cfg.database, "scenarios": scenarios, "seed": args.seed, "axes": args.axes}
     try:
