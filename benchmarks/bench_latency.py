@@ -414,6 +414,51 @@ class Groot2Poller:
         return int(out.strip() or 0)
 
 
+PAGE_READER = """
+import signal, socket, threading, urllib.parse
+stop = threading.Event()
+signal.signal(signal.SIGTERM, lambda *a: stop.set())
+url = urllib.parse.urlsplit({url!r})
+sock = socket.create_connection((url.hostname, url.port), timeout=10)
+sock.sendall(b"GET /api/status HTTP/1.1\\r\\nHost: x\\r\\nAccept: text/event-stream\\r\\n\\r\\n")
+sock.settimeout(0.1)
+documents, tail = 0, b""
+while not stop.is_set():
+    try:
+        chunk = sock.recv(1 << 16)
+    except socket.timeout:
+        continue
+    if not chunk:
+        break
+    events = (tail + chunk).split(b"\\n\\n")  # an event ends with a blank line
+    tail = events.pop()
+    if not documents and events:
+        print("ready", flush=True)
+    documents += len(events)
+print(documents, flush=True)
+"""
+"""The page's reader on another machine (an engineer's laptop), stood in for by a process that reads the stream
+the page's EventSource reads (``/api/status`` as ``text/event-stream``) and counts its documents, until SIGTERM:
+what the robot does for a watcher, without a browser's drawing on the robot's own CPUs."""
+
+
+class PageReader:
+    """:data:`PAGE_READER` as a process of its own; ready once it got the first document."""
+
+    def __init__(self, url: str) -> None:
+        self.proc = subprocess.Popen([sys.executable, "-c", PAGE_READER.format(url=url)], env=child_env(),
+                                     stdout=subprocess.PIPE, text=True)
+        assert self.proc.stdout is not None
+        if self.proc.stdout.readline().strip() != "ready":
+            raise RuntimeError("the page reader got no document from /api/status")
+
+    def close(self) -> int:
+        """Stop it; how many documents it read."""
+        self.proc.send_signal(signal.SIGTERM)
+        out, _ = self.proc.communicate(timeout=10)
+        return int(out.strip() or 0)
+
+
 MONITOR_AT = (re.compile(r"status page on (http://[0-9.:]+/)"), re.compile(r"Groot2 monitor on [0-9.]+:(\d+)"))
 """What the daemon says at start where its status page and Groot2's monitor listen (``monitor.Monitor.start``)."""
 
@@ -438,15 +483,18 @@ def wait_addresses(said: list[str], alive: Callable[[], bool], timeout_s: float 
 
 
 def watched_trials(trials: Callable[[], list[float]], browser: Browser | None,
-                   at: tuple[str, int] | None) -> list[float]:
+                   at: tuple[str, int] | None, remote_page: bool = False) -> list[float]:
     """``trials`` unwatched (``at`` None), or watched: a Groot2 poller asking ``at``'s port for STATUS at 50 Hz and,
     with a browser, the page at ``at``'s URL open; prints what chromium and the watchers did over the trials."""
     label = "watched" if at is not None else "unwatched"
     poller: Groot2Poller | None = None
+    reader: PageReader | None = None
     rendered = 0
     try:
         if at is not None:
             poller = Groot2Poller(at[1])
+            if remote_page:
+                reader = PageReader(at[0])
             if browser is not None:
                 browser.show(at[0])
         before = browser.rendered() if browser is not None and at is not None else 0
@@ -468,19 +516,24 @@ def watched_trials(trials: Callable[[], list[float]], browser: Browser | None,
         if poller is not None:
             polls = poller.close()
             print(f"  (watched block: the page drew up to snapshot +{rendered}, Groot2 got {polls} STATUS replies)")
+        if reader is not None:
+            print(f"  (watched block: the remote page's reader got {reader.close()} documents)")
         if browser is not None:
             browser.blank()
     return guard
 
 
-def print_watched(title: str, plain: list[float], seen: list[float], blocks: int, fps: float, browser: bool) -> None:
+def print_watched(title: str, plain: list[float], seen: list[float], blocks: int, fps: float, browser: bool,
+                  remote_page: bool = False) -> None:
     """The unwatched and watched blocks' figures and their ratio."""
     p, w = figures(plain), figures(seen)
     print(f"\n{title}  ({len(plain)} + {len(seen)} trials in {blocks} alternating blocks, background {fps:,.0f} "
           f"frames/s, load {os.getloadavg()[0]:.1f})")
     print(f"  {'':44} {'p50 ms':>8} {'p99 ms':>8} {'max ms':>8}")
     print(f"  {'unwatched: overcurrent -> first Estop':44} {p['p50']:8.3f} {p['p99']:8.3f} {p['max']:8.3f}")
-    label = "page in chromium + Groot2 STATUS at 50 Hz" if browser else "page served (no browser) + Groot2 at 50 Hz"
+    label = ("page in chromium + Groot2 STATUS at 50 Hz" if browser else
+             "page's stream read remotely + Groot2 at 50 Hz" if remote_page else
+             "page served (no browser) + Groot2 at 50 Hz")
     print(f"  {label:44} {w['p50']:8.3f} {w['p99']:8.3f} {w['max']:8.3f}")
     print(f"  {'ratio watched / unwatched':44} {w['p50'] / p['p50']:8.2f} {w['p99'] / p['p99']:8.2f} "
           f"{w['max'] / p['max']:8.2f}   (goal: p99 <= 1.10)")
@@ -647,12 +700,14 @@ def cross_process(trials: int, fps: float, rnd: random.Random) -> None:
 # -- (d) watched cross-process: the product as deployed, watched --------------------------------
 def watched_cross(trials: int, fps: float, rnd: random.Random, blocks: int = 4, browser: bool = True,
                   fresh: bool = False, nice: int = -10,
-                  on_block: Callable[[bool, list[float]], None] | None = None, raise_priority: bool = True) -> None:
+                  on_block: Callable[[bool, list[float]], None] | None = None, raise_priority: bool = True,
+                  remote_page: bool = False) -> None:
     """(b)'s ``canguard run`` subprocess with its monitors on ephemeral loopback ports, in alternating unwatched
     and watched blocks: the same daemon throughout, the page and the Groot2 poller opened and closed per block
     (``fresh``: a new daemon per block, with ``monitor:`` in its config only in watched blocks). The daemon runs
     at ``nice`` (-10 and reset on fork, as systemd/monitor.conf runs it). ``on_block(watched, samples)`` is called
-    after each block."""
+    after each block. ``remote_page`` (without a browser): a :class:`PageReader` reads the page's stream in the
+    watched blocks, as a browser on another machine would."""
     per = max(1, trials // blocks)
     group, port = multicast_group(rnd)
     monitor = {"http": "127.0.0.1:0", "groot2": "127.0.0.1:0"}
@@ -675,7 +730,7 @@ def watched_cross(trials: int, fps: float, rnd: random.Random, blocks: int = 4, 
                         at = daemon.monitors() if watch else None
                         trials_of = functools.partial(guard_trials, peer, per, rnd)
                         samples, rate = with_background(
-                            group, port, fps, functools.partial(watched_trials, trials_of, chromium, at))
+                            group, port, fps, functools.partial(watched_trials, trials_of, chromium, at, remote_page))
                     finally:
                         if daemon is not shared:
                             daemon.stop()
@@ -691,7 +746,7 @@ def watched_cross(trials: int, fps: float, rnd: random.Random, blocks: int = 4, 
             peer.shutdown()
     how = f"{'a fresh daemon per block' if fresh else 'one daemon, watchers per block'}, daemon at nice {nice}"
     print_watched(f"(d) watched vs unwatched, canguard run subprocess, udp_multicast ({how})", plain, seen, blocks,
-                  min(rates), browser)
+                  min(rates), browser, remote_page and not browser)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -709,6 +764,9 @@ def main(argv: list[str] | None = None) -> int:
                          "spread a shared machine's changing load over both)")
     ap.add_argument("--no-browser", action="store_true",
                     help="(c), (d) without the browser: the monitors' own cost, not chromium's CPU")
+    ap.add_argument("--remote-page", action="store_true",
+                    help="(d) without the browser, the page's stream read by a process of its own, as a browser on "
+                         "another machine reads it (the robot streams the page but does not draw it)")
     ap.add_argument("--nice", type=int, default=-10,
                     help="(d) the daemon's nice value, reset to 0 in its children (default -10: as "
                          "systemd/monitor.conf runs it; a negative value needs root or CAP_SYS_NICE)")
@@ -730,8 +788,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.only is None or args.only == "watched":
         watched(args.trials, args.fps, rnd, blocks=args.blocks, browser=not args.no_browser)
     if args.only is None or args.only == "watched-cross":
-        watched_cross(args.trials, args.fps, rnd, blocks=args.blocks, browser=not args.no_browser,
-                      fresh=args.fresh_daemons, nice=args.nice, raise_priority=not args.browser_unprivileged)
+        watched_cross(args.trials, args.fps, rnd, blocks=args.blocks, browser=not (args.no_browser or args.remote_page),
+                      fresh=args.fresh_daemons, nice=args.nice, raise_priority=not args.browser_unprivileged,
+                      remote_page=args.remote_page)
     return 0
 
 
