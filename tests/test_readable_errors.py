@@ -10,13 +10,18 @@ echoed; a log read from stdin is called ``-``.
 
 from __future__ import annotations
 
+import difflib
 import gzip
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 from tests.clikit import cli
+
+from canguard.errors import closest
 
 pytestmark = pytest.mark.slow
 
@@ -175,3 +180,14 @@ class TestBadTreeValue:
         line = next(x for x in err.splitlines() if f"port {name}" in x)
         assert code == 2
         assert line.startswith(f"{tree}:15: ") and "(100000 characters in all)" in line and len(line) < 500
+
+
+@given(word=st.text("abcdeXY_", max_size=40), names=st.lists(st.text("abcdeXY_", min_size=1, max_size=12), max_size=8),
+       cutoff=st.sampled_from([0.0, 0.5, 0.8]), spread=st.sampled_from([0.05, 1.0]))
+def test_closest_names_are_the_ones_a_full_comparison_gives(word: str, names: list[str], cutoff: float,
+                                                             spread: float) -> None:
+    """The suggestions for a wrong name skip the names that cannot be close and are still the full comparison's."""
+    scored = sorted((-difflib.SequenceMatcher(None, word.lower(), n.lower()).ratio(), n) for n in set(names))
+    best = -scored[0][0] if scored else 0.0
+    want = [n for r, n in scored[:5] if -r >= cutoff and -r >= best - spread]
+    assert closest(word, names, cutoff=cutoff, spread=spread) == want

@@ -78,10 +78,18 @@ def quote(text: str, limit: int = QUOTE_CHARS) -> str:
 
 def closest(word: str, choices: Iterable[str], n: int = 5, cutoff: float = 0.5, spread: float = 1.0) -> list[str]:
     """The ``n`` choices nearest to ``word``, closest first: case ignored, difflib's similarity >= ``cutoff``
-    and within ``spread`` of the best one (a small spread gives a clear typo one answer, not a list)."""
-    scored = sorted(
-        (-difflib.SequenceMatcher(None, word.lower(), c.lower()).ratio(), c) for c in set(choices)
-    )
+    and within ``spread`` of the best one (a small spread gives a clear typo one answer, not a list).
+
+    A choice whose similarity cannot reach ``cutoff`` (difflib's upper bounds from the lengths and the
+    letters, as ``difflib.get_close_matches`` checks them) is not compared further: a 100 kB value is
+    answered at once, not after a second of comparing it with every name."""
+    word = word.lower()
+    scored = []
+    for c in set(choices):
+        m = difflib.SequenceMatcher(None, word, c.lower())
+        if m.real_quick_ratio() >= cutoff and m.quick_ratio() >= cutoff:
+            scored.append((-m.ratio(), c))
+    scored.sort()
     if not scored:
         return []
     best = -scored[0][0]
