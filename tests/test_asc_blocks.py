@@ -364,13 +364,13 @@ def test_no_line_break_at_end_and_empty(tmp_path: Path) -> None:
 def test_hand_over_after_blocks(tmp_path: Path, what: str, line: str) -> None:
     """An odd line after several blocks: the blocks before are canguard's, python-can passes over them."""
     body = [f"   {i / 1000:.6f} {1 + (i // 50) % 2}  {0x100 + i % 7:X}             Rx   d 2 {i % 256:02X} 00"
-            for i in range(3000)]
-    body[2500] = line
-    body[2800] = "   1.000000 1  123             Rx   d 1 01"  # a step back after the hand-over
-    _, skips, pieces = same(_file(tmp_path, body), block_chars=4096)
-    assert len(skips) == 1 and skips[0] >= 2000 and sum(type(p) is Columns for p in pieces) >= 20
+            for i in range(1500)]
+    body[1250] = line
+    body[1400] = "   1.000000 1  123             Rx   d 1 01"  # a step back after the hand-over
+    _, skips, pieces = same(_file(tmp_path, body), block_chars=2048)
+    assert len(skips) == 1 and skips[0] >= 1000 and sum(type(p) is Columns for p in pieces) >= 20
     if what == "payload fails":
-        with pytest.raises(LogFormatError, match=r"ASC reader failed after 2500 frames: ValueError"):
+        with pytest.raises(LogFormatError, match=r"ASC reader failed after 1250 frames: ValueError"):
             list(read_log(_file(tmp_path, body)))
 
 
