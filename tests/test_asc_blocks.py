@@ -419,7 +419,7 @@ def _python_can_only(p: Path, gz: str, st: ReadStats, owner: LogFrames) -> Itera
 
 
 OVERLOAD_S = 4.0
-"""Seconds of the overload example replayed as ASC: its I²t trip (at 3 s) and the stop, 10,000 frames."""
+"""Seconds of the overload example replayed as ASC: its I²t trip (at 3 s) and the stop, 10,285 frames."""
 
 
 @pytest.fixture(scope="module")
