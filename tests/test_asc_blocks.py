@@ -364,13 +364,13 @@ def test_no_line_break_at_end_and_empty(tmp_path: Path) -> None:
 def test_hand_over_after_blocks(tmp_path: Path, what: str, line: str) -> None:
     """An odd line after several blocks: the blocks before are canguard's, python-can passes over them."""
     body = [f"   {i / 1000:.6f} {1 + (i // 50) % 2}  {0x100 + i % 7:X}             Rx   d 2 {i % 256:02X} 00"
-            for i in range(3000)]
-    body[2500] = line
-    body[2800] = "   1.000000 1  123             Rx   d 1 01"  # a step back after the hand-over
-    _, skips, pieces = same(_file(tmp_path, body), block_chars=4096)
-    assert len(skips) == 1 and skips[0] >= 2000 and sum(type(p) is Columns for p in pieces) >= 20
+            for i in range(1500)]
+    body[1250] = line
+    body[1400] = "   1.000000 1  123             Rx   d 1 01"  # a step back after the hand-over
+    _, skips, pieces = same(_file(tmp_path, body), block_chars=2048)
+    assert len(skips) == 1 and skips[0] >= 1000 and sum(type(p) is Columns for p in pieces) >= 20
     if what == "payload fails":
-        with pytest.raises(LogFormatError, match=r"ASC reader failed after 2500 frames: ValueError"):
+        with pytest.raises(LogFormatError, match=r"ASC reader failed after 1250 frames: ValueError"):
             list(read_log(_file(tmp_path, body)))
 
 
@@ -418,24 +418,34 @@ def _python_can_only(p: Path, gz: str, st: ReadStats, owner: LogFrames) -> Itera
     return python_can_chunks(p, "asc", gz, st, owner)
 
 
+OVERLOAD_S = 4.0
+"""Seconds of the overload example replayed as ASC: its I²t trip (at 3 s) and the stop, 10,285 frames."""
+
+
 @pytest.fixture(scope="module")
-def overload_asc(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """The overload example log written as ASC by python-can's writer (once for the module: 15,000 frames)."""
+def overload_asc(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, int]:
+    """The first :data:`OVERLOAD_S` of the overload example written as ASC by python-can's writer (once for the
+    module), and how many frames it holds."""
     d = tmp_path_factory.mktemp("asc_overload")
     log, candump = d / "overload.asc", d / "overload.log"
     candump.write_bytes(gzip.decompress((REPO / "examples" / "overload.log.gz").read_bytes()))
+    count, start = 0, None
     with can.Logger(str(log)) as writer:
         for msg in can.CanutilsLogReader(str(candump)):
+            start = msg.timestamp if start is None else start
+            if msg.timestamp - start >= OVERLOAD_S:
+                break
             writer.on_message_received(msg)
-    return log
+            count += 1
+    return log, count
 
 
 @pytest.mark.parametrize("odd", [None, "   3.000000 1  ErrorFrame"])
-def test_replay_summary(tmp_path: Path, overload_asc: Path, odd: str | None, capsys: pytest.CaptureFixture[str],
-                        monkeypatch: pytest.MonkeyPatch) -> None:
+def test_replay_summary(tmp_path: Path, overload_asc: tuple[Path, int], odd: str | None,
+                        capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch) -> None:
     """``canguard replay LOG.asc --json``: the same summary with canguard's reader as with python-can's alone."""
     log = tmp_path / "overload.asc"
-    lines = overload_asc.read_text().splitlines(keepends=True)
+    lines = overload_asc[0].read_text().splitlines(keepends=True)
     if odd is not None:
         lines.insert(len(lines) // 2, odd + "\n")
     log.write_text("".join(lines))
@@ -454,4 +464,5 @@ def test_replay_summary(tmp_path: Path, overload_asc: Path, odd: str | None, cap
     assert len(skips) == (odd is not None)
     monkeypatch.setattr(canguard.io.asc_blocks, "asc_chunks", _python_can_only)
     assert summary() == ours
-    assert ours["frames"]["read"] == 15426 + (odd is not None)
+    assert ours["frames"]["read"] == overload_asc[1] + (odd is not None)
+    assert "Axis0I2t" in {t["node"] for t in ours["trips"]}, "the overload's I²t trip is in the part replayed"

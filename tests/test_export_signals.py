@@ -7,7 +7,9 @@ back with pyarrow (the ``fleet`` extra, installed with ``test``).
 
 from __future__ import annotations
 
+import contextlib
 import gzip
+import io
 import json
 import math
 import os
@@ -60,19 +62,37 @@ def listing(directory: Path) -> list[str]:
     return sorted(os.listdir(directory))
 
 
-@pytest.fixture(scope="module")
-def overload(tmp_path_factory: pytest.TempPathFactory) -> Any:
-    """The table one export of the overload example gives (capsys is per test: the command is run directly)."""
+def export_once(out: Path, *logs: Path) -> tuple[list[dict[str, Any]], Any]:
+    """:func:`export` for a module's fixture (capsys is per test: the command's stdout is taken directly)."""
     from canguard.cli.main import main
 
-    out = tmp_path_factory.mktemp("export") / "overload.parquet"
-    with open(os.devnull, "w") as quiet:
-        stdout, sys.stdout = sys.stdout, quiet
-        try:
-            assert main(["replay", str(OVERLOAD), "-c", str(CFG), "--export-signals", str(out)]) == 0
-        finally:
-            sys.stdout = stdout
-    return pq.read_table(out)
+    with contextlib.redirect_stdout(io.StringIO()) as stdout:
+        code = main(["replay", *map(str, logs), "-c", str(CFG), "--json", "--export-signals", str(out)])
+    assert code in (0, 1)
+    summaries = json.loads(stdout.getvalue())
+    return summaries if isinstance(summaries, list) else [summaries], pq.read_table(out)
+
+
+@pytest.fixture(scope="module")
+def overload_export(tmp_path_factory: pytest.TempPathFactory) -> tuple[dict[str, Any], Any]:
+    """The summary and the table one export of the overload example gives (once for the module)."""
+    (summary,), table = export_once(tmp_path_factory.mktemp("export") / "overload.parquet", OVERLOAD)
+    return summary, table
+
+
+@pytest.fixture(scope="module")
+def overload(overload_export: tuple[dict[str, Any], Any]) -> Any:
+    """The table one export of the overload example gives."""
+    return overload_export[1]
+
+
+@pytest.fixture(scope="module")
+def two_logs(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, list[dict[str, Any]], Any]:
+    """The garbage and overload examples exported in one run by one process (once for the module): its directory,
+    the summaries and the table."""
+    out = tmp_path_factory.mktemp("two") / "two.parquet"
+    summaries, table = export_once(out, GARBAGE, OVERLOAD)
+    return out.parent, summaries, table
 
 
 class TestOneLog:
@@ -86,9 +106,10 @@ class TestOneLog:
         assert types["t"] == pa.float64() and types["value"] == pa.float64()
         assert all(types[c] == pa.string() for c in ("log", "bus", "source", "signal", "reason"))
 
-    def test_rows_equal_the_summarys_sample_counts(self, capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+    def test_rows_equal_the_summarys_sample_counts(self, capsys: pytest.CaptureFixture[str],
+                                                   overload_export: tuple[dict[str, Any], Any]) -> None:
         """Per source, the rows equal the summary's sample counts; the summary is the same as without the flag."""
-        (summary,), table = export(capsys, tmp_path / "s.parquet", OVERLOAD)
+        summary, table = overload_export
         assert dict(Counter(table.column("source").to_pylist())) == summary["samples"]
         assert table.num_rows == sum(summary["samples"].values())
         code, plain, err = cli(capsys, "replay", OVERLOAD, "-c", CFG, "--json")
@@ -161,23 +182,23 @@ class TestInvalidSamples:
 class TestSeveralLogs:
     """Several logs in one run share one file; the log column tells them apart."""
 
-    def test_two_logs_one_file_in_input_order(self, capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+    def test_two_logs_one_file_in_input_order(self, two_logs: tuple[Path, list[dict[str, Any]], Any]) -> None:
         """Both logs' names are in the log column, in input order, each with its own summary's sample count."""
-        out = tmp_path / "two.parquet"
-        summaries, table = export(capsys, out, GARBAGE, OVERLOAD)
+        directory, summaries, table = two_logs
         logs = table.column("log").to_pylist()
         assert list(dict.fromkeys(logs)) == [str(GARBAGE), str(OVERLOAD)]
         counts = Counter(logs)
         for summary in summaries:
             assert counts[summary["log"]] == sum(summary["samples"].values())
-        assert listing(tmp_path) == ["two.parquet"]
+        assert listing(directory) == ["two.parquet"]
 
-    def test_jobs_2_gives_the_same_file(self, capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+    def test_jobs_2_gives_the_same_file(self, capsys: pytest.CaptureFixture[str], tmp_path: Path,
+                                        two_logs: tuple[Path, list[dict[str, Any]], Any]) -> None:
         """--jobs 2 writes the same rows in the same order as one process."""
-        _, one = export(capsys, tmp_path / "one.parquet", GARBAGE, OVERLOAD)
+        one = two_logs[2]
         _, two = export(capsys, tmp_path / "two.parquet", GARBAGE, OVERLOAD, extra=("--jobs", "2"))
         assert repr(two.to_pylist()) == repr(one.to_pylist())  # repr: NaN values compare equal
-        assert listing(tmp_path) == ["one.parquet", "two.parquet"]
+        assert listing(tmp_path) == ["two.parquet"]
 
     def test_a_failed_log_adds_no_rows(self, capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
         """A log that cannot be replayed is exit 2; the file holds the other log's rows and no part is left."""
