@@ -11,6 +11,7 @@ from __future__ import annotations
 import contextlib
 import io
 import json
+import operator
 import os
 import shutil
 import subprocess
@@ -178,13 +179,12 @@ def test_a_canguard_process_starts_no_blas_thread_pool(tmp_path: Path) -> None:
     assert setting == "1" and threads == "1", done.stderr[-500:]
 
 
-def _square(x: int) -> int:
-    return x * x
-
-
 def test_run_processes_keeps_input_order_with_more_workers_than_jobs() -> None:
-    """Four workers for three jobs: each result at its job's place (``warm`` is imported first when forked)."""
-    assert run_processes(4, _square, [3, 1, 2], warm=("json",)) == [9, 1, 4]
+    """Four workers for three jobs: each result at its job's place (``warm`` is imported first when forked).
+
+    The job is the standard library's (``operator.neg``): a spawned worker (this process runs other threads
+    under pytest-xdist) unpickles it without importing this test module and all it imports."""
+    assert run_processes(4, operator.neg, [3, 1, 2], warm=("json",)) == [-3, -1, -2]
 
 
 def test_a_process_running_other_threads_spawns_its_workers(mixed: list[Path], serial: str,
