@@ -4,8 +4,9 @@ Each ``NAME.xml`` there was loaded and ticked by BehaviorTree.CPP built from sou
 (``scripts/btcpp_oracle/``: ``driver.cpp`` ticks it with ``tree.tickOnce()``, or with
 ``tickExactlyOnce()`` where its ``<!-- oracle: ticks=N exactly-once -->`` line says so;
 ``record.sh`` rebuilds BT.CPP and re-records the whole corpus); ``NAME.json`` is what BT.CPP
-did. Here canguard runs the same file through ``canguard tree NAME.xml --tick N --json``
-(``--exactly-once`` for the others), in-process, and must give the same root status after each
+did. Here canguard runs the same file through :func:`canguard.bt.dryrun.dry_run`, what
+``canguard tree NAME.xml --tick N --json`` (``--exactly-once`` for the others) prints (a test
+below holds the command to it), in-process, and must give the same root status after each
 tick and the same root blackboard, entry by entry, each value as BT.CPP prints it (integers as
 digits, reals with ``%f``, booleans as 1/0, queues as ``a;b;c``; entries that exist without a
 value are not compared). A file BT.CPP refuses to load canguard must refuse with an error
@@ -29,7 +30,9 @@ from typing import Any
 
 import pytest
 
+from canguard.bt.dryrun import dry_run
 from canguard.cli.main import main
+from canguard.errors import CanguardError
 
 CORPUS = Path(__file__).resolve().parent / "data" / "btcpp"
 # What BehaviorTree.CPP 4.10's BehaviorTreeFactory registers (src/bt_factory.cpp; SequenceStar only
@@ -42,6 +45,8 @@ BTCPP_BUILTINS = (
     "UnsetBlackboard", "SubTree", "Precondition", "Switch2", "Switch3", "Switch4", "Switch5", "Switch6",
     "LoopInt", "LoopBool", "LoopDouble", "LoopString", "WasEntryUpdated", "SkipUnlessUpdated", "WaitValueUpdate",
 )
+DT_S = 0.1
+"""Seconds between ticks: ``canguard tree``'s default (the corpus's timing nodes do not depend on it)."""
 ORACLE_LINE = re.compile(r"<!-- oracle: ticks=(\d+)( exactly-once)? -->")
 
 SET_TEXT_ANY = ("SetBlackboard writing text into an entry that has no port type (a Script's, or one it copies "
@@ -92,23 +97,21 @@ def btcpp_text(value: Any) -> str | None:
     return str(value)
 
 
-def canguard_tree(capsys: pytest.CaptureFixture[str], tree: Path, ticks: int,
-                  exactly_once: bool) -> tuple[int, str, str]:
-    """``canguard tree TREE --tick N --json [--exactly-once]`` in-process: exit code, stdout, stderr."""
-    argv = ["tree", str(tree), "--tick", str(ticks), "--json"]
-    if exactly_once:
-        argv.append("--exactly-once")
-    capsys.readouterr()
+def canguard_tree(tree: Path, ticks: int, exactly_once: bool) -> tuple[dict[str, Any] | None, str]:
+    """What ``canguard tree TREE --tick N --json [--exactly-once]`` prints, or why it refuses the file.
+
+    :func:`dry_run` is the command's work without its argument parser (a third of the command's CPU
+    per tree); ``test_the_command_prints_what_the_oracle_compares`` holds the command to it.
+    """
     try:
-        code = main(argv)
-    except SystemExit as exc:  # argparse refusing the command line
-        code = exc.code if isinstance(exc.code, int) else 2
-    out, err = capsys.readouterr()
-    return code, out, err
+        result = dry_run(tree, ticks, DT_S, exactly_once=exactly_once)
+    except CanguardError as exc:  # the command prints it and exits 2
+        return None, str(exc)
+    return json.loads(json.dumps(result)), ""
 
 
 @pytest.mark.parametrize("tree", _trees())
-def test_canguard_ticks_the_tree_as_btcpp_does(tree: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_canguard_ticks_the_tree_as_btcpp_does(tree: Path) -> None:
     """Root status per tick and root blackboard entries are BT.CPP's; a file BT.CPP refuses, canguard refuses."""
     recorded = json.loads(tree.with_suffix(".json").read_text(encoding="utf-8"))
     ticks, exactly_once = _oracle_line(tree)
@@ -117,19 +120,35 @@ def test_canguard_ticks_the_tree_as_btcpp_does(tree: Path, capsys: pytest.Captur
     if error is not None and error["phase"] == "tick":
         expected_ticks.append("FAILURE")
         ticks = len(expected_ticks)
-    code, out, err = canguard_tree(capsys, tree, ticks, exactly_once)
-    refused = code == 2 and tree.name in err
+    got, refusal = canguard_tree(tree, ticks, exactly_once)
+    refused = got is None and tree.name in refusal
     if error is not None and (error["phase"] == "load" or (error["tick"] == 1 and refused)):
         # BT.CPP refused the file, or threw during its first tick (a missing port, a wrong number
         # of children, ...) and canguard refused the file: both refuse to run it.
-        assert refused, f"BT.CPP refuses {tree.name} ({error['message']}); canguard gave exit {code}: {out}{err}"
+        assert refused, f"BT.CPP refuses {tree.name} ({error['message']}); canguard ran it: {got}{refusal}"
         return
-    assert code == 0, f"BT.CPP loads {tree.name}; canguard: {err}"
-    got = json.loads(out)
+    assert got is not None, f"BT.CPP loads {tree.name}; canguard: {refusal}"
     assert got["ticks"] == expected_ticks
     want_bb = {k: v for k, v in recorded["blackboard"].items() if v is not None}
     got_bb = {k: btcpp_text(v) for k, v in got["blackboard"].items() if v is not None}
     assert got_bb == want_bb
+
+
+@pytest.mark.parametrize("name", ["action_set_blackboard_copy_int", "async_sequence_exactly_once",
+                                  "typed_loop_double_to_int_port"])
+def test_the_command_prints_what_the_oracle_compares(name: str, capsys: pytest.CaptureFixture[str]) -> None:
+    """``canguard tree TREE --tick N --json`` prints the oracle's result, or exits 2 naming the file it refuses."""
+    tree = CORPUS / f"{name}.xml"
+    ticks, exactly_once = _oracle_line(tree)
+    got, refusal = canguard_tree(tree, ticks, exactly_once)
+    argv = ["tree", str(tree), "--tick", str(ticks), "--json", "--dt", str(DT_S)]
+    capsys.readouterr()
+    code = main([*argv, "--exactly-once"] if exactly_once else argv)
+    out, err = capsys.readouterr()
+    if got is None:
+        assert code == 2 and tree.name in err and refusal.splitlines()[0] in err
+    else:
+        assert code == 0 and json.loads(out) == got
 
 
 class TestCorpus:

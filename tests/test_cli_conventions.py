@@ -69,13 +69,17 @@ class TestExitCodesInHelp:
 class TestStdin:
     """`canguard replay -` reads the log from stdin; --format names its format."""
 
-    def test_stdin_gives_the_file_summary(self, capsys: pytest.CaptureFixture[str]) -> None:
-        """candump -L piped in (plain or gzip) = the same summary as the file, logged as '-'."""
-        plain = gzip.decompress(NORMAL.read_bytes())
-        code, out, err = cli(capsys, "replay", NORMAL, "-c", ROBOT, "--json")  # the file: in-process is enough
+    def test_stdin_gives_the_file_summary(self, short_log: Path, capsys: pytest.CaptureFixture[str]) -> None:
+        """candump -L piped in (plain or gzip) = the same summary as the file, logged as '-'.
+
+        The example's first 600 frames: the spool reads stdin the same way whatever its length, and each
+        piped replay is a process of its own."""
+        plain = short_log.read_bytes()
+        code, out, err = cli(capsys, "replay", short_log, "-c", ROBOT, "--json")  # the file: in-process is enough
         assert code == 0, err
         expected = json.loads(out)
-        for data in (plain, NORMAL.read_bytes()):
+        assert expected["frames"]["decoded"] > 0
+        for data in (plain, gzip.compress(plain)):
             piped = canguard("replay", "-", "--format", "candump", "-c", ROBOT, "--json", stdin=data)
             assert piped.returncode == 0, piped.stderr
             got = json.loads(piped.stdout)
@@ -105,7 +109,7 @@ class TestStdin:
 @pytest.fixture(scope="module")
 def short_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The first 600 frames of the normal example (every message of the robot, some of each): a pipe closes as
-    early on a short log as on a long one, and replaying it costs little."""
+    early on a short log as on a long one, stdin is spooled alike, and replaying it costs little."""
     path = tmp_path_factory.mktemp("short") / "normal_600.log"
     lines = gzip.decompress(NORMAL.read_bytes()).splitlines(keepends=True)[:600]
     path.write_bytes(b"".join(lines))

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import math
 import random
 import struct
@@ -266,10 +267,14 @@ class TestDecoderInvalidAndCounters:
         bus: str,
     ) -> None:
         """Random ids, lengths, payloads and flags never raise; samples are finite or NaN with a reason."""
-        for decoder in (FUZZ_DECODERS["bundled"], FUZZ_DECODERS["exotic"]):
+        for decoder in fuzz_decoders():
             frame = Frame(0.5, "x", arbitration_id, data, extended, fd, error, remote)
             for s in decoder.decode(frame, bus):
                 assert (s.valid and math.isfinite(s.value)) or (s.reason and math.isnan(s.value))
 
 
-FUZZ_DECODERS = {"bundled": Decoder(load_config(BUNDLED)), "exotic": Decoder(load_config(EXOTIC))}
+@functools.cache
+def fuzz_decoders() -> tuple[Decoder, Decoder]:
+    """The bundled and the exotic config's decoders, built once per process when first asked for (not at import:
+    every pytest-xdist worker imports this module at collection)."""
+    return Decoder(load_config(BUNDLED)), Decoder(load_config(EXOTIC))

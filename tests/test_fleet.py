@@ -6,8 +6,12 @@ and compares its ``--json`` output with a serial run of the same logs, byte for 
 
 from __future__ import annotations
 
+import contextlib
+import importlib.util
+import io
 import json
 import shutil
+from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
@@ -21,10 +25,8 @@ CONFIG = REPO / "config" / "examples" / "robot_guard.yaml"
 EXAMPLES = sorted((REPO / "examples").glob("*.log.gz"))
 
 
-@pytest.fixture
-def fleet(tmp_path: Path) -> Path:
-    """Three example logs in a tree of directories, plus a file that is not a log."""
-    root = tmp_path / "fleet"
+def make_fleet(root: Path) -> Path:
+    """Three example logs in a tree of directories under ``root``, plus a file that is not a log."""
     (root / "day1").mkdir(parents=True)
     (root / "day2").mkdir()
     shutil.copy(EXAMPLES[0], root / "day1" / EXAMPLES[0].name)
@@ -32,6 +34,34 @@ def fleet(tmp_path: Path) -> Path:
     shutil.copy(EXAMPLES[2], root / "day2" / EXAMPLES[2].name)
     (root / "day2" / "notes.md").write_text("not a log\n", encoding="utf-8")
     return root
+
+
+@pytest.fixture
+def fleet(tmp_path: Path) -> Path:
+    """A fleet of this test's own (it may add files to it)."""
+    return make_fleet(tmp_path / "fleet")
+
+
+@dataclass(frozen=True)
+class SerialRun:
+    """``replay FLEET --json`` run once for the module, with ``--fleet-summary`` to Parquet where pyarrow is."""
+
+    fleet: Path
+    stdout: str
+    parquet: Path | None
+
+
+@pytest.fixture(scope="module")
+def serial(tmp_path_factory: pytest.TempPathFactory) -> SerialRun:
+    """The serial run every other way of running the fleet is compared with (its fleet is read only)."""
+    root = make_fleet(tmp_path_factory.mktemp("serial") / "fleet")
+    argv = ["replay", str(root), "-c", str(CONFIG), "--json"]
+    parquet = root.parent / "fleet.parquet" if importlib.util.find_spec("pyarrow") is not None else None
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out):
+        code = main(argv if parquet is None else [*argv, "--fleet-summary", str(parquet)])
+    assert code == 0 and len(json.loads(out.getvalue())) == 3
+    return SerialRun(root, out.getvalue(), parquet)
 
 
 def run(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, str]:
@@ -70,18 +100,16 @@ class TestWhichLogs:
 
 
 class TestRuns:
-    def test_jobs_and_a_broken_log_among_good_ones(self, fleet: Path, tmp_path: Path,
+    def test_jobs_and_a_broken_log_among_good_ones(self, serial: SerialRun, tmp_path: Path,
                                                      capsys: pytest.CaptureFixture[str]) -> None:
         """--jobs 2 gives the serial summaries; a corrupt log is reported, the others are not lost."""
-        code, serial, _ = run(["replay", str(fleet), "-c", str(CONFIG), "--json"], capsys)
-        assert code == 0 and len(json.loads(serial)) == 3
-        bad = fleet / "day2" / "broken.log.gz"
+        bad = tmp_path / "broken.log.gz"
         bad.write_bytes(b"this is not gzip")
         table = tmp_path / "fleet.jsonl"
-        code, out, err = run(["replay", str(fleet), "-c", str(CONFIG), "--json", "--jobs", "2",
-                              "--fleet-summary", str(table)], capsys)
+        code, out, err = run(["replay", str(serial.fleet / "day1"), str(bad), str(serial.fleet / "day2"),
+                              "-c", str(CONFIG), "--json", "--jobs", "2", "--fleet-summary", str(table)], capsys)
         assert code == 2 and "broken.log.gz: cannot read gzip log" in err
-        assert out == serial  # the workers' summaries of the three good logs, byte for byte, in order
+        assert out == serial.stdout  # the workers' summaries of the three good logs, byte for byte, in order
         rows = [json.loads(line) for line in table.read_text(encoding="utf-8").splitlines()]
         assert [r["status"] for r in rows] == ["ok", "ok", "failed", "ok"]
         failed = rows[2]
@@ -89,26 +117,25 @@ class TestRuns:
         ok = rows[0]
         assert ok["frames"] > 1000 and ok["trips"] >= 0 and ok["worst_margin_pct"] is not None
 
-    def test_parquet_summary(self, fleet: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    def test_parquet_summary(self, serial: SerialRun) -> None:
+        """--fleet-summary FILE.parquet holds a row per log, as the --json summaries say."""
         pq = pytest.importorskip("pyarrow.parquet")
-        table = tmp_path / "fleet.parquet"
-        code, out, _ = run(["replay", str(fleet), "-c", str(CONFIG), "--json", "--fleet-summary", str(table)], capsys)
-        assert code == 0
-        got = pq.read_table(table).to_pylist()
-        summaries = json.loads(out)
+        assert serial.parquet is not None
+        got = pq.read_table(serial.parquet).to_pylist()
+        summaries = json.loads(serial.stdout)
         assert [r["log"] for r in got] == [s["log"] for s in summaries]
         assert [r["trips"] for r in got] == [s["trip_count"] for s in summaries]
 
-    def test_dask_local_cluster_gives_the_serial_summaries(self, fleet: Path,
+    def test_dask_local_cluster_gives_the_serial_summaries(self, serial: SerialRun,
                                                           capsys: pytest.CaptureFixture[str]) -> None:
+        """--dask on a local cluster of two worker processes prints the serial run's summaries byte for byte."""
         distributed = pytest.importorskip("distributed")
-        code, serial, _ = run(["replay", str(fleet), "-c", str(CONFIG), "--json"], capsys)
         with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
                                       dashboard_address=None, host="127.0.0.1") as cluster:
-            code, on_dask, err = run(["replay", str(fleet), "-c", str(CONFIG), "--json",
+            code, on_dask, err = run(["replay", str(serial.fleet), "-c", str(CONFIG), "--json",
                                       "--dask", cluster.scheduler_address], capsys)
         assert code == 0, err
-        assert on_dask == serial
+        assert on_dask == serial.stdout
 
     def test_dask_without_a_scheduler_is_a_clear_error(self, fleet: Path, capsys: pytest.CaptureFixture[str],
                                                         monkeypatch: pytest.MonkeyPatch) -> None:

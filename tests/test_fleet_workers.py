@@ -8,12 +8,16 @@ in the order the logs were given, whatever order the workers took them in.
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
+import operator
 import os
 import shutil
 import subprocess
 import sys
 import threading
+from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
@@ -30,9 +34,10 @@ CONFIG = REPO / "config" / "examples" / "robot_guard.yaml"
 EXAMPLES = sorted((REPO / "examples").glob("*.log.gz"))
 
 
-@pytest.fixture
-def mixed(tmp_path: Path) -> list[Path]:
-    """Example logs of different sizes, smallest first (the workers take them largest first)."""
+@pytest.fixture(scope="module")
+def mixed(tmp_path_factory: pytest.TempPathFactory) -> list[Path]:
+    """Example logs of different sizes, smallest first (the workers take them largest first); read only."""
+    tmp_path = tmp_path_factory.mktemp("mixed")
     by_size = sorted(EXAMPLES, key=lambda p: p.stat().st_size)
     out = []
     for i, src in enumerate(by_size[:4]):
@@ -43,30 +48,48 @@ def mixed(tmp_path: Path) -> list[Path]:
     return out
 
 
-def _run(argv: list[str], capsys: pytest.CaptureFixture[str]) -> str:
+def _run(argv: list[str], capsys: pytest.CaptureFixture[str] | None = None) -> str:
+    """``canguard ARGV`` in-process; its stdout (``capsys``: this test's capture; None: captured here)."""
+    if capsys is None:
+        with contextlib.redirect_stdout(io.StringIO()) as out:
+            code = main(argv)
+        assert code in (0, 1)
+        return out.getvalue()
     code = main(argv)
-    out = capsys.readouterr()
-    assert code in (0, 1), out.err
-    return out.out
+    captured = capsys.readouterr()
+    assert code in (0, 1), captured.err
+    return captured.out
 
 
-def test_jobs_give_the_serial_results_in_input_order(mixed: list[Path], capsys: pytest.CaptureFixture[str]) -> None:
-    base = ["replay", *map(str, mixed), "-c", str(CONFIG), "--json"]
-    serial = _run(base, capsys)
-    assert _run([*base, "--jobs", "2"], capsys) == serial
-    assert [s["log"] for s in json.loads(serial)] == [str(p) for p in mixed]
+@pytest.fixture(scope="module")
+def serial(mixed: list[Path]) -> str:
+    """The serial run's ``--json`` of the mixed logs: what every way of running them in workers must print."""
+    return _run(["replay", *map(str, mixed), "-c", str(CONFIG), "--json"])
 
 
-@pytest.mark.skipif(sys.platform != "linux", reason="workers are forked on Linux only")
-def test_forked_workers_do_not_read_the_config_again(mixed: list[Path], tmp_path: Path) -> None:
-    """Only the parent loads the config: a forked worker that loaded it would write a line here.
+@dataclass(frozen=True)
+class ForkedRun:
+    """``replay MIXED... --jobs 2 --json`` in a fresh interpreter, as the ``canguard`` command runs it."""
 
-    In a fresh, single-threaded interpreter, as the command runs (this test process may hold an
-    earlier test's threads, and then its workers are spawned: :func:`canguard.cli.fleet._pool_context`).
+    stdout: str
+    record: list[str]
+    """Each config load's path, then ``pool: <start method>`` and whether numpy was loaded when it was chosen."""
+
+
+@pytest.fixture(scope="module")
+def forked_run(mixed: list[Path], tmp_path_factory: pytest.TempPathFactory) -> ForkedRun:
+    """One fresh, single-threaded interpreter runs the jobs (this test process may hold an earlier test's
+    threads, and then its workers are spawned: :func:`canguard.cli.fleet._pool_context`).
+
+    numpy is loaded before the pool is chosen (after one_blas_thread, as the command does): its BLAS
+    pool must not make the process multi-threaded, or the workers would be spawned instead of forked.
     """
-    record = tmp_path / "loads.txt"
+    record = tmp_path_factory.mktemp("forked") / "loads.txt"
     probe = (
         "import sys\n"
+        "from canguard.cli.common import one_blas_thread\n"
+        "one_blas_thread()\n"
+        "import numpy\n"
         "import canguard.cli.replay as replay_cmd\n"
         "from canguard.cli.main import main\n"
         "real = replay_cmd.load_config\n"
@@ -80,7 +103,7 @@ def test_forked_workers_do_not_read_the_config_again(mixed: list[Path], tmp_path
         "def telling():\n"
         "    context = chosen()\n"
         f"    with open({str(record)!r}, 'a', encoding='utf-8') as f:\n"
-        "        f.write(f'pool: {context.get_start_method()}\\n')\n"
+        "        f.write(f'pool: {context.get_start_method()}, numpy loaded: {\"numpy\" in sys.modules}\\n')\n"
         "    return context\n"
         "fleet._pool_context = telling\n"
         f"code = main(['replay', *{[str(p) for p in mixed]!r}, '-c', {str(CONFIG)!r}, '--json', '--jobs', '2'])\n"
@@ -91,7 +114,23 @@ def test_forked_workers_do_not_read_the_config_again(mixed: list[Path], tmp_path
     done = subprocess.run([sys.executable, "-W", "error::DeprecationWarning", "-c", probe], capture_output=True,
                           text=True, env=env, timeout=120)
     assert done.returncode in (0, 1), done.stderr[-2000:]
-    assert record.read_text(encoding="utf-8").splitlines() == [str(CONFIG), "pool: fork"]
+    return ForkedRun(done.stdout, record.read_text(encoding="utf-8").splitlines())
+
+
+@pytest.mark.skipif(sys.platform != "linux", reason="workers are forked on Linux only")
+def test_jobs_give_the_serial_results_in_input_order(mixed: list[Path], forked_run: ForkedRun, serial: str) -> None:
+    """--jobs 2 prints the serial run's summaries byte for byte, in the order the logs were given."""
+    assert forked_run.stdout == serial
+    assert [s["log"] for s in json.loads(serial)] == [str(p) for p in mixed]
+
+
+@pytest.mark.skipif(sys.platform != "linux", reason="workers are forked on Linux only")
+def test_forked_workers_do_not_read_the_config_again(forked_run: ForkedRun) -> None:
+    """Only the parent loads the config: a forked worker that loaded it would write a line to the record.
+
+    The command forks them: one thread, numpy loaded included (no BLAS pool after one_blas_thread).
+    """
+    assert forked_run.record == [str(CONFIG), "pool: fork, numpy loaded: True"]
 
 
 def test_a_worker_reads_the_config_once_per_run(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -140,16 +179,15 @@ def test_a_canguard_process_starts_no_blas_thread_pool(tmp_path: Path) -> None:
     assert setting == "1" and threads == "1", done.stderr[-500:]
 
 
-def _square(x: int) -> int:
-    return x * x
-
-
 def test_run_processes_keeps_input_order_with_more_workers_than_jobs() -> None:
-    assert run_processes(4, _square, [3, 1, 2]) == [9, 1, 4]
-    assert run_processes(2, _square, [5], warm=("json",)) == [25]
+    """Four workers for three jobs: each result at its job's place (``warm`` is imported first when forked).
+
+    The job is the standard library's (``operator.neg``): a spawned worker (this process runs other threads
+    under pytest-xdist) unpickles it without importing this test module and all it imports."""
+    assert run_processes(4, operator.neg, [3, 1, 2], warm=("json",)) == [-3, -1, -2]
 
 
-def test_a_process_running_other_threads_spawns_its_workers(mixed: list[Path],
+def test_a_process_running_other_threads_spawns_its_workers(mixed: list[Path], serial: str,
                                                            capsys: pytest.CaptureFixture[str]) -> None:
     """A program that calls canguard while another of its threads runs (a GUI's, a Dask client's) is not
     forked: a worker could inherit a lock that thread held and hang. Its workers are spawned, read the
@@ -159,20 +197,8 @@ def test_a_process_running_other_threads_spawns_its_workers(mixed: list[Path],
     other.start()
     try:
         assert fleet._pool_context().get_start_method() == "spawn"
-        base = ["replay", *map(str, mixed[:2]), "-c", str(CONFIG), "--json"]
-        assert _run([*base, "--jobs", "2"], capsys) == _run(base, capsys)
+        spawned = _run(["replay", *map(str, mixed[:2]), "-c", str(CONFIG), "--json", "--jobs", "2"], capsys)
+        assert json.loads(spawned) == json.loads(serial)[:2]  # each log's summary is its own
     finally:
         stop.set()
         other.join()
-
-
-@pytest.mark.skipif(sys.platform != "linux", reason="workers are forked on Linux only")
-def test_a_single_threaded_process_forks_them() -> None:
-    """As the ``canguard`` command is when it starts a pool: one thread (no BLAS pool either, after numpy)."""
-
-    probe = ("from canguard.cli.common import one_blas_thread\none_blas_thread()\n"
-             "import numpy\nimport canguard.cli.fleet as fleet\nprint(fleet._pool_context().get_start_method())\n")
-    env = {k: v for k, v in os.environ.items() if k not in BLAS_THREADS}
-    done = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, env=env, timeout=60,
-                          check=True)
-    assert done.stdout.strip() == "fork"

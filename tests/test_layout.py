@@ -15,7 +15,6 @@ import subprocess
 import sys
 from pathlib import Path
 
-import grimp
 import pytest
 
 from checkout import REPO
@@ -86,6 +85,8 @@ def test_strongly_connected_finds_a_ring() -> None:
 
 def test_no_import_cycle() -> None:
     """No two modules of canguard import each other, directly or around a ring, annotations included."""
+    import grimp  # here, not at module level: every pytest-xdist worker imports this module at collection
+
     graph = grimp.build_graph("canguard", exclude_type_checking_imports=False)
     adj = {m: set(graph.find_modules_directly_imported_by(m)) for m in graph.modules}
     assert strongly_connected(adj) == []

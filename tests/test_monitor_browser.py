@@ -7,7 +7,7 @@ exists; the tests skip, saying so, only where no browser can be had.
 from __future__ import annotations
 
 import shutil
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -22,16 +22,17 @@ CHROMEDRIVER = shutil.which("chromedriver")
 if CHROMIUM is None or CHROMEDRIVER is None:
     pytest.skip("no chromium / chromedriver on this machine (scripts/test.sh installs them with apt-get where it can: "
                 "apt-get install chromium chromium-driver)", allow_module_level=True)
-
-from selenium import webdriver  # noqa: E402
-from selenium.webdriver.chrome.service import Service  # noqa: E402
-from selenium.webdriver.support.ui import WebDriverWait  # noqa: E402
+# selenium is imported by the fixture and by until(), not here: importing it (~0.3 CPU-s) at collection
+# would cost every pytest-xdist worker, and only the one running these tests needs it.
 
 
 @pytest.fixture(scope="module")
 def browser(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Any]:
     """A headless chromium with a profile of its own, no network but loopback: one for the module's tests
     (starting chromium costs more CPU than a test), each test opening its own daemon's page."""
+    from selenium import webdriver
+    from selenium.webdriver.chrome.service import Service
+
     tmp_path = tmp_path_factory.mktemp("chromium")
     options = webdriver.ChromeOptions()
     options.binary_location = str(CHROMIUM)
@@ -58,6 +59,13 @@ def page(tmp_path: Path, browser: Any) -> Iterator[tuple[Watched, Any]]:
             browser.get("about:blank")  # the next test's page starts from nothing of this one's
 
 
+def until(driver: Any, condition: Callable[[Any], object], timeout_s: float = 10.0, poll_s: float = 0.5) -> None:
+    """Wait until ``condition(driver)`` holds (selenium's WebDriverWait, polling every ``poll_s``)."""
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    WebDriverWait(driver, timeout_s, poll_frequency=poll_s).until(condition)
+
+
 # The page redraws at each update: read it in one script call, never through element handles that go stale.
 def text_of(driver: Any, element_id: str) -> str:
     """The text of the element with that id ('' while it is not on the page)."""
@@ -80,7 +88,7 @@ def threshold_shown(driver: Any, guard: str) -> str:
 def stop_reason_shown(driver: Any, watched: Watched) -> tuple[str, float]:
     """Trip PackCurrent; (the page's stop reason, ms from the stop to the page drawing it, by the page's clock)."""
     watched.trip()
-    WebDriverWait(driver, 10, poll_frequency=0.05).until(lambda d: "PackCurrent" in text_of(d, "task-reason"))
+    until(driver, lambda d: "PackCurrent" in text_of(d, "task-reason"), poll_s=0.05)
     after = driver.execute_script("return document.body.dataset.stopShownAfterMs")
     return text_of(driver, "task-reason"), float(after)
 
@@ -88,7 +96,7 @@ def stop_reason_shown(driver: Any, watched: Watched) -> tuple[str, float]:
 def test_page_renders_every_guard_of_the_demo_tree(page: tuple[Watched, Any]) -> None:
     """Every guard of the demo's tree has its row (value, threshold, heat), and the page fetched nothing external."""
     w, driver = page
-    WebDriverWait(driver, 10).until(lambda d: guards_shown(d) == set(DEMO_GUARDS))
+    until(driver, lambda d: guards_shown(d) == set(DEMO_GUARDS))
     assert text_of(driver, "task-state") == "running"
     assert threshold_shown(driver, "PackCurrent") == "35.00 A"
     resources = driver.execute_script("return performance.getEntriesByType('resource').map(e => e.name)")
@@ -98,7 +106,7 @@ def test_page_renders_every_guard_of_the_demo_tree(page: tuple[Watched, Any]) ->
 def test_trip_shows_the_stop_reason_within_a_second(page: tuple[Watched, Any]) -> None:
     """An overcurrent frame puts the stop, its guard and its reason on the page within a second."""
     w, driver = page
-    WebDriverWait(driver, 10).until(lambda d: text_of(d, "task-state") == "running")
+    until(driver, lambda d: text_of(d, "task-state") == "running")
     reason, after_ms = stop_reason_shown(driver, w)
     assert after_ms < 1000.0  # the stop's time (the daemon's clock) to the page drawing it (the browser's)
     assert "overcurrent" in reason
@@ -111,12 +119,12 @@ def test_page_keeps_working_after_sighup_reload(tmp_path: Path, browser: Any) ->
     with watched_daemon(tmp_path) as w, real_signals(w.daemon):  # the real SIGHUP path: the loop reloads
         wait_for("the task to run", lambda: running(w))
         browser.get(w.http + "/")
-        WebDriverWait(browser, 10).until(lambda d: guards_shown(d) == set(DEMO_GUARDS))
+        until(browser, lambda d: guards_shown(d) == set(DEMO_GUARDS))
         sighup_with_threshold(w, tmp_path, "30.0")
-        WebDriverWait(browser, 10).until(lambda d: threshold_shown(d, "PackCurrent") == "30.00 A")
+        until(browser, lambda d: threshold_shown(d, "PackCurrent") == "30.00 A")
         assert "reload" in text_of(browser, "event-list")
         wait_for("the task to run again", lambda: running(w))
-        WebDriverWait(browser, 10).until(lambda d: text_of(d, "task-state") == "running")
+        until(browser, lambda d: text_of(d, "task-state") == "running")
         reason, after_ms = stop_reason_shown(browser, w)
         browser.get("about:blank")
         assert "threshold 30" in reason and after_ms < 1000.0

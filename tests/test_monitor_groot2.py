@@ -17,9 +17,7 @@ import xml.etree.ElementTree as ET
 from collections.abc import Iterator
 from pathlib import Path
 
-import msgpack
 import pytest
-import zmq
 
 from monitorkit import (
     DEMO_GUARDS,
@@ -39,6 +37,8 @@ class Groot2Client:
     """A REQ socket speaking the protocol header's framing."""
 
     def __init__(self, port: int) -> None:
+        import zmq  # here, not at module level: only the worker running these tests pays for it at collection
+
         self.ctx = zmq.Context()
         self.sock = self.ctx.socket(zmq.REQ)
         self.sock.setsockopt(zmq.LINGER, 0)
@@ -189,6 +189,8 @@ class TestBlackboard:
 
     def test_main_tree_blackboard_as_msgpack(self, groot: tuple[Watched, Groot2Client]) -> None:
         """Asking for the main tree's blackboard gives MessagePack with its entries (the I²t levels)."""
+        import msgpack
+
         _, client = groot
         _, [payload] = client.request("B", b"RobotGuard")
         board = msgpack.unpackb(payload)

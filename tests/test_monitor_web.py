@@ -68,8 +68,9 @@ def first_status(w: Watched, pred: Any, timeout_s: float = 10.0) -> dict[str, An
 
 @pytest.fixture(scope="class")
 def shared(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Watched]:
-    """The demo's daemon with its status page, running its task, while the tests of one class run."""
-    with shared_daemon(tmp_path_factory) as w:
+    """The demo's daemon with its status page, running its task, while the tests of one class run; its robot
+    as busy as the demo's (the stream's bound is tested against it)."""
+    with shared_daemon(tmp_path_factory, busy=True) as w:
         yield w
 
 

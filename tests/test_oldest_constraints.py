@@ -4,10 +4,6 @@ from __future__ import annotations
 
 import sys
 
-from packaging.requirements import Requirement
-from packaging.utils import canonicalize_name
-from packaging.version import Version
-
 from checkout import REPO
 
 if sys.version_info >= (3, 11):
@@ -27,6 +23,11 @@ def _dependencies() -> list[str]:
 
 
 def test_each_dependency_is_pinned_on_the_release_line_of_its_lower_bound() -> None:
+    # packaging here, not at module level: every pytest-xdist worker imports this module at collection
+    from packaging.requirements import Requirement
+    from packaging.utils import canonicalize_name
+    from packaging.version import Version
+
     pins = {}
     for line in (REPO / "scripts" / "oldest-constraints.txt").read_text(encoding="utf-8").splitlines():
         if line.strip() and not line.startswith("#"):

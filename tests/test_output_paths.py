@@ -174,12 +174,18 @@ class TestCommands:
 
     @pytest.mark.parametrize("bad", list(BAD_PATHS))
     def test_run_and_check_refuse_the_same_events_path(self, installed_canguard: Path, where: Path,
-                                                       bad: str) -> None:
+                                                       bad: str, capsys: pytest.CaptureFixture[str]) -> None:
         """`run` and `check` both exit 2 with the same line naming events: and the path (check passed before)."""
         target = BAD_PATHS[bad](where)
         cfg = bench_config(where / "etc", events=str(target))
-        run = canguard(installed_canguard, "run", "-c", cfg, "--duration", "0.5", cwd=where)
-        check = canguard(installed_canguard, "check", "-c", cfg, cwd=where)
+        # each command and each bad path once from the installed wheel, the other pairs in-process
+        run_argv, check_argv = ("run", "-c", cfg, "--duration", "0.5"), ("check", "-c", cfg)
+        if bad == "a directory":
+            run = canguard(installed_canguard, *run_argv, cwd=where)
+            check = in_process(capsys, *check_argv)
+        else:
+            run = in_process(capsys, *run_argv)
+            check = canguard(installed_canguard, *check_argv, cwd=where)
         line = one_line_error(run, "run", f"{cfg}: events: {target}: cannot be written")
         assert one_line_error(check, "check", f"{cfg}: events: {target}") == line
 
@@ -326,12 +332,16 @@ class TestBundledConfig:
 class TestUnitFiles:
     """`canguard unit` gives a wheel user both systemd files, which otherwise sit inside site-packages."""
 
-    def test_network_and_write(self, installed_canguard: Path, tmp_path: Path) -> None:
-        """--network prints the shipped 80-can0.network; --write DIR writes it and the unit `unit` prints."""
+    def test_network_and_write(self, installed_canguard: Path, tmp_path: Path,
+                               capsys: pytest.CaptureFixture[str]) -> None:
+        """--network prints the shipped 80-can0.network; --write DIR writes it and the unit `unit` prints.
+
+        `unit` and `--write` from the installed wheel (the files it ships, the unit naming the installed
+        command); the --network variants through the same entry point in-process."""
         shipped = (REPO / "systemd" / "80-can0.network").read_text(encoding="utf-8")
-        network = canguard(installed_canguard, "unit", "--network", cwd=tmp_path)
+        network = in_process(capsys, "unit", "--network")
         assert network.returncode == 0 and network.stdout == shipped
-        can1 = canguard(installed_canguard, "unit", "--network", "--channel", "can1", cwd=tmp_path)
+        can1 = in_process(capsys, "unit", "--network", "--channel", "can1")
         assert can1.stdout == shipped.replace("Name=can0\n", "Name=can1\n")
         unit = canguard(installed_canguard, "unit", cwd=tmp_path)
         assert unit.returncode == 0

@@ -27,42 +27,65 @@ HEAVY = ("can", "cantools", "yaml", "py_trees", "numpy", "asyncio", "importlib.m
 HELP_AND_USAGE = (["--help"], [], ["-v"], ["run", "-h"], ["check", "-h"], ["tree", "-h"])
 
 
-def loaded_after(code: str) -> list[str]:
-    """The modules of :data:`HEAVY` a fresh interpreter has imported after running ``code``."""
-    probe = (
-        "import sys\n"
-        "try:\n"
-        + "".join(f"    {line}\n" for line in code.splitlines())
-        + "except SystemExit:\n    pass\n"
-        f"print('LOADED', *[m for m in {HEAVY!r} if m in sys.modules], file=sys.stderr)\n"
-    )
+def loaded_after_each(*steps: str) -> list[list[str]]:
+    """The modules of :data:`HEAVY` a fresh interpreter has imported after each of ``steps``, run in turn in it.
+
+    Each list holds what every step so far loaded: a step that must load nothing is run after steps that
+    load nothing (their own lists say so), and one fresh interpreter serves several checks.
+    """
+    probe = "import sys\n"
+    for i, code in enumerate(steps):
+        probe += (
+            "try:\n"
+            + "".join(f"    {line}\n" for line in code.splitlines())
+            + "except SystemExit:\n    pass\n"
+            f"print('LOADED{i}', *[m for m in {HEAVY!r} if m in sys.modules], file=sys.stderr)\n"
+        )
     env = {**os.environ, "PYTHONPATH": str(SRC)}
     proc = subprocess.run([sys.executable, "-c", probe], cwd=REPO, env=env, capture_output=True, text=True,
                           timeout=60, check=False)
-    [line] = [ln for ln in proc.stderr.splitlines() if ln.startswith("LOADED")]
-    return line.split()[1:]
+    out = []
+    for i in range(len(steps)):
+        [line] = [ln for ln in proc.stderr.splitlines() if ln.startswith(f"LOADED{i}")]
+        out.append(line.split()[1:])
+    return out
 
 
-def test_importing_the_cli_imports_no_library() -> None:
+def loaded_after(code: str) -> list[str]:
+    """The modules of :data:`HEAVY` a fresh interpreter has imported after running ``code``."""
+    [loaded] = loaded_after_each(code)
+    return loaded
+
+
+@pytest.fixture(scope="module")
+def cli_start() -> list[list[str]]:
+    """One fresh interpreter: ``import canguard.cli.main``, then every help and usage call, ``--version``,
+    ``replay -h``; what was loaded after each (each check below reads its step)."""
+    calls = "".join(f"try:\n    main({argv!r})\nexcept SystemExit:\n    pass\n" for argv in HELP_AND_USAGE)
+    return loaded_after_each("import canguard.cli.main", f"from canguard.cli.main import main\n{calls}",
+                             "main(['--version'])", "main(['replay', '-h'])")
+
+
+def test_importing_the_cli_imports_no_library(cli_start: list[list[str]]) -> None:
     """``import canguard.cli.main`` (every command's first step) loads neither python-can nor cantools nor yaml."""
-    assert loaded_after("import canguard.cli.main") == []
+    assert cli_start[0] == []
 
 
-def test_help_and_usage_import_no_subcommand_module() -> None:
+def test_help_and_usage_import_no_subcommand_module(cli_start: list[list[str]]) -> None:
     """``canguard -h`` lists every subcommand without importing one; run/check/tree -h import nothing heavy.
 
     One interpreter runs them all: none of them loads anything if their union loads nothing."""
-    calls = "".join(f"try:\n    main({argv!r})\nexcept SystemExit:\n    pass\n" for argv in HELP_AND_USAGE)
-    assert loaded_after(f"from canguard.cli.main import main\n{calls}") == []
+    assert cli_start[1] == []
 
 
-def test_version_reads_the_metadata_only() -> None:
-    assert loaded_after("from canguard.cli.main import main\nmain(['--version'])") == ["importlib.metadata"]
+def test_version_reads_the_metadata_only(cli_start: list[list[str]]) -> None:
+    """``canguard --version`` (after the help calls, which load nothing) loads importlib.metadata and nothing else."""
+    assert cli_start[2] == ["importlib.metadata"]
 
 
-def test_replay_help_does_not_import_the_other_subcommands() -> None:
-    loaded = loaded_after("from canguard.cli.main import main\nmain(['replay', '-h'])")
-    assert "canguard.sim" not in loaded  # simulate's module (its scenarios import the simulator)
+def test_replay_help_does_not_import_the_other_subcommands(cli_start: list[list[str]]) -> None:
+    """``canguard replay -h`` does not load simulate's module (its scenarios import the simulator)."""
+    assert "canguard.sim" not in cli_start[3]
 
 
 def test_version_is_the_installed_one() -> None:
@@ -126,13 +149,15 @@ def test_the_command_is_told_before_parsing(argv: list[str], expected: str | Non
     assert _command_in(argv) == expected
 
 
-def test_completion_still_completes_every_subcommand_option() -> None:
-    env = {**os.environ, "PYTHONPATH": str(SRC)}
-    proc = subprocess.run([sys.executable, "-m", "canguard", "completion", "bash"], cwd=REPO, env=env,
-                          capture_output=True, text=True, timeout=60, check=True)
-    assert "--fleet-summary" in proc.stdout and "--nodes-model" in proc.stdout and "--scenario" in proc.stdout
+def test_completion_still_completes_every_subcommand_option(capsys: pytest.CaptureFixture[str]) -> None:
+    """``completion bash`` builds every subcommand's parser: each one's options are in the script.
+
+    In-process (the real ``canguard completion bash`` process runs in tests/test_cli_conventions.py)."""
+    code, out, err = cli(capsys, "completion", "bash")
+    assert code == 0, err
+    assert "--fleet-summary" in out and "--nodes-model" in out and "--scenario" in out
     for name in COMMANDS:
-        assert f"        {name}) opts=" in proc.stdout
+        assert f"        {name}) opts=" in out
 
 
 def test_unknown_command_error_names_every_command(capsys: pytest.CaptureFixture[str]) -> None:
@@ -209,9 +234,10 @@ def test_models_fed_sample_by_sample_import_no_numpy() -> None:
         "    m.poll(t[-1])\n"
         "assert all(edges) and 'numpy' not in sys.modules, edges\n"
     )
-    assert "numpy" not in loaded_after(feed)
     long_run = "assert [f().advance(t, v).index.tolist() for f in make] == edges\n"
-    assert "numpy" in loaded_after(feed + long_run)
+    fed, then_long = loaded_after_each(feed, long_run)  # one interpreter: the long run after the feeding
+    assert "numpy" not in fed
+    assert "numpy" in then_long
 
 
 def test_short_replay_of_decoded_samples_imports_no_numpy(tmp_path: Path) -> None:
