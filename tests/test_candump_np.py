@@ -90,6 +90,8 @@ _JUNK = st.sampled_from([*list("()# .\n\tRrTtGgxz~-+_:0189afAF"), "é"])
 @example(lines=_TWO, where=len(_TWO[0]) + 1 + 11, junk="(", how="replace")  # line 2: its dot a "("
 @example(lines=_TWO, where=len(_TWO[0]) + 1 + 18, junk=".", how="replace")  # line 2: its ")" a "."
 @example(lines=_TWO, where=19, junk=" ", how="insert")  # line 1: two spaces before its channel
+@example(lines=_TWO, where=len(_TWO[0]) + 1 + 21, junk=" ", how="replace")  # line 2: channel "c n0" of 2 channels
+@example(lines=_TWO, where=len(_TWO[0]) + 1 + 19, junk=" ", how="insert")  # line 2: two spaces before its channel
 @given(lines=plain_lines(), where=st.integers(0, 10**6), junk=_JUNK, how=st.sampled_from(["insert", "replace", "drop"]))
 def test_a_damaged_block_is_refused_as_the_line_parser_refuses_it(
     lines: list[str], where: int, junk: str, how: str

@@ -247,7 +247,7 @@ def byte_columns(text: str | bytes, n: int) -> ByteColumns | None:
     if chans is None:
         return None
     names, lanes = chans
-    if any(c in name for name in names for c in "()#"):
+    if any(c in name for name in names for c in "()# \t"):
         return None  # a channel's letters are not counted as fields are: the text parser decides
     found = _id_fields(b, words, sp2, end, n)
     if found is None:
