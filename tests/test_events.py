@@ -22,6 +22,10 @@ from canguard.engine.events import EventJournal, encode_event, journal_files, re
 from canguard.errors import LogFormatError
 from checkout import SRC
 
+CHARS = st.characters(exclude_categories=["Cs"])
+"""``st.text()``'s own alphabet (every code point but the surrogates), named by its Unicode category: found by
+encoding each code point as UTF-8, it costs ~3 CPU-s in each process that draws from it first."""
+
 
 def _trip(i: int) -> dict[str, Any]:
     return {
@@ -79,8 +83,8 @@ class TestEncodeEvent:
     @settings(max_examples=40, deadline=None)
     @given(
         st.dictionaries(
-            st.text(max_size=8),
-            st.one_of(st.none(), st.booleans(), st.integers(), st.floats(), st.text(max_size=20)),
+            st.text(CHARS, max_size=8),
+            st.one_of(st.none(), st.booleans(), st.integers(), st.floats(), st.text(CHARS, max_size=20)),
             max_size=8,
         )
     )
