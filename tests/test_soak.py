@@ -34,3 +34,28 @@ def test_short_soak(tmp_path: Path) -> None:
     judged, total = out["reactions_within_bound"].split()[0].split("/")
     assert judged == total and int(total) >= 5
     assert out["torn_or_lost_lines"] == 0 and out["trips_without_stop"] == 0 and out["daemon_exit"] == 0
+
+
+def test_reactions_are_timed_from_when_the_simulator_sent_the_fault() -> None:
+    """A simulator running late does not make the daemon look late, and a late daemon is still late."""
+    sys.path.insert(0, str(REPO / "benchmarks"))
+    try:
+        import soak
+    finally:
+        sys.path.remove(str(REPO / "benchmarks"))
+    onset = soak.SIM_FAULTS["spike"][0]
+    start = 1_700_000_000.0
+
+    def judged(lag_s: float, reaction_after_send_s: float) -> float | None:
+        report = soak.Report(1.0, [soak.Fault("spike", 10.0, "trip:/battery_state")])
+        report.faults[0].wall = start + 10.0
+        # the simulator's clock read at 5 Hz, lag_s behind the wall clock
+        report.sim_clock = [(start + k / 5, max(0.0, k / 5 - lag_s)) for k in range(200)]
+        sent = start + 10.0 + onset + lag_s
+        soak.check(report, [{"t": sent + reaction_after_send_s, "event": "trip", "source": "/battery_state"}], 3.0)
+        return report.faults[0].seen
+
+    on_time, lagging, late = judged(0.0, 0.05), judged(20.0, 0.05), judged(20.0, 3.5)
+    assert on_time is not None and abs(on_time - 0.05) < 1e-6
+    assert lagging is not None and 0.05 <= lagging <= 0.25  # read from the clock's last reading before the send
+    assert late is not None and late > 3.0
