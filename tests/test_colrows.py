@@ -14,7 +14,7 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from canguard.decode.rows import (
@@ -50,9 +50,24 @@ def blocks(draw: Any) -> tuple[ColumnRows, list[Any]]:
     return ColumnRows(n, columns, fed, empty), rows
 
 
-@settings(max_examples=300, deadline=None)
+def _block(columns: list[list[float]], fed: list[bool], empty: list[bool] | None) -> tuple[ColumnRows, list[Any]]:
+    """An explicit example of :func:`blocks`."""
+    n = len(fed)
+    rows: list[Any] = [tuple(c[k] for c in columns) for k in range(n)]
+    rows = [EMPTY if empty is not None and empty[k] else None if fed[k] else rows[k] for k in range(n)]
+    cols = [np.array(c, dtype=np.float64) for c in columns]
+    return ColumnRows(n, cols, np.array(fed), None if empty is None else np.array(empty)), rows
+
+
+# 100 random blocks (300 covered no line or branch more), and the corners as explicit examples every run: every
+# row valued (ranges, the last row, -0.0 and the smallest subnormal), one row both fed and EMPTY, no row valued.
+@settings(max_examples=100, deadline=None)
 @given(blocks())
+@example(_block([[-0.0, 1e308, -5e-324], [2.0, -3.0, 0.0]], [False] * 3, None))
+@example(_block([[1.0, 2.0, 3.0, 4.0]], [True, False, True, False], [True, False, False, True]))
+@example(_block([[1.0, 2.0]], [True, False], [False, True]))
 def test_answers_equal_the_rows(block: tuple[ColumnRows, list[Any]]) -> None:
+    """Every answer of a ColumnRows equals the one computed from the rows it stands for."""
     found, rows = block
     assert found.rows() == rows
     assert list(found) == rows and len(found) == len(rows) and found[-1] == rows[-1]

@@ -147,7 +147,7 @@ def engine_state(engine: Engine) -> dict[str, Any]:
     })
 
 
-def replay(cfg: Config, log: Path, out: Path, *, columns: bool, chunk: int,
+def replay(cfg: Config, log: Path, out: Path, *, columns: bool, chunk: int | BlockCuts,
            channel_map: dict[str, str] | None = None, quiet: bool | None = None, emit_frames: bool = True,
            numpy_after: int = NEVER, numpy_rows: int | None = None, export: bool = False) -> Outcome:
     """Replay ``log`` once (column path on or off, blocks of ``chunk`` characters); instrumented.
@@ -303,7 +303,7 @@ def assert_same(ref: Outcome, col: Outcome, label: str) -> None:
     assert not diffs, f"{label}: engine state differs in {diffs}: {json.dumps(detail)[:2000]}"
 
 
-def compare(cfg: Config, log: Path, out: Path, chunks: tuple[int, ...] = SMALL_CHUNKS, *,
+def compare(cfg: Config, log: Path, out: Path, chunks: tuple[int | BlockCuts, ...] = SMALL_CHUNKS, *,
             channel_map: dict[str, str] | None = None, min_handled: int = 1, variant: int = 0) -> list[Outcome]:
     """Replay ``log`` through both paths at each block size: equal outputs; returns the column runs.
 
@@ -395,7 +395,7 @@ def mixed_case(text: str, k: int) -> str:
     return "".join(c.lower() if (i + k) % 2 else c.upper() for i, c in enumerate(text))
 
 
-def chunks_of(log: Path, chunk: int, numpy_after: int = 0) -> list[Any]:
+def chunks_of(log: Path, chunk: int | BlockCuts, numpy_after: int = 0) -> list[Any]:
     """The reader's blocks of ``log`` at ``chunk`` characters (what run_log receives); numpy from the first block
     by default."""
     with pytest.MonkeyPatch.context() as mp:
@@ -663,6 +663,8 @@ def custom_rows() -> list[Row]:
         if k % 37 == 5:  # a burst of unconfigured rows: ticks fall due among them
             for j in range(25):
                 add(t + 0.0091 + j * 0.00003, "321" if j % 2 else "1ABCDEF0", "DEADBEEF", k)
+    for j in range(80):  # the log ends in unconfigured rows: blocks with no sample to take (nor to export)
+        add(CUSTOM_T0 + STEPS * 0.01 + shift + j * 0.0001, "7E5", "0102030405060708", STEPS)
     return rows
 
 
@@ -720,6 +722,43 @@ def chunk_starting_at(log: Path, i: int) -> int:
     return next(c for c in range(4000, 12000) if starts_at(c))
 
 
+class BlockCuts:
+    """Block sizes for the reader that start a block at each of the given lines, in blocks of about ``size``
+    characters between them: a stand-in for :data:`canguard.io.candump.CHUNK_CHARS`, which the reader reads
+    once a block (:meth:`__index__`), so that one replay has a block starting at every one of these lines.
+
+    The sizes repeat after the whole log (and the reader's last, empty read), so each replay reads the same blocks.
+    """
+
+    def __init__(self, log: Path, starts: list[int], size: int = 4096) -> None:
+        offsets = [*line_offsets(log), log.stat().st_size]
+        bounds = sorted({offsets[i] for i in starts} | {offsets[-1]})
+        sizes, pos = [], 0
+        for bound in bounds:
+            while bound - pos > size:  # whole lines of about `size` characters up to the next start
+                step = offsets[bisect.bisect_left(offsets, pos + size)] - pos
+                if pos + step >= bound:
+                    break
+                sizes.append(step)
+                pos += step
+            sizes.append(bound - pos)
+            pos = bound
+        self.sizes = [*sizes, size]  # the last: the read that finds the end of the log
+        self.starts = starts
+        self.calls = 0
+
+    def __index__(self) -> int:
+        size = self.sizes[self.calls % len(self.sizes)]
+        self.calls += 1
+        return size
+
+    def __rmul__(self, k: int) -> int:
+        return k * max(self.sizes)  # the reader's bound on a line: 4 blocks
+
+    def __repr__(self) -> str:
+        return f"cuts-{len(self.starts)}"
+
+
 def sim_lines(seconds: float, channel: str, scenarios: list[str], seed: int) -> list[tuple[float, str]]:
     """(t, candump -L line) of a simulated robot on ``channel``."""
     from canguard.io.logs import format_candump_line
@@ -738,7 +777,7 @@ def two_channel_log(path: Path) -> Path:
     4-5 s: interleaved again. can0 has a BMS spike (at 2.01 s, in a can0 window), can1 an inrush
     on axis 1 (1.5 s) and an overload on axis 0 (from 2 s: I²t trips at 3 s)
     """
-    a = sim_lines(5.0, "can0", ["spike@0.5", "load"], 11)
+    a = sim_lines(5.0, "can0", ["spike@0.5"], 11)
     b = sim_lines(5.0, "can1", ["overload", "inrush"], 12)
     c = [(t, line) for t, line in sim_lines(5.0, "can2", ["normal"], 13) if int(t * 1000) % 7 == 0]
     t0 = a[0][0]
@@ -783,9 +822,10 @@ def two_bus_config(directory: Path) -> Path:
 
 @pytest.fixture(scope="module")
 def sim_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """Every simulator scenario at once, on a loaded bus (6 s, about 48,000 frames)."""
+    """Every simulator scenario at once, on a loaded bus (4 s, about 32,000 frames: the last event of the bundled
+    configs' replays is at 3.5 s, the end of the BMS dropout)."""
     path = tmp_path_factory.mktemp("columns_sim") / "all.log"
-    write_log(path, 6.0, db=str(DBC), seed=5,
+    write_log(path, 4.0, db=str(DBC), seed=5,
               scenarios=["load", "overload", "inrush", "spike", "dropout", "garbage", "errorburst"])
     return path
 
@@ -806,7 +846,7 @@ class TestCustomLog:
     def test_log_covers_what_it_should(self, custom: tuple[Config, Path], tmp_path: Path) -> None:
         """The reference run trips, recovers and complains as the script says (else the comparison tests little)."""
         cfg, log = custom
-        ref = reference(cfg, log, tmp_path)
+        ref = reference(cfg, log, tmp_path, export=EXPORT)  # the one reference of this log: one test exports
         events = [json.loads(line) for line in ref.events.splitlines()]
         tripped = {e["node"] for e in events if e["event"] == "trip"}
         recovered = {e["node"] for e in events if e["event"] == "recover"}
@@ -837,7 +877,8 @@ class TestCustomLog:
         first, last = (float(ln[1:ln.index(")")]) for ln in (marked[0], marked[-1]))
         assert any(first <= float(c.stamps[0]) and float(c.stamps[-1]) <= last for c in cols)  # marked lines
 
-    @pytest.mark.parametrize("chunk", [*SMALL_CHUNKS[1:], DEFAULT_CHUNK])
+    # Blocks of 1,009 characters: TestPassiveBatches.test_same_output_on_the_custom_log (with --export-signals).
+    @pytest.mark.parametrize("chunk", [300, 4096, DEFAULT_CHUNK])
     def test_same_output(self, custom: tuple[Config, Path], tmp_path: Path, chunk: int) -> None:
         """Both paths give the same summary, events, frames and engine state."""
         cfg, log = custom
@@ -847,12 +888,11 @@ class TestCustomLog:
             handled = {cfg.database.get_message_by_frame_id(i).name for i in col.handled_ids}
             assert handled >= HANDLED, HANDLED - handled
 
-    @pytest.mark.parametrize("what", [
-        "trip", "at_tick", "inside_burst", "backward", "backward_after_unconfigured", "stale_source_back",
-        "after_gap", "after_long_gap", "not_present_new_digit", "present_again",
-    ])
-    def test_block_starting_at(self, custom: tuple[Config, Path], tmp_path: Path, what: str) -> None:
-        """A block starting right at a trip, a row at a tick, a row back in time, the first row after a gap..."""
+    def test_block_starting_at(self, custom: tuple[Config, Path], tmp_path: Path) -> None:
+        """Blocks starting right at a trip, a row at a tick, a row back in time, the first row after a gap...: the same.
+
+        One replay whose blocks start at each of these rows (:class:`BlockCuts`), about 100 lines a block between them.
+        """
         cfg, log = custom
         lines = log.read_text(encoding="ascii").splitlines()
         bms = msg_id("BMS_Status").lower()
@@ -872,17 +912,19 @@ class TestCustomLog:
             "not_present_new_digit": lambda line: line.startswith(at(500)),  # 10000.000000, Present 0
             "present_again": lambda line: line.startswith(at(520)),
         }
-        i = custom_line(log, preds[what])
-        chunk = chunk_starting_at(log, i)
-        blocks = chunks_of(log, chunk)
-        firsts = itertools.accumulate((len(b) if isinstance(b, list) else b.n for b in blocks), initial=0)
-        j = list(firsts).index(i)  # the block that starts with line i
-        start = blocks[j]
-        assert not isinstance(start, list) and float(start.stamps[0]) == float(lines[i][1:lines[i].index(")")]), what
-        if what.startswith("backward"):
-            before = blocks[j - 1]
-            assert float(start.stamps[0]) < (before[-1].t if isinstance(before, list) else float(before.stamps[-1]))
-        compare(cfg, log, tmp_path, (chunk,))
+        starts = {what: custom_line(log, pred) for what, pred in preds.items()}
+        cuts = BlockCuts(log, sorted(starts.values()))
+        blocks = chunks_of(log, cuts)
+        firsts = list(itertools.accumulate((len(b) if isinstance(b, list) else b.n for b in blocks), initial=0))
+        for what, i in starts.items():
+            j = firsts.index(i)  # the block that starts with line i
+            start = blocks[j]
+            stamp = float(lines[i][1:lines[i].index(")")])
+            assert not isinstance(start, list) and float(start.stamps[0]) == stamp, what
+            if what.startswith("backward"):
+                before = blocks[j - 1]
+                assert float(start.stamps[0]) < (before[-1].t if isinstance(before, list) else float(before.stamps[-1]))
+        compare(cfg, log, tmp_path, (cuts,))
 
 
 def count_shared_fields(monkeypatch: pytest.MonkeyPatch) -> list[int]:
@@ -1002,7 +1044,7 @@ class TestTheComparison:
         with pytest.MonkeyPatch.context() as mp:
             mp.setattr(canguard.engine.blocks, "compile_plan", edgeless)
             with pytest.raises(AssertionError):
-                compare(cfg, log, tmp_path, (1009,))
+                compare(cfg, log, tmp_path, (4096,))
 
     def test_catches_a_tick_missed_between_rows(self, custom: tuple[Config, Path], tmp_path: Path) -> None:
         """A _cross that brings no tick among unconfigured rows (ticks come late, at the next configured row)."""

@@ -16,6 +16,7 @@ from pathlib import Path
 import pytest
 
 from canguard.cli.demo import DEMO_CONFIG, LiveView, demo_config
+from canguard.cli.main import main
 from canguard.config.loader import load_config
 from canguard.service.daemon import Daemon
 from canguard.service.systemd import Notifier
@@ -29,6 +30,16 @@ def replay(cwd: Path, repo: Path, *more: object) -> subprocess.CompletedProcess[
          "-c", str(repo / "config" / "examples" / "robot_guard.yaml"), *map(str, more)],
         cwd=cwd, capture_output=True, text=True, timeout=120, check=False,
     )
+
+
+def replay_here(capsys: pytest.CaptureFixture[str], repo: Path, *more: object) -> tuple[int, str, str]:
+    """The same replay through ``canguard.cli.main.main`` in this process: (exit code, stdout, stderr)."""
+    argv = ["replay", str(repo / "examples" / "overload.log.gz"),
+            "-c", str(repo / "config" / "examples" / "robot_guard.yaml"), *map(str, more)]
+    capsys.readouterr()
+    code = main(argv)
+    out, err = capsys.readouterr()
+    return code, out, err
 
 
 class TestQuantity:
@@ -58,10 +69,16 @@ class TestReplayReport:
                 "margin -199.799 % of the I²t limit") in out
         assert "Axis0I2t source=axis0 value=300.002 A²s threshold=300 A²s reason=i2t" in out
 
-    def test_json_and_baseline_diff(self, tmp_path: Path, repo: Path) -> None:
+
+
+class TestReplayJson:
+    """The same replay's --json and baseline diff, through the command's entry point in this process."""
+
+    def test_json_and_baseline_diff(self, tmp_path: Path, repo: Path, capsys: pytest.CaptureFixture[str]) -> None:
         """--json gives each margin and trip its unit; the baseline diff prints shrunk margins with theirs."""
-        proc = replay(tmp_path, repo, "--json")
-        summary = json.loads(proc.stdout)
+        code, out, _err = replay_here(capsys, repo, "--json")
+        assert code == 0
+        summary = json.loads(out)
         units = {m["node"]: m["unit"] for m in summary["margins"]}
         assert units["PackCurrent"] == "A" and units["JointEfforts"] == "Nm" and units["Axis0I2t"] == I2T_LIMIT_PCT
         assert [t["unit"] for t in summary["trips"]] == ["A²s"]
@@ -69,8 +86,8 @@ class TestReplayReport:
         pack["margin"] += 1.0
         base = tmp_path / "base.json"
         base.write_text(json.dumps(summary), encoding="utf-8")
-        proc = replay(tmp_path, repo, "--baseline", base)
-        assert "margin shrank: PackCurrent (/battery_state current): 4.4 A -> 3.4 A" in proc.stderr
+        _code, _out, err = replay_here(capsys, repo, "--baseline", base)
+        assert "margin shrank: PackCurrent (/battery_state current): 4.4 A -> 3.4 A" in err
 
 
 class TestLiveView:
