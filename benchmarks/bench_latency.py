@@ -392,26 +392,34 @@ class Browser:
         self.driver.quit()
 
 
-class Groot2Poller:
-    """The Groot2 stand-in as a process of its own (Groot2 is another program, often on another machine)."""
+class Watcher:
+    """A watcher as a process of its own: runs ``code``, which prints "ready" once it got its first answer and,
+    at SIGTERM, how many answers it got."""
 
-    def __init__(self, port: int, hz: float = 50.0) -> None:
-        self.proc = subprocess.Popen([sys.executable, "-c", GROOT2_POLLER.format(port=port, hz=hz)],
-                                     env=child_env(), stdout=subprocess.PIPE, text=True)
+    def __init__(self, code: str, not_ready: str) -> None:
+        self.proc = subprocess.Popen([sys.executable, "-c", code], env=child_env(), stdout=subprocess.PIPE, text=True)
         assert self.proc.stdout is not None
         if self.proc.stdout.readline().strip() != "ready":
-            raise RuntimeError("the Groot2 poller got no STATUS reply")
+            raise RuntimeError(not_ready)
 
     def close(self) -> int:
-        """Stop it; how many STATUS replies it got (-1: it did not end on SIGTERM within 10 s and was killed)."""
+        """Stop it; how many answers it got (-1: it did not end on SIGTERM within 10 s and was killed)."""
         self.proc.send_signal(signal.SIGTERM)
         try:
             out, _ = self.proc.communicate(timeout=10)
         except subprocess.TimeoutExpired:
-            self.proc.kill()  # stuck in a zmq call: not left running to load the next measurements
+            self.proc.kill()  # stuck in a call: not left running to load the next measurements
             self.proc.communicate()
             return -1
         return int(out.strip() or 0)
+
+
+class Groot2Poller(Watcher):
+    """The Groot2 stand-in (Groot2 is another program, often on another machine); :meth:`close` gives its STATUS
+    replies."""
+
+    def __init__(self, port: int, hz: float = 50.0) -> None:
+        super().__init__(GROOT2_POLLER.format(port=port, hz=hz), "the Groot2 poller got no STATUS reply")
 
 
 PAGE_READER = """
@@ -442,21 +450,11 @@ the page's EventSource reads (``/api/status`` as ``text/event-stream``) and coun
 what the robot does for a watcher, without a browser's drawing on the robot's own CPUs."""
 
 
-class PageReader:
-    """:data:`PAGE_READER` as a process of its own; ready once it got the first document."""
+class PageReader(Watcher):
+    """:data:`PAGE_READER`; ready once it got the first document; :meth:`close` gives the documents it read."""
 
     def __init__(self, url: str) -> None:
-        self.proc = subprocess.Popen([sys.executable, "-c", PAGE_READER.format(url=url)], env=child_env(),
-                                     stdout=subprocess.PIPE, text=True)
-        assert self.proc.stdout is not None
-        if self.proc.stdout.readline().strip() != "ready":
-            raise RuntimeError("the page reader got no document from /api/status")
-
-    def close(self) -> int:
-        """Stop it; how many documents it read."""
-        self.proc.send_signal(signal.SIGTERM)
-        out, _ = self.proc.communicate(timeout=10)
-        return int(out.strip() or 0)
+        super().__init__(PAGE_READER.format(url=url), "the page reader got no document from /api/status")
 
 
 MONITOR_AT = (re.compile(r"status page on (http://[0-9.:]+/)"), re.compile(r"Groot2 monitor on [0-9.]+:(\d+)"))
