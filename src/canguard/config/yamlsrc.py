@@ -106,7 +106,7 @@ def _path(parent: str, key: Any) -> str:
 def _compose(text: str) -> yaml.Node | None:
     """The node tree of ``text`` (each node with its line): libyaml's, as :func:`load_yaml` reads, about 8x faster;
     the pure-Python composer's where libyaml is missing or finds a problem; None where both do."""
-    for loader in (getattr(yaml, "CSafeLoader", None), yaml.SafeLoader):
+    for loader in (_FastUniqueKeyLoader, _UniqueKeyLoader):
         if loader is not None:
             try:
                 return yaml.compose(text, Loader=loader)
