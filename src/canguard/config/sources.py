@@ -10,6 +10,7 @@ from typing import Any, cast
 import cantools
 
 from canguard.config.checks import _Checks
+from canguard.config.dbc import load_dbc_file
 from canguard.config.schema import NON_VALUE_ROLES, SignalRef, SourceConfig, SourceKind
 from canguard.config.yamlsrc import _closest, _found, _path, _shown
 from canguard.errors import clip, quote
@@ -42,19 +43,7 @@ class _Sources(_Checks):
         if not isinstance(value, list) or not value:
             self.problem("dbc", _found(value), "a DBC file path or a non-empty list of them")
             return ()
-        files: list[Path] = []
-        databases: list[tuple[Path, Any]] = []
-        for i, item in enumerate(value):
-            p = self.file_path(item, f"dbc[{i}]")
-            if p is None:
-                continue
-            files.append(p)
-            try:
-                databases.append((p, cantools.database.load_file(str(p))))
-            except FileNotFoundError:
-                self.problem(f"dbc[{i}]", _shown(item), f"an existing DBC file (no such file: {p})")
-            except Exception as exc:  # cantools raises many kinds of parse errors
-                self.problem(f"dbc[{i}]", f"{p} which {_not_loaded(p, exc)}", "a valid DBC file")
+        files, databases = self.dbc_files(value)
         if len(databases) != len(value):
             return tuple(files)
         messages: list[Any] = []
@@ -94,6 +83,26 @@ class _Sources(_Checks):
             self._by_id.setdefault(m.frame_id, []).append(m)
         self.messages_ok = True
         return tuple(files)
+
+    def dbc_files(self, value: list[Any]) -> tuple[list[Path], list[tuple[Path, Any]]]:
+        """Each file of ``dbc:`` (a problem for each that does not load) and the database of each that does."""
+        files: list[Path] = []
+        databases: list[tuple[Path, Any]] = []
+        for i, item in enumerate(value):
+            p = self.file_path(item, f"dbc[{i}]")
+            if p is None:
+                continue
+            files.append(p)
+            try:
+                loaded = load_dbc_file(p)
+            except FileNotFoundError:
+                self.problem(f"dbc[{i}]", _shown(item), f"an existing DBC file (no such file: {p})")
+            except Exception as exc:  # cantools raises many kinds of parse errors
+                self.problem(f"dbc[{i}]", f"{p} which {_not_loaded(p, exc)}", "a valid DBC file")
+            else:
+                databases.append((p, loaded.database))
+                self.dbc_checks.add(loaded)
+        return files, databases
 
     def add_messages(self, messages: list[Any]) -> None:
         """Add messages made elsewhere (a CANopen drive's PDOs, heartbeat, EMCY) to the config's database."""
@@ -150,10 +159,19 @@ class _Sources(_Checks):
         return None
 
     def signal(self, message: Any, value: Any, key: str) -> Any:
-        """The signal ``value`` of ``message``; None after recording a problem."""
+        """The signal ``value`` of ``message``; None after recording a problem.
+
+        A signal the DBC gets wrong (:mod:`canguard.config.dbc`) is a problem naming what is wrong with it.
+        """
         names = [s.name for s in message.signals]
         if isinstance(value, str) and value in names:
             return message.get_signal_by_name(value)
+        involved = self.dbc_checks.involved(message.name, value) if isinstance(value, str) else []
+        if involved:
+            why = "; ".join(p.text for p in involved)
+            self.problem(key, f"{value!r}, which the DBC gets wrong ({why})",
+                         f"a signal of {message.name} that fits it, shares no bits and has a name of its own")
+            return None
         self.problem(key, _found(value), f"a signal of {message.name}" + _closest(value, names))
         return None
 
