@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import bisect
 import re
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -32,12 +32,19 @@ import cantools
 PSEUDO_MESSAGE = "VECTOR__INDEPENDENT_SIG_MSG"
 """The message Vector's tools keep the signals of no message in (DLC 0; cantools refuses what refers to it)."""
 
-_TOKEN = re.compile(r'"(?:[^"\\]|\\.)*"|;|[^\s";]+')
-"""A DBC token: a string (which may span lines and hold ``;``), a ``;``, or a run of anything else."""
+_WORD = re.compile(r'"(?:[^"\\]|\\.)*"|;|[^\s";]+')
+"""A word of a statement: a string (which may span lines and hold ``;``), a ``;``, or a run of anything else."""
+_WORDS_NAMING = 6
+"""A statement names its message (and signal) within its first words (``BA_REL_ "a" BU_SG_REL_ n SG_ 5 s``)."""
 _BO = re.compile(r"BO_\s+(\d+)\s+(\w+)\s*:")
 _SG = re.compile(r"SG_\s+(\w+)\s*(?:\w+\s*)?:\s*(\d+)\|(\d+)@([01])")
 _STATEMENTS = frozenset({"VAL_", "SIG_VALTYPE_", "BA_", "CM_", "BO_TX_BU_", "SG_MUL_VAL_", "BA_REL_"})
 """Statements that may name a message (by its DBC id) the file does not define."""
+_STRING = r'"(?:[^"\\]|\\.)*"'
+_KEYWORD = re.compile(_STRING + r'|^[ \t]*([A-Z][A-Z_]*_)(?=[\s:])', re.MULTILINE)
+"""A string (skipped whole), or a keyword that starts a line: a statement (``BO_``, ``SG_``, ``VAL_``, ...)."""
+_END = re.compile(_STRING + "|;")
+_NEWLINE = re.compile("\n")
 
 
 @dataclass(frozen=True)
@@ -122,9 +129,8 @@ class _Prepass:
     def __init__(self, text: str, display: str) -> None:
         self.text = text
         self.display = display
-        self.newlines = [i for i, c in enumerate(text) if c == "\n"]
+        self.newlines = [m.start() for m in _NEWLINE.finditer(text)]
         self.blank: list[tuple[int, int]] = []
-        self.tokens = [(m.start(), m.group()) for m in _TOKEN.finditer(text)]
 
     def line(self, pos: int) -> int:
         return bisect.bisect_right(self.newlines, pos - 1) + 1
@@ -133,27 +139,21 @@ class _Prepass:
         end = self.text.find("\n", pos)
         return len(self.text) if end < 0 else end
 
-    def starts(self) -> Iterator[tuple[int, int, str]]:
-        """Each token that starts its line (a statement's keyword): its index, position and text."""
-        tokens = self.tokens
-        prev_end = -1
-        for i, (pos, tok) in enumerate(tokens):
-            if prev_end < 0 or self.text.find("\n", prev_end, pos) >= 0:
-                yield i, pos, tok
-            prev_end = pos + len(tok)
-
     def run(self) -> _Text:
         out = _Text(self.text)
         messages: dict[int, str] = {}
         statements: list[tuple[int, int, list[str]]] = []
         current: int | None = None
         pseudo: list[int] = []  # the first and last position of the pseudo-message, then its signal count
-        for i, pos, tok in self.starts():
+        for found in _KEYWORD.finditer(self.text):
+            tok = found.group(1)
+            if tok is None:  # a string: whatever it holds starts no statement
+                continue
+            pos = found.start(1)
             if tok not in ("BO_", "SG_"):
                 if tok in _STATEMENTS:
-                    self.statement(i, statements)
-                if tok.isupper() and tok.endswith("_"):  # the next statement: the message's SG_ lines are over
-                    current = None
+                    self.statement(pos, statements)
+                current = None  # the next statement: the message's SG_ lines are over
                 continue
             m = (_BO if tok == "BO_" else _SG).match(self.text, pos, self.line_end(pos))
             if m is None:
@@ -182,15 +182,19 @@ class _Prepass:
         out.text = self.blanked()
         return out
 
-    def statement(self, i: int, statements: list[tuple[int, int, list[str]]]) -> None:
-        """Keep the statement starting at token ``i`` (up to its ``;``) when it names a message."""
-        tokens = self.tokens
-        end = i + 1
-        while end < len(tokens) and tokens[end][1] != ";":
-            end += 1
-        words = [t for _, t in tokens[i:end]]
-        if end < len(tokens) and _named_message(words) is not None:
-            statements.append((tokens[i][0], tokens[end][0] + 1, words))
+    def statement(self, pos: int, statements: list[tuple[int, int, list[str]]]) -> None:
+        """Keep the statement starting at ``pos`` (up to its ``;``) when it names a message."""
+        words: list[str] = []
+        for w in _WORD.finditer(self.text, pos):  # the first words tell (a keyword alone names nothing)
+            if w.group() == ";" or len(words) == _WORDS_NAMING:
+                break
+            words.append(w.group())
+        if _named_message(words) is None:
+            return
+        for m in _END.finditer(self.text, pos):
+            if m.group() == ";":
+                statements.append((pos, m.end(), words))
+                return
 
     @staticmethod
     def refused(words: list[str], defined: dict[int, set[str]], messages: dict[int, str]) -> str:
@@ -272,17 +276,20 @@ class _MessageCheck:
         self.problems: list[SignalProblem] = []
         self.broken: set[int] = set()
         """``id()`` of each signal involved in a problem."""
+        self.pages: list[SignalProblem] = []
+        """Multiplexer values that select only signals left out (the message's frames on them do not decode)."""
 
-    def where(self, signal: Any) -> str:
-        """``file:line`` of ``signal``'s ``SG_`` line (``file`` alone when the format has no lines)."""
+    def line(self, signal: Any) -> int:
+        """The line of ``signal``'s ``SG_`` line (0 when the format has no lines)."""
         match = [k for k, s in enumerate(self.lines)
                  if (s.start, s.length, s.little) == (signal.start, signal.length,
                                                       signal.byte_order == "little_endian")]
         named = [k for k in match if self.lines[k].name == signal.name] or match
         free = [k for k in named if k not in self.taken] or named
         if not free:
-            return self.display
-        return f"{self.display}:{self.lines[free[0]].line}"
+            return 0
+        self.taken.add(free[0])
+        return self.lines[free[0]].line
 
     def add(self, signals: Iterable[Any], text: str) -> None:
         signals = list(signals)
@@ -293,12 +300,14 @@ class _MessageCheck:
         """Record every problem of the message; the sound signals, in the message's order."""
         m = self.message
         signals = list(m.signals)
-        where = {id(s): self.where(s) for s in signals}
+        lines = {id(s): self.line(s) for s in signals}
+        where = {k: f"{self.display}:{n}" if n else self.display for k, n in lines.items()}
         by_name: dict[str, list[Any]] = {}
         for s in signals:
             by_name.setdefault(s.name, []).append(s)
         for name, same in by_name.items():
             if len(same) > 1:
+                same = sorted(same, key=lambda s: lines[id(s)])
                 others = ", ".join(where[id(s)] for s in same[1:])
                 self.add(same, f"{where[id(same[0])]}: signal {name} is defined {len(same)} times in message "
                                f"{m.name} (again at {others})")
@@ -318,7 +327,24 @@ class _MessageCheck:
                     self.add([a, b], f"{where[id(a)]}: signals {a.name} and {b.name} ({where[id(b)]}) overlap in "
                                      f"message {m.name} (bits {first}..{last})")
         self.orphans(signals, by_name, where)
-        return [s for s in signals if id(s) not in self.broken]
+        sound = [s for s in signals if id(s) not in self.broken]
+        self.emptied(signals, sound, where)
+        return sound
+
+    def emptied(self, signals: list[Any], sound: list[Any], where: dict[int, str]) -> None:
+        """A multiplexer page that only signals left out were on: cantools refuses a frame on it (no signal is
+        multiplexed on that value), so the message's frames on that page no longer decode."""
+        for mux in sound:
+            if not mux.is_multiplexer:
+                continue
+            before = {i for s in signals if s.multiplexer_signal == mux.name for i in s.multiplexer_ids or ()}
+            after = {i for s in sound if s.multiplexer_signal == mux.name for i in s.multiplexer_ids or ()}
+            if before - after:
+                values = ", ".join(str(i) for i in sorted(before - after))
+                self.pages.append(SignalProblem(
+                    self.message.name, (),
+                    f"{where[id(mux)]}: multiplexer {mux.name} of message {self.message.name} = {values} selects "
+                    "only signals left out, so no frame on it decodes"))
 
     def orphans(self, signals: list[Any], by_name: dict[str, list[Any]], where: dict[int, str]) -> None:
         """Signals multiplexed by a signal that is left out are left out too (their page cannot be told)."""
@@ -348,6 +374,8 @@ class DbcFile:
     problems: list[SignalProblem]
     dropped: dict[str, list[Any]]
     """Per message name: the signals taken out of it."""
+    pages: list[SignalProblem]
+    """Multiplexer values of a message that select only signals taken out: frames on them do not decode."""
 
 
 def load_dbc_file(path: Path, display: str | None = None) -> DbcFile:
@@ -369,6 +397,7 @@ def load_dbc_file(path: Path, display: str | None = None) -> DbcFile:
         db = cantools.database.load_file(str(path), strict=False)
         notes, lines = [], {}
     problems: list[SignalProblem] = []
+    pages: list[SignalProblem] = []
     dropped: dict[str, list[Any]] = {}
     for m in db.messages:
         dbc_id = m.frame_id | (0x80000000 if m.is_extended_frame else 0)
@@ -376,10 +405,11 @@ def load_dbc_file(path: Path, display: str | None = None) -> DbcFile:
         sound = check.run()
         if check.problems:
             problems.extend(check.problems)
+            pages.extend(check.pages)
             dropped[m.name] = [s for s in m.signals if id(s) in check.broken]
             m.signals[:] = sound  # cantools' documented way: change the signals, then refresh()
             m.refresh()
-    return DbcFile(path, db, notes, problems, dropped)
+    return DbcFile(path, db, notes, problems, dropped, pages)
 
 
 class DbcChecks:
@@ -388,6 +418,7 @@ class DbcChecks:
     def __init__(self) -> None:
         self._problems: dict[tuple[str, str], list[SignalProblem]] = {}
         self._dropped: dict[str, list[Any]] = {}
+        self._pages: dict[str, list[SignalProblem]] = {}
         self.notes: list[str] = []
         """Every skipped statement and every signal problem, one ``file:line: ...`` line each."""
 
@@ -400,10 +431,17 @@ class DbcChecks:
                 self._problems.setdefault((p.message, name), []).append(p)
         for message, signals in dbc.dropped.items():
             self._dropped.setdefault(message, []).extend(signals)
+        for p in dbc.pages:
+            self.notes.append(p.text)
+            self._pages.setdefault(p.message, []).append(p)
 
     def involved(self, message: str, signal: str) -> list[SignalProblem]:
         """The problems signal ``signal`` of ``message`` is involved in (none: it is sound, or not in the file)."""
         return self._problems.get((message, signal), [])
+
+    def lost_pages(self, message: str) -> list[SignalProblem]:
+        """The multiplexer values of ``message`` on which its frames no longer decode (none: all decode)."""
+        return self._pages.get(message, [])
 
     def dropped(self, message: str) -> list[Any]:
         """The signals taken out of ``message`` (cantools ``Signal`` objects)."""

@@ -175,6 +175,18 @@ class _Sources(_Checks):
         self.problem(key, _found(value), f"a signal of {message.name}" + _closest(value, names))
         return None
 
+    def read_signal(self, message: Any, value: Any, key: str) -> Any:
+        """:meth:`signal`, for a source to read: None after a problem, also when some of the message's frames do
+        not decode (a multiplexer page of only signals the DBC gets wrong)."""
+        sig = self.signal(message, value, key)
+        lost = self.dbc_checks.lost_pages(message.name) if sig is not None else []
+        if lost:
+            why = "; ".join(p.text for p in lost)
+            self.problem(key, f"{value!r}, of a message whose frames do not all decode ({why})",
+                         "a signal of a message whose every frame decodes (fix the DBC, or read another message)")
+            return None
+        return sig
+
     # -- sections ----------------------------------------------------------
     def signal_ref(self, role: str, bus: str, message: Any, signal: Any) -> SignalRef:
         return SignalRef(
@@ -203,7 +215,7 @@ class _Sources(_Checks):
         for role, k in roles:
             if msg is None or k not in value:
                 continue
-            sig = self.signal(msg, value[k], _path(key, k))
+            sig = self.read_signal(msg, value[k], _path(key, k))
             if sig is not None:
                 signals.append(self.signal_ref(role, bus, msg, sig))
         return signals
@@ -244,7 +256,7 @@ class _Sources(_Checks):
                 msg = self.message(item["message"], _path(ikey, "message")) if "message" in item else None
                 if msg is None or "signal" not in item:
                     continue
-                sig = self.signal(msg, item["signal"], _path(ikey, "signal"))
+                sig = self.read_signal(msg, item["signal"], _path(ikey, "signal"))
                 if sig is not None and jname is not None:
                     signals.append(self.signal_ref(jname, ibus, msg, sig))
         return signals
