@@ -44,7 +44,7 @@ BO_ 1715 Command: 4 INV
  SG_ Reserved : 24|16@1+ (1,0) [0|65535] "" BMS
 
 BO_ 1716 Phases: 8 INV
- SG_ Page M : 0|8@1+ (1,0) [0|255] "" BMS
+ SG_ Page M : 0|8@1- (1,0) [-128|127] "" BMS
  SG_ Phase_A m0 : 8|16@1- (0.1,0) [-3276.8|3276.7] "A" BMS
  SG_ Glitch m0 : 16|16@1- (0.1,0) [-3276.8|3276.7] "A" BMS
  SG_ Phase_B m1 : 8|13@1- (0.5,-2) [-2050|2045.5] "A" BMS
