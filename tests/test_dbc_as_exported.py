@@ -216,8 +216,22 @@ class TestRefused:
         msg = sound_db().get_message_by_name("Command")
         assert cfg.task.frames[0].data == msg.encode({"Torque_Cmd": -12.5, "Enable": 1})
         [p] = problems(tmp_path, config, 'BA_ "GenSigStartValue" SG_ 1715 Reserved 7;\n')
-        assert "task.frames[0].message: found Command, whose signal Reserved the frame would send at its initial " \
-               "value 7" in p
+        assert "found Command, whose signal Reserved the frame would send at its initial value 7" in p
+
+    def test_frame_of_a_message_with_two_signals_of_one_name(self, tmp_path: Path) -> None:
+        """A frame of Cells that sets Cell_High loads; its payload is cantools' (both Spare at their initial 3)."""
+        extra = 'BA_ "GenSigStartValue" SG_ 1713 Spare 3;\n'
+        _, text = vendor_dbc(tmp_path, extra)
+        task = 'task: {frames: [{message: Command, signals: {Torque_Cmd: -12.5, Enable: "On"}}]}'
+        cfg = load_config_text(CONFIG.replace(task, "task: {frames: [{message: Cells, signals: {Cell_High: 3.3}}]}"),
+                               tmp_path / "c.yaml")
+        pseudo = text.index("BO_ 3221225472")
+        plain = text[:pseudo] + text[text.index("CM_ SG_"):].replace('VAL_ 3221225472 Unplaced 0 "Off" 1 "On" ;', "")
+        cells = cantools.database.load_string(plain, database_format="dbc", strict=False).get_message_by_name("Cells")
+        assert cfg.task.frames[0].data == cells.encode({"Spare": 3, "Cell_High": 3.3, "Cell_Low": 0})
+        assert cfg.task.frames[0].data[0] == cfg.task.frames[0].data[3] == 3
+        [p] = problems(tmp_path, CONFIG.replace(task, "task: {frames: [{message: Cells, signals: {Spare: 1}}]}"))
+        assert "task.frames[0].signals.Spare: found 'Spare', which the DBC gets wrong" in p
 
 
 class TestDecodes:

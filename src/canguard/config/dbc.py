@@ -9,10 +9,11 @@
   Each is a :attr:`DbcFile.notes` line.
 - cantools then loads the text with ``strict=False``, and every message is checked as cantools'
   strict mode would: signals that share bits (outside exclusive multiplexer pages), a signal that
-  does not fit its message, two signals of one name, and the signals multiplexed by one of those.
-  Such signals are taken out of their message (the message keeps its sound signals, which cantools
-  then decodes and encodes as in a file without the others); each problem is a :class:`SignalProblem`
-  naming the file and line, both signals and the message.
+  does not fit its message, and the signals multiplexed by one of those are taken out of their
+  message (which keeps its sound signals: cantools decodes and encodes them as in a file without the
+  others); two signals of one name stay (cantools decodes both, and encodes both with one value) but
+  the name cannot tell which is meant. Each problem is a :class:`SignalProblem` naming the file and line,
+  both signals and the message.
 
 Whether a problem stops anything is the config's business: an error where the config reads an
 involved signal (:meth:`DbcChecks.involved`), a note otherwise.
@@ -291,9 +292,12 @@ class _MessageCheck:
         self.taken.add(free[0])
         return self.lines[free[0]].line
 
-    def add(self, signals: Iterable[Any], text: str) -> None:
+    def add(self, signals: Iterable[Any], text: str, *, take_out: bool = True) -> None:
+        """Record a problem of ``signals``; ``take_out``: they leave the message (cantools cannot decode it with
+        them)."""
         signals = list(signals)
-        self.broken.update(id(s) for s in signals)
+        if take_out:
+            self.broken.update(id(s) for s in signals)
         self.problems.append(SignalProblem(self.message.name, tuple(s.name for s in signals), text))
 
     def run(self) -> list[Any]:
@@ -309,8 +313,10 @@ class _MessageCheck:
             if len(same) > 1:
                 same = sorted(same, key=lambda s: lines[id(s)])
                 others = ", ".join(where[id(s)] for s in same[1:])
+                # cantools decodes and encodes both (one value under the name); only a multiplexer of two names
+                # leaves its pages unknown
                 self.add(same, f"{where[id(same[0])]}: signal {name} is defined {len(same)} times in message "
-                               f"{m.name} (again at {others})")
+                               f"{m.name} (again at {others})", take_out=any(s.is_multiplexer for s in same))
         masks = {id(s): _bits(s) for s in signals}
         size_bits = 8 * int(m.length)
         for s in signals:

@@ -77,7 +77,8 @@ class _Sources(_Checks):
             self.database = databases[0][1]
         else:
             nodes = [n for _, db in databases for n in db.nodes]
-            self.database = cantools.database.can.Database(messages=messages, nodes=nodes)
+            # not strict, as each file loaded: two signals of one name stay in their message
+            self.database = cantools.database.can.Database(messages=messages, nodes=nodes, strict=False)
         for m in self.database.messages:
             self._by_name[m.name] = m
             self._by_id.setdefault(m.frame_id, []).append(m)
@@ -164,9 +165,9 @@ class _Sources(_Checks):
         A signal the DBC gets wrong (:mod:`canguard.config.dbc`) is a problem naming what is wrong with it.
         """
         names = [s.name for s in message.signals]
-        if isinstance(value, str) and value in names:
-            return message.get_signal_by_name(value)
         involved = self.dbc_checks.involved(message.name, value) if isinstance(value, str) else []
+        if not involved and value in names:
+            return message.get_signal_by_name(value)
         if involved:
             why = "; ".join(p.text for p in involved)
             self.problem(key, f"{value!r}, which the DBC gets wrong ({why})",
