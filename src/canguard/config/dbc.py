@@ -70,8 +70,7 @@ class _SgLine:
 
 @dataclass
 class _Text:
-    """The pre-pass over one DBC text: the text cantools is given, the notes, and the line of each message and
-    signal."""
+    """The pre-pass over one DBC text: the text cantools is given, the notes, and each message's signal lines."""
 
     text: str
     notes: list[str] = field(default_factory=list)
@@ -79,28 +78,24 @@ class _Text:
     """Per DBC message id (extended flag included): its ``SG_`` lines in file order."""
 
 
-def _is_int(token: str) -> bool:
-    return token.isdigit()
-
-
 def _named_message(tokens: list[str]) -> tuple[int, str | None] | None:
     """The DBC message id (and signal name) a statement's tokens refer to, or None when it names no message."""
     kind = tokens[0]
     rest = tokens[1:]
     if kind in ("VAL_", "SIG_VALTYPE_", "SG_MUL_VAL_"):
-        if len(rest) >= 2 and _is_int(rest[0]):
+        if len(rest) >= 2 and rest[0].isdigit():
             return int(rest[0]), rest[1]
         return None
     if kind == "BO_TX_BU_":
-        return (int(rest[0]), None) if rest and _is_int(rest[0]) else None
+        return (int(rest[0]), None) if rest and rest[0].isdigit() else None
     if kind == "CM_":
         return _object_ref(rest)
     if kind == "BA_":
         return _object_ref(rest[1:]) if rest and rest[0].startswith('"') else None
     if kind == "BA_REL_" and len(rest) >= 3 and rest[0].startswith('"'):
-        if rest[1] == "BU_SG_REL_" and len(rest) >= 6 and rest[3] == "SG_" and _is_int(rest[4]):
+        if rest[1] == "BU_SG_REL_" and len(rest) >= 6 and rest[3] == "SG_" and rest[4].isdigit():
             return int(rest[4]), rest[5]
-        if rest[1] == "BU_BO_REL_" and len(rest) >= 4 and _is_int(rest[3]):
+        if rest[1] == "BU_BO_REL_" and len(rest) >= 4 and rest[3].isdigit():
             return int(rest[3]), None
     return None
 
@@ -117,9 +112,9 @@ def _label(words: list[str]) -> str:
 
 def _object_ref(rest: list[str]) -> tuple[int, str | None] | None:
     """``BO_ <id>`` or ``SG_ <id> <signal>`` at the start of ``rest``."""
-    if len(rest) >= 2 and rest[0] == "BO_" and _is_int(rest[1]):
+    if len(rest) >= 2 and rest[0] == "BO_" and rest[1].isdigit():
         return int(rest[1]), None
-    if len(rest) >= 3 and rest[0] == "SG_" and _is_int(rest[1]):
+    if len(rest) >= 3 and rest[0] == "SG_" and rest[1].isdigit():
         return int(rest[1]), rest[2]
     return None
 
