@@ -47,11 +47,11 @@ def _dbc_notes(notes: tuple[str, ...], verbose: bool) -> list[str]:
     """What the DBC files get wrong where the config does not read it: counted, or (``-v``) one line each."""
     if not notes:
         return []
-    things = "thing" if len(notes) == 1 else "things"
-    head = f"  {len(notes)} {things} the DBC files get wrong, none read by this config"
+    notes_word = "note" if len(notes) == 1 else "notes"
+    head = f"  {len(notes)} DBC {notes_word} (parts skipped or signals taken out, none read by this config"
     if not verbose:
-        return [f"{head} (check -v lists them)"]
-    return [f"{head}:", *(f"    {note}" for note in notes)]
+        return [f"{head}; check -v lists them)"]
+    return [f"{head}):", *(f"    {note}" for note in notes)]
 
 
 def describe(cfg: Config, verbose: bool = False) -> str:
