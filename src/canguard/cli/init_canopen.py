@@ -17,10 +17,10 @@ from canguard.config.canopen import (
     RPDO_MAP,
     TPDO_COMM,
     TPDO_MAP,
-    Eds,
-    EdsError,
     Pdo,
+    read_pdos,
 )
+from canguard.config.canopen_eds import Eds, EdsError
 from canguard.errors import ConfigError
 
 GUARDED = {0x6077: "torque", 0x6078: "current"}
@@ -33,8 +33,8 @@ def drive_files(eds_path: Path, node: int, *, bus: str, state_dir: Path, simulat
     """The config and tree texts (by file name) for the drive of ``eds_path`` at ``node``."""
     try:
         eds = Eds(eds_path, node)
-        tpdos = eds.pdos(TPDO_COMM, TPDO_MAP, "TPDO")
-        rpdos = eds.pdos(RPDO_COMM, RPDO_MAP, "RPDO")
+        tpdos = read_pdos(eds, TPDO_COMM, TPDO_MAP, "TPDO")
+        rpdos = read_pdos(eds, RPDO_COMM, RPDO_MAP, "RPDO")
     except EdsError as exc:
         raise ConfigError(f"init --canopen {eds_path}: {exc}") from None
     sources = _sources(tpdos)
