@@ -129,8 +129,8 @@ class SourceHealth:
 
         While ``now - _ok_since <= _window_s`` (``max_age_s``, or the heartbeat's timeout when
         shorter) nothing can be stale, so :meth:`reason` is "" without looking at each role.
-        Only :meth:`observe`'s full path can make a role unusable; it clears this. Its fast path (a fresh valid sample) only makes roles
-        younger, which keeps the shortcut true.
+        Only :meth:`observe`'s full path can make a role unusable; it clears this. Its fast
+        path (a fresh valid sample) only makes roles younger, which keeps the shortcut true.
         """
         self.samples = 0
         """Samples observed (out-of-order ones included)."""
