@@ -43,8 +43,12 @@ def _frames(title: str, frames: Iterable[FrameSpec]) -> list[str]:
     return lines
 
 
-def describe(cfg: Config) -> str:
-    """The text ``canguard check`` prints for a config that loaded without errors."""
+def describe(cfg: Config, verbose: bool = False) -> str:
+    """The text ``canguard check`` prints for a config that loaded without errors.
+
+    ``verbose`` (``check -v``): also what reading each CANopen drive's EDS tolerated, the SDO
+    writes of a drive canguard configures, and what a drive must be told.
+    """
     lines = [f"config {cfg.path}"]
     lines.append("dbc:")
     n_messages = len(cfg.database.messages) if cfg.database is not None else 0
@@ -60,7 +64,7 @@ def describe(cfg: Config) -> str:
     if cfg.canopen:
         lines.append("canopen:")
         for drive in cfg.canopen.values():
-            lines += [f"  {line}" for line in drive.describe()]
+            lines += [f"  {line}" for line in drive.describe(verbose)]
 
     lines.append("sources:")
     if not cfg.sources:

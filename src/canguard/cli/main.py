@@ -88,7 +88,7 @@ def _cmd_check(args: argparse.Namespace) -> int:
             raise
         raise ConfigError([*exc.problems, *tree_problems], [*exc.located, *tree_problems]) from None
     check_config_outputs(cfg)  # what `canguard run` refuses at start, refused here
-    print(describe(cfg))
+    print(describe(cfg, verbose=args.verbose > 0))
     if cfg.tree is not None:
         report = check_tree(cfg, _palette(args))
         print(report.text, end="" if report.text.endswith("\n") else "\n")
