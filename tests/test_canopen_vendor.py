@@ -74,7 +74,7 @@ class TestReading:
     """A vendor file loads as published; what is not part of the dictionary is tolerated and named."""
 
     def test_deviations_outside_the_dictionary_are_tolerated_and_named_in_check_v(self, tmp_path: Path) -> None:
-        """``Lines1=`` comments and an undefined key load; ``check -v`` names each with its line, plain check not."""
+        """``Lines1=`` comments, an undefined key, a key written twice load; ``check -v`` names each with its line."""
         cfg = load_config(config(tmp_path))
         verbose = describe(cfg, verbose=True)
         comments = line_of(VENDOR, "Comments")
@@ -82,6 +82,12 @@ class TestReading:
         remark = VENDOR.read_text(encoding="utf-8").splitlines().index("VendorRemark=per mille of the rated torque")
         assert f"vendor_defaults.eds:{remark + 1} [6077]: keys CiA 306 does not define: VendorRemark" in verbose
         assert "[Comments]" not in describe(cfg)
+        twice = edited(tmp_path, {"ProductName=Bench servo (factory defaults)\n":
+                                  "ProductName=Bench servo (factory defaults)\nProductName=Bench servo, again\n"})
+        again = load_config(config(tmp_path, twice))
+        assert again.canopen["left"].device.endswith("(factory defaults)")
+        assert f"edited.eds:{line_of(twice, 'DeviceInfo') + 4} [DeviceInfo]: a key written a second time" in \
+            describe(again, verbose=True)
 
     def test_a_broken_object_entry_is_an_error_naming_its_section_and_line(self, tmp_path: Path) -> None:
         """An object section without its DataType is still an error, at the section's line."""

@@ -83,7 +83,14 @@ class _Section:
     name: str
     line: int
     keys: dict[str, int]
-    """Key (as written) -> line."""
+    """Key (as written) -> line (its first)."""
+    again: list[int]
+    """Lines of keys written a second time."""
+
+    @property
+    def is_object(self) -> bool:
+        """True for a section of the object dictionary (``[6077]``, ``[1A00sub1]``, ``[1003Name]``...)."""
+        return _OBJECT_SECTION.fullmatch(self.name) is not None
 
 
 def _decode(raw: bytes) -> str:
@@ -103,9 +110,13 @@ def _scan(text: str) -> tuple[list[_Section], list[str]]:
         if not s or s[0] in ";#":
             continue
         if s.startswith("[") and "]" in s:
-            sections.append(_Section(s[1:s.index("]")].strip(), no, {}))
+            sections.append(_Section(s[1:s.index("]")].strip(), no, {}, []))
         elif sections and "=" in s:
-            sections[-1].keys.setdefault(s.split("=", 1)[0].strip(), no)
+            key = s.split("=", 1)[0].strip()
+            if key in sections[-1].keys:
+                sections[-1].again.append(no)
+            else:
+                sections[-1].keys[key] = no
     return sections, lines
 
 
@@ -143,8 +154,17 @@ class Eds:
         """Lines to leave out and notes for deviations outside the object dictionary."""
         drop: set[int] = set()
         ends = [s.line for s in sections[1:]] + [len(lines) + 1]
+        seen: set[str] = set()
         for section, end in zip(sections, ends, strict=True):
             name = section.name.casefold()
+            if not section.is_object and name in seen:
+                self.note(section.line, f"[{section.name}]", "written a second time: left out")
+                drop.update(range(section.line, end))
+                continue
+            seen.add(name)
+            if not section.is_object and section.again:
+                self.note(section.again[0], f"[{section.name}]", "a key written a second time: the first kept")
+                drop.update(section.again)
             if name == "comments":
                 count = section.keys.get("Lines")
                 want = {f"Line{i}" for i in range(1, self._int(lines, count) + 1)} if count else set()
@@ -158,9 +178,7 @@ class Eds:
                 if missing:
                     self.note(section.line, "[DummyUsage]", f"no {', '.join(missing)}: taken as 0 (not usable)")
                     lines[section.line - 1] += "\n" + "\n".join(f"{k}=0" for k in missing)
-            elif _OBJECT_SECTION.fullmatch(section.name) and not section.name[4:].casefold().startswith(
-                ("name", "value", "denotation")
-            ):
+            elif section.is_object and not name[4:].startswith(("name", "value", "denotation")):
                 unknown = [k for k in section.keys if k.casefold() not in _OBJECT_KEYS]
                 if unknown:
                     self.note(section.keys[unknown[0]], f"[{section.name}]",
