@@ -32,6 +32,8 @@ from test_canopen_drive import OPERATION_ENABLED, WAIT_S, Bench
 from test_canopen_vendor import VENDOR
 
 NODE = 5
+CYCLE_S = 0.05
+"""The canopen library's receive threads wait this long per read: a network disconnects that fast."""
 HEARTBEAT_S = 1.0
 """The heartbeat canguard tells the drive: 1.5 s of timeout is slack enough for a loaded machine."""
 
@@ -63,6 +65,7 @@ class Firmware:
         from canguard.config.canopen_eds import Eds
 
         self.network = canopen.Network()
+        self.network.NOTIFIER_CYCLE = CYCLE_S
         self.network.connect(interface="virtual", channel=channel)
         self.node = canopen.LocalNode(NODE, Eds(VENDOR, NODE).od)  # the EDS as canguard reads it (Lines1=)
         self.network.add_node(self.node)
@@ -126,6 +129,7 @@ def setup(tmp_path: Path) -> Iterator[Setup]:
     cfg = load_config(write_config(tmp_path, channel))
     drive = Firmware(channel)
     network = canopen.Network()
+    network.NOTIFIER_CYCLE = CYCLE_S
     network.connect(interface="virtual", channel=channel)
     client = canopen.RemoteNode(NODE, canopen.ObjectDictionary())
     network.add_node(client)

@@ -40,6 +40,8 @@ SDO_RESPONSE_BASE = 0x580
 NMT_PRE_OPERATIONAL, NMT_START = 0x80, 0x01
 BOOT_UP = 0x00
 """The NMT state byte of a boot-up message."""
+NOTIFIER_CYCLE_S = 0.1
+"""How long the library's receive thread waits per read: what stopping it may take (its default is 1 s)."""
 
 
 def read_back(writes: Iterable[SdoWrite]) -> list[SdoWrite]:
@@ -81,6 +83,7 @@ class DriveSetup:
                     self._events.put(_failed(drive, str(exc)))
                 continue
             network = canopen.Network(bus)
+            network.NOTIFIER_CYCLE = NOTIFIER_CYCLE_S
             network.connect()
             self._networks.append(network)
             for drive in drives:
