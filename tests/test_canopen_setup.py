@@ -170,6 +170,14 @@ class TestConfigure:
         assert "left pre-operational (its sources not_present)" in event["reason"]
         assert drive.node.nmt.state == "PRE-OPERATIONAL"
 
+    def test_a_drive_that_does_not_answer_is_an_error(self, setup: Setup) -> None:
+        """No SDO server on the bus (the drive is off): an error event naming the first write; nothing started."""
+        setup.drive.close()
+        setup.client.sdo.RESPONSE_TIMEOUT = 0.05  # the library's 0.3 s, twice, is only slower
+        event = setup.configure()
+        assert event["event"] == "error"
+        assert "0x1017:00 = 0x03E8 (producer heartbeat every 1000 ms): SdoCommunicationError" in event["reason"]
+
     def test_a_value_read_back_different_is_an_error(self, setup: Setup) -> None:
         """A drive that keeps its own heartbeat time (reads back 50 ms) is not started."""
         drive = setup.drive

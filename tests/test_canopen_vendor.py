@@ -150,6 +150,7 @@ class TestOneErrorPerCause:
         ({"heartbeat": None}, r"canopen\.left\.heartbeat: found nothing \(the EDS's 0x1017 producer heartbeat time "
                               r"is 0: the drive sends no heartbeat by default\)"),
         ({"eds": "missing.eds"}, r"canopen\.left\.eds"),
+        ({"tpdo_period": 0.02}, r"canopen\.left\.tpdo_period: found 0\.02 without configure: true"),
     ])
     def test_a_broken_drive_is_one_error(self, tmp_path: Path, drive: dict[str, Any], cause: str) -> None:
         """The drive's own key is the only problem; its source and stop frame add none."""
@@ -243,6 +244,20 @@ class TestInit:
             from canguard.cli.init_canopen import drive_files
 
             drive_files(source, 5, bus="can0", state_dir=tmp_path, simulation=True)
+
+    def test_a_written_config_that_does_not_load_leaves_nothing_behind(
+        self, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+    ) -> None:
+        """Should what init wrote not load, the error is shown and the files and the directory it made are gone."""
+        import canguard.config.loader
+
+        def refuse(path: Path) -> None:
+            raise ConfigError(f"{path}: refused")
+
+        monkeypatch.setattr(canguard.config.loader, "load_config", refuse)
+        assert main(["init", str(tmp_path / "d"), "--canopen", str(VENDOR), "--node", "5"]) == 2
+        assert "canguard.yaml: refused" in capsys.readouterr().err
+        assert not (tmp_path / "d").exists()
 
     @pytest.mark.slow
     def test_any_file_name_round_trips_through_the_installed_cli(self, tmp_path: Path) -> None:

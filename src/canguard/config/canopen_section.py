@@ -126,6 +126,9 @@ class CanopenSection:
                 if isinstance(v, (int, float)) and not isinstance(v, bool):
                     defaults[(obj.index, obj.subindex)] = v
         setup = self.setup(eds, tpdos, body, key, heartbeat) if configure else ()
+        if "tpdo_period" in body and not configure:
+            c.problem(_path(key, "tpdo_period"), f"{body['tpdo_period']!r} without configure: true",
+                      "configure: true with it (the period is what canguard tells the drive)")
         notes = [*eds.notes, *eds.foreign_cob_ids()]
         told = eds.value(PRODUCER_HEARTBEAT)
         if not configure and told != round(heartbeat * 1000):
