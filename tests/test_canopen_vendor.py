@@ -210,6 +210,16 @@ class TestInit:
             ("0x6041", 0, 16), ("0x6077", 16, 32), ("0x6078", 48, 16)]
         assert drive.configure and "configure: true: canguard tells the drive over SDO" in err
 
+    def test_a_tpdo_whose_mapping_is_fixed_is_passed_over(self, tmp_path: Path,
+                                                          capsys: pytest.CaptureFixture[str]) -> None:
+        """TPDO2's mapping count read-only in the EDS: the next disabled TPDO, TPDO3 (0x385), carries the values."""
+        eds = edited(tmp_path, {"[1A01sub0]\nParameterName=Number of mapped objects\nObjectType=0x7\n"
+                                "DataType=0x0005\nAccessType=rw": "[1A01sub0]\nParameterName=Number of mapped "
+                                "objects\nObjectType=0x7\nDataType=0x0005\nAccessType=ro"})
+        path, err = self.init(tmp_path, eds, capsys, "--node", "5")
+        assert "TPDO3 0x385 carries 0x6041 Statusword, 0x6077" in err
+        assert {s.signal("current").frame_id for s in load_config(path).sources.values()} == {0x385}  # type: ignore[union-attr]
+
     def test_a_dcf_with_another_nodes_cob_ids_is_warned_of(self, tmp_path: Path,
                                                             capsys: pytest.CaptureFixture[str]) -> None:
         """TPDO1 maps 0x6077 already: no override; COB-IDs of node 32 are warned of for node 5, not for node 32."""

@@ -46,6 +46,8 @@ HEARTBEAT_S = 0.1
 TPDO_PERIOD_MS = 10
 """The event timer the drive is told for a TPDO ``init`` maps (``configure: true``'s default)."""
 CIA_402 = 402
+WRITABLE = frozenset({"rw", "wo", "rww", "rwr"})
+"""EDS AccessTypes an SDO may write."""
 
 
 @dataclass
@@ -105,7 +107,7 @@ def choose_tpdo(eds: Eds, tpdos: list[Pdo]) -> tuple[Pdo, bool]:
                           "object")
     wanted = ([STATUSWORD] if eds.mappable(STATUSWORD) else []) + values
     candidates = [p for p in tpdos if not p.enabled] + [p for p in tpdos if p.enabled]
-    for pdo in candidates:
+    for pdo in filter(lambda p: _remappable(eds, p), candidates):
         keep = [] if not pdo.enabled else [(o.index, o.subindex) for o in pdo.objects]
         if pdo.enabled and len(pdo.objects) and pdo.bits != sum(o.bits for o in pdo.objects):
             continue  # dummy entries: a new mapping would move the objects others read
@@ -115,11 +117,19 @@ def choose_tpdo(eds: Eds, tpdos: list[Pdo]) -> tuple[Pdo, bool]:
                 return override(eds, pdo, refs), True
             except EdsError:
                 continue
-    mapped = "; ".join(f"{p.name}: {p.bits} bits" + ("" if p.enabled else " (disabled)") for p in tpdos)
+    mapped = "; ".join(f"{p.name}: {p.bits} bits" + ("" if p.enabled else " (disabled)")
+                       + ("" if _remappable(eds, p) else " (mapping not writable)") for p in tpdos)
     raise ConfigError(
         f"init --canopen {eds.path}: found no TPDO free or with room for 0x6077/0x6078 ({mapped or 'no TPDO'}), "
         "expected a disabled TPDO or one with 16 bits free (map one by hand with canopen.DRIVE.pdo, see docs/config.md)"
     )
+
+
+def _remappable(eds: Eds, pdo: Pdo) -> bool:
+    """True when the EDS lets the TPDO's mapping be written (its count and first entry are not ro/const)."""
+    index = TPDO_MAP + int(pdo.name.removeprefix("TPDO")) - 1
+    return all(var is not None and var.access_type in WRITABLE
+               for var in (eds.variable(index, 0), eds.variable(index, 1)))
 
 
 def _fits(wanted: list[int]) -> list[list[int]]:
