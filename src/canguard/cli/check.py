@@ -55,7 +55,11 @@ def _dbc_notes(notes: tuple[str, ...], verbose: bool) -> list[str]:
 
 
 def describe(cfg: Config, verbose: bool = False) -> str:
-    """The text ``canguard check`` prints for a config that loaded without errors (``verbose``: ``check -v``)."""
+    """The text ``canguard check`` prints for a config that loaded without errors.
+
+    ``verbose`` (``check -v``): also what reading each CANopen drive's EDS tolerated, the SDO
+    writes of a drive canguard configures, and what a drive must be told.
+    """
     lines = [f"config {cfg.path}"]
     lines.append("dbc:")
     n_messages = len(cfg.database.messages) if cfg.database is not None else 0
@@ -72,7 +76,7 @@ def describe(cfg: Config, verbose: bool = False) -> str:
     if cfg.canopen:
         lines.append("canopen:")
         for drive in cfg.canopen.values():
-            lines += [f"  {line}" for line in drive.describe()]
+            lines += [f"  {line}" for line in drive.describe(verbose)]
 
     lines.append("sources:")
     if not cfg.sources:

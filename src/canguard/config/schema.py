@@ -52,6 +52,8 @@ class SignalRef:
     unit: str | None = None
     minimum: float | None = None
     maximum: float | None = None
+    max_age_s: float | None = None
+    """How old this signal may be, where it has its own timeout (a CANopen drive's heartbeat); None: the source's."""
 
 
 @dataclass(frozen=True)
