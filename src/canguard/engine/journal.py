@@ -52,11 +52,6 @@ class Journal:
         self.written += 1
         self._held.append(event)
 
-    @property
-    def held(self) -> int:
-        """Events written and not yet recorded (the next :meth:`flush` records them)."""
-        return len(self._held)
-
     def flush(self) -> None:
         """Record the events held, in order, and make them durable (when the journal is)."""
         if self._held:
