@@ -73,7 +73,8 @@ def ab(suite: str, rev: str, quick: bool, rounds: int) -> Table:
                      *[kit.ratio(this.get(c), old.get(c)) for c in costs]])
     rows.sort(key=lambda row: -(row[-len(costs)] or 0.0) if costs else 0.0)
     return Table(f"{suite} --ab {rev}", f"the {suite} suite's canguard figures on this tree and on {rev}, "
-                 f"{rounds} alternating rounds, best of each; largest this / {rev} first (above 1: this tree is slower)",
+                 f"{rounds} alternating rounds, best of each; largest this / {rev} first (above 1: this tree is "
+                 "slower)",
                  columns, rows, [f"the benchmark code is this tree's; {rev}'s src was exported with git archive"],
                  costs)
 

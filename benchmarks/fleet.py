@@ -8,6 +8,7 @@ distributed's own CPU meanwhile counted). The three must print the same summarie
 
 from __future__ import annotations
 
+import contextlib
 import shutil
 from pathlib import Path
 from typing import Any
@@ -23,10 +24,8 @@ def cluster_cpu(cluster: Any) -> float:
         pid = getattr(getattr(worker, "process", None), "pid", None)
         if pid:
             for p in (pid, *(int(c) for c in _children(pid))):
-                try:
+                with contextlib.suppress(OSError):  # ended meanwhile
                     total += kit.cpu_of(p)
-                except OSError:
-                    pass
     return total
 
 
@@ -64,8 +63,8 @@ def run(opts: Options) -> Table:
         for i in range(logs):
             shutil.copy(src.log, work / f"log{i}.log")
         argv = ["replay", str(work), "-c", str(kit.CONFIG), "--json"]
-        serial, jobs = kit.best_of([lambda: kit.canguard(argv, opts), lambda: kit.canguard([*argv, "--jobs", "2"], opts)],
-                                   rounds)
+        serial, jobs = kit.best_of([lambda: kit.canguard(argv, opts),
+                                    lambda: kit.canguard([*argv, "--jobs", "2"], opts)], rounds)
         if jobs.out != serial.out:
             raise RuntimeError("--jobs 2 printed other summaries than one process")
         total = logs * src.frames

@@ -26,9 +26,8 @@ from benchmarks import kit
 from benchmarks.kit import Options, Table
 
 sys.path.insert(0, str(kit.REPO / "tests"))
-from reference_models import RefHysteresis, RefI2t, RefInrush, RefThreshold  # noqa: E402
-
-from canguard.protect import Hysteresis, InrushBlanking, LeakyI2t, ThermalI2t, Threshold  # noqa: E402
+from canguard.protect import Hysteresis, InrushBlanking, LeakyI2t, ThermalI2t, Threshold
+from reference_models import RefHysteresis, RefI2t, RefInrush, RefThreshold
 
 CASES: dict[str, tuple[Callable[[], Any], Callable[[], Any]]] = {
     "threshold": (lambda: Threshold(30.0), lambda: RefThreshold(max_value=30.0)),

@@ -117,7 +117,8 @@ def format_rows(frames: int, opts: Options, rounds: int) -> list[list[kit.Cell]]
     rows, reference = [], None
     for fmt in FORMATS:
         path = convert(log, fmt)
-        cg, reader = kit.best_of([lambda p=path: kit.canguard(["replay", str(p), "-c", str(kit.CONFIG), "--json"], opts),
+        argv = ["replay", str(path), "-c", str(kit.CONFIG), "--json"]
+        cg, reader = kit.best_of([lambda a=argv: kit.canguard(a, opts),
                                   lambda p=path: kit.python(READER_LOOP, [str(p)], opts)], rounds)
         got = comparable(cg.out)
         reference = reference or got

@@ -113,7 +113,8 @@ def stopped_guarded() -> Shape:
         if r < 0.8:
             return 0x200, False, False, bytes(rng.randrange(-20, 20) & 0xFF for _ in range(6)) + bytes(2)
         pack = round(rng.gauss(12.0 if moving else 1.5, 0.2) * 100) & 0xFFFF
-        return 0x18FF50E5, True, False, pack.to_bytes(2, "little") + b"\x01\x00" + (4800).to_bytes(2, "little") + bytes(2)
+        data = pack.to_bytes(2, "little") + b"\x01\x00" + (4800).to_bytes(2, "little") + bytes(2)
+        return 0x18FF50E5, True, False, data
 
     return Shape("stopped_guarded", "every frame feeds a guard, robot mostly stopped (2 drives under I²t, BMS with "
                  "presence flag, 6 efforts in one message)", db, sources, guards, frame)

@@ -78,7 +78,8 @@ def ready_and_rss(config: Path, bus: dict[str, object], src: Path, load_s: float
         ready_s = time.perf_counter() - t0
         rss0 = kit.vmrss_mb(daemon.pid)
         code = SENDER.format(dbc=str(kit.DBC), group=bus["channel"], port=bus["port"], fps=fps)
-        sender = subprocess.Popen([sys.executable, "-c", code], env=kit.child_env(src), stdout=subprocess.PIPE, text=True)
+        sender = subprocess.Popen([sys.executable, "-c", code], env=kit.child_env(src), stdout=subprocess.PIPE,
+                                  text=True)
         kids.append(sender)
         assert sender.stdout is not None
         if sender.stdout.readline().strip() != "ready":
