@@ -35,9 +35,10 @@ def run_suite(name: str, opts: Options) -> Table:
 
 def child(suite: str, src: Path, out: Path, quick: bool, rounds: int | None) -> dict[str, Any]:
     """The suite in a runner process of its own with ``src`` first on its path; its JSON document."""
-    cmd = [sys.executable, "-m", "benchmarks", suite, "--json", str(out), "--src", str(src)]
-    cmd += ["--quick"] if quick else []
-    cmd += ["--rounds", str(rounds)] if rounds else []
+    shown = ["python -m benchmarks", suite, *(["--quick"] if quick else []),
+             *(["--rounds", str(rounds)] if rounds else [])]
+    cmd = [sys.executable, "-m", "benchmarks", *shown[1:], "--json", str(out), "--src", str(src), "--label",
+           " ".join(shown)]
     proc = subprocess.run(cmd, cwd=kit.REPO, env=kit.child_env(src), stdout=subprocess.DEVNULL)
     if proc.returncode != 0:
         raise SystemExit(f"{' '.join(cmd)}: exit {proc.returncode}")
@@ -104,6 +105,7 @@ def parse(argv: list[str] | None) -> argparse.Namespace:
     ap.add_argument("--rounds", type=int, default=None, metavar="N", help="best of N rounds (default: the suite's)")
     ap.add_argument("--ab", metavar="REV", help="this tree against git revision REV, alternating runs")
     ap.add_argument("--src", type=Path, default=kit.SRC, help=argparse.SUPPRESS)  # the tree timed (--ab's children)
+    ap.add_argument("--label", help=argparse.SUPPRESS)  # the command the header shows (docs' children)
     args = ap.parse_args(argv)
     if args.only and (args.suite != "docs" or set(args.only) - set(SUITES)):
         ap.error(f"only docs takes suites after it, of {', '.join(SUITES)}")
@@ -114,7 +116,7 @@ def main(argv: list[str] | None = None) -> int:
     """Run the suite(s), print each table; with ``--json`` write the (last) one there."""
     args = parse(argv)
     kit.clean_up_on_sigterm()
-    command = ["python -m benchmarks", *(sys.argv[1:] if argv is None else argv)]
+    command = [args.label] if args.label else ["python -m benchmarks", *(sys.argv[1:] if argv is None else argv)]
     if args.suite == "docs":
         docs(args.only or list(SUITES), args.quick)
         return 0

@@ -187,6 +187,7 @@ class Timing:
     wall_s: float
     cpu_s: float
     out: bytes = b""
+    rss_mb: float = 0.0  # peak RSS of the process (whole processes only)
 
 
 def _cpu_now() -> float:
@@ -196,17 +197,19 @@ def _cpu_now() -> float:
 
 
 def process(cmd: Sequence[str], src: Path, stdin: Path | None = None, ok: tuple[int, ...] = (0, 1)) -> Timing:
-    """``cmd`` as a whole process (interpreter start-up included) with ``src`` on PYTHONPATH."""
-    before = resource.getrusage(resource.RUSAGE_CHILDREN)
-    t0 = time.perf_counter()
-    with open(stdin or os.devnull, "rb") as inp:
-        proc = subprocess.run(list(cmd), stdin=inp, capture_output=True, env=child_env(src))
-    wall = time.perf_counter() - t0
-    after = resource.getrusage(resource.RUSAGE_CHILDREN)
-    if proc.returncode not in ok:
-        raise RuntimeError(f"{' '.join(cmd)}: exit {proc.returncode}: {proc.stderr.decode()[-2000:]}")
-    cpu = after.ru_utime - before.ru_utime + after.ru_stime - before.ru_stime
-    return Timing(wall, cpu, proc.stdout)
+    """``cmd`` as a whole process (interpreter start-up included) with ``src`` on PYTHONPATH; its own CPU and peak
+    RSS (``wait4``: this child's alone)."""
+    with open(stdin or os.devnull, "rb") as inp, tempfile.TemporaryFile() as out, tempfile.TemporaryFile() as err:
+        t0 = time.perf_counter()
+        proc = subprocess.Popen(list(cmd), stdin=inp, stdout=out, stderr=err, env=child_env(src))
+        _, status, usage = os.wait4(proc.pid, 0)
+        wall = time.perf_counter() - t0
+        proc.returncode = code = os.waitstatus_to_exitcode(status)
+        err.seek(0)
+        if code not in ok:
+            raise RuntimeError(f"{' '.join(cmd)}: exit {code}: {err.read().decode()[-2000:]}")
+        out.seek(0)
+        return Timing(wall, usage.ru_utime + usage.ru_stime, out.read(), usage.ru_maxrss / 1024)
 
 
 @contextlib.contextmanager
@@ -262,12 +265,13 @@ def python(code: str, args: Sequence[str], opts: Options) -> Timing:
 
 def best_of(runs: Sequence[Callable[[], Timing]], rounds: int) -> list[Timing]:
     """Each of ``runs`` ``rounds`` times, taking turns in every round (so all meet the same machine); the best
-    wall and the best CPU of each (the output of its last run)."""
+    wall and the best CPU of each, its highest peak RSS and the output of its last run."""
     best = [Timing(float("inf"), float("inf"))] * len(runs)
     for _ in range(rounds):
         for k, run in enumerate(runs):
             t = run()
-            best[k] = Timing(min(best[k].wall_s, t.wall_s), min(best[k].cpu_s, t.cpu_s), t.out)
+            best[k] = Timing(min(best[k].wall_s, t.wall_s), min(best[k].cpu_s, t.cpu_s), t.out,
+                             max(best[k].rss_mb, t.rss_mb))
     return best
 
 

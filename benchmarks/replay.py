@@ -67,14 +67,15 @@ def log2long(log: Path) -> Timing:
     return kit.process([str(kit.which("log2long"))], kit.SRC, stdin=log, ok=(0,))
 
 
-def shape_row(w: shapes.Written, opts: Options, rounds: int) -> list[kit.Cell]:
-    """One shape: canguard, the loop and log2long taking turns."""
+def shape_row(w: shapes.Written, opts: Options, rounds: int, rss_mb: list[float]) -> list[kit.Cell]:
+    """One shape: canguard, the loop and log2long taking turns (canguard's peak RSS added to ``rss_mb``)."""
     runs = [lambda: kit.canguard(["replay", str(w.log), "-c", str(w.config), "--json"], opts),
             lambda: kit.python(PEER_LOOP, [str(w.dbc), str(w.log)], opts)]
     if kit.which("log2long"):
         runs.append(lambda: log2long(w.log))
     got = kit.best_of(runs, rounds)
     cg, loop = got[0], got[1]
+    rss_mb.append(cg.rss_mb)
     l2l = got[2] if len(got) > 2 else None
     return [f"{w.name}: {w.what}", w.frames, cg.wall_s, cg.cpu_s, "plain cantools loop", loop.wall_s,
             kit.ratio(loop.wall_s, cg.wall_s), kit.ratio(loop.cpu_s, cg.cpu_s),
@@ -137,7 +138,8 @@ def run(opts: Options) -> Table:
                   f"readers; best of {rounds}, {'in-process (--quick)' if opts.inprocess else 'whole processes'}",
                   COLUMNS, costs=["canguard s", "canguard CPU s"])
     with kit.scratch("replay") as d:
-        rows = [shape_row(w, opts, rounds) for w in shapes.all_shapes(Path(d), frames)]
+        rss: list[float] = []
+        rows = [shape_row(w, opts, rounds, rss) for w in shapes.all_shapes(Path(d), frames)]
         rows.sort(key=lambda r: r[6] if isinstance(r[6], float) else 0.0)
         fmts = format_rows(format_frames, opts, rounds)
         fmts.sort(key=lambda r: r[6] if isinstance(r[6], float) else 0.0)
@@ -147,6 +149,8 @@ def run(opts: Options) -> Table:
     table.notes += ["× peer: the peer's time over canguard's (above 1: canguard is faster); wall time, then CPU",
                     "shapes first, then formats, each worst first; the formats' replays give equal summaries",
                     f"Python {sys.version.split()[0]}; logs cached in {shapes.CACHE}"]
+    if not opts.inprocess:
+        table.notes.append(f"peak RSS of canguard's replays: {min(rss):.1f}-{max(rss):.1f} MB")
     if opts.quick:
         table.notes.append("--quick: tiny logs, canguard and the loop in this process: checks that the suite runs, "
                            "its figures mean nothing")

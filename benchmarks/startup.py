@@ -98,7 +98,7 @@ def ready_and_rss(config: Path, bus: dict[str, object], src: Path, load_s: float
 def run(opts: Options) -> Table:
     """The start-up table, worst (highest canguard / peer) first."""
     rounds = 1 if opts.quick else opts.rounds
-    load_s, fps = (0.5, 1000.0) if opts.quick else (60.0, 8000.0)
+    load_s, fps = (0.5, 1000.0) if opts.quick else (30.0, 8000.0)
     table = Table("startup", f"start-up time and memory of canguard beside Python's own floor; best of {rounds}",
                   ["measure", "canguard", "peer", "peer figure", "canguard / peer", "unit"], costs=["canguard"])
     rows: list[list[kit.Cell]] = []
