@@ -64,6 +64,7 @@ class Table:
     rows: list[list[Cell]] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
     costs: list[str] = field(default_factory=list)
+    failed: str = ""  # what failed (a check of the suite's own), shown under the table; the runner exits 1
 
     def row_dicts(self) -> list[dict[str, Cell]]:
         """The rows as {column: cell}."""
@@ -125,13 +126,15 @@ def render(head: dict[str, Any], table: Table) -> str:
              "| " + " | ".join("---" if i == 0 else "---:" for i in range(len(table.columns))) + " |"]
     lines += ["| " + " | ".join(fmt(c) for c in row) + " |" for row in table.rows]
     lines += [""] + [f"- {note}" for note in table.notes]
+    if table.failed:
+        lines.append(f"- **FAILED**: {table.failed}")
     return "\n".join(lines).rstrip() + "\n"
 
 
 def as_json(head: dict[str, Any], table: Table) -> dict[str, Any]:
     """The table as a JSON document: the header, the columns, the rows as objects, the notes."""
     return {**head, "suite": table.suite, "title": table.title, "columns": table.columns, "costs": table.costs,
-            "rows": table.row_dicts(), "notes": table.notes}
+            "rows": table.row_dicts(), "notes": table.notes, "failed": table.failed}
 
 
 def ratio(num: float | None, den: float | None) -> float | None:
@@ -187,7 +190,6 @@ class Timing:
     wall_s: float
     cpu_s: float
     out: bytes = b""
-    rss_mb: float = 0.0  # peak RSS of the process (whole processes only)
 
 
 def _cpu_now() -> float:
@@ -197,8 +199,8 @@ def _cpu_now() -> float:
 
 
 def process(cmd: Sequence[str], src: Path, stdin: Path | None = None, ok: tuple[int, ...] = (0, 1)) -> Timing:
-    """``cmd`` as a whole process (interpreter start-up included) with ``src`` on PYTHONPATH; its own CPU and peak
-    RSS (``wait4``: this child's alone)."""
+    """``cmd`` as a whole process (interpreter start-up included) with ``src`` on PYTHONPATH; its own CPU
+    (``wait4``: this child's alone)."""
     with open(stdin or os.devnull, "rb") as inp, tempfile.TemporaryFile() as out, tempfile.TemporaryFile() as err:
         t0 = time.perf_counter()
         proc = subprocess.Popen(list(cmd), stdin=inp, stdout=out, stderr=err, env=child_env(src))
@@ -209,7 +211,7 @@ def process(cmd: Sequence[str], src: Path, stdin: Path | None = None, ok: tuple[
         if code not in ok:
             raise RuntimeError(f"{' '.join(cmd)}: exit {code}: {err.read().decode()[-2000:]}")
         out.seek(0)
-        return Timing(wall, usage.ru_utime + usage.ru_stime, out.read(), usage.ru_maxrss / 1024)
+        return Timing(wall, usage.ru_utime + usage.ru_stime, out.read())
 
 
 @contextlib.contextmanager
@@ -265,13 +267,12 @@ def python(code: str, args: Sequence[str], opts: Options) -> Timing:
 
 def best_of(runs: Sequence[Callable[[], Timing]], rounds: int) -> list[Timing]:
     """Each of ``runs`` ``rounds`` times, taking turns in every round (so all meet the same machine); the best
-    wall and the best CPU of each, its highest peak RSS and the output of its last run."""
+    wall and the best CPU of each, and the output of its last run."""
     best = [Timing(float("inf"), float("inf"))] * len(runs)
     for _ in range(rounds):
         for k, run in enumerate(runs):
             t = run()
-            best[k] = Timing(min(best[k].wall_s, t.wall_s), min(best[k].cpu_s, t.cpu_s), t.out,
-                             max(best[k].rss_mb, t.rss_mb))
+            best[k] = Timing(min(best[k].wall_s, t.wall_s), min(best[k].cpu_s, t.cpu_s), t.out)
     return best
 
 
@@ -347,5 +348,5 @@ def from_json(doc: dict[str, Any]) -> tuple[dict[str, Any], Table]:
     head = {k: doc[k] for k in ("date", "commit", "machine", "command")}
     columns = list(doc["columns"])
     table = Table(doc["suite"], doc["title"], columns, [[row.get(c) for c in columns] for row in doc["rows"]],
-                  list(doc["notes"]), list(doc["costs"]))
+                  list(doc["notes"]), list(doc["costs"]), doc.get("failed", ""))
     return head, table

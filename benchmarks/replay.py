@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import os
 import sys
 from pathlib import Path
 
@@ -67,15 +68,14 @@ def log2long(log: Path) -> Timing:
     return kit.process([str(kit.which("log2long"))], kit.SRC, stdin=log, ok=(0,))
 
 
-def shape_row(w: shapes.Written, opts: Options, rounds: int, rss_mb: list[float]) -> list[kit.Cell]:
-    """One shape: canguard, the loop and log2long taking turns (canguard's peak RSS added to ``rss_mb``)."""
+def shape_row(w: shapes.Written, opts: Options, rounds: int) -> list[kit.Cell]:
+    """One shape: canguard, the loop and log2long taking turns."""
     runs = [lambda: kit.canguard(["replay", str(w.log), "-c", str(w.config), "--json"], opts),
             lambda: kit.python(PEER_LOOP, [str(w.dbc), str(w.log)], opts)]
     if kit.which("log2long"):
         runs.append(lambda: log2long(w.log))
     got = kit.best_of(runs, rounds)
     cg, loop = got[0], got[1]
-    rss_mb.append(cg.rss_mb)
     l2l = got[2] if len(got) > 2 else None
     return [f"{w.name}: {w.what}", w.frames, cg.wall_s, cg.cpu_s, "plain cantools loop", loop.wall_s,
             kit.ratio(loop.wall_s, cg.wall_s), kit.ratio(loop.cpu_s, cg.cpu_s),
@@ -88,7 +88,7 @@ def convert(log: Path, fmt: str) -> Path:
 
     out = log.with_suffix("." + fmt)
     if not out.exists():
-        tmp = out.with_name(out.stem + ".tmp." + fmt)
+        tmp = out.with_name(f"{out.stem}.{os.getpid()}.tmp.{fmt}")
         with can.Logger(str(tmp)) as writer:
             for msg in can.CanutilsLogReader(str(log)):
                 writer.on_message_received(msg)
@@ -111,8 +111,9 @@ def format_rows(frames: int, opts: Options, rounds: int) -> list[list[kit.Cell]]
         shapes.CACHE.mkdir(parents=True, exist_ok=True)
         from canguard.sim import write_log
 
-        write_log(log.with_suffix(".tmp"), frames / 2571.0, db=str(kit.DBC), scenarios=["overload"], seed=0)
-        log.with_suffix(".tmp").replace(log)
+        tmp = log.with_suffix(f".{os.getpid()}.tmp")
+        write_log(tmp, frames / 2571.0, db=str(kit.DBC), scenarios=["overload"], seed=0)
+        tmp.replace(log)
     with open(log, "rb") as f:
         n = sum(1 for _ in f)
     rows, reference = [], None
@@ -138,8 +139,7 @@ def run(opts: Options) -> Table:
                   f"readers; best of {rounds}, {'in-process (--quick)' if opts.inprocess else 'whole processes'}",
                   COLUMNS, costs=["canguard s", "canguard CPU s"])
     with kit.scratch("replay") as d:
-        rss: list[float] = []
-        rows = [shape_row(w, opts, rounds, rss) for w in shapes.all_shapes(Path(d), frames)]
+        rows = [shape_row(w, opts, rounds) for w in shapes.all_shapes(Path(d), frames)]
         rows.sort(key=lambda r: r[6] if isinstance(r[6], float) else 0.0)
         fmts = format_rows(format_frames, opts, rounds)
         fmts.sort(key=lambda r: r[6] if isinstance(r[6], float) else 0.0)
@@ -149,8 +149,7 @@ def run(opts: Options) -> Table:
     table.notes += ["× peer: the peer's time over canguard's (above 1: canguard is faster); wall time, then CPU",
                     "shapes first, then formats, each worst first; the formats' replays give equal summaries",
                     f"Python {sys.version.split()[0]}; logs cached in {shapes.CACHE}"]
-    if not opts.inprocess:
-        table.notes.append(f"peak RSS of canguard's replays: {min(rss):.1f}-{max(rss):.1f} MB")
+
     if opts.quick:
         table.notes.append("--quick: tiny logs, canguard and the loop in this process: checks that the suite runs, "
                            "its figures mean nothing")

@@ -398,14 +398,11 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def run(opts: Options) -> Table:
-    """Suite ``soak``: a soak (3 minutes at the full rates; --quick: 3 s, light) as a table of its checks, each
-    beside its bound, worst (closest to its bound) first; fails as the soak fails."""
-    argv = ["--minutes", "0.05", "--no-load", "--light", "--sample", "1"] if opts.quick else \
-        ["--minutes", "3", "--sample", "10"]
-    args = parser().parse_args([*argv, "--src", str(opts.src)])
+    """Suite ``soak``: a soak (3 minutes, the robot's own streams; --quick: 3 s, light) as a table of its checks,
+    each beside its bound, worst (closest to its bound) first; a failed check is shown under it (exit 1)."""
+    argv = ["--minutes", "0.05", "--light"] if opts.quick else ["--minutes", "3"]
+    args = parser().parse_args([*argv, "--no-load", "--sample", "1" if opts.quick else "10", "--src", str(opts.src)])
     out, ok = summarize(soak(args), args.bound)
-    if not ok:
-        raise RuntimeError(f"the soak failed its checks: {json.dumps(out)[:3000]}")
     rss, delay = out["rss_mb"], out["reaction_delay_s"]
     judged, total = out["reactions_within_bound"].split()[0].split("/")
     rows: list[list[kit.Cell]] = [
@@ -420,14 +417,25 @@ def run(opts: Options) -> Table:
         ["daemon CPU, median of the samples", out["cpu_percent"]["median"], "frames/s sent", out["frames_per_s"],
          None, "% of a core"]]
     rows.sort(key=lambda r: -(r[4] if isinstance(r[4], float) else 0.0))
-    notes = [f"RSS slope of the last half: {rss.get('slope_last_half_mb_per_10min')} MB per 10 min; daemon exit "
-             f"{out['daemon_exit']}; the 30-minute soak: `python benchmarks/soak.py --minutes 30 --sample 30`"]
+    notes = [f"{out['frames_per_s']:,} frames/s (the robot's own streams, no background ids); the simulator fell "
+             f"behind real time by up to {out['simulator_lag_s_max']} s (faults are timed from when it sent them)",
+             f"RSS slope of the last half: {rss.get('slope_last_half_mb_per_10min')} MB per 10 min; daemon exit "
+             f"{out['daemon_exit']}; the 30-minute soak at 8,000 frames/s: `python benchmarks/soak.py --minutes 30 "
+             "--sample 30`"]
     if opts.quick:
         notes.append("--quick: 3 s, light rates, no load, no fault due yet: checks that the suite runs")
     return Table("soak", f"`canguard run` for {args.minutes:g} min against the simulated robot with faults injected "
                  f"(seed {args.seed}); every check beside its bound", ["check", "canguard", "peer / bound",
                                                                         "peer figure", "canguard / bound", "unit"],
-                 rows, notes, costs=["canguard"])
+                 rows, notes, costs=["canguard"],
+                 failed="" if ok else failure(out))
+
+
+def failure(out: dict[str, Any]) -> str:
+    """What a failed soak failed, in one line."""
+    return (f"late or missing: {', '.join(out['late_or_missing']) or '-'}; journal lines torn "
+            f"{out['torn_or_lost_lines']}, trips without a stop {out['trips_without_stop']}, daemon exit "
+            f"{out['daemon_exit']}")
 
 
 if __name__ == "__main__":

@@ -11,6 +11,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import socket
 import subprocess
@@ -84,7 +85,10 @@ def ready_and_rss(config: Path, bus: dict[str, object], src: Path, load_s: float
         assert sender.stdout is not None
         if sender.stdout.readline().strip() != "ready":
             raise RuntimeError("the sender did not start")
-        time.sleep(load_s)
+        end = time.monotonic() + load_s
+        while time.monotonic() < end:  # keep reading its STATUS= lines, as systemd does
+            with contextlib.suppress(TimeoutError):
+                sock.recv(4096)
         if daemon.poll() is not None:
             raise RuntimeError("canguard run died under load")
         return ready_s, rss0, kit.vmrss_mb(daemon.pid)
