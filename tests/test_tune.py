@@ -59,7 +59,11 @@ class TestTune:
         # guessed 25 A against a healthy day below 7 A: tuned down, and the overload fault now trips it
         assert axis0["status"] == "tuned" and axis0["new"] < 25.0
         assert axis0["healthy_ceiling"]["value"] * 1.1 <= axis0["new"] < axis0["faults"][0]["value"]
+        axis1 = next(g for g in report["guards"] if g["node"] == "Axis1Current")
+        # the inrush log's starts on axis1 last less than the 0.15 s window above the new threshold
+        assert 0.0 < axis1["inrush"]["new"] < 0.15 and axis1["inrush"]["starts"] > 0
         text = (out / "robot_guard.xml").read_text(encoding="utf-8")
+        assert f'inrush_time="{axis1["inrush"]["new"]:g}"' in text
         assert "<!-- The whole robot" in text  # comments and layout kept
         assert f'name="Axis0Current" topic_name="axis0" overcurrent_threshold="{axis0["new"]:g}"' in text
         for log in _logs(repo, HEALTHY):

@@ -241,8 +241,11 @@ def _attributes(g: Any, tree_text: str, port_text: Any) -> dict[str, float]:
         over = float(port_text(tree_text, g.node, "overcurrent_threshold") or g.old)
         rec = float(port_text(tree_text, g.node, "recovery_threshold") or 25.0)
         # the recovery keeps its ratio to the trip threshold, to four digits and never above it
-        return {"overcurrent_threshold": g.new, "recovery_threshold": min(float(f"{g.new * rec / over:.4g}"), g.new)
-                if over else g.new}
+        values = {"overcurrent_threshold": g.new,
+                  "recovery_threshold": min(float(f"{g.new * rec / over:.4g}"), g.new) if over else g.new}
+        if g.inrush is not None and g.inrush.get("new") is not None:
+            values["inrush_time"] = g.inrush["new"]
+        return values
     if g.type == "IsI2tSafe":
         cont = float(port_text(tree_text, g.node, "continuous_current") or "nan")
         values = {"continuous_current": float(f"{cont * g.new:.4g}")}
@@ -312,6 +315,11 @@ def render(report: dict[str, Any]) -> str:
             lines.append(f"      healthy: peak {_fmt(peak['value'])} ({peak['log']} t={_fmt(peak['t'])}), "
                          f"p99 {_fmt(g['healthy_p99'])}, p99.9 {_fmt(g['healthy_p99_9'])}"
                          + (f", no trip from {_fmt(ceil['value'])} ({ceil['log']})" if ceil is not None else ""))
+        if g["inrush"]:
+            i = g["inrush"]
+            window = f"inrush_time {_fmt(i['old'])} -> {_fmt(i['new'])} s" if i["new"] is not None else "inrush window"
+            lines.append(f"      {window}: {i['starts']} healthy starts, highest |I| in a window {_fmt(i['peak'])}"
+                         f" ({i['why']})")
         for f in g["faults"]:
             lines.append(f"      fault {f['log']}: trips below {_fmt(f['value'])} (t={_fmt(f['t'])})")
         for h in g["heat_pct"]:

@@ -71,6 +71,8 @@ class Proposal:
     """I²t: the highest level each log reached (% of the trip level)."""
     hist: dict[str, int] = field(default_factory=dict)
     """The healthy logs' |values| in :func:`~canguard.report.tune.histogram` bins (``--plot``)."""
+    inrush: dict[str, Any] | None = None
+    """An inrush-blanked guard: the healthy starts (count, peak, window old -> new and why)."""
     scale: bool = False
     """The figure is a factor on an I²t rating (continuous and peak current scale together)."""
 
@@ -84,7 +86,7 @@ class Proposal:
             "healthy_ceiling": need(self.healthy), "healthy_peak": need(self.peak),
             "healthy_p99": _num(self.p99), "healthy_p99_9": _num(self.p999),
             "faults": [need(f) for f in self.faults], "heat_pct": [need(h) for h in self.heat],
-            "rating_scale": self.scale,
+            "rating_scale": self.scale, "inrush": self.inrush,
         }
 
 
@@ -179,6 +181,7 @@ def propose_guard(node: str, logs: list[LogStats], expect: dict[str, list[str]] 
     prop.peak = _best(peaks)
     prop.healthy = _best(ceilings)
     prop.hist = hist
+    starts = [s["inrush"] for log in logs if not log.fault for s in _signals(log, node)[1] if s.get("inrush")]
     prop.p99, prop.p999 = percentile(hist, 99.0), percentile(hist, 99.9)
     if expect is not None:
         prop.faults = [f for f in faults if node in expect.get(f.log, [])]
@@ -186,7 +189,31 @@ def propose_guard(node: str, logs: list[LogStats], expect: dict[str, list[str]] 
         floor = prop.healthy.value * (1.0 + margin) if prop.healthy is not None else 0.0
         prop.faults = [f for f in faults if math.isfinite(f.value) and f.value > floor]
     _decide(prop, margin, tune_i2t)
+    if starts:
+        prop.inrush = _inrush(starts, prop.new, margin)
     return prop
+
+
+def _inrush(starts: list[dict[str, Any]], threshold: float | None, margin: float) -> dict[str, Any]:
+    """The healthy motor starts of an inrush-blanked guard, and its window: as long as the longest start.
+
+    A start lasts while its |I| is above the (tuned) overcurrent threshold; the window proposed is the
+    longest healthy start × (1 + margin). Kept when no start rises above the threshold, or none was seen.
+    """
+    window = starts[0]["window"]
+    count = sum(s["starts"] for s in starts)
+    out: dict[str, Any] = {"starts": count, "peak": max(s["peak"] for s in starts), "old": window, "new": None}
+    if threshold is None or not count:
+        out["why"] = "no healthy start seen: window kept" if not count else "threshold not tuned: window kept"
+        return out
+    longest = max((p[0] for s in starts for p in s["envelope"] if p[1] >= threshold), default=0.0)
+    out["longest_s"] = longest
+    if longest <= 0.0:
+        out["why"] = "no healthy start rises above the new threshold: window kept"
+        return out
+    out["new"] = nice_up(longest * (1.0 + margin))
+    out["why"] = f"the longest healthy start stays above {threshold:.4g} for {longest:.4g} s"
+    return out
 
 
 def _decide(prop: Proposal, margin: float, tune_i2t: bool) -> None:

@@ -196,6 +196,47 @@ def ceiling(model: ProtectionModel, knob: Knob, t: np.ndarray, v: np.ndarray) ->
     return hi, trip_time(model, knob, lo, t, v)
 
 
+INRUSH_HORIZON = 4.0
+"""A start's envelope follows its samples for this many inrush windows (or up to the next start)."""
+
+
+def staircase(dt: np.ndarray, a: np.ndarray) -> list[list[float]]:
+    """The points (time since a start, |I|) no later point reaches: the longest time above each level."""
+    if not dt.size:
+        return []
+    order = np.argsort(-dt, kind="stable")
+    dt, a = dt[order], a[order]
+    before = np.concatenate(([-np.inf], np.maximum.accumulate(a)[:-1]))
+    keep = a > before
+    return [[float(x), float(y)] for x, y in zip(dt[keep].tolist(), a[keep].tolist(), strict=True)]
+
+
+def envelope(model: ProtectionModel, t: np.ndarray, v: np.ndarray) -> dict[str, Any] | None:
+    """An inrush-blanked guard's motor starts on a log: how many, the highest |I| in a window, the staircase.
+
+    The guard's own start detection (a copy of its :class:`~canguard.protect.inrush.InrushBlanking`) finds
+    the starts; None for a guard without inrush blanking.
+    """
+    inrush = getattr(model, "inrush", None)
+    if inrush is None or not t.size:
+        return None
+    window = float(inrush.inrush_time_s)
+    a = np.abs(v)
+    starts = np.flatnonzero(copy.deepcopy(inrush).advance(t, a))
+    points: list[list[float]] = []
+    peak = 0.0
+    for i, s in enumerate(starts.tolist()):
+        stop = int(starts[i + 1]) if i + 1 < starts.size else t.size
+        stop = min(stop, int(np.searchsorted(t, t[s] + INRUSH_HORIZON * window, side="right")))
+        seg_t, seg_a = t[s:stop] - t[s], a[s:stop]
+        inside = seg_t < window
+        if inside.any():
+            peak = max(peak, float(seg_a[inside].max()))
+        points += staircase(seg_t, seg_a)
+    merged = staircase(np.array([p[0] for p in points]), np.array([p[1] for p in points]))
+    return {"starts": int(starts.size), "peak": peak, "window": window, "envelope": merged}
+
+
 def histogram(a: np.ndarray) -> dict[str, int]:
     """|value| counted in 1 % bins (the key is the bin's index as text; ``"z"`` counts zeros): JSON-able."""
     zero = int(np.count_nonzero(a == 0))
@@ -272,6 +313,9 @@ class TuneStats:
                     if knob is not None and (not knob.scale or self.tune_i2t):
                         top, when = ceiling(model, knob, t, v)
                         entry.update(ceiling=top, ceiling_t=None if when is None else when - start)
+                    inrush = envelope(model, t, v)
+                    if inrush is not None:
+                        entry["inrush"] = inrush
                     heat = getattr(model, "trip_level", None)
                     if heat is not None:
                         entry["heat_pct"] = self._heat_pct(node.name)
