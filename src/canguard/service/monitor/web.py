@@ -214,7 +214,7 @@ class _Site:
                 return
 
     async def _read_head(self, reader: asyncio.StreamReader, buffered: bytearray, first: bool) -> bytes | None:
-        """The next request's head; None when the client closed (or, between requests, stayed idle) cleanly."""
+        """The next request's head; None when the client closed, or did not send it whole in time."""
         loop = asyncio.get_running_loop()
         deadline = loop.time() + self.limits.request_timeout_s
         while (end := _HEAD_END.search(buffered)) is None:
@@ -229,9 +229,7 @@ class _Site:
                                     "(connection closed)")
                 return None  # else an idle keep-alive connection: closed quietly
             if not chunk:
-                if buffered:
-                    self.notes.note("a client closed its connection in the middle of a request")
-                return None
+                return None  # the client closed (or was closed for a newer one: _admit): nothing to answer
             buffered += chunk
         head = bytes(buffered[:end.start()])
         del buffered[:end.end()]
