@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import dataclasses
 import email.utils
 import hmac
 import json
@@ -58,7 +59,7 @@ class Limits:
 
     max_connections: int = 2048
     """Connections open at once (lowered to half the process's file-descriptor limit); past it, the oldest
-    connection still sending its request is closed for the new one."""
+    connection still sending its request (or lingering after its answer) is closed for the new one."""
     max_streams: int = 64
     """Event streams (``/api/events``, ``/api/status`` as a stream) at once; more get 503."""
     streams_per_address: int = 16
@@ -183,7 +184,7 @@ class _Site:
                 self.tasks.discard(task)
 
     def _admit(self) -> bool:
-        """Room for one more connection: the oldest one still sending its request goes, or this one."""
+        """Room for one more connection: the oldest one still sending its request (or lingering) goes, or this one."""
         if self.open <= self.limits.max_connections:
             return True
         if not self.waiting:
@@ -238,6 +239,7 @@ class _Site:
     async def _close(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
         """End our side once the answer is sent, and wait (``send_timeout_s`` at most) for the client to close
         its side: closing with a request body unread would reset the connection, and the answer with it."""
+        self.waiting[writer] = None  # lingering: the first to go when every place is taken
         with contextlib.suppress(OSError, asyncio.TimeoutError):  # it lingers or resets: it is closed all the same
             writer.write_eof()
             await asyncio.wait_for(_until_closed(reader), self.limits.send_timeout_s)
@@ -378,7 +380,7 @@ class WebMonitor:
 
     def __init__(self, address: Address, hub: Hub, token: str | None, limits: Limits | None = None) -> None:
         limits = limits or Limits()
-        limits = Limits(**{**vars(limits), "max_connections": _connection_budget(limits.max_connections)})
+        limits = dataclasses.replace(limits, max_connections=_connection_budget(limits.max_connections))
         self.limits = limits
         """What clients are granted (``max_connections`` as this process's descriptors allow)."""
         page = data_path("monitor", "index.html").read_bytes()
