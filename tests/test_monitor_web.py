@@ -215,11 +215,11 @@ def test_misbehaving_clients_leave_the_page_and_the_stop_as_they_are(tmp_path: P
     The page and ``/api/status`` answer throughout, a trip puts the Estop on the bus on time (a loop held up by
     a stalled write would wait out the server's 5 s send timeout: 2 s leaves a loaded machine its slack;
     bench_latency measures the real tail), Groot2 still answers a new client, every stream place is free as
-    soon as its client left, and nothing of it prints a traceback.
+    soon as its client left, and nothing of it prints a traceback, nor does the daemon's end with them open.
     """
     import zmq
 
-    with watched_daemon(tmp_path, groot2=True) as w, contextlib.ExitStack() as held:
+    with contextlib.ExitStack() as held, watched_daemon(tmp_path, groot2=True) as w:  # held: open as it stops
         wait_for("the task to run", lambda: running(w))
         port = int(w.http.rsplit(":", 1)[1])
         streams = [unread_stream(port, path) for path in ("/api/status", "/api/events") * 10]
@@ -273,6 +273,7 @@ def test_misbehaving_clients_leave_the_page_and_the_stop_as_they_are(tmp_path: P
             return True
 
         wait_for("the places of the streams that left", streams_free, timeout_s=5.0)
+        held.enter_context(contextlib.closing(unread_stream(port, "/api/status")))
     assert "Traceback" not in capfd.readouterr().err
 
 

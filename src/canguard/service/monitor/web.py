@@ -149,16 +149,18 @@ class _Site:
         self.changes = _Changes()
         self.open = 0
         self.waiting: dict[asyncio.StreamWriter, None] = {}
-        """Connections reading a request head, oldest first: the first to go when every place is taken."""
+        """Connections reading a request head or lingering after their answer, oldest first: the first to go when
+        every place is taken."""
         self.streams: Counter[str] = Counter()
-        self.tasks: set[asyncio.Task[Any]] = set()
+        self.tasks: dict[asyncio.Task[Any], asyncio.StreamWriter] = {}
+        """Each connection's task and its writer: closed at shutdown (their transports aborted, so each ends)."""
 
     # -- a connection ----------------------------------------------------------------------------
     async def connection(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
         """Serve one connection until it ends; nothing it does escapes as an exception."""
         task = asyncio.current_task()
         if task is not None:
-            self.tasks.add(task)
+            self.tasks[task] = writer
         self.open += 1
         peer = writer.get_extra_info("peername")
         address = str(peer[0]) if peer else "?"
@@ -181,7 +183,7 @@ class _Site:
             self.open -= 1
             writer.transport.abort()  # after a graceful close: nothing; else the place is free now
             if task is not None:
-                self.tasks.discard(task)
+                self.tasks.pop(task, None)
 
     def _admit(self) -> bool:
         """Room for one more connection: the oldest one still sending its request (or lingering) goes, or this one."""
@@ -344,6 +346,8 @@ class _Site:
     def on_loop_error(self, _loop: asyncio.AbstractEventLoop, context: dict[str, Any]) -> None:
         """What the loop itself could not do (an accept out of descriptors): one line per cause, no traceback."""
         exc = context.get("exception")
+        if isinstance(exc, asyncio.CancelledError):  # a connection ended at shutdown
+            return
         if exc is not None and not isinstance(exc, OSError):  # canguard's fault, not a client's: say where
             log.error("status page: %s", context.get("message"), exc_info=exc)
             return
@@ -431,7 +435,8 @@ class WebMonitor:
             await self._stopping.wait()
         finally:
             server.close()
-            for task in list(site.tasks):
-                task.cancel()
-            await asyncio.gather(*site.tasks, return_exceptions=True)
+            for writer in site.tasks.values():
+                writer.transport.abort()  # each connection's reads and writes end: its task returns
+            with contextlib.suppress(asyncio.TimeoutError):
+                await asyncio.wait_for(asyncio.gather(*site.tasks, return_exceptions=True), 1.0)
 
