@@ -165,6 +165,17 @@ class Abuse:
         return time.monotonic()
 
 
+def monitor_cpu_s(demo_pid: int) -> float:
+    """CPU seconds (user + system) the demo's monitor process (its child) used so far; 0 when not found."""
+    tick = os.sysconf("SC_CLK_TCK")
+    for task in Path(f"/proc/{demo_pid}/task").iterdir():
+        for child in (task / "children").read_text().split():
+            with contextlib.suppress(OSError):
+                fields = Path(f"/proc/{child}/stat").read_text().rsplit(")", 1)[1].split()
+                return (int(fields[11]) + int(fields[12])) / tick
+    return 0.0
+
+
 def probe(port: int, until: threading.Event, out: list[tuple[float, float, int]]) -> None:
     """``/`` and ``/api/status`` in turn every 100 ms: (when, seconds to the whole answer, status or 0)."""
     paths = ("/", "/api/status")
@@ -215,8 +226,10 @@ def one_run(src: Path, args: argparse.Namespace, abuse: bool) -> dict[str, Any]:
             prober.start()
             time.sleep(1.0)
             clients = Abuse(port, groot2, args)
+            cpu0, wall0 = monitor_cpu_s(proc.pid), time.monotonic()
             clients.thread.start()
             time.sleep(max(0.0, args.leave_s - (time.monotonic() - t0)))
+            result["monitor_cpu_pct"] = 100 * (monitor_cpu_s(proc.pid) - cpu0) / (time.monotonic() - wall0)
             left = clients.leave()
             while not places_free(port, args.free_streams):
                 if time.monotonic() - left > 30:
@@ -240,6 +253,9 @@ def one_run(src: Path, args: argparse.Namespace, abuse: bool) -> dict[str, Any]:
     text = err.read_text()
     err.unlink()
     stops = [float(x) for x in STOP_MS.findall(out)]
+    for line in out.splitlines():
+        if line.startswith("  t="):
+            print("   ", line.strip()[:150], file=sys.stderr)
     trips = re.search(r"trips: (\d+); stops: (\d+)", out)
     for line in [line for line in text.splitlines() if "WARNING" in line or "ERROR" in line][:12]:
         print("   ", line[:200], file=sys.stderr)

@@ -369,8 +369,10 @@ async def _until_first(*steps: Awaitable[None]) -> None:
     finally:
         for task in tasks:
             task.cancel()
-    for task in done:
-        task.result()
+    errors = [task.exception() for task in done]  # each one read: none left "never retrieved"
+    for error in errors:
+        if error is not None:
+            raise error
 
 
 def _connection_budget(wanted: int) -> int:
