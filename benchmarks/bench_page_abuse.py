@@ -9,7 +9,8 @@ left alone (the peer), once while, from a second after the page listens until ``
 - ``--resets`` streams asked for and reset (``SO_LINGER`` 0) at once, every two seconds;
 - ``--groot2-clients`` ZeroMQ REQ clients asking once and never reading, and garbage on both Groot2 ports.
 
-Meanwhile a prober asks for ``/`` and ``/api/status`` in turn every 100 ms (a new connection each): the
+The monitor process's CPU over that time is measured in both runs. Meanwhile a prober asks for
+``/`` and ``/api/status`` in turn every 100 ms (a new connection each): the
 slowest answer and any that failed. When the clients leave, the time until every stream place is free
 again (``--free-streams`` streams accepted from four other addresses). Then the demo's own
 summary of both runs: its trips and how fast each stop went out, and the tracebacks on its stderr.
@@ -219,7 +220,12 @@ def one_run(src: Path, args: argparse.Namespace, abuse: bool) -> dict[str, Any]:
         port, groot2 = addresses(err)
         t0 = time.monotonic()
         result: dict[str, Any] = {}
-        if abuse:
+        if not abuse:
+            time.sleep(1.0)
+            cpu0, wall0 = monitor_cpu_s(proc.pid), time.monotonic()
+            time.sleep(max(0.0, args.leave_s - (time.monotonic() - t0)))
+            result["monitor_cpu_pct"] = 100 * (monitor_cpu_s(proc.pid) - cpu0) / (time.monotonic() - wall0)
+        else:
             probes: list[tuple[float, float, int]] = []
             stop_probing = threading.Event()
             prober = threading.Thread(target=probe, args=(port, stop_probing, probes), daemon=True)
