@@ -34,7 +34,7 @@ from collections import Counter
 from collections.abc import Awaitable
 from dataclasses import dataclass
 from http import HTTPStatus
-from typing import Any
+from typing import Any, TypeVar
 from urllib.parse import parse_qs, urlsplit
 
 from canguard.config.monitor import Address
@@ -43,6 +43,7 @@ from canguard.service.monitor.hub import Hub
 from canguard.service.monitor.notes import ClientNotes
 
 log = logging.getLogger(__name__)
+T = TypeVar("T")
 
 HEAD_BYTES = 16 * 1024
 """Largest request head (request line and headers); a longer one is answered 431."""
@@ -131,7 +132,7 @@ class _Changes:
     async def next(self, timeout_s: float) -> bool:
         """True when something changed within ``timeout_s``."""
         try:
-            await asyncio.wait_for(self._next.wait(), timeout_s)
+            await _within(self._next.wait(), timeout_s)
         except asyncio.TimeoutError:
             return False
         return True
@@ -225,7 +226,7 @@ class _Site:
                 raise _Refused(431, "request head too large\n", f"a request head over {HEAD_BYTES} bytes "
                                "(answered 431)")
             try:
-                chunk = await asyncio.wait_for(reader.read(HEAD_BYTES + 4), deadline - loop.time())
+                chunk = await _within(reader.read(HEAD_BYTES + 4), deadline - loop.time())
             except asyncio.TimeoutError:
                 if buffered or first:
                     self.notes.note(f"a request not sent whole within {self.limits.request_timeout_s:g} s "
@@ -244,7 +245,7 @@ class _Site:
         self.waiting[writer] = None  # lingering: the first to go when every place is taken
         with contextlib.suppress(OSError, asyncio.TimeoutError):  # it lingers or resets: it is closed all the same
             writer.write_eof()
-            await asyncio.wait_for(_until_closed(reader), self.limits.send_timeout_s)
+            await _within(_until_closed(reader), self.limits.send_timeout_s)
 
     # -- answers ---------------------------------------------------------------------------------
     async def _respond(self, req: _Request, reader: asyncio.StreamReader, writer: asyncio.StreamWriter,
@@ -292,7 +293,7 @@ class _Site:
     async def _send(self, writer: asyncio.StreamWriter, data: bytes) -> None:
         """Write; asyncio.TimeoutError when the client takes none of it for ``send_timeout_s``."""
         writer.write(data)
-        await asyncio.wait_for(writer.drain(), self.limits.send_timeout_s)
+        await _within(writer.drain(), self.limits.send_timeout_s)
 
     # -- streams ---------------------------------------------------------------------------------
     async def _stream(self, req: _Request, reader: asyncio.StreamReader, writer: asyncio.StreamWriter,
@@ -355,6 +356,29 @@ class _Site:
                         f"{f' ({type(exc).__name__}: {exc})' if exc else ''}")
 
 
+def _task(step: Awaitable[T]) -> asyncio.Future[T]:
+    """``step`` as a task whose exception is always read, whoever awaits it (none is logged "never retrieved")."""
+    task = asyncio.ensure_future(step)
+    task.add_done_callback(lambda t: t.cancelled() or t.exception())
+    return task
+
+
+async def _within(step: Awaitable[T], timeout_s: float) -> T:
+    """``await step``, cancelled with asyncio.TimeoutError after ``timeout_s``.
+
+    Not ``asyncio.wait_for``: when it is cancelled just as its step fails (a drain woken by a reset), that
+    step's exception is left unread, and asyncio logs it.
+    """
+    task = _task(step)
+    try:
+        done, _ = await asyncio.wait((task,), timeout=max(0.0, timeout_s))
+    finally:
+        task.cancel()
+    if not done:
+        raise asyncio.TimeoutError
+    return task.result()
+
+
 async def _until_closed(reader: asyncio.StreamReader) -> None:
     """Return when the client closed its end; ConnectionResetError when it reset it. What it sends is ignored."""
     while await reader.read(4096):
@@ -363,7 +387,7 @@ async def _until_closed(reader: asyncio.StreamReader) -> None:
 
 async def _until_first(*steps: Awaitable[None]) -> None:
     """Run ``steps`` together until the first ends (its exception raised), the others cancelled."""
-    tasks = [asyncio.ensure_future(step) for step in steps]
+    tasks = [_task(step) for step in steps]
     try:
         done, _ = await asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED)
     finally:
