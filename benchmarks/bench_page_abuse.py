@@ -1,6 +1,6 @@
 """The status page under clients that misbehave, at full size, beside the same demo left alone.
 
-Each round runs ``canguard demo --http 127.0.0.1:0 --groot2 0`` twice, alternating: once with its page
+Each pair runs ``canguard demo --http 127.0.0.1:0 --groot2 0`` twice, alternating: once with its page
 left alone (the peer), once while, from a second after the page listens until ``--leave-s`` into the run:
 
 - ``--streams`` event streams (half ``/api/status``, half ``/api/events``) asked for and never read,
@@ -15,8 +15,8 @@ slowest answer and any that failed. When the clients leave, the time until every
 again (``--free-streams`` streams accepted from four other addresses). Then the demo's own
 summary of both runs: its trips and how fast each stop went out, and the tracebacks on its stderr.
 
-    python benchmarks/bench_page_abuse.py                 # this checkout, one round
-    python benchmarks/bench_page_abuse.py --rounds 2 --src /path/to/other/checkout/src
+    python benchmarks/bench_page_abuse.py                 # this checkout, one pair
+    python benchmarks/bench_page_abuse.py --repeat 2 --src /path/to/other/checkout/src
 """
 
 from __future__ import annotations
@@ -275,7 +275,7 @@ def main() -> int:
     clean_up_on_sigterm()
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--src", type=Path, default=REPO / "src", help="the canguard source tree to run")
-    parser.add_argument("--rounds", type=int, default=1)
+    parser.add_argument("--repeat", type=int, default=1)
     parser.add_argument("--duration", type=float, default=40.0, help="each demo's run (s)")
     parser.add_argument("--leave-s", type=float, default=30.0, help="when the misbehaving clients leave (s)")
     parser.add_argument("--streams", type=int, default=100)
@@ -286,10 +286,10 @@ def main() -> int:
                         help="streams that must all be accepted to call every place free (web.Limits.max_streams)")
     args = parser.parse_args()
     src = compiled(args.src.resolve())
-    for r in range(args.rounds):
+    for r in range(args.repeat):
         for abuse in (False, True):
             res = one_run(src, args, abuse)
-            print(f"round {r + 1} {'abused' if abuse else 'left alone'}: "
+            print(f"pair {r + 1} {'abused' if abuse else 'left alone'}: "
                   + ", ".join(f"{k}={v:.3f}" if isinstance(v, float) else f"{k}={v}" for k, v in res.items()),
                   flush=True)
     return 0
