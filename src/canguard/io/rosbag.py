@@ -1,0 +1,437 @@
+"""ROS bags as CAN logs: rosbag2 (a directory with ``metadata.yaml``, a ``.db3`` or ``.mcap``) and ROS 1 ``.bag``.
+
+The ``rosbags`` package (an optional extra: ``pip install 'canguard[rosbags]'``) opens
+the bag and gives its raw messages; canguard never deserialises them one by one. The
+CAN frame types have a fixed layout after the header's ``frame_id``
+(:mod:`canguard.io.rosmsgs`), so a block of up to :data:`BLOCK` raw messages is joined
+into one byte buffer and every field of every message is gathered by numpy at once
+(:func:`unpack`).
+
+What a frame is, as candump has it:
+
+* its time is its ``header.stamp``; where that is zero (a driver that leaves it
+  unset), the time the bag recorded it; ``stamp="record"`` takes the record time
+  throughout. :attr:`ReadStats.stamps` counts which was used;
+* its channel is its topic (``/from_can_bus``): a config maps a topic to a bus as it
+  maps a candump channel;
+* its payload is ``data[:dlc]`` (ros2_socketcan reuses its buffer: the bytes past
+  ``dlc`` are leftovers of earlier frames); remote frames keep their DLC and no data,
+  error frames are 29-bit ids with the error flag, as candump reads ``-L`` lines.
+
+A message that does not hold what its layout says (cut short, a ``dlc`` above 8, an
+11-bit id above 7FF) is a bad line of the log: an error naming the topic and the
+message's number, or counted and skipped with ``skip_bad``. A bag that cannot be read
+(cut, not a bag), has no CAN topic, lacks a topic asked for, or holds a topic of a CAN
+type canguard does not know is a :class:`LogFormatError` naming the file and what was
+found, with the frames read before it.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+from itertools import islice
+from operator import attrgetter
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from canguard.errors import LogFormatError, clip
+from canguard.io.bagopts import BagOptions
+from canguard.io.frame import Frame
+from canguard.io.logtypes import (
+    CAN_EFF_MASK,
+    CAN_SFF_MASK,
+    CANFD_LENGTHS,
+    MAX_BAD_EXAMPLES,
+    BadLine,
+    LogFrames,
+    ReadStats,
+    _new,
+)
+from canguard.io.rosmsgs import (
+    DEFINITIONS,
+    KVASER_ERROR_FRAME,
+    KVASER_EXT,
+    KVASER_RTR,
+    Layout,
+    layout_for,
+    looks_like_can,
+    ros2_name,
+)
+
+BLOCK = 4096
+"""Raw messages unpacked at once."""
+_PAD = 80
+"""Zero bytes after a block's buffer: a field read past a cut message's end reads them, not past the array."""
+_FD_OK = np.zeros(256, dtype=bool)
+_FD_OK[sorted(CANFD_LENGTHS)] = True
+
+
+# --------------------------------------------------------------------------- one block of raw messages
+
+
+@dataclass
+class Rows:
+    """A block of frames as numpy columns, unpacked from raw messages (:func:`unpack`); ``good`` marks the rows
+    that hold a frame (the others are bad messages, with their reason in ``why``)."""
+
+    record_ns: np.ndarray
+    sec: np.ndarray
+    nanosec: np.ndarray
+    ids: np.ndarray
+    extended: np.ndarray
+    remote: np.ndarray
+    error: np.ndarray
+    fd: np.ndarray
+    lengths: np.ndarray
+    """Payload bytes (for a remote frame: its DLC, and no payload)."""
+    data: np.ndarray
+    """``rows x width`` payload bytes, the first ``lengths`` of each row its payload."""
+    good: np.ndarray
+    why: list[str]
+
+
+def _u32(buf: np.ndarray, at: np.ndarray) -> np.ndarray:
+    """The little-endian uint32 at each of ``at`` (int64 for arithmetic)."""
+    return buf[at[:, None] + np.arange(4)].view("<u4").ravel().astype(np.int64)
+
+
+def _u16(buf: np.ndarray, at: np.ndarray) -> np.ndarray:
+    return buf[at[:, None] + np.arange(2)].view("<u2").ravel().astype(np.int64)
+
+
+def _field(buf: np.ndarray, body: np.ndarray, lay: Layout, name: str) -> np.ndarray:
+    """Field ``name`` (a bool or an unsigned integer of 1, 2 or 4 bytes) of every message."""
+    f = lay.fields[name]
+    at = body + f.offset
+    if f.size == 4:
+        return _u32(buf, at)
+    if f.size == 2:
+        return _u16(buf, at)
+    return buf[at].astype(np.int64)
+
+
+def unpack(lay: Layout, raws: Sequence[bytes], record_ns: np.ndarray) -> Rows:
+    """The frames of ``raws`` (messages of one layout), read from their fixed offsets all at once."""
+    n = len(raws)
+    lens = np.fromiter(map(len, raws), np.int64, n)
+    joined = b"".join(raws)
+    buf = np.zeros(len(joined) + _PAD + 64, dtype=np.uint8)
+    buf[:len(joined)] = np.frombuffer(joined, dtype=np.uint8)
+    start = np.zeros(n, dtype=np.int64)
+    np.cumsum(lens[:-1], out=start[1:])
+    why: list[str] = [""] * n
+    bad = lens < lay.header_size
+    if lay.cdr:
+        big = buf[start + 1] == 0
+        for i in np.flatnonzero(big & ~bad).tolist():
+            why[i] = "big-endian CDR, which canguard does not read"
+        bad |= big
+    name_len = np.where(bad, 0, _u32(buf, start + 12))
+    name_len = np.minimum(name_len, lens)  # a cut or garbled string length: caught by the size check below
+    body = start + lay.header_size + name_len
+    if lay.cdr:
+        body = (body - start + 3) // 4 * 4 + start  # aligned as CDR aligns, from the message's first byte
+    body = np.minimum(body, start + lens)  # stays inside the padded buffer
+    end = body + lay.fixed
+    seq_len = np.zeros(n, dtype=np.int64)
+    if lay.sequence >= 0:
+        seq_len = np.where(body + lay.sequence + 4 <= start + lens, _u32(buf, body + lay.sequence), 0)
+        end = body + lay.sequence + 4 + seq_len
+    short = end > start + lens
+    for i in np.flatnonzero(short & ~bad).tolist():
+        why[i] = f"{int(lens[i])} bytes, shorter than its fields"
+    bad |= short
+    stamp = start + lay.stamp_offset
+    sec = _u32(buf, stamp)
+    if lay.cdr:
+        sec = np.where(sec >= 1 << 31, sec - (1 << 32), sec)  # int32
+    nanosec = _u32(buf, stamp + 4)
+    rows = _frame_fields(lay, buf, body, seq_len)
+    return Rows(record_ns, sec, nanosec, *rows, ~bad, why)
+
+
+def _frame_fields(lay: Layout, buf: np.ndarray, body: np.ndarray, seq_len: np.ndarray) -> tuple[np.ndarray, ...]:
+    """(ids, extended, remote, error, fd, lengths, data) of a block, as each type holds them."""
+    name = lay.msgtype
+    n = body.size
+    false = np.zeros(n, dtype=bool)
+    ids = _field(buf, body, lay, "id")
+    if name == "autoware_can_msgs/msg/CANPacket":
+        flag = _field(buf, body, lay, "flag")
+        extended = ((flag & KVASER_EXT) != 0) | (ids > CAN_SFF_MASK)
+        remote, error = (flag & KVASER_RTR) != 0, (flag & KVASER_ERROR_FRAME) != 0
+        return ids, extended, remote, error, false, _field(buf, body, lay, "len"), _bytes(buf, body, lay, "dat")
+    extended = _field(buf, body, lay, "is_extended") != 0
+    error = _field(buf, body, lay, "is_error") != 0
+    remote = _field(buf, body, lay, "is_rtr") != 0 if "is_rtr" in lay.fields else false
+    fd = _field(buf, body, lay, "is_fd_frame") != 0 if "is_fd_frame" in lay.fields else false
+    if name == "ros2_socketcan_msgs/msg/FdFrame":
+        fd = ~false
+    size = "len" if "len" in lay.fields else "dlc"
+    lengths = _field(buf, body, lay, size)
+    if lay.sequence >= 0:
+        data = buf[(body + lay.sequence + 4)[:, None] + np.arange(64)]
+        lengths = np.where(lengths > seq_len, -1, lengths)  # more than the data holds: refused below
+    else:
+        data = _bytes(buf, body, lay, "data")
+    return ids, extended, remote, error, fd, lengths, data
+
+
+def _bytes(buf: np.ndarray, body: np.ndarray, lay: Layout, name: str) -> np.ndarray:
+    f = lay.fields[name]
+    return buf[(body + f.offset)[:, None] + np.arange(f.count)]
+
+
+def check(rows: Rows) -> None:
+    """Mark the rows that are no CAN frame as candump knows one (``rows.good``, ``rows.why``)."""
+    ok = rows.good
+    why = rows.why
+    lengths = rows.lengths
+    classic_bad = ~rows.fd & ((lengths < 0) | (lengths > 8))
+    fd_bad = rows.fd & ((lengths < 0) | ~_FD_OK[np.clip(lengths, 0, 255)] | rows.remote)
+    std_bad = ~rows.extended & ~rows.error & (rows.ids > CAN_SFF_MASK)
+    ext_bad = rows.extended & ~rows.error & (rows.ids > CAN_EFF_MASK)
+    for mask, reason in ((classic_bad, "a classic frame's length {} is not 0-8"),
+                         (fd_bad, "a CAN FD frame's length {} is not a CAN FD length"),
+                         (std_bad, "11-bit id {:X} is above 7FF"), (ext_bad, "29-bit id {:X} is above 1FFFFFFF")):
+        hits = mask & ok
+        for i in np.flatnonzero(hits).tolist():
+            value = int(rows.ids[i]) if "id" in reason else int(lengths[i])
+            why[i] = reason.format(value)
+        ok &= ~hits
+
+
+def times(rows: Rows, record: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Each row's time in seconds (its header stamp, the record time where that is zero or with ``record``), and
+    which rows took the record time. A whole number of microseconds is exactly the float candump's text of it
+    reads as (one rounding of an exact integer of microseconds)."""
+    rec_s = rows.record_ns // 1_000_000_000
+    rec_ns = rows.record_ns % 1_000_000_000
+    use = np.ones(rows.sec.size, dtype=bool) if record else (rows.sec == 0) & (rows.nanosec == 0)
+    sec = np.where(use, rec_s, rows.sec)
+    nsec = np.where(use, rec_ns, rows.nanosec)
+    t = (sec * 1_000_000 + nsec // 1000) / 1e6
+    sub = nsec % 1000
+    if sub.any():
+        t = t + sub * 1e-9
+    return t, use
+
+
+# --------------------------------------------------------------------------- the block the engine takes
+
+
+def frames_of(rows: Rows, t: np.ndarray, lanes: np.ndarray, channels: list[str]) -> list[Frame]:
+    """The good rows of a block as frames, in order: where a block of columns becomes what the engine takes."""
+    keep = np.flatnonzero(rows.good)
+    sel: Any = keep if keep.size < rows.good.size else slice(None)
+    ids, ext, rem, err, fd = rows.ids[sel], rows.extended[sel], rows.remote[sel], rows.error[sel], rows.fd[sel]
+    lengths, data = rows.lengths[sel], rows.data[sel]
+    ids = np.where(err, ids & CAN_EFF_MASK, ids)
+    ext = ext | err  # an error frame is a 29-bit id with the error flag in candump
+    width = data.shape[1]
+    blob = np.ascontiguousarray(data).tobytes()
+    starts = np.arange(keep.size) * width
+    payload_len = np.where(rem, 0, lengths)
+    payloads = list(map(blob.__getitem__, map(slice, starts.tolist(), (starts + payload_len).tolist())))
+    dlcs = np.where(rem & (lengths > 0), lengths, -1).tolist()
+    chans = list(map(channels.__getitem__, lanes[sel].tolist()))
+    false = [False] * keep.size
+    return list(map(_new, [Frame] * keep.size, zip(
+        t[sel].tolist(), chans, ids.tolist(), payloads, ext.tolist(), fd.tolist(), err.tolist(), rem.tolist(),
+        false, false, dlcs, strict=True)))
+
+
+# --------------------------------------------------------------------------- the bag
+
+
+@dataclass
+class _Topic:
+    """A topic read: its channel's index and the layout of its messages."""
+
+    lane: int
+    layout: Layout
+
+
+class BagReader:
+    """One bag, opened with rosbags: its CAN topics chosen, its raw messages a block at a time."""
+
+    def __init__(self, path: Path, opts: BagOptions) -> None:
+        self.path = path
+        self.opts = opts
+        self.ros2 = path.is_dir() or path.suffix.lower() in (".db3", ".mcap")
+        self.reader: Any = None
+        self.topics: dict[int, _Topic] = {}
+        """Per connection id: its topic."""
+        self.channels: list[str] = []
+        self.total = 0
+        """Messages of the topics read, as the bag's index counts them."""
+        self._open()
+
+    def failed(self, what: str, exc: BaseException) -> LogFormatError:
+        """The error of a bag rosbags could not read (``what``: where and how far), naming the bag."""
+        kind = "rosbag2" if self.ros2 else "ROS 1 bag"
+        return LogFormatError(f"{self.path}: not a readable {kind} ({what}): {type(exc).__name__}: {clip(str(exc))}")
+
+    def _open(self) -> None:
+        if self.ros2:
+            from rosbags.rosbag2 import Reader
+        else:
+            from rosbags.rosbag1 import Reader
+        try:
+            reader = Reader(self.path)
+            reader.open()
+        except Exception as exc:  # rosbags raises its ReaderError, but also struct, yaml and OS errors on a cut bag
+            raise self.failed("cut short, unindexed or not a bag; 0 frames were read", exc) from None
+        self.reader = reader
+        try:
+            self._choose(reader.connections)
+        except BaseException:
+            reader.close()
+            raise
+
+    def _choose(self, connections: Sequence[Any]) -> None:
+        """The connections of the topics to read (:attr:`topics`), or LogFormatError saying what the bag holds."""
+        by_topic: dict[str, list[Any]] = {}
+        for conn in connections:
+            by_topic.setdefault(conn.topic, []).append(conn)
+        found = ", ".join(f"{t} ({cs[0].msgtype})" for t, cs in sorted(by_topic.items())) or "none"
+        wanted = self.opts.topics
+        if wanted:
+            missing = [t for t in wanted if t not in by_topic]
+            if missing:
+                raise LogFormatError(f"{self.path}: no topic {', '.join(missing)} in the bag; its topics: {found}")
+            chosen = list(dict.fromkeys(wanted))
+        else:
+            chosen = sorted(t for t, cs in by_topic.items()
+                            if any(ros2_name(c.msgtype) in DEFINITIONS or looks_like_can(c.msgtype) for c in cs))
+            if not chosen:
+                raise LogFormatError(f"{self.path}: no topic of a CAN frame type ({', '.join(DEFINITIONS)}) "
+                                     f"in the bag; its topics: {found}")
+        for topic in chosen:
+            lane = len(self.channels)
+            self.channels.append(topic)
+            for conn in by_topic[topic]:
+                lay = layout_for(self.path, topic, conn.msgtype, conn.msgdef.data, self.ros2)
+                self.topics[conn.id] = _Topic(lane, lay)
+                self.total += int(conn.msgcount or 0)
+        self.connections = [c for cs in (by_topic[t] for t in chosen) for c in cs]
+
+    def batches(self) -> Iterator[list[tuple[Any, int, bytes]]]:
+        """The chosen topics' raw messages, ``(connection, record time in ns, bytes)``, :data:`BLOCK` at a time."""
+        messages = self.reader.messages(connections=self.connections)
+        while batch := list(islice(messages, BLOCK)):
+            yield batch
+
+    def close(self) -> None:
+        self.reader.close()
+
+
+def _block_rows(bag: BagReader, batch: list[tuple[Any, int, bytes]]) -> tuple[Rows, np.ndarray]:
+    """A batch's rows unpacked (one layout at a time when the batch mixes them), and each row's channel."""
+    conns, stamps, raws = zip(*batch, strict=True)
+    ids = list(map(attrgetter("id"), conns))
+    topics = bag.topics
+    record_ns = np.fromiter(stamps, np.int64, len(stamps))
+    kinds = set(ids)
+    if len(kinds) == 1:
+        only = topics[ids[0]]
+        rows = unpack(only.layout, raws, record_ns)
+        return rows, np.full(len(ids), only.lane, dtype=np.intp)
+    lanes = np.fromiter((topics[c].lane for c in ids), np.intp, len(ids))
+    layouts: dict[Layout, list[int]] = {}
+    for i, c in enumerate(ids):
+        layouts.setdefault(topics[c].layout, []).append(i)
+    if len(layouts) == 1:
+        return unpack(next(iter(layouts)), raws, record_ns), lanes
+    parts = [(np.asarray(idx), unpack(lay, [raws[i] for i in idx], record_ns[idx])) for lay, idx in layouts.items()]
+    return _merge(parts, len(ids)), lanes
+
+
+def _merge(parts: list[tuple[np.ndarray, Rows]], n: int) -> Rows:
+    """The rows of several layouts' unpacked parts put back in the batch's order."""
+    width = max(rows.data.shape[1] for _idx, rows in parts)
+    cols: dict[str, np.ndarray] = {}
+    why = [""] * n
+    for name in ("record_ns", "sec", "nanosec", "ids", "extended", "remote", "error", "fd", "lengths", "good"):
+        first = getattr(parts[0][1], name)
+        out = np.empty(n, dtype=first.dtype)
+        for idx, rows in parts:
+            out[idx] = getattr(rows, name)
+        cols[name] = out
+    data = np.zeros((n, width), dtype=np.uint8)
+    for idx, rows in parts:
+        data[idx, :rows.data.shape[1]] = rows.data
+        for k, i in enumerate(idx.tolist()):
+            why[i] = rows.why[k]
+    good = cols.pop("good")
+    return Rows(**cols, data=data, good=good, why=why)
+
+
+def _note_bad(st: ReadStats, bag: BagReader, rows: Rows, lanes: np.ndarray, first: int, skip_bad: bool) -> None:
+    """Count the bad messages of a block (``first``: the number of its first message in the read), or raise."""
+    for i in np.flatnonzero(~rows.good).tolist():
+        where = f"message {first + i + 1} (topic {bag.channels[int(lanes[i])]})"
+        if not skip_bad:
+            raise LogFormatError(f"{bag.path}: {where}: {rows.why[i]}; {st.frames + int(rows.good[:i].sum())} "
+                                 "frames were read before it")
+        st.bad_lines += 1
+        if len(st.bad_examples) < MAX_BAD_EXAMPLES:
+            st.bad_examples.append(BadLine(first + i + 1, rows.why[i], where))
+
+
+def bag_chunks(p: Path, opts: BagOptions, st: ReadStats, owner: LogFrames, skip_bad: bool) -> Iterator[list[Frame]]:
+    """The frames of bag ``p`` a block at a time; every problem a LogFormatError naming the bag."""
+    bag = BagReader(p, opts)
+    record = opts.stamp == "record"
+    read = 0
+    last_t = -math.inf
+    try:
+        batches = bag.batches()
+        while True:
+            try:
+                batch = next(batches, None)
+            except LogFormatError:
+                raise
+            except Exception as exc:  # a cut or damaged storage deep inside rosbags / sqlite
+                raise bag.failed(f"cut or damaged after {st.frames} frames", exc) from None
+            if batch is None:
+                break
+            rows, lanes = _block_rows(bag, batch)
+            check(rows)
+            if not rows.good.all():
+                _note_bad(st, bag, rows, lanes, read, skip_bad)
+            read += len(batch)
+            t, from_record = times(rows, record)
+            kept = t[rows.good]
+            by_record = int(np.count_nonzero(from_record & rows.good))
+            st.stamps["record"] = st.stamps.get("record", 0) + by_record
+            st.stamps["header"] = st.stamps.get("header", 0) + int(kept.size) - by_record
+            _order(st, kept, last_t)
+            if kept.size:
+                last_t = float(kept[-1])
+            st.frames += int(kept.size)
+            frames = frames_of(rows, t, lanes, bag.channels)
+            if bag.total:
+                owner.reached(min(st.bytes_total, st.bytes_total * read // bag.total))
+            if frames:
+                yield frames
+    finally:
+        bag.close()
+        owner.finished()
+    if not st.frames and not st.bad_lines:
+        raise LogFormatError(f"{p}: empty log: no frames on {', '.join(bag.channels)}")
+
+
+def _order(st: ReadStats, t: np.ndarray, last_t: float) -> None:
+    """Count the times of a block that go back or repeat (the first against ``last_t``)."""
+    if not t.size:
+        return
+    prev = np.empty_like(t)
+    prev[0] = last_t
+    prev[1:] = t[:-1]
+    st.backwards_timestamps += int(np.count_nonzero(t < prev))
+    st.repeated_timestamps += int(np.count_nonzero(t == prev))
