@@ -38,6 +38,7 @@ from canguard.engine.core import Engine
 from canguard.engine.gate import LogSink
 from canguard.engine.routing import ChannelRouter, parse_map
 from canguard.errors import CanguardError, ConfigError, LogFormatError
+from canguard.io.bagopts import STAMPS, BagOptions
 from canguard.io.clock import ManualClock
 from canguard.io.frame import Frame
 from canguard.io.logtypes import COMPRESSIONS
@@ -61,6 +62,8 @@ class ReplayOptions:
     """``--export-signals``: this log's part file (see :mod:`canguard.report.export`)."""
     export_log: str = ""
     """The ``log`` column of its rows: the log as the user named it."""
+    bag: BagOptions = field(default_factory=BagOptions)
+    """ROS bags: the topics to read (``--topic``) and the stamps (``--stamp``)."""
 
 
 def replay_one(cfg: Config, log_path: Path, opts: ReplayOptions) -> dict[str, Any]:
@@ -84,7 +87,7 @@ def replay_one(cfg: Config, log_path: Path, opts: ReplayOptions) -> dict[str, An
     heat = HeatStore(opts.state, cfg.state.on_corrupt) if opts.state is not None else None
     stats = ReadStats()
     router = ChannelRouter(cfg, opts.channel_map)
-    frames: Iterator[Frame] = read_log(log_path, skip_bad=opts.skip_bad, stats=stats)
+    frames: Iterator[Frame] = read_log(log_path, skip_bad=opts.skip_bad, stats=stats, bag=opts.bag)
     if opts.progress:
         from canguard.io.progress import wrap_progress
 
@@ -133,9 +136,16 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         description="What would the daemon have done on this log? Runs the same engine with the log's clock.",
     )
     p.add_argument("logs", nargs="+", type=Path, metavar="LOG",
-                   help="candump (-L, -l, plain, -ta), ASC, BLF, TRC, CSV, MF4, optionally .gz, .xz or .zst; "
+                   help="candump (-L, -l, plain, -ta), ASC, BLF, TRC, CSV, MF4, optionally .gz, .xz or .zst; a ROS bag "
+                        "(rosbag2 directory, .db3, .mcap, ROS 1 .bag); "
                         "'-' reads stdin (with --format); a directory, a quoted glob or @LIST (a file of paths) "
                         "replays every log it names")
+    p.add_argument("--topic", action="append", default=[], metavar="NAME",
+                   help="ROS bags: read this topic (repeatable; default: every topic of a CAN frame type); each "
+                        "topic is a channel named after it")
+    p.add_argument("--stamp", choices=STAMPS, default="header",
+                   help="ROS bags: a frame's time is its header.stamp (the record time where that is zero; "
+                        "default) or the time the bag recorded it")
     p.add_argument("--format", choices=sorted(FORMAT_SUFFIX), default=None,
                    help="the logs' format, instead of telling it by the file suffix (needed for '-')")
     p.add_argument("-c", "--config", type=Path, default=None, help="YAML config (default: as for `canguard run`)")
@@ -438,7 +448,7 @@ def _replay_offline(cfg: Config, cfg_path: Path, args: argparse.Namespace, names
             plot=per_log_path(args.plot, name, many),
             progress=sys.stderr.isatty() and args.jobs <= 1 and args.dask is None,
             export=None if args.export_signals is None else export.part_path(args.export_signals, len(jobs)),
-            export_log=str(name),
+            export_log=str(name), bag=BagOptions(tuple(args.topic), args.stamp),
         )
         jobs.append((job_cfg, log, opts))
     try:

@@ -170,7 +170,7 @@ def log_format(path: str | Path) -> tuple[str, str]:
 def _require(p: Path, what: str, needs: tuple[str, str] | None) -> None:
     """Raise :class:`LogFormatError` when the optional module ``needs`` names is not installed."""
     if needs is not None and importlib.util.find_spec(needs[0]) is None:
-        raise LogFormatError(f"{p}: reading {what} logs needs {needs[0]}: {needs[1]}")
+        raise LogFormatError(f"{p}: reading {what} needs {needs[0]}: {needs[1]}")
 
 
 def read_log(
@@ -206,8 +206,8 @@ def read_log(
         raise LogFormatError(f"{p}: no such file")
     if not p.is_file() and fmt is not _BAG:
         raise LogFormatError(f"{p}: not a regular file")
-    _require(p, f".{fmt.name}", fmt.needs)
-    _require(p, f".{gz}", _COMPRESSORS.get(gz))
+    _require(p, "ROS bags" if fmt is _BAG else f".{fmt.name} logs", fmt.needs)
+    _require(p, f".{gz} logs", _COMPRESSORS.get(gz))
     st = stats if stats is not None else ReadStats()
     st.path = str(p)
     st.format = fmt.name + (f".{gz}" if gz else "")

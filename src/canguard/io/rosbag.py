@@ -150,8 +150,8 @@ def unpack(lay: Layout, raws: Sequence[bytes], record_ns: np.ndarray) -> Rows:
     if lay.cdr:
         sec = np.where(sec >= 1 << 31, sec - (1 << 32), sec)  # int32
     nanosec = _u32(buf, stamp + 4)
-    rows = _frame_fields(lay, buf, body, seq_len)
-    return Rows(record_ns, sec, nanosec, *rows, ~bad, why)
+    ids, extended, remote, error, fd, lengths, data = _frame_fields(lay, buf, body, seq_len)
+    return Rows(record_ns, sec, nanosec, ids, extended, remote, error, fd, lengths, data, ~bad, why)
 
 
 def _frame_fields(lay: Layout, buf: np.ndarray, body: np.ndarray, seq_len: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -277,12 +277,12 @@ class BagReader:
         return LogFormatError(f"{self.path}: not a readable {kind} ({what}): {type(exc).__name__}: {clip(str(exc))}")
 
     def _open(self) -> None:
-        if self.ros2:
-            from rosbags.rosbag2 import Reader
-        else:
-            from rosbags.rosbag1 import Reader
+        import rosbags.rosbag1
+        import rosbags.rosbag2
+
+        kind: Any = rosbags.rosbag2.Reader if self.ros2 else rosbags.rosbag1.Reader
         try:
-            reader = Reader(self.path)
+            reader = kind(self.path)
             reader.open()
         except Exception as exc:  # rosbags raises its ReaderError, but also struct, yaml and OS errors on a cut bag
             raise self.failed("cut short, unindexed or not a bag; 0 frames were read", exc) from None
@@ -311,11 +311,13 @@ class BagReader:
             if not chosen:
                 raise LogFormatError(f"{self.path}: no topic of a CAN frame type ({', '.join(DEFINITIONS)}) "
                                      f"in the bag; its topics: {found}")
+        shared: dict[tuple[str, str], Layout] = {}
         for topic in chosen:
             lane = len(self.channels)
             self.channels.append(topic)
             for conn in by_topic[topic]:
                 lay = layout_for(self.path, topic, conn.msgtype, conn.msgdef.data, self.ros2)
+                lay = shared.setdefault((lay.msgtype, repr(lay)), lay)  # one object per layout: one unpack
                 self.topics[conn.id] = _Topic(lane, lay)
                 self.total += int(conn.msgcount or 0)
         self.connections = [c for cs in (by_topic[t] for t in chosen) for c in cs]
@@ -342,12 +344,13 @@ def _block_rows(bag: BagReader, batch: list[tuple[Any, int, bytes]]) -> tuple[Ro
         rows = unpack(only.layout, raws, record_ns)
         return rows, np.full(len(ids), only.lane, dtype=np.intp)
     lanes = np.fromiter((topics[c].lane for c in ids), np.intp, len(ids))
-    layouts: dict[Layout, list[int]] = {}
+    layouts: dict[int, tuple[Layout, list[int]]] = {}  # by the layout's id: topics of one type share theirs
     for i, c in enumerate(ids):
-        layouts.setdefault(topics[c].layout, []).append(i)
+        lay = topics[c].layout
+        layouts.setdefault(id(lay), (lay, []))[1].append(i)
     if len(layouts) == 1:
-        return unpack(next(iter(layouts)), raws, record_ns), lanes
-    parts = [(np.asarray(idx), unpack(lay, [raws[i] for i in idx], record_ns[idx])) for lay, idx in layouts.items()]
+        return unpack(next(iter(layouts.values()))[0], raws, record_ns), lanes
+    parts = [(np.asarray(idx), unpack(lay, [raws[i] for i in idx], record_ns[idx])) for lay, idx in layouts.values()]
     return _merge(parts, len(ids)), lanes
 
 
