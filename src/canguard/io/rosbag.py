@@ -29,17 +29,16 @@ found, with the frames read before it.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator
 from dataclasses import dataclass
-from itertools import islice
-from operator import attrgetter
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from canguard.errors import LogFormatError, clip
+from canguard.errors import LogFormatError
 from canguard.io.bagopts import BagOptions
+from canguard.io.bagsource import BagSource, RawBlock
 from canguard.io.frame import Frame
 from canguard.io.logtypes import (
     CAN_EFF_MASK,
@@ -52,20 +51,14 @@ from canguard.io.logtypes import (
     _new,
 )
 from canguard.io.rosmsgs import (
-    DEFINITIONS,
     KVASER_ERROR_FRAME,
     KVASER_EXT,
     KVASER_RTR,
     Layout,
-    layout_for,
-    looks_like_can,
-    ros2_name,
 )
 
 BLOCK = 4096
 """Raw messages unpacked at once."""
-_PAD = 80
-"""Zero bytes after a block's buffer: a field read past a cut message's end reads them, not past the array."""
 _FD_OK = np.zeros(256, dtype=bool)
 _FD_OK[sorted(CANFD_LENGTHS)] = True
 
@@ -114,15 +107,10 @@ def _field(buf: np.ndarray, body: np.ndarray, lay: Layout, name: str) -> np.ndar
     return buf[at].astype(np.int64)
 
 
-def unpack(lay: Layout, raws: Sequence[bytes], record_ns: np.ndarray) -> Rows:
-    """The frames of ``raws`` (messages of one layout), read from their fixed offsets all at once."""
-    n = len(raws)
-    lens = np.fromiter(map(len, raws), np.int64, n)
-    joined = b"".join(raws)
-    buf = np.zeros(len(joined) + _PAD + 64, dtype=np.uint8)
-    buf[:len(joined)] = np.frombuffer(joined, dtype=np.uint8)
-    start = np.zeros(n, dtype=np.int64)
-    np.cumsum(lens[:-1], out=start[1:])
+def unpack(lay: Layout, buf: np.ndarray, start: np.ndarray, lens: np.ndarray, record_ns: np.ndarray) -> Rows:
+    """The frames of the messages at ``start`` (``lens`` bytes each, all of one layout) in ``buf`` (with
+    :data:`~canguard.io.mcapscan.PAD` zero bytes after the last), read from their fixed offsets all at once."""
+    n = start.size
     why: list[str] = [""] * n
     bad = lens < lay.header_size
     if lay.cdr:
@@ -248,112 +236,6 @@ def frames_of(rows: Rows, t: np.ndarray, lanes: np.ndarray, channels: list[str])
 # --------------------------------------------------------------------------- the bag
 
 
-@dataclass
-class _Topic:
-    """A topic read: its channel's index and the layout of its messages."""
-
-    lane: int
-    layout: Layout
-
-
-class BagReader:
-    """One bag, opened with rosbags: its CAN topics chosen, its raw messages a block at a time."""
-
-    def __init__(self, path: Path, opts: BagOptions) -> None:
-        self.path = path
-        self.opts = opts
-        self.ros2 = path.is_dir() or path.suffix.lower() in (".db3", ".mcap")
-        self.reader: Any = None
-        self.topics: dict[int, _Topic] = {}
-        """Per connection id: its topic."""
-        self.channels: list[str] = []
-        self.total = 0
-        """Messages of the topics read, as the bag's index counts them."""
-        self._open()
-
-    def failed(self, what: str, exc: BaseException) -> LogFormatError:
-        """The error of a bag rosbags could not read (``what``: where and how far), naming the bag."""
-        kind = "rosbag2" if self.ros2 else "ROS 1 bag"
-        return LogFormatError(f"{self.path}: not a readable {kind} ({what}): {type(exc).__name__}: {clip(str(exc))}")
-
-    def _open(self) -> None:
-        import rosbags.rosbag1
-        import rosbags.rosbag2
-
-        kind: Any = rosbags.rosbag2.Reader if self.ros2 else rosbags.rosbag1.Reader
-        try:
-            reader = kind(self.path)
-            reader.open()
-        except Exception as exc:  # rosbags raises its ReaderError, but also struct, yaml and OS errors on a cut bag
-            raise self.failed("cut short, unindexed or not a bag; 0 frames were read", exc) from None
-        self.reader = reader
-        try:
-            self._choose(reader.connections)
-        except BaseException:
-            reader.close()
-            raise
-
-    def _choose(self, connections: Sequence[Any]) -> None:
-        """The connections of the topics to read (:attr:`topics`), or LogFormatError saying what the bag holds."""
-        by_topic: dict[str, list[Any]] = {}
-        for conn in connections:
-            by_topic.setdefault(conn.topic, []).append(conn)
-        found = ", ".join(f"{t} ({cs[0].msgtype})" for t, cs in sorted(by_topic.items())) or "none"
-        wanted = self.opts.topics
-        if wanted:
-            missing = [t for t in wanted if t not in by_topic]
-            if missing:
-                raise LogFormatError(f"{self.path}: no topic {', '.join(missing)} in the bag; its topics: {found}")
-            chosen = list(dict.fromkeys(wanted))
-        else:
-            chosen = sorted(t for t, cs in by_topic.items()
-                            if any(ros2_name(c.msgtype) in DEFINITIONS or looks_like_can(c.msgtype) for c in cs))
-            if not chosen:
-                raise LogFormatError(f"{self.path}: no topic of a CAN frame type ({', '.join(DEFINITIONS)}) "
-                                     f"in the bag; its topics: {found}")
-        shared: dict[tuple[str, str], Layout] = {}
-        for topic in chosen:
-            lane = len(self.channels)
-            self.channels.append(topic)
-            for conn in by_topic[topic]:
-                lay = layout_for(self.path, topic, conn.msgtype, conn.msgdef.data, self.ros2)
-                lay = shared.setdefault((lay.msgtype, repr(lay)), lay)  # one object per layout: one unpack
-                self.topics[conn.id] = _Topic(lane, lay)
-                self.total += int(conn.msgcount or 0)
-        self.connections = [c for cs in (by_topic[t] for t in chosen) for c in cs]
-
-    def batches(self) -> Iterator[list[tuple[Any, int, bytes]]]:
-        """The chosen topics' raw messages, ``(connection, record time in ns, bytes)``, :data:`BLOCK` at a time."""
-        messages = self.reader.messages(connections=self.connections)
-        while batch := list(islice(messages, BLOCK)):
-            yield batch
-
-    def close(self) -> None:
-        self.reader.close()
-
-
-def _block_rows(bag: BagReader, batch: list[tuple[Any, int, bytes]]) -> tuple[Rows, np.ndarray]:
-    """A batch's rows unpacked (one layout at a time when the batch mixes them), and each row's channel."""
-    conns, stamps, raws = zip(*batch, strict=True)
-    ids = list(map(attrgetter("id"), conns))
-    topics = bag.topics
-    record_ns = np.fromiter(stamps, np.int64, len(stamps))
-    kinds = set(ids)
-    if len(kinds) == 1:
-        only = topics[ids[0]]
-        rows = unpack(only.layout, raws, record_ns)
-        return rows, np.full(len(ids), only.lane, dtype=np.intp)
-    lanes = np.fromiter((topics[c].lane for c in ids), np.intp, len(ids))
-    layouts: dict[int, tuple[Layout, list[int]]] = {}  # by the layout's id: topics of one type share theirs
-    for i, c in enumerate(ids):
-        lay = topics[c].layout
-        layouts.setdefault(id(lay), (lay, []))[1].append(i)
-    if len(layouts) == 1:
-        return unpack(next(iter(layouts.values()))[0], raws, record_ns), lanes
-    parts = [(np.asarray(idx), unpack(lay, [raws[i] for i in idx], record_ns[idx])) for lay, idx in layouts.values()]
-    return _merge(parts, len(ids)), lanes
-
-
 def _merge(parts: list[tuple[np.ndarray, Rows]], n: int) -> Rows:
     """The rows of several layouts' unpacked parts put back in the batch's order."""
     width = max(rows.data.shape[1] for _idx, rows in parts)
@@ -374,7 +256,25 @@ def _merge(parts: list[tuple[np.ndarray, Rows]], n: int) -> Rows:
     return Rows(**cols, data=data, good=good, why=why)
 
 
-def _note_bad(st: ReadStats, bag: BagReader, rows: Rows, lanes: np.ndarray, first: int, skip_bad: bool) -> None:
+def _block_rows(block: RawBlock) -> tuple[Rows, np.ndarray]:
+    """A block's rows unpacked (one layout at a time when the block mixes them), and each row's channel."""
+    topics = block.topics
+    first = topics[0]
+    if topics.count(first) == len(topics):
+        rows = unpack(first.layout, block.buf, block.start, block.lengths, block.record_ns)
+        return rows, np.full(len(topics), first.lane, dtype=np.intp)
+    lanes = np.fromiter((t.lane for t in topics), np.intp, len(topics))
+    layouts: dict[int, tuple[Layout, list[int]]] = {}  # by the layout's id: topics of one type share theirs
+    for i, t in enumerate(topics):
+        layouts.setdefault(id(t.layout), (t.layout, []))[1].append(i)
+    parts = []
+    for lay, idx in layouts.values():
+        at = np.asarray(idx, dtype=np.intp)
+        parts.append((at, unpack(lay, block.buf, block.start[at], block.lengths[at], block.record_ns[at])))
+    return (parts[0][1] if len(parts) == 1 else _merge(parts, len(topics))), lanes
+
+
+def _note_bad(st: ReadStats, bag: BagSource, rows: Rows, lanes: np.ndarray, first: int, skip_bad: bool) -> None:
     """Count the bad messages of a block (``first``: the number of its first message in the read), or raise."""
     for i in np.flatnonzero(~rows.good).tolist():
         where = f"message {first + i + 1} (topic {bag.channels[int(lanes[i])]})"
@@ -386,28 +286,31 @@ def _note_bad(st: ReadStats, bag: BagReader, rows: Rows, lanes: np.ndarray, firs
             st.bad_examples.append(BadLine(first + i + 1, rows.why[i], where))
 
 
+def _next(bag: BagSource, blocks: Iterator[RawBlock], st: ReadStats) -> RawBlock | None:
+    """The next block, or None at the end; a cut or damaged storage as a LogFormatError saying how far it got."""
+    try:
+        return next(blocks, None)
+    except LogFormatError:
+        raise
+    except Exception as exc:  # a cut or damaged storage deep inside the readers
+        raise bag.failed(f"cut or damaged; {st.frames} frames were read before it", exc) from None
+
+
 def bag_chunks(p: Path, opts: BagOptions, st: ReadStats, owner: LogFrames, skip_bad: bool) -> Iterator[list[Frame]]:
     """The frames of bag ``p`` a block at a time; every problem a LogFormatError naming the bag."""
-    bag = BagReader(p, opts)
+    bag = BagSource(p, opts)
     record = opts.stamp == "record"
     read = 0
     last_t = -math.inf
     try:
-        batches = bag.batches()
-        while True:
-            try:
-                batch = next(batches, None)
-            except LogFormatError:
-                raise
-            except Exception as exc:  # a cut or damaged storage deep inside rosbags / sqlite
-                raise bag.failed(f"cut or damaged after {st.frames} frames", exc) from None
-            if batch is None:
-                break
-            rows, lanes = _block_rows(bag, batch)
+        bag.open()
+        blocks = bag.blocks()
+        while (block := _next(bag, blocks, st)) is not None:
+            rows, lanes = _block_rows(block)
             check(rows)
             if not rows.good.all():
                 _note_bad(st, bag, rows, lanes, read, skip_bad)
-            read += len(batch)
+            read += lanes.size
             t, from_record = times(rows, record)
             kept = t[rows.good]
             by_record = int(np.count_nonzero(from_record & rows.good))
@@ -422,11 +325,12 @@ def bag_chunks(p: Path, opts: BagOptions, st: ReadStats, owner: LogFrames, skip_
                 owner.reached(min(st.bytes_total, st.bytes_total * read // bag.total))
             if frames:
                 yield frames
+        bag.finish()
     finally:
         bag.close()
         owner.finished()
     if not st.frames and not st.bad_lines:
-        raise LogFormatError(f"{p}: empty log: no frames on {', '.join(bag.channels)}")
+        raise LogFormatError(f"{p}: empty log: no frames on {', '.join(bag.channels) or 'its CAN topics'}")
 
 
 def _order(st: ReadStats, t: np.ndarray, last_t: float) -> None:
