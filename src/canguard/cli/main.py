@@ -219,7 +219,7 @@ class _VersionAction(argparse._VersionAction):
         super().__call__(parser, namespace, values, option_string)
 
 
-_EXTRA_MODULES = ("replay", "simulate", "demo", "init", "unit", "completion")
+_EXTRA_MODULES = ("replay", "tune", "simulate", "demo", "init", "unit", "completion")
 """Subcommands that live in their own module ``canguard.cli.<name>`` (its ``add_parser``)."""
 
 
