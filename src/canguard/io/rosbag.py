@@ -39,6 +39,7 @@ import numpy as np
 from canguard.errors import LogFormatError
 from canguard.io.bagopts import BagOptions
 from canguard.io.bagsource import BagSource, RawBlock
+from canguard.io.block import FLAG_ERROR, FLAG_FD, FLAG_REMOTE, Block
 from canguard.io.frame import Frame
 from canguard.io.logtypes import (
     CAN_EFF_MASK,
@@ -48,7 +49,6 @@ from canguard.io.logtypes import (
     BadLine,
     LogFrames,
     ReadStats,
-    _new,
 )
 from canguard.io.rosmsgs import (
     KVASER_ERROR_FRAME,
@@ -212,28 +212,20 @@ def times(rows: Rows, record: bool) -> tuple[np.ndarray, np.ndarray]:
 # --------------------------------------------------------------------------- the block the engine takes
 
 
-def frames_of(rows: Rows, t: np.ndarray, lanes: np.ndarray, channels: list[str]) -> list[Frame]:
-    """The good rows of a block as frames, in order: where a block of columns becomes what the engine takes."""
+def block_of(rows: Rows, t: np.ndarray, lanes: np.ndarray, channels: list[str]) -> Block:
+    """The good rows of a block of messages as a :class:`~canguard.io.block.Block`: where a bag's columns become
+    what every reader gives."""
     keep = np.flatnonzero(rows.good)
     sel: Any = keep if keep.size < rows.good.size else slice(None)
     ids, ext, rem, err, fd = rows.ids[sel], rows.extended[sel], rows.remote[sel], rows.error[sel], rows.fd[sel]
-    lengths, data = rows.lengths[sel], rows.data[sel]
-    ids = np.where(err, ids & CAN_EFF_MASK, ids)
-    ext = ext | err  # an error frame is a 29-bit id with the error flag in candump
-    width = data.shape[1]
-    blob = np.ascontiguousarray(data).tobytes()
-    starts = np.arange(keep.size) * width
+    lengths = rows.lengths[sel]
+    flags = (np.where(fd, FLAG_FD, 0) | np.where(rem, FLAG_REMOTE, 0) | np.where(err, FLAG_ERROR, 0))
     payload_len = np.where(rem, 0, lengths)
-    payloads = list(map(blob.__getitem__, map(slice, starts.tolist(), (starts + payload_len).tolist())))
-    dlcs = np.where(rem & (lengths > 0), lengths, -1).tolist()
-    chans = list(map(channels.__getitem__, lanes[sel].tolist()))
-    false = [False] * keep.size
-    return list(map(_new, [Frame] * keep.size, zip(
-        t[sel].tolist(), chans, ids.tolist(), payloads, ext.tolist(), fd.tolist(), err.tolist(), rem.tolist(),
-        false, false, dlcs, strict=True)))
-
-
-# --------------------------------------------------------------------------- the bag
+    data = rows.data[sel]
+    width = int(payload_len.max()) if payload_len.size else 0
+    payload = data[:, :width] * (np.arange(width) < payload_len[:, None])  # data[:dlc]: zeros after, as Block keeps
+    return Block.build(t[sel], np.where(err, ids & CAN_EFF_MASK, ids), ext | err, payload, length=payload_len,
+                       flags=flags, dlc=lengths, channel=lanes[sel], channels=channels)
 
 
 def _merge(parts: list[tuple[np.ndarray, Rows]], n: int) -> Rows:
@@ -305,8 +297,8 @@ def bag_chunks(p: Path, opts: BagOptions, st: ReadStats, owner: LogFrames, skip_
     try:
         bag.open()
         blocks = bag.blocks()
-        while (block := _next(bag, blocks, st)) is not None:
-            rows, lanes = _block_rows(block)
+        while (raw := _next(bag, blocks, st)) is not None:
+            rows, lanes = _block_rows(raw)
             check(rows)
             if not rows.good.all():
                 _note_bad(st, bag, rows, lanes, read, skip_bad)
@@ -320,11 +312,11 @@ def bag_chunks(p: Path, opts: BagOptions, st: ReadStats, owner: LogFrames, skip_
             if kept.size:
                 last_t = float(kept[-1])
             st.frames += int(kept.size)
-            frames = frames_of(rows, t, lanes, bag.channels)
+            block = block_of(rows, t, lanes, bag.channels)
             if bag.total:
                 owner.reached(min(st.bytes_total, st.bytes_total * read // bag.total))
-            if frames:
-                yield frames
+            if block.n:
+                yield list(block.frames())  # the engine takes frames until it takes blocks
         bag.finish()
     finally:
         bag.close()
