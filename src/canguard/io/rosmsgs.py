@@ -20,6 +20,7 @@ fixed offsets from the end of that string (:class:`Layout`), in both serialisati
 
 from __future__ import annotations
 
+import struct
 from dataclasses import dataclass
 
 from canguard.errors import LogFormatError
@@ -182,3 +183,21 @@ def full_definition(msgtype: str) -> str:
     for dep, text in DEPENDENCIES.items():
         parts.append(f"{sep}MSG: {dep.replace('/msg/', '/')}\n{text}")
     return "".join(parts)
+
+
+def cdr_frame(stamp_ns: int, frame_id: str, arbitration_id: int, data: bytes, *, extended: bool = False,
+              remote: bool = False, error: bool = False, fd: bool = False) -> bytes:
+    """A frame serialised as rosbag2 stores it (little-endian CDR): ``can_msgs/msg/Frame`` for a classic frame,
+    ``ros2_socketcan_msgs/msg/FdFrame`` for a CAN FD one (:func:`frame_type` says which)."""
+    sec, nanosec = divmod(stamp_ns, 1_000_000_000)
+    name = frame_id.encode("utf-8") + b"\x00"
+    head = struct.pack("<4siII", b"\x00\x01\x00\x00", sec, nanosec, len(name)) + name
+    head += b"\x00" * (-(len(head) - 4) % 4)  # the body starts 4-aligned (from the encapsulation's end)
+    if fd:
+        return head + struct.pack("<I??BxI", arbitration_id, extended, error, len(data), len(data)) + data
+    return head + struct.pack("<I???B", arbitration_id, remote, extended, error, len(data)) + data.ljust(8, b"\x00")
+
+
+def frame_type(fd: bool) -> str:
+    """The type :func:`cdr_frame` serialises a frame as."""
+    return "ros2_socketcan_msgs/msg/FdFrame" if fd else "can_msgs/msg/Frame"

@@ -21,7 +21,7 @@ import math
 import os
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 from canguard.errors import ConfigError
 
@@ -67,9 +67,14 @@ def check_export(path: Path, *, dask: bool = False) -> None:
     # threads is not forked for --jobs (canguard.cli.fleet._pool_context). The parts' writers import it.
     import importlib.util
 
-    if importlib.util.find_spec("pyarrow") is None:
+    if not is_mcap(path) and importlib.util.find_spec("pyarrow") is None:
         raise ConfigError(_NO_PYARROW)
     check_writable(path)
+
+
+def is_mcap(path: Path) -> bool:
+    """``--export-signals FILE.mcap``: an MCAP file per log (:mod:`canguard.report.mcapexport`), not Parquet."""
+    return path.suffix.lower() == ".mcap"
 
 
 def check_writable(path: Path) -> None:
@@ -87,15 +92,15 @@ def part_path(path: Path, index: int) -> Path:
 class SignalExport:
     """Streams every sample an engine decodes into one Parquet file, in bounded memory."""
 
-    def __init__(self, engine: Engine, path: Path, log: str, *, batch_rows: int | None = None) -> None:
-        self.pa, pq = require_pyarrow()
+    def __init__(self, engine: Engine, path: Path, log: str, *, batch_rows: int | None = None,
+                 table: SampleTable | None = None) -> None:
         self.path = path
         self.log = log
         self.batch_rows = batch_rows or BATCH_ROWS
         self.rows = 0
-        self._schema = schema(self.pa)
-        self._writer = pq.ParquetWriter(path, self._schema)
-        self._bus = {name: src.bus for name, src in engine.cfg.sources.items()}
+        bus = {name: src.bus for name, src in engine.cfg.sources.items()}
+        self.table: SampleTable = table if table is not None else ParquetTable(path, log, bus)
+        """Where each batch of rows goes: a Parquet file, or an MCAP export's channels."""
         # The DBC [min|max] the source's health checks: a value outside is rejected as out_of_range
         # by the models although the decoder passed it (the decoder does not check ranges).
         self._ranges = {name: health.ranges for name, health in engine.ctx.health.items()}
@@ -196,26 +201,55 @@ class SignalExport:
         n = min(len(self._t), self.batch_rows)
         if not n:
             return
-        pa = self.pa
-        bus = self._bus
-        source = self._source[:n]
-        columns = [
-            pa.array([self.log] * n, pa.string()),
-            pa.array(self._t[:n], pa.float64()),
-            pa.array([bus.get(s, "") for s in source], pa.string()),
-            pa.array(source, pa.string()),
-            pa.array(self._signal[:n], pa.string()),
-            pa.array(self._value[:n], pa.float64()),
-            pa.array(self._reason[:n], pa.string()),
-        ]
-        self._writer.write_batch(pa.RecordBatch.from_arrays(columns, schema=self._schema))
+        self.table.write(self._t[:n], self._source[:n], self._signal[:n], self._value[:n], self._reason[:n])
         self.rows += n
         for column in (self._t, self._source, self._signal, self._value, self._reason):
             del column[:n]  # a block's samples past a full row group wait for the next
 
     def close(self) -> None:
-        """Write what is buffered and close the file (a valid Parquet file even with no rows)."""
+        """Write what is buffered and close the table (a valid Parquet file even with no rows)."""
         self._flush()
+        self.table.close()
+
+
+class SampleTable(Protocol):
+    """Where :class:`SignalExport` writes its rows, a batch at a time (columns of equal length)."""
+
+    def write(self, t: list[float], source: list[str], signal: list[str], value: list[float],
+              reason: list[str]) -> None: ...
+
+    def close(self) -> None: ...
+
+
+class ParquetTable:
+    """The rows as a Parquet file (:data:`COLUMNS`), a record batch (row group) per batch."""
+
+    def __init__(self, path: Path, log: str, bus: dict[str, str]) -> None:
+        self.pa, pq = require_pyarrow()
+        self.log = log
+        self.bus = bus
+        self._schema = schema(self.pa)
+        self._writer = pq.ParquetWriter(path, self._schema)
+
+    def write(self, t: list[float], source: list[str], signal: list[str], value: list[float],
+              reason: list[str]) -> None:
+        """One record batch."""
+        pa = self.pa
+        n = len(t)
+        bus = self.bus
+        columns = [
+            pa.array([self.log] * n, pa.string()),
+            pa.array(t, pa.float64()),
+            pa.array([bus.get(s, "") for s in source], pa.string()),
+            pa.array(source, pa.string()),
+            pa.array(signal, pa.string()),
+            pa.array(value, pa.float64()),
+            pa.array(reason, pa.string()),
+        ]
+        self._writer.write_batch(pa.RecordBatch.from_arrays(columns, schema=self._schema))
+
+    def close(self) -> None:
+        """Close the file."""
         self._writer.close()
 
 
