@@ -14,8 +14,8 @@ side in Foxglove), one channel each:
 
 Messages are ROS 2 CDR with their ``.msg`` schemas (``ros2msg``), the events JSON with a
 JSON schema: Foxglove decodes both without configuration. Names are made topic names by
-:func:`topic_name` (a source ``/battery_state`` is ``/canguard/samples/battery_state/current``). Samples and guard states are
-laid out a column at a time (:class:`~canguard.io.mcapwrite.McapWriter`).
+:func:`topic_name` (a source ``/battery_state`` is ``/canguard/samples/battery_state/current``).
+Samples and guard states are laid out a column at a time (:class:`~canguard.io.mcapwrite.McapWriter`).
 """
 
 from __future__ import annotations
