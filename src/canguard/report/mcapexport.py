@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -75,20 +75,25 @@ class _Samples:
         self.writer = writer
         self.schema = writer.schema(SAMPLE[0], "ros2msg", SAMPLE[1])
         self.channels: dict[tuple[str, str], int] = {}
+        self._lanes: list[int] = []
+        """Per sample code: its channel."""
+        self._valid: list[bool] = []
+        """Per sample code: a valid value (no reason)."""
 
-    def write(self, t: list[float], source: list[str], signal: list[str], value: list[float],
-              reason: list[str]) -> None:
-        keys = list(zip(source, signal, strict=True))
-        codes: dict[tuple[str, str], int] = {}
-        code = np.fromiter((codes.setdefault(k, len(codes)) for k in keys), np.intp, len(keys))
-        times = _ns(t)
-        values = np.asarray(value, dtype=np.float64)
-        valid = np.fromiter(map(str.__eq__, reason, [""] * len(reason)), bool, len(reason))
-        for key, k in codes.items():
-            rows = np.flatnonzero(code == k)
-            channel = self.channels.get(key)
+    def write(self, t: Any, codes: Any, values: Any, keys: Sequence[tuple[str, str, str]]) -> None:
+        """A batch of samples, each (source, signal)'s on its channel."""
+        for key in keys[len(self._lanes):]:  # codes met since the last batch
+            channel = self.channels.get(key[:2])
             if channel is None:
-                channel = self.channels[key] = self.writer.channel(topic_name("samples", *key), self.schema, "cdr")
+                channel = self.channels[key[:2]] = self.writer.channel(topic_name("samples", *key[:2]), self.schema,
+                                                                       "cdr")
+            self._lanes.append(channel)
+            self._valid.append(not key[2])
+        lanes = np.asarray(self._lanes, dtype=np.int64)[codes]
+        valid = np.asarray(self._valid, dtype=bool)[codes]
+        times = _ns(t)
+        for channel in np.unique(lanes).tolist():
+            rows = np.flatnonzero(lanes == channel)
             self.writer.messages(channel, times[rows], _cdr(values[rows], valid[rows]))
 
     def close(self) -> None:
@@ -110,6 +115,7 @@ class McapExport:
         events = w.schema("canguard.Event", "jsonschema", json.dumps({"type": "object"}))
         self._events = w.channel("/canguard/events", events, "json")
         self._frames: dict[bool, int] = {}
+        self._out: list[Frame] = []
         self._next_tick: Callable[[float], None] | None = engine.tick_hook
         engine.tick_hook = self._tick
         previous = engine.extra_on_event
@@ -147,23 +153,45 @@ class McapExport:
             self.writer.message(self._events, int(_ns(t)), text.encode("utf-8"))
 
     def sent(self, frames: list[Frame]) -> None:
-        """Frames canguard sent, as ROS CAN frame messages."""
-        for frame in frames:
-            channel = self._frames.get(frame.is_fd)
-            if channel is None:
-                msgtype = frame_type(frame.is_fd)
-                schema = self.writer.schema(msgtype, "ros2msg", full_definition(msgtype))
-                topic = "/canguard/frames_out_fd" if frame.is_fd else "/canguard/frames_out"
-                channel = self._frames[frame.is_fd] = self.writer.channel(topic, schema, "cdr")
-            ns = int(_ns(frame.t))
-            self.writer.message(channel, ns, cdr_frame(ns, frame.channel, frame.arbitration_id, bytes(frame.data),
-                                                       extended=frame.is_extended_id, fd=frame.is_fd))
+        """Frames canguard sent, as ROS CAN frame messages (written a batch at a time)."""
+        self._out.extend(frames)
+        if len(self._out) >= _FLUSH:
+            self._flush_frames()
+
+    def _flush_frames(self) -> None:
+        """The frames sent so far, each distinct frame serialised once and stamped per send by numpy."""
+        if not self._out:
+            return
+        stamps = _ns([f.t for f in self._out])
+        groups: dict[tuple[Any, ...], list[int]] = {}
+        for i, f in enumerate(self._out):
+            groups.setdefault(f[1:6], []).append(i)  # channel, id, data, extended, fd: one message but its stamp
+        for (name, cid, data, extended, fd), rows in groups.items():
+            at = np.asarray(rows, dtype=np.intp)
+            ns = stamps[at]
+            template = np.frombuffer(cdr_frame(0, name, cid, bytes(data), extended=extended, fd=fd), np.uint8)
+            table = np.tile(template, (at.size, 1))
+            sec, nanosec = np.divmod(ns, 1_000_000_000)
+            table[:, 4:8] = sec.astype("<i4").view(np.uint8).reshape(-1, 4)
+            table[:, 8:12] = nanosec.astype("<u4").view(np.uint8).reshape(-1, 4)
+            self.writer.messages(self._frame_channel(fd), ns, table)
+        self._out.clear()
+
+    def _frame_channel(self, fd: bool) -> int:
+        channel = self._frames.get(fd)
+        if channel is None:
+            msgtype = frame_type(fd)
+            schema = self.writer.schema(msgtype, "ros2msg", full_definition(msgtype))
+            topic = "/canguard/frames_out_fd" if fd else "/canguard/frames_out"
+            channel = self._frames[fd] = self.writer.channel(topic, schema, "cdr")
+        return channel
 
     def close(self) -> None:
         """Write what is left and end the file."""
         try:
             self.signals.close()
             self._flush_guards()
+            self._flush_frames()
         finally:
             self.writer.close()
 
