@@ -139,14 +139,15 @@ def _mcap_export(opts: ReplayOptions) -> bool:
 
 def _outputs(stack: ExitStack, engine: Engine, sink: LogSink, opts: ReplayOptions, log: str) -> None:
     """The exports a replay writes as it goes (``--export-signals``, ``--emit`` as a bag), each closed at the end;
-    the frames sent go to those that take them (kept by ``sink``, handed over at every tick and at the end)."""
-    takers: list[Callable[[list[Frame]], None]] = []
+    the frames sent go to those that take them (kept by ``sink``, handed over after every tick and at the end)."""
+    watch = _AfterTicks(sink, engine.observer)
     if opts.export is not None and _mcap_export(opts):
         from canguard.report.mcapexport import McapExport
 
         mcap = McapExport(engine, opts.export, log)
         stack.callback(mcap.close)
-        takers.append(mcap.sent)
+        watch.takers.append(mcap.sent)
+        watch.observers.append(mcap)
     elif opts.export is not None:
         from canguard.report.export import SignalExport
 
@@ -156,22 +157,35 @@ def _outputs(stack: ExitStack, engine: Engine, sink: LogSink, opts: ReplayOption
 
         emit = BagEmit(opts.emit)
         stack.callback(emit.close)
-        takers.append(emit.sent)
-    if not takers:
-        return
-    previous = engine.tick_hook
+        watch.takers.append(emit.sent)
+    if watch.takers:
+        engine.observer = watch
+        stack.callback(watch.hand_over)  # the frames sent after the last tick: before the files close (LIFO)
 
-    def hand_over(now: float | None = None) -> None:
-        if previous is not None and now is not None:
-            previous(now)
+
+class _AfterTicks:
+    """After every tick that runs (the engine's observer: quiet ticks stay unrun): the frames sent go to their
+    takers, and the exports' observers see the tick."""
+
+    def __init__(self, sink: LogSink, previous: Any) -> None:
+        self.sink = sink
+        self.takers: list[Callable[[list[Frame]], None]] = []
+        self.observers: list[Any] = [previous] if previous is not None else []
+
+    def publish(self, engine: Any, now: float) -> None:
+        """A tick ran."""
+        for observer in self.observers:
+            observer.publish(engine, now)
+        self.hand_over()
+
+    def hand_over(self) -> None:
+        """The frames kept since the last call, to each taker."""
+        sink = self.sink
         if sink.frames:
-            for take in takers:
+            for take in self.takers:
                 take(sink.frames)
             sink.frames.clear()
             sink.origins.clear()
-
-    engine.tick_hook = hand_over
-    stack.callback(hand_over)  # the frames sent after the last tick: before the files close (LIFO)
 
 
 FORMAT_SUFFIX = {"candump": ".log", "asc": ".asc", "blf": ".blf", "trc": ".trc", "csv": ".csv", "mf4": ".mf4"}

@@ -5,7 +5,7 @@ side in Foxglove), one channel each:
 
 ``/canguard/samples/<source>/<role>``  every decoded sample (``canguard_msgs/msg/Sample``: value, valid),
                                        through :class:`~canguard.report.export.SignalExport`;
-``/canguard/guards/<node>``            at every tick, each guard's model (``canguard_msgs/msg/Guard``: the
+``/canguard/guards/<node>``            at every tick that runs, each guard's model (``canguard_msgs/msg/Guard``: the
                                        value it judges, its threshold, its level in % of the trip level,
                                        tripped);
 ``/canguard/events``                   the events (trip, stop, resume, stale, ...) as JSON;
@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -116,8 +116,6 @@ class McapExport:
         self._events = w.channel("/canguard/events", events, "json")
         self._frames: dict[bool, int] = {}
         self._out: list[Frame] = []
-        self._next_tick: Callable[[float], None] | None = engine.tick_hook
-        engine.tick_hook = self._tick
         previous = engine.extra_on_event
 
         def on_event(ev: dict[str, Any]) -> None:
@@ -127,9 +125,9 @@ class McapExport:
 
         engine.extra_on_event = on_event
 
-    def _tick(self, now: float) -> None:
-        if self._next_tick is not None:
-            self._next_tick(now)
+    def publish(self, engine: Any, now: float) -> None:
+        """A tick that ran (a :class:`~canguard.engine.stats.TickObserver`: ticks proven to repeat the last one are
+        not run, and not recorded; a tick hook would have them all run): each guard's state."""
         self._ticks.append(now)
         for (guard, _channel), states in zip(self._guards, self._states, strict=True):
             snap = guard.snapshot()
