@@ -8,6 +8,7 @@ frames, events and summary (but for the log's name and the times each frame took
 from __future__ import annotations
 
 import json
+import struct
 from pathlib import Path
 from typing import Any
 
@@ -228,3 +229,85 @@ def test_replay_a_bag_directory_end_to_end(installed_canguard: Path, tmp_path: P
     bare = subprocess.run([str(installed_canguard), *argv], capture_output=True, text=True, timeout=120, check=False)
     assert bare.returncode == 2
     assert f"{bag}: reading ROS bags needs rosbags: pip install 'canguard[rosbags]'" in bare.stderr
+
+
+class TestMcapOut:
+    """``--export-signals FILE.mcap`` and ``--emit FILE.mcap`` / a rosbag2 directory, read back with the ``mcap``
+    library's reader and rosbags' (not canguard's)."""
+
+    @pytest.fixture(scope="class")
+    @classmethod
+    def replayed(cls, tmp_path_factory: pytest.TempPathFactory, spike: list[Frame]) -> dict[str, Any]:
+        """The spike bag replayed once with every output: MCAP export, events, emits as MCAP, directory, candump;
+        and once with the Parquet export."""
+        tmp = tmp_path_factory.mktemp("mcap")
+        bag = write_bag(tmp / "bag", "sqlite3", {TOPIC: spike})
+        cfg = load_config(CONFIG)
+        summary = replay_one(cfg, bag, ReplayOptions(export=tmp / "out.mcap", events=tmp / "events.jsonl",
+                                                     emit=tmp / "stops.mcap"))
+        replay_one(cfg, bag, ReplayOptions(export=tmp / "out.parquet", emit=tmp / "stops.log"))
+        replay_one(cfg, bag, ReplayOptions(emit=tmp / "stops"))
+        return {"tmp": tmp, "summary": summary}
+
+    @staticmethod
+    def _messages(path: Path) -> dict[str, list[Any]]:
+        from mcap.reader import make_reader
+
+        out: dict[str, list[Any]] = {}
+        with open(path, "rb") as f:
+            for _schema, channel, message in make_reader(f).iter_messages(log_time_order=True):
+                out.setdefault(channel.topic, []).append(message)
+        return out
+
+    def test_samples_equal_the_parquet_export(self, replayed: dict[str, Any]) -> None:
+        """Per source and role a channel of its samples: the values and times the Parquet export has."""
+        pq = pytest.importorskip("pyarrow.parquet")
+        tmp = replayed["tmp"]
+        got = self._messages(tmp / "out.mcap")
+        table = pq.read_table(tmp / "out.parquet").to_pylist()
+        want: dict[str, list[tuple[int, float]]] = {}
+        for row in table:
+            topic = f"/canguard/samples/{row['source'].strip('/')}/{row['signal']}"
+            want.setdefault(topic, []).append((round(row["t"] * 1e6), row["value"]))
+        samples = {t: m for t, m in got.items() if t.startswith("/canguard/samples/")}
+        assert set(samples) == set(want)
+        for topic, messages in samples.items():
+            values = [(round(m.log_time / 1000), struct.unpack_from("<d", m.data, 4)[0]) for m in messages]
+            assert values == want[topic], topic
+
+    def test_events_guards_and_frames(self, replayed: dict[str, Any]) -> None:
+        """The events as the journal has them, at the bag's stamps; the guard's threshold; the frames sent."""
+        tmp, summary = replayed["tmp"], replayed["summary"]
+        got = self._messages(tmp / "out.mcap")
+        journal = [json.loads(line) for line in (tmp / "events.jsonl").read_text().splitlines()]
+        events = [json.loads(m.data) for m in got["/canguard/events"]]
+        assert [(e["event"], e["t"]) for e in events] == [(e["event"], e["t"]) for e in journal]
+        trip = next(m for m in got["/canguard/events"] if json.loads(m.data)["event"] == "trip")
+        assert abs(trip.log_time - summary["trips"][0]["t"] * 1e9) < 1000
+        (guard,) = [t for t in got if t.startswith("/canguard/guards/")]
+        assert {struct.unpack_from("<d", m.data, 12)[0] for m in got[guard]} == {35.0}
+        sent = got["/canguard/frames_out"]
+        assert len(sent) == summary["frames_sent"]
+        store = typestore()
+        frames = [store.deserialize_cdr(m.data, FRAME) for m in sent]
+        text = list(read_log(tmp / "stops.log"))
+        assert [(f.id, bytes(f.data[:f.dlc])) for f in frames] == [(f.arbitration_id, f.data) for f in text]
+
+    @pytest.mark.parametrize("name", ["stops.mcap", "stops"])
+    def test_emit_as_a_bag(self, replayed: dict[str, Any], name: str) -> None:
+        """``--emit`` as MCAP or a rosbag2 directory: can_msgs/msg/Frame on /to_can_bus, stamped at the sends."""
+        from rosbags.rosbag2 import Reader
+
+        tmp = replayed["tmp"]
+        text = list(read_log(tmp / "stops.log"))
+        store = typestore()
+        with Reader(tmp / name) as reader:
+            assert [(c.topic, c.msgtype) for c in reader.connections] == [("/to_can_bus", FRAME)]
+            got = []
+            for _conn, record_ns, raw in reader.messages():
+                msg = store.deserialize_cdr(raw, FRAME)
+                stamp = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
+                assert abs(stamp - record_ns) == 0
+                got.append((stamp / 1e9, msg.id, bytes(msg.data[:msg.dlc])))
+        assert [g[1:] for g in got] == [(f.arbitration_id, f.data) for f in text]
+        assert all(abs(g[0] - f.t) < 1.5e-6 for g, f in zip(got, text, strict=True))  # candump keeps microseconds

@@ -16,7 +16,7 @@ from typing import Any
 
 from canguard.errors import ConfigError
 from canguard.io.frame import Frame
-from canguard.io.mcapwrite import McapWriter
+from canguard.io.mcapwrite import McapWriter, ns_of
 from canguard.io.rosmsgs import DEFINITIONS, DEPENDENCIES, cdr_frame, frame_type, full_definition
 
 TOPICS = {False: "/to_can_bus", True: "/to_can_bus_fd"}
@@ -63,7 +63,7 @@ class BagEmit:
     def sent(self, frames: Sequence[Frame]) -> None:
         """Write frames canguard sent."""
         for f in frames:
-            ns = round(f.t * 1e9)
+            ns = int(ns_of(f.t))
             raw = cdr_frame(ns, f.channel, f.arbitration_id, bytes(f.data), extended=f.is_extended_id, fd=f.is_fd)
             channel = self._channel(f.is_fd)
             if self._mcap is not None:

@@ -22,9 +22,17 @@ import numpy as np
 
 from canguard.io.mcapscan import MAGIC, OP_CHANNEL, OP_CHUNK, OP_DATA_END, OP_FOOTER, OP_MESSAGE, OP_SCHEMA
 
-OP_HEADER, OP_CHUNK_INDEX, OP_STATISTICS, OP_SUMMARY_OFFSET = 0x01, 0x08, 0x0B, 0x0E
+OP_HEADER, OP_MESSAGE_INDEX, OP_CHUNK_INDEX, OP_STATISTICS, OP_SUMMARY_OFFSET = 0x01, 0x07, 0x08, 0x0B, 0x0E
 CHUNK_BYTES = 1 << 20
 """Records gathered before a chunk is written."""
+
+
+def ns_of(t: Any) -> np.ndarray:
+    """Seconds (a float or an array of them) as whole nanoseconds (int64): whole seconds and their fraction apart
+    (exact), so an epoch time keeps its nanoseconds (``t * 1e9`` rounds an epoch time to 256 ns)."""
+    s = np.asarray(t, dtype=np.float64)
+    whole = np.floor(s)
+    return whole.astype(np.int64) * 1_000_000_000 + np.rint((s - whole) * 1e9).astype(np.int64)
 
 
 def _str(text: str) -> bytes:
@@ -62,6 +70,8 @@ class McapWriter:
         self._chunk: list[bytes] = []
         self._chunk_size = 0
         self._chunk_times = (2**64 - 1, 0)
+        self._index: dict[int, list[tuple[np.ndarray, np.ndarray]]] = {}
+        """Per channel, the chunk's messages: log times and offsets in the chunk (its message index)."""
         self._chunk_indexes: list[bytes] = []
         self._counts: dict[int, int] = {}
         self._times = (2**64 - 1, 0)
@@ -101,11 +111,15 @@ class McapWriter:
         rows["log"] = log_ns
         rows["pub"] = log_ns
         rows["data"] = data
+        offsets = self._chunk_size + np.arange(n, dtype=np.int64) * (31 + width)
+        self._index.setdefault(channel_id, []).append((np.asarray(log_ns, dtype=np.int64), offsets))
         self._add(rows.tobytes(), n, channel_id, int(log_ns.min()), int(log_ns.max()))
 
     def message(self, channel_id: int, log_ns: int, data: bytes) -> None:
         """One message (an event, a frame: few of them)."""
         rec = _record(OP_MESSAGE, struct.pack("<HIQQ", channel_id, 0, log_ns, log_ns) + data)
+        self._index.setdefault(channel_id, []).append((np.array([log_ns], dtype=np.int64),
+                                                       np.array([self._chunk_size], dtype=np.int64)))
         self._add(rec, 1, channel_id, log_ns, log_ns)
 
     def _add(self, records: bytes, n: int, channel_id: int, first: int, last: int) -> None:
@@ -126,9 +140,20 @@ class McapWriter:
                 + struct.pack("<Q", len(data)) + data)
         at = self.f.tell()
         self.f.write(_record(OP_CHUNK, body))
+        index_start = self.f.tell()
+        offsets = {}
+        for channel, parts in sorted(self._index.items()):
+            times = np.concatenate([p[0] for p in parts])
+            where = np.concatenate([p[1] for p in parts])
+            order = np.argsort(times, kind="stable")
+            pairs = np.empty((times.size, 2), dtype="<u8")
+            pairs[:, 0], pairs[:, 1] = times[order], where[order]
+            offsets[channel] = self.f.tell()
+            self.f.write(_record(OP_MESSAGE_INDEX, struct.pack("<HI", channel, pairs.nbytes) + pairs.tobytes()))
         self._chunk_indexes.append(_record(OP_CHUNK_INDEX, struct.pack("<QQQQ", start, end, at, 9 + len(body))
-                                           + _map({}, "HQ") + struct.pack("<Q", 0) + _str(self._compression)
-                                           + struct.pack("<QQ", len(data), len(raw))))
+                                           + _map(offsets, "HQ") + struct.pack("<Q", self.f.tell() - index_start)
+                                           + _str(self._compression) + struct.pack("<QQ", len(data), len(raw))))
+        self._index = {}
         self._times = (min(self._times[0], start), max(self._times[1], end))
         self._chunk, self._chunk_size, self._chunk_times = [], 0, (2**64 - 1, 0)
 

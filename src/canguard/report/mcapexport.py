@@ -28,7 +28,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from canguard.io.mcapwrite import McapWriter
+from canguard.io.mcapwrite import McapWriter, ns_of
 from canguard.io.rosmsgs import cdr_frame, frame_type, full_definition
 from canguard.report.export import SignalExport
 
@@ -41,14 +41,6 @@ GUARD = ("canguard_msgs/msg/Guard", "float64 value\nfloat64 threshold\nfloat64 l
 _CDR_LE = np.array([0, 1, 0, 0], dtype=np.uint8)
 _FLUSH = 65_536
 """Guard states buffered before they are written."""
-
-
-def _ns(t: Any) -> np.ndarray:
-    """Seconds as whole nanoseconds (int64): whole seconds and their fraction apart (exact), so an epoch time
-    keeps its nanoseconds (``t * 1e9`` rounds an epoch time to 256 ns)."""
-    s = np.asarray(t, dtype=np.float64)
-    whole = np.floor(s)
-    return whole.astype(np.int64) * 1_000_000_000 + np.rint((s - whole) * 1e9).astype(np.int64)
 
 
 def topic_name(*parts: str) -> str:
@@ -91,7 +83,7 @@ class _Samples:
             self._valid.append(not key[2])
         lanes = np.asarray(self._lanes, dtype=np.int64)[codes]
         valid = np.asarray(self._valid, dtype=bool)[codes]
-        times = _ns(t)
+        times = ns_of(t)
         for channel in np.unique(lanes).tolist():
             rows = np.flatnonzero(lanes == channel)
             self.writer.messages(channel, times[rows], _cdr(values[rows], valid[rows]))
@@ -136,7 +128,7 @@ class McapExport:
             self._flush_guards()
 
     def _flush_guards(self) -> None:
-        times = _ns(self._ticks)
+        times = ns_of(self._ticks)
         for (_guard, channel), states in zip(self._guards, self._states, strict=True):
             table = np.asarray(states, dtype=np.float64).reshape(-1, 4)
             self.writer.messages(channel, times, _cdr(table[:, 0], table[:, 1], table[:, 2], table[:, 3] != 0))
@@ -148,7 +140,7 @@ class McapExport:
         if math.isfinite(t):  # JSON has no NaN: a value the event could not give is null
             fields = {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in ev.items()}
             text = json.dumps(fields, default=str, sort_keys=True)
-            self.writer.message(self._events, int(_ns(t)), text.encode("utf-8"))
+            self.writer.message(self._events, int(ns_of(t)), text.encode("utf-8"))
 
     def sent(self, frames: list[Frame]) -> None:
         """Frames canguard sent, as ROS CAN frame messages (written a batch at a time)."""
@@ -160,7 +152,7 @@ class McapExport:
         """The frames sent so far, each distinct frame serialised once and stamped per send by numpy."""
         if not self._out:
             return
-        stamps = _ns([f.t for f in self._out])
+        stamps = ns_of([f.t for f in self._out])
         groups: dict[tuple[Any, ...], list[int]] = {}
         for i, f in enumerate(self._out):
             groups.setdefault(f[1:6], []).append(i)  # channel, id, data, extended, fd: one message but its stamp
