@@ -14,11 +14,12 @@ from typing import Any
 
 import numpy as np
 import pytest
-from tests.bagkit import FD_FRAME, FRAME, STORAGES, storage_file, typestore, write_bag
+from tests.bagkit import FD_FRAME, FRAME, STORAGES, message, storage_file, typestore, write_bag
 from tests.clikit import cli
 
 from canguard.cli.replay import ReplayOptions, replay_one
 from canguard.config.loader import load_config
+from canguard.errors import LogFormatError
 from canguard.io.bagopts import BagOptions
 from canguard.io.frame import Frame
 from canguard.io.logs import ReadStats, read_log, write_candump
@@ -157,6 +158,30 @@ class TestBadBags:
         cut.write_bytes(whole.read_bytes()[: whole.stat().st_size * 2 // 3])
         line = _error(capsys, cut)
         assert line.startswith(f"{cut}: ") and "frames" in line
+
+    def test_a_cut_mcap_keeps_the_frames_before_the_cut(self, capsys: pytest.CaptureFixture[str],
+                                                        tmp_path: Path) -> None:
+        """A recorder that died mid-MCAP: the chunks before the cut replay, and the error says how many frames."""
+        from rosbags.rosbag2 import StoragePlugin, Writer
+
+        store = typestore()
+        raw = store.serialize_cdr(message(store, FRAME, Frame(1.0, TOPIC, 0x1, b"\x01\x02"), 10**9), FRAME)
+        bag = tmp_path / "bag"
+        with Writer(bag, version=9, storage_plugin=StoragePlugin.MCAP) as w:  # chunks of 1 MiB: ~14,000 messages
+            conn = w.add_connection(TOPIC, FRAME, typestore=store)
+            for i in range(30_000):
+                w.write(conn, 10**9 + i * 1000, raw)
+        whole = storage_file(bag)
+        cut = tmp_path / "cut.mcap"
+        cut.write_bytes(whole.read_bytes()[: whole.stat().st_size * 2 // 3])
+        stats = ReadStats()
+        with pytest.raises(LogFormatError) as err:
+            for _frame in read_log(cut, stats=stats):
+                pass
+        assert str(err.value).startswith(f"{cut}: truncated MCAP: the file ends at byte {cut.stat().st_size}, inside "
+                                         "the chunk record of ")
+        assert str(err.value).endswith(f"; {stats.frames} frames were read before the cut")
+        assert 10_000 < stats.frames < 30_000
 
     def test_no_can_topic(self, capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
         """A bag without any CAN topic names the topics it has."""

@@ -31,6 +31,7 @@ _MESSAGE_HEAD = 22
 PAD = 128
 """Zero bytes after a block's buffer: fields read past a short message's end read them, not past the array."""
 
+_NAMES = {OP_SCHEMA: "schema", OP_CHANNEL: "channel", OP_MESSAGE: "message", OP_CHUNK: "chunk"}
 _OPLEN = struct.Struct("<BQ")
 _U16, _U32, _U64 = struct.Struct("<H"), struct.Struct("<I"), struct.Struct("<Q")
 
@@ -155,9 +156,10 @@ class McapScan:
             op, length = _OPLEN.unpack(head)
             if op in (OP_DATA_END, OP_FOOTER):
                 break
-            if length > self.size:
-                raise McapCut(f"the record at byte {at} says it is {length} bytes long: garbage")
-            body = self._read(length, f"record of {length} bytes (op {op:#04x})", at)
+            what = f"{_NAMES.get(op, f'op {op:#04x}')} record of {length} bytes"
+            if at + 9 + length > self.size:
+                raise McapCut(f"the file ends at byte {self.size}, inside the {what} that starts at byte {at}")
+            body = self._read(length, what, at)
             if op == OP_MESSAGE:
                 loose.append((at, body))
                 continue

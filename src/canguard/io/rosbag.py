@@ -50,6 +50,7 @@ from canguard.io.logtypes import (
     LogFrames,
     ReadStats,
 )
+from canguard.io.mcapscan import McapCut
 from canguard.io.rosmsgs import (
     KVASER_ERROR_FRAME,
     KVASER_EXT,
@@ -284,6 +285,9 @@ def _next(bag: BagSource, blocks: Iterator[RawBlock], st: ReadStats) -> RawBlock
         return next(blocks, None)
     except LogFormatError:
         raise
+    except McapCut as exc:
+        raise LogFormatError(f"{bag.path}: truncated MCAP: {exc.what}; {st.frames} frames were read before the cut"
+                             ) from None
     except Exception as exc:  # a cut or damaged storage deep inside the readers
         raise bag.failed(f"cut or damaged; {st.frames} frames were read before it", exc) from None
 
