@@ -14,7 +14,6 @@ import json
 import math
 import sys
 import uuid
-from collections.abc import Iterator
 from contextlib import ExitStack
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -39,7 +38,6 @@ from canguard.engine.gate import LogSink
 from canguard.engine.routing import ChannelRouter, parse_map
 from canguard.errors import CanguardError, ConfigError, LogFormatError
 from canguard.io.clock import ManualClock
-from canguard.io.frame import Frame
 from canguard.io.logtypes import COMPRESSIONS
 from canguard.report.summary import SUMMARY_VERSION, build_summary, compare_baseline, diff_baseline, render_text
 
@@ -88,7 +86,7 @@ def replay_one(cfg: Config, log_path: Path, opts: ReplayOptions) -> dict[str, An
     heat = HeatStore(opts.state, cfg.state.on_corrupt) if opts.state is not None else None
     stats = ReadStats()
     router = ChannelRouter(cfg, opts.channel_map)
-    frames: Iterator[Frame] = read_log(log_path, skip_bad=opts.skip_bad, stats=stats)
+    frames = read_log(log_path, skip_bad=opts.skip_bad, stats=stats)
     if opts.progress:
         from canguard.io.progress import wrap_progress
 
@@ -114,7 +112,7 @@ def replay_one(cfg: Config, log_path: Path, opts: ReplayOptions) -> dict[str, An
 
             tuning = TuneStats(engine, tune_i2t=opts.tune_i2t)
         try:
-            engine.run_log(frames, router.table, router.only, router.unmapped,
+            engine.run_log(frames.chunks(), router.table, router.only, router.unmapped,
                            router.channels if router.only is not None else None)
             if engine.stats.frames:
                 engine.advance(clock.now())

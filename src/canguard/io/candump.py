@@ -6,17 +6,15 @@ other block line by line by the general parser, which names the file:line of a b
 from __future__ import annotations
 
 import math
-import os
-import sys
-from collections.abc import Callable, Iterator
-from itertools import repeat
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import Any
 
 from canguard.errors import LogFormatError, quote
+from canguard.io.block import Block
+from canguard.io.candump_long import numpy_block
 from canguard.io.frame import Frame
 from canguard.io.logtypes import (
-    _F,
     _HEX,
     CAN_EFF_MASK,
     CAN_ERR_FLAG,
@@ -31,7 +29,6 @@ from canguard.io.logtypes import (
     ReadStats,
     _Bad,
     _new,
-    count_order,
     decompress_errors,
     note_order,
     open_decompressed,
@@ -43,65 +40,8 @@ from canguard.io.logtypes import (
 CHUNK_CHARS = 1 << 19
 """Bytes per chunk (~11,000 -L lines). Against 1 << 17: 10-20 % less replay time on four of five
 shapes of 2 M frames, the fifth the same; 1 << 20 and more no faster (a block's arrays outgrow L2)."""
-NUMPY_AFTER_BLOCKS: int | None = None
-"""Blocks from this one on (1: all) are parsed by numpy first (:mod:`canguard.io.candump_np`). None: all for a
-file of 1 MiB or more, else from the third or once numpy is loaded (most DBCs' messages need it), so a short log
-of messages decoded without numpy never imports it (60 ms). An int forces it (tests)."""
 
 _MARKERS = frozenset("TRtr")
-
-
-class Columns(NamedTuple):
-    """A block of plain candump -L lines, checked, kept as text columns: frames are built on demand.
-
-    Every line has passed the checks the line parser would make; what is left is
-    conversion, which costs only for the rows somebody asks for (:meth:`frame`)
-    or for all of them (:meth:`frames`). ``ts`` are the timestamps: in candump
-    blocks the texts, all of one width with the dot at one place, so text order is
-    time order; in python-can blocks (:mod:`canguard.io.pycan_blocks`) the floats:
-    consumers ask only ``float(ts[i])``. ``ordered`` is True when they never go back
-    (in the block) and distinct texts are distinct floats. ``ids`` are the id texts
-    as written (3 hex digits: standard, 8: extended; any case).
-    """
-
-    n: int
-    ts: list[Any]
-    chans: list[str]
-    ids: list[str]
-    data: list[str]
-    ordered: bool
-    channel: str | None
-    """The channel of every row, or None when the block has several."""
-    fd: dict[int, int] | None = None
-    """The CAN FD rows (``ID##F...``) with their flags digit (BRS, ESI); None when the block has none."""
-    remote: dict[int, int] | None = None
-    """The remote frame rows (``ID#R``, ``ID#R4``) with their DLC (-1: none written); their ``data`` is ""."""
-
-    def frame(self, i: int) -> Frame:
-        """The frame of row ``i``."""
-        id_text = self.ids[i]
-        if self.remote is not None and i in self.remote:
-            return _new(Frame, (float(self.ts[i]), self.chans[i], int(id_text, 16), b"", len(id_text) == 8, _F, _F,
-                                True, _F, _F, self.remote[i]))
-        flags = self.fd.get(i) if self.fd is not None else None
-        if flags is not None:
-            return _new(Frame, (float(self.ts[i]), self.chans[i], int(id_text, 16), bytes.fromhex(self.data[i]),
-                                len(id_text) == 8, True, _F, _F, bool(flags & CANFD_BRS), bool(flags & CANFD_ESI),
-                                -1))
-        return _new(Frame, (float(self.ts[i]), self.chans[i], int(id_text, 16), bytes.fromhex(self.data[i]),
-                            len(id_text) == 8, _F, _F, _F, _F, _F, -1))
-
-    def frames(self) -> Iterator[Frame]:
-        """The frames of every row, in order (converted in C-level passes over the columns)."""
-        if self.fd or self.remote:
-            return map(self.frame, range(self.n))
-        ext = map((8).__eq__, map(len, self.ids))
-        return map(
-            _new,
-            repeat(Frame),
-            zip(map(float, self.ts), self.chans, map(int, self.ids, repeat(16)), map(bytes.fromhex, self.data),
-                ext, repeat(_F), repeat(_F), repeat(_F), repeat(_F), repeat(_F), repeat(-1)),
-        )
 
 
 def _is_hex(s: str) -> bool:
@@ -258,9 +198,9 @@ def _as_text(block: bytes) -> str:
 
 
 def candump_chunks(p: Path, gz: str, skip_bad: bool, st: ReadStats, want_ts_stats: bool,
-                   owner: LogFrames) -> Iterator[Columns | list[Frame]]:
-    """The candump text reader: plain blocks read by numpy (:mod:`canguard.io.candump_np`), others as lists of
-    frames parsed line by line (:func:`_parse_line`, which names the file:line of a bad line)."""
+                   owner: LogFrames) -> Iterator[Block]:
+    """The candump text reader's blocks: plain blocks read by numpy (:mod:`canguard.io.candump_np`), others
+    parsed line by line (:func:`_parse_line`, which names the file:line of a bad line)."""
     reader = _CandumpReader(p, gz, skip_bad, st, want_ts_stats)
     try:
         for block in reader.blocks():
@@ -268,7 +208,7 @@ def candump_chunks(p: Path, gz: str, skip_bad: bool, st: ReadStats, want_ts_stat
             if cols is not None:
                 yield cols
             else:
-                yield from reader.lines(block)
+                yield from map(Block.of_frames, reader.lines(block))
             owner.reached(reader.position())
     finally:
         reader.close()
@@ -292,11 +232,6 @@ class _CandumpReader:
         self.last_was_error = False
         self.count = 0
         """Blocks read."""
-        auto = NUMPY_AFTER_BLOCKS is None
-        big = not gz and os.fstat(self.raw.fileno()).st_size >= 1 << 20
-        self.numpy_from = (1 if big else 3) if auto else NUMPY_AFTER_BLOCKS or 0
-        self.auto = auto
-        self.by_bytes: Callable[[bytes, int], Any] | None = None
 
     def position(self) -> int:
         """The position reached in the file on disk."""
@@ -341,22 +276,20 @@ class _CandumpReader:
             self.count += 1
             yield block
 
-    def numpy(self, block: bytes) -> Any:
+    def numpy(self, block: bytes) -> Block | None:
         """The block read by numpy (counted), or None: its lines are parsed one by one."""
-        if self.by_bytes is None and (self.count >= self.numpy_from or (self.auto and "numpy" in sys.modules)):
-            from canguard.io.candump_long import numpy_block  # loaded: it pays
-
-            self.by_bytes = numpy_block
-        if self.last_was_error or self.by_bytes is None:
+        if self.last_was_error:
             return None
-        cols = self.by_bytes(block, -1)  # it counts the lines
+        cols = numpy_block(block, -1)  # it counts the lines
         if cols is None:
             return None
         n, st = cols.n, self.st
-        ts = cols.stamps  # numpy's: no list made
+        ts = cols.time_s
         if self.want_ts_stats:
             note_order(st, float(ts[0]), self.last_t)
-            count_order(st, cols)
+            backwards, repeated = cols.order
+            st.backwards_timestamps += backwards
+            st.repeated_timestamps += repeated
         self.last_t = float(ts[-1])
         self.frames += n
         self.lineno += n

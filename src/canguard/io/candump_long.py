@@ -17,7 +17,8 @@ import re
 
 import numpy as np
 
-from canguard.io.candump_np import ByteColumns, byte_columns
+from canguard.io.block import Block
+from canguard.io.candump_np import byte_columns
 
 _HEAD = r"^\((\d{10,}\.\d+)\)[ ]+([^ \n]+)[ ]+([0-9A-Fa-f]{3}|[0-9A-Fa-f]{8})[ ]+"
 _DATA = r"((?:[ ]+[0-9A-Fa-f]{2})*)(?:[ ]+'[^\n]*|[ ]*)$"  # the ASCII dump tried first: no step back on a -a line
@@ -28,8 +29,8 @@ _FD = re.compile(_HEAD + r"\[(\d\d)\]" + _DATA, re.M)
 _LENGTH = re.compile(r"\[(\d\d?)\]")
 
 
-def long_columns(text: str, n: int) -> ByteColumns | None:
-    """The block ``text`` of ``n`` candump -ta lines (< 0: count them) as :class:`ByteColumns`, or None (read it line
+def long_columns(text: str, n: int) -> Block | None:
+    """The block ``text`` of ``n`` candump -ta lines (< 0: count them) as a :class:`~canguard.io.block.Block`, or None (read it line
     by line)."""
     if "[" not in text or "\x01" in text or "\t" in text or "\r" in text:
         return None
@@ -50,12 +51,12 @@ def long_columns(text: str, n: int) -> ByteColumns | None:
     if cols is None:
         return None
     announced = np.array(lengths).astype(np.int64)
-    if not (cols.hex_lengths() == 2 * announced).all():
+    if not (cols.length == announced).all():
         return None  # [len] announces another number of bytes than the line has
     return cols
 
 
-def numpy_block(block: bytes, n: int) -> ByteColumns | None:
+def numpy_block(block: bytes, n: int) -> Block | None:
     """A block of candump -L or -ta lines (their bytes) read by numpy, or None (the text parsers read it)."""
     if b"[" not in block:
         return byte_columns(block, n)

@@ -1,37 +1,29 @@
-"""Plain candump -L blocks parsed by numpy over the block's bytes: no Python object per field.
+"""Plain candump -L blocks parsed by numpy over the block's bytes into a :class:`~canguard.io.block.Block`.
 
 :func:`byte_columns` checks a block of ``(secs.usecs) channel ID#HEX`` lines (CAN FD
 ``ID##FHEX``, remote ``ID#R`` / ``ID#R4``, an optional T/R marker) with a handful of
-passes over the bytes, and keeps what the replay engine asks for as arrays:
+passes over the bytes, and builds the block's columns:
 
 * the timestamps as floats, each equal to Python's ``float()`` of its text: the
   digits make an exact integer (below 2**53) divided by an exact power of ten, one
   correctly rounded division, hence the double nearest the written decimal;
-* the ids as integer keys (:func:`canguard.io.logtypes.id_key`: the id, plus
-  :data:`~canguard.io.logtypes.EXT_KEY` for an extended one), read 8 bytes at a time,
-  which the engine looks up in its plans as it looks up id texts;
+* the ids, read 8 bytes at a time (SWAR on little-endian words);
 * each row's channel when the block mixes channels (names of one length: ``can0``/``can1``);
-* where each row's data starts and ends: a message's payloads are read as one
-  ``rows x length`` byte matrix (:meth:`ByteColumns.payload`), never as hex strings.
+* the payloads, two hex digits at a time, as one ``rows x width`` byte matrix.
 
-The block is accepted only when every line passes the checks the line parser makes
-(``tests/test_candump_np.py`` tries damaged blocks); anything else gives None and the
-caller falls back to the text parser, which reports bad lines with their file:line.
-Frames are built only for rows the engine feeds one by one. candump -ta blocks come here
-rewritten as -L (:mod:`canguard.io.candump_long`).
+The block is accepted only when every line passes the checks; anything else gives None.
+candump -ta blocks come here rewritten as -L (:mod:`canguard.io.candump_long`).
 """
 
 from __future__ import annotations
 
 import threading
-from bisect import bisect_left
-from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
 
-from canguard.io.frame import Frame
-from canguard.io.logtypes import _F, CANFD_BRS, CANFD_ESI, CANFD_LENGTHS, EXT_KEY, _new, joined_hex
+from canguard.io.block import EXT_KEY, FLAG_FD, FLAG_REMOTE, Block
+from canguard.io.logtypes import CANFD_LENGTHS
 
 _HEXVAL = np.full(256, 255, dtype=np.uint8)
 for _i, _c in enumerate(b"0123456789abcdef"):
@@ -49,170 +41,12 @@ _MAX_STANDARD = 0x7FF
 _MAX_EXTENDED = 0x1FFFFFFF
 _MARKERS = frozenset(b"TRtr")
 _CLASSIC = 255
-"""A classic row's CAN FD flags (:attr:`ByteColumns._flags`): no hex digit's value."""
-_FEW = 48
-"""Below this many rows a message's payloads are cut from the text, not gathered by numpy."""
+"""A classic row's CAN FD flags digit: no hex digit's value."""
 
 
-class ByteColumns:
-    """A checked block of plain candump -L lines, as arrays over its bytes.
-
-    The same attributes the engine reads on :class:`canguard.io.candump.Columns`: ``n``,
-    ``ts`` (floats), ``chans``, ``ids`` (integer keys, :func:`id_key`), ``ordered``,
-    ``channel``, ``fd`` and ``remote``; :meth:`frame`, :meth:`frames` and :meth:`payload`. A block of
-    several channels (names of one length) has ``channel`` None, their names in ``channels`` and
-    each row's index into them in ``lanes``.
-    """
-
-    __slots__ = ("_b", "_end", "_fd", "_flags", "_ids", "_raw", "_row_chans", "_start", "_ts", "channel",
-                 "channels", "keys", "lanes", "n", "order", "ordered", "remote", "stamps")
-
-    def __init__(self, n: int, stamps: np.ndarray, keys: np.ndarray, ordered: bool, channel: str | None,
-                 flags: np.ndarray | None, remote: dict[int, int] | None, raw: bytes, b: np.ndarray,
-                 start: np.ndarray, end: np.ndarray) -> None:
-        self.n = n
-        self.stamps = stamps
-        """Each row's timestamp (float64, each equal to ``float()`` of its text); :attr:`ts` as a list."""
-        self._ts: list[float] | None = None
-        self.keys = keys
-        """Each row's id key (:func:`~canguard.io.logtypes.id_key`), as an array: the engine looks rows up by it."""
-        self._ids: list[int] | None = None
-        self.ordered = ordered
-        self.channel = channel
-        self.channels: list[str] = [channel] if channel is not None else []
-        self.lanes: np.ndarray | None = None
-        """Each row's index into :attr:`channels` (None: one channel)."""
-        self._row_chans: list[str] | None = None
-        self._flags = flags
-        """Each row's CAN FD flags digit (BRS, ESI), :data:`_CLASSIC` on a classic row; None: no CAN FD row."""
-        self._fd: dict[int, int] | None = None
-        self.remote = remote
-        self._raw = raw
-        self._b = b
-        self._start = start
-        self._end = end
-        self.order = (0, 0)
-        """Rows whose timestamp goes back, and rows whose timestamp repeats the previous row's (in the block)."""
-
-    @property
-    def ts(self) -> list[float]:
-        """:attr:`stamps` as a list of floats, made when first asked for: a block taken whole never is (making
-        and freeing a float object per row was ~15 % of a replay of a log where 10 % of the frames count)."""
-        if self._ts is None:
-            self._ts = self.stamps.tolist()
-        return self._ts
-
-    @property
-    def fd(self) -> dict[int, int] | None:
-        """The CAN FD rows' flags (BRS, ESI) by row, made when first asked for (a frame reads its own row's; a
-        dict of every FD row, made per block, was ~4 % of a replay of an all-FD log); None: no CAN FD row."""
-        if self._fd is None and self._flags is not None:
-            rows = np.flatnonzero(self._flags != _CLASSIC)
-            self._fd = dict(zip(rows.tolist(), self._flags[rows].tolist(), strict=True))
-        return self._fd
-
-    @property
-    def ids(self) -> list[int]:
-        """:attr:`keys` as a list, made when first asked for (most blocks never are: a list of every row's key
-        cost ~3 % of a replay)."""
-        if self._ids is None:
-            self._ids = self.keys.tolist()
-        return self._ids
-
-    @property
-    def chans(self) -> list[str]:
-        """The channel of every row."""
-        if self.channel is not None:
-            return [self.channel] * self.n
-        if self._row_chans is None:
-            assert self.lanes is not None
-            self._row_chans = list(map(self.channels.__getitem__, self.lanes.tolist()))
-        return self._row_chans
-
-    def frame(self, i: int) -> Frame:
-        """The frame of row ``i`` (a few rows of a block are: the block's lists are not made for them)."""
-        key = self._ids[i] if self._ids is not None else int(self.keys[i])
-        t = self._ts[i] if self._ts is not None else float(self.stamps[i])
-        ext = key >= EXT_KEY
-        cid = key - EXT_KEY if ext else key
-        channel = self.channel if self.channel is not None else self.chans[i]
-        if self.remote is not None and i in self.remote:
-            return _new(Frame, (t, channel, cid, b"", ext, _F, _F, True, _F, _F, self.remote[i]))
-        data = bytes.fromhex(self._raw[int(self._start[i]):int(self._end[i])].decode("ascii"))
-        flags = int(self._flags[i]) if self._flags is not None else _CLASSIC
-        if flags != _CLASSIC:
-            return _new(Frame, (t, channel, cid, data, ext, True, _F, _F,
-                                bool(flags & CANFD_BRS), bool(flags & CANFD_ESI), -1))
-        return _new(Frame, (t, channel, cid, data, ext, _F, _F, _F, _F, _F, -1))
-
-    def frames(self) -> Iterator[Frame]:
-        """The frames of every row, in order (the block's id and time lists made first: every row is read)."""
-        _made = self.ids, self.ts
-        return map(self.frame, range(self.n))
-
-    def hex_lengths(self) -> np.ndarray:
-        """Each row's payload length in hex digits (twice its bytes)."""
-        return self._end - self._start
-
-    def payload(self, rows: Any, size: int) -> tuple[list[int] | None, bytes]:
-        """The payloads of ``rows`` that hold ``size`` hex digits, joined: (their positions in ``rows``, or None
-        when all of them do; the bytes)."""
-        if len(rows) < _FEW:  # a few rows: slicing the bytes costs less than numpy's calls
-            idx = np.asarray(rows, dtype=np.intp)
-            raw = self._raw
-            # hex digits all (checked by byte_columns): unhexlify reads them as bytes.fromhex reads their text
-            return joined_hex(list(map(raw.__getitem__, map(slice, self._start[idx].tolist(),
-                                                              self._end[idx].tolist()))), size)
-        good, start = self._fitting(rows, size)
-        if not size or not start.size:
-            return good, b""
-        return good, _hex_bytes(_rows(self._b, start, size)).tobytes()
-
-    def payloads(self, groups: list[Any], size: int) -> list[tuple[list[int] | None, bytes]]:
-        """:meth:`payload` of each of ``groups`` (row lists or index arrays), cut in one pass over all their rows."""
-        good, data = self.payload(np.concatenate(groups), size)
-        width = size // 2
-        out: list[tuple[list[int] | None, bytes]] = []
-        pos = 0
-        if good is None:
-            for group in groups:
-                out.append((None, data[pos * width:(pos + len(group)) * width]))
-                pos += len(group)
-            return out
-        at = 0  # good positions before the group
-        for group in groups:
-            end = pos + len(group)
-            upto = bisect_left(good, end, at)
-            mine = [k - pos for k in good[at:upto]]
-            out.append((None if len(mine) == len(group) else mine, data[at * width:upto * width]))
-            pos, at = end, upto
-        return out
-
-    def _fitting(self, rows: Any, size: int) -> tuple[list[int] | None, np.ndarray]:
-        """Which of ``rows`` hold ``size`` hex digits (their positions in ``rows``; None: all), and where
-        their data starts."""
-        idx = np.asarray(rows, dtype=np.intp)
-        start = self._start[idx]
-        fit = self._end[idx] - start == size
-        if fit.all():
-            return None, start
-        keep = np.flatnonzero(fit)
-        return keep.tolist(), start[keep]
-
-    def byte_fields(self, rows: list[int], size: int, spans: list[tuple[int, int]]
-                    ) -> tuple[list[int] | None, list[np.ndarray]]:
-        """Of ``rows`` whose payload holds ``size`` hex digits (which, as :meth:`payload` says): for each
-        ``(byte offset, width)`` of ``spans``, their bytes there as a ``rows x width`` matrix."""
-        good, start = self._fitting(rows, size)
-        cells = []
-        for at, width in spans:
-            cells.append(_hex_bytes(_rows(self._b, start + 2 * at, 2 * width)))
-        return good, cells
-
-
-def byte_columns(text: str | bytes, n: int) -> ByteColumns | None:
+def byte_columns(text: str | bytes, n: int) -> Block | None:
     """The block ``text`` (its characters or, as the reader gives it, its bytes) of ``n`` lines (each ending in
-    a newline) as :class:`ByteColumns`, or None.
+    a newline) as a :class:`~canguard.io.block.Block`, or None.
 
     ``n`` < 0: count them. None when any line is not of the plain shape, when the block has channels
     of several name lengths, or when a timestamp does not convert exactly this way (its digits
@@ -265,14 +99,36 @@ def byte_columns(text: str | bytes, n: int) -> ByteColumns | None:
     known = n * (4 + markers) + letters + spaces + hashes + len(remote or ())
     if size - _hex_digits(b, pad[:size], mask, spare) != known:
         return None
-    step = ts[1:] - ts[:-1]
-    backs = int(np.count_nonzero(step < 0))
-    cols = ByteColumns(n, ts, keys, not backs, names[0] if lanes is None else None, flags, remote,
-                       raw, b, data_start, end)
-    if lanes is not None:
-        cols.channels, cols.lanes = names, lanes
-    cols.order = (backs, int(np.count_nonzero(step == 0)))
-    return cols
+    return _block(b, ts, keys, names, lanes, flags, remote, data_start, end)
+
+
+def _block(b: np.ndarray, ts: np.ndarray, keys: np.ndarray, names: list[str], lanes: np.ndarray | None,
+           fd: np.ndarray | None, remote: dict[int, int] | None, data_start: np.ndarray, end: np.ndarray) -> Block:
+    """The checked block's columns as a :class:`Block`: each row's payload gathered from its hex digits."""
+    n = ts.size
+    hex_len = end - data_start
+    length = (hex_len >> 1).astype(np.uint8)
+    width = int(hex_len.max()) if n else 0
+    if width:
+        room = _buffer("room", b.size + width, np.uint8)  # the gather may read past the block's last byte
+        room[:b.size] = b
+        room[b.size:] = 48
+        payload = _hex_bytes(_rows(room, data_start, width))
+        payload[np.arange(width >> 1) >= length[:, None]] = 0  # past a shorter row's data: the next bytes' junk
+    else:
+        payload = np.zeros((n, 0), dtype=np.uint8)
+    flags = np.zeros(n, dtype=np.uint8)
+    if fd is not None:
+        rows = fd != _CLASSIC
+        flags[rows] = FLAG_FD | ((fd[rows] & 3) << 1)  # the digit's BRS (1) and ESI (2): FLAG_BRS, FLAG_ESI
+    dlc = length.copy()
+    if remote:
+        at = np.fromiter(remote, dtype=np.intp, count=len(remote))
+        flags[at] |= FLAG_REMOTE
+        dlc[at] = [max(v, 0) for v in remote.values()]
+    ext = keys >= EXT_KEY
+    return Block(ts, (keys - ext * EXT_KEY).astype(np.uint32), ext, flags, dlc, length, payload,
+                 np.zeros(n, np.uint16) if lanes is None else lanes.astype(np.uint16), tuple(names))
 
 
 def _layout(raw: bytes, b: np.ndarray, nl: np.ndarray, n: int) -> tuple[Any, ...] | None:
