@@ -14,7 +14,7 @@ import json
 import math
 import sys
 import uuid
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from contextlib import ExitStack
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -92,7 +92,7 @@ def replay_one(cfg: Config, log_path: Path, opts: ReplayOptions) -> dict[str, An
     heat = HeatStore(opts.state, cfg.state.on_corrupt) if opts.state is not None else None
     stats = ReadStats()
     router = ChannelRouter(cfg, opts.channel_map)
-    frames: Iterator[Frame] = read_log(log_path, skip_bad=opts.skip_bad, stats=stats, bag=opts.bag)
+    frames = read_log(log_path, skip_bad=opts.skip_bad, stats=stats, bag=opts.bag)
     if opts.progress:
         from canguard.io.progress import wrap_progress
 
@@ -116,7 +116,7 @@ def replay_one(cfg: Config, log_path: Path, opts: ReplayOptions) -> dict[str, An
 
             tuning = TuneStats(engine, tune_i2t=opts.tune_i2t)
         try:
-            engine.run_log(frames, router.table, router.only, router.unmapped,
+            engine.run_log(frames.chunks(), router.table, router.only, router.unmapped,
                            router.channels if router.only is not None else None)
             if engine.stats.frames:
                 engine.advance(clock.now())

@@ -1,25 +1,20 @@
-"""Read recorded CAN logs as :class:`~canguard.io.frame.Frame` streams; write candump -L logs.
+"""Read recorded CAN logs as streams of :class:`~canguard.io.block.Block` s (or frames); write candump -L logs.
 
 :func:`read_log` picks the reader by file extension (``.gz`` on any of them)::
 
     .log .candump .txt   candump text: ``candump -L`` / ``-l`` lines (the fast path)
                          or plain ``candump -ta`` output
-    .asc                 canguard's reader for plain data lines, python-can's for the rest (io.asc_blocks)
-    .blf .trc .csv       python-can's own readers
+    .asc .blf .trc .csv  python-can's own readers
     .mf4                 python-can's MF4 reader (needs ``python-can[mf4]``)
     .bag .db3 .mcap      ROS bags (io.rosbag; needs ``rosbags``), and a rosbag2 directory (its metadata.yaml)
 
 Every reader streams: the log is read in chunks of :data:`CHUNK_CHARS` characters
 and never held whole, so memory stays flat in the log's length.
 
-The candump -L fast path parses a whole chunk at once with C-level string
-operations (one ``translate`` + ``split`` for the chunk, ``map(float)``,
-``map(int)``, ``map(bytes.fromhex)`` over columns, frames built with
-``tuple.__new__``): no per-line regex and no per-line Python code. A chunk that
-does not have the plain shape (CAN FD, remote or error frames, comments, blank
-lines, malformed lines, plain candump output) is parsed line by line by the
-general parser instead, which knows every case and names the file:line of a bad
-line.
+Every reader gives the same :class:`~canguard.io.block.Block` (numpy columns); the
+candump reader parses a plain block with numpy (:mod:`canguard.io.candump_np`), a
+block of other shapes (comments, error frames, raw DLCs...) line by line, naming the
+file:line of a bad line.
 
 Timestamps of python-can formats are what python-can reports: ASC timestamps are
 relative to the measurement start (python-can's default), which keeps a replay
@@ -36,24 +31,23 @@ from pathlib import Path
 
 from canguard.errors import LogFormatError
 from canguard.io.bagopts import BAG_SUFFIXES, NEEDS, BagOptions, is_bag
-from canguard.io.candump import CHUNK_CHARS, Columns, candump_chunks
+from canguard.io.block import Block
+from canguard.io.candump import CHUNK_CHARS, candump_chunks
 from canguard.io.candump_write import format_candump_line, write_candump
-from canguard.io.logtypes import COMPRESSIONS, BadLine, Chunk, LogFrames, ReadStats, candump_id_texts
+from canguard.io.logtypes import COMPRESSIONS, BadLine, LogFrames, ReadStats
 from canguard.io.progress import ProgressBar
-from canguard.io.pycan import frame_from_message
-from canguard.io.pycan_blocks import python_can_chunks
+from canguard.io.pycan import frame_from_message, python_can_chunks
 
 __all__ = [
     "CHUNK_CHARS",
     "LOG_READERS",
     "LOG_SUFFIXES",
     "BadLine",
-    "Columns",
+    "Block",
     "LogFormat",
     "LogFrames",
     "LogRequest",
     "ReadStats",
-    "candump_id_texts",
     "format_candump_line",
     "frame_from_message",
     "log_format",
@@ -83,32 +77,26 @@ class LogRequest:
 
 @dataclass(frozen=True)
 class LogFormat:
-    """One log format: its name and the reader that gives its blocks (column blocks or lists of frames)."""
+    """One log format: its name and the reader that gives its blocks."""
 
     name: str
-    read: Callable[[LogRequest, LogFrames], Iterator[Chunk]]
+    read: Callable[[LogRequest, LogFrames], Iterator[Block]]
     needs: tuple[str, str] | None = None
     """(module, how to install it) of an optional dependency, checked before the log is opened."""
 
 
-def _read_candump(req: LogRequest, owner: LogFrames) -> Iterator[Chunk]:
+def _read_candump(req: LogRequest, owner: LogFrames) -> Iterator[Block]:
     return candump_chunks(req.path, req.compression, req.skip_bad, req.stats, req.order_stats, owner)
 
 
-def _read_asc(req: LogRequest, owner: LogFrames) -> Iterator[Chunk]:
-    from canguard.io.asc_blocks import asc_chunks  # its regexes are compiled for ASC logs only
-
-    return asc_chunks(req.path, req.compression, req.stats, owner)
-
-
-def _read_bag(req: LogRequest, owner: LogFrames) -> Iterator[Chunk]:
+def _read_bag(req: LogRequest, owner: LogFrames) -> Iterator[Block]:
     from canguard.io.rosbag import bag_chunks  # numpy and rosbags: imported for bags only
 
     return bag_chunks(req.path, req.bag, req.stats, owner, req.skip_bad)
 
 
 def _python_can(name: str, needs: tuple[str, str] | None = None) -> LogFormat:
-    def read(req: LogRequest, owner: LogFrames) -> Iterator[Chunk]:
+    def read(req: LogRequest, owner: LogFrames) -> Iterator[Block]:
         return python_can_chunks(req.path, name, req.compression, req.stats, owner)
 
     return LogFormat(name, read, needs)
@@ -121,7 +109,7 @@ LOG_READERS: dict[str, LogFormat] = {
     ".log": _CANDUMP,
     ".candump": _CANDUMP,
     ".txt": _CANDUMP,
-    ".asc": LogFormat("asc", _read_asc),  # canguard's reader for plain data lines, python-can's for the rest
+    ".asc": _python_can("asc"),
     ".blf": _python_can("blf"),
     ".trc": _python_can("trc"),
     ".csv": _python_can("csv"),

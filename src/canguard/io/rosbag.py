@@ -40,7 +40,6 @@ from canguard.errors import LogFormatError
 from canguard.io.bagopts import BagOptions
 from canguard.io.bagsource import BagSource, RawBlock
 from canguard.io.block import FLAG_ERROR, FLAG_FD, FLAG_REMOTE, Block
-from canguard.io.frame import Frame
 from canguard.io.logtypes import (
     CAN_EFF_MASK,
     CAN_SFF_MASK,
@@ -292,7 +291,7 @@ def _next(bag: BagSource, blocks: Iterator[RawBlock], st: ReadStats) -> RawBlock
         raise bag.failed(f"cut or damaged; {st.frames} frames were read before it", exc) from None
 
 
-def bag_chunks(p: Path, opts: BagOptions, st: ReadStats, owner: LogFrames, skip_bad: bool) -> Iterator[list[Frame]]:
+def bag_chunks(p: Path, opts: BagOptions, st: ReadStats, owner: LogFrames, skip_bad: bool) -> Iterator[Block]:
     """The frames of bag ``p`` a block at a time; every problem a LogFormatError naming the bag."""
     bag = BagSource(p, opts)
     record = opts.stamp == "record"
@@ -320,7 +319,7 @@ def bag_chunks(p: Path, opts: BagOptions, st: ReadStats, owner: LogFrames, skip_
             if bag.total:
                 owner.reached(min(st.bytes_total, st.bytes_total * read // bag.total))
             if block.n:
-                yield list(block.frames())  # the engine takes frames until it takes blocks
+                yield block
         bag.finish()
     finally:
         bag.close()
