@@ -66,7 +66,8 @@ def write_bag(path: Path, storage: str, topics: dict[str, Iterable[Frame]], *, m
               definitions: bool = True, record_ns: Any = None, zero_stamps: bool = False) -> Path:
     """Write ``topics`` (name -> frames, each topic in time order) as a bag of ``storage``; its path.
 
-    Messages are recorded at their frame's time (``record_ns(i, frame)`` when given) and written in record
+    Each message's ``frame_id`` is its topic's name (topics of names of several lengths: messages of several
+    sizes). Messages are recorded at their frame's time (``record_ns(i, frame)`` when given) and written in record
     order; ``definitions=False`` stores no message definition (as rosbag2 before Iron);
     ``zero_stamps`` leaves every header stamp zero.
     """
@@ -84,8 +85,8 @@ def write_bag(path: Path, storage: str, topics: dict[str, Iterable[Frame]], *, m
             msgdef, md5sum = store.generate_msgdef(msgtype) if definitions else ("", "0" * 32)
             conns = {t: w.add_connection(t, msgtype, msgdef=msgdef, md5sum=md5sum) for t in topics}
             for rec, topic, frame in rows:
-                raw = store.serialize_ros1(message(store, msgtype, frame, 0 if zero_stamps else stamp_ns(frame.t)),
-                                           msgtype)
+                raw = store.serialize_ros1(message(store, msgtype, frame, 0 if zero_stamps else stamp_ns(frame.t),
+                                                   topic.strip("/")), msgtype)
                 w.write(conns[topic], rec, raw)
         return target
     plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
@@ -93,8 +94,8 @@ def write_bag(path: Path, storage: str, topics: dict[str, Iterable[Frame]], *, m
         conns = {t: w.add_connection(t, msgtype, typestore=store) if definitions else
                  w.add_connection(t, msgtype, msgdef="", rihs01="RIHS01_" + "0" * 64) for t in topics}
         for rec, topic, frame in rows:
-            raw = store.serialize_cdr(message(store, msgtype, frame, 0 if zero_stamps else stamp_ns(frame.t)),
-                                      msgtype)
+            raw = store.serialize_cdr(message(store, msgtype, frame, 0 if zero_stamps else stamp_ns(frame.t),
+                                              topic.strip("/")), msgtype)
             w.write(conns[topic], rec, raw)
     return path
 

@@ -87,13 +87,14 @@ class TestFrames:
         bag = write_bag(tmp_path / "bag", "sqlite3", {"/fd": frames}, msgtype=FD_FRAME)
         assert list(read_log(bag)) == frames
 
-    def test_each_topic_is_a_channel_and_topic_chooses(self, tmp_path: Path) -> None:
-        """Two topics: both read (each its own channel), or the one ``--topic`` names."""
+    @pytest.mark.parametrize("storage", STORAGES)
+    def test_each_topic_is_a_channel_and_topic_chooses(self, tmp_path: Path, storage: str) -> None:
+        """Two topics (messages of two sizes): both read (each its own channel), or those ``--topic`` names."""
         a = [Frame(1.0, "/a", 0x1, b"\x01"), Frame(3.0, "/a", 0x1, b"\x03")]
-        b = [Frame(2.0, "/b", 0x2, b"\x02")]
-        bag = write_bag(tmp_path / "bag", "mcap", {"/a": a, "/b": b})
+        b = [Frame(2.0, "/bcdef", 0x2, b"\x02")]
+        bag = write_bag(tmp_path / "bag", storage, {"/a": a, "/bcdef": b})
         assert list(read_log(bag)) == [a[0], b[0], a[1]]
-        assert list(read_log(bag, bag=BagOptions(("/b",)))) == b
+        assert list(read_log(bag, bag=BagOptions(("/bcdef",)))) == b
 
     @pytest.mark.parametrize("storage", ["sqlite3", "ros1"])
     def test_bags_without_definitions(self, tmp_path: Path, storage: str) -> None:

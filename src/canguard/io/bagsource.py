@@ -9,7 +9,8 @@ for :mod:`canguard.io.rosbag` to unpack. Where the bytes come from depends on th
   read up to the cut;
 * sqlite3 (``.db3``): the ``messages`` table through the connection rosbags opened, in
   record time order as rosbag2 plays it;
-* ROS 1 ``.bag``: rosbags' reader, message by message.
+* ROS 1 ``.bag``: its chunks, found by rosbags' reader of the bag's index, read by canguard
+  (:mod:`canguard.io.ros1scan`).
 
 The bag's metadata (topics, types, stored definitions, a directory's files) comes from
 rosbags. The topics read are every topic of a CAN frame type, or those asked for;
@@ -28,6 +29,7 @@ from typing import Any
 import numpy as np
 
 from canguard.errors import LogFormatError, clip
+from canguard.io import ros1scan
 from canguard.io.bagopts import BagOptions
 from canguard.io.mcapscan import PAD, McapCut, McapScan
 from canguard.io.rosmsgs import DEFINITIONS, Layout, layout_for, looks_like_can, ros2_name
@@ -224,12 +226,27 @@ class BagSource:
                 yield from self._sqlite_blocks(db)
             return
         mine = {c.id: self.topic(c.topic, c.msgtype, c.msgdef.data) for c in conns}
+        if self.kind == "ROS 1 bag":
+            yield from self._ros1_blocks(mine)
+            return
         messages = reader.messages(connections=conns)
         while batch := list(islice(messages, BLOCK)):
             chans, stamps, raws = zip(*batch, strict=True)
             buf, start, lens = joined(raws)
             yield RawBlock(buf, start, lens, np.fromiter(stamps, np.int64, len(stamps)),
                            [mine[c.id] for c in chans])
+
+    def _ros1_blocks(self, mine: dict[int, Topic]) -> Iterator[RawBlock]:
+        """A ROS 1 bag's chunks (where rosbags' reader of its index found them), read by canguard, in file order."""
+        where = [(c.datapos, c.datasize, c.decompressor) for _pos, c in sorted(self.reader.chunks.items())]
+        for found in ros1scan.chunks(self.path, where):
+            keep = np.isin(found.channel, np.fromiter(mine, np.int64, len(mine)))
+            if not keep.any():
+                continue
+            rows = np.flatnonzero(keep) if not keep.all() else slice(None)
+            chans = found.channel[rows].tolist()
+            yield RawBlock(found.buf, found.start[rows], found.lengths[rows], found.log_ns[rows],
+                           list(map(mine.__getitem__, chans)))
 
     def _sqlite_blocks(self, db: Any) -> Iterator[RawBlock]:
         """One sqlite3 storage's messages of the chosen topics, in record time order."""
