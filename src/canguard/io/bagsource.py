@@ -9,11 +9,11 @@ for :mod:`canguard.io.rosbag` to unpack. Where the bytes come from depends on th
   read up to the cut;
 * sqlite3 (``.db3``): the ``messages`` table through the connection rosbags opened, in
   record time order as rosbag2 plays it;
-* ROS 1 ``.bag``: its chunks, found by rosbags' reader of the bag's index, read by canguard
-  (:mod:`canguard.io.ros1scan`).
+* ROS 1 ``.bag``: canguard's own chunk reader (:mod:`canguard.io.ros1scan`): rosbags' reader
+  makes an object per message of its index when it opens a bag, and refuses a cut one.
 
-The bag's metadata (topics, types, stored definitions, a directory's files) comes from
-rosbags. The topics read are every topic of a CAN frame type, or those asked for;
+A rosbag2 directory's metadata (topics, types, stored definitions, its files) and a ``.db3``'s
+come from rosbags. The topics read are every topic of a CAN frame type, or those asked for;
 :meth:`BagSource.choose` says what is wrong otherwise (no CAN topic, a topic the bag
 lacks, a CAN-ish type canguard does not know).
 """
@@ -29,13 +29,13 @@ from typing import Any
 import numpy as np
 
 from canguard.errors import LogFormatError, clip
-from canguard.io import ros1scan
 from canguard.io.bagopts import BagOptions
 from canguard.io.mcapscan import PAD, McapCut, McapScan
+from canguard.io.ros1scan import Ros1Scan
 from canguard.io.rosmsgs import DEFINITIONS, Layout, layout_for, looks_like_can, ros2_name
 
 BLOCK = 4096
-"""Raw messages taken at a time from the sqlite3 and ROS 1 readers (an MCAP block is one chunk)."""
+"""Raw messages taken at a time from a sqlite3 storage (an MCAP or ROS 1 block is one chunk)."""
 
 
 @dataclass(frozen=True)
@@ -110,21 +110,22 @@ class BagSource:
     def open(self) -> None:
         """Open the bag and choose its topics (LogFormatError: it cannot be read, or has none to read)."""
         try:
-            if self.kind == "MCAP":
-                scan = McapScan(self.path, _decompress)
+            if self.kind in ("MCAP", "ROS 1 bag"):
+                scan: Any = McapScan(self.path, _decompress) if self.kind == "MCAP" else Ros1Scan(self.path)
                 self.scans = [scan]
                 if scan.whole:
                     self.choose([(c.topic, c.schema_name, self._definition(c)) for c in scan.channels.values()])
                 return
-            import rosbags.rosbag1
             import rosbags.rosbag2
 
-            kind: Any = rosbags.rosbag1.Reader if self.kind == "ROS 1 bag" else rosbags.rosbag2.Reader
-            reader = kind(self.path)
+            reader = rosbags.rosbag2.Reader(self.path)
             reader.open()
             self.reader = reader
         except LogFormatError:
             raise
+        except McapCut as exc:
+            self.close()
+            raise LogFormatError(f"{self.path}: not a {self.kind}: {exc.what}") from None
         except Exception as exc:  # rosbags raises its ReaderError, but also struct, yaml and OS errors on a cut bag
             self.close()
             raise self.failed("cut short, unindexed or not a bag; 0 frames were read", exc) from None
@@ -141,7 +142,7 @@ class BagSource:
     @staticmethod
     def _definition(channel: Any) -> str:
         """A channel's stored ``.msg`` definition ("" when it has none canguard can compare: an IDL one)."""
-        return channel.schema if channel.schema_encoding == "ros2msg" else ""
+        return channel.schema if channel.schema_encoding in ("ros2msg", "ros1msg") else ""
 
     def choose(self, connections: list[tuple[str, str, str]]) -> None:
         """Choose the topics to read among ``(topic, type, stored definition)``; LogFormatError saying what the
@@ -189,18 +190,19 @@ class BagSource:
         """The chosen topics' raw messages, a block at a time, in the storage's order."""
         if self.scans:
             for scan in self.scans:
-                yield from self._mcap_blocks(scan)
+                yield from self._scan_blocks(scan)
             return
         yield from self._reader_blocks()
 
-    def _mcap_blocks(self, scan: McapScan) -> Iterator[RawBlock]:
+    def _scan_blocks(self, scan: Any) -> Iterator[RawBlock]:
+        """The chosen topics' messages of a file canguard reads itself (:class:`McapScan`, :class:`Ros1Scan`)."""
         topics: dict[int, Topic | None] = {}
         for found in scan.messages():
             for cid in set(np.unique(found.channel).tolist()) - topics.keys():
                 channel = scan.channels.get(cid)
                 if channel is None:
                     raise McapCut(f"a message of channel {cid}, which no channel record defines")
-                if channel.message_encoding != "cdr":
+                if channel.message_encoding not in ("cdr", "ros1"):
                     topics[cid] = None
                     continue
                 take = channel.topic in self.channels or (not scan.whole and self._wants(channel.topic,
@@ -216,37 +218,10 @@ class BagSource:
                            [topics[c] for c in chans])  # type: ignore[misc]
 
     def _reader_blocks(self) -> Iterator[RawBlock]:
-        """rosbags' messages (ROS 1), or the sqlite3 ``messages`` table, :data:`BLOCK` at a time."""
-        reader = self.reader
-        conns = [c for c in reader.connections if c.topic in self.channels]
-        storage = reader.storage if self.kind == "rosbag2" else None
-        dbs = getattr(storage, "storages", None) or ([storage] if storage is not None else [])
-        if dbs and all(hasattr(db, "dbconn") for db in dbs):
-            for db in dbs:
-                yield from self._sqlite_blocks(db)
-            return
-        mine = {c.id: self.topic(c.topic, c.msgtype, c.msgdef.data) for c in conns}
-        if self.kind == "ROS 1 bag":
-            yield from self._ros1_blocks(mine)
-            return
-        messages = reader.messages(connections=conns)
-        while batch := list(islice(messages, BLOCK)):
-            chans, stamps, raws = zip(*batch, strict=True)
-            buf, start, lens = joined(raws)
-            yield RawBlock(buf, start, lens, np.fromiter(stamps, np.int64, len(stamps)),
-                           [mine[c.id] for c in chans])
-
-    def _ros1_blocks(self, mine: dict[int, Topic]) -> Iterator[RawBlock]:
-        """A ROS 1 bag's chunks (where rosbags' reader of its index found them), read by canguard, in file order."""
-        where = [(c.datapos, c.datasize, c.decompressor) for _pos, c in sorted(self.reader.chunks.items())]
-        for found in ros1scan.chunks(self.path, where):
-            keep = np.isin(found.channel, np.fromiter(mine, np.int64, len(mine)))
-            if not keep.any():
-                continue
-            rows = np.flatnonzero(keep) if not keep.all() else slice(None)
-            chans = found.channel[rows].tolist()
-            yield RawBlock(found.buf, found.start[rows], found.lengths[rows], found.log_ns[rows],
-                           list(map(mine.__getitem__, chans)))
+        """A rosbag2 sqlite3 bag (a ``.db3``, or a directory of them): each storage's ``messages`` table."""
+        storage = self.reader.storage
+        for db in getattr(storage, "storages", None) or [storage]:
+            yield from self._sqlite_blocks(db)
 
     def _sqlite_blocks(self, db: Any) -> Iterator[RawBlock]:
         """One sqlite3 storage's messages of the chosen topics, in record time order."""

@@ -285,8 +285,8 @@ def _next(bag: BagSource, blocks: Iterator[RawBlock], st: ReadStats) -> RawBlock
     except LogFormatError:
         raise
     except McapCut as exc:
-        raise LogFormatError(f"{bag.path}: truncated MCAP: {exc.what}; {st.frames} frames were read before the cut"
-                             ) from None
+        raise LogFormatError(f"{bag.path}: truncated {bag.kind}: {exc.what}; {st.frames} frames were read before "
+                             "the cut") from None
     except Exception as exc:  # a cut or damaged storage deep inside the readers
         raise bag.failed(f"cut or damaged; {st.frames} frames were read before it", exc) from None
 
