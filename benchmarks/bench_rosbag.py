@@ -10,10 +10,13 @@ own serialiser, which the tests use, takes ~10 us a message), then times, best o
 (default 3), alternating:
 
 * ``python -m canguard replay LOG -c config/canguard.yaml --json`` on the candump log;
-* the same on each bag.
+* the same on each bag;
+* the same on the MCAP bag with ``--export-signals FILE.mcap`` (samples, guard states, events and
+  frames sent as MCAP).
 
 The summaries are checked equal (but for the log's name and the bag's stamp counts). The
-goal: a bag replays at >= 0.5x the candump replay's speed (its time <= 2x).
+goals: a bag replays at >= 0.5x the candump replay's speed (its time <= 2x); the MCAP export
+costs <= 1.5x the replay of the same bag without it.
 """
 
 from __future__ import annotations
@@ -92,10 +95,10 @@ def write_bags(log: Path, where: Path, storages: list[str]) -> dict[str, Path]:
     return bags
 
 
-def replay(path: Path) -> tuple[float, dict[str, object]]:
+def replay(path: Path, *extra: str) -> tuple[float, dict[str, object]]:
     """Wall time of ``canguard replay PATH --json`` in a subprocess, and its summary."""
     t0 = time.perf_counter()
-    proc = subprocess.run([sys.executable, "-m", "canguard", "replay", str(path), "-c", str(CONFIG), "--json"],
+    proc = subprocess.run([sys.executable, "-m", "canguard", "replay", str(path), "-c", str(CONFIG), "--json", *extra],
                           capture_output=True, text=True, check=False)
     took = time.perf_counter() - t0
     if proc.returncode not in (0, 1):
@@ -115,12 +118,16 @@ def main() -> None:
     bags = write_bags(log, args.cache, args.storages.split(","))
     best: dict[str, float] = {}
     summaries: dict[str, dict[str, object]] = {}
+    export = Path(tempfile.mkdtemp(prefix="canguard-bench-rosbag-")) / "signals.mcap"
+    runs: list[tuple[str, Path, tuple[str, ...]]] = [("candump", log, ()), *((k, v, ()) for k, v in bags.items())]
+    if "mcap" in bags:
+        runs.append(("mcap --export-signals", bags["mcap"], ("--export-signals", str(export))))
     for _ in range(args.repeat):
-        for name, path in [("candump", log), *bags.items()]:
-            took, summary = replay(path)
+        for name, path, extra in runs:
+            took, summary = replay(path, *extra)
             best[name] = min(best.get(name, float("inf")), took)
             summaries[name] = {k: v for k, v in summary.items() if k not in ("log", "stamps")}
-    for name in bags:
+    for name in summaries:
         if summaries[name] != summaries["candump"]:
             raise SystemExit(f"{name}: the summary differs from candump's")
     print(f"{n:,} frames, best of {args.repeat}, whole processes ({time.strftime('%Y-%m-%d')}, "
@@ -130,6 +137,9 @@ def main() -> None:
     for name, took in sorted(best.items(), key=lambda kv: -kv[1]):
         ratio = "" if name == "candump" else f"{best['candump'] / took:.2f}x"
         print(f"| {name} | {took:.3f} | {n / took:,.0f} | {ratio} |")
+    if "mcap --export-signals" in best:
+        print(f"MCAP export / replay of the MCAP bag without it: {best['mcap --export-signals'] / best['mcap']:.2f}x "
+              f"({export.stat().st_size / 1e6:.1f} MB)")
 
 
 if __name__ == "__main__":
