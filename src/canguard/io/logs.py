@@ -194,6 +194,9 @@ def read_log(
         raise LogFormatError(f"{p}: no such file")
     if not p.is_file() and fmt is not _BAG:
         raise LogFormatError(f"{p}: not a regular file")
+    if fmt is _BAG and gz:
+        raise LogFormatError(f"{p}: a bag compressed as a whole (.{gz}) is not read: decompress it first (rosbag2 and "
+                             "ROS 1 compress inside the bag)")
     _require(p, "ROS bags" if fmt is _BAG else f".{fmt.name} logs", fmt.needs)
     _require(p, f".{gz} logs", _COMPRESSORS.get(gz))
     st = stats if stats is not None else ReadStats()

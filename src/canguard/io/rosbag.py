@@ -1,11 +1,12 @@
 """ROS bags as CAN logs: rosbag2 (a directory with ``metadata.yaml``, a ``.db3`` or ``.mcap``) and ROS 1 ``.bag``.
 
-The ``rosbags`` package (an optional extra: ``pip install 'canguard[rosbags]'``) opens
-the bag and gives its raw messages; canguard never deserialises them one by one. The
-CAN frame types have a fixed layout after the header's ``frame_id``
-(:mod:`canguard.io.rosmsgs`), so a block of up to :data:`BLOCK` raw messages is joined
-into one byte buffer and every field of every message is gathered by numpy at once
-(:func:`unpack`).
+:mod:`canguard.io.bagsource` opens the bag (with the ``rosbags`` package, an optional
+extra: ``pip install 'canguard[rosbags]'``, where canguard does not read the file itself)
+and gives its raw messages a block at a time, one after another in one byte buffer;
+canguard never deserialises them one by one. The CAN frame types have a fixed layout
+after the header's ``frame_id`` (:mod:`canguard.io.rosmsgs`), so every field of every
+message of a block is gathered by numpy at once (:func:`unpack`), and the block becomes
+an :class:`~canguard.io.block.Block` at one place (:func:`block_of`).
 
 What a frame is, as candump has it:
 
@@ -57,8 +58,6 @@ from canguard.io.rosmsgs import (
     Layout,
 )
 
-BLOCK = 4096
-"""Raw messages unpacked at once."""
 _FD_OK = np.zeros(256, dtype=bool)
 _FD_OK[sorted(CANFD_LENGTHS)] = True
 
