@@ -38,8 +38,7 @@ from canguard.engine.core import Engine
 from canguard.engine.gate import LogSink
 from canguard.engine.routing import ChannelRouter, parse_map
 from canguard.errors import CanguardError, ConfigError, LogFormatError
-from canguard.io.bagopts import STAMPS, BagOptions
-from canguard.io.bagwrite import emits_bag
+from canguard.io.bagopts import STAMPS, BagOptions, emits_bag
 from canguard.io.clock import ManualClock
 from canguard.io.frame import Frame
 from canguard.io.logtypes import COMPRESSIONS

@@ -29,3 +29,9 @@ def is_bag(path: Path) -> bool:
     if path.is_dir():
         return (path / "metadata.yaml").is_file()
     return path.suffix.lower() in BAG_SUFFIXES
+
+
+def emits_bag(path: Path) -> bool:
+    """``--emit`` writes a bag to ``path`` (an ``.mcap`` file, or a rosbag2 directory: no suffix), not candump text
+    (:mod:`canguard.io.bagwrite`)."""
+    return path.suffix.lower() == ".mcap" or not path.suffix

@@ -23,11 +23,6 @@ TOPICS = {False: "/to_can_bus", True: "/to_can_bus_fd"}
 """Where classic and CAN FD frames go (ros2_socketcan's sender's topics)."""
 
 
-def emits_bag(path: Path) -> bool:
-    """``--emit`` writes a bag to ``path`` (an ``.mcap`` file, or a directory: no suffix), not candump text."""
-    return path.suffix.lower() == ".mcap" or not path.suffix
-
-
 class BagEmit:
     """The frames sent during a replay, written as they come (see the module docstring)."""
 
