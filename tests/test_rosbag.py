@@ -337,3 +337,14 @@ class TestMcapOut:
                 got.append((stamp / 1e9, msg.id, bytes(msg.data[:msg.dlc])))
         assert [g[1:] for g in got] == [(f.arbitration_id, f.data) for f in text]
         assert all(abs(g[0] - f.t) < 1.5e-6 for g, f in zip(got, text, strict=True))  # candump keeps microseconds
+
+
+def test_a_directory_of_logs_holds_bags_whole(tmp_path: Path) -> None:
+    """``replay DIR``: a rosbag2 directory inside is one log (not its storage file), beside the other logs."""
+    from canguard.cli.fleet import expand_logs
+
+    bag = write_bag(tmp_path / "run1", "mcap", {TOPIC: [Frame(1.0, TOPIC, 0x1, b"")]})
+    ros1 = write_bag(tmp_path / "old", "ros1", {TOPIC: [Frame(1.0, TOPIC, 0x1, b"")]})
+    (tmp_path / "can.log").write_text("(1.000000) can0 001#\n", encoding="ascii")
+    assert expand_logs([tmp_path]) == sorted([bag, ros1, tmp_path / "can.log"])
+    assert expand_logs([bag]) == [bag]
