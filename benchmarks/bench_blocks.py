@@ -27,7 +27,7 @@ from bench_common import BUNDLED, DBC
 from canguard.bt.context import ListSink
 from canguard.config.loader import load_config
 from canguard.engine.core import Engine
-from canguard.io.candump import Columns
+from canguard.io.block import Block
 from canguard.io.clock import ManualClock
 from canguard.io.frame import Frame
 
@@ -52,11 +52,9 @@ def frames_of_every_message(count: int) -> list[Frame]:
             for k, (cid, data, ext) in ((k, payloads[k % len(payloads)]) for k in range(count))]
 
 
-def as_columns(frames: list[Frame]) -> Columns:
-    """Classic frames of one channel, in order, as the candump reader's column block holds them."""
-    ids = [f"{f.arbitration_id:08X}" if f.is_extended_id else f"{f.arbitration_id:03X}" for f in frames]
-    return Columns(len(frames), [f.t for f in frames], ["main"] * len(frames), ids, [f.data.hex() for f in frames],
-                   True, "main", None, None)
+def as_columns(frames: list[Frame]) -> Block:
+    """Classic frames of one channel, in order, as one block."""
+    return Block.of_frames(frames)
 
 
 def run(cfg: Any, frames: list[Frame], size: int, columns: bool) -> tuple[float, tuple[int, ...]]:
@@ -65,7 +63,7 @@ def run(cfg: Any, frames: list[Frame], size: int, columns: bool) -> tuple[float,
     start = time.process_time()
     for i in range(0, len(frames), size):
         block = frames[i:i + size]
-        engine.take("main", as_columns(block) if columns else block)
+        engine.take("main", as_columns(block) if columns else Block.of_frames(block))
     cpu = time.process_time() - start
     d = engine.decoder
     return cpu, (engine.stats.frames, d.decoded, d.skipped, engine.stats.ticks, engine.stats.trip_count)

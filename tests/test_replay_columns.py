@@ -8,12 +8,12 @@ for a row the column decoder read whole, :meth:`MessagePlan.take_samples
 sources' health and the models through :class:`~canguard.bt.context.SampleRoute`). A block
 (``LogRun._run_columns``, ``LogRun._cross``) takes N rows at once; the reference gives the
 engine every frame on its own, a block of one, as a quiet live bus does. Every test here
-replays one log both ways, the blocks at several sizes (so that block boundaries fall everywhere: at ticks, at trips, inside gaps), the
-blocks of one once (whatever the reader's block size), and compares the summary, the ``--events``
-file, the ``--emit`` file and the engine's own state (counters, every source's health, every
-guard's model) byte for byte: live and replay agree. Each comparison also checks that the
-column path really ran: column blocks taken and rows taken by the message plans'
-column step, none of either in the reference run.
+replays one log both ways, the blocks at several sizes (so that block boundaries fall
+everywhere: at ticks, at trips, inside gaps), the blocks of one once (whatever the reader's
+block size), and compares the summary, the ``--events`` file, the ``--emit`` file and the
+engine's own state (counters, every source's health, every guard's model) byte for byte: live
+and replay agree. Each comparison also checks that blocks of many rows really ran, and rows
+taken by the message plans' column step; the reference took blocks of one only.
 
 The logs are written here: a scripted log on a config of many node types and
 value kinds (``custom``: trips and recoveries, NaN / inf / out of range / short
@@ -65,10 +65,9 @@ TIMED = REPO / "config" / "examples" / "time_windowed_action.yaml"
 DEFAULT_CHUNK = canguard.io.logs.CHUNK_CHARS
 
 SMALL_CHUNKS = (97, 300, 1009, 4096)
+"""Block sizes (characters) besides the reader's default: 2 lines a block up to about a hundred."""
 EXPORT = importlib.util.find_spec("pyarrow") is not None
 """``compare`` also holds ``--export-signals`` to the frame-by-frame export (pyarrow: the fleet extra, in test)."""
-"""``NUMPY_AFTER_BLOCKS`` that keeps the reader on its text parsers."""
-"""Block sizes (characters) besides the reader's default: 2 lines a block up to about a hundred."""
 
 _DB = cantools.database.load_file(str(DBC))
 

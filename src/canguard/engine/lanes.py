@@ -23,8 +23,8 @@ _STANDARD = 0x800
 
 
 def key_table(plans: Mapping[Any, Any]) -> tuple[Any, Any]:
-    """The integer keys of ``plans`` (:attr:`Block.keys <canguard.io.block.Block.keys>`, plus a channel's :data:`LANE`s): a
-    table of the standard ones, :data:`_STANDARD` entries per channel; all, sorted."""
+    """The integer keys of ``plans`` (:attr:`Block.keys <canguard.io.block.Block.keys>`, plus a channel's
+    :data:`LANE`s): a table of the standard ones, :data:`_STANDARD` entries per channel; all, sorted."""
     import numpy as np
 
     known = list(plans)

@@ -324,7 +324,12 @@ class _Columns:
             keys, inverse = np.unique(cells.view(np.dtype((np.void, length))).reshape(-1), return_inverse=True)
             index = np.array([names.setdefault(k.tobytes(), len(names)) for k in keys], dtype=np.uint16)
             lanes[at] = index[inverse.reshape(-1)]
-        return lanes, tuple(name.decode("utf-8", "replace") for name in names)
+        _seen, firsts = np.unique(lanes, return_index=True)
+        order = np.argsort(firsts)  # the names in the order they first come
+        rank = np.empty(order.size, dtype=np.uint16)
+        rank[order] = np.arange(order.size, dtype=np.uint16)
+        listed = list(names)
+        return rank[lanes], tuple(listed[k].decode("utf-8", "replace") for k in order.tolist())
 
     def block(self, rows: np.ndarray) -> Block:
         """The frames of ``rows`` (good lines) as a block."""

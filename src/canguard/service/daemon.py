@@ -298,7 +298,7 @@ class Daemon:
         stamps = list(map(_STAMP, frames))
         if (not split and "overrun" not in engine.gate.inhibits and not mono - min(map(_RECEIVED, items)) > limit
                 and min(stamps) >= now - LIVE_SKEW_S and max(stamps) <= now + LIVE_SKEW_S):
-            engine.take(target, Block.of_frames(frames))  # the usual batch: no overrun starts, every stamp sane: one block
+            engine.take(target, Block.of_frames(frames))  # the usual batch (no overrun starts, stamps sane): one block
             return
         bus = names[0]
         block: list[Frame] = []
