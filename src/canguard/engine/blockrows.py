@@ -25,6 +25,7 @@ def decode_rows(
     plans: Mapping[int, MessagePlan | None], rows: Any, block: Block, ts: Sequence[Any],
     settle: bool = False, keys: Any = None, taken: list[tuple[MessagePlan, Any, Sequence[Any]]] | None = None,
     horizon: Callable[[Mapping[int, Mapping[str, float]]], float] | None = None,
+    touched: set[MessagePlan] | None = None,
 ) -> list[tuple[MessagePlan | None, tuple[float, ...] | None] | None] | None:
     """Per row of the block: its plan and decoded values when it goes one by one (else None); None: no row left.
 
@@ -38,7 +39,7 @@ def decode_rows(
     (the last tick was a fixed point: no tick in the block changes a guard's status by itself).
     ``ts``: the block's times; ``keys``: each row's key in ``plans`` (:attr:`Block.keys
     <canguard.io.block.Block.keys>`, plus a channel's lane). ``taken``, when given, receives each message's
-    (plan, rows, decoded values) (``--export-signals``).
+    (plan, rows, decoded values) (``--export-signals``); ``touched``, when given, each plan that took rows.
     """
     from canguard.decode.rows import EMPTY, count_empty  # imported when a block is first decoded
 
@@ -63,6 +64,8 @@ def decode_rows(
             for i in list(group):
                 slots[i] = (None, None)
             continue
+        if touched is not None:
+            touched.add(plan)
         pick = _picker(group)
         decoded = together[plan] if plan in together else plan.decode(block, group)
         if taken is not None:

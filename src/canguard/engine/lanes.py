@@ -58,6 +58,8 @@ def runs_by_key(keys: Any, rows: Any) -> list[tuple[int, Any]]:
     if not len(rows):
         return []
     picked = np.asarray(rows, dtype=np.intp)
+    if picked.size == 1:  # a live frame's block: one group
+        return [(int(keys[picked[0]]), picked)]
     of = keys[picked]
     order = np.argsort(_radix_keys(of), kind="stable")
     ranked = of[order]

@@ -82,12 +82,10 @@ class LogRun:
         """Per bus: the keys of :attr:`_plans`, as blocks look them up (:func:`.lanes.key_table`)."""
         self._lane_plans: dict[tuple[str, ...], tuple[dict[int, MessagePlan | None], tuple[Any, Any]]] = {}
         """Per channels-to-buses of a block that mixes buses: its plans and their key table (:mod:`.lanes`)."""
-        self._plan_list: dict[str, list[MessagePlan]] = {}
-        """Per bus: every plan, flushed at the end of each column block of the bus."""
         self._by_key: dict[tuple[str, int, bool], MessagePlan] = {}
         """Every plan by the decoder's key, ``(bus, arbitration_id, is_extended_id)``: a frame's plan in one lookup."""
         self._touched: set[MessagePlan] = set()
-        """The plans that took frames decoded by the frame decoder in this block (flushed at its end)."""
+        """The plans that took rows of this block (flushed at its end)."""
 
     def run(
         self, blocks: Iterable[Block], route: Mapping[str, str], default_bus: str | None,
@@ -278,7 +276,8 @@ class LogRun:
         last_row = int(rows[-1]) if len(rows) else -1  # the last row frame by frame would see, whatever path takes it
         taken: list[tuple[MessagePlan, Any, Sequence[Any]]] | None = [] if export is not None else None
         quiet = engine.quiet
-        slots = decode_rows(plans, rows, block, ts, quiet.fixed, keys, taken, quiet.block_horizon) if len(rows) else []
+        slots = decode_rows(plans, rows, block, ts, quiet.fixed, keys, taken, quiet.block_horizon,
+                            self._touched) if len(rows) else []
         if slots is None:
             rows = []  # every row taken whole: only the ticks due in the block are left
             slots = []
@@ -294,9 +293,6 @@ class LogRun:
             pos = self._walk(walk, first, fed)
             export(ts, [(plan.names, group, decoded) for plan, group, decoded in taken], fed)
         self._cross(ts, pos, block.n)
-        for b in set(buses):
-            for plan in self._plan_list[b]:
-                plan.flush()
         self._count_lanes(cursor, block, per_channel, buses, tally, first)
         cursor.last_t = float(ts[-1])
         if last_row >= 0:
@@ -433,7 +429,6 @@ class LogRun:
 
         counters = self.decoder.per_bus[bus]
         plans: dict[int, MessagePlan | None] = {}
-        made = self._plan_list.setdefault(bus, [])
         # the stop confirmation reads its source between ticks: not passive; metrics count per frame
         readers: set[str] | None = set(self.ctx.read_sources)
         cfg = self.engine.cfg
@@ -451,7 +446,6 @@ class LogRun:
             if plan is not None:
                 plan.settle_ok = may_settle(plan, metrics, self.ctx.read_sources)
                 plan.confirm_read = any(source == confirm for source, *_rest in plan.outputs)
-                made.append(plan)
                 self._by_key[b, cid, ext] = plan
             plans[cid + EXT_KEY if ext else cid] = plan
         return plans

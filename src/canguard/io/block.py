@@ -17,16 +17,15 @@ it came from. The columns::
     channel    uint16  (n,)    each row's index into ``channels``
     channels   tuple[str]      the channel names (``can0``; live: the bus name)
 
-Blocks are immutable: the arrays are made read-only at construction.
+A block is a value: nothing writes to its arrays once it is built.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
-from functools import cached_property
 from itertools import repeat
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Generic, TypeVar
 
 import numpy as np
 
@@ -62,9 +61,28 @@ EXT_KEY = 1 << 32
 """Added to an extended id in :attr:`Block.keys` (a standard id is its value): one integer per (id, extended)."""
 
 _NO_ROWS = np.zeros(0, dtype=np.intp)
+_LANE_0 = np.zeros(1, dtype=np.uint16)
 _new = tuple.__new__  # a Frame from a ready tuple: several times cheaper than Frame(...)
-_COLUMNS = (("time_s", np.float64), ("can_id", np.uint32), ("extended", np.bool_), ("flags", np.uint8),
-            ("dlc", np.uint8), ("length", np.uint8), ("channel", np.uint16))
+_COLUMNS = (("time_s", np.dtype(np.float64)), ("can_id", np.dtype(np.uint32)), ("extended", np.dtype(np.bool_)),
+            ("flags", np.dtype(np.uint8)), ("dlc", np.dtype(np.uint8)), ("length", np.dtype(np.uint8)),
+            ("channel", np.dtype(np.uint16)))
+_U8 = np.dtype(np.uint8)
+_T = TypeVar("_T")
+
+
+class _cached(Generic[_T]):  # a decorator, as functools.cached_property
+    """A value computed at first use and kept in the instance (functools.cached_property without its lock,
+    which costs a live block of one more than the value)."""
+
+    def __init__(self, fn: Callable[[Any], _T]) -> None:
+        self.fn = fn
+        self.name = fn.__name__
+        self.__doc__ = fn.__doc__
+
+    def __get__(self, obj: Any, owner: Any = None) -> _T:
+        value: _T = self.fn(obj)
+        obj.__dict__[self.name] = value  # found there from now on: this is not called again
+        return value
 
 
 def channel_name(channel: Any) -> str:
@@ -92,19 +110,17 @@ class Block:
     channels: tuple[str, ...]
 
     def __post_init__(self) -> None:
-        n = self.time_s.shape[0] if self.time_s.ndim == 1 else -1
+        shape = self.time_s.shape
         for name, dtype in _COLUMNS:
             column = getattr(self, name)
-            if column.dtype != dtype or column.shape != (n,):
-                raise ValueError(f"Block.{name}: expected {np.dtype(dtype).name} of shape ({n},), "
+            if column.dtype != dtype or column.shape != shape:
+                raise ValueError(f"Block.{name}: expected {dtype.name} of shape {shape}, "
                                  f"got {column.dtype.name} of shape {column.shape}")
-            column.flags.writeable = False
         payload = self.payload
-        if payload.dtype != np.uint8 or payload.ndim != 2 or payload.shape[0] != n:
-            raise ValueError(f"Block.payload: expected uint8 of shape ({n}, width), got {payload.dtype.name} "
+        if payload.dtype != _U8 or payload.ndim != 2 or payload.shape[:1] != shape:
+            raise ValueError(f"Block.payload: expected uint8 of shape ({shape[0]}, width), got {payload.dtype.name} "
                              f"of shape {payload.shape}")
-        payload.flags.writeable = False
-        if n and int(self.channel.max()) >= len(self.channels):
+        if len(self.channels) > 1 and shape[0] and int(self.channel.max()) >= len(self.channels):
             raise ValueError(f"Block.channel: index {int(self.channel.max())} with {len(self.channels)} channels")
 
     # -- building ----------------------------------------------------------------------------
@@ -133,7 +149,19 @@ class Block:
     @classmethod
     def of_frames(cls, frames: Iterable[Frame]) -> Block:
         """The frames as a block (the live drain, a simulator, tests)."""
-        return _Rows.of_frames(list(frames)).block()
+        listed = list(frames)
+        if len(listed) == 1:  # a frame on a quiet bus: its columns made at once
+            f = listed[0]
+            length = len(f.data)
+            flags = ((FLAG_FD if f.is_fd else 0) | (FLAG_BRS if f.bitrate_switch else 0)
+                     | (FLAG_ESI if f.error_state_indicator else 0) | (FLAG_REMOTE if f.is_remote_frame else 0)
+                     | (FLAG_ERROR if f.is_error_frame else 0))
+            if 0 <= f.arbitration_id <= 0xFFFFFFFF and length <= 255 and f.dlc <= 255:
+                return cls(np.array((f.t,), np.float64), np.array((f.arbitration_id,), np.uint32),
+                           np.array((f.is_extended_id,), np.bool_), np.array((flags,), np.uint8),
+                           np.array((length if f.dlc < 0 else f.dlc,), np.uint8), np.array((length,), np.uint8),
+                           np.frombuffer(f.data, np.uint8).reshape(1, length), _LANE_0, (f.channel,))
+        return _Rows.of_frames(listed).block()
 
     @classmethod
     def of_messages(cls, msgs: Sequence[can.Message], channel: str | None = None) -> Block:
@@ -142,7 +170,7 @@ class Block:
         return _Rows.of_messages(msgs, channel).block()
 
     # -- what the engine reads ----------------------------------------------------------------
-    @property
+    @_cached
     def n(self) -> int:
         """How many frames."""
         return int(self.time_s.shape[0])
@@ -150,23 +178,23 @@ class Block:
     def __len__(self) -> int:
         return self.n
 
-    @cached_property
+    @_cached
     def keys(self) -> np.ndarray:
         """Each row's id as one integer (int64): the id, plus :data:`EXT_KEY` when extended."""
         return self.can_id.astype(np.int64) + self.extended.astype(np.int64) * EXT_KEY
 
-    @cached_property
+    @_cached
     def times(self) -> list[float]:
         """:attr:`time_s` as a list of floats (rows read one by one)."""
         return self.time_s.tolist()
 
-    @cached_property
+    @_cached
     def ordered(self) -> bool:
         """No row's time is before the previous row's."""
         t = self.time_s
         return bool(t.size < 2 or not (t[1:] < t[:-1]).any())
 
-    @cached_property
+    @_cached
     def order(self) -> tuple[int, int]:
         """(rows whose time goes back, rows whose time repeats the previous row's), within the block."""
         t = self.time_s
@@ -175,7 +203,7 @@ class Block:
         step = t[1:] - t[:-1]
         return int(np.count_nonzero(step < 0)), int(np.count_nonzero(step == 0))
 
-    @cached_property
+    @_cached
     def only_channel(self) -> int | None:
         """The index of the one channel every row is on, or None (rows of several channels)."""
         if not self.n:
@@ -183,7 +211,7 @@ class Block:
         first = int(self.channel[0])
         return first if len(self.channels) == 1 or bool((self.channel == first).all()) else None
 
-    @cached_property
+    @_cached
     def special(self) -> np.ndarray:
         """The rows of remote and error frames (no payload to decode), as an index array."""
         if not self.flags.any():
