@@ -135,8 +135,8 @@ class BagSource:
         storages = getattr(self.reader.storage, "storages", None) if self.kind == "rosbag2" else None
         files = [Path(s.path) for s in storages or ()]
         if files and all(f.suffix == ".mcap" for f in files):
-            self.reader.close()  # read again by canguard's chunk reader, file by file
-            self.reader = None
+            # read again by canguard's chunk reader, file by file (the reader stays open: a directory compressed
+            # file by file has its storages decompressed into a temporary directory while it is)
             self.scans = [McapScan(f, _decompress) for f in files]
 
     @staticmethod
