@@ -84,7 +84,7 @@ def _rewritten(raw: bytes) -> tuple[bytes, np.ndarray | None]:
     """The block with one space between fields, none at a line's ends, an indented line led by
     :data:`_INDENTED`, and candump -ta lines rewritten as -L (lines keep their places); with each line's
     announced ``[len]`` (-1: none) when there are -ta lines."""
-    if b"\t" in raw or b"  " in raw or b" \n" in raw or b"\n " in raw or raw[:1] == b" ":
+    if b"\t" in raw or _loose_spaces(raw):
         if b"\t" in raw:
             raw = _TAB_LED.sub(bytes([_INDENTED]), raw)
         raw = _EDGES.sub(b"", _SPACES.sub(b" ", raw))
@@ -103,6 +103,17 @@ def _rewritten(raw: bytes) -> tuple[bytes, np.ndarray | None]:
         if b"[" in line and (m := _LONG_ANY.fullmatch(line)) is not None:
             lines[k], announced[k] = _compact(m)
     return b"\n".join(lines) + b"\n", announced
+
+
+def _loose_spaces(raw: bytes) -> bool:
+    """Two spaces in a row, or a space at a line's start or end, anywhere in ``raw`` (two-byte searches cost
+    ten times these passes)."""
+    b = np.frombuffer(raw, dtype=np.uint8)
+    space = b == 32
+    if not space.any():
+        return False
+    edge = b == 10
+    return bool(space[0] or space[-1] or (space[1:] & (space[:-1] | edge[:-1])).any() or (space[:-1] & edge[1:]).any())
 
 
 def _compact(m: re.Match[bytes]) -> tuple[bytes, int]:
@@ -133,7 +144,16 @@ def parse_block(raw: bytes, error_before: bool = False) -> Parsed:
     """
     if b"\r" in raw:
         raw = raw.replace(b"\r\n", b"\n").replace(b"\r", b"\n")
-    text, announced = _rewritten(raw)
+    spaced = b"\t" in raw or b"[" in raw  # rewritten first (-ta lines are spaced out): else only if lines fail
+    parsed = _parsed(_rewritten(raw) if spaced else (raw, None), error_before)
+    if parsed.bad and not spaced and _loose_spaces(raw):
+        return _parsed(_rewritten(raw), error_before)
+    return parsed
+
+
+def _parsed(rewritten: tuple[bytes, np.ndarray | None], error_before: bool) -> Parsed:
+    """:func:`parse_block` of a block (rewritten, with its -ta lines' announced lengths)."""
+    text, announced = rewritten
     b = np.frombuffer(text, dtype=np.uint8)
     size = b.size
     pad = _buffer("pad", size + _PAD, np.uint8)
@@ -149,7 +169,7 @@ def parse_block(raw: bytes, error_before: bool = False) -> Parsed:
     indented = first == _INDENTED
     data &= ~indented
     lines = np.flatnonzero(data)
-    cols = _Columns(b, pad, start[lines], nl[lines])
+    cols = _Columns(b, pad, start[lines], nl[lines], lines.size == n)
     ok = cols.ok
     if announced is not None:  # a -ta line's [len] is its payload's length
         known = announced[lines]
@@ -177,37 +197,96 @@ def _indented(at: np.ndarray, rows_line: np.ndarray, errors: np.ndarray, bad: np
 
 
 class _Columns:
-    """The fields of the lines from ``start`` to ``end`` (their newline), found and checked: :attr:`ok`."""
+    """The fields of the lines from ``start`` to ``end`` (their newline), found and checked: :attr:`ok`.
 
-    def __init__(self, b: np.ndarray, pad: np.ndarray, start: np.ndarray, end: np.ndarray) -> None:
+    ``whole``: every line of the block is one of these (no blank, comment or indented line): then one count
+    of the block's bytes that are not hex digits, held to what the fields found account for, proves at once
+    that the ids and payloads are hex digits (else each line's fields are counted on their own).
+    """
+
+    def __init__(self, b: np.ndarray, pad: np.ndarray, start: np.ndarray, end: np.ndarray, whole: bool) -> None:
         self.b = b
         self.pad = pad
-        size = b.size
-        nonhex = _buffer("nonhex", size + 1, np.int32)
-        nonhex[0] = 0
-        np.cumsum(~_HEX[b], out=nonhex[1:])
-        self.nonhex = nonhex
         self.start = start
-        ok = pad[start] == 40  # "("
-        self.close = close = _next(b, 41, start, end)  # ")"
-        ok &= (close < end) & (pad[close + 1] == 32)
-        spaces = np.flatnonzero(b == 32)
-        self.sp2 = sp2 = _after(spaces, close + 2, end)  # the space after the channel
-        ok &= (sp2 < end) & (sp2 > close + 2)
-        fe = _after(spaces, sp2 + 1, end)  # where ID#DATA ends
+        self.has_under = bool(np.count_nonzero(b == 95))  # a raw DLC somewhere
+        close, sp2 = self._fixed(start, end) or self._searched(start, end)
+        ok = (pad[start] == 40) & (close < end) & (pad[close + 1] == 32) & (sp2 < end) & (sp2 > close + 2)
+        fe = self._field_end(sp2, end)
         tail = fe < end
         ok &= ~tail | ((fe == end - 2) & _MARKERS[pad[end - 1]])
-        h1 = _next(b, 35, sp2 + 1, fe)  # the "#" after the id
+        h1 = self._hash(sp2, fe)
         ok &= h1 < fe
+        self.close, self.sp2 = close, sp2
         ok &= self._ids(h1, sp2)
         ok &= self._data(h1, fe)
         ok &= self._stamps(start, close)
+        hexes = [(sp2 + 1, h1), (self.ds, self.de)]  # where only hex digits may be
+        if not (whole and ok.all() and self._counted(b, tail, close, sp2)):
+            for lo, hi in hexes:
+                ok &= self._between(lo, hi) == 0
         self.ok = ok
+
+    def _fixed(self, start: np.ndarray, end: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """")" and the space after the channel where the first line has them, when every line does."""
+        if not start.size:
+            return None
+        pad = self.pad
+        first = pad[int(start[0]):int(end[0])].tobytes()
+        width = first.find(b")") - 1
+        clen = first.find(b" ", width + 3) - width - 3
+        if width < 1 or clen < 1:
+            return None
+        close = start + (width + 1)
+        sp2 = close + clen + 2
+        if not ((pad[close] == 41) & (pad[close + 1] == 32) & (pad[sp2] == 32) & (sp2 < end)).all():
+            return None
+        return close, sp2
+
+    def _searched(self, start: np.ndarray, end: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """")" and the space after the channel of each line, wherever they are."""
+        close = _next(self.b, 41, start, end)
+        return close, _after(np.flatnonzero(self.b == 32), close + 2, end)
+
+    def _field_end(self, sp2: np.ndarray, end: np.ndarray) -> np.ndarray:
+        """Where each line's ID#DATA ends: its end, or the space before a T/R marker (a space anywhere else is
+        found by the count of what is not a hex digit)."""
+        pad = self.pad
+        spaced = pad[end - 2] == 32
+        if not spaced.any():
+            return end
+        return np.where(spaced & (end - 2 > sp2), end - 2, _after(np.flatnonzero(self.b == 32), sp2 + 1, end))
+
+    def _hash(self, sp2: np.ndarray, fe: np.ndarray) -> np.ndarray:
+        """The "#" after each line's id: 3 or 8 characters after the space (else searched)."""
+        pad = self.pad
+        h1 = np.where(pad[sp2 + 4] == 35, sp2 + 4, sp2 + 9)
+        found = (pad[h1] == 35) & (h1 < fe)
+        if found.all():
+            return h1
+        return np.where(found, h1, _next(self.b, 35, sp2 + 1, fe))
+
+    def _counted(self, b: np.ndarray, tail: np.ndarray, close: np.ndarray, sp2: np.ndarray) -> bool:
+        """The block's bytes that are not hex digits are exactly those its lines' fields account for."""
+        n = tail.size
+        marks = 2 * n + 2 * n + n + int(np.count_nonzero(tail)) * 2  # ( ) two spaces, newline; " T"
+        marks += int(np.count_nonzero(self.dot_at)) + n + int(np.count_nonzero(self.fd))  # the dots, "#", "##"
+        marks += int(np.count_nonzero(self.remote)) + int(np.count_nonzero(self.raw_dlc))  # "R", "_"
+        size = sp2 - close - 2
+        for length in np.unique(size).tolist() if not (size == size[0]).all() else [int(size[0])]:
+            at = slice(None) if (size == length).all() else np.flatnonzero(size == length)
+            marks += int(np.count_nonzero(~_HEX[_rows(self.pad, close[at] + 2, length)]))  # the channels
+        return b.size - _hex_digits(b) == marks
 
     def _between(self, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
         """How many bytes in each ``[lo, hi)`` are not hex digits."""
-        top = self.nonhex.size - 1
-        return self.nonhex[np.clip(hi, 0, top)] - self.nonhex[np.clip(lo, 0, top)]
+        nonhex = getattr(self, "nonhex", None)
+        if nonhex is None:
+            size = self.b.size
+            nonhex = self.nonhex = _buffer("nonhex", size + 1, np.int32)
+            nonhex[0] = 0
+            np.cumsum(~_HEX[self.b], out=nonhex[1:])
+        top = nonhex.size - 1
+        return nonhex[np.clip(hi, 0, top)] - nonhex[np.clip(lo, 0, top)]
 
     def _ids(self, h1: np.ndarray, sp2: np.ndarray) -> np.ndarray:
         """The ids (3 or 8 hex digits before the "#"): :attr:`can_id`, :attr:`extended`, error frames."""
@@ -222,8 +301,7 @@ class _Columns:
         self.can_id = np.where(ext, value & _U(_MAX_EXTENDED), low).astype(np.uint32)
         self.extended = ext
         self.err = err
-        return (ext | (size == 3)) & (self._between(sp2 + 1, h1) == 0) & np.where(
-            ext, (value <= _U(_MAX_EXTENDED)) | err, low <= _U(_MAX_STANDARD))
+        return (ext | (size == 3)) & np.where(ext, (value <= _U(_MAX_EXTENDED)) | err, low <= _U(_MAX_STANDARD))
 
     def _data(self, h1: np.ndarray, fe: np.ndarray) -> np.ndarray:
         """The payloads after the "#": classic, CAN FD (``##F``), remote (``R``, ``R4``), raw DLC (``_D``)."""
@@ -233,23 +311,23 @@ class _Columns:
         remote = (after == 82) | (after == 114)
         digit = pad[h1 + 2]
         ok = ~fd | ((h1 + 2 < fe) & _HEX[digit])
-        self.fd_digit = np.where(fd, _hex_value(digit), 0)
+        self.fd_digit = np.where(fd, _hex_value(digit), 0) if fd.any() else np.zeros(fd.size, dtype=np.int64)
         ds = np.where(fd, h1 + 3, h1 + 1)
-        under = _next(self.b, 95, ds, fe)  # "_": a raw DLC
+        under = _next(self.b, 95, ds, fe) if self.has_under else fe  # "_": a raw DLC
         raw_dlc = under < fe
         de = np.where(raw_dlc, under, fe)
         de = np.where(remote, ds, de)
         rl = fe - h1 - 2
         ok &= ~remote | (rl == 0) | ((rl == 1) & (digit >= 48) & (digit <= 56))
-        dlc_digit = _hex_value(pad[under + 1])
+        dlc_digit = _hex_value(pad[under + 1]) if self.has_under else _zeros_like(fe)
         ok &= ~raw_dlc | (~fd & ~remote & (fe == under + 2) & (de - ds == 16) & _HEX[pad[under + 1]]
                           & (dlc_digit >= 9))
         hex_len = de - ds
-        ok &= (hex_len >= 0) & ((hex_len & 1) == 0) & (self._between(ds, de) == 0)
+        ok &= (hex_len >= 0) & ((hex_len & 1) == 0)
         length = np.maximum(hex_len, 0) >> 1
         ok &= np.where(fd, _FD_BYTES[np.minimum(length, 65)], length <= 8)
-        self.ds, self.length = ds, length
-        self.fd, self.remote = fd, remote
+        self.ds, self.de, self.length = ds, de, length
+        self.fd, self.remote, self.raw_dlc = fd, remote, raw_dlc
         self.dlc = np.where(remote, np.where(rl == 1, digit.astype(np.int64) - 48, 0),
                             np.where(raw_dlc, dlc_digit, length))
         return ok
@@ -267,8 +345,9 @@ class _Columns:
         self.time_s = np.zeros(n, dtype=np.float64)
         ok = np.ones(n, dtype=bool)
         width = close - start - 1
-        dot = _next(self.b, 46, start + 1, close)
-        place = np.where(dot < close, dot - start - 1, 63)
+        dot = self._dots(start, close)
+        self.dot_at = dot < close
+        place = np.where(self.dot_at, dot - start - 1, 63)
         key = np.minimum(width, 48) * 64 + place
         kinds: list[tuple[int, slice | np.ndarray]]
         if n and (key == key[0]).all():
@@ -280,19 +359,30 @@ class _Columns:
             self._stamp_kind(w, at, start[pick] + 1, ok, pick)
         return ok
 
+    def _dots(self, start: np.ndarray, close: np.ndarray) -> np.ndarray:
+        """The dot of each timestamp: where the first line has it, when every line does (else searched)."""
+        if start.size:
+            at = self.pad[int(start[0]):int(close[0])].tobytes().find(b".")
+            if at > 0 and ((self.pad[start + at] == 46) & (start + at < close)).all():
+                return start + at
+        return _next(self.b, 46, start + 1, close)
+
     def _stamp_kind(self, width: int, dot: int, first: np.ndarray, ok: np.ndarray, pick: slice | np.ndarray) -> None:
         """The timestamps of ``width`` characters with the dot at ``dot`` (63: none) from ``first``."""
         if width < 1 or width >= 48 or (dot != 63 and not 0 < dot < width - 1):
             ok[pick] = False  # empty, too long, or no digit before or after the dot
             return
-        cells = _rows(self.pad, first, width).astype(np.int64) - 48
+        cells = _rows(self.pad, first, width)
+        np.subtract(cells, np.uint8(48), out=cells)  # a digit is 0..9, anything else wraps above 9
         if dot != 63:
             cells[:, dot] = 0
-        good = ((cells >= 0) & (cells <= 9)).all(axis=1)
+        good = (cells <= 9).all(axis=1)
         if width <= 23:  # 10**22: the last exact power of ten
             weights = np.array([0.0 if k == dot else 10.0 ** (width - 1 - k - (dot != 63 and k < dot))
                                 for k in range(width)])
-            whole = cells.astype(np.float64) @ weights
+            digits = _buffer("digits", cells.size, np.float64).reshape(cells.shape)
+            np.copyto(digits, cells)
+            whole = digits @ weights  # BLAS: every partial sum an integer below 2**53, exact in any order
             scale = 10.0 ** (width - 1 - dot) if dot != 63 else 1.0
             values = whole / scale  # an exact integer / an exact power of ten: one rounding, as float()
             slow = np.flatnonzero(good & (whole >= _EXACT))
@@ -364,6 +454,18 @@ def _buffer(name: str, count: int, dtype: type) -> np.ndarray:
     return have[:count]
 
 
+def _hex_digits(b: np.ndarray) -> int:
+    """How many bytes of ``b`` are hex digits (0-9, a-f, A-F): arithmetic in scratch, no table lookup."""
+    work, mask, spare = _buffer("work", b.size, np.uint8), _buffer("mask", b.size, bool), _buffer("spare", b.size, bool)
+    np.subtract(b, np.uint8(48), out=work)
+    np.less(work, np.uint8(10), out=mask)  # a digit; anything else wraps above 9
+    np.bitwise_or(b, np.uint8(32), out=work)
+    np.subtract(work, np.uint8(97), out=work)
+    np.less(work, np.uint8(6), out=spare)  # a-f or A-F
+    np.logical_or(mask, spare, out=mask)
+    return int(np.count_nonzero(mask))
+
+
 def _next(b: np.ndarray, byte: int, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     """Per line, the first position of ``byte`` in ``b`` from ``lo`` on and before ``hi``, else ``hi``."""
     return _after(np.flatnonzero(b == byte), lo, hi)
@@ -376,6 +478,11 @@ def _after(positions: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     k = np.searchsorted(positions, lo)
     at = positions[np.minimum(k, positions.size - 1)]
     return np.where((k < positions.size) & (at < hi), at, hi)
+
+
+def _zeros_like(like: np.ndarray) -> np.ndarray:
+    """Zeros of ``like``'s length (no raw DLC in the block)."""
+    return np.zeros(like.size, dtype=np.int64)
 
 
 def _hex_value(digits: np.ndarray) -> np.ndarray:
