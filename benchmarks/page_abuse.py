@@ -15,8 +15,8 @@ slowest answer and any that failed. When the clients leave, the time until every
 again (``--free-streams`` streams accepted from four other addresses). Then the demo's own
 summary of both runs: its trips and how fast each stop went out, and the tracebacks on its stderr.
 
-    python benchmarks/bench_page_abuse.py                 # this checkout, one pair
-    python benchmarks/bench_page_abuse.py --repeat 2 --src /path/to/other/checkout/src
+    python -m benchmarks.page_abuse                 # this checkout, one pair (from the checkout's root)
+    python -m benchmarks.page_abuse --repeat 2 --src /path/to/other/checkout/src
 """
 
 from __future__ import annotations
@@ -38,9 +38,7 @@ import urllib.request
 from pathlib import Path
 from typing import Any
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-from bench_common import REPO, clean_up_on_sigterm, compiled
+from benchmarks.kit import REPO, clean_up_on_sigterm, compiled
 
 STOP_MS = re.compile(r"stop frames out ([0-9.]+) ms")
 
@@ -48,7 +46,7 @@ STOP_MS = re.compile(r"stop frames out ([0-9.]+) ms")
 def demo(src: Path, duration_s: float) -> tuple[subprocess.Popen[str], Path]:
     """``canguard demo`` of the checkout at ``src`` with its monitors on ephemeral loopback ports."""
     env = {**os.environ, "PYTHONPATH": str(src)}
-    err = Path(os.environ.get("TMPDIR", "/tmp")) / f"bench_page_abuse_{os.getpid()}.err"
+    err = Path(os.environ.get("TMPDIR", "/tmp")) / f"page_abuse_{os.getpid()}.err"
     proc = subprocess.Popen([sys.executable, "-m", "canguard", "demo", "--duration", str(duration_s),
                              "--http", "127.0.0.1:0", "--groot2", "0"], env=env, text=True,
                             stdout=subprocess.PIPE, stderr=err.open("w"))
