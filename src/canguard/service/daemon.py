@@ -5,9 +5,10 @@ deadline), take the frames received as blocks (:meth:`Engine.take`), advance the
 systemd how things stand. Where every bus has a socket (SocketCAN, udp_multicast) the loop's own thread
 waits on it and drains it (:class:`~canguard.io.bus.BusReader` ``direct``): a frame reaches the engine
 without a thread hand-off (a queue, and the GIL passed between threads). Other buses get a reader thread
-each and a queue in between. The journal's ``fsync`` runs in a thread of its own
-(:class:`~canguard.engine.events.EventJournal` ``sync_in_background``): a trip that comes while the disk
-syncs the last events is not held up by it.
+each and a queue in between. A trip's stop frames leave before its events are written (the engine's
+journal records a tick's events when the tick is over), and the journal's ``fsync`` runs in a thread of
+its own, at most once every ``sync_interval_s`` (:class:`~canguard.engine.events.EventJournal`
+``sync_in_background``): a trip that comes while the disk syncs the last events is not held up by it.
 
 - ``READY=1`` once every bus is open and the tree loaded;
 - ``WATCHDOG=1`` only while the loop ticks on time and every source the tree
