@@ -24,6 +24,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
+from itertools import repeat
 from typing import TYPE_CHECKING, Any, Generic, TypeVar
 
 import numpy as np
@@ -231,8 +232,23 @@ class Block:
         ))
 
     def frames(self) -> Iterator[Frame]:
-        """Every row as a :class:`Frame`, in order."""
-        return map(self.frame, range(self.n))
+        """Every row as a :class:`Frame`, in order (each column converted once: what :meth:`frame` gives row by row,
+        at a fraction of its cost)."""
+        n = self.n
+        flags = self.flags
+        length = self.length.astype(np.int64)
+        dlc = self.dlc.astype(np.int64)
+        remote = (flags & FLAG_REMOTE) != 0
+        width = self.payload.shape[1]
+        blob = self.payload.tobytes()
+        starts = np.arange(n, dtype=np.int64) * width
+        payloads = list(map(blob.__getitem__, map(slice, starts.tolist(), (starts + length).tolist())))
+        channels = self.channels
+        chans = [channels[0]] * n if len(channels) == 1 else list(map(channels.__getitem__, self.channel.tolist()))
+        bits = [((flags & bit) != 0).tolist() for bit in (FLAG_FD, FLAG_ERROR, FLAG_REMOTE, FLAG_BRS, FLAG_ESI)]
+        dlcs = np.where((dlc == length) | (remote & (dlc == 0)), -1, dlc).tolist()
+        return map(_new, repeat(Frame), zip(self.time_s.tolist(), chans, self.can_id.tolist(), payloads,
+                                            self.extended.tolist(), *bits, dlcs, strict=True))
 
     def payloads(self, rows: Any, length: int) -> tuple[list[int] | None, bytes]:
         """The payloads of those of ``rows`` that hold ``length`` bytes, one after another: (their positions in

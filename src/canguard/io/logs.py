@@ -6,6 +6,7 @@
                          or plain ``candump -ta`` output
     .asc .blf .trc .csv  python-can's own readers
     .mf4                 python-can's MF4 reader (needs ``python-can[mf4]``)
+    .bag .db3 .mcap      ROS bags (io.rosbag; needs ``rosbags``), and a rosbag2 directory (its metadata.yaml)
 
 Every reader streams: the log is read in chunks of :data:`CHUNK_CHARS` characters
 and never held whole, so memory stays flat in the log's length.
@@ -25,10 +26,11 @@ from __future__ import annotations
 
 import importlib.util
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from canguard.errors import LogFormatError
+from canguard.io.bagopts import BAG_SUFFIXES, NEEDS, BagOptions, is_bag
 from canguard.io.block import Block
 from canguard.io.candump import CHUNK_CHARS, candump_chunks
 from canguard.io.candump_write import format_candump_line, write_candump
@@ -69,6 +71,8 @@ class LogRequest:
     """Malformed lines are counted in ``stats`` and skipped, not raised (text formats that check their lines)."""
     order_stats: bool
     """The caller reads ``stats``' timestamp order counts (a reader may spare counting them otherwise)."""
+    bag: BagOptions = field(default_factory=BagOptions)
+    """What a bag's reader is asked besides the path (topics, stamps)."""
 
 
 @dataclass(frozen=True)
@@ -85,6 +89,12 @@ def _read_candump(req: LogRequest, owner: LogFrames) -> Iterator[Block]:
     return candump_chunks(req.path, req.compression, req.skip_bad, req.stats, req.order_stats, owner)
 
 
+def _read_bag(req: LogRequest, owner: LogFrames) -> Iterator[Block]:
+    from canguard.io.rosbag import bag_chunks  # numpy and rosbags: imported for bags only
+
+    return bag_chunks(req.path, req.bag, req.stats, owner, req.skip_bad)
+
+
 def _python_can(name: str, needs: tuple[str, str] | None = None) -> LogFormat:
     def read(req: LogRequest, owner: LogFrames) -> Iterator[Block]:
         return python_can_chunks(req.path, name, req.compression, req.stats, owner)
@@ -93,6 +103,7 @@ def _python_can(name: str, needs: tuple[str, str] | None = None) -> LogFormat:
 
 
 _CANDUMP = LogFormat("candump", _read_candump)
+_BAG = LogFormat("rosbag", _read_bag, NEEDS)
 
 LOG_READERS: dict[str, LogFormat] = {
     ".log": _CANDUMP,
@@ -103,6 +114,7 @@ LOG_READERS: dict[str, LogFormat] = {
     ".trc": _python_can("trc"),
     ".csv": _python_can("csv"),
     ".mf4": _python_can("mf4", ("asammdf", "pip install 'python-can[mf4]'")),
+    **dict.fromkeys(BAG_SUFFIXES, _BAG),
 }
 """The log readers keyed by file suffix (as python-can's ``MESSAGE_READERS``): a format is one entry."""
 
@@ -115,6 +127,8 @@ _COMPRESSORS = {"zst": ("zstandard", "pip install zstandard")}
 
 def _reader(path: Path) -> tuple[LogFormat, str]:
     """The format of ``path`` by its suffix, and its compression ("" none)."""
+    if path.is_dir() and is_bag(path):
+        return _BAG, ""
     suffix = path.suffix.lower()
     compression = ""
     if suffix in COMPRESSIONS:
@@ -133,7 +147,7 @@ def _reader(path: Path) -> tuple[LogFormat, str]:
 def log_format(path: str | Path) -> tuple[str, str]:
     """Return ``(format, compression)`` for a log path, chosen by extension.
 
-    ``format`` is ``candump``, ``asc``, ``blf``, ``trc``, ``csv`` or ``mf4``;
+    ``format`` is ``candump``, ``asc``, ``blf``, ``trc``, ``csv``, ``mf4`` or ``rosbag``;
     ``compression`` is ``""``, ``gz``, ``xz`` or ``zst`` (``robot.log.xz``).
     Raises :class:`LogFormatError` for an unknown extension.
     """
@@ -144,7 +158,7 @@ def log_format(path: str | Path) -> tuple[str, str]:
 def _require(p: Path, what: str, needs: tuple[str, str] | None) -> None:
     """Raise :class:`LogFormatError` when the optional module ``needs`` names is not installed."""
     if needs is not None and importlib.util.find_spec(needs[0]) is None:
-        raise LogFormatError(f"{p}: reading {what} logs needs {needs[0]}: {needs[1]}")
+        raise LogFormatError(f"{p}: reading {what} needs {needs[0]}: {needs[1]}")
 
 
 def read_log(
@@ -153,6 +167,7 @@ def read_log(
     skip_bad: bool = False,
     stats: ReadStats | None = None,
     progress: ProgressBar | None = None,
+    bag: BagOptions | None = None,
 ) -> LogFrames:
     """Stream the frames of a recorded log, in file order.
 
@@ -166,6 +181,7 @@ def read_log(
     :class:`LogFormatError` when the iterator reaches its end. Errors inside
     python-can's readers (corrupt BLF, bad ASC...) are re-raised as
     :class:`LogFormatError` naming the file (they cannot be skipped).
+    ``bag`` says which topics of a ROS bag to read and which stamps (:class:`~canguard.io.rosbag.BagOptions`).
     ``progress``, when given, is updated with the file position after each chunk
     and closed at the end (see also :func:`canguard.io.progress.wrap_progress`).
 
@@ -176,16 +192,19 @@ def read_log(
     fmt, gz = _reader(p)  # gz: the compression ("" none)
     if not p.exists():
         raise LogFormatError(f"{p}: no such file")
-    if not p.is_file():
+    if not p.is_file() and fmt is not _BAG:
         raise LogFormatError(f"{p}: not a regular file")
-    _require(p, f".{fmt.name}", fmt.needs)
-    _require(p, f".{gz}", _COMPRESSORS.get(gz))
+    if fmt is _BAG and gz:
+        raise LogFormatError(f"{p}: a bag compressed as a whole (.{gz}) is not read: decompress it first (rosbag2 and "
+                             "ROS 1 compress inside the bag)")
+    _require(p, "ROS bags" if fmt is _BAG else f".{fmt.name} logs", fmt.needs)
+    _require(p, f".{gz} logs", _COMPRESSORS.get(gz))
     st = stats if stats is not None else ReadStats()
     st.path = str(p)
     st.format = fmt.name + (f".{gz}" if gz else "")
     try:
-        st.bytes_total += p.stat().st_size
+        st.bytes_total += sum(f.stat().st_size for f in p.iterdir()) if p.is_dir() else p.stat().st_size
     except OSError as exc:
         raise LogFormatError(f"{p}: cannot read: {exc.strerror or exc}") from None
-    request = LogRequest(p, gz, st, skip_bad, stats is not None)
+    request = LogRequest(p, gz, st, skip_bad, stats is not None, bag or BagOptions())
     return LogFrames(p, st, progress, lambda owner: fmt.read(request, owner))

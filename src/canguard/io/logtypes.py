@@ -128,6 +128,8 @@ class ReadStats:
     """Size of the file on disk (compressed size for ``.gz``)."""
     bytes_read: int = 0
     """Position reached in the file on disk, updated a chunk at a time (drives progress bars)."""
+    stamps: dict[str, int] = field(default_factory=dict)
+    """Bags only: frames timed by their ``header`` stamp and by the ``record`` time (:mod:`canguard.io.rosbag`)."""
 
     @property
     def backward(self) -> int:
