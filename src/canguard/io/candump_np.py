@@ -410,10 +410,23 @@ class _Columns:
                 return lanes, (bytes(cells[0]).decode("utf-8", "replace"),)
         for length in np.unique(size).tolist():
             at = np.flatnonzero(size == length)
-            cells = np.ascontiguousarray(_rows(self.pad, begin[at], length))
-            keys, inverse = np.unique(cells.view(np.dtype((np.void, length))).reshape(-1), return_inverse=True)
-            index = np.array([names.setdefault(k.tobytes(), len(names)) for k in keys], dtype=np.uint16)
+            if length <= 8:  # a name of up to 8 bytes is one 64-bit word: unique as integers
+                words = np.ndarray((self.pad.size - 7,), _LE64, self.pad, 0, (1,))
+                codes = words[begin[at]] & _U((1 << 8 * length) - 1)
+                _codes, firsts, inverse = np.unique(codes, return_index=True, return_inverse=True)
+                order = np.argsort(firsts)  # the names in the order they first come
+                rank = np.empty(order.size, dtype=np.intp)
+                rank[order] = np.arange(order.size)
+                inverse = rank[inverse.reshape(-1)]
+                keys = [self.pad[k:k + length].tobytes() for k in begin[at][firsts[order]].tolist()]
+            else:
+                cells = np.ascontiguousarray(_rows(self.pad, begin[at], length))
+                found, inverse = np.unique(cells.view(np.dtype((np.void, length))).reshape(-1), return_inverse=True)
+                keys = [k.tobytes() for k in found]
+            index = np.array([names.setdefault(k, len(names)) for k in keys], dtype=np.uint16)
             lanes[at] = index[inverse.reshape(-1)]
+        if len(names) == 1 or ((size == first).all() and first <= 8):
+            return lanes, tuple(name.decode("utf-8", "replace") for name in names)
         _seen, firsts = np.unique(lanes, return_index=True)
         order = np.argsort(firsts)  # the names in the order they first come
         rank = np.empty(order.size, dtype=np.uint16)
