@@ -2,16 +2,14 @@
 
 :func:`decode_rows` is what :meth:`LogRun._run_columns <canguard.engine.logrun.LogRun._run_columns>`
 asks of a block: each configured message's rows decoded together
-(:meth:`MessagePlan.decode <canguard.engine.blocks.MessagePlan.decode>`), the rows of a
-message nobody reads between ticks taken whole, or, when no configured row can change
-what a tick sees, every row of the block (:mod:`canguard.engine.settle`).
+(:meth:`MessagePlan.decode <canguard.engine.blocks.MessagePlan.decode>`), each row then
+taken in time order by the block runner.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from itertools import groupby
-from operator import itemgetter
 from typing import TYPE_CHECKING, Any
 
 from canguard.decode.rows import ColumnRows
@@ -25,23 +23,16 @@ if TYPE_CHECKING:
 
 def decode_rows(
     plans: Mapping[str | int, MessagePlan | None], rows: Any, cols: Columns | ByteColumns, ts: Sequence[Any],
-    settle: bool = False, keys: Any = None, taken: list[tuple[MessagePlan, Any, Sequence[Any]]] | None = None,
-    horizon: Callable[[Mapping[int, Mapping[str, float]]], float] | None = None,
-) -> list[tuple[MessagePlan | None, tuple[float, ...] | None] | None] | None:
-    """Per row of the block: its plan and decoded values when it goes one by one (else None); None: no row left.
+    keys: Any = None, taken: list[tuple[MessagePlan, Any, Sequence[Any]]] | None = None,
+) -> list[tuple[MessagePlan | None, tuple[float, ...] | None] | None]:
+    """Per row of the block: its plan and decoded values (values None: the frame decoder takes it), or None
+    (a row without a configured signal: only counted).
 
-    Each message's rows are decoded together (:meth:`MessagePlan.decode`); a message
-    nobody reads between ticks may take its rows whole (:meth:`MessagePlan.batch`,
-    before any row of the block: it stores its state as at the end of the block,
-    which every tick in the block reads as it would have read the row-by-row state);
-    rows without a configured signal are only counted; remote rows go to the frame decoder. When no
-    configured row of the block can change what a tick sees, every message's rows are
-    taken whole (:mod:`canguard.engine.settle`) and None is returned; only with ``settle``
-    (the last tick was a fixed point: no tick in the block changes a guard's status by itself).
-    ``ts``: the block's times (a numpy block's array). ``taken``, when given, receives each message's
-    (plan, rows, decoded values) (``--export-signals``).
+    Each message's rows are decoded together (:meth:`MessagePlan.decode`); remote rows go to the frame
+    decoder. ``ts``: the block's times (a numpy block's array). ``taken``, when given, receives each
+    message's (plan, rows, decoded values) (``--export-signals``).
     """
-    from canguard.decode.rows import EMPTY, count_empty  # imported when a block is first decoded
+    from canguard.decode.rows import EMPTY  # imported when a block is first decoded
 
     groups: dict[MessagePlan | None, Any] = {}  # each message's rows: a list, or a numpy block's index array
     remote = cols.remote
@@ -62,25 +53,18 @@ def decode_rows(
         else:  # another letter case of the same id, another channel's rows of one bus, a second message without a plan
             groups[plan] = sorted([*group, *same])
     slots: list[tuple[MessagePlan | None, tuple[float, ...] | None] | None] = [None] * cols.n
-    active: list[tuple[MessagePlan, Any, Sequence[tuple[float, ...] | None], Callable[[Any], Any]]] = []
+    active: list[tuple[MessagePlan, Any, Sequence[tuple[float, ...] | None]]] = []
     together = _decoded_together(cols, groups) if keys is not None else {}
     for plan, group in groups.items():
         if plan is None:
             for i in list(group):
                 slots[i] = (None, None)
             continue
-        pick = _picker(group)
         decoded = together[plan] if plan in together else plan.decode(cols, group)
         if taken is not None:
             taken.append((plan, group, decoded))
-        if plan.passive and plan.batch(pick(ts), decoded):
-            continue
-        active.append((plan, group, decoded, pick))
-    if settle and active and None not in groups and _settled(active, ts, horizon):
-        for plan, _group, decoded, _pick in active:
-            plan.count_empty(count_empty(decoded))
-        return None
-    for plan, group, decoded, _pick in active:
+        active.append((plan, group, decoded))
+    for plan, group, decoded in active:
         empty = 0
         for i, values in zip(group if type(group) is list else group.tolist(), decoded, strict=True):
             if values is EMPTY:
@@ -143,31 +127,3 @@ def _shared_fields(cols: Any, groups: dict[MessagePlan | None, Any]) -> dict[Mes
         for (plan, _group), part in zip(members, together.split([len(g) for _p, g in members]), strict=True):
             decoded[plan] = part
     return decoded
-
-
-def _settled(active: list[tuple[MessagePlan, Any, Sequence[Any], Callable[[Any], Any]]],
-             ts: Sequence[Any], horizon: Callable[[Mapping[int, Mapping[str, float]]], float] | None) -> bool:
-    """Every active message of the block taken whole (:mod:`canguard.engine.settle`), or none of them."""
-    from canguard.engine.settle import prepare, settle
-
-    prepared = []
-    for plan, _group, decoded, pick in active:
-        if not plan.settle_ok:
-            return False
-        ready = prepare(plan, pick(ts), decoded)
-        if ready is None:
-            return False
-        prepared.append(ready)
-    return settle(prepared, float(ts[-1]), horizon)
-
-
-def _picker(rows: Any) -> Callable[[Any], Sequence[Any]]:
-    """The items ``rows`` (a list, or an index array) of a sequence: ``itemgetter(*rows)``, but a tuple for one
-    row too (itemgetter then gives the bare value), and ``take`` for a numpy array."""
-    if len(rows) == 1:
-        only = int(rows[0])
-        return lambda seq: (seq[only],)
-    if type(rows) is not list:
-        return lambda seq: seq.take(rows) if hasattr(seq, "take") else itemgetter(*rows.tolist())(seq)
-    getter = itemgetter(*rows)
-    return lambda seq: seq.take(rows) if hasattr(seq, "take") else getter(seq)

@@ -39,7 +39,6 @@ if TYPE_CHECKING:
     from canguard.config.schema import Config
     from canguard.decode.decoder import Decoder
     from canguard.engine.blocks import MessagePlan
-    from canguard.engine.quiet import QuietTicks
     from canguard.engine.stats import EngineStats
     from canguard.io.candump_np import ByteColumns
     from canguard.io.clock import PinnedClock
@@ -54,11 +53,7 @@ class Engine(Protocol):
     stats: EngineStats
     ctx: Context
     metrics: Any
-    quiet: QuietTicks
     clock: PinnedClock
-    columns: bool
-    replay_quiet_ticks: bool
-    elide_ticks: bool
     sample_hook: Callable[[Any], None] | None
     sample_block: Callable[[Any, list[Any], list[tuple[int, Any]]], None] | None
     last_due_run: float
@@ -118,8 +113,7 @@ class LogRun:
         """
         cursor = LogCursor(route, default_bus, unmapped, channels)
         engine = self.engine
-        engine.elide_ticks = engine.replay_quiet_ticks  # grid ticks proven to repeat the last one: counted, not run
-        chunks: Iterable[Any] = frames.chunks() if engine.columns and hasattr(frames, "chunks") else (frames,)
+        chunks: Iterable[Any] = frames.chunks() if hasattr(frames, "chunks") else (frames,)
         for chunk in chunks:
             self.take(chunk, cursor)
         last_t = cursor.last_t
@@ -297,12 +291,8 @@ class LogRun:
         tally = _lane_tally(cols, rows, first)
         last_row = int(rows[-1]) if len(rows) else -1  # the last row frame by frame would see, whatever path takes it
         taken: list[tuple[MessagePlan, Any, Sequence[Any]]] | None = [] if export is not None else None
-        quiet = engine.quiet
-        slots = decode_rows(plans, rows, cols, ts, quiet.fixed, keys, taken, quiet.block_horizon) if len(rows) else []
-        if slots is None:
-            rows = []  # every row taken whole: only the ticks due in the block are left
-            slots = []
-        elif len(rows):
+        slots = decode_rows(plans, rows, cols, ts, keys, taken) if len(rows) else []
+        if len(rows):
             ts = cols.ts  # read row by row below: as floats
             if type(rows) is not list:
                 rows = rows.tolist()
@@ -374,39 +364,53 @@ class LogRun:
         return lane[0], configured_rows(keys, lane[1]), keys, lanes
 
     def _walk(self, walk: _Walk, first: int, fed: list[tuple[int, Any]] | None) -> int:
-        """A block's configured rows in time order: ticks due among them, each row taken by its plan or fed
-        (``fed``: the samples of fed rows, with their row, for ``--export-signals``); the row after the last
-        row walked."""
+        """A block's configured rows in time order: ticks due among them, the rows whole and valid up to the next
+        due time taken as runs (:func:`~canguard.engine.blocks.take_rows`, to the first edge, where the tree
+        ticks), the others fed one by one (``fed``: the samples of fed rows, with their row, for
+        ``--export-signals``); the row after the last row walked."""
+        from canguard.engine.blocks import take_rows
+
         engine = self.engine
         if fed is not None:
             at = [0]
             hook, engine.sample_hook = engine.sample_hook, lambda sample: fed.append((at[0], sample))
         decoded, frame, ts, slots = self._decoded, walk.cols.frame, walk.ts, walk.slots
         bus, buses, lanes = walk.bus, walk.buses, walk.lanes
+        rows = [i for i in walk.rows if slots[i] is not None]  # None: without a configured signal (counted)
         pos = first
-        due = engine.due  # plans never change it; advance and tick may
+        k, n = 0, len(rows)
         try:
-            for i in walk.rows:
-                item = slots[i]
-                if item is None:
-                    continue  # taken whole, or without a configured signal: counted by its plan
-                plan, values = item
+            while k < n:
+                i = rows[k]
+                plan, values = slots[i]
                 t = float(ts[i])
-                if t >= due:
+                if t >= engine.due:
                     self._cross(ts, pos, i)  # a tick falls due among the rows before this one, or at it
                     if t >= engine.due:
                         engine.advance(t)
-                pos = i + 1
-                if values is not None and plan is not None:
-                    edge = plan.step(values, t)
-                else:  # a row the column decoder leaves to the frame decoder (its reason, a remote frame...)
+                if values is None or plan is None:  # a row for the frame decoder (its reason, a remote frame...)
+                    pos = i + 1
+                    k += 1
                     if fed is not None:
                         at[0] = i
                     engine.drive_clock(t)
-                    edge = decoded(bus if lanes is None else buses[lanes[i]], frame(i))
-                if edge:
-                    engine.edge_tick(t)
+                    if decoded(bus if lanes is None else buses[lanes[i]], frame(i)):
+                        engine.edge_tick(t)
+                    continue
                 due = engine.due
+                end = k + 1
+                while end < n:  # the run: rows whole and valid before the next due time
+                    item = slots[rows[end]]
+                    if item[1] is None or item[0] is None or not float(ts[rows[end]]) < due:
+                        break
+                    end += 1
+                picked = rows[k:end]
+                taken, edge = take_rows([slots[r] for r in picked], [float(ts[r]) for r in picked])
+                last = picked[taken - 1]
+                pos = last + 1
+                k += taken
+                if edge:
+                    engine.edge_tick(float(ts[last]))
         finally:
             if fed is not None:
                 engine.sample_hook = hook  # the export's own hook back, whatever the block raised
@@ -455,29 +459,16 @@ class LogRun:
     def _compile_plans(self, bus: str) -> dict[str | int, MessagePlan | None]:
         """Every id text (any letter case) of a message configured on ``bus``, with its plan, or None."""
         from canguard.engine.blocks import compile_plan
-        from canguard.engine.settle import may_settle
         from canguard.io.logs import candump_id_texts
 
         counters = self.decoder.per_bus[bus]
         plans: dict[str | int, MessagePlan | None] = {}
         made = self._plan_list.setdefault(bus, [])
-        # the stop confirmation reads its source between ticks: not passive; metrics count per frame
-        readers: set[str] | None = set(self.ctx.read_sources)
-        cfg = self.engine.cfg
-        metrics = self.engine.metrics is not None
-        confirm = cfg.stop.confirm.source if cfg.stop.confirm is not None else None
-        if confirm is not None:
-            assert readers is not None
-            readers.add(confirm)
-        if metrics:
-            readers = None
         for (b, cid, ext), entry in self.decoder.entries():
             if b != bus:
                 continue
-            plan = compile_plan(entry, counters, self.ctx, self.stats, readers)
+            plan = compile_plan(entry, counters, self.ctx, self.stats)
             if plan is not None:
-                plan.settle_ok = may_settle(plan, metrics, self.ctx.read_sources)
-                plan.confirm_read = any(source == confirm for source, *_rest in plan.outputs)
                 made.append(plan)
                 self._by_key[b, cid, ext] = plan
             for text in candump_id_texts(cid, ext):
