@@ -10,9 +10,10 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from itertools import groupby
+from operator import itemgetter
 from typing import TYPE_CHECKING, Any
 
-from canguard.decode.rows import ColumnRows
+from canguard.decode.rows import EMPTY, ColumnRows
 from canguard.engine.lanes import runs_by_key
 
 if TYPE_CHECKING:
@@ -21,19 +22,22 @@ if TYPE_CHECKING:
     from canguard.io.candump_np import ByteColumns
 
 
+Run = tuple["MessagePlan", list[int], list[float], list[Sequence[float]]]
+"""A message's rows of a block whole and valid: (plan, the rows (ascending), their times, each output's column)."""
+
+
 def decode_rows(
     plans: Mapping[str | int, MessagePlan | None], rows: Any, cols: Columns | ByteColumns, ts: Sequence[Any],
     keys: Any = None, taken: list[tuple[MessagePlan, Any, Sequence[Any]]] | None = None,
-) -> list[tuple[MessagePlan | None, tuple[float, ...] | None] | None]:
-    """Per row of the block: its plan and decoded values (values None: the frame decoder takes it), or None
-    (a row without a configured signal: only counted).
+) -> tuple[list[Run], list[tuple[int, MessagePlan | None]]]:
+    """Each configured message's rows whole and valid, as columns (taken as runs by the block runner), and the
+    rows the frame decoder takes, in row order (with their plan; None: a remote frame). Rows without a configured
+    signal are only counted.
 
     Each message's rows are decoded together (:meth:`MessagePlan.decode`); remote rows go to the frame
     decoder. ``ts``: the block's times (a numpy block's array). ``taken``, when given, receives each
     message's (plan, rows, decoded values) (``--export-signals``).
     """
-    from canguard.decode.rows import EMPTY  # imported when a block is first decoded
-
     groups: dict[MessagePlan | None, Any] = {}  # each message's rows: a list, or a numpy block's index array
     remote = cols.remote
     if remote:
@@ -52,27 +56,58 @@ def decode_rows(
             groups[plan] = same if keys is not None else list(same)
         else:  # another letter case of the same id, another channel's rows of one bus, a second message without a plan
             groups[plan] = sorted([*group, *same])
-    slots: list[tuple[MessagePlan | None, tuple[float, ...] | None] | None] = [None] * cols.n
-    active: list[tuple[MessagePlan, Any, Sequence[tuple[float, ...] | None]]] = []
+    whole: list[Run] = []
+    fed: list[tuple[int, MessagePlan | None]] = []
     together = _decoded_together(cols, groups) if keys is not None else {}
     for plan, group in groups.items():
         if plan is None:
-            for i in list(group):
-                slots[i] = (None, None)
+            fed.extend((i, None) for i in group)
             continue
         decoded = together[plan] if plan in together else plan.decode(cols, group)
         if taken is not None:
             taken.append((plan, group, decoded))
-        active.append((plan, group, decoded))
-    for plan, group, decoded in active:
-        empty = 0
-        for i, values in zip(group if type(group) is list else group.tolist(), decoded, strict=True):
-            if values is EMPTY:
-                empty += 1
-            else:
-                slots[i] = (plan, values)
-        plan.count_empty(empty)
-    return slots
+        run = _split(plan, group, decoded, ts, fed)
+        if run is not None:
+            whole.append(run)
+    fed.sort(key=itemgetter(0))
+    return whole, fed
+
+
+def _split(plan: MessagePlan, group: Any, decoded: Sequence[Any], ts: Sequence[Any],
+           fed: list[tuple[int, MessagePlan | None]]) -> Run | None:
+    """A message's decoded rows: those whole and valid as a run of columns (None: none), those for the frame
+    decoder added to ``fed``, the EMPTY ones counted."""
+    if type(decoded) is ColumnRows:
+        import numpy as np
+
+        at = np.asarray(group, dtype=np.intp)
+        if decoded.fed is not None:
+            alone = decoded.fed if decoded.empty is None else decoded.fed & ~decoded.empty
+            fed.extend((i, plan) for i in at[alone].tolist())
+        plan.count_empty(decoded.count_empty())
+        keep = None if decoded.clean() else decoded.valued()
+        if keep is not None:
+            at = at[keep]
+        if not at.size:
+            return None
+        stamps = ts.take(at).tolist() if hasattr(ts, "take") else [float(ts[i]) for i in at.tolist()]
+        columns = [(c if keep is None else c[keep]).tolist() for c in decoded.columns]
+        return plan, at.tolist(), stamps, columns
+    rows: list[int] = []
+    values: list[tuple[float, ...]] = []
+    empty = 0
+    for i, row in zip(group if type(group) is list else group.tolist(), decoded, strict=True):
+        if row is EMPTY:
+            empty += 1
+        elif row is None:
+            fed.append((i, plan))
+        else:
+            rows.append(i)
+            values.append(row)
+    plan.count_empty(empty)
+    if not rows:
+        return None
+    return plan, rows, [float(ts[i]) for i in rows], list(zip(*values, strict=True))
 
 
 def _decoded_together(cols: Any, groups: dict[MessagePlan | None, Any]) -> dict[MessagePlan, Sequence[Any]]:

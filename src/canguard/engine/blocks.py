@@ -8,7 +8,7 @@ message are decoded together (:meth:`MessagePlan.decode`: the message's
 checked together: NaN, inf, the DBC range, the multiplexer, presence flags).
 
 Then the rows, in time order up to the next due time (a tick, a gate deadline), are taken
-by :func:`take_rows`, the one way a frame's samples change anything: each source's health
+by :func:`take_runs`, the one way a frame's samples change anything: each source's health
 (:meth:`SourceHealth.advance <canguard.protect.staleness.SourceHealth.advance>`) and each
 protection model (:meth:`ProtectionModel.advance <canguard.protect.base.ProtectionModel.advance>`)
 advances over the run of its own samples, up to the first row where one of them changed
@@ -159,7 +159,7 @@ class MessagePlan:
 
     def take_row(self, values: tuple[float, ...], t: float) -> bool:
         """One row whole and valid at ``t`` (one value per output): a run of one for each health and model
-        (:func:`take_rows` of one row); True on an edge."""
+        (:func:`take_runs` of one row); True on an edge."""
         self.seen += 1
         edge = False
         ts = (t,)
@@ -241,14 +241,15 @@ def compile_plan(entry: MessageDecoder, counters: DecodeCounters, ctx: Context,
 
 
 _Unit = tuple[Any, list[int], Any]
-"""One health or model of :func:`take_rows`: (it, the rows it takes (positions in the run, ascending), what it
+"""One health or model of :func:`take_runs`: (it, the rows it takes (positions in the run, ascending), what it
 advances over: a model's (times, values); a health's list of (roles, times, columns, rows) sub-runs)."""
 
 
-def take_rows(items: Sequence[tuple[MessagePlan, tuple[float, ...]]], times: Sequence[float]) -> tuple[int, bool]:
-    """Take rows whole and valid (``items[k]``: a message's plan and its values, at ``times[k]``, in time order):
-    each source's health and each model advances over the run of its own samples, up to the first row with an
-    edge. (rows taken, True when the last row taken is an edge: the engine ticks the tree at its time.)
+def take_runs(runs: Sequence[tuple[MessagePlan, list[int], list[float], list[Sequence[float]]]]) -> tuple[int, bool]:
+    """Take the rows whole and valid of a stretch of a block, in time order, each message's as a run of columns
+    (``runs``: (plan, rows (ascending positions in the block), their times, each output's column)): each
+    source's health and each model advances over the run of its own samples, up to the first row with an
+    edge. (The last row taken, True when it is an edge: the engine ticks the tree at its time.)
 
     Each health and model advances over its whole run, stopping at its own first edge; the
     first of those rows is where every one of them must stand when the tree ticks. One that
@@ -256,52 +257,38 @@ def take_rows(items: Sequence[tuple[MessagePlan, tuple[float, ...]]], times: Seq
     it would have stopped there). A row the engine ticks at is taken whole (all its samples).
     A source fed by several messages takes their rows in time order, a message's stretch at a time.
     """
-    n = len(items)
-    if n == 1:  # a live frame: a run of one
-        plan, values = items[0]
-        return 1, plan.take_row(values, times[0])
-    rows_of: dict[MessagePlan, list[int]] = {}
-    for k, item in enumerate(items):
-        rows = rows_of.get(item[0])
-        if rows is None:
-            rows_of[item[0]] = [k]
-        else:
-            rows.append(k)
     units: list[_Unit] = []
     health_units: dict[int, _Unit] = {}
-    runs: list[tuple[MessagePlan, list[int], list[tuple[float, ...]]]] = []
-    for plan, ks in rows_of.items():
-        ts = [times[k] for k in ks]
-        columns = list(zip(*[items[k][1] for k in ks], strict=True))
-        runs.append((plan, ks, columns))
+    last = -1
+    for plan, rows, ts, columns in runs:
+        if rows[-1] > last:
+            last = rows[-1]
         for health, roles, js in plan.healths:
-            part = (roles, ts, [columns[j] for j in js], ks)
+            part = (roles, ts, [columns[j] for j in js], rows)
             unit = health_units.get(id(health))
             if unit is None:
-                unit = health_units[id(health)] = (health, ks, [part])
+                unit = health_units[id(health)] = (health, rows, [part])
                 units.append(unit)
             else:
                 unit[2].append(part)
         for j, model in plan.models:
-            units.append((model, ks, (ts, columns[j])))
-    for key, (health, _ks, parts) in health_units.items():
+            units.append((model, rows, (ts, columns[j])))
+    for key, (health, _rows, parts) in health_units.items():
         if len(parts) > 1:  # several messages of one source: their stretches in time order
-            merged = _in_order(parts)
             at = next(i for i, unit in enumerate(units) if unit[0] is health)
-            units[at] = health_units[key] = (health, sorted(k for part in parts for k in part[3]), merged)
-    bound, edge = _advance_units(units, n - 1)
-    taken = bound + 1
-    for plan, ks, columns in runs:
-        m = len(ks) if taken == n else bisect_right(ks, bound)
+            units[at] = health_units[key] = (health, sorted(k for part in parts for k in part[3]), _in_order(parts))
+    bound, edge = _advance_units(units, last)
+    for plan, rows, _ts, columns in runs:
+        m = len(rows) if bound == last else bisect_right(rows, bound)
         if not m:
             continue
         plan.seen += m
         tops = plan.tops
         for j, column in enumerate(columns):
-            top = max(map(abs, column if m == len(ks) else column[:m]))
+            top = max(map(abs, column if m == len(rows) else column[:m]))
             if top > tops[j]:
                 tops[j] = top
-    return taken, edge
+    return bound, edge
 
 
 def _in_order(parts: list[tuple[Any, list[float], list[Any], list[int]]]) -> list[tuple[Any, list[float], list[Any],
@@ -323,7 +310,7 @@ def _in_order(parts: list[tuple[Any, list[float], list[Any], list[int]]]) -> lis
 
 
 def _advance_units(units: list[_Unit], last: int) -> tuple[int, bool]:
-    """Advance every unit up to the first edge row of any (see :func:`take_rows`); (that row or ``last``, edge)."""
+    """Advance every unit up to the first edge row of any (see :func:`take_runs`); (that row or ``last``, edge)."""
     bound, edge = last, False
     went: list[tuple[_Unit, Any, int]] = []
     final = len(units) - 1

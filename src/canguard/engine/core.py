@@ -402,7 +402,8 @@ class Engine:
         self.store_heat(now, periodic=True)
         self.journal.flush()
         self.due = min(self._next_tick, self.gate.next_deadline())
-        self.quiet.after_tick(now, events_before, self.metrics is not None or self.tick_hook is not None)
+        self.quiet.after_tick(now, events_before,
+                             self.metrics is not None or self.tick_hook is not None or self.observer is not None)
         if self.observer is not None:
             self.observer.publish(self, now)
         return status

@@ -14,7 +14,7 @@ first and a tick at once after an edge. It talks to the engine through its publi
 from __future__ import annotations
 
 import math
-from bisect import bisect_left
+from bisect import bisect_left, bisect_right
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from itertools import compress
@@ -291,12 +291,10 @@ class LogRun:
         tally = _lane_tally(cols, rows, first)
         last_row = int(rows[-1]) if len(rows) else -1  # the last row frame by frame would see, whatever path takes it
         taken: list[tuple[MessagePlan, Any, Sequence[Any]]] | None = [] if export is not None else None
-        slots = decode_rows(plans, rows, cols, ts, keys, taken) if len(rows) else []
+        runs, alone = decode_rows(plans, rows, cols, ts, keys, taken) if len(rows) else ([], [])
         if len(rows):
             ts = cols.ts  # read row by row below: as floats
-            if type(rows) is not list:
-                rows = rows.tolist()
-        walk = _Walk(cols, ts, rows, slots, buses[0] if lanes is None else "", buses, lanes)
+        walk = _Walk(cols, ts, runs, alone, buses[0] if lanes is None else "", buses, lanes)
         if taken is None:
             pos = self._walk(walk, first, None)
         else:  # --export-signals: the samples of fed rows kept with their row, for the block's export
@@ -364,51 +362,47 @@ class LogRun:
         return lane[0], configured_rows(keys, lane[1]), keys, lanes
 
     def _walk(self, walk: _Walk, first: int, fed: list[tuple[int, Any]] | None) -> int:
-        """A block's configured rows in time order: ticks due among them, the rows whole and valid up to the next
-        due time taken as runs (:func:`~canguard.engine.blocks.take_rows`, to the first edge, where the tree
-        ticks), the others fed one by one (``fed``: the samples of fed rows, with their row, for
-        ``--export-signals``); the row after the last row walked."""
-        from canguard.engine.blocks import take_rows
+        """A block's configured rows in time order: the ticks due among them, each stretch of rows whole and valid
+        up to the next due time taken as runs (:func:`~canguard.engine.blocks.take_runs`: to the first edge, where
+        the tree ticks), the rows for the frame decoder one by one (``fed``: the samples of fed rows, with their
+        row, for ``--export-signals``); the row after the last row walked."""
+        from canguard.engine.blocks import take_runs
 
         engine = self.engine
         if fed is not None:
             at = [0]
             hook, engine.sample_hook = engine.sample_hook, lambda sample: fed.append((at[0], sample))
-        decoded, frame, ts, slots = self._decoded, walk.cols.frame, walk.ts, walk.slots
+        decoded, frame, ts = self._decoded, walk.cols.frame, walk.ts
         bus, buses, lanes = walk.bus, walk.buses, walk.lanes
-        rows = [i for i in walk.rows if slots[i] is not None]  # None: without a configured signal (counted)
+        runs = [[0, *run] for run in walk.runs]  # each message's run and where it goes on: [next, plan, rows...]
+        alone, next_alone = walk.alone, 0
+        end_rows = walk.cols.n
         pos = first
-        k, n = 0, len(rows)
         try:
-            while k < n:
-                i = rows[k]
-                plan, values = slots[i]
+            while True:
+                i = _first_row(runs, alone[next_alone][0] if next_alone < len(alone) else end_rows)
+                if i == end_rows:
+                    break
                 t = float(ts[i])
                 if t >= engine.due:
                     self._cross(ts, pos, i)  # a tick falls due among the rows before this one, or at it
                     if t >= engine.due:
                         engine.advance(t)
-                if values is None or plan is None:  # a row for the frame decoder (its reason, a remote frame...)
+                if next_alone < len(alone) and alone[next_alone][0] == i:  # for the frame decoder (its reason...)
                     pos = i + 1
-                    k += 1
+                    next_alone += 1
                     if fed is not None:
                         at[0] = i
                     engine.drive_clock(t)
                     if decoded(bus if lanes is None else buses[lanes[i]], frame(i)):
                         engine.edge_tick(t)
                     continue
-                due = engine.due
-                end = k + 1
-                while end < n:  # the run: rows whole and valid before the next due time
-                    item = slots[rows[end]]
-                    if item[1] is None or item[0] is None or not float(ts[rows[end]]) < due:
-                        break
-                    end += 1
-                picked = rows[k:end]
-                taken, edge = take_rows([slots[r] for r in picked], [float(ts[r]) for r in picked])
-                last = picked[taken - 1]
+                stop = bisect_left(ts, engine.due, i, end_rows, key=float)  # the stretch before the next due time
+                if next_alone < len(alone) and alone[next_alone][0] < stop:
+                    stop = alone[next_alone][0]
+                last, edge = take_runs(_stretch(runs, stop))
+                _drop(runs, last)
                 pos = last + 1
-                k += taken
                 if edge:
                     engine.edge_tick(float(ts[last]))
         finally:
@@ -476,6 +470,34 @@ class LogRun:
             plans[id_key(cid, ext)] = plan  # the ids of byte blocks (canguard.io.candump_np)
         return plans
 
+def _first_row(runs: list[list[Any]], first: int) -> int:
+    """The first row not taken yet of any message's run (``[next, plan, rows, times, columns]``), or ``first``
+    when it comes before them."""
+    for at, _plan, rows, _times, _columns in runs:
+        if at < len(rows) and rows[at] < first:
+            first = rows[at]
+    return first
+
+
+def _stretch(runs: list[list[Any]], stop: int) -> list[tuple[Any, list[int], list[float], list[Any]]]:
+    """Each message's rows not taken yet before row ``stop``, as (plan, rows, times, columns)."""
+    out = []
+    for at, plan, rows, times, columns in runs:
+        if at < len(rows) and rows[at] < stop:
+            k = bisect_left(rows, stop, at)
+            out.append((plan, rows, times, columns) if at == 0 and k == len(rows)
+                       else (plan, rows[at:k], times[at:k], [c[at:k] for c in columns]))
+    return out
+
+
+def _drop(runs: list[list[Any]], last: int) -> None:
+    """Each message's rows up to row ``last`` were taken: its run goes on after them."""
+    for run in runs:
+        at, rows = run[0], run[2]
+        if at < len(rows) and rows[at] <= last:
+            run[0] = bisect_right(rows, last, at)
+
+
 def _lane_tally(cols: Any, rows: Any, first: int) -> list[tuple[int, int]]:
     """Per channel of a block (one when it has one): its rows, and those fed or taken by a plan (``rows``,
     and the first row when it went frame by frame)."""
@@ -498,8 +520,10 @@ class _Walk:
 
     cols: Any
     ts: Any
-    rows: Any
-    slots: Any
+    runs: Any
+    """Each configured message's rows whole and valid: (plan, rows, times, columns) (:func:`.blockrows.decode_rows`)."""
+    alone: Any
+    """The rows the frame decoder takes, in order: (row, plan or None)."""
     bus: str
     """The bus of every row, or "" when they go to several (``lanes``)."""
     buses: list[str]
