@@ -8,8 +8,8 @@ the per-sample reference maths the tests hold the models to (``tests/reference_m
 measured in the same run. Both must find the same edges. Best of ``--repeat``.
 
 Then the live bus's case: a run of ONE sample, ``--one`` samples of the same signal fed one
-at a time to ``model.update(value, t)`` and to ``model.advance((t,), (value,))``, beside the
-reference's ``update`` in the same run (µs per sample, and the ratio to the reference).
+at a time to ``model.advance((t,), (value,))``, beside the reference's ``update`` in the same
+run (µs per sample, and the ratio to the reference).
 
     PYTHONPATH=src python benchmarks/bench_models.py --samples 2000000 --one 200000 --repeat 3
 """
@@ -94,12 +94,9 @@ def edge_runs(make: Callable[[], Any], t: np.ndarray, v: np.ndarray) -> list[int
     return edges
 
 
-def runs_of_one(make: Callable[[], Any], t: list[float], v: list[float], way: str) -> list[int]:
-    """The samples fed one at a time: by ``update`` or by ``advance`` on a 1-tuple run; the edges' positions."""
+def runs_of_one(make: Callable[[], Any], t: list[float], v: list[float]) -> list[int]:
+    """The samples fed one at a time, each ``advance`` on a 1-tuple run; the edges' positions."""
     model = make()
-    if way == "update":
-        update = model.update
-        return [i for i, (ti, vi) in enumerate(zip(t, v, strict=True)) if update(vi, ti)]
     advance = model.advance
     return [i for i, (ti, vi) in enumerate(zip(t, v, strict=True)) if advance((ti,), (vi,)).changed]
 
@@ -109,17 +106,15 @@ def one_at_a_time(n: int, repeat: int) -> int:
     t, v = load_cycles(n, seed=2)
     tl, vl = t.tolist(), v.tolist()
     print(f"\nruns of one: {n:,} samples fed one at a time, best of {repeat}, µs per sample")
-    print(f"{'model':<18} {'reference':>10} {'update':>8} {'x':>6} {'advance':>8} {'x':>6}")
+    print(f"{'model':<18} {'reference':>10} {'advance':>8} {'x':>6}")
     bad = 0
     for name, (make, make_ref) in CASES.items():
         ref_s, want = best(functools.partial(per_sample, make_ref, tl, vl), repeat)
-        upd_s, got_upd = best(functools.partial(runs_of_one, make, tl, vl, "update"), repeat)
-        adv_s, got_adv = best(functools.partial(runs_of_one, make, tl, vl, "advance"), repeat)
-        same = got_upd == want == got_adv
+        adv_s, got_adv = best(functools.partial(runs_of_one, make, tl, vl), repeat)
+        same = want == got_adv
         bad += not same
         us = 1e6 / n
-        print(f"{name:<18} {ref_s * us:>10.2f} {upd_s * us:>8.2f} {upd_s / ref_s:>6.2f} {adv_s * us:>8.2f} "
-              f"{adv_s / ref_s:>6.2f}{'' if same else '  EDGES DIFFER'}")
+        print(f"{name:<18} {ref_s * us:>10.2f} {adv_s * us:>8.2f} {adv_s / ref_s:>6.2f}{'' if same else '  EDGES DIFFER'}")
     return bad
 
 

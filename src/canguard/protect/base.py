@@ -11,9 +11,8 @@
   sample (the live bus) or millions (a log); a long one is copied to float64.
 - The returned :class:`Run` says where the model's tripped state changed: the
   positions in the run (``index``), their times (``t``), and the state entered at
-  each (``tripped``); ``taken`` is how many samples were consumed and ``peak`` the
-  largest |value| among them (every sample counts: reports take their lowest
-  margin from it). With ``until_edge=True`` the model stops right after the first
+  each (``tripped``); ``taken`` is how many samples were consumed. With
+  ``until_edge=True`` the model stops right after the first
   sample at which its state changed (``taken`` = that position + 1, at most one
   edge returned): the engine ticks the tree there (the tree may change a model's
   thresholds, and :meth:`ProtectionModel.poll` must see the state of that moment)
@@ -77,13 +76,14 @@ from operator import le
 from typing import TYPE_CHECKING, Any, ClassVar
 
 from canguard.protect.columns import (
-    NO_EDGES,
+    QUIET_RUNS,
     SHORT_RUN,
     Screen,
     alternate,
     as_run,
     in_order,
     no_edges,
+    quiet_run,
     short_run,
 )
 from canguard.protect.results import Run, Snapshot
@@ -195,10 +195,15 @@ class LatchedModel(ProtectionModel):
 
     def advance(self, times: npt.ArrayLike, values: npt.ArrayLike, *, until_edge: bool = False) -> Run:
         """Advance over a run of samples; see :mod:`canguard.protect.base` for the contract."""
+        if type(times) is tuple and len(times) == 1 == len(values):  # type: ignore[arg-type]  # a live frame's
+            one = float(times[0])  # sample: the kernel, nothing built
+            if not self._sample(one, float(values[0])):  # type: ignore[index,arg-type]
+                return QUIET_RUNS.get(1) or quiet_run(1)
+            return self._one_edge(one)
         few = short_run(times, values, SHORT_RUN)
         if few is not None:
             if few[0] and self._screened(few[0], few[1]):
-                return Run(*(NO_EDGES or no_edges())[0], len(few[0]), max(map(abs, few[1])))
+                return quiet_run(len(few[0]))
             return self._advance_few(few[0], few[1], until_edge)
         import numpy as np
 
@@ -221,7 +226,6 @@ class LatchedModel(ProtectionModel):
             np.concatenate([p.t for _, p in parts]),
             np.concatenate([p.tripped for _, p in parts]),
             start,
-            float(np.fmax.reduce([p.peak for _, p in parts])),
         )
 
     def mark(self) -> Any:
@@ -290,31 +294,29 @@ class LatchedModel(ProtectionModel):
         a = abs(v)
         return self._feed(t, a, self._step(t, a))
 
+    def _one_edge(self, t: float) -> Run:
+        """The result of a run of one sample, at ``t``, that changed the tripped state."""
+        import numpy as np
+
+        return Run(np.zeros(1, dtype=np.intp), np.array([t]), np.array([self._tripped]), 1)
+
     def _advance_few(self, times: Sequence[float], values: Sequence[float], until_edge: bool) -> Run:
         """A short run: every sample filtered and fed to the kernel, no numpy on the way."""
         index: list[int] = []
-        peak = math.nan
         taken = len(times)
         sample = self._sample
         for i in range(taken):
-            v = values[i]
-            edge = sample(times[i], v)
-            if edge is None:
-                continue
-            if not -peak <= v <= peak:
-                peak = abs(v)
-            if edge:
+            if sample(times[i], values[i]):
                 index.append(i)
                 if until_edge:
                     taken = i + 1
                     break
         if not index:
-            no_index, no_times, no_states = (NO_EDGES or no_edges())[0]  # numpy's empty columns, once built
-            return Run(no_index, no_times, no_states, taken, peak)
+            return quiet_run(taken)
         import numpy as np
 
         return Run(np.array(index, dtype=np.intp), np.array([times[i] for i in index]),
-                   np.array(alternate(self._tripped, len(index))), taken, peak)
+                   np.array(alternate(self._tripped, len(index))), taken)
 
     def _advance_long(self, t: FloatArray, v: FloatArray, until_edge: bool) -> Run:
         """A long run: filtered with numpy, screened, the candidates fed to the kernel."""
@@ -326,7 +328,7 @@ class LatchedModel(ProtectionModel):
         picked = np.arange(t.size) if everything else ok.nonzero()[0]
         if not picked.size:
             self._count_ignored(finite, ok, t.size)
-            return Run(*no_edges()[0], t.size, math.nan)
+            return Run(*no_edges()[0], t.size)
         ta = t if everything else t[picked]
         a = np.abs(v if everything else v[picked])
         edges, last = self._walk(ta, a, until_edge)
@@ -334,8 +336,7 @@ class LatchedModel(ProtectionModel):
         if not everything:
             self._count_ignored(finite, ok, taken)
         at = np.array(edges, dtype=np.intp)
-        return Run(picked[at], ta[at], np.array(alternate(self._tripped, len(edges))), taken,
-                   float(a[: last + 1].max()))
+        return Run(picked[at], ta[at], np.array(alternate(self._tripped, len(edges))), taken)
 
     def _walk(self, t: FloatArray, a: FloatArray, until_edge: bool) -> tuple[list[int], int]:
         """Feed a long run's candidates to the kernel; the edges' positions and the last sample taken."""

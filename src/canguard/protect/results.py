@@ -37,8 +37,7 @@ class Run:
     ``index``: positions in the run (int) of the samples at which the tripped state
     changed, ascending. ``t``: their times (s). ``tripped``: the state entered at
     each (they alternate). ``taken``: samples consumed from the start of the run
-    (all of them unless ``until_edge`` stopped early). ``peak``: the largest |value|
-    among the taken samples the model accepted, NaN when none. A result: read it, never
+    (all of them unless ``until_edge`` stopped early). A result: read it, never
     change it (not frozen only because a frozen dataclass costs a run of one ~1 µs more).
     """
 
@@ -46,7 +45,6 @@ class Run:
     t: FloatArray
     tripped: BoolArray
     taken: int
-    peak: float
 
     @property
     def changed(self) -> bool:

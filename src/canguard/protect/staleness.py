@@ -92,6 +92,20 @@ class HealthRun:
         return bool(self.index.size)
 
 
+_QUIET: dict[int, HealthRun] = {}
+
+
+def _quiet_health(n: int) -> HealthRun:
+    """The result of a run of ``n`` rows that changed no reason (shared for short runs: a result is only read)."""
+    run = _QUIET.get(n)
+    if run is None:
+        no_index, no_times, _ = (NO_EDGES or no_edges())[0]  # numpy's empty columns, once built
+        run = HealthRun(no_index, no_times, (), n)
+        if n <= 64:
+            _QUIET[n] = run
+    return run
+
+
 class SourceHealth:
     """Freshness, presence and validity of one source's signals (time is an argument)."""
 
@@ -175,14 +189,13 @@ class SourceHealth:
         result gives the edges' row positions, times and the reason after each.
         """
         n = len(times)
-        if reasons is None and n and self._quiet(roles, times, columns):
+        if reasons is None and n > 1 and self._quiet(roles, times, columns):
             last = times[-1]
             for role, column in zip(roles, columns, strict=True):
                 self._latest_t[role] = self._valid_t[role] = last
                 self._value[role] = column[-1]
             self.samples += n * len(roles)
-            no_index, no_times, _ = (NO_EDGES or no_edges())[0]  # numpy's empty columns, once built
-            return HealthRun(no_index, no_times, (), n)
+            return _quiet_health(n)
         edges: list[int] = []
         after: list[str] = []
         taken = n
@@ -200,8 +213,7 @@ class SourceHealth:
                     taken = i + 1
                     break
         if not edges:
-            no_index, no_times, _ = (NO_EDGES or no_edges())[0]
-            return HealthRun(no_index, no_times, (), taken)
+            return _quiet_health(taken)
         import numpy as np
 
         return HealthRun(np.array(edges, dtype=np.intp), np.array([times[i] for i in edges]), tuple(after), taken)
