@@ -79,6 +79,10 @@ class MessagePlan:
             js.append(j)
         self.healths = tuple((health, tuple(roles), tuple(js)) for health, roles, js in healths.values())
         """Each source the message feeds: (its health, its roles here, their outputs), in output order."""
+        self.single = len(self.outputs) == 1
+        """One configured signal (most messages)."""
+        self.one_source = self.healths[0][:2] if self.single else None
+        """(health, roles) of a message of one configured signal."""
         self.models = tuple((j, model) for j, (*_head, models) in enumerate(self.outputs) for model in models)
         """(output, model) of every protection model a row feeds."""
         self.drive = tuple(ctx.journals(source, role) for source, role in self.names)
@@ -161,15 +165,26 @@ class MessagePlan:
         """One row whole and valid at ``t`` (one value per output): a run of one for each health and model
         (:func:`take_runs` of one row); True on an edge."""
         self.seen += 1
-        edge = False
         ts = (t,)
+        tops = self.tops
+        if self.single:  # one output (most messages): its value straight through
+            v = values[0]
+            health, roles = self.one_source  # type: ignore[misc]
+            edge = health.advance(roles, ts, ((v,),)).changed
+            for _j, model in self.models:
+                if model.advance(ts, (v,)).changed:
+                    edge = True
+            a = -v if v < 0.0 else v
+            if a > tops[0]:
+                tops[0] = a
+            return edge
+        edge = False
         for health, roles, js in self.healths:
             if health.advance(roles, ts, [(values[j],) for j in js]).changed:
                 edge = True
         for j, model in self.models:
             if model.advance(ts, (values[j],)).changed:
                 edge = True
-        tops = self.tops
         for j, v in enumerate(values):
             a = -v if v < 0.0 else v
             if a > tops[j]:

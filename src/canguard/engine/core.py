@@ -307,11 +307,11 @@ class Engine:
 
     def advance(self, now: float) -> None:
         """Run every tick and gate deadline due up to ``now``, each at its own time."""
-        if now < self.quiet.until and self._quiet_advance(now):
-            return  # one quiet grid tick of a replay, in fewer steps
         if now < self.due:  # nothing due (due is never later than the next tick or gate deadline): most live calls
             self.journal.flush()
             return
+        if now < self.quiet.until and self._quiet_advance(now):
+            return  # one quiet grid tick, in fewer steps
         if math.isnan(self._next_tick):
             self.start(now)
         if now - self._next_tick > MAX_CATCH_UP_S:

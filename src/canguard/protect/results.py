@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
@@ -45,8 +45,8 @@ class Run:
     t: FloatArray
     tripped: BoolArray
     taken: int
+    changed: bool = field(init=False)
+    """True when the run changed the tripped state at least once (an edge: tick the tree)."""
 
-    @property
-    def changed(self) -> bool:
-        """True when the run changed the tripped state at least once (an edge: tick the tree)."""
-        return bool(self.index.size)
+    def __post_init__(self) -> None:
+        self.changed = bool(self.index.size)

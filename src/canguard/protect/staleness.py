@@ -35,7 +35,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from itertools import islice
 from operator import le, sub
 from typing import TYPE_CHECKING, Any
@@ -85,11 +85,11 @@ class HealthRun:
     t: FloatArray
     reasons: tuple[str, ...]
     taken: int
+    changed: bool = field(init=False)
+    """True when the run changed the source's reason at least once."""
 
-    @property
-    def changed(self) -> bool:
-        """True when the run changed the source's reason at least once."""
-        return bool(self.index.size)
+    def __post_init__(self) -> None:
+        self.changed = bool(self.index.size)
 
 
 _QUIET: dict[int, HealthRun] = {}
@@ -189,6 +189,20 @@ class SourceHealth:
         result gives the edges' row positions, times and the reason after each.
         """
         n = len(times)
+        if n == 1 and reasons is None:  # a live frame: each sample to the kernel, nothing built
+            t = times[0]
+            if len(roles) == 1:
+                edge = self._sample(roles[0], t, columns[0][0])
+            else:
+                edge = False
+                for k, role in enumerate(roles):
+                    if self._sample(role, t, columns[k][0]):
+                        edge = True
+            if not edge:
+                return _QUIET.get(1) or _quiet_health(1)
+            import numpy as np
+
+            return HealthRun(np.zeros(1, dtype=np.intp), np.array([t]), (self._last_reason,), 1)
         if reasons is None and n > 1 and self._quiet(roles, times, columns):
             last = times[-1]
             for role, column in zip(roles, columns, strict=True):
