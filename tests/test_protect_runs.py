@@ -204,15 +204,6 @@ def test_until_edge_stops_right_after_the_edge() -> None:
     assert rest.tripped.tolist() == [False]
 
 
-def test_peak_sees_every_sample() -> None:
-    """A run's peak is the largest |value| of any accepted sample, a one-sample spike included."""
-    model = LeakyI2t(6.0, 12.0, 1.0)
-    v = np.ones(10_000)
-    v[7_777] = -33.0
-    v[8_000] = math.nan
-    assert model.advance(np.arange(10_000) * 1e-3, v).peak == 33.0
-
-
 def test_mismatched_columns_are_refused() -> None:
     """Times and values of different lengths raise a ValueError naming both shapes; the state is untouched."""
     model = Hysteresis(10.0, 5.0)
