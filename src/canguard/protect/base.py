@@ -76,14 +76,13 @@ from operator import le
 from typing import TYPE_CHECKING, Any, ClassVar
 
 from canguard.protect.columns import (
-    QUIET_RUNS,
+    NO_EDGES,
     SHORT_RUN,
     Screen,
     alternate,
     as_run,
     in_order,
     no_edges,
-    quiet_run,
     short_run,
 )
 from canguard.protect.results import Run, Snapshot
@@ -113,6 +112,20 @@ samples): chattering edges cost a short screen each, rare ones a few passes over
 _LAST_CHUNK = 1 << 16
 """A long run is screened in chunks of at most this many samples: the temporary columns
 stay in the CPU cache and memory stays flat however long the run."""
+
+
+QUIET_RUNS: dict[int, Run] = {}
+"""The :class:`Run` of ``n`` samples taken without an edge, by ``n`` (short runs: built once each, shared)."""
+
+
+def quiet_run(n: int) -> Run:
+    """The result of a run of ``n`` samples that changed nothing (shared: a result is only read)."""
+    run = QUIET_RUNS.get(n)
+    if run is None:
+        run = Run(*(NO_EDGES or no_edges())[0], n)
+        if n <= SHORT_RUN:
+            QUIET_RUNS[n] = run
+    return run
 
 
 class ProtectionModel(ABC):

@@ -9,8 +9,6 @@ from __future__ import annotations
 from abc import ABC, abstractmethod
 from typing import TYPE_CHECKING
 
-from canguard.protect.results import Run
-
 if TYPE_CHECKING:  # numpy is imported by the first long run (or numpy column), not by importing the models
     import numpy as np
     import numpy.typing as npt
@@ -38,20 +36,6 @@ def no_edges() -> list[tuple[IndexArray, FloatArray, BoolArray]]:
             column.flags.writeable = False
         NO_EDGES.append((index, times, states))
     return NO_EDGES
-
-
-QUIET_RUNS: dict[int, Run] = {}
-"""The :class:`Run` of ``n`` samples taken without an edge, by ``n`` (short runs: built once each, shared)."""
-
-
-def quiet_run(n: int) -> Run:
-    """The result of a run of ``n`` samples that changed nothing (shared: a result is only read)."""
-    run = QUIET_RUNS.get(n)
-    if run is None:
-        run = Run(*(NO_EDGES or no_edges())[0], n)
-        if n <= SHORT_RUN:
-            QUIET_RUNS[n] = run
-    return run
 
 
 def as_run(times: npt.ArrayLike, values: npt.ArrayLike) -> tuple[FloatArray, FloatArray]:
