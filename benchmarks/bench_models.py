@@ -114,7 +114,8 @@ def one_at_a_time(n: int, repeat: int) -> int:
         same = want == got_adv
         bad += not same
         us = 1e6 / n
-        print(f"{name:<18} {ref_s * us:>10.2f} {adv_s * us:>8.2f} {adv_s / ref_s:>6.2f}{'' if same else '  EDGES DIFFER'}")
+        print(f"{name:<18} {ref_s * us:>10.2f} {adv_s * us:>8.2f} {adv_s / ref_s:>6.2f}"
+              f"{'' if same else '  EDGES DIFFER'}")
     return bad
 
 

@@ -23,7 +23,7 @@ from checkout import REPO, SRC
 
 BUNDLED = REPO / "config" / "canguard.yaml"
 DBC = REPO / "dbc" / "robot.dbc"
-SUBCOMMANDS = ("run", "check", "tree", "replay", "simulate", "demo", "init", "unit", "completion")
+SUBCOMMANDS = ("run", "check", "tree", "replay", "tune", "simulate", "demo", "init", "unit", "completion")
 UUID = re.compile(r"[0-9a-f]{8}-[0-9a-f]{4}-[0-9a-f]{4}-[0-9a-f]{4}-[0-9a-f]{12}", re.IGNORECASE)
 
 

@@ -6,7 +6,7 @@ python-can's own writers and replayed three ways:
 
 (a) as the candump -L log it came from;
 (b) in the format, on the column path (the reader's blocks);
-(c) in the format, frame by frame (``Engine.columns = False``, the reference path).
+(c) in the format, frame by frame (a reader without blocks, the reference path).
 
 (b) and (c) must agree byte for byte: summary, ``--events``, ``--emit`` and the
 engine's state (``test_replay_columns.assert_same``), at the reader's block size and,

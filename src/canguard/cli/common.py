@@ -58,6 +58,7 @@ COMMANDS: dict[str, str] = {
     "check": "validate a config, its DBC files and its tree; print what they resolve to",
     "tree": "print the config's behaviour tree; render it; write a Groot2 nodes model",
     "replay": "run the daemon's engine over recorded logs (candump, ASC, BLF, TRC, CSV, MF4; .gz .xz .zst)",
+    "tune": "propose thresholds from healthy logs and known faults, proven by replay",
     "simulate": "a simulated robot (ODrive axes + BMS) on a bus or into a candump -L log",
     "demo": "the simulated robot and the daemon on a virtual bus, with a live view (no hardware)",
     "init": "write a starter config, tree and DBC into a directory (e.g. /etc/canguard)",

@@ -61,6 +61,10 @@ class ReplayOptions:
     """``--export-signals``: this log's part file (see :mod:`canguard.report.export`)."""
     export_log: str = ""
     """The ``log`` column of its rows: the log as the user named it."""
+    tune: bool = False
+    """``canguard tune``'s statistics pass: the summary gets a ``tune`` entry (:mod:`canguard.report.tune`)."""
+    tune_i2t: bool = False
+    """With :attr:`tune`: search I²t ratings too (``--tune-i2t``)."""
 
 
 def replay_one(cfg: Config, log_path: Path, opts: ReplayOptions) -> dict[str, Any]:
@@ -104,6 +108,11 @@ def replay_one(cfg: Config, log_path: Path, opts: ReplayOptions) -> dict[str, An
 
             # After the recorder: the export passes every sample on to it.
             stack.callback(SignalExport(engine, opts.export, opts.export_log or str(log_path)).close)
+        tuning = None
+        if opts.tune:
+            from canguard.report.tune import TuneStats
+
+            tuning = TuneStats(engine, tune_i2t=opts.tune_i2t)
         try:
             engine.run_log(frames, router.table, router.only, router.unmapped,
                            router.channels if router.only is not None else None)
@@ -114,6 +123,8 @@ def replay_one(cfg: Config, log_path: Path, opts: ReplayOptions) -> dict[str, An
             if journal is not None:
                 journal.close()
     summary = build_summary(cfg, log_path, engine, stats, router)
+    if tuning is not None:
+        summary["tune"] = tuning.result()
     if recorder is not None and opts.plot is not None:
         recorder.save(opts.plot, summary)
     return summary
@@ -343,9 +354,9 @@ def cmd_replay(args: argparse.Namespace) -> int:
         return _replay_offline(cfg, cfg_path, args, names)
 
 
-def _run_jobs(args: argparse.Namespace, cfg: Config, jobs: list[tuple[Config | ConfigRef, Path, ReplayOptions]],
-              pool: bool) -> list[tuple[dict[str, Any] | None, str]]:
-    """Every job's (summary, error), in input order: on Dask, in ``--jobs`` processes or here.
+def run_jobs(args: argparse.Namespace, cfg: Config, jobs: list[tuple[Config | ConfigRef, Path, ReplayOptions]],
+             pool: bool) -> list[tuple[dict[str, Any] | None, str]]:
+    """Every job's (summary, error), in input order: on Dask (``args.dask``), in ``args.jobs`` processes or here.
 
     Workers get the logs largest first (the fleet ends sooner than when a big log comes last);
     the results are put back in input order.
@@ -442,7 +453,7 @@ def _replay_offline(cfg: Config, cfg_path: Path, args: argparse.Namespace, names
         )
         jobs.append((job_cfg, log, opts))
     try:
-        results = _run_jobs(args, cfg, jobs, pool)
+        results = run_jobs(args, cfg, jobs, pool)
     except BaseException:
         if args.export_signals is not None:
             export.discard_parts([opts.export for _, _, opts in jobs])

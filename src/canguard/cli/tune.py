@@ -1,0 +1,350 @@
+"""``canguard tune``: thresholds proposed from healthy logs and known faults, proven by replay.
+
+1. One statistics pass: every log is replayed with the config as it is (the engine of
+   ``canguard replay``, ``--jobs``/``--dask`` for fleets) carrying a
+   :class:`~canguard.report.tune.TuneStats`: per guard, what the healthy logs reach and what each
+   fault log needs to trip it.
+2. A proposal per guard (:mod:`canguard.report.proposal`), or the logs that conflict (exit 1).
+3. The tuned config and tree are written to a scratch directory and every log is replayed with
+   them: no trip on a healthy log, a trip on every fault log (by the time ``--expect`` gives). A
+   proposal that fails this is not written (exit 1).
+4. ``--out DIR`` gets the tuned files, under the originals' names; the originals are never touched.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import shutil
+import sys
+import tempfile
+import uuid
+from pathlib import Path
+from typing import Any
+
+from canguard.cli.common import EXIT_BAD_INPUT, EXIT_OK, EXIT_TRIPPED, default_config, subcommand
+from canguard.config.loader import load_config
+from canguard.config.schema import Config
+from canguard.errors import ConfigError
+
+EXIT_NO_SEPARATION = EXIT_TRIPPED
+"""Exit 1: no value separates the healthy logs from a fault, or the proving replay failed; nothing written."""
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    """``canguard tune``."""
+    p = subcommand(sub, "tune", description=__doc__.split("\n\n")[0])
+    p.add_argument("logs", nargs="*", type=Path, metavar="HEALTHY_LOG",
+                   help="logs of healthy operation (files, directories, quoted globs, @LIST)")
+    p.add_argument("-c", "--config", type=Path, default=None, help="YAML config (default: as for `canguard run`)")
+    p.add_argument("--fault", action="append", type=Path, default=[], metavar="LOG",
+                   help="a log of a fault the guards must trip on (repeatable)")
+    p.add_argument("--expect", type=Path, metavar="FILE",
+                   help="YAML: per log, `healthy: true` or the guards that must trip and by when")
+    p.add_argument("--margin", type=float, default=10.0, metavar="PCT",
+                   help="head room above the healthy logs' ceiling (default 10)")
+    p.add_argument("--tune-i2t", action="store_true",
+                   help="also propose I²t ratings (else the motor's datasheet values are kept and reported)")
+    p.add_argument("--out", type=Path, metavar="DIR", help="write the tuned config and tree here")
+    p.add_argument("--json", action="store_true", help="print the report as JSON")
+    p.add_argument("--plot", type=Path, metavar="FILE", help="the healthy values per guard with old/new thresholds")
+    p.add_argument("--jobs", type=int, default=1, metavar="N", help="replay the logs in N processes")
+    p.add_argument("--dask", metavar="SCHEDULER", default=None, help="replay the logs on a Dask cluster")
+    p.set_defaults(func=cmd_tune)
+
+
+def load_expect(path: Path) -> dict[str, dict[str, Any]]:
+    """``--expect``: per log name, ``{"healthy": True}`` or ``{"trips": [(guard, by_s | None), ...]}``."""
+    from canguard.config.yamlsrc import load_yaml
+
+    try:
+        doc = load_yaml(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"--expect {path}: cannot read: {exc}") from None
+    except Exception as exc:  # yaml's errors: the file's own words, with line
+        raise ConfigError(f"--expect {path}: not YAML: {exc}") from None
+    if not isinstance(doc, list):
+        raise ConfigError(f"--expect {path}: expected a list of {{log: NAME, healthy: true}} or "
+                          f"{{log: NAME, trips: [{{guard: NODE, by: SECONDS}}]}}")
+    out: dict[str, dict[str, Any]] = {}
+    for i, item in enumerate(doc):
+        where = f"--expect {path}: item {i + 1}"
+        if not isinstance(item, dict) or not isinstance(item.get("log"), str):
+            raise ConfigError(f"{where}: expected a mapping with a `log:` name")
+        unknown = set(item) - {"log", "healthy", "trips"}
+        if unknown:
+            raise ConfigError(f"{where}: unknown key {sorted(unknown)[0]!r} (expected log, healthy, trips)")
+        if item.get("healthy") is True:
+            out[item["log"]] = {"healthy": True}
+            continue
+        trips = item.get("trips")
+        if not isinstance(trips, list) or not trips:
+            raise ConfigError(f"{where}: expected `healthy: true` or a non-empty `trips:` list")
+        parsed = []
+        for trip in trips:
+            if not isinstance(trip, dict) or not isinstance(trip.get("guard"), str):
+                raise ConfigError(f"{where}: a trip is {{guard: NODE, by: SECONDS}}")
+            by = trip.get("by")
+            if by is not None and not (isinstance(by, (int, float)) and math.isfinite(by) and by >= 0):
+                raise ConfigError(f"{where}: by: expected seconds from the log's first frame, found {by!r}")
+            parsed.append((trip["guard"], None if by is None else float(by)))
+        out[item["log"]] = {"trips": parsed}
+    return out
+
+
+def _expected(expect: dict[str, dict[str, Any]] | None, log: Path) -> dict[str, Any] | None:
+    if expect is None:
+        return None
+    for key in (str(log), log.name):
+        if key in expect:
+            return expect[key]
+    return None
+
+
+def _replay_all(args: argparse.Namespace, cfg: Config, cfg_path: Path, logs: list[Path], *,
+                tune: bool) -> list[dict[str, Any]]:
+    """Every log's replay summary (the statistics with ``tune``); ConfigError naming a log that failed."""
+    from canguard.cli.replay import ConfigRef, ReplayOptions, run_jobs
+
+    pool = (args.jobs > 1 and len(logs) > 1) or args.dask is not None
+    ref: Config | ConfigRef = ConfigRef(cfg_path, uuid.uuid4().hex) if pool else cfg
+    opts = ReplayOptions(tune=tune, tune_i2t=args.tune_i2t)
+    results = run_jobs(args, cfg, [(ref, log, opts) for log in logs], pool)
+    out = []
+    for (summary, err), log in zip(results, logs, strict=True):
+        if summary is None:
+            raise ConfigError(f"tune: {log}: {err}")
+        out.append(summary)
+    return out
+
+
+def cmd_tune(args: argparse.Namespace) -> int:
+    """Statistics, proposal, proving replay, files: exit 0, 1 (no separation / proof failed) or 2."""
+    from canguard.cli.fleet import expand_logs
+    from canguard.report.proposal import LogStats, propose
+
+    cfg_path = args.config if args.config is not None else default_config()
+    cfg = load_config(cfg_path)
+    if not math.isfinite(args.margin) or args.margin < 0:
+        raise ConfigError(f"--margin: expected a percentage >= 0, found {args.margin!r}")
+    healthy = expand_logs(args.logs) if args.logs else []
+    faults = expand_logs(args.fault) if args.fault else []
+    if not healthy:
+        raise ConfigError("tune: name at least one healthy log (the thresholds are set above what they reach)")
+    expect = load_expect(args.expect) if args.expect is not None else None
+    _check_out(args.out, cfg)
+    if args.plot is not None:
+        from canguard.io.outputs import check_output
+        from canguard.report.plot import require_matplotlib
+
+        require_matplotlib()
+        check_output(args.plot, "--plot", expected="a file name such as tune.png in a writable directory")
+    logs = healthy + faults
+    is_fault = [False] * len(healthy) + [True] * len(faults)
+    if expect is not None:
+        is_fault = [_is_fault(_expected(expect, log), fault) for log, fault in zip(logs, is_fault, strict=True)]
+    before = _replay_all(args, cfg, cfg_path, logs, tune=True)
+    stats = [LogStats(str(log), fault, s["tune"], s) for log, fault, s in zip(logs, is_fault, before, strict=True)]
+    needs = None
+    if expect is not None:
+        needs = {str(log): [g for g, _by in (_expected(expect, log) or {}).get("trips", [])] for log in logs}
+    ages = {name: src.max_age_s for name, src in cfg.sources.items()}
+    guards, age_props = propose(stats, ages, needs, args.margin / 100.0, args.tune_i2t)
+    report: dict[str, Any] = {"config": str(cfg_path), "margin_pct": args.margin,
+                              "guards": [g.as_json() for g in guards], "max_age": [a.as_json() for a in age_props]}
+    conflicts = [g for g in guards if g.status == "conflict"] + [a for a in age_props if a.status == "conflict"]
+    status = EXIT_OK
+    if conflicts:
+        report["result"] = "conflict"
+        status = EXIT_NO_SEPARATION
+    else:
+        with tempfile.TemporaryDirectory(prefix="canguard-tune-") as tmp:
+            tuned_cfg = _write_tuned(cfg, cfg_path, guards, age_props, Path(tmp))
+            after = _replay_all(args, load_config(tuned_cfg), tuned_cfg, logs, tune=False)
+            proof = _prove(logs, is_fault, expect, before, after)
+            report["proof"] = proof
+            ok = all(p["ok"] for p in proof)
+            report["result"] = "proven" if ok else "refused"
+            if not ok:
+                status = EXIT_NO_SEPARATION
+            elif args.out is not None:
+                args.out.mkdir(parents=True, exist_ok=True)
+                for f in sorted(Path(tmp).iterdir()):
+                    shutil.copy2(f, args.out / f.name)
+                report["written"] = sorted(str(args.out / f.name) for f in Path(tmp).iterdir())
+    if args.plot is not None:
+        from canguard.report.tuneplot import plot_tune
+
+        plot_tune(args.plot, guards, stats)
+    if args.json:
+        print(json.dumps(report, indent=2, sort_keys=True))
+    else:
+        print(render(report))
+    if status != EXIT_OK:
+        print("canguard tune: nothing written: " + ("no value separates the healthy logs from a fault"
+                                                   if conflicts else "the tuned config failed the proving replay"),
+              file=sys.stderr)
+    return status
+
+
+def _is_fault(expected: dict[str, Any] | None, given: bool) -> bool:
+    if expected is None:
+        return given
+    return "trips" in expected
+
+
+def _check_out(out: Path | None, cfg: Config) -> None:
+    """``--out``: a directory that is not where the config or its tree live (written beside, never over)."""
+    if out is None:
+        return
+    if out.exists() and not out.is_dir():
+        raise ConfigError(f"--out {out}: expected a directory, found a file")
+    target = out.resolve()
+    homes = {cfg.path.resolve().parent}
+    if cfg.tree is not None:
+        homes.add(cfg.tree.file.resolve().parent)
+    if target in homes:
+        raise ConfigError(f"--out {out}: the original config or tree lives there; tune writes beside, never over")
+
+
+def _write_tuned(cfg: Config, cfg_path: Path, guards: list[Any], ages: list[Any], out: Path) -> Path:
+    """The tuned config and tree in ``out``, under the originals' names; the tuned config's path."""
+    from canguard.report.tunefiles import port_text, set_attributes, tuned_config
+
+    assert cfg.tree is not None
+    tree_path = cfg.tree.file
+    tree_text = tree_path.read_text(encoding="utf-8")
+    for g in guards:
+        if g.status != "tuned" or g.new is None:
+            continue
+        values = _attributes(g, tree_text, port_text)
+        if values:
+            tree_text = set_attributes(tree_text, g.node, values, str(tree_path))
+    (out / tree_path.name).write_text(tree_text, encoding="utf-8")
+    ages_new = {a.source: a.new for a in ages if a.status == "tuned" and a.new is not None}
+    cfg_text = tuned_config(Path(cfg_path).read_text(encoding="utf-8"), Path(cfg_path).resolve().parent,
+                            tree_path.name, ages_new)
+    target = out / Path(cfg_path).name
+    target.write_text(cfg_text, encoding="utf-8")
+    return target
+
+
+def _attributes(g: Any, tree_text: str, port_text: Any) -> dict[str, float]:
+    """The XML attributes a tuned guard gets (a port wired to a blackboard key is left, and said)."""
+    written = port_text(tree_text, g.node, g.port)
+    if written is not None and written.strip().startswith("{"):
+        g.status, g.new = "left", None
+        g.why = f"{g.port} reads the blackboard ({written}): set where that key is written"
+        return {}
+    if g.type == "IsCurrentSafe":
+        over = float(port_text(tree_text, g.node, "overcurrent_threshold") or g.old)
+        rec = float(port_text(tree_text, g.node, "recovery_threshold") or 25.0)
+        # the recovery keeps its ratio to the trip threshold, to four digits and never above it
+        values = {"overcurrent_threshold": g.new,
+                  "recovery_threshold": min(float(f"{g.new * rec / over:.4g}"), g.new) if over else g.new}
+        if g.inrush is not None and g.inrush.get("new") is not None:
+            values["inrush_time"] = g.inrush["new"]
+        return values
+    if g.type == "IsI2tSafe":
+        cont = float(port_text(tree_text, g.node, "continuous_current") or "nan")
+        values = {"continuous_current": float(f"{cont * g.new:.4g}")}
+        peak = port_text(tree_text, g.node, "peak_current")
+        if peak is not None:  # the rating's currents scale together: its I²t trips where the proposal was proven
+            values["peak_current"] = float(peak) * values["continuous_current"] / cont
+        return values
+    return {g.port: g.new}
+
+
+def _first_trip(summary: dict[str, Any], guard: str | None = None) -> float | None:
+    times = [t["t"] for t in summary["trips"] if guard is None or t["node"] == guard]
+    first = summary.get("first_t")
+    if not times:
+        return None
+    return min(times) - (first if isinstance(first, (int, float)) else 0.0)
+
+
+def _prove(logs: list[Path], is_fault: list[bool], expect: dict[str, dict[str, Any]] | None,
+           before: list[dict[str, Any]], after: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Per log: what the proving replay showed, and whether that is what the log asks."""
+    out = []
+    for log, fault, old, new in zip(logs, is_fault, before, after, strict=True):
+        row: dict[str, Any] = {"log": str(log), "fault": fault, "trips_before": old["trip_count"],
+                               "trips_after": new["trip_count"], "first_trip_before": _first_trip(old),
+                               "first_trip_after": _first_trip(new)}
+        wanted = _expected(expect, log)
+        if not fault:
+            row["ok"] = new["trip_count"] == 0
+            row["why"] = "" if row["ok"] else f"a healthy log trips: {_trip_names(new)}"
+        elif wanted is not None and "trips" in wanted:
+            misses = []
+            for guard, by in wanted["trips"]:
+                at = _first_trip(new, guard)
+                if at is None or (by is not None and at > by + 1e-9):
+                    misses.append(f"{guard} " + ("does not trip" if at is None else f"trips at {at:.3f} s > {by} s"))
+            row["ok"] = not misses
+            row["why"] = "; ".join(misses)
+        else:
+            row["ok"] = new["trip_count"] > 0
+            row["why"] = "" if row["ok"] else "the fault trips no guard"
+        out.append(row)
+    return out
+
+
+def _trip_names(summary: dict[str, Any]) -> str:
+    return ", ".join(sorted({f"{t['node']} ({t['reason']})" for t in summary["trips"]}))
+
+
+def _fmt(x: Any) -> str:
+    return "-" if x is None else f"{x:.4g}" if isinstance(x, float) else str(x)
+
+
+def render(report: dict[str, Any]) -> str:
+    """The report as text: a line per guard and source, then the proving replay per log."""
+    lines = [f"canguard tune: {report['config']} (margin {report['margin_pct']:g} %)", "guards:"]
+    for g in report["guards"]:
+        head = f"  {g['node']} ({g['type']} on {g['source']})"
+        if g["status"] == "tuned":
+            what = "rating x" if g["rating_scale"] else f"{g['port']}"
+            head += f": {what} {_fmt(g['old']) if not g['rating_scale'] else '1'} -> {_fmt(g['new'])}"
+        else:
+            head += f": {g['status']}"
+        lines.append(head + (f" ({g['why']})" if g["why"] else ""))
+        ceil, peak = g["healthy_ceiling"], g["healthy_peak"]
+        if peak is not None:
+            lines.append(f"      healthy: peak {_fmt(peak['value'])} ({peak['log']} t={_fmt(peak['t'])}), "
+                         f"p99 {_fmt(g['healthy_p99'])}, p99.9 {_fmt(g['healthy_p99_9'])}"
+                         + (f", no trip from {_fmt(ceil['value'])} ({ceil['log']})" if ceil is not None else ""))
+        if g["inrush"]:
+            i = g["inrush"]
+            window = f"inrush_time {_fmt(i['old'])} -> {_fmt(i['new'])} s" if i["new"] is not None else "inrush window"
+            lines.append(f"      {window}: {i['starts']} healthy starts, highest |I| in a window {_fmt(i['peak'])}"
+                         f" ({i['why']})")
+        for f in g["faults"]:
+            lines.append(f"      fault {f['log']}: trips below {_fmt(f['value'])} (t={_fmt(f['t'])})")
+        for h in g["heat_pct"]:
+            lines.append(f"      heat {h['log']}: {_fmt(h['value'])} % of the trip level")
+    if report["max_age"]:
+        lines.append("max_age:")
+    for a in report["max_age"]:
+        gap = a["healthy_gap"]
+        text = f"  {a['source']}: {a['status']}"
+        if a["status"] == "tuned":
+            text = f"  {a['source']}: max_age {_fmt(a['old'])} -> {_fmt(a['new'])} s"
+        lines.append(text + (f" ({a['why']})" if a["why"] else "")
+                     + (f"; longest healthy gap {_fmt(gap['value'])} s ({gap['log']}), "
+                        f"period {_fmt(a['period'])} s" if gap else ""))
+    if report.get("proof"):
+        lines.append("proving replay with the tuned config:")
+    for p in report.get("proof", []):
+        mark = "ok  " if p["ok"] else "FAIL"
+        kind = "fault  " if p["fault"] else "healthy"
+        lines.append(f"  {mark} {kind} {p['log']}: trips {p['trips_before']} -> {p['trips_after']}"
+                     f", first trip {_fmt(p['first_trip_before'])} -> {_fmt(p['first_trip_after'])} s"
+                     + (f" ({p['why']})" if p["why"] else ""))
+    lines.append(f"result: {report['result']}" + (f"; written: {', '.join(report['written'])}"
+                                                   if report.get("written") else ""))
+    return "\n".join(lines)
+
+
+__all__ = ["EXIT_BAD_INPUT", "add_parser", "cmd_tune", "load_expect", "render"]

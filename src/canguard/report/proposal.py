@@ -1,0 +1,294 @@
+"""``canguard tune``'s proposal: each guard's figure between what healthy logs reach and what faults need.
+
+The input is every log's :class:`~canguard.report.tune.TuneStats` result (in its replay
+summary). For each guard the healthy logs give a *ceiling* (the value at and above which none
+of them trips it) and each fault log the value below which it trips; the proposal is the
+healthy ceiling × (1 + margin), rounded up to three significant digits while it stays below
+what every fault assigned to the guard needs. Where only a smaller margin fits, the midpoint is
+taken and said; where no value fits, the guard is a conflict naming both logs (exit 1).
+
+Which faults a guard must catch: with ``--expect``, the guards the file lists for the log;
+otherwise every fault log whose excursion on the guard's signals lies above the healthy
+ceiling (the guard can separate it). A fault no guard can separate is left to the proving
+replay (a stale source or a bad value trips it, or the proposal is refused).
+
+A source's ``max_age`` is proposed only where the value in force fails a log: a healthy log
+has a longer gap between its frames (it would go stale on a healthy day), or an assigned
+fault's gap is not longer than it; the proposal is the longest healthy gap × :data:`GAP_FACTOR`,
+never below the source's period (the median gap).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+from canguard.report.tune import percentile
+
+GAP_FACTOR = 1.5
+"""A proposed ``max_age`` is the longest healthy gap times this."""
+
+
+@dataclass(frozen=True)
+class LogStats:
+    """One log's statistics as the replay returned them."""
+
+    name: str
+    fault: bool
+    tune: dict[str, Any]
+    summary: dict[str, Any]
+
+
+@dataclass(frozen=True)
+class Need:
+    """What one log asks of a figure: a value (ceiling or gap) and when it happened."""
+
+    log: str
+    value: float
+    t: float | None
+
+
+@dataclass
+class Proposal:
+    """One guard's figure: old -> new, and why."""
+
+    node: str
+    type: str
+    source: str
+    port: str | None
+    old: float | None
+    new: float | None = None
+    status: str = "left"
+    """``tuned``, ``left`` (nothing to change or nothing exercised it) or ``conflict``."""
+    why: str = ""
+    healthy: Need | None = None
+    peak: Need | None = None
+    p99: float = math.nan
+    p999: float = math.nan
+    faults: list[Need] = field(default_factory=list)
+    heat: list[Need] = field(default_factory=list)
+    """I²t: the highest level each log reached (% of the trip level)."""
+    hist: dict[str, int] = field(default_factory=dict)
+    """The healthy logs' |values| in :func:`~canguard.report.tune.histogram` bins (``--plot``)."""
+    inrush: dict[str, Any] | None = None
+    """An inrush-blanked guard: the healthy starts (count, peak, window old -> new and why)."""
+    scale: bool = False
+    """The figure is a factor on an I²t rating (continuous and peak current scale together)."""
+
+    def as_json(self) -> dict[str, Any]:
+        """The proposal as plain data (``--json``)."""
+        def need(n: Need | None) -> dict[str, Any] | None:
+            return None if n is None else {"log": n.log, "value": _num(n.value), "t": _num(n.t)}
+        return {
+            "node": self.node, "type": self.type, "source": self.source, "port": self.port,
+            "old": _num(self.old), "new": _num(self.new), "status": self.status, "why": self.why,
+            "healthy_ceiling": need(self.healthy), "healthy_peak": need(self.peak),
+            "healthy_p99": _num(self.p99), "healthy_p99_9": _num(self.p999),
+            "faults": [need(f) for f in self.faults], "heat_pct": [need(h) for h in self.heat],
+            "rating_scale": self.scale, "inrush": self.inrush,
+        }
+
+
+@dataclass
+class AgeProposal:
+    """One source's ``max_age``: old -> new, and why."""
+
+    source: str
+    old: float
+    new: float | None
+    status: str
+    why: str
+    gap: Need | None
+    period: float
+    faults: list[Need] = field(default_factory=list)
+
+    def as_json(self) -> dict[str, Any]:
+        """The proposal as plain data (``--json``)."""
+        return {"source": self.source, "old": _num(self.old), "new": _num(self.new), "status": self.status,
+                "why": self.why, "period": _num(self.period),
+                "healthy_gap": None if self.gap is None else {"log": self.gap.log, "value": _num(self.gap.value),
+                                                              "t": _num(self.gap.t)},
+                "faults": [{"log": f.log, "value": _num(f.value)} for f in self.faults]}
+
+
+def _num(x: float | None) -> float | None:
+    return None if x is None or not math.isfinite(x) else round(x, 6)
+
+
+def nice_up(x: float, below: float = math.inf) -> float:
+    """``x`` rounded up to three significant digits, unless that reaches ``below``."""
+    if x <= 0 or not math.isfinite(x):
+        return x
+    step = 10.0 ** (math.floor(math.log10(x)) - 2)
+    up = round(math.ceil(x / step - 1e-9) * step, 12)
+    return up if up < below else x
+
+
+def separate(healthy: float, needs: list[float], margin: float) -> tuple[float | None, str]:
+    """A value at or above ``healthy`` × (1 + margin) and below every need; (None, why) when none exists."""
+    low = healthy * (1.0 + margin)
+    need = min(needs, default=math.inf)
+    if low < need:
+        return nice_up(low, need), ""
+    if healthy < need:
+        mid = 0.5 * (healthy + need)
+        return mid, f"margin reduced to {100.0 * (mid / healthy - 1.0):.1f} % (a fault needs less than {need:.6g})"
+    return None, ""
+
+
+def _signals(log: LogStats, node: str) -> tuple[dict[str, Any] | None, list[dict[str, Any]]]:
+    for guard in log.tune["guards"]:
+        if guard["node"] == node:
+            return guard, guard["signals"]
+    return None, []
+
+
+def _best(needs: list[Need]) -> Need | None:
+    return max(needs, key=lambda n: n.value) if needs else None
+
+
+def propose_guard(node: str, logs: list[LogStats], expect: dict[str, list[str]] | None, margin: float,
+                  tune_i2t: bool) -> Proposal:
+    """The proposal for one guard node of the tree (see the module docstring)."""
+    head = next(g for g in (_signals(log, node)[0] for log in logs) if g is not None)
+    is_i2t = head["type"] == "IsI2tSafe"
+    prop = Proposal(node, head["type"], head["source"], head["port"], head["value"], scale=is_i2t)
+    ceilings: list[Need] = []
+    peaks: list[Need] = []
+    hist: dict[str, int] = {}
+    faults: list[Need] = []
+    for log in logs:
+        _guard, signals = _signals(log, node)
+        mine = [s for s in signals if s.get("samples")]
+        if is_i2t and mine:
+            prop.heat.append(Need(log.name, max(s.get("heat_pct", math.nan) for s in mine), None))
+        if not mine:
+            continue
+        top = max(mine, key=lambda s: s.get("ceiling", -math.inf))
+        ceiling = Need(log.name, top["ceiling"], top.get("ceiling_t")) if "ceiling" in top else None
+        if log.fault:
+            if ceiling is not None:
+                faults.append(ceiling)
+            continue
+        peak = max(mine, key=lambda s: s["peak"])
+        peaks.append(Need(log.name, peak["peak"], peak["peak_t"]))
+        for s in mine:
+            for k, c in s["hist"].items():
+                hist[k] = hist.get(k, 0) + c
+        if ceiling is not None:
+            ceilings.append(ceiling)
+    prop.peak = _best(peaks)
+    prop.healthy = _best(ceilings)
+    prop.hist = hist
+    starts = [s["inrush"] for log in logs if not log.fault for s in _signals(log, node)[1] if s.get("inrush")]
+    prop.p99, prop.p999 = percentile(hist, 99.0), percentile(hist, 99.9)
+    if expect is not None:
+        prop.faults = [f for f in faults if node in expect.get(f.log, [])]
+    else:  # a fault the guard clearly sees: beyond the healthy ceiling by more than the margin
+        floor = prop.healthy.value * (1.0 + margin) if prop.healthy is not None else 0.0
+        prop.faults = [f for f in faults if math.isfinite(f.value) and f.value > floor]
+    _decide(prop, margin, tune_i2t)
+    if starts:
+        prop.inrush = _inrush(starts, prop.new, margin)
+    return prop
+
+
+def _inrush(starts: list[dict[str, Any]], threshold: float | None, margin: float) -> dict[str, Any]:
+    """The healthy motor starts of an inrush-blanked guard, and its window: as long as the longest start.
+
+    A start lasts while its |I| is above the (tuned) overcurrent threshold; the window proposed is the
+    longest healthy start × (1 + margin). Kept when no start rises above the threshold, or none was seen.
+    """
+    window = starts[0]["window"]
+    count = sum(s["starts"] for s in starts)
+    out: dict[str, Any] = {"starts": count, "peak": max(s["peak"] for s in starts), "old": window, "new": None}
+    if threshold is None or not count:
+        out["why"] = "no healthy start seen: window kept" if not count else "threshold not tuned: window kept"
+        return out
+    longest = max((p[0] for s in starts for p in s["envelope"] if p[1] >= threshold), default=0.0)
+    out["longest_s"] = longest
+    if longest <= 0.0:
+        out["why"] = "no healthy start rises above the new threshold: window kept"
+        return out
+    out["new"] = nice_up(longest * (1.0 + margin))
+    out["why"] = f"the longest healthy start stays above {threshold:.4g} for {longest:.4g} s"
+    return out
+
+
+def _decide(prop: Proposal, margin: float, tune_i2t: bool) -> None:
+    if prop.port is None:
+        prop.why = "tune knows no figure of this node type"
+        return
+    if prop.scale and not tune_i2t:
+        prop.why = "an I²t rating is the motor's datasheet value: reported, proposed only with --tune-i2t"
+        return
+    healthy = prop.healthy
+    if healthy is None or (prop.peak is not None and prop.peak.value == 0.0):
+        prop.why = "no healthy log exercises it: left as it is"
+        return
+    if not math.isfinite(healthy.value):
+        prop.status = "conflict"
+        prop.why = (f"healthy log {healthy.log} trips it whatever its {prop.port}"
+                    f"{_at(healthy.t)} (another figure of the guard trips it)")
+        return
+    value, note = separate(healthy.value, [f.value for f in prop.faults], margin)
+    if value is None:
+        worst = min(prop.faults, key=lambda f: f.value)
+        prop.status = "conflict"
+        prop.why = (f"healthy log {healthy.log} needs {prop.port} >= {healthy.value:.6g}{_at(healthy.t)}, "
+                    f"fault log {worst.log} trips only below {worst.value:.6g}{_at(worst.t)}")
+        return
+    prop.status = "tuned"
+    prop.new = value
+    prop.why = note
+
+
+def _at(t: float | None) -> str:
+    return "" if t is None or not math.isfinite(t) else f" (at t={t:.3f} s)"
+
+
+def propose_age(source: str, old: float, logs: list[LogStats]) -> AgeProposal | None:
+    """``max_age`` of one source, or None when no log has two samples of it."""
+    healthy: list[Need] = []
+    periods: list[float] = []
+    faults: list[Need] = []
+    for log in logs:
+        gaps = [(s["gap"], s["period"]) for g in log.tune["guards"] if g["source"] == source
+                for s in g["signals"] if s.get("samples", 0) >= 2]
+        if not gaps:
+            continue
+        gap = max(g for g, _p in gaps)
+        if log.fault:
+            faults.append(Need(log.name, gap, None))
+        else:
+            healthy.append(Need(log.name, gap, None))
+            periods.extend(p for _g, p in gaps)
+    top = _best(healthy)
+    if top is None:
+        return None
+    period = sorted(periods)[len(periods) // 2]
+    caught = [f for f in faults if f.value > top.value * GAP_FACTOR]  # a dropout, not jitter
+    fails = top.value >= old or any(f.value <= old for f in caught)
+    if not fails:
+        return AgeProposal(source, old, None, "left", f"fits: longest healthy gap {top.value:.3g} s < max_age",
+                           top, period, caught)
+    value, note = separate(top.value, [f.value for f in caught], GAP_FACTOR - 1.0)
+    if value is None:
+        return AgeProposal(source, old, None, "conflict", f"healthy log {top.log} has a gap of {top.value:.3g} s, "
+                           "as long as a fault's", top, period, caught)
+    return AgeProposal(source, old, max(value, period), "tuned", note, top, period, caught)
+
+
+def propose(logs: list[LogStats], ages: dict[str, float], expect: dict[str, list[str]] | None, margin: float,
+            tune_i2t: bool) -> tuple[list[Proposal], list[AgeProposal]]:
+    """Every guard's proposal (tree order) and every guarded source's ``max_age``."""
+    nodes: list[str] = []
+    for log in logs:
+        for g in log.tune["guards"]:
+            if g["node"] not in nodes:
+                nodes.append(g["node"])
+    guards = [propose_guard(n, logs, expect, margin, tune_i2t) for n in nodes]
+    sources = [p.source for p in guards]
+    out = [propose_age(s, ages[s], logs) for s in dict.fromkeys(sources) if s in ages]
+    return guards, [a for a in out if a is not None]
