@@ -299,6 +299,23 @@ class Engine:
         self.stats.edge_ticks += 1
         self.tick(self.clock.now())
 
+    def runs_until(self) -> float:
+        """Until when a block's rows may be taken as runs (:func:`~canguard.engine.blocks.take_runs`), the engine idle.
+
+        The next due time (a tick, a gate deadline), or, while the ticks and gate deadlines before
+        it read nothing the rows change, the end of the quiet stretch (:attr:`QuietTicks.until`):
+        the next grid tick is proven quiet (it will be counted, not run), no I²t heat is sampled
+        at ticks, nothing watches each tick (metrics, a tick hook, a monitor) and no stop waits for
+        its confirmation (which reads a source between ticks). An edge in the runs still ticks at
+        once: the quiet ticks before it are counted first, at their own times.
+        """
+        due = self.due
+        quiet = self.quiet
+        if (quiet.until > due and not self.ctx.heat_models and self.metrics is None and self.tick_hook is None
+                and self.observer is None and not self.gate.confirm_pending and quiet.may_skip(self._next_tick)):
+            return quiet.until
+        return due
+
     def next_due(self) -> float:
         """The next time the engine has something to do (a tick or a gate deadline)."""
         if math.isnan(self._next_tick):

@@ -63,6 +63,7 @@ class Engine(Protocol):
     def next_tick_t(self) -> float: ...
     def arrive(self, t: float) -> None: ...
     def edge_tick(self, t: float) -> None: ...
+    def runs_until(self) -> float: ...
     def controller_state(self, bus: str, frame: Frame) -> None: ...
     def advance(self, now: float) -> None: ...
     def tick(self, now: float) -> py_trees.common.Status: ...
@@ -397,14 +398,19 @@ class LogRun:
                     if decoded(bus if lanes is None else buses[lanes[i]], frame(i)):
                         engine.edge_tick(t)
                     continue
-                stop = bisect_left(ts, engine.due, i, end_rows, key=float)  # the stretch before the next due time
+                # the stretch before the engine must act (the next due time, or the end of its quiet ticks)
+                stop = bisect_left(ts, engine.runs_until(), i, end_rows, key=float)
                 if next_alone < len(alone) and alone[next_alone][0] < stop:
                     stop = alone[next_alone][0]
                 last, edge = take_runs(_stretch(runs, stop))
                 _drop(runs, last)
+                t_last = float(ts[last])
+                self._cross(ts, i, last)  # the quiet ticks the stretch spanned, each at its own time
+                if t_last >= engine.due:
+                    engine.advance(t_last)
                 pos = last + 1
                 if edge:
-                    engine.edge_tick(float(ts[last]))
+                    engine.edge_tick(t_last)
         finally:
             if fed is not None:
                 engine.sample_hook = hook  # the export's own hook back, whatever the block raised
