@@ -9,7 +9,6 @@ taken in time order by the block runner.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from itertools import groupby
 from operator import itemgetter
 from typing import TYPE_CHECKING, Any
 
@@ -18,8 +17,7 @@ from canguard.engine.lanes import runs_by_key
 
 if TYPE_CHECKING:
     from canguard.engine.blocks import MessagePlan
-    from canguard.io.candump import Columns
-    from canguard.io.candump_np import ByteColumns
+    from canguard.io.block import Block
 
 
 Run = tuple["MessagePlan", list[int], list[float], list[Sequence[float]]]
@@ -27,43 +25,42 @@ Run = tuple["MessagePlan", list[int], list[float], list[Sequence[float]]]
 
 
 def decode_rows(
-    plans: Mapping[str | int, MessagePlan | None], rows: Any, cols: Columns | ByteColumns, ts: Sequence[Any],
+    plans: Mapping[int, MessagePlan | None], rows: Any, block: Block, ts: Sequence[Any],
     keys: Any = None, taken: list[tuple[MessagePlan, Any, Sequence[Any]]] | None = None,
+    touched: set[MessagePlan] | None = None,
 ) -> tuple[list[Run], list[tuple[int, MessagePlan | None]]]:
     """Each configured message's rows whole and valid, as columns (taken as runs by the block runner), and the
-    rows the frame decoder takes, in row order (with their plan; None: a remote frame). Rows without a configured
-    signal are only counted.
+    rows the frame decoder takes, in row order (with their plan; None: a remote or error frame). Rows without a
+    configured signal are only counted.
 
-    Each message's rows are decoded together (:meth:`MessagePlan.decode`); remote rows go to the frame
-    decoder. ``ts``: the block's times (a numpy block's array). ``taken``, when given, receives each
-    message's (plan, rows, decoded values) (``--export-signals``).
+    Each message's rows are decoded together (:meth:`MessagePlan.decode`). ``ts``: the block's times;
+    ``keys``: each row's key in ``plans`` (:attr:`Block.keys <canguard.io.block.Block.keys>`, plus a channel's
+    lane). ``taken``, when given, receives each message's (plan, rows, decoded values) (``--export-signals``);
+    ``touched``, when given, each plan that took rows.
     """
-    groups: dict[MessagePlan | None, Any] = {}  # each message's rows: a list, or a numpy block's index array
-    remote = cols.remote
-    if remote:
-        groups[None] = [i for i in rows if i in remote]
-        rows = [i for i in rows if i not in remote]
-    # rows by id (a stable sort keeps each id's rows in time order), in C but for one step per id
-    if keys is not None:
-        runs: Any = runs_by_key(keys, rows)
-    else:
-        ids: Sequence[Any] = cols.ids
-        runs = groupby(sorted(rows, key=ids.__getitem__), key=ids.__getitem__)
-    for text, same in runs:
-        plan = plans[text]
+    groups: dict[MessagePlan | None, Any] = {}  # each message's rows: an index array
+    special = block.special
+    if special.size:
+        import numpy as np
+
+        picked = np.asarray(rows, dtype=np.intp)
+        odd = np.isin(picked, special)
+        groups[None] = picked[odd]
+        rows = picked[~odd]
+    for key, same in runs_by_key(keys, rows):  # rows by id, each in time order
+        plan = plans[key]
         group = groups.get(plan)
-        if group is None:
-            groups[plan] = same if keys is not None else list(same)
-        else:  # another letter case of the same id, another channel's rows of one bus, a second message without a plan
-            groups[plan] = sorted([*group, *same])
+        groups[plan] = same if group is None else sorted([*group, *same])  # a second id without a plan
     whole: list[Run] = []
     fed: list[tuple[int, MessagePlan | None]] = []
-    together = _decoded_together(cols, groups) if keys is not None else {}
+    together = _shared_fields(block, groups)
     for plan, group in groups.items():
         if plan is None:
-            fed.extend((i, None) for i in group)
+            fed.extend((int(i), None) for i in group)
             continue
-        decoded = together[plan] if plan in together else plan.decode(cols, group)
+        if touched is not None:
+            touched.add(plan)
+        decoded = together[plan] if plan in together else plan.decode(block, group)
         if taken is not None:
             taken.append((plan, group, decoded))
         run = _split(plan, group, decoded, ts, fed)
@@ -110,34 +107,7 @@ def _split(plan: MessagePlan, group: Any, decoded: Sequence[Any], ts: Sequence[A
     return plan, rows, [float(ts[i]) for i in rows], list(zip(*values, strict=True))
 
 
-def _decoded_together(cols: Any, groups: dict[MessagePlan | None, Any]) -> dict[MessagePlan, Sequence[Any]]:
-    """The decoded rows of the block's messages decoded together with others (a numpy block's): those read from
-    their payloads cut together (:func:`_cut_payloads`), those read from their fields decoded as one
-    (:func:`_shared_fields`)."""
-    decoded = _shared_fields(cols, groups)
-    for plan, payload in _cut_payloads(cols, groups).items():
-        decoded[plan] = plan.decode(cols, groups[plan], payload)
-    return decoded
-
-
-def _cut_payloads(cols: Any, groups: dict[MessagePlan | None, Any]
-                  ) -> dict[MessagePlan, tuple[list[int] | None, bytes]]:
-    """The payloads of the block's messages that are decoded from them (:meth:`MessagePlan.cuts_payloads`), cut
-    together per payload size when several are: one numpy pass instead of one slice-and-join each (on a log of
-    many ids, ~20 messages of ~20 rows in a block)."""
-    by_size: dict[int, list[tuple[MessagePlan, Any]]] = {}
-    for plan, group in groups.items():
-        if plan is not None and plan.cuts_payloads(group):
-            by_size.setdefault(plan.hex_size, []).append((plan, group))
-    cut: dict[MessagePlan, tuple[list[int] | None, bytes]] = {}
-    for size, members in by_size.items():
-        if len(members) > 1:
-            for (plan, _group), payload in zip(members, cols.payloads([g for _p, g in members], size), strict=True):
-                cut[plan] = payload
-    return cut
-
-
-def _shared_fields(cols: Any, groups: dict[MessagePlan | None, Any]) -> dict[MessagePlan, Sequence[Any]]:
+def _shared_fields(block: Block, groups: dict[MessagePlan | None, Any]) -> dict[MessagePlan, Sequence[Any]]:
     """The decoded rows of the block's messages that are read from their signals' bytes in the same way
     (:meth:`MessagePlan.fields_key`) as others: each such set decoded as one message over all their rows, then
     cut per message (four drives' messages of one layout: one decode, not four)."""
@@ -154,7 +124,7 @@ def _shared_fields(cols: Any, groups: dict[MessagePlan | None, Any]) -> dict[Mes
         lead = members[0][0]
         assert lead.entry.spans is not None
         rows = np.concatenate([group for _plan, group in members])
-        good, cells = cols.byte_fields(rows, lead.hex_size, lead.entry.spans)
+        good, cells = block.fields(rows, lead.length, lead.entry.spans)
         if good is not None:
             continue  # a row of another length among them: each message decoded on its own
         together = lead.entry.decode(cells, len(rows))

@@ -2,8 +2,8 @@
 
 A block of frames (:meth:`Engine.take <canguard.engine.core.Engine.take>`: a live bus's
 queue drained, or a log's block) reaches the engine's block runner
-(:class:`~canguard.engine.logrun.LogRun`). In a column block the rows of each configured
-message are decoded together (:meth:`MessagePlan.decode`: the message's
+(:class:`~canguard.engine.logrun.LogRun`). In a block (:class:`~canguard.io.block.Block`) the rows of each
+configured message are decoded together (:meth:`MessagePlan.decode`: the message's
 :class:`~canguard.decode.message.MessageDecoder`, the same object that decodes a live frame;
 checked together: NaN, inf, the DBC range, the multiplexer, presence flags).
 
@@ -27,7 +27,6 @@ from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
 from canguard.decode.rows import Row, placed
-from canguard.io.logtypes import joined_hex
 from canguard.protect.staleness import ROW_ROLES
 
 if TYPE_CHECKING:
@@ -35,8 +34,7 @@ if TYPE_CHECKING:
     from canguard.decode.decoder import DecodeCounters
     from canguard.decode.message import MessageDecoder
     from canguard.engine.stats import EngineStats
-    from canguard.io.candump import Columns
-    from canguard.io.candump_np import ByteColumns
+    from canguard.io.block import Block
     from canguard.io.frame import Sample
     from canguard.protect.staleness import SourceHealth
 
@@ -56,7 +54,6 @@ class MessagePlan:
         message = entry.message
         self.message = message
         self.length = int(message.length)
-        self.hex_size = 2 * self.length
         self.frame_id = int(message.frame_id)
         self.outputs: list[tuple[str, str, str, bool, Any, float, float, tuple[Any, ...]]] = []
         """(source, role, signal, present, health, lo, hi, models) of each configured signal."""
@@ -100,13 +97,13 @@ class MessagePlan:
 
     # -- the columns -------------------------------------------------------------------
     def cuts_payloads(self, rows: Any) -> bool:
-        """A numpy block's ``rows`` of this message are decoded from their payloads joined (:meth:`decode` asks
-        ``ByteColumns.payload`` for them, which :func:`canguard.engine.blockrows.decode_rows` may do for several
-        messages at once); False: from the bytes of its signals alone (or not at all)."""
+        """A block's ``rows`` of this message are decoded from their payloads joined (:meth:`decode` asks
+        :meth:`Block.payloads <canguard.io.block.Block.payloads>` for them); False: from the bytes of its
+        signals alone (or not at all)."""
         return not self.counter and not self.entry.reads_fields(len(rows))
 
     def fields_key(self, rows: Any) -> tuple[Any, ...] | None:
-        """What decoding ``rows`` of a numpy block from their signals' bytes depends on
+        """What decoding ``rows`` of a block from their signals' bytes depends on
         (:attr:`MessageDecoder.fields_key <canguard.decode.message.MessageDecoder.fields_key>`); None: they are
         not decoded so (see :meth:`decode`). Messages of equal keys may have their rows decoded together
         (:func:`canguard.engine.blockrows.decode_rows`)."""
@@ -114,33 +111,25 @@ class MessagePlan:
             return None
         return self.entry.fields_key
 
-    def decode(self, cols: Columns | ByteColumns, rows: Any,
-               payload: tuple[list[int] | None, bytes] | None = None) -> Sequence[Row]:
+    def decode(self, block: Block, rows: Any) -> Sequence[Row]:
         """Each of ``rows``' configured values (in output order), ``EMPTY``, or None: the row goes to the frame decoder.
 
         The rows :meth:`MessageDecoder.decode <canguard.decode.message.MessageDecoder.decode>`
         gives (None: a wrong length, a payload cantools would refuse, a value NaN, infinite
         or outside the DBC range, a presence flag at 0, some configured signals of a
         multiplexed message but not all); every row when the message carries an alive counter
-        or a drive's health role. ``payload``: what ``cols.payload(rows, size)`` gives, when
-        already cut (:meth:`cuts_payloads`).
+        or a drive's health role.
         """
         n = len(rows)
         if self.counter:
             return [None] * n
-        size = self.hex_size
         good: list[int] | None
         data: Any
-        if payload is not None:
-            good, data = payload
-        elif not isinstance(cols, tuple):  # ByteColumns (numpy, imported only with it): straight from the bytes
-            if self.cuts_payloads(rows):
-                good, data = cols.payload(rows, size)
-            else:
-                assert self.entry.spans is not None
-                good, data = cols.byte_fields(rows, size, self.entry.spans)
+        if self.cuts_payloads(rows):
+            good, data = block.payloads(rows, self.length)
         else:
-            good, data = joined_hex(list(map(cols.data.__getitem__, rows)), size)
+            assert self.entry.spans is not None
+            good, data = block.fields(rows, self.length, self.entry.spans)
         count = n if good is None else len(good)
         if not count:
             return [None] * n

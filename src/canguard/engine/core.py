@@ -40,14 +40,13 @@ from canguard.engine.logrun import MAX_CATCH_UP_S, LogCursor, LogRun
 from canguard.engine.quiet import QuietTicks
 from canguard.engine.stats import EngineStats, EventSink, TickObserver
 from canguard.engine.watch import SourceWatch
+from canguard.io.block import Block
 from canguard.io.clock import Clock, PinnedClock
 from canguard.io.frame import Frame
 from canguard.protect.base import LatchedModel
 
 if TYPE_CHECKING:
     from canguard.bt.loader import GuardView
-    from canguard.io.candump import Columns
-    from canguard.io.candump_np import ByteColumns
 
 log = logging.getLogger(__name__)
 
@@ -250,7 +249,7 @@ class Engine:
         self.journal.flush()
 
     # -- frames in -------------------------------------------------------------------------
-    def take(self, bus: str | None, block: Iterable[Frame] | Columns | ByteColumns) -> None:
+    def take(self, bus: str | None, block: Block) -> None:
         """Process a block of frames received on ``bus``, in order: the one way frames come in.
 
         The live daemon drains its receive queue into a block (one frame on a quiet bus);
@@ -273,7 +272,7 @@ class Engine:
         """Process one frame received on ``bus`` at ``frame.t``: :meth:`take` of a block of one."""
         cursor = self._live
         cursor.route, cursor.default_bus = _NO_ROUTE, bus
-        self._blocks.take((frame,), cursor)
+        self._blocks.take(Block.of_frames((frame,)), cursor)
 
     def arrive(self, t: float) -> None:
         """A frame at ``t`` comes in: the latest frame time moves (or it is counted as out of order), the engine
@@ -608,8 +607,8 @@ class Engine:
 
     # -- recorded logs -----------------------------------------------------------------------
     def run_log(
-        self, frames: Iterable[Frame], route: Mapping[str, str], default_bus: str | None,
+        self, blocks: Iterable[Block], route: Mapping[str, str], default_bus: str | None,
         unmapped: dict[str, int], channels: dict[str, int] | None = None,
     ) -> None:
         """Take a recorded log's blocks, each channel routed to a bus, through :class:`LogRun` (as :meth:`take`)."""
-        self._blocks.run(frames, route, default_bus, unmapped, channels)
+        self._blocks.run(blocks, route, default_bus, unmapped, channels)

@@ -45,6 +45,7 @@ from canguard.engine.gate import BusSink, TaskGate
 from canguard.engine.ratelimit import held_note
 from canguard.engine.stats import EventSink
 from canguard.errors import CanguardError, ConfigError
+from canguard.io.block import Block
 from canguard.io.bus import BusReader
 from canguard.io.clock import BootClock, LiveClock
 from canguard.io.frame import Frame
@@ -297,7 +298,7 @@ class Daemon:
         stamps = list(map(_STAMP, frames))
         if (not split and "overrun" not in engine.gate.inhibits and not mono - min(map(_RECEIVED, items)) > limit
                 and min(stamps) >= now - LIVE_SKEW_S and max(stamps) <= now + LIVE_SKEW_S):
-            engine.take(target, frames)  # the usual batch: no overrun starts, every stamp sane: one block
+            engine.take(target, Block.of_frames(frames))  # the usual batch (no overrun starts, stamps sane): one block
             return
         bus = names[0]
         block: list[Frame] = []
@@ -307,7 +308,7 @@ class Daemon:
             behind = not held and waited > limit  # its data is older than the config allows
             back = held and waited < limit / 2
             if block and ((split and name != bus) or behind or back):
-                engine.take(bus if split else target, block)
+                engine.take(bus if split else target, Block.of_frames(block))
                 block = []
             bus = name
             if behind:
@@ -315,7 +316,7 @@ class Daemon:
             elif back:
                 engine.caught_up(waited)
             block.append(frame._replace(t=now) if abs(frame.t - now) > LIVE_SKEW_S else frame)  # insane stamps
-        engine.take(bus if split else target, block)
+        engine.take(bus if split else target, Block.of_frames(block))
 
     def _watchdog_ok(self, engine: Engine) -> bool:
         now = self.clock.now()
