@@ -261,6 +261,9 @@ def take_runs(runs: Sequence[tuple[MessagePlan, list[int], list[float], list[Seq
     it would have stopped there). A row the engine ticks at is taken whole (all its samples).
     A source fed by several messages takes their rows in time order, a message's stretch at a time.
     """
+    if len(runs) == 1 and len(runs[0][1]) == 1:  # one row (a live frame): a run of one for each
+        plan, rows, ts, columns = runs[0]
+        return rows[0], plan.take_row(tuple([column[0] for column in columns]), ts[0])
     units: list[_Unit] = []
     health_units: dict[int, _Unit] = {}
     last = -1
