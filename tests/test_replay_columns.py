@@ -43,7 +43,6 @@ import pytest
 import yaml
 
 import canguard.cli.replay
-import canguard.decode.message
 import canguard.engine.blocks
 import canguard.io.candump
 import canguard.io.candump_np
@@ -219,7 +218,6 @@ def replay(cfg: Config, log: Path, out: Path, *, columns: bool, chunk: int | Blo
         mp.setattr(canguard.io.candump, "CHUNK_CHARS", chunk)
         mp.setattr(canguard.io.candump, "NUMPY_AFTER_BLOCKS", numpy_after)
         if numpy_rows is not None:
-            mp.setattr(canguard.decode.message, "VECTOR_ROWS", numpy_rows)
             mp.setattr(canguard.io.candump_np, "_FEW", numpy_rows)
         py_trees.blackboard.Blackboard.clear()  # global: the two runs must not see each other's keys
         parquet = out / "signals.parquet" if export else None
@@ -319,8 +317,7 @@ def compare(cfg: Config, log: Path, out: Path, chunks: tuple[int | BlockCuts, ..
     The column runs at the second, fourth... block size write no ``--emit`` file: their frames
     are only counted, as a replay without ``--emit`` does (emitted frames are compared at the others).
     The column runs parse blocks with numpy (:mod:`canguard.io.candump_np`): the first size from
-    the first block on, with numpy reading every message's payloads however few rows (the
-    vectorised kernels of :class:`canguard.decode.message.MessageDecoder`); the third from the
+    the first block on, with numpy cutting every message's payloads however few rows; the third from the
     second block on, so a log mixes line-parsed and numpy blocks as a short one does; the others
     from the first block on. The reference always reads line by line. ``variant``: the first block size
     runs as the ``variant``-th (0 first, 1 second...), and the next ones as the next, so that a test
@@ -927,22 +924,6 @@ class TestCustomLog:
         compare(cfg, log, tmp_path, (cuts,))
 
 
-def count_shared_fields(monkeypatch: pytest.MonkeyPatch) -> list[int]:
-    """Count the messages whose rows were decoded together with another's of the same layout, block by block."""
-    from canguard.engine import blockrows
-
-    counts: list[int] = []
-    shared = blockrows._shared_fields
-
-    def counting(cols: Any, groups: Any) -> Any:
-        decoded = shared(cols, groups)
-        counts.append(len(decoded))
-        return decoded
-
-    monkeypatch.setattr(blockrows, "_shared_fields", counting)
-    return counts
-
-
 def count_passive_batches(monkeypatch: pytest.MonkeyPatch) -> dict[str, int]:
     """Count the blocks each passive plan (messages nobody reads between ticks) took whole or gave back."""
     from canguard.engine import blocks
@@ -1053,17 +1034,6 @@ class TestTheComparison:
             mp.setattr(LogRun, "_cross", lambda self, ts, lo, hi: None)
             with pytest.raises(AssertionError):
                 compare(load_config(TIMED), log, tmp_path, (300,), min_handled=0)
-
-
-class TestSharedFields:
-    """Messages of one layout (the four axes' frames) in a numpy block, decoded as one over all their rows."""
-
-    def test_same_output_on_the_simulator_log(self, sim_log: Path, tmp_path: Path,
-                                              monkeypatch: pytest.MonkeyPatch) -> None:
-        """Every scenario (trips, NaN, garbage rows among them) on the robot guard config: the same bytes."""
-        counts = count_shared_fields(monkeypatch)
-        compare(load_config(ROBOT_GUARD), sim_log, tmp_path, (65536,))
-        assert max(counts, default=0) >= 2, counts
 
 
 class TestPassiveBatches:

@@ -20,10 +20,10 @@ from a row that goes to ``feed`` are the same in numpy as in Python.
 from __future__ import annotations
 
 import operator
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from itertools import compress, islice
 from operator import itemgetter
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 if TYPE_CHECKING:
     import numpy as np
@@ -35,21 +35,62 @@ EMPTY: tuple[float, ...] = ()
 """A decoded row with no configured signal in it (a multiplexer page nobody reads): counted, nothing else."""
 
 
+class Verdict(NamedTuple):
+    """Why one row is not a tuple of values, and what it carries.
+
+    ``reason``: "" (the row is valid), or one of :mod:`canguard.decode.message`'s reasons. ``cells``: per
+    configured signal on the payload's multiplexer page, (its output index, its value as a sample
+    carries it, its own reason); empty for ``bad_length`` and ``undecodable``.
+    """
+
+    reason: str
+    cells: list[tuple[int, float, str]]
+
+
+Why = Callable[[int], Verdict]
+"""The verdict on row ``k`` of a block (computed when asked: most rows never are)."""
+
+
+class OneRow(list[Row]):
+    """The row of a block of one payload that is not a tuple of values (EMPTY or None), with :meth:`verdict`.
+
+    (A valid row of one comes as a plain one-item list: nobody asks it why.)
+    """
+
+    __slots__ = ("_why",)
+
+    def __init__(self, row: Row, why: Why) -> None:
+        super().__init__((row,))
+        self._why = why
+
+    def verdict(self, k: int) -> Verdict:
+        """Why row ``k`` (0) is not a tuple of values."""
+        return self._why(k)
+
+
 class ColumnRows(Sequence[Row]):
     """The rows of one message in a block: ``columns[j][k]`` is output ``j`` of row ``k``.
 
     ``fed`` marks the rows that go to ``feed`` (None), ``empty`` those without a configured
     signal (EMPTY; it wins over ``fed``, as the row decoder marks them); either may be None (no row).
+    ``why`` gives the :class:`Verdict` on a row (:meth:`verdict`).
     """
 
-    __slots__ = ("_rows", "columns", "empty", "fed", "n")
+    __slots__ = ("_rows", "_why", "columns", "empty", "fed", "n")
 
-    def __init__(self, n: int, columns: list[np.ndarray], fed: np.ndarray | None, empty: np.ndarray | None) -> None:
+    def __init__(self, n: int, columns: list[np.ndarray], fed: np.ndarray | None, empty: np.ndarray | None,
+                 why: Why | None = None) -> None:
         self.n = n
         self.columns = columns
         self.fed = fed if fed is not None and fed.any() else None
         self.empty = empty if empty is not None and empty.any() else None
         self._rows: list[Row] | None = None
+        self._why = why
+
+    def verdict(self, k: int) -> Verdict:
+        """Why row ``k`` is what it is (reason "" for a valid row), with each value as a sample carries it."""
+        assert self._why is not None, "rows cut from a decoded block (split, valued_rows) carry no verdicts"
+        return self._why(k)
 
     def rows(self) -> list[Row]:
         """The rows as tuples (built once)."""

@@ -14,7 +14,6 @@ from itertools import groupby
 from operator import itemgetter
 from typing import TYPE_CHECKING, Any
 
-from canguard.decode.rows import ColumnRows
 from canguard.engine.lanes import runs_by_key
 
 if TYPE_CHECKING:
@@ -92,23 +91,17 @@ def decode_rows(
 
 
 def _decoded_together(cols: Any, groups: dict[MessagePlan | None, Any]) -> dict[MessagePlan, Sequence[Any]]:
-    """The decoded rows of the block's messages decoded together with others (a numpy block's): those read from
-    their payloads cut together (:func:`_cut_payloads`), those read from their fields decoded as one
-    (:func:`_shared_fields`)."""
-    decoded = _shared_fields(cols, groups)
-    for plan, payload in _cut_payloads(cols, groups).items():
-        decoded[plan] = plan.decode(cols, groups[plan], payload)
-    return decoded
+    """The decoded rows of the block's messages whose payloads are cut together (:func:`_cut_payloads`)."""
+    return {plan: plan.decode(cols, groups[plan], payload) for plan, payload in _cut_payloads(cols, groups).items()}
 
 
 def _cut_payloads(cols: Any, groups: dict[MessagePlan | None, Any]
                   ) -> dict[MessagePlan, tuple[list[int] | None, bytes]]:
-    """The payloads of the block's messages that are decoded from them (:meth:`MessagePlan.cuts_payloads`), cut
-    together per payload size when several are: one numpy pass instead of one slice-and-join each (on a log of
-    many ids, ~20 messages of ~20 rows in a block)."""
+    """The payloads of the block's messages, cut together per payload size when several are: one numpy pass
+    instead of one slice-and-join each (on a log of many ids, ~20 messages of ~20 rows in a block)."""
     by_size: dict[int, list[tuple[MessagePlan, Any]]] = {}
     for plan, group in groups.items():
-        if plan is not None and plan.cuts_payloads(group):
+        if plan is not None and not plan.counter:
             by_size.setdefault(plan.hex_size, []).append((plan, group))
     cut: dict[MessagePlan, tuple[list[int] | None, bytes]] = {}
     for size, members in by_size.items():
@@ -116,33 +109,6 @@ def _cut_payloads(cols: Any, groups: dict[MessagePlan | None, Any]
             for (plan, _group), payload in zip(members, cols.payloads([g for _p, g in members], size), strict=True):
                 cut[plan] = payload
     return cut
-
-
-def _shared_fields(cols: Any, groups: dict[MessagePlan | None, Any]) -> dict[MessagePlan, Sequence[Any]]:
-    """The decoded rows of the block's messages that are read from their signals' bytes in the same way
-    (:meth:`MessagePlan.fields_key`) as others: each such set decoded as one message over all their rows, then
-    cut per message (four drives' messages of one layout: one decode, not four)."""
-    alike: dict[tuple[Any, ...], list[tuple[MessagePlan, Any]]] = {}
-    for plan, group in groups.items():
-        if plan is not None and (key := plan.fields_key(group)) is not None:
-            alike.setdefault(key, []).append((plan, group))
-    decoded: dict[MessagePlan, Sequence[Any]] = {}
-    for members in alike.values():
-        if len(members) < 2:
-            continue
-        import numpy as np
-
-        lead = members[0][0]
-        assert lead.entry.spans is not None
-        rows = np.concatenate([group for _plan, group in members])
-        good, cells = cols.byte_fields(rows, lead.hex_size, lead.entry.spans)
-        if good is not None:
-            continue  # a row of another length among them: each message decoded on its own
-        together = lead.entry.decode(cells, len(rows))
-        assert isinstance(together, ColumnRows)
-        for (plan, _group), part in zip(members, together.split([len(g) for _p, g in members]), strict=True):
-            decoded[plan] = part
-    return decoded
 
 
 def _settled(active: list[tuple[MessagePlan, Any, Sequence[Any], Callable[[Any], Any]]],

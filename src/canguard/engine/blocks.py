@@ -29,6 +29,7 @@ from __future__ import annotations
 from collections.abc import Callable, Collection, Sequence
 from typing import TYPE_CHECKING, Any
 
+from canguard.decode.decoder import row_samples
 from canguard.decode.rows import Row, abs_range, clean, last_row, max_gap, placed
 from canguard.io.logtypes import joined_hex
 from canguard.protect.staleness import ROW_ROLES
@@ -97,27 +98,10 @@ class MessagePlan:
         """Each output's sample step (the same objects :meth:`Context.dispatch` uses)."""
         self.index = {(source, role): j for j, (source, role, *_rest) in enumerate(self.outputs)}
         """Each output's index by (source, role): where a decoded sample goes."""
-        self.valid_row = entry.valid_row
-        """The message decoder's valid row of one payload (bound once: every live frame asks it)."""
         if self.single:
             self.step = self._single_step()  # type: ignore[method-assign,assignment]
 
     # -- the columns -------------------------------------------------------------------
-    def cuts_payloads(self, rows: Any) -> bool:
-        """A numpy block's ``rows`` of this message are decoded from their payloads joined (:meth:`decode` asks
-        ``ByteColumns.payload`` for them, which :func:`canguard.engine.blockrows.decode_rows` may do for several
-        messages at once); False: from the bytes of its signals alone (or not at all)."""
-        return not self.counter and not self.entry.reads_fields(len(rows))
-
-    def fields_key(self, rows: Any) -> tuple[Any, ...] | None:
-        """What decoding ``rows`` of a numpy block from their signals' bytes depends on
-        (:attr:`MessageDecoder.fields_key <canguard.decode.message.MessageDecoder.fields_key>`); None: they are
-        not decoded so (see :meth:`decode`). Messages of equal keys may have their rows decoded together
-        (:func:`canguard.engine.blockrows.decode_rows`)."""
-        if self.counter or not self.entry.reads_fields(len(rows)):
-            return None
-        return self.entry.fields_key
-
     def decode(self, cols: Columns | ByteColumns, rows: Any,
                payload: tuple[list[int] | None, bytes] | None = None) -> Sequence[Row]:
         """Each of ``rows``' configured values (in output order), ``EMPTY``, or None: the row goes to the frame decoder.
@@ -127,7 +111,7 @@ class MessagePlan:
         or outside the DBC range, a presence flag at 0, some configured signals of a
         multiplexed message but not all); every row when the message carries an alive counter
         or a drive's health role. ``payload``: what ``cols.payload(rows, size)`` gives, when
-        already cut (:meth:`cuts_payloads`).
+        already cut.
         """
         n = len(rows)
         if self.counter:
@@ -138,17 +122,16 @@ class MessagePlan:
         if payload is not None:
             good, data = payload
         elif not isinstance(cols, tuple):  # ByteColumns (numpy, imported only with it): straight from the bytes
-            if self.cuts_payloads(rows):
-                good, data = cols.payload(rows, size)
-            else:
-                assert self.entry.spans is not None
-                good, data = cols.byte_fields(rows, size, self.entry.spans)
+            good, data = cols.payload(rows, size)
         else:
             good, data = joined_hex(list(map(cols.data.__getitem__, rows)), size)
         count = n if good is None else len(good)
         if not count:
             return [None] * n
-        return placed(n, good, self.entry.decode(data, count))
+        import numpy as np
+
+        block = np.frombuffer(data, dtype=np.uint8).reshape(count, self.length)
+        return placed(n, good, self.entry.decode(block, np.full(count, self.length)))
 
     # -- one row: the row step (every frame of this message, live or replayed, takes it) -------
     def step(self, values: tuple[float, ...], t: float) -> bool:
@@ -188,18 +171,23 @@ class MessagePlan:
         return step
 
     def take_payload(self, data: bytes, t: float) -> bool | None:
-        """One frame's payload at ``t`` through :meth:`step` when its row is whole and valid
-        (:attr:`MessageDecoder.valid_row <canguard.decode.message.MessageDecoder.valid_row>`); True on an edge.
+        """One frame's payload at ``t`` (a block of one through the message's kernel); True on an edge.
 
-        None: nothing taken, the frame decoder must take the frame (a row with a reason, a multiplexer page
-        without the configured signals, a message whose every row goes to it: :attr:`counter`).
+        A whole and valid row takes :meth:`step`; any other row its samples with their reasons
+        (:func:`~canguard.decode.decoder.row_samples`, counted here as the frame decoder counts them),
+        :meth:`take_samples`. None: nothing taken, the frame decoder must take the frame (a message whose
+        every row goes to it: :attr:`counter`).
         """
         if self.counter:
             return None
-        row = self.valid_row(data)
-        if row is None:
-            return None
-        return self.step(row, t)
+        entry = self.entry
+        rows = entry.decode(*entry.one(data))
+        row = rows[0]
+        if row:
+            return self.step(row, t)
+        self.stats.frames += 1
+        self.counters.frames += 1
+        return self.take_samples(row_samples(entry, rows, 0, t, self.counters))
 
     def take_samples(self, samples: Sequence[Sample]) -> bool:
         """Take the samples the frame decoder made of one frame of this message (any reason, any subset of
