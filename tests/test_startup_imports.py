@@ -167,15 +167,10 @@ def test_unknown_command_error_names_every_command(capsys: pytest.CaptureFixture
     assert "invalid choice: 'bogus' (choose from " + ", ".join(repr(c) for c in COMMANDS) + ")" in err
 
 
-def test_short_replay_does_not_import_numpy(tmp_path: Path) -> None:
-    """A short candump log of messages decoded without numpy never imports it (60 ms of a ~0.3 s run); a log of
-    1 MiB or more is read by numpy from its first block."""
-    log = tmp_path / "short.log"
+def test_a_long_log_is_read_by_numpy_from_its_first_block(tmp_path: Path) -> None:
+    """A candump log of 1 MiB or more is read by numpy from its first block."""
+    log = tmp_path / "long.log"
     lines = ["(1700000000.000000) can0 009#0000204100000000\n", "(1700000000.000000) can0 7FF#00\n"]
-    log.write_text("".join(lines), encoding="ascii")
-    config = REPO / "config" / "canguard.yaml"
-    replay = f"from canguard.cli.main import main\nmain(['replay', '{log}', '-c', '{config}'])"
-    assert "numpy" not in loaded_after(replay)
     log.write_text("".join(lines[i % 2].replace("000000)", f"{i:06d})") for i in range(30_000)), encoding="ascii")
     assert log.stat().st_size >= 1 << 20
     first = ("import sys\nfrom canguard.io.logs import read_log\nassert 'numpy' not in sys.modules\n"
@@ -238,23 +233,3 @@ def test_models_fed_sample_by_sample_import_no_numpy() -> None:
     fed, then_long = loaded_after_each(feed, long_run)  # one interpreter: the long run after the feeding
     assert "numpy" not in fed
     assert "numpy" in then_long
-
-
-def test_short_replay_of_decoded_samples_imports_no_numpy(tmp_path: Path) -> None:
-    """A short replay whose frames decode (models and source health fed, the tree ticked on edges) never
-    imports numpy."""
-    import gzip
-
-    with gzip.open(REPO / "examples" / "inrush.log.gz", "rt", encoding="ascii") as f:
-        lines = [next(f) for _ in range(400)]
-    log = tmp_path / "short.log"
-    log.write_text("".join(lines), encoding="ascii")
-    config = REPO / "config" / "canguard.yaml"
-    replay = (
-        "import contextlib, io, json\nfrom canguard.cli.main import main\nout = io.StringIO()\n"
-        "with contextlib.redirect_stdout(out):\n"
-        f"    assert main(['replay', '{log}', '-c', '{config}', '--json']) == 0\n"
-        "summary = json.loads(out.getvalue())\n"
-        "assert summary['samples']['axis0'] > 0 and summary['edge_ticks'] > 0, summary\n"
-    )
-    assert "numpy" not in loaded_after(replay)

@@ -292,23 +292,25 @@ class MessageDecoder:
         ok = length_ok if decodable is None else length_ok & decodable
         whole = ok
         carried = []
-        off_all = None  # rows on which no output is on its page
         for j, present, lo, hi in self._checks:
             kept, good = check(values[j], present, lo, hi)
             carried.append(kept)
-            page = pages[j]
-            if page is None:
-                ok = ok & good
-                off_all = False
-            else:
-                ok = ok & good & page
-                if off_all is not False:
-                    off = page ^ _TRUE
-                    off_all = off if off_all is None else off_all & off
-        empty = None if off_all is None or off_all is False else whole & off_all
+            ok = ok & good
+        empty = None
+        if self.multiplexed:
+            off_all: Column | None = None  # rows on which no output is on its page
+            for page in pages:
+                if page is None:
+                    off_all = _FALSE
+                    continue
+                ok = ok & page
+                off = page ^ _TRUE
+                off_all = off if off_all is None else off_all & off
+            if off_all is not None and off_all is not _FALSE:
+                empty = whole & off_all
         if n == 1:
             if ok:
-                return [tuple(map(float, carried))]
+                return [tuple(map(float, carried))]  # the live frame's common row: nobody asks it why
             read = _Read(length_ok, decodable, values, pages)
             return OneRow(EMPTY if empty is not None and empty else None, lambda k: self._verdict(read, k, True))
         read = _Read(length_ok, decodable, values, pages)

@@ -2,9 +2,11 @@
 
 What :meth:`MessageDecoder.decode <canguard.decode.message.MessageDecoder.decode>` gives:
 per row the configured values in output order (a tuple), :data:`EMPTY`, or None (the
-row is invalid and goes to the engine's ``feed``). Its numpy kernels give one float64
-column per configured signal (:class:`ColumnRows`); row by row, each row becomes a
-tuple of Python floats. Most blocks never need those tuples: a block taken whole
+row is invalid and goes to the engine's ``feed``), and on demand why (:class:`Verdict`).
+Over a block of more than one row its kernel gives one float64 column per configured
+signal (:class:`ColumnRows`); row by row, each row becomes a tuple of Python floats. A
+block of one gives its row itself (a one-item list; :class:`OneRow` when it is not
+valid). Most blocks never need those tuples: a block taken whole
 (:meth:`MessagePlan.batch <canguard.engine.blocks.MessagePlan.batch>`,
 :mod:`canguard.engine.settle`) reads only whether every row passed, each column's
 smallest and largest ``|value|``, the last row and the count. :class:`ColumnRows`

@@ -199,16 +199,6 @@ class ByteColumns:
         keep = np.flatnonzero(fit)
         return keep.tolist(), start[keep]
 
-    def byte_fields(self, rows: list[int], size: int, spans: list[tuple[int, int]]
-                    ) -> tuple[list[int] | None, list[np.ndarray]]:
-        """Of ``rows`` whose payload holds ``size`` hex digits (which, as :meth:`payload` says): for each
-        ``(byte offset, width)`` of ``spans``, their bytes there as a ``rows x width`` matrix."""
-        good, start = self._fitting(rows, size)
-        cells = []
-        for at, width in spans:
-            cells.append(_hex_bytes(_rows(self._b, start + 2 * at, 2 * width)))
-        return good, cells
-
 
 def byte_columns(text: str | bytes, n: int) -> ByteColumns | None:
     """The block ``text`` (its characters or, as the reader gives it, its bytes) of ``n`` lines (each ending in
