@@ -221,28 +221,47 @@ class MessageDecoder:
         length = lengths[at]
         first, padded = self.lengths
         length_ok = length == first if first == padded else (length == first) | (length == padded)
+        decodable: Column | None = None
+        pages = self._unpaged
         if self._cantools is not None:
-            read = self._read_cantools(payload, lengths, n)
-        elif self._guard:
-            with np.errstate(all="ignore"):  # a float scaled past the largest float: inf, as in Python, no warning
-                read = self._read(payload, at)
+            decodable, values, pages = self._read_cantools(payload, lengths, n)
         else:
-            read = self._read(payload, at)
-        return self._rows(n, length_ok, *read)
+            if payload.shape[1] != self.width:
+                payload = _fit(payload, self.width)
+            view = payload.view
+            lanes = []  # loops, not comprehensions: no function object per block (Python < 3.12)
+            for dtype in self._dtypes:
+                lanes.append(view(dtype))
+            values = []
+            if self._guard:
+                with np.errstate(all="ignore"):  # a float scaled past the largest float: inf, as in Python
+                    for value in self._values:
+                        values.append(value(lanes, at))
+            else:
+                for value in self._values:
+                    values.append(value(lanes, at))
+            if self._muxes:
+                decodable, pages = self._multiplexers(lanes, at)
+        # the row check
+        ok = length_ok if decodable is None else length_ok & decodable
+        carried = []
+        for j, present, lo, hi in self._checks:
+            kept, good = check(values[j], present, lo, hi)
+            carried.append(kept)
+            ok = ok & good
+        empty = None
+        if self.multiplexed:
+            ok, empty = _on_pages(ok, length_ok if decodable is None else length_ok & decodable, pages)
+        if n == 1 and ok:
+            return [tuple(map(float, carried))]  # the live frame's common row: nobody asks it why
+        read = _Read(length_ok, decodable, values, pages)
+        if n == 1:
+            return OneRow(EMPTY if empty is not None and empty else None, lambda k: self._verdict(read, k, True))
+        return ColumnRows(n, carried, ok ^ _TRUE, empty, lambda k: self._verdict(read, k, False))
 
-    def _read(self, payload: np.ndarray, at: Any) -> tuple[Column | None, list[Column], list[Column | None]]:
-        """The bit maths over a block: the rows cantools would decode (None: all), each output's value and page."""
-        if payload.shape[1] != self.width:
-            payload = _fit(payload, self.width)
-        view = payload.view
-        lanes = []  # loops, not comprehensions: no function object per block (Python < 3.12)
-        for dtype in self._dtypes:
-            lanes.append(view(dtype))
-        values = []
-        for value in self._values:
-            values.append(value(lanes, at))
-        if not self._muxes:
-            return None, values, self._unpaged
+    def _multiplexers(self, lanes: Lanes, at: Any) -> tuple[Column | None, list[Column | None]]:
+        """The rows cantools would decode (their selected multiplexers hold values some signal is multiplexed
+        on; None: all) and each output's rows on its page (None: every row)."""
         raws = {}
         for name, raw in self._muxes:
             raws[name] = raw(lanes, at)
@@ -253,8 +272,7 @@ class MessageDecoder:
             if selected is not None:
                 bad = selected & bad
             refused = bad if refused is None else refused | bad
-        return (None if refused is None else refused ^ _TRUE, values,
-                [_selected(pages, raws) for pages in self._pages])
+        return None if refused is None else refused ^ _TRUE, [_selected(pages, raws) for pages in self._pages]
 
     def _read_cantools(self, payload: np.ndarray, lengths: np.ndarray, n: int
                        ) -> tuple[Column | None, list[Column], list[Column | None]]:
@@ -286,36 +304,6 @@ class MessageDecoder:
         return (np.array(decodable), [np.array(v, dtype=np.float64) for v in values],
                 [np.array(p) if self._pages[j] else None for j, p in enumerate(pages)])
 
-    def _rows(self, n: int, length_ok: Column, decodable: Column | None, values: list[Column],
-              pages: list[Column | None]) -> Sequence[Row]:
-        """The row check (the module docstring's), over a block's columns or a block of one's scalars."""
-        ok = length_ok if decodable is None else length_ok & decodable
-        whole = ok
-        carried = []
-        for j, present, lo, hi in self._checks:
-            kept, good = check(values[j], present, lo, hi)
-            carried.append(kept)
-            ok = ok & good
-        empty = None
-        if self.multiplexed:
-            off_all: Column | None = None  # rows on which no output is on its page
-            for page in pages:
-                if page is None:
-                    off_all = _FALSE
-                    continue
-                ok = ok & page
-                off = page ^ _TRUE
-                off_all = off if off_all is None else off_all & off
-            if off_all is not None and off_all is not _FALSE:
-                empty = whole & off_all
-        if n == 1:
-            if ok:
-                return [tuple(map(float, carried))]  # the live frame's common row: nobody asks it why
-            read = _Read(length_ok, decodable, values, pages)
-            return OneRow(EMPTY if empty is not None and empty else None, lambda k: self._verdict(read, k, True))
-        read = _Read(length_ok, decodable, values, pages)
-        return ColumnRows(n, carried, ok ^ _TRUE, empty, lambda k: self._verdict(read, k, False))
-
     def _verdict(self, read: _Read, k: int, one: bool) -> Verdict:
         """Why row ``k`` of ``read`` is what :meth:`_rows` made of it, with each value on its page as a sample carries
         it."""
@@ -346,6 +334,22 @@ class MessageDecoder:
             return Verdict("", [(j, v, "") for j, v in enumerate(row)])
         assert isinstance(rows, OneRow)
         return rows.verdict(0)
+
+
+def _on_pages(ok: Column, whole: Column, pages: list[Column | None]) -> tuple[Column, Column | None]:
+    """The rows of a multiplexed message still valid once every output must be on its page, and those whole rows
+    on which none is (EMPTY; None: no such row can be)."""
+    off_all: Column | None = None
+    for page in pages:
+        if page is None:  # an output on every page: no row is without one
+            off_all = _FALSE
+            continue
+        ok = ok & page
+        off = page ^ _TRUE
+        off_all = off if off_all is None else off_all & off
+    if off_all is None or off_all is _FALSE:
+        return ok, None
+    return ok, whole & off_all
 
 
 def _fit(payload: np.ndarray, width: int) -> np.ndarray:
