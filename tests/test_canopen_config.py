@@ -162,7 +162,7 @@ class TestTranslation:
             ({"eds": "missing.eds"}, {}, "canopen.left.eds"),
             ({"pdo": {"TPDO9": ["0x6077"]}}, {}, "canopen.left.pdo.TPDO9"),
             ({}, {"canopen": "right"}, "sources.left_torque.canopen"),
-            ({}, {"max_age": 0.5}, "sources.left_torque.max_age"),
+            ({}, {"max_age": -1}, "sources.left_torque.max_age"),
             ({}, {"scale": float("nan")}, "sources.left_torque.scale"),
         ],
     )

@@ -43,13 +43,29 @@ def _frames(title: str, frames: Iterable[FrameSpec]) -> list[str]:
     return lines
 
 
-def describe(cfg: Config) -> str:
-    """The text ``canguard check`` prints for a config that loaded without errors."""
+def _dbc_notes(notes: tuple[str, ...], verbose: bool) -> list[str]:
+    """What the DBC files get wrong where the config does not read it: counted, or (``-v``) one line each."""
+    if not notes:
+        return []
+    notes_word = "note" if len(notes) == 1 else "notes"
+    head = f"  {len(notes)} DBC {notes_word} (parts skipped or signals taken out, none read by this config"
+    if not verbose:
+        return [f"{head}; check -v lists them)"]
+    return [f"{head}):", *(f"    {note}" for note in notes)]
+
+
+def describe(cfg: Config, verbose: bool = False) -> str:
+    """The text ``canguard check`` prints for a config that loaded without errors.
+
+    ``verbose`` (``check -v``): also what reading each CANopen drive's EDS tolerated, the SDO
+    writes of a drive canguard configures, and what a drive must be told.
+    """
     lines = [f"config {cfg.path}"]
     lines.append("dbc:")
     n_messages = len(cfg.database.messages) if cfg.database is not None else 0
     lines += [f"  {p}" for p in cfg.dbc_files]
     lines.append(f"  ({n_messages} messages)")
+    lines += _dbc_notes(cfg.dbc_notes, verbose)
 
     lines.append("buses:")
     for name, bus in cfg.buses.items():
@@ -60,7 +76,7 @@ def describe(cfg: Config) -> str:
     if cfg.canopen:
         lines.append("canopen:")
         for drive in cfg.canopen.values():
-            lines += [f"  {line}" for line in drive.describe()]
+            lines += [f"  {line}" for line in drive.describe(verbose)]
 
     lines.append("sources:")
     if not cfg.sources:

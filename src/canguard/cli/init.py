@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import re
 import shutil
+import sys
 from pathlib import Path
 
 from canguard.cli.common import subcommand
@@ -40,6 +41,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--canopen", type=Path, default=None, metavar="EDS",
                    help="instead: a config and tree for one CANopen drive from its EDS (with --node)")
     p.add_argument("--node", type=int, default=None, metavar="N", help="with --canopen: the drive's node id 1..127")
+    p.add_argument("--configure", action="store_true",
+                   help="with --canopen: canguard configures the drive over SDO (configure: true): its TPDO "
+                        "mapping, COB-ID and heartbeat, at start and after each boot-up")
     p.add_argument("--force", action="store_true", help="overwrite files that exist")
     p.set_defaults(func=cmd_init)
 
@@ -74,10 +78,13 @@ def canopen_files(args: argparse.Namespace, target: Path, state_dir: Path) -> di
         raise ConfigError(f"init --canopen: --node: found {args.node}, expected the drive's node id 1..127")
     if not eds.is_file():
         raise ConfigError(f"init --canopen: {eds}: no such file, expected the drive's EDS")
-    texts = drive_files(eds, args.node, bus="can0" if args.simulation else args.channel,
-                        state_dir=state_dir.expanduser().absolute(), simulation=args.simulation)
-    files: dict[Path, str | Path] = {target / name: text for name, text in texts.items()}
+    made = drive_files(eds, args.node, bus="can0" if args.simulation else args.channel,
+                       state_dir=state_dir.expanduser().absolute(), simulation=args.simulation,
+                       configure=args.configure)
+    files: dict[Path, str | Path] = {target / name: text for name, text in made.files.items()}
     files[target / eds.name] = eds
+    for line in made.messages:
+        print(f"canguard init: {line}", file=sys.stderr)
     return files
 
 
@@ -90,6 +97,8 @@ def cmd_init(args: argparse.Namespace) -> int:
     files: dict[Path, str | Path]
     if args.canopen is not None:
         files = canopen_files(args, target, state_dir)
+    elif args.configure:
+        raise ConfigError("init: --configure: found no --canopen, expected --canopen EDS --node N with it")
     else:
         files = {
             target / "canguard.yaml": starter_config(
@@ -103,6 +112,7 @@ def cmd_init(args: argparse.Namespace) -> int:
     if existing and not args.force:
         raise ConfigError("init: " + ", ".join(existing) + ": exists already; expected a new file "
                           "(use --force to overwrite)")
+    created = not target.exists()
     try:
         target.mkdir(parents=True, exist_ok=True)
         for path, content in files.items():
@@ -110,9 +120,15 @@ def cmd_init(args: argparse.Namespace) -> int:
                 shutil.copyfile(content, path)
             else:
                 path.write_text(content, encoding="utf-8")
-    except OSError as exc:
+        cfg = load_config(target / "canguard.yaml")  # what we wrote must load: a broken starter is our bug
+    except (OSError, ConfigError) as exc:
+        for path in files:  # nothing half-made left behind
+            path.unlink(missing_ok=True)
+        if created:
+            shutil.rmtree(target, ignore_errors=True)
+        if isinstance(exc, ConfigError):
+            raise
         raise ConfigError(f"init: {exc.filename or target}: cannot be written ({exc.strerror or exc})") from None
-    cfg = load_config(target / "canguard.yaml")  # what we wrote must load: a broken starter is our bug
     for path in files:
         print(f"wrote {path}")
     buses = ", ".join(f"{n} ({b.interface} {b.channel})" for n, b in cfg.buses.items())

@@ -1,73 +1,241 @@
 """``canguard init DIR --canopen EDS --node N``: a starting config and tree for one CANopen drive.
 
-The EDS is read as the daemon will read it (:mod:`canguard.config.canopen`); every object
-its default TPDOs map is listed in the config, and the CiA 402 torque and current actual
-values (0x6077, 0x6078) found among them become guarded sources (scale 0.1: % of the
-rated value). Stop and task frames are the controlword's quick stop and enable operation
-when an RPDO maps the controlword.
+The EDS is read as the daemon will read it (:mod:`canguard.config.canopen_eds`). Its device
+type (0x1000) must name CiA 402 (drive and motion control): another profile is named and
+refused. The CiA 402 torque and current actual values (0x6077, 0x6078) become guarded
+sources (scale 0.1: % of the rated value). Where a default TPDO maps them, that TPDO is
+read; where none does (TPDOs disabled by default, empty mappings, position and velocity
+only), ``init`` picks one (a disabled TPDO first, else one with room left), maps the
+statusword and the values there with a ``pdo:`` override and says what the drive must be
+told (its mapping, its COB-ID with bit 31 cleared, the producer heartbeat 0x1017), in the
+written config and on stderr; with ``--configure`` canguard tells the drive itself over SDO.
+Stop and task frames are the controlword's quick stop and enable operation when an RPDO
+maps the controlword, else NMT stop.
 """
 
 from __future__ import annotations
 
+import json
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from canguard.config.canopen import (
     CONTROLWORD,
+    PRODUCER_HEARTBEAT,
     RPDO_COMM,
     RPDO_MAP,
+    STATUSWORD,
     TPDO_COMM,
     TPDO_MAP,
-    Eds,
-    EdsError,
     Pdo,
+    SdoWrite,
+    heartbeat_write,
+    override,
+    pdo_writes,
+    read_pdos,
 )
+from canguard.config.canopen_eds import DEVICE_TYPE, PROFILES, Eds, EdsError
 from canguard.errors import ConfigError
 
 GUARDED = {0x6077: "torque", 0x6078: "current"}
-"""CiA 402 objects ``init`` guards when a TPDO maps them: torque / current actual value (‰ of rated)."""
+"""CiA 402 objects ``init`` guards: torque / current actual value (‰ of rated)."""
 OVERCURRENT_PCT, RECOVERY_PCT = 150.0, 100.0
 """Starting thresholds in % of the rated value: trip above 1.5 x rated, recover at rated."""
+HEARTBEAT_S = 0.1
+"""The heartbeat ``init`` writes for a drive whose EDS has 0x1017 = 0."""
+TPDO_PERIOD_MS = 10
+"""The event timer the drive is told for a TPDO ``init`` maps (``configure: true``'s default)."""
+CIA_402 = 402
+WRITABLE = frozenset({"rw", "wo", "rww", "rwr"})
+"""EDS AccessTypes an SDO may write."""
 
 
-def drive_files(eds_path: Path, node: int, *, bus: str, state_dir: Path, simulation: bool) -> dict[str, str]:
-    """The config and tree texts (by file name) for the drive of ``eds_path`` at ``node``."""
+@dataclass
+class DriveInit:
+    """What ``init`` writes for one drive and what it tells the user on stderr."""
+
+    files: dict[str, str]
+    """File name -> text (the config and the tree)."""
+    messages: list[str] = field(default_factory=list)
+    """Lines for stderr: the TPDO chosen, what the drive must be told, warnings."""
+
+
+def q(text: str) -> str:
+    """``text`` as a YAML double-quoted scalar (JSON's quoting is YAML's): any file name round-trips."""
+    return json.dumps(text)
+
+
+def read_drive(eds_path: Path, node: int) -> Eds:
+    """The EDS at ``node``, refused unless it describes a CiA 402 drive (profile named when it does not)."""
     try:
         eds = Eds(eds_path, node)
-        tpdos = eds.pdos(TPDO_COMM, TPDO_MAP, "TPDO")
-        rpdos = eds.pdos(RPDO_COMM, RPDO_MAP, "RPDO")
     except EdsError as exc:
         raise ConfigError(f"init --canopen {eds_path}: {exc}") from None
-    sources = _sources(tpdos)
-    if not sources:
-        mapped = "; ".join(f"{p.name}: {', '.join(o.ref for o in p.objects) or 'nothing'}" for p in tpdos)
+    profile = eds.profile
+    if profile is not None and profile != CIA_402 and (profile in PROFILES or not _guarded_objects(eds)):
+        named = PROFILES.get(profile, f"profile {profile}" if profile else "no standard profile")
         raise ConfigError(
-            f"init --canopen {eds_path}: found no TPDO mapping 0x6077 or 0x6078 ({mapped or 'no TPDO'}), "
-            "expected a CiA 402 drive's torque or current actual value (write the sources by hand, see docs/config.md)"
+            f"init --canopen {eds_path}: {eds.where(DEVICE_TYPE)} device type 0x{int(eds.value(DEVICE_TYPE)):08X}: "
+            f"this is a {named} device, not a drive; expected a CiA 402 drive (0x1000 bits 0..15 = 402)"
         )
-    has_controlword = any(p.find(CONTROLWORD, 0) for p in rpdos)
-    heartbeat = eds.value(0x1017)
-    lines = [
-        f"# Written by `canguard init --canopen {eds_path.name} --node {node}`"
-        + (f": {eds.device}" if eds.device else "") + ".",
-        "# Thresholds are in % of the drive's rated torque / current: edit them for your motor;",
-        "# check with `canguard check -c <this file>`.",
-        "buses:",
-        f"  main: {{interface: {'virtual' if simulation else 'socketcan'}, channel: {bus}}}",
-        "",
-        "canopen:",
-        f"  drive: {{eds: {eds_path.name}, node: {node}, bus: main"
-        + ("" if isinstance(heartbeat, int) and heartbeat > 0 else ", heartbeat: 0.1") + "}",
-        "  # the EDS's default TPDOs map:",
-    ]
+    if not _guarded_objects(eds):
+        raise ConfigError(
+            f"init --canopen {eds_path}: found neither 0x6077 (torque actual value) nor 0x6078 (current actual "
+            f"value) in {eds_path.name}, expected a CiA 402 drive's torque or current actual value"
+        )
+    return eds
+
+
+def _guarded_objects(eds: Eds) -> list[int]:
+    return [index for index in GUARDED if eds.entry(index) is not None]
+
+
+def choose_tpdo(eds: Eds, tpdos: list[Pdo]) -> tuple[Pdo, bool]:
+    """The TPDO that carries the guarded values, and whether it is a new mapping (a ``pdo:`` override).
+
+    A default TPDO that maps 0x6077 or 0x6078 is taken as it is. Else the statusword (for
+    its Fault bit), 0x6077 and 0x6078 (those that can be PDO values, as many as fit in 64
+    bits) go into the first disabled TPDO, else after the objects of the first TPDO with room.
+    """
     for pdo in tpdos:
-        objs = ", ".join(f"{o.ref} {o.name}" for o in pdo.objects) or "nothing"
-        lines.append(f"  #   {pdo.name} 0x{pdo.cob_id:03X}: {objs}")
+        if pdo.enabled and any(pdo.find(index, 0) for index in GUARDED):
+            return pdo, False
+    values = [i for i in GUARDED if eds.mappable(i)]
+    if not values:
+        reasons = "; ".join(_refusal(eds, i) for i in _guarded_objects(eds))
+        raise ConfigError(f"init --canopen {eds.path}: {reasons}: expected 0x6077 or 0x6078 as a PDO-mappable "
+                          "object")
+    wanted = ([STATUSWORD] if eds.mappable(STATUSWORD) else []) + values
+    candidates = [p for p in tpdos if not p.enabled] + [p for p in tpdos if p.enabled]
+    for pdo in filter(lambda p: _remappable(eds, p), candidates):
+        keep = [] if not pdo.enabled else [(o.index, o.subindex) for o in pdo.objects]
+        if pdo.enabled and len(pdo.objects) and pdo.bits != sum(o.bits for o in pdo.objects):
+            continue  # dummy entries: a new mapping would move the objects others read
+        for extra in _fits(wanted):
+            try:
+                refs: list[tuple[int, int | None]] = [*keep, *((i, None) for i in extra if (i, 0) not in keep)]
+                return override(eds, pdo, refs), True
+            except EdsError:
+                continue
+    mapped = "; ".join(f"{p.name}: {p.bits} bits" + ("" if p.enabled else " (disabled)")
+                       + ("" if _remappable(eds, p) else " (mapping not writable)") for p in tpdos)
+    raise ConfigError(
+        f"init --canopen {eds.path}: found no TPDO free or with room for 0x6077/0x6078 ({mapped or 'no TPDO'}), "
+        "expected a disabled TPDO or one with 16 bits free (map one by hand with canopen.DRIVE.pdo, see docs/config.md)"
+    )
+
+
+def _remappable(eds: Eds, pdo: Pdo) -> bool:
+    """True when the EDS lets the TPDO's mapping be written (its count and first entry are not ro/const)."""
+    index = TPDO_MAP + int(pdo.name.removeprefix("TPDO")) - 1
+    return all(var is not None and var.access_type in WRITABLE
+               for var in (eds.variable(index, 0), eds.variable(index, 1)))
+
+
+def _fits(wanted: list[int]) -> list[list[int]]:
+    """``wanted``, then with fewer objects from its end, down to one guarded value."""
+    out = []
+    for n in range(len(wanted), 0, -1):
+        part = wanted[:n]
+        if any(i in GUARDED for i in part):
+            out.append(part)
+    return out
+
+
+def _refusal(eds: Eds, index: int) -> str:
+    try:
+        eds.pdo_value(index, None)
+    except EdsError as exc:
+        return str(exc)
+    return f"0x{index:04X} can be a PDO value"
+
+
+def drive_files(eds_path: Path, node: int, *, bus: str, state_dir: Path, simulation: bool,
+                configure: bool = False) -> DriveInit:
+    """The config and tree texts (by file name) for the drive of ``eds_path`` at ``node``, and what to tell."""
+    eds = read_drive(eds_path, node)
+    try:
+        tpdos = read_pdos(eds, TPDO_COMM, TPDO_MAP, "TPDO")
+        rpdos = [p for p in read_pdos(eds, RPDO_COMM, RPDO_MAP, "RPDO") if p.enabled]
+    except EdsError as exc:
+        raise ConfigError(f"init --canopen {eds_path}: {exc}") from None
+    pdo, new = choose_tpdo(eds, tpdos)
+    sources = [(f"drive_{what}", index) for index, what in GUARDED.items() if pdo.find(index, 0)]
+    out = DriveInit({})
+    told = eds.value(PRODUCER_HEARTBEAT)
+    heartbeat = None if isinstance(told, int) and told > 0 else HEARTBEAT_S
+    writes: list[SdoWrite] = []
+    if heartbeat is not None:
+        writes.append(heartbeat_write(heartbeat))
+    if new:
+        writes += pdo_writes(eds, pdo, int(pdo.name.removeprefix("TPDO")), TPDO_PERIOD_MS)
+    carried = ", ".join(f"{o.ref} {o.name}" for o in pdo.objects)
+    out.messages.append(f"{pdo.name} 0x{pdo.cob_id:03X} carries {carried}"
+                        + (" (a pdo: override: the EDS does not map it by default)" if new else ""))
+    if writes and configure:
+        out.messages.append("configure: true: canguard tells the drive over SDO at start and after each boot-up: "
+                            + "; ".join(w.describe() for w in writes))
+    elif writes:
+        out.messages += ["the drive must be told (or set configure: true, and canguard tells it over SDO):",
+                         *(f"  {w.describe()}" for w in writes)]
+    out.messages += [f"warning: {w}" for w in eds.foreign_cob_ids()]
+    out.messages += [f"note: {n}" for n in eds.notes]
+    interface = "virtual" if simulation else "socketcan"
+    lines = _config_lines(eds, node, interface, bus, tpdos, (pdo, new), heartbeat, configure, writes)
     lines += ["", "sources:"]
     lines += [f'  {name}: {{kind: current, canopen: drive, object: "0x{index:04X}", scale: 0.1}}  # % of rated'
               for name, index in sources]
     lines += ["", "tree: {file: drive_guard.xml, main: DriveGuard, tick_hz: 100}", ""]
+    lines += _frames(any(p.find(CONTROLWORD, 0) for p in rpdos))
+    lines += [f"events: {q(str(state_dir / 'events.jsonl'))}",
+              f"state: {{file: {q(str(state_dir / 'i2t_state.json'))}}}"]
+    if simulation:
+        lines.append("simulation: true")
+    out.files = {"canguard.yaml": "\n".join(lines) + "\n", "drive_guard.xml": _tree([n for n, _ in sources])}
+    return out
+
+
+def _config_lines(eds: Eds, node: int, interface: str, bus: str, tpdos: list[Pdo], chosen: tuple[Pdo, bool],
+                  heartbeat: float | None, configure: bool, writes: list[SdoWrite]) -> list[str]:
+    """The head of the config: buses and the drive's entry, with what the EDS maps and the drive must be told."""
+    pdo, new = chosen
+    lines = [
+        f"# Written by `canguard init --canopen {eds.path.name} --node {node}`"
+        + (f": {eds.device}" if eds.device else "") + ".",
+        "# Thresholds are in % of the drive's rated torque / current: edit them for your motor;",
+        "# check with `canguard check -c <this file>`.",
+        "buses:",
+        f"  main: {{interface: {interface}, channel: {q(bus)}}}",
+        "",
+        "canopen:",
+        "  drive:",
+        f"    eds: {q(eds.path.name)}",
+        f"    node: {node}",
+        "    bus: main",
+    ]
+    if heartbeat is not None:
+        lines.append(f"    heartbeat: {heartbeat:g}                  # the EDS's 0x1017 is 0: no heartbeat by default")
+    if configure:
+        lines.append("    configure: true                 # canguard writes the heartbeat and pdo: over SDO")
+    if new:
+        objs = ", ".join(q(o.ref) for o in pdo.objects)
+        lines += ["    pdo:", f"      {pdo.name}: [{objs}]"]
+    lines.append("  # the EDS's default TPDOs map:")
+    for p in tpdos:
+        objs = ", ".join(f"{o.ref} {o.name}" for o in p.objects) or "nothing"
+        lines.append(f"  #   {p.name} 0x{p.cob_id:03X}{'' if p.enabled else ' (disabled)'}: {objs}")
+    if writes:
+        lines.append("  # configure: true tells the drive over SDO at start and after each boot-up:" if configure
+                     else "  # the drive must be told (configure: true makes canguard tell it over SDO):")
+        lines += [f"  #   {w.describe()}" for w in writes]
+    for warning in eds.foreign_cob_ids():
+        lines.append(f"  # warning: {warning}")
+    return lines
+
+
+def _frames(has_controlword: bool) -> list[str]:
     if has_controlword:
-        lines += [
+        return [
             "task:                              # sent every period while the task runs",
             "  period: 0.02",
             "  frames: [{canopen: drive, command: enable_operation}]",
@@ -77,23 +245,22 @@ def drive_files(eds_path: Path, node: int, *, bus: str, state_dir: Path, simulat
             "  frames: [{canopen: drive, command: quick_stop}]",
             "",
         ]
-    else:
-        lines += [
-            "# No RPDO of the EDS maps the controlword (0x6040): stop with NMT.",
-            "stop:",
-            "  repeat: 0.05",
-            "  frames: [{canopen: drive, nmt: stop}]",
-            "",
-        ]
-    lines += [f"events: {state_dir / 'events.jsonl'}", f"state: {{file: {state_dir / 'i2t_state.json'}}}"]
-    if simulation:
-        lines.append("simulation: true")
+    return [
+        "# No RPDO of the EDS maps the controlword (0x6040): stop with NMT.",
+        "stop:",
+        "  repeat: 0.05",
+        "  frames: [{canopen: drive, nmt: stop}]",
+        "",
+    ]
+
+
+def _tree(names: list[str]) -> str:
     guards = "\n".join(
         f'      <IsCurrentSafe topic_name="{name}" overcurrent_threshold="{OVERCURRENT_PCT}"'
         f' recovery_threshold="{RECOVERY_PCT}"/>'
-        for name, _ in sources
+        for name in names
     )
-    tree = (
+    return (
         '<?xml version="1.0" encoding="UTF-8"?>\n'
         "<!-- Written by canguard init for one CANopen drive: the task runs while every guarded value is safe. -->\n"
         '<root BTCPP_format="4" main_tree_to_execute="DriveGuard">\n'
@@ -105,13 +272,3 @@ def drive_files(eds_path: Path, node: int, *, bus: str, state_dir: Path, simulat
         "  </BehaviorTree>\n"
         "</root>\n"
     )
-    return {"canguard.yaml": "\n".join(lines) + "\n", "drive_guard.xml": tree}
-
-
-def _sources(tpdos: list[Pdo]) -> list[tuple[str, int]]:
-    """(source name, object index) of each guarded CiA 402 object some TPDO maps."""
-    found: list[tuple[str, int]] = []
-    for index, what in GUARDED.items():
-        if any(p.find(index, 0) for p in tpdos):
-            found.append((f"drive_{what}", index))
-    return found

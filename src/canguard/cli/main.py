@@ -54,7 +54,8 @@ def __getattr__(name: str) -> Path:
 def _add_check(sub: argparse._SubParsersAction) -> None:
     p = subcommand(sub, "check",
                        description="Load the config, its DBC files and its tree; print buses, sources "
-                                   "(message, id, signals, units) and frames; exit 0, or 2 with every error.")
+                                   "(message, id, signals, units) and frames; exit 0, or 2 with every error. -v lists "
+                                   "what the DBC files get wrong where the config does not read it.")
     _add_config(p)
     add_state_dir(p)
     _add_nodes(p)
@@ -88,7 +89,7 @@ def _cmd_check(args: argparse.Namespace) -> int:
             raise
         raise ConfigError([*exc.problems, *tree_problems], [*exc.located, *tree_problems]) from None
     check_config_outputs(cfg)  # what `canguard run` refuses at start, refused here
-    print(describe(cfg))
+    print(describe(cfg, verbose=args.verbose > 0))
     if cfg.tree is not None:
         report = check_tree(cfg, _palette(args))
         print(report.text, end="" if report.text.endswith("\n") else "\n")

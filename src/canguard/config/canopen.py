@@ -11,8 +11,11 @@ live and in replay, without a CANopen code path; what is CANopen-specific at run
 time (the heartbeat, NMT state, EMCY and Fault-bit reasons) is a set of source
 roles :class:`~canguard.protect.staleness.SourceHealth` knows.
 
-The EDS (or DCF) is read with the ``canopen`` library (the optional extra
-``canopen``), imported only when a config has a ``canopen:`` section.
+The EDS (or DCF) is read by :mod:`canguard.config.canopen_eds` with the ``canopen``
+library (the optional extra ``canopen``), imported only when a config has a ``canopen:`` section.
+With ``configure: true`` a drive also carries the SDO writes that give it what the config
+expects (:class:`SdoWrite`: the ``pdo:`` mappings, their COB-IDs, the producer heartbeat),
+which the daemon performs (:mod:`canguard.service.canopen_setup`).
 """
 
 from __future__ import annotations
@@ -22,7 +25,10 @@ import struct
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from canguard.config.canopen_eds import Eds
 
 HEARTBEAT_BASE = 0x700
 EMCY_BASE = 0x080
@@ -82,17 +88,27 @@ class MappedObject:
 
 @dataclass(frozen=True)
 class Pdo:
-    """One PDO of a drive: its name (``TPDO1``), COB-ID and mapped objects in order."""
+    """One PDO of a drive: its name (``TPDO1``), COB-ID and mapped objects in order.
+
+    ``enabled``: valid (COB-ID bit 31 clear) in the EDS, or made valid by a ``pdo:`` override;
+    only enabled PDOs carry sources and frames. ``overridden``: a ``pdo:`` override set its mapping.
+    """
 
     name: str
     cob_id: int
     objects: tuple[MappedObject, ...]
+    enabled: bool = True
+    overridden: bool = False
+
+    @property
+    def bits(self) -> int:
+        """The bits its objects take up to the last one."""
+        return max((o.start_bit + o.bits for o in self.objects), default=0)
 
     @property
     def length(self) -> int:
         """The frame's payload length in bytes."""
-        bits = max((o.start_bit + o.bits for o in self.objects), default=0)
-        return (bits + 7) // 8
+        return (self.bits + 7) // 8
 
     def find(self, index: int, subindex: int) -> MappedObject | None:
         """The mapped object ``index:subindex``, or None."""
@@ -114,6 +130,10 @@ class CanopenDrive:
     """The EDS value (DCF ``ParameterValue``, else ``DefaultValue``) of each object an RPDO maps."""
     device: str = ""
     """The EDS's vendor and product name."""
+    setup: tuple[SdoWrite, ...] = ()
+    """``configure: true``: the SDO writes that give the drive what the config expects (empty: not configured)."""
+    notes: tuple[str, ...] = ()
+    """What reading the EDS tolerated or the drive must be told (``canguard check -v``)."""
 
     @property
     def heartbeat_id(self) -> int:
@@ -130,13 +150,23 @@ class CanopenDrive:
         """The heartbeat consumer's timeout: 1.5 heartbeat periods."""
         return HEARTBEAT_FACTOR * self.heartbeat_s
 
+    @property
+    def configure(self) -> bool:
+        """True when canguard configures the drive over SDO (``configure: true``)."""
+        return bool(self.setup)
+
     def tpdo_of(self, index: int, subindex: int) -> tuple[Pdo, MappedObject] | None:
-        """The first TPDO that maps ``index:subindex`` and where, or None."""
-        for pdo in self.tpdos:
+        """The first enabled TPDO that maps ``index:subindex`` and where, or None."""
+        for pdo in self.enabled_tpdos:
             obj = pdo.find(index, subindex)
             if obj is not None:
                 return pdo, obj
         return None
+
+    @property
+    def enabled_tpdos(self) -> tuple[Pdo, ...]:
+        """The TPDOs the drive sends (valid in the EDS or made valid by ``pdo:``)."""
+        return tuple(p for p in self.tpdos if p.enabled)
 
     def rpdo_of(self, index: int, subindex: int = 0) -> tuple[Pdo, MappedObject] | None:
         """The first RPDO that maps ``index:subindex`` and where, or None."""
@@ -166,8 +196,11 @@ class CanopenDrive:
             payload |= _raw_bits(obj, value) << obj.start_bit
         return pdo, payload.to_bytes(pdo.length, "little")
 
-    def describe(self) -> list[str]:
-        """Lines for ``canguard check``: COB-IDs, which object sits where, heartbeat and EMCY ids."""
+    def describe(self, verbose: bool = False) -> list[str]:
+        """Lines for ``canguard check``: COB-IDs, which object sits where, heartbeat and EMCY ids.
+
+        ``verbose`` (``check -v``) adds what reading the EDS tolerated and what the drive must be told.
+        """
         lines = [
             f"{self.name}: node {self.node} on {self.bus}, {self.eds.name}"
             + (f" ({self.device})" if self.device else ""),
@@ -176,8 +209,131 @@ class CanopenDrive:
         ]
         for pdo in (*self.tpdos, *self.rpdos):
             objs = ", ".join(f"{o.ref} {o.name} [bits {o.start_bit}..{o.start_bit + o.bits - 1}]" for o in pdo.objects)
-            lines.append(f"  {pdo.name} 0x{pdo.cob_id:03X}: {objs or '(nothing mapped)'}")
+            state = " (pdo: override)" if pdo.overridden else "" if pdo.enabled else " (disabled in the EDS)"
+            lines.append(f"  {pdo.name} 0x{pdo.cob_id:03X}{state}: {objs or '(nothing mapped)'}")
+        if self.setup:
+            lines.append(f"  configure: {len(self.setup)} SDO writes at start and after each boot-up")
+            if verbose:
+                lines += [f"    {w.describe()}" for w in self.setup]
+        if verbose:
+            lines += [f"  note: {n}" for n in self.notes]
         return lines
+
+
+@dataclass(frozen=True)
+class SdoWrite:
+    """One SDO download that configures a drive: ``index:subindex`` = ``value`` (``size`` bytes).
+
+    ``check``: read back and compared after all writes (False for the steps of the CiA 301
+    mapping procedure that later writes overwrite: disabling the PDO, clearing its count).
+    """
+
+    index: int
+    subindex: int
+    value: int
+    size: int
+    what: str
+    check: bool = True
+
+    @property
+    def data(self) -> bytes:
+        """The value as the SDO's little-endian payload."""
+        return self.value.to_bytes(self.size, "little")
+
+    def describe(self) -> str:
+        """``0x1A02:01 = 0x60770010 (TPDO3 entry 1: 0x6077 Torque actual value)``."""
+        return f"0x{self.index:04X}:{self.subindex:02X} = 0x{self.value:0{self.size * 2}X} ({self.what})"
+
+
+def pdo_writes(eds: Eds, pdo: Pdo, number: int, period_ms: int) -> list[SdoWrite]:
+    """The CiA 301 procedure giving TPDO ``number`` (1-based) ``pdo``'s mapping, COB-ID and event timer.
+
+    Disable it (COB-ID bit 31), clear its mapping count, write the entries, set the count,
+    make it event-driven (transmission type 0xFF) every ``period_ms`` where the EDS has those
+    sub-indices, then write the COB-ID with bit 31 cleared (its bits 29..30 as the EDS has them).
+    """
+    comm, mapping = TPDO_COMM + number - 1, TPDO_MAP + number - 1
+    raw = eds.value(comm, 1)
+    flags = (int(raw) if isinstance(raw, int) else 0) & 0x60000000
+    cob = flags | pdo.cob_id
+    out = [
+        SdoWrite(comm, 1, cob | 0x80000000, 4, f"{pdo.name} disabled while it is mapped", check=False),
+        SdoWrite(mapping, 0, 0, 1, f"{pdo.name} mapping cleared", check=False),
+    ]
+    for k, obj in enumerate(pdo.objects, 1):
+        entry = (obj.index << 16) | (obj.subindex << 8) | obj.bits
+        out.append(SdoWrite(mapping, k, entry, 4, f"{pdo.name} entry {k}: {obj.ref} {obj.name}"))
+    out.append(SdoWrite(mapping, 0, len(pdo.objects), 1, f"{pdo.name} maps {len(pdo.objects)} objects"))
+    if eds.variable(comm, 2) is not None:
+        out.append(SdoWrite(comm, 2, 0xFF, 1, f"{pdo.name} transmission type: event-driven"))
+    if eds.variable(comm, 5) is not None:
+        out.append(SdoWrite(comm, 5, period_ms, 2, f"{pdo.name} event timer: every {period_ms} ms"))
+    out.append(SdoWrite(comm, 1, cob, 4, f"{pdo.name} COB-ID 0x{pdo.cob_id:03X}, valid (bit 31 cleared)"))
+    return out
+
+
+def heartbeat_write(heartbeat_s: float) -> SdoWrite:
+    """0x1017 producer heartbeat time = ``heartbeat_s`` in ms."""
+    ms = max(1, round(heartbeat_s * 1000))
+    return SdoWrite(PRODUCER_HEARTBEAT, 0, ms, 2, f"producer heartbeat every {ms} ms")
+
+
+def read_pdos(eds: Eds, comm_base: int, map_base: int, prefix: str) -> list[Pdo]:
+    """The PDOs the EDS defines at ``comm_base``/``map_base`` (disabled ones too, ``enabled`` False)."""
+    found: list[Pdo] = []
+    for d in eds.pdo_defs(comm_base, map_base):
+        objects: list[MappedObject] = []
+        start = 0
+        for e in d.entries:
+            if e.index < 0x1000:  # a dummy entry (data type index): bits that carry nothing
+                start += e.bits
+                continue
+            if eds.variable(e.index, e.subindex) is None:
+                # Mapped by default but not described (an EDS left incomplete): where it sits is known,
+                # what it is not; only a source reading it is a problem.
+                objects.append(MappedObject(e.index, e.subindex, UNDESCRIBED, start, e.bits))
+            else:
+                objects.append(mapped(eds, eds.variable(e.index, e.subindex), start, e.bits))
+            start += e.bits
+        found.append(Pdo(name=f"{prefix}{d.number}", cob_id=d.cob_id, objects=tuple(objects), enabled=d.enabled))
+    return found
+
+
+def mapped(eds: Eds, var: Any, start_bit: int, bits: int | None = None) -> MappedObject:
+    """The OD variable ``var`` as a PDO entry at ``start_bit`` (its EDS size unless ``bits`` is given)."""
+    from canopen.objectdictionary import datatypes
+
+    size = bits if bits is not None else (1 if var.data_type == datatypes.BOOLEAN else len(var))
+    return MappedObject(
+        index=int(var.index),
+        subindex=int(var.subindex),
+        name=var.name,
+        start_bit=start_bit,
+        bits=size,
+        signed=var.data_type in datatypes.SIGNED_TYPES,
+        is_float=var.data_type in datatypes.FLOAT_TYPES,
+    )
+
+
+def override(eds: Eds, pdo: Pdo, objects: list[tuple[int, int | None]]) -> Pdo:
+    """``pdo`` mapping ``objects`` in order instead (each of its EDS data type's size), enabled.
+
+    Raises :class:`~canguard.config.canopen_eds.EdsError` for an object that cannot be a PDO
+    value (where it is written and why) or a mapping longer than a CAN frame.
+    """
+    from canguard.config.canopen_eds import EdsError
+
+    out: list[MappedObject] = []
+    start = 0
+    for index, subindex in objects:
+        obj = mapped(eds, eds.pdo_value(index, subindex), start)
+        out.append(obj)
+        start += obj.bits
+    if start > 64:
+        raise EdsError(f"{pdo.name} would carry {start} bits, more than the 64 of a CAN frame")
+    if not pdo.cob_id:
+        raise EdsError(f"{pdo.name} has no COB-ID in {eds.path.name} (only bit 31 set, beyond TPDO4)")
+    return Pdo(name=pdo.name, cob_id=pdo.cob_id, objects=tuple(out), enabled=True, overridden=True)
 
 
 def _raw_bits(obj: MappedObject, value: int | float) -> int:
@@ -188,136 +344,20 @@ def _raw_bits(obj: MappedObject, value: int | float) -> int:
     return int(value) & ((1 << obj.bits) - 1)
 
 
-def parse_object(value: Any) -> tuple[int, int] | str | None:
-    """``object:`` as (index, subindex) when it is hex (``0x6077``, ``6077:0``, a YAML int), else its name."""
+def parse_object(value: Any) -> tuple[int, int | None] | str | None:
+    """``object:`` as (index, subindex) when it is hex (``0x6077``, ``6077:0``, a YAML int), else its name.
+
+    The subindex is None where none is written (``0x6077``): a variable then, a record or array refused.
+    """
     if isinstance(value, bool):
         return None
     if isinstance(value, int):
-        return (value, 0) if 0 <= value <= 0xFFFF else None
+        return (value, None) if 0 <= value <= 0xFFFF else None
     if not isinstance(value, str) or not value.strip():
         return None
     m = _OBJECT.fullmatch(value.strip())
     if m is None:
         return value.strip()
-    return int(m.group(1), 16), int(m.group(2) or "0", 16)
+    return int(m.group(1), 16), (int(m.group(2), 16) if m.group(2) else None)
 
-
-class EdsError(ValueError):
-    """An EDS that cannot be read or that contradicts itself (the message says where)."""
-
-
-class Eds:
-    """An EDS/DCF read with the ``canopen`` library for one node id: object lookups and PDO mappings."""
-
-    def __init__(self, path: Path, node: int) -> None:
-        try:
-            from canopen.objectdictionary import import_od
-        except ImportError as exc:  # the optional extra is missing
-            raise EdsError("the python 'canopen' library is not installed: pip install 'canguard[canopen]'") from exc
-        try:
-            self.od = import_od(str(path), node)
-        except FileNotFoundError as exc:
-            raise EdsError(f"no such file: {path}") from exc
-        except Exception as exc:  # configparser and the canopen library raise many kinds
-            raise EdsError(f"{path} does not load as an EDS ({type(exc).__name__}: {exc})") from exc
-        self.path = path
-
-    @property
-    def device(self) -> str:
-        """Vendor and product name from ``[DeviceInfo]``."""
-        info = self.od.device_information
-        return " ".join(str(x) for x in (info.vendor_name, info.product_name) if x)
-
-    def variable(self, index: int, subindex: int = 0) -> Any:
-        """The OD variable ``index:subindex`` (or the variable ``index`` itself), or None."""
-        try:
-            entry: Any = self.od[index]
-        except KeyError:
-            return None
-        if hasattr(entry, "subindex") and not hasattr(entry, "subindices"):
-            return entry if subindex == 0 else None
-        try:
-            return entry[subindex]
-        except KeyError:
-            return None
-
-    def by_name(self, name: str) -> Any:
-        """The variable whose ParameterName is ``name`` (``Record.Sub`` for a sub-object), or None."""
-        folded = name.casefold()
-        for entry in self.od.values():
-            if not hasattr(entry, "subindices"):
-                if entry.name.casefold() == folded:
-                    return entry
-                continue
-            for var in entry.values():
-                full = f"{entry.name}.{var.name}".casefold()
-                if folded in (full, var.name.casefold()) and var.subindex != 0:
-                    return var
-        return None
-
-    def value(self, index: int, subindex: int = 0) -> Any:
-        """The object's DCF value, else its EDS default (``$NODEID`` resolved), or None."""
-        var = self.variable(index, subindex)
-        if var is None:
-            return None
-        return var.value if var.value is not None else var.default
-
-    def mapped(self, index: int, subindex: int, start_bit: int, bits: int | None = None) -> MappedObject:
-        """``index:subindex`` as a PDO entry at ``start_bit`` (its EDS size unless ``bits`` is given)."""
-        from canopen.objectdictionary import datatypes
-
-        var = self.variable(index, subindex)
-        if var is None:
-            raise EdsError(f"0x{index:04X}:{subindex:02X} is not an object of {self.path.name}")
-        size = bits if bits is not None else (1 if var.data_type == datatypes.BOOLEAN else len(var))
-        return MappedObject(
-            index=index,
-            subindex=subindex,
-            name=var.name,
-            start_bit=start_bit,
-            bits=size,
-            signed=var.data_type in datatypes.SIGNED_TYPES,
-            is_float=var.data_type in datatypes.FLOAT_TYPES,
-        )
-
-    def pdos(self, comm_base: int, map_base: int, prefix: str) -> list[Pdo]:
-        """The PDOs the EDS defines at ``comm_base``/``map_base``, valid ones only (COB-ID bit 31 clear)."""
-        found: list[Pdo] = []
-        for n in range(512):
-            cob = self.value(comm_base + n, 1)
-            count = self.value(map_base + n, 0)
-            if cob is None or count is None:
-                continue
-            cob = int(cob)
-            if cob & 0x80000000:
-                continue  # not valid: the drive does not send (or take) it by default
-            objects: list[MappedObject] = []
-            start = 0
-            for sub in range(1, int(count) + 1):
-                entry = int(self.value(map_base + n, sub) or 0)
-                index, subindex, bits = entry >> 16, (entry >> 8) & 0xFF, entry & 0xFF
-                if index < 0x1000:  # a dummy entry (data type index): bits that carry nothing
-                    start += bits
-                    continue
-                if self.variable(index, subindex) is None:
-                    # Mapped by default but not described (an EDS left incomplete): where it sits is known,
-                    # what it is not; only a source reading it is a problem.
-                    objects.append(MappedObject(index, subindex, UNDESCRIBED, start, bits))
-                else:
-                    objects.append(self.mapped(index, subindex, start, bits))
-                start += bits
-            found.append(Pdo(name=f"{prefix}{n + 1}", cob_id=cob & 0x7FF, objects=tuple(objects)))
-        return found
-
-    def override(self, pdo: Pdo, objects: list[tuple[int, int]]) -> Pdo:
-        """``pdo`` mapping ``objects`` in order instead, each of its EDS data type's size."""
-        mapped: list[MappedObject] = []
-        start = 0
-        for index, subindex in objects:
-            obj = self.mapped(index, subindex, start)
-            mapped.append(obj)
-            start += obj.bits
-        if start > 64:
-            raise EdsError(f"{pdo.name} would carry {start} bits, more than the 64 of a CAN frame")
-        return Pdo(name=pdo.name, cob_id=pdo.cob_id, objects=tuple(mapped))
 

@@ -25,12 +25,16 @@ from canguard.config.canopen import (
     TPDO_MAP,
     UNDESCRIBED,
     CanopenDrive,
-    Eds,
-    EdsError,
     MappedObject,
     Pdo,
+    SdoWrite,
+    heartbeat_write,
+    override,
     parse_object,
+    pdo_writes,
+    read_pdos,
 )
+from canguard.config.canopen_eds import Eds, EdsError
 from canguard.config.schema import FrameSpec, SignalRef
 from canguard.config.yamlsrc import _closest, _found, _path
 
@@ -47,6 +51,13 @@ ROLE_FAULT = "fault"
 """A CANopen source's statusword Fault bit (when a TPDO maps 0x6041)."""
 
 
+DRIVE_KEYS = ("eds", "node", "bus", "heartbeat", "pdo", "configure", "tpdo_period")
+CONFIGURED_HEARTBEAT_S = 0.1
+"""The heartbeat canguard tells a drive (``configure: true``) whose entry and EDS give none."""
+DEFAULT_TPDO_PERIOD_S = 0.01
+"""The event timer canguard gives a ``pdo:`` TPDO it configures (``tpdo_period:``)."""
+
+
 class CanopenSection:
     """``canopen:`` drives and what sources and frames take from them."""
 
@@ -57,6 +68,9 @@ class CanopenSection:
         """Per (drive, COB-ID): signal name -> cantools Signal, for the messages built at the end."""
         self._labels: dict[tuple[str, int], tuple[str, int]] = {}
         """Per (drive, COB-ID): (message name, payload length)."""
+        self.failed: set[str] = set()
+        """Drives whose entry has a problem: their sources and frames add none of their own (one error per cause)."""
+        self._eds: dict[str, Eds] = {}
         self._events: set[str] = set()
         """Drives whose EMCY event roles a source already carries (one ``emcy`` event per EMCY frame)."""
 
@@ -74,10 +88,13 @@ class CanopenSection:
             drive = self.drive(name, body, key)
             if drive is not None:
                 self.drives[name] = drive
+            else:
+                self.failed.add(name)
 
     def drive(self, name: str, body: Any, key: str) -> CanopenDrive | None:
+        """One drive from its entry; None (its problem recorded) when its EDS or node cannot be had."""
         c = self.checks
-        if not c.mapping(body, key, ("eds", "node", "bus", "heartbeat", "pdo"), ("eds", "node")):
+        if not c.mapping(body, key, DRIVE_KEYS, ("eds", "node")):
             return None
         node = body.get("node")
         if isinstance(node, bool) or not isinstance(node, int) or not 1 <= node <= 127:
@@ -89,22 +106,38 @@ class CanopenSection:
             return None
         try:
             eds = Eds(path, node)
-            tpdos = eds.pdos(TPDO_COMM, TPDO_MAP, "TPDO")
-            rpdos = eds.pdos(RPDO_COMM, RPDO_MAP, "RPDO")
+            tpdos = read_pdos(eds, TPDO_COMM, TPDO_MAP, "TPDO")
+            rpdos = [p for p in read_pdos(eds, RPDO_COMM, RPDO_MAP, "RPDO") if p.enabled]
         except EdsError as exc:
             c.problem(_path(key, "eds"), repr(str(body["eds"])) + f" ({exc})", "a readable EDS or DCF file")
             return None
+        self._eds[name] = eds
         if "pdo" in body:
             tpdos = self.overrides(eds, tpdos, body["pdo"], _path(key, "pdo"))
-        heartbeat = self.heartbeat(eds, body, key)
-        if heartbeat is None:
-            return None
+        configure = body.get("configure", False)
+        if not isinstance(configure, bool):
+            c.problem(_path(key, "configure"), _found(configure), "true or false")
+            configure = False
+        heartbeat = self.heartbeat(eds, body, key, configure)
         defaults: dict[tuple[int, int], int | float] = {}
         for pdo in rpdos:
             for obj in pdo.objects:
                 v = eds.value(obj.index, obj.subindex)
                 if isinstance(v, (int, float)) and not isinstance(v, bool):
                     defaults[(obj.index, obj.subindex)] = v
+        setup = self.setup(eds, tpdos, body, key, heartbeat) if configure else ()
+        if "tpdo_period" in body and not configure:
+            c.problem(_path(key, "tpdo_period"), f"{body['tpdo_period']!r} without configure: true",
+                      "configure: true with it (the period is what canguard tells the drive)")
+        notes = [*eds.notes, *eds.foreign_cob_ids()]
+        told = eds.value(PRODUCER_HEARTBEAT)
+        if not configure and told != round(heartbeat * 1000):
+            notes.append(f"the EDS's 0x1017 producer heartbeat time is {told} ms: the drive must be told "
+                         f"{round(heartbeat * 1000)} ms (configure: true does)")
+        for pdo in tpdos:
+            if pdo.overridden and not configure:
+                notes.append(f"{pdo.name} is a pdo: override: the drive must be told its mapping and COB-ID "
+                             "(configure: true does)")
         return CanopenDrive(
             name=name,
             eds=path,
@@ -115,24 +148,48 @@ class CanopenSection:
             rpdos=tuple(rpdos),
             defaults=defaults,
             device=eds.device,
+            setup=setup,
+            notes=tuple(notes),
         )
 
-    def heartbeat(self, eds: Eds, body: Mapping[str, Any], key: str) -> float | None:
-        """``heartbeat:`` (s), else the EDS's producer heartbeat time (0x1017, ms) when it is not 0."""
+    def heartbeat(self, eds: Eds, body: Mapping[str, Any], key: str, configure: bool) -> float:
+        """``heartbeat:`` (s), else the EDS's producer heartbeat time (0x1017, ms) when it is not 0.
+
+        With ``configure: true`` and neither, :data:`CONFIGURED_HEARTBEAT_S` (canguard tells the drive).
+        A problem is recorded where there is none; the drive is still built with a stand-in period
+        so that its sources and frames do not report the same cause again.
+        """
         if "heartbeat" in body:
-            return self.checks.number(body["heartbeat"], _path(key, "heartbeat"), positive=True)
+            given = self.checks.number(body["heartbeat"], _path(key, "heartbeat"), positive=True)
+            return given if given is not None else CONFIGURED_HEARTBEAT_S
         ms = eds.value(PRODUCER_HEARTBEAT)
         if isinstance(ms, int) and ms > 0:
             return ms / 1000.0
+        if configure:
+            return CONFIGURED_HEARTBEAT_S
         self.checks.problem(
             _path(key, "heartbeat"),
-            "nothing (the EDS's 0x1017 producer heartbeat time is 0 or absent)",
-            "the drive's heartbeat period in seconds",
+            f"nothing (the EDS's 0x1017 producer heartbeat time is {ms if ms is not None else 'absent'}: "
+            "the drive sends no heartbeat by default)",
+            "the drive's heartbeat period in seconds (heartbeat: 0.1), with the drive told 0x1017 = that period "
+            "in ms, or configure: true (canguard tells it)",
         )
-        return None
+        return CONFIGURED_HEARTBEAT_S
+
+    def setup(self, eds: Eds, tpdos: list[Pdo], body: Mapping[str, Any], key: str,
+              heartbeat_s: float) -> tuple[SdoWrite, ...]:
+        """``configure: true``: the heartbeat, then each ``pdo:`` override's mapping, COB-ID and event timer."""
+        period = body.get("tpdo_period", DEFAULT_TPDO_PERIOD_S)
+        given = self.checks.number(period, _path(key, "tpdo_period"), positive=True)
+        period_ms = max(1, min(0xFFFF, round((given or DEFAULT_TPDO_PERIOD_S) * 1000)))
+        writes = [heartbeat_write(heartbeat_s)]
+        for pdo in tpdos:
+            if pdo.overridden:
+                writes += pdo_writes(eds, pdo, int(pdo.name.removeprefix("TPDO")), period_ms)
+        return tuple(writes)
 
     def overrides(self, eds: Eds, tpdos: list[Pdo], value: Any, key: str) -> list[Pdo]:
-        """``pdo: {TPDO3: [objects...]}``: those TPDOs map these objects instead, in order."""
+        """``pdo: {TPDO3: [objects...]}``: those TPDOs (disabled in the EDS or not) map these objects instead."""
         if not isinstance(value, Mapping):
             self.checks.problem(key, _found(value), "a mapping of TPDO name -> list of objects")
             return tpdos
@@ -141,12 +198,12 @@ class CanopenSection:
         for pname, objects in value.items():
             pkey = _path(key, pname)
             if pname not in by_name:
-                self.checks.problem(pkey, _found(pname), "a TPDO of the EDS" + _closest(pname, list(by_name)))
+                self.checks.problem(pkey, _found(pname), f"a TPDO of {eds.path.name}" + _closest(pname, list(by_name)))
                 continue
             if not isinstance(objects, list) or not objects:
                 self.checks.problem(pkey, _found(objects), "a non-empty list of objects ('0x6041', '0x6077:0')")
                 continue
-            refs: list[tuple[int, int]] = []
+            refs: list[tuple[int, int | None]] = []
             for i, item in enumerate(objects):
                 ref = self.resolve(eds, item, f"{pkey}[{i}]")
                 if ref is not None:
@@ -154,12 +211,12 @@ class CanopenSection:
             if len(refs) != len(objects):
                 continue
             try:
-                out[pname] = eds.override(by_name[pname], refs)
+                out[pname] = override(eds, by_name[pname], refs)
             except EdsError as exc:
-                self.checks.problem(pkey, str(exc), "objects that fit in 8 bytes")
+                self.checks.problem(pkey, str(exc), "PDO-mappable numbers that fit in 8 bytes")
         return [out[p.name] for p in tpdos]
 
-    def resolve(self, eds: Eds, value: Any, key: str) -> tuple[int, int] | None:
+    def resolve(self, eds: Eds, value: Any, key: str) -> tuple[int, int | None] | None:
         """``value`` (hex ``INDEX[:SUB]`` or a ParameterName) as (index, subindex) of an object of ``eds``."""
         parsed = parse_object(value)
         if parsed is None:
@@ -173,8 +230,8 @@ class CanopenSection:
                 )
                 return None
             return int(var.index), int(var.subindex)
-        if eds.variable(*parsed) is None:
-            self.checks.problem(key, f"0x{parsed[0]:04X}:{parsed[1]:02X}", f"an object of {eds.path.name}")
+        if eds.entry(parsed[0]) is None or (parsed[1] is not None and eds.variable(parsed[0], parsed[1]) is None):
+            self.checks.problem(key, f"0x{parsed[0]:04X}:{parsed[1] or 0:02X}", f"an object of {eds.path.name}")
             return None
         return parsed
 
@@ -184,26 +241,18 @@ class CanopenSection:
     ) -> tuple[str, float, list[SignalRef]]:
         """The signals of a ``canopen:`` source: (bus, max_age, [its value, then the drive's health roles])."""
         c = self.checks
-        dname = value.get("canopen")
-        drive = self.drives.get(dname) if isinstance(dname, str) else None
+        drive = self.drive_of(value.get("canopen"), key)
         if drive is None:
-            c.problem(_path(key, "canopen"), _found(dname), "a drive of canopen:" + _closest(dname, list(self.drives)))
             return "", 0.5, []
         scale = value.get("scale", 1.0)
         if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not math.isfinite(scale) or scale == 0:
             c.problem(_path(key, "scale"), _found(scale), "a finite number other than 0")
             scale = 1.0
+        # A TPDO's period is not the heartbeat's: max_age is the value's own; the heartbeat keeps its timeout.
         max_age = drive.timeout_s
         if "max_age" in value:
             given = c.number(value["max_age"], _path(key, "max_age"), positive=True)
-            if given is not None and given > drive.timeout_s:
-                c.problem(
-                    _path(key, "max_age"),
-                    f"{given:g}",
-                    f"at most {drive.timeout_s:g} s (1.5 x canopen.{drive.name}.heartbeat: the heartbeat timeout)",
-                )
-            elif given is not None:
-                max_age = given
+            max_age = given if given is not None else max_age
         refs: list[SignalRef] = []
         where = self.tpdo_object(drive, value.get("object"), _path(key, "object"))
         if where is not None:
@@ -224,6 +273,15 @@ class CanopenSection:
         refs.extend(self.health_refs(drive, where[0] if where is not None else None))
         return drive.bus, max_age, refs
 
+    def drive_of(self, dname: Any, key: str) -> CanopenDrive | None:
+        """The drive ``canopen: NAME`` names; None, with a problem unless that drive's own entry has one."""
+        drive = self.drives.get(dname) if isinstance(dname, str) else None
+        if drive is None and dname not in self.failed:
+            self.checks.problem(
+                _path(key, "canopen"), _found(dname), "a drive of canopen:" + _closest(dname, list(self.drives))
+            )
+        return drive
+
     def tpdo_object(self, drive: CanopenDrive, value: Any, key: str) -> tuple[Pdo, MappedObject] | None:
         """The TPDO that maps ``object:`` and where; else a problem naming the TPDOs and what they map."""
         if value is None:
@@ -231,12 +289,19 @@ class CanopenSection:
             return None
         parsed = parse_object(value)
         if isinstance(parsed, str):
-            for pdo in drive.tpdos:
+            for pdo in drive.enabled_tpdos:
                 for obj in pdo.objects:
                     if obj.name.casefold() == parsed.casefold():
                         return pdo, obj
         elif parsed is not None:
-            found = drive.tpdo_of(*parsed)
+            eds = self._eds[drive.name]
+            if parsed[1] is None and hasattr(eds.entry(parsed[0]), "subindices"):
+                try:
+                    eds.pdo_value(parsed[0], None)
+                except EdsError as exc:  # a record or array: its sub-index 0 is a count, never a value
+                    self.checks.problem(key, _found(value), f"a variable, not a whole object: {exc}")
+                    return None
+            found = drive.tpdo_of(parsed[0], parsed[1] or 0)
             if found is not None and found[1].name == UNDESCRIBED:
                 self.checks.problem(
                     key, f"{found[1].ref}, which {found[0].name} maps but {drive.eds.name} does not describe",
@@ -245,8 +310,13 @@ class CanopenSection:
                 return None
             if found is not None:
                 return found
-        mapped = "; ".join(f"{p.name}: {', '.join(o.ref for o in p.objects) or 'nothing'}" for p in drive.tpdos)
-        self.checks.problem(key, _found(value), f"an object a TPDO of {drive.name} maps ({mapped or 'no TPDO'})")
+        mapped = "; ".join(f"{p.name}: {', '.join(o.ref for o in p.objects) or 'nothing'}"
+                           for p in drive.enabled_tpdos)
+        off = [p.name for p in drive.tpdos if not p.enabled]
+        hint = (f"; {', '.join(off)} disabled in the EDS: map it there with canopen.{drive.name}.pdo "
+                "(`canguard init --canopen` writes one)" if off else "")
+        self.checks.problem(key, _found(value),
+                            f"an object a TPDO of {drive.name} maps ({mapped or 'no TPDO'}{hint})")
         return None
 
     def health_refs(self, drive: CanopenDrive, near: Pdo | None) -> list[SignalRef]:
@@ -255,7 +325,8 @@ class CanopenSection:
         The Fault bit is read from ``near`` (the TPDO of the source's own object) when it maps
         the statusword too, so the bit and the value arrive in one frame.
         """
-        refs = [self.ref(drive, None, ROLE_NMT, f"{drive.name}_nmt_state", 0, 7, False, False, 1.0, drive.heartbeat_id)]
+        refs = [self.ref(drive, None, ROLE_NMT, f"{drive.name}_nmt_state", 0, 7, False, False, 1.0, drive.heartbeat_id,
+                         max_age_s=drive.timeout_s)]
         if drive.name not in self._events:
             # One source per drive carries the EMCY event's fields: one ``emcy`` event per EMCY frame.
             self._events.add(drive.name)
@@ -293,6 +364,7 @@ class CanopenSection:
         is_float: bool,
         scale: float,
         cob_id: int = 0,
+        max_age_s: float | None = None,
     ) -> SignalRef:
         """A SignalRef to ``signal`` of the drive's message at ``cob_id`` (a PDO's), noted for :meth:`messages`."""
         from cantools.database.can import Signal
@@ -309,7 +381,8 @@ class CanopenSection:
         self._signals.setdefault((drive.name, cob_id), {})[signal] = Signal(
             signal, start, bits, "little_endian", is_signed=signed, conversion=conversion
         )
-        return SignalRef(role=role, bus=drive.bus, message=label, frame_id=cob_id, is_extended_id=False, signal=signal)
+        return SignalRef(role=role, bus=drive.bus, message=label, frame_id=cob_id, is_extended_id=False, signal=signal,
+                         max_age_s=max_age_s)
 
     def messages(self) -> list[Any]:
         """The cantools messages of every drive frame a source reads (built once every source is read)."""
@@ -335,10 +408,8 @@ class CanopenSection:
         """``{canopen: left, command: quick_stop}`` (the controlword in its RPDO) or ``{canopen: left, nmt: stop}``."""
         c = self.checks
         c.mapping(value, key, ("canopen", "command", "nmt"), ("canopen",))
-        dname = value.get("canopen")
-        drive = self.drives.get(dname) if isinstance(dname, str) else None
+        drive = self.drive_of(value.get("canopen"), key)
         if drive is None:
-            c.problem(_path(key, "canopen"), _found(dname), "a drive of canopen:" + _closest(dname, list(self.drives)))
             return None
         if ("command" in value) == ("nmt" in value):
             c.problem(key, "both or neither of command and nmt", "one of command: (CiA 402) or nmt:")
@@ -358,7 +429,8 @@ class CanopenSection:
             return None
         found = drive.command_data(word)
         if found is None:
-            mapped = "; ".join(f"{p.name}: {', '.join(o.ref for o in p.objects) or 'nothing'}" for p in drive.rpdos)
+            mapped = "; ".join(f"{p.name}: {', '.join(o.ref for o in p.objects) or 'nothing'}"
+                               for p in drive.rpdos)
             c.problem(
                 _path(key, "command"),
                 f"{command} for {drive.name}, whose RPDOs do not map 0x6040 ({mapped or 'no RPDO'})",

@@ -8,6 +8,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
 
+from canguard.config.dbc import DbcChecks
 from canguard.config.schema import FrameSpec, SignalRef, SourceConfig
 from canguard.config.yamlsrc import _SECONDS_KEYS, _closest, _found, _line_of, _path, _shown
 from canguard.errors import ConfigError
@@ -44,6 +45,8 @@ class _Checks:
         """``problems`` with the line of their key: ``file:line: key: found X, expected Y``."""
         self.lines: Mapping[str, int] = lines if lines is not None else {}
         self.database: Any = None
+        self.dbc_checks = DbcChecks()
+        """What the DBC files get wrong: errors where the config reads it, notes elsewhere."""
         self.messages_ok = False
         self._by_name: dict[str, Any] = {}
         self._by_id: dict[int, list[Any]] = {}

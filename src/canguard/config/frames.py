@@ -85,7 +85,7 @@ class _Frames(_Sources):
         if msg is None:
             return None
         data: dict[str, Any] = {s.name: _initial(s) for s in msg.signals}
-        ok = True
+        ok = self.unsound_left_out(msg, signals, key)
         for sname, sval in signals.items():
             v = self.frame_value(msg, sname, sval, _path(_path(key, "signals"), sname))
             if v is None:
@@ -112,6 +112,26 @@ class _Frames(_Sources):
             is_fd=bool(msg.is_fd),
             label=msg.name,
         )
+
+    def unsound_left_out(self, msg: Any, given: Mapping[str, Any], key: str) -> bool:
+        """Whether the signals the DBC gets wrong that a frame leaves out (taken out of the message: their bits
+        are sent as 0) would have been 0 at their initial values; a problem naming each that would not."""
+        ok = True
+        for s in self.dbc_checks.dropped(msg.name):
+            if s.name in given:
+                continue  # named in signals: frame_value reports it
+            initial = _initial(s)
+            if _whole_raw(s, initial) == 0:
+                continue
+            why = "; ".join(p.text for p in self.dbc_checks.involved(msg.name, s.name))
+            self.problem(
+                _path(key, "message"),
+                f"{msg.name}, whose signal {s.name} the frame would send at its initial value {initial:g} but "
+                f"the DBC gets it wrong ({why})",
+                "a message whose signals the DBC gets wrong are 0 when left out, or a raw frame {id, data}",
+            )
+            ok = False
+        return ok
 
     def _raw_frame(self, value: Mapping[str, Any], key: str) -> FrameSpec | None:
         """A raw frame: ``{id, data, bus, extended, fd}``."""

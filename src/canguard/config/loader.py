@@ -109,6 +109,7 @@ class _Loader(_Sections):
             simulation=simulation,
             database=self.database,
             canopen=MappingProxyType(dict(self.canopen.drives) if self.canopen is not None else {}),
+            dbc_notes=tuple(self.dbc_checks.notes),
         )
 
 

@@ -52,6 +52,8 @@ class SignalRef:
     unit: str | None = None
     minimum: float | None = None
     maximum: float | None = None
+    max_age_s: float | None = None
+    """How old this signal may be, where it has its own timeout (a CANopen drive's heartbeat); None: the source's."""
 
 
 @dataclass(frozen=True)
@@ -185,6 +187,9 @@ class Config:
     """The merged ``cantools.database.Database`` of every DBC file (and of the ``canopen:`` drives' frames)."""
     canopen: Mapping[str, CanopenDrive] = field(default_factory=dict)
     """``canopen:``: the CANopen drives by name, resolved against their EDS."""
+    dbc_notes: tuple[str, ...] = ()
+    """What the DBC files get wrong where this config does not read them (signals taken out of their message,
+    statements skipped), one ``file:line: ...`` each: ``canguard check -v`` lists them."""
 
 
 @dataclass(frozen=True)

@@ -10,6 +10,7 @@ from typing import Any, cast
 import cantools
 
 from canguard.config.checks import _Checks
+from canguard.config.dbc import load_dbc_file
 from canguard.config.schema import NON_VALUE_ROLES, SignalRef, SourceConfig, SourceKind
 from canguard.config.yamlsrc import _closest, _found, _path, _shown
 from canguard.errors import clip, quote
@@ -42,19 +43,7 @@ class _Sources(_Checks):
         if not isinstance(value, list) or not value:
             self.problem("dbc", _found(value), "a DBC file path or a non-empty list of them")
             return ()
-        files: list[Path] = []
-        databases: list[tuple[Path, Any]] = []
-        for i, item in enumerate(value):
-            p = self.file_path(item, f"dbc[{i}]")
-            if p is None:
-                continue
-            files.append(p)
-            try:
-                databases.append((p, cantools.database.load_file(str(p))))
-            except FileNotFoundError:
-                self.problem(f"dbc[{i}]", _shown(item), f"an existing DBC file (no such file: {p})")
-            except Exception as exc:  # cantools raises many kinds of parse errors
-                self.problem(f"dbc[{i}]", f"{p} which {_not_loaded(p, exc)}", "a valid DBC file")
+        files, databases = self.dbc_files(value)
         if len(databases) != len(value):
             return tuple(files)
         messages: list[Any] = []
@@ -88,12 +77,33 @@ class _Sources(_Checks):
             self.database = databases[0][1]
         else:
             nodes = [n for _, db in databases for n in db.nodes]
-            self.database = cantools.database.can.Database(messages=messages, nodes=nodes)
+            # not strict, as each file loaded: two signals of one name stay in their message
+            self.database = cantools.database.can.Database(messages=messages, nodes=nodes, strict=False)
         for m in self.database.messages:
             self._by_name[m.name] = m
             self._by_id.setdefault(m.frame_id, []).append(m)
         self.messages_ok = True
         return tuple(files)
+
+    def dbc_files(self, value: list[Any]) -> tuple[list[Path], list[tuple[Path, Any]]]:
+        """Each file of ``dbc:`` (a problem for each that does not load) and the database of each that does."""
+        files: list[Path] = []
+        databases: list[tuple[Path, Any]] = []
+        for i, item in enumerate(value):
+            p = self.file_path(item, f"dbc[{i}]")
+            if p is None:
+                continue
+            files.append(p)
+            try:
+                loaded = load_dbc_file(p)
+            except FileNotFoundError:
+                self.problem(f"dbc[{i}]", _shown(item), f"an existing DBC file (no such file: {p})")
+            except Exception as exc:  # cantools raises many kinds of parse errors
+                self.problem(f"dbc[{i}]", f"{p} which {_not_loaded(p, exc)}", "a valid DBC file")
+            else:
+                databases.append((p, loaded.database))
+                self.dbc_checks.add(loaded)
+        return files, databases
 
     def add_messages(self, messages: list[Any]) -> None:
         """Add messages made elsewhere (a CANopen drive's PDOs, heartbeat, EMCY) to the config's database."""
@@ -150,12 +160,33 @@ class _Sources(_Checks):
         return None
 
     def signal(self, message: Any, value: Any, key: str) -> Any:
-        """The signal ``value`` of ``message``; None after recording a problem."""
+        """The signal ``value`` of ``message``; None after recording a problem.
+
+        A signal the DBC gets wrong (:mod:`canguard.config.dbc`) is a problem naming what is wrong with it.
+        """
         names = [s.name for s in message.signals]
-        if isinstance(value, str) and value in names:
+        involved = self.dbc_checks.involved(message.name, value) if isinstance(value, str) else []
+        if not involved and value in names:
             return message.get_signal_by_name(value)
+        if involved:
+            why = "; ".join(p.text for p in involved)
+            self.problem(key, f"{value!r}, which the DBC gets wrong ({why})",
+                         f"a signal of {message.name} that fits it, shares no bits and has a name of its own")
+            return None
         self.problem(key, _found(value), f"a signal of {message.name}" + _closest(value, names))
         return None
+
+    def read_signal(self, message: Any, value: Any, key: str) -> Any:
+        """:meth:`signal`, for a source to read: None after a problem, also when some of the message's frames do
+        not decode (a multiplexer page of only signals the DBC gets wrong)."""
+        sig = self.signal(message, value, key)
+        lost = self.dbc_checks.lost_pages(message.name) if sig is not None else []
+        if lost:
+            why = "; ".join(p.text for p in lost)
+            self.problem(key, f"{value!r}, of a message whose frames do not all decode ({why})",
+                         "a signal of a message whose every frame decodes (fix the DBC, or read another message)")
+            return None
+        return sig
 
     # -- sections ----------------------------------------------------------
     def signal_ref(self, role: str, bus: str, message: Any, signal: Any) -> SignalRef:
@@ -185,7 +216,7 @@ class _Sources(_Checks):
         for role, k in roles:
             if msg is None or k not in value:
                 continue
-            sig = self.signal(msg, value[k], _path(key, k))
+            sig = self.read_signal(msg, value[k], _path(key, k))
             if sig is not None:
                 signals.append(self.signal_ref(role, bus, msg, sig))
         return signals
@@ -226,7 +257,7 @@ class _Sources(_Checks):
                 msg = self.message(item["message"], _path(ikey, "message")) if "message" in item else None
                 if msg is None or "signal" not in item:
                     continue
-                sig = self.signal(msg, item["signal"], _path(ikey, "signal"))
+                sig = self.read_signal(msg, item["signal"], _path(ikey, "signal"))
                 if sig is not None and jname is not None:
                     signals.append(self.signal_ref(jname, ibus, msg, sig))
         return signals

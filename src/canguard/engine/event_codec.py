@@ -26,6 +26,7 @@ EVENT_TYPES = frozenset(
         "bus_error",
         "emcy",
         "nmt",
+        "configure",
         "reload",
         "start",
         "exit",

@@ -11,7 +11,7 @@ source cannot be trusted (fail safe: every non-empty reason fails the guard):
 ``nan``/``inf`` the latest sample was NaN / infinite
 ``out_of_range`` the latest value lies outside the DBC signal's [min|max]
 ``bad_length``/``undecodable`` the latest frame could not be decoded
-``no_heartbeat`` (CANopen) the drive's heartbeat is older than ``max_age_s``
+``no_heartbeat`` (CANopen) the drive's heartbeat is older than its own timeout (the ``nmt`` signal's ``max_age_s``)
 ``not_present`` (CANopen) also: the drive's NMT state is not operational
 ``emcy``        (CANopen) the drive's last EMCY had a non-zero error register
 ``drive_fault`` (CANopen) the drive's statusword has its Fault bit set
@@ -102,6 +102,11 @@ class SourceHealth:
         self._value_roles: tuple[str, ...] = source.value_roles
         self._has_present = source.signal(PRESENT) is not None
         self._gates = tuple(r for r in GATE_ROLES if source.signal(r) is not None)
+        nmt = source.signal(NMT)
+        self._heartbeat_s = self.max_age_s if nmt is None or nmt.max_age_s is None else float(nmt.max_age_s)
+        """How old the drive's heartbeat may be (its own timeout: a TPDO's period is not the heartbeat's)."""
+        self._window_s = min(self.max_age_s, self._heartbeat_s)
+        """How long after every role was last usable nothing can have gone stale (:attr:`_ok_since`)."""
         self._counter: float | None = None
         self._counter_since = math.nan
         """When the alive counter last changed (its first sample counts as a change)."""
@@ -122,10 +127,10 @@ class SourceHealth:
         self._ok_since = math.nan
         """When every role was last found usable: the oldest of their latest times (NaN: not known).
 
-        While ``now - _ok_since <= max_age_s`` nothing can be stale, so :meth:`reason` is ""
-        without looking at each role. Only :meth:`observe`'s full path can make a role
-        unusable; it clears this. Its fast path (a fresh valid sample) only makes roles
-        younger, which keeps the shortcut true.
+        While ``now - _ok_since <= _window_s`` (``max_age_s``, or the heartbeat's timeout when
+        shorter) nothing can be stale, so :meth:`reason` is "" without looking at each role.
+        Only :meth:`observe`'s full path can make a role unusable; it clears this. Its fast
+        path (a fresh valid sample) only makes roles younger, which keeps the shortcut true.
         """
         self.samples = 0
         """Samples observed (out-of-order ones included)."""
@@ -347,8 +352,11 @@ class SourceHealth:
             return REASON_EMCY if t is not None and (self._invalid.get(role) or self._value.get(role, 0.0)) else ""
         if t is None:
             return REASON_NO_DATA
-        if now - t > self.max_age_s:
-            return REASON_NO_HEARTBEAT if role == NMT else REASON_STALE
+        if role == NMT:
+            if now - t > self._heartbeat_s:
+                return REASON_NO_HEARTBEAT
+        elif now - t > self.max_age_s:
+            return REASON_STALE
         bad = self._invalid.get(role, "")
         if bad:
             return bad
@@ -380,7 +388,7 @@ class SourceHealth:
         """
         if self._frozen:
             return REASON_FROZEN
-        if now - self._ok_since <= self.max_age_s:
+        if now - self._ok_since <= self._window_s:
             return REASON_OK
         for gate in self._gates:
             r = self._gate_reason(now, gate)

@@ -160,6 +160,8 @@ class Daemon:
             raise
         self.overrun_limit_s = overrun_limit(self.cfg)
         """A frame that waited longer since it arrived stops the task (:meth:`Engine.overrun`)."""
+        self.setup: Any = None
+        """The CANopen drives canguard configures over SDO (:mod:`canguard.service.canopen_setup`), when any."""
 
     def build_engine(self, cfg: Config, previous: Engine | None = None) -> Engine:
         heat = HeatStore(cfg.state.file, cfg.state.on_corrupt, clock=BootClock())
@@ -205,6 +207,7 @@ class Daemon:
             self.monitor.start()
         self.reader.start()
         engine.start(self.clock.now())
+        self.setup = drive_setup(self.cfg)
         self.notifier.ready()
         log.info("%s", guarding(self.cfg))
         self.notifier.status(f"running: {engine.status_line()}; {guarding(self.cfg)}")
@@ -227,6 +230,8 @@ class Daemon:
                     self.take_received(engine, items)
                 engine.advance(self.clock.now())
                 self._drain_bus_errors(engine)
+                if self.setup is not None:
+                    journal_setup(engine, self.setup)
                 if self._down:
                     self._check_buses_back(engine)
                 mono = time.monotonic()
@@ -243,6 +248,8 @@ class Daemon:
             sys.setswitchinterval(previous_switch)
             self.notifier.stopping()
             self.engine.finish(reason=self.exit_reason)
+            if self.setup is not None:
+                self.setup.stop()
             self.reader.stop()
             self.journal.close()
             if self.monitor is not None:
@@ -336,6 +343,10 @@ class Daemon:
             return False
         old = self.engine
         now = self.clock.now()
+        if dict(cfg.canopen) != dict(self.cfg.canopen):  # drives told something else: tell them anew
+            if self.setup is not None:
+                self.setup.stop()
+            self.setup = drive_setup(cfg)
         old.store_heat(now)  # the new guards start from the heat the old ones had
         self.cfg, self.engine = cfg, new
         self.overrun_limit_s = overrun_limit(cfg)
@@ -383,6 +394,29 @@ class Daemon:
             self._down.discard(bus)
             engine.bus_up(bus)
             engine.journal.write({"event": "bus_error", "source": bus, "reason": "reopened"})
+
+
+def drive_setup(cfg: Config) -> Any:
+    """A started :class:`~canguard.service.canopen_setup.DriveSetup` when a drive has ``configure: true``, else None.
+
+    Imported only then: the ``canopen`` library is an optional extra.
+    """
+    if not any(d.configure for d in cfg.canopen.values()):
+        return None
+    from canguard.service.canopen_setup import DriveSetup
+
+    setup = DriveSetup(cfg.canopen.values(), dict(cfg.buses))
+    setup.start()
+    return setup
+
+
+def journal_setup(engine: Engine, setup: Any) -> None:
+    """The drive configuration's events (``configure``, ``error``) into the journal, made durable at once."""
+    events = setup.events()
+    for event in events:
+        engine.journal.write(event)
+    if events:
+        engine.journal.flush()
 
 
 def overrun_limit(cfg: Config) -> float:

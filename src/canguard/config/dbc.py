@@ -1,0 +1,449 @@
+"""DBC files as teams and vendors export them: loaded as cantools loads them without strict checks.
+
+:func:`load_dbc_file` reads one database file and returns a :class:`DbcFile`:
+
+- A DBC text first goes through a pre-pass that blanks (keeping every line number) what
+  cantools refuses even when not strict: Vector's pseudo-message ``VECTOR__INDEPENDENT_SIG_MSG``
+  (the signals of no message) and the ``VAL_``, ``SIG_VALTYPE_``, ``BA_``, ``CM_``, ``BO_TX_BU_``,
+  ``SG_MUL_VAL_`` and ``BA_REL_`` statements of a message (or signal) the file does not define.
+  Each is a :attr:`DbcFile.notes` line.
+- cantools then loads the text with ``strict=False``, and every message is checked as cantools'
+  strict mode would: signals that share bits (outside exclusive multiplexer pages), a signal that
+  does not fit its message, and the signals multiplexed by one of those are taken out of their
+  message (which keeps its sound signals: cantools decodes and encodes them as in a file without the
+  others); two signals of one name stay (cantools decodes both, and encodes both with one value) but
+  the name cannot tell which is meant. Each problem is a :class:`SignalProblem` naming the file and line,
+  both signals and the message.
+
+Whether a problem stops anything is the config's business: an error where the config reads an
+involved signal (:meth:`DbcChecks.involved`), a note otherwise.
+"""
+
+from __future__ import annotations
+
+import bisect
+import re
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import cantools
+
+PSEUDO_MESSAGE = "VECTOR__INDEPENDENT_SIG_MSG"
+"""The message Vector's tools keep the signals of no message in (DLC 0; cantools refuses what refers to it)."""
+
+_WORD = re.compile(r'"(?:[^"\\]|\\.)*"|;|[^\s";]+')
+"""A word of a statement: a string (which may span lines and hold ``;``), a ``;``, or a run of anything else."""
+_WORDS_NAMING = 6
+"""A statement names its message (and signal) within its first words (``BA_REL_ "a" BU_SG_REL_ n SG_ 5 s``)."""
+_BO = re.compile(r"BO_\s+(\d+)\s+(\w+)\s*:")
+_SG = re.compile(r"SG_\s+(\w+)\s*(?:\w+\s*)?:\s*(\d+)\|(\d+)@([01])")
+_STATEMENTS = frozenset({"VAL_", "SIG_VALTYPE_", "BA_", "CM_", "BO_TX_BU_", "SG_MUL_VAL_", "BA_REL_"})
+"""Statements that may name a message (by its DBC id) the file does not define."""
+_STRING = r'"(?:[^"\\]|\\.)*"'
+_KEYWORD = re.compile(_STRING + r'|^[ \t]*([A-Z][A-Z_]*_)(?=[\s:])', re.MULTILINE)
+"""A string (skipped whole), or a keyword that starts a line: a statement (``BO_``, ``SG_``, ``VAL_``, ...)."""
+_END = re.compile(_STRING + "|;")
+_NEWLINE = re.compile("\n")
+
+
+@dataclass(frozen=True)
+class SignalProblem:
+    """One thing a DBC gets wrong about signals of one message, and where."""
+
+    message: str
+    signals: tuple[str, ...]
+    """The names of the signals involved (one or two)."""
+    text: str
+    """``file:line: ...`` naming the signals and the message."""
+
+
+@dataclass(frozen=True)
+class _SgLine:
+    name: str
+    start: int
+    length: int
+    little: bool
+    line: int
+
+
+@dataclass
+class _Text:
+    """The pre-pass over one DBC text: the text cantools is given, the notes, and each message's signal lines."""
+
+    text: str
+    notes: list[str] = field(default_factory=list)
+    signal_lines: dict[int, list[_SgLine]] = field(default_factory=dict)
+    """Per DBC message id (extended flag included): its ``SG_`` lines in file order."""
+
+
+def _named_message(tokens: list[str]) -> tuple[int, str | None] | None:
+    """The DBC message id (and signal name) a statement's tokens refer to, or None when it names no message."""
+    kind = tokens[0]
+    rest = tokens[1:]
+    if kind in ("VAL_", "SIG_VALTYPE_", "SG_MUL_VAL_"):
+        if len(rest) >= 2 and rest[0].isdigit():
+            return int(rest[0]), rest[1]
+        return None
+    if kind == "BO_TX_BU_":
+        return (int(rest[0]), None) if rest and rest[0].isdigit() else None
+    if kind == "CM_":
+        return _object_ref(rest)
+    if kind == "BA_":
+        return _object_ref(rest[1:]) if rest and rest[0].startswith('"') else None
+    if kind == "BA_REL_" and len(rest) >= 3 and rest[0].startswith('"'):
+        if rest[1] == "BU_SG_REL_" and len(rest) >= 6 and rest[3] == "SG_" and rest[4].isdigit():
+            return int(rest[4]), rest[5]
+        if rest[1] == "BU_BO_REL_" and len(rest) >= 4 and rest[3].isdigit():
+            return int(rest[3]), None
+    return None
+
+
+def _label(words: list[str]) -> str:
+    """A statement as a note names it: ``VAL_ of signal S of message 1712``."""
+    ref = _named_message(words)
+    assert ref is not None
+    dbc_id, signal = ref
+    attribute = f" {words[1]}" if words[0] in ("BA_", "BA_REL_") else ""
+    of_signal = f" of signal {signal}" if signal is not None else ""
+    return f"{words[0]}{attribute}{of_signal} of message {dbc_id}"
+
+
+def _object_ref(rest: list[str]) -> tuple[int, str | None] | None:
+    """``BO_ <id>`` or ``SG_ <id> <signal>`` at the start of ``rest``."""
+    if len(rest) >= 2 and rest[0] == "BO_" and rest[1].isdigit():
+        return int(rest[1]), None
+    if len(rest) >= 3 and rest[0] == "SG_" and rest[1].isdigit():
+        return int(rest[1]), rest[2]
+    return None
+
+
+class _Prepass:
+    """Finds the messages, signals and statements of a DBC text, and blanks what cantools would refuse."""
+
+    def __init__(self, text: str, display: str) -> None:
+        self.text = text
+        self.display = display
+        self.newlines = [m.start() for m in _NEWLINE.finditer(text)]
+        self.blank: list[tuple[int, int]] = []
+
+    def line(self, pos: int) -> int:
+        return bisect.bisect_right(self.newlines, pos - 1) + 1
+
+    def line_end(self, pos: int) -> int:
+        end = self.text.find("\n", pos)
+        return len(self.text) if end < 0 else end
+
+    def run(self) -> _Text:
+        out = _Text(self.text)
+        messages: dict[int, str] = {}
+        statements: list[tuple[int, int, list[str]]] = []
+        current: int | None = None
+        pseudo: list[int] = []  # the first and last position of the pseudo-message, then its signal count
+        for found in _KEYWORD.finditer(self.text):
+            tok = found.group(1)
+            if tok is None:  # a string: whatever it holds starts no statement
+                continue
+            pos = found.start(1)
+            if tok not in ("BO_", "SG_"):
+                if tok in _STATEMENTS:
+                    self.statement(pos, statements)
+                current = None  # the next statement: the message's SG_ lines are over
+                continue
+            m = (_BO if tok == "BO_" else _SG).match(self.text, pos, self.line_end(pos))
+            if m is None:
+                continue
+            if tok == "BO_":
+                current = int(m.group(1))
+                messages[current] = m.group(2)
+                out.signal_lines[current] = []
+                if m.group(2) == PSEUDO_MESSAGE:
+                    pseudo = [pos, self.line_end(pos), 0]
+            elif current is not None:
+                out.signal_lines[current].append(_SgLine(
+                    m.group(1), int(m.group(2)), int(m.group(3)), m.group(4) == "1", self.line(pos)))
+                if messages[current] == PSEUDO_MESSAGE:
+                    pseudo[1:] = [self.line_end(pos), pseudo[2] + 1]
+        defined = {k: {s.name for s in v} for k, v in out.signal_lines.items() if messages[k] != PSEUDO_MESSAGE}
+        if pseudo:
+            self.blank.append((pseudo[0], pseudo[1]))
+            out.notes.append(f"{self.display}:{self.line(pseudo[0])}: skipped BO_ {PSEUDO_MESSAGE} "
+                             f"(Vector's pseudo-message for the signals of no message; signals: {pseudo[2]})")
+        for start, stop, words in statements:
+            why = self.refused(words, defined, messages)
+            if why:
+                self.blank.append((start, stop))
+                out.notes.append(f"{self.display}:{self.line(start)}: skipped {_label(words)}: {why}")
+        out.text = self.blanked()
+        return out
+
+    def statement(self, pos: int, statements: list[tuple[int, int, list[str]]]) -> None:
+        """Keep the statement starting at ``pos`` (up to its ``;``) when it names a message."""
+        words: list[str] = []
+        for w in _WORD.finditer(self.text, pos):  # the first words tell (a keyword alone names nothing)
+            if w.group() == ";" or len(words) == _WORDS_NAMING:
+                break
+            words.append(w.group())
+        if _named_message(words) is None:
+            return
+        for m in _END.finditer(self.text, pos):
+            if m.group() == ";":
+                statements.append((pos, m.end(), words))
+                return
+
+    @staticmethod
+    def refused(words: list[str], defined: dict[int, set[str]], messages: dict[int, str]) -> str:
+        """Why a statement is skipped (it names what the file does not define), or ''."""
+        ref = _named_message(words)
+        assert ref is not None
+        dbc_id, signal = ref
+        if dbc_id not in defined:
+            if messages.get(dbc_id) == PSEUDO_MESSAGE:
+                return f"it belongs to {PSEUDO_MESSAGE}, Vector's pseudo-message for the signals of no message"
+            return f"the file defines no message of that id (0x{dbc_id & 0x1FFFFFFF:X})"
+        if signal is not None and signal not in defined[dbc_id]:
+            return f"message {messages[dbc_id]} has no signal {signal}"
+        return ""
+
+    def blanked(self) -> str:
+        """The text with each blanked range's characters turned to spaces, its line breaks kept."""
+        if not self.blank:
+            return self.text
+        parts = []
+        at = 0
+        for start, stop in sorted(self.blank):
+            start = max(start, at)  # a statement without its ';' may run into the next one
+            if stop <= start:
+                continue
+            parts.append(self.text[at:start])
+            parts.append(re.sub(r"[^\n]", " ", self.text[start:stop]))
+            at = stop
+        parts.append(self.text[at:])
+        return "".join(parts)
+
+
+# -- the checks of one message ------------------------------------------------------------------
+def _bits(signal: Any) -> int:
+    """The bits ``signal`` covers as a mask over the payload (bit ``8 * byte + bit``, as the DBC numbers them)."""
+    length = int(signal.length)
+    start = int(signal.start)
+    if signal.byte_order == "little_endian":
+        return ((1 << length) - 1) << start
+    mask = 0
+    pos = start
+    for _ in range(length):  # Motorola: from the most significant bit down, then on into the next byte
+        mask |= 1 << pos
+        pos = pos + 15 if pos % 8 == 0 else pos - 1
+    return mask
+
+
+def _first_last(mask: int) -> tuple[int, int]:
+    return (mask & -mask).bit_length() - 1, mask.bit_length() - 1
+
+
+def _pages(signal: Any, by_name: dict[str, list[Any]]) -> dict[str, frozenset[int]]:
+    """The multiplexer values that select ``signal``, per multiplexer up its chain."""
+    out: dict[str, frozenset[int]] = {}
+    seen = 0
+    while signal.multiplexer_signal is not None and seen < 64:
+        out[signal.multiplexer_signal] = frozenset(signal.multiplexer_ids or ())
+        parents = by_name.get(signal.multiplexer_signal, [])
+        if len(parents) != 1:
+            break
+        signal = parents[0]
+        seen += 1
+    return out
+
+
+def _exclusive(a: dict[str, frozenset[int]], b: dict[str, frozenset[int]]) -> bool:
+    """Whether two signals are never in one payload: pages of one multiplexer that share no value."""
+    return any(not (ids & b[mux]) for mux, ids in a.items() if mux in b)
+
+
+class _MessageCheck:
+    """The strict checks of one loaded message, with the file and line of each signal."""
+
+    def __init__(self, message: Any, lines: list[_SgLine], display: str) -> None:
+        self.message = message
+        self.display = display
+        self.lines = lines
+        self.taken: set[int] = set()
+        self.problems: list[SignalProblem] = []
+        self.broken: set[int] = set()
+        """``id()`` of each signal involved in a problem."""
+        self.pages: list[SignalProblem] = []
+        """Multiplexer values that select only signals left out (the message's frames on them do not decode)."""
+
+    def line(self, signal: Any) -> int:
+        """The line of ``signal``'s ``SG_`` line (0 when the format has no lines)."""
+        match = [k for k, s in enumerate(self.lines)
+                 if (s.start, s.length, s.little) == (signal.start, signal.length,
+                                                      signal.byte_order == "little_endian")]
+        named = [k for k in match if self.lines[k].name == signal.name] or match
+        free = [k for k in named if k not in self.taken] or named
+        if not free:
+            return 0
+        self.taken.add(free[0])
+        return self.lines[free[0]].line
+
+    def add(self, signals: Iterable[Any], text: str, *, take_out: bool = True) -> None:
+        """Record a problem of ``signals``; ``take_out``: they leave the message (cantools cannot decode it with
+        them)."""
+        signals = list(signals)
+        if take_out:
+            self.broken.update(id(s) for s in signals)
+        self.problems.append(SignalProblem(self.message.name, tuple(s.name for s in signals), text))
+
+    def run(self) -> list[Any]:
+        """Record every problem of the message; the sound signals, in the message's order."""
+        m = self.message
+        signals = list(m.signals)
+        lines = {id(s): self.line(s) for s in signals}
+        where = {k: f"{self.display}:{n}" if n else self.display for k, n in lines.items()}
+        by_name: dict[str, list[Any]] = {}
+        for s in signals:
+            by_name.setdefault(s.name, []).append(s)
+        for name, same in by_name.items():
+            if len(same) > 1:
+                same = sorted(same, key=lambda s: lines[id(s)])
+                others = ", ".join(where[id(s)] for s in same[1:])
+                # cantools decodes and encodes both (one value under the name); only a multiplexer of two names
+                # leaves its pages unknown
+                self.add(same, f"{where[id(same[0])]}: signal {name} is defined {len(same)} times in message "
+                               f"{m.name} (again at {others})", take_out=any(s.is_multiplexer for s in same))
+        masks = {id(s): _bits(s) for s in signals}
+        size_bits = 8 * int(m.length)
+        for s in signals:
+            if masks[id(s)] >> size_bits:
+                first, last = _first_last(masks[id(s)])
+                self.add([s], f"{where[id(s)]}: signal {s.name} (bits {first}..{last}) does not fit in message "
+                              f"{m.name} ({m.length} bytes)")
+        pages = {id(s): _pages(s, by_name) for s in signals}
+        for j, a in enumerate(signals):
+            for b in signals[j + 1:]:
+                shared = masks[id(a)] & masks[id(b)]
+                if shared and not _exclusive(pages[id(a)], pages[id(b)]):
+                    first, last = _first_last(shared)
+                    self.add([a, b], f"{where[id(a)]}: signals {a.name} and {b.name} ({where[id(b)]}) overlap in "
+                                     f"message {m.name} (bits {first}..{last})")
+        self.orphans(signals, by_name, where)
+        sound = [s for s in signals if id(s) not in self.broken]
+        self.emptied(signals, sound, where)
+        return sound
+
+    def emptied(self, signals: list[Any], sound: list[Any], where: dict[int, str]) -> None:
+        """A multiplexer page that only signals left out were on: cantools refuses a frame on it (no signal is
+        multiplexed on that value), so the message's frames on that page no longer decode."""
+        for mux in sound:
+            if not mux.is_multiplexer:
+                continue
+            before = {i for s in signals if s.multiplexer_signal == mux.name for i in s.multiplexer_ids or ()}
+            after = {i for s in sound if s.multiplexer_signal == mux.name for i in s.multiplexer_ids or ()}
+            if before - after:
+                values = ", ".join(str(i) for i in sorted(before - after))
+                self.pages.append(SignalProblem(
+                    self.message.name, (),
+                    f"{where[id(mux)]}: multiplexer {mux.name} of message {self.message.name} = {values} selects "
+                    "only signals left out, so no frame on it decodes"))
+
+    def orphans(self, signals: list[Any], by_name: dict[str, list[Any]], where: dict[int, str]) -> None:
+        """Signals multiplexed by a signal that is left out are left out too (their page cannot be told)."""
+        changed = True
+        while changed:
+            changed = False
+            for s in signals:
+                mux = s.multiplexer_signal
+                if id(s) in self.broken or mux is None:
+                    continue
+                parents = by_name.get(mux, [])
+                if len(parents) != 1 or id(parents[0]) in self.broken:
+                    self.add([s], f"{where[id(s)]}: signal {s.name} is multiplexed by {mux}, which is left out "
+                                  f"of message {self.message.name}")
+                    changed = True
+
+
+# -- files -------------------------------------------------------------------------------------
+@dataclass
+class DbcFile:
+    """One loaded database file: cantools' database with its unsound signals taken out, and what was found."""
+
+    path: Path
+    database: Any
+    notes: list[str]
+    """What the pre-pass skipped, one ``file:line: ...`` each."""
+    problems: list[SignalProblem]
+    dropped: dict[str, list[Any]]
+    """Per message name: the signals taken out of it."""
+    pages: list[SignalProblem]
+    """Multiplexer values of a message that select only signals taken out: frames on them do not decode."""
+
+
+def load_dbc_file(path: Path, display: str | None = None) -> DbcFile:
+    """Load a database file as cantools does without strict checks, then check every message strictly.
+
+    A ``.dbc`` file goes through the pre-pass first; other formats cantools reads (KCD, SYM, ARXML)
+    are loaded as they are, and their problems name the file without a line. Raises what cantools raises
+    (``FileNotFoundError``, its parse errors).
+    """
+    shown = str(path) if display is None else display
+    if path.suffix.lower() == ".dbc":
+        # cantools reads a DBC as cp1252, a byte it cannot decode replaced
+        with path.open(encoding="cp1252", errors="replace") as f:
+            raw = f.read()
+        text = _Prepass(raw, shown).run()
+        db: Any = cantools.database.load_string(text.text, database_format="dbc", strict=False)
+        notes, lines = text.notes, text.signal_lines
+    else:
+        db = cantools.database.load_file(str(path), strict=False)
+        notes, lines = [], {}
+    problems: list[SignalProblem] = []
+    pages: list[SignalProblem] = []
+    dropped: dict[str, list[Any]] = {}
+    for m in db.messages:
+        dbc_id = m.frame_id | (0x80000000 if m.is_extended_frame else 0)
+        check = _MessageCheck(m, lines.get(dbc_id, []), shown)
+        sound = check.run()
+        if check.problems:
+            problems.extend(check.problems)
+            pages.extend(check.pages)
+            dropped[m.name] = [s for s in m.signals if id(s) in check.broken]
+            m.signals[:] = sound  # cantools' documented way: change the signals, then refresh()
+            m.refresh()
+    return DbcFile(path, db, notes, problems, dropped, pages)
+
+
+class DbcChecks:
+    """The DBC files of one config together: which signals are involved in a problem, and the notes."""
+
+    def __init__(self) -> None:
+        self._problems: dict[tuple[str, str], list[SignalProblem]] = {}
+        self._dropped: dict[str, list[Any]] = {}
+        self._pages: dict[str, list[SignalProblem]] = {}
+        self.notes: list[str] = []
+        """Every skipped statement and every signal problem, one ``file:line: ...`` line each."""
+
+    def add(self, dbc: DbcFile) -> None:
+        """Take in one loaded file's findings."""
+        self.notes.extend(dbc.notes)
+        for p in dbc.problems:
+            self.notes.append(p.text)
+            for name in dict.fromkeys(p.signals):
+                self._problems.setdefault((p.message, name), []).append(p)
+        for message, signals in dbc.dropped.items():
+            self._dropped.setdefault(message, []).extend(signals)
+        for p in dbc.pages:
+            self.notes.append(p.text)
+            self._pages.setdefault(p.message, []).append(p)
+
+    def involved(self, message: str, signal: str) -> list[SignalProblem]:
+        """The problems signal ``signal`` of ``message`` is involved in (none: it is sound, or not in the file)."""
+        return self._problems.get((message, signal), [])
+
+    def lost_pages(self, message: str) -> list[SignalProblem]:
+        """The multiplexer values of ``message`` on which its frames no longer decode (none: all decode)."""
+        return self._pages.get(message, [])
+
+    def dropped(self, message: str) -> list[Any]:
+        """The signals taken out of ``message`` (cantools ``Signal`` objects)."""
+        return self._dropped.get(message, [])
