@@ -38,6 +38,7 @@ Exit status 0 when every check holds.
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import itertools
 import json
 import os
@@ -55,13 +56,16 @@ from typing import Any
 
 REPO = Path(__file__).resolve().parents[1]
 SRC = REPO / "src"
-if str(SRC) not in sys.path:
-    sys.path.insert(0, str(SRC))
+if str(REPO) not in sys.path:  # run as a script: the benchmarks package (and canguard, where not installed)
+    sys.path.insert(0, str(REPO))
+if importlib.util.find_spec("canguard") is None:
+    sys.path.append(str(SRC))
 
 import can  # noqa: E402
 import yaml  # noqa: E402
 
-from bench_common import clean_up_on_sigterm  # noqa: E402
+from benchmarks import kit  # noqa: E402
+from benchmarks.kit import Options, Table  # noqa: E402
 from canguard.config.loader import load_config  # noqa: E402
 from canguard.sim import SimRobot, run_on_bus  # noqa: E402
 
@@ -196,7 +200,7 @@ def check(report: Report, events: list[dict[str, Any]], bound_s: float) -> None:
     report.trips_without_stop = sum(1 for t in trip_ts if not any(s <= t + 1e-6 for s in stop_ts))
 
 
-def run(args: argparse.Namespace) -> Report:
+def soak(args: argparse.Namespace) -> Report:
     import random as _r
 
     rnd = _r.SystemRandom()
@@ -207,7 +211,7 @@ def run(args: argparse.Namespace) -> Report:
     good_text = cfg_path.read_text(encoding="utf-8")
     duration = args.minutes * 60.0
     report = Report(args.minutes, schedule(args.seed, duration))
-    env = {**os.environ, "PYTHONPATH": str(SRC)}
+    env = kit.child_env(args.src)
     cmd = [sys.executable, "-m", "canguard"]
     if args.tracemalloc:
         trace_dir = args.trace_dir or tmp / "trace"
@@ -356,7 +360,8 @@ def summarize(report: Report, bound_s: float) -> tuple[dict[str, Any], bool]:
     return out, ok
 
 
-def main(argv: list[str] | None = None) -> int:
+def parser() -> argparse.ArgumentParser:
+    """soak.py's arguments."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--minutes", type=float, default=1.0)
     ap.add_argument("--seed", type=int, default=1)
@@ -374,9 +379,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--light", action="store_true",
                     help="the axes' streams at 50/50/20 Hz instead of 250/250/100 (~650 frames/s with --no-load): "
                          "every fault and its reaction as in a full run, at a quarter of the frames (CI's smoke run)")
-    args = ap.parse_args(argv)
-    clean_up_on_sigterm()  # a killed run stops the daemon and load it started (bench_common)
-    report = run(args)
+    ap.add_argument("--src", type=Path, default=SRC, help=argparse.SUPPRESS)  # the canguard tree run
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the soak, print its report; exit 1 when a check fails."""
+    args = parser().parse_args(argv)
+    kit.clean_up_on_sigterm()  # a killed run stops the daemon and load it started
+    report = soak(args)
     out, ok = summarize(report, args.bound)
     text = json.dumps(out, indent=2)
     print(text)
@@ -384,6 +395,47 @@ def main(argv: list[str] | None = None) -> int:
         args.json.write_text(text + "\n", encoding="utf-8")
     print("soak: ok" if ok else "soak: FAILED", file=sys.stderr)
     return 0 if ok else 1
+
+
+def run(opts: Options) -> Table:
+    """Suite ``soak``: a soak (3 minutes, the robot's own streams; --quick: 3 s, light) as a table of its checks,
+    each beside its bound, worst (closest to its bound) first; a failed check is shown under it (exit 1)."""
+    argv = ["--minutes", "0.05", "--light"] if opts.quick else ["--minutes", "3"]
+    args = parser().parse_args([*argv, "--no-load", "--sample", "1" if opts.quick else "10", "--src", str(opts.src)])
+    out, ok = summarize(soak(args), args.bound)
+    rss, delay = out["rss_mb"], out["reaction_delay_s"]
+    judged, total = out["reactions_within_bound"].split()[0].split("/")
+    rows: list[list[kit.Cell]] = [
+        ["slowest reaction to a fault", delay["max"], "bound", args.bound, kit.ratio(delay["max"], args.bound), "s"],
+        ["median reaction to a fault", delay["median"], "bound", args.bound, kit.ratio(delay["median"], args.bound),
+         "s"],
+        ["faults without their reaction in time", int(total) - int(judged), "faults injected", int(total), None, ""],
+        ["journal lines torn or lost", out["torn_or_lost_lines"], "journal lines", out["journal_lines"], None, ""],
+        ["trips without a stop", out["trips_without_stop"], "trips", out["trips"], None, ""],
+        ["daemon RSS at the end", rss["end"], "RSS at the start", rss["start"], kit.ratio(rss["end"], rss["start"]),
+         "MB"],
+        ["daemon CPU, median of the samples", out["cpu_percent"]["median"], "frames/s sent", out["frames_per_s"],
+         None, "% of a core"]]
+    rows.sort(key=lambda r: -(r[4] if isinstance(r[4], float) else 0.0))
+    notes = [f"{out['frames_per_s']:,} frames/s (the robot's own streams, no background ids); the simulator fell "
+             f"behind real time by up to {out['simulator_lag_s_max']} s (faults are timed from when it sent them)",
+             f"RSS slope of the last half: {rss.get('slope_last_half_mb_per_10min')} MB per 10 min; daemon exit "
+             f"{out['daemon_exit']}; the 30-minute soak at 8,000 frames/s: `python benchmarks/soak.py --minutes 30 "
+             "--sample 30`"]
+    if opts.quick:
+        notes.append("--quick: 3 s, light rates, no load, no fault due yet: checks that the suite runs")
+    return Table("soak", f"`canguard run` for {args.minutes:g} min against the simulated robot with faults injected "
+                 f"(seed {args.seed}); every check beside its bound", ["check", "canguard", "peer / bound",
+                                                                        "peer figure", "canguard / bound", "unit"],
+                 rows, notes, costs=["canguard"],
+                 failed="" if ok else failure(out))
+
+
+def failure(out: dict[str, Any]) -> str:
+    """What a failed soak failed, in one line."""
+    return (f"late or missing: {', '.join(out['late_or_missing']) or '-'}; journal lines torn "
+            f"{out['torn_or_lost_lines']}, trips without a stop {out['trips_without_stop']}, daemon exit "
+            f"{out['daemon_exit']}")
 
 
 if __name__ == "__main__":

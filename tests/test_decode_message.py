@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 import os
+import warnings
 from typing import Any
 
 import numpy as np
@@ -200,6 +201,17 @@ class TestReasons:
         row = _one(decoder, data)[0]
         assert decoder.explain(data).reason == reason
         assert bool(row) is (reason == "")
+
+    def test_a_float32_signalling_nan_is_nan_without_a_warning(self, decoder: MessageDecoder) -> None:
+        """A float32 signalling NaN (which numpy flags as it widens it) is ``nan``, in a block and alone, and
+        prints no numpy warning on the replay's stderr."""
+        data = b"\x00\x00" + bytes.fromhex("0100807f") + b"\x01\x00"
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            assert list(decoder.decode(np.frombuffer(data * 2, np.uint8).reshape(2, 8), np.array([8, 8]))) == [
+                None, None]
+            assert _one(decoder, data) == [None]
+            assert decoder.explain(data).reason == INVALID_NAN
 
     def test_multiplexer_pages(self) -> None:
         """A page with some configured signals is ``other_page``, with none EMPTY, an unknown one undecodable."""

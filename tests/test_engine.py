@@ -278,6 +278,51 @@ class TestEngine:
         assert all(T0 <= e["t"] <= r.t + 1e-6 for e in events)  # t is rounded to the microsecond
 
 
+class StopWitness:
+    """A frame sink that, at the first stop frame, notes which events the journal file holds; then sends as ``out``."""
+
+    def __init__(self, out: LogSink, journal: Path) -> None:
+        self.out = out
+        self.journal = journal
+        self.recorded_at_stop: list[str] | None = None
+
+    def send(self, frames: Any, origin: str) -> None:
+        """Note the journal's events at the first stop frame, then pass the frames on."""
+        if origin == "stop" and self.recorded_at_stop is None:
+            self.recorded_at_stop = [e["event"] for e in read_events(self.journal)]
+        self.out.send(frames, origin)
+
+
+class TestStopFirst:
+    """A trip's stop frames leave before the journal records anything about the trip or the stop."""
+
+    def test_stop_frames_leave_before_the_trip_and_stop_are_recorded(self, tmp_path: Path) -> None:
+        """At the stop frame the journal holds neither trip nor stop; when the tick is over it holds both, in
+        order, stamped with the time of the overcurrent frame."""
+        path = tmp_path / "events.jsonl"
+        journal = EventJournal(path)
+        cfg = load_config(write_config(tmp_path))
+        clock = ManualClock(T0)
+        witness = StopWitness(LogSink(clock.now, cfg.buses), path)
+        engine = Engine(cfg, clock, witness, events=journal)
+        engine.start(T0)
+        t = T0
+        while engine.gate.state != TaskGate.RUNNING:
+            t += 0.01
+            engine.feed("main", bms_frame(t, 10.0))
+            engine.feed("main", iq_frame(t, 0, 5.0))
+            engine.advance(t)
+        t_over = t + 0.0013  # between two grid ticks: the edge ticks the tree
+        engine.feed("main", bms_frame(t_over, 40.0))
+        assert witness.recorded_at_stop is not None, "no stop frame sent"
+        assert "trip" not in witness.recorded_at_stop and "stop" not in witness.recorded_at_stop
+        events = read_events(path)  # the feed is over, and with it the tick that sent the stop
+        names = [e["event"] for e in events]
+        assert names[-2:] == ["trip", "stop"]
+        assert [e["t"] for e in events[-2:]] == [pytest.approx(t_over, abs=1e-6)] * 2
+        journal.close()
+
+
 class TestFinish:
     """What the engine sends and writes on its way out (SIGTERM, end of a demo)."""
 

@@ -150,33 +150,46 @@ class TestEventJournal:
         assert len(calls) == 1
         j.close()
 
-    def test_kill_9_loses_no_written_line(self, tmp_path: Path) -> None:
-        """A writer killed by SIGKILL right after write() returned leaves every line in the file."""
+    def test_kill_9_leaves_whole_lines_and_every_flushed_one(self, tmp_path: Path) -> None:
+        """A daemon's journal killed by SIGKILL while it writes holds only whole lines, every line flushed before
+        the kill among them, in order."""
         path = tmp_path / "events.jsonl"
         code = textwrap.dedent(
             f"""
-            import signal
+            import itertools
             from canguard.engine.events import EventJournal
-            j = EventJournal({str(path)!r}, max_bytes=4096)
-            for i in range(500):
-                j.write({{"event": "trip", "t": float(i), "node": "N", "value": i}})
-            print("written", flush=True)
-            signal.pause()  # until the SIGKILL
+            from canguard.engine.journal import Journal
+            sink = EventJournal({str(path)!r}, max_bytes=64 * 1024, sync_in_background=True)
+            journal = Journal(lambda: 0.0, sink)
+            for i in itertools.count():  # until the SIGKILL
+                journal.write({{"event": "trip", "node": "N", "value": i, "reason": "x" * (i % 300)}})
+                if i % 3 == 2:
+                    journal.flush()
+                    print(i, flush=True)
             """
         )
         env = {**os.environ, "PYTHONPATH": str(SRC)}
         proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, env=env, text=True)
         try:
             assert proc.stdout is not None
-            assert proc.stdout.readline().strip() == "written"
+            while int(proc.stdout.readline() or -1) < 600:  # rotated at least once; still writing
+                assert proc.poll() is None, "the writer ended before the kill"
             proc.send_signal(signal.SIGKILL)
+            said = proc.stdout.read().split()
             assert proc.wait(timeout=10) == -signal.SIGKILL
         finally:
             if proc.poll() is None:
                 proc.kill()
                 proc.wait()
-        got = read_events(path, include_rotated=True)
-        assert [e["value"] for e in got] == list(range(500))
+        flushed = int(said[-1]) if said else 600
+        files = journal_files(path)
+        assert len(files) > 1
+        for file in files:
+            data = file.read_bytes()
+            assert not data or data.endswith(b"\n"), f"{file}: a torn last line"
+        values = [e["value"] for e in read_events(path, include_rotated=True)]
+        assert values == list(range(len(values)))
+        assert len(values) > flushed
 
     def test_rotation_keeps_every_line(self, tmp_path: Path) -> None:
         """Rotating by size splits the journal into numbered files that together hold every line in order."""
@@ -232,11 +245,14 @@ class TestEventJournal:
             j.write({"event": "exit"})
 
     def test_bad_arguments_are_refused(self, tmp_path: Path) -> None:
-        """A non-positive max_bytes or backups count is refused at construction."""
+        """A non-positive max_bytes or backups count, a negative or NaN sync interval, is refused at construction."""
         with pytest.raises(ValueError, match="max_bytes"):
             EventJournal(tmp_path / "e", max_bytes=0)
         with pytest.raises(ValueError, match="backups"):
             EventJournal(tmp_path / "e", backups=0)
+        for bad in (-0.1, math.nan):
+            with pytest.raises(ValueError, match="sync_interval_s"):
+                EventJournal(tmp_path / "e", sync_interval_s=bad)
 
     def test_disk_error_is_survived_and_lines_written_later(
         self, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture

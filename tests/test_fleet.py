@@ -130,8 +130,13 @@ class TestRuns:
                                                           capsys: pytest.CaptureFixture[str]) -> None:
         """--dask on a local cluster of two worker processes prints the serial run's summaries byte for byte."""
         distributed = pytest.importorskip("distributed")
-        with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                                      dashboard_address=None, host="127.0.0.1") as cluster:
+        import dask
+
+        # The workers forked from one server that imported distributed (as Dask's own tests start theirs), not
+        # each spawned to import it anew (~1.5 CPU-s less): how a cluster starts its workers is its own business.
+        with dask.config.set({"distributed.worker.multiprocessing-method": "forkserver"}), \
+                distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                         dashboard_address=None, host="127.0.0.1") as cluster:
             code, on_dask, err = run(["replay", str(serial.fleet), "-c", str(CONFIG), "--json",
                                       "--dask", cluster.scheduler_address], capsys)
         assert code == 0, err

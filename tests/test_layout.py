@@ -5,11 +5,13 @@
   of concepts too);
 - functions stay under a complexity budget: ruff's C901 (``max-complexity`` in pyproject.toml, checked by
   the lint step), not files under a line cap;
-- every node type the node library registers is a reserved ID for ``actions:`` in the config layer.
+- every node type the node library registers is a reserved ID for ``actions:`` in the config layer;
+- docs/layout.md lists every module as the tree has it (``python scripts/layout.py`` regenerates the table).
 """
 
 from __future__ import annotations
 
+import importlib.util
 import shutil
 import subprocess
 import sys
@@ -98,3 +100,15 @@ def test_config_reserves_every_node_id() -> None:
     from canguard.config.node_ids import RESERVED_NODE_IDS
 
     assert set(BUILTIN_NODES) - RESERVED_NODE_IDS == set()
+
+
+def test_layout_doc_lists_every_module() -> None:
+    """docs/layout.md's module table is the one scripts/layout.py makes from the tree: every module, none gone."""
+    spec = importlib.util.spec_from_file_location("layout_doc", REPO / "scripts" / "layout.py")
+    assert spec is not None and spec.loader is not None
+    layout = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(layout)
+    text = layout.DOC.read_text(encoding="utf-8")
+    assert layout.rewritten(text) == text, (
+        "docs/layout.md does not list the modules of src/canguard as they are (a module added, removed or its "
+        "docstring's first line changed): run `python scripts/layout.py` and commit docs/layout.md")

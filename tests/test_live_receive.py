@@ -288,6 +288,36 @@ class TestJournalSyncsInBackground:
         assert not threads_named("canguard-journal-fsync") - before
         assert [e["reason"] for e in read_events(tmp_path / "events.jsonl")] == [f"stop {k}" for k in range(5)]
 
+    def test_flushes_within_the_interval_share_one_fsync_made_in_time(self, tmp_path: Path,
+                                                                     monkeypatch: pytest.MonkeyPatch) -> None:
+        """After an fsync, the flushes of the next sync_interval_s share one fsync, made at its end without
+        another flush: a flushed line lags on disk by the interval (and the disk's sync time), no more."""
+        path = tmp_path / "events.jsonl"
+        synced: list[tuple[float, int]] = []  # (when, file size) at each fsync of the journal's file
+        real = os.fsync
+
+        def recording(fd: int) -> None:
+            if threading.current_thread().name == "canguard-journal-fsync":
+                synced.append((time.monotonic(), os.fstat(fd).st_size))
+            real(fd)
+
+        monkeypatch.setattr(os, "fsync", recording)
+        journal = EventJournal(path, sync_in_background=True, sync_interval_s=0.3)
+        try:
+            journal.write({"event": "start", "reason": "first"})
+            journal.flush()
+            wait_until(lambda: synced, what="the first fsync")
+            for k in range(20):
+                journal.write({"event": "trip", "reason": f"trip {k}"})
+                journal.flush()
+            size = path.stat().st_size
+            wait_until(lambda: len(synced) >= 2, what="the fsync at the end of the interval")
+            assert synced[1][0] - synced[0][0] >= 0.25  # not at once: at the end of the interval
+            assert synced[1][1] == size  # every line flushed meanwhile, in that one fsync
+            assert len(synced) == 2
+        finally:
+            journal.close()
+
     def test_a_failed_background_fsync_is_counted_and_tried_again(self, tmp_path: Path,
                                                                 monkeypatch: pytest.MonkeyPatch) -> None:
         """An fsync the disk refuses is counted as an error and done again at the next flush."""

@@ -199,40 +199,82 @@ class TestReadOnlyAndToken:
                 assert "tree" in w.get(path + "?token=s3cret")
 
 
-def test_stalled_clients_do_not_delay_a_stop(tmp_path: Path) -> None:
-    """Streams nobody reads and a Groot2 client that never takes its replies leave the stop frames on time.
+def unread_stream(port: int, path: str) -> socket.socket:
+    """A stream asked for and never read (a small receive buffer: the server's writes back up soon)."""
+    s = socket.socket()
+    s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1024)
+    s.connect(("127.0.0.1", port))
+    s.sendall(f"GET {path} HTTP/1.1\r\nHost: x\r\nAccept: text/event-stream\r\n\r\n".encode())
+    return s
 
-    A loop held up by a stalled write would wait out the server's 5 s send timeout: the Estop must come
-    well before that (2 s leaves a loaded machine its slack; bench_latency measures the real tail).
+
+def test_misbehaving_clients_leave_the_page_and_the_stop_as_they_are(tmp_path: Path,
+                                                                     capfd: pytest.CaptureFixture[str]) -> None:
+    """Unread streams, half-requests, resets, Groot2 clients that never read or send garbage, all at once.
+
+    The page and ``/api/status`` answer throughout, a trip puts the Estop on the bus on time (a loop held up by
+    a stalled write would wait out the server's 5 s send timeout: 2 s leaves a loaded machine its slack;
+    bench_latency measures the real tail), Groot2 still answers a new client, every stream place is free as
+    soon as its client left, and nothing of it prints a traceback, nor does the daemon's end with them open.
     """
     import zmq
 
-    with watched_daemon(tmp_path, groot2=True) as w:
+    with contextlib.ExitStack() as held, watched_daemon(tmp_path, groot2=True) as w:  # held: open as it stops
         wait_for("the task to run", lambda: running(w))
         port = int(w.http.rsplit(":", 1)[1])
-        stalled = []
-        for path in ("/api/status", "/api/events") * 4:
-            s = socket.create_connection(("127.0.0.1", port))
-            s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1024)
-            s.sendall(f"GET {path} HTTP/1.1\r\nHost: x\r\nAccept: text/event-stream\r\n\r\n".encode())
-            stalled.append(s)  # never read: its server thread blocks in a send, not the engine
+        streams = [unread_stream(port, path) for path in ("/api/status", "/api/events") * 10]
+        for _ in range(60):
+            half = socket.create_connection(("127.0.0.1", port))
+            half.sendall(b"GET / HTTP/1.1\r\nHost: x\r\n")  # and never the blank line
+            held.callback(half.close)
+        for _ in range(10):
+            s = unread_stream(port, "/api/events")
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, b"\1\0\0\0\0\0\0\0")  # on, 0 s: a reset
+            s.close()
+        for p in (w.groot2, w.groot2 + 1):  # not ZeroMQ at all
+            raw = socket.create_connection(("127.0.0.1", p))
+            raw.sendall(bytes(range(256)) * 8)
+            held.callback(raw.close)
         ctx = zmq.Context()
-        try:
-            greedy = ctx.socket(zmq.DEALER)  # asks and never reads the replies
-            greedy.setsockopt(zmq.LINGER, 0)
-            greedy.connect(f"tcp://127.0.0.1:{w.groot2}")
-            for i in range(200):
-                greedy.send_multipart([b"", bytes([2, ord("T")]) + i.to_bytes(4, "little")], zmq.NOBLOCK)
-            seq = w.status()["seq"]  # let ~20 status documents (~100 kB) pile up behind the stalled readers
-            wait_for("the status stream to move on", lambda: w.status()["seq"] >= seq + 20)
-            msg = w.trip_until_estop(2.0)
-            assert msg is not None and msg.arbitration_id in ESTOP_IDS, "no Estop within 2 s while clients stalled"
-            # and a fresh client is still served: the page shows the stop once the monitor process has it
-            wait_for("the page to show the stop", lambda: w.status()["task"]["state"] == "stopped")
-        finally:
-            ctx.destroy(linger=0)
-            for s in stalled:
-                s.close()
+        held.callback(ctx.destroy, linger=0)
+        for i in range(20):  # many REQ clients, each asking once and never reading the reply
+            req = ctx.socket(zmq.REQ)
+            req.connect(f"tcp://127.0.0.1:{w.groot2}")
+            req.send_multipart([bytes([2, ord("TSB"[i % 3])]) + i.to_bytes(4, "little"), b"RobotGuard"])
+        greedy = ctx.socket(zmq.DEALER)  # garbage requests, and never a reply read
+        greedy.connect(f"tcp://127.0.0.1:{w.groot2}")
+        for i in range(200):
+            greedy.send_multipart([b"", bytes([2, ord("T")]) + i.to_bytes(4, "little")] if i % 2 else
+                                  [b"", b"\xff" * (i % 9), b"junk"], zmq.NOBLOCK)
+        sub = ctx.socket(zmq.SUB)  # subscribed to everything, never read
+        sub.setsockopt(zmq.SUBSCRIBE, b"")
+        sub.connect(f"tcp://127.0.0.1:{w.groot2 + 1}")
+        seq = w.status()["seq"]  # let ~20 status documents pile up behind the unread streams
+        wait_for("the status stream to move on", lambda: w.status()["seq"] >= seq + 20)
+        assert "<html" in w.get("/")
+        msg = w.trip_until_estop(2.0)
+        assert msg is not None and msg.arbitration_id in ESTOP_IDS, "no Estop within 2 s while clients misbehaved"
+        wait_for("the page to show the stop", lambda: w.status()["task"]["state"] == "stopped")
+        asker = ctx.socket(zmq.REQ)
+        asker.setsockopt(zmq.RCVTIMEO, 5000)
+        asker.connect(f"tcp://127.0.0.1:{w.groot2}")
+        asker.send_multipart([bytes([2, ord("S"), 1, 0, 0, 0])])
+        assert len(asker.recv_multipart()[0]) == 22  # a STATUS reply: protocol header + the tree's UUID
+        for s in streams:
+            s.close()
+
+        def streams_free() -> bool:
+            with contextlib.ExitStack() as fresh:
+                for _ in range(16):  # every place of this address (web.Limits.streams_per_address)
+                    s = unread_stream(port, "/api/events")
+                    fresh.callback(s.close)
+                    if not s.recv(12).startswith(b"HTTP/1.1 200"):
+                        return False
+            return True
+
+        wait_for("the places of the streams that left", streams_free, timeout_s=5.0)
+        held.enter_context(contextlib.closing(unread_stream(port, "/api/status")))
+    assert "Traceback" not in capfd.readouterr().err
 
 
 def test_a_failing_monitor_never_stops_the_guard(tmp_path: Path, caplog: pytest.LogCaptureFixture,

@@ -95,4 +95,4 @@ def test_numpy_struct_reads_equal_the_per_frame_engine(tmp_path: Path) -> None:
     """Presence 0 and back, NaN, out of range, integer and float scales: the same replay as frame by frame."""
     cfg, log = _case(tmp_path)
     [col] = compare(load_config(cfg), log, tmp_path / "run", (4096,), min_handled=100)
-    assert col.byte_blocks > 0
+    assert col.widest > 1

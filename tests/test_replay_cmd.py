@@ -825,7 +825,7 @@ class TestEmitStreams:
         clock = ManualClock()
         sink = LogSink(clock.now, cfg.buses)
         engine = Engine(cfg, clock, sink, durable=False, save_heat=False)
-        engine.run_log(read_log(data["spike"]), {"can0": "main"}, "main", {})
+        engine.run_log(read_log(data["spike"]).chunks(), {"can0": "main"}, "main", {})
         engine.advance(clock.now())
         engine.finish(reason="end of log", stop=False)
         buf = io.StringIO()

@@ -5,16 +5,15 @@ daemon's) and :meth:`Engine.run_log <canguard.engine.core.Engine.run_log>` take 
 frames through the same row step (:meth:`MessagePlan.step <canguard.engine.blocks.MessagePlan.step>`
 for a row the column decoder read whole, :meth:`MessagePlan.take_samples
 <canguard.engine.blocks.MessagePlan.take_samples>` for a row the frame decoder read; both the
-sources' health and the models through :class:`~canguard.bt.context.SampleRoute`). A column
-block (``LogRun._run_columns``, ``LogRun._cross``) takes N rows at once;
-``Engine.columns = False`` gives the engine every frame on its own, a block of one, as a quiet
-live bus does: the reference. Every test here replays one log both ways, the column blocks at
-several sizes (so that block boundaries fall everywhere: at ticks, at trips, inside gaps), the
-blocks of one once (whatever the reader's block size), and compares the summary, the ``--events``
-file, the ``--emit`` file and the engine's own state (counters, every source's health, every
-guard's model) byte for byte: live and replay agree. Each comparison also checks that the
-column path really ran: column blocks taken and rows taken by the message plans'
-column step, none of either in the reference run.
+sources' health and the models through :class:`~canguard.bt.context.SampleRoute`). A block
+(``LogRun._run_columns``, ``LogRun._cross``) takes N rows at once; the reference gives the
+engine every frame on its own, a block of one, as a quiet live bus does. Every test here
+replays one log both ways, the blocks at several sizes (so that block boundaries fall
+everywhere: at ticks, at trips, inside gaps), the blocks of one once (whatever the reader's
+block size), and compares the summary, the ``--events`` file, the ``--emit`` file and the
+engine's own state (counters, every source's health, every guard's model) byte for byte: live
+and replay agree. Each comparison also checks that blocks of many rows really ran, and rows
+taken by the message plans' column step; the reference took blocks of one only.
 
 The logs are written here: a scripted log on a config of many node types and
 value kinds (``custom``: trips and recoveries, NaN / inf / out of range / short
@@ -45,7 +44,6 @@ import yaml
 import canguard.cli.replay
 import canguard.engine.blocks
 import canguard.io.candump
-import canguard.io.candump_np
 import canguard.io.logs
 import canguard.report.export
 from canguard.cli.replay import ReplayOptions, replay_one
@@ -53,8 +51,8 @@ from canguard.config.loader import load_config
 from canguard.config.schema import Config
 from canguard.engine.core import Engine
 from canguard.engine.logrun import LogRun
-from canguard.io.logs import Columns, read_log
-from canguard.io.logtypes import id_key
+from canguard.io.block import EXT_KEY, Block
+from canguard.io.logs import read_log
 from canguard.sim import write_log
 from checkout import REPO
 
@@ -66,11 +64,9 @@ TIMED = REPO / "config" / "examples" / "time_windowed_action.yaml"
 DEFAULT_CHUNK = canguard.io.logs.CHUNK_CHARS
 
 SMALL_CHUNKS = (97, 300, 1009, 4096)
-NEVER = 1 << 62
+"""Block sizes (characters) besides the reader's default: 2 lines a block up to about a hundred."""
 EXPORT = importlib.util.find_spec("pyarrow") is not None
 """``compare`` also holds ``--export-signals`` to the frame-by-frame export (pyarrow: the fleet extra, in test)."""
-"""``NUMPY_AFTER_BLOCKS`` that keeps the reader on its text parsers."""
-"""Block sizes (characters) besides the reader's default: 2 lines a block up to about a hundred."""
 
 _DB = cantools.database.load_file(str(DBC))
 
@@ -97,8 +93,8 @@ class Outcome:
     """The arbitration ids of the rows the plans took."""
     quiet_ticks: int = 0
     """Grid ticks counted, not run (:mod:`canguard.engine.quiet`)."""
-    byte_blocks: int = 0
-    """Of :attr:`column_blocks`, those the numpy parser read (:class:`~canguard.io.candump_np.ByteColumns`)."""
+    widest: int = 0
+    """The most rows of one block the engine took."""
     emitted: bool = True
     """An ``--emit`` file was written (:attr:`emit`); else sent frames were only counted."""
     exported: Any = None
@@ -146,16 +142,25 @@ def engine_state(engine: Engine) -> dict[str, Any]:
     })
 
 
+class _OneByOne:
+    """A log reader's blocks cut into blocks of one frame each (the reference: a quiet live bus's blocks)."""
+
+    def __init__(self, frames: Any) -> None:
+        self.frames = frames
+        self.progress = None
+
+    def chunks(self) -> Any:
+        return (block.select([i]) for block in self.frames.chunks() for i in range(block.n))
+
+
 def replay(cfg: Config, log: Path, out: Path, *, columns: bool, chunk: int | BlockCuts,
            channel_map: dict[str, str] | None = None, quiet: bool | None = None, emit_frames: bool = True,
-           numpy_after: int = NEVER, numpy_rows: int | None = None, export: bool = False) -> Outcome:
-    """Replay ``log`` once (column path on or off, blocks of ``chunk`` characters); instrumented.
+           export: bool = False) -> Outcome:
+    """Replay ``log`` once (in the reader's blocks of ``chunk`` characters, or with ``columns`` False in blocks
+    of one frame); instrumented.
 
-    ``quiet``: quiet ticks on or off (default: on with the column path, off for the
-    reference, which then ticks every tick as the live daemon does). ``numpy_after``:
-    the block from which the reader tries its numpy parser (:mod:`canguard.io.candump_np`);
-    by default never, so the reference reads every line with the text parsers. ``numpy_rows``:
-    from how many rows of a message in a block numpy reads its payloads (default: the engine's).
+    ``quiet``: quiet ticks on or off (default: on in blocks, off for the
+    reference, which then ticks every tick as the live daemon does).
     ``emit_frames`` False: no ``--emit`` file, so sent frames are only counted (the quiet runs then
     send the task's periodic frames in one go, :meth:`~canguard.engine.core.Engine._quiet_run`).
     ``export``: also ``--export-signals`` (in row groups of 64 rows), read back into :attr:`Outcome.exported`.
@@ -165,20 +170,20 @@ def replay(cfg: Config, log: Path, out: Path, *, columns: bool, chunk: int | Blo
     for p in (events, emit):
         p.unlink(missing_ok=True)  # the journal appends
     engines: list[Engine] = []
-    counts = {"blocks": 0, "handled": 0, "fed": 0, "bytes": 0, "in_block": 0}
+    counts = {"blocks": 0, "handled": 0, "fed": 0, "widest": 0, "in_block": 0}
     handled_ids: set[int] = set()
     run_columns = LogRun._run_columns
     compile_plan = canguard.engine.blocks.compile_plan
     build_summary = canguard.cli.replay.build_summary
 
-    def counted_run_columns(self: LogRun, cols: Columns, cursor: Any) -> bool:
-        counts["in_block"] = 1
+    def counted_run_columns(self: LogRun, block: Block, cursor: Any) -> bool:
+        counts["in_block"] = block.n > 1
         try:
-            took = run_columns(self, cols, cursor)
+            took = run_columns(self, block, cursor)
         finally:
             counts["in_block"] = 0
-        counts["blocks"] += took
-        counts["bytes"] += took and type(cols).__name__ == "ByteColumns"
+        counts["blocks"] += took and block.n > 1
+        counts["widest"] = max(counts["widest"], block.n)
         return took
 
     def counted_compile_plan(entry: Any, *args: Any) -> Any:
@@ -210,15 +215,13 @@ def replay(cfg: Config, log: Path, out: Path, *, columns: bool, chunk: int | Blo
         return build_summary(cfg, log_path, engine, *args)
 
     with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(Engine, "columns", columns)
+        if not columns:
+            mp.setattr(canguard.io.logs, "read_log", lambda *a, **k: _OneByOne(read_log(*a, **k)))
         mp.setattr(Engine, "replay_quiet_ticks", columns if quiet is None else quiet)
         mp.setattr(LogRun, "_run_columns", counted_run_columns)
         mp.setattr(canguard.engine.blocks, "compile_plan", counted_compile_plan)
         mp.setattr(canguard.cli.replay, "build_summary", capturing_build_summary)
         mp.setattr(canguard.io.candump, "CHUNK_CHARS", chunk)
-        mp.setattr(canguard.io.candump, "NUMPY_AFTER_BLOCKS", numpy_after)
-        if numpy_rows is not None:
-            mp.setattr(canguard.io.candump_np, "_FEW", numpy_rows)
         py_trees.blackboard.Blackboard.clear()  # global: the two runs must not see each other's keys
         parquet = out / "signals.parquet" if export else None
         if export:
@@ -239,7 +242,7 @@ def replay(cfg: Config, log: Path, out: Path, *, columns: bool, chunk: int | Blo
         exported = (_r(table.read().to_pylist()), groups)
     return Outcome(json.dumps(summary, sort_keys=True), events.read_bytes(), emit.read_bytes() if emit_frames else b"",
                    state, counts["blocks"], counts["handled"], counts["fed"], handled_ids,
-                   engine.stats.quiet_ticks, counts["bytes"], emit_frames, exported)
+                   engine.stats.quiet_ticks, counts["widest"], emit_frames, exported)
 
 
 def _first_difference(a: bytes | str, b: bytes | str, what: str) -> str:
@@ -273,7 +276,7 @@ def reference(cfg: Config, log: Path, out: Path, *, channel_map: dict[str, str] 
     if ref is None:
         ref = replay(cfg, log, out / "ref", columns=False, chunk=DEFAULT_CHUNK, channel_map=channel_map,
                      export=export)
-        assert (ref.column_blocks, ref.handled_rows, ref.fed_rows) == (0, 0, 0), "the reference used the column path"
+        assert ref.widest == 1, "the reference took blocks of more than one frame"
         assert ref.quiet_ticks == 0, "the reference skipped ticks: it must tick every tick, as the live daemon"
         while len(_REFERENCES) >= 16:
             del _REFERENCES[next(iter(_REFERENCES))]
@@ -316,10 +319,7 @@ def compare(cfg: Config, log: Path, out: Path, chunks: tuple[int | BlockCuts, ..
 
     The column runs at the second, fourth... block size write no ``--emit`` file: their frames
     are only counted, as a replay without ``--emit`` does (emitted frames are compared at the others).
-    The column runs parse blocks with numpy (:mod:`canguard.io.candump_np`): the first size from
-    the first block on, with numpy cutting every message's payloads however few rows; the third from the
-    second block on, so a log mixes line-parsed and numpy blocks as a short one does; the others
-    from the first block on. The reference always reads line by line. ``variant``: the first block size
+    ``variant``: the first block size
     runs as the ``variant``-th (0 first, 1 second...), and the next ones as the next, so that a test
     comparing at one block size can choose which of these ways it runs.
     """
@@ -328,13 +328,10 @@ def compare(cfg: Config, log: Path, out: Path, chunks: tuple[int | BlockCuts, ..
     for k, chunk in enumerate(chunks, start=variant):
         export = k == 1 and EXPORT  # the second block size also exports every sample (--export-signals)
         col = replay(cfg, log, out / f"col-{chunk}", columns=True, chunk=chunk, channel_map=channel_map,
-                     numpy_after=(0 if k == 0 else 2) if k % 2 == 0 else 1, numpy_rows=1 if k == 0 else None,
                      emit_frames=k % 2 == 0, export=export)
         assert_same(ref, col, f"{log.name} with {Path(str(cfg.path)).name}, blocks of {chunk} chars")
         if chunk != DEFAULT_CHUNK:
             assert col.column_blocks > 0, f"blocks of {chunk}: the column path never ran, so this proves nothing"
-            if col.column_blocks > 2:
-                assert col.byte_blocks > 0, f"blocks of {chunk}: the numpy parser never ran, so this proves nothing"
             assert col.handled_rows >= min_handled, f"blocks of {chunk}: the row handlers took {col.handled_rows} rows"
         outcomes.append(col)
     return outcomes
@@ -392,12 +389,10 @@ def mixed_case(text: str, k: int) -> str:
     return "".join(c.lower() if (i + k) % 2 else c.upper() for i, c in enumerate(text))
 
 
-def chunks_of(log: Path, chunk: int | BlockCuts, numpy_after: int = 0) -> list[Any]:
-    """The reader's blocks of ``log`` at ``chunk`` characters (what run_log receives); numpy from the first block
-    by default."""
+def chunks_of(log: Path, chunk: int | BlockCuts) -> list[Block]:
+    """The reader's blocks of ``log`` at ``chunk`` characters (what run_log receives)."""
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(canguard.io.candump, "CHUNK_CHARS", chunk)
-        mp.setattr(canguard.io.candump, "NUMPY_AFTER_BLOCKS", numpy_after)
         return list(read_log(log).chunks())
 
 
@@ -863,16 +858,15 @@ class TestCustomLog:
     def test_blocks_cover_what_they_should(self, custom: tuple[Config, Path]) -> None:
         """In blocks of 300 characters the reader gives every kind of block run_log tells apart."""
         _, log = custom
-        blocks = chunks_of(log, 300)
-        cols = [b for b in blocks if not isinstance(b, list)]
-        assert any(isinstance(b, list) for b in blocks)  # T/R markers starting and ending, the new digit
+        cols = chunks_of(log, 300)
         assert any(not c.ordered for c in cols)  # a row back in time inside a block
-        assert any(c.stamps[0] < 10000.0 for c in cols) and any(c.stamps[0] >= 10000.0 for c in cols)
+        assert any(c.time_s[0] < 10000.0 for c in cols) and any(c.time_s[0] >= 10000.0 for c in cols)
         keys = {int(k) for c in cols for k in c.keys.tolist()}
-        assert {id_key(0x18FF50E5, True), 0x014, id_key(0x0CFEFFFE, True)} <= keys
+        assert {0x18FF50E5 + EXT_KEY, 0x014, 0x0CFEFFFE + EXT_KEY} <= keys
         marked = [ln for ln in log.read_text(encoding="ascii").splitlines() if ln.endswith(" R")]
         first, last = (float(ln[1:ln.index(")")]) for ln in (marked[0], marked[-1]))
-        assert any(first <= float(c.stamps[0]) and float(c.stamps[-1]) <= last for c in cols)  # marked lines
+        assert any(first <= float(c.time_s[0]) and float(c.time_s[-1]) <= last for c in cols)  # marked lines
+        assert any(c.special.size for c in cols)  # remote and error frames in a block
 
     # Blocks of 1,009 characters: TestPassiveBatches.test_same_output_on_the_custom_log (with --export-signals).
     @pytest.mark.parametrize("chunk", [300, 4096, DEFAULT_CHUNK])
@@ -912,15 +906,14 @@ class TestCustomLog:
         starts = {what: custom_line(log, pred) for what, pred in preds.items()}
         cuts = BlockCuts(log, sorted(starts.values()))
         blocks = chunks_of(log, cuts)
-        firsts = list(itertools.accumulate((len(b) if isinstance(b, list) else b.n for b in blocks), initial=0))
+        firsts = list(itertools.accumulate((b.n for b in blocks), initial=0))
         for what, i in starts.items():
             j = firsts.index(i)  # the block that starts with line i
             start = blocks[j]
             stamp = float(lines[i][1:lines[i].index(")")])
-            assert not isinstance(start, list) and float(start.stamps[0]) == stamp, what
+            assert float(start.time_s[0]) == stamp, what
             if what.startswith("backward"):
-                before = blocks[j - 1]
-                assert float(start.stamps[0]) < (before[-1].t if isinstance(before, list) else float(before.stamps[-1]))
+                assert float(start.time_s[0]) < float(blocks[j - 1].time_s[-1])
         compare(cfg, log, tmp_path, (cuts,))
 
 
@@ -984,7 +977,7 @@ class TestChannels:
         assert summary["unmapped_channels"]["can2"] > 0
         assert {t["source"] for t in summary["trips"]} >= {"/battery_state", "axis0"}
         blocks = chunks_of(log, chunk)
-        singles = {b.channel for b in blocks if not isinstance(b, list)}
+        singles = {None if b.only_channel is None else b.channels[b.only_channel] for b in blocks}
         assert {"can0", "can1", None} <= singles  # blocks of one channel each, and mixed ones
         assert chunk > 1009 or "can2" in singles
 

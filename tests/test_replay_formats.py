@@ -100,14 +100,12 @@ class TestCandumpCompact:
         path.write_bytes(b"(1.0) can0 123#11\r\n(2.0) can0 124#22")
         assert [f.arbitration_id for f in read_log(path)] == [0x123, 0x124]
 
-    @pytest.mark.parametrize("numpy_after", [0, 1 << 62], ids=["numpy", "lines"])
-    def test_bom_and_line_ends(self, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, numpy_after: int) -> None:
+    def test_bom_and_line_ends(self, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
         """The reader reads bytes: a UTF-8 byte order mark, Windows and old-Mac line ends (some, or every one: a
         file of lone CRs longer than four blocks, plain or gzip'd), a block edge inside a \\r\\n and a junk byte
         read as text mode did (the same frames, the bad line at the same number)."""
         lines = [f"({T0 + i / 1000:.6f}) can0 {i % 0x7FF:03X}#{i % 256:02X}" for i in range(40)]
         clean = "".join(line + "\n" for line in lines).encode("ascii")
-        monkeypatch.setattr(candump, "NUMPY_AFTER_BLOCKS", numpy_after)
         for chunk in (64, 97, 1 << 19):
             monkeypatch.setattr(candump, "CHUNK_CHARS", chunk)
             expected = list(read_log(self._write(tmp_path, "clean.log", clean)))
@@ -126,8 +124,8 @@ class TestCandumpCompact:
         path.write_bytes(data)
         return path
 
-    def test_mixed_chunk_matches_line_parser(self, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-        """With tiny chunks (bulk and line-by-line paths interleaved) the frames are the same."""
+    def test_chunks_read_as_python_can_reads_the_log(self, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+        """Whole and in tiny chunks (every shape at a block's edge), the frames python-can's candump reader reads."""
         lines = [f"({T0 + i / 1000:.6f}) can{i % 2} {i % 0x7FF:03X}#{i % 256:02X}{'' if i % 7 else 'AA'}"
                  for i in range(300)]
         lines[17] = "(1547073727.900000) can0 123##1AABB"
@@ -136,8 +134,9 @@ class TestCandumpCompact:
         whole = _read(tmp_path, text)
         monkeypatch.setattr(candump, "CHUNK_CHARS", 97)
         chunked = _read(tmp_path, text, name="y.log")
-        expected = [candump._parse_line(line) for line in lines]
-        assert whole == chunked == expected
+        expected = [frame_from_message(m) for m in can.CanutilsLogReader(tmp_path / "x.log")]
+        expected[133] = _frame(1547073727.95, 0x80, bytes(8), is_extended_id=True, is_error_frame=True)  # python-can
+        assert whole == chunked == expected  # keeps neither the channel nor the id and data of an error frame
 
 
 class TestCandumpPlain:
@@ -443,11 +442,11 @@ class TestBadInput:
         assert msg.startswith(f"{tmp_path / 'x.log'}:50: ") and reason in msg
 
     def test_timestamps_of_several_widths_read_right(self, tmp_path: Path) -> None:
-        """Timestamps that gain a digit or have fewer decimals mid-block give the line parser's frames."""
+        """Timestamps that gain a digit or have fewer decimals mid-block give the frames python-can reads."""
         lines = [f"({9999.990 + i / 1000:.6f}) can0 123#{i:02X}" for i in range(20)]
         lines[5] = "(9999.9955) can0 123#05"
         text = "\n".join(lines) + "\n"
-        assert _read(tmp_path, text) == [candump._parse_line(line) for line in lines]
+        assert _read(tmp_path, text) == [frame_from_message(m) for m in can.CanutilsLogReader(tmp_path / "x.log")]
 
     def test_bad_line_in_a_later_chunk(self, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
         """Line numbers stay right across chunk boundaries."""

@@ -5,8 +5,7 @@ tests build, then:
 
 (a) ``read_log`` gives, frame for frame, what python-can's own MF4Reader yields
     (ids, data, flags, channel ``canN`` from MDF's bus channel N, timestamps), both
-    frame by frame and as the blocks of :mod:`canguard.io.pycan_blocks`, which must
-    be :class:`~canguard.io.candump.Columns` blocks where the rows allow;
+    frame by frame and in the blocks of :mod:`canguard.io.pycan` (:class:`~canguard.io.block.Block`);
 (b) the replay's column path on an MF4 log is held to the frame-by-frame reference
     (``test_replay_columns.compare``), at the reader's block size and a small one, and
     its summary is that of the same frames as a candump -L log;
@@ -32,9 +31,9 @@ from typing import Any
 import can
 import pytest
 
-import canguard.io.pycan_blocks
+import canguard.io.pycan
 from canguard.config.loader import load_config
-from canguard.io.candump import Columns
+from canguard.io.block import FLAG_ERROR, FLAG_FD, FLAG_REMOTE, Block
 from canguard.io.frame import Frame
 from canguard.io.logs import ReadStats, format_candump_line, frame_from_message, read_log
 from checkout import SRC
@@ -155,26 +154,18 @@ def test_frames_are_python_cans(built: tuple[list[can.Message], Path]) -> None:
 
 
 def test_blocks_are_the_frames(built: tuple[list[can.Message], Path], monkeypatch: pytest.MonkeyPatch) -> None:
-    """The reader's blocks and frame lists hold, in order, the frames; most rows go as Columns blocks.
-
-    Runs of one channel are blocks (FD and remote rows in them); the interleaved stretch
-    and error frames go as frames. At the reader's block size and a small one.
-    """
+    """The reader's blocks hold, in order, the frames (CAN FD, remote and error rows among them), at the reader's
+    block size and a small one."""
     _, path = built
     frames = list(read_log(path))
-    for block in (canguard.io.pycan_blocks.BLOCK, SMALL_BLOCK):
-        monkeypatch.setattr(canguard.io.pycan_blocks, "BLOCK", block)
+    for block in (canguard.io.pycan.BLOCK, SMALL_BLOCK):
+        monkeypatch.setattr(canguard.io.pycan, "BLOCK", block)
         parts = list(read_log(path).chunks())
-        assert [f for part in parts for f in (part if isinstance(part, list) else part.frames())] == frames
-        blocks = [part for part in parts if isinstance(part, Columns)]
-        assert {b.channel for b in blocks} == {"can0", "can1", "can2"}
-        assert sum(b.n for b in blocks) >= 0.8 * len(frames), f"blocks of {block}: most rows left the block path"
-        for b in blocks:
-            assert b.ordered and b.n >= canguard.io.pycan_blocks.MIN_BLOCK and set(b.chans) == {b.channel}
-            assert [b.frame(i) for i in range(b.n)] == list(b.frames())
-        assert any(b.fd for b in blocks) and any(b.remote for b in blocks)
-        listed = [f for part in parts if isinstance(part, list) for f in part]
-        assert sum(f.is_error_frame for f in listed) == sum(f.is_error_frame for f in frames) > 0
+        assert all(type(part) is Block for part in parts)
+        assert [f for part in parts for f in part.frames()] == frames
+        assert {name for b in parts for name in b.channels} == {"can0", "can1", "can2"}
+        flags = {int(f) for b in parts for f in b.flags.tolist()}
+        assert all(any(f & kind for f in flags) for kind in (FLAG_FD, FLAG_REMOTE, FLAG_ERROR)), flags
 
 
 # --------------------------------------------------------------------------- (b) replay
@@ -190,8 +181,8 @@ def test_replay_columns_against_reference(two_channels: tuple[Path, Path, Path],
     assert [f._replace(t=0.0) for f in got] == [f._replace(t=0.0) for f in frames]
     assert max(abs(g.t - f.t) for g, f in zip(got, frames, strict=True)) <= 1e-6
     summaries = []
-    for block in (canguard.io.pycan_blocks.BLOCK, SMALL_BLOCK):
-        monkeypatch.setattr(canguard.io.pycan_blocks, "BLOCK", block)
+    for block in (canguard.io.pycan.BLOCK, SMALL_BLOCK):
+        monkeypatch.setattr(canguard.io.pycan, "BLOCK", block)
         # one "chunk": compare()'s block sizes are candump's characters, not python-can's messages
         [col] = compare(cfg, mf4, tmp_path / f"b{block}", (DEFAULT_CHUNK,))
         assert col.column_blocks > 0, f"blocks of {block}: the column path never ran, so this proves nothing"

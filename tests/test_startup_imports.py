@@ -167,19 +167,6 @@ def test_unknown_command_error_names_every_command(capsys: pytest.CaptureFixture
     assert "invalid choice: 'bogus' (choose from " + ", ".join(repr(c) for c in COMMANDS) + ")" in err
 
 
-def test_a_long_log_is_read_by_numpy_from_its_first_block(tmp_path: Path) -> None:
-    """A candump log of 1 MiB or more is read by numpy from its first block."""
-    log = tmp_path / "long.log"
-    lines = ["(1700000000.000000) can0 009#0000204100000000\n", "(1700000000.000000) can0 7FF#00\n"]
-    log.write_text("".join(lines[i % 2].replace("000000)", f"{i:06d})") for i in range(30_000)), encoding="ascii")
-    assert log.stat().st_size >= 1 << 20
-    first = ("import sys\nfrom canguard.io.logs import read_log\nassert 'numpy' not in sys.modules\n"
-             f"print(type(next(iter(read_log('{log}').chunks()))).__name__)")
-    proc = subprocess.run([sys.executable, "-c", first], env={**os.environ, "PYTHONPATH": str(SRC)},
-                          capture_output=True, text=True, timeout=60, check=True)
-    assert proc.stdout.strip() == "ByteColumns"
-
-
 def test_candump_replay_imports_no_python_can(tmp_path: Path) -> None:
     """``canguard replay`` of a candump log never loads python-can (nor asyncio, nor pydot): cantools' bus test
     harness and py_trees' display are deferred to first use, and a config's built-in interface names are known

@@ -19,6 +19,7 @@ from typing import Any
 
 from canguard.cli.heap import lean_after
 from canguard.errors import ConfigError
+from canguard.io.bagopts import is_bag
 from canguard.io.logs import LOG_SUFFIXES
 from canguard.io.logtypes import COMPRESSIONS
 
@@ -41,8 +42,13 @@ def expand_logs(given: Sequence[Path]) -> list[Path]:
             out.append(item)
         elif text.startswith("@"):
             out.extend(_read_list(Path(text[1:])))
+        elif item.is_dir() and is_bag(item):
+            out.append(item)  # a rosbag2 directory: one log
         elif item.is_dir():
-            found = sorted(p for p in item.rglob("*") if p.is_file() and _is_log(p))
+            bags = sorted(p for p in item.rglob("metadata.yaml") if p.is_file())
+            inside = {b.parent for b in bags}
+            found = sorted([*(b.parent for b in bags), *(p for p in item.rglob("*") if p.is_file() and _is_log(p)
+                                                          and not inside.intersection(p.parents))])
             if not found:
                 raise ConfigError(f"replay: {item}: no log files in the directory (expected {', '.join(LOG_SUFFIXES)}, "
                                   f"optionally + {' / '.join(COMPRESSIONS)})")

@@ -6,7 +6,7 @@ kernel at once. Setting that variable also turns off glibc's adaptive thresholds
 allocation of 128 KiB or more is then a fresh ``mmap`` and every free of the heap's top
 64 KiB a trim, so a replay, which makes and frees such buffers block after block, faults the
 same pages in again and again. Measured on 16 logs of 600 k frames on a LocalCluster of two
-workers (``benchmarks/bench_fleet.py``): about 15,000 page faults per log, and 12-30 % more CPU
+workers (``python -m benchmarks fleet``'s set-up): about 15,000 page faults per log, and 12-30 % more CPU
 than the same replays in a plain process.
 
 :func:`keep_freed_memory` raises glibc's trim and mmap thresholds for as long as a replay runs

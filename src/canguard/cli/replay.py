@@ -14,7 +14,7 @@ import json
 import math
 import sys
 import uuid
-from collections.abc import Iterator
+from collections.abc import Callable
 from contextlib import ExitStack
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -38,6 +38,7 @@ from canguard.engine.core import Engine
 from canguard.engine.gate import LogSink
 from canguard.engine.routing import ChannelRouter, parse_map
 from canguard.errors import CanguardError, ConfigError, LogFormatError
+from canguard.io.bagopts import STAMPS, BagOptions, emits_bag
 from canguard.io.clock import ManualClock
 from canguard.io.frame import Frame
 from canguard.io.logtypes import COMPRESSIONS
@@ -61,6 +62,8 @@ class ReplayOptions:
     """``--export-signals``: this log's part file (see :mod:`canguard.report.export`)."""
     export_log: str = ""
     """The ``log`` column of its rows: the log as the user named it."""
+    bag: BagOptions = field(default_factory=BagOptions)
+    """ROS bags: the topics to read (``--topic``) and the stamps (``--stamp``)."""
     tune: bool = False
     """``canguard tune``'s statistics pass: the summary gets a ``tune`` entry (:mod:`canguard.report.tune`)."""
     tune_i2t: bool = False
@@ -88,33 +91,31 @@ def replay_one(cfg: Config, log_path: Path, opts: ReplayOptions) -> dict[str, An
     heat = HeatStore(opts.state, cfg.state.on_corrupt) if opts.state is not None else None
     stats = ReadStats()
     router = ChannelRouter(cfg, opts.channel_map)
-    frames: Iterator[Frame] = read_log(log_path, skip_bad=opts.skip_bad, stats=stats)
+    frames = read_log(log_path, skip_bad=opts.skip_bad, stats=stats, bag=opts.bag)
     if opts.progress:
         from canguard.io.progress import wrap_progress
 
         frames = wrap_progress(frames, log_path)  # attaches to the reader: before any wrapping
     with ExitStack() as stack:
         # --emit streams each frame to the file as it is sent: memory stays flat in the log's length.
-        out = stack.enter_context(open(opts.emit, "w", encoding="ascii")) if opts.emit is not None else None
-        sink = LogSink(clock.now, cfg.buses, out=out, keep=False)
+        bag_out = opts.emit is not None and emits_bag(opts.emit)
+        text_out = opts.emit is not None and not bag_out
+        out = stack.enter_context(open(opts.emit, "w", encoding="ascii")) if text_out and opts.emit else None
+        sink = LogSink(clock.now, cfg.buses, out=out, keep=bag_out or _mcap_export(opts))
         engine = Engine(cfg, clock, sink, events=journal, durable=False, heat=heat, save_heat=False)
         recorder = None
         if opts.plot is not None:
             from canguard.report.plot import Recorder
 
             recorder = Recorder(engine)
-        if opts.export is not None:
-            from canguard.report.export import SignalExport
-
-            # After the recorder: the export passes every sample on to it.
-            stack.callback(SignalExport(engine, opts.export, opts.export_log or str(log_path)).close)
+        _outputs(stack, engine, sink, opts, opts.export_log or str(log_path))  # after the recorder: it sees samples
         tuning = None
         if opts.tune:
             from canguard.report.tune import TuneStats
 
             tuning = TuneStats(engine, tune_i2t=opts.tune_i2t)
         try:
-            engine.run_log(frames, router.table, router.only, router.unmapped,
+            engine.run_log(frames.chunks(), router.table, router.only, router.unmapped,
                            router.channels if router.only is not None else None)
             if engine.stats.frames:
                 engine.advance(clock.now())
@@ -128,6 +129,62 @@ def replay_one(cfg: Config, log_path: Path, opts: ReplayOptions) -> dict[str, An
     if recorder is not None and opts.plot is not None:
         recorder.save(opts.plot, summary)
     return summary
+
+
+def _mcap_export(opts: ReplayOptions) -> bool:
+    """``--export-signals FILE.mcap``."""
+    return opts.export is not None and opts.export.suffix.lower() == ".mcap"
+
+
+def _outputs(stack: ExitStack, engine: Engine, sink: LogSink, opts: ReplayOptions, log: str) -> None:
+    """The exports a replay writes as it goes (``--export-signals``, ``--emit`` as a bag), each closed at the end;
+    the frames sent go to those that take them (kept by ``sink``, handed over after every tick and at the end)."""
+    watch = _AfterTicks(sink, engine.observer)
+    if opts.export is not None and _mcap_export(opts):
+        from canguard.report.mcapexport import McapExport
+
+        mcap = McapExport(engine, opts.export, log)
+        stack.callback(mcap.close)
+        watch.takers.append(mcap.sent)
+        watch.observers.append(mcap)
+    elif opts.export is not None:
+        from canguard.report.export import SignalExport
+
+        stack.callback(SignalExport(engine, opts.export, log).close)
+    if opts.emit is not None and emits_bag(opts.emit):
+        from canguard.io.bagwrite import BagEmit
+
+        emit = BagEmit(opts.emit)
+        stack.callback(emit.close)
+        watch.takers.append(emit.sent)
+    if watch.takers:
+        engine.observer = watch
+        stack.callback(watch.hand_over)  # the frames sent after the last tick: before the files close (LIFO)
+
+
+class _AfterTicks:
+    """After every tick that runs (the engine's observer: quiet ticks stay unrun): the frames sent go to their
+    takers, and the exports' observers see the tick."""
+
+    def __init__(self, sink: LogSink, previous: Any) -> None:
+        self.sink = sink
+        self.takers: list[Callable[[list[Frame]], None]] = []
+        self.observers: list[Any] = [previous] if previous is not None else []
+
+    def publish(self, engine: Any, now: float) -> None:
+        """A tick ran."""
+        for observer in self.observers:
+            observer.publish(engine, now)
+        self.hand_over()
+
+    def hand_over(self) -> None:
+        """The frames kept since the last call, to each taker."""
+        sink = self.sink
+        if sink.frames:
+            for take in self.takers:
+                take(sink.frames)
+            sink.frames.clear()
+            sink.origins.clear()
 
 
 FORMAT_SUFFIX = {"candump": ".log", "asc": ".asc", "blf": ".blf", "trc": ".trc", "csv": ".csv", "mf4": ".mf4"}
@@ -144,16 +201,25 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         description="What would the daemon have done on this log? Runs the same engine with the log's clock.",
     )
     p.add_argument("logs", nargs="+", type=Path, metavar="LOG",
-                   help="candump (-L, -l, plain, -ta), ASC, BLF, TRC, CSV, MF4, optionally .gz, .xz or .zst; "
+                   help="candump (-L, -l, plain, -ta), ASC, BLF, TRC, CSV, MF4, optionally .gz, .xz or .zst; a ROS bag "
+                        "(rosbag2 directory, .db3, .mcap, ROS 1 .bag); "
                         "'-' reads stdin (with --format); a directory, a quoted glob or @LIST (a file of paths) "
                         "replays every log it names")
+    p.add_argument("--topic", action="append", default=[], metavar="NAME",
+                   help="ROS bags: read this topic (repeatable; default: every topic of a CAN frame type); each "
+                        "topic is a channel named after it")
+    p.add_argument("--stamp", choices=STAMPS, default="header",
+                   help="ROS bags: a frame's time is its header.stamp (the record time where that is zero; "
+                        "default) or the time the bag recorded it")
     p.add_argument("--format", choices=sorted(FORMAT_SUFFIX), default=None,
                    help="the logs' format, instead of telling it by the file suffix (needed for '-')")
     p.add_argument("-c", "--config", type=Path, default=None, help="YAML config (default: as for `canguard run`)")
     p.add_argument("--map", action="append", default=[], metavar="CHANNEL=BUS",
                    help="route a log channel to a configured bus (repeatable)")
     p.add_argument("--events", type=Path, metavar="FILE", help="write the daemon's events (JSON lines)")
-    p.add_argument("--emit", type=Path, metavar="FILE", help="write the frames canguard would send (candump -L)")
+    p.add_argument("--emit", type=Path, metavar="FILE",
+                   help="write the frames canguard would send: candump -L, or as can_msgs/msg/Frame on /to_can_bus "
+                        "for FILE.mcap or a rosbag2 directory (a path without a suffix)")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.add_argument("--fail-on-trip", action="store_true",
                    help="exit 1 when any guard tripped, 3 when a configured source got no sample "
@@ -173,7 +239,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="plot currents, thresholds, I²t and stops (.png/.svg/.html)")
     p.add_argument("--export-signals", type=Path, metavar="FILE.parquet", default=None,
                    help="write every decoded sample (log, t, bus, source, signal, value, reason) to a Parquet "
-                        "file, one for all logs (extra 'fleet'; slower than a plain replay)")
+                        "file, one for all logs (extra 'fleet'; slower than a plain replay); FILE.mcap: an MCAP file "
+                        "per log for Foxglove: samples, guard levels and thresholds, events, frames sent")
     p.add_argument("--jobs", type=int, default=1, metavar="N", help="replay several logs in N processes")
     p.add_argument("--dask", metavar="SCHEDULER", default=None,
                    help="replay the logs on a Dask distributed cluster (tcp://host:8786; extra 'fleet')")
@@ -431,6 +498,16 @@ def _report(args: argparse.Namespace, results: list[tuple[dict[str, Any] | None,
     return EXIT_OK
 
 
+def _export_path(path: Path | None, log: Path, many: bool, index: int) -> Path | None:
+    """Where log number ``index`` writes ``--export-signals``: its Parquet part (joined after the run), or its own
+    MCAP file (``FILE.<log name>.mcap`` of several logs)."""
+    from canguard.report import export
+
+    if path is None:
+        return None
+    return per_log_path(path, log, many) if export.is_mcap(path) else export.part_path(path, index)
+
+
 def _replay_offline(cfg: Config, cfg_path: Path, args: argparse.Namespace, names: list[Path]) -> int:
     channel_map = parse_map(args.map, cfg)
     if args.export_signals is not None:
@@ -448,17 +525,17 @@ def _replay_offline(cfg: Config, cfg_path: Path, args: argparse.Namespace, names
             emit=per_log_path(args.emit, name, many), skip_bad=args.skip_bad, state=args.state,
             plot=per_log_path(args.plot, name, many),
             progress=sys.stderr.isatty() and args.jobs <= 1 and args.dask is None,
-            export=None if args.export_signals is None else export.part_path(args.export_signals, len(jobs)),
-            export_log=str(name),
+            export=_export_path(args.export_signals, name, many, len(jobs)),
+            export_log=str(name), bag=BagOptions(tuple(args.topic), args.stamp),
         )
         jobs.append((job_cfg, log, opts))
     try:
         results = run_jobs(args, cfg, jobs, pool)
     except BaseException:
-        if args.export_signals is not None:
+        if args.export_signals is not None and not export.is_mcap(args.export_signals):
             export.discard_parts([opts.export for _, _, opts in jobs])
         raise
-    if args.export_signals is not None:
+    if args.export_signals is not None and not export.is_mcap(args.export_signals):
         # In input order; a log that failed contributes no rows (its part may be cut short).
         export.combine_parts(args.export_signals, [opts.export for _, _, opts in jobs if opts.export is not None],
                              [summary is not None for summary, _ in results])

@@ -426,7 +426,7 @@ _Getter = Callable[[Lanes, Any], Column]
 def _compile(message: Any, wanted: list[Any], size: int) -> tuple[
         tuple[_Getter, ...], tuple[tuple[str, _Getter], ...], tuple[np.dtype, ...], bool] | None:
     """Each wanted signal's value getter, each multiplexer's raw getter, the dtypes they read, and whether a
-    value may overflow float64; None when the bit maths does not take the message."""
+    value may overflow float64 (or flag a signalling NaN); None when the bit maths does not take the message."""
     if getattr(message, "is_container", False):
         return None
     muxes = [s for s in message.signals if s.is_multiplexer]
@@ -506,7 +506,8 @@ def _float_lane(signal: Any, size: int, dtypes: _Views) -> _Getter | None:
 
 
 def _value(signal: Any, size: int, dtypes: _Views) -> tuple[_Getter, bool] | None:
-    """``signal``'s physical value as float64 (cantools' value, ``float()``-ed), and whether it may overflow."""
+    """``signal``'s physical value as float64 (cantools' value, ``float()``-ed), and whether numpy may flag it
+    (an overflow, a float32 signalling NaN)."""
     length = int(signal.length)
     if not _linear(signal) or (signal.is_float and length not in (32, 64)):
         return None
@@ -519,7 +520,7 @@ def _value(signal: Any, size: int, dtypes: _Views) -> tuple[_Getter, bool] | Non
     if signal.is_float:
         raw = lane if lane is not None else _float_bits(bits, length)  # type: ignore[arg-type]
         if identity:
-            return raw, False
+            return raw, length == 32  # a float32 signalling NaN flags "invalid" as it becomes a float64 NaN
         return (lambda lanes, at: raw(lanes, at) * scale + offset), True
     assert bits is not None
     return _integer(bits, length, bool(signal.is_signed), scale, offset), abs(scale) > 1e250

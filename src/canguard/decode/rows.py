@@ -119,18 +119,6 @@ class ColumnRows(Sequence[Row]):
                 keep &= ~mask
         return keep
 
-    def split(self, sizes: Sequence[int]) -> list[ColumnRows]:
-        """The rows cut in consecutive parts of ``sizes`` rows (summing to :attr:`n`), each rows of its own."""
-        parts = []
-        at = 0
-        for size in sizes:
-            cut = slice(at, at + size)
-            parts.append(ColumnRows(size, [column[cut] for column in self.columns],
-                                    None if self.fed is None else self.fed[cut],
-                                    None if self.empty is None else self.empty[cut]))
-            at += size
-        return parts
-
     def valued_rows(self, keep: np.ndarray) -> ColumnRows:
         """The rows ``keep`` (a mask: :meth:`valued`, or fewer) as rows of their own, each with its values."""
         return ColumnRows(int(keep.sum()), [column[keep] for column in self.columns], None, None)
@@ -243,13 +231,3 @@ def keep_valued(stamps: Sequence[Any], rows: Sequence[Row]) -> tuple[Sequence[An
         rows = rows.rows()
     keep = list(map(bool, rows))
     return list(compress(stamps, keep)), list(compress(rows, keep))
-
-
-def placed(n: int, good: list[int] | None, found: Sequence[Row]) -> Sequence[Row]:
-    """``n`` rows of which those at positions ``good`` (None: all) are ``found``; the others None (to feed)."""
-    if good is None:
-        return found
-    result: list[Row] = [None] * n
-    for k, row in zip(good, found.rows() if type(found) is ColumnRows else found, strict=True):
-        result[k] = row
-    return result

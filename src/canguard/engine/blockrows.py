@@ -10,7 +10,6 @@ what a tick sees, every row of the block (:mod:`canguard.engine.settle`).
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
-from itertools import groupby
 from operator import itemgetter
 from typing import TYPE_CHECKING, Any
 
@@ -18,14 +17,14 @@ from canguard.engine.lanes import runs_by_key
 
 if TYPE_CHECKING:
     from canguard.engine.blocks import MessagePlan
-    from canguard.io.candump import Columns
-    from canguard.io.candump_np import ByteColumns
+    from canguard.io.block import Block
 
 
 def decode_rows(
-    plans: Mapping[str | int, MessagePlan | None], rows: Any, cols: Columns | ByteColumns, ts: Sequence[Any],
+    plans: Mapping[int, MessagePlan | None], rows: Any, block: Block, ts: Sequence[Any],
     settle: bool = False, keys: Any = None, taken: list[tuple[MessagePlan, Any, Sequence[Any]]] | None = None,
     horizon: Callable[[Mapping[int, Mapping[str, float]]], float] | None = None,
+    touched: set[MessagePlan] | None = None,
 ) -> list[tuple[MessagePlan | None, tuple[float, ...] | None] | None] | None:
     """Per row of the block: its plan and decoded values when it goes one by one (else None); None: no row left.
 
@@ -33,43 +32,40 @@ def decode_rows(
     nobody reads between ticks may take its rows whole (:meth:`MessagePlan.batch`,
     before any row of the block: it stores its state as at the end of the block,
     which every tick in the block reads as it would have read the row-by-row state);
-    rows without a configured signal are only counted; remote rows go to the frame decoder. When no
+    rows without a configured signal are only counted; remote and error rows go to the frame decoder. When no
     configured row of the block can change what a tick sees, every message's rows are
     taken whole (:mod:`canguard.engine.settle`) and None is returned; only with ``settle``
     (the last tick was a fixed point: no tick in the block changes a guard's status by itself).
-    ``ts``: the block's times (a numpy block's array). ``taken``, when given, receives each message's
-    (plan, rows, decoded values) (``--export-signals``).
+    ``ts``: the block's times; ``keys``: each row's key in ``plans`` (:attr:`Block.keys
+    <canguard.io.block.Block.keys>`, plus a channel's lane). ``taken``, when given, receives each message's
+    (plan, rows, decoded values) (``--export-signals``); ``touched``, when given, each plan that took rows.
     """
     from canguard.decode.rows import EMPTY, count_empty  # imported when a block is first decoded
 
-    groups: dict[MessagePlan | None, Any] = {}  # each message's rows: a list, or a numpy block's index array
-    remote = cols.remote
-    if remote:
-        groups[None] = [i for i in rows if i in remote]
-        rows = [i for i in rows if i not in remote]
-    # rows by id (a stable sort keeps each id's rows in time order), in C but for one step per id
-    if keys is not None:
-        runs: Any = runs_by_key(keys, rows)
-    else:
-        ids: Sequence[Any] = cols.ids
-        runs = groupby(sorted(rows, key=ids.__getitem__), key=ids.__getitem__)
-    for text, same in runs:
-        plan = plans[text]
+    groups: dict[MessagePlan | None, Any] = {}  # each message's rows: an index array
+    special = block.special
+    if special.size:
+        import numpy as np
+
+        picked = np.asarray(rows, dtype=np.intp)
+        odd = np.isin(picked, special)
+        groups[None] = picked[odd]
+        rows = picked[~odd]
+    for key, same in runs_by_key(keys, rows):  # rows by id, each in time order
+        plan = plans[key]
         group = groups.get(plan)
-        if group is None:
-            groups[plan] = same if keys is not None else list(same)
-        else:  # another letter case of the same id, another channel's rows of one bus, a second message without a plan
-            groups[plan] = sorted([*group, *same])
-    slots: list[tuple[MessagePlan | None, tuple[float, ...] | None] | None] = [None] * cols.n
+        groups[plan] = same if group is None else sorted([*group, *same])  # a second id without a plan
+    slots: list[tuple[MessagePlan | None, tuple[float, ...] | None] | None] = [None] * block.n
     active: list[tuple[MessagePlan, Any, Sequence[tuple[float, ...] | None], Callable[[Any], Any]]] = []
-    together = _decoded_together(cols, groups) if keys is not None else {}
     for plan, group in groups.items():
         if plan is None:
             for i in list(group):
                 slots[i] = (None, None)
             continue
+        if touched is not None:
+            touched.add(plan)
         pick = _picker(group)
-        decoded = together[plan] if plan in together else plan.decode(cols, group)
+        decoded = plan.decode(block, group)
         if taken is not None:
             taken.append((plan, group, decoded))
         if plan.passive and plan.batch(pick(ts), decoded):
@@ -88,27 +84,6 @@ def decode_rows(
                 slots[i] = (plan, values)
         plan.count_empty(empty)
     return slots
-
-
-def _decoded_together(cols: Any, groups: dict[MessagePlan | None, Any]) -> dict[MessagePlan, Sequence[Any]]:
-    """The decoded rows of the block's messages whose payloads are cut together (:func:`_cut_payloads`)."""
-    return {plan: plan.decode(cols, groups[plan], payload) for plan, payload in _cut_payloads(cols, groups).items()}
-
-
-def _cut_payloads(cols: Any, groups: dict[MessagePlan | None, Any]
-                  ) -> dict[MessagePlan, tuple[list[int] | None, bytes]]:
-    """The payloads of the block's messages, cut together per payload size when several are: one numpy pass
-    instead of one slice-and-join each (on a log of many ids, ~20 messages of ~20 rows in a block)."""
-    by_size: dict[int, list[tuple[MessagePlan, Any]]] = {}
-    for plan, group in groups.items():
-        if plan is not None and not plan.counter:
-            by_size.setdefault(plan.hex_size, []).append((plan, group))
-    cut: dict[MessagePlan, tuple[list[int] | None, bytes]] = {}
-    for size, members in by_size.items():
-        if len(members) > 1:
-            for (plan, _group), payload in zip(members, cols.payloads([g for _p, g in members], size), strict=True):
-                cut[plan] = payload
-    return cut
 
 
 def _settled(active: list[tuple[MessagePlan, Any, Sequence[Any], Callable[[Any], Any]]],

@@ -2,8 +2,8 @@
 
 A block of frames (:meth:`Engine.take <canguard.engine.core.Engine.take>`: a live bus's
 queue drained, or a log's block) reaches the engine's block runner
-(:class:`~canguard.engine.logrun.LogRun`). In a column block (:class:`~canguard.io.logs.Columns`,
-:class:`~canguard.io.candump_np.ByteColumns`) the rows of each configured message are
+(:class:`~canguard.engine.logrun.LogRun`). In a block (:class:`~canguard.io.block.Block`) the rows of each
+configured message are
 decoded together (:meth:`MessagePlan.decode`: the message's :class:`~canguard.decode.message.MessageDecoder`,
 the same object that decodes a live frame; checked together: NaN, inf, the DBC range, the
 multiplexer, presence flags).
@@ -30,8 +30,7 @@ from collections.abc import Callable, Collection, Sequence
 from typing import TYPE_CHECKING, Any
 
 from canguard.decode.decoder import row_samples
-from canguard.decode.rows import Row, abs_range, clean, last_row, max_gap, placed
-from canguard.io.logtypes import joined_hex
+from canguard.decode.rows import Row, abs_range, clean, last_row, max_gap
 from canguard.protect.staleness import ROW_ROLES
 
 if TYPE_CHECKING:
@@ -39,8 +38,7 @@ if TYPE_CHECKING:
     from canguard.decode.decoder import DecodeCounters
     from canguard.decode.message import MessageDecoder
     from canguard.engine.stats import EngineStats
-    from canguard.io.candump import Columns
-    from canguard.io.candump_np import ByteColumns
+    from canguard.io.block import Block
     from canguard.io.frame import Sample
 
 
@@ -59,7 +57,6 @@ class MessagePlan:
         message = entry.message
         self.message = message
         self.length = int(message.length)
-        self.hex_size = 2 * self.length
         self.frame_id = int(message.frame_id)
         self.outputs: list[tuple[str, str, str, bool, Any, float, float, tuple[Any, ...]]] = []
         """(source, role, signal, present, health, lo, hi, models) of each configured signal."""
@@ -102,36 +99,18 @@ class MessagePlan:
             self.step = self._single_step()  # type: ignore[method-assign,assignment]
 
     # -- the columns -------------------------------------------------------------------
-    def decode(self, cols: Columns | ByteColumns, rows: Any,
-               payload: tuple[list[int] | None, bytes] | None = None) -> Sequence[Row]:
+    def decode(self, block: Block, rows: Any) -> Sequence[Row]:
         """Each of ``rows``' configured values (in output order), ``EMPTY``, or None: the row goes to the frame decoder.
 
         The rows :meth:`MessageDecoder.decode <canguard.decode.message.MessageDecoder.decode>`
-        gives (None: a wrong length, a payload cantools would refuse, a value NaN, infinite
-        or outside the DBC range, a presence flag at 0, some configured signals of a
-        multiplexed message but not all); every row when the message carries an alive counter
-        or a drive's health role. ``payload``: what ``cols.payload(rows, size)`` gives, when
-        already cut.
+        gives over ``rows``' payloads and lengths (None: a wrong length, a payload cantools would
+        refuse, a value NaN, infinite or outside the DBC range, a presence flag at 0, some
+        configured signals of a multiplexed message but not all); every row when the message
+        carries an alive counter or a drive's health role.
         """
-        n = len(rows)
         if self.counter:
-            return [None] * n
-        size = self.hex_size
-        good: list[int] | None
-        data: Any
-        if payload is not None:
-            good, data = payload
-        elif not isinstance(cols, tuple):  # ByteColumns (numpy, imported only with it): straight from the bytes
-            good, data = cols.payload(rows, size)
-        else:
-            good, data = joined_hex(list(map(cols.data.__getitem__, rows)), size)
-        count = n if good is None else len(good)
-        if not count:
-            return [None] * n
-        import numpy as np
-
-        block = np.frombuffer(data, dtype=np.uint8).reshape(count, self.length)
-        return placed(n, good, self.entry.decode(block, np.full(count, self.length)))
+            return [None] * len(rows)
+        return self.entry.decode(block.payload[rows], block.length[rows])
 
     # -- one row: the row step (every frame of this message, live or replayed, takes it) -------
     def step(self, values: tuple[float, ...], t: float) -> bool:

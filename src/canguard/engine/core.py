@@ -40,14 +40,13 @@ from canguard.engine.logrun import MAX_CATCH_UP_S, LogCursor, LogRun
 from canguard.engine.quiet import QuietTicks
 from canguard.engine.stats import EngineStats, EventSink, TickObserver
 from canguard.engine.watch import SourceWatch
+from canguard.io.block import Block
 from canguard.io.clock import Clock, PinnedClock
 from canguard.io.frame import Frame
 from canguard.protect.base import LatchedModel
 
 if TYPE_CHECKING:
     from canguard.bt.loader import GuardView
-    from canguard.io.candump import Columns
-    from canguard.io.candump_np import ByteColumns
 
 log = logging.getLogger(__name__)
 
@@ -68,9 +67,6 @@ class Engine:
     (:class:`LogRun`: every block of frames, live or recorded, through one row step: :meth:`take`).
     """
 
-    columns = True
-    """:meth:`run_log` takes a log's column blocks as columns (False: every frame a block of one, as a quiet live
-    bus gives them: the differential tests' reference)."""
     replay_quiet_ticks = True
     """What :meth:`run_log` sets :attr:`elide_ticks` to (the differential tests turn it off for their reference)."""
 
@@ -265,7 +261,7 @@ class Engine:
         self.journal.flush()
 
     # -- frames in -------------------------------------------------------------------------
-    def take(self, bus: str | None, block: Iterable[Frame] | Columns | ByteColumns) -> None:
+    def take(self, bus: str | None, block: Block) -> None:
         """Process a block of frames received on ``bus``, in order: the one way frames come in.
 
         The live daemon drains its receive queue into a block (one frame on a quiet bus);
@@ -288,7 +284,7 @@ class Engine:
         """Process one frame received on ``bus`` at ``frame.t``: :meth:`take` of a block of one."""
         cursor = self._live
         cursor.route, cursor.default_bus = _NO_ROUTE, bus
-        self._blocks.take((frame,), cursor)
+        self._blocks.take(Block.of_frames((frame,)), cursor)
 
     def arrive(self, t: float) -> None:
         """A frame at ``t`` comes in: the latest frame time moves (or it is counted as out of order), the engine
@@ -605,8 +601,8 @@ class Engine:
 
     # -- recorded logs -----------------------------------------------------------------------
     def run_log(
-        self, frames: Iterable[Frame], route: Mapping[str, str], default_bus: str | None,
+        self, blocks: Iterable[Block], route: Mapping[str, str], default_bus: str | None,
         unmapped: dict[str, int], channels: dict[str, int] | None = None,
     ) -> None:
         """Take a recorded log's blocks, each channel routed to a bus, through :class:`LogRun` (as :meth:`take`)."""
-        self._blocks.run(frames, route, default_bus, unmapped, channels)
+        self._blocks.run(blocks, route, default_bus, unmapped, channels)

@@ -7,15 +7,19 @@ One event is one line of JSON appended to the ``events:`` file of the config::
 
 Guarantees the daemon relies on:
 
-- **Nothing written is lost to a crash of the daemon.** :meth:`EventJournal.write`
-  hands the whole line to the kernel with one ``os.write`` on an ``O_APPEND``
-  descriptor before it returns, so a ``kill -9`` right after it loses nothing;
-  :meth:`EventJournal.flush` (the engine calls it once per tick batch) adds
-  ``os.fsync`` so a power cut does not either. The live daemon's journal
-  (``sync_in_background=True``) hands that ``fsync`` to a thread of its own: a
-  disk that takes milliseconds to sync (an SD card, a busy disk) must not hold up
-  the loop that receives the next frame; the lines are durable a sync later, and
-  :meth:`EventJournal.close` still syncs before it returns.
+- **A line is whole, and nothing flushed is lost to a crash of the daemon.**
+  :meth:`EventJournal.write` hands the whole line to the kernel with one ``os.write``
+  on an ``O_APPEND`` descriptor before it returns, so a ``kill -9`` after it loses
+  nothing and never leaves half a line (the engine's
+  :class:`~canguard.engine.journal.Journal` holds a tick's events until the tick's
+  frames are sent, then writes them here at its flush).
+- **A power cut loses at most the last** ``sync_interval_s`` **(0.2 s).**
+  :meth:`EventJournal.flush` ``fsync``s the file. The live daemon's journal
+  (``sync_in_background=True``) hands that ``fsync`` to a thread of its own and
+  coalesces them: at most one ``fsync`` every ``sync_interval_s``, whatever the
+  number of flushes (on a VM or an SD card one ``fsync`` can stall the machine for
+  milliseconds). A flushed line is on the disk within ``sync_interval_s`` plus the
+  time the disk takes to sync; :meth:`EventJournal.close` syncs before it returns.
 - **Only appended.** Opening never truncates. Rotation by size renames
   ``events.jsonl`` to ``events.jsonl.1`` after shifting the older backups up
   (``.1`` -> ``.2`` -> ``.3`` ...) and by default never deletes one, so every line
@@ -35,9 +39,11 @@ from __future__ import annotations
 import errno
 import json
 import logging
+import math
 import os
 import sys
 import threading
+import time
 from collections import deque
 from collections.abc import Mapping
 from pathlib import Path
@@ -58,6 +64,9 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 DEFAULT_MAX_BYTES = 16 * 1024 * 1024
+
+SYNC_INTERVAL_S = 0.2
+"""A background-syncing journal's shortest time between two ``fsync``s: how long a flushed line may lag on disk."""
 
 _PENDING_MAX = 10_000
 """Lines kept in memory while the disk refuses them (full, read-only); older ones are dropped then."""
@@ -89,11 +98,14 @@ class EventJournal:
         backups: int | None = None,
         *,
         sync_in_background: bool = False,
+        sync_interval_s: float = SYNC_INTERVAL_S,
     ) -> None:
         if max_bytes <= 0:
             raise ValueError(f"max_bytes must be > 0, got {max_bytes}")
         if backups is not None and backups < 1:
             raise ValueError(f"backups must be None (keep all) or >= 1, got {backups}")
+        if not sync_interval_s >= 0:
+            raise ValueError(f"sync_interval_s must be >= 0, got {sync_interval_s}")
         self.path: Path | None = None if path is None else Path(path)
         self.max_bytes = int(max_bytes)
         self.backups = backups
@@ -120,8 +132,12 @@ class EventJournal:
         self._lock = threading.Lock()
         if self.path is not None:
             self._open()
+        self.sync_interval_s = float(sync_interval_s)
+        """With ``sync_in_background``: the shortest time between two ``fsync``s (flushes in between share one)."""
+        self.syncs = 0
+        """``fsync``s of the file done so far (rotation's and close's included)."""
         self._sync_due = threading.Event()
-        self._sync_stop = False
+        self._sync_stop = threading.Event()
         self._syncer: threading.Thread | None = None
         if sync_in_background and self.path is not None:
             self._syncer = threading.Thread(target=self._sync_loop, name="canguard-journal-fsync", daemon=True)
@@ -162,6 +178,7 @@ class EventJournal:
         """Rename the full file to ``.1`` after shifting older backups up; open a fresh one."""
         assert self.path is not None and self._fd is not None
         os.fsync(self._fd)
+        self.syncs += 1
         os.close(self._fd)
         self._fd = None
         self._dirty = False
@@ -286,17 +303,21 @@ class EventJournal:
                         self._sync_due.set()  # the sync thread waits for the disk, the caller does not
                         return
                     os.fsync(self._fd)
+                    self.syncs += 1
                     self._dirty = False
             except OSError as exc:
                 self._failed(exc, "fsync")
 
     def _sync_loop(self) -> None:
-        """The sync thread: ``fsync`` a duplicate of the file's descriptor, outside the lock, when asked."""
+        """The sync thread: when asked, and no sooner than ``sync_interval_s`` after its last one, ``fsync`` a
+        duplicate of the file's descriptor outside the lock; flushes meanwhile share that ``fsync``."""
+        last = -math.inf
         while True:
             self._sync_due.wait()
-            self._sync_due.clear()
-            if self._sync_stop:
-                return
+            wait_s = last + self.sync_interval_s - time.monotonic()
+            if (wait_s > 0 and self._sync_stop.wait(wait_s)) or self._sync_stop.is_set():
+                return  # close() syncs what is left itself
+            self._sync_due.clear()  # a flush from here on asks for the next fsync
             with self._lock:
                 if not self._dirty or self._fd is None:
                     continue
@@ -306,8 +327,11 @@ class EventJournal:
                     self._failed(exc, "fsync")
                     continue
                 self._dirty = False
+            last = time.monotonic()
             try:
                 os.fsync(fd)
+                with self._lock:
+                    self.syncs += 1
             except OSError as exc:
                 with self._lock:
                     self._dirty = True
@@ -318,7 +342,7 @@ class EventJournal:
     def close(self) -> None:
         """Flush, fsync and close the file; later writes raise ValueError. Idempotent."""
         if self._syncer is not None:  # from here on flush() syncs itself, before close returns
-            self._sync_stop = True
+            self._sync_stop.set()
             self._sync_due.set()
             self._syncer.join()
             self._syncer = None

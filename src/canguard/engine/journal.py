@@ -1,8 +1,13 @@
-"""The engine's journal: every event of one engine, stamped, counted and written to its sink.
+"""The engine's journal: every event of one engine, stamped, counted, and recorded after the frames it caused.
 
 The engine, its task gate and the daemon around it write their events here
-(:meth:`Journal.write`); :meth:`Journal.flush` makes them durable (the engine calls it
-once per batch of ticks, the daemon after events of its own: a reload, a bus reopened).
+(:meth:`Journal.write`): each is stamped and counted at once, and held in memory.
+:meth:`Journal.flush` records the held events, in the order written, to the sink
+(and the live view), then makes them durable. The engine flushes at the end of
+every tick and every :meth:`~canguard.engine.core.Engine.advance`, the daemon after
+events of its own (a reload, a bus reopened). So the stop frames of a trip leave
+before anything is recorded about it: the trip and the stop are written once the
+tick that sent the frames is over, with the times they happened at.
 """
 
 from __future__ import annotations
@@ -15,7 +20,8 @@ from canguard.engine.stats import EventSink
 
 
 class Journal:
-    """Stamps events with the clock's time, counts them by name and writes them to ``sink`` (when given)."""
+    """Stamps events with the clock's time, counts them by name, and records them to ``sink`` (when given) at
+    :meth:`flush`."""
 
     def __init__(
         self,
@@ -30,27 +36,33 @@ class Journal:
         self.durable = durable
         """False: :meth:`flush` never fsyncs (replay writes a journal nobody reads during the run)."""
         self.on_event = on_event
-        """Also called with every event (the live view, the realtime replay)."""
+        """Also called with every event, at :meth:`flush` (the live view, the realtime replay)."""
         self.seen: Counter[str] = Counter()
         """How many events of each name were written (summaries count escalations...); bounded, live for weeks."""
         self.written = 0
-        """Events written so far (a quiet stretch of ticks ends at any event)."""
+        """Events written so far, held ones included (a quiet stretch of ticks ends at any event)."""
+        self._held: list[dict[str, Any]] = []
         self._dirty = False
 
     def write(self, event: dict[str, Any]) -> None:
-        """Record one event; ``t`` is the clock's time unless the event has one."""
+        """Take one event, recorded at the next :meth:`flush`; ``t`` is the clock's time now unless it has one."""
         if "t" not in event:
             event = {"t": self.now(), **event}
         self.seen[str(event.get("event"))] += 1
         self.written += 1
-        if self.sink is not None:
-            self.sink.write(event)
-            self._dirty = True
-        if self.on_event is not None:
-            self.on_event(event)
+        self._held.append(event)
 
     def flush(self) -> None:
-        """Make the events written since the last flush durable (when the journal is)."""
+        """Record the events held, in order, and make them durable (when the journal is)."""
+        if self._held:
+            held, self._held = self._held, []
+            sink, on_event = self.sink, self.on_event
+            for event in held:
+                if sink is not None:
+                    sink.write(event)
+                    self._dirty = True
+                if on_event is not None:
+                    on_event(event)
         if self._dirty and self.durable and self.sink is not None:
             self.sink.flush()
             self._dirty = False

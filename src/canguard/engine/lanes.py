@@ -1,7 +1,7 @@
-"""Which rows of a numpy block the replay engine looks at, and on which bus: numpy over the block's id keys.
+"""Which rows of a block the engine looks at, and on which bus: numpy over the block's id keys.
 
-A :class:`~canguard.io.candump_np.ByteColumns` block carries its ids as integer keys
-(:func:`~canguard.io.logtypes.id_key`) and, when it mixes channels, each row's channel
+A :class:`~canguard.io.block.Block` carries its ids as integer keys
+(:attr:`~canguard.io.block.Block.keys`) and, when it mixes channels, each row's channel
 (``lanes``). The engine's plans are per bus; a block whose channels go to several buses is
 looked up with one key per (channel, id): the id key plus the channel's index times :data:`LANE`.
 """
@@ -23,18 +23,18 @@ _STANDARD = 0x800
 
 
 def key_table(plans: Mapping[Any, Any]) -> tuple[Any, Any]:
-    """The integer keys of ``plans`` (:func:`~canguard.io.candump_np.id_key`, plus a channel's :data:`LANE`s): a
-    table of the standard ones, :data:`_STANDARD` entries per channel; all, sorted."""
+    """The integer keys of ``plans`` (:attr:`Block.keys <canguard.io.block.Block.keys>`, plus a channel's
+    :data:`LANE`s): a table of the standard ones, :data:`_STANDARD` entries per channel; all, sorted."""
     import numpy as np
 
-    known = [k for k in plans if type(k) is int]
+    known = list(plans)
     table = np.zeros(_STANDARD * (1 + max((k // LANE for k in known), default=0)), dtype=bool)
     table[[k // LANE * _STANDARD + k % LANE for k in known if k % LANE < _STANDARD]] = True
     return table, np.array(sorted(known), dtype=np.int64)
 
 
 def configured_rows(keys: Any, tables: tuple[Any, Any]) -> Any:
-    """The rows of a numpy block (:class:`~canguard.io.candump_np.ByteColumns`) whose id key has a plan, as an
+    """The rows of a block whose id key has a plan, as an
     index array (made a list only when the block's rows go one by one)."""
     import numpy as np
 
@@ -51,13 +51,15 @@ def configured_rows(keys: Any, tables: tuple[Any, Any]) -> Any:
 
 
 def runs_by_key(keys: Any, rows: Any) -> list[tuple[int, Any]]:
-    """``rows`` of a numpy block (a list or an index array) grouped by id key, each group an index array in row
+    """``rows`` of a block (a list or an index array) grouped by id key, each group an index array in row
     order (numpy's stable sort)."""
     import numpy as np
 
     if not len(rows):
         return []
     picked = np.asarray(rows, dtype=np.intp)
+    if picked.size == 1:  # a live frame's block: one group
+        return [(int(keys[picked[0]]), picked)]
     of = keys[picked]
     order = np.argsort(_radix_keys(of), kind="stable")
     ranked = of[order]
@@ -82,7 +84,6 @@ def _radix_keys(of: Any) -> Any:
     return of
 
 
-def lane_plans(plans_of: list[Mapping[str | int, Any]]) -> dict[int, Any]:
+def lane_plans(plans_of: list[Mapping[int, Any]]) -> dict[int, Any]:
     """One plan table over the channels of a block: channel ``c``'s id key ``k`` is ``k + c * LANE``."""
-    return {key + lane * LANE: plan for lane, plans in enumerate(plans_of) for key, plan in plans.items()
-            if type(key) is int}
+    return {key + lane * LANE: plan for lane, plans in enumerate(plans_of) for key, plan in plans.items()}

@@ -17,17 +17,12 @@ import math
 from bisect import bisect_left
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
-from itertools import compress
 from typing import TYPE_CHECKING, Any, Protocol
 
 from canguard.engine.blockrows import decode_rows
 from canguard.engine.lanes import LANE, configured_rows, key_table, lane_plans
+from canguard.io.block import EXT_KEY, Block
 from canguard.io.frame import Frame
-from canguard.io.logtypes import id_key
-
-_FRAME_LISTS = (tuple, list)
-"""The exact types of a block of frames (a live bus's drained queue, :meth:`Engine.feed`'s block of one): told
-apart from a column block (a tuple subclass) without asking for its attributes."""
 
 MAX_CATCH_UP_S = 2.0
 """Longest stretch of missed ticks the engine replays one by one after a gap (see :meth:`Engine.advance`)."""
@@ -41,9 +36,7 @@ if TYPE_CHECKING:
     from canguard.engine.blocks import MessagePlan
     from canguard.engine.quiet import QuietTicks
     from canguard.engine.stats import EngineStats
-    from canguard.io.candump_np import ByteColumns
     from canguard.io.clock import PinnedClock
-    from canguard.io.logs import Columns
 
 
 class Engine(Protocol):
@@ -56,7 +49,6 @@ class Engine(Protocol):
     metrics: Any
     quiet: QuietTicks
     clock: PinnedClock
-    columns: bool
     replay_quiet_ticks: bool
     elide_ticks: bool
     sample_hook: Callable[[Any], None] | None
@@ -84,66 +76,51 @@ class LogRun:
         self.stats = engine.stats
         self.ctx = engine.ctx
         self._wanted = frozenset(self.decoder.keys())
-        self._plans: dict[str, dict[str | int, MessagePlan | None]] = {}
-        """Per bus: id text -> the column plan of the replay block path (see :mod:`canguard.engine.blocks`)."""
+        self._plans: dict[str, dict[int, MessagePlan | None]] = {}
+        """Per bus: id key -> the message's plan (see :mod:`canguard.engine.blocks`)."""
         self._plan_tables: dict[str, tuple[Any, Any]] = {}
-        """Per bus: the integer keys of :attr:`_plans`, as numpy blocks look them up (:func:`.lanes.key_table`)."""
+        """Per bus: the keys of :attr:`_plans`, as blocks look them up (:func:`.lanes.key_table`)."""
         self._lane_plans: dict[tuple[str, ...], tuple[dict[int, MessagePlan | None], tuple[Any, Any]]] = {}
-        """Per channels-to-buses of a numpy block that mixes buses: its plans and their key table (:mod:`.lanes`)."""
-        self._plan_list: dict[str, list[MessagePlan]] = {}
-        """Per bus: every plan, flushed at the end of each column block of the bus."""
+        """Per channels-to-buses of a block that mixes buses: its plans and their key table (:mod:`.lanes`)."""
         self._by_key: dict[tuple[str, int, bool], MessagePlan] = {}
         """Every plan by the decoder's key, ``(bus, arbitration_id, is_extended_id)``: a frame's plan in one lookup."""
         self._touched: set[MessagePlan] = set()
-        """The plans that took frames decoded by the frame decoder in this block (flushed at its end)."""
+        """The plans that took rows of this block (flushed at its end)."""
 
     def run(
-        self, frames: Iterable[Frame], route: Mapping[str, str], default_bus: str | None,
+        self, blocks: Iterable[Block], route: Mapping[str, str], default_bus: str | None,
         unmapped: dict[str, int], channels: dict[str, int] | None = None,
     ) -> None:
-        """Feed a recorded log: each frame goes to the bus its channel maps to (``route``, else ``default_bus``).
+        """Feed a recorded log's blocks: each frame goes to the bus its channel maps to (``route``, else
+        ``default_bus``); ``channels``, when given, counts the frames of each channel.
 
-        Frames of no configured message (most of a busy bus) take a short path: they are
-        counted as the decoder would count them and never decoded. Nothing else changes:
-        ticks and gate deadlines still run at their own times, brought up by the first
-        frame at or after them, exactly as if every frame had been fed; the first frame
-        is always fed (it starts the engine's clock). ``channels``, when given, counts
-        the frames of each channel.
-
-        ``frames`` may be a reader with a ``chunks()`` method (:func:`canguard.io.logs.read_log`):
-        a column block (:class:`~canguard.io.logs.Columns`: plain candump text, or python-can
-        messages) of one channel whose timestamps never go back is then worked on as columns: only its configured rows
-        become frames, and its other rows are looked at only where a tick falls due among
-        them (a bisection over the block's timestamps).
+        Frames of no configured message (most of a busy bus) are counted as the decoder would
+        count them and never decoded. Nothing else changes: ticks and gate deadlines still run
+        at their own times, brought up by the first frame at or after them (a bisection over
+        the block's times), exactly as if every frame had been fed; the first frame is always
+        fed (it starts the engine's clock).
         """
         cursor = LogCursor(route, default_bus, unmapped, channels)
         engine = self.engine
         engine.elide_ticks = engine.replay_quiet_ticks  # grid ticks proven to repeat the last one: counted, not run
-        chunks: Iterable[Any] = frames.chunks() if engine.columns and hasattr(frames, "chunks") else (frames,)
-        for chunk in chunks:
-            self.take(chunk, cursor)
+        for block in blocks:
+            self.take(block, cursor)
         last_t = cursor.last_t
         if last_t > -math.inf:
             engine.drive_clock(last_t)
             engine.frame_time(last_t)
 
-    def take(self, block: Iterable[Frame] | Columns | ByteColumns, cursor: LogCursor) -> None:
-        """One block of frames through the engine, whatever its source: a live bus's queue drained (frames), a
-        log's block (column blocks, or frames where the reader could not make one).
+    def take(self, block: Block, cursor: LogCursor) -> None:
+        """One block of frames through the engine, whatever its source: a live bus's queue drained, a log's block.
 
-        A column block is taken as columns (:meth:`_run_columns`) when its rows are in order; else, and for
-        frames, row by row (:meth:`_run_frames`). Either way each configured row takes its message's row step
+        Taken as columns (:meth:`_run_columns`) when its rows are in order; else row by row
+        (:meth:`_run_frames`). Either way each configured row takes its message's row step
         (:meth:`MessagePlan.step <canguard.engine.blocks.MessagePlan.step>` /
         :meth:`~canguard.engine.blocks.MessagePlan.take_samples`), and the counts are added at the end.
         """
         try:
-            if type(block) in _FRAME_LISTS or not hasattr(block, "ordered"):  # frames (a Columns block is a tuple too)
-                frames: Any = block
-                self._run_frames(frames, cursor)
-            else:
-                cols: Any = block
-                if not self._run_columns(cols, cursor):
-                    self._run_frames(cols.frames(), cursor)
+            if not self._run_columns(block, cursor):
+                self._run_frames(block.frames(), cursor)
         finally:
             touched = self._touched
             while touched:
@@ -229,11 +206,12 @@ class LogRun:
     def _decoded(self, bus: str, frame: Frame) -> bool:
         """A frame through its message's row step; True on an edge.
 
-        A frame of a configured message whose row is whole and valid (the common live frame)
-        takes :meth:`MessagePlan.take_payload <canguard.engine.blocks.MessagePlan.take_payload>`:
-        decoded and checked in one step, counted by its plan. Any other (an invalid row, error and
-        remote frames, unconfigured ids, a sample hook) goes to the frame decoder
-        (:meth:`Decoder.decode`: every reason counted) and its samples to the plan's row step.
+        A data frame of a configured message takes :meth:`MessagePlan.take_payload
+        <canguard.engine.blocks.MessagePlan.take_payload>`: a block of one through its message's kernel,
+        counted by its plan (a row that is not valid as its samples with their reasons). Any other (error
+        and remote frames, unconfigured ids, a message with an alive counter or health roles, a sample hook)
+        goes to the frame decoder (:meth:`Decoder.decode`: every reason counted) and its samples to the
+        plan's row step.
         """
         engine = self.engine
         plan = None if frame.is_error_frame or frame.is_remote_frame else self._plan_of(bus, frame)
@@ -265,48 +243,49 @@ class LogRun:
             plan = self._by_key.get(key)
         return plan
 
-    def _run_columns(self, cols: Columns | ByteColumns, cursor: LogCursor) -> bool:
-        """:meth:`run` over a column block; False (nothing done) when it must go frame by frame.
+    def _run_columns(self, block: Block, cursor: LogCursor) -> bool:
+        """:meth:`run` over a block as columns; False (nothing done) when it must go frame by frame.
 
-        A numpy block may mix channels (``lanes``): each row then goes to its channel's bus,
-        with the plans of that bus (one key per channel and id when the buses differ).
+        A block may mix channels: each row then goes to its channel's bus, with the plans of that
+        bus (one key per channel and id when the buses differ).
         """
         engine = self.engine
         export = engine.sample_block
-        if not cols.ordered or (engine.sample_hook is not None and export is None):
+        if not block.ordered or (engine.sample_hook is not None and export is None):
             return False
-        # The timestamps: a numpy block's as an array (its list is made only for rows that go one by one)
-        ts: Any = cols.ts if isinstance(cols, tuple) else cols.stamps
+        ts: Any = block.time_s  # a list is made only for rows that go one by one
         if float(ts[0]) < cursor.last_t:
             return False  # back in time across blocks: the frame-by-frame rules count it
-        buses = self._route(cols, cursor)
+        per_channel = None if block.only_channel is not None else block.channel  # each row's channel, or None
+        buses = self._route(block, per_channel, cursor)
         if type(buses) is bool:
             return buses
         assert isinstance(buses, list)
         first = 0
         if not cursor.started:
-            self._run_frames((cols.frame(0),), cursor)  # the first frame is fed: it starts the engine's clock
+            self._run_frames((block.frame(0),), cursor)  # the first frame is fed: it starts the engine's clock
             first = 1
-        plans, rows, keys, lanes = self._configured(cols, buses)
-        # rows: a list, or a numpy block's index array (a list only if its rows go one by one below)
-        remote = cols.remote
-        if remote:  # counted by the decoder as remote frames, configured or not: fed
-            rows = sorted(set(rows if type(rows) is list else rows.tolist()).union(remote))
+        plans, rows, keys, lanes = self._configured(block, buses, per_channel)
+        special = block.special
+        if special.size:  # counted by the decoder as remote or error frames, configured or not: fed
+            import numpy as np
+
+            rows = np.union1d(rows, special)
         if first and len(rows) and rows[0] == 0:
             rows = rows[1:]
-        tally = _lane_tally(cols, rows, first)
+        tally = _lane_tally(block, per_channel, rows, first)
         last_row = int(rows[-1]) if len(rows) else -1  # the last row frame by frame would see, whatever path takes it
         taken: list[tuple[MessagePlan, Any, Sequence[Any]]] | None = [] if export is not None else None
         quiet = engine.quiet
-        slots = decode_rows(plans, rows, cols, ts, quiet.fixed, keys, taken, quiet.block_horizon) if len(rows) else []
+        slots = decode_rows(plans, rows, block, ts, quiet.fixed, keys, taken, quiet.block_horizon,
+                            self._touched) if len(rows) else []
         if slots is None:
             rows = []  # every row taken whole: only the ticks due in the block are left
             slots = []
         elif len(rows):
-            ts = cols.ts  # read row by row below: as floats
-            if type(rows) is not list:
-                rows = rows.tolist()
-        walk = _Walk(cols, ts, rows, slots, buses[0] if lanes is None else "", buses, lanes)
+            ts = block.times  # read row by row below: as floats
+            rows = rows.tolist()
+        walk = _Walk(block, ts, rows, slots, buses[0] if lanes is None else "", buses, lanes)
         if taken is None:
             pos = self._walk(walk, first, None)
         else:  # --export-signals: the samples of fed rows kept with their row, for the block's export
@@ -314,63 +293,55 @@ class LogRun:
             fed: list[tuple[int, Any]] = []
             pos = self._walk(walk, first, fed)
             export(ts, [(plan.names, group, decoded) for plan, group, decoded in taken], fed)
-        self._cross(ts, pos, cols.n)
-        for b in set(buses):
-            for plan in self._plan_list[b]:
-                plan.flush()
-        self._count_lanes(cursor, cols, buses, tally, first)
+        self._cross(ts, pos, block.n)
+        self._count_lanes(cursor, block, per_channel, buses, tally, first)
         cursor.last_t = float(ts[-1])
         if last_row >= 0:
             engine.frame_time(float(ts[last_row]))  # as frame by frame: the last row fed (not ts[-1])
         return True
 
-    def _route(self, cols: Columns | ByteColumns, cursor: LogCursor) -> list[str] | bool:
-        """The bus of each of a block's channels (lanes), or of its one channel; True: the block's channel maps
-        to no bus (its rows counted as unmapped: done); False: it must go frame by frame."""
-        channel = cols.channel
-        if channel is None:
-            if getattr(cols, "lanes", None) is None:
-                return False
+    def _route(self, block: Block, lanes: Any, cursor: LogCursor) -> list[str] | bool:
+        """The bus of each of a block's channels (``lanes``: each row's channel, None when all rows are on
+        one), or of its one channel; True: the block's one channel maps to no bus (its rows counted as
+        unmapped: done); False: it must go frame by frame."""
+        if lanes is not None:
             buses: list[str] = []
-            for name in getattr(cols, "channels", ()):
+            for name in block.channels:
                 found = cursor.route.get(name, cursor.default_bus)
                 if found is None or found not in self.decoder.per_bus:
                     return False  # a channel of no bus: its rows do not move time; frame by frame
                 buses.append(found)
             return buses
+        channel = block.channels[int(block.channel[0])]
         routed = cursor.route.get(channel, cursor.default_bus)
         if routed is None:
-            n = cols.n
+            n = block.n
             if cursor.channels is not None:
                 cursor.channels[channel] = cursor.channels.get(channel, 0) + n
             cursor.unmapped[channel] = cursor.unmapped.get(channel, 0) + n
             return True
         return [routed] if routed in self.decoder.per_bus else False
 
-    def _configured(self, cols: Columns | ByteColumns, buses: list[str]) -> tuple[Any, Any, Any, Any]:
+    def _configured(self, block: Block, buses: list[str], lanes: Any) -> tuple[Any, Any, Any, Any]:
         """(plans, the block's rows of configured messages, the keys its plans are looked up by, each row's
         channel (an index into ``buses``) when its channels go to several buses, else None)."""
         for b in set(buses):
             if b not in self._plans:
                 self._plans[b] = self._compile_plans(b)
-        keys = getattr(cols, "keys", None)
+        keys = block.keys
         if len(set(buses)) == 1:  # one bus
             bus = buses[0]
             plans = self._plans[bus]
-            if keys is not None and plans:  # a numpy block: its configured rows found by numpy
-                table = self._plan_tables.get(bus)
-                if table is None:
-                    table = self._plan_tables[bus] = key_table(plans)
-                return plans, configured_rows(keys, table), keys, None
-            rows = list(compress(range(cols.n), map(plans.__contains__, cols.ids))) if plans else []
-            return plans, rows, keys, None
-        lanes = getattr(cols, "lanes", None)  # channels of several buses: a key per (channel, id)
-        assert lanes is not None and keys is not None
+            table = self._plan_tables.get(bus)
+            if table is None:
+                table = self._plan_tables[bus] = key_table(plans)
+            return plans, configured_rows(keys, table), keys, None
+        assert lanes is not None  # channels of several buses: a key per (channel, id)
         lane = self._lane_plans.get(tuple(buses))
         if lane is None:
             joined = lane_plans([self._plans[b] for b in buses])
             lane = self._lane_plans[tuple(buses)] = (joined, key_table(joined))
-        keys = keys + lanes * LANE
+        keys = keys + lanes.astype(keys.dtype) * LANE
         return lane[0], configured_rows(keys, lane[1]), keys, lanes
 
     def _walk(self, walk: _Walk, first: int, fed: list[tuple[int, Any]] | None) -> int:
@@ -381,7 +352,7 @@ class LogRun:
         if fed is not None:
             at = [0]
             hook, engine.sample_hook = engine.sample_hook, lambda sample: fed.append((at[0], sample))
-        decoded, frame, ts, slots = self._decoded, walk.cols.frame, walk.ts, walk.slots
+        decoded, frame, ts, slots = self._decoded, walk.block.frame, walk.ts, walk.slots
         bus, buses, lanes = walk.bus, walk.buses, walk.lanes
         pos = first
         due = engine.due  # plans never change it; advance and tick may
@@ -412,15 +383,14 @@ class LogRun:
                 engine.sample_hook = hook  # the export's own hook back, whatever the block raised
         return pos
 
-    def _count_lanes(self, cursor: LogCursor, cols: Any, buses: list[str], tally: list[tuple[int, int]],
-                     first: int) -> None:
+    def _count_lanes(self, cursor: LogCursor, block: Block, lanes: Any, buses: list[str],
+                     tally: list[tuple[int, int]], first: int) -> None:
         """Count a block's rows per channel (``cursor.channels``) and its skipped rows (neither fed nor taken
         by a plan) per bus, as frame by frame counts them."""
-        lanes = getattr(cols, "lanes", None)
         channels = cursor.channels
         for lane, (count, taken) in enumerate(tally):
             if channels is not None:
-                name = cols.channel if lanes is None else cols.channels[lane]
+                name = block.channels[int(block.channel[0])] if lanes is None else block.channels[lane]
                 own_first = first if lanes is None or lane == int(lanes[0]) else 0  # counted by _run_frames
                 channels[name] = channels.get(name, 0) + count - own_first
             skipped = count - taken
@@ -452,15 +422,14 @@ class LogRun:
             engine.frame_time(t)  # as arrive: not before it (ordered, from cursor.last_t on)
             lo = k + 1
 
-    def _compile_plans(self, bus: str) -> dict[str | int, MessagePlan | None]:
-        """Every id text (any letter case) of a message configured on ``bus``, with its plan, or None."""
+    def _compile_plans(self, bus: str) -> dict[int, MessagePlan | None]:
+        """Every message configured on ``bus`` by its id key (:attr:`Block.keys <canguard.io.block.Block.keys>`),
+        with its plan, or None."""
         from canguard.engine.blocks import compile_plan
         from canguard.engine.settle import may_settle
-        from canguard.io.logs import candump_id_texts
 
         counters = self.decoder.per_bus[bus]
-        plans: dict[str | int, MessagePlan | None] = {}
-        made = self._plan_list.setdefault(bus, [])
+        plans: dict[int, MessagePlan | None] = {}
         # the stop confirmation reads its source between ticks: not passive; metrics count per frame
         readers: set[str] | None = set(self.ctx.read_sources)
         cfg = self.engine.cfg
@@ -478,22 +447,18 @@ class LogRun:
             if plan is not None:
                 plan.settle_ok = may_settle(plan, metrics, self.ctx.read_sources)
                 plan.confirm_read = any(source == confirm for source, *_rest in plan.outputs)
-                made.append(plan)
                 self._by_key[b, cid, ext] = plan
-            for text in candump_id_texts(cid, ext):
-                plans[text] = plan
-            plans[id_key(cid, ext)] = plan  # the ids of byte blocks (canguard.io.candump_np)
+            plans[cid + EXT_KEY if ext else cid] = plan
         return plans
 
-def _lane_tally(cols: Any, rows: Any, first: int) -> list[tuple[int, int]]:
-    """Per channel of a block (one when it has one): its rows, and those fed or taken by a plan (``rows``,
-    and the first row when it went frame by frame)."""
-    lanes = getattr(cols, "lanes", None)
+def _lane_tally(block: Block, lanes: Any, rows: Any, first: int) -> list[tuple[int, int]]:
+    """Per channel of a block (one when ``lanes`` is None): its rows, and those fed or taken by a plan
+    (``rows``, and the first row when it went frame by frame)."""
     if lanes is None:
-        return [(cols.n, len(rows) + first)]
+        return [(block.n, len(rows) + first)]
     import numpy as np
 
-    size = len(cols.channels)
+    size = len(block.channels)
     per_lane = np.bincount(lanes, minlength=size).tolist()
     taken = np.bincount(lanes[rows], minlength=size).tolist() if len(rows) else [0] * size
     if first:
@@ -503,9 +468,9 @@ def _lane_tally(cols: Any, rows: Any, first: int) -> list[tuple[int, int]]:
 
 @dataclass
 class _Walk:
-    """A column block's rows as :meth:`LogRun._walk` takes them."""
+    """A block's rows as :meth:`LogRun._walk` takes them."""
 
-    cols: Any
+    block: Block
     ts: Any
     rows: Any
     slots: Any

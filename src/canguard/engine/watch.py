@@ -151,6 +151,7 @@ class SourceWatch:
                 reason = f"bus {bus}: controller error-passive ({side}): frames may not get through"
                 self.journal.write({"event": "bus_error", "source": bus, "reason": reason})
                 self.gate.inhibit(key, reason, now)
+                self.journal.flush()  # after the stop frames the inhibit sent
         elif state & CAN_ERR_CRTL_ACTIVE and key in self.gate.inhibits:
             again = f"bus {bus}: controller error-active again"
             self.journal.write({"event": "bus_error", "source": bus, "reason": again})

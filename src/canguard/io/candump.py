@@ -1,28 +1,26 @@
-"""candump text logs (``-L``, ``-l``, plain ``-ta``): the block fast path and the line parser.
+"""candump text logs (``-L``, ``-l``, plain ``-ta``): read a block of lines at a time, parsed by numpy.
 
-A plain ``candump -L`` block is parsed at once with C-level string operations; any
-other block line by line by the general parser, which names the file:line of a bad line."""
+The parser (:func:`canguard.io.candump_np.parse_block`) gives each block's frames and its bad
+lines; the reader names a bad line's file:line and says what is wrong with it
+(:func:`why_bad`: the checks of each field, in the order a reader of the line would make them)."""
 
 from __future__ import annotations
 
 import math
-import os
-import sys
-from collections.abc import Callable, Iterator
-from itertools import repeat
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import Any
+
+import numpy as np
 
 from canguard.errors import LogFormatError, quote
-from canguard.io.frame import Frame
+from canguard.io.block import Block
+from canguard.io.candump_np import parse_block
 from canguard.io.logtypes import (
-    _F,
     _HEX,
     CAN_EFF_MASK,
     CAN_ERR_FLAG,
     CAN_SFF_MASK,
-    CANFD_BRS,
-    CANFD_ESI,
     CANFD_LENGTHS,
     MAX_BAD_EXAMPLES,
     BadLine,
@@ -30,8 +28,6 @@ from canguard.io.logtypes import (
     LogFrames,
     ReadStats,
     _Bad,
-    _new,
-    count_order,
     decompress_errors,
     note_order,
     open_decompressed,
@@ -43,65 +39,8 @@ from canguard.io.logtypes import (
 CHUNK_CHARS = 1 << 19
 """Bytes per chunk (~11,000 -L lines). Against 1 << 17: 10-20 % less replay time on four of five
 shapes of 2 M frames, the fifth the same; 1 << 20 and more no faster (a block's arrays outgrow L2)."""
-NUMPY_AFTER_BLOCKS: int | None = None
-"""Blocks from this one on (1: all) are parsed by numpy first (:mod:`canguard.io.candump_np`). None: all for a
-file of 1 MiB or more, else from the third or once numpy is loaded (most DBCs' messages need it), so a short log
-of messages decoded without numpy never imports it (60 ms). An int forces it (tests)."""
 
 _MARKERS = frozenset("TRtr")
-
-
-class Columns(NamedTuple):
-    """A block of plain candump -L lines, checked, kept as text columns: frames are built on demand.
-
-    Every line has passed the checks the line parser would make; what is left is
-    conversion, which costs only for the rows somebody asks for (:meth:`frame`)
-    or for all of them (:meth:`frames`). ``ts`` are the timestamps: in candump
-    blocks the texts, all of one width with the dot at one place, so text order is
-    time order; in python-can blocks (:mod:`canguard.io.pycan_blocks`) the floats:
-    consumers ask only ``float(ts[i])``. ``ordered`` is True when they never go back
-    (in the block) and distinct texts are distinct floats. ``ids`` are the id texts
-    as written (3 hex digits: standard, 8: extended; any case).
-    """
-
-    n: int
-    ts: list[Any]
-    chans: list[str]
-    ids: list[str]
-    data: list[str]
-    ordered: bool
-    channel: str | None
-    """The channel of every row, or None when the block has several."""
-    fd: dict[int, int] | None = None
-    """The CAN FD rows (``ID##F...``) with their flags digit (BRS, ESI); None when the block has none."""
-    remote: dict[int, int] | None = None
-    """The remote frame rows (``ID#R``, ``ID#R4``) with their DLC (-1: none written); their ``data`` is ""."""
-
-    def frame(self, i: int) -> Frame:
-        """The frame of row ``i``."""
-        id_text = self.ids[i]
-        if self.remote is not None and i in self.remote:
-            return _new(Frame, (float(self.ts[i]), self.chans[i], int(id_text, 16), b"", len(id_text) == 8, _F, _F,
-                                True, _F, _F, self.remote[i]))
-        flags = self.fd.get(i) if self.fd is not None else None
-        if flags is not None:
-            return _new(Frame, (float(self.ts[i]), self.chans[i], int(id_text, 16), bytes.fromhex(self.data[i]),
-                                len(id_text) == 8, True, _F, _F, bool(flags & CANFD_BRS), bool(flags & CANFD_ESI),
-                                -1))
-        return _new(Frame, (float(self.ts[i]), self.chans[i], int(id_text, 16), bytes.fromhex(self.data[i]),
-                            len(id_text) == 8, _F, _F, _F, _F, _F, -1))
-
-    def frames(self) -> Iterator[Frame]:
-        """The frames of every row, in order (converted in C-level passes over the columns)."""
-        if self.fd or self.remote:
-            return map(self.frame, range(self.n))
-        ext = map((8).__eq__, map(len, self.ids))
-        return map(
-            _new,
-            repeat(Frame),
-            zip(map(float, self.ts), self.chans, map(int, self.ids, repeat(16)), map(bytes.fromhex, self.data),
-                ext, repeat(_F), repeat(_F), repeat(_F), repeat(_F), repeat(_F), repeat(-1)),
-        )
 
 
 def _is_hex(s: str) -> bool:
@@ -109,93 +48,79 @@ def _is_hex(s: str) -> bool:
     return bool(s) and not s.strip(_HEX)
 
 
-def _hex_data(text: str) -> bytes:
+def _check_data(text: str) -> int:
+    """The number of bytes of a hex data field."""
     if len(text) % 2:
         raise _Bad(f"odd number of hex digits in data {text!r}")
     if text and not _is_hex(text):
         raise _Bad(f"data {text!r} is not hex")
-    return bytes.fromhex(text)
+    return len(text) // 2
 
 
-def _parse_id(text: str) -> tuple[int, bool, bool]:
-    """``(arbitration_id, is_extended_id, is_error_frame)`` of a candump id field."""
+def _check_id(text: str) -> bool:
+    """A candump id field: 3 (standard) or 8 (extended) hex digits; True for an error frame's."""
     if len(text) not in (3, 8) or not _is_hex(text):
         raise _Bad(f"bad CAN id {text!r}: expected 3 (standard) or 8 (extended) hex digits")
     cid = int(text, 16)
     if len(text) == 3:
         if cid > CAN_SFF_MASK:
             raise _Bad(f"standard CAN id {text!r} is above 7FF")
-        return cid, False, False
+        return False
     if cid & CAN_ERR_FLAG:
-        return cid & CAN_EFF_MASK, True, True
+        return True
     if cid > CAN_EFF_MASK:
         raise _Bad(f"extended CAN id {text!r} is above 1FFFFFFF")
-    return cid, True, False
+    return False
 
 
-def _parse_timestamp(text: str) -> float:
+def _check_timestamp(text: str) -> None:
     sec, dot, frac = text.partition(".")
     if sec.isdigit() and sec.isascii() and (not dot or (frac.isdigit() and frac.isascii())):
-        return float(text)
+        return
     if " " in text or ":" in text:
         raise _Bad("absolute date timestamps (candump -tA) are not supported: record with candump -ta or -L")
     raise _Bad(f"bad timestamp {text!r}: expected (seconds.microseconds)")
 
 
-def _parse_compact(t: float, channel: str, text: str) -> Frame:
+def _check_compact(text: str) -> None:
     """One ``ID#DATA`` field of candump -L: classic, FD (``##F``), remote (``R``/``R8``), error."""
     id_text, sep, d = text.partition("#")
     if not sep:
         raise _Bad("expected ID#DATA")
-    cid, ext, err = _parse_id(id_text)
+    _check_id(id_text)
     if d[:1] == "#":
         if d[1:2] == "#":
             raise _Bad("CAN XL frames are not supported")
         if len(d) < 2 or not _is_hex(d[1]):
             raise _Bad("CAN FD frame needs one hex flags digit after '##'")
-        flags = int(d[1], 16)
-        data = _hex_data(d[2:])
-        if len(data) not in CANFD_LENGTHS:
-            raise _Bad(f"{len(data)} data bytes is not a CAN FD length")
-        brs, esi = bool(flags & CANFD_BRS), bool(flags & CANFD_ESI)
-        return _new(Frame, (t, channel, cid, data, ext, True, err, False, brs, esi, -1))
-    if d[:1] in ("R", "r"):
+        if (size := _check_data(d[2:])) not in CANFD_LENGTHS:
+            raise _Bad(f"{size} data bytes is not a CAN FD length")
+    elif d[:1] in ("R", "r"):
         dlc_text = d[1:]
-        if not dlc_text:
-            dlc = -1
-        elif len(dlc_text) == 1 and dlc_text in "012345678":
-            dlc = int(dlc_text) or -1
-        else:
+        if dlc_text and (len(dlc_text) != 1 or dlc_text not in "012345678"):
             raise _Bad(f"bad remote frame DLC {dlc_text!r}: expected one digit 0-8")
-        return _new(Frame, (t, channel, cid, b"", ext, False, err, True, False, False, dlc))
-    data_text, underscore, raw_dlc = d.partition("_")
-    data = _hex_data(data_text)
-    if len(data) > 8:
-        raise _Bad(f"{len(data)} data bytes in a classic CAN frame (at most 8; CAN FD frames use '##')")
-    dlc = -1
-    if underscore:
+    else:
+        data_text, underscore, raw_dlc = d.partition("_")
+        size = _check_data(data_text)
+        if size > 8:
+            raise _Bad(f"{size} data bytes in a classic CAN frame (at most 8; CAN FD frames use '##')")
         # candump's len8_dlc: 8 data bytes with a raw DLC of 9..F
-        if len(data) != 8 or len(raw_dlc) != 1 or raw_dlc not in "9ABCDEFabcdef":
+        if underscore and (size != 8 or len(raw_dlc) != 1 or raw_dlc not in "9ABCDEFabcdef"):
             raise _Bad(f"bad raw DLC suffix '_{raw_dlc}': expected _9 .. _F after 8 data bytes")
-        dlc = int(raw_dlc, 16)
-    return _new(Frame, (t, channel, cid, data, ext, False, err, False, False, False, dlc))
 
 
 _SHAPE = "expected '(secs) channel ID#DATA' (candump -L) or '(secs) channel ID [len] DATA' (candump -ta)"
 
 
-def _parse_long(t: float | None, ts_text: str, toks: list[str]) -> Frame:
+def _check_long(stamped: bool, ts_text: str, toks: list[str]) -> None:
     """One line of plain candump output: ``can0  123   [8]  11 22 ...`` with a -ta timestamp."""
-    i = 1
-    brs = esi = False
-    if len(toks) > 4 and toks[1] in ("RX", "TX"):  # candump -x: direction and B/E flag columns
-        brs, esi, i = toks[2] == "B", toks[3] == "E", 4
+    i = 4 if len(toks) > 4 and toks[1] in ("RX", "TX") else 1  # candump -x: direction and B/E flag columns
     if len(toks) < i + 2:
         raise _Bad(_SHAPE)
     len_tok = toks[i + 1]
     if len(len_tok) < 3 or len_tok[0] != "[" or len_tok[-1] != "]":
         raise _Bad(_SHAPE)
-    if t is None:
+    if not stamped:
         raise _Bad("plain candump output without timestamps is not supported: record with candump -ta or -L")
     if len(ts_text.partition(".")[0]) < 10:
         raise _Bad("relative timestamps (candump -td / -tz) are not supported: record with candump -ta or -L")
@@ -204,51 +129,56 @@ def _parse_long(t: float | None, ts_text: str, toks: list[str]) -> Frame:
         raise _Bad(f"bad length {len_tok!r}")
     length = int(len_text)
     is_fd = len(len_text) == 2  # candump prints [%d] for classic CAN, [%02d] for CAN FD
-    cid, ext, err = _parse_id(toks[i])
-    channel = toks[0]
+    err = _check_id(toks[i])
     rest = toks[i + 2 :]
     if rest[:2] == ["remote", "request"]:
         if len(rest) != 2 or is_fd or length > 8:
             raise _Bad("bad remote request")
-        return _new(Frame, (t, channel, cid, b"", ext, False, err, True, False, False, length or -1))
+        return
     byte_toks = rest[:length]
     if len(byte_toks) < length or any(len(b) != 2 for b in byte_toks):
         raise _Bad(f"[{length}] announces {length} data bytes: expected {length} two-digit hex bytes")
-    data = _hex_data("".join(byte_toks))
+    _check_data("".join(byte_toks))
     tail = rest[length:]
     if tail and not (tail[0][:1] == "'" or (tail[0] == "ERRORFRAME" and err)):
         raise _Bad(f"unexpected text after the data: {' '.join(tail)!r}")
-    if is_fd:
-        if length not in CANFD_LENGTHS:
-            raise _Bad(f"{length} data bytes is not a CAN FD length")
-    elif length > 8:
+    if is_fd and length not in CANFD_LENGTHS:
+        raise _Bad(f"{length} data bytes is not a CAN FD length")
+    if not is_fd and length > 8:
         raise _Bad(f"{length} data bytes in a classic CAN frame (at most 8)")
-    return _new(Frame, (t, channel, cid, data, ext, is_fd, err, False, brs, esi, -1))
 
 
-def _parse_line(line: str) -> Frame | None:
-    """Parse one candump line of any supported shape; None for blank and ``#`` comment lines."""
+def _check_line(line: str) -> None:
+    """Check one candump line of any supported shape (raises :class:`_Bad` with the reason)."""
     s = line.strip()
-    if not s or s[0] == "#":
-        return None
-    t: float | None = None
     ts_text = ""
-    if s[0] == "(":
+    stamped = s[:1] == "("
+    if stamped:
         close = s.find(")")
         if close < 0:
             raise _Bad("timestamp has no closing ')'")
         ts_text = s[1:close]
-        t = _parse_timestamp(ts_text)
+        _check_timestamp(ts_text)
         toks = s[close + 1 :].split()
     else:
         toks = s.split()
     if len(toks) >= 2 and "#" in toks[1]:
-        if t is None:
+        if not stamped:
             raise _Bad("missing '(seconds.microseconds)' timestamp")
         if len(toks) > 3 or (len(toks) == 3 and toks[2] not in _MARKERS):
             raise _Bad(f"unexpected text after the frame: {' '.join(toks[2:])!r}")
-        return _parse_compact(t, toks[0], toks[1])
-    return _parse_long(t, ts_text, toks)
+        _check_compact(toks[1])
+        return
+    _check_long(stamped, ts_text, toks)
+
+
+def why_bad(line: str) -> str:
+    """What is wrong with a line the parser refused (the first field at fault, as a reader of it checks them)."""
+    try:
+        _check_line(line)
+    except _Bad as bad:
+        return bad.reason
+    return _SHAPE
 
 
 def _as_text(block: bytes) -> str:
@@ -258,17 +188,13 @@ def _as_text(block: bytes) -> str:
 
 
 def candump_chunks(p: Path, gz: str, skip_bad: bool, st: ReadStats, want_ts_stats: bool,
-                   owner: LogFrames) -> Iterator[Columns | list[Frame]]:
-    """The candump text reader: plain blocks read by numpy (:mod:`canguard.io.candump_np`), others as lists of
-    frames parsed line by line (:func:`_parse_line`, which names the file:line of a bad line)."""
+                   owner: LogFrames) -> Iterator[Block]:
+    """The candump text reader's blocks (a bad line raises, naming its file:line, after the frames before it;
+    with ``skip_bad`` it is counted)."""
     reader = _CandumpReader(p, gz, skip_bad, st, want_ts_stats)
     try:
         for block in reader.blocks():
-            cols = reader.numpy(block)
-            if cols is not None:
-                yield cols
-            else:
-                yield from reader.lines(block)
+            yield from reader.parse(block)
             owner.reached(reader.position())
     finally:
         reader.close()
@@ -284,19 +210,15 @@ class _CandumpReader:
     def __init__(self, p: Path, gz: str, skip_bad: bool, st: ReadStats, want_ts_stats: bool) -> None:
         self.p, self.gz, self.skip_bad, self.st, self.want_ts_stats = p, gz, skip_bad, st, want_ts_stats
         self.raw = open(p, "rb")  # noqa: SIM115 -- closed by close()
-        self.f: Any = open_decompressed(self.raw, gz)  # bytes: numpy reads them as they are; lines get _as_text
+        self.f: Any = open_decompressed(self.raw, gz)
         self.frames = 0
         self.lineno = 0
         """Lines before the current block."""
         self.last_t = -math.inf
-        self.last_was_error = False
+        self.error_last = False
+        """The last frame read is an error frame (``candump -e`` explains it on indented lines below)."""
         self.count = 0
         """Blocks read."""
-        auto = NUMPY_AFTER_BLOCKS is None
-        big = not gz and os.fstat(self.raw.fileno()).st_size >= 1 << 20
-        self.numpy_from = (1 if big else 3) if auto else NUMPY_AFTER_BLOCKS or 0
-        self.auto = auto
-        self.by_bytes: Callable[[bytes, int], Any] | None = None
 
     def position(self) -> int:
         """The position reached in the file on disk."""
@@ -307,7 +229,7 @@ class _CandumpReader:
         self.raw.close()
 
     def _read(self, longest: int) -> bytes:
-        """A chunk and the rest of its last line, grown in place: no block-sized copies to fault in (Dask)."""
+        """A chunk and the rest of its last line."""
         try:
             block: bytes = self.f.read(CHUNK_CHARS)
             if block and block[-1] != 10:
@@ -341,59 +263,46 @@ class _CandumpReader:
             self.count += 1
             yield block
 
-    def numpy(self, block: bytes) -> Any:
-        """The block read by numpy (counted), or None: its lines are parsed one by one."""
-        if self.by_bytes is None and (self.count >= self.numpy_from or (self.auto and "numpy" in sys.modules)):
-            from canguard.io.candump_long import numpy_block  # loaded: it pays
-
-            self.by_bytes = numpy_block
-        if self.last_was_error or self.by_bytes is None:
-            return None
-        cols = self.by_bytes(block, -1)  # it counts the lines
-        if cols is None:
-            return None
-        n, st = cols.n, self.st
-        ts = cols.stamps  # numpy's: no list made
-        if self.want_ts_stats:
-            note_order(st, float(ts[0]), self.last_t)
-            count_order(st, cols)
-        self.last_t = float(ts[-1])
-        self.frames += n
-        self.lineno += n
-        st.lines += n
-        st.frames += n
-        return cols
-
-    def lines(self, block: bytes) -> Iterator[list[Frame]]:
-        """The block's frames parsed line by line (a bad line raises, or is counted with ``skip_bad``)."""
-        text = _as_text(block)
-        lines = text.split("\n")
-        lines.pop()  # the empty string after the block's last newline
+    def parse(self, raw: bytes) -> Iterator[Block]:
+        """The block's frames (counted); a bad line raises after the frames before it, or is counted."""
+        parsed = parse_block(raw, self.error_last)
         st = self.st
-        st.lines += len(lines)
-        out: list[Frame] = []
-        for no, line in enumerate(lines, self.lineno + 1):
-            if self.last_was_error and line[:1] == "\t":
-                continue  # candump -e explains an error frame on indented lines below it
-            try:
-                fr = _parse_line(line)
-            except _Bad as bad:
-                if not self.skip_bad:
-                    if out:
-                        yield out  # every frame before the bad line is processed first
-                    raise LogFormatError(f"{self.p}:{no}: {bad.reason}: {quote(line)}") from None
-                st.bad_lines += 1
-                if len(st.bad_examples) < MAX_BAD_EXAMPLES:
-                    st.bad_examples.append(BadLine(no, bad.reason, line))
-                continue
-            if fr is None:
-                continue
-            self.last_was_error = fr.is_error_frame
-            note_order(st, fr.t, self.last_t)
-            self.last_t = fr.t
-            self.frames += 1
-            st.frames += 1
-            out.append(fr)
-        self.lineno += len(lines)
-        if out:
-            yield out
+        bad = parsed.bad
+        block = parsed.block
+        if bad and not self.skip_bad:
+            line = bad[0]
+            if block is not None:
+                before = int(np.searchsorted(parsed.rows_line, line))
+                if before:
+                    yield self._counted(block.select(slice(0, before)), line)
+            text = _line(raw, line)
+            raise LogFormatError(f"{self.p}:{self.lineno + line + 1}: {why_bad(text)}: {quote(text)}")
+        st.lines += parsed.lines
+        if bad:
+            st.bad_lines += len(bad)
+            for line in bad[:max(0, MAX_BAD_EXAMPLES - len(st.bad_examples))]:
+                text = _line(raw, line)
+                st.bad_examples.append(BadLine(self.lineno + line + 1, why_bad(text), text))
+        self.lineno += parsed.lines
+        self.error_last = parsed.error_last
+        if block is not None:
+            yield self._counted(block, 0)
+
+    def _counted(self, block: Block, lines: int) -> Block:
+        """``block`` counted in the statistics (``lines``: the lines it came from when not a whole block's)."""
+        st = self.st
+        st.lines += lines
+        if self.want_ts_stats:
+            note_order(st, float(block.time_s[0]), self.last_t)
+            backwards, repeated = block.order
+            st.backwards_timestamps += backwards
+            st.repeated_timestamps += repeated
+        self.last_t = float(block.time_s[-1])
+        self.frames += block.n
+        st.frames += block.n
+        return block
+
+
+def _line(raw: bytes, k: int) -> str:
+    """Line ``k`` of a block, as text (UTF-8, junk replaced)."""
+    return _as_text(raw).split("\n")[k]

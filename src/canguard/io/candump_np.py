@@ -1,376 +1,454 @@
-"""Plain candump -L blocks parsed by numpy over the block's bytes: no Python object per field.
+"""The candump text parser: a block of lines parsed by numpy into a :class:`~canguard.io.block.Block`.
 
-:func:`byte_columns` checks a block of ``(secs.usecs) channel ID#HEX`` lines (CAN FD
-``ID##FHEX``, remote ``ID#R`` / ``ID#R4``, an optional T/R marker) with a handful of
-passes over the bytes, and keeps what the replay engine asks for as arrays:
+:func:`parse_block` reads every shape candump writes (``-L`` / ``-l``: ``(secs) channel ID#DATA``,
+CAN FD ``ID##FDATA``, remote ``ID#R`` / ``ID#R4``, a raw DLC ``ID#DATA_D``, error frames (the
+CAN_ERR_FLAG in an 8-digit id), a T/R marker; comments and blank lines; the long ``-ta``
+output, with ``-x`` columns, remote requests and ``ERRORFRAME``, which is first rewritten as
+``-L``; ``-e``'s indented lines under an error frame) with passes over the block's bytes, one
+per field, each a column over every line:
 
-* the timestamps as floats, each equal to Python's ``float()`` of its text: the
-  digits make an exact integer (below 2**53) divided by an exact power of ten, one
-  correctly rounded division, hence the double nearest the written decimal;
-* the ids as integer keys (:func:`canguard.io.logtypes.id_key`: the id, plus
-  :data:`~canguard.io.logtypes.EXT_KEY` for an extended one), read 8 bytes at a time,
-  which the engine looks up in its plans as it looks up id texts;
-* each row's channel when the block mixes channels (names of one length: ``can0``/``can1``);
-* where each row's data starts and ends: a message's payloads are read as one
-  ``rows x length`` byte matrix (:meth:`ByteColumns.payload`), never as hex strings.
+* each line's fields are found where they are (the first ")" of the line, the spaces
+  after it, the "#" after the id), so timestamps, channel names and ids of any widths mix;
+* the timestamps as floats, each equal to Python's ``float()`` of its text: the digits make
+  an exact integer (below 2**53) divided by an exact power of ten, one correctly rounded
+  division (a longer one is converted by ``float()`` itself);
+* the ids read 8 bytes at a time (SWAR on little-endian words);
+* the payloads two hex digits at a time, as one ``rows x width`` byte matrix.
 
-The block is accepted only when every line passes the checks the line parser makes
-(``tests/test_candump_np.py`` tries damaged blocks); anything else gives None and the
-caller falls back to the text parser, which reports bad lines with their file:line.
-Frames are built only for rows the engine feeds one by one. candump -ta blocks come here
-rewritten as -L (:mod:`canguard.io.candump_long`).
+Each check gives a column of verdicts; a line that fails one is a bad line, named by its index
+in the block (:attr:`Parsed.bad`): the reader names its file:line.
 """
 
 from __future__ import annotations
 
+import re
 import threading
-from bisect import bisect_left
-from collections.abc import Iterator
-from typing import Any
+from dataclasses import dataclass
 
 import numpy as np
 
-from canguard.io.frame import Frame
-from canguard.io.logtypes import _F, CANFD_BRS, CANFD_ESI, CANFD_LENGTHS, EXT_KEY, _new, joined_hex
+from canguard.io.block import FLAG_BRS, FLAG_ERROR, FLAG_ESI, FLAG_FD, FLAG_REMOTE, Block
+from canguard.io.logtypes import CANFD_LENGTHS
 
-_HEXVAL = np.full(256, 255, dtype=np.uint8)
-for _i, _c in enumerate(b"0123456789abcdef"):
-    _HEXVAL[_c] = _i
-for _i, _c in enumerate(b"ABCDEF", 10):
-    _HEXVAL[_c] = _i
+_HEX = np.zeros(256, dtype=bool)
+_HEX[list(b"0123456789abcdefABCDEF")] = True
 _FD_BYTES = np.zeros(66, dtype=bool)  # [65]: any length above 64 bytes
 _FD_BYTES[sorted(CANFD_LENGTHS)] = True
+_MARKERS = np.zeros(256, dtype=bool)
+_MARKERS[list(b"TRtr")] = True
 _U = np.uint64
 _LE64 = np.dtype("<u8")
 _U16 = np.uint16
 _LE16 = np.dtype("<u2")
 _EXACT = 1 << 53
+_ERR_FLAG = 0x20000000
 _MAX_STANDARD = 0x7FF
 _MAX_EXTENDED = 0x1FFFFFFF
-_MARKERS = frozenset(b"TRtr")
-_CLASSIC = 255
-"""A classic row's CAN FD flags (:attr:`ByteColumns._flags`): no hex digit's value."""
-_FEW = 48
-"""Below this many rows a message's payloads are cut from the text, not gathered by numpy."""
+_PAD = 160
+"""Bytes after a block's last one that a gather may read (a CAN FD payload's 128 hex digits, an 8-byte word)."""
+_INDENTED = 1
+"""The first byte of an indented line once the block is rewritten (``-e``'s lines under an error frame)."""
 
 
-class ByteColumns:
-    """A checked block of plain candump -L lines, as arrays over its bytes.
+@dataclass(frozen=True)
+class Parsed:
+    """What :func:`parse_block` made of a block of lines."""
 
-    The same attributes the engine reads on :class:`canguard.io.candump.Columns`: ``n``,
-    ``ts`` (floats), ``chans``, ``ids`` (integer keys, :func:`id_key`), ``ordered``,
-    ``channel``, ``fd`` and ``remote``; :meth:`frame`, :meth:`frames` and :meth:`payload`. A block of
-    several channels (names of one length) has ``channel`` None, their names in ``channels`` and
-    each row's index into them in ``lanes``.
-    """
-
-    __slots__ = ("_b", "_end", "_fd", "_flags", "_ids", "_raw", "_row_chans", "_start", "_ts", "channel",
-                 "channels", "keys", "lanes", "n", "order", "ordered", "remote", "stamps")
-
-    def __init__(self, n: int, stamps: np.ndarray, keys: np.ndarray, ordered: bool, channel: str | None,
-                 flags: np.ndarray | None, remote: dict[int, int] | None, raw: bytes, b: np.ndarray,
-                 start: np.ndarray, end: np.ndarray) -> None:
-        self.n = n
-        self.stamps = stamps
-        """Each row's timestamp (float64, each equal to ``float()`` of its text); :attr:`ts` as a list."""
-        self._ts: list[float] | None = None
-        self.keys = keys
-        """Each row's id key (:func:`~canguard.io.logtypes.id_key`), as an array: the engine looks rows up by it."""
-        self._ids: list[int] | None = None
-        self.ordered = ordered
-        self.channel = channel
-        self.channels: list[str] = [channel] if channel is not None else []
-        self.lanes: np.ndarray | None = None
-        """Each row's index into :attr:`channels` (None: one channel)."""
-        self._row_chans: list[str] | None = None
-        self._flags = flags
-        """Each row's CAN FD flags digit (BRS, ESI), :data:`_CLASSIC` on a classic row; None: no CAN FD row."""
-        self._fd: dict[int, int] | None = None
-        self.remote = remote
-        self._raw = raw
-        self._b = b
-        self._start = start
-        self._end = end
-        self.order = (0, 0)
-        """Rows whose timestamp goes back, and rows whose timestamp repeats the previous row's (in the block)."""
-
-    @property
-    def ts(self) -> list[float]:
-        """:attr:`stamps` as a list of floats, made when first asked for: a block taken whole never is (making
-        and freeing a float object per row was ~15 % of a replay of a log where 10 % of the frames count)."""
-        if self._ts is None:
-            self._ts = self.stamps.tolist()
-        return self._ts
-
-    @property
-    def fd(self) -> dict[int, int] | None:
-        """The CAN FD rows' flags (BRS, ESI) by row, made when first asked for (a frame reads its own row's; a
-        dict of every FD row, made per block, was ~4 % of a replay of an all-FD log); None: no CAN FD row."""
-        if self._fd is None and self._flags is not None:
-            rows = np.flatnonzero(self._flags != _CLASSIC)
-            self._fd = dict(zip(rows.tolist(), self._flags[rows].tolist(), strict=True))
-        return self._fd
-
-    @property
-    def ids(self) -> list[int]:
-        """:attr:`keys` as a list, made when first asked for (most blocks never are: a list of every row's key
-        cost ~3 % of a replay)."""
-        if self._ids is None:
-            self._ids = self.keys.tolist()
-        return self._ids
-
-    @property
-    def chans(self) -> list[str]:
-        """The channel of every row."""
-        if self.channel is not None:
-            return [self.channel] * self.n
-        if self._row_chans is None:
-            assert self.lanes is not None
-            self._row_chans = list(map(self.channels.__getitem__, self.lanes.tolist()))
-        return self._row_chans
-
-    def frame(self, i: int) -> Frame:
-        """The frame of row ``i`` (a few rows of a block are: the block's lists are not made for them)."""
-        key = self._ids[i] if self._ids is not None else int(self.keys[i])
-        t = self._ts[i] if self._ts is not None else float(self.stamps[i])
-        ext = key >= EXT_KEY
-        cid = key - EXT_KEY if ext else key
-        channel = self.channel if self.channel is not None else self.chans[i]
-        if self.remote is not None and i in self.remote:
-            return _new(Frame, (t, channel, cid, b"", ext, _F, _F, True, _F, _F, self.remote[i]))
-        data = bytes.fromhex(self._raw[int(self._start[i]):int(self._end[i])].decode("ascii"))
-        flags = int(self._flags[i]) if self._flags is not None else _CLASSIC
-        if flags != _CLASSIC:
-            return _new(Frame, (t, channel, cid, data, ext, True, _F, _F,
-                                bool(flags & CANFD_BRS), bool(flags & CANFD_ESI), -1))
-        return _new(Frame, (t, channel, cid, data, ext, _F, _F, _F, _F, _F, -1))
-
-    def frames(self) -> Iterator[Frame]:
-        """The frames of every row, in order (the block's id and time lists made first: every row is read)."""
-        _made = self.ids, self.ts
-        return map(self.frame, range(self.n))
-
-    def hex_lengths(self) -> np.ndarray:
-        """Each row's payload length in hex digits (twice its bytes)."""
-        return self._end - self._start
-
-    def payload(self, rows: Any, size: int) -> tuple[list[int] | None, bytes]:
-        """The payloads of ``rows`` that hold ``size`` hex digits, joined: (their positions in ``rows``, or None
-        when all of them do; the bytes)."""
-        if len(rows) < _FEW:  # a few rows: slicing the bytes costs less than numpy's calls
-            idx = np.asarray(rows, dtype=np.intp)
-            raw = self._raw
-            # hex digits all (checked by byte_columns): unhexlify reads them as bytes.fromhex reads their text
-            return joined_hex(list(map(raw.__getitem__, map(slice, self._start[idx].tolist(),
-                                                              self._end[idx].tolist()))), size)
-        good, start = self._fitting(rows, size)
-        if not size or not start.size:
-            return good, b""
-        return good, _hex_bytes(_rows(self._b, start, size)).tobytes()
-
-    def payloads(self, groups: list[Any], size: int) -> list[tuple[list[int] | None, bytes]]:
-        """:meth:`payload` of each of ``groups`` (row lists or index arrays), cut in one pass over all their rows."""
-        good, data = self.payload(np.concatenate(groups), size)
-        width = size // 2
-        out: list[tuple[list[int] | None, bytes]] = []
-        pos = 0
-        if good is None:
-            for group in groups:
-                out.append((None, data[pos * width:(pos + len(group)) * width]))
-                pos += len(group)
-            return out
-        at = 0  # good positions before the group
-        for group in groups:
-            end = pos + len(group)
-            upto = bisect_left(good, end, at)
-            mine = [k - pos for k in good[at:upto]]
-            out.append((None if len(mine) == len(group) else mine, data[at * width:upto * width]))
-            pos, at = end, upto
-        return out
-
-    def _fitting(self, rows: Any, size: int) -> tuple[list[int] | None, np.ndarray]:
-        """Which of ``rows`` hold ``size`` hex digits (their positions in ``rows``; None: all), and where
-        their data starts."""
-        idx = np.asarray(rows, dtype=np.intp)
-        start = self._start[idx]
-        fit = self._end[idx] - start == size
-        if fit.all():
-            return None, start
-        keep = np.flatnonzero(fit)
-        return keep.tolist(), start[keep]
+    block: Block | None
+    """The frames of the good lines, in order (None: no frame)."""
+    rows_line: np.ndarray
+    """Each frame's line index in the block."""
+    lines: int
+    """Lines in the block, blank and comment lines included."""
+    bad: list[int]
+    """The bad lines' indices, in order."""
+    error_last: bool
+    """The block's last frame is an error frame (an indented line after it, in the next block, is ``-e``'s)."""
 
 
-def byte_columns(text: str | bytes, n: int) -> ByteColumns | None:
-    """The block ``text`` (its characters or, as the reader gives it, its bytes) of ``n`` lines (each ending in
-    a newline) as :class:`ByteColumns`, or None.
+# --------------------------------------------------------------------------- the text rewritten: one shape
 
-    ``n`` < 0: count them. None when any line is not of the plain shape, when the block has channels
-    of several name lengths, or when a timestamp does not convert exactly this way (its digits
-    make 2**53 or more): the caller then uses the text parser.
-    """
-    if not n or not text.isascii():
-        return None
-    raw = text if isinstance(text, bytes) else text.encode("ascii")
-    if b"\t" in raw:
-        return None
+_SPACES = re.compile(rb"[ \t]+")
+_EDGES = re.compile(rb"^ | $", re.M)
+_TAB_LED = re.compile(rb"^\t", re.M)
+_LONG_HEAD = rb"^\((\d{10,}\.\d+)\) ([^ \n]+) "
+_LONG_PLAIN = re.compile(_LONG_HEAD + rb"([0-9A-Fa-f]{3}|[0-9A-Fa-f]{8}) \[[0-8]\]((?: [0-9A-Fa-f]{2})*)(?: '[^\n]*)?$",
+                         re.M)
+_LONG_LENGTH = re.compile(rb"\[(\d\d?)\]")
+_LONG_ANY = re.compile(
+    rb"\((\d{10,}\.\d+)\) ([^ ]+) (?:([RT]X) ([B-]) ([E-]) )?([0-9A-Fa-f]{3}|[0-9A-Fa-f]{8}) \[(\d\d?)\]"
+    rb"((?: [0-9A-Fa-f]{2})*)( remote request|(?: '.*)?| ERRORFRAME.*)")
+
+
+def _rewritten(raw: bytes) -> tuple[bytes, np.ndarray | None]:
+    """The block with one space between fields, none at a line's ends, an indented line led by
+    :data:`_INDENTED`, and candump -ta lines rewritten as -L (lines keep their places); with each line's
+    announced ``[len]`` (-1: none) when there are -ta lines."""
+    if b"\t" in raw or _loose_spaces(raw):
+        if b"\t" in raw:
+            raw = _TAB_LED.sub(bytes([_INDENTED]), raw)
+        raw = _EDGES.sub(b"", _SPACES.sub(b" ", raw))
+    if b"[" not in raw:
+        return raw, None
+    n = raw.count(b"\n")
+    found = _LONG_PLAIN.findall(raw)
+    if len(found) == n:  # every line a classic -ta line: rewritten in one pass
+        lengths = np.array(_LONG_LENGTH.findall(raw), dtype=np.int64)
+        if lengths.size == n:
+            return b"".join(b"(%s) %s %s#%s\n" % (t, c, i, d.replace(b" ", b"")) for t, c, i, d in found), lengths
+    lines = raw.split(b"\n")
+    lines.pop()
+    announced = np.full(n, -1, dtype=np.int64)
+    for k, line in enumerate(lines):
+        if b"[" in line and (m := _LONG_ANY.fullmatch(line)) is not None:
+            lines[k], announced[k] = _compact(m)
+    return b"\n".join(lines) + b"\n", announced
+
+
+def _loose_spaces(raw: bytes) -> bool:
+    """Two spaces in a row, or a space at a line's start or end, anywhere in ``raw`` (two-byte searches cost
+    ten times these passes)."""
     b = np.frombuffer(raw, dtype=np.uint8)
-    size = b.size
-    pad, mask, spare = _scratch(size)
-    pad[:size] = b
-    pad[size:size + 8] = 0
-    words = np.ndarray((size + 1,), _LE64, pad, 0, (1,))  # words[k]: the 8 bytes from k, little-endian
-    np.equal(b, 10, out=mask)
-    nl = np.flatnonzero(mask)
-    if n < 0:
-        n = nl.size
-    if not n or nl.size != n or nl[-1] != b.size - 1:
-        return None
-    layout = _layout(raw, b, nl, n)
-    if layout is None:
-        return None
-    start, width, clen, sp1, sp2, end, spaces = layout
-    markers = spaces == 3 * n
-    ts = _stamps(b, start, width)
-    if ts is None:
-        return None
-    chans = _channels(b, words, sp1, clen)
-    if chans is None:
-        return None
-    names, lanes = chans
-    if any(c in name for name in names for c in "()# \t"):
-        return None  # a channel's letters are not counted as fields are: the text parser decides
-    found = _id_fields(b, words, sp2, end, n)
-    if found is None:
-        return None
-    h1, after, hashes, keys = found
-    payloads = _payloads(raw, b, h1, end, after, hashes - n)
-    if payloads is None:
-        return None
-    data_start, flags, remote = payloads
-    # Every byte that is not a hex digit has been found at its place above: "(", ")", the dot,
-    # the spaces, the "#"s, the newline, the marker, the channel's letters, a remote "R". One
-    # more anywhere (in the data, say, or a second "(" or "#") and the count differs.
-    others = [_others(name) for name in names]
-    letters = n * others[0] if lanes is None else int(np.dot(np.bincount(lanes, minlength=len(names)), others))
-    known = n * (4 + markers) + letters + spaces + hashes + len(remote or ())
-    if size - _hex_digits(b, pad[:size], mask, spare) != known:
-        return None
-    step = ts[1:] - ts[:-1]
-    backs = int(np.count_nonzero(step < 0))
-    cols = ByteColumns(n, ts, keys, not backs, names[0] if lanes is None else None, flags, remote,
-                       raw, b, data_start, end)
-    if lanes is not None:
-        cols.channels, cols.lanes = names, lanes
-    cols.order = (backs, int(np.count_nonzero(step == 0)))
-    return cols
-
-
-def _layout(raw: bytes, b: np.ndarray, nl: np.ndarray, n: int) -> tuple[Any, ...] | None:
-    """Where each line's fields are: (line starts, timestamp width, channel length, the space before the
-    channel, the space before the id, where each line's data ends, the block's spaces); None: not plain.
-
-    Each field's place follows from the first line's widths (timestamp, channel) and each id's
-    length (3 or 8); each place is checked. That "(", ")", " " and "#" are nowhere else is the caller's count
-    of the bytes that are not hex digits (no count of each: four passes over the block's bytes fewer).
-    """
-    start = np.empty(n, dtype=np.intp)
-    start[0] = 0
-    start[1:] = nl[:-1] + 1
-    first = raw[:int(nl[0])]
-    width = first.find(b")") - 1
-    clen = first.find(b" ", width + 3) - width - 3
-    if width < 3 or clen < 1 or nl[0] < 2:
-        return None
-    close = start + (width + 1)
-    sp1 = close + 1
-    sp2 = sp1 + (clen + 1)
-    if not ((b[start] == 40) & (sp2 < nl)).all() or not ((b[close] == 41) & (b[sp1] == 32) & (b[sp2] == 32)).all():
-        return None
-    markers = bool(b[nl[0] - 2] == 32)  # as the first line ends (" T"), or its data does: every line is checked
-    spaces = (3 if markers else 2) * n
-    end = nl - 2 if markers else nl  # the space before a T/R marker, or the newline
-    if markers and (not ((b[end] == 32) & (end > sp2)).all() or not set(b[nl - 1].tobytes()) <= _MARKERS):
-        return None
-    return start, width, clen, sp1, sp2, end, spaces
-
-
-def _id_fields(b: np.ndarray, words: np.ndarray, sp2: np.ndarray, end: np.ndarray, n: int
-               ) -> tuple[np.ndarray, np.ndarray, int, np.ndarray] | None:
-    """(where each line's "#" after the id is, the byte after it, the block's "#"s at their places, the id keys);
-    None: not plain."""
-    short = b[np.minimum(sp2 + 4, b.size - 1)] == 35  # a 3-digit id, else 8
-    h1 = np.where(short, sp2 + 4, sp2 + 9)
-    if not ((h1 < end) & (b[np.minimum(h1, b.size - 1)] == 35)).all():
-        return None
-    after = b[h1 + 1]  # "#" for CAN FD, "R" / "r" for a remote frame: h1 + 1 <= end (a newline at worst)
-    hashes = n + int(np.count_nonzero(after == 35))  # one "#" per line, two on a CAN FD line; none elsewhere:
-    # the caller's count of the bytes that are not hex digits
-    keys = _ids(words, sp2, h1)
-    if keys is None:
-        return None
-    return h1, after, hashes, keys
-
-
-def _payloads(raw: bytes, b: np.ndarray, h1: np.ndarray, end: np.ndarray, after: np.ndarray, nfd: int
-              ) -> tuple[np.ndarray, np.ndarray | None, dict[int, int] | None] | None:
-    """(where each row's data starts, each row's CAN FD flags (None: no CAN FD row), the remote rows' DLCs);
-    None: not plain."""
-    data_start = h1 + 1
-    is_fd = after == 35
-    flags: np.ndarray | None = None
-    remote: dict[int, int] | None = None
-    if nfd:
-        data_start = np.where(is_fd, h1 + 3, data_start)
-        flags = _fd_flags(b, h1, end, is_fd)
-        if flags is None:
-            return None
-    is_remote = (after == 82) | (after == 114)
-    if is_remote.any():
-        remote = _remote_dlcs(raw, h1, end, is_remote)
-        if remote is None:
-            return None
-        data_start = np.where(is_remote, end, data_start)
-    if not _lengths_ok(end - data_start, is_fd, nfd):
-        return None
-    return data_start, flags, remote
-
-
-def _fd_flags(b: np.ndarray, h1: np.ndarray, end: np.ndarray, is_fd: np.ndarray) -> np.ndarray | None:
-    """Each row's flags digit (BRS, ESI) when it is CAN FD (``ID##F...``), else :data:`_CLASSIC`; None: the
-    digit of a CAN FD row is missing or not a hex digit.
-
-    Over every row (a classic row's byte there is read and dropped): no index array of the FD rows."""
-    at = h1 + 2
-    if ((at >= end) & is_fd).any():
-        return None
-    flags = _HEXVAL.take(b.take(np.minimum(at, b.size - 1)))  # _HEXVAL gives _CLASSIC (255) to a non-hex byte
-    if ((flags == _CLASSIC) & is_fd).any():
-        return None
-    flags[~is_fd] = _CLASSIC
-    return flags
-
-
-def _remote_dlcs(raw: bytes, h1: np.ndarray, end: np.ndarray, is_remote: np.ndarray) -> dict[int, int] | None:
-    """The DLC of each remote row (``ID#R``, ``ID#R4``; -1: none written); None: a DLC that is no digit 0-8."""
-    remote = {}
-    for i in np.flatnonzero(is_remote).tolist():
-        dlc = raw[int(h1[i]) + 2:int(end[i])].decode("ascii")
-        if len(dlc) > 1 or (dlc and dlc not in "012345678"):
-            return None
-        remote[i] = (int(dlc) or -1) if dlc else -1
-    return remote
-
-
-def _lengths_ok(lengths: np.ndarray, is_fd: np.ndarray, nfd: int) -> bool:
-    """Each row's data (hex digits) is whole bytes of a CAN length: up to 8 classic, a CAN FD length for FD
-    (``nfd``: how many rows are CAN FD). Over every row: no selection of each kind's rows."""
-    if (lengths & 1).any():
+    space = b == 32
+    if not space.any():
         return False
-    if not nfd:
-        return not (lengths > 16).any()
-    fd_ok = _FD_BYTES.take(np.minimum(lengths >> 1, 65))
-    return not (((lengths > 16) & ~is_fd) | (~fd_ok & is_fd)).any()
+    edge = b == 10
+    return bool(space[0] or space[-1] or (space[1:] & (space[:-1] | edge[:-1])).any() or (space[:-1] & edge[1:]).any())
 
+
+def _compact(m: re.Match[bytes]) -> tuple[bytes, int]:
+    """A -ta line's fields (:data:`_LONG_ANY`) as a -L line, and its announced length (-1: a line the parser
+    must refuse, left as it was)."""
+    stamp, chan, _direction, brs, esi, cid, size, data, tail = m.groups()
+    length = int(size)
+    body = data.replace(b" ", b"")
+    if tail == b" remote request":
+        if body or len(size) == 2 or length > 8:
+            return m.group(0), -1
+        return b"(%s) %s %s#R%s" % (stamp, chan, cid, size if length else b""), 0
+    if tail.startswith(b" ERRORFRAME") and (len(cid) != 8 or not int(cid, 16) & _ERR_FLAG):
+        return m.group(0), -1
+    if len(size) == 2:  # candump prints [%02d] for CAN FD
+        flags = (1 if brs == b"B" else 0) | (2 if esi == b"E" else 0)
+        return b"(%s) %s %s##%X%s" % (stamp, chan, cid, flags, body), length
+    return b"(%s) %s %s#%s" % (stamp, chan, cid, body), length
+
+
+# --------------------------------------------------------------------------- the columns
+
+
+def parse_block(raw: bytes, error_before: bool = False) -> Parsed:
+    """The frames of ``raw``, a block of whole lines each ending in a newline (``\\r\\n`` taken as one).
+
+    ``error_before``: the last frame before the block is an error frame (an indented first line is ``-e``'s).
+    """
+    if b"\r" in raw:
+        raw = raw.replace(b"\r\n", b"\n").replace(b"\r", b"\n")
+    spaced = b"\t" in raw or b"[" in raw  # rewritten first (-ta lines are spaced out): else only if lines fail
+    parsed = _parsed(_rewritten(raw) if spaced else (raw, None), error_before)
+    if parsed.bad and not spaced and _loose_spaces(raw):
+        return _parsed(_rewritten(raw), error_before)
+    return parsed
+
+
+def _parsed(rewritten: tuple[bytes, np.ndarray | None], error_before: bool) -> Parsed:
+    """:func:`parse_block` of a block (rewritten, with its -ta lines' announced lengths)."""
+    text, announced = rewritten
+    b = np.frombuffer(text, dtype=np.uint8)
+    size = b.size
+    pad = _buffer("pad", size + _PAD, np.uint8)
+    pad[:size] = b
+    pad[size:] = 10
+    nl = np.flatnonzero(b == 10)
+    n = nl.size
+    start = np.empty(n, dtype=np.intp)
+    start[:1] = 0
+    start[1:] = nl[:-1] + 1
+    first = pad[start]
+    data = (first != 10) & (first != 35)  # blank lines and # comments are no frames
+    indented = first == _INDENTED
+    data &= ~indented
+    lines = np.flatnonzero(data)
+    cols = _Columns(b, pad, start[lines], nl[lines], lines.size == n)
+    ok = cols.ok
+    if announced is not None:  # a -ta line's [len] is its payload's length
+        known = announced[lines]
+        ok &= (known < 0) | (cols.length == known)
+    good = np.flatnonzero(ok)
+    bad_lines = lines[~ok]
+    rows_line = lines[good]
+    errors = cols.err[good]
+    error_last = bool(errors[-1]) if errors.size else error_before
+    if indented.any():
+        bad_lines, error_last = _indented(np.flatnonzero(indented), rows_line, errors, bad_lines, error_before)
+    block = cols.block(good) if good.size else None
+    return Parsed(block, rows_line, n, sorted(bad_lines.tolist()), error_last)
+
+
+def _indented(at: np.ndarray, rows_line: np.ndarray, errors: np.ndarray, bad: np.ndarray,
+              error_before: bool) -> tuple[np.ndarray, bool]:
+    """The bad lines with the indented lines (``at``) added that do not follow an error frame (``errors``: each
+    frame is one); whether the block's last frame is an error frame. An indented line under an error frame is
+    ``candump -e``'s explanation of it: skipped."""
+    before = np.searchsorted(rows_line, at) - 1  # the frame before each
+    follows = np.where(before >= 0, errors[np.maximum(before, 0)] if errors.size else False, error_before)
+    last = bool(errors[-1]) if errors.size else error_before
+    return np.concatenate([bad, at[~follows]]), last
+
+
+class _Columns:
+    """The fields of the lines from ``start`` to ``end`` (their newline), found and checked: :attr:`ok`.
+
+    ``whole``: every line of the block is one of these (no blank, comment or indented line): then one count
+    of the block's bytes that are not hex digits, held to what the fields found account for, proves at once
+    that the ids and payloads are hex digits (else each line's fields are counted on their own).
+    """
+
+    def __init__(self, b: np.ndarray, pad: np.ndarray, start: np.ndarray, end: np.ndarray, whole: bool) -> None:
+        self.b = b
+        self.pad = pad
+        self.start = start
+        self.has_under = bool(np.count_nonzero(b == 95))  # a raw DLC somewhere
+        close, sp2 = self._fixed(start, end) or self._searched(start, end)
+        ok = (pad[start] == 40) & (close < end) & (pad[close + 1] == 32) & (sp2 < end) & (sp2 > close + 2)
+        fe = self._field_end(sp2, end)
+        tail = fe < end
+        ok &= ~tail | ((fe == end - 2) & _MARKERS[pad[end - 1]])
+        h1 = self._hash(sp2, fe)
+        ok &= h1 < fe
+        self.close, self.sp2 = close, sp2
+        ok &= self._ids(h1, sp2)
+        ok &= self._data(h1, fe)
+        ok &= self._stamps(start, close)
+        hexes = [(sp2 + 1, h1), (self.ds, self.de)]  # where only hex digits may be
+        if not (whole and ok.all() and self._counted(b, tail, close, sp2)):
+            for lo, hi in hexes:
+                ok &= self._between(lo, hi) == 0
+        self.ok = ok
+
+    def _fixed(self, start: np.ndarray, end: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """")" and the space after the channel where the first line has them, when every line does."""
+        if not start.size:
+            return None
+        pad = self.pad
+        first = pad[int(start[0]):int(end[0])].tobytes()
+        width = first.find(b")") - 1
+        clen = first.find(b" ", width + 3) - width - 3
+        if width < 1 or clen < 1:
+            return None
+        close = start + (width + 1)
+        sp2 = close + clen + 2
+        if not ((pad[close] == 41) & (pad[close + 1] == 32) & (pad[sp2] == 32) & (sp2 < end)).all():
+            return None
+        return close, sp2
+
+    def _searched(self, start: np.ndarray, end: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """")" and the space after the channel of each line, wherever they are."""
+        close = _next(self.b, 41, start, end)
+        return close, _after(np.flatnonzero(self.b == 32), close + 2, end)
+
+    def _field_end(self, sp2: np.ndarray, end: np.ndarray) -> np.ndarray:
+        """Where each line's ID#DATA ends: its end, or the space before a T/R marker (a space anywhere else is
+        found by the count of what is not a hex digit)."""
+        pad = self.pad
+        spaced = pad[end - 2] == 32
+        if not spaced.any():
+            return end
+        return np.where(spaced & (end - 2 > sp2), end - 2, _after(np.flatnonzero(self.b == 32), sp2 + 1, end))
+
+    def _hash(self, sp2: np.ndarray, fe: np.ndarray) -> np.ndarray:
+        """The "#" after each line's id: 3 or 8 characters after the space (else searched)."""
+        pad = self.pad
+        h1 = np.where(pad[sp2 + 4] == 35, sp2 + 4, sp2 + 9)
+        found = (pad[h1] == 35) & (h1 < fe)
+        if found.all():
+            return h1
+        return np.where(found, h1, _next(self.b, 35, sp2 + 1, fe))
+
+    def _counted(self, b: np.ndarray, tail: np.ndarray, close: np.ndarray, sp2: np.ndarray) -> bool:
+        """The block's bytes that are not hex digits are exactly those its lines' fields account for."""
+        n = tail.size
+        marks = 2 * n + 2 * n + n + int(np.count_nonzero(tail)) * 2  # ( ) two spaces, newline; " T"
+        marks += int(np.count_nonzero(self.dot_at)) + n + int(np.count_nonzero(self.fd))  # the dots, "#", "##"
+        marks += int(np.count_nonzero(self.remote)) + int(np.count_nonzero(self.raw_dlc))  # "R", "_"
+        size = sp2 - close - 2
+        for length in np.unique(size).tolist() if not (size == size[0]).all() else [int(size[0])]:
+            at = slice(None) if (size == length).all() else np.flatnonzero(size == length)
+            marks += int(np.count_nonzero(~_HEX[_rows(self.pad, close[at] + 2, length)]))  # the channels
+        return b.size - _hex_digits(b) == marks
+
+    def _between(self, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+        """How many bytes in each ``[lo, hi)`` are not hex digits."""
+        nonhex = getattr(self, "nonhex", None)
+        if nonhex is None:
+            size = self.b.size
+            nonhex = self.nonhex = _buffer("nonhex", size + 1, np.int32)
+            nonhex[0] = 0
+            np.cumsum(~_HEX[self.b], out=nonhex[1:])
+        top = nonhex.size - 1
+        return nonhex[np.clip(hi, 0, top)] - nonhex[np.clip(lo, 0, top)]
+
+    def _ids(self, h1: np.ndarray, sp2: np.ndarray) -> np.ndarray:
+        """The ids (3 or 8 hex digits before the "#"): :attr:`can_id`, :attr:`extended`, error frames."""
+        size = h1 - sp2 - 1
+        ext = size == 8
+        words = np.ndarray((self.pad.size - 7,), _LE64, self.pad, 0, (1,))  # words[k]: 8 bytes from k
+        # one read of the 8 bytes before each "#": a long id's digits, or a short one's three after five bytes
+        # read and dropped (each byte lands in its own nibble: a short id is the low 12 bits)
+        value = _extended_values(words[np.maximum(h1 - 8, 0)])
+        low = value & _U(0xFFF)
+        err = ext & ((value & _U(_ERR_FLAG)) != 0)
+        self.can_id = np.where(ext, value & _U(_MAX_EXTENDED), low).astype(np.uint32)
+        self.extended = ext
+        self.err = err
+        return (ext | (size == 3)) & np.where(ext, (value <= _U(_MAX_EXTENDED)) | err, low <= _U(_MAX_STANDARD))
+
+    def _data(self, h1: np.ndarray, fe: np.ndarray) -> np.ndarray:
+        """The payloads after the "#": classic, CAN FD (``##F``), remote (``R``, ``R4``), raw DLC (``_D``)."""
+        pad = self.pad
+        after = pad[h1 + 1]
+        fd = after == 35
+        remote = (after == 82) | (after == 114)
+        digit = pad[h1 + 2]
+        ok = ~fd | ((h1 + 2 < fe) & _HEX[digit])
+        self.fd_digit = np.where(fd, _hex_value(digit), 0) if fd.any() else np.zeros(fd.size, dtype=np.int64)
+        ds = np.where(fd, h1 + 3, h1 + 1)
+        under = _next(self.b, 95, ds, fe) if self.has_under else fe  # "_": a raw DLC
+        raw_dlc = under < fe
+        de = np.where(raw_dlc, under, fe)
+        de = np.where(remote, ds, de)
+        rl = fe - h1 - 2
+        ok &= ~remote | (rl == 0) | ((rl == 1) & (digit >= 48) & (digit <= 56))
+        dlc_digit = _hex_value(pad[under + 1]) if self.has_under else _zeros_like(fe)
+        ok &= ~raw_dlc | (~fd & ~remote & (fe == under + 2) & (de - ds == 16) & _HEX[pad[under + 1]]
+                          & (dlc_digit >= 9))
+        hex_len = de - ds
+        ok &= (hex_len >= 0) & ((hex_len & 1) == 0)
+        length = np.maximum(hex_len, 0) >> 1
+        ok &= np.where(fd, _FD_BYTES[np.minimum(length, 65)], length <= 8)
+        self.ds, self.de, self.length = ds, de, length
+        self.fd, self.remote, self.raw_dlc = fd, remote, raw_dlc
+        self.dlc = np.where(remote, np.where(rl == 1, digit.astype(np.int64) - 48, 0),
+                            np.where(raw_dlc, dlc_digit, length))
+        return ok
+
+    @property
+    def flags(self) -> np.ndarray:
+        """Each line's :class:`Block` flags."""
+        digit = self.fd_digit.astype(np.uint8)
+        return (np.where(self.fd, FLAG_FD | ((digit & 1) * FLAG_BRS) | ((digit & 2) // 2 * FLAG_ESI), 0)
+                | np.where(self.remote, FLAG_REMOTE, 0) | np.where(self.err, FLAG_ERROR, 0)).astype(np.uint8)
+
+    def _stamps(self, start: np.ndarray, close: np.ndarray) -> np.ndarray:
+        """The timestamps (digits, a dot and digits, or digits alone, between "(" and ")") as :attr:`time_s`."""
+        n = start.size
+        self.time_s = np.zeros(n, dtype=np.float64)
+        ok = np.ones(n, dtype=bool)
+        width = close - start - 1
+        dot = self._dots(start, close)
+        self.dot_at = dot < close
+        place = np.where(self.dot_at, dot - start - 1, 63)
+        key = np.minimum(width, 48) * 64 + place
+        kinds: list[tuple[int, slice | np.ndarray]]
+        if n and (key == key[0]).all():
+            kinds = [(int(key[0]), slice(None))]
+        else:
+            kinds = [(int(k), np.flatnonzero(key == k)) for k in np.unique(key).tolist()]
+        for k, pick in kinds:
+            w, at = divmod(k, 64)
+            self._stamp_kind(w, at, start[pick] + 1, ok, pick)
+        return ok
+
+    def _dots(self, start: np.ndarray, close: np.ndarray) -> np.ndarray:
+        """The dot of each timestamp: where the first line has it, when every line does (else searched)."""
+        if start.size:
+            at = self.pad[int(start[0]):int(close[0])].tobytes().find(b".")
+            if at > 0 and ((self.pad[start + at] == 46) & (start + at < close)).all():
+                return start + at
+        return _next(self.b, 46, start + 1, close)
+
+    def _stamp_kind(self, width: int, dot: int, first: np.ndarray, ok: np.ndarray, pick: slice | np.ndarray) -> None:
+        """The timestamps of ``width`` characters with the dot at ``dot`` (63: none) from ``first``."""
+        if width < 1 or width >= 48 or (dot != 63 and not 0 < dot < width - 1):
+            ok[pick] = False  # empty, too long, or no digit before or after the dot
+            return
+        cells = _rows(self.pad, first, width)
+        np.subtract(cells, np.uint8(48), out=cells)  # a digit is 0..9, anything else wraps above 9
+        if dot != 63:
+            cells[:, dot] = 0
+        good = (cells <= 9).all(axis=1)
+        if width <= 23:  # 10**22: the last exact power of ten
+            weights = np.array([0.0 if k == dot else 10.0 ** (width - 1 - k - (dot != 63 and k < dot))
+                                for k in range(width)])
+            digits = _buffer("digits", cells.size, np.float64).reshape(cells.shape)
+            np.copyto(digits, cells)
+            whole = digits @ weights  # BLAS: every partial sum an integer below 2**53, exact in any order
+            scale = 10.0 ** (width - 1 - dot) if dot != 63 else 1.0
+            values = whole / scale  # an exact integer / an exact power of ten: one rounding, as float()
+            slow = np.flatnonzero(good & (whole >= _EXACT))
+        else:
+            values = np.zeros(first.size)
+            slow = np.flatnonzero(good)
+        for r in slow.tolist():  # too many digits for one exact division: float() of the text
+            at = int(first[r])
+            values[r] = float(bytes(self.pad[at:at + width]))
+        ok[pick] = good
+        self.time_s[pick] = values
+
+    def channels(self, rows: np.ndarray) -> tuple[np.ndarray, tuple[str, ...]]:
+        """Each of ``rows``' channel index, and the names."""
+        begin = self.close[rows] + 2
+        size = self.sp2[rows] - begin
+        names: dict[bytes, int] = {}
+        lanes = np.zeros(rows.size, dtype=np.uint16)
+        if not rows.size:
+            return lanes, ("",)
+        first = int(size[0])
+        if (size == first).all():
+            cells = _rows(self.pad, begin, first)
+            if (cells == cells[0]).all():
+                return lanes, (bytes(cells[0]).decode("utf-8", "replace"),)
+        for length in np.unique(size).tolist():
+            at = np.flatnonzero(size == length)
+            if length <= 8:  # a name of up to 8 bytes is one 64-bit word: unique as integers
+                words = np.ndarray((self.pad.size - 7,), _LE64, self.pad, 0, (1,))
+                codes = words[begin[at]] & _U((1 << 8 * length) - 1)
+                _codes, firsts, inverse = np.unique(codes, return_index=True, return_inverse=True)
+                order = np.argsort(firsts)  # the names in the order they first come
+                rank = np.empty(order.size, dtype=np.intp)
+                rank[order] = np.arange(order.size)
+                inverse = rank[inverse.reshape(-1)]
+                keys = [self.pad[k:k + length].tobytes() for k in begin[at][firsts[order]].tolist()]
+            else:
+                cells = np.ascontiguousarray(_rows(self.pad, begin[at], length))
+                found, inverse = np.unique(cells.view(np.dtype((np.void, length))).reshape(-1), return_inverse=True)
+                keys = [k.tobytes() for k in found]
+            index = np.array([names.setdefault(k, len(names)) for k in keys], dtype=np.uint16)
+            lanes[at] = index[inverse.reshape(-1)]
+        if len(names) == 1 or ((size == first).all() and first <= 8):
+            return lanes, tuple(name.decode("utf-8", "replace") for name in names)
+        _seen, firsts = np.unique(lanes, return_index=True)
+        order = np.argsort(firsts)  # the names in the order they first come
+        rank = np.empty(order.size, dtype=np.uint16)
+        rank[order] = np.arange(order.size, dtype=np.uint16)
+        listed = list(names)
+        return rank[lanes], tuple(listed[k].decode("utf-8", "replace") for k in order.tolist())
+
+    def block(self, rows: np.ndarray) -> Block:
+        """The frames of ``rows`` (good lines) as a block."""
+        length = self.length[rows]
+        width = int(length.max()) * 2 if rows.size else 0
+        if width:
+            payload = _hex_bytes(_rows(self.pad, self.ds[rows], width))
+            payload[np.arange(width >> 1) >= length[:, None]] = 0  # past a shorter row's data: the next bytes
+        else:
+            payload = np.zeros((rows.size, 0), dtype=np.uint8)
+        lanes, names = self.channels(rows)
+        return Block(self.time_s[rows], self.can_id[rows], self.extended[rows], self.flags[rows],
+                     self.dlc[rows].astype(np.uint8), length.astype(np.uint8), payload, lanes, names)
+
+
+# --------------------------------------------------------------------------- numpy helpers
 
 _LOCAL = threading.local()
 
@@ -389,13 +467,9 @@ def _buffer(name: str, count: int, dtype: type) -> np.ndarray:
     return have[:count]
 
 
-def _scratch(size: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Scratch for a block of ``size`` bytes (:func:`_buffer`): ``size + 8`` bytes, and two masks of ``size``."""
-    return _buffer("pad", size + 8, np.uint8), _buffer("mask", size, bool), _buffer("spare", size, bool)
-
-
-def _hex_digits(b: np.ndarray, work: np.ndarray, mask: np.ndarray, spare: np.ndarray) -> int:
-    """How many bytes of ``b`` are hex digits (0-9, a-f, A-F), counted in ``work``/``mask``/``spare`` (overwritten)."""
+def _hex_digits(b: np.ndarray) -> int:
+    """How many bytes of ``b`` are hex digits (0-9, a-f, A-F): arithmetic in scratch, no table lookup."""
+    work, mask, spare = _buffer("work", b.size, np.uint8), _buffer("mask", b.size, bool), _buffer("spare", b.size, bool)
     np.subtract(b, np.uint8(48), out=work)
     np.less(work, np.uint8(10), out=mask)  # a digit; anything else wraps above 9
     np.bitwise_or(b, np.uint8(32), out=work)
@@ -405,130 +479,43 @@ def _hex_digits(b: np.ndarray, work: np.ndarray, mask: np.ndarray, spare: np.nda
     return int(np.count_nonzero(mask))
 
 
-def _stamps(b: np.ndarray, start: np.ndarray, width: int) -> np.ndarray | None:
-    """The timestamps (``width`` characters after each line's "("), exactly as ``float()`` reads them, or None."""
-    n = start.size
-    cells = _rows(b, start + 1, width)
-    dots = np.flatnonzero(cells[0] == 46)
-    if dots.size != 1 or not 0 < int(dots[0]) < width - 1 or width - 1 > 22:  # 10**22: the last exact power
-        return None
-    dot = int(dots[0])
-    if not (cells[:, dot] == 46).all():
-        return None
-    np.subtract(cells, np.uint8(48), out=cells)  # a digit is 0..9, anything else wraps above 9
-    cells[:, dot] = 0
-    if int(cells.max()) > 9:
-        return None
-    # BLAS in float64: every partial sum is an integer below 2**53, so exact in any order
-    weights = np.array([0.0 if k == dot else 10.0 ** (width - 1 - k - (k < dot)) for k in range(width)])
-    digits = _buffer("digits", n * width, np.float64).reshape(n, width)
-    np.copyto(digits, cells)
-    whole = digits @ weights
-    if float(whole.max()) >= _EXACT:
-        return None
-    return whole / 10.0 ** (width - 1 - dot)  # exact integer / exact power of ten: one rounding, as float()
+def _next(b: np.ndarray, byte: int, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """Per line, the first position of ``byte`` in ``b`` from ``lo`` on and before ``hi``, else ``hi``."""
+    return _after(np.flatnonzero(b == byte), lo, hi)
 
 
-def _channels(b: np.ndarray, words: np.ndarray, sp1: np.ndarray, size: int
-              ) -> tuple[list[str], np.ndarray | None] | None:
-    """The block's channel names and each row's index into them (None: one channel); None: names of more
-    than 8 characters that differ (their lengths are one: the caller placed every field by it)."""
-    if size > 8:
-        cells = _rows(b, sp1 + 1, size)
-        if (cells == cells[0]).all():
-            return [bytes(cells[0]).decode("ascii")], None
-        return None
-    codes = words[sp1 + 1] & np.uint64((1 << 8 * size) - 1)  # the name's bytes, little-endian
-    first = int(sp1[0]) + 1
-    same = codes == codes[0]
-    if same.all():
-        return [bytes(b[first:first + size]).decode("ascii")], None
-    lanes = _two_lanes(codes, same)
-    if lanes is None:
-        _codes, firsts, lanes = np.unique(codes, return_index=True, return_inverse=True)
-        lanes = lanes.reshape(-1).astype(np.intp)
-    else:
-        firsts = np.array([int(np.argmax(lanes == 0)), int(np.argmax(lanes))])
-    names = [bytes(b[int(sp1[k]) + 1:int(sp1[k]) + 1 + size]).decode("ascii") for k in firsts.tolist()]
-    return names, lanes
+def _after(positions: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """Per line, the first of ``positions`` (sorted) at or after ``lo`` and before ``hi``, else ``hi``."""
+    if not positions.size:
+        return hi.copy()
+    k = np.searchsorted(positions, lo)
+    at = positions[np.minimum(k, positions.size - 1)]
+    return np.where((k < positions.size) & (at < hi), at, hi)
 
 
-def _two_lanes(codes: np.ndarray, same: np.ndarray) -> np.ndarray | None:
-    """Each row's lane when the block has exactly two channels (``same``: the rows of the first row's), as
-    ``np.unique`` numbers them (the lower code first), without its sort; None: more than two."""
-    other = codes[int(np.argmin(same))]
-    second = codes == other
-    if not (same | second).all():
-        return None
-    return (second if other > codes[0] else same).astype(np.intp)
+def _zeros_like(like: np.ndarray) -> np.ndarray:
+    """Zeros of ``like``'s length (no raw DLC in the block)."""
+    return np.zeros(like.size, dtype=np.int64)
 
 
-def _ids(words: np.ndarray, sp2: np.ndarray, h1: np.ndarray) -> np.ndarray | None:
-    """Each row's id key: 3 hex digits up to 7FF (standard) or 8 up to 1FFFFFFF (extended); None otherwise.
-
-    The digits are read 8 bytes at a time (SWAR on little-endian words); that they are hex digits
-    at all is the caller's non-hex count.
-    """
-    size = h1 - sp2 - 1
-    ext = size == 8
-    if not (ext | (size == 3)).all():
-        return None
-    if ext.all():
-        return _extended(words[h1 - 8])
-    if not ext.any():
-        return _standard(words[h1 - 3])
-    # One read of the 8 bytes before each "#", over every row: a long id's digits, or a short id's
-    # three after five bytes that are read and dropped. Each byte lands in its own nibble of the
-    # value, so a short id is its low 12 bits whatever the bytes before it (numpy's boolean
-    # selections of each kind's rows cost more than the arithmetic they save).
-    value = _extended_values(words[h1 - 8])
-    low = value & _U(0xFFF)
-    if ((value > _U(_MAX_EXTENDED)) & ext).any() or ((low > _U(_MAX_STANDARD)) & ~ext).any():
-        return None
-    return np.where(ext, value.astype(np.int64) + EXT_KEY, low.astype(np.int64))
-
-
-def _extended(x: np.ndarray) -> np.ndarray | None:
-    """The keys of 8-digit ids (``x``: their digits' bytes), or None when one is above 1FFFFFFF (error frames)."""
-    value = _extended_values(x)
-    if (value > _U(_MAX_EXTENDED)).any():
-        return None
-    return value.astype(np.int64) + EXT_KEY
-
-
-def _standard(x: np.ndarray) -> np.ndarray | None:
-    """The keys of 3-digit ids (``x``: their digits' bytes, then others), or None when one is above 7FF."""
-    value = _standard_values(x)
-    if (value > _U(_MAX_STANDARD)).any():
-        return None
-    return value.astype(np.int64)
+def _hex_value(digits: np.ndarray) -> np.ndarray:
+    """The value of each ASCII hex digit (anything else: junk, to be refused by a check)."""
+    d = digits.astype(np.int64)
+    return (d & 0x0F) + ((d >> 6) & 1) * 9
 
 
 def _extended_values(x: np.ndarray) -> np.ndarray:
     """The values of 8 hex digits (``x``: their bytes, little-endian words), unchecked."""
-    nib = _nibbles(x)  # byte k: the k-th digit
+    nib = (x & _U(0x0F0F0F0F0F0F0F0F)) + ((x >> _U(6)) & _U(0x0101010101010101)) * _U(9)  # byte k: digit k
     x = ((nib & _U(0x000F000F000F000F)) << _U(4)) | ((nib >> _U(8)) & _U(0x000F000F000F000F))
     x = ((x & _U(0x000000FF000000FF)) << _U(8)) | ((x >> _U(16)) & _U(0x000000FF000000FF))
     return ((x & _U(0xFFFF)) << _U(16)) | ((x >> _U(32)) & _U(0xFFFF))
 
 
-def _standard_values(x: np.ndarray) -> np.ndarray:
-    """The values of 3 hex digits (``x``: their bytes, then others, little-endian words), unchecked."""
-    nib = _nibbles(x)
-    return ((nib & _U(0xF)) << _U(8)) | (((nib >> _U(8)) & _U(0xF)) << _U(4)) | ((nib >> _U(16)) & _U(0xF))
-
-
-def _nibbles(x: np.ndarray) -> np.ndarray:
-    """Each byte of ``x``, an ASCII hex digit, as its value (0-9, a-f and A-F alike)."""
-    return (x & _U(0x0F0F0F0F0F0F0F0F)) + ((x >> _U(6)) & _U(0x0101010101010101)) * _U(9)
-
-
 def _hex_bytes(cells: np.ndarray) -> np.ndarray:
-    """The bytes that the rows of ``cells`` spell (hex digits, checked by :func:`byte_columns`, an even number
-    a row, C-contiguous): a ``rows x half as many`` matrix.
-
-    Two digits at a time, as little-endian 16-bit words (the first digit in the low byte), in
-    arithmetic: a table lookup (``take``) first widens every digit to an index."""
+    """The bytes that the rows of ``cells`` spell (hex digits, an even number a row, C-contiguous): a
+    ``rows x half as many`` matrix. Two digits at a time, as little-endian 16-bit words (the first digit in
+    the low byte)."""
     pairs = cells.view(_LE16)
     nib = (pairs & _U16(0x0F0F)) + ((pairs >> _U16(6)) & _U16(0x0101)) * _U16(9)  # each byte: its digit's value
     return ((nib << _U16(4)) | (nib >> _U16(8))).astype(np.uint8)  # the low byte: first digit * 16 + second
@@ -537,8 +524,3 @@ def _hex_bytes(cells: np.ndarray) -> np.ndarray:
 def _rows(b: np.ndarray, pos: np.ndarray, width: int) -> np.ndarray:
     """The ``width`` bytes at each of ``pos``, as a ``len(pos) x width`` matrix (one copy per row, not per byte)."""
     return np.ndarray((b.size - width + 1, width), np.uint8, b, 0, (1, 1))[pos]  # as_strided, without its overhead
-
-
-def _others(channel: str) -> int:
-    """How many characters of ``channel`` are not hex digits."""
-    return sum(c not in "0123456789abcdefABCDEF" for c in channel)

@@ -1,24 +1,20 @@
-"""Read recorded CAN logs as :class:`~canguard.io.frame.Frame` streams; write candump -L logs.
+"""Read recorded CAN logs as streams of :class:`~canguard.io.block.Block` s (or frames); write candump -L logs.
 
 :func:`read_log` picks the reader by file extension (``.gz`` on any of them)::
 
     .log .candump .txt   candump text: ``candump -L`` / ``-l`` lines (the fast path)
                          or plain ``candump -ta`` output
-    .asc                 canguard's reader for plain data lines, python-can's for the rest (io.asc_blocks)
-    .blf .trc .csv       python-can's own readers
+    .asc .blf .trc .csv  python-can's own readers
     .mf4                 python-can's MF4 reader (needs ``python-can[mf4]``)
+    .bag .db3 .mcap      ROS bags (io.rosbag; needs ``rosbags``), and a rosbag2 directory (its metadata.yaml)
 
 Every reader streams: the log is read in chunks of :data:`CHUNK_CHARS` characters
 and never held whole, so memory stays flat in the log's length.
 
-The candump -L fast path parses a whole chunk at once with C-level string
-operations (one ``translate`` + ``split`` for the chunk, ``map(float)``,
-``map(int)``, ``map(bytes.fromhex)`` over columns, frames built with
-``tuple.__new__``): no per-line regex and no per-line Python code. A chunk that
-does not have the plain shape (CAN FD, remote or error frames, comments, blank
-lines, malformed lines, plain candump output) is parsed line by line by the
-general parser instead, which knows every case and names the file:line of a bad
-line.
+Every reader gives the same :class:`~canguard.io.block.Block` (numpy columns); the
+candump reader parses a plain block with numpy (:mod:`canguard.io.candump_np`), a
+block of other shapes (comments, error frames, raw DLCs...) line by line, naming the
+file:line of a bad line.
 
 Timestamps of python-can formats are what python-can reports: ASC timestamps are
 relative to the measurement start (python-can's default), which keeps a replay
@@ -30,28 +26,28 @@ from __future__ import annotations
 
 import importlib.util
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from canguard.errors import LogFormatError
-from canguard.io.candump import CHUNK_CHARS, Columns, candump_chunks
+from canguard.io.bagopts import BAG_SUFFIXES, NEEDS, BagOptions, is_bag
+from canguard.io.block import Block
+from canguard.io.candump import CHUNK_CHARS, candump_chunks
 from canguard.io.candump_write import format_candump_line, write_candump
-from canguard.io.logtypes import COMPRESSIONS, BadLine, Chunk, LogFrames, ReadStats, candump_id_texts
+from canguard.io.logtypes import COMPRESSIONS, BadLine, LogFrames, ReadStats
 from canguard.io.progress import ProgressBar
-from canguard.io.pycan import frame_from_message
-from canguard.io.pycan_blocks import python_can_chunks
+from canguard.io.pycan import frame_from_message, python_can_chunks
 
 __all__ = [
     "CHUNK_CHARS",
     "LOG_READERS",
     "LOG_SUFFIXES",
     "BadLine",
-    "Columns",
+    "Block",
     "LogFormat",
     "LogFrames",
     "LogRequest",
     "ReadStats",
-    "candump_id_texts",
     "format_candump_line",
     "frame_from_message",
     "log_format",
@@ -75,46 +71,50 @@ class LogRequest:
     """Malformed lines are counted in ``stats`` and skipped, not raised (text formats that check their lines)."""
     order_stats: bool
     """The caller reads ``stats``' timestamp order counts (a reader may spare counting them otherwise)."""
+    bag: BagOptions = field(default_factory=BagOptions)
+    """What a bag's reader is asked besides the path (topics, stamps)."""
 
 
 @dataclass(frozen=True)
 class LogFormat:
-    """One log format: its name and the reader that gives its blocks (column blocks or lists of frames)."""
+    """One log format: its name and the reader that gives its blocks."""
 
     name: str
-    read: Callable[[LogRequest, LogFrames], Iterator[Chunk]]
+    read: Callable[[LogRequest, LogFrames], Iterator[Block]]
     needs: tuple[str, str] | None = None
     """(module, how to install it) of an optional dependency, checked before the log is opened."""
 
 
-def _read_candump(req: LogRequest, owner: LogFrames) -> Iterator[Chunk]:
+def _read_candump(req: LogRequest, owner: LogFrames) -> Iterator[Block]:
     return candump_chunks(req.path, req.compression, req.skip_bad, req.stats, req.order_stats, owner)
 
 
-def _read_asc(req: LogRequest, owner: LogFrames) -> Iterator[Chunk]:
-    from canguard.io.asc_blocks import asc_chunks  # its regexes are compiled for ASC logs only
+def _read_bag(req: LogRequest, owner: LogFrames) -> Iterator[Block]:
+    from canguard.io.rosbag import bag_chunks  # numpy and rosbags: imported for bags only
 
-    return asc_chunks(req.path, req.compression, req.stats, owner)
+    return bag_chunks(req.path, req.bag, req.stats, owner, req.skip_bad)
 
 
 def _python_can(name: str, needs: tuple[str, str] | None = None) -> LogFormat:
-    def read(req: LogRequest, owner: LogFrames) -> Iterator[Chunk]:
+    def read(req: LogRequest, owner: LogFrames) -> Iterator[Block]:
         return python_can_chunks(req.path, name, req.compression, req.stats, owner)
 
     return LogFormat(name, read, needs)
 
 
 _CANDUMP = LogFormat("candump", _read_candump)
+_BAG = LogFormat("rosbag", _read_bag, NEEDS)
 
 LOG_READERS: dict[str, LogFormat] = {
     ".log": _CANDUMP,
     ".candump": _CANDUMP,
     ".txt": _CANDUMP,
-    ".asc": LogFormat("asc", _read_asc),  # canguard's reader for plain data lines, python-can's for the rest
+    ".asc": _python_can("asc"),
     ".blf": _python_can("blf"),
     ".trc": _python_can("trc"),
     ".csv": _python_can("csv"),
     ".mf4": _python_can("mf4", ("asammdf", "pip install 'python-can[mf4]'")),
+    **dict.fromkeys(BAG_SUFFIXES, _BAG),
 }
 """The log readers keyed by file suffix (as python-can's ``MESSAGE_READERS``): a format is one entry."""
 
@@ -127,6 +127,8 @@ _COMPRESSORS = {"zst": ("zstandard", "pip install zstandard")}
 
 def _reader(path: Path) -> tuple[LogFormat, str]:
     """The format of ``path`` by its suffix, and its compression ("" none)."""
+    if path.is_dir() and is_bag(path):
+        return _BAG, ""
     suffix = path.suffix.lower()
     compression = ""
     if suffix in COMPRESSIONS:
@@ -145,7 +147,7 @@ def _reader(path: Path) -> tuple[LogFormat, str]:
 def log_format(path: str | Path) -> tuple[str, str]:
     """Return ``(format, compression)`` for a log path, chosen by extension.
 
-    ``format`` is ``candump``, ``asc``, ``blf``, ``trc``, ``csv`` or ``mf4``;
+    ``format`` is ``candump``, ``asc``, ``blf``, ``trc``, ``csv``, ``mf4`` or ``rosbag``;
     ``compression`` is ``""``, ``gz``, ``xz`` or ``zst`` (``robot.log.xz``).
     Raises :class:`LogFormatError` for an unknown extension.
     """
@@ -156,7 +158,7 @@ def log_format(path: str | Path) -> tuple[str, str]:
 def _require(p: Path, what: str, needs: tuple[str, str] | None) -> None:
     """Raise :class:`LogFormatError` when the optional module ``needs`` names is not installed."""
     if needs is not None and importlib.util.find_spec(needs[0]) is None:
-        raise LogFormatError(f"{p}: reading {what} logs needs {needs[0]}: {needs[1]}")
+        raise LogFormatError(f"{p}: reading {what} needs {needs[0]}: {needs[1]}")
 
 
 def read_log(
@@ -165,6 +167,7 @@ def read_log(
     skip_bad: bool = False,
     stats: ReadStats | None = None,
     progress: ProgressBar | None = None,
+    bag: BagOptions | None = None,
 ) -> LogFrames:
     """Stream the frames of a recorded log, in file order.
 
@@ -178,6 +181,7 @@ def read_log(
     :class:`LogFormatError` when the iterator reaches its end. Errors inside
     python-can's readers (corrupt BLF, bad ASC...) are re-raised as
     :class:`LogFormatError` naming the file (they cannot be skipped).
+    ``bag`` says which topics of a ROS bag to read and which stamps (:class:`~canguard.io.rosbag.BagOptions`).
     ``progress``, when given, is updated with the file position after each chunk
     and closed at the end (see also :func:`canguard.io.progress.wrap_progress`).
 
@@ -188,16 +192,19 @@ def read_log(
     fmt, gz = _reader(p)  # gz: the compression ("" none)
     if not p.exists():
         raise LogFormatError(f"{p}: no such file")
-    if not p.is_file():
+    if not p.is_file() and fmt is not _BAG:
         raise LogFormatError(f"{p}: not a regular file")
-    _require(p, f".{fmt.name}", fmt.needs)
-    _require(p, f".{gz}", _COMPRESSORS.get(gz))
+    if fmt is _BAG and gz:
+        raise LogFormatError(f"{p}: a bag compressed as a whole (.{gz}) is not read: decompress it first (rosbag2 and "
+                             "ROS 1 compress inside the bag)")
+    _require(p, "ROS bags" if fmt is _BAG else f".{fmt.name} logs", fmt.needs)
+    _require(p, f".{gz} logs", _COMPRESSORS.get(gz))
     st = stats if stats is not None else ReadStats()
     st.path = str(p)
     st.format = fmt.name + (f".{gz}" if gz else "")
     try:
-        st.bytes_total += p.stat().st_size
+        st.bytes_total += sum(f.stat().st_size for f in p.iterdir()) if p.is_dir() else p.stat().st_size
     except OSError as exc:
         raise LogFormatError(f"{p}: cannot read: {exc.strerror or exc}") from None
-    request = LogRequest(p, gz, st, skip_bad, stats is not None)
+    request = LogRequest(p, gz, st, skip_bad, stats is not None, bag or BagOptions())
     return LogFrames(p, st, progress, lambda owner: fmt.read(request, owner))

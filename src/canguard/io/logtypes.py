@@ -3,23 +3,18 @@
 from __future__ import annotations
 
 import io
-import operator
-from binascii import unhexlify
 from collections.abc import Iterator
 from dataclasses import dataclass, field
-from itertools import islice
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, NamedTuple
 
+from canguard.io.block import Block
 from canguard.io.frame import Frame
 from canguard.io.progress import ProgressBar
 
 if TYPE_CHECKING:
     from collections.abc import Callable
 
-Chunk = Any
-"""A block of a log as a reader gives it: a column block (``Columns``, ``ByteColumns``: they have ``frames()``)
-or a list of :class:`~canguard.io.frame.Frame`."""
 
 _TEXT_PYTHON_CAN = ("asc", "trc", "csv")
 
@@ -133,6 +128,8 @@ class ReadStats:
     """Size of the file on disk (compressed size for ``.gz``)."""
     bytes_read: int = 0
     """Position reached in the file on disk, updated a chunk at a time (drives progress bars)."""
+    stamps: dict[str, int] = field(default_factory=dict)
+    """Bags only: frames timed by their ``header`` stamp and by the ``record`` time (:mod:`canguard.io.rosbag`)."""
 
     @property
     def backward(self) -> int:
@@ -155,15 +152,15 @@ class LogFrames(Iterator[Frame]):
     """
 
     def __init__(self, path: Path, stats: ReadStats, progress: ProgressBar | None,
-                 read: Callable[[LogFrames], Iterator[Chunk]] | None = None) -> None:
+                 read: Callable[[LogFrames], Iterator[Block]] | None = None) -> None:
         self.path = path
         self.stats = stats
         self.progress = progress
-        self._chunks: Iterator[Chunk] = read(self) if read is not None else iter(())
+        self._chunks: Iterator[Block] = read(self) if read is not None else iter(())
         self._frames: Iterator[Frame] = flatten(self._chunks)
 
-    def chunks(self) -> Iterator[Chunk]:
-        """The same frames a block at a time: column blocks (plain candump blocks, python-can blocks) or lists.
+    def chunks(self) -> Iterator[Block]:
+        """The same frames a block at a time (:class:`~canguard.io.block.Block`).
 
         For consumers that work on whole blocks (the replay engine); use either
         this or the frame iterator, not both.
@@ -188,10 +185,10 @@ class LogFrames(Iterator[Frame]):
             self.progress.close()
 
 
-def flatten(chunks: Iterator[Chunk]) -> Iterator[Frame]:
-    """The frames of a chunk stream, one by one."""
-    for chunk in chunks:
-        yield from (chunk if type(chunk) is list else chunk.frames())
+def flatten(blocks: Iterator[Block]) -> Iterator[Frame]:
+    """The frames of a block stream, one by one."""
+    for block in blocks:
+        yield from block.frames()
 
 
 class _Bad(Exception):
@@ -200,52 +197,3 @@ class _Bad(Exception):
     def __init__(self, reason: str) -> None:
         super().__init__(reason)
         self.reason = reason
-
-
-def candump_id_texts(arbitration_id: int, is_extended_id: bool) -> list[str]:
-    """Every way candump -L may write an id: 3 (standard) or 8 (extended) hex digits, letters in any case."""
-    text = f"{arbitration_id:08X}" if is_extended_id else f"{arbitration_id:03X}"
-    variants = [""]
-    for ch in text:
-        cases = {ch.upper(), ch.lower()}
-        variants = [v + c for v in variants for c in sorted(cases)]
-    return variants
-
-
-def count_order(st: ReadStats, cols: Any) -> None:
-    """Add the timestamps of a column block that go back or repeat (within the block) to ``st``."""
-    order = getattr(cols, "order", None)
-    if order is not None:  # counted by numpy (canguard.io.candump_np)
-        st.backwards_timestamps += order[0]
-        st.repeated_timestamps += order[1]
-        return
-    ts = cols.ts
-    if cols.ordered:  # text order is time order; the usual case, increasing, costs one pass
-        if not all(map(operator.lt, ts, islice(ts, 1, None))):
-            st.repeated_timestamps += sum(map(operator.eq, ts, islice(ts, 1, None)))
-    else:
-        times = list(map(float, ts))
-        st.backwards_timestamps += sum(map(operator.lt, islice(times, 1, None), times))
-        st.repeated_timestamps += sum(map(operator.eq, islice(times, 1, None), times))
-
-
-EXT_KEY = 1 << 32
-"""Added to an extended id's value in :attr:`ByteColumns.ids` (standard ids are their value)."""
-
-
-def id_key(arbitration_id: int, is_extended_id: bool) -> int:
-    """The key of an id in :attr:`ByteColumns.ids`."""
-    return arbitration_id + EXT_KEY if is_extended_id else arbitration_id
-
-
-def joined_hex(texts: list[str] | list[bytes], size: int) -> tuple[list[int] | None, bytes]:
-    """The payloads of ``texts`` (hex, as text or as the bytes of checked digits) that hold ``size`` digits, as bytes
-    one after another: (their positions in ``texts``, or None when all of them do; the bytes)."""
-    fits: list[int] | None = None
-    kept: Any = texts
-    if set(map(len, kept)) != {size}:
-        fits = [k for k, text in enumerate(kept) if len(text) == size]
-        kept = [kept[k] for k in fits]
-    if kept and type(kept[0]) is bytes:
-        return fits, unhexlify(b"".join(kept))
-    return fits, bytes.fromhex("".join(kept))

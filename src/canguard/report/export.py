@@ -21,7 +21,7 @@ import math
 import os
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 from canguard.errors import ConfigError
 
@@ -67,9 +67,14 @@ def check_export(path: Path, *, dask: bool = False) -> None:
     # threads is not forked for --jobs (canguard.cli.fleet._pool_context). The parts' writers import it.
     import importlib.util
 
-    if importlib.util.find_spec("pyarrow") is None:
+    if not is_mcap(path) and importlib.util.find_spec("pyarrow") is None:
         raise ConfigError(_NO_PYARROW)
     check_writable(path)
+
+
+def is_mcap(path: Path) -> bool:
+    """``--export-signals FILE.mcap``: an MCAP file per log (:mod:`canguard.report.mcapexport`), not Parquet."""
+    return path.suffix.lower() == ".mcap"
 
 
 def check_writable(path: Path) -> None:
@@ -87,15 +92,15 @@ def part_path(path: Path, index: int) -> Path:
 class SignalExport:
     """Streams every sample an engine decodes into one Parquet file, in bounded memory."""
 
-    def __init__(self, engine: Engine, path: Path, log: str, *, batch_rows: int | None = None) -> None:
-        self.pa, pq = require_pyarrow()
+    def __init__(self, engine: Engine, path: Path, log: str, *, batch_rows: int | None = None,
+                 table: SampleTable | None = None) -> None:
         self.path = path
         self.log = log
         self.batch_rows = batch_rows or BATCH_ROWS
         self.rows = 0
-        self._schema = schema(self.pa)
-        self._writer = pq.ParquetWriter(path, self._schema)
-        self._bus = {name: src.bus for name, src in engine.cfg.sources.items()}
+        bus = {name: src.bus for name, src in engine.cfg.sources.items()}
+        self.table: SampleTable = table if table is not None else ParquetTable(path, log, bus)
+        """Where each batch of rows goes: a Parquet file, or an MCAP export's channels."""
         # The DBC [min|max] the source's health checks: a value outside is rejected as out_of_range
         # by the models although the decoder passed it (the decoder does not check ranges).
         self._ranges = {name: health.ranges for name, health in engine.ctx.health.items()}
@@ -110,21 +115,31 @@ class SignalExport:
 
     def _clear(self) -> None:
         self._t: list[float] = []
-        self._source: list[str] = []
-        self._signal: list[str] = []
-        self._value: list[float] = []
-        self._reason: list[str] = []
+        self._c: list[int] = []
+        self._v: list[float] = []
+        """Samples taken one at a time, not yet a chunk: time, code (:meth:`_code`), value."""
+        self._chunks: list[tuple[Any, Any, Any]] = []
+        """Columns of samples in order (time, code, value arrays), waiting for a batch to be full."""
+        self._pending = 0
 
     def _sample(self, s: Sample) -> None:
         if self._previous is not None:
             self._previous(s)
         self._t.append(s.t)
-        self._source.append(s.source)
-        self._signal.append(s.signal)
-        self._value.append(s.value)
-        self._reason.append(self._reason_of(s))
-        if len(self._t) >= self.batch_rows:
+        self._c.append(self._code((s.source, s.signal), self._reason_of(s)))
+        self._v.append(s.value)
+        self._pending += 1
+        if self._pending >= self.batch_rows:
             self._flush()
+
+    def _singles(self) -> None:
+        """The samples taken one at a time, as a chunk (before a block's, which come after them)."""
+        if self._t:
+            import numpy as np
+
+            self._chunks.append((np.array(self._t, dtype=np.float64), np.array(self._c, dtype=np.intp),
+                                 np.array(self._v, dtype=np.float64)))
+            self._t, self._c, self._v = [], [], []
 
     def _reason_of(self, s: Sample) -> str:
         """The sample's reason, or ``out_of_range`` for a value the source's DBC range rejects."""
@@ -172,15 +187,11 @@ class SignalExport:
         if not rows:
             return
         order = np.argsort(np.concatenate(rows), kind="stable")
-        keys = self._keys
-        for code in np.concatenate(codes)[order].tolist():
-            source, signal, reason = keys[code]
-            self._source.append(source)
-            self._signal.append(signal)
-            self._reason.append(reason)
-        self._t.extend(np.concatenate(stamps)[order].tolist())
-        self._value.extend(np.concatenate(values)[order].tolist())
-        while len(self._t) >= self.batch_rows:  # the row groups of one sample at a time
+        self._singles()
+        self._chunks.append((np.concatenate(stamps)[order], np.concatenate(codes).astype(np.intp)[order],
+                             np.concatenate(values).astype(np.float64)[order]))
+        self._pending += order.size
+        while self._pending >= self.batch_rows:  # the row groups of one sample at a time
             self._flush()
 
     def _code(self, name: tuple[str, str], reason: str) -> int:
@@ -193,29 +204,66 @@ class SignalExport:
         return code
 
     def _flush(self) -> None:
-        n = min(len(self._t), self.batch_rows)
-        if not n:
+        """The first :attr:`batch_rows` samples waiting (all of them, when fewer) to the table."""
+        import numpy as np
+
+        self._singles()
+        if not self._chunks:
             return
-        pa = self.pa
-        bus = self._bus
-        source = self._source[:n]
-        columns = [
-            pa.array([self.log] * n, pa.string()),
-            pa.array(self._t[:n], pa.float64()),
-            pa.array([bus.get(s, "") for s in source], pa.string()),
-            pa.array(source, pa.string()),
-            pa.array(self._signal[:n], pa.string()),
-            pa.array(self._value[:n], pa.float64()),
-            pa.array(self._reason[:n], pa.string()),
-        ]
-        self._writer.write_batch(pa.RecordBatch.from_arrays(columns, schema=self._schema))
+        t, codes, values = (np.concatenate(cols) for cols in zip(*self._chunks, strict=True))
+        n = min(t.size, self.batch_rows)
+        self.table.write(t[:n], codes[:n], values[:n], self._keys)
         self.rows += n
-        for column in (self._t, self._source, self._signal, self._value, self._reason):
-            del column[:n]  # a block's samples past a full row group wait for the next
+        self._chunks = [(t[n:], codes[n:], values[n:])] if n < t.size else []
+        self._pending = t.size - n
 
     def close(self) -> None:
-        """Write what is buffered and close the file (a valid Parquet file even with no rows)."""
-        self._flush()
+        """Write what is buffered and close the table (a valid Parquet file even with no rows)."""
+        while self._pending:
+            self._flush()
+        self.table.close()
+
+
+class SampleTable(Protocol):
+    """Where :class:`SignalExport` writes its rows, a batch at a time: columns of times, codes and values (float64,
+    int, float64 arrays); ``keys[code]`` is the row's (source, signal, reason)."""
+
+    def write(self, t: Any, codes: Any, values: Any, keys: Sequence[tuple[str, str, str]]) -> None: ...
+
+    def close(self) -> None: ...
+
+
+class ParquetTable:
+    """The rows as a Parquet file (:data:`COLUMNS`), a record batch (row group) per batch."""
+
+    def __init__(self, path: Path, log: str, bus: dict[str, str]) -> None:
+        self.pa, pq = require_pyarrow()
+        self.log = log
+        self.bus = bus
+        self._schema = schema(self.pa)
+        self._writer = pq.ParquetWriter(path, self._schema)
+
+    def write(self, t: Any, codes: Any, values: Any, keys: Sequence[tuple[str, str, str]]) -> None:
+        """One record batch."""
+        import numpy as np
+
+        pa = self.pa
+        n = len(t)
+        names = [np.array([k[i] for k in keys], dtype=object)[codes] for i in range(3)]
+        bus = np.array([self.bus.get(k[0], "") for k in keys], dtype=object)[codes]
+        columns = [
+            pa.array([self.log] * n, pa.string()),
+            pa.array(t, pa.float64()),
+            pa.array(bus, pa.string()),
+            pa.array(names[0], pa.string()),
+            pa.array(names[1], pa.string()),
+            pa.array(values, pa.float64()),
+            pa.array(names[2], pa.string()),
+        ]
+        self._writer.write_batch(pa.RecordBatch.from_arrays(columns, schema=self._schema))
+
+    def close(self) -> None:
+        """Close the file."""
         self._writer.close()
 
 

@@ -79,6 +79,8 @@ def build_summary(cfg: Config, log_path: Path, engine: Engine, stats: Any, route
         "first_t": _r(engine.first_frame_t), "last_t": _r(end),
         "frames_sent": getattr(engine.sink, "sent", 0),
     }
+    if getattr(stats, "stamps", None):  # a ROS bag: which times its frames took
+        summary["stamps"] = dict(sorted(stats.stamps.items()))
     if merged:  # only then: summaries of logs without a merge keep their shape (committed examples)
         summary["merged_channels"] = merged
         summary["merged_into"] = router.only
@@ -103,6 +105,9 @@ def render_text(s: dict[str, Any]) -> str:
         lines.append(f"    t={t.get('t')} {t.get('node')} source={t.get('source')}"
                      f" value={quantity(t.get('value'), unit)} threshold={quantity(t.get('threshold'), unit)}"
                      f" reason={t.get('reason')}")
+    if s.get("stamps"):
+        st = s["stamps"]
+        lines.append(f"  times: header.stamp of {st.get('header', 0)} frames, record time of {st.get('record', 0)}")
     lines.append(f"  stops: {s['stops']}, stopped {s['stopped_s']} s; frames canguard would send: "
                  f"{s['frames_sent']}; stop confirmations {s['confirmations']}, escalations {s['escalations']}")
     lines.append("  lowest margin to each threshold:")

@@ -5,9 +5,10 @@ deadline), take the frames received as blocks (:meth:`Engine.take`), advance the
 systemd how things stand. Where every bus has a socket (SocketCAN, udp_multicast) the loop's own thread
 waits on it and drains it (:class:`~canguard.io.bus.BusReader` ``direct``): a frame reaches the engine
 without a thread hand-off (a queue, and the GIL passed between threads). Other buses get a reader thread
-each and a queue in between. The journal's ``fsync`` runs in a thread of its own
-(:class:`~canguard.engine.events.EventJournal` ``sync_in_background``): a trip that comes while the disk
-syncs the last events is not held up by it.
+each and a queue in between. A trip's stop frames leave before its events are written (the engine's
+journal records a tick's events when the tick is over), and the journal's ``fsync`` runs in a thread of
+its own, at most once every ``sync_interval_s`` (:class:`~canguard.engine.events.EventJournal`
+``sync_in_background``): a trip that comes while the disk syncs the last events is not held up by it.
 
 - ``READY=1`` once every bus is open and the tree loaded;
 - ``WATCHDOG=1`` only while the loop ticks on time and every source the tree
@@ -45,6 +46,7 @@ from canguard.engine.gate import BusSink, TaskGate
 from canguard.engine.ratelimit import held_note
 from canguard.engine.stats import EventSink
 from canguard.errors import CanguardError, ConfigError
+from canguard.io.block import Block
 from canguard.io.bus import BusReader
 from canguard.io.clock import BootClock, LiveClock
 from canguard.io.frame import Frame
@@ -297,7 +299,7 @@ class Daemon:
         stamps = list(map(_STAMP, frames))
         if (not split and "overrun" not in engine.gate.inhibits and not mono - min(map(_RECEIVED, items)) > limit
                 and min(stamps) >= now - LIVE_SKEW_S and max(stamps) <= now + LIVE_SKEW_S):
-            engine.take(target, frames)  # the usual batch: no overrun starts, every stamp sane: one block
+            engine.take(target, Block.of_frames(frames))  # the usual batch (no overrun starts, stamps sane): one block
             return
         bus = names[0]
         block: list[Frame] = []
@@ -307,7 +309,7 @@ class Daemon:
             behind = not held and waited > limit  # its data is older than the config allows
             back = held and waited < limit / 2
             if block and ((split and name != bus) or behind or back):
-                engine.take(bus if split else target, block)
+                engine.take(bus if split else target, Block.of_frames(block))
                 block = []
             bus = name
             if behind:
@@ -315,7 +317,7 @@ class Daemon:
             elif back:
                 engine.caught_up(waited)
             block.append(frame._replace(t=now) if abs(frame.t - now) > LIVE_SKEW_S else frame)  # insane stamps
-        engine.take(bus if split else target, block)
+        engine.take(bus if split else target, Block.of_frames(block))
 
     def _watchdog_ok(self, engine: Engine) -> bool:
         now = self.clock.now()

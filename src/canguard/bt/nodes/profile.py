@@ -15,8 +15,8 @@ The decorator's own work (statistics, blackboard writes) lies outside the
 interval; inside it are one ``perf_counter()`` call and a list build, about
 0.1-0.2 µs, which is what a measurement of a near-empty child reads.
 
-**Overhead, measured** (``benchmarks/bench_tree.py``, 2 shared vCPUs, Python
-3.11): a Profile adds about 1.5 µs per tick with all four outputs wired and
+**Overhead, measured** (``timeit`` of one tick beside the bare child, 2 shared vCPUs,
+Python 3.11): a Profile adds about 1.5 µs per tick with all four outputs wired and
 1.2 µs with none (goal: 3 µs). Wired outputs go straight to the blackboard's
 storage (see :mod:`canguard.bt.nodes.base`); through py_trees' client the four
 writes alone would cost ~9 µs.

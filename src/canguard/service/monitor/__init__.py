@@ -7,8 +7,8 @@ The engine publishes one immutable snapshot per tick (:class:`.snapshot.Observer
 from the loop. Nothing there can change what canguard does, nor make the loop wait.
 
 Imported only when a monitor is configured (``monitor:``, ``--http``, ``--groot2``): the
-daemon's start-up without one does not pay for it, and the daemon never imports ``http.server``
-or ``zmq`` (the monitor process does).
+daemon's start-up without one does not pay for it, and the daemon never imports the servers
+(:mod:`.web`, ``zmq``): the monitor process does.
 """
 
 from __future__ import annotations

@@ -14,6 +14,13 @@ Hooks, breakpoints and recording would let a client pause or replace nodes of th
 loop: they are refused with an ``["error", why]`` reply, as the publisher answers a request it
 cannot serve. The removal requests Groot2 sends on disconnecting (remove / disable all hooks)
 are answered as done (there is none), and the hooks dump is an empty list.
+
+Clients that misbehave cost little and are logged one line per cause (:class:`.notes.ClientNotes`):
+ZeroMQ serves every connection from its own I/O thread (no thread per client), drops a connection that
+sends garbage instead of ZeroMQ's handshake, or no handshake within :data:`HANDSHAKE_MS`, or a message
+over :data:`MAX_MESSAGE_BYTES`, and one that stops answering its heartbeats; a reply a client does not
+take is dropped, and the PUB socket sends nothing (breakpoints are refused), so a subscriber that never
+reads holds nothing up.
 """
 
 from __future__ import annotations
@@ -29,12 +36,21 @@ import zmq
 from canguard.config.monitor import Address
 from canguard.service.monitor.hub import Hub
 from canguard.service.monitor.layout import LayoutRecord
+from canguard.service.monitor.notes import ClientNotes
 
 log = logging.getLogger(__name__)
 
 PROTOCOL_ID = 2
 HEADER = struct.Struct("<BBI")
 """protocol, request type, request id: ``SerializeHeader(RequestHeader)``."""
+MAX_MESSAGE_BYTES = 64 * 1024
+"""Largest request part taken (Groot2's are a few bytes, a BLACKBOARD's names a few hundred)."""
+HANDSHAKE_MS = 5000
+"""A connection that has not completed ZeroMQ's handshake by then is closed."""
+HEARTBEAT_MS = 5000
+"""ZeroMQ heartbeats: a peer that answers none for three of these is disconnected."""
+MALFORMED = (b"wrong request header", b"must be 2 parts message", b"Request not recognized")
+"""The error replies to requests that are not Groot2's (logged; a refused hook is a user's click, not logged)."""
 READ_ONLY = ("canguard's Groot2 monitor is read-only: hooks, breakpoints and recording are refused, "
              "because nothing from outside may pause or change the safety loop")
 
@@ -50,7 +66,12 @@ class Groot2Monitor:
         self._publisher = self._context.socket(zmq.PUB)
         for sock in (self._server, self._publisher):
             sock.setsockopt(zmq.LINGER, 0)
-            sock.setsockopt(zmq.SNDTIMEO, 1000)
+            sock.setsockopt(zmq.SNDTIMEO, 0)  # a reply no one takes now is dropped
+            sock.setsockopt(zmq.MAXMSGSIZE, MAX_MESSAGE_BYTES)
+            sock.setsockopt(zmq.HANDSHAKE_IVL, HANDSHAKE_MS)
+            sock.setsockopt(zmq.HEARTBEAT_IVL, HEARTBEAT_MS)
+            sock.setsockopt(zmq.HEARTBEAT_TIMEOUT, 3 * HEARTBEAT_MS)
+        self.notes = ClientNotes(log, "Groot2 monitor")
         port = self._bind(address)
         self.address = Address(address.host, port)
         """Where the REP socket listens (PUB: port + 1)."""
@@ -114,13 +135,15 @@ class Groot2Monitor:
                 continue
             try:
                 reply = self.answer(request)
-            except Exception as exc:  # a bad request gets an error reply, never the thread's end
+            except Exception as exc:  # canguard's fault, not the client's (answer takes any bytes): say where
                 log.exception("Groot2 request failed")
                 reply = [b"error", f"{type(exc).__name__}: {exc}".encode()]
+            if reply[0] == b"error" and reply[1] in MALFORMED:
+                self.notes.note(f"a malformed request ({reply[1].decode()})")
             try:
                 self._server.send_multipart(reply)
             except zmq.ZMQError as exc:
-                log.warning("Groot2 reply not sent: %s", exc)
+                self.notes.note(f"a reply not sent ({exc})")
 
     def answer(self, request: list[bytes]) -> list[bytes]:
         """The reply to one multipart request (the parts as the REP socket sends them)."""

@@ -4,7 +4,8 @@ The receiving side (:meth:`Hub.put`, :meth:`Hub.event`, the thread reading the d
 :mod:`.server`) only assigns a reference, or encodes an event once and appends it to a bounded
 deque, and flags the news: it waits for no one. A dispatcher thread sleeps until there is news (no
 polling: a process with nothing to show never wakes), renders the status document once per change and
-at most every :data:`DOCUMENT_S` (shared by every client), and wakes the clients' threads. A client
+at most every :data:`DOCUMENT_S` (shared by every client), and tells its subscribers (the status page's
+event loop). A client
 that reads slowly skips snapshots (it always gets the latest) and, past :data:`KEEP_EVENTS`, loses the
 oldest events (it is told how many): nothing it does reaches the engine.
 """
@@ -44,7 +45,7 @@ class Hub:
         """(seq, journal line, the line as JSON): each event is encoded once, as it arrives."""
         self._event_seq = 0
         self._blackboard_until = -math.inf
-        self._cond = threading.Condition()
+        self._subscribers: list[Callable[[], None]] = []
         self._version = 0
         self._doc: tuple[int, bytes] = (0, json.dumps(self.status()).encode())
         self._closed = threading.Event()
@@ -96,16 +97,10 @@ class Hub:
         """(version, ``/api/status`` JSON): the latest document, its version bumped when more than its time changed."""
         return self._doc
 
-    def wait(self, version: int, timeout: float) -> int:
-        """Wait until something changed after ``version`` (or ``timeout`` s, or close); the version now."""
-        with self._cond:
-            self._cond.wait_for(lambda: self._version != version or self._closed.is_set(), timeout)
-            return self._version
-
-    @property
-    def closed(self) -> bool:
-        """True once :meth:`close` ran: client threads end."""
-        return self._closed.is_set()
+    def subscribe(self, changed: Callable[[], None]) -> None:
+        """Call ``changed()`` (from the dispatcher's thread: it must not wait) each time the status document's
+        version changes; read it with :meth:`status_document`."""
+        self._subscribers.append(changed)
 
     # -- the dispatcher ----------------------------------------------------------------------------
     def start(self) -> None:
@@ -114,11 +109,9 @@ class Hub:
         self._thread.start()
 
     def close(self) -> None:
-        """Stop the dispatcher and wake every client so it can end."""
+        """Stop the dispatcher."""
         self._closed.set()
         self._news.set()
-        with self._cond:
-            self._cond.notify_all()
         if self._thread is not None:
             self._thread.join(2)
 
@@ -135,12 +128,13 @@ class Hub:
             status = self.status()
             doc = json.dumps(status, allow_nan=False, separators=(",", ":")).encode()
             news = _shown(status)
-            with self._cond:
-                if news != shown:  # streams get a document when what a page shows changed, not its clock alone
-                    self._version += 1
-                    self._cond.notify_all()
-                self._doc = (self._version, doc)  # a plain GET always gets the latest
+            changed = news != shown  # streams get a document when what a page shows changed, not its clock alone
+            self._version += changed
+            self._doc = (self._version, doc)  # one tuple assigned: a plain GET always gets the latest
             shown = news
+            if changed:
+                for tell in self._subscribers:
+                    tell()
 
     def status(self) -> dict[str, Any]:
         """The ``/api/status`` document: tree, task, guards, events."""

@@ -146,6 +146,26 @@ def lower_priority() -> None:
         os.nice(NICE)
 
 
+FILES = 65536
+"""File descriptors this process asks for (up to the hard limit): each client of the page or Groot2 holds one."""
+
+
+def more_descriptors() -> None:
+    """Raise this process's open-file limit from its soft value (often 1,024) to :data:`FILES` or the hard limit.
+
+    The status page keeps half of what it gets for its connections (:class:`.web.Limits`); the rest is
+    Groot2's connections and the process's own. A unit that filters the call (``SystemCallFilter=~@resources``)
+    leaves the limit as it is, and the page serves fewer connections at once.
+    """
+    import resource
+
+    with contextlib.suppress(OSError, ValueError):
+        soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+        wanted = FILES if hard == resource.RLIM_INFINITY else min(FILES, hard)
+        if soft != resource.RLIM_INFINITY and soft < wanted:
+            resource.setrlimit(resource.RLIMIT_NOFILE, (wanted, hard))
+
+
 def _on_term(_signum: int, _frame: FrameType | None) -> None:
     raise SystemExit(0)
 
@@ -157,6 +177,7 @@ def main(argv: list[str] | None = None) -> int:
     signal.signal(signal.SIGHUP, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, _on_term)
     lower_priority()
+    more_descriptors()
     logging.basicConfig(level=logging.WARNING, format="canguard monitor: %(levelname)s %(name)s: %(message)s")
     sock = socket.socket(fileno=int(args[0]))
     settings = json.loads(sock.recv(65536).decode() or "{}")

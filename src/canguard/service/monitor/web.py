@@ -1,192 +1,468 @@
-"""The status page and its API, on the standard library's threading HTTP server.
+"""The status page and its API: one asyncio event loop, in a thread of its own, serves every connection.
 
 ``GET /`` the page (one self-contained document: no external script, style or font);
 ``GET /api/status`` the JSON document (or, asked with ``Accept: text/event-stream``, a stream of it:
 one ``status`` event per change); ``GET /api/events`` the journal events as server-sent events
 (the kept ones first). Read-only: every other method is refused with 405. With a token, every
 request must carry ``Authorization: Bearer TOKEN`` (or ``?token=TOKEN``: a browser's EventSource
-cannot set headers). Each connection has its own thread with a send timeout: a client that stops
-reading is dropped, and nothing it does reaches the engine (see :mod:`.hub`).
+cannot set headers).
+
+Whatever clients do, the page and ``/api/status`` answer (:class:`Limits`): streams have places of
+their own, capped in all and per client address, and a stream whose client closed or reset gives its
+place back at once (its socket is read while the stream is written: the end shows as it comes, not
+at the next failed write); a request must arrive whole within ``request_timeout_s``; a client that
+takes no data for ``send_timeout_s`` is dropped; with every connection place taken, the oldest
+connection still sending its request makes room for the new one. An idle connection costs a few
+kilobytes of the loop, not a thread. What clients do wrong is logged one line per cause
+(:class:`.notes.ClientNotes`), never as a traceback; nothing of it reaches the engine (see :mod:`.hub`).
 """
 
 from __future__ import annotations
 
+import asyncio
+import contextlib
+import dataclasses
+import email.utils
 import hmac
 import json
 import logging
+import re
+import resource
 import socket
 import threading
-from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
-from typing import Any
+from collections import Counter
+from collections.abc import Awaitable
+from dataclasses import dataclass
+from http import HTTPStatus
+from typing import Any, TypeVar
 from urllib.parse import parse_qs, urlsplit
 
 from canguard.config.monitor import Address
 from canguard.data import data_path
 from canguard.service.monitor.hub import Hub
+from canguard.service.monitor.notes import ClientNotes
 
 log = logging.getLogger(__name__)
+T = TypeVar("T")
 
-SEND_TIMEOUT_S = 5.0
-"""A client that takes longer to accept a write is dropped."""
-KEEPALIVE_S = 15.0
-"""A stream with nothing new sends a comment this often (proxies and browsers keep it open)."""
-MAX_CLIENTS = 32
-"""Connections served at once; more get 503 (a monitor must not eat the daemon's memory)."""
+HEAD_BYTES = 16 * 1024
+"""Largest request head (request line and headers); a longer one is answered 431."""
+_HEAD_END = re.compile(rb"\r?\n\r?\n")
+_LINE = re.compile(r"\r?\n")
+_TEXT = "text/plain; charset=utf-8"
+_PAGE_HEADERS = {"Content-Security-Policy": "default-src 'none'; script-src 'unsafe-inline'; "
+                                            "style-src 'unsafe-inline'; connect-src 'self'; img-src data:"}
 
 
-class _Server(ThreadingHTTPServer):
-    daemon_threads = True
-    block_on_close = False
+@dataclass(frozen=True)
+class Limits:
+    """What the status page's server grants its clients."""
 
-    def __init__(self, address: tuple[str, int], hub: Hub, token: str | None, page: bytes) -> None:
-        self.address_family = socket.AF_INET6 if ":" in address[0] else socket.AF_INET
+    max_connections: int = 2048
+    """Connections open at once (lowered to half the process's file-descriptor limit); past it, the oldest
+    connection still sending its request (or lingering after its answer) is closed for the new one."""
+    max_streams: int = 64
+    """Event streams (``/api/events``, ``/api/status`` as a stream) at once; more get 503."""
+    streams_per_address: int = 16
+    """Event streams at once from one client address (behind a reverse proxy: all of them)."""
+    request_timeout_s: float = 5.0
+    """A request's head must arrive whole within this, from the connection's start or its previous answer."""
+    send_timeout_s: float = 5.0
+    """A client that takes none of what is sent to it for this long is dropped."""
+    keepalive_s: float = 15.0
+    """A stream with nothing new sends a comment this often (proxies and browsers keep it open)."""
+    backlog: int = 1024
+    """Connections the system queues before the loop accepts them (a burst of reconnecting browsers)."""
+
+
+class _Refused(Exception):
+    """A request answered with an error status, then the connection closed."""
+
+    def __init__(self, code: int, body: str, cause: str, headers: dict[str, str] | None = None) -> None:
+        super().__init__(cause)
+        self.code, self.body, self.cause, self.headers = code, body, cause, headers or {}
+
+
+@dataclass(frozen=True)
+class _Request:
+    method: str
+    path: str
+    query: str
+    headers: dict[str, str]
+    keep_alive: bool
+
+
+def _parse(head: bytes) -> _Request:
+    """The request line and headers; :class:`_Refused` (400) when they are not HTTP/1."""
+    lines = _LINE.split(head.decode("latin-1"))
+    parts = lines[0].split(" ") if lines else []
+    if len(parts) != 3 or not parts[2].startswith("HTTP/1."):
+        raise _Refused(400, "not an HTTP/1 request\n", "a malformed request line (answered 400)")
+    headers: dict[str, str] = {}
+    for line in lines[1:]:
+        name, colon, value = line.partition(":")
+        if not colon or not name.strip():
+            raise _Refused(400, "malformed header\n", "a malformed header (answered 400)")
+        headers[name.strip().lower()] = value.strip()
+    method, target, version = parts
+    url = urlsplit(target)
+    has_body = headers.get("content-length", "0") not in ("", "0") or "transfer-encoding" in headers
+    keep = version == "HTTP/1.1" and headers.get("connection", "").lower() != "close" and not has_body
+    return _Request(method, url.path, url.query, headers, keep)
+
+
+def _head(code: int, headers: dict[str, str]) -> bytes:
+    lines = [f"HTTP/1.1 {code} {HTTPStatus(code).phrase}", "Server: canguard-monitor",
+             f"Date: {email.utils.formatdate(usegmt=True)}", "Cache-Control: no-store"]
+    lines += [f"{k}: {v}" for k, v in headers.items()]
+    return ("\r\n".join(lines) + "\r\n\r\n").encode("latin-1")
+
+
+class _Changes:
+    """The hub's news in the loop: each waiting stream wakes on the next change (or its keep-alive)."""
+
+    def __init__(self) -> None:
+        self._next = asyncio.Event()
+
+    def changed(self) -> None:
+        """Wake every stream waiting (in the loop's thread)."""
+        self._next.set()
+        self._next = asyncio.Event()
+
+    async def next(self, timeout_s: float) -> bool:
+        """True when something changed within ``timeout_s``."""
+        try:
+            await _within(self._next.wait(), timeout_s)
+        except asyncio.TimeoutError:
+            return False
+        return True
+
+
+class _Site:
+    """The loop's side: each connection from accept to close, and the places they hold."""
+
+    def __init__(self, hub: Hub, token: str | None, page: bytes, limits: Limits) -> None:
         self.hub = hub
         self.token = token
         self.page = page
-        self.slots = threading.BoundedSemaphore(MAX_CLIENTS)
-        super().__init__(address, _Handler)
+        self.limits = limits
+        self.notes = ClientNotes(log, "status page")
+        self.changes = _Changes()
+        self.open = 0
+        self.waiting: dict[asyncio.StreamWriter, None] = {}
+        """Connections reading a request head or lingering after their answer, oldest first: the first to go when
+        every place is taken."""
+        self.streams: Counter[str] = Counter()
+        self.tasks: dict[asyncio.Task[Any], asyncio.StreamWriter] = {}
+        """Each connection's task and its writer: closed at shutdown (their transports aborted, so each ends)."""
 
-
-class _Handler(BaseHTTPRequestHandler):
-    server: _Server
-    protocol_version = "HTTP/1.1"
-    server_version = "canguard-monitor"
-
-    def log_message(self, format: str, *args: Any) -> None:
-        log.debug("%s " + format, self.address_string(), *args)
-
-    def setup(self) -> None:
-        super().setup()
-        self.connection.settimeout(SEND_TIMEOUT_S)
-
-    # -- read-only ---------------------------------------------------------------------------
-    def _refuse(self) -> None:
-        self._send(405, b"read-only: canguard's monitor answers GET only\n", "text/plain; charset=utf-8",
-                   {"Allow": "GET, HEAD"})
-
-    do_POST = do_PUT = do_DELETE = do_PATCH = do_OPTIONS = _refuse
-
-    def do_HEAD(self) -> None:
-        self.do_GET()
-
-    def do_GET(self) -> None:
-        url = urlsplit(self.path)
-        if not self._authorized(url.query):
-            self._send(401, b"a bearer token is required (Authorization: Bearer TOKEN, or ?token=TOKEN)\n",
-                       "text/plain; charset=utf-8", {"WWW-Authenticate": 'Bearer realm="canguard"'})
-            return
-        if not self.server.slots.acquire(blocking=False):
-            self._send(503, b"too many monitor clients\n", "text/plain; charset=utf-8", {"Retry-After": "5"})
-            return
+    # -- a connection ----------------------------------------------------------------------------
+    async def connection(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        """Serve one connection until it ends; nothing it does escapes as an exception."""
+        task = asyncio.current_task()
+        if task is not None:
+            self.tasks[task] = writer
+        self.open += 1
+        peer = writer.get_extra_info("peername")
+        address = str(peer[0]) if peer else "?"
         try:
-            self._route(url.path)
-        except (OSError, ValueError):  # the client went away or stalled past SEND_TIMEOUT_S
-            self.close_connection = True
+            if self._admit():
+                await self._serve(reader, writer, address)
+        except _Refused as refused:
+            self.notes.note(refused.cause)
+            with contextlib.suppress(OSError, asyncio.TimeoutError):
+                await self._answer(writer, refused.code, refused.body.encode(), _TEXT, refused.headers, False)
+                await self._close(reader, writer)
+        except asyncio.TimeoutError:
+            self.notes.note(f"a client took nothing sent to it for {self.limits.send_timeout_s:g} s (dropped)")
+        except (ConnectionResetError, BrokenPipeError):
+            self.notes.note("a client reset its connection")
+        except OSError as exc:
+            self.notes.note(f"a connection failed: {exc.strerror or exc}")
         finally:
-            self.server.slots.release()
+            self.waiting.pop(writer, None)
+            self.open -= 1
+            writer.transport.abort()  # after a graceful close: nothing; else the place is free now
+            if task is not None:
+                self.tasks.pop(task, None)
 
-    def _route(self, path: str) -> None:
-        if path in ("/", "/index.html"):
-            self._send(200, self.server.page, "text/html; charset=utf-8", {
-                "Content-Security-Policy": "default-src 'none'; script-src 'unsafe-inline'; "
-                                           "style-src 'unsafe-inline'; connect-src 'self'; img-src data:",
-            })
-        elif path == "/api/status":
-            if "text/event-stream" in self.headers.get("Accept", ""):
-                self._stream_status()
-            else:
-                _, doc = self.server.hub.status_document()
-                self._send(200, doc, "application/json")
-        elif path == "/api/events":
-            self._stream_events()
+    def _admit(self) -> bool:
+        """Room for one more connection: the oldest one still sending its request (or lingering) goes, or this one."""
+        if self.open <= self.limits.max_connections:
+            return True
+        if not self.waiting:
+            self.notes.note(f"{self.limits.max_connections} connections open, all served: a new one closed")
+            return False
+        oldest = next(iter(self.waiting))
+        self.waiting.pop(oldest)
+        oldest.transport.abort()
+        self.notes.note(f"{self.limits.max_connections} connections open: the oldest unfinished request closed "
+                        "for a new one")
+        return True
+
+    async def _serve(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter, address: str) -> None:
+        buffered = bytearray()
+        first = True
+        while True:
+            self.waiting[writer] = None
+            try:
+                head = await self._read_head(reader, buffered, first)
+            finally:
+                self.waiting.pop(writer, None)
+            if head is None:
+                return
+            first = False
+            request = _parse(head)
+            if not await self._respond(request, reader, writer, address):
+                await self._close(reader, writer)
+                return
+
+    async def _read_head(self, reader: asyncio.StreamReader, buffered: bytearray, first: bool) -> bytes | None:
+        """The next request's head; None when the client closed, or did not send it whole in time."""
+        loop = asyncio.get_running_loop()
+        deadline = loop.time() + self.limits.request_timeout_s
+        while (end := _HEAD_END.search(buffered)) is None:
+            if len(buffered) > HEAD_BYTES:
+                raise _Refused(431, "request head too large\n", f"a request head over {HEAD_BYTES} bytes "
+                               "(answered 431)")
+            try:
+                chunk = await _within(reader.read(HEAD_BYTES + 4), deadline - loop.time())
+            except asyncio.TimeoutError:
+                if buffered or first:
+                    self.notes.note(f"a request not sent whole within {self.limits.request_timeout_s:g} s "
+                                    "(connection closed)")
+                return None  # else an idle keep-alive connection: closed quietly
+            if not chunk:
+                return None  # the client closed (or was closed for a newer one: _admit): nothing to answer
+            buffered += chunk
+        head = bytes(buffered[:end.start()])
+        del buffered[:end.end()]
+        return head
+
+    async def _close(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        """End our side once the answer is sent, and wait (``send_timeout_s`` at most) for the client to close
+        its side: closing with a request body unread would reset the connection, and the answer with it."""
+        self.waiting[writer] = None  # lingering: the first to go when every place is taken
+        with contextlib.suppress(OSError, asyncio.TimeoutError):  # it lingers or resets: it is closed all the same
+            writer.write_eof()
+            await _within(_until_closed(reader), self.limits.send_timeout_s)
+
+    # -- answers ---------------------------------------------------------------------------------
+    async def _respond(self, req: _Request, reader: asyncio.StreamReader, writer: asyncio.StreamWriter,
+                       address: str) -> bool:
+        """Answer ``req``; True when the connection stays open for another request."""
+        if req.method not in ("GET", "HEAD"):
+            await self._answer(writer, 405, b"read-only: canguard's monitor answers GET only\n", _TEXT,
+                               {"Allow": "GET, HEAD"}, False, req.method)
+            return False
+        if not self._authorized(req):
+            await self._answer(writer, 401, b"a bearer token is required (Authorization: Bearer TOKEN, or "
+                               b"?token=TOKEN)\n", _TEXT, {"WWW-Authenticate": 'Bearer realm="canguard"'},
+                               req.keep_alive, req.method)
+            return req.keep_alive
+        if req.path in ("/", "/index.html"):
+            body, ctype, extra = self.page, "text/html; charset=utf-8", _PAGE_HEADERS
+        elif req.path == "/api/status" and "text/event-stream" not in req.headers.get("accept", ""):
+            body, ctype, extra = self.hub.status_document()[1], "application/json", {}
+        elif req.path in ("/api/status", "/api/events"):
+            await self._stream(req, reader, writer, address)
+            return False
         else:
-            self._send(404, b"not found: try /, /api/status or /api/events\n", "text/plain; charset=utf-8")
+            body, ctype, extra = b"not found: try /, /api/status or /api/events\n", _TEXT, {}
+            await self._answer(writer, 404, body, ctype, extra, req.keep_alive, req.method)
+            return req.keep_alive
+        await self._answer(writer, 200, body, ctype, extra, req.keep_alive, req.method)
+        return req.keep_alive
 
-    def _authorized(self, query: str) -> bool:
-        token = self.server.token
+    def _authorized(self, req: _Request) -> bool:
+        token = self.token
         if not token:
             return True
-        given = self.headers.get("Authorization", "")
+        given = req.headers.get("authorization", "")
         if given.startswith("Bearer ") and hmac.compare_digest(given[7:].strip().encode(), token.encode()):
             return True
-        asked = parse_qs(query).get("token", [""])[0]
+        asked = parse_qs(req.query).get("token", [""])[0]
         return bool(asked) and hmac.compare_digest(asked.encode(), token.encode())
 
-    def _send(self, code: int, body: bytes, ctype: str, headers: dict[str, str] | None = None) -> None:
-        self.send_response(code)
-        self.send_header("Content-Type", ctype)
-        self.send_header("Content-Length", str(len(body)))
-        self.send_header("Cache-Control", "no-store")
-        for k, v in (headers or {}).items():
-            self.send_header(k, v)
-        self.end_headers()
-        if self.command != "HEAD":
-            self.wfile.write(body)
+    async def _answer(self, writer: asyncio.StreamWriter, code: int, body: bytes, ctype: str,
+                      headers: dict[str, str], keep: bool, method: str = "GET") -> None:
+        head = _head(code, {"Content-Type": ctype, "Content-Length": str(len(body)),
+                            **({} if keep else {"Connection": "close"}), **headers})
+        await self._send(writer, head if method == "HEAD" else head + body)
 
-    # -- streams -----------------------------------------------------------------------------
-    def _open_stream(self) -> bool:
-        """Send a stream's headers; False for HEAD (no body follows)."""
-        self.send_response(200)
-        self.send_header("Content-Type", "text/event-stream")
-        self.send_header("Cache-Control", "no-store")
-        self.send_header("X-Accel-Buffering", "no")
-        self.end_headers()
-        self.close_connection = True  # a stream ends with its connection
-        return self.command != "HEAD"
+    async def _send(self, writer: asyncio.StreamWriter, data: bytes) -> None:
+        """Write; asyncio.TimeoutError when the client takes none of it for ``send_timeout_s``."""
+        writer.write(data)
+        await _within(writer.drain(), self.limits.send_timeout_s)
 
-    def _stream_status(self) -> None:
-        hub = self.server.hub
-        if not self._open_stream():
-            return
+    # -- streams ---------------------------------------------------------------------------------
+    async def _stream(self, req: _Request, reader: asyncio.StreamReader, writer: asyncio.StreamWriter,
+                      address: str) -> None:
+        """A stream in a place of its own, until its client leaves (read as it happens) or stalls."""
+        limits = self.limits
+        if self.streams[address] >= limits.streams_per_address:
+            raise _Refused(503, "too many event streams from this address\n", f"more than "
+                           f"{limits.streams_per_address} event streams from one address (answered 503)",
+                           {"Retry-After": "5"})
+        if self.streams.total() >= limits.max_streams:
+            raise _Refused(503, "too many event streams\n", f"more than {limits.max_streams} event streams "
+                           "(answered 503)", {"Retry-After": "5"})
+        self.streams[address] += 1
+        try:
+            await self._send(writer, _head(200, {"Content-Type": "text/event-stream", "X-Accel-Buffering": "no",
+                                                 "Connection": "close"}))
+            if req.method == "HEAD":
+                return
+            body = self._status_stream(writer) if req.path == "/api/status" else self._events_stream(writer)
+            await _until_first(body, _until_closed(reader))
+        finally:
+            self.streams[address] -= 1
+            if not self.streams[address]:
+                del self.streams[address]
+
+    async def _status_stream(self, writer: asyncio.StreamWriter) -> None:
         sent = -1
-        while not hub.closed:
-            version, doc = hub.status_document()
+        while True:
+            version, doc = self.hub.status_document()
             if version != sent:
-                self.wfile.write(b"event: status\ndata: " + doc + b"\n\n")
-                self.wfile.flush()
+                await self._send(writer, b"event: status\ndata: " + doc + b"\n\n")
                 sent = version
-            elif hub.wait(version, KEEPALIVE_S) == version and not hub.closed:
-                self.wfile.write(b": keep-alive\n\n")
-                self.wfile.flush()
+            elif not await self.changes.next(self.limits.keepalive_s):
+                await self._send(writer, b": keep-alive\n\n")
 
-    def _stream_events(self) -> None:
-        hub = self.server.hub
-        if not self._open_stream():
-            return
+    async def _events_stream(self, writer: asyncio.StreamWriter) -> None:
         cursor = 0
-        version = -1
-        while not hub.closed:
-            events, lost = hub.events_after(cursor)
-            if lost:
-                self.wfile.write(b"event: lost\ndata: " + json.dumps({"events": lost}).encode() + b"\n\n")
+        while True:
+            events, lost = self.hub.events_after(cursor)
+            out = [b"event: lost\ndata: " + json.dumps({"events": lost}).encode() + b"\n\n"] if lost else []
             for seq, line in events:
-                self.wfile.write(b"id: %d\ndata: " % seq + line.rstrip(b"\n") + b"\n\n")
+                out.append(b"id: %d\ndata: " % seq + line.rstrip(b"\n") + b"\n\n")
                 cursor = seq
-            self.wfile.flush()
-            new = hub.wait(version, KEEPALIVE_S)
-            if new == version and not hub.closed:
-                self.wfile.write(b": keep-alive\n\n")
-            version = new
+            if out:
+                await self._send(writer, b"".join(out))
+            if not await self.changes.next(self.limits.keepalive_s):
+                await self._send(writer, b": keep-alive\n\n")
+
+    # -- the loop ----------------------------------------------------------------------------------
+    def on_loop_error(self, _loop: asyncio.AbstractEventLoop, context: dict[str, Any]) -> None:
+        """What the loop itself could not do (an accept out of descriptors): one line per cause, no traceback."""
+        exc = context.get("exception")
+        if isinstance(exc, asyncio.CancelledError):  # a connection ended at shutdown
+            return
+        if exc is not None and not isinstance(exc, OSError):  # canguard's fault, not a client's: say where
+            log.error("status page: %s", context.get("message"), exc_info=exc)
+            return
+        self.notes.note(f"{context.get('message', 'event loop error')}"
+                        f"{f' ({type(exc).__name__}: {exc})' if exc else ''}")
+
+
+def _task(step: Awaitable[T]) -> asyncio.Future[T]:
+    """``step`` as a task whose exception is always read, whoever awaits it (none is logged "never retrieved")."""
+    task = asyncio.ensure_future(step)
+    task.add_done_callback(lambda t: t.cancelled() or t.exception())
+    return task
+
+
+async def _within(step: Awaitable[T], timeout_s: float) -> T:
+    """``await step``, cancelled with asyncio.TimeoutError after ``timeout_s``.
+
+    Not ``asyncio.wait_for``: when it is cancelled just as its step fails (a drain woken by a reset), that
+    step's exception is left unread, and asyncio logs it.
+    """
+    task = _task(step)
+    try:
+        done, _ = await asyncio.wait((task,), timeout=max(0.0, timeout_s))
+    finally:
+        task.cancel()
+    if not done:
+        raise asyncio.TimeoutError
+    return task.result()
+
+
+async def _until_closed(reader: asyncio.StreamReader) -> None:
+    """Return when the client closed its end; ConnectionResetError when it reset it. What it sends is ignored."""
+    while await reader.read(4096):
+        pass
+
+
+async def _until_first(*steps: Awaitable[None]) -> None:
+    """Run ``steps`` together until the first ends (its exception raised), the others cancelled."""
+    tasks = [_task(step) for step in steps]
+    try:
+        done, _ = await asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED)
+    finally:
+        for task in tasks:
+            task.cancel()
+    errors = [task.exception() for task in done]  # each one read: none left "never retrieved"
+    for error in errors:
+        if error is not None:
+            raise error
+
+
+def _connection_budget(wanted: int) -> int:
+    """``wanted``, or half the file descriptors this process may open (the rest: Groot2's, the system's)."""
+    soft, _ = resource.getrlimit(resource.RLIMIT_NOFILE)
+    return wanted if soft == resource.RLIM_INFINITY else max(16, min(wanted, soft // 2))
 
 
 class WebMonitor:
-    """The HTTP server of the status page, in its own thread."""
+    """The HTTP server of the status page, its event loop in a thread of its own."""
 
-    def __init__(self, address: Address, hub: Hub, token: str | None) -> None:
+    def __init__(self, address: Address, hub: Hub, token: str | None, limits: Limits | None = None) -> None:
+        limits = limits or Limits()
+        limits = dataclasses.replace(limits, max_connections=_connection_budget(limits.max_connections))
+        self.limits = limits
+        """What clients are granted (``max_connections`` as this process's descriptors allow)."""
         page = data_path("monitor", "index.html").read_bytes()
-        self._server = _Server((address.host, address.port), hub, token, page)
-        host, port = self._server.server_address[:2]
+        family = socket.AF_INET6 if ":" in address.host else socket.AF_INET
+        self._sock = socket.create_server((address.host, address.port), family=family, backlog=limits.backlog)
+        host, port = self._sock.getsockname()[:2]
         self.address = Address(str(host), int(port))
         """Where it listens (the port the system gave for port 0)."""
-        self._thread = threading.Thread(target=self._server.serve_forever, kwargs={"poll_interval": 0.2},
-                                        name="canguard-monitor-http", daemon=True)
+        self._site = _Site(hub, token, page, limits)
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._stopping: asyncio.Event | None = None
+        self._ready = threading.Event()
+        self._thread = threading.Thread(target=asyncio.run, args=(self._main(),), name="canguard-monitor-http",
+                                        daemon=True)
+        hub.subscribe(self._changed)
 
     def start(self) -> None:
-        """Serve in a thread of its own."""
+        """Serve in a thread of its own (listening already: connections wait in the backlog meanwhile)."""
         self._thread.start()
+        self._ready.wait(5)
 
     def close(self) -> None:
-        """Stop serving; streams end as the hub closes."""
-        self._server.shutdown()
-        self._server.server_close()
-        self._thread.join(2)
+        """Stop serving: every connection closed."""
+        loop, stopping = self._loop, self._stopping
+        if loop is not None and stopping is not None:
+            with contextlib.suppress(RuntimeError):  # the loop ended already
+                loop.call_soon_threadsafe(stopping.set)
+            self._thread.join(2)
+        self._sock.close()
+
+    def _changed(self) -> None:
+        """The hub's dispatcher thread: a new status document (wakes the streams in the loop's thread)."""
+        loop = self._loop
+        if loop is not None:
+            with contextlib.suppress(RuntimeError):  # the loop is closing
+                loop.call_soon_threadsafe(self._site.changes.changed)
+
+    async def _main(self) -> None:
+        site = self._site
+        loop = asyncio.get_running_loop()
+        loop.set_exception_handler(site.on_loop_error)
+        self._stopping = asyncio.Event()
+        server = await asyncio.start_server(site.connection, sock=self._sock, backlog=self.limits.backlog,
+                                            limit=HEAD_BYTES + 4)
+        self._loop = loop
+        self._ready.set()
+        try:
+            await self._stopping.wait()
+        finally:
+            server.close()
+            for writer in site.tasks.values():
+                writer.transport.abort()  # each connection's reads and writes end: its task returns
+            with contextlib.suppress(asyncio.TimeoutError):
+                await asyncio.wait_for(asyncio.gather(*site.tasks, return_exceptions=True), 1.0)
+

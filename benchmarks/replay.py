@@ -1,0 +1,156 @@
+"""Suite ``replay``: ``canguard replay`` of logs of every shape and of every log format, beside its peers.
+
+Shapes (benchmarks/shapes.py): each shape's log replayed by ``canguard replay LOG -c CONFIG --json``
+(decode, protection models, tree), beside two peers in the same rounds, the three taking turns:
+
+* the plain cantools loop (:data:`PEER_LOOP`): split each line, ``bytes.fromhex``,
+  ``Database.decode_message`` for the ids of the DBC, nothing printed: decoding alone, the
+  strongest pure-Python peer;
+* can-utils ``log2long`` (C: parses and prints every frame), where installed.
+
+Formats: the simulator's overload log written again by python-can's writers (ASC, BLF, TRC, CSV; MF4
+where asammdf is installed) and replayed, beside python-can's reader alone iterating the file (a floor
+for the formats canguard reads through python-can).
+
+Whole processes, interpreter start-up included, best of N rounds (wall and CPU, user + system).
+"× peer" is the peer's time over canguard's: above 1 canguard is faster.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import os
+import sys
+from pathlib import Path
+
+from benchmarks import kit, shapes
+from benchmarks.kit import Options, Table, Timing
+
+PEER_LOOP = '''
+import sys, cantools
+db = cantools.database.load_file(sys.argv[1])
+ids = {m.frame_id for m in db.messages}
+decode = db.decode_message
+n = 0
+with open(sys.argv[2], encoding="ascii") as f:
+    for line in f:
+        cid, _, data = line.split()[2].partition("#")
+        if data[:1] == "#":  # CAN FD: ID##<flags><data>
+            data = data[2:]
+        fid = int(cid, 16)
+        if fid in ids:
+            decode(fid, bytes.fromhex(data))
+            n += 1
+print(n)
+'''
+
+READER_LOOP = """
+import sys, can
+n = 0
+for _msg in can.LogReader(sys.argv[1]):
+    n += 1
+print(n)
+"""
+
+COLUMNS = ["log", "frames", "canguard s", "canguard CPU s", "peer", "peer s", "× peer", "× peer (CPU)",
+           "log2long s", "× log2long"]
+FORMATS = ("asc", "blf", "trc", "csv") + (("mf4",) if importlib.util.find_spec("asammdf") else ())
+
+
+def sizes(opts: Options) -> tuple[int, int]:
+    """Frames per shape log, frames of the formats' log."""
+    return (2_000, 600) if opts.quick else (2_000_000, 300_000)
+
+
+def log2long(log: Path) -> Timing:
+    """can-utils' ``log2long < LOG > /dev/null``."""
+    return kit.process([str(kit.which("log2long"))], kit.SRC, stdin=log, ok=(0,))
+
+
+def shape_row(w: shapes.Written, opts: Options, rounds: int) -> list[kit.Cell]:
+    """One shape: canguard, the loop and log2long taking turns."""
+    runs = [lambda: kit.canguard(["replay", str(w.log), "-c", str(w.config), "--json"], opts),
+            lambda: kit.python(PEER_LOOP, [str(w.dbc), str(w.log)], opts)]
+    if kit.which("log2long"):
+        runs.append(lambda: log2long(w.log))
+    got = kit.best_of(runs, rounds)
+    cg, loop = got[0], got[1]
+    l2l = got[2] if len(got) > 2 else None
+    return [f"{w.name}: {w.what}", w.frames, cg.wall_s, cg.cpu_s, "plain cantools loop", loop.wall_s,
+            kit.ratio(loop.wall_s, cg.wall_s), kit.ratio(loop.cpu_s, cg.cpu_s),
+            l2l.wall_s if l2l else None, kit.ratio(l2l.wall_s, cg.wall_s) if l2l else None]
+
+
+def convert(log: Path, fmt: str) -> Path:
+    """``log`` (candump -L) written again by python-can's writer for ``fmt`` (cached beside it)."""
+    import can
+
+    out = log.with_suffix("." + fmt)
+    if not out.exists():
+        tmp = out.with_name(f"{out.stem}.{os.getpid()}.tmp.{fmt}")
+        with can.Logger(str(tmp)) as writer:
+            for msg in can.CanutilsLogReader(str(log)):
+                writer.on_message_received(msg)
+        tmp.replace(out)
+    return out
+
+
+def comparable(summary: bytes) -> dict[str, object]:
+    """A ``--json`` summary without what differs by format alone (the log's name, relative timestamps)."""
+    doc = json.loads(summary)
+    for key in ("log", "first_t", "last_t"):
+        doc.pop(key, None)
+    return doc  # type: ignore[no-any-return]
+
+
+def format_rows(frames: int, opts: Options, rounds: int) -> list[list[kit.Cell]]:
+    """Each format of the overload log: canguard's replay beside python-can's reader alone; summaries equal."""
+    log = shapes.CACHE / f"overload-v{shapes.VERSION}-{frames}.log"
+    if not log.exists():
+        shapes.CACHE.mkdir(parents=True, exist_ok=True)
+        from canguard.sim import write_log
+
+        tmp = log.with_suffix(f".{os.getpid()}.tmp")
+        write_log(tmp, frames / 2571.0, db=str(kit.DBC), scenarios=["overload"], seed=0)
+        tmp.replace(log)
+    with open(log, "rb") as f:
+        n = sum(1 for _ in f)
+    rows, reference = [], None
+    for fmt in FORMATS:
+        path = convert(log, fmt)
+        argv = ["replay", str(path), "-c", str(kit.CONFIG), "--json"]
+        cg, reader = kit.best_of([lambda a=argv: kit.canguard(a, opts),
+                                  lambda p=path: kit.python(READER_LOOP, [str(p)], opts)], rounds)
+        got = comparable(cg.out)
+        reference = reference or got
+        if got != reference:
+            raise RuntimeError(f"replay of the {fmt} log: its summary differs from the {FORMATS[0]} log's")
+        rows.append([f"{fmt.upper()} (overload scenario)", n, cg.wall_s, cg.cpu_s, "python-can reader alone",
+                     reader.wall_s, kit.ratio(reader.wall_s, cg.wall_s), kit.ratio(reader.cpu_s, cg.cpu_s), None, None])
+    return rows
+
+
+def run(opts: Options) -> Table:
+    """The replay table: shapes worst first (× plain cantools loop), then formats worst first."""
+    rounds = 1 if opts.quick else opts.rounds
+    frames, format_frames = sizes(opts)
+    table = Table("replay", f"`canguard replay` against the plain cantools loop, can-utils `log2long` and python-can's "
+                  f"readers; best of {rounds}, {'in-process (--quick)' if opts.inprocess else 'whole processes'}",
+                  COLUMNS, costs=["canguard s", "canguard CPU s"])
+    with kit.scratch("replay") as d:
+        rows = [shape_row(w, opts, rounds) for w in shapes.all_shapes(Path(d), frames)]
+        rows.sort(key=lambda r: r[6] if isinstance(r[6], float) else 0.0)
+        fmts = format_rows(format_frames, opts, rounds)
+        fmts.sort(key=lambda r: r[6] if isinstance(r[6], float) else 0.0)
+    table.rows = rows + fmts
+    if not kit.which("log2long"):
+        table.notes.append("log2long not installed (apt-get install -y can-utils): its columns are empty")
+    table.notes += ["× peer: the peer's time over canguard's (above 1: canguard is faster); wall time, then CPU",
+                    "shapes first, then formats, each worst first; the formats' replays give equal summaries",
+                    f"Python {sys.version.split()[0]}; logs cached in {shapes.CACHE}"]
+
+    if opts.quick:
+        table.notes.append("--quick: tiny logs, canguard and the loop in this process: checks that the suite runs, "
+                           "its figures mean nothing")
+    return table

@@ -1,0 +1,265 @@
+"""A bag's raw CAN messages a block at a time: which topics are read, and where each message's bytes lie.
+
+:class:`BagSource` opens a bag and gives :class:`RawBlock` s: messages one after another
+in one zero-padded byte buffer with their topic's :class:`Topic` (channel and layout),
+for :mod:`canguard.io.rosbag` to unpack. Where the bytes come from depends on the storage:
+
+* MCAP (a ``.mcap``, or a rosbag2 directory of them): canguard's own chunk reader
+  (:mod:`canguard.io.mcapscan`): no Python object per message, and a file cut short is
+  read up to the cut;
+* sqlite3 (``.db3``): the ``messages`` table through the connection rosbags opened, in
+  record time order as rosbag2 plays it;
+* ROS 1 ``.bag``: canguard's own chunk reader (:mod:`canguard.io.ros1scan`): rosbags' reader
+  makes an object per message of its index when it opens a bag, and refuses a cut one.
+
+A rosbag2 directory's metadata (topics, types, stored definitions, its files) and a ``.db3``'s
+come from rosbags. The topics read are every topic of a CAN frame type, or those asked for;
+:meth:`BagSource.choose` says what is wrong otherwise (no CAN topic, a topic the bag
+lacks, a CAN-ish type canguard does not know).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass
+from itertools import islice
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from canguard.errors import LogFormatError, clip
+from canguard.io.bagopts import BagOptions
+from canguard.io.mcapscan import PAD, McapCut, McapScan
+from canguard.io.ros1scan import Ros1Scan
+from canguard.io.rosmsgs import DEFINITIONS, Layout, layout_for, looks_like_can, ros2_name
+
+BLOCK = 4096
+"""Raw messages taken at a time from a sqlite3 storage (an MCAP or ROS 1 block is one chunk)."""
+
+
+@dataclass(frozen=True)
+class Topic:
+    """A topic read: its channel's index (:attr:`BagSource.channels`) and the layout of its messages."""
+
+    lane: int
+    layout: Layout
+
+
+@dataclass
+class RawBlock:
+    """Messages one after another: ``buf`` (with :data:`~canguard.io.mcapscan.PAD` zero bytes after the last),
+    each one's ``start`` and ``lengths``, record time (ns) and topic."""
+
+    buf: np.ndarray
+    start: np.ndarray
+    lengths: np.ndarray
+    record_ns: np.ndarray
+    topics: list[Topic]
+    """Each message's topic (one entry per message)."""
+
+
+def joined(raws: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Raw messages one after another in one zero-padded buffer: (the buffer, each one's start, each one's length)."""
+    n = len(raws)
+    lens = np.fromiter(map(len, raws), np.int64, n)
+    data = b"".join(raws)
+    buf = np.zeros(len(data) + PAD, dtype=np.uint8)
+    buf[:len(data)] = np.frombuffer(data, dtype=np.uint8)
+    start = np.zeros(n, dtype=np.int64)
+    np.cumsum(lens[:-1], out=start[1:])
+    return buf, start, lens
+
+
+def _decompress(compression: str, data: bytes, size: int) -> bytes:
+    """An MCAP chunk's records (zstd or lz4: rosbags' own dependencies)."""
+    if compression == "zstd":
+        import zstandard
+
+        return bytes(zstandard.ZstdDecompressor().decompress(data, max_output_size=size))
+    if compression == "lz4":
+        import lz4.frame
+
+        return bytes(lz4.frame.decompress(data))
+    raise ValueError(f"unknown chunk compression {compression!r}")
+
+
+class BagSource:
+    """One bag: the topics read, their channels, and the raw messages a block at a time (module docstring)."""
+
+    def __init__(self, path: Path, opts: BagOptions) -> None:
+        self.path = path
+        self.opts = opts
+        suffix = path.suffix.lower()
+        self.kind = "MCAP" if suffix == ".mcap" and path.is_file() else "ROS 1 bag" if suffix == ".bag" else "rosbag2"
+        self.channels: list[str] = []
+        """The topics read, in the order their channels are numbered."""
+        self.total = 0
+        """Messages of the topics read as the bag's index counts them (0: unknown)."""
+        self._layouts: dict[tuple[str, str], Layout] = {}
+        self._seen: dict[str, str] = {}
+        """Every topic met, with its type (the errors list them)."""
+        self.reader: Any = None
+        self.scans: list[McapScan] = []
+
+    def failed(self, what: str, exc: BaseException) -> LogFormatError:
+        """The error of a bag that could not be read (``what``: where and how far), naming the bag."""
+        why = exc.what if isinstance(exc, McapCut) else f"{type(exc).__name__}: {clip(str(exc))}"
+        return LogFormatError(f"{self.path}: not a readable {self.kind} ({what}): {why}")
+
+    def open(self) -> None:
+        """Open the bag and choose its topics (LogFormatError: it cannot be read, or has none to read)."""
+        try:
+            if self.kind in ("MCAP", "ROS 1 bag"):
+                scan: Any = McapScan(self.path, _decompress) if self.kind == "MCAP" else Ros1Scan(self.path)
+                self.scans = [scan]
+                if scan.whole:
+                    self.choose([(c.topic, c.schema_name, self._definition(c)) for c in scan.channels.values()])
+                return
+            import rosbags.rosbag2
+
+            reader = rosbags.rosbag2.Reader(self.path)
+            reader.open()
+            self.reader = reader
+        except LogFormatError:
+            raise
+        except McapCut as exc:
+            self.close()
+            raise LogFormatError(f"{self.path}: not a {self.kind}: {exc.what}") from None
+        except Exception as exc:  # rosbags raises its ReaderError, but also struct, yaml and OS errors on a cut bag
+            self.close()
+            raise self.failed("cut short, unindexed or not a bag; 0 frames were read", exc) from None
+        conns = self.reader.connections
+        self.choose([(c.topic, c.msgtype, c.msgdef.data) for c in conns])
+        self.total = sum(int(c.msgcount or 0) for c in conns if c.topic in self.channels)
+        storages = getattr(self.reader.storage, "storages", None) if self.kind == "rosbag2" else None
+        files = [Path(s.path) for s in storages or ()]
+        if files and all(f.suffix == ".mcap" for f in files):
+            # read again by canguard's chunk reader, file by file (the reader stays open: a directory compressed
+            # file by file has its storages decompressed into a temporary directory while it is)
+            self.scans = [McapScan(f, _decompress) for f in files]
+
+    @staticmethod
+    def _definition(channel: Any) -> str:
+        """A channel's stored ``.msg`` definition ("" when it has none canguard can compare: an IDL one)."""
+        return channel.schema if channel.schema_encoding in ("ros2msg", "ros1msg") else ""
+
+    def choose(self, connections: list[tuple[str, str, str]]) -> None:
+        """Choose the topics to read among ``(topic, type, stored definition)``; LogFormatError saying what the
+        bag holds when nothing is left to read or a topic asked for is missing."""
+        types: dict[str, str] = {}
+        for topic, msgtype, _definition in connections:
+            types.setdefault(topic, msgtype)
+        self._seen.update(types)
+        wanted = self.opts.topics
+        if wanted:
+            missing = [t for t in wanted if t not in types]
+            if missing:
+                raise LogFormatError(f"{self.path}: no topic {', '.join(missing)} in the bag; its topics: "
+                                     f"{self.found()}")
+            chosen = list(dict.fromkeys(wanted))
+        else:
+            chosen = sorted(t for t, typ in types.items() if ros2_name(typ) in DEFINITIONS or looks_like_can(typ))
+            if not chosen:
+                raise LogFormatError(f"{self.path}: no topic of a CAN frame type ({', '.join(DEFINITIONS)}) "
+                                     f"in the bag; its topics: {self.found()}")
+        for topic, msgtype, definition in connections:
+            if topic in chosen:
+                self.topic(topic, msgtype, definition)  # refused now, not at its first message
+
+    def found(self) -> str:
+        """The topics met, with their types."""
+        return ", ".join(f"{t} ({typ})" for t, typ in sorted(self._seen.items())) or "none"
+
+    def topic(self, topic: str, msgtype: str, definition: str) -> Topic:
+        """The :class:`Topic` of a chosen topic's connection (its channel numbered at its first)."""
+        lay = layout_for(self.path, topic, msgtype, definition, self.kind != "ROS 1 bag")
+        lay = self._layouts.setdefault((lay.msgtype, repr(lay)), lay)  # one object per layout: one unpack
+        if topic not in self.channels:
+            self.channels.append(topic)
+        return Topic(self.channels.index(topic), lay)
+
+    def _wants(self, topic: str, msgtype: str) -> bool:
+        """A topic met in a cut MCAP (no summary): read it?"""
+        self._seen.setdefault(topic, msgtype)
+        if self.opts.topics:
+            return topic in self.opts.topics
+        return ros2_name(msgtype) in DEFINITIONS or looks_like_can(msgtype)
+
+    def blocks(self) -> Iterator[RawBlock]:
+        """The chosen topics' raw messages, a block at a time, in the storage's order."""
+        if self.scans:
+            for scan in self.scans:
+                yield from self._scan_blocks(scan)
+            return
+        yield from self._reader_blocks()
+
+    def _scan_blocks(self, scan: Any) -> Iterator[RawBlock]:
+        """The chosen topics' messages of a file canguard reads itself (:class:`McapScan`, :class:`Ros1Scan`)."""
+        topics: dict[int, Topic | None] = {}
+        for found in scan.messages():
+            for cid in set(np.unique(found.channel).tolist()) - topics.keys():
+                channel = scan.channels.get(cid)
+                if channel is None:
+                    raise McapCut(f"a message of channel {cid}, which no channel record defines")
+                if channel.message_encoding not in ("cdr", "ros1"):
+                    topics[cid] = None
+                    continue
+                take = channel.topic in self.channels or (not scan.whole and self._wants(channel.topic,
+                                                                                          channel.schema_name))
+                topics[cid] = self.topic(channel.topic, channel.schema_name, self._definition(channel)) \
+                    if take else None
+            keep = np.array([topics[c] is not None for c in found.channel.tolist()])
+            if not keep.any():
+                continue
+            rows = np.flatnonzero(keep) if not keep.all() else slice(None)
+            chans = found.channel[rows].tolist()
+            yield RawBlock(found.buf, found.start[rows], found.lengths[rows], found.log_ns[rows],
+                           [topics[c] for c in chans])  # type: ignore[misc]
+
+    def _reader_blocks(self) -> Iterator[RawBlock]:
+        """A rosbag2 sqlite3 bag (a ``.db3``, or a directory of them): each storage's ``messages`` table."""
+        storage = self.reader.storage
+        for db in getattr(storage, "storages", None) or [storage]:
+            yield from self._sqlite_blocks(db)
+
+    def _sqlite_blocks(self, db: Any) -> Iterator[RawBlock]:
+        """One sqlite3 storage's messages of the chosen topics, in record time order."""
+        mine = {c.id: self.topic(c.topic, c.msgtype, self._stored(c)) for c in db.connections
+                if c.topic in self.channels}
+        if not mine:
+            return
+        ids = ",".join(str(int(i)) for i in mine)
+        cursor = db.dbconn.execute(
+            f"SELECT topic_id, timestamp, data FROM messages WHERE topic_id IN ({ids}) ORDER BY timestamp")
+        while batch := list(islice(cursor, BLOCK)):
+            chans, stamps, raws = zip(*batch, strict=True)
+            buf, start, lens = joined(raws)
+            only = mine[chans[0]] if chans.count(chans[0]) == len(chans) else None
+            yield RawBlock(buf, start, lens, np.fromiter(stamps, np.int64, len(stamps)),
+                           [only] * len(chans) if only is not None else [mine[c] for c in chans])
+
+    def _stored(self, conn: Any) -> str:
+        """A storage's connection's definition, or the bag's (a directory keeps them with its connections)."""
+        if conn.msgdef.data:
+            return str(conn.msgdef.data)
+        return next((str(c.msgdef.data) for c in self.reader.connections if c.topic == conn.topic), "")
+
+    def finish(self) -> None:
+        """After the last block: the topics asked for that a cut MCAP never showed, or no CAN topic at all."""
+        if self.scans and not self.scans[0].whole:
+            missing = [t for t in self.opts.topics if t not in self._seen]
+            if missing:
+                raise LogFormatError(f"{self.path}: no topic {', '.join(missing)} in the bag; its topics: "
+                                     f"{self.found()}")
+            if not self.channels:
+                raise LogFormatError(f"{self.path}: no topic of a CAN frame type ({', '.join(DEFINITIONS)}) "
+                                     f"in the bag; its topics: {self.found()}")
+
+    def close(self) -> None:
+        """Close what is open."""
+        for scan in self.scans:
+            scan.close()
+        if self.reader is not None:
+            self.reader.close()
+            self.reader = None

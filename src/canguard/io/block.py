@@ -1,0 +1,356 @@
+"""One block of CAN frames as numpy columns: what every log reader and the live drain give the engine.
+
+A :class:`Block` holds ``n`` frames in time order as read (a log's block of thousands, a live
+bus's drained queue, a frame on a quiet bus: a block of one). Every reader builds the same type
+(candump, ASC, BLF, TRC, CSV, MF4, bags); the engine reads its columns and never asks which format
+it came from. The columns::
+
+    time_s     float64 (n,)    the frame's time in the log's (live: the bus's) time base, seconds
+    can_id     uint32  (n,)    the arbitration id, without flags (an error frame's id without CAN_ERR_FLAG)
+    extended   bool    (n,)    a 29-bit id
+    flags      uint8   (n,)    FLAG_FD | FLAG_BRS | FLAG_ESI | FLAG_REMOTE | FLAG_ERROR
+    dlc        uint8   (n,)    the data length code as python-can's ``Message.dlc`` gives it: the payload's
+                               length, or what a remote frame asks for, or a classic raw DLC of 9..15
+    length     uint8   (n,)    payload bytes
+    payload    uint8   (n, w)  each row's payload in its first ``length`` bytes, zeros after; ``w`` is the
+                               longest payload of the block (0 when every frame is empty)
+    channel    uint16  (n,)    each row's index into ``channels``
+    channels   tuple[str]      the channel names (``can0``; live: the bus name)
+
+A block is a value: nothing writes to its arrays once it is built.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from dataclasses import dataclass
+from itertools import repeat
+from typing import TYPE_CHECKING, Any, Generic, TypeVar
+
+import numpy as np
+
+from canguard.errors import LogFormatError
+from canguard.io.frame import Frame
+
+if TYPE_CHECKING:
+    import can
+
+__all__ = [
+    "EXT_KEY",
+    "FLAG_BRS",
+    "FLAG_ERROR",
+    "FLAG_ESI",
+    "FLAG_FD",
+    "FLAG_REMOTE",
+    "Block",
+    "channel_name",
+]
+
+FLAG_FD = 1
+"""A CAN FD frame."""
+FLAG_BRS = 2
+"""CAN FD bit rate switch."""
+FLAG_ESI = 4
+"""CAN FD error state indicator."""
+FLAG_REMOTE = 8
+"""A remote (RTR) frame: no payload; ``dlc`` is what it asks for."""
+FLAG_ERROR = 16
+"""An error frame (the controller's report: ``can_id`` and payload as the driver gives them)."""
+
+EXT_KEY = 1 << 32
+"""Added to an extended id in :attr:`Block.keys` (a standard id is its value): one integer per (id, extended)."""
+
+_NO_ROWS = np.zeros(0, dtype=np.intp)
+_LANE_0 = np.zeros(1, dtype=np.uint16)
+_new = tuple.__new__  # a Frame from a ready tuple: several times cheaper than Frame(...)
+_COLUMNS = (("time_s", np.dtype(np.float64)), ("can_id", np.dtype(np.uint32)), ("extended", np.dtype(np.bool_)),
+            ("flags", np.dtype(np.uint8)), ("dlc", np.dtype(np.uint8)), ("length", np.dtype(np.uint8)),
+            ("channel", np.dtype(np.uint16)))
+_U8 = np.dtype(np.uint8)
+_T = TypeVar("_T")
+
+
+class _cached(Generic[_T]):  # a decorator, as functools.cached_property
+    """A value computed at first use and kept in the instance (functools.cached_property without its lock,
+    which costs a live block of one more than the value)."""
+
+    def __init__(self, fn: Callable[[Any], _T]) -> None:
+        self.fn = fn
+        self.name = fn.__name__
+        self.__doc__ = fn.__doc__
+
+    def __get__(self, obj: Any, owner: Any = None) -> _T:
+        value: _T = self.fn(obj)
+        obj.__dict__[self.name] = value  # found there from now on: this is not called again
+        return value
+
+
+def channel_name(channel: Any) -> str:
+    """A python-can channel as a string: ints (and digit strings) become ``canN``, None becomes ``""``."""
+    if channel is None:
+        return ""
+    if isinstance(channel, int) or (isinstance(channel, str) and channel.isdigit()):
+        return f"can{channel}"
+    return str(channel)
+
+
+@dataclass(frozen=True, eq=False)
+class Block:
+    """``n`` CAN frames as numpy columns (see the module docstring); build one with :meth:`build`,
+    :meth:`of_frames` or :meth:`of_messages`."""
+
+    time_s: np.ndarray
+    can_id: np.ndarray
+    extended: np.ndarray
+    flags: np.ndarray
+    dlc: np.ndarray
+    length: np.ndarray
+    payload: np.ndarray
+    channel: np.ndarray
+    channels: tuple[str, ...]
+
+    def __post_init__(self) -> None:
+        shape = self.time_s.shape
+        for name, dtype in _COLUMNS:
+            column = getattr(self, name)
+            if column.dtype != dtype or column.shape != shape:
+                raise ValueError(f"Block.{name}: expected {dtype.name} of shape {shape}, "
+                                 f"got {column.dtype.name} of shape {column.shape}")
+        payload = self.payload
+        if payload.dtype != _U8 or payload.ndim != 2 or payload.shape[:1] != shape:
+            raise ValueError(f"Block.payload: expected uint8 of shape ({shape[0]}, width), got {payload.dtype.name} "
+                             f"of shape {payload.shape}")
+        if len(self.channels) > 1 and shape[0] and int(self.channel.max()) >= len(self.channels):
+            raise ValueError(f"Block.channel: index {int(self.channel.max())} with {len(self.channels)} channels")
+
+    # -- building ----------------------------------------------------------------------------
+    @classmethod
+    def build(cls, time_s: Any, can_id: Any, extended: Any, payload: Any, *, length: Any = None,
+              flags: Any = None, dlc: Any = None, channel: Any = None,
+              channels: Sequence[str] = ("",)) -> Block:
+        """A block from array-likes, each converted to its column's type; ``length`` defaults to the payload's
+        width, ``flags`` to 0, ``dlc`` to ``length``, ``channel`` to 0 (the first of ``channels``)."""
+        times = np.ascontiguousarray(time_s, dtype=np.float64)
+        n = times.shape[0]
+        data = np.ascontiguousarray(payload, dtype=np.uint8)
+        if data.ndim == 1 and not data.size:
+            data = data.reshape(n, 0)
+        lengths = (np.full(n, data.shape[1] if data.ndim == 2 else 0, dtype=np.uint8) if length is None
+                   else np.ascontiguousarray(length, dtype=np.uint8))
+        return cls(
+            times, np.ascontiguousarray(can_id, dtype=np.uint32), np.ascontiguousarray(extended, dtype=np.bool_),
+            np.zeros(n, np.uint8) if flags is None else np.ascontiguousarray(flags, dtype=np.uint8),
+            lengths.copy() if dlc is None else np.ascontiguousarray(dlc, dtype=np.uint8),
+            lengths, data,
+            np.zeros(n, np.uint16) if channel is None else np.ascontiguousarray(channel, dtype=np.uint16),
+            tuple(channels),
+        )
+
+    @classmethod
+    def of_frames(cls, frames: Iterable[Frame]) -> Block:
+        """The frames as a block (the live drain, a simulator, tests)."""
+        listed = list(frames)
+        if len(listed) == 1:  # a frame on a quiet bus: its columns made at once
+            f = listed[0]
+            length = len(f.data)
+            flags = ((FLAG_FD if f.is_fd else 0) | (FLAG_BRS if f.bitrate_switch else 0)
+                     | (FLAG_ESI if f.error_state_indicator else 0) | (FLAG_REMOTE if f.is_remote_frame else 0)
+                     | (FLAG_ERROR if f.is_error_frame else 0))
+            if 0 <= f.arbitration_id <= 0xFFFFFFFF and length <= 255 and f.dlc <= 255:
+                return cls(np.array((f.t,), np.float64), np.array((f.arbitration_id,), np.uint32),
+                           np.array((f.is_extended_id,), np.bool_), np.array((flags,), np.uint8),
+                           np.array((length if f.dlc < 0 else f.dlc,), np.uint8), np.array((length,), np.uint8),
+                           np.frombuffer(f.data, np.uint8).reshape(1, length), _LANE_0, (f.channel,))
+        return _Rows.of_frames(listed).block()
+
+    @classmethod
+    def of_messages(cls, msgs: Sequence[can.Message], channel: str | None = None) -> Block:
+        """python-can messages as a block, field for field (``channel`` overrides each message's; python-can's
+        integer channels are named ``canN``)."""
+        return _Rows.of_messages(msgs, channel).block()
+
+    # -- what the engine reads ----------------------------------------------------------------
+    @_cached
+    def n(self) -> int:
+        """How many frames."""
+        return int(self.time_s.shape[0])
+
+    def __len__(self) -> int:
+        return self.n
+
+    @_cached
+    def keys(self) -> np.ndarray:
+        """Each row's id as one integer (int64): the id, plus :data:`EXT_KEY` when extended."""
+        return self.can_id.astype(np.int64) + self.extended.astype(np.int64) * EXT_KEY
+
+    @_cached
+    def times(self) -> list[float]:
+        """:attr:`time_s` as a list of floats (rows read one by one)."""
+        return self.time_s.tolist()
+
+    @_cached
+    def ordered(self) -> bool:
+        """No row's time is before the previous row's."""
+        t = self.time_s
+        return bool(t.size < 2 or not (t[1:] < t[:-1]).any())
+
+    @_cached
+    def order(self) -> tuple[int, int]:
+        """(rows whose time goes back, rows whose time repeats the previous row's), within the block."""
+        t = self.time_s
+        if t.size < 2:
+            return 0, 0
+        step = t[1:] - t[:-1]
+        return int(np.count_nonzero(step < 0)), int(np.count_nonzero(step == 0))
+
+    @_cached
+    def only_channel(self) -> int | None:
+        """The index of the one channel every row is on, or None (rows of several channels)."""
+        if not self.n:
+            return None
+        first = int(self.channel[0])
+        return first if len(self.channels) == 1 or bool((self.channel == first).all()) else None
+
+    @_cached
+    def special(self) -> np.ndarray:
+        """The rows of remote and error frames (no payload to decode), as an index array."""
+        if not self.flags.any():
+            return _NO_ROWS
+        return np.flatnonzero(self.flags & (FLAG_REMOTE | FLAG_ERROR))
+
+    def frame(self, i: int) -> Frame:
+        """Row ``i`` as a :class:`Frame` (``dlc`` -1 when it is the payload's length, as :class:`Frame` says)."""
+        length = int(self.length[i])
+        flags = int(self.flags[i])
+        dlc = int(self.dlc[i])
+        remote = bool(flags & FLAG_REMOTE)
+        return _new(Frame, (
+            float(self.time_s[i]), self.channels[int(self.channel[i])], int(self.can_id[i]),
+            self.payload[i, :length].tobytes(), bool(self.extended[i]), bool(flags & FLAG_FD),
+            bool(flags & FLAG_ERROR), remote, bool(flags & FLAG_BRS), bool(flags & FLAG_ESI),
+            -1 if dlc == length or (remote and dlc == 0) else dlc,
+        ))
+
+    def frames(self) -> Iterator[Frame]:
+        """Every row as a :class:`Frame`, in order (each column converted once: what :meth:`frame` gives row by row,
+        at a fraction of its cost)."""
+        n = self.n
+        flags = self.flags
+        length = self.length.astype(np.int64)
+        dlc = self.dlc.astype(np.int64)
+        remote = (flags & FLAG_REMOTE) != 0
+        width = self.payload.shape[1]
+        blob = self.payload.tobytes()
+        starts = np.arange(n, dtype=np.int64) * width
+        payloads = list(map(blob.__getitem__, map(slice, starts.tolist(), (starts + length).tolist())))
+        channels = self.channels
+        chans = [channels[0]] * n if len(channels) == 1 else list(map(channels.__getitem__, self.channel.tolist()))
+        bits = [((flags & bit) != 0).tolist() for bit in (FLAG_FD, FLAG_ERROR, FLAG_REMOTE, FLAG_BRS, FLAG_ESI)]
+        dlcs = np.where((dlc == length) | (remote & (dlc == 0)), -1, dlc).tolist()
+        return map(_new, repeat(Frame), zip(self.time_s.tolist(), chans, self.can_id.tolist(), payloads,
+                                            self.extended.tolist(), *bits, dlcs, strict=True))
+
+    def select(self, rows: Any) -> Block:
+        """The rows ``rows`` (an index array, a boolean mask or a slice) as a block of their own."""
+        return Block(self.time_s[rows], self.can_id[rows], self.extended[rows], self.flags[rows], self.dlc[rows],
+                     self.length[rows], self.payload[rows], self.channel[rows], self.channels)
+
+    @classmethod
+    def join(cls, blocks: Sequence[Block]) -> Block:
+        """The rows of ``blocks`` one after another, as one block (channels merged by name)."""
+        if len(blocks) == 1:
+            return blocks[0]
+        index: dict[str, int] = {}
+        lanes = []
+        for b in blocks:
+            table = np.array([index.setdefault(c, len(index)) for c in b.channels] or [0], dtype=np.uint16)
+            lanes.append(table[b.channel])
+        names = list(index) or [""]
+        width = max((b.payload.shape[1] for b in blocks), default=0)
+        payload = np.zeros((sum(b.n for b in blocks), width), dtype=np.uint8)
+        at = 0
+        for b in blocks:
+            payload[at:at + b.n, :b.payload.shape[1]] = b.payload
+            at += b.n
+
+        def cat(name: str) -> np.ndarray:
+            return np.concatenate([getattr(b, name) for b in blocks])
+
+        return cls(cat("time_s"), cat("can_id"), cat("extended"), cat("flags"), cat("dlc"), cat("length"), payload,
+                   np.concatenate(lanes) if lanes else np.zeros(0, np.uint16), tuple(names))
+
+
+class _Rows:
+    """Rows gathered one by one (frames, python-can messages) on their way into a :class:`Block`."""
+
+    def __init__(self, n: int) -> None:
+        self.n = n
+        self.times: list[float] = []
+        self.ids: list[int] = []
+        self.ext: list[bool] = []
+        self.flags: list[int] = []
+        self.dlcs: list[int] = []
+        self.datas: list[bytes] = []
+        self.chans: list[str] = []
+
+    @classmethod
+    def of_frames(cls, frames: list[Frame]) -> _Rows:
+        rows = cls(len(frames))
+        for f in frames:
+            length = len(f.data)
+            rows.add(f.t, f.arbitration_id, f.is_extended_id,
+                     (FLAG_FD if f.is_fd else 0) | (FLAG_BRS if f.bitrate_switch else 0)
+                     | (FLAG_ESI if f.error_state_indicator else 0) | (FLAG_REMOTE if f.is_remote_frame else 0)
+                     | (FLAG_ERROR if f.is_error_frame else 0),
+                     length if f.dlc < 0 else f.dlc, f.data, f.channel)
+        return rows
+
+    @classmethod
+    def of_messages(cls, msgs: Sequence[can.Message], channel: str | None) -> _Rows:
+        rows = cls(len(msgs))
+        names: dict[Any, str] = {}
+        for m in msgs:
+            data = bytes(m.data) if m.data is not None else b""
+            if channel is None:
+                name = names.get(m.channel)
+                if name is None:
+                    name = names[m.channel] = channel_name(m.channel)
+            else:
+                name = channel
+            rows.add(float(m.timestamp or 0.0), int(m.arbitration_id), bool(m.is_extended_id),
+                     (FLAG_FD if m.is_fd else 0) | (FLAG_BRS if m.bitrate_switch else 0)
+                     | (FLAG_ESI if m.error_state_indicator else 0) | (FLAG_REMOTE if m.is_remote_frame else 0)
+                     | (FLAG_ERROR if m.is_error_frame else 0),
+                     int(m.dlc), data, name)
+        return rows
+
+    def add(self, t: float, cid: int, ext: bool, flags: int, dlc: int, data: bytes, channel: str) -> None:
+        self.times.append(t)
+        self.ids.append(cid)
+        self.ext.append(ext)
+        self.flags.append(flags)
+        self.dlcs.append(dlc)
+        self.datas.append(data)
+        self.chans.append(channel)
+
+    def block(self) -> Block:
+        lengths = list(map(len, self.datas))
+        width = max(lengths, default=0)
+        n = len(lengths)
+        if n and min(lengths) == width:
+            payload = np.frombuffer(b"".join(self.datas), dtype=np.uint8).reshape(n, width).copy()
+        else:
+            payload = np.zeros((n, width), dtype=np.uint8)
+            for i, data in enumerate(self.datas):
+                payload[i, :len(data)] = np.frombuffer(data, dtype=np.uint8)
+        names: dict[str, int] = {}
+        lanes = [names.setdefault(c, len(names)) for c in self.chans]
+        bad = [i for i, cid in enumerate(self.ids) if not 0 <= cid <= 0xFFFFFFFF or not 0 <= self.dlcs[i] <= 255]
+        if bad or width > 255:
+            i = bad[0] if bad else lengths.index(width)
+            raise LogFormatError(f"frame {i}: id {self.ids[i]:#x}, dlc {self.dlcs[i]}, {lengths[i]} data bytes: "
+                                 "not a CAN frame")
+        return Block(np.array(self.times, dtype=np.float64), np.array(self.ids, dtype=np.uint32),
+                     np.array(self.ext, dtype=np.bool_), np.array(self.flags, dtype=np.uint8),
+                     np.array(self.dlcs, dtype=np.uint8), np.array(lengths, dtype=np.uint8), payload,
+                     np.array(lanes, dtype=np.uint16), tuple(names) or ("",))

@@ -1,0 +1,245 @@
+"""An MCAP file's messages a chunk at a time, as arrays: where each message's bytes lie, its channel, its log time.
+
+rosbag2's MCAP storage writes a message record per frame inside compressed chunks.
+Reading them message by message in Python (a record header parsed, a ``bytes`` object
+and a tuple made per message) costs more than the whole replay of the same frames
+from candump text; here a chunk is decompressed once and its message records are
+found at once where they all have one length (a CAN topic's messages do: the same
+``frame_id`` and a fixed body), one by one only where they do not.
+
+The file is read from its start, record after record, so a file cut short (a
+recorder that died: no summary, no footer) gives every chunk before the cut, then
+:class:`McapCut` saying where it ends. The summary is read first when the file has
+one, so the channels are known before the first message (:attr:`McapScan.channels`);
+a cut file's channels become known as their records are met.
+"""
+
+from __future__ import annotations
+
+import struct
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, BinaryIO
+
+import numpy as np
+
+MAGIC = b"\x89MCAP0\r\n"
+OP_FOOTER, OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_CHUNK, OP_DATA_END = 0x02, 0x03, 0x04, 0x05, 0x06, 0x0F
+_MESSAGE_HEAD = 22
+"""Bytes of a message record before its data: channel id, sequence, log time, publish time."""
+PAD = 128
+"""Zero bytes after a block's buffer: fields read past a short message's end read them, not past the array."""
+
+_NAMES = {OP_SCHEMA: "schema", OP_CHANNEL: "channel", OP_MESSAGE: "message", OP_CHUNK: "chunk"}
+_OPLEN = struct.Struct("<BQ")
+_U16, _U32, _U64 = struct.Struct("<H"), struct.Struct("<I"), struct.Struct("<Q")
+
+
+class McapCut(Exception):
+    """The file ends (or turns to garbage) before its data section does: ``at``, and what was found there."""
+
+    def __init__(self, what: str) -> None:
+        super().__init__(what)
+        self.what = what
+
+
+@dataclass(frozen=True)
+class Channel:
+    """An MCAP channel with its schema: a topic and the definition of its messages."""
+
+    id: int
+    topic: str
+    schema_name: str
+    schema_encoding: str
+    """``ros2msg``, ``ros2idl``, ... (empty: no schema)."""
+    schema: str
+    message_encoding: str
+
+
+@dataclass
+class Messages:
+    """A chunk's messages: each one's channel, log time (ns), and where its data lies in ``buf`` (zero-padded)."""
+
+    channel: np.ndarray
+    log_ns: np.ndarray
+    buf: np.ndarray
+    start: np.ndarray
+    lengths: np.ndarray
+
+
+def _string(body: bytes, pos: int) -> tuple[str, int]:
+    (n,) = _U32.unpack_from(body, pos)
+    return body[pos + 4:pos + 4 + n].decode("utf-8", "replace"), pos + 4 + n
+
+
+class McapScan:
+    """One MCAP file, read from its start (see the module docstring)."""
+
+    def __init__(self, path: Path, decompress: Callable[[str, bytes, int], bytes]) -> None:
+        self.path = path
+        self.decompress = decompress
+        """``(compression, data, uncompressed size) -> bytes``: zstd and lz4 chunks (the caller's libraries)."""
+        self.schemas: dict[int, tuple[str, str, str]] = {}
+        self.channels: dict[int, Channel] = {}
+        self.f: BinaryIO = open(path, "rb")  # noqa: SIM115 -- closed by close()
+        try:
+            self.size = self.f.seek(0, 2)
+            self.f.seek(0)
+            if self.f.read(8) != MAGIC:
+                raise McapCut("no MCAP magic at its start: not an MCAP file")
+            self.whole = self._summary()
+            self.f.seek(8)
+        except BaseException:
+            self.f.close()
+            raise
+
+    def close(self) -> None:
+        """Close the file."""
+        self.f.close()
+
+    def _summary(self) -> bool:
+        """Read the summary's schemas and channels when the file ends as a whole MCAP does; False: it does not."""
+        f = self.f
+        if self.size < 8 + 9 + 20 + 8:
+            return False
+        f.seek(self.size - 8)
+        if f.read(8) != MAGIC:
+            return False
+        f.seek(self.size - 8 - 9 - 20)
+        op, _length = _OPLEN.unpack(f.read(9))
+        start, _offsets, _crc = struct.unpack("<QQI", f.read(20))
+        if op != OP_FOOTER:
+            return False
+        if start:
+            f.seek(start)
+            summary = f.read(self.size - 8 - 29 - start)
+            pos = 0
+            while pos + 9 <= len(summary):
+                op, length = _OPLEN.unpack_from(summary, pos)
+                self._record(op, summary[pos + 9:pos + 9 + length])
+                pos += 9 + length
+        return True
+
+    def _record(self, op: int, body: bytes) -> None:
+        """Take a schema or channel record."""
+        if op == OP_SCHEMA:
+            (sid,) = _U16.unpack_from(body, 0)
+            name, pos = _string(body, 2)
+            encoding, pos = _string(body, pos)
+            (n,) = _U32.unpack_from(body, pos)
+            self.schemas[sid] = (name, encoding, body[pos + 4:pos + 4 + n].decode("utf-8", "replace"))
+        elif op == OP_CHANNEL:
+            cid, sid = struct.unpack_from("<HH", body, 0)
+            topic, pos = _string(body, 4)
+            encoding, pos = _string(body, pos)
+            name, schema_encoding, schema = self.schemas.get(sid, ("", "", ""))
+            self.channels[cid] = Channel(cid, topic, name, schema_encoding, schema, encoding)
+
+    def _read(self, n: int, what: str, at: int) -> bytes:
+        data = self.f.read(n)
+        if len(data) < n:
+            raise McapCut(f"the file ends at byte {self.size}, inside the {what} that starts at byte {at}")
+        return data
+
+    def messages(self) -> Iterator[Messages]:
+        """Every message of the data section, a chunk (or a run of unchunked messages) at a time, in file order."""
+        loose: list[tuple[int, bytes]] = []
+        f = self.f
+        while True:
+            at = f.tell()
+            head = f.read(9)
+            if not head:
+                break  # the file ends between records: no data end, no footer, nothing lost
+            if len(head) < 9:
+                raise McapCut(f"the file ends at byte {self.size}, inside the header of the record at byte {at}")
+            op, length = _OPLEN.unpack(head)
+            if op in (OP_DATA_END, OP_FOOTER):
+                break
+            what = f"{_NAMES.get(op, f'op {op:#04x}')} record of {length} bytes"
+            if at + 9 + length > self.size:
+                raise McapCut(f"the file ends at byte {self.size}, inside the {what} that starts at byte {at}")
+            body = self._read(length, what, at)
+            if op == OP_MESSAGE:
+                loose.append((at, body))
+                continue
+            if loose:
+                yield _loose(loose)
+                loose = []
+            if op == OP_CHUNK:
+                records = self._chunk(body, at)
+                if records is not None:
+                    yield records
+            else:
+                self._record(op, body)
+        if loose:
+            yield _loose(loose)
+
+    def _chunk(self, body: bytes, at: int) -> Messages | None:
+        """A chunk's message records as arrays (its schema and channel records taken on the way)."""
+        (size,) = _U64.unpack_from(body, 16)
+        compression, pos = _string(body, 28)
+        (n,) = _U64.unpack_from(body, pos)
+        data = body[pos + 8:pos + 8 + n]
+        if compression:
+            try:
+                data = self.decompress(compression, data, size)
+            except Exception as exc:  # zstd / lz4 errors of a damaged chunk
+                raise McapCut(f"the chunk at byte {at} does not decompress ({compression}): {exc}") from None
+        return _chunk_messages(data, self._record)
+
+
+def _loose(records: list[tuple[int, bytes]]) -> Messages:
+    """Unchunked message records (their bodies) as arrays."""
+    data = b"".join(_OPLEN.pack(OP_MESSAGE, len(body)) + body for _at, body in records)
+    found = _chunk_messages(data, lambda op, body: None)
+    assert found is not None
+    return found
+
+
+def _chunk_messages(data: bytes, other: Callable[[int, bytes], None]) -> Messages | None:
+    """The message records of a chunk's ``data``; other records go to ``other``. None: no message."""
+    size = len(data)
+    buf = np.zeros(size + PAD, dtype=np.uint8)
+    buf[:size] = np.frombuffer(data, dtype=np.uint8)
+    starts: list[Any] = []
+    pos = 0
+    tried = False
+    while pos + 9 <= size:
+        op, length = _OPLEN.unpack_from(data, pos)
+        if op == OP_MESSAGE and not tried:
+            tried = True  # once a chunk: records of one length from here to its end are found at once
+            run = _same_length(buf, pos, length, size)
+            if run is not None:
+                starts.append(run)
+                break
+        if op == OP_MESSAGE:
+            starts.append(np.array([pos], dtype=np.int64))
+        else:
+            other(op, data[pos + 9:pos + 9 + length])
+        pos += 9 + length
+    if not starts:
+        return None
+    rec = np.concatenate(starts)
+    lens = _u64(buf, rec + 1)
+    if (rec + 9 + lens > size).any() or (lens < _MESSAGE_HEAD).any():
+        raise McapCut("a message record inside a chunk runs past the chunk's end")
+    channel = buf[rec + 9].astype(np.int64) | (buf[rec + 10].astype(np.int64) << 8)
+    log_ns = _u64(buf, rec + 9 + 6).astype(np.int64)
+    return Messages(channel, log_ns, buf, rec + 9 + _MESSAGE_HEAD, (lens - _MESSAGE_HEAD).astype(np.int64))
+
+
+def _same_length(buf: np.ndarray, pos: int, length: int, size: int) -> np.ndarray | None:
+    """The record starts from ``pos`` to the end when every record there is a message of ``length`` bytes."""
+    step = 9 + length
+    if (size - pos) % step:
+        return None
+    rec = np.arange(pos, size, step, dtype=np.int64)
+    if not ((buf[rec] == OP_MESSAGE).all() and (_u64(buf, rec + 1) == length).all()):
+        return None
+    return rec
+
+
+def _u64(buf: np.ndarray, at: np.ndarray) -> np.ndarray:
+    """The little-endian uint64 at each of ``at``."""
+    return buf[at[:, None] + np.arange(8)].view("<u8").ravel()

@@ -1,0 +1,213 @@
+"""A ROS 1 bag's messages a chunk at a time, as arrays (as :mod:`canguard.io.mcapscan` reads MCAP).
+
+A ROS 1 bag (format 2.0) is a bag header, then chunks (each followed by its index
+records), then the index: the connections and where each chunk is. The chunks are read
+from the start, record after record, so a bag cut short (a recorder that died: no index)
+gives every chunk before the cut, then :class:`~canguard.io.mcapscan.McapCut` saying
+where it ends. A whole bag's connections are read from its index first, so the topics
+are known before the first message; a cut bag's become known as their records are met
+(every chunk holds the connection records of its messages).
+
+A chunk holds records ``header length, header (op, conn, time fields), data length,
+data``. A CAN topic's message records all have one length and their fields in one
+order, so from the first message record of a chunk to its end they are found at once
+when they do (one check over the chunk's bytes); otherwise record by record.
+"""
+
+from __future__ import annotations
+
+import struct
+from collections.abc import Iterator
+from pathlib import Path
+from typing import BinaryIO
+
+import numpy as np
+
+from canguard.io.mcapscan import PAD, Channel, McapCut, Messages
+
+MAGIC = b"#ROSBAG V2.0\n"
+_U32 = struct.Struct("<I")
+OP_MESSAGE, OP_BAG_HEADER, OP_CHUNK, OP_CONNECTION = 0x02, 0x03, 0x05, 0x07
+
+
+def _fields(header: bytes) -> dict[bytes, tuple[int, bytes]]:
+    """A record header's fields: name -> (where its value starts in the header, the value)."""
+    out = {}
+    pos = 0
+    while pos + 4 <= len(header):
+        (n,) = _U32.unpack_from(header, pos)
+        name, _eq, value = header[pos + 4:pos + 4 + n].partition(b"=")
+        out[name] = (pos + 4 + len(name) + 1, value)
+        pos += 4 + n
+    return out
+
+
+def _op(fields: dict[bytes, tuple[int, bytes]]) -> int:
+    value = fields.get(b"op", (0, b""))[1]
+    return value[0] if len(value) == 1 else -1
+
+
+def _decompress(compression: bytes, data: bytes) -> bytes:
+    if compression == b"none":
+        return data
+    if compression == b"bz2":
+        import bz2
+
+        return bz2.decompress(data)
+    if compression == b"lz4":
+        import lz4.frame
+
+        return bytes(lz4.frame.decompress(data))
+    raise McapCut(f"a chunk compressed as {compression.decode('latin-1')!r}, which canguard does not read")
+
+
+class Ros1Scan:
+    """One ROS 1 bag, read from its start (see the module docstring)."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self.channels: dict[int, Channel] = {}
+        self.f: BinaryIO = open(path, "rb")  # noqa: SIM115 -- closed by close()
+        try:
+            self.size = self.f.seek(0, 2)
+            self.f.seek(0)
+            if self.f.read(len(MAGIC)) != MAGIC:
+                raise McapCut("no '#ROSBAG V2.0' at its start: not a ROS 1 bag")
+            self.whole = self._index()
+        except BaseException:
+            self.f.close()
+            raise
+
+    def close(self) -> None:
+        """Close the file."""
+        self.f.close()
+
+    def _record(self) -> tuple[int, dict[bytes, tuple[int, bytes]], int] | None:
+        """The next record's (start, header fields, data length), the file at its data; None at the end."""
+        at = self.f.tell()
+        head = self.f.read(4)
+        if not head:
+            return None
+        if len(head) < 4:
+            raise McapCut(f"the file ends at byte {self.size}, inside the header of the record at byte {at}")
+        (hlen,) = _U32.unpack(head)
+        header = self.f.read(hlen)
+        size = self.f.read(4)
+        if len(header) < hlen or len(size) < 4:
+            raise McapCut(f"the file ends at byte {self.size}, inside the header of the record at byte {at}")
+        (dlen,) = _U32.unpack(size)
+        if self.f.tell() + dlen > self.size:
+            what = "chunk" if _op(_fields(header)) == OP_CHUNK else "record"
+            raise McapCut(f"the file ends at byte {self.size}, inside the {what} of {dlen} bytes that starts at "
+                          f"byte {at}")
+        return at, _fields(header), dlen
+
+    def _index(self) -> bool:
+        """Read the connections of the index when the bag has a whole one; the file then at the first chunk."""
+        found = self._record()
+        if found is None or _op(found[1]) != OP_BAG_HEADER:
+            raise McapCut("no bag header record after the magic: not a ROS 1 bag")
+        _at, fields, dlen = found
+        first = self.f.tell() + dlen
+        index = struct.unpack("<Q", fields.get(b"index_pos", (0, bytes(8)))[1])[0]
+        count = _U32.unpack(fields.get(b"conn_count", (0, bytes(4)))[1])[0]
+        whole = 0 < index < self.size
+        if whole:
+            self.f.seek(index)
+            try:
+                for _ in range(count):
+                    self._connection()
+            except McapCut:
+                whole = False
+        self.f.seek(first)
+        return whole and len(self.channels) == count
+
+    def _connection(self) -> None:
+        found = self._record()
+        if found is None or _op(found[1]) != OP_CONNECTION:
+            raise McapCut("not a connection record where the index says")
+        self._take_connection(found[1], self.f.read(found[2]))
+
+    def _take_connection(self, fields: dict[bytes, tuple[int, bytes]], data: bytes) -> None:
+        conn = _U32.unpack(fields[b"conn"][1])[0]
+        info = {k: v for k, (_at, v) in _fields(data).items()}
+        self.channels[conn] = Channel(conn, fields.get(b"topic", (0, info.get(b"topic", b"")))[1].decode("utf-8"),
+                                      info.get(b"type", b"").decode("utf-8"), "ros1msg",
+                                      info.get(b"message_definition", b"").decode("utf-8", "replace"), "ros1")
+
+    def messages(self) -> Iterator[Messages]:
+        """Every chunk's messages, in file order."""
+        while (found := self._record()) is not None:
+            at, fields, dlen = found
+            op = _op(fields)
+            if op == OP_CHUNK:
+                data = self.f.read(dlen)
+                try:
+                    records = _decompress(fields.get(b"compression", (0, b"none"))[1], data)
+                except McapCut:
+                    raise
+                except Exception as exc:  # bz2 / lz4 errors of a damaged chunk
+                    raise McapCut(f"the chunk at byte {at} does not decompress: {exc}") from None
+                messages = self._chunk(records)
+                if messages is not None:
+                    yield messages
+            elif op == OP_CONNECTION:
+                self._take_connection(fields, self.f.read(dlen))
+            else:
+                self.f.seek(dlen, 1)
+
+    def _chunk(self, data: bytes) -> Messages | None:
+        """The message records of a chunk's records (its connection records taken on the way)."""
+        size = len(data)
+        buf = np.zeros(size + PAD, dtype=np.uint8)
+        buf[:size] = np.frombuffer(data, dtype=np.uint8)
+        conns: list[int] = []
+        times: list[int] = []
+        starts: list[int] = []
+        lens: list[int] = []
+        pos = 0
+        while pos + 8 <= size:
+            (hlen,) = _U32.unpack_from(data, pos)
+            fields = _fields(data[pos + 4:pos + 4 + hlen])
+            (dlen,) = _U32.unpack_from(data, pos + 4 + hlen)
+            op = _op(fields)
+            if op == OP_MESSAGE:
+                if not conns:  # the first message record: the rest of the chunk at once, when it can be
+                    run = _same_shape(buf, size, pos, hlen, dlen, fields)
+                    if run is not None:
+                        return run
+                conns.append(_U32.unpack(fields[b"conn"][1])[0])
+                secs, nsecs = struct.unpack("<II", fields[b"time"][1])
+                times.append(secs * 1_000_000_000 + nsecs)
+                starts.append(pos + 8 + hlen)
+                lens.append(dlen)
+            elif op == OP_CONNECTION:
+                self._take_connection(fields, data[pos + 8 + hlen:pos + 8 + hlen + dlen])
+            pos += 8 + hlen + dlen
+        if not conns:
+            return None
+        return Messages(np.array(conns, dtype=np.int64), np.array(times, dtype=np.int64), buf,
+                        np.array(starts, dtype=np.int64), np.array(lens, dtype=np.int64))
+
+
+def _same_shape(buf: np.ndarray, size: int, pos: int, hlen: int, dlen: int,
+                fields: dict[bytes, tuple[int, bytes]]) -> Messages | None:
+    """The message records from ``pos`` to the chunk's end, when each has the first one's lengths and its
+    ``op`` field at the same place."""
+    step = 8 + hlen + dlen
+    if (size - pos) % step or b"conn" not in fields or b"time" not in fields:
+        return None
+    rec = np.arange(pos, size, step, dtype=np.int64)
+    op_at = fields[b"op"][0]
+    same = (_u32(buf, rec) == hlen) & (_u32(buf, rec + 4 + hlen) == dlen) & (buf[rec + 4 + op_at] == OP_MESSAGE)
+    same &= buf[rec + 4 + op_at - 3] == ord("o")  # "op=" is where the first record has it
+    if not same.all():
+        return None
+    conn = _u32(buf, rec + 4 + fields[b"conn"][0])
+    time_at = rec + 4 + fields[b"time"][0]
+    ns = _u32(buf, time_at) * 1_000_000_000 + _u32(buf, time_at + 4)
+    return Messages(conn, ns, buf, rec + 8 + hlen, np.full(rec.size, dlen, dtype=np.int64))
+
+
+def _u32(buf: np.ndarray, at: np.ndarray) -> np.ndarray:
+    return buf[at[:, None] + np.arange(4)].view("<u4").ravel().astype(np.int64)

@@ -1,0 +1,338 @@
+"""ROS bags as CAN logs: rosbag2 (a directory with ``metadata.yaml``, a ``.db3`` or ``.mcap``) and ROS 1 ``.bag``.
+
+:mod:`canguard.io.bagsource` opens the bag (with the ``rosbags`` package, an optional
+extra: ``pip install 'canguard[rosbags]'``, where canguard does not read the file itself)
+and gives its raw messages a block at a time, one after another in one byte buffer;
+canguard never deserialises them one by one. The CAN frame types have a fixed layout
+after the header's ``frame_id`` (:mod:`canguard.io.rosmsgs`), so every field of every
+message of a block is gathered by numpy at once (:func:`unpack`), and the block becomes
+an :class:`~canguard.io.block.Block` at one place (:func:`block_of`).
+
+What a frame is, as candump has it:
+
+* its time is its ``header.stamp``; where that is zero (a driver that leaves it
+  unset), the time the bag recorded it; ``stamp="record"`` takes the record time
+  throughout. :attr:`ReadStats.stamps` counts which was used;
+* its channel is its topic (``/from_can_bus``): a config maps a topic to a bus as it
+  maps a candump channel;
+* its payload is ``data[:dlc]`` (ros2_socketcan reuses its buffer: the bytes past
+  ``dlc`` are leftovers of earlier frames); remote frames keep their DLC and no data,
+  error frames are 29-bit ids with the error flag, as candump reads ``-L`` lines.
+
+A message that does not hold what its layout says (cut short, a ``dlc`` above 8, an
+11-bit id above 7FF) is a bad line of the log: an error naming the topic and the
+message's number, or counted and skipped with ``skip_bad``. A bag that cannot be read
+(cut, not a bag), has no CAN topic, lacks a topic asked for, or holds a topic of a CAN
+type canguard does not know is a :class:`LogFormatError` naming the file and what was
+found, with the frames read before it.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from canguard.errors import LogFormatError
+from canguard.io.bagopts import BagOptions
+from canguard.io.bagsource import BagSource, RawBlock
+from canguard.io.block import FLAG_ERROR, FLAG_FD, FLAG_REMOTE, Block
+from canguard.io.logtypes import (
+    CAN_EFF_MASK,
+    CAN_SFF_MASK,
+    CANFD_LENGTHS,
+    MAX_BAD_EXAMPLES,
+    BadLine,
+    LogFrames,
+    ReadStats,
+)
+from canguard.io.mcapscan import McapCut
+from canguard.io.rosmsgs import (
+    KVASER_ERROR_FRAME,
+    KVASER_EXT,
+    KVASER_RTR,
+    Layout,
+)
+
+_FD_OK = np.zeros(256, dtype=bool)
+_FD_OK[sorted(CANFD_LENGTHS)] = True
+
+
+# --------------------------------------------------------------------------- one block of raw messages
+
+
+@dataclass
+class Rows:
+    """A block of frames as numpy columns, unpacked from raw messages (:func:`unpack`); ``good`` marks the rows
+    that hold a frame (the others are bad messages, with their reason in ``why``)."""
+
+    record_ns: np.ndarray
+    sec: np.ndarray
+    nanosec: np.ndarray
+    ids: np.ndarray
+    extended: np.ndarray
+    remote: np.ndarray
+    error: np.ndarray
+    fd: np.ndarray
+    lengths: np.ndarray
+    """Payload bytes (for a remote frame: its DLC, and no payload)."""
+    data: np.ndarray
+    """``rows x width`` payload bytes, the first ``lengths`` of each row its payload."""
+    good: np.ndarray
+    why: list[str]
+
+
+def _u32(buf: np.ndarray, at: np.ndarray) -> np.ndarray:
+    """The little-endian uint32 at each of ``at`` (int64 for arithmetic)."""
+    return buf[at[:, None] + np.arange(4)].view("<u4").ravel().astype(np.int64)
+
+
+def _u16(buf: np.ndarray, at: np.ndarray) -> np.ndarray:
+    return buf[at[:, None] + np.arange(2)].view("<u2").ravel().astype(np.int64)
+
+
+def _field(buf: np.ndarray, body: np.ndarray, lay: Layout, name: str) -> np.ndarray:
+    """Field ``name`` (a bool or an unsigned integer of 1, 2 or 4 bytes) of every message."""
+    f = lay.fields[name]
+    at = body + f.offset
+    if f.size == 4:
+        return _u32(buf, at)
+    if f.size == 2:
+        return _u16(buf, at)
+    return buf[at].astype(np.int64)
+
+
+def unpack(lay: Layout, buf: np.ndarray, start: np.ndarray, lens: np.ndarray, record_ns: np.ndarray) -> Rows:
+    """The frames of the messages at ``start`` (``lens`` bytes each, all of one layout) in ``buf`` (with
+    :data:`~canguard.io.mcapscan.PAD` zero bytes after the last), read from their fixed offsets all at once."""
+    n = start.size
+    why: list[str] = [""] * n
+    bad = lens < lay.header_size
+    if lay.cdr:
+        big = buf[start + 1] == 0
+        for i in np.flatnonzero(big & ~bad).tolist():
+            why[i] = "big-endian CDR, which canguard does not read"
+        bad |= big
+    name_len = np.where(bad, 0, _u32(buf, start + 12))
+    name_len = np.minimum(name_len, lens)  # a cut or garbled string length: caught by the size check below
+    body = start + lay.header_size + name_len
+    if lay.cdr:
+        body = (body - start + 3) // 4 * 4 + start  # aligned as CDR aligns, from the message's first byte
+    body = np.minimum(body, start + lens)  # stays inside the padded buffer
+    end = body + lay.fixed
+    seq_len = np.zeros(n, dtype=np.int64)
+    if lay.sequence >= 0:
+        seq_len = np.where(body + lay.sequence + 4 <= start + lens, _u32(buf, body + lay.sequence), 0)
+        end = body + lay.sequence + 4 + seq_len
+    short = end > start + lens
+    for i in np.flatnonzero(short & ~bad).tolist():
+        why[i] = f"{int(lens[i])} bytes, shorter than its fields"
+    bad |= short
+    stamp = start + lay.stamp_offset
+    sec = _u32(buf, stamp)
+    if lay.cdr:
+        sec = np.where(sec >= 1 << 31, sec - (1 << 32), sec)  # int32
+    nanosec = _u32(buf, stamp + 4)
+    ids, extended, remote, error, fd, lengths, data = _frame_fields(lay, buf, body, seq_len)
+    return Rows(record_ns, sec, nanosec, ids, extended, remote, error, fd, lengths, data, ~bad, why)
+
+
+def _frame_fields(lay: Layout, buf: np.ndarray, body: np.ndarray, seq_len: np.ndarray) -> tuple[np.ndarray, ...]:
+    """(ids, extended, remote, error, fd, lengths, data) of a block, as each type holds them."""
+    name = lay.msgtype
+    n = body.size
+    false = np.zeros(n, dtype=bool)
+    ids = _field(buf, body, lay, "id")
+    if name == "autoware_can_msgs/msg/CANPacket":
+        flag = _field(buf, body, lay, "flag")
+        extended = ((flag & KVASER_EXT) != 0) | (ids > CAN_SFF_MASK)
+        remote, error = (flag & KVASER_RTR) != 0, (flag & KVASER_ERROR_FRAME) != 0
+        return ids, extended, remote, error, false, _field(buf, body, lay, "len"), _bytes(buf, body, lay, "dat")
+    extended = _field(buf, body, lay, "is_extended") != 0
+    error = _field(buf, body, lay, "is_error") != 0
+    remote = _field(buf, body, lay, "is_rtr") != 0 if "is_rtr" in lay.fields else false
+    fd = _field(buf, body, lay, "is_fd_frame") != 0 if "is_fd_frame" in lay.fields else false
+    if name == "ros2_socketcan_msgs/msg/FdFrame":
+        fd = ~false
+    size = "len" if "len" in lay.fields else "dlc"
+    lengths = _field(buf, body, lay, size)
+    if lay.sequence >= 0:
+        data = buf[(body + lay.sequence + 4)[:, None] + np.arange(64)]
+        lengths = np.where(lengths > seq_len, -1, lengths)  # more than the data holds: refused below
+    else:
+        data = _bytes(buf, body, lay, "data")
+    return ids, extended, remote, error, fd, lengths, data
+
+
+def _bytes(buf: np.ndarray, body: np.ndarray, lay: Layout, name: str) -> np.ndarray:
+    f = lay.fields[name]
+    return buf[(body + f.offset)[:, None] + np.arange(f.count)]
+
+
+def check(rows: Rows) -> None:
+    """Mark the rows that are no CAN frame as candump knows one (``rows.good``, ``rows.why``)."""
+    ok = rows.good
+    why = rows.why
+    lengths = rows.lengths
+    classic_bad = ~rows.fd & ((lengths < 0) | (lengths > 8))
+    fd_bad = rows.fd & ((lengths < 0) | ~_FD_OK[np.clip(lengths, 0, 255)] | rows.remote)
+    std_bad = ~rows.extended & ~rows.error & (rows.ids > CAN_SFF_MASK)
+    ext_bad = rows.extended & ~rows.error & (rows.ids > CAN_EFF_MASK)
+    for mask, reason in ((classic_bad, "a classic frame's length {} is not 0-8"),
+                         (fd_bad, "a CAN FD frame's length {} is not a CAN FD length"),
+                         (std_bad, "11-bit id {:X} is above 7FF"), (ext_bad, "29-bit id {:X} is above 1FFFFFFF")):
+        hits = mask & ok
+        for i in np.flatnonzero(hits).tolist():
+            value = int(rows.ids[i]) if "id" in reason else int(lengths[i])
+            why[i] = reason.format(value)
+        ok &= ~hits
+
+
+def times(rows: Rows, record: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Each row's time in seconds (its header stamp, the record time where that is zero or with ``record``), and
+    which rows took the record time. A whole number of microseconds is exactly the float candump's text of it
+    reads as (one rounding of an exact integer of microseconds)."""
+    rec_s = rows.record_ns // 1_000_000_000
+    rec_ns = rows.record_ns % 1_000_000_000
+    use = np.ones(rows.sec.size, dtype=bool) if record else (rows.sec == 0) & (rows.nanosec == 0)
+    sec = np.where(use, rec_s, rows.sec)
+    nsec = np.where(use, rec_ns, rows.nanosec)
+    t = (sec * 1_000_000 + nsec // 1000) / 1e6
+    sub = nsec % 1000
+    if sub.any():
+        t = t + sub * 1e-9
+    return t, use
+
+
+# --------------------------------------------------------------------------- the block the engine takes
+
+
+def block_of(rows: Rows, t: np.ndarray, lanes: np.ndarray, channels: list[str]) -> Block:
+    """The good rows of a block of messages as a :class:`~canguard.io.block.Block`: where a bag's columns become
+    what every reader gives."""
+    keep = np.flatnonzero(rows.good)
+    sel: Any = keep if keep.size < rows.good.size else slice(None)
+    ids, ext, rem, err, fd = rows.ids[sel], rows.extended[sel], rows.remote[sel], rows.error[sel], rows.fd[sel]
+    lengths = rows.lengths[sel]
+    flags = (np.where(fd, FLAG_FD, 0) | np.where(rem, FLAG_REMOTE, 0) | np.where(err, FLAG_ERROR, 0))
+    payload_len = np.where(rem, 0, lengths)
+    data = rows.data[sel]
+    width = int(payload_len.max()) if payload_len.size else 0
+    payload = data[:, :width] * (np.arange(width) < payload_len[:, None])  # data[:dlc]: zeros after, as Block keeps
+    return Block.build(t[sel], np.where(err, ids & CAN_EFF_MASK, ids), ext | err, payload, length=payload_len,
+                       flags=flags, dlc=lengths, channel=lanes[sel], channels=channels)
+
+
+def _merge(parts: list[tuple[np.ndarray, Rows]], n: int) -> Rows:
+    """The rows of several layouts' unpacked parts put back in the batch's order."""
+    width = max(rows.data.shape[1] for _idx, rows in parts)
+    cols: dict[str, np.ndarray] = {}
+    why = [""] * n
+    for name in ("record_ns", "sec", "nanosec", "ids", "extended", "remote", "error", "fd", "lengths", "good"):
+        first = getattr(parts[0][1], name)
+        out = np.empty(n, dtype=first.dtype)
+        for idx, rows in parts:
+            out[idx] = getattr(rows, name)
+        cols[name] = out
+    data = np.zeros((n, width), dtype=np.uint8)
+    for idx, rows in parts:
+        data[idx, :rows.data.shape[1]] = rows.data
+        for k, i in enumerate(idx.tolist()):
+            why[i] = rows.why[k]
+    good = cols.pop("good")
+    return Rows(**cols, data=data, good=good, why=why)
+
+
+def _block_rows(block: RawBlock) -> tuple[Rows, np.ndarray]:
+    """A block's rows unpacked (one layout at a time when the block mixes them), and each row's channel."""
+    topics = block.topics
+    first = topics[0]
+    if topics.count(first) == len(topics):
+        rows = unpack(first.layout, block.buf, block.start, block.lengths, block.record_ns)
+        return rows, np.full(len(topics), first.lane, dtype=np.intp)
+    lanes = np.fromiter((t.lane for t in topics), np.intp, len(topics))
+    layouts: dict[int, tuple[Layout, list[int]]] = {}  # by the layout's id: topics of one type share theirs
+    for i, t in enumerate(topics):
+        layouts.setdefault(id(t.layout), (t.layout, []))[1].append(i)
+    parts = []
+    for lay, idx in layouts.values():
+        at = np.asarray(idx, dtype=np.intp)
+        parts.append((at, unpack(lay, block.buf, block.start[at], block.lengths[at], block.record_ns[at])))
+    return (parts[0][1] if len(parts) == 1 else _merge(parts, len(topics))), lanes
+
+
+def _note_bad(st: ReadStats, bag: BagSource, rows: Rows, lanes: np.ndarray, first: int, skip_bad: bool) -> None:
+    """Count the bad messages of a block (``first``: the number of its first message in the read), or raise."""
+    for i in np.flatnonzero(~rows.good).tolist():
+        where = f"message {first + i + 1} (topic {bag.channels[int(lanes[i])]})"
+        if not skip_bad:
+            raise LogFormatError(f"{bag.path}: {where}: {rows.why[i]}; {st.frames + int(rows.good[:i].sum())} "
+                                 "frames were read before it")
+        st.bad_lines += 1
+        if len(st.bad_examples) < MAX_BAD_EXAMPLES:
+            st.bad_examples.append(BadLine(first + i + 1, rows.why[i], where))
+
+
+def _next(bag: BagSource, blocks: Iterator[RawBlock], st: ReadStats) -> RawBlock | None:
+    """The next block, or None at the end; a cut or damaged storage as a LogFormatError saying how far it got."""
+    try:
+        return next(blocks, None)
+    except LogFormatError:
+        raise
+    except McapCut as exc:
+        raise LogFormatError(f"{bag.path}: truncated {bag.kind}: {exc.what}; {st.frames} frames were read before "
+                             "the cut") from None
+    except Exception as exc:  # a cut or damaged storage deep inside the readers
+        raise bag.failed(f"cut or damaged; {st.frames} frames were read before it", exc) from None
+
+
+def bag_chunks(p: Path, opts: BagOptions, st: ReadStats, owner: LogFrames, skip_bad: bool) -> Iterator[Block]:
+    """The frames of bag ``p`` a block at a time; every problem a LogFormatError naming the bag."""
+    bag = BagSource(p, opts)
+    record = opts.stamp == "record"
+    read = 0
+    last_t = -math.inf
+    try:
+        bag.open()
+        blocks = bag.blocks()
+        while (raw := _next(bag, blocks, st)) is not None:
+            rows, lanes = _block_rows(raw)
+            check(rows)
+            if not rows.good.all():
+                _note_bad(st, bag, rows, lanes, read, skip_bad)
+            read += lanes.size
+            t, from_record = times(rows, record)
+            kept = t[rows.good]
+            by_record = int(np.count_nonzero(from_record & rows.good))
+            st.stamps["record"] = st.stamps.get("record", 0) + by_record
+            st.stamps["header"] = st.stamps.get("header", 0) + int(kept.size) - by_record
+            _order(st, kept, last_t)
+            if kept.size:
+                last_t = float(kept[-1])
+            st.frames += int(kept.size)
+            block = block_of(rows, t, lanes, bag.channels)
+            if bag.total:
+                owner.reached(min(st.bytes_total, st.bytes_total * read // bag.total))
+            if block.n:
+                yield block
+        bag.finish()
+    finally:
+        bag.close()
+        owner.finished()
+    if not st.frames and not st.bad_lines:
+        raise LogFormatError(f"{p}: empty log: no frames on {', '.join(bag.channels) or 'its CAN topics'}")
+
+
+def _order(st: ReadStats, t: np.ndarray, last_t: float) -> None:
+    """Count the times of a block that go back or repeat (the first against ``last_t``)."""
+    if not t.size:
+        return
+    prev = np.empty_like(t)
+    prev[0] = last_t
+    prev[1:] = t[:-1]
+    st.backwards_timestamps += int(np.count_nonzero(t < prev))
+    st.repeated_timestamps += int(np.count_nonzero(t == prev))
