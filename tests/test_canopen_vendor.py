@@ -163,10 +163,10 @@ class TestOneErrorPerCause:
         cfg = load_config(config(tmp_path, source={"max_age": 0.5}))
         health = SourceHealth(cfg.sources["left_torque"])
         for k in range(4):
-            health.observe_one("nmt", 0.1 * k, 5.0)
+            health.advance(("nmt",), (0.1 * k,), ((5.0,),))
         for t in (0.0, 0.25):
-            health.observe_one("current", t, 10.0)
-            health.observe_one("fault", t, 0.0)
+            health.advance(("current",), (t,), ((10.0,),))
+            health.advance(("fault",), (t,), ((0.0,),))
         assert health.reason(0.3) == ""
         assert health.reason(0.46) == "no_heartbeat"  # 0.16 s after the last heartbeat: past 1.5 x 0.1 s
         assert health.reason(0.46, "current") == "no_heartbeat"

@@ -7,6 +7,7 @@ import time
 from pathlib import Path
 
 import pytest
+from tests.feed import step
 
 from canguard.io.clock import BootClock
 from canguard.protect.i2t import LeakyI2t
@@ -26,8 +27,8 @@ def boot(tmp_path: Path) -> BootClock:
 def hot_model() -> LeakyI2t:
     """A 10 A / 20 A-for-1 s bucket at 90 % of its trip level."""
     m = LeakyI2t(10.0, 20.0, 1.0)
-    m.update(20.0, 0.0)
-    m.update(20.0, 0.9)
+    step(m, 20.0, 0.0)
+    step(m, 20.0, 0.9)
     return m
 
 

@@ -11,6 +11,7 @@ import math
 from typing import Any
 
 import pytest
+from tests.feed import observe
 
 from canguard.config.schema import FrameSpec, SignalRef, SourceConfig, StopConfig, StopConfirm, TaskConfig
 from canguard.engine.gate import BusSink, LogSink, TaskGate
@@ -167,11 +168,11 @@ class TestConfirm:
     def test_confirmed_only_by_a_sample_taken_after_the_stop(self) -> None:
         rec = Recorder()
         g, h = self.setup(rec)
-        h.observe(Sample("axis0", "current", 0.5, 1.0))  # low already, but at the stop's own time
+        observe(h, Sample("axis0", "current", 0.5, 1.0))  # low already, but at the stop's own time
         g.stop(1.0, reason="x")
         g.service(1.05)
         assert not rec.named("confirmed")
-        h.observe(Sample("axis0", "current", -0.5, 1.06))
+        observe(h, Sample("axis0", "current", -0.5, 1.06))
         g.service(1.07)
         [(t, fields)] = rec.named("confirmed")
         assert t == 1.07 and fields == {"source": "axis0", "value": -0.5, "threshold": 1.0,
@@ -183,7 +184,7 @@ class TestConfirm:
         rec = Recorder()
         g, h = self.setup(rec)
         g.stop(1.0, reason="x")
-        h.observe(Sample("axis0", "current", -20.0, 1.1))  # still pushing: |-20| is not below 1
+        observe(h, Sample("axis0", "current", -20.0, 1.1))  # still pushing: |-20| is not below 1
         g.service(1.1)
         assert not rec.named("escalate")
         assert g.next_deadline() == pytest.approx(1.1 + 0.05)
@@ -197,7 +198,7 @@ class TestConfirm:
     def test_a_stale_source_never_confirms(self) -> None:
         rec = Recorder()
         g, h = self.setup(rec)
-        h.observe(Sample("axis0", "current", 0.0, 1.01))
+        observe(h, Sample("axis0", "current", 0.0, 1.01))
         g.stop(1.0, reason="x")
         g.service(1.6)  # the sample is 0.59 s old: stale (max_age 0.5)
         assert not rec.named("confirmed") and rec.named("escalate")
@@ -206,7 +207,7 @@ class TestConfirm:
         rec = Recorder()
         g, h = self.setup(rec, "==", -1.0)
         g.stop(1.0, reason="x")
-        h.observe(Sample("axis0", "current", -1.0, 1.05))
+        observe(h, Sample("axis0", "current", -1.0, 1.05))
         g.service(1.06)
         assert rec.named("confirmed")
 
@@ -371,7 +372,7 @@ class TestScheduleAndConfirm:
         rec = Recorder()
         g, h = TestConfirm().setup(rec, "!=", 1.0)
         g.stop(1.0, reason="x")
-        h.observe(Sample("axis0", "current", -1.0, 1.05))  # |-1| == 1, but -1 != 1: confirmed
+        observe(h, Sample("axis0", "current", -1.0, 1.05))  # |-1| == 1, but -1 != 1: confirmed
         g.service(1.06)
         assert rec.named("confirmed")
 
@@ -383,9 +384,9 @@ class TestScheduleAndConfirm:
         g = TaskGate(TaskConfig(0.02, TASK),
                      StopConfig(0.05, STOP, StopConfirm("axis0", "current", "<", 1.0, 0.5)),  # type: ignore[arg-type]
                      rec, health={"axis0": h}, on_event=rec.on_event)
-        h.observe(Sample("axis0", "voltage", 48.0, 0.0))  # stale by 1.2
+        observe(h, Sample("axis0", "voltage", 48.0, 0.0))  # stale by 1.2
         g.stop(1.0, reason="x")
-        h.observe(Sample("axis0", "current", 0.2, 1.1))
+        observe(h, Sample("axis0", "current", 0.2, 1.1))
         g.service(1.2)
         assert rec.named("confirmed") and not rec.named("escalate")
 
@@ -456,7 +457,7 @@ class TestOneByOne:
         rec = Recorder()
         g, h = TestConfirm().setup(rec)
         g.stop(1.0, reason="x")
-        h.observe(Sample("axis0", "current", 0.1, 1.05))
+        observe(h, Sample("axis0", "current", 0.1, 1.05))
         g.service(1.06)
         g.service(1.1)
         g.service(1.15)

@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 
 import pytest
+from tests.feed import step
 
 from canguard.protect.i2t import LeakyI2t, ThermalI2t, cooled_level
 
@@ -66,8 +67,8 @@ class TestStateFileFields:
 
     def test_thermal_export_is_exactly_these_fields(self) -> None:
         m = ThermalI2t(10.0, tau_s=30.0, tau_cool_s=60.0, max_gap_s=2.0)
-        m.update(20.0, 0.0)
-        m.update(20.0, 1.0)
+        step(m, 20.0, 0.0)
+        step(m, 20.0, 1.0)
         got = m.export()
         assert set(got) == {"kind", "version", "params", "accumulator", "level", "tripped", "t"}
         assert got["params"] == {"continuous_a": 10.0, "peak_a": None, "peak_time_s": None, "tau_s": 30.0,
@@ -83,23 +84,23 @@ class TestBoundaries:
         s = m.trip_level
         # cool at zero current: A falls by I_cont² per second (100 A²/s)
         seconds_to_half = (s - 0.5 * s) / 100.0
-        m.update(0.0, 10.0)
-        m.update(0.0, 10.0 + seconds_to_half)
+        step(m, 0.0, 10.0)
+        step(m, 0.0, 10.0 + seconds_to_half)
         assert m.level == pytest.approx(0.5)
         assert m.tripped
-        m.update(0.0, 10.0 + seconds_to_half + 0.01)
+        step(m, 0.0, 10.0 + seconds_to_half + 0.01)
         assert not m.tripped
 
     def test_thermal_cools_with_tau_cool_and_heats_with_tau(self) -> None:
         """Above the steady state the level falls at tau_cool, below it rises at tau."""
         heat = ThermalI2t(10.0, tau_s=10.0, tau_cool_s=1000.0)
-        heat.update(20.0, 0.0)
-        heat.update(20.0, 1.0)  # q = 4: θ = 4 (1 - e^(-1/10))
+        step(heat, 20.0, 0.0)
+        step(heat, 20.0, 1.0)  # q = 4: θ = 4 (1 - e^(-1/10))
         assert heat.accumulator == pytest.approx(4.0 * (1.0 - math.exp(-0.1)))
         cool = ThermalI2t(10.0, tau_s=10.0, tau_cool_s=1000.0)
         cool.set_hot(0.0)
-        cool.update(0.0, 0.0)
-        cool.update(0.0, 1.0)  # q = 0 < θ = 1: θ = e^(-1/1000)
+        step(cool, 0.0, 0.0)
+        step(cool, 0.0, 1.0)  # q = 0 < θ = 1: θ = e^(-1/1000)
         assert cool.accumulator == pytest.approx(math.exp(-0.001))
 
     def test_time_to_trip(self) -> None:
@@ -117,10 +118,10 @@ class TestBoundaries:
 
     def test_a_zero_gap_integrates_nothing(self) -> None:
         m = LeakyI2t(10.0, 20.0, 5.0)
-        m.update(20.0, 1.0)
-        m.update(20.0, 1.0)
+        step(m, 20.0, 1.0)
+        step(m, 20.0, 1.0)
         assert m.accumulator == 0.0
-        m.update(20.0, 2.0)
+        step(m, 20.0, 2.0)
         assert m.accumulator == pytest.approx(300.0)
 
 
@@ -156,14 +157,14 @@ class TestRestoreRefuses:
 class TestMore:
     def test_time_to_trip_from_partial_heat(self) -> None:
         leaky = LeakyI2t(10.0, 20.0, 5.0)  # S = 1500 A²s
-        leaky.update(20.0, 0.0)
-        leaky.update(20.0, 1.0)  # A = 300
+        step(leaky, 20.0, 0.0)
+        step(leaky, 20.0, 1.0)  # A = 300
         assert leaky.accumulator == pytest.approx(300.0)
         assert leaky.time_to_trip(20.0) == pytest.approx(4.0)
         assert leaky.time_to_trip(10.01) == pytest.approx(1200.0 / (10.01**2 - 100.0))  # a rate below 1 A²
         thermal = ThermalI2t(10.0, tau_s=30.0)
-        thermal.update(20.0, 0.0)
-        thermal.update(20.0, 3.0)
+        step(thermal, 20.0, 0.0)
+        step(thermal, 20.0, 3.0)
         theta = thermal.accumulator
         assert 0 < theta < 1
         assert thermal.time_to_trip(20.0) == pytest.approx(30.0 * math.log((4.0 - theta) / 3.0))
@@ -171,12 +172,12 @@ class TestMore:
     def test_a_rate_of_exactly_one_integrates(self) -> None:
         """I² − I_cont² = 1 A² exactly (1.25² − 0.75²): the bucket fills by 1 A²s per second."""
         m = LeakyI2t(0.75, 2.0, 1.0)
-        m.update(1.25, 0.0)
-        m.update(1.25, 2.0)
+        step(m, 1.25, 0.0)
+        step(m, 1.25, 2.0)
         assert m.accumulator == 2.0
         level = LeakyI2t(0.75, 2.0, 1.0)
-        level.update(0.75, 0.0)
-        level.update(0.75, 2.0)
+        step(level, 0.75, 0.0)
+        step(level, 0.75, 2.0)
         assert level.accumulator == 0.0
 
     @pytest.mark.parametrize("params", [
@@ -196,16 +197,16 @@ class TestMore:
         assert m.tripped and m.since is None
         assert m.poll(0.0).tripped
         warm = LeakyI2t(10.0, 20.0, 5.0)
-        warm.update(20.0, 0.0)
-        warm.update(20.0, 1.0)
+        step(warm, 20.0, 0.0)
+        step(warm, 20.0, 1.0)
         cold = LeakyI2t(10.0, 20.0, 5.0)
         cold.restore(warm.export(), 0.0)
         assert not cold.tripped and not cold.poll(0.0).tripped
 
     def test_a_reload_carries_the_stale_gap_count(self) -> None:
         old = LeakyI2t(10.0, 20.0, 5.0, max_gap_s=0.1)
-        old.update(20.0, 0.0)
-        old.update(20.0, 1.0)  # a 1 s gap: integrated as 0.1 s, counted
+        step(old, 20.0, 0.0)
+        step(old, 20.0, 1.0)  # a 1 s gap: integrated as 0.1 s, counted
         new = LeakyI2t(10.0, 20.0, 5.0, max_gap_s=0.1)
         new.carry_from(old)
         assert new.stale_gaps == old.stale_gaps == 1

@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 
 import pytest
+from tests.feed import observe, step
 
 from canguard.config.schema import SignalRef, SourceConfig
 from canguard.io.frame import Sample
@@ -51,11 +52,11 @@ class TestCounters:
     def test_rejected_and_out_of_order_count_each_sample(self) -> None:
         m = Threshold(10.0)
         assert m.since is None and m.rejected == 0 and m.out_of_order == 0
-        m.update(1.0, 5.0)
-        m.update(math.nan, 6.0)
-        m.update(math.inf, 6.0)
-        m.update(1.0, 4.0)
-        m.update(1.0, 3.0)
+        step(m, 1.0, 5.0)
+        step(m, math.nan, 6.0)
+        step(m, math.inf, 6.0)
+        step(m, 1.0, 4.0)
+        step(m, 1.0, 3.0)
         assert (m.rejected, m.out_of_order) == (2, 2)
         assert m.snapshot().since is None  # never tripped
 
@@ -68,11 +69,11 @@ class TestCounters:
 
     def test_source_health_counts(self) -> None:
         h = SourceHealth(SourceConfig("c", "current", "can0", (ref("current"),), 0.5))
-        h.observe(Sample("c", "current", 1.0, 1.0))
-        h.observe(Sample("c", "current", math.nan, 1.1, "nan"))
-        h.observe(Sample("c", "current", math.nan, 1.2, "nan"))
-        h.observe(Sample("c", "current", 1.0, 0.5))
-        h.observe(Sample("c", "current", 1.0, 0.4))
+        observe(h, Sample("c", "current", 1.0, 1.0))
+        observe(h, Sample("c", "current", math.nan, 1.1, "nan"))
+        observe(h, Sample("c", "current", math.nan, 1.2, "nan"))
+        observe(h, Sample("c", "current", 1.0, 0.5))
+        observe(h, Sample("c", "current", 1.0, 0.4))
         assert (h.invalid_samples, h.out_of_order, h.samples) == (2, 2, 5)
 
 
@@ -83,18 +84,18 @@ def ref(role: str, minimum: float | None = None, maximum: float | None = None) -
 class TestBoundaries:
     def test_trip_after_reached_is_a_trip_and_recover_after_reached_a_recovery(self) -> None:
         m = Hysteresis(10.0, 5.0, trip_after_s=0.5, recover_after_s=0.25)
-        assert not m.update(20.0, 1.0)
-        assert not m.update(20.0, 1.25)
-        assert m.update(20.0, 1.5) and m.tripped
-        assert not m.update(1.0, 2.0)
-        assert m.update(1.0, 2.25) and not m.tripped
+        assert not step(m, 20.0, 1.0)
+        assert not step(m, 20.0, 1.25)
+        assert step(m, 20.0, 1.5) and m.tripped
+        assert not step(m, 1.0, 2.0)
+        assert step(m, 1.0, 2.25) and not m.tripped
 
     def test_a_fresh_model_reports_its_trip_threshold(self) -> None:
         blanked = Hysteresis(10.0, 5.0, inrush=InrushBlanking(2.0, 0.5, 40.0))
         assert blanked.snapshot().threshold == 10.0 and blanked.snapshot().level_pct == 0.0
-        blanked.update(0.0, 0.0)
-        blanked.update(0.0, 0.5)
-        blanked.update(3.0, 0.6)  # a start after 0.5 s quiet: the blanking threshold is in force
+        step(blanked, 0.0, 0.0)
+        step(blanked, 0.0, 0.5)
+        step(blanked, 3.0, 0.6)  # a start after 0.5 s quiet: the blanking threshold is in force
         assert blanked.snapshot().threshold == 40.0 and blanked.snapshot().level_pct == pytest.approx(7.5)
 
     def test_level_pct(self) -> None:
@@ -121,28 +122,28 @@ class TestBoundaries:
 class TestSourceHealthAfterSamples:
     def test_fresh_after_a_second_valid_sample_and_stale_after_max_age(self) -> None:
         h = SourceHealth(SourceConfig("c", "current", "can0", (ref("current"),), 0.5))
-        h.observe(Sample("c", "current", 1.0, 1.0))
-        assert not h.observe(Sample("c", "current", 2.0, 1.2))  # the fast path
+        observe(h, Sample("c", "current", 1.0, 1.0))
+        assert not observe(h, Sample("c", "current", 2.0, 1.2))  # the fast path
         assert h.reason(1.2) == "" and h.reason(1.7) == "" and h.reason(1.71) == "stale"
         assert h.value("current") == 2.0 and h.last_t("current") == 1.2
 
     def test_a_second_invalid_sample_in_a_row_is_no_new_edge(self) -> None:
         h = SourceHealth(SourceConfig("c", "current", "can0", (ref("current"),), 0.5))
-        h.observe(Sample("c", "current", 1.0, 1.0))
-        assert h.observe(Sample("c", "current", math.nan, 1.1, "nan"))
-        assert not h.observe(Sample("c", "current", math.nan, 1.2, "nan"))
-        assert h.observe(Sample("c", "current", 1.0, 1.3))
+        observe(h, Sample("c", "current", 1.0, 1.0))
+        assert observe(h, Sample("c", "current", math.nan, 1.1, "nan"))
+        assert not observe(h, Sample("c", "current", math.nan, 1.2, "nan"))
+        assert observe(h, Sample("c", "current", 1.0, 1.3))
 
     def test_a_minimum_alone_is_a_range(self) -> None:
         h = SourceHealth(SourceConfig("c", "current", "can0", (ref("current", minimum=-10.0),), 0.5))
-        h.observe(Sample("c", "current", -20.0, 1.0))
+        observe(h, Sample("c", "current", -20.0, 1.0))
         assert h.reason(1.0) == "out_of_range"
 
     def test_reasons_list_presence_first(self) -> None:
         cfg = SourceConfig("bms", "battery", "can0", (ref("current"), ref("present")), 0.5)
         h = SourceHealth(cfg)
-        h.observe(Sample("bms", "present", 0.0, 1.0))
-        h.observe(Sample("bms", "current", 1.0, 1.0))
+        observe(h, Sample("bms", "present", 0.0, 1.0))
+        observe(h, Sample("bms", "current", 1.0, 1.0))
         assert h.reasons(1.0) == {"present": "not_present", "current": ""}
         assert h.age(1.5) == 0.5 and h.age(1.5, "current") == 0.5
         empty = SourceHealth(SourceConfig("x", "current", "can0", (ref("current"),), 0.5))
@@ -161,21 +162,21 @@ class TestReloadCarries:
 
     def test_a_sample_older_than_the_old_models_last_is_out_of_order(self) -> None:
         old = Threshold(10.0)
-        old.update(1.0, 5.0)
+        step(old, 1.0, 5.0)
         new = Threshold(20.0)
         new.carry_from(old)
-        new.update(1.0, 4.0)
+        step(new, 1.0, 4.0)
         assert new.out_of_order == 1 and new.last_t == 5.0
 
     def test_inrush_starts_and_a_new_blanking_carry_over(self) -> None:
         old = Hysteresis(10.0, 5.0, inrush=InrushBlanking(2.0, 0.5))
         for t, a in [(0.0, 0.0), (0.5, 0.0), (0.6, 5.0)]:
-            old.update(a, t)
+            step(old, a, t)
         new = Hysteresis(12.0, 5.0, inrush=InrushBlanking(2.0, 0.5))
         new.carry_from(old)
         assert new.inrush is not None and old.inrush is not None and new.inrush.starts == old.inrush.starts == 1
         plain = Hysteresis(10.0, 5.0)
-        plain.update(3.0, 1.0)
+        step(plain, 3.0, 1.0)
         added = Hysteresis(10.0, 5.0, inrush=InrushBlanking(2.0, 0.5))
         added.carry_from(plain)  # blanking added by the reload: nothing to carry, no error
         assert added.inrush is not None and added.inrush.starts == 0 and added.last_t == 1.0

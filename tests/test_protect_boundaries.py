@@ -7,6 +7,8 @@ broken; a recovery reports its own time in ``since``.
 
 from __future__ import annotations
 
+from tests.feed import observe, step
+
 from canguard.protect.hysteresis import Hysteresis
 
 
@@ -14,8 +16,8 @@ def test_gap_of_exactly_max_gap_keeps_the_persistence_timer() -> None:
     """Samples 0.125 s apart with max_gap 0.125 s: persistence runs on and trips at 0.375 s."""
     m = Hysteresis(35.0, 25.0, trip_after_s=0.375, max_gap_s=0.125)
     for t in (0.0, 0.125, 0.25):
-        assert m.update(40.0, t) is False
-    assert m.update(40.0, 0.375) is True
+        assert step(m, 40.0, t) is False
+    assert step(m, 40.0, 0.375) is True
     assert m.tripped
 
 
@@ -23,37 +25,37 @@ def test_gap_longer_than_max_gap_restarts_it() -> None:
     """The same, but one gap is longer than max_gap: the timer restarts there and no trip comes yet."""
     m = Hysteresis(35.0, 25.0, trip_after_s=0.375, max_gap_s=0.125)
     for t in (0.0, 0.125, 0.5, 0.625):
-        m.update(40.0, t)
+        step(m, 40.0, t)
     assert not m.tripped
 
 
 def test_broken_overcurrent_restarts_from_the_next_over_sample() -> None:
     """Over, under, over, over: the trip timer counts from the second run of over samples only."""
     m = Hysteresis(35.0, 25.0, trip_after_s=0.25)
-    m.update(40.0, 0.0)
-    m.update(30.0, 0.125)  # between the thresholds: breaks the overcurrent run
-    m.update(40.0, 0.25)
-    assert m.update(40.0, 0.375) is False and not m.tripped  # 0.125 s of the new run
-    assert m.update(40.0, 0.5) is True  # 0.25 s: trips
+    step(m, 40.0, 0.0)
+    step(m, 30.0, 0.125)  # between the thresholds: breaks the overcurrent run
+    step(m, 40.0, 0.25)
+    assert step(m, 40.0, 0.375) is False and not m.tripped  # 0.125 s of the new run
+    assert step(m, 40.0, 0.5) is True  # 0.25 s: trips
 
 
 def test_broken_recovery_restarts_from_the_next_under_sample() -> None:
     """Tripped; under, between, under, under: recovery counts from the second run of under samples."""
     m = Hysteresis(35.0, 25.0, recover_after_s=0.25)
-    assert m.update(40.0, 0.0) is True
-    m.update(20.0, 0.125)
-    m.update(30.0, 0.25)  # above the recovery threshold: breaks the run
-    m.update(20.0, 0.375)
-    assert m.update(20.0, 0.5) is False and m.tripped
-    assert m.update(20.0, 0.625) is True and not m.tripped
+    assert step(m, 40.0, 0.0) is True
+    step(m, 20.0, 0.125)
+    step(m, 30.0, 0.25)  # above the recovery threshold: breaks the run
+    step(m, 20.0, 0.375)
+    assert step(m, 20.0, 0.5) is False and m.tripped
+    assert step(m, 20.0, 0.625) is True and not m.tripped
 
 
 def test_recovery_reports_its_time() -> None:
     """since is the time of the last edge: the trip's, then the recovery's."""
     m = Hysteresis(35.0, 25.0)
-    m.update(40.0, 1.0)
+    step(m, 40.0, 1.0)
     assert m.snapshot().since == 1.0
-    m.update(20.0, 2.5)
+    step(m, 20.0, 2.5)
     assert m.snapshot().since == 2.5
 
 
@@ -63,7 +65,7 @@ def test_second_trip_and_recovery_with_persistence() -> None:
     edges = []
     t = 0.0
     for value in [40.0] * 3 + [20.0] * 3 + [40.0] * 3 + [20.0] * 3:
-        if m.update(value, t):
+        if step(m, value, t):
             edges.append((t, m.tripped))
         t += 0.125
     assert edges == [(0.25, True), (0.625, False), (1.0, True), (1.375, False)]
@@ -92,8 +94,8 @@ def _joints(max_age_s: float = 0.5) -> SourceHealth:
 def test_every_role_exactly_max_age_old_is_fresh_and_a_bit_older_is_stale() -> None:
     """reasons() judges each role on its own: 0.5 s old with max_age 0.5 s is fresh, 0.51 s is stale."""
     h = _joints()
-    h.observe(_sample("j1", 1.0, 1.0))
-    h.observe(_sample("j2", 2.0, 1.0))
+    observe(h, _sample("j1", 1.0, 1.0))
+    observe(h, _sample("j2", 2.0, 1.0))
     assert h.reasons(1.5) == {"j1": "", "j2": ""}
     assert h.reasons(1.51) == {"j1": "stale", "j2": "stale"}
 
@@ -102,8 +104,8 @@ def test_a_role_refreshed_on_the_fast_path_keeps_its_time_and_value() -> None:
     """Many fresh samples: the latest time and value are the last sample's, every role usable."""
     h = _joints()
     for i in range(5):
-        h.observe(_sample("j1", float(i), 0.1 * i))
-        h.observe(_sample("j2", 10.0 + i, 0.1 * i + 0.01))
+        observe(h, _sample("j1", float(i), 0.1 * i))
+        observe(h, _sample("j2", 10.0 + i, 0.1 * i + 0.01))
     assert h.last_t("j1") == 0.1 * 4 and h.last_t("j2") == 0.1 * 4 + 0.01
     assert h.value("j1") == 4.0 and h.value("j2") == 14.0
     assert h.reasons(0.45) == {"j1": "", "j2": ""}
@@ -113,15 +115,15 @@ def test_counters_count_samples_invalid_and_out_of_order() -> None:
     """Five samples, one NaN, one older than the latest: the counters say exactly that."""
     h = _joints()
     for value, t in ((1.0, 0.0), (math.nan, 0.1), (2.0, 0.2), (3.0, 0.15), (4.0, 0.3)):
-        h.observe(_sample("j1", value, t))
+        observe(h, _sample("j1", value, t))
     assert (h.samples, h.invalid_samples, h.out_of_order) == (5, 1, 1)
 
 
 def test_age_of_the_source_is_its_oldest_role() -> None:
     """age(now) without a role is the age of the oldest value role (the one that goes stale first)."""
     h = _joints()
-    h.observe(_sample("j1", 1.0, 0.0))
-    h.observe(_sample("j2", 1.0, 1.0))
+    observe(h, _sample("j1", 1.0, 0.0))
+    observe(h, _sample("j2", 1.0, 1.0))
     assert h.age(2.0) == 2.0
     assert h.age(2.0, "j2") == 1.0
 
@@ -129,8 +131,8 @@ def test_age_of_the_source_is_its_oldest_role() -> None:
 def test_values_hide_only_the_roles_that_cannot_be_used() -> None:
     """One joint stale, the other fresh: values() gives NaN for the stale one only."""
     h = _joints()
-    h.observe(_sample("j1", 1.5, 0.0))
-    h.observe(_sample("j2", 2.5, 1.0))
+    observe(h, _sample("j1", 1.5, 0.0))
+    observe(h, _sample("j2", 2.5, 1.0))
     vals = h.values(1.2)
     assert math.isnan(vals["j1"]) and vals["j2"] == 2.5
 
@@ -139,7 +141,7 @@ def test_a_signal_with_only_a_minimum_is_range_checked() -> None:
     """A DBC range with only a lower bound still makes values below it out_of_range."""
     h = SourceHealth(SourceConfig("m", "current", "can0", (_ref("current", 0.0, None),), 0.5))
     assert h.ranges == {"current": (0.0, None)}
-    h.observe(_sample("current", -1.0, 0.0))
+    observe(h, _sample("current", -1.0, 0.0))
     assert h.reason(0.0) == "out_of_range"
 
 
@@ -178,15 +180,15 @@ def test_restore_keeps_a_trip_down_to_exactly_the_recover_fraction() -> None:
 def test_export_restore_round_trip_keeps_the_level() -> None:
     """Half-heated, exported and restored with no downtime: the same level, samples work after it."""
     m = LeakyI2t(10.0, 20.0, 1.0)
-    m.update(20.0, 0.0)
-    m.update(20.0, 0.5)
+    step(m, 20.0, 0.0)
+    step(m, 20.0, 0.5)
     level = m.level
     assert 0.0 < level < 1.0
     fresh = LeakyI2t(10.0, 20.0, 1.0)
     fresh.restore(m.export(), 0.0)
     assert fresh.level == level
-    assert fresh.update(20.0, 10.0) is False  # the first sample after a restore only sets the held current
-    fresh.update(20.0, 10.6)
+    assert step(fresh, 20.0, 10.0) is False  # the first sample after a restore only sets the held current
+    step(fresh, 20.0, 10.6)
     assert fresh.tripped  # and the heat goes on from the restored level: 0.5 + 0.6 s at 2x the rating
 
 
@@ -194,7 +196,7 @@ def test_each_stale_gap_is_counted() -> None:
     """Two gaps longer than max_gap_s: stale_gaps is 2 (a gap of exactly max_gap_s is not one)."""
     m = LeakyI2t(10.0, 20.0, 1.0, max_gap_s=0.25)
     for t in (0.0, 0.25, 1.0, 1.25, 2.0):
-        m.update(5.0, t)
+        step(m, 5.0, t)
     assert m.stale_gaps == 2
 
 
@@ -203,10 +205,10 @@ def test_i2t_recovery_reports_its_time() -> None:
     m = LeakyI2t(10.0, 20.0, 1.0, recover_fraction=0.5)
     t = 0.0
     while not m.tripped:
-        m.update(20.0, t)
+        step(m, 20.0, t)
         t += 0.125
     while m.tripped:
-        m.update(0.0, t)
+        step(m, 0.0, t)
         t += 0.125
     assert m.snapshot().since == t - 0.125
 

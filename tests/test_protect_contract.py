@@ -9,6 +9,7 @@ from collections.abc import Callable
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from tests.feed import step
 
 from canguard.protect import Hysteresis, LeakyI2t, ProtectionModel, ThermalI2t, Threshold
 from canguard.protect.base import REASON_I2T, REASON_OK, REASON_OVERCURRENT
@@ -30,7 +31,7 @@ MODES = ("runs_of_one", "long_runs")
 def feed(model: ProtectionModel, mode: str, values: list[float], times: list[float]) -> list[bool]:
     """Feed the samples as ``mode`` says; per sample, True where the tripped state changed."""
     if mode == "runs_of_one":
-        return [model.update(v, t) for v, t in zip(values, times, strict=True)]
+        return [step(model, v, t) for v, t in zip(values, times, strict=True)]
     edges = [False] * len(values)
     for i in model.advance(times, values).index.tolist():
         edges[i] = True
@@ -45,7 +46,7 @@ def run_until(model: ProtectionModel, mode: str, current: float, t: float, want:
     times = [t + DT * k for k in range(1, round(limit_s / DT) + 1)]
     if mode == "runs_of_one":
         for now in times:
-            model.update(current, now)
+            step(model, current, now)
             if model.tripped == want:
                 return now
     else:
@@ -82,7 +83,7 @@ class TestProtectionModelContract:
         prev = model.tripped
         edges = 0
         for i, current in enumerate(seq):
-            edge = model.update(current, i * DT)
+            edge = step(model, current, i * DT)
             assert isinstance(edge, bool)
             assert edge == (model.tripped != prev)
             edges += edge
@@ -96,7 +97,7 @@ class TestProtectionModelContract:
         times = [i * DT for i in range(len(seq))]
         fresh = copy.deepcopy(model)
         run = model.advance(times, seq)
-        per_sample = [i for i, (v, t) in enumerate(zip(seq, times, strict=True)) if fresh.update(v, t)]
+        per_sample = [i for i, (v, t) in enumerate(zip(seq, times, strict=True)) if step(fresh, v, t)]
         assert run.index.tolist() == per_sample and len(per_sample) == 2
         assert run.tripped.tolist() == [True, False] and run.t.tolist() == [times[i] for i in per_sample]
         assert model.snapshot() == fresh.snapshot()
@@ -170,7 +171,7 @@ class TestProtectionModelContract:
         model = FACTORIES[name][0]()
         prev = model.tripped
         for value, t in samples + samples:
-            edge = model.update(value, t)
+            edge = step(model, value, t)
             assert edge == (model.tripped != prev)
             prev = model.tripped
             snap = model.poll(t)
@@ -185,7 +186,7 @@ class TestTimeMovesModelsOnlyThroughSamples:
         """After any history, polls at later and later times (no sample between) give the same state."""
         model, _ = case
         for k in range(60):
-            model.update(current if k >= 20 else 0.0, k * DT)
+            step(model, current if k >= 20 else 0.0, k * DT)
         model.poll(60 * DT)  # the peak latch is reset by a poll: compare the polls after it
         first = model.poll(61 * DT)
         for later in (62 * DT, 1.0, 10.0, 1000.0):

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 
 import pytest
+from tests.feed import step
 
 from canguard.protect import Hysteresis, InrushBlanking, Threshold
 
@@ -13,7 +14,7 @@ def feed(model: Hysteresis | Threshold, values: list[float], t0: float = 0.0, dt
     """Feed ``values`` every ``dt`` from ``t0``; return the tripped state after each."""
     out = []
     for i, v in enumerate(values):
-        model.update(v, t0 + i * dt)
+        step(model, v, t0 + i * dt)
         out.append(model.tripped)
     return out
 
@@ -80,9 +81,9 @@ class TestHysteresis:
     def test_gap_restarts_persistence(self) -> None:
         """Two overcurrent samples 5 s apart with max_gap_s = 0.5 do not make a held overcurrent."""
         model = Hysteresis(35.0, 25.0, trip_after_s=1.0, max_gap_s=0.5)
-        model.update(40.0, 0.0)
+        step(model, 40.0, 0.0)
         assert not any(feed(model, [40.0] * 10, t0=5.0, dt=0.1))
-        assert model.update(40.0, 6.0) is True
+        assert step(model, 40.0, 6.0) is True
 
     def test_set_thresholds_applies_from_the_next_sample(self) -> None:
         """Lowering the trip threshold at run time trips at the next sample above it."""
@@ -97,8 +98,8 @@ class TestHysteresis:
     def test_snapshot_reports_value_threshold_and_edge_time(self) -> None:
         """The snapshot carries |I|, the threshold in force, % of it and the trip time."""
         model = Hysteresis(40.0, 25.0)
-        model.update(-20.0, 1.0)
-        model.update(-50.0, 2.0)
+        step(model, -20.0, 1.0)
+        step(model, -50.0, 2.0)
         snap = model.snapshot()
         assert (snap.value, snap.threshold, snap.since, snap.reason) == (50.0, 40.0, 2.0, "overcurrent")
         assert snap.level_pct == pytest.approx(125.0)

@@ -9,6 +9,7 @@ import random
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from tests.feed import step
 
 from canguard.protect import LeakyI2t, ThermalI2t, thermal_tau
 
@@ -20,10 +21,10 @@ GOOD = {"continuous_a": 6.0, "peak_a": 12.0, "peak_time_s": 1.0}
 def trip_time(model: LeakyI2t | ThermalI2t, current: float, t0: float = 0.0, dt: float = DT) -> float:
     """Seconds from ``t0`` until ``model`` trips at a constant ``current`` sampled every ``dt``."""
     t = t0
-    model.update(current, t)
+    step(model, current, t)
     while not model.tripped:
         t += dt
-        model.update(current, t)
+        step(model, current, t)
         assert t - t0 < 1e4
     return t - t0
 
@@ -31,10 +32,10 @@ def trip_time(model: LeakyI2t | ThermalI2t, current: float, t0: float = 0.0, dt:
 def recover_time(model: LeakyI2t | ThermalI2t, t0: float, dt: float = DT) -> float:
     """Seconds from ``t0`` until ``model`` recovers at 0 A (the held current before t0 counts up to t0)."""
     t = t0
-    model.update(0.0, t)
+    step(model, 0.0, t)
     while model.tripped:
         t += dt
-        model.update(0.0, t)
+        step(model, 0.0, t)
         assert t - t0 < 1e4
     return t - t0
 
@@ -43,7 +44,7 @@ def hold(model: LeakyI2t | ThermalI2t, current: float, t0: float, duration: floa
     """Feed ``current`` from ``t0`` for ``duration`` seconds; return the end time."""
     n = round(duration / dt)
     for i in range(n + 1):
-        model.update(current, t0 + i * dt)
+        step(model, current, t0 + i * dt)
     return t0 + n * dt
 
 
@@ -67,10 +68,10 @@ class TestLeakyI2t:
         rng = random.Random(current)
         model = LeakyI2t(6.0, 12.0, 1.0)
         t = 0.0
-        model.update(current, t)
+        step(model, current, t)
         while not model.tripped:
             t += rng.uniform(0.001, 0.02)
-            model.update(current, t)
+            step(model, current, t)
         expected = 108.0 / (current**2 - 36.0)
         assert expected - 1e-9 <= t <= expected + 0.02
 
@@ -109,8 +110,8 @@ class TestLeakyI2t:
     def test_gap_longer_than_max_gap_integrates_only_max_gap(self) -> None:
         """A 10 s hole in the data with max_gap_s = 0.5 heats like 0.5 s, not like 10 s."""
         model = LeakyI2t(6.0, 12.0, 1.0, max_gap_s=0.5)
-        model.update(10.0, 0.0)
-        model.update(10.0, 10.0)
+        step(model, 10.0, 0.0)
+        step(model, 10.0, 10.0)
         assert model.accumulator == pytest.approx(64.0 * 0.5)
         assert model.stale_gaps == 1
         assert not model.tripped
@@ -118,9 +119,9 @@ class TestLeakyI2t:
     def test_step_back_in_time_is_ignored(self) -> None:
         """A sample older than the latest one neither heats nor moves the held current."""
         model = LeakyI2t(6.0, 12.0, 1.0)
-        model.update(10.0, 1.0)
-        model.update(100.0, 0.5)
-        model.update(10.0, 2.0)
+        step(model, 10.0, 1.0)
+        step(model, 100.0, 0.5)
+        step(model, 10.0, 2.0)
         assert model.accumulator == pytest.approx(64.0)
         assert model.out_of_order == 1
 
@@ -323,7 +324,7 @@ class TestI2tProperties:
             ThermalI2t(6.0, 12.0, 1.0, max_gap_s=0.5) if thermal else LeakyI2t(6.0, 12.0, 1.0)
         )
         for value, t in samples:
-            model.update(value, t)
+            step(model, value, t)
             assert math.isfinite(model.accumulator) and model.accumulator >= 0
             assert math.isfinite(model.snapshot().level_pct)
 

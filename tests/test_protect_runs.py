@@ -204,15 +204,6 @@ def test_until_edge_stops_right_after_the_edge() -> None:
     assert rest.tripped.tolist() == [False]
 
 
-def test_peak_sees_every_sample() -> None:
-    """A run's peak is the largest |value| of any accepted sample, a one-sample spike included."""
-    model = LeakyI2t(6.0, 12.0, 1.0)
-    v = np.ones(10_000)
-    v[7_777] = -33.0
-    v[8_000] = math.nan
-    assert model.advance(np.arange(10_000) * 1e-3, v).peak == 33.0
-
-
 def test_mismatched_columns_are_refused() -> None:
     """Times and values of different lengths raise a ValueError naming both shapes; the state is untouched."""
     model = Hysteresis(10.0, 5.0)
@@ -231,6 +222,13 @@ def test_inrush_run_matches_per_sample() -> None:
     helper = InrushBlanking(2.0, 0.1, 20.0)
     assert np.flatnonzero(helper.advance(t, a)).tolist() == want
     assert helper.starts == ref.starts and helper.window_start == ref.window_start
+
+
+def health_run(health: SourceHealth, role: str, times: Any, values: Any, until_edge: bool = False) -> Any:
+    """A run of one role's samples through :meth:`SourceHealth.advance` (rows of one sample)."""
+    times = times.tolist() if hasattr(times, "tolist") else list(times)
+    values = values.tolist() if hasattr(values, "tolist") else list(values)
+    return health.advance((role,), times, (values,), until_edge=until_edge)
 
 
 def _health_ref(role_names: tuple[str, ...], present: bool) -> tuple[SourceHealth, RefHealth]:
@@ -275,7 +273,7 @@ def test_source_health_long_runs_of_one_role_match_the_reference(stream: tuple[n
 
 def assert_health_runs_follow_the_reference(stream: tuple[np.ndarray, np.ndarray], roles: list[str], present: bool,
                                             until_edge: bool) -> None:
-    """``SourceHealth.observe_run`` over each run of consecutive samples of one role gives the reference's reason
+    """``SourceHealth.advance`` over each run of consecutive samples of one role gives the reference's reason
     edges at the same samples, and ends in its counts, reason and value."""
     times, values = stream
     with np.errstate(invalid="ignore"):  # few distinct counter values; NaN and inf stay
@@ -292,7 +290,7 @@ def assert_health_runs_follow_the_reference(stream: tuple[np.ndarray, np.ndarray
             end += 1
         pos = start
         while pos < end:
-            run = health.observe_run(roles[start], times[pos:end], values[pos:end], until_edge=until_edge)
+            run = health_run(health, roles[start], times[pos:end], values[pos:end], until_edge)
             got.extend((pos + run.index).tolist())
             pos += run.taken
         start = end
@@ -321,12 +319,12 @@ def test_source_health_says_its_state_publicly() -> None:
     """The latest time, invalid reason and last reason of a role are readable without touching private state."""
     health, _ref = _health_ref(("current",), False)
     assert health.value_roles == ("current",) and health.latest_t("current") is None
-    run = health.observe_run("current", [0.0, 0.01, 0.02, 0.03], [1.0, 2.0, 99.0, 3.0])
+    run = health_run(health, "current", [0.0, 0.01, 0.02, 0.03], [1.0, 2.0, 99.0, 3.0])
     assert run.index.tolist() == [0, 2, 3] and run.reasons == ("", "out_of_range", "")
     assert health.latest_t("current") == 0.03 and health.invalid_reason("current") == ""
-    assert health.value("current") == 3.0 and health.last_reason == ""
+    assert health.value("current") == 3.0
     assert health.latest_times() == {"current": 0.03}
-    health.observe_run("current", [0.04], [math.nan])
+    health_run(health, "current", [0.04], [math.nan])
     assert health.invalid_reason("current") == "nan" and health.value("current") == 3.0
 
 
@@ -386,20 +384,6 @@ class TestShortRuns:
         assert feed_lists(model, times, values, lengths, until_edge) == want
         assert_same_state(model, ref)
 
-    @SETTINGS
-    @given(pair=pairs(), stream=streams(max_size=70))
-    def test_update_is_a_run_of_one(self, pair: tuple[str, Pair], stream: tuple[np.ndarray, np.ndarray]) -> None:
-        """update(value, t) gives the edges and state of advance over the same sample as a run of one."""
-        _kind, (make, _make_ref) = pair
-        times, values = stream
-        by_update, by_run = make(), make()
-        for t, v in zip(times.tolist(), values.tolist(), strict=True):
-            run = by_run.advance((t,), (v,))
-            assert by_update.update(v, t) == run.changed
-            assert (by_update.tripped, by_update.since) == (by_run.tripped, by_run.since)
-            assert by_update.last_t == by_run.last_t
-            assert math.isnan(run.peak) or run.peak == abs(v)
-
 
 def test_a_short_run_makes_no_numpy_call(monkeypatch: pytest.MonkeyPatch) -> None:
     """A run of one sample (the live bus) reaches every model's kernel without building a numpy column."""
@@ -412,7 +396,7 @@ def test_a_short_run_makes_no_numpy_call(monkeypatch: pytest.MonkeyPatch) -> Non
     monkeypatch.setattr(np, "asarray", refuse)
     monkeypatch.setattr(np, "isfinite", refuse)
     for model in models:
-        assert not model.update(1.0, 0.0)
+        assert not model.advance((0.0,), (1.0,)).changed
         assert model.advance((0.01, 0.02), (30.0, 30.0)).taken == 2
         assert model.tripped == isinstance(model, (Threshold, Hysteresis))
 
@@ -432,10 +416,38 @@ def test_source_health_long_and_short_runs_match_the_reference(stream: tuple[np.
         end = min(len(times), pos + lengths[k % len(lengths)])
         k += 1
         while pos < end:
-            run = health.observe_run("current", times[pos:end], values[pos:end], until_edge=until_edge)
+            run = health_run(health, "current", times[pos:end], values[pos:end], until_edge)
             got.extend((pos + run.index).tolist())
             pos += run.taken
     assert got == want
     assert (health.samples, health.invalid_samples, health.out_of_order) == (
         ref.samples, ref.invalid_samples, ref.out_of_order)
     assert close(health.value("current"), ref.values.get("current", math.nan))
+
+
+@SETTINGS
+@given(stream=streams(), present=st.lists(st.sampled_from([1.0, 1.0, 1.0, 0.0]), min_size=300, max_size=300),
+       lengths=st.lists(st.integers(1, 60), min_size=1, max_size=4), until_edge=st.booleans())
+def test_source_health_rows_of_two_roles_match_the_reference(stream: tuple[np.ndarray, np.ndarray],
+                                                             present: list[float], lengths: list[int],
+                                                             until_edge: bool) -> None:
+    """Rows of a current and its presence flag (one message), in runs of 1..60 rows, find the reference's edges at
+    the same rows: a run whose flag stays set and whose currents are fresh and valid is taken whole."""
+    times, values = stream
+    tl, vl, pl = times.tolist(), values.tolist(), present[:len(times)]
+    health, ref = _health_ref(("current",), True)
+    health = SourceHealth(SourceConfig("src", "battery", "can0", health.source.signals[:2], 0.1))
+    want = [i for i in range(len(tl)) if ref.observe("current", tl[i], vl[i]) | ref.observe(PRESENT, tl[i], pl[i])]
+    got: list[int] = []
+    pos, k = 0, 0
+    while pos < len(tl):
+        end = min(len(tl), pos + lengths[k % len(lengths)])
+        k += 1
+        while pos < end:
+            run = health.advance(("current", PRESENT), tl[pos:end], (vl[pos:end], pl[pos:end]), until_edge=until_edge)
+            got.extend((pos + run.index).tolist())
+            pos += run.taken
+    assert got == want
+    assert (health.samples, health.invalid_samples, health.out_of_order) == (
+        ref.samples, ref.invalid_samples, ref.out_of_order)
+    assert health.reason(tl[-1] if tl else 0.0) == ref.reason(tl[-1] if tl else 0.0)

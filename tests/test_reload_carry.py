@@ -13,6 +13,7 @@ from pathlib import Path
 
 import pytest
 import yaml
+from tests.feed import step
 
 from canguard.config.loader import load_config
 from canguard.config.schema import Config
@@ -114,8 +115,8 @@ class TestModels:
         """A spike between the last tick and the reload is still reported at the new model's first poll."""
         old = Threshold(30.0)
         old.poll(0.0)
-        old.update(50.0, 0.1)
-        old.update(10.0, 0.2)
+        step(old, 50.0, 0.1)
+        step(old, 10.0, 0.2)
         new = Threshold(40.0)
         new.carry_from(old)
         assert new.poll(0.25).tripped
@@ -125,28 +126,28 @@ class TestModels:
         """A running recover_after timer and an open inrush window continue."""
         old = Hysteresis(35.0, 25.0, recover_after_s=1.0, inrush=InrushBlanking(2.0, 0.5, 80.0))
         for i in range(60):
-            old.update(1.0, i * 0.01)  # motor stopped for 0.6 s
-        old.update(50.0, 0.6)  # a start: the inrush window opens at 0.6 s
+            step(old, 1.0, i * 0.01)  # motor stopped for 0.6 s
+        step(old, 50.0, 0.6)  # a start: the inrush window opens at 0.6 s
         assert old.inrush is not None and old.inrush.blanking(0.7)
         new = Hysteresis(36.0, 25.0, recover_after_s=1.0, inrush=InrushBlanking(2.0, 0.5, 80.0))
         new.carry_from(old)
         assert new.inrush is not None and new.inrush.blanking(0.7)
-        assert not new.update(70.0, 0.7)  # inside the window: 80 A in force
+        assert not step(new, 70.0, 0.7)  # inside the window: 80 A in force
         old2 = Hysteresis(35.0, 25.0, recover_after_s=1.0)
-        old2.update(50.0, 0.0)
-        old2.update(10.0, 0.5)  # under since 0.5
+        step(old2, 50.0, 0.0)
+        step(old2, 10.0, 0.5)  # under since 0.5
         new2 = Hysteresis(30.0, 20.0, recover_after_s=1.0)
         new2.carry_from(old2)
         assert new2.tripped
-        assert not new2.update(10.0, 1.4)
-        assert new2.update(10.0, 1.5)  # 1.0 s after the first sample under recovery, as the old timer ran
+        assert not step(new2, 10.0, 1.4)
+        assert step(new2, 10.0, 1.5)  # 1.0 s after the first sample under recovery, as the old timer ran
 
     @pytest.mark.parametrize("new_kind", ["leaky", "thermal"])
     def test_i2t_level_carries_across_kinds(self, new_kind: str) -> None:
         """Leaky at some heat -> a leaky or thermal model of other figures starts at the same level, not cold."""
         old = LeakyI2t(10.0, 60.0, 2.0)
-        old.update(40.0, 0.0)
-        old.update(40.0, 1.0)
+        step(old, 40.0, 0.0)
+        step(old, 40.0, 1.0)
         new = LeakyI2t(12.0, 60.0, 2.0) if new_kind == "leaky" else ThermalI2t(12.0, 60.0, 2.0)
         new.carry_from(old)
         assert new.level == pytest.approx(old.level)
@@ -155,7 +156,7 @@ class TestModels:
     def test_a_model_of_another_kind_carries_the_trip_only(self) -> None:
         """Threshold -> Hysteresis: tripped since the same time; nothing else is invented."""
         old = Threshold(30.0)
-        old.update(50.0, 1.0)
+        step(old, 50.0, 1.0)
         new = Hysteresis(35.0, 25.0)
         new.carry_from(old)
         assert new.tripped and new.since == 1.0

@@ -23,6 +23,7 @@ import can
 import cantools
 import pytest
 import yaml
+from tests.feed import step
 
 from canguard.cli.main import main
 from canguard.cli.replay import compare_baseline
@@ -706,8 +707,8 @@ class TestStateFile:
         log = REPO / "examples" / "overload.log.gz"
         t0 = 1_700_000_000.0
         model = LeakyI2t(10.0, 20.0, 1.0)
-        model.update(20.0, t0 - 0.9)
-        model.update(20.0, t0)  # 0.9 s at 20 A: 90 % of the 300 A²s trip level
+        step(model, 20.0, t0 - 0.9)
+        step(model, 20.0, t0)  # 0.9 s at 20 A: 90 % of the 300 A²s trip level
         state = tmp_path / "i2t_state.json"
         HeatStore(state).save({"Axis0I2t": model}, t0)
         before = state.read_bytes()
@@ -750,7 +751,7 @@ class TestRealtimeHonoursFlags:
         cfg.write_text(yaml.safe_dump(doc), encoding="utf-8")
         state = tmp_path / "saved_state.json"
         model = LeakyI2t(10.0, 20.0, 1.0)
-        model.update(20.0, T0)
+        step(model, 20.0, T0)
         HeatStore(state).save({"Axis0I2t": model}, T0)
         before = state.read_bytes()
         code, _, err = run(REPO / "examples" / "overload.log.gz", "-c", cfg, "--realtime", "8", "--state", state)

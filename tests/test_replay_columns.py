@@ -2,10 +2,10 @@
 
 There is one engine path: :meth:`Engine.take <canguard.engine.core.Engine.take>` (the live
 daemon's) and :meth:`Engine.run_log <canguard.engine.core.Engine.run_log>` take blocks of
-frames through the same row step (:meth:`MessagePlan.step <canguard.engine.blocks.MessagePlan.step>`
-for a row the column decoder read whole, :meth:`MessagePlan.take_samples
-<canguard.engine.blocks.MessagePlan.take_samples>` for a row the frame decoder read; both the
-sources' health and the models through :class:`~canguard.bt.context.SampleRoute`). A block
+frames; the sources' health and the models advance over the runs of their samples up to the
+next due time or edge (:func:`~canguard.engine.blocks.take_runs`), a frame on its own being a
+run of one (:meth:`MessagePlan.take_row <canguard.engine.blocks.MessagePlan.take_row>`,
+:meth:`MessagePlan.take_samples <canguard.engine.blocks.MessagePlan.take_samples>`). A block
 (``LogRun._run_columns``, ``LogRun._cross``) takes N rows at once; the reference gives the
 engine every frame on its own, a block of one, as a quiet live bus does. Every test here
 replays one log both ways, the blocks at several sizes (so that block boundaries fall
@@ -154,13 +154,11 @@ class _OneByOne:
 
 
 def replay(cfg: Config, log: Path, out: Path, *, columns: bool, chunk: int | BlockCuts,
-           channel_map: dict[str, str] | None = None, quiet: bool | None = None, emit_frames: bool = True,
+           channel_map: dict[str, str] | None = None, emit_frames: bool = True,
            export: bool = False) -> Outcome:
     """Replay ``log`` once (in the reader's blocks of ``chunk`` characters, or with ``columns`` False in blocks
     of one frame); instrumented.
 
-    ``quiet``: quiet ticks on or off (default: on in blocks, off for the
-    reference, which then ticks every tick as the live daemon does).
     ``emit_frames`` False: no ``--emit`` file, so sent frames are only counted (the quiet runs then
     send the task's periodic frames in one go, :meth:`~canguard.engine.core.Engine._quiet_run`).
     ``export``: also ``--export-signals`` (in row groups of 64 rows), read back into :attr:`Outcome.exported`.
@@ -174,6 +172,7 @@ def replay(cfg: Config, log: Path, out: Path, *, columns: bool, chunk: int | Blo
     handled_ids: set[int] = set()
     run_columns = LogRun._run_columns
     compile_plan = canguard.engine.blocks.compile_plan
+    take_runs = canguard.engine.blocks.take_runs
     build_summary = canguard.cli.replay.build_summary
 
     def counted_run_columns(self: LogRun, block: Block, cursor: Any) -> bool:
@@ -189,22 +188,21 @@ def replay(cfg: Config, log: Path, out: Path, *, columns: bool, chunk: int | Blo
     def counted_compile_plan(entry: Any, *args: Any) -> Any:
         plan = compile_plan(entry, *args)
         if plan is not None:
-            inner, inner_samples = plan.step, plan.take_samples
-            frame_id = entry.message.frame_id
-
-            def step(values: tuple[float, ...], t: float) -> bool:
-                if counts["in_block"]:  # a column block's row (a frame's valid row takes the step too)
-                    counts["handled"] += 1
-                    handled_ids.add(frame_id)
-                return inner(values, t)
+            inner_samples = plan.take_samples
 
             def take_samples(samples: Any) -> bool:
                 counts["fed"] += counts["in_block"]
                 return inner_samples(samples)
 
-            plan.step = step
             plan.take_samples = take_samples
         return plan
+
+    def counted_take_runs(runs: Any) -> tuple[int, bool]:
+        last, edge = take_runs(runs)
+        for plan, rows, *_rest in runs:  # a block's rows
+            counts["handled"] += bisect.bisect_right(rows, last)
+            handled_ids.add(plan.frame_id)
+        return last, edge
 
     boards: list[dict[str, Any]] = []
 
@@ -217,9 +215,9 @@ def replay(cfg: Config, log: Path, out: Path, *, columns: bool, chunk: int | Blo
     with pytest.MonkeyPatch.context() as mp:
         if not columns:
             mp.setattr(canguard.io.logs, "read_log", lambda *a, **k: _OneByOne(read_log(*a, **k)))
-        mp.setattr(Engine, "replay_quiet_ticks", columns if quiet is None else quiet)
         mp.setattr(LogRun, "_run_columns", counted_run_columns)
         mp.setattr(canguard.engine.blocks, "compile_plan", counted_compile_plan)
+        mp.setattr(canguard.engine.blocks, "take_runs", counted_take_runs)
         mp.setattr(canguard.cli.replay, "build_summary", capturing_build_summary)
         mp.setattr(canguard.io.candump, "CHUNK_CHARS", chunk)
         py_trees.blackboard.Blackboard.clear()  # global: the two runs must not see each other's keys
@@ -277,7 +275,6 @@ def reference(cfg: Config, log: Path, out: Path, *, channel_map: dict[str, str] 
         ref = replay(cfg, log, out / "ref", columns=False, chunk=DEFAULT_CHUNK, channel_map=channel_map,
                      export=export)
         assert ref.widest == 1, "the reference took blocks of more than one frame"
-        assert ref.quiet_ticks == 0, "the reference skipped ticks: it must tick every tick, as the live daemon"
         while len(_REFERENCES) >= 16:
             del _REFERENCES[next(iter(_REFERENCES))]
         _REFERENCES[(*where, export)] = ref
@@ -309,8 +306,6 @@ def compare(cfg: Config, log: Path, out: Path, chunks: tuple[int | BlockCuts, ..
     """Replay ``log`` through both paths at each block size: equal outputs; returns the column runs.
 
     The reference goes frame by frame and ticks every tick (the live daemon's way);
-    the column run also counts proven-quiet ticks instead of running them
-    (:mod:`canguard.engine.quiet`), so every comparison here proves both.
 
     Every column run is compared with one reference run (:func:`reference`).
     The column path must have run (blocks taken, and at least ``min_handled`` rows
@@ -868,7 +863,6 @@ class TestCustomLog:
         assert any(first <= float(c.time_s[0]) and float(c.time_s[-1]) <= last for c in cols)  # marked lines
         assert any(c.special.size for c in cols)  # remote and error frames in a block
 
-    # Blocks of 1,009 characters: TestPassiveBatches.test_same_output_on_the_custom_log (with --export-signals).
     @pytest.mark.parametrize("chunk", [300, 4096, DEFAULT_CHUNK])
     def test_same_output(self, custom: tuple[Config, Path], tmp_path: Path, chunk: int) -> None:
         """Both paths give the same summary, events, frames and engine state."""
@@ -917,20 +911,6 @@ class TestCustomLog:
         compare(cfg, log, tmp_path, (cuts,))
 
 
-def count_passive_batches(monkeypatch: pytest.MonkeyPatch) -> dict[str, int]:
-    """Count the blocks each passive plan (messages nobody reads between ticks) took whole or gave back."""
-    from canguard.engine import blocks
-
-    counts = {"taken": 0, "given_back": 0}
-    batch = blocks.MessagePlan.batch
-
-    def counting(self: blocks.MessagePlan, stamps: Any, rows: Any) -> bool:
-        took = batch(self, stamps, rows)
-        if self.passive:
-            counts["taken" if took else "given_back"] += 1
-        return took
-
-    monkeypatch.setattr(blocks.MessagePlan, "batch", counting)
     return counts
 
 
@@ -938,25 +918,18 @@ class TestSimulator:
     """Simulator logs (every scenario on a loaded bus) on the bundled configs."""
 
     # The bundled config at two block sizes and ways of reading (compare's variant: with --export-signals, then
-    # numpy from the second block on), the other two at one each; the bundled config in blocks of 1,009 characters
-    # read by numpy from the first block: TestPassiveBatches. Blocks of 300 characters, which fall everywhere, are
-    # the scripted log's (TestCustomLog): on this 48,000-frame log they cost several times all the rest.
+    # numpy from the second block on), the other two at one each. Blocks of 300 characters, which fall everywhere,
+    # are the scripted log's (TestCustomLog): on this 48,000-frame log they cost several times all the rest.
     @pytest.mark.parametrize(("config", "chunks", "variant"), [
         (BUNDLED, (4096, DEFAULT_CHUNK), 1), (ROBOT_GUARD, (4096,), 2), (MULTI, (1009,), 0),
     ], ids=["canguard", "robot_guard", "multi_current_monitoring"])
-    def test_same_output(self, sim_log: Path, tmp_path: Path, config: Path, chunks: tuple[int, ...], variant: int,
-                         monkeypatch: pytest.MonkeyPatch) -> None:
-        """Trips (hysteresis, inrush, I²t, thresholds), stale BMS, garbage and error frames: the same.
-
-        On the bundled config, passive batches (stale BMS, NaN, garbage) are both taken and given back.
-        """
-        counts = count_passive_batches(monkeypatch)
+    def test_same_output(self, sim_log: Path, tmp_path: Path, config: Path, chunks: tuple[int, ...],
+                         variant: int) -> None:
+        """Trips (hysteresis, inrush, I²t, thresholds), stale BMS, garbage and error frames: the same."""
         cfg = load_config(config)
         cols = compare(cfg, sim_log, tmp_path, chunks, variant=variant)
         summary = json.loads(cols[0].summary)
         assert summary["trip_count"] > 0 and summary["frames"]["error_frames"] == 32
-        if config == BUNDLED:
-            assert counts["taken"] > 0 and counts["given_back"] > 0, counts
 
     def test_no_source_config(self, custom: tuple[Config, Path], tmp_path: Path) -> None:
         """A tree that reads no source (ticks only, at 10 Hz): every row is crossed by bisection; gaps jumped."""
@@ -1006,17 +979,13 @@ class TestTheComparison:
     def test_catches_a_handler_that_drops_edges(self, custom: tuple[Config, Path], tmp_path: Path) -> None:
         """Message plans that never report an edge (no edge tick): the comparison fails."""
         cfg, log = custom
-        compile_plan = canguard.engine.blocks.compile_plan
+        take_runs = canguard.engine.blocks.take_runs
 
-        def edgeless(*args: Any) -> Any:
-            plan = compile_plan(*args)
-            if plan is not None:
-                inner = plan.step
-                plan.step = lambda values, t: None if inner(values, t) is None else False
-            return plan
+        def edgeless(runs: Any) -> tuple[int, bool]:
+            return take_runs(runs)[0], False
 
         with pytest.MonkeyPatch.context() as mp:
-            mp.setattr(canguard.engine.blocks, "compile_plan", edgeless)
+            mp.setattr(canguard.engine.blocks, "take_runs", edgeless)
             with pytest.raises(AssertionError):
                 compare(cfg, log, tmp_path, (4096,))
 
@@ -1027,45 +996,3 @@ class TestTheComparison:
             mp.setattr(LogRun, "_cross", lambda self, ts, lo, hi: None)
             with pytest.raises(AssertionError):
                 compare(load_config(TIMED), log, tmp_path, (300,), min_handled=0)
-
-
-class TestPassiveBatches:
-    """Messages nobody reads between ticks, taken a block at a time: both ways of reading them, the same.
-
-    (Blocks of 4,096 characters on the simulator log: :meth:`TestSimulator.test_same_output`.)
-    """
-
-    def test_same_output_on_the_simulator_log(self, sim_log: Path, tmp_path: Path,
-                                              monkeypatch: pytest.MonkeyPatch) -> None:
-        """Every scenario (stale BMS, NaN, garbage) on the bundled config: batches taken and given back, same bytes."""
-        counts = count_passive_batches(monkeypatch)
-        compare(load_config(BUNDLED), sim_log, tmp_path, (1009,), min_handled=0)
-        assert counts["taken"] > 0 and counts["given_back"] > 0, counts
-
-    def test_same_output_on_the_custom_log(
-        self, custom: tuple[Config, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
-    ) -> None:
-        """The scripted log's unread source (NaN, a silent spell): the same."""
-        counts = count_passive_batches(monkeypatch)
-        cfg, log = custom
-        compare(cfg, log, tmp_path, (1009,), variant=1)  # with --export-signals (blocks of 300: TestCustomLog)
-        assert counts["taken"] > 0 and counts["given_back"] > 0, counts
-
-    def test_backward_row_after_a_block_ending_on_a_passive_row(self, tmp_path: Path) -> None:
-        """A block whose last configured row was taken by a batch: the next block's earlier row is backward, as fed."""
-        axis0, axis1 = msg_id("Axis0_Get_Iq"), msg_id("Axis1_Get_Iq")  # axis0: the stop confirmation's; axis1: unread
-        bms = msg_id("BMS_Status")
-        rows = []
-        for k in range(100):
-            t = k * 0.01
-            # a healthy battery (the task runs: no stop repeats), axis0 after each 10 ms tick (it brings the
-            # tick), axis1 2 ms later: no tick or task frame falls due at it
-            rows += [Row(t + 0.001, 3 * k, cid=bms, data=bms_data(5.0)),
-                     Row(t + 0.003, 3 * k + 1, cid=axis0, data=iq_data(1.0)),
-                     Row(t + 0.005, 3 * k + 2, cid=axis1, data=iq_data(2.0))]
-        rows.append(Row(0.994, 10_000, cid=axis0, data=iq_data(1.5)))  # before the last axis1 row (0.995): backward
-        rows += [Row(1.0 + k * 0.01, 20_000 + k, cid=axis0, data=iq_data(1.0)) for k in range(20)]
-        log = write_rows(tmp_path / "backward.log", rows, sort=False)
-        cfg = load_config(BUNDLED)
-        [col] = compare(cfg, log, tmp_path, (chunk_starting_at(log, 300),))
-        assert col.state["backward_frames"] == 1

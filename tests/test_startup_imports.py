@@ -199,24 +199,3 @@ def test_a_deferred_module_loads_on_first_use() -> None:
     proc = subprocess.run([sys.executable, "-c", probe], env={**os.environ, "PYTHONPATH": str(SRC)},
                           capture_output=True, text=True, timeout=60, check=True)
     assert proc.stdout.splitlines() == ["module 'cantools.tester' has no attribute 'no_such_name'", "--> ok"]
-
-
-def test_models_fed_sample_by_sample_import_no_numpy() -> None:
-    """Protection models built and fed one sample at a time (what a replay does) never import numpy; the first
-    long run does, and finds the edges the samples one by one found."""
-    feed = (
-        "from canguard.protect import Hysteresis, InrushBlanking, LeakyI2t\n"
-        "make = [lambda: Hysteresis(35.0, 25.0, 0.02, 0.0, InrushBlanking(5.0, 0.1, 80.0)),\n"
-        "        lambda: LeakyI2t(10.0, peak_a=30.0, peak_time_s=0.5)]\n"
-        "t = [0.01 * i for i in range(200)]\n"
-        "v = [(60.0 if 40 <= i < 120 else 2.0) * (-1) ** i for i in range(200)]\n"
-        "edges = []\n"
-        "for m in (f() for f in make):\n"
-        "    edges.append([i for i in range(200) if m.update(v[i], t[i])])\n"
-        "    m.poll(t[-1])\n"
-        "assert all(edges) and 'numpy' not in sys.modules, edges\n"
-    )
-    long_run = "assert [f().advance(t, v).index.tolist() for f in make] == edges\n"
-    fed, then_long = loaded_after_each(feed, long_run)  # one interpreter: the long run after the feeding
-    assert "numpy" not in fed
-    assert "numpy" in then_long

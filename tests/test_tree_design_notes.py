@@ -1,6 +1,6 @@
 """The eight trees of the design notes, as shipped in config/trees/, behave as the notes say.
 
-Each runs on a manual clock with scripted samples fed through ``ctx.dispatch``.
+Each runs on a manual clock with scripted samples fed as runs of one (``tests/feed.dispatch``).
 """
 
 from __future__ import annotations

@@ -13,6 +13,7 @@ from typing import Any
 
 import py_trees
 import pytest
+from tests.feed import dispatch
 
 from canguard.bt import registry as tree_module
 from canguard.bt.context import Context, ListSink, NullTaskGate
@@ -144,7 +145,7 @@ class Rig:
 
     def feed(self, src: str, role: str, value: float, t: float | None = None, reason: str = "") -> bool:
         """Dispatch one sample (at now unless ``t``)."""
-        return self.ctx.dispatch(Sample(src, role, value, self.now() if t is None else t, reason))
+        return dispatch(self.ctx, Sample(src, role, value, self.now() if t is None else t, reason))
 
     def battery(self, current: float, present: float = 1.0, name: str = "/battery_state") -> None:
         """One battery frame: current and present."""

@@ -8,8 +8,8 @@ for globals, clocks or buses themselves:
 - ``health[source]``: a :class:`~canguard.protect.staleness.SourceHealth` per
   configured source: latest values, freshness, presence, validity.
 - ``subscribe(source, role, model)``: a guard node registers its protection
-  model; ``dispatch(sample)`` (called by the engine for every decoded sample)
-  feeds it, and returns True on an edge so the engine ticks at once.
+  model; the engine advances it over the runs of that signal's samples
+  (:mod:`canguard.engine.blocks`) and ticks at once on an edge.
 - ``sink``: where action nodes hand their frames (the emitter live, a list in tests).
 - ``task``: the task gate ExecuteTask drives (run while ticked, halt on halt).
 - ``record(...)``: guard transitions and other events for the journal.
@@ -107,7 +107,6 @@ class Context:
         self.on_event = on_event
         self.health: dict[str, SourceHealth] = {name: SourceHealth(cfg) for name, cfg in self.sources.items()}
         self._subscribers: dict[tuple[str, str], list[ProtectionModel]] = {}
-        self._routes: dict[tuple[str, str], SampleRoute] = {}
         self.read_sources: set[str] = set()
         """Sources some node of the tree reads (the others only yield ``stale`` events)."""
         self.tree_start: float | None = None
@@ -146,22 +145,11 @@ class Context:
         """The models fed with ``source``'s ``role`` samples, in subscription order."""
         return list(self._subscribers.get((source, role), ()))
 
-    def dispatch(self, sample: Sample) -> bool:
-        """Route one sample to its source's health and subscribed models; True on any edge (:meth:`route`)."""
-        if sample.source not in self.health:
-            return False
-        return self.route(sample.source, sample.signal).take(float(sample.value), float(sample.t), sample.reason)
-
-    def route(self, source: str, role: str) -> SampleRoute:
-        """Where the samples of ``source``'s ``role`` go: the one step every decoded sample takes (built once)."""
-        key = (source, role)
-        found = self._routes.get(key)
-        if found is None:
-            health = self.health[source]
-            drive = role in _DRIVE_EVENT_ROLES and health.source.signal("emcy_code") is not None
-            found = self._routes[key] = SampleRoute(self, health, source, role,
-                                                    self._subscribers.setdefault(key, []), drive)
-        return found
+    def journals(self, source: str, role: str) -> bool:
+        """True when the samples of ``source``'s ``role`` are journalled (:meth:`drive_event`) before its health
+        takes them: a CANopen drive's ``nmt`` / ``emcy``."""
+        health = self.health.get(source)
+        return role in _DRIVE_EVENT_ROLES and health is not None and health.source.signal("emcy_code") is not None
 
     def drive_event(self, sample: Sample, health: SourceHealth) -> None:
         """Journal a CANopen drive's EMCY frames and NMT state changes (from its first source only)."""
@@ -192,39 +180,3 @@ class Context:
         """Report an event (``trip``, ``recover``, ...) with its fields to the journal, if any."""
         if self.on_event is not None:
             self.on_event({"t": self.now(), "event": event, **fields})
-
-
-class SampleRoute:
-    """The step of one decoded sample of one source role: its health, then its models; True on an edge.
-
-    Every sample takes it, live or replayed, one frame or a block of thousands
-    (:meth:`Context.dispatch`, the engine's row step): the source's health sees it first
-    (:meth:`SourceHealth.observe_one`), then, unless its decoder found it invalid, every
-    subscribed protection model (``update``). A CANopen drive's ``nmt`` / ``emcy`` samples are
-    journalled before the health takes them (an NMT change is seen against the last state).
-    """
-
-    __slots__ = ("ctx", "drive", "health", "models", "observe", "role", "source")
-
-    def __init__(self, ctx: Context, health: SourceHealth, source: str, role: str, models: list[ProtectionModel],
-                 drive: bool) -> None:
-        self.ctx = ctx
-        self.health = health
-        self.source = source
-        self.role = role
-        self.models = models
-        """The models subscribed to this role (the context's own list: later subscriptions are seen)."""
-        self.drive = drive
-        self.observe = health.observe_one
-
-    def take(self, value: float, t: float, reason: str = "") -> bool:
-        """One sample at ``t`` (``reason``: its decoder's invalid reason, "" when none); True on an edge."""
-        if self.drive:
-            self.ctx.drive_event(Sample(self.source, self.role, value, t, reason), self.health)
-        edge = self.observe(self.role, t, value, reason)
-        if reason:
-            return edge
-        for model in self.models:
-            if model.update(value, t):
-                edge = True
-        return edge

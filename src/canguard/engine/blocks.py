@@ -1,36 +1,33 @@
-"""A configured message on one bus: its rows decoded as columns, and its row step (live and replay).
+"""A configured message on one bus: its rows decoded as columns, and the runs its rows feed (live and replay).
 
 A block of frames (:meth:`Engine.take <canguard.engine.core.Engine.take>`: a live bus's
 queue drained, or a log's block) reaches the engine's block runner
 (:class:`~canguard.engine.logrun.LogRun`). In a block (:class:`~canguard.io.block.Block`) the rows of each
-configured message are
-decoded together (:meth:`MessagePlan.decode`: the message's :class:`~canguard.decode.message.MessageDecoder`,
-the same object that decodes a live frame; checked together: NaN, inf, the DBC range, the
-multiplexer, presence flags).
+configured message are decoded together (:meth:`MessagePlan.decode`: the message's
+:class:`~canguard.decode.message.MessageDecoder`, the same object that decodes a live frame;
+checked together: NaN, inf, the DBC range, the multiplexer, presence flags).
 
-Then each row, in time order, takes the message's **row step**, the one way a frame's
-samples change anything: :meth:`MessagePlan.step` for a row the column decoder read whole,
-:meth:`MessagePlan.take_samples` for a row the frame decoder
-(:meth:`Decoder.decode <canguard.decode.decoder.Decoder.decode>`) read: a frame of a
-frame-list block (live, a block of one on a quiet bus), or a row the column decoder leaves to
-it (a wrong length, a payload cantools refuses, an invalid value with its reason, a presence
-flag at 0, a multiplexer page with part of the signals, an alive counter or a drive's health
-roles, a remote frame). Both hand each sample to its source role's
-:class:`~canguard.bt.context.SampleRoute` (the source's health, then its protection models)
-and count it; the counts reach the decoder's and the engine's counters at :meth:`MessagePlan.flush`.
-
-A message nobody reads between ticks may take a block's rows whole (:meth:`MessagePlan.batch`),
-and a block that changes nothing a tick sees is taken whole (:mod:`canguard.engine.settle`).
-No code is generated.
+Then the rows, in time order up to the next due time (a tick, a gate deadline), are taken
+by :func:`take_runs`, the one way a frame's samples change anything: each source's health
+(:meth:`SourceHealth.advance <canguard.protect.staleness.SourceHealth.advance>`) and each
+protection model (:meth:`ProtectionModel.advance <canguard.protect.base.ProtectionModel.advance>`)
+advances over the run of its own samples, up to the first row where one of them changed
+state (an edge: the engine ticks the tree there, and the rest of the run follows). A live
+frame is a run of one. A row the column decoder leaves to the frame decoder (a wrong length,
+an invalid value with its reason, a presence flag at 0, a multiplexer page with part of the
+signals, an alive counter or a drive's health roles, a remote frame) is taken alone, its
+samples each a run of one (:meth:`MessagePlan.take_samples`). The counts reach the decoder's
+and the engine's counters at :meth:`MessagePlan.flush`. No code is generated.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Collection, Sequence
+from bisect import bisect_right
+from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
 from canguard.decode.decoder import row_samples
-from canguard.decode.rows import Row, abs_range, clean, last_row, max_gap
+from canguard.decode.rows import Row
 from canguard.protect.staleness import ROW_ROLES
 
 if TYPE_CHECKING:
@@ -40,6 +37,7 @@ if TYPE_CHECKING:
     from canguard.engine.stats import EngineStats
     from canguard.io.block import Block
     from canguard.io.frame import Sample
+    from canguard.protect.staleness import SourceHealth
 
 
 _BIG = 1.7976931348623157e308
@@ -47,13 +45,13 @@ _BIG = 1.7976931348623157e308
 
 
 class MessagePlan:
-    """One configured message on one bus: its column decode, its per-row step, its whole-block batch."""
+    """One configured message on one bus: its column decode, and what its rows feed."""
 
-    def __init__(self, entry: MessageDecoder, counters: DecodeCounters, ctx: Context, stats: EngineStats,
-                 readers: Collection[str] | None) -> None:
+    def __init__(self, entry: MessageDecoder, counters: DecodeCounters, ctx: Context, stats: EngineStats) -> None:
         self.entry = entry
         self.counters = counters
         self.stats = stats
+        self.ctx = ctx
         message = entry.message
         self.message = message
         self.length = int(message.length)
@@ -70,33 +68,31 @@ class MessagePlan:
         """(source, role) of each output: the samples a decoded row gives, in order."""
         self.keys = tuple((source, (source, role)) for source, role in self.names)
         """(source, (source, role)) of each output: where :meth:`flush` counts it."""
-        self.single = len(self.outputs) == 1
         self.counter = any(role in ROW_ROLES for _src, role, *_rest in self.outputs)
         """An alive counter or a drive's health role: every row goes to the frame decoder (its journal events)."""
-        self.passive = not self.counter and readers is not None and all(
-            not present and source not in readers and not models
-            for source, _r, _s, present, _h, _lo, _hi, models in self.outputs
-        )
-        """Nobody looks at this message between ticks: a block's rows may be taken whole (:meth:`batch`)."""
-        self.min_age = min(o[4].max_age_s for o in self.outputs)
+        healths: dict[int, tuple[SourceHealth, list[str], list[int]]] = {}
+        for j, (_source, role, _signal, _present, health, *_rest) in enumerate(self.outputs):
+            _health, roles, js = healths.setdefault(id(health), (health, [], []))
+            roles.append(role)
+            js.append(j)
+        self.healths = tuple((health, tuple(roles), tuple(js)) for health, roles, js in healths.values())
+        """Each source the message feeds: (its health, its roles here, their outputs), in output order."""
+        self.single = len(self.outputs) == 1
+        """One configured signal (most messages)."""
+        self.one_source = self.healths[0][:2] if self.single else None
+        """(health, roles) of a message of one configured signal."""
+        self.models = tuple((j, model) for j, (*_head, models) in enumerate(self.outputs) for model in models)
+        """(output, model) of every protection model a row feeds."""
+        self.drive = tuple(ctx.journals(source, role) for source, role in self.names)
+        """Each output's samples are journalled before its health takes them (a CANopen drive's NMT / EMCY)."""
         self.seen = 0
         self.empty = 0
-        self.settle_ok = False
-        """Its rows may be taken a block at a time (:func:`canguard.engine.settle.may_settle`, set by the engine)."""
-        self.confirm_read = False
-        """It feeds the stop confirmation's source (set by the engine): it settles only while no tick can stop."""
-        self.present_healths = tuple(o[4] for o in self.outputs if o[3])
-        """The health of each source whose presence flag it carries."""
         self.tops = [-1.0] * len(self.outputs)
         """The largest |value| of each output's valid samples since the last :meth:`flush`."""
         self.sampled = [0] * len(self.outputs)
         """Each output's samples taken through :meth:`take_samples` since the last :meth:`flush`."""
-        self.routes = tuple(ctx.route(source, role) for source, role, *_rest in self.outputs)
-        """Each output's sample step (the same objects :meth:`Context.dispatch` uses)."""
         self.index = {(source, role): j for j, (source, role, *_rest) in enumerate(self.outputs)}
         """Each output's index by (source, role): where a decoded sample goes."""
-        if self.single:
-            self.step = self._single_step()  # type: ignore[method-assign,assignment]
 
     # -- the columns -------------------------------------------------------------------
     def decode(self, block: Block, rows: Any) -> Sequence[Row]:
@@ -112,47 +108,11 @@ class MessagePlan:
             return [None] * len(rows)
         return self.entry.decode(block.payload[rows], block.length[rows])
 
-    # -- one row: the row step (every frame of this message, live or replayed, takes it) -------
-    def step(self, values: tuple[float, ...], t: float) -> bool:
-        """Take one row the column decoder found whole and valid (one value per output) at ``t``; True on an edge.
-
-        Each value takes its source role's step (:meth:`SampleRoute.take
-        <canguard.bt.context.SampleRoute.take>`: the source's health, then its models), as
-        :meth:`take_samples` does for a row the frame decoder decoded. Replaced per instance
-        by a closure over the one output when the message has one (most messages).
-        """
-        self.seen += 1
-        edge = False
-        tops = self.tops
-        for j, route in enumerate(self.routes):
-            v = values[j]
-            if route.take(v, t):
-                edge = True
-            a = -v if v < 0.0 else v
-            if a > tops[j]:
-                tops[j] = a
-        return edge
-
-    def _single_step(self) -> Callable[[tuple[float, ...], float], bool]:
-        """:meth:`step` of a message with one configured signal, the lookups done once."""
-        take = self.routes[0].take
-        tops = self.tops
-        plan = self
-
-        def step(values: tuple[float, ...], t: float) -> bool:
-            plan.seen += 1
-            v = values[0]
-            a = -v if v < 0.0 else v
-            if a > tops[0]:
-                tops[0] = a
-            return take(v, t)
-
-        return step
-
+    # -- one row ------------------------------------------------------------------------
     def take_payload(self, data: bytes, t: float) -> bool | None:
         """One frame's payload at ``t`` (a block of one through the message's kernel); True on an edge.
 
-        A whole and valid row takes :meth:`step`; any other row its samples with their reasons
+        A whole and valid row takes :meth:`take_row`; any other row its samples with their reasons
         (:func:`~canguard.decode.decoder.row_samples`, counted here as the frame decoder counts them),
         :meth:`take_samples`. None: nothing taken, the frame decoder must take the frame (a message whose
         every row goes to it: :attr:`counter`).
@@ -163,27 +123,65 @@ class MessagePlan:
         rows = entry.decode(*entry.one(data))
         row = rows[0]
         if row:
-            return self.step(row, t)
+            return self.take_row(row, t)
         self.stats.frames += 1
         self.counters.frames += 1
         return self.take_samples(row_samples(entry, rows, 0, t, self.counters))
 
+    def take_row(self, values: tuple[float, ...], t: float) -> bool:
+        """One row whole and valid at ``t`` (one value per output): a run of one for each health and model
+        (:func:`take_runs` of one row); True on an edge."""
+        self.seen += 1
+        ts = (t,)
+        tops = self.tops
+        if self.single:  # one output (most messages): its value straight through
+            v = values[0]
+            health, roles = self.one_source  # type: ignore[misc]
+            edge = health.advance(roles, ts, ((v,),)).changed
+            for _j, model in self.models:
+                if model.advance(ts, (v,)).changed:
+                    edge = True
+            a = -v if v < 0.0 else v
+            if a > tops[0]:
+                tops[0] = a
+            return edge
+        edge = False
+        for health, roles, js in self.healths:
+            if health.advance(roles, ts, [(values[j],) for j in js]).changed:
+                edge = True
+        for j, model in self.models:
+            if model.advance(ts, (values[j],)).changed:
+                edge = True
+        for j, v in enumerate(values):
+            a = -v if v < 0.0 else v
+            if a > tops[j]:
+                tops[j] = a
+        return edge
+
+    # -- frames the frame decoder read ------------------------------------------------
     def take_samples(self, samples: Sequence[Sample]) -> bool:
         """Take the samples the frame decoder made of one frame of this message (any reason, any subset of
-        the outputs, in output order); True on an edge. Counted here; the frame itself by the decoder."""
+        the outputs, in output order), each a run of one; True on an edge. Counted here; the frame itself
+        by the decoder."""
         edge = False
-        index = self.index
+        index, outputs, tops = self.index, self.outputs, self.tops
         for sample in samples:
             j = index[sample.source, sample.signal]
-            reason = sample.reason
-            v = sample.value
-            if self.routes[j].take(v, sample.t, reason):
+            _source, role, _signal, _present, health, _lo, _hi, models = outputs[j]
+            reason, v, t = sample.reason, sample.value, sample.t
+            if self.drive[j]:
+                self.ctx.drive_event(sample, health)
+            if health.advance((role,), (t,), ((v,),), ((reason,),)).changed:
                 edge = True
             self.sampled[j] += 1
-            if not reason:
-                a = -v if v < 0.0 else v
-                if a > self.tops[j]:
-                    self.tops[j] = a
+            if reason:
+                continue
+            for model in models:
+                if model.advance((t,), (v,)).changed:
+                    edge = True
+            a = -v if v < 0.0 else v
+            if a > tops[j]:
+                tops[j] = a
         return edge
 
     def count_empty(self, rows: int) -> None:
@@ -215,55 +213,131 @@ class MessagePlan:
                 tops[j] = -1.0
                 sampled[j] = 0
 
-    # -- a whole block -----------------------------------------------------------------
-    def batch(self, stamps: Sequence[str], rows: Sequence[tuple[float, ...] | None]) -> bool:
-        """Take a block's rows of a :attr:`passive` message whole; False (nothing changed): go row by row.
 
-        Such a message feeds only sources no tree node reads, no protection model and no
-        presence signal: what it changes is seen only through its sources' reasons at
-        ticks (``stale`` / ``fresh`` events) and through counters. When every row passed
-        the column checks and no two rows (nor the first row and the previous sample) lie
-        more than ``max_age`` apart, every reason at every tick in the block is "" and
-        the state at the end of the block is that of its last row: it is stored at once
-        (before the block's ticks, which then read "fresh" as they would have).
-        """
-        if not self.passive or not clean(rows):  # a row for the frame decoder (None) or without a sample (EMPTY)
-            return False
-        first, last = float(stamps[0]), float(stamps[-1])
-        gap = last - first
-        if gap > self.min_age:  # else no gap can exceed it (float subtraction is monotonic)
-            gap = max_gap(stamps)
-        for _source, role, _signal, _present, health, _lo, _hi, _models in self.outputs:
-            if not health.fresh_valid(role, first) or gap > health.max_age_s:
-                return False
-        count = len(rows)
-        self.counters.frames += count
-        self.counters.decoded += count
-        self.stats.frames += count
-        tops = [abs_range(rows, j)[1] for j in range(len(self.outputs))]
-        final = last_row(rows)
-        for j, (source, role, _signal, _present, health, _lo, _hi, _models) in enumerate(self.outputs):
-            health.take(role, last, final[j])
-            _count_samples(self.stats, health, source, role, count, tops[j])
-        return True
-
-
-def _count_samples(stats: EngineStats, health: Any, source: str, role: str, rows: int, top: float) -> None:
-    """Count ``rows`` samples of one signal, with the largest |value| among them."""
-    stats.samples[source] = stats.samples.get(source, 0) + rows
-    health.samples += rows
-    key = (source, role)
-    if top > stats.max_abs.get(key, -1.0):
-        stats.max_abs[key] = top
-
-
-def compile_plan(entry: MessageDecoder, counters: DecodeCounters, ctx: Context, stats: EngineStats,
-                 readers: Collection[str] | None) -> MessagePlan | None:
-    """The :class:`MessagePlan` of ``entry``'s frames, or None when a source of it is not in the tree's context.
-
-    ``readers``: the sources read between ticks (tree nodes, the stop confirmation);
-    None keeps every message off the whole-block path (the metrics count per frame).
-    """
+def compile_plan(entry: MessageDecoder, counters: DecodeCounters, ctx: Context,
+                 stats: EngineStats) -> MessagePlan | None:
+    """The :class:`MessagePlan` of ``entry``'s frames, or None when a source of it is not in the tree's context."""
     if any(out.source not in ctx.health for out in entry.outputs) or not entry.outputs:
         return None
-    return MessagePlan(entry, counters, ctx, stats, readers)
+    return MessagePlan(entry, counters, ctx, stats)
+
+
+_Unit = tuple[Any, list[int], Any]
+"""One health or model of :func:`take_runs`: (it, the rows it takes (positions in the run, ascending), what it
+advances over: a model's (times, values); a health's list of (roles, times, columns, rows) sub-runs)."""
+
+
+def take_runs(runs: Sequence[tuple[MessagePlan, list[int], list[float], list[Sequence[float]]]]) -> tuple[int, bool]:
+    """Take the rows whole and valid of a stretch of a block, in time order, each message's as a run of columns
+    (``runs``: (plan, rows (ascending positions in the block), their times, each output's column)): each
+    source's health and each model advances over the run of its own samples, up to the first row with an
+    edge. (The last row taken, True when it is an edge: the engine ticks the tree at its time.)
+
+    Each health and model advances over its whole run, stopping at its own first edge; the
+    first of those rows is where every one of them must stand when the tree ticks. One that
+    went past it goes back to its mark and advances again up to that row (no edge before it:
+    it would have stopped there). A row the engine ticks at is taken whole (all its samples).
+    A source fed by several messages takes their rows in time order, a message's stretch at a time.
+    """
+    if len(runs) == 1 and len(runs[0][1]) == 1:  # one row (a live frame): a run of one for each
+        plan, rows, ts, columns = runs[0]
+        return rows[0], plan.take_row(tuple([column[0] for column in columns]), ts[0])
+    units: list[_Unit] = []
+    health_units: dict[int, _Unit] = {}
+    last = -1
+    for plan, rows, ts, columns in runs:
+        if rows[-1] > last:
+            last = rows[-1]
+        for health, roles, js in plan.healths:
+            part = (roles, ts, [columns[j] for j in js], rows)
+            unit = health_units.get(id(health))
+            if unit is None:
+                unit = health_units[id(health)] = (health, rows, [part])
+                units.append(unit)
+            else:
+                unit[2].append(part)
+        for j, model in plan.models:
+            units.append((model, rows, (ts, columns[j])))
+    for key, (health, _rows, parts) in health_units.items():
+        if len(parts) > 1:  # several messages of one source: their stretches in time order
+            at = next(i for i, unit in enumerate(units) if unit[0] is health)
+            units[at] = health_units[key] = (health, sorted(k for part in parts for k in part[3]), _in_order(parts))
+    bound, edge = _advance_units(units, last)
+    for plan, rows, _ts, columns in runs:
+        m = len(rows) if bound == last else bisect_right(rows, bound)
+        if not m:
+            continue
+        plan.seen += m
+        tops = plan.tops
+        for j, column in enumerate(columns):
+            top = max(map(abs, column if m == len(rows) else column[:m]))
+            if top > tops[j]:
+                tops[j] = top
+    return bound, edge
+
+
+def _in_order(parts: list[tuple[Any, list[float], list[Any], list[int]]]) -> list[tuple[Any, list[float], list[Any],
+                                                                                       list[int]]]:
+    """Sub-runs of one source from several messages, cut into stretches of one message each, in time order."""
+    order = sorted((k, p, i) for p, part in enumerate(parts) for i, k in enumerate(part[3]))
+    out = []
+    start = 0
+    while start < len(order):
+        p = order[start][1]
+        end = start
+        while end < len(order) and order[end][1] == p:
+            end += 1
+        roles, ts, columns, _ks = parts[p]
+        first, last = order[start][2], order[end - 1][2] + 1
+        out.append((roles, ts[first:last], [c[first:last] for c in columns], [k for k, _p, _i in order[start:end]]))
+        start = end
+    return out
+
+
+def _advance_units(units: list[_Unit], last: int) -> tuple[int, bool]:
+    """Advance every unit up to the first edge row of any (see :func:`take_runs`); (that row or ``last``, edge)."""
+    bound, edge = last, False
+    went: list[tuple[_Unit, Any, int]] = []
+    final = len(units) - 1
+    for u, unit in enumerate(units):
+        obj, ks, _what = unit
+        m = len(ks) if bound == last else bisect_right(ks, bound)
+        if not m:
+            continue
+        mark = obj.mark() if u < final else None
+        at = _advance(unit, m, True)
+        if at is None:
+            went.append((unit, mark, ks[m - 1]))
+        else:
+            went.append((unit, mark, at))
+            bound, edge = at, True
+    if edge:
+        for unit, mark, upto in went:
+            if upto > bound:  # past the first edge: back, and up to it
+                unit[0].rewind(mark)
+                m = bisect_right(unit[1], bound)
+                if m:
+                    _advance(unit, m, False)
+    return bound, edge
+
+
+def _advance(unit: _Unit, m: int, until_edge: bool) -> int | None:
+    """Advance one unit over its first ``m`` rows; the row of its edge (with ``until_edge``: the first), or None."""
+    obj, ks, what = unit
+    if type(what) is tuple:  # a model: (times, values)
+        ts, values = what
+        if m < len(ks):
+            ts, values = ts[:m], values[:m]
+        run = obj.advance(ts, values, until_edge=until_edge)
+        return ks[int(run.index[0])] if run.changed else None
+    left = m
+    for roles, ts, columns, rows in what:
+        if left <= 0:
+            break
+        if left < len(rows):
+            ts, columns, rows = ts[:left], [c[:left] for c in columns], rows[:left]
+        left -= len(rows)
+        ran = obj.advance(roles, ts, columns, until_edge=until_edge)
+        if ran.changed:
+            return rows[int(ran.index[0])]
+    return None

@@ -14,7 +14,7 @@ first and a tick at once after an edge. It talks to the engine through its publi
 from __future__ import annotations
 
 import math
-from bisect import bisect_left
+from bisect import bisect_left, bisect_right
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Protocol
@@ -34,7 +34,6 @@ if TYPE_CHECKING:
     from canguard.config.schema import Config
     from canguard.decode.decoder import Decoder
     from canguard.engine.blocks import MessagePlan
-    from canguard.engine.quiet import QuietTicks
     from canguard.engine.stats import EngineStats
     from canguard.io.clock import PinnedClock
 
@@ -47,10 +46,7 @@ class Engine(Protocol):
     stats: EngineStats
     ctx: Context
     metrics: Any
-    quiet: QuietTicks
     clock: PinnedClock
-    replay_quiet_ticks: bool
-    elide_ticks: bool
     sample_hook: Callable[[Any], None] | None
     sample_block: Callable[[Any, list[Any], list[tuple[int, Any]]], None] | None
     last_due_run: float
@@ -60,6 +56,7 @@ class Engine(Protocol):
     def next_tick_t(self) -> float: ...
     def arrive(self, t: float) -> None: ...
     def edge_tick(self, t: float) -> None: ...
+    def runs_until(self) -> float: ...
     def controller_state(self, bus: str, frame: Frame) -> None: ...
     def advance(self, now: float) -> None: ...
     def tick(self, now: float) -> py_trees.common.Status: ...
@@ -102,7 +99,6 @@ class LogRun:
         """
         cursor = LogCursor(route, default_bus, unmapped, channels)
         engine = self.engine
-        engine.elide_ticks = engine.replay_quiet_ticks  # grid ticks proven to repeat the last one: counted, not run
         for block in blocks:
             self.take(block, cursor)
         last_t = cursor.last_t
@@ -115,7 +111,7 @@ class LogRun:
 
         Taken as columns (:meth:`_run_columns`) when its rows are in order; else row by row
         (:meth:`_run_frames`). Either way each configured row takes its message's row step
-        (:meth:`MessagePlan.step <canguard.engine.blocks.MessagePlan.step>` /
+        (:func:`~canguard.engine.blocks.take_runs` /
         :meth:`~canguard.engine.blocks.MessagePlan.take_samples`), and the counts are added at the end.
         """
         try:
@@ -276,16 +272,10 @@ class LogRun:
         tally = _lane_tally(block, per_channel, rows, first)
         last_row = int(rows[-1]) if len(rows) else -1  # the last row frame by frame would see, whatever path takes it
         taken: list[tuple[MessagePlan, Any, Sequence[Any]]] | None = [] if export is not None else None
-        quiet = engine.quiet
-        slots = decode_rows(plans, rows, block, ts, quiet.fixed, keys, taken, quiet.block_horizon,
-                            self._touched) if len(rows) else []
-        if slots is None:
-            rows = []  # every row taken whole: only the ticks due in the block are left
-            slots = []
-        elif len(rows):
+        runs, alone = decode_rows(plans, rows, block, ts, keys, taken, self._touched) if len(rows) else ([], [])
+        if len(rows):
             ts = block.times  # read row by row below: as floats
-            rows = rows.tolist()
-        walk = _Walk(block, ts, rows, slots, buses[0] if lanes is None else "", buses, lanes)
+        walk = _Walk(block, ts, runs, alone, buses[0] if lanes is None else "", buses, lanes)
         if taken is None:
             pos = self._walk(walk, first, None)
         else:  # --export-signals: the samples of fed rows kept with their row, for the block's export
@@ -345,39 +335,54 @@ class LogRun:
         return lane[0], configured_rows(keys, lane[1]), keys, lanes
 
     def _walk(self, walk: _Walk, first: int, fed: list[tuple[int, Any]] | None) -> int:
-        """A block's configured rows in time order: ticks due among them, each row taken by its plan or fed
-        (``fed``: the samples of fed rows, with their row, for ``--export-signals``); the row after the last
-        row walked."""
+        """A block's configured rows in time order: the ticks due among them, each stretch of rows whole and valid
+        up to the next due time taken as runs (:func:`~canguard.engine.blocks.take_runs`: to the first edge, where
+        the tree ticks), the rows for the frame decoder one by one (``fed``: the samples of fed rows, with their
+        row, for ``--export-signals``); the row after the last row walked."""
+        from canguard.engine.blocks import take_runs
+
         engine = self.engine
         if fed is not None:
             at = [0]
             hook, engine.sample_hook = engine.sample_hook, lambda sample: fed.append((at[0], sample))
-        decoded, frame, ts, slots = self._decoded, walk.block.frame, walk.ts, walk.slots
+        decoded, frame, ts = self._decoded, walk.block.frame, walk.ts
         bus, buses, lanes = walk.bus, walk.buses, walk.lanes
+        runs = [[0, *run] for run in walk.runs]  # each message's run and where it goes on: [next, plan, rows...]
+        alone, next_alone = walk.alone, 0
+        end_rows = walk.block.n
         pos = first
-        due = engine.due  # plans never change it; advance and tick may
         try:
-            for i in walk.rows:
-                item = slots[i]
-                if item is None:
-                    continue  # taken whole, or without a configured signal: counted by its plan
-                plan, values = item
+            while True:
+                i = _first_row(runs, alone[next_alone][0] if next_alone < len(alone) else end_rows)
+                if i == end_rows:
+                    break
                 t = float(ts[i])
-                if t >= due:
+                if t >= engine.due:
                     self._cross(ts, pos, i)  # a tick falls due among the rows before this one, or at it
                     if t >= engine.due:
                         engine.advance(t)
-                pos = i + 1
-                if values is not None and plan is not None:
-                    edge = plan.step(values, t)
-                else:  # a row the column decoder leaves to the frame decoder (its reason, a remote frame...)
+                if next_alone < len(alone) and alone[next_alone][0] == i:  # for the frame decoder (its reason...)
+                    pos = i + 1
+                    next_alone += 1
                     if fed is not None:
                         at[0] = i
                     engine.drive_clock(t)
-                    edge = decoded(bus if lanes is None else buses[lanes[i]], frame(i))
+                    if decoded(bus if lanes is None else buses[lanes[i]], frame(i)):
+                        engine.edge_tick(t)
+                    continue
+                # the stretch before the engine must act (the next due time, or the end of its quiet ticks)
+                stop = bisect_left(ts, engine.runs_until(), i, end_rows, key=float)
+                if next_alone < len(alone) and alone[next_alone][0] < stop:
+                    stop = alone[next_alone][0]
+                last, edge = take_runs(_stretch(runs, stop))
+                _drop(runs, last)
+                t_last = float(ts[last])
+                self._cross(ts, i, last)  # the quiet ticks the stretch spanned, each at its own time
+                if t_last >= engine.due:
+                    engine.advance(t_last)
+                pos = last + 1
                 if edge:
-                    engine.edge_tick(t)
-                due = engine.due
+                    engine.edge_tick(t_last)
         finally:
             if fed is not None:
                 engine.sample_hook = hook  # the export's own hook back, whatever the block raised
@@ -426,30 +431,45 @@ class LogRun:
         """Every message configured on ``bus`` by its id key (:attr:`Block.keys <canguard.io.block.Block.keys>`),
         with its plan, or None."""
         from canguard.engine.blocks import compile_plan
-        from canguard.engine.settle import may_settle
 
         counters = self.decoder.per_bus[bus]
         plans: dict[int, MessagePlan | None] = {}
-        # the stop confirmation reads its source between ticks: not passive; metrics count per frame
-        readers: set[str] | None = set(self.ctx.read_sources)
-        cfg = self.engine.cfg
-        metrics = self.engine.metrics is not None
-        confirm = cfg.stop.confirm.source if cfg.stop.confirm is not None else None
-        if confirm is not None:
-            assert readers is not None
-            readers.add(confirm)
-        if metrics:
-            readers = None
         for (b, cid, ext), entry in self.decoder.entries():
             if b != bus:
                 continue
-            plan = compile_plan(entry, counters, self.ctx, self.stats, readers)
+            plan = compile_plan(entry, counters, self.ctx, self.stats)
             if plan is not None:
-                plan.settle_ok = may_settle(plan, metrics, self.ctx.read_sources)
-                plan.confirm_read = any(source == confirm for source, *_rest in plan.outputs)
                 self._by_key[b, cid, ext] = plan
             plans[cid + EXT_KEY if ext else cid] = plan
         return plans
+
+def _first_row(runs: list[list[Any]], first: int) -> int:
+    """The first row not taken yet of any message's run (``[next, plan, rows, times, columns]``), or ``first``
+    when it comes before them."""
+    for at, _plan, rows, _times, _columns in runs:
+        if at < len(rows) and rows[at] < first:
+            first = rows[at]
+    return first
+
+
+def _stretch(runs: list[list[Any]], stop: int) -> list[tuple[Any, list[int], list[float], list[Any]]]:
+    """Each message's rows not taken yet before row ``stop``, as (plan, rows, times, columns)."""
+    out = []
+    for at, plan, rows, times, columns in runs:
+        if at < len(rows) and rows[at] < stop:
+            k = bisect_left(rows, stop, at)
+            out.append((plan, rows, times, columns) if at == 0 and k == len(rows)
+                       else (plan, rows[at:k], times[at:k], [c[at:k] for c in columns]))
+    return out
+
+
+def _drop(runs: list[list[Any]], last: int) -> None:
+    """Each message's rows up to row ``last`` were taken: its run goes on after them."""
+    for run in runs:
+        at, rows = run[0], run[2]
+        if at < len(rows) and rows[at] <= last:
+            run[0] = bisect_right(rows, last, at)
+
 
 def _lane_tally(block: Block, lanes: Any, rows: Any, first: int) -> list[tuple[int, int]]:
     """Per channel of a block (one when ``lanes`` is None): its rows, and those fed or taken by a plan
@@ -472,8 +492,10 @@ class _Walk:
 
     block: Block
     ts: Any
-    rows: Any
-    slots: Any
+    runs: Any
+    """Each configured message's rows whole and valid: (plan, rows, times, columns) (:func:`.blockrows.decode_rows`)."""
+    alone: Any
+    """The rows the frame decoder takes, in order: (row, plan or None)."""
     bus: str
     """The bus of every row, or "" when they go to several (``lanes``)."""
     buses: list[str]

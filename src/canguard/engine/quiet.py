@@ -1,7 +1,7 @@
-"""Quiet ticks: a grid tick proven to repeat the last one is counted, not run (while a log is fed).
+"""Quiet ticks: a grid tick proven to repeat the last one is counted, not run (live and in replay).
 
-A replay of a long log spends most of its time ticking a tree that answers the same
-thing 100 times a second: 20 guards at 100 Hz were half of a replay's process time.
+A replay of a long log (and the daemon, all day) spends most of its time ticking a tree that
+answers the same thing 100 times a second: 20 guards at 100 Hz were half of a replay's process time.
 BehaviorTree.CPP's answer would be "tick less"; ours must not change a single event,
 frame or summary field. So a grid tick is skipped only when it is *proven* to be an
 exact repetition of the last tick that ran, and the proof is made of three parts:
@@ -33,9 +33,7 @@ exact repetition of the last tick that ran, and the proof is made of three parts
 A skipped tick still does what a tick does outside the tree: it is counted, it marks
 the guards it would have ticked as ticked (``judged_t``), it samples the I²t levels
 (their peak is taken at ticks), and it services the gate's periodic frames at its
-own time. The live daemon ticks every tick (it has the time); ``tests/test_quiet_ticks.py``
-replays random and example logs with and without quiet ticks and requires the same
-summaries, events, frames out and engine state.
+own time. It is one policy: the live daemon and a replay count the same ticks.
 """
 
 from __future__ import annotations
@@ -78,24 +76,12 @@ class QuietTicks:
         """The tree's nodes."""
         self.loud = frozenset(node for node in self.nodes if not _quiet_node(node))
         """The nodes that may not be re-ticked quietly: a tick that reaches one is no fixed point (part 1)."""
-        self.elide = False
-        """On while a recorded log is fed (:meth:`Engine.run_log <canguard.engine.core.Engine.run_log>`).
-
-        The live daemon ticks every tick: it has the time, and it is the reference the tests hold replay to.
-        """
         self._heard = False
         """The last tick reached one of :attr:`loud`."""
-        self.fixed = False
-        """The last tick that ran was a fixed point reaching no loud node: until an edge, no tick changes a
-        guard's status by itself (a settled block relies on it: :mod:`canguard.engine.settle`)."""
         self._state: tuple[Any, ...] | None = None
         """What the last tick that ran left (nodes, gate), to recognise a fixed point."""
         self.until = -math.inf
         """Grid ticks before this time may be skipped (set by a fixed-point tick)."""
-        self._now = -math.inf
-        """The time of the fixed-point tick that set :attr:`until`."""
-        self._timers = -math.inf
-        """Its horizon but for the sources' staleness (start windows, guards left behind)."""
         self._events = -1
         self._gate: tuple[Any, ...] = ()
         self.ticked: list[Any] = []
@@ -104,7 +90,7 @@ class QuietTicks:
     def tick_root(self, loaded: Any) -> py_trees.common.Status:
         """Tick the tree as BT.CPP's ``tickOnce()`` (:func:`canguard.bt.wakeup.tick_once`), noting whether the
         tick reached a loud node; the root's status."""
-        ticked = tick_once(loaded, collect=bool(self.loud and self.elide))
+        ticked = tick_once(loaded, collect=bool(self.loud))
         if ticked.reached is not None:
             self._heard = not self.loud.isdisjoint(ticked.reached)
         return ticked.status
@@ -115,8 +101,7 @@ class QuietTicks:
         ``watched``: metrics or a tick hook look at every tick (none may be skipped).
         """
         self.until = -math.inf
-        self.fixed = False
-        if self._heard or not self.elide or watched:
+        if self._heard or watched:
             self._state = None
             return
         gate = self.gate
@@ -131,7 +116,6 @@ class QuietTicks:
         self._state = state
         if not fixed:
             return
-        self.fixed = True
         failed = self.root.status == py_trees.common.Status.FAILURE
         if gate.state != TaskGate.RUNNING and not (failed or gate.inhibits):
             return  # the release rule may wait on time (min_stop) or on a reset
@@ -147,20 +131,14 @@ class QuietTicks:
         (``now - t > max_age`` ...), and then as ``t + max_age``: when rounding puts that
         sum at or before ``now``, the horizon is in the past and the next tick runs.
         """
-        self._now = now
-        self._timers = self._timer_horizon(now)
-        return min(self._health_horizon(now, None), self._timers) - MARGIN_S
+        return min(self._health_horizon(now), self._timer_horizon(now)) - MARGIN_S
 
-    def _health_horizon(self, now: float, fresh: Mapping[int, Mapping[str, float]] | None) -> float:
-        """When the first source signal not stale at ``now`` goes stale (``fresh``: later latest times, by
-        ``id(health)`` and role)."""
+    def _health_horizon(self, now: float) -> float:
+        """When the first source signal not stale at ``now`` goes stale."""
         horizon = math.inf
         for health in self.ctx.health.values():
             max_age = health.max_age_s
-            later = fresh.get(id(health)) if fresh else None
-            for role, t in health.latest_times().items():
-                if later is not None:
-                    t = later.get(role, t)
+            for t in health.latest_times().values():
                 if not now - t > max_age and t + max_age < horizon:  # not stale yet: stale after t + max_age
                     horizon = t + max_age
         return horizon
@@ -182,14 +160,6 @@ class QuietTicks:
                     horizon = g.judged_t + limit
         return horizon
 
-    def block_horizon(self, fresh: Mapping[int, Mapping[str, float]]) -> float:
-        """The quiet horizon of the last fixed point had the signals in ``fresh`` (by ``id(health)`` and role)
-        been sampled last at those times, as a settled block's rows leave them (:mod:`canguard.engine.settle`);
-        -inf when :meth:`through` finds no horizon to extend."""
-        if self.through() == -math.inf:
-            return -math.inf
-        return min(self._health_horizon(self._now, fresh), self._timers) - MARGIN_S
-
     def unchanged(self) -> bool:
         """Nothing the last fixed point saw has changed: no event since, the gate as it left it."""
         if self.journal.written != self._events:
@@ -200,14 +170,6 @@ class QuietTicks:
     def may_skip(self, now: float) -> bool:
         """The grid tick at ``now`` is proven quiet: count it instead of running it."""
         return now < self.until and self.unchanged()
-
-    def through(self) -> float:
-        """Until when every tick is proven quiet, as a settled block of the stop confirmation's source needs
-        (:mod:`canguard.engine.settle`): the last fixed point's horizon, while nothing it saw has changed
-        (:meth:`unchanged`) and no stop waits for its confirmation; -inf otherwise."""
-        if self.until == -math.inf or self.gate.confirm_pending or not self.unchanged():
-            return -math.inf
-        return self.until
 
     def running_unchanged(self) -> bool:
         """The task runs and nothing the last fixed point saw has changed (a quiet tick may be counted at once)."""

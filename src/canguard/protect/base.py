@@ -11,9 +11,8 @@
   sample (the live bus) or millions (a log); a long one is copied to float64.
 - The returned :class:`Run` says where the model's tripped state changed: the
   positions in the run (``index``), their times (``t``), and the state entered at
-  each (``tripped``); ``taken`` is how many samples were consumed and ``peak`` the
-  largest |value| among them (every sample counts: reports take their lowest
-  margin from it). With ``until_edge=True`` the model stops right after the first
+  each (``tripped``); ``taken`` is how many samples were consumed. With
+  ``until_edge=True`` the model stops right after the first
   sample at which its state changed (``taken`` = that position + 1, at most one
   edge returned): the engine ticks the tree there (the tree may change a model's
   thresholds, and :meth:`ProtectionModel.poll` must see the state of that moment)
@@ -24,7 +23,9 @@
   gives the same edges at the same samples and the same state; floating-point
   results agree within 1e-9 relative (the tests hold it against the per-sample
   reference maths kept in ``tests/reference_models.py``).
-- :meth:`ProtectionModel.update` is :meth:`~ProtectionModel.advance` on a run of one.
+- Between runs the engine may :meth:`~ProtectionModel.mark` a model and :meth:`~ProtectionModel.rewind` it
+  to that mark: when another source's edge comes before the end of a run this model already took, the
+  model goes back and takes the run only up to that edge (the tree must see every model as it stood there).
 
 **One kernel.** Each model's decision logic is one scalar step over Python floats (the
 state machine a sample goes through). A short run (up to :data:`SHORT_RUN` samples; lists,
@@ -32,10 +33,12 @@ tuples or numpy columns) feeds every sample to it with no numpy call; a long run
 *screened* with numpy for the few samples where the kernel can change something (a
 sample over a limit, a level crossing, the other side of the start current), the kernel
 runs on those and on the samples after them while a timer runs, and the quiet stretches
-between are taken whole from the screen. Both ways are the same maths, so they agree by
-construction; the tests still hold them to the reference. Importing the models, and feeding
-them with :meth:`~ProtectionModel.update` (what the engine does), never imports numpy: it comes
-with the first long run or numpy column, or the first :class:`Run` (whose columns are numpy arrays).
+between are taken whole from the screen. A short run whose samples are all in order, finite and
+on the quiet side of the model (:meth:`LatchedModel._quiet_few`: below the limit, no timer running,
+no heat to integrate) is taken whole from its last sample, as the screen takes a quiet stretch. All
+ways are the same maths, so they agree by construction; the tests still hold them to the reference.
+Importing the models, and feeding them short runs of lists, never imports numpy until the first
+edge (a :class:`Run` with an edge holds numpy columns), long run or numpy column.
 - Bad samples never raise and never corrupt the state: a sample whose value or
   time is NaN/±inf is ignored and counted in ``rejected``; a sample older than the
   latest accepted one (a negative time step: clock stepped back, out-of-order
@@ -68,7 +71,9 @@ from __future__ import annotations
 import math
 from abc import ABC, abstractmethod
 from collections.abc import Sequence
-from typing import TYPE_CHECKING, ClassVar
+from itertools import islice
+from operator import le
+from typing import TYPE_CHECKING, Any, ClassVar
 
 from canguard.protect.columns import (
     NO_EDGES,
@@ -109,6 +114,20 @@ _LAST_CHUNK = 1 << 16
 stay in the CPU cache and memory stays flat however long the run."""
 
 
+QUIET_RUNS: dict[int, Run] = {}
+"""The :class:`Run` of ``n`` samples taken without an edge, by ``n`` (short runs: built once each, shared)."""
+
+
+def quiet_run(n: int) -> Run:
+    """The result of a run of ``n`` samples that changed nothing (shared: a result is only read)."""
+    run = QUIET_RUNS.get(n)
+    if run is None:
+        run = Run(*(NO_EDGES or no_edges())[0], n)
+        if n <= SHORT_RUN:
+            QUIET_RUNS[n] = run
+    return run
+
+
 class ProtectionModel(ABC):
     """A pure state machine over one signal's samples."""
 
@@ -118,9 +137,13 @@ class ProtectionModel(ABC):
     def advance(self, times: npt.ArrayLike, values: npt.ArrayLike, *, until_edge: bool = False) -> Run:
         """Advance over a run of samples (see the module docstring); where the tripped state changed."""
 
-    def update(self, value: float, t: float) -> bool:
-        """Feed one sample (a run of one); True when the tripped state changed (an edge)."""
-        return self.advance((t,), (value,)).changed
+    @abstractmethod
+    def mark(self) -> Any:
+        """The running state, to go back to with :meth:`rewind` (opaque; nothing is changed)."""
+
+    @abstractmethod
+    def rewind(self, mark: Any) -> None:
+        """Go back to the state :meth:`mark` gave, as if the runs taken since had not come."""
 
     @abstractmethod
     def poll(self, now: float) -> Snapshot:
@@ -185,8 +208,15 @@ class LatchedModel(ProtectionModel):
 
     def advance(self, times: npt.ArrayLike, values: npt.ArrayLike, *, until_edge: bool = False) -> Run:
         """Advance over a run of samples; see :mod:`canguard.protect.base` for the contract."""
+        if type(times) is tuple and len(times) == 1 == len(values):  # type: ignore[arg-type]  # a live frame's
+            one = float(times[0])  # sample: the kernel, nothing built
+            if not self._sample(one, float(values[0])):  # type: ignore[index,arg-type]
+                return QUIET_RUNS.get(1) or quiet_run(1)
+            return self._one_edge(one)
         few = short_run(times, values, SHORT_RUN)
         if few is not None:
+            if few[0] and self._screened(few[0], few[1]):
+                return quiet_run(len(few[0]))
             return self._advance_few(few[0], few[1], until_edge)
         import numpy as np
 
@@ -209,12 +239,45 @@ class LatchedModel(ProtectionModel):
             np.concatenate([p.t for _, p in parts]),
             np.concatenate([p.tripped for _, p in parts]),
             start,
-            float(np.fmax.reduce([p.peak for _, p in parts])),
         )
 
-    def update(self, value: float, t: float) -> bool:
-        """Feed one sample: :meth:`advance`'s short-run step on a run of one, without building the :class:`Run`."""
-        return self._sample(float(t), float(value)) is True
+    def mark(self) -> Any:
+        """The running state (every attribute: parameters are only read back as they were)."""
+        return self.__dict__.copy()
+
+    def rewind(self, mark: Any) -> None:
+        """Go back to the state :meth:`mark` gave."""
+        self.__dict__.update(mark)
+
+    def _screened(self, t: list[float], v: list[float]) -> bool:
+        """A short run whose samples change nothing but the latest one, taken whole; False: nothing done.
+
+        Every sample is in order (none before the latest, times not going back) and finite, and the
+        model's own screen (:meth:`_quiet_few`) finds them all on its quiet side: fed one by one they
+        would leave exactly what :meth:`_take_quiet` leaves.
+        """
+        last = self._last_t
+        first, final = t[0], t[-1]
+        if last is not None and not first >= last:
+            return False
+        if not (math.isfinite(first) and math.isfinite(final) and math.isfinite(sum(v))):
+            return False
+        if len(t) > 1 and not all(map(le, t, islice(t, 1, None))):
+            return False
+        if not self._quiet_few(t, v):
+            return False
+        self._take_quiet(t, v)
+        self._last_t = final
+        self._value = abs(v[-1])
+        return True
+
+    def _quiet_few(self, t: list[float], v: list[float]) -> bool:
+        """True when every sample of a short run (in order, finite) leaves the state as it is but for the latest
+        time and value (and what :meth:`_take_quiet` takes); the default says no (every sample to the kernel)."""
+        return False
+
+    def _take_quiet(self, t: list[float], v: list[float]) -> None:
+        """Take a short run :meth:`_quiet_few` accepted, but for the latest time and value (the base sets them)."""
 
     def _stopped(self, run: Run, until_edge: bool) -> Run:
         """Remember how far a stop at an edge had to look (averaged: the next scan starts at twice that)."""
@@ -244,31 +307,29 @@ class LatchedModel(ProtectionModel):
         a = abs(v)
         return self._feed(t, a, self._step(t, a))
 
+    def _one_edge(self, t: float) -> Run:
+        """The result of a run of one sample, at ``t``, that changed the tripped state."""
+        import numpy as np
+
+        return Run(np.zeros(1, dtype=np.intp), np.array([t]), np.array([self._tripped]), 1)
+
     def _advance_few(self, times: Sequence[float], values: Sequence[float], until_edge: bool) -> Run:
         """A short run: every sample filtered and fed to the kernel, no numpy on the way."""
         index: list[int] = []
-        peak = math.nan
         taken = len(times)
         sample = self._sample
         for i in range(taken):
-            v = values[i]
-            edge = sample(times[i], v)
-            if edge is None:
-                continue
-            if not -peak <= v <= peak:
-                peak = abs(v)
-            if edge:
+            if sample(times[i], values[i]):
                 index.append(i)
                 if until_edge:
                     taken = i + 1
                     break
         if not index:
-            no_index, no_times, no_states = (NO_EDGES or no_edges())[0]  # numpy's empty columns, once built
-            return Run(no_index, no_times, no_states, taken, peak)
+            return quiet_run(taken)
         import numpy as np
 
         return Run(np.array(index, dtype=np.intp), np.array([times[i] for i in index]),
-                   np.array(alternate(self._tripped, len(index))), taken, peak)
+                   np.array(alternate(self._tripped, len(index))), taken)
 
     def _advance_long(self, t: FloatArray, v: FloatArray, until_edge: bool) -> Run:
         """A long run: filtered with numpy, screened, the candidates fed to the kernel."""
@@ -280,7 +341,7 @@ class LatchedModel(ProtectionModel):
         picked = np.arange(t.size) if everything else ok.nonzero()[0]
         if not picked.size:
             self._count_ignored(finite, ok, t.size)
-            return Run(*no_edges()[0], t.size, math.nan)
+            return Run(*no_edges()[0], t.size)
         ta = t if everything else t[picked]
         a = np.abs(v if everything else v[picked])
         edges, last = self._walk(ta, a, until_edge)
@@ -288,8 +349,7 @@ class LatchedModel(ProtectionModel):
         if not everything:
             self._count_ignored(finite, ok, taken)
         at = np.array(edges, dtype=np.intp)
-        return Run(picked[at], ta[at], np.array(alternate(self._tripped, len(edges))), taken,
-                   float(a[: last + 1].max()))
+        return Run(picked[at], ta[at], np.array(alternate(self._tripped, len(edges))), taken)
 
     def _walk(self, t: FloatArray, a: FloatArray, until_edge: bool) -> tuple[list[int], int]:
         """Feed a long run's candidates to the kernel; the edges' positions and the last sample taken."""
@@ -348,30 +408,6 @@ class LatchedModel(ProtectionModel):
     def _at_rest(self) -> bool:
         """True when the screen may take over again: no timer or other state the kernel must follow."""
         return True
-
-    # -- the replay's settle shortcut (kept while the engine still calls it) ------------
-
-    def settles(self, low: float, high: float, first_t: float) -> bool:
-        """True when a run of samples, fed one by one, would trip or recover nothing (nothing is changed here).
-
-        The run: samples from ``first_t`` on, in time order, with |values| between ``low``
-        and ``high``. Then the state after the run depends only on its last sample
-        (:meth:`take_run`). Used by the replay's column path (:mod:`canguard.engine.settle`);
-        the default says no.
-        """
-        return False
-
-    def take_run(self, last: float, last_t: float) -> None:
-        """Take a run :meth:`settles` accepted: the state its samples would have left, from its last one.
-
-        ``last``: the run's last sample (signed), at ``last_t``.
-        """
-        self._last_t = last_t
-        self._value = abs(last)
-
-    def _in_order(self, first_t: float) -> bool:
-        """True when a run starting at ``first_t`` would be taken (not counted out of order)."""
-        return self._last_t is None or first_t >= self._last_t
 
     def carry_from(self, old: ProtectionModel) -> None:
         """Take over the running state of the model this one replaces (config reload, same guard).

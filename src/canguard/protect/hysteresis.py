@@ -20,7 +20,7 @@ when it has none). Recovery is never blanked.
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from canguard.protect.base import REASON_OVERCURRENT, TIME_EPS_S, LatchedModel, ProtectionModel
 from canguard.protect.columns import Marks, Screen
@@ -199,23 +199,25 @@ class Hysteresis(LatchedModel):
         """The overcurrent threshold inside an inrush window (None: no check there, or no inrush helper)."""
         return None if self.inrush is None else self.inrush.inrush_threshold_a
 
-    def settles(self, low: float, high: float, first_t: float) -> bool:
-        """A run below the trip threshold (not tripped) or above the recovery one (tripped); never with inrush."""
-        if self.inrush is not None or not self._in_order(first_t):
+    def mark(self) -> Any:
+        """The base's running state and the inrush helper's."""
+        return super().mark(), None if self.inrush is None else self.inrush.running()
+
+    def rewind(self, mark: Any) -> None:
+        """Back to :meth:`mark`'s state, the inrush helper's too."""
+        own, inrush = mark
+        super().rewind(own)
+        if self.inrush is not None and inrush is not None:
+            self.inrush.resume(inrush)
+
+    def _quiet_few(self, t: list[float], v: list[float]) -> bool:
+        """No timer, no inrush helper, every sample below the trip threshold (not tripped) or above the recovery
+        one (tripped): each sample only keeps its side's timer unset (a gap restarts timers that are unset)."""
+        if self.inrush is not None or self._over_since is not None or self._under_since is not None:
             return False
-        return low > self.recovery_a if self._tripped else high < self.overcurrent_a
-
-    def take_run(self, last: float, last_t: float) -> None:
-        """Such a run restarts its side's persistence timer at every sample: it ends unset.
-
-        The other side's timer is unset already (a trip clears the overcurrent timer, a
-        recovery the recovery timer), so a gap that restarts both changes nothing more.
-        """
         if self._tripped:
-            self._under_since = None
-        else:
-            self._over_since = None
-        super().take_run(last, last_t)
+            return min(map(abs, v)) > self.recovery_a
+        return max(map(abs, v)) < self.overcurrent_a
 
     def _threshold_value(self) -> float:
         thr = self.threshold_at(self._last_t) if self._last_t is not None else self.overcurrent_a

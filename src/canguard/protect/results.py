@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
@@ -37,8 +37,7 @@ class Run:
     ``index``: positions in the run (int) of the samples at which the tripped state
     changed, ascending. ``t``: their times (s). ``tripped``: the state entered at
     each (they alternate). ``taken``: samples consumed from the start of the run
-    (all of them unless ``until_edge`` stopped early). ``peak``: the largest |value|
-    among the taken samples the model accepted, NaN when none. A result: read it, never
+    (all of them unless ``until_edge`` stopped early). A result: read it, never
     change it (not frozen only because a frozen dataclass costs a run of one ~1 µs more).
     """
 
@@ -46,9 +45,8 @@ class Run:
     t: FloatArray
     tripped: BoolArray
     taken: int
-    peak: float
+    changed: bool = field(init=False)
+    """True when the run changed the tripped state at least once (an edge: tick the tree)."""
 
-    @property
-    def changed(self) -> bool:
-        """True when the run changed the tripped state at least once (an edge: tick the tree)."""
-        return bool(self.index.size)
+    def __post_init__(self) -> None:
+        self.changed = bool(self.index.size)

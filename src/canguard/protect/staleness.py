@@ -35,19 +35,18 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from dataclasses import dataclass, field
+from itertools import islice
+from operator import le, sub
+from typing import TYPE_CHECKING, Any
 
 from canguard.config.schema import NON_VALUE_ROLES, SourceConfig
-from canguard.io.frame import INVALID_INF, INVALID_NAN, INVALID_RANGE, Sample
+from canguard.io.frame import INVALID_INF, INVALID_NAN, INVALID_RANGE
 from canguard.protect.base import REASON_NO_DATA, REASON_NOT_PRESENT, REASON_OK, REASON_STALE
-from canguard.protect.columns import NO_EDGES, SHORT_RUN, as_run, in_order, no_edges, short_run
+from canguard.protect.columns import NO_EDGES, no_edges
 
 if TYPE_CHECKING:
-    import numpy as np
-    import numpy.typing as npt
-
-    from canguard.protect.columns import BoolArray, FloatArray, IndexArray
+    from canguard.protect.columns import FloatArray, IndexArray
 
 PRESENT = "present"
 COUNTER = "counter"
@@ -62,7 +61,7 @@ REASON_EMCY = "emcy"
 REASON_DRIVE_FAULT = "drive_fault"
 GATE_ROLES = (NMT, EMCY, FAULT)
 FULL_ROLES = NON_VALUE_ROLES
-"""Roles whose every sample takes :meth:`SourceHealth.observe`'s full path (their value can change a reason)."""
+"""Roles whose every sample takes :meth:`SourceHealth.advance`'s full path (their value can change a reason)."""
 ROW_ROLES = NON_VALUE_ROLES - {PRESENT}
 """Roles a replay block cannot take as columns (the presence flag it checks itself): every row is fed."""
 
@@ -74,9 +73,9 @@ _ANY = (-_BIG, _BIG)
 
 @dataclass(slots=True)
 class HealthRun:
-    """What :meth:`SourceHealth.observe_run` did with a run of samples.
+    """What :meth:`SourceHealth.advance` did with a run of rows.
 
-    ``index``: positions in the run of the samples at which the source's reason changed
+    ``index``: positions in the run of the rows at which the source's reason changed
     (an edge: tick the tree). ``t``: their times (s). ``reasons``: the source's reason
     right after each ("" = usable). ``taken``: samples consumed (all unless ``until_edge``).
     A result: read it, never change it.
@@ -86,11 +85,25 @@ class HealthRun:
     t: FloatArray
     reasons: tuple[str, ...]
     taken: int
+    changed: bool = field(init=False)
+    """True when the run changed the source's reason at least once."""
 
-    @property
-    def changed(self) -> bool:
-        """True when the run changed the source's reason at least once."""
-        return bool(self.index.size)
+    def __post_init__(self) -> None:
+        self.changed = bool(self.index.size)
+
+
+_QUIET: dict[int, HealthRun] = {}
+
+
+def _quiet_health(n: int) -> HealthRun:
+    """The result of a run of ``n`` rows that changed no reason (shared for short runs: a result is only read)."""
+    run = _QUIET.get(n)
+    if run is None:
+        no_index, no_times, _ = (NO_EDGES or no_edges())[0]  # numpy's empty columns, once built
+        run = HealthRun(no_index, no_times, (), n)
+        if n <= 64:
+            _QUIET[n] = run
+    return run
 
 
 class SourceHealth:
@@ -102,6 +115,7 @@ class SourceHealth:
         self._value_roles: tuple[str, ...] = source.value_roles
         self._has_present = source.signal(PRESENT) is not None
         self._gates = tuple(r for r in GATE_ROLES if source.signal(r) is not None)
+        self._roles = frozenset(s.role for s in source.signals)
         nmt = source.signal(NMT)
         self._heartbeat_s = self.max_age_s if nmt is None or nmt.max_age_s is None else float(nmt.max_age_s)
         """How old the drive's heartbeat may be (its own timeout: a TPDO's period is not the heartbeat's)."""
@@ -129,7 +143,7 @@ class SourceHealth:
 
         While ``now - _ok_since <= _window_s`` (``max_age_s``, or the heartbeat's timeout when
         shorter) nothing can be stale, so :meth:`reason` is "" without looking at each role.
-        Only :meth:`observe`'s full path can make a role unusable; it clears this. Its fast
+        Only :meth:`advance`'s full path can make a role unusable; it clears this. Its fast
         path (a fresh valid sample) only makes roles younger, which keeps the shortcut true.
         """
         self.samples = 0
@@ -157,77 +171,110 @@ class SourceHealth:
         """The source's configured name."""
         return self.source.name
 
-    def observe(self, sample: Sample) -> bool:
-        """Take one sample of this source (a run of one); True when the source's health reason changed (an edge)."""
-        return self.observe_one(sample.signal, float(sample.t), float(sample.value), sample.reason)
+    def advance(self, roles: Sequence[str], times: Sequence[float], columns: Sequence[Sequence[float]],
+                reasons: Sequence[Sequence[str]] | None = None, *, until_edge: bool = False) -> HealthRun:
+        """Take a run of rows of this source, in arrival order; where the source's reason changed (an edge).
 
-    def observe_run(self, role: str, times: npt.ArrayLike, values: npt.ArrayLike,
-                    reasons: Sequence[str] | None = None, *, until_edge: bool = False) -> HealthRun:
-        """Take a run of samples of one ``role`` of this source, in arrival order; where the reason changed.
+        Row ``i`` at ``times[i]`` (s) holds one sample of each of ``roles``: ``columns[k][i]`` of
+        ``roles[k]``, with its own invalid reason ``reasons[k][i]`` ("" when its decoder found none;
+        None: no reasons, see :class:`~canguard.io.frame.Sample`). A row's samples are taken in
+        ``roles`` order. A sample whose time is NaN or older than the latest of its role is counted
+        in ``out_of_order`` and changes nothing; a NaN, inf or out-of-range value is invalid (it
+        never replaces the latest valid value). A frame is a run of one row.
 
-        ``times`` (s) and ``values`` are columns of one length; ``reasons``, when given,
-        each sample's own invalid reason ("" when the decoder found none; see
-        :class:`~canguard.io.frame.Sample`). A sample whose time is NaN or older than the
-        latest of its role is counted in ``out_of_order`` and changes nothing; a NaN, inf
-        or out-of-range value is invalid (it never replaces the latest valid value).
+        At each sample the reason just after it (at its time) is compared both with the reason
+        just before it at that time (so data coming back after a stale spell is an edge) and with
+        the reason the previous sample left (so a source found stale or invalid at a sample is an
+        edge too); a row is an edge when one of its samples is. Most rows change nothing but the
+        latest values: a run whose every sample is valid, of a value role (or a presence flag
+        that stays set) within ``max_age_s`` of a valid previous sample of its role, is taken
+        whole from its last row (:meth:`_quiet`); other runs go sample by sample (:meth:`_sample`).
 
-        At each sample the reason just after it (at its time) is compared both with the
-        reason just before it at that time (so data coming back after a stale spell is
-        an edge) and with the reason the previous sample left (so a source found stale or
-        invalid at a sample is an edge too). Most samples cannot change anything: a valid
-        sample of a value role within ``max_age_s`` of a valid previous one only becomes
-        the latest (another role going stale meanwhile is a matter of time, which ticks
-        see); they are taken as a block, the others one by one.
-
-        With ``until_edge`` the run stops right after the first edge (``taken``). The
-        result gives the edges' positions, times and the reason after each.
+        With ``until_edge`` the run stops right after the first row with an edge (``taken``). The
+        result gives the edges' row positions, times and the reason after each.
         """
-        few = short_run(times, values, SHORT_RUN)
-        if few is not None:
-            return self._observe_few(role, few[0], few[1], reasons, until_edge)
-        import numpy as np
+        n = len(times)
+        if n == 1 and reasons is None:  # a live frame: each sample to the kernel, nothing built
+            t = times[0]
+            if len(roles) == 1:
+                edge = self._sample(roles[0], t, columns[0][0])
+            else:
+                edge = False
+                for k, role in enumerate(roles):
+                    if self._sample(role, t, columns[k][0]):
+                        edge = True
+            if not edge:
+                return _QUIET.get(1) or _quiet_health(1)
+            import numpy as np
 
-        t, v = as_run(times, values)
-        own = self._own_reasons(v.size, reasons)
-        suspect = self._suspects(role, v, own)
-        bad = np.full(v.size, "", dtype=object)
-        for i in suspect.nonzero()[0].tolist():
-            bad[i] = self._invalid_code(role, float(v[i]), "" if own is None else str(own[i]))
-        ok = in_order(t, ~np.isnan(t), self._latest_t.get(role))
-        full = ok.copy()
-        if role not in FULL_ROLES and t.size:
-            prev_t, prev_bad = np.empty(t.size), np.empty(t.size, dtype=bool)
-            latest = self._latest_t.get(role)
-            prev_t[0] = math.nan if latest is None else latest
-            prev_bad[0] = bool(self._invalid.get(role))
-            kept = ok.nonzero()[0]
-            if kept.size > 1:  # the previous accepted sample of each accepted one
-                prev_t[kept[1:]] = t[kept[:-1]]
-                prev_bad[kept[1:]] = bad[kept[:-1]] != ""
-            if kept.size:
-                prev_t[kept[0]], prev_bad[kept[0]] = prev_t[0], prev_bad[0]
-            with np.errstate(invalid="ignore"):  # inf - inf: an infinite time is never fresh
-                full &= (bad != "") | ~(t - prev_t <= self.max_age_s) | prev_bad
+            return HealthRun(np.zeros(1, dtype=np.intp), np.array([t]), (self._last_reason,), 1)
+        if reasons is None and n > 1 and self._quiet(roles, times, columns):
+            last = times[-1]
+            for role, column in zip(roles, columns, strict=True):
+                self._latest_t[role] = self._valid_t[role] = last
+                self._value[role] = column[-1]
+            self.samples += n * len(roles)
+            return _quiet_health(n)
         edges: list[int] = []
-        reasons_after: list[str] = []
-        taken, done = t.size, 0
-        for i in full.nonzero()[0].tolist():
-            self._take_quiet(role, t, v, ok, done, i)
-            done = i + 1
-            if self._full_step(role, float(t[i]), float(v[i]), str(bad[i])):
+        after: list[str] = []
+        taken = n
+        sample = self._sample
+        for i in range(n):
+            t = times[i]
+            edge = False
+            for k, role in enumerate(roles):
+                if sample(role, t, columns[k][i], reasons[k][i] if reasons is not None else ""):
+                    edge = True
+            if edge:
                 edges.append(i)
-                reasons_after.append(self._last_reason)
+                after.append(self._last_reason)
                 if until_edge:
                     taken = i + 1
                     break
-        self._take_quiet(role, t, v, ok, done, taken)
-        self.samples += taken
-        self.out_of_order += int(np.count_nonzero(~ok[:taken]))
-        at = np.asarray(edges, dtype=np.intp)
-        return HealthRun(at, t[at], tuple(reasons_after), taken)
+        if not edges:
+            return _quiet_health(taken)
+        import numpy as np
 
-    def observe_one(self, role: str, t: float, value: float, own: str = "") -> bool:
-        """One sample of ``role`` at ``t`` (:meth:`observe_run` on a run of one); True on an edge.
+        return HealthRun(np.array(edges, dtype=np.intp), np.array([times[i] for i in edges]), tuple(after), taken)
+
+    def _quiet(self, roles: Sequence[str], times: Sequence[float], columns: Sequence[Sequence[float]]) -> bool:
+        """True when a run of rows (no reasons of their own) changes nothing but each role's latest value.
+
+        The times are finite and do not go back, the first within ``max_age_s`` of each role's
+        latest sample and no two rows further apart; each role's latest sample was valid, and its
+        values are finite and in the role's range; a role whose value gates the reason (alive counter,
+        drive health) is never quiet, a presence flag only while it was set and stays set.
+        """
+        first, final = times[0], times[-1]
+        max_age = self.max_age_s
+        if not (math.isfinite(first) and math.isfinite(final)):
+            return False
+        if len(times) > 1:
+            later = islice(times, 1, None)
+            if not all(map(le, times, later)):
+                return False
+            if final - first > max_age and max(map(sub, islice(times, 1, None), times)) > max_age:
+                return False
+        latest_t, invalid = self._latest_t, self._invalid
+        for role, column in zip(roles, columns, strict=True):
+            latest = latest_t.get(role)
+            if latest is None or not latest <= first or first - latest > max_age or invalid.get(role):
+                return False
+            if role in FULL_ROLES and not (role == PRESENT and self._present_quiet(roles, column)):
+                return False
+            lo, hi = self._limits.get(role, _ANY)
+            if not (math.isfinite(sum(column)) and lo <= min(column) and max(column) <= hi):
+                return False
+        return True
+
+    def _present_quiet(self, roles: Sequence[str], column: Sequence[float]) -> bool:
+        """A presence flag's samples change nothing: it was set and stays set, and the run carries every role of
+        the source, so that the reason each sample's full look finds is the "" the last one left."""
+        return (not self._last_reason and not self._frozen and bool(self._value.get(PRESENT)) and all(column)
+                and self._roles.issubset(roles))
+
+    def _sample(self, role: str, t: float, value: float, own: str = "") -> bool:
+        """The kernel: one sample of ``role`` at ``t``; True on an edge.
 
         ``own``: the sample's own invalid reason ("" when its decoder found none). A sample
         out of order (NaN time, older than the latest of its role) is counted and changes nothing.
@@ -249,33 +296,23 @@ class SourceHealth:
         elif t != t:
             self.out_of_order += 1
             return False
-        bad = self._invalid_code(role, value, own)
-        if not bad and role not in FULL_ROLES and self.fresh_valid(role, t):
-            self.take(role, t, value)
-            return False
-        return self._full_step(role, t, value, bad)
+        return self._full_step(role, t, value, self._invalid_code(role, value, own))
 
-    def _observe_few(self, role: str, times: list[float], values: list[float], reasons: Sequence[str] | None,
-                     until_edge: bool) -> HealthRun:
-        """A short run: every sample through :meth:`observe_one`, no numpy on the way."""
-        if reasons is not None and len(reasons) != len(values):
-            raise ValueError(f"reasons: expected one per sample ({len(values)}), got {len(reasons)}")
-        edges: list[int] = []
-        after: list[str] = []
-        taken = len(times)
-        for i in range(taken):
-            if self.observe_one(role, times[i], values[i], "" if reasons is None else reasons[i]):
-                edges.append(i)
-                after.append(self._last_reason)
-                if until_edge:
-                    taken = i + 1
-                    break
-        if not edges:
-            no_index, no_times, _ = (NO_EDGES or no_edges())[0]  # numpy's empty columns, once built
-            return HealthRun(no_index, no_times, (), taken)
-        import numpy as np
+    def mark(self) -> tuple[Any, ...]:
+        """The running state, to go back to with :meth:`rewind` (nothing is changed)."""
+        return (dict(self._latest_t), dict(self._invalid), dict(self._value), dict(self._valid_t), self._last_reason,
+                self._ok_since, self._counter, self._counter_since, self._frozen, self.samples,
+                self.invalid_samples, self.out_of_order)
 
-        return HealthRun(np.array(edges, dtype=np.intp), np.array([times[i] for i in edges]), tuple(after), taken)
+    def rewind(self, mark: tuple[Any, ...]) -> None:
+        """Go back to the state :meth:`mark` gave, as if the runs taken since had not come."""
+        latest_t, invalid, value, valid_t, *rest = mark
+        for own, saved in ((self._latest_t, latest_t), (self._invalid, invalid), (self._value, value),
+                           (self._valid_t, valid_t)):
+            own.clear()
+            own.update(saved)
+        (self._last_reason, self._ok_since, self._counter, self._counter_since, self._frozen, self.samples,
+         self.invalid_samples, self.out_of_order) = rest
 
     def _invalid_code(self, role: str, value: float, own: str) -> str:
         """A sample's invalid reason: its own, else NaN / inf / out of the role's range ("" when valid)."""
@@ -290,43 +327,8 @@ class SourceHealth:
             return INVALID_RANGE
         return ""
 
-    @staticmethod
-    def _own_reasons(size: int, reasons: Sequence[str] | None) -> npt.NDArray[np.str_] | None:
-        """The samples' own invalid reasons as a column (None: none given); ValueError when not one per sample."""
-        import numpy as np
-
-        if reasons is None:
-            return None
-        own = np.asarray(reasons, dtype=str)
-        if own.shape != (size,):
-            raise ValueError(f"reasons: expected one per sample ({size}), got {own.size}")
-        return own
-
-    def _suspects(self, role: str, v: FloatArray, own: npt.NDArray[np.str_] | None) -> BoolArray:
-        """The screen: samples that may be invalid (not finite, out of range, or with a reason of their own)."""
-        import numpy as np
-
-        lo, hi = self._ranges.get(role, (None, None))
-        out = ~np.isfinite(v)
-        with np.errstate(invalid="ignore"):
-            if lo is not None:
-                out |= v < lo
-            if hi is not None:
-                out |= v > hi
-        if own is not None:
-            out |= own != ""
-        return out
-
-    def _take_quiet(self, role: str, t: FloatArray, v: FloatArray, ok: BoolArray,
-                    start: int, end: int) -> None:
-        """Samples ``start`` to ``end`` (excluded) that change nothing but the latest value: take the last."""
-        kept = ok[start:end].nonzero()[0]
-        if kept.size:
-            k = start + int(kept[-1])
-            self.take(role, float(t[k]), float(v[k]))
-
     def _full_step(self, role: str, t: float, value: float, bad: str) -> bool:
-        """One sample that may change the reason; True on an edge (see :meth:`observe_run`)."""
+        """One sample that may change the reason; True on an edge (see :meth:`advance`)."""
         before = self.reason(t)
         if role == COUNTER and not bad:
             if value != self._counter:
@@ -432,31 +434,11 @@ class SourceHealth:
         """Every value role's latest value, NaN where :meth:`reason` for that role is not empty at ``now``."""
         return {r: (self.value(r) if not self.reason(now, r) else math.nan) for r in self._value_roles}
 
-    # -- rows that cannot change the reason, taken at once (the engine's block path) --------------
     @property
     def value_roles(self) -> tuple[str, ...]:
         """The source's value roles, in config order (``present`` and ``counter`` are not value roles)."""
         return self._value_roles
 
-    @property
-    def last_reason(self) -> str:
-        """The reason the last sample :meth:`observe` looked at fully left ("" usable)."""
-        return self._last_reason
-
     def latest_times(self) -> dict[str, float]:
         """Each role's latest sample time, valid or not (a copy)."""
         return dict(self._latest_t)
-
-    def fresh_valid(self, role: str, t: float) -> bool:
-        """True when a valid sample of ``role`` at ``t`` cannot change the reason (:meth:`observe`'s fast path).
-
-        The role's latest sample is valid, not after ``t`` and at most ``max_age_s`` before it.
-        """
-        latest = self._latest_t.get(role)
-        return latest is not None and latest <= t and t - latest <= self.max_age_s and not self._invalid.get(role)
-
-    def take(self, role: str, t: float, value: float) -> None:
-        """Take a valid sample of ``role`` for which :meth:`fresh_valid` holds: it only becomes the latest."""
-        self._latest_t[role] = t
-        self._value[role] = value
-        self._valid_t[role] = t

@@ -48,11 +48,11 @@ class Threshold(LatchedModel):
         over = a > self.max_value
         return Marks(over, ~over)
 
-    def settles(self, low: float, high: float, first_t: float) -> bool:
-        """A run that stays on its side of ``max_value`` (see :meth:`LatchedModel.settles`)."""
-        if not self._in_order(first_t):
-            return False
-        return low > self.max_value if self._tripped else not high > self.max_value
+    def _quiet_few(self, t: list[float], v: list[float]) -> bool:
+        """Every sample on the side of ``max_value`` the model is on."""
+        if self._tripped:
+            return min(map(abs, v)) > self.max_value
+        return not max(map(abs, v)) > self.max_value
 
     def _threshold_value(self) -> float:
         return self.max_value

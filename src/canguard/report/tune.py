@@ -44,6 +44,11 @@ SEARCH_REL = 1e-5
 """A ceiling search stops once the bracket is this narrow, relative to its upper end."""
 
 
+_EMPTY = np.empty(0)
+_EMPTY_INDEX = np.empty(0, dtype=np.intp)
+_EMPTY_STATES = np.empty(0, dtype=bool)
+
+
 class Capture(ProtectionModel):
     """A model that never trips: it keeps every sample the engine feeds it, as the guards' models get them."""
 
@@ -53,20 +58,26 @@ class Capture(ProtectionModel):
         self._v: list[float] = []
 
     def advance(self, times: Any, values: Any, *, until_edge: bool = False) -> Run:
-        """Keep the run (copied) and report no edge."""
+        """Keep the run (copied; a run of one kept as plain floats) and report no edge."""
+        if len(times) == 1:  # a frame on its own
+            self._t.append(float(times[0]))
+            self._v.append(float(values[0]))
+            return Run(_EMPTY_INDEX, _EMPTY, _EMPTY_STATES, 1)
         self._spill()
         t = np.array(times, dtype=np.float64)
         v = np.array(values, dtype=np.float64)
         self._runs.append((t, v))
-        empty = np.empty(0)
-        peak = float(np.max(np.abs(v))) if v.size else math.nan
-        return Run(empty.astype(np.intp), empty, empty.astype(bool), int(t.size), peak)
+        return Run(_EMPTY_INDEX, _EMPTY, _EMPTY_STATES, int(t.size))
 
-    def update(self, value: float, t: float) -> bool:
-        """Keep one sample (the run of one the engine feeds between blocks)."""
-        self._t.append(t)
-        self._v.append(value)
-        return False
+    def mark(self) -> Any:
+        """How many samples are kept (the engine goes back to it when a run went past another source's edge)."""
+        self._spill()
+        return len(self._runs)
+
+    def rewind(self, mark: Any) -> None:
+        """Forget the runs kept since :meth:`mark`."""
+        self._spill()
+        del self._runs[mark:]
 
     def _spill(self) -> None:
         if self._t:
@@ -83,10 +94,6 @@ class Capture(ProtectionModel):
         self._runs = [(t, v)]
         ok = np.isfinite(t) & np.isfinite(v)
         return (t, v) if ok.all() else (t[ok], v[ok])
-
-    def settles(self, low: float, high: float, first_t: float) -> bool:
-        """Never: a block is taken whole only where every sample still reaches this capture."""
-        return False
 
     def poll(self, now: float) -> Snapshot:
         """Never tripped."""

@@ -40,7 +40,7 @@ def reapply(model: LatchedModel) -> None:
     """Judge the latest sample again under new thresholds (a repeated timestamp is a normal sample)."""
     t = model.last_t
     if t is not None:
-        model.update(model.snapshot().value, t)
+        model.advance((t,), (model.snapshot().value,))
 
 
 class GuardNode(CanguardNode, py_trees.behaviour.Behaviour):
