@@ -911,9 +911,6 @@ class TestCustomLog:
         compare(cfg, log, tmp_path, (cuts,))
 
 
-    return counts
-
-
 class TestSimulator:
     """Simulator logs (every scenario on a loaded bus) on the bundled configs."""
 
