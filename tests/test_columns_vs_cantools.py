@@ -1,10 +1,11 @@
-"""The column decoder (canguard.decode.columns) gives exactly what cantools gives, frame by frame.
+"""A message's one kernel (canguard.decode.message) gives exactly what cantools gives, frame by frame.
 
 Random messages of random DBC shapes (hypothesis): Intel and Motorola, signed and
 unsigned, IEEE float 32/64, any length 1..64 at any bit position, scale and offset
 (integer and real), classic and CAN FD lengths, simple and extended multiplexing;
-random payloads. Each row decoded by ``Database.decode_message(..., decode_choices=False)``
-must equal the column decoder's value (NaN equal to NaN, bit for bit for floats).
+random payloads. Every signal is configured; each row decoded by
+``Message.decode(..., decode_choices=False)`` must equal the kernel's value (NaN equal to
+NaN, bit for bit for floats), whether the row comes in a block or as a block of one.
 ``CANGUARD_FUZZ_EXAMPLES`` raises the number of examples for a long run.
 """
 
@@ -22,7 +23,7 @@ from cantools.database.errors import DecodeError
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from canguard.decode.columns import decode_columns
+from canguard.decode.message import MessageDecoder, Output
 
 EXAMPLES = int(os.environ.get("CANGUARD_FUZZ_EXAMPLES", "120"))
 FD_LENGTHS = (8, 12, 16, 20, 24, 32, 48, 64)
@@ -84,22 +85,52 @@ def same(a: Any, b: Any) -> bool:
     return int(a) == int(b)
 
 
+def decoded(msg: Message, payload: np.ndarray) -> list[dict[str, float] | None]:
+    """Per row: every signal on the row's multiplexer page with its value as a sample carries it (NaN for NaN
+    and +-inf), or None when the row is refused (a multiplexer value no signal is multiplexed on); each row
+    read from the block and again as a block of one, which must agree."""
+    names = [s.name for s in msg.signals]
+    decoder = MessageDecoder(msg, [Output(name, "value", name, False) for name in names])
+    n, length = payload.shape
+    lengths = np.full(n, length)
+    out = []
+    for block, k in [(decoder.decode(payload, lengths), k) for k in range(n)]:
+        one = decoder.decode(payload[k:k + 1], lengths[k:k + 1])
+        rows = [(block, k), (one, 0)]
+        found = []
+        for rows_of, at in rows:
+            row = rows_of[at]
+            if row:
+                found.append(dict(zip(names, row, strict=True)))
+                continue
+            reason, cells = rows_of.verdict(at)  # type: ignore[attr-defined]
+            found.append(None if reason == "undecodable" else {names[j]: value for j, value, _why in cells})
+        assert _key(found[0]) == _key(found[1]), (k, found)
+        out.append(found[0])
+    return out
+
+
+def _key(row: dict[str, float] | None) -> Any:
+    return None if row is None else {name: float(v).hex() for name, v in row.items()}
+
+
 @settings(max_examples=EXAMPLES, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(case=message_and_payloads())
-def test_column_decode_equals_cantools(case: tuple[Message, np.ndarray]) -> None:
+def test_decode_equals_cantools(case: tuple[Message, np.ndarray]) -> None:
+    """Every signal of every row equals cantools' value to the bit, in a block and as a block of one."""
     msg, payload = case
-    cols = decode_columns(msg, payload)
+    found = decoded(msg, payload)
     for row in range(payload.shape[0]):
         try:
             expected = msg.decode(bytes(payload[row]), decode_choices=False, scaling=True)
-        except DecodeError:  # a multiplexer value no page has: cantools refuses the frame, nothing is valid
-            assert not any(col.valid[row] for col in cols.values())
+        except DecodeError:  # a multiplexer value no page has: cantools refuses the frame
+            assert found[row] is None
             continue
-        for name, col in cols.items():
-            present = name in expected
-            assert bool(col.valid[row]) == present, (name, row, expected)
-            if present:
-                assert same(col.values[row], expected[name]), (name, row, col.values[row], expected[name])
+        got = found[row]
+        assert got is not None and set(got) == set(expected), (row, got, expected)
+        for name, value in expected.items():
+            want = value if math.isfinite(float(value)) else math.nan  # a sample carries NaN for NaN and +-inf
+            assert same(got[name], want), (name, row, got[name], value)
 
 
 def test_motorola_and_intel_known_values() -> None:
@@ -108,9 +139,7 @@ def test_motorola_and_intel_known_values() -> None:
     intel = Signal("I", 16, 16, byte_order="little_endian", is_signed=True)  # bytes 2..3 little-endian
     msg = Message(1, "K", 8, [moto, intel])
     payload = np.frombuffer(bytes([0xAB, 0xC0, 0xFE, 0xFF, 0, 0, 0, 0]), dtype=np.uint8).reshape(1, 8)
-    cols = decode_columns(msg, payload)
-    assert int(cols["M"].values[0]) == 0xABC
-    assert int(cols["I"].values[0]) == -2
+    assert decoded(msg, payload) == [{"M": 0xABC, "I": -2.0}]
 
 
 @pytest.mark.parametrize("scale", [1, 1.0, 2.0])
@@ -121,6 +150,7 @@ def test_negative_zero_float_keeps_its_sign_as_cantools(scale: float) -> None:
     msg = Message(1, "Z", 4, [sig])
     data = bytes([0, 0, 0, 0x80])  # -0.0, little-endian float32
     expected = msg.decode(data, decode_choices=False)["F"]
-    got = decode_columns(msg, np.frombuffer(data, dtype=np.uint8).reshape(1, 4))["F"].values[0]
-    assert same(got, expected), (got, expected)
-    assert math.copysign(1.0, float(got)) == math.copysign(1.0, float(expected))
+    [row] = decoded(msg, np.frombuffer(data, dtype=np.uint8).reshape(1, 4))
+    assert row is not None
+    assert same(row["F"], expected), (row, expected)
+    assert math.copysign(1.0, row["F"]) == math.copysign(1.0, float(expected))

@@ -23,11 +23,11 @@ BUNDLED = REPO / "config" / "canguard.yaml"
 
 # (message, expected decoding strategy) for every message of the exotic test DBC
 EXOTIC_MESSAGES = [
-    ("Std_LE", "struct"),
-    ("Ext_BE", "struct"),
-    ("Floats", "struct"),
-    ("Float_BE", "struct"),
-    ("Fd_Aligned", "struct"),
+    ("Std_LE", "bits"),
+    ("Ext_BE", "bits"),
+    ("Floats", "bits"),
+    ("Float_BE", "bits"),
+    ("Fd_Aligned", "bits"),
     ("Odd", "bits"),
     ("Muxed", "bits"),
     ("Fd_Odd", "bits"),

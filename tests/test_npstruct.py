@@ -1,4 +1,4 @@
-"""Byte-aligned signals read by numpy from numpy blocks (MessageDecoder's field kernel), held to the per-frame engine.
+"""Byte-aligned signals of numpy blocks (decoded a message's rows at a time), held to the per-frame engine.
 
 A battery message whose presence flag is a whole byte, with a float32 voltage-like
 current and integer raws under integer and float scales, replayed with numpy reading
@@ -89,20 +89,6 @@ def _case(out: Path, frames: int = 4000) -> tuple[Path, Path]:
     log = out / "n.log"
     log.write_text("\n".join(lines) + "\n", encoding="ascii")
     return cfg, log
-
-
-def test_the_dbc_goes_the_numpy_way(tmp_path: Path) -> None:
-    """Every configured signal here is one numpy reads (else the comparison below proves less)."""
-    cfg, _log = _case(tmp_path, frames=10)
-    from canguard.decode.decoder import Decoder
-
-    config = load_config(cfg)
-    decoder = Decoder(config)
-    entries = list(decoder.entries())
-    assert len(entries) == 2
-    for (_bus, _cid, _ext), entry in entries:
-        assert entry.strategy == "struct", entry.message.name
-        assert entry.reads_fields(48) and not entry.reads_fields(47), entry.message.name
 
 
 def test_numpy_struct_reads_equal_the_per_frame_engine(tmp_path: Path) -> None:

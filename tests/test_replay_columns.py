@@ -42,7 +42,6 @@ import pytest
 import yaml
 
 import canguard.cli.replay
-import canguard.decode.message
 import canguard.engine.blocks
 import canguard.io.candump
 import canguard.io.logs
@@ -156,12 +155,10 @@ class _OneByOne:
 
 def replay(cfg: Config, log: Path, out: Path, *, columns: bool, chunk: int | BlockCuts,
            channel_map: dict[str, str] | None = None, emit_frames: bool = True,
-           numpy_rows: int | None = None, export: bool = False) -> Outcome:
+           export: bool = False) -> Outcome:
     """Replay ``log`` once (in the reader's blocks of ``chunk`` characters, or with ``columns`` False in blocks
     of one frame); instrumented.
 
-    ``numpy_rows``:
-    from how many rows of a message in a block numpy reads its payloads (default: the engine's).
     ``emit_frames`` False: no ``--emit`` file, so sent frames are only counted (the quiet runs then
     send the task's periodic frames in one go, :meth:`~canguard.engine.core.Engine._quiet_run`).
     ``export``: also ``--export-signals`` (in row groups of 64 rows), read back into :attr:`Outcome.exported`.
@@ -223,8 +220,6 @@ def replay(cfg: Config, log: Path, out: Path, *, columns: bool, chunk: int | Blo
         mp.setattr(canguard.engine.blocks, "take_runs", counted_take_runs)
         mp.setattr(canguard.cli.replay, "build_summary", capturing_build_summary)
         mp.setattr(canguard.io.candump, "CHUNK_CHARS", chunk)
-        if numpy_rows is not None:
-            mp.setattr(canguard.decode.message, "VECTOR_ROWS", numpy_rows)
         py_trees.blackboard.Blackboard.clear()  # global: the two runs must not see each other's keys
         parquet = out / "signals.parquet" if export else None
         if export:
@@ -319,8 +314,7 @@ def compare(cfg: Config, log: Path, out: Path, chunks: tuple[int | BlockCuts, ..
 
     The column runs at the second, fourth... block size write no ``--emit`` file: their frames
     are only counted, as a replay without ``--emit`` does (emitted frames are compared at the others).
-    At the first block size numpy reads every message's payloads however few rows (the
-    vectorised kernels of :class:`canguard.decode.message.MessageDecoder`). ``variant``: the first block size
+    ``variant``: the first block size
     runs as the ``variant``-th (0 first, 1 second...), and the next ones as the next, so that a test
     comparing at one block size can choose which of these ways it runs.
     """
@@ -329,7 +323,7 @@ def compare(cfg: Config, log: Path, out: Path, chunks: tuple[int | BlockCuts, ..
     for k, chunk in enumerate(chunks, start=variant):
         export = k == 1 and EXPORT  # the second block size also exports every sample (--export-signals)
         col = replay(cfg, log, out / f"col-{chunk}", columns=True, chunk=chunk, channel_map=channel_map,
-                     numpy_rows=1 if k == 0 else None, emit_frames=k % 2 == 0, export=export)
+                     emit_frames=k % 2 == 0, export=export)
         assert_same(ref, col, f"{log.name} with {Path(str(cfg.path)).name}, blocks of {chunk} chars")
         if chunk != DEFAULT_CHUNK:
             assert col.column_blocks > 0, f"blocks of {chunk}: the column path never ran, so this proves nothing"
@@ -869,7 +863,6 @@ class TestCustomLog:
         assert any(first <= float(c.time_s[0]) and float(c.time_s[-1]) <= last for c in cols)  # marked lines
         assert any(c.special.size for c in cols)  # remote and error frames in a block
 
-    # Blocks of 1,009 characters: TestPassiveBatches.test_same_output_on_the_custom_log (with --export-signals).
     @pytest.mark.parametrize("chunk", [300, 4096, DEFAULT_CHUNK])
     def test_same_output(self, custom: tuple[Config, Path], tmp_path: Path, chunk: int) -> None:
         """Both paths give the same summary, events, frames and engine state."""
@@ -918,29 +911,12 @@ class TestCustomLog:
         compare(cfg, log, tmp_path, (cuts,))
 
 
-def count_shared_fields(monkeypatch: pytest.MonkeyPatch) -> list[int]:
-    """Count the messages whose rows were decoded together with another's of the same layout, block by block."""
-    from canguard.engine import blockrows
-
-    counts: list[int] = []
-    shared = blockrows._shared_fields
-
-    def counting(cols: Any, groups: Any) -> Any:
-        decoded = shared(cols, groups)
-        counts.append(len(decoded))
-        return decoded
-
-    monkeypatch.setattr(blockrows, "_shared_fields", counting)
-    return counts
-
-
 class TestSimulator:
     """Simulator logs (every scenario on a loaded bus) on the bundled configs."""
 
     # The bundled config at two block sizes and ways of reading (compare's variant: with --export-signals, then
-    # numpy from the second block on), the other two at one each; the bundled config in blocks of 1,009 characters
-    # read by numpy from the first block: TestPassiveBatches. Blocks of 300 characters, which fall everywhere, are
-    # the scripted log's (TestCustomLog): on this 48,000-frame log they cost several times all the rest.
+    # numpy from the second block on), the other two at one each. Blocks of 300 characters, which fall everywhere,
+    # are the scripted log's (TestCustomLog): on this 48,000-frame log they cost several times all the rest.
     @pytest.mark.parametrize(("config", "chunks", "variant"), [
         (BUNDLED, (4096, DEFAULT_CHUNK), 1), (ROBOT_GUARD, (4096,), 2), (MULTI, (1009,), 0),
     ], ids=["canguard", "robot_guard", "multi_current_monitoring"])
@@ -1017,14 +993,3 @@ class TestTheComparison:
             mp.setattr(LogRun, "_cross", lambda self, ts, lo, hi: None)
             with pytest.raises(AssertionError):
                 compare(load_config(TIMED), log, tmp_path, (300,), min_handled=0)
-
-
-class TestSharedFields:
-    """Messages of one layout (the four axes' frames) in a numpy block, decoded as one over all their rows."""
-
-    def test_same_output_on_the_simulator_log(self, sim_log: Path, tmp_path: Path,
-                                              monkeypatch: pytest.MonkeyPatch) -> None:
-        """Every scenario (trips, NaN, garbage rows among them) on the robot guard config: the same bytes."""
-        counts = count_shared_fields(monkeypatch)
-        compare(load_config(ROBOT_GUARD), sim_log, tmp_path, (65536,))
-        assert max(counts, default=0) >= 2, counts

@@ -8,8 +8,8 @@ take, so:
   is_extended_id)`` before anything is decoded; unconfigured frames cost only
   that lookup;
 - each configured message has one :class:`~canguard.decode.message.MessageDecoder`,
-  built at construction with its strategy (struct, bit fields, cantools); a frame is
-  a block of one for it (no numpy).
+  compiled at construction into its one kernel over a block; a frame is a block of one
+  for it (:func:`row_samples` makes the samples of a row that is not valid, with reasons).
 
 Nothing raises out of :meth:`Decoder.decode`: a frame of the wrong length or a
 payload cantools cannot decode becomes one invalid sample (``bad_length`` /
@@ -23,12 +23,13 @@ reports those itself.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable
 from dataclasses import dataclass, field
+from typing import Any
 
 from canguard.config.schema import Config, SignalRef
-from canguard.decode.message import Checked, MessageDecoder, Output
-from canguard.decode.rows import EMPTY, Row
+from canguard.decode.message import MessageDecoder, Output
+from canguard.decode.rows import EMPTY
 from canguard.io.frame import INVALID_INF, INVALID_LENGTH, INVALID_NAN, INVALID_PAYLOAD, Frame, Sample
 
 _NAN = math.nan
@@ -105,7 +106,7 @@ class Decoder:
         return self._table.items()
 
     def strategy(self, bus: str, arbitration_id: int, is_extended_id: bool) -> str | None:
-        """How that configured frame is decoded (``struct``, ``bits`` or ``cantools``), or None (not configured)."""
+        """How that configured frame is decoded (``bits`` or ``cantools``), or None (not configured)."""
         entry = self._table.get((bus, arbitration_id, is_extended_id))
         return None if entry is None else entry.strategy
 
@@ -164,12 +165,10 @@ class Decoder:
             counters.skipped += 1
             return []
         t = frame.t
-        row = entry.valid_row(frame.data)  # the common frame: its row whole and valid, in one step
-        if row is None:
-            rows = entry.decode(frame.data, 1)
-            if not rows[0]:
-                return self._explained(entry, rows, t, counters)
-            row = rows[0]
+        rows = entry.decode(*entry.one(frame.data))  # a frame is a block of one
+        row = rows[0]
+        if not row:
+            return row_samples(entry, rows, 0, t, counters)
         counters.decoded += 1
         if len(row) == 1:  # most messages: one configured signal
             (source, role), = entry.names
@@ -179,33 +178,29 @@ class Decoder:
             out.append(_new(Sample, (source, role, v, t, "")))
         return out
 
-    def _explained(self, entry: MessageDecoder, rows: Sequence[Row], t: float,
-                   counters: DecodeCounters) -> list[Sample]:
-        """The samples of one frame whose row is not a tuple of valid values (EMPTY or None), with its reasons."""
-        assert isinstance(rows, Checked)  # a block of one is read by the scalar kernel
-        reason, cells = rows.verdicts[0]
-        if rows[0] is EMPTY:  # a multiplexer page that carries none of the configured signals
-            counters.decoded += 1
-            return []
-        if reason in (INVALID_LENGTH, INVALID_PAYLOAD):
-            return self._invalid(entry, t, reason, counters)
-        outputs = entry.outputs
-        out: list[Sample] = []
-        bad = False
-        for j, value, why in cells:
-            own = why if why in _SAMPLE_REASONS else ""
-            if own:
-                bad = True
-                counters.reasons[own] = counters.reasons.get(own, 0) + 1
-            out.append(_new(Sample, (outputs[j].source, outputs[j].role, value, t, own)))
-        if bad:
-            counters.invalid += 1
-        else:
-            counters.decoded += 1
-        return out
 
-    @staticmethod
-    def _invalid(entry: MessageDecoder, t: float, reason: str, counters: DecodeCounters) -> list[Sample]:
+def row_samples(entry: MessageDecoder, rows: Any, k: int, t: float, counters: DecodeCounters) -> list[Sample]:
+    """The samples of row ``k`` of ``rows`` (what ``entry`` decoded), a row that is not a tuple of valid values
+    (EMPTY or None), each with its reason, counted in ``counters`` (but for the frame itself)."""
+    if rows[k] is EMPTY:  # a multiplexer page that carries none of the configured signals
+        counters.decoded += 1
+        return []
+    reason, cells = rows.verdict(k)
+    outputs = entry.outputs
+    if reason in (INVALID_LENGTH, INVALID_PAYLOAD):
         counters.invalid += 1
-        counters.reasons[reason] = counters.reasons.get(reason, 0) + len(entry.outputs)
-        return [Sample(o.source, o.role, _NAN, t, reason) for o in entry.outputs]
+        counters.reasons[reason] = counters.reasons.get(reason, 0) + len(outputs)
+        return [Sample(o.source, o.role, _NAN, t, reason) for o in outputs]
+    out: list[Sample] = []
+    bad = False
+    for j, value, why in cells:
+        own = why if why in _SAMPLE_REASONS else ""
+        if own:
+            bad = True
+            counters.reasons[own] = counters.reasons.get(own, 0) + 1
+        out.append(_new(Sample, (outputs[j].source, outputs[j].role, value, t, own)))
+    if bad:
+        counters.invalid += 1
+    else:
+        counters.decoded += 1
+    return out

@@ -2,9 +2,11 @@
 
 What :meth:`MessageDecoder.decode <canguard.decode.message.MessageDecoder.decode>` gives:
 per row the configured values in output order (a tuple), :data:`EMPTY`, or None (the
-row is invalid and goes to the engine's ``feed``). Its numpy kernels give one float64
-column per configured signal (:class:`ColumnRows`); row by row, each row becomes a
-tuple of Python floats. Most blocks never need those tuples: a block taken whole
+row is invalid and goes to the engine's ``feed``), and on demand why (:class:`Verdict`).
+Over a block of more than one row its kernel gives one float64 column per configured
+signal (:class:`ColumnRows`); row by row, each row becomes a tuple of Python floats. A
+block of one gives its row itself (a one-item list; :class:`OneRow` when it is not
+valid). Most blocks never need those tuples: a block taken whole
 (:meth:`MessagePlan.batch <canguard.engine.blocks.MessagePlan.batch>`,
 :mod:`canguard.engine.settle`) reads only whether every row passed, each column's
 smallest and largest ``|value|``, the last row and the count. :class:`ColumnRows`
@@ -20,10 +22,10 @@ from a row that goes to ``feed`` are the same in numpy as in Python.
 from __future__ import annotations
 
 import operator
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from itertools import compress, islice
 from operator import itemgetter
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 if TYPE_CHECKING:
     import numpy as np
@@ -35,21 +37,62 @@ EMPTY: tuple[float, ...] = ()
 """A decoded row with no configured signal in it (a multiplexer page nobody reads): counted, nothing else."""
 
 
+class Verdict(NamedTuple):
+    """Why one row is not a tuple of values, and what it carries.
+
+    ``reason``: "" (the row is valid), or one of :mod:`canguard.decode.message`'s reasons. ``cells``: per
+    configured signal on the payload's multiplexer page, (its output index, its value as a sample
+    carries it, its own reason); empty for ``bad_length`` and ``undecodable``.
+    """
+
+    reason: str
+    cells: list[tuple[int, float, str]]
+
+
+Why = Callable[[int], Verdict]
+"""The verdict on row ``k`` of a block (computed when asked: most rows never are)."""
+
+
+class OneRow(list[Row]):
+    """The row of a block of one payload that is not a tuple of values (EMPTY or None), with :meth:`verdict`.
+
+    (A valid row of one comes as a plain one-item list: nobody asks it why.)
+    """
+
+    __slots__ = ("_why",)
+
+    def __init__(self, row: Row, why: Why) -> None:
+        super().__init__((row,))
+        self._why = why
+
+    def verdict(self, k: int) -> Verdict:
+        """Why row ``k`` (0) is not a tuple of values."""
+        return self._why(k)
+
+
 class ColumnRows(Sequence[Row]):
     """The rows of one message in a block: ``columns[j][k]`` is output ``j`` of row ``k``.
 
     ``fed`` marks the rows that go to ``feed`` (None), ``empty`` those without a configured
     signal (EMPTY; it wins over ``fed``, as the row decoder marks them); either may be None (no row).
+    ``why`` gives the :class:`Verdict` on a row (:meth:`verdict`).
     """
 
-    __slots__ = ("_rows", "columns", "empty", "fed", "n")
+    __slots__ = ("_rows", "_why", "columns", "empty", "fed", "n")
 
-    def __init__(self, n: int, columns: list[np.ndarray], fed: np.ndarray | None, empty: np.ndarray | None) -> None:
+    def __init__(self, n: int, columns: list[np.ndarray], fed: np.ndarray | None, empty: np.ndarray | None,
+                 why: Why | None = None) -> None:
         self.n = n
         self.columns = columns
         self.fed = fed if fed is not None and fed.any() else None
         self.empty = empty if empty is not None and empty.any() else None
         self._rows: list[Row] | None = None
+        self._why = why
+
+    def verdict(self, k: int) -> Verdict:
+        """Why row ``k`` is what it is (reason "" for a valid row), with each value as a sample carries it."""
+        assert self._why is not None, "rows cut from a decoded block (split, valued_rows) carry no verdicts"
+        return self._why(k)
 
     def rows(self) -> list[Row]:
         """The rows as tuples (built once)."""
@@ -75,18 +118,6 @@ class ColumnRows(Sequence[Row]):
             if mask is not None:
                 keep &= ~mask
         return keep
-
-    def split(self, sizes: Sequence[int]) -> list[ColumnRows]:
-        """The rows cut in consecutive parts of ``sizes`` rows (summing to :attr:`n`), each rows of its own."""
-        parts = []
-        at = 0
-        for size in sizes:
-            cut = slice(at, at + size)
-            parts.append(ColumnRows(size, [column[cut] for column in self.columns],
-                                    None if self.fed is None else self.fed[cut],
-                                    None if self.empty is None else self.empty[cut]))
-            at += size
-        return parts
 
     def valued_rows(self, keep: np.ndarray) -> ColumnRows:
         """The rows ``keep`` (a mask: :meth:`valued`, or fewer) as rows of their own, each with its values."""
@@ -200,13 +231,3 @@ def keep_valued(stamps: Sequence[Any], rows: Sequence[Row]) -> tuple[Sequence[An
         rows = rows.rows()
     keep = list(map(bool, rows))
     return list(compress(stamps, keep)), list(compress(rows, keep))
-
-
-def placed(n: int, good: list[int] | None, found: Sequence[Row]) -> Sequence[Row]:
-    """``n`` rows of which those at positions ``good`` (None: all) are ``found``; the others None (to feed)."""
-    if good is None:
-        return found
-    result: list[Row] = [None] * n
-    for k, row in zip(good, found.rows() if type(found) is ColumnRows else found, strict=True):
-        result[k] = row
-    return result

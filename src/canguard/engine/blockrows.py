@@ -53,14 +53,13 @@ def decode_rows(
         groups[plan] = same if group is None else sorted([*group, *same])  # a second id without a plan
     whole: list[Run] = []
     fed: list[tuple[int, MessagePlan | None]] = []
-    together = _shared_fields(block, groups)
     for plan, group in groups.items():
         if plan is None:
             fed.extend((int(i), None) for i in group)
             continue
         if touched is not None:
             touched.add(plan)
-        decoded = together[plan] if plan in together else plan.decode(block, group)
+        decoded = plan.decode(block, group)
         if taken is not None:
             taken.append((plan, group, decoded))
         run = _split(plan, group, decoded, ts, fed)
@@ -105,30 +104,3 @@ def _split(plan: MessagePlan, group: Any, decoded: Sequence[Any], ts: Sequence[A
     if not rows:
         return None
     return plan, rows, [float(ts[i]) for i in rows], list(zip(*values, strict=True))
-
-
-def _shared_fields(block: Block, groups: dict[MessagePlan | None, Any]) -> dict[MessagePlan, Sequence[Any]]:
-    """The decoded rows of the block's messages that are read from their signals' bytes in the same way
-    (:meth:`MessagePlan.fields_key`) as others: each such set decoded as one message over all their rows, then
-    cut per message (four drives' messages of one layout: one decode, not four)."""
-    alike: dict[tuple[Any, ...], list[tuple[MessagePlan, Any]]] = {}
-    for plan, group in groups.items():
-        if plan is not None and (key := plan.fields_key(group)) is not None:
-            alike.setdefault(key, []).append((plan, group))
-    decoded: dict[MessagePlan, Sequence[Any]] = {}
-    for members in alike.values():
-        if len(members) < 2:
-            continue
-        import numpy as np
-
-        lead = members[0][0]
-        assert lead.entry.spans is not None
-        rows = np.concatenate([group for _plan, group in members])
-        good, cells = block.fields(rows, lead.length, lead.entry.spans)
-        if good is not None:
-            continue  # a row of another length among them: each message decoded on its own
-        together = lead.entry.decode(cells, len(rows))
-        assert isinstance(together, ColumnRows)
-        for (plan, _group), part in zip(members, together.split([len(g) for _p, g in members]), strict=True):
-            decoded[plan] = part
-    return decoded

@@ -26,7 +26,8 @@ from bisect import bisect_right
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
-from canguard.decode.rows import Row, placed
+from canguard.decode.decoder import row_samples
+from canguard.decode.rows import Row
 from canguard.protect.staleness import ROW_ROLES
 
 if TYPE_CHECKING:
@@ -92,63 +93,40 @@ class MessagePlan:
         """Each output's samples taken through :meth:`take_samples` since the last :meth:`flush`."""
         self.index = {(source, role): j for j, (source, role, *_rest) in enumerate(self.outputs)}
         """Each output's index by (source, role): where a decoded sample goes."""
-        self.valid_row = entry.valid_row
-        """The message decoder's valid row of one payload (bound once: every live frame asks it)."""
 
     # -- the columns -------------------------------------------------------------------
-    def cuts_payloads(self, rows: Any) -> bool:
-        """A block's ``rows`` of this message are decoded from their payloads joined (:meth:`decode` asks
-        :meth:`Block.payloads <canguard.io.block.Block.payloads>` for them); False: from the bytes of its
-        signals alone (or not at all)."""
-        return not self.counter and not self.entry.reads_fields(len(rows))
-
-    def fields_key(self, rows: Any) -> tuple[Any, ...] | None:
-        """What decoding ``rows`` of a block from their signals' bytes depends on
-        (:attr:`MessageDecoder.fields_key <canguard.decode.message.MessageDecoder.fields_key>`); None: they are
-        not decoded so (see :meth:`decode`). Messages of equal keys may have their rows decoded together
-        (:func:`canguard.engine.blockrows.decode_rows`)."""
-        if self.counter or not self.entry.reads_fields(len(rows)):
-            return None
-        return self.entry.fields_key
-
     def decode(self, block: Block, rows: Any) -> Sequence[Row]:
         """Each of ``rows``' configured values (in output order), ``EMPTY``, or None: the row goes to the frame decoder.
 
         The rows :meth:`MessageDecoder.decode <canguard.decode.message.MessageDecoder.decode>`
-        gives (None: a wrong length, a payload cantools would refuse, a value NaN, infinite
-        or outside the DBC range, a presence flag at 0, some configured signals of a
-        multiplexed message but not all); every row when the message carries an alive counter
-        or a drive's health role.
+        gives over ``rows``' payloads and lengths (None: a wrong length, a payload cantools would
+        refuse, a value NaN, infinite or outside the DBC range, a presence flag at 0, some
+        configured signals of a multiplexed message but not all); every row when the message
+        carries an alive counter or a drive's health role.
         """
-        n = len(rows)
         if self.counter:
-            return [None] * n
-        good: list[int] | None
-        data: Any
-        if self.cuts_payloads(rows):
-            good, data = block.payloads(rows, self.length)
-        else:
-            assert self.entry.spans is not None
-            good, data = block.fields(rows, self.length, self.entry.spans)
-        count = n if good is None else len(good)
-        if not count:
-            return [None] * n
-        return placed(n, good, self.entry.decode(data, count))
+            return [None] * len(rows)
+        return self.entry.decode(block.payload[rows], block.length[rows])
 
     # -- one row ------------------------------------------------------------------------
     def take_payload(self, data: bytes, t: float) -> bool | None:
-        """One frame's payload at ``t`` as a run of one row when it is whole and valid
-        (:attr:`MessageDecoder.valid_row <canguard.decode.message.MessageDecoder.valid_row>`); True on an edge.
+        """One frame's payload at ``t`` (a block of one through the message's kernel); True on an edge.
 
-        None: nothing taken, the frame decoder must take the frame (a row with a reason, a multiplexer page
-        without the configured signals, a message whose every row goes to it: :attr:`counter`).
+        A whole and valid row takes :meth:`take_row`; any other row its samples with their reasons
+        (:func:`~canguard.decode.decoder.row_samples`, counted here as the frame decoder counts them),
+        :meth:`take_samples`. None: nothing taken, the frame decoder must take the frame (a message whose
+        every row goes to it: :attr:`counter`).
         """
         if self.counter:
             return None
-        row = self.valid_row(data)
-        if row is None:
-            return None
-        return self.take_row(row, t)
+        entry = self.entry
+        rows = entry.decode(*entry.one(data))
+        row = rows[0]
+        if row:
+            return self.take_row(row, t)
+        self.stats.frames += 1
+        self.counters.frames += 1
+        return self.take_samples(row_samples(entry, rows, 0, t, self.counters))
 
     def take_row(self, values: tuple[float, ...], t: float) -> bool:
         """One row whole and valid at ``t`` (one value per output): a run of one for each health and model

@@ -202,11 +202,12 @@ class LogRun:
     def _decoded(self, bus: str, frame: Frame) -> bool:
         """A frame through its message's row step; True on an edge.
 
-        A frame of a configured message whose row is whole and valid (the common live frame)
-        takes :meth:`MessagePlan.take_payload <canguard.engine.blocks.MessagePlan.take_payload>`:
-        decoded and checked in one step, counted by its plan. Any other (an invalid row, error and
-        remote frames, unconfigured ids, a sample hook) goes to the frame decoder
-        (:meth:`Decoder.decode`: every reason counted) and its samples to the plan's row step.
+        A data frame of a configured message takes :meth:`MessagePlan.take_payload
+        <canguard.engine.blocks.MessagePlan.take_payload>`: a block of one through its message's kernel,
+        counted by its plan (a row that is not valid as its samples with their reasons). Any other (error
+        and remote frames, unconfigured ids, a message with an alive counter or health roles, a sample hook)
+        goes to the frame decoder (:meth:`Decoder.decode`: every reason counted) and its samples to the
+        plan's row step.
         """
         engine = self.engine
         plan = None if frame.is_error_frame or frame.is_remote_frame else self._plan_of(bus, frame)

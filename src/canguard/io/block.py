@@ -250,32 +250,6 @@ class Block:
         return map(_new, repeat(Frame), zip(self.time_s.tolist(), chans, self.can_id.tolist(), payloads,
                                             self.extended.tolist(), *bits, dlcs, strict=True))
 
-    def payloads(self, rows: Any, length: int) -> tuple[list[int] | None, bytes]:
-        """The payloads of those of ``rows`` that hold ``length`` bytes, one after another: (their positions in
-        ``rows``, or None when all of them do; the bytes)."""
-        good, picked = self._fitting(rows, length)
-        return good, self.payload[picked, :length].tobytes() if length else b""
-
-    def payload_groups(self, groups: Sequence[Any], length: int) -> list[tuple[list[int] | None, bytes]]:
-        """:meth:`payloads` of each of ``groups`` (row lists or index arrays)."""
-        return [self.payloads(group, length) for group in groups]
-
-    def fields(self, rows: Any, length: int, spans: Sequence[tuple[int, int]]
-               ) -> tuple[list[int] | None, list[np.ndarray]]:
-        """Of ``rows`` whose payload holds ``length`` bytes (which, as :meth:`payloads` says): for each
-        ``(byte offset, width)`` of ``spans``, their bytes there as a ``rows x width`` matrix."""
-        good, picked = self._fitting(rows, length)
-        data = self.payload[picked]
-        return good, [np.ascontiguousarray(data[:, at:at + width]) for at, width in spans]
-
-    def _fitting(self, rows: Any, length: int) -> tuple[list[int] | None, np.ndarray]:
-        idx = np.asarray(rows, dtype=np.intp)
-        fit = self.length[idx] == length
-        if fit.all():
-            return None, idx
-        keep = np.flatnonzero(fit)
-        return keep.tolist(), idx[keep]
-
     def select(self, rows: Any) -> Block:
         """The rows ``rows`` (an index array, a boolean mask or a slice) as a block of their own."""
         return Block(self.time_s[rows], self.can_id[rows], self.extended[rows], self.flags[rows], self.dlc[rows],
