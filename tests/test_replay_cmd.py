@@ -596,7 +596,7 @@ class TestPlot:
         from canguard.report.plot import Recorder
 
         seen: list[object] = []
-        engine = SimpleNamespace(sample_hook=seen.append, tick_hook=seen.append, extra_on_event=None,
+        engine = SimpleNamespace(sample_hook=seen.append, tick_hook=seen.append, listen=lambda fn: None,
                                  ctx=SimpleNamespace(heat_models={}))
         recorder = Recorder(engine)  # type: ignore[arg-type]
         sample = Sample("axis0", "current", 3.5, 1.0)

@@ -171,6 +171,19 @@ class Engine:
     def extra_on_event(self, fn: Callable[[dict[str, Any]], None] | None) -> None:
         self.journal.on_event = fn
 
+    def listen(self, fn: Callable[[dict[str, Any]], None]) -> None:
+        """Also call ``fn`` with every event, before whatever :attr:`extra_on_event` called until now."""
+        previous = self.journal.on_event
+        if previous is None:
+            self.journal.on_event = fn
+            return
+
+        def both(ev: dict[str, Any]) -> None:
+            fn(ev)
+            previous(ev)
+
+        self.journal.on_event = both
+
     @property
     def next_tick_t(self) -> float:
         """When the next grid tick is due (NaN before the start)."""

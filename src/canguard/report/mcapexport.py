@@ -108,14 +108,7 @@ class McapExport:
         self._events = w.channel("/canguard/events", events, "json")
         self._frames: dict[bool, int] = {}
         self._out: list[Frame] = []
-        previous = engine.extra_on_event
-
-        def on_event(ev: dict[str, Any]) -> None:
-            self._event(ev)
-            if previous is not None:
-                previous(ev)
-
-        engine.extra_on_event = on_event
+        engine.listen(self._event)
 
     def publish(self, engine: Any, now: float) -> None:
         """A tick that ran (a :class:`~canguard.engine.stats.TickObserver`: ticks proven to repeat the last one are

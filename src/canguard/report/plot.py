@@ -52,14 +52,7 @@ class Recorder:
         self._next_sample, self._next_tick = engine.sample_hook, engine.tick_hook
         engine.sample_hook = self._sample
         engine.tick_hook = self._tick
-        previous = engine.extra_on_event
-
-        def on_event(ev: dict[str, Any]) -> None:
-            self._event(ev)
-            if previous is not None:
-                previous(ev)
-
-        engine.extra_on_event = on_event
+        engine.listen(self._event)
 
     def _sample(self, s: Sample) -> None:
         if self._next_sample is not None:
