@@ -14,7 +14,7 @@ from canguard.config.loader import load_config
 from canguard.errors import ConfigError
 from canguard.report.proposal import nice_up, separate
 from canguard.report.tune import histogram, percentile
-from canguard.report.tunefiles import set_attributes, tuned_config
+from canguard.report.tunefiles import port_text, set_attributes, tuned_config
 from clikit import cli
 
 HEALTHY = ("normal", "load", "inrush")
@@ -142,6 +142,13 @@ class TestFiles:
         assert '<X name="B" v="1" w="2">' in out
         with pytest.raises(ConfigError, match="found 0"):
             set_attributes(xml, "C", {"v": 1.0}, "t.xml")
+
+    def test_unnamed_v3_element_found_by_its_id(self) -> None:
+        """A BT.CPP v3 ``<Condition ID="X">`` without a name is the node named X (the bundled config's tree)."""
+        xml = '<Sequence>\n  <Condition ID="IsCurrentSafe" topic_name="/b" overcurrent_threshold="35"/>\n'
+        assert port_text(xml, "IsCurrentSafe", "overcurrent_threshold") == "35"
+        out = set_attributes(xml, "IsCurrentSafe", {"overcurrent_threshold": 12.5}, "t.xml")
+        assert '<Condition ID="IsCurrentSafe" topic_name="/b" overcurrent_threshold="12.5"/>' in out
 
     def test_config_max_age_paths_and_tree(self, tmp_path: Path) -> None:
         """max_age set in flow and block mappings; relative paths made absolute; the config loads."""

@@ -28,13 +28,23 @@ def figure(value: float) -> str:
     return text[:-2] if text.endswith(".0") and "e" not in text else text
 
 
-def set_attributes(text: str, node: str, values: Mapping[str, float], where: str) -> str:
-    """``text`` with the attributes of the element named ``node`` set to ``values`` (ConfigError: not one such)."""
+def _named(text: str, node: str) -> list[re.Match[str]]:
+    """The start tags of the elements a tree node named ``node`` is read from.
+
+    A node is named by its ``name`` attribute, else by its ID: the tag (BT.CPP 4), or the ``ID``
+    attribute of a v3 ``<Condition ID="X"/>``-style element.
+    """
     found = []
     for m in _TAG.finditer(text):
         attrs = {a.group(1): a.group(3)[1:-1] for a in _ATTR.finditer(m.group(2))}
-        if attrs.get("name") == node or (node == m.group(1) and "name" not in attrs):
+        if attrs.get("name", attrs.get("ID", m.group(1))) == node:
             found.append(m)
+    return found
+
+
+def set_attributes(text: str, node: str, values: Mapping[str, float], where: str) -> str:
+    """``text`` with the attributes of the element named ``node`` set to ``values`` (ConfigError: not one such)."""
+    found = _named(text, node)
     if len(found) != 1:
         raise ConfigError(f"{where}: expected one element named {node!r} to write its tuned figures, "
                           f"found {len(found)}")
@@ -52,10 +62,11 @@ def set_attributes(text: str, node: str, values: Mapping[str, float], where: str
 
 def port_text(text: str, node: str, port: str) -> str | None:
     """The attribute text of ``port`` on the element named ``node`` (None: not written there)."""
-    for m in _TAG.finditer(text):
-        attrs = {a.group(1): a.group(3)[1:-1] for a in _ATTR.finditer(m.group(2))}
-        if attrs.get("name") == node:
-            return attrs.get(port)
+    for m in _named(text, node):
+        for a in _ATTR.finditer(m.group(2)):
+            if a.group(1) == port:
+                return a.group(3)[1:-1]
+        return None
     return None
 
 
