@@ -106,7 +106,7 @@ class MessagePlan:
         """
         if self.counter:
             return [None] * len(rows)
-        return self.entry.decode(block.payload[rows], block.length[rows])
+        return self.entry.decode(block.payload_rows(rows), block.length[rows])
 
     # -- one row ------------------------------------------------------------------------
     def take_payload(self, data: bytes, t: float) -> bool | None:

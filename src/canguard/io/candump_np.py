@@ -21,9 +21,11 @@ in the block (:attr:`Parsed.bad`): the reader names its file:line.
 
 from __future__ import annotations
 
+import binascii
 import re
 import threading
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -47,6 +49,9 @@ _MAX_EXTENDED = 0x1FFFFFFF
 _PAD = 160
 """Bytes after a block's last one that a gather may read (a CAN FD payload's 128 hex digits, an 8-byte word)."""
 _INDENTED = 1
+ASKS = 8
+"""Asks for some rows' payloads after which a block makes every row's (:class:`HexPayloads`): about when the
+asks' own costs (a few numpy calls each) pass the cost of one pass over the whole block."""
 """The first byte of an indented line once the block is rewritten (``-e``'s lines under an error frame)."""
 
 
@@ -181,7 +186,7 @@ def _parsed(rewritten: tuple[bytes, np.ndarray | None], error_before: bool) -> P
     error_last = bool(errors[-1]) if errors.size else error_before
     if indented.any():
         bad_lines, error_last = _indented(np.flatnonzero(indented), rows_line, errors, bad_lines, error_before)
-    block = cols.block(good) if good.size else None
+    block = cols.block(text, good) if good.size else None
     return Parsed(block, rows_line, n, sorted(bad_lines.tolist()), error_last)
 
 
@@ -434,23 +439,74 @@ class _Columns:
         listed = list(names)
         return rank[lanes], tuple(listed[k].decode("utf-8", "replace") for k in order.tolist())
 
-    def block(self, rows: np.ndarray) -> Block:
-        """The frames of ``rows`` (good lines) as a block."""
+    def block(self, text: bytes, rows: np.ndarray) -> Block:
+        """The frames of ``rows`` (good lines of ``text``) as a block; their payloads read from ``text`` when asked
+        for (:class:`HexPayloads`)."""
         length = self.length[rows]
-        width = int(length.max()) * 2 if rows.size else 0
-        if width:
-            payload = _hex_bytes(_rows(self.pad, self.ds[rows], width))
-            payload[np.arange(width >> 1) >= length[:, None]] = 0  # past a shorter row's data: the next bytes
-        else:
-            payload = np.zeros((rows.size, 0), dtype=np.uint8)
         lanes, names = self.channels(rows)
         return Block(self.time_s[rows], self.can_id[rows], self.extended[rows], self.flags[rows],
-                     self.dlc[rows].astype(np.uint8), length.astype(np.uint8), payload, lanes, names)
+                     self.dlc[rows].astype(np.uint8), length.astype(np.uint8),
+                     HexPayloads(text, self.b, self.ds[rows], length), lanes, names)
+
+
+class HexPayloads:
+    """A block's payloads as the hex digits of its lines: the bytes of the rows asked for are made then.
+
+    ``text``: the block's text (``digits``: the same bytes as an array); ``start``: each row's first digit in it;
+    ``length``: each row's payload bytes (its digits checked by the parser). A block asked for the rows of many
+    messages (:data:`ASKS`) makes every row's bytes at once and answers from them.
+    """
+
+    __slots__ = ("asked", "digits", "length", "made", "start", "text")
+
+    def __init__(self, text: bytes, digits: np.ndarray, start: np.ndarray, length: np.ndarray) -> None:
+        self.text, self.digits, self.start, self.length = text, digits, start, length
+        self.asked = 0
+        self.made: np.ndarray | None = None
+        """Every row's payload, once asked for (or once :data:`ASKS` asks have come)."""
+
+    def rows(self, rows: Any) -> np.ndarray:
+        """The payloads of ``rows`` (an index array, or a slice) as a matrix, zeros past each one's length."""
+        made = self.made
+        if made is None:
+            self.asked += 1
+            if self.asked < ASKS and not isinstance(rows, slice):
+                return self._gathered(rows)
+            made = self.made = self._gathered(slice(None))
+        return made[rows]
+
+    def _gathered(self, rows: Any) -> np.ndarray:
+        """The bytes of ``rows``' digits: a ``len(rows) x longest`` matrix."""
+        start = self.start[rows]
+        length = self.length[rows]
+        width = int(length.max()) * 2 if start.size else 0
+        if not width:
+            return np.zeros((start.size, 0), dtype=np.uint8)
+        digits = self.digits
+        last = digits.size - width  # a row starting after it is near the text's end: its cells read from a copy
+        if int(start.max()) <= last:
+            cells = _rows(digits, start, width)
+        else:
+            cells = _rows(digits, np.minimum(start, last), width)
+            for r in np.flatnonzero(start > last).tolist():
+                at = int(start[r])
+                cells[r, :digits.size - at] = digits[at:]  # its digits, then anything: past its length, zeroed
+        payload = _hex_bytes(cells)
+        if not (length == width >> 1).all():
+            payload[np.arange(width >> 1) >= length[:, None]] = 0  # past a shorter row's data: the next bytes
+        return payload
+
+    def one(self, i: int) -> bytes:
+        """Row ``i``'s payload."""
+        at = int(self.start[i])
+        return binascii.unhexlify(self.text[at:at + 2 * int(self.length[i])])
 
 
 # --------------------------------------------------------------------------- numpy helpers
 
 _LOCAL = threading.local()
+_VOIDS: dict[int, np.dtype] = {}
+"""The dtype of ``width`` bytes as one item, by width."""
 
 
 def _buffer(name: str, count: int, dtype: type) -> np.ndarray:
@@ -523,4 +579,8 @@ def _hex_bytes(cells: np.ndarray) -> np.ndarray:
 
 def _rows(b: np.ndarray, pos: np.ndarray, width: int) -> np.ndarray:
     """The ``width`` bytes at each of ``pos``, as a ``len(pos) x width`` matrix (one copy per row, not per byte)."""
-    return np.ndarray((b.size - width + 1, width), np.uint8, b, 0, (1, 1))[pos]  # as_strided, without its overhead
+    void = _VOIDS.get(width)
+    if void is None:
+        void = _VOIDS[width] = np.dtype((np.void, width))
+    cells: np.ndarray = np.ndarray((b.size - width + 1,), void, b, 0, (1,))[pos]  # a row one item: one copy, not width
+    return cells.view(np.uint8).reshape(cells.size, width)
