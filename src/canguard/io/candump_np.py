@@ -43,6 +43,7 @@ _LE64 = np.dtype("<u8")
 _U16 = np.uint16
 _LE16 = np.dtype("<u2")
 _EXACT = 1 << 53
+_NO_ROWS = np.zeros(0, dtype=np.intp)
 _ERR_FLAG = 0x20000000
 _MAX_STANDARD = 0x7FF
 _MAX_EXTENDED = 0x1FFFFFFF
@@ -214,6 +215,8 @@ class _Columns:
         self.pad = pad
         self.start = start
         self.has_under = bool(np.count_nonzero(b == 95))  # a raw DLC somewhere
+        self.every: tuple[np.ndarray, list[bytes]] | None = None
+        """Every line's channel index and the names' bytes, once found."""
         close, sp2 = self._fixed(start, end) or self._searched(start, end)
         ok = (pad[start] == 40) & (close < end) & (pad[close + 1] == 32) & (sp2 < end) & (sp2 > close + 2)
         fe = self._field_end(sp2, end)
@@ -276,10 +279,9 @@ class _Columns:
         marks = 2 * n + 2 * n + n + int(np.count_nonzero(tail)) * 2  # ( ) two spaces, newline; " T"
         marks += int(np.count_nonzero(self.dot_at)) + n + int(np.count_nonzero(self.fd))  # the dots, "#", "##"
         marks += int(np.count_nonzero(self.remote)) + int(np.count_nonzero(self.raw_dlc))  # "R", "_"
-        size = sp2 - close - 2
-        for length in np.unique(size).tolist() if not (size == size[0]).all() else [int(size[0])]:
-            at = slice(None) if (size == length).all() else np.flatnonzero(size == length)
-            marks += int(np.count_nonzero(~_HEX[_rows(self.pad, close[at] + 2, length)]))  # the channels
+        lanes, names = self.every = self._named(np.arange(n))  # the channels: each name's bytes, times its rows
+        counts = np.bincount(lanes, minlength=len(names)).tolist() if len(names) > 1 else [n]
+        marks += sum(count * sum(not _HEX[c] for c in name) for count, name in zip(counts, names, strict=True))
         return b.size - _hex_digits(b) == marks
 
     def _between(self, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
@@ -340,9 +342,15 @@ class _Columns:
     @property
     def flags(self) -> np.ndarray:
         """Each line's :class:`Block` flags."""
-        digit = self.fd_digit.astype(np.uint8)
-        return (np.where(self.fd, FLAG_FD | ((digit & 1) * FLAG_BRS) | ((digit & 2) // 2 * FLAG_ESI), 0)
-                | np.where(self.remote, FLAG_REMOTE, 0) | np.where(self.err, FLAG_ERROR, 0)).astype(np.uint8)
+        flags = np.zeros(self.fd.size, dtype=np.uint8)
+        if self.fd.any():
+            digit = self.fd_digit.astype(np.uint8)
+            flags |= np.where(self.fd, FLAG_FD | ((digit & 1) * FLAG_BRS) | ((digit & 2) // 2 * FLAG_ESI), 0
+                              ).astype(np.uint8)
+        for column, flag in ((self.remote, FLAG_REMOTE), (self.err, FLAG_ERROR)):
+            if column.any():
+                flags[column] |= flag
+        return flags
 
     def _stamps(self, start: np.ndarray, close: np.ndarray) -> np.ndarray:
         """The timestamps (digits, a dot and digits, or digits alone, between "(" and ")") as :attr:`time_s`."""
@@ -381,7 +389,7 @@ class _Columns:
         np.subtract(cells, np.uint8(48), out=cells)  # a digit is 0..9, anything else wraps above 9
         if dot != 63:
             cells[:, dot] = 0
-        good = (cells <= 9).all(axis=1)
+        good = (cells <= 9).all(axis=1) if cells.size and cells.max() > 9 else None  # None: every row's digits
         if width <= 23:  # 10**22: the last exact power of ten
             weights = np.array([0.0 if k == dot else 10.0 ** (width - 1 - k - (dot != 63 and k < dot))
                                 for k in range(width)])
@@ -390,63 +398,65 @@ class _Columns:
             whole = digits @ weights  # BLAS: every partial sum an integer below 2**53, exact in any order
             scale = 10.0 ** (width - 1 - dot) if dot != 63 else 1.0
             values = whole / scale  # an exact integer / an exact power of ten: one rounding, as float()
-            slow = np.flatnonzero(good & (whole >= _EXACT))
+            slow = _NO_ROWS if not whole.size or whole.max() < _EXACT else np.flatnonzero(whole >= _EXACT)
         else:
             values = np.zeros(first.size)
-            slow = np.flatnonzero(good)
+            slow = np.arange(first.size)
+        if good is not None:
+            slow = slow[good[slow]]
+            ok[pick] = good
         for r in slow.tolist():  # too many digits for one exact division: float() of the text
             at = int(first[r])
             values[r] = float(bytes(self.pad[at:at + width]))
-        ok[pick] = good
         self.time_s[pick] = values
 
     def channels(self, rows: np.ndarray) -> tuple[np.ndarray, tuple[str, ...]]:
-        """Each of ``rows``' channel index, and the names."""
+        """Each of ``rows``' channel index, and the names (in the order they first come)."""
+        every = self.every
+        lanes, names = every if every is not None and rows.size == self.start.size else self._named(rows)
+        return lanes, tuple(name.decode("utf-8", "replace") for name in names)
+
+    def _named(self, rows: np.ndarray) -> tuple[np.ndarray, list[bytes]]:
+        """Each of ``rows``' channel index, and the names' bytes (in the order they first come)."""
         begin = self.close[rows] + 2
         size = self.sp2[rows] - begin
-        names: dict[bytes, int] = {}
-        lanes = np.zeros(rows.size, dtype=np.uint16)
         if not rows.size:
-            return lanes, ("",)
+            return np.zeros(0, dtype=np.uint16), [b""]
         first = int(size[0])
+        if first <= 8 and (size == first).all():  # names of up to 8 bytes are 64-bit words: compared as integers
+            words = np.ndarray((self.pad.size - 7,), _LE64, self.pad, 0, (1,))
+            found = _few(words[begin] & _U((1 << 8 * first) - 1))
+            if found is not None:
+                lanes, firsts = found
+                return lanes, [self.pad[k:k + first].tobytes() for k in begin[firsts].tolist()]
+        lanes = np.zeros(rows.size, dtype=np.uint16)
         if (size == first).all():
             cells = _rows(self.pad, begin, first)
             if (cells == cells[0]).all():
-                return lanes, (bytes(cells[0]).decode("utf-8", "replace"),)
+                return lanes, [cells[0].tobytes()]
+        names: dict[bytes, int] = {}
         for length in np.unique(size).tolist():
             at = np.flatnonzero(size == length)
-            if length <= 8:  # a name of up to 8 bytes is one 64-bit word: unique as integers
-                words = np.ndarray((self.pad.size - 7,), _LE64, self.pad, 0, (1,))
-                codes = words[begin[at]] & _U((1 << 8 * length) - 1)
-                _codes, firsts, inverse = np.unique(codes, return_index=True, return_inverse=True)
-                order = np.argsort(firsts)  # the names in the order they first come
-                rank = np.empty(order.size, dtype=np.intp)
-                rank[order] = np.arange(order.size)
-                inverse = rank[inverse.reshape(-1)]
-                keys = [self.pad[k:k + length].tobytes() for k in begin[at][firsts[order]].tolist()]
-            else:
-                cells = np.ascontiguousarray(_rows(self.pad, begin[at], length))
-                found, inverse = np.unique(cells.view(np.dtype((np.void, length))).reshape(-1), return_inverse=True)
-                keys = [k.tobytes() for k in found]
-            index = np.array([names.setdefault(k, len(names)) for k in keys], dtype=np.uint16)
+            cells = _rows(self.pad, begin[at], length)
+            found_names, inverse = np.unique(cells.view(np.dtype((np.void, length))).reshape(-1), return_inverse=True)
+            index = np.array([names.setdefault(k.tobytes(), len(names)) for k in found_names], dtype=np.uint16)
             lanes[at] = index[inverse.reshape(-1)]
-        if len(names) == 1 or ((size == first).all() and first <= 8):
-            return lanes, tuple(name.decode("utf-8", "replace") for name in names)
         _seen, firsts = np.unique(lanes, return_index=True)
         order = np.argsort(firsts)  # the names in the order they first come
         rank = np.empty(order.size, dtype=np.uint16)
         rank[order] = np.arange(order.size, dtype=np.uint16)
         listed = list(names)
-        return rank[lanes], tuple(listed[k].decode("utf-8", "replace") for k in order.tolist())
+        return rank[lanes], [listed[k] for k in order.tolist()]
 
     def block(self, text: bytes, rows: np.ndarray) -> Block:
         """The frames of ``rows`` (good lines of ``text``) as a block; their payloads read from ``text`` when asked
         for (:class:`HexPayloads`)."""
-        length = self.length[rows]
         lanes, names = self.channels(rows)
-        return Block(self.time_s[rows], self.can_id[rows], self.extended[rows], self.flags[rows],
-                     self.dlc[rows].astype(np.uint8), length.astype(np.uint8),
-                     HexPayloads(text, self.b, self.ds[rows], length), lanes, names)
+        pick: Any = slice(None) if rows.size == self.start.size else rows  # every line: the columns as they are
+        length = self.length[pick]
+        return Block(self.time_s[pick], self.can_id[pick], self.extended[pick], self.flags[pick],
+                     self.dlc[pick].astype(np.uint8), length.astype(np.uint8),
+                     HexPayloads(text, self.b, self.ds[pick], length), lanes, names)
 
 
 class HexPayloads:
@@ -547,6 +557,23 @@ def _after(positions: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     k = np.searchsorted(positions, lo)
     at = positions[np.minimum(k, positions.size - 1)]
     return np.where((k < positions.size) & (at < hi), at, hi)
+
+
+def _few(codes: np.ndarray, most: int = 8) -> tuple[np.ndarray, np.ndarray] | None:
+    """Each of ``codes``' index among the distinct codes in the order they first come, and where each first comes;
+    None when there are more than ``most`` (then a sort is cheaper than a pass for each)."""
+    lanes = np.zeros(codes.size, dtype=np.uint16)
+    firsts = [0]
+    rest = codes != codes[0]
+    while rest.any():
+        if len(firsts) == most:
+            return None
+        k = int(rest.argmax())
+        same = codes == codes[k]
+        lanes[same] = len(firsts)
+        firsts.append(k)
+        rest &= ~same
+    return lanes, np.array(firsts, dtype=np.intp)
 
 
 def _zeros_like(like: np.ndarray) -> np.ndarray:
