@@ -389,7 +389,9 @@ class _Columns:
         np.subtract(cells, np.uint8(48), out=cells)  # a digit is 0..9, anything else wraps above 9
         if dot != 63:
             cells[:, dot] = 0
-        good = (cells <= 9).all(axis=1) if cells.size and cells.max() > 9 else None  # None: every row's digits
+        good: np.ndarray | None = None  # None: every row's are digits
+        if cells.size and cells.max() > 9:
+            good = np.asarray((cells <= 9).all(axis=1))
         if width <= 23:  # 10**22: the last exact power of ten
             weights = np.array([0.0 if k == dot else 10.0 ** (width - 1 - k - (dot != 63 and k < dot))
                                 for k in range(width)])
