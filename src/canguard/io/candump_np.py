@@ -279,7 +279,7 @@ class _Columns:
         marks = 2 * n + 2 * n + n + int(np.count_nonzero(tail)) * 2  # ( ) two spaces, newline; " T"
         marks += int(np.count_nonzero(self.dot_at)) + n + int(np.count_nonzero(self.fd))  # the dots, "#", "##"
         marks += int(np.count_nonzero(self.remote)) + int(np.count_nonzero(self.raw_dlc))  # "R", "_"
-        lanes, names = self.every = self._named(np.arange(n))  # the channels: each name's bytes, times its rows
+        lanes, names = self.every = self._named(slice(None))  # the channels: each name's bytes, times its rows
         counts = np.bincount(lanes, minlength=len(names)).tolist() if len(names) > 1 else [n]
         marks += sum(count * sum(not _HEX[c] for c in name) for count, name in zip(counts, names, strict=True))
         return b.size - _hex_digits(b) == marks
@@ -311,32 +311,46 @@ class _Columns:
         return (ext | (size == 3)) & np.where(ext, (value <= _U(_MAX_EXTENDED)) | err, low <= _U(_MAX_STANDARD))
 
     def _data(self, h1: np.ndarray, fe: np.ndarray) -> np.ndarray:
-        """The payloads after the "#": classic, CAN FD (``##F``), remote (``R``, ``R4``), raw DLC (``_D``)."""
+        """The payloads after the "#": classic, CAN FD (``##F``), remote (``R``, ``R4``), raw DLC (``_D``); the checks
+        of each kind made only where the block has one."""
         pad = self.pad
         after = pad[h1 + 1]
         fd = after == 35
         remote = (after == 82) | (after == 114)
+        has_fd, has_remote, has_under = bool(fd.any()), bool(remote.any()), self.has_under
         digit = pad[h1 + 2]
-        ok = ~fd | ((h1 + 2 < fe) & _HEX[digit])
-        self.fd_digit = np.where(fd, _hex_value(digit), 0) if fd.any() else np.zeros(fd.size, dtype=np.int64)
-        ds = np.where(fd, h1 + 3, h1 + 1)
-        under = _next(self.b, 95, ds, fe) if self.has_under else fe  # "_": a raw DLC
-        raw_dlc = under < fe
-        de = np.where(raw_dlc, under, fe)
-        de = np.where(remote, ds, de)
+        checks = []
+        ds = h1 + 1
+        if has_fd:
+            checks.append(~fd | ((h1 + 2 < fe) & _HEX[digit]))
+            self.fd_digit = np.where(fd, _hex_value(digit), 0)
+            ds = np.where(fd, h1 + 3, ds)
+        else:
+            self.fd_digit = _zeros_like(fe)
+        de = fe
+        raw_dlc = under = dlc_digit = None
+        if has_under:
+            under = _next(self.b, 95, ds, fe)  # "_": a raw DLC
+            raw_dlc = under < fe
+            de = np.where(raw_dlc, under, fe)
+            dlc_digit = _hex_value(pad[under + 1])
+            checks.append(~raw_dlc | (~fd & ~remote & (fe == under + 2) & (de - ds == 16) & _HEX[pad[under + 1]]
+                                      & (dlc_digit >= 9)))
         rl = fe - h1 - 2
-        ok &= ~remote | (rl == 0) | ((rl == 1) & (digit >= 48) & (digit <= 56))
-        dlc_digit = _hex_value(pad[under + 1]) if self.has_under else _zeros_like(fe)
-        ok &= ~raw_dlc | (~fd & ~remote & (fe == under + 2) & (de - ds == 16) & _HEX[pad[under + 1]]
-                          & (dlc_digit >= 9))
+        if has_remote:
+            de = np.where(remote, ds, de)
+            checks.append(~remote | (rl == 0) | ((rl == 1) & (digit >= 48) & (digit <= 56)))
         hex_len = de - ds
-        ok &= (hex_len >= 0) & ((hex_len & 1) == 0)
+        ok = (hex_len >= 0) & ((hex_len & 1) == 0)
         length = np.maximum(hex_len, 0) >> 1
-        ok &= np.where(fd, _FD_BYTES[np.minimum(length, 65)], length <= 8)
+        ok &= np.where(fd, _FD_BYTES[np.minimum(length, 65)], length <= 8) if has_fd else length <= 8
+        for check in checks:
+            ok &= check
         self.ds, self.de, self.length = ds, de, length
-        self.fd, self.remote, self.raw_dlc = fd, remote, raw_dlc
-        self.dlc = np.where(remote, np.where(rl == 1, digit.astype(np.int64) - 48, 0),
-                            np.where(raw_dlc, dlc_digit, length))
+        self.fd, self.remote = fd, remote
+        self.raw_dlc = raw_dlc if raw_dlc is not None else np.zeros(fe.size, dtype=bool)
+        dlc = length if raw_dlc is None else np.where(raw_dlc, dlc_digit, length)
+        self.dlc = np.where(remote, np.where(rl == 1, digit.astype(np.int64) - 48, 0), dlc) if has_remote else dlc
         return ok
 
     @property
@@ -418,11 +432,11 @@ class _Columns:
         lanes, names = every if every is not None and rows.size == self.start.size else self._named(rows)
         return lanes, tuple(name.decode("utf-8", "replace") for name in names)
 
-    def _named(self, rows: np.ndarray) -> tuple[np.ndarray, list[bytes]]:
+    def _named(self, rows: np.ndarray | slice) -> tuple[np.ndarray, list[bytes]]:
         """Each of ``rows``' channel index, and the names' bytes (in the order they first come)."""
         begin = self.close[rows] + 2
         size = self.sp2[rows] - begin
-        if not rows.size:
+        if not begin.size:
             return np.zeros(0, dtype=np.uint16), [b""]
         first = int(size[0])
         if first <= 8 and (size == first).all():  # names of up to 8 bytes are 64-bit words: compared as integers
@@ -431,7 +445,7 @@ class _Columns:
             if found is not None:
                 lanes, firsts = found
                 return lanes, [self.pad[k:k + first].tobytes() for k in begin[firsts].tolist()]
-        lanes = np.zeros(rows.size, dtype=np.uint16)
+        lanes = np.zeros(begin.size, dtype=np.uint16)
         if (size == first).all():
             cells = _rows(self.pad, begin, first)
             if (cells == cells[0]).all():
