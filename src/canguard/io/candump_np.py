@@ -174,16 +174,18 @@ def _parsed(rewritten: tuple[bytes, np.ndarray | None], error_before: bool) -> P
     data = (first != 10) & (first != 35)  # blank lines and # comments are no frames
     indented = first == _INDENTED
     data &= ~indented
-    lines = np.flatnonzero(data)
-    cols = _Columns(b, pad, start[lines], nl[lines], lines.size == n)
+    whole = bool(data.all())  # every line a frame's (else the columns are those of the frames' lines)
+    lines = np.arange(n) if whole else np.flatnonzero(data)
+    cols = _Columns(b, pad, start if whole else start[lines], nl if whole else nl[lines], whole)
     ok = cols.ok
     if announced is not None:  # a -ta line's [len] is its payload's length
         known = announced[lines]
         ok &= (known < 0) | (cols.length == known)
-    good = np.flatnonzero(ok)
-    bad_lines = lines[~ok]
-    rows_line = lines[good]
-    errors = cols.err[good]
+    every = bool(ok.all())
+    good = np.arange(lines.size) if every else np.flatnonzero(ok)
+    bad_lines = _NO_ROWS if every else lines[~ok]
+    rows_line = lines if every else lines[good]
+    errors = cols.err if every else cols.err[good]
     error_last = bool(errors[-1]) if errors.size else error_before
     if indented.any():
         bad_lines, error_last = _indented(np.flatnonzero(indented), rows_line, errors, bad_lines, error_before)
