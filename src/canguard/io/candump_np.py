@@ -176,7 +176,7 @@ def _parsed(rewritten: tuple[bytes, np.ndarray | None], error_before: bool) -> P
     data &= ~indented
     whole = bool(data.all())  # every line a frame's (else the columns are those of the frames' lines)
     lines = np.arange(n) if whole else np.flatnonzero(data)
-    cols = _Columns(b, pad, start if whole else start[lines], nl if whole else nl[lines], whole)
+    cols = _Columns(b, pad, start if whole else start[lines], nl if whole else nl[lines], whole, b"_" in text)
     ok = cols.ok
     if announced is not None:  # a -ta line's [len] is its payload's length
         known = announced[lines]
@@ -210,13 +210,15 @@ class _Columns:
     ``whole``: every line of the block is one of these (no blank, comment or indented line): then one count
     of the block's bytes that are not hex digits, held to what the fields found account for, proves at once
     that the ids and payloads are hex digits (else each line's fields are counted on their own).
+    ``has_under``: the block has an underscore (a raw DLC's, maybe).
     """
 
-    def __init__(self, b: np.ndarray, pad: np.ndarray, start: np.ndarray, end: np.ndarray, whole: bool) -> None:
+    def __init__(self, b: np.ndarray, pad: np.ndarray, start: np.ndarray, end: np.ndarray, whole: bool,
+                 has_under: bool) -> None:
         self.b = b
         self.pad = pad
         self.start = start
-        self.has_under = bool(np.count_nonzero(b == 95))  # a raw DLC somewhere
+        self.has_under = has_under  # a raw DLC somewhere
         self.every: tuple[np.ndarray, list[bytes]] | None = None
         """Every line's channel index and the names' bytes, once found."""
         close, sp2 = self._fixed(start, end) or self._searched(start, end)
@@ -306,9 +308,13 @@ class _Columns:
         # read and dropped (each byte lands in its own nibble: a short id is the low 12 bits)
         value = _extended_values(words[np.maximum(h1 - 8, 0)])
         low = value & _U(0xFFF)
+        self.extended = ext
+        if not ext.any():  # standard ids alone
+            self.can_id = low.astype(np.uint32)
+            self.err = ext
+            return (size == 3) & (low <= _U(_MAX_STANDARD))
         err = ext & ((value & _U(_ERR_FLAG)) != 0)
         self.can_id = np.where(ext, value & _U(_MAX_EXTENDED), low).astype(np.uint32)
-        self.extended = ext
         self.err = err
         return (ext | (size == 3)) & np.where(ext, (value <= _U(_MAX_EXTENDED)) | err, low <= _U(_MAX_STANDARD))
 
