@@ -221,8 +221,13 @@ class _Columns:
         self.has_under = has_under  # a raw DLC somewhere
         self.every: tuple[np.ndarray, list[bytes]] | None = None
         """Every line's channel index and the names' bytes, once found."""
-        close, sp2 = self._fixed(start, end) or self._searched(start, end)
-        ok = (pad[start] == 40) & (close < end) & (pad[close + 1] == 32) & (sp2 < end) & (sp2 > close + 2)
+        fixed = self._fixed(start, end)
+        if fixed is not None:  # the ")", the spaces and the channel's end where :meth:`_fixed` saw them on every line
+            close, sp2 = fixed
+            ok = pad[start] == 40
+        else:
+            close, sp2 = self._searched(start, end)
+            ok = (pad[start] == 40) & (close < end) & (pad[close + 1] == 32) & (sp2 < end) & (sp2 > close + 2)
         fe = self._field_end(sp2, end)
         tail = fe < end
         ok &= ~tail | ((fe == end - 2) & _MARKERS[pad[end - 1]])
