@@ -13,7 +13,9 @@ per field, each a column over every line:
   an exact integer (below 2**53) divided by an exact power of ten, one correctly rounded
   division (a longer one is converted by ``float()`` itself);
 * the ids read 8 bytes at a time (SWAR on little-endian words);
-* the payloads two hex digits at a time, as one ``rows x width`` byte matrix.
+* the payloads' lengths and kinds; their digits are checked with the ids' by one count over the block
+  (or, when a line fails, each line's), and left as text: a block's :class:`HexPayloads` makes the bytes
+  of the rows the engine reads (a configured message's), two hex digits at a time.
 
 Each check gives a column of verdicts; a line that fails one is a bad line, named by its index
 in the block (:attr:`Parsed.bad`): the reader names its file:line.
@@ -50,10 +52,10 @@ _MAX_EXTENDED = 0x1FFFFFFF
 _PAD = 160
 """Bytes after a block's last one that a gather may read (a CAN FD payload's 128 hex digits, an 8-byte word)."""
 _INDENTED = 1
+"""The first byte of an indented line once the block is rewritten (``-e``'s lines under an error frame)."""
 ASKS = 8
 """Asks for some rows' payloads after which a block makes every row's (:class:`HexPayloads`): about when the
 asks' own costs (a few numpy calls each) pass the cost of one pass over the whole block."""
-"""The first byte of an indented line once the block is rewritten (``-e``'s lines under an error frame)."""
 
 
 @dataclass(frozen=True)
