@@ -208,7 +208,7 @@ class TestCandumpParser:
             assert got.tobytes() == whole.payload[rows, :width].tobytes() and not whole.payload[rows, width:].any()
         block = parse_block(text).block
         assert block is not None
-        asked = [block.payload_rows(np.array([i % n]))[0].tobytes() for i in range(3 * n)]  # many asks: made at once
+        asked = [block.payload_rows(np.array([i % n]))[0].tobytes() for i in range(3 * n)]  # each row, asked again
         assert asked == [whole.payload[i % n, :len(asked[i])].tobytes() for i in range(3 * n)]
         block = parse_block(text).block
         assert block is not None

@@ -53,9 +53,6 @@ _PAD = 160
 """Bytes after a block's last one that a gather may read (a CAN FD payload's 128 hex digits, an 8-byte word)."""
 _INDENTED = 1
 """The first byte of an indented line once the block is rewritten (``-e``'s lines under an error frame)."""
-ASKS = 8
-"""Asks for some rows' payloads after which a block makes every row's (:class:`HexPayloads`): about when the
-asks' own costs (a few numpy calls each) pass the cost of one pass over the whole block."""
 
 
 @dataclass(frozen=True)
@@ -491,33 +488,21 @@ class _Columns:
 
 
 class HexPayloads:
-    """A block's payloads as the hex digits of its lines: the bytes of the rows asked for are made then.
+    """A block's payloads as the hex digits of its lines: the bytes of the rows asked for are made then, each
+    message's as wide as its longest (a block of CAN FD and classic frames makes no 64-byte row of a classic one).
 
     ``text``: the block's text (``digits``: the same bytes as an array); ``start``: each row's first digit in it;
-    ``length``: each row's payload bytes (its digits checked by the parser). A block asked for the rows of many
-    messages (:data:`ASKS`) makes every row's bytes at once and answers from them.
+    ``length``: each row's payload bytes (its digits checked by the parser).
     """
 
-    __slots__ = ("asked", "digits", "length", "made", "start", "text")
+    __slots__ = ("digits", "length", "start", "text")
 
     def __init__(self, text: bytes, digits: np.ndarray, start: np.ndarray, length: np.ndarray) -> None:
         self.text, self.digits, self.start, self.length = text, digits, start, length
-        self.asked = 0
-        self.made: np.ndarray | None = None
-        """Every row's payload, once asked for (or once :data:`ASKS` asks have come)."""
 
     def rows(self, rows: Any) -> np.ndarray:
-        """The payloads of ``rows`` (an index array, or a slice) as a matrix, zeros past each one's length."""
-        made = self.made
-        if made is None:
-            self.asked += 1
-            if self.asked < ASKS and not isinstance(rows, slice):
-                return self._gathered(rows)
-            made = self.made = self._gathered(slice(None))
-        return made[rows]
-
-    def _gathered(self, rows: Any) -> np.ndarray:
-        """The bytes of ``rows``' digits: a ``len(rows) x longest`` matrix."""
+        """The bytes of ``rows``' digits (an index array, or a slice): a ``len(rows) x longest`` matrix, zeros past
+        each one's length."""
         start = self.start[rows]
         length = self.length[rows]
         width = int(length.max()) * 2 if start.size else 0
