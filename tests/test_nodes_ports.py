@@ -219,7 +219,7 @@ class TestPorts:
             defined.update({name: obj for name, obj in vars(module).items()
                             if inspect.isclass(obj) and obj.__module__ == module.__name__
                             and issubclass(obj, CanguardNode) and not name.startswith("_")})
-        assert set(defined) - {"CanguardNode", "GuardNode", "ConfiguredAction"} == set(BUILTIN_NODES)
+        assert set(defined) - {"CanguardNode", "DecoratorNode", "GuardNode", "ConfiguredAction"} == set(BUILTIN_NODES)
         assert all(BUILTIN_NODES[node_id] is defined[node_id] for node_id in BUILTIN_NODES)
         assert all(getattr(nodes_package, node_id) is defined[node_id] for node_id in BUILTIN_NODES)
 

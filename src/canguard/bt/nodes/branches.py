@@ -68,11 +68,7 @@ def same_case(variable: str, case: str) -> bool:
 class _Switch(CanguardNode, py_trees.composites.Composite):
     """Switch with ``CASES`` cases and a default child."""
 
-    KIND = "Control"
-    NEEDS_CONTEXT = False
     CASES = 0
-    INPUT_PORTS: dict = {}  # noqa: RUF012 - py_trees reads ports as plain class dicts
-    OUTPUT_PORTS: dict = {}  # noqa: RUF012
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
         ports = {"variable": port_info(str, "the value to compare with the cases (usually {key})")}
@@ -174,14 +170,11 @@ class Switch6(_Switch):
 class ParallelAll(CanguardNode, py_trees.composites.Composite):
     """BT.CPP ParallelAll: run every child to its end; FAILURE when max_failures of them failed."""
 
-    KIND = "Control"
-    NEEDS_CONTEXT = False
     DESCRIPTION = ("ticks every unfinished child each tick until all have finished; then FAILURE when at least "
                    "max_failures failed (negative: children + 1 + n), else SUCCESS")
     INPUT_PORTS = {  # noqa: RUF012
         "max_failures": port_info(int, "failures that make it fail (negative: children + 1 + n, -1 = all)", 1),
     }
-    OUTPUT_PORTS: dict = {}  # noqa: RUF012
 
     def __init__(self, name: str, children: Children = None, **kwargs: Any) -> None:
         super().__init__(name=name, children=children, **kwargs)
@@ -240,14 +233,11 @@ class ParallelAll(CanguardNode, py_trees.composites.Composite):
 class TryCatch(CanguardNode, py_trees.composites.Composite):
     """BT.CPP TryCatch: the first children as a sequence; on a FAILURE, the last (catch) child, then FAILURE."""
 
-    KIND = "Control"
-    NEEDS_CONTEXT = False
     DESCRIPTION = ("ticks all but the last child as a Sequence (SUCCESS when all succeed); when one fails, the "
                    "last (catch) child runs to its end and TryCatch fails; catch_on_halt: a halt runs it too")
     INPUT_PORTS = {  # noqa: RUF012
         "catch_on_halt": port_info(bool, "when halted while trying, tick the catch child once", False),
     }
-    OUTPUT_PORTS: dict = {}  # noqa: RUF012
 
     def __init__(self, name: str, children: Children = None, **kwargs: Any) -> None:
         super().__init__(name=name, children=children, **kwargs)

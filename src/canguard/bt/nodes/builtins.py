@@ -39,6 +39,7 @@ from canguard.bt.nodes.base import (
     SKIPPED,
     SUCCESS,
     CanguardNode,
+    DecoratorNode,
     PortError,
     mark_skipped,
     note_script_error,
@@ -60,9 +61,6 @@ _STATUS = {"SUCCESS": SUCCESS, "FAILURE": FAILURE, "RUNNING": RUNNING}
 class _Scripted(CanguardNode):
     """A node with scripts in ports: parsed at bind, run against its subtree's blackboard."""
 
-    NEEDS_CONTEXT = False
-    INPUT_PORTS: dict = {}  # noqa: RUF012 - py_trees reads ports as plain class dicts
-    OUTPUT_PORTS: dict = {}  # noqa: RUF012
     SCRIPT_PORTS: tuple[str, ...] = ()
     USES_BOARD = True
 
@@ -103,12 +101,8 @@ class _Scripted(CanguardNode):
 class AlwaysSuccess(CanguardNode, py_trees.behaviour.Behaviour):
     """BT.CPP AlwaysSuccess."""
 
-    KIND = "Action"
-    NEEDS_CONTEXT = False
     DESCRIPTION = "SUCCESS"
     QUIET_RETICK = True
-    INPUT_PORTS: dict = {}  # noqa: RUF012
-    OUTPUT_PORTS: dict = {}  # noqa: RUF012
 
     def update(self) -> py_trees.common.Status:
         return SUCCESS
@@ -117,12 +111,8 @@ class AlwaysSuccess(CanguardNode, py_trees.behaviour.Behaviour):
 class AlwaysFailure(CanguardNode, py_trees.behaviour.Behaviour):
     """BT.CPP AlwaysFailure."""
 
-    KIND = "Action"
-    NEEDS_CONTEXT = False
     DESCRIPTION = "FAILURE"
     QUIET_RETICK = True
-    INPUT_PORTS: dict = {}  # noqa: RUF012
-    OUTPUT_PORTS: dict = {}  # noqa: RUF012
 
     def update(self) -> py_trees.common.Status:
         return FAILURE
@@ -131,7 +121,6 @@ class AlwaysFailure(CanguardNode, py_trees.behaviour.Behaviour):
 class Script(_Scripted, py_trees.behaviour.Behaviour):
     """BT.CPP Script: run ``code``; SUCCESS."""
 
-    KIND = "Action"
     DESCRIPTION = "runs code (BT.CPP scripting) on the blackboard: SUCCESS (FAILURE if it fails at run time)"
     INPUT_PORTS = {"code": port_info(str, "the script, e.g. count := count + 1")}  # noqa: RUF012
     SCRIPT_PORTS = ("code",)
@@ -162,7 +151,6 @@ class ScriptCondition(_Scripted, py_trees.behaviour.Behaviour):
 class SetBlackboard(_Scripted, py_trees.behaviour.Behaviour):
     """BT.CPP SetBlackboard: ``value`` into the entry named by ``output_key``."""
 
-    KIND = "Action"
     DESCRIPTION = "writes value into the blackboard entry named by output_key: SUCCESS"
     UNTYPED_PORTS = frozenset({"value", "output_key"})  # BT.CPP: AnyTypeAllowed
     INPUT_PORTS = {  # noqa: RUF012
@@ -199,7 +187,6 @@ class SetBlackboard(_Scripted, py_trees.behaviour.Behaviour):
 class UnsetBlackboard(_Scripted, py_trees.behaviour.Behaviour):
     """BT.CPP UnsetBlackboard: remove the entry ``key``."""
 
-    KIND = "Action"
     DESCRIPTION = "removes the blackboard entry key: SUCCESS"
     UNTYPED_PORTS = frozenset({"key"})
     INPUT_PORTS = {"key": port_info(str, "the entry to remove")}  # noqa: RUF012
@@ -214,11 +201,8 @@ class UnsetBlackboard(_Scripted, py_trees.behaviour.Behaviour):
 class Sleep(CanguardNode, py_trees.behaviour.Behaviour):
     """BT.CPP Sleep: RUNNING for ``msec`` on the engine's clock, then SUCCESS."""
 
-    KIND = "Action"
-    NEEDS_CONTEXT = True
     DESCRIPTION = "RUNNING until msec have elapsed (the engine's clock), then SUCCESS"
     INPUT_PORTS = {"msec": port_info(float, "how long (ms)")}  # noqa: RUF012
-    OUTPUT_PORTS: dict = {}  # noqa: RUF012
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
@@ -240,14 +224,10 @@ class Sleep(CanguardNode, py_trees.behaviour.Behaviour):
         self.cancel_timer()
 
 
-class KeepRunningUntilFailure(CanguardNode, py_trees.decorators.Decorator):
+class KeepRunningUntilFailure(DecoratorNode):
     """BT.CPP KeepRunningUntilFailure: SUCCESS -> RUNNING; FAILURE ends it."""
 
-    KIND = "Decorator"
-    NEEDS_CONTEXT = False
     DESCRIPTION = "the child's SUCCESS becomes RUNNING (it is ticked again next time); FAILURE ends it"
-    INPUT_PORTS: dict = {}  # noqa: RUF012
-    OUTPUT_PORTS: dict = {}  # noqa: RUF012
     SKIP_THROUGH = False  # BT.CPP: a skipped child leaves it RUNNING
 
     def update(self) -> py_trees.common.Status:
@@ -255,10 +235,9 @@ class KeepRunningUntilFailure(CanguardNode, py_trees.decorators.Decorator):
         return RUNNING if status in (SUCCESS, INVALID) else status
 
 
-class Precondition(_Scripted, py_trees.decorators.Decorator):
+class Precondition(_Scripted, DecoratorNode):
     """BT.CPP Precondition: tick the child while ``if`` holds, else return ``else``."""
 
-    KIND = "Decorator"
     DESCRIPTION = "ticks the child when the script if is true (and while it runs); else returns else"
     INPUT_PORTS = {  # noqa: RUF012
         "if": port_info(str, "the condition (BT.CPP scripting)"),
@@ -291,18 +270,11 @@ class Precondition(_Scripted, py_trees.decorators.Decorator):
                 return
         yield from super().tick()
 
-    def update(self) -> py_trees.common.Status:
-        return self.decorated.status
-
 
 class _Branching(CanguardNode, py_trees.composites.Composite):
     """IfThenElse / WhileDoElse: the first child decides, the second or third runs."""
 
-    KIND = "Control"
-    NEEDS_CONTEXT = False
     REACTIVE = False
-    INPUT_PORTS: dict = {}  # noqa: RUF012
-    OUTPUT_PORTS: dict = {}  # noqa: RUF012
 
     def __init__(self, name: str, children: Children = None, **kwargs: Any) -> None:
         super().__init__(name=name, children=children, **kwargs)

@@ -180,7 +180,6 @@ class IsCurrentNormal(GuardNode):
         "topic_name": port_info(str, "source name (battery or current kind) from the config"),
         "max_current": port_info(float, "maximum allowed |current| (A)", 30.0),
     }
-    OUTPUT_PORTS = {}  # noqa: RUF012
     model: Threshold
 
     def _build(self, source: SourceConfig) -> None:
@@ -229,7 +228,6 @@ class IsCurrentSafe(GuardNode):
             float, "|I| above this counts as a motor start (A); needed with inrush_time", required=False
         ),
     }
-    OUTPUT_PORTS = {}  # noqa: RUF012
     CONST_PORTS = frozenset(
         {"topic_name", "trip_after", "recover_after", "inrush_time", "inrush_threshold", "start_current"}
     )

@@ -28,7 +28,6 @@ class IsJointEffortNormal(GuardNode):
         "topic_name": port_info(str, "source name (joints kind) from the config"),
         "max_effort": port_info(float, "maximum allowed |effort| of any joint (N·m or N)", 100.0),
     }
-    OUTPUT_PORTS = {}  # noqa: RUF012
     SOURCE_KINDS = ("joints",)
     failed_joint = ""
     """The joint the feedback names (the first failing one)."""

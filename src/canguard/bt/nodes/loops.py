@@ -18,7 +18,16 @@ from typing import Any
 import py_trees
 from py_trees.blackboard import Blackboard
 
-from canguard.bt.nodes.base import FAILURE, RUNNING, SKIPPED, SUCCESS, CanguardNode, PortError, mark_skipped, port_info
+from canguard.bt.nodes.base import (
+    FAILURE,
+    RUNNING,
+    SKIPPED,
+    SUCCESS,
+    DecoratorNode,
+    PortError,
+    mark_skipped,
+    port_info,
+)
 
 _EMPTY: dict[str, py_trees.common.Status | str] = {"SUCCESS": SUCCESS, "FAILURE": FAILURE, "SKIPPED": SKIPPED}
 _BOOLS = {"true": True, "false": False, "1": True, "0": False}
@@ -31,14 +40,10 @@ def _to_bool(text: str) -> bool:
         raise ValueError(f"{text!r} is not a bool (true/false/1/0)") from None
 
 
-class _Loop(CanguardNode, py_trees.decorators.Decorator):
+class _Loop(DecoratorNode):
     """A loop over a queue of ``ITEM`` values."""
 
-    KIND = "Decorator"
-    NEEDS_CONTEXT = False
     ITEM: type = str
-    INPUT_PORTS: dict = {}  # noqa: RUF012 - py_trees reads ports as plain class dicts
-    OUTPUT_PORTS: dict = {}  # noqa: RUF012
     CHOICES = {"if_empty": ("SUCCESS", "FAILURE", "SKIPPED")}  # noqa: RUF012
     SKIP_THROUGH = False  # BT.CPP's loop_node.h: a skipped child leaves the loop RUNNING
     UNTYPED_PORTS = frozenset({"queue"})  # BT.CPP: an untyped BidirectionalPort (a list, a vector or a string)
@@ -120,9 +125,6 @@ class _Loop(CanguardNode, py_trees.decorators.Decorator):
         else:
             self.status = RUNNING
         yield self
-
-    def update(self) -> py_trees.common.Status:
-        return self.status
 
 
 class LoopInt(_Loop):

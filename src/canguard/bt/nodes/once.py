@@ -21,6 +21,7 @@ from canguard.bt.nodes.base import (
     RUNNING,
     SUCCESS,
     CanguardNode,
+    DecoratorNode,
     mark_skipped,
     port_info,
 )
@@ -80,11 +81,9 @@ class WasEntryUpdated(CanguardNode, py_trees.behaviour.Behaviour):
     """BT.CPP WasEntryUpdated: SUCCESS when ``entry`` was written since this node last looked, else FAILURE."""
 
     KIND = "Condition"
-    NEEDS_CONTEXT = False
     DESCRIPTION = "SUCCESS when the entry was written since the last tick of this node (same value too)"
     INPUT_PORTS = dict(_ENTRY)  # noqa: RUF012
     UNTYPED_PORTS = frozenset({"entry"})  # BT.CPP: InputPort<BT::Any>
-    OUTPUT_PORTS: dict = {}  # noqa: RUF012
 
     def __init__(self, name: str, **kwargs: Any) -> None:
         super().__init__(name=name, **kwargs)
@@ -102,14 +101,11 @@ class WasEntryUpdated(CanguardNode, py_trees.behaviour.Behaviour):
         return SUCCESS if previous != current else FAILURE
 
 
-class _EntryUpdated(CanguardNode, py_trees.decorators.Decorator):
+class _EntryUpdated(DecoratorNode):
     """BT.CPP's EntryUpdatedDecorator: tick the child only when ``entry`` was written since the last look."""
 
-    KIND = "Decorator"
-    NEEDS_CONTEXT = False
     INPUT_PORTS = dict(_ENTRY)  # noqa: RUF012
     UNTYPED_PORTS = frozenset({"entry"})  # BT.CPP: InputPort<BT::Any>
-    OUTPUT_PORTS: dict = {}  # noqa: RUF012
     IF_NOT_UPDATED: str = "SKIPPED"
 
     def __init__(self, name: str, child: py_trees.behaviour.Behaviour, **kwargs: Any) -> None:
@@ -138,9 +134,6 @@ class _EntryUpdated(CanguardNode, py_trees.decorators.Decorator):
         yield from super().tick()
         self.still_running = self.status == RUNNING
 
-    def update(self) -> py_trees.common.Status:
-        return self.decorated.status
-
     def terminate(self, new_status: py_trees.common.Status) -> None:
         if new_status == py_trees.common.Status.INVALID:
             self.still_running = False
@@ -160,16 +153,13 @@ class WaitValueUpdate(_EntryUpdated):
     IF_NOT_UPDATED = "RUNNING"
 
 
-class RunOnce(CanguardNode, py_trees.decorators.Decorator):
+class RunOnce(DecoratorNode):
     """BT.CPP RunOnce: the child runs to completion once; then SKIPPED (``then_skip``) or that status forever."""
 
-    KIND = "Decorator"
-    NEEDS_CONTEXT = False
     DESCRIPTION = "runs the child once; afterwards SKIPPED (then_skip=true) or the child's first result"
     INPUT_PORTS = {  # noqa: RUF012
         "then_skip": port_info(bool, "after the first run: true = SKIPPED, false = the status it returned", True),
     }
-    OUTPUT_PORTS: dict = {}  # noqa: RUF012
 
     def __init__(self, name: str, child: py_trees.behaviour.Behaviour, **kwargs: Any) -> None:
         super().__init__(name=name, child=child, **kwargs)

@@ -39,22 +39,19 @@ from typing import Any
 import py_trees
 from py_trees.blackboard import Blackboard
 
-from canguard.bt.nodes.base import RUNNING, CanguardNode, halted, port_info
+from canguard.bt.nodes.base import RUNNING, DecoratorNode, halted, port_info
 
 
-class Profile(CanguardNode, py_trees.decorators.Decorator):
+class Profile(DecoratorNode):
     """Times the child's tick; outputs last_ms, avg_ms, max_ms, count; returns the child's status."""
 
-    KIND = "Decorator"
     DESCRIPTION = "transparent: times its child's tick, outputs last/avg/max ms and count; resets on halt"
-    INPUT_PORTS = {}  # noqa: RUF012 - py_trees reads ports as plain class dicts
     OUTPUT_PORTS = {  # noqa: RUF012
         "last_ms": port_info(float, "duration of the child's last tick (ms)", required=False),
         "avg_ms": port_info(float, "mean duration since the last reset (ms)", required=False),
         "max_ms": port_info(float, "longest duration since the last reset (ms)", required=False),
         "count": port_info(int, "ticks measured since the last reset", required=False),
     }
-    NEEDS_CONTEXT = False
 
     def __init__(self, name: str, child: py_trees.behaviour.Behaviour, **kwargs: Any) -> None:
         super().__init__(name=name, child=child, **kwargs)
@@ -107,10 +104,6 @@ class Profile(CanguardNode, py_trees.decorators.Decorator):
         storage = Blackboard.storage
         for name, key in self._outputs:
             storage[key] = getattr(self, name)
-
-    def update(self) -> py_trees.common.Status:
-        """Transparent: the child's status."""
-        return self.decorated.status
 
     def terminate(self, new_status: py_trees.common.Status) -> None:
         """Reset the statistics on a halt (interrupted while RUNNING), as note 003 says."""

@@ -119,7 +119,6 @@ class IsElapsedTimeCompare(_TimerUser, py_trees.behaviour.Behaviour):
             required=False,
         ),
     }
-    OUTPUT_PORTS = {}  # noqa: RUF012
     CHOICES = {"operator": OPERATORS, "reference": REFERENCES}  # noqa: RUF012
     KEY_PORTS = frozenset({"timer"})
 
@@ -196,7 +195,6 @@ class IsElapsedSinceEvent(CanguardNode, py_trees.behaviour.Behaviour):
         "min_elapsed_sec": port_info(float, "window start after the event (s)", 0.0),
         "max_elapsed_sec": port_info(float, "window end after the event (s)", math.inf),
     }
-    OUTPUT_PORTS = {}  # noqa: RUF012
 
     def update(self) -> py_trees.common.Status:
         """FAILURE outside the window and while no event time has been written."""
@@ -220,7 +218,6 @@ class IsCooldownElapsed(CanguardNode, py_trees.behaviour.Behaviour):
         "cooldown_sec": port_info(float, "minimum time between two executions (s)", 5.0),
         "last_execution_time": port_info(float, "time of the last execution (s), e.g. {last_recovery_time}", 0.0),
     }
-    OUTPUT_PORTS = {}  # noqa: RUF012
 
     def update(self) -> py_trees.common.Status:
         """As note 000: a missing or non-positive last time means "never executed"."""
@@ -240,9 +237,7 @@ class IsCooldownElapsed(CanguardNode, py_trees.behaviour.Behaviour):
 class ResetTimer(_TimerUser, py_trees.behaviour.Behaviour):
     """Restarts a timer: the named one, or the nearest own timers (module docstring); SUCCESS."""
 
-    KIND = "Action"
     DESCRIPTION = "restart a timer: write now to its key (default: the nearest comparisons' own timers)"
-    INPUT_PORTS = {}  # noqa: RUF012
     OUTPUT_PORTS = {  # noqa: RUF012
         "timer": port_info(
             float,
@@ -294,9 +289,7 @@ class ResetTimer(_TimerUser, py_trees.behaviour.Behaviour):
 class RecordTime(CanguardNode, py_trees.behaviour.Behaviour):
     """Writes now to ``output_time``; SUCCESS (e.g. {mission_start_time} for IsElapsedSinceEvent)."""
 
-    KIND = "Action"
     DESCRIPTION = "write the current time (s) to output_time"
-    INPUT_PORTS = {}  # noqa: RUF012
     OUTPUT_PORTS = {  # noqa: RUF012
         "output_time": port_info(float, "blackboard key that receives the current time (s)"),
     }

@@ -20,8 +20,6 @@ class _Compare(CanguardNode, py_trees.behaviour.Behaviour):
         "value": port_info(float, "the value to check, usually a {key}"),
         "threshold": port_info(float, "the limit"),
     }
-    OUTPUT_PORTS = {}  # noqa: RUF012
-    NEEDS_CONTEXT = False
     SYMBOL = "?"
 
     def holds(self, value: float, threshold: float) -> bool:
