@@ -31,7 +31,7 @@ they take the client's path, so the stream stays complete.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Generator, Iterator, Mapping
+from collections.abc import Callable, Generator, Iterable, Iterator, Mapping
 from typing import Any, ClassVar, Literal
 
 import py_trees
@@ -76,6 +76,33 @@ def mark_skipped(node: py_trees.behaviour.Behaviour) -> None:
     if node.status != INVALID:
         node.stop(INVALID)
     node.skipped = True  # type: ignore[attr-defined]
+
+
+def halt_running(children: Iterable[py_trees.behaviour.Behaviour]) -> None:
+    """Halt every one of ``children`` that is RUNNING."""
+    for child in children:
+        if child.status == RUNNING:
+            child.stop(INVALID)
+
+
+def reset(children: Iterable[py_trees.behaviour.Behaviour]) -> None:
+    """Every one of ``children`` back to IDLE (BT.CPP's ``resetChildren``: a new run starts from IDLE)."""
+    for child in children:
+        if child.status != INVALID:
+            child.stop(INVALID)
+
+
+def follow(node: py_trees.composites.Composite, child: py_trees.behaviour.Behaviour) -> Iterator[Any]:
+    """Tick ``child`` and give ``node`` what it returned (RUNNING, SUCCESS, FAILURE or SKIPPED)."""
+    node.current_child = child
+    yield from tick_child(child)
+    if outcome(child) == SKIPPED:
+        mark_skipped(node)
+    elif child.status == RUNNING:
+        node.status = RUNNING
+    else:
+        node.stop(child.status)
+    yield node
 
 
 def note_script_error(node: py_trees.behaviour.Behaviour, attr: str, script: str, error: Exception) -> None:

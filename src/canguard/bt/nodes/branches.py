@@ -33,14 +33,18 @@ from canguard.bt.nodes.base import (
     SKIPPED,
     SUCCESS,
     CanguardNode,
+    Children,
     PortError,
+    follow,
+    halt_running,
     mark_skipped,
+    node_types,
     outcome,
     port_info,
+    reset,
     tick_child,
 )
 
-Children = list[py_trees.behaviour.Behaviour] | None
 _INT = re.compile(r"-?[0-9]+\Z")
 _REAL = re.compile(r"-?([0-9]+\.?[0-9]*|\.[0-9]+)([eE][-+]?[0-9]+)?\Z")
 
@@ -75,7 +79,6 @@ class _Switch(CanguardNode, py_trees.composites.Composite):
         for i in range(1, cls.CASES + 1):
             ports[f"case_{i}"] = port_info(str, f"the value that selects child {i}", required=False)
         cls.INPUT_PORTS = ports
-        cls.OUTPUT_PORTS = {}
         cls.DESCRIPTION = (f"ticks the child of the first case_1..case_{cls.CASES} equal to variable "
                            f"(as text or number), else the last (default) child; a change halts the running one")
         super().__init_subclass__(**kwargs)
@@ -115,56 +118,17 @@ class _Switch(CanguardNode, py_trees.composites.Composite):
         index = self.match()
         if self.running not in (-1, index):
             self.children[self.running].stop(INVALID)
-        child = self.children[index]
-        self.current_child = child
-        yield from tick_child(child)
-        if outcome(child) == SKIPPED:  # BT.CPP: the matching child skipped, the switch too
-            self.running = -1
-            mark_skipped(self)
-        elif child.status == RUNNING:
-            self.running = index
-            self.status = RUNNING
-        else:
-            self.running = -1
-            self.stop(child.status)
-        yield self
+        yield from follow(self, self.children[index])  # BT.CPP: the matching child skipped, the switch too
+        self.running = index if self.status == RUNNING else -1
 
     def stop(self, new_status: py_trees.common.Status = INVALID) -> None:
-        for child in self.children:
-            if child.status == RUNNING:
-                child.stop(INVALID)
+        halt_running(self.children)
         self.running = -1
         super().stop(new_status)
 
 
-class Switch2(_Switch):
-    """BT.CPP Switch2."""
-
-    CASES = 2
-
-
-class Switch3(_Switch):
-    """BT.CPP Switch3."""
-
-    CASES = 3
-
-
-class Switch4(_Switch):
-    """BT.CPP Switch4."""
-
-    CASES = 4
-
-
-class Switch5(_Switch):
-    """BT.CPP Switch5."""
-
-    CASES = 5
-
-
-class Switch6(_Switch):
-    """BT.CPP Switch6."""
-
-    CASES = 6
+Switch2, Switch3, Switch4, Switch5, Switch6 = node_types(
+    _Switch, __name__, {f"Switch{n}": {"CASES": n} for n in range(2, 7)})
 
 
 class ParallelAll(CanguardNode, py_trees.composites.Composite):
@@ -193,9 +157,7 @@ class ParallelAll(CanguardNode, py_trees.composites.Composite):
 
     def tick(self) -> Any:
         if self.status != RUNNING:
-            for child in self.children:
-                if child.status != INVALID:
-                    child.stop(INVALID)
+            reset(self.children)
             self.finished.clear()
             self.initialise()
         skipped = 0
@@ -222,9 +184,7 @@ class ParallelAll(CanguardNode, py_trees.composites.Composite):
         yield self
 
     def stop(self, new_status: py_trees.common.Status = INVALID) -> None:
-        for child in self.children:
-            if child.status == RUNNING:
-                child.stop(INVALID)
+        halt_running(self.children)
         if new_status == INVALID:
             self.finished.clear()
         super().stop(new_status)
@@ -270,9 +230,7 @@ class TryCatch(CanguardNode, py_trees.composites.Composite):
                 return
             if child.status == FAILURE:
                 self.in_catch = True
-                for other in tries:
-                    if other.status != INVALID:
-                        other.stop(INVALID)
+                reset(tries)
             else:
                 self.index += 1
         if not self.in_catch:
@@ -295,16 +253,10 @@ class TryCatch(CanguardNode, py_trees.composites.Composite):
     def stop(self, new_status: py_trees.common.Status = INVALID) -> None:
         if (new_status == INVALID and self.status == RUNNING and not self.in_catch
                 and self.port("catch_on_halt")):
-            for child in self.children[:-1]:
-                if child.status == RUNNING:
-                    child.stop(INVALID)
+            halt_running(self.children[:-1])
             for _ in self.children[-1].tick():
                 pass
-        for child in self.children:
-            if child.status == RUNNING:
-                child.stop(INVALID)
+        halt_running(self.children)
         self.index, self.in_catch = 0, False
         super().stop(new_status)
 
-
-NODES = (Switch2, Switch3, Switch4, Switch5, Switch6, ParallelAll, TryCatch)

@@ -39,8 +39,11 @@ from canguard.bt.nodes.base import (
     SKIPPED,
     SUCCESS,
     CanguardNode,
+    Children,
     DecoratorNode,
     PortError,
+    follow,
+    halt_running,
     mark_skipped,
     note_script_error,
     outcome,
@@ -53,7 +56,6 @@ from canguard.bt.scripting import ScriptError
 if TYPE_CHECKING:
     from canguard.bt.scripting import Script as ParsedScript
 
-Children = list[py_trees.behaviour.Behaviour] | None
 _NOTHING = object()
 _STATUS = {"SUCCESS": SUCCESS, "FAILURE": FAILURE, "RUNNING": RUNNING}
 
@@ -305,22 +307,10 @@ class _Branching(CanguardNode, py_trees.composites.Composite):
             self.stop(FAILURE)
             yield self
             return
-        child = self.children[self.branch]
-        self.current_child = child
-        yield from tick_child(child)
-        if outcome(child) == SKIPPED:  # the branch skipped: so is this node (BT.CPP returns its status)
-            self.branch = 0
-            mark_skipped(self)
-        elif child.status == RUNNING:
-            self.status = RUNNING
-        else:
-            self.stop(child.status)
-        yield self
+        yield from follow(self, self.children[self.branch])  # BT.CPP returns the branch's status, SKIPPED too
 
     def stop(self, new_status: py_trees.common.Status = INVALID) -> None:
-        for child in self.children:
-            if child.status == RUNNING:
-                child.stop(INVALID)
+        halt_running(self.children)
         super().stop(new_status)
 
 
@@ -336,6 +326,3 @@ class WhileDoElse(_Branching):
     DESCRIPTION = "like IfThenElse, but the first child is ticked every time: a change halts the running branch"
     REACTIVE = True
 
-
-NODES = (AlwaysSuccess, AlwaysFailure, Script, ScriptCondition, SetBlackboard, UnsetBlackboard, Sleep,
-         KeepRunningUntilFailure, Precondition, IfThenElse, WhileDoElse)

@@ -66,6 +66,7 @@ from canguard.bt.nodes.base import (
     mark_skipped,
     outcome,
     port_info,
+    reset,
     tick_child,
 )
 
@@ -110,9 +111,7 @@ class Parallel(CanguardNode, py_trees.composites.Parallel):
     def tick(self) -> Any:
         """Tick the unfinished children; decide after each one, as BT.CPP does."""
         if self.status != RUNNING:
-            for child in self.children:
-                if child.status != INVALID:
-                    child.stop(INVALID)
+            reset(self.children)
             self.finished.clear()
             self.current_child = None
             self.initialise()

@@ -26,6 +26,7 @@ from canguard.bt.nodes.base import (
     DecoratorNode,
     PortError,
     mark_skipped,
+    node_types,
     port_info,
 )
 
@@ -127,28 +128,5 @@ class _Loop(DecoratorNode):
         yield self
 
 
-class LoopInt(_Loop):
-    """BT.CPP LoopInt."""
-
-    ITEM = int
-
-
-class LoopDouble(_Loop):
-    """BT.CPP LoopDouble."""
-
-    ITEM = float
-
-
-class LoopString(_Loop):
-    """BT.CPP LoopString."""
-
-    ITEM = str
-
-
-class LoopBool(_Loop):
-    """BT.CPP LoopBool."""
-
-    ITEM = bool
-
-
-NODES = (LoopInt, LoopDouble, LoopString, LoopBool)
+LoopInt, LoopDouble, LoopString, LoopBool = node_types(_Loop, __name__, {
+    "LoopInt": {"ITEM": int}, "LoopDouble": {"ITEM": float}, "LoopString": {"ITEM": str}, "LoopBool": {"ITEM": bool}})

@@ -183,5 +183,3 @@ class RunOnce(DecoratorNode):
             self.returned = status
         return status
 
-
-NODES = (RunOnce, WasEntryUpdated, SkipUnlessUpdated, WaitValueUpdate)

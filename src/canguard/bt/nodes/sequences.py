@@ -18,6 +18,7 @@ from canguard.bt.nodes.base import (
     mark_skipped,
     node_types,
     outcome,
+    reset,
     tick_child,
 )
 
@@ -64,9 +65,7 @@ class _Ordered(CanguardNode, py_trees.composites.Composite):
         if self.status != RUNNING:
             self.skipped_count = 0
             # py_trees' way of BT.CPP's resetChildren: a new run starts from IDLE children
-            for child in children[0 if self.REACTIVE else self.index:]:
-                if child.status != INVALID:
-                    child.stop(INVALID)
+            reset(children[0 if self.REACTIVE else self.index:])
             self.initialise()
         if self.REACTIVE:
             yield from self._tick_reactive(children)
@@ -86,9 +85,7 @@ class _Ordered(CanguardNode, py_trees.composites.Composite):
                 self.skipped_count += 1
                 continue
             if result != self.GO_ON:  # the run ends with this child's status
-                for later in children[self.index + 1:]:
-                    if later.status != INVALID:
-                        later.stop(INVALID)
+                reset(children[self.index + 1:])
                 if not self.KEEP_ON_STOP:
                     self.index = 0
                 self.stop(child.status)
