@@ -19,13 +19,14 @@ from __future__ import annotations
 
 import math
 import re
+from collections.abc import Callable, Iterable
 from typing import Any, ClassVar
 
 import py_trees
 
 from canguard.bt.nodes.base import FAILURE, SUCCESS, CanguardNode, PortError, port_info
 from canguard.config.schema import SourceConfig, SourceKind
-from canguard.protect.base import REASON_I2T, REASON_NO_DATA, LatchedModel, ProtectionModel, Snapshot
+from canguard.protect.base import REASON_I2T, REASON_NO_DATA, ProtectionModel, Snapshot
 from canguard.protect.hysteresis import Hysteresis
 from canguard.protect.i2t import RATED_OVERLOAD, RATED_OVERLOAD_S, LeakyI2t, ThermalI2t
 from canguard.protect.inrush import InrushBlanking
@@ -34,13 +35,6 @@ from canguard.protect.threshold import Threshold
 from canguard.units import quantity
 
 REASON_BAD_THRESHOLD = "bad_threshold"
-
-
-def reapply(model: LatchedModel) -> None:
-    """Judge the latest sample again under new thresholds (a repeated timestamp is a normal sample)."""
-    t = model.last_t
-    if t is not None:
-        model.advance((t,), (model.snapshot().value,))
 
 
 class GuardNode(CanguardNode, py_trees.behaviour.Behaviour):
@@ -111,6 +105,26 @@ class GuardNode(CanguardNode, py_trees.behaviour.Behaviour):
             text = re.sub(rf"\b{param}\b", names[param], text)
         return PortError(found[min(found)] if found else next(iter(names.values())), text)
 
+    def _reread(self, ports: tuple[str, ...], models: Iterable[Any], limits: Callable[[Any], tuple],
+                apply: Callable[..., None]) -> str:
+        """Thresholds wired to ``{key}``s, read again at tick: a change is applied to ``models`` and their latest
+        sample judged again under it (a repeated timestamp is a normal sample); REASON_BAD_THRESHOLD when one
+        holds nothing or a value the model refuses."""
+        if not self._dynamic:
+            return ""
+        values = tuple(self.port(p) for p in ports)
+        try:
+            if None in values:
+                raise ValueError
+            for model in models:
+                if limits(model) != values:
+                    apply(model, *values)
+                    if model.last_t is not None:
+                        model.advance((model.last_t,), (model.snapshot().value,))
+        except ValueError:
+            return REASON_BAD_THRESHOLD
+        return ""
+
     def _judge(self, now: float, snap: Snapshot, reason: str, value: float | None = None) -> py_trees.common.Status:
         """A port problem (``reason``) first, then the source's health, then the model's latched
         state: SUCCESS or FAILURE, with status changes journalled. ``value`` overrides the
@@ -150,26 +164,8 @@ class GuardNode(CanguardNode, py_trees.behaviour.Behaviour):
         if ok is prev or (prev is None and ok):
             return  # same status, another reason: feedback only
         assert self.source is not None
-        if ok:
-            self.ctx.record(
-                "recover",
-                node=self.name,
-                source=self.source.name,
-                signal=role,
-                value=value,
-                threshold=threshold,
-                reason="",
-            )
-        else:
-            self.ctx.record(
-                "trip",
-                node=self.name,
-                source=self.source.name,
-                signal=role,
-                value=value,
-                threshold=threshold,
-                reason=reason,
-            )
+        self.ctx.record("recover" if ok else "trip", node=self.name, source=self.source.name, signal=role,
+                        value=value, threshold=threshold, reason=reason)
 
 
 class IsCurrentNormal(GuardNode):
@@ -192,19 +188,8 @@ class IsCurrentNormal(GuardNode):
     def update(self) -> py_trees.common.Status:
         """Health first, then the model's latched state."""
         now = self._clock.now()
-        model = self.model
-        reason = ""
-        if self._dynamic:
-            limit = self.port("max_current")
-            try:
-                if limit is None:
-                    raise ValueError
-                if limit != model.max_value:
-                    model.set_max(limit)
-                    reapply(model)
-            except ValueError:
-                reason = REASON_BAD_THRESHOLD
-        return self._judge(now, model.poll(now), reason)
+        reason = self._reread(("max_current",), (self.model,), lambda m: (m.max_value,), Threshold.set_max)
+        return self._judge(now, self.model.poll(now), reason)
 
 
 class IsCurrentSafe(GuardNode):
@@ -272,20 +257,9 @@ class IsCurrentSafe(GuardNode):
     def update(self) -> py_trees.common.Status:
         """Health first, then the hysteresis state (latched)."""
         now = self._clock.now()
-        model = self.model
-        reason = ""
-        if self._dynamic:
-            over = self.port("overcurrent_threshold")
-            rec = self.port("recovery_threshold")
-            try:
-                if over is None or rec is None:
-                    raise ValueError
-                if over != model.overcurrent_a or rec != model.recovery_a:
-                    model.set_thresholds(over, rec)
-                    reapply(model)
-            except ValueError:
-                reason = REASON_BAD_THRESHOLD
-        return self._judge(now, model.poll(now), reason)
+        reason = self._reread(("overcurrent_threshold", "recovery_threshold"), (self.model,),
+                              lambda m: (m.overcurrent_a, m.recovery_a), Hysteresis.set_thresholds)
+        return self._judge(now, self.model.poll(now), reason)
 
 
 class IsI2tSafe(GuardNode):

@@ -14,7 +14,7 @@ import math
 import py_trees
 
 from canguard.bt.nodes.base import FAILURE, SUCCESS, PortError, port_info
-from canguard.bt.nodes.current import REASON_BAD_THRESHOLD, GuardNode, reapply
+from canguard.bt.nodes.current import GuardNode
 from canguard.config.schema import SourceConfig
 from canguard.protect.base import REASON_NO_DATA, ProtectionModel
 from canguard.protect.threshold import Threshold
@@ -53,18 +53,7 @@ class IsJointEffortNormal(GuardNode):
         self.judged_t = now  # the engine checks that a running task's guards keep being ticked (T4)
         health = self.health
         assert health is not None
-        bad = ""
-        if self._dynamic:
-            limit = self.port("max_effort")
-            try:
-                if limit is None:
-                    raise ValueError
-                for _, m in self.models:
-                    if m.max_value != limit:
-                        m.set_max(limit)
-                        reapply(m)
-            except ValueError:
-                bad = REASON_BAD_THRESHOLD
+        bad = self._reread(("max_effort",), (m for _, m in self.models), lambda m: (m.max_value,), Threshold.set_max)
         failed: tuple[str, str, float, float] | None = None
         for role, model in self.models:
             snap = model.poll(now)  # poll every joint: each latch restarts at every tick
