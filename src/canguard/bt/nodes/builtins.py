@@ -27,7 +27,7 @@ and read and write the blackboard of the node's (sub)tree.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import py_trees
 from py_trees.blackboard import Blackboard
@@ -42,9 +42,11 @@ from canguard.bt.nodes.base import (
     Children,
     DecoratorNode,
     PortError,
+    Status,
     follow,
     halt_running,
     mark_skipped,
+    node_types,
     note_script_error,
     outcome,
     port_info,
@@ -100,24 +102,19 @@ class _Scripted(CanguardNode):
             raise
 
 
-class AlwaysSuccess(CanguardNode, py_trees.behaviour.Behaviour):
-    """BT.CPP AlwaysSuccess."""
+class _Always(CanguardNode, py_trees.behaviour.Behaviour):
+    """BT.CPP AlwaysSuccess / AlwaysFailure: ``RESULT``."""
 
-    DESCRIPTION = "SUCCESS"
     QUIET_RETICK = True
+    RESULT: ClassVar[Status]
 
     def update(self) -> py_trees.common.Status:
-        return SUCCESS
+        return self.RESULT
 
 
-class AlwaysFailure(CanguardNode, py_trees.behaviour.Behaviour):
-    """BT.CPP AlwaysFailure."""
-
-    DESCRIPTION = "FAILURE"
-    QUIET_RETICK = True
-
-    def update(self) -> py_trees.common.Status:
-        return FAILURE
+AlwaysSuccess, AlwaysFailure = node_types(_Always, __name__, {
+    "AlwaysSuccess": {"RESULT": SUCCESS, "DESCRIPTION": "SUCCESS"},
+    "AlwaysFailure": {"RESULT": FAILURE, "DESCRIPTION": "FAILURE"}})
 
 
 class Script(_Scripted, py_trees.behaviour.Behaviour):
