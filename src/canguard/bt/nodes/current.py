@@ -50,6 +50,8 @@ class GuardNode(CanguardNode, py_trees.behaviour.Behaviour):
     """A guard answers from its source's health and its models: quiet when the models are sample-driven."""
     QUIET_OUTPUTS: ClassVar[frozenset[str]] = frozenset()
     """Output ports a quiet re-tick writes again (:meth:`quiet_retick`); another wired output makes it loud."""
+    _NAMES: ClassVar[dict[str, str]] = {"max_value": "max_current"}
+    """The models' parameter names -> the ports that give them (errors are said in port names)."""
     model: ProtectionModel
 
     def __init__(self, name: str, **kwargs: Any) -> None:
@@ -77,7 +79,12 @@ class GuardNode(CanguardNode, py_trees.behaviour.Behaviour):
             raise PortError("topic_name", str(exc.args[0])) from None
         self.health = self.ctx.health[name]
         self._clock = self.ctx.clock
-        self._build(self.source)
+        try:
+            self._build(self.source)
+        except PortError:
+            raise
+        except ValueError as exc:  # a model refused a value: said in the names of the ports
+            raise self._model_error(exc) from None
 
     def _build(self, source: SourceConfig) -> None:
         raise NotImplementedError
@@ -90,11 +97,12 @@ class GuardNode(CanguardNode, py_trees.behaviour.Behaviour):
         """``(role, model, kind)`` per guarded signal; kind is ``threshold`` or ``i2t`` (reports, plots)."""
         return [(self.ROLE, self.model, self.MODEL_KIND)]
 
-    def _model_error(self, exc: ValueError, names: dict[str, str]) -> PortError:
+    def _model_error(self, exc: ValueError) -> PortError:
         """A model's ValueError as a PortError on the port holding the first parameter it names.
 
-        The message is rewritten in port names (``recovery_a`` -> ``recovery_threshold``).
+        The message is rewritten in port names (``recovery_a`` -> ``recovery_threshold``, by ``_NAMES``).
         """
+        names = self._NAMES
         text = str(exc)
         found = {}
         for param, port_name in names.items():
@@ -179,10 +187,7 @@ class IsCurrentNormal(GuardNode):
     model: Threshold
 
     def _build(self, source: SourceConfig) -> None:
-        try:
-            self.model = Threshold(self.port("max_current"))
-        except ValueError as exc:
-            raise PortError("max_current", str(exc).replace("max_value", "max_current")) from None
+        self.model = Threshold(self.port("max_current"))
         self.ctx.subscribe(source.name, self.ROLE, self.model)
 
     def update(self) -> py_trees.common.Status:
@@ -230,28 +235,23 @@ class IsCurrentSafe(GuardNode):
     def _build(self, source: SourceConfig) -> None:
         inrush = None
         inrush_time = self.port("inrush_time")
-        try:
-            if inrush_time:
-                start = self.port("start_current")
-                if start is None:
-                    raise PortError("start_current", "required when inrush_time > 0 (|I| of a motor start)")
-                inrush = InrushBlanking(start, inrush_time, self.port("inrush_threshold"))
-            over = self.port("overcurrent_threshold")
-            rec = self.port("recovery_threshold")
-            if over is None or rec is None:  # wired to keys not written yet: the defaults until they are
-                over, rec = 35.0, 25.0
-            self.model = Hysteresis(
-                over,
-                rec,
-                trip_after_s=self.port("trip_after"),
-                recover_after_s=self.port("recover_after"),
-                inrush=inrush,
-                max_gap_s=source.max_age_s,
-            )
-        except ValueError as exc:
-            if isinstance(exc, PortError):
-                raise
-            raise self._model_error(exc, self._NAMES) from None
+        if inrush_time:
+            start = self.port("start_current")
+            if start is None:
+                raise PortError("start_current", "required when inrush_time > 0 (|I| of a motor start)")
+            inrush = InrushBlanking(start, inrush_time, self.port("inrush_threshold"))
+        over = self.port("overcurrent_threshold")
+        rec = self.port("recovery_threshold")
+        if over is None or rec is None:  # wired to keys not written yet: the defaults until they are
+            over, rec = 35.0, 25.0
+        self.model = Hysteresis(
+            over,
+            rec,
+            trip_after_s=self.port("trip_after"),
+            recover_after_s=self.port("recover_after"),
+            inrush=inrush,
+            max_gap_s=source.max_age_s,
+        )
         self.ctx.subscribe(source.name, self.ROLE, self.model)
 
     def update(self) -> py_trees.common.Status:
@@ -321,24 +321,19 @@ class IsI2tSafe(GuardNode):
                     f"required when k >= {RATED_OVERLOAD:g} (the derived peak {peak:g} A = {RATED_OVERLOAD:g} × "
                     f"continuous_current must exceed I_cont = k × continuous_current = {cont * k:g} A)",
                 )
-        try:
-            model: ProtectionModel
-            if kind == "leaky":
-                model = LeakyI2t(cont * k, peak, peak_t, self.port("recover_fraction"), source.max_age_s)
-            else:
-                model = ThermalI2t(
-                    cont * k,
-                    peak,
-                    peak_t,
-                    tau_s=self.port("tau"),
-                    tau_cool_s=self.port("tau_cool"),
-                    recover_fraction=self.port("recover_fraction"),
-                    max_gap_s=source.max_age_s,
-                )
-        except ValueError as exc:
-            if isinstance(exc, PortError):
-                raise
-            raise self._model_error(exc, self._NAMES) from None
+        model: ProtectionModel
+        if kind == "leaky":
+            model = LeakyI2t(cont * k, peak, peak_t, self.port("recover_fraction"), source.max_age_s)
+        else:
+            model = ThermalI2t(
+                cont * k,
+                peak,
+                peak_t,
+                tau_s=self.port("tau"),
+                tau_cool_s=self.port("tau_cool"),
+                recover_fraction=self.port("recover_fraction"),
+                max_gap_s=source.max_age_s,
+            )
         self.model = model
         self.ctx.subscribe(source.name, self.ROLE, model)
         self.ctx.heat_models[self.name] = model

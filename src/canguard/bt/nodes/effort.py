@@ -13,7 +13,7 @@ import math
 
 import py_trees
 
-from canguard.bt.nodes.base import FAILURE, SUCCESS, PortError, port_info
+from canguard.bt.nodes.base import FAILURE, SUCCESS, port_info
 from canguard.bt.nodes.current import GuardNode
 from canguard.config.schema import SourceConfig
 from canguard.protect.base import REASON_NO_DATA, ProtectionModel
@@ -29,19 +29,17 @@ class IsJointEffortNormal(GuardNode):
         "max_effort": port_info(float, "maximum allowed |effort| of any joint (N·m or N)", 100.0),
     }
     SOURCE_KINDS = ("joints",)
+    _NAMES = {"max_value": "max_effort"}  # noqa: RUF012
     failed_joint = ""
     """The joint the feedback names (the first failing one)."""
 
     def _build(self, source: SourceConfig) -> None:
         limit = self.port("max_effort")
         self.models: list[tuple[str, Threshold]] = []
-        try:
-            for role in source.value_roles:
-                model = Threshold(limit)
-                self.ctx.subscribe(source.name, role, model)
-                self.models.append((role, model))
-        except ValueError as exc:
-            raise PortError("max_effort", str(exc).replace("max_value", "max_effort")) from None
+        for role in source.value_roles:
+            model = Threshold(limit)
+            self.ctx.subscribe(source.name, role, model)
+            self.models.append((role, model))
 
     def guarded(self) -> list[tuple[str, ProtectionModel, str]]:
         """One ``(joint, model, "threshold")`` per joint."""
