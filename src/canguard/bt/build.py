@@ -193,6 +193,22 @@ def _type_name(kind: type) -> str:
     return names.get(kind, getattr(kind, "__name__", str(kind)))
 
 
+def _checked(path: str | Path, ctx: Context, main: str | None, palette: Palette | None,
+             *, to_run: bool) -> tuple[_Loader, str]:
+    """Steps 1 to 3 over ``path`` (``palette``: node types declared by ``--nodes`` files): the loader and the
+    main tree's ID; a TreeError listing every problem of the file (IDs, ports, declarations, children, cycles),
+    ``to_run``: palette-declared nodes that nothing implements too."""
+    loader = _Loader(Path(path), ctx)
+    if palette is not None:
+        loader.palette.nodes.update(palette.nodes)
+    main_id = loader.check(main)
+    if to_run:
+        loader.errors.extend(loader.unbound)
+    loader.raise_collected()
+    loader.check_cycles(main_id)
+    return loader, main_id
+
+
 def load_tree(path: str | Path, ctx: Context, main: str | None = None, palette: Palette | None = None) -> LoadedTree:
     """Load, validate and bind the BehaviorTree.CPP XML tree ``main`` of ``path`` for ``ctx``.
 
@@ -201,13 +217,7 @@ def load_tree(path: str | Path, ctx: Context, main: str | None = None, palette: 
     ``<TreeNodesModel>``); a declared node must be bound (config action or plug-in) to run.
     Every problem is a :class:`~canguard.errors.TreeError` naming file and line.
     """
-    loader = _Loader(Path(path), ctx)
-    if palette is not None:
-        loader.palette.nodes.update(palette.nodes)
-    main_id = loader.check(main)
-    loader.errors.extend(loader.unbound)
-    loader.raise_collected()  # every node problem of every tree at once
-    loader.check_cycles(main_id)
+    loader, main_id = _checked(path, ctx, main, palette, to_run=True)
     for elem, attrs in loader.palette_ports:
         for attr in attrs:  # checked against the palette; the bound config action does not read them
             elem.attrib.pop(attr, None)
@@ -219,13 +229,7 @@ def validate_tree(path: str | Path, ctx: Context, main: str | None = None,
                   palette: Palette | None = None) -> tuple[str, list[str]]:
     """Check a tree file without building it: (main tree ID, why each palette-declared node cannot run yet).
 
-    Every problem of the file (IDs, ports, palette declarations, children, cycles) is a
-    TreeError; a declared node that nothing implements is not a problem here.
+    Every problem of the file is a TreeError; a declared node that nothing implements is not a problem here.
     """
-    loader = _Loader(Path(path), ctx)
-    if palette is not None:
-        loader.palette.nodes.update(palette.nodes)
-    main_id = loader.check(main)
-    loader.raise_collected()
-    loader.check_cycles(main_id)
+    loader, main_id = _checked(path, ctx, main, palette, to_run=False)
     return main_id, list(loader.unbound)

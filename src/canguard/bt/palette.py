@@ -30,6 +30,7 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from canguard.bt.registry import children_problem
 from canguard.bt.xmlsrc import _read_xml
 from canguard.errors import TreeError, quote
 
@@ -174,14 +175,8 @@ def check_node(elem: ET.Element, decl: PaletteNode, at: str, tree_id: str) -> li
     missing = [p.name for p in decl.ports.values() if p.required and p.name not in elem.attrib]
     if missing:
         problems.append(f"{head}: missing required port {', '.join(missing)} (declared required=\"true\")")
-    n = len(elem)
-    if decl.kind in ("Action", "Condition", "SubTree") and n:
-        problems.append(f"{head}: {decl.kind.lower()} nodes take no children, found {n}")
-    elif decl.kind == "Decorator" and n != 1:
-        problems.append(f"{head}: a decorator takes exactly one child, found {n}")
-    elif decl.kind == "Control" and n == 0:
-        problems.append(f"{head}: a control node needs at least one child")
-    return problems
+    kind_error = children_problem(decl.kind, len(elem))
+    return [*problems, f"{head}: {kind_error}"] if kind_error else problems
 
 
 def unbound_message(node_id: str, at: str, decl: PaletteNode) -> str:

@@ -7,7 +7,6 @@ import re
 import xml.etree.ElementTree as ET
 from collections.abc import Collection, Mapping
 
-import py_trees
 from py_trees.parsers.behaviour_tree_xml import is_key
 from py_trees.ports import PortInformation, PortsMixin
 from py_trees.ports_utils import convert_str_to_type
@@ -16,7 +15,7 @@ from canguard.bt import conditions
 from canguard.bt.conditions import take_conditions
 from canguard.bt.loaded import NodeInfo
 from canguard.bt.nodes import ConfiguredAction, GuardNode
-from canguard.bt.registry import _SUBTREE, _TOKEN, known_node_ids, node_kind
+from canguard.bt.registry import _SUBTREE, _TOKEN, children_problem, known_node_ids, node_kind
 from canguard.bt.xmlread import _closest, _Reader, _type_name
 from canguard.errors import TreeError, closest, quote
 
@@ -54,37 +53,32 @@ class _Validator(_Reader):
                 continue
             subtree_names: dict[str, int] = {}
             for elem in bt[0].iter():
-                if elem.tag == _SUBTREE:
-                    scripts, problems = take_conditions(elem.attrib)  # BT.CPP: they apply to the SubTree node
-                    cond_file, cond_line = self.where.get(elem, (self.path, 0))
-                    self.errors.extend(f"{cond_file}:{cond_line}: SubTree {elem.attrib.get('ID')} (BehaviorTree "
-                                       f"{tree_id}), {p}" for p in problems)
+                subtree = elem.tag == _SUBTREE
+                scripts, problems = take_conditions(elem.attrib)  # on a SubTree, BT.CPP applies them to that node
+                what = f"SubTree {elem.attrib.get('ID')}" if subtree else f"node {elem.tag}"
+                self.errors.extend(f"{self.at(elem)}: {what} (BehaviorTree {tree_id}), {p}" for p in problems)
+                if subtree:
                     if scripts:
                         self.subtree_conditions[elem] = scripts
                     try:
                         self._check_subtree(elem, tree_id, subtree_names)
                     except TreeError as exc:
                         self.errors.extend(exc.problems)
-                else:
-                    scripts, problems = take_conditions(elem.attrib)
-                    cond_file, cond_line = self.where.get(elem, (self.path, 0))
-                    self.errors.extend(f"{cond_file}:{cond_line}: node {elem.tag} (BehaviorTree {tree_id}), {p}"
-                                       for p in problems)
-                    cls = self._check_node(elem, tree_id)
-                    if cls is not None and issubclass(cls, GuardNode):
-                        source_error = self._check_source(elem, cls, tree_id)
-                        if source_error is not None:
-                            pending.append((len(self.errors), source_error))
-                    counter += 1
-                    token = f"{_TOKEN}{counter}"
-                    file, line = self.where.get(elem, (self.path, 0))
-                    readable = elem.attrib.get("name") or elem.tag
-                    self.infos[token] = NodeInfo(elem.tag, readable, file, line, tree_id)
-                    if scripts:
-                        self.conditions[token] = scripts
-                    if elem in self.private:
-                        self.private_tokens[token] = self.private[elem]
-                    elem.attrib["name"] = token
+                    continue
+                cls = self._check_node(elem, tree_id)
+                if cls is not None and issubclass(cls, GuardNode):
+                    source_error = self._check_source(elem, cls, tree_id)
+                    if source_error is not None:
+                        pending.append((len(self.errors), source_error))
+                counter += 1
+                token = f"{_TOKEN}{counter}"
+                file, line = self.where.get(elem, (self.path, 0))
+                self.infos[token] = NodeInfo(elem.tag, elem.attrib.get("name") or elem.tag, file, line, tree_id)
+                if scripts:
+                    self.conditions[token] = scripts
+                if elem in self.private:
+                    self.private_tokens[token] = self.private[elem]
+                elem.attrib["name"] = token
         if self.source_check == "always" or (self.errors and self.source_check == "with_others"):
             # The tree will not be built, so binding (which resolves the sources and reports an
             # unknown one) will not run: the guards' unknown sources join this report, in place.
@@ -195,16 +189,7 @@ class _Validator(_Reader):
                 f"missing required port {', '.join(missing)} (ports of {node_id}: {', '.join(ports)})",
                 tree_id,
             )))
-        n = len(elem)
-        kind_error: str | None = None
-        if issubclass(cls, py_trees.decorators.Decorator):
-            if n != 1:
-                kind_error = f"a decorator takes exactly one child, found {n}"
-        elif issubclass(cls, py_trees.composites.Composite):
-            if n == 0:
-                kind_error = "a control node needs at least one child"
-        elif n:
-            kind_error = f"{node_kind(cls).lower()} nodes take no children, found {n}"
+        kind_error = children_problem(node_kind(cls), len(elem))
         if kind_error is not None:
             self.errors.append(str(self.error(elem, kind_error, tree_id)))
         return cls
