@@ -10,9 +10,9 @@ nothing is imported or evaluated by a name found in a tree file.
 
 The table names each node type's module, and a module is imported when one of its
 classes is first looked up (``BUILTIN_NODES[node_id]``, or ``from canguard.bt.nodes
-import Sequence``): a tree pays at start-up only for the node families it uses
-(creating every class of the library cost ~5 ms). The actions and the current guards,
-which the engine and the loader always need, are imported with the package.
+import Sequence``): a tree pays at start-up only for the node families it uses. The
+actions and the current guards, which the engine and the loader always need, are
+imported with the package.
 
 A plug-in node type is a class deriving from :class:`CanguardNode` (or at least
 :class:`py_trees.ports.PortsMixin`) and a py_trees behaviour; when its

@@ -1,20 +1,7 @@
 """BehaviorTree.CPP 4 Switch2..Switch6, ParallelAll and TryCatch, with its IDs, ports and semantics.
 
-======================  ================================================================
-BT.CPP node             semantics (as BT.CPP 4's switch_node.h and parallel_all_node.cpp show)
-======================  ================================================================
-Switch2 .. Switch6      N cases + a default child (the last). Each tick ``variable`` is compared
-                        with ``case_1`` .. ``case_N`` in order: equal as text, or both whole
-                        numbers and equal, or both numbers and equal ("1" == "1.0"); the first
-                        match is ticked, no match (or no variable) ticks the default. When the
-                        match changes while another child runs, that child is halted.
-ParallelAll             ticks every unfinished child each tick until all have finished, then
-                        FAILURE when at least ``max_failures`` failed (negative: children + 1 + n),
-                        else SUCCESS
-TryCatch                all but the last child as a Sequence: SUCCESS when they all succeed; a
-                        FAILURE runs the last (catch) child to its end, then FAILURE;
-                        ``catch_on_halt``: a halt while trying ticks the catch child once
-======================  ================================================================
+As BT.CPP 4's ``switch_node.h`` and ``parallel_all_node.cpp`` and its gtests show them (each
+node's ``DESCRIPTION`` says what it does); a switch compares as :func:`same_case` says.
 """
 
 from __future__ import annotations

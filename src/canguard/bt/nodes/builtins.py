@@ -1,28 +1,11 @@
 """More of BehaviorTree.CPP 4's built-in nodes, with its IDs, ports and semantics.
 
-======================  ================================================================
-BT.CPP node             semantics (as BT.CPP 4's sources and gtests show)
-======================  ================================================================
-AlwaysSuccess           SUCCESS
-AlwaysFailure           FAILURE
-Script                  runs ``code`` (BT.CPP's scripting language) on the blackboard: SUCCESS;
-                        a script that fails while it runs: FAILURE (BT.CPP throws; a guard
-                        daemon must not crash on a tree's script)
-ScriptCondition         SUCCESS when ``code`` is true, else FAILURE
-SetBlackboard           writes ``value`` to the entry named by ``output_key``: SUCCESS (``value="{src}"``
-                        copies the entry with its type)
-UnsetBlackboard         removes the entry ``key``: SUCCESS
-Sleep                   RUNNING until ``msec`` have elapsed on the engine's clock, then SUCCESS
-KeepRunningUntilFailure the child's SUCCESS becomes RUNNING; FAILURE ends it
-IfThenElse              2 or 3 children: the first decides, then the second (SUCCESS) or the
-                        third (FAILURE; FAILURE when there is none); the branch runs to its end
-WhileDoElse             like IfThenElse (2 or 3 children), but the condition is ticked every
-                        time: a change halts the running branch and switches
-Precondition            ticks its child while ``if`` (a script) is true, else returns ``else``
-======================  ================================================================
-
-Scripts are parsed once, at load (a syntax error is a load error naming the port),
-and read and write the blackboard of the node's (sub)tree.
+AlwaysSuccess, AlwaysFailure, Script, ScriptCondition, SetBlackboard, UnsetBlackboard, Sleep,
+KeepRunningUntilFailure, IfThenElse, WhileDoElse and Precondition, as BT.CPP 4's sources and
+gtests show them (each node's ``DESCRIPTION`` says what it does). Scripts are parsed once, at
+load (a syntax error is a load error naming the port), and read and write the blackboard of
+the node's (sub)tree; a script that fails while it runs fails its node (BT.CPP throws; a guard
+daemon must not crash on a tree's script).
 """
 
 from __future__ import annotations

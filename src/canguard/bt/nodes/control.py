@@ -1,49 +1,22 @@
 """Control nodes with BehaviorTree.CPP (v4) semantics, on py_trees composites and decorators.
 
-py_trees' parser only knows ``Sequence`` / ``Selector`` / ``Parallel`` tags with a
-``memory`` attribute, and its decorators take constructor arguments rather than
-ports. canguard registers ports-enabled classes under the BT.CPP names instead,
-mapped onto py_trees where the semantics match and written out where they do not:
+py_trees' parser knows only ``Sequence`` / ``Selector`` / ``Parallel`` with a ``memory``
+attribute, and its decorators take constructor arguments rather than ports: canguard
+registers ports-enabled classes under the BT.CPP names, on py_trees' classes where the
+semantics match (Inverter, ForceSuccess, ForceFailure) and with their own ``tick`` where
+they do not (each node's ``DESCRIPTION`` says what it does; the sequences and fallbacks
+are in :mod:`.sequences`). Notes on the mapping:
 
-======================  ====================================================  ============================
-BT.CPP node             semantics                                             py_trees mapping
-======================  ====================================================  ============================
-Sequence                resume at a RUNNING child; restart after a FAILURE    own ``tick`` (``sequences``)
-ReactiveSequence        restart from the first child at every tick            own ``tick``
-SequenceWithMemory      resume at a RUNNING *or failed* child; yields after   own ``tick``
-                        each child that succeeded at once
-AsyncSequence           a Sequence that yields after each instant success     own ``tick``
-AsyncFallback           a Fallback that yields after each instant failure     own ``tick``
-Fallback                resume at a RUNNING child; restart after a SUCCESS    own ``tick``
-ReactiveFallback        restart from the first child at every tick            own ``tick``
-Parallel                success_count / failure_count (-1 = all children);    own ``tick`` (py_trees has
-                        finished children wait until the parallel completes   policies, not counts)
-Inverter                SUCCESS <-> FAILURE, RUNNING unchanged                ``decorators.Inverter``
-ForceSuccess            FAILURE -> SUCCESS                                    ``FailureIsSuccess``
-ForceFailure            SUCCESS -> FAILURE                                    ``SuccessIsFailure``
-RetryUntilSuccessful    a FAILURE is retried, num_attempts (-1: forever)      own ``tick`` (BT.CPP's loop)
-Repeat                  a SUCCESS is repeated, num_cycles (-1: forever)       own ``tick`` (BT.CPP's loop)
-Timeout                 FAILURE (child halted) once ``msec`` have elapsed     own ``tick`` (py_trees reads
-                                                                              ``time.monotonic``)
-Delay                   RUNNING for ``delay_msec``, then the child            own ``tick``
-======================  ====================================================  ============================
-
-Notes on the mapping:
-
-- "Restart / resume" is what py_trees calls memory. BT.CPP's plain ``Sequence``
-  *has* memory for RUNNING children (it does not re-tick earlier children), which
-  is why guards belong under a ReactiveSequence (design note 004).
-- RetryUntilSuccessful and Repeat: after a child that completed at once they return
-  RUNNING and emit the tree's wake-up signal (BT.CPP 4, which gives every tree its
-  factory builds one: ``Tree::initialize``), so ``tickOnce()`` ticks the root again at
-  once (:mod:`canguard.bt.wakeup`); a child that was RUNNING and then completed is tried
-  again within the same pass.
-- Every control passes BT.CPP's SKIPPED on: sequences and fallbacks skip a skipped
-  child, a control whose children were all skipped is skipped, a decorator over a
-  skipped child is skipped (KeepRunningUntilFailure stays RUNNING, as BT.CPP).
-- SequenceWithMemory keeps its position across a halt, as BT.CPP 4 does.
-- Timeout and Delay read the context's clock, so they work in replay and in tests
-  with a manual clock.
+- BT.CPP's plain ``Sequence`` *has* memory for RUNNING children (it does not re-tick earlier
+  children), which is why guards belong under a ReactiveSequence (design note 004).
+- RetryUntilSuccessful and Repeat: after a child that completed at once they return RUNNING
+  and emit the tree's wake-up signal (:mod:`canguard.bt.wakeup`), so ``tickOnce()`` ticks the
+  root again at once; a child that was RUNNING and then completed runs again within the pass.
+- Every control passes BT.CPP's SKIPPED on: sequences and fallbacks skip a skipped child, a
+  control whose children were all skipped is skipped, a decorator over a skipped child is
+  skipped (KeepRunningUntilFailure stays RUNNING, as BT.CPP).
+- Timeout and Delay read the context's clock (py_trees' Timeout reads ``time.monotonic``), so
+  they work in replay and in tests with a manual clock.
 """
 
 from __future__ import annotations

@@ -15,12 +15,6 @@ The decorator's own work (statistics, blackboard writes) lies outside the
 interval; inside it are one ``perf_counter()`` call and a list build, about
 0.1-0.2 µs, which is what a measurement of a near-empty child reads.
 
-**Overhead, measured** (``timeit`` of one tick beside the bare child, 2 shared vCPUs,
-Python 3.11): a Profile adds about 1.5 µs per tick with all four outputs wired and
-1.2 µs with none (goal: 3 µs). Wired outputs go straight to the blackboard's
-storage (see :mod:`canguard.bt.nodes.base`); through py_trees' client the four
-writes alone would cost ~9 µs.
-
 **Reset on halt.** As in the note, the statistics restart when the decorator is
 *halted*: interrupted while RUNNING (BehaviorTree.CPP's halt). py_trees also
 stops finished children with INVALID whenever their parent starts over; that is
@@ -37,7 +31,6 @@ from time import perf_counter
 from typing import Any
 
 import py_trees
-from py_trees.blackboard import Blackboard
 
 from canguard.bt.nodes.base import RUNNING, DecoratorNode, halted, port_info
 
@@ -55,7 +48,7 @@ class Profile(DecoratorNode):
 
     def __init__(self, name: str, child: py_trees.behaviour.Behaviour, **kwargs: Any) -> None:
         super().__init__(name=name, child=child, **kwargs)
-        self._outputs: tuple[tuple[str, str], ...] = ()
+        self._outputs: tuple[str, ...] = ()
         self.reset_stats()
 
     def reset_stats(self) -> None:
@@ -73,7 +66,7 @@ class Profile(DecoratorNode):
     def setup_ports(self, *args: Any, **kwargs: Any) -> None:
         """Register ports, then pick the wired outputs once (fewer checks per tick)."""
         super().setup_ports(*args, **kwargs)
-        self._outputs = tuple((p, self._keys[p]) for p in ("last_ms", "avg_ms", "max_ms", "count") if p in self._wired)
+        self._outputs = tuple(p for p in ("last_ms", "avg_ms", "max_ms", "count") if self.is_wired(p))
 
     def tick(self) -> Any:
         """Tick the child to completion under the timer, then publish statistics and the child's status."""
@@ -88,22 +81,13 @@ class Profile(DecoratorNode):
         self.total_ms += ms
         if ms > self.max_ms:
             self.max_ms = ms
-        if self._outputs:
-            self._publish()
+        for name in self._outputs:
+            self.write(name, getattr(self, name))
         new_status = self.decorated.status
         if new_status != RUNNING:
             self.stop(new_status)
         self.status = new_status
         yield self
-
-    def _publish(self) -> None:
-        if Blackboard.activity_stream is not None:  # the client's path keeps the stream complete
-            for name, _ in self._outputs:
-                self._set_output(name, getattr(self, name))
-            return
-        storage = Blackboard.storage
-        for name, key in self._outputs:
-            storage[key] = getattr(self, name)
 
     def terminate(self, new_status: py_trees.common.Status) -> None:
         """Reset the statistics on a halt (interrupted while RUNNING), as note 003 says."""
