@@ -20,6 +20,7 @@ from canguard.bt.registry import _TOKEN
 from canguard.bt.scopes import TreeBlackboard, subtree_scopes
 from canguard.bt.validate import _Validator
 from canguard.bt.wakeup import WakeUpSignal
+from canguard.bt.xmlread import _type_name
 from canguard.errors import TreeError
 
 if TYPE_CHECKING:
@@ -104,9 +105,9 @@ class _Loader(_Validator):
                 was, at = first[key]
                 if was is not kind and was is not str:
                     self.errors.append(
-                        f"{info.file}:{info.line}: node {info.name} (BehaviorTree {info.tree}), port {port}: the "
-                        f"entry [{key.lstrip('/')}] was created with type [{_type_name(was)}] ({at}) and is used "
-                        f"here as [{_type_name(kind)}]; one entry has one type (as in BT.CPP)"
+                        f"{info.file}:{info.line}: node {info.name} (BehaviorTree {info.tree}), port {port}: the entry "
+                        f"[{key.lstrip('/')}] was created with type [{_type_name(was, cpp=True)}] ({at}) and is used "
+                        f"here as [{_type_name(kind, cpp=True)}]; one entry has one type (as in BT.CPP)"
                     )
 
     def _untoken(self, text: str) -> str:
@@ -186,11 +187,6 @@ class _Loader(_Validator):
             nodes=loaded_nodes,
             wake_up=wake_up,
         )
-
-
-def _type_name(kind: type) -> str:
-    names = {int: "int", float: "double", str: "std::string", bool: "bool"}
-    return names.get(kind, getattr(kind, "__name__", str(kind)))
 
 
 def _checked(path: str | Path, ctx: Context, main: str | None, palette: Palette | None,

@@ -19,9 +19,6 @@ if TYPE_CHECKING:
     from canguard.bt.palette import Palette
 
 
-# ---------------------------------------------------------------------------------------
-# Checks against the config
-# ---------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class ConfigCheck:
     """What ``canguard check`` reports about a tree and its config beyond hard errors."""
@@ -67,10 +64,6 @@ def validate_against_config(loaded: LoadedTree, cfg: Config) -> ConfigCheck:
     return ConfigCheck(unread_sources=tuple(n for n in cfg.sources if n not in read))
 
 
-
-# ---------------------------------------------------------------------------------------
-# What the CLI calls (canguard check / canguard tree)
-# ---------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class TreeReport:
     """``canguard check``'s view of the config's tree."""

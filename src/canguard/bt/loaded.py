@@ -16,9 +16,6 @@ from canguard.protect.base import ProtectionModel, Snapshot
 from canguard.units import I2T_LIMIT_PCT
 
 
-# ---------------------------------------------------------------------------------------
-# Loaded tree
-# ---------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class NodeInfo:
     """Where a node of a loaded tree comes from."""

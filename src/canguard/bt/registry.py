@@ -37,10 +37,6 @@ _TOKEN = "@"
 """Placeholder node names handed to py_trees are ``@<n>``."""
 
 
-
-# ---------------------------------------------------------------------------------------
-# Registry
-# ---------------------------------------------------------------------------------------
 def plugin_entry_points() -> dict[str, EntryPoint]:
     """The ``canguard.nodes`` entry points by node ID (not loaded).
 

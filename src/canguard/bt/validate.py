@@ -256,5 +256,3 @@ class _Validator(_Reader):
                 visit(target, [*stack, target])
 
         visit(main_id, [main_id])
-
-    # -- step 4: parse with py_trees --------------------------------------------------------

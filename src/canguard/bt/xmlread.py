@@ -26,14 +26,12 @@ def _closest(word: str, choices: Collection[str]) -> list[str]:
     return closest(word, choices, n=len(choices), cutoff=0.0)
 
 
-def _type_name(data_type: Any) -> str:
-    names = {float: "float", int: "int", str: "string", bool: "bool"}
+def _type_name(data_type: Any, cpp: bool = False) -> str:
+    """A port type as errors name it (``float``, ``string``), or with ``cpp`` as BT.CPP and Groot2 do."""
+    names = {float: "double", str: "std::string"} if cpp else {float: "float", str: "string"}
     return names.get(data_type, getattr(data_type, "__name__", str(data_type)))
 
 
-# ---------------------------------------------------------------------------------------
-# The loader
-# ---------------------------------------------------------------------------------------
 class _Reader:
     """One load: the document, its trees, the registry, the placeholder names."""
 
