@@ -7,7 +7,7 @@ import math
 
 import pytest
 
-from canguard.bt.scripting import DictBlackboard, ScriptError, parse
+from canguard.bt.scripting import ScriptError, parse
 
 
 class Board:
@@ -30,7 +30,7 @@ class Board:
         return self.types.get(key)
 
 
-def run(text: str, bb: Board | DictBlackboard | None = None, enums: dict[str, int] | None = None) -> object:
+def run(text: str, bb: Board | None = None, enums: dict[str, int] | None = None) -> object:
     return parse(text).run(bb if bb is not None else Board(), enums)
 
 
@@ -313,7 +313,7 @@ def test_ternary_evaluates_only_the_chosen_branch() -> None:
 
 # ParserTest.MultipleStatements
 def test_multiple_statements() -> None:
-    bb = DictBlackboard()
+    bb = Board()
     run("a:=1;;; b:=2;;", bb)
     assert bb.values == {"a": 1, "b": 2}
     assert run("a:=10; b:=20; a+b", bb) == 30.0
