@@ -257,10 +257,6 @@ class CanguardNode(PortsMixin, register=False):
                 continue  # optional port left out: reads give None
         self._static = static
 
-    def wired_key(self, name: str) -> str | None:
-        """The blackboard key the port ``name`` is wired to (``{key}`` resolved in the node's namespace), or None."""
-        return self._keys.get(name)
-
     def is_wired(self, name: str) -> bool:
         """True when the port was given in the XML as a ``{key}`` (input) or at all (output)."""
         return name in self._dynamic or name in self._wired

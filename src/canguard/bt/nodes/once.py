@@ -61,17 +61,20 @@ def versioned_storage() -> _Versioned:
     return storage
 
 
-def _version(node: CanguardNode) -> int | None:
-    """The write count of the node's ``entry`` (None: no such entry), resolved in the node's namespace."""
+def _updated(node: WasEntryUpdated | _EntryUpdated) -> bool:
+    """Whether the node's ``entry`` (resolved in its namespace) was written since the node last looked (it looks
+    now: ``seen`` takes the entry's write count); False while there is no such entry."""
     storage = versioned_storage()
-    key = node.wired_key("entry")
+    key = node.wired_keys().get("entry")
     if key is None:
         name = str(node.port("entry") or "").strip().strip("{}")
         namespace = getattr(node, "_subtree_namespace", None) or "/"
         key = name if name.startswith("/") else namespace.rstrip("/") + "/" + name
     if key not in storage:
-        return None
-    return storage.versions.get(key, 1)
+        return False
+    current = storage.versions.get(key, 1)
+    updated, node.seen = current != node.seen, current
+    return updated
 
 
 _ENTRY = {"entry": port_info(str, "the blackboard entry to watch ({key} or key)")}
@@ -94,11 +97,7 @@ class WasEntryUpdated(CanguardNode, py_trees.behaviour.Behaviour):
         super().setup_ports(*args, **kwargs)
 
     def update(self) -> py_trees.common.Status:
-        current = _version(self)
-        if current is None:
-            return FAILURE
-        previous, self.seen = self.seen, current
-        return SUCCESS if previous != current else FAILURE
+        return SUCCESS if _updated(self) else FAILURE
 
 
 class _EntryUpdated(DecoratorNode):
@@ -119,18 +118,13 @@ class _EntryUpdated(DecoratorNode):
 
     def tick(self) -> Any:
         """A running child goes on; else the child runs only after a write (else SKIPPED / RUNNING)."""
-        if not self.still_running:
-            current = _version(self)
-            updated = current is not None and current != self.seen
-            if current is not None:
-                self.seen = current
-            if not updated:
-                if self.IF_NOT_UPDATED == "SKIPPED":
-                    mark_skipped(self)
-                else:
-                    self.status = RUNNING
-                yield self
-                return
+        if not self.still_running and not _updated(self):
+            if self.IF_NOT_UPDATED == "SKIPPED":
+                mark_skipped(self)
+            else:
+                self.status = RUNNING
+            yield self
+            return
         yield from super().tick()
         self.still_running = self.status == RUNNING
 
