@@ -23,17 +23,17 @@ from dataclasses import dataclass, field
 
 from py_trees.blackboard import Blackboard
 
-_INT = re.compile(r"-?[0-9]+\Z")
-_REAL = re.compile(r"-?([0-9]+\.?[0-9]*|\.[0-9]+)([eE][-+]?[0-9]+)?\Z")
+INT_TEXT = re.compile(r"-?[0-9]+\Z")
+REAL_TEXT = re.compile(r"-?([0-9]+\.?[0-9]*|\.[0-9]+)([eE][-+]?[0-9]+)?\Z")
 
 SUBTREE = "SubTree"
 
 
 def typed_literal(text: str) -> int | float | str:
     """A literal port value on a SubTree element as BT.CPP stores it: an integer, else a real, else the text."""
-    if _INT.match(text):
+    if INT_TEXT.match(text):
         return int(text)
-    if _REAL.match(text):
+    if REAL_TEXT.match(text):
         return float(text)
     return text
 

@@ -117,7 +117,8 @@ def note_script_error(node: py_trees.behaviour.Behaviour, attr: str, script: str
 _MISSING = object()
 
 
-_BOOL_TEXT = {"true": True, "false": False, "1": True, "0": False}
+BOOL_TEXT = {"true": True, "false": False, "1": True, "0": False}
+"""Texts of a bool as BT.CPP reads them."""
 
 
 def _number_as(expected: Any, value: Any) -> Any:
@@ -126,7 +127,7 @@ def _number_as(expected: Any, value: Any) -> Any:
     if isinstance(value, str) and expected in (int, float, bool) and "_" not in value:
         text = value.strip()
         try:
-            return _BOOL_TEXT[text.lower()] if expected is bool else expected(text)
+            return BOOL_TEXT[text.lower()] if expected is bool else expected(text)
         except (KeyError, ValueError):
             return None
     if isinstance(value, bool) or not isinstance(value, int | float):

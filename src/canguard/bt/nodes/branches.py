@@ -7,7 +7,6 @@ node's ``DESCRIPTION`` says what it does); a switch compares as :func:`same_case
 from __future__ import annotations
 
 import math
-import re
 from typing import Any
 
 import py_trees
@@ -31,9 +30,7 @@ from canguard.bt.nodes.base import (
     reset,
     tick_child,
 )
-
-_INT = re.compile(r"-?[0-9]+\Z")
-_REAL = re.compile(r"-?([0-9]+\.?[0-9]*|\.[0-9]+)([eE][-+]?[0-9]+)?\Z")
+from canguard.bt.scopes import INT_TEXT, REAL_TEXT
 
 
 def _text(value: object) -> str:
@@ -49,9 +46,9 @@ def same_case(variable: str, case: str) -> bool:
     """BT.CPP's switch comparison: equal text, or equal as integers, or equal as reals."""
     if variable == case:
         return True
-    if _INT.match(variable) and _INT.match(case):
+    if INT_TEXT.match(variable) and INT_TEXT.match(case):
         return int(variable) == int(case)
-    if _REAL.match(variable) and _REAL.match(case):
+    if REAL_TEXT.match(variable) and REAL_TEXT.match(case):
         return math.isclose(float(variable), float(case), rel_tol=0.0, abs_tol=0.0)
     return False
 

@@ -19,6 +19,7 @@ import py_trees
 from py_trees.blackboard import Blackboard
 
 from canguard.bt.nodes.base import (
+    BOOL_TEXT,
     FAILURE,
     RUNNING,
     SKIPPED,
@@ -31,12 +32,11 @@ from canguard.bt.nodes.base import (
 )
 
 _EMPTY: dict[str, py_trees.common.Status | str] = {"SUCCESS": SUCCESS, "FAILURE": FAILURE, "SKIPPED": SKIPPED}
-_BOOLS = {"true": True, "false": False, "1": True, "0": False}
 
 
 def _to_bool(text: str) -> bool:
     try:
-        return _BOOLS[text.strip().lower()]
+        return BOOL_TEXT[text.strip().lower()]
     except KeyError:
         raise ValueError(f"{text!r} is not a bool (true/false/1/0)") from None
 
