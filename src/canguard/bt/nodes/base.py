@@ -32,7 +32,7 @@ they take the client's path, so the stream stays complete.
 from __future__ import annotations
 
 from collections.abc import Callable, Generator, Iterable, Iterator, Mapping
-from typing import Any, ClassVar, Literal
+from typing import TYPE_CHECKING, Any, ClassVar, Literal
 
 import py_trees
 from py_trees.blackboard import Blackboard
@@ -40,7 +40,11 @@ from py_trees.ports import CONST_PREFIX, NoDataAvailable, PortInformation, Ports
 from py_trees.ports_utils import PortsLogger
 
 from canguard.bt.context import Context
+from canguard.bt.scripting import ScriptError
 from canguard.bt.wakeup import WakeUpSignal
+
+if TYPE_CHECKING:
+    from canguard.bt.scripting import Script, ScriptBlackboard
 
 NodeKind = Literal["Action", "Condition", "Control", "Decorator"]
 
@@ -105,13 +109,17 @@ def follow(node: py_trees.composites.Composite, child: py_trees.behaviour.Behavi
     yield node
 
 
-def note_script_error(node: py_trees.behaviour.Behaviour, attr: str, script: str, error: Exception) -> None:
-    """A script of ``node`` failed while it ran: its feedback, and ``script_error`` for ``canguard tree --tick``.
-
-    (BT.CPP throws out of ``tickOnce()``; canguard fails the node, or counts a condition as false, and says why.)
-    """
-    node.feedback_message = f"{attr}: {error}"
-    node.script_error = f"{attr} {script!r}: {error}"  # type: ignore[attr-defined]
+def run_script(node: py_trees.behaviour.Behaviour, attr: str, script: Script, board: ScriptBlackboard,
+               *, condition: bool = False) -> object:
+    """Run ``node``'s script ``attr`` on ``board``: its value (``condition``: as a boolean). A ScriptError it
+    raises is noted on the node (its feedback, and ``script_error`` for ``canguard tree --tick``) and raised
+    again: BT.CPP throws out of ``tickOnce()``; canguard fails the node, or counts a condition as false."""
+    try:
+        return script.condition(board) if condition else script.run(board)
+    except ScriptError as exc:
+        node.feedback_message = f"{attr}: {exc}"
+        node.script_error = f"{attr} {script.text!r}: {exc}"  # type: ignore[attr-defined]
+        raise
 
 
 _MISSING = object()
@@ -415,7 +423,6 @@ def halted(node: py_trees.behaviour.Behaviour, new_status: py_trees.common.Statu
     statistics) act only on a real halt.
     """
     return new_status == INVALID and node.status == RUNNING
-
 
 
 def node_types(base: type, module: str, rows: Mapping[str, Mapping[str, Any]]) -> tuple[Any, ...]:

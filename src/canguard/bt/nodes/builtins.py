@@ -30,9 +30,9 @@ from canguard.bt.nodes.base import (
     halt_running,
     mark_skipped,
     node_types,
-    note_script_error,
     outcome,
     port_info,
+    run_script,
     tick_child,
 )
 from canguard.bt.scopes import TreeBlackboard
@@ -76,13 +76,8 @@ class _Scripted(CanguardNode):
                 raise PortError(name, f"script {text!r}: {exc}") from None
 
     def run_script(self, name: str, *, condition: bool = False) -> object:
-        """Run script ``name``; a runtime error is logged in the feedback and re-raised."""
-        script = self.scripts[name]
-        try:
-            return script.condition(self.board) if condition else script.run(self.board)
-        except ScriptError as exc:
-            note_script_error(self, name, script.text, exc)
-            raise
+        """Run script ``name``; a runtime error is noted on the node and raised (:func:`.base.run_script`)."""
+        return run_script(self, name, self.scripts[name], self.board, condition=condition)
 
 
 class _Always(CanguardNode, py_trees.behaviour.Behaviour):
