@@ -136,21 +136,18 @@ class TreeBlackboard:
         self.declared: Mapping[str, type] = declared if declared is not None else {}
         """Entries a typed port fixed the type of, by storage key (BT.CPP creates them at load)."""
 
-    def _key(self, key: str) -> str:
-        return self.scope.key(key)
-
     def has(self, key: str) -> bool:
-        full = self._key(key)
+        full = self.scope.key(key)
         return full in Blackboard.storage or full in self.declared
 
     def get(self, key: str) -> object:
-        return Blackboard.storage[self._key(key)]
+        return Blackboard.storage[self.scope.key(key)]
 
     def set(self, key: str, value: object) -> None:
-        Blackboard.storage[self._key(key)] = value
+        Blackboard.storage[self.scope.key(key)] = value
 
     def declared_type(self, key: str) -> type | None:
-        return self.declared.get(self._key(key))
+        return self.declared.get(self.scope.key(key))
 
     def unset(self, key: str) -> None:
-        Blackboard.storage.pop(self._key(key), None)
+        Blackboard.storage.pop(self.scope.key(key), None)

@@ -137,16 +137,17 @@ class GuardNode(CanguardNode, py_trees.behaviour.Behaviour):
         """A port problem (``reason``) first, then the source's health, then the model's latched
         state: SUCCESS or FAILURE, with status changes journalled. ``value`` overrides the
         snapshot's value in events."""
-        assert self.health is not None
         self.judged_t = now
-        if not reason:
-            reason = self.health.reason(now, self.ROLE)
-            if not reason and snap.tripped:
-                reason = snap.reason
+        reason = self._why(now, self.ROLE, snap, reason)
         ok = not reason
         if ok is not self.ok or reason != self.reason:
             self._edge(ok, reason, self.ROLE, snap.value if value is None else value, snap.threshold)
         return SUCCESS if ok else FAILURE
+
+    def _why(self, now: float, role: str, snap: Snapshot, bad: str = "") -> str:
+        """Why ``role`` fails now: a port problem (``bad``), else its source's health, else its model's latch."""
+        assert self.health is not None
+        return bad or self.health.reason(now, role) or (snap.reason if snap.tripped else "")
 
     def _units(self, role: str) -> tuple[str, str]:
         """The unit of ``role``'s signal (A, Nm) and of its model's threshold (the same, or A²s / θ for I²t)."""

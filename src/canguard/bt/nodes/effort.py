@@ -49,18 +49,13 @@ class IsJointEffortNormal(GuardNode):
         """Every joint: health, then its latched limit; the first failing joint names the reason."""
         now = self._clock.now()
         self.judged_t = now  # the engine checks that a running task's guards keep being ticked (T4)
-        health = self.health
-        assert health is not None
         bad = self._reread(("max_effort",), (m for _, m in self.models), lambda m: (m.max_value,), Threshold.set_max)
         failed: tuple[str, str, float, float] | None = None
         for role, model in self.models:
             snap = model.poll(now)  # poll every joint: each latch restarts at every tick
-            if failed is None:
-                reason = bad or health.reason(now, role)
-                if not reason and snap.tripped:
-                    reason = snap.reason
-                if reason:
-                    failed = (role, reason, snap.value, snap.threshold)
+            reason = "" if failed is not None else self._why(now, role, snap, bad)
+            if reason:
+                failed = (role, reason, snap.value, snap.threshold)
         if not self.models:
             failed = ("", REASON_NO_DATA, math.nan, math.nan)
         ok = failed is None
