@@ -179,7 +179,8 @@ class CanguardNode(PortsMixin, register=False):
     INPUT_PORTS: dict = {}  # noqa: RUF012 - py_trees reads ports as plain class dicts
     OUTPUT_PORTS: dict = {}  # noqa: RUF012
     DESCRIPTION: ClassVar[str] = ""
-    """One line for the Groot2 palette and ``canguard tree --nodes-model``."""
+    """One line for the Groot2 palette and ``canguard tree --nodes-model``: the first paragraph of the class's
+    docstring unless the class sets it."""
     CONST_PORTS: ClassVar[frozenset[str]] = frozenset()
     """Input ports that configure the node once at load time: a ``{key}`` there is a load-time error."""
     KEY_PORTS: ClassVar[frozenset[str]] = frozenset()
@@ -213,6 +214,8 @@ class CanguardNode(PortsMixin, register=False):
             # for abstract methods (~25 µs a class, ~1.5 ms for the node library at every start).
             del kwargs["register"]
             super(PortsMixin, cls).__init_subclass__(**kwargs)
+        if "DESCRIPTION" not in cls.__dict__ and cls.__doc__:
+            cls.DESCRIPTION = " ".join(cls.__doc__.split("\n\n")[0].split())
         if cls.KIND != "Condition":
             cls.KIND = ("Decorator" if issubclass(cls, py_trees.decorators.Decorator)
                         else "Control" if issubclass(cls, py_trees.composites.Composite) else "Action")

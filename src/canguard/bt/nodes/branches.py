@@ -116,10 +116,9 @@ Switch2, Switch3, Switch4, Switch5, Switch6 = node_types(
 
 
 class ParallelAll(CanguardNode, py_trees.composites.Composite):
-    """BT.CPP ParallelAll: run every child to its end; FAILURE when max_failures of them failed."""
+    """ticks every unfinished child each tick until all have finished; then FAILURE when at least max_failures failed
+    (negative: children + 1 + n), else SUCCESS"""
 
-    DESCRIPTION = ("ticks every unfinished child each tick until all have finished; then FAILURE when at least "
-                   "max_failures failed (negative: children + 1 + n), else SUCCESS")
     INPUT_PORTS = {  # noqa: RUF012
         "max_failures": port_info(int, "failures that make it fail (negative: children + 1 + n, -1 = all)", 1),
     }
@@ -175,10 +174,9 @@ class ParallelAll(CanguardNode, py_trees.composites.Composite):
 
 
 class TryCatch(CanguardNode, py_trees.composites.Composite):
-    """BT.CPP TryCatch: the first children as a sequence; on a FAILURE, the last (catch) child, then FAILURE."""
+    """ticks all but the last child as a Sequence (SUCCESS when all succeed); when one fails, the last (catch) child
+    runs to its end and TryCatch fails; catch_on_halt: a halt runs it too"""
 
-    DESCRIPTION = ("ticks all but the last child as a Sequence (SUCCESS when all succeed); when one fails, the "
-                   "last (catch) child runs to its end and TryCatch fails; catch_on_halt: a halt runs it too")
     INPUT_PORTS = {  # noqa: RUF012
         "catch_on_halt": port_info(bool, "when halted while trying, tick the catch child once", False),
     }

@@ -96,9 +96,8 @@ AlwaysSuccess, AlwaysFailure = node_types(_Always, __name__, {
 
 
 class Script(_Scripted, py_trees.behaviour.Behaviour):
-    """BT.CPP Script: run ``code``; SUCCESS."""
+    """runs code (BT.CPP scripting) on the blackboard: SUCCESS (FAILURE if it fails at run time)"""
 
-    DESCRIPTION = "runs code (BT.CPP scripting) on the blackboard: SUCCESS (FAILURE if it fails at run time)"
     INPUT_PORTS = {"code": port_info(str, "the script, e.g. count := count + 1")}  # noqa: RUF012
     SCRIPT_PORTS = ("code",)
 
@@ -111,10 +110,9 @@ class Script(_Scripted, py_trees.behaviour.Behaviour):
 
 
 class ScriptCondition(_Scripted, py_trees.behaviour.Behaviour):
-    """BT.CPP ScriptCondition: SUCCESS when ``code`` is true."""
+    """SUCCESS when code (BT.CPP scripting) is true, else FAILURE"""
 
     KIND = "Condition"
-    DESCRIPTION = "SUCCESS when code (BT.CPP scripting) is true, else FAILURE"
     INPUT_PORTS = {"code": port_info(str, "a boolean expression, e.g. battery > 20")}  # noqa: RUF012
     SCRIPT_PORTS = ("code",)
 
@@ -126,9 +124,8 @@ class ScriptCondition(_Scripted, py_trees.behaviour.Behaviour):
 
 
 class SetBlackboard(_Scripted, py_trees.behaviour.Behaviour):
-    """BT.CPP SetBlackboard: ``value`` into the entry named by ``output_key``."""
+    """writes value into the blackboard entry named by output_key: SUCCESS"""
 
-    DESCRIPTION = "writes value into the blackboard entry named by output_key: SUCCESS"
     UNTYPED_PORTS = frozenset({"value", "output_key"})  # BT.CPP: AnyTypeAllowed
     INPUT_PORTS = {  # noqa: RUF012
         "value": port_info(str, "the value (text, as in BT.CPP), or {key} to copy an entry"),
@@ -162,9 +159,8 @@ class SetBlackboard(_Scripted, py_trees.behaviour.Behaviour):
 
 
 class UnsetBlackboard(_Scripted, py_trees.behaviour.Behaviour):
-    """BT.CPP UnsetBlackboard: remove the entry ``key``."""
+    """removes the blackboard entry key: SUCCESS"""
 
-    DESCRIPTION = "removes the blackboard entry key: SUCCESS"
     UNTYPED_PORTS = frozenset({"key"})
     INPUT_PORTS = {"key": port_info(str, "the entry to remove")}  # noqa: RUF012
 
@@ -176,9 +172,8 @@ class UnsetBlackboard(_Scripted, py_trees.behaviour.Behaviour):
 
 
 class Sleep(CanguardNode, py_trees.behaviour.Behaviour):
-    """BT.CPP Sleep: RUNNING for ``msec`` on the engine's clock, then SUCCESS."""
+    """RUNNING until msec have elapsed (the engine's clock), then SUCCESS"""
 
-    DESCRIPTION = "RUNNING until msec have elapsed (the engine's clock), then SUCCESS"
     INPUT_PORTS = {"msec": port_info(float, "how long (ms)")}  # noqa: RUF012
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
@@ -202,9 +197,8 @@ class Sleep(CanguardNode, py_trees.behaviour.Behaviour):
 
 
 class KeepRunningUntilFailure(DecoratorNode):
-    """BT.CPP KeepRunningUntilFailure: SUCCESS -> RUNNING; FAILURE ends it."""
+    """the child's SUCCESS becomes RUNNING (it is ticked again next time); FAILURE ends it"""
 
-    DESCRIPTION = "the child's SUCCESS becomes RUNNING (it is ticked again next time); FAILURE ends it"
     SKIP_THROUGH = False  # BT.CPP: a skipped child leaves it RUNNING
 
     def update(self) -> py_trees.common.Status:
@@ -213,9 +207,8 @@ class KeepRunningUntilFailure(DecoratorNode):
 
 
 class Precondition(_Scripted, DecoratorNode):
-    """BT.CPP Precondition: tick the child while ``if`` holds, else return ``else``."""
+    """ticks the child when the script if is true (and while it runs); else returns else"""
 
-    DESCRIPTION = "ticks the child when the script if is true (and while it runs); else returns else"
     INPUT_PORTS = {  # noqa: RUF012
         "if": port_info(str, "the condition (BT.CPP scripting)"),
         "else": port_info(str, "status when the condition is false: FAILURE, SUCCESS, RUNNING or SKIPPED",
@@ -290,14 +283,12 @@ class _Branching(CanguardNode, py_trees.composites.Composite):
 
 
 class IfThenElse(_Branching):
-    """BT.CPP IfThenElse."""
+    """first child decides: SUCCESS ticks the second, FAILURE the third (or fails); not re-checked"""
 
-    DESCRIPTION = "first child decides: SUCCESS ticks the second, FAILURE the third (or fails); not re-checked"
 
 
 class WhileDoElse(_Branching):
-    """BT.CPP WhileDoElse."""
+    """like IfThenElse, but the first child is ticked every time: a change halts the running branch"""
 
-    DESCRIPTION = "like IfThenElse, but the first child is ticked every time: a change halts the running branch"
     REACTIVE = True
 

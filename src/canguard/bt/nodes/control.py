@@ -45,12 +45,9 @@ from canguard.bt.nodes.base import (
 
 
 class Parallel(CanguardNode, py_trees.composites.Parallel):
-    """BT.CPP 4 Parallel: SUCCESS at success_count successes, FAILURE at failure_count failures."""
+    """ticks every unfinished child each tick; SUCCESS after success_count successes, FAILURE after failure_count
+    failures (negative: children + 1 + n, so -1 = all)"""
 
-    DESCRIPTION = (
-        "ticks every unfinished child each tick; SUCCESS after success_count successes, FAILURE after "
-        "failure_count failures (negative: children + 1 + n, so -1 = all)"
-    )
     INPUT_PORTS = {  # noqa: RUF012
         "success_count": port_info(int, "successes needed (-1: all children)", -1),
         "failure_count": port_info(int, "failures that fail the parallel (-1: all children)", 1),
@@ -127,23 +124,20 @@ class Parallel(CanguardNode, py_trees.composites.Parallel):
 
 
 class Inverter(CanguardNode, py_trees.decorators.Inverter):
-    """SUCCESS <-> FAILURE; RUNNING passes."""
+    """SUCCESS <-> FAILURE; RUNNING unchanged"""
 
-    DESCRIPTION = "SUCCESS <-> FAILURE; RUNNING unchanged"
     QUIET_RETICK = True
 
 
 class ForceSuccess(CanguardNode, py_trees.decorators.FailureIsSuccess):
-    """FAILURE becomes SUCCESS; RUNNING passes."""
+    """FAILURE becomes SUCCESS; RUNNING unchanged"""
 
-    DESCRIPTION = "FAILURE becomes SUCCESS; RUNNING unchanged"
     QUIET_RETICK = True
 
 
 class ForceFailure(CanguardNode, py_trees.decorators.SuccessIsFailure):
-    """SUCCESS becomes FAILURE; RUNNING passes."""
+    """SUCCESS becomes FAILURE; RUNNING unchanged"""
 
-    DESCRIPTION = "SUCCESS becomes FAILURE; RUNNING unchanged"
     QUIET_RETICK = True
 
 
@@ -211,9 +205,8 @@ class _Cycles(DecoratorNode):
 
 
 class RetryUntilSuccessful(_Cycles):
-    """Retries a failing child up to num_attempts attempts (-1: forever), as BT.CPP 4's ``retry_node.cpp``."""
+    """a FAILURE is retried, up to num_attempts attempts (-1: forever)"""
 
-    DESCRIPTION = "a FAILURE is retried, up to num_attempts attempts (-1: forever)"
     INPUT_PORTS = {  # noqa: RUF012
         "num_attempts": port_info(int, "attempts before giving up (-1: forever; 0: FAILURE, the child not ticked)"),
     }
@@ -222,9 +215,8 @@ class RetryUntilSuccessful(_Cycles):
 
 
 class Repeat(_Cycles):
-    """Repeats a succeeding child num_cycles times (-1: forever); FAILURE stops, as BT.CPP 4's ``repeat_node.cpp``."""
+    """a SUCCESS is repeated, num_cycles times (-1: forever); FAILURE ends it"""
 
-    DESCRIPTION = "a SUCCESS is repeated, num_cycles times (-1: forever); FAILURE ends it"
     INPUT_PORTS = {  # noqa: RUF012
         "num_cycles": port_info(int, "successes to collect (-1: forever; 0: SUCCESS, the child not ticked)"),
     }
@@ -233,9 +225,8 @@ class Repeat(_Cycles):
 
 
 class Timeout(DecoratorNode):
-    """Halts the child and fails once ``msec`` have elapsed on the context's clock."""
+    """FAILURE (child halted) when the child is still RUNNING msec after it started"""
 
-    DESCRIPTION = "FAILURE (child halted) when the child is still RUNNING msec after it started"
     INPUT_PORTS = {  # noqa: RUF012
         "msec": port_info(float, "time limit (ms, the engine's clock); 0: none"),
     }
@@ -275,9 +266,8 @@ class Timeout(DecoratorNode):
 
 
 class Delay(DecoratorNode):
-    """RUNNING for ``delay_msec`` on the context's clock, then ticks the child until it completes."""
+    """waits delay_msec (RUNNING), then ticks the child; the next run waits again"""
 
-    DESCRIPTION = "waits delay_msec (RUNNING), then ticks the child; the next run waits again"
     INPUT_PORTS = {  # noqa: RUF012
         "delay_msec": port_info(float, "delay before the child is ticked (ms, the engine's clock)"),
     }

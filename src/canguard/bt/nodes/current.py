@@ -178,9 +178,8 @@ class GuardNode(CanguardNode, py_trees.behaviour.Behaviour):
 
 
 class IsCurrentNormal(GuardNode):
-    """SUCCESS while the source's current is present, fresh, finite and |I| <= max_current."""
+    """SUCCESS while |current| <= max_current and the source is present, fresh and finite"""
 
-    DESCRIPTION = "SUCCESS while |current| <= max_current and the source is present, fresh and finite"
     INPUT_PORTS = {  # noqa: RUF012 - py_trees reads ports as plain class dicts
         "topic_name": port_info(str, "source name (battery or current kind) from the config"),
         "max_current": port_info(float, "maximum allowed |current| (A)", 30.0),
@@ -199,12 +198,9 @@ class IsCurrentNormal(GuardNode):
 
 
 class IsCurrentSafe(GuardNode):
-    """Overcurrent with hysteresis: trips at >= overcurrent_threshold, recovers at <= recovery_threshold."""
+    """hysteresis overcurrent guard: FAILURE from |I| >= overcurrent_threshold until |I| <= recovery_threshold; optional
+    persistence and inrush blanking"""
 
-    DESCRIPTION = (
-        "hysteresis overcurrent guard: FAILURE from |I| >= overcurrent_threshold until |I| <= "
-        "recovery_threshold; optional persistence and inrush blanking"
-    )
     INPUT_PORTS = {  # noqa: RUF012
         "topic_name": port_info(str, "source name (battery or current kind) from the config"),
         "overcurrent_threshold": port_info(float, "trip at |I| >= this (A)", 35.0),
@@ -264,9 +260,8 @@ class IsCurrentSafe(GuardNode):
 
 
 class IsI2tSafe(GuardNode):
-    """I²t thermal guard: FAILURE at 100 % of the trip level until it cools below recover_fraction."""
+    """I²t guard (leaky bucket or thermal image): FAILURE at 100 % heat until cooled"""
 
-    DESCRIPTION = "I²t guard (leaky bucket or thermal image): FAILURE at 100 % heat until cooled"
     INPUT_PORTS = {  # noqa: RUF012
         "topic_name": port_info(str, "source name (battery or current kind) from the config"),
         "model": port_info(str, "leaky (servo-drive bucket) or thermal (IEC 60255-8 image)", "leaky"),

@@ -21,9 +21,8 @@ from canguard.protect.threshold import Threshold
 
 
 class IsJointEffortNormal(GuardNode):
-    """SUCCESS while every joint's |effort| <= max_effort and every joint is fresh and finite."""
+    """SUCCESS while every joint's |effort| <= max_effort and every joint is fresh and finite"""
 
-    DESCRIPTION = "SUCCESS while every joint's |effort| <= max_effort and every joint is fresh and finite"
     INPUT_PORTS = {  # noqa: RUF012 - py_trees reads ports as plain class dicts
         "topic_name": port_info(str, "source name (joints kind) from the config"),
         "max_effort": port_info(float, "maximum allowed |effort| of any joint (N·m or N)", 100.0),

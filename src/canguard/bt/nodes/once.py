@@ -81,10 +81,9 @@ _ENTRY = {"entry": port_info(str, "the blackboard entry to watch ({key} or key)"
 
 
 class WasEntryUpdated(CanguardNode, py_trees.behaviour.Behaviour):
-    """BT.CPP WasEntryUpdated: SUCCESS when ``entry`` was written since this node last looked, else FAILURE."""
+    """SUCCESS when the entry was written since the last tick of this node (same value too)"""
 
     KIND = "Condition"
-    DESCRIPTION = "SUCCESS when the entry was written since the last tick of this node (same value too)"
     INPUT_PORTS = dict(_ENTRY)  # noqa: RUF012
     UNTYPED_PORTS = frozenset({"entry"})  # BT.CPP: InputPort<BT::Any>
 
@@ -134,23 +133,20 @@ class _EntryUpdated(DecoratorNode):
 
 
 class SkipUnlessUpdated(_EntryUpdated):
-    """BT.CPP SkipUnlessUpdated: the child runs after each write of ``entry``; otherwise SKIPPED."""
+    """ticks the child when the entry was written since the last look, else SKIPPED"""
 
-    DESCRIPTION = "ticks the child when the entry was written since the last look, else SKIPPED"
     IF_NOT_UPDATED = "SKIPPED"
 
 
 class WaitValueUpdate(_EntryUpdated):
-    """BT.CPP WaitValueUpdate: RUNNING until ``entry`` is written, then the child."""
+    """RUNNING until the entry is written (since the last look), then ticks the child"""
 
-    DESCRIPTION = "RUNNING until the entry is written (since the last look), then ticks the child"
     IF_NOT_UPDATED = "RUNNING"
 
 
 class RunOnce(DecoratorNode):
-    """BT.CPP RunOnce: the child runs to completion once; then SKIPPED (``then_skip``) or that status forever."""
+    """runs the child once; afterwards SKIPPED (then_skip=true) or the child's first result"""
 
-    DESCRIPTION = "runs the child once; afterwards SKIPPED (then_skip=true) or the child's first result"
     INPUT_PORTS = {  # noqa: RUF012
         "then_skip": port_info(bool, "after the first run: true = SKIPPED, false = the status it returned", True),
     }

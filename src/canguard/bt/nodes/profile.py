@@ -36,9 +36,8 @@ from canguard.bt.nodes.base import RUNNING, DecoratorNode, halted, port_info
 
 
 class Profile(DecoratorNode):
-    """Times the child's tick; outputs last_ms, avg_ms, max_ms, count; returns the child's status."""
+    """transparent: times its child's tick, outputs last/avg/max ms and count; resets on halt"""
 
-    DESCRIPTION = "transparent: times its child's tick, outputs last/avg/max ms and count; resets on halt"
     OUTPUT_PORTS = {  # noqa: RUF012
         "last_ms": port_info(float, "duration of the child's last tick (ms)", required=False),
         "avg_ms": port_info(float, "mean duration since the last reset (ms)", required=False),

@@ -99,13 +99,12 @@ def compare(op: str, elapsed: float, reference: float, tolerance: float) -> bool
 
 
 class IsElapsedTimeCompare(_TimerUser, py_trees.behaviour.Behaviour):
-    """Compares the time elapsed since a reference with ``reference_sec`` (GT, LT, GTE, LTE, EQ).
+    """SUCCESS when (now − reference time) <operator> reference_sec
 
     Its timer is its own unless ``timer`` names a shared key (module docstring).
     """
 
     KIND = "Condition"
-    DESCRIPTION = "SUCCESS when (now − reference time) <operator> reference_sec"
     INPUT_PORTS = {  # noqa: RUF012 - py_trees reads ports as plain class dicts
         "reference_sec": port_info(float, "the time to compare the elapsed time with (s)"),
         "operator": port_info(str, "GT, LT, GTE, LTE or EQ (|elapsed − reference_sec| < tolerance)", "GT"),
@@ -167,10 +166,9 @@ class IsElapsedTimeCompare(_TimerUser, py_trees.behaviour.Behaviour):
 
 
 class IsElapsedSinceEvent(CanguardNode, py_trees.behaviour.Behaviour):
-    """SUCCESS while min_elapsed_sec <= now − event_timestamp <= max_elapsed_sec."""
+    """SUCCESS inside the time window [min_elapsed_sec, max_elapsed_sec] after event_timestamp"""
 
     KIND = "Condition"
-    DESCRIPTION = "SUCCESS inside the time window [min_elapsed_sec, max_elapsed_sec] after event_timestamp"
     INPUT_PORTS = {  # noqa: RUF012
         "event_timestamp": port_info(float, "time of the event (s), e.g. {mission_start_time}"),
         "min_elapsed_sec": port_info(float, "window start after the event (s)", 0.0),
@@ -191,10 +189,9 @@ class IsElapsedSinceEvent(CanguardNode, py_trees.behaviour.Behaviour):
 
 
 class IsCooldownElapsed(CanguardNode, py_trees.behaviour.Behaviour):
-    """SUCCESS when never executed (absent or <= 0) or at least cooldown_sec after the last execution."""
+    """SUCCESS when the action never ran (time absent or <= 0) or cooldown_sec have passed"""
 
     KIND = "Condition"
-    DESCRIPTION = "SUCCESS when the action never ran (time absent or <= 0) or cooldown_sec have passed"
     INPUT_PORTS = {  # noqa: RUF012
         "cooldown_sec": port_info(float, "minimum time between two executions (s)", 5.0),
         "last_execution_time": port_info(float, "time of the last execution (s), e.g. {last_recovery_time}", 0.0),
@@ -216,9 +213,8 @@ class IsCooldownElapsed(CanguardNode, py_trees.behaviour.Behaviour):
 
 
 class ResetTimer(_TimerUser, py_trees.behaviour.Behaviour):
-    """Restarts a timer: the named one, or the nearest own timers (module docstring); SUCCESS."""
+    """restart a timer: write now to its key (default: the nearest comparisons' own timers)"""
 
-    DESCRIPTION = "restart a timer: write now to its key (default: the nearest comparisons' own timers)"
     OUTPUT_PORTS = {  # noqa: RUF012
         "timer": port_info(
             float,
@@ -268,9 +264,8 @@ class ResetTimer(_TimerUser, py_trees.behaviour.Behaviour):
 
 
 class RecordTime(CanguardNode, py_trees.behaviour.Behaviour):
-    """Writes now to ``output_time``; SUCCESS (e.g. {mission_start_time} for IsElapsedSinceEvent)."""
+    """write the current time (s) to output_time"""
 
-    DESCRIPTION = "write the current time (s) to output_time"
     OUTPUT_PORTS = {  # noqa: RUF012
         "output_time": port_info(float, "blackboard key that receives the current time (s)"),
     }
