@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from canguard.bt.registry import children_problem
-from canguard.bt.xmlsrc import _read_xml
+from canguard.bt.xmlsrc import Where, _read_xml
 from canguard.errors import TreeError, quote
 
 KINDS = ("Action", "Condition", "Decorator", "Control", "SubTree")
@@ -39,8 +39,6 @@ KINDS = ("Action", "Condition", "Decorator", "Control", "SubTree")
 
 DIRECTIONS = {"input_port": "input", "output_port": "output", "inout_port": "inout", "bidirectional_port": "inout"}
 """Port elements and their direction (``bidirectional_port``: Groot2's and Nav2's name for inout)."""
-
-Where = tuple[Path, int]
 
 
 @dataclass(frozen=True)
