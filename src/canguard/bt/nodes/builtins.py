@@ -238,7 +238,7 @@ class Precondition(_Scripted, DecoratorNode):
                     self.stop(_STATUS[otherwise])
                 yield self
                 return
-        yield from super().tick()
+        yield from py_trees.decorators.Decorator.tick(self)  # the plain tick: this one is already skip-aware
 
 
 class _Branching(CanguardNode, py_trees.composites.Composite):

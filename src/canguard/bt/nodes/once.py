@@ -124,7 +124,7 @@ class _EntryUpdated(DecoratorNode):
                 self.status = RUNNING
             yield self
             return
-        yield from super().tick()
+        yield from py_trees.decorators.Decorator.tick(self)  # the plain tick: this one is already skip-aware
         self.still_running = self.status == RUNNING
 
     def terminate(self, new_status: py_trees.common.Status) -> None:
@@ -165,7 +165,7 @@ class RunOnce(DecoratorNode):
                 mark_skipped(self)
             yield self
             return
-        yield from super().tick()
+        yield from py_trees.decorators.Decorator.tick(self)  # the plain tick: this one is already skip-aware
 
     def update(self) -> py_trees.common.Status:
         status = self.decorated.status
