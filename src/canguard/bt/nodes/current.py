@@ -50,7 +50,7 @@ class GuardNode(CanguardNode, py_trees.behaviour.Behaviour):
     """A guard answers from its source's health and its models: quiet when the models are sample-driven."""
     QUIET_OUTPUTS: ClassVar[frozenset[str]] = frozenset()
     """Output ports a quiet re-tick writes again (:meth:`quiet_retick`); another wired output makes it loud."""
-    _NAMES: ClassVar[dict[str, str]] = {"max_value": "max_current"}
+    _NAMES: ClassVar[dict[str, str]] = {}
     """The models' parameter names -> the ports that give them (errors are said in port names)."""
     model: ProtectionModel
 
@@ -81,9 +81,9 @@ class GuardNode(CanguardNode, py_trees.behaviour.Behaviour):
         self._clock = self.ctx.clock
         try:
             self._build(self.source)
-        except PortError:
-            raise
         except ValueError as exc:  # a model refused a value: said in the names of the ports
+            if isinstance(exc, PortError) or not self._NAMES:
+                raise
             raise self._model_error(exc) from None
 
     def _build(self, source: SourceConfig) -> None:
@@ -184,6 +184,7 @@ class IsCurrentNormal(GuardNode):
         "topic_name": port_info(str, "source name (battery or current kind) from the config"),
         "max_current": port_info(float, "maximum allowed |current| (A)", 30.0),
     }
+    _NAMES = {"max_value": "max_current"}  # noqa: RUF012
     model: Threshold
 
     def _build(self, source: SourceConfig) -> None:
