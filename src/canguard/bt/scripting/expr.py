@@ -11,8 +11,10 @@ Two BT.CPP behaviours worth knowing: ``&&`` and ``||`` evaluate both operands
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+import operator
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from typing import Any
 
 from canguard.bt.scripting.blackboard import ScriptBlackboard
 from canguard.bt.scripting.errors import ScriptError
@@ -182,18 +184,15 @@ def _not_permitted(op: str, lv: object, rv: object, pos: int) -> ScriptError:
     )
 
 
-def _compare(op: str, a: object, b: object) -> bool:
-    if op == "==":
-        return abs(a - b) <= FLT_EPSILON if isinstance(a, float) else a == b  # type: ignore[operator]
-    if op == "!=":
-        return not _compare("==", a, b)
-    if op == "<":
-        return a < b  # type: ignore[operator]
-    if op == ">":
-        return a > b  # type: ignore[operator]
-    if op == "<=":
-        return a <= b  # type: ignore[operator]
-    return a >= b  # type: ignore[operator]
+_ORDER: dict[str, Callable[[Any, Any], bool]] = {
+    "<": operator.lt, ">": operator.gt, "<=": operator.le, ">=": operator.ge}
+
+
+def _compare(op: str, a: Any, b: Any) -> bool:
+    """``a op b``; reals are equal within float's epsilon (BT.CPP's ``IsSame``)."""
+    if op in ("==", "!="):
+        return (abs(a - b) <= FLT_EPSILON if isinstance(a, float) else a == b) == (op == "==")
+    return _ORDER[op](a, b)
 
 
 @dataclass(frozen=True)
