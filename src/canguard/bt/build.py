@@ -105,7 +105,7 @@ class _Loader(_Validator):
                 was, at = first[key]
                 if was is not kind and was is not str:
                     self.errors.append(
-                        f"{info.file}:{info.line}: node {info.name} (BehaviorTree {info.tree}), port {port}: the entry "
+                        f"{info.where}, port {port}: the entry "
                         f"[{key.lstrip('/')}] was created with type [{_type_name(was, cpp=True)}] ({at}) and is used "
                         f"here as [{_type_name(kind, cpp=True)}]; one entry has one type (as in BT.CPP)"
                     )
@@ -157,25 +157,18 @@ class _Loader(_Validator):
             if isinstance(node, CanguardNode):
                 node.resolve_root_keys()
         self.check_entry_types([n for n, _, _ in placed], loaded_nodes)
-        for node, _, _ in placed:
-            if isinstance(node, CanguardNode):
-                info = loaded_nodes[node.id]
-                try:
-                    node.bind()
-                except PortError as exc:
-                    self.errors.append(
-                        f"{info.file}:{info.line}: node {info.name} (BehaviorTree {info.tree}), "
-                        f"port {exc.port}: {exc.message}"
-                    )
-                except (ValueError, KeyError, TypeError) as exc:
-                    self.errors.append(
-                        f"{info.file}:{info.line}: node {info.name} (BehaviorTree {info.tree}): {exc}"
-                    )
-        self.raise_collected()  # every node that cannot bind, not only the first
         wake_up = WakeUpSignal()
-        for node, _, _ in placed:  # BT.CPP's factory gives every node of a tree its wake-up signal
-            if isinstance(node, CanguardNode):
-                node.wake_up = wake_up
+        for node, _, _ in placed:
+            if not isinstance(node, CanguardNode):
+                continue
+            node.wake_up = wake_up  # BT.CPP's factory gives every node of a tree its wake-up signal
+            try:
+                node.bind()
+            except PortError as exc:
+                self.errors.append(f"{loaded_nodes[node.id].where}, port {exc.port}: {exc.message}")
+            except (ValueError, KeyError, TypeError) as exc:
+                self.errors.append(f"{loaded_nodes[node.id].where}: {exc}")
+        self.raise_collected()  # every node that cannot bind, not only the first
         return LoadedTree(
             root=root,
             tree=py_trees.trees.BehaviourTree(root=root),

@@ -29,6 +29,11 @@ class NodeInfo:
     tree: str
     """The ``<BehaviorTree ID>`` it is written in."""
 
+    @property
+    def where(self) -> str:
+        """``file:line: node name (BehaviorTree ID)``, as a problem of the node names it."""
+        return f"{self.file}:{self.line}: node {self.name} (BehaviorTree {self.tree})"
+
 
 GuardKind = Literal["threshold", "i2t"]
 
