@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 import re
 import xml.etree.ElementTree as ET
-from collections.abc import Collection, Mapping
+from collections.abc import Mapping
 
 from py_trees.parsers.behaviour_tree_xml import is_key
 from py_trees.ports import PortInformation, PortsMixin
@@ -170,14 +170,11 @@ class _Validator(_Reader):
             **{n: ("input", i) for n, i in cls.input_ports().items()},
             **{n: ("output", i) for n, i in cls.output_ports().items()},
         }
-        const_ports: Collection[str] = getattr(cls, "CONST_PORTS", frozenset())
-        key_ports: Collection[str] = getattr(cls, "KEY_PORTS", frozenset())
-        choices: Mapping[str, tuple[str, ...]] = getattr(cls, "CHOICES", {})
         for attr, value in elem.attrib.items():
             if attr == "name":
                 continue
             try:
-                self._check_port(elem, tree_id, attr, value, ports, const_ports, key_ports, choices)
+                self._check_port(elem, tree_id, attr, value, ports, cls)
             except TreeError as exc:
                 self.errors.extend(exc.problems)
         missing = [
@@ -201,11 +198,9 @@ class _Validator(_Reader):
         attr: str,
         value: str,
         ports: Mapping[str, tuple[str, PortInformation]],
-        const_ports: Collection[str],
-        key_ports: Collection[str],
-        choices: Mapping[str, tuple[str, ...]],
+        cls: type,
     ) -> None:
-        """Raise the TreeError of one attribute of a node (unknown port, bad value...), if any."""
+        """Raise the TreeError of one attribute of a node of ``cls`` (unknown port, bad value...), if any."""
         node_id = elem.tag
         if attr.startswith("_"):
             known = ", ".join(conditions.PRE + conditions.POST)
@@ -217,22 +212,14 @@ class _Validator(_Reader):
         direction, info = ports[attr]
         match = self._check_key_syntax(elem, attr, value, tree_id)
         if match:
-            if attr in const_ports:
-                raise self.error(
-                    elem,
-                    f"takes a constant (it configures the node at load time), not {value}",
-                    tree_id,
-                    attr,
-                )
+            if attr in getattr(cls, "CONST_PORTS", ()):
+                raise self.error(elem, f"takes a constant (it configures the node at load time), not {value}",
+                                 tree_id, attr)
             return
         if direction == "output":
-            raise self.error(
-                elem,
-                f"an output port takes a blackboard key like {{{attr}}}, not {quote(value)}",
-                tree_id,
-                attr,
-            )
-        if attr in key_ports:
+            raise self.error(elem, f"an output port takes a blackboard key like {{{attr}}}, not {quote(value)}",
+                             tree_id, attr)
+        if attr in getattr(cls, "KEY_PORTS", ()):
             raise self.error(elem, f"takes a blackboard key like {{{attr}}}, not {quote(value)}", tree_id, attr)
         try:
             converted, parsed = convert_str_to_type(value, info.data_type)
@@ -242,7 +229,7 @@ class _Validator(_Reader):
             raise self.error(elem, f"{quote(value)} is not a valid {_type_name(info.data_type)}", tree_id, attr)
         if isinstance(parsed, float) and math.isnan(parsed):
             raise self.error(elem, f"{quote(value)} is not a number", tree_id, attr)
-        allowed = choices.get(attr)
+        allowed = getattr(cls, "CHOICES", {}).get(attr)
         if allowed is not None and parsed not in allowed:
             raise self.error(elem, f"unknown value {quote(value)}; expected one of {', '.join(allowed)}", tree_id, attr)
 
