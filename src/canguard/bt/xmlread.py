@@ -108,12 +108,17 @@ class _Reader:
         return TreeError(f"{self.at(elem)}: {where}: {msg}")
 
     # -- step 1: read, includes ---------------------------------------------------------
-    def read(self) -> None:
-        root = _read_xml(self.path, self.where)
+    def _document(self, path: Path) -> ET.Element:
+        """The ``<root>`` element of the file ``path`` (its elements' lines recorded)."""
+        root = _read_xml(path, self.where)
         if root.tag != "root":
             raise TreeError(
                 f"{self.at(root)}: the document element is <{root.tag}>, expected <root> (BehaviorTree.CPP XML)"
             )
+        return root
+
+    def read(self) -> None:
+        root = self._document(self.path)
         fmt = root.attrib.get("BTCPP_format")
         if fmt not in (None, "3", "4"):
             raise TreeError(f'{self.at(root)}: BTCPP_format="{fmt}" is not supported (3 or 4)')
@@ -155,10 +160,7 @@ class _Reader:
         if key in seen:
             return  # already included (or the including file itself)
         seen.add(key)
-        inc_root = _read_xml(target, self.where)
-        if inc_root.tag != "root":
-            raise TreeError(f"{self.at(inc_root)}: the document element is <{inc_root.tag}>, expected <root>")
-        self._collect(inc_root, target, seen)
+        self._collect(self._document(target), target, seen)
 
     # -- step 2: rewrite v3 spellings ---------------------------------------------------
     def rewrite(self) -> None:
