@@ -86,9 +86,6 @@ class Palette:
             problems.append(f"{node.where}: {node.kind} {node.node_id} is declared again differently "
                             f"(first at {first.where})")
 
-    def get(self, node_id: str) -> PaletteNode | None:
-        return self.nodes.get(node_id)
-
 
 def read_model(model: ET.Element, where: Mapping[ET.Element, Where], path: Path,
                palette: Palette, problems: list[str]) -> None:

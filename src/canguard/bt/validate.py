@@ -203,7 +203,7 @@ class _Validator(_Reader):
         """Raise the TreeError of one attribute of a node of ``cls`` (unknown port, bad value...), if any."""
         node_id = elem.tag
         if attr.startswith("_"):
-            known = ", ".join(conditions.PRE + conditions.POST)
+            known = ", ".join(conditions.ALL)
             raise self.error(elem, f"attribute {attr} (BT.CPP pre/post-conditions) is not supported; "
                                    f"the supported ones: {known}", tree_id)
         if attr not in ports:

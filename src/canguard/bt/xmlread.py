@@ -83,7 +83,7 @@ class _Reader:
 
     def declared(self, node_id: str) -> PaletteNode | None:
         """The palette's declaration of ``node_id`` (None: not declared, or no palette read)."""
-        return None if self._palette is None else self._palette.get(node_id)
+        return None if self._palette is None else self._palette.nodes.get(node_id)
 
     # -- errors ------------------------------------------------------------------------
     def raise_collected(self) -> None:
