@@ -26,12 +26,10 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
 if TYPE_CHECKING:
     import py_trees
-
-    from canguard.bt.loaded import LoadedTree
 
 MAX_RETICKS = 100
 """Re-ticks of the root allowed in one tick (after the first); the rest wait for the next tick."""
@@ -78,6 +76,17 @@ class WakeUpSignal:
             self.emit()
 
 
+class _Tree(Protocol):
+    """What :func:`tick_once` needs of a loaded tree."""
+
+    root: py_trees.behaviour.Behaviour
+    wake_up: WakeUpSignal
+
+    def now(self) -> float: ...
+
+    def record(self, event: str, **fields: object) -> None: ...
+
+
 @dataclass(frozen=True)
 class Ticked:
     """What one :func:`tick_once` did."""
@@ -105,7 +114,7 @@ def _tick_root(root: py_trees.behaviour.Behaviour, reached: set | None) -> None:
 
 
 def tick_once(
-    tree: LoadedTree, max_reticks: int = MAX_RETICKS, *, exactly_once: bool = False, collect: bool = False
+    tree: _Tree, max_reticks: int = MAX_RETICKS, *, exactly_once: bool = False, collect: bool = False
 ) -> Ticked:
     """BT.CPP's ``tickOnce()``: tick the root, and again while it is RUNNING with a wake-up pending.
 

@@ -1,26 +1,15 @@
 """What every canguard node shares: typed ports, the context, a load-time ``bind()``.
 
-Every node type is a :class:`py_trees.ports.PortsMixin` + py_trees behaviour
-subclass declaring ``INPUT_PORTS`` / ``OUTPUT_PORTS`` with the names
-BehaviorTree.CPP users type. :class:`CanguardNode` adds:
-
-- ``context=``: the :class:`~canguard.bt.context.Context` of the tree, bound by the
-  registry with ``functools.partial`` (nodes never reach for globals or clocks);
-- no entry in py_trees' global auto-registry (``register=False`` by default):
-  importing canguard must not change what other py_trees users' parsers resolve;
-- port bookkeeping done once at ``setup_ports()``: constant ports (``max_current="40"``)
-  and ports left at their default are read once and cached; only ports wired to a
-  blackboard key (``{key}``) are read again at tick, which keeps a tick as cheap
-  as a bare py_trees behaviour;
-- :meth:`bind`: called by the loader after the whole tree is parsed, so that an
-  error in a port value (recovery above overcurrent, unknown source...) is a
-  load-time :class:`~canguard.errors.TreeError` naming file, line, node and port;
-- class metadata for validation and the Groot2 palette: ``KIND`` (set from the
-  py_trees base unless a class says ``Condition``), ``DESCRIPTION``, ``CONST_PORTS``
-  (ports that must be constants), ``CHOICES`` (allowed values of string ports).
-
-Output ports are only written when wired (given in the XML): BehaviorTree.CPP
-likewise drops writes to unconnected ports.
+Every node type is a :class:`py_trees.ports.PortsMixin` + py_trees behaviour declaring
+``INPUT_PORTS`` / ``OUTPUT_PORTS`` with the names BehaviorTree.CPP users type.
+:class:`CanguardNode` adds the tree's :class:`~canguard.bt.context.Context` (``context=``,
+bound by the registry: nodes never reach for globals or clocks); stays out of py_trees'
+global auto-registry (importing canguard must not change what other py_trees users'
+parsers resolve); reads constant and default ports once, at ``setup_ports()`` (only ports
+wired to a ``{key}`` are read at tick); and has :meth:`~CanguardNode.bind`, called once the
+whole tree is parsed, so that a bad port value is a load-time TreeError naming file, line,
+node and port. Output ports are only written when wired, as BehaviorTree.CPP drops writes
+to unconnected ports.
 
 **Blackboard fast path.** The access rights and the remapped key of every wired port
 are fixed once ``setup_ports()`` has registered them, so :meth:`CanguardNode.port` and
