@@ -6,6 +6,7 @@ import math
 import re
 import xml.etree.ElementTree as ET
 from collections.abc import Mapping
+from typing import cast
 
 from py_trees.parsers.behaviour_tree_xml import is_key
 from py_trees.ports import PortInformation, PortsMixin
@@ -144,7 +145,8 @@ class _Validator(_Reader):
     def _check_node(self, elem: ET.Element, tree_id: str) -> type[PortsMixin] | None:
         """Record every problem of one node (ID, each port, children); its class, or None if unknown."""
         node_id = elem.tag
-        cls = self.classes.get(node_id)
+        entry = self.registry.get(node_id)
+        cls = cast("type[PortsMixin] | None", entry.func if entry is not None else None)
         decl = self.declared(node_id)
         if decl is not None and (cls is None or issubclass(cls, ConfiguredAction)):
             # declared by a palette: checked against the declaration; it runs only when bound

@@ -5,9 +5,7 @@ from __future__ import annotations
 import xml.etree.ElementTree as ET
 from collections.abc import Collection
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Literal, cast
-
-from py_trees.ports import PortsMixin
+from typing import TYPE_CHECKING, Any, Literal
 
 from canguard.bt.context import Context
 from canguard.bt.loaded import NodeInfo
@@ -53,7 +51,6 @@ class _Reader:
         """The same, by node token (set by the validator)."""
         self._inlined = 0
         self.registry: Registry = {}
-        self.classes: dict[str, type[PortsMixin]] = {}
         self.errors: list[str] = []
         """Every problem found so far (one load reports them all, not only the first)."""
         self.broken_trees: set[str] = set()
@@ -292,8 +289,6 @@ class _Reader:
         for bt in self.trees.values():
             used.update(e.tag for e in bt.iter() if e is not bt)
         self.registry = build_registry(self.ctx, only=used)
-        for node_id, entry in self.registry.items():
-            self.classes[node_id] = cast("type[PortsMixin]", entry.func)
 
     # -- step 3: validation ---------------------------------------------------------------
     def choose_main(self, main: str | None) -> str:
