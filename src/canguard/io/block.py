@@ -203,13 +203,8 @@ class Block:
     def payload_rows(self, rows: Any) -> np.ndarray:
         """:attr:`payload`'s ``rows`` (an index array), as wide as the longest of them or wider; made for these
         rows alone while :attr:`payload` is not made."""
-        made = self.__dict__.get("payload")
-        if made is None:
-            source = self.payload_source
-            if not isinstance(source, np.ndarray):
-                return source.rows(rows)
-            made = source
-        return made[rows]
+        source = self.__dict__.get("payload", self.payload_source)
+        return source[rows] if isinstance(source, np.ndarray) else source.rows(rows)
 
     @_cached
     def keys(self) -> np.ndarray:
@@ -266,13 +261,8 @@ class Block:
 
     def _payload_of(self, i: int, length: int) -> bytes:
         """Row ``i``'s payload (``length`` bytes)."""
-        made = self.__dict__.get("payload")
-        if made is None:
-            source = self.payload_source
-            if not isinstance(source, np.ndarray):
-                return source.one(i)
-            made = source
-        return made[i, :length].tobytes()
+        source = self.__dict__.get("payload", self.payload_source)
+        return source[i, :length].tobytes() if isinstance(source, np.ndarray) else source.one(i)
 
     def frames(self) -> Iterator[Frame]:
         """Every row as a :class:`Frame`, in order (each column converted once: what :meth:`frame` gives row by row,
