@@ -203,7 +203,7 @@ class Block:
     def payload_rows(self, rows: Any) -> np.ndarray:
         """:attr:`payload`'s ``rows`` (an index array), as wide as the longest of them or wider; made for these
         rows alone while :attr:`payload` is not made."""
-        source = self.__dict__.get("payload", self.payload_source)
+        source = self._made_payload()
         return source[rows] if isinstance(source, np.ndarray) else source.rows(rows)
 
     @_cached
@@ -261,8 +261,13 @@ class Block:
 
     def _payload_of(self, i: int, length: int) -> bytes:
         """Row ``i``'s payload (``length`` bytes)."""
-        source = self.__dict__.get("payload", self.payload_source)
+        source = self._made_payload()
         return source[i, :length].tobytes() if isinstance(source, np.ndarray) else source.one(i)
+
+    def _made_payload(self) -> np.ndarray | PayloadSource:
+        """:attr:`payload` once made (or given), else :attr:`payload_source`."""
+        made: np.ndarray | None = self.__dict__.get("payload")
+        return self.payload_source if made is None else made
 
     def frames(self) -> Iterator[Frame]:
         """Every row as a :class:`Frame`, in order (each column converted once: what :meth:`frame` gives row by row,
