@@ -235,7 +235,7 @@ class _Columns:
         self.close, self.sp2 = close, sp2
         ok &= self._ids(h1, sp2)
         ok &= self._data(h1, fe)
-        ok &= self._stamps(start, close)
+        ok &= self._stamps(start, close, fixed is not None)
         hexes = [(sp2 + 1, h1), (self.ds, self.de)]  # where only hex digits may be
         if not (whole and ok.all() and self._counted(b, tail, close, sp2)):
             for lo, hi in hexes:
@@ -378,33 +378,41 @@ class _Columns:
                 flags[column] |= flag
         return flags
 
-    def _stamps(self, start: np.ndarray, close: np.ndarray) -> np.ndarray:
-        """The timestamps (digits, a dot and digits, or digits alone, between "(" and ")") as :attr:`time_s`."""
+    def _stamps(self, start: np.ndarray, close: np.ndarray, fixed: bool) -> np.ndarray:
+        """The timestamps (digits, a dot and digits, or digits alone, between "(" and ")") as :attr:`time_s`.
+
+        ``fixed``: every line's ")" is where the first line's is (every stamp as wide)."""
         n = start.size
         self.time_s = np.zeros(n, dtype=np.float64)
         ok = np.ones(n, dtype=bool)
-        width = close - start - 1
-        dot = self._dots(start, close)
-        self.dot_at = dot < close
-        place = np.where(self.dot_at, dot - start - 1, 63)
-        key = np.minimum(width, 48) * 64 + place
+        at = self._dot_place(start, close)
         kinds: list[tuple[int, slice | np.ndarray]]
-        if n and (key == key[0]).all():
-            kinds = [(int(key[0]), slice(None))]
+        if fixed and at:  # one kind of stamp: the first line's
+            self.dot_at = np.ones(n, dtype=bool)
+            kinds = [(min(int(close[0] - start[0]) - 1, 48) * 64 + at - 1, slice(None))]
         else:
-            kinds = [(int(k), np.flatnonzero(key == k)) for k in np.unique(key).tolist()]
+            width = close - start - 1
+            dot = start + at if at else _next(self.b, 46, start + 1, close)
+            self.dot_at = dot < close
+            place = np.where(self.dot_at, dot - start - 1, 63)
+            key = np.minimum(width, 48) * 64 + place
+            if n and (key == key[0]).all():
+                kinds = [(int(key[0]), slice(None))]
+            else:
+                kinds = [(int(k), np.flatnonzero(key == k)) for k in np.unique(key).tolist()]
         for k, pick in kinds:
-            w, at = divmod(k, 64)
-            self._stamp_kind(w, at, start[pick] + 1, ok, pick)
+            w, place_at = divmod(k, 64)
+            self._stamp_kind(w, place_at, start[pick] + 1, ok, pick)
         return ok
 
-    def _dots(self, start: np.ndarray, close: np.ndarray) -> np.ndarray:
-        """The dot of each timestamp: where the first line has it, when every line does (else searched)."""
+    def _dot_place(self, start: np.ndarray, close: np.ndarray) -> int:
+        """Where the first line's timestamp has its dot (from the line's start), when every line's has one there;
+        else 0."""
         if start.size:
             at = self.pad[int(start[0]):int(close[0])].tobytes().find(b".")
             if at > 0 and ((self.pad[start + at] == 46) & (start + at < close)).all():
-                return start + at
-        return _next(self.b, 46, start + 1, close)
+                return at
+        return 0
 
     def _stamp_kind(self, width: int, dot: int, first: np.ndarray, ok: np.ndarray, pick: slice | np.ndarray) -> None:
         """The timestamps of ``width`` characters with the dot at ``dot`` (63: none) from ``first``."""
