@@ -175,7 +175,8 @@ def _parsed(rewritten: tuple[bytes, np.ndarray | None], error_before: bool) -> P
     data &= ~indented
     whole = bool(data.all())  # every line a frame's (else the columns are those of the frames' lines)
     lines = np.arange(n) if whole else np.flatnonzero(data)
-    cols = _Columns(b, pad, start if whole else start[lines], nl if whole else nl[lines], whole, b"_" in text)
+    cols = _Columns(b, pad, start if whole else start[lines], nl if whole else nl[lines], whole, b"_" in text,
+                    first if whole else first[lines])
     ok = cols.ok
     if announced is not None:  # a -ta line's [len] is its payload's length
         known = announced[lines]
@@ -209,11 +210,11 @@ class _Columns:
     ``whole``: every line of the block is one of these (no blank, comment or indented line): then one count
     of the block's bytes that are not hex digits, held to what the fields found account for, proves at once
     that the ids and payloads are hex digits (else each line's fields are counted on their own).
-    ``has_under``: the block has an underscore (a raw DLC's, maybe).
+    ``has_under``: the block has an underscore (a raw DLC's, maybe). ``opening``: each line's first byte.
     """
 
     def __init__(self, b: np.ndarray, pad: np.ndarray, start: np.ndarray, end: np.ndarray, whole: bool,
-                 has_under: bool) -> None:
+                 has_under: bool, opening: np.ndarray) -> None:
         self.b = b
         self.pad = pad
         self.start = start
@@ -223,13 +224,14 @@ class _Columns:
         fixed = self._fixed(start, end)
         if fixed is not None:  # the ")", the spaces and the channel's end where :meth:`_fixed` saw them on every line
             close, sp2 = fixed
-            ok = pad[start] == 40
+            ok = opening == 40
         else:
             close, sp2 = self._searched(start, end)
-            ok = (pad[start] == 40) & (close < end) & (pad[close + 1] == 32) & (sp2 < end) & (sp2 > close + 2)
+            ok = (opening == 40) & (close < end) & (pad[close + 1] == 32) & (sp2 < end) & (sp2 > close + 2)
         fe = self._field_end(sp2, end)
         tail = fe < end
-        ok &= ~tail | ((fe == end - 2) & _MARKERS[pad[end - 1]])
+        if tail.any():
+            ok &= ~tail | ((fe == end - 2) & _MARKERS[pad[end - 1]])
         h1 = self._hash(sp2, fe)
         ok &= h1 < fe
         self.close, self.sp2 = close, sp2
@@ -330,7 +332,7 @@ class _Columns:
         fd = after == 35
         remote = (after == 82) | (after == 114)
         has_fd, has_remote, has_under = bool(fd.any()), bool(remote.any()), self.has_under
-        digit = pad[h1 + 2]
+        digit = pad[h1 + 2] if has_fd or has_remote else after  # CAN FD flags, a remote DLC (else unread)
         checks = []
         ds = h1 + 1
         if has_fd:
