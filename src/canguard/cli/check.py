@@ -1,9 +1,4 @@
-"""What ``canguard check`` prints: the config as canguard understood it.
-
-:func:`describe` turns a loaded :class:`~canguard.config.schema.Config` into a plain
-text report: DBC files, buses, each source with its message, frame id, signals,
-units and DBC ranges, and the task / stop / action frames with their payloads.
-"""
+"""What ``canguard check`` prints: the config as canguard understood it."""
 
 from __future__ import annotations
 

@@ -16,21 +16,10 @@ if TYPE_CHECKING:
 
 
 def bundled_config() -> Path:
-    """The config shipped in the package (``canguard/data/config/canguard.yaml``).
-
-    Looked up when a command needs it (also as the module attribute ``BUNDLED_CONFIG``), not
-    at import: importlib.resources costs every start ~5 ms, and a config given with ``-c``
-    never needs it.
-    """
+    """The config shipped in the package (``canguard/data/config/canguard.yaml``), looked up when needed."""
     from canguard.data import data_path
 
     return data_path("config", "canguard.yaml")
-
-
-def __getattr__(name: str) -> Path:
-    if name == "BUNDLED_CONFIG":
-        return bundled_config()
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 EXIT_OK = 0
@@ -65,11 +54,7 @@ COMMANDS: dict[str, str] = {
     "unit": "print the systemd unit for this install (right ExecStart path)",
     "completion": "print a shell completion script (bash or zsh)",
 }
-"""Every subcommand and its one-line help, in the order ``canguard -h`` lists them.
-
-Here, not in each subcommand's module, so ``canguard -h`` and a command's parse need not
-import every module (:func:`canguard.cli.main.build_parser` builds only the one being run).
-"""
+"""Every subcommand and its one-line help, in the order ``canguard -h`` lists them (no module imported)."""
 
 
 def exit_codes_epilog() -> str:
@@ -128,12 +113,8 @@ def run_config(args: argparse.Namespace) -> tuple[Config, Path | None]:
 
 
 def add_global_options(p: argparse.ArgumentParser, *, in_subcommand: bool) -> None:
-    """Options valid anywhere on the command line: ``canguard -v replay`` = ``canguard replay -v``.
-
-    argparse parses a subcommand into a namespace of its own and copies it over the
-    main one, so the subcommand's count has its own name (``sub_verbose``) and
-    :func:`canguard.cli.main.parse_args` adds the two: ``-v replay -v`` is ``-vv``.
-    """
+    """``-v`` anywhere: a subcommand's count is ``sub_verbose`` (argparse copies a subparser's namespace over the
+    main one), added up by :func:`canguard.cli.main.parse_args`."""
     dest = "sub_verbose" if in_subcommand else "verbose"
     p.add_argument("-v", "--verbose", action="count", default=0, dest=dest, help="more log output (-vv: debug)")
 
@@ -164,9 +145,8 @@ BLAS_THREADS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 
 
 def one_blas_thread() -> None:
-    """One thread for each BLAS pool numpy would start, unless the user set one: canguard's numpy work is
-    block by block, never worth a pool, and OpenBLAS starts a thread per core at numpy's import that spins
-    beside the replay (a 600 k-frame replay used ~15 % more CPU with it). Before numpy is imported."""
+    """One thread for each BLAS pool numpy would start, unless the user set one (canguard's numpy work is
+    block by block, never worth a pool). Before numpy is imported."""
     for name in BLAS_THREADS:
         os.environ.setdefault(name, "1")
 

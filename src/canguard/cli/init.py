@@ -1,11 +1,5 @@
-"""``canguard init DIR``: a starter config, its tree and a DBC copy, ready to edit and deploy.
-
-The files come from the package (the whole-robot example, ``robot_guard``), so this works
-from any directory after a plain ``pip install``. The written config names its DBC
-and tree relative to itself (the directory can move), the bus as SocketCAN (the
-robot) or ``virtual`` with ``simulation: true`` (a bench), and the files the daemon
-writes under ``--state-dir`` (the unit's StateDirectory, /var/lib/canguard).
-"""
+"""``canguard init DIR``: the packaged whole-robot example (config, tree, DBC) fitted to DIR, a bus and a state
+directory; or, with ``--canopen``, a config and tree for one CANopen drive."""
 
 from __future__ import annotations
 

@@ -13,7 +13,7 @@ import os
 import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from canguard.cli.common import (
     COMMANDS,
@@ -24,7 +24,6 @@ from canguard.cli.common import (
     add_global_options,
     add_monitor_options,
     add_state_dir,
-    bundled_config,
     default_config,
     exit_codes_epilog,
     one_blas_thread,
@@ -35,19 +34,9 @@ from canguard.cli.common import add_config as _add_config
 from canguard.cli.common import config_path as _config_path
 from canguard.errors import CanguardError, ConfigError
 
-if TYPE_CHECKING:
-    from canguard.cli.common import BUNDLED_CONFIG
-
 Handler = Callable[[argparse.Namespace], int]
 
-__all__ = ["BUNDLED_CONFIG", "build_parser", "default_config", "main", "parse_args"]
-
-
-def __getattr__(name: str) -> Path:
-    """``BUNDLED_CONFIG``: :func:`canguard.cli.common.bundled_config`, looked up when asked for."""
-    if name == "BUNDLED_CONFIG":
-        return bundled_config()
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+__all__ = ["build_parser", "default_config", "main", "parse_args"]
 
 
 # -- check -----------------------------------------------------------------------------------
@@ -227,9 +216,8 @@ _EXTRA_MODULES = ("replay", "tune", "simulate", "demo", "init", "unit", "complet
 def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     """The full argument parser (every subcommand has -h).
 
-    With ``command``, only that subcommand is built in full (its module imported); the
-    others are listed by name and help for ``canguard -h`` and its errors: the start-up of
-    one command does not pay for importing every other one (issue 16).
+    With ``command``, only that subcommand is built in full (its module imported); the others are
+    listed by name and help, so one command's start-up does not import every other one.
     """
     parser = argparse.ArgumentParser(
         prog="canguard",
@@ -323,14 +311,10 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def console() -> int:
-    """The process's entry point (the ``canguard`` console script, ``python -m canguard``): :func:`main`, then exit.
+    """The process's entry point (console script, ``python -m canguard``): :func:`main`, then exit.
 
-    What the process holds is frozen first: at exit Python would otherwise run its collector
-    over every object the imports made before freeing them, ~30 ms after a replay (a tenth
-    of a short one's time) and ~0.1 s more once ``distributed`` is loaded (``--dask``).
-    Everything still open was closed by the command; objects are freed as usual, only the
-    search for reference cycles among them is skipped. Not in :func:`main`, which tests and
-    embedding programs call and go on living after.
+    The heap is frozen before exit so that Python's collector does not walk every imported object
+    (~30 ms after a replay); not in :func:`main`, which tests and embedding programs call.
     """
     from canguard.cli.deferred import defer_unused
 
@@ -341,11 +325,7 @@ def console() -> int:
 
 
 def _quiet_broken_pipe() -> int:
-    """The reader of stdout went away (``| head``): end quietly, as a SIGPIPE'd Unix tool does.
-
-    Python's docs' recipe: point stdout at devnull so the interpreter's final flush
-    does not raise again and print a traceback.
-    """
+    """The reader of stdout went away (``| head``): stdout to devnull, so the final flush is quiet."""
     devnull = os.open(os.devnull, os.O_WRONLY)
     os.dup2(devnull, sys.stdout.fileno())
     os.close(devnull)

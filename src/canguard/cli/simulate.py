@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from canguard.cli.common import default_config, subcommand
+from canguard.cli.common import config_path, subcommand
 from canguard.errors import ConfigError
 
 
@@ -40,7 +40,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     from canguard.config.loader import load_config
     from canguard.sim import run_on_bus, write_log
 
-    cfg = load_config(args.config if args.config is not None else default_config())
+    cfg = load_config(config_path(args))
     if args.duration <= 0:
         raise ConfigError(f"--duration {args.duration}: expected seconds > 0")
     from canguard.io.outputs import check_output

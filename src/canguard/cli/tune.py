@@ -23,7 +23,7 @@ import uuid
 from pathlib import Path
 from typing import Any
 
-from canguard.cli.common import EXIT_BAD_INPUT, EXIT_OK, EXIT_TRIPPED, default_config, subcommand
+from canguard.cli.common import EXIT_BAD_INPUT, EXIT_OK, EXIT_TRIPPED, config_path, subcommand
 from canguard.config.loader import load_config
 from canguard.config.schema import Config
 from canguard.errors import ConfigError
@@ -124,7 +124,7 @@ def cmd_tune(args: argparse.Namespace) -> int:
     from canguard.cli.fleet import expand_logs
     from canguard.report.proposal import LogStats, propose
 
-    cfg_path = args.config if args.config is not None else default_config()
+    cfg_path = config_path(args)
     cfg = load_config(cfg_path)
     if not math.isfinite(args.margin) or args.margin < 0:
         raise ConfigError(f"--margin: expected a percentage >= 0, found {args.margin!r}")

@@ -1,13 +1,5 @@
-"""``canguard unit``: the systemd unit for this install, with the right ExecStart; the CAN link's networkd file.
-
-The shipped ``canguard.service`` runs ``/opt/canguard/bin/canguard`` (the venv of
-docs/deploy.md). Installed elsewhere (pipx, another venv), this prints the same unit
-with the path of the canguard that runs this command, so nobody edits paths by hand:
-``canguard unit | sudo tee /etc/systemd/system/canguard.service``. The files live inside
-the installed package, where nobody should have to look for them: ``--network`` prints
-``80-can0.network`` (systemd-networkd brings the CAN link up) and ``--write DIR`` writes
-both into DIR under their shipped names, as a checkout's ``systemd/`` holds them.
-"""
+"""``canguard unit``: the packaged systemd unit with ExecStart at this install's canguard; ``--network`` the
+networkd file that brings the CAN link up; ``--write DIR`` both."""
 
 from __future__ import annotations
 
@@ -21,7 +13,6 @@ from canguard.cli.common import subcommand
 from canguard.data import data_path
 from canguard.errors import ConfigError
 
-SHIPPED_EXEC = "/opt/canguard/bin/canguard"
 DEFAULT_CONFIG = Path("/etc/canguard/canguard.yaml")
 
 
