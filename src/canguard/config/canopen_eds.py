@@ -1,18 +1,9 @@
-"""An EDS or DCF as drive vendors publish it, read with the ``canopen`` library for one node id.
+"""An EDS or DCF as drive vendors publish it, read with the ``canopen`` library (``import_od``) for one node id.
 
-The object dictionary is the ``canopen`` library's (``import_od``); this module reads the
-file's text first, for two things the library does not give:
-
-- **where**: each section's line, so an error names ``file:line [6077]``;
-- **leniency**: deviations that do not touch the object dictionary are tolerated and
-  noted (:attr:`Eds.notes`, listed by ``canguard check -v``): a ``[Comments]`` section
-  that does not follow ``Lines=`` / ``Line1=`` (it is left out), a ``[DummyUsage]`` without
-  every ``DummyNNNN`` (the missing ones are 0), keys an object section does not define.
-  A broken object entry stays an error naming its section and line.
-
-It also answers what the rest of canguard asks of a drive's dictionary: the PDOs it
-defines (disabled ones too), whether an object can be a PDO value, the device profile
-(0x1000) and COB-IDs written for another node id.
+The text is scanned first for what the library does not give: each section's line (errors name
+``file:line [6077]``), and leniency: deviations outside the object dictionary (a malformed
+``[Comments]``, an incomplete ``[DummyUsage]``, unknown keys) are noted in :attr:`Eds.notes`
+(``canguard check -v``), not refused.
 """
 
 from __future__ import annotations

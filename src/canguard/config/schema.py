@@ -194,11 +194,7 @@ class Config:
 
 @dataclass(frozen=True)
 class PartialConfig:
-    """The sound parts of a config that has problems (``ConfigError.partial``).
-
-    ``canguard check`` checks the tree against them, so the tree's mistakes are
-    listed in the same run as the config's.
-    """
+    """The sound parts of a config that has problems (``ConfigError.partial``): ``check`` judges the tree by them."""
 
     tree: TreeConfig | None
     """``tree:`` when it names an existing file."""
