@@ -1,14 +1,7 @@
 """Prometheus metrics (``canguard run --metrics 127.0.0.1:9108``; off by default).
 
-The engine calls the same methods on :class:`Metrics` (served over HTTP by
-prometheus-client, on a private registry) or :class:`NullMetrics` (the default:
-every method does nothing), so it never checks whether metrics are on.
-
-prometheus-client is an optional extra (``pip install 'canguard[metrics]'``): it is
-imported only when :class:`Metrics` is built, and its absence is a clear
-:class:`MetricsUnavailable` error rather than an ImportError at start-up.
-
-Metrics served (label in braces)::
+The engine calls the same methods on :class:`Metrics` (prometheus-client, an optional extra, on a
+private registry) or :class:`NullMetrics` (does nothing). Metrics served (label in braces)::
 
     canguard_frames_received_total{bus}     frames read from the bus
     canguard_frames_decoded_total{bus}      frames decoded into samples
@@ -63,12 +56,8 @@ class MetricsSink(Protocol):
 
 
 def parse_address(addr: str) -> tuple[str, int]:
-    """Split ``"127.0.0.1:9108"`` / ``"[::1]:9108"`` / ``"localhost:9108"`` into (host, port).
-
-    Port 0 asks the OS for a free port. Raises ValueError naming the address and
-    the expected form when the host or port is missing or malformed (an empty host
-    is refused rather than taken as "every interface").
-    """
+    """Split ``"127.0.0.1:9108"`` / ``"[::1]:9108"`` / ``"localhost:9108"`` into (host, port) (port 0: any free
+    one); ValueError naming the address when malformed (an empty host too: not "every interface")."""
     expected = "expected HOST:PORT, e.g. 127.0.0.1:9108 or [::1]:9108"
     text = addr.strip()
     if text.startswith("["):
@@ -126,13 +115,8 @@ class NullMetrics:
 
 
 class Metrics:
-    """canguard's Prometheus metrics on a private ``CollectorRegistry``.
-
-    Building it registers the metrics (raises :class:`MetricsUnavailable` without
-    prometheus-client); :meth:`start` serves them over HTTP. Every update method
-    is thread-safe and cheap (the labelled child of each bus / node / source is
-    looked up once and cached), so the engine may call them per frame.
-    """
+    """canguard's Prometheus metrics on a private ``CollectorRegistry`` (:class:`MetricsUnavailable` without
+    prometheus-client); :meth:`start` serves them. Updates are thread-safe and cheap (labelled children cached)."""
 
     def __init__(self) -> None:
         try:

@@ -1,23 +1,8 @@
-"""sd_notify from scratch, and the policy deciding when the watchdog may be fed.
+"""sd_notify (``man sd_notify``), and the policy deciding when the watchdog may be fed.
 
-:class:`Notifier` speaks systemd's notification protocol (``man sd_notify``): one
-AF_UNIX datagram of newline-separated ``KEY=value`` fields to the socket named by
-``$NOTIFY_SOCKET`` (a path, or an abstract name written ``@name``). Outside
-systemd (``NOTIFY_SOCKET`` unset) every call is a silent no-op, and no call ever
-raises: a send error is logged once at WARNING (later ones at DEBUG) and counted.
-
-What the daemon sends and when (``systemd/canguard.service`` is ``Type=notify``):
-
-- ``READY=1`` once the buses are open and the tree is loaded (:meth:`Notifier.ready`);
-- ``WATCHDOG=1`` only while :class:`WatchdogPolicy` says the loop is healthy: it
-  ticks on time and every source the tree reads is fresh or has caused a stop.
-  A stalled or blind daemon stops feeding the watchdog and systemd restarts it;
-- ``STATUS=...`` with state, trips and frame rates (:func:`status_line`);
-- ``RELOADING=1`` + ``MONOTONIC_USEC`` on SIGHUP, then ``READY=1`` again;
-- ``STOPPING=1`` on SIGTERM.
-
-The watchdog decision is a pure function (:func:`watchdog_verdict`) of what the
-engine passes in, so it is tested without a clock or a socket.
+:class:`Notifier` sends one AF_UNIX datagram of ``KEY=value`` lines to ``$NOTIFY_SOCKET`` (a path or
+``@abstract``); outside systemd every call is a no-op, and no call raises (errors logged once, counted).
+``WATCHDOG=1`` goes only while :func:`watchdog_verdict` (a pure function) says the loop is healthy.
 """
 
 from __future__ import annotations
@@ -41,13 +26,8 @@ log = logging.getLogger(__name__)
 
 
 class Notifier:
-    """Sends sd_notify messages to systemd; a no-op outside systemd.
-
-    ``env`` defaults to ``os.environ`` and is read once, at construction
-    (``NOTIFY_SOCKET``, ``WATCHDOG_USEC``, ``WATCHDOG_PID``). The socket is
-    non-blocking: a notification never stalls the guard loop (a full queue is a
-    logged, counted error, and the next ping tries again).
-    """
+    """Sends sd_notify messages to systemd; a no-op outside systemd. ``env`` (``os.environ``) is read once; the
+    socket is non-blocking (a full queue is a logged, counted error)."""
 
     def __init__(self, env: Mapping[str, str] | None = None) -> None:
         env = os.environ if env is None else env
@@ -75,11 +55,7 @@ class Notifier:
         return self.address is not None
 
     def notify(self, *fields: str) -> bool:
-        """Send ``fields`` (``"KEY=value"`` each) as one datagram; True if it was sent.
-
-        Never raises: without ``NOTIFY_SOCKET`` it returns False; an OSError is
-        logged (once at WARNING) and counted in ``errors``.
-        """
+        """Send ``fields`` (``"KEY=value"`` each) as one datagram; True if it was sent. Never raises."""
         if self.address is None or not fields:
             return False
         payload = "\n".join(fields).encode("utf-8", "replace")
@@ -129,11 +105,8 @@ class Notifier:
         return self.notify("RELOADING=1", f"MONOTONIC_USEC={usec}")
 
     def watchdog_interval_s(self) -> float | None:
-        """``WatchdogSec=`` in seconds when systemd expects pings from this process, else None.
-
-        None when ``WATCHDOG_USEC`` is unset, not a positive integer, or when
-        ``WATCHDOG_PID`` names another process. Ping at about half this interval.
-        """
+        """``WatchdogSec=`` in seconds when systemd expects pings from this process (``WATCHDOG_USEC`` a positive
+        integer, ``WATCHDOG_PID`` unset or ours), else None."""
         raw = self._env.get("WATCHDOG_USEC")
         if not raw:
             return None
@@ -195,20 +168,9 @@ def watchdog_verdict(
     stale_unstopped: Iterable[str] = (),
     k: float = 3.0,
 ) -> WatchdogVerdict:
-    """Decide whether the daemon is healthy enough to send ``WATCHDOG=1``.
-
-    Healthy means both:
-
-    - the loop ticks on time: a tick happened (``last_tick`` not None) and
-      ``now - last_tick <= k * tick_period_s`` (``now`` and ``last_tick`` in the
-      same monotonic time base);
-    - no source the tree reads is stale without having caused a stop:
-      ``stale_unstopped`` lists such sources (the engine computes it: sources
-      the tree reads, stale, while the tree is not stopping the task). A stale
-      source that made the tree stop is the guard working, not a fault.
-
-    Pure: same inputs, same verdict.
-    """
+    """Whether the daemon is healthy enough to send ``WATCHDOG=1``: a tick happened within ``k * tick_period_s``
+    of ``now`` (one monotonic time base), and ``stale_unstopped`` (sources the tree reads, stale, while the tree
+    is not stopping the task) is empty. Pure."""
     if tick_period_s <= 0:
         raise ValueError(f"tick_period_s must be > 0, got {tick_period_s}")
     if last_tick is None:
@@ -224,14 +186,8 @@ def watchdog_verdict(
 
 
 class WatchdogPolicy:
-    """Feeds the watchdog at most every ``ping_period_s``, and only while :func:`watchdog_verdict` is ok.
-
-    The engine calls :meth:`update` after each tick (or from a timer) with the
-    monotonic time; the policy sends ``WATCHDOG=1`` through ``notifier`` when a
-    ping is due and the daemon is healthy. ``ping_period_s`` defaults to half of
-    systemd's ``WatchdogSec`` (or 1 s outside systemd, where pings are no-ops).
-    Unhealthy spells are logged once each, with their reason.
-    """
+    """Feeds the watchdog at most every ``ping_period_s`` (half of ``WatchdogSec``, else 1 s), and only while
+    :func:`watchdog_verdict` is ok; each unhealthy spell is logged once, with its reason."""
 
     def __init__(
         self,
