@@ -7,10 +7,8 @@ healthy ceiling × (1 + margin), rounded up to three significant digits while it
 what every fault assigned to the guard needs. Where only a smaller margin fits, the midpoint is
 taken and said; where no value fits, the guard is a conflict naming both logs (exit 1).
 
-Which faults a guard must catch: with ``--expect``, the guards the file lists for the log;
-otherwise every fault log whose excursion on the guard's signals lies above the healthy
-ceiling (the guard can separate it). A fault no guard can separate is left to the proving
-replay (a stale source or a bad value trips it, or the proposal is refused).
+Which faults a guard must catch: those ``--expect`` lists for it, else every fault log whose excursion
+lies above the healthy ceiling; the rest is left to the proving replay.
 
 A source's ``max_age`` is proposed only where the value in force fails a log: a healthy log
 has a longer gap between its frames (it would go stale on a healthy day), or an assigned

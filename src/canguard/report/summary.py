@@ -174,10 +174,7 @@ def diff_baseline(base: dict[str, Any], new: dict[str, Any], margin_tolerance_pc
 
 
 def render_margin(m: dict[str, Any]) -> str:
-    """One guard's lowest margin in words, every figure with its unit (``peak 31.6 A vs threshold 35 A: ...``).
-
-    A summary saved before margins carried a unit prints the numbers alone.
-    """
+    """One guard's lowest margin in words, every figure with its unit (``peak 31.6 A vs threshold 35 A: ...``)."""
     if m.get("margin") is None:
         return "no data"
     unit = m.get("unit")

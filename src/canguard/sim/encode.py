@@ -1,12 +1,8 @@
 """Encoders for the simulator: one per DBC message, built once.
 
-ODrive CANSimple telemetry (``Get_Iq``, ``Get_Torques``, ``Get_Encoder_Estimates``,
-``Get_Bus_Voltage_Current``) is two little-endian float32 signals on byte
-boundaries. For such messages a :class:`struct.Struct` packs exactly the bytes
-cantools would produce, about ten times faster; every other message (the
-Motorola BMS, the bit-packed heartbeat) goes through cantools' own
-``Message.encode``. The fast path is only taken when the DBC layout proves it
-safe, so a changed DBC silently falls back to cantools instead of mis-encoding.
+A message of byte-aligned little-endian float32 signals only (ODrive telemetry) is packed with a
+:class:`struct.Struct` (~10x cantools' speed) where its DBC layout proves it the same bytes; every
+other message goes through cantools' ``Message.encode``.
 """
 
 from __future__ import annotations
@@ -47,12 +43,7 @@ def _float_struct(message: Any) -> tuple[struct.Struct, tuple[str, ...]] | None:
 
 
 class MessageEncoder:
-    """Encodes one DBC message's physical signal values into frame bytes.
-
-    ``encode`` takes every signal value (missing ones are 0); ``pack`` is the
-    positional fast path for float-only messages (values in start-bit order,
-    see ``fast_signals``) and falls back to cantools when there is none.
-    """
+    """Encodes one DBC message's physical signal values into frame bytes (``pack``: in ``fast_signals`` order)."""
 
     def __init__(self, message: Any) -> None:
         self.message = message

@@ -1,9 +1,7 @@
 """Where the simulated robot's frames go: a candump -L file, or a python-can bus.
 
-:func:`run_on_bus` is the one place in canguard's simulator that reads the wall
-clock: it paces frames to ``time.monotonic()`` so that a live daemon sees them
-at their real rate, and maps frames it receives back to simulated time. The
-robot itself only ever sees simulated time.
+:func:`run_on_bus` is the one place the simulator reads the wall clock (to pace frames and map received
+ones back to simulated time).
 """
 
 from __future__ import annotations
@@ -106,16 +104,9 @@ def run_on_bus(
 ) -> int:
     """Run the simulated robot on ``bus`` for ``duration_s`` seconds; return frames sent.
 
-    Frames go out paced to the wall clock (``time.monotonic()``: the one place
-    the simulator reads it) when ``realtime``, as fast as the bus takes them
-    otherwise. Between sends, frames from the bus (canguard's Estop,
-    Set_Axis_State, Clear_Errors) are answered through :meth:`SimRobot.receive`
-    at the simulated time they arrived. Waiting for the next due frame is done
-    in ``bus.recv(timeout)``, so a command is seen within a frame's gap.
-    Error frames are only sent on software buses (virtual, udp_multicast). A
-    send that fails (full transmit queue) is logged, counted as not sent and
-    skipped. ``stop_event`` ends the run early. Pass ``robot`` to reuse one,
-    otherwise ``robot_kwargs`` build a :class:`SimRobot` (``db`` required).
+    Paced to the wall clock when ``realtime``; frames from the bus are answered through
+    :meth:`SimRobot.receive` while waiting for the next due one. Error frames go only on software buses;
+    a refused send is logged and skipped. ``robot`` or ``robot_kwargs`` (``db`` required) give the robot.
     """
     if robot is None:
         robot = SimRobot(**robot_kwargs)

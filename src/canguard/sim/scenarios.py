@@ -7,7 +7,7 @@ seconds later). Figures are chosen against the bundled config:
 
 * ``/battery_state``: IsCurrentSafe trips above 35 A and recovers below 25 A;
   ``max_age`` 0.5 s. MultiCurrentMonitoring: BMS 40 A, joint effort 150 N·m.
-* I²t (issue 3, leaky bucket): continuous 10 A, peak 20 A for 1 s gives
+* I²t (leaky bucket): continuous 10 A, peak 20 A for 1 s gives
   S = (20² − 10²)·1 = 300 A²s; at 20 A from cold the trip time is
   300 / (20² − 10²) = 1.0 s. The thermal image with the same figures
   (τ = 1 / ln(400/300) = 3.48 s) trips after 1.0 s from cold too, earlier
