@@ -1,7 +1,6 @@
 """Prometheus metrics (``canguard run --metrics 127.0.0.1:9108``; off by default).
 
-The engine calls the same methods on :class:`Metrics` (prometheus-client, an optional extra, on a
-private registry) or :class:`NullMetrics` (does nothing). Metrics served (label in braces)::
+:class:`Metrics` (prometheus-client, an optional extra, on a private registry) serves (label in braces)::
 
     canguard_frames_received_total{bus}     frames read from the bus
     canguard_frames_decoded_total{bus}      frames decoded into samples
@@ -18,19 +17,11 @@ from __future__ import annotations
 
 import ipaddress
 import threading
-from typing import Any, Protocol
+from typing import Any
 
 from canguard.errors import CanguardError
 
-__all__ = [
-    "TICK_BUCKETS_S",
-    "Metrics",
-    "MetricsSink",
-    "MetricsUnavailable",
-    "NullMetrics",
-    "make_metrics",
-    "parse_address",
-]
+__all__ = ["TICK_BUCKETS_S", "Metrics", "MetricsUnavailable", "parse_address"]
 
 TICK_BUCKETS_S = (25e-6, 50e-6, 100e-6, 250e-6, 500e-6, 1e-3, 2.5e-3, 5e-3, 10e-3, 25e-3, 50e-3, 0.1)
 """Tick duration histogram buckets: a tick should take well under a millisecond."""
@@ -38,21 +29,6 @@ TICK_BUCKETS_S = (25e-6, 50e-6, 100e-6, 250e-6, 500e-6, 1e-3, 2.5e-3, 5e-3, 10e-
 
 class MetricsUnavailable(CanguardError, ImportError):
     """``--metrics`` was asked for but prometheus-client is not installed."""
-
-
-class MetricsSink(Protocol):
-    """What the engine calls; :class:`Metrics` and :class:`NullMetrics` both implement it."""
-
-    def frame_received(self, bus: str, n: int = 1) -> None: ...
-    def frames_decoded(self, bus: str, n: int) -> None: ...
-    def frame_invalid(self, bus: str, n: int = 1) -> None: ...
-    def send_error(self, bus: str, n: int = 1) -> None: ...
-    def trip(self, node: str) -> None: ...
-    def set_stop_state(self, active: bool) -> None: ...
-    def observe_tick(self, seconds: float) -> None: ...
-    def set_i2t_level(self, node: str, pct: float) -> None: ...
-    def set_sample_age(self, source: str, s: float) -> None: ...
-    def stop(self) -> None: ...
 
 
 def parse_address(addr: str) -> tuple[str, int]:
@@ -80,40 +56,6 @@ def parse_address(addr: str) -> tuple[str, int]:
     return host, int(port_text)
 
 
-class NullMetrics:
-    """Metrics off (the default): every method does nothing."""
-
-    def frame_received(self, bus: str, n: int = 1) -> None:
-        """Do nothing."""
-
-    def frames_decoded(self, bus: str, n: int) -> None:
-        """Do nothing."""
-
-    def frame_invalid(self, bus: str, n: int = 1) -> None:
-        """Do nothing."""
-
-    def send_error(self, bus: str, n: int = 1) -> None:
-        """Do nothing."""
-
-    def trip(self, node: str) -> None:
-        """Do nothing."""
-
-    def set_stop_state(self, active: bool) -> None:
-        """Do nothing."""
-
-    def observe_tick(self, seconds: float) -> None:
-        """Do nothing."""
-
-    def set_i2t_level(self, node: str, pct: float) -> None:
-        """Do nothing."""
-
-    def set_sample_age(self, source: str, s: float) -> None:
-        """Do nothing."""
-
-    def stop(self) -> None:
-        """Do nothing."""
-
-
 class Metrics:
     """canguard's Prometheus metrics on a private ``CollectorRegistry`` (:class:`MetricsUnavailable` without
     prometheus-client); :meth:`start` serves them. Updates are thread-safe and cheap (labelled children cached)."""
@@ -129,37 +71,21 @@ class Metrics:
         self._prom = prom
         self.registry = prom.CollectorRegistry(auto_describe=True)
         reg = self.registry
-        self._received = prom.Counter(
-            "canguard_frames_received", "CAN frames read from the bus", ["bus"], registry=reg
-        )
-        self._decoded = prom.Counter(
-            "canguard_frames_decoded", "CAN frames decoded into samples", ["bus"], registry=reg
-        )
-        self._invalid = prom.Counter(
-            "canguard_frames_invalid", "Frames of configured ids that did not decode", ["bus"], registry=reg
-        )
-        self._send_errors = prom.Counter(
-            "canguard_send_errors",
-            "Frames that could not be sent (full TX queue, error)",
-            ["bus"],
-            registry=reg,
-        )
+        self._received = prom.Counter("canguard_frames_received", "CAN frames read from the bus", ["bus"], registry=reg)
+        self._decoded = prom.Counter("canguard_frames_decoded", "CAN frames decoded into samples", ["bus"],
+                                     registry=reg)
+        self._invalid = prom.Counter("canguard_frames_invalid", "Frames of configured ids that did not decode",
+                                     ["bus"], registry=reg)
+        self._send_errors = prom.Counter("canguard_send_errors", "Frames that could not be sent (full TX queue, error)",
+                                         ["bus"], registry=reg)
         self._trips = prom.Counter("canguard_trips", "Guard trips", ["node"], registry=reg)
-        self._stop = prom.Gauge(
-            "canguard_stop_active", "1 while the tree stops the task, else 0", registry=reg
-        )
-        self._tick = prom.Histogram(
-            "canguard_tick_duration_seconds", "Tree tick duration", buckets=TICK_BUCKETS_S, registry=reg
-        )
-        self._i2t = prom.Gauge(
-            "canguard_i2t_level_percent",
-            "I²t heat of each guard, percent of its trip level",
-            ["node"],
-            registry=reg,
-        )
-        self._age = prom.Gauge(
-            "canguard_sample_age_seconds", "Age of the newest sample of each source", ["source"], registry=reg
-        )
+        self._stop = prom.Gauge("canguard_stop_active", "1 while the tree stops the task, else 0", registry=reg)
+        self._tick = prom.Histogram("canguard_tick_duration_seconds", "Tree tick duration", buckets=TICK_BUCKETS_S,
+                                    registry=reg)
+        self._i2t = prom.Gauge("canguard_i2t_level_percent", "I²t heat of each guard, percent of its trip level",
+                               ["node"], registry=reg)
+        self._age = prom.Gauge("canguard_sample_age_seconds", "Age of the newest sample of each source", ["source"],
+                               registry=reg)
         self._children: dict[tuple[int, str], Any] = {}
         self._lock = threading.Lock()
         self._server: Any = None
@@ -182,11 +108,8 @@ class Metrics:
     # -- serving ---------------------------------------------------------------------
 
     def start(self, addr: str) -> None:
-        """Serve ``/metrics`` over HTTP at ``addr`` (``HOST:PORT``) from a daemon thread.
-
-        Raises ValueError for a malformed address, OSError (naming the address) when
-        it cannot be bound, RuntimeError when already serving.
-        """
+        """Serve ``/metrics`` over HTTP at ``addr`` (``HOST:PORT``) from a daemon thread (ValueError: malformed,
+        OSError naming the address: cannot bind, RuntimeError: already serving)."""
         host, port = parse_address(addr)
         if self._server is not None:
             raise RuntimeError(f"metrics already served on {self.host}:{self.port}")
@@ -249,15 +172,3 @@ class Metrics:
     def set_sample_age(self, source: str, s: float) -> None:
         """Set the age in seconds of ``source``'s newest sample (``inf`` before the first)."""
         self._child(self._age, source).set(s)
-
-
-def make_metrics(addr: str | None) -> Metrics | NullMetrics:
-    """:class:`NullMetrics` when ``addr`` is None, else a started :class:`Metrics`.
-
-    Raises as :class:`Metrics` and :meth:`Metrics.start` do.
-    """
-    if addr is None:
-        return NullMetrics()
-    metrics = Metrics()
-    metrics.start(addr)
-    return metrics
