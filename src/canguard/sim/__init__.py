@@ -7,14 +7,8 @@ candump -L file; :func:`run_on_bus` plays the robot on a bus and answers canguar
 
 from canguard.sim.encode import MessageEncoder
 from canguard.sim.io import MAX_FRAMES_PER_S_1MBIT, run_on_bus, write_log
-from canguard.sim.robot import (
-    AXIS_STATE_CLOSED_LOOP,
-    AXIS_STATE_IDLE,
-    DEFAULT_RATES_HZ,
-    ERROR_ESTOP_REQUESTED,
-    KT_NM_PER_A,
-    SimRobot,
-)
+from canguard.sim.motion import AXIS_STATE_CLOSED_LOOP, AXIS_STATE_IDLE, ERROR_ESTOP_REQUESTED, KT_NM_PER_A
+from canguard.sim.robot import DEFAULT_RATES_HZ, SimRobot
 from canguard.sim.scenarios import SCENARIO_CLASSES, SCENARIOS, Scenario, parse_scenario
 
 __all__ = [

@@ -82,11 +82,6 @@ class Hub:
         first = newer[0][0] if newer else self._event_seq + 1
         return newer, max(0, first - seq - 1)
 
-    @property
-    def event_seq(self) -> int:
-        """The sequence number of the newest event."""
-        return self._event_seq
-
     def status_document(self) -> tuple[int, bytes]:
         """(version, ``/api/status`` JSON): the latest document, its version bumped when more than its time changed."""
         return self._doc
