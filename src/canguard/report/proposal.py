@@ -22,6 +22,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
+from canguard.report.summary import rounded
 from canguard.report.tune import percentile
 
 GAP_FACTOR = 1.5
@@ -77,12 +78,12 @@ class Proposal:
     def as_json(self) -> dict[str, Any]:
         """The proposal as plain data (``--json``)."""
         def need(n: Need | None) -> dict[str, Any] | None:
-            return None if n is None else {"log": n.log, "value": _num(n.value), "t": _num(n.t)}
+            return None if n is None else {"log": n.log, "value": rounded(n.value), "t": rounded(n.t)}
         return {
             "node": self.node, "type": self.type, "source": self.source, "port": self.port,
-            "old": _num(self.old), "new": _num(self.new), "status": self.status, "why": self.why,
+            "old": rounded(self.old), "new": rounded(self.new), "status": self.status, "why": self.why,
             "healthy_ceiling": need(self.healthy), "healthy_peak": need(self.peak),
-            "healthy_p99": _num(self.p99), "healthy_p99_9": _num(self.p999),
+            "healthy_p99": rounded(self.p99), "healthy_p99_9": rounded(self.p999),
             "faults": [need(f) for f in self.faults], "heat_pct": [need(h) for h in self.heat],
             "rating_scale": self.scale, "inrush": self.inrush,
         }
@@ -103,15 +104,11 @@ class AgeProposal:
 
     def as_json(self) -> dict[str, Any]:
         """The proposal as plain data (``--json``)."""
-        return {"source": self.source, "old": _num(self.old), "new": _num(self.new), "status": self.status,
-                "why": self.why, "period": _num(self.period),
-                "healthy_gap": None if self.gap is None else {"log": self.gap.log, "value": _num(self.gap.value),
-                                                              "t": _num(self.gap.t)},
-                "faults": [{"log": f.log, "value": _num(f.value)} for f in self.faults]}
-
-
-def _num(x: float | None) -> float | None:
-    return None if x is None or not math.isfinite(x) else round(x, 6)
+        return {"source": self.source, "old": rounded(self.old), "new": rounded(self.new), "status": self.status,
+                "why": self.why, "period": rounded(self.period),
+                "healthy_gap": None if self.gap is None else {"log": self.gap.log, "value": rounded(self.gap.value),
+                                                              "t": rounded(self.gap.t)},
+                "faults": [{"log": f.log, "value": rounded(f.value)} for f in self.faults]}
 
 
 def nice_up(x: float, below: float = math.inf) -> float:
