@@ -119,7 +119,7 @@ class TestParseAddress:
         ],
     )
     def test_good(self, addr: str, expected: tuple[str, int]) -> None:
-        """Host and port come out of IPv4, name and bracketed IPv6 addresses."""
+        """Host and port come out of IPv4, localhost and bracketed IPv6 addresses."""
         assert parse_address(addr) == expected
 
     @pytest.mark.parametrize(
@@ -131,7 +131,7 @@ class TestParseAddress:
             "127.0.0.1:",
             "host:http",
             "h:70000",
-            "::1:9108",
+            "myhost:9108",
             "[::1]9108",
             "[nope]:1",
         ],

@@ -15,10 +15,10 @@
 
 from __future__ import annotations
 
-import ipaddress
 import threading
 from typing import Any
 
+from canguard.config.monitor import parse_address as monitor_address
 from canguard.errors import CanguardError
 
 __all__ = ["TICK_BUCKETS_S", "Metrics", "MetricsUnavailable", "parse_address"]
@@ -32,28 +32,13 @@ class MetricsUnavailable(CanguardError, ImportError):
 
 
 def parse_address(addr: str) -> tuple[str, int]:
-    """Split ``"127.0.0.1:9108"`` / ``"[::1]:9108"`` / ``"localhost:9108"`` into (host, port) (port 0: any free
-    one); ValueError naming the address when malformed (an empty host too: not "every interface")."""
-    expected = "expected HOST:PORT, e.g. 127.0.0.1:9108 or [::1]:9108"
+    """``--metrics HOST:PORT``: read as the monitors' addresses (:func:`canguard.config.monitor.parse_address`),
+    the host required (port 0: any free one); ValueError quoting ``addr`` when malformed."""
     text = addr.strip()
-    if text.startswith("["):
-        host, sep, rest = text[1:].partition("]")
-        if not sep or not rest.startswith(":"):
-            raise ValueError(f"bad metrics address {addr!r}: {expected}")
-        port_text = rest[1:]
-        try:
-            ipaddress.IPv6Address(host)
-        except ValueError:
-            raise ValueError(f"bad metrics address {addr!r}: {host!r} is not an IPv6 address") from None
-    else:
-        host, sep, port_text = text.rpartition(":")
-        if not sep or not host or ":" in host:
-            raise ValueError(f"bad metrics address {addr!r}: {expected}")
-    if not host:
-        raise ValueError(f"bad metrics address {addr!r}: empty host; {expected}")
-    if not port_text.isdigit() or not 0 <= int(port_text) <= 65535:
-        raise ValueError(f"bad metrics address {addr!r}: port {port_text!r} is not a number 0..65535")
-    return host, int(port_text)
+    found = "HOST:PORT, e.g. 127.0.0.1:9108 or [::1]:9108" if text.isdigit() else monitor_address(text)
+    if isinstance(found, str):
+        raise ValueError(f"bad metrics address {addr!r}: expected {found}")
+    return found.host, found.port
 
 
 class Metrics:
