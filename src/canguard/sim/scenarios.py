@@ -21,14 +21,32 @@ and the pack current below 18 A.
 from __future__ import annotations
 
 import math
+import random
 from collections.abc import Callable
-from typing import TYPE_CHECKING, ClassVar
+from typing import TYPE_CHECKING, ClassVar, Protocol
 
 if TYPE_CHECKING:
     from canguard.io.frame import Frame
-    from canguard.sim.robot import SimRobot
+    from canguard.sim.encode import MessageEncoder
 
 Producer = Callable[[float], "Frame | None"]
+
+
+class RobotHandle(Protocol):
+    """What a scenario asks of the simulated robot (:class:`canguard.sim.robot.SimRobot` is one)."""
+
+    axes: int
+    rng: random.Random
+
+    def period_s(self, kind: str) -> float: ...
+    def encoder(self, axis: int | None, kind: str) -> MessageEncoder: ...
+    def known_ids(self) -> set[int]: ...
+    def nominal_rate_hz(self) -> float: ...
+    def schedule_once(self, t: float, produce: Producer) -> None: ...
+    def add_periodic(self, kind: str, period_s: float, phase_s: float, produce: Producer) -> None: ...
+    def raw_frame(self, t: float, frame_id: int, data: bytes, extended: bool = False, *,
+                  error: bool = False) -> Frame: ...
+    def bms_frame(self, t: float, pack_current_a: float | None = None) -> Frame: ...
 
 # linux/can/error.h: the flag candump writes into the id of an error frame, and error classes.
 CAN_ERR_FLAG = 0x20000000
@@ -42,7 +60,7 @@ CAN_ERR_PROT_FORM = 0x02
 
 
 def _fixed(
-    robot: SimRobot, frame_id: int, data: bytes, extended: bool = False, *, error: bool = False
+    robot: RobotHandle, frame_id: int, data: bytes, extended: bool = False, *, error: bool = False
 ) -> Callable[[float], Frame]:
     """A producer of one fixed frame."""
 
@@ -52,7 +70,7 @@ def _fixed(
     return produce
 
 
-def _random_payload(robot: SimRobot, frame_id: int, dlc: int) -> Callable[[float], Frame]:
+def _random_payload(robot: RobotHandle, frame_id: int, dlc: int) -> Callable[[float], Frame]:
     """A producer of ``dlc`` fresh random bytes (from the robot's seeded generator) on ``frame_id``."""
 
     def produce(t: float) -> Frame:
@@ -78,7 +96,7 @@ class Scenario:
     def __init__(self, offset_s: float = 0.0) -> None:
         self.offset_s = float(offset_s)
 
-    def setup(self, robot: SimRobot) -> None:
+    def setup(self, robot: RobotHandle) -> None:
         """Schedule this scenario's own frames on ``robot`` (called once, before the first frame)."""
 
     def setpoint(self, axis: int, t: float, iq_a: float) -> float:
@@ -151,7 +169,7 @@ class Spike(Scenario):
     AT_S = 1.5
     CURRENT_A = 60.0
 
-    def setup(self, robot: SimRobot) -> None:
+    def setup(self, robot: RobotHandle) -> None:
         """Schedule the spike half a BMS period after the BMS frame due at ``AT_S``."""
         t = self.offset_s + self.AT_S + robot.period_s("BMS_Status") / 2
         robot.schedule_once(t, lambda tt: robot.bms_frame(tt, pack_current_a=self.CURRENT_A))
@@ -218,7 +236,7 @@ class Garbage(Scenario):
     STEP_S = 0.05
     UNKNOWN_ID = 0x7E5
 
-    def setup(self, robot: SimRobot) -> None:
+    def setup(self, robot: RobotHandle) -> None:
         """Schedule the seven bad frames."""
         axis = min(2, robot.axes - 1)
         t0 = self.offset_s + self.AT_S
@@ -259,7 +277,7 @@ class ErrorBurst(Scenario):
     COUNT = 32
     STEP_S = 0.0002
 
-    def setup(self, robot: SimRobot) -> None:
+    def setup(self, robot: RobotHandle) -> None:
         """Schedule the burst."""
         t0 = self.offset_s + self.AT_S
         for i in range(self.COUNT):
@@ -292,7 +310,7 @@ class Load(Scenario):
     TARGET_FPS = 8000.0
     IDS = 40
 
-    def setup(self, robot: SimRobot) -> None:
+    def setup(self, robot: RobotHandle) -> None:
         """Add the background streams."""
         rng = robot.rng
         extra = self.TARGET_FPS - robot.nominal_rate_hz()

@@ -42,7 +42,7 @@ a system call per snapshot costs the loop more than the requests are worth)."""
 
 
 class ChildLink:
-    """The monitor process and the socket to it: where the engine's snapshots go, never blocking its thread."""
+    """The monitor process and the socket to it, as the engine's snapshot sink (:class:`.snapshot.SnapshotSink`)."""
 
     def __init__(self, settings: MonitorConfig) -> None:
         self._sock, theirs = wire.socket_pair()

@@ -11,7 +11,7 @@ import logging
 import math
 import time
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 import py_trees
 
@@ -21,10 +21,18 @@ from canguard.protect.i2t import ThermalI2t
 if TYPE_CHECKING:
     from canguard.engine.core import Engine
     from canguard.service.monitor.layout import LayoutRecord, TreeLayout
-    from canguard.service.monitor.link import ChildLink
 
 log = logging.getLogger(__name__)
 
+
+class SnapshotSink(Protocol):
+    """Where snapshots go (:class:`canguard.service.monitor.link.ChildLink`): never blocks the engine's thread."""
+
+    def blackboard_wanted(self) -> bool: ...
+
+    def put(self, snapshot: TickSnapshot) -> None: ...
+
+    def flush(self) -> None: ...
 
 PERIOD_S = 0.02
 """Shortest time between two snapshots: a change is published in the first tick this long after the last one
@@ -110,7 +118,7 @@ class TickSnapshot:
 class Observer:
     """The engine's per-tick publication point for the monitors (one per engine: a reload attaches a new one)."""
 
-    def __init__(self, engine: Engine, layout: TreeLayout, hub: ChildLink) -> None:
+    def __init__(self, engine: Engine, layout: TreeLayout, hub: SnapshotSink) -> None:
         self.layout = layout
         self.hub = hub
         self._guards = engine.guards()
