@@ -1,7 +1,7 @@
-"""``canguard demo``: the simulated robot (in a thread) and the real daemon on one private ``virtual`` channel.
+"""``canguard demo``: the simulated robot and the daemon, one command, no hardware.
 
-A live view on a terminal (else one line per event); at the end, what tripped, when, and how fast the
-stop frames went out.
+Both on one private ``virtual`` channel (the robot in a thread). A live view on a terminal (else one line
+per event); at the end, what tripped, when, and how fast the stop frames went out.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Fleet replay: the logs a ``canguard replay`` names (directories, globs, ``@LIST``), run in processes or on Dask."""
+"""Fleet replay: which logs a ``canguard replay`` names, and running them on a Dask cluster."""
 
 from __future__ import annotations
 

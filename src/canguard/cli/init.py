@@ -1,5 +1,7 @@
-"""``canguard init DIR``: the packaged whole-robot example (config, tree, DBC) fitted to DIR, a bus and a state
-directory; or, with ``--canopen``, a config and tree for one CANopen drive."""
+"""``canguard init DIR``: a starter config, its tree and a DBC copy, ready to edit and deploy.
+
+The packaged whole-robot example fitted to DIR, a bus and a state directory (``--canopen``: one drive).
+"""
 
 from __future__ import annotations
 

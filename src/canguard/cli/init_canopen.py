@@ -1,4 +1,4 @@
-"""``canguard init DIR --canopen EDS --node N``: a starting config and tree for one CiA 402 drive.
+"""``canguard init DIR --canopen EDS --node N``: a starting config and tree for one CANopen drive.
 
 The torque and current actual values (0x6077, 0x6078) become guarded sources (% of rated), read from a
 default TPDO or mapped with a ``pdo:`` override (:func:`choose_tpdo`); what the drive must be told is

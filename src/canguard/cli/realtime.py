@@ -1,5 +1,8 @@
-"""``canguard replay --realtime [SPEED]``: the log played onto a configured bus at its pace (x SPEED) from a second
-connection while a :class:`~canguard.service.daemon.Daemon` runs live on that bus."""
+"""``canguard replay --realtime [SPEED]``: a bench test through the real daemon path.
+
+The log is played onto a configured bus at its pace (x SPEED) from a second connection while a
+:class:`~canguard.service.daemon.Daemon` runs live on that bus.
+"""
 
 from __future__ import annotations
 

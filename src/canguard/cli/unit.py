@@ -1,5 +1,4 @@
-"""``canguard unit``: the packaged systemd unit with ExecStart at this install's canguard; ``--network`` the
-networkd file that brings the CAN link up; ``--write DIR`` both."""
+"""``canguard unit``: the systemd unit for this install, with the right ExecStart; the CAN link's networkd file."""
 
 from __future__ import annotations
 

@@ -1,6 +1,6 @@
-"""An EDS or DCF as drive vendors publish it, read with the ``canopen`` library (``import_od``) for one node id.
+"""An EDS or DCF as drive vendors publish it, read with the ``canopen`` library for one node id.
 
-The text is scanned first for what the library does not give: each section's line (errors name
+The text is scanned before ``import_od`` for what the library does not give: each section's line (errors name
 ``file:line [6077]``), and leniency: deviations outside the object dictionary (a malformed
 ``[Comments]``, an incomplete ``[DummyUsage]``, unknown keys) are noted in :attr:`Eds.notes`
 (``canguard check -v``), not refused.

@@ -1,5 +1,7 @@
-"""YAML config -> the frozen dataclasses of :mod:`.schema`, validated once; every problem of a file in one
-:class:`ConfigError` (file, key path, found, expected)."""
+"""YAML config -> frozen dataclasses, validated once.
+
+The dataclasses are :mod:`.schema`'s; every problem of a file comes in one :class:`ConfigError`.
+"""
 
 from __future__ import annotations
 

@@ -1,5 +1,7 @@
-"""Node IDs a config's ``actions:`` may not take: BehaviorTree.CPP 4's built-ins and canguard's nodes (names only:
-the config layer does not import the node library)."""
+"""Node IDs a config's ``actions:`` may not take: BehaviorTree.CPP 4's built-ins and canguard's nodes.
+
+Names only: the config layer does not import the node library.
+"""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""sd_notify (``man sd_notify``), and the policy deciding when the watchdog may be fed.
+"""sd_notify from scratch, and the policy deciding when the watchdog may be fed.
 
 :class:`Notifier` sends one AF_UNIX datagram of ``KEY=value`` lines to ``$NOTIFY_SOCKET`` (a path or
 ``@abstract``); outside systemd every call is a no-op, and no call raises (errors logged once, counted).

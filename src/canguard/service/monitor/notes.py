@@ -1,5 +1,4 @@
-"""What clients of the monitors did wrong (the network's doing, not canguard's), logged as one line per cause at
-most every :data:`EVERY_S`, never as a traceback."""
+"""What clients of the monitors did wrong, logged as one line per cause at most every :data:`EVERY_S`."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""What the engine publishes after a tick: an immutable snapshot, built from public accessors.
+"""What the engine publishes once per tick: an immutable snapshot, built from public accessors.
 
 :class:`Observer` is the engine's ``observer``. A snapshot is taken when something changed (a node's
 status, the task's state, an event), at most every :data:`PERIOD_S`; the guards' values at most every
