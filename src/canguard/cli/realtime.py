@@ -107,6 +107,7 @@ def replay_realtime(cfg: Config, args: argparse.Namespace, names: list[Path] | N
     from canguard.engine.routing import ChannelRouter
     from canguard.io.logs import ReadStats, read_log
     from canguard.report.summary import build_summary, render_text
+    from canguard.sim.io import to_message
 
     _refuse_unsupported(args)
     speed = float(args.realtime)
@@ -152,10 +153,7 @@ def replay_realtime(cfg: Config, args: argparse.Namespace, names: list[Path] | N
                         delay = due - time.monotonic()
                         if delay > 0.0005:
                             time.sleep(delay)
-                        player.send(can.Message(
-                            arbitration_id=frame.arbitration_id, data=frame.data,
-                            is_extended_id=frame.is_extended_id, is_fd=frame.is_fd,
-                            is_remote_frame=frame.is_remote_frame, bitrate_switch=frame.bitrate_switch))
+                        player.send(to_message(frame))
                         sent += 1
                 except Exception as exc:  # a bad line: reported by the main thread, not as a thread traceback
                     failed.append(exc)

@@ -63,16 +63,11 @@ def write_log(path: str | PathLike[str], duration_s: float, **robot_kwargs: Any)
     return count
 
 
-def _to_message(frame: Frame) -> can.Message:
+def to_message(frame: Frame) -> can.Message:
     """The python-can message of a frame (error frames keep their class bits, without CAN_ERR_FLAG)."""
-    return can.Message(
-        arbitration_id=frame.arbitration_id,
-        is_extended_id=frame.is_extended_id,
-        is_error_frame=frame.is_error_frame,
-        is_remote_frame=frame.is_remote_frame,
-        is_fd=frame.is_fd,
-        data=frame.data,
-    )
+    return can.Message(arbitration_id=frame.arbitration_id, is_extended_id=frame.is_extended_id,
+                       is_error_frame=frame.is_error_frame, is_remote_frame=frame.is_remote_frame, is_fd=frame.is_fd,
+                       bitrate_switch=frame.bitrate_switch, data=frame.data)
 
 
 def _can_send_error_frames(bus: can.BusABC) -> bool:
@@ -136,7 +131,7 @@ def run_on_bus(
         if frame.is_error_frame and not send_errors:
             continue
         try:
-            bus.send(_to_message(frame))
+            bus.send(to_message(frame))
             sent += 1
         except can.CanError as exc:
             failed += 1
