@@ -90,12 +90,12 @@ def choose_tpdo(eds: Eds, tpdos: list[Pdo]) -> tuple[Pdo, bool]:
     for pdo in tpdos:
         if pdo.enabled and any(pdo.find(index, 0) for index in GUARDED):
             return pdo, False
-    values = [i for i in GUARDED if eds.mappable(i)]
+    values = [i for i in GUARDED if not eds.refusal(i)]
     if not values:
-        reasons = "; ".join(_refusal(eds, i) for i in _guarded_objects(eds))
+        reasons = "; ".join(eds.refusal(i) for i in _guarded_objects(eds))
         raise ConfigError(f"init --canopen {eds.path}: {reasons}: expected 0x6077 or 0x6078 as a PDO-mappable "
                           "object")
-    wanted = ([STATUSWORD] if eds.mappable(STATUSWORD) else []) + values
+    wanted = ([] if eds.refusal(STATUSWORD) else [STATUSWORD]) + values
     candidates = [p for p in tpdos if not p.enabled] + [p for p in tpdos if p.enabled]
     for pdo in filter(lambda p: _remappable(eds, p), candidates):
         keep = [] if not pdo.enabled else [(o.index, o.subindex) for o in pdo.objects]
@@ -130,14 +130,6 @@ def _fits(wanted: list[int]) -> list[list[int]]:
         if any(i in GUARDED for i in part):
             out.append(part)
     return out
-
-
-def _refusal(eds: Eds, index: int) -> str:
-    try:
-        eds.pdo_value(index, None)
-    except EdsError as exc:
-        return str(exc)
-    return f"0x{index:04X} can be a PDO value"
 
 
 def drive_files(eds_path: Path, node: int, *, bus: str, state_dir: Path, simulation: bool,

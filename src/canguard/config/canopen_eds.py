@@ -287,13 +287,13 @@ class Eds:
             raise EdsError(f"{place} {var.name} has PDOMapping=0: the drive cannot send it in a PDO")
         return var
 
-    def mappable(self, index: int) -> bool:
-        """True when ``index`` (sub-index 0) can be a PDO value."""
+    def refusal(self, index: int) -> str:
+        """Why ``index`` (sub-index 0) cannot be a PDO value; "" when it can."""
         try:
             self.pdo_value(index, None)
-        except EdsError:
-            return False
-        return True
+        except EdsError as exc:
+            return str(exc)
+        return ""
 
     def pdo_defs(self, comm_base: int, map_base: int) -> list[PdoDef]:
         """Every PDO the EDS defines at ``comm_base``/``map_base``, valid or not, with its mapping entries.
