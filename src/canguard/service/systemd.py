@@ -14,13 +14,7 @@ import time
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 
-__all__ = [
-    "Notifier",
-    "WatchdogPolicy",
-    "WatchdogVerdict",
-    "status_line",
-    "watchdog_verdict",
-]
+__all__ = ["Notifier", "WatchdogVerdict", "watchdog_verdict"]
 
 log = logging.getLogger(__name__)
 
@@ -82,7 +76,7 @@ class Notifier:
         return self.notify(*fields)
 
     def watchdog(self) -> bool:
-        """``WATCHDOG=1``: feed the watchdog. Call only when :class:`WatchdogPolicy` says so."""
+        """``WATCHDOG=1``: feed the watchdog. Call only when :func:`watchdog_verdict` says so."""
         return self.notify("WATCHDOG=1")
 
     def status(self, text: str) -> bool:
@@ -142,14 +136,6 @@ def _status_field(text: str) -> str:
     return "STATUS=" + " ".join(str(text).splitlines())
 
 
-def status_line(state: str, trips: int, frame_rates: Mapping[str, float] | None = None) -> str:
-    """A STATUS= text: ``"running; trips=2; can0=812 fps can1=95 fps"`` (buses sorted)."""
-    parts = [state, f"trips={int(trips)}"]
-    if frame_rates:
-        parts.append(" ".join(f"{bus}={rate:.0f} fps" for bus, rate in sorted(frame_rates.items())))
-    return "; ".join(parts)
-
-
 @dataclass(frozen=True)
 class WatchdogVerdict:
     """Whether the watchdog may be fed now, and why not when it may not."""
@@ -183,44 +169,3 @@ def watchdog_verdict(
     if stale:
         return WatchdogVerdict(False, f"stale source(s) without a stop: {', '.join(stale)}")
     return WatchdogVerdict(True)
-
-
-class WatchdogPolicy:
-    """Feeds the watchdog at most every ``ping_period_s`` (half of ``WatchdogSec``, else 1 s), and only while
-    :func:`watchdog_verdict` is ok; each unhealthy spell is logged once, with its reason."""
-
-    def __init__(
-        self,
-        notifier: Notifier,
-        tick_period_s: float,
-        k: float = 3.0,
-        ping_period_s: float | None = None,
-    ) -> None:
-        if tick_period_s <= 0:
-            raise ValueError(f"tick_period_s must be > 0, got {tick_period_s}")
-        self.notifier = notifier
-        self.tick_period_s = float(tick_period_s)
-        self.k = float(k)
-        if ping_period_s is None:
-            interval = notifier.watchdog_interval_s()
-            ping_period_s = interval / 2 if interval else 1.0
-        self.ping_period_s = float(ping_period_s)
-        self.last_ping: float | None = None
-        self.last_verdict = WatchdogVerdict(True)
-        self.pings = 0
-
-    def update(
-        self, now: float, last_tick: float | None, stale_unstopped: Iterable[str] = ()
-    ) -> WatchdogVerdict:
-        """Judge health and send ``WATCHDOG=1`` when healthy and a ping is due; return the verdict."""
-        verdict = watchdog_verdict(now, last_tick, self.tick_period_s, stale_unstopped, self.k)
-        if not verdict.ok and verdict.reason != self.last_verdict.reason:
-            log.warning("watchdog withheld: %s", verdict.reason)
-        elif verdict.ok and not self.last_verdict.ok:
-            log.info("watchdog fed again")
-        self.last_verdict = verdict
-        if verdict.ok and (self.last_ping is None or now - self.last_ping >= self.ping_period_s):
-            self.notifier.watchdog()
-            self.last_ping = now
-            self.pings += 1
-        return verdict
