@@ -42,9 +42,9 @@ from canguard.io.bagopts import STAMPS, BagOptions, emits_bag
 from canguard.io.clock import ManualClock
 from canguard.io.frame import Frame
 from canguard.io.logtypes import COMPRESSIONS
-from canguard.report.summary import SUMMARY_VERSION, build_summary, compare_baseline, diff_baseline, render_text
+from canguard.report.summary import build_summary, diff_baseline, render_text
 
-__all__ = ["SUMMARY_VERSION", "ReplayOptions", "build_summary", "compare_baseline", "render_text", "replay_one"]
+__all__ = ["ReplayOptions", "replay_one"]
 
 
 @dataclass

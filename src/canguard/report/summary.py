@@ -182,7 +182,3 @@ def render_margin(m: dict[str, Any]) -> str:
     return (f"peak {quantity(m['peak'], unit)} vs threshold {quantity(m['threshold'], unit)}: "
             f"margin {quantity(m['margin'], unit)}{pct}")
 
-
-def compare_baseline(base: dict[str, Any], new: dict[str, Any]) -> list[str]:
-    """The words of :func:`diff_baseline`: new trips, lost trips, margins that shrank, stop counts."""
-    return [c.text for c in diff_baseline(base, new)]
