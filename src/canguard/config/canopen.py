@@ -151,24 +151,12 @@ class CanopenDrive:
 
     def tpdo_of(self, index: int, subindex: int) -> tuple[Pdo, MappedObject] | None:
         """The first enabled TPDO that maps ``index:subindex`` and where, or None."""
-        for pdo in self.enabled_tpdos:
-            obj = pdo.find(index, subindex)
-            if obj is not None:
-                return pdo, obj
-        return None
+        return _first_mapping(self.enabled_tpdos, index, subindex)
 
     @property
     def enabled_tpdos(self) -> tuple[Pdo, ...]:
         """The TPDOs the drive sends (valid in the EDS or made valid by ``pdo:``)."""
         return tuple(p for p in self.tpdos if p.enabled)
-
-    def rpdo_of(self, index: int, subindex: int = 0) -> tuple[Pdo, MappedObject] | None:
-        """The first RPDO that maps ``index:subindex`` and where, or None."""
-        for pdo in self.rpdos:
-            obj = pdo.find(index, subindex)
-            if obj is not None:
-                return pdo, obj
-        return None
 
     def command_data(self, command: int) -> tuple[Pdo, bytes] | None:
         """The RPDO mapping the controlword and its payload with ``command`` in it, or None.
@@ -176,7 +164,7 @@ class CanopenDrive:
         The RPDO's other mapped objects carry their EDS values: a frame that changes only
         the controlword, as far as the drive's defaults go.
         """
-        found = self.rpdo_of(CONTROLWORD)
+        found = _first_mapping(self.rpdos, CONTROLWORD, 0)
         if found is None:
             return None
         pdo, _ = found
@@ -270,6 +258,10 @@ def heartbeat_write(heartbeat_s: float) -> SdoWrite:
     """0x1017 producer heartbeat time = ``heartbeat_s`` in ms."""
     ms = max(1, round(heartbeat_s * 1000))
     return SdoWrite(PRODUCER_HEARTBEAT, 0, ms, 2, f"producer heartbeat every {ms} ms")
+
+
+def _first_mapping(pdos: Iterable[Pdo], index: int, subindex: int) -> tuple[Pdo, MappedObject] | None:
+    return next(((p, obj) for p in pdos if (obj := p.find(index, subindex)) is not None), None)
 
 
 def mapped_text(pdos: Iterable[Pdo]) -> str:
