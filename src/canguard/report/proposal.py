@@ -48,6 +48,10 @@ class Need:
     t: float | None
 
 
+def _need(n: Need | None) -> dict[str, Any] | None:
+    return None if n is None else {"log": n.log, "value": rounded(n.value), "t": rounded(n.t)}
+
+
 @dataclass
 class Proposal:
     """One guard's figure: old -> new, and why."""
@@ -77,14 +81,12 @@ class Proposal:
 
     def as_json(self) -> dict[str, Any]:
         """The proposal as plain data (``--json``)."""
-        def need(n: Need | None) -> dict[str, Any] | None:
-            return None if n is None else {"log": n.log, "value": rounded(n.value), "t": rounded(n.t)}
         return {
             "node": self.node, "type": self.type, "source": self.source, "port": self.port,
             "old": rounded(self.old), "new": rounded(self.new), "status": self.status, "why": self.why,
-            "healthy_ceiling": need(self.healthy), "healthy_peak": need(self.peak),
+            "healthy_ceiling": _need(self.healthy), "healthy_peak": _need(self.peak),
             "healthy_p99": rounded(self.p99), "healthy_p99_9": rounded(self.p999),
-            "faults": [need(f) for f in self.faults], "heat_pct": [need(h) for h in self.heat],
+            "faults": [_need(f) for f in self.faults], "heat_pct": [_need(h) for h in self.heat],
             "rating_scale": self.scale, "inrush": self.inrush,
         }
 
@@ -105,9 +107,7 @@ class AgeProposal:
     def as_json(self) -> dict[str, Any]:
         """The proposal as plain data (``--json``)."""
         return {"source": self.source, "old": rounded(self.old), "new": rounded(self.new), "status": self.status,
-                "why": self.why, "period": rounded(self.period),
-                "healthy_gap": None if self.gap is None else {"log": self.gap.log, "value": rounded(self.gap.value),
-                                                              "t": rounded(self.gap.t)},
+                "why": self.why, "period": rounded(self.period), "healthy_gap": _need(self.gap),
                 "faults": [{"log": f.log, "value": rounded(f.value)} for f in self.faults]}
 
 
