@@ -182,7 +182,7 @@ def task_document(snap: TickSnapshot, events: list[dict[str, Any]]) -> dict[str,
 
 
 def guard_document(g: Any) -> dict[str, Any]:
-    """One guard: the issue's fields (name, source, value, unit, threshold, margin, status) and more."""
+    """One guard: name, source, value, unit, threshold, margin, status, role, kind, heat and reason."""
     return {
         "name": g.name, "source": g.source, "value": _number(g.value), "unit": g.unit,
         "threshold": _number(g.threshold), "margin": _number(g.margin), "status": g.status,
