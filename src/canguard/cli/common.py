@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import os
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -123,13 +124,15 @@ class Formatter(argparse.RawDescriptionHelpFormatter):
     """Keeps the epilog's exit-code table as written."""
 
 
-def subcommand(sub: argparse._SubParsersAction, name: str, **kwargs: Any) -> argparse.ArgumentParser:
-    """``sub.add_parser`` with the global options and the exit-code epilog every subcommand shares."""
+def subcommand(sub: argparse._SubParsersAction, name: str, func: Callable[[argparse.Namespace], int],
+               **kwargs: Any) -> argparse.ArgumentParser:
+    """``sub.add_parser`` running ``func``, with the global options and the exit-code epilog every subcommand shares."""
     kwargs.setdefault("help", COMMANDS[name])
     epilog = kwargs.pop("epilog", None)
     text = exit_codes_epilog() if epilog is None else f"{epilog}\n\n{exit_codes_epilog()}"
     p: argparse.ArgumentParser = sub.add_parser(name, epilog=text, formatter_class=Formatter, **kwargs)
     add_global_options(p, in_subcommand=True)
+    p.set_defaults(func=func)
     return p
 
 

@@ -33,7 +33,7 @@ DEMO_SCENARIOS = ("normal", "spike@4", "overload@9", "dropout@18", "garbage@24",
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """Register ``canguard demo``."""
     p = subcommand(
-        sub, "demo",
+        sub, "demo", cmd_demo,
         description="Run the simulated robot and the daemon together on a private virtual bus with the bundled "
                     "config; walk through the scenarios; print what tripped, when, and how fast the stop went out.",
     )
@@ -44,7 +44,6 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="keep the events here (default: a temporary file, removed at the end)")
     p.add_argument("--seed", type=int, default=0, help="the simulated robot's random seed")
     add_monitor_options(p)
-    p.set_defaults(func=cmd_demo)
 
 
 def demo_config(cfg: Config, events: Path) -> Config:

@@ -22,7 +22,7 @@ DEFAULT_STATE_DIR = Path("/var/lib/canguard")
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """Register ``canguard init``."""
     p = subcommand(
-        sub, "init",
+        sub, "init", cmd_init,
         description="Write DIR/canguard.yaml (the whole-robot example, with paths fitted to DIR), "
                     "DIR/robot_guard.xml and DIR/robot.dbc. Edit them for your robot, then "
                     "`canguard check -c DIR/canguard.yaml`. See docs/deploy.md.",
@@ -41,7 +41,6 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="with --canopen: canguard configures the drive over SDO (configure: true): its TPDO "
                         "mapping, COB-ID and heartbeat, at start and after each boot-up")
     p.add_argument("--force", action="store_true", help="overwrite files that exist")
-    p.set_defaults(func=cmd_init)
 
 
 def starter_config(text: str, *, channel: str, simulation: bool, state_dir: Path) -> str:

@@ -41,14 +41,13 @@ __all__ = ["build_parser", "default_config", "main", "parse_args"]
 
 # -- check -----------------------------------------------------------------------------------
 def _add_check(sub: argparse._SubParsersAction) -> None:
-    p = subcommand(sub, "check",
+    p = subcommand(sub, "check", _cmd_check,
                        description="Load the config, its DBC files and its tree; print buses, sources "
                                    "(message, id, signals, units) and frames; exit 0, or 2 with every error. -v lists "
                                    "what the DBC files get wrong where the config does not read it.")
     _add_config(p)
     add_state_dir(p)
     _add_nodes(p)
-    p.set_defaults(func=_cmd_check)
 
 
 def _add_nodes(p: argparse.ArgumentParser) -> None:
@@ -89,7 +88,7 @@ def _cmd_check(args: argparse.Namespace) -> int:
 
 # -- tree ------------------------------------------------------------------------------------
 def _add_tree(sub: argparse._SubParsersAction) -> None:
-    p = subcommand(sub, "tree",
+    p = subcommand(sub, "tree", _cmd_tree,
                        description="Print the tree of the config (py_trees' unicode display).")
     _add_config(p)
     p.add_argument("--dot", type=Path, metavar="FILE", help="render the tree (.dot, or .png/.svg with graphviz)")
@@ -107,7 +106,6 @@ def _add_tree(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--json", action="store_true",
                    help='print {"ticks": [root status per tick], "blackboard": {root entries}}')
     _add_nodes(p)
-    p.set_defaults(func=_cmd_tree)
 
 
 def _cmd_tree(args: argparse.Namespace) -> int:
@@ -172,7 +170,7 @@ def _dry_run(args: argparse.Namespace) -> int:
 
 # -- run -------------------------------------------------------------------------------------
 def _add_run(sub: argparse._SubParsersAction) -> None:
-    p = subcommand(sub, "run",
+    p = subcommand(sub, "run", _cmd_run,
                        description="Run the live engine: read the buses, tick the tree, send task / stop "
                                    "frames. SIGTERM stops cleanly (stop frames out, exit 0); SIGHUP reloads.")
     _add_config(p)
@@ -180,7 +178,6 @@ def _add_run(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--duration", type=float, metavar="S", help="stop by itself after S seconds")
     add_state_dir(p)
     add_monitor_options(p)
-    p.set_defaults(func=_cmd_run)
 
 
 def _cmd_run(args: argparse.Namespace) -> int:

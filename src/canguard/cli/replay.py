@@ -194,7 +194,7 @@ MAGICS = {b"\x1f\x8b": ".gz", b"\xfd7zXZ\x00": ".xz", b"\x28\xb5\x2f\xfd": ".zst
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """Register ``canguard replay``."""
     p = subcommand(
-        sub, "replay",
+        sub, "replay", cmd_replay,
         description="What would the daemon have done on this log? Runs the same engine with the log's clock.",
     )
     p.add_argument("logs", nargs="+", type=Path, metavar="LOG",
@@ -247,7 +247,6 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--realtime", nargs="?", type=float, const=1.0, default=None, metavar="SPEED",
                    help="send the log onto a configured bus at its pace (x SPEED) with the engine live on it")
     p.add_argument("--bus", default=None, help="with --realtime: the bus to play onto (default: the only bus)")
-    p.set_defaults(func=cmd_replay)
 
 
 @dataclass(frozen=True)

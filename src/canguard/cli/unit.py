@@ -18,7 +18,7 @@ DEFAULT_CONFIG = Path("/etc/canguard/canguard.yaml")
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """Register ``canguard unit``."""
     p = subcommand(
-        sub, "unit",
+        sub, "unit", cmd_unit,
         description="Print canguard.service with ExecStart pointing at this install's canguard, the "
                     "config path and the CAN interface(s) it binds to.",
     )
@@ -34,7 +34,6 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     what.add_argument("--write", type=Path, default=None, metavar="DIR",
                       help="write canguard.service and 80-can0.network into DIR (made if missing) instead of "
                            "printing, e.g. `canguard unit --write systemd` for docs/deploy.md's install lines")
-    p.set_defaults(func=cmd_unit)
 
 
 def this_canguard() -> str:
