@@ -102,8 +102,7 @@ def describe(cfg: Config, verbose: bool = False) -> str:
     c = cfg.stop.confirm
     if c is not None:
         lines.append(f"  confirm: {c.source}.{c.signal} {c.op} {c.value:g} within {c.deadline_s:g} s")
-        lines += _frames("escalate", cfg.stop.escalate)
-    elif cfg.stop.escalate:
+    if c is not None or cfg.stop.escalate:
         lines += _frames("escalate", cfg.stop.escalate)
     lines.append("actions:")
     if not cfg.actions:

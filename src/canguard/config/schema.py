@@ -68,10 +68,7 @@ class SourceConfig:
 
     def signal(self, role: str) -> SignalRef | None:
         """The signal with that role, or None."""
-        for s in self.signals:
-            if s.role == role:
-                return s
-        return None
+        return next((s for s in self.signals if s.role == role), None)
 
     @property
     def value_roles(self) -> tuple[str, ...]:

@@ -70,10 +70,7 @@ class Notifier:
 
     def ready(self, status: str | None = None) -> bool:
         """``READY=1`` (with an optional ``STATUS=``): buses open, tree loaded; or a reload finished."""
-        fields = ["READY=1"]
-        if status is not None:
-            fields.append(_status_field(status))
-        return self.notify(*fields)
+        return self.notify("READY=1", *([] if status is None else [_status_field(status)]))
 
     def watchdog(self) -> bool:
         """``WATCHDOG=1``: feed the watchdog. Call only when :func:`watchdog_verdict` says so."""
@@ -85,10 +82,7 @@ class Notifier:
 
     def stopping(self, status: str | None = None) -> bool:
         """``STOPPING=1``: the daemon is shutting down (SIGTERM received)."""
-        fields = ["STOPPING=1"]
-        if status is not None:
-            fields.append(_status_field(status))
-        return self.notify(*fields)
+        return self.notify("STOPPING=1", *([] if status is None else [_status_field(status)]))
 
     def reloading(self, monotonic_usec: int | None = None) -> bool:
         """``RELOADING=1`` + ``MONOTONIC_USEC`` (CLOCK_MONOTONIC now, systemd >= 253 needs it).
