@@ -8,9 +8,12 @@ from __future__ import annotations
 
 import argparse
 import os
+import re
 from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
+
+from canguard.errors import ConfigError
 
 if TYPE_CHECKING:
     from canguard.config.schema import Config
@@ -134,6 +137,14 @@ def subcommand(sub: argparse._SubParsersAction, name: str, func: Callable[[argpa
     add_global_options(p, in_subcommand=True)
     p.set_defaults(func=func)
     return p
+
+
+def replace_once(text: str, pattern: str, repl: str, what: str) -> str:
+    """``text`` of the packaged file ``what`` with its one line matching ``pattern`` replaced (else ConfigError)."""
+    out, n = re.subn(pattern, repl, text, flags=re.M)
+    if n != 1:
+        raise ConfigError(f"the packaged {what} has {n} lines matching {pattern!r}, expected one: cannot fit it")
+    return out
 
 
 def per_log_path(base: Path | None, log: Path, many: bool) -> Path | None:

@@ -6,12 +6,11 @@ The packaged whole-robot example fitted to DIR, a bus and a state directory (``-
 from __future__ import annotations
 
 import argparse
-import re
 import shutil
 import sys
 from pathlib import Path
 
-from canguard.cli.common import subcommand
+from canguard.cli.common import replace_once, subcommand
 from canguard.data import data_path
 from canguard.errors import ConfigError
 
@@ -46,10 +45,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def starter_config(text: str, *, channel: str, simulation: bool, state_dir: Path) -> str:
     """The example config's text with the paths and the bus of a deployment (comments kept)."""
     def sub(pattern: str, repl: str, s: str) -> str:
-        out, n = re.subn(pattern, repl, s, count=1, flags=re.M)
-        if n != 1:
-            raise ConfigError(f"the bundled {EXAMPLE}.yaml has no line matching {pattern!r}: cannot fit it")
-        return out
+        return replace_once(s, pattern, repl, f"{EXAMPLE}.yaml")
 
     text = sub(r"^dbc: \[[^\]]*\]", "dbc: [robot.dbc]", text)
     text = sub(r"\{file: [^,]*robot_guard\.xml,", "{file: robot_guard.xml,", text)

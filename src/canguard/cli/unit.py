@@ -8,11 +8,13 @@ import shutil
 import sys
 from pathlib import Path
 
-from canguard.cli.common import subcommand
+from canguard.cli.common import replace_once, subcommand
 from canguard.data import data_path
 from canguard.errors import ConfigError
 
 DEFAULT_CONFIG = Path("/etc/canguard/canguard.yaml")
+NETWORK_FILE = "80-can0.network"
+UNIT_FILE = "canguard.service"
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -53,9 +55,7 @@ def render_unit(text: str, *, exe: str, config: Path, channels: list[str], metri
         raise ConfigError(f"--metrics {metrics}: expected a loopback HOST:PORT (127.0.0.1:9108): "
                           "the unit lets only localhost through")
     cmd = f"{exe} run -c {config}" + (f" --metrics {metrics}" if metrics else "")
-    text, n = re.subn(r"^ExecStart=.*$", f"ExecStart={cmd}", text, flags=re.M)
-    if n != 1:
-        raise ConfigError("the shipped canguard.service has no single ExecStart= line")
+    text = replace_once(text, r"^ExecStart=.*$", f"ExecStart={cmd}", UNIT_FILE)
     devices = " ".join(f"sys-subsystem-net-devices-{c}.device" for c in channels)
     text = re.sub(r"sys-subsystem-net-devices-can0\.device", devices, text)
     if metrics:
@@ -67,14 +67,8 @@ def render_unit(text: str, *, exe: str, config: Path, channels: list[str], metri
 
 def render_network(text: str, channels: list[str]) -> str:
     """The shipped ``80-can0.network`` matching ``channels`` (networkd's ``Name=`` takes several)."""
-    text, n = re.subn(r"^Name=can0$", f"Name={' '.join(channels)}", text, flags=re.M)
-    if n != 1:
-        raise ConfigError("the shipped 80-can0.network has no single Name=can0 line")
-    return text
+    return replace_once(text, r"^Name=can0$", f"Name={' '.join(channels)}", NETWORK_FILE)
 
-
-NETWORK_FILE = "80-can0.network"
-UNIT_FILE = "canguard.service"
 
 
 def cmd_unit(args: argparse.Namespace) -> int:
