@@ -11,8 +11,6 @@ import struct
 from collections.abc import Mapping
 from typing import Any
 
-import cantools.database
-
 
 def _float_struct(message: Any) -> tuple[struct.Struct, tuple[str, ...]] | None:
     """A ``struct`` layout equal to cantools' encoding of ``message``, or None when none exists."""
@@ -74,7 +72,3 @@ class MessageEncoder:
             return self._struct.pack(*values)
         return self.encode(dict(zip(self.fast_signals, values, strict=True)))
 
-
-def build_encoders(db: cantools.database.Database) -> dict[str, MessageEncoder]:
-    """One encoder per message of ``db``, keyed by message name."""
-    return {m.name: MessageEncoder(m) for m in db.messages}

@@ -70,11 +70,6 @@ def to_message(frame: Frame) -> can.Message:
                        bitrate_switch=frame.bitrate_switch, data=frame.data)
 
 
-def _can_send_error_frames(bus: can.BusABC) -> bool:
-    """Error frames are made by CAN controllers, not sent: only software buses pass them on."""
-    return type(bus).__name__ in {"VirtualBus", "UdpMulticastBus"}
-
-
 def _pace(bus: can.BusABC, due: float, answer: Callable[[can.Message | None], None],
           stop_event: threading.Event | None) -> None:
     """Wait until the monotonic clock reaches ``due``, answering the bus' frames meanwhile."""
@@ -107,7 +102,7 @@ def run_on_bus(
         robot = SimRobot(**robot_kwargs)
     elif robot_kwargs:
         raise TypeError("run_on_bus: pass either robot or SimRobot arguments, not both")
-    send_errors = _can_send_error_frames(bus)
+    send_errors = type(bus).__name__ in {"VirtualBus", "UdpMulticastBus"}  # controllers make error frames
     sim0 = robot.now
     wall0 = time.monotonic()
     sent = failed = 0

@@ -34,7 +34,7 @@ from os import PathLike
 import cantools.database
 
 from canguard.io.frame import Frame
-from canguard.sim.encode import MessageEncoder, build_encoders
+from canguard.sim.encode import MessageEncoder
 from canguard.sim.motion import (
     AXIS_STATE_CLOSED_LOOP,
     AXIS_STATE_IDLE,
@@ -137,7 +137,7 @@ class SimRobot:
                 )
             self.rates_hz[kind] = float(rate)
         self.scenarios: list[Scenario] = [parse_scenario(s) for s in scenarios]
-        self._encoders = build_encoders(db)
+        self._encoders = {m.name: MessageEncoder(m) for m in db.messages}
         self._by_name: dict[str, MessageEncoder] = {}
         for name in ("BMS_Status", "BMS_Temperatures"):
             self._by_name[name] = self._lookup(name)
