@@ -1,4 +1,7 @@
-"""Encoders for the simulator: one per DBC message, built once, encoding with cantools."""
+"""Encoders for the simulator: one per DBC message, built once.
+
+Each encodes through cantools' ``Message.encode``.
+"""
 
 from __future__ import annotations
 
