@@ -252,17 +252,14 @@ class Block:
         flags = int(self.flags[i])
         dlc = int(self.dlc[i])
         remote = bool(flags & FLAG_REMOTE)
+        source = self._made_payload()
         return _new(Frame, (
             float(self.time_s[i]), self.channels[int(self.channel[i])], int(self.can_id[i]),
-            self._payload_of(i, length), bool(self.extended[i]), bool(flags & FLAG_FD),
-            bool(flags & FLAG_ERROR), remote, bool(flags & FLAG_BRS), bool(flags & FLAG_ESI),
+            source[i, :length].tobytes() if isinstance(source, np.ndarray) else source.one(i),
+            bool(self.extended[i]), bool(flags & FLAG_FD), bool(flags & FLAG_ERROR), remote, bool(flags & FLAG_BRS),
+            bool(flags & FLAG_ESI),
             -1 if dlc == length or (remote and dlc == 0) else dlc,
         ))
-
-    def _payload_of(self, i: int, length: int) -> bytes:
-        """Row ``i``'s payload (``length`` bytes)."""
-        source = self._made_payload()
-        return source[i, :length].tobytes() if isinstance(source, np.ndarray) else source.one(i)
 
     def _made_payload(self) -> np.ndarray | PayloadSource:
         """:attr:`payload` once made (or given), else :attr:`payload_source`."""

@@ -340,7 +340,7 @@ class _Columns:
             self.fd_digit = np.where(fd, _hex_value(digit), 0)
             ds = np.where(fd, h1 + 3, ds)
         else:
-            self.fd_digit = _zeros_like(fe)
+            self.fd_digit = np.zeros(fe.size, dtype=np.int64)
         de = fe
         raw_dlc = under = dlc_digit = None
         if has_under:
@@ -600,11 +600,6 @@ def _few(codes: np.ndarray, most: int = 8) -> tuple[np.ndarray, np.ndarray] | No
         firsts.append(k)
         rest &= ~same
     return lanes, np.array(firsts, dtype=np.intp)
-
-
-def _zeros_like(like: np.ndarray) -> np.ndarray:
-    """Zeros of ``like``'s length (no raw DLC in the block)."""
-    return np.zeros(like.size, dtype=np.int64)
 
 
 def _hex_value(digits: np.ndarray) -> np.ndarray:
