@@ -50,13 +50,8 @@ from canguard.io.logtypes import (
     LogFrames,
     ReadStats,
 )
-from canguard.io.mcapscan import McapCut
-from canguard.io.rosmsgs import (
-    KVASER_ERROR_FRAME,
-    KVASER_EXT,
-    KVASER_RTR,
-    Layout,
-)
+from canguard.io.mcapscan import McapCut, uint_at
+from canguard.io.rosmsgs import HEADER_SIZE, KVASER_ERROR_FRAME, KVASER_EXT, KVASER_RTR, STAMP_AT, Layout
 
 _FD_OK = np.zeros(256, dtype=bool)
 _FD_OK[sorted(CANFD_LENGTHS)] = True
@@ -86,24 +81,10 @@ class Rows:
     why: list[str]
 
 
-def _u32(buf: np.ndarray, at: np.ndarray) -> np.ndarray:
-    """The little-endian uint32 at each of ``at`` (int64 for arithmetic)."""
-    return buf[at[:, None] + np.arange(4)].view("<u4").ravel().astype(np.int64)
-
-
-def _u16(buf: np.ndarray, at: np.ndarray) -> np.ndarray:
-    return buf[at[:, None] + np.arange(2)].view("<u2").ravel().astype(np.int64)
-
-
 def _field(buf: np.ndarray, body: np.ndarray, lay: Layout, name: str) -> np.ndarray:
     """Field ``name`` (a bool or an unsigned integer of 1, 2 or 4 bytes) of every message."""
     f = lay.fields[name]
-    at = body + f.offset
-    if f.size == 4:
-        return _u32(buf, at)
-    if f.size == 2:
-        return _u16(buf, at)
-    return buf[at].astype(np.int64)
+    return uint_at(buf, body + f.offset, f.size)
 
 
 def unpack(lay: Layout, buf: np.ndarray, start: np.ndarray, lens: np.ndarray, record_ns: np.ndarray) -> Rows:
@@ -111,32 +92,32 @@ def unpack(lay: Layout, buf: np.ndarray, start: np.ndarray, lens: np.ndarray, re
     :data:`~canguard.io.mcapscan.PAD` zero bytes after the last), read from their fixed offsets all at once."""
     n = start.size
     why: list[str] = [""] * n
-    bad = lens < lay.header_size
+    bad = lens < HEADER_SIZE
     if lay.cdr:
         big = buf[start + 1] == 0
         for i in np.flatnonzero(big & ~bad).tolist():
             why[i] = "big-endian CDR, which canguard does not read"
         bad |= big
-    name_len = np.where(bad, 0, _u32(buf, start + 12))
+    name_len = np.where(bad, 0, uint_at(buf, start + 12, 4))
     name_len = np.minimum(name_len, lens)  # a cut or garbled string length: caught by the size check below
-    body = start + lay.header_size + name_len
+    body = start + HEADER_SIZE + name_len
     if lay.cdr:
         body = (body - start + 3) // 4 * 4 + start  # aligned as CDR aligns, from the message's first byte
     body = np.minimum(body, start + lens)  # stays inside the padded buffer
     end = body + lay.fixed
     seq_len = np.zeros(n, dtype=np.int64)
     if lay.sequence >= 0:
-        seq_len = np.where(body + lay.sequence + 4 <= start + lens, _u32(buf, body + lay.sequence), 0)
+        seq_len = np.where(body + lay.sequence + 4 <= start + lens, uint_at(buf, body + lay.sequence, 4), 0)
         end = body + lay.sequence + 4 + seq_len
     short = end > start + lens
     for i in np.flatnonzero(short & ~bad).tolist():
         why[i] = f"{int(lens[i])} bytes, shorter than its fields"
     bad |= short
-    stamp = start + lay.stamp_offset
-    sec = _u32(buf, stamp)
+    stamp = start + STAMP_AT
+    sec = uint_at(buf, stamp, 4)
     if lay.cdr:
         sec = np.where(sec >= 1 << 31, sec - (1 << 32), sec)  # int32
-    nanosec = _u32(buf, stamp + 4)
+    nanosec = uint_at(buf, stamp + 4, 4)
     ids, extended, remote, error, fd, lengths, data = _frame_fields(lay, buf, body, seq_len)
     return Rows(record_ns, sec, nanosec, ids, extended, remote, error, fd, lengths, data, ~bad, why)
 
@@ -306,18 +287,19 @@ def bag_chunks(p: Path, opts: BagOptions, st: ReadStats, owner: LogFrames, skip_
                 _note_bad(st, bag, rows, lanes, read, skip_bad)
             read += lanes.size
             t, from_record = times(rows, record)
-            kept = t[rows.good]
+            block = block_of(rows, t, lanes, bag.channels)
             by_record = int(np.count_nonzero(from_record & rows.good))
             st.stamps["record"] = st.stamps.get("record", 0) + by_record
-            st.stamps["header"] = st.stamps.get("header", 0) + int(kept.size) - by_record
-            _order(st, kept, last_t)
-            if kept.size:
-                last_t = float(kept[-1])
-            st.frames += int(kept.size)
-            block = block_of(rows, t, lanes, bag.channels)
+            st.stamps["header"] = st.stamps.get("header", 0) + block.n - by_record
+            st.frames += block.n
             if bag.total:
                 owner.reached(min(st.bytes_total, st.bytes_total * read // bag.total))
             if block.n:
+                backwards, repeated = block.order
+                first = float(block.time_s[0])
+                st.backwards_timestamps += backwards + (first < last_t)
+                st.repeated_timestamps += repeated + (first == last_t)
+                last_t = float(block.time_s[-1])
                 yield block
         bag.finish()
     finally:
@@ -326,13 +308,3 @@ def bag_chunks(p: Path, opts: BagOptions, st: ReadStats, owner: LogFrames, skip_
     if not st.frames and not st.bad_lines:
         raise LogFormatError(f"{p}: empty log: no frames on {', '.join(bag.channels) or 'its CAN topics'}")
 
-
-def _order(st: ReadStats, t: np.ndarray, last_t: float) -> None:
-    """Count the times of a block that go back or repeat (the first against ``last_t``)."""
-    if not t.size:
-        return
-    prev = np.empty_like(t)
-    prev[0] = last_t
-    prev[1:] = t[:-1]
-    st.backwards_timestamps += int(np.count_nonzero(t < prev))
-    st.repeated_timestamps += int(np.count_nonzero(t == prev))
