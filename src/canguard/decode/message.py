@@ -450,18 +450,23 @@ def _compile(message: Any, wanted: list[Any], size: int) -> tuple[
     return tuple(values), tuple(raws), tuple(dtypes.dtypes), guard
 
 
+def _first_bit(signal: Any) -> int:
+    """Intel: the least significant bit, numbered from byte 0 bit 0. Motorola: the DBC start bit is the most
+    significant bit in sawtooth numbering (byte * 8 + bit); here counted from byte 0's most significant bit."""
+    start = int(signal.start)
+    return start if signal.byte_order == "little_endian" else (start // 8) * 8 + 7 - start % 8
+
+
 def _bits(signal: Any, size: int, dtypes: _Views) -> _Getter | None:
     """The raw unsigned bits of ``signal`` (uint64) from the payload's 64-bit words, or None (outside the payload)."""
     length = int(signal.length)
-    if not 0 < length <= 64:
+    first = _first_bit(signal)
+    if not 0 < length <= 64 or first + length > size * 8:
         return None
     mask = (1 << length) - 1
     if signal.byte_order == "little_endian":
-        start = int(signal.start)  # the least significant bit, numbered from byte 0 bit 0
-        if start + length > size * 8:
-            return None
         le = dtypes.slot(_LE)
-        k, shift = divmod(start, 64)
+        k, shift = divmod(first, 64)
         if shift + length <= 64:
             def get(lanes: Lanes, at: Any) -> Column:
                 return (lanes[le][at, k] >> shift) & mask
@@ -470,10 +475,6 @@ def _bits(signal: Any, size: int, dtypes: _Views) -> _Getter | None:
                 words = lanes[le]
                 return ((words[at, k] >> shift) | (words[at, k + 1] << (64 - shift))) & mask
         return get
-    # Motorola: the DBC start bit is the most significant bit, in sawtooth numbering (byte * 8 + bit)
-    first = (int(signal.start) // 8) * 8 + 7 - int(signal.start) % 8  # counted from byte 0's most significant bit
-    if first + length > size * 8:
-        return None
     be = dtypes.slot(_BE)
     k, at_bit = divmod(first, 64)
     end = at_bit + length
@@ -490,10 +491,7 @@ def _bits(signal: Any, size: int, dtypes: _Views) -> _Getter | None:
 def _float_lane(signal: Any, size: int, dtypes: _Views) -> _Getter | None:
     """An IEEE float at a boundary of its own size read as such (no bits to move), else None."""
     length = int(signal.length)
-    if signal.byte_order == "little_endian":
-        start = int(signal.start)
-    else:
-        start = (int(signal.start) // 8) * 8 + 7 - int(signal.start) % 8
+    start = _first_bit(signal)
     if start % length or start + length > size * 8:
         return None
     slot = dtypes.slot(_FLOAT_LANES[length, signal.byte_order])
