@@ -30,7 +30,7 @@ found, with the frames read before it.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -82,9 +82,18 @@ class Rows:
 
 
 def _field(buf: np.ndarray, body: np.ndarray, lay: Layout, name: str) -> np.ndarray:
-    """Field ``name`` (a bool or an unsigned integer of 1, 2 or 4 bytes) of every message."""
+    """Field ``name`` (a bool or an unsigned integer of 1, 2 or 4 bytes; an array of bytes) of every message."""
     f = lay.fields[name]
-    return uint_at(buf, body + f.offset, f.size)
+    at = body + f.offset
+    return uint_at(buf, at, f.size) if f.count == 1 else buf[at[:, None] + np.arange(f.count)]
+
+
+def _mark(good: np.ndarray, why: list[str], mask: np.ndarray, reason: Callable[[int], str]) -> None:
+    """The rows of ``mask`` still good become bad, row ``i`` for ``reason(i)``."""
+    hits = mask & good
+    for i in np.flatnonzero(hits).tolist():
+        why[i] = reason(i)
+    good &= ~hits
 
 
 def unpack(lay: Layout, buf: np.ndarray, start: np.ndarray, lens: np.ndarray, record_ns: np.ndarray) -> Rows:
@@ -92,14 +101,7 @@ def unpack(lay: Layout, buf: np.ndarray, start: np.ndarray, lens: np.ndarray, re
     :data:`~canguard.io.mcapscan.PAD` zero bytes after the last), read from their fixed offsets all at once."""
     n = start.size
     why: list[str] = [""] * n
-    bad = lens < HEADER_SIZE
-    if lay.cdr:
-        big = buf[start + 1] == 0
-        for i in np.flatnonzero(big & ~bad).tolist():
-            why[i] = "big-endian CDR, which canguard does not read"
-        bad |= big
-    name_len = np.where(bad, 0, uint_at(buf, start + 12, 4))
-    name_len = np.minimum(name_len, lens)  # a cut or garbled string length: caught by the size check below
+    name_len = np.minimum(uint_at(buf, start + 12, 4), lens)  # a cut or garbled length: the size check catches it
     body = start + HEADER_SIZE + name_len
     if lay.cdr:
         body = (body - start + 3) // 4 * 4 + start  # aligned as CDR aligns, from the message's first byte
@@ -109,17 +111,17 @@ def unpack(lay: Layout, buf: np.ndarray, start: np.ndarray, lens: np.ndarray, re
     if lay.sequence >= 0:
         seq_len = np.where(body + lay.sequence + 4 <= start + lens, uint_at(buf, body + lay.sequence, 4), 0)
         end = body + lay.sequence + 4 + seq_len
-    short = end > start + lens
-    for i in np.flatnonzero(short & ~bad).tolist():
-        why[i] = f"{int(lens[i])} bytes, shorter than its fields"
-    bad |= short
+    good = np.ones(n, dtype=bool)
+    _mark(good, why, end > start + lens, lambda i: f"{int(lens[i])} bytes, shorter than its fields")
+    if lay.cdr:
+        _mark(good, why, buf[start + 1] == 0, lambda i: "big-endian CDR, which canguard does not read")
     stamp = start + STAMP_AT
     sec = uint_at(buf, stamp, 4)
     if lay.cdr:
         sec = np.where(sec >= 1 << 31, sec - (1 << 32), sec)  # int32
     nanosec = uint_at(buf, stamp + 4, 4)
     ids, extended, remote, error, fd, lengths, data = _frame_fields(lay, buf, body, seq_len)
-    return Rows(record_ns, sec, nanosec, ids, extended, remote, error, fd, lengths, data, ~bad, why)
+    return Rows(record_ns, sec, nanosec, ids, extended, remote, error, fd, lengths, data, good, why)
 
 
 def _frame_fields(lay: Layout, buf: np.ndarray, body: np.ndarray, seq_len: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -132,7 +134,7 @@ def _frame_fields(lay: Layout, buf: np.ndarray, body: np.ndarray, seq_len: np.nd
         flag = _field(buf, body, lay, "flag")
         extended = ((flag & KVASER_EXT) != 0) | (ids > CAN_SFF_MASK)
         remote, error = (flag & KVASER_RTR) != 0, (flag & KVASER_ERROR_FRAME) != 0
-        return ids, extended, remote, error, false, _field(buf, body, lay, "len"), _bytes(buf, body, lay, "dat")
+        return ids, extended, remote, error, false, _field(buf, body, lay, "len"), _field(buf, body, lay, "dat")
     extended = _field(buf, body, lay, "is_extended") != 0
     error = _field(buf, body, lay, "is_error") != 0
     remote = _field(buf, body, lay, "is_rtr") != 0 if "is_rtr" in lay.fields else false
@@ -145,32 +147,21 @@ def _frame_fields(lay: Layout, buf: np.ndarray, body: np.ndarray, seq_len: np.nd
         data = buf[(body + lay.sequence + 4)[:, None] + np.arange(64)]
         lengths = np.where(lengths > seq_len, -1, lengths)  # more than the data holds: refused below
     else:
-        data = _bytes(buf, body, lay, "data")
+        data = _field(buf, body, lay, "data")
     return ids, extended, remote, error, fd, lengths, data
-
-
-def _bytes(buf: np.ndarray, body: np.ndarray, lay: Layout, name: str) -> np.ndarray:
-    f = lay.fields[name]
-    return buf[(body + f.offset)[:, None] + np.arange(f.count)]
 
 
 def check(rows: Rows) -> None:
     """Mark the rows that are no CAN frame as candump knows one (``rows.good``, ``rows.why``)."""
-    ok = rows.good
-    why = rows.why
-    lengths = rows.lengths
-    classic_bad = ~rows.fd & ((lengths < 0) | (lengths > 8))
-    fd_bad = rows.fd & ((lengths < 0) | ~_FD_OK[np.clip(lengths, 0, 255)] | rows.remote)
-    std_bad = ~rows.extended & ~rows.error & (rows.ids > CAN_SFF_MASK)
-    ext_bad = rows.extended & ~rows.error & (rows.ids > CAN_EFF_MASK)
-    for mask, reason in ((classic_bad, "a classic frame's length {} is not 0-8"),
-                         (fd_bad, "a CAN FD frame's length {} is not a CAN FD length"),
-                         (std_bad, "11-bit id {:X} is above 7FF"), (ext_bad, "29-bit id {:X} is above 1FFFFFFF")):
-        hits = mask & ok
-        for i in np.flatnonzero(hits).tolist():
-            value = int(rows.ids[i]) if "id" in reason else int(lengths[i])
-            why[i] = reason.format(value)
-        ok &= ~hits
+    lengths, ids, good, why = rows.lengths, rows.ids, rows.good, rows.why
+    _mark(good, why, ~rows.fd & ((lengths < 0) | (lengths > 8)),
+          lambda i: f"a classic frame's length {lengths[i]} is not 0-8")
+    _mark(good, why, rows.fd & ((lengths < 0) | ~_FD_OK[np.clip(lengths, 0, 255)] | rows.remote),
+          lambda i: f"a CAN FD frame's length {lengths[i]} is not a CAN FD length")
+    _mark(good, why, ~rows.extended & ~rows.error & (ids > CAN_SFF_MASK),
+          lambda i: f"11-bit id {ids[i]:X} is above 7FF")
+    _mark(good, why, rows.extended & ~rows.error & (ids > CAN_EFF_MASK),
+          lambda i: f"29-bit id {ids[i]:X} is above 1FFFFFFF")
 
 
 def times(rows: Rows, record: bool) -> tuple[np.ndarray, np.ndarray]:
