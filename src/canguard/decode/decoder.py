@@ -40,7 +40,7 @@ _new = tuple.__new__  # builds a Sample without NamedTuple.__new__'s keyword han
 
 @dataclass
 class DecodeCounters:
-    """What one bus (or all buses together) fed the decoder.
+    """What one bus fed the decoder.
 
     ``frames``: every frame given to :meth:`Decoder.decode`; ``decoded``: configured
     frames decoded; ``invalid``: configured frames that produced invalid samples

@@ -251,11 +251,6 @@ class BusReader:
             pass
         return out
 
-    def get(self, timeout_s: float | None = None) -> tuple[str, Frame] | None:
-        """The next ``(bus_name, frame)``, or None after ``timeout_s`` without one."""
-        got = self.receive(timeout_s, 1)
-        return (got[0][0], got[0][1]) if got else None
-
     # -- sending -----------------------------------------------------------
     def send(self, bus_name: str, msg: can.Message) -> bool:
         """Send ``msg`` on ``bus_name`` without blocking (timeout 0).

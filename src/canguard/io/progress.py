@@ -37,7 +37,7 @@ class ProgressBar:
     ``total_bytes`` is the size of the file being read (0 or less: unknown, the
     bar shows bytes only). ``enabled`` is decided once, at construction: True
     only when ``stream`` is a TTY, unless forced with ``enabled=True/False``.
-    Use as a context manager, or call :meth:`close` at the end to finish the line.
+    :meth:`close` at the end finishes the line.
     """
 
     def __init__(
@@ -106,12 +106,6 @@ class ProgressBar:
                 self.stream.flush()
             except (OSError, ValueError):
                 pass
-
-    def __enter__(self) -> ProgressBar:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
 
 def wrap_progress(frames: _FramesT, path: str | Path, stream: TextIO | None = None) -> _FramesT:
