@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
 
@@ -199,24 +199,15 @@ def block_of(rows: Rows, t: np.ndarray, lanes: np.ndarray, channels: list[str]) 
                        flags=flags, dlc=lengths, channel=lanes[sel], channels=channels)
 
 
-def _merge(parts: list[tuple[np.ndarray, Rows]], n: int) -> Rows:
-    """The rows of several layouts' unpacked parts put back in the batch's order."""
+def _merge(parts: list[tuple[np.ndarray, Rows]]) -> Rows:
+    """The rows of several layouts' unpacked parts (each with its rows' places in the batch) in the batch's order."""
+    order = np.argsort(np.concatenate([idx for idx, _rows in parts]), kind="stable")
     width = max(rows.data.shape[1] for _idx, rows in parts)
-    cols: dict[str, np.ndarray] = {}
-    why = [""] * n
-    for name in ("record_ns", "sec", "nanosec", "ids", "extended", "remote", "error", "fd", "lengths", "good"):
-        first = getattr(parts[0][1], name)
-        out = np.empty(n, dtype=first.dtype)
-        for idx, rows in parts:
-            out[idx] = getattr(rows, name)
-        cols[name] = out
-    data = np.zeros((n, width), dtype=np.uint8)
-    for idx, rows in parts:
-        data[idx, :rows.data.shape[1]] = rows.data
-        for k, i in enumerate(idx.tolist()):
-            why[i] = rows.why[k]
-    good = cols.pop("good")
-    return Rows(**cols, data=data, good=good, why=why)
+    cols = {f.name: np.concatenate([getattr(rows, f.name) for _idx, rows in parts])[order]
+            for f in fields(Rows) if f.name not in ("data", "why")}
+    data = np.concatenate([np.pad(rows.data, ((0, 0), (0, width - rows.data.shape[1]))) for _idx, rows in parts])
+    why = [w for _idx, rows in parts for w in rows.why]
+    return Rows(**cols, data=data[order], why=[why[i] for i in order.tolist()])
 
 
 def _block_rows(block: RawBlock) -> tuple[Rows, np.ndarray]:
@@ -234,7 +225,7 @@ def _block_rows(block: RawBlock) -> tuple[Rows, np.ndarray]:
     for lay, idx in layouts.values():
         at = np.asarray(idx, dtype=np.intp)
         parts.append((at, unpack(lay, block.buf, block.start[at], block.lengths[at], block.record_ns[at])))
-    return (parts[0][1] if len(parts) == 1 else _merge(parts, len(topics))), lanes
+    return (parts[0][1] if len(parts) == 1 else _merge(parts)), lanes
 
 
 def _note_bad(st: ReadStats, bag: BagSource, rows: Rows, lanes: np.ndarray, first: int, skip_bad: bool) -> None:
