@@ -161,10 +161,9 @@ def layout_for(path: object, topic: str, msgtype: str, stored: str, cdr: bool) -
                              f"(it reads {', '.join(DEFINITIONS)})")
     if not stored.strip():
         return layout(name, known[0], cdr)
-    have = [(t.rsplit("/", 1)[-1] if "/" in t else t, n) for t, n in fields_of(stored)]
+    have = [(t.rsplit("/", 1)[-1], n) for t, n in fields_of(stored)]  # a type's package is not compared
     for definition in known:
-        want = [(t.rsplit("/", 1)[-1] if "/" in t else t, n) for t, n in fields_of(definition)]
-        if have == want:
+        if [(t.rsplit("/", 1)[-1], n) for t, n in fields_of(definition)] == have:
             return layout(name, definition, cdr)
     found = " ".join(f"{t} {n};" for t, n in fields_of(stored))
     raise LogFormatError(f"{path}: topic {topic}: its type {msgtype} is defined in the bag with fields "
