@@ -219,11 +219,6 @@ class BusReader:
     def __exit__(self, *exc: object) -> None:
         self.stop()
 
-    @property
-    def running(self) -> bool:
-        """True while receiving (threads running, or started to receive directly)."""
-        return self._started and not self._stop.is_set()
-
     def alive(self) -> dict[str, bool]:
         """Whether each bus is received from (its thread alive, or receiving directly) and currently open."""
         return {
