@@ -1,15 +1,11 @@
 """Frames -> samples: decode only the configured signals of the configured frames.
 
 :class:`Decoder` is built once from a :class:`~canguard.config.schema.Config`. Its
-:meth:`Decoder.decode` is the live path and the replay's path for rows a block does not
-take, so:
-
-- frames are filtered with one dict lookup on ``(bus, arbitration_id,
-  is_extended_id)`` before anything is decoded; unconfigured frames cost only
-  that lookup;
-- each configured message has one :class:`~canguard.decode.message.MessageDecoder`,
-  compiled at construction into its one kernel over a block; a frame is a block of one
-  for it (:func:`row_samples` makes the samples of a row that is not valid, with reasons).
+:meth:`Decoder.decode` (the live path, and the replay's for rows a block does not take)
+finds a frame's message with one dict lookup on ``(bus, arbitration_id, is_extended_id)``
+(an unconfigured frame costs only that) and runs that message's
+:class:`~canguard.decode.message.MessageDecoder` kernel on it as a block of one
+(:func:`row_samples`: the samples of a row that is not valid, with reasons).
 
 Nothing raises out of :meth:`Decoder.decode`: a frame of the wrong length or a
 payload cantools cannot decode becomes one invalid sample (``bad_length`` /
