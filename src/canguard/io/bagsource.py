@@ -116,8 +116,7 @@ class BagSource:
         conns = self.reader.connections
         self.choose([(c.topic, c.msgtype, c.msgdef.data) for c in conns])
         self.total = sum(int(c.msgcount or 0) for c in conns if c.topic in self.channels)
-        storages = getattr(self.reader.storage, "storages", None) if self.kind == "rosbag2" else None
-        files = [Path(s.path) for s in storages or ()]
+        files = [Path(s.path) for s in getattr(self.reader.storage, "storages", None) or ()]
         if files and all(f.suffix == ".mcap" for f in files):
             # read again by canguard's chunk reader, file by file (the reader stays open: a directory compressed
             # file by file has its storages decompressed into a temporary directory while it is)
