@@ -152,6 +152,7 @@ def assert_same_state(model: LatchedModel, ref: Any) -> None:
         assert close(model.accumulator, ref.acc, model.trip_level)
         assert close(model.held_a, ref.held)
         assert model.stale_gaps == ref.stale_gaps
+        assert close(model.peak_level_pct, 100.0 * ref.peak / ref.trip_level, 100.0)  # over every sample taken
     if isinstance(model, Hysteresis):
         over, under = model.timers
         assert close(over, ref.over_since) and close(under, ref.under_since)

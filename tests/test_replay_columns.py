@@ -451,7 +451,7 @@ CUSTOM_TREE = """<root BTCPP_format="4" main_tree_to_execute="Custom">
       <IsI2tSafe name="Axis1Heat" topic_name="axis1" model="leaky" continuous_current="10.0"
                  peak_current="20.0" peak_time="1.0"/>
       <IsI2tSafe name="Axis0Heat" topic_name="axis0" model="thermal" continuous_current="10.0"
-                 peak_current="20.0" peak_time="1.0" level="{axis0_heat}"/>
+                 peak_current="20.0" peak_time="1.0"/>
       <Sequence name="Task">
         <PerformRecovery name="Clear"/>
         <ExecuteTask/>
@@ -461,7 +461,9 @@ CUSTOM_TREE = """<root BTCPP_format="4" main_tree_to_execute="Custom">
 </root>
 """
 """Hysteresis with trip/recover delays and inrush blanking, thermal and leaky I²t, thresholds on a
-joints source of two signals of one message, on scaled, big-endian and float64 signals."""
+joints source of two signals of one message, on scaled, big-endian and float64 signals. No I²t ``level`` is
+wired: a block's rows run on across the quiet ticks, the I²t models' among them (robot_guard.yaml wires every
+``level``: there the rows stop at each tick, which writes the levels again)."""
 
 
 HANDLED = {"Axis0_Get_Iq", "Axis1_Get_Iq", "Axis1_Get_Torques", "Axis2_Get_Torques", "Probe_Multi", "Probe_Big",

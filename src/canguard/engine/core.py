@@ -116,6 +116,7 @@ class Engine:
         self.decoder = Decoder(cfg)
         self.ctx = Context(clock, cfg.sources, sink=sink, actions=cfg.actions, on_event=self._node_event,
                            stop_frames=cfg.stop.frames)
+        self.stats.heat_models = self.ctx.heat_models  # the I²t peaks are the models' own
         if previous is not None:
             # A reload: sources configured as before keep their data, so the new tree does not
             # start blind (and fail on "no data") while the robot is running.
@@ -316,17 +317,27 @@ class Engine:
 
         The next due time (a tick, a gate deadline), or, while the ticks and gate deadlines before
         it read nothing the rows change, the end of the quiet stretch (:attr:`QuietTicks.until`):
-        the next grid tick is proven quiet (it will be counted, not run), no I²t heat is sampled
-        at ticks, nothing watches each tick (metrics, a tick hook, a monitor) and no stop waits for
-        its confirmation (which reads a source between ticks). An edge in the runs still ticks at
-        once: the quiet ticks before it are counted first, at their own times.
+        the next grid tick is proven quiet (it will be counted, not run), nothing watches each tick
+        (metrics, a tick hook, a monitor), the skipped ticks write no model's state (an I²t guard's
+        wired ``level``: :attr:`QuietTicks.writes`), no stop waits for its confirmation (which reads
+        a source between ticks) and no I²t heat is due to be saved before it (a save writes the heat
+        of its tick's time). The I²t peaks are the models' own (over every sample), so their runs
+        may span ticks. An edge in the runs still ticks at once: the quiet ticks before it are counted
+        first, at their own times.
         """
         due = self.due
         quiet = self.quiet
-        if (quiet.until > due and not self.ctx.heat_models and self.metrics is None and self.tick_hook is None
-                and self.observer is None and not self.gate.confirm_pending and quiet.may_skip(self._next_tick)):
-            return quiet.until
+        until = quiet.until
+        if (until > due and self.metrics is None and self.tick_hook is None and self.observer is None
+                and not quiet.writes and not self.gate.confirm_pending and quiet.may_skip(self._next_tick)):
+            return max(due, min(until, self._heat_due()))
         return due
+
+    def _heat_due(self) -> float:
+        """From when the heat is saved again at a tick (inf: never; -inf: at the next tick)."""
+        if self.heat is None or not self.save_heat or not self.ctx.heat_models:
+            return math.inf
+        return float(self.heat.next_save_t(self.cfg.state.save_period_s))
 
     def next_due(self) -> float:
         """The next time the engine has something to do (a tick or a gate deadline)."""
@@ -424,7 +435,8 @@ class Engine:
         was_running = self.gate.state == TaskGate.RUNNING
         self.gate.end_tick(now, failed, cause)
         self.watch.guards(now, was_running)
-        self.watch.sample_levels()
+        if self.metrics is not None:
+            self.watch.levels()
         if self.tick_hook is not None:
             self.tick_hook(now)
         self.gate.service(now)
@@ -509,7 +521,6 @@ class Engine:
             self.last_tick_t = now
             for g in self.quiet.ticked:
                 g.quiet_retick(now)
-            self.watch.sample_levels()  # I²t heat moved with the samples since: its peak is sampled at ticks
             gate.service(now)
             self.store_heat(now, periodic=True)
             self.journal.flush()

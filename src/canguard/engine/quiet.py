@@ -31,9 +31,12 @@ exact repetition of the last tick that ran, and the proof is made of three parts
    a microsecond's margin against rounding).
 
 A skipped tick still does what a tick does outside the tree: it is counted, it marks
-the guards it would have ticked as ticked (``judged_t``), it samples the I²t levels
-(their peak is taken at ticks), and it services the gate's periodic frames at its
-own time. It is one policy: the live daemon and a replay count the same ticks.
+the guards it would have ticked as ticked (``judged_t``), an I²t guard writes its wired
+``level`` again, and it services the gate's periodic frames at its own time. It is one
+policy: the live daemon and a replay count the same ticks. Between two ticks that write
+nothing the rows of a block run on across the skipped ticks
+(:meth:`Engine.runs_until <canguard.engine.core.Engine.runs_until>`): the models' state is
+read at no tick (the I²t peaks are the models' own, over every sample).
 """
 
 from __future__ import annotations
@@ -86,6 +89,13 @@ class QuietTicks:
         self._gate: tuple[Any, ...] = ()
         self.ticked: list[Any] = []
         """The guards the fixed-point tick ticked: a skipped tick marks them ticked."""
+        self._writers = frozenset(g for g in watch.guard_nodes
+                                  if any(map(g.is_wired, getattr(type(g), "QUIET_OUTPUTS", ()))))
+        """The guards whose quiet re-tick writes an output (an I²t guard's wired ``level``)."""
+        self.writes = False
+        """A skipped tick writes the blackboard (a guard of :attr:`ticked` writes its model's level): the
+        samples between two ticks must be taken before each (:meth:`Engine.runs_until
+        <canguard.engine.core.Engine.runs_until>`)."""
 
     def tick_root(self, loaded: Any) -> py_trees.common.Status:
         """Tick the tree as BT.CPP's ``tickOnce()`` (:func:`canguard.bt.wakeup.tick_once`), noting whether the
@@ -123,6 +133,7 @@ class QuietTicks:
         self._events = self.journal.written
         self._gate = (gate.state, dict(gate.inhibits))
         self.ticked = [g for g in self.watch.guard_nodes if g.judged_t == now]
+        self.writes = not self._writers.isdisjoint(self.ticked)
 
     def _horizon(self, now: float) -> float:
         """The earliest time after ``now`` at which time alone may change what a tick sees (part 3).

@@ -1,4 +1,4 @@
-"""The engine's watch over its inputs: stale sources, buses down, the start window, levels for metrics."""
+"""The engine's watch over its inputs: stale sources, buses down, the start window, I²t levels for metrics."""
 
 from __future__ import annotations
 
@@ -114,15 +114,11 @@ class SourceWatch:
         elif "guards" in gate.inhibits and all(g.judged_t == now for g in self.cover):
             gate.release("guards")
 
-    def sample_levels(self) -> None:
-        """The I²t levels at a tick: their peaks (summaries) and metrics."""
-        levels = self.stats.max_level_pct
+    def levels(self) -> None:
+        """The I²t levels at a tick, to metrics (the summaries' peaks are the models' own, over every sample)."""
+        metrics = self.metrics
         for node, model in self.ctx.heat_models.items():
-            pct = model.snapshot().level_pct
-            if pct > levels.get(node, -1.0):
-                levels[node] = pct
-            if self.metrics is not None:
-                self.metrics.set_i2t_level(node, pct)
+            metrics.set_i2t_level(node, model.snapshot().level_pct)
 
     def bus_down(self, bus: str, reason: str) -> None:
         """A bus went away: the task stops (frames out on the buses still up) until :meth:`bus_up`."""

@@ -124,6 +124,8 @@ class _I2tModel(LatchedModel):
         self.max_gap_s = _gap(max_gap_s)
         self._held = math.nan
         self._acc = 0.0
+        self._peak = 0.0
+        """The highest accumulator value the model stood at (see :attr:`peak_level_pct`)."""
         self.stale_gaps = 0
         """Gaps longer than ``max_gap_s`` seen so far."""
 
@@ -170,11 +172,23 @@ class _I2tModel(LatchedModel):
         """The state as a fraction of the trip level (1.0 = trip); may exceed 1."""
         return self._acc / self.trip_level
 
+    @property
+    def peak_level_pct(self) -> float:
+        """The highest level the model stood at, in % of the trip level (the replay summary's I²t peak).
+
+        Taken over every sample the model took (the heat moves only at samples, so this is the
+        true peak, not the level seen at ticks) and the states it was put in (a restore, a reload's
+        carry, the worst case); a :meth:`rewind` takes it back with the rest of the state.
+        """
+        return 100.0 * (self._peak / self.trip_level)
+
     def _set_acc(self, acc: float) -> None:
         cap = MAX_LEVEL * self.trip_level
         if math.isnan(acc):  # unreachable by construction; fail safe if it ever happens
             acc = cap
         self._acc = min(max(acc, 0.0), cap)
+        if self._acc > self._peak:
+            self._peak = self._acc
 
     def carry_from(self, old: ProtectionModel) -> None:
         """The base state plus the heat, as a fraction of the trip level (as a restore does), and the held current.
@@ -199,7 +213,9 @@ class _I2tModel(LatchedModel):
                 self.stale_gaps += 1
                 dt = self.max_gap_s
             if dt > 0:
-                self._acc = self._integrate(self._held, dt)
+                acc = self._acc = self._integrate(self._held, dt)
+                if acc > self._peak:
+                    self._peak = acc
         self._held = a
         return self._decide(self._acc / self.trip_level)
 
@@ -237,6 +253,13 @@ class _I2tModel(LatchedModel):
         self._acc = float(screen.acc[last])
         self._held = float(screen.a[last])
         self.stale_gaps += int(screen.stale[last] - (screen.stale[first - 1] if first else 0))
+
+    def _finish(self, screen: Screen, last: int) -> None:
+        """The peak over the samples taken: the screen's accumulator is the kernel's, sample for sample."""
+        assert isinstance(screen, _Screen)
+        top = float(screen.acc[: last + 1].max())
+        if top > self._peak:
+            self._peak = top
 
     def _threshold_value(self) -> float:
         return self.trip_level
