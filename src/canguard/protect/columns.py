@@ -6,8 +6,11 @@ says so) and has no state of its own.
 
 from __future__ import annotations
 
+import math
 from abc import ABC, abstractmethod
-from typing import TYPE_CHECKING
+from itertools import islice
+from operator import le, sub
+from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:  # numpy is imported by the first long run (or numpy column), not by importing the models
     import numpy as np
@@ -102,6 +105,38 @@ def short_run(times: npt.ArrayLike, values: npt.ArrayLike, most: int) -> tuple[l
         return list(map(float, times)), list(map(float, values))
     except (TypeError, ValueError):
         return None
+
+
+def quiet_span(times: Any, values: Any) -> tuple[float, float, float] | None:
+    """(lowest |value|, highest |value|, longest time step) of a run whose times are finite and never go back and
+    whose values are finite; None when it is not such a run. Lists, or numpy columns (checked with numpy)."""
+    first, final = float(times[0]), float(times[-1])
+    if not (math.isfinite(first) and math.isfinite(final)):
+        return None
+    if type(times) is list or type(times) is tuple:
+        if not math.isfinite(sum(values)):
+            return None
+        longest = 0.0
+        if len(times) > 1:
+            if not all(map(le, times, islice(times, 1, None))):  # a NaN among them fails too
+                return None
+            longest = max(map(sub, islice(times, 1, None), times))
+        a = list(map(abs, values))
+        return min(a), max(a), longest
+    import numpy as np
+
+    a = np.abs(values)
+    high = float(a.max())
+    if not math.isfinite(high):  # NaN or inf among them
+        return None
+    longest = 0.0
+    if len(times) > 1:
+        with np.errstate(invalid="ignore"):
+            steps = np.diff(times)
+        if not float(steps.min()) >= 0.0:  # NaN among them too
+            return None
+        longest = float(steps.max())
+    return float(a.min()), high, longest
 
 
 def alternate(last: bool, n: int) -> list[bool]:

@@ -49,8 +49,6 @@ from __future__ import annotations
 import math
 from abc import abstractmethod
 from collections.abc import Mapping
-from itertools import islice
-from operator import sub
 from typing import TYPE_CHECKING, Any
 
 from canguard.protect.accumulate import clamped_sum, thermal_steps
@@ -346,25 +344,20 @@ class LeakyI2t(_I2tModel):
             steps = np.where(dt > 0, rate * dt, 0.0)
         return clamped_sum(self._acc, steps, MAX_LEVEL * self._s, self._add)
 
-    def _quiet_few(self, t: list[float], v: list[float]) -> bool:
+    def _quiet_side(self, first_t: float, low_a: float, high_a: float, longest_s: float) -> bool:
         """An empty bucket (not tripped) that stays empty: every current held through the run at or below
         I_cont (each step adds <= 0 to a sum floored at 0), and no gap over ``max_gap_s`` to count."""
         if self._acc != 0.0 or self._tripped:
             return False
         cont = self.continuous_a
-        if self._held > cont or max(map(abs, v)) > cont:  # a NaN held (no sample yet) integrates nothing
+        if self._held > cont or high_a > cont:  # a NaN held (no sample yet) integrates nothing
             return False
-        if self.max_gap_s != math.inf:
-            last = self._last_t
-            if last is not None and t[0] - last > self.max_gap_s:
-                return False
-            if len(t) > 1 and max(map(sub, islice(t, 1, None), t)) > self.max_gap_s:
-                return False
-        return True
+        last = self._last_t
+        return not (longest_s > self.max_gap_s or (last is not None and first_t - last > self.max_gap_s))
 
-    def _take_quiet(self, t: list[float], v: list[float]) -> None:
+    def _take_quiet(self, final_a: float) -> None:
         """The last sample's current is held from now on; the bucket stays empty."""
-        self._held = abs(v[-1])
+        self._held = final_a
 
     def _integrate(self, held: float, dt: float) -> float:
         """A + (I² − I_cont²)·dt, floored at 0 and capped."""
