@@ -245,6 +245,7 @@ class TestEngine:
         # Its tick changed after the engine proved it quiet: no longer proven, every tick runs it from now on.
         rig.engine.quiet.loud |= {guard}
         rig.engine.quiet.until = -math.inf
+        rig.engine.quiet._fresh = None  # no fixed point to draw the horizon again from
         t_err = rig.t + 0.002
         rig.advance(t_err + 0.01)
         assert rig.sent(ESTOP_IDS, since=t_err)

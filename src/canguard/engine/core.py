@@ -327,10 +327,9 @@ class Engine:
         """
         due = self.due
         quiet = self.quiet
-        until = quiet.until
-        if (until > due and self.metrics is None and self.tick_hook is None and self.observer is None
-                and not quiet.writes and not self.gate.confirm_pending and quiet.may_skip(self._next_tick)):
-            return max(due, min(until, self._heat_due()))
+        if (self.metrics is None and self.tick_hook is None and self.observer is None and not quiet.writes
+                and not self.gate.confirm_pending and quiet.may_skip(self._next_tick) and quiet.until > due):
+            return max(due, min(quiet.until, self._heat_due()))
         return due
 
     def _heat_due(self) -> float:
