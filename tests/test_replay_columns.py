@@ -937,6 +937,29 @@ class TestSimulator:
         assert col.handled_rows == 0 and col.state["skipped_ticks"] > 0
 
 
+def replay_watched(cfg: Config, log: Path, out: Path, watched: bool) -> tuple[str, bytes, bytes, int]:
+    """Replay ``log`` in blocks of 4096 characters, every tick run when ``watched`` (a tick hook looks at each):
+    (summary, events, emitted frames, quiet ticks counted)."""
+    engines: list[Engine] = []
+
+    class Watched(Engine):
+        def __init__(self, *args: Any, **kwargs: Any) -> None:
+            super().__init__(*args, **kwargs)
+            if watched:
+                self.tick_hook = lambda t: None
+            engines.append(self)
+
+    out.mkdir()
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(canguard.cli.replay, "Engine", Watched)
+        mp.setattr(canguard.io.candump, "CHUNK_CHARS", 4096)
+        summary = replay_one(cfg, log, ReplayOptions(events=out / "events.jsonl", emit=out / "emit.log"))
+    py_trees.blackboard.Blackboard.clear()
+    [engine] = engines
+    return (json.dumps(summary, sort_keys=True), (out / "events.jsonl").read_bytes(), (out / "emit.log").read_bytes(),
+            engine.stats.quiet_ticks)
+
+
 class TestQuietTicks:
     """Counting the grid ticks proven quiet instead of running them changes nothing a user sees."""
 
@@ -944,29 +967,10 @@ class TestQuietTicks:
         """The custom log (trips, stale gaps, I²t across skipped ticks) with every tick run (a tick hook
         watches each) gives the summary, events and frames it gives with the quiet ticks counted."""
         cfg, log = custom
-        outcomes = []
-        for watched in (False, True):
-            engines: list[Engine] = []
-
-            class Watched(Engine):
-                def __init__(self, *args: Any, **kwargs: Any) -> None:
-                    super().__init__(*args, **kwargs)
-                    if watched:
-                        self.tick_hook = lambda t: None
-                    engines.append(self)
-
-            out = tmp_path / str(watched)
-            out.mkdir()
-            with pytest.MonkeyPatch.context() as mp:
-                mp.setattr(canguard.cli.replay, "Engine", Watched)
-                mp.setattr(canguard.io.candump, "CHUNK_CHARS", 4096)
-                summary = replay_one(cfg, log, ReplayOptions(events=out / "events.jsonl", emit=out / "emit.log"))
-            py_trees.blackboard.Blackboard.clear()
-            [engine] = engines
-            outcomes.append((json.dumps(summary, sort_keys=True), (out / "events.jsonl").read_bytes(),
-                             (out / "emit.log").read_bytes(), engine.stats.quiet_ticks))
-        assert outcomes[0][3] > 0 and outcomes[1][3] == 0  # quiet ticks counted; every tick run
-        assert outcomes[0][:3] == outcomes[1][:3]
+        quiet = replay_watched(cfg, log, tmp_path / "quiet", False)
+        every = replay_watched(cfg, log, tmp_path / "every", True)
+        assert quiet[3] > 0 and every[3] == 0  # quiet ticks counted; every tick run
+        assert quiet[:3] == every[:3]
 
 
 class TestChannels:
