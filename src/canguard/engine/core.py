@@ -139,7 +139,7 @@ class Engine:
         self._gap_horizon_s = max(ages, default=0.0) + MAX_CATCH_UP_S
         """How much of a gap is ticked through before the rest is jumped: every source goes stale in it."""
         self.period_s = 1.0 / cfg.tree.tick_hz
-        self.watch = SourceWatch(cfg, self.ctx, self.gate, self.journal, self.stats, metrics, self.clock,
+        self.watch = SourceWatch(cfg, self.ctx, self.gate, self.journal, metrics, self.clock,
                                  self.guard_nodes, self.period_s)
         self.quiet = QuietTicks(self.root, self.ctx, self.gate, self.journal, self.watch, cfg.sources, self.period_s)
         self._next_tick = math.nan
@@ -312,11 +312,12 @@ class Engine:
         self.stats.edge_ticks += 1
         self.tick(self.clock.now())
 
-    def runs_until(self) -> float:
+    def runs_until(self, coming: Mapping[tuple[int, str], Any]) -> float:
         """Until when a block's rows may be taken as runs (:func:`~canguard.engine.blocks.take_runs`), the engine idle.
 
         The next due time (a tick, a gate deadline), or, while the ticks and gate deadlines before
-        it read nothing the rows change, the end of the quiet stretch (:attr:`QuietTicks.until`):
+        it read nothing the rows change, the end of the quiet stretch the rows still to come
+        (``coming``: each source signal's times, :meth:`QuietTicks.reach`) keep the sources fresh to:
         the next grid tick is proven quiet (it will be counted, not run), nothing watches each tick
         (metrics, a tick hook, a monitor), the skipped ticks write no model's state (an I²t guard's
         wired ``level``: :attr:`QuietTicks.writes`), no stop waits for its confirmation (which reads
@@ -329,7 +330,7 @@ class Engine:
         quiet = self.quiet
         if (self.metrics is None and self.tick_hook is None and self.observer is None and not quiet.writes
                 and not self.gate.confirm_pending and quiet.may_skip(self._next_tick) and quiet.until > due):
-            return max(due, min(quiet.until, self._heat_due()))
+            return max(due, min(quiet.reach(coming), self._heat_due()))
         return due
 
     def _heat_due(self) -> float:

@@ -56,7 +56,7 @@ class Engine(Protocol):
     def next_tick_t(self) -> float: ...
     def arrive(self, t: float) -> None: ...
     def edge_tick(self, t: float) -> None: ...
-    def runs_until(self) -> float: ...
+    def runs_until(self, coming: Mapping[tuple[int, str], Any]) -> float: ...
     def controller_state(self, bus: str, frame: Frame) -> None: ...
     def advance(self, now: float) -> None: ...
     def tick(self, now: float) -> py_trees.common.Status: ...
@@ -371,7 +371,7 @@ class LogRun:
                         engine.edge_tick(t)
                     continue
                 # the stretch before the engine must act (the next due time, or the end of its quiet ticks)
-                stop = bisect_left(ts, engine.runs_until(), i, end_rows, key=float)
+                stop = bisect_left(ts, engine.runs_until(_coming(runs)), i, end_rows, key=float)
                 if next_alone < len(alone) and alone[next_alone][0] < stop:
                     stop = alone[next_alone][0]
                 last, edge = take_runs(_stretch(runs, stop))
@@ -450,6 +450,18 @@ def _first_row(runs: list[list[Any]], first: int) -> int:
         if at < len(rows) and rows[at] < first:
             first = rows[at]
     return first
+
+
+def _coming(runs: list[list[Any]]) -> dict[tuple[int, str], Any]:
+    """The times of each source signal's rows not taken yet, by (``id`` of its health, role)."""
+    out: dict[tuple[int, str], Any] = {}
+    for at, plan, rows, times, _columns in runs:
+        if at < len(rows):
+            left = times[at:]
+            for health, roles, _js in plan.healths:
+                for role in roles:
+                    out[id(health), role] = left
+    return out
 
 
 def _stretch(runs: list[list[Any]], stop: int) -> list[tuple[Any, list[int], list[float], list[Any]]]:

@@ -31,7 +31,8 @@ exact repetition of the last tick that ran, and the proof is made of three parts
    a microsecond's margin against rounding). The freshness deadlines are those of the
    signals fresh at the fixed point, with their latest samples: when the skipped ticks
    reach the first of them, the samples taken since have moved it on (drawn again,
-   not a tick run).
+   not a tick run); a block's rows still to come move it on as far as they keep every
+   such signal fresh (:meth:`QuietTicks.reach`), so its rows run on to there.
 
 A skipped tick still does what a tick does outside the tree: it is counted, it marks
 the guards it would have ticked as ticked (``judged_t``), an I²t guard writes its wired
@@ -163,6 +164,34 @@ class QuietTicks:
             assert t is not None  # fresh at the fixed point: it has a sample
             if t + health.max_age_s < horizon:
                 horizon = t + health.max_age_s
+        return horizon - MARGIN_S
+
+    def reach(self, coming: Mapping[tuple[int, str], Any]) -> float:
+        """The horizon (:meth:`_horizon`) with the rows a block still holds: where the skipped ticks may go on to.
+
+        ``coming``: by (``id`` of a source's health, role), the times of its samples still to be taken
+        (in order). A signal fresh at the fixed point stays fresh through them while no two of them
+        (its latest sample first) lie more than ``max_age`` apart; it may go stale ``max_age`` after
+        the last before such a gap, or after the last of them. -inf: no fixed point.
+        """
+        if self._fresh is None:
+            return -math.inf
+        import numpy as np
+
+        horizon = self._timers
+        for health, role in self._fresh:
+            last = health.latest_t(role)
+            assert last is not None  # fresh at the fixed point: it has a sample
+            max_age = health.max_age_s
+            times = coming.get((id(health), role))
+            if times is not None and len(times):
+                gaps = np.diff(times, prepend=last)
+                over = np.flatnonzero(gaps > max_age)
+                k = int(over[0]) if over.size else len(times)
+                if k:
+                    last = float(times[k - 1])
+            if last + max_age < horizon:
+                horizon = last + max_age
         return horizon - MARGIN_S
 
     def _timer_horizon(self, now: float) -> float:

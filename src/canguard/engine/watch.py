@@ -11,7 +11,6 @@ if TYPE_CHECKING:
     from canguard.bt.context import Context
     from canguard.config.schema import Config
     from canguard.engine.journal import Journal
-    from canguard.engine.stats import EngineStats
     from canguard.io.clock import PinnedClock
 
 
@@ -31,12 +30,11 @@ class SourceWatch:
     again after each call (:meth:`TaskGate.next_deadline`).
     """
 
-    def __init__(self, cfg: Config, ctx: Context, gate: TaskGate, journal: Journal, stats: EngineStats,
-                 metrics: Any, clock: PinnedClock, guard_nodes: list[Any], period_s: float) -> None:
+    def __init__(self, cfg: Config, ctx: Context, gate: TaskGate, journal: Journal, metrics: Any,
+                 clock: PinnedClock, guard_nodes: list[Any], period_s: float) -> None:
         self.ctx = ctx
         self.gate = gate
         self.journal = journal
-        self.stats = stats
         self.metrics = metrics
         self.clock = clock
         self.guard_nodes = guard_nodes
