@@ -176,20 +176,18 @@ class QuietTicks:
         """
         if self._fresh is None:
             return -math.inf
-        import numpy as np
-
         horizon = self._timers
+        gaps: dict[tuple[int, float], int] = {}  # by a times column (a message's rows) and max_age: its first gap
         for health, role in self._fresh:
             last = health.latest_t(role)
             assert last is not None  # fresh at the fixed point: it has a sample
             max_age = health.max_age_s
             times = coming.get((id(health), role))
-            if times is not None and len(times):
-                gaps = np.diff(times, prepend=last)
-                over = np.flatnonzero(gaps > max_age)
-                k = int(over[0]) if over.size else len(times)
-                if k:
-                    last = float(times[k - 1])
+            if times is not None and len(times) and not times[0] - last > max_age:
+                k = gaps.get((id(times), max_age))
+                if k is None:
+                    k = gaps[id(times), max_age] = _first_gap(times, max_age)
+                last = float(times[k - 1])
             if last + max_age < horizon:
                 horizon = last + max_age
         return horizon - MARGIN_S
@@ -250,3 +248,13 @@ def _quiet_node(node: Any) -> bool:
         if not {port for port in node.output_ports() if wired(port)} <= quiet_outputs:
             return False
     return True
+
+
+def _first_gap(times: Any, max_age: float) -> int:
+    """The position after which the first step of ``times`` (in order) longer than ``max_age`` comes (their length:
+    none)."""
+    import numpy as np
+
+    times = np.asarray(times)
+    over = np.flatnonzero(times[1:] - times[:-1] > max_age)
+    return int(over[0]) + 1 if over.size else len(times)
