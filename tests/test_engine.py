@@ -588,7 +588,7 @@ class TestI2tAcrossQuietTicks:
         """A 3 ms pulse of 30 A between two 10 ms ticks: the peak is the heat at its end, above any tick's level.
 
         The reference maths fed the same samples gives the peak. The levels the ticks saw are all
-        lower: the figure used to be sampled at ticks, and under-reported such a pulse.
+        lower: sampled at ticks, the figure would under-report such a pulse.
         """
         from tests.reference_models import RefI2t
 
