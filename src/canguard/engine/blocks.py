@@ -24,6 +24,7 @@ from __future__ import annotations
 
 from bisect import bisect_right
 from collections.abc import Sequence
+from itertools import chain
 from typing import TYPE_CHECKING, Any
 
 from canguard.decode.decoder import row_samples
@@ -264,10 +265,8 @@ def take_runs(runs: Sequence[tuple[MessagePlan, Any, Any, list[Any]]]) -> tuple[
             units.append((model, rows, (ts, columns[j])))
     for key, (health, _rows, parts) in health_units.items():
         if len(parts) > 1:  # several messages of one source: every row of theirs, in order
-            import numpy as np
-
             at = next(i for i, unit in enumerate(units) if unit[0] is health)
-            units[at] = health_units[key] = (health, np.sort(np.concatenate([part[3] for part in parts])), parts)
+            units[at] = health_units[key] = (health, sorted(chain.from_iterable(part[3] for part in parts)), parts)
     bound, edge = _advance_units(units, last)
     for plan, rows, _ts, columns in runs:
         m = len(rows) if bound == last else bisect_right(rows, bound)

@@ -312,12 +312,12 @@ class Engine:
         self.stats.edge_ticks += 1
         self.tick(self.clock.now())
 
-    def runs_until(self, coming: Mapping[tuple[int, str], Any]) -> float:
+    def runs_until(self, coming: Callable[[], Mapping[tuple[int, str], Any]]) -> float:
         """Until when a block's rows may be taken as runs (:func:`~canguard.engine.blocks.take_runs`), the engine idle.
 
         The next due time (a tick, a gate deadline), or, while the ticks and gate deadlines before
         it read nothing the rows change, the end of the quiet stretch the rows still to come
-        (``coming``: each source signal's times, :meth:`QuietTicks.reach`) keep the sources fresh to:
+        (``coming()``: each source signal's times, :meth:`QuietTicks.reach`) keep the sources fresh to:
         the next grid tick is proven quiet (it will be counted, not run), nothing watches each tick
         (metrics, a tick hook, a monitor), the skipped ticks write no model's state (an I²t guard's
         wired ``level``: :attr:`QuietTicks.writes`), no stop waits for its confirmation (which reads
@@ -330,7 +330,7 @@ class Engine:
         quiet = self.quiet
         if (self.metrics is None and self.tick_hook is None and self.observer is None and not quiet.writes
                 and not self.gate.confirm_pending and quiet.may_skip(self._next_tick) and quiet.until > due):
-            return max(due, min(quiet.reach(coming), self._heat_due()))
+            return max(due, min(quiet.reach(coming()), self._heat_due()))
         return due
 
     def _heat_due(self) -> float:
