@@ -82,8 +82,9 @@ from canguard.protect.columns import (
     as_run,
     in_order,
     no_edges,
-    quiet_span,
+    ordered,
     short_run,
+    values_span,
 )
 from canguard.protect.results import Run, Snapshot
 
@@ -256,16 +257,21 @@ class LatchedModel(ProtectionModel):
 
         Every sample is in order (none before the latest, times not going back) and finite, and the
         model's own screen (:meth:`_quiet_side`) finds them all on its quiet side: fed one by one they
-        would leave exactly what :meth:`_take_quiet` leaves. Lists or numpy columns (:func:`quiet_span`).
+        would leave exactly what :meth:`_take_quiet` leaves. Lists or numpy columns
+        (:func:`~canguard.protect.columns.ordered`, :func:`~canguard.protect.columns.values_span`).
         """
-        span = quiet_span(t, v)
+        if not ordered(t):
+            return False
+        last = self._last_t
+        if last is not None and not float(t[0]) >= last:
+            return False
+        span = values_span(v)
         if span is None:
             return False
-        first = float(t[0])
-        last = self._last_t
-        if last is not None and not first >= last:
-            return False
-        if not self._quiet_side(first, *span):
+        low, high = span
+        high_a = high if high >= -low else -low
+        low_a = low if low >= 0.0 else (-high if high <= 0.0 else 0.0)  # values on both sides of 0: at least 0
+        if not self._quiet_side(t, low_a, high_a):
             return False
         final_a = abs(float(v[-1]))
         self._take_quiet(final_a)
@@ -273,10 +279,10 @@ class LatchedModel(ProtectionModel):
         self._value = final_a
         return True
 
-    def _quiet_side(self, first_t: float, low_a: float, high_a: float, longest_s: float) -> bool:
-        """True when every sample of a run (in order, finite: the first at ``first_t``, |values| from ``low_a`` to
-        ``high_a``, no two further apart than ``longest_s``) leaves the state as it is but for the latest time and
-        value (and what :meth:`_take_quiet` takes); the default says no (every sample to the kernel)."""
+    def _quiet_side(self, t: Any, low_a: float, high_a: float) -> bool:
+        """True when every sample of a run (times ``t`` in order, after the latest; finite values, every |value|
+        at least ``low_a`` and at most ``high_a``) leaves the state as it is but for the latest time and value
+        (and what :meth:`_take_quiet` takes); the default says no (every sample to the kernel)."""
         return False
 
     def _take_quiet(self, final_a: float) -> None:

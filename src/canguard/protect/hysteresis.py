@@ -210,7 +210,7 @@ class Hysteresis(LatchedModel):
         if self.inrush is not None and inrush is not None:
             self.inrush.resume(inrush)
 
-    def _quiet_side(self, first_t: float, low_a: float, high_a: float, longest_s: float) -> bool:
+    def _quiet_side(self, t: Any, low_a: float, high_a: float) -> bool:
         """No timer, no inrush helper, every sample below the trip threshold (not tripped) or above the recovery
         one (tripped): each sample only keeps its side's timer unset (a gap restarts timers that are unset)."""
         if self.inrush is not None or self._over_since is not None or self._under_since is not None:

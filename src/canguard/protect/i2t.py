@@ -53,7 +53,7 @@ from typing import TYPE_CHECKING, Any
 
 from canguard.protect.accumulate import clamped_sum, thermal_steps
 from canguard.protect.base import REASON_I2T, LatchedModel, ProtectionModel
-from canguard.protect.columns import Marks, Screen
+from canguard.protect.columns import Marks, Screen, longest_step
 from canguard.protect.state import KIND_LEAKY, KIND_THERMAL, cooled_level
 from canguard.units import AMPERE2_SECOND, THETA
 
@@ -344,7 +344,7 @@ class LeakyI2t(_I2tModel):
             steps = np.where(dt > 0, rate * dt, 0.0)
         return clamped_sum(self._acc, steps, MAX_LEVEL * self._s, self._add)
 
-    def _quiet_side(self, first_t: float, low_a: float, high_a: float, longest_s: float) -> bool:
+    def _quiet_side(self, t: Any, low_a: float, high_a: float) -> bool:
         """An empty bucket (not tripped) that stays empty: every current held through the run at or below
         I_cont (each step adds <= 0 to a sum floored at 0), and no gap over ``max_gap_s`` to count."""
         if self._acc != 0.0 or self._tripped:
@@ -352,8 +352,10 @@ class LeakyI2t(_I2tModel):
         cont = self.continuous_a
         if self._held > cont or high_a > cont:  # a NaN held (no sample yet) integrates nothing
             return False
+        if self.max_gap_s == math.inf:
+            return True
         last = self._last_t
-        return not (longest_s > self.max_gap_s or (last is not None and first_t - last > self.max_gap_s))
+        return not ((last is not None and float(t[0]) - last > self.max_gap_s) or longest_step(t) > self.max_gap_s)
 
     def _take_quiet(self, final_a: float) -> None:
         """The last sample's current is held from now on; the bucket stays empty."""

@@ -36,14 +36,12 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from itertools import islice
-from operator import le, sub
 from typing import TYPE_CHECKING, Any
 
 from canguard.config.schema import NON_VALUE_ROLES, SourceConfig
 from canguard.io.frame import INVALID_INF, INVALID_NAN, INVALID_RANGE
 from canguard.protect.base import REASON_NO_DATA, REASON_NOT_PRESENT, REASON_OK, REASON_STALE
-from canguard.protect.columns import NO_EDGES, no_edges
+from canguard.protect.columns import NO_EDGES, longest_step, no_edges, ordered, values_span
 
 if TYPE_CHECKING:
     from canguard.protect.columns import FloatArray, IndexArray
@@ -270,11 +268,11 @@ class SourceHealth:
         drive health) is never quiet, a presence flag only while it was set and stays set. Lists or
         numpy columns (a block's runs: checked with numpy).
         """
+        if not ordered(times):
+            return False
         first, final = float(times[0]), float(times[-1])
         max_age = self.max_age_s
-        if not (math.isfinite(first) and math.isfinite(final)):
-            return False
-        if len(times) > 1 and not _paced(times, final - first > max_age, max_age):
+        if final - first > max_age and longest_step(times) > max_age:
             return False
         latest_t, invalid = self._latest_t, self._invalid
         for role, column in zip(roles, columns, strict=True):
@@ -284,8 +282,8 @@ class SourceHealth:
             if role in FULL_ROLES and not (role == PRESENT and self._present_quiet(roles, column)):
                 return False
             lo, hi = self._limits.get(role, _ANY)
-            low, high = _span(column)
-            if not (lo <= low and high <= hi):
+            span = values_span(column)
+            if span is None or not (lo <= span[0] and span[1] <= hi):
                 return False
         return True
 
@@ -466,28 +464,3 @@ class SourceHealth:
         """Each role's latest sample time, valid or not (a copy)."""
         return dict(self._latest_t)
 
-
-def _paced(times: Sequence[float], check_gaps: bool, max_age: float) -> bool:
-    """Times (two or more, finite at both ends) that never go back, and (``check_gaps``) no two further apart than
-    ``max_age``; a NaN among them fails. Lists or a numpy column."""
-    if type(times) is list or type(times) is tuple:
-        if not all(map(le, times, islice(times, 1, None))):
-            return False
-        return not check_gaps or not max(map(sub, islice(times, 1, None), times)) > max_age
-    import numpy as np
-
-    with np.errstate(invalid="ignore"):  # inf - inf: NaN, which fails below
-        steps = np.diff(times)
-    if not bool((steps >= 0.0).all()):
-        return False
-    return not check_gaps or not float(steps.max()) > max_age
-
-
-def _span(column: Sequence[float]) -> tuple[float, float]:
-    """(lowest, highest) of a column of values; NaN when one is NaN (an infinite one is itself the bound: it fails
-    every range). Lists or a numpy column."""
-    if type(column) is list or type(column) is tuple:
-        if not math.isfinite(sum(column)):
-            return math.nan, math.nan
-        return min(column), max(column)
-    return float(column.min()), float(column.max())  # type: ignore[attr-defined]  # numpy: NaN propagates

@@ -9,7 +9,7 @@ two ticks is still reported at the next tick (design note 004, section 5.1).
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from canguard.protect.base import REASON_OVERCURRENT, LatchedModel
 from canguard.protect.columns import Marks
@@ -48,7 +48,7 @@ class Threshold(LatchedModel):
         over = a > self.max_value
         return Marks(over, ~over)
 
-    def _quiet_side(self, first_t: float, low_a: float, high_a: float, longest_s: float) -> bool:
+    def _quiet_side(self, t: Any, low_a: float, high_a: float) -> bool:
         """Every sample on the side of ``max_value`` the model is on."""
         if self._tripped:
             return low_a > self.max_value
