@@ -312,8 +312,9 @@ class Engine:
         self.stats.edge_ticks += 1
         self.tick(self.clock.now())
 
-    def runs_until(self, coming: Callable[[], Mapping[tuple[int, str], Any]]) -> float:
-        """Until when a block's rows may be taken as runs (:func:`~canguard.engine.blocks.take_runs`), the engine idle.
+    def runs_until(self, end_t: float, coming: Callable[[], Mapping[tuple[int, str], Any]]) -> float:
+        """Until when a block's rows, the last at ``end_t``, may be taken as runs
+        (:func:`~canguard.engine.blocks.take_runs`), the engine idle.
 
         The next due time (a tick, a gate deadline), or, while the ticks and gate deadlines before
         it read nothing the rows change, the end of the quiet stretch the rows still to come
@@ -324,13 +325,17 @@ class Engine:
         a source between ticks) and no I²t heat is due to be saved before it (a save writes the heat
         of its tick's time). The I²t peaks are the models' own (over every sample), so their runs
         may span ticks. An edge in the runs still ticks at once: the quiet ticks before it are counted
-        first, at their own times.
+        first, at their own times. Nothing is drawn when the rows end before the due time (a live
+        frame between two ticks).
         """
         due = self.due
+        if end_t < due:
+            return due
         quiet = self.quiet
         if (self.metrics is None and self.tick_hook is None and self.observer is None and not quiet.writes
                 and not self.gate.confirm_pending and quiet.may_skip(self._next_tick) and quiet.until > due):
-            return max(due, min(quiet.reach(coming()), self._heat_due()))
+            until = quiet.until if quiet.until > end_t else quiet.reach(coming())
+            return max(due, min(until, self._heat_due()))
         return due
 
     def _heat_due(self) -> float:

@@ -57,7 +57,7 @@ class Engine(Protocol):
     def next_tick_t(self) -> float: ...
     def arrive(self, t: float) -> None: ...
     def edge_tick(self, t: float) -> None: ...
-    def runs_until(self, coming: Callable[[], Mapping[tuple[int, str], Any]]) -> float: ...
+    def runs_until(self, end_t: float, coming: Callable[[], Mapping[tuple[int, str], Any]]) -> float: ...
     def controller_state(self, bus: str, frame: Frame) -> None: ...
     def advance(self, now: float) -> None: ...
     def tick(self, now: float) -> py_trees.common.Status: ...
@@ -354,6 +354,7 @@ class LogRun:
                 for plan, rows, times, columns in walk.runs]
         alone, next_alone = walk.alone, 0
         end_rows = walk.block.n
+        end_t = float(ts[end_rows - 1])
         pos = first
         try:
             while True:
@@ -375,7 +376,8 @@ class LogRun:
                         engine.edge_tick(t)
                     continue
                 # the stretch before the engine must act (the next due time, or the end of its quiet ticks)
-                stop = bisect_left(ts, engine.runs_until(lambda: _coming(runs)), i, end_rows, key=float)
+                until = engine.runs_until(end_t, lambda: _coming(runs))
+                stop = end_rows if end_t < until else bisect_left(ts, until, i, end_rows, key=float)
                 if next_alone < len(alone) and alone[next_alone][0] < stop:
                     stop = alone[next_alone][0]
                 last, edge = take_runs(_stretch(runs, stop))
