@@ -486,7 +486,7 @@ MOSTLY_QUIET = st.lists(st.integers(0, 15).flatmap(lambda k: st.tuples(
 """Rows of a source fed by two messages: (time step, value, which message), mostly fresh and valid."""
 
 
-@SETTINGS
+@settings(max_examples=50, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(drawn=MOSTLY_QUIET)
 def test_quiet_runs_of_two_messages_are_taken_whole_or_not_at_all(drawn: list[tuple[float, float, int]]) -> None:
     """A source fed by two messages (a role each, rows interleaved): ``take_quiet`` takes both runs whole only when
