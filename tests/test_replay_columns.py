@@ -451,7 +451,7 @@ CUSTOM_TREE = """<root BTCPP_format="4" main_tree_to_execute="Custom">
       <IsI2tSafe name="Axis1Heat" topic_name="axis1" model="leaky" continuous_current="10.0"
                  peak_current="20.0" peak_time="1.0"/>
       <IsI2tSafe name="Axis0Heat" topic_name="axis0" model="thermal" continuous_current="10.0"
-                 peak_current="20.0" peak_time="1.0" level="{axis0_heat}"/>
+                 peak_current="20.0" peak_time="1.0"/>
       <Sequence name="Task">
         <PerformRecovery name="Clear"/>
         <ExecuteTask/>
@@ -461,7 +461,9 @@ CUSTOM_TREE = """<root BTCPP_format="4" main_tree_to_execute="Custom">
 </root>
 """
 """Hysteresis with trip/recover delays and inrush blanking, thermal and leaky I²t, thresholds on a
-joints source of two signals of one message, on scaled, big-endian and float64 signals."""
+joints source of two signals of one message, on scaled, big-endian and float64 signals. No I²t ``level`` is
+wired: a block's rows run on across the quiet ticks, the I²t models' among them (robot_guard.yaml wires every
+``level``: there the rows stop at each tick, which writes the levels again)."""
 
 
 HANDLED = {"Axis0_Get_Iq", "Axis1_Get_Iq", "Axis1_Get_Torques", "Axis2_Get_Torques", "Probe_Multi", "Probe_Big",
@@ -933,6 +935,42 @@ class TestSimulator:
         _, log = custom
         [col, _] = compare(load_config(TIMED), log, tmp_path, (300, DEFAULT_CHUNK), min_handled=0)
         assert col.handled_rows == 0 and col.state["skipped_ticks"] > 0
+
+
+def replay_watched(cfg: Config, log: Path, out: Path, watched: bool) -> tuple[str, bytes, bytes, int]:
+    """Replay ``log`` in blocks of 4096 characters, every tick run when ``watched`` (a tick hook looks at each):
+    (summary, events, emitted frames, quiet ticks counted)."""
+    engines: list[Engine] = []
+
+    class Watched(Engine):
+        def __init__(self, *args: Any, **kwargs: Any) -> None:
+            super().__init__(*args, **kwargs)
+            if watched:
+                self.tick_hook = lambda t: None
+            engines.append(self)
+
+    out.mkdir()
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(canguard.cli.replay, "Engine", Watched)
+        mp.setattr(canguard.io.candump, "CHUNK_CHARS", 4096)
+        summary = replay_one(cfg, log, ReplayOptions(events=out / "events.jsonl", emit=out / "emit.log"))
+    py_trees.blackboard.Blackboard.clear()
+    [engine] = engines
+    return (json.dumps(summary, sort_keys=True), (out / "events.jsonl").read_bytes(), (out / "emit.log").read_bytes(),
+            engine.stats.quiet_ticks)
+
+
+class TestQuietTicks:
+    """Counting the grid ticks proven quiet instead of running them changes nothing a user sees."""
+
+    def test_every_tick_run_gives_the_same(self, custom: tuple[Config, Path], tmp_path: Path) -> None:
+        """The custom log (trips, stale gaps, I²t across skipped ticks) with every tick run (a tick hook
+        watches each) gives the summary, events and frames it gives with the quiet ticks counted."""
+        cfg, log = custom
+        quiet = replay_watched(cfg, log, tmp_path / "quiet", False)
+        every = replay_watched(cfg, log, tmp_path / "every", True)
+        assert quiet[3] > 0 and every[3] == 0  # quiet ticks counted; every tick run
+        assert quiet[:3] == every[:3]
 
 
 class TestChannels:

@@ -20,8 +20,9 @@ if TYPE_CHECKING:
     from canguard.io.block import Block
 
 
-Run = tuple["MessagePlan", list[int], list[float], list[Sequence[float]]]
-"""A message's rows of a block whole and valid: (plan, the rows (ascending), their times, each output's column)."""
+Run = tuple["MessagePlan", Any, Any, list[Any]]
+"""A message's rows of a block whole and valid: (plan, the rows (ascending), their times, each output's column):
+numpy columns from a block's column decode, lists from its rows one by one."""
 
 
 def decode_rows(
@@ -86,9 +87,9 @@ def _split(plan: MessagePlan, group: Any, decoded: Sequence[Any], ts: Sequence[A
             at = at[keep]
         if not at.size:
             return None
-        stamps = ts.take(at).tolist() if hasattr(ts, "take") else [float(ts[i]) for i in at.tolist()]
-        columns = [(c if keep is None else c[keep]).tolist() for c in decoded.columns]
-        return plan, at.tolist(), stamps, columns
+        stamps = ts.take(at) if hasattr(ts, "take") else np.array([float(ts[i]) for i in at.tolist()])
+        columns = [c if keep is None else c[keep] for c in decoded.columns]
+        return plan, at, stamps, columns  # numpy columns: the models screen long runs of them
     rows: list[int] = []
     values: list[tuple[float, ...]] = []
     empty = 0

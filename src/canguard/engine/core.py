@@ -116,6 +116,7 @@ class Engine:
         self.decoder = Decoder(cfg)
         self.ctx = Context(clock, cfg.sources, sink=sink, actions=cfg.actions, on_event=self._node_event,
                            stop_frames=cfg.stop.frames)
+        self.stats.heat_models = self.ctx.heat_models  # the I²t peaks are the models' own
         if previous is not None:
             # A reload: sources configured as before keep their data, so the new tree does not
             # start blind (and fail on "no data") while the robot is running.
@@ -138,7 +139,7 @@ class Engine:
         self._gap_horizon_s = max(ages, default=0.0) + MAX_CATCH_UP_S
         """How much of a gap is ticked through before the rest is jumped: every source goes stale in it."""
         self.period_s = 1.0 / cfg.tree.tick_hz
-        self.watch = SourceWatch(cfg, self.ctx, self.gate, self.journal, self.stats, metrics, self.clock,
+        self.watch = SourceWatch(cfg, self.ctx, self.gate, self.journal, metrics, self.clock,
                                  self.guard_nodes, self.period_s)
         self.quiet = QuietTicks(self.root, self.ctx, self.gate, self.journal, self.watch, cfg.sources, self.period_s)
         self._next_tick = math.nan
@@ -311,22 +312,37 @@ class Engine:
         self.stats.edge_ticks += 1
         self.tick(self.clock.now())
 
-    def runs_until(self) -> float:
-        """Until when a block's rows may be taken as runs (:func:`~canguard.engine.blocks.take_runs`), the engine idle.
+    def runs_until(self, end_t: float, coming: Callable[[], Mapping[tuple[int, str], Any]]) -> float:
+        """Until when a block's rows, the last at ``end_t``, may be taken as runs
+        (:func:`~canguard.engine.blocks.take_runs`), the engine idle.
 
         The next due time (a tick, a gate deadline), or, while the ticks and gate deadlines before
-        it read nothing the rows change, the end of the quiet stretch (:attr:`QuietTicks.until`):
-        the next grid tick is proven quiet (it will be counted, not run), no I²t heat is sampled
-        at ticks, nothing watches each tick (metrics, a tick hook, a monitor) and no stop waits for
-        its confirmation (which reads a source between ticks). An edge in the runs still ticks at
-        once: the quiet ticks before it are counted first, at their own times.
+        it read nothing the rows change, the end of the quiet stretch the rows still to come
+        (``coming()``: each source signal's times, :meth:`QuietTicks.reach`) keep the sources fresh to:
+        the next grid tick is proven quiet (it will be counted, not run), nothing watches each tick
+        (metrics, a tick hook, a monitor), the skipped ticks write no model's state (an I²t guard's
+        wired ``level``: :attr:`QuietTicks.writes`), no stop waits for its confirmation (which reads
+        a source between ticks) and no I²t heat is due to be saved before it (a save writes the heat
+        of its tick's time). The I²t peaks are the models' own (over every sample), so their runs
+        may span ticks. An edge in the runs still ticks at once: the quiet ticks before it are counted
+        first, at their own times. Nothing is drawn when the rows end before the due time (a live
+        frame between two ticks).
         """
         due = self.due
+        if end_t < due:
+            return due
         quiet = self.quiet
-        if (quiet.until > due and not self.ctx.heat_models and self.metrics is None and self.tick_hook is None
-                and self.observer is None and not self.gate.confirm_pending and quiet.may_skip(self._next_tick)):
-            return quiet.until
+        if (self.metrics is None and self.tick_hook is None and self.observer is None and not quiet.writes
+                and not self.gate.confirm_pending and quiet.may_skip(self._next_tick) and quiet.until > due):
+            until = quiet.until if quiet.until > end_t else quiet.reach(coming())
+            return max(due, min(until, self._heat_due()))
         return due
+
+    def _heat_due(self) -> float:
+        """From when the heat is saved again at a tick (inf: never; -inf: at the next tick)."""
+        if self.heat is None or not self.save_heat or not self.ctx.heat_models:
+            return math.inf
+        return float(self.heat.next_save_t(self.cfg.state.save_period_s))
 
     def next_due(self) -> float:
         """The next time the engine has something to do (a tick or a gate deadline)."""
@@ -424,7 +440,8 @@ class Engine:
         was_running = self.gate.state == TaskGate.RUNNING
         self.gate.end_tick(now, failed, cause)
         self.watch.guards(now, was_running)
-        self.watch.sample_levels()
+        if self.metrics is not None:
+            self.watch.levels()
         if self.tick_hook is not None:
             self.tick_hook(now)
         self.gate.service(now)
@@ -509,7 +526,6 @@ class Engine:
             self.last_tick_t = now
             for g in self.quiet.ticked:
                 g.quiet_retick(now)
-            self.watch.sample_levels()  # I²t heat moved with the samples since: its peak is sampled at ticks
             gate.service(now)
             self.store_heat(now, periodic=True)
             self.journal.flush()

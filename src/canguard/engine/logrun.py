@@ -23,6 +23,7 @@ from canguard.engine.blockrows import decode_rows
 from canguard.engine.lanes import LANE, configured_rows, key_table, lane_plans
 from canguard.io.block import EXT_KEY, Block
 from canguard.io.frame import Frame
+from canguard.protect.columns import SHORT_RUN
 
 MAX_CATCH_UP_S = 2.0
 """Longest stretch of missed ticks the engine replays one by one after a gap (see :meth:`Engine.advance`)."""
@@ -56,7 +57,7 @@ class Engine(Protocol):
     def next_tick_t(self) -> float: ...
     def arrive(self, t: float) -> None: ...
     def edge_tick(self, t: float) -> None: ...
-    def runs_until(self) -> float: ...
+    def runs_until(self, end_t: float, coming: Callable[[], Mapping[tuple[int, str], Any]]) -> float: ...
     def controller_state(self, bus: str, frame: Frame) -> None: ...
     def advance(self, now: float) -> None: ...
     def tick(self, now: float) -> py_trees.common.Status: ...
@@ -347,9 +348,13 @@ class LogRun:
             hook, engine.sample_hook = engine.sample_hook, lambda sample: fed.append((at[0], sample))
         decoded, frame, ts = self._decoded, walk.block.frame, walk.ts
         bus, buses, lanes = walk.bus, walk.buses, walk.lanes
-        runs = [[0, *run] for run in walk.runs]  # each message's run and where it goes on: [next, plan, rows...]
+        # each message's run and where it goes on: [next, plan, rows (a list: bisected at every stretch), times,
+        # columns]
+        runs = [[0, plan, rows if type(rows) is list else rows.tolist(), times, columns]
+                for plan, rows, times, columns in walk.runs]
         alone, next_alone = walk.alone, 0
         end_rows = walk.block.n
+        end_t = float(ts[end_rows - 1])
         pos = first
         try:
             while True:
@@ -371,7 +376,8 @@ class LogRun:
                         engine.edge_tick(t)
                     continue
                 # the stretch before the engine must act (the next due time, or the end of its quiet ticks)
-                stop = bisect_left(ts, engine.runs_until(), i, end_rows, key=float)
+                until = engine.runs_until(end_t, lambda: _coming(runs))
+                stop = end_rows if end_t < until else bisect_left(ts, until, i, end_rows, key=float)
                 if next_alone < len(alone) and alone[next_alone][0] < stop:
                     stop = alone[next_alone][0]
                 last, edge = take_runs(_stretch(runs, stop))
@@ -452,14 +458,32 @@ def _first_row(runs: list[list[Any]], first: int) -> int:
     return first
 
 
-def _stretch(runs: list[list[Any]], stop: int) -> list[tuple[Any, list[int], list[float], list[Any]]]:
-    """Each message's rows not taken yet before row ``stop``, as (plan, rows, times, columns)."""
+def _coming(runs: list[list[Any]]) -> dict[tuple[int, str], Any]:
+    """The times of each source signal's rows not taken yet, by (``id`` of its health, role)."""
+    out: dict[tuple[int, str], Any] = {}
+    for at, plan, rows, times, _columns in runs:
+        if at < len(rows):
+            left = times[at:]
+            for health, roles, _js in plan.healths:
+                for role in roles:
+                    out[id(health), role] = left
+    return out
+
+
+def _stretch(runs: list[list[Any]], stop: int) -> list[tuple[Any, list[int], Any, list[Any]]]:
+    """Each message's rows not taken yet before row ``stop``, as (plan, rows, times, columns): a short stretch's
+    times and columns as lists (the models' and healths' runs of a few samples go sample by sample, faster over
+    Python floats than numpy's calls), a long one's as they are (numpy columns: screened with numpy)."""
     out = []
     for at, plan, rows, times, columns in runs:
         if at < len(rows) and rows[at] < stop:
             k = bisect_left(rows, stop, at)
-            out.append((plan, rows, times, columns) if at == 0 and k == len(rows)
-                       else (plan, rows[at:k], times[at:k], [c[at:k] for c in columns]))
+            if k - at <= SHORT_RUN and type(times) is not list:
+                out.append((plan, rows[at:k], times[at:k].tolist(), [c[at:k].tolist() for c in columns]))
+            elif at == 0 and k == len(rows):
+                out.append((plan, rows, times, columns))
+            else:
+                out.append((plan, rows[at:k], times[at:k], [c[at:k] for c in columns]))
     return out
 
 
