@@ -83,7 +83,7 @@ class Outcome:
     emit: bytes
     state: dict[str, Any]
     column_blocks: int = 0
-    """Blocks ``LogRun._run_columns`` took (returned True for)."""
+    """Blocks of more than one row ``LogRun._run_columns`` took."""
     handled_rows: int = 0
     """Rows of column blocks a message plan's step took as decoded by the column decoder."""
     fed_rows: int = 0
@@ -175,15 +175,14 @@ def replay(cfg: Config, log: Path, out: Path, *, columns: bool, chunk: int | Blo
     take_runs = canguard.engine.blocks.take_runs
     build_summary = canguard.cli.replay.build_summary
 
-    def counted_run_columns(self: LogRun, block: Block, cursor: Any) -> bool:
+    def counted_run_columns(self: LogRun, block: Block, cursor: Any) -> None:
         counts["in_block"] = block.n > 1
         try:
-            took = run_columns(self, block, cursor)
+            run_columns(self, block, cursor)
         finally:
             counts["in_block"] = 0
-        counts["blocks"] += took and block.n > 1
+        counts["blocks"] += block.n > 1
         counts["widest"] = max(counts["widest"], block.n)
-        return took
 
     def counted_compile_plan(entry: Any, *args: Any) -> Any:
         plan = compile_plan(entry, *args)
@@ -976,6 +975,7 @@ class TestTheComparison:
     def test_catches_a_handler_that_drops_edges(self, custom: tuple[Config, Path], tmp_path: Path) -> None:
         """Message plans that never report an edge (no edge tick): the comparison fails."""
         cfg, log = custom
+        reference(cfg, log, tmp_path)  # the truth, before the step goes wrong (blocks of one take it too)
         take_runs = canguard.engine.blocks.take_runs
 
         def edgeless(runs: Any) -> tuple[int, bool]:
@@ -989,6 +989,7 @@ class TestTheComparison:
     def test_catches_a_tick_missed_between_rows(self, custom: tuple[Config, Path], tmp_path: Path) -> None:
         """A _cross that brings no tick among unconfigured rows (ticks come late, at the next configured row)."""
         _, log = custom
+        reference(load_config(TIMED), log, tmp_path)  # the truth, before the step goes wrong (blocks of one cross too)
         with pytest.MonkeyPatch.context() as mp:
             mp.setattr(LogRun, "_cross", lambda self, ts, lo, hi: None)
             with pytest.raises(AssertionError):
