@@ -105,6 +105,8 @@ class MessagePlan:
         """
         if self.counter:
             return [None] * len(rows)
+        if len(rows) == block.n:  # every row of the block (a live frame's)
+            return self.entry.decode(block.payload, block.length)
         return self.entry.decode(block.payload[rows], block.length[rows])
 
     # -- one row ------------------------------------------------------------------------

@@ -22,6 +22,7 @@ from operator import itemgetter
 from typing import TYPE_CHECKING, Any, Protocol
 
 from canguard.decode.decoder import DecodeCounters
+from canguard.engine import blocks
 from canguard.engine.blockrows import Run, decode_rows
 from canguard.engine.lanes import LANE, configured_rows, key_table, lane_plans
 from canguard.io.block import EXT_KEY, Block
@@ -81,12 +82,15 @@ class LogRun:
         self.ctx = engine.ctx
         self._plans: dict[str, dict[int, MessagePlan | None]] = {}
         """Per bus: id key -> the message's plan (see :mod:`canguard.engine.blocks`)."""
-        self._plan_tables: dict[str, tuple[Any, Any]] = {}
-        """Per bus: the keys of :attr:`_plans`, as blocks look them up (:func:`.lanes.key_table`)."""
-        self._lane_plans: dict[tuple[str, ...], tuple[dict[int, MessagePlan | None], tuple[Any, Any]]] = {}
+        self._plan_tables: dict[str, tuple[dict[int, MessagePlan | None], tuple[Any, Any, frozenset[int]]]] = {}
+        """Per bus: its plans and their keys, as blocks look them up (:func:`.lanes.key_table`)."""
+        self._lane_plans: dict[tuple[str, ...], tuple[dict[int, MessagePlan | None],
+                                                      tuple[Any, Any, frozenset[int]]]] = {}
         """Per channels-to-buses of a block that mixes buses: its plans and their key table (:mod:`.lanes`)."""
         self._touched: set[MessagePlan] = set()
         """The plans that took rows of this block (flushed at its end)."""
+        self._row = 0
+        """The row the frame decoder takes (an export keeps its samples with it)."""
 
     def run(
         self, blocks: Iterable[Block], route: Mapping[str, str], default_bus: str | None,
@@ -184,7 +188,6 @@ class LogRun:
             rows = np.union1d(rows, special)
         if t0 < cursor.last_t:
             self._count_backward(ts, rows, cursor.last_t)
-        tally = _lane_tally(block, per_channel, rows)
         last_row = int(rows[-1]) if len(rows) else -1  # the last row fed or taken by a plan
         taken: list[tuple[MessagePlan, Any, Sequence[Any]]] | None = [] if export is not None else None
         runs, alone = decode_rows(plans, rows, block, ts, keys, taken, self._touched) if len(rows) else ([], [])
@@ -192,14 +195,19 @@ class LogRun:
             ts = block.times  # read row by row below: as floats
         bus = buses[0] if lanes is None else ""
         if taken is None:
-            pos = self._walk(block, ts, runs, alone, bus, buses, lanes, None)
+            pos = self._walk(block, ts, runs, alone, bus, buses, lanes)
         else:  # --export-signals, a plot: the samples of fed rows kept with their row, for the block's export
             assert export is not None
             fed: list[tuple[int, Any]] = []
-            pos = self._walk(block, ts, runs, alone, bus, buses, lanes, fed)
+            hook, engine.sample_hook = engine.sample_hook, lambda sample: fed.append((self._row, sample))
+            try:
+                pos = self._walk(block, ts, runs, alone, bus, buses, lanes)
+            finally:
+                engine.sample_hook = hook  # the export's own hook back, whatever the block raised
             export(ts, [(plan.names, group, decoded) for plan, group, decoded in taken], fed)
-        self._cross(ts, pos, block.n)
-        self._count_lanes(cursor, block, per_channel, buses, tally)
+        if pos < block.n:
+            self._cross(ts, pos, block.n)
+        self._count_lanes(cursor, block, per_channel, buses, rows)
         t_end = float(ts[-1])
         if t_end > cursor.last_t:
             cursor.last_t = t_end
@@ -257,95 +265,86 @@ class LogRun:
     def _configured(self, block: Block, buses: list[str], lanes: Any) -> tuple[Any, Any, Any, Any]:
         """(plans, the block's rows of configured messages, the keys its plans are looked up by, each row's
         channel (an index into ``buses``) when its channels go to several buses, else None)."""
-        for b in set(buses):
-            if b not in self._plans:
-                self._plans[b] = self._compile_plans(b)
         keys = block.keys
-        if len(set(buses)) == 1:  # one bus
-            bus = buses[0]
-            plans = self._plans[bus]
-            table = self._plan_tables.get(bus)
-            if table is None:
-                table = self._plan_tables[bus] = key_table(plans)
-            return plans, configured_rows(keys, table), keys, None
+        bus = buses[0]
+        if len(buses) == 1 or buses.count(bus) == len(buses):  # one bus
+            known = self._plan_tables.get(bus)
+            if known is None:
+                plans = self._plans_of(bus)
+                known = self._plan_tables[bus] = (plans, key_table(plans))
+            return known[0], configured_rows(keys, known[1]), keys, None
         assert lanes is not None  # channels of several buses: a key per (channel, id)
         lane = self._lane_plans.get(tuple(buses))
         if lane is None:
-            joined = lane_plans([self._plans[b] for b in buses])
+            joined = lane_plans([self._plans_of(b) for b in buses])
             lane = self._lane_plans[tuple(buses)] = (joined, key_table(joined))
         keys = keys + lanes.astype(keys.dtype) * LANE
         return lane[0], configured_rows(keys, lane[1]), keys, lanes
 
     def _walk(self, block: Block, ts: Sequence[Any], runs_in: list[Run], alone: list[tuple[int, MessagePlan | None]],
-              bus: str, buses: list[str], lanes: Any, fed: list[tuple[int, Any]] | None) -> int:
+              bus: str, buses: list[str], lanes: Any) -> int:
         """A block's configured rows in time order: the ticks due among them, each stretch of rows whole and valid
         up to the next due time taken as runs (:func:`~canguard.engine.blocks.take_runs`: to the first edge, where
-        the tree ticks), the rows for the frame decoder one by one (``fed``: the samples of fed rows, with their
-        row, for ``--export-signals``); the row after the last row walked. ``runs_in``: each configured message's
+        the tree ticks), the rows for the frame decoder one by one (:attr:`_row`: the row it takes); the row after
+        the last row walked. ``runs_in``: each configured message's
         rows whole and valid (:func:`.blockrows.decode_rows`); ``alone``: the rows the frame decoder takes, in order,
         with their plan; ``bus``: the bus of every row, or "" when ``lanes`` (each row's channel, an index into
         ``buses``, the bus of each of the block's channels) sends them to several."""
-        from canguard.engine.blocks import take_runs
-
-        engine = self.engine
-        if fed is not None:
-            at = [0]
-            hook, engine.sample_hook = engine.sample_hook, lambda sample: fed.append((at[0], sample))
-        decoded, frame = self._decoded, block.frame
-        runs = [[0, *run] for run in runs_in]  # each message's run and where it goes on: [next, plan, rows...]
-        next_alone = 0
+        engine = self.engine  # ts: a list of floats (the block's rows taken one by one)
+        runs = []  # each message's run and where it goes on: [next, plan, rows...]
+        for run in runs_in:
+            runs.append([0, *run])
+        next_alone, alones = 0, len(alone)
         end_rows = block.n
         pos = 0
-        try:
-            while True:
-                i = _first_row(runs, alone[next_alone][0] if next_alone < len(alone) else end_rows)
-                if i == end_rows:
-                    break
-                t = float(ts[i])
-                if t >= engine.due:
+        while True:
+            at_alone = alone[next_alone][0] if next_alone < alones else end_rows
+            i = _first_row(runs, at_alone)
+            if i == end_rows:
+                break
+            t = ts[i]
+            if t >= engine.due:
+                if pos < i:
                     self._cross(ts, pos, i)  # a tick falls due among the rows before this one, or at it
-                    if t >= engine.due:
-                        engine.advance(t)
-                if next_alone < len(alone) and alone[next_alone][0] == i:  # for the frame decoder (its reason...)
-                    pos = i + 1
-                    next_alone += 1
-                    if fed is not None:
-                        at[0] = i
-                    engine.drive_clock(t)
-                    if decoded(bus if lanes is None else buses[lanes[i]], frame(i), alone[next_alone - 1][1]):
-                        engine.edge_tick(t)
-                    continue
-                # the stretch before the engine must act (the next due time, or the end of its quiet ticks)
-                stop = bisect_left(ts, engine.runs_until(), i, end_rows, key=float)
-                if next_alone < len(alone) and alone[next_alone][0] < stop:
-                    stop = alone[next_alone][0]
-                last, edge = take_runs(_stretch(runs, stop))
-                _drop(runs, last)
-                t_last = float(ts[last])
+                if t >= engine.due:
+                    engine.advance(t)
+            if i == at_alone:  # for the frame decoder (its reason...)
+                pos = i + 1
+                self._row = i
+                engine.drive_clock(t)
+                if self._decoded(bus if lanes is None else buses[lanes[i]], block.frame(i), alone[next_alone][1]):
+                    engine.edge_tick(t)
+                next_alone += 1
+                continue
+            # the stretch before the engine must act (the next due time, or the end of its quiet ticks)
+            stop = end_rows if ts[-1] < engine.due else bisect_left(ts, engine.runs_until(), i, end_rows, key=float)
+            if at_alone < stop:
+                stop = at_alone
+            last, edge = blocks.take_runs(_stretch(runs, stop))
+            _drop(runs, last)
+            t_last = ts[last]
+            if i < last:
                 self._cross(ts, i, last)  # the quiet ticks the stretch spanned, each at its own time
-                if t_last >= engine.due:
-                    engine.advance(t_last)
-                pos = last + 1
-                if edge:
-                    engine.edge_tick(t_last)
-        finally:
-            if fed is not None:
-                engine.sample_hook = hook  # the export's own hook back, whatever the block raised
+            if t_last >= engine.due:
+                engine.advance(t_last)
+            pos = last + 1
+            if edge:
+                engine.edge_tick(t_last)
         return pos
 
-    def _count_lanes(self, cursor: LogCursor, block: Block, lanes: Any, buses: list[str],
-                     tally: list[tuple[int, int]]) -> None:
+    def _count_lanes(self, cursor: LogCursor, block: Block, lanes: Any, buses: list[str], rows: Any) -> None:
         """Count a block's rows per channel (``cursor.channels``) and its skipped rows (neither fed nor taken
-        by a plan) per bus, as the decoder counts them."""
+        by a plan: not in ``rows``) per bus, as the decoder counts them."""
         channels = cursor.channels
-        for lane, (count, taken) in enumerate(tally):
+        for lane, (count, taken) in enumerate(_lane_tally(block, lanes, rows)):
             if channels is not None:
                 _count(channels, block.channels[block.only_channel if lanes is None else lane], count)  # type: ignore[index]
             skipped = count - taken
-            counters = self.decoder.per_bus[buses[lane]]
-            counters.frames += skipped
-            counters.skipped += skipped
-            self.stats.frames += skipped
+            if skipped:
+                counters = self.decoder.per_bus[buses[lane]]
+                counters.frames += skipped
+                counters.skipped += skipped
+                self.stats.frames += skipped
 
     def _cross(self, ts: Sequence[Any], lo: int, hi: int) -> None:
         """Rows ``lo..hi-1`` (ordered, of no configured message): the first at or after the due time brings the ticks.
@@ -370,19 +369,22 @@ class LogRun:
             engine.frame_time(t)  # as arrive: not before it (ordered, from cursor.last_t on)
             lo = k + 1
 
-    def _compile_plans(self, bus: str) -> dict[int, MessagePlan | None]:
+    def _plans_of(self, bus: str) -> dict[int, MessagePlan | None]:
         """Every message configured on ``bus`` by its id key (:attr:`Block.keys <canguard.io.block.Block.keys>`),
-        with its plan, or None."""
-        from canguard.engine.blocks import compile_plan
-
+        with its plan, or None (made at the bus's first block)."""
+        made = self._plans.get(bus)
+        if made is not None:
+            return made
         counters = self.decoder.per_bus[bus]
         plans: dict[int, MessagePlan | None] = {}
         for (b, cid, ext), entry in self.decoder.entries():
             if b != bus:
                 continue
-            plan = compile_plan(entry, counters, self.ctx, self.stats)
+            plan = blocks.compile_plan(entry, counters, self.ctx, self.stats)
             plans[cid + EXT_KEY if ext else cid] = plan
+        self._plans[bus] = plans
         return plans
+
 
 def _first_row(runs: list[list[Any]], first: int) -> int:
     """The first row not taken yet of any message's run (``[next, plan, rows, times, columns]``), or ``first``

@@ -149,18 +149,17 @@ class Block:
     @classmethod
     def of_frames(cls, frames: Iterable[Frame]) -> Block:
         """The frames as a block (the live drain, a simulator, tests)."""
-        listed = list(frames)
-        if len(listed) == 1:  # a frame on a quiet bus: its columns made at once
+        listed = frames if type(frames) is tuple else tuple(frames)
+        if len(listed) == 1:  # a frame on a quiet bus
             f = listed[0]
-            length = len(f.data)
+            data = f.data
             flags = ((FLAG_FD if f.is_fd else 0) | (FLAG_BRS if f.bitrate_switch else 0)
                      | (FLAG_ESI if f.error_state_indicator else 0) | (FLAG_REMOTE if f.is_remote_frame else 0)
                      | (FLAG_ERROR if f.is_error_frame else 0))
-            if 0 <= f.arbitration_id <= 0xFFFFFFFF and length <= 255 and f.dlc <= 255:
-                return cls(np.array((f.t,), np.float64), np.array((f.arbitration_id,), np.uint32),
-                           np.array((f.is_extended_id,), np.bool_), np.array((flags,), np.uint8),
-                           np.array((length if f.dlc < 0 else f.dlc,), np.uint8), np.array((length,), np.uint8),
-                           np.frombuffer(f.data, np.uint8).reshape(1, length), _LANE_0, (f.channel,))
+            dlc = f.dlc
+            if 0 <= f.arbitration_id <= 0xFFFFFFFF and len(data) <= 255 and dlc <= 255:
+                return _one(f.t, f.arbitration_id, bool(f.is_extended_id), flags, len(data) if dlc < 0 else dlc,
+                            data, f.channel)
         return _Rows.of_frames(listed).block()
 
     @classmethod
@@ -280,6 +279,41 @@ class Block:
                    np.concatenate(lanes) if lanes else np.zeros(0, np.uint16), tuple(names))
 
 
+_U8_ONE: tuple[np.ndarray, ...] = tuple(np.full(1, v, np.uint8) for v in range(256))
+"""Each uint8 value as a column of one row (shared: a block never writes its arrays)."""
+_ROW_0 = np.zeros(1, dtype=np.intp)
+_IDS: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+"""Each id key seen in a block of one: its ``can_id``, ``extended`` and :attr:`Block.keys` columns (shared)."""
+_MAX_IDS = 4096
+for _shared in (*_U8_ONE, _ROW_0, _LANE_0, _NO_ROWS):
+    _shared.flags.writeable = False
+
+
+def _one(t: float, cid: int, ext: bool, flags: int, dlc: int, data: bytes, channel: str) -> Block:
+    """One frame as a block (a live frame on a quiet bus): its columns checked by construction, its id's
+    columns and each small integer's shared, what the engine reads of it (:attr:`Block.keys`, :attr:`Block.times`,
+    :attr:`Block.ordered`...) known at once."""
+    key = cid + EXT_KEY if ext else cid
+    ids = _IDS.get(key)
+    if ids is None:
+        if len(_IDS) >= _MAX_IDS:
+            _IDS.clear()
+        ids = _IDS[key] = (np.array((cid,), np.uint32), np.array((ext,), np.bool_), np.array((key,), np.int64))
+        for column in ids:
+            column.flags.writeable = False
+    block = _new_object(Block)
+    block.__dict__.update(
+        time_s=np.array((t,), np.float64), can_id=ids[0], extended=ids[1], flags=_U8_ONE[flags],
+        dlc=_U8_ONE[dlc], length=_U8_ONE[len(data)], payload=np.frombuffer(data, np.uint8).reshape(1, len(data)),
+        channel=_LANE_0, channels=(channel,), n=1, keys=ids[2], times=[t], ordered=True, only_channel=0,
+        special=_ROW_0 if flags & (FLAG_REMOTE | FLAG_ERROR) else _NO_ROWS,
+    )
+    return block
+
+
+_new_object = object.__new__
+
+
 class _Rows:
     """Rows gathered one by one (frames, python-can messages) on their way into a :class:`Block`."""
 
@@ -294,7 +328,7 @@ class _Rows:
         self.chans: list[str] = []
 
     @classmethod
-    def of_frames(cls, frames: list[Frame]) -> _Rows:
+    def of_frames(cls, frames: Sequence[Frame]) -> _Rows:
         rows = cls(len(frames))
         for f in frames:
             length = len(f.data)
