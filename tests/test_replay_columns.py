@@ -258,7 +258,8 @@ file replays ten config, log and option pairs: none is replayed twice in one pro
 
 def reference(cfg: Config, log: Path, out: Path, *, channel_map: dict[str, str] | None = None,
               export: bool = False) -> Outcome:
-    """The reference replay of ``log``: frame by frame, every tick run; once per config, log and options.
+    """The reference replay of ``log``: in blocks of one frame (a quiet live bus's), every tick run; once per
+    config, log and options.
 
     The reference feeds the engine one frame at a time whatever the reader's block size, so
     one run (at the reader's default size) is the truth for every block size the column path
@@ -309,7 +310,7 @@ def compare(cfg: Config, log: Path, out: Path, chunks: tuple[int | BlockCuts, ..
     Every column run is compared with one reference run (:func:`reference`).
     The column path must have run (blocks taken, and at least ``min_handled`` rows
     taken by the handlers) at every block size but the reader's default, where a
-    small log is one block and the first block always goes frame by frame.
+    small log is one block.
 
     The column runs at the second, fourth... block size write no ``--emit`` file: their frames
     are only counted, as a replay without ``--emit`` does (emitted frames are compared at the others).
@@ -828,6 +829,29 @@ def channels(tmp_path_factory: pytest.TempPathFactory) -> tuple[Config, Path]:
 
 class TestCustomLog:
     """The scripted log on the custom config: every handler case, at many block sizes."""
+
+    def test_a_sample_hook_sees_each_frames_samples_in_log_order(self, custom: tuple[Config, Path]) -> None:
+        """A plot's recorder (a sample hook, no block export) gets every sample the frame decoder makes of the
+        log's frames, with its reason, in log order, from blocks that mix messages and go back in time."""
+        from canguard.decode.decoder import Decoder
+        from canguard.engine.gate import LogSink
+        from canguard.io.clock import ManualClock
+
+        cfg, log = custom
+        [bus] = cfg.buses
+        frames = list(read_log(log))
+        decoder = Decoder(cfg)
+        want = [repr(sample) for frame in frames for sample in decoder.decode(frame, bus)]
+        clock = ManualClock()
+        engine = Engine(cfg, clock, LogSink(clock.now, cfg.buses, out=None, keep=False), durable=False,
+                        save_heat=False)
+        seen: list[str] = []
+        engine.sample_hook = lambda sample: seen.append(repr(sample))
+        blocks = [Block.of_frames(frames[i:i + 97]) for i in range(0, len(frames), 97)]
+        assert not all(block.ordered for block in blocks)
+        engine.run_log(blocks, {}, bus, {})
+        assert len(want) > 10_000 and any("nan" in sample for sample in want)
+        assert seen == want
 
     def test_log_covers_what_it_should(self, custom: tuple[Config, Path], tmp_path: Path) -> None:
         """The reference run trips, recovers and complains as the script says (else the comparison tests little)."""

@@ -107,7 +107,7 @@ class Engine:
         self.sample_block: Callable[[Any, list[Any], list[tuple[int, Any]]], None] | None = None
         """Set beside :attr:`sample_hook` by a hook that takes a replay's column blocks whole (``--export-signals``):
         called once a block with its times, each message's ((source, signal) names, rows, decoded values) and the
-        samples of the rows fed (with their row); None: with a sample hook, blocks go frame by frame."""
+        samples of the rows fed (with their row); None: a sample hook is called with each sample, in row order."""
         self.tick_hook: Callable[[float], None] | None = None
         """Called after every tick with its time (plots)."""
         self.observer: TickObserver | None = None

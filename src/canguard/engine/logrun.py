@@ -1,14 +1,14 @@
-"""The engine's block runner: every block of frames, live or recorded, goes through it.
+"""The engine's block runner: every block of frames, live or recorded, goes through it, one way.
 
 :class:`LogRun` is what :meth:`Engine.take <canguard.engine.core.Engine.take>` (the live
-daemon's blocks, a frame on a quiet bus) and :meth:`Engine.run_log
+daemon's blocks; a frame on a quiet bus is a block of one) and :meth:`Engine.run_log
 <canguard.engine.core.Engine.run_log>` (a recorded log's blocks, each channel routed to a
-bus) call. A block is frames, or a column block (plain candump text, numpy byte blocks, or
-python-can formats through :mod:`canguard.io.pycan_blocks`) whose configured rows are
-decoded per message at once. Frames of no configured message are counted without decoding
-while nothing is due; every configured row takes its message's row step
+bus) call. A block (:class:`~canguard.io.block.Block`) is taken as columns: its configured
+rows decoded per message at once, the frames of no configured message counted without
+decoding while nothing is due; every configured row takes its message's row step
 (:mod:`canguard.engine.blocks`), with the ticks and gate deadlines due before it run
-first and a tick at once after an edge. It talks to the engine through its public interface only.
+first and a tick at once after an edge. A block whose rows go back in time is taken as its
+ordered stretches, one after another. It talks to the engine through its public interface only.
 """
 
 from __future__ import annotations
@@ -175,7 +175,7 @@ class LogRun:
             return
         block, buses = routed
         per_channel = None if block.only_channel is not None else block.channel  # each row's channel, or None
-        ts: Any = block.time_s  # a list is made only for rows that go one by one
+        ts: Any = block.time_s  # a list is made only when rows are taken
         t0 = float(ts[0])
         if not cursor.started:
             cursor.started = True

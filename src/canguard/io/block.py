@@ -301,13 +301,19 @@ def _one(t: float, cid: int, ext: bool, flags: int, dlc: int, data: bytes, chann
         ids = _IDS[key] = (np.array((cid,), np.uint32), np.array((ext,), np.bool_), np.array((key,), np.int64))
         for column in ids:
             column.flags.writeable = False
-    block = _new_object(Block)
-    block.__dict__.update(
+    return _made(
         time_s=np.array((t,), np.float64), can_id=ids[0], extended=ids[1], flags=_U8_ONE[flags],
         dlc=_U8_ONE[dlc], length=_U8_ONE[len(data)], payload=np.frombuffer(data, np.uint8).reshape(1, len(data)),
         channel=_LANE_0, channels=(channel,), n=1, keys=ids[2], times=[t], ordered=True, only_channel=0,
         special=_ROW_0 if flags & (FLAG_REMOTE | FLAG_ERROR) else _NO_ROWS,
     )
+
+
+def _made(**columns: Any) -> Block:
+    """A block of the columns a builder here made, each of its type by construction (not checked again), with
+    any of what the engine reads of it known already."""
+    block = _new_object(Block)
+    block.__dict__.update(columns)
     return block
 
 
@@ -372,7 +378,7 @@ class _Rows:
         width = max(lengths, default=0)
         n = len(lengths)
         if n and min(lengths) == width:
-            payload = np.frombuffer(b"".join(self.datas), dtype=np.uint8).reshape(n, width).copy()
+            payload = np.frombuffer(b"".join(self.datas), dtype=np.uint8).reshape(n, width)
         else:
             payload = np.zeros((n, width), dtype=np.uint8)
             for i, data in enumerate(self.datas):
@@ -384,7 +390,8 @@ class _Rows:
             i = bad[0] if bad else lengths.index(width)
             raise LogFormatError(f"frame {i}: id {self.ids[i]:#x}, dlc {self.dlcs[i]}, {lengths[i]} data bytes: "
                                  "not a CAN frame")
-        return Block(np.array(self.times, dtype=np.float64), np.array(self.ids, dtype=np.uint32),
-                     np.array(self.ext, dtype=np.bool_), np.array(self.flags, dtype=np.uint8),
-                     np.array(self.dlcs, dtype=np.uint8), np.array(lengths, dtype=np.uint8), payload,
-                     np.array(lanes, dtype=np.uint16), tuple(names) or ("",))
+        return _made(time_s=np.array(self.times, dtype=np.float64), can_id=np.array(self.ids, dtype=np.uint32),
+                     extended=np.array(self.ext, dtype=np.bool_), flags=np.array(self.flags, dtype=np.uint8),
+                     dlc=np.array(self.dlcs, dtype=np.uint8), length=np.array(lengths, dtype=np.uint8),
+                     payload=payload, channel=np.array(lanes, dtype=np.uint16), channels=tuple(names) or ("",), n=n,
+                     times=self.times)
