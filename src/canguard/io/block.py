@@ -160,13 +160,13 @@ class Block:
             if 0 <= f.arbitration_id <= 0xFFFFFFFF and len(data) <= 255 and dlc <= 255:
                 return _one(f.t, f.arbitration_id, bool(f.is_extended_id), flags, len(data) if dlc < 0 else dlc,
                             data, f.channel)
-        return _Rows.of_frames(listed).block()
+        return _of_frames(listed)
 
     @classmethod
     def of_messages(cls, msgs: Sequence[can.Message], channel: str | None = None) -> Block:
         """python-can messages as a block, field for field (``channel`` overrides each message's; python-can's
         integer channels are named ``canN``)."""
-        return _Rows.of_messages(msgs, channel).block()
+        return _of_messages(msgs, channel)
 
     # -- what the engine reads ----------------------------------------------------------------
     @_cached
@@ -304,7 +304,7 @@ def _one(t: float, cid: int, ext: bool, flags: int, dlc: int, data: bytes, chann
     return _made(
         time_s=np.array((t,), np.float64), can_id=ids[0], extended=ids[1], flags=_U8_ONE[flags],
         dlc=_U8_ONE[dlc], length=_U8_ONE[len(data)], payload=np.frombuffer(data, np.uint8).reshape(1, len(data)),
-        channel=_LANE_0, channels=(channel,), n=1, keys=ids[2], times=[t], ordered=True, only_channel=0,
+        channel=_LANE_0, channels=(channel,), n=1, keys=ids[2], times=[float(t)], ordered=True, only_channel=0,
         special=_ROW_0 if flags & (FLAG_REMOTE | FLAG_ERROR) else _NO_ROWS,
     )
 
@@ -320,78 +320,65 @@ def _made(**columns: Any) -> Block:
 _new_object = object.__new__
 
 
-class _Rows:
-    """Rows gathered one by one (frames, python-can messages) on their way into a :class:`Block`."""
+def _of_frames(frames: Sequence[Frame]) -> Block:
+    """Frames as a block: their fields transposed at once, the flags and data length codes made per column."""
+    if not frames:
+        return _rows([], [], [], [], [], [], [])
+    t, chans, ids, datas, ext, fd, err, remote, brs, esi, dlcs = zip(*frames, strict=True)
+    marks = (fd, brs, esi, remote, err)
+    flags = ([FLAG_FD * a | FLAG_BRS * b | FLAG_ESI * c | FLAG_REMOTE * d | FLAG_ERROR * e
+              for a, b, c, d, e in zip(*marks, strict=True)] if any(map(any, marks)) else [0] * len(frames))
+    lengths = list(map(len, datas))
+    codes = lengths if max(dlcs) < 0 else [n if d < 0 else d for n, d in zip(lengths, dlcs, strict=True)]
+    return _rows(t, ids, ext, flags, codes, datas, chans, lengths)
 
-    def __init__(self, n: int) -> None:
-        self.n = n
-        self.times: list[float] = []
-        self.ids: list[int] = []
-        self.ext: list[bool] = []
-        self.flags: list[int] = []
-        self.dlcs: list[int] = []
-        self.datas: list[bytes] = []
-        self.chans: list[str] = []
 
-    @classmethod
-    def of_frames(cls, frames: Sequence[Frame]) -> _Rows:
-        rows = cls(len(frames))
-        for f in frames:
-            length = len(f.data)
-            rows.add(f.t, f.arbitration_id, f.is_extended_id,
-                     (FLAG_FD if f.is_fd else 0) | (FLAG_BRS if f.bitrate_switch else 0)
-                     | (FLAG_ESI if f.error_state_indicator else 0) | (FLAG_REMOTE if f.is_remote_frame else 0)
-                     | (FLAG_ERROR if f.is_error_frame else 0),
-                     length if f.dlc < 0 else f.dlc, f.data, f.channel)
-        return rows
-
-    @classmethod
-    def of_messages(cls, msgs: Sequence[can.Message], channel: str | None) -> _Rows:
-        rows = cls(len(msgs))
-        names: dict[Any, str] = {}
-        for m in msgs:
-            data = bytes(m.data) if m.data is not None else b""
-            if channel is None:
-                name = names.get(m.channel)
-                if name is None:
-                    name = names[m.channel] = channel_name(m.channel)
-            else:
-                name = channel
-            rows.add(float(m.timestamp or 0.0), int(m.arbitration_id), bool(m.is_extended_id),
-                     (FLAG_FD if m.is_fd else 0) | (FLAG_BRS if m.bitrate_switch else 0)
-                     | (FLAG_ESI if m.error_state_indicator else 0) | (FLAG_REMOTE if m.is_remote_frame else 0)
-                     | (FLAG_ERROR if m.is_error_frame else 0),
-                     int(m.dlc), data, name)
-        return rows
-
-    def add(self, t: float, cid: int, ext: bool, flags: int, dlc: int, data: bytes, channel: str) -> None:
-        self.times.append(t)
-        self.ids.append(cid)
-        self.ext.append(ext)
-        self.flags.append(flags)
-        self.dlcs.append(dlc)
-        self.datas.append(data)
-        self.chans.append(channel)
-
-    def block(self) -> Block:
-        lengths = list(map(len, self.datas))
-        width = max(lengths, default=0)
-        n = len(lengths)
-        if n and min(lengths) == width:
-            payload = np.frombuffer(b"".join(self.datas), dtype=np.uint8).reshape(n, width)
+def _of_messages(msgs: Sequence[can.Message], channel: str | None) -> Block:
+    """python-can messages as a block, field for field."""
+    times, ids, ext, flags, dlcs, datas, chans = [], [], [], [], [], [], []
+    names: dict[Any, str] = {}
+    for m in msgs:
+        if channel is None:
+            name = names.get(m.channel)
+            if name is None:
+                name = names[m.channel] = channel_name(m.channel)
         else:
-            payload = np.zeros((n, width), dtype=np.uint8)
-            for i, data in enumerate(self.datas):
-                payload[i, :len(data)] = np.frombuffer(data, dtype=np.uint8)
-        names: dict[str, int] = {}
-        lanes = [names.setdefault(c, len(names)) for c in self.chans]
-        bad = [i for i, cid in enumerate(self.ids) if not 0 <= cid <= 0xFFFFFFFF or not 0 <= self.dlcs[i] <= 255]
-        if bad or width > 255:
-            i = bad[0] if bad else lengths.index(width)
-            raise LogFormatError(f"frame {i}: id {self.ids[i]:#x}, dlc {self.dlcs[i]}, {lengths[i]} data bytes: "
-                                 "not a CAN frame")
-        return _made(time_s=np.array(self.times, dtype=np.float64), can_id=np.array(self.ids, dtype=np.uint32),
-                     extended=np.array(self.ext, dtype=np.bool_), flags=np.array(self.flags, dtype=np.uint8),
-                     dlc=np.array(self.dlcs, dtype=np.uint8), length=np.array(lengths, dtype=np.uint8),
-                     payload=payload, channel=np.array(lanes, dtype=np.uint16), channels=tuple(names) or ("",), n=n,
-                     times=self.times)
+            name = channel
+        times.append(float(m.timestamp or 0.0))
+        ids.append(int(m.arbitration_id))
+        ext.append(bool(m.is_extended_id))
+        flags.append((FLAG_FD if m.is_fd else 0) | (FLAG_BRS if m.bitrate_switch else 0)
+                     | (FLAG_ESI if m.error_state_indicator else 0) | (FLAG_REMOTE if m.is_remote_frame else 0)
+                     | (FLAG_ERROR if m.is_error_frame else 0))
+        dlcs.append(int(m.dlc))
+        datas.append(bytes(m.data) if m.data is not None else b"")
+        chans.append(name)
+    return _rows(times, ids, ext, flags, dlcs, datas, chans)
+
+
+def _rows(times: Sequence[float], ids: Sequence[int], ext: Sequence[bool], flags: Sequence[int],
+          dlcs: Sequence[int], datas: Sequence[bytes], chans: Sequence[str],
+          lengths: list[int] | None = None) -> Block:
+    """Rows gathered one by one (frames, python-can messages) as a block; a row that is no CAN frame (an id
+    beyond 32 bits, a DLC or payload beyond 255) is a LogFormatError."""
+    if lengths is None:
+        lengths = list(map(len, datas))
+    width = max(lengths, default=0)
+    n = len(lengths)
+    if n and min(lengths) == width:
+        payload = np.frombuffer(b"".join(datas), dtype=np.uint8).reshape(n, width)
+    else:
+        payload = np.zeros((n, width), dtype=np.uint8)
+        for i, data in enumerate(datas):
+            payload[i, :len(data)] = np.frombuffer(data, dtype=np.uint8)
+    names: dict[str, int] = {}
+    lanes = [names.setdefault(c, len(names)) for c in chans]
+    bad = [i for i, cid in enumerate(ids) if not 0 <= cid <= 0xFFFFFFFF or not 0 <= dlcs[i] <= 255]
+    if bad or width > 255:
+        i = bad[0] if bad else lengths.index(width)
+        raise LogFormatError(f"frame {i}: id {ids[i]:#x}, dlc {dlcs[i]}, {lengths[i]} data bytes: "
+                             "not a CAN frame")
+    return _made(time_s=np.array(times, dtype=np.float64), can_id=np.array(ids, dtype=np.uint32),
+                 extended=np.array(ext, dtype=np.bool_), flags=np.array(flags, dtype=np.uint8),
+                 dlc=np.array(dlcs, dtype=np.uint8), length=np.array(lengths, dtype=np.uint8),
+                 payload=payload, channel=np.array(lanes, dtype=np.uint16), channels=tuple(names) or ("",), n=n)
