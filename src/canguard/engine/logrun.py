@@ -291,12 +291,16 @@ class LogRun:
         with their plan; ``bus``: the bus of every row, or "" when ``lanes`` (each row's channel, an index into
         ``buses``, the bus of each of the block's channels) sends them to several."""
         engine = self.engine  # ts: a list of floats (the block's rows taken one by one)
+        pos, done = self._at_once(ts, runs_in, alone)
+        if done:
+            return pos
         runs = []  # each message's run and where it goes on: [next, plan, rows...]
         for run in runs_in:
             runs.append([0, *run])
+        if pos:
+            _drop(runs, pos - 1)
         next_alone, alones = 0, len(alone)
         end_rows = block.n
-        pos = 0
         while True:
             at_alone = alone[next_alone][0] if next_alone < alones else end_rows
             i = _first_row(runs, at_alone)
@@ -331,6 +335,19 @@ class LogRun:
             if edge:
                 engine.edge_tick(t_last)
         return pos
+
+    def _at_once(self, ts: Sequence[float], runs: list[Run], alone: list[tuple[int, MessagePlan | None]]
+                 ) -> tuple[int, bool]:
+        """A block whose rows come before the next due time, none for the frame decoder: its runs taken as one
+        stretch, up to the first edge (the tree ticks there). (The row after the last taken, True when every
+        row was taken); (0, False) for any other block."""
+        engine = self.engine
+        if alone or not ts[-1] < engine.due:
+            return 0, False
+        last, edge = blocks.take_runs(runs)
+        if edge:
+            engine.edge_tick(ts[last])
+        return last + 1, not edge
 
     def _count_lanes(self, cursor: LogCursor, block: Block, lanes: Any, buses: list[str], rows: Any) -> None:
         """Count a block's rows per channel (``cursor.channels``) and its skipped rows (neither fed nor taken
