@@ -34,25 +34,18 @@ MAX_CATCH_UP_S = 2.0
 """Longest stretch of missed ticks the engine replays one by one after a gap (see :meth:`Engine.advance`)."""
 
 if TYPE_CHECKING:
-    import py_trees
-
     from canguard.bt.context import Context
-    from canguard.config.schema import Config
     from canguard.decode.decoder import Decoder
     from canguard.engine.blocks import MessagePlan
     from canguard.engine.stats import EngineStats
-    from canguard.io.clock import PinnedClock
 
 
 class Engine(Protocol):
     """What :class:`LogRun` asks of the engine (:class:`canguard.engine.core.Engine` is one)."""
 
-    cfg: Config
     decoder: Decoder
     stats: EngineStats
     ctx: Context
-    metrics: Any
-    clock: PinnedClock
     sample_hook: Callable[[Any], None] | None
     sample_block: Callable[[Any, list[Any], list[tuple[int, Any]]], None] | None
     last_due_run: float
@@ -67,7 +60,6 @@ class Engine(Protocol):
     def runs_until(self) -> float: ...
     def controller_state(self, bus: str, frame: Frame) -> None: ...
     def advance(self, now: float) -> None: ...
-    def tick(self, now: float) -> py_trees.common.Status: ...
     def drive_clock(self, t: float) -> None: ...
     def frame_time(self, t: float) -> None: ...
 
@@ -194,7 +186,9 @@ class LogRun:
         if len(rows):
             ts = block.times  # read row by row below: as floats
         bus = buses[0] if lanes is None else ""
-        if taken is None:
+        if not len(rows):
+            pos = 0  # nothing to take: the rows only bring the ticks due among them
+        elif taken is None:
             pos = self._walk(block, ts, runs, alone, bus, buses, lanes)
         else:  # --export-signals, a plot: the samples of fed rows kept with their row, for the block's export
             assert export is not None
