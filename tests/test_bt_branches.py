@@ -1,4 +1,4 @@
-"""Switch2..Switch6, ParallelAll, TryCatch (issue 15), after BT.CPP 4's gtest_switch/_parallel/_try_catch.cpp.
+"""Switch2..Switch6, ParallelAll, TryCatch, after BT.CPP 4's gtest_switch/_parallel/_try_catch.cpp.
 
 The test names follow the gtest cases. BT.CPP's asynchronous test actions (RUNNING for
 a while, then SUCCESS or FAILURE) are a Sleep on canguard's manual clock, followed by

@@ -1,4 +1,4 @@
-"""More BehaviorTree.CPP 4 built-ins, and the tree dry-run (issue 15, part).
+"""More BehaviorTree.CPP 4 built-ins, and the tree dry-run.
 
 The cases follow the behaviour BT.CPP's own gtests check (gtest_decorator.cpp,
 gtest_sequence.cpp, script_parser_test.cpp, gtest_blackboard.cpp): a Script writes the

@@ -1,4 +1,4 @@
-"""LoopInt / LoopDouble / LoopString / LoopBool (issue 15), after BT.CPP 4's gtest_loop.cpp.
+"""LoopInt / LoopDouble / LoopString / LoopBool, after BT.CPP 4's gtest_loop.cpp.
 
 The test names follow the gtest cases; BT.CPP's recording action is a Script that
 appends what it is ticked with to a blackboard entry.

@@ -16,7 +16,7 @@ from canguard.bt.nodes import BUILTIN_NODES, CanguardNode, ConfiguredAction
 NO = object()
 """No default: required (or optional without a default where marked)."""
 
-# node ID -> {port: (direction, type, default)}; issue 4's list, plus the extras noted.
+# node ID -> {port: (direction, type, default)}; the list the node contracts name, plus the extras noted.
 EXPECTED: dict[str, dict[str, tuple[str, type, Any]]] = {
     "IsCurrentNormal": {"topic_name": ("in", str, NO), "max_current": ("in", float, 30.0)},
     "IsJointEffortNormal": {"topic_name": ("in", str, NO), "max_effort": ("in", float, 100.0)},
@@ -219,7 +219,7 @@ class TestPorts:
             defined.update({name: obj for name, obj in vars(module).items()
                             if inspect.isclass(obj) and obj.__module__ == module.__name__
                             and issubclass(obj, CanguardNode) and not name.startswith("_")})
-        assert set(defined) - {"CanguardNode", "GuardNode", "ConfiguredAction"} == set(BUILTIN_NODES)
+        assert set(defined) - {"CanguardNode", "DecoratorNode", "GuardNode", "ConfiguredAction"} == set(BUILTIN_NODES)
         assert all(BUILTIN_NODES[node_id] is defined[node_id] for node_id in BUILTIN_NODES)
         assert all(getattr(nodes_package, node_id) is defined[node_id] for node_id in BUILTIN_NODES)
 

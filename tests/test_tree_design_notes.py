@@ -169,7 +169,7 @@ class TestCurrentProtectedOperation:
         """The task runs at 20 A, stops at 36 A, stays stopped down to 25.1 A, runs again from 25 A.
 
         The tick right after the recovering sample (25 A) already runs the task: a trip the
-        previous tick reported is not held past the recovery (issue 12, item 5).
+        previous tick reported is not held past the recovery.
         """
         rig = Rig()
         rig.load(TREES / "protected_operation.xml")

@@ -23,6 +23,14 @@ def test_example_config_checks_clean(path: Path) -> None:
     assert report.text.startswith(f"tree: {report.loaded.main_id} from ")
 
 
+def test_check_names_the_configured_sources_the_tree_does_not_read() -> None:
+    """The bundled config's tree reads /battery_state only: every other source is a warning of its own."""
+    report = check_tree(load_config(REPO / "config" / "canguard.yaml"))
+    assert report.warnings[0] == (
+        "source '/joint_states' is configured but the tree does not read it (only stale events)")
+    assert [w.split("'")[1] for w in report.warnings] == ["/joint_states", "axis0", "axis1", "axis2", "axis3"]
+
+
 def test_every_shipped_tree_has_an_example() -> None:
     """Each file of config/trees is run by some example config (or the bundled one)."""
     configs = [*EXAMPLES, REPO / "config" / "canguard.yaml"]

@@ -20,7 +20,6 @@ from canguard.bt.loader import (
     nodes_model_xml,
     render_dot,
     render_text,
-    validate_against_config,
 )
 from canguard.bt.nodes import BUILTIN_NODES, CanguardNode, port_info
 from canguard.config.schema import ActionConfig
@@ -600,7 +599,7 @@ class TestRegistry:
 
 
 class TestTools:
-    """render_text, render_dot, nodes_model_xml, validate_against_config."""
+    """render_text, render_dot, nodes_model_xml."""
 
     def test_render_text_with_status(self) -> None:
         """The status drawing shows the readable names and each node's status."""
@@ -644,27 +643,6 @@ class TestTools:
         out = by_id["PerformRecovery"].find("output_port[@name='output_time']")
         assert out is not None and out.get("type") == "double"
         assert by_id["IsElapsedSinceEvent"].find("input_port[@name='max_elapsed_sec']").get("default") == "inf"  # type: ignore[union-attr]
-
-    def test_validate_against_config(self, tmp_path: Path) -> None:
-        """Unread sources are reported; an unknown topic_name is an error listing the sources."""
-        from types import SimpleNamespace
-
-        rig = Rig()
-        loaded = rig.load(TREES / "protected_operation.xml")
-        cfg: Any = SimpleNamespace(sources=rig.ctx.sources)
-        check = validate_against_config(loaded, cfg)
-        assert check.unread_sources == ("/joint_states", "axis0")
-        assert "source '/joint_states' is configured but the tree does not read it" in check.warnings()[0]
-        other: Any = SimpleNamespace(sources={"axis0": rig.ctx.sources["axis0"]})
-        with pytest.raises(
-            TreeError,
-            match=r"protected_operation\.xml:\d+: node IsCurrentSafe .*unknown source "
-            r"'/battery_state'; configured sources: axis0 \(current\)",
-        ):
-            validate_against_config(loaded, other)
-        wrong: Any = SimpleNamespace(sources={"/battery_state": rig.ctx.sources["/joint_states"]})
-        with pytest.raises(TreeError, match="is of kind joints, IsCurrentSafe needs battery or current"):
-            validate_against_config(loaded, wrong)
 
 
 def test_fixture_shape_helper_is_exhaustive() -> None:

@@ -20,6 +20,7 @@ from canguard.bt.registry import _TOKEN
 from canguard.bt.scopes import TreeBlackboard, subtree_scopes
 from canguard.bt.validate import _Validator
 from canguard.bt.wakeup import WakeUpSignal
+from canguard.bt.xmlread import _type_name
 from canguard.errors import TreeError
 
 if TYPE_CHECKING:
@@ -104,9 +105,9 @@ class _Loader(_Validator):
                 was, at = first[key]
                 if was is not kind and was is not str:
                     self.errors.append(
-                        f"{info.file}:{info.line}: node {info.name} (BehaviorTree {info.tree}), port {port}: the "
-                        f"entry [{key.lstrip('/')}] was created with type [{_type_name(was)}] ({at}) and is used "
-                        f"here as [{_type_name(kind)}]; one entry has one type (as in BT.CPP)"
+                        f"{info.where}, port {port}: the entry "
+                        f"[{key.lstrip('/')}] was created with type [{_type_name(was, cpp=True)}] ({at}) and is used "
+                        f"here as [{_type_name(kind, cpp=True)}]; one entry has one type (as in BT.CPP)"
                     )
 
     def _untoken(self, text: str) -> str:
@@ -156,25 +157,18 @@ class _Loader(_Validator):
             if isinstance(node, CanguardNode):
                 node.resolve_root_keys()
         self.check_entry_types([n for n, _, _ in placed], loaded_nodes)
-        for node, _, _ in placed:
-            if isinstance(node, CanguardNode):
-                info = loaded_nodes[node.id]
-                try:
-                    node.bind()
-                except PortError as exc:
-                    self.errors.append(
-                        f"{info.file}:{info.line}: node {info.name} (BehaviorTree {info.tree}), "
-                        f"port {exc.port}: {exc.message}"
-                    )
-                except (ValueError, KeyError, TypeError) as exc:
-                    self.errors.append(
-                        f"{info.file}:{info.line}: node {info.name} (BehaviorTree {info.tree}): {exc}"
-                    )
-        self.raise_collected()  # every node that cannot bind, not only the first
         wake_up = WakeUpSignal()
-        for node, _, _ in placed:  # BT.CPP's factory gives every node of a tree its wake-up signal
-            if isinstance(node, CanguardNode):
-                node.wake_up = wake_up
+        for node, _, _ in placed:
+            if not isinstance(node, CanguardNode):
+                continue
+            node.wake_up = wake_up  # BT.CPP's factory gives every node of a tree its wake-up signal
+            try:
+                node.bind()
+            except PortError as exc:
+                self.errors.append(f"{loaded_nodes[node.id].where}, port {exc.port}: {exc.message}")
+            except (ValueError, KeyError, TypeError) as exc:
+                self.errors.append(f"{loaded_nodes[node.id].where}: {exc}")
+        self.raise_collected()  # every node that cannot bind, not only the first
         return LoadedTree(
             root=root,
             tree=py_trees.trees.BehaviourTree(root=root),
@@ -188,9 +182,20 @@ class _Loader(_Validator):
         )
 
 
-def _type_name(kind: type) -> str:
-    names = {int: "int", float: "double", str: "std::string", bool: "bool"}
-    return names.get(kind, getattr(kind, "__name__", str(kind)))
+def _checked(path: str | Path, ctx: Context, main: str | None, palette: Palette | None,
+             *, to_run: bool) -> tuple[_Loader, str]:
+    """Steps 1 to 3 over ``path`` (``palette``: node types declared by ``--nodes`` files): the loader and the
+    main tree's ID; a TreeError listing every problem of the file (IDs, ports, declarations, children, cycles),
+    ``to_run``: palette-declared nodes that nothing implements too."""
+    loader = _Loader(Path(path), ctx)
+    if palette is not None:
+        loader.palette.nodes.update(palette.nodes)
+    main_id = loader.check(main)
+    if to_run:
+        loader.errors.extend(loader.unbound)
+    loader.raise_collected()
+    loader.check_cycles(main_id)
+    return loader, main_id
 
 
 def load_tree(path: str | Path, ctx: Context, main: str | None = None, palette: Palette | None = None) -> LoadedTree:
@@ -201,13 +206,7 @@ def load_tree(path: str | Path, ctx: Context, main: str | None = None, palette: 
     ``<TreeNodesModel>``); a declared node must be bound (config action or plug-in) to run.
     Every problem is a :class:`~canguard.errors.TreeError` naming file and line.
     """
-    loader = _Loader(Path(path), ctx)
-    if palette is not None:
-        loader.palette.nodes.update(palette.nodes)
-    main_id = loader.check(main)
-    loader.errors.extend(loader.unbound)
-    loader.raise_collected()  # every node problem of every tree at once
-    loader.check_cycles(main_id)
+    loader, main_id = _checked(path, ctx, main, palette, to_run=True)
     for elem, attrs in loader.palette_ports:
         for attr in attrs:  # checked against the palette; the bound config action does not read them
             elem.attrib.pop(attr, None)
@@ -219,13 +218,7 @@ def validate_tree(path: str | Path, ctx: Context, main: str | None = None,
                   palette: Palette | None = None) -> tuple[str, list[str]]:
     """Check a tree file without building it: (main tree ID, why each palette-declared node cannot run yet).
 
-    Every problem of the file (IDs, ports, palette declarations, children, cycles) is a
-    TreeError; a declared node that nothing implements is not a problem here.
+    Every problem of the file is a TreeError; a declared node that nothing implements is not a problem here.
     """
-    loader = _Loader(Path(path), ctx)
-    if palette is not None:
-        loader.palette.nodes.update(palette.nodes)
-    main_id = loader.check(main)
-    loader.raise_collected()
-    loader.check_cycles(main_id)
+    loader, main_id = _checked(path, ctx, main, palette, to_run=False)
     return main_id, list(loader.unbound)

@@ -12,65 +12,13 @@ from canguard.bt.build import _Loader, load_tree
 from canguard.bt.context import Context
 from canguard.bt.display import render_dot, render_text
 from canguard.bt.loaded import LoadedTree, _preorder
-from canguard.config.schema import Config, PartialConfig, SourceKind
+from canguard.config.schema import Config, PartialConfig
 from canguard.errors import TreeError, quote
 
 if TYPE_CHECKING:
     from canguard.bt.palette import Palette
 
 
-# ---------------------------------------------------------------------------------------
-# Checks against the config
-# ---------------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class ConfigCheck:
-    """What ``canguard check`` reports about a tree and its config beyond hard errors."""
-
-    unread_sources: tuple[str, ...]
-    """Configured sources no node of the tree reads (stale events only)."""
-
-    def warnings(self) -> list[str]:
-        """One line per finding."""
-        return [
-            f"source {quote(name)} is configured but the tree does not read it (only stale events)"
-            for name in self.unread_sources
-        ]
-
-
-def validate_against_config(loaded: LoadedTree, cfg: Config) -> ConfigCheck:
-    """Check every guard's ``topic_name`` against ``cfg.sources``; report sources nobody reads.
-
-    TreeError (file, line, node, the configured sources with their kinds) when a
-    topic_name names no source, or a source of the wrong kind.
-    """
-    listing = ", ".join(f"{n} ({s.kind})" for n, s in sorted(cfg.sources.items())) or "(none configured)"
-    read: set[str] = set()
-    errors: list[str] = []
-    for guard in loaded.guard_nodes():
-        info = loaded.info(guard)
-        name = guard.topic_name
-        kinds: tuple[SourceKind, ...] = guard.SOURCE_KINDS
-        src = cfg.sources.get(name)
-        where = f"{info.file}:{info.line}: node {info.name} (BehaviorTree {info.tree}), port topic_name"
-        if src is None:
-            errors.append(f"{where}: unknown source {quote(name)}; configured sources: {listing}")
-            continue
-        if src.kind not in kinds:
-            errors.append(
-                f"{where}: source {quote(name)} is of kind {src.kind}, {info.node_id} needs "
-                f"{' or '.join(kinds)}; configured sources: {listing}"
-            )
-            continue
-        read.add(name)
-    if errors:
-        raise TreeError(errors)
-    return ConfigCheck(unread_sources=tuple(n for n in cfg.sources if n not in read))
-
-
-
-# ---------------------------------------------------------------------------------------
-# What the CLI calls (canguard check / canguard tree)
-# ---------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class TreeReport:
     """``canguard check``'s view of the config's tree."""
@@ -79,6 +27,7 @@ class TreeReport:
     text: str
     """A summary line and the tree drawing."""
     warnings: list[str]
+    """Configured sources the tree does not read (they only give stale events), one line each."""
 
 
 def context_for(cfg: Config, clock: Any = None) -> Context:
@@ -123,15 +72,16 @@ def partial_tree_problems(partial: PartialConfig | None) -> list[str]:
 
 def check_tree(cfg: Config, palette: Palette | None = None) -> TreeReport:
     """Load and validate the config's tree against the config (and ``--nodes`` palettes); TreeError on any problem."""
-    loaded = load_config_tree(cfg, palette=palette)
-    check = validate_against_config(loaded, cfg)
+    loaded = load_config_tree(cfg, palette=palette)  # binding checks every guard's topic_name against cfg.sources
     count = sum(1 for _ in loaded.root.iterate())
     head = (
         f"tree: {loaded.main_id} from {loaded.path} (BTCPP_format {loaded.format_version}), {count} nodes, "
         f"reads {', '.join(sorted(loaded.context.read_sources)) or 'no source'}"
     )
     require_guard_coverage(loaded)
-    return TreeReport(loaded, f"{head}\n{render_text(loaded.root)}", check.warnings())
+    unread = [n for n in cfg.sources if n not in loaded.context.read_sources]
+    return TreeReport(loaded, f"{head}\n{render_text(loaded.root)}", [
+        f"source {quote(n)} is configured but the tree does not read it (only stale events)" for n in unread])
 
 
 def require_guard_coverage(loaded: LoadedTree) -> None:

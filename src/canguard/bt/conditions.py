@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING, Any
 
 import py_trees
 
-from canguard.bt.nodes.base import FAILURE, INVALID, RUNNING, SKIPPED, SUCCESS, mark_skipped, note_script_error
+from canguard.bt.nodes.base import FAILURE, INVALID, RUNNING, SKIPPED, SUCCESS, mark_skipped, run_script
 from canguard.bt.scripting import ScriptError
 from canguard.errors import quote
 
@@ -61,9 +61,8 @@ class _ScriptFailed(Exception):
 
 def _holds(node: py_trees.behaviour.Behaviour, script: Script, board: TreeBlackboard, attr: str) -> bool:
     try:
-        return bool(script.condition(board))
-    except ScriptError as exc:
-        note_script_error(node, attr, script.text, exc)
+        return bool(run_script(node, attr, script, board, condition=True))
+    except ScriptError:
         raise _ScriptFailed from None
 
 
@@ -72,9 +71,8 @@ def _run(node: py_trees.behaviour.Behaviour, script: Script | None, board: TreeB
     if script is None:
         return True
     try:
-        script.run(board)
-    except ScriptError as exc:
-        note_script_error(node, attr, script.text, exc)
+        run_script(node, attr, script, board)
+    except ScriptError:
         return False
     return True
 

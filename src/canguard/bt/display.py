@@ -19,9 +19,6 @@ from canguard.bt.xmlread import _type_name
 from canguard.errors import TreeError
 
 
-# ---------------------------------------------------------------------------------------
-# Display tools (canguard tree)
-# ---------------------------------------------------------------------------------------
 def render_text(root: py_trees.behaviour.Behaviour, show_status: bool = False) -> str:
     """py_trees' unicode drawing of the tree, with the loader's readable node names."""
     return py_trees.display.unicode_tree(root, show_status=show_status)
@@ -47,9 +44,6 @@ def render_dot(root: py_trees.behaviour.Behaviour, path: str | Path) -> Path:
     except (OSError, AssertionError) as exc:  # pydot reports dot's own failures as AssertionError
         raise TreeError(f"{out}: Graphviz failed: {exc}") from exc
     return out
-
-
-_GROOT_TYPES = {float: "double", int: "int", str: "std::string", bool: "bool"}
 
 
 def _default_text(value: Any) -> str:
@@ -82,10 +76,7 @@ def nodes_model_xml(ctx: Context | None = None, include_plugins: bool = True) ->
         elem = ET.SubElement(model, node_kind(cls), {"ID": name})
         for direction, ports in (("input_port", cls.input_ports()), ("output_port", cls.output_ports())):
             for port_name, info in ports.items():
-                attrs = {
-                    "name": port_name,
-                    "type": _GROOT_TYPES.get(info.data_type, _type_name(info.data_type)),
-                }
+                attrs = {"name": port_name, "type": _type_name(info.data_type, cpp=True)}
                 if info.has_default:
                     attrs["default"] = _default_text(info.default_value)
                 port = ET.SubElement(elem, direction, attrs)
@@ -95,6 +86,3 @@ def nodes_model_xml(ctx: Context | None = None, include_plugins: bool = True) ->
             ET.SubElement(fields, "Metadata", {"description": description})
     ET.indent(doc, space="  ")
     return ET.tostring(doc, encoding="unicode") + "\n"
-
-
-

@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any
 from py_trees.blackboard import Blackboard
 
 from canguard.bt.build import load_tree
-from canguard.bt.context import Context, ListSink, NullTaskGate
+from canguard.bt.context import Context
 from canguard.io.clock import ManualClock
 
 if TYPE_CHECKING:
@@ -27,12 +27,8 @@ if TYPE_CHECKING:
 
 def _json_value(value: Any) -> Any:
     """Numbers, strings and booleans as they are; NaN/inf and anything else as text."""
-    if isinstance(value, bool) or value is None or isinstance(value, str):
+    if value is None or isinstance(value, str | int) or (isinstance(value, float) and math.isfinite(value)):
         return value
-    if isinstance(value, int):
-        return value
-    if isinstance(value, float):
-        return value if math.isfinite(value) else str(value)
     return str(value)
 
 
@@ -78,8 +74,7 @@ def dry_run(
     Blackboard.metadata.clear()
     Blackboard.clients.clear()
     clock = ManualClock()
-    ctx = Context(clock, {}, sink=ListSink(), actions={}, task=NullTaskGate(),
-                  on_event=lambda event: print(f"canguard tree: {event.get('reason')}", file=sys.stderr))
+    ctx = Context(clock, {}, on_event=lambda event: print(f"canguard tree: {event.get('reason')}", file=sys.stderr))
     loaded = load_tree(path, ctx, main, palette)
     statuses = []
     for i in range(ticks):

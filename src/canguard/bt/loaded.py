@@ -16,9 +16,6 @@ from canguard.protect.base import ProtectionModel, Snapshot
 from canguard.units import I2T_LIMIT_PCT
 
 
-# ---------------------------------------------------------------------------------------
-# Loaded tree
-# ---------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class NodeInfo:
     """Where a node of a loaded tree comes from."""
@@ -31,6 +28,11 @@ class NodeInfo:
     line: int
     tree: str
     """The ``<BehaviorTree ID>`` it is written in."""
+
+    @property
+    def where(self) -> str:
+        """``file:line: node name (BehaviorTree ID)``, as a problem of the node names it."""
+        return f"{self.file}:{self.line}: node {self.name} (BehaviorTree {self.tree})"
 
 
 GuardKind = Literal["threshold", "i2t"]

@@ -41,7 +41,6 @@ from __future__ import annotations
 
 from canguard.bt.build import load_tree
 from canguard.bt.checks import (
-    ConfigCheck,
     TreeReport,
     check_tree,
     context_for,
@@ -50,7 +49,6 @@ from canguard.bt.checks import (
     partial_tree_problems,
     require_guard_coverage,
     show_tree,
-    validate_against_config,
 )
 from canguard.bt.display import nodes_model_xml, render_dot, render_text
 from canguard.bt.loaded import GuardView, LoadedTree, NodeInfo
@@ -58,7 +56,6 @@ from canguard.bt.registry import ENTRY_POINT_GROUP, Registry, build_registry, kn
 
 __all__ = [
     "ENTRY_POINT_GROUP",
-    "ConfigCheck",
     "GuardView",
     "LoadedTree",
     "NodeInfo",
@@ -78,5 +75,4 @@ __all__ = [
     "render_text",
     "require_guard_coverage",
     "show_tree",
-    "validate_against_config",
 ]

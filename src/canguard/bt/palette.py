@@ -30,7 +30,8 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from canguard.bt.xmlsrc import _read_xml
+from canguard.bt.registry import children_problem
+from canguard.bt.xmlsrc import Where, _read_xml
 from canguard.errors import TreeError, quote
 
 KINDS = ("Action", "Condition", "Decorator", "Control", "SubTree")
@@ -38,8 +39,6 @@ KINDS = ("Action", "Condition", "Decorator", "Control", "SubTree")
 
 DIRECTIONS = {"input_port": "input", "output_port": "output", "inout_port": "inout", "bidirectional_port": "inout"}
 """Port elements and their direction (``bidirectional_port``: Groot2's and Nav2's name for inout)."""
-
-Where = tuple[Path, int]
 
 
 @dataclass(frozen=True)
@@ -86,9 +85,6 @@ class Palette:
         elif (first.kind, dict(first.ports)) != (node.kind, dict(node.ports)):
             problems.append(f"{node.where}: {node.kind} {node.node_id} is declared again differently "
                             f"(first at {first.where})")
-
-    def get(self, node_id: str) -> PaletteNode | None:
-        return self.nodes.get(node_id)
 
 
 def read_model(model: ET.Element, where: Mapping[ET.Element, Where], path: Path,
@@ -174,14 +170,8 @@ def check_node(elem: ET.Element, decl: PaletteNode, at: str, tree_id: str) -> li
     missing = [p.name for p in decl.ports.values() if p.required and p.name not in elem.attrib]
     if missing:
         problems.append(f"{head}: missing required port {', '.join(missing)} (declared required=\"true\")")
-    n = len(elem)
-    if decl.kind in ("Action", "Condition", "SubTree") and n:
-        problems.append(f"{head}: {decl.kind.lower()} nodes take no children, found {n}")
-    elif decl.kind == "Decorator" and n != 1:
-        problems.append(f"{head}: a decorator takes exactly one child, found {n}")
-    elif decl.kind == "Control" and n == 0:
-        problems.append(f"{head}: a control node needs at least one child")
-    return problems
+    kind_error = children_problem(decl.kind, len(elem))
+    return [*problems, f"{head}: {kind_error}"] if kind_error else problems
 
 
 def unbound_message(node_id: str, at: str, decl: PaletteNode) -> str:

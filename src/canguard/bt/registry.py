@@ -37,10 +37,6 @@ _TOKEN = "@"
 """Placeholder node names handed to py_trees are ``@<n>``."""
 
 
-
-# ---------------------------------------------------------------------------------------
-# Registry
-# ---------------------------------------------------------------------------------------
 def plugin_entry_points() -> dict[str, EntryPoint]:
     """The ``canguard.nodes`` entry points by node ID (not loaded).
 
@@ -120,3 +116,12 @@ def node_kind(cls: type) -> str:
     if issubclass(cls, py_trees.composites.Composite):
         return "Control"
     return "Action"
+
+
+def children_problem(kind: str, n: int) -> str | None:
+    """What is wrong with ``n`` children under a node of ``kind`` (Action, Condition, Decorator...); None: nothing."""
+    if kind == "Decorator":
+        return None if n == 1 else f"a decorator takes exactly one child, found {n}"
+    if kind == "Control":
+        return None if n else "a control node needs at least one child"
+    return f"{kind.lower()} nodes take no children, found {n}" if n else None

@@ -23,17 +23,17 @@ from dataclasses import dataclass, field
 
 from py_trees.blackboard import Blackboard
 
-_INT = re.compile(r"-?[0-9]+\Z")
-_REAL = re.compile(r"-?([0-9]+\.?[0-9]*|\.[0-9]+)([eE][-+]?[0-9]+)?\Z")
+INT_TEXT = re.compile(r"-?[0-9]+\Z")
+REAL_TEXT = re.compile(r"-?([0-9]+\.?[0-9]*|\.[0-9]+)([eE][-+]?[0-9]+)?\Z")
 
 SUBTREE = "SubTree"
 
 
 def typed_literal(text: str) -> int | float | str:
     """A literal port value on a SubTree element as BT.CPP stores it: an integer, else a real, else the text."""
-    if _INT.match(text):
+    if INT_TEXT.match(text):
         return int(text)
-    if _REAL.match(text):
+    if REAL_TEXT.match(text):
         return float(text)
     return text
 
@@ -136,21 +136,18 @@ class TreeBlackboard:
         self.declared: Mapping[str, type] = declared if declared is not None else {}
         """Entries a typed port fixed the type of, by storage key (BT.CPP creates them at load)."""
 
-    def _key(self, key: str) -> str:
-        return self.scope.key(key)
-
     def has(self, key: str) -> bool:
-        full = self._key(key)
+        full = self.scope.key(key)
         return full in Blackboard.storage or full in self.declared
 
     def get(self, key: str) -> object:
-        return Blackboard.storage[self._key(key)]
+        return Blackboard.storage[self.scope.key(key)]
 
     def set(self, key: str, value: object) -> None:
-        Blackboard.storage[self._key(key)] = value
+        Blackboard.storage[self.scope.key(key)] = value
 
     def declared_type(self, key: str) -> type | None:
-        return self.declared.get(self._key(key))
+        return self.declared.get(self.scope.key(key))
 
     def unset(self, key: str) -> None:
-        Blackboard.storage.pop(self._key(key), None)
+        Blackboard.storage.pop(self.scope.key(key), None)

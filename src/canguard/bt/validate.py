@@ -5,9 +5,9 @@ from __future__ import annotations
 import math
 import re
 import xml.etree.ElementTree as ET
-from collections.abc import Collection, Mapping
+from collections.abc import Mapping
+from typing import cast
 
-import py_trees
 from py_trees.parsers.behaviour_tree_xml import is_key
 from py_trees.ports import PortInformation, PortsMixin
 from py_trees.ports_utils import convert_str_to_type
@@ -16,7 +16,7 @@ from canguard.bt import conditions
 from canguard.bt.conditions import take_conditions
 from canguard.bt.loaded import NodeInfo
 from canguard.bt.nodes import ConfiguredAction, GuardNode
-from canguard.bt.registry import _SUBTREE, _TOKEN, known_node_ids, node_kind
+from canguard.bt.registry import _SUBTREE, _TOKEN, children_problem, known_node_ids, node_kind
 from canguard.bt.xmlread import _closest, _Reader, _type_name
 from canguard.errors import TreeError, closest, quote
 
@@ -54,37 +54,32 @@ class _Validator(_Reader):
                 continue
             subtree_names: dict[str, int] = {}
             for elem in bt[0].iter():
-                if elem.tag == _SUBTREE:
-                    scripts, problems = take_conditions(elem.attrib)  # BT.CPP: they apply to the SubTree node
-                    cond_file, cond_line = self.where.get(elem, (self.path, 0))
-                    self.errors.extend(f"{cond_file}:{cond_line}: SubTree {elem.attrib.get('ID')} (BehaviorTree "
-                                       f"{tree_id}), {p}" for p in problems)
+                subtree = elem.tag == _SUBTREE
+                scripts, problems = take_conditions(elem.attrib)  # on a SubTree, BT.CPP applies them to that node
+                what = f"SubTree {elem.attrib.get('ID')}" if subtree else f"node {elem.tag}"
+                self.errors.extend(f"{self.at(elem)}: {what} (BehaviorTree {tree_id}), {p}" for p in problems)
+                if subtree:
                     if scripts:
                         self.subtree_conditions[elem] = scripts
                     try:
                         self._check_subtree(elem, tree_id, subtree_names)
                     except TreeError as exc:
                         self.errors.extend(exc.problems)
-                else:
-                    scripts, problems = take_conditions(elem.attrib)
-                    cond_file, cond_line = self.where.get(elem, (self.path, 0))
-                    self.errors.extend(f"{cond_file}:{cond_line}: node {elem.tag} (BehaviorTree {tree_id}), {p}"
-                                       for p in problems)
-                    cls = self._check_node(elem, tree_id)
-                    if cls is not None and issubclass(cls, GuardNode):
-                        source_error = self._check_source(elem, cls, tree_id)
-                        if source_error is not None:
-                            pending.append((len(self.errors), source_error))
-                    counter += 1
-                    token = f"{_TOKEN}{counter}"
-                    file, line = self.where.get(elem, (self.path, 0))
-                    readable = elem.attrib.get("name") or elem.tag
-                    self.infos[token] = NodeInfo(elem.tag, readable, file, line, tree_id)
-                    if scripts:
-                        self.conditions[token] = scripts
-                    if elem in self.private:
-                        self.private_tokens[token] = self.private[elem]
-                    elem.attrib["name"] = token
+                    continue
+                cls = self._check_node(elem, tree_id)
+                if cls is not None and issubclass(cls, GuardNode):
+                    source_error = self._check_source(elem, cls, tree_id)
+                    if source_error is not None:
+                        pending.append((len(self.errors), source_error))
+                counter += 1
+                token = f"{_TOKEN}{counter}"
+                file, line = self.where.get(elem, (self.path, 0))
+                self.infos[token] = NodeInfo(elem.tag, elem.attrib.get("name") or elem.tag, file, line, tree_id)
+                if scripts:
+                    self.conditions[token] = scripts
+                if elem in self.private:
+                    self.private_tokens[token] = self.private[elem]
+                elem.attrib["name"] = token
         if self.source_check == "always" or (self.errors and self.source_check == "with_others"):
             # The tree will not be built, so binding (which resolves the sources and reports an
             # unknown one) will not run: the guards' unknown sources join this report, in place.
@@ -150,7 +145,8 @@ class _Validator(_Reader):
     def _check_node(self, elem: ET.Element, tree_id: str) -> type[PortsMixin] | None:
         """Record every problem of one node (ID, each port, children); its class, or None if unknown."""
         node_id = elem.tag
-        cls = self.classes.get(node_id)
+        entry = self.registry.get(node_id)
+        cls = cast("type[PortsMixin] | None", entry.func if entry is not None else None)
         decl = self.declared(node_id)
         if decl is not None and (cls is None or issubclass(cls, ConfiguredAction)):
             # declared by a palette: checked against the declaration; it runs only when bound
@@ -176,14 +172,11 @@ class _Validator(_Reader):
             **{n: ("input", i) for n, i in cls.input_ports().items()},
             **{n: ("output", i) for n, i in cls.output_ports().items()},
         }
-        const_ports: Collection[str] = getattr(cls, "CONST_PORTS", frozenset())
-        key_ports: Collection[str] = getattr(cls, "KEY_PORTS", frozenset())
-        choices: Mapping[str, tuple[str, ...]] = getattr(cls, "CHOICES", {})
         for attr, value in elem.attrib.items():
             if attr == "name":
                 continue
             try:
-                self._check_port(elem, tree_id, attr, value, ports, const_ports, key_ports, choices)
+                self._check_port(elem, tree_id, attr, value, ports, cls)
             except TreeError as exc:
                 self.errors.extend(exc.problems)
         missing = [
@@ -195,16 +188,7 @@ class _Validator(_Reader):
                 f"missing required port {', '.join(missing)} (ports of {node_id}: {', '.join(ports)})",
                 tree_id,
             )))
-        n = len(elem)
-        kind_error: str | None = None
-        if issubclass(cls, py_trees.decorators.Decorator):
-            if n != 1:
-                kind_error = f"a decorator takes exactly one child, found {n}"
-        elif issubclass(cls, py_trees.composites.Composite):
-            if n == 0:
-                kind_error = "a control node needs at least one child"
-        elif n:
-            kind_error = f"{node_kind(cls).lower()} nodes take no children, found {n}"
+        kind_error = children_problem(node_kind(cls), len(elem))
         if kind_error is not None:
             self.errors.append(str(self.error(elem, kind_error, tree_id)))
         return cls
@@ -216,14 +200,12 @@ class _Validator(_Reader):
         attr: str,
         value: str,
         ports: Mapping[str, tuple[str, PortInformation]],
-        const_ports: Collection[str],
-        key_ports: Collection[str],
-        choices: Mapping[str, tuple[str, ...]],
+        cls: type,
     ) -> None:
-        """Raise the TreeError of one attribute of a node (unknown port, bad value...), if any."""
+        """Raise the TreeError of one attribute of a node of ``cls`` (unknown port, bad value...), if any."""
         node_id = elem.tag
         if attr.startswith("_"):
-            known = ", ".join(conditions.PRE + conditions.POST)
+            known = ", ".join(conditions.ALL)
             raise self.error(elem, f"attribute {attr} (BT.CPP pre/post-conditions) is not supported; "
                                    f"the supported ones: {known}", tree_id)
         if attr not in ports:
@@ -232,22 +214,14 @@ class _Validator(_Reader):
         direction, info = ports[attr]
         match = self._check_key_syntax(elem, attr, value, tree_id)
         if match:
-            if attr in const_ports:
-                raise self.error(
-                    elem,
-                    f"takes a constant (it configures the node at load time), not {value}",
-                    tree_id,
-                    attr,
-                )
+            if attr in getattr(cls, "CONST_PORTS", ()):
+                raise self.error(elem, f"takes a constant (it configures the node at load time), not {value}",
+                                 tree_id, attr)
             return
         if direction == "output":
-            raise self.error(
-                elem,
-                f"an output port takes a blackboard key like {{{attr}}}, not {quote(value)}",
-                tree_id,
-                attr,
-            )
-        if attr in key_ports:
+            raise self.error(elem, f"an output port takes a blackboard key like {{{attr}}}, not {quote(value)}",
+                             tree_id, attr)
+        if attr in getattr(cls, "KEY_PORTS", ()):
             raise self.error(elem, f"takes a blackboard key like {{{attr}}}, not {quote(value)}", tree_id, attr)
         try:
             converted, parsed = convert_str_to_type(value, info.data_type)
@@ -257,7 +231,7 @@ class _Validator(_Reader):
             raise self.error(elem, f"{quote(value)} is not a valid {_type_name(info.data_type)}", tree_id, attr)
         if isinstance(parsed, float) and math.isnan(parsed):
             raise self.error(elem, f"{quote(value)} is not a number", tree_id, attr)
-        allowed = choices.get(attr)
+        allowed = getattr(cls, "CHOICES", {}).get(attr)
         if allowed is not None and parsed not in allowed:
             raise self.error(elem, f"unknown value {quote(value)}; expected one of {', '.join(allowed)}", tree_id, attr)
 
@@ -271,5 +245,3 @@ class _Validator(_Reader):
                 visit(target, [*stack, target])
 
         visit(main_id, [main_id])
-
-    # -- step 4: parse with py_trees --------------------------------------------------------

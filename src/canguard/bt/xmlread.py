@@ -5,9 +5,7 @@ from __future__ import annotations
 import xml.etree.ElementTree as ET
 from collections.abc import Collection
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Literal, cast
-
-from py_trees.ports import PortsMixin
+from typing import TYPE_CHECKING, Any, Literal
 
 from canguard.bt.context import Context
 from canguard.bt.loaded import NodeInfo
@@ -26,14 +24,12 @@ def _closest(word: str, choices: Collection[str]) -> list[str]:
     return closest(word, choices, n=len(choices), cutoff=0.0)
 
 
-def _type_name(data_type: Any) -> str:
-    names = {float: "float", int: "int", str: "string", bool: "bool"}
+def _type_name(data_type: Any, cpp: bool = False) -> str:
+    """A port type as errors name it (``float``, ``string``), or with ``cpp`` as BT.CPP and Groot2 do."""
+    names = {float: "double", str: "std::string"} if cpp else {float: "float", str: "string"}
     return names.get(data_type, getattr(data_type, "__name__", str(data_type)))
 
 
-# ---------------------------------------------------------------------------------------
-# The loader
-# ---------------------------------------------------------------------------------------
 class _Reader:
     """One load: the document, its trees, the registry, the placeholder names."""
 
@@ -55,7 +51,6 @@ class _Reader:
         """The same, by node token (set by the validator)."""
         self._inlined = 0
         self.registry: Registry = {}
-        self.classes: dict[str, type[PortsMixin]] = {}
         self.errors: list[str] = []
         """Every problem found so far (one load reports them all, not only the first)."""
         self.broken_trees: set[str] = set()
@@ -85,7 +80,7 @@ class _Reader:
 
     def declared(self, node_id: str) -> PaletteNode | None:
         """The palette's declaration of ``node_id`` (None: not declared, or no palette read)."""
-        return None if self._palette is None else self._palette.get(node_id)
+        return None if self._palette is None else self._palette.nodes.get(node_id)
 
     # -- errors ------------------------------------------------------------------------
     def raise_collected(self) -> None:
@@ -110,12 +105,17 @@ class _Reader:
         return TreeError(f"{self.at(elem)}: {where}: {msg}")
 
     # -- step 1: read, includes ---------------------------------------------------------
-    def read(self) -> None:
-        root = _read_xml(self.path, self.where)
+    def _document(self, path: Path) -> ET.Element:
+        """The ``<root>`` element of the file ``path`` (its elements' lines recorded)."""
+        root = _read_xml(path, self.where)
         if root.tag != "root":
             raise TreeError(
                 f"{self.at(root)}: the document element is <{root.tag}>, expected <root> (BehaviorTree.CPP XML)"
             )
+        return root
+
+    def read(self) -> None:
+        root = self._document(self.path)
         fmt = root.attrib.get("BTCPP_format")
         if fmt not in (None, "3", "4"):
             raise TreeError(f'{self.at(root)}: BTCPP_format="{fmt}" is not supported (3 or 4)')
@@ -157,10 +157,7 @@ class _Reader:
         if key in seen:
             return  # already included (or the including file itself)
         seen.add(key)
-        inc_root = _read_xml(target, self.where)
-        if inc_root.tag != "root":
-            raise TreeError(f"{self.at(inc_root)}: the document element is <{inc_root.tag}>, expected <root>")
-        self._collect(inc_root, target, seen)
+        self._collect(self._document(target), target, seen)
 
     # -- step 2: rewrite v3 spellings ---------------------------------------------------
     def rewrite(self) -> None:
@@ -292,8 +289,6 @@ class _Reader:
         for bt in self.trees.values():
             used.update(e.tag for e in bt.iter() if e is not bt)
         self.registry = build_registry(self.ctx, only=used)
-        for node_id, entry in self.registry.items():
-            self.classes[node_id] = cast("type[PortsMixin]", entry.func)
 
     # -- step 3: validation ---------------------------------------------------------------
     def choose_main(self, main: str | None) -> str:

@@ -10,9 +10,9 @@ nothing is imported or evaluated by a name found in a tree file.
 
 The table names each node type's module, and a module is imported when one of its
 classes is first looked up (``BUILTIN_NODES[node_id]``, or ``from canguard.bt.nodes
-import Sequence``): a tree pays at start-up only for the node families it uses
-(creating every class of the library cost ~5 ms). The actions and the current guards,
-which the engine and the loader always need, are imported with the package.
+import Sequence``): a tree pays at start-up only for the node families it uses. The
+actions and the current guards, which the engine and the loader always need, are
+imported with the package.
 
 A plug-in node type is a class deriving from :class:`CanguardNode` (or at least
 :class:`py_trees.ports.PortsMixin`) and a py_trees behaviour; when its
@@ -23,40 +23,10 @@ from __future__ import annotations
 
 from collections.abc import Iterator, Mapping
 from importlib import import_module
-from typing import TYPE_CHECKING
 
 from canguard.bt.nodes.actions import ConfiguredAction, EmitStop, ExecuteTask, ResetStop
 from canguard.bt.nodes.base import CanguardNode, NodeKind, PortError, port_info
 from canguard.bt.nodes.current import GuardNode, IsCurrentNormal, IsCurrentSafe, IsI2tSafe
-
-if TYPE_CHECKING:
-    from canguard.bt.nodes.control import (
-        Delay,
-        ForceFailure,
-        ForceSuccess,
-        Inverter,
-        Parallel,
-        Repeat,
-        RetryUntilSuccessful,
-        Timeout,
-    )
-    from canguard.bt.nodes.effort import IsJointEffortNormal
-    from canguard.bt.nodes.profile import Profile
-    from canguard.bt.nodes.sequences import (
-        Fallback,
-        ReactiveFallback,
-        ReactiveSequence,
-        Sequence,
-        SequenceWithMemory,
-    )
-    from canguard.bt.nodes.timing import (
-        IsCooldownElapsed,
-        IsElapsedSinceEvent,
-        IsElapsedTimeCompare,
-        RecordTime,
-        ResetTimer,
-    )
-    from canguard.bt.nodes.values import IsValueAbove, IsValueBelow
 
 _MODULES: dict[str, str] = {
     # conditions
@@ -113,40 +83,5 @@ def __getattr__(name: str) -> type[CanguardNode]:
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
-__all__ = [
-    "BUILTIN_NODES",
-    "CanguardNode",
-    "ConfiguredAction",
-    "Delay",
-    "EmitStop",
-    "ExecuteTask",
-    "Fallback",
-    "ForceFailure",
-    "ForceSuccess",
-    "GuardNode",
-    "Inverter",
-    "IsCooldownElapsed",
-    "IsCurrentNormal",
-    "IsCurrentSafe",
-    "IsElapsedSinceEvent",
-    "IsElapsedTimeCompare",
-    "IsI2tSafe",
-    "IsJointEffortNormal",
-    "IsValueAbove",
-    "IsValueBelow",
-    "NodeKind",
-    "Parallel",
-    "PortError",
-    "Profile",
-    "ReactiveFallback",
-    "ReactiveSequence",
-    "RecordTime",
-    "Repeat",
-    "ResetStop",
-    "ResetTimer",
-    "RetryUntilSuccessful",
-    "Sequence",
-    "SequenceWithMemory",
-    "Timeout",
-    "port_info",
-]
+__all__ = ["BUILTIN_NODES", "CanguardNode", "ConfiguredAction", "EmitStop", "ExecuteTask", "GuardNode",
+           "IsCurrentNormal", "IsCurrentSafe", "IsI2tSafe", "NodeKind", "PortError", "ResetStop", "port_info"]

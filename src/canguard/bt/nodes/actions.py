@@ -32,13 +32,9 @@ from canguard.config.schema import ActionConfig
 
 
 class ExecuteTask(CanguardNode, py_trees.behaviour.Behaviour):
-    """Runs the task while ticked (RUNNING); stops it when halted."""
+    """run the robot's task (task frames every period) while ticked; halt stops it"""
 
-    KIND = "Action"
-    DESCRIPTION = "run the robot's task (task frames every period) while ticked; halt stops it"
     QUIET_RETICK = True
-    INPUT_PORTS = {}  # noqa: RUF012 - py_trees reads ports as plain class dicts
-    OUTPUT_PORTS = {}  # noqa: RUF012
 
     def update(self) -> py_trees.common.Status:
         """Keep the task running."""
@@ -52,12 +48,8 @@ class ExecuteTask(CanguardNode, py_trees.behaviour.Behaviour):
 
 
 class EmitStop(CanguardNode, py_trees.behaviour.Behaviour):
-    """Sends the config's stop frames; SUCCESS."""
+    """send the config's stop frames once"""
 
-    KIND = "Action"
-    DESCRIPTION = "send the config's stop frames once"
-    INPUT_PORTS = {}  # noqa: RUF012
-    OUTPUT_PORTS = {}  # noqa: RUF012
 
     def update(self) -> py_trees.common.Status:
         """Hand the stop frames to the sink."""
@@ -68,11 +60,8 @@ class EmitStop(CanguardNode, py_trees.behaviour.Behaviour):
 
 
 class ConfiguredAction(CanguardNode, py_trees.behaviour.Behaviour):
-    """An ``actions:`` entry of the config: sends its frames; writes output_time when wired; SUCCESS."""
+    """an actions: entry of the config: send its frames"""
 
-    KIND = "Action"
-    DESCRIPTION = "an actions: entry of the config: send its frames"
-    INPUT_PORTS = {}  # noqa: RUF012
     OUTPUT_PORTS = {  # noqa: RUF012
         "output_time": port_info(
             float, "receives the time (s) the action ran, e.g. {last_recovery_time}", required=False
@@ -105,12 +94,8 @@ class ConfiguredAction(CanguardNode, py_trees.behaviour.Behaviour):
 
 
 class ResetStop(CanguardNode, py_trees.behaviour.Behaviour):
-    """The explicit reset of ``stop.release: manual``: the stop may end at the end of this tick; SUCCESS."""
+    """reset a stop (stop.release: manual): the stop ends at this tick's end if the release rule holds"""
 
-    KIND = "Action"
-    DESCRIPTION = "reset a stop (stop.release: manual): the stop ends at this tick's end if the release rule holds"
-    INPUT_PORTS = {}  # noqa: RUF012
-    OUTPUT_PORTS = {}  # noqa: RUF012
 
     def update(self) -> py_trees.common.Status:
         """Ask the gate to release the stop in this tick."""

@@ -1,41 +1,27 @@
 """What every canguard node shares: typed ports, the context, a load-time ``bind()``.
 
-Every node type is a :class:`py_trees.ports.PortsMixin` + py_trees behaviour
-subclass declaring ``INPUT_PORTS`` / ``OUTPUT_PORTS`` with the names
-BehaviorTree.CPP users type. :class:`CanguardNode` adds:
+Every node type is a :class:`py_trees.ports.PortsMixin` + py_trees behaviour declaring
+``INPUT_PORTS`` / ``OUTPUT_PORTS`` with the names BehaviorTree.CPP users type.
+:class:`CanguardNode` adds the tree's :class:`~canguard.bt.context.Context` (``context=``,
+bound by the registry: nodes never reach for globals or clocks); stays out of py_trees'
+global auto-registry (importing canguard must not change what other py_trees users'
+parsers resolve); reads constant and default ports once, at ``setup_ports()`` (only ports
+wired to a ``{key}`` are read at tick); and has :meth:`~CanguardNode.bind`, called once the
+whole tree is parsed, so that a bad port value is a load-time TreeError naming file, line,
+node and port. Output ports are only written when wired, as BehaviorTree.CPP drops writes
+to unconnected ports.
 
-- ``context=``: the :class:`~canguard.bt.context.Context` of the tree, bound by the
-  registry with ``functools.partial`` (nodes never reach for globals or clocks);
-- no entry in py_trees' global auto-registry (``register=False`` by default):
-  importing canguard must not change what other py_trees users' parsers resolve;
-- port bookkeeping done once at ``setup_ports()``: constant ports (``max_current="40"``)
-  and ports left at their default are read once and cached; only ports wired to a
-  blackboard key (``{key}``) are read again at tick, which keeps a tick as cheap
-  as a bare py_trees behaviour;
-- :meth:`bind`: called by the loader after the whole tree is parsed, so that an
-  error in a port value (recovery above overcurrent, unknown source...) is a
-  load-time :class:`~canguard.errors.TreeError` naming file, line, node and port;
-- class metadata for validation and the Groot2 palette: ``KIND``,
-  ``DESCRIPTION``, ``CONST_PORTS`` (ports that must be constants),
-  ``CHOICES`` (allowed values of string ports).
-
-Output ports are only written when wired (given in the XML): BehaviorTree.CPP
-likewise drops writes to unconnected ports.
-
-**Blackboard fast path.** py_trees' client checks access and resolves the key's
-namespace and remapping on every read and write (3-4 µs per write, measured).
-The access rights and the remapped key of every wired port are fixed once
-``setup_ports()`` has registered them, so :meth:`CanguardNode.port` and
-:meth:`CanguardNode.write` go straight to ``Blackboard.storage`` with the key
-resolved at set-up, with the same type checks. While py_trees' activity stream
-is enabled (a debugging aid) they take the client's path, so the stream stays
-complete.
+**Blackboard fast path.** The access rights and the remapped key of every wired port
+are fixed once ``setup_ports()`` has registered them, so :meth:`CanguardNode.port` and
+:meth:`CanguardNode.write` go straight to ``Blackboard.storage`` (py_trees' client costs
+3-4 µs a write), with the same type checks. While py_trees' activity stream is enabled
+they take the client's path, so the stream stays complete.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Generator, Iterator, Mapping
-from typing import Any, ClassVar, Literal
+from collections.abc import Callable, Generator, Iterable, Iterator, Mapping
+from typing import TYPE_CHECKING, Any, ClassVar, Literal
 
 import py_trees
 from py_trees.blackboard import Blackboard
@@ -43,7 +29,11 @@ from py_trees.ports import CONST_PREFIX, NoDataAvailable, PortInformation, Ports
 from py_trees.ports_utils import PortsLogger
 
 from canguard.bt.context import Context
+from canguard.bt.scripting import ScriptError
 from canguard.bt.wakeup import WakeUpSignal
+
+if TYPE_CHECKING:
+    from canguard.bt.scripting import Script, ScriptBlackboard
 
 NodeKind = Literal["Action", "Condition", "Control", "Decorator"]
 
@@ -52,6 +42,7 @@ FAILURE = py_trees.common.Status.FAILURE
 RUNNING = py_trees.common.Status.RUNNING
 INVALID = py_trees.common.Status.INVALID
 Status = py_trees.common.Status
+Children = list[py_trees.behaviour.Behaviour] | None
 
 SKIPPED = "SKIPPED"
 """BehaviorTree.CPP 4's SKIPPED, which py_trees' :class:`~py_trees.common.Status` lacks.
@@ -80,19 +71,51 @@ def mark_skipped(node: py_trees.behaviour.Behaviour) -> None:
     node.skipped = True  # type: ignore[attr-defined]
 
 
-def note_script_error(node: py_trees.behaviour.Behaviour, attr: str, script: str, error: Exception) -> None:
-    """A script of ``node`` failed while it ran: its feedback, and ``script_error`` for ``canguard tree --tick``.
+def halt_running(children: Iterable[py_trees.behaviour.Behaviour]) -> None:
+    """Halt every one of ``children`` that is RUNNING."""
+    for child in children:
+        if child.status == RUNNING:
+            child.stop(INVALID)
 
-    (BT.CPP throws out of ``tickOnce()``; canguard fails the node, or counts a condition as false, and says why.)
-    """
-    node.feedback_message = f"{attr}: {error}"
-    node.script_error = f"{attr} {script!r}: {error}"  # type: ignore[attr-defined]
+
+def reset(children: Iterable[py_trees.behaviour.Behaviour]) -> None:
+    """Every one of ``children`` back to IDLE (BT.CPP's ``resetChildren``: a new run starts from IDLE)."""
+    for child in children:
+        if child.status != INVALID:
+            child.stop(INVALID)
+
+
+def follow(node: py_trees.composites.Composite, child: py_trees.behaviour.Behaviour) -> Iterator[Any]:
+    """Tick ``child`` and give ``node`` what it returned (RUNNING, SUCCESS, FAILURE or SKIPPED)."""
+    node.current_child = child
+    yield from tick_child(child)
+    if outcome(child) == SKIPPED:
+        mark_skipped(node)
+    elif child.status == RUNNING:
+        node.status = RUNNING
+    else:
+        node.stop(child.status)
+    yield node
+
+
+def run_script(node: py_trees.behaviour.Behaviour, attr: str, script: Script, board: ScriptBlackboard,
+               *, condition: bool = False) -> object:
+    """Run ``node``'s script ``attr`` on ``board``: its value (``condition``: as a boolean). A ScriptError it
+    raises is noted on the node (its feedback, and ``script_error`` for ``canguard tree --tick``) and raised
+    again: BT.CPP throws out of ``tickOnce()``; canguard fails the node, or counts a condition as false."""
+    try:
+        return script.condition(board) if condition else script.run(board)
+    except ScriptError as exc:
+        node.feedback_message = f"{attr}: {exc}"
+        node.script_error = f"{attr} {script.text!r}: {exc}"  # type: ignore[attr-defined]
+        raise
 
 
 _MISSING = object()
 
 
-_BOOL_TEXT = {"true": True, "false": False, "1": True, "0": False}
+BOOL_TEXT = {"true": True, "false": False, "1": True, "0": False}
+"""Texts of a bool as BT.CPP reads them."""
 
 
 def _number_as(expected: Any, value: Any) -> Any:
@@ -101,7 +124,7 @@ def _number_as(expected: Any, value: Any) -> Any:
     if isinstance(value, str) and expected in (int, float, bool) and "_" not in value:
         text = value.strip()
         try:
-            return _BOOL_TEXT[text.lower()] if expected is bool else expected(text)
+            return BOOL_TEXT[text.lower()] if expected is bool else expected(text)
         except (KeyError, ValueError):
             return None
     if isinstance(value, bool) or not isinstance(value, int | float):
@@ -136,32 +159,29 @@ def port_info(
     return PortInformation(data_type=data_type, required=required, description=description, default_value=default)
 
 
-def _ports_overlap(cls: type) -> bool:
-    """Whether a port of ``cls`` is both an input and an output (py_trees rejects a concrete such class)."""
-    return bool(getattr(cls, "INPUT_PORTS", {}).keys() & getattr(cls, "OUTPUT_PORTS", {}).keys())
-
-
-class CanguardNode(PortsMixin):
+class CanguardNode(PortsMixin, register=False):
     """Mixin of every canguard node (combine with a py_trees Behaviour / Decorator / Composite)."""
 
     KIND: ClassVar[NodeKind] = "Action"
-    """The BehaviorTree.CPP node category (Groot2 palette, docs)."""
+    """The BehaviorTree.CPP node category (Groot2 palette, docs): Condition where a class says so, else its
+    py_trees base's (Decorator, Control or Action)."""
+    INPUT_PORTS: dict = {}  # noqa: RUF012 - py_trees reads ports as plain class dicts
+    OUTPUT_PORTS: dict = {}  # noqa: RUF012
     DESCRIPTION: ClassVar[str] = ""
-    """One line for the Groot2 palette and ``canguard tree --nodes-model``."""
+    """One line for the Groot2 palette and ``canguard tree --nodes-model``: the first paragraph of the class's
+    docstring unless the class sets it."""
     CONST_PORTS: ClassVar[frozenset[str]] = frozenset()
     """Input ports that configure the node once at load time: a ``{key}`` there is a load-time error."""
     KEY_PORTS: ClassVar[frozenset[str]] = frozenset()
+    """Input ports that must be wired to a ``{key}`` (a constant there is a load-time error)."""
     USES_BOARD: ClassVar[bool] = False
     """True for nodes with a ``board`` (:class:`~canguard.bt.scopes.TreeBlackboard`) the loader sets to
     their scope's: scripts, SetBlackboard, UnsetBlackboard."""
     UNTYPED_PORTS: ClassVar[frozenset[str]] = frozenset()
     """Ports that take an entry of any type (BT.CPP's ``AnyTypeAllowed`` / ``BT::Any``): they neither fix
     nor check the type of the entry they are wired to (see :func:`canguard.bt.build` entry types)."""
-    """Input ports that must be wired to a ``{key}`` (a constant there is a load-time error)."""
     CHOICES: ClassVar[Mapping[str, tuple[str, ...]]] = {}
     """Allowed values of string ports, checked at load time for constants."""
-    NEEDS_CONTEXT: ClassVar[bool] = True
-    """False for nodes that work without a :class:`Context` (pure control flow)."""
     QUIET_RETICK: ClassVar[bool] = False
     """True when ticking the node again, with the same inputs and its children answering as before,
     changes nothing and answers as before: no timer, counter, memory or output of its own.
@@ -176,16 +196,19 @@ class CanguardNode(PortsMixin):
         # Stay out of py_trees' global auto-registry: canguard's parser gets an explicit,
         # closed registry, and importing canguard must not change anybody else's "auto".
         kwargs.setdefault("register", False)
-        if kwargs["register"] or "tag" in kwargs or _ports_overlap(cls):
+        if kwargs["register"] or "tag" in kwargs or cls.INPUT_PORTS.keys() & cls.OUTPUT_PORTS.keys():
             super().__init_subclass__(**kwargs)  # py_trees' own: its registry, or its error
         else:
             # Unregistered, PortsMixin's only work is the check above, behind a dir()-wide scan
             # for abstract methods (~25 µs a class, ~1.5 ms for the node library at every start).
             del kwargs["register"]
             super(PortsMixin, cls).__init_subclass__(**kwargs)
-        if issubclass(cls, py_trees.behaviour.Behaviour) and not issubclass(
-            cls, (py_trees.composites.Composite, py_trees.decorators.Decorator)
-        ):
+        if "DESCRIPTION" not in cls.__dict__ and cls.__doc__:
+            cls.DESCRIPTION = " ".join(cls.__doc__.split("\n\n")[0].split())
+        if cls.KIND != "Condition":
+            cls.KIND = ("Decorator" if issubclass(cls, py_trees.decorators.Decorator)
+                        else "Control" if issubclass(cls, py_trees.composites.Composite) else "Action")
+        if issubclass(cls, py_trees.behaviour.Behaviour) and cls.KIND in ("Action", "Condition"):
             # a leaf: py_trees' tick and stop, step for step, without their eager debug strings
             if cls.tick is py_trees.behaviour.Behaviour.tick:
                 cls.tick = _leaf_tick  # type: ignore[method-assign]
@@ -196,8 +219,6 @@ class CanguardNode(PortsMixin):
 
     def __init__(self, *args: Any, context: Context | None = None, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
-        if context is None and self.NEEDS_CONTEXT:
-            raise TypeError(f"{type(self).__name__} needs context= (the registry binds it)")
         self._context = context
         self._dynamic: frozenset[str] = frozenset()
         self._static: dict[str, Any] = {}
@@ -237,10 +258,6 @@ class CanguardNode(PortsMixin):
                 continue  # optional port left out: reads give None
         self._static = static
 
-    def wired_key(self, name: str) -> str | None:
-        """The blackboard key the port ``name`` is wired to (``{key}`` resolved in the node's namespace), or None."""
-        return self._keys.get(name)
-
     def is_wired(self, name: str) -> bool:
         """True when the port was given in the XML as a ``{key}`` (input) or at all (output)."""
         return name in self._dynamic or name in self._wired
@@ -258,10 +275,6 @@ class CanguardNode(PortsMixin):
     def wired_keys(self) -> dict[str, str]:
         """The storage key of every port wired to a ``{key}`` (inputs) or given (outputs), by port name."""
         return dict(self._keys)
-
-    def is_given(self, name: str) -> bool:
-        """True when the input port has a value or a key (given, or with a default)."""
-        return name in self._dynamic or name in self._static
 
     def port(self, name: str) -> Any:
         """The value of input port ``name``: cached constant/default, or the blackboard's at tick.
@@ -335,10 +348,8 @@ class CanguardNode(PortsMixin):
 def _leaf_tick(self: py_trees.behaviour.Behaviour) -> Iterator[py_trees.behaviour.Behaviour]:
     """:meth:`py_trees.behaviour.Behaviour.tick` of a leaf, the same steps in the same order.
 
-    py_trees formats a debug string and builds ``list(Status)`` on every tick and stop,
-    logging on or off: with 20 guards ticked at 100 Hz that was most of a replay's time
-    (issue 16). Here the debug lines are written only when the node's logger would
-    print them (``py_trees.logging.level``).
+    py_trees formats a debug string and builds ``list(Status)`` on every tick and stop, logging
+    on or off; here the debug lines are written only when the logger would print them.
     """
     if py_trees.logging.level < py_trees.logging.Level.INFO:  # py_trees' own module-wide level
         self.logger.debug(f"{self.__class__.__name__}.tick()")
@@ -404,3 +415,17 @@ def halted(node: py_trees.behaviour.Behaviour, new_status: py_trees.common.Statu
     statistics) act only on a real halt.
     """
     return new_status == INVALID and node.status == RUNNING
+
+
+def node_types(base: type, module: str, rows: Mapping[str, Mapping[str, Any]]) -> tuple[Any, ...]:
+    """Node types that differ from ``base`` by class data only: one per row (node ID -> class attributes)."""
+    return tuple(type(node_id, (base,), {"__module__": module, "__doc__": f"BT.CPP {node_id}.", **attrs})
+                 for node_id, attrs in rows.items())
+
+
+class DecoratorNode(CanguardNode, py_trees.decorators.Decorator):
+    """A canguard decorator; unless it says otherwise its status is its child's."""
+
+    def update(self) -> Status:
+        """The child's status."""
+        return self.decorated.status

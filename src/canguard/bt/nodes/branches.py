@@ -1,26 +1,12 @@
 """BehaviorTree.CPP 4 Switch2..Switch6, ParallelAll and TryCatch, with its IDs, ports and semantics.
 
-======================  ================================================================
-BT.CPP node             semantics (as BT.CPP 4's switch_node.h and parallel_all_node.cpp show)
-======================  ================================================================
-Switch2 .. Switch6      N cases + a default child (the last). Each tick ``variable`` is compared
-                        with ``case_1`` .. ``case_N`` in order: equal as text, or both whole
-                        numbers and equal, or both numbers and equal ("1" == "1.0"); the first
-                        match is ticked, no match (or no variable) ticks the default. When the
-                        match changes while another child runs, that child is halted.
-ParallelAll             ticks every unfinished child each tick until all have finished, then
-                        FAILURE when at least ``max_failures`` failed (negative: children + 1 + n),
-                        else SUCCESS
-TryCatch                all but the last child as a Sequence: SUCCESS when they all succeed; a
-                        FAILURE runs the last (catch) child to its end, then FAILURE;
-                        ``catch_on_halt``: a halt while trying ticks the catch child once
-======================  ================================================================
+As BT.CPP 4's ``switch_node.h`` and ``parallel_all_node.cpp`` and its gtests show them (each
+node's ``DESCRIPTION`` says what it does); a switch compares as :func:`same_case` says.
 """
 
 from __future__ import annotations
 
 import math
-import re
 from typing import Any
 
 import py_trees
@@ -33,16 +19,18 @@ from canguard.bt.nodes.base import (
     SKIPPED,
     SUCCESS,
     CanguardNode,
+    Children,
     PortError,
+    follow,
+    halt_running,
     mark_skipped,
+    node_types,
     outcome,
     port_info,
+    reset,
     tick_child,
 )
-
-Children = list[py_trees.behaviour.Behaviour] | None
-_INT = re.compile(r"-?[0-9]+\Z")
-_REAL = re.compile(r"-?([0-9]+\.?[0-9]*|\.[0-9]+)([eE][-+]?[0-9]+)?\Z")
+from canguard.bt.scopes import INT_TEXT, REAL_TEXT
 
 
 def _text(value: object) -> str:
@@ -58,9 +46,9 @@ def same_case(variable: str, case: str) -> bool:
     """BT.CPP's switch comparison: equal text, or equal as integers, or equal as reals."""
     if variable == case:
         return True
-    if _INT.match(variable) and _INT.match(case):
+    if INT_TEXT.match(variable) and INT_TEXT.match(case):
         return int(variable) == int(case)
-    if _REAL.match(variable) and _REAL.match(case):
+    if REAL_TEXT.match(variable) and REAL_TEXT.match(case):
         return math.isclose(float(variable), float(case), rel_tol=0.0, abs_tol=0.0)
     return False
 
@@ -68,18 +56,13 @@ def same_case(variable: str, case: str) -> bool:
 class _Switch(CanguardNode, py_trees.composites.Composite):
     """Switch with ``CASES`` cases and a default child."""
 
-    KIND = "Control"
-    NEEDS_CONTEXT = False
     CASES = 0
-    INPUT_PORTS: dict = {}  # noqa: RUF012 - py_trees reads ports as plain class dicts
-    OUTPUT_PORTS: dict = {}  # noqa: RUF012
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
         ports = {"variable": port_info(str, "the value to compare with the cases (usually {key})")}
         for i in range(1, cls.CASES + 1):
             ports[f"case_{i}"] = port_info(str, f"the value that selects child {i}", required=False)
         cls.INPUT_PORTS = ports
-        cls.OUTPUT_PORTS = {}
         cls.DESCRIPTION = (f"ticks the child of the first case_1..case_{cls.CASES} equal to variable "
                            f"(as text or number), else the last (default) child; a change halts the running one")
         super().__init_subclass__(**kwargs)
@@ -119,69 +102,26 @@ class _Switch(CanguardNode, py_trees.composites.Composite):
         index = self.match()
         if self.running not in (-1, index):
             self.children[self.running].stop(INVALID)
-        child = self.children[index]
-        self.current_child = child
-        yield from tick_child(child)
-        if outcome(child) == SKIPPED:  # BT.CPP: the matching child skipped, the switch too
-            self.running = -1
-            mark_skipped(self)
-        elif child.status == RUNNING:
-            self.running = index
-            self.status = RUNNING
-        else:
-            self.running = -1
-            self.stop(child.status)
-        yield self
+        yield from follow(self, self.children[index])  # BT.CPP: the matching child skipped, the switch too
+        self.running = index if self.status == RUNNING else -1
 
     def stop(self, new_status: py_trees.common.Status = INVALID) -> None:
-        for child in self.children:
-            if child.status == RUNNING:
-                child.stop(INVALID)
+        halt_running(self.children)
         self.running = -1
         super().stop(new_status)
 
 
-class Switch2(_Switch):
-    """BT.CPP Switch2."""
-
-    CASES = 2
-
-
-class Switch3(_Switch):
-    """BT.CPP Switch3."""
-
-    CASES = 3
-
-
-class Switch4(_Switch):
-    """BT.CPP Switch4."""
-
-    CASES = 4
-
-
-class Switch5(_Switch):
-    """BT.CPP Switch5."""
-
-    CASES = 5
-
-
-class Switch6(_Switch):
-    """BT.CPP Switch6."""
-
-    CASES = 6
+Switch2, Switch3, Switch4, Switch5, Switch6 = node_types(
+    _Switch, __name__, {f"Switch{n}": {"CASES": n} for n in range(2, 7)})
 
 
 class ParallelAll(CanguardNode, py_trees.composites.Composite):
-    """BT.CPP ParallelAll: run every child to its end; FAILURE when max_failures of them failed."""
+    """ticks every unfinished child each tick until all have finished; then FAILURE when at least max_failures failed
+    (negative: children + 1 + n), else SUCCESS"""
 
-    KIND = "Control"
-    NEEDS_CONTEXT = False
-    DESCRIPTION = ("ticks every unfinished child each tick until all have finished; then FAILURE when at least "
-                   "max_failures failed (negative: children + 1 + n), else SUCCESS")
     INPUT_PORTS = {  # noqa: RUF012
         "max_failures": port_info(int, "failures that make it fail (negative: children + 1 + n, -1 = all)", 1),
     }
-    OUTPUT_PORTS: dict = {}  # noqa: RUF012
 
     def __init__(self, name: str, children: Children = None, **kwargs: Any) -> None:
         super().__init__(name=name, children=children, **kwargs)
@@ -200,9 +140,7 @@ class ParallelAll(CanguardNode, py_trees.composites.Composite):
 
     def tick(self) -> Any:
         if self.status != RUNNING:
-            for child in self.children:
-                if child.status != INVALID:
-                    child.stop(INVALID)
+            reset(self.children)
             self.finished.clear()
             self.initialise()
         skipped = 0
@@ -229,25 +167,19 @@ class ParallelAll(CanguardNode, py_trees.composites.Composite):
         yield self
 
     def stop(self, new_status: py_trees.common.Status = INVALID) -> None:
-        for child in self.children:
-            if child.status == RUNNING:
-                child.stop(INVALID)
+        halt_running(self.children)
         if new_status == INVALID:
             self.finished.clear()
         super().stop(new_status)
 
 
 class TryCatch(CanguardNode, py_trees.composites.Composite):
-    """BT.CPP TryCatch: the first children as a sequence; on a FAILURE, the last (catch) child, then FAILURE."""
+    """ticks all but the last child as a Sequence (SUCCESS when all succeed); when one fails, the last (catch) child
+    runs to its end and TryCatch fails; catch_on_halt: a halt runs it too"""
 
-    KIND = "Control"
-    NEEDS_CONTEXT = False
-    DESCRIPTION = ("ticks all but the last child as a Sequence (SUCCESS when all succeed); when one fails, the "
-                   "last (catch) child runs to its end and TryCatch fails; catch_on_halt: a halt runs it too")
     INPUT_PORTS = {  # noqa: RUF012
         "catch_on_halt": port_info(bool, "when halted while trying, tick the catch child once", False),
     }
-    OUTPUT_PORTS: dict = {}  # noqa: RUF012
 
     def __init__(self, name: str, children: Children = None, **kwargs: Any) -> None:
         super().__init__(name=name, children=children, **kwargs)
@@ -280,9 +212,7 @@ class TryCatch(CanguardNode, py_trees.composites.Composite):
                 return
             if child.status == FAILURE:
                 self.in_catch = True
-                for other in tries:
-                    if other.status != INVALID:
-                        other.stop(INVALID)
+                reset(tries)
             else:
                 self.index += 1
         if not self.in_catch:
@@ -305,16 +235,10 @@ class TryCatch(CanguardNode, py_trees.composites.Composite):
     def stop(self, new_status: py_trees.common.Status = INVALID) -> None:
         if (new_status == INVALID and self.status == RUNNING and not self.in_catch
                 and self.port("catch_on_halt")):
-            for child in self.children[:-1]:
-                if child.status == RUNNING:
-                    child.stop(INVALID)
+            halt_running(self.children[:-1])
             for _ in self.children[-1].tick():
                 pass
-        for child in self.children:
-            if child.status == RUNNING:
-                child.stop(INVALID)
+        halt_running(self.children)
         self.index, self.in_catch = 0, False
         super().stop(new_status)
 
-
-NODES = (Switch2, Switch3, Switch4, Switch5, Switch6, ParallelAll, TryCatch)

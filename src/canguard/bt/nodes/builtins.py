@@ -1,33 +1,16 @@
 """More of BehaviorTree.CPP 4's built-in nodes, with its IDs, ports and semantics.
 
-======================  ================================================================
-BT.CPP node             semantics (as BT.CPP 4's sources and gtests show)
-======================  ================================================================
-AlwaysSuccess           SUCCESS
-AlwaysFailure           FAILURE
-Script                  runs ``code`` (BT.CPP's scripting language) on the blackboard: SUCCESS;
-                        a script that fails while it runs: FAILURE (BT.CPP throws; a guard
-                        daemon must not crash on a tree's script)
-ScriptCondition         SUCCESS when ``code`` is true, else FAILURE
-SetBlackboard           writes ``value`` to the entry named by ``output_key``: SUCCESS (``value="{src}"``
-                        copies the entry with its type)
-UnsetBlackboard         removes the entry ``key``: SUCCESS
-Sleep                   RUNNING until ``msec`` have elapsed on the engine's clock, then SUCCESS
-KeepRunningUntilFailure the child's SUCCESS becomes RUNNING; FAILURE ends it
-IfThenElse              2 or 3 children: the first decides, then the second (SUCCESS) or the
-                        third (FAILURE; FAILURE when there is none); the branch runs to its end
-WhileDoElse             like IfThenElse (2 or 3 children), but the condition is ticked every
-                        time: a change halts the running branch and switches
-Precondition            ticks its child while ``if`` (a script) is true, else returns ``else``
-======================  ================================================================
-
-Scripts are parsed once, at load (a syntax error is a load error naming the port),
-and read and write the blackboard of the node's (sub)tree.
+AlwaysSuccess, AlwaysFailure, Script, ScriptCondition, SetBlackboard, UnsetBlackboard, Sleep,
+KeepRunningUntilFailure, IfThenElse, WhileDoElse and Precondition, as BT.CPP 4's sources and
+gtests show them (each node's ``DESCRIPTION`` says what it does). Scripts are parsed once, at
+load (a syntax error is a load error naming the port), and read and write the blackboard of
+the node's (sub)tree; a script that fails while it runs fails its node (BT.CPP throws; a guard
+daemon must not crash on a tree's script).
 """
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import py_trees
 from py_trees.blackboard import Blackboard
@@ -39,11 +22,17 @@ from canguard.bt.nodes.base import (
     SKIPPED,
     SUCCESS,
     CanguardNode,
+    Children,
+    DecoratorNode,
     PortError,
+    Status,
+    follow,
+    halt_running,
     mark_skipped,
-    note_script_error,
+    node_types,
     outcome,
     port_info,
+    run_script,
     tick_child,
 )
 from canguard.bt.scopes import TreeBlackboard
@@ -52,7 +41,6 @@ from canguard.bt.scripting import ScriptError
 if TYPE_CHECKING:
     from canguard.bt.scripting import Script as ParsedScript
 
-Children = list[py_trees.behaviour.Behaviour] | None
 _NOTHING = object()
 _STATUS = {"SUCCESS": SUCCESS, "FAILURE": FAILURE, "RUNNING": RUNNING}
 
@@ -60,9 +48,6 @@ _STATUS = {"SUCCESS": SUCCESS, "FAILURE": FAILURE, "RUNNING": RUNNING}
 class _Scripted(CanguardNode):
     """A node with scripts in ports: parsed at bind, run against its subtree's blackboard."""
 
-    NEEDS_CONTEXT = False
-    INPUT_PORTS: dict = {}  # noqa: RUF012 - py_trees reads ports as plain class dicts
-    OUTPUT_PORTS: dict = {}  # noqa: RUF012
     SCRIPT_PORTS: tuple[str, ...] = ()
     USES_BOARD = True
 
@@ -91,48 +76,28 @@ class _Scripted(CanguardNode):
                 raise PortError(name, f"script {text!r}: {exc}") from None
 
     def run_script(self, name: str, *, condition: bool = False) -> object:
-        """Run script ``name``; a runtime error is logged in the feedback and re-raised."""
-        script = self.scripts[name]
-        try:
-            return script.condition(self.board) if condition else script.run(self.board)
-        except ScriptError as exc:
-            note_script_error(self, name, script.text, exc)
-            raise
+        """Run script ``name``; a runtime error is noted on the node and raised (:func:`.base.run_script`)."""
+        return run_script(self, name, self.scripts[name], self.board, condition=condition)
 
 
-class AlwaysSuccess(CanguardNode, py_trees.behaviour.Behaviour):
-    """BT.CPP AlwaysSuccess."""
+class _Always(CanguardNode, py_trees.behaviour.Behaviour):
+    """BT.CPP AlwaysSuccess / AlwaysFailure: ``RESULT``."""
 
-    KIND = "Action"
-    NEEDS_CONTEXT = False
-    DESCRIPTION = "SUCCESS"
     QUIET_RETICK = True
-    INPUT_PORTS: dict = {}  # noqa: RUF012
-    OUTPUT_PORTS: dict = {}  # noqa: RUF012
+    RESULT: ClassVar[Status]
 
     def update(self) -> py_trees.common.Status:
-        return SUCCESS
+        return self.RESULT
 
 
-class AlwaysFailure(CanguardNode, py_trees.behaviour.Behaviour):
-    """BT.CPP AlwaysFailure."""
-
-    KIND = "Action"
-    NEEDS_CONTEXT = False
-    DESCRIPTION = "FAILURE"
-    QUIET_RETICK = True
-    INPUT_PORTS: dict = {}  # noqa: RUF012
-    OUTPUT_PORTS: dict = {}  # noqa: RUF012
-
-    def update(self) -> py_trees.common.Status:
-        return FAILURE
+AlwaysSuccess, AlwaysFailure = node_types(_Always, __name__, {
+    "AlwaysSuccess": {"RESULT": SUCCESS, "DESCRIPTION": "SUCCESS"},
+    "AlwaysFailure": {"RESULT": FAILURE, "DESCRIPTION": "FAILURE"}})
 
 
 class Script(_Scripted, py_trees.behaviour.Behaviour):
-    """BT.CPP Script: run ``code``; SUCCESS."""
+    """runs code (BT.CPP scripting) on the blackboard: SUCCESS (FAILURE if it fails at run time)"""
 
-    KIND = "Action"
-    DESCRIPTION = "runs code (BT.CPP scripting) on the blackboard: SUCCESS (FAILURE if it fails at run time)"
     INPUT_PORTS = {"code": port_info(str, "the script, e.g. count := count + 1")}  # noqa: RUF012
     SCRIPT_PORTS = ("code",)
 
@@ -145,10 +110,9 @@ class Script(_Scripted, py_trees.behaviour.Behaviour):
 
 
 class ScriptCondition(_Scripted, py_trees.behaviour.Behaviour):
-    """BT.CPP ScriptCondition: SUCCESS when ``code`` is true."""
+    """SUCCESS when code (BT.CPP scripting) is true, else FAILURE"""
 
     KIND = "Condition"
-    DESCRIPTION = "SUCCESS when code (BT.CPP scripting) is true, else FAILURE"
     INPUT_PORTS = {"code": port_info(str, "a boolean expression, e.g. battery > 20")}  # noqa: RUF012
     SCRIPT_PORTS = ("code",)
 
@@ -160,10 +124,8 @@ class ScriptCondition(_Scripted, py_trees.behaviour.Behaviour):
 
 
 class SetBlackboard(_Scripted, py_trees.behaviour.Behaviour):
-    """BT.CPP SetBlackboard: ``value`` into the entry named by ``output_key``."""
+    """writes value into the blackboard entry named by output_key: SUCCESS"""
 
-    KIND = "Action"
-    DESCRIPTION = "writes value into the blackboard entry named by output_key: SUCCESS"
     UNTYPED_PORTS = frozenset({"value", "output_key"})  # BT.CPP: AnyTypeAllowed
     INPUT_PORTS = {  # noqa: RUF012
         "value": port_info(str, "the value (text, as in BT.CPP), or {key} to copy an entry"),
@@ -197,10 +159,8 @@ class SetBlackboard(_Scripted, py_trees.behaviour.Behaviour):
 
 
 class UnsetBlackboard(_Scripted, py_trees.behaviour.Behaviour):
-    """BT.CPP UnsetBlackboard: remove the entry ``key``."""
+    """removes the blackboard entry key: SUCCESS"""
 
-    KIND = "Action"
-    DESCRIPTION = "removes the blackboard entry key: SUCCESS"
     UNTYPED_PORTS = frozenset({"key"})
     INPUT_PORTS = {"key": port_info(str, "the entry to remove")}  # noqa: RUF012
 
@@ -212,13 +172,9 @@ class UnsetBlackboard(_Scripted, py_trees.behaviour.Behaviour):
 
 
 class Sleep(CanguardNode, py_trees.behaviour.Behaviour):
-    """BT.CPP Sleep: RUNNING for ``msec`` on the engine's clock, then SUCCESS."""
+    """RUNNING until msec have elapsed (the engine's clock), then SUCCESS"""
 
-    KIND = "Action"
-    NEEDS_CONTEXT = True
-    DESCRIPTION = "RUNNING until msec have elapsed (the engine's clock), then SUCCESS"
     INPUT_PORTS = {"msec": port_info(float, "how long (ms)")}  # noqa: RUF012
-    OUTPUT_PORTS: dict = {}  # noqa: RUF012
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
@@ -240,14 +196,9 @@ class Sleep(CanguardNode, py_trees.behaviour.Behaviour):
         self.cancel_timer()
 
 
-class KeepRunningUntilFailure(CanguardNode, py_trees.decorators.Decorator):
-    """BT.CPP KeepRunningUntilFailure: SUCCESS -> RUNNING; FAILURE ends it."""
+class KeepRunningUntilFailure(DecoratorNode):
+    """the child's SUCCESS becomes RUNNING (it is ticked again next time); FAILURE ends it"""
 
-    KIND = "Decorator"
-    NEEDS_CONTEXT = False
-    DESCRIPTION = "the child's SUCCESS becomes RUNNING (it is ticked again next time); FAILURE ends it"
-    INPUT_PORTS: dict = {}  # noqa: RUF012
-    OUTPUT_PORTS: dict = {}  # noqa: RUF012
     SKIP_THROUGH = False  # BT.CPP: a skipped child leaves it RUNNING
 
     def update(self) -> py_trees.common.Status:
@@ -255,11 +206,9 @@ class KeepRunningUntilFailure(CanguardNode, py_trees.decorators.Decorator):
         return RUNNING if status in (SUCCESS, INVALID) else status
 
 
-class Precondition(_Scripted, py_trees.decorators.Decorator):
-    """BT.CPP Precondition: tick the child while ``if`` holds, else return ``else``."""
+class Precondition(_Scripted, DecoratorNode):
+    """ticks the child when the script if is true (and while it runs); else returns else"""
 
-    KIND = "Decorator"
-    DESCRIPTION = "ticks the child when the script if is true (and while it runs); else returns else"
     INPUT_PORTS = {  # noqa: RUF012
         "if": port_info(str, "the condition (BT.CPP scripting)"),
         "else": port_info(str, "status when the condition is false: FAILURE, SUCCESS, RUNNING or SKIPPED",
@@ -289,20 +238,13 @@ class Precondition(_Scripted, py_trees.decorators.Decorator):
                     self.stop(_STATUS[otherwise])
                 yield self
                 return
-        yield from super().tick()
-
-    def update(self) -> py_trees.common.Status:
-        return self.decorated.status
+        yield from py_trees.decorators.Decorator.tick(self)  # the plain tick: this one is already skip-aware
 
 
 class _Branching(CanguardNode, py_trees.composites.Composite):
     """IfThenElse / WhileDoElse: the first child decides, the second or third runs."""
 
-    KIND = "Control"
-    NEEDS_CONTEXT = False
     REACTIVE = False
-    INPUT_PORTS: dict = {}  # noqa: RUF012
-    OUTPUT_PORTS: dict = {}  # noqa: RUF012
 
     def __init__(self, name: str, children: Children = None, **kwargs: Any) -> None:
         super().__init__(name=name, children=children, **kwargs)
@@ -333,37 +275,20 @@ class _Branching(CanguardNode, py_trees.composites.Composite):
             self.stop(FAILURE)
             yield self
             return
-        child = self.children[self.branch]
-        self.current_child = child
-        yield from tick_child(child)
-        if outcome(child) == SKIPPED:  # the branch skipped: so is this node (BT.CPP returns its status)
-            self.branch = 0
-            mark_skipped(self)
-        elif child.status == RUNNING:
-            self.status = RUNNING
-        else:
-            self.stop(child.status)
-        yield self
+        yield from follow(self, self.children[self.branch])  # BT.CPP returns the branch's status, SKIPPED too
 
     def stop(self, new_status: py_trees.common.Status = INVALID) -> None:
-        for child in self.children:
-            if child.status == RUNNING:
-                child.stop(INVALID)
+        halt_running(self.children)
         super().stop(new_status)
 
 
 class IfThenElse(_Branching):
-    """BT.CPP IfThenElse."""
+    """first child decides: SUCCESS ticks the second, FAILURE the third (or fails); not re-checked"""
 
-    DESCRIPTION = "first child decides: SUCCESS ticks the second, FAILURE the third (or fails); not re-checked"
 
 
 class WhileDoElse(_Branching):
-    """BT.CPP WhileDoElse."""
+    """like IfThenElse, but the first child is ticked every time: a change halts the running branch"""
 
-    DESCRIPTION = "like IfThenElse, but the first child is ticked every time: a change halts the running branch"
     REACTIVE = True
 
-
-NODES = (AlwaysSuccess, AlwaysFailure, Script, ScriptCondition, SetBlackboard, UnsetBlackboard, Sleep,
-         KeepRunningUntilFailure, Precondition, IfThenElse, WhileDoElse)

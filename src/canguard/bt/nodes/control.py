@@ -1,54 +1,27 @@
 """Control nodes with BehaviorTree.CPP (v4) semantics, on py_trees composites and decorators.
 
-py_trees' parser only knows ``Sequence`` / ``Selector`` / ``Parallel`` tags with a
-``memory`` attribute, and its decorators take constructor arguments rather than
-ports. canguard registers ports-enabled classes under the BT.CPP names instead,
-mapped onto py_trees where the semantics match and written out where they do not:
+py_trees' parser knows only ``Sequence`` / ``Selector`` / ``Parallel`` with a ``memory``
+attribute, and its decorators take constructor arguments rather than ports: canguard
+registers ports-enabled classes under the BT.CPP names, on py_trees' classes where the
+semantics match (Inverter, ForceSuccess, ForceFailure) and with their own ``tick`` where
+they do not (each node's ``DESCRIPTION`` says what it does; the sequences and fallbacks
+are in :mod:`.sequences`). Notes on the mapping:
 
-======================  ====================================================  ============================
-BT.CPP node             semantics                                             py_trees mapping
-======================  ====================================================  ============================
-Sequence                resume at a RUNNING child; restart after a FAILURE    own ``tick`` (``sequences``)
-ReactiveSequence        restart from the first child at every tick            own ``tick``
-SequenceWithMemory      resume at a RUNNING *or failed* child; yields after   own ``tick``
-                        each child that succeeded at once
-AsyncSequence           a Sequence that yields after each instant success     own ``tick``
-AsyncFallback           a Fallback that yields after each instant failure     own ``tick``
-Fallback                resume at a RUNNING child; restart after a SUCCESS    own ``tick``
-ReactiveFallback        restart from the first child at every tick            own ``tick``
-Parallel                success_count / failure_count (-1 = all children);    own ``tick`` (py_trees has
-                        finished children wait until the parallel completes   policies, not counts)
-Inverter                SUCCESS <-> FAILURE, RUNNING unchanged                ``decorators.Inverter``
-ForceSuccess            FAILURE -> SUCCESS                                    ``FailureIsSuccess``
-ForceFailure            SUCCESS -> FAILURE                                    ``SuccessIsFailure``
-RetryUntilSuccessful    a FAILURE is retried, num_attempts (-1: forever)      own ``tick`` (BT.CPP's loop)
-Repeat                  a SUCCESS is repeated, num_cycles (-1: forever)       own ``tick`` (BT.CPP's loop)
-Timeout                 FAILURE (child halted) once ``msec`` have elapsed     own ``tick`` (py_trees reads
-                                                                              ``time.monotonic``)
-Delay                   RUNNING for ``delay_msec``, then the child            own ``tick``
-======================  ====================================================  ============================
-
-Notes on the mapping:
-
-- "Restart / resume" is what py_trees calls memory. BT.CPP's plain ``Sequence``
-  *has* memory for RUNNING children (it does not re-tick earlier children), which
-  is why guards belong under a ReactiveSequence (design note 004).
-- RetryUntilSuccessful and Repeat: after a child that completed at once they return
-  RUNNING and emit the tree's wake-up signal (BT.CPP 4, which gives every tree its
-  factory builds one: ``Tree::initialize``), so ``tickOnce()`` ticks the root again at
-  once (:mod:`canguard.bt.wakeup`); a child that was RUNNING and then completed is tried
-  again within the same pass.
-- Every control passes BT.CPP's SKIPPED on: sequences and fallbacks skip a skipped
-  child, a control whose children were all skipped is skipped, a decorator over a
-  skipped child is skipped (KeepRunningUntilFailure stays RUNNING, as BT.CPP).
-- SequenceWithMemory keeps its position across a halt, as BT.CPP 4 does.
-- Timeout and Delay read the context's clock, so they work in replay and in tests
-  with a manual clock.
+- BT.CPP's plain ``Sequence`` *has* memory for RUNNING children (it does not re-tick earlier
+  children), which is why guards belong under a ReactiveSequence (design note 004).
+- RetryUntilSuccessful and Repeat: after a child that completed at once they return RUNNING
+  and emit the tree's wake-up signal (:mod:`canguard.bt.wakeup`), so ``tickOnce()`` ticks the
+  root again at once; a child that was RUNNING and then completed runs again within the pass.
+- Every control passes BT.CPP's SKIPPED on: sequences and fallbacks skip a skipped child, a
+  control whose children were all skipped is skipped, a decorator over a skipped child is
+  skipped (KeepRunningUntilFailure stays RUNNING, as BT.CPP).
+- Timeout and Delay read the context's clock (py_trees' Timeout reads ``time.monotonic``), so
+  they work in replay and in tests with a manual clock.
 """
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, ClassVar
 
 import py_trees
 
@@ -59,32 +32,22 @@ from canguard.bt.nodes.base import (
     SKIPPED,
     SUCCESS,
     CanguardNode,
+    Children,
+    DecoratorNode,
     PortError,
+    Status,
     mark_skipped,
     outcome,
     port_info,
+    reset,
     tick_child,
 )
-from canguard.bt.nodes.sequences import (  # noqa: F401 - the sequence family lives there, named here too
-    AsyncFallback,
-    AsyncSequence,
-    Children,
-    Fallback,
-    ReactiveFallback,
-    ReactiveSequence,
-    Sequence,
-    SequenceWithMemory,
-    _Control,
-)
 
 
-class Parallel(_Control, py_trees.composites.Parallel):
-    """BT.CPP 4 Parallel: SUCCESS at success_count successes, FAILURE at failure_count failures."""
+class Parallel(CanguardNode, py_trees.composites.Parallel):
+    """ticks every unfinished child each tick; SUCCESS after success_count successes, FAILURE after failure_count
+    failures (negative: children + 1 + n, so -1 = all)"""
 
-    DESCRIPTION = (
-        "ticks every unfinished child each tick; SUCCESS after success_count successes, FAILURE after "
-        "failure_count failures (negative: children + 1 + n, so -1 = all)"
-    )
     INPUT_PORTS = {  # noqa: RUF012
         "success_count": port_info(int, "successes needed (-1: all children)", -1),
         "failure_count": port_info(int, "failures that fail the parallel (-1: all children)", 1),
@@ -118,9 +81,7 @@ class Parallel(_Control, py_trees.composites.Parallel):
     def tick(self) -> Any:
         """Tick the unfinished children; decide after each one, as BT.CPP does."""
         if self.status != RUNNING:
-            for child in self.children:
-                if child.status != INVALID:
-                    child.stop(INVALID)
+            reset(self.children)
             self.finished.clear()
             self.current_child = None
             self.initialise()
@@ -162,168 +123,113 @@ class Parallel(_Control, py_trees.composites.Parallel):
         yield self
 
 
-class _Decorator(CanguardNode):
-    KIND = "Decorator"
-    NEEDS_CONTEXT = False
-    INPUT_PORTS: dict = {}  # noqa: RUF012
-    OUTPUT_PORTS: dict = {}  # noqa: RUF012
+class Inverter(CanguardNode, py_trees.decorators.Inverter):
+    """SUCCESS <-> FAILURE; RUNNING unchanged"""
 
-
-class Inverter(_Decorator, py_trees.decorators.Inverter):
-    """SUCCESS <-> FAILURE; RUNNING passes."""
-
-    DESCRIPTION = "SUCCESS <-> FAILURE; RUNNING unchanged"
     QUIET_RETICK = True
 
 
-class ForceSuccess(_Decorator, py_trees.decorators.FailureIsSuccess):
-    """FAILURE becomes SUCCESS; RUNNING passes."""
+class ForceSuccess(CanguardNode, py_trees.decorators.FailureIsSuccess):
+    """FAILURE becomes SUCCESS; RUNNING unchanged"""
 
-    DESCRIPTION = "FAILURE becomes SUCCESS; RUNNING unchanged"
     QUIET_RETICK = True
 
 
-class ForceFailure(_Decorator, py_trees.decorators.SuccessIsFailure):
-    """SUCCESS becomes FAILURE; RUNNING passes."""
+class ForceFailure(CanguardNode, py_trees.decorators.SuccessIsFailure):
+    """SUCCESS becomes FAILURE; RUNNING unchanged"""
 
-    DESCRIPTION = "SUCCESS becomes FAILURE; RUNNING unchanged"
     QUIET_RETICK = True
 
 
-class RetryUntilSuccessful(_Decorator, py_trees.decorators.Decorator):
-    """Retries a failing child up to num_attempts attempts (-1: forever), as BT.CPP 4's ``retry_node.cpp``.
+class _Cycles(DecoratorNode):
+    """BT.CPP 4's loop of ``retry_node.cpp`` / ``repeat_node.cpp``: the child's ``ENDS`` status ends it, any
+    other completion is counted and the child run again, up to ``LIMIT`` runs (-1: forever), then ``DONE``.
 
-    A child that failed at once (it was not RUNNING) is retried at the next pass: BT.CPP
-    returns RUNNING there and emits the wake-up signal, so ``tickOnce()`` ticks the root
-    again at once. A child that was RUNNING and then failed is retried within the same
-    pass. So one pass makes at most two attempts.
+    A child that completed at once (it was not RUNNING) runs again at the next pass: BT.CPP returns
+    RUNNING there and emits the wake-up signal, so ``tickOnce()`` ticks the root again at once. A child
+    that was RUNNING and then completed runs again within the same pass (so at most two runs a pass).
     """
 
-    DESCRIPTION = "a FAILURE is retried, up to num_attempts attempts (-1: forever)"
+    ENDS: ClassVar[Status]
+    DONE: ClassVar[Status]
+    LIMIT: ClassVar[str]
+    AGAIN_TEXT: ClassVar[str]
+    """Feedback when the child runs again at the next pass; ``{}``: the count."""
+    DONE_TEXT: ClassVar[str] = ""
+
+    def __init__(self, name: str, child: py_trees.behaviour.Behaviour, **kwargs: Any) -> None:
+        super().__init__(name=name, child=child, **kwargs)
+        self.count = 0
+
+    def terminate(self, new_status: py_trees.common.Status) -> None:
+        """A halt forgets the count (BT.CPP's ``halt``)."""
+        if new_status == INVALID:
+            self.count = 0
+
+    def tick(self) -> Any:
+        """BT.CPP's loop: ``ENDS`` ends it, another completion is counted and run again, RUNNING is passed up."""
+        limit = self.port(self.LIMIT)
+        if limit is None:
+            self.stop(FAILURE)
+            yield self
+            return
+        child = self.decorated
+        while self.count < limit or limit == -1:
+            fresh = child.status != RUNNING
+            yield from tick_child(child)
+            status = child.status
+            if status == RUNNING:
+                self.status = RUNNING
+                yield self
+                return
+            if status == self.ENDS:
+                self.count = 0
+                self.stop(status)
+                yield self
+                return
+            self.count += 1
+            limit = self.port(self.LIMIT)
+            if limit is None:
+                break
+            if fresh and (self.count < limit or limit == -1):
+                self.feedback_message = self.AGAIN_TEXT.format(self.count)
+                self.emit_wake_up()
+                self.status = RUNNING
+                yield self
+                return
+        if self.DONE_TEXT:
+            self.feedback_message = self.DONE_TEXT.format(self.count)
+        self.count = 0
+        self.stop(self.DONE)
+        yield self
+
+
+class RetryUntilSuccessful(_Cycles):
+    """a FAILURE is retried, up to num_attempts attempts (-1: forever)"""
+
     INPUT_PORTS = {  # noqa: RUF012
         "num_attempts": port_info(int, "attempts before giving up (-1: forever; 0: FAILURE, the child not ticked)"),
     }
-
-    def __init__(self, name: str, child: py_trees.behaviour.Behaviour, **kwargs: Any) -> None:
-        super().__init__(name=name, child=child, **kwargs)
-        self.failures = 0
-
-    def terminate(self, new_status: py_trees.common.Status) -> None:
-        """A halt forgets the failures (BT.CPP's ``halt``)."""
-        if new_status == INVALID:
-            self.failures = 0
-
-    def update(self) -> py_trees.common.Status:
-        """Not used: :meth:`tick` decides (py_trees requires the method)."""
-        return self.status
-
-    def tick(self) -> Any:
-        """BT.CPP's loop: SUCCESS ends it, FAILURE is counted and retried, RUNNING is passed up."""
-        limit = self.port("num_attempts")
-        if limit is None:
-            self.stop(FAILURE)
-            yield self
-            return
-        child = self.decorated
-        while self.failures < limit or limit == -1:
-            fresh = child.status != RUNNING
-            yield from tick_child(child)
-            status = child.status
-            if status == RUNNING:
-                self.status = RUNNING
-                yield self
-                return
-            if status == SUCCESS:
-                self.failures = 0
-                self.stop(SUCCESS)
-                yield self
-                return
-            self.failures += 1
-            limit = self.port("num_attempts")
-            if limit is None:
-                break
-            if fresh and (self.failures < limit or limit == -1):
-                self.feedback_message = f"attempt {self.failures} failed, retrying"
-                self.emit_wake_up()
-                self.status = RUNNING
-                yield self
-                return
-        self.feedback_message = f"failed {self.failures} time(s)"
-        self.failures = 0
-        self.stop(FAILURE)
-        yield self
+    ENDS, DONE, LIMIT = SUCCESS, FAILURE, "num_attempts"
+    AGAIN_TEXT, DONE_TEXT = "attempt {} failed, retrying", "failed {} time(s)"
 
 
-class Repeat(_Decorator, py_trees.decorators.Decorator):
-    """Repeats a succeeding child num_cycles times (-1: forever); FAILURE stops, as BT.CPP 4's ``repeat_node.cpp``.
+class Repeat(_Cycles):
+    """a SUCCESS is repeated, num_cycles times (-1: forever); FAILURE ends it"""
 
-    As :class:`RetryUntilSuccessful`: after a child that succeeded at once it returns RUNNING
-    and wakes the tree up (the next pass repeats it), one that was RUNNING and then
-    succeeded is repeated within the pass.
-    """
-
-    DESCRIPTION = "a SUCCESS is repeated, num_cycles times (-1: forever); FAILURE ends it"
     INPUT_PORTS = {  # noqa: RUF012
         "num_cycles": port_info(int, "successes to collect (-1: forever; 0: SUCCESS, the child not ticked)"),
     }
-
-    def __init__(self, name: str, child: py_trees.behaviour.Behaviour, **kwargs: Any) -> None:
-        super().__init__(name=name, child=child, **kwargs)
-        self.successes = 0
-
-    def terminate(self, new_status: py_trees.common.Status) -> None:
-        """A halt forgets the cycles done (BT.CPP's ``halt``)."""
-        if new_status == INVALID:
-            self.successes = 0
-
-    def update(self) -> py_trees.common.Status:
-        """Not used: :meth:`tick` decides (py_trees requires the method)."""
-        return self.status
-
-    def tick(self) -> Any:
-        """BT.CPP's loop; ``num_cycles=0`` succeeds without ticking the child."""
-        limit = self.port("num_cycles")
-        if limit is None:
-            self.stop(FAILURE)
-            yield self
-            return
-        child = self.decorated
-        while self.successes < limit or limit == -1:
-            fresh = child.status != RUNNING
-            yield from tick_child(child)
-            status = child.status
-            if status == RUNNING:
-                self.status = RUNNING
-                yield self
-                return
-            if status == FAILURE:
-                self.successes = 0
-                self.stop(FAILURE)
-                yield self
-                return
-            self.successes += 1
-            limit = self.port("num_cycles")
-            if limit is None:
-                break
-            if fresh and (self.successes < limit or limit == -1):
-                self.feedback_message = f"cycle {self.successes} done"
-                self.emit_wake_up()
-                self.status = RUNNING
-                yield self
-                return
-        self.successes = 0
-        self.stop(SUCCESS)
-        yield self
+    ENDS, DONE, LIMIT = FAILURE, SUCCESS, "num_cycles"
+    AGAIN_TEXT = "cycle {} done"
 
 
-class Timeout(_Decorator, py_trees.decorators.Decorator):
-    """Halts the child and fails once ``msec`` have elapsed on the context's clock."""
+class Timeout(DecoratorNode):
+    """FAILURE (child halted) when the child is still RUNNING msec after it started"""
 
-    DESCRIPTION = "FAILURE (child halted) when the child is still RUNNING msec after it started"
     INPUT_PORTS = {  # noqa: RUF012
         "msec": port_info(float, "time limit (ms, the engine's clock); 0: none"),
     }
-    NEEDS_CONTEXT = True
 
     def __init__(self, name: str, child: py_trees.behaviour.Behaviour, **kwargs: Any) -> None:
         super().__init__(name=name, child=child, **kwargs)
@@ -353,24 +259,18 @@ class Timeout(_Decorator, py_trees.decorators.Decorator):
         self.status = status
         yield self
 
-    def update(self) -> py_trees.common.Status:
-        """The child's status (tick() does the work)."""
-        return self.decorated.status
-
     def terminate(self, new_status: py_trees.common.Status) -> None:
         """A halt cancels the timer."""
         if new_status == INVALID:
             self.cancel_timer()
 
 
-class Delay(_Decorator, py_trees.decorators.Decorator):
-    """RUNNING for ``delay_msec`` on the context's clock, then ticks the child until it completes."""
+class Delay(DecoratorNode):
+    """waits delay_msec (RUNNING), then ticks the child; the next run waits again"""
 
-    DESCRIPTION = "waits delay_msec (RUNNING), then ticks the child; the next run waits again"
     INPUT_PORTS = {  # noqa: RUF012
         "delay_msec": port_info(float, "delay before the child is ticked (ms, the engine's clock)"),
     }
-    NEEDS_CONTEXT = True
 
     def __init__(self, name: str, child: py_trees.behaviour.Behaviour, **kwargs: Any) -> None:
         super().__init__(name=name, child=child, **kwargs)
@@ -398,10 +298,6 @@ class Delay(_Decorator, py_trees.decorators.Decorator):
             self.stop(status)
         self.status = status
         yield self
-
-    def update(self) -> py_trees.common.Status:
-        """The child's status (tick() does the work)."""
-        return self.decorated.status
 
     def terminate(self, new_status: py_trees.common.Status) -> None:
         """A halt cancels the wait."""

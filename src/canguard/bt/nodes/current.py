@@ -19,13 +19,14 @@ from __future__ import annotations
 
 import math
 import re
+from collections.abc import Callable, Iterable
 from typing import Any, ClassVar
 
 import py_trees
 
 from canguard.bt.nodes.base import FAILURE, SUCCESS, CanguardNode, PortError, port_info
 from canguard.config.schema import SourceConfig, SourceKind
-from canguard.protect.base import REASON_I2T, REASON_NO_DATA, LatchedModel, ProtectionModel, Snapshot
+from canguard.protect.base import REASON_I2T, REASON_NO_DATA, ProtectionModel, Snapshot
 from canguard.protect.hysteresis import Hysteresis
 from canguard.protect.i2t import RATED_OVERLOAD, RATED_OVERLOAD_S, LeakyI2t, ThermalI2t
 from canguard.protect.inrush import InrushBlanking
@@ -34,13 +35,6 @@ from canguard.protect.threshold import Threshold
 from canguard.units import quantity
 
 REASON_BAD_THRESHOLD = "bad_threshold"
-
-
-def reapply(model: LatchedModel) -> None:
-    """Judge the latest sample again under new thresholds (a repeated timestamp is a normal sample)."""
-    t = model.last_t
-    if t is not None:
-        model.advance((t,), (model.snapshot().value,))
 
 
 class GuardNode(CanguardNode, py_trees.behaviour.Behaviour):
@@ -56,6 +50,8 @@ class GuardNode(CanguardNode, py_trees.behaviour.Behaviour):
     """A guard answers from its source's health and its models: quiet when the models are sample-driven."""
     QUIET_OUTPUTS: ClassVar[frozenset[str]] = frozenset()
     """Output ports a quiet re-tick writes again (:meth:`quiet_retick`); another wired output makes it loud."""
+    _NAMES: ClassVar[dict[str, str]] = {}
+    """The models' parameter names -> the ports that give them (errors are said in port names)."""
     model: ProtectionModel
 
     def __init__(self, name: str, **kwargs: Any) -> None:
@@ -83,7 +79,12 @@ class GuardNode(CanguardNode, py_trees.behaviour.Behaviour):
             raise PortError("topic_name", str(exc.args[0])) from None
         self.health = self.ctx.health[name]
         self._clock = self.ctx.clock
-        self._build(self.source)
+        try:
+            self._build(self.source)
+        except ValueError as exc:  # a model refused a value: said in the names of the ports
+            if isinstance(exc, PortError) or not self._NAMES:
+                raise
+            raise self._model_error(exc) from None
 
     def _build(self, source: SourceConfig) -> None:
         raise NotImplementedError
@@ -96,11 +97,12 @@ class GuardNode(CanguardNode, py_trees.behaviour.Behaviour):
         """``(role, model, kind)`` per guarded signal; kind is ``threshold`` or ``i2t`` (reports, plots)."""
         return [(self.ROLE, self.model, self.MODEL_KIND)]
 
-    def _model_error(self, exc: ValueError, names: dict[str, str]) -> PortError:
+    def _model_error(self, exc: ValueError) -> PortError:
         """A model's ValueError as a PortError on the port holding the first parameter it names.
 
-        The message is rewritten in port names (``recovery_a`` -> ``recovery_threshold``).
+        The message is rewritten in port names (``recovery_a`` -> ``recovery_threshold``, by ``_NAMES``).
         """
+        names = self._NAMES
         text = str(exc)
         found = {}
         for param, port_name in names.items():
@@ -111,20 +113,41 @@ class GuardNode(CanguardNode, py_trees.behaviour.Behaviour):
             text = re.sub(rf"\b{param}\b", names[param], text)
         return PortError(found[min(found)] if found else next(iter(names.values())), text)
 
+    def _reread(self, ports: tuple[str, ...], models: Iterable[Any], limits: Callable[[Any], tuple],
+                apply: Callable[..., None]) -> str:
+        """Thresholds wired to ``{key}``s, read again at tick: a change is applied to ``models`` and their latest
+        sample judged again under it (a repeated timestamp is a normal sample); REASON_BAD_THRESHOLD when one
+        holds nothing or a value the model refuses."""
+        if not self._dynamic:
+            return ""
+        values = tuple(self.port(p) for p in ports)
+        try:
+            if None in values:
+                raise ValueError
+            for model in models:
+                if limits(model) != values:
+                    apply(model, *values)
+                    if model.last_t is not None:
+                        model.advance((model.last_t,), (model.snapshot().value,))
+        except ValueError:
+            return REASON_BAD_THRESHOLD
+        return ""
+
     def _judge(self, now: float, snap: Snapshot, reason: str, value: float | None = None) -> py_trees.common.Status:
         """A port problem (``reason``) first, then the source's health, then the model's latched
         state: SUCCESS or FAILURE, with status changes journalled. ``value`` overrides the
         snapshot's value in events."""
-        assert self.health is not None
         self.judged_t = now
-        if not reason:
-            reason = self.health.reason(now, self.ROLE)
-            if not reason and snap.tripped:
-                reason = snap.reason
+        reason = self._why(now, self.ROLE, snap, reason)
         ok = not reason
         if ok is not self.ok or reason != self.reason:
             self._edge(ok, reason, self.ROLE, snap.value if value is None else value, snap.threshold)
         return SUCCESS if ok else FAILURE
+
+    def _why(self, now: float, role: str, snap: Snapshot, bad: str = "") -> str:
+        """Why ``role`` fails now: a port problem (``bad``), else its source's health, else its model's latch."""
+        assert self.health is not None
+        return bad or self.health.reason(now, role) or (snap.reason if snap.tripped else "")
 
     def _units(self, role: str) -> tuple[str, str]:
         """The unit of ``role``'s signal (A, Nm) and of its model's threshold (the same, or A²s / θ for I²t)."""
@@ -150,71 +173,35 @@ class GuardNode(CanguardNode, py_trees.behaviour.Behaviour):
         if ok is prev or (prev is None and ok):
             return  # same status, another reason: feedback only
         assert self.source is not None
-        if ok:
-            self.ctx.record(
-                "recover",
-                node=self.name,
-                source=self.source.name,
-                signal=role,
-                value=value,
-                threshold=threshold,
-                reason="",
-            )
-        else:
-            self.ctx.record(
-                "trip",
-                node=self.name,
-                source=self.source.name,
-                signal=role,
-                value=value,
-                threshold=threshold,
-                reason=reason,
-            )
+        self.ctx.record("recover" if ok else "trip", node=self.name, source=self.source.name, signal=role,
+                        value=value, threshold=threshold, reason=reason)
 
 
 class IsCurrentNormal(GuardNode):
-    """SUCCESS while the source's current is present, fresh, finite and |I| <= max_current."""
+    """SUCCESS while |current| <= max_current and the source is present, fresh and finite"""
 
-    DESCRIPTION = "SUCCESS while |current| <= max_current and the source is present, fresh and finite"
     INPUT_PORTS = {  # noqa: RUF012 - py_trees reads ports as plain class dicts
         "topic_name": port_info(str, "source name (battery or current kind) from the config"),
         "max_current": port_info(float, "maximum allowed |current| (A)", 30.0),
     }
-    OUTPUT_PORTS = {}  # noqa: RUF012
+    _NAMES = {"max_value": "max_current"}  # noqa: RUF012
     model: Threshold
 
     def _build(self, source: SourceConfig) -> None:
-        try:
-            self.model = Threshold(self.port("max_current"))
-        except ValueError as exc:
-            raise PortError("max_current", str(exc).replace("max_value", "max_current")) from None
+        self.model = Threshold(self.port("max_current"))
         self.ctx.subscribe(source.name, self.ROLE, self.model)
 
     def update(self) -> py_trees.common.Status:
         """Health first, then the model's latched state."""
         now = self._clock.now()
-        model = self.model
-        reason = ""
-        if self._dynamic:
-            limit = self.port("max_current")
-            try:
-                if limit is None:
-                    raise ValueError
-                if limit != model.max_value:
-                    model.set_max(limit)
-                    reapply(model)
-            except ValueError:
-                reason = REASON_BAD_THRESHOLD
-        return self._judge(now, model.poll(now), reason)
+        reason = self._reread(("max_current",), (self.model,), lambda m: (m.max_value,), Threshold.set_max)
+        return self._judge(now, self.model.poll(now), reason)
 
 
 class IsCurrentSafe(GuardNode):
-    """Overcurrent with hysteresis: trips at >= overcurrent_threshold, recovers at <= recovery_threshold."""
+    """hysteresis overcurrent guard: FAILURE from |I| >= overcurrent_threshold until |I| <= recovery_threshold; optional
+    persistence and inrush blanking"""
 
-    DESCRIPTION = (
-        "hysteresis overcurrent guard: FAILURE from |I| >= overcurrent_threshold until |I| <= "
-        "recovery_threshold; optional persistence and inrush blanking"
-    )
     INPUT_PORTS = {  # noqa: RUF012
         "topic_name": port_info(str, "source name (battery or current kind) from the config"),
         "overcurrent_threshold": port_info(float, "trip at |I| >= this (A)", 35.0),
@@ -229,7 +216,6 @@ class IsCurrentSafe(GuardNode):
             float, "|I| above this counts as a motor start (A); needed with inrush_time", required=False
         ),
     }
-    OUTPUT_PORTS = {}  # noqa: RUF012
     CONST_PORTS = frozenset(
         {"topic_name", "trip_after", "recover_after", "inrush_time", "inrush_threshold", "start_current"}
     )
@@ -247,53 +233,36 @@ class IsCurrentSafe(GuardNode):
     def _build(self, source: SourceConfig) -> None:
         inrush = None
         inrush_time = self.port("inrush_time")
-        try:
-            if inrush_time:
-                start = self.port("start_current")
-                if start is None:
-                    raise PortError("start_current", "required when inrush_time > 0 (|I| of a motor start)")
-                inrush = InrushBlanking(start, inrush_time, self.port("inrush_threshold"))
-            over = self.port("overcurrent_threshold")
-            rec = self.port("recovery_threshold")
-            if over is None or rec is None:  # wired to keys not written yet: the defaults until they are
-                over, rec = 35.0, 25.0
-            self.model = Hysteresis(
-                over,
-                rec,
-                trip_after_s=self.port("trip_after"),
-                recover_after_s=self.port("recover_after"),
-                inrush=inrush,
-                max_gap_s=source.max_age_s,
-            )
-        except ValueError as exc:
-            if isinstance(exc, PortError):
-                raise
-            raise self._model_error(exc, self._NAMES) from None
+        if inrush_time:
+            start = self.port("start_current")
+            if start is None:
+                raise PortError("start_current", "required when inrush_time > 0 (|I| of a motor start)")
+            inrush = InrushBlanking(start, inrush_time, self.port("inrush_threshold"))
+        over = self.port("overcurrent_threshold")
+        rec = self.port("recovery_threshold")
+        if over is None or rec is None:  # wired to keys not written yet: the defaults until they are
+            over, rec = 35.0, 25.0
+        self.model = Hysteresis(
+            over,
+            rec,
+            trip_after_s=self.port("trip_after"),
+            recover_after_s=self.port("recover_after"),
+            inrush=inrush,
+            max_gap_s=source.max_age_s,
+        )
         self.ctx.subscribe(source.name, self.ROLE, self.model)
 
     def update(self) -> py_trees.common.Status:
         """Health first, then the hysteresis state (latched)."""
         now = self._clock.now()
-        model = self.model
-        reason = ""
-        if self._dynamic:
-            over = self.port("overcurrent_threshold")
-            rec = self.port("recovery_threshold")
-            try:
-                if over is None or rec is None:
-                    raise ValueError
-                if over != model.overcurrent_a or rec != model.recovery_a:
-                    model.set_thresholds(over, rec)
-                    reapply(model)
-            except ValueError:
-                reason = REASON_BAD_THRESHOLD
-        return self._judge(now, model.poll(now), reason)
+        reason = self._reread(("overcurrent_threshold", "recovery_threshold"), (self.model,),
+                              lambda m: (m.overcurrent_a, m.recovery_a), Hysteresis.set_thresholds)
+        return self._judge(now, self.model.poll(now), reason)
 
 
 class IsI2tSafe(GuardNode):
-    """I²t thermal guard: FAILURE at 100 % of the trip level until it cools below recover_fraction."""
+    """I²t guard (leaky bucket or thermal image): FAILURE at 100 % heat until cooled"""
 
-    DESCRIPTION = "I²t guard (leaky bucket or thermal image): FAILURE at 100 % heat until cooled"
     INPUT_PORTS = {  # noqa: RUF012
         "topic_name": port_info(str, "source name (battery or current kind) from the config"),
         "model": port_info(str, "leaky (servo-drive bucket) or thermal (IEC 60255-8 image)", "leaky"),
@@ -349,24 +318,19 @@ class IsI2tSafe(GuardNode):
                     f"required when k >= {RATED_OVERLOAD:g} (the derived peak {peak:g} A = {RATED_OVERLOAD:g} × "
                     f"continuous_current must exceed I_cont = k × continuous_current = {cont * k:g} A)",
                 )
-        try:
-            model: ProtectionModel
-            if kind == "leaky":
-                model = LeakyI2t(cont * k, peak, peak_t, self.port("recover_fraction"), source.max_age_s)
-            else:
-                model = ThermalI2t(
-                    cont * k,
-                    peak,
-                    peak_t,
-                    tau_s=self.port("tau"),
-                    tau_cool_s=self.port("tau_cool"),
-                    recover_fraction=self.port("recover_fraction"),
-                    max_gap_s=source.max_age_s,
-                )
-        except ValueError as exc:
-            if isinstance(exc, PortError):
-                raise
-            raise self._model_error(exc, self._NAMES) from None
+        model: ProtectionModel
+        if kind == "leaky":
+            model = LeakyI2t(cont * k, peak, peak_t, self.port("recover_fraction"), source.max_age_s)
+        else:
+            model = ThermalI2t(
+                cont * k,
+                peak,
+                peak_t,
+                tau_s=self.port("tau"),
+                tau_cool_s=self.port("tau_cool"),
+                recover_fraction=self.port("recover_fraction"),
+                max_gap_s=source.max_age_s,
+            )
         self.model = model
         self.ctx.subscribe(source.name, self.ROLE, model)
         self.ctx.heat_models[self.name] = model

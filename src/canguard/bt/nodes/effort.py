@@ -13,36 +13,32 @@ import math
 
 import py_trees
 
-from canguard.bt.nodes.base import FAILURE, SUCCESS, PortError, port_info
-from canguard.bt.nodes.current import REASON_BAD_THRESHOLD, GuardNode, reapply
+from canguard.bt.nodes.base import FAILURE, SUCCESS, port_info
+from canguard.bt.nodes.current import GuardNode
 from canguard.config.schema import SourceConfig
 from canguard.protect.base import REASON_NO_DATA, ProtectionModel
 from canguard.protect.threshold import Threshold
 
 
 class IsJointEffortNormal(GuardNode):
-    """SUCCESS while every joint's |effort| <= max_effort and every joint is fresh and finite."""
+    """SUCCESS while every joint's |effort| <= max_effort and every joint is fresh and finite"""
 
-    DESCRIPTION = "SUCCESS while every joint's |effort| <= max_effort and every joint is fresh and finite"
     INPUT_PORTS = {  # noqa: RUF012 - py_trees reads ports as plain class dicts
         "topic_name": port_info(str, "source name (joints kind) from the config"),
         "max_effort": port_info(float, "maximum allowed |effort| of any joint (N·m or N)", 100.0),
     }
-    OUTPUT_PORTS = {}  # noqa: RUF012
     SOURCE_KINDS = ("joints",)
+    _NAMES = {"max_value": "max_effort"}  # noqa: RUF012
     failed_joint = ""
     """The joint the feedback names (the first failing one)."""
 
     def _build(self, source: SourceConfig) -> None:
         limit = self.port("max_effort")
         self.models: list[tuple[str, Threshold]] = []
-        try:
-            for role in source.value_roles:
-                model = Threshold(limit)
-                self.ctx.subscribe(source.name, role, model)
-                self.models.append((role, model))
-        except ValueError as exc:
-            raise PortError("max_effort", str(exc).replace("max_value", "max_effort")) from None
+        for role in source.value_roles:
+            model = Threshold(limit)
+            self.ctx.subscribe(source.name, role, model)
+            self.models.append((role, model))
 
     def guarded(self) -> list[tuple[str, ProtectionModel, str]]:
         """One ``(joint, model, "threshold")`` per joint."""
@@ -52,29 +48,13 @@ class IsJointEffortNormal(GuardNode):
         """Every joint: health, then its latched limit; the first failing joint names the reason."""
         now = self._clock.now()
         self.judged_t = now  # the engine checks that a running task's guards keep being ticked (T4)
-        health = self.health
-        assert health is not None
-        bad = ""
-        if self._dynamic:
-            limit = self.port("max_effort")
-            try:
-                if limit is None:
-                    raise ValueError
-                for _, m in self.models:
-                    if m.max_value != limit:
-                        m.set_max(limit)
-                        reapply(m)
-            except ValueError:
-                bad = REASON_BAD_THRESHOLD
+        bad = self._reread(("max_effort",), (m for _, m in self.models), lambda m: (m.max_value,), Threshold.set_max)
         failed: tuple[str, str, float, float] | None = None
         for role, model in self.models:
             snap = model.poll(now)  # poll every joint: each latch restarts at every tick
-            if failed is None:
-                reason = bad or health.reason(now, role)
-                if not reason and snap.tripped:
-                    reason = snap.reason
-                if reason:
-                    failed = (role, reason, snap.value, snap.threshold)
+            reason = "" if failed is not None else self._why(now, role, snap, bad)
+            if reason:
+                failed = (role, reason, snap.value, snap.threshold)
         if not self.models:
             failed = ("", REASON_NO_DATA, math.nan, math.nan)
         ok = failed is None

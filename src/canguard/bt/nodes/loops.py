@@ -18,27 +18,33 @@ from typing import Any
 import py_trees
 from py_trees.blackboard import Blackboard
 
-from canguard.bt.nodes.base import FAILURE, RUNNING, SKIPPED, SUCCESS, CanguardNode, PortError, mark_skipped, port_info
+from canguard.bt.nodes.base import (
+    BOOL_TEXT,
+    FAILURE,
+    RUNNING,
+    SKIPPED,
+    SUCCESS,
+    DecoratorNode,
+    PortError,
+    mark_skipped,
+    node_types,
+    port_info,
+)
 
 _EMPTY: dict[str, py_trees.common.Status | str] = {"SUCCESS": SUCCESS, "FAILURE": FAILURE, "SKIPPED": SKIPPED}
-_BOOLS = {"true": True, "false": False, "1": True, "0": False}
 
 
 def _to_bool(text: str) -> bool:
     try:
-        return _BOOLS[text.strip().lower()]
+        return BOOL_TEXT[text.strip().lower()]
     except KeyError:
         raise ValueError(f"{text!r} is not a bool (true/false/1/0)") from None
 
 
-class _Loop(CanguardNode, py_trees.decorators.Decorator):
+class _Loop(DecoratorNode):
     """A loop over a queue of ``ITEM`` values."""
 
-    KIND = "Decorator"
-    NEEDS_CONTEXT = False
     ITEM: type = str
-    INPUT_PORTS: dict = {}  # noqa: RUF012 - py_trees reads ports as plain class dicts
-    OUTPUT_PORTS: dict = {}  # noqa: RUF012
     CHOICES = {"if_empty": ("SUCCESS", "FAILURE", "SKIPPED")}  # noqa: RUF012
     SKIP_THROUGH = False  # BT.CPP's loop_node.h: a skipped child leaves the loop RUNNING
     UNTYPED_PORTS = frozenset({"queue"})  # BT.CPP: an untyped BidirectionalPort (a list, a vector or a string)
@@ -121,32 +127,6 @@ class _Loop(CanguardNode, py_trees.decorators.Decorator):
             self.status = RUNNING
         yield self
 
-    def update(self) -> py_trees.common.Status:
-        return self.status
 
-
-class LoopInt(_Loop):
-    """BT.CPP LoopInt."""
-
-    ITEM = int
-
-
-class LoopDouble(_Loop):
-    """BT.CPP LoopDouble."""
-
-    ITEM = float
-
-
-class LoopString(_Loop):
-    """BT.CPP LoopString."""
-
-    ITEM = str
-
-
-class LoopBool(_Loop):
-    """BT.CPP LoopBool."""
-
-    ITEM = bool
-
-
-NODES = (LoopInt, LoopDouble, LoopString, LoopBool)
+LoopInt, LoopDouble, LoopString, LoopBool = node_types(_Loop, __name__, {
+    "LoopInt": {"ITEM": int}, "LoopDouble": {"ITEM": float}, "LoopString": {"ITEM": str}, "LoopBool": {"ITEM": bool}})

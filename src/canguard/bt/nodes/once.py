@@ -21,6 +21,7 @@ from canguard.bt.nodes.base import (
     RUNNING,
     SUCCESS,
     CanguardNode,
+    DecoratorNode,
     mark_skipped,
     port_info,
 )
@@ -60,31 +61,31 @@ def versioned_storage() -> _Versioned:
     return storage
 
 
-def _version(node: CanguardNode) -> int | None:
-    """The write count of the node's ``entry`` (None: no such entry), resolved in the node's namespace."""
+def _updated(node: WasEntryUpdated | _EntryUpdated) -> bool:
+    """Whether the node's ``entry`` (resolved in its namespace) was written since the node last looked (it looks
+    now: ``seen`` takes the entry's write count); False while there is no such entry."""
     storage = versioned_storage()
-    key = node.wired_key("entry")
+    key = node.wired_keys().get("entry")
     if key is None:
         name = str(node.port("entry") or "").strip().strip("{}")
         namespace = getattr(node, "_subtree_namespace", None) or "/"
         key = name if name.startswith("/") else namespace.rstrip("/") + "/" + name
     if key not in storage:
-        return None
-    return storage.versions.get(key, 1)
+        return False
+    current = storage.versions.get(key, 1)
+    updated, node.seen = current != node.seen, current
+    return updated
 
 
 _ENTRY = {"entry": port_info(str, "the blackboard entry to watch ({key} or key)")}
 
 
 class WasEntryUpdated(CanguardNode, py_trees.behaviour.Behaviour):
-    """BT.CPP WasEntryUpdated: SUCCESS when ``entry`` was written since this node last looked, else FAILURE."""
+    """SUCCESS when the entry was written since the last tick of this node (same value too)"""
 
     KIND = "Condition"
-    NEEDS_CONTEXT = False
-    DESCRIPTION = "SUCCESS when the entry was written since the last tick of this node (same value too)"
     INPUT_PORTS = dict(_ENTRY)  # noqa: RUF012
     UNTYPED_PORTS = frozenset({"entry"})  # BT.CPP: InputPort<BT::Any>
-    OUTPUT_PORTS: dict = {}  # noqa: RUF012
 
     def __init__(self, name: str, **kwargs: Any) -> None:
         super().__init__(name=name, **kwargs)
@@ -95,21 +96,14 @@ class WasEntryUpdated(CanguardNode, py_trees.behaviour.Behaviour):
         super().setup_ports(*args, **kwargs)
 
     def update(self) -> py_trees.common.Status:
-        current = _version(self)
-        if current is None:
-            return FAILURE
-        previous, self.seen = self.seen, current
-        return SUCCESS if previous != current else FAILURE
+        return SUCCESS if _updated(self) else FAILURE
 
 
-class _EntryUpdated(CanguardNode, py_trees.decorators.Decorator):
+class _EntryUpdated(DecoratorNode):
     """BT.CPP's EntryUpdatedDecorator: tick the child only when ``entry`` was written since the last look."""
 
-    KIND = "Decorator"
-    NEEDS_CONTEXT = False
     INPUT_PORTS = dict(_ENTRY)  # noqa: RUF012
     UNTYPED_PORTS = frozenset({"entry"})  # BT.CPP: InputPort<BT::Any>
-    OUTPUT_PORTS: dict = {}  # noqa: RUF012
     IF_NOT_UPDATED: str = "SKIPPED"
 
     def __init__(self, name: str, child: py_trees.behaviour.Behaviour, **kwargs: Any) -> None:
@@ -123,23 +117,15 @@ class _EntryUpdated(CanguardNode, py_trees.decorators.Decorator):
 
     def tick(self) -> Any:
         """A running child goes on; else the child runs only after a write (else SKIPPED / RUNNING)."""
-        if not self.still_running:
-            current = _version(self)
-            updated = current is not None and current != self.seen
-            if current is not None:
-                self.seen = current
-            if not updated:
-                if self.IF_NOT_UPDATED == "SKIPPED":
-                    mark_skipped(self)
-                else:
-                    self.status = RUNNING
-                yield self
-                return
-        yield from super().tick()
+        if not self.still_running and not _updated(self):
+            if self.IF_NOT_UPDATED == "SKIPPED":
+                mark_skipped(self)
+            else:
+                self.status = RUNNING
+            yield self
+            return
+        yield from py_trees.decorators.Decorator.tick(self)  # the plain tick: this one is already skip-aware
         self.still_running = self.status == RUNNING
-
-    def update(self) -> py_trees.common.Status:
-        return self.decorated.status
 
     def terminate(self, new_status: py_trees.common.Status) -> None:
         if new_status == py_trees.common.Status.INVALID:
@@ -147,29 +133,23 @@ class _EntryUpdated(CanguardNode, py_trees.decorators.Decorator):
 
 
 class SkipUnlessUpdated(_EntryUpdated):
-    """BT.CPP SkipUnlessUpdated: the child runs after each write of ``entry``; otherwise SKIPPED."""
+    """ticks the child when the entry was written since the last look, else SKIPPED"""
 
-    DESCRIPTION = "ticks the child when the entry was written since the last look, else SKIPPED"
     IF_NOT_UPDATED = "SKIPPED"
 
 
 class WaitValueUpdate(_EntryUpdated):
-    """BT.CPP WaitValueUpdate: RUNNING until ``entry`` is written, then the child."""
+    """RUNNING until the entry is written (since the last look), then ticks the child"""
 
-    DESCRIPTION = "RUNNING until the entry is written (since the last look), then ticks the child"
     IF_NOT_UPDATED = "RUNNING"
 
 
-class RunOnce(CanguardNode, py_trees.decorators.Decorator):
-    """BT.CPP RunOnce: the child runs to completion once; then SKIPPED (``then_skip``) or that status forever."""
+class RunOnce(DecoratorNode):
+    """runs the child once; afterwards SKIPPED (then_skip=true) or the child's first result"""
 
-    KIND = "Decorator"
-    NEEDS_CONTEXT = False
-    DESCRIPTION = "runs the child once; afterwards SKIPPED (then_skip=true) or the child's first result"
     INPUT_PORTS = {  # noqa: RUF012
         "then_skip": port_info(bool, "after the first run: true = SKIPPED, false = the status it returned", True),
     }
-    OUTPUT_PORTS: dict = {}  # noqa: RUF012
 
     def __init__(self, name: str, child: py_trees.behaviour.Behaviour, **kwargs: Any) -> None:
         super().__init__(name=name, child=child, **kwargs)
@@ -185,7 +165,7 @@ class RunOnce(CanguardNode, py_trees.decorators.Decorator):
                 mark_skipped(self)
             yield self
             return
-        yield from super().tick()
+        yield from py_trees.decorators.Decorator.tick(self)  # the plain tick: this one is already skip-aware
 
     def update(self) -> py_trees.common.Status:
         status = self.decorated.status
@@ -193,5 +173,3 @@ class RunOnce(CanguardNode, py_trees.decorators.Decorator):
             self.returned = status
         return status
 
-
-NODES = (RunOnce, WasEntryUpdated, SkipUnlessUpdated, WaitValueUpdate)

@@ -15,12 +15,6 @@ The decorator's own work (statistics, blackboard writes) lies outside the
 interval; inside it are one ``perf_counter()`` call and a list build, about
 0.1-0.2 µs, which is what a measurement of a near-empty child reads.
 
-**Overhead, measured** (``timeit`` of one tick beside the bare child, 2 shared vCPUs,
-Python 3.11): a Profile adds about 1.5 µs per tick with all four outputs wired and
-1.2 µs with none (goal: 3 µs). Wired outputs go straight to the blackboard's
-storage (see :mod:`canguard.bt.nodes.base`); through py_trees' client the four
-writes alone would cost ~9 µs.
-
 **Reset on halt.** As in the note, the statistics restart when the decorator is
 *halted*: interrupted while RUNNING (BehaviorTree.CPP's halt). py_trees also
 stops finished children with INVALID whenever their parent starts over; that is
@@ -37,28 +31,23 @@ from time import perf_counter
 from typing import Any
 
 import py_trees
-from py_trees.blackboard import Blackboard
 
-from canguard.bt.nodes.base import RUNNING, CanguardNode, halted, port_info
+from canguard.bt.nodes.base import RUNNING, DecoratorNode, halted, port_info
 
 
-class Profile(CanguardNode, py_trees.decorators.Decorator):
-    """Times the child's tick; outputs last_ms, avg_ms, max_ms, count; returns the child's status."""
+class Profile(DecoratorNode):
+    """transparent: times its child's tick, outputs last/avg/max ms and count; resets on halt"""
 
-    KIND = "Decorator"
-    DESCRIPTION = "transparent: times its child's tick, outputs last/avg/max ms and count; resets on halt"
-    INPUT_PORTS = {}  # noqa: RUF012 - py_trees reads ports as plain class dicts
     OUTPUT_PORTS = {  # noqa: RUF012
         "last_ms": port_info(float, "duration of the child's last tick (ms)", required=False),
         "avg_ms": port_info(float, "mean duration since the last reset (ms)", required=False),
         "max_ms": port_info(float, "longest duration since the last reset (ms)", required=False),
         "count": port_info(int, "ticks measured since the last reset", required=False),
     }
-    NEEDS_CONTEXT = False
 
     def __init__(self, name: str, child: py_trees.behaviour.Behaviour, **kwargs: Any) -> None:
         super().__init__(name=name, child=child, **kwargs)
-        self._outputs: tuple[tuple[str, str], ...] = ()
+        self._outputs: tuple[str, ...] = ()
         self.reset_stats()
 
     def reset_stats(self) -> None:
@@ -76,7 +65,7 @@ class Profile(CanguardNode, py_trees.decorators.Decorator):
     def setup_ports(self, *args: Any, **kwargs: Any) -> None:
         """Register ports, then pick the wired outputs once (fewer checks per tick)."""
         super().setup_ports(*args, **kwargs)
-        self._outputs = tuple((p, self._keys[p]) for p in ("last_ms", "avg_ms", "max_ms", "count") if p in self._wired)
+        self._outputs = tuple(p for p in ("last_ms", "avg_ms", "max_ms", "count") if self.is_wired(p))
 
     def tick(self) -> Any:
         """Tick the child to completion under the timer, then publish statistics and the child's status."""
@@ -91,26 +80,13 @@ class Profile(CanguardNode, py_trees.decorators.Decorator):
         self.total_ms += ms
         if ms > self.max_ms:
             self.max_ms = ms
-        if self._outputs:
-            self._publish()
+        for name in self._outputs:
+            self.write(name, getattr(self, name))
         new_status = self.decorated.status
         if new_status != RUNNING:
             self.stop(new_status)
         self.status = new_status
         yield self
-
-    def _publish(self) -> None:
-        if Blackboard.activity_stream is not None:  # the client's path keeps the stream complete
-            for name, _ in self._outputs:
-                self._set_output(name, getattr(self, name))
-            return
-        storage = Blackboard.storage
-        for name, key in self._outputs:
-            storage[key] = getattr(self, name)
-
-    def update(self) -> py_trees.common.Status:
-        """Transparent: the child's status."""
-        return self.decorated.status
 
     def terminate(self, new_status: py_trees.common.Status) -> None:
         """Reset the statistics on a halt (interrupted while RUNNING), as note 003 says."""

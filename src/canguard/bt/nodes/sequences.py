@@ -14,22 +14,16 @@ from canguard.bt.nodes.base import (
     SKIPPED,
     SUCCESS,
     CanguardNode,
+    Children,
     mark_skipped,
+    node_types,
     outcome,
+    reset,
     tick_child,
 )
 
-Children = list[py_trees.behaviour.Behaviour] | None
 
-
-class _Control(CanguardNode):
-    KIND = "Control"
-    NEEDS_CONTEXT = False
-    INPUT_PORTS: dict = {}  # noqa: RUF012 - py_trees reads ports as plain class dicts
-    OUTPUT_PORTS: dict = {}  # noqa: RUF012
-
-
-class _Ordered(_Control, py_trees.composites.Composite):
+class _Ordered(CanguardNode, py_trees.composites.Composite):
     """BT.CPP 4's sequences and fallbacks, SKIPPED included (``sequence_node.cpp``, ``fallback_node.cpp`` ...).
 
     ``GO_ON``: the child status that moves to the next child (SUCCESS in a sequence,
@@ -71,9 +65,7 @@ class _Ordered(_Control, py_trees.composites.Composite):
         if self.status != RUNNING:
             self.skipped_count = 0
             # py_trees' way of BT.CPP's resetChildren: a new run starts from IDLE children
-            for child in children[0 if self.REACTIVE else self.index:]:
-                if child.status != INVALID:
-                    child.stop(INVALID)
+            reset(children[0 if self.REACTIVE else self.index:])
             self.initialise()
         if self.REACTIVE:
             yield from self._tick_reactive(children)
@@ -93,9 +85,7 @@ class _Ordered(_Control, py_trees.composites.Composite):
                 self.skipped_count += 1
                 continue
             if result != self.GO_ON:  # the run ends with this child's status
-                for later in children[self.index + 1:]:
-                    if later.status != INVALID:
-                        later.stop(INVALID)
+                reset(children[self.index + 1:])
                 if not self.KEEP_ON_STOP:
                     self.index = 0
                 self.stop(child.status)
@@ -141,61 +131,21 @@ class _Ordered(_Control, py_trees.composites.Composite):
         yield self
 
 
-class Sequence(_Ordered):
-    """BT.CPP Sequence: ticks children in order; resumes at a RUNNING child; restarts after a FAILURE."""
-
-    DESCRIPTION = "children in order; a RUNNING child is resumed (earlier ones not re-ticked)"
-    QUIET_RETICK = True
-
-
-class AsyncSequence(_Ordered):
-    """BT.CPP AsyncSequence: a Sequence that returns RUNNING after each child that completed in one tick."""
-
-    DESCRIPTION = "a Sequence that yields (RUNNING) after each child that succeeded at once"
-    ASYNC = True
-
-
-class ReactiveSequence(_Ordered):
-    """BT.CPP ReactiveSequence: every tick starts at the first child; a failing guard halts a running one."""
-
-    DESCRIPTION = "children in order, from the first at every tick (guards re-checked while a child runs)"
-    QUIET_RETICK = True
-    REACTIVE = True
-
-
-class SequenceWithMemory(_Ordered):
-    """BT.CPP SequenceWithMemory: children that succeeded are not ticked again, even after a FAILURE."""
-
-    DESCRIPTION = "children in order; after a FAILURE or RUNNING the next tick resumes at that child"
-    ASYNC = True  # BT.CPP 4: it always yields after a child that completed at once (sequence_with_memory_node.cpp)
-    KEEP_ON_STOP = True
-
-    @property
-    def resume_index(self) -> int:
-        """Where the next tick starts: kept on FAILURE and RUNNING (and across a halt), 0 after SUCCESS."""
-        return self.index
-
-
-class Fallback(_Ordered):
-    """BT.CPP Fallback: children in order until one succeeds; resumes at a RUNNING child."""
-
-    DESCRIPTION = "children in order until one does not fail; a RUNNING child is resumed"
-    QUIET_RETICK = True
-    GO_ON = FAILURE
-
-
-class AsyncFallback(_Ordered):
-    """BT.CPP AsyncFallback: a Fallback that returns RUNNING after each child that failed in one tick."""
-
-    DESCRIPTION = "a Fallback that yields (RUNNING) after each child that failed at once"
-    GO_ON = FAILURE
-    ASYNC = True
-
-
-class ReactiveFallback(_Ordered):
-    """BT.CPP ReactiveFallback: every tick starts at the first child; a higher priority interrupts."""
-
-    DESCRIPTION = "children in order, from the first at every tick (higher priorities interrupt)"
-    QUIET_RETICK = True
-    GO_ON = FAILURE
-    REACTIVE = True
+Sequence, AsyncSequence, ReactiveSequence, SequenceWithMemory, Fallback, AsyncFallback, ReactiveFallback = node_types(
+    _Ordered, __name__, {
+        "Sequence": {"QUIET_RETICK": True,
+                     "DESCRIPTION": "children in order; a RUNNING child is resumed (earlier ones not re-ticked)"},
+        "AsyncSequence": {"ASYNC": True,
+                          "DESCRIPTION": "a Sequence that yields (RUNNING) after each child that succeeded at once"},
+        "ReactiveSequence": {"QUIET_RETICK": True, "REACTIVE": True, "DESCRIPTION": (
+            "children in order, from the first at every tick (guards re-checked while a child runs)")},
+        # BT.CPP 4's SequenceWithMemory always yields after a child that completed at once
+        "SequenceWithMemory": {"ASYNC": True, "KEEP_ON_STOP": True, "DESCRIPTION": (
+            "children in order; after a FAILURE or RUNNING the next tick resumes at that child")},
+        "Fallback": {"QUIET_RETICK": True, "GO_ON": FAILURE,
+                     "DESCRIPTION": "children in order until one does not fail; a RUNNING child is resumed"},
+        "AsyncFallback": {"GO_ON": FAILURE, "ASYNC": True,
+                          "DESCRIPTION": "a Fallback that yields (RUNNING) after each child that failed at once"},
+        "ReactiveFallback": {"QUIET_RETICK": True, "GO_ON": FAILURE, "REACTIVE": True, "DESCRIPTION": (
+            "children in order, from the first at every tick (higher priorities interrupt)")},
+    })

@@ -38,6 +38,8 @@ IsElapsedTimeCompare's ``reference``:
 from __future__ import annotations
 
 import math
+import operator
+from collections.abc import Callable
 from typing import Any
 
 import py_trees
@@ -52,9 +54,10 @@ _TIMER = "_timer_start"
 
 
 class _TimerUser(CanguardNode):
-    """A node with a timer: the key wired to ``timer`` (shared), or none (``timer_key`` None)."""
+    """A node with a timer: the key wired to ``timer`` (shared), or its own (``timer_key`` None)."""
 
-    TIMER_PORT = "timer"
+    _own_start: float | None = None
+    """The own timer's start, None until started; kept across halts as in note 000."""
 
     def setup_ports(
         self,
@@ -64,49 +67,44 @@ class _TimerUser(CanguardNode):
     ) -> None:
         """Register the ports, then the named timer's key (write access, so a first tick can start it)."""
         super().setup_ports(port_remappings, subtree_namespace, logger)
-        remap = port_remappings or {}
-        key = remap.get(self.TIMER_PORT)
+        key = (port_remappings or {}).get("timer")
         self.timer_key: str | None = None
         if key is None:
             return
-        key = py_trees.blackboard.Blackboard.absolute_name(subtree_namespace, key)
-        self.timer_key = key
-        self.blackboard_client.register_key(key=_TIMER, access=py_trees.common.Access.WRITE, remap_to=key)
+        self.timer_key = py_trees.blackboard.Blackboard.absolute_name(subtree_namespace, key)
+        self.blackboard_client.register_key(key=_TIMER, access=py_trees.common.Access.WRITE, remap_to=self.timer_key)
 
-    def _shared_start(self) -> float | None:
-        """The named timer's start time, None when nobody started it yet (or it holds no number)."""
-        client = self.blackboard_client
-        if not client.exists(_TIMER):
-            return None
-        value = client.get(_TIMER)
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            return None
-        return float(value)
+    def timer_start(self) -> float | None:
+        """The timer's start time: the named key's, or the node's own; None when not started (or not a number)."""
+        if self.timer_key is None:
+            return self._own_start
+        value = self.blackboard_client.get(_TIMER) if self.blackboard_client.exists(_TIMER) else None
+        return float(value) if isinstance(value, int | float) and not isinstance(value, bool) else None
+
+    def start_timer(self, now: float) -> None:
+        """(Re)start the timer at ``now``: write the named key, or the node's own timer."""
+        if self.timer_key is None:
+            self._own_start = float(now)
+        else:
+            self.blackboard_client.set(_TIMER, float(now))
+
+
+_COMPARE: dict[str, Callable[[float, float], bool]] = {
+    "GT": operator.gt, "LT": operator.lt, "GTE": operator.ge, "LTE": operator.le}
 
 
 def compare(op: str, elapsed: float, reference: float, tolerance: float) -> bool:
     """``elapsed <op> reference``; EQ is ``|elapsed − reference| < tolerance``. KeyError on other ops."""
-    if op == "GT":
-        return elapsed > reference
-    if op == "LT":
-        return elapsed < reference
-    if op == "GTE":
-        return elapsed >= reference
-    if op == "LTE":
-        return elapsed <= reference
-    if op == "EQ":
-        return abs(elapsed - reference) < tolerance
-    raise KeyError(op)
+    return abs(elapsed - reference) < tolerance if op == "EQ" else _COMPARE[op](elapsed, reference)
 
 
 class IsElapsedTimeCompare(_TimerUser, py_trees.behaviour.Behaviour):
-    """Compares the time elapsed since a reference with ``reference_sec`` (GT, LT, GTE, LTE, EQ).
+    """SUCCESS when (now − reference time) <operator> reference_sec
 
     Its timer is its own unless ``timer`` names a shared key (module docstring).
     """
 
     KIND = "Condition"
-    DESCRIPTION = "SUCCESS when (now − reference time) <operator> reference_sec"
     INPUT_PORTS = {  # noqa: RUF012 - py_trees reads ports as plain class dicts
         "reference_sec": port_info(float, "the time to compare the elapsed time with (s)"),
         "operator": port_info(str, "GT, LT, GTE, LTE or EQ (|elapsed − reference_sec| < tolerance)", "GT"),
@@ -119,27 +117,8 @@ class IsElapsedTimeCompare(_TimerUser, py_trees.behaviour.Behaviour):
             required=False,
         ),
     }
-    OUTPUT_PORTS = {}  # noqa: RUF012
     CHOICES = {"operator": OPERATORS, "reference": REFERENCES}  # noqa: RUF012
     KEY_PORTS = frozenset({"timer"})
-
-    def __init__(self, *args: Any, **kwargs: Any) -> None:
-        super().__init__(*args, **kwargs)
-        self._own_start: float | None = None
-        """The private timer's start (no ``timer`` port), None until started; kept across halts as in note 000."""
-
-    def timer_start(self) -> float | None:
-        """The timer's start time: the named key's, or the node's own; None when not started yet."""
-        if self.timer_key is None:
-            return self._own_start
-        return self._shared_start()
-
-    def start_timer(self, now: float) -> None:
-        """(Re)start the timer at ``now``: write the named key, or the node's own timer."""
-        if self.timer_key is None:
-            self._own_start = float(now)
-        else:
-            self.blackboard_client.set(_TIMER, float(now))
 
     def bind(self) -> None:
         """``reference="blackboard"`` needs the key to read: a ``timer`` port."""
@@ -187,16 +166,14 @@ class IsElapsedTimeCompare(_TimerUser, py_trees.behaviour.Behaviour):
 
 
 class IsElapsedSinceEvent(CanguardNode, py_trees.behaviour.Behaviour):
-    """SUCCESS while min_elapsed_sec <= now − event_timestamp <= max_elapsed_sec."""
+    """SUCCESS inside the time window [min_elapsed_sec, max_elapsed_sec] after event_timestamp"""
 
     KIND = "Condition"
-    DESCRIPTION = "SUCCESS inside the time window [min_elapsed_sec, max_elapsed_sec] after event_timestamp"
     INPUT_PORTS = {  # noqa: RUF012
         "event_timestamp": port_info(float, "time of the event (s), e.g. {mission_start_time}"),
         "min_elapsed_sec": port_info(float, "window start after the event (s)", 0.0),
         "max_elapsed_sec": port_info(float, "window end after the event (s)", math.inf),
     }
-    OUTPUT_PORTS = {}  # noqa: RUF012
 
     def update(self) -> py_trees.common.Status:
         """FAILURE outside the window and while no event time has been written."""
@@ -212,15 +189,13 @@ class IsElapsedSinceEvent(CanguardNode, py_trees.behaviour.Behaviour):
 
 
 class IsCooldownElapsed(CanguardNode, py_trees.behaviour.Behaviour):
-    """SUCCESS when never executed (absent or <= 0) or at least cooldown_sec after the last execution."""
+    """SUCCESS when the action never ran (time absent or <= 0) or cooldown_sec have passed"""
 
     KIND = "Condition"
-    DESCRIPTION = "SUCCESS when the action never ran (time absent or <= 0) or cooldown_sec have passed"
     INPUT_PORTS = {  # noqa: RUF012
         "cooldown_sec": port_info(float, "minimum time between two executions (s)", 5.0),
         "last_execution_time": port_info(float, "time of the last execution (s), e.g. {last_recovery_time}", 0.0),
     }
-    OUTPUT_PORTS = {}  # noqa: RUF012
 
     def update(self) -> py_trees.common.Status:
         """As note 000: a missing or non-positive last time means "never executed"."""
@@ -238,11 +213,8 @@ class IsCooldownElapsed(CanguardNode, py_trees.behaviour.Behaviour):
 
 
 class ResetTimer(_TimerUser, py_trees.behaviour.Behaviour):
-    """Restarts a timer: the named one, or the nearest own timers (module docstring); SUCCESS."""
+    """restart a timer: write now to its key (default: the nearest comparisons' own timers)"""
 
-    KIND = "Action"
-    DESCRIPTION = "restart a timer: write now to its key (default: the nearest comparisons' own timers)"
-    INPUT_PORTS = {}  # noqa: RUF012
     OUTPUT_PORTS = {  # noqa: RUF012
         "timer": port_info(
             float,
@@ -282,7 +254,7 @@ class ResetTimer(_TimerUser, py_trees.behaviour.Behaviour):
         """Write now to the timer's key, or restart the nearest own timers."""
         now = self.ctx.clock.now()
         if self.timer_key is not None:
-            self.blackboard_client.set(_TIMER, float(now))
+            self.start_timer(now)
             self.feedback_message = f"timer {self.timer_key} = {now:.3f}"
         else:
             for node in self.targets:
@@ -292,11 +264,8 @@ class ResetTimer(_TimerUser, py_trees.behaviour.Behaviour):
 
 
 class RecordTime(CanguardNode, py_trees.behaviour.Behaviour):
-    """Writes now to ``output_time``; SUCCESS (e.g. {mission_start_time} for IsElapsedSinceEvent)."""
+    """write the current time (s) to output_time"""
 
-    KIND = "Action"
-    DESCRIPTION = "write the current time (s) to output_time"
-    INPUT_PORTS = {}  # noqa: RUF012
     OUTPUT_PORTS = {  # noqa: RUF012
         "output_time": port_info(float, "blackboard key that receives the current time (s)"),
     }

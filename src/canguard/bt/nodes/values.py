@@ -9,23 +9,22 @@ FAILURE while the value has not been written yet (or is not a number).
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 import py_trees
 
-from canguard.bt.nodes.base import FAILURE, SUCCESS, CanguardNode, port_info
+from canguard.bt.nodes.base import FAILURE, SUCCESS, CanguardNode, node_types, port_info
 
 
 class _Compare(CanguardNode, py_trees.behaviour.Behaviour):
+    """``value <SYMBOL> threshold``."""
+
     KIND = "Condition"
     INPUT_PORTS = {  # noqa: RUF012 - py_trees reads ports as plain class dicts
         "value": port_info(float, "the value to check, usually a {key}"),
         "threshold": port_info(float, "the limit"),
     }
-    OUTPUT_PORTS = {}  # noqa: RUF012
-    NEEDS_CONTEXT = False
-    SYMBOL = "?"
-
-    def holds(self, value: float, threshold: float) -> bool:
-        raise NotImplementedError
+    SYMBOL: ClassVar[str]
 
     def update(self) -> py_trees.common.Status:
         """SUCCESS when the comparison holds; FAILURE otherwise or without a value."""
@@ -34,28 +33,11 @@ class _Compare(CanguardNode, py_trees.behaviour.Behaviour):
         if value is None or threshold is None:
             self.feedback_message = f"no value yet {self._bad_port}".rstrip()
             return FAILURE
-        ok = self.holds(value, threshold)
+        ok = value < threshold if self.SYMBOL == "<" else value > threshold
         self.feedback_message = f"{value:g} {self.SYMBOL} {threshold:g}: {ok}"
         return SUCCESS if ok else FAILURE
 
 
-class IsValueBelow(_Compare):
-    """SUCCESS when value < threshold."""
-
-    DESCRIPTION = "SUCCESS when value < threshold"
-    SYMBOL = "<"
-
-    def holds(self, value: float, threshold: float) -> bool:
-        """value < threshold."""
-        return value < threshold
-
-
-class IsValueAbove(_Compare):
-    """SUCCESS when value > threshold."""
-
-    DESCRIPTION = "SUCCESS when value > threshold"
-    SYMBOL = ">"
-
-    def holds(self, value: float, threshold: float) -> bool:
-        """value > threshold."""
-        return value > threshold
+IsValueBelow, IsValueAbove = node_types(_Compare, __name__, {
+    "IsValueBelow": {"SYMBOL": "<", "DESCRIPTION": "SUCCESS when value < threshold"},
+    "IsValueAbove": {"SYMBOL": ">", "DESCRIPTION": "SUCCESS when value > threshold"}})

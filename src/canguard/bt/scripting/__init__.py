@@ -20,14 +20,13 @@ from typing import TYPE_CHECKING
 from canguard.bt.scripting.errors import ScriptError
 
 if TYPE_CHECKING:
-    from canguard.bt.scripting.blackboard import DictBlackboard, ScriptBlackboard
+    from canguard.bt.scripting.blackboard import ScriptBlackboard
     from canguard.bt.scripting.script import Script, parse
     from canguard.bt.scripting.values import UNSET, as_condition
 
-__all__ = ["UNSET", "DictBlackboard", "Script", "ScriptBlackboard", "ScriptError", "as_condition", "parse"]
+__all__ = ["UNSET", "Script", "ScriptBlackboard", "ScriptError", "as_condition", "parse"]
 
 _LAZY = {
-    "DictBlackboard": "blackboard",
     "ScriptBlackboard": "blackboard",
     "Script": "script",
     "parse": "script",

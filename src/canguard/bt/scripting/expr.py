@@ -11,8 +11,10 @@ Two BT.CPP behaviours worth knowing: ``&&`` and ``||`` evaluate both operands
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+import operator
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from typing import Any
 
 from canguard.bt.scripting.blackboard import ScriptBlackboard
 from canguard.bt.scripting.errors import ScriptError
@@ -55,13 +57,15 @@ def _real(value: int | float, pos: int) -> float:
         raise ScriptError(str(exc), pos) from None
 
 
-def _divide(lv: float, rv: float) -> float:
-    """IEEE division, as a C++ double: x/0 is +-inf, 0/0 is nan."""
-    if rv != 0.0:
-        return lv / rv
-    if lv == 0.0 or math.isnan(lv):
+def _arithmetic(op: str, a: float, b: float) -> float:
+    """``a op b`` for ``+ - * /`` as C++ doubles: x/0 is +-inf, 0/0 is nan (IEEE division)."""
+    if op != "/":
+        return a + b if op == "+" else a - b if op == "-" else a * b
+    if b != 0.0:
+        return a / b
+    if a == 0.0 or math.isnan(a):
         return math.nan
-    return math.copysign(math.inf, lv) * math.copysign(1.0, rv)
+    return math.copysign(math.inf, a) * math.copysign(1.0, b)
 
 
 @dataclass(frozen=True)
@@ -70,9 +74,6 @@ class Expr:
 
     def evaluate(self, env: Env) -> object:
         raise NotImplementedError
-
-    def names(self, out: set[str]) -> None:
-        """Add the names this expression reads or writes to ``out``."""
 
 
 @dataclass(frozen=True)
@@ -100,8 +101,6 @@ class Name(Expr):
         except KeyError:
             return UNSET
 
-    def names(self, out: set[str]) -> None:
-        out.add(self.name)
 
 
 @dataclass(frozen=True)
@@ -124,8 +123,6 @@ class Unary(Expr):
             raise _not_init("right", self.op, self.pos)
         raise ScriptError(f"the operator [{self.op}] expects a number, got {describe(value)}", self.pos)
 
-    def names(self, out: set[str]) -> None:
-        self.operand.names(out)
 
 
 @dataclass(frozen=True)
@@ -144,14 +141,7 @@ class Binary(Expr):
             raise _not_init("right", op, self.pos)
         if isinstance(lv, (int, float)) and isinstance(rv, (int, float)):
             if op in "+-*/":
-                a, b = _real(lv, self.pos), _real(rv, self.pos)
-                if op == "+":
-                    return a + b
-                if op == "-":
-                    return a - b
-                if op == "*":
-                    return a * b
-                return _divide(a, b)
+                return _arithmetic(op, _real(lv, self.pos), _real(rv, self.pos))
             if op in ("&", "|", "^"):
                 li, ri = to_int64(lv), to_int64(rv)
                 if li is None or ri is None:
@@ -177,9 +167,6 @@ class Binary(Expr):
             return left + right
         raise _not_permitted(op, lv, rv, self.pos)
 
-    def names(self, out: set[str]) -> None:
-        self.lhs.names(out)
-        self.rhs.names(out)
 
 
 def _not_permitted(op: str, lv: object, rv: object, pos: int) -> ScriptError:
@@ -197,18 +184,15 @@ def _not_permitted(op: str, lv: object, rv: object, pos: int) -> ScriptError:
     )
 
 
-def _compare(op: str, a: object, b: object) -> bool:
-    if op == "==":
-        return abs(a - b) <= FLT_EPSILON if isinstance(a, float) else a == b  # type: ignore[operator]
-    if op == "!=":
-        return not _compare("==", a, b)
-    if op == "<":
-        return a < b  # type: ignore[operator]
-    if op == ">":
-        return a > b  # type: ignore[operator]
-    if op == "<=":
-        return a <= b  # type: ignore[operator]
-    return a >= b  # type: ignore[operator]
+_ORDER: dict[str, Callable[[Any, Any], bool]] = {
+    "<": operator.lt, ">": operator.gt, "<=": operator.le, ">=": operator.ge}
+
+
+def _compare(op: str, a: Any, b: Any) -> bool:
+    """``a op b``; reals are equal within float's epsilon (BT.CPP's ``IsSame``)."""
+    if op in ("==", "!="):
+        return (abs(a - b) <= FLT_EPSILON if isinstance(a, float) else a == b) == (op == "==")
+    return _ORDER[op](a, b)
 
 
 @dataclass(frozen=True)
@@ -250,9 +234,6 @@ class Compare(Expr):
             lv = rv
         return 1.0
 
-    def names(self, out: set[str]) -> None:
-        for operand in self.operands:
-            operand.names(out)
 
 
 @dataclass(frozen=True)
@@ -273,10 +254,6 @@ class Ternary(Expr):
             raise ScriptError(f"the condition of [?] must be a number or a string, got {describe(value)}", self.pos)
         return self.then.evaluate(env) if chosen else self.otherwise.evaluate(env)
 
-    def names(self, out: set[str]) -> None:
-        self.condition.names(out)
-        self.then.names(out)
-        self.otherwise.names(out)
 
 
 @dataclass(frozen=True)
@@ -334,7 +311,7 @@ class Assign(Expr):
                     f"the operator [{op}] needs a numeric entry, but [{self.name}] holds {describe(current)}", self.pos
                 )
             a, b = _real(current, self.pos), _real(value, self.pos)
-            result = a + b if op == "+=" else a - b if op == "-=" else a * b if op == "*=" else _divide(a, b)
+            result = _arithmetic(op[0], a, b)
         elif isinstance(value, str):
             if op != "+=":
                 raise ScriptError(f"the operator [{op}] is not supported for strings (only [+=] is)", self.pos)
@@ -348,6 +325,3 @@ class Assign(Expr):
             raise ScriptError(f"the operator [{op}] expects a number or a string, got {describe(value)}", self.pos)
         return self._convert(result, current, declared, env)
 
-    def names(self, out: set[str]) -> None:
-        out.add(self.name)
-        self.rhs.names(out)

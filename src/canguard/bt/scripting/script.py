@@ -7,7 +7,7 @@ from dataclasses import fields
 
 from canguard.bt.scripting.blackboard import ScriptBlackboard
 from canguard.bt.scripting.errors import ScriptError
-from canguard.bt.scripting.expr import Assign, Env, Expr
+from canguard.bt.scripting.expr import Env, Expr
 from canguard.bt.scripting.parser import parse_statements
 from canguard.bt.scripting.values import UNSET, as_condition
 
@@ -42,8 +42,7 @@ class Script:
 
     ``run`` evaluates the statements in order against a blackboard and returns the
     value of the last one (None when that is an entry without a value); a failure is
-    a :class:`ScriptError` naming the column. ``variables`` lists the names the
-    script reads or writes, for validation at load.
+    a :class:`ScriptError` naming the column.
     """
 
     __slots__ = ("_statements", "text")
@@ -83,24 +82,6 @@ class Script:
             return as_condition(value)
         except ValueError as exc:
             raise ScriptError(f"{exc} from the script {self.text!r}") from None
-
-    def variables(self, enums: Mapping[str, int] | None = None) -> frozenset[str]:
-        """The blackboard keys the script reads or writes (registered enum names left out)."""
-        names: set[str] = set()
-        for stmt in self._statements:
-            stmt.names(names)
-        return frozenset(n for n in names if enums is None or n not in enums)
-
-    def assigned(self) -> frozenset[str]:
-        """The keys the script writes (with any assignment operator)."""
-        out: set[str] = set()
-        stack: list[Expr] = list(self._statements)
-        while stack:
-            node = stack.pop()
-            if isinstance(node, Assign):
-                out.add(node.name)
-            stack.extend(_children(node))
-        return frozenset(out)
 
 
 def parse(text: str) -> Script:

@@ -35,13 +35,6 @@ EXACT_INT = 2**53 - 1
 class _Unset:
     """The value of an entry that exists but holds nothing yet (BT.CPP's empty ``Any``)."""
 
-    _instance: _Unset | None = None
-
-    def __new__(cls) -> _Unset:
-        if cls._instance is None:
-            cls._instance = super().__new__(cls)
-        return cls._instance
-
     def __repr__(self) -> str:
         return "UNSET"
 
