@@ -55,7 +55,6 @@ class Engine(Protocol):
     def next_tick_t(self) -> float: ...
     @property
     def last_frame_t(self) -> float: ...
-    def arrive(self, t: float) -> None: ...
     def edge_tick(self, t: float) -> None: ...
     def runs_until(self) -> float: ...
     def controller_state(self, bus: str, frame: Frame) -> None: ...
@@ -153,8 +152,8 @@ class LogRun:
         """:meth:`run` over a block whose rows are in order, as columns.
 
         A block may mix channels: each row then goes to its channel's bus, with the plans of that
-        bus (one key per channel and id when the buses differ). The first row of a stream starts the
-        engine (:meth:`Engine.arrive`); rows before the latest time of the stream are counted as out of order.
+        bus (one key per channel and id when the buses differ). The first row of a stream starts a replay's
+        engine; rows before the latest time of the stream are counted as out of order.
         """
         if not block.n:
             return
@@ -171,7 +170,11 @@ class LogRun:
         t0 = float(ts[0])
         if not cursor.started:
             cursor.started = True
-            engine.arrive(t0)  # the first frame starts the engine's clock (then its row is taken as any other)
+            # The stream's first frame: a replay's engine starts at it (the ticks due then run first), the clock
+            # moves to it; then its row is taken as any other.
+            engine.frame_time(t0)
+            engine.advance(t0)
+            engine.drive_clock(t0)
         plans, rows, keys, lanes = self._configured(block, buses, per_channel)
         special = block.special
         if special.size:  # counted by the decoder as remote or error frames, configured or not: fed
@@ -360,8 +363,8 @@ class LogRun:
     def _cross(self, ts: Sequence[Any], lo: int, hi: int) -> None:
         """Rows ``lo..hi-1`` (ordered, of no configured message): the first at or after the due time brings the ticks.
 
-        What :meth:`Engine.arrive` does for such a frame, without decoding it; repeated while
-        another due time falls among the rows left.
+        The row that brings them runs the ticks and gate deadlines due up to its time, moves the clock
+        and the latest frame time to it; repeated while another due time falls among the rows left.
         """
         engine = self.engine
         while lo < hi and float(ts[hi - 1]) >= engine.due:
@@ -377,7 +380,7 @@ class LogRun:
                 engine.advance(float(ts[k]))
             t = float(ts[k])
             engine.drive_clock(t)
-            engine.frame_time(t)  # as arrive: not before it (ordered, from cursor.last_t on)
+            engine.frame_time(t)
             lo = k + 1
 
     def _plans_of(self, bus: str) -> dict[int, MessagePlan | None]:
