@@ -66,7 +66,8 @@ def decode_rows(
         run = _split(plan, group, decoded, ts, fed)
         if run is not None:
             whole.append(run)
-    fed.sort(key=itemgetter(0))
+    if len(fed) > 1:
+        fed.sort(key=itemgetter(0))
     return whole, fed
 
 
@@ -101,7 +102,11 @@ def _split(plan: MessagePlan, group: Any, decoded: Sequence[Any], ts: Sequence[A
         else:
             rows.append(i)
             values.append(row)
-    plan.count_empty(empty)
+    if empty:
+        plan.count_empty(empty)
     if not rows:
         return None
-    return plan, rows, [float(ts[i]) for i in rows], list(zip(*values, strict=True))
+    stamps = []  # loops, not comprehensions: no function object per block (Python < 3.12)
+    for i in rows:
+        stamps.append(float(ts[i]))
+    return plan, rows, stamps, list(zip(*values, strict=True))

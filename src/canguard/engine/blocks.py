@@ -27,7 +27,6 @@ from collections.abc import Sequence
 from itertools import chain
 from typing import TYPE_CHECKING, Any
 
-from canguard.decode.decoder import row_samples
 from canguard.decode.rows import Row
 from canguard.protect.staleness import ROW_ROLES
 
@@ -107,28 +106,11 @@ class MessagePlan:
         """
         if self.counter:
             return [None] * len(rows)
+        if len(rows) == block.n:  # every row of the block (a live frame's)
+            return self.entry.decode(block.payload, block.length)
         return self.entry.decode(block.payload[rows], block.length[rows])
 
     # -- one row ------------------------------------------------------------------------
-    def take_payload(self, data: bytes, t: float) -> bool | None:
-        """One frame's payload at ``t`` (a block of one through the message's kernel); True on an edge.
-
-        A whole and valid row takes :meth:`take_row`; any other row its samples with their reasons
-        (:func:`~canguard.decode.decoder.row_samples`, counted here as the frame decoder counts them),
-        :meth:`take_samples`. None: nothing taken, the frame decoder must take the frame (a message whose
-        every row goes to it: :attr:`counter`).
-        """
-        if self.counter:
-            return None
-        entry = self.entry
-        rows = entry.decode(*entry.one(data))
-        row = rows[0]
-        if row:
-            return self.take_row(row, t)
-        self.stats.frames += 1
-        self.counters.frames += 1
-        return self.take_samples(row_samples(entry, rows, 0, t, self.counters))
-
     def take_row(self, values: tuple[float, ...], t: float) -> bool:
         """One row whole and valid at ``t`` (one value per output): a run of one for each health and model
         (:func:`take_runs` of one row); True on an edge."""

@@ -107,7 +107,7 @@ class Engine:
         self.sample_block: Callable[[Any, list[Any], list[tuple[int, Any]]], None] | None = None
         """Set beside :attr:`sample_hook` by a hook that takes a replay's column blocks whole (``--export-signals``):
         called once a block with its times, each message's ((source, signal) names, rows, decoded values) and the
-        samples of the rows fed (with their row); None: with a sample hook, blocks go frame by frame."""
+        samples of the rows fed (with their row); None: a sample hook is called with each sample, in row order."""
         self.tick_hook: Callable[[float], None] | None = None
         """Called after every tick with its time (plots)."""
         self.observer: TickObserver | None = None
@@ -200,8 +200,10 @@ class Engine:
         self._drive_clock(t)
 
     def frame_time(self, t: float) -> None:
-        """A frame at ``t`` was taken without :meth:`arrive` (a column block's rows): the latest frame time moves."""
+        """A frame at ``t`` was taken: the latest frame time moves (the first one is :attr:`first_frame_t`)."""
         if t > self._last_frame_t:
+            if self._last_frame_t == -math.inf:
+                self.first_frame_t = t
             self._last_frame_t = t
 
     # -- life cycle ------------------------------------------------------------------------
@@ -287,24 +289,6 @@ class Engine:
         cursor = self._live
         cursor.route, cursor.default_bus = _NO_ROUTE, bus
         self._blocks.take(Block.of_frames((frame,)), cursor)
-
-    def arrive(self, t: float) -> None:
-        """A frame at ``t`` comes in: the latest frame time moves (or it is counted as out of order), the engine
-        starts at the first one, the ticks and gate deadlines due before it run, the clock moves to it."""
-        if t >= self._last_frame_t:
-            if self._last_frame_t == -math.inf:
-                self.first_frame_t = t
-            self._last_frame_t = t
-        else:
-            self.stats.backward_frames += 1  # out of order: the models' own rules handle it
-        if self._next_tick != self._next_tick:  # NaN: math.isnan, without its lookups (every frame asks)
-            # Not started yet (replay): start at this frame and feed it before the first tick, as live,
-            # where the frames queued while the daemon started are fed before its first tick; otherwise
-            # every replay began with a "no_data" trip on the very frame that brings the data.
-            self.start(t)
-        if t >= self.due:  # a tick or a gate deadline is due before this frame
-            self.advance(t)
-        self._drive_clock(t)  # replay: log time drives the clock; live clocks ignore it
 
     def edge_tick(self, t: float) -> None:
         """A sample at ``t`` changed a model's or a source's state: the tree ticks at once."""
