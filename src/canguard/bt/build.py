@@ -16,6 +16,7 @@ from canguard.bt import conditions
 from canguard.bt.context import Context
 from canguard.bt.loaded import LoadedTree, NodeInfo, _preorder
 from canguard.bt.nodes import CanguardNode, PortError
+from canguard.bt.nodes.base import port_table
 from canguard.bt.registry import _TOKEN
 from canguard.bt.scopes import TreeBlackboard, subtree_scopes
 from canguard.bt.validate import _Validator
@@ -92,7 +93,7 @@ class _Loader(_Validator):
             if not isinstance(node, CanguardNode):
                 continue
             info = infos[node.id]
-            table = node.port_table()
+            table = port_table(type(node))
             for port, key in node.wired_keys().items():
                 if port in node.UNTYPED_PORTS or port not in table:
                     continue

@@ -1,21 +1,9 @@
 """BehaviorTree.CPP 4's pre- and post-conditions on any node: ``_failureIf``, ``_successIf``, ``_onSuccess``...
 
-Scripts in these attributes are parsed once, at load (a syntax error is a load error
-with the file and line), and run on the node's (sub)tree blackboard:
-
-- before a node starts (it is not RUNNING): ``_failureIf`` true → FAILURE, ``_successIf``
-  true → SUCCESS, ``_skipIf`` true → SKIPPED, ``_while`` false → SKIPPED, in that order,
-  without ticking the node (as BT.CPP's ``checkPreConditions``);
-- while it runs: ``_while`` false halts it (``_onHalted`` runs) and it returns SKIPPED;
-- after it (also when a pre-condition gave the status, as in BT.CPP's ``executeTick``):
-  ``_onSuccess`` when it returned SUCCESS, ``_onFailure`` when FAILURE, ``_post`` after
-  either; ``_onHalted`` when it is halted while RUNNING.
-
-SKIPPED is BT.CPP's: the node stays IDLE and its parent learns it was skipped
-(:data:`canguard.bt.nodes.base.SKIPPED`; sequences and fallbacks go on to the next child,
-a control whose children were all skipped is skipped itself). A script that fails while
-it runs (BT.CPP throws out of the tick) fails the node, fail-safe, and the node's feedback
-says why; one in ``_onHalted`` is only reported.
+Parsed once at load (a syntax error is a load error with the file and line), run on the
+node's (sub)tree blackboard in BT.CPP's order (``checkPreConditions``, ``executeTick``;
+docs/trees.md, "Pre- and post-conditions"). A script that fails while it runs fails the
+node, fail-safe (BT.CPP throws); one in ``_onHalted`` is only reported.
 """
 
 from __future__ import annotations

@@ -16,6 +16,7 @@ from canguard.bt import conditions
 from canguard.bt.conditions import take_conditions
 from canguard.bt.loaded import NodeInfo
 from canguard.bt.nodes import ConfiguredAction, GuardNode
+from canguard.bt.nodes.base import port_table
 from canguard.bt.registry import _SUBTREE, _TOKEN, children_problem, known_node_ids, node_kind
 from canguard.bt.xmlread import _closest, _Reader, _type_name
 from canguard.errors import TreeError, closest, quote
@@ -168,10 +169,7 @@ class _Validator(_Reader):
                 f"known node IDs, closest first: {', '.join(near)} ({len(known)} in all: {LIST_NODE_IDS})"
             )
             return None
-        ports: dict[str, tuple[str, PortInformation]] = {
-            **{n: ("input", i) for n, i in cls.input_ports().items()},
-            **{n: ("output", i) for n, i in cls.output_ports().items()},
-        }
+        ports = port_table(cls)
         for attr, value in elem.attrib.items():
             if attr == "name":
                 continue

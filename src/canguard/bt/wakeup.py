@@ -1,25 +1,9 @@
 """BehaviorTree.CPP's wake-up signal, and ``tickOnce()``: the root re-ticked while a wake-up is pending.
 
-Every tree BT.CPP's factory builds shares one wake-up signal among its nodes
-(``Tree::initialize``), a latch: a node *emits* it, and ``Tree::tickRoot`` *consumes*
-it. ``tickOnce()`` (``TickOption::ONCE_UNLESS_WOKEN_UP``, what Nav2's loop calls) ticks
-the root, then, while the root is RUNNING and the signal was emitted, ticks it again
-(``bt_factory.cpp``). The nodes that emit it:
-
-- ``Repeat`` / ``RetryUntilSuccessful`` after a child that completed at once (it was
-  IDLE) when another cycle / attempt follows; ``SequenceWithMemory``, ``AsyncSequence``
-  and ``AsyncFallback`` after such a child when another child follows: they return
-  RUNNING "to make this interruptible", and ``tickOnce()`` goes on at once;
-- ``Sleep``, ``Delay`` and ``Timeout`` when their timer expires (a thread in BT.CPP,
-  here a deadline on the engine's clock, fired when a tick starts at or after it).
-
-A latch emitted in a tick the root completes stays pending (BT.CPP only reads it while
-the root is RUNNING) and gives the next ``tickOnce()`` one more re-tick if its root runs.
-
-BT.CPP's loop has no bound: ``Repeat num_cycles="-1"`` over a child that succeeds at once
-never returns from ``tickOnce()``. canguard bounds the re-ticks of one tick
-(:data:`MAX_RETICKS`), leaves the signal pending for the next tick, and journals the
-first capped tick of a run of them, so such a tree cannot starve the daemon's loop.
+One latch per tree, shared by its nodes (BT.CPP's ``Tree::initialize``): a node emits it, the
+re-tick loop of ``tickOnce()`` consumes it while the root is RUNNING. Unlike BT.CPP the re-ticks
+of one tick are bounded (:data:`MAX_RETICKS`), the first capped tick of a run journalled
+(docs/trees.md, "Ticks").
 """
 
 from __future__ import annotations

@@ -138,6 +138,12 @@ def _number_as(expected: Any, value: Any) -> Any:
     return None
 
 
+def port_table(cls: type[PortsMixin]) -> dict[str, tuple[str, PortInformation]]:
+    """Every port of a node class as ``{name: ("input" | "output", info)}``, inputs first."""
+    return {**{n: ("input", i) for n, i in cls.input_ports().items()},
+            **{n: ("output", i) for n, i in cls.output_ports().items()}}
+
+
 class PortError(ValueError):
     """A port value a node cannot work with; the loader turns it into a TreeError naming file and line."""
 
@@ -336,13 +342,6 @@ class CanguardNode(PortsMixin, register=False):
     # -- life cycle ----------------------------------------------------------------------
     def bind(self) -> None:
         """Load-time set-up from the ports (models, sources); raise :class:`PortError` on bad values."""
-
-    @classmethod
-    def port_table(cls) -> dict[str, tuple[str, PortInformation]]:
-        """Every port as ``{name: ("input" | "output", info)}``, inputs first."""
-        table: dict[str, tuple[str, PortInformation]] = {n: ("input", i) for n, i in cls.input_ports().items()}
-        table.update({n: ("output", i) for n, i in cls.output_ports().items()})
-        return table
 
 
 def _leaf_tick(self: py_trees.behaviour.Behaviour) -> Iterator[py_trees.behaviour.Behaviour]:
