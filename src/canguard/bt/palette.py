@@ -1,26 +1,9 @@
 """Groot2 / BehaviorTree.CPP palettes: ``<TreeNodesModel>`` declarations of node types canguard does not implement.
 
-A palette is what Groot2 and BT.CPP's ``writeTreeNodesModelXML`` write (Nav2 ships
-``nav2_tree_nodes.xml``)::
-
-    <root BTCPP_format="4">
-      <TreeNodesModel>
-        <Action ID="ComputePathToPose">
-          <input_port name="goal" type="geometry_msgs::msg::PoseStamped">Destination</input_port>
-          <input_port name="planner_id" default="GridBased"/>
-          <output_port name="path"/>
-        </Action>
-        <Decorator ID="RateController"><input_port name="hz" default="10"/></Decorator>
-      </TreeNodesModel>
-    </root>
-
-It may sit inside the tree file or come from ``--nodes FILE``. The tree is then
-validated against it: an unknown node ID, an unknown port, the wrong number of
-children, a port declared ``required="true"`` left out — each with its file:line.
-(BT.CPP's palettes do not say which ports are required: a port without ``default``
-may still be optional, as most of Nav2's are.)
-Declaring a node does not make canguard able to run it: running needs a config
-action or a ``canguard.nodes`` plug-in of that ID (:func:`unbound`).
+A palette (in the tree file, or ``--nodes FILE``; Nav2's ``nav2_tree_nodes.xml``) is what Groot2 and
+BT.CPP's ``writeTreeNodesModelXML`` write. Tree nodes are checked against their declaration (ports,
+``required="true"``, children); a declared node runs only once bound to a config action or a plug-in
+(docs/trees.md, "Palettes").
 """
 
 from __future__ import annotations

@@ -102,7 +102,6 @@ class Name(Expr):
             return UNSET
 
 
-
 @dataclass(frozen=True)
 class Unary(Expr):
     op: str  # "-", "~" or "!"
@@ -122,7 +121,6 @@ class Unary(Expr):
         if value is UNSET:
             raise _not_init("right", self.op, self.pos)
         raise ScriptError(f"the operator [{self.op}] expects a number, got {describe(value)}", self.pos)
-
 
 
 @dataclass(frozen=True)
@@ -166,7 +164,6 @@ class Binary(Expr):
             right = rv if isinstance(rv, str) else number_text(rv)  # type: ignore[arg-type]
             return left + right
         raise _not_permitted(op, lv, rv, self.pos)
-
 
 
 def _not_permitted(op: str, lv: object, rv: object, pos: int) -> ScriptError:
@@ -235,7 +232,6 @@ class Compare(Expr):
         return 1.0
 
 
-
 @dataclass(frozen=True)
 class Ternary(Expr):
     condition: Expr
@@ -253,7 +249,6 @@ class Ternary(Expr):
         else:
             raise ScriptError(f"the condition of [?] must be a number or a string, got {describe(value)}", self.pos)
         return self.then.evaluate(env) if chosen else self.otherwise.evaluate(env)
-
 
 
 @dataclass(frozen=True)
