@@ -46,6 +46,7 @@ def take_conditions(attrib: dict[str, str]) -> tuple[dict[str, Script], list[str
 class _ScriptFailed(Exception):
     """A pre-condition script failed while it ran: the node fails (BT.CPP throws out of the tick)."""
 
+
 def _holds(node: py_trees.behaviour.Behaviour, script: Script, board: TreeBlackboard, attr: str) -> bool:
     try:
         return bool(run_script(node, attr, script, board, condition=True))

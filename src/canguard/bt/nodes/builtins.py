@@ -285,6 +285,7 @@ class _Branching(CanguardNode, py_trees.composites.Composite):
 class IfThenElse(_Branching):
     """first child decides: SUCCESS ticks the second, FAILURE the third (or fails); not re-checked"""
 
+
 class WhileDoElse(_Branching):
     """like IfThenElse, but the first child is ticked every time: a change halts the running branch"""
 
