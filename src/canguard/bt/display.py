@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import math
 import shutil
 import xml.etree.ElementTree as ET
 from pathlib import Path
@@ -49,8 +48,6 @@ def render_dot(root: py_trees.behaviour.Behaviour, path: str | Path) -> Path:
 def _default_text(value: Any) -> str:
     if isinstance(value, bool):  # BT.CPP writes and reads bools as true/false
         return "true" if value else "false"
-    if isinstance(value, float) and math.isinf(value):
-        return "inf" if value > 0 else "-inf"
     return str(value)
 
 

@@ -36,14 +36,12 @@ from canguard.bt.scripting.values import (
 )
 
 
+@dataclass(slots=True)
 class Env:
     """What a script runs against: a blackboard and the registered enums (name -> int)."""
 
-    __slots__ = ("bb", "enums")
-
-    def __init__(self, bb: ScriptBlackboard, enums: Mapping[str, int] | None = None) -> None:
-        self.bb = bb
-        self.enums = enums
+    bb: ScriptBlackboard
+    enums: Mapping[str, int] | None = None
 
 
 def _not_init(side: str, op: str, pos: int) -> ScriptError:
