@@ -30,6 +30,22 @@ def typed_literal(text: str) -> int | float | str:
     return text
 
 
+def subtree_ports(elem: ET.Element) -> tuple[dict[str, str], dict[str, str]]:
+    """A ``<SubTree>`` element's ports: those remapped (port -> the parent's entry name), and the literals."""
+    remaps: dict[str, str] = {}
+    literals: dict[str, str] = {}
+    for attr, value in elem.attrib.items():
+        if attr in ("ID", "name") or attr.startswith("_"):
+            continue
+        text = value.strip()
+        if text.startswith("{") and text.endswith("}"):
+            inner = text[1:-1].strip()
+            remaps[attr] = attr if inner == "=" else inner
+        else:
+            literals[attr] = value
+    return remaps, literals
+
+
 @dataclass(frozen=True)
 class Inline:
     """An inlined ``_autoremap`` subtree instance: where its ``_`` entries live, and its element's ports."""
@@ -97,15 +113,9 @@ def subtree_scopes(trees: Mapping[str, ET.Element], main_id: str) -> dict[str, S
                 continue
             target = child.attrib.get("ID", "")
             sub = Scope(scope.namespace + child.attrib.get("name", target) + "/", parent=scope.namespace, element=child)
-            for attr, value in child.attrib.items():
-                if attr in ("ID", "name") or attr.startswith("_"):
-                    continue
-                text = value.strip()
-                if text.startswith("{") and text.endswith("}"):
-                    inner = text[1:-1].strip()
-                    sub.aliases[attr] = scope.key(attr if inner == "=" else inner)
-                else:
-                    sub.literals[sub.namespace + attr] = typed_literal(value)
+            remaps, literals = subtree_ports(child)
+            sub.aliases.update({port: scope.key(name) for port, name in remaps.items()})
+            sub.literals.update({sub.namespace + port: typed_literal(text) for port, text in literals.items()})
             scopes[sub.namespace] = sub
             if target in trees:
                 walk(trees[target], sub)

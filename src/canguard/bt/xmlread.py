@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING, Any, Literal
 from canguard.bt.context import Context
 from canguard.bt.loaded import NodeInfo
 from canguard.bt.registry import _PORT_ALIASES, _SUBTREE, _TAG_ALIASES, _TOKEN, _V3_WRAPPERS, Registry, build_registry
-from canguard.bt.scopes import Inline
+from canguard.bt.scopes import Inline, subtree_ports
 from canguard.bt.xmlsrc import Where, _read_xml
 from canguard.errors import TreeError, closest, quote
 
@@ -237,27 +237,13 @@ class _Reader:
         body = self.trees[target]
         if len(body) != 1:
             raise self.error(sub, f"BehaviorTree {target} must have exactly one root node", tree_id)
-        rename: dict[str, str] = {}
-        conditions: dict[str, str] = {}
-        for attr, value in sub.attrib.items():
-            if attr in ("ID", "name", "_autoremap", "__autoremap"):
-                continue
-            if attr.startswith("_"):
-                conditions[attr] = value
-                continue
-            text = value.strip()
-            if text == "{=}":
-                continue
-            if text.startswith("{") and text.endswith("}"):
-                rename[attr] = text  # the parent's entry of that name
-            else:
-                rename[attr] = value  # a constant: the subtree's {attr} reads it
+        remaps, literals = subtree_ports(sub)
+        rename = {**{port: "{" + name + "}" for port, name in remaps.items()}, **literals}  # {port} -> this
         self._inlined += 1
         private = f"{target}_autoremap{self._inlined}"  # BT.CPP: _autoremap never maps a key starting with _
-        remaps = {port: value.strip()[1:-1].strip() for port, value in rename.items() if value.strip().startswith("{")}
-        literals = {port: value for port, value in rename.items() if port not in remaps}
         copy = self._copy(body[0], rename, Inline(private, remaps, literals))
-        copy.attrib.update(conditions)
+        copy.attrib.update({a: v for a, v in sub.attrib.items()
+                            if a.startswith("_") and a not in ("_autoremap", "__autoremap")})
         for i, child in enumerate(copy):
             if self._autoremapped(child):
                 copy[i] = self._inline(child, tree_id, (*chain, target))
