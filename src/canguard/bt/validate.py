@@ -107,12 +107,9 @@ class _Validator(_Reader):
         return None
 
     def _check_subtree(self, elem: ET.Element, tree_id: str, names: dict[str, int]) -> None:
-        target = elem.attrib.get("ID")
-        if not target:
+        if not elem.attrib.get("ID"):
             raise self.error(elem, 'SubTree without ID="..."', tree_id)
-        if target not in self.trees:
-            known = ", ".join(_closest(target, self.trees))
-            raise self.error(elem, f"unknown BehaviorTree {quote(target)}; trees in the file: {known}", tree_id)
+        target = self.target(elem, tree_id)
         if len(elem):
             raise self.error(elem, "a SubTree takes no child elements (its ports are attributes)", tree_id)
         for attr, value in elem.attrib.items():

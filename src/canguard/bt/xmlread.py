@@ -228,10 +228,7 @@ class _Reader:
         element (``_skipIf``...) move to the copy's root; its lines stay those of the subtree's
         definition.
         """
-        target = sub.attrib.get("ID", "")
-        if target not in self.trees:
-            known = ", ".join(_closest(target, self.trees))
-            raise self.error(sub, f"unknown BehaviorTree {quote(target)}; trees in the file: {known}", tree_id)
+        target = self.target(sub, tree_id)
         if target in chain:
             raise self.error(sub, f"SubTree cycle: {' -> '.join((*chain, target))}", tree_id)
         body = self.trees[target]
@@ -248,6 +245,14 @@ class _Reader:
             if self._autoremapped(child):
                 copy[i] = self._inline(child, tree_id, (*chain, target))
         return copy
+
+    def target(self, sub: ET.Element, tree_id: str) -> str:
+        """The ID of the BehaviorTree a ``<SubTree>`` runs; a TreeError naming the trees when there is none."""
+        target = sub.attrib.get("ID", "")
+        if target not in self.trees:
+            known = ", ".join(_closest(target, self.trees))
+            raise self.error(sub, f"unknown BehaviorTree {quote(target)}; trees in the file: {known}", tree_id)
+        return target
 
     def _copy(self, src: ET.Element, rename: dict[str, str], inline: Inline) -> ET.Element:
         """A deep copy of ``src`` with its lines, ``{key}`` references renamed by ``rename``, ``{_key}`` ones

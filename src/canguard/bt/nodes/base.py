@@ -1,21 +1,11 @@
 """What every canguard node shares: typed ports, the context, a load-time ``bind()``.
 
-Every node type is a :class:`py_trees.ports.PortsMixin` + py_trees behaviour declaring
-``INPUT_PORTS`` / ``OUTPUT_PORTS`` with the names BehaviorTree.CPP users type.
-:class:`CanguardNode` adds the tree's :class:`~canguard.bt.context.Context` (``context=``,
-bound by the registry: nodes never reach for globals or clocks); stays out of py_trees'
-global auto-registry (importing canguard must not change what other py_trees users'
-parsers resolve); reads constant and default ports once, at ``setup_ports()`` (only ports
-wired to a ``{key}`` are read at tick); and has :meth:`~CanguardNode.bind`, called once the
-whole tree is parsed, so that a bad port value is a load-time TreeError naming file, line,
-node and port. Output ports are only written when wired, as BehaviorTree.CPP drops writes
-to unconnected ports.
-
-**Blackboard fast path.** The access rights and the remapped key of every wired port
-are fixed once ``setup_ports()`` has registered them, so :meth:`CanguardNode.port` and
-:meth:`CanguardNode.write` go straight to ``Blackboard.storage`` (py_trees' client costs
-3-4 µs a write), with the same type checks. While py_trees' activity stream is enabled
-they take the client's path, so the stream stays complete.
+:class:`CanguardNode` is a :class:`py_trees.ports.PortsMixin` declaring ``INPUT_PORTS`` /
+``OUTPUT_PORTS`` under BehaviorTree.CPP's names. It gets the tree's context from the registry,
+stays out of py_trees' global auto-registry, reads constant ports once at ``setup_ports()`` (only
+``{key}`` ports at tick, straight from ``Blackboard.storage`` unless py_trees' activity stream is
+on), writes output ports only when wired (as BT.CPP), and checks its ports in :meth:`~CanguardNode.bind`
+once the whole tree is parsed, so a bad value is a load-time TreeError naming file, line, node and port.
 """
 
 from __future__ import annotations
