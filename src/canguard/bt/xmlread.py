@@ -219,15 +219,9 @@ class _Reader:
         return value is not None and value.strip().lower() in ("true", "1")
 
     def _inline(self, sub: ET.Element, tree_id: str, chain: tuple[str, ...]) -> ET.Element:
-        """The subtree of an autoremapped SubTree, copied in its place: it shares the parent's blackboard.
-
-        BT.CPP's ``_autoremap="true"``: every entry the subtree uses is the parent's entry of
-        the same name, unless the SubTree element remaps it to another ``{key}`` or gives it
-        a constant; the copy's ports get those keys renamed or the constant (scripts inside
-        read entries by name: a remapped name there is not renamed). Conditions on the SubTree
-        element (``_skipIf``...) move to the copy's root; its lines stay those of the subtree's
-        definition.
-        """
+        """The subtree of an autoremapped SubTree, copied in its place on the parent's blackboard (BT.CPP's
+        ``_autoremap="true"``): its ports' remapped keys renamed or given the element's constants (scripts keep
+        their names), the element's conditions on the copy's root, its lines those of the definition."""
         target = self.target(sub, tree_id)
         if target in chain:
             raise self.error(sub, f"SubTree cycle: {' -> '.join((*chain, target))}", tree_id)

@@ -335,11 +335,8 @@ class CanguardNode(PortsMixin, register=False):
 
 
 def _leaf_tick(self: py_trees.behaviour.Behaviour) -> Iterator[py_trees.behaviour.Behaviour]:
-    """:meth:`py_trees.behaviour.Behaviour.tick` of a leaf, the same steps in the same order.
-
-    py_trees formats a debug string and builds ``list(Status)`` on every tick and stop, logging
-    on or off; here the debug lines are written only when the logger would print them.
-    """
+    """:meth:`py_trees.behaviour.Behaviour.tick` of a leaf, the same steps, its debug lines formatted only when
+    the logger would print them."""
     if py_trees.logging.level < py_trees.logging.Level.INFO:  # py_trees' own module-wide level
         self.logger.debug(f"{self.__class__.__name__}.tick()")
     if self.status != RUNNING:
@@ -396,13 +393,8 @@ def _leaf_stop(self: py_trees.behaviour.Behaviour, new_status: Status) -> None:
 
 
 def halted(node: py_trees.behaviour.Behaviour, new_status: py_trees.common.Status) -> bool:
-    """True when ``terminate(new_status)`` is a BehaviorTree.CPP *halt*: a RUNNING node interrupted.
-
-    py_trees also stops finished (SUCCESS/FAILURE) children with INVALID each time a
-    composite starts over; BehaviorTree.CPP only halts nodes that are RUNNING. Nodes
-    whose halt has side effects (ExecuteTask stops the task, Profile resets its
-    statistics) act only on a real halt.
-    """
+    """True when ``terminate(new_status)`` is a BehaviorTree.CPP *halt*: a RUNNING node interrupted (py_trees
+    also stops finished children with INVALID when a composite starts over; that is no halt)."""
     return new_status == INVALID and node.status == RUNNING
 
 
