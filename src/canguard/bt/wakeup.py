@@ -15,6 +15,8 @@ from typing import TYPE_CHECKING, Protocol
 if TYPE_CHECKING:
     import py_trees
 
+    from canguard.bt.context import Context
+
 MAX_RETICKS = 100
 """Re-ticks of the root allowed in one tick (after the first); the rest wait for the next tick."""
 
@@ -65,10 +67,7 @@ class _Tree(Protocol):
 
     root: py_trees.behaviour.Behaviour
     wake_up: WakeUpSignal
-
-    def now(self) -> float: ...
-
-    def record(self, event: str, **fields: object) -> None: ...
+    context: Context
 
 
 @dataclass(frozen=True)
@@ -109,7 +108,7 @@ def tick_once(
     from py_trees.common import Status
 
     signal = tree.wake_up
-    signal.fire_due(tree.now())
+    signal.fire_due(tree.context.now())
     reached: set | None = set() if collect else None
     root = tree.root
     _tick_root(root, reached)
@@ -123,7 +122,7 @@ def tick_once(
         reticks += 1
         _tick_root(root, reached)
     if capped and not signal.capped:
-        tree.record(
+        tree.context.record(
             "error",
             node=root.name,
             reason=f"the tree kept waking itself up: {max_reticks} re-ticks in one tick, "
