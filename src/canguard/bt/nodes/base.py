@@ -23,7 +23,8 @@ from canguard.bt.scripting import ScriptError
 from canguard.bt.wakeup import WakeUpSignal
 
 if TYPE_CHECKING:
-    from canguard.bt.scripting import Script, ScriptBlackboard
+    from canguard.bt.scripting import Script
+    from canguard.bt.scripting.blackboard import ScriptBlackboard
 
 NodeKind = Literal["Action", "Condition", "Control", "Decorator"]
 

@@ -82,8 +82,3 @@ class Script:
             return as_condition(value)
         except ValueError as exc:
             raise ScriptError(f"{exc} from the script {self.text!r}") from None
-
-
-def parse(text: str) -> Script:
-    """Parse ``text`` once (at load); ScriptError with the column when it does not parse."""
-    return Script(text)
