@@ -13,9 +13,9 @@ from __future__ import annotations
 from collections.abc import Iterator, Mapping
 from importlib import import_module
 
-from canguard.bt.nodes.actions import ConfiguredAction, EmitStop, ExecuteTask, ResetStop
-from canguard.bt.nodes.base import CanguardNode, NodeKind, PortError, port_info
-from canguard.bt.nodes.current import GuardNode, IsCurrentNormal, IsCurrentSafe, IsI2tSafe
+from canguard.bt.nodes.actions import ConfiguredAction
+from canguard.bt.nodes.base import CanguardNode, PortError, port_info
+from canguard.bt.nodes.current import GuardNode
 
 _MODULES: dict[str, str] = {
     # conditions
@@ -72,5 +72,4 @@ def __getattr__(name: str) -> type[CanguardNode]:
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
-__all__ = ["BUILTIN_NODES", "CanguardNode", "ConfiguredAction", "EmitStop", "ExecuteTask", "GuardNode",
-           "IsCurrentNormal", "IsCurrentSafe", "IsI2tSafe", "NodeKind", "PortError", "ResetStop", "port_info"]
+__all__ = ["BUILTIN_NODES", "CanguardNode", "ConfiguredAction", "GuardNode", "PortError", "port_info"]
