@@ -14,7 +14,6 @@ from __future__ import annotations
 
 from canguard.bt.build import load_tree
 from canguard.bt.checks import (
-    TreeReport,
     check_tree,
     context_for,
     guard_coverage,
@@ -24,28 +23,9 @@ from canguard.bt.checks import (
     show_tree,
 )
 from canguard.bt.display import nodes_model_xml, render_dot, render_text
-from canguard.bt.loaded import GuardView, LoadedTree, NodeInfo
-from canguard.bt.registry import ENTRY_POINT_GROUP, Registry, build_registry, known_node_ids, node_kind
+from canguard.bt.loaded import GuardView, LoadedTree
+from canguard.bt.registry import build_registry, node_kind
 
-__all__ = [
-    "ENTRY_POINT_GROUP",
-    "GuardView",
-    "LoadedTree",
-    "NodeInfo",
-    "Registry",
-    "TreeReport",
-    "build_registry",
-    "check_tree",
-    "context_for",
-    "guard_coverage",
-    "known_node_ids",
-    "load_config_tree",
-    "load_tree",
-    "node_kind",
-    "nodes_model_xml",
-    "partial_tree_problems",
-    "render_dot",
-    "render_text",
-    "require_guard_coverage",
-    "show_tree",
-]
+__all__ = ["GuardView", "LoadedTree", "build_registry", "check_tree", "context_for", "guard_coverage",
+           "load_config_tree", "load_tree", "node_kind", "nodes_model_xml", "partial_tree_problems", "render_dot",
+           "render_text", "require_guard_coverage", "show_tree"]
