@@ -13,7 +13,8 @@ from py_trees.ports import PortsMixin
 from canguard.bt import registry
 from canguard.bt.context import Context
 from canguard.bt.nodes import BUILTIN_NODES, ConfiguredAction
-from canguard.bt.registry import _load_plugin, node_kind
+from canguard.bt.nodes.base import node_kind
+from canguard.bt.registry import _load_plugin
 from canguard.bt.xmlread import _type_name
 from canguard.errors import TreeError
 

@@ -24,7 +24,8 @@ from canguard.bt.checks import (
 )
 from canguard.bt.display import nodes_model_xml, render_dot, render_text
 from canguard.bt.loaded import GuardView, LoadedTree
-from canguard.bt.registry import build_registry, node_kind
+from canguard.bt.nodes.base import node_kind
+from canguard.bt.registry import build_registry
 
 __all__ = ["GuardView", "LoadedTree", "build_registry", "check_tree", "context_for", "guard_coverage",
            "load_config_tree", "load_tree", "node_kind", "nodes_model_xml", "partial_tree_problems", "render_dot",

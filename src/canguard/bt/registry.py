@@ -101,18 +101,6 @@ def known_node_ids(ctx: Context | None = None) -> list[str]:
     return sorted(ids)
 
 
-def node_kind(cls: type) -> str:
-    """Action, Condition, Control or Decorator."""
-    kind = getattr(cls, "KIND", None)
-    if isinstance(kind, str):
-        return kind
-    if issubclass(cls, py_trees.decorators.Decorator):
-        return "Decorator"
-    if issubclass(cls, py_trees.composites.Composite):
-        return "Control"
-    return "Action"
-
-
 def children_problem(kind: str, n: int) -> str | None:
     """What is wrong with ``n`` children under a node of ``kind`` (Action, Condition, Decorator...); None: nothing."""
     if kind == "Decorator":

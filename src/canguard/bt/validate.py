@@ -16,8 +16,8 @@ from canguard.bt import conditions
 from canguard.bt.conditions import take_conditions
 from canguard.bt.loaded import NodeInfo
 from canguard.bt.nodes import ConfiguredAction, GuardNode
-from canguard.bt.nodes.base import port_table
-from canguard.bt.registry import _SUBTREE, _TOKEN, children_problem, known_node_ids, node_kind
+from canguard.bt.nodes.base import node_kind, port_table
+from canguard.bt.registry import _SUBTREE, _TOKEN, children_problem, known_node_ids
 from canguard.bt.xmlread import _closest, _Reader, _type_name
 from canguard.errors import TreeError, closest, quote
 

@@ -129,6 +129,16 @@ def _number_as(expected: Any, value: Any) -> Any:
     return None
 
 
+def node_kind(cls: type) -> NodeKind:
+    """Action, Condition, Control or Decorator: Condition where the class's ``KIND`` says so, else its py_trees
+    base's (any node class, plug-ins too)."""
+    if getattr(cls, "KIND", None) == "Condition":
+        return "Condition"
+    if issubclass(cls, py_trees.decorators.Decorator):
+        return "Decorator"
+    return "Control" if issubclass(cls, py_trees.composites.Composite) else "Action"
+
+
 def port_table(cls: type[PortsMixin]) -> dict[str, tuple[str, PortInformation]]:
     """Every port of a node class as ``{name: ("input" | "output", info)}``, inputs first."""
     return {**{n: ("input", i) for n, i in cls.input_ports().items()},
@@ -202,9 +212,7 @@ class CanguardNode(PortsMixin, register=False):
             super(PortsMixin, cls).__init_subclass__(**kwargs)
         if "DESCRIPTION" not in cls.__dict__ and cls.__doc__:
             cls.DESCRIPTION = " ".join(cls.__doc__.split("\n\n")[0].split())
-        if cls.KIND != "Condition":
-            cls.KIND = ("Decorator" if issubclass(cls, py_trees.decorators.Decorator)
-                        else "Control" if issubclass(cls, py_trees.composites.Composite) else "Action")
+        cls.KIND = node_kind(cls)
         if issubclass(cls, py_trees.behaviour.Behaviour) and cls.KIND in ("Action", "Condition"):
             # a leaf: py_trees' tick and stop, step for step, without their eager debug strings
             if cls.tick is py_trees.behaviour.Behaviour.tick:
