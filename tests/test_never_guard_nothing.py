@@ -1,4 +1,4 @@
-"""canguard never guards nothing silently (issue 14).
+"""canguard never guards nothing silently.
 
 - ``canguard run`` under systemd (``NOTIFY_SOCKET`` set) refuses a config whose buses are
   all ``virtual`` unless the config says ``simulation: true``; STATUS= names what is guarded.

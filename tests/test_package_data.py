@@ -19,9 +19,9 @@ def test_bundled_files_resolve_through_the_package() -> None:
 
 
 def test_cli_defaults_come_from_the_package_not_the_checkout() -> None:
+    from canguard.cli.common import bundled_config
     from canguard.cli.demo import DEMO_CONFIG
-    from canguard.cli.main import BUNDLED_CONFIG
 
-    for path in (BUNDLED_CONFIG, DEMO_CONFIG):
+    for path in (bundled_config(), DEMO_CONFIG):
         assert path.is_file(), path
         assert "canguard/data/config" in path.as_posix(), path

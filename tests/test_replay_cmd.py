@@ -26,7 +26,7 @@ import yaml
 from tests.feed import step
 
 from canguard.cli.main import main
-from canguard.cli.replay import compare_baseline
+from canguard.report.summary import diff_baseline
 from canguard.sim import write_log
 from checkout import REPO, SRC
 
@@ -456,8 +456,8 @@ class TestBaseline:
         trip = {"node": "G", "source": "s", "reason": "overcurrent"}
         old = {"trips": [trip], "margins": [], "stops": 1}
         new = {"trips": [trip, trip], "margins": [], "stops": 1}
-        assert compare_baseline(old, new) == ["new trip: G on s (overcurrent): 1 -> 2"]
-        assert compare_baseline(old, old) == []
+        assert [c.text for c in diff_baseline(old, new)] == ["new trip: G on s (overcurrent): 1 -> 2"]
+        assert diff_baseline(old, old) == []
 
     def test_baseline_not_json(self, run: Run, data: Data, tmp_path: Path) -> None:
         """A baseline that is not a --json summary is exit 2 naming it, not a traceback."""

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from canguard.service.systemd import Notifier, WatchdogPolicy, status_line, watchdog_verdict
+from canguard.service.systemd import Notifier, watchdog_verdict
 from checkout import REPO
 
 SYSTEMD_DIR = REPO / "systemd"
@@ -168,53 +168,6 @@ class TestWatchdogVerdict:
         """A non-positive tick period is a ValueError."""
         with pytest.raises(ValueError, match="tick_period_s"):
             watchdog_verdict(1.0, 1.0, 0.0)
-
-
-class TestWatchdogPolicy:
-    """WatchdogPolicy: rate-limited WATCHDOG=1 pings only while healthy."""
-
-    def test_pings_rate_limited_and_withheld_when_stalled(
-        self, notify_socket: tuple[socket.socket, str], caplog: pytest.LogCaptureFixture
-    ) -> None:
-        """Pings go out at most every ping period, stop while the loop stalls and resume after."""
-        sock, path = notify_socket
-        sock.setblocking(False)
-        n = Notifier({"NOTIFY_SOCKET": path, "WATCHDOG_USEC": "2000000"})
-        p = WatchdogPolicy(n, tick_period_s=0.01)
-        assert p.ping_period_s == 1.0
-        for i in range(300):  # 3 s of on-time ticks at 100 Hz
-            t = i * 0.01
-            p.update(t, t)
-        assert p.pings == 3
-        assert not p.update(5.0, 3.0)  # stalled for 2 s
-        assert p.pings == 3 and "loop stalled" in caplog.text
-        assert p.update(5.01, 5.01)
-        assert p.pings == 4
-        datagrams = []
-        while True:
-            try:
-                datagrams.append(sock.recv(4096))
-            except BlockingIOError:
-                break
-        assert datagrams == [b"WATCHDOG=1"] * 4
-
-    def test_stale_unstopped_source_withholds(self) -> None:
-        """A stale source that caused no stop keeps the policy from pinging."""
-        p = WatchdogPolicy(Notifier({}), tick_period_s=0.01, ping_period_s=0.5)
-        assert not p.update(1.0, 1.0, {"bms"})
-        assert p.pings == 0 and "bms" in p.last_verdict.reason
-
-
-class TestStatusLine:
-    """status_line: the STATUS= text."""
-
-    def test_format(self) -> None:
-        """State, trip count and per-bus frame rates appear in a stable order."""
-        assert (
-            status_line("stopped", 2, {"can1": 95.4, "can0": 812.0})
-            == "stopped; trips=2; can0=812 fps can1=95 fps"
-        )
-        assert status_line("running", 0) == "running; trips=0"
 
 
 def _run(*args: str) -> subprocess.CompletedProcess[str]:

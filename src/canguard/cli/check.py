@@ -1,9 +1,4 @@
-"""What ``canguard check`` prints: the config as canguard understood it.
-
-:func:`describe` turns a loaded :class:`~canguard.config.schema.Config` into a plain
-text report: DBC files, buses, each source with its message, frame id, signals,
-units and DBC ranges, and the task / stop / action frames with their payloads.
-"""
+"""What ``canguard check`` prints: the config as canguard understood it."""
 
 from __future__ import annotations
 
@@ -107,8 +102,7 @@ def describe(cfg: Config, verbose: bool = False) -> str:
     c = cfg.stop.confirm
     if c is not None:
         lines.append(f"  confirm: {c.source}.{c.signal} {c.op} {c.value:g} within {c.deadline_s:g} s")
-        lines += _frames("escalate", cfg.stop.escalate)
-    elif cfg.stop.escalate:
+    if c is not None or cfg.stop.escalate:
         lines += _frames("escalate", cfg.stop.escalate)
     lines.append("actions:")
     if not cfg.actions:

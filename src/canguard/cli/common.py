@@ -8,29 +8,22 @@ from __future__ import annotations
 
 import argparse
 import os
+import re
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
+
+from canguard.errors import ConfigError
 
 if TYPE_CHECKING:
     from canguard.config.schema import Config
 
 
 def bundled_config() -> Path:
-    """The config shipped in the package (``canguard/data/config/canguard.yaml``).
-
-    Looked up when a command needs it (also as the module attribute ``BUNDLED_CONFIG``), not
-    at import: importlib.resources costs every start ~5 ms, and a config given with ``-c``
-    never needs it.
-    """
+    """The config shipped in the package (``canguard/data/config/canguard.yaml``), looked up when needed."""
     from canguard.data import data_path
 
     return data_path("config", "canguard.yaml")
-
-
-def __getattr__(name: str) -> Path:
-    if name == "BUNDLED_CONFIG":
-        return bundled_config()
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 EXIT_OK = 0
@@ -65,11 +58,7 @@ COMMANDS: dict[str, str] = {
     "unit": "print the systemd unit for this install (right ExecStart path)",
     "completion": "print a shell completion script (bash or zsh)",
 }
-"""Every subcommand and its one-line help, in the order ``canguard -h`` lists them.
-
-Here, not in each subcommand's module, so ``canguard -h`` and a command's parse need not
-import every module (:func:`canguard.cli.main.build_parser` builds only the one being run).
-"""
+"""Every subcommand and its one-line help, in the order ``canguard -h`` lists them (no module imported)."""
 
 
 def exit_codes_epilog() -> str:
@@ -128,12 +117,8 @@ def run_config(args: argparse.Namespace) -> tuple[Config, Path | None]:
 
 
 def add_global_options(p: argparse.ArgumentParser, *, in_subcommand: bool) -> None:
-    """Options valid anywhere on the command line: ``canguard -v replay`` = ``canguard replay -v``.
-
-    argparse parses a subcommand into a namespace of its own and copies it over the
-    main one, so the subcommand's count has its own name (``sub_verbose``) and
-    :func:`canguard.cli.main.parse_args` adds the two: ``-v replay -v`` is ``-vv``.
-    """
+    """``-v`` anywhere: a subcommand's count is ``sub_verbose`` (argparse copies a subparser's namespace over the
+    main one), added up by :func:`canguard.cli.main.parse_args`."""
     dest = "sub_verbose" if in_subcommand else "verbose"
     p.add_argument("-v", "--verbose", action="count", default=0, dest=dest, help="more log output (-vv: debug)")
 
@@ -142,14 +127,24 @@ class Formatter(argparse.RawDescriptionHelpFormatter):
     """Keeps the epilog's exit-code table as written."""
 
 
-def subcommand(sub: argparse._SubParsersAction, name: str, **kwargs: Any) -> argparse.ArgumentParser:
-    """``sub.add_parser`` with the global options and the exit-code epilog every subcommand shares."""
+def subcommand(sub: argparse._SubParsersAction, name: str, func: Callable[[argparse.Namespace], int],
+               **kwargs: Any) -> argparse.ArgumentParser:
+    """``sub.add_parser`` running ``func``, with the global options and the exit-code epilog every subcommand shares."""
     kwargs.setdefault("help", COMMANDS[name])
     epilog = kwargs.pop("epilog", None)
     text = exit_codes_epilog() if epilog is None else f"{epilog}\n\n{exit_codes_epilog()}"
     p: argparse.ArgumentParser = sub.add_parser(name, epilog=text, formatter_class=Formatter, **kwargs)
     add_global_options(p, in_subcommand=True)
+    p.set_defaults(func=func)
     return p
+
+
+def replace_once(text: str, pattern: str, repl: str, what: str) -> str:
+    """``text`` of the packaged file ``what`` with its one line matching ``pattern`` replaced (else ConfigError)."""
+    out, n = re.subn(pattern, repl, text, flags=re.M)
+    if n != 1:
+        raise ConfigError(f"the packaged {what} has {n} lines matching {pattern!r}, expected one: cannot fit it")
+    return out
 
 
 def per_log_path(base: Path | None, log: Path, many: bool) -> Path | None:
@@ -164,9 +159,8 @@ BLAS_THREADS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 
 
 def one_blas_thread() -> None:
-    """One thread for each BLAS pool numpy would start, unless the user set one: canguard's numpy work is
-    block by block, never worth a pool, and OpenBLAS starts a thread per core at numpy's import that spins
-    beside the replay (a 600 k-frame replay used ~15 % more CPU with it). Before numpy is imported."""
+    """One thread for each BLAS pool numpy would start, unless the user set one (canguard's numpy work is
+    block by block, never worth a pool). Before numpy is imported."""
     for name in BLAS_THREADS:
         os.environ.setdefault(name, "1")
 

@@ -17,13 +17,12 @@ _SHELLS = ("bash", "zsh")
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """Register ``canguard completion``."""
     p = subcommand(
-        sub, "completion",
+        sub, "completion", cmd_completion,
         description="Print a completion script for subcommands and options. bash: "
                     "`source <(canguard completion bash)` or save it to "
                     "/etc/bash_completion.d/canguard; zsh: `source <(canguard completion zsh)` in ~/.zshrc.",
     )
     p.add_argument("shell", choices=_SHELLS)
-    p.set_defaults(func=cmd_completion)
 
 
 def _options(parser: argparse.ArgumentParser) -> list[str]:

@@ -1,20 +1,10 @@
 """Submodules of our dependencies that ``canguard`` commands never use, loaded on first use instead of at import.
 
-``import cantools`` runs ``cantools.tester`` (cantools' bus test harness), which imports
-python-can whole (its interfaces, ``asyncio``, its log readers and writers): ~35 ms of
-every ``canguard replay`` over a candump log, about 6 % of a 2 M-frame replay, for a
-module canguard never touches. ``py_trees`` likewise imports ``py_trees.display`` (and
-with it ``pydot``), used only by ``canguard tree``.
-
-:func:`defer` puts a stand-in for such a module into ``sys.modules`` before its package
-is imported. The package's own ``from . import tester`` then binds the stand-in, and the
-first attribute anyone reads of it runs the real module's code in it (PEP 562's module
-``__getattr__``): ``cantools.tester.Tester`` and ``py_trees.display.unicode_tree`` work as
-before, only later. python-can itself is still imported wherever canguard talks to a bus or
-reads a python-can log format; then nothing is deferred but the harness's own few lines.
-
-Only the ``canguard`` process entry point (:func:`canguard.cli.main.console`) defers:
-a program that imports canguard as a library gets its dependencies as they are.
+``import cantools`` imports ``cantools.tester``, and with it python-can whole (~35 ms of a replay);
+``py_trees`` imports ``py_trees.display`` and pydot. :func:`defer` puts a stand-in into ``sys.modules``
+before the package is imported; the first attribute read runs the real module's code in it (PEP 562).
+Only the process entry point (:func:`canguard.cli.main.console`) defers, never a library import.
+(The stdlib's ``LazyLoader`` is not thread-safe before Python 3.12.)
 """
 
 from __future__ import annotations

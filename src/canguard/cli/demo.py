@@ -1,14 +1,7 @@
 """``canguard demo``: the simulated robot and the daemon, one command, no hardware.
 
-The bundled config's buses are replaced by one private python-can ``virtual``
-channel; the simulated robot (:mod:`canguard.sim`) runs on it in a thread and the
-real daemon loop (:class:`~canguard.service.daemon.Daemon`) in the foreground, exactly
-as ``canguard run`` would. The robot walks through the scenarios (a BMS spike,
-a sustained overload, a BMS dropout, garbage payloads, an error burst, a motor
-start); the daemon trips, sends stop frames, the simulated drives obey, and the
-tree recovers. A live view shows each source when stdout is a terminal
-(otherwise one line per event); at the end a summary tells what tripped, when,
-and how fast the stop frames went out. It ends by itself (``--duration``).
+Both on one private ``virtual`` channel (the robot in a thread). A live view on a terminal (else one line
+per event); at the end, what tripped, when, and how fast the stop frames went out.
 """
 
 from __future__ import annotations
@@ -40,7 +33,7 @@ DEMO_SCENARIOS = ("normal", "spike@4", "overload@9", "dropout@18", "garbage@24",
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """Register ``canguard demo``."""
     p = subcommand(
-        sub, "demo",
+        sub, "demo", cmd_demo,
         description="Run the simulated robot and the daemon together on a private virtual bus with the bundled "
                     "config; walk through the scenarios; print what tripped, when, and how fast the stop went out.",
     )
@@ -51,7 +44,6 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="keep the events here (default: a temporary file, removed at the end)")
     p.add_argument("--seed", type=int, default=0, help="the simulated robot's random seed")
     add_monitor_options(p)
-    p.set_defaults(func=cmd_demo)
 
 
 def demo_config(cfg: Config, events: Path) -> Config:
@@ -119,7 +111,6 @@ class LiveView:
             state = reason or ("TRIPPED" if snap.tripped else "ok")
             thr = g.threshold()
             where = g.source if g.role == "current" else f"{g.source}:{g.role}"
-            # the value is the signal's (A, Nm); an I²t guard's threshold is its trip level (A²s or θ)
             lines.append(f"{g.node[:28]:28s} {where[:20]:20s} {_fmt(value, g.unit):>10s} "
                          f"{_fmt(thr if math.isfinite(thr) else math.nan, g.threshold_unit):>12s} "
                          f"{_fmt(snap.level_pct, '%'):>8s}  {state}")
@@ -221,9 +212,7 @@ def summary_text(engine: Any, trips: list[tuple[float, dict[str, Any]]], stop_wa
              f"{engine.gate.stopped_total(engine.clock.now()):.2f} s; escalations "
              f"{engine.events_seen['escalate']}, confirmations {engine.events_seen['confirmed']}"]
     for wall, ev in trips:
-        t = float(ev.get("t", math.nan))
-        # The trip event's t is the triggering frame's bus timestamp (for a stale source: the tick that
-        # found it stale); the stop frame's send time is wall time on the same clock.
+        t = float(ev.get("t", math.nan))  # the triggering frame's bus time: wall time, as the stop's send
         after = [s for s in stop_walls if s >= wall - 0.001]
         latency = f"stop frames out {1000 * (after[0] - t):.2f} ms after the trip's time" if after else \
             "no new stop (already stopped)"

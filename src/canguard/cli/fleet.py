@@ -1,12 +1,4 @@
-"""Fleet replay: which logs a ``canguard replay`` names, and running them on a Dask cluster.
-
-``canguard replay`` takes, besides log files, a directory (every log in it, recursively,
-sorted), a quoted glob (``'logs/**/*.log.gz'``) or ``@LIST`` (a text file of log paths, one
-per line, relative to the list; ``#`` comments). ``--jobs N`` replays them in N local
-processes; ``--dask SCHEDULER`` on a Dask distributed cluster (the ``fleet`` extra). Either
-way each log is replayed by the same :func:`canguard.cli.replay.replay_one` from a fresh
-engine, so the summaries are those of a serial run, in the order the logs were given.
-"""
+"""Fleet replay: which logs a ``canguard replay`` names, and running them on a Dask cluster."""
 
 from __future__ import annotations
 
@@ -111,7 +103,6 @@ def run_dask(address: str, job: Callable[[Any], Any], jobs: list[Any]) -> list[A
         raise ConfigError(f"--dask {address}: cannot reach the scheduler: {exc}") from None
     progress = Progress(len(jobs))
     try:
-        # each log in a scope that keeps the worker's freed memory for reuse until it ends (canguard.cli.heap)
         futures = client.map(partial(lean_after, job), jobs, pure=False)
         index = {f.key: i for i, f in enumerate(futures)}
         results: list[Any] = [None] * len(jobs)
@@ -124,15 +115,8 @@ def run_dask(address: str, job: Callable[[Any], Any], jobs: list[Any]) -> list[A
 
 
 def _pool_context() -> Any:
-    """How ``--jobs`` starts its workers: 'fork' on Linux while this process runs one thread, else 'spawn'.
-
-    Forked workers start with what this process imported and loaded (its config included). A
-    process that runs other threads (an embedding program's, a Dask client's, a BLAS pool's) is
-    not forked: a child gets a copy of whatever lock another thread held at that moment, and can
-    hang on it (Python 3.12 warns of it). Such a process's workers are spawned instead: each
-    starts a fresh interpreter and imports canguard and the config itself (~0.2 s more a worker).
-    Python's own default start method is no help here: it is 'fork' on Linux up to 3.13.
-    """
+    """How ``--jobs`` starts its workers: 'fork' on Linux while this process runs one thread (they inherit the
+    loaded config), else 'spawn' (a forked child of a threaded process can hang on a lock copied while held)."""
     import multiprocessing
 
     if sys.platform == "linux" and _threads() == 1:
@@ -156,10 +140,7 @@ CONNECT_TIMEOUT = "10s"
 
 
 def _worker_start() -> None:
-    """A --jobs worker: no BLAS thread pool beside the N workers (:func:`canguard.cli.common.one_blas_thread`;
-    the parent set it for itself already, and a spawned worker starts from its environment); a spawned
-    worker, which imports canguard before its first log, defers what the command would
-    (:mod:`canguard.cli.deferred`; a forked one has its parent's modules, and this changes nothing)."""
+    """A --jobs worker: no BLAS thread pool, and (spawned) the same deferred imports as the command."""
     from canguard.cli.common import one_blas_thread
     from canguard.cli.deferred import defer_unused
 
@@ -182,9 +163,7 @@ def run_processes(workers: int, job: Callable[[Any], Any], jobs: list[Any],
     if context.get_start_method() == "fork":
         for name in warm:
             importlib.import_module(name)
-        # What the workers inherit stays out of their collections, whose passes would write to (and so
-        # copy) every page of it (Python's advice for fork): 2-4 % of a --jobs 2 run of 4 x 600 k frames.
-        gc.freeze()
+        gc.freeze()  # the collector would otherwise write to (and so copy) every inherited page
     progress = Progress(len(jobs))
     results: list[Any] = [None] * len(jobs)
     try:

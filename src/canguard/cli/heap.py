@@ -1,19 +1,10 @@
 """A replay on a Dask worker keeps the memory it frees until the replay ends, then gives it back.
 
-Dask's nanny starts each worker with ``MALLOC_TRIM_THRESHOLD_=65536`` (its
-``distributed.nanny.pre-spawn-environ``) so that a worker hands freed memory back to the
-kernel at once. Setting that variable also turns off glibc's adaptive thresholds: every
-allocation of 128 KiB or more is then a fresh ``mmap`` and every free of the heap's top
-64 KiB a trim, so a replay, which makes and frees such buffers block after block, faults the
-same pages in again and again. Measured on 16 logs of 600 k frames on a LocalCluster of two
-workers (``python -m benchmarks fleet``'s set-up): about 15,000 page faults per log, and 12-30 % more CPU
-than the same replays in a plain process.
-
-:func:`keep_freed_memory` raises glibc's trim and mmap thresholds for as long as a replay runs
-and, when the last replay of the process ends, puts back the thresholds the environment set
-and trims the heap once: the worker ends each task as lean as Dask wants it. It does nothing
-where glibc's adaptive thresholds are still on (no ``MALLOC_TRIM_THRESHOLD_`` in the
-environment: nothing to undo, nothing to gain) or where ``mallopt`` is not glibc's.
+Dask's nanny sets ``MALLOC_TRIM_THRESHOLD_``, which turns glibc's adaptive thresholds off: every
+large buffer a replay makes and frees block after block is then a fresh ``mmap`` and a trim (12-30 %
+more CPU). :func:`keep_freed_memory` raises the trim and mmap thresholds while replays run and puts
+the environment's back (and trims once) when the last ends; it does nothing without that variable
+or without glibc's ``mallopt``.
 """
 
 from __future__ import annotations

@@ -1,21 +1,16 @@
 """``canguard init DIR``: a starter config, its tree and a DBC copy, ready to edit and deploy.
 
-The files come from the package (the whole-robot example, ``robot_guard``), so this works
-from any directory after a plain ``pip install``. The written config names its DBC
-and tree relative to itself (the directory can move), the bus as SocketCAN (the
-robot) or ``virtual`` with ``simulation: true`` (a bench), and the files the daemon
-writes under ``--state-dir`` (the unit's StateDirectory, /var/lib/canguard).
+The packaged whole-robot example fitted to DIR, a bus and a state directory (``--canopen``: one drive).
 """
 
 from __future__ import annotations
 
 import argparse
-import re
 import shutil
 import sys
 from pathlib import Path
 
-from canguard.cli.common import subcommand
+from canguard.cli.common import replace_once, subcommand
 from canguard.data import data_path
 from canguard.errors import ConfigError
 
@@ -26,7 +21,7 @@ DEFAULT_STATE_DIR = Path("/var/lib/canguard")
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """Register ``canguard init``."""
     p = subcommand(
-        sub, "init",
+        sub, "init", cmd_init,
         description="Write DIR/canguard.yaml (the whole-robot example, with paths fitted to DIR), "
                     "DIR/robot_guard.xml and DIR/robot.dbc. Edit them for your robot, then "
                     "`canguard check -c DIR/canguard.yaml`. See docs/deploy.md.",
@@ -45,16 +40,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="with --canopen: canguard configures the drive over SDO (configure: true): its TPDO "
                         "mapping, COB-ID and heartbeat, at start and after each boot-up")
     p.add_argument("--force", action="store_true", help="overwrite files that exist")
-    p.set_defaults(func=cmd_init)
 
 
 def starter_config(text: str, *, channel: str, simulation: bool, state_dir: Path) -> str:
     """The example config's text with the paths and the bus of a deployment (comments kept)."""
     def sub(pattern: str, repl: str, s: str) -> str:
-        out, n = re.subn(pattern, repl, s, count=1, flags=re.M)
-        if n != 1:
-            raise ConfigError(f"the bundled {EXAMPLE}.yaml has no line matching {pattern!r}: cannot fit it")
-        return out
+        return replace_once(s, pattern, repl, f"{EXAMPLE}.yaml")
 
     text = sub(r"^dbc: \[[^\]]*\]", "dbc: [robot.dbc]", text)
     text = sub(r"\{file: [^,]*robot_guard\.xml,", "{file: robot_guard.xml,", text)

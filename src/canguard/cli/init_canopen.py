@@ -1,16 +1,9 @@
 """``canguard init DIR --canopen EDS --node N``: a starting config and tree for one CANopen drive.
 
-The EDS is read as the daemon will read it (:mod:`canguard.config.canopen_eds`). Its device
-type (0x1000) must name CiA 402 (drive and motion control): another profile is named and
-refused. The CiA 402 torque and current actual values (0x6077, 0x6078) become guarded
-sources (scale 0.1: % of the rated value). Where a default TPDO maps them, that TPDO is
-read; where none does (TPDOs disabled by default, empty mappings, position and velocity
-only), ``init`` picks one (a disabled TPDO first, else one with room left), maps the
-statusword and the values there with a ``pdo:`` override and says what the drive must be
-told (its mapping, its COB-ID with bit 31 cleared, the producer heartbeat 0x1017), in the
-written config and on stderr; with ``--configure`` canguard tells the drive itself over SDO.
-Stop and task frames are the controlword's quick stop and enable operation when an RPDO
-maps the controlword, else NMT stop.
+The torque and current actual values (0x6077, 0x6078) become guarded sources (% of rated), read from a
+default TPDO or mapped with a ``pdo:`` override (:func:`choose_tpdo`); what the drive must be told is
+said in the config and on stderr. Stop / task frames: quick stop / enable operation when an RPDO maps the
+controlword, else NMT stop.
 """
 
 from __future__ import annotations
@@ -22,17 +15,14 @@ from pathlib import Path
 from canguard.config.canopen import (
     CONTROLWORD,
     PRODUCER_HEARTBEAT,
-    RPDO_COMM,
-    RPDO_MAP,
     STATUSWORD,
-    TPDO_COMM,
     TPDO_MAP,
     Pdo,
     SdoWrite,
+    drive_pdos,
     heartbeat_write,
     override,
     pdo_writes,
-    read_pdos,
 )
 from canguard.config.canopen_eds import DEVICE_TYPE, PROFILES, Eds, EdsError
 from canguard.errors import ConfigError
@@ -100,12 +90,12 @@ def choose_tpdo(eds: Eds, tpdos: list[Pdo]) -> tuple[Pdo, bool]:
     for pdo in tpdos:
         if pdo.enabled and any(pdo.find(index, 0) for index in GUARDED):
             return pdo, False
-    values = [i for i in GUARDED if eds.mappable(i)]
+    values = [i for i in GUARDED if not eds.refusal(i)]
     if not values:
-        reasons = "; ".join(_refusal(eds, i) for i in _guarded_objects(eds))
+        reasons = "; ".join(eds.refusal(i) for i in _guarded_objects(eds))
         raise ConfigError(f"init --canopen {eds.path}: {reasons}: expected 0x6077 or 0x6078 as a PDO-mappable "
                           "object")
-    wanted = ([STATUSWORD] if eds.mappable(STATUSWORD) else []) + values
+    wanted = ([] if eds.refusal(STATUSWORD) else [STATUSWORD]) + values
     candidates = [p for p in tpdos if not p.enabled] + [p for p in tpdos if p.enabled]
     for pdo in filter(lambda p: _remappable(eds, p), candidates):
         keep = [] if not pdo.enabled else [(o.index, o.subindex) for o in pdo.objects]
@@ -127,7 +117,7 @@ def choose_tpdo(eds: Eds, tpdos: list[Pdo]) -> tuple[Pdo, bool]:
 
 def _remappable(eds: Eds, pdo: Pdo) -> bool:
     """True when the EDS lets the TPDO's mapping be written (its count and first entry are not ro/const)."""
-    index = TPDO_MAP + int(pdo.name.removeprefix("TPDO")) - 1
+    index = TPDO_MAP + pdo.number - 1
     return all(var is not None and var.access_type in WRITABLE
                for var in (eds.variable(index, 0), eds.variable(index, 1)))
 
@@ -142,21 +132,12 @@ def _fits(wanted: list[int]) -> list[list[int]]:
     return out
 
 
-def _refusal(eds: Eds, index: int) -> str:
-    try:
-        eds.pdo_value(index, None)
-    except EdsError as exc:
-        return str(exc)
-    return f"0x{index:04X} can be a PDO value"
-
-
 def drive_files(eds_path: Path, node: int, *, bus: str, state_dir: Path, simulation: bool,
                 configure: bool = False) -> DriveInit:
     """The config and tree texts (by file name) for the drive of ``eds_path`` at ``node``, and what to tell."""
     eds = read_drive(eds_path, node)
     try:
-        tpdos = read_pdos(eds, TPDO_COMM, TPDO_MAP, "TPDO")
-        rpdos = [p for p in read_pdos(eds, RPDO_COMM, RPDO_MAP, "RPDO") if p.enabled]
+        tpdos, rpdos = drive_pdos(eds)
     except EdsError as exc:
         raise ConfigError(f"init --canopen {eds_path}: {exc}") from None
     pdo, new = choose_tpdo(eds, tpdos)
@@ -168,7 +149,7 @@ def drive_files(eds_path: Path, node: int, *, bus: str, state_dir: Path, simulat
     if heartbeat is not None:
         writes.append(heartbeat_write(heartbeat))
     if new:
-        writes += pdo_writes(eds, pdo, int(pdo.name.removeprefix("TPDO")), TPDO_PERIOD_MS)
+        writes += pdo_writes(eds, pdo, TPDO_PERIOD_MS)
     carried = ", ".join(f"{o.ref} {o.name}" for o in pdo.objects)
     out.messages.append(f"{pdo.name} 0x{pdo.cob_id:03X} carries {carried}"
                         + (" (a pdo: override: the EDS does not map it by default)" if new else ""))

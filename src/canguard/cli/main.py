@@ -13,7 +13,7 @@ import os
 import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from canguard.cli.common import (
     COMMANDS,
@@ -24,7 +24,6 @@ from canguard.cli.common import (
     add_global_options,
     add_monitor_options,
     add_state_dir,
-    bundled_config,
     default_config,
     exit_codes_epilog,
     one_blas_thread,
@@ -35,31 +34,20 @@ from canguard.cli.common import add_config as _add_config
 from canguard.cli.common import config_path as _config_path
 from canguard.errors import CanguardError, ConfigError
 
-if TYPE_CHECKING:
-    from canguard.cli.common import BUNDLED_CONFIG
-
 Handler = Callable[[argparse.Namespace], int]
 
-__all__ = ["BUNDLED_CONFIG", "build_parser", "default_config", "main", "parse_args"]
-
-
-def __getattr__(name: str) -> Path:
-    """``BUNDLED_CONFIG``: :func:`canguard.cli.common.bundled_config`, looked up when asked for."""
-    if name == "BUNDLED_CONFIG":
-        return bundled_config()
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+__all__ = ["build_parser", "default_config", "main", "parse_args"]
 
 
 # -- check -----------------------------------------------------------------------------------
 def _add_check(sub: argparse._SubParsersAction) -> None:
-    p = subcommand(sub, "check",
+    p = subcommand(sub, "check", _cmd_check,
                        description="Load the config, its DBC files and its tree; print buses, sources "
                                    "(message, id, signals, units) and frames; exit 0, or 2 with every error. -v lists "
                                    "what the DBC files get wrong where the config does not read it.")
     _add_config(p)
     add_state_dir(p)
     _add_nodes(p)
-    p.set_defaults(func=_cmd_check)
 
 
 def _add_nodes(p: argparse.ArgumentParser) -> None:
@@ -100,7 +88,7 @@ def _cmd_check(args: argparse.Namespace) -> int:
 
 # -- tree ------------------------------------------------------------------------------------
 def _add_tree(sub: argparse._SubParsersAction) -> None:
-    p = subcommand(sub, "tree",
+    p = subcommand(sub, "tree", _cmd_tree,
                        description="Print the tree of the config (py_trees' unicode display).")
     _add_config(p)
     p.add_argument("--dot", type=Path, metavar="FILE", help="render the tree (.dot, or .png/.svg with graphviz)")
@@ -118,7 +106,6 @@ def _add_tree(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--json", action="store_true",
                    help='print {"ticks": [root status per tick], "blackboard": {root entries}}')
     _add_nodes(p)
-    p.set_defaults(func=_cmd_tree)
 
 
 def _cmd_tree(args: argparse.Namespace) -> int:
@@ -183,7 +170,7 @@ def _dry_run(args: argparse.Namespace) -> int:
 
 # -- run -------------------------------------------------------------------------------------
 def _add_run(sub: argparse._SubParsersAction) -> None:
-    p = subcommand(sub, "run",
+    p = subcommand(sub, "run", _cmd_run,
                        description="Run the live engine: read the buses, tick the tree, send task / stop "
                                    "frames. SIGTERM stops cleanly (stop frames out, exit 0); SIGHUP reloads.")
     _add_config(p)
@@ -191,7 +178,6 @@ def _add_run(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--duration", type=float, metavar="S", help="stop by itself after S seconds")
     add_state_dir(p)
     add_monitor_options(p)
-    p.set_defaults(func=_cmd_run)
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
@@ -227,9 +213,8 @@ _EXTRA_MODULES = ("replay", "tune", "simulate", "demo", "init", "unit", "complet
 def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     """The full argument parser (every subcommand has -h).
 
-    With ``command``, only that subcommand is built in full (its module imported); the
-    others are listed by name and help for ``canguard -h`` and its errors: the start-up of
-    one command does not pay for importing every other one (issue 16).
+    With ``command``, only that subcommand is built in full (its module imported); the others are
+    listed by name and help, so one command's start-up does not import every other one.
     """
     parser = argparse.ArgumentParser(
         prog="canguard",
@@ -323,14 +308,10 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def console() -> int:
-    """The process's entry point (the ``canguard`` console script, ``python -m canguard``): :func:`main`, then exit.
+    """The process's entry point (console script, ``python -m canguard``): :func:`main`, then exit.
 
-    What the process holds is frozen first: at exit Python would otherwise run its collector
-    over every object the imports made before freeing them, ~30 ms after a replay (a tenth
-    of a short one's time) and ~0.1 s more once ``distributed`` is loaded (``--dask``).
-    Everything still open was closed by the command; objects are freed as usual, only the
-    search for reference cycles among them is skipped. Not in :func:`main`, which tests and
-    embedding programs call and go on living after.
+    The heap is frozen before exit so that Python's collector does not walk every imported object
+    (~30 ms after a replay); not in :func:`main`, which tests and embedding programs call.
     """
     from canguard.cli.deferred import defer_unused
 
@@ -341,11 +322,7 @@ def console() -> int:
 
 
 def _quiet_broken_pipe() -> int:
-    """The reader of stdout went away (``| head``): end quietly, as a SIGPIPE'd Unix tool does.
-
-    Python's docs' recipe: point stdout at devnull so the interpreter's final flush
-    does not raise again and print a traceback.
-    """
+    """The reader of stdout went away (``| head``): stdout to devnull, so the final flush is quiet."""
     devnull = os.open(os.devnull, os.O_WRONLY)
     os.dup2(devnull, sys.stdout.fileno())
     os.close(devnull)

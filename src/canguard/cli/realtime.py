@@ -1,9 +1,7 @@
 """``canguard replay --realtime [SPEED]``: a bench test through the real daemon path.
 
-The log's frames are sent onto a configured bus at the log's pace (like
-can-utils' canplayer; SPEED 2 plays twice as fast) from a second connection to
-that bus, while a :class:`~canguard.service.daemon.Daemon` runs live on the same bus: the
-frames take the same way as on the robot (bus -> receive -> engine -> bus).
+The log is played onto a configured bus at its pace (x SPEED) from a second connection while a
+:class:`~canguard.service.daemon.Daemon` runs live on that bus.
 """
 
 from __future__ import annotations
@@ -47,12 +45,8 @@ class _TeeSink:
 
 
 class _ReplayDaemon(Daemon):
-    """The daemon with replay's promises: I²t heat only read from ``--state`` (never saved), ``--emit``.
-
-    It runs on the bench's bus (often ``virtual``) by design, so the all-virtual refusal of
-    ``canguard run`` under systemd does not apply. The journal is the config's ``events:``,
-    which :func:`replay_realtime` replaces with ``--events`` (or None) before the daemon is built.
-    """
+    """The daemon with replay's promises: I²t heat only read from ``--state`` (never saved), ``--emit``; the
+    bench's (often virtual) bus allowed."""
 
     refuse_virtual = False
     watch = False
@@ -105,18 +99,15 @@ def _play_bus(cfg: Config, args: argparse.Namespace) -> str:
 
 
 def replay_realtime(cfg: Config, args: argparse.Namespace, names: list[Path] | None = None) -> int:
-    """Play each log onto the bus while the daemon runs; print the daemon's summary; exit code as replay.
-
-    The daemon runs on a copy of the config: its journal is ``--events`` (none when not
-    given) and it never writes the I²t ``state.file`` (``--state`` is only read). ``names``
-    are the logs as the user gave them (``-`` for stdin), for the summaries and per-log files.
-    """
+    """Play each log onto the bus while the daemon runs (journal ``--events``, no ``state.file``); print the
+    daemon's summary; exit code as replay. ``names``: the logs as the user gave them."""
     import can
 
     from canguard.cli.common import per_log_path
     from canguard.engine.routing import ChannelRouter
     from canguard.io.logs import ReadStats, read_log
     from canguard.report.summary import build_summary, render_text
+    from canguard.sim.io import to_message
 
     _refuse_unsupported(args)
     speed = float(args.realtime)
@@ -146,9 +137,7 @@ def replay_realtime(cfg: Config, args: argparse.Namespace, names: list[Path] | N
                      failed: list[Exception] = failed) -> None:
                 sent = 0
                 try:
-                    # python-can's virtual bus delivers only to the buses open when a frame is sent: play
-                    # once the daemon's receive threads have theirs open (the first frames were lost at
-                    # random, the drain below then waited DRAIN_S and the source went stale: a second trip).
+                    # python-can's virtual bus delivers only to the buses open when a frame is sent
                     ready_by = time.monotonic() + DRAIN_S
                     while not all(daemon.reader.alive().values()) and time.monotonic() < ready_by:
                         time.sleep(0.005)
@@ -164,16 +153,12 @@ def replay_realtime(cfg: Config, args: argparse.Namespace, names: list[Path] | N
                         delay = due - time.monotonic()
                         if delay > 0.0005:
                             time.sleep(delay)
-                        player.send(can.Message(
-                            arbitration_id=frame.arbitration_id, data=frame.data,
-                            is_extended_id=frame.is_extended_id, is_fd=frame.is_fd,
-                            is_remote_frame=frame.is_remote_frame, bitrate_switch=frame.bitrate_switch))
+                        player.send(to_message(frame))
                         sent += 1
                 except Exception as exc:  # a bad line: reported by the main thread, not as a thread traceback
                     failed.append(exc)
                 finally:
-                    # Stop only once the daemon has fed every frame played (a fixed pause lost the last
-                    # frames on a busy machine); give up after DRAIN_S rather than hang.
+                    # Stop once the daemon has fed every frame played; give up after DRAIN_S.
                     deadline = time.monotonic() + DRAIN_S
                     while daemon.engine.stats.frames < sent and time.monotonic() < deadline:
                         time.sleep(0.01)

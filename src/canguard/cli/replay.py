@@ -28,7 +28,7 @@ from canguard.cli.common import (
     EXIT_REGRESSED,
     EXIT_TRIPPED,
     EXIT_UNGUARDED,
-    default_config,
+    config_path,
     per_log_path,
     subcommand,
 )
@@ -42,9 +42,9 @@ from canguard.io.bagopts import STAMPS, BagOptions, emits_bag
 from canguard.io.clock import ManualClock
 from canguard.io.frame import Frame
 from canguard.io.logtypes import COMPRESSIONS
-from canguard.report.summary import SUMMARY_VERSION, build_summary, compare_baseline, diff_baseline, render_text
+from canguard.report.summary import build_summary, diff_baseline, render_text
 
-__all__ = ["SUMMARY_VERSION", "ReplayOptions", "build_summary", "compare_baseline", "render_text", "replay_one"]
+__all__ = ["ReplayOptions", "replay_one"]
 
 
 @dataclass
@@ -75,10 +75,7 @@ def replay_one(cfg: Config, log_path: Path, opts: ReplayOptions) -> dict[str, An
     from canguard.io.logs import ReadStats, read_log
     from canguard.protect.state import HeatStore
 
-    # Every log starts from a clean state: py_trees keeps the blackboard in class-level
-    # storage, so keys a previous log's tree wrote (a cooldown's last run, a recorded
-    # time) would otherwise be read by this one (issue 12: a log's summary never
-    # depends on its neighbours or on --jobs).
+    # py_trees keeps the blackboard in class-level storage: a log's summary must not depend on its neighbours.
     Blackboard.storage.clear()
     Blackboard.metadata.clear()
     Blackboard.clients.clear()
@@ -132,8 +129,9 @@ def replay_one(cfg: Config, log_path: Path, opts: ReplayOptions) -> dict[str, An
 
 
 def _mcap_export(opts: ReplayOptions) -> bool:
-    """``--export-signals FILE.mcap``."""
-    return opts.export is not None and opts.export.suffix.lower() == ".mcap"
+    from canguard.report.export import is_mcap
+
+    return opts.export is not None and is_mcap(opts.export)
 
 
 def _outputs(stack: ExitStack, engine: Engine, sink: LogSink, opts: ReplayOptions, log: str) -> None:
@@ -189,7 +187,6 @@ class _AfterTicks:
 
 FORMAT_SUFFIX = {"candump": ".log", "asc": ".asc", "blf": ".blf", "trc": ".trc", "csv": ".csv", "mf4": ".mf4"}
 """``--format`` names and the file suffix each stands for (``.gz`` is recognised on top)."""
-GZIP_MAGIC = b"\x1f\x8b"
 MAGICS = {b"\x1f\x8b": ".gz", b"\xfd7zXZ\x00": ".xz", b"\x28\xb5\x2f\xfd": ".zst"}
 """How a compressed log on stdin starts, and the suffix that tells the readers."""
 
@@ -197,7 +194,7 @@ MAGICS = {b"\x1f\x8b": ".gz", b"\xfd7zXZ\x00": ".xz", b"\x28\xb5\x2f\xfd": ".zst
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """Register ``canguard replay``."""
     p = subcommand(
-        sub, "replay",
+        sub, "replay", cmd_replay,
         description="What would the daemon have done on this log? Runs the same engine with the log's clock.",
     )
     p.add_argument("logs", nargs="+", type=Path, metavar="LOG",
@@ -250,17 +247,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--realtime", nargs="?", type=float, const=1.0, default=None, metavar="SPEED",
                    help="send the log onto a configured bus at its pace (x SPEED) with the engine live on it")
     p.add_argument("--bus", default=None, help="with --realtime: the bus to play onto (default: the only bus)")
-    p.set_defaults(func=cmd_replay)
 
 
 @dataclass(frozen=True)
 class ConfigRef:
-    """The config of one ``canguard replay`` run, as a --jobs / --dask worker gets it: its path and the run.
-
-    A worker loads it once per run and keeps it for the run's other logs (as the serial run
-    keeps its one Config); ``run`` tells one run from the next on a long-lived Dask worker,
-    so a config edited between two runs is read again.
-    """
+    """The config of one ``canguard replay`` run as a --jobs / --dask worker gets it; ``run`` tells one run from
+    the next on a long-lived Dask worker, so a config edited between two runs is read again."""
 
     path: Path
     run: str
@@ -301,11 +293,8 @@ def _load_baseline(path: Path) -> Any:
 
 
 def _as_format(log: Path, fmt: str | None, tmp: Path) -> Path:
-    """The path to read ``log`` from: ``-`` spooled from stdin; with ``--format``, a link named as that format.
-
-    The readers choose the format by suffix; a link in ``tmp`` with the right suffix
-    lets ``--format`` override a file's own (``robot.txt`` as ASC) without copying it.
-    """
+    """The path to read ``log`` from: ``-`` spooled from stdin; with ``--format``, a link in ``tmp`` with that
+    format's suffix (the readers choose by suffix)."""
     if str(log) == "-":
         if fmt is None:
             raise ConfigError("replay -: reading a log from stdin needs --format "
@@ -367,11 +356,8 @@ def _check_regression_gate(args: argparse.Namespace) -> None:
 
 
 def _report_baseline(args: argparse.Namespace, base: Any, summaries: list[dict[str, Any]]) -> bool:
-    """Print on stderr what changed per log against ``base``; True when anything is a regression.
-
-    Logs are paired with the baseline's summaries in order; a count that differs is itself
-    a regression (a gate cannot pass on logs it has nothing to compare with).
-    """
+    """Print on stderr what changed per log against ``base`` (paired in order; a count that differs is itself a
+    regression); True when anything is a regression."""
     base_list = base if isinstance(base, list) else [base]
     regressed = len(base_list) != len(summaries)
     if regressed:
@@ -392,7 +378,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
     """Replay every log; print summaries in input order; exit 0, 1 (a trip, or a regression), 3 (unguarded) or 2."""
     import tempfile
 
-    cfg_path = args.config if args.config is not None else default_config()
+    cfg_path = config_path(args)
     cfg = load_config(cfg_path)
     _check_state(args.state)
     from canguard.cli.fleet import expand_logs
@@ -423,11 +409,8 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
 def run_jobs(args: argparse.Namespace, cfg: Config, jobs: list[tuple[Config | ConfigRef, Path, ReplayOptions]],
              pool: bool) -> list[tuple[dict[str, Any] | None, str]]:
-    """Every job's (summary, error), in input order: on Dask (``args.dask``), in ``args.jobs`` processes or here.
-
-    Workers get the logs largest first (the fleet ends sooner than when a big log comes last);
-    the results are put back in input order.
-    """
+    """Every job's (summary, error), in input order: on Dask, in ``args.jobs`` processes (largest log first) or
+    here."""
     if not pool:
         return [_job(j) for j in jobs]
     order = sorted(range(len(jobs)), key=lambda i: -_size(jobs[i][1]))
@@ -515,8 +498,6 @@ def _replay_offline(cfg: Config, cfg_path: Path, args: argparse.Namespace, names
     many = len(args.logs) > 1
     base = _load_baseline(args.baseline) if args.baseline else None
     pool = (args.jobs > 1 and many) or args.dask is not None
-    # In this process the config loaded above serves every log; --jobs / --dask workers get its
-    # path (a Config with its cantools database is not sent to each) and keep it for the run.
     job_cfg: Config | ConfigRef = ConfigRef(cfg_path, uuid.uuid4().hex) if pool else cfg
     jobs: list[tuple[Config | ConfigRef, Path, ReplayOptions]] = []
     for log, name in zip(args.logs, names, strict=True):

@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from canguard.cli.common import default_config, subcommand
+from canguard.cli.common import config_path, subcommand
 from canguard.errors import ConfigError
 
 
@@ -16,7 +16,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
     scen = "; ".join(f"{k}: {v.splitlines()[0] if v else ''}" for k, v in SCENARIOS.items())
     p = subcommand(
-        sub, "simulate",
+        sub, "simulate", cmd_simulate,
         description="Send the bundled DBC's frames as a robot would, on a configured bus (--bus, answering "
                     "canguard's Estop / Clear_Errors / Set_Axis_State) or into a candump -L file (--out). "
                     f"Scenarios (combine them; NAME@S shifts one by S seconds): {scen}",
@@ -32,7 +32,6 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--duration", type=float, default=10.0, metavar="S", help="simulated seconds (default 10)")
     p.add_argument("--seed", type=int, default=0, help="random seed: same seed, same log (default 0)")
     p.add_argument("--axes", type=int, default=4, help="number of motor drivers (default 4)")
-    p.set_defaults(func=cmd_simulate)
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
@@ -40,7 +39,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     from canguard.config.loader import load_config
     from canguard.sim import run_on_bus, write_log
 
-    cfg = load_config(args.config if args.config is not None else default_config())
+    cfg = load_config(config_path(args))
     if args.duration <= 0:
         raise ConfigError(f"--duration {args.duration}: expected seconds > 0")
     from canguard.io.outputs import check_output

@@ -23,7 +23,7 @@ import uuid
 from pathlib import Path
 from typing import Any
 
-from canguard.cli.common import EXIT_BAD_INPUT, EXIT_OK, EXIT_TRIPPED, default_config, subcommand
+from canguard.cli.common import EXIT_BAD_INPUT, EXIT_OK, EXIT_TRIPPED, config_path, subcommand
 from canguard.config.loader import load_config
 from canguard.config.schema import Config
 from canguard.errors import ConfigError
@@ -34,7 +34,7 @@ EXIT_NO_SEPARATION = EXIT_TRIPPED
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """``canguard tune``."""
-    p = subcommand(sub, "tune", description=__doc__.split("\n\n")[0])
+    p = subcommand(sub, "tune", cmd_tune, description=__doc__.split("\n\n")[0])
     p.add_argument("logs", nargs="*", type=Path, metavar="HEALTHY_LOG",
                    help="logs of healthy operation (files, directories, quoted globs, @LIST)")
     p.add_argument("-c", "--config", type=Path, default=None, help="YAML config (default: as for `canguard run`)")
@@ -51,7 +51,6 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--plot", type=Path, metavar="FILE", help="the healthy values per guard with old/new thresholds")
     p.add_argument("--jobs", type=int, default=1, metavar="N", help="replay the logs in N processes")
     p.add_argument("--dask", metavar="SCHEDULER", default=None, help="replay the logs on a Dask cluster")
-    p.set_defaults(func=cmd_tune)
 
 
 def load_expect(path: Path) -> dict[str, dict[str, Any]]:
@@ -124,7 +123,7 @@ def cmd_tune(args: argparse.Namespace) -> int:
     from canguard.cli.fleet import expand_logs
     from canguard.report.proposal import LogStats, propose
 
-    cfg_path = args.config if args.config is not None else default_config()
+    cfg_path = config_path(args)
     cfg = load_config(cfg_path)
     if not math.isfinite(args.margin) or args.margin < 0:
         raise ConfigError(f"--margin: expected a percentage >= 0, found {args.margin!r}")

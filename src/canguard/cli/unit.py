@@ -1,13 +1,4 @@
-"""``canguard unit``: the systemd unit for this install, with the right ExecStart; the CAN link's networkd file.
-
-The shipped ``canguard.service`` runs ``/opt/canguard/bin/canguard`` (the venv of
-docs/deploy.md). Installed elsewhere (pipx, another venv), this prints the same unit
-with the path of the canguard that runs this command, so nobody edits paths by hand:
-``canguard unit | sudo tee /etc/systemd/system/canguard.service``. The files live inside
-the installed package, where nobody should have to look for them: ``--network`` prints
-``80-can0.network`` (systemd-networkd brings the CAN link up) and ``--write DIR`` writes
-both into DIR under their shipped names, as a checkout's ``systemd/`` holds them.
-"""
+"""``canguard unit``: the systemd unit for this install, with the right ExecStart; the CAN link's networkd file."""
 
 from __future__ import annotations
 
@@ -17,18 +8,19 @@ import shutil
 import sys
 from pathlib import Path
 
-from canguard.cli.common import subcommand
+from canguard.cli.common import replace_once, subcommand
 from canguard.data import data_path
 from canguard.errors import ConfigError
 
-SHIPPED_EXEC = "/opt/canguard/bin/canguard"
 DEFAULT_CONFIG = Path("/etc/canguard/canguard.yaml")
+NETWORK_FILE = "80-can0.network"
+UNIT_FILE = "canguard.service"
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """Register ``canguard unit``."""
     p = subcommand(
-        sub, "unit",
+        sub, "unit", cmd_unit,
         description="Print canguard.service with ExecStart pointing at this install's canguard, the "
                     "config path and the CAN interface(s) it binds to.",
     )
@@ -44,7 +36,6 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     what.add_argument("--write", type=Path, default=None, metavar="DIR",
                       help="write canguard.service and 80-can0.network into DIR (made if missing) instead of "
                            "printing, e.g. `canguard unit --write systemd` for docs/deploy.md's install lines")
-    p.set_defaults(func=cmd_unit)
 
 
 def this_canguard() -> str:
@@ -64,9 +55,7 @@ def render_unit(text: str, *, exe: str, config: Path, channels: list[str], metri
         raise ConfigError(f"--metrics {metrics}: expected a loopback HOST:PORT (127.0.0.1:9108): "
                           "the unit lets only localhost through")
     cmd = f"{exe} run -c {config}" + (f" --metrics {metrics}" if metrics else "")
-    text, n = re.subn(r"^ExecStart=.*$", f"ExecStart={cmd}", text, flags=re.M)
-    if n != 1:
-        raise ConfigError("the shipped canguard.service has no single ExecStart= line")
+    text = replace_once(text, r"^ExecStart=.*$", f"ExecStart={cmd}", UNIT_FILE)
     devices = " ".join(f"sys-subsystem-net-devices-{c}.device" for c in channels)
     text = re.sub(r"sys-subsystem-net-devices-can0\.device", devices, text)
     if metrics:
@@ -78,14 +67,8 @@ def render_unit(text: str, *, exe: str, config: Path, channels: list[str], metri
 
 def render_network(text: str, channels: list[str]) -> str:
     """The shipped ``80-can0.network`` matching ``channels`` (networkd's ``Name=`` takes several)."""
-    text, n = re.subn(r"^Name=can0$", f"Name={' '.join(channels)}", text, flags=re.M)
-    if n != 1:
-        raise ConfigError("the shipped 80-can0.network has no single Name=can0 line")
-    return text
+    return replace_once(text, r"^Name=can0$", f"Name={' '.join(channels)}", NETWORK_FILE)
 
-
-NETWORK_FILE = "80-can0.network"
-UNIT_FILE = "canguard.service"
 
 
 def cmd_unit(args: argparse.Namespace) -> int:

@@ -1,28 +1,17 @@
 """CANopen drives (``canopen:``): an EDS's PDO mapping, heartbeat and EMCY as cantools messages and raw frames.
 
-A CANopen drive is translated once, at config load, into what the rest of
-canguard already handles: each TPDO a source reads becomes a cantools
-``Message`` (little-endian signals at the bits the TPDO mapping gives them, the
-source's ``scale``), the heartbeat (``0x700 + node``, the NMT state) and EMCY
-(``0x080 + node``: code u16, error register u8, 5 manufacturer bytes) become
-messages too, and the CiA 402 controlword commands and NMT commands become raw
-frames. The decoder, the models and the engine then handle a drive's frames,
-live and in replay, without a CANopen code path; what is CANopen-specific at run
-time (the heartbeat, NMT state, EMCY and Fault-bit reasons) is a set of source
-roles :class:`~canguard.protect.staleness.SourceHealth` knows.
-
-The EDS (or DCF) is read by :mod:`canguard.config.canopen_eds` with the ``canopen``
-library (the optional extra ``canopen``), imported only when a config has a ``canopen:`` section.
-With ``configure: true`` a drive also carries the SDO writes that give it what the config
-expects (:class:`SdoWrite`: the ``pdo:`` mappings, their COB-IDs, the producer heartbeat),
-which the daemon performs (:mod:`canguard.service.canopen_setup`).
+Translated once, at config load: each TPDO a source reads becomes a cantools ``Message``
+(little-endian signals at the mapped bits), the heartbeat (``0x700 + node``) and EMCY (``0x080 + node``:
+code u16, error register u8, 5 manufacturer bytes) too, and CiA 402 controlword and NMT commands
+become raw frames; no CANopen code path runs later. With ``configure: true`` a drive also carries
+the :class:`SdoWrite` s that give it what the config expects (:mod:`canguard.service.canopen_setup`).
 """
 
 from __future__ import annotations
 
 import re
 import struct
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -106,6 +95,11 @@ class Pdo:
         return max((o.start_bit + o.bits for o in self.objects), default=0)
 
     @property
+    def number(self) -> int:
+        """1-based: 3 for ``TPDO3``."""
+        return int(self.name[4:])
+
+    @property
     def length(self) -> int:
         """The frame's payload length in bytes."""
         return (self.bits + 7) // 8
@@ -157,24 +151,12 @@ class CanopenDrive:
 
     def tpdo_of(self, index: int, subindex: int) -> tuple[Pdo, MappedObject] | None:
         """The first enabled TPDO that maps ``index:subindex`` and where, or None."""
-        for pdo in self.enabled_tpdos:
-            obj = pdo.find(index, subindex)
-            if obj is not None:
-                return pdo, obj
-        return None
+        return _first_mapping(self.enabled_tpdos, index, subindex)
 
     @property
     def enabled_tpdos(self) -> tuple[Pdo, ...]:
         """The TPDOs the drive sends (valid in the EDS or made valid by ``pdo:``)."""
         return tuple(p for p in self.tpdos if p.enabled)
-
-    def rpdo_of(self, index: int, subindex: int = 0) -> tuple[Pdo, MappedObject] | None:
-        """The first RPDO that maps ``index:subindex`` and where, or None."""
-        for pdo in self.rpdos:
-            obj = pdo.find(index, subindex)
-            if obj is not None:
-                return pdo, obj
-        return None
 
     def command_data(self, command: int) -> tuple[Pdo, bytes] | None:
         """The RPDO mapping the controlword and its payload with ``command`` in it, or None.
@@ -182,7 +164,7 @@ class CanopenDrive:
         The RPDO's other mapped objects carry their EDS values: a frame that changes only
         the controlword, as far as the drive's defaults go.
         """
-        found = self.rpdo_of(CONTROLWORD)
+        found = _first_mapping(self.rpdos, CONTROLWORD, 0)
         if found is None:
             return None
         pdo, _ = found
@@ -245,14 +227,14 @@ class SdoWrite:
         return f"0x{self.index:04X}:{self.subindex:02X} = 0x{self.value:0{self.size * 2}X} ({self.what})"
 
 
-def pdo_writes(eds: Eds, pdo: Pdo, number: int, period_ms: int) -> list[SdoWrite]:
-    """The CiA 301 procedure giving TPDO ``number`` (1-based) ``pdo``'s mapping, COB-ID and event timer.
+def pdo_writes(eds: Eds, pdo: Pdo, period_ms: int) -> list[SdoWrite]:
+    """The CiA 301 procedure giving the TPDO ``pdo``'s mapping, COB-ID and event timer.
 
     Disable it (COB-ID bit 31), clear its mapping count, write the entries, set the count,
     make it event-driven (transmission type 0xFF) every ``period_ms`` where the EDS has those
     sub-indices, then write the COB-ID with bit 31 cleared (its bits 29..30 as the EDS has them).
     """
-    comm, mapping = TPDO_COMM + number - 1, TPDO_MAP + number - 1
+    comm, mapping = TPDO_COMM + pdo.number - 1, TPDO_MAP + pdo.number - 1
     raw = eds.value(comm, 1)
     flags = (int(raw) if isinstance(raw, int) else 0) & 0x60000000
     cob = flags | pdo.cob_id
@@ -278,8 +260,22 @@ def heartbeat_write(heartbeat_s: float) -> SdoWrite:
     return SdoWrite(PRODUCER_HEARTBEAT, 0, ms, 2, f"producer heartbeat every {ms} ms")
 
 
-def read_pdos(eds: Eds, comm_base: int, map_base: int, prefix: str) -> list[Pdo]:
-    """The PDOs the EDS defines at ``comm_base``/``map_base`` (disabled ones too, ``enabled`` False)."""
+def _first_mapping(pdos: Iterable[Pdo], index: int, subindex: int) -> tuple[Pdo, MappedObject] | None:
+    return next(((p, obj) for p in pdos if (obj := p.find(index, subindex)) is not None), None)
+
+
+def mapped_text(pdos: Iterable[Pdo]) -> str:
+    """``TPDO1: 0x6041, 0x6077; TPDO2: nothing``."""
+    return "; ".join(f"{p.name}: {', '.join(o.ref for o in p.objects) or 'nothing'}" for p in pdos)
+
+
+def drive_pdos(eds: Eds) -> tuple[list[Pdo], list[Pdo]]:
+    """Every TPDO the EDS defines (disabled ones too, ``enabled`` False) and its enabled RPDOs."""
+    return (_read_pdos(eds, TPDO_COMM, TPDO_MAP, "TPDO"),
+            [p for p in _read_pdos(eds, RPDO_COMM, RPDO_MAP, "RPDO") if p.enabled])
+
+
+def _read_pdos(eds: Eds, comm_base: int, map_base: int, prefix: str) -> list[Pdo]:
     found: list[Pdo] = []
     for d in eds.pdo_defs(comm_base, map_base):
         objects: list[MappedObject] = []
@@ -288,9 +284,7 @@ def read_pdos(eds: Eds, comm_base: int, map_base: int, prefix: str) -> list[Pdo]
             if e.index < 0x1000:  # a dummy entry (data type index): bits that carry nothing
                 start += e.bits
                 continue
-            if eds.variable(e.index, e.subindex) is None:
-                # Mapped by default but not described (an EDS left incomplete): where it sits is known,
-                # what it is not; only a source reading it is a problem.
+            if eds.variable(e.index, e.subindex) is None:  # only a source reading it is a problem
                 objects.append(MappedObject(e.index, e.subindex, UNDESCRIBED, start, e.bits))
             else:
                 objects.append(mapped(eds, eds.variable(e.index, e.subindex), start, e.bits))

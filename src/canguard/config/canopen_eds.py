@@ -1,18 +1,9 @@
 """An EDS or DCF as drive vendors publish it, read with the ``canopen`` library for one node id.
 
-The object dictionary is the ``canopen`` library's (``import_od``); this module reads the
-file's text first, for two things the library does not give:
-
-- **where**: each section's line, so an error names ``file:line [6077]``;
-- **leniency**: deviations that do not touch the object dictionary are tolerated and
-  noted (:attr:`Eds.notes`, listed by ``canguard check -v``): a ``[Comments]`` section
-  that does not follow ``Lines=`` / ``Line1=`` (it is left out), a ``[DummyUsage]`` without
-  every ``DummyNNNN`` (the missing ones are 0), keys an object section does not define.
-  A broken object entry stays an error naming its section and line.
-
-It also answers what the rest of canguard asks of a drive's dictionary: the PDOs it
-defines (disabled ones too), whether an object can be a PDO value, the device profile
-(0x1000) and COB-IDs written for another node id.
+The text is scanned before ``import_od`` for what the library does not give: each section's line (errors name
+``file:line [6077]``), and leniency: deviations outside the object dictionary (a malformed
+``[Comments]``, an incomplete ``[DummyUsage]``, unknown keys) are noted in :attr:`Eds.notes`
+(``canguard check -v``), not refused.
 """
 
 from __future__ import annotations
@@ -296,13 +287,13 @@ class Eds:
             raise EdsError(f"{place} {var.name} has PDOMapping=0: the drive cannot send it in a PDO")
         return var
 
-    def mappable(self, index: int) -> bool:
-        """True when ``index`` (sub-index 0) can be a PDO value."""
+    def refusal(self, index: int) -> str:
+        """Why ``index`` (sub-index 0) cannot be a PDO value; "" when it can."""
         try:
             self.pdo_value(index, None)
-        except EdsError:
-            return False
-        return True
+        except EdsError as exc:
+            return str(exc)
+        return ""
 
     def pdo_defs(self, comm_base: int, map_base: int) -> list[PdoDef]:
         """Every PDO the EDS defines at ``comm_base``/``map_base``, valid or not, with its mapping entries.

@@ -1,9 +1,7 @@
 """The loader's ``canopen:`` section: drives from their EDS, sources reading their objects, their frames.
 
-:class:`CanopenSection` is composed into the config loader (it uses only the
-loader's public checks). Sources with ``canopen:`` get signals of messages this
-section builds (see :mod:`canguard.config.canopen`); :meth:`CanopenSection.messages`
-hands those messages to the loader, which adds them to the config's database.
+Composed into the config loader (its public checks only); :meth:`CanopenSection.messages` hands the
+drive messages the sources read to the loader, which adds them to the config's database.
 """
 
 from __future__ import annotations
@@ -18,21 +16,18 @@ from canguard.config.canopen import (
     NMT_COMMANDS,
     NMT_ID,
     PRODUCER_HEARTBEAT,
-    RPDO_COMM,
-    RPDO_MAP,
     STATUSWORD,
-    TPDO_COMM,
-    TPDO_MAP,
     UNDESCRIBED,
     CanopenDrive,
     MappedObject,
     Pdo,
     SdoWrite,
+    drive_pdos,
     heartbeat_write,
+    mapped_text,
     override,
     parse_object,
     pdo_writes,
-    read_pdos,
 )
 from canguard.config.canopen_eds import Eds, EdsError
 from canguard.config.schema import FrameSpec, SignalRef
@@ -106,8 +101,7 @@ class CanopenSection:
             return None
         try:
             eds = Eds(path, node)
-            tpdos = read_pdos(eds, TPDO_COMM, TPDO_MAP, "TPDO")
-            rpdos = [p for p in read_pdos(eds, RPDO_COMM, RPDO_MAP, "RPDO") if p.enabled]
+            tpdos, rpdos = drive_pdos(eds)
         except EdsError as exc:
             c.problem(_path(key, "eds"), repr(str(body["eds"])) + f" ({exc})", "a readable EDS or DCF file")
             return None
@@ -185,7 +179,7 @@ class CanopenSection:
         writes = [heartbeat_write(heartbeat_s)]
         for pdo in tpdos:
             if pdo.overridden:
-                writes += pdo_writes(eds, pdo, int(pdo.name.removeprefix("TPDO")), period_ms)
+                writes += pdo_writes(eds, pdo, period_ms)
         return tuple(writes)
 
     def overrides(self, eds: Eds, tpdos: list[Pdo], value: Any, key: str) -> list[Pdo]:
@@ -257,19 +251,8 @@ class CanopenSection:
         where = self.tpdo_object(drive, value.get("object"), _path(key, "object"))
         if where is not None:
             pdo, obj = where
-            refs.append(
-                self.ref(
-                    drive,
-                    pdo,
-                    role,
-                    f"{source}_{role}",
-                    obj.start_bit,
-                    obj.bits,
-                    obj.signed,
-                    obj.is_float,
-                    float(scale),
-                )
-            )
+            refs.append(self.ref(drive, pdo, role, f"{source}_{role}", obj.start_bit, obj.bits, signed=obj.signed,
+                                 is_float=obj.is_float, scale=float(scale)))
         refs.extend(self.health_refs(drive, where[0] if where is not None else None))
         return drive.bus, max_age, refs
 
@@ -310,8 +293,7 @@ class CanopenSection:
                 return None
             if found is not None:
                 return found
-        mapped = "; ".join(f"{p.name}: {', '.join(o.ref for o in p.objects) or 'nothing'}"
-                           for p in drive.enabled_tpdos)
+        mapped = mapped_text(drive.enabled_tpdos)
         off = [p.name for p in drive.tpdos if not p.enabled]
         hint = (f"; {', '.join(off)} disabled in the EDS: map it there with canopen.{drive.name}.pdo "
                 "(`canguard init --canopen` writes one)" if off else "")
@@ -325,47 +307,24 @@ class CanopenSection:
         The Fault bit is read from ``near`` (the TPDO of the source's own object) when it maps
         the statusword too, so the bit and the value arrive in one frame.
         """
-        refs = [self.ref(drive, None, ROLE_NMT, f"{drive.name}_nmt_state", 0, 7, False, False, 1.0, drive.heartbeat_id,
+        name, emcy = drive.name, drive.emcy_id
+        refs = [self.ref(drive, None, ROLE_NMT, f"{name}_nmt_state", 0, 7, cob_id=drive.heartbeat_id,
                          max_age_s=drive.timeout_s)]
-        if drive.name not in self._events:
-            # One source per drive carries the EMCY event's fields: one ``emcy`` event per EMCY frame.
-            self._events.add(drive.name)
-            refs.append(
-                self.ref(
-                    drive, None, ROLE_EMCY_CODE, f"{drive.name}_emcy_code", 0, 16, False, False, 1.0, drive.emcy_id
-                )
-            )
-            refs.append(
-                self.ref(
-                    drive, None, ROLE_EMCY_DATA, f"{drive.name}_emcy_data", 24, 40, False, False, 1.0, drive.emcy_id
-                )
-            )
-        refs.append(
-            self.ref(drive, None, ROLE_EMCY, f"{drive.name}_error_register", 16, 8, False, False, 1.0, drive.emcy_id)
-        )
+        if name not in self._events:  # one source per drive carries the EMCY event's fields
+            self._events.add(name)
+            refs.append(self.ref(drive, None, ROLE_EMCY_CODE, f"{name}_emcy_code", 0, 16, cob_id=emcy))
+            refs.append(self.ref(drive, None, ROLE_EMCY_DATA, f"{name}_emcy_data", 24, 40, cob_id=emcy))
+        refs.append(self.ref(drive, None, ROLE_EMCY, f"{name}_error_register", 16, 8, cob_id=emcy))
         in_near = near.find(STATUSWORD, 0) if near is not None else None
         status = (near, in_near) if near is not None and in_near is not None else drive.tpdo_of(STATUSWORD, 0)
         if status is not None:
             pdo, obj = status
-            refs.append(
-                self.ref(drive, pdo, ROLE_FAULT, f"{drive.name}_fault", obj.start_bit + FAULT_BIT, 1, False, False, 1.0)
-            )
+            refs.append(self.ref(drive, pdo, ROLE_FAULT, f"{name}_fault", obj.start_bit + FAULT_BIT, 1))
         return refs
 
-    def ref(
-        self,
-        drive: CanopenDrive,
-        pdo: Pdo | None,
-        role: str,
-        signal: str,
-        start: int,
-        bits: int,
-        signed: bool,
-        is_float: bool,
-        scale: float,
-        cob_id: int = 0,
-        max_age_s: float | None = None,
-    ) -> SignalRef:
+    def ref(self, drive: CanopenDrive, pdo: Pdo | None, role: str, signal: str, start: int, bits: int, *,
+            signed: bool = False, is_float: bool = False, scale: float = 1.0, cob_id: int = 0,
+            max_age_s: float | None = None) -> SignalRef:
         """A SignalRef to ``signal`` of the drive's message at ``cob_id`` (a PDO's), noted for :meth:`messages`."""
         from cantools.database.can import Signal
         from cantools.database.conversion import BaseConversion
@@ -429,8 +388,7 @@ class CanopenSection:
             return None
         found = drive.command_data(word)
         if found is None:
-            mapped = "; ".join(f"{p.name}: {', '.join(o.ref for o in p.objects) or 'nothing'}"
-                               for p in drive.rpdos)
+            mapped = mapped_text(drive.rpdos)
             c.problem(
                 _path(key, "command"),
                 f"{command} for {drive.name}, whose RPDOs do not map 0x6040 ({mapped or 'no RPDO'})",

@@ -2,21 +2,14 @@
 
 :func:`load_dbc_file` reads one database file and returns a :class:`DbcFile`:
 
-- A DBC text first goes through a pre-pass that blanks (keeping every line number) what
-  cantools refuses even when not strict: Vector's pseudo-message ``VECTOR__INDEPENDENT_SIG_MSG``
-  (the signals of no message) and the ``VAL_``, ``SIG_VALTYPE_``, ``BA_``, ``CM_``, ``BO_TX_BU_``,
-  ``SG_MUL_VAL_`` and ``BA_REL_`` statements of a message (or signal) the file does not define.
-  Each is a :attr:`DbcFile.notes` line.
-- cantools then loads the text with ``strict=False``, and every message is checked as cantools'
-  strict mode would: signals that share bits (outside exclusive multiplexer pages), a signal that
-  does not fit its message, and the signals multiplexed by one of those are taken out of their
-  message (which keeps its sound signals: cantools decodes and encodes them as in a file without the
-  others); two signals of one name stay (cantools decodes both, and encodes both with one value) but
-  the name cannot tell which is meant. Each problem is a :class:`SignalProblem` naming the file and line,
-  both signals and the message.
-
-Whether a problem stops anything is the config's business: an error where the config reads an
-involved signal (:meth:`DbcChecks.involved`), a note otherwise.
+- a pre-pass blanks (keeping line numbers) what cantools refuses even when not strict: Vector's
+  ``VECTOR__INDEPENDENT_SIG_MSG`` and statements (``VAL_``, ``BA_``, ``CM_``...) of a message or signal
+  the file does not define; each a :attr:`DbcFile.notes` line;
+- cantools loads the text with ``strict=False``, then every message is checked as strict mode would:
+  overlapping signals (outside exclusive multiplexer pages), signals that do not fit, and what they
+  multiplex are taken out of their message; two signals of one name stay, but are ambiguous. Each is a
+  :class:`SignalProblem` (file, line, signals, message): an error where the config reads an involved
+  signal (:meth:`DbcChecks.involved`), a note otherwise.
 """
 
 from __future__ import annotations

@@ -20,12 +20,7 @@ class _Frames(_Sources):
         if sig is None:
             return None
         if isinstance(value, str):
-            choices = _choices(sig)
-            if value in choices:
-                return choices[value]
-            expected = f"a number or a choice of {sig.name}" if choices else f"a number for {sig.name}"
-            self.problem(key, _shown(value), expected + (_closest(value, choices) if choices else ""))
-            return None
+            return self.choice(sig, value, key)
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
             self.problem(key, _found(value), f"a number for {sig.name}")
             return None
@@ -35,6 +30,15 @@ class _Frames(_Sources):
             self.problem(key, _shown(value), f"a value of {sig.name} within its DBC range {rng}")
             return None
         return value if self.exact(sig, value, key) else None
+
+    def choice(self, sig: Any, name: str, key: str) -> int | float | None:
+        """The value of the VAL_ choice ``name`` of ``sig``; None after a problem naming the choices."""
+        choices = _choices(sig)
+        if name in choices:
+            return choices[name]
+        expected = f"a number or a choice of {sig.name}" if choices else f"a number for {sig.name}"
+        self.problem(key, _shown(name), expected + (_closest(name, choices) if choices else ""))
+        return None
 
     def exact(self, sig: Any, value: float, key: str) -> bool:
         """Whether the number ``value`` encodes exactly: one of the VAL_ choices, or a whole raw value.

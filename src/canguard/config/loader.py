@@ -1,9 +1,6 @@
 """YAML config -> frozen dataclasses, validated once.
 
-The dataclasses below are the typed, immutable view every other module reads.
-``load_config(path)`` builds them; every problem it finds names the file, the key
-path (``sources./battery_state.current``), what was found and what was expected,
-and all problems of one file are reported together in one :class:`ConfigError`.
+The dataclasses are :mod:`.schema`'s; every problem of a file comes in one :class:`ConfigError`.
 """
 
 from __future__ import annotations
@@ -138,11 +135,7 @@ def load_config_text(text: str, path: str | Path) -> Config:
 
 
 def load_config(path: str | Path) -> Config:
-    """Read and validate the YAML config at ``path`` (and every DBC file it names).
-
-    Returns the frozen :class:`Config`; raises :class:`ConfigError` listing every
-    problem found in the file (an unreadable file is one problem naming it).
-    """
+    """Read and validate the YAML config at ``path`` (and every DBC file it names); ConfigError as above."""
     try:
         text = Path(path).expanduser().read_text(encoding="utf-8")
     except OSError as exc:

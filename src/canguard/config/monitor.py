@@ -35,12 +35,8 @@ class Address:
 
 def is_loopback(host: str) -> bool:
     """True for a loopback address or ``localhost``; False for anything reachable from the network."""
-    if host == "localhost":
-        return True
-    try:
-        return ipaddress.ip_address(host).is_loopback
-    except ValueError:
-        return False
+    ip = _ip(host)
+    return host == "localhost" or (ip is not None and ip.is_loopback)
 
 
 def parse_address(value: object, *, port_span: int = 1) -> Address | str:
@@ -64,17 +60,16 @@ def parse_address(value: object, *, port_span: int = 1) -> Address | str:
         return expected
     if not port_text.isdigit() or int(port_text) > top:
         return f"a port number 0..{top} (0: any free port)"
-    if host != "localhost" and not _is_ip(host):
+    if host != "localhost" and _ip(host) is None:
         return "a numeric IP address or localhost as HOST (0.0.0.0 for every interface)"
     return Address(host, int(port_text))
 
 
-def _is_ip(host: str) -> bool:
+def _ip(host: str) -> ipaddress.IPv4Address | ipaddress.IPv6Address | None:
     try:
-        ipaddress.ip_address(host)
+        return ipaddress.ip_address(host)
     except ValueError:
-        return False
-    return True
+        return None
 
 
 def needs_token(address: Address, token: str | None) -> bool:

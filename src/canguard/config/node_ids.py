@@ -1,9 +1,6 @@
 """Node IDs a config's ``actions:`` may not take: BehaviorTree.CPP 4's built-ins and canguard's nodes.
 
-A table of names, not of implementations, so the config layer can refuse an action
-called ``Sequence`` or ``IsCurrentSafe`` (with the file and line of the key) without
-importing the node library above it. ``tests/test_layout.py`` fails when a node type
-registered by :mod:`canguard.bt.nodes` is missing here.
+Names only: the config layer does not import the node library.
 """
 
 from __future__ import annotations

@@ -68,10 +68,7 @@ class SourceConfig:
 
     def signal(self, role: str) -> SignalRef | None:
         """The signal with that role, or None."""
-        for s in self.signals:
-            if s.role == role:
-                return s
-        return None
+        return next((s for s in self.signals if s.role == role), None)
 
     @property
     def value_roles(self) -> tuple[str, ...]:
@@ -194,11 +191,7 @@ class Config:
 
 @dataclass(frozen=True)
 class PartialConfig:
-    """The sound parts of a config that has problems (``ConfigError.partial``).
-
-    ``canguard check`` checks the tree against them, so the tree's mistakes are
-    listed in the same run as the config's.
-    """
+    """The sound parts of a config that has problems (``ConfigError.partial``): ``check`` judges the tree by them."""
 
     tree: TreeConfig | None
     """``tree:`` when it names an existing file."""

@@ -7,7 +7,7 @@ from collections.abc import Mapping
 from types import MappingProxyType
 from typing import Any
 
-from canguard.config.frames import _choices, _Frames
+from canguard.config.frames import _Frames
 from canguard.config.monitor import needs_token, parse_address
 from canguard.config.node_ids import RESERVED_NODE_IDS
 from canguard.config.schema import (
@@ -22,7 +22,7 @@ from canguard.config.schema import (
     TreeConfig,
 )
 from canguard.config.sources import _IDENT
-from canguard.config.yamlsrc import _CONFIRM_OPS, _closest, _found, _path, _shown
+from canguard.config.yamlsrc import _CONFIRM_OPS, _closest, _found, _path
 
 _BUILT_IN_INTERFACES = frozenset({
     "socketcan", "socketcand", "virtual", "udp_multicast", "slcan", "serial", "gs_usb", "pcan", "kvaser",
@@ -156,16 +156,10 @@ class _Sections(_Frames):
         if op_name == "equals" and isinstance(raw, str) and sig is None:
             return None  # a choice name of a source or signal already reported
         if op_name == "equals" and isinstance(raw, str) and sig is not None:
-            choices = _choices(sig)
-            if raw in choices:
-                number = float(choices[raw])
-            else:
-                self.problem(
-                    _path(key, op_name),
-                    _shown(raw),
-                    f"a number or a choice of {sig.name}" + _closest(raw, choices),
-                )
+            choice = self.choice(sig, raw, _path(key, op_name))
+            if choice is None:
                 return None
+            number = float(choice)
         else:
             number = self.number(raw, _path(key, op_name))
             if op_name == "equals" and number is not None and sig is not None:

@@ -9,10 +9,6 @@ import yaml
 
 from canguard.errors import clip, closest, quote
 
-# ---------------------------------------------------------------------------
-# The loader. Everything below turns YAML into the dataclasses above.
-# ---------------------------------------------------------------------------
-
 _SECONDS_KEYS = ("period", "repeat", "max_age", "deadline", "save_period")
 _CONFIRM_OPS: dict[str, Literal["<", ">", "=="]] = {"below": "<", "above": ">", "equals": "=="}
 _FD_LENGTHS = (0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48, 64)

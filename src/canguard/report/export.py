@@ -1,18 +1,10 @@
 """``replay --export-signals FILE.parquet``: every decoded sample, as a table for pandas / polars.
 
-:class:`SignalExport` hangs on :attr:`Engine.sample_hook <canguard.engine.core.Engine.sample_hook>`
-and sees every sample the engine's models see (valid or not, ``present`` and
-``counter`` roles included); alone (no ``--plot`` beside it) it takes a replay's column
-blocks whole (:attr:`Engine.sample_block <canguard.engine.core.Engine.sample_block>`), in
-the same order, 3-6x faster than sample by sample. It buffers :data:`BATCH_ROWS` rows, then hands them to a
-:class:`pyarrow.parquet.ParquetWriter` as one record batch (one row group): memory
-stays flat in the log's length.
-
-Each log is written to its own part file next to the target (:func:`part_path`);
-:func:`combine_parts` then renames the only part into place, or copies several, row
-group by row group, into the one file in input order. A ``--jobs`` worker writes its
-log's part like the main process does. pyarrow is an optional extra (``fleet``):
-:func:`require_pyarrow` says how to get it, and nothing here imports it at module level.
+:class:`SignalExport` sees every sample the engine's models see (:attr:`Engine.sample_hook
+<canguard.engine.core.Engine.sample_hook>`, or whole column blocks through ``sample_block``) and hands
+:data:`BATCH_ROWS` rows at a time to its table (one Parquet row group): memory stays flat. Each log
+writes its own part file (:func:`part_path`), joined in input order by :func:`combine_parts`. pyarrow
+is an optional extra (``fleet``), imported only when used.
 """
 
 from __future__ import annotations

@@ -1,9 +1,7 @@
 """A fleet summary: one row per replayed log, as JSON lines or Parquet (``canguard replay --fleet-summary``).
 
-Each row says, for one log: whether it replayed (``status`` ok / failed and why), how many
-frames it held, its trips and stops, when the first stop came (the first trip's time), and
-its worst margin (the guard closest to its threshold). JSON lines need nothing; Parquet
-needs pyarrow (the ``fleet`` extra) and holds the same columns, for pandas and polars.
+Per log: status (ok / failed and why), frames, trips, stops, the first trip's time and the worst margin.
+Parquet needs pyarrow (the ``fleet`` extra).
 """
 
 from __future__ import annotations

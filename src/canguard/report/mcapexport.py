@@ -12,10 +12,7 @@ side in Foxglove), one channel each:
 ``/canguard/frames_out``               the frames canguard would have sent (``can_msgs/msg/Frame``, CAN FD
                                        ones on ``/canguard/frames_out_fd`` as ``ros2_socketcan_msgs/msg/FdFrame``).
 
-Messages are ROS 2 CDR with their ``.msg`` schemas (``ros2msg``), the events JSON with a
-JSON schema: Foxglove decodes both without configuration. Names are made topic names by
-:func:`topic_name` (a source ``/battery_state`` is ``/canguard/samples/battery_state/current``).
-Samples and guard states are laid out a column at a time (:class:`~canguard.io.mcapwrite.McapWriter`).
+Messages are ROS 2 CDR with their ``.msg`` schemas, the events JSON: Foxglove decodes both as they are.
 """
 
 from __future__ import annotations

@@ -1,10 +1,7 @@
 """``replay --plot``: what an engineer looks at first after a trip.
 
-Per guarded source: the current (or effort) over time with its thresholds, the
-I²t level of the guards that integrate it, and the trip and stop intervals
-shaded. matplotlib is an optional extra (``pip install canguard[plot]``).
-``.png`` and ``.svg`` are written by matplotlib; ``.html`` is one page with the
-SVG inline (no JavaScript, opens anywhere).
+Per guarded source: the value over time with its thresholds, the I²t level of its guards, trips and stops
+shaded. ``.png`` / ``.svg`` by matplotlib (an optional extra); ``.html``: the SVG inline.
 """
 
 from __future__ import annotations

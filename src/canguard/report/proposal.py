@@ -7,10 +7,8 @@ healthy ceiling × (1 + margin), rounded up to three significant digits while it
 what every fault assigned to the guard needs. Where only a smaller margin fits, the midpoint is
 taken and said; where no value fits, the guard is a conflict naming both logs (exit 1).
 
-Which faults a guard must catch: with ``--expect``, the guards the file lists for the log;
-otherwise every fault log whose excursion on the guard's signals lies above the healthy
-ceiling (the guard can separate it). A fault no guard can separate is left to the proving
-replay (a stale source or a bad value trips it, or the proposal is refused).
+Which faults a guard must catch: those ``--expect`` lists for it, else every fault log whose excursion
+lies above the healthy ceiling; the rest is left to the proving replay.
 
 A source's ``max_age`` is proposed only where the value in force fails a log: a healthy log
 has a longer gap between its frames (it would go stale on a healthy day), or an assigned
@@ -24,6 +22,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
+from canguard.report.summary import rounded
 from canguard.report.tune import percentile
 
 GAP_FACTOR = 1.5
@@ -47,6 +46,10 @@ class Need:
     log: str
     value: float
     t: float | None
+
+
+def _need(n: Need | None) -> dict[str, Any] | None:
+    return None if n is None else {"log": n.log, "value": rounded(n.value), "t": rounded(n.t)}
 
 
 @dataclass
@@ -78,14 +81,12 @@ class Proposal:
 
     def as_json(self) -> dict[str, Any]:
         """The proposal as plain data (``--json``)."""
-        def need(n: Need | None) -> dict[str, Any] | None:
-            return None if n is None else {"log": n.log, "value": _num(n.value), "t": _num(n.t)}
         return {
             "node": self.node, "type": self.type, "source": self.source, "port": self.port,
-            "old": _num(self.old), "new": _num(self.new), "status": self.status, "why": self.why,
-            "healthy_ceiling": need(self.healthy), "healthy_peak": need(self.peak),
-            "healthy_p99": _num(self.p99), "healthy_p99_9": _num(self.p999),
-            "faults": [need(f) for f in self.faults], "heat_pct": [need(h) for h in self.heat],
+            "old": rounded(self.old), "new": rounded(self.new), "status": self.status, "why": self.why,
+            "healthy_ceiling": _need(self.healthy), "healthy_peak": _need(self.peak),
+            "healthy_p99": rounded(self.p99), "healthy_p99_9": rounded(self.p999),
+            "faults": [_need(f) for f in self.faults], "heat_pct": [_need(h) for h in self.heat],
             "rating_scale": self.scale, "inrush": self.inrush,
         }
 
@@ -105,15 +106,9 @@ class AgeProposal:
 
     def as_json(self) -> dict[str, Any]:
         """The proposal as plain data (``--json``)."""
-        return {"source": self.source, "old": _num(self.old), "new": _num(self.new), "status": self.status,
-                "why": self.why, "period": _num(self.period),
-                "healthy_gap": None if self.gap is None else {"log": self.gap.log, "value": _num(self.gap.value),
-                                                              "t": _num(self.gap.t)},
-                "faults": [{"log": f.log, "value": _num(f.value)} for f in self.faults]}
-
-
-def _num(x: float | None) -> float | None:
-    return None if x is None or not math.isfinite(x) else round(x, 6)
+        return {"source": self.source, "old": rounded(self.old), "new": rounded(self.new), "status": self.status,
+                "why": self.why, "period": rounded(self.period), "healthy_gap": _need(self.gap),
+                "faults": [{"log": f.log, "value": rounded(f.value)} for f in self.faults]}
 
 
 def nice_up(x: float, below: float = math.inf) -> float:

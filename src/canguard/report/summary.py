@@ -18,9 +18,9 @@ from canguard.units import I2T_LIMIT_PCT, quantity
 SUMMARY_VERSION = 1
 
 
-def _r(x: float, nd: int = 6) -> float | None:
-    """Round for a stable summary; NaN/inf become None so the JSON stays valid."""
-    return None if not math.isfinite(x) else round(x, nd)
+def rounded(x: float | None, nd: int = 6) -> float | None:
+    """Round for a stable summary; None, NaN and inf become None so the JSON stays valid."""
+    return None if x is None or not math.isfinite(x) else round(x, nd)
 
 
 def unguarded_sources(cfg: Config, samples: dict[str, int]) -> list[str]:
@@ -36,7 +36,7 @@ def build_summary(cfg: Config, log_path: Path, engine: Engine, stats: Any, route
     guards = engine.guards()
     units = {(g.node, g.role): g.threshold_unit for g in guards}
     trips = [
-        {**{k: (_r(v) if isinstance(v, float) else v) for k, v in ev.items()
+        {**{k: (rounded(v) if isinstance(v, float) else v) for k, v in ev.items()
             if k in ("t", "node", "source", "value", "threshold", "reason")},
          "unit": units.get((str(ev.get("node")), str(ev.get("signal"))), "")}
         for ev in es.trips
@@ -48,9 +48,9 @@ def build_summary(cfg: Config, log_path: Path, engine: Engine, stats: Any, route
         threshold = guard.threshold() if guard.kind == "threshold" else 100.0
         margins.append({
             "node": guard.node, "source": guard.source, "signal": guard.role, "kind": guard.kind,
-            "threshold": _r(threshold), "peak": _r(peak), "unit": guard.margin_unit,
-            "margin": _r(threshold - peak) if math.isfinite(peak) else None,
-            "margin_pct": _r(100.0 * (threshold - peak) / threshold, 2)
+            "threshold": rounded(threshold), "peak": rounded(peak), "unit": guard.margin_unit,
+            "margin": rounded(threshold - peak) if math.isfinite(peak) else None,
+            "margin_pct": rounded(100.0 * (threshold - peak) / threshold, 2)
             if math.isfinite(peak) and threshold else None,
         })
     unmapped = dict(sorted(router.unmapped.items()))
@@ -72,11 +72,11 @@ def build_summary(cfg: Config, log_path: Path, engine: Engine, stats: Any, route
         "trips": trips,
         "trip_count": es.trip_count,
         "stops": engine.gate.stops,
-        "stopped_s": _r(engine.gate.stopped_total(end), 4),
+        "stopped_s": rounded(engine.gate.stopped_total(end), 4),
         "escalations": engine.events_seen["escalate"],
         "confirmations": engine.events_seen["confirmed"],
         "margins": margins,
-        "first_t": _r(engine.first_frame_t), "last_t": _r(end),
+        "first_t": rounded(engine.first_frame_t), "last_t": rounded(end),
         "frames_sent": getattr(engine.sink, "sent", 0),
     }
     if getattr(stats, "stamps", None):  # a ROS bag: which times its frames took
@@ -174,10 +174,7 @@ def diff_baseline(base: dict[str, Any], new: dict[str, Any], margin_tolerance_pc
 
 
 def render_margin(m: dict[str, Any]) -> str:
-    """One guard's lowest margin in words, every figure with its unit (``peak 31.6 A vs threshold 35 A: ...``).
-
-    A summary saved before margins carried a unit prints the numbers alone.
-    """
+    """One guard's lowest margin in words, every figure with its unit (``peak 31.6 A vs threshold 35 A: ...``)."""
     if m.get("margin") is None:
         return "no data"
     unit = m.get("unit")
@@ -185,7 +182,3 @@ def render_margin(m: dict[str, Any]) -> str:
     return (f"peak {quantity(m['peak'], unit)} vs threshold {quantity(m['threshold'], unit)}: "
             f"margin {quantity(m['margin'], unit)}{pct}")
 
-
-def compare_baseline(base: dict[str, Any], new: dict[str, Any]) -> list[str]:
-    """The words of :func:`diff_baseline`: new trips, lost trips, margins that shrank, stop counts."""
-    return [c.text for c in diff_baseline(base, new)]

@@ -1,19 +1,10 @@
 """``canguard tune``'s statistics of one log: what each guard of the tree would need to trip on it.
 
-A replay with the config as it is (the same engine, readers and tree as ``canguard replay``)
-carries a :class:`TuneStats`: it subscribes a :class:`Capture` to every signal a guard of the
-tree reads (through :meth:`Context.subscribe <canguard.bt.context.Context.subscribe>`, as the
-guards' own models are), so it sees exactly the samples the models see, valid ones only, by
-whatever path the engine feeds them. At the end of the log each guard's model, as the tree
-built it before the first sample, is advanced over the captured columns with the guard's
-tunable figure changed (:class:`Knob`), and the figure is searched for at which the guard stops
-tripping on this log: its *ceiling*. A healthy log needs a threshold at or above its ceiling; a
-fault log trips below its own. The model's own maths decides (persistence, hysteresis, inrush
-blanking, I²t heat), so the statistics never restate a guard's semantics.
-
-Everything :meth:`TuneStats.result` returns is small and JSON-able: a ``--jobs`` worker or a
-Dask worker sends it back inside the log's replay summary, and :mod:`canguard.report.proposal`
-combines the logs.
+A replay carries a :class:`TuneStats`, whose :class:`Capture` subscribes to every signal a guard
+reads (as the guards' models do). At the end of the log each guard's model, as built, is advanced over
+the captured columns with its tunable figure changed (:class:`Knob`), searching the figure at which it
+stops tripping: its *ceiling*. The model's own maths decides, so nothing restates a guard's semantics.
+:meth:`TuneStats.result` is small and JSON-able (it travels in the replay summary).
 """
 
 from __future__ import annotations

@@ -1,13 +1,8 @@
 """Taking a discarded tree out of py_trees' global blackboard (config reloads).
 
-py_trees keeps one blackboard per process (``Blackboard.clients``, ``.metadata``,
-``.storage`` are class attributes). Every node of a loaded tree registers a client,
-and its ports register keys under a namespace made of the node's uuid, so no two
-trees share them. Nothing removes them when a tree is dropped: before this module,
-each reload of the daemon left its old tree's clients and keys behind (about 80
-keys, 50 values and 14 clients for the robot example, some 70 kB; issue 17's soak
-saw RSS creep). The daemon releases the old tree after a reload, and whatever a
-rejected reload had registered before it failed.
+py_trees keeps one blackboard per process (class attributes), where every node of a loaded tree
+registers a client and keys, and nothing removes them when a tree is dropped: the daemon releases
+the old tree after a reload, and whatever a rejected reload had registered.
 """
 
 from __future__ import annotations
@@ -32,10 +27,8 @@ def registered_clients() -> set[uuid.UUID]:
 def release_clients(ids: Iterable[uuid.UUID]) -> int:
     """Remove these clients from the global blackboard; returns how many keys went with them.
 
-    A key goes (with its value) when no other client holds it, as with py_trees'
-    ``Client.unregister(clear=True)``; a key the running tree also holds stays.
-    Works from the ids alone, so it also cleans up after a tree whose build failed
-    half-way (its nodes are out of reach by then).
+    A key goes (with its value) when no other client holds it (py_trees' ``Client.unregister(clear=True)``).
+    Works from the ids alone: also after a tree whose build failed half-way.
     """
     ids = set(ids)
     if not ids:

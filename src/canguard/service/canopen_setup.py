@@ -4,21 +4,11 @@ At the daemon's start, and again whenever the drive sends its boot-up message (i
 and forgot what it was told), each drive with ``configure: true`` is configured in a thread
 of its own (SDO transfers wait for answers; the daemon's loop never does):
 
-1. NMT pre-operational (the drive stops its PDOs while they change);
-2. the SDO writes of :attr:`CanopenDrive.setup <canguard.config.canopen.CanopenDrive.setup>`:
-   the producer heartbeat (0x1017) first, so that a drive left pre-operational says so,
-   then each ``pdo:`` TPDO's mapping, event timer and COB-ID (CiA 301's procedure);
-3. each value read back and compared;
-4. NMT start.
-
-A write the drive refuses (an SDO abort), one that does not answer, or a value read back
-different is an ``error`` event naming the drive, the object and the cause; the drive is not
-started: it stays pre-operational, so its heartbeat keeps its sources ``not_present`` (fail
-safe). A ``configure`` event says when a drive was configured and started.
-
-The ``canopen`` library does the SDO and NMT work, on a bus of its own (the config's bus
-settings, filtered to the drives' SDO answers and heartbeats): the daemon's reader keeps
-its sockets to itself.
+NMT pre-operational; the SDO writes of :attr:`CanopenDrive.setup <canguard.config.canopen.CanopenDrive.setup>`
+(the heartbeat first); each value read back and compared; NMT start. A refused, unanswered or
+different write is an ``error`` event and the drive stays pre-operational (its sources
+``not_present``: fail safe); a ``configure`` event says when a drive was configured and started. The
+``canopen`` library does the SDO and NMT work on a bus of its own.
 """
 
 from __future__ import annotations

@@ -1,14 +1,6 @@
 """Prometheus metrics (``canguard run --metrics 127.0.0.1:9108``; off by default).
 
-The engine calls the same methods on :class:`Metrics` (served over HTTP by
-prometheus-client, on a private registry) or :class:`NullMetrics` (the default:
-every method does nothing), so it never checks whether metrics are on.
-
-prometheus-client is an optional extra (``pip install 'canguard[metrics]'``): it is
-imported only when :class:`Metrics` is built, and its absence is a clear
-:class:`MetricsUnavailable` error rather than an ImportError at start-up.
-
-Metrics served (label in braces)::
+:class:`Metrics` (prometheus-client, an optional extra, on a private registry) serves (label in braces)::
 
     canguard_frames_received_total{bus}     frames read from the bus
     canguard_frames_decoded_total{bus}      frames decoded into samples
@@ -23,21 +15,13 @@ Metrics served (label in braces)::
 
 from __future__ import annotations
 
-import ipaddress
 import threading
-from typing import Any, Protocol
+from typing import Any
 
+from canguard.config.monitor import parse_address as monitor_address
 from canguard.errors import CanguardError
 
-__all__ = [
-    "TICK_BUCKETS_S",
-    "Metrics",
-    "MetricsSink",
-    "MetricsUnavailable",
-    "NullMetrics",
-    "make_metrics",
-    "parse_address",
-]
+__all__ = ["TICK_BUCKETS_S", "Metrics", "MetricsUnavailable", "parse_address"]
 
 TICK_BUCKETS_S = (25e-6, 50e-6, 100e-6, 250e-6, 500e-6, 1e-3, 2.5e-3, 5e-3, 10e-3, 25e-3, 50e-3, 0.1)
 """Tick duration histogram buckets: a tick should take well under a millisecond."""
@@ -47,92 +31,19 @@ class MetricsUnavailable(CanguardError, ImportError):
     """``--metrics`` was asked for but prometheus-client is not installed."""
 
 
-class MetricsSink(Protocol):
-    """What the engine calls; :class:`Metrics` and :class:`NullMetrics` both implement it."""
-
-    def frame_received(self, bus: str, n: int = 1) -> None: ...
-    def frames_decoded(self, bus: str, n: int) -> None: ...
-    def frame_invalid(self, bus: str, n: int = 1) -> None: ...
-    def send_error(self, bus: str, n: int = 1) -> None: ...
-    def trip(self, node: str) -> None: ...
-    def set_stop_state(self, active: bool) -> None: ...
-    def observe_tick(self, seconds: float) -> None: ...
-    def set_i2t_level(self, node: str, pct: float) -> None: ...
-    def set_sample_age(self, source: str, s: float) -> None: ...
-    def stop(self) -> None: ...
-
-
 def parse_address(addr: str) -> tuple[str, int]:
-    """Split ``"127.0.0.1:9108"`` / ``"[::1]:9108"`` / ``"localhost:9108"`` into (host, port).
-
-    Port 0 asks the OS for a free port. Raises ValueError naming the address and
-    the expected form when the host or port is missing or malformed (an empty host
-    is refused rather than taken as "every interface").
-    """
-    expected = "expected HOST:PORT, e.g. 127.0.0.1:9108 or [::1]:9108"
+    """``--metrics HOST:PORT``: read as the monitors' addresses (:func:`canguard.config.monitor.parse_address`),
+    the host required (port 0: any free one); ValueError quoting ``addr`` when malformed."""
     text = addr.strip()
-    if text.startswith("["):
-        host, sep, rest = text[1:].partition("]")
-        if not sep or not rest.startswith(":"):
-            raise ValueError(f"bad metrics address {addr!r}: {expected}")
-        port_text = rest[1:]
-        try:
-            ipaddress.IPv6Address(host)
-        except ValueError:
-            raise ValueError(f"bad metrics address {addr!r}: {host!r} is not an IPv6 address") from None
-    else:
-        host, sep, port_text = text.rpartition(":")
-        if not sep or not host or ":" in host:
-            raise ValueError(f"bad metrics address {addr!r}: {expected}")
-    if not host:
-        raise ValueError(f"bad metrics address {addr!r}: empty host; {expected}")
-    if not port_text.isdigit() or not 0 <= int(port_text) <= 65535:
-        raise ValueError(f"bad metrics address {addr!r}: port {port_text!r} is not a number 0..65535")
-    return host, int(port_text)
-
-
-class NullMetrics:
-    """Metrics off (the default): every method does nothing."""
-
-    def frame_received(self, bus: str, n: int = 1) -> None:
-        """Do nothing."""
-
-    def frames_decoded(self, bus: str, n: int) -> None:
-        """Do nothing."""
-
-    def frame_invalid(self, bus: str, n: int = 1) -> None:
-        """Do nothing."""
-
-    def send_error(self, bus: str, n: int = 1) -> None:
-        """Do nothing."""
-
-    def trip(self, node: str) -> None:
-        """Do nothing."""
-
-    def set_stop_state(self, active: bool) -> None:
-        """Do nothing."""
-
-    def observe_tick(self, seconds: float) -> None:
-        """Do nothing."""
-
-    def set_i2t_level(self, node: str, pct: float) -> None:
-        """Do nothing."""
-
-    def set_sample_age(self, source: str, s: float) -> None:
-        """Do nothing."""
-
-    def stop(self) -> None:
-        """Do nothing."""
+    found = "HOST:PORT, e.g. 127.0.0.1:9108 or [::1]:9108" if text.isdigit() else monitor_address(text)
+    if isinstance(found, str):
+        raise ValueError(f"bad metrics address {addr!r}: expected {found}")
+    return found.host, found.port
 
 
 class Metrics:
-    """canguard's Prometheus metrics on a private ``CollectorRegistry``.
-
-    Building it registers the metrics (raises :class:`MetricsUnavailable` without
-    prometheus-client); :meth:`start` serves them over HTTP. Every update method
-    is thread-safe and cheap (the labelled child of each bus / node / source is
-    looked up once and cached), so the engine may call them per frame.
-    """
+    """canguard's Prometheus metrics on a private ``CollectorRegistry`` (:class:`MetricsUnavailable` without
+    prometheus-client); :meth:`start` serves them. Updates are thread-safe and cheap (labelled children cached)."""
 
     def __init__(self) -> None:
         try:
@@ -145,37 +56,21 @@ class Metrics:
         self._prom = prom
         self.registry = prom.CollectorRegistry(auto_describe=True)
         reg = self.registry
-        self._received = prom.Counter(
-            "canguard_frames_received", "CAN frames read from the bus", ["bus"], registry=reg
-        )
-        self._decoded = prom.Counter(
-            "canguard_frames_decoded", "CAN frames decoded into samples", ["bus"], registry=reg
-        )
-        self._invalid = prom.Counter(
-            "canguard_frames_invalid", "Frames of configured ids that did not decode", ["bus"], registry=reg
-        )
-        self._send_errors = prom.Counter(
-            "canguard_send_errors",
-            "Frames that could not be sent (full TX queue, error)",
-            ["bus"],
-            registry=reg,
-        )
+        self._received = prom.Counter("canguard_frames_received", "CAN frames read from the bus", ["bus"], registry=reg)
+        self._decoded = prom.Counter("canguard_frames_decoded", "CAN frames decoded into samples", ["bus"],
+                                     registry=reg)
+        self._invalid = prom.Counter("canguard_frames_invalid", "Frames of configured ids that did not decode",
+                                     ["bus"], registry=reg)
+        self._send_errors = prom.Counter("canguard_send_errors", "Frames that could not be sent (full TX queue, error)",
+                                         ["bus"], registry=reg)
         self._trips = prom.Counter("canguard_trips", "Guard trips", ["node"], registry=reg)
-        self._stop = prom.Gauge(
-            "canguard_stop_active", "1 while the tree stops the task, else 0", registry=reg
-        )
-        self._tick = prom.Histogram(
-            "canguard_tick_duration_seconds", "Tree tick duration", buckets=TICK_BUCKETS_S, registry=reg
-        )
-        self._i2t = prom.Gauge(
-            "canguard_i2t_level_percent",
-            "I²t heat of each guard, percent of its trip level",
-            ["node"],
-            registry=reg,
-        )
-        self._age = prom.Gauge(
-            "canguard_sample_age_seconds", "Age of the newest sample of each source", ["source"], registry=reg
-        )
+        self._stop = prom.Gauge("canguard_stop_active", "1 while the tree stops the task, else 0", registry=reg)
+        self._tick = prom.Histogram("canguard_tick_duration_seconds", "Tree tick duration", buckets=TICK_BUCKETS_S,
+                                    registry=reg)
+        self._i2t = prom.Gauge("canguard_i2t_level_percent", "I²t heat of each guard, percent of its trip level",
+                               ["node"], registry=reg)
+        self._age = prom.Gauge("canguard_sample_age_seconds", "Age of the newest sample of each source", ["source"],
+                               registry=reg)
         self._children: dict[tuple[int, str], Any] = {}
         self._lock = threading.Lock()
         self._server: Any = None
@@ -198,11 +93,8 @@ class Metrics:
     # -- serving ---------------------------------------------------------------------
 
     def start(self, addr: str) -> None:
-        """Serve ``/metrics`` over HTTP at ``addr`` (``HOST:PORT``) from a daemon thread.
-
-        Raises ValueError for a malformed address, OSError (naming the address) when
-        it cannot be bound, RuntimeError when already serving.
-        """
+        """Serve ``/metrics`` over HTTP at ``addr`` (``HOST:PORT``) from a daemon thread (ValueError: malformed,
+        OSError naming the address: cannot bind, RuntimeError: already serving)."""
         host, port = parse_address(addr)
         if self._server is not None:
             raise RuntimeError(f"metrics already served on {self.host}:{self.port}")
@@ -265,15 +157,3 @@ class Metrics:
     def set_sample_age(self, source: str, s: float) -> None:
         """Set the age in seconds of ``source``'s newest sample (``inf`` before the first)."""
         self._child(self._age, source).set(s)
-
-
-def make_metrics(addr: str | None) -> Metrics | NullMetrics:
-    """:class:`NullMetrics` when ``addr`` is None, else a started :class:`Metrics`.
-
-    Raises as :class:`Metrics` and :meth:`Metrics.start` do.
-    """
-    if addr is None:
-        return NullMetrics()
-    metrics = Metrics()
-    metrics.start(addr)
-    return metrics

@@ -1,23 +1,8 @@
 """sd_notify from scratch, and the policy deciding when the watchdog may be fed.
 
-:class:`Notifier` speaks systemd's notification protocol (``man sd_notify``): one
-AF_UNIX datagram of newline-separated ``KEY=value`` fields to the socket named by
-``$NOTIFY_SOCKET`` (a path, or an abstract name written ``@name``). Outside
-systemd (``NOTIFY_SOCKET`` unset) every call is a silent no-op, and no call ever
-raises: a send error is logged once at WARNING (later ones at DEBUG) and counted.
-
-What the daemon sends and when (``systemd/canguard.service`` is ``Type=notify``):
-
-- ``READY=1`` once the buses are open and the tree is loaded (:meth:`Notifier.ready`);
-- ``WATCHDOG=1`` only while :class:`WatchdogPolicy` says the loop is healthy: it
-  ticks on time and every source the tree reads is fresh or has caused a stop.
-  A stalled or blind daemon stops feeding the watchdog and systemd restarts it;
-- ``STATUS=...`` with state, trips and frame rates (:func:`status_line`);
-- ``RELOADING=1`` + ``MONOTONIC_USEC`` on SIGHUP, then ``READY=1`` again;
-- ``STOPPING=1`` on SIGTERM.
-
-The watchdog decision is a pure function (:func:`watchdog_verdict`) of what the
-engine passes in, so it is tested without a clock or a socket.
+:class:`Notifier` sends one AF_UNIX datagram of ``KEY=value`` lines to ``$NOTIFY_SOCKET`` (a path or
+``@abstract``); outside systemd every call is a no-op, and no call raises (errors logged once, counted).
+``WATCHDOG=1`` goes only while :func:`watchdog_verdict` (a pure function) says the loop is healthy.
 """
 
 from __future__ import annotations
@@ -29,25 +14,14 @@ import time
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 
-__all__ = [
-    "Notifier",
-    "WatchdogPolicy",
-    "WatchdogVerdict",
-    "status_line",
-    "watchdog_verdict",
-]
+__all__ = ["Notifier", "WatchdogVerdict", "watchdog_verdict"]
 
 log = logging.getLogger(__name__)
 
 
 class Notifier:
-    """Sends sd_notify messages to systemd; a no-op outside systemd.
-
-    ``env`` defaults to ``os.environ`` and is read once, at construction
-    (``NOTIFY_SOCKET``, ``WATCHDOG_USEC``, ``WATCHDOG_PID``). The socket is
-    non-blocking: a notification never stalls the guard loop (a full queue is a
-    logged, counted error, and the next ping tries again).
-    """
+    """Sends sd_notify messages to systemd; a no-op outside systemd. ``env`` (``os.environ``) is read once; the
+    socket is non-blocking (a full queue is a logged, counted error)."""
 
     def __init__(self, env: Mapping[str, str] | None = None) -> None:
         env = os.environ if env is None else env
@@ -75,11 +49,7 @@ class Notifier:
         return self.address is not None
 
     def notify(self, *fields: str) -> bool:
-        """Send ``fields`` (``"KEY=value"`` each) as one datagram; True if it was sent.
-
-        Never raises: without ``NOTIFY_SOCKET`` it returns False; an OSError is
-        logged (once at WARNING) and counted in ``errors``.
-        """
+        """Send ``fields`` (``"KEY=value"`` each) as one datagram; True if it was sent. Never raises."""
         if self.address is None or not fields:
             return False
         payload = "\n".join(fields).encode("utf-8", "replace")
@@ -100,13 +70,10 @@ class Notifier:
 
     def ready(self, status: str | None = None) -> bool:
         """``READY=1`` (with an optional ``STATUS=``): buses open, tree loaded; or a reload finished."""
-        fields = ["READY=1"]
-        if status is not None:
-            fields.append(_status_field(status))
-        return self.notify(*fields)
+        return self.notify("READY=1", *([] if status is None else [_status_field(status)]))
 
     def watchdog(self) -> bool:
-        """``WATCHDOG=1``: feed the watchdog. Call only when :class:`WatchdogPolicy` says so."""
+        """``WATCHDOG=1``: feed the watchdog. Call only when :func:`watchdog_verdict` says so."""
         return self.notify("WATCHDOG=1")
 
     def status(self, text: str) -> bool:
@@ -115,10 +82,7 @@ class Notifier:
 
     def stopping(self, status: str | None = None) -> bool:
         """``STOPPING=1``: the daemon is shutting down (SIGTERM received)."""
-        fields = ["STOPPING=1"]
-        if status is not None:
-            fields.append(_status_field(status))
-        return self.notify(*fields)
+        return self.notify("STOPPING=1", *([] if status is None else [_status_field(status)]))
 
     def reloading(self, monotonic_usec: int | None = None) -> bool:
         """``RELOADING=1`` + ``MONOTONIC_USEC`` (CLOCK_MONOTONIC now, systemd >= 253 needs it).
@@ -129,11 +93,8 @@ class Notifier:
         return self.notify("RELOADING=1", f"MONOTONIC_USEC={usec}")
 
     def watchdog_interval_s(self) -> float | None:
-        """``WatchdogSec=`` in seconds when systemd expects pings from this process, else None.
-
-        None when ``WATCHDOG_USEC`` is unset, not a positive integer, or when
-        ``WATCHDOG_PID`` names another process. Ping at about half this interval.
-        """
+        """``WatchdogSec=`` in seconds when systemd expects pings from this process (``WATCHDOG_USEC`` a positive
+        integer, ``WATCHDOG_PID`` unset or ours), else None."""
         raw = self._env.get("WATCHDOG_USEC")
         if not raw:
             return None
@@ -169,14 +130,6 @@ def _status_field(text: str) -> str:
     return "STATUS=" + " ".join(str(text).splitlines())
 
 
-def status_line(state: str, trips: int, frame_rates: Mapping[str, float] | None = None) -> str:
-    """A STATUS= text: ``"running; trips=2; can0=812 fps can1=95 fps"`` (buses sorted)."""
-    parts = [state, f"trips={int(trips)}"]
-    if frame_rates:
-        parts.append(" ".join(f"{bus}={rate:.0f} fps" for bus, rate in sorted(frame_rates.items())))
-    return "; ".join(parts)
-
-
 @dataclass(frozen=True)
 class WatchdogVerdict:
     """Whether the watchdog may be fed now, and why not when it may not."""
@@ -195,20 +148,9 @@ def watchdog_verdict(
     stale_unstopped: Iterable[str] = (),
     k: float = 3.0,
 ) -> WatchdogVerdict:
-    """Decide whether the daemon is healthy enough to send ``WATCHDOG=1``.
-
-    Healthy means both:
-
-    - the loop ticks on time: a tick happened (``last_tick`` not None) and
-      ``now - last_tick <= k * tick_period_s`` (``now`` and ``last_tick`` in the
-      same monotonic time base);
-    - no source the tree reads is stale without having caused a stop:
-      ``stale_unstopped`` lists such sources (the engine computes it: sources
-      the tree reads, stale, while the tree is not stopping the task). A stale
-      source that made the tree stop is the guard working, not a fault.
-
-    Pure: same inputs, same verdict.
-    """
+    """Whether the daemon is healthy enough to send ``WATCHDOG=1``: a tick happened within ``k * tick_period_s``
+    of ``now`` (one monotonic time base), and ``stale_unstopped`` (sources the tree reads, stale, while the tree
+    is not stopping the task) is empty. Pure."""
     if tick_period_s <= 0:
         raise ValueError(f"tick_period_s must be > 0, got {tick_period_s}")
     if last_tick is None:
@@ -221,50 +163,3 @@ def watchdog_verdict(
     if stale:
         return WatchdogVerdict(False, f"stale source(s) without a stop: {', '.join(stale)}")
     return WatchdogVerdict(True)
-
-
-class WatchdogPolicy:
-    """Feeds the watchdog at most every ``ping_period_s``, and only while :func:`watchdog_verdict` is ok.
-
-    The engine calls :meth:`update` after each tick (or from a timer) with the
-    monotonic time; the policy sends ``WATCHDOG=1`` through ``notifier`` when a
-    ping is due and the daemon is healthy. ``ping_period_s`` defaults to half of
-    systemd's ``WatchdogSec`` (or 1 s outside systemd, where pings are no-ops).
-    Unhealthy spells are logged once each, with their reason.
-    """
-
-    def __init__(
-        self,
-        notifier: Notifier,
-        tick_period_s: float,
-        k: float = 3.0,
-        ping_period_s: float | None = None,
-    ) -> None:
-        if tick_period_s <= 0:
-            raise ValueError(f"tick_period_s must be > 0, got {tick_period_s}")
-        self.notifier = notifier
-        self.tick_period_s = float(tick_period_s)
-        self.k = float(k)
-        if ping_period_s is None:
-            interval = notifier.watchdog_interval_s()
-            ping_period_s = interval / 2 if interval else 1.0
-        self.ping_period_s = float(ping_period_s)
-        self.last_ping: float | None = None
-        self.last_verdict = WatchdogVerdict(True)
-        self.pings = 0
-
-    def update(
-        self, now: float, last_tick: float | None, stale_unstopped: Iterable[str] = ()
-    ) -> WatchdogVerdict:
-        """Judge health and send ``WATCHDOG=1`` when healthy and a ping is due; return the verdict."""
-        verdict = watchdog_verdict(now, last_tick, self.tick_period_s, stale_unstopped, self.k)
-        if not verdict.ok and verdict.reason != self.last_verdict.reason:
-            log.warning("watchdog withheld: %s", verdict.reason)
-        elif verdict.ok and not self.last_verdict.ok:
-            log.info("watchdog fed again")
-        self.last_verdict = verdict
-        if verdict.ok and (self.last_ping is None or now - self.last_ping >= self.ping_period_s):
-            self.notifier.watchdog()
-            self.last_ping = now
-            self.pings += 1
-        return verdict

@@ -1,58 +1,16 @@
 """Encoders for the simulator: one per DBC message, built once.
 
-ODrive CANSimple telemetry (``Get_Iq``, ``Get_Torques``, ``Get_Encoder_Estimates``,
-``Get_Bus_Voltage_Current``) is two little-endian float32 signals on byte
-boundaries. For such messages a :class:`struct.Struct` packs exactly the bytes
-cantools would produce, about ten times faster; every other message (the
-Motorola BMS, the bit-packed heartbeat) goes through cantools' own
-``Message.encode``. The fast path is only taken when the DBC layout proves it
-safe, so a changed DBC silently falls back to cantools instead of mis-encoding.
+Each encodes through cantools' ``Message.encode``.
 """
 
 from __future__ import annotations
 
-import struct
 from collections.abc import Mapping
 from typing import Any
 
-import cantools.database
-
-
-def _float_struct(message: Any) -> tuple[struct.Struct, tuple[str, ...]] | None:
-    """A ``struct`` layout equal to cantools' encoding of ``message``, or None when none exists."""
-    signals = sorted(message.signals, key=lambda s: s.start)
-    if not signals or message.is_multiplexed() or message.is_container:
-        return None
-    fmt = "<"
-    pos = 0
-    for sig in signals:
-        if not (
-            sig.is_float
-            and sig.length == 32
-            and sig.byte_order == "little_endian"
-            and sig.start % 8 == 0
-            and sig.scale == 1
-            and sig.offset == 0
-        ):
-            return None
-        byte = sig.start // 8
-        if byte < pos:
-            return None
-        fmt += "x" * (byte - pos) + "f"
-        pos = byte + 4
-    if pos > message.length:
-        return None
-    fmt += "x" * (message.length - pos)
-    return struct.Struct(fmt), tuple(s.name for s in signals)
-
 
 class MessageEncoder:
-    """Encodes one DBC message's physical signal values into frame bytes.
-
-    ``encode`` takes every signal value (missing ones are 0); ``pack`` is the
-    positional fast path for float-only messages (values in start-bit order,
-    see ``fast_signals``) and falls back to cantools when there is none.
-    """
+    """Encodes one DBC message's physical signal values into frame bytes (``pack``: values in start-bit order)."""
 
     def __init__(self, message: Any) -> None:
         self.message = message
@@ -61,29 +19,17 @@ class MessageEncoder:
         self.is_extended_id: bool = bool(message.is_extended_frame)
         self.length: int = message.length
         self._defaults: dict[str, float] = {s.name: 0 for s in message.signals}
-        fast = _float_struct(message)
-        self._struct: struct.Struct | None = fast[0] if fast else None
-        self.fast_signals: tuple[str, ...] = fast[1] if fast else tuple(s.name for s in message.signals)
+        self.by_start: tuple[str, ...] = tuple(s.name for s in sorted(message.signals, key=lambda s: s.start))
+        """The signal names in start-bit order: what :meth:`pack` takes, positionally."""
 
     def encode(self, values: Mapping[str, float]) -> bytes:
-        """Encode physical values (scaled, as in the DBC); unknown names are ignored."""
-        full = dict(self._defaults)
-        for key, value in values.items():
-            if key in full:
-                full[key] = value
-        if self._struct is not None:
-            return self._struct.pack(*(full[n] for n in self.fast_signals))
-        if not full:
+        """Encode physical values (scaled, as in the DBC); missing ones are 0, unknown names are ignored."""
+        if not self._defaults:
             return bytes(self.length)
+        full = dict(self._defaults)
+        full.update((key, value) for key, value in values.items() if key in full)
         return bytes(self.message.encode(full, scaling=True, strict=False))
 
     def pack(self, *values: float) -> bytes:
-        """Encode values given in ``fast_signals`` order (the fast path for float telemetry)."""
-        if self._struct is not None:
-            return self._struct.pack(*values)
-        return self.encode(dict(zip(self.fast_signals, values, strict=True)))
-
-
-def build_encoders(db: cantools.database.Database) -> dict[str, MessageEncoder]:
-    """One encoder per message of ``db``, keyed by message name."""
-    return {m.name: MessageEncoder(m) for m in db.messages}
+        """Encode a value for each signal, in :attr:`by_start` order (the telemetry's setpoint then measured value)."""
+        return bytes(self.message.encode(dict(zip(self.by_start, values, strict=True)), scaling=True, strict=False))

@@ -1,13 +1,7 @@
 """Fault injection on a python-can bus: bus-off, failing sends, error frames, drops, delays.
 
-:class:`FaultyBus` wraps any python-can bus (a ``virtual`` one in the tests) and
-misbehaves on command of a shared :class:`Faults` switchboard, the way real
-interfaces do: a bus-off controller raises ``can.CanOperationError`` on receive and
-on send (and cannot be reopened until it recovers), a full transmit queue refuses
-sends, error frames arrive among the data frames, frames of chosen ids are lost,
-each frame can come late. :func:`faulty_opener` plugs it into
-:class:`canguard.io.bus.BusReader` (``opener=``), so the daemon meets the faults
-through its own bus code.
+:class:`FaultyBus` wraps any python-can bus and misbehaves as a shared :class:`Faults` says, the way real
+interfaces do; :func:`faulty_opener` plugs it into :class:`canguard.io.bus.BusReader` (``opener=``).
 """
 
 from __future__ import annotations

@@ -1,9 +1,7 @@
 """Where the simulated robot's frames go: a candump -L file, or a python-can bus.
 
-:func:`run_on_bus` is the one place in canguard's simulator that reads the wall
-clock: it paces frames to ``time.monotonic()`` so that a live daemon sees them
-at their real rate, and maps frames it receives back to simulated time. The
-robot itself only ever sees simulated time.
+:func:`run_on_bus` is the one place the simulator reads the wall clock (to pace frames and map received
+ones back to simulated time).
 """
 
 from __future__ import annotations
@@ -65,21 +63,11 @@ def write_log(path: str | PathLike[str], duration_s: float, **robot_kwargs: Any)
     return count
 
 
-def _to_message(frame: Frame) -> can.Message:
+def to_message(frame: Frame) -> can.Message:
     """The python-can message of a frame (error frames keep their class bits, without CAN_ERR_FLAG)."""
-    return can.Message(
-        arbitration_id=frame.arbitration_id,
-        is_extended_id=frame.is_extended_id,
-        is_error_frame=frame.is_error_frame,
-        is_remote_frame=frame.is_remote_frame,
-        is_fd=frame.is_fd,
-        data=frame.data,
-    )
-
-
-def _can_send_error_frames(bus: can.BusABC) -> bool:
-    """Error frames are made by CAN controllers, not sent: only software buses pass them on."""
-    return type(bus).__name__ in {"VirtualBus", "UdpMulticastBus"}
+    return can.Message(arbitration_id=frame.arbitration_id, is_extended_id=frame.is_extended_id,
+                       is_error_frame=frame.is_error_frame, is_remote_frame=frame.is_remote_frame, is_fd=frame.is_fd,
+                       bitrate_switch=frame.bitrate_switch, data=frame.data)
 
 
 def _pace(bus: can.BusABC, due: float, answer: Callable[[can.Message | None], None],
@@ -106,22 +94,15 @@ def run_on_bus(
 ) -> int:
     """Run the simulated robot on ``bus`` for ``duration_s`` seconds; return frames sent.
 
-    Frames go out paced to the wall clock (``time.monotonic()``: the one place
-    the simulator reads it) when ``realtime``, as fast as the bus takes them
-    otherwise. Between sends, frames from the bus (canguard's Estop,
-    Set_Axis_State, Clear_Errors) are answered through :meth:`SimRobot.receive`
-    at the simulated time they arrived. Waiting for the next due frame is done
-    in ``bus.recv(timeout)``, so a command is seen within a frame's gap.
-    Error frames are only sent on software buses (virtual, udp_multicast). A
-    send that fails (full transmit queue) is logged, counted as not sent and
-    skipped. ``stop_event`` ends the run early. Pass ``robot`` to reuse one,
-    otherwise ``robot_kwargs`` build a :class:`SimRobot` (``db`` required).
+    Paced to the wall clock when ``realtime``; frames from the bus are answered through
+    :meth:`SimRobot.receive` while waiting for the next due one. Error frames go only on software buses;
+    a refused send is logged and skipped. ``robot`` or ``robot_kwargs`` (``db`` required) give the robot.
     """
     if robot is None:
         robot = SimRobot(**robot_kwargs)
     elif robot_kwargs:
         raise TypeError("run_on_bus: pass either robot or SimRobot arguments, not both")
-    send_errors = _can_send_error_frames(bus)
+    send_errors = type(bus).__name__ in {"VirtualBus", "UdpMulticastBus"}  # controllers make error frames
     sim0 = robot.now
     wall0 = time.monotonic()
     sent = failed = 0
@@ -145,7 +126,7 @@ def run_on_bus(
         if frame.is_error_frame and not send_errors:
             continue
         try:
-            bus.send(_to_message(frame))
+            bus.send(to_message(frame))
             sent += 1
         except can.CanError as exc:
             failed += 1

@@ -6,7 +6,10 @@ import bisect
 import math
 import random
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Protocol
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from canguard.sim.scenarios import Scenario
 
 AXIS_STATE_IDLE = 1
 AXIS_STATE_CLOSED_LOOP = 8
@@ -60,23 +63,16 @@ class _Axis:
     ids: dict[str, int] = field(default_factory=dict)
 
 
-class SetpointHook(Protocol):
-    """What the motion asks of a scenario (:class:`canguard.sim.scenarios.Scenario` is one)."""
+class Motion:
+    """Setpoints, currents and the battery pack of the simulated robot: functions of time and the axes' state."""
 
-    def setpoint(self, axis: int, t: float, iq_a: float) -> float:
-        """The current setpoint of ``axis`` at ``t`` given the duty cycle's ``iq_a``."""
+    def __init__(self, rng: random.Random, axes: list[_Axis], setpoint_hooks: list[Scenario]) -> None:
+        self.rng = rng
+        self.axes = axes
+        self.setpoint_hooks = setpoint_hooks
+        self.soc_pct = START_SOC_PCT
 
-
-class MotionMixin:
-    """Setpoints, currents and the pack of :class:`~canguard.sim.robot.SimRobot` (pure functions of time and state)."""
-
-    if TYPE_CHECKING:  # what the robot provides
-        rng: random.Random
-        _axes: list[_Axis]
-        _setpoint_hooks: list[SetpointHook]
-        _soc_pct: float
-
-    def _duty(self, ax: _Axis, t: float) -> float:
+    def duty(self, ax: _Axis, t: float) -> float:
         """The duty cycle's current setpoint: trapezoid moves with 20 ms ramps."""
         u = (t + ax.index * _STAGGER_S) % _CYCLE_S
         i = bisect.bisect_right(_SEG_STARTS, u) - 1
@@ -87,7 +83,7 @@ class MotionMixin:
             level = prev + (level - prev) * into / _RAMP_S
         return level * ax.scale
 
-    def _velocity(self, ax: _Axis, t: float) -> float:
+    def velocity(self, ax: _Axis, t: float) -> float:
         """Velocity of the duty cycle's move (rev/s): trapezoid rising while accelerating."""
         u = (t + ax.index * _STAGGER_S) % _CYCLE_S
         sign = 1.0 if u < 2.0 else -1.0
@@ -102,19 +98,20 @@ class MotionMixin:
             v = 0.0
         return sign * v * _VMAX_REV_S * ax.scale
 
-    def _setpoint(self, ax: _Axis, t: float) -> float:
+    def setpoint(self, ax: _Axis, t: float) -> float:
+        """The current setpoint: the duty cycle's as the scenarios change it; 0 unless in closed loop."""
         if ax.state != AXIS_STATE_CLOSED_LOOP:
             return 0.0
-        iq = self._duty(ax, t)
-        for sc in self._setpoint_hooks:
+        iq = self.duty(ax, t)
+        for sc in self.setpoint_hooks:
             iq = sc.setpoint(ax.index, t, iq)
         return iq
 
-    def _current(self, ax: _Axis, t: float) -> float:
+    def current(self, ax: _Axis, t: float) -> float:
         """Noise-free Iq: the setpoint in closed loop (after a resume ramp), a decay when idle."""
         dt = t - ax.edge_t
         if ax.state == AXIS_STATE_CLOSED_LOOP:
-            sp = self._setpoint(ax, t)
+            sp = self.setpoint(ax, t)
             if dt < 10 * RESUME_TAU_S:
                 return sp + (ax.edge_i - sp) * math.exp(-max(dt, 0.0) / RESUME_TAU_S)
             return sp
@@ -122,14 +119,17 @@ class MotionMixin:
             return 0.0
         return ax.edge_i * math.exp(-max(dt, 0.0) / STOP_TAU_S)
 
-    def _measured(self, ax: _Axis, t: float) -> float:
+    def measured(self, ax: _Axis, t: float) -> float:
+        """Iq as the drive measures it (with noise)."""
         noise = IQ_NOISE_A if ax.state == AXIS_STATE_CLOSED_LOOP else IDLE_NOISE_A
-        return self._current(ax, t) + self.rng.gauss(0.0, noise)
+        return self.current(ax, t) + self.rng.gauss(0.0, noise)
 
-    def _pack_current(self, t: float) -> float:
-        total = BASE_LOAD_A + sum(abs(self._current(ax, t)) for ax in self._axes)
+    def pack_current(self, t: float) -> float:
+        """The BMS's pack current: base load + Σ|Iq| + noise."""
+        total = BASE_LOAD_A + sum(abs(self.current(ax, t)) for ax in self.axes)
         return total + self.rng.gauss(0.0, PACK_NOISE_A)
 
-    def _pack_voltage(self, current_a: float) -> float:
-        ocv = PACK_CELLS * (3.3 + 0.9 * self._soc_pct / 100.0)
+    def pack_voltage(self, current_a: float) -> float:
+        """Open-circuit voltage at the state of charge, less the pack's resistance drop."""
+        ocv = PACK_CELLS * (3.3 + 0.9 * self.soc_pct / 100.0)
         return ocv - PACK_R_OHM * current_a

@@ -28,30 +28,22 @@ from __future__ import annotations
 
 import heapq
 import random
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from os import PathLike
 
 import cantools.database
 
 from canguard.io.frame import Frame
-from canguard.sim.encode import MessageEncoder, build_encoders
-from canguard.sim.motion import (  # noqa: F401 - the robot's constants are part of its interface
+from canguard.sim.encode import MessageEncoder
+from canguard.sim.motion import (
     AXIS_STATE_CLOSED_LOOP,
     AXIS_STATE_IDLE,
-    BASE_LOAD_A,
     ERROR_ESTOP_REQUESTED,
-    IDLE_NOISE_A,
-    IQ_NOISE_A,
     JITTER_S,
     KT_NM_PER_A,
     PACK_CAPACITY_AH,
     PACK_CELLS,
-    PACK_NOISE_A,
-    PACK_R_OHM,
-    RESUME_TAU_S,
-    START_SOC_PCT,
-    STOP_TAU_S,
-    MotionMixin,
+    Motion,
     _Axis,
 )
 from canguard.sim.scenarios import Producer, Scenario, parse_scenario
@@ -96,7 +88,7 @@ class _Periodic:
         return self.produce(t)
 
 
-class SimRobot(MotionMixin):
+class SimRobot:
     """A deterministic simulated robot: N ODrive CANSimple axes and a BMS on one bus.
 
     ``db`` is the robot's DBC (a cantools Database or a path to one, with
@@ -145,7 +137,7 @@ class SimRobot(MotionMixin):
                 )
             self.rates_hz[kind] = float(rate)
         self.scenarios: list[Scenario] = [parse_scenario(s) for s in scenarios]
-        self._encoders = build_encoders(db)
+        self._encoders = {m.name: MessageEncoder(m) for m in db.messages}
         self._by_name: dict[str, MessageEncoder] = {}
         for name in ("BMS_Status", "BMS_Temperatures"):
             self._by_name[name] = self._lookup(name)
@@ -161,7 +153,6 @@ class SimRobot(MotionMixin):
                 self._commands[ax.ids[kind]] = (n, kind)
             self._axes.append(ax)
         self._heartbeats: dict[tuple[int, int, int, int], bytes] = {}
-        self._soc_pct = START_SOC_PCT
         self._soc_t = 0.0
         self._alive = 0
         self._heap: list[tuple[float, int, Producer]] = []
@@ -169,7 +160,8 @@ class SimRobot(MotionMixin):
         self._seq = 0
         self._now = 0.0
         self._stream_rates: dict[str, float] = {}
-        self._setpoint_hooks = [s for s in self.scenarios if type(s).setpoint is not Scenario.setpoint]
+        self.motion = Motion(self.rng, self._axes,
+                             [s for s in self.scenarios if type(s).setpoint is not Scenario.setpoint])
         self._suppress_hooks = [s for s in self.scenarios if type(s).suppress is not Scenario.suppress]
         self._add_base_streams()
         for sc in sorted(self.scenarios, key=lambda s: s.setup_last):
@@ -232,7 +224,7 @@ class SimRobot(MotionMixin):
 
     def current_a(self, axis: int) -> float:
         """The noise-free Iq of ``axis`` at the current time, in amps."""
-        return self._current(self._axes[axis], self._now)
+        return self.motion.current(self._axes[axis], self._now)
 
     def nominal_rate_hz(self) -> float:
         """Frames per second of all periodic streams (scenarios' one-off frames not counted)."""
@@ -270,17 +262,18 @@ class SimRobot(MotionMixin):
 
     def bms_frame(self, t: float, pack_current_a: float | None = None) -> Frame:
         """A BMS_Status frame at ``t``; ``pack_current_a`` overrides the measured current (the spike)."""
-        current = self._pack_current(t)
+        motion = self.motion
+        current = motion.pack_current(t)
         dt = max(0.0, t - self._soc_t)
         self._soc_t = max(self._soc_t, t)
-        self._soc_pct = max(0.0, self._soc_pct - current * dt / (PACK_CAPACITY_AH * 36.0))
+        motion.soc_pct = max(0.0, motion.soc_pct - current * dt / (PACK_CAPACITY_AH * 36.0))
         self._alive = (self._alive + 1) & 0xFF
         enc = self._by_name["BMS_Status"]
         data = enc.encode(
             {
                 "Pack_Current": current if pack_current_a is None else pack_current_a,
-                "Pack_Voltage": self._pack_voltage(current),
-                "State_Of_Charge": self._soc_pct,
+                "Pack_Voltage": motion.pack_voltage(current),
+                "State_Of_Charge": motion.soc_pct,
                 "Present": 1,
                 "Fault": 0,
                 "Alive_Counter": self._alive,
@@ -314,19 +307,14 @@ class SimRobot(MotionMixin):
 
     def _add_base_streams(self) -> None:
         n = self.axes
-        makers: dict[str, Callable[[_Axis], Producer]] = {
-            "Get_Iq": self._iq_producer,
-            "Get_Torques": self._torque_producer,
-            "Get_Encoder_Estimates": self._encoder_producer,
-            "Get_Bus_Voltage_Current": self._bus_producer,
-            "Heartbeat": self._heartbeat_producer,
-        }
         for slot, kind in enumerate(AXIS_KINDS):
             period = self.period_s(kind)
             for ax in self._axes:
                 # Spread the axes and kinds over the period so frames do not all collide.
                 phase = period * ((ax.index + slot / len(AXIS_KINDS)) / n)
-                self.add_periodic(kind, period, phase, makers[kind](ax))
+                produce = (self._heartbeat_producer(ax) if kind == "Heartbeat"
+                           else self._telemetry_producer(kind, ax))
+                self.add_periodic(kind, period, phase, produce)
         self.add_periodic("BMS_Status", self.period_s("BMS_Status"), 0.0, self.bms_frame)
         self.add_periodic(
             "BMS_Temperatures",
@@ -340,7 +328,7 @@ class SimRobot(MotionMixin):
     def _set_state(self, ax: _Axis, t: float, state: int) -> None:
         if state == ax.state:
             return
-        ax.edge_i = self._current(ax, t)
+        ax.edge_i = self.motion.current(ax, t)
         ax.edge_t = t
         ax.state = state
 
@@ -364,55 +352,31 @@ class SimRobot(MotionMixin):
 
     # Producers ----------------------------------------------------------------
 
-    def _iq_producer(self, ax: _Axis) -> Producer:
-        enc = self._by_name[f"Axis{ax.index}_Get_Iq"]
-        fid = enc.frame_id
-
-        def produce(t: float) -> Frame:
-            data = enc.pack(self._setpoint(ax, t), self._measured(ax, t))
-            return self.raw_frame(t, fid, data)
-
-        return produce
-
-    def _torque_producer(self, ax: _Axis) -> Producer:
-        enc = self._by_name[f"Axis{ax.index}_Get_Torques"]
-        fid = enc.frame_id
-
-        def produce(t: float) -> Frame:
-            data = enc.pack(KT_NM_PER_A * self._setpoint(ax, t), KT_NM_PER_A * self._measured(ax, t))
-            return self.raw_frame(t, fid, data)
-
-        return produce
-
-    def _encoder_producer(self, ax: _Axis) -> Producer:
-        enc = self._by_name[f"Axis{ax.index}_Get_Encoder_Estimates"]
-        fid = enc.frame_id
-
-        def produce(t: float) -> Frame:
-            vel = self._velocity(ax, t) if ax.state == AXIS_STATE_CLOSED_LOOP else 0.0
+    def _telemetry(self, kind: str, ax: _Axis, t: float) -> tuple[float, float]:
+        """The two float32 signals of an axis' telemetry ``kind`` at ``t``."""
+        m = self.motion
+        if kind == "Get_Iq":
+            return m.setpoint(ax, t), m.measured(ax, t)
+        if kind == "Get_Torques":
+            return KT_NM_PER_A * m.setpoint(ax, t), KT_NM_PER_A * m.measured(ax, t)
+        if kind == "Get_Encoder_Estimates":
+            vel = m.velocity(ax, t) if ax.state == AXIS_STATE_CLOSED_LOOP else 0.0
             ax.pos_rev += vel * max(0.0, t - ax.enc_t)
             ax.enc_t = max(ax.enc_t, t)
-            return self.raw_frame(t, fid, enc.pack(ax.pos_rev, vel))
+            return ax.pos_rev, vel
+        iq = abs(m.measured(ax, t))  # Get_Bus_Voltage_Current
+        return m.pack_voltage(m.pack_current(t)) - 0.1, iq
 
-        return produce
-
-    def _bus_producer(self, ax: _Axis) -> Producer:
-        enc = self._by_name[f"Axis{ax.index}_Get_Bus_Voltage_Current"]
-        fid = enc.frame_id
-
-        def produce(t: float) -> Frame:
-            iq = abs(self._measured(ax, t))
-            volts = self._pack_voltage(self._pack_current(t)) - 0.1
-            return self.raw_frame(t, fid, enc.pack(volts, iq))
-
-        return produce
+    def _telemetry_producer(self, kind: str, ax: _Axis) -> Producer:
+        enc = self._by_name[f"Axis{ax.index}_{kind}"]
+        return lambda t: self.raw_frame(t, enc.frame_id, enc.pack(*self._telemetry(kind, ax, t)))
 
     def _heartbeat_producer(self, ax: _Axis) -> Producer:
         enc = self._by_name[f"Axis{ax.index}_Heartbeat"]
         fid = enc.frame_id
 
         def produce(t: float) -> Frame:
-            done = int(ax.state != AXIS_STATE_CLOSED_LOOP or self._velocity(ax, t) == 0.0)
+            done = int(ax.state != AXIS_STATE_CLOSED_LOOP or self.motion.velocity(ax, t) == 0.0)
             key = (ax.index, ax.errors, ax.state, done)
             data = self._heartbeats.get(key)
             if data is None:
@@ -431,7 +395,7 @@ class SimRobot(MotionMixin):
 
     def _temps(self, t: float) -> Frame:
         enc = self._by_name["BMS_Temperatures"]
-        cell_v = self._pack_voltage(0.0) / PACK_CELLS
+        cell_v = self.motion.pack_voltage(0.0) / PACK_CELLS
         data = enc.encode(
             {
                 "Cell_Temp_Min": 27.0 + self.rng.uniform(0, 1),

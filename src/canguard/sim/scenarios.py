@@ -7,7 +7,7 @@ seconds later). Figures are chosen against the bundled config:
 
 * ``/battery_state``: IsCurrentSafe trips above 35 A and recovers below 25 A;
   ``max_age`` 0.5 s. MultiCurrentMonitoring: BMS 40 A, joint effort 150 N·m.
-* I²t (issue 3, leaky bucket): continuous 10 A, peak 20 A for 1 s gives
+* I²t (leaky bucket): continuous 10 A, peak 20 A for 1 s gives
   S = (20² − 10²)·1 = 300 A²s; at 20 A from cold the trip time is
   300 / (20² − 10²) = 1.0 s. The thermal image with the same figures
   (τ = 1 / ln(400/300) = 3.48 s) trips after 1.0 s from cold too, earlier
@@ -23,6 +23,7 @@ from __future__ import annotations
 import math
 import random
 from collections.abc import Callable
+from functools import partial
 from typing import TYPE_CHECKING, ClassVar, Protocol
 
 if TYPE_CHECKING:
@@ -59,24 +60,16 @@ CAN_ERR_PROT_BIT = 0x01
 CAN_ERR_PROT_FORM = 0x02
 
 
-def _fixed(
-    robot: RobotHandle, frame_id: int, data: bytes, extended: bool = False, *, error: bool = False
-) -> Callable[[float], Frame]:
-    """A producer of one fixed frame."""
-
-    def produce(t: float) -> Frame:
-        return robot.raw_frame(t, frame_id, data, extended, error=error)
-
-    return produce
+def _noise(robot: RobotHandle, frame_id: int, dlc: int) -> Producer:
+    """A producer of ``dlc`` fresh random bytes (the robot's seeded generator) on ``frame_id``."""
+    return lambda t: robot.raw_frame(t, frame_id, robot.rng.randbytes(dlc))
 
 
-def _random_payload(robot: RobotHandle, frame_id: int, dlc: int) -> Callable[[float], Frame]:
-    """A producer of ``dlc`` fresh random bytes (from the robot's seeded generator) on ``frame_id``."""
-
-    def produce(t: float) -> Frame:
-        return robot.raw_frame(t, frame_id, robot.rng.randbytes(dlc))
-
-    return produce
+def _at_steps(robot: RobotHandle, t0: float, step_s: float, frames: list[tuple[int, bytes, bool, bool]]) -> None:
+    """Schedule fixed ``frames`` (id, data, extended, error), ``step_s`` apart from ``t0``."""
+    for i, (fid, data, ext, error) in enumerate(frames):
+        robot.schedule_once(t0 + i * step_s, partial(robot.raw_frame, frame_id=fid, data=data, extended=ext,
+                                                     error=error))
 
 
 class Scenario:
@@ -246,17 +239,15 @@ class Garbage(Scenario):
         bms = robot.encoder(None, "BMS_Status")
         err = robot.encoder(axis, "Get_Error")
         rng = robot.rng
-        bad: list[tuple[int, bool, bytes]] = [
-            (iq.frame_id, False, iq.pack(1.0, nan)),
-            (iq.frame_id, False, iq.pack(1.0, inf)),
-            (iq.frame_id, False, iq.pack(1.0, 1.0)[:4]),
-            (bms.frame_id, True, bms.encode({"Pack_Current": 5.0, "Present": 1})[:3]),
-            (tq.frame_id, False, tq.pack(0.1, nan)),
-            (self.UNKNOWN_ID, False, bytes(rng.getrandbits(8) for _ in range(8))),
-            (err.frame_id, False, bytes(rng.getrandbits(8) for _ in range(rng.randrange(1, 8)))),
-        ]
-        for i, (fid, ext, data) in enumerate(bad):
-            robot.schedule_once(t0 + i * self.STEP_S, _fixed(robot, fid, data, ext))
+        _at_steps(robot, t0, self.STEP_S, [
+            (iq.frame_id, iq.pack(1.0, nan), False, False),
+            (iq.frame_id, iq.pack(1.0, inf), False, False),
+            (iq.frame_id, iq.pack(1.0, 1.0)[:4], False, False),
+            (bms.frame_id, bms.encode({"Pack_Current": 5.0, "Present": 1})[:3], True, False),
+            (tq.frame_id, tq.pack(0.1, nan), False, False),
+            (self.UNKNOWN_ID, bytes(rng.getrandbits(8) for _ in range(8)), False, False),
+            (err.frame_id, bytes(rng.getrandbits(8) for _ in range(rng.randrange(1, 8))), False, False),
+        ])
 
 
 class ErrorBurst(Scenario):
@@ -279,19 +270,16 @@ class ErrorBurst(Scenario):
 
     def setup(self, robot: RobotHandle) -> None:
         """Schedule the burst."""
-        t0 = self.offset_s + self.AT_S
+        burst = []
         for i in range(self.COUNT):
             counter = min(255, 8 * (i + 1))
             if i == self.COUNT - 1:
-                arb = CAN_ERR_CRTL | CAN_ERR_BUSERROR
-                data = bytes(
-                    [0, CAN_ERR_CRTL_RX_WARNING | CAN_ERR_CRTL_TX_WARNING, 0, 0, 0, 0, counter, counter]
-                )
+                warning = CAN_ERR_CRTL_RX_WARNING | CAN_ERR_CRTL_TX_WARNING
+                burst.append((CAN_ERR_CRTL | CAN_ERR_BUSERROR, bytes([0, warning, 0, 0, 0, 0, counter, counter])))
             else:
-                arb = CAN_ERR_PROT | CAN_ERR_BUSERROR
                 kind = CAN_ERR_PROT_BIT if i % 2 == 0 else CAN_ERR_PROT_FORM
-                data = bytes([0, 0, kind, 0x0A, 0, 0, counter, counter // 2])
-            robot.schedule_once(t0 + i * self.STEP_S, _fixed(robot, arb, data, True, error=True))
+                burst.append((CAN_ERR_PROT | CAN_ERR_BUSERROR, bytes([0, 0, kind, 0x0A, 0, 0, counter, counter // 2])))
+        _at_steps(robot, self.offset_s + self.AT_S, self.STEP_S, [(arb, data, True, True) for arb, data in burst])
 
 
 class Load(Scenario):
@@ -323,12 +311,8 @@ class Load(Scenario):
         for fid, w in zip(ids, weights, strict=True):
             rate = extra * w / total
             dlc = rng.randrange(0, 9)
-            robot.add_periodic(
-                f"load_{fid:03X}",
-                1.0 / rate,
-                self.offset_s + rng.uniform(0, 1.0 / rate),
-                _random_payload(robot, fid, dlc),
-            )
+            robot.add_periodic(f"load_{fid:03X}", 1.0 / rate, self.offset_s + rng.uniform(0, 1.0 / rate),
+                               _noise(robot, fid, dlc))
 
 
 SCENARIO_CLASSES: dict[str, type[Scenario]] = {

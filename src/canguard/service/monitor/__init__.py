@@ -1,14 +1,9 @@
 """Watching the daemon live: the status page (:mod:`.web`) and Groot2's monitor (:mod:`.groot2`).
 
-The engine publishes one immutable snapshot per tick (:class:`.snapshot.Observer`, the engine's
-``observer``); the journal's events are copied on their way to it (:class:`EventTee`). Both go to
-:class:`.link.ChildLink`, which hands them without waiting to a process of their own
-(:mod:`.server`): the servers, their JSON and their sockets never take the daemon's interpreter
-from the loop. Nothing there can change what canguard does, nor make the loop wait.
-
-Imported only when a monitor is configured (``monitor:``, ``--http``, ``--groot2``): the
-daemon's start-up without one does not pay for it, and the daemon never imports the servers
-(:mod:`.web`, ``zmq``): the monitor process does.
+After its tick the engine publishes an immutable snapshot (:class:`.snapshot.Observer`); the journal's
+events are copied on their way (:class:`EventTee`). :class:`.link.ChildLink` offers both to a process of
+their own (:mod:`.server`) without ever waiting (latest wins): nothing there can change what canguard
+does, nor make the loop wait. Imported only when a monitor is configured.
 """
 
 from __future__ import annotations

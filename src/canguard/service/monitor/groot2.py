@@ -15,12 +15,9 @@ loop: they are refused with an ``["error", why]`` reply, as the publisher answer
 cannot serve. The removal requests Groot2 sends on disconnecting (remove / disable all hooks)
 are answered as done (there is none), and the hooks dump is an empty list.
 
-Clients that misbehave cost little and are logged one line per cause (:class:`.notes.ClientNotes`):
-ZeroMQ serves every connection from its own I/O thread (no thread per client), drops a connection that
-sends garbage instead of ZeroMQ's handshake, or no handshake within :data:`HANDSHAKE_MS`, or a message
-over :data:`MAX_MESSAGE_BYTES`, and one that stops answering its heartbeats; a reply a client does not
-take is dropped, and the PUB socket sends nothing (breakpoints are refused), so a subscriber that never
-reads holds nothing up.
+Misbehaving clients are logged one line per cause (:class:`.notes.ClientNotes`); ZeroMQ drops a
+connection without a handshake within :data:`HANDSHAKE_MS`, with a message over :data:`MAX_MESSAGE_BYTES`
+or that stops answering heartbeats.
 """
 
 from __future__ import annotations

@@ -1,13 +1,9 @@
 """In the monitor process: the latest snapshot, the last journal events, and who to wake.
 
-The receiving side (:meth:`Hub.put`, :meth:`Hub.event`, the thread reading the daemon's socket in
-:mod:`.server`) only assigns a reference, or encodes an event once and appends it to a bounded
-deque, and flags the news: it waits for no one. A dispatcher thread sleeps until there is news (no
-polling: a process with nothing to show never wakes), renders the status document once per change and
-at most every :data:`DOCUMENT_S` (shared by every client), and tells its subscribers (the status page's
-event loop). A client
-that reads slowly skips snapshots (it always gets the latest) and, past :data:`KEEP_EVENTS`, loses the
-oldest events (it is told how many): nothing it does reaches the engine.
+Receiving only assigns a reference or appends to a bounded deque; a dispatcher thread sleeps until
+there is news, renders the status document at most every :data:`DOCUMENT_S` (shared by every client)
+and wakes its subscribers. A slow client skips snapshots and, past :data:`KEEP_EVENTS`, loses the
+oldest events (it is told how many).
 """
 
 from __future__ import annotations
@@ -24,10 +20,8 @@ from canguard.engine.event_codec import encode_event
 from canguard.service.monitor.snapshot import TickSnapshot, status_name
 
 DOCUMENT_S = 0.125
-"""Shortest time between two status documents: a browser draws each (a frame of its own, ~5 ms of its CPU
-however little changed, measured in headless chromium), so at most 8 a second, whatever the engine does. A
-change reaches a page within this + the engine's 20 ms (and its tick) + an animation frame + the round trip:
-under 200 ms (the dispatcher is woken by the news, it does not poll)."""
+"""Shortest time between two status documents (a browser spends ~5 ms drawing each): a change still reaches a
+page within 200 ms."""
 KEEP_EVENTS = 500
 """Journal events kept for clients; a client further behind loses the oldest."""
 STATUS_EVENTS = 30
@@ -87,11 +81,6 @@ class Hub:
         newer = [(n, line) for n, line, _ in kept if n > seq]
         first = newer[0][0] if newer else self._event_seq + 1
         return newer, max(0, first - seq - 1)
-
-    @property
-    def event_seq(self) -> int:
-        """The sequence number of the newest event."""
-        return self._event_seq
 
     def status_document(self) -> tuple[int, bytes]:
         """(version, ``/api/status`` JSON): the latest document, its version bumped when more than its time changed."""
@@ -193,7 +182,7 @@ def task_document(snap: TickSnapshot, events: list[dict[str, Any]]) -> dict[str,
 
 
 def guard_document(g: Any) -> dict[str, Any]:
-    """One guard: the issue's fields (name, source, value, unit, threshold, margin, status) and more."""
+    """One guard: name, source, value, unit, threshold, margin, status, role, kind, heat and reason."""
     return {
         "name": g.name, "source": g.source, "value": _number(g.value), "unit": g.unit,
         "threshold": _number(g.threshold), "margin": _number(g.margin), "status": g.status,

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import uuid
 import xml.etree.ElementTree as ET
-from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -138,10 +137,6 @@ class TreeLayout:
         elem = ET.SubElement(parent, node.node_id, {"name": name, "_uid": str(node.uid), **attrs})
         for child in node.children:
             self._element(child, elem)
-
-    def walk(self) -> Iterator[LayoutNode]:
-        """Every node in UID order."""
-        return iter(self.nodes)
 
 
 class _SourceAttrs:

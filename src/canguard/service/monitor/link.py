@@ -1,16 +1,8 @@
 """The daemon's side of its monitor process: start it, hand it snapshots and events, never wait for it.
 
-The status page's server, its JSON, the server-sent events and Groot2's sockets run in a process of
-their own (``python -m canguard.service.monitor.server``), so none of their work can take the
-daemon's interpreter (its GIL) from the loop. The loop's part here is small and comes after its
-tick, when the tick's stop frames are already on the bus: when the engine publishes a snapshot (at
-most every 20 ms) it pickles a small record (the new journal events, the snapshot as plain tuples)
-and offers it to a non-blocking socket; one the socket cannot take now is dropped for the next,
-newer one (latest wins; events wait in a bounded deque, the oldest dropped). No thread of the
-monitors runs in the daemon: none competes with the loop for the GIL, and the loop never sleeps
-waiting for one to hand it back (the socket calls keep the GIL too: :class:`.wire.GilHoldingSocket`).
-A monitor process that dies is logged once (by a thread started for that alone) and forgotten: the
-guard goes on. It is ended when the daemon ends.
+A published snapshot and the new events are pickled as plain tuples and offered to a non-blocking
+socket (:mod:`.wire`); one it cannot take now is dropped for the next (events wait in a bounded deque).
+No monitor thread runs in the daemon. A monitor process that dies is logged once and forgotten.
 """
 
 from __future__ import annotations
@@ -136,12 +128,8 @@ class ChildLink:
         self._events.append((self._event_seq, dict(event)))
 
     def flush(self) -> None:
-        """Offer what the monitor process has not had yet: one non-blocking send, or nothing when all is sent.
-
-        A record the socket cannot take now is dropped for the next, newer one (the engine calls this
-        again in its next ticks); what a dead monitor process leaves is reported once, by a thread of its
-        own (reaping the process may take a moment the loop must not wait).
-        """
+        """Offer what the monitor process has not had yet: one non-blocking send (a dead process is reported once,
+        by a thread of its own: reaping may take a moment the loop must not wait)."""
         if self._gone or (self._latest is self._sent and not self._events and not self._outbox):
             return
         try:

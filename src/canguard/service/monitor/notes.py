@@ -1,9 +1,4 @@
-"""What clients of the monitors did wrong, logged as one line per cause at most every :data:`EVERY_S`.
-
-A client that resets, stalls, floods or sends garbage is the network's doing, not a fault of canguard:
-it gets no traceback, and a thousand of them get one line, not a thousand (under systemd the monitor
-process's stderr is the daemon's journal).
-"""
+"""What clients of the monitors did wrong, logged as one line per cause at most every :data:`EVERY_S`."""
 
 from __future__ import annotations
 

@@ -1,11 +1,8 @@
 """The monitor process: ``python -m canguard.service.monitor.server FD``, started by the daemon (:mod:`.link`).
 
-It reads what to serve from the socket ``FD`` (the daemon's settings, as JSON: the token never
-shows on a command line), starts the status page (:mod:`.web`) and Groot2's monitor
-(:mod:`.groot2`) around a :class:`~.hub.Hub`, answers with where they listen (or why they cannot),
-then feeds the hub with what the daemon sends until the daemon's end of the socket closes (the
-daemon ended, however it ended) or SIGTERM. SIGINT and SIGHUP are the daemon's: a Ctrl-C in a
-terminal reaches both processes, and the daemon ends this one as it stops. It runs below the
+It reads its settings from the socket ``FD`` (JSON: the token never shows on a command line), starts
+the servers around a :class:`~.hub.Hub`, answers where they listen (or why they cannot), then feeds the
+hub until the daemon's end closes or SIGTERM (SIGINT and SIGHUP are the daemon's). It runs below the
 daemon's CPU priority (:func:`lower_priority`).
 """
 
@@ -134,11 +131,8 @@ def _groot2(address: Address, hub: Hub) -> Any:
 def lower_priority() -> None:
     """Put this process below the daemon: ``SCHED_BATCH`` and :data:`NICE` steps nicer, where the system allows.
 
-    Called before any thread starts (they inherit it). ``SCHED_BATCH``: the kernel never lets this process
-    preempt another on waking (a snapshot or a request arriving while the daemon runs waits for the daemon's
-    time slice), and nice 10 gives it a tenth of the daemon's share when both want the CPU. Not
-    ``SCHED_IDLE``: that would starve the page whenever the CPUs are busy, when a person most needs it.
-    A unit that filters the calls (``SystemCallFilter=~@resources``) leaves it at the daemon's priority.
+    Before any thread starts (they inherit it). Not ``SCHED_IDLE``: that would starve the page whenever the CPUs
+    are busy, when a person most needs it.
     """
     with contextlib.suppress(OSError, AttributeError):  # AttributeError: not Linux
         os.sched_setscheduler(0, os.SCHED_BATCH, os.sched_param(0))
@@ -153,9 +147,7 @@ FILES = 65536
 def more_descriptors() -> None:
     """Raise this process's open-file limit from its soft value (often 1,024) to :data:`FILES` or the hard limit.
 
-    The status page keeps half of what it gets for its connections (:class:`.web.Limits`); the rest is
-    Groot2's connections and the process's own. A unit that filters the call (``SystemCallFilter=~@resources``)
-    leaves the limit as it is, and the page serves fewer connections at once.
+    The status page keeps half of it for its connections (:class:`.web.Limits`).
     """
     import resource
 

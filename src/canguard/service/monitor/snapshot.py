@@ -1,18 +1,8 @@
 """What the engine publishes once per tick: an immutable snapshot, built from public accessors.
 
-:class:`Observer` is the engine's ``observer``: the engine calls :meth:`Observer.publish` at the
-end of each tick, in its own thread. It reads the node statuses through py_trees (``status``), the
-guards through their :class:`~canguard.bt.loader.GuardView` (model snapshot, source health) and the
-task gate's public state, and hands a frozen :class:`TickSnapshot` to the monitor process's
-:class:`~.link.ChildLink`, which sends it without waiting (or drops it for the next one): no lock, no
-thread of the monitors in the daemon, nothing a monitor could hold up; and all of it after the tick
-acted (its stop frames are out before a snapshot is taken). A snapshot is taken when
-something changed (a node's status, the task's state, an event) and at most every :data:`PERIOD_S`
-(the first tick after that: a stop reaches the monitors within 20 ms, with the guards that stopped
-it read in its own tick); the guards' values at most every :data:`GUARD_PERIOD_S` (a change in
-between is published with the values as last read). That bounds what the monitors cost the loop
-however fast the tree ticks: at most 50 snapshots a second (the node statuses, ~13 model snapshots
-12.5 times a second).
+:class:`Observer` is the engine's ``observer``. A snapshot is taken when something changed (a node's
+status, the task's state, an event), at most every :data:`PERIOD_S`; the guards' values at most every
+:data:`GUARD_PERIOD_S`: the monitors' cost to the loop is bounded however fast the tree ticks.
 """
 
 from __future__ import annotations

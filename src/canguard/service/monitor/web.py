@@ -7,14 +7,9 @@ one ``status`` event per change); ``GET /api/events`` the journal events as serv
 request must carry ``Authorization: Bearer TOKEN`` (or ``?token=TOKEN``: a browser's EventSource
 cannot set headers).
 
-Whatever clients do, the page and ``/api/status`` answer (:class:`Limits`): streams have places of
-their own, capped in all and per client address, and a stream whose client closed or reset gives its
-place back at once (its socket is read while the stream is written: the end shows as it comes, not
-at the next failed write); a request must arrive whole within ``request_timeout_s``; a client that
-takes no data for ``send_timeout_s`` is dropped; with every connection place taken, the oldest
-connection still sending its request makes room for the new one. An idle connection costs a few
-kilobytes of the loop, not a thread. What clients do wrong is logged one line per cause
-(:class:`.notes.ClientNotes`), never as a traceback; nothing of it reaches the engine (see :mod:`.hub`).
+Whatever clients do, the page and ``/api/status`` answer (:class:`Limits`: streams capped in all and
+per address, request and send timeouts, the oldest unfinished request makes room); what clients do wrong
+is logged one line per cause (:class:`.notes.ClientNotes`).
 """
 
 from __future__ import annotations

@@ -1,15 +1,9 @@
 """The daemon and its monitor process talk over one ``AF_UNIX`` ``SOCK_SEQPACKET`` socket pair.
 
-A seqpacket socket keeps message boundaries and takes a message whole or not at all, so the
-daemon can send without ever waiting: a send the socket cannot take now fails with
-``BlockingIOError`` and the daemon keeps the latest snapshot for its next try (the process is
-slow: it skips snapshots, never holds up the loop).
-
-Daemon → monitor process: pickled messages, cut into frames of at most :data:`FRAME_BYTES`
-(a flag byte, ``M`` more follows or ``E`` end, then the bytes): the monitor process unpickles
-only what its own daemon sent. Monitor process → daemon: a few fixed byte strings and one JSON
-answer at start (:data:`WANT_BLACKBOARD`, :func:`ready`): the daemon never unpickles what comes
-from the side the network can reach.
+A seqpacket socket takes a message whole or not at all: the daemon sends without waiting. Daemon →
+monitor: pickled messages in frames of at most :data:`FRAME_BYTES` (a flag byte, ``M`` more or ``E``
+end). Monitor → daemon: fixed byte strings and one JSON answer (:data:`WANT_BLACKBOARD`, :func:`ready`):
+the daemon never unpickles what comes from the side the network can reach.
 """
 
 from __future__ import annotations
@@ -42,12 +36,8 @@ def fields(record: Any) -> tuple[Any, ...]:
 class GilHoldingSocket:
     """Non-blocking send and receive on a socket's descriptor that keep the calling thread's GIL.
 
-    ``socket.send`` releases the GIL around its system call, as every blocking-capable call does: a
-    thread waiting for the GIL takes it, and the caller then waits for it back (on a busy machine,
-    for the scheduler to run it again; measured on the daemon's engine thread: a snapshot's hand-over
-    went from 26 to 97 µs on average, 1.5 ms at p99). These calls go through :class:`ctypes.PyDLL`,
-    which keeps the GIL: on a non-blocking local socket they return within microseconds, whatever
-    the other end does (``EAGAIN`` when it is behind).
+    ``socket.send`` releases the GIL around its system call, and the loop then waits to get it back; through
+    :class:`ctypes.PyDLL` the GIL is kept, and a non-blocking local socket returns within microseconds.
     """
 
     _libc = ctypes.PyDLL(None, use_errno=True)
