@@ -188,15 +188,8 @@ class _Validator(_Reader):
             self.errors.append(str(self.error(elem, kind_error, tree_id)))
         return cls
 
-    def _check_port(
-        self,
-        elem: ET.Element,
-        tree_id: str,
-        attr: str,
-        value: str,
-        ports: Mapping[str, tuple[str, PortInformation]],
-        cls: type,
-    ) -> None:
+    def _check_port(self, elem: ET.Element, tree_id: str, attr: str, value: str,
+                    ports: Mapping[str, tuple[str, PortInformation]], cls: type) -> None:
         """Raise the TreeError of one attribute of a node of ``cls`` (unknown port, bad value...), if any."""
         node_id = elem.tag
         if attr.startswith("_"):

@@ -103,23 +103,22 @@ class IsElapsedTimeCompare(_TimerUser, py_trees.behaviour.Behaviour):
         """Elapsed time since the reference, compared; FAILURE when there is no reference yet."""
         now = self.ctx.clock.now()
         ref_mode = self.port("reference")
+        if ref_mode not in REFERENCES:
+            self.feedback_message = f"unknown reference {ref_mode!r}; expected one of {', '.join(REFERENCES)}"
+            return FAILURE
         if ref_mode == "tree_start":
             t0 = self.ctx.tree_start
             if t0 is None:  # ticked outside the engine: this tick is the tree's start
                 self.ctx.tree_start = t0 = now
         else:
             t0 = self.timer_start()
-            if t0 is None:
-                if ref_mode == "first_tick":
-                    self.start_timer(now)
-                    t0 = now
-                elif ref_mode in REFERENCES:
-                    where = f"in {self.timer_key}" if self.timer_key else "(no reset yet by a ResetTimer)"
-                    self.feedback_message = f"no reference time yet {where}"
-                    return FAILURE
-        if ref_mode not in REFERENCES or t0 is None:
-            self.feedback_message = f"unknown reference {ref_mode!r}; expected one of {', '.join(REFERENCES)}"
-            return FAILURE
+            if t0 is None and ref_mode == "first_tick":
+                self.start_timer(now)
+                t0 = now
+            elif t0 is None:
+                where = f"in {self.timer_key}" if self.timer_key else "(no reset yet by a ResetTimer)"
+                self.feedback_message = f"no reference time yet {where}"
+                return FAILURE
         reference = self.port("reference_sec")
         tolerance = self.port("tolerance")
         if reference is None or tolerance is None:
