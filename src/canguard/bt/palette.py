@@ -109,32 +109,25 @@ def read_model(model: ET.Element, where: Mapping[ET.Element, Where], path: Path,
         palette.add(PaletteNode(node_id, decl.tag, ports, file, line), problems)
 
 
-def read_palette_file(path: Path, palette: Palette) -> None:
-    """Read a palette file (``--nodes FILE``) into ``palette``; a TreeError listing every problem."""
-    where: dict[ET.Element, Where] = {}
-    root = _read_xml(path, where)
-    problems: list[str] = []
-    models = [root] if root.tag == "TreeNodesModel" else list(root.iter("TreeNodesModel"))
-    if root.tag not in ("root", "TreeNodesModel"):
-        problems.append(f"{path}:{where.get(root, (path, 1))[1]}: the document element is <{root.tag}>, "
-                        "expected <root> holding a <TreeNodesModel> (a Groot2 / BT.CPP palette)")
-    elif not models:
-        problems.append(f"{path}:{where.get(root, (path, 1))[1]}: no <TreeNodesModel> in the palette file")
-    for model in models:
-        read_model(model, where, path, palette, problems)
-    if problems:
-        raise TreeError(problems)
-
-
 def read_palettes(paths: Iterable[Path]) -> Palette:
-    """Every ``--nodes`` file read into one palette; every problem of every file at once."""
+    """Every ``--nodes`` file read into one palette; a TreeError listing every problem of every file."""
     palette = Palette()
     problems: list[str] = []
-    for path in paths:
+    for path in map(Path, paths):
+        where: dict[ET.Element, Where] = {}
         try:
-            read_palette_file(Path(path), palette)
+            root = _read_xml(path, where)
         except TreeError as exc:
             problems.extend(exc.problems)
+            continue
+        models = [root] if root.tag == "TreeNodesModel" else list(root.iter("TreeNodesModel"))
+        if root.tag not in ("root", "TreeNodesModel"):
+            problems.append(f"{path}:{where.get(root, (path, 1))[1]}: the document element is <{root.tag}>, "
+                            "expected <root> holding a <TreeNodesModel> (a Groot2 / BT.CPP palette)")
+        elif not models:
+            problems.append(f"{path}:{where.get(root, (path, 1))[1]}: no <TreeNodesModel> in the palette file")
+        for model in models:
+            read_model(model, where, path, palette, problems)
     if problems:
         raise TreeError(problems)
     return palette
