@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Any
 
 import py_trees
 
-from canguard.bt.nodes.base import FAILURE, INVALID, RUNNING, SKIPPED, SUCCESS, mark_skipped, run_script
+from canguard.bt.nodes.base import FAILURE, INVALID, RUNNING, SKIPPED, SUCCESS, halted, mark_skipped, run_script
 from canguard.bt.scripting import ScriptError
 from canguard.errors import quote
 
@@ -111,9 +111,9 @@ def install(node: py_trees.behaviour.Behaviour, scripts: Mapping[str, Script], b
             node.status = FAILURE  # a post-condition that fails fails the node (BT.CPP throws)
 
     def stop_with_conditions(new_status: Any = INVALID) -> None:
-        halted = new_status == INVALID and node.status == RUNNING
+        was_halted = halted(node, new_status)
         stop(new_status)
-        if halted:
+        if was_halted:
             _run(node, scripts.get("_onHalted"), board, "_onHalted")
 
     node.tick = tick_with_conditions  # type: ignore[method-assign]
