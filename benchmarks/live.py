@@ -13,7 +13,10 @@ guard trial, so both meet the same machine:
   CPU per second, measured before, taken off), beside a process that only receives the same frames
   with python-can (``recv(0)`` until empty, every millisecond: python-can's cost of a frame, not of a
   wake-up; its count is the frames of the window: both read the same multicast datagrams). What
-  canguard adds per frame, its wake-ups included, is the difference.
+  canguard adds per frame, its wake-ups included, is the difference;
+* **a frame alone**: in a process of its own, the CPU of ``Engine.feed`` per frame of a recorded log
+  (examples/normal.log.gz on config/examples/robot_guard.yaml: each frame a block of one, as on a
+  quiet bus), beside a plain cantools loop decoding the same frames' configured messages.
 """
 
 from __future__ import annotations
@@ -74,6 +77,45 @@ else:  # receive: drain what the kernel holds every millisecond (python-can's re
 print(n, time.process_time() - cpu0, flush=True)
 bus.shutdown()
 """
+FEED = """
+import sys, time
+from pathlib import Path
+import cantools
+from canguard.config.loader import load_config
+from canguard.engine.core import Engine
+from canguard.engine.gate import LogSink
+from canguard.io.clock import ManualClock
+from canguard.io.logs import read_log
+cfg = load_config(Path(sys.argv[1]))
+frames = list(read_log(Path(sys.argv[2])))[:int(sys.argv[3])]
+clock = ManualClock()
+engine = Engine(cfg, clock, LogSink(clock.now, cfg.buses, out=None, keep=False), durable=False, save_heat=False)
+bus = next(iter(cfg.buses))
+db = cantools.database.Database()
+for path in cfg.dbc_files:
+    db.add_dbc_file(str(path))
+ids = {m.frame_id for m in db.messages}
+def feed(part):
+    t0 = time.process_time()
+    for f in part:
+        clock.advance_to(f.t)
+        engine.feed(bus, f)
+    return time.process_time() - t0
+def loop(part):
+    t0 = time.process_time()
+    for f in part:
+        if f.arbitration_id in ids:
+            db.decode_message(f.arbitration_id, f.data)
+    return time.process_time() - t0
+warm = len(frames) // 10
+feed(frames[:warm]), loop(frames[:warm])
+rest = frames[warm:]
+print(len(rest), feed(rest) / len(rest) * 1e6, loop(rest) / len(rest) * 1e6)
+"""
+"""``Engine.feed`` of a recorded log's frames one at a time, and a cantools loop over the same frames: frames,
+then µs of CPU a frame of each."""
+
+
 """A helper process on the group: ``echo`` answers requests, ``background`` sends ``fps`` frames/s of ids no
 config uses, ``receive`` counts what python-can receives; at SIGTERM each prints its count and loop CPU seconds."""
 
@@ -231,6 +273,16 @@ def running(children: list[Child]) -> Iterator[list[Child]]:
                 c.close()
 
 
+def alone_row(opts: Options) -> list[kit.Cell]:
+    """A recorded frame fed alone (``Engine.feed``: a block of one) beside a cantools loop, CPU µs a frame."""
+    args = [str(kit.REPO / "config" / "examples" / "robot_guard.yaml"), str(kit.REPO / "examples" / "normal.log.gz"),
+            str(2000 if opts.quick else 20000)]
+    runs = [kit.python(FEED, args, opts).out.decode().split()[-3:] for _ in range(1 if opts.quick else opts.rounds)]
+    feed_us, loop_us = min(float(r[1]) for r in runs), min(float(r[2]) for r in runs)  # best of the rounds
+    return ["a recorded frame fed alone (Engine.feed, a block of one): CPU µs a frame", int(runs[0][0]), feed_us,
+            None, "cantools decode_message of its frames (same process)", loop_us, None, kit.ratio(feed_us, loop_us)]
+
+
 def run(opts: Options) -> Table:
     """The live table: trip-to-stop rows worst (highest p99 / echo p99) first, then ingest."""
     trials, fps, window_s = (4, 1000.0, 0.5) if opts.quick else (300, 8000.0, 10.0)
@@ -266,6 +318,7 @@ def run(opts: Options) -> Table:
                  "python-can receive alone (process)", pycan, None, None])
     rows.append(["ingest: canguard's own (daemon − python-can's receive)", frames, own - pycan, None,
                  "python-can receive alone (process)", pycan, None, kit.ratio(own - pycan, pycan)])
+    rows.append(alone_row(opts))
     table.rows = rows
     table.notes += [f"the daemon's idle CPU: {idle_rate * 100:.1f} % of a core (ticks, task frames), taken off "
                     "the ingest window",

@@ -158,6 +158,8 @@ class RefI2t(RefLatched):
     acc: float = 0.0
     held: float = math.nan
     stale_gaps: int = 0
+    peak: float = 0.0
+    """The highest accumulator value so far."""
     trip_level: float = field(init=False)
 
     def __post_init__(self) -> None:
@@ -168,6 +170,7 @@ class RefI2t(RefLatched):
         """Store the accumulator, floored at 0 and capped at MAX_LEVEL trip levels."""
         cap = MAX_LEVEL * self.trip_level
         self.acc = cap if math.isnan(acc) else min(max(acc, 0.0), cap)
+        self.peak = max(self.peak, self.acc)
 
     def integrate(self, current_a: float, dt: float) -> None:
         """Advance the accumulator by ``dt`` > 0 s at a constant ``current_a``."""

@@ -33,8 +33,7 @@ def frames_from(reader: BusReader, n: int) -> list[tuple[str, Frame]]:
     out: list[tuple[str, Frame]] = []
 
     def enough() -> bool:
-        while len(out) < n and (item := reader.get(0.05)) is not None:
-            out.append(item)
+        out.extend((name, frame) for name, frame, _received in reader.receive(0.05, n - len(out)))
         return len(out) >= n
 
     wait_until(enough, what=f"{n} frames on the reader's queue")

@@ -198,7 +198,7 @@ class TestDecoderInvalidAndCounters:
         ]
         assert all(math.isnan(s.value) and not s.valid for s in samples)
         assert decoder.invalid == 1 and decoder.decoded == 0
-        assert decoder.totals().reasons == {INVALID_LENGTH: 2}
+        assert decoder.per_bus["main"].reasons == {INVALID_LENGTH: 2}
 
     @pytest.mark.parametrize(
         ("value", "reason"), [(math.nan, INVALID_NAN), (math.inf, INVALID_INF), (-math.inf, INVALID_INF)]

@@ -92,12 +92,12 @@ class ListEvents:
 class Rig:
     """One engine on a manual clock with its sink and events."""
 
-    def __init__(self, tmp: Path, events: Any = None, **overrides: Any) -> None:
+    def __init__(self, tmp: Path, events: Any = None, heat: Any = None, **overrides: Any) -> None:
         self.cfg = load_config(write_config(tmp, **overrides))
         self.clock = ManualClock(T0)
         self.sink = LogSink(self.clock.now, self.cfg.buses)
         self.events = events if events is not None else ListEvents()
-        self.engine = Engine(self.cfg, self.clock, self.sink, events=self.events)
+        self.engine = Engine(self.cfg, self.clock, self.sink, events=self.events, heat=heat)
         self.engine.start(T0)
         self.t = T0
         self.last_bms_t = math.nan
@@ -245,6 +245,7 @@ class TestEngine:
         # Its tick changed after the engine proved it quiet: no longer proven, every tick runs it from now on.
         rig.engine.quiet.loud |= {guard}
         rig.engine.quiet.until = -math.inf
+        rig.engine.quiet._fresh = None  # no fixed point to draw the horizon again from
         t_err = rig.t + 0.002
         rig.advance(t_err + 0.01)
         assert rig.sent(ESTOP_IDS, since=t_err)
@@ -554,3 +555,78 @@ class TestTickOnARowsTime:
         [col] = compare(load_config(cfg_path), log, tmp_path / "runs", (4096,))
         trips = json.loads(col.summary)["trips"]
         assert [(t["node"], t["reason"], t["t"]) for t in trips] == [("PackCurrent", "stale", back)]
+
+
+HEAT_TREE = ('<root BTCPP_format="4" main_tree_to_execute="Main"><BehaviorTree ID="Main"><ReactiveSequence>'
+             '<IsCurrentSafe topic_name="/battery_state"/>'
+             '<IsI2tSafe name="Heat" topic_name="axis0" model="leaky" continuous_current="6" peak_current="12" '
+             'peak_time="1"/><ExecuteTask/></ReactiveSequence></BehaviorTree></root>')
+"""The pack guarded, axis0 under a leaky I²t of S = 108 A²s (its ``level`` not wired), the task."""
+
+
+def heat_block(rig: Rig, pulse: range, current_a: float, ref: Any) -> tuple[Any, list[tuple[float, float]]]:
+    """299 ms of axis0 at 1 kHz after ``rig.t`` (``current_a`` at the samples of ``pulse``, else 0 A) and the pack
+    every 10 ms, as one block; fed to the reference ``ref`` too: (the block, (time, level % after) per sample)."""
+    from canguard.io.block import Block
+
+    frames, levels = [], []
+    for k in range(1, 300):
+        t = rig.t + k * 0.001 + 0.0005
+        current = current_a if k in pulse else 0.0
+        frames.append(iq_frame(t, 0, current))
+        if k % 10 == 0:
+            frames.append(bms_frame(t + 0.0001, 10.0))
+        ref.update(current, t)
+        levels.append((t, 100.0 * ref.acc / ref.trip_level))
+    return Block.of_frames(frames), levels
+
+
+class TestI2tAcrossQuietTicks:
+    """A block's rows run on across quiet ticks with an I²t guard: its peak is the model's own, heat saves exact."""
+
+    def test_a_pulse_between_two_ticks_is_its_peak(self, tmp_path: Path) -> None:
+        """A 3 ms pulse of 30 A between two 10 ms ticks: the peak is the heat at its end, above any tick's level.
+
+        The reference maths fed the same samples gives the peak. The levels the ticks saw are all
+        lower: sampled at ticks, the figure would under-report such a pulse.
+        """
+        from tests.reference_models import RefI2t
+
+        (tmp_path / "heat.xml").write_text(HEAT_TREE, encoding="utf-8")
+        rig = Rig(tmp_path, tree={"file": str(tmp_path / "heat.xml"), "main": "Main", "tick_hz": 100})
+        rig.running()
+        ref = RefI2t(kind="leaky", continuous_a=6.0, peak_a=12.0, peak_time_s=1.0)
+        block, levels = heat_block(rig, range(100, 103), 30.0, ref)
+        rig.engine.take("main", block)
+        peak = rig.engine.stats.max_level_pct["Heat"]
+        assert peak == pytest.approx(100.0 * ref.peak / ref.trip_level, rel=1e-12) and peak > 0.0
+        at_ticks = [[level for t, level in levels if t < tick][-1] for tick in (T0 + k * 0.01 for k in range(11, 40))]
+        assert peak > max(at_ticks)
+
+    def test_heat_saved_at_a_tick_is_the_heat_of_its_time(self, tmp_path: Path) -> None:
+        """The daemon saves heat every 50 ms: each save holds the heat of the samples before its tick, not after."""
+        from tests.reference_models import RefI2t
+
+        from canguard.protect.state import HeatStore
+
+        (tmp_path / "heat.xml").write_text(HEAT_TREE, encoding="utf-8")
+        saved: list[tuple[float, float]] = []
+        heat = HeatStore(tmp_path / "heat.json")
+        save = heat.save
+
+        def recorded(models: Any, now: float) -> None:
+            save(models, now)
+            saved.append((now, models["Heat"].accumulator))
+
+        heat.save = recorded  # type: ignore[method-assign]
+        rig = Rig(tmp_path, heat=heat, tree={"file": str(tmp_path / "heat.xml"), "main": "Main", "tick_hz": 100},
+                  state={"file": str(tmp_path / "heat.json"), "save_period": 0.05})
+        rig.running()
+        ref = RefI2t(kind="leaky", continuous_a=6.0, peak_a=12.0, peak_time_s=1.0)
+        block, levels = heat_block(rig, range(1, 300), 9.0, ref)
+        saved.clear()
+        rig.engine.take("main", block)
+        assert len(saved) >= 4
+        for now, acc in saved:
+            assert acc == pytest.approx([level for t, level in levels if t < now][-1] * ref.trip_level / 100.0,
+                                        rel=1e-12)

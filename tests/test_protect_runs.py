@@ -53,6 +53,23 @@ def streams(draw: st.DrawFn, max_size: int = 300) -> tuple[np.ndarray, np.ndarra
     return np.array(times), np.array(values)
 
 
+@st.composite
+def calm_streams(draw: st.DrawFn) -> tuple[np.ndarray, np.ndarray]:
+    """Long runs mostly on the quiet side of every model (small currents, regular times), now and then a sample
+    of :data:`STEPS` and :data:`VALUES`: the runs a model takes whole from their last sample."""
+    n = draw(st.integers(49, 300))
+    odd = draw(st.lists(st.integers(0, n - 1), max_size=3))
+    times = np.cumsum(np.full(n, draw(st.sampled_from([0.001, 0.01, 0.04]))))
+    values = np.array(draw(st.lists(st.floats(-5.0, 5.0), min_size=n, max_size=n)))
+    for i in odd:
+        step, value = draw(STEPS), draw(VALUES)
+        times[i:] += step if math.isfinite(step) else 0.0
+        if not math.isfinite(step):
+            times[i] = step
+        values[i] = value
+    return times, values
+
+
 Pair = tuple[Callable[[], LatchedModel], Callable[[], RefLatched]]
 
 
@@ -152,6 +169,7 @@ def assert_same_state(model: LatchedModel, ref: Any) -> None:
         assert close(model.accumulator, ref.acc, model.trip_level)
         assert close(model.held_a, ref.held)
         assert model.stale_gaps == ref.stale_gaps
+        assert close(model.peak_level_pct, 100.0 * ref.peak / ref.trip_level, 100.0)  # over every sample taken
     if isinstance(model, Hysteresis):
         over, under = model.timers
         assert close(over, ref.over_since) and close(under, ref.under_since)
@@ -164,7 +182,7 @@ SETTINGS = settings(max_examples=150, deadline=None, suppress_health_check=[Heal
 
 
 @SETTINGS
-@given(pair=pairs(), stream=streams(), data=st.data())
+@given(pair=pairs(), stream=st.one_of(streams(), calm_streams()), data=st.data())
 def test_runs_match_the_per_sample_reference(pair: tuple[str, Pair], stream: tuple[np.ndarray, np.ndarray],
                                              data: st.DataObject) -> None:
     """Runs of one, one long run and a run split at random points all trip and recover where the reference does."""
@@ -224,10 +242,13 @@ def test_inrush_run_matches_per_sample() -> None:
     assert helper.starts == ref.starts and helper.window_start == ref.window_start
 
 
-def health_run(health: SourceHealth, role: str, times: Any, values: Any, until_edge: bool = False) -> Any:
-    """A run of one role's samples through :meth:`SourceHealth.advance` (rows of one sample)."""
-    times = times.tolist() if hasattr(times, "tolist") else list(times)
-    values = values.tolist() if hasattr(values, "tolist") else list(values)
+def health_run(health: SourceHealth, role: str, times: Any, values: Any, until_edge: bool = False,
+               lists: bool = True) -> Any:
+    """A run of one role's samples through :meth:`SourceHealth.advance` (rows of one sample), as lists or (``lists``
+    False, given numpy columns) as the numpy columns of a block's column decode."""
+    if lists:
+        times = times.tolist() if hasattr(times, "tolist") else list(times)
+        values = values.tolist() if hasattr(values, "tolist") else list(values)
     return health.advance((role,), times, (values,), until_edge=until_edge)
 
 
@@ -402,10 +423,13 @@ def test_a_short_run_makes_no_numpy_call(monkeypatch: pytest.MonkeyPatch) -> Non
 
 
 @SETTINGS
-@given(stream=streams(), lengths=st.lists(st.integers(1, 120), min_size=1, max_size=4), until_edge=st.booleans())
+@given(stream=streams(), lengths=st.lists(st.integers(1, 120), min_size=1, max_size=4), until_edge=st.booleans(),
+       lists=st.booleans())
 def test_source_health_long_and_short_runs_match_the_reference(stream: tuple[np.ndarray, np.ndarray],
-                                                               lengths: list[int], until_edge: bool) -> None:
-    """One role's samples in runs of 1..120 (short ones one by one, long ones screened) find the reference's edges."""
+                                                               lengths: list[int], until_edge: bool,
+                                                               lists: bool) -> None:
+    """One role's samples in runs of 1..120 (short ones one by one, long ones screened), as lists or numpy columns,
+    find the reference's edges; the latest value stays a Python float."""
     times, values = stream
     health, ref = _health_ref(("current",), False)
     want = [i for i, (t, v) in enumerate(zip(times.tolist(), values.tolist(), strict=True))
@@ -416,21 +440,22 @@ def test_source_health_long_and_short_runs_match_the_reference(stream: tuple[np.
         end = min(len(times), pos + lengths[k % len(lengths)])
         k += 1
         while pos < end:
-            run = health_run(health, "current", times[pos:end], values[pos:end], until_edge)
+            run = health_run(health, "current", times[pos:end], values[pos:end], until_edge, lists)
             got.extend((pos + run.index).tolist())
             pos += run.taken
     assert got == want
     assert (health.samples, health.invalid_samples, health.out_of_order) == (
         ref.samples, ref.invalid_samples, ref.out_of_order)
     assert close(health.value("current"), ref.values.get("current", math.nan))
+    assert type(health.value("current")) is float
 
 
 @SETTINGS
 @given(stream=streams(), present=st.lists(st.sampled_from([1.0, 1.0, 1.0, 0.0]), min_size=300, max_size=300),
-       lengths=st.lists(st.integers(1, 60), min_size=1, max_size=4), until_edge=st.booleans())
+       lengths=st.lists(st.integers(1, 60), min_size=1, max_size=4), until_edge=st.booleans(), lists=st.booleans())
 def test_source_health_rows_of_two_roles_match_the_reference(stream: tuple[np.ndarray, np.ndarray],
                                                              present: list[float], lengths: list[int],
-                                                             until_edge: bool) -> None:
+                                                             until_edge: bool, lists: bool) -> None:
     """Rows of a current and its presence flag (one message), in runs of 1..60 rows, find the reference's edges at
     the same rows: a run whose flag stays set and whose currents are fresh and valid is taken whole."""
     times, values = stream
@@ -444,10 +469,51 @@ def test_source_health_rows_of_two_roles_match_the_reference(stream: tuple[np.nd
         end = min(len(tl), pos + lengths[k % len(lengths)])
         k += 1
         while pos < end:
-            run = health.advance(("current", PRESENT), tl[pos:end], (vl[pos:end], pl[pos:end]), until_edge=until_edge)
+            cols: Any = (tl[pos:end], (vl[pos:end], pl[pos:end])) if lists else (
+                times[pos:end], (values[pos:end], np.array(pl[pos:end])))
+            run = health.advance(("current", PRESENT), *cols, until_edge=until_edge)
             got.extend((pos + run.index).tolist())
             pos += run.taken
     assert got == want
     assert (health.samples, health.invalid_samples, health.out_of_order) == (
         ref.samples, ref.invalid_samples, ref.out_of_order)
     assert health.reason(tl[-1] if tl else 0.0) == ref.reason(tl[-1] if tl else 0.0)
+
+
+MOSTLY_QUIET = st.lists(st.integers(0, 15).flatmap(lambda k: st.tuples(
+    STEPS if k == 0 else st.floats(0.0, 0.04), VALUES if k == 1 else st.floats(-40.0, 40.0), st.sampled_from([0, 1]))),
+    min_size=2, max_size=60)
+"""Rows of a source fed by two messages: (time step, value, which message), mostly fresh and valid."""
+
+
+@settings(max_examples=50, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(drawn=MOSTLY_QUIET)
+def test_quiet_runs_of_two_messages_are_taken_whole_or_not_at_all(drawn: list[tuple[float, float, int]]) -> None:
+    """A source fed by two messages (a role each, rows interleaved): ``take_quiet`` takes both runs whole only when
+    the reference, fed the rows in time order, finds no edge among them, and leaves it where the reference does;
+    else nothing is taken."""
+    signals = tuple(SignalRef(r, "can0", m, 0x10 + k, False, r.upper(), "", -50.0, 50.0)
+                    for k, (r, m) in enumerate((("j0", "M0"), ("j1", "M1"))))
+    cfg = SourceConfig("src", "joints", "can0", signals, 0.1)
+    health, ref = SourceHealth(cfg), RefHealth(0.1, cfg.value_roles, False, {"j0": (-50.0, 50.0), "j1": (-50.0, 50.0)})
+    roles = ["j0", "j1"]
+    for role in roles:  # both fresh and valid before the runs
+        assert health.advance((role,), [0.0], ([1.0],)).changed == ref.observe(role, 0.0, 1.0)
+    rows, t = [], 0.0
+    for i, (step, value, k) in enumerate(drawn):  # in arrival order (a bad step: one bad time); both messages
+        k = i if i < 2 else k
+        t += step if math.isfinite(step) else 0.0
+        rows.append((t if math.isfinite(step) else step, value, k))
+    parts = [((role,), np.array([r[0] for r in rows if r[2] == k]), (np.array([r[1] for r in rows if r[2] == k]),))
+             for k, role in enumerate(roles)]
+    before = health.samples
+    took = health.take_quiet(parts)
+    edges = [ref.observe(roles[k], t, v) for t, v, k in rows]
+    if took:
+        assert not any(edges)
+        assert health.samples == ref.samples and health.reason(0.0) == ref.reason(0.0)
+        for role in roles:
+            assert health.latest_t(role) == ref.latest_t[role] and health.value(role) == ref.values[role]
+            assert type(health.value(role)) is float
+    else:
+        assert health.samples == before

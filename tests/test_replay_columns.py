@@ -83,7 +83,7 @@ class Outcome:
     emit: bytes
     state: dict[str, Any]
     column_blocks: int = 0
-    """Blocks ``LogRun._run_columns`` took (returned True for)."""
+    """Blocks of more than one row ``LogRun._run_columns`` took."""
     handled_rows: int = 0
     """Rows of column blocks a message plan's step took as decoded by the column decoder."""
     fed_rows: int = 0
@@ -175,15 +175,14 @@ def replay(cfg: Config, log: Path, out: Path, *, columns: bool, chunk: int | Blo
     take_runs = canguard.engine.blocks.take_runs
     build_summary = canguard.cli.replay.build_summary
 
-    def counted_run_columns(self: LogRun, block: Block, cursor: Any) -> bool:
+    def counted_run_columns(self: LogRun, block: Block, cursor: Any) -> None:
         counts["in_block"] = block.n > 1
         try:
-            took = run_columns(self, block, cursor)
+            run_columns(self, block, cursor)
         finally:
             counts["in_block"] = 0
-        counts["blocks"] += took and block.n > 1
+        counts["blocks"] += block.n > 1
         counts["widest"] = max(counts["widest"], block.n)
-        return took
 
     def counted_compile_plan(entry: Any, *args: Any) -> Any:
         plan = compile_plan(entry, *args)
@@ -259,7 +258,8 @@ file replays ten config, log and option pairs: none is replayed twice in one pro
 
 def reference(cfg: Config, log: Path, out: Path, *, channel_map: dict[str, str] | None = None,
               export: bool = False) -> Outcome:
-    """The reference replay of ``log``: frame by frame, every tick run; once per config, log and options.
+    """The reference replay of ``log``: in blocks of one frame (a quiet live bus's), every tick run; once per
+    config, log and options.
 
     The reference feeds the engine one frame at a time whatever the reader's block size, so
     one run (at the reader's default size) is the truth for every block size the column path
@@ -310,7 +310,7 @@ def compare(cfg: Config, log: Path, out: Path, chunks: tuple[int | BlockCuts, ..
     Every column run is compared with one reference run (:func:`reference`).
     The column path must have run (blocks taken, and at least ``min_handled`` rows
     taken by the handlers) at every block size but the reader's default, where a
-    small log is one block and the first block always goes frame by frame.
+    small log is one block.
 
     The column runs at the second, fourth... block size write no ``--emit`` file: their frames
     are only counted, as a replay without ``--emit`` does (emitted frames are compared at the others).
@@ -451,7 +451,7 @@ CUSTOM_TREE = """<root BTCPP_format="4" main_tree_to_execute="Custom">
       <IsI2tSafe name="Axis1Heat" topic_name="axis1" model="leaky" continuous_current="10.0"
                  peak_current="20.0" peak_time="1.0"/>
       <IsI2tSafe name="Axis0Heat" topic_name="axis0" model="thermal" continuous_current="10.0"
-                 peak_current="20.0" peak_time="1.0" level="{axis0_heat}"/>
+                 peak_current="20.0" peak_time="1.0"/>
       <Sequence name="Task">
         <PerformRecovery name="Clear"/>
         <ExecuteTask/>
@@ -461,7 +461,9 @@ CUSTOM_TREE = """<root BTCPP_format="4" main_tree_to_execute="Custom">
 </root>
 """
 """Hysteresis with trip/recover delays and inrush blanking, thermal and leaky I²t, thresholds on a
-joints source of two signals of one message, on scaled, big-endian and float64 signals."""
+joints source of two signals of one message, on scaled, big-endian and float64 signals. No I²t ``level`` is
+wired: a block's rows run on across the quiet ticks, the I²t models' among them (robot_guard.yaml wires every
+``level``: there the rows stop at each tick, which writes the levels again)."""
 
 
 HANDLED = {"Axis0_Get_Iq", "Axis1_Get_Iq", "Axis1_Get_Torques", "Axis2_Get_Torques", "Probe_Multi", "Probe_Big",
@@ -830,6 +832,29 @@ def channels(tmp_path_factory: pytest.TempPathFactory) -> tuple[Config, Path]:
 class TestCustomLog:
     """The scripted log on the custom config: every handler case, at many block sizes."""
 
+    def test_a_sample_hook_sees_each_frames_samples_in_log_order(self, custom: tuple[Config, Path]) -> None:
+        """A plot's recorder (a sample hook, no block export) gets every sample the frame decoder makes of the
+        log's frames, with its reason, in log order, from blocks that mix messages and go back in time."""
+        from canguard.decode.decoder import Decoder
+        from canguard.engine.gate import LogSink
+        from canguard.io.clock import ManualClock
+
+        cfg, log = custom
+        [bus] = cfg.buses
+        frames = list(read_log(log))
+        decoder = Decoder(cfg)
+        want = [repr(sample) for frame in frames for sample in decoder.decode(frame, bus)]
+        clock = ManualClock()
+        engine = Engine(cfg, clock, LogSink(clock.now, cfg.buses, out=None, keep=False), durable=False,
+                        save_heat=False)
+        seen: list[str] = []
+        engine.sample_hook = lambda sample: seen.append(repr(sample))
+        blocks = [Block.of_frames(frames[i:i + 97]) for i in range(0, len(frames), 97)]
+        assert not all(block.ordered for block in blocks)
+        engine.run_log(blocks, {}, bus, {})
+        assert len(want) > 10_000 and any("nan" in sample for sample in want)
+        assert seen == want
+
     def test_log_covers_what_it_should(self, custom: tuple[Config, Path], tmp_path: Path) -> None:
         """The reference run trips, recovers and complains as the script says (else the comparison tests little)."""
         cfg, log = custom
@@ -935,6 +960,42 @@ class TestSimulator:
         assert col.handled_rows == 0 and col.state["skipped_ticks"] > 0
 
 
+def replay_watched(cfg: Config, log: Path, out: Path, watched: bool) -> tuple[str, bytes, bytes, int]:
+    """Replay ``log`` in blocks of 4096 characters, every tick run when ``watched`` (a tick hook looks at each):
+    (summary, events, emitted frames, quiet ticks counted)."""
+    engines: list[Engine] = []
+
+    class Watched(Engine):
+        def __init__(self, *args: Any, **kwargs: Any) -> None:
+            super().__init__(*args, **kwargs)
+            if watched:
+                self.tick_hook = lambda t: None
+            engines.append(self)
+
+    out.mkdir()
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(canguard.cli.replay, "Engine", Watched)
+        mp.setattr(canguard.io.candump, "CHUNK_CHARS", 4096)
+        summary = replay_one(cfg, log, ReplayOptions(events=out / "events.jsonl", emit=out / "emit.log"))
+    py_trees.blackboard.Blackboard.clear()
+    [engine] = engines
+    return (json.dumps(summary, sort_keys=True), (out / "events.jsonl").read_bytes(), (out / "emit.log").read_bytes(),
+            engine.stats.quiet_ticks)
+
+
+class TestQuietTicks:
+    """Counting the grid ticks proven quiet instead of running them changes nothing a user sees."""
+
+    def test_every_tick_run_gives_the_same(self, custom: tuple[Config, Path], tmp_path: Path) -> None:
+        """The custom log (trips, stale gaps, I²t across skipped ticks) with every tick run (a tick hook
+        watches each) gives the summary, events and frames it gives with the quiet ticks counted."""
+        cfg, log = custom
+        quiet = replay_watched(cfg, log, tmp_path / "quiet", False)
+        every = replay_watched(cfg, log, tmp_path / "every", True)
+        assert quiet[3] > 0 and every[3] == 0  # quiet ticks counted; every tick run
+        assert quiet[:3] == every[:3]
+
+
 class TestChannels:
     """Several channels: in one block and in blocks of their own, on two buses, mapped and unmapped."""
 
@@ -976,6 +1037,7 @@ class TestTheComparison:
     def test_catches_a_handler_that_drops_edges(self, custom: tuple[Config, Path], tmp_path: Path) -> None:
         """Message plans that never report an edge (no edge tick): the comparison fails."""
         cfg, log = custom
+        reference(cfg, log, tmp_path)  # the truth, before the step goes wrong (blocks of one take it too)
         take_runs = canguard.engine.blocks.take_runs
 
         def edgeless(runs: Any) -> tuple[int, bool]:
@@ -989,6 +1051,7 @@ class TestTheComparison:
     def test_catches_a_tick_missed_between_rows(self, custom: tuple[Config, Path], tmp_path: Path) -> None:
         """A _cross that brings no tick among unconfigured rows (ticks come late, at the next configured row)."""
         _, log = custom
+        reference(load_config(TIMED), log, tmp_path)  # the truth, before the step goes wrong (blocks of one cross too)
         with pytest.MonkeyPatch.context() as mp:
             mp.setattr(LogRun, "_cross", lambda self, ts, lo, hi: None)
             with pytest.raises(AssertionError):

@@ -642,15 +642,17 @@ class TestProgressBar:
     def test_silent_when_not_a_tty(self) -> None:
         """On a non-terminal stream nothing is written."""
         out = io.StringIO()
-        with ProgressBar(1000, stream=out) as bar:
-            bar.update(500)
+        bar = ProgressBar(1000, stream=out)
+        bar.update(500)
+        bar.close()
         assert not bar.enabled and out.getvalue() == ""
 
     def test_draws_on_a_tty(self) -> None:
         """On a terminal the bar shows the percentage and ends its line on close."""
         out = self._Tty()
-        with ProgressBar(1_000_000, stream=out, min_interval_s=0.0, label="x.log") as bar:
-            bar.update(500_000)
+        bar = ProgressBar(1_000_000, stream=out, min_interval_s=0.0, label="x.log")
+        bar.update(500_000)
+        bar.close()
         text = out.getvalue()
         assert "\r[###############...............]  50%  0.5/1.0 MB  x.log" in text
         assert text.endswith("\n")

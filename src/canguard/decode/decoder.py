@@ -1,15 +1,11 @@
 """Frames -> samples: decode only the configured signals of the configured frames.
 
 :class:`Decoder` is built once from a :class:`~canguard.config.schema.Config`. Its
-:meth:`Decoder.decode` is the live path and the replay's path for rows a block does not
-take, so:
-
-- frames are filtered with one dict lookup on ``(bus, arbitration_id,
-  is_extended_id)`` before anything is decoded; unconfigured frames cost only
-  that lookup;
-- each configured message has one :class:`~canguard.decode.message.MessageDecoder`,
-  compiled at construction into its one kernel over a block; a frame is a block of one
-  for it (:func:`row_samples` makes the samples of a row that is not valid, with reasons).
+:meth:`Decoder.decode` (the live path, and the replay's for rows a block does not take)
+finds a frame's message with one dict lookup on ``(bus, arbitration_id, is_extended_id)``
+(an unconfigured frame costs only that) and runs that message's
+:class:`~canguard.decode.message.MessageDecoder` kernel on it as a block of one
+(:func:`row_samples`: the samples of a row that is not valid, with reasons).
 
 Nothing raises out of :meth:`Decoder.decode`: a frame of the wrong length or a
 payload cantools cannot decode becomes one invalid sample (``bad_length`` /
@@ -40,7 +36,7 @@ _new = tuple.__new__  # builds a Sample without NamedTuple.__new__'s keyword han
 
 @dataclass
 class DecodeCounters:
-    """What one bus (or all buses together) fed the decoder.
+    """What one bus fed the decoder.
 
     ``frames``: every frame given to :meth:`Decoder.decode`; ``decoded``: configured
     frames decoded; ``invalid``: configured frames that produced invalid samples
@@ -57,16 +53,10 @@ class DecodeCounters:
     remote_frames: int = 0
     reasons: dict[str, int] = field(default_factory=dict)
 
-    def add(self, other: DecodeCounters) -> None:
-        """Add ``other``'s counts to these."""
-        self.frames += other.frames
-        self.decoded += other.decoded
-        self.invalid += other.invalid
-        self.skipped += other.skipped
-        self.error_frames += other.error_frames
-        self.remote_frames += other.remote_frames
-        for k, v in other.reasons.items():
-            self.reasons[k] = self.reasons.get(k, 0) + v
+
+def _all_buses(name: str, doc: str) -> property:
+    """A counter of :class:`DecodeCounters` summed over every bus."""
+    return property(lambda self: sum(getattr(c, name) for c in self.per_bus.values()), doc=f"{doc}, all buses.")
 
 
 def _output(ref: SignalRef, source: str) -> Output:
@@ -81,7 +71,7 @@ class Decoder:
 
     ``decode(frame, bus)`` never raises. Counters: :attr:`frames`, :attr:`decoded`,
     :attr:`invalid`, :attr:`skipped`, :attr:`error_frames`, :attr:`remote_frames`
-    (all buses), :attr:`per_bus` (by bus name), :meth:`totals` (with reasons).
+    (all buses), :attr:`per_bus` (by bus name, with reasons).
     """
 
     def __init__(self, cfg: Config) -> None:
@@ -110,42 +100,12 @@ class Decoder:
         entry = self._table.get((bus, arbitration_id, is_extended_id))
         return None if entry is None else entry.strategy
 
-    def totals(self) -> DecodeCounters:
-        """The counters of every bus added together."""
-        total = DecodeCounters()
-        for c in self.per_bus.values():
-            total.add(c)
-        return total
-
-    @property
-    def frames(self) -> int:
-        """Frames given to :meth:`decode`, all buses."""
-        return sum(c.frames for c in self.per_bus.values())
-
-    @property
-    def decoded(self) -> int:
-        """Configured frames decoded, all buses."""
-        return sum(c.decoded for c in self.per_bus.values())
-
-    @property
-    def invalid(self) -> int:
-        """Configured frames that gave invalid samples, all buses."""
-        return sum(c.invalid for c in self.per_bus.values())
-
-    @property
-    def skipped(self) -> int:
-        """Frames of no configured message, all buses."""
-        return sum(c.skipped for c in self.per_bus.values())
-
-    @property
-    def error_frames(self) -> int:
-        """Error frames seen (never decoded), all buses."""
-        return sum(c.error_frames for c in self.per_bus.values())
-
-    @property
-    def remote_frames(self) -> int:
-        """Remote frames seen (never decoded), all buses."""
-        return sum(c.remote_frames for c in self.per_bus.values())
+    frames = _all_buses("frames", "Frames given to :meth:`decode`")
+    decoded = _all_buses("decoded", "Configured frames decoded")
+    invalid = _all_buses("invalid", "Configured frames that gave invalid samples")
+    skipped = _all_buses("skipped", "Frames of no configured message")
+    error_frames = _all_buses("error_frames", "Error frames seen (never decoded)")
+    remote_frames = _all_buses("remote_frames", "Remote frames seen (never decoded)")
 
     # -- the hot path ------------------------------------------------------
     def decode(self, frame: Frame, bus: str) -> list[Sample]:

@@ -82,7 +82,7 @@ _ONE_LENGTH = tuple(np.array([k], dtype=np.int64) for k in range(65))
 
 Lanes = list[Any]
 """A block's payload viewed as each dtype its message reads (``n x lanes`` arrays), in the message's order of
-:class:`_Views` slots."""
+:func:`_slot` slots."""
 Column = Any
 """A column of the block (an array) or, in a block of one, that row's numpy scalar: the kernel treats both alike."""
 
@@ -141,17 +141,11 @@ class _Read(NamedTuple):
     """Each output's rows on its multiplexer page (None: every row)."""
 
 
-class _Views:
-    """The dtypes a message's payload is viewed as, each with its slot in :data:`Lanes` (given out as compiled)."""
-
-    def __init__(self) -> None:
-        self.dtypes: list[np.dtype] = []
-
-    def slot(self, dtype: np.dtype) -> int:
-        """The slot of ``dtype``'s view."""
-        if dtype not in self.dtypes:
-            self.dtypes.append(dtype)
-        return self.dtypes.index(dtype)
+def _slot(dtypes: list[np.dtype], dtype: np.dtype) -> int:
+    """The slot in :data:`Lanes` of ``dtype``'s view of the payload (``dtypes``: the views, given out as compiled)."""
+    if dtype not in dtypes:
+        dtypes.append(dtype)
+    return dtypes.index(dtype)
 
 
 class MessageDecoder:
@@ -432,7 +426,7 @@ def _compile(message: Any, wanted: list[Any], size: int) -> tuple[
     muxes = [s for s in message.signals if s.is_multiplexer]
     if any(s.scale != 1 or s.offset != 0 or s.is_signed or s.is_float for s in muxes):
         return None  # cantools selects by the scaled, signed value; the bit maths by the raw one
-    dtypes = _Views()
+    dtypes: list[np.dtype] = []
     values = []
     guard = False
     for signal in wanted:
@@ -447,21 +441,26 @@ def _compile(message: Any, wanted: list[Any], size: int) -> tuple[
         if raw is None:
             return None
         raws.append((mux.name, raw))
-    return tuple(values), tuple(raws), tuple(dtypes.dtypes), guard
+    return tuple(values), tuple(raws), tuple(dtypes), guard
 
 
-def _bits(signal: Any, size: int, dtypes: _Views) -> _Getter | None:
+def _first_bit(signal: Any) -> int:
+    """Intel: the least significant bit, numbered from byte 0 bit 0. Motorola: the DBC start bit is the most
+    significant bit in sawtooth numbering (byte * 8 + bit); here counted from byte 0's most significant bit."""
+    start = int(signal.start)
+    return start if signal.byte_order == "little_endian" else (start // 8) * 8 + 7 - start % 8
+
+
+def _bits(signal: Any, size: int, dtypes: list[np.dtype]) -> _Getter | None:
     """The raw unsigned bits of ``signal`` (uint64) from the payload's 64-bit words, or None (outside the payload)."""
     length = int(signal.length)
-    if not 0 < length <= 64:
+    first = _first_bit(signal)
+    if not 0 < length <= 64 or first + length > size * 8:
         return None
     mask = (1 << length) - 1
     if signal.byte_order == "little_endian":
-        start = int(signal.start)  # the least significant bit, numbered from byte 0 bit 0
-        if start + length > size * 8:
-            return None
-        le = dtypes.slot(_LE)
-        k, shift = divmod(start, 64)
+        le = _slot(dtypes, _LE)
+        k, shift = divmod(first, 64)
         if shift + length <= 64:
             def get(lanes: Lanes, at: Any) -> Column:
                 return (lanes[le][at, k] >> shift) & mask
@@ -470,11 +469,7 @@ def _bits(signal: Any, size: int, dtypes: _Views) -> _Getter | None:
                 words = lanes[le]
                 return ((words[at, k] >> shift) | (words[at, k + 1] << (64 - shift))) & mask
         return get
-    # Motorola: the DBC start bit is the most significant bit, in sawtooth numbering (byte * 8 + bit)
-    first = (int(signal.start) // 8) * 8 + 7 - int(signal.start) % 8  # counted from byte 0's most significant bit
-    if first + length > size * 8:
-        return None
-    be = dtypes.slot(_BE)
+    be = _slot(dtypes, _BE)
     k, at_bit = divmod(first, 64)
     end = at_bit + length
     if end <= 64:
@@ -487,16 +482,13 @@ def _bits(signal: Any, size: int, dtypes: _Views) -> _Getter | None:
     return get
 
 
-def _float_lane(signal: Any, size: int, dtypes: _Views) -> _Getter | None:
+def _float_lane(signal: Any, size: int, dtypes: list[np.dtype]) -> _Getter | None:
     """An IEEE float at a boundary of its own size read as such (no bits to move), else None."""
     length = int(signal.length)
-    if signal.byte_order == "little_endian":
-        start = int(signal.start)
-    else:
-        start = (int(signal.start) // 8) * 8 + 7 - int(signal.start) % 8
+    start = _first_bit(signal)
     if start % length or start + length > size * 8:
         return None
-    slot = dtypes.slot(_FLOAT_LANES[length, signal.byte_order])
+    slot = _slot(dtypes, _FLOAT_LANES[length, signal.byte_order])
     k = start // length
 
     def get(lanes: Lanes, at: Any) -> Column:
@@ -505,7 +497,7 @@ def _float_lane(signal: Any, size: int, dtypes: _Views) -> _Getter | None:
     return get
 
 
-def _value(signal: Any, size: int, dtypes: _Views) -> tuple[_Getter, bool] | None:
+def _value(signal: Any, size: int, dtypes: list[np.dtype]) -> tuple[_Getter, bool] | None:
     """``signal``'s physical value as float64 (cantools' value, ``float()``-ed), and whether numpy may flag it
     (an overflow, a float32 signalling NaN)."""
     length = int(signal.length)

@@ -4,27 +4,15 @@ What :meth:`MessageDecoder.decode <canguard.decode.message.MessageDecoder.decode
 per row the configured values in output order (a tuple), :data:`EMPTY`, or None (the
 row is invalid and goes to the engine's ``feed``), and on demand why (:class:`Verdict`).
 Over a block of more than one row its kernel gives one float64 column per configured
-signal (:class:`ColumnRows`); row by row, each row becomes a tuple of Python floats. A
-block of one gives its row itself (a one-item list; :class:`OneRow` when it is not
-valid). Most blocks never need those tuples: a block taken whole
-(:meth:`MessagePlan.batch <canguard.engine.blocks.MessagePlan.batch>`,
-:mod:`canguard.engine.settle`) reads only whether every row passed, each column's
-smallest and largest ``|value|``, the last row and the count. :class:`ColumnRows`
-answers those from the columns and builds the tuples, exactly as before, only when
-the rows go one by one. On the extended-id Motorola log building them and reading
-them back were ~15 % of a replay.
-
-Exactness: a column's values are float64 and ``tolist`` gives the Python floats the
-tuples held; ``abs``, ``min`` and ``max`` of floats that are neither NaN nor taken
-from a row that goes to ``feed`` are the same in numpy as in Python.
+signal (:class:`ColumnRows`), made into tuples of Python floats only when the rows go
+one by one (``tolist`` gives the floats the tuples hold); a block taken whole reads the
+columns and masks. A block of one gives its row itself (a one-item list; :class:`OneRow`
+when it is not valid).
 """
 
 from __future__ import annotations
 
-import operator
 from collections.abc import Callable, Iterator, Sequence
-from itertools import compress, islice
-from operator import itemgetter
 from typing import TYPE_CHECKING, Any, NamedTuple
 
 if TYPE_CHECKING:
@@ -91,7 +79,7 @@ class ColumnRows(Sequence[Row]):
 
     def verdict(self, k: int) -> Verdict:
         """Why row ``k`` is what it is (reason "" for a valid row), with each value as a sample carries it."""
-        assert self._why is not None, "rows cut from a decoded block (split, valued_rows) carry no verdicts"
+        assert self._why is not None, "rows built without verdicts"
         return self._why(k)
 
     def rows(self) -> list[Row]:
@@ -119,32 +107,13 @@ class ColumnRows(Sequence[Row]):
                 keep &= ~mask
         return keep
 
-    def valued_rows(self, keep: np.ndarray) -> ColumnRows:
-        """The rows ``keep`` (a mask: :meth:`valued`, or fewer) as rows of their own, each with its values."""
-        return ColumnRows(int(keep.sum()), [column[keep] for column in self.columns], None, None)
-
     def clean(self) -> bool:
         """Every row has all its values (none to feed, none EMPTY): ``all(rows)``."""
         return self.fed is None and self.empty is None
 
-    def has_fed(self) -> bool:
-        """A row goes to feed: ``None in rows``."""
-        return self.fed is not None and (self.empty is None or bool((self.fed & ~self.empty).any()))
-
     def count_empty(self) -> int:
         """How many rows are EMPTY."""
         return 0 if self.empty is None else int(self.empty.sum())
-
-    def abs_range(self, j: int) -> tuple[float, float]:
-        """The smallest and largest ``|value|`` of output ``j`` (a :meth:`clean` block only)."""
-        import numpy as np
-
-        column = np.abs(self.columns[j])
-        return float(column.min()), float(column.max())
-
-    def last(self) -> tuple[float, ...]:
-        """The last row's values (a :meth:`clean` block only)."""
-        return tuple(float(c[-1]) for c in self.columns)
 
     def __len__(self) -> int:
         return self.n
@@ -154,31 +123,6 @@ class ColumnRows(Sequence[Row]):
 
     def __getitem__(self, k: Any) -> Any:
         return self.rows()[k]
-
-    def count(self, value: Any) -> int:
-        return self.rows().count(value)
-
-
-def clean(rows: Sequence[Row]) -> bool:
-    """No row to feed and none EMPTY."""
-    return rows.clean() if type(rows) is ColumnRows else all(rows)
-
-
-def abs_range(rows: Sequence[Row], j: int) -> tuple[float, float]:
-    """The smallest and largest ``|value|`` of output ``j`` over rows that all have their values."""
-    if type(rows) is ColumnRows:
-        return rows.abs_range(j)
-    column = list(map(abs, map(itemgetter(j), rows)))  # type: ignore[arg-type]
-    return min(column), max(column)
-
-
-def last_row(rows: Sequence[Row]) -> tuple[float, ...]:
-    """The last row's values, of rows that all have their values."""
-    if type(rows) is ColumnRows:
-        return rows.last()
-    final = rows[-1]
-    assert final is not None
-    return final
 
 
 def valued_table(rows: Sequence[Row], width: int) -> tuple[np.ndarray, np.ndarray]:
@@ -192,42 +136,3 @@ def valued_table(rows: Sequence[Row], width: int) -> tuple[np.ndarray, np.ndarra
     if keep.any():
         table[keep] = [row for row in rows if row]
     return keep, table
-
-
-def has_fed(rows: Sequence[Row]) -> bool:
-    """A row goes to feed."""
-    return rows.has_fed() if type(rows) is ColumnRows else None in rows
-
-
-def has_empty(rows: Sequence[Row]) -> bool:
-    """A row is EMPTY."""
-    return rows.empty is not None if type(rows) is ColumnRows else EMPTY in rows
-
-
-def count_empty(rows: Sequence[Row]) -> int:
-    """How many rows are EMPTY."""
-    return rows.count_empty() if type(rows) is ColumnRows else rows.count(EMPTY)
-
-
-def max_gap(stamps: Sequence[Any]) -> float:
-    """The largest step between consecutive ``stamps`` (0.0 for one): ``float()`` of each, subtracted."""
-    if hasattr(stamps, "dtype"):  # a numpy block's float64 times: the same subtractions, in C
-        array: Any = stamps
-        return float((array[1:] - array[:-1]).max()) if len(array) > 1 else 0.0
-    times = list(map(float, stamps))
-    return max(map(operator.sub, islice(times, 1, None), times), default=0.0)
-
-
-def keep_valued(stamps: Sequence[Any], rows: Sequence[Row]) -> tuple[Sequence[Any], Sequence[Row]]:
-    """The stamps and rows of the rows that are not EMPTY (rows with no row to feed).
-
-    A numpy block's (stamps an array, rows :class:`ColumnRows`) stay numpy: no tuple made per row (a multiplexed
-    message of which one page is read, every block)."""
-    if type(rows) is ColumnRows:
-        if hasattr(stamps, "dtype"):
-            valued = rows.valued()
-            array: Any = stamps
-            return array[valued], rows.valued_rows(valued)
-        rows = rows.rows()
-    keep = list(map(bool, rows))
-    return list(compress(stamps, keep)), list(compress(rows, keep))

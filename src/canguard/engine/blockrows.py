@@ -20,8 +20,9 @@ if TYPE_CHECKING:
     from canguard.io.block import Block
 
 
-Run = tuple["MessagePlan", list[int], list[float], list[Sequence[float]]]
-"""A message's rows of a block whole and valid: (plan, the rows (ascending), their times, each output's column)."""
+Run = tuple["MessagePlan", Any, Any, list[Any]]
+"""A message's rows of a block whole and valid: (plan, the rows (ascending), their times, each output's column):
+numpy columns from a block's column decode, lists from its rows one by one."""
 
 
 def decode_rows(
@@ -65,7 +66,8 @@ def decode_rows(
         run = _split(plan, group, decoded, ts, fed)
         if run is not None:
             whole.append(run)
-    fed.sort(key=itemgetter(0))
+    if len(fed) > 1:
+        fed.sort(key=itemgetter(0))
     return whole, fed
 
 
@@ -86,9 +88,9 @@ def _split(plan: MessagePlan, group: Any, decoded: Sequence[Any], ts: Sequence[A
             at = at[keep]
         if not at.size:
             return None
-        stamps = ts.take(at).tolist() if hasattr(ts, "take") else [float(ts[i]) for i in at.tolist()]
-        columns = [(c if keep is None else c[keep]).tolist() for c in decoded.columns]
-        return plan, at.tolist(), stamps, columns
+        stamps = ts.take(at) if hasattr(ts, "take") else np.array([float(ts[i]) for i in at.tolist()])
+        columns = [c if keep is None else c[keep] for c in decoded.columns]
+        return plan, at, stamps, columns  # numpy columns: the models screen long runs of them
     rows: list[int] = []
     values: list[tuple[float, ...]] = []
     empty = 0
@@ -100,7 +102,11 @@ def _split(plan: MessagePlan, group: Any, decoded: Sequence[Any], ts: Sequence[A
         else:
             rows.append(i)
             values.append(row)
-    plan.count_empty(empty)
+    if empty:
+        plan.count_empty(empty)
     if not rows:
         return None
-    return plan, rows, [float(ts[i]) for i in rows], list(zip(*values, strict=True))
+    stamps = []  # loops, not comprehensions: no function object per block (Python < 3.12)
+    for i in rows:
+        stamps.append(float(ts[i]))
+    return plan, rows, stamps, list(zip(*values, strict=True))

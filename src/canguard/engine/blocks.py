@@ -24,9 +24,9 @@ from __future__ import annotations
 
 from bisect import bisect_right
 from collections.abc import Sequence
+from itertools import chain
 from typing import TYPE_CHECKING, Any
 
-from canguard.decode.decoder import row_samples
 from canguard.decode.rows import Row
 from canguard.protect.staleness import ROW_ROLES
 
@@ -106,28 +106,11 @@ class MessagePlan:
         """
         if self.counter:
             return [None] * len(rows)
+        if len(rows) == block.n:  # every row of the block (a live frame's)
+            return self.entry.decode(block.payload, block.length)
         return self.entry.decode(block.payload[rows], block.length[rows])
 
     # -- one row ------------------------------------------------------------------------
-    def take_payload(self, data: bytes, t: float) -> bool | None:
-        """One frame's payload at ``t`` (a block of one through the message's kernel); True on an edge.
-
-        A whole and valid row takes :meth:`take_row`; any other row its samples with their reasons
-        (:func:`~canguard.decode.decoder.row_samples`, counted here as the frame decoder counts them),
-        :meth:`take_samples`. None: nothing taken, the frame decoder must take the frame (a message whose
-        every row goes to it: :attr:`counter`).
-        """
-        if self.counter:
-            return None
-        entry = self.entry
-        rows = entry.decode(*entry.one(data))
-        row = rows[0]
-        if row:
-            return self.take_row(row, t)
-        self.stats.frames += 1
-        self.counters.frames += 1
-        return self.take_samples(row_samples(entry, rows, 0, t, self.counters))
-
     def take_row(self, values: tuple[float, ...], t: float) -> bool:
         """One row whole and valid at ``t`` (one value per output): a run of one for each health and model
         (:func:`take_runs` of one row); True on an edge."""
@@ -222,12 +205,13 @@ def compile_plan(entry: MessageDecoder, counters: DecodeCounters, ctx: Context,
     return MessagePlan(entry, counters, ctx, stats)
 
 
-_Unit = tuple[Any, list[int], Any]
+_Unit = tuple[Any, Any, Any]
 """One health or model of :func:`take_runs`: (it, the rows it takes (positions in the run, ascending), what it
-advances over: a model's (times, values); a health's list of (roles, times, columns, rows) sub-runs)."""
+advances over: a model's (times, values); a health's list of (roles, times, columns, rows) sub-runs, one per
+message that feeds it)."""
 
 
-def take_runs(runs: Sequence[tuple[MessagePlan, list[int], list[float], list[Sequence[float]]]]) -> tuple[int, bool]:
+def take_runs(runs: Sequence[tuple[MessagePlan, Any, Any, list[Any]]]) -> tuple[int, bool]:
     """Take the rows whole and valid of a stretch of a block, in time order, each message's as a run of columns
     (``runs``: (plan, rows (ascending positions in the block), their times, each output's column)): each
     source's health and each model advances over the run of its own samples, up to the first row with an
@@ -237,17 +221,20 @@ def take_runs(runs: Sequence[tuple[MessagePlan, list[int], list[float], list[Seq
     first of those rows is where every one of them must stand when the tree ticks. One that
     went past it goes back to its mark and advances again up to that row (no edge before it:
     it would have stopped there). A row the engine ticks at is taken whole (all its samples).
-    A source fed by several messages takes their rows in time order, a message's stretch at a time.
+    A source fed by several messages takes their runs whole when each is quiet
+    (:meth:`SourceHealth.take_quiet <canguard.protect.staleness.SourceHealth.take_quiet>`), else
+    their rows in time order, a message's stretch at a time. The columns are numpy columns (a
+    block's column decode) or lists (rows decoded one by one).
     """
     if len(runs) == 1 and len(runs[0][1]) == 1:  # one row (a live frame): a run of one for each
         plan, rows, ts, columns = runs[0]
-        return rows[0], plan.take_row(tuple([column[0] for column in columns]), ts[0])
+        return int(rows[0]), plan.take_row(tuple([float(column[0]) for column in columns]), float(ts[0]))
     units: list[_Unit] = []
     health_units: dict[int, _Unit] = {}
     last = -1
     for plan, rows, ts, columns in runs:
         if rows[-1] > last:
-            last = rows[-1]
+            last = int(rows[-1])
         for health, roles, js in plan.healths:
             part = (roles, ts, [columns[j] for j in js], rows)
             unit = health_units.get(id(health))
@@ -259,9 +246,9 @@ def take_runs(runs: Sequence[tuple[MessagePlan, list[int], list[float], list[Seq
         for j, model in plan.models:
             units.append((model, rows, (ts, columns[j])))
     for key, (health, _rows, parts) in health_units.items():
-        if len(parts) > 1:  # several messages of one source: their stretches in time order
+        if len(parts) > 1:  # several messages of one source: every row of theirs, in order
             at = next(i for i, unit in enumerate(units) if unit[0] is health)
-            units[at] = health_units[key] = (health, sorted(k for part in parts for k in part[3]), _in_order(parts))
+            units[at] = health_units[key] = (health, sorted(chain.from_iterable(part[3] for part in parts)), parts)
     bound, edge = _advance_units(units, last)
     for plan, rows, _ts, columns in runs:
         m = len(rows) if bound == last else bisect_right(rows, bound)
@@ -270,16 +257,22 @@ def take_runs(runs: Sequence[tuple[MessagePlan, list[int], list[float], list[Seq
         plan.seen += m
         tops = plan.tops
         for j, column in enumerate(columns):
-            top = max(map(abs, column if m == len(rows) else column[:m]))
+            top = _top(column if m == len(rows) else column[:m])
             if top > tops[j]:
                 tops[j] = top
-    return bound, edge
+    return int(bound), edge
 
 
-def _in_order(parts: list[tuple[Any, list[float], list[Any], list[int]]]) -> list[tuple[Any, list[float], list[Any],
-                                                                                       list[int]]]:
+def _top(column: Any) -> float:
+    """The largest |value| of a column (valid values: finite), a list or a numpy column."""
+    if type(column) is list or type(column) is tuple:
+        return max(map(abs, column))
+    return float(abs(column).max())
+
+
+def _in_order(parts: list[tuple[Any, Any, list[Any], Any]]) -> list[tuple[Any, Any, list[Any], list[int]]]:
     """Sub-runs of one source from several messages, cut into stretches of one message each, in time order."""
-    order = sorted((k, p, i) for p, part in enumerate(parts) for i, k in enumerate(part[3]))
+    order = sorted((k, p, i) for p, part in enumerate(parts) for i, k in enumerate(_ints(part[3])))
     out = []
     start = 0
     while start < len(order):
@@ -292,6 +285,11 @@ def _in_order(parts: list[tuple[Any, list[float], list[Any], list[int]]]) -> lis
         out.append((roles, ts[first:last], [c[first:last] for c in columns], [k for k, _p, _i in order[start:end]]))
         start = end
     return out
+
+
+def _ints(rows: Any) -> list[int]:
+    """Row positions (a list or a numpy column) as a list of ints."""
+    return rows if type(rows) is list else rows.tolist()
 
 
 def _advance_units(units: list[_Unit], last: int) -> tuple[int, bool]:
@@ -330,8 +328,16 @@ def _advance(unit: _Unit, m: int, until_edge: bool) -> int | None:
             ts, values = ts[:m], values[:m]
         run = obj.advance(ts, values, until_edge=until_edge)
         return ks[int(run.index[0])] if run.changed else None
+    parts = what
+    if len(parts) > 1:  # several messages of one source: whole when quiet, else their rows in time order
+        if m < len(ks):
+            upto = ks[m - 1]
+            parts = [_upto(part, upto) for part in parts]
+        if obj.take_quiet([part[:3] for part in parts if len(part[3])]):
+            return None
+        parts = _in_order(parts)
     left = m
-    for roles, ts, columns, rows in what:
+    for roles, ts, columns, rows in parts:
         if left <= 0:
             break
         if left < len(rows):
@@ -341,3 +347,10 @@ def _advance(unit: _Unit, m: int, until_edge: bool) -> int | None:
         if ran.changed:
             return rows[int(ran.index[0])]
     return None
+
+
+def _upto(part: tuple[Any, Any, list[Any], Any], row: int) -> tuple[Any, Any, list[Any], Any]:
+    """A message's sub-run up to row ``row`` (included)."""
+    roles, ts, columns, rows = part
+    k = bisect_right(rows, row)
+    return roles, ts[:k], [c[:k] for c in columns], rows[:k]

@@ -107,7 +107,7 @@ class Engine:
         self.sample_block: Callable[[Any, list[Any], list[tuple[int, Any]]], None] | None = None
         """Set beside :attr:`sample_hook` by a hook that takes a replay's column blocks whole (``--export-signals``):
         called once a block with its times, each message's ((source, signal) names, rows, decoded values) and the
-        samples of the rows fed (with their row); None: with a sample hook, blocks go frame by frame."""
+        samples of the rows fed (with their row); None: a sample hook is called with each sample, in row order."""
         self.tick_hook: Callable[[float], None] | None = None
         """Called after every tick with its time (plots)."""
         self.observer: TickObserver | None = None
@@ -116,6 +116,7 @@ class Engine:
         self.decoder = Decoder(cfg)
         self.ctx = Context(clock, cfg.sources, sink=sink, actions=cfg.actions, on_event=self._node_event,
                            stop_frames=cfg.stop.frames)
+        self.stats.heat_models = self.ctx.heat_models  # the I²t peaks are the models' own
         if previous is not None:
             # A reload: sources configured as before keep their data, so the new tree does not
             # start blind (and fail on "no data") while the robot is running.
@@ -138,7 +139,7 @@ class Engine:
         self._gap_horizon_s = max(ages, default=0.0) + MAX_CATCH_UP_S
         """How much of a gap is ticked through before the rest is jumped: every source goes stale in it."""
         self.period_s = 1.0 / cfg.tree.tick_hz
-        self.watch = SourceWatch(cfg, self.ctx, self.gate, self.journal, self.stats, metrics, self.clock,
+        self.watch = SourceWatch(cfg, self.ctx, self.gate, self.journal, metrics, self.clock,
                                  self.guard_nodes, self.period_s)
         self.quiet = QuietTicks(self.root, self.ctx, self.gate, self.journal, self.watch, cfg.sources, self.period_s)
         self._next_tick = math.nan
@@ -199,8 +200,10 @@ class Engine:
         self._drive_clock(t)
 
     def frame_time(self, t: float) -> None:
-        """A frame at ``t`` was taken without :meth:`arrive` (a column block's rows): the latest frame time moves."""
+        """A frame at ``t`` was taken: the latest frame time moves (the first one is :attr:`first_frame_t`)."""
         if t > self._last_frame_t:
+            if self._last_frame_t == -math.inf:
+                self.first_frame_t = t
             self._last_frame_t = t
 
     # -- life cycle ------------------------------------------------------------------------
@@ -287,46 +290,43 @@ class Engine:
         cursor.route, cursor.default_bus = _NO_ROUTE, bus
         self._blocks.take(Block.of_frames((frame,)), cursor)
 
-    def arrive(self, t: float) -> None:
-        """A frame at ``t`` comes in: the latest frame time moves (or it is counted as out of order), the engine
-        starts at the first one, the ticks and gate deadlines due before it run, the clock moves to it."""
-        if t >= self._last_frame_t:
-            if self._last_frame_t == -math.inf:
-                self.first_frame_t = t
-            self._last_frame_t = t
-        else:
-            self.stats.backward_frames += 1  # out of order: the models' own rules handle it
-        if self._next_tick != self._next_tick:  # NaN: math.isnan, without its lookups (every frame asks)
-            # Not started yet (replay): start at this frame and feed it before the first tick, as live,
-            # where the frames queued while the daemon started are fed before its first tick; otherwise
-            # every replay began with a "no_data" trip on the very frame that brings the data.
-            self.start(t)
-        if t >= self.due:  # a tick or a gate deadline is due before this frame
-            self.advance(t)
-        self._drive_clock(t)  # replay: log time drives the clock; live clocks ignore it
-
     def edge_tick(self, t: float) -> None:
         """A sample at ``t`` changed a model's or a source's state: the tree ticks at once."""
         self._drive_clock(t)
         self.stats.edge_ticks += 1
         self.tick(self.clock.now())
 
-    def runs_until(self) -> float:
-        """Until when a block's rows may be taken as runs (:func:`~canguard.engine.blocks.take_runs`), the engine idle.
+    def runs_until(self, end_t: float, coming: Callable[[], Mapping[tuple[int, str], Any]]) -> float:
+        """Until when a block's rows, the last at ``end_t``, may be taken as runs
+        (:func:`~canguard.engine.blocks.take_runs`), the engine idle.
 
         The next due time (a tick, a gate deadline), or, while the ticks and gate deadlines before
-        it read nothing the rows change, the end of the quiet stretch (:attr:`QuietTicks.until`):
-        the next grid tick is proven quiet (it will be counted, not run), no I²t heat is sampled
-        at ticks, nothing watches each tick (metrics, a tick hook, a monitor) and no stop waits for
-        its confirmation (which reads a source between ticks). An edge in the runs still ticks at
-        once: the quiet ticks before it are counted first, at their own times.
+        it read nothing the rows change, the end of the quiet stretch the rows still to come
+        (``coming()``: each source signal's times, :meth:`QuietTicks.reach`) keep the sources fresh to:
+        the next grid tick is proven quiet (it will be counted, not run), nothing watches each tick
+        (metrics, a tick hook, a monitor), the skipped ticks write no model's state (an I²t guard's
+        wired ``level``: :attr:`QuietTicks.writes`), no stop waits for its confirmation (which reads
+        a source between ticks) and no I²t heat is due to be saved before it (a save writes the heat
+        of its tick's time). The I²t peaks are the models' own (over every sample), so their runs
+        may span ticks. An edge in the runs still ticks at once: the quiet ticks before it are counted
+        first, at their own times. Nothing is drawn when the rows end before the due time (a live
+        frame between two ticks).
         """
         due = self.due
+        if end_t < due:
+            return due
         quiet = self.quiet
-        if (quiet.until > due and not self.ctx.heat_models and self.metrics is None and self.tick_hook is None
-                and self.observer is None and not self.gate.confirm_pending and quiet.may_skip(self._next_tick)):
-            return quiet.until
+        if (self.metrics is None and self.tick_hook is None and self.observer is None and not quiet.writes
+                and not self.gate.confirm_pending and quiet.may_skip(self._next_tick) and quiet.until > due):
+            until = quiet.until if quiet.until > end_t else quiet.reach(coming())
+            return max(due, min(until, self._heat_due()))
         return due
+
+    def _heat_due(self) -> float:
+        """From when the heat is saved again at a tick (inf: never; -inf: at the next tick)."""
+        if self.heat is None or not self.save_heat or not self.ctx.heat_models:
+            return math.inf
+        return float(self.heat.next_save_t(self.cfg.state.save_period_s))
 
     def next_due(self) -> float:
         """The next time the engine has something to do (a tick or a gate deadline)."""
@@ -424,7 +424,8 @@ class Engine:
         was_running = self.gate.state == TaskGate.RUNNING
         self.gate.end_tick(now, failed, cause)
         self.watch.guards(now, was_running)
-        self.watch.sample_levels()
+        if self.metrics is not None:
+            self.watch.levels()
         if self.tick_hook is not None:
             self.tick_hook(now)
         self.gate.service(now)
@@ -509,7 +510,6 @@ class Engine:
             self.last_tick_t = now
             for g in self.quiet.ticked:
                 g.quiet_retick(now)
-            self.watch.sample_levels()  # I²t heat moved with the samples since: its peak is sampled at ticks
             gate.service(now)
             self.store_heat(now, periodic=True)
             self.journal.flush()

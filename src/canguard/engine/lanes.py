@@ -21,24 +21,34 @@ _RADIX = 1 << 16
 _STANDARD = 0x800
 """Standard ids are below this: their configured rows are found through a table of this size."""
 
+_FEW = 16
+"""A block of at most this many rows (a live bus's drained queue) is looked up row by row in Python: numpy's calls
+cost more than the rows."""
 
-def key_table(plans: Mapping[Any, Any]) -> tuple[Any, Any]:
+
+def key_table(plans: Mapping[Any, Any]) -> tuple[Any, Any, frozenset[int]]:
     """The integer keys of ``plans`` (:attr:`Block.keys <canguard.io.block.Block.keys>`, plus a channel's
-    :data:`LANE`s): a table of the standard ones, :data:`_STANDARD` entries per channel; all, sorted."""
+    :data:`LANE`s): a table of the standard ones, :data:`_STANDARD` entries per channel; all, sorted; all, as a set."""
     import numpy as np
 
     known = list(plans)
     table = np.zeros(_STANDARD * (1 + max((k // LANE for k in known), default=0)), dtype=bool)
     table[[k // LANE * _STANDARD + k % LANE for k in known if k % LANE < _STANDARD]] = True
-    return table, np.array(sorted(known), dtype=np.int64)
+    return table, np.array(sorted(known), dtype=np.int64), frozenset(known)
 
 
-def configured_rows(keys: Any, tables: tuple[Any, Any]) -> Any:
-    """The rows of a block whose id key has a plan, as an
-    index array (made a list only when the block's rows go one by one)."""
+def configured_rows(keys: Any, tables: tuple[Any, Any, frozenset[int]]) -> Any:
+    """The rows of a block whose id key has a plan, ascending: a list for a block of a few rows, else an index
+    array."""
+    table, every, known = tables
+    if keys.size <= _FEW:
+        rows = []
+        for i, key in enumerate(keys.tolist()):
+            if key in known:
+                rows.append(i)
+        return rows
     import numpy as np
 
-    table, every = tables
     if keys.size:
         top = int(keys.max())
         if top < _STANDARD:
@@ -51,15 +61,23 @@ def configured_rows(keys: Any, tables: tuple[Any, Any]) -> Any:
 
 
 def runs_by_key(keys: Any, rows: Any) -> list[tuple[int, Any]]:
-    """``rows`` of a block (a list or an index array) grouped by id key, each group an index array in row
-    order (numpy's stable sort)."""
-    import numpy as np
-
+    """``rows`` of a block (a list of a few, or an index array) grouped by id key in key order, each group in row
+    order (a list, or an index array: numpy's stable sort)."""
     if not len(rows):
         return []
+    if type(rows) is list:  # a few rows (a live bus's block): grouped in Python
+        of = keys.tolist()
+        groups: dict[int, list[int]] = {}
+        for i in rows:
+            group = groups.get(of[i])
+            if group is None:
+                groups[of[i]] = [i]
+            else:
+                group.append(i)
+        return sorted(groups.items()) if len(groups) > 1 else list(groups.items())
+    import numpy as np
+
     picked = np.asarray(rows, dtype=np.intp)
-    if picked.size == 1:  # a live frame's block: one group
-        return [(int(keys[picked[0]]), picked)]
     of = keys[picked]
     order = np.argsort(_radix_keys(of), kind="stable")
     ranked = of[order]

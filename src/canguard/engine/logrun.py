@@ -1,14 +1,14 @@
-"""The engine's block runner: every block of frames, live or recorded, goes through it.
+"""The engine's block runner: every block of frames, live or recorded, goes through it, one way.
 
 :class:`LogRun` is what :meth:`Engine.take <canguard.engine.core.Engine.take>` (the live
-daemon's blocks, a frame on a quiet bus) and :meth:`Engine.run_log
+daemon's blocks; a frame on a quiet bus is a block of one) and :meth:`Engine.run_log
 <canguard.engine.core.Engine.run_log>` (a recorded log's blocks, each channel routed to a
-bus) call. A block is frames, or a column block (plain candump text, numpy byte blocks, or
-python-can formats through :mod:`canguard.io.pycan_blocks`) whose configured rows are
-decoded per message at once. Frames of no configured message are counted without decoding
-while nothing is due; every configured row takes its message's row step
+bus) call. A block (:class:`~canguard.io.block.Block`) is taken as columns: its configured
+rows decoded per message at once, the frames of no configured message counted without
+decoding while nothing is due; every configured row takes its message's row step
 (:mod:`canguard.engine.blocks`), with the ticks and gate deadlines due before it run
-first and a tick at once after an edge. It talks to the engine through its public interface only.
+first and a tick at once after an edge. A block whose rows go back in time is taken as its
+ordered stretches, one after another. It talks to the engine through its public interface only.
 """
 
 from __future__ import annotations
@@ -17,36 +17,36 @@ import math
 from bisect import bisect_left, bisect_right
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
+from itertools import pairwise
+from operator import itemgetter
 from typing import TYPE_CHECKING, Any, Protocol
 
-from canguard.engine.blockrows import decode_rows
+from canguard.decode.decoder import DecodeCounters
+from canguard.engine import blocks
+from canguard.engine.blockrows import Run, decode_rows
 from canguard.engine.lanes import LANE, configured_rows, key_table, lane_plans
 from canguard.io.block import EXT_KEY, Block
-from canguard.io.frame import Frame
+from canguard.io.frame import Frame, Sample
+from canguard.protect.columns import SHORT_RUN
+
+_new = tuple.__new__  # a Sample from a ready tuple
 
 MAX_CATCH_UP_S = 2.0
 """Longest stretch of missed ticks the engine replays one by one after a gap (see :meth:`Engine.advance`)."""
 
 if TYPE_CHECKING:
-    import py_trees
-
     from canguard.bt.context import Context
-    from canguard.config.schema import Config
     from canguard.decode.decoder import Decoder
     from canguard.engine.blocks import MessagePlan
     from canguard.engine.stats import EngineStats
-    from canguard.io.clock import PinnedClock
 
 
 class Engine(Protocol):
     """What :class:`LogRun` asks of the engine (:class:`canguard.engine.core.Engine` is one)."""
 
-    cfg: Config
     decoder: Decoder
     stats: EngineStats
     ctx: Context
-    metrics: Any
-    clock: PinnedClock
     sample_hook: Callable[[Any], None] | None
     sample_block: Callable[[Any, list[Any], list[tuple[int, Any]]], None] | None
     last_due_run: float
@@ -54,12 +54,12 @@ class Engine(Protocol):
     due: float
     @property
     def next_tick_t(self) -> float: ...
-    def arrive(self, t: float) -> None: ...
+    @property
+    def last_frame_t(self) -> float: ...
     def edge_tick(self, t: float) -> None: ...
-    def runs_until(self) -> float: ...
+    def runs_until(self, end_t: float, coming: Callable[[], Mapping[tuple[int, str], Any]]) -> float: ...
     def controller_state(self, bus: str, frame: Frame) -> None: ...
     def advance(self, now: float) -> None: ...
-    def tick(self, now: float) -> py_trees.common.Status: ...
     def drive_clock(self, t: float) -> None: ...
     def frame_time(self, t: float) -> None: ...
 
@@ -72,17 +72,17 @@ class LogRun:
         self.decoder = engine.decoder
         self.stats = engine.stats
         self.ctx = engine.ctx
-        self._wanted = frozenset(self.decoder.keys())
         self._plans: dict[str, dict[int, MessagePlan | None]] = {}
         """Per bus: id key -> the message's plan (see :mod:`canguard.engine.blocks`)."""
-        self._plan_tables: dict[str, tuple[Any, Any]] = {}
-        """Per bus: the keys of :attr:`_plans`, as blocks look them up (:func:`.lanes.key_table`)."""
-        self._lane_plans: dict[tuple[str, ...], tuple[dict[int, MessagePlan | None], tuple[Any, Any]]] = {}
+        self._plan_tables: dict[str, tuple[dict[int, MessagePlan | None], tuple[Any, Any, frozenset[int]]]] = {}
+        """Per bus: its plans and their keys, as blocks look them up (:func:`.lanes.key_table`)."""
+        self._lane_plans: dict[tuple[str, ...], tuple[dict[int, MessagePlan | None],
+                                                      tuple[Any, Any, frozenset[int]]]] = {}
         """Per channels-to-buses of a block that mixes buses: its plans and their key table (:mod:`.lanes`)."""
-        self._by_key: dict[tuple[str, int, bool], MessagePlan] = {}
-        """Every plan by the decoder's key, ``(bus, arbitration_id, is_extended_id)``: a frame's plan in one lookup."""
         self._touched: set[MessagePlan] = set()
         """The plans that took rows of this block (flushed at its end)."""
+        self._row = 0
+        """The row the frame decoder takes (an export keeps its samples with it)."""
 
     def run(
         self, blocks: Iterable[Block], route: Mapping[str, str], default_bus: str | None,
@@ -107,115 +107,34 @@ class LogRun:
             engine.frame_time(last_t)
 
     def take(self, block: Block, cursor: LogCursor) -> None:
-        """One block of frames through the engine, whatever its source: a live bus's queue drained, a log's block.
+        """One block of frames through the engine, whatever its source: a live bus's queue drained (a frame on a
+        quiet bus: a block of one), a log's block.
 
-        Taken as columns (:meth:`_run_columns`) when its rows are in order; else row by row
-        (:meth:`_run_frames`). Either way each configured row takes its message's row step
-        (:func:`~canguard.engine.blocks.take_runs` /
-        :meth:`~canguard.engine.blocks.MessagePlan.take_samples`), and the counts are added at the end.
+        Its rows are taken as columns (:meth:`_run_columns`); a block whose rows go back in time, as its
+        ordered stretches one after another. Each configured row takes its message's row step
+        (:func:`~canguard.engine.blocks.take_runs` / :meth:`~canguard.engine.blocks.MessagePlan.take_samples`),
+        and the counts are added at the end.
         """
         try:
-            if not self._run_columns(block, cursor):
-                self._run_frames(block.frames(), cursor)
+            if block.ordered:
+                self._run_columns(block, cursor)
+            else:
+                import numpy as np
+
+                cuts = [0, *(np.flatnonzero(block.time_s[1:] < block.time_s[:-1]) + 1).tolist(), block.n]
+                for lo, hi in pairwise(cuts):
+                    self._run_columns(block.select(slice(lo, hi)), cursor)
         finally:
             touched = self._touched
             while touched:
                 touched.pop().flush()
 
-    def _run_frames(self, frames: Iterable[Frame], cursor: LogCursor) -> None:
-        """:meth:`run` over frames one by one.
-
-        A frame of no configured message before anything is due is counted without decoding; such frames are
-        counted together (:meth:`_count_skipped`) before the next frame that is fed, and at the end.
-        """
+    def _decoded(self, bus: str, frame: Frame, plan: MessagePlan | None) -> bool:
+        """A row the column decoder left to the frame decoder (a wrong length, an invalid value with its reason,
+        an alive counter or a drive's health roles, a remote or error frame): :meth:`Decoder.decode` counts its
+        every reason, its samples go to its plan's row step (:meth:`MessagePlan.take_samples
+        <canguard.engine.blocks.MessagePlan.take_samples>`); True on an edge."""
         engine = self.engine
-        wanted = self._wanted
-        per_bus = self.decoder.per_bus
-        route, default_bus, channels = cursor.route, cursor.default_bus, cursor.channels
-        last_t, started = cursor.last_t, cursor.started
-        last_channel: str | None = None
-        run = 0
-        due = engine.due  # only feeding a frame (arrive, its row step, an edge tick) moves it
-        counted: str | None = None  # the bus of the skipped frames not yet counted
-        skipped = backward = 0
-        try:
-            for frame in frames:  # what a frame reads once is not bound before the loop: a block of one is live
-                channel = frame.channel
-                if channels is not None:
-                    if channel == last_channel:
-                        run += 1
-                    else:
-                        if last_channel is not None:
-                            channels[last_channel] = channels.get(last_channel, 0) + run
-                        last_channel, run = channel, 1
-                bus = route.get(channel, default_bus) if route else default_bus
-                if bus is None:
-                    cursor.unmapped[channel] = cursor.unmapped.get(channel, 0) + 1
-                    continue
-                t = frame.t
-                if (
-                    started
-                    and t < due
-                    and (bus, frame.arbitration_id, frame.is_extended_id) not in wanted
-                    and not frame.is_error_frame
-                    and not frame.is_remote_frame
-                    and bus in per_bus
-                ):
-                    if bus != counted:
-                        if skipped:
-                            self._count_skipped(counted, skipped, backward)
-                        counted, skipped, backward = bus, 0, 0
-                    skipped += 1
-                    if t >= last_t:
-                        last_t = t
-                    else:
-                        backward += 1
-                    continue
-                if skipped:
-                    self._count_skipped(counted, skipped, backward)
-                    skipped = backward = 0
-                started = True
-                engine.arrive(t)  # the ticks due before it first, then its row step, then a tick at once on an edge
-                if self._decoded(bus, frame):
-                    engine.edge_tick(t)
-                if t > last_t:
-                    last_t = t
-                due = engine.due
-        finally:
-            if skipped:
-                self._count_skipped(counted, skipped, backward)
-        if channels is not None and last_channel is not None:
-            channels[last_channel] = channels.get(last_channel, 0) + run
-        cursor.last_t, cursor.started = last_t, started
-
-    def _count_skipped(self, bus: str | None, frames: int, backward: int) -> None:
-        """Count ``frames`` frames of bus ``bus`` taken without decoding (``backward`` of them out of order), as
-        the decoder would have counted them."""
-        assert bus is not None
-        counters = self.decoder.per_bus[bus]
-        counters.frames += frames
-        counters.skipped += frames
-        stats = self.stats
-        stats.frames += frames
-        stats.backward_frames += backward
-
-    def _decoded(self, bus: str, frame: Frame) -> bool:
-        """A frame through its message's row step; True on an edge.
-
-        A data frame of a configured message takes :meth:`MessagePlan.take_payload
-        <canguard.engine.blocks.MessagePlan.take_payload>`: a block of one through its message's kernel,
-        counted by its plan (a row that is not valid as its samples with their reasons). Any other (error
-        and remote frames, unconfigured ids, a message with an alive counter or health roles, a sample hook)
-        goes to the frame decoder (:meth:`Decoder.decode`: every reason counted) and its samples to the
-        plan's row step.
-        """
-        engine = self.engine
-        plan = None if frame.is_error_frame or frame.is_remote_frame else self._plan_of(bus, frame)
-        if plan is not None and engine.sample_hook is None:
-            edge = plan.take_payload(frame.data, frame.t)
-            if edge is not None:
-                self._touched.add(plan)
-                return edge
         self.stats.frames += 1
         if frame.is_error_frame:
             engine.controller_state(bus, frame)
@@ -230,185 +149,225 @@ class LogRun:
         self._touched.add(plan)
         return plan.take_samples(samples)
 
-    def _plan_of(self, bus: str, frame: Frame) -> MessagePlan | None:
-        """The plan of a frame's message on ``bus`` (its bus's plans made at its first frame); None: not configured."""
-        key = (bus, frame.arbitration_id, frame.is_extended_id)
-        plan = self._by_key.get(key)
-        if plan is None and key in self._wanted and bus not in self._plans:
-            self._plans[bus] = self._compile_plans(bus)
-            plan = self._by_key.get(key)
-        return plan
-
-    def _run_columns(self, block: Block, cursor: LogCursor) -> bool:
-        """:meth:`run` over a block as columns; False (nothing done) when it must go frame by frame.
+    def _run_columns(self, block: Block, cursor: LogCursor) -> None:
+        """:meth:`run` over a block whose rows are in order, as columns.
 
         A block may mix channels: each row then goes to its channel's bus, with the plans of that
-        bus (one key per channel and id when the buses differ).
+        bus (one key per channel and id when the buses differ). The first row of a stream starts a replay's
+        engine; rows before the latest time of the stream are counted as out of order.
         """
+        if not block.n:
+            return
         engine = self.engine
         export = engine.sample_block
-        if not block.ordered or (engine.sample_hook is not None and export is None):
-            return False
-        ts: Any = block.time_s  # a list is made only for rows that go one by one
-        if float(ts[0]) < cursor.last_t:
-            return False  # back in time across blocks: the frame-by-frame rules count it
+        if export is None and engine.sample_hook is not None:  # a plot's recorder: every sample, in row order
+            export = _SampleCalls(engine.sample_hook)
+        routed = self._route(block, None if block.only_channel is not None else block.channel, cursor)
+        if routed is None:
+            return
+        block, buses = routed
         per_channel = None if block.only_channel is not None else block.channel  # each row's channel, or None
-        buses = self._route(block, per_channel, cursor)
-        if type(buses) is bool:
-            return buses
-        assert isinstance(buses, list)
-        first = 0
+        ts: Any = block.time_s  # a list is made only when rows are taken
+        t0 = float(ts[0])
         if not cursor.started:
-            self._run_frames((block.frame(0),), cursor)  # the first frame is fed: it starts the engine's clock
-            first = 1
+            cursor.started = True
+            # The stream's first frame: a replay's engine starts at it (the ticks due then run first), the clock
+            # moves to it; then its row is taken as any other.
+            engine.frame_time(t0)
+            engine.advance(t0)
+            engine.drive_clock(t0)
         plans, rows, keys, lanes = self._configured(block, buses, per_channel)
         special = block.special
         if special.size:  # counted by the decoder as remote or error frames, configured or not: fed
             import numpy as np
 
             rows = np.union1d(rows, special)
-        if first and len(rows) and rows[0] == 0:
-            rows = rows[1:]
-        tally = _lane_tally(block, per_channel, rows, first)
-        last_row = int(rows[-1]) if len(rows) else -1  # the last row frame by frame would see, whatever path takes it
+        if t0 < cursor.last_t:
+            self._count_backward(ts, rows, cursor.last_t)
+        last_row = int(rows[-1]) if len(rows) else -1  # the last row fed or taken by a plan
         taken: list[tuple[MessagePlan, Any, Sequence[Any]]] | None = [] if export is not None else None
         runs, alone = decode_rows(plans, rows, block, ts, keys, taken, self._touched) if len(rows) else ([], [])
         if len(rows):
             ts = block.times  # read row by row below: as floats
-        walk = _Walk(block, ts, runs, alone, buses[0] if lanes is None else "", buses, lanes)
-        if taken is None:
-            pos = self._walk(walk, first, None)
-        else:  # --export-signals: the samples of fed rows kept with their row, for the block's export
+        bus = buses[0] if lanes is None else ""
+        if not len(rows):
+            pos = 0  # nothing to take: the rows only bring the ticks due among them
+        elif taken is None:
+            pos = self._walk(block, ts, runs, alone, bus, buses, lanes)
+        else:  # --export-signals, a plot: the samples of fed rows kept with their row, for the block's export
             assert export is not None
             fed: list[tuple[int, Any]] = []
-            pos = self._walk(walk, first, fed)
+            hook, engine.sample_hook = engine.sample_hook, lambda sample: fed.append((self._row, sample))
+            try:
+                pos = self._walk(block, ts, runs, alone, bus, buses, lanes)
+            finally:
+                engine.sample_hook = hook  # the export's own hook back, whatever the block raised
             export(ts, [(plan.names, group, decoded) for plan, group, decoded in taken], fed)
-        self._cross(ts, pos, block.n)
-        self._count_lanes(cursor, block, per_channel, buses, tally, first)
-        cursor.last_t = float(ts[-1])
+        if pos < block.n:
+            self._cross(ts, pos, block.n)
+        self._count_lanes(cursor, block, per_channel, buses, rows)
+        t_end = float(ts[-1])
+        if t_end > cursor.last_t:
+            cursor.last_t = t_end
         if last_row >= 0:
-            engine.frame_time(float(ts[last_row]))  # as frame by frame: the last row fed (not ts[-1])
-        return True
+            engine.frame_time(float(ts[last_row]))  # the last row fed or taken (not ts[-1])
 
-    def _route(self, block: Block, lanes: Any, cursor: LogCursor) -> list[str] | bool:
-        """The bus of each of a block's channels (``lanes``: each row's channel, None when all rows are on
-        one), or of its one channel; True: the block's one channel maps to no bus (its rows counted as
-        unmapped: done); False: it must go frame by frame."""
-        if lanes is not None:
-            buses: list[str] = []
-            for name in block.channels:
-                found = cursor.route.get(name, cursor.default_bus)
-                if found is None or found not in self.decoder.per_bus:
-                    return False  # a channel of no bus: its rows do not move time; frame by frame
-                buses.append(found)
-            return buses
-        channel = block.channels[int(block.channel[0])]
-        routed = cursor.route.get(channel, cursor.default_bus)
-        if routed is None:
-            n = block.n
-            if cursor.channels is not None:
-                cursor.channels[channel] = cursor.channels.get(channel, 0) + n
-            cursor.unmapped[channel] = cursor.unmapped.get(channel, 0) + n
-            return True
-        return [routed] if routed in self.decoder.per_bus else False
+    def _route(self, block: Block, lanes: Any, cursor: LogCursor) -> tuple[Block, list[str]] | None:
+        """(The block's rows on a channel that maps to a bus, the bus of each of its channels) (``lanes``: each
+        row's channel, None when all rows are on one); rows of a channel of no bus are counted as unmapped (None:
+        no row left)."""
+        route, default_bus, per_bus = cursor.route, cursor.default_bus, self.decoder.per_bus
+        if lanes is None:
+            channel = block.channels[block.only_channel]  # type: ignore[index]
+            routed = route.get(channel, default_bus) if route else default_bus
+            if routed is None:
+                _count(cursor.unmapped, channel, block.n)
+                if cursor.channels is not None:
+                    _count(cursor.channels, channel, block.n)
+                return None
+            if routed not in per_bus:  # a bus the config does not name: its frames counted, none configured
+                per_bus[routed] = DecodeCounters()
+            return block, [routed]
+        found = [route.get(name, default_bus) for name in block.channels]
+        for routed in found:
+            if routed is not None and routed not in per_bus:
+                per_bus[routed] = DecodeCounters()
+        if None not in found:
+            return block, found  # type: ignore[return-value]
+        import numpy as np
+
+        counts = np.bincount(lanes, minlength=len(found)).tolist()
+        for name, routed, n in zip(block.channels, found, counts, strict=True):
+            if routed is None and n:
+                _count(cursor.unmapped, name, n)
+                if cursor.channels is not None:
+                    _count(cursor.channels, name, n)
+        mapped = np.array([routed is not None for routed in found])[lanes]
+        if not mapped.any():
+            return None
+        if not mapped.all():
+            block = block.select(mapped)
+            return self._route(block, None if block.only_channel is not None else block.channel, cursor)
+        somewhere = next(routed for routed in found if routed is not None)
+        return block, [somewhere if routed is None else routed for routed in found]  # a channel of no row: any bus
+
+    def _count_backward(self, ts: Sequence[Any], rows: Any, latest: float) -> None:
+        """Rows of an ordered block that start before ``latest``, the latest time of its stream: out of order.
+        A row fed or taken by a plan (``rows``) counts when it is before the latest frame time the engine
+        took; any other when it is before ``latest``."""
+        before = bisect_left(ts, latest, key=float)
+        behind = bisect_left(ts, self.engine.last_frame_t, key=float)
+        picked = list(rows)
+        self.stats.backward_frames += before - bisect_left(picked, before) + bisect_left(picked, behind)
 
     def _configured(self, block: Block, buses: list[str], lanes: Any) -> tuple[Any, Any, Any, Any]:
         """(plans, the block's rows of configured messages, the keys its plans are looked up by, each row's
         channel (an index into ``buses``) when its channels go to several buses, else None)."""
-        for b in set(buses):
-            if b not in self._plans:
-                self._plans[b] = self._compile_plans(b)
         keys = block.keys
-        if len(set(buses)) == 1:  # one bus
-            bus = buses[0]
-            plans = self._plans[bus]
-            table = self._plan_tables.get(bus)
-            if table is None:
-                table = self._plan_tables[bus] = key_table(plans)
-            return plans, configured_rows(keys, table), keys, None
+        bus = buses[0]
+        if len(buses) == 1 or buses.count(bus) == len(buses):  # one bus
+            known = self._plan_tables.get(bus)
+            if known is None:
+                plans = self._plans_of(bus)
+                known = self._plan_tables[bus] = (plans, key_table(plans))
+            return known[0], configured_rows(keys, known[1]), keys, None
         assert lanes is not None  # channels of several buses: a key per (channel, id)
         lane = self._lane_plans.get(tuple(buses))
         if lane is None:
-            joined = lane_plans([self._plans[b] for b in buses])
+            joined = lane_plans([self._plans_of(b) for b in buses])
             lane = self._lane_plans[tuple(buses)] = (joined, key_table(joined))
         keys = keys + lanes.astype(keys.dtype) * LANE
         return lane[0], configured_rows(keys, lane[1]), keys, lanes
 
-    def _walk(self, walk: _Walk, first: int, fed: list[tuple[int, Any]] | None) -> int:
+    def _walk(self, block: Block, ts: Sequence[Any], runs_in: list[Run], alone: list[tuple[int, MessagePlan | None]],
+              bus: str, buses: list[str], lanes: Any) -> int:
         """A block's configured rows in time order: the ticks due among them, each stretch of rows whole and valid
         up to the next due time taken as runs (:func:`~canguard.engine.blocks.take_runs`: to the first edge, where
-        the tree ticks), the rows for the frame decoder one by one (``fed``: the samples of fed rows, with their
-        row, for ``--export-signals``); the row after the last row walked."""
-        from canguard.engine.blocks import take_runs
-
-        engine = self.engine
-        if fed is not None:
-            at = [0]
-            hook, engine.sample_hook = engine.sample_hook, lambda sample: fed.append((at[0], sample))
-        decoded, frame, ts = self._decoded, walk.block.frame, walk.ts
-        bus, buses, lanes = walk.bus, walk.buses, walk.lanes
-        runs = [[0, *run] for run in walk.runs]  # each message's run and where it goes on: [next, plan, rows...]
-        alone, next_alone = walk.alone, 0
-        end_rows = walk.block.n
-        pos = first
-        try:
-            while True:
-                i = _first_row(runs, alone[next_alone][0] if next_alone < len(alone) else end_rows)
-                if i == end_rows:
-                    break
-                t = float(ts[i])
-                if t >= engine.due:
+        the tree ticks), the rows for the frame decoder one by one (:attr:`_row`: the row it takes); the row after
+        the last row walked. ``runs_in``: each configured message's
+        rows whole and valid (:func:`.blockrows.decode_rows`); ``alone``: the rows the frame decoder takes, in order,
+        with their plan; ``bus``: the bus of every row, or "" when ``lanes`` (each row's channel, an index into
+        ``buses``, the bus of each of the block's channels) sends them to several."""
+        engine = self.engine  # ts: a list of floats (the block's rows taken one by one)
+        pos, done = self._at_once(ts, runs_in, alone)
+        if done:
+            return pos
+        runs = []  # each message's run and where it goes on: [next, plan, rows (a list: bisected), times, columns]
+        for plan, rows, times, columns in runs_in:
+            runs.append([0, plan, rows if type(rows) is list else rows.tolist(), times, columns])
+        if pos:
+            _drop(runs, pos - 1)
+        next_alone, alones = 0, len(alone)
+        end_rows = block.n
+        end_t = ts[-1]
+        while True:
+            at_alone = alone[next_alone][0] if next_alone < alones else end_rows
+            i = _first_row(runs, at_alone)
+            if i == end_rows:
+                break
+            t = ts[i]
+            if t >= engine.due:
+                if pos < i:
                     self._cross(ts, pos, i)  # a tick falls due among the rows before this one, or at it
-                    if t >= engine.due:
-                        engine.advance(t)
-                if next_alone < len(alone) and alone[next_alone][0] == i:  # for the frame decoder (its reason...)
-                    pos = i + 1
-                    next_alone += 1
-                    if fed is not None:
-                        at[0] = i
-                    engine.drive_clock(t)
-                    if decoded(bus if lanes is None else buses[lanes[i]], frame(i)):
-                        engine.edge_tick(t)
-                    continue
-                # the stretch before the engine must act (the next due time, or the end of its quiet ticks)
-                stop = bisect_left(ts, engine.runs_until(), i, end_rows, key=float)
-                if next_alone < len(alone) and alone[next_alone][0] < stop:
-                    stop = alone[next_alone][0]
-                last, edge = take_runs(_stretch(runs, stop))
-                _drop(runs, last)
-                t_last = float(ts[last])
+                if t >= engine.due:
+                    engine.advance(t)
+            if i == at_alone:  # for the frame decoder (its reason...)
+                pos = i + 1
+                self._row = i
+                engine.drive_clock(t)
+                if self._decoded(bus if lanes is None else buses[lanes[i]], block.frame(i), alone[next_alone][1]):
+                    engine.edge_tick(t)
+                next_alone += 1
+                continue
+            # the stretch before the engine must act (the next due time, or the end of its quiet ticks)
+            until = engine.runs_until(end_t, lambda: _coming(runs))
+            stop = end_rows if end_t < until else bisect_left(ts, until, i, end_rows)
+            if at_alone < stop:
+                stop = at_alone
+            last, edge = blocks.take_runs(_stretch(runs, stop))
+            _drop(runs, last)
+            t_last = ts[last]
+            if i < last:
                 self._cross(ts, i, last)  # the quiet ticks the stretch spanned, each at its own time
-                if t_last >= engine.due:
-                    engine.advance(t_last)
-                pos = last + 1
-                if edge:
-                    engine.edge_tick(t_last)
-        finally:
-            if fed is not None:
-                engine.sample_hook = hook  # the export's own hook back, whatever the block raised
+            if t_last >= engine.due:
+                engine.advance(t_last)
+            pos = last + 1
+            if edge:
+                engine.edge_tick(t_last)
         return pos
 
-    def _count_lanes(self, cursor: LogCursor, block: Block, lanes: Any, buses: list[str],
-                     tally: list[tuple[int, int]], first: int) -> None:
+    def _at_once(self, ts: Sequence[float], runs: list[Run], alone: list[tuple[int, MessagePlan | None]]
+                 ) -> tuple[int, bool]:
+        """A block whose rows come before the next due time, none for the frame decoder: its runs taken as one
+        stretch, up to the first edge (the tree ticks there). (The row after the last taken, True when every
+        row was taken); (0, False) for any other block."""
+        engine = self.engine
+        if alone or not ts[-1] < engine.due:
+            return 0, False
+        last, edge = blocks.take_runs(runs)
+        if edge:
+            engine.edge_tick(ts[last])
+        return last + 1, not edge
+
+    def _count_lanes(self, cursor: LogCursor, block: Block, lanes: Any, buses: list[str], rows: Any) -> None:
         """Count a block's rows per channel (``cursor.channels``) and its skipped rows (neither fed nor taken
-        by a plan) per bus, as frame by frame counts them."""
+        by a plan: not in ``rows``) per bus, as the decoder counts them."""
         channels = cursor.channels
-        for lane, (count, taken) in enumerate(tally):
+        for lane, (count, taken) in enumerate(_lane_tally(block, lanes, rows)):
             if channels is not None:
-                name = block.channels[int(block.channel[0])] if lanes is None else block.channels[lane]
-                own_first = first if lanes is None or lane == int(lanes[0]) else 0  # counted by _run_frames
-                channels[name] = channels.get(name, 0) + count - own_first
+                _count(channels, block.channels[block.only_channel if lanes is None else lane], count)  # type: ignore[index]
             skipped = count - taken
-            counters = self.decoder.per_bus[buses[lane]]
-            counters.frames += skipped
-            counters.skipped += skipped
-            self.stats.frames += skipped
+            if skipped:
+                counters = self.decoder.per_bus[buses[lane]]
+                counters.frames += skipped
+                counters.skipped += skipped
+                self.stats.frames += skipped
 
     def _cross(self, ts: Sequence[Any], lo: int, hi: int) -> None:
         """Rows ``lo..hi-1`` (ordered, of no configured message): the first at or after the due time brings the ticks.
 
-        What :meth:`Engine.arrive` does for such a frame, without decoding it; repeated while
-        another due time falls among the rows left.
+        The row that brings them runs the ticks and gate deadlines due up to its time, moves the clock
+        and the latest frame time to it; repeated while another due time falls among the rows left.
         """
         engine = self.engine
         while lo < hi and float(ts[hi - 1]) >= engine.due:
@@ -424,24 +383,25 @@ class LogRun:
                 engine.advance(float(ts[k]))
             t = float(ts[k])
             engine.drive_clock(t)
-            engine.frame_time(t)  # as arrive: not before it (ordered, from cursor.last_t on)
+            engine.frame_time(t)
             lo = k + 1
 
-    def _compile_plans(self, bus: str) -> dict[int, MessagePlan | None]:
+    def _plans_of(self, bus: str) -> dict[int, MessagePlan | None]:
         """Every message configured on ``bus`` by its id key (:attr:`Block.keys <canguard.io.block.Block.keys>`),
-        with its plan, or None."""
-        from canguard.engine.blocks import compile_plan
-
+        with its plan, or None (made at the bus's first block)."""
+        made = self._plans.get(bus)
+        if made is not None:
+            return made
         counters = self.decoder.per_bus[bus]
         plans: dict[int, MessagePlan | None] = {}
         for (b, cid, ext), entry in self.decoder.entries():
             if b != bus:
                 continue
-            plan = compile_plan(entry, counters, self.ctx, self.stats)
-            if plan is not None:
-                self._by_key[b, cid, ext] = plan
+            plan = blocks.compile_plan(entry, counters, self.ctx, self.stats)
             plans[cid + EXT_KEY if ext else cid] = plan
+        self._plans[bus] = plans
         return plans
+
 
 def _first_row(runs: list[list[Any]], first: int) -> int:
     """The first row not taken yet of any message's run (``[next, plan, rows, times, columns]``), or ``first``
@@ -452,14 +412,32 @@ def _first_row(runs: list[list[Any]], first: int) -> int:
     return first
 
 
-def _stretch(runs: list[list[Any]], stop: int) -> list[tuple[Any, list[int], list[float], list[Any]]]:
-    """Each message's rows not taken yet before row ``stop``, as (plan, rows, times, columns)."""
+def _coming(runs: list[list[Any]]) -> dict[tuple[int, str], Any]:
+    """The times of each source signal's rows not taken yet, by (``id`` of its health, role)."""
+    out: dict[tuple[int, str], Any] = {}
+    for at, plan, rows, times, _columns in runs:
+        if at < len(rows):
+            left = times[at:]
+            for health, roles, _js in plan.healths:
+                for role in roles:
+                    out[id(health), role] = left
+    return out
+
+
+def _stretch(runs: list[list[Any]], stop: int) -> list[tuple[Any, list[int], Any, list[Any]]]:
+    """Each message's rows not taken yet before row ``stop``, as (plan, rows, times, columns): a short stretch's
+    times and columns as lists (the models' and healths' runs of a few samples go sample by sample, faster over
+    Python floats than numpy's calls), a long one's as they are (numpy columns: screened with numpy)."""
     out = []
     for at, plan, rows, times, columns in runs:
         if at < len(rows) and rows[at] < stop:
             k = bisect_left(rows, stop, at)
-            out.append((plan, rows, times, columns) if at == 0 and k == len(rows)
-                       else (plan, rows[at:k], times[at:k], [c[at:k] for c in columns]))
+            if k - at <= SHORT_RUN and type(times) is not list:
+                out.append((plan, rows[at:k], times[at:k].tolist(), [c[at:k].tolist() for c in columns]))
+            elif at == 0 and k == len(rows):
+                out.append((plan, rows, times, columns))
+            else:
+                out.append((plan, rows[at:k], times[at:k], [c[at:k] for c in columns]))
     return out
 
 
@@ -471,37 +449,49 @@ def _drop(runs: list[list[Any]], last: int) -> None:
             run[0] = bisect_right(rows, last, at)
 
 
-def _lane_tally(block: Block, lanes: Any, rows: Any, first: int) -> list[tuple[int, int]]:
-    """Per channel of a block (one when ``lanes`` is None): its rows, and those fed or taken by a plan
-    (``rows``, and the first row when it went frame by frame)."""
+def _lane_tally(block: Block, lanes: Any, rows: Any) -> list[tuple[int, int]]:
+    """Per channel of a block (one when ``lanes`` is None): its rows, and those fed or taken by a plan (``rows``)."""
     if lanes is None:
-        return [(block.n, len(rows) + first)]
+        return [(block.n, len(rows))]
     import numpy as np
 
     size = len(block.channels)
     per_lane = np.bincount(lanes, minlength=size).tolist()
     taken = np.bincount(lanes[rows], minlength=size).tolist() if len(rows) else [0] * size
-    if first:
-        taken[int(lanes[0])] += 1
     return list(zip(per_lane, taken, strict=True))
 
 
-@dataclass
-class _Walk:
-    """A block's rows as :meth:`LogRun._walk` takes them."""
+def _count(counts: dict[str, int], name: str, n: int) -> None:
+    """Add ``n`` to ``counts[name]``."""
+    counts[name] = counts.get(name, 0) + n
 
-    block: Block
-    ts: Any
-    runs: Any
-    """Each configured message's rows whole and valid: (plan, rows, times, columns) (:func:`.blockrows.decode_rows`)."""
-    alone: Any
-    """The rows the frame decoder takes, in order: (row, plan or None)."""
-    bus: str
-    """The bus of every row, or "" when they go to several (``lanes``)."""
-    buses: list[str]
-    """The bus of each of the block's channels."""
-    lanes: Any
-    """Each row's channel, an index into :attr:`buses`, when the block's channels go to several buses; else None."""
+
+class _SampleCalls:
+    """A sample hook (:attr:`Engine.sample_hook`: a plot's recorder) called as a block export
+    (:attr:`Engine.sample_block`): with each sample of a block's rows in row order, as frame by frame."""
+
+    def __init__(self, hook: Callable[[Sample], None]) -> None:
+        self.hook = hook
+
+    def __call__(self, times: Sequence[Any], taken: list[tuple[list[tuple[str, str]], Any, Sequence[Any]]],
+                 fed: list[tuple[int, Sample]]) -> None:
+        from canguard.decode.rows import valued_table
+
+        fed_rows = {row for row, _sample in fed}
+        out: list[tuple[int, int, Sample]] = []
+        for names, group, decoded in taken:
+            keep, table = valued_table(decoded, len(names))
+            rows = group if type(group) is list else group.tolist()
+            for row, kept, values in zip(rows, keep.tolist(), table.tolist(), strict=True):
+                if kept and row not in fed_rows:
+                    t = float(times[row])
+                    out.extend((row, 0, _new(Sample, (source, role, v, t, "")))
+                               for (source, role), v in zip(names, values, strict=True))
+        out.extend((row, 1, sample) for row, sample in fed)
+        out.sort(key=itemgetter(0, 1))  # stable: each row's samples in output order, the fed ones as they came
+        hook = self.hook
+        for _row, _k, sample in out:
+            hook(sample)
 
 
 @dataclass

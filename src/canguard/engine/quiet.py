@@ -28,12 +28,19 @@ exact repetition of the last tick that ran, and the proof is made of three parts
    due: each source's freshness deadline (its roles' latest sample + ``max_age``), the
    start windows (``no_data`` grace, the start grace), and the "guards left behind"
    deadline of a guard the fixed-point tick did not reach all lie after the tick (by
-   a microsecond's margin against rounding).
+   a microsecond's margin against rounding). The freshness deadlines are those of the
+   signals fresh at the fixed point, with their latest samples: when the skipped ticks
+   reach the first of them, the samples taken since have moved it on (drawn again,
+   not a tick run); a block's rows still to come move it on as far as they keep every
+   such signal fresh (:meth:`QuietTicks.reach`), so its rows run on to there.
 
 A skipped tick still does what a tick does outside the tree: it is counted, it marks
-the guards it would have ticked as ticked (``judged_t``), it samples the I²t levels
-(their peak is taken at ticks), and it services the gate's periodic frames at its
-own time. It is one policy: the live daemon and a replay count the same ticks.
+the guards it would have ticked as ticked (``judged_t``), an I²t guard writes its wired
+``level`` again, and it services the gate's periodic frames at its own time. It is one
+policy: the live daemon and a replay count the same ticks. Between two ticks that write
+nothing the rows of a block run on across the skipped ticks
+(:meth:`Engine.runs_until <canguard.engine.core.Engine.runs_until>`): the models' state is
+read at no tick (the I²t peaks are the models' own, over every sample).
 """
 
 from __future__ import annotations
@@ -86,6 +93,17 @@ class QuietTicks:
         self._gate: tuple[Any, ...] = ()
         self.ticked: list[Any] = []
         """The guards the fixed-point tick ticked: a skipped tick marks them ticked."""
+        self._fresh: list[tuple[Any, str]] | None = None
+        """(health, role) of each source signal fresh at the fixed point (None: no fixed point)."""
+        self._timers = math.inf
+        """When a start window ends or a guard the fixed point left behind reads as such (:meth:`_timer_horizon`)."""
+        self._writers = frozenset(g for g in watch.guard_nodes
+                                  if any(map(g.is_wired, getattr(type(g), "QUIET_OUTPUTS", ()))))
+        """The guards whose quiet re-tick writes an output (an I²t guard's wired ``level``)."""
+        self.writes = False
+        """A skipped tick writes the blackboard (a guard of :attr:`ticked` writes its model's level): the
+        samples between two ticks must be taken before each (:meth:`Engine.runs_until
+        <canguard.engine.core.Engine.runs_until>`)."""
 
     def tick_root(self, loaded: Any) -> py_trees.common.Status:
         """Tick the tree as BT.CPP's ``tickOnce()`` (:func:`canguard.bt.wakeup.tick_once`), noting whether the
@@ -101,6 +119,7 @@ class QuietTicks:
         ``watched``: metrics or a tick hook look at every tick (none may be skipped).
         """
         self.until = -math.inf
+        self._fresh = None
         if self._heard or watched:
             self._state = None
             return
@@ -119,29 +138,59 @@ class QuietTicks:
         failed = self.root.status == py_trees.common.Status.FAILURE
         if gate.state != TaskGate.RUNNING and not (failed or gate.inhibits):
             return  # the release rule may wait on time (min_stop) or on a reset
-        self.until = self._horizon(now)
+        self._fresh = [(health, role) for health in self.ctx.health.values()
+                       for role, t in health.latest_times().items() if not now - t > health.max_age_s]
+        self._timers = self._timer_horizon(now)
+        self.until = self._horizon()
         self._events = self.journal.written
         self._gate = (gate.state, dict(gate.inhibits))
         self.ticked = [g for g in self.watch.guard_nodes if g.judged_t == now]
+        self.writes = not self._writers.isdisjoint(self.ticked)
 
-    def _horizon(self, now: float) -> float:
-        """The earliest time after ``now`` at which time alone may change what a tick sees (part 3).
+    def _horizon(self) -> float:
+        """The earliest time after the fixed point at which time alone may change what a tick sees (part 3).
 
-        Each deadline is taken when it is still ahead by the very test the engine makes
-        (``now - t > max_age`` ...), and then as ``t + max_age``: when rounding puts that
-        sum at or before ``now``, the horizon is in the past and the next tick runs.
+        Each source signal fresh at the fixed point goes stale ``max_age`` after its latest sample
+        (taken when it was still ahead by the very test the engine makes, ``now - t > max_age``: when
+        rounding puts that sum at or before a tick, the horizon is in the past and the tick runs); the
+        timers (:meth:`_timer_horizon`) end when they end. Samples taken since the fixed point move the
+        first deadline on (:meth:`may_skip`); a signal stale at the fixed point changes what a tick
+        sees only with a sample, an edge.
         """
-        return min(self._health_horizon(now), self._timer_horizon(now)) - MARGIN_S
+        horizon = self._timers
+        assert self._fresh is not None
+        for health, role in self._fresh:
+            t = health.latest_t(role)
+            assert t is not None  # fresh at the fixed point: it has a sample
+            if t + health.max_age_s < horizon:
+                horizon = t + health.max_age_s
+        return horizon - MARGIN_S
 
-    def _health_horizon(self, now: float) -> float:
-        """When the first source signal not stale at ``now`` goes stale."""
-        horizon = math.inf
-        for health in self.ctx.health.values():
+    def reach(self, coming: Mapping[tuple[int, str], Any]) -> float:
+        """The horizon (:meth:`_horizon`) with the rows a block still holds: where the skipped ticks may go on to.
+
+        ``coming``: by (``id`` of a source's health, role), the times of its samples still to be taken
+        (in order). A signal fresh at the fixed point stays fresh through them while no two of them
+        (its latest sample first) lie more than ``max_age`` apart; it may go stale ``max_age`` after
+        the last before such a gap, or after the last of them. -inf: no fixed point.
+        """
+        if self._fresh is None:
+            return -math.inf
+        horizon = self._timers
+        gaps: dict[tuple[int, float], int] = {}  # by a times column (a message's rows) and max_age: its first gap
+        for health, role in self._fresh:
+            last = health.latest_t(role)
+            assert last is not None  # fresh at the fixed point: it has a sample
             max_age = health.max_age_s
-            for t in health.latest_times().values():
-                if not now - t > max_age and t + max_age < horizon:  # not stale yet: stale after t + max_age
-                    horizon = t + max_age
-        return horizon
+            times = coming.get((id(health), role))
+            if times is not None and len(times) and not times[0] - last > max_age:
+                k = gaps.get((id(times), max_age))
+                if k is None:
+                    k = gaps[id(times), max_age] = _first_gap(times, max_age)
+                last = float(times[k - 1])
+            if last + max_age < horizon:
+                horizon = last + max_age
+        return horizon - MARGIN_S
 
     def _timer_horizon(self, now: float) -> float:
         """When a start window ends or a guard the tick at ``now`` left behind reads as such."""
@@ -168,7 +217,15 @@ class QuietTicks:
         return self.gate.state == state and self.gate.inhibits == inhibits
 
     def may_skip(self, now: float) -> bool:
-        """The grid tick at ``now`` is proven quiet: count it instead of running it."""
+        """The grid tick at ``now`` is proven quiet: count it instead of running it.
+
+        At the horizon, the samples taken since the fixed point (every one before ``now``: a tick
+        runs when the first row at or after it comes) may have moved it on: it is drawn again.
+        """
+        if not now < self.until:
+            if self._fresh is None:
+                return False
+            self.until = self._horizon()
         return now < self.until and self.unchanged()
 
     def running_unchanged(self) -> bool:
@@ -191,3 +248,13 @@ def _quiet_node(node: Any) -> bool:
         if not {port for port in node.output_ports() if wired(port)} <= quiet_outputs:
             return False
     return True
+
+
+def _first_gap(times: Any, max_age: float) -> int:
+    """The position after which the first step of ``times`` (in order) longer than ``max_age`` comes (their length:
+    none)."""
+    import numpy as np
+
+    times = np.asarray(times)
+    over = np.flatnonzero(times[1:] - times[:-1] > max_age)
+    return int(over[0]) + 1 if over.size else len(times)

@@ -47,5 +47,11 @@ class EngineStats:
     """Samples decoded per source."""
     max_abs: dict[tuple[str, str], float] = field(default_factory=dict)
     """Largest |value| seen per (source, role): for the lowest margin to each threshold."""
-    max_level_pct: dict[str, float] = field(default_factory=dict)
-    """Largest accumulator level (% of trip) per guard node, sampled at ticks."""
+    heat_models: Mapping[str, Any] = field(default_factory=dict, repr=False)
+    """The I²t models by guard node (the engine's context's): :attr:`max_level_pct` reads their peaks."""
+
+    @property
+    def max_level_pct(self) -> dict[str, float]:
+        """Largest accumulator level (% of trip) per I²t guard node: each model's own peak over every sample it
+        took (:attr:`~canguard.protect.i2t.LeakyI2t.peak_level_pct`)."""
+        return {node: model.peak_level_pct for node, model in self.heat_models.items()}

@@ -1,4 +1,4 @@
-"""The engine's watch over its inputs: stale sources, buses down, the start window, levels for metrics."""
+"""The engine's watch over its inputs: stale sources, buses down, the start window, I²t levels for metrics."""
 
 from __future__ import annotations
 
@@ -11,7 +11,6 @@ if TYPE_CHECKING:
     from canguard.bt.context import Context
     from canguard.config.schema import Config
     from canguard.engine.journal import Journal
-    from canguard.engine.stats import EngineStats
     from canguard.io.clock import PinnedClock
 
 
@@ -31,12 +30,11 @@ class SourceWatch:
     again after each call (:meth:`TaskGate.next_deadline`).
     """
 
-    def __init__(self, cfg: Config, ctx: Context, gate: TaskGate, journal: Journal, stats: EngineStats,
-                 metrics: Any, clock: PinnedClock, guard_nodes: list[Any], period_s: float) -> None:
+    def __init__(self, cfg: Config, ctx: Context, gate: TaskGate, journal: Journal, metrics: Any,
+                 clock: PinnedClock, guard_nodes: list[Any], period_s: float) -> None:
         self.ctx = ctx
         self.gate = gate
         self.journal = journal
-        self.stats = stats
         self.metrics = metrics
         self.clock = clock
         self.guard_nodes = guard_nodes
@@ -114,15 +112,11 @@ class SourceWatch:
         elif "guards" in gate.inhibits and all(g.judged_t == now for g in self.cover):
             gate.release("guards")
 
-    def sample_levels(self) -> None:
-        """The I²t levels at a tick: their peaks (summaries) and metrics."""
-        levels = self.stats.max_level_pct
+    def levels(self) -> None:
+        """The I²t levels at a tick, to metrics (the summaries' peaks are the models' own, over every sample)."""
+        metrics = self.metrics
         for node, model in self.ctx.heat_models.items():
-            pct = model.snapshot().level_pct
-            if pct > levels.get(node, -1.0):
-                levels[node] = pct
-            if self.metrics is not None:
-                self.metrics.set_i2t_level(node, pct)
+            metrics.set_i2t_level(node, model.snapshot().level_pct)
 
     def bus_down(self, bus: str, reason: str) -> None:
         """A bus went away: the task stops (frames out on the buses still up) until :meth:`bus_up`."""

@@ -30,9 +30,9 @@ import numpy as np
 
 from canguard.errors import LogFormatError, clip
 from canguard.io.bagopts import BagOptions
-from canguard.io.mcapscan import PAD, McapCut, McapScan
+from canguard.io.mcapscan import McapCut, McapScan, padded
 from canguard.io.ros1scan import Ros1Scan
-from canguard.io.rosmsgs import DEFINITIONS, Layout, layout_for, looks_like_can, ros2_name
+from canguard.io.rosmsgs import DEFINITIONS, Layout, layout_for, looks_like_can
 
 BLOCK = 4096
 """Raw messages taken at a time from a sqlite3 storage (an MCAP or ROS 1 block is one chunk)."""
@@ -63,25 +63,9 @@ def joined(raws: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Raw messages one after another in one zero-padded buffer: (the buffer, each one's start, each one's length)."""
     n = len(raws)
     lens = np.fromiter(map(len, raws), np.int64, n)
-    data = b"".join(raws)
-    buf = np.zeros(len(data) + PAD, dtype=np.uint8)
-    buf[:len(data)] = np.frombuffer(data, dtype=np.uint8)
     start = np.zeros(n, dtype=np.int64)
     np.cumsum(lens[:-1], out=start[1:])
-    return buf, start, lens
-
-
-def _decompress(compression: str, data: bytes, size: int) -> bytes:
-    """An MCAP chunk's records (zstd or lz4: rosbags' own dependencies)."""
-    if compression == "zstd":
-        import zstandard
-
-        return bytes(zstandard.ZstdDecompressor().decompress(data, max_output_size=size))
-    if compression == "lz4":
-        import lz4.frame
-
-        return bytes(lz4.frame.decompress(data))
-    raise ValueError(f"unknown chunk compression {compression!r}")
+    return padded(b"".join(raws)), start, lens
 
 
 class BagSource:
@@ -111,7 +95,7 @@ class BagSource:
         """Open the bag and choose its topics (LogFormatError: it cannot be read, or has none to read)."""
         try:
             if self.kind in ("MCAP", "ROS 1 bag"):
-                scan: Any = McapScan(self.path, _decompress) if self.kind == "MCAP" else Ros1Scan(self.path)
+                scan: Any = McapScan(self.path) if self.kind == "MCAP" else Ros1Scan(self.path)
                 self.scans = [scan]
                 if scan.whole:
                     self.choose([(c.topic, c.schema_name, self._definition(c)) for c in scan.channels.values()])
@@ -132,12 +116,11 @@ class BagSource:
         conns = self.reader.connections
         self.choose([(c.topic, c.msgtype, c.msgdef.data) for c in conns])
         self.total = sum(int(c.msgcount or 0) for c in conns if c.topic in self.channels)
-        storages = getattr(self.reader.storage, "storages", None) if self.kind == "rosbag2" else None
-        files = [Path(s.path) for s in storages or ()]
+        files = [Path(s.path) for s in getattr(self.reader.storage, "storages", None) or ()]
         if files and all(f.suffix == ".mcap" for f in files):
             # read again by canguard's chunk reader, file by file (the reader stays open: a directory compressed
             # file by file has its storages decompressed into a temporary directory while it is)
-            self.scans = [McapScan(f, _decompress) for f in files]
+            self.scans = [McapScan(f) for f in files]
 
     @staticmethod
     def _definition(channel: Any) -> str:
@@ -151,25 +134,23 @@ class BagSource:
         for topic, msgtype, _definition in connections:
             types.setdefault(topic, msgtype)
         self._seen.update(types)
-        wanted = self.opts.topics
-        if wanted:
-            missing = [t for t in wanted if t not in types]
-            if missing:
-                raise LogFormatError(f"{self.path}: no topic {', '.join(missing)} in the bag; its topics: "
-                                     f"{self.found()}")
-            chosen = list(dict.fromkeys(wanted))
-        else:
-            chosen = sorted(t for t, typ in types.items() if ros2_name(typ) in DEFINITIONS or looks_like_can(typ))
-            if not chosen:
-                raise LogFormatError(f"{self.path}: no topic of a CAN frame type ({', '.join(DEFINITIONS)}) "
-                                     f"in the bag; its topics: {self.found()}")
+        chosen = list(dict.fromkeys(self.opts.topics)) or sorted(t for t, typ in types.items() if looks_like_can(typ))
+        self._check_found(chosen)
         for topic, msgtype, definition in connections:
             if topic in chosen:
                 self.topic(topic, msgtype, definition)  # refused now, not at its first message
 
-    def found(self) -> str:
-        """The topics met, with their types."""
-        return ", ".join(f"{t} ({typ})" for t, typ in sorted(self._seen.items())) or "none"
+    def _check_found(self, chosen: list[str]) -> None:
+        """LogFormatError listing the topics met when a topic asked for is not among them or nothing is chosen."""
+        missing = [t for t in self.opts.topics if t not in self._seen]
+        if missing:
+            why = f"no topic {', '.join(missing)}"
+        elif not chosen:
+            why = f"no topic of a CAN frame type ({', '.join(DEFINITIONS)})"
+        else:
+            return
+        found = ", ".join(f"{t} ({typ})" for t, typ in sorted(self._seen.items())) or "none"
+        raise LogFormatError(f"{self.path}: {why} in the bag; its topics: {found}")
 
     def topic(self, topic: str, msgtype: str, definition: str) -> Topic:
         """The :class:`Topic` of a chosen topic's connection (its channel numbered at its first)."""
@@ -184,7 +165,7 @@ class BagSource:
         self._seen.setdefault(topic, msgtype)
         if self.opts.topics:
             return topic in self.opts.topics
-        return ros2_name(msgtype) in DEFINITIONS or looks_like_can(msgtype)
+        return looks_like_can(msgtype)
 
     def blocks(self) -> Iterator[RawBlock]:
         """The chosen topics' raw messages, a block at a time, in the storage's order."""
@@ -248,13 +229,7 @@ class BagSource:
     def finish(self) -> None:
         """After the last block: the topics asked for that a cut MCAP never showed, or no CAN topic at all."""
         if self.scans and not self.scans[0].whole:
-            missing = [t for t in self.opts.topics if t not in self._seen]
-            if missing:
-                raise LogFormatError(f"{self.path}: no topic {', '.join(missing)} in the bag; its topics: "
-                                     f"{self.found()}")
-            if not self.channels:
-                raise LogFormatError(f"{self.path}: no topic of a CAN frame type ({', '.join(DEFINITIONS)}) "
-                                     f"in the bag; its topics: {self.found()}")
+            self._check_found(self.channels)
 
     def close(self) -> None:
         """Close what is open."""

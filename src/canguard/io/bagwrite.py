@@ -17,7 +17,7 @@ from typing import Any
 from canguard.errors import ConfigError
 from canguard.io.frame import Frame
 from canguard.io.mcapwrite import McapWriter, ns_of
-from canguard.io.rosmsgs import DEFINITIONS, DEPENDENCIES, cdr_frame, frame_type, full_definition
+from canguard.io.rosmsgs import DEFINITIONS, cdr_frame, frame_type, full_definition
 
 TOPICS = {False: "/to_can_bus", True: "/to_can_bus_fd"}
 """Where classic and CAN FD frames go (ros2_socketcan's sender's topics)."""
@@ -78,10 +78,7 @@ def _typestore() -> Any:
     """rosbags' ROS 2 types with the CAN frame types (the rosbag2 writer records their definitions and hashes)."""
     from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
-    store = get_typestore(Stores.ROS2_HUMBLE)
-    for name, text in DEPENDENCIES.items():
-        if name not in store.fielddefs:
-            store.register(get_types_from_msg(text, name))
+    store = get_typestore(Stores.ROS2_HUMBLE)  # it holds the header's types
     for name, definitions in DEFINITIONS.items():
         store.register(get_types_from_msg(definitions[0], name))
     return store

@@ -149,25 +149,24 @@ class Block:
     @classmethod
     def of_frames(cls, frames: Iterable[Frame]) -> Block:
         """The frames as a block (the live drain, a simulator, tests)."""
-        listed = list(frames)
-        if len(listed) == 1:  # a frame on a quiet bus: its columns made at once
+        listed = frames if type(frames) is tuple else tuple(frames)
+        if len(listed) == 1:  # a frame on a quiet bus
             f = listed[0]
-            length = len(f.data)
+            data = f.data
             flags = ((FLAG_FD if f.is_fd else 0) | (FLAG_BRS if f.bitrate_switch else 0)
                      | (FLAG_ESI if f.error_state_indicator else 0) | (FLAG_REMOTE if f.is_remote_frame else 0)
                      | (FLAG_ERROR if f.is_error_frame else 0))
-            if 0 <= f.arbitration_id <= 0xFFFFFFFF and length <= 255 and f.dlc <= 255:
-                return cls(np.array((f.t,), np.float64), np.array((f.arbitration_id,), np.uint32),
-                           np.array((f.is_extended_id,), np.bool_), np.array((flags,), np.uint8),
-                           np.array((length if f.dlc < 0 else f.dlc,), np.uint8), np.array((length,), np.uint8),
-                           np.frombuffer(f.data, np.uint8).reshape(1, length), _LANE_0, (f.channel,))
-        return _Rows.of_frames(listed).block()
+            dlc = f.dlc
+            if 0 <= f.arbitration_id <= 0xFFFFFFFF and len(data) <= 255 and dlc <= 255:
+                return _one(f.t, f.arbitration_id, bool(f.is_extended_id), flags, len(data) if dlc < 0 else dlc,
+                            data, f.channel)
+        return _of_frames(listed)
 
     @classmethod
     def of_messages(cls, msgs: Sequence[can.Message], channel: str | None = None) -> Block:
         """python-can messages as a block, field for field (``channel`` overrides each message's; python-can's
         integer channels are named ``canN``)."""
-        return _Rows.of_messages(msgs, channel).block()
+        return _of_messages(msgs, channel)
 
     # -- what the engine reads ----------------------------------------------------------------
     @_cached
@@ -280,77 +279,106 @@ class Block:
                    np.concatenate(lanes) if lanes else np.zeros(0, np.uint16), tuple(names))
 
 
-class _Rows:
-    """Rows gathered one by one (frames, python-can messages) on their way into a :class:`Block`."""
+_U8_ONE: tuple[np.ndarray, ...] = tuple(np.full(1, v, np.uint8) for v in range(256))
+"""Each uint8 value as a column of one row (shared: a block never writes its arrays)."""
+_ROW_0 = np.zeros(1, dtype=np.intp)
+_IDS: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+"""Each id key seen in a block of one: its ``can_id``, ``extended`` and :attr:`Block.keys` columns (shared)."""
+_MAX_IDS = 4096
+for _shared in (*_U8_ONE, _ROW_0, _LANE_0, _NO_ROWS):
+    _shared.flags.writeable = False
 
-    def __init__(self, n: int) -> None:
-        self.n = n
-        self.times: list[float] = []
-        self.ids: list[int] = []
-        self.ext: list[bool] = []
-        self.flags: list[int] = []
-        self.dlcs: list[int] = []
-        self.datas: list[bytes] = []
-        self.chans: list[str] = []
 
-    @classmethod
-    def of_frames(cls, frames: list[Frame]) -> _Rows:
-        rows = cls(len(frames))
-        for f in frames:
-            length = len(f.data)
-            rows.add(f.t, f.arbitration_id, f.is_extended_id,
-                     (FLAG_FD if f.is_fd else 0) | (FLAG_BRS if f.bitrate_switch else 0)
-                     | (FLAG_ESI if f.error_state_indicator else 0) | (FLAG_REMOTE if f.is_remote_frame else 0)
-                     | (FLAG_ERROR if f.is_error_frame else 0),
-                     length if f.dlc < 0 else f.dlc, f.data, f.channel)
-        return rows
+def _one(t: float, cid: int, ext: bool, flags: int, dlc: int, data: bytes, channel: str) -> Block:
+    """One frame as a block (a live frame on a quiet bus): its columns checked by construction, its id's
+    columns and each small integer's shared, what the engine reads of it (:attr:`Block.keys`, :attr:`Block.times`,
+    :attr:`Block.ordered`...) known at once."""
+    key = cid + EXT_KEY if ext else cid
+    ids = _IDS.get(key)
+    if ids is None:
+        if len(_IDS) >= _MAX_IDS:
+            _IDS.clear()
+        ids = _IDS[key] = (np.array((cid,), np.uint32), np.array((ext,), np.bool_), np.array((key,), np.int64))
+        for column in ids:
+            column.flags.writeable = False
+    return _made(
+        time_s=np.array((t,), np.float64), can_id=ids[0], extended=ids[1], flags=_U8_ONE[flags],
+        dlc=_U8_ONE[dlc], length=_U8_ONE[len(data)], payload=np.frombuffer(data, np.uint8).reshape(1, len(data)),
+        channel=_LANE_0, channels=(channel,), n=1, keys=ids[2], times=[float(t)], ordered=True, only_channel=0,
+        special=_ROW_0 if flags & (FLAG_REMOTE | FLAG_ERROR) else _NO_ROWS,
+    )
 
-    @classmethod
-    def of_messages(cls, msgs: Sequence[can.Message], channel: str | None) -> _Rows:
-        rows = cls(len(msgs))
-        names: dict[Any, str] = {}
-        for m in msgs:
-            data = bytes(m.data) if m.data is not None else b""
-            if channel is None:
-                name = names.get(m.channel)
-                if name is None:
-                    name = names[m.channel] = channel_name(m.channel)
-            else:
-                name = channel
-            rows.add(float(m.timestamp or 0.0), int(m.arbitration_id), bool(m.is_extended_id),
-                     (FLAG_FD if m.is_fd else 0) | (FLAG_BRS if m.bitrate_switch else 0)
-                     | (FLAG_ESI if m.error_state_indicator else 0) | (FLAG_REMOTE if m.is_remote_frame else 0)
-                     | (FLAG_ERROR if m.is_error_frame else 0),
-                     int(m.dlc), data, name)
-        return rows
 
-    def add(self, t: float, cid: int, ext: bool, flags: int, dlc: int, data: bytes, channel: str) -> None:
-        self.times.append(t)
-        self.ids.append(cid)
-        self.ext.append(ext)
-        self.flags.append(flags)
-        self.dlcs.append(dlc)
-        self.datas.append(data)
-        self.chans.append(channel)
+def _made(**columns: Any) -> Block:
+    """A block of the columns a builder here made, each of its type by construction (not checked again), with
+    any of what the engine reads of it known already."""
+    block = _new_object(Block)
+    block.__dict__.update(columns)
+    return block
 
-    def block(self) -> Block:
-        lengths = list(map(len, self.datas))
-        width = max(lengths, default=0)
-        n = len(lengths)
-        if n and min(lengths) == width:
-            payload = np.frombuffer(b"".join(self.datas), dtype=np.uint8).reshape(n, width).copy()
+
+_new_object = object.__new__
+
+
+def _of_frames(frames: Sequence[Frame]) -> Block:
+    """Frames as a block: their fields transposed at once, the flags and data length codes made per column."""
+    if not frames:
+        return _rows([], [], [], [], [], [], [])
+    t, chans, ids, datas, ext, fd, err, remote, brs, esi, dlcs = zip(*frames, strict=True)
+    marks = (fd, brs, esi, remote, err)
+    flags = ([FLAG_FD * a | FLAG_BRS * b | FLAG_ESI * c | FLAG_REMOTE * d | FLAG_ERROR * e
+              for a, b, c, d, e in zip(*marks, strict=True)] if any(map(any, marks)) else [0] * len(frames))
+    lengths = list(map(len, datas))
+    codes = lengths if max(dlcs) < 0 else [n if d < 0 else d for n, d in zip(lengths, dlcs, strict=True)]
+    return _rows(t, ids, ext, flags, codes, datas, chans, lengths)
+
+
+def _of_messages(msgs: Sequence[can.Message], channel: str | None) -> Block:
+    """python-can messages as a block, field for field."""
+    times, ids, ext, flags, dlcs, datas, chans = [], [], [], [], [], [], []
+    names: dict[Any, str] = {}
+    for m in msgs:
+        if channel is None:
+            name = names.get(m.channel)
+            if name is None:
+                name = names[m.channel] = channel_name(m.channel)
         else:
-            payload = np.zeros((n, width), dtype=np.uint8)
-            for i, data in enumerate(self.datas):
-                payload[i, :len(data)] = np.frombuffer(data, dtype=np.uint8)
-        names: dict[str, int] = {}
-        lanes = [names.setdefault(c, len(names)) for c in self.chans]
-        bad = [i for i, cid in enumerate(self.ids) if not 0 <= cid <= 0xFFFFFFFF or not 0 <= self.dlcs[i] <= 255]
-        if bad or width > 255:
-            i = bad[0] if bad else lengths.index(width)
-            raise LogFormatError(f"frame {i}: id {self.ids[i]:#x}, dlc {self.dlcs[i]}, {lengths[i]} data bytes: "
-                                 "not a CAN frame")
-        return Block(np.array(self.times, dtype=np.float64), np.array(self.ids, dtype=np.uint32),
-                     np.array(self.ext, dtype=np.bool_), np.array(self.flags, dtype=np.uint8),
-                     np.array(self.dlcs, dtype=np.uint8), np.array(lengths, dtype=np.uint8), payload,
-                     np.array(lanes, dtype=np.uint16), tuple(names) or ("",))
+            name = channel
+        times.append(float(m.timestamp or 0.0))
+        ids.append(int(m.arbitration_id))
+        ext.append(bool(m.is_extended_id))
+        flags.append((FLAG_FD if m.is_fd else 0) | (FLAG_BRS if m.bitrate_switch else 0)
+                     | (FLAG_ESI if m.error_state_indicator else 0) | (FLAG_REMOTE if m.is_remote_frame else 0)
+                     | (FLAG_ERROR if m.is_error_frame else 0))
+        dlcs.append(int(m.dlc))
+        datas.append(bytes(m.data) if m.data is not None else b"")
+        chans.append(name)
+    return _rows(times, ids, ext, flags, dlcs, datas, chans)
+
+
+def _rows(times: Sequence[float], ids: Sequence[int], ext: Sequence[bool], flags: Sequence[int],
+          dlcs: Sequence[int], datas: Sequence[bytes], chans: Sequence[str],
+          lengths: list[int] | None = None) -> Block:
+    """Rows gathered one by one (frames, python-can messages) as a block; a row that is no CAN frame (an id
+    beyond 32 bits, a DLC or payload beyond 255) is a LogFormatError."""
+    if lengths is None:
+        lengths = list(map(len, datas))
+    width = max(lengths, default=0)
+    n = len(lengths)
+    if n and min(lengths) == width:
+        payload = np.frombuffer(b"".join(datas), dtype=np.uint8).reshape(n, width)
+    else:
+        payload = np.zeros((n, width), dtype=np.uint8)
+        for i, data in enumerate(datas):
+            payload[i, :len(data)] = np.frombuffer(data, dtype=np.uint8)
+    names: dict[str, int] = {}
+    lanes = [names.setdefault(c, len(names)) for c in chans]
+    bad = [i for i, cid in enumerate(ids) if not 0 <= cid <= 0xFFFFFFFF or not 0 <= dlcs[i] <= 255]
+    if bad or width > 255:
+        i = bad[0] if bad else lengths.index(width)
+        raise LogFormatError(f"frame {i}: id {ids[i]:#x}, dlc {dlcs[i]}, {lengths[i]} data bytes: "
+                             "not a CAN frame")
+    return _made(time_s=np.array(times, dtype=np.float64), can_id=np.array(ids, dtype=np.uint32),
+                 extended=np.array(ext, dtype=np.bool_), flags=np.array(flags, dtype=np.uint8),
+                 dlc=np.array(dlcs, dtype=np.uint8), length=np.array(lengths, dtype=np.uint8),
+                 payload=payload, channel=np.array(lanes, dtype=np.uint16), channels=tuple(names) or ("",), n=n)

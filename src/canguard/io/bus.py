@@ -40,7 +40,7 @@ import socket
 import stat
 import threading
 import time
-from collections.abc import Callable, Iterable, Iterator, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from time import monotonic
 
 import can
@@ -124,11 +124,6 @@ WALL_STAMP_S = 1.0
 """A bus one of whose frames has a stamp this close to the wall clock stamps with it: from that frame on,
 its stamps are taken as arrival times. Until then (a bus that stamps otherwise, or a daemon starved for
 longer than this when its first frames came) its frames arrive when canguard receives them."""
-
-
-def to_frames(msgs: list[can.Message], bus_name: str) -> list[Frame]:
-    """The :class:`Frame` s of python-can messages received on a bus; their ``channel`` is the bus name."""
-    return frames_from_messages(msgs, bus_name)
 
 
 class BusReader:
@@ -224,11 +219,6 @@ class BusReader:
     def __exit__(self, *exc: object) -> None:
         self.stop()
 
-    @property
-    def running(self) -> bool:
-        """True while receiving (threads running, or started to receive directly)."""
-        return self._started and not self._stop.is_set()
-
     def alive(self) -> dict[str, bool]:
         """Whether each bus is received from (its thread alive, or receiving directly) and currently open."""
         return {
@@ -255,22 +245,6 @@ class BusReader:
         except queue.Empty:
             pass
         return out
-
-    def get(self, timeout_s: float | None = None) -> tuple[str, Frame] | None:
-        """The next ``(bus_name, frame)``, or None after ``timeout_s`` without one."""
-        got = self.receive(timeout_s, 1)
-        return (got[0][0], got[0][1]) if got else None
-
-    def drain(self) -> list[tuple[str, Frame]]:
-        """Every ``(bus_name, frame)`` received right now, without waiting."""
-        return [(name, frame) for name, frame, _received in self.receive(0.0, 1 << 62)]
-
-    def __iter__(self) -> Iterator[tuple[str, Frame]]:
-        """``(bus_name, frame)`` as they arrive, until :meth:`stop`."""
-        while not self._stop.is_set():
-            item = self.get(self.recv_timeout_s)
-            if item is not None:
-                yield item
 
     # -- sending -----------------------------------------------------------
     def send(self, bus_name: str, msg: can.Message) -> bool:
@@ -347,7 +321,7 @@ class BusReader:
         now = monotonic()
         offset = time.time() - now  # wall clock minus monotonic: a wall-clock stamp to monotonic's base
         wall = self._wall_stamps[name]
-        for frame in to_frames(msgs, name):
+        for frame in frames_from_messages(msgs, name):
             t = frame.t - offset
             if not wall:  # until one of its frames says so: does the bus stamp with the wall clock?
                 wall = self._wall_stamps[name] = abs(t - now) < WALL_STAMP_S
@@ -389,7 +363,7 @@ class BusReader:
                 msg = bus.recv(timeout)
                 if msg is None:
                     continue
-                put((name, to_frames([msg], name)[0], monotonic()))  # when it arrived: how long it then waits
+                put((name, frames_from_messages([msg], name)[0], monotonic()))  # arrival: how long it then waits
             except Exception as exc:  # the bus went away (or a backend bug): report, close, reopen
                 if stop.is_set():
                     break

@@ -3,15 +3,10 @@
 from __future__ import annotations
 
 from collections.abc import Iterable
-from typing import TYPE_CHECKING, TextIO
+from typing import TextIO
 
 from canguard.io.frame import Frame
 from canguard.io.logtypes import CAN_EFF_MASK, CAN_ERR_FLAG, CAN_SFF_MASK, CANFD_BRS, CANFD_ESI
-
-if TYPE_CHECKING:
-    pass
-
-# --------------------------------------------------------------------------- writing candump -L
 
 
 def format_candump_line(frame: Frame, default_channel: str = "can0") -> str:

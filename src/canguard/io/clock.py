@@ -30,12 +30,11 @@ class ManualClock:
     """A clock that only moves when told: replay (log time) and tests.
 
     ``advance_to`` never moves it backwards: a log whose timestamps go back does
-    not make time go back for the models; the step back is counted instead.
+    not make time go back for the models.
     """
 
     def __init__(self, start: float = 0.0) -> None:
         self._now = float(start)
-        self.backward_steps = 0
 
     def now(self) -> float:
         """Return the current time."""
@@ -51,11 +50,9 @@ class ManualClock:
             self._now += dt
 
     def advance_to(self, t: float) -> None:
-        """Move forward to ``t``; a ``t`` in the past is counted, not applied."""
+        """Move forward to ``t``; a ``t`` in the past is ignored."""
         if t > self._now:
             self._now = t
-        elif t < self._now:
-            self.backward_steps += 1
 
 
 class LiveClock:
@@ -75,10 +72,6 @@ class LiveClock:
 
     def advance_to(self, t: float) -> None:
         """Live time moves by itself: a no-op, so the engine drives both clocks alike."""
-
-    def to_monotonic(self, t: float) -> float:
-        """Convert a time of this clock back to ``time.monotonic()``'s base."""
-        return t - self._offset
 
 
 class PinnedClock:

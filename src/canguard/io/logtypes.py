@@ -34,7 +34,6 @@ CANFD_LENGTHS = frozenset((0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48, 64
 
 _HEX = "0123456789abcdefABCDEF"
 _new = tuple.__new__  # builds a Frame from a ready tuple in C: several times cheaper than Frame(...)
-_F = False
 
 
 def open_decompressed(raw: Any, compression: str) -> Any:
@@ -157,7 +156,7 @@ class LogFrames(Iterator[Frame]):
         self.stats = stats
         self.progress = progress
         self._chunks: Iterator[Block] = read(self) if read is not None else iter(())
-        self._frames: Iterator[Frame] = flatten(self._chunks)
+        self._frames: Iterator[Frame] = (frame for block in self._chunks for frame in block.frames())
 
     def chunks(self) -> Iterator[Block]:
         """The same frames a block at a time (:class:`~canguard.io.block.Block`).
@@ -183,12 +182,6 @@ class LogFrames(Iterator[Frame]):
         """The reader is done with the file (the progress bar closes)."""
         if self.progress is not None:
             self.progress.close()
-
-
-def flatten(blocks: Iterator[Block]) -> Iterator[Frame]:
-    """The frames of a block stream, one by one."""
-    for block in blocks:
-        yield from block.frames()
 
 
 class _Bad(Exception):

@@ -73,13 +73,46 @@ def _string(body: bytes, pos: int) -> tuple[str, int]:
     return body[pos + 4:pos + 4 + n].decode("utf-8", "replace"), pos + 4 + n
 
 
+def padded(data: bytes) -> np.ndarray:
+    """``data`` as uint8 with :data:`PAD` zero bytes after it."""
+    buf = np.zeros(len(data) + PAD, dtype=np.uint8)
+    buf[:len(data)] = np.frombuffer(data, dtype=np.uint8)
+    return buf
+
+
+def uint_at(buf: np.ndarray, at: np.ndarray, size: int) -> np.ndarray:
+    """The little-endian unsigned integer of ``size`` bytes (1, 2, 4 or 8) at each of ``at``, as int64."""
+    return buf[at[:, None] + np.arange(size)].view(f"<u{size}").ravel().astype(np.int64)
+
+
+def decompressed(compression: str, data: bytes, size: int, at: int) -> bytes:
+    """A chunk's records (MCAP: zstd or lz4; ROS 1: bz2 or lz4; ``size``: the uncompressed size, 0 unknown),
+    with ``lz4`` and ``zstandard``, rosbags' own dependencies. McapCut when it does not decompress."""
+    try:
+        if compression in ("", "none"):
+            return data
+        if compression == "zstd":
+            import zstandard
+
+            return bytes(zstandard.ZstdDecompressor().decompress(data, max_output_size=size))
+        if compression == "lz4":
+            import lz4.frame
+
+            return bytes(lz4.frame.decompress(data))
+        if compression == "bz2":
+            import bz2
+
+            return bz2.decompress(data)
+    except Exception as exc:  # zstd / lz4 / bz2 errors of a damaged chunk
+        raise McapCut(f"the chunk at byte {at} does not decompress ({compression}): {exc}") from None
+    raise McapCut(f"a chunk compressed as {compression!r}, which canguard does not read")
+
+
 class McapScan:
     """One MCAP file, read from its start (see the module docstring)."""
 
-    def __init__(self, path: Path, decompress: Callable[[str, bytes, int], bytes]) -> None:
+    def __init__(self, path: Path) -> None:
         self.path = path
-        self.decompress = decompress
-        """``(compression, data, uncompressed size) -> bytes``: zstd and lz4 chunks (the caller's libraries)."""
         self.schemas: dict[int, tuple[str, str, str]] = {}
         self.channels: dict[int, Channel] = {}
         self.f: BinaryIO = open(path, "rb")  # noqa: SIM115 -- closed by close()
@@ -180,13 +213,7 @@ class McapScan:
         (size,) = _U64.unpack_from(body, 16)
         compression, pos = _string(body, 28)
         (n,) = _U64.unpack_from(body, pos)
-        data = body[pos + 8:pos + 8 + n]
-        if compression:
-            try:
-                data = self.decompress(compression, data, size)
-            except Exception as exc:  # zstd / lz4 errors of a damaged chunk
-                raise McapCut(f"the chunk at byte {at} does not decompress ({compression}): {exc}") from None
-        return _chunk_messages(data, self._record)
+        return _chunk_messages(decompressed(compression, body[pos + 8:pos + 8 + n], size, at), self._record)
 
 
 def _loose(records: list[tuple[int, bytes]]) -> Messages:
@@ -200,8 +227,7 @@ def _loose(records: list[tuple[int, bytes]]) -> Messages:
 def _chunk_messages(data: bytes, other: Callable[[int, bytes], None]) -> Messages | None:
     """The message records of a chunk's ``data``; other records go to ``other``. None: no message."""
     size = len(data)
-    buf = np.zeros(size + PAD, dtype=np.uint8)
-    buf[:size] = np.frombuffer(data, dtype=np.uint8)
+    buf = padded(data)
     starts: list[Any] = []
     pos = 0
     tried = False
@@ -221,12 +247,11 @@ def _chunk_messages(data: bytes, other: Callable[[int, bytes], None]) -> Message
     if not starts:
         return None
     rec = np.concatenate(starts)
-    lens = _u64(buf, rec + 1)
+    lens = uint_at(buf, rec + 1, 8)
     if (rec + 9 + lens > size).any() or (lens < _MESSAGE_HEAD).any():
         raise McapCut("a message record inside a chunk runs past the chunk's end")
-    channel = buf[rec + 9].astype(np.int64) | (buf[rec + 10].astype(np.int64) << 8)
-    log_ns = _u64(buf, rec + 9 + 6).astype(np.int64)
-    return Messages(channel, log_ns, buf, rec + 9 + _MESSAGE_HEAD, (lens - _MESSAGE_HEAD).astype(np.int64))
+    return Messages(uint_at(buf, rec + 9, 2), uint_at(buf, rec + 9 + 6, 8), buf, rec + 9 + _MESSAGE_HEAD,
+                    lens - _MESSAGE_HEAD)
 
 
 def _same_length(buf: np.ndarray, pos: int, length: int, size: int) -> np.ndarray | None:
@@ -235,11 +260,7 @@ def _same_length(buf: np.ndarray, pos: int, length: int, size: int) -> np.ndarra
     if (size - pos) % step:
         return None
     rec = np.arange(pos, size, step, dtype=np.int64)
-    if not ((buf[rec] == OP_MESSAGE).all() and (_u64(buf, rec + 1) == length).all()):
+    if not ((buf[rec] == OP_MESSAGE).all() and (uint_at(buf, rec + 1, 8) == length).all()):
         return None
     return rec
 
-
-def _u64(buf: np.ndarray, at: np.ndarray) -> np.ndarray:
-    """The little-endian uint64 at each of ``at``."""
-    return buf[at[:, None] + np.arange(8)].view("<u8").ravel()

@@ -113,22 +113,16 @@ class McapWriter:
         rows["data"] = data
         offsets = self._chunk_size + np.arange(n, dtype=np.int64) * (31 + width)
         self._index.setdefault(channel_id, []).append((np.asarray(log_ns, dtype=np.int64), offsets))
-        self._add(rows.tobytes(), n, channel_id, int(log_ns.min()), int(log_ns.max()))
+        self._chunk.append(rows.tobytes())
+        self._chunk_size += int(rows.nbytes)
+        self._counts[channel_id] += n
+        self._chunk_times = (min(self._chunk_times[0], int(log_ns.min())), max(self._chunk_times[1], int(log_ns.max())))
+        if self._chunk_size >= CHUNK_BYTES:
+            self._flush()
 
     def message(self, channel_id: int, log_ns: int, data: bytes) -> None:
         """One message (an event, a frame: few of them)."""
-        rec = _record(OP_MESSAGE, struct.pack("<HIQQ", channel_id, 0, log_ns, log_ns) + data)
-        self._index.setdefault(channel_id, []).append((np.array([log_ns], dtype=np.int64),
-                                                       np.array([self._chunk_size], dtype=np.int64)))
-        self._add(rec, 1, channel_id, log_ns, log_ns)
-
-    def _add(self, records: bytes, n: int, channel_id: int, first: int, last: int) -> None:
-        self._chunk.append(records)
-        self._chunk_size += len(records)
-        self._counts[channel_id] += n
-        self._chunk_times = (min(self._chunk_times[0], first), max(self._chunk_times[1], last))
-        if self._chunk_size >= CHUNK_BYTES:
-            self._flush()
+        self.messages(channel_id, np.array([log_ns], dtype=np.int64), np.frombuffer(data, dtype=np.uint8)[None])
 
     def _flush(self) -> None:
         if not self._chunk:

@@ -15,7 +15,6 @@ import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
-from types import TracebackType
 from typing import Any, TextIO, TypeVar
 
 _FramesT = TypeVar("_FramesT", bound=Iterator[Any])
@@ -38,7 +37,7 @@ class ProgressBar:
     ``total_bytes`` is the size of the file being read (0 or less: unknown, the
     bar shows bytes only). ``enabled`` is decided once, at construction: True
     only when ``stream`` is a TTY, unless forced with ``enabled=True/False``.
-    Use as a context manager, or call :meth:`close` at the end to finish the line.
+    :meth:`close` at the end finishes the line.
     """
 
     def __init__(
@@ -107,17 +106,6 @@ class ProgressBar:
                 self.stream.flush()
             except (OSError, ValueError):
                 pass
-
-    def __enter__(self) -> ProgressBar:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()
 
 
 def wrap_progress(frames: _FramesT, path: str | Path, stream: TextIO | None = None) -> _FramesT:

@@ -23,7 +23,7 @@ from typing import BinaryIO
 
 import numpy as np
 
-from canguard.io.mcapscan import PAD, Channel, McapCut, Messages
+from canguard.io.mcapscan import Channel, McapCut, Messages, decompressed, padded, uint_at
 
 MAGIC = b"#ROSBAG V2.0\n"
 _U32 = struct.Struct("<I")
@@ -45,20 +45,6 @@ def _fields(header: bytes) -> dict[bytes, tuple[int, bytes]]:
 def _op(fields: dict[bytes, tuple[int, bytes]]) -> int:
     value = fields.get(b"op", (0, b""))[1]
     return value[0] if len(value) == 1 else -1
-
-
-def _decompress(compression: bytes, data: bytes) -> bytes:
-    if compression == b"none":
-        return data
-    if compression == b"bz2":
-        import bz2
-
-        return bz2.decompress(data)
-    if compression == b"lz4":
-        import lz4.frame
-
-        return bytes(lz4.frame.decompress(data))
-    raise McapCut(f"a chunk compressed as {compression.decode('latin-1')!r}, which canguard does not read")
 
 
 class Ros1Scan:
@@ -141,14 +127,8 @@ class Ros1Scan:
             at, fields, dlen = found
             op = _op(fields)
             if op == OP_CHUNK:
-                data = self.f.read(dlen)
-                try:
-                    records = _decompress(fields.get(b"compression", (0, b"none"))[1], data)
-                except McapCut:
-                    raise
-                except Exception as exc:  # bz2 / lz4 errors of a damaged chunk
-                    raise McapCut(f"the chunk at byte {at} does not decompress: {exc}") from None
-                messages = self._chunk(records)
+                compression = fields.get(b"compression", (0, b"none"))[1].decode("latin-1")
+                messages = self._chunk(decompressed(compression, self.f.read(dlen), 0, at))
                 if messages is not None:
                     yield messages
             elif op == OP_CONNECTION:
@@ -159,8 +139,7 @@ class Ros1Scan:
     def _chunk(self, data: bytes) -> Messages | None:
         """The message records of a chunk's records (its connection records taken on the way)."""
         size = len(data)
-        buf = np.zeros(size + PAD, dtype=np.uint8)
-        buf[:size] = np.frombuffer(data, dtype=np.uint8)
+        buf = padded(data)
         conns: list[int] = []
         times: list[int] = []
         starts: list[int] = []
@@ -199,15 +178,12 @@ def _same_shape(buf: np.ndarray, size: int, pos: int, hlen: int, dlen: int,
         return None
     rec = np.arange(pos, size, step, dtype=np.int64)
     op_at = fields[b"op"][0]
-    same = (_u32(buf, rec) == hlen) & (_u32(buf, rec + 4 + hlen) == dlen) & (buf[rec + 4 + op_at] == OP_MESSAGE)
-    same &= buf[rec + 4 + op_at - 3] == ord("o")  # "op=" is where the first record has it
+    same = (uint_at(buf, rec, 4) == hlen) & (uint_at(buf, rec + 4 + hlen, 4) == dlen)
+    same &= (buf[rec + 4 + op_at] == OP_MESSAGE) & (buf[rec + 4 + op_at - 3] == ord("o"))  # "op=" as in the first
     if not same.all():
         return None
-    conn = _u32(buf, rec + 4 + fields[b"conn"][0])
+    conn = uint_at(buf, rec + 4 + fields[b"conn"][0], 4)
     time_at = rec + 4 + fields[b"time"][0]
-    ns = _u32(buf, time_at) * 1_000_000_000 + _u32(buf, time_at + 4)
+    ns = uint_at(buf, time_at, 4) * 1_000_000_000 + uint_at(buf, time_at + 4, 4)
     return Messages(conn, ns, buf, rec + 8 + hlen, np.full(rec.size, dlen, dtype=np.int64))
 
-
-def _u32(buf: np.ndarray, at: np.ndarray) -> np.ndarray:
-    return buf[at[:, None] + np.arange(4)].view("<u4").ravel().astype(np.int64)

@@ -30,8 +30,8 @@ found, with the frames read before it.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
-from dataclasses import dataclass
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
 
@@ -50,13 +50,8 @@ from canguard.io.logtypes import (
     LogFrames,
     ReadStats,
 )
-from canguard.io.mcapscan import McapCut
-from canguard.io.rosmsgs import (
-    KVASER_ERROR_FRAME,
-    KVASER_EXT,
-    KVASER_RTR,
-    Layout,
-)
+from canguard.io.mcapscan import McapCut, uint_at
+from canguard.io.rosmsgs import HEADER_SIZE, KVASER_ERROR_FRAME, KVASER_EXT, KVASER_RTR, STAMP_AT, Layout
 
 _FD_OK = np.zeros(256, dtype=bool)
 _FD_OK[sorted(CANFD_LENGTHS)] = True
@@ -86,24 +81,19 @@ class Rows:
     why: list[str]
 
 
-def _u32(buf: np.ndarray, at: np.ndarray) -> np.ndarray:
-    """The little-endian uint32 at each of ``at`` (int64 for arithmetic)."""
-    return buf[at[:, None] + np.arange(4)].view("<u4").ravel().astype(np.int64)
-
-
-def _u16(buf: np.ndarray, at: np.ndarray) -> np.ndarray:
-    return buf[at[:, None] + np.arange(2)].view("<u2").ravel().astype(np.int64)
-
-
 def _field(buf: np.ndarray, body: np.ndarray, lay: Layout, name: str) -> np.ndarray:
-    """Field ``name`` (a bool or an unsigned integer of 1, 2 or 4 bytes) of every message."""
+    """Field ``name`` (a bool or an unsigned integer of 1, 2 or 4 bytes; an array of bytes) of every message."""
     f = lay.fields[name]
     at = body + f.offset
-    if f.size == 4:
-        return _u32(buf, at)
-    if f.size == 2:
-        return _u16(buf, at)
-    return buf[at].astype(np.int64)
+    return uint_at(buf, at, f.size) if f.count == 1 else buf[at[:, None] + np.arange(f.count)]
+
+
+def _mark(good: np.ndarray, why: list[str], mask: np.ndarray, reason: Callable[[int], str]) -> None:
+    """The rows of ``mask`` still good become bad, row ``i`` for ``reason(i)``."""
+    hits = mask & good
+    for i in np.flatnonzero(hits).tolist():
+        why[i] = reason(i)
+    good &= ~hits
 
 
 def unpack(lay: Layout, buf: np.ndarray, start: np.ndarray, lens: np.ndarray, record_ns: np.ndarray) -> Rows:
@@ -111,34 +101,27 @@ def unpack(lay: Layout, buf: np.ndarray, start: np.ndarray, lens: np.ndarray, re
     :data:`~canguard.io.mcapscan.PAD` zero bytes after the last), read from their fixed offsets all at once."""
     n = start.size
     why: list[str] = [""] * n
-    bad = lens < lay.header_size
-    if lay.cdr:
-        big = buf[start + 1] == 0
-        for i in np.flatnonzero(big & ~bad).tolist():
-            why[i] = "big-endian CDR, which canguard does not read"
-        bad |= big
-    name_len = np.where(bad, 0, _u32(buf, start + 12))
-    name_len = np.minimum(name_len, lens)  # a cut or garbled string length: caught by the size check below
-    body = start + lay.header_size + name_len
+    name_len = np.minimum(uint_at(buf, start + 12, 4), lens)  # a cut or garbled length: the size check catches it
+    body = start + HEADER_SIZE + name_len
     if lay.cdr:
         body = (body - start + 3) // 4 * 4 + start  # aligned as CDR aligns, from the message's first byte
     body = np.minimum(body, start + lens)  # stays inside the padded buffer
     end = body + lay.fixed
     seq_len = np.zeros(n, dtype=np.int64)
     if lay.sequence >= 0:
-        seq_len = np.where(body + lay.sequence + 4 <= start + lens, _u32(buf, body + lay.sequence), 0)
+        seq_len = np.where(body + lay.sequence + 4 <= start + lens, uint_at(buf, body + lay.sequence, 4), 0)
         end = body + lay.sequence + 4 + seq_len
-    short = end > start + lens
-    for i in np.flatnonzero(short & ~bad).tolist():
-        why[i] = f"{int(lens[i])} bytes, shorter than its fields"
-    bad |= short
-    stamp = start + lay.stamp_offset
-    sec = _u32(buf, stamp)
+    good = np.ones(n, dtype=bool)
+    _mark(good, why, end > start + lens, lambda i: f"{int(lens[i])} bytes, shorter than its fields")
+    if lay.cdr:
+        _mark(good, why, buf[start + 1] == 0, lambda i: "big-endian CDR, which canguard does not read")
+    stamp = start + STAMP_AT
+    sec = uint_at(buf, stamp, 4)
     if lay.cdr:
         sec = np.where(sec >= 1 << 31, sec - (1 << 32), sec)  # int32
-    nanosec = _u32(buf, stamp + 4)
+    nanosec = uint_at(buf, stamp + 4, 4)
     ids, extended, remote, error, fd, lengths, data = _frame_fields(lay, buf, body, seq_len)
-    return Rows(record_ns, sec, nanosec, ids, extended, remote, error, fd, lengths, data, ~bad, why)
+    return Rows(record_ns, sec, nanosec, ids, extended, remote, error, fd, lengths, data, good, why)
 
 
 def _frame_fields(lay: Layout, buf: np.ndarray, body: np.ndarray, seq_len: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -151,7 +134,7 @@ def _frame_fields(lay: Layout, buf: np.ndarray, body: np.ndarray, seq_len: np.nd
         flag = _field(buf, body, lay, "flag")
         extended = ((flag & KVASER_EXT) != 0) | (ids > CAN_SFF_MASK)
         remote, error = (flag & KVASER_RTR) != 0, (flag & KVASER_ERROR_FRAME) != 0
-        return ids, extended, remote, error, false, _field(buf, body, lay, "len"), _bytes(buf, body, lay, "dat")
+        return ids, extended, remote, error, false, _field(buf, body, lay, "len"), _field(buf, body, lay, "dat")
     extended = _field(buf, body, lay, "is_extended") != 0
     error = _field(buf, body, lay, "is_error") != 0
     remote = _field(buf, body, lay, "is_rtr") != 0 if "is_rtr" in lay.fields else false
@@ -164,32 +147,21 @@ def _frame_fields(lay: Layout, buf: np.ndarray, body: np.ndarray, seq_len: np.nd
         data = buf[(body + lay.sequence + 4)[:, None] + np.arange(64)]
         lengths = np.where(lengths > seq_len, -1, lengths)  # more than the data holds: refused below
     else:
-        data = _bytes(buf, body, lay, "data")
+        data = _field(buf, body, lay, "data")
     return ids, extended, remote, error, fd, lengths, data
-
-
-def _bytes(buf: np.ndarray, body: np.ndarray, lay: Layout, name: str) -> np.ndarray:
-    f = lay.fields[name]
-    return buf[(body + f.offset)[:, None] + np.arange(f.count)]
 
 
 def check(rows: Rows) -> None:
     """Mark the rows that are no CAN frame as candump knows one (``rows.good``, ``rows.why``)."""
-    ok = rows.good
-    why = rows.why
-    lengths = rows.lengths
-    classic_bad = ~rows.fd & ((lengths < 0) | (lengths > 8))
-    fd_bad = rows.fd & ((lengths < 0) | ~_FD_OK[np.clip(lengths, 0, 255)] | rows.remote)
-    std_bad = ~rows.extended & ~rows.error & (rows.ids > CAN_SFF_MASK)
-    ext_bad = rows.extended & ~rows.error & (rows.ids > CAN_EFF_MASK)
-    for mask, reason in ((classic_bad, "a classic frame's length {} is not 0-8"),
-                         (fd_bad, "a CAN FD frame's length {} is not a CAN FD length"),
-                         (std_bad, "11-bit id {:X} is above 7FF"), (ext_bad, "29-bit id {:X} is above 1FFFFFFF")):
-        hits = mask & ok
-        for i in np.flatnonzero(hits).tolist():
-            value = int(rows.ids[i]) if "id" in reason else int(lengths[i])
-            why[i] = reason.format(value)
-        ok &= ~hits
+    lengths, ids, good, why = rows.lengths, rows.ids, rows.good, rows.why
+    _mark(good, why, ~rows.fd & ((lengths < 0) | (lengths > 8)),
+          lambda i: f"a classic frame's length {lengths[i]} is not 0-8")
+    _mark(good, why, rows.fd & ((lengths < 0) | ~_FD_OK[np.clip(lengths, 0, 255)] | rows.remote),
+          lambda i: f"a CAN FD frame's length {lengths[i]} is not a CAN FD length")
+    _mark(good, why, ~rows.extended & ~rows.error & (ids > CAN_SFF_MASK),
+          lambda i: f"11-bit id {ids[i]:X} is above 7FF")
+    _mark(good, why, rows.extended & ~rows.error & (ids > CAN_EFF_MASK),
+          lambda i: f"29-bit id {ids[i]:X} is above 1FFFFFFF")
 
 
 def times(rows: Rows, record: bool) -> tuple[np.ndarray, np.ndarray]:
@@ -227,24 +199,15 @@ def block_of(rows: Rows, t: np.ndarray, lanes: np.ndarray, channels: list[str]) 
                        flags=flags, dlc=lengths, channel=lanes[sel], channels=channels)
 
 
-def _merge(parts: list[tuple[np.ndarray, Rows]], n: int) -> Rows:
-    """The rows of several layouts' unpacked parts put back in the batch's order."""
+def _merge(parts: list[tuple[np.ndarray, Rows]]) -> Rows:
+    """The rows of several layouts' unpacked parts (each with its rows' places in the batch) in the batch's order."""
+    order = np.argsort(np.concatenate([idx for idx, _rows in parts]), kind="stable")
     width = max(rows.data.shape[1] for _idx, rows in parts)
-    cols: dict[str, np.ndarray] = {}
-    why = [""] * n
-    for name in ("record_ns", "sec", "nanosec", "ids", "extended", "remote", "error", "fd", "lengths", "good"):
-        first = getattr(parts[0][1], name)
-        out = np.empty(n, dtype=first.dtype)
-        for idx, rows in parts:
-            out[idx] = getattr(rows, name)
-        cols[name] = out
-    data = np.zeros((n, width), dtype=np.uint8)
-    for idx, rows in parts:
-        data[idx, :rows.data.shape[1]] = rows.data
-        for k, i in enumerate(idx.tolist()):
-            why[i] = rows.why[k]
-    good = cols.pop("good")
-    return Rows(**cols, data=data, good=good, why=why)
+    cols = {f.name: np.concatenate([getattr(rows, f.name) for _idx, rows in parts])[order]
+            for f in fields(Rows) if f.name not in ("data", "why")}
+    data = np.concatenate([np.pad(rows.data, ((0, 0), (0, width - rows.data.shape[1]))) for _idx, rows in parts])
+    why = [w for _idx, rows in parts for w in rows.why]
+    return Rows(**cols, data=data[order], why=[why[i] for i in order.tolist()])
 
 
 def _block_rows(block: RawBlock) -> tuple[Rows, np.ndarray]:
@@ -262,7 +225,7 @@ def _block_rows(block: RawBlock) -> tuple[Rows, np.ndarray]:
     for lay, idx in layouts.values():
         at = np.asarray(idx, dtype=np.intp)
         parts.append((at, unpack(lay, block.buf, block.start[at], block.lengths[at], block.record_ns[at])))
-    return (parts[0][1] if len(parts) == 1 else _merge(parts, len(topics))), lanes
+    return (parts[0][1] if len(parts) == 1 else _merge(parts)), lanes
 
 
 def _note_bad(st: ReadStats, bag: BagSource, rows: Rows, lanes: np.ndarray, first: int, skip_bad: bool) -> None:
@@ -306,18 +269,19 @@ def bag_chunks(p: Path, opts: BagOptions, st: ReadStats, owner: LogFrames, skip_
                 _note_bad(st, bag, rows, lanes, read, skip_bad)
             read += lanes.size
             t, from_record = times(rows, record)
-            kept = t[rows.good]
+            block = block_of(rows, t, lanes, bag.channels)
             by_record = int(np.count_nonzero(from_record & rows.good))
             st.stamps["record"] = st.stamps.get("record", 0) + by_record
-            st.stamps["header"] = st.stamps.get("header", 0) + int(kept.size) - by_record
-            _order(st, kept, last_t)
-            if kept.size:
-                last_t = float(kept[-1])
-            st.frames += int(kept.size)
-            block = block_of(rows, t, lanes, bag.channels)
+            st.stamps["header"] = st.stamps.get("header", 0) + block.n - by_record
+            st.frames += block.n
             if bag.total:
                 owner.reached(min(st.bytes_total, st.bytes_total * read // bag.total))
             if block.n:
+                backwards, repeated = block.order
+                first = float(block.time_s[0])
+                st.backwards_timestamps += backwards + (first < last_t)
+                st.repeated_timestamps += repeated + (first == last_t)
+                last_t = float(block.time_s[-1])
                 yield block
         bag.finish()
     finally:
@@ -326,13 +290,3 @@ def bag_chunks(p: Path, opts: BagOptions, st: ReadStats, owner: LogFrames, skip_
     if not st.frames and not st.bad_lines:
         raise LogFormatError(f"{p}: empty log: no frames on {', '.join(bag.channels) or 'its CAN topics'}")
 
-
-def _order(st: ReadStats, t: np.ndarray, last_t: float) -> None:
-    """Count the times of a block that go back or repeat (the first against ``last_t``)."""
-    if not t.size:
-        return
-    prev = np.empty_like(t)
-    prev[0] = last_t
-    prev[1:] = t[:-1]
-    st.backwards_timestamps += int(np.count_nonzero(t < prev))
-    st.repeated_timestamps += int(np.count_nonzero(t == prev))

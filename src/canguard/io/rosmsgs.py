@@ -59,6 +59,12 @@ KVASER_EXT = 0x04
 KVASER_ERROR_FRAME = 0x20
 """Kvaser CANlib's ``canMSG_RTR``, ``canMSG_EXT`` and ``canMSG_ERROR_FRAME`` (``CANPacket.flag``)."""
 
+HEADER_SIZE = 16
+"""Bytes before ``frame_id``'s characters, from the message's first byte: the CDR encapsulation (4), then ``sec,
+nanosec`` and the string's length; in ROS 1 ``seq, secs, nsecs`` and the length."""
+STAMP_AT = 4
+"""Where ``stamp``'s two 32-bit fields start, from the message's first byte (both serialisations)."""
+
 _SIZES = {"bool": 1, "uint8": 1, "int8": 1, "byte": 1, "char": 1, "uint16": 2, "int16": 2, "uint32": 4,
           "int32": 4}
 
@@ -70,8 +76,9 @@ def ros2_name(msgtype: str) -> str:
 
 
 def looks_like_can(msgtype: str) -> bool:
-    """A type whose name says it is a CAN frame (``can_msgs/...``, ``.../CanFrame``...): refused by name when it is
-    not one canguard knows, not passed over as if the bag had no CAN topic."""
+    """A type whose name says it is a CAN frame (``can_msgs/...``, ``.../CanFrame``...; every one of
+    :data:`DEFINITIONS`): read, or refused by name when canguard does not know it, never passed over as if the bag
+    had no CAN topic."""
     low = msgtype.lower()
     return "can" in low.split("/")[0] or any(w in low.rsplit("/", 1)[-1] for w in ("can", "fdframe"))
 
@@ -120,17 +127,6 @@ class Layout:
     """Bytes of the body up to the end of its last fixed-size field."""
     sequence: int = -1
 
-    @property
-    def header_size(self) -> int:
-        """Bytes before ``frame_id``'s characters, from the message's first byte: the CDR encapsulation (4),
-        then ``sec, nanosec`` and the string's length; in ROS 1 ``seq, secs, nsecs`` and the length."""
-        return 16
-
-    @property
-    def stamp_offset(self) -> int:
-        """Where ``stamp``'s two 32-bit fields start, from the message's first byte."""
-        return 4
-
 
 def layout(msgtype: str, definition: str, cdr: bool) -> Layout:
     """The :class:`Layout` of ``definition`` (one of :data:`DEFINITIONS`) serialised as CDR or ROS 1."""
@@ -165,10 +161,9 @@ def layout_for(path: object, topic: str, msgtype: str, stored: str, cdr: bool) -
                              f"(it reads {', '.join(DEFINITIONS)})")
     if not stored.strip():
         return layout(name, known[0], cdr)
-    have = [(t.rsplit("/", 1)[-1] if "/" in t else t, n) for t, n in fields_of(stored)]
+    have = [(t.rsplit("/", 1)[-1], n) for t, n in fields_of(stored)]  # a type's package is not compared
     for definition in known:
-        want = [(t.rsplit("/", 1)[-1] if "/" in t else t, n) for t, n in fields_of(definition)]
-        if have == want:
+        if [(t.rsplit("/", 1)[-1], n) for t, n in fields_of(definition)] == have:
             return layout(name, definition, cdr)
     found = " ".join(f"{t} {n};" for t, n in fields_of(stored))
     raise LogFormatError(f"{path}: topic {topic}: its type {msgtype} is defined in the bag with fields "

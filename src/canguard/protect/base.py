@@ -33,9 +33,10 @@ tuples or numpy columns) feeds every sample to it with no numpy call; a long run
 *screened* with numpy for the few samples where the kernel can change something (a
 sample over a limit, a level crossing, the other side of the start current), the kernel
 runs on those and on the samples after them while a timer runs, and the quiet stretches
-between are taken whole from the screen. A short run whose samples are all in order, finite and
-on the quiet side of the model (:meth:`LatchedModel._quiet_few`: below the limit, no timer running,
-no heat to integrate) is taken whole from its last sample, as the screen takes a quiet stretch. All
+between are taken whole from the screen. A run (short or long) whose samples are all in order,
+finite and on the quiet side of the model (:meth:`LatchedModel._quiet_side`: below the limit, no
+timer running, no heat to integrate) is taken whole from its last sample, as the screen takes a
+quiet stretch. All
 ways are the same maths, so they agree by construction; the tests still hold them to the reference.
 Importing the models, and feeding them short runs of lists, never imports numpy until the first
 edge (a :class:`Run` with an edge holds numpy columns), long run or numpy column.
@@ -71,8 +72,6 @@ from __future__ import annotations
 import math
 from abc import ABC, abstractmethod
 from collections.abc import Sequence
-from itertools import islice
-from operator import le
 from typing import TYPE_CHECKING, Any, ClassVar
 
 from canguard.protect.columns import (
@@ -83,7 +82,9 @@ from canguard.protect.columns import (
     as_run,
     in_order,
     no_edges,
+    ordered,
     short_run,
+    values_span,
 )
 from canguard.protect.results import Run, Snapshot
 
@@ -221,6 +222,8 @@ class LatchedModel(ProtectionModel):
         import numpy as np
 
         t, v = as_run(times, values)
+        if t.size and self._screened(t, v):
+            return quiet_run(t.size)
         size = max(_FIRST_CHUNK, 2 * self._reach) if until_edge else _LAST_CHUNK
         if t.size <= size:
             return self._stopped(self._advance_long(t, v, until_edge), until_edge)
@@ -249,35 +252,42 @@ class LatchedModel(ProtectionModel):
         """Go back to the state :meth:`mark` gave."""
         self.__dict__.update(mark)
 
-    def _screened(self, t: list[float], v: list[float]) -> bool:
-        """A short run whose samples change nothing but the latest one, taken whole; False: nothing done.
+    def _screened(self, t: Any, v: Any) -> bool:
+        """A run whose samples change nothing but the latest one, taken whole; False: nothing done.
 
         Every sample is in order (none before the latest, times not going back) and finite, and the
-        model's own screen (:meth:`_quiet_few`) finds them all on its quiet side: fed one by one they
-        would leave exactly what :meth:`_take_quiet` leaves.
+        model's own screen (:meth:`_quiet_side`) finds them all on its quiet side: fed one by one they
+        would leave exactly what :meth:`_take_quiet` leaves. Lists or numpy columns
+        (:func:`~canguard.protect.columns.ordered`, :func:`~canguard.protect.columns.values_span`).
         """
+        if not ordered(t):
+            return False
         last = self._last_t
-        first, final = t[0], t[-1]
-        if last is not None and not first >= last:
+        if last is not None and not float(t[0]) >= last:
             return False
-        if not (math.isfinite(first) and math.isfinite(final) and math.isfinite(sum(v))):
+        span = values_span(v)
+        if span is None:
             return False
-        if len(t) > 1 and not all(map(le, t, islice(t, 1, None))):
+        low, high = span
+        high_a = high if high >= -low else -low
+        low_a = low if low >= 0.0 else (-high if high <= 0.0 else 0.0)  # values on both sides of 0: at least 0
+        if not self._quiet_side(t, low_a, high_a):
             return False
-        if not self._quiet_few(t, v):
-            return False
-        self._take_quiet(t, v)
-        self._last_t = final
-        self._value = abs(v[-1])
+        final_a = abs(float(v[-1]))
+        self._take_quiet(final_a)
+        self._last_t = float(t[-1])
+        self._value = final_a
         return True
 
-    def _quiet_few(self, t: list[float], v: list[float]) -> bool:
-        """True when every sample of a short run (in order, finite) leaves the state as it is but for the latest
-        time and value (and what :meth:`_take_quiet` takes); the default says no (every sample to the kernel)."""
+    def _quiet_side(self, t: Any, low_a: float, high_a: float) -> bool:
+        """True when every sample of a run (times ``t`` in order, after the latest; finite values, every |value|
+        at least ``low_a`` and at most ``high_a``) leaves the state as it is but for the latest time and value
+        (and what :meth:`_take_quiet` takes); the default says no (every sample to the kernel)."""
         return False
 
-    def _take_quiet(self, t: list[float], v: list[float]) -> None:
-        """Take a short run :meth:`_quiet_few` accepted, but for the latest time and value (the base sets them)."""
+    def _take_quiet(self, final_a: float) -> None:
+        """Take a run :meth:`_quiet_side` accepted, but for the latest time and value (the base sets them);
+        ``final_a``: the last sample's |value|."""
 
     def _stopped(self, run: Run, until_edge: bool) -> Run:
         """Remember how far a stop at an edge had to look (averaged: the next scan starts at twice that)."""

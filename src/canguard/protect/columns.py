@@ -6,8 +6,11 @@ says so) and has no state of its own.
 
 from __future__ import annotations
 
+import math
 from abc import ABC, abstractmethod
-from typing import TYPE_CHECKING
+from itertools import islice
+from operator import le, sub
+from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:  # numpy is imported by the first long run (or numpy column), not by importing the models
     import numpy as np
@@ -102,6 +105,46 @@ def short_run(times: npt.ArrayLike, values: npt.ArrayLike, most: int) -> tuple[l
         return list(map(float, times)), list(map(float, values))
     except (TypeError, ValueError):
         return None
+
+
+def ordered(times: Any) -> bool:
+    """A run's times are finite and never go back. Lists, or a numpy column (checked with numpy)."""
+    first, final = float(times[0]), float(times[-1])
+    if not (math.isfinite(first) and math.isfinite(final)):
+        return False
+    if len(times) < 2:
+        return True
+    if type(times) is list or type(times) is tuple:
+        return all(map(le, times, islice(times, 1, None)))  # a NaN among them fails too
+    with np_errstate(invalid="ignore"):  # inf - inf among times out of order: NaN, which fails
+        return float((times[1:] - times[:-1]).min()) >= 0.0
+
+
+def longest_step(times: Any) -> float:
+    """The longest step between two times of a run that :func:`ordered` accepts (0 for one time)."""
+    if len(times) < 2:
+        return 0.0
+    if type(times) is list or type(times) is tuple:
+        return max(map(sub, islice(times, 1, None), times))
+    return float((times[1:] - times[:-1]).max())
+
+
+def values_span(values: Any) -> tuple[float, float] | None:
+    """(lowest, highest) of a run's values when every one is finite; None when one is not. Lists, or a numpy
+    column."""
+    if type(values) is list or type(values) is tuple:
+        if not math.isfinite(sum(values)):
+            return None
+        return min(values), max(values)
+    low, high = float(values.min()), float(values.max())  # NaN propagates
+    return (low, high) if math.isfinite(low) and math.isfinite(high) else None
+
+
+def np_errstate(**kwargs: str) -> Any:
+    """``numpy.errstate`` (numpy imported at the first call)."""
+    import numpy as np
+
+    return np.errstate(**kwargs)  # type: ignore[arg-type]
 
 
 def alternate(last: bool, n: int) -> list[bool]:

@@ -210,14 +210,14 @@ class Hysteresis(LatchedModel):
         if self.inrush is not None and inrush is not None:
             self.inrush.resume(inrush)
 
-    def _quiet_few(self, t: list[float], v: list[float]) -> bool:
+    def _quiet_side(self, t: Any, low_a: float, high_a: float) -> bool:
         """No timer, no inrush helper, every sample below the trip threshold (not tripped) or above the recovery
         one (tripped): each sample only keeps its side's timer unset (a gap restarts timers that are unset)."""
         if self.inrush is not None or self._over_since is not None or self._under_since is not None:
             return False
         if self._tripped:
-            return min(map(abs, v)) > self.recovery_a
-        return max(map(abs, v)) < self.overcurrent_a
+            return low_a > self.recovery_a
+        return high_a < self.overcurrent_a
 
     def _threshold_value(self) -> float:
         thr = self.threshold_at(self._last_t) if self._last_t is not None else self.overcurrent_a

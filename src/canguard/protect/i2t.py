@@ -49,13 +49,11 @@ from __future__ import annotations
 import math
 from abc import abstractmethod
 from collections.abc import Mapping
-from itertools import islice
-from operator import sub
 from typing import TYPE_CHECKING, Any
 
 from canguard.protect.accumulate import clamped_sum, thermal_steps
 from canguard.protect.base import REASON_I2T, LatchedModel, ProtectionModel
-from canguard.protect.columns import Marks, Screen
+from canguard.protect.columns import Marks, Screen, longest_step
 from canguard.protect.state import KIND_LEAKY, KIND_THERMAL, cooled_level
 from canguard.units import AMPERE2_SECOND, THETA
 
@@ -124,6 +122,8 @@ class _I2tModel(LatchedModel):
         self.max_gap_s = _gap(max_gap_s)
         self._held = math.nan
         self._acc = 0.0
+        self._peak = 0.0
+        """The highest accumulator value the model stood at (see :attr:`peak_level_pct`)."""
         self.stale_gaps = 0
         """Gaps longer than ``max_gap_s`` seen so far."""
 
@@ -170,11 +170,23 @@ class _I2tModel(LatchedModel):
         """The state as a fraction of the trip level (1.0 = trip); may exceed 1."""
         return self._acc / self.trip_level
 
+    @property
+    def peak_level_pct(self) -> float:
+        """The highest level the model stood at, in % of the trip level (the replay summary's I²t peak).
+
+        Taken over every sample the model took (the heat moves only at samples, so this is the
+        true peak, not the level seen at ticks) and the states it was put in (a restore, a reload's
+        carry, the worst case); a :meth:`rewind` takes it back with the rest of the state.
+        """
+        return 100.0 * (self._peak / self.trip_level)
+
     def _set_acc(self, acc: float) -> None:
         cap = MAX_LEVEL * self.trip_level
         if math.isnan(acc):  # unreachable by construction; fail safe if it ever happens
             acc = cap
         self._acc = min(max(acc, 0.0), cap)
+        if self._acc > self._peak:
+            self._peak = self._acc
 
     def carry_from(self, old: ProtectionModel) -> None:
         """The base state plus the heat, as a fraction of the trip level (as a restore does), and the held current.
@@ -199,7 +211,9 @@ class _I2tModel(LatchedModel):
                 self.stale_gaps += 1
                 dt = self.max_gap_s
             if dt > 0:
-                self._acc = self._integrate(self._held, dt)
+                acc = self._acc = self._integrate(self._held, dt)
+                if acc > self._peak:
+                    self._peak = acc
         self._held = a
         return self._decide(self._acc / self.trip_level)
 
@@ -237,6 +251,13 @@ class _I2tModel(LatchedModel):
         self._acc = float(screen.acc[last])
         self._held = float(screen.a[last])
         self.stale_gaps += int(screen.stale[last] - (screen.stale[first - 1] if first else 0))
+
+    def _finish(self, screen: Screen, last: int) -> None:
+        """The peak over the samples taken: the screen's accumulator is the kernel's, sample for sample."""
+        assert isinstance(screen, _Screen)
+        top = float(screen.acc[: last + 1].max())
+        if top > self._peak:
+            self._peak = top
 
     def _threshold_value(self) -> float:
         return self.trip_level
@@ -323,25 +344,22 @@ class LeakyI2t(_I2tModel):
             steps = np.where(dt > 0, rate * dt, 0.0)
         return clamped_sum(self._acc, steps, MAX_LEVEL * self._s, self._add)
 
-    def _quiet_few(self, t: list[float], v: list[float]) -> bool:
+    def _quiet_side(self, t: Any, low_a: float, high_a: float) -> bool:
         """An empty bucket (not tripped) that stays empty: every current held through the run at or below
         I_cont (each step adds <= 0 to a sum floored at 0), and no gap over ``max_gap_s`` to count."""
         if self._acc != 0.0 or self._tripped:
             return False
         cont = self.continuous_a
-        if self._held > cont or max(map(abs, v)) > cont:  # a NaN held (no sample yet) integrates nothing
+        if self._held > cont or high_a > cont:  # a NaN held (no sample yet) integrates nothing
             return False
-        if self.max_gap_s != math.inf:
-            last = self._last_t
-            if last is not None and t[0] - last > self.max_gap_s:
-                return False
-            if len(t) > 1 and max(map(sub, islice(t, 1, None), t)) > self.max_gap_s:
-                return False
-        return True
+        if self.max_gap_s == math.inf:
+            return True
+        last = self._last_t
+        return not ((last is not None and float(t[0]) - last > self.max_gap_s) or longest_step(t) > self.max_gap_s)
 
-    def _take_quiet(self, t: list[float], v: list[float]) -> None:
+    def _take_quiet(self, final_a: float) -> None:
         """The last sample's current is held from now on; the bucket stays empty."""
-        self._held = abs(v[-1])
+        self._held = final_a
 
     def _integrate(self, held: float, dt: float) -> float:
         """A + (I² − I_cont²)·dt, floored at 0 and capped."""

@@ -36,14 +36,12 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from itertools import islice
-from operator import le, sub
 from typing import TYPE_CHECKING, Any
 
 from canguard.config.schema import NON_VALUE_ROLES, SourceConfig
 from canguard.io.frame import INVALID_INF, INVALID_NAN, INVALID_RANGE
 from canguard.protect.base import REASON_NO_DATA, REASON_NOT_PRESENT, REASON_OK, REASON_STALE
-from canguard.protect.columns import NO_EDGES, no_edges
+from canguard.protect.columns import NO_EDGES, longest_step, no_edges, ordered, values_span
 
 if TYPE_CHECKING:
     from canguard.protect.columns import FloatArray, IndexArray
@@ -195,26 +193,25 @@ class SourceHealth:
         """
         n = len(times)
         if n == 1 and reasons is None:  # a live frame: each sample to the kernel, nothing built
-            t = times[0]
+            t = float(times[0])
             if len(roles) == 1:
-                edge = self._sample(roles[0], t, columns[0][0])
+                edge = self._sample(roles[0], t, float(columns[0][0]))
             else:
                 edge = False
                 for k, role in enumerate(roles):
-                    if self._sample(role, t, columns[k][0]):
+                    if self._sample(role, t, float(columns[k][0])):
                         edge = True
             if not edge:
                 return _QUIET.get(1) or _quiet_health(1)
             import numpy as np
 
             return HealthRun(np.zeros(1, dtype=np.intp), np.array([t]), (self._last_reason,), 1)
-        if reasons is None and n > 1 and self._quiet(roles, times, columns):
-            last = times[-1]
-            for role, column in zip(roles, columns, strict=True):
-                self._latest_t[role] = self._valid_t[role] = last
-                self._value[role] = column[-1]
-            self.samples += n * len(roles)
-            return _quiet_health(n)
+        if reasons is None and n > 1:
+            if self._quiet(roles, times, columns):
+                self._take_quiet(roles, times, columns)
+                return _quiet_health(n)
+            if type(times) is not list and type(times) is not tuple:  # numpy columns: sample by sample as floats
+                times, columns = times.tolist(), [column.tolist() for column in columns]  # type: ignore[attr-defined]
         edges: list[int] = []
         after: list[str] = []
         taken = n
@@ -237,24 +234,46 @@ class SourceHealth:
 
         return HealthRun(np.array(edges, dtype=np.intp), np.array([times[i] for i in edges]), tuple(after), taken)
 
+    def take_quiet(self, parts: Sequence[tuple[Sequence[str], Sequence[float], Sequence[Sequence[float]]]]) -> bool:
+        """Runs of rows of this source from several messages (``parts``: roles, times, columns), each message with
+        roles of its own: taken whole when each is a quiet run (:meth:`_quiet`); False: nothing taken.
+
+        A quiet run's every sample only becomes its role's latest (the kernel's usual sample, which
+        reads nothing of the other roles), so how the runs interleave in time changes nothing: taken
+        one after the other they leave what their rows in time order would.
+        """
+        seen: set[str] = set()
+        for roles, times, columns in parts:
+            if not len(times) or not seen.isdisjoint(roles) or not self._quiet(roles, times, columns):
+                return False
+            seen.update(roles)
+        for roles, times, columns in parts:
+            self._take_quiet(roles, times, columns)
+        return True
+
+    def _take_quiet(self, roles: Sequence[str], times: Sequence[float], columns: Sequence[Sequence[float]]) -> None:
+        """Take a run :meth:`_quiet` found quiet: each role's latest sample is its last row's."""
+        last = float(times[-1])
+        for role, column in zip(roles, columns, strict=True):
+            self._latest_t[role] = self._valid_t[role] = last
+            self._value[role] = float(column[-1])
+        self.samples += len(times) * len(roles)
+
     def _quiet(self, roles: Sequence[str], times: Sequence[float], columns: Sequence[Sequence[float]]) -> bool:
         """True when a run of rows (no reasons of their own) changes nothing but each role's latest value.
 
         The times are finite and do not go back, the first within ``max_age_s`` of each role's
         latest sample and no two rows further apart; each role's latest sample was valid, and its
         values are finite and in the role's range; a role whose value gates the reason (alive counter,
-        drive health) is never quiet, a presence flag only while it was set and stays set.
+        drive health) is never quiet, a presence flag only while it was set and stays set. Lists or
+        numpy columns (a block's runs: checked with numpy).
         """
-        first, final = times[0], times[-1]
-        max_age = self.max_age_s
-        if not (math.isfinite(first) and math.isfinite(final)):
+        if not ordered(times):
             return False
-        if len(times) > 1:
-            later = islice(times, 1, None)
-            if not all(map(le, times, later)):
-                return False
-            if final - first > max_age and max(map(sub, islice(times, 1, None), times)) > max_age:
-                return False
+        first, final = float(times[0]), float(times[-1])
+        max_age = self.max_age_s
+        if final - first > max_age and longest_step(times) > max_age:
+            return False
         latest_t, invalid = self._latest_t, self._invalid
         for role, column in zip(roles, columns, strict=True):
             latest = latest_t.get(role)
@@ -263,14 +282,16 @@ class SourceHealth:
             if role in FULL_ROLES and not (role == PRESENT and self._present_quiet(roles, column)):
                 return False
             lo, hi = self._limits.get(role, _ANY)
-            if not (math.isfinite(sum(column)) and lo <= min(column) and max(column) <= hi):
+            span = values_span(column)
+            if span is None or not (lo <= span[0] and span[1] <= hi):
                 return False
         return True
 
     def _present_quiet(self, roles: Sequence[str], column: Sequence[float]) -> bool:
         """A presence flag's samples change nothing: it was set and stays set, and the run carries every role of
         the source, so that the reason each sample's full look finds is the "" the last one left."""
-        return (not self._last_reason and not self._frozen and bool(self._value.get(PRESENT)) and all(column)
+        return (not self._last_reason and not self._frozen and bool(self._value.get(PRESENT))
+                and bool(all(column) if type(column) is list or type(column) is tuple else column.all())  # type: ignore[attr-defined]
                 and self._roles.issubset(roles))
 
     def _sample(self, role: str, t: float, value: float, own: str = "") -> bool:
@@ -442,3 +463,4 @@ class SourceHealth:
     def latest_times(self) -> dict[str, float]:
         """Each role's latest sample time, valid or not (a copy)."""
         return dict(self._latest_t)
+

@@ -245,6 +245,13 @@ class HeatStore:
         self._last_save_t = now
         self.saves += 1
 
+    def next_save_t(self, period_s: float) -> float:
+        """From when :meth:`maybe_save` saves again (-inf: at its next call; inf: never, no file)."""
+        if self.path is None:
+            return math.inf
+        last = self._last_save_t
+        return -math.inf if last is None else last + period_s
+
     def maybe_save(self, models: Mapping[str, Any], now: float, period_s: float) -> bool:
         """Save when ``period_s`` has passed since the last save (or none yet, or time went back).
 

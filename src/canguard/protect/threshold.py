@@ -9,7 +9,7 @@ two ticks is still reported at the next tick (design note 004, section 5.1).
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from canguard.protect.base import REASON_OVERCURRENT, LatchedModel
 from canguard.protect.columns import Marks
@@ -48,11 +48,11 @@ class Threshold(LatchedModel):
         over = a > self.max_value
         return Marks(over, ~over)
 
-    def _quiet_few(self, t: list[float], v: list[float]) -> bool:
+    def _quiet_side(self, t: Any, low_a: float, high_a: float) -> bool:
         """Every sample on the side of ``max_value`` the model is on."""
         if self._tripped:
-            return min(map(abs, v)) > self.max_value
-        return not max(map(abs, v)) > self.max_value
+            return low_a > self.max_value
+        return not high_a > self.max_value
 
     def _threshold_value(self) -> float:
         return self.max_value
