@@ -108,7 +108,7 @@ class MessagePlan:
             return [None] * len(rows)
         if len(rows) == block.n:  # every row of the block (a live frame's)
             return self.entry.decode(block.payload, block.length)
-        return self.entry.decode(block.payload[rows], block.length[rows])
+        return self.entry.decode(block.payload_rows(rows), block.length[rows])
 
     # -- one row ------------------------------------------------------------------------
     def take_row(self, values: tuple[float, ...], t: float) -> bool:
