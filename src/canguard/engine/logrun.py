@@ -205,7 +205,8 @@ class LogRun:
             export(ts, [(plan.names, group, decoded) for plan, group, decoded in taken], fed)
         if pos < block.n:
             self._cross(ts, pos, block.n)
-        self._count_lanes(cursor, block, per_channel, buses, rows)
+        if per_channel is not None or cursor.channels is not None or len(rows) != block.n:  # else nothing to count
+            self._count_lanes(cursor, block, per_channel, buses, rows)
         t_end = float(ts[-1])
         if t_end > cursor.last_t:
             cursor.last_t = t_end
