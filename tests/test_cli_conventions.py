@@ -1,4 +1,4 @@
-"""CLI conventions python-can / cantools / can-utils users bring with them (issue 14 item 5).
+"""CLI conventions python-can / cantools / can-utils users bring with them.
 
 Global options after the subcommand, ``-`` for stdin, a quiet end on a closed pipe,
 exit codes in every ``-h``, and a generated shell completion.

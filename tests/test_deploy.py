@@ -1,4 +1,4 @@
-"""Deploying as docs/deploy.md says (issue 14): init, the unit for this install, systemd's own checks.
+"""Deploying as docs/deploy.md says: init, the unit for this install, systemd's own checks.
 
 - ``canguard init DIR`` writes a config that loads from any cwd, with SocketCAN and the
   unit's state directory, and never overwrites without --force;

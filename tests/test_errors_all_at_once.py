@@ -1,4 +1,4 @@
-"""Every error at once (issue 12, item 6): one ``canguard check`` lists every mistake of a config,
+"""Every error at once: one ``canguard check`` lists every mistake of a config,
 its DBC files and its tree, each as ``file:line: key: what was expected``, then exits 2.
 
 In-process through :func:`canguard.cli.main.main`; every file is written under ``tmp_path``.

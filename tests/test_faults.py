@@ -1,4 +1,4 @@
-"""Bus-level faults met by the daemon through its own bus code (issue 17 item 2).
+"""Bus-level faults met by the daemon through its own bus code.
 
 The daemon runs in a thread on a virtual channel; its buses are wrapped by
 :class:`canguard.sim.faults.FaultyBus` (bus-off, refused sends, error frames, lost

@@ -1,4 +1,4 @@
-"""Fleet replay (issue 16 item 4): directories, globs and @lists of logs; --jobs and --dask give the serial results.
+"""Fleet replay: directories, globs and @lists of logs; --jobs and --dask give the serial results.
 
 The Dask case runs a real ``distributed.LocalCluster`` of two worker processes on loopback
 and compares its ``--json`` output with a serial run of the same logs, byte for byte.

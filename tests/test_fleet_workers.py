@@ -1,4 +1,4 @@
-"""Fleet replay workers (issue 16): a worker keeps the run's config; the logs go largest first; same results.
+"""Fleet replay workers: a worker keeps the run's config; the logs go largest first; same results.
 
 ``--jobs N`` forks its workers (Linux, from a process running one thread) after the parent loaded
 the config, so no worker reads it again (spawned workers read it once); a Dask worker reads it

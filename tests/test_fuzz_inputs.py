@@ -1,4 +1,4 @@
-"""Fuzzing what users hand canguard (issue 17 item 5): logs, configs, trees.
+"""Fuzzing what users hand canguard: logs, configs, trees.
 
 Property: any input gives a result or canguard's own error naming where (file:line or
 the key) — never another exception, i.e. never a traceback for the user. CI runs a

@@ -1,4 +1,4 @@
-"""A replay on a Dask worker keeps its freed memory until it ends (canguard.cli.heap, issue 16).
+"""A replay on a Dask worker keeps its freed memory until it ends (canguard.cli.heap).
 
 Dask starts its workers with ``MALLOC_TRIM_THRESHOLD_=65536``; in such a process every large
 buffer a replay frees is given back and faulted in again. These tests run a process with that

@@ -1,4 +1,4 @@
-"""IsI2tSafe's peak_current is optional, derived from the rating (issue 12, item 7).
+"""IsI2tSafe's peak_current is optional, derived from the rating.
 
 Without ``peak_current`` the peak point is IEC 60034-1's occasional excess current
 (design note 004 cites IEC 60034-1): 1.5 × the rated current (``continuous_current``)

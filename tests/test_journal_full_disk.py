@@ -1,4 +1,4 @@
-"""The event journal on a disk that fills up (issue 17).
+"""The event journal on a disk that fills up.
 
 A journal line reaches the file whole or not at all; lines the file refuses stay in
 memory and are written, in order and once, when the disk takes them again; lines that

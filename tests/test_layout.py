@@ -1,4 +1,4 @@
-"""The package stays a house a newcomer can walk through (issue 13).
+"""The package stays a house a newcomer can walk through.
 
 - the layers along the data path hold, and inside io/ and sim/ (import-linter's contracts in pyproject.toml);
 - no import cycle between modules, ``if TYPE_CHECKING:`` imports included (a ring of annotations is a ring

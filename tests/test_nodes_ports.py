@@ -12,6 +12,7 @@ import pytest
 
 import canguard.bt.nodes as nodes_package
 from canguard.bt.nodes import BUILTIN_NODES, CanguardNode, ConfiguredAction
+from canguard.bt.nodes.base import port_table
 
 NO = object()
 """No default: required (or optional without a default where marked)."""
@@ -233,7 +234,7 @@ class TestPorts:
                 info.data_type,
                 info.default_value if info.has_default else NO,
             )
-            for name, (direction, info) in cls.port_table().items()
+            for name, (direction, info) in port_table(cls).items()
         }
         assert got == EXPECTED[node_id]
 
@@ -241,7 +242,7 @@ class TestPorts:
     def test_required_ports(self, node_id: str) -> None:
         """Exactly the ports without which the node cannot work are required."""
         cls = BUILTIN_NODES[node_id]
-        required = {n for n, (_, i) in cls.port_table().items() if i.required and not i.has_default}
+        required = {n for n, (_, i) in port_table(cls).items() if i.required and not i.has_default}
         assert required == REQUIRED.get(node_id, set())
 
     @pytest.mark.parametrize("node_id", sorted(EXPECTED))
@@ -251,9 +252,9 @@ class TestPorts:
         assert issubclass(cls, CanguardNode)
         assert node_id in KINDS[cls.KIND]
         assert cls.DESCRIPTION
-        assert all(info.description for _, info in cls.port_table().values())
+        assert all(info.description for _, info in port_table(cls).values())
 
     def test_configured_action_ports(self) -> None:
         """Every actions: entry has one optional output port, output_time (float)."""
-        ((name, (direction, info)),) = ConfiguredAction.port_table().items()
+        ((name, (direction, info)),) = port_table(ConfiguredAction).items()
         assert (name, direction, info.data_type, info.required) == ("output_time", "output", float, False)

@@ -1,4 +1,4 @@
-"""Bundled data resolves through importlib.resources (issue 14)."""
+"""Bundled data resolves through importlib.resources."""
 
 from __future__ import annotations
 

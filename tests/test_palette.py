@@ -1,4 +1,4 @@
-"""Groot2 / BT.CPP palettes (issue 15 item 5): trees using node types canguard does not implement.
+"""Groot2 / BT.CPP palettes: trees using node types canguard does not implement.
 
 A palette (``<TreeNodesModel>``, the format Groot2 and BT.CPP's writeTreeNodesModelXML
 write, as Nav2's nav2_tree_nodes.xml) declares IDs and ports; ``canguard tree`` and

@@ -1,4 +1,4 @@
-"""Trip and recover are reported at the first tick at or after the model's transition (issue 12, item 5).
+"""Trip and recover are reported at the first tick at or after the model's transition.
 
 Each test drives one guard on a manual clock: samples every 1/16 s at known times
 (off the tick grid), ticks every 0.25 s. The model's own transition time

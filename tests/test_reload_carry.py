@@ -1,4 +1,4 @@
-"""A reload (SIGHUP) continues each guard's model where it stood (issue 12, item 8).
+"""A reload (SIGHUP) continues each guard's model where it stood.
 
 Before: only the trip flag of a threshold guard crossed a reload; a running
 ``trip_after`` timer restarted, and I²t heat without a state file started cold. The

@@ -1,4 +1,4 @@
-"""Issue 17 (soak): reloads leave nothing behind in py_trees' global blackboard, and old engines are freed.
+"""Soak: reloads leave nothing behind in py_trees' global blackboard, and old engines are freed.
 
 Every node of a loaded tree registers a blackboard client and keys under a namespace
 made of its uuid; py_trees keeps them in class attributes until removed. Before the

@@ -1,4 +1,4 @@
-"""Log readers and the candump -L writer of canguard.io.logs (issue 6: formats, bad input, round trips)."""
+"""Log readers and the candump -L writer of canguard.io.logs (formats, bad input, round trips)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Every log of a replay run starts from a clean state (issue 12, item 1).
+"""Every log of a replay run starts from a clean state.
 
 ``canguard replay a.log b.log`` must give b.log exactly the summary that
 ``canguard replay b.log`` gives: no blackboard key, timer, latched trip or task

@@ -1,4 +1,4 @@
-"""MF4 logs (ASAM MDF 4: python-can's MF4Writer / MF4Reader over asammdf) on canguard's reader and replay (issue 16).
+"""MF4 logs (ASAM MDF 4: python-can's MF4Writer / MF4Reader over asammdf) on canguard's reader and replay.
 
 The logs are written here by python-can's :class:`can.io.mf4.MF4Writer` from frames the
 tests build, then:

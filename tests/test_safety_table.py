@@ -1,4 +1,4 @@
-"""docs/safety.md's failure-mode table is tied to tests that exist (issue 17 item 1).
+"""docs/safety.md's failure-mode table is tied to tests that exist.
 
 Every row names test ids (``tests/file.py::Class::test`` or ``tests/file.py::test``,
 parametrized ones without their ``[...]``) that exist in the suite, or says

@@ -225,7 +225,7 @@ class TestScenarios:
         assert all(abs(a) <= 7.2 for t, a in iq if t < 2.0)
         assert all(abs(a - 20.0) < 0.2 for t, a in iq if 2.0 <= t < 5.0)
         assert all(abs(a) <= 7.2 for t, a in iq if t >= 5.0)
-        # Leaky bucket of issue 3: A += (I² − Icont²)·dt, floored at 0, trips at (Ipeak² − Icont²)·tpeak.
+        # The leaky bucket: A += (I² − Icont²)·dt, floored at 0, trips at (Ipeak² − Icont²)·tpeak.
         bucket, trip, last = 0.0, None, iq[0][0]
         for t, a in iq:
             bucket = max(0.0, bucket + (a * a - 100.0) * (t - last))

@@ -1,4 +1,4 @@
-"""Start-up (issue 16): a config is parsed once, by libyaml when PyYAML has it, with the pure-Python loader's results.
+"""Start-up: a config is parsed once, by libyaml when PyYAML has it, with the pure-Python loader's results.
 
 Every config the project ships loads to the same document through both loaders; a YAML error
 is the pure-Python loader's own message; the line numbers of problems are worked out only

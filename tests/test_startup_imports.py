@@ -1,4 +1,4 @@
-"""Start-up (issue 16): a ``canguard`` command imports what it runs, not every subcommand and library.
+"""Start-up: a ``canguard`` command imports what it runs, not every subcommand and library.
 
 The import checks run in a fresh interpreter (a subprocess), so what this test process has
 imported does not hide a heavy import coming back; none of them measures a time.

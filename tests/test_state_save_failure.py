@@ -1,4 +1,4 @@
-"""The I²t state directory fails while the daemon runs (issue 17, safety table row H5).
+"""The I²t state directory fails while the daemon runs (safety table row H5).
 
 The engine saves heat every ``state.save_period``; a save that fails is one ``error``
 event (not one per tick), the guards go on judging, and the next save that works

@@ -1,4 +1,4 @@
-"""Stops that end (issue 12, items 2 and 3): the one release rule, on every seed tree.
+"""Stops that end: the one release rule, on every seed tree.
 
 Each seed config (config/canguard.yaml and config/examples/*.yaml, eight in all)
 runs in-process on a manual clock over frames written here: a guard trips (or

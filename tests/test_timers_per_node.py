@@ -1,4 +1,4 @@
-"""Timers are per node unless a ``timer`` key names a shared one (issue 12, item 4; design note 000).
+"""Timers are per node unless a ``timer`` key names a shared one (design note 000).
 
 Note 000's IsElapsedTimeCompare keeps its own ``start_time_`` (set at its first
 tick); sharing a reference goes through the blackboard. So two comparisons that

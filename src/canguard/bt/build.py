@@ -16,6 +16,7 @@ from canguard.bt import conditions
 from canguard.bt.context import Context
 from canguard.bt.loaded import LoadedTree, NodeInfo, _preorder
 from canguard.bt.nodes import CanguardNode, PortError
+from canguard.bt.nodes.base import port_table
 from canguard.bt.registry import _TOKEN
 from canguard.bt.scopes import TreeBlackboard, subtree_scopes
 from canguard.bt.validate import _Validator
@@ -40,15 +41,8 @@ class _Loader(_Validator):
                 return parse_behaviour_tree_xml(str(rewritten), main_tree_id=main_id, node_registry=self.registry)
             except TreeError:
                 raise
-            except (
-                XMLParserError,
-                ValueError,
-                KeyError,
-                TypeError,
-                AssertionError,
-                RuntimeError,
-                NotImplementedError,
-            ) as exc:
+            except (XMLParserError, ValueError, KeyError, TypeError, AssertionError, RuntimeError,
+                    NotImplementedError) as exc:
                 raise TreeError(f"{self.path}: BehaviorTree {main_id}: {self._untoken(str(exc))}") from exc
 
     def scoped_boards(self, main_id: str) -> dict[str, TreeBlackboard]:
@@ -69,15 +63,12 @@ class _Loader(_Validator):
         blackboard is the parent's: so they are checked before the root's own and run on the
         parent's scope.
         """
-        def namespace(node: py_trees.behaviour.Behaviour | None) -> str:
-            return (getattr(node, "_subtree_namespace", None) or "/").rstrip("/") + "/"
-
         for ns, scope in self.scopes.items():
             scripts = self.subtree_conditions.get(scope.element) if scope.element is not None else None
             if not scripts:
                 continue
             for node in nodes:  # the instance's root: the one node of its scope whose parent is outside it
-                if namespace(node).startswith(ns) and not namespace(node.parent).startswith(ns):
+                if _namespace(node).startswith(ns) and not _namespace(node.parent).startswith(ns):
                     conditions.install(node, scripts, boards[scope.parent])
                     break
 
@@ -92,7 +83,7 @@ class _Loader(_Validator):
             if not isinstance(node, CanguardNode):
                 continue
             info = infos[node.id]
-            table = node.port_table()
+            table = port_table(type(node))
             for port, key in node.wired_keys().items():
                 if port in node.UNTYPED_PORTS or port not in table:
                     continue
@@ -130,7 +121,7 @@ class _Loader(_Validator):
         for node in nodes:
             parts = node.name.split(".")
             info = self.infos[parts[-1]]
-            namespace = (getattr(node, "_subtree_namespace", None) or "/").rstrip("/") + "/"
+            namespace = _namespace(node)
             board = boards.get(namespace, boards["/"])
             inline = self.private_tokens.get(parts[-1])
             if inline is not None:  # a node of an inlined _autoremap subtree: its ports and _keys
@@ -180,6 +171,11 @@ class _Loader(_Validator):
             nodes=loaded_nodes,
             wake_up=wake_up,
         )
+
+
+def _namespace(node: py_trees.behaviour.Behaviour | None) -> str:
+    """The namespace py_trees' parser gave ``node`` (its SubTree instance's; ``/`` in the main tree)."""
+    return (getattr(node, "_subtree_namespace", None) or "/").rstrip("/") + "/"
 
 
 def _checked(path: str | Path, ctx: Context, main: str | None, palette: Palette | None,

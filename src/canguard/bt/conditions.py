@@ -1,21 +1,9 @@
 """BehaviorTree.CPP 4's pre- and post-conditions on any node: ``_failureIf``, ``_successIf``, ``_onSuccess``...
 
-Scripts in these attributes are parsed once, at load (a syntax error is a load error
-with the file and line), and run on the node's (sub)tree blackboard:
-
-- before a node starts (it is not RUNNING): ``_failureIf`` true → FAILURE, ``_successIf``
-  true → SUCCESS, ``_skipIf`` true → SKIPPED, ``_while`` false → SKIPPED, in that order,
-  without ticking the node (as BT.CPP's ``checkPreConditions``);
-- while it runs: ``_while`` false halts it (``_onHalted`` runs) and it returns SKIPPED;
-- after it (also when a pre-condition gave the status, as in BT.CPP's ``executeTick``):
-  ``_onSuccess`` when it returned SUCCESS, ``_onFailure`` when FAILURE, ``_post`` after
-  either; ``_onHalted`` when it is halted while RUNNING.
-
-SKIPPED is BT.CPP's: the node stays IDLE and its parent learns it was skipped
-(:data:`canguard.bt.nodes.base.SKIPPED`; sequences and fallbacks go on to the next child,
-a control whose children were all skipped is skipped itself). A script that fails while
-it runs (BT.CPP throws out of the tick) fails the node, fail-safe, and the node's feedback
-says why; one in ``_onHalted`` is only reported.
+Parsed once at load (a syntax error is a load error with the file and line), run on the
+node's (sub)tree blackboard in BT.CPP's order (``checkPreConditions``, ``executeTick``;
+docs/trees.md, "Pre- and post-conditions"). A script that fails while it runs fails the
+node, fail-safe (BT.CPP throws); one in ``_onHalted`` is only reported.
 """
 
 from __future__ import annotations
@@ -25,7 +13,7 @@ from typing import TYPE_CHECKING, Any
 
 import py_trees
 
-from canguard.bt.nodes.base import FAILURE, INVALID, RUNNING, SKIPPED, SUCCESS, mark_skipped, run_script
+from canguard.bt.nodes.base import FAILURE, INVALID, RUNNING, SKIPPED, SUCCESS, halted, mark_skipped, run_script
 from canguard.bt.scripting import ScriptError
 from canguard.errors import quote
 
@@ -123,9 +111,9 @@ def install(node: py_trees.behaviour.Behaviour, scripts: Mapping[str, Script], b
             node.status = FAILURE  # a post-condition that fails fails the node (BT.CPP throws)
 
     def stop_with_conditions(new_status: Any = INVALID) -> None:
-        halted = new_status == INVALID and node.status == RUNNING
+        was_halted = halted(node, new_status)
         stop(new_status)
-        if halted:
+        if was_halted:
             _run(node, scripts.get("_onHalted"), board, "_onHalted")
 
     node.tick = tick_with_conditions  # type: ignore[method-assign]

@@ -1,18 +1,7 @@
 """The context one tree runs in: clock, sources, protection models, frame sink, events.
 
-The engine builds one :class:`Context` per loaded tree and hands it to every node
-(the node registry binds it with ``functools.partial``), so nodes never reach
-for globals, clocks or buses themselves:
-
-- ``now()``: the engine's clock (log time in replay, live time in the daemon).
-- ``health[source]``: a :class:`~canguard.protect.staleness.SourceHealth` per
-  configured source: latest values, freshness, presence, validity.
-- ``subscribe(source, role, model)``: a guard node registers its protection
-  model; the engine advances it over the runs of that signal's samples
-  (:mod:`canguard.engine.blocks`) and ticks at once on an edge.
-- ``sink``: where action nodes hand their frames (the emitter live, a list in tests).
-- ``task``: the task gate ExecuteTask drives (run while ticked, halt on halt).
-- ``record(...)``: guard transitions and other events for the journal.
+The engine builds one :class:`Context` per loaded tree and the registry hands it to every
+node, so nodes never reach for globals, clocks or buses themselves.
 """
 
 from __future__ import annotations

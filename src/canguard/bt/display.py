@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import math
 import shutil
 import xml.etree.ElementTree as ET
 from pathlib import Path
@@ -14,7 +13,8 @@ from py_trees.ports import PortsMixin
 from canguard.bt import registry
 from canguard.bt.context import Context
 from canguard.bt.nodes import BUILTIN_NODES, ConfiguredAction
-from canguard.bt.registry import _load_plugin, node_kind
+from canguard.bt.nodes.base import node_kind
+from canguard.bt.registry import _load_plugin
 from canguard.bt.xmlread import _type_name
 from canguard.errors import TreeError
 
@@ -49,8 +49,6 @@ def render_dot(root: py_trees.behaviour.Behaviour, path: str | Path) -> Path:
 def _default_text(value: Any) -> str:
     if isinstance(value, bool):  # BT.CPP writes and reads bools as true/false
         return "true" if value else "false"
-    if isinstance(value, float) and math.isinf(value):
-        return "inf" if value > 0 else "-inf"
     return str(value)
 
 

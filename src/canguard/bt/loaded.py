@@ -100,14 +100,6 @@ class LoadedTree:
             self.context.tree_start = self.context.now()
         return tick_once(self, max_reticks, exactly_once=exactly_once)
 
-    def now(self) -> float:
-        """The tree's clock (the context's)."""
-        return self.context.now()
-
-    def record(self, event: str, **fields: Any) -> None:
-        """Journal an event through the context."""
-        self.context.record(event, **fields)
-
     @property
     def skipped(self) -> bool:
         """True when the last tick's root returned BT.CPP's SKIPPED (its status then stays INVALID: IDLE)."""

@@ -1,26 +1,9 @@
 """Groot2 / BehaviorTree.CPP palettes: ``<TreeNodesModel>`` declarations of node types canguard does not implement.
 
-A palette is what Groot2 and BT.CPP's ``writeTreeNodesModelXML`` write (Nav2 ships
-``nav2_tree_nodes.xml``)::
-
-    <root BTCPP_format="4">
-      <TreeNodesModel>
-        <Action ID="ComputePathToPose">
-          <input_port name="goal" type="geometry_msgs::msg::PoseStamped">Destination</input_port>
-          <input_port name="planner_id" default="GridBased"/>
-          <output_port name="path"/>
-        </Action>
-        <Decorator ID="RateController"><input_port name="hz" default="10"/></Decorator>
-      </TreeNodesModel>
-    </root>
-
-It may sit inside the tree file or come from ``--nodes FILE``. The tree is then
-validated against it: an unknown node ID, an unknown port, the wrong number of
-children, a port declared ``required="true"`` left out — each with its file:line.
-(BT.CPP's palettes do not say which ports are required: a port without ``default``
-may still be optional, as most of Nav2's are.)
-Declaring a node does not make canguard able to run it: running needs a config
-action or a ``canguard.nodes`` plug-in of that ID (:func:`unbound`).
+A palette (in the tree file, or ``--nodes FILE``; Nav2's ``nav2_tree_nodes.xml``) is what Groot2 and
+BT.CPP's ``writeTreeNodesModelXML`` write. Tree nodes are checked against their declaration (ports,
+``required="true"``, children); a declared node runs only once bound to a config action or a plug-in
+(docs/trees.md, "Palettes").
 """
 
 from __future__ import annotations
@@ -126,32 +109,25 @@ def read_model(model: ET.Element, where: Mapping[ET.Element, Where], path: Path,
         palette.add(PaletteNode(node_id, decl.tag, ports, file, line), problems)
 
 
-def read_palette_file(path: Path, palette: Palette) -> None:
-    """Read a palette file (``--nodes FILE``) into ``palette``; a TreeError listing every problem."""
-    where: dict[ET.Element, Where] = {}
-    root = _read_xml(path, where)
-    problems: list[str] = []
-    models = [root] if root.tag == "TreeNodesModel" else list(root.iter("TreeNodesModel"))
-    if root.tag not in ("root", "TreeNodesModel"):
-        problems.append(f"{path}:{where.get(root, (path, 1))[1]}: the document element is <{root.tag}>, "
-                        "expected <root> holding a <TreeNodesModel> (a Groot2 / BT.CPP palette)")
-    elif not models:
-        problems.append(f"{path}:{where.get(root, (path, 1))[1]}: no <TreeNodesModel> in the palette file")
-    for model in models:
-        read_model(model, where, path, palette, problems)
-    if problems:
-        raise TreeError(problems)
-
-
 def read_palettes(paths: Iterable[Path]) -> Palette:
-    """Every ``--nodes`` file read into one palette; every problem of every file at once."""
+    """Every ``--nodes`` file read into one palette; a TreeError listing every problem of every file."""
     palette = Palette()
     problems: list[str] = []
-    for path in paths:
+    for path in map(Path, paths):
+        where: dict[ET.Element, Where] = {}
         try:
-            read_palette_file(Path(path), palette)
+            root = _read_xml(path, where)
         except TreeError as exc:
             problems.extend(exc.problems)
+            continue
+        models = [root] if root.tag == "TreeNodesModel" else list(root.iter("TreeNodesModel"))
+        if root.tag not in ("root", "TreeNodesModel"):
+            problems.append(f"{path}:{where.get(root, (path, 1))[1]}: the document element is <{root.tag}>, "
+                            "expected <root> holding a <TreeNodesModel> (a Groot2 / BT.CPP palette)")
+        elif not models:
+            problems.append(f"{path}:{where.get(root, (path, 1))[1]}: no <TreeNodesModel> in the palette file")
+        for model in models:
+            read_model(model, where, path, palette, problems)
     if problems:
         raise TreeError(problems)
     return palette

@@ -1,17 +1,9 @@
 """The blackboard scope of each SubTree instance: BT.CPP's remapping entries, for scripts and SetBlackboard.
 
-In BT.CPP a ``<SubTree ID="S" input="{x}" lit="5"/>`` gets a blackboard of its own whose
-``input`` entry *is* the parent's ``x`` (a remapping entry: every read and write, by a port,
-a script or ``SetBlackboard``, goes to the parent's entry) and whose ``lit`` entry is created
-from the literal, typed as BT.CPP's ``xml_parsing.cpp`` types it (an integer, else a real,
-else a string). ``@key`` names the root blackboard's entry from any depth.
-
-py_trees' parser already gives each SubTree instance a namespace (``/S/``) and resolves the
-*ports* of the nodes inside through the element's remappings. This module gives the rest of
-the nodes — scripts, pre/post conditions, SetBlackboard / UnsetBlackboard — the same view:
-one :class:`Scope` per namespace, which turns a name used inside into the storage key.
-(``_autoremap="true"`` subtrees are inlined into their parent's scope at load, see
-:mod:`canguard.bt.xmlread`.)
+py_trees' parser gives each SubTree instance a namespace and remaps the ports inside; a
+:class:`Scope` gives scripts, pre/post conditions and Set/UnsetBlackboard the same view: a
+remapped name is the parent's entry, a literal on the element a typed entry of the instance,
+``@key`` the root's (docs/trees.md, "The blackboard").
 """
 
 from __future__ import annotations
@@ -36,6 +28,22 @@ def typed_literal(text: str) -> int | float | str:
     if REAL_TEXT.match(text):
         return float(text)
     return text
+
+
+def subtree_ports(elem: ET.Element) -> tuple[dict[str, str], dict[str, str]]:
+    """A ``<SubTree>`` element's ports: those remapped (port -> the parent's entry name), and the literals."""
+    remaps: dict[str, str] = {}
+    literals: dict[str, str] = {}
+    for attr, value in elem.attrib.items():
+        if attr in ("ID", "name") or attr.startswith("_"):
+            continue
+        text = value.strip()
+        if text.startswith("{") and text.endswith("}"):
+            inner = text[1:-1].strip()
+            remaps[attr] = attr if inner == "=" else inner
+        else:
+            literals[attr] = value
+    return remaps, literals
 
 
 @dataclass(frozen=True)
@@ -105,15 +113,9 @@ def subtree_scopes(trees: Mapping[str, ET.Element], main_id: str) -> dict[str, S
                 continue
             target = child.attrib.get("ID", "")
             sub = Scope(scope.namespace + child.attrib.get("name", target) + "/", parent=scope.namespace, element=child)
-            for attr, value in child.attrib.items():
-                if attr in ("ID", "name") or attr.startswith("_"):
-                    continue
-                text = value.strip()
-                if text.startswith("{") and text.endswith("}"):
-                    inner = text[1:-1].strip()
-                    sub.aliases[attr] = scope.key(attr if inner == "=" else inner)
-                else:
-                    sub.literals[sub.namespace + attr] = typed_literal(value)
+            remaps, literals = subtree_ports(child)
+            sub.aliases.update({port: scope.key(name) for port, name in remaps.items()})
+            sub.literals.update({sub.namespace + port: typed_literal(text) for port, text in literals.items()})
             scopes[sub.namespace] = sub
             if target in trees:
                 walk(trees[target], sub)

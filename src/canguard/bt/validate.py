@@ -16,7 +16,8 @@ from canguard.bt import conditions
 from canguard.bt.conditions import take_conditions
 from canguard.bt.loaded import NodeInfo
 from canguard.bt.nodes import ConfiguredAction, GuardNode
-from canguard.bt.registry import _SUBTREE, _TOKEN, children_problem, known_node_ids, node_kind
+from canguard.bt.nodes.base import node_kind, port_table
+from canguard.bt.registry import _SUBTREE, _TOKEN, children_problem, known_node_ids
 from canguard.bt.xmlread import _closest, _Reader, _type_name
 from canguard.errors import TreeError, closest, quote
 
@@ -106,12 +107,9 @@ class _Validator(_Reader):
         return None
 
     def _check_subtree(self, elem: ET.Element, tree_id: str, names: dict[str, int]) -> None:
-        target = elem.attrib.get("ID")
-        if not target:
+        if not elem.attrib.get("ID"):
             raise self.error(elem, 'SubTree without ID="..."', tree_id)
-        if target not in self.trees:
-            known = ", ".join(_closest(target, self.trees))
-            raise self.error(elem, f"unknown BehaviorTree {quote(target)}; trees in the file: {known}", tree_id)
+        target = self.target(elem, tree_id)
         if len(elem):
             raise self.error(elem, "a SubTree takes no child elements (its ports are attributes)", tree_id)
         for attr, value in elem.attrib.items():
@@ -168,10 +166,7 @@ class _Validator(_Reader):
                 f"known node IDs, closest first: {', '.join(near)} ({len(known)} in all: {LIST_NODE_IDS})"
             )
             return None
-        ports: dict[str, tuple[str, PortInformation]] = {
-            **{n: ("input", i) for n, i in cls.input_ports().items()},
-            **{n: ("output", i) for n, i in cls.output_ports().items()},
-        }
+        ports = port_table(cls)
         for attr, value in elem.attrib.items():
             if attr == "name":
                 continue
@@ -193,15 +188,8 @@ class _Validator(_Reader):
             self.errors.append(str(self.error(elem, kind_error, tree_id)))
         return cls
 
-    def _check_port(
-        self,
-        elem: ET.Element,
-        tree_id: str,
-        attr: str,
-        value: str,
-        ports: Mapping[str, tuple[str, PortInformation]],
-        cls: type,
-    ) -> None:
+    def _check_port(self, elem: ET.Element, tree_id: str, attr: str, value: str,
+                    ports: Mapping[str, tuple[str, PortInformation]], cls: type) -> None:
         """Raise the TreeError of one attribute of a node of ``cls`` (unknown port, bad value...), if any."""
         node_id = elem.tag
         if attr.startswith("_"):

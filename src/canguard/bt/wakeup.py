@@ -1,25 +1,9 @@
 """BehaviorTree.CPP's wake-up signal, and ``tickOnce()``: the root re-ticked while a wake-up is pending.
 
-Every tree BT.CPP's factory builds shares one wake-up signal among its nodes
-(``Tree::initialize``), a latch: a node *emits* it, and ``Tree::tickRoot`` *consumes*
-it. ``tickOnce()`` (``TickOption::ONCE_UNLESS_WOKEN_UP``, what Nav2's loop calls) ticks
-the root, then, while the root is RUNNING and the signal was emitted, ticks it again
-(``bt_factory.cpp``). The nodes that emit it:
-
-- ``Repeat`` / ``RetryUntilSuccessful`` after a child that completed at once (it was
-  IDLE) when another cycle / attempt follows; ``SequenceWithMemory``, ``AsyncSequence``
-  and ``AsyncFallback`` after such a child when another child follows: they return
-  RUNNING "to make this interruptible", and ``tickOnce()`` goes on at once;
-- ``Sleep``, ``Delay`` and ``Timeout`` when their timer expires (a thread in BT.CPP,
-  here a deadline on the engine's clock, fired when a tick starts at or after it).
-
-A latch emitted in a tick the root completes stays pending (BT.CPP only reads it while
-the root is RUNNING) and gives the next ``tickOnce()`` one more re-tick if its root runs.
-
-BT.CPP's loop has no bound: ``Repeat num_cycles="-1"`` over a child that succeeds at once
-never returns from ``tickOnce()``. canguard bounds the re-ticks of one tick
-(:data:`MAX_RETICKS`), leaves the signal pending for the next tick, and journals the
-first capped tick of a run of them, so such a tree cannot starve the daemon's loop.
+One latch per tree, shared by its nodes (BT.CPP's ``Tree::initialize``): a node emits it, the
+re-tick loop of ``tickOnce()`` consumes it while the root is RUNNING. Unlike BT.CPP the re-ticks
+of one tick are bounded (:data:`MAX_RETICKS`), the first capped tick of a run journalled
+(docs/trees.md, "Ticks").
 """
 
 from __future__ import annotations
@@ -30,6 +14,8 @@ from typing import TYPE_CHECKING, Protocol
 
 if TYPE_CHECKING:
     import py_trees
+
+    from canguard.bt.context import Context
 
 MAX_RETICKS = 100
 """Re-ticks of the root allowed in one tick (after the first); the rest wait for the next tick."""
@@ -81,10 +67,7 @@ class _Tree(Protocol):
 
     root: py_trees.behaviour.Behaviour
     wake_up: WakeUpSignal
-
-    def now(self) -> float: ...
-
-    def record(self, event: str, **fields: object) -> None: ...
+    context: Context
 
 
 @dataclass(frozen=True)
@@ -125,7 +108,7 @@ def tick_once(
     from py_trees.common import Status
 
     signal = tree.wake_up
-    signal.fire_due(tree.now())
+    signal.fire_due(tree.context.now())
     reached: set | None = set() if collect else None
     root = tree.root
     _tick_root(root, reached)
@@ -139,7 +122,7 @@ def tick_once(
         reticks += 1
         _tick_root(root, reached)
     if capped and not signal.capped:
-        tree.record(
+        tree.context.record(
             "error",
             node=root.name,
             reason=f"the tree kept waking itself up: {max_reticks} re-ticks in one tick, "

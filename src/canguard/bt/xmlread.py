@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING, Any, Literal
 from canguard.bt.context import Context
 from canguard.bt.loaded import NodeInfo
 from canguard.bt.registry import _PORT_ALIASES, _SUBTREE, _TAG_ALIASES, _TOKEN, _V3_WRAPPERS, Registry, build_registry
-from canguard.bt.scopes import Inline
+from canguard.bt.scopes import Inline, subtree_ports
 from canguard.bt.xmlsrc import Where, _read_xml
 from canguard.errors import TreeError, closest, quote
 
@@ -219,49 +219,34 @@ class _Reader:
         return value is not None and value.strip().lower() in ("true", "1")
 
     def _inline(self, sub: ET.Element, tree_id: str, chain: tuple[str, ...]) -> ET.Element:
-        """The subtree of an autoremapped SubTree, copied in its place: it shares the parent's blackboard.
-
-        BT.CPP's ``_autoremap="true"``: every entry the subtree uses is the parent's entry of
-        the same name, unless the SubTree element remaps it to another ``{key}`` or gives it
-        a constant; the copy's ports get those keys renamed or the constant (scripts inside
-        read entries by name: a remapped name there is not renamed). Conditions on the SubTree
-        element (``_skipIf``...) move to the copy's root; its lines stay those of the subtree's
-        definition.
-        """
-        target = sub.attrib.get("ID", "")
-        if target not in self.trees:
-            known = ", ".join(_closest(target, self.trees))
-            raise self.error(sub, f"unknown BehaviorTree {quote(target)}; trees in the file: {known}", tree_id)
+        """The subtree of an autoremapped SubTree, copied in its place on the parent's blackboard (BT.CPP's
+        ``_autoremap="true"``): its ports' remapped keys renamed or given the element's constants (scripts keep
+        their names), the element's conditions on the copy's root, its lines those of the definition."""
+        target = self.target(sub, tree_id)
         if target in chain:
             raise self.error(sub, f"SubTree cycle: {' -> '.join((*chain, target))}", tree_id)
         body = self.trees[target]
         if len(body) != 1:
             raise self.error(sub, f"BehaviorTree {target} must have exactly one root node", tree_id)
-        rename: dict[str, str] = {}
-        conditions: dict[str, str] = {}
-        for attr, value in sub.attrib.items():
-            if attr in ("ID", "name", "_autoremap", "__autoremap"):
-                continue
-            if attr.startswith("_"):
-                conditions[attr] = value
-                continue
-            text = value.strip()
-            if text == "{=}":
-                continue
-            if text.startswith("{") and text.endswith("}"):
-                rename[attr] = text  # the parent's entry of that name
-            else:
-                rename[attr] = value  # a constant: the subtree's {attr} reads it
+        remaps, literals = subtree_ports(sub)
+        rename = {**{port: "{" + name + "}" for port, name in remaps.items()}, **literals}  # {port} -> this
         self._inlined += 1
         private = f"{target}_autoremap{self._inlined}"  # BT.CPP: _autoremap never maps a key starting with _
-        remaps = {port: value.strip()[1:-1].strip() for port, value in rename.items() if value.strip().startswith("{")}
-        literals = {port: value for port, value in rename.items() if port not in remaps}
         copy = self._copy(body[0], rename, Inline(private, remaps, literals))
-        copy.attrib.update(conditions)
+        copy.attrib.update({a: v for a, v in sub.attrib.items()
+                            if a.startswith("_") and a not in ("_autoremap", "__autoremap")})
         for i, child in enumerate(copy):
             if self._autoremapped(child):
                 copy[i] = self._inline(child, tree_id, (*chain, target))
         return copy
+
+    def target(self, sub: ET.Element, tree_id: str) -> str:
+        """The ID of the BehaviorTree a ``<SubTree>`` runs; a TreeError naming the trees when there is none."""
+        target = sub.attrib.get("ID", "")
+        if target not in self.trees:
+            known = ", ".join(_closest(target, self.trees))
+            raise self.error(sub, f"unknown BehaviorTree {quote(target)}; trees in the file: {known}", tree_id)
+        return target
 
     def _copy(self, src: ET.Element, rename: dict[str, str], inline: Inline) -> ET.Element:
         """A deep copy of ``src`` with its lines, ``{key}`` references renamed by ``rename``, ``{_key}`` ones

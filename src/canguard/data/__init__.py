@@ -1,7 +1,7 @@
 """Files shipped inside the package: bundled config, trees, DBC, systemd units.
 
 Resolved through importlib.resources so they are found from any working
-directory after a non-editable install (issue 14).
+directory after a non-editable install.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""A column block's configured rows, decoded message by message (the replay hot path; issue 16).
+"""A column block's configured rows, decoded message by message (the replay hot path).
 
 :func:`decode_rows` is what :meth:`LogRun._run_columns <canguard.engine.logrun.LogRun._run_columns>`
 asks of a block: each configured message's rows decoded together

@@ -240,7 +240,7 @@ class Engine:
         parameters and takes over the old model's running state (:meth:`LatchedModel.carry_from`):
         a trip (a hysteresis guard sitting between its thresholds stays tripped), a running
         ``trip_after`` / ``recover_after`` timer, an inrush window, I²t heat. Without it a
-        reload that changed a threshold restarted the guard cold (issue 12, item 8).
+        reload that changed a threshold restarted the guard cold.
         """
         old_guards = {g.name: g for g in old.guard_nodes}
         for guard in self.guard_nodes:

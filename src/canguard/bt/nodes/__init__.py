@@ -1,22 +1,11 @@
 """canguard's node library: py_trees behaviours with typed ports, by BehaviorTree.CPP node ID.
 
-:data:`BUILTIN_NODES` is the closed table of node types canguard itself provides;
-:func:`canguard.bt.loader.build_registry` binds each to a tree's context and extends
-the table with one :class:`~canguard.bt.nodes.actions.ConfiguredAction` per
-``actions:`` entry of the config and with the node types third-party packages
-declare in the ``canguard.nodes`` entry-point group (loaded lazily, only when a
-tree uses them). Node IDs read from XML are only ever looked up in that table:
-nothing is imported or evaluated by a name found in a tree file.
-
-The table names each node type's module, and a module is imported when one of its
-classes is first looked up (``BUILTIN_NODES[node_id]``, or ``from canguard.bt.nodes
-import Sequence``): a tree pays at start-up only for the node families it uses. The
-actions and the current guards, which the engine and the loader always need, are
-imported with the package.
-
-A plug-in node type is a class deriving from :class:`CanguardNode` (or at least
-:class:`py_trees.ports.PortsMixin`) and a py_trees behaviour; when its
-constructor takes ``context=`` it receives the tree's :class:`~canguard.bt.context.Context`.
+:data:`BUILTIN_NODES` is the closed table of node types canguard provides, extended per tree by
+:func:`canguard.bt.registry.build_registry` (config actions, ``canguard.nodes`` plug-ins): node IDs
+read from XML are only ever looked up there. A family's module is imported when one of its classes
+is first looked up, so a tree pays at start-up only for the families it uses. A plug-in node type
+is a :class:`py_trees.ports.PortsMixin` py_trees behaviour (best a :class:`CanguardNode`); a
+constructor taking ``context=`` receives the tree's :class:`~canguard.bt.context.Context`.
 """
 
 from __future__ import annotations
@@ -24,9 +13,9 @@ from __future__ import annotations
 from collections.abc import Iterator, Mapping
 from importlib import import_module
 
-from canguard.bt.nodes.actions import ConfiguredAction, EmitStop, ExecuteTask, ResetStop
-from canguard.bt.nodes.base import CanguardNode, NodeKind, PortError, port_info
-from canguard.bt.nodes.current import GuardNode, IsCurrentNormal, IsCurrentSafe, IsI2tSafe
+from canguard.bt.nodes.actions import ConfiguredAction
+from canguard.bt.nodes.base import CanguardNode, PortError, port_info
+from canguard.bt.nodes.current import GuardNode
 
 _MODULES: dict[str, str] = {
     # conditions
@@ -83,5 +72,4 @@ def __getattr__(name: str) -> type[CanguardNode]:
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
-__all__ = ["BUILTIN_NODES", "CanguardNode", "ConfiguredAction", "EmitStop", "ExecuteTask", "GuardNode",
-           "IsCurrentNormal", "IsCurrentSafe", "IsI2tSafe", "NodeKind", "PortError", "ResetStop", "port_info"]
+__all__ = ["BUILTIN_NODES", "CanguardNode", "ConfiguredAction", "GuardNode", "PortError", "port_info"]

@@ -1,24 +1,10 @@
 """Action nodes: frames handed to the context's sink or task gate.
 
-- **ExecuteTask**: the robot's task. Each tick calls ``ctx.task.run(node, now)``
-  (the gate sends the task's enable / heartbeat frames at its period) and returns
-  RUNNING; a halt (interrupted while RUNNING, e.g. a ReactiveSequence guard
-  failing) calls ``ctx.task.halt(node, now)``, which sends the stop frames.
-- **EmitStop**: sends the config's stop frames (``ctx.stop_frames``) once; SUCCESS.
-- **ConfiguredAction**: one node type per ``actions:`` entry of the config (the
-  node ID is the entry's key, e.g. PerformRecovery): hands its frames to the task
-  gate (``ctx.task.action``), writes ``output_time`` = now when that port is wired,
-  SUCCESS. Its ``role`` says what the gate does with them: a ``task`` action's
-  frames are part of the task (withheld while the task is stopped, and the node's
-  feedback says so), a ``recovery`` action's frames go out during a stop too. The
-  placeholder actions of the design notes (PerformDiagnostics, NavigateToPose,
-  ContinueOperation...) are such entries.
-- **ResetStop**: the explicit reset of ``stop.release: manual``; SUCCESS.
-
-:func:`assign_roles` resolves ``role: auto`` for one tree: an action is part of the
-task when the tree has no ExecuteTask node (the tree's actions are its task, e.g.
-ContinueOperation in MultiCurrentMonitoring), a recovery action when it has one
-(ExecuteTask is the task; the others serve it, e.g. ClearDriveErrors in RobotGuard).
+ExecuteTask drives ``ctx.task`` (run while ticked, halt on a halt), EmitStop sends the
+config's stop frames, ResetStop is ``stop.release: manual``'s reset, and one
+:class:`ConfiguredAction` node type per ``actions:`` entry hands its frames to the task gate
+(its ``role``: ``task`` frames are withheld during a stop, ``recovery`` frames are not;
+``auto`` is resolved per tree by :func:`assign_roles`).
 """
 
 from __future__ import annotations
@@ -49,7 +35,6 @@ class ExecuteTask(CanguardNode, py_trees.behaviour.Behaviour):
 
 class EmitStop(CanguardNode, py_trees.behaviour.Behaviour):
     """send the config's stop frames once"""
-
 
     def update(self) -> py_trees.common.Status:
         """Hand the stop frames to the sink."""
@@ -95,7 +80,6 @@ class ConfiguredAction(CanguardNode, py_trees.behaviour.Behaviour):
 
 class ResetStop(CanguardNode, py_trees.behaviour.Behaviour):
     """reset a stop (stop.release: manual): the stop ends at this tick's end if the release rule holds"""
-
 
     def update(self) -> py_trees.common.Status:
         """Ask the gate to release the stop in this tick."""

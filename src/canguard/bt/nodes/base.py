@@ -1,21 +1,11 @@
 """What every canguard node shares: typed ports, the context, a load-time ``bind()``.
 
-Every node type is a :class:`py_trees.ports.PortsMixin` + py_trees behaviour declaring
-``INPUT_PORTS`` / ``OUTPUT_PORTS`` with the names BehaviorTree.CPP users type.
-:class:`CanguardNode` adds the tree's :class:`~canguard.bt.context.Context` (``context=``,
-bound by the registry: nodes never reach for globals or clocks); stays out of py_trees'
-global auto-registry (importing canguard must not change what other py_trees users'
-parsers resolve); reads constant and default ports once, at ``setup_ports()`` (only ports
-wired to a ``{key}`` are read at tick); and has :meth:`~CanguardNode.bind`, called once the
-whole tree is parsed, so that a bad port value is a load-time TreeError naming file, line,
-node and port. Output ports are only written when wired, as BehaviorTree.CPP drops writes
-to unconnected ports.
-
-**Blackboard fast path.** The access rights and the remapped key of every wired port
-are fixed once ``setup_ports()`` has registered them, so :meth:`CanguardNode.port` and
-:meth:`CanguardNode.write` go straight to ``Blackboard.storage`` (py_trees' client costs
-3-4 µs a write), with the same type checks. While py_trees' activity stream is enabled
-they take the client's path, so the stream stays complete.
+:class:`CanguardNode` is a :class:`py_trees.ports.PortsMixin` declaring ``INPUT_PORTS`` /
+``OUTPUT_PORTS`` under BehaviorTree.CPP's names. It gets the tree's context from the registry,
+stays out of py_trees' global auto-registry, reads constant ports once at ``setup_ports()`` (only
+``{key}`` ports at tick, straight from ``Blackboard.storage`` unless py_trees' activity stream is
+on), writes output ports only when wired (as BT.CPP), and checks its ports in :meth:`~CanguardNode.bind`
+once the whole tree is parsed, so a bad value is a load-time TreeError naming file, line, node and port.
 """
 
 from __future__ import annotations
@@ -33,7 +23,8 @@ from canguard.bt.scripting import ScriptError
 from canguard.bt.wakeup import WakeUpSignal
 
 if TYPE_CHECKING:
-    from canguard.bt.scripting import Script, ScriptBlackboard
+    from canguard.bt.scripting import Script
+    from canguard.bt.scripting.blackboard import ScriptBlackboard
 
 NodeKind = Literal["Action", "Condition", "Control", "Decorator"]
 
@@ -138,6 +129,22 @@ def _number_as(expected: Any, value: Any) -> Any:
     return None
 
 
+def node_kind(cls: type) -> NodeKind:
+    """Action, Condition, Control or Decorator: Condition where the class's ``KIND`` says so, else its py_trees
+    base's (any node class, plug-ins too)."""
+    if getattr(cls, "KIND", None) == "Condition":
+        return "Condition"
+    if issubclass(cls, py_trees.decorators.Decorator):
+        return "Decorator"
+    return "Control" if issubclass(cls, py_trees.composites.Composite) else "Action"
+
+
+def port_table(cls: type[PortsMixin]) -> dict[str, tuple[str, PortInformation]]:
+    """Every port of a node class as ``{name: ("input" | "output", info)}``, inputs first."""
+    return {**{n: ("input", i) for n, i in cls.input_ports().items()},
+            **{n: ("output", i) for n, i in cls.output_ports().items()}}
+
+
 class PortError(ValueError):
     """A port value a node cannot work with; the loader turns it into a TreeError naming file and line."""
 
@@ -205,9 +212,7 @@ class CanguardNode(PortsMixin, register=False):
             super(PortsMixin, cls).__init_subclass__(**kwargs)
         if "DESCRIPTION" not in cls.__dict__ and cls.__doc__:
             cls.DESCRIPTION = " ".join(cls.__doc__.split("\n\n")[0].split())
-        if cls.KIND != "Condition":
-            cls.KIND = ("Decorator" if issubclass(cls, py_trees.decorators.Decorator)
-                        else "Control" if issubclass(cls, py_trees.composites.Composite) else "Action")
+        cls.KIND = node_kind(cls)
         if issubclass(cls, py_trees.behaviour.Behaviour) and cls.KIND in ("Action", "Condition"):
             # a leaf: py_trees' tick and stop, step for step, without their eager debug strings
             if cls.tick is py_trees.behaviour.Behaviour.tick:
@@ -337,20 +342,10 @@ class CanguardNode(PortsMixin, register=False):
     def bind(self) -> None:
         """Load-time set-up from the ports (models, sources); raise :class:`PortError` on bad values."""
 
-    @classmethod
-    def port_table(cls) -> dict[str, tuple[str, PortInformation]]:
-        """Every port as ``{name: ("input" | "output", info)}``, inputs first."""
-        table: dict[str, tuple[str, PortInformation]] = {n: ("input", i) for n, i in cls.input_ports().items()}
-        table.update({n: ("output", i) for n, i in cls.output_ports().items()})
-        return table
-
 
 def _leaf_tick(self: py_trees.behaviour.Behaviour) -> Iterator[py_trees.behaviour.Behaviour]:
-    """:meth:`py_trees.behaviour.Behaviour.tick` of a leaf, the same steps in the same order.
-
-    py_trees formats a debug string and builds ``list(Status)`` on every tick and stop, logging
-    on or off; here the debug lines are written only when the logger would print them.
-    """
+    """:meth:`py_trees.behaviour.Behaviour.tick` of a leaf, the same steps, its debug lines formatted only when
+    the logger would print them."""
     if py_trees.logging.level < py_trees.logging.Level.INFO:  # py_trees' own module-wide level
         self.logger.debug(f"{self.__class__.__name__}.tick()")
     if self.status != RUNNING:
@@ -407,13 +402,8 @@ def _leaf_stop(self: py_trees.behaviour.Behaviour, new_status: Status) -> None:
 
 
 def halted(node: py_trees.behaviour.Behaviour, new_status: py_trees.common.Status) -> bool:
-    """True when ``terminate(new_status)`` is a BehaviorTree.CPP *halt*: a RUNNING node interrupted.
-
-    py_trees also stops finished (SUCCESS/FAILURE) children with INVALID each time a
-    composite starts over; BehaviorTree.CPP only halts nodes that are RUNNING. Nodes
-    whose halt has side effects (ExecuteTask stops the task, Profile resets its
-    statistics) act only on a real halt.
-    """
+    """True when ``terminate(new_status)`` is a BehaviorTree.CPP *halt*: a RUNNING node interrupted (py_trees
+    also stops finished children with INVALID when a composite starts over; that is no halt)."""
     return new_status == INVALID and node.status == RUNNING
 
 

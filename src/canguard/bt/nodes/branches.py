@@ -23,6 +23,7 @@ from canguard.bt.nodes.base import (
     PortError,
     follow,
     halt_running,
+    halted,
     mark_skipped,
     node_types,
     outcome,
@@ -233,8 +234,7 @@ class TryCatch(CanguardNode, py_trees.composites.Composite):
         yield self
 
     def stop(self, new_status: py_trees.common.Status = INVALID) -> None:
-        if (new_status == INVALID and self.status == RUNNING and not self.in_catch
-                and self.port("catch_on_halt")):
+        if halted(self, new_status) and not self.in_catch and self.port("catch_on_halt"):
             halt_running(self.children[:-1])
             for _ in self.children[-1].tick():
                 pass

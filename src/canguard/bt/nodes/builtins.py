@@ -286,7 +286,6 @@ class IfThenElse(_Branching):
     """first child decides: SUCCESS ticks the second, FAILURE the third (or fails); not re-checked"""
 
 
-
 class WhileDoElse(_Branching):
     """like IfThenElse, but the first child is ticked every time: a change halts the running branch"""
 

@@ -1,22 +1,9 @@
 """Control nodes with BehaviorTree.CPP (v4) semantics, on py_trees composites and decorators.
 
-py_trees' parser knows only ``Sequence`` / ``Selector`` / ``Parallel`` with a ``memory``
-attribute, and its decorators take constructor arguments rather than ports: canguard
-registers ports-enabled classes under the BT.CPP names, on py_trees' classes where the
-semantics match (Inverter, ForceSuccess, ForceFailure) and with their own ``tick`` where
-they do not (each node's ``DESCRIPTION`` says what it does; the sequences and fallbacks
-are in :mod:`.sequences`). Notes on the mapping:
-
-- BT.CPP's plain ``Sequence`` *has* memory for RUNNING children (it does not re-tick earlier
-  children), which is why guards belong under a ReactiveSequence (design note 004).
-- RetryUntilSuccessful and Repeat: after a child that completed at once they return RUNNING
-  and emit the tree's wake-up signal (:mod:`canguard.bt.wakeup`), so ``tickOnce()`` ticks the
-  root again at once; a child that was RUNNING and then completed runs again within the pass.
-- Every control passes BT.CPP's SKIPPED on: sequences and fallbacks skip a skipped child, a
-  control whose children were all skipped is skipped, a decorator over a skipped child is
-  skipped (KeepRunningUntilFailure stays RUNNING, as BT.CPP).
-- Timeout and Delay read the context's clock (py_trees' Timeout reads ``time.monotonic``), so
-  they work in replay and in tests with a manual clock.
+Ports-enabled classes under the BT.CPP names, on py_trees' classes where the semantics match
+(Inverter, ForceSuccess, ForceFailure) and with their own ``tick`` where they do not; Timeout
+and Delay read the context's clock (py_trees' Timeout reads ``time.monotonic``). The sequences
+and fallbacks are in :mod:`.sequences`; docs/trees.md says what each node does.
 """
 
 from __future__ import annotations

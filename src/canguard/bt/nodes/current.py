@@ -1,18 +1,11 @@
 """Current guards (design note 004): IsCurrentNormal, IsCurrentSafe, IsI2tSafe.
 
-A guard resolves ``topic_name`` to a configured source at load time, builds its
-protection model from its ports, and subscribes it to the context, so the model
-sees *every* sample (a one-frame spike between two ticks is not lost: the
-models' peak latch reports it at the next tick). At tick it returns FAILURE when
-
-- the source cannot be trusted: ``ctx.health[source].reason(now, role)`` is not
-  empty (no data, stale, present = 0, NaN/inf, out of range, undecodable), or
-- the model's ``poll(now)`` says tripped (now, or at any moment since the last tick);
-
-and SUCCESS otherwise. Status edges are journalled with ``ctx.record("trip" |
-"recover", node=, source=, signal=, value=, threshold=, reason=)``; a guard that
-fails on its very first tick records a trip too (the journal then says why the
-task never started). Thresholds given as ``{key}`` are re-read at every tick.
+A guard resolves ``topic_name`` to a configured source at load, builds its protection model
+from its ports and subscribes it, so the model sees every sample. At tick it fails when the
+source cannot be trusted (``SourceHealth.reason``) or the model tripped since the last tick
+(its peak latch), and journals status edges as ``trip`` / ``recover`` events (a first tick that
+fails is a trip; one before the source's first sample is not). ``{key}`` thresholds are re-read
+at every tick.
 """
 
 from __future__ import annotations

@@ -1,28 +1,10 @@
 """Profile: a transparent decorator that times its child's tick (design note 003).
 
-Outputs ``last_ms`` (this tick), ``avg_ms`` and ``max_ms`` (since the last
-reset) and ``count`` (ticks measured); the status is the child's, unchanged.
-
-**The one real clock in nodes/.** Profile measures CPU work, not robot time, so
-it reads :func:`time.perf_counter` (monotonic, the highest resolution clock)
-rather than the context's clock: in replay the context clock stands still during
-a tick. Nothing else in ``nodes/`` reads a real clock.
-
-**What is measured.** The child's whole subtree is ticked to completion inside
-the measured interval, and only then are its nodes handed up the generator (so
-tree visitors, which run between yields, are not counted in the child's time).
-The decorator's own work (statistics, blackboard writes) lies outside the
-interval; inside it are one ``perf_counter()`` call and a list build, about
-0.1-0.2 µs, which is what a measurement of a near-empty child reads.
-
-**Reset on halt.** As in the note, the statistics restart when the decorator is
-*halted*: interrupted while RUNNING (BehaviorTree.CPP's halt). py_trees also
-stops finished children with INVALID whenever their parent starts over; that is
-not a halt, and statistics survive it (otherwise a Profile under a Sequence
-would forget everything at every tick).
-
-Outputs are written only when wired in the XML, as in BehaviorTree.CPP; the
-statistics are also attributes (``last_ms``, ``avg_ms``, ``max_ms``, ``count``).
+The one real clock in nodes/: it measures CPU work with :func:`time.perf_counter` (in replay
+the context's clock stands still during a tick). The child's subtree is ticked to completion
+inside the measured interval and its nodes handed up after it (tree visitors are not counted);
+the statistics restart only on a halt (interrupted while RUNNING), not when py_trees stops a
+finished child.
 """
 
 from __future__ import annotations

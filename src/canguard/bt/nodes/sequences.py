@@ -1,5 +1,5 @@
 """BehaviorTree.CPP 4's sequences and fallbacks (Sequence, AsyncSequence, ReactiveSequence, SequenceWithMemory,
-Fallback, AsyncFallback, ReactiveFallback), SKIPPED included; see :mod:`canguard.bt.nodes.control` for the table."""
+Fallback, AsyncFallback, ReactiveFallback), SKIPPED included."""
 
 from __future__ import annotations
 

@@ -1,38 +1,9 @@
 """Time conditions and timer actions (design note 000), all on the context's clock.
 
-Time comes only from ``ctx.now()``: log time in replay, the daemon's monotonic
-epoch clock live, a manual clock in tests. Epoch seconds in a float keep about
-0.1 µs of resolution today, far below any tick period (note 000, "float precision").
-
-**A timer is the node's own unless a key names it** (note 000: each
-IsElapsedTimeCompare keeps its own ``start_time_``, set at its first tick; nodes
-that must agree share a reference through the blackboard). Without a ``timer``
-port an IsElapsedTimeCompare has a private timer: two of them first ticked at
-different times measure from their own first ticks. ``timer="{nav_timer}"``
-names a shared timer: a blackboard key holding its start time (s), read and
-written by every node that names it.
-
-ResetTimer with ``timer`` restarts that key. Without it, it restarts the private
-timers *nearest to it*: those of the IsElapsedTimeCompare nodes without
-``timer`` under its closest ancestor that has any (found at load; none in the
-whole tree is a load error). So the PeriodicHealthCheck tree works exactly as
-written::
-
-    Sequence[IsElapsedTimeCompare(reference_sec=60, operator=GTE), PerformDiagnostics, ResetTimer]
-
-- the first tick starts the comparison's timer (reference ``first_tick``), 60 s
-  later the comparison holds, the diagnostics run and ResetTimer restarts it; so
-  diagnostics run 60 s after the first tick and then every 60 s;
-- a second such Sequence elsewhere in the tree keeps its own timer and its own reset.
-
-IsElapsedTimeCompare's ``reference``:
-
-=============== ==================================================================
-``first_tick``  the timer's start; a timer nobody started yet starts at this tick
-``last_reset``  the timer's start as set by ResetTimer (or RecordTime on its key); FAILURE before any
-``tree_start``  the tree's first tick (``ctx.tree_start``; ResetTimer does not move it)
-``blackboard``  the time stored in the ``timer`` key by another node (required port)
-=============== ==================================================================
+Time comes only from ``ctx.now()``. An IsElapsedTimeCompare without ``timer`` has its own
+timer (started at its first tick); ``timer="{key}"`` names a timer shared through that
+blackboard key. ResetTimer restarts that key, or without ``timer`` the own timers of the
+comparisons under its closest ancestor that has any (docs/trees.md, "Timers").
 """
 
 from __future__ import annotations
@@ -132,23 +103,22 @@ class IsElapsedTimeCompare(_TimerUser, py_trees.behaviour.Behaviour):
         """Elapsed time since the reference, compared; FAILURE when there is no reference yet."""
         now = self.ctx.clock.now()
         ref_mode = self.port("reference")
+        if ref_mode not in REFERENCES:
+            self.feedback_message = f"unknown reference {ref_mode!r}; expected one of {', '.join(REFERENCES)}"
+            return FAILURE
         if ref_mode == "tree_start":
             t0 = self.ctx.tree_start
             if t0 is None:  # ticked outside the engine: this tick is the tree's start
                 self.ctx.tree_start = t0 = now
         else:
             t0 = self.timer_start()
-            if t0 is None:
-                if ref_mode == "first_tick":
-                    self.start_timer(now)
-                    t0 = now
-                elif ref_mode in REFERENCES:
-                    where = f"in {self.timer_key}" if self.timer_key else "(no reset yet by a ResetTimer)"
-                    self.feedback_message = f"no reference time yet {where}"
-                    return FAILURE
-        if ref_mode not in REFERENCES or t0 is None:
-            self.feedback_message = f"unknown reference {ref_mode!r}; expected one of {', '.join(REFERENCES)}"
-            return FAILURE
+            if t0 is None and ref_mode == "first_tick":
+                self.start_timer(now)
+                t0 = now
+            elif t0 is None:
+                where = f"in {self.timer_key}" if self.timer_key else "(no reset yet by a ResetTimer)"
+                self.feedback_message = f"no reference time yet {where}"
+                return FAILURE
         reference = self.port("reference_sec")
         tolerance = self.port("tolerance")
         if reference is None or tolerance is None:

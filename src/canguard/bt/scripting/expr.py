@@ -36,14 +36,12 @@ from canguard.bt.scripting.values import (
 )
 
 
+@dataclass(slots=True)
 class Env:
     """What a script runs against: a blackboard and the registered enums (name -> int)."""
 
-    __slots__ = ("bb", "enums")
-
-    def __init__(self, bb: ScriptBlackboard, enums: Mapping[str, int] | None = None) -> None:
-        self.bb = bb
-        self.enums = enums
+    bb: ScriptBlackboard
+    enums: Mapping[str, int] | None = None
 
 
 def _not_init(side: str, op: str, pos: int) -> ScriptError:
@@ -102,7 +100,6 @@ class Name(Expr):
             return UNSET
 
 
-
 @dataclass(frozen=True)
 class Unary(Expr):
     op: str  # "-", "~" or "!"
@@ -122,7 +119,6 @@ class Unary(Expr):
         if value is UNSET:
             raise _not_init("right", self.op, self.pos)
         raise ScriptError(f"the operator [{self.op}] expects a number, got {describe(value)}", self.pos)
-
 
 
 @dataclass(frozen=True)
@@ -166,7 +162,6 @@ class Binary(Expr):
             right = rv if isinstance(rv, str) else number_text(rv)  # type: ignore[arg-type]
             return left + right
         raise _not_permitted(op, lv, rv, self.pos)
-
 
 
 def _not_permitted(op: str, lv: object, rv: object, pos: int) -> ScriptError:
@@ -235,7 +230,6 @@ class Compare(Expr):
         return 1.0
 
 
-
 @dataclass(frozen=True)
 class Ternary(Expr):
     condition: Expr
@@ -253,7 +247,6 @@ class Ternary(Expr):
         else:
             raise ScriptError(f"the condition of [?] must be a number or a string, got {describe(value)}", self.pos)
         return self.then.evaluate(env) if chosen else self.otherwise.evaluate(env)
-
 
 
 @dataclass(frozen=True)

@@ -1,27 +1,13 @@
 """Recursive-descent (precedence-climbing) parser of BehaviorTree.CPP's scripting language.
 
-Precedence, loosest first (BT.CPP 4's binding powers):
-
-==========  =====================================  =====================
-level       operators                              grouping
-==========  =====================================  =====================
-assignment  ``:= = += -= *= /=``                   right (``a := b := 1``)
-ternary     ``c ? x : y``                          right in ``y``
-or          ``||``                                 left
-and         ``&&``                                 left
-comparison  ``== != < <= > >=``                    chained: ``a < b < c``
-bit or/xor  ``| ^``                                left
-bit and     ``&``                                  left
-additive    ``+ - ..``                             left
-multiplic.  ``* /``                                left
-prefix      ``- ! ~``                              (operand: a prefix or an atom)
-==========  =====================================  =====================
-
-Note that comparisons bind looser than the bitwise operators (``x & 1 == 1`` is
-``(x & 1) == 1``), unlike C. Statements are separated by ``;`` (repeated or
-trailing ``;`` are fine; as in BT.CPP a new statement may also simply follow a
-complete one). The left side of an assignment must be a name: anything else is a
-parse error here (BT.CPP only notices when the script runs).
+Precedence, loosest first (BT.CPP 4's binding powers): assignment ``:= = += -= *= /=`` (right:
+``a := b := 1``), ternary ``c ? x : y`` (right in ``y``), ``||``, ``&&``, comparison
+``== != < <= > >=`` (chained: ``a < b < c``), ``| ^``, ``&``, ``+ - ..``, ``* /`` (these left),
+prefix ``- ! ~``. Comparisons bind looser than the bitwise operators (``x & 1 == 1`` is
+``(x & 1) == 1``), unlike C. Statements are separated by ``;`` (repeated or trailing ``;`` are
+fine; as in BT.CPP a new statement may also simply follow a complete one). The left side of an
+assignment must be a name: anything else is a parse error here (BT.CPP only notices when the
+script runs).
 """
 
 from __future__ import annotations

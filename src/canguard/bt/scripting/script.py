@@ -16,34 +16,22 @@ MAX_DEPTH = 200
 tick's evaluation far from Python's recursion limit."""
 
 
-def _children(expr: Expr) -> list[Expr]:
-    out: list[Expr] = []
-    for f in fields(expr):
-        value = getattr(expr, f.name)
-        if isinstance(value, Expr):
-            out.append(value)
-        elif isinstance(value, tuple):
-            out.extend(v for v in value if isinstance(v, Expr))
-    return out
-
-
 def _depth(expr: Expr) -> int:
-    deepest = 0
-    stack = [(expr, 1)]
+    """How deep ``expr``'s tree is (walked without recursion)."""
+    deepest, stack = 0, [(expr, 1)]
     while stack:
         node, depth = stack.pop()
         deepest = max(deepest, depth)
-        stack.extend((child, depth + 1) for child in _children(node))
+        for f in fields(node):
+            value = getattr(node, f.name)
+            values = value if isinstance(value, tuple) else (value,)
+            stack.extend((c, depth + 1) for c in values if isinstance(c, Expr))
     return deepest
 
 
 class Script:
-    """The statements of one script (BT.CPP's ``code``, ``_skipIf`` ... attributes).
-
-    ``run`` evaluates the statements in order against a blackboard and returns the
-    value of the last one (None when that is an entry without a value); a failure is
-    a :class:`ScriptError` naming the column.
-    """
+    """The statements of one script (BT.CPP's ``code``, ``_skipIf`` ... attributes); a failure is a
+    :class:`ScriptError` naming the column."""
 
     __slots__ = ("_statements", "text")
 
@@ -62,7 +50,7 @@ class Script:
         return f"Script({self.text!r})"
 
     def run(self, blackboard: ScriptBlackboard, enums: Mapping[str, int] | None = None) -> object:
-        """Run every statement; the value of the last one."""
+        """Run every statement; the value of the last one (None when that is an entry without a value)."""
         env = Env(blackboard, enums)
         try:
             value: object = None
@@ -82,8 +70,3 @@ class Script:
             return as_condition(value)
         except ValueError as exc:
             raise ScriptError(f"{exc} from the script {self.text!r}") from None
-
-
-def parse(text: str) -> Script:
-    """Parse ``text`` once (at load); ScriptError with the column when it does not parse."""
-    return Script(text)

@@ -172,9 +172,7 @@ def convert_for_entry(value: object, target: type, enums: Mapping[str, int] | No
 
 def entry_type(value: object) -> type:
     """The type an entry holding ``value`` keeps."""
-    if isinstance(value, bool):
-        return bool
-    for kind in (int, float, str):
+    for kind in (bool, int, float, str):
         if isinstance(value, kind):
             return kind
     return type(value)
