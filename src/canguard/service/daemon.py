@@ -287,7 +287,7 @@ class Daemon:
         mono = time.monotonic()
         now = self.clock.now()
         limit = self.overrun_limit_s
-        names, frames, arrivals = zip(*items)
+        names, frames, arrivals = zip(*items, strict=True)
         split = False  # a block ends where the bus changes
         target: str | None = names[0]
         if names.count(target) != len(names):
