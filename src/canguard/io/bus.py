@@ -10,9 +10,10 @@
 - **Direct** (``direct=True`` and every bus has a socket (:func:`bus_fileno`): SocketCAN,
   udp_multicast): no thread. The caller's thread waits on the buses' sockets with
   ``select`` until a frame arrives or its own deadline passes, then drains what the
-  kernel holds with ``recv(0)``. The kernel's socket buffer is the receive queue, so
-  a frame costs no thread hand-off: no queue, no waiting for the GIL held by
-  another thread. ``received`` is the kernel's receive stamp (on ``time.monotonic()``'s
+  kernel holds with ``recv(0)``, while a poll of the socket says it holds a frame (no
+  ``recv`` that finds none). The kernel's socket buffer is the receive queue, so a
+  frame costs no thread hand-off: no queue, no waiting for the GIL held by another
+  thread. ``received`` is the kernel's receive stamp (on ``time.monotonic()``'s
   base) whenever the bus stamps with the wall clock, so a wait in the kernel's buffer
   counts as a wait.
 - **Threads** (otherwise: python-can's ``virtual`` bus, vendor drivers with their own
@@ -161,6 +162,8 @@ class BusReader:
         """True once started without threads: :meth:`receive` waits on the buses' sockets itself."""
         self._started = False
         self._fds: dict[str, int] = {}
+        self._pending: dict[str, Callable[[int], list[tuple[int, int]]]] = {}
+        """Per bus received directly: a poll of its socket (``pending(0)`` non-empty: the kernel holds a frame)."""
         self._wall_stamps: dict[str, bool | None] = dict.fromkeys(self.configs)
         self._reopen_at: dict[str, float] = dict.fromkeys(self.configs, 0.0)
         self._delay: dict[str, float] = dict.fromkeys(self.configs, backoff_min_s)
@@ -192,9 +195,10 @@ class BusReader:
             raise
         self._started = True
         fds = {name: bus_fileno(bus) for name, bus in self._buses.items() if bus is not None}
-        self.direct = self._direct_wanted and bool(fds) and min(fds.values()) >= 0
+        self.direct = self._direct_wanted and bool(fds) and min(fds.values()) >= 0 and hasattr(select, "poll")
         if self.direct:
-            self._fds = fds
+            for name, fd in fds.items():
+                self._watch(name, fd)
             return
         for name in self.configs:
             t = threading.Thread(target=self._run, args=(name,), name=f"canguard-bus-{name}", daemon=True)
@@ -295,17 +299,21 @@ class BusReader:
         return out
 
     def _drain_bus(self, name: str, limit: int, out: list[tuple[str, Frame, float]]) -> None:
-        """Append up to ``limit`` frames the kernel holds for bus ``name``; a failure closes the bus."""
+        """Append up to ``limit`` frames the kernel holds for bus ``name`` (read while a poll of its socket says
+        there is one: cheaper than a ``recv(0)`` that finds none); a failure closes the bus."""
         bus = self._buses[name]
         assert bus is not None
         msgs: list[can.Message] = []
         recv = bus.recv
+        pending = self._pending[name]
         try:
             while len(msgs) < limit:
                 msg = recv(0)
                 if msg is None:
                     break
                 msgs.append(msg)
+                if not pending(0):
+                    break
         except Exception as exc:  # the bus went away (or a backend bug): report, close, reopen later
             self._failed(name, exc)
             self._reopen_at[name] = monotonic() + self._delay[name]
@@ -344,8 +352,15 @@ class BusReader:
             if fd < 0:  # cannot happen for the same interface; fail loudly rather than never receive
                 _shutdown(opened, name)
                 raise BusError(f"bus {name!r} reopened without a socket to wait on")
-            self._fds[name] = fd
+            self._watch(name, fd)
             self._wall_stamps[name] = None
+
+    def _watch(self, name: str, fd: int) -> None:
+        """Receive bus ``name`` directly from socket ``fd``: waited on with the others, polled while drained."""
+        self._fds[name] = fd
+        poller = select.poll()
+        poller.register(fd, select.POLLIN)
+        self._pending[name] = poller.poll
 
     # -- the receive threads -----------------------------------------------
     def _run(self, name: str) -> None:
