@@ -1,14 +1,7 @@
 """``canguard tune``: thresholds proposed from healthy logs and known faults, proven by replay.
 
-1. One statistics pass: every log is replayed with the config as it is (the engine of
-   ``canguard replay``, ``--jobs``/``--dask`` for fleets) carrying a
-   :class:`~canguard.report.tune.TuneStats`: per guard, what the healthy logs reach and what each
-   fault log needs to trip it.
-2. A proposal per guard (:mod:`canguard.report.proposal`), or the logs that conflict (exit 1).
-3. The tuned config and tree are written to a scratch directory and every log is replayed with
-   them: no trip on a healthy log, a trip on every fault log (by the time ``--expect`` gives). A
-   proposal that fails this is not written (exit 1).
-4. ``--out DIR`` gets the tuned files, under the originals' names; the originals are never touched.
+A statistics pass over every log (:class:`~canguard.report.tune.TuneStats`), a proposal per guard
+(:mod:`canguard.report.proposal`), a proving replay of the tuned files, then ``--out DIR``: docs/commands.md.
 """
 
 from __future__ import annotations
