@@ -276,13 +276,16 @@ class BusReader:
         """Wait on the open buses' sockets, then drain each ready one with ``recv(0)``; reopen buses due."""
         if self._stop.is_set():
             return []
-        now = monotonic()
-        if any(bus is None for bus in self._buses.values()):
+        buses = self._buses
+        if None in buses.values():  # a bus closed: reopened when due, waited on until then
+            now = monotonic()
             self._reopen_due(now)
-            due = min((self._reopen_at[n] for n, bus in self._buses.items() if bus is None), default=math.inf)
+            due = min((self._reopen_at[n] for n, bus in buses.items() if bus is None), default=math.inf)
             wait = max(0.0, min(math.inf if timeout_s is None else timeout_s, due - now))
             timeout_s = None if wait == math.inf else wait
-        fds = [self._fds[name] for name, bus in self._buses.items() if bus is not None]
+            fds = [self._fds[name] for name, bus in buses.items() if bus is not None]
+        else:
+            fds = list(self._fds.values())
         try:
             ready, _, _ = select.select(fds, [], [], timeout_s)
         except (OSError, ValueError):  # a socket closed under us: each recv below says which
