@@ -10,10 +10,10 @@
 - **Direct** (``direct=True`` and every bus has a socket (:func:`bus_fileno`): SocketCAN,
   udp_multicast): no thread. The caller's thread waits on the buses' sockets with
   ``select`` until a frame arrives or its own deadline passes, then drains what the
-  kernel holds with ``recv(0)``, while a poll of the socket says it holds a frame (no
-  ``recv`` that finds none). The kernel's socket buffer is the receive queue, so a
-  frame costs no thread hand-off: no queue, no waiting for the GIL held by another
-  thread. ``received`` is the kernel's receive stamp (on ``time.monotonic()``'s
+  kernel holds with ``recv(0)`` (a poll of the socket after the first frame: a frame
+  alone costs no ``recv`` that finds none). The kernel's socket buffer is the receive
+  queue, so a frame costs no thread hand-off: no queue, no waiting for the GIL held by
+  another thread. ``received`` is the kernel's receive stamp (on ``time.monotonic()``'s
   base) whenever the bus stamps with the wall clock, so a wait in the kernel's buffer
   counts as a wait.
 - **Threads** (otherwise: python-can's ``virtual`` bus, vendor drivers with their own
@@ -302,8 +302,9 @@ class BusReader:
         return out
 
     def _drain_bus(self, name: str, limit: int, out: list[tuple[str, Frame, float]]) -> None:
-        """Append up to ``limit`` frames the kernel holds for bus ``name`` (read while a poll of its socket says
-        there is one: cheaper than a ``recv(0)`` that finds none); a failure closes the bus."""
+        """Append up to ``limit`` frames the kernel holds for bus ``name`` (after the first, a poll of its socket
+        asks whether there is another: cheaper than a ``recv(0)`` that finds none; one poll a drain, not one a
+        frame: a poll costs a system call); a failure closes the bus."""
         bus = self._buses[name]
         assert bus is not None
         msgs: list[can.Message] = []
@@ -315,7 +316,7 @@ class BusReader:
                 if msg is None:
                     break
                 msgs.append(msg)
-                if not pending(0):
+                if len(msgs) == 1 and not pending(0):  # a frame alone, the usual wake-up: no recv(0) that finds none
                     break
         except Exception as exc:  # the bus went away (or a backend bug): report, close, reopen later
             self._failed(name, exc)
