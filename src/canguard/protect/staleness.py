@@ -1,8 +1,8 @@
-"""Staleness and validity of one source: is there a usable, fresh value?
+"""Staleness and validity of one source: is there a usable, fresh value? (docs/protection.md)
 
-:class:`SourceHealth` sees every sample of one configured source (valid or not,
-see :class:`~canguard.io.frame.Sample`) and answers, at any time ``now``, why the
-source cannot be trusted (fail safe: every non-empty reason fails the guard):
+:class:`SourceHealth` sees every sample of one configured source (valid or not, see
+:class:`~canguard.io.frame.Sample`) and answers, at any time ``now``, why the source cannot be
+trusted (fail safe: every non-empty reason fails the guard):
 
 =============== ===========================================================
 ``no_data``     no sample of that role yet
@@ -11,46 +11,37 @@ source cannot be trusted (fail safe: every non-empty reason fails the guard):
 ``nan``/``inf`` the latest sample was NaN / infinite
 ``out_of_range`` the latest value lies outside the DBC signal's [min|max]
 ``bad_length``/``undecodable`` the latest frame could not be decoded
+``frozen_counter`` the alive counter has not changed for longer than ``max_age_s``
 ``no_heartbeat`` (CANopen) the drive's heartbeat is older than its own timeout (the ``nmt`` signal's ``max_age_s``)
 ``not_present`` (CANopen) also: the drive's NMT state is not operational
 ``emcy``        (CANopen) the drive's last EMCY had a non-zero error register
 ``drive_fault`` (CANopen) the drive's statusword has its Fault bit set
 =============== ===========================================================
 
-A CANopen drive's sources carry its health as roles (``nmt``, ``emcy``,
-``fault``) that gate every value of the source the way ``present`` does; they
-are checked first, in that order. No EMCY yet is fine (an EMCY never goes stale).
-
-Rules: the *latest* sample of a role decides (a newer valid sample clears an
-invalid reason; an invalid sample does not replace the latest valid value, which
-:meth:`SourceHealth.value` keeps returning). A sample older than the latest one
-of its role (out of order) is counted in ``out_of_order`` and changes nothing;
-a repeated timestamp is a normal sample. When the source has a ``present``
-signal, it gates every value of the source: a check of any role also fails with
-the presence reason. Precedence, per role: ``no_data``, ``stale``, the latest
-sample's invalid reason, ``not_present``.
+A CANopen drive's health roles (``nmt``, ``emcy``, ``fault``) gate every value of the source, as
+``present`` does, and are checked first, in that order; no EMCY yet is fine. The *latest* sample of
+a role decides: a newer valid sample clears an invalid reason, an invalid sample never replaces the
+latest valid value (:meth:`SourceHealth.value`). A sample older than the latest of its role is
+counted in ``out_of_order`` and changes nothing; a repeated timestamp is a normal sample.
+Precedence, per role: ``no_data``, ``stale``, the latest sample's invalid reason, ``not_present``.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from canguard.config.schema import NON_VALUE_ROLES, SourceConfig
 from canguard.io.frame import INVALID_INF, INVALID_NAN, INVALID_RANGE
 from canguard.protect.base import REASON_NO_DATA, REASON_NOT_PRESENT, REASON_OK, REASON_STALE
-from canguard.protect.columns import NO_EDGES, longest_step, no_edges, ordered, values_span
-
-if TYPE_CHECKING:
-    from canguard.protect.columns import FloatArray, IndexArray
+from canguard.protect.columns import longest_step, ordered, values_span
+from canguard.protect.results import QUIET_RUNS, Run, edges, quiet_run
 
 PRESENT = "present"
+"""The role of a source's presence signal."""
 COUNTER = "counter"
 REASON_FROZEN = "frozen_counter"
-"""The source's alive counter has not changed for longer than ``max_age``: its sender is stuck."""
-"""The role of a source's presence signal."""
 NMT, EMCY, FAULT = "nmt", "emcy", "fault"
 """A CANopen drive's health roles: NMT state (from the heartbeat), EMCY error register, statusword Fault bit."""
 NMT_OPERATIONAL = 5
@@ -63,45 +54,9 @@ FULL_ROLES = NON_VALUE_ROLES
 ROW_ROLES = NON_VALUE_ROLES - {PRESENT}
 """Roles a replay block cannot take as columns (the presence flag it checks itself): every row is fed."""
 
-
 _BIG = 1.7976931348623157e308
 """The largest float: open range bounds, so that +-inf (and NaN) fail the range test of the usual sample."""
 _ANY = (-_BIG, _BIG)
-
-
-@dataclass(slots=True)
-class HealthRun:
-    """What :meth:`SourceHealth.advance` did with a run of rows.
-
-    ``index``: positions in the run of the rows at which the source's reason changed
-    (an edge: tick the tree). ``t``: their times (s). ``reasons``: the source's reason
-    right after each ("" = usable). ``taken``: samples consumed (all unless ``until_edge``).
-    A result: read it, never change it.
-    """
-
-    index: IndexArray
-    t: FloatArray
-    reasons: tuple[str, ...]
-    taken: int
-    changed: bool = field(init=False)
-    """True when the run changed the source's reason at least once."""
-
-    def __post_init__(self) -> None:
-        self.changed = bool(self.index.size)
-
-
-_QUIET: dict[int, HealthRun] = {}
-
-
-def _quiet_health(n: int) -> HealthRun:
-    """The result of a run of ``n`` rows that changed no reason (shared for short runs: a result is only read)."""
-    run = _QUIET.get(n)
-    if run is None:
-        no_index, no_times, _ = (NO_EDGES or no_edges())[0]  # numpy's empty columns, once built
-        run = HealthRun(no_index, no_times, (), n)
-        if n <= 64:
-            _QUIET[n] = run
-    return run
 
 
 class SourceHealth:
@@ -170,7 +125,7 @@ class SourceHealth:
         return self.source.name
 
     def advance(self, roles: Sequence[str], times: Sequence[float], columns: Sequence[Sequence[float]],
-                reasons: Sequence[Sequence[str]] | None = None, *, until_edge: bool = False) -> HealthRun:
+                reasons: Sequence[Sequence[str]] | None = None, *, until_edge: bool = False) -> Run:
         """Take a run of rows of this source, in arrival order; where the source's reason changed (an edge).
 
         Row ``i`` at ``times[i]`` (s) holds one sample of each of ``roles``: ``columns[k][i]`` of
@@ -189,7 +144,7 @@ class SourceHealth:
         whole from its last row (:meth:`_quiet`); other runs go sample by sample (:meth:`_sample`).
 
         With ``until_edge`` the run stops right after the first row with an edge (``taken``). The
-        result gives the edges' row positions, times and the reason after each.
+        result gives the edges' row positions, times and whether the source was unusable after each.
         """
         n = len(times)
         if n == 1 and reasons is None:  # a live frame: each sample to the kernel, nothing built
@@ -202,18 +157,16 @@ class SourceHealth:
                     if self._sample(role, t, float(columns[k][0])):
                         edge = True
             if not edge:
-                return _QUIET.get(1) or _quiet_health(1)
-            import numpy as np
-
-            return HealthRun(np.zeros(1, dtype=np.intp), np.array([t]), (self._last_reason,), 1)
+                return QUIET_RUNS.get(1) or quiet_run(1)
+            return edges((0,), (t,), (bool(self._last_reason),), 1)
         if reasons is None and n > 1:
             if self._quiet(roles, times, columns):
                 self._take_quiet(roles, times, columns)
-                return _quiet_health(n)
+                return quiet_run(n)
             if type(times) is not list and type(times) is not tuple:  # numpy columns: sample by sample as floats
                 times, columns = times.tolist(), [column.tolist() for column in columns]  # type: ignore[attr-defined]
-        edges: list[int] = []
-        after: list[str] = []
+        found: list[int] = []
+        after: list[bool] = []
         taken = n
         sample = self._sample
         for i in range(n):
@@ -223,16 +176,14 @@ class SourceHealth:
                 if sample(role, t, columns[k][i], reasons[k][i] if reasons is not None else ""):
                     edge = True
             if edge:
-                edges.append(i)
-                after.append(self._last_reason)
+                found.append(i)
+                after.append(bool(self._last_reason))
                 if until_edge:
                     taken = i + 1
                     break
-        if not edges:
-            return _quiet_health(taken)
-        import numpy as np
-
-        return HealthRun(np.array(edges, dtype=np.intp), np.array([times[i] for i in edges]), tuple(after), taken)
+        if not found:
+            return quiet_run(taken)
+        return edges(found, [times[i] for i in found], after, taken)
 
     def take_quiet(self, parts: Sequence[tuple[Sequence[str], Sequence[float], Sequence[Sequence[float]]]]) -> bool:
         """Runs of rows of this source from several messages (``parts``: roles, times, columns), each message with
