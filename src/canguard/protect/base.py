@@ -33,7 +33,7 @@ from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any, ClassVar, Generic, TypeVar
 
 from canguard.protect.columns import SHORT_RUN, Screen, as_run, in_order, ordered, short_run, values_span
-from canguard.protect.results import QUIET_RUNS, Run, Snapshot, alternate, edges, quiet_run
+from canguard.protect.results import Run, Snapshot, alternate, edges, quiet_cached, quiet_run
 
 if TYPE_CHECKING:
     import numpy.typing as npt
@@ -158,7 +158,7 @@ class LatchedModel(ProtectionModel, Generic[S]):
         if type(times) is tuple and len(times) == 1 == len(values):  # type: ignore[arg-type]  # a live frame's
             one = float(times[0])  # sample: the kernel, nothing built
             if not self._sample(one, float(values[0])):  # type: ignore[index,arg-type]
-                return QUIET_RUNS.get(1) or quiet_run(1)
+                return quiet_cached(1) or quiet_run(1)
             return edges((0,), (one,), (self._tripped,), 1)
         few = short_run(times, values, SHORT_RUN)
         if few is not None:

@@ -55,6 +55,9 @@ class Run:
 
 QUIET_RUNS: dict[int, Run] = {}
 """The :class:`Run` of ``n`` samples taken without an edge, by ``n`` (short runs: built once each, shared)."""
+quiet_cached = QUIET_RUNS.get
+"""``quiet_cached(n) or quiet_run(n)``: a cached result with no Python call (``QUIET_RUNS.get`` on a name an
+import bound compiles to an attribute load that builds a bound method at each call)."""
 
 
 def quiet_run(n: int) -> Run:

@@ -36,7 +36,7 @@ from canguard.config.schema import NON_VALUE_ROLES, SourceConfig
 from canguard.io.frame import INVALID_INF, INVALID_NAN, INVALID_RANGE
 from canguard.protect.base import REASON_NO_DATA, REASON_NOT_PRESENT, REASON_OK, REASON_STALE
 from canguard.protect.columns import longest_step, ordered, values_span
-from canguard.protect.results import QUIET_RUNS, Run, edges, quiet_run
+from canguard.protect.results import Run, edges, quiet_cached, quiet_run
 
 PRESENT = "present"
 """The role of a source's presence signal."""
@@ -157,7 +157,7 @@ class SourceHealth:
                     if self._sample(role, t, float(columns[k][0])):
                         edge = True
             if not edge:
-                return QUIET_RUNS.get(1) or quiet_run(1)
+                return quiet_cached(1) or quiet_run(1)
             return edges((0,), (t,), (bool(self._last_reason),), 1)
         if reasons is None and n > 1:
             if self._quiet(roles, times, columns):
