@@ -126,25 +126,15 @@ class SourceHealth:
 
     def advance(self, roles: Sequence[str], times: Sequence[float], columns: Sequence[Sequence[float]],
                 reasons: Sequence[Sequence[str]] | None = None, *, until_edge: bool = False) -> Run:
-        """Take a run of rows of this source, in arrival order; where the source's reason changed (an edge).
+        """Take a run of rows of this source, in arrival order (a frame: a run of one row); where its reason changed.
 
-        Row ``i`` at ``times[i]`` (s) holds one sample of each of ``roles``: ``columns[k][i]`` of
-        ``roles[k]``, with its own invalid reason ``reasons[k][i]`` ("" when its decoder found none;
-        None: no reasons, see :class:`~canguard.io.frame.Sample`). A row's samples are taken in
-        ``roles`` order. A sample whose time is NaN or older than the latest of its role is counted
-        in ``out_of_order`` and changes nothing; a NaN, inf or out-of-range value is invalid (it
-        never replaces the latest valid value). A frame is a run of one row.
-
-        At each sample the reason just after it (at its time) is compared both with the reason
-        just before it at that time (so data coming back after a stale spell is an edge) and with
-        the reason the previous sample left (so a source found stale or invalid at a sample is an
-        edge too); a row is an edge when one of its samples is. Most rows change nothing but the
-        latest values: a run whose every sample is valid, of a value role (or a presence flag
-        that stays set) within ``max_age_s`` of a valid previous sample of its role, is taken
-        whole from its last row (:meth:`_quiet`); other runs go sample by sample (:meth:`_sample`).
-
-        With ``until_edge`` the run stops right after the first row with an edge (``taken``). The
-        result gives the edges' row positions, times and whether the source was unusable after each.
+        Row ``i`` at ``times[i]`` (s) holds ``columns[k][i]`` of ``roles[k]`` (taken in that order) with its own
+        invalid reason ``reasons[k][i]`` ("" when its decoder found none; None: none at all). A sample is an
+        edge when the reason right after it differs from the one just before it at its time (data back after a
+        stale spell) or from the one the previous sample left (a source found stale or invalid); a row is an
+        edge when one of its samples is. A run that changes nothing but each role's latest value
+        (:meth:`_quiet`) is taken whole from its last row. ``until_edge`` and the result are the models' (see
+        :mod:`canguard.protect.base`); ``tripped``: the source unusable after the edge.
         """
         n = len(times)
         if n == 1 and reasons is None:  # a live frame: each sample to the kernel, nothing built
@@ -187,12 +177,8 @@ class SourceHealth:
 
     def take_quiet(self, parts: Sequence[tuple[Sequence[str], Sequence[float], Sequence[Sequence[float]]]]) -> bool:
         """Runs of rows of this source from several messages (``parts``: roles, times, columns), each message with
-        roles of its own: taken whole when each is a quiet run (:meth:`_quiet`); False: nothing taken.
-
-        A quiet run's every sample only becomes its role's latest (the kernel's usual sample, which
-        reads nothing of the other roles), so how the runs interleave in time changes nothing: taken
-        one after the other they leave what their rows in time order would.
-        """
+        roles of its own: taken whole when each is quiet (:meth:`_quiet`); False: nothing taken. A quiet sample
+        only becomes its role's latest, so how the runs interleave in time changes nothing."""
         seen: set[str] = set()
         for roles, times, columns in parts:
             if not len(times) or not seen.isdisjoint(roles) or not self._quiet(roles, times, columns):
@@ -211,14 +197,10 @@ class SourceHealth:
         self.samples += len(times) * len(roles)
 
     def _quiet(self, roles: Sequence[str], times: Sequence[float], columns: Sequence[Sequence[float]]) -> bool:
-        """True when a run of rows (no reasons of their own) changes nothing but each role's latest value.
-
-        The times are finite and do not go back, the first within ``max_age_s`` of each role's
-        latest sample and no two rows further apart; each role's latest sample was valid, and its
-        values are finite and in the role's range; a role whose value gates the reason (alive counter,
-        drive health) is never quiet, a presence flag only while it was set and stays set. Lists or
-        numpy columns (a block's runs: checked with numpy).
-        """
+        """True when a run of rows (no reasons of their own; lists or numpy columns) changes nothing but each
+        role's latest value: times in order, the first within ``max_age_s`` of each role's latest sample and no
+        two rows further apart; each role's latest sample valid, its values finite and in range; no role whose
+        value gates the reason (alive counter, drive health), a presence flag only while set and staying set."""
         if not ordered(times):
             return False
         first, final = float(times[0]), float(times[-1])
@@ -246,12 +228,11 @@ class SourceHealth:
                 and self._roles.issubset(roles))
 
     def _sample(self, role: str, t: float, value: float, own: str = "") -> bool:
-        """The kernel: one sample of ``role`` at ``t``; True on an edge.
+        """The kernel: one sample of ``role`` at ``t`` (``own``: its own invalid reason, "" for none); True on an edge.
 
-        ``own``: the sample's own invalid reason ("" when its decoder found none). A sample
-        out of order (NaN time, older than the latest of its role) is counted and changes nothing.
-        The usual sample (valid, within ``max_age_s`` of a valid previous one of a value role)
-        only becomes the latest, checked in one expression.
+        A sample out of order (NaN time, older than the latest of its role) is counted and changes nothing;
+        the usual one (valid, within ``max_age_s`` of a valid previous one of a value role) only becomes the
+        latest.
         """
         self.samples += 1
         latest = self._latest_t.get(role)
@@ -278,13 +259,10 @@ class SourceHealth:
 
     def rewind(self, mark: tuple[Any, ...]) -> None:
         """Go back to the state :meth:`mark` gave, as if the runs taken since had not come."""
-        latest_t, invalid, value, valid_t, *rest = mark
-        for own, saved in ((self._latest_t, latest_t), (self._invalid, invalid), (self._value, value),
-                           (self._valid_t, valid_t)):
-            own.clear()
-            own.update(saved)
-        (self._last_reason, self._ok_since, self._counter, self._counter_since, self._frozen, self.samples,
-         self.invalid_samples, self.out_of_order) = rest
+        (latest_t, invalid, value, valid_t, self._last_reason, self._ok_since, self._counter, self._counter_since,
+         self._frozen, self.samples, self.invalid_samples, self.out_of_order) = mark
+        self._latest_t, self._invalid = dict(latest_t), dict(invalid)
+        self._value, self._valid_t = dict(value), dict(valid_t)
 
     def _invalid_code(self, role: str, value: float, own: str) -> str:
         """A sample's invalid reason: its own, else NaN / inf / out of the role's range ("" when valid)."""
@@ -294,10 +272,8 @@ class SourceHealth:
             return INVALID_NAN
         if math.isinf(value):
             return INVALID_INF
-        lo, hi = self._ranges.get(role, (None, None))
-        if (lo is not None and value < lo) or (hi is not None and value > hi):
-            return INVALID_RANGE
-        return ""
+        lo, hi = self._limits.get(role, _ANY)
+        return "" if lo <= value <= hi else INVALID_RANGE
 
     def _full_step(self, role: str, t: float, value: float, bad: str) -> bool:
         """One sample that may change the reason; True on an edge (see :meth:`advance`)."""
@@ -319,8 +295,9 @@ class SourceHealth:
         self._last_reason = after
         return edge
 
-    def _gate_reason(self, now: float, role: str) -> str:
-        """The reason a drive health role gives: heartbeat missing or not operational, EMCY, Fault bit."""
+    def _role_reason(self, now: float, role: str) -> str:
+        """The reason of one role: no data, stale (a drive's NMT: no heartbeat), its latest sample's own, then
+        what its value says (presence at 0, NMT not operational, Fault bit). An EMCY never goes stale."""
         t = self._latest_t.get(role)
         if role == EMCY:
             return REASON_EMCY if t is not None and (self._invalid.get(role) or self._value.get(role, 0.0)) else ""
@@ -336,22 +313,9 @@ class SourceHealth:
             return bad
         if role == NMT:
             return REASON_NOT_PRESENT if self._value.get(NMT) != NMT_OPERATIONAL else REASON_OK
-        return REASON_DRIVE_FAULT if self._value.get(FAULT, 0.0) else REASON_OK
-
-    def _role_reason(self, now: float, role: str) -> str:
-        if role in GATE_ROLES:
-            return self._gate_reason(now, role)
-        t = self._latest_t.get(role)
-        if t is None:
-            return REASON_NO_DATA
-        if now - t > self.max_age_s:
-            return REASON_STALE
-        bad = self._invalid.get(role, "")
-        if bad:
-            return bad
-        if role == PRESENT and self._value.get(PRESENT, 0.0) == 0:
-            return REASON_NOT_PRESENT
-        return REASON_OK
+        if role == FAULT:
+            return REASON_DRIVE_FAULT if self._value.get(FAULT, 0.0) else REASON_OK
+        return REASON_NOT_PRESENT if role == PRESENT and self._value.get(PRESENT, 0.0) == 0 else REASON_OK
 
     def reason(self, now: float, role: str | None = None) -> str:
         """Why the source (or its ``role`` signal) cannot be used at ``now``; "" when it can.
@@ -365,7 +329,7 @@ class SourceHealth:
         if now - self._ok_since <= self._window_s:
             return REASON_OK
         for gate in self._gates:
-            r = self._gate_reason(now, gate)
+            r = self._role_reason(now, gate)
             if r or role == gate:
                 return r
         if self._has_present:
