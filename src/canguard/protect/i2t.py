@@ -165,10 +165,6 @@ class _I2tModel(LatchedModel[_Screen]):
     def _integrate(self, held: float, dt: float) -> float:
         """The accumulator after ``dt`` > 0 s at a constant ``held`` A from the present one (the kernel's step)."""
 
-    @abstractmethod
-    def time_to_trip(self, current_a: float) -> float:
-        """Seconds until a trip from the present state at a constant ``current_a`` (inf: never)."""
-
     def params(self) -> dict[str, float | None]:
         """The model's parameters, JSON-able (inf as None)."""
         return {"continuous_a": self.continuous_a, "peak_a": self.peak_a, "peak_time_s": self.peak_time_s,
@@ -373,12 +369,6 @@ class LeakyI2t(_I2tModel):
         cap = MAX_LEVEL * self._s
         return cap if not out <= cap else out
 
-    def time_to_trip(self, current_a: float) -> float:
-        """(S − A) / (I² − I_cont²) from the present A; 0 when already there, inf when I <= I_cont."""
-        if self._acc >= self._s:
-            return 0.0
-        rate = current_a * current_a - self.continuous_a**2
-        return (self._s - self._acc) / rate if rate > 0 else math.inf
 
 
 def thermal_tau(continuous_a: float, peak_a: float, peak_time_s: float) -> float:
@@ -443,12 +433,3 @@ class ThermalI2t(_I2tModel):
     def params(self) -> dict[str, float | None]:
         """The shared parameters, and tau_s and tau_cool_s (resolved)."""
         return {**super().params(), "tau_s": self.tau_s, "tau_cool_s": self.tau_cool_s}
-
-    def time_to_trip(self, current_a: float) -> float:
-        """τ·ln((q − θ)/(q − 1)) with q = I²/I_cont², from the present θ; 0 when θ >= 1, inf when q <= 1."""
-        if self._acc >= 1.0:
-            return 0.0
-        q = current_a * current_a / self._c2
-        if q <= 1.0:
-            return math.inf
-        return self.tau_s * math.log((q - self._acc) / (q - 1.0))
