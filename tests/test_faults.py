@@ -1,7 +1,7 @@
 """Bus-level faults met by the daemon through its own bus code.
 
 The daemon runs in a thread on a virtual channel; its buses are wrapped by
-:class:`canguard.sim.faults.FaultyBus` (bus-off, refused sends, error frames, lost
+:class:`FaultyBus` (bus-off, refused sends, error frames, lost
 frames), and a peer on the same channel plays the BMS and watches what canguard sends.
 """
 
@@ -9,22 +9,87 @@ from __future__ import annotations
 
 import functools
 import threading
+import time
 import uuid
-from collections.abc import Iterator
-from dataclasses import dataclass
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import can
 import pytest
 
 import canguard.service.daemon as daemon_mod
+from canguard.config.schema import BusConfig
 from canguard.engine.gate import TaskGate
 from canguard.io.bus import BusReader
 from canguard.service.daemon import Daemon
 from canguard.service.systemd import Notifier
-from canguard.sim.faults import Faults, faulty_opener
 from test_daemon import BMS_ID, BmsFeeder, is_stop, is_task, read_events, write_config
 from waitkit import receive_until, wait_until
+
+
+@dataclass
+class Faults:
+    """What the wrapped buses do wrong right now; the tests flip these while the daemon runs."""
+
+    bus_off: bool = False  # receive, send and opening the bus again raise CanOperationError
+    fail_sends: int = 0  # sends that raise (a full transmit queue); -1: every send until set back to 0
+    drop_ids: set[int] = field(default_factory=set)  # frames with these ids are lost on receive
+    error_frames: int = 0  # error frames still to deliver on receive
+    refused_sends: int = 0
+    lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
+
+    def take_send_failure(self) -> bool:
+        with self.lock:
+            fail = self.bus_off or self.fail_sends != 0
+            if self.fail_sends > 0:
+                self.fail_sends -= 1
+            self.refused_sends += fail
+            return fail
+
+    def take_error_frame(self) -> bool:
+        with self.lock:
+            if self.error_frames <= 0:
+                return False
+            self.error_frames -= 1
+            return True
+
+
+class FaultyBus(can.BusABC):
+    """A python-can bus that passes everything to ``inner`` except what :class:`Faults` says."""
+
+    def __init__(self, inner: can.BusABC, faults: Faults) -> None:
+        self.inner, self.faults, self.channel_info = inner, faults, f"faulty({inner.channel_info})"
+        super().__init__(channel=str(getattr(inner, "channel", "faulty")))
+
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        if self.faults.bus_off:
+            raise can.CanOperationError("bus-off (injected)")
+        if self.faults.take_error_frame():  # a controller problem (CAN_ERR_FLAG | CAN_ERR_CRTL)
+            return can.Message(arbitration_id=0x20000004, is_error_frame=True, is_extended_id=True,
+                               data=bytes([0, 0x04, 0, 0, 0, 0, 0, 0]), timestamp=time.time()), False
+        msg = self.inner.recv(timeout)
+        return (None if msg is None or msg.arbitration_id in self.faults.drop_ids else msg), False
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        if self.faults.take_send_failure():
+            raise can.CanOperationError("transmit refused (injected: bus-off or full TX queue)")
+        self.inner.send(msg, timeout)
+
+    def shutdown(self) -> None:
+        self.inner.shutdown()
+        super().shutdown()
+
+
+def faulty_opener(faults: Faults) -> Callable[[BusConfig], can.BusABC]:
+    """A BusReader ``opener``: each bus wrapped in a FaultyBus; no reopening while bus-off."""
+
+    def opener(cfg: BusConfig) -> can.BusABC:
+        if faults.bus_off:
+            raise can.CanOperationError(f"bus {cfg.name}: interface down (injected bus-off)")
+        return FaultyBus(can.Bus(**dict(cfg.kwargs)), faults)
+
+    return opener
 
 
 @dataclass

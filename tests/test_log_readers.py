@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Any
 
 import can
+import numpy as np
 import pytest
 
 import canguard.io.candump
@@ -189,6 +190,30 @@ class TestCandumpParser:
             (1.0, "can0", 0x123, False), (1.000001, "can10", 0x1ABCDEF0, True), (10.5, "vcan", 0x7FF, False),
             (11.0, "can0", 0, False)]
         assert parsed.block.channels == ("can0", "can10", "vcan")
+
+    def test_rows_read_alone_are_the_whole_blocks(self) -> None:
+        """The payloads of some rows (a message's, as the engine reads them), and frames row by row, are those of the
+        whole block: CAN FD, remote, empty and short payloads, the last line's too."""
+        lines = ["(1.0) can0 123#1122334455667788", "(1.1) can0 1aBcDeF0##1" + "a5" * 64, "(1.2) can0 7FF#R",
+                 "(1.3) can0 001#", "(1.4) can1 002#0102030405060708_C", "(1.5) can0 003#C0fFeE"]
+        text = "".join(line + "\n" for line in lines).encode()
+        whole = parse_block(text).block
+        assert whole is not None
+        n = whole.n
+        for rows in ([0, n - 1], [n - 1], [1, 2, 3], [1, n - 1], list(range(n))):
+            block = parse_block(text).block
+            assert block is not None
+            got = block.payload_rows(np.array(rows))
+            width = got.shape[1]
+            assert got.tobytes() == whole.payload[rows, :width].tobytes() and not whole.payload[rows, width:].any()
+        block = parse_block(text).block
+        assert block is not None
+        asked = [block.payload_rows(np.array([i % n]))[0].tobytes() for i in range(3 * n)]  # each row, asked again
+        assert asked == [whole.payload[i % n, :len(asked[i])].tobytes() for i in range(3 * n)]
+        block = parse_block(text).block
+        assert block is not None
+        assert [block.frame(i) for i in range(n)] == list(whole.frames())
+        assert whole.payload[n - 1, :4].tobytes() == bytes.fromhex("c0ffee00")
 
     def test_threads_parse_at_once(self) -> None:
         """Each thread has its own scratch: blocks parsed by four threads at once read as parsed one by one."""

@@ -49,13 +49,13 @@ def test_a_yaml_error_is_the_pure_python_loaders(text: str) -> None:
 
 def test_a_valid_config_is_not_parsed_again_for_line_numbers(monkeypatch: pytest.MonkeyPatch) -> None:
     calls: list[str] = []
-    real = yamlsrc._key_lines
+    real = yamlsrc.key_lines
 
     def counting(text: str) -> dict[str, int]:
         calls.append(text)
         return real(text)
 
-    monkeypatch.setattr(yamlsrc, "_key_lines", counting)
+    monkeypatch.setattr(yamlsrc, "key_lines", counting)
     load_config(REPO / "config" / "canguard.yaml")
     assert calls == []
     text = (REPO / "config" / "canguard.yaml").read_text(encoding="utf-8").replace("max_age: 0.5", "max_age: -1")
@@ -64,10 +64,3 @@ def test_a_valid_config_is_not_parsed_again_for_line_numbers(monkeypatch: pytest
     assert len(calls) == 1
     line = 1 + next(i for i, ln in enumerate(text.splitlines()) if "max_age: -1" in ln)
     assert any(f"canguard.yaml:{line}: sources./battery_state.max_age" in p for p in err.value.located)
-
-
-def test_lazy_lines_is_the_mapping_of_key_lines() -> None:
-    text = "a:\n  b: 1\n  c: [1, 2]\nd: x\n"
-    lazy = yamlsrc._LazyLines(text)
-    assert dict(lazy) == yamlsrc._key_lines(text)
-    assert "a.b" in lazy and lazy["a.b"] == 2 and len(lazy) == len(yamlsrc._key_lines(text))

@@ -1,6 +1,6 @@
 """A bus that refuses every frame: stderr and the journal say so once a second per bus and origin, with counts.
 
-The daemon runs on a virtual channel through :class:`canguard.sim.faults.FaultyBus`
+The daemon runs on a virtual channel through :class:`test_faults.FaultyBus`
 (``fail_sends``: every send refused), as in tests/test_faults.py.
 """
 

@@ -71,17 +71,11 @@ class _ReplayDaemon(Daemon):
 
 def _refuse_unsupported(args: argparse.Namespace) -> None:
     """Exit 2 (ConfigError) on the replay flags --realtime cannot honour, rather than ignoring them."""
-    refused = []
-    if getattr(args, "plot", None) is not None:
-        refused.append("--plot")
-    if getattr(args, "export_signals", None) is not None:
-        refused.append("--export-signals")
-    if getattr(args, "baseline", None) is not None:
-        refused.append("--baseline")
-    if getattr(args, "jobs", 1) > 1:
-        refused.append("--jobs")
-    if getattr(args, "map", None):
-        refused.append("--map (--realtime plays every frame onto --bus)")
+    refused = [flag for flag, given in (
+        ("--plot", getattr(args, "plot", None) is not None),
+        ("--export-signals", getattr(args, "export_signals", None) is not None),
+        ("--baseline", getattr(args, "baseline", None) is not None), ("--jobs", getattr(args, "jobs", 1) > 1),
+        ("--map (--realtime plays every frame onto --bus)", bool(getattr(args, "map", None)))) if given]
     if refused:
         raise ConfigError(f"--realtime cannot be combined with {', '.join(refused)}: "
                           "run the offline replay (without --realtime) for that")

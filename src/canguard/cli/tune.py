@@ -1,14 +1,7 @@
 """``canguard tune``: thresholds proposed from healthy logs and known faults, proven by replay.
 
-1. One statistics pass: every log is replayed with the config as it is (the engine of
-   ``canguard replay``, ``--jobs``/``--dask`` for fleets) carrying a
-   :class:`~canguard.report.tune.TuneStats`: per guard, what the healthy logs reach and what each
-   fault log needs to trip it.
-2. A proposal per guard (:mod:`canguard.report.proposal`), or the logs that conflict (exit 1).
-3. The tuned config and tree are written to a scratch directory and every log is replayed with
-   them: no trip on a healthy log, a trip on every fault log (by the time ``--expect`` gives). A
-   proposal that fails this is not written (exit 1).
-4. ``--out DIR`` gets the tuned files, under the originals' names; the originals are never touched.
+A statistics pass over every log (:class:`~canguard.report.tune.TuneStats`), a proposal per guard
+(:mod:`canguard.report.proposal`), a proving replay of the tuned files, then ``--out DIR``: docs/commands.md.
 """
 
 from __future__ import annotations
@@ -142,7 +135,8 @@ def cmd_tune(args: argparse.Namespace) -> int:
     logs = healthy + faults
     is_fault = [False] * len(healthy) + [True] * len(faults)
     if expect is not None:
-        is_fault = [_is_fault(_expected(expect, log), fault) for log, fault in zip(logs, is_fault, strict=True)]
+        wanted = [_expected(expect, log) for log in logs]
+        is_fault = [fault if w is None else "trips" in w for w, fault in zip(wanted, is_fault, strict=True)]
     before = _replay_all(args, cfg, cfg_path, logs, tune=True)
     stats = [LogStats(str(log), fault, s["tune"], s) for log, fault, s in zip(logs, is_fault, before, strict=True)]
     needs = None
@@ -185,12 +179,6 @@ def cmd_tune(args: argparse.Namespace) -> int:
                                                    if conflicts else "the tuned config failed the proving replay"),
               file=sys.stderr)
     return status
-
-
-def _is_fault(expected: dict[str, Any] | None, given: bool) -> bool:
-    if expected is None:
-        return given
-    return "trips" in expected
 
 
 def _check_out(out: Path | None, cfg: Config) -> None:
@@ -274,7 +262,8 @@ def _prove(logs: list[Path], is_fault: list[bool], expect: dict[str, dict[str, A
         wanted = _expected(expect, log)
         if not fault:
             row["ok"] = new["trip_count"] == 0
-            row["why"] = "" if row["ok"] else f"a healthy log trips: {_trip_names(new)}"
+            row["why"] = "" if row["ok"] else "a healthy log trips: " + ", ".join(
+                sorted({f"{t['node']} ({t['reason']})" for t in new["trips"]}))
         elif wanted is not None and "trips" in wanted:
             misses = []
             for guard, by in wanted["trips"]:
@@ -288,10 +277,6 @@ def _prove(logs: list[Path], is_fault: list[bool], expect: dict[str, dict[str, A
             row["why"] = "" if row["ok"] else "the fault trips no guard"
         out.append(row)
     return out
-
-
-def _trip_names(summary: dict[str, Any]) -> str:
-    return ", ".join(sorted({f"{t['node']} ({t['reason']})" for t in summary["trips"]}))
 
 
 def _fmt(x: Any) -> str:

@@ -276,20 +276,30 @@ def drive_pdos(eds: Eds) -> tuple[list[Pdo], list[Pdo]]:
 
 
 def _read_pdos(eds: Eds, comm_base: int, map_base: int, prefix: str) -> list[Pdo]:
+    """Every PDO the EDS defines at ``comm_base``/``map_base``, valid or not. A disabled PDO without a COB-ID of
+    its own (only bit 31) gets the predefined connection set's (PDO 1..4); beyond those 0 (no override may name it).
+    """
+    from canguard.config.canopen_eds import DISABLED, PREDEFINED_RPDO, PREDEFINED_TPDO
+
+    predefined = PREDEFINED_TPDO if comm_base == TPDO_COMM else PREDEFINED_RPDO
     found: list[Pdo] = []
-    for d in eds.pdo_defs(comm_base, map_base):
+    for n in range(512):
+        cob, count = eds.value(comm_base + n, 1), eds.value(map_base + n, 0)
+        if cob is None or count is None:
+            continue
+        ident = int(cob) & 0x7FF or (predefined[n] + eds.node if n < 4 else 0)
         objects: list[MappedObject] = []
         start = 0
-        for e in d.entries:
-            if e.index < 0x1000:  # a dummy entry (data type index): bits that carry nothing
-                start += e.bits
-                continue
-            if eds.variable(e.index, e.subindex) is None:  # only a source reading it is a problem
-                objects.append(MappedObject(e.index, e.subindex, UNDESCRIBED, start, e.bits))
-            else:
-                objects.append(mapped(eds, eds.variable(e.index, e.subindex), start, e.bits))
-            start += e.bits
-        found.append(Pdo(name=f"{prefix}{d.number}", cob_id=d.cob_id, objects=tuple(objects), enabled=d.enabled))
+        for sub in range(1, int(count) + 1):
+            word = int(eds.value(map_base + n, sub) or 0)
+            index, subindex, bits = word >> 16, (word >> 8) & 0xFF, word & 0xFF
+            var = eds.variable(index, subindex) if index >= 0x1000 else None  # below: a dummy entry's bits
+            if var is not None:
+                objects.append(mapped(eds, var, start, bits))
+            elif index >= 0x1000:  # only a source reading it is a problem
+                objects.append(MappedObject(index, subindex, UNDESCRIBED, start, bits))
+            start += bits
+        found.append(Pdo(f"{prefix}{n + 1}", ident, tuple(objects), enabled=not int(cob) & DISABLED))
     return found
 
 

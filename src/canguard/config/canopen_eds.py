@@ -45,30 +45,6 @@ class EdsError(ValueError):
     """An EDS that cannot be read or that contradicts itself (the message says where)."""
 
 
-@dataclass(frozen=True)
-class PdoEntry:
-    """One object a PDO mapping entry names: index, sub-index and size in bits."""
-
-    index: int
-    subindex: int
-    bits: int
-
-
-@dataclass(frozen=True)
-class PdoDef:
-    """One PDO as the EDS defines it: number (1-based), COB-ID, valid or not, its mapping entries."""
-
-    number: int
-    cob_id: int
-    enabled: bool
-    entries: tuple[PdoEntry, ...]
-
-    @property
-    def bits(self) -> int:
-        """The bits its mapping uses."""
-        return sum(e.bits for e in self.entries)
-
-
 @dataclass
 class _Section:
     name: str
@@ -294,30 +270,6 @@ class Eds:
         except EdsError as exc:
             return str(exc)
         return ""
-
-    def pdo_defs(self, comm_base: int, map_base: int) -> list[PdoDef]:
-        """Every PDO the EDS defines at ``comm_base``/``map_base``, valid or not, with its mapping entries.
-
-        A disabled PDO without a COB-ID of its own (only bit 31) gets the predefined
-        connection set's (PDO 1..4); beyond those it gets 0 (a ``pdo:`` override must not name it).
-        """
-        predefined = PREDEFINED_TPDO if comm_base == 0x1800 else PREDEFINED_RPDO
-        found: list[PdoDef] = []
-        for n in range(512):
-            cob = self.value(comm_base + n, 1)
-            count = self.value(map_base + n, 0)
-            if cob is None or count is None:
-                continue
-            cob = int(cob)
-            ident = cob & 0x7FF
-            if not ident and n < 4:
-                ident = predefined[n] + self.node
-            entries = []
-            for sub in range(1, int(count) + 1):
-                word = int(self.value(map_base + n, sub) or 0)
-                entries.append(PdoEntry(word >> 16, (word >> 8) & 0xFF, word & 0xFF))
-            found.append(PdoDef(n + 1, ident, not cob & DISABLED, tuple(entries)))
-        return found
 
     def foreign_cob_ids(self) -> list[str]:
         """COB-IDs written as numbers (not ``$NODEID+``) that belong to another node id than this one's."""

@@ -154,8 +154,7 @@ class CanopenSection:
         so that its sources and frames do not report the same cause again.
         """
         if "heartbeat" in body:
-            given = self.checks.number(body["heartbeat"], _path(key, "heartbeat"), positive=True)
-            return given if given is not None else CONFIGURED_HEARTBEAT_S
+            return self.checks.seconds(body, "heartbeat", key, CONFIGURED_HEARTBEAT_S)
         ms = eds.value(PRODUCER_HEARTBEAT)
         if isinstance(ms, int) and ms > 0:
             return ms / 1000.0
@@ -173,9 +172,8 @@ class CanopenSection:
     def setup(self, eds: Eds, tpdos: list[Pdo], body: Mapping[str, Any], key: str,
               heartbeat_s: float) -> tuple[SdoWrite, ...]:
         """``configure: true``: the heartbeat, then each ``pdo:`` override's mapping, COB-ID and event timer."""
-        period = body.get("tpdo_period", DEFAULT_TPDO_PERIOD_S)
-        given = self.checks.number(period, _path(key, "tpdo_period"), positive=True)
-        period_ms = max(1, min(0xFFFF, round((given or DEFAULT_TPDO_PERIOD_S) * 1000)))
+        period_s = self.checks.seconds(body, "tpdo_period", key, DEFAULT_TPDO_PERIOD_S)
+        period_ms = max(1, min(0xFFFF, round(period_s * 1000)))
         writes = [heartbeat_write(heartbeat_s)]
         for pdo in tpdos:
             if pdo.overridden:
@@ -243,10 +241,7 @@ class CanopenSection:
             c.problem(_path(key, "scale"), _found(scale), "a finite number other than 0")
             scale = 1.0
         # A TPDO's period is not the heartbeat's: max_age is the value's own; the heartbeat keeps its timeout.
-        max_age = drive.timeout_s
-        if "max_age" in value:
-            given = c.number(value["max_age"], _path(key, "max_age"), positive=True)
-            max_age = given if given is not None else max_age
+        max_age = c.seconds(value, "max_age", key, drive.timeout_s)
         refs: list[SignalRef] = []
         where = self.tpdo_object(drive, value.get("object"), _path(key, "object"))
         if where is not None:

@@ -5,9 +5,11 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Mapping
+from functools import cached_property
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
 
+from canguard.config import yamlsrc
 from canguard.config.dbc import DbcChecks
 from canguard.config.schema import FrameSpec, SignalRef, SourceConfig
 from canguard.config.yamlsrc import _SECONDS_KEYS, _closest, _found, _line_of, _path, _shown
@@ -36,14 +38,14 @@ class CanopenDrives(Protocol):
 class _Checks:
     """One pass over one config file: the problems found so far and the generic checks of a value."""
 
-    def __init__(self, path: Path, display: str, lines: Mapping[str, int] | None = None) -> None:
+    def __init__(self, path: Path, display: str, text: str = "") -> None:
         self.path = path
         self.base = path.parent
         self.display = display
         self.problems: list[str] = []
         self.located: list[str] = []
         """``problems`` with the line of their key: ``file:line: key: found X, expected Y``."""
-        self.lines: Mapping[str, int] = lines if lines is not None else {}
+        self.text = text
         self.database: Any = None
         self.dbc_checks = DbcChecks()
         """What the DBC files get wrong: errors where the config reads it, notes elsewhere."""
@@ -56,6 +58,11 @@ class _Checks:
         self._sources_ok = True
         self.canopen: CanopenDrives | None = None
         """The ``canopen:`` drives, when the config has any."""
+
+    @cached_property
+    def lines(self) -> dict[str, int]:
+        """Each key path's line in :attr:`text`, worked out when a problem first asks (a valid config never does)."""
+        return yamlsrc.key_lines(self.text)
 
     # -- problems ----------------------------------------------------------
     def problem(self, key: str, found: str, expected: str) -> None:

@@ -16,7 +16,7 @@ from canguard.config.node_ids import RESERVED_NODE_IDS
 from canguard.config.schema import ActionConfig, Config, PartialConfig, TreeConfig
 from canguard.config.sections import _Sections
 from canguard.config.sources import _IDENT
-from canguard.config.yamlsrc import _found, _LazyLines, _path, load_yaml
+from canguard.config.yamlsrc import _found, _path, load_yaml
 from canguard.errors import ConfigError
 
 
@@ -131,7 +131,7 @@ def load_config_text(text: str, path: str | Path) -> Config:
         raise ConfigError(
             f"{display}: (top level): found an empty file, expected a mapping with dbc, buses, sources"
         )
-    return _Loader(p, display, _LazyLines(text)).config(doc)
+    return _Loader(p, display, text).config(doc)
 
 
 def load_config(path: str | Path) -> Config:

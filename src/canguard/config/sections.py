@@ -41,10 +41,6 @@ def _valid_interfaces() -> frozenset[str]:
     return names
 
 
-def _is_interface(name: str) -> bool:
-    return name in _BUILT_IN_INTERFACES or name in _valid_interfaces()
-
-
 class _Sections(_Frames):
     """``buses:``, ``tree:``, ``task:``, ``stop:``, ``actions:``, ``state:``, ``monitor:``."""
 
@@ -73,7 +69,8 @@ class _Sections(_Frames):
                     "nothing",
                     "a python-can interface name (socketcan, virtual, ...)",
                 )
-            elif not isinstance(interface, str) or not _is_interface(interface):
+            elif not isinstance(interface, str) or (
+                    interface not in _BUILT_IN_INTERFACES and interface not in _valid_interfaces()):
                 self.problem(
                     _path(key, "interface"),
                     _found(interface),

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Mapping
+from collections.abc import Mapping
 from typing import Any, Literal
 
 import yaml
@@ -111,7 +111,7 @@ def _compose(text: str) -> yaml.Node | None:
     return None
 
 
-def _key_lines(text: str) -> dict[str, int]:
+def key_lines(text: str) -> dict[str, int]:
     """The line (1-based) of every key path of a YAML document, in the loader's spelling.
 
     ``sources.axis0.signal`` is the line of the ``signal:`` key, ``task.frames[1]`` the line
@@ -142,34 +142,6 @@ def _key_lines(text: str) -> dict[str, int]:
     if root is not None:
         walk(root, "")
     return lines
-
-
-class _LazyLines(Mapping[str, int]):
-    """:func:`_key_lines` of a text, worked out the first time a problem asks for a line.
-
-    A valid config never asks: it is not parsed a second time for line numbers.
-    """
-
-    def __init__(self, text: str) -> None:
-        self._text = text
-        self._lines: dict[str, int] | None = None
-
-    def _get(self) -> dict[str, int]:
-        if self._lines is None:
-            self._lines = _key_lines(self._text)
-        return self._lines
-
-    def __getitem__(self, key: str) -> int:
-        return self._get()[key]
-
-    def __iter__(self) -> Iterator[str]:
-        return iter(self._get())
-
-    def __len__(self) -> int:
-        return len(self._get())
-
-    def __contains__(self, key: object) -> bool:
-        return key in self._get()
 
 
 def _line_of(lines: Mapping[str, int], key: str) -> int | None:

@@ -6,14 +6,15 @@ into **one kernel** over a block of rows: ``payload`` (an ``n x width`` uint8 ar
 each row a payload padded with anything) and ``lengths`` (each row's payload length).
 A live frame is a block of one and goes through the very same kernel.
 
-The kernel's maths is numpy's, over the payload read as 64-bit words (``<u8`` for Intel,
-``>u8`` for Motorola signals; an IEEE float at a boundary of its own size as ``f4``/``f8``):
-per signal a shift, a mask, the sign, then ``raw * scale + offset`` in float64 where that
-is what Python's arithmetic gives, in int64 where Python's exact integers are needed and
-fit, in Python integers where they do not. Over a block the operands are the block's
-columns; over a block of one they are that row's numpy scalars (``column[0]``, not a
-slice): the same operations on the same dtypes, which numpy computes alike, at a fraction
-of the cost of numpy's calls over one-row arrays. Covered: any position and width up to 64
+The kernel reads the payload as 64-bit words (``<u8`` for Intel, ``>u8`` for Motorola
+signals; an IEEE float at a boundary of its own size as ``f4``/``f8``): per signal a shift,
+a mask, the sign, then ``raw * scale + offset`` in float64 where that is what Python's
+arithmetic gives, in int64 where Python's exact integers are needed and fit, in Python
+integers where they do not. Over a block the operands are the block's numpy columns; over
+a block of one they are that row's words as Python numbers (:mod:`struct` over its bytes):
+the same operators, which give the same bits on a uint64 column and on a Python integer,
+and the same IEEE doubles, at a fraction of the cost of numpy's calls over one row. Only
+the casts differ (:class:`_Columns`, :class:`_Numbers`). Covered: any position and width up to 64
 bits, Intel or Motorola, signed, IEEE float32/float64, classic and CAN FD (bytes past the
 DBC length never read, as cantools cuts them), simple and extended multiplexing. The
 contract is equality with cantools' ``decode(..., decode_choices=False)`` to the bit
@@ -39,6 +40,7 @@ valid (:class:`~canguard.decode.rows.Verdict`) is named on demand: ``bad_length`
 from __future__ import annotations
 
 import math
+import struct
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any, NamedTuple
@@ -69,8 +71,6 @@ _FEW_IDS = 8
 
 _F = np.float64
 _I = np.int64
-_TRUE, _FALSE = np.True_, np.False_
-_ALL = slice(None)
 _LE, _BE = np.dtype("<u8"), np.dtype(">u8")
 _FLOAT_LANES: dict[tuple[int, str], np.dtype] = {
     (32, "little_endian"): np.dtype("<f4"), (32, "big_endian"): np.dtype(">f4"),
@@ -81,10 +81,56 @@ _ONE_LENGTH = tuple(np.array([k], dtype=np.int64) for k in range(65))
 """The ``lengths`` of a block of one payload of each length (read only, shared)."""
 
 Lanes = list[Any]
-"""A block's payload viewed as each dtype its message reads (``n x lanes`` arrays), in the message's order of
-:func:`_slot` slots."""
+"""A block's payload as each dtype its message reads, in the message's order of :func:`_slot` slots: ``lanes[s][k]``
+is word ``k`` of every row (a column of the ``n x words`` view), or of a block of one, that row's word as a Python
+number."""
 Column = Any
-"""A column of the block (an array) or, in a block of one, that row's numpy scalar: the kernel treats both alike."""
+"""A column of the block (an array) or, in a block of one, that row's Python number: the kernel treats both alike."""
+_WRAP = 1 << 64
+_U32, _F32, _U64, _F64 = struct.Struct("<I"), struct.Struct("<f"), struct.Struct("<Q"), struct.Struct("<d")
+_ROW_FORMATS = {_LE: "<%dQ", _BE: ">%dQ", np.dtype("<f4"): "<%df", np.dtype(">f4"): ">%df", np.dtype("<f8"): "<%dd",
+                np.dtype(">f8"): ">%dd"}
+"""The :mod:`struct` format of each dtype the kernel reads (``%d``: the words of a row)."""
+
+
+class _Columns:
+    """The kernel's casts over a block's numpy columns."""
+
+    f = _F
+    """To float64."""
+    i = _I
+    """To int64 (a uint64 wraps: two's complement)."""
+
+    @staticmethod
+    def f32(bits: Column) -> Column:
+        """The low 32 bits as an IEEE float32, as float64."""
+        return _F(np.uint32(bits).view(np.float32))
+
+    @staticmethod
+    def f64(bits: Column) -> Column:
+        """64 bits as an IEEE float64."""
+        return bits.view(np.float64)
+
+
+class _Numbers:
+    """The kernel's casts over one row's Python numbers (the same values as :class:`_Columns` gives)."""
+
+    f = float
+
+    @staticmethod
+    def i(raw: int) -> int:
+        """As int64: an unsigned 64-bit value wraps (two's complement)."""
+        return raw - _WRAP if raw >> 63 else raw
+
+    @staticmethod
+    def f32(bits: int) -> float:
+        """The low 32 bits as an IEEE float32."""
+        return _F32.unpack(_U32.pack(bits & 0xFFFFFFFF))[0]
+
+    @staticmethod
+    def f64(bits: int) -> float:
+        """64 bits as an IEEE float64."""
+        return _F64.unpack(_U64.pack(bits))[0]
 
 
 @dataclass(frozen=True)
@@ -105,19 +151,19 @@ def check(value: Column, present: bool, lo: float, hi: float) -> tuple[Column, C
 
     Usable: finite and within [lo, hi] (NaN and +-inf fail both comparisons: the bounds are
     finite); a presence flag: finite and non-zero, and then it carries 1.0, which must be in
-    [lo, hi]. ``value``: a float64 column, or one row's float64 scalar.
+    [lo, hi]. ``value``: a float64 column, or one row's float.
     """
     if present:
         nonzero = value != 0.0
         good = (value >= -_BIG) & (value <= _BIG) & nonzero
-        return _F(nonzero), good if lo <= 1.0 <= hi else good & _FALSE
+        return nonzero * 1.0, good if lo <= 1.0 <= hi else good & False
     return value, (value >= lo) & (value <= hi)
 
 
 def _reason(value: float, present: bool, lo: float, hi: float) -> tuple[float, str]:
     """One value as a sample carries it (NaN for NaN/inf, 1.0/0.0 for a presence flag) and why :func:`check`
     finds it unusable ("" when it does not)."""
-    carried, good = check(_F(value), present, lo, hi)
+    carried, good = check(float(value), present, lo, hi)
     if good:
         return float(carried), ""
     if value != value:
@@ -152,8 +198,8 @@ class MessageDecoder:
     """Decodes the configured signals of one message, a block of payloads at a time (a frame is a block of one)."""
 
     __slots__ = ("_cantools", "_checks", "_dtypes", "_guard", "_limits", "_muxes", "_pages", "_refusals",
-                 "_unpaged", "_values", "length", "lengths", "message", "multiplexed", "names", "outputs", "signals",
-                 "strategy", "width")
+                 "_row_words", "_unpaged", "_values", "length", "lengths", "message", "multiplexed", "names", "outputs",
+                 "signals", "strategy", "width")
 
     def __init__(self, message: Any, outputs: Sequence[Output]) -> None:
         self.message = message
@@ -188,6 +234,9 @@ class MessageDecoder:
             self.strategy = BITS
             self._values, self._muxes, self._dtypes, self._guard = compiled
             self._refusals = _refusals(message)
+        self._row_words = tuple(struct.Struct(_ROW_FORMATS[d] % (self.width // d.itemsize)).unpack
+                                for d in self._dtypes)
+        """Each :data:`Lanes` slot of one row's payload (``width`` bytes): its words as Python numbers."""
 
     def one(self, data: bytes) -> tuple[np.ndarray, np.ndarray]:
         """``data``, one frame's payload, as a block of one: (``payload``, ``lengths``) for :meth:`decode`."""
@@ -211,8 +260,8 @@ class MessageDecoder:
             return []
         if type(lengths) is not np.ndarray:
             lengths = np.asarray(lengths, dtype=np.int64)
-        at: Any = 0 if n == 1 else _ALL  # a block of one: the row's scalars, not one-row columns
-        length = lengths[at]
+        one = n == 1  # a block of one: the row's Python numbers, not one-row columns
+        length: Any = int(lengths[0]) if one else lengths
         first, padded = self.lengths
         length_ok = length == first if first == padded else (length == first) | (length == padded)
         decodable: Column | None = None
@@ -220,22 +269,18 @@ class MessageDecoder:
         if self._cantools is not None:
             decodable, values, pages = self._read_cantools(payload, lengths, n)
         else:
-            if payload.shape[1] != self.width:
-                payload = _fit(payload, self.width)
-            view = payload.view
-            lanes = []  # loops, not comprehensions: no function object per block (Python < 3.12)
-            for dtype in self._dtypes:
-                lanes.append(view(dtype))
+            ops = _Numbers if one else _Columns
+            lanes = self._lanes(payload, one)
             values = []
-            if self._guard:
+            if self._guard and not one:
                 with np.errstate(all="ignore"):  # a float scaled past the largest float: inf, as in Python
                     for value in self._values:
-                        values.append(value(lanes, at))
-            else:
+                        values.append(value(lanes, ops))
+            else:  # Python's floats overflow to inf without a word
                 for value in self._values:
-                    values.append(value(lanes, at))
+                    values.append(value(lanes, ops))
             if self._muxes:
-                decodable, pages = self._multiplexers(lanes, at)
+                decodable, pages = self._multiplexers(lanes, ops)
         # the row check
         ok = length_ok if decodable is None else length_ok & decodable
         carried = []
@@ -246,27 +291,45 @@ class MessageDecoder:
         empty = None
         if self.multiplexed:
             ok, empty = _on_pages(ok, length_ok if decodable is None else length_ok & decodable, pages)
-        if n == 1 and ok:
-            return [tuple(map(float, carried))]  # the live frame's common row: nobody asks it why
+        if one and ok:
+            return [tuple(carried)]  # the live frame's common row: nobody asks it why
         read = _Read(length_ok, decodable, values, pages)
-        if n == 1:
+        if one:
             return OneRow(EMPTY if empty is not None and empty else None, lambda k: self._verdict(read, k, True))
-        return ColumnRows(n, carried, ok ^ _TRUE, empty, lambda k: self._verdict(read, k, False))
+        return ColumnRows(n, carried, ok ^ True, empty, lambda k: self._verdict(read, k, False))
 
-    def _multiplexers(self, lanes: Lanes, at: Any) -> tuple[Column | None, list[Column | None]]:
+    def _lanes(self, payload: np.ndarray, one: bool) -> Lanes:
+        """The payload's :data:`Lanes`: a block's word columns, or a block of one's words as Python numbers."""
+        width = self.width
+        lanes = []  # loops, not comprehensions: no function object per block (Python < 3.12)
+        if one:
+            data = payload.tobytes()
+            if len(data) != width:
+                data = data[:width].ljust(width, b"\0")
+            for words in self._row_words:
+                lanes.append(words(data))
+            return lanes
+        if payload.shape[1] != width:
+            payload = _fit(payload, width)
+        view = payload.view
+        for dtype in self._dtypes:
+            lanes.append(view(dtype).T)
+        return lanes
+
+    def _multiplexers(self, lanes: Lanes, ops: Any) -> tuple[Column | None, list[Column | None]]:
         """The rows cantools would decode (their selected multiplexers hold values some signal is multiplexed
         on; None: all) and each output's rows on its page (None: every row)."""
         raws = {}
         for name, raw in self._muxes:
-            raws[name] = raw(lanes, at)
+            raws[name] = raw(lanes, ops)
         refused = None
         for name, pages, ids in self._refusals:
             selected = _selected(pages, raws)
-            bad = _member(raws[name], ids) ^ _TRUE
+            bad = _member(raws[name], ids) ^ True
             if selected is not None:
                 bad = selected & bad
             refused = bad if refused is None else refused | bad
-        return None if refused is None else refused ^ _TRUE, [_selected(pages, raws) for pages in self._pages]
+        return None if refused is None else refused ^ True, [_selected(pages, raws) for pages in self._pages]
 
     def _read_cantools(self, payload: np.ndarray, lengths: np.ndarray, n: int
                        ) -> tuple[Column | None, list[Column], list[Column | None]]:
@@ -293,8 +356,7 @@ class MessageDecoder:
                 else:
                     values[j][k] = float(v)
         if n == 1:
-            return (np.bool_(decodable[0]), [_F(v[0]) for v in values],
-                    [np.bool_(p[0]) if self._pages[j] else None for j, p in enumerate(pages)])
+            return decodable[0], [v[0] for v in values], [p[0] if self._pages[j] else None for j, p in enumerate(pages)]
         return (np.array(decodable), [np.array(v, dtype=np.float64) for v in values],
                 [np.array(p) if self._pages[j] else None for j, p in enumerate(pages)])
 
@@ -336,12 +398,12 @@ def _on_pages(ok: Column, whole: Column, pages: list[Column | None]) -> tuple[Co
     off_all: Column | None = None
     for page in pages:
         if page is None:  # an output on every page: no row is without one
-            off_all = _FALSE
+            off_all = False
             continue
         ok = ok & page
-        off = page ^ _TRUE
+        off = page ^ True
         off_all = off if off_all is None else off_all & off
-    if off_all is None or off_all is _FALSE:
+    if off_all is None or off_all is False:
         return ok, None
     return ok, whole & off_all
 
@@ -462,23 +524,23 @@ def _bits(signal: Any, size: int, dtypes: list[np.dtype]) -> _Getter | None:
         le = _slot(dtypes, _LE)
         k, shift = divmod(first, 64)
         if shift + length <= 64:
-            def get(lanes: Lanes, at: Any) -> Column:
-                return (lanes[le][at, k] >> shift) & mask
+            def get(lanes: Lanes, ops: Any) -> Column:
+                return (lanes[le][k] >> shift) & mask
         else:  # across two words: the high bits from the next one
-            def get(lanes: Lanes, at: Any) -> Column:
+            def get(lanes: Lanes, ops: Any) -> Column:
                 words = lanes[le]
-                return ((words[at, k] >> shift) | (words[at, k + 1] << (64 - shift))) & mask
+                return ((words[k] >> shift) | (words[k + 1] << (64 - shift))) & mask
         return get
     be = _slot(dtypes, _BE)
     k, at_bit = divmod(first, 64)
     end = at_bit + length
     if end <= 64:
-        def get(lanes: Lanes, at: Any) -> Column:
-            return (lanes[be][at, k] >> (64 - end)) & mask
+        def get(lanes: Lanes, ops: Any) -> Column:
+            return (lanes[be][k] >> (64 - end)) & mask
     else:  # across two words: the low bits from the next one
-        def get(lanes: Lanes, at: Any) -> Column:
+        def get(lanes: Lanes, ops: Any) -> Column:
             words = lanes[be]
-            return ((words[at, k] << (end - 64)) | (words[at, k + 1] >> (128 - end))) & mask
+            return ((words[k] << (end - 64)) | (words[k + 1] >> (128 - end))) & mask
     return get
 
 
@@ -491,8 +553,8 @@ def _float_lane(signal: Any, size: int, dtypes: list[np.dtype]) -> _Getter | Non
     slot = _slot(dtypes, _FLOAT_LANES[length, signal.byte_order])
     k = start // length
 
-    def get(lanes: Lanes, at: Any) -> Column:
-        return _F(lanes[slot][at, k])
+    def get(lanes: Lanes, ops: Any) -> Column:
+        return ops.f(lanes[slot][k])
 
     return get
 
@@ -513,7 +575,7 @@ def _value(signal: Any, size: int, dtypes: list[np.dtype]) -> tuple[_Getter, boo
         raw = lane if lane is not None else _float_bits(bits, length)  # type: ignore[arg-type]
         if identity:
             return raw, length == 32  # a float32 signalling NaN flags "invalid" as it becomes a float64 NaN
-        return (lambda lanes, at: raw(lanes, at) * scale + offset), True
+        return (lambda lanes, ops: raw(lanes, ops) * scale + offset), True
     assert bits is not None
     return _integer(bits, length, bool(signal.is_signed), scale, offset), abs(scale) > 1e250
 
@@ -521,8 +583,8 @@ def _value(signal: Any, size: int, dtypes: list[np.dtype]) -> tuple[_Getter, boo
 def _float_bits(bits: _Getter, length: int) -> _Getter:
     """An IEEE float not at a boundary of its size: its bits reinterpreted."""
     if length == 32:
-        return lambda lanes, at: _F(np.uint32(bits(lanes, at)).view(np.float32))
-    return lambda lanes, at: _F(bits(lanes, at).view(np.float64))
+        return lambda lanes, ops: ops.f32(bits(lanes, ops))
+    return lambda lanes, ops: ops.f64(bits(lanes, ops))
 
 
 def _integer(bits: _Getter, length: int, signed: bool, scale: Any, offset: Any) -> _Getter:
@@ -540,34 +602,34 @@ def _integer(bits: _Getter, length: int, signed: bool, scale: Any, offset: Any) 
         as_float = _signed_float(bits, sign)
         if scale == 1 and offset == 0:
             return as_float
-        return lambda lanes, at: as_float(lanes, at) * scale + offset
+        return lambda lanes, ops: as_float(lanes, ops) * scale + offset
     if integers or type(scale) is int:
         if bound < 2**63:  # exact in int64, then one rounding to float64 as Python's float() of the integer
             as_int = _signed_int(bits, length, sign)
             if type(offset) is int:
-                return lambda lanes, at: _F(as_int(lanes, at) * scale + offset)
-            return lambda lanes, at: _F(as_int(lanes, at) * scale) + offset
+                return lambda lanes, ops: ops.f(as_int(lanes, ops) * scale + offset)
+            return lambda lanes, ops: ops.f(as_int(lanes, ops) * scale) + offset
         exact = np.frompyfunc(lambda r: float(_py_signed(int(r), sign) * scale + offset), 1, 1)
-        return lambda lanes, at: _F(exact(bits(lanes, at)))
+        return lambda lanes, ops: ops.f(exact(bits(lanes, ops)))
     as_int = _signed_int(bits, length, sign)  # a float scale: float(raw), correctly rounded, then float maths
-    return lambda lanes, at: _F(as_int(lanes, at)) * scale + offset
+    return lambda lanes, ops: ops.f(as_int(lanes, ops)) * scale + offset
 
 
 def _signed_float(bits: _Getter, sign: int) -> _Getter:
     """The signed raw value of a field of at most 53 bits, as float64 (exact)."""
     if not sign:
-        return lambda lanes, at: _F(bits(lanes, at))
+        return lambda lanes, ops: ops.f(bits(lanes, ops))
     half = float(sign)
-    return lambda lanes, at: _F(bits(lanes, at) ^ sign) - half
+    return lambda lanes, ops: ops.f(bits(lanes, ops) ^ sign) - half
 
 
 def _signed_int(bits: _Getter, length: int, sign: int) -> _Getter:
     """The signed raw value of a field, as int64 (an unsigned 64-bit one stays uint64)."""
     if not sign:
-        return bits if length == 64 else lambda lanes, at: _I(bits(lanes, at))
+        return bits if length == 64 else lambda lanes, ops: ops.i(bits(lanes, ops))
     if length == 64:
-        return lambda lanes, at: _I(bits(lanes, at))  # two's complement: the cast wraps
-    return lambda lanes, at: _I(bits(lanes, at) ^ sign) - sign
+        return lambda lanes, ops: ops.i(bits(lanes, ops))  # two's complement: the cast wraps
+    return lambda lanes, ops: ops.i(bits(lanes, ops) ^ sign) - sign
 
 
 def _py_signed(raw: int, sign: int) -> int:

@@ -91,21 +91,23 @@ def _split(plan: MessagePlan, group: Any, decoded: Sequence[Any], ts: Sequence[A
         stamps = ts.take(at) if hasattr(ts, "take") else np.array([float(ts[i]) for i in at.tolist()])
         columns = [c if keep is None else c[keep] for c in decoded.columns]
         return plan, at, stamps, columns  # numpy columns: the models screen long runs of them
-    rows: list[int] = []
-    values: list[tuple[float, ...]] = []
-    empty = 0
-    for i, row in zip(group if type(group) is list else group.tolist(), decoded, strict=True):
-        if row is EMPTY:
-            empty += 1
-        elif row is None:
-            fed.append((i, plan))
-        else:
-            rows.append(i)
-            values.append(row)
-    if empty:
-        plan.count_empty(empty)
-    if not rows:
-        return None
+    rows: list[int] = group if type(group) is list else group.tolist()
+    values: Sequence[Any] = decoded
+    if None in decoded or EMPTY in decoded:  # some rows are not whole and valid (most blocks: none)
+        rows, values = [], []
+        empty = 0
+        for i, row in zip(group if type(group) is list else group.tolist(), decoded, strict=True):
+            if row is EMPTY:
+                empty += 1
+            elif row is None:
+                fed.append((i, plan))
+            else:
+                rows.append(i)
+                values.append(row)
+        if empty:
+            plan.count_empty(empty)
+        if not rows:
+            return None
     stamps = []  # loops, not comprehensions: no function object per block (Python < 3.12)
     for i in rows:
         stamps.append(float(ts[i]))

@@ -108,7 +108,7 @@ class MessagePlan:
             return [None] * len(rows)
         if len(rows) == block.n:  # every row of the block (a live frame's)
             return self.entry.decode(block.payload, block.length)
-        return self.entry.decode(block.payload[rows], block.length[rows])
+        return self.entry.decode(block.payload_rows(rows), block.length[rows])
 
     # -- one row ------------------------------------------------------------------------
     def take_row(self, values: tuple[float, ...], t: float) -> bool:
@@ -228,7 +228,10 @@ def take_runs(runs: Sequence[tuple[MessagePlan, Any, Any, list[Any]]]) -> tuple[
     """
     if len(runs) == 1 and len(runs[0][1]) == 1:  # one row (a live frame): a run of one for each
         plan, rows, ts, columns = runs[0]
-        return int(rows[0]), plan.take_row(tuple([float(column[0]) for column in columns]), float(ts[0]))
+        values = []  # a loop, not a comprehension: no function object per row (Python < 3.12)
+        for column in columns:
+            values.append(float(column[0]))
+        return int(rows[0]), plan.take_row(tuple(values), float(ts[0]))
     units: list[_Unit] = []
     health_units: dict[int, _Unit] = {}
     last = -1

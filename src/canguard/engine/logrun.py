@@ -184,13 +184,14 @@ class LogRun:
             rows = np.union1d(rows, special)
         if t0 < cursor.last_t:
             self._count_backward(ts, rows, cursor.last_t)
-        last_row = int(rows[-1]) if len(rows) else -1  # the last row fed or taken by a plan
+        picked = len(rows)
+        last_row = int(rows[-1]) if picked else -1  # the last row fed or taken by a plan
         taken: list[tuple[MessagePlan, Any, Sequence[Any]]] | None = [] if export is not None else None
-        runs, alone = decode_rows(plans, rows, block, ts, keys, taken, self._touched) if len(rows) else ([], [])
-        if len(rows):
+        runs, alone = decode_rows(plans, rows, block, ts, keys, taken, self._touched) if picked else ([], [])
+        if picked:
             ts = block.times  # read row by row below: as floats
         bus = buses[0] if lanes is None else ""
-        if not len(rows):
+        if not picked:
             pos = 0  # nothing to take: the rows only bring the ticks due among them
         elif taken is None:
             pos = self._walk(block, ts, runs, alone, bus, buses, lanes)
@@ -205,7 +206,8 @@ class LogRun:
             export(ts, [(plan.names, group, decoded) for plan, group, decoded in taken], fed)
         if pos < block.n:
             self._cross(ts, pos, block.n)
-        self._count_lanes(cursor, block, per_channel, buses, rows)
+        if per_channel is not None or cursor.channels is not None or picked != block.n:  # else nothing to count
+            self._count_lanes(cursor, block, per_channel, buses, rows)
         t_end = float(ts[-1])
         if t_end > cursor.last_t:
             cursor.last_t = t_end

@@ -13,7 +13,9 @@ it came from. The columns::
                                length, or what a remote frame asks for, or a classic raw DLC of 9..15
     length     uint8   (n,)    payload bytes
     payload    uint8   (n, w)  each row's payload in its first ``length`` bytes, zeros after; ``w`` is the
-                               longest payload of the block (0 when every frame is empty)
+                               longest payload of the block (0 when every frame is empty); a reader may
+                               give a :class:`PayloadSource` instead, read at first use, and
+                               :meth:`Block.payload_rows` reads the rows asked for alone
     channel    uint16  (n,)    each row's index into ``channels``
     channels   tuple[str]      the channel names (``can0``; live: the bus name)
 
@@ -25,7 +27,7 @@ from __future__ import annotations
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from itertools import repeat
-from typing import TYPE_CHECKING, Any, Generic, TypeVar
+from typing import TYPE_CHECKING, Any, Generic, Protocol, TypeVar
 
 import numpy as np
 
@@ -43,6 +45,7 @@ __all__ = [
     "FLAG_FD",
     "FLAG_REMOTE",
     "Block",
+    "PayloadSource",
     "channel_name",
 ]
 
@@ -85,6 +88,17 @@ class _cached(Generic[_T]):  # a decorator, as functools.cached_property
         return value
 
 
+class PayloadSource(Protocol):
+    """A block's payloads not yet made into bytes (a candump block's hex digits): rows made when read."""
+
+    def rows(self, rows: Any) -> np.ndarray:
+        """The payloads of ``rows`` (an index array or a slice) as a uint8 matrix, one row each: the payload in its
+        first ``length`` bytes, zeros after; as wide as the longest of them."""
+
+    def one(self, i: int) -> bytes:
+        """Row ``i``'s payload."""
+
+
 def channel_name(channel: Any) -> str:
     """A python-can channel as a string: ints (and digit strings) become ``canN``, None becomes ``""``."""
     if channel is None:
@@ -105,7 +119,8 @@ class Block:
     flags: np.ndarray
     dlc: np.ndarray
     length: np.ndarray
-    payload: np.ndarray
+    payload_source: np.ndarray | PayloadSource
+    """The payload matrix (:attr:`payload`), or where its rows are read from when asked for."""
     channel: np.ndarray
     channels: tuple[str, ...]
 
@@ -116,8 +131,9 @@ class Block:
             if column.dtype != dtype or column.shape != shape:
                 raise ValueError(f"Block.{name}: expected {dtype.name} of shape {shape}, "
                                  f"got {column.dtype.name} of shape {column.shape}")
-        payload = self.payload
-        if payload.dtype != _U8 or payload.ndim != 2 or payload.shape[:1] != shape:
+        payload = self.payload_source  # a PayloadSource: its reader's rows, checked by it
+        if isinstance(payload, np.ndarray) and (payload.dtype != _U8 or payload.ndim != 2
+                                                or payload.shape[:1] != shape):
             raise ValueError(f"Block.payload: expected uint8 of shape ({shape[0]}, width), got {payload.dtype.name} "
                              f"of shape {payload.shape}")
         if len(self.channels) > 1 and shape[0] and int(self.channel.max()) >= len(self.channels):
@@ -178,6 +194,18 @@ class Block:
         return self.n
 
     @_cached
+    def payload(self) -> np.ndarray:
+        """Each row's payload in its first ``length`` bytes, zeros after (see the module docstring)."""
+        source = self.payload_source
+        return source if isinstance(source, np.ndarray) else source.rows(slice(None))
+
+    def payload_rows(self, rows: Any) -> np.ndarray:
+        """:attr:`payload`'s ``rows`` (an index array), as wide as the longest of them or wider; made for these
+        rows alone while :attr:`payload` is not made."""
+        source = self._made_payload()
+        return source[rows] if isinstance(source, np.ndarray) else source.rows(rows)
+
+    @_cached
     def keys(self) -> np.ndarray:
         """Each row's id as one integer (int64): the id, plus :data:`EXT_KEY` when extended."""
         return self.can_id.astype(np.int64) + self.extended.astype(np.int64) * EXT_KEY
@@ -223,12 +251,19 @@ class Block:
         flags = int(self.flags[i])
         dlc = int(self.dlc[i])
         remote = bool(flags & FLAG_REMOTE)
+        source = self._made_payload()
         return _new(Frame, (
             float(self.time_s[i]), self.channels[int(self.channel[i])], int(self.can_id[i]),
-            self.payload[i, :length].tobytes(), bool(self.extended[i]), bool(flags & FLAG_FD),
-            bool(flags & FLAG_ERROR), remote, bool(flags & FLAG_BRS), bool(flags & FLAG_ESI),
+            source[i, :length].tobytes() if isinstance(source, np.ndarray) else source.one(i),
+            bool(self.extended[i]), bool(flags & FLAG_FD), bool(flags & FLAG_ERROR), remote, bool(flags & FLAG_BRS),
+            bool(flags & FLAG_ESI),
             -1 if dlc == length or (remote and dlc == 0) else dlc,
         ))
+
+    def _made_payload(self) -> np.ndarray | PayloadSource:
+        """:attr:`payload` once made (or given), else :attr:`payload_source`."""
+        made: np.ndarray | None = self.__dict__.get("payload")
+        return self.payload_source if made is None else made
 
     def frames(self) -> Iterator[Frame]:
         """Every row as a :class:`Frame`, in order (each column converted once: what :meth:`frame` gives row by row,
@@ -313,7 +348,7 @@ def _made(**columns: Any) -> Block:
     """A block of the columns a builder here made, each of its type by construction (not checked again), with
     any of what the engine reads of it known already."""
     block = _new_object(Block)
-    block.__dict__.update(columns)
+    block.__dict__.update(columns, payload_source=columns["payload"])
     return block
 
 

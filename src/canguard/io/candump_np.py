@@ -13,7 +13,9 @@ per field, each a column over every line:
   an exact integer (below 2**53) divided by an exact power of ten, one correctly rounded
   division (a longer one is converted by ``float()`` itself);
 * the ids read 8 bytes at a time (SWAR on little-endian words);
-* the payloads two hex digits at a time, as one ``rows x width`` byte matrix.
+* the payloads' lengths and kinds; their digits are checked with the ids' by one count over the block
+  (or, when a line fails, each line's), and left as text: a block's :class:`HexPayloads` makes the bytes
+  of the rows the engine reads (a configured message's), two hex digits at a time.
 
 Each check gives a column of verdicts; a line that fails one is a bad line, named by its index
 in the block (:attr:`Parsed.bad`): the reader names its file:line.
@@ -21,9 +23,11 @@ in the block (:attr:`Parsed.bad`): the reader names its file:line.
 
 from __future__ import annotations
 
+import binascii
 import re
 import threading
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -41,6 +45,7 @@ _LE64 = np.dtype("<u8")
 _U16 = np.uint16
 _LE16 = np.dtype("<u2")
 _EXACT = 1 << 53
+_NO_ROWS = np.zeros(0, dtype=np.intp)
 _ERR_FLAG = 0x20000000
 _MAX_STANDARD = 0x7FF
 _MAX_EXTENDED = 0x1FFFFFFF
@@ -168,20 +173,23 @@ def _parsed(rewritten: tuple[bytes, np.ndarray | None], error_before: bool) -> P
     data = (first != 10) & (first != 35)  # blank lines and # comments are no frames
     indented = first == _INDENTED
     data &= ~indented
-    lines = np.flatnonzero(data)
-    cols = _Columns(b, pad, start[lines], nl[lines], lines.size == n)
+    whole = bool(data.all())  # every line a frame's (else the columns are those of the frames' lines)
+    lines = np.arange(n) if whole else np.flatnonzero(data)
+    cols = _Columns(b, pad, start if whole else start[lines], nl if whole else nl[lines], whole, b"_" in text,
+                    first if whole else first[lines])
     ok = cols.ok
     if announced is not None:  # a -ta line's [len] is its payload's length
         known = announced[lines]
         ok &= (known < 0) | (cols.length == known)
-    good = np.flatnonzero(ok)
-    bad_lines = lines[~ok]
-    rows_line = lines[good]
-    errors = cols.err[good]
+    every = bool(ok.all())
+    good = np.arange(lines.size) if every else np.flatnonzero(ok)
+    bad_lines = _NO_ROWS if every else lines[~ok]
+    rows_line = lines if every else lines[good]
+    errors = cols.err if every else cols.err[good]
     error_last = bool(errors[-1]) if errors.size else error_before
     if indented.any():
         bad_lines, error_last = _indented(np.flatnonzero(indented), rows_line, errors, bad_lines, error_before)
-    block = cols.block(good) if good.size else None
+    block = cols.block(text, good) if good.size else None
     return Parsed(block, rows_line, n, sorted(bad_lines.tolist()), error_last)
 
 
@@ -202,24 +210,34 @@ class _Columns:
     ``whole``: every line of the block is one of these (no blank, comment or indented line): then one count
     of the block's bytes that are not hex digits, held to what the fields found account for, proves at once
     that the ids and payloads are hex digits (else each line's fields are counted on their own).
+    ``has_under``: the block has an underscore (a raw DLC's, maybe). ``opening``: each line's first byte.
     """
 
-    def __init__(self, b: np.ndarray, pad: np.ndarray, start: np.ndarray, end: np.ndarray, whole: bool) -> None:
+    def __init__(self, b: np.ndarray, pad: np.ndarray, start: np.ndarray, end: np.ndarray, whole: bool,
+                 has_under: bool, opening: np.ndarray) -> None:
         self.b = b
         self.pad = pad
         self.start = start
-        self.has_under = bool(np.count_nonzero(b == 95))  # a raw DLC somewhere
-        close, sp2 = self._fixed(start, end) or self._searched(start, end)
-        ok = (pad[start] == 40) & (close < end) & (pad[close + 1] == 32) & (sp2 < end) & (sp2 > close + 2)
+        self.has_under = has_under  # a raw DLC somewhere
+        self.every: tuple[np.ndarray, list[bytes]] | None = None
+        """Every line's channel index and the names' bytes, once found."""
+        fixed = self._fixed(start, end)
+        if fixed is not None:  # the ")", the spaces and the channel's end where :meth:`_fixed` saw them on every line
+            close, sp2 = fixed
+            ok = opening == 40
+        else:
+            close, sp2 = self._searched(start, end)
+            ok = (opening == 40) & (close < end) & (pad[close + 1] == 32) & (sp2 < end) & (sp2 > close + 2)
         fe = self._field_end(sp2, end)
         tail = fe < end
-        ok &= ~tail | ((fe == end - 2) & _MARKERS[pad[end - 1]])
+        if tail.any():
+            ok &= ~tail | ((fe == end - 2) & _MARKERS[pad[end - 1]])
         h1 = self._hash(sp2, fe)
         ok &= h1 < fe
         self.close, self.sp2 = close, sp2
         ok &= self._ids(h1, sp2)
         ok &= self._data(h1, fe)
-        ok &= self._stamps(start, close)
+        ok &= self._stamps(start, close, fixed is not None)
         hexes = [(sp2 + 1, h1), (self.ds, self.de)]  # where only hex digits may be
         if not (whole and ok.all() and self._counted(b, tail, close, sp2)):
             for lo, hi in hexes:
@@ -271,10 +289,9 @@ class _Columns:
         marks = 2 * n + 2 * n + n + int(np.count_nonzero(tail)) * 2  # ( ) two spaces, newline; " T"
         marks += int(np.count_nonzero(self.dot_at)) + n + int(np.count_nonzero(self.fd))  # the dots, "#", "##"
         marks += int(np.count_nonzero(self.remote)) + int(np.count_nonzero(self.raw_dlc))  # "R", "_"
-        size = sp2 - close - 2
-        for length in np.unique(size).tolist() if not (size == size[0]).all() else [int(size[0])]:
-            at = slice(None) if (size == length).all() else np.flatnonzero(size == length)
-            marks += int(np.count_nonzero(~_HEX[_rows(self.pad, close[at] + 2, length)]))  # the channels
+        lanes, names = self.every = self._named(slice(None))  # the channels: each name's bytes, times its rows
+        counts = np.bincount(lanes, minlength=len(names)).tolist() if len(names) > 1 else [n]
+        marks += sum(count * sum(not _HEX[c] for c in name) for count, name in zip(counts, names, strict=True))
         return b.size - _hex_digits(b) == marks
 
     def _between(self, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
@@ -297,75 +314,107 @@ class _Columns:
         # read and dropped (each byte lands in its own nibble: a short id is the low 12 bits)
         value = _extended_values(words[np.maximum(h1 - 8, 0)])
         low = value & _U(0xFFF)
+        self.extended = ext
+        if not ext.any():  # standard ids alone
+            self.can_id = low.astype(np.uint32)
+            self.err = ext
+            return (size == 3) & (low <= _U(_MAX_STANDARD))
         err = ext & ((value & _U(_ERR_FLAG)) != 0)
         self.can_id = np.where(ext, value & _U(_MAX_EXTENDED), low).astype(np.uint32)
-        self.extended = ext
         self.err = err
         return (ext | (size == 3)) & np.where(ext, (value <= _U(_MAX_EXTENDED)) | err, low <= _U(_MAX_STANDARD))
 
     def _data(self, h1: np.ndarray, fe: np.ndarray) -> np.ndarray:
-        """The payloads after the "#": classic, CAN FD (``##F``), remote (``R``, ``R4``), raw DLC (``_D``)."""
+        """The payloads after the "#": classic, CAN FD (``##F``), remote (``R``, ``R4``), raw DLC (``_D``); the checks
+        of each kind made only where the block has one."""
         pad = self.pad
         after = pad[h1 + 1]
         fd = after == 35
         remote = (after == 82) | (after == 114)
-        digit = pad[h1 + 2]
-        ok = ~fd | ((h1 + 2 < fe) & _HEX[digit])
-        self.fd_digit = np.where(fd, _hex_value(digit), 0) if fd.any() else np.zeros(fd.size, dtype=np.int64)
-        ds = np.where(fd, h1 + 3, h1 + 1)
-        under = _next(self.b, 95, ds, fe) if self.has_under else fe  # "_": a raw DLC
-        raw_dlc = under < fe
-        de = np.where(raw_dlc, under, fe)
-        de = np.where(remote, ds, de)
+        has_fd, has_remote, has_under = bool(fd.any()), bool(remote.any()), self.has_under
+        digit = pad[h1 + 2] if has_fd or has_remote else after  # CAN FD flags, a remote DLC (else unread)
+        checks = []
+        ds = h1 + 1
+        if has_fd:
+            checks.append(~fd | ((h1 + 2 < fe) & _HEX[digit]))
+            self.fd_digit = np.where(fd, _hex_value(digit), 0)
+            ds = np.where(fd, h1 + 3, ds)
+        else:
+            self.fd_digit = np.zeros(fe.size, dtype=np.int64)
+        de = fe
+        raw_dlc = under = dlc_digit = None
+        if has_under:
+            under = _next(self.b, 95, ds, fe)  # "_": a raw DLC
+            raw_dlc = under < fe
+            de = np.where(raw_dlc, under, fe)
+            dlc_digit = _hex_value(pad[under + 1])
+            checks.append(~raw_dlc | (~fd & ~remote & (fe == under + 2) & (de - ds == 16) & _HEX[pad[under + 1]]
+                                      & (dlc_digit >= 9)))
         rl = fe - h1 - 2
-        ok &= ~remote | (rl == 0) | ((rl == 1) & (digit >= 48) & (digit <= 56))
-        dlc_digit = _hex_value(pad[under + 1]) if self.has_under else _zeros_like(fe)
-        ok &= ~raw_dlc | (~fd & ~remote & (fe == under + 2) & (de - ds == 16) & _HEX[pad[under + 1]]
-                          & (dlc_digit >= 9))
+        if has_remote:
+            de = np.where(remote, ds, de)
+            checks.append(~remote | (rl == 0) | ((rl == 1) & (digit >= 48) & (digit <= 56)))
         hex_len = de - ds
-        ok &= (hex_len >= 0) & ((hex_len & 1) == 0)
+        ok = (hex_len >= 0) & ((hex_len & 1) == 0)
         length = np.maximum(hex_len, 0) >> 1
-        ok &= np.where(fd, _FD_BYTES[np.minimum(length, 65)], length <= 8)
+        ok &= np.where(fd, _FD_BYTES[np.minimum(length, 65)], length <= 8) if has_fd else length <= 8
+        for check in checks:
+            ok &= check
         self.ds, self.de, self.length = ds, de, length
-        self.fd, self.remote, self.raw_dlc = fd, remote, raw_dlc
-        self.dlc = np.where(remote, np.where(rl == 1, digit.astype(np.int64) - 48, 0),
-                            np.where(raw_dlc, dlc_digit, length))
+        self.fd, self.remote = fd, remote
+        self.raw_dlc = raw_dlc if raw_dlc is not None else np.zeros(fe.size, dtype=bool)
+        dlc = length if raw_dlc is None else np.where(raw_dlc, dlc_digit, length)
+        self.dlc = np.where(remote, np.where(rl == 1, digit.astype(np.int64) - 48, 0), dlc) if has_remote else dlc
         return ok
 
     @property
     def flags(self) -> np.ndarray:
         """Each line's :class:`Block` flags."""
-        digit = self.fd_digit.astype(np.uint8)
-        return (np.where(self.fd, FLAG_FD | ((digit & 1) * FLAG_BRS) | ((digit & 2) // 2 * FLAG_ESI), 0)
-                | np.where(self.remote, FLAG_REMOTE, 0) | np.where(self.err, FLAG_ERROR, 0)).astype(np.uint8)
+        flags = np.zeros(self.fd.size, dtype=np.uint8)
+        if self.fd.any():
+            digit = self.fd_digit.astype(np.uint8)
+            flags |= np.where(self.fd, FLAG_FD | ((digit & 1) * FLAG_BRS) | ((digit & 2) // 2 * FLAG_ESI), 0
+                              ).astype(np.uint8)
+        for column, flag in ((self.remote, FLAG_REMOTE), (self.err, FLAG_ERROR)):
+            if column.any():
+                flags[column] |= flag
+        return flags
 
-    def _stamps(self, start: np.ndarray, close: np.ndarray) -> np.ndarray:
-        """The timestamps (digits, a dot and digits, or digits alone, between "(" and ")") as :attr:`time_s`."""
+    def _stamps(self, start: np.ndarray, close: np.ndarray, fixed: bool) -> np.ndarray:
+        """The timestamps (digits, a dot and digits, or digits alone, between "(" and ")") as :attr:`time_s`.
+
+        ``fixed``: every line's ")" is where the first line's is (every stamp as wide)."""
         n = start.size
         self.time_s = np.zeros(n, dtype=np.float64)
         ok = np.ones(n, dtype=bool)
-        width = close - start - 1
-        dot = self._dots(start, close)
-        self.dot_at = dot < close
-        place = np.where(self.dot_at, dot - start - 1, 63)
-        key = np.minimum(width, 48) * 64 + place
+        at = self._dot_place(start, close)
         kinds: list[tuple[int, slice | np.ndarray]]
-        if n and (key == key[0]).all():
-            kinds = [(int(key[0]), slice(None))]
+        if fixed and at:  # one kind of stamp: the first line's
+            self.dot_at = np.ones(n, dtype=bool)
+            kinds = [(min(int(close[0] - start[0]) - 1, 48) * 64 + at - 1, slice(None))]
         else:
-            kinds = [(int(k), np.flatnonzero(key == k)) for k in np.unique(key).tolist()]
+            width = close - start - 1
+            dot = start + at if at else _next(self.b, 46, start + 1, close)
+            self.dot_at = dot < close
+            place = np.where(self.dot_at, dot - start - 1, 63)
+            key = np.minimum(width, 48) * 64 + place
+            if n and (key == key[0]).all():
+                kinds = [(int(key[0]), slice(None))]
+            else:
+                kinds = [(int(k), np.flatnonzero(key == k)) for k in np.unique(key).tolist()]
         for k, pick in kinds:
-            w, at = divmod(k, 64)
-            self._stamp_kind(w, at, start[pick] + 1, ok, pick)
+            w, place_at = divmod(k, 64)
+            self._stamp_kind(w, place_at, start[pick] + 1, ok, pick)
         return ok
 
-    def _dots(self, start: np.ndarray, close: np.ndarray) -> np.ndarray:
-        """The dot of each timestamp: where the first line has it, when every line does (else searched)."""
+    def _dot_place(self, start: np.ndarray, close: np.ndarray) -> int:
+        """Where the first line's timestamp has its dot (from the line's start), when every line's has one there;
+        else 0."""
         if start.size:
             at = self.pad[int(start[0]):int(close[0])].tobytes().find(b".")
             if at > 0 and ((self.pad[start + at] == 46) & (start + at < close)).all():
-                return start + at
-        return _next(self.b, 46, start + 1, close)
+                return at
+        return 0
 
     def _stamp_kind(self, width: int, dot: int, first: np.ndarray, ok: np.ndarray, pick: slice | np.ndarray) -> None:
         """The timestamps of ``width`` characters with the dot at ``dot`` (63: none) from ``first``."""
@@ -376,7 +425,9 @@ class _Columns:
         np.subtract(cells, np.uint8(48), out=cells)  # a digit is 0..9, anything else wraps above 9
         if dot != 63:
             cells[:, dot] = 0
-        good = (cells <= 9).all(axis=1)
+        good: np.ndarray | None = None  # None: every row's are digits
+        if cells.size and cells.max() > 9:
+            good = np.asarray((cells <= 9).all(axis=1))
         if width <= 23:  # 10**22: the last exact power of ten
             weights = np.array([0.0 if k == dot else 10.0 ** (width - 1 - k - (dot != 63 and k < dot))
                                 for k in range(width)])
@@ -385,72 +436,113 @@ class _Columns:
             whole = digits @ weights  # BLAS: every partial sum an integer below 2**53, exact in any order
             scale = 10.0 ** (width - 1 - dot) if dot != 63 else 1.0
             values = whole / scale  # an exact integer / an exact power of ten: one rounding, as float()
-            slow = np.flatnonzero(good & (whole >= _EXACT))
+            slow = _NO_ROWS if not whole.size or whole.max() < _EXACT else np.flatnonzero(whole >= _EXACT)
         else:
             values = np.zeros(first.size)
-            slow = np.flatnonzero(good)
+            slow = np.arange(first.size)
+        if good is not None:
+            slow = slow[good[slow]]
+            ok[pick] = good
         for r in slow.tolist():  # too many digits for one exact division: float() of the text
             at = int(first[r])
             values[r] = float(bytes(self.pad[at:at + width]))
-        ok[pick] = good
         self.time_s[pick] = values
 
     def channels(self, rows: np.ndarray) -> tuple[np.ndarray, tuple[str, ...]]:
-        """Each of ``rows``' channel index, and the names."""
+        """Each of ``rows``' channel index, and the names (in the order they first come)."""
+        every = self.every
+        lanes, names = every if every is not None and rows.size == self.start.size else self._named(rows)
+        return lanes, tuple(name.decode("utf-8", "replace") for name in names)
+
+    def _named(self, rows: np.ndarray | slice) -> tuple[np.ndarray, list[bytes]]:
+        """Each of ``rows``' channel index, and the names' bytes (in the order they first come)."""
         begin = self.close[rows] + 2
         size = self.sp2[rows] - begin
-        names: dict[bytes, int] = {}
-        lanes = np.zeros(rows.size, dtype=np.uint16)
-        if not rows.size:
-            return lanes, ("",)
+        if not begin.size:
+            return np.zeros(0, dtype=np.uint16), [b""]
         first = int(size[0])
+        if first <= 8 and (size == first).all():  # names of up to 8 bytes are 64-bit words: compared as integers
+            words = np.ndarray((self.pad.size - 7,), _LE64, self.pad, 0, (1,))
+            found = _few(words[begin] & _U((1 << 8 * first) - 1))
+            if found is not None:
+                lanes, firsts = found
+                return lanes, [self.pad[k:k + first].tobytes() for k in begin[firsts].tolist()]
+        lanes = np.zeros(begin.size, dtype=np.uint16)
         if (size == first).all():
             cells = _rows(self.pad, begin, first)
             if (cells == cells[0]).all():
-                return lanes, (bytes(cells[0]).decode("utf-8", "replace"),)
+                return lanes, [cells[0].tobytes()]
+        names: dict[bytes, int] = {}
         for length in np.unique(size).tolist():
             at = np.flatnonzero(size == length)
-            if length <= 8:  # a name of up to 8 bytes is one 64-bit word: unique as integers
-                words = np.ndarray((self.pad.size - 7,), _LE64, self.pad, 0, (1,))
-                codes = words[begin[at]] & _U((1 << 8 * length) - 1)
-                _codes, firsts, inverse = np.unique(codes, return_index=True, return_inverse=True)
-                order = np.argsort(firsts)  # the names in the order they first come
-                rank = np.empty(order.size, dtype=np.intp)
-                rank[order] = np.arange(order.size)
-                inverse = rank[inverse.reshape(-1)]
-                keys = [self.pad[k:k + length].tobytes() for k in begin[at][firsts[order]].tolist()]
-            else:
-                cells = np.ascontiguousarray(_rows(self.pad, begin[at], length))
-                found, inverse = np.unique(cells.view(np.dtype((np.void, length))).reshape(-1), return_inverse=True)
-                keys = [k.tobytes() for k in found]
-            index = np.array([names.setdefault(k, len(names)) for k in keys], dtype=np.uint16)
+            cells = _rows(self.pad, begin[at], length)
+            found_names, inverse = np.unique(cells.view(np.dtype((np.void, length))).reshape(-1), return_inverse=True)
+            index = np.array([names.setdefault(k.tobytes(), len(names)) for k in found_names], dtype=np.uint16)
             lanes[at] = index[inverse.reshape(-1)]
-        if len(names) == 1 or ((size == first).all() and first <= 8):
-            return lanes, tuple(name.decode("utf-8", "replace") for name in names)
         _seen, firsts = np.unique(lanes, return_index=True)
         order = np.argsort(firsts)  # the names in the order they first come
         rank = np.empty(order.size, dtype=np.uint16)
         rank[order] = np.arange(order.size, dtype=np.uint16)
         listed = list(names)
-        return rank[lanes], tuple(listed[k].decode("utf-8", "replace") for k in order.tolist())
+        return rank[lanes], [listed[k] for k in order.tolist()]
 
-    def block(self, rows: np.ndarray) -> Block:
-        """The frames of ``rows`` (good lines) as a block."""
-        length = self.length[rows]
-        width = int(length.max()) * 2 if rows.size else 0
-        if width:
-            payload = _hex_bytes(_rows(self.pad, self.ds[rows], width))
-            payload[np.arange(width >> 1) >= length[:, None]] = 0  # past a shorter row's data: the next bytes
-        else:
-            payload = np.zeros((rows.size, 0), dtype=np.uint8)
+    def block(self, text: bytes, rows: np.ndarray) -> Block:
+        """The frames of ``rows`` (good lines of ``text``) as a block; their payloads read from ``text`` when asked
+        for (:class:`HexPayloads`)."""
         lanes, names = self.channels(rows)
-        return Block(self.time_s[rows], self.can_id[rows], self.extended[rows], self.flags[rows],
-                     self.dlc[rows].astype(np.uint8), length.astype(np.uint8), payload, lanes, names)
+        pick: Any = slice(None) if rows.size == self.start.size else rows  # every line: the columns as they are
+        length = self.length[pick]
+        return Block(self.time_s[pick], self.can_id[pick], self.extended[pick], self.flags[pick],
+                     self.dlc[pick].astype(np.uint8), length.astype(np.uint8),
+                     HexPayloads(text, self.b, self.ds[pick], length), lanes, names)
+
+
+class HexPayloads:
+    """A block's payloads as the hex digits of its lines: the bytes of the rows asked for are made then, each
+    message's as wide as its longest (a block of CAN FD and classic frames makes no 64-byte row of a classic one).
+
+    ``text``: the block's text (``digits``: the same bytes as an array); ``start``: each row's first digit in it;
+    ``length``: each row's payload bytes (its digits checked by the parser).
+    """
+
+    __slots__ = ("digits", "length", "start", "text")
+
+    def __init__(self, text: bytes, digits: np.ndarray, start: np.ndarray, length: np.ndarray) -> None:
+        self.text, self.digits, self.start, self.length = text, digits, start, length
+
+    def rows(self, rows: Any) -> np.ndarray:
+        """The bytes of ``rows``' digits (an index array, or a slice): a ``len(rows) x longest`` matrix, zeros past
+        each one's length."""
+        start = self.start[rows]
+        length = self.length[rows]
+        width = int(length.max()) * 2 if start.size else 0
+        if not width:
+            return np.zeros((start.size, 0), dtype=np.uint8)
+        digits = self.digits
+        last = digits.size - width  # a row starting after it is near the text's end: its cells read from a copy
+        if int(start.max()) <= last:
+            cells = _rows(digits, start, width)
+        else:
+            cells = _rows(digits, np.minimum(start, last), width)
+            for r in np.flatnonzero(start > last).tolist():
+                at = int(start[r])
+                cells[r, :digits.size - at] = digits[at:]  # its digits, then anything: past its length, zeroed
+        payload = _hex_bytes(cells)
+        if not (length == width >> 1).all():
+            payload[np.arange(width >> 1) >= length[:, None]] = 0  # past a shorter row's data: the next bytes
+        return payload
+
+    def one(self, i: int) -> bytes:
+        """Row ``i``'s payload."""
+        at = int(self.start[i])
+        return binascii.unhexlify(self.text[at:at + 2 * int(self.length[i])])
 
 
 # --------------------------------------------------------------------------- numpy helpers
 
 _LOCAL = threading.local()
+_VOIDS: dict[int, np.dtype] = {}
+"""The dtype of ``width`` bytes as one item, by width."""
 
 
 def _buffer(name: str, count: int, dtype: type) -> np.ndarray:
@@ -493,9 +585,21 @@ def _after(positions: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     return np.where((k < positions.size) & (at < hi), at, hi)
 
 
-def _zeros_like(like: np.ndarray) -> np.ndarray:
-    """Zeros of ``like``'s length (no raw DLC in the block)."""
-    return np.zeros(like.size, dtype=np.int64)
+def _few(codes: np.ndarray, most: int = 8) -> tuple[np.ndarray, np.ndarray] | None:
+    """Each of ``codes``' index among the distinct codes in the order they first come, and where each first comes;
+    None when there are more than ``most`` (then a sort is cheaper than a pass for each)."""
+    lanes = np.zeros(codes.size, dtype=np.uint16)
+    firsts = [0]
+    rest = codes != codes[0]
+    while rest.any():
+        if len(firsts) == most:
+            return None
+        k = int(rest.argmax())
+        same = codes == codes[k]
+        lanes[same] = len(firsts)
+        firsts.append(k)
+        rest &= ~same
+    return lanes, np.array(firsts, dtype=np.intp)
 
 
 def _hex_value(digits: np.ndarray) -> np.ndarray:
@@ -523,4 +627,8 @@ def _hex_bytes(cells: np.ndarray) -> np.ndarray:
 
 def _rows(b: np.ndarray, pos: np.ndarray, width: int) -> np.ndarray:
     """The ``width`` bytes at each of ``pos``, as a ``len(pos) x width`` matrix (one copy per row, not per byte)."""
-    return np.ndarray((b.size - width + 1, width), np.uint8, b, 0, (1, 1))[pos]  # as_strided, without its overhead
+    void = _VOIDS.get(width)
+    if void is None:
+        void = _VOIDS[width] = np.dtype((np.void, width))
+    cells: np.ndarray = np.ndarray((b.size - width + 1,), void, b, 0, (1,))[pos]  # a row one item: one copy, not width
+    return cells.view(np.uint8).reshape(cells.size, width)

@@ -61,19 +61,14 @@ def check_export(path: Path, *, dask: bool = False) -> None:
 
     if not is_mcap(path) and importlib.util.find_spec("pyarrow") is None:
         raise ConfigError(_NO_PYARROW)
-    check_writable(path)
+    from canguard.io.outputs import check_output
+
+    check_output(path, FLAG, beside=True, expected="a file name such as signals.parquet in a writable directory")
 
 
 def is_mcap(path: Path) -> bool:
     """``--export-signals FILE.mcap``: an MCAP file per log (:mod:`canguard.report.mcapexport`), not Parquet."""
     return path.suffix.lower() == ".mcap"
-
-
-def check_writable(path: Path) -> None:
-    """ConfigError (exit 2) naming ``path`` when the export cannot be written there (nor its parts beside it)."""
-    from canguard.io.outputs import check_output
-
-    check_output(path, FLAG, beside=True, expected="a file name such as signals.parquet in a writable directory")
 
 
 def part_path(path: Path, index: int) -> Path:

@@ -1,18 +1,8 @@
 """``replay --export-signals FILE.mcap``: what the engine saw and did, as MCAP channels Foxglove plots as they are.
 
-In the log's time base (a bag's header stamps: the bag and the export line up side by
-side in Foxglove), one channel each:
-
-``/canguard/samples/<source>/<role>``  every decoded sample (``canguard_msgs/msg/Sample``: value, valid),
-                                       through :class:`~canguard.report.export.SignalExport`;
-``/canguard/guards/<node>``            at every tick that runs, each guard's model (``canguard_msgs/msg/Guard``: the
-                                       value it judges, its threshold, its level in % of the trip level,
-                                       tripped);
-``/canguard/events``                   the events (trip, stop, resume, stale, ...) as JSON;
-``/canguard/frames_out``               the frames canguard would have sent (``can_msgs/msg/Frame``, CAN FD
-                                       ones on ``/canguard/frames_out_fd`` as ``ros2_socketcan_msgs/msg/FdFrame``).
-
-Messages are ROS 2 CDR with their ``.msg`` schemas, the events JSON: Foxglove decodes both as they are.
+In the log's time base, one channel per source and role (``/canguard/samples/...``), per guard
+(``/canguard/guards/<node>``), the events (JSON) and the frames sent (``/canguard/frames_out``,
+``/canguard/frames_out_fd``): docs/commands.md. Messages are ROS 2 CDR with their ``.msg`` schemas.
 """
 
 from __future__ import annotations

@@ -1,19 +1,8 @@
 """``canguard tune``'s proposal: each guard's figure between what healthy logs reach and what faults need.
 
-The input is every log's :class:`~canguard.report.tune.TuneStats` result (in its replay
-summary). For each guard the healthy logs give a *ceiling* (the value at and above which none
-of them trips it) and each fault log the value below which it trips; the proposal is the
-healthy ceiling × (1 + margin), rounded up to three significant digits while it stays below
-what every fault assigned to the guard needs. Where only a smaller margin fits, the midpoint is
-taken and said; where no value fits, the guard is a conflict naming both logs (exit 1).
-
-Which faults a guard must catch: those ``--expect`` lists for it, else every fault log whose excursion
-lies above the healthy ceiling; the rest is left to the proving replay.
-
-A source's ``max_age`` is proposed only where the value in force fails a log: a healthy log
-has a longer gap between its frames (it would go stale on a healthy day), or an assigned
-fault's gap is not longer than it; the proposal is the longest healthy gap × :data:`GAP_FACTOR`,
-never below the source's period (the median gap).
+From every log's :class:`~canguard.report.tune.TuneStats` result: per guard the healthy ceiling × (1 + margin),
+rounded up while below what every fault assigned to it needs (else the midpoint, said; else a conflict); a
+source's ``max_age`` only where the value in force fails a log. The rules: docs/commands.md (``canguard tune``).
 """
 
 from __future__ import annotations

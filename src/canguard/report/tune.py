@@ -316,7 +316,7 @@ class TuneStats:
                         entry["inrush"] = inrush
                     heat = getattr(model, "trip_level", None)
                     if heat is not None:
-                        entry["heat_pct"] = self._heat_pct(node.name)
+                        entry["heat_pct"] = float(self.engine.stats.max_level_pct.get(node.name, math.nan))
                 signals.append(entry)
             guards.append({
                 "node": node.name, "type": type(node).__name__, "source": node.topic_name,
@@ -325,7 +325,3 @@ class TuneStats:
                 "signals": signals,
             })
         return {"guards": guards}
-
-    def _heat_pct(self, node: str) -> float:
-        """The highest I²t level this log reached, in % of the trip level (the replay's own figure)."""
-        return float(self.engine.stats.max_level_pct.get(node, math.nan))

@@ -1,14 +1,9 @@
 """``configure: true``: canguard gives a CANopen drive what its config expects, over SDO.
 
-At the daemon's start, and again whenever the drive sends its boot-up message (it rebooted
-and forgot what it was told), each drive with ``configure: true`` is configured in a thread
-of its own (SDO transfers wait for answers; the daemon's loop never does):
-
-NMT pre-operational; the SDO writes of :attr:`CanopenDrive.setup <canguard.config.canopen.CanopenDrive.setup>`
-(the heartbeat first); each value read back and compared; NMT start. A refused, unanswered or
-different write is an ``error`` event and the drive stays pre-operational (its sources
-``not_present``: fail safe); a ``configure`` event says when a drive was configured and started. The
-``canopen`` library does the SDO and NMT work on a bus of its own.
+At start and at each boot-up message, in a thread per drive: NMT pre-operational, the writes of
+:attr:`CanopenDrive.setup <canguard.config.canopen.CanopenDrive.setup>` read back and compared, NMT start. A
+write that fails is an ``error`` event and the drive stays pre-operational (fail safe); ``configure`` says
+when a drive was started. The ``canopen`` library does the SDO and NMT work on a bus of its own.
 """
 
 from __future__ import annotations

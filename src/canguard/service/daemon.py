@@ -1,25 +1,9 @@
 """``canguard run``: the live engine, as a systemd service.
 
-The loop: wait for frames until the engine's next deadline (a tick or a gate
-deadline), take the frames received as blocks (:meth:`Engine.take`), advance the engine to now, and tell
-systemd how things stand. Where every bus has a socket (SocketCAN, udp_multicast) the loop's own thread
-waits on it and drains it (:class:`~canguard.io.bus.BusReader` ``direct``): a frame reaches the engine
-without a thread hand-off (a queue, and the GIL passed between threads). Other buses get a reader thread
-each and a queue in between. A trip's stop frames leave before its events are written (the engine's
-journal records a tick's events when the tick is over), and the journal's ``fsync`` runs in a thread of
-its own, at most once every ``sync_interval_s`` (:class:`~canguard.engine.events.EventJournal`
-``sync_in_background``): a trip that comes while the disk syncs the last events is not held up by it.
-
-- ``READY=1`` once every bus is open and the tree loaded;
-- ``WATCHDOG=1`` only while the loop ticks on time and every source the tree
-  reads is fresh or has caused a stop: a stalled or blind daemon gets restarted;
-- ``STATUS=`` once a second with the task state, trips and frame rates;
-- SIGTERM: ``STOPPING=1``, stop frames out, events and I²t heat flushed, exit 0;
-- SIGHUP: reload config and tree; a bad new config is rejected with an
-  ``error`` event and the old one keeps running.
-
-A daemon that dies stops sending the task's frames, so the drivers' own CAN
-timeouts stop the motors (dead-man principle).
+The loop waits for frames until the engine's next deadline, hands them to :meth:`Engine.take` as blocks,
+advances the engine to now and tells systemd how things stand (READY, WATCHDOG, STATUS, STOPPING, reload on
+SIGHUP: docs/deploy.md). Where every bus has a socket the loop reads it itself (``BusReader(direct=True)``);
+other buses get a reader thread each.
 """
 
 from __future__ import annotations

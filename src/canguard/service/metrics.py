@@ -1,16 +1,7 @@
 """Prometheus metrics (``canguard run --metrics 127.0.0.1:9108``; off by default).
 
-:class:`Metrics` (prometheus-client, an optional extra, on a private registry) serves (label in braces)::
-
-    canguard_frames_received_total{bus}     frames read from the bus
-    canguard_frames_decoded_total{bus}      frames decoded into samples
-    canguard_frames_invalid_total{bus}      frames of configured ids that did not decode
-    canguard_send_errors_total{bus}         frames that could not be sent (full TX queue, error)
-    canguard_trips_total{node}              guard trips
-    canguard_stop_active                    1 while the tree stops the task, else 0
-    canguard_tick_duration_seconds          histogram of tree tick durations
-    canguard_i2t_level_percent{node}        I²t heat of each guard, % of its trip level
-    canguard_sample_age_seconds{source}     age of the newest sample of each source
+:class:`Metrics` (prometheus-client, an optional extra, on a private registry); the metrics are listed in
+docs/deploy.md.
 """
 
 from __future__ import annotations

@@ -215,12 +215,7 @@ class Dropout(Scenario):
 class Garbage(Scenario):
     """Bad payloads on configured messages, one every 50 ms from 1.0 s (axis 2, or the last axis).
 
-    1.00 s Get_Iq with Iq_Measured = NaN; 1.05 s Get_Iq with +inf; 1.10 s
-    Get_Iq with 4 bytes (wrong length); 1.15 s BMS_Status with 3 bytes;
-    1.20 s Get_Torques with Torque_Estimate = NaN; 1.25 s 8 random bytes on an
-    id the DBC does not know (0x7E5); 1.30 s random bytes of random length on
-    Axis*_Get_Error (a DBC message no source uses). The normal frames keep
-    coming in between, so each invalid sample is followed by valid ones.
+    The normal frames keep coming in between, so each invalid sample is followed by valid ones.
     """
 
     name = "garbage"
@@ -251,15 +246,10 @@ class Garbage(Scenario):
 
 
 class ErrorBurst(Scenario):
-    """32 CAN error frames 0.2 ms apart from 1.0 s (a 6.4 ms burst).
+    """32 CAN error frames 0.2 ms apart from 1.0 s (a 6.4 ms burst), as a loose connector produces.
 
-    Bus errors (bit and form errors, error class ``CAN_ERR_PROT |
-    CAN_ERR_BUSERROR`` = 0x88) with the error counters rising by 8 per frame,
-    ending in a controller warning (class 0x84, rx/tx warning), as a loose
-    connector produces. As :func:`canguard.io.logs.read_log` reads them back:
-    ``is_error_frame`` and ``is_extended_id`` True, ``arbitration_id`` the
-    class bits without CAN_ERR_FLAG; candump -L writes ``20000088#...``, which
-    python-can's reader also recognises as an error frame.
+    Bus errors with the error counters rising by 8 per frame, ending in a controller warning; read back
+    as ``is_error_frame`` with the class bits (without CAN_ERR_FLAG) as ``arbitration_id``.
     """
 
     name = "errorburst"
@@ -283,14 +273,8 @@ class ErrorBurst(Scenario):
 
 
 class Load(Scenario):
-    """Background traffic on 40 ids no config uses, from 0 s, up to 8,000 frames/s in total.
-
-    The background rate is the target minus the robot's own nominal rate
-    (≈ 2,570 frames/s with 4 axes), split unevenly over 40 standard ids
-    (0x200–0x7FF, none in the DBC), each with a fixed random DLC and random
-    bytes. 8,000 frames/s of 8-byte standard frames is about a full
-    1 Mbit/s bus.
-    """
+    """Background traffic on 40 ids no config uses, from 0 s, up to 8,000 frames/s in total (about a full
+    1 Mbit/s bus): the target minus the robot's own rate, split unevenly, random DLC and bytes per id."""
 
     name = "load"
     summary = "background frames on 40 unconfigured ids: 8,000 frames/s in total"

@@ -1,23 +1,8 @@
 """Groot2's monitor: BehaviorTree.CPP 4's Groot2 publisher protocol, read-only.
 
-As ``BT::Groot2Publisher`` (``src/loggers/groot2_publisher.cpp``, framing in
-``include/behaviortree_cpp/loggers/groot2_protocol.h``): a ZeroMQ REP socket on PORT answers
-multipart requests, a PUB socket is bound on PORT + 1. A request's first part is 6 bytes:
-protocol (u8, 2), request type (u8, an ASCII letter), request id (u32, little-endian); the
-reply's first part repeats them and adds the tree's 16-byte UUID, then the payload:
-
-- ``T`` FULLTREE: the tree XML with every node's ``_uid`` and the ``<TreeNodesModel>``;
-- ``S`` STATUS: per node 3 bytes, UID (u16) and status (u8; ``10 + s``: idle after ``s``);
-- ``B`` BLACKBOARD (second part ``name;name``): MessagePack of ``{name: {key: value}}``.
-
-Hooks, breakpoints and recording would let a client pause or replace nodes of the safety
-loop: they are refused with an ``["error", why]`` reply, as the publisher answers a request it
-cannot serve. The removal requests Groot2 sends on disconnecting (remove / disable all hooks)
-are answered as done (there is none), and the hooks dump is an empty list.
-
-Misbehaving clients are logged one line per cause (:class:`.notes.ClientNotes`); ZeroMQ drops a
-connection without a handshake within :data:`HANDSHAKE_MS`, with a message over :data:`MAX_MESSAGE_BYTES`
-or that stops answering heartbeats.
+As ``BT::Groot2Publisher``: a ZeroMQ REP socket on PORT answers FULLTREE (``T``), STATUS (``S``) and
+BLACKBOARD (``B``) requests, a PUB socket is bound on PORT + 1; hooks, breakpoints and recording are refused
+(docs/monitor.md). Misbehaving clients are logged one line per cause (:class:`.notes.ClientNotes`).
 """
 
 from __future__ import annotations

@@ -1,15 +1,8 @@
 """The status page and its API: one asyncio event loop, in a thread of its own, serves every connection.
 
-``GET /`` the page (one self-contained document: no external script, style or font);
-``GET /api/status`` the JSON document (or, asked with ``Accept: text/event-stream``, a stream of it:
-one ``status`` event per change); ``GET /api/events`` the journal events as server-sent events
-(the kept ones first). Read-only: every other method is refused with 405. With a token, every
-request must carry ``Authorization: Bearer TOKEN`` (or ``?token=TOKEN``: a browser's EventSource
-cannot set headers).
-
-Whatever clients do, the page and ``/api/status`` answer (:class:`Limits`: streams capped in all and
-per address, request and send timeouts, the oldest unfinished request makes room); what clients do wrong
-is logged one line per cause (:class:`.notes.ClientNotes`).
+``GET /``, ``GET /api/status`` (or its stream), ``GET /api/events`` (server-sent events), read-only, with an
+optional bearer token: docs/monitor.md. Whatever clients do, the page and ``/api/status`` answer
+(:class:`Limits`); what clients do wrong is logged one line per cause (:class:`.notes.ClientNotes`).
 """
 
 from __future__ import annotations
