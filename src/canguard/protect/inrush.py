@@ -14,9 +14,12 @@ import math
 from typing import TYPE_CHECKING, Any
 
 from canguard.protect.base import TIME_EPS_S, check_limit
+from canguard.protect.columns import as_run, in_order
 
 if TYPE_CHECKING:
-    from canguard.protect.columns import FloatArray
+    import numpy.typing as npt
+
+    from canguard.protect.columns import BoolArray, FloatArray
 
 
 def in_window(start: Any, t: Any, length_s: float) -> Any:
@@ -75,6 +78,20 @@ class InrushBlanking:
             self._window_start = t
             self.starts += 1
         return started
+
+    def advance(self, times: npt.ArrayLike, abs_values: npt.ArrayLike) -> BoolArray:
+        """Feed a run of |I| samples; which of them are motor starts (each opens a window).
+
+        Samples older than the latest one, and non-finite ones, are ignored (never a start).
+        """
+        import numpy as np
+
+        t, a = as_run(times, abs_values)
+        ok = in_order(t, np.isfinite(a) & np.isfinite(t), self._last_t)
+        picked = ok.nonzero()[0]
+        out = np.zeros(t.size, dtype=bool)
+        out[picked[self.starts_in(t[picked], np.abs(a[picked]))]] = True
+        return out
 
     def starts_in(self, t: FloatArray, a: FloatArray) -> list[int]:
         """Feed accepted |I| samples (finite, in order); the positions of the motor starts among them.
