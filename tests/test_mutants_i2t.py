@@ -103,19 +103,6 @@ class TestBoundaries:
         step(cool, 0.0, 1.0)  # q = 0 < θ = 1: θ = e^(-1/1000)
         assert cool.accumulator == pytest.approx(math.exp(-0.001))
 
-    def test_time_to_trip(self) -> None:
-        leaky = LeakyI2t(10.0, 20.0, 5.0)
-        assert leaky.time_to_trip(20.0) == pytest.approx(5.0)  # the datasheet's peak for peak_time
-        assert leaky.time_to_trip(10.0) == math.inf
-        leaky.set_hot(0.0)
-        assert leaky.time_to_trip(20.0) == 0.0
-        thermal = ThermalI2t(10.0, tau_s=30.0)
-        assert thermal.time_to_trip(20.0) == pytest.approx(30.0 * math.log(4.0 / 3.0))
-        assert thermal.time_to_trip(10.0) == math.inf
-        assert thermal.time_to_trip(10.5) == pytest.approx(30.0 * math.log(1.1025 / 0.1025))
-        thermal.set_hot(0.0)
-        assert thermal.time_to_trip(20.0) == 0.0
-
     def test_a_zero_gap_integrates_nothing(self) -> None:
         m = LeakyI2t(10.0, 20.0, 5.0)
         step(m, 20.0, 1.0)
@@ -155,20 +142,6 @@ class TestRestoreRefuses:
 
 
 class TestMore:
-    def test_time_to_trip_from_partial_heat(self) -> None:
-        leaky = LeakyI2t(10.0, 20.0, 5.0)  # S = 1500 A²s
-        step(leaky, 20.0, 0.0)
-        step(leaky, 20.0, 1.0)  # A = 300
-        assert leaky.accumulator == pytest.approx(300.0)
-        assert leaky.time_to_trip(20.0) == pytest.approx(4.0)
-        assert leaky.time_to_trip(10.01) == pytest.approx(1200.0 / (10.01**2 - 100.0))  # a rate below 1 A²
-        thermal = ThermalI2t(10.0, tau_s=30.0)
-        step(thermal, 20.0, 0.0)
-        step(thermal, 20.0, 3.0)
-        theta = thermal.accumulator
-        assert 0 < theta < 1
-        assert thermal.time_to_trip(20.0) == pytest.approx(30.0 * math.log((4.0 - theta) / 3.0))
-
     def test_a_rate_of_exactly_one_integrates(self) -> None:
         """I² − I_cont² = 1 A² exactly (1.25² − 0.75²): the bucket fills by 1 A²s per second."""
         m = LeakyI2t(0.75, 2.0, 1.0)

@@ -239,13 +239,6 @@ class TestThermalI2t:
         expected = model.tau_s * math.log((current**2 - 16.0) / (current**2 - 36.0))
         measured = trip_time(model, current, t)
         assert expected - 1e-6 <= measured <= expected + DT + 1e-6
-        assert model.time_to_trip(current) == 0.0
-
-    def test_time_to_trip_predicts_the_closed_form(self) -> None:
-        """time_to_trip from cold equals the closed form, and is inf at or below I_cont."""
-        model = ThermalI2t(6.0, tau_s=30.0)
-        assert model.time_to_trip(12.0) == pytest.approx(30.0 * math.log(144.0 / 108.0))
-        assert model.time_to_trip(6.0) == math.inf
 
     def test_cooling_uses_the_cooling_time_constant(self) -> None:
         """After a trip at 0 A it recovers after τ_cool·ln(θ_trip / 0.5)."""

@@ -341,7 +341,7 @@ def test_source_health_says_its_state_publicly() -> None:
     health, _ref = _health_ref(("current",), False)
     assert health.value_roles == ("current",) and health.latest_t("current") is None
     run = health_run(health, "current", [0.0, 0.01, 0.02, 0.03], [1.0, 2.0, 99.0, 3.0])
-    assert run.index.tolist() == [0, 2, 3] and run.reasons == ("", "out_of_range", "")
+    assert run.index.tolist() == [0, 2, 3] and run.tripped.tolist() == [False, True, False]
     assert health.latest_t("current") == 0.03 and health.invalid_reason("current") == ""
     assert health.value("current") == 3.0
     assert health.latest_times() == {"current": 0.03}

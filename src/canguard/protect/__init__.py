@@ -1,7 +1,7 @@
 """Protection models: pure state machines that take time as an argument and advance over runs of samples.
 
-Every model's one entry point is ``advance(times, values) -> Run`` (a sample is a run of one);
-:mod:`canguard.protect.base` describes the contract.
+Every model's one entry point is ``advance(times, values, until_edge) -> Run`` (a sample is a run of
+one): :mod:`canguard.protect.base` gives the contract, docs/protection.md the models.
 
 - :class:`Threshold`: a plain limit with a peak latch (IsCurrentNormal, IsJointEffortNormal).
 - :class:`Hysteresis`: trip / recovery thresholds, optional persistence and inrush blanking (IsCurrentSafe).
@@ -14,12 +14,11 @@ from canguard.protect.base import LatchedModel, ProtectionModel, Run, Snapshot
 from canguard.protect.hysteresis import Hysteresis
 from canguard.protect.i2t import LeakyI2t, ThermalI2t, thermal_tau
 from canguard.protect.inrush import InrushBlanking
-from canguard.protect.staleness import HealthRun, SourceHealth
+from canguard.protect.staleness import SourceHealth
 from canguard.protect.state import HeatModel, HeatStore
 from canguard.protect.threshold import Threshold
 
 __all__ = [
-    "HealthRun",
     "HeatModel",
     "HeatStore",
     "Hysteresis",

@@ -1,13 +1,12 @@
-"""Column helpers of the models' run screens: a run's columns, the short-run check, its order filter, marks.
+"""Column helpers of the models' runs: a run's columns, the short-run check, its order filter, the screen.
 
-Every helper works on the samples of one run (1-D numpy columns, times in order where it
-says so) and has no state of its own.
+Every helper works on the samples of one run (1-D numpy columns, or lists where it says so)
+and has no state of its own.
 """
 
 from __future__ import annotations
 
 import math
-from abc import ABC, abstractmethod
 from itertools import islice
 from operator import le, sub
 from typing import TYPE_CHECKING, Any
@@ -23,22 +22,6 @@ if TYPE_CHECKING:  # numpy is imported by the first long run (or numpy column), 
 SHORT_RUN = 48
 """Runs of at most this many samples skip the numpy screen: every sample goes to the kernel
 (below a few dozen samples the screen's fixed numpy calls cost more than the kernel)."""
-NO_EDGES: list[tuple[IndexArray, FloatArray, BoolArray]] = []
-"""The read-only empty index, times and states columns of a run without an edge, once :func:`no_edges` has
-built them (empty until then: building them imports numpy). A short run reads them as
-``(NO_EDGES or no_edges())[0]``: no call after the first time."""
-
-
-def no_edges() -> list[tuple[IndexArray, FloatArray, BoolArray]]:
-    """:data:`NO_EDGES`, its columns built at the first call."""
-    if not NO_EDGES:
-        import numpy as np
-
-        index, times, states = np.empty(0, dtype=np.intp), np.empty(0), np.empty(0, dtype=bool)
-        for column in (index, times, states):
-            column.flags.writeable = False
-        NO_EDGES.append((index, times, states))
-    return NO_EDGES
 
 
 def as_run(times: npt.ArrayLike, values: npt.ArrayLike) -> tuple[FloatArray, FloatArray]:
@@ -55,34 +38,18 @@ def as_run(times: npt.ArrayLike, values: npt.ArrayLike) -> tuple[FloatArray, Flo
 def in_order(t: FloatArray, finite: BoolArray, last_t: float | None) -> BoolArray:
     """Which samples are not older than the latest accepted one before them (``finite``: the usable ones).
 
-    A finite sample that is ignored as out of order is older than an accepted one, so the
-    latest accepted time before each sample is the running maximum of the usable times
-    (and of ``last_t``).
+    An ignored finite sample is older than an accepted one, so the latest accepted time before
+    each sample is the running maximum of the usable times (and of ``last_t``).
     """
     if t.size <= 1:
         return finite if last_t is None or t.size == 0 else finite & (t >= last_t)
     import numpy as np
 
-    usable = np.where(finite, t, -np.inf)
-    before = np.empty_like(usable)
+    before = np.empty_like(t)
     before[0] = -np.inf if last_t is None else last_t
-    if usable.size > 1:
-        np.maximum.accumulate(usable[:-1], out=before[1:])
-        np.maximum(before[1:], before[0], out=before[1:])
+    np.maximum.accumulate(np.where(finite[:-1], t[:-1], -np.inf), out=before[1:])
+    np.maximum(before[1:], before[0], out=before[1:])
     return finite & (t >= before)
-
-
-
-def last_marked(mark: BoolArray) -> IndexArray:
-    """For each position, the latest position at or before it where ``mark`` is set (-1: none yet)."""
-    import numpy as np
-
-    pos = np.where(mark, np.arange(mark.size), -1)
-    np.maximum.accumulate(pos, out=pos)
-    return pos
-
-
-
 
 
 def short_run(times: npt.ArrayLike, values: npt.ArrayLike, most: int) -> tuple[list[float], list[float]] | None:
@@ -108,7 +75,7 @@ def short_run(times: npt.ArrayLike, values: npt.ArrayLike, most: int) -> tuple[l
 
 
 def ordered(times: Any) -> bool:
-    """A run's times are finite and never go back. Lists, or a numpy column (checked with numpy)."""
+    """A run's times are finite and never go back. Lists, or a numpy column."""
     first, final = float(times[0]), float(times[-1])
     if not (math.isfinite(first) and math.isfinite(final)):
         return False
@@ -116,7 +83,9 @@ def ordered(times: Any) -> bool:
         return True
     if type(times) is list or type(times) is tuple:
         return all(map(le, times, islice(times, 1, None)))  # a NaN among them fails too
-    with np_errstate(invalid="ignore"):  # inf - inf among times out of order: NaN, which fails
+    import numpy as np
+
+    with np.errstate(invalid="ignore"):  # inf - inf among times out of order: NaN, which fails
         return float((times[1:] - times[:-1]).min()) >= 0.0
 
 
@@ -130,8 +99,7 @@ def longest_step(times: Any) -> float:
 
 
 def values_span(values: Any) -> tuple[float, float] | None:
-    """(lowest, highest) of a run's values when every one is finite; None when one is not. Lists, or a numpy
-    column."""
+    """(lowest, highest) of a run's values when every one is finite, else None. Lists, or a numpy column."""
     if type(values) is list or type(values) is tuple:
         if not math.isfinite(sum(values)):
             return None
@@ -140,38 +108,13 @@ def values_span(values: Any) -> tuple[float, float] | None:
     return (low, high) if math.isfinite(low) and math.isfinite(high) else None
 
 
-def np_errstate(**kwargs: str) -> Any:
-    """``numpy.errstate`` (numpy imported at the first call)."""
-    import numpy as np
-
-    return np.errstate(**kwargs)  # type: ignore[arg-type]
-
-
-def alternate(last: bool, n: int) -> list[bool]:
-    """The states entered at ``n`` alternating edges, the last one entering ``last``."""
-    return [last == ((n - 1 - i) % 2 == 0) for i in range(n)]
-
-
-class Screen(ABC):
+class Screen:
     """A model's numpy look at a long run of accepted samples: where its kernel can change something.
 
-    Samples the screen passes over are *quiet*: fed to the kernel one by one they would
-    change nothing but what the model's ``_rest`` takes from the screen.
-    """
-
-    @abstractmethod
-    def next(self, pos: int, tripped: bool) -> int:
-        """The first sample at or after ``pos`` the kernel must see, the model at rest in ``tripped``.
-
-        The run's length when there is none.
-        """
-
-
-class Marks(Screen):
-    """A screen by two marked columns: where the kernel must look while clear, and while tripped.
-
-    ``clear``: positions (ascending) of the samples that may trip the model or start a timer
-    when it is not tripped; ``tripped``: those that may recover it or start a timer when it is.
+    ``clear``: the samples that may trip the model or start a timer while it is not tripped;
+    ``tripped``: those that may recover it or start a timer while it is. The samples between
+    are *quiet*: fed to the kernel one by one they would change nothing but what the model's
+    ``_rest`` takes from the screen.
     """
 
     def __init__(self, clear: BoolArray, tripped: BoolArray) -> None:
@@ -180,7 +123,7 @@ class Marks(Screen):
         self.tripped = tripped.nonzero()[0]
 
     def next(self, pos: int, tripped: bool) -> int:
-        """The first marked sample at or after ``pos`` in the column of ``tripped``."""
+        """The first sample at or after ``pos`` the kernel must see, the model at rest in ``tripped`` (size: none)."""
         marks = self.tripped if tripped else self.clear
         k = int(marks.searchsorted(pos))
         return int(marks[k]) if k < marks.size else self.size

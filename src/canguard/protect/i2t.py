@@ -1,63 +1,33 @@
-"""I²t protection: how much heat the current has put into the motor.
+"""I²t protection: how much heat the current has put into the motor (docs/protection.md has the maths).
 
-Two models, chosen per guard node; both trip at 100 % of their trip level and
-recover when the level falls below ``recover_fraction`` (default 0.5) of it.
+Both models trip at 100 % of their trip level and recover below ``recover_fraction`` of it.
+:class:`LeakyI2t`: ``A' = I² − I_cont²`` floored at 0, trip level ``S = (I_peak² − I_cont²)·t_peak``
+(A²s). :class:`ThermalI2t` (IEC 60255-8): ``θ' = (I²/I_cont² − θ)/τ``, trip at θ >= 1, τ from
+:func:`thermal_tau` unless given, ``tau_cool_s`` while θ falls.
 
-**Leaky bucket** (:class:`LeakyI2t`, servo-drive style): ``A' = I² − I_cont²``,
-floored at 0; trip level ``S = (I_peak² − I_cont²)·t_peak`` (A²s). From cold at a
-constant ``I > I_cont`` the trip time is ``S / (I² − I_cont²)``; e.g. 12 A peak,
-6 A continuous, 1 s gives S = 108 A²s.
-
-**First-order thermal image** (:class:`ThermalI2t`, IEC 60255-8 / 60255-149):
-``θ' = (I²/I_cont² − θ)/τ``, trip at θ >= 1. From cold ``t = τ·ln(I²/(I² − I_cont²))``;
-from a warm start at a prior steady current ``I_p``, ``t = τ·ln((I² − I_p²)/(I² − I_cont²))``.
-When ``tau_s`` is not given it follows from the leaky model's datasheet figures
-so that both agree at the peak point: ``τ = t_peak / ln(I_peak² / (I_peak² − I_cont²))``.
-An optional ``tau_cool_s`` is used whenever θ is falling (I²/I_cont² < θ). The
-``continuous_a`` given is I_cont itself (the caller multiplies I_rated by k).
-
-**Integration rule.** Each sample's |I| is held (zero-order hold) until the next
-sample, and each interval is integrated with its *exact* solution (linear for the
-leaky bucket, exponential for the thermal image). This is exact for a
-piecewise-constant current, so trip times do not depend on the sample rate
-(irregular sampling included); the trip itself is seen at the first sample at or
-after the moment the level reaches 100 %, i.e. within one sample period of the
-closed forms above.
-
-- A sample older than the latest one (negative dt: clock step back, out-of-order
-  frames) is ignored entirely and counted in ``out_of_order``; a repeated
-  timestamp integrates nothing and only updates the held current.
-- A gap longer than ``max_gap_s`` (give the source's ``max_age_s``) is stale
-  data, not one giant step: the held current is integrated for ``max_gap_s``
-  only (the time it was still known to be valid), and for the rest of the gap the
-  state is frozen (neither heated nor cooled, because nothing is known;
-  meanwhile the staleness guard fails the tree anyway). Counted in ``stale_gaps``.
-- The state is never NaN and never negative; it is also capped at 10⁶ trip
-  levels, so absurd inputs keep it finite.
-
-**Persistence** (see :mod:`canguard.protect.state`): ``export()`` gives a
-JSON-able dict; ``restore(state, downtime_s)`` cools it for the downtime with the
-*saved* model's own law (leaky: ``A − I_cont²·downtime``, floored at 0; thermal:
-``θ·exp(−downtime/τ_cool)``) and takes over the resulting *level* (fraction of
-the trip level). So a state saved under other parameters, or by the other kind of
-model, is not thrown away (that would start cold: not fail safe) but carried over
-as "this close to tripping". A malformed state raises ``ValueError``.
+Each sample's |I| is held until the next and each interval integrated with its exact solution, so
+trip times do not depend on the sample rate. A sample older than the latest is ignored (counted in
+``out_of_order``); a gap over ``max_gap_s`` is integrated for ``max_gap_s`` only, then the state is
+frozen (counted in ``stale_gaps``). The state is never NaN or negative, and is capped at
+:data:`MAX_LEVEL` trip levels. ``export()`` / ``restore(state, downtime_s)``: see
+:mod:`canguard.protect.state` (the level is carried over, cooled by the saved model's own law).
 """
 
 from __future__ import annotations
 
 import math
 from abc import abstractmethod
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping, Sequence
 from typing import TYPE_CHECKING, Any
 
-from canguard.protect.accumulate import clamped_sum, thermal_steps
-from canguard.protect.base import REASON_I2T, LatchedModel, ProtectionModel
-from canguard.protect.columns import Marks, Screen, longest_step
+from canguard.protect.base import REASON_I2T, LatchedModel, ProtectionModel, check_gap, check_limit
+from canguard.protect.columns import Screen, longest_step
 from canguard.protect.state import KIND_LEAKY, KIND_THERMAL, cooled_level
 from canguard.units import AMPERE2_SECOND, THETA
 
 if TYPE_CHECKING:
+    import numpy as np
+
     from canguard.protect.columns import BoolArray, FloatArray, IndexArray
 
 STATE_VERSION = 1
@@ -69,34 +39,74 @@ RATED_OVERLOAD_S = 120.0
 """... allowed for this long from cold (IEC 60034-1: 1.5 × I_rated for 2 minutes)."""
 
 
-def _positive(name: str, value: float | None) -> float:
-    if value is None:
-        raise ValueError(f"{name} is required")
-    v = float(value)
-    if not math.isfinite(v) or v <= 0:
-        raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
-    return v
+def next_where(mask: np.ndarray) -> np.ndarray:
+    """For each position, the first position at or after it where ``mask`` is set (``len``: none)."""
+    import numpy as np
+
+    n = mask.size
+    pos = np.where(mask, np.arange(n), n)
+    return np.minimum.accumulate(pos[::-1])[::-1]
 
 
-def _fraction(value: float) -> float:
-    v = float(value)
-    if not 0 < v < 1:
-        raise ValueError(f"recover_fraction must be > 0 and < 1, got {value!r}")
-    return v
+def clamped_sum(start: float, steps: FloatArray, cap: float, add: Callable[[float, float], float]) -> FloatArray:
+    """The running sum ``acc ← add(acc, step)`` from ``start``, after each step; ``add`` bounds it to [0, ``cap``].
+
+    Exactly the float results of ``add`` one step after the other (the kernel): between the
+    samples where a bound is hit, a sequential ``numpy.add.accumulate`` from the last value adds
+    in the same order; at a bound ``add`` itself takes the step, and the steps that keep it
+    there (<= 0 at the floor, >= 0 at the cap) are skipped as a block. The scan runs in
+    windows that double while no bound is hit, so a run costs a few passes.
+    """
+    import numpy as np
+
+    n = steps.size
+    out = np.empty(n)
+    stays: tuple[np.ndarray, np.ndarray] | None = None  # where each bound is left, found at the first hit
+    acc, pos, size = float(start), 0, 64
+    while pos < n:
+        end = min(n, pos + size)
+        run = np.add.accumulate(np.concatenate(((acc,), steps[pos:end])))[1:]
+        hit = (~((run >= 0.0) & (run <= cap))).nonzero()[0]
+        if not hit.size:
+            out[pos:end] = run
+            acc, pos, size = float(run[-1]), end, 2 * size
+            continue
+        p = pos + int(hit[0])
+        out[pos:p] = run[: p - pos]
+        acc = add(float(out[p - 1]) if p > pos else acc, float(steps[p]))
+        if p + 1 == n:
+            out[p] = acc
+            break
+        if stays is None:
+            stays = next_where(steps > 0), next_where(steps < 0)
+        stay = int(stays[acc != 0.0][p + 1])
+        out[p:stay] = acc
+        pos, size = stay, 64
+    return out
 
 
-def _gap(value: float) -> float:
-    v = float(value)
-    if math.isnan(v) or v <= 0:
-        raise ValueError(f"max_gap_s must be > 0 (inf: no limit), got {value!r}")
-    return v
+def thermal_steps(theta: float, q: Sequence[float], dt: Sequence[float], tau_heat: float, tau_cool: float,
+                  cap: float) -> list[float]:
+    """θ after each step ``θ ← q + (θ − q)·exp(−dt/τ)`` (no step where dt is 0), clamped to [0, ``cap``].
+
+    τ is ``tau_cool`` while ``q < θ`` (cooling), else ``tau_heat``: the state picks the time
+    constant, so the steps run one after the other, over plain floats.
+    """
+    exp = math.exp
+    out: list[float] = []
+    append = out.append
+    for qi, d in zip(q, dt, strict=True):
+        if d > 0.0:
+            theta = qi + (theta - qi) * exp(-d / (tau_cool if qi < theta else tau_heat))
+            if theta < 0.0:
+                theta = 0.0
+            elif theta > cap:
+                theta = cap
+        append(theta)
+    return out
 
 
-def _json_float(v: float) -> float | None:
-    return v if math.isfinite(v) else None
-
-
-class _Screen(Marks):
+class _Screen(Screen):
     """A long run screened for the I²t kernel: the accumulator after each sample and the stale gaps up to it.
 
     Marked: where the level reaches 1 (may trip) and where it is below ``recover_fraction`` (may recover).
@@ -110,24 +120,36 @@ class _Screen(Marks):
         self.stale = stale
 
 
-class _I2tModel(LatchedModel):
-    """What both I²t models share: sampling, gaps, trip/recover on the level, persistence."""
+class _I2tModel(LatchedModel[_Screen]):
+    """What both I²t models share: sampling, gaps, trip/recover on the level, persistence.
+
+    ``continuous_a`` (A, > 0) is I_cont itself (the caller multiplies I_rated by k); ``peak_a``
+    (A, > continuous_a) and ``peak_time_s`` (s, > 0) the datasheet's peak point; ``recover_fraction``
+    (0..1 exclusive); ``max_gap_s`` (s; pass the source's max_age_s). ValueError naming the
+    parameter at fault.
+    """
 
     kind: str = ""
     reason_tripped = REASON_I2T
-    def __init__(self, continuous_a: float, recover_fraction: float, max_gap_s: float) -> None:
+
+    def __init__(self, continuous_a: float, recover_fraction: float, max_gap_s: float, peak_a: float | None,
+                 peak_time_s: float | None) -> None:
         super().__init__()
-        self.continuous_a = _positive("continuous_a", continuous_a)
-        self.recover_fraction = _fraction(recover_fraction)
-        self.max_gap_s = _gap(max_gap_s)
+        self.continuous_a = check_limit("continuous_a", continuous_a, positive=True)
+        if not 0 < float(recover_fraction) < 1:
+            raise ValueError(f"recover_fraction must be > 0 and < 1, got {recover_fraction!r}")
+        self.recover_fraction = float(recover_fraction)
+        self.max_gap_s = check_gap(max_gap_s)
+        self.peak_a = None if peak_a is None else check_limit("peak_a", peak_a, positive=True)
+        self.peak_time_s = None if peak_time_s is None else check_limit("peak_time_s", peak_time_s, positive=True)
+        if self.peak_a is not None and self.peak_a <= self.continuous_a:
+            raise ValueError(f"peak_a ({peak_a!r} A) must exceed continuous_a ({continuous_a!r} A)")
         self._held = math.nan
         self._acc = 0.0
         self._peak = 0.0
         """The highest accumulator value the model stood at (see :attr:`peak_level_pct`)."""
         self.stale_gaps = 0
         """Gaps longer than ``max_gap_s`` seen so far."""
-
-    # -- what each model defines ------------------------------------------------
 
     @property
     @abstractmethod
@@ -136,24 +158,18 @@ class _I2tModel(LatchedModel):
 
     @abstractmethod
     def _accumulate(self, held: FloatArray, dt: FloatArray) -> FloatArray:
-        """The accumulator after each step: |I| = ``held[i]`` for ``dt[i]`` s (0: no step), from the present one.
-
-        The same floats as :meth:`_integrate` one step after the other (the screen of long runs).
-        """
+        """The accumulator after each step: |I| = ``held[i]`` for ``dt[i]`` s (0: no step), from the present one:
+        the same floats as :meth:`_integrate` one step after the other (the screen of long runs)."""
 
     @abstractmethod
     def _integrate(self, held: float, dt: float) -> float:
         """The accumulator after ``dt`` > 0 s at a constant ``held`` A from the present one (the kernel's step)."""
 
-    @abstractmethod
     def params(self) -> dict[str, float | None]:
         """The model's parameters, JSON-able (inf as None)."""
-
-    @abstractmethod
-    def time_to_trip(self, current_a: float) -> float:
-        """Seconds until a trip from the present state at a constant ``current_a`` (inf: never)."""
-
-    # -- shared -------------------------------------------------------------------
+        return {"continuous_a": self.continuous_a, "peak_a": self.peak_a, "peak_time_s": self.peak_time_s,
+                "recover_fraction": self.recover_fraction,
+                "max_gap_s": None if self.max_gap_s == math.inf else self.max_gap_s}
 
     @property
     def accumulator(self) -> float:
@@ -174,9 +190,8 @@ class _I2tModel(LatchedModel):
     def peak_level_pct(self) -> float:
         """The highest level the model stood at, in % of the trip level (the replay summary's I²t peak).
 
-        Taken over every sample the model took (the heat moves only at samples, so this is the
-        true peak, not the level seen at ticks) and the states it was put in (a restore, a reload's
-        carry, the worst case); a :meth:`rewind` takes it back with the rest of the state.
+        Over every sample taken (the heat moves only at samples) and every state the model was put
+        in (a restore, a reload's carry, the worst case); a :meth:`rewind` takes it back.
         """
         return 100.0 * (self._peak / self.trip_level)
 
@@ -189,11 +204,8 @@ class _I2tModel(LatchedModel):
             self._peak = self._acc
 
     def carry_from(self, old: ProtectionModel) -> None:
-        """The base state plus the heat, as a fraction of the trip level (as a restore does), and the held current.
-
-        Thresholds or the model kind may differ: the new model starts exactly as close to
-        tripping as the old one stood, not cold (that would not be fail safe).
-        """
+        """The base state plus the heat as a fraction of the trip level (as a restore does) and the held current:
+        thresholds or kind may differ, the new model starts as close to tripping as the old one stood."""
         super().carry_from(old)
         if isinstance(old, _I2tModel):
             self._set_acc(old.level * self.trip_level)
@@ -201,10 +213,8 @@ class _I2tModel(LatchedModel):
             self.stale_gaps = old.stale_gaps
 
     def _step(self, t: float, a: float) -> bool:
-        """The kernel: integrate the held |I| up to ``t`` (a stale gap cut to ``max_gap_s``), hold ``a``, decide.
-
-        Trips when the level reaches 1, recovers when it falls below ``recover_fraction``.
-        """
+        """The kernel: integrate the held |I| up to ``t`` (a stale gap cut to ``max_gap_s``), hold ``a``, decide:
+        tripped from level 1 on, recovered below ``recover_fraction``, else as it was."""
         if self._last_t is not None and not math.isnan(self._held):
             dt = t - self._last_t
             if dt > self.max_gap_s:
@@ -215,13 +225,8 @@ class _I2tModel(LatchedModel):
                 if acc > self._peak:
                     self._peak = acc
         self._held = a
-        return self._decide(self._acc / self.trip_level)
-
-    def _decide(self, level: float) -> bool:
-        """The tripped state at ``level``: tripped from 1 on, recovered below ``recover_fraction``, else held."""
-        if level >= 1.0:
-            return True
-        return self._tripped and level >= self.recover_fraction
+        level = self._acc / self.trip_level
+        return level >= 1.0 or (self._tripped and level >= self.recover_fraction)
 
     def _screen(self, t: FloatArray, a: FloatArray) -> _Screen:
         """The accumulator after each sample (see :meth:`_accumulate`), marked where the level can flip the state.
@@ -245,30 +250,31 @@ class _I2tModel(LatchedModel):
         level = acc / self.trip_level
         return _Screen(a, acc, level >= 1.0, level < self.recover_fraction, np.cumsum(stale))
 
-    def _rest(self, screen: Screen, first: int, last: int) -> None:
+    def _rest(self, screen: _Screen, first: int, last: int) -> None:
         """Quiet samples: the accumulator the screen found after the last one, its current held, its stale gaps."""
-        assert isinstance(screen, _Screen)
         self._acc = float(screen.acc[last])
         self._held = float(screen.a[last])
         self.stale_gaps += int(screen.stale[last] - (screen.stale[first - 1] if first else 0))
 
-    def _finish(self, screen: Screen, last: int) -> None:
+    def _finish(self, screen: _Screen, last: int) -> None:
         """The peak over the samples taken: the screen's accumulator is the kernel's, sample for sample."""
-        assert isinstance(screen, _Screen)
         top = float(screen.acc[: last + 1].max())
         if top > self._peak:
             self._peak = top
 
-    def _threshold_value(self) -> float:
-        return self.trip_level
-
-    def _level_pct(self) -> float:
-        return 100.0 * self.level
+    def _levels(self) -> tuple[float, float]:
+        return self.trip_level, 100.0 * self.level
 
     def set_hot(self, t: float | None = None) -> None:
-        """Worst case: put the state at the trip level (the model trips; ``t`` becomes ``since``)."""
+        """Worst case: put the state at the trip level; the model trips (``t`` becomes ``since``).
+
+        Only the trip edge arms the latch: a trip the last poll already reported must not be
+        reported again after its recovery.
+        """
         self._set_acc(self.trip_level)
-        self._set_tripped(True, t)
+        if not self._tripped:
+            self._tripped = self._latch = True
+            self._since = t
 
     def export(self) -> dict[str, Any]:
         """The state as a JSON-able dict: kind, version, parameters, accumulator, level, tripped, time."""
@@ -283,14 +289,11 @@ class _I2tModel(LatchedModel):
         }
 
     def restore(self, state: Mapping[str, Any], downtime_s: float) -> None:
-        """Take over an exported state cooled for ``downtime_s`` seconds (see the module docstring).
+        """Take over an exported state cooled for ``downtime_s`` seconds, whatever the saved parameters or kind.
 
-        The level is carried over even when the saved parameters or kind differ.
-        The model is tripped after it when the cooled level is >= 1, or when the
-        saved model was tripped and the level has not yet fallen below
-        ``recover_fraction``. The sample history restarts (the next sample only
-        sets the held current). ValueError on a malformed state (the model is
-        left unchanged).
+        Tripped after it when the cooled level is >= 1, or when the saved model was tripped and the
+        level has not yet fallen below ``recover_fraction``. The sample history restarts (the next
+        sample only sets the held current). ValueError on a malformed state (the model unchanged).
         """
         lvl = cooled_level(state, downtime_s)
         was_tripped = state.get("tripped") is True
@@ -303,12 +306,9 @@ class _I2tModel(LatchedModel):
 
 
 class LeakyI2t(_I2tModel):
-    """Leaky-bucket I²t (servo-drive style); reason ``i2t``.
+    """Leaky-bucket I²t (servo-drive style); reason ``i2t``; trip level S = (peak_a² − continuous_a²)·peak_time_s.
 
-    ``continuous_a`` (A, > 0), ``peak_a`` (A, > continuous_a), ``peak_time_s`` (s,
-    > 0): trip level S = (peak_a² − continuous_a²)·peak_time_s A²s.
-    ``recover_fraction`` (0..1 exclusive, default 0.5), ``max_gap_s`` (s, default
-    inf; pass the source's max_age_s). ValueError naming the parameter at fault.
+    ``recover_fraction`` default 0.5, ``max_gap_s`` default inf (see :class:`_I2tModel`).
     """
 
     kind = KIND_LEAKY
@@ -322,11 +322,8 @@ class LeakyI2t(_I2tModel):
         recover_fraction: float = 0.5,
         max_gap_s: float = math.inf,
     ) -> None:
-        super().__init__(continuous_a, recover_fraction, max_gap_s)
-        self.peak_a = _positive("peak_a", peak_a)
-        self.peak_time_s = _positive("peak_time_s", peak_time_s)
-        if self.peak_a <= self.continuous_a:
-            raise ValueError(f"peak_a ({peak_a!r} A) must exceed continuous_a ({continuous_a!r} A)")
+        super().__init__(continuous_a, recover_fraction, max_gap_s, peak_a, peak_time_s)
+        assert self.peak_a is not None and self.peak_time_s is not None
         self._s = (self.peak_a**2 - self.continuous_a**2) * self.peak_time_s
 
     @property
@@ -344,22 +341,21 @@ class LeakyI2t(_I2tModel):
             steps = np.where(dt > 0, rate * dt, 0.0)
         return clamped_sum(self._acc, steps, MAX_LEVEL * self._s, self._add)
 
-    def _quiet_side(self, t: Any, low_a: float, high_a: float) -> bool:
+    def _quiet(self, t: Any, low_a: float, high_a: float, final_a: float) -> bool:
         """An empty bucket (not tripped) that stays empty: every current held through the run at or below
-        I_cont (each step adds <= 0 to a sum floored at 0), and no gap over ``max_gap_s`` to count."""
+        I_cont (each step adds <= 0 to a sum floored at 0), and no gap over ``max_gap_s`` to count; the last
+        sample's current is held from then on."""
         if self._acc != 0.0 or self._tripped:
             return False
         cont = self.continuous_a
         if self._held > cont or high_a > cont:  # a NaN held (no sample yet) integrates nothing
             return False
-        if self.max_gap_s == math.inf:
-            return True
         last = self._last_t
-        return not ((last is not None and float(t[0]) - last > self.max_gap_s) or longest_step(t) > self.max_gap_s)
-
-    def _take_quiet(self, final_a: float) -> None:
-        """The last sample's current is held from now on; the bucket stays empty."""
+        if self.max_gap_s != math.inf and (
+                (last is not None and float(t[0]) - last > self.max_gap_s) or longest_step(t) > self.max_gap_s):
+            return False
         self._held = final_a
+        return True
 
     def _integrate(self, held: float, dt: float) -> float:
         """A + (I² − I_cont²)·dt, floored at 0 and capped."""
@@ -373,42 +369,21 @@ class LeakyI2t(_I2tModel):
         cap = MAX_LEVEL * self._s
         return cap if not out <= cap else out
 
-    def params(self) -> dict[str, float | None]:
-        """continuous_a, peak_a, peak_time_s, recover_fraction, max_gap_s (None = inf)."""
-        return {
-            "continuous_a": self.continuous_a,
-            "peak_a": self.peak_a,
-            "peak_time_s": self.peak_time_s,
-            "recover_fraction": self.recover_fraction,
-            "max_gap_s": _json_float(self.max_gap_s),
-        }
-
-    def time_to_trip(self, current_a: float) -> float:
-        """(S − A) / (I² − I_cont²) from the present A; 0 when already there, inf when I <= I_cont."""
-        if self._acc >= self._s:
-            return 0.0
-        rate = current_a * current_a - self.continuous_a**2
-        return (self._s - self._acc) / rate if rate > 0 else math.inf
 
 
 def thermal_tau(continuous_a: float, peak_a: float, peak_time_s: float) -> float:
-    """τ = t_peak / ln(I_peak² / (I_peak² − I_cont²)).
-
-    The τ with which a cold thermal image trips at ``peak_a`` after ``peak_time_s``.
-    """
+    """τ = t_peak / ln(I_peak² / (I_peak² − I_cont²)): a cold thermal image trips at ``peak_a`` after
+    ``peak_time_s``, as the leaky bucket of the same figures does."""
     p2, c2 = peak_a * peak_a, continuous_a * continuous_a
     return peak_time_s / math.log(p2 / (p2 - c2))
 
 
 class ThermalI2t(_I2tModel):
-    """First-order thermal image (IEC 60255-8); θ in units of the steady state at I_cont; reason ``i2t``.
+    """First-order thermal image (IEC 60255-8), θ in units of the steady state at I_cont; reason ``i2t``.
 
-    ``continuous_a`` (A, > 0) is I_cont = k·I_rated. τ is ``tau_s`` (s) when given,
-    otherwise derived from ``peak_a`` (A, > continuous_a) and ``peak_time_s`` (s) by
-    :func:`thermal_tau`. ``tau_cool_s`` (s, default τ) applies while θ falls.
-    ``recover_fraction`` (default 0.5), ``max_gap_s`` (s, default inf).
-    ValueError naming the parameter at fault, e.g. when neither ``tau_s`` nor
-    both peak figures are given.
+    τ is ``tau_s`` (s) when given, else :func:`thermal_tau` of ``peak_a`` and ``peak_time_s`` (both
+    then required); ``tau_cool_s`` (s, default τ) applies while θ falls. Other parameters as
+    :class:`_I2tModel`.
     """
 
     kind = KIND_THERMAL
@@ -424,13 +399,9 @@ class ThermalI2t(_I2tModel):
         recover_fraction: float = 0.5,
         max_gap_s: float = math.inf,
     ) -> None:
-        super().__init__(continuous_a, recover_fraction, max_gap_s)
-        self.peak_a = None if peak_a is None else _positive("peak_a", peak_a)
-        self.peak_time_s = None if peak_time_s is None else _positive("peak_time_s", peak_time_s)
-        if self.peak_a is not None and self.peak_a <= self.continuous_a:
-            raise ValueError(f"peak_a ({peak_a!r} A) must exceed continuous_a ({continuous_a!r} A)")
+        super().__init__(continuous_a, recover_fraction, max_gap_s, peak_a, peak_time_s)
         if tau_s is not None:
-            self.tau_s = _positive("tau_s", tau_s)
+            self.tau_s = check_limit("tau_s", tau_s, positive=True)
         elif self.peak_a is not None and self.peak_time_s is not None:
             self.tau_s = thermal_tau(self.continuous_a, self.peak_a, self.peak_time_s)
         else:
@@ -438,7 +409,7 @@ class ThermalI2t(_I2tModel):
                 "tau_s is required unless both peak_a and peak_time_s are given "
                 f"(got tau_s=None, peak_a={peak_a!r}, peak_time_s={peak_time_s!r})"
             )
-        self.tau_cool_s = self.tau_s if tau_cool_s is None else _positive("tau_cool_s", tau_cool_s)
+        self.tau_cool_s = self.tau_s if tau_cool_s is None else check_limit("tau_cool_s", tau_cool_s, positive=True)
         self._c2 = self.continuous_a * self.continuous_a
 
     @property
@@ -447,11 +418,7 @@ class ThermalI2t(_I2tModel):
         return 1.0
 
     def _accumulate(self, held: FloatArray, dt: FloatArray) -> FloatArray:
-        """θ ← q + (θ − q)·exp(−dt/τ) per step, q = I²/I_cont² (capped), τ the cooling one while q < θ.
-
-        The time constant depends on the state (heating or cooling), so the steps run
-        one after the other, over plain floats (the columns prepared by numpy).
-        """
+        """θ ← q + (θ − q)·exp(−dt/τ) per step, q = I²/I_cont² (capped), by :func:`thermal_steps`."""
         import numpy as np
 
         with np.errstate(invalid="ignore", over="ignore"):
@@ -464,22 +431,5 @@ class ThermalI2t(_I2tModel):
         return thermal_steps(self._acc, (q,), (dt,), self.tau_s, self.tau_cool_s, MAX_LEVEL)[0]
 
     def params(self) -> dict[str, float | None]:
-        """continuous_a, peak_a, peak_time_s, tau_s and tau_cool_s (resolved), recover_fraction, max_gap_s."""
-        return {
-            "continuous_a": self.continuous_a,
-            "peak_a": self.peak_a,
-            "peak_time_s": self.peak_time_s,
-            "tau_s": self.tau_s,
-            "tau_cool_s": self.tau_cool_s,
-            "recover_fraction": self.recover_fraction,
-            "max_gap_s": _json_float(self.max_gap_s),
-        }
-
-    def time_to_trip(self, current_a: float) -> float:
-        """τ·ln((q − θ)/(q − 1)) with q = I²/I_cont², from the present θ; 0 when θ >= 1, inf when q <= 1."""
-        if self._acc >= 1.0:
-            return 0.0
-        q = current_a * current_a / self._c2
-        if q <= 1.0:
-            return math.inf
-        return self.tau_s * math.log((q - self._acc) / (q - 1.0))
+        """The shared parameters, and tau_s and tau_cool_s (resolved)."""
+        return {**super().params(), "tau_s": self.tau_s, "tau_cool_s": self.tau_cool_s}

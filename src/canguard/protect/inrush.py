@@ -1,25 +1,11 @@
-"""Inrush blanking: a higher (or no) overcurrent threshold just after a motor start.
+"""Inrush blanking: a higher (or no) overcurrent threshold just after a motor start (docs/protection.md).
 
-A *motor start* is |I| rising above ``start_current_a`` after having been at or
-below it for at least ``inrush_time_s`` (with a zero-order hold of the samples:
-the current is taken to stay at a sample's value until the next one, so the time
-"below" runs from the first sample at or below ``start_current_a`` to the sample
-that rises above it). A start opens a blanking window of ``inrush_time_s``
-seconds, ``[t_start, t_start + inrush_time_s)``, during which the overcurrent
-threshold in force is ``inrush_threshold_a`` (or no overcurrent check at all when
-it is None).
-
-Fail safe: before the current has been seen below ``start_current_a`` for
-``inrush_time_s`` no start is recognised, so a motor already running (or starting)
-when canguard starts is checked against the normal threshold. Dips shorter than
-``inrush_time_s`` do not re-arm the blanking, so a chattering current cannot keep
-the check off. I²t models are not blanked: heat is heat.
-
-One kernel decides (:meth:`InrushBlanking.observe`, one sample); over a long run
-numpy only screens for the samples on the other side of ``start_current_a`` than
-the one before them (nothing else changes the state), and the window in force at
-each sample is the latest start before it. This is a helper of :class:`~canguard.protect.hysteresis.Hysteresis`,
-not a protection model itself.
+A *motor start* is |I| rising above ``start_current_a`` after having been at or below it for at
+least ``inrush_time_s`` (each sample held until the next one). It opens a window
+``[t_start, t_start + inrush_time_s)`` in which the threshold in force is ``inrush_threshold_a``
+(None: no overcurrent check). Fail safe: no start before the current was seen low that long, and
+dips shorter than ``inrush_time_s`` do not re-arm it. A helper of
+:class:`~canguard.protect.hysteresis.Hysteresis`, not a protection model itself.
 """
 
 from __future__ import annotations
@@ -27,9 +13,8 @@ from __future__ import annotations
 import math
 from typing import TYPE_CHECKING, Any
 
-from canguard.protect.base import TIME_EPS_S
-from canguard.protect.columns import as_run, in_order, last_marked
-from canguard.protect.threshold import check_limit
+from canguard.protect.base import TIME_EPS_S, check_limit
+from canguard.protect.columns import as_run, in_order
 
 if TYPE_CHECKING:
     import numpy.typing as npt
@@ -75,10 +60,9 @@ class InrushBlanking:
         return self._window_start
 
     def observe(self, abs_value: float, t: float) -> bool:
-        """Feed one |I| sample at ``t`` (a run of one); True when it is a motor start (opens a window).
+        """The kernel: one |I| sample at ``t``; True when it is a motor start (opens a window).
 
-        The kernel of the start detection: a sample older than the latest one, or not
-        finite, is ignored (never a start).
+        A sample older than the latest one, or not finite, is ignored (never a start).
         """
         a, t = float(abs_value), float(t)
         if not (math.isfinite(a) and math.isfinite(t)) or (self._last_t is not None and t < self._last_t):
@@ -146,21 +130,17 @@ class InrushBlanking:
         """
         import numpy as np
 
-        mark = np.zeros(t.size, dtype=bool)
-        mark[started] = True
-        latest = last_marked(mark)
+        latest = np.full(t.size, -1)
+        latest[started] = started
+        np.maximum.accumulate(latest, out=latest)
         return np.where(latest >= 0, t[np.maximum(latest, 0)], math.nan if before is None else before)
 
-    def carry_from(self, old: InrushBlanking) -> None:
-        """Continue the start detection and the open window of the helper this one replaces."""
-        self._below_since, self._window_start, self._last_t, self.starts = old.running()
-
     def resume(self, state: tuple[float | None, float | None, float | None, int]) -> None:
-        """Go back to a state :meth:`running` gave (quiet since, window start, latest time, starts so far)."""
+        """Go back to (or, on a reload, take over) a state :meth:`running` gave."""
         self._below_since, self._window_start, self._last_t, self.starts = state
 
     def running(self) -> tuple[float | None, float | None, float | None, int]:
-        """What a reload carries: (quiet since, window start, latest time, starts so far)."""
+        """The running state: (quiet since, window start, latest time, starts so far)."""
         return self._below_since, self._window_start, self._last_t, self.starts
 
     def blanking(self, t: float) -> bool:

@@ -1,8 +1,8 @@
-"""Staleness and validity of one source: is there a usable, fresh value?
+"""Staleness and validity of one source: is there a usable, fresh value? (docs/protection.md)
 
-:class:`SourceHealth` sees every sample of one configured source (valid or not,
-see :class:`~canguard.io.frame.Sample`) and answers, at any time ``now``, why the
-source cannot be trusted (fail safe: every non-empty reason fails the guard):
+:class:`SourceHealth` sees every sample of one configured source (valid or not, see
+:class:`~canguard.io.frame.Sample`) and answers, at any time ``now``, why the source cannot be
+trusted (fail safe: every non-empty reason fails the guard):
 
 =============== ===========================================================
 ``no_data``     no sample of that role yet
@@ -11,46 +11,37 @@ source cannot be trusted (fail safe: every non-empty reason fails the guard):
 ``nan``/``inf`` the latest sample was NaN / infinite
 ``out_of_range`` the latest value lies outside the DBC signal's [min|max]
 ``bad_length``/``undecodable`` the latest frame could not be decoded
+``frozen_counter`` the alive counter has not changed for longer than ``max_age_s``
 ``no_heartbeat`` (CANopen) the drive's heartbeat is older than its own timeout (the ``nmt`` signal's ``max_age_s``)
 ``not_present`` (CANopen) also: the drive's NMT state is not operational
 ``emcy``        (CANopen) the drive's last EMCY had a non-zero error register
 ``drive_fault`` (CANopen) the drive's statusword has its Fault bit set
 =============== ===========================================================
 
-A CANopen drive's sources carry its health as roles (``nmt``, ``emcy``,
-``fault``) that gate every value of the source the way ``present`` does; they
-are checked first, in that order. No EMCY yet is fine (an EMCY never goes stale).
-
-Rules: the *latest* sample of a role decides (a newer valid sample clears an
-invalid reason; an invalid sample does not replace the latest valid value, which
-:meth:`SourceHealth.value` keeps returning). A sample older than the latest one
-of its role (out of order) is counted in ``out_of_order`` and changes nothing;
-a repeated timestamp is a normal sample. When the source has a ``present``
-signal, it gates every value of the source: a check of any role also fails with
-the presence reason. Precedence, per role: ``no_data``, ``stale``, the latest
-sample's invalid reason, ``not_present``.
+A CANopen drive's health roles (``nmt``, ``emcy``, ``fault``) gate every value of the source, as
+``present`` does, and are checked first, in that order; no EMCY yet is fine. The *latest* sample of
+a role decides: a newer valid sample clears an invalid reason, an invalid sample never replaces the
+latest valid value (:meth:`SourceHealth.value`). A sample older than the latest of its role is
+counted in ``out_of_order`` and changes nothing; a repeated timestamp is a normal sample.
+Precedence, per role: ``no_data``, ``stale``, the latest sample's invalid reason, ``not_present``.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from canguard.config.schema import NON_VALUE_ROLES, SourceConfig
 from canguard.io.frame import INVALID_INF, INVALID_NAN, INVALID_RANGE
 from canguard.protect.base import REASON_NO_DATA, REASON_NOT_PRESENT, REASON_OK, REASON_STALE
-from canguard.protect.columns import NO_EDGES, longest_step, no_edges, ordered, values_span
-
-if TYPE_CHECKING:
-    from canguard.protect.columns import FloatArray, IndexArray
+from canguard.protect.columns import longest_step, ordered, values_span
+from canguard.protect.results import Run, edges, quiet_cached, quiet_run
 
 PRESENT = "present"
+"""The role of a source's presence signal."""
 COUNTER = "counter"
 REASON_FROZEN = "frozen_counter"
-"""The source's alive counter has not changed for longer than ``max_age``: its sender is stuck."""
-"""The role of a source's presence signal."""
 NMT, EMCY, FAULT = "nmt", "emcy", "fault"
 """A CANopen drive's health roles: NMT state (from the heartbeat), EMCY error register, statusword Fault bit."""
 NMT_OPERATIONAL = 5
@@ -63,45 +54,9 @@ FULL_ROLES = NON_VALUE_ROLES
 ROW_ROLES = NON_VALUE_ROLES - {PRESENT}
 """Roles a replay block cannot take as columns (the presence flag it checks itself): every row is fed."""
 
-
 _BIG = 1.7976931348623157e308
 """The largest float: open range bounds, so that +-inf (and NaN) fail the range test of the usual sample."""
 _ANY = (-_BIG, _BIG)
-
-
-@dataclass(slots=True)
-class HealthRun:
-    """What :meth:`SourceHealth.advance` did with a run of rows.
-
-    ``index``: positions in the run of the rows at which the source's reason changed
-    (an edge: tick the tree). ``t``: their times (s). ``reasons``: the source's reason
-    right after each ("" = usable). ``taken``: samples consumed (all unless ``until_edge``).
-    A result: read it, never change it.
-    """
-
-    index: IndexArray
-    t: FloatArray
-    reasons: tuple[str, ...]
-    taken: int
-    changed: bool = field(init=False)
-    """True when the run changed the source's reason at least once."""
-
-    def __post_init__(self) -> None:
-        self.changed = bool(self.index.size)
-
-
-_QUIET: dict[int, HealthRun] = {}
-
-
-def _quiet_health(n: int) -> HealthRun:
-    """The result of a run of ``n`` rows that changed no reason (shared for short runs: a result is only read)."""
-    run = _QUIET.get(n)
-    if run is None:
-        no_index, no_times, _ = (NO_EDGES or no_edges())[0]  # numpy's empty columns, once built
-        run = HealthRun(no_index, no_times, (), n)
-        if n <= 64:
-            _QUIET[n] = run
-    return run
 
 
 class SourceHealth:
@@ -170,26 +125,16 @@ class SourceHealth:
         return self.source.name
 
     def advance(self, roles: Sequence[str], times: Sequence[float], columns: Sequence[Sequence[float]],
-                reasons: Sequence[Sequence[str]] | None = None, *, until_edge: bool = False) -> HealthRun:
-        """Take a run of rows of this source, in arrival order; where the source's reason changed (an edge).
+                reasons: Sequence[Sequence[str]] | None = None, *, until_edge: bool = False) -> Run:
+        """Take a run of rows of this source, in arrival order (a frame: a run of one row); where its reason changed.
 
-        Row ``i`` at ``times[i]`` (s) holds one sample of each of ``roles``: ``columns[k][i]`` of
-        ``roles[k]``, with its own invalid reason ``reasons[k][i]`` ("" when its decoder found none;
-        None: no reasons, see :class:`~canguard.io.frame.Sample`). A row's samples are taken in
-        ``roles`` order. A sample whose time is NaN or older than the latest of its role is counted
-        in ``out_of_order`` and changes nothing; a NaN, inf or out-of-range value is invalid (it
-        never replaces the latest valid value). A frame is a run of one row.
-
-        At each sample the reason just after it (at its time) is compared both with the reason
-        just before it at that time (so data coming back after a stale spell is an edge) and with
-        the reason the previous sample left (so a source found stale or invalid at a sample is an
-        edge too); a row is an edge when one of its samples is. Most rows change nothing but the
-        latest values: a run whose every sample is valid, of a value role (or a presence flag
-        that stays set) within ``max_age_s`` of a valid previous sample of its role, is taken
-        whole from its last row (:meth:`_quiet`); other runs go sample by sample (:meth:`_sample`).
-
-        With ``until_edge`` the run stops right after the first row with an edge (``taken``). The
-        result gives the edges' row positions, times and the reason after each.
+        Row ``i`` at ``times[i]`` (s) holds ``columns[k][i]`` of ``roles[k]`` (taken in that order) with its own
+        invalid reason ``reasons[k][i]`` ("" when its decoder found none; None: none at all). A sample is an
+        edge when the reason right after it differs from the one just before it at its time (data back after a
+        stale spell) or from the one the previous sample left (a source found stale or invalid); a row is an
+        edge when one of its samples is. A run that changes nothing but each role's latest value
+        (:meth:`_quiet`) is taken whole from its last row. ``until_edge`` and the result are the models' (see
+        :mod:`canguard.protect.base`); ``tripped``: the source unusable after the edge.
         """
         n = len(times)
         if n == 1 and reasons is None:  # a live frame: each sample to the kernel, nothing built
@@ -202,18 +147,16 @@ class SourceHealth:
                     if self._sample(role, t, float(columns[k][0])):
                         edge = True
             if not edge:
-                return _QUIET.get(1) or _quiet_health(1)
-            import numpy as np
-
-            return HealthRun(np.zeros(1, dtype=np.intp), np.array([t]), (self._last_reason,), 1)
+                return quiet_cached(1) or quiet_run(1)
+            return edges((0,), (t,), (bool(self._last_reason),), 1)
         if reasons is None and n > 1:
             if self._quiet(roles, times, columns):
                 self._take_quiet(roles, times, columns)
-                return _quiet_health(n)
+                return quiet_run(n)
             if type(times) is not list and type(times) is not tuple:  # numpy columns: sample by sample as floats
                 times, columns = times.tolist(), [column.tolist() for column in columns]  # type: ignore[attr-defined]
-        edges: list[int] = []
-        after: list[str] = []
+        found: list[int] = []
+        after: list[bool] = []
         taken = n
         sample = self._sample
         for i in range(n):
@@ -223,25 +166,19 @@ class SourceHealth:
                 if sample(role, t, columns[k][i], reasons[k][i] if reasons is not None else ""):
                     edge = True
             if edge:
-                edges.append(i)
-                after.append(self._last_reason)
+                found.append(i)
+                after.append(bool(self._last_reason))
                 if until_edge:
                     taken = i + 1
                     break
-        if not edges:
-            return _quiet_health(taken)
-        import numpy as np
-
-        return HealthRun(np.array(edges, dtype=np.intp), np.array([times[i] for i in edges]), tuple(after), taken)
+        if not found:
+            return quiet_run(taken)
+        return edges(found, [times[i] for i in found], after, taken)
 
     def take_quiet(self, parts: Sequence[tuple[Sequence[str], Sequence[float], Sequence[Sequence[float]]]]) -> bool:
         """Runs of rows of this source from several messages (``parts``: roles, times, columns), each message with
-        roles of its own: taken whole when each is a quiet run (:meth:`_quiet`); False: nothing taken.
-
-        A quiet run's every sample only becomes its role's latest (the kernel's usual sample, which
-        reads nothing of the other roles), so how the runs interleave in time changes nothing: taken
-        one after the other they leave what their rows in time order would.
-        """
+        roles of its own: taken whole when each is quiet (:meth:`_quiet`); False: nothing taken. A quiet sample
+        only becomes its role's latest, so how the runs interleave in time changes nothing."""
         seen: set[str] = set()
         for roles, times, columns in parts:
             if not len(times) or not seen.isdisjoint(roles) or not self._quiet(roles, times, columns):
@@ -260,14 +197,10 @@ class SourceHealth:
         self.samples += len(times) * len(roles)
 
     def _quiet(self, roles: Sequence[str], times: Sequence[float], columns: Sequence[Sequence[float]]) -> bool:
-        """True when a run of rows (no reasons of their own) changes nothing but each role's latest value.
-
-        The times are finite and do not go back, the first within ``max_age_s`` of each role's
-        latest sample and no two rows further apart; each role's latest sample was valid, and its
-        values are finite and in the role's range; a role whose value gates the reason (alive counter,
-        drive health) is never quiet, a presence flag only while it was set and stays set. Lists or
-        numpy columns (a block's runs: checked with numpy).
-        """
+        """True when a run of rows (no reasons of their own; lists or numpy columns) changes nothing but each
+        role's latest value: times in order, the first within ``max_age_s`` of each role's latest sample and no
+        two rows further apart; each role's latest sample valid, its values finite and in range; no role whose
+        value gates the reason (alive counter, drive health), a presence flag only while set and staying set."""
         if not ordered(times):
             return False
         first, final = float(times[0]), float(times[-1])
@@ -295,12 +228,11 @@ class SourceHealth:
                 and self._roles.issubset(roles))
 
     def _sample(self, role: str, t: float, value: float, own: str = "") -> bool:
-        """The kernel: one sample of ``role`` at ``t``; True on an edge.
+        """The kernel: one sample of ``role`` at ``t`` (``own``: its own invalid reason, "" for none); True on an edge.
 
-        ``own``: the sample's own invalid reason ("" when its decoder found none). A sample
-        out of order (NaN time, older than the latest of its role) is counted and changes nothing.
-        The usual sample (valid, within ``max_age_s`` of a valid previous one of a value role)
-        only becomes the latest, checked in one expression.
+        A sample out of order (NaN time, older than the latest of its role) is counted and changes nothing;
+        the usual one (valid, within ``max_age_s`` of a valid previous one of a value role) only becomes the
+        latest.
         """
         self.samples += 1
         latest = self._latest_t.get(role)
@@ -327,13 +259,10 @@ class SourceHealth:
 
     def rewind(self, mark: tuple[Any, ...]) -> None:
         """Go back to the state :meth:`mark` gave, as if the runs taken since had not come."""
-        latest_t, invalid, value, valid_t, *rest = mark
-        for own, saved in ((self._latest_t, latest_t), (self._invalid, invalid), (self._value, value),
-                           (self._valid_t, valid_t)):
-            own.clear()
-            own.update(saved)
-        (self._last_reason, self._ok_since, self._counter, self._counter_since, self._frozen, self.samples,
-         self.invalid_samples, self.out_of_order) = rest
+        (latest_t, invalid, value, valid_t, self._last_reason, self._ok_since, self._counter, self._counter_since,
+         self._frozen, self.samples, self.invalid_samples, self.out_of_order) = mark
+        self._latest_t, self._invalid = dict(latest_t), dict(invalid)
+        self._value, self._valid_t = dict(value), dict(valid_t)
 
     def _invalid_code(self, role: str, value: float, own: str) -> str:
         """A sample's invalid reason: its own, else NaN / inf / out of the role's range ("" when valid)."""
@@ -343,10 +272,8 @@ class SourceHealth:
             return INVALID_NAN
         if math.isinf(value):
             return INVALID_INF
-        lo, hi = self._ranges.get(role, (None, None))
-        if (lo is not None and value < lo) or (hi is not None and value > hi):
-            return INVALID_RANGE
-        return ""
+        lo, hi = self._limits.get(role, _ANY)
+        return "" if lo <= value <= hi else INVALID_RANGE
 
     def _full_step(self, role: str, t: float, value: float, bad: str) -> bool:
         """One sample that may change the reason; True on an edge (see :meth:`advance`)."""
@@ -368,8 +295,9 @@ class SourceHealth:
         self._last_reason = after
         return edge
 
-    def _gate_reason(self, now: float, role: str) -> str:
-        """The reason a drive health role gives: heartbeat missing or not operational, EMCY, Fault bit."""
+    def _role_reason(self, now: float, role: str) -> str:
+        """The reason of one role: no data, stale (a drive's NMT: no heartbeat), its latest sample's own, then
+        what its value says (presence at 0, NMT not operational, Fault bit). An EMCY never goes stale."""
         t = self._latest_t.get(role)
         if role == EMCY:
             return REASON_EMCY if t is not None and (self._invalid.get(role) or self._value.get(role, 0.0)) else ""
@@ -385,22 +313,9 @@ class SourceHealth:
             return bad
         if role == NMT:
             return REASON_NOT_PRESENT if self._value.get(NMT) != NMT_OPERATIONAL else REASON_OK
-        return REASON_DRIVE_FAULT if self._value.get(FAULT, 0.0) else REASON_OK
-
-    def _role_reason(self, now: float, role: str) -> str:
-        if role in GATE_ROLES:
-            return self._gate_reason(now, role)
-        t = self._latest_t.get(role)
-        if t is None:
-            return REASON_NO_DATA
-        if now - t > self.max_age_s:
-            return REASON_STALE
-        bad = self._invalid.get(role, "")
-        if bad:
-            return bad
-        if role == PRESENT and self._value.get(PRESENT, 0.0) == 0:
-            return REASON_NOT_PRESENT
-        return REASON_OK
+        if role == FAULT:
+            return REASON_DRIVE_FAULT if self._value.get(FAULT, 0.0) else REASON_OK
+        return REASON_NOT_PRESENT if role == PRESENT and self._value.get(PRESENT, 0.0) == 0 else REASON_OK
 
     def reason(self, now: float, role: str | None = None) -> str:
         """Why the source (or its ``role`` signal) cannot be used at ``now``; "" when it can.
@@ -414,7 +329,7 @@ class SourceHealth:
         if now - self._ok_since <= self._window_s:
             return REASON_OK
         for gate in self._gates:
-            r = self._gate_reason(now, gate)
+            r = self._role_reason(now, gate)
             if r or role == gate:
                 return r
         if self._has_present:

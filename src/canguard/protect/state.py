@@ -1,28 +1,14 @@
-"""Heat that survives restarts: the I²t state file.
+"""Heat that survives restarts: the I²t state file (docs/protection.md, "Heat across restarts").
 
-The file is one small JSON document::
-
-    {"format": "canguard-heat", "version": 1, "t": <save time, s>,
-     "models": {"<key>": <model.export()>, ...}}
-
-- **Save** (:meth:`HeatStore.save`, periodically via :meth:`HeatStore.maybe_save`
-  and on exit): written to a temporary file in the same directory, fsynced, then
-  ``os.replace``-d over the old one (and the directory fsynced), so a crash or a
-  power cut leaves either the old file or the new one, never half of one.
-- **Load** (:meth:`HeatStore.load`): read once. A missing file is a first start:
-  every model starts cold, silently. A corrupt or unreadable file logs a
-  warning naming the file and why, and every model restored from it starts from
-  ``on_corrupt``: ``hot`` (default, fail safe: at the trip level) or ``cold``.
-- **Restore** (:meth:`HeatStore.restore`): the model's saved state cooled for
-  the downtime: ``now − saved time``, or, given a ``clock`` that stamps saves
-  (the daemon's :class:`canguard.io.clock.BootClock`), the time since boot when the
-  save was made in this same boot, so a wall-clock step is never taken for
-  cooling (see :meth:`canguard.protect.i2t.LeakyI2t.restore`). A key
-  the file does not know (a guard added since) starts cold; one whose entry is
-  malformed is treated like a corrupt file, for that model only.
-
-``path=None`` never persists: nothing is read or written (replay starts cold
-unless it is handed a state file).
+One small JSON document, ``{"format": "canguard-heat", "version": 1, "t": <save time, s>, "models":
+{"<key>": <model.export()>, ...}}``, written atomically (temporary file, fsync, ``os.replace``,
+directory fsync: a crash leaves the old file or the new one). A missing file is a first start
+(cold); a corrupt or unreadable one logs a warning naming the file and why, and every model
+restored from it starts at ``on_corrupt`` (``hot``, fail safe: at the trip level; or ``cold``); a
+malformed entry does so for its model only; a key the file does not know starts cold. The downtime
+a restored model cools for is ``now − saved time``, or, given a ``clock`` that stamps saves
+(:class:`canguard.io.clock.BootClock`), the time since boot when the save was made in this same
+boot (a wall-clock step is never taken for cooling). ``path=None`` never reads or writes.
 """
 
 from __future__ import annotations
@@ -41,12 +27,6 @@ from canguard.errors import StateFileError
 
 KIND_LEAKY = "leaky"
 KIND_THERMAL = "thermal"
-
-
-def _downtime(downtime_s: float) -> float:
-    """A usable downtime: negative or NaN (clock went back across the restart) counts as none."""
-    d = float(downtime_s)
-    return d if d > 0 else 0.0
 
 
 def _param(params: Mapping[str, Any], name: str) -> float:
@@ -70,7 +50,8 @@ def cooled_level(state: Mapping[str, Any], downtime_s: float) -> float:
     acc = state.get("accumulator")
     if isinstance(acc, bool) or not isinstance(acc, (int, float)) or not math.isfinite(acc) or acc < 0:
         raise ValueError(f"i2t state: 'accumulator' must be a finite number >= 0, got {acc!r}")
-    d = _downtime(downtime_s)
+    d = float(downtime_s)
+    d = d if d > 0 else 0.0  # negative or NaN (the clock went back across the restart): none
     if kind == KIND_LEAKY:
         c = _param(params, "continuous_a")
         s = (_param(params, "peak_a") ** 2 - c**2) * _param(params, "peak_time_s")
@@ -148,11 +129,6 @@ class HeatStore:
     def corrupt(self) -> str | None:
         """Why the file could not be used (None when it loaded, was missing or was never read)."""
         return self._corrupt
-
-    @property
-    def saved_t(self) -> float | None:
-        """The save time recorded in the loaded file, None if none."""
-        return self._saved_t
 
     def load(self, now: float) -> None:
         """Read the state file once (later calls do nothing); ``now`` is the start time, for the log."""

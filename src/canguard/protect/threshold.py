@@ -1,9 +1,7 @@
-"""A plain limit with a peak latch: behind IsCurrentNormal and IsJointEffortNormal.
+"""A plain limit with a peak latch: behind IsCurrentNormal and IsJointEffortNormal (docs/protection.md).
 
-Trips while |value| > ``max_value`` and clears as soon as |value| <= ``max_value``
-(no hysteresis, exactly like the C++ nodes of design note 004, section 3.1/3.2).
-Because it sees every sample and :meth:`poll` latches, a one-frame spike between
-two ticks is still reported at the next tick (design note 004, section 5.1).
+Trips while |value| > ``max_value`` and clears as soon as |value| <= ``max_value`` (no hysteresis);
+the peak latch reports a one-frame spike between two ticks at the next tick.
 """
 
 from __future__ import annotations
@@ -11,22 +9,14 @@ from __future__ import annotations
 import math
 from typing import TYPE_CHECKING, Any
 
-from canguard.protect.base import REASON_OVERCURRENT, LatchedModel
-from canguard.protect.columns import Marks
+from canguard.protect.base import REASON_OVERCURRENT, LatchedModel, check_limit
+from canguard.protect.columns import Screen
 
 if TYPE_CHECKING:
     from canguard.protect.columns import FloatArray
 
 
-def check_limit(name: str, value: float) -> float:
-    """Return ``value`` as float; ValueError naming ``name`` when it is negative or not finite."""
-    v = float(value)
-    if not math.isfinite(v) or v < 0:
-        raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
-    return v
-
-
-class Threshold(LatchedModel):
+class Threshold(LatchedModel[Screen]):
     """Tripped while |value| > ``max_value`` (A, or N·m for efforts); reason ``overcurrent``."""
 
     reason_tripped = REASON_OVERCURRENT
@@ -40,25 +30,19 @@ class Threshold(LatchedModel):
         self.max_value = check_limit("max_value", max_value)
 
     def _step(self, t: float, a: float) -> bool:
-        """Tripped after a sample exactly when its |value| exceeds the limit: no state beyond that."""
         return a > self.max_value
 
-    def _screen(self, t: FloatArray, a: FloatArray) -> Marks:
+    def _screen(self, t: FloatArray, a: FloatArray) -> Screen:
         """Only a sample on the other side of the limit changes anything."""
         over = a > self.max_value
-        return Marks(over, ~over)
+        return Screen(over, ~over)
 
-    def _quiet_side(self, t: Any, low_a: float, high_a: float) -> bool:
+    def _quiet(self, t: Any, low_a: float, high_a: float, final_a: float) -> bool:
         """Every sample on the side of ``max_value`` the model is on."""
-        if self._tripped:
-            return low_a > self.max_value
-        return not high_a > self.max_value
+        return low_a > self.max_value if self._tripped else not high_a > self.max_value
 
-    def _threshold_value(self) -> float:
-        return self.max_value
-
-    def _level_pct(self) -> float:
-        return level_pct(self._value, self.max_value)
+    def _levels(self) -> tuple[float, float]:
+        return self.max_value, level_pct(self._value, self.max_value)
 
 
 def level_pct(value: float, threshold: float | None) -> float:
