@@ -167,15 +167,9 @@ class Block:
         """The frames as a block (the live drain, a simulator, tests)."""
         listed = frames if type(frames) is tuple else tuple(frames)
         if len(listed) == 1:  # a frame on a quiet bus
-            f = listed[0]
-            data = f.data
-            flags = ((FLAG_FD if f.is_fd else 0) | (FLAG_BRS if f.bitrate_switch else 0)
-                     | (FLAG_ESI if f.error_state_indicator else 0) | (FLAG_REMOTE if f.is_remote_frame else 0)
-                     | (FLAG_ERROR if f.is_error_frame else 0))
-            dlc = f.dlc
-            if 0 <= f.arbitration_id <= 0xFFFFFFFF and len(data) <= 255 and dlc <= 255:
-                return _one(f.t, f.arbitration_id, bool(f.is_extended_id), flags, len(data) if dlc < 0 else dlc,
-                            data, f.channel)
+            one = _one(listed[0])
+            if one is not None:
+                return one
         return _of_frames(listed)
 
     @classmethod
@@ -324,10 +318,27 @@ for _shared in (*_U8_ONE, _ROW_0, _LANE_0, _NO_ROWS):
     _shared.flags.writeable = False
 
 
-def _one(t: float, cid: int, ext: bool, flags: int, dlc: int, data: bytes, channel: str) -> Block:
-    """One frame as a block (a live frame on a quiet bus): its columns checked by construction, its id's
-    columns and each small integer's shared, what the engine reads of it (:attr:`Block.keys`, :attr:`Block.times`,
-    :attr:`Block.ordered`...) known at once."""
+_TIME_ONE = np.zeros(1, dtype=np.float64)
+"""A time column of one row, copied for each block of one (its own array: cheaper than ``np.array``)."""
+_NO_PAYLOAD = np.zeros((1, 0), dtype=np.uint8)
+_NO_PAYLOAD.flags.writeable = False
+_ROW_TYPES: dict[int, np.dtype] = {}
+"""Each payload width seen in a block of one: a dtype of that many bytes, which ``frombuffer`` reads as one row."""
+
+
+def _one(frame: Frame) -> Block | None:
+    """One frame as a block (a live frame on a quiet bus), or None when it is no CAN frame (the rows' builder
+    says why): its fields read at once, its columns checked by construction, its id's columns and each small
+    integer's shared, what the engine reads of it (:attr:`Block.keys`, :attr:`Block.times`, :attr:`Block.ordered`...)
+    known at once."""
+    t, channel, cid, data, ext, fd, err, remote, brs, esi, dlc = frame
+    flags = ((FLAG_FD if fd else 0) | (FLAG_BRS if brs else 0) | (FLAG_ESI if esi else 0)
+             | (FLAG_REMOTE if remote else 0) | (FLAG_ERROR if err else 0)) if fd or err or remote or brs or esi else 0
+    width = len(data)
+    if dlc < 0:
+        dlc = width
+    if not (0 <= cid <= 0xFFFFFFFF and width <= 255 and dlc <= 255):
+        return None
     key = cid + EXT_KEY if ext else cid
     ids = _IDS.get(key)
     if ids is None:
@@ -336,12 +347,23 @@ def _one(t: float, cid: int, ext: bool, flags: int, dlc: int, data: bytes, chann
         ids = _IDS[key] = (np.array((cid,), np.uint32), np.array((ext,), np.bool_), np.array((key,), np.int64))
         for column in ids:
             column.flags.writeable = False
-    return _made(
-        time_s=np.array((t,), np.float64), can_id=ids[0], extended=ids[1], flags=_U8_ONE[flags],
-        dlc=_U8_ONE[dlc], length=_U8_ONE[len(data)], payload=np.frombuffer(data, np.uint8).reshape(1, len(data)),
-        channel=_LANE_0, channels=(channel,), n=1, keys=ids[2], times=[float(t)], ordered=True, only_channel=0,
-        special=_ROW_0 if flags & (FLAG_REMOTE | FLAG_ERROR) else _NO_ROWS,
-    )
+    if width:
+        row = _ROW_TYPES.get(width)
+        if row is None:
+            row = _ROW_TYPES[width] = np.dtype((np.uint8, (width,)))
+        payload = np.frombuffer(data, row)  # (1, width)
+    else:
+        payload = _NO_PAYLOAD
+    time_s = _TIME_ONE.copy()
+    time_s[0] = t
+    block = _new_object(Block)
+    block.__dict__.update({
+        "time_s": time_s, "can_id": ids[0], "extended": ids[1], "flags": _U8_ONE[flags], "dlc": _U8_ONE[dlc],
+        "length": _U8_ONE[width], "payload_source": payload, "payload": payload, "channel": _LANE_0,
+        "channels": (channel,), "n": 1, "keys": ids[2], "times": [float(t)], "ordered": True, "only_channel": 0,
+        "special": _ROW_0 if flags & (FLAG_REMOTE | FLAG_ERROR) else _NO_ROWS,
+    })
+    return block
 
 
 def _made(**columns: Any) -> Block:

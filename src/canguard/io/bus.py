@@ -10,8 +10,9 @@
 - **Direct** (``direct=True`` and every bus has a socket (:func:`bus_fileno`): SocketCAN,
   udp_multicast): no thread. The caller's thread waits on the buses' sockets with
   ``select`` until a frame arrives or its own deadline passes, then drains what the
-  kernel holds with ``recv(0)``. The kernel's socket buffer is the receive queue, so
-  a frame costs no thread hand-off: no queue, no waiting for the GIL held by
+  kernel holds with ``recv(0)`` (a poll of the socket after the first frame: a frame
+  alone costs no ``recv`` that finds none). The kernel's socket buffer is the receive
+  queue, so a frame costs no thread hand-off: no queue, no waiting for the GIL held by
   another thread. ``received`` is the kernel's receive stamp (on ``time.monotonic()``'s
   base) whenever the bus stamps with the wall clock, so a wait in the kernel's buffer
   counts as a wait.
@@ -161,6 +162,8 @@ class BusReader:
         """True once started without threads: :meth:`receive` waits on the buses' sockets itself."""
         self._started = False
         self._fds: dict[str, int] = {}
+        self._pending: dict[str, Callable[[int], list[tuple[int, int]]]] = {}
+        """Per bus received directly: a poll of its socket (``pending(0)`` non-empty: the kernel holds a frame)."""
         self._wall_stamps: dict[str, bool | None] = dict.fromkeys(self.configs)
         self._reopen_at: dict[str, float] = dict.fromkeys(self.configs, 0.0)
         self._delay: dict[str, float] = dict.fromkeys(self.configs, backoff_min_s)
@@ -192,9 +195,10 @@ class BusReader:
             raise
         self._started = True
         fds = {name: bus_fileno(bus) for name, bus in self._buses.items() if bus is not None}
-        self.direct = self._direct_wanted and bool(fds) and min(fds.values()) >= 0
+        self.direct = self._direct_wanted and bool(fds) and min(fds.values()) >= 0 and hasattr(select, "poll")
         if self.direct:
-            self._fds = fds
+            for name, fd in fds.items():
+                self._watch(name, fd)
             return
         for name in self.configs:
             t = threading.Thread(target=self._run, args=(name,), name=f"canguard-bus-{name}", daemon=True)
@@ -272,13 +276,16 @@ class BusReader:
         """Wait on the open buses' sockets, then drain each ready one with ``recv(0)``; reopen buses due."""
         if self._stop.is_set():
             return []
-        now = monotonic()
-        if any(bus is None for bus in self._buses.values()):
+        buses = self._buses
+        if None in buses.values():  # a bus closed: reopened when due, waited on until then
+            now = monotonic()
             self._reopen_due(now)
-            due = min((self._reopen_at[n] for n, bus in self._buses.items() if bus is None), default=math.inf)
+            due = min((self._reopen_at[n] for n, bus in buses.items() if bus is None), default=math.inf)
             wait = max(0.0, min(math.inf if timeout_s is None else timeout_s, due - now))
             timeout_s = None if wait == math.inf else wait
-        fds = [self._fds[name] for name, bus in self._buses.items() if bus is not None]
+            fds = [self._fds[name] for name, bus in buses.items() if bus is not None]
+        else:
+            fds = list(self._fds.values())
         try:
             ready, _, _ = select.select(fds, [], [], timeout_s)
         except (OSError, ValueError):  # a socket closed under us: each recv below says which
@@ -295,17 +302,22 @@ class BusReader:
         return out
 
     def _drain_bus(self, name: str, limit: int, out: list[tuple[str, Frame, float]]) -> None:
-        """Append up to ``limit`` frames the kernel holds for bus ``name``; a failure closes the bus."""
+        """Append up to ``limit`` frames the kernel holds for bus ``name`` (after the first, a poll of its socket
+        asks whether there is another: cheaper than a ``recv(0)`` that finds none; one poll a drain, not one a
+        frame: a poll costs a system call); a failure closes the bus."""
         bus = self._buses[name]
         assert bus is not None
         msgs: list[can.Message] = []
         recv = bus.recv
+        pending = self._pending[name]
         try:
             while len(msgs) < limit:
                 msg = recv(0)
                 if msg is None:
                     break
                 msgs.append(msg)
+                if len(msgs) == 1 and not pending(0):  # a frame alone, the usual wake-up: no recv(0) that finds none
+                    break
         except Exception as exc:  # the bus went away (or a backend bug): report, close, reopen later
             self._failed(name, exc)
             self._reopen_at[name] = monotonic() + self._delay[name]
@@ -344,8 +356,15 @@ class BusReader:
             if fd < 0:  # cannot happen for the same interface; fail loudly rather than never receive
                 _shutdown(opened, name)
                 raise BusError(f"bus {name!r} reopened without a socket to wait on")
-            self._fds[name] = fd
+            self._watch(name, fd)
             self._wall_stamps[name] = None
+
+    def _watch(self, name: str, fd: int) -> None:
+        """Receive bus ``name`` directly from socket ``fd``: waited on with the others, polled while drained."""
+        self._fds[name] = fd
+        poller = select.poll()
+        poller.register(fd, select.POLLIN)
+        self._pending[name] = poller.poll
 
     # -- the receive threads -----------------------------------------------
     def _run(self, name: str) -> None:

@@ -55,8 +55,6 @@ DRAIN_DIRECT = 32
 that trips waits for the reads after it in its batch before the engine sees it (512: up to ~15 ms)."""
 
 
-_BUS, _FRAME, _RECEIVED = itemgetter(0), itemgetter(1), itemgetter(2)
-"""The parts of a received item, ``(bus_name, frame, received)``."""
 _STAMP, _CHANNEL = itemgetter(0), itemgetter(1)
 """A frame's ``t`` and ``channel``."""
 
@@ -273,16 +271,15 @@ class Daemon:
         mono = time.monotonic()
         now = self.clock.now()
         limit = self.overrun_limit_s
-        frames = list(map(_FRAME, items))
-        names = list(map(_BUS, items))
+        names, frames, arrivals = zip(*items, strict=True)
         split = False  # a block ends where the bus changes
         target: str | None = names[0]
         if names.count(target) != len(names):
             target = None  # several buses in one block: each frame goes to the bus its channel names
             split = not all(map(eq, names, map(_CHANNEL, frames)))
         stamps = list(map(_STAMP, frames))
-        if (not split and "overrun" not in engine.gate.inhibits and not mono - min(map(_RECEIVED, items)) > limit
-                and min(stamps) >= now - LIVE_SKEW_S and max(stamps) <= now + LIVE_SKEW_S):
+        if (not split and not mono - min(arrivals) > limit and min(stamps) >= now - LIVE_SKEW_S
+                and max(stamps) <= now + LIVE_SKEW_S and "overrun" not in engine.gate.inhibits):
             engine.take(target, Block.of_frames(frames))  # the usual batch (no overrun starts, stamps sane): one block
             return
         bus = names[0]
