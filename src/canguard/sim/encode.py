@@ -10,7 +10,7 @@ from typing import Any
 
 
 class MessageEncoder:
-    """Encodes one DBC message's physical signal values into frame bytes (``pack``: values in start-bit order)."""
+    """Encodes one DBC message's physical signal values into frame bytes."""
 
     def __init__(self, message: Any) -> None:
         self.message = message
