@@ -1,9 +1,8 @@
 """The simulator's scenarios: what goes wrong, on which axis, and when.
 
 Every scenario (docs/commands.md has the table) runs over the normal duty cycle and changes only what its
-docstring says. Times are
-seconds from the start of the simulation, shifted by the scenario's ``offset_s`` (``"spike@10"``: ten
-seconds later). Figures are chosen against the bundled config: IsCurrentSafe on ``/battery_state`` trips
+docstring says. Times are seconds from the start, shifted by ``offset_s`` (``"spike@10"``: ten seconds
+later). Figures are chosen against the bundled config: IsCurrentSafe on ``/battery_state`` trips
 above 35 A and recovers below 25 A (``max_age`` 0.5 s); I²t continuous 10 A, peak 20 A for 1 s
 (S = 300 A²s) trips 1.0 s into 20 A from cold.
 """
