@@ -140,7 +140,7 @@ class SignalExport:
 
         from canguard.decode.rows import valued_table
 
-        times = np.asarray(times, dtype=np.float64)
+        stamp = np.asarray(times, dtype=np.float64)
         fed_rows = np.array([row for row, _s in fed], dtype=np.intp)
         rows, stamps, values, codes = [], [], [], []
         for names, group, decoded in taken:
@@ -152,7 +152,7 @@ class SignalExport:
                 continue
             width, taken_rows = len(names), idx[keep]
             rows.append(np.repeat(taken_rows, width))
-            stamps.append(np.repeat(times[taken_rows], width))
+            stamps.append(np.repeat(stamp[taken_rows], width))
             values.append(table[keep].ravel())  # row by row, each row's outputs in order
             codes.append(np.tile([self._code(name, "") for name in names], taken_rows.size))
         if fed:

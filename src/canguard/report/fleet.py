@@ -28,7 +28,7 @@ def fleet_row(log: str, summary: Mapping[str, Any] | None, error: str = "") -> d
         return row
     trips = summary.get("trips") or []
     margins = [m for m in summary.get("margins") or [] if m.get("margin_pct") is not None]
-    worst = min(margins, key=lambda m: m["margin_pct"], default={})
+    worst: Mapping[str, Any] = min(margins, key=lambda m: m["margin_pct"], default={})
     row.update(
         status="ok", reason="", frames=(summary.get("frames") or {}).get("read"),
         trips=int(summary.get("trip_count", len(trips))), stops=summary.get("stops"),
