@@ -126,7 +126,7 @@ def cmd_tune(args: argparse.Namespace) -> int:
     wanted = [expect.get(str(log), expect.get(log.name)) for log in logs]
     is_fault = [i >= len(healthy) if w is None else "trips" in w for i, w in enumerate(wanted)]
     before = _replay_all(args, cfg, cfg_path, logs, tune=True)
-    stats = [LogStats(str(log), fault, s["tune"], s) for log, fault, s in zip(logs, is_fault, before, strict=True)]
+    stats = [LogStats(str(log), fault, s["tune"]) for log, fault, s in zip(logs, is_fault, before, strict=True)]
     needs = {str(log): [g for g, _by in (w or {}).get("trips", [])] for log, w in zip(logs, wanted, strict=True)}
     ages = {name: src.max_age_s for name, src in cfg.sources.items()}
     guards, age_props = propose(stats, ages, needs if args.expect is not None else None, args.margin / 100.0,
@@ -150,7 +150,7 @@ def cmd_tune(args: argparse.Namespace) -> int:
     if args.plot is not None:
         from canguard.report.tuneplot import plot_tune
 
-        plot_tune(args.plot, guards, stats)
+        plot_tune(args.plot, guards)
     print(json.dumps(report, indent=2, sort_keys=True) if args.json else render(report))
     if report["result"] == "proven":
         return EXIT_OK

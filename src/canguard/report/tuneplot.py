@@ -10,7 +10,7 @@ from canguard.report.plot import require_matplotlib
 from canguard.report.tune import BIN_RATIO
 
 
-def plot_tune(path: Path, guards: list[Any], stats: list[Any]) -> None:
+def plot_tune(path: Path, guards: list[Any]) -> None:
     """One panel per threshold guard the healthy logs exercised (I²t ratings are factors: not drawn)."""
     plt = require_matplotlib()
     shown = [g for g in guards if g.hist and not g.scale]
