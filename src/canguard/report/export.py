@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 import os
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
 
@@ -94,15 +94,10 @@ class SignalExport:
         self._pending = 0
         self._codes: dict[tuple[str, str, str], int] = {}
         self._keys: list[tuple[str, str, str]] = []
-        previous = engine.sample_hook  # --plot's recorder, when there is one: both see every sample
-        self._previous: Callable[[Any], None] | None = previous
         engine.sample_hook = self._sample
-        if previous is None:  # alone: a replay's column blocks are taken whole (the recorder wants every sample)
-            engine.sample_block = self._block
+        engine.sample_block = self._block  # a replay's column blocks, taken whole
 
     def _sample(self, s: Sample) -> None:
-        if self._previous is not None:
-            self._previous(s)
         self._t.append(s.t)
         self._c.append(self._code((s.source, s.signal), self._reason_of(s)))
         self._v.append(s.value)

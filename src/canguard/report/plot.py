@@ -13,11 +13,11 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from canguard.errors import ConfigError
+from canguard.report.tune import Capture
 from canguard.units import I2T_LIMIT_PCT, quantity
 
 if TYPE_CHECKING:
     from canguard.engine.core import Engine
-    from canguard.io.frame import Sample
 
 FORMATS = (".png", ".svg", ".html")
 
@@ -37,28 +37,19 @@ def require_matplotlib() -> Any:
 
 
 class Recorder:
-    """Collects samples, I²t levels and stop intervals from an engine while it runs."""
+    """Collects the valid samples of every value, I²t levels and stop intervals from an engine while it runs."""
 
     def __init__(self, engine: Engine) -> None:
         self.engine = engine
-        self.series: dict[tuple[str, str], tuple[array, array]] = {}
+        self.series = {(name, role): Capture() for name, src in engine.cfg.sources.items() for role in src.value_roles}
+        for (name, role), capture in self.series.items():
+            engine.ctx.subscribe(name, role, capture)  # fed as the models are
         self.levels: dict[str, tuple[array, array]] = {}
         self.trips: list[tuple[float, str, str]] = []
         self.stops: list[list[float]] = []
-        # hooks set before this recorder keep being called (an export, another recorder)
-        self._next_sample, self._next_tick = engine.sample_hook, engine.tick_hook
-        engine.sample_hook = self._sample
+        self._next_tick = engine.tick_hook  # one set before this recorder keeps being called
         engine.tick_hook = self._tick
         engine.listen(self._event)
-
-    def _sample(self, s: Sample) -> None:
-        if self._next_sample is not None:
-            self._next_sample(s)
-        if s.reason or s.signal == "present":
-            return
-        ts, vs = self.series.setdefault((s.source, s.signal), (array("d"), array("d")))
-        ts.append(s.t)
-        vs.append(s.value)
 
     def _tick(self, now: float) -> None:
         if self._next_tick is not None:
@@ -85,15 +76,16 @@ class Recorder:
             raise ConfigError(f"--plot {path}: unknown extension {suffix!r}, expected one of {', '.join(FORMATS)}")
         plt = require_matplotlib()
         guards = self.engine.guards()
-        sources = sorted({(g.source, g.role) for g in guards} & set(self.series)) or sorted(self.series)
+        series = {key: cols for key, cols in ((k, c.columns()) for k, c in self.series.items()) if cols[0].size}
+        sources = sorted({(g.source, g.role) for g in guards} & set(series)) or sorted(series)
         level_nodes = sorted(self.levels)
         rows = max(1, len(sources)) + (1 if level_nodes else 0)
         fig, axes = plt.subplots(rows, 1, figsize=(11, 2.6 * rows), sharex=True, squeeze=False)
         t0 = summary.get("first_t") or 0.0
         end = summary.get("last_t") or t0
         for ax, (source, role) in zip(axes[:, 0], sources, strict=False):
-            ts, vs = self.series[(source, role)]
-            ax.plot([t - t0 for t in ts], list(vs), lw=0.8, label=f"{source} {role}")
+            ts, vs = series[(source, role)]
+            ax.plot(ts - t0, vs, lw=0.8, label=f"{source} {role}")
             for g in guards:
                 if (g.source, g.role) == (source, role) and g.kind == "threshold":
                     thr = g.threshold()
@@ -105,8 +97,8 @@ class Recorder:
         if level_nodes:
             ax = axes[-1, 0]
             for node in level_nodes:
-                ts, vs = self.levels[node]
-                ax.plot([t - t0 for t in ts], list(vs), lw=0.8, label=node)
+                times, levels = self.levels[node]
+                ax.plot([t - t0 for t in times], list(levels), lw=0.8, label=node)
             ax.axhline(100.0, ls="--", lw=0.8, color="tab:red")
             ax.set_ylabel(f"I²t level ({I2T_LIMIT_PCT})")
             ax.legend(loc="upper right", fontsize=7)
