@@ -69,14 +69,12 @@ def canopen_files(args: argparse.Namespace, target: Path, state_dir: Path) -> di
         raise ConfigError(f"init --canopen: --node: found {args.node}, expected the drive's node id 1..127")
     if not eds.is_file():
         raise ConfigError(f"init --canopen: {eds}: no such file, expected the drive's EDS")
-    made = drive_files(eds, args.node, bus="can0" if args.simulation else args.channel,
-                       state_dir=state_dir.expanduser().absolute(), simulation=args.simulation,
-                       configure=args.configure)
-    files: dict[Path, str | Path] = {target / name: text for name, text in made.files.items()}
-    files[target / eds.name] = eds
-    for line in made.messages:
+    made, messages = drive_files(eds, args.node, bus="can0" if args.simulation else args.channel,
+                                 state_dir=state_dir.expanduser().absolute(), simulation=args.simulation,
+                                 configure=args.configure)
+    for line in messages:
         print(f"canguard init: {line}", file=sys.stderr)
-    return files
+    return {**{target / name: text for name, text in made.items()}, target / eds.name: eds}
 
 
 def cmd_init(args: argparse.Namespace) -> int:

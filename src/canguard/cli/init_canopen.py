@@ -9,7 +9,6 @@ controlword, else NMT stop.
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field
 from pathlib import Path
 
 from canguard.config.canopen import (
@@ -38,16 +37,6 @@ TPDO_PERIOD_MS = 10
 CIA_402 = 402
 WRITABLE = frozenset({"rw", "wo", "rww", "rwr"})
 """EDS AccessTypes an SDO may write."""
-
-
-@dataclass
-class DriveInit:
-    """What ``init`` writes for one drive and what it tells the user on stderr."""
-
-    files: dict[str, str]
-    """File name -> text (the config and the tree)."""
-    messages: list[str] = field(default_factory=list)
-    """Lines for stderr: the TPDO chosen, what the drive must be told, warnings."""
 
 
 def q(text: str) -> str:
@@ -124,17 +113,13 @@ def _remappable(eds: Eds, pdo: Pdo) -> bool:
 
 def _fits(wanted: list[int]) -> list[list[int]]:
     """``wanted``, then with fewer objects from its end, down to one guarded value."""
-    out = []
-    for n in range(len(wanted), 0, -1):
-        part = wanted[:n]
-        if any(i in GUARDED for i in part):
-            out.append(part)
-    return out
+    return [wanted[:n] for n in range(len(wanted), 0, -1) if any(i in GUARDED for i in wanted[:n])]
 
 
 def drive_files(eds_path: Path, node: int, *, bus: str, state_dir: Path, simulation: bool,
-                configure: bool = False) -> DriveInit:
-    """The config and tree texts (by file name) for the drive of ``eds_path`` at ``node``, and what to tell."""
+                configure: bool = False) -> tuple[dict[str, str], list[str]]:
+    """The config and tree texts (by file name) for the drive of ``eds_path`` at ``node``, and the lines for stderr
+    (the TPDO chosen, what the drive must be told, warnings)."""
     eds = read_drive(eds_path, node)
     try:
         tpdos, rpdos = drive_pdos(eds)
@@ -142,7 +127,7 @@ def drive_files(eds_path: Path, node: int, *, bus: str, state_dir: Path, simulat
         raise ConfigError(f"init --canopen {eds_path}: {exc}") from None
     pdo, new = choose_tpdo(eds, tpdos)
     sources = [(f"drive_{what}", index) for index, what in GUARDED.items() if pdo.find(index, 0)]
-    out = DriveInit({})
+    messages: list[str] = []
     told = eds.value(PRODUCER_HEARTBEAT)
     heartbeat = None if isinstance(told, int) and told > 0 else HEARTBEAT_S
     writes: list[SdoWrite] = []
@@ -151,16 +136,16 @@ def drive_files(eds_path: Path, node: int, *, bus: str, state_dir: Path, simulat
     if new:
         writes += pdo_writes(eds, pdo, TPDO_PERIOD_MS)
     carried = ", ".join(f"{o.ref} {o.name}" for o in pdo.objects)
-    out.messages.append(f"{pdo.name} 0x{pdo.cob_id:03X} carries {carried}"
-                        + (" (a pdo: override: the EDS does not map it by default)" if new else ""))
+    messages.append(f"{pdo.name} 0x{pdo.cob_id:03X} carries {carried}"
+                    + (" (a pdo: override: the EDS does not map it by default)" if new else ""))
     if writes and configure:
-        out.messages.append("configure: true: canguard tells the drive over SDO at start and after each boot-up: "
-                            + "; ".join(w.describe() for w in writes))
+        messages.append("configure: true: canguard tells the drive over SDO at start and after each boot-up: "
+                        + "; ".join(w.describe() for w in writes))
     elif writes:
-        out.messages += ["the drive must be told (or set configure: true, and canguard tells it over SDO):",
-                         *(f"  {w.describe()}" for w in writes)]
-    out.messages += [f"warning: {w}" for w in eds.foreign_cob_ids()]
-    out.messages += [f"note: {n}" for n in eds.notes]
+        messages += ["the drive must be told (or set configure: true, and canguard tells it over SDO):",
+                     *(f"  {w.describe()}" for w in writes)]
+    messages += [f"warning: {w}" for w in eds.foreign_cob_ids()]
+    messages += [f"note: {n}" for n in eds.notes]
     interface = "virtual" if simulation else "socketcan"
     lines = _config_lines(eds, node, interface, bus, tpdos, (pdo, new), heartbeat, configure, writes)
     lines += ["", "sources:"]
@@ -172,8 +157,7 @@ def drive_files(eds_path: Path, node: int, *, bus: str, state_dir: Path, simulat
               f"state: {{file: {q(str(state_dir / 'i2t_state.json'))}}}"]
     if simulation:
         lines.append("simulation: true")
-    out.files = {"canguard.yaml": "\n".join(lines) + "\n", "drive_guard.xml": _tree([n for n, _ in sources])}
-    return out
+    return {"canguard.yaml": "\n".join(lines) + "\n", "drive_guard.xml": _tree([n for n, _ in sources])}, messages
 
 
 def _config_lines(eds: Eds, node: int, interface: str, bus: str, tpdos: list[Pdo], chosen: tuple[Pdo, bool],
