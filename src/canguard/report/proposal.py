@@ -136,32 +136,26 @@ def propose_guard(node: str, logs: list[LogStats], expect: dict[str, list[str]] 
     prop = Proposal(node, head["type"], head["source"], head["port"], head["value"], scale=is_i2t)
     ceilings: list[Need] = []
     peaks: list[Need] = []
-    hist: dict[str, int] = {}
     faults: list[Need] = []
     for log in logs:
         mine = [s for s in _signals(log, node) if s.get("samples")]
-        if is_i2t and mine:
-            prop.heat.append(Need(log.name, max(s.get("heat_pct", math.nan) for s in mine), None))
         if not mine:
             continue
+        if is_i2t:
+            prop.heat.append(Need(log.name, max(s.get("heat_pct", math.nan) for s in mine), None))
         top = max(mine, key=lambda s: s.get("ceiling", -math.inf))
-        ceiling = Need(log.name, top["ceiling"], top.get("ceiling_t")) if "ceiling" in top else None
+        ceiling = [Need(log.name, top["ceiling"], top.get("ceiling_t"))] if "ceiling" in top else []
         if log.fault:
-            if ceiling is not None:
-                faults.append(ceiling)
+            faults += ceiling
             continue
         peak = max(mine, key=lambda s: s["peak"])
         peaks.append(Need(log.name, peak["peak"], peak["peak_t"]))
-        for s in mine:
-            for k, c in s["hist"].items():
-                hist[k] = hist.get(k, 0) + c
-        if ceiling is not None:
-            ceilings.append(ceiling)
-    prop.peak = _best(peaks)
-    prop.healthy = _best(ceilings)
-    prop.hist = hist
+        for k, c in ((k, c) for s in mine for k, c in s["hist"].items()):
+            prop.hist[k] = prop.hist.get(k, 0) + c
+        ceilings += ceiling
+    prop.peak, prop.healthy = _best(peaks), _best(ceilings)
     starts = [s["inrush"] for log in logs if not log.fault for s in _signals(log, node) if s.get("inrush")]
-    prop.p99, prop.p999 = percentile(hist, 99.0), percentile(hist, 99.9)
+    prop.p99, prop.p999 = percentile(prop.hist, 99.0), percentile(prop.hist, 99.9)
     if expect is not None:
         prop.faults = [f for f in faults if node in expect.get(f.log, [])]
     else:  # a fault the guard clearly sees: beyond the healthy ceiling by more than the margin
