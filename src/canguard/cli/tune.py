@@ -148,7 +148,7 @@ def cmd_tune(args: argparse.Namespace) -> int:
                         shutil.copy2(f, args.out / f.name)
                     report["written"] = sorted(str(args.out / f.name) for f in Path(tmp).iterdir())
     if args.plot is not None:
-        from canguard.report.tuneplot import plot_tune
+        from canguard.report.plot import plot_tune
 
         plot_tune(args.plot, guards)
     print(json.dumps(report, indent=2, sort_keys=True) if args.json else render(report))
