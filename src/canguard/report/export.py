@@ -75,10 +75,7 @@ class SignalExport:
     """Streams every sample an engine decodes into one Parquet file, in bounded memory."""
 
     def __init__(self, engine: Engine, path: Path, log: str, *, table: SampleTable | None = None) -> None:
-        self.path = path
-        self.log = log
         self.batch_rows = BATCH_ROWS
-        self.rows = 0
         bus = {name: src.bus for name, src in engine.cfg.sources.items()}
         self.table: SampleTable = table if table is not None else ParquetTable(path, log, bus)
         """Where each batch of rows goes: a Parquet file, or an MCAP export's channels."""
@@ -184,7 +181,6 @@ class SignalExport:
         t, codes, values = (np.concatenate(cols) for cols in zip(*self._chunks, strict=True))
         n = min(t.size, self.batch_rows)
         self.table.write(t[:n], codes[:n], values[:n], self._keys)
-        self.rows += n
         self._chunks = [(t[n:], codes[n:], values[n:])] if n < t.size else []
         self._pending = t.size - n
 

@@ -81,7 +81,6 @@ class SimRobot:
             raise ValueError(f"axes must be 1..63, got {axes}")
         self.db = db
         self.axes = axes
-        self.seed = seed
         self.channel = channel
         self.start_t = float(start_t)
         self.rng = random.Random(seed)
@@ -90,7 +89,7 @@ class SimRobot:
             if kind not in DEFAULT_RATES_HZ or not rate > 0:
                 raise ValueError(f"rates_hz: {kind!r}: expected one of {sorted(DEFAULT_RATES_HZ)} with a rate > 0")
             self.rates_hz[kind] = float(rate)
-        self.scenarios: list[Scenario] = [parse_scenario(s) for s in scenarios]
+        parsed = [parse_scenario(s) for s in scenarios]
         self._by_name = {m.name: MessageEncoder(m) for m in db.messages}
         needed = ["BMS_Status", "BMS_Temperatures"]
         needed += [f"Axis{n}_{kind}" for n in range(axes) for kind in (*AXIS_KINDS, *COMMANDS, "Get_Error")]
@@ -107,11 +106,10 @@ class SimRobot:
         self._seq = 0
         self._now = 0.0
         self._stream_rates: dict[str, float] = {}
-        self.motion = Motion(self.rng, self._axes,
-                             [s for s in self.scenarios if type(s).setpoint is not Scenario.setpoint])
-        self._suppress_hooks = [s for s in self.scenarios if type(s).suppress is not Scenario.suppress]
+        self.motion = Motion(self.rng, self._axes, [s for s in parsed if type(s).setpoint is not Scenario.setpoint])
+        self._suppress_hooks = [s for s in parsed if type(s).suppress is not Scenario.suppress]
         self._add_base_streams()
-        for sc in sorted(self.scenarios, key=lambda s: s.setup_last):
+        for sc in sorted(parsed, key=lambda s: s.setup_last):
             sc.setup(self)
 
     @property

@@ -38,8 +38,7 @@ class RobotHandle(Protocol):
                   error: bool = False) -> Frame: ...
     def bms_frame(self, t: float, pack_current_a: float | None = None) -> Frame: ...
 
-# linux/can/error.h: the flag candump writes into the id of an error frame, and error classes.
-CAN_ERR_FLAG = 0x20000000
+# linux/can/error.h: error classes and their details.
 CAN_ERR_CRTL = 0x00000004
 CAN_ERR_PROT = 0x00000008
 CAN_ERR_BUSERROR = 0x00000080
