@@ -95,13 +95,10 @@ def run_on_bus(
     wall0 = time.monotonic()
     sent = failed = 0
 
-    def sim_now() -> float:
-        return sim0 + (time.monotonic() - wall0)
-
     def answer(msg: can.Message | None) -> None:
-        while msg is not None:
+        while msg is not None:  # at the simulated time of its arrival
             channel = str(msg.channel) if msg.channel is not None else robot.channel
-            robot.receive(frame_from_message(msg, channel)._replace(t=sim_now()))
+            robot.receive(frame_from_message(msg, channel)._replace(t=sim0 + (time.monotonic() - wall0)))
             msg = bus.recv(0)
 
     for n, frame in enumerate(robot.frames(duration_s)):
