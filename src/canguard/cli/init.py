@@ -44,15 +44,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 def starter_config(text: str, *, channel: str, simulation: bool, state_dir: Path) -> str:
     """The example config's text with the paths and the bus of a deployment (comments kept)."""
-    def sub(pattern: str, repl: str, s: str) -> str:
-        return replace_once(s, pattern, repl, f"{EXAMPLE}.yaml")
-
-    text = sub(r"^dbc: \[[^\]]*\]", "dbc: [robot.dbc]", text)
-    text = sub(r"\{file: [^,]*robot_guard\.xml,", "{file: robot_guard.xml,", text)
     bus = "{interface: virtual, channel: can0}" if simulation else f"{{interface: socketcan, channel: {channel}}}"
-    text = sub(r"^  main: \{interface: [^}]*\}", f"  main: {bus}", text)
-    text = sub(r"^events: \S+", f"events: {state_dir / 'events.jsonl'}", text)
-    text = sub(r"^state: \{file: [^,]*,", f"state: {{file: {state_dir / 'i2t_state.json'},", text)
+    for pattern, repl in ((r"^dbc: \[[^\]]*\]", "dbc: [robot.dbc]"),
+                          (r"\{file: [^,]*robot_guard\.xml,", "{file: robot_guard.xml,"),
+                          (r"^  main: \{interface: [^}]*\}", f"  main: {bus}"),
+                          (r"^events: \S+", f"events: {state_dir / 'events.jsonl'}"),
+                          (r"^state: \{file: [^,]*,", f"state: {{file: {state_dir / 'i2t_state.json'},")):
+        text = replace_once(text, pattern, repl, f"{EXAMPLE}.yaml")
     head = (f"# Written by `canguard init`: {'a simulation on the virtual bus' if simulation else 'the robot'}.\n"
             "# Edit the sources, thresholds and frames for your drives; check with `canguard check -c <this file>`.\n")
     if simulation:
