@@ -1,9 +1,6 @@
 """``canguard init DIR --canopen EDS --node N``: a starting config and tree for one CANopen drive.
 
-The torque and current actual values (0x6077, 0x6078) become guarded sources (% of rated), read from a
-default TPDO or mapped with a ``pdo:`` override (:func:`choose_tpdo`); what the drive must be told is
-said in the config and on stderr. Stop / task frames: quick stop / enable operation when an RPDO maps the
-controlword, else NMT stop.
+What it guards, how it reads and stops the drive, and what it tells: docs/commands.md (``canguard init``).
 """
 
 from __future__ import annotations
@@ -70,12 +67,8 @@ def _guarded_objects(eds: Eds) -> list[int]:
 
 
 def choose_tpdo(eds: Eds, tpdos: list[Pdo]) -> tuple[Pdo, bool]:
-    """The TPDO that carries the guarded values, and whether it is a new mapping (a ``pdo:`` override).
-
-    A default TPDO that maps 0x6077 or 0x6078 is taken as it is. Else the statusword (for
-    its Fault bit), 0x6077 and 0x6078 (those that can be PDO values, as many as fit in 64
-    bits) go into the first disabled TPDO, else after the objects of the first TPDO with room.
-    """
+    """The TPDO that carries the guarded values, and whether it is a new mapping (a ``pdo:`` override): a default
+    TPDO that maps them, else the statusword (its Fault bit) and them in the first TPDO with room."""
     for pdo in tpdos:
         if pdo.enabled and any(pdo.find(index, 0) for index in GUARDED):
             return pdo, False

@@ -137,12 +137,8 @@ class Change(NamedTuple):
 
 
 def diff_baseline(base: dict[str, Any], new: dict[str, Any], margin_tolerance_pct: float = 0.0) -> list[Change]:
-    """What changed against a saved --json summary: new trips, lost trips, margins that shrank, stop counts.
-
-    A trip gained or lost is a regression; so is a margin that shrank by more than
-    ``margin_tolerance_pct`` percent of its guard's threshold (a shrink at all, with the default 0).
-    Stop counts follow from the trips and are reported only.
-    """
+    """What changed against a saved --json summary: trips gained or lost and margins that shrank by more than
+    ``margin_tolerance_pct`` % of their threshold (regressions), stop counts (reported only)."""
 
     def key(t: dict[str, Any]) -> tuple[str, str, str]:
         return (str(t.get("node")), str(t.get("source")), str(t.get("reason")))

@@ -14,7 +14,6 @@ class MessageEncoder:
 
     def __init__(self, message: Any) -> None:
         self.message = message
-        self.name: str = message.name
         self.frame_id: int = message.frame_id
         self.is_extended_id: bool = bool(message.is_extended_frame)
         self.length: int = message.length
