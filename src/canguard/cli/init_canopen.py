@@ -213,20 +213,15 @@ def _frames(has_controlword: bool) -> list[str]:
 
 
 def _tree(names: list[str]) -> str:
-    guards = "\n".join(
-        f'      <IsCurrentSafe topic_name="{name}" overcurrent_threshold="{OVERCURRENT_PCT}"'
-        f' recovery_threshold="{RECOVERY_PCT}"/>'
-        for name in names
-    )
-    return (
-        '<?xml version="1.0" encoding="UTF-8"?>\n'
-        "<!-- Written by canguard init for one CANopen drive: the task runs while every guarded value is safe. -->\n"
-        '<root BTCPP_format="4" main_tree_to_execute="DriveGuard">\n'
-        '  <BehaviorTree ID="DriveGuard">\n'
-        "    <ReactiveSequence>\n"
-        f"{guards}\n"
-        "      <ExecuteTask/>\n"
-        "    </ReactiveSequence>\n"
-        "  </BehaviorTree>\n"
-        "</root>\n"
-    )
+    guards = "".join(f'      <IsCurrentSafe topic_name="{name}" overcurrent_threshold="{OVERCURRENT_PCT}"'
+                     f' recovery_threshold="{RECOVERY_PCT}"/>\n' for name in names)
+    return f"""<?xml version="1.0" encoding="UTF-8"?>
+<!-- Written by canguard init for one CANopen drive: the task runs while every guarded value is safe. -->
+<root BTCPP_format="4" main_tree_to_execute="DriveGuard">
+  <BehaviorTree ID="DriveGuard">
+    <ReactiveSequence>
+{guards}      <ExecuteTask/>
+    </ReactiveSequence>
+  </BehaviorTree>
+</root>
+"""
