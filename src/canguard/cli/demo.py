@@ -32,11 +32,10 @@ DEMO_SCENARIOS = ("normal", "spike@4", "overload@9", "dropout@18", "garbage@24",
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """Register ``canguard demo``."""
-    p = subcommand(
-        sub, "demo", cmd_demo,
-        description="Run the simulated robot and the daemon together on a private virtual bus with the bundled "
-                    "config; walk through the scenarios; print what tripped, when, and how fast the stop went out.",
-    )
+    p = subcommand(sub, "demo", cmd_demo,
+                   description="Run the simulated robot and the daemon together on a private virtual bus with the "
+                               "bundled config; walk through the scenarios; print what tripped, when, and how fast "
+                               "the stop went out.")
     p.add_argument("-c", "--config", type=Path, default=None,
                    help="YAML config (default: the bundled config/examples/robot_guard.yaml: the whole robot guarded)")
     p.add_argument("--duration", type=float, default=36.0, metavar="S", help="seconds to run (default 36)")

@@ -20,12 +20,10 @@ DEFAULT_STATE_DIR = Path("/var/lib/canguard")
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """Register ``canguard init``."""
-    p = subcommand(
-        sub, "init", cmd_init,
-        description="Write DIR/canguard.yaml (the whole-robot example, with paths fitted to DIR), "
-                    "DIR/robot_guard.xml and DIR/robot.dbc. Edit them for your robot, then "
-                    "`canguard check -c DIR/canguard.yaml`. See docs/deploy.md.",
-    )
+    p = subcommand(sub, "init", cmd_init,
+                   description="Write DIR/canguard.yaml (the whole-robot example, with paths fitted to DIR), "
+                               "DIR/robot_guard.xml and DIR/robot.dbc. Edit them for your robot, then "
+                               "`canguard check -c DIR/canguard.yaml`. See docs/deploy.md.")
     p.add_argument("dir", type=Path, metavar="DIR")
     p.add_argument("--channel", default="can0", help="the SocketCAN interface of the bus (default can0)")
     p.add_argument("--simulation", action="store_true",

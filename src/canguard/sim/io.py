@@ -72,15 +72,8 @@ def _pace(bus: can.BusABC, due: float, answer: Callable[[can.Message | None], No
             return
 
 
-def run_on_bus(
-    bus: can.BusABC,
-    duration_s: float,
-    *,
-    realtime: bool = True,
-    stop_event: threading.Event | None = None,
-    robot: SimRobot | None = None,
-    **robot_kwargs: Any,
-) -> int:
+def run_on_bus(bus: can.BusABC, duration_s: float, *, realtime: bool = True, stop_event: threading.Event | None = None,
+               robot: SimRobot | None = None, **robot_kwargs: Any) -> int:
     """Run ``robot`` (or ``SimRobot(**robot_kwargs)``) on ``bus`` for ``duration_s`` seconds; the frames sent.
 
     Paced to the wall clock when ``realtime``; the bus' frames are answered (:meth:`SimRobot.receive`)

@@ -59,17 +59,9 @@ class SimRobot:
     count or a message the DBC lacks.
     """
 
-    def __init__(
-        self,
-        db: cantools.database.Database | str | PathLike[str],
-        *,
-        axes: int = 4,
-        seed: int = 0,
-        scenarios: Sequence[str] = ("normal",),
-        channel: str = "can0",
-        start_t: float = 1_700_000_000.0,
-        rates_hz: Mapping[str, float] | None = None,
-    ) -> None:
+    def __init__(self, db: cantools.database.Database | str | PathLike[str], *, axes: int = 4, seed: int = 0,
+                 scenarios: Sequence[str] = ("normal",), channel: str = "can0", start_t: float = 1_700_000_000.0,
+                 rates_hz: Mapping[str, float] | None = None) -> None:
         if not isinstance(db, cantools.database.Database):
             loaded = cantools.database.load_file(str(db))
             if not isinstance(loaded, cantools.database.Database):
