@@ -151,12 +151,10 @@ def cmd_demo(args: argparse.Namespace) -> int:
     robot_bus = can.Bus(**dict(next(iter(cfg.buses.values())).kwargs))
     stop = threading.Event()
     scenarios = tuple(s for s in DEMO_SCENARIOS if float(s.partition("@")[2] or 0) < args.duration)
-    robot = threading.Thread(
-        target=run_on_bus, name="canguard-demo-robot",
-        kwargs={"bus": robot_bus, "duration_s": args.duration + 1.0, "stop_event": stop, "db": cfg.database,
-                "scenarios": scenarios, "seed": args.seed, "start_t": time.time()},
-        daemon=True,
-    )
+    robot = threading.Thread(target=run_on_bus, name="canguard-demo-robot", daemon=True,
+                             kwargs={"bus": robot_bus, "duration_s": args.duration + 1.0, "stop_event": stop,
+                                     "db": cfg.database, "scenarios": scenarios, "seed": args.seed,
+                                     "start_t": time.time()})
     print(f"canguard demo: {cfg_path.name}, tree {cfg.tree.main if cfg.tree else '-'}, scenarios "
           f"{', '.join(scenarios)}; {args.duration:g} s", file=out, flush=True)
 

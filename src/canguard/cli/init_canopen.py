@@ -50,15 +50,13 @@ def read_drive(eds_path: Path, node: int) -> Eds:
     profile = eds.profile
     if profile is not None and profile != CIA_402 and (profile in PROFILES or not _guarded_objects(eds)):
         named = PROFILES.get(profile, f"profile {profile}" if profile else "no standard profile")
-        raise ConfigError(
-            f"init --canopen {eds_path}: {eds.where(DEVICE_TYPE)} device type 0x{int(eds.value(DEVICE_TYPE)):08X}: "
-            f"this is a {named} device, not a drive; expected a CiA 402 drive (0x1000 bits 0..15 = 402)"
-        )
+        raise ConfigError(f"init --canopen {eds_path}: {eds.where(DEVICE_TYPE)} device type "
+                          f"0x{int(eds.value(DEVICE_TYPE)):08X}: this is a {named} device, not a drive; expected a "
+                          "CiA 402 drive (0x1000 bits 0..15 = 402)")
     if not _guarded_objects(eds):
-        raise ConfigError(
-            f"init --canopen {eds_path}: found neither 0x6077 (torque actual value) nor 0x6078 (current actual "
-            f"value) in {eds_path.name}, expected a CiA 402 drive's torque or current actual value"
-        )
+        raise ConfigError(f"init --canopen {eds_path}: found neither 0x6077 (torque actual value) nor 0x6078 "
+                          f"(current actual value) in {eds_path.name}, expected a CiA 402 drive's torque or current "
+                          "actual value")
     return eds
 
 
@@ -91,10 +89,9 @@ def choose_tpdo(eds: Eds, tpdos: list[Pdo]) -> tuple[Pdo, bool]:
                 continue
     mapped = "; ".join(f"{p.name}: {p.bits} bits" + ("" if p.enabled else " (disabled)")
                        + ("" if _remappable(eds, p) else " (mapping not writable)") for p in tpdos)
-    raise ConfigError(
-        f"init --canopen {eds.path}: found no TPDO free or with room for 0x6077/0x6078 ({mapped or 'no TPDO'}), "
-        "expected a disabled TPDO or one with 16 bits free (map one by hand with canopen.DRIVE.pdo, see docs/config.md)"
-    )
+    raise ConfigError(f"init --canopen {eds.path}: found no TPDO free or with room for 0x6077/0x6078 "
+                      f"({mapped or 'no TPDO'}), expected a disabled TPDO or one with 16 bits free (map one by hand "
+                      "with canopen.DRIVE.pdo, see docs/config.md)")
 
 
 def _remappable(eds: Eds, pdo: Pdo) -> bool:

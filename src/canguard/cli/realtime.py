@@ -110,10 +110,8 @@ def replay_realtime(cfg: Config, args: argparse.Namespace, names: list[Path] | N
     many = len(args.logs) > 1
     tripped = False
     for log_path, name in zip(args.logs, names or args.logs, strict=True):
-        run_cfg = dataclasses.replace(
-            cfg, events=per_log_path(args.events, name, many),
-            state=dataclasses.replace(cfg.state, file=None),
-        )
+        run_cfg = dataclasses.replace(cfg, events=per_log_path(args.events, name, many),
+                                      state=dataclasses.replace(cfg.state, file=None))
         emit_path = per_log_path(args.emit, name, many)
         stats = ReadStats()
         frames = read_log(log_path, skip_bad=args.skip_bad, stats=stats)  # a missing file fails here, first

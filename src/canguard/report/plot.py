@@ -31,9 +31,8 @@ def require_matplotlib() -> Any:
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
     except ImportError as exc:
-        raise ConfigError(
-            "--plot needs matplotlib, an optional extra: pip install 'canguard[plot]' (or pip install matplotlib)"
-        ) from exc
+        raise ConfigError("--plot needs matplotlib, an optional extra: pip install 'canguard[plot]' "
+                          "(or pip install matplotlib)") from exc
     return plt
 
 
@@ -115,11 +114,8 @@ class Recorder:
         if suffix == ".html":
             buf = io.StringIO()
             fig.savefig(buf, format="svg")
-            path.write_text(
-                "<!doctype html><html><head><meta charset='utf-8'><title>canguard replay</title></head>"
-                f"<body>{buf.getvalue()}</body></html>",
-                encoding="utf-8",
-            )
+            path.write_text("<!doctype html><html><head><meta charset='utf-8'><title>canguard replay</title></head>"
+                            f"<body>{buf.getvalue()}</body></html>", encoding="utf-8")
         else:
             fig.savefig(path)
         plt.close(fig)
