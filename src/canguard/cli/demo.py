@@ -17,7 +17,7 @@ import time
 from pathlib import Path
 from typing import Any, TextIO
 
-from canguard.cli.common import add_monitor_options, subcommand
+from canguard.cli.common import TappedSink, add_monitor_options, subcommand
 from canguard.config.schema import BusConfig, Config
 from canguard.data import data_path
 from canguard.errors import ConfigError
@@ -51,23 +51,6 @@ def demo_config(cfg: Config, events: Path) -> Config:
     buses = {name: BusConfig(name, {"interface": "virtual", "channel": channel}) for name in cfg.buses}
     state = dataclasses.replace(cfg.state, file=None)
     return dataclasses.replace(cfg, buses=buses, events=events, state=state)
-
-
-class _TimedSink:
-    """Wraps the daemon's sink: remembers the wall time the first stop frame of each stop went out."""
-
-    def __init__(self, inner: Any) -> None:
-        self.inner = inner
-        self.stop_sent_wall: list[float] = []
-        self._in_stop = False
-
-    def send(self, frames: Any, origin: str) -> None:
-        if origin == "stop" and not self._in_stop:
-            self.stop_sent_wall.append(time.time())
-            self._in_stop = True
-        elif origin == "task":
-            self._in_stop = False
-        self.inner.send(frames, origin)
 
 
 class LiveView:
@@ -136,7 +119,16 @@ def cmd_demo(args: argparse.Namespace) -> int:
     events = args.events if args.events is not None else Path(tmp.name) / "events.jsonl"
     cfg = demo_config(load_config(cfg_path), events)
     daemon = Daemon(cfg_path, cfg=cfg, http=args.http, groot2=args.groot2)
-    sink = daemon.sink = _TimedSink(daemon.sink)
+    stop_walls: list[float] = []  # the wall time the first stop frame of each stop went out
+    in_stop = False
+
+    def stopwatch(_frames: Any, origin: str) -> None:
+        nonlocal in_stop
+        if origin == "stop" and not in_stop:
+            stop_walls.append(time.time())
+        in_stop = origin == "stop" or (in_stop and origin != "task")
+
+    daemon.sink = TappedSink(daemon.sink, stopwatch)
     daemon.engine = daemon.build_engine(cfg)
     out = sys.stdout
     view = LiveView(daemon, out, tty=out.isatty())
@@ -172,7 +164,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
         robot.join(5)
         draw_thread.join(2)
         robot_bus.shutdown()
-    print(summary_text(daemon.engine, trip_walls, sink.stop_sent_wall, events if args.events else None), file=out)
+    print(summary_text(daemon.engine, trip_walls, stop_walls, events if args.events else None), file=out)
     tmp.cleanup()
     return code
 

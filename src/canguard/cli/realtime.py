@@ -12,14 +12,15 @@ import json
 import sys
 import threading
 import time
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable
 from contextlib import ExitStack
 from pathlib import Path
-from typing import Any, TextIO
+from typing import TextIO
 
 import can
 
-from canguard.config.schema import Config, FrameSpec
+from canguard.cli.common import TappedSink
+from canguard.config.schema import Config
 from canguard.engine.core import Engine
 from canguard.engine.gate import LogSink
 from canguard.errors import ConfigError
@@ -28,23 +29,6 @@ from canguard.service.daemon import Daemon
 
 DRAIN_S = 10.0
 """Longest wait, after the last frame was played, for the daemon to have fed every frame."""
-
-
-class _TeeSink:
-    """The daemon's bus sink, and a :class:`LogSink` writing every frame handed to it (``--emit``)."""
-
-    def __init__(self, inner: Any, record: LogSink) -> None:
-        self.inner = inner
-        self.record = record
-
-    @property
-    def sent(self) -> int:
-        """Frames the daemon's sink put on the bus."""
-        return int(self.inner.sent)
-
-    def send(self, frames: Sequence[FrameSpec], origin: str) -> None:
-        self.record.send(frames, origin)
-        self.inner.send(frames, origin)
 
 
 class _ReplayDaemon(Daemon):
@@ -63,8 +47,8 @@ class _ReplayDaemon(Daemon):
         from canguard.io.clock import BootClock
         from canguard.protect.state import HeatStore
 
-        if self._emit is not None and not isinstance(self.sink, _TeeSink):
-            self.sink = _TeeSink(self.sink, LogSink(self.clock.now, cfg.buses, out=self._emit, keep=False))
+        if self._emit is not None and not isinstance(self.sink, TappedSink):  # every frame handed to it: --emit
+            self.sink = TappedSink(self.sink, LogSink(self.clock.now, cfg.buses, out=self._emit, keep=False).send)
         engine = super().build_engine(cfg, previous)
         engine.heat = (HeatStore(self._state_path, cfg.state.on_corrupt, clock=BootClock())
                        if self._state_path is not None else None)
