@@ -30,7 +30,8 @@ _LOG_BIN = math.log(BIN_RATIO)
 SEARCH_STEPS = 40
 """Bisection steps of a ceiling search, which stops once the bracket is :data:`SEARCH_REL` of its upper end."""
 SEARCH_REL = 1e-5
-_NO_EDGE = (np.empty(0, dtype=np.intp), np.empty(0), np.empty(0, dtype=bool))
+_EMPTY = np.empty(0)
+_NO_EDGE = (np.empty(0, dtype=np.intp), _EMPTY, np.empty(0, dtype=bool))
 
 
 class Capture(ProtectionModel):
@@ -204,18 +205,17 @@ def envelope(model: ProtectionModel, t: np.ndarray, v: np.ndarray) -> dict[str, 
     window = float(inrush.inrush_time_s)
     a = np.abs(v)
     starts = np.flatnonzero(copy.deepcopy(inrush).advance(t, a))
-    points: list[list[float]] = []
-    peak = 0.0
+    since: list[np.ndarray] = [_EMPTY]
+    seen: list[np.ndarray] = [_EMPTY]
     for i, s in enumerate(starts.tolist()):
         stop = int(starts[i + 1]) if i + 1 < starts.size else t.size
         stop = min(stop, int(np.searchsorted(t, t[s] + INRUSH_HORIZON * window, side="right")))
-        seg_t, seg_a = t[s:stop] - t[s], a[s:stop]
-        inside = seg_t < window
-        if inside.any():
-            peak = max(peak, float(seg_a[inside].max()))
-        points += staircase(seg_t, seg_a)
-    merged = staircase(np.array([p[0] for p in points]), np.array([p[1] for p in points]))
-    return {"starts": int(starts.size), "peak": peak, "window": window, "envelope": merged}
+        since.append(t[s:stop] - t[s])
+        seen.append(a[s:stop])
+    dt, level = np.concatenate(since), np.concatenate(seen)
+    inside = level[dt < window]
+    return {"starts": int(starts.size), "peak": float(inside.max()) if inside.size else 0.0, "window": window,
+            "envelope": staircase(dt, level)}
 
 
 def histogram(a: np.ndarray) -> dict[str, int]:
