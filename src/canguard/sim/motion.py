@@ -81,14 +81,7 @@ class Motion:
         u = (t + ax.index * _STAGGER_S) % _CYCLE_S
         sign = 1.0 if u < 2.0 else -1.0
         u %= 2.0
-        if u < 0.25:
-            v = u / 0.25
-        elif u < 0.75:
-            v = 1.0
-        elif u < 1.0:
-            v = (1.0 - u) / 0.25
-        else:
-            v = 0.0
+        v = max(0.0, min(u / 0.25, 1.0, (1.0 - u) / 0.25))  # 0.25 s up, 0.5 s at full speed, 0.25 s down, then still
         return sign * v * _VMAX_REV_S * ax.scale
 
     def setpoint(self, ax: _Axis, t: float) -> float:
