@@ -90,7 +90,6 @@ class SimRobot:
                 raise ValueError(f"the DBC has no message {name!r}: the simulator needs ODrive axes and a BMS")
         self._axes = [_Axis(index=n, scale=self.rng.uniform(0.85, 1.0)) for n in range(axes)]
         self._commands = {self.encoder(n, kind).frame_id: (n, kind) for n in range(axes) for kind in COMMANDS}
-        self._heartbeats: dict[tuple[int, int, int, int], bytes] = {}
         self._soc_t = 0.0
         self._alive = 0
         self._heap: list[tuple[float, int, Producer]] = []
@@ -274,12 +273,8 @@ class SimRobot:
 
         def produce(t: float) -> Frame:
             done = int(ax.state != AXIS_STATE_CLOSED_LOOP or self.motion.velocity(ax, t) == 0.0)
-            key = (ax.index, ax.errors, ax.state, done)
-            data = self._heartbeats.get(key)
-            if data is None:
-                data = self._heartbeats[key] = enc.encode({"Axis_Error": ax.errors, "Axis_State": ax.state,
-                                                           "Procedure_Result": 0, "Trajectory_Done_Flag": done})
-            return self.raw_frame(t, enc.frame_id, data)
+            return self.raw_frame(t, enc.frame_id, enc.encode({"Axis_Error": ax.errors, "Axis_State": ax.state,
+                                                               "Procedure_Result": 0, "Trajectory_Done_Flag": done}))
 
         return produce
 
