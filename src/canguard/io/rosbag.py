@@ -109,7 +109,10 @@ def unpack(lay: Layout, raw: RawBlock, at: Any, record: bool) -> Rows:
     return rows
 
 
-def _frame_fields(lay: Layout, buf: np.ndarray, body: np.ndarray, seq_len: np.ndarray) -> tuple[np.ndarray, ...]:
+_Cols = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+
+
+def _frame_fields(lay: Layout, buf: np.ndarray, body: np.ndarray, seq_len: np.ndarray) -> _Cols:
     """(ids, extended, remote, error, fd, lengths, data) of a block, as each type holds them."""
     false = np.zeros(body.size, dtype=bool)
     ids = _field(buf, body, lay, "id")
