@@ -1,9 +1,8 @@
 """In the monitor process: the latest snapshot, the last journal events, and who to wake.
 
-Receiving only assigns a reference or appends to a bounded deque; a dispatcher thread sleeps until
-there is news, renders the status document at most every :data:`DOCUMENT_S` (shared by every client)
-and wakes its subscribers. A slow client skips snapshots and, past :data:`KEEP_EVENTS`, loses the
-oldest events (it is told how many).
+Receiving only assigns a reference or appends to a bounded deque; a dispatcher thread sleeps until there is news,
+renders the status document at most every :data:`DOCUMENT_S` (shared by every client) and wakes its subscribers.
+A slow client skips snapshots and, past :data:`KEEP_EVENTS`, loses the oldest events (it is told how many).
 """
 
 from __future__ import annotations
@@ -31,14 +30,13 @@ STATUS_EVENTS = 30
 class Hub:
     """The latest :class:`TickSnapshot` and journal events, for any number of monitor threads."""
 
-    def __init__(self, ask_blackboard: Callable[[], None] | None = None) -> None:
-        self._ask_blackboard = ask_blackboard
-        """Tells the daemon that a monitor wants the blackboard in its snapshots."""
+    def __init__(self, ask_blackboard: Callable[[], None] = lambda: None) -> None:
+        self.want_blackboard = ask_blackboard
+        """Ask the engine to put the root blackboard into its snapshots for the next second."""
         self._latest: TickSnapshot | None = None
         self._events: deque[tuple[int, bytes, dict[str, Any]]] = deque(maxlen=KEEP_EVENTS)
         """(seq, journal line, the line as JSON): each event is encoded once, as it arrives."""
         self._event_seq = 0
-        self._blackboard_until = -math.inf
         self._subscribers: list[Callable[[], None]] = []
         self._version = 0
         self._doc: tuple[int, bytes] = (0, json.dumps(self.status()).encode())
@@ -53,24 +51,14 @@ class Hub:
         self._latest = snapshot
         self._news.set()
 
-    def event(self, event: Mapping[str, Any], seq: int | None = None) -> None:
+    def event(self, event: Mapping[str, Any], seq: int) -> None:
         """Keep one journal event, numbered ``seq`` by the daemon (a gap: events it dropped); the oldest go."""
         line = encode_event(event)  # as the journal writes it (JSON-safe, rounded)
-        self._event_seq = self._event_seq + 1 if seq is None else seq
-        self._events.append((self._event_seq, line, json.loads(line)))
+        self._event_seq = seq
+        self._events.append((seq, line, json.loads(line)))
         self._news.set()
 
-    def blackboard_wanted(self) -> bool:
-        """True while a monitor has asked for the blackboard within the last second."""
-        return time.monotonic() < self._blackboard_until
-
     # -- the monitors' side ----------------------------------------------------------------------
-    def want_blackboard(self) -> None:
-        """Ask the engine to put the root blackboard into its snapshots for the next second."""
-        self._blackboard_until = time.monotonic() + 1.0
-        if self._ask_blackboard is not None:
-            self._ask_blackboard()
-
     def latest(self) -> TickSnapshot | None:
         """The latest published snapshot (None before the first tick)."""
         return self._latest

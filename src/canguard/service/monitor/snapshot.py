@@ -1,8 +1,8 @@
 """What the engine publishes once per tick: an immutable snapshot, built from public accessors.
 
-:class:`Observer` is the engine's ``observer``. A snapshot is taken when something changed (a node's
-status, the task's state, an event), at most every :data:`PERIOD_S`; the guards' values at most every
-:data:`GUARD_PERIOD_S`: the monitors' cost to the loop is bounded however fast the tree ticks.
+:class:`Observer` (the engine's ``observer``) takes one when something changed (a node's status, the task's state,
+an event), at most every :data:`PERIOD_S`, with the guards' values at most every :data:`GUARD_PERIOD_S`: the
+monitors' cost to the loop is bounded however fast the tree ticks.
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ log = logging.getLogger(__name__)
 
 
 class SnapshotSink(Protocol):
-    """Where snapshots go (:class:`canguard.service.monitor.link.ChildLink`): never blocks the engine's thread."""
+    """Where snapshots go (:class:`canguard.service.monitor.Monitor`): never blocks the engine's thread."""
 
     def blackboard_wanted(self) -> bool: ...
 
@@ -43,12 +43,8 @@ GUARD_PERIOD_S = 0.08
 IDLE, RUNNING, SUCCESS, FAILURE, SKIPPED = 0, 1, 2, 3, 4
 """BehaviorTree.CPP's ``NodeStatus`` values (Groot2's STATUS carries them; ``10 + s``: idle after ``s``)."""
 STATUS_NAMES = ("IDLE", "RUNNING", "SUCCESS", "FAILURE", "SKIPPED")
-
-_CODES = {
-    py_trees.common.Status.RUNNING: RUNNING,
-    py_trees.common.Status.SUCCESS: SUCCESS,
-    py_trees.common.Status.FAILURE: FAILURE,
-}
+_CODES = {py_trees.common.Status.RUNNING: RUNNING, py_trees.common.Status.SUCCESS: SUCCESS,
+          py_trees.common.Status.FAILURE: FAILURE}
 
 
 def status_name(code: int) -> str:
@@ -58,21 +54,17 @@ def status_name(code: int) -> str:
 
 @dataclass(frozen=True)
 class GuardState:
-    """One guarded signal at one tick (the fields of ``/api/status``'s ``guards``)."""
+    """One guarded signal at one tick: the fields of ``/api/status``'s ``guards`` (docs/monitor.md)."""
 
     name: str
     role: str
     kind: str
     source: str
     value: float
-    """|value| the guard last saw (threshold guards), or the I²t accumulator (``i2t``)."""
     unit: str
     threshold: float
-    """The trip threshold in force (inrush included), in ``unit``."""
     heat_pct: float
-    """How close to tripping, in % of the trip level (the I²t heat for ``i2t`` guards)."""
     status: str
-    """``ok``, ``tripped``, or why the source cannot be used (``stale``, ``no_data``, ``nan``...)."""
     reason: str
 
     @property
@@ -87,7 +79,7 @@ class TaskState:
 
     state: str
     since: float | None
-    """When the running stop began (engine time, epoch seconds live), None when not stopped."""
+    """When the running stop began (engine time), None when not stopped."""
     reason: str
     stops: int
     holding: tuple[tuple[str, str], ...]
@@ -110,9 +102,9 @@ class TickSnapshot:
     task: TaskState
     guards: tuple[GuardState, ...]
     confirm: bool
-    """True when ``stop.confirm`` is configured (a stop then waits for its confirmation)."""
+    """``stop.confirm`` is configured (a stop then waits for its confirmation)."""
     blackboard: dict[str, Any] | None
-    """The root blackboard's entries, when a monitor asked for them lately; else None."""
+    """The root blackboard's entries, when a monitor asked for them lately."""
 
 
 class Observer:
@@ -182,10 +174,10 @@ class Observer:
                 out.append(IDLE)
                 continue
             code = SKIPPED if getattr(node, "skipped", False) else _CODES.get(node.status, IDLE)
-            if code == IDLE:
-                code = 10 + last[i] if last[i] != IDLE else IDLE  # BT.CPP: IDLE after SUCCESS is 12
-            else:
+            if code != IDLE:
                 last[i] = code
+            elif last[i] != IDLE:
+                code = 10 + last[i]  # BT.CPP: IDLE after SUCCESS is 12
             out.append(code)
         return tuple(out)
 
