@@ -1,17 +1,10 @@
 """A ROS 1 bag's messages a chunk at a time, as arrays (as :mod:`canguard.io.mcapscan` reads MCAP).
 
-A ROS 1 bag (format 2.0) is a bag header, then chunks (each followed by its index
-records), then the index: the connections and where each chunk is. The chunks are read
-from the start, record after record, so a bag cut short (a recorder that died: no index)
-gives every chunk before the cut, then :class:`~canguard.io.mcapscan.McapCut` saying
-where it ends. A whole bag's connections are read from its index first, so the topics
-are known before the first message; a cut bag's become known as their records are met
-(every chunk holds the connection records of its messages).
-
-A chunk holds records ``header length, header (op, conn, time fields), data length,
-data``. A CAN topic's message records all have one length and their fields in one
-order, so from the first message record of a chunk to its end they are found at once
-when they do (one check over the chunk's bytes); otherwise record by record.
+A ROS 1 bag (format 2.0) is a bag header, chunks (each followed by its index records), then the index (the
+connections, where each chunk is). Read from the start, so a bag cut short (no index) gives every chunk before the
+cut, then :class:`~canguard.io.mcapscan.McapCut`; a whole bag's connections are read from its index first, a cut
+bag's as their records are met. A chunk's records are ``header length, header (op, conn, time), data length,
+data``; a CAN topic's all have one length and one field order, so they are found at once where they do.
 """
 
 from __future__ import annotations
@@ -48,7 +41,7 @@ def _op(fields: dict[bytes, tuple[int, bytes]]) -> int:
 
 
 class Ros1Scan:
-    """One ROS 1 bag, read from its start (see the module docstring)."""
+    """One ROS 1 bag, read from its start."""
 
     def __init__(self, path: Path) -> None:
         self.path = path

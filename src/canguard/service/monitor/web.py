@@ -44,23 +44,23 @@ _PAGE_HEADERS = {"Content-Security-Policy": "default-src 'none'; script-src 'uns
 
 @dataclass(frozen=True)
 class Limits:
-    """What the status page's server grants its clients."""
+    """What the status page's server grants its clients.
+
+    ``max_connections`` open at once (at most half the process's file descriptors): past it, the oldest connection
+    still sending its request (or lingering after its answer) is closed for the new one. ``max_streams`` event
+    streams at once, ``streams_per_address`` from one client address (behind a reverse proxy: all); more get 503.
+    A request's head must arrive whole within ``request_timeout_s`` (from the connection's start or its previous
+    answer); a client that takes nothing sent to it for ``send_timeout_s`` is dropped; an idle stream sends a
+    comment every ``keepalive_s``; the system queues ``backlog`` connections (a burst of reconnecting browsers).
+    """
 
     max_connections: int = 2048
-    """Connections open at once (lowered to half the process's file-descriptor limit); past it, the oldest
-    connection still sending its request (or lingering after its answer) is closed for the new one."""
     max_streams: int = 64
-    """Event streams (``/api/events``, ``/api/status`` as a stream) at once; more get 503."""
     streams_per_address: int = 16
-    """Event streams at once from one client address (behind a reverse proxy: all of them)."""
     request_timeout_s: float = 5.0
-    """A request's head must arrive whole within this, from the connection's start or its previous answer."""
     send_timeout_s: float = 5.0
-    """A client that takes none of what is sent to it for this long is dropped."""
     keepalive_s: float = 15.0
-    """A stream with nothing new sends a comment this often (proxies and browsers keep it open)."""
     backlog: int = 1024
-    """Connections the system queues before the loop accepts them (a burst of reconnecting browsers)."""
 
 
 class _Refused(Exception):
@@ -68,7 +68,7 @@ class _Refused(Exception):
 
     def __init__(self, code: int, body: str, cause: str, headers: dict[str, str] | None = None) -> None:
         super().__init__(cause)
-        self.code, self.body, self.cause, self.headers = code, body, cause, headers or {}
+        self.code, self.body, self.cause, self.headers = code, body.encode(), cause, headers or {}
 
 
 @dataclass(frozen=True)
@@ -106,26 +106,6 @@ def _head(code: int, headers: dict[str, str]) -> bytes:
     return ("\r\n".join(lines) + "\r\n\r\n").encode("latin-1")
 
 
-class _Changes:
-    """The hub's news in the loop: each waiting stream wakes on the next change (or its keep-alive)."""
-
-    def __init__(self) -> None:
-        self._next = asyncio.Event()
-
-    def changed(self) -> None:
-        """Wake every stream waiting (in the loop's thread)."""
-        self._next.set()
-        self._next = asyncio.Event()
-
-    async def next(self, timeout_s: float) -> bool:
-        """True when something changed within ``timeout_s``."""
-        try:
-            await _within(self._next.wait(), timeout_s)
-        except asyncio.TimeoutError:
-            return False
-        return True
-
-
 class _Site:
     """The loop's side: each connection from accept to close, and the places they hold."""
 
@@ -135,16 +115,15 @@ class _Site:
         self.page = page
         self.limits = limits
         self.notes = ClientNotes(log, "status page")
-        self.changes = _Changes()
+        self.changed = asyncio.Event()
+        """Set and replaced on each new status document: every waiting stream wakes."""
         self.open = 0
         self.waiting: dict[asyncio.StreamWriter, None] = {}
-        """Connections reading a request head or lingering after their answer, oldest first: the first to go when
-        every place is taken."""
+        """Connections reading a request head or lingering after their answer, oldest first: the first to go."""
         self.streams: Counter[str] = Counter()
         self.tasks: dict[asyncio.Task[Any], asyncio.StreamWriter] = {}
-        """Each connection's task and its writer: closed at shutdown (their transports aborted, so each ends)."""
+        """Each connection's task and its writer: aborted at shutdown, so each ends."""
 
-    # -- a connection ----------------------------------------------------------------------------
     async def connection(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
         """Serve one connection until it ends; nothing it does escapes as an exception."""
         task = asyncio.current_task()
@@ -159,7 +138,7 @@ class _Site:
         except _Refused as refused:
             self.notes.note(refused.cause)
             with contextlib.suppress(OSError, asyncio.TimeoutError):
-                await self._answer(writer, refused.code, refused.body.encode(), _TEXT, refused.headers, False)
+                await self._answer(writer, refused.code, refused.body, _TEXT, refused.headers, False)
                 await self._close(reader, writer)
         except asyncio.TimeoutError:
             self.notes.note(f"a client took nothing sent to it for {self.limits.send_timeout_s:g} s (dropped)")
@@ -228,39 +207,34 @@ class _Site:
         return head
 
     async def _close(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        """End our side once the answer is sent, and wait (``send_timeout_s`` at most) for the client to close
-        its side: closing with a request body unread would reset the connection, and the answer with it."""
+        """End our side once the answer is sent, and wait (``send_timeout_s`` at most) for the client to close its
+        side: closing with a request body unread would reset the connection, and the answer with it."""
         self.waiting[writer] = None  # lingering: the first to go when every place is taken
         with contextlib.suppress(OSError, asyncio.TimeoutError):  # it lingers or resets: it is closed all the same
             writer.write_eof()
             await _within(_until_closed(reader), self.limits.send_timeout_s)
 
-    # -- answers ---------------------------------------------------------------------------------
     async def _respond(self, req: _Request, reader: asyncio.StreamReader, writer: asyncio.StreamWriter,
                        address: str) -> bool:
         """Answer ``req``; True when the connection stays open for another request."""
+        keep, code, ctype, extra = req.keep_alive, 200, _TEXT, {}
         if req.method not in ("GET", "HEAD"):
-            await self._answer(writer, 405, b"read-only: canguard's monitor answers GET only\n", _TEXT,
-                               {"Allow": "GET, HEAD"}, False, req.method)
-            return False
-        if not self._authorized(req):
-            await self._answer(writer, 401, b"a bearer token is required (Authorization: Bearer TOKEN, or "
-                               b"?token=TOKEN)\n", _TEXT, {"WWW-Authenticate": 'Bearer realm="canguard"'},
-                               req.keep_alive, req.method)
-            return req.keep_alive
-        if req.path in ("/", "/index.html"):
+            keep, code, body = False, 405, b"read-only: canguard's monitor answers GET only\n"
+            extra = {"Allow": "GET, HEAD"}
+        elif not self._authorized(req):
+            code, body = 401, b"a bearer token is required (Authorization: Bearer TOKEN, or ?token=TOKEN)\n"
+            extra = {"WWW-Authenticate": 'Bearer realm="canguard"'}
+        elif req.path in ("/", "/index.html"):
             body, ctype, extra = self.page, "text/html; charset=utf-8", _PAGE_HEADERS
         elif req.path == "/api/status" and "text/event-stream" not in req.headers.get("accept", ""):
-            body, ctype, extra = self.hub.status_document()[1], "application/json", {}
+            body, ctype = self.hub.status_document()[1], "application/json"
         elif req.path in ("/api/status", "/api/events"):
             await self._stream(req, reader, writer, address)
             return False
         else:
-            body, ctype, extra = b"not found: try /, /api/status or /api/events\n", _TEXT, {}
-            await self._answer(writer, 404, body, ctype, extra, req.keep_alive, req.method)
-            return req.keep_alive
-        await self._answer(writer, 200, body, ctype, extra, req.keep_alive, req.method)
-        return req.keep_alive
+            code, body = 404, b"not found: try /, /api/status or /api/events\n"
+        await self._answer(writer, code, body, ctype, extra, keep, req.method)
+        return keep
 
     def _authorized(self, req: _Request) -> bool:
         token = self.token
@@ -283,7 +257,6 @@ class _Site:
         writer.write(data)
         await _within(writer.drain(), self.limits.send_timeout_s)
 
-    # -- streams ---------------------------------------------------------------------------------
     async def _stream(self, req: _Request, reader: asyncio.StreamReader, writer: asyncio.StreamWriter,
                       address: str) -> None:
         """A stream in a place of its own, until its client leaves (read as it happens) or stalls."""
@@ -315,7 +288,7 @@ class _Site:
             if version != sent:
                 await self._send(writer, b"event: status\ndata: " + doc + b"\n\n")
                 sent = version
-            elif not await self.changes.next(self.limits.keepalive_s):
+            elif not await self._changed():
                 await self._send(writer, b": keep-alive\n\n")
 
     async def _events_stream(self, writer: asyncio.StreamWriter) -> None:
@@ -328,10 +301,22 @@ class _Site:
                 cursor = seq
             if out:
                 await self._send(writer, b"".join(out))
-            if not await self.changes.next(self.limits.keepalive_s):
+            if not await self._changed():
                 await self._send(writer, b": keep-alive\n\n")
 
-    # -- the loop ----------------------------------------------------------------------------------
+    async def _changed(self) -> bool:
+        """Wait for the next status document; False when none came within ``keepalive_s``."""
+        try:
+            await _within(self.changed.wait(), self.limits.keepalive_s)
+        except asyncio.TimeoutError:
+            return False
+        return True
+
+    def change(self) -> None:
+        """A new status document (in the loop's thread): wake every stream waiting."""
+        self.changed.set()
+        self.changed = asyncio.Event()
+
     def on_loop_error(self, _loop: asyncio.AbstractEventLoop, context: dict[str, Any]) -> None:
         """What the loop itself could not do (an accept out of descriptors): one line per cause, no traceback."""
         exc = context.get("exception")
@@ -434,7 +419,7 @@ class WebMonitor:
         loop = self._loop
         if loop is not None:
             with contextlib.suppress(RuntimeError):  # the loop is closing
-                loop.call_soon_threadsafe(self._site.changes.changed)
+                loop.call_soon_threadsafe(self._site.change)
 
     async def _main(self) -> None:
         site = self._site
