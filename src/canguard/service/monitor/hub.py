@@ -45,7 +45,7 @@ class Hub:
         """Set by the receiving side on a new snapshot or event: the dispatcher sleeps until then."""
         self._thread: threading.Thread | None = None
 
-    # -- the daemon's side: never blocks --------------------------------------------------------
+    # -- the receiving side: never blocks ----------------------------------------------------------
     def put(self, snapshot: TickSnapshot) -> None:
         """Publish the latest snapshot."""
         self._latest = snapshot
@@ -75,8 +75,7 @@ class Hub:
         return self._doc
 
     def subscribe(self, changed: Callable[[], None]) -> None:
-        """Call ``changed()`` (from the dispatcher's thread: it must not wait) each time the status document's
-        version changes; read it with :meth:`status_document`."""
+        """Call ``changed()`` (from the dispatcher's thread: it must not wait) at each new status document."""
         self._subscribers.append(changed)
 
     # -- the dispatcher ----------------------------------------------------------------------------
@@ -129,7 +128,7 @@ def _shown(status: dict[str, Any]) -> dict[str, Any]:
     return {**status, "t": None, "seq": None, "task": {**task, "for_s": None} if task else task}
 
 
-def _number(x: float) -> float | None:
+def _number(x: float | None) -> float | None:
     return x if isinstance(x, (int, float)) and math.isfinite(x) else None
 
 
@@ -150,29 +149,23 @@ def task_document(snap: TickSnapshot, events: list[dict[str, Any]]) -> dict[str,
     """State, since when, stopped by which guard and why, what holds it, confirmation / escalation."""
     task = snap.task
     stopped = task.state == "stopped"
+    since = task.since if stopped else None
     confirmation = None
-    if stopped and task.since is not None:
+    if since is not None:
         confirmation = "pending" if snap.confirm else None
         for ev in events:
-            if ev.get("event") in ("confirmed", "escalate") and (ev.get("t") or 0) >= task.since - 1e-6:
+            if ev.get("event") in ("confirmed", "escalate") and (ev.get("t") or 0) >= since - 1e-6:
                 confirmation = "confirmed" if ev["event"] == "confirmed" else "escalated"
-    return {
-        "state": task.state,
-        "since": _number(task.since) if stopped and task.since is not None else None,
-        "for_s": _number(snap.t - task.since) if stopped and task.since is not None else None,
-        "reason": task.reason if stopped else "",
-        "guards": list(task.stopped_by) if stopped else [],
-        "failing": list(task.failing),
-        "holding": [{"key": k, "reason": r} for k, r in task.holding],
-        "stops": task.stops,
-        "confirmation": confirmation,
-    }
+    return {"state": task.state, "since": _number(since), "for_s": None if since is None else _number(snap.t - since),
+            "reason": task.reason if stopped else "", "guards": list(task.stopped_by) if stopped else [],
+            "failing": list(task.failing), "holding": [{"key": k, "reason": r} for k, r in task.holding],
+            "stops": task.stops, "confirmation": confirmation}
 
 
 def guard_document(g: Any) -> dict[str, Any]:
     """One guard: name, source, value, unit, threshold, margin, status, role, kind, heat and reason."""
     return {
         "name": g.name, "source": g.source, "value": _number(g.value), "unit": g.unit,
-        "threshold": _number(g.threshold), "margin": _number(g.margin), "status": g.status,
+        "threshold": _number(g.threshold), "margin": _number(g.threshold - g.value), "status": g.status,
         "role": g.role, "kind": g.kind, "heat_pct": _number(g.heat_pct), "reason": g.reason,
     }

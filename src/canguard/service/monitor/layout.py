@@ -1,10 +1,9 @@
 """The running tree as BehaviorTree.CPP numbers it: node UIDs, subtree instances, Groot2's FULLTREE XML.
 
-Built once per engine (at start and at each reload), never per tick. UIDs count from 1 in
-depth-first order, as BT.CPP's factory gives them while it creates the nodes; a ``<SubTree>``
-is a node of its own (py_trees inlines the subtree, so it is put back here, with the status
-of the subtree's root), and each subtree instance is a ``<BehaviorTree ID _fullpath>`` of the
-XML, as BT.CPP's ``WriteTreeToXML(tree, add_metadata=true, add_builtin_models=true)`` writes it.
+Built once per engine, never per tick. UIDs count from 1 depth-first, as BT.CPP's factory gives them; a
+``<SubTree>`` is a node of its own (py_trees inlines the subtree: it is put back here, with the status of the
+subtree's root), and each subtree instance a ``<BehaviorTree ID _fullpath>``, as BT.CPP's
+``WriteTreeToXML(tree, add_metadata=true, add_builtin_models=true)`` writes it.
 """
 
 from __future__ import annotations
@@ -32,9 +31,8 @@ class LayoutNode:
     behaviour: py_trees.behaviour.Behaviour | None
     """The py_trees node; for a ``SubTree`` node, the root of its subtree (whose status it shows)."""
     subtree: str = ""
-    """For a ``SubTree`` node: the ``<BehaviorTree ID>`` it runs."""
+    """For a ``SubTree`` node: the ``<BehaviorTree ID>`` it runs, and its instance path (``_fullpath``)."""
     path: str = ""
-    """For a ``SubTree`` node: its instance path (``_fullpath``)."""
     attrs: dict[str, str] = field(default_factory=dict)
     """The node's attributes as written in the tree file (ports, pre/post conditions)."""
     children: list[LayoutNode] = field(default_factory=list)
@@ -56,11 +54,10 @@ class LayoutRecord:
     tree: dict[str, Any]
     """The static tree: ``{uid, type, name, children}`` (:meth:`LayoutNode.as_json`); statuses come per snapshot."""
     xml: str
-    """Groot2's FULLTREE XML."""
+    """Groot2's FULLTREE XML, the tree's 16-byte id in its replies, and the ``_fullpath`` of each subtree instance
+    (Groot2's BLACKBOARD names them)."""
     uuid: bytes
-    """The tree's 16-byte id in Groot2's replies."""
     paths: tuple[str, ...]
-    """The ``_fullpath`` of each subtree instance (Groot2's BLACKBOARD names them)."""
 
 
 @dataclass
@@ -91,7 +88,6 @@ class TreeLayout:
                                    tuple(i.path for i in self.instances[1:]))
         """The plain-data form the snapshots carry (the monitor process has no tree of its own)."""
 
-    # -- building ----------------------------------------------------------------------------
     def _new(self, node_id: str, name: str, behaviour: Any, **kw: Any) -> LayoutNode:
         node = LayoutNode(len(self.nodes) + 1, node_id, name, behaviour, **kw)
         self.nodes.append(node)
@@ -116,7 +112,6 @@ class TreeLayout:
             node.children.append(self._place(child, instance, tree_id))
         return node
 
-    # -- FULLTREE -----------------------------------------------------------------------------
     def _fulltree_xml(self, context: Any) -> str:
         doc = ET.Element("root", {"BTCPP_format": "4"})
         for instance in self.instances:

@@ -67,11 +67,6 @@ class GuardState:
     status: str
     reason: str
 
-    @property
-    def margin(self) -> float:
-        """How far below the threshold the value is (negative: above it), in ``unit``; NaN when unknown."""
-        return self.threshold - self.value
-
 
 @dataclass(frozen=True)
 class TaskState:

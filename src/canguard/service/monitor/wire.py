@@ -1,9 +1,8 @@
 """The daemon and its monitor process talk over one ``AF_UNIX`` ``SOCK_SEQPACKET`` socket pair.
 
-A seqpacket socket takes a message whole or not at all: the daemon sends without waiting. Daemon →
-monitor: pickled messages in frames of at most :data:`FRAME_BYTES` (a flag byte, ``M`` more or ``E``
-end). Monitor → daemon: fixed byte strings and one JSON answer (:data:`WANT_BLACKBOARD`, :func:`ready`):
-the daemon never unpickles what comes from the side the network can reach.
+A seqpacket socket takes a message whole or not at all: the daemon sends without waiting. Daemon → monitor: pickled
+messages in frames of at most :data:`FRAME_BYTES` (a flag byte, ``M`` more or ``E`` end). Monitor → daemon: fixed
+byte strings and one JSON answer: the daemon never unpickles what comes from the side the network can reach.
 """
 
 from __future__ import annotations
@@ -26,19 +25,15 @@ WANT_BLACKBOARD = b"B"
 
 
 def fields(record: Any) -> tuple[Any, ...]:
-    """A frozen dataclass's field values in their order (``type(record)(*fields(record))`` rebuilds it).
-
-    Pickling plain tuples takes a third of the time pickling the dataclasses does.
-    """
+    """A frozen dataclass's field values in their order (``type(record)(*fields(record))`` rebuilds it): pickling
+    plain tuples takes a third of the time pickling the dataclasses does."""
     return tuple(vars(record).values())
 
 
 class GilHoldingSocket:
-    """Non-blocking send and receive on a socket's descriptor that keep the calling thread's GIL.
-
-    ``socket.send`` releases the GIL around its system call, and the loop then waits to get it back; through
-    :class:`ctypes.PyDLL` the GIL is kept, and a non-blocking local socket returns within microseconds.
-    """
+    """Non-blocking send and receive on a socket's descriptor that keep the calling thread's GIL: ``socket.send``
+    releases it around its system call, and the loop then waits to get it back; a non-blocking local socket
+    returns within microseconds."""
 
     _libc = ctypes.PyDLL(None, use_errno=True)
     _send = _libc.send
@@ -54,9 +49,7 @@ class GilHoldingSocket:
 
     def send(self, data: bytes) -> bool:
         """Send one message whole; False when the socket cannot take it now. OSError when the other end is gone."""
-        if self._send(self._fd, data, len(data), socket.MSG_DONTWAIT | socket.MSG_NOSIGNAL) >= 0:
-            return True
-        return _again()
+        return self._send(self._fd, data, len(data), socket.MSG_DONTWAIT | socket.MSG_NOSIGNAL) >= 0 or _again()
 
     def recv(self) -> bytes | None:
         """One short message (at most 64 bytes), b"" when the other end closed, None when none waits."""
