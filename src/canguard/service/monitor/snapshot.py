@@ -16,9 +16,9 @@ from typing import TYPE_CHECKING, Any, Protocol
 import py_trees
 
 from canguard.bt.dryrun import root_blackboard
-from canguard.protect.i2t import ThermalI2t
 
 if TYPE_CHECKING:
+    from canguard.bt.loaded import GuardView
     from canguard.engine.core import Engine
     from canguard.service.monitor.layout import LayoutRecord, TreeLayout
 
@@ -110,7 +110,6 @@ class Observer:
         self.hub = hub
         self._guards = engine.guards()
         self._guard_nodes = engine.loaded.guard_nodes()
-        self._units = [_unit(engine, g) for g in self._guards]
         self._last_active = [IDLE] * len(layout.behaviours)
         self._seq = 0
         self._key: tuple[Any, ...] = ()
@@ -146,7 +145,7 @@ class Observer:
             self.hub.flush()  # what the monitor process could not take before goes now
             return
         if stale:  # a node's status or an event in between: published at once, with the guards as last read
-            self._guard_states = tuple(self._guard_state(engine, i, now) for i in range(len(self._guards)))
+            self._guard_states = tuple(self._guard_state(engine, g, now) for g in self._guards)
             self._guards_at = mono
         self._next_at = mono + PERIOD_S
         self._key = key
@@ -176,21 +175,13 @@ class Observer:
             out.append(code)
         return tuple(out)
 
-    def _guard_state(self, engine: Engine, i: int, now: float) -> GuardState:
-        g = self._guards[i]
+    @staticmethod
+    def _guard_state(engine: Engine, g: GuardView, now: float) -> GuardState:
         snap = g.snapshot()
         health = engine.ctx.health.get(g.source)
         why = health.reason(now, g.role) if health is not None else "no_data"
         value = snap.threshold * snap.level_pct / 100.0 if g.kind == "i2t" else snap.value
         status = why or ("tripped" if snap.tripped else "ok")
-        return GuardState(g.node, g.role, g.kind, g.source, value, self._units[i], snap.threshold, snap.level_pct,
+        return GuardState(g.node, g.role, g.kind, g.source, value, g.threshold_unit, snap.threshold, snap.level_pct,
                           status, why or snap.reason)
 
-
-def _unit(engine: Engine, guard: Any) -> str:
-    """The unit of a guard's value and threshold: the DBC signal's unit, A²s or θ for I²t."""
-    if guard.kind == "i2t":
-        return "θ" if isinstance(guard.model, ThermalI2t) else "A²s"
-    source = engine.cfg.sources.get(guard.source)
-    ref = source.signal(guard.role) if source is not None else None
-    return (ref.unit or "") if ref is not None else ""

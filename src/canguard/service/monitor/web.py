@@ -237,14 +237,11 @@ class _Site:
         return keep
 
     def _authorized(self, req: _Request) -> bool:
-        token = self.token
-        if not token:
-            return True
-        given = req.headers.get("authorization", "")
-        if given.startswith("Bearer ") and hmac.compare_digest(given[7:].strip().encode(), token.encode()):
-            return True
-        asked = parse_qs(req.query).get("token", [""])[0]
-        return bool(asked) and hmac.compare_digest(asked.encode(), token.encode())
+        token = (self.token or "").encode()
+        bearer = req.headers.get("authorization", "")
+        given = [bearer[7:].strip()] if bearer.startswith("Bearer ") else []
+        given += parse_qs(req.query).get("token", [])[:1]
+        return not token or any(g and hmac.compare_digest(g.encode(), token) for g in given)
 
     async def _answer(self, writer: asyncio.StreamWriter, code: int, body: bytes, ctype: str,
                       headers: dict[str, str], keep: bool, method: str = "GET") -> None:
@@ -366,16 +363,9 @@ async def _until_first(*steps: Awaitable[None]) -> None:
     finally:
         for task in tasks:
             task.cancel()
-    errors = [task.exception() for task in done]  # each one read: none left "never retrieved"
-    for error in errors:
-        if error is not None:
-            raise error
-
-
-def _connection_budget(wanted: int) -> int:
-    """``wanted``, or half the file descriptors this process may open (the rest: Groot2's, the system's)."""
-    soft, _ = resource.getrlimit(resource.RLIMIT_NOFILE)
-    return wanted if soft == resource.RLIM_INFINITY else max(16, min(wanted, soft // 2))
+    errors = [error for task in done if (error := task.exception())]  # each one read: none left "never retrieved"
+    if errors:
+        raise errors[0]
 
 
 class WebMonitor:
@@ -383,7 +373,9 @@ class WebMonitor:
 
     def __init__(self, address: Address, hub: Hub, token: str | None, limits: Limits | None = None) -> None:
         limits = limits or Limits()
-        limits = dataclasses.replace(limits, max_connections=_connection_budget(limits.max_connections))
+        soft, _ = resource.getrlimit(resource.RLIMIT_NOFILE)  # half the descriptors: the rest Groot2's, the system's
+        if soft != resource.RLIM_INFINITY:
+            limits = dataclasses.replace(limits, max_connections=max(16, min(limits.max_connections, soft // 2)))
         self.limits = limits
         """What clients are granted (``max_connections`` as this process's descriptors allow)."""
         page = data_path("monitor", "index.html").read_bytes()
