@@ -1,11 +1,12 @@
 """A bag's raw CAN messages a block at a time: which topics are read, and where each message's bytes lie.
 
-:class:`BagSource` gives :class:`RawBlock` s (messages one after another in one zero-padded buffer, each with its
-:class:`Topic`) for :mod:`canguard.io.rosbag` to unpack. MCAP (a ``.mcap``, or a rosbag2 directory of them) and
-ROS 1 ``.bag`` are read by canguard's own chunk readers (:mod:`canguard.io.mcapscan`, :mod:`canguard.io.ros1scan`:
-no Python object per message, and a file cut short is read up to the cut); sqlite3 (``.db3``) through the
-``messages`` table of the connection rosbags opened, in record time order. A rosbag2 directory's metadata comes
-from rosbags. The topics read are every topic of a CAN frame type, or those asked for.
+:class:`BagSource` gives blocks of :class:`~canguard.io.mcapscan.Messages` (one after another in one zero-padded
+buffer) with the :class:`Topic` of each of their channels, for :mod:`canguard.io.rosbag` to unpack. MCAP (a
+``.mcap``, or a rosbag2 directory of them) and ROS 1 ``.bag`` are read by canguard's own chunk readers
+(:mod:`canguard.io.mcapscan`, :mod:`canguard.io.ros1scan`: no Python object per message, and a file cut short is
+read up to the cut); sqlite3 (``.db3``) through the ``messages`` table of the connection rosbags opened, in record
+time order. A rosbag2 directory's metadata comes from rosbags. The topics read are every topic of a CAN frame
+type, or those asked for.
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ import numpy as np
 
 from canguard.errors import LogFormatError, clip
 from canguard.io.bagopts import BagOptions
-from canguard.io.mcapscan import McapCut, McapScan, padded
+from canguard.io.mcapscan import McapCut, McapScan, Messages, padded
 from canguard.io.ros1scan import Ros1Scan
 from canguard.io.rosmsgs import DEFINITIONS, Layout, layout_for, looks_like_can
 
@@ -34,18 +35,6 @@ class Topic:
 
     lane: int
     layout: Layout
-
-
-@dataclass
-class RawBlock:
-    """Messages one after another: ``buf`` (with :data:`~canguard.io.mcapscan.PAD` zero bytes after the last),
-    each one's ``start``, ``lengths``, record time (ns) and topic."""
-
-    buf: np.ndarray
-    start: np.ndarray
-    lengths: np.ndarray
-    record_ns: np.ndarray
-    topics: list[Topic]
 
 
 class BagSource:
@@ -143,8 +132,8 @@ class BagSource:
         self._seen.setdefault(topic, msgtype)
         return topic in self.opts.topics if self.opts.topics else looks_like_can(msgtype)
 
-    def blocks(self) -> Iterator[RawBlock]:
-        """The chosen topics' raw messages, a block at a time, in the storage's order."""
+    def blocks(self) -> Iterator[tuple[Messages, dict[int, Topic]]]:
+        """The chosen topics' raw messages a block at a time, in the storage's order, with their channels' topics."""
         for scan in self.scans:
             yield from self._scan_blocks(scan)
         if not self.scans:
@@ -152,30 +141,28 @@ class BagSource:
             for db in getattr(storage, "storages", None) or [storage]:
                 yield from self._sqlite_blocks(db)
 
-    def _scan_blocks(self, scan: Any) -> Iterator[RawBlock]:
+    def _scan_blocks(self, scan: Any) -> Iterator[tuple[Messages, dict[int, Topic]]]:
         """The chosen topics' messages of a file canguard reads itself (:class:`McapScan`, :class:`Ros1Scan`)."""
-        topics: dict[int, Topic | None] = {}
+        met: set[int] = set()
+        topics: dict[int, Topic] = {}
         for found in scan.messages():
-            for cid in set(np.unique(found.channel).tolist()) - topics.keys():
+            for cid in set(np.unique(found.channel).tolist()) - met:
+                met.add(cid)
                 channel = scan.channels.get(cid)
                 if channel is None:
                     raise McapCut(f"a message of channel {cid}, which no channel record defines")
-                if channel.message_encoding not in ("cdr", "ros1"):
-                    topics[cid] = None
-                    continue
-                take = channel.topic in self.channels or (not scan.whole and self._wants(channel.topic,
-                                                                                          channel.schema_name))
-                topics[cid] = self.topic(channel.topic, channel.schema_name, self._definition(channel)) \
-                    if take else None
-            keep = np.array([topics[c] is not None for c in found.channel.tolist()])
-            if not keep.any():
-                continue
-            rows = np.flatnonzero(keep) if not keep.all() else slice(None)
-            chans = found.channel[rows].tolist()
-            yield RawBlock(found.buf, found.start[rows], found.lengths[rows], found.log_ns[rows],
-                           [topics[c] for c in chans])  # type: ignore[misc]
+                if channel.message_encoding in ("cdr", "ros1") and (channel.topic in self.channels or (
+                        not scan.whole and self._wants(channel.topic, channel.schema_name))):
+                    topics[cid] = self.topic(channel.topic, channel.schema_name, self._definition(channel))
+            keep = np.isin(found.channel, list(topics))
+            if keep.all():
+                yield found, topics
+            elif keep.any():
+                rows = np.flatnonzero(keep)
+                yield Messages(found.channel[rows], found.log_ns[rows], found.buf, found.start[rows],
+                               found.lengths[rows]), topics
 
-    def _sqlite_blocks(self, db: Any) -> Iterator[RawBlock]:
+    def _sqlite_blocks(self, db: Any) -> Iterator[tuple[Messages, dict[int, Topic]]]:
         """One sqlite3 storage's messages of the chosen topics, in record time order."""
         mine = {c.id: self.topic(c.topic, c.msgtype, self._stored(c)) for c in db.connections
                 if c.topic in self.channels}
@@ -187,10 +174,8 @@ class BagSource:
         while batch := list(islice(cursor, BLOCK)):
             chans, stamps, raws = zip(*batch, strict=True)
             lens = np.fromiter(map(len, raws), np.int64, len(raws))
-            start = np.concatenate(([0], np.cumsum(lens[:-1])))
-            only = mine[chans[0]] if chans.count(chans[0]) == len(chans) else None
-            yield RawBlock(padded(b"".join(raws)), start, lens, np.fromiter(stamps, np.int64, len(stamps)),
-                           [only] * len(chans) if only is not None else [mine[c] for c in chans])
+            yield Messages(np.fromiter(chans, np.int64, len(chans)), np.fromiter(stamps, np.int64, len(stamps)),
+                           padded(b"".join(raws)), np.concatenate(([0], np.cumsum(lens[:-1]))), lens), mine
 
     def _stored(self, conn: Any) -> str:
         """A storage's connection's definition, or the bag's (a directory keeps them with its connections)."""

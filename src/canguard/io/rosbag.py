@@ -28,7 +28,7 @@ import numpy as np
 
 from canguard.errors import LogFormatError
 from canguard.io.bagopts import BagOptions
-from canguard.io.bagsource import BagSource, RawBlock
+from canguard.io.bagsource import BagSource, Topic
 from canguard.io.block import FLAG_ERROR, FLAG_FD, FLAG_REMOTE, Block
 from canguard.io.logtypes import (
     CAN_EFF_MASK,
@@ -39,7 +39,7 @@ from canguard.io.logtypes import (
     LogFrames,
     ReadStats,
 )
-from canguard.io.mcapscan import McapCut, uint_at
+from canguard.io.mcapscan import McapCut, Messages, uint_at
 from canguard.io.rosmsgs import HEADER_SIZE, KVASER_ERROR_FRAME, KVASER_EXT, KVASER_RTR, STAMP_AT, Layout
 
 _FD_OK = np.zeros(256, dtype=bool)
@@ -82,7 +82,7 @@ def _mark(rows: Rows, mask: np.ndarray, reason: Callable[[int], str]) -> None:
     rows.good &= ~hits
 
 
-def unpack(lay: Layout, raw: RawBlock, at: Any, record: bool) -> Rows:
+def unpack(lay: Layout, raw: Messages, at: Any, record: bool) -> Rows:
     """The frames of the messages ``at`` of ``raw`` (all of one layout), read from their fixed offsets at once and
     checked; times as :func:`times` gives them (``record``: the record time throughout)."""
     buf, start, lens = raw.buf, raw.start[at], raw.lengths[at]
@@ -99,7 +99,7 @@ def unpack(lay: Layout, raw: RawBlock, at: Any, record: bool) -> Rows:
     sec = uint_at(buf, start + STAMP_AT, 4)
     if lay.cdr:
         sec = np.where(sec >= 1 << 31, sec - (1 << 32), sec)  # int32
-    t, by_record = times(raw.record_ns[at], sec, uint_at(buf, start + STAMP_AT + 4, 4), record)
+    t, by_record = times(raw.log_ns[at], sec, uint_at(buf, start + STAMP_AT + 4, 4), record)
     rows = Rows(t, by_record, *_frame_fields(lay, buf, body, seq_len), np.ones(start.size, dtype=bool),
                 [""] * start.size)
     _mark(rows, end > start + lens, lambda i: f"{int(lens[i])} bytes, shorter than its fields")
@@ -173,24 +173,25 @@ def block_of(rows: Rows, lanes: np.ndarray, channels: list[str]) -> Block:
                        flags=flags, dlc=lengths, channel=lanes[sel], channels=channels)
 
 
-def _block_rows(raw: RawBlock, record: bool) -> tuple[Rows, np.ndarray]:
+def _block_rows(raw: Messages, topics: dict[int, Topic], record: bool) -> tuple[Rows, np.ndarray]:
     """A block's rows (unpacked one layout at a time when the block mixes them), and each row's channel."""
-    topics = raw.topics
-    if topics.count(topics[0]) == len(topics):
-        return unpack(topics[0].layout, raw, slice(None), record), np.full(len(topics), topics[0].lane, np.intp)
+    ids, row_id = np.unique(raw.channel, return_inverse=True)
+    mine = [topics[i] for i in ids.tolist()]
+    lanes = np.array([t.lane for t in mine], dtype=np.intp)[row_id]
     layouts: dict[int, tuple[Layout, list[int]]] = {}  # by the layout's id: topics of one type share theirs
-    for i, t in enumerate(topics):
-        layouts.setdefault(id(t.layout), (t.layout, []))[1].append(i)
-    places = [np.asarray(idx, dtype=np.intp) for _lay, idx in layouts.values()]
-    parts = [unpack(lay, raw, at, record) for (lay, _idx), at in zip(layouts.values(), places, strict=True)]
+    for k, t in enumerate(mine):
+        layouts.setdefault(id(t.layout), (t.layout, []))[1].append(k)
+    if len(layouts) == 1:
+        return unpack(mine[0].layout, raw, slice(None), record), lanes
+    places = [np.flatnonzero(np.isin(row_id, ks)) for _lay, ks in layouts.values()]
+    parts = [unpack(lay, raw, at, record) for (lay, _ks), at in zip(layouts.values(), places, strict=True)]
     order = np.argsort(np.concatenate(places), kind="stable")
     width = max(p.data.shape[1] for p in parts)
     cols = {f.name: np.concatenate([getattr(p, f.name) for p in parts])[order]
             for f in fields(Rows) if f.name not in ("data", "why")}
     data = np.concatenate([np.pad(p.data, ((0, 0), (0, width - p.data.shape[1]))) for p in parts])[order]
     why = [w for p in parts for w in p.why]
-    rows = Rows(**cols, data=data, why=[why[i] for i in order.tolist()])
-    return rows, np.fromiter((t.lane for t in topics), np.intp, len(topics))
+    return Rows(**cols, data=data, why=[why[i] for i in order.tolist()]), lanes
 
 
 def _note_bad(st: ReadStats, bag: BagSource, rows: Rows, lanes: np.ndarray, first: int, skip_bad: bool) -> None:
@@ -205,7 +206,8 @@ def _note_bad(st: ReadStats, bag: BagSource, rows: Rows, lanes: np.ndarray, firs
             st.bad_examples.append(BadLine(first + i + 1, rows.why[i], where))
 
 
-def _next(bag: BagSource, blocks: Iterator[RawBlock], st: ReadStats) -> RawBlock | None:
+def _next(bag: BagSource, blocks: Iterator[tuple[Messages, dict[int, Topic]]],
+          st: ReadStats) -> tuple[Messages, dict[int, Topic]] | None:
     """The next block, or None at the end; a cut or damaged storage as a LogFormatError saying how far it got."""
     try:
         return next(blocks, None)
@@ -227,7 +229,7 @@ def bag_chunks(p: Path, opts: BagOptions, st: ReadStats, owner: LogFrames, skip_
         bag.open()
         blocks = bag.blocks()
         while (raw := _next(bag, blocks, st)) is not None:
-            rows, lanes = _block_rows(raw, opts.stamp == "record")
+            rows, lanes = _block_rows(*raw, opts.stamp == "record")
             if not rows.good.all():
                 _note_bad(st, bag, rows, lanes, read, skip_bad)
             read += lanes.size
