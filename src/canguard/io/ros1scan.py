@@ -67,12 +67,10 @@ class Ros1Scan:
         head = self.f.read(4)
         if not head:
             return None
-        if len(head) < 4:
-            raise McapCut(f"the file ends at byte {self.size}, inside the header of the record at byte {at}")
-        (hlen,) = _U32.unpack(head)
+        hlen = _U32.unpack(head)[0] if len(head) == 4 else 0
         header = self.f.read(hlen)
         size = self.f.read(4)
-        if len(header) < hlen or len(size) < 4:
+        if len(head) < 4 or len(header) < hlen or len(size) < 4:
             raise McapCut(f"the file ends at byte {self.size}, inside the header of the record at byte {at}")
         (dlen,) = _U32.unpack(size)
         if self.f.tell() + dlen > self.size:
@@ -95,17 +93,13 @@ class Ros1Scan:
             self.f.seek(index)
             try:
                 for _ in range(count):
-                    self._connection()
+                    if (found := self._record()) is None or _op(found[1]) != OP_CONNECTION:
+                        raise McapCut("not a connection record where the index says")
+                    self._take_connection(found[1], self.f.read(found[2]))
             except McapCut:
                 whole = False
         self.f.seek(first)
         return whole and len(self.channels) == count
-
-    def _connection(self) -> None:
-        found = self._record()
-        if found is None or _op(found[1]) != OP_CONNECTION:
-            raise McapCut("not a connection record where the index says")
-        self._take_connection(found[1], self.f.read(found[2]))
 
     def _take_connection(self, fields: dict[bytes, tuple[int, bytes]], data: bytes) -> None:
         conn = _U32.unpack(fields[b"conn"][1])[0]
@@ -133,10 +127,7 @@ class Ros1Scan:
         """The message records of a chunk's records (its connection records taken on the way)."""
         size = len(data)
         buf = padded(data)
-        conns: list[int] = []
-        times: list[int] = []
-        starts: list[int] = []
-        lens: list[int] = []
+        rows: list[tuple[int, int, int, int]] = []  # conn, time (ns), start, length
         pos = 0
         while pos + 8 <= size:
             (hlen,) = _U32.unpack_from(data, pos)
@@ -144,22 +135,19 @@ class Ros1Scan:
             (dlen,) = _U32.unpack_from(data, pos + 4 + hlen)
             op = _op(fields)
             if op == OP_MESSAGE:
-                if not conns:  # the first message record: the rest of the chunk at once, when it can be
+                if not rows:  # the first message record: the rest of the chunk at once, when it can be
                     run = _same_shape(buf, size, pos, hlen, dlen, fields)
                     if run is not None:
                         return run
-                conns.append(_U32.unpack(fields[b"conn"][1])[0])
                 secs, nsecs = struct.unpack("<II", fields[b"time"][1])
-                times.append(secs * 1_000_000_000 + nsecs)
-                starts.append(pos + 8 + hlen)
-                lens.append(dlen)
+                rows.append((_U32.unpack(fields[b"conn"][1])[0], secs * 1_000_000_000 + nsecs, pos + 8 + hlen, dlen))
             elif op == OP_CONNECTION:
                 self._take_connection(fields, data[pos + 8 + hlen:pos + 8 + hlen + dlen])
             pos += 8 + hlen + dlen
-        if not conns:
+        if not rows:
             return None
-        return Messages(np.array(conns, dtype=np.int64), np.array(times, dtype=np.int64), buf,
-                        np.array(starts, dtype=np.int64), np.array(lens, dtype=np.int64))
+        conns, times, starts, lens = np.array(rows, dtype=np.int64).T
+        return Messages(conns, times, buf, starts, lens)
 
 
 def _same_shape(buf: np.ndarray, size: int, pos: int, hlen: int, dlen: int,
