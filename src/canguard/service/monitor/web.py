@@ -121,14 +121,9 @@ class _Site:
         self.waiting: dict[asyncio.StreamWriter, None] = {}
         """Connections reading a request head or lingering after their answer, oldest first: the first to go."""
         self.streams: Counter[str] = Counter()
-        self.tasks: dict[asyncio.Task[Any], asyncio.StreamWriter] = {}
-        """Each connection's task and its writer: aborted at shutdown, so each ends."""
 
     async def connection(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
         """Serve one connection until it ends; nothing it does escapes as an exception."""
-        task = asyncio.current_task()
-        if task is not None:
-            self.tasks[task] = writer
         self.open += 1
         peer = writer.get_extra_info("peername")
         address = str(peer[0]) if peer else "?"
@@ -150,8 +145,6 @@ class _Site:
             self.waiting.pop(writer, None)
             self.open -= 1
             writer.transport.abort()  # after a graceful close: nothing; else the place is free now
-            if task is not None:
-                self.tasks.pop(task, None)
 
     def _admit(self) -> bool:
         """Room for one more connection: the oldest one still sending its request (or lingering) goes, or this one."""
@@ -425,9 +418,5 @@ class WebMonitor:
         try:
             await self._stopping.wait()
         finally:
-            server.close()
-            for writer in site.tasks.values():
-                writer.transport.abort()  # each connection's reads and writes end: its task returns
-            with contextlib.suppress(asyncio.TimeoutError):
-                await asyncio.wait_for(asyncio.gather(*site.tasks, return_exceptions=True), 1.0)
+            server.close()  # then asyncio.run cancels each connection's task: each aborts its transport
 
