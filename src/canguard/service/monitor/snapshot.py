@@ -164,9 +164,6 @@ class Observer:
         out = []
         last = self._last_active
         for i, node in enumerate(self.layout.behaviours):
-            if node is None:
-                out.append(IDLE)
-                continue
             code = SKIPPED if getattr(node, "skipped", False) else _CODES.get(node.status, IDLE)
             if code != IDLE:
                 last[i] = code
