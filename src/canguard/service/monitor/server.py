@@ -61,11 +61,8 @@ class MonitorServer:
         self.hub.start()
         for server in self.servers.values():
             server.start()
-        assembler = wire.Assembler()
-        while frame := self.sock.recv(wire.FRAME_BYTES + 64):  # b"": the daemon ended
-            done, message = assembler.feed(frame)
-            if done:
-                self.receive(message)
+        for message in wire.messages(self.sock):
+            self.receive(message)
 
     def receive(self, message: tuple[Any, ...]) -> None:
         """One message of the daemon: a tree's layout, or the journal events and latest snapshot of a tick."""

@@ -13,6 +13,7 @@ import json
 import os
 import pickle
 import socket
+from collections.abc import Iterator
 from typing import Any
 
 FRAME_BYTES = 32 * 1024
@@ -84,22 +85,14 @@ def frames(message: Any) -> list[bytes]:
     return [MORE + p for p in parts[:-1]] + [END + parts[-1]]
 
 
-class Assembler:
-    """Frames back into messages (the monitor process's side)."""
-
-    def __init__(self) -> None:
-        self._parts: list[bytes] = []
-
-    def feed(self, frame: bytes) -> tuple[bool, Any]:
-        """(True, message) when ``frame`` completes one; (False, None) while more is to come."""
-        if not frame:
-            raise ValueError("empty frame: the daemon's end of the socket closed")
-        self._parts.append(frame[1:])
-        if frame[:1] == MORE:
-            return False, None
-        data = b"".join(self._parts)
-        self._parts = []
-        return True, pickle.loads(data)  # only ever from our own daemon, over a private socket pair
+def messages(sock: socket.socket) -> Iterator[Any]:
+    """The daemon's messages, each put back together from its frames, until the daemon's end closes."""
+    parts: list[bytes] = []
+    while frame := sock.recv(FRAME_BYTES + 64):
+        parts.append(frame[1:])
+        if frame[:1] == END:
+            yield pickle.loads(b"".join(parts))  # only ever from our own daemon, over a private socket pair
+            parts = []
 
 
 def answer(sock: socket.socket, doc: dict[str, Any]) -> None:
