@@ -1,12 +1,9 @@
 """A bag's raw CAN messages a block at a time: which topics are read, and where each message's bytes lie.
 
-:class:`BagSource` gives blocks of :class:`~canguard.io.mcapscan.Messages` (one after another in one zero-padded
-buffer) with the :class:`Topic` of each of their channels, for :mod:`canguard.io.rosbag` to unpack. MCAP (a
-``.mcap``, or a rosbag2 directory of them) and ROS 1 ``.bag`` are read by canguard's own chunk readers
-(:mod:`canguard.io.mcapscan`, :mod:`canguard.io.ros1scan`: no Python object per message, and a file cut short is
-read up to the cut); sqlite3 (``.db3``) through the ``messages`` table of the connection rosbags opened, in record
-time order. A rosbag2 directory's metadata comes from rosbags. The topics read are every topic of a CAN frame
-type, or those asked for.
+Blocks of :class:`~canguard.io.mcapscan.Messages` with the :class:`Topic` of each of their channels. MCAP and ROS 1
+files are read by canguard's own chunk readers (:mod:`canguard.io.mcapscan`, :mod:`canguard.io.ros1scan`: no
+object per message, a cut file read up to the cut); a ``.db3`` through its ``messages`` table, in record time
+order; a rosbag2 directory's metadata comes from rosbags.
 """
 
 from __future__ import annotations

@@ -1,19 +1,8 @@
 """ROS bags as CAN logs: rosbag2 (a directory with ``metadata.yaml``, a ``.db3`` or ``.mcap``) and ROS 1 ``.bag``.
 
-:class:`~canguard.io.bagsource.BagSource` gives a bag's raw messages a block at a time in one byte buffer; the
-CAN frame types have fixed offsets after the header's ``frame_id`` (:mod:`canguard.io.rosmsgs`), so every field of
-a block's messages is gathered by numpy at once (:func:`unpack`), never deserialised one by one. As candump has it:
-
-* a frame's time is its ``header.stamp``; where that is zero (a driver that leaves it unset), the time the bag
-  recorded it; ``stamp="record"`` takes the record time throughout (:attr:`ReadStats.stamps` counts which);
-* its channel is its topic (``/from_can_bus``): a config maps a topic to a bus as it maps a candump channel;
-* its payload is ``data[:dlc]`` (ros2_socketcan reuses its buffer: bytes past ``dlc`` are leftovers); remote
-  frames keep their DLC and no data, error frames are 29-bit ids with the error flag, as in candump ``-L``.
-
-A message that does not hold what its layout says (cut short, a ``dlc`` above 8, an 11-bit id above 7FF) is a bad
-line: an error naming the topic and the message's number, or counted and skipped with ``skip_bad``. A bag that
-cannot be read, has no CAN topic, lacks a topic asked for, or holds a CAN type canguard does not know is a
-:class:`LogFormatError` naming the file and what was found, with the frames read before it.
+What a frame is (its time, channel, payload), what a bad message or a bad bag is: docs/commands.md. The CAN frame
+types have fixed offsets after the header's ``frame_id`` (:mod:`canguard.io.rosmsgs`), so every field of a block of
+raw messages (:class:`~canguard.io.bagsource.BagSource`) is gathered by numpy at once (:func:`unpack`).
 """
 
 from __future__ import annotations

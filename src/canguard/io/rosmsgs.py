@@ -1,11 +1,10 @@
 """The ROS message types of CAN frames canguard reads, their definitions, and where each field lies in a message.
 
-canguard carries the definitions (:data:`DEFINITIONS`), so a bag recorded without them (rosbag2 before Iron) still
-replays; a bag's stored definition of the same name whose fields differ is refused (:func:`layout_for`), never read
-at guessed places. Each type is a ``std_msgs/Header`` then fixed-size fields, the last maybe a ``uint8`` sequence;
-the header's ``frame_id`` is the only other part of variable length, so the fields lie at fixed offsets from its
-end (:class:`Layout`): in CDR (rosbag2) after a 4-byte encapsulation header, each aligned to its size, ``stamp``
-``int32 sec, uint32 nanosec``; in ROS 1 packed, after ``uint32 seq``, ``stamp`` ``uint32 secs, uint32 nsecs``.
+A bag's stored definition of one of these types with other fields is refused (:func:`layout_for`). Each type is a
+``std_msgs/Header`` then fixed-size fields, the last maybe a ``uint8`` sequence; the header's ``frame_id`` is the
+only other part of variable length, so the fields lie at fixed offsets from its end (:class:`Layout`): in CDR
+(rosbag2) after a 4-byte encapsulation header, each aligned to its size, ``stamp`` ``int32 sec, uint32 nanosec``;
+in ROS 1 packed, after ``uint32 seq``, ``stamp`` ``uint32 secs, uint32 nsecs``.
 """
 
 from __future__ import annotations
