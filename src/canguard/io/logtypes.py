@@ -100,27 +100,25 @@ class BadLine(NamedTuple):
 
 @dataclass
 class ReadStats:
-    """What a reader saw, counted as the log is read (pass one to :func:`read_log`; counts add up over calls)."""
+    """What a reader saw, counted as the log is read (pass one to :func:`read_log`; counts add up over calls).
+
+    Text ``lines`` (blank and comment ones included; 0 for binary formats), ``frames``, malformed lines skipped with
+    ``skip_bad`` (the first :data:`MAX_BAD_EXAMPLES` kept), frames whose time goes back or repeats the previous
+    one's, the file's size on disk (compressed) and the position reached in it, a block at a time; for bags, the
+    frames timed by their ``header`` stamp and by the ``record`` time.
+    """
 
     path: str = ""
     format: str = ""
     lines: int = 0
-    """Text lines read, blank and comment lines included (0 for binary formats)."""
     frames: int = 0
     bad_lines: int = 0
-    """Malformed lines skipped with ``skip_bad=True``."""
     bad_examples: list[BadLine] = field(default_factory=list)
-    """The first :data:`MAX_BAD_EXAMPLES` bad lines."""
     backwards_timestamps: int = 0
-    """Frames whose timestamp is earlier than the previous frame's."""
     repeated_timestamps: int = 0
-    """Frames whose timestamp equals the previous frame's."""
     bytes_total: int = 0
-    """Size of the file on disk (compressed size for ``.gz``)."""
     bytes_read: int = 0
-    """Position reached in the file on disk, updated a block at a time (drives progress bars)."""
     stamps: dict[str, int] = field(default_factory=dict)
-    """Bags only: frames timed by their ``header`` stamp and by the ``record`` time (:mod:`canguard.io.rosbag`)."""
 
     def took(self, block: Block, last_t: float) -> float:
         """Count ``block``'s frames and their times' order (after a frame at ``last_t``); its last time."""

@@ -1,11 +1,7 @@
 """Watching the daemon live: the status page (:mod:`.web`) and Groot2's monitor (:mod:`.groot2`).
 
-After its tick the engine publishes an immutable snapshot (:class:`.snapshot.Observer`); the journal's events are
-copied on their way (:class:`EventTee`). :class:`Monitor` pickles both as plain tuples and offers them to a process
-of their own (:mod:`.server`) over a non-blocking socket (:mod:`.wire`) without ever waiting: a record the socket
-cannot take now is dropped for the next (events wait in a bounded deque). Nothing there can change what canguard
-does, nor make the loop wait; no monitor thread runs in the daemon, and a monitor process that dies is logged once
-and forgotten. Imported only when a monitor is configured.
+Served by a process of their own (:mod:`.server`), fed by :class:`Monitor` after each tick without ever waiting
+(docs/monitor.md, "The loop comes first"). Imported only when a monitor is configured.
 """
 
 from __future__ import annotations

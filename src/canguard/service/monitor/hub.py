@@ -1,8 +1,7 @@
 """In the monitor process: the latest snapshot, the last journal events, and who to wake.
 
-Receiving only assigns a reference or appends to a bounded deque; a dispatcher thread sleeps until there is news,
-renders the status document at most every :data:`DOCUMENT_S` (shared by every client) and wakes its subscribers.
-A slow client skips snapshots and, past :data:`KEEP_EVENTS`, loses the oldest events (it is told how many).
+Receiving only assigns a reference or appends to a bounded deque; a dispatcher thread renders the status document
+at most every :data:`DOCUMENT_S` (shared by every client) and wakes its subscribers.
 """
 
 from __future__ import annotations

@@ -1,8 +1,8 @@
 """The status page and its API: one asyncio event loop, in a thread of its own, serves every connection.
 
-``GET /``, ``GET /api/status`` (or its stream), ``GET /api/events`` (server-sent events), read-only, with an
-optional bearer token: docs/monitor.md. Whatever clients do, the page and ``/api/status`` answer
-(:class:`Limits`); what clients do wrong is logged one line per cause (:class:`.notes.ClientNotes`).
+``GET /``, ``GET /api/status`` (or its stream), ``GET /api/events``, read-only, with an optional bearer token; what
+it grants clients that misbehave (:class:`Limits`) and how it logs them (:class:`.notes.ClientNotes`):
+docs/monitor.md.
 """
 
 from __future__ import annotations
@@ -44,15 +44,9 @@ _PAGE_HEADERS = {"Content-Security-Policy": "default-src 'none'; script-src 'uns
 
 @dataclass(frozen=True)
 class Limits:
-    """What the status page's server grants its clients.
-
-    ``max_connections`` open at once (at most half the process's file descriptors): past it, the oldest connection
-    still sending its request (or lingering after its answer) is closed for the new one. ``max_streams`` event
-    streams at once, ``streams_per_address`` from one client address (behind a reverse proxy: all); more get 503.
-    A request's head must arrive whole within ``request_timeout_s`` (from the connection's start or its previous
-    answer); a client that takes nothing sent to it for ``send_timeout_s`` is dropped; an idle stream sends a
-    comment every ``keepalive_s``; the system queues ``backlog`` connections (a burst of reconnecting browsers).
-    """
+    """What the status page's server grants its clients (docs/monitor.md, "Clients that misbehave"): connections
+    (at most half the process's file descriptors), event streams in all and per address, the time a request head
+    may take, how long a client may take nothing, a stream's keep-alive, and the listen backlog."""
 
     max_connections: int = 2048
     max_streams: int = 64
