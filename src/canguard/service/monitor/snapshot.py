@@ -11,7 +11,7 @@ import logging
 import math
 import time
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Any, NamedTuple, Protocol
 
 import py_trees
 
@@ -52,8 +52,7 @@ def status_name(code: int) -> str:
     return STATUS_NAMES[code] if 0 <= code < len(STATUS_NAMES) else "IDLE"
 
 
-@dataclass(frozen=True)
-class GuardState:
+class GuardState(NamedTuple):
     """One guarded signal at one tick: the fields of ``/api/status``'s ``guards`` (docs/monitor.md)."""
 
     name: str
@@ -68,9 +67,8 @@ class GuardState:
     reason: str
 
 
-@dataclass(frozen=True)
-class TaskState:
-    """The task gate at one tick."""
+class TaskState(NamedTuple):
+    """The task gate at one tick (a plain tuple to the monitor process, as :class:`GuardState`)."""
 
     state: str
     since: float | None

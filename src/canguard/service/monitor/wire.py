@@ -25,12 +25,6 @@ WANT_BLACKBOARD = b"B"
 """Monitor process → daemon: a Groot2 client asked for the blackboard (put it in the snapshots for 1 s)."""
 
 
-def fields(record: Any) -> tuple[Any, ...]:
-    """A frozen dataclass's field values in their order (``type(record)(*fields(record))`` rebuilds it): pickling
-    plain tuples takes a third of the time pickling the dataclasses does."""
-    return tuple(vars(record).values())
-
-
 class GilHoldingSocket:
     """Non-blocking send and receive on a socket's descriptor that keep the calling thread's GIL: ``socket.send``
     releases it around its system call, and the loop then waits to get it back; a non-blocking local socket
