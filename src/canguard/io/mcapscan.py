@@ -128,13 +128,9 @@ class McapScan:
         f = self.f
         if self.size < 8 + 9 + 20 + 8:
             return False
-        f.seek(self.size - 8)
-        if f.read(8) != MAGIC:
-            return False
         f.seek(self.size - 8 - 9 - 20)
-        op, _length = _OPLEN.unpack(f.read(9))
-        start, _offsets, _crc = struct.unpack("<QQI", f.read(20))
-        if op != OP_FOOTER:
+        op, _length, start, _offsets, _crc, magic = struct.unpack("<BQQQI8s", f.read(37))
+        if magic != MAGIC or op != OP_FOOTER:
             return False
         if start:
             f.seek(start)

@@ -46,14 +46,6 @@ def _whose(path: Path) -> str:
             f"{_user(os.geteuid())}")
 
 
-def _existing_ancestor(path: Path) -> Path:
-    """The nearest of ``path``'s parents that exists (``/`` at worst)."""
-    parent = path.parent
-    while not parent.exists() and parent != parent.parent:
-        parent = parent.parent
-    return parent
-
-
 def _new_file_problem(directory: Path, target: Path) -> str:
     """Why ``directory`` takes no new file (or, when it is not ``target``'s parent, no new directory)."""
     if not directory.is_dir():
@@ -103,7 +95,9 @@ def output_problem(path: Path, *, beside: bool = False, makes_dirs: bool = False
         why = _append_problem(path)
         if why or not beside:
             return why
-    ancestor = _existing_ancestor(path)
+    ancestor = path.parent  # the nearest that exists (``/`` at worst)
+    while not ancestor.exists() and ancestor != ancestor.parent:
+        ancestor = ancestor.parent
     if ancestor != path.parent and ancestor.is_dir() and not makes_dirs:
         return f"its directory {path.parent} does not exist"
     return _new_file_problem(ancestor, path)
