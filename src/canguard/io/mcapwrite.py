@@ -96,14 +96,12 @@ class McapWriter:
         if not n:
             return
         width = int(data.shape[1])
-        rows = np.empty(n, dtype=np.dtype([("op", "u1"), ("len", "<u8"), ("channel", "<u2"), ("seq", "<u4"),
+        rows = np.zeros(n, dtype=np.dtype([("op", "u1"), ("len", "<u8"), ("channel", "<u2"), ("seq", "<u4"),
                                            ("log", "<u8"), ("pub", "<u8"), ("data", "u1", (width,))]))
         rows["op"] = OP_MESSAGE
         rows["len"] = 22 + width
         rows["channel"] = channel_id
-        rows["seq"] = 0
-        rows["log"] = log_ns
-        rows["pub"] = log_ns
+        rows["log"] = rows["pub"] = log_ns
         rows["data"] = data
         offsets = self._chunk_size + np.arange(n, dtype=np.int64) * (31 + width)
         self._index.setdefault(channel_id, []).append((np.asarray(log_ns, dtype=np.int64), offsets))
