@@ -100,14 +100,62 @@ def _head(code: int, headers: dict[str, str]) -> bytes:
     return ("\r\n".join(lines) + "\r\n\r\n").encode("latin-1")
 
 
-class _Site:
-    """The loop's side: each connection from accept to close, and the places they hold."""
+def _task(step: Awaitable[T]) -> asyncio.Future[T]:
+    """``step`` as a task whose exception is always read, whoever awaits it (none is logged "never retrieved")."""
+    task = asyncio.ensure_future(step)
+    task.add_done_callback(lambda t: t.cancelled() or t.exception())
+    return task
 
-    def __init__(self, hub: Hub, token: str | None, page: bytes, limits: Limits) -> None:
+
+async def _within(step: Awaitable[T], timeout_s: float) -> T:
+    """``await step``, cancelled with asyncio.TimeoutError after ``timeout_s``.
+
+    Not ``asyncio.wait_for``: when it is cancelled just as its step fails (a drain woken by a reset), that
+    step's exception is left unread, and asyncio logs it.
+    """
+    task = _task(step)
+    try:
+        done, _ = await asyncio.wait((task,), timeout=max(0.0, timeout_s))
+    finally:
+        task.cancel()
+    if not done:
+        raise asyncio.TimeoutError
+    return task.result()
+
+
+async def _until_closed(reader: asyncio.StreamReader) -> None:
+    """Return when the client closed its end; ConnectionResetError when it reset it. What it sends is ignored."""
+    while await reader.read(4096):
+        pass
+
+
+async def _until_first(*steps: Awaitable[None]) -> None:
+    """Run ``steps`` together until the first ends (its exception raised), the others cancelled."""
+    tasks = [_task(step) for step in steps]
+    try:
+        done, _ = await asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED)
+    finally:
+        for task in tasks:
+            task.cancel()
+    errors = [error for task in done if (error := task.exception())]  # each one read: none left "never retrieved"
+    if errors:
+        raise errors[0]
+
+
+class WebMonitor:
+    """The HTTP server of the status page: its event loop, in a thread of its own, serves each connection from
+    accept to close."""
+
+    def __init__(self, address: Address, hub: Hub, token: str | None, limits: Limits | None = None) -> None:
+        limits = limits or Limits()
+        soft, _ = resource.getrlimit(resource.RLIMIT_NOFILE)  # half the descriptors: the rest Groot2's, the system's
+        if soft != resource.RLIM_INFINITY:
+            limits = dataclasses.replace(limits, max_connections=max(16, min(limits.max_connections, soft // 2)))
+        self.limits = limits
+        """What clients are granted (``max_connections`` as this process's descriptors allow)."""
         self.hub = hub
         self.token = token
-        self.page = page
-        self.limits = limits
+        self.page = data_path("monitor", "index.html").read_bytes()
         self.notes = ClientNotes(log, "status page")
         self.changed = asyncio.Event()
         """Set and replaced on each new status document: every waiting stream wakes."""
@@ -115,6 +163,51 @@ class _Site:
         self.waiting: dict[asyncio.StreamWriter, None] = {}
         """Connections reading a request head or lingering after their answer, oldest first: the first to go."""
         self.streams: Counter[str] = Counter()
+        family = socket.AF_INET6 if ":" in address.host else socket.AF_INET
+        self._sock = socket.create_server((address.host, address.port), family=family, backlog=limits.backlog)
+        host, port = self._sock.getsockname()[:2]
+        self.address = Address(str(host), int(port))
+        """Where it listens (the port the system gave for port 0)."""
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._stopping: asyncio.Event | None = None
+        self._ready = threading.Event()
+        self._thread = threading.Thread(target=asyncio.run, args=(self._main(),), name="canguard-monitor-http",
+                                        daemon=True)
+        hub.subscribe(self._news)
+
+    def start(self) -> None:
+        """Serve in a thread of its own (listening already: connections wait in the backlog meanwhile)."""
+        self._thread.start()
+        self._ready.wait(5)
+
+    def close(self) -> None:
+        """Stop serving: every connection closed."""
+        loop, stopping = self._loop, self._stopping
+        if loop is not None and stopping is not None:
+            with contextlib.suppress(RuntimeError):  # the loop ended already
+                loop.call_soon_threadsafe(stopping.set)
+            self._thread.join(2)
+        self._sock.close()
+
+    def _news(self) -> None:
+        """The hub's dispatcher thread: a new status document (wakes the streams in the loop's thread)."""
+        loop = self._loop
+        if loop is not None:
+            with contextlib.suppress(RuntimeError):  # the loop is closing
+                loop.call_soon_threadsafe(self.change)
+
+    async def _main(self) -> None:
+        loop = asyncio.get_running_loop()
+        loop.set_exception_handler(self.on_loop_error)
+        self._stopping = asyncio.Event()
+        server = await asyncio.start_server(self.connection, sock=self._sock, backlog=self.limits.backlog,
+                                            limit=HEAD_BYTES + 4)
+        self._loop = loop
+        self._ready.set()
+        try:
+            await self._stopping.wait()
+        finally:
+            server.close()  # then asyncio.run cancels each connection's task: each aborts its transport
 
     async def connection(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
         """Serve one connection until it ends; nothing it does escapes as an exception."""
@@ -272,7 +365,7 @@ class _Site:
             if version != sent:
                 await self._send(writer, b"event: status\ndata: " + doc + b"\n\n")
                 sent = version
-            elif not await self._changed():
+            elif not await self._next_change():
                 await self._send(writer, b": keep-alive\n\n")
 
     async def _events_stream(self, writer: asyncio.StreamWriter) -> None:
@@ -285,10 +378,10 @@ class _Site:
                 cursor = seq
             if out:
                 await self._send(writer, b"".join(out))
-            if not await self._changed():
+            if not await self._next_change():
                 await self._send(writer, b": keep-alive\n\n")
 
-    async def _changed(self) -> bool:
+    async def _next_change(self) -> bool:
         """Wait for the next status document; False when none came within ``keepalive_s``."""
         try:
             await _within(self.changed.wait(), self.limits.keepalive_s)
@@ -311,106 +404,3 @@ class _Site:
             return
         self.notes.note(f"{context.get('message', 'event loop error')}"
                         f"{f' ({type(exc).__name__}: {exc})' if exc else ''}")
-
-
-def _task(step: Awaitable[T]) -> asyncio.Future[T]:
-    """``step`` as a task whose exception is always read, whoever awaits it (none is logged "never retrieved")."""
-    task = asyncio.ensure_future(step)
-    task.add_done_callback(lambda t: t.cancelled() or t.exception())
-    return task
-
-
-async def _within(step: Awaitable[T], timeout_s: float) -> T:
-    """``await step``, cancelled with asyncio.TimeoutError after ``timeout_s``.
-
-    Not ``asyncio.wait_for``: when it is cancelled just as its step fails (a drain woken by a reset), that
-    step's exception is left unread, and asyncio logs it.
-    """
-    task = _task(step)
-    try:
-        done, _ = await asyncio.wait((task,), timeout=max(0.0, timeout_s))
-    finally:
-        task.cancel()
-    if not done:
-        raise asyncio.TimeoutError
-    return task.result()
-
-
-async def _until_closed(reader: asyncio.StreamReader) -> None:
-    """Return when the client closed its end; ConnectionResetError when it reset it. What it sends is ignored."""
-    while await reader.read(4096):
-        pass
-
-
-async def _until_first(*steps: Awaitable[None]) -> None:
-    """Run ``steps`` together until the first ends (its exception raised), the others cancelled."""
-    tasks = [_task(step) for step in steps]
-    try:
-        done, _ = await asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED)
-    finally:
-        for task in tasks:
-            task.cancel()
-    errors = [error for task in done if (error := task.exception())]  # each one read: none left "never retrieved"
-    if errors:
-        raise errors[0]
-
-
-class WebMonitor:
-    """The HTTP server of the status page, its event loop in a thread of its own."""
-
-    def __init__(self, address: Address, hub: Hub, token: str | None, limits: Limits | None = None) -> None:
-        limits = limits or Limits()
-        soft, _ = resource.getrlimit(resource.RLIMIT_NOFILE)  # half the descriptors: the rest Groot2's, the system's
-        if soft != resource.RLIM_INFINITY:
-            limits = dataclasses.replace(limits, max_connections=max(16, min(limits.max_connections, soft // 2)))
-        self.limits = limits
-        """What clients are granted (``max_connections`` as this process's descriptors allow)."""
-        page = data_path("monitor", "index.html").read_bytes()
-        family = socket.AF_INET6 if ":" in address.host else socket.AF_INET
-        self._sock = socket.create_server((address.host, address.port), family=family, backlog=limits.backlog)
-        host, port = self._sock.getsockname()[:2]
-        self.address = Address(str(host), int(port))
-        """Where it listens (the port the system gave for port 0)."""
-        self._site = _Site(hub, token, page, limits)
-        self._loop: asyncio.AbstractEventLoop | None = None
-        self._stopping: asyncio.Event | None = None
-        self._ready = threading.Event()
-        self._thread = threading.Thread(target=asyncio.run, args=(self._main(),), name="canguard-monitor-http",
-                                        daemon=True)
-        hub.subscribe(self._changed)
-
-    def start(self) -> None:
-        """Serve in a thread of its own (listening already: connections wait in the backlog meanwhile)."""
-        self._thread.start()
-        self._ready.wait(5)
-
-    def close(self) -> None:
-        """Stop serving: every connection closed."""
-        loop, stopping = self._loop, self._stopping
-        if loop is not None and stopping is not None:
-            with contextlib.suppress(RuntimeError):  # the loop ended already
-                loop.call_soon_threadsafe(stopping.set)
-            self._thread.join(2)
-        self._sock.close()
-
-    def _changed(self) -> None:
-        """The hub's dispatcher thread: a new status document (wakes the streams in the loop's thread)."""
-        loop = self._loop
-        if loop is not None:
-            with contextlib.suppress(RuntimeError):  # the loop is closing
-                loop.call_soon_threadsafe(self._site.change)
-
-    async def _main(self) -> None:
-        site = self._site
-        loop = asyncio.get_running_loop()
-        loop.set_exception_handler(site.on_loop_error)
-        self._stopping = asyncio.Event()
-        server = await asyncio.start_server(site.connection, sock=self._sock, backlog=self.limits.backlog,
-                                            limit=HEAD_BYTES + 4)
-        self._loop = loop
-        self._ready.set()
-        try:
-            await self._stopping.wait()
-        finally:
-            server.close()  # then asyncio.run cancels each connection's task: each aborts its transport
-
