@@ -1,8 +1,6 @@
 """python-can's own log readers (ASC, BLF, TRC, CSV, MF4) as :class:`~canguard.io.block.Block` s.
 
-Each batch of up to :data:`BLOCK` messages becomes one block, field for field
-(:meth:`Block.of_messages <canguard.io.block.Block.of_messages>`); python-can's integer
-channels are named as python-can's candump writer names them: ``0`` -> ``can0``.
+Each batch of up to :data:`BLOCK` messages becomes one block (:meth:`~canguard.io.block.Block.of_messages`).
 """
 
 from __future__ import annotations
