@@ -106,7 +106,9 @@ class Monitor:
         if not data:
             code = self._proc.wait(5)
             raise ConfigError(f"monitor: the monitor process ended at start (exit code {code}; its error is above)")
-        doc = wire.read_answer(data)
+        doc = json.loads(data.decode())
+        if not isinstance(doc, dict) or not ({"ready", "error"} & set(doc)):
+            raise ValueError(f"not a start answer: {data[:80]!r}")
         if "error" in doc:
             raise ConfigError(str(doc["error"]))
         ready = doc["ready"]

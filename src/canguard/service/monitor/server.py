@@ -161,10 +161,10 @@ def main(argv: list[str] | None = None) -> int:
     try:
         server = MonitorServer(sock, settings)
     except ConfigError as exc:
-        wire.answer(sock, {"error": str(exc)})
+        sock.send(json.dumps({"error": str(exc)}).encode())  # the one answer at start: ready, or why not
         return 2
     try:
-        wire.answer(sock, {"ready": server.addresses()})
+        sock.send(json.dumps({"ready": server.addresses()}).encode())
         server.serve()
     finally:
         server.close()

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import ctypes
 import errno
-import json
 import os
 import pickle
 import socket
@@ -87,16 +86,3 @@ def messages(sock: socket.socket) -> Iterator[Any]:
         if frame[:1] == END:
             yield pickle.loads(b"".join(parts))  # only ever from our own daemon, over a private socket pair
             parts = []
-
-
-def answer(sock: socket.socket, doc: dict[str, Any]) -> None:
-    """Monitor process → daemon: its one JSON answer at start (``ready`` with addresses, or ``error``)."""
-    sock.send(json.dumps(doc).encode())
-
-
-def read_answer(data: bytes) -> dict[str, Any]:
-    """The monitor process's start answer; ValueError when it is not one."""
-    doc = json.loads(data.decode())
-    if not isinstance(doc, dict) or not ({"ready", "error"} & set(doc)):
-        raise ValueError(f"not a start answer: {data[:80]!r}")
-    return doc
