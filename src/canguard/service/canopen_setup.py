@@ -1,9 +1,7 @@
 """``configure: true``: canguard gives a CANopen drive what its config expects, over SDO.
 
-At start and at each boot-up message, in a thread of its own: NMT pre-operational, the writes of
-:attr:`CanopenDrive.setup <canguard.config.canopen.CanopenDrive.setup>` read back and compared, NMT start. A write
-that fails is an ``error`` event and the drive stays pre-operational (fail safe); a ``configure`` event says when a
-drive was started. The ``canopen`` library does the SDO and NMT work on a bus of its own.
+At start and at each boot-up, as docs/config.md says: a write that fails is an ``error`` event and the drive stays
+pre-operational (fail safe). The ``canopen`` library does the SDO and NMT work on a bus of its own.
 """
 
 from __future__ import annotations

@@ -1,9 +1,7 @@
 """The running tree as BehaviorTree.CPP numbers it: node UIDs, subtree instances, Groot2's FULLTREE XML.
 
-Built once per engine, never per tick. UIDs count from 1 depth-first, as BT.CPP's factory gives them; a
-``<SubTree>`` is a node of its own (py_trees inlines the subtree: it is put back here, with the status of the
-subtree's root), and each subtree instance a ``<BehaviorTree ID _fullpath>``, as BT.CPP's
-``WriteTreeToXML(tree, add_metadata=true, add_builtin_models=true)`` writes it.
+Built once per engine, never per tick, as docs/monitor.md describes FULLTREE (py_trees inlines a subtree: its
+``<SubTree>`` node is put back here, with the status of the subtree's root).
 """
 
 from __future__ import annotations
