@@ -1,14 +1,9 @@
 """Heat that survives restarts: the I²t state file (docs/protection.md, "Heat across restarts").
 
-One small JSON document, ``{"format": "canguard-heat", "version": 1, "t": <save time, s>, "models":
-{"<key>": <model.export()>, ...}}``, written atomically (temporary file, fsync, ``os.replace``,
-directory fsync: a crash leaves the old file or the new one). A missing file is a first start
-(cold); a corrupt or unreadable one logs a warning naming the file and why, and every model
-restored from it starts at ``on_corrupt`` (``hot``, fail safe: at the trip level; or ``cold``); a
-malformed entry does so for its model only; a key the file does not know starts cold. The downtime
-a restored model cools for is ``now − saved time``, or, given a ``clock`` that stamps saves
-(:class:`canguard.io.clock.BootClock`), the time since boot when the save was made in this same
-boot (a wall-clock step is never taken for cooling). ``path=None`` never reads or writes.
+``{"format": "canguard-heat", "version": 1, "t": <save time, s>, "models": {"<key>": <model.export()>}}``,
+written atomically. A corrupt or unreadable file (or entry) logs a warning and its models start at
+``on_corrupt``; a clock that stamps saves (:class:`canguard.io.clock.BootClock`) keeps a wall-clock step
+out of the downtime. ``path=None`` never reads or writes.
 """
 
 from __future__ import annotations
@@ -37,10 +32,8 @@ def _param(params: Mapping[str, Any], name: str) -> float:
 
 
 def cooled_level(state: Mapping[str, Any], downtime_s: float) -> float:
-    """The trip-level fraction of an exported state after ``downtime_s`` at zero current.
-
-    Uses the saved model's own parameters and law. ValueError when the state is malformed.
-    """
+    """The trip-level fraction of an exported state after ``downtime_s`` at zero current, by the saved model's own
+    parameters and law; ValueError when the state is malformed."""
     if not isinstance(state, Mapping):
         raise ValueError(f"i2t state: expected a mapping, got {type(state).__name__}")
     kind = state.get("kind")
@@ -103,11 +96,7 @@ class HeatModel(Protocol):
 
 
 class HeatStore:
-    """Saves and restores I²t state to/from one JSON file (``path=None``: never persists).
-
-    ``on_corrupt``: ``"hot"`` (default) or ``"cold"``, the start state of models
-    after a corrupt or unreadable file. ValueError on any other value.
-    """
+    """Saves and restores I²t state to/from one JSON file; ``on_corrupt``: ``"hot"`` or ``"cold"`` (ValueError else)."""
 
     def __init__(self, path: Path | str | None, on_corrupt: str = "hot", clock: DowntimeClock | None = None) -> None:
         if on_corrupt not in ON_CORRUPT:
@@ -120,7 +109,6 @@ class HeatStore:
         self._states: dict[str, Any] = {}
         self._saved_stamp: object = None
         self.clock = clock
-        """Stamps saves and measures downtime across a wall-clock step; None: ``now − saved time``."""
         self._last_save_t: float | None = None
         self.saves = 0
         """Successful saves so far."""
@@ -169,11 +157,8 @@ class HeatStore:
             model.set_hot(now)
 
     def restore(self, key: str, model: Any, now: float) -> None:
-        """Restore ``model`` (a LeakyI2t / ThermalI2t) under ``key``, cooled for ``now`` − saved time.
-
-        Loads the file first if :meth:`load` was not called. TypeError when the
-        model cannot hold heat (no export / restore / set_hot).
-        """
+        """Restore ``model`` under ``key``, cooled for the downtime (the file loaded first); TypeError when the
+        model cannot hold heat."""
         if not isinstance(model, HeatModel):
             raise TypeError(f"model {key!r} ({type(model).__name__}) has no heat state to restore")
         self.load(now)
@@ -196,10 +181,8 @@ class HeatStore:
             self._apply_corrupt(model, now)
 
     def save(self, models: Mapping[str, Any], now: float) -> None:
-        """Write every model's state atomically, stamped ``now``. StateFileError when it cannot be written.
-
-        TypeError (before anything is written) when a model cannot hold heat.
-        """
+        """Write every model's state atomically, stamped ``now``: StateFileError when it cannot be written,
+        TypeError (before anything is written) when a model cannot hold heat."""
         if self.path is None:
             return
         for key, model in models.items():
@@ -229,10 +212,7 @@ class HeatStore:
         return -math.inf if last is None else last + period_s
 
     def maybe_save(self, models: Mapping[str, Any], now: float, period_s: float) -> bool:
-        """Save when ``period_s`` has passed since the last save (or none yet, or time went back).
-
-        Returns True when it saved.
-        """
+        """Save when ``period_s`` has passed since the last save (or none yet, or time went back); True if it saved."""
         if self.path is None:
             return False
         last = self._last_save_t
