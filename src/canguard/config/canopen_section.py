@@ -108,10 +108,7 @@ class CanopenSection:
         self._eds[name] = eds
         if "pdo" in body:
             tpdos = self.overrides(eds, tpdos, body["pdo"], _path(key, "pdo"))
-        configure = body.get("configure", False)
-        if not isinstance(configure, bool):
-            c.problem(_path(key, "configure"), _found(configure), "true or false")
-            configure = False
+        configure = c.choice(body, "configure", key, (True, False), False)
         heartbeat = self.heartbeat(eds, body, key, configure)
         defaults: dict[tuple[int, int], int | float] = {}
         for pdo in rpdos:

@@ -7,32 +7,16 @@ import os
 from collections.abc import Mapping
 from functools import cached_property
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Any
 
 from canguard.config import yamlsrc
 from canguard.config.dbc import DbcChecks
-from canguard.config.schema import FrameSpec, SignalRef, SourceConfig
+from canguard.config.schema import SourceConfig
 from canguard.config.yamlsrc import _SECONDS_KEYS, _closest, _found, _line_of, _path, _shown
 from canguard.errors import ConfigError
 
 if TYPE_CHECKING:
-    from canguard.config.canopen import CanopenDrive
-
-
-class CanopenDrives(Protocol):
-    """What the loader asks of its ``canopen:`` section (:class:`canguard.config.canopen_section.CanopenSection`)."""
-
-    drives: dict[str, CanopenDrive]
-
-    def load(self, value: Any) -> None: ...
-
-    def source_refs(
-        self, source: str, role: str, value: Mapping[str, Any], key: str
-    ) -> tuple[str, float, list[SignalRef]]: ...
-
-    def messages(self) -> list[Any]: ...
-
-    def frame(self, value: Mapping[str, Any], key: str) -> FrameSpec | None: ...
+    from canguard.config.canopen_section import CanopenSection
 
 
 class _Checks:
@@ -56,7 +40,7 @@ class _Checks:
         self.sources: dict[str, SourceConfig] = {}
         self._broken_sources: set[str] = set()
         self._sources_ok = True
-        self.canopen: CanopenDrives | None = None
+        self.canopen: CanopenSection | None = None
         """The ``canopen:`` drives, when the config has any."""
 
     @cached_property
@@ -84,13 +68,25 @@ class _Checks:
             return False
         for k in value:
             if k not in allowed:
-                self.problem(
-                    _path(key, k), f"unknown key {_shown(k)}", f"one of {', '.join(allowed)}" + _closest(k, allowed)
-                )
+                self.problem(_path(key, k), f"unknown key {_shown(k)}",
+                             f"one of {', '.join(allowed)}" + _closest(k, allowed))
         for k in required:
             if k not in value:
                 self.problem(_path(key, k), "nothing", "a value (required key)")
         return True
+
+    def section(self, value: Any, key: str, allowed: tuple[str, ...], required: tuple[str, ...] = ()) -> Any:
+        """An optional section: ``value`` when it is a mapping (its keys checked by :meth:`mapping`), else None."""
+        return value if value is not None and self.mapping(value, key, allowed, required) else None
+
+    def choice(self, mapping: Mapping[str, Any], name: str, key: str, options: tuple[Any, ...], default: Any) -> Any:
+        """``mapping[name]`` (``default`` when left out) if it is one of ``options``, else a problem and ``default``."""
+        value = mapping.get(name, default)
+        if type(value) is type(options[0]) and value in options:
+            return value
+        shown = [str(o).lower() if isinstance(o, bool) else str(o) for o in options]
+        self.problem(_path(key, name), _found(value), ", ".join(shown[:-1]) + " or " + shown[-1])
+        return default
 
     def string(self, value: Any, key: str, expected: str = "a string") -> str | None:
         if isinstance(value, str) and value:

@@ -20,7 +20,7 @@ class _Frames(_Sources):
         if sig is None:
             return None
         if isinstance(value, str):
-            return self.choice(sig, value, key)
+            return self.choice_value(sig, value, key)
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
             self.problem(key, _found(value), f"a number for {sig.name}")
             return None
@@ -31,7 +31,7 @@ class _Frames(_Sources):
             return None
         return value if self.exact(sig, value, key) else None
 
-    def choice(self, sig: Any, name: str, key: str) -> int | float | None:
+    def choice_value(self, sig: Any, name: str, key: str) -> int | float | None:
         """The value of the VAL_ choice ``name`` of ``sig``; None after a problem naming the choices."""
         choices = _choices(sig)
         if name in choices:

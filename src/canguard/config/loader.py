@@ -83,10 +83,7 @@ class _Loader(_Sections):
         events = self.file_path(doc["events"], "events") if doc.get("events") is not None else None
         state = self.state(doc.get("state"))
         monitor = self.monitor(doc.get("monitor"))
-        simulation = doc.get("simulation", False)
-        if not isinstance(simulation, bool):
-            self.problem("simulation", _found(simulation), "true or false")
-            simulation = False
+        simulation = self.choice(doc, "simulation", "", (True, False), False)
         if self.problems:
             err = self.fail()
             err.partial = self.partial(doc, tree, actions)
