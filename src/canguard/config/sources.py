@@ -202,64 +202,49 @@ class _Sources(_Checks):
             maximum=None if signal.maximum is None else float(signal.maximum),
         )
 
-    def _message_signals(self, key: str, value: Mapping[str, Any], kind: Any, bus: str) -> list[SignalRef]:
-        """The signals of a source of one message (battery, current; any kind when the kind is unknown)."""
-        signals: list[SignalRef] = []
+    def _message_signals(self, key: str, value: Mapping[str, Any], keys: tuple[str, ...], bus: str) -> list[SignalRef]:
+        """The signals a source of one message reads (``keys``: its kind's, in role order)."""
         msg = self.message(value["message"], _path(key, "message")) if "message" in value else None
-        roles: tuple[tuple[str, str], ...]
-        if kind == "battery":
-            roles = (("current", "current"), ("present", "present"), ("counter", "counter"))
-        elif kind == "current":
-            roles = (("current", "signal"), ("present", "present"), ("counter", "counter"))
-        else:
-            roles = (("current", "current"), ("current", "signal"), ("present", "present"), ("counter", "counter"))
-        for role, k in roles:
-            if msg is None or k not in value:
+        signals: list[SignalRef] = []
+        for k in keys:
+            if msg is None or k in ("message", "effort") or k not in value:
                 continue
             sig = self.read_signal(msg, value[k], _path(key, k))
             if sig is not None:
-                signals.append(self.signal_ref(role, bus, msg, sig))
+                signals.append(self.signal_ref("current" if k == "signal" else k, bus, msg, sig))
         return signals
 
     def _effort_signals(self, key: str, value: Mapping[str, Any], bus: str) -> list[SignalRef]:
         """The joints of a ``joints`` source (``effort:``), each a signal named by its joint."""
-        signals: list[SignalRef] = []
         effort = value.get("effort")
         if not isinstance(effort, list) or not effort:
             if "effort" in value:
-                self.problem(
-                    _path(key, "effort"), _found(effort), "a non-empty list of {message, signal, name}"
-                )
-        else:
-            seen: set[str] = set()
-            for i, item in enumerate(effort):
-                ikey = f"{key}.effort[{i}]"
-                if not self.mapping(
-                    item, ikey, ("message", "signal", "name", "bus"), ("message", "signal", "name")
-                ):
-                    continue
-                jname = item.get("name")
-                if "name" in item:
-                    if not isinstance(jname, str) or not jname or jname in NON_VALUE_ROLES:
-                        self.problem(
-                            _path(ikey, "name"), _found(jname),
-                            "a joint name (a string, not " + ", ".join(sorted(NON_VALUE_ROLES)) + ")",
-                        )
-                        jname = None
-                    elif jname in seen:
-                        self.problem(
-                            _path(ikey, "name"), f"{jname!r} again", "a joint name unique in the source"
-                        )
-                        jname = None
-                    else:
-                        seen.add(jname)
-                ibus = bus if "bus" not in item else self.bus(item["bus"], _path(ikey, "bus"))
-                msg = self.message(item["message"], _path(ikey, "message")) if "message" in item else None
-                if msg is None or "signal" not in item:
-                    continue
-                sig = self.read_signal(msg, item["signal"], _path(ikey, "signal"))
-                if sig is not None and jname is not None:
-                    signals.append(self.signal_ref(jname, ibus, msg, sig))
+                self.problem(_path(key, "effort"), _found(effort), "a non-empty list of {message, signal, name}")
+            return []
+        signals: list[SignalRef] = []
+        seen: set[str] = set()
+        for i, item in enumerate(effort):
+            ikey = f"{key}.effort[{i}]"
+            if not self.mapping(item, ikey, ("message", "signal", "name", "bus"), ("message", "signal", "name")):
+                continue
+            jname = item.get("name")
+            if "name" in item:
+                if not isinstance(jname, str) or not jname or jname in NON_VALUE_ROLES:
+                    self.problem(_path(ikey, "name"), _found(jname),
+                                 "a joint name (a string, not " + ", ".join(sorted(NON_VALUE_ROLES)) + ")")
+                    jname = None
+                elif jname in seen:
+                    self.problem(_path(ikey, "name"), f"{jname!r} again", "a joint name unique in the source")
+                    jname = None
+                else:
+                    seen.add(jname)
+            ibus = bus if "bus" not in item else self.bus(item["bus"], _path(ikey, "bus"))
+            msg = self.message(item["message"], _path(ikey, "message")) if "message" in item else None
+            if msg is None or "signal" not in item:
+                continue
+            sig = self.read_signal(msg, item["signal"], _path(ikey, "signal"))
+            if sig is not None and jname is not None:
+                signals.append(self.signal_ref(jname, ibus, msg, sig))
         return signals
 
     def source(self, name: str, value: Any) -> SourceConfig | None:
@@ -270,39 +255,24 @@ class _Sources(_Checks):
         kind = value.get("kind")
         if "canopen" in value:
             return self.canopen_source(name, kind, value, key)
-        common = ("kind", "bus", "max_age")
-        allowed: tuple[str, ...]
-        required: tuple[str, ...]
-        if kind == "battery":
-            allowed, required = (*common, "message", "current", "present", "counter"), ("message", "current")
-        elif kind == "current":
-            allowed, required = (*common, "message", "signal", "present", "counter"), ("message", "signal")
-        elif kind == "joints":
-            allowed, required = (*common, "effort"), ("effort",)
-        else:
-            self.problem(
-                _path(key, "kind"),
-                _found(kind),
-                "one of battery, joints, current" + _closest(kind, SOURCE_KINDS),
-            )
-            # Still check what can be checked without the kind: keys of any kind, the bus,
-            # max_age, messages and signal names (the source itself is not built).
-            allowed, required = (*common, "message", "current", "signal", "present", "counter", "effort"), ()
-        self.mapping(value, key, allowed, required)
+        keys = _KIND_KEYS.get(kind) if isinstance(kind, str) else None
+        known = keys is not None
+        if keys is None:
+            self.problem(_path(key, "kind"), _found(kind),
+                         "one of battery, joints, current" + _closest(kind, SOURCE_KINDS))
+            # Still check what can be checked without the kind (the source itself is not built).
+            keys = ("message", "current", "signal", "present", "counter", "effort")
+        self.mapping(value, key, ("kind", "bus", "max_age", *keys), keys[:2] if known else ())
         bus = self.bus(value.get("bus"), _path(key, "bus"))
         max_age = self.seconds(value, "max_age", key, 0.5)
         signals: list[SignalRef] = []
-        known = kind in SOURCE_KINDS
-        if kind in ("battery", "current") or (not known and "message" in value):
-            signals.extend(self._message_signals(key, value, kind, bus))
-        if kind == "joints" or (not known and "effort" in value):
+        if "message" in keys and (known or "message" in value):
+            signals.extend(self._message_signals(key, value, keys, bus))
+        if "effort" in keys and (known or "effort" in value):
             signals.extend(self._effort_signals(key, value, bus))
         if not known:
             return None
-        return SourceConfig(
-            name=name, kind=cast(SourceKind, kind), bus=bus, signals=tuple(signals), max_age_s=max_age
-        )
-
+        return SourceConfig(name=name, kind=cast(SourceKind, kind), bus=bus, signals=tuple(signals), max_age_s=max_age)
 
     def canopen_source(self, name: str, kind: Any, value: Mapping[str, Any], key: str) -> SourceConfig | None:
         """A source reading an object of a ``canopen:`` drive (``kind: current``)."""
@@ -318,4 +288,10 @@ class _Sources(_Checks):
 
 
 SOURCE_KINDS: tuple[SourceKind, ...] = ("battery", "joints", "current")
+_KIND_KEYS: dict[str, tuple[str, ...]] = {
+    "battery": ("message", "current", "present", "counter"),
+    "joints": ("effort",),
+    "current": ("message", "signal", "present", "counter"),
+}
+"""The keys of each source kind besides kind, bus and max_age (the first two, or the one, required), in role order."""
 _IDENT = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
