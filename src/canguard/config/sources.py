@@ -52,25 +52,19 @@ class _Sources(_Checks):
         clash = False
         for p, db in databases:
             for m in db.messages:
-                if m.name in where:
-                    self.problem(
-                        "dbc", f"message {m.name!r} in both {where[m.name]} and {p}", "unique message names"
-                    )
-                    clash = True
-                    continue
                 key = (m.frame_id, bool(m.is_extended_frame))
-                if key in ids:
+                if m.name in where:
+                    self.problem("dbc", f"message {m.name!r} in both {where[m.name]} and {p}", "unique message names")
+                elif key in ids:
                     other, op = ids[key]
-                    self.problem(
-                        "dbc",
-                        f"frame id 0x{m.frame_id:X} as {other!r} in {op} and as {m.name!r} in {p}",
-                        "unique frame ids",
-                    )
-                    clash = True
+                    self.problem("dbc", f"frame id 0x{m.frame_id:X} as {other!r} in {op} and as {m.name!r} in {p}",
+                                 "unique frame ids")
+                else:
+                    where[m.name] = p
+                    ids[key] = (m.name, p)
+                    messages.append(m)
                     continue
-                where[m.name] = p
-                ids[key] = (m.name, p)
-                messages.append(m)
+                clash = True
         if clash:
             return tuple(files)
         if len(databases) == 1:
@@ -79,9 +73,7 @@ class _Sources(_Checks):
             nodes = [n for _, db in databases for n in db.nodes]
             # not strict, as each file loaded: two signals of one name stay in their message
             self.database = cantools.database.can.Database(messages=messages, nodes=nodes, strict=False)
-        for m in self.database.messages:
-            self._by_name[m.name] = m
-            self._by_id.setdefault(m.frame_id, []).append(m)
+        self._index(self.database.messages)
         self.messages_ok = True
         return tuple(files)
 
@@ -126,7 +118,10 @@ class _Sources(_Checks):
         else:
             self.database.messages.extend(added)
             self.database.refresh()
-        for m in added:
+        self._index(added)
+
+    def _index(self, messages: list[Any]) -> None:
+        for m in messages:
             self._by_name[m.name] = m
             self._by_id.setdefault(m.frame_id, []).append(m)
 
@@ -141,9 +136,7 @@ class _Sources(_Checks):
             try:
                 number = int(text, 16) if text.startswith("0x") else int(text, 10)
             except ValueError:
-                self.problem(
-                    key, _shown(value), "a DBC message name or frame id" + _closest(value, self._by_name)
-                )
+                self.problem(key, _shown(value), "a DBC message name or frame id" + _closest(value, self._by_name))
                 return None
             value = number
         if isinstance(value, int) and not isinstance(value, bool):
@@ -160,10 +153,7 @@ class _Sources(_Checks):
         return None
 
     def signal(self, message: Any, value: Any, key: str) -> Any:
-        """The signal ``value`` of ``message``; None after recording a problem.
-
-        A signal the DBC gets wrong (:mod:`canguard.config.dbc`) is a problem naming what is wrong with it.
-        """
+        """The signal ``value`` of ``message``; None after recording a problem (also naming what the DBC gets wrong)."""
         names = [s.name for s in message.signals]
         involved = self.dbc_checks.involved(message.name, value) if isinstance(value, str) else []
         if not involved and value in names:
@@ -188,19 +178,10 @@ class _Sources(_Checks):
             return None
         return sig
 
-    # -- sections ----------------------------------------------------------
     def signal_ref(self, role: str, bus: str, message: Any, signal: Any) -> SignalRef:
-        return SignalRef(
-            role=role,
-            bus=bus,
-            message=message.name,
-            frame_id=message.frame_id,
-            is_extended_id=bool(message.is_extended_frame),
-            signal=signal.name,
-            unit=signal.unit or None,
-            minimum=None if signal.minimum is None else float(signal.minimum),
-            maximum=None if signal.maximum is None else float(signal.maximum),
-        )
+        return SignalRef(role, bus, message.name, message.frame_id, bool(message.is_extended_frame), signal.name,
+                         unit=signal.unit or None, minimum=None if signal.minimum is None else float(signal.minimum),
+                         maximum=None if signal.maximum is None else float(signal.maximum))
 
     def _message_signals(self, key: str, value: Mapping[str, Any], keys: tuple[str, ...], bus: str) -> list[SignalRef]:
         """The signals a source of one message reads (``keys``: its kind's, in role order)."""
