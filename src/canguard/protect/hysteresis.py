@@ -24,10 +24,8 @@ def check_thresholds(overcurrent_a: float, recovery_a: float) -> tuple[float, fl
     over = check_limit("overcurrent_a", overcurrent_a)
     rec = check_limit("recovery_a", recovery_a)
     if rec > over:
-        raise ValueError(
-            f"recovery_a ({recovery_a!r} A) must not exceed overcurrent_a ({overcurrent_a!r} A): "
-            "the current must fall below the trip threshold to recover"
-        )
+        raise ValueError(f"recovery_a ({recovery_a!r} A) must not exceed overcurrent_a ({overcurrent_a!r} A): "
+                         "the current must fall below the trip threshold to recover")
     return over, rec
 
 
@@ -49,16 +47,9 @@ class Hysteresis(LatchedModel[_Screen]):
 
     reason_tripped = REASON_OVERCURRENT
 
-    def __init__(
-        self,
-        overcurrent_a: float = 35.0,
-        recovery_a: float = 25.0,
-        trip_after_s: float = 0.0,
-        recover_after_s: float = 0.0,
-        inrush: InrushBlanking | None = None,
-        *,
-        max_gap_s: float = math.inf,
-    ) -> None:
+    def __init__(self, overcurrent_a: float = 35.0, recovery_a: float = 25.0, trip_after_s: float = 0.0,
+                 recover_after_s: float = 0.0, inrush: InrushBlanking | None = None, *,
+                 max_gap_s: float = math.inf) -> None:
         super().__init__()
         self.overcurrent_a, self.recovery_a = check_thresholds(overcurrent_a, recovery_a)
         self.trip_after_s = check_limit("trip_after_s", trip_after_s)

@@ -248,15 +248,8 @@ class _I2tModel(LatchedModel[_Screen]):
 
     def export(self) -> dict[str, Any]:
         """The state as a JSON-able dict: kind, version, parameters, accumulator, level, tripped, time."""
-        return {
-            "kind": self.kind,
-            "version": STATE_VERSION,
-            "params": self.params(),
-            "accumulator": self._acc,
-            "level": self.level,
-            "tripped": self._tripped,
-            "t": self._last_t,
-        }
+        return {"kind": self.kind, "version": STATE_VERSION, "params": self.params(), "accumulator": self._acc,
+                "level": self.level, "tripped": self._tripped, "t": self._last_t}
 
     def restore(self, state: Mapping[str, Any], downtime_s: float) -> None:
         """Take over an exported state cooled for ``downtime_s`` seconds, whatever the saved parameters or kind.
@@ -280,14 +273,8 @@ class LeakyI2t(_I2tModel):
     kind = KIND_LEAKY
     THRESHOLD_UNIT = AMPERE2_SECOND
 
-    def __init__(
-        self,
-        continuous_a: float,
-        peak_a: float,
-        peak_time_s: float,
-        recover_fraction: float = 0.5,
-        max_gap_s: float = math.inf,
-    ) -> None:
+    def __init__(self, continuous_a: float, peak_a: float, peak_time_s: float, recover_fraction: float = 0.5,
+                 max_gap_s: float = math.inf) -> None:
         super().__init__(continuous_a, recover_fraction, max_gap_s, peak_a, peak_time_s)
         assert self.peak_a is not None and self.peak_time_s is not None
         self._s = (self.peak_a**2 - self.continuous_a**2) * self.peak_time_s
@@ -348,26 +335,17 @@ class ThermalI2t(_I2tModel):
     kind = KIND_THERMAL
     THRESHOLD_UNIT = THETA
 
-    def __init__(
-        self,
-        continuous_a: float,
-        peak_a: float | None = None,
-        peak_time_s: float | None = None,
-        tau_s: float | None = None,
-        tau_cool_s: float | None = None,
-        recover_fraction: float = 0.5,
-        max_gap_s: float = math.inf,
-    ) -> None:
+    def __init__(self, continuous_a: float, peak_a: float | None = None, peak_time_s: float | None = None,
+                 tau_s: float | None = None, tau_cool_s: float | None = None, recover_fraction: float = 0.5,
+                 max_gap_s: float = math.inf) -> None:
         super().__init__(continuous_a, recover_fraction, max_gap_s, peak_a, peak_time_s)
         if tau_s is not None:
             self.tau_s = check_limit("tau_s", tau_s, positive=True)
         elif self.peak_a is not None and self.peak_time_s is not None:
             self.tau_s = thermal_tau(self.continuous_a, self.peak_a, self.peak_time_s)
         else:
-            raise ValueError(
-                "tau_s is required unless both peak_a and peak_time_s are given "
-                f"(got tau_s=None, peak_a={peak_a!r}, peak_time_s={peak_time_s!r})"
-            )
+            raise ValueError("tau_s is required unless both peak_a and peak_time_s are given "
+                             f"(got tau_s=None, peak_a={peak_a!r}, peak_time_s={peak_time_s!r})")
         self.tau_cool_s = self.tau_s if tau_cool_s is None else check_limit("tau_cool_s", tau_cool_s, positive=True)
         self._c2 = self.continuous_a * self.continuous_a
 

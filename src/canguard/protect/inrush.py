@@ -27,14 +27,11 @@ def in_window(start: Any, t: Any, length_s: float) -> Any:
 class InrushBlanking:
     """Tracks motor starts and tells which overcurrent threshold is in force (parameters: module docstring)."""
 
-    def __init__(
-        self, start_current_a: float, inrush_time_s: float, inrush_threshold_a: float | None = None
-    ) -> None:
+    def __init__(self, start_current_a: float, inrush_time_s: float, inrush_threshold_a: float | None = None) -> None:
         self.start_current_a = check_limit("start_current_a", start_current_a)
         self.inrush_time_s = check_limit("inrush_time_s", inrush_time_s)
-        self.inrush_threshold_a = (
-            None if inrush_threshold_a is None else check_limit("inrush_threshold_a", inrush_threshold_a)
-        )
+        self.inrush_threshold_a = None if inrush_threshold_a is None else check_limit("inrush_threshold_a",
+                                                                                      inrush_threshold_a)
         self._below_since: float | None = None
         self._window_start: float | None = None
         self._last_t: float | None = None

@@ -230,18 +230,13 @@ class SourceHealth:
             return False
         return self._full_step(role, t, value, self._invalid_code(role, value, own))
 
-    def mark(self) -> tuple[Any, ...]:
+    def mark(self) -> dict[str, Any]:
         """The running state, to go back to with :meth:`rewind` (nothing is changed)."""
-        return (dict(self._latest_t), dict(self._invalid), dict(self._value), dict(self._valid_t), self._last_reason,
-                self._ok_since, self._counter, self._counter_since, self._frozen, self.samples,
-                self.invalid_samples, self.out_of_order)
+        return {k: dict(v) if type(v) is dict else v for k, v in self.__dict__.items()}
 
-    def rewind(self, mark: tuple[Any, ...]) -> None:
+    def rewind(self, mark: dict[str, Any]) -> None:
         """Go back to the state :meth:`mark` gave, as if the runs taken since had not come."""
-        (latest_t, invalid, value, valid_t, self._last_reason, self._ok_since, self._counter, self._counter_since,
-         self._frozen, self.samples, self.invalid_samples, self.out_of_order) = mark
-        self._latest_t, self._invalid = dict(latest_t), dict(invalid)
-        self._value, self._valid_t = dict(value), dict(valid_t)
+        self.__dict__.update({k: dict(v) if type(v) is dict else v for k, v in mark.items()})
 
     def _invalid_code(self, role: str, value: float, own: str) -> str:
         if own:

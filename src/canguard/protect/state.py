@@ -152,10 +152,6 @@ class HeatStore:
         self._corrupt = why
         log.warning("I²t state file %s is unusable (%s): models start %s", self.path, why, self.on_corrupt)
 
-    def _apply_corrupt(self, model: HeatModel, now: float) -> None:
-        if self.on_corrupt == "hot":
-            model.set_hot(now)
-
     def restore(self, key: str, model: Any, now: float) -> None:
         """Restore ``model`` under ``key``, cooled for the downtime (the file loaded first); TypeError when the
         model cannot hold heat."""
@@ -165,7 +161,8 @@ class HeatStore:
         if self.path is None:
             return
         if self._corrupt is not None:
-            self._apply_corrupt(model, now)
+            if self.on_corrupt == "hot":
+                model.set_hot(now)
             return
         state = self._states.get(key)
         if state is None or self._saved_t is None:
@@ -176,9 +173,9 @@ class HeatStore:
         try:
             model.restore(state, downtime)
         except (ValueError, TypeError, KeyError) as exc:
-            log.warning("I²t state of %r in %s is unusable (%s): it starts %s",
-                        key, self.path, exc, self.on_corrupt)
-            self._apply_corrupt(model, now)
+            log.warning("I²t state of %r in %s is unusable (%s): it starts %s", key, self.path, exc, self.on_corrupt)
+            if self.on_corrupt == "hot":
+                model.set_hot(now)
 
     def save(self, models: Mapping[str, Any], now: float) -> None:
         """Write every model's state atomically, stamped ``now``: StateFileError when it cannot be written,
@@ -188,12 +185,7 @@ class HeatStore:
         for key, model in models.items():
             if not isinstance(model, HeatModel):
                 raise TypeError(f"model {key!r} ({type(model).__name__}) has no heat state to save")
-        doc = {
-            "format": FORMAT,
-            "version": VERSION,
-            "t": now,
-            "models": {key: model.export() for key, model in models.items()},
-        }
+        doc = {"format": FORMAT, "version": VERSION, "t": now, "models": {k: m.export() for k, m in models.items()}}
         if self.clock is not None:
             doc["stamp"] = self.clock.stamp()
         try:
