@@ -342,11 +342,11 @@ def test_source_health_says_its_state_publicly() -> None:
     assert health.value_roles == ("current",) and health.latest_t("current") is None
     run = health_run(health, "current", [0.0, 0.01, 0.02, 0.03], [1.0, 2.0, 99.0, 3.0])
     assert run.index.tolist() == [0, 2, 3] and run.tripped.tolist() == [False, True, False]
-    assert health.latest_t("current") == 0.03 and health.invalid_reason("current") == ""
+    assert health.latest_t("current") == 0.03 and health.reason(0.03, "current") == ""
     assert health.value("current") == 3.0
     assert health.latest_times() == {"current": 0.03}
     health_run(health, "current", [0.04], [math.nan])
-    assert health.invalid_reason("current") == "nan" and health.value("current") == 3.0
+    assert health.reason(0.04, "current") == "nan" and health.value("current") == 3.0
 
 
 def test_heat_after_a_long_run_survives_a_restart() -> None:

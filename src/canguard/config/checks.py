@@ -7,16 +7,31 @@ import os
 from collections.abc import Mapping
 from functools import cached_property
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 from canguard.config import yamlsrc
 from canguard.config.dbc import DbcChecks
-from canguard.config.schema import SourceConfig
+from canguard.config.schema import FrameSpec, SignalRef, SourceConfig
 from canguard.config.yamlsrc import _SECONDS_KEYS, _closest, _found, _line_of, _path, _shown
 from canguard.errors import ConfigError
 
 if TYPE_CHECKING:
-    from canguard.config.canopen_section import CanopenSection
+    from canguard.config.canopen import CanopenDrive
+
+
+class CanopenDrives(Protocol):
+    """What the loader asks of its ``canopen:`` section (:class:`canguard.config.canopen_section.CanopenSection`)."""
+
+    drives: dict[str, CanopenDrive]
+
+    def load(self, value: Any) -> None: ...
+
+    def source_refs(self, source: str, role: str, value: Mapping[str, Any], key: str
+                    ) -> tuple[str, float, list[SignalRef]]: ...
+
+    def messages(self) -> list[Any]: ...
+
+    def frame(self, value: Mapping[str, Any], key: str) -> FrameSpec | None: ...
 
 
 class _Checks:
@@ -40,7 +55,7 @@ class _Checks:
         self.sources: dict[str, SourceConfig] = {}
         self._broken_sources: set[str] = set()
         self._sources_ok = True
-        self.canopen: CanopenSection | None = None
+        self.canopen: CanopenDrives | None = None
         """The ``canopen:`` drives, when the config has any."""
 
     @cached_property

@@ -1,4 +1,4 @@
-"""``monitor:``: where the status page and the Groot2 monitor listen, checked for the config and the CLI alike."""
+"""``monitor:``: where the status page and the Groot2 monitor listen, checked once for the config and the CLI."""
 
 from __future__ import annotations
 

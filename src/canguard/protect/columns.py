@@ -1,4 +1,4 @@
-"""Stateless helpers over one run's columns (1-D numpy, or lists where said): conversion, order, the screen."""
+"""Column helpers of the models' runs: a run's columns, the short-run check, its order filter, the screen."""
 
 from __future__ import annotations
 

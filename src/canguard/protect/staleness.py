@@ -104,10 +104,6 @@ class SourceHealth:
         """Time of the latest sample of ``role``, valid or not (None: none yet)."""
         return self._latest_t.get(role)
 
-    def invalid_reason(self, role: str) -> str:
-        """The invalid reason of the latest sample of ``role`` ("" when it was valid or there was none)."""
-        return self._invalid.get(role, "")
-
     @property
     def name(self) -> str:
         """The source's configured name."""
@@ -314,11 +310,6 @@ class SourceHealth:
         if self._latest_t:
             self._ok_since = min(self._latest_t.values())
         return REASON_OK
-
-    def reasons(self, now: float) -> dict[str, str]:
-        """The reason of every configured role (``present`` included) at ``now``."""
-        roles = self._gates + ((PRESENT,) if self._has_present else ()) + self._value_roles
-        return {r: self._role_reason(now, r) for r in roles}
 
     def value(self, role: str) -> float:
         """The latest valid value of ``role`` (however old), NaN if none."""
