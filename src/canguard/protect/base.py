@@ -1,12 +1,9 @@
 """What every protection model is: a pure state machine that advances over runs of samples.
 
-The run API, ``model.advance(times, values, *, until_edge=False) -> Run``, is the only way samples reach a
-model (docs/protection.md tells how the engine uses it). A run is two equal-length 1-D columns, times (s)
-and values (signed: the model takes |value|) in arrival order; a sample is a run of one. State carries
-between runs, so a run fed whole, sample by sample or split anywhere gives the same edges and state
-(``tests/reference_models.py`` holds the per-sample maths). Non-finite samples are counted in
-``rejected``, samples older than the latest in ``out_of_order``; time moves a model only through samples
-(:mod:`canguard.engine.quiet` relies on it). :meth:`~ProtectionModel.poll` reports with a peak latch.
+The run API, ``model.advance(times, values, *, until_edge=False) -> Run`` over two equal-length 1-D columns
+(a sample is a run of one), is the only way samples reach a model (docs/protection.md): a run fed whole or
+split anywhere gives the same edges and state. Time moves a model only through samples
+(:mod:`canguard.engine.quiet` relies on it).
 """
 
 from __future__ import annotations

@@ -1,9 +1,4 @@
-"""Overcurrent with hysteresis: behind IsCurrentSafe (docs/protection.md).
-
-Trips at |I| >= ``overcurrent_a``, recovers at |I| <= ``recovery_a``; ``trip_after_s`` /
-``recover_after_s``: the condition must hold that long (a breaking sample or a gap over ``max_gap_s``
-restarts the timer). ``inrush`` gives the overcurrent threshold in force; recovery is never blanked.
-"""
+"""Overcurrent with hysteresis: behind IsCurrentSafe (docs/protection.md)."""
 
 from __future__ import annotations
 

@@ -1,10 +1,7 @@
 """I²t protection: how much heat the current has put into the motor (docs/protection.md has the maths).
 
-Both trip at 100 % of their trip level and recover below ``recover_fraction`` of it: :class:`LeakyI2t`
-(``A' = I² − I_cont²`` floored at 0) and :class:`ThermalI2t` (IEC 60255-8, ``θ' = (I²/I_cont² − θ)/τ``).
-Each sample's |I| is held until the next and each interval integrated exactly; a gap over ``max_gap_s``
-is integrated for ``max_gap_s`` only (counted in ``stale_gaps``). The state is never NaN or negative and
-is capped at :data:`MAX_LEVEL` trip levels; ``export`` / ``restore``: :mod:`canguard.protect.state`.
+:class:`LeakyI2t` (``A' = I² − I_cont²`` floored at 0) and :class:`ThermalI2t` (IEC 60255-8,
+``θ' = (I²/I_cont² − θ)/τ``); ``export`` / ``restore``: :mod:`canguard.protect.state`.
 """
 
 from __future__ import annotations
@@ -117,6 +114,8 @@ class _I2tModel(LatchedModel[_Screen]):
 
     kind: str = ""
     reason_tripped = REASON_I2T
+    trip_level: float
+    """The accumulator value at which the model trips (A²s, or θ = 1)."""
 
     def __init__(self, continuous_a: float, recover_fraction: float, max_gap_s: float, peak_a: float | None,
                  peak_time_s: float | None) -> None:
@@ -135,11 +134,6 @@ class _I2tModel(LatchedModel[_Screen]):
         self._peak = 0.0
         self.stale_gaps = 0
         """Gaps longer than ``max_gap_s`` seen so far."""
-
-    @property
-    @abstractmethod
-    def trip_level(self) -> float:
-        """The accumulator value at which the model trips (A²s, or θ = 1)."""
 
     @abstractmethod
     def _accumulate(self, held: FloatArray, dt: FloatArray) -> FloatArray:
@@ -277,12 +271,7 @@ class LeakyI2t(_I2tModel):
                  max_gap_s: float = math.inf) -> None:
         super().__init__(continuous_a, recover_fraction, max_gap_s, peak_a, peak_time_s)
         assert self.peak_a is not None and self.peak_time_s is not None
-        self._s = (self.peak_a**2 - self.continuous_a**2) * self.peak_time_s
-
-    @property
-    def trip_level(self) -> float:
-        """S = (peak_a² − continuous_a²)·peak_time_s, in A²s."""
-        return self._s
+        self.trip_level = (self.peak_a**2 - self.continuous_a**2) * self.peak_time_s
 
     def _accumulate(self, held: FloatArray, dt: FloatArray) -> FloatArray:
         import numpy as np
@@ -291,7 +280,7 @@ class LeakyI2t(_I2tModel):
         with np.errstate(invalid="ignore", over="ignore"):
             rate = held * held - c2
             steps = np.where(dt > 0, rate * dt, 0.0)
-        return clamped_sum(self._acc, steps, MAX_LEVEL * self._s, self._add)
+        return clamped_sum(self._acc, steps, MAX_LEVEL * self.trip_level, self._add)
 
     def _quiet(self, t: Any, low_a: float, high_a: float, final_a: float) -> bool:
         """An empty bucket that stays empty: every current held at or below I_cont, no stale gap to count."""
@@ -315,7 +304,7 @@ class LeakyI2t(_I2tModel):
         out = acc + step
         if out < 0.0:
             return 0.0
-        cap = MAX_LEVEL * self._s
+        cap = MAX_LEVEL * self.trip_level
         return cap if not out <= cap else out
 
 
@@ -348,11 +337,7 @@ class ThermalI2t(_I2tModel):
                              f"(got tau_s=None, peak_a={peak_a!r}, peak_time_s={peak_time_s!r})")
         self.tau_cool_s = self.tau_s if tau_cool_s is None else check_limit("tau_cool_s", tau_cool_s, positive=True)
         self._c2 = self.continuous_a * self.continuous_a
-
-    @property
-    def trip_level(self) -> float:
-        """θ = 1."""
-        return 1.0
+        self.trip_level = 1.0
 
     def _accumulate(self, held: FloatArray, dt: FloatArray) -> FloatArray:
         import numpy as np

@@ -1,9 +1,4 @@
-"""Inrush blanking: a higher (or no) overcurrent threshold just after a motor start (docs/protection.md).
-
-A *motor start* (|I| rising above ``start_current_a`` after at least ``inrush_time_s`` at or below it)
-opens a window ``[t_start, t_start + inrush_time_s)`` with ``inrush_threshold_a`` in force (None: no
-overcurrent check). A helper of :class:`~canguard.protect.hysteresis.Hysteresis`.
-"""
+"""Inrush blanking: a higher (or no) overcurrent threshold just after a motor start (docs/protection.md)."""
 
 from __future__ import annotations
 
@@ -25,7 +20,8 @@ def in_window(start: Any, t: Any, length_s: float) -> Any:
 
 
 class InrushBlanking:
-    """Tracks motor starts and tells which overcurrent threshold is in force (parameters: module docstring)."""
+    """Tracks motor starts (|I| above ``start_current_a`` after ``inrush_time_s`` at or below it) and tells which
+    overcurrent threshold is in force (``inrush_threshold_a`` in a window; None: no check); a Hysteresis helper."""
 
     def __init__(self, start_current_a: float, inrush_time_s: float, inrush_threshold_a: float | None = None) -> None:
         self.start_current_a = check_limit("start_current_a", start_current_a)

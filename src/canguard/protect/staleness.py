@@ -1,26 +1,9 @@
 """Staleness and validity of one source: is there a usable, fresh value? (docs/protection.md)
 
-:class:`SourceHealth` sees every sample of one configured source (valid or not, see
-:class:`~canguard.io.frame.Sample`) and answers, at any time ``now``, why the source cannot be
-trusted (fail safe: every non-empty reason fails the guard):
-
-=============== ===========================================================
-``no_data``     no sample of that role yet
-``stale``       the latest sample is older than the source's ``max_age_s``
-``not_present`` the source's ``present`` signal was last seen 0
-``nan``/``inf`` the latest sample was NaN / infinite
-``out_of_range`` the latest value lies outside the DBC signal's [min|max]
-``bad_length``/``undecodable`` the latest frame could not be decoded
-``frozen_counter`` the alive counter has not changed for longer than ``max_age_s``
-``no_heartbeat`` (CANopen) the drive's heartbeat is older than its own timeout (the ``nmt`` signal's ``max_age_s``)
-``not_present`` (CANopen) also: the drive's NMT state is not operational
-``emcy``        (CANopen) the drive's last EMCY had a non-zero error register
-``drive_fault`` (CANopen) the drive's statusword has its Fault bit set
-=============== ===========================================================
-
-A drive's health roles (``nmt``, ``emcy``, ``fault``) gate every value, as ``present`` does, and are
-checked first; no EMCY yet is fine. Per role: ``no_data``, ``stale``, the latest sample's own reason, then
-its value's. The latest sample decides, but an invalid one never replaces the latest valid value.
+Every sample of one source goes to :class:`SourceHealth`, which answers why the source cannot be trusted at
+``now`` (every non-empty reason fails the guard; the reasons: docs/protection.md). A drive's health roles
+(``nmt``, ``emcy``, ``fault``) gate every value, as ``present`` does, and are checked first. The latest
+sample decides, but an invalid one never replaces the latest valid value.
 """
 
 from __future__ import annotations

@@ -1,9 +1,7 @@
 """Heat that survives restarts: the I²t state file (docs/protection.md, "Heat across restarts").
 
-``{"format": "canguard-heat", "version": 1, "t": <save time, s>, "models": {"<key>": <model.export()>}}``,
-written atomically. A corrupt or unreadable file (or entry) logs a warning and its models start at
-``on_corrupt``; a clock that stamps saves (:class:`canguard.io.clock.BootClock`) keeps a wall-clock step
-out of the downtime. ``path=None`` never reads or writes.
+``{"format": "canguard-heat", "version": 1, "t": <save time, s>, "models": {"<key>": <model.export()>}}``;
+a clock that stamps saves (:class:`canguard.io.clock.BootClock`) keeps a wall-clock step out of the downtime.
 """
 
 from __future__ import annotations
@@ -67,32 +65,22 @@ ON_CORRUPT = ("hot", "cold")
 
 
 class DowntimeClock(Protocol):
-    """Stamps saves and measures downtime (the daemon passes :class:`canguard.io.clock.BootClock`)."""
+    """Stamps saves (``stamp()``) and measures the downtime since one (``downtime(saved, wall_downtime_s)``)."""
 
-    def stamp(self) -> dict[str, object]:
-        """What a save records besides its time."""
-        ...
+    def stamp(self) -> dict[str, object]: ...
 
-    def downtime(self, saved: object, wall_downtime_s: float) -> float:
-        """Seconds since the save that recorded ``saved``; ``wall_downtime_s`` when it cannot tell better."""
-        ...
+    def downtime(self, saved: object, wall_downtime_s: float) -> float: ...
 
 
 @runtime_checkable
 class HeatModel(Protocol):
-    """What the state file needs of a model: LeakyI2t and ThermalI2t."""
+    """What the state file needs of a model (LeakyI2t and ThermalI2t): ``export``, ``restore``, ``set_hot``."""
 
-    def export(self) -> dict[str, Any]:
-        """The state as a JSON-able dict."""
-        ...
+    def export(self) -> dict[str, Any]: ...
 
-    def restore(self, state: Mapping[str, Any], downtime_s: float) -> None:
-        """Take over a saved state cooled for ``downtime_s``."""
-        ...
+    def restore(self, state: Mapping[str, Any], downtime_s: float) -> None: ...
 
-    def set_hot(self, t: float | None = None) -> None:
-        """Put the state at the trip level."""
-        ...
+    def set_hot(self, t: float | None = None) -> None: ...
 
 
 class HeatStore:
