@@ -116,7 +116,6 @@ class LatchedModel(ProtectionModel, Generic[S]):
 
     @property
     def tripped(self) -> bool:
-        """True while the model is tripped (no latch)."""
         return self._tripped
 
     @property
@@ -167,7 +166,6 @@ class LatchedModel(ProtectionModel, Generic[S]):
         return self.__dict__.copy()
 
     def rewind(self, mark: Any) -> None:
-        """Go back to the state :meth:`mark` gave."""
         self.__dict__.update(mark)
 
     def _screened(self, t: Any, v: Any) -> bool:
@@ -335,5 +333,4 @@ class LatchedModel(ProtectionModel, Generic[S]):
         return snap
 
     def snapshot(self) -> Snapshot:
-        """The present state, without reading or resetting the latch."""
         return self._make_snapshot(self._tripped)

@@ -106,11 +106,8 @@ class _Screen(Screen):
 
 
 class _I2tModel(LatchedModel[_Screen]):
-    """What both I²t models share: sampling, gaps, trip/recover on the level, persistence.
-
-    ``continuous_a`` is I_cont (A, > 0), ``peak_a`` / ``peak_time_s`` the datasheet's peak point,
-    ``max_gap_s`` the source's max_age_s. ValueError naming the parameter at fault.
-    """
+    """What both I²t models share: ``continuous_a`` is I_cont (A), ``peak_a`` / ``peak_time_s`` the datasheet's peak
+    point, ``max_gap_s`` the source's max_age_s; ValueError naming the parameter at fault."""
 
     kind: str = ""
     reason_tripped = REASON_I2T

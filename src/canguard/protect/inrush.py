@@ -34,11 +34,6 @@ class InrushBlanking:
         self.starts = 0
         """Motor starts recognised so far."""
 
-    @property
-    def window_start(self) -> float | None:
-        """Time of the latest recognised motor start, None if none yet."""
-        return self._window_start
-
     def observe(self, abs_value: float, t: float) -> bool:
         """The kernel: one |I| sample at ``t``; True when it is a motor start (ignored: out of order, not finite)."""
         a, t = float(abs_value), float(t)

@@ -12,9 +12,8 @@ if TYPE_CHECKING:
 
 @dataclass(frozen=True)
 class Snapshot:
-    """A model's state for events, metrics and plots: the latest |value| (NaN before any), the trip threshold in
-    force (I²t: the accumulator's trip level), % of it, tripped (``poll``: latched), the last edge's time, and the
-    reason ("" when fine)."""
+    """A model's state for events, metrics and plots: latest |value|, trip threshold in force (I²t: the trip level),
+    % of it, tripped (``poll``: latched), the last edge's time, and the reason ("" when fine)."""
 
     value: float
     threshold: float

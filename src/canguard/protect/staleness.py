@@ -29,8 +29,6 @@ REASON_NO_HEARTBEAT = "no_heartbeat"
 REASON_EMCY = "emcy"
 REASON_DRIVE_FAULT = "drive_fault"
 GATE_ROLES = (NMT, EMCY, FAULT)
-FULL_ROLES = NON_VALUE_ROLES
-"""Roles whose every sample takes the full path (their value can change a reason)."""
 ROW_ROLES = NON_VALUE_ROLES - {PRESENT}
 """Roles a replay block cannot take as columns: every row is fed."""
 
@@ -57,10 +55,7 @@ class SourceHealth:
         self._counter_since = math.nan
         self._frozen = False
         self._ranges: dict[str, tuple[float | None, float | None]] = {
-            s.role: (s.minimum, s.maximum)
-            for s in source.signals
-            if s.minimum is not None or s.maximum is not None
-        }
+            s.role: (s.minimum, s.maximum) for s in source.signals if s.minimum is not None or s.maximum is not None}
         self._limits = {role: (-_BIG if lo is None else float(lo), _BIG if hi is None else float(hi))
                         for role, (lo, hi) in self._ranges.items()}
         self._latest_t: dict[str, float] = {}
@@ -69,8 +64,8 @@ class SourceHealth:
         self._valid_t: dict[str, float] = {}
         self._last_reason = REASON_NO_DATA
         self._ok_since = math.nan
-        """The oldest latest time when every role was last found usable (NaN: not known): within
-        ``_window_s`` of it :meth:`reason` is "". Only the full path can make a role unusable; it clears this."""
+        """When every role was last usable, the oldest of their latest times (NaN: not known): within ``_window_s``
+        of it :meth:`reason` is "" (only the full path can make a role unusable; it clears this)."""
         self.samples = 0
         """Samples observed (out-of-order ones included)."""
         self.invalid_samples = 0
@@ -94,13 +89,8 @@ class SourceHealth:
 
     def advance(self, roles: Sequence[str], times: Sequence[float], columns: Sequence[Sequence[float]],
                 reasons: Sequence[Sequence[str]] | None = None, *, until_edge: bool = False) -> Run:
-        """Take a run of rows of this source in arrival order (a frame: one row); where its reason changed.
-
-        Row ``i`` at ``times[i]`` holds ``columns[k][i]`` of ``roles[k]`` with its own invalid reason
-        ``reasons[k][i]`` (None: none at all). A sample is an edge when the reason after it differs from the one
-        before it at its time or from the one the previous sample left. ``until_edge`` and the result are the
-        models' (:mod:`canguard.protect.base`); ``tripped``: the source unusable after the edge.
-        """
+        """Take a run of rows (row ``i``: ``columns[k][i]`` of ``roles[k]`` at ``times[i]``, its own invalid reason
+        ``reasons[k][i]``) in arrival order; where the reason changed (``tripped``: unusable after the edge)."""
         n = len(times)
         if n == 1 and reasons is None:  # a live frame: each sample to the kernel, nothing built
             t = float(times[0])
@@ -173,7 +163,7 @@ class SourceHealth:
             latest = latest_t.get(role)
             if latest is None or not latest <= first or first - latest > max_age or invalid.get(role):
                 return False
-            if role in FULL_ROLES and not (role == PRESENT and self._present_quiet(roles, column)):
+            if role in NON_VALUE_ROLES and not (role == PRESENT and self._present_quiet(roles, column)):
                 return False
             lo, hi = self._limits.get(role, _ANY)
             span = values_span(column)
@@ -199,7 +189,7 @@ class SourceHealth:
                 self.out_of_order += 1
                 return False
             lo, hi = self._limits.get(role, _ANY)
-            if not own and lo <= value <= hi and t - latest <= self.max_age_s and role not in FULL_ROLES \
+            if not own and lo <= value <= hi and t - latest <= self.max_age_s and role not in NON_VALUE_ROLES \
                     and not self._invalid.get(role):
                 self._latest_t[role] = self._valid_t[role] = t
                 self._value[role] = value

@@ -114,31 +114,25 @@ class HeatStore:
         if self.path is None:
             return
         try:
-            text = self.path.read_text(encoding="utf-8")
+            doc = json.loads(self.path.read_text(encoding="utf-8"))
         except FileNotFoundError:
             log.info("no I²t state file %s: starting cold", self.path)
             return
         except (OSError, UnicodeDecodeError) as exc:
-            self._mark_corrupt(f"cannot read it: {exc}")
-            return
-        try:
-            doc = json.loads(text)
+            problem = f"cannot read it: {exc}"
         except ValueError as exc:
-            self._mark_corrupt(f"not valid JSON: {exc}")
-            return
-        problem = _check_doc(doc)
+            problem = f"not valid JSON: {exc}"
+        else:
+            problem = _check_doc(doc)
         if problem:
-            self._mark_corrupt(problem)
+            self._corrupt = problem
+            log.warning("I²t state file %s is unusable (%s): models start %s", self.path, problem, self.on_corrupt)
             return
         self._saved_t = float(doc["t"])
         self._states = dict(doc["models"])
         self._saved_stamp = doc.get("stamp")
         log.debug("loaded I²t state of %d models from %s (saved %.3f s before %.3f)",
                   len(self._states), self.path, now - self._saved_t, now)
-
-    def _mark_corrupt(self, why: str) -> None:
-        self._corrupt = why
-        log.warning("I²t state file %s is unusable (%s): models start %s", self.path, why, self.on_corrupt)
 
     def restore(self, key: str, model: Any, now: float) -> None:
         """Restore ``model`` under ``key``, cooled for the downtime (the file loaded first); TypeError when the
