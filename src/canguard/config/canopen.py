@@ -160,12 +160,10 @@ class CanopenDrive:
 
     def describe(self, verbose: bool = False) -> list[str]:
         """Lines for ``canguard check``: COB-IDs, which object sits where; ``verbose``: the notes too."""
-        lines = [
-            f"{self.name}: node {self.node} on {self.bus}, {self.eds.name}"
-            + (f" ({self.device})" if self.device else ""),
-            f"  heartbeat 0x{self.heartbeat_id:03X} every {self.heartbeat_s:g} s (timeout {self.timeout_s:g} s),"
-            f" EMCY 0x{self.emcy_id:03X}",
-        ]
+        device = f" ({self.device})" if self.device else ""
+        lines = [f"{self.name}: node {self.node} on {self.bus}, {self.eds.name}{device}",
+                 f"  heartbeat 0x{self.heartbeat_id:03X} every {self.heartbeat_s:g} s (timeout {self.timeout_s:g} s),"
+                 f" EMCY 0x{self.emcy_id:03X}"]
         for pdo in (*self.tpdos, *self.rpdos):
             objs = ", ".join(f"{o.ref} {o.name} [bits {o.start_bit}..{o.start_bit + o.bits - 1}]" for o in pdo.objects)
             state = " (pdo: override)" if pdo.overridden else "" if pdo.enabled else " (disabled in the EDS)"
@@ -208,10 +206,8 @@ def pdo_writes(eds: Eds, pdo: Pdo, period_ms: int) -> list[SdoWrite]:
     raw = eds.value(comm, 1)
     flags = (int(raw) if isinstance(raw, int) else 0) & 0x60000000
     cob = flags | pdo.cob_id
-    out = [
-        SdoWrite(comm, 1, cob | 0x80000000, 4, f"{pdo.name} disabled while it is mapped", check=False),
-        SdoWrite(mapping, 0, 0, 1, f"{pdo.name} mapping cleared", check=False),
-    ]
+    out = [SdoWrite(comm, 1, cob | 0x80000000, 4, f"{pdo.name} disabled while it is mapped", check=False),
+           SdoWrite(mapping, 0, 0, 1, f"{pdo.name} mapping cleared", check=False)]
     for k, obj in enumerate(pdo.objects, 1):
         entry = (obj.index << 16) | (obj.subindex << 8) | obj.bits
         out.append(SdoWrite(mapping, k, entry, 4, f"{pdo.name} entry {k}: {obj.ref} {obj.name}"))

@@ -15,13 +15,9 @@ from typing import Any
 
 DEVICE_TYPE = 0x1000
 PROFILES = {
-    401: "CiA 401 (generic I/O module)",
-    402: "CiA 402 (drive and motion control)",
-    404: "CiA 404 (measuring device / closed-loop controller)",
-    406: "CiA 406 (encoder)",
-    410: "CiA 410 (inclinometer)",
-    418: "CiA 418 (battery module)",
-    419: "CiA 419 (battery charger)",
+    401: "CiA 401 (generic I/O module)", 402: "CiA 402 (drive and motion control)",
+    404: "CiA 404 (measuring device / closed-loop controller)", 406: "CiA 406 (encoder)",
+    410: "CiA 410 (inclinometer)", 418: "CiA 418 (battery module)", 419: "CiA 419 (battery charger)",
 }
 """Device profiles by number (0x1000 bits 0..15): what ``init`` names a device that is not a drive."""
 DISABLED = 0x80000000

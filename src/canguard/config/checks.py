@@ -143,11 +143,8 @@ class _Checks:
             if len(self.bus_names) == 1:
                 return self.bus_names[0]
             if self.bus_names:
-                self.problem(
-                    key,
-                    "nothing",
-                    f"one of the buses {', '.join(self.bus_names)} (several buses are configured)",
-                )
+                buses = ", ".join(self.bus_names)
+                self.problem(key, "nothing", f"one of the buses {buses} (several buses are configured)")
             return ""
         if not isinstance(value, str) or value not in self.bus_names:
             if self.bus_names:

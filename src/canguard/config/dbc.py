@@ -262,9 +262,8 @@ class _MessageCheck:
 
     def line(self, signal: Any) -> int:
         """The line of ``signal``'s ``SG_`` line (0 when the format has no lines)."""
-        match = [k for k, s in enumerate(self.lines)
-                 if (s.start, s.length, s.little) == (signal.start, signal.length,
-                                                      signal.byte_order == "little_endian")]
+        where = (signal.start, signal.length, signal.byte_order == "little_endian")
+        match = [k for k, s in enumerate(self.lines) if (s.start, s.length, s.little) == where]
         named = [k for k in match if self.lines[k].name == signal.name] or match
         free = [k for k in named if k not in self.taken] or named
         if not free:

@@ -29,11 +29,9 @@ class _Loader(_Sections):
         """What of a config with problems is sound enough to check its tree against."""
         raw_actions = doc.get("actions")
         names = [n for n in raw_actions if isinstance(n, str)] if isinstance(raw_actions, Mapping) else []
-        builtin = RESERVED_NODE_IDS if names else frozenset()
         # An action whose frames are wrong is still an action node ID the tree may use.
-        all_actions = {
-            n: actions.get(n, ActionConfig(name=n)) for n in names if _IDENT.fullmatch(n) and n not in builtin
-        }
+        all_actions = {n: actions.get(n, ActionConfig(name=n)) for n in names
+                       if _IDENT.fullmatch(n) and n not in RESERVED_NODE_IDS}
         raw_sources = doc.get("sources")
         declared = frozenset(str(n) for n in raw_sources) if isinstance(raw_sources, Mapping) else frozenset()
         return PartialConfig(tree=tree if tree is not None and tree.file.is_file() else None,

@@ -143,14 +143,9 @@ class _Sections(_Frames):
             self.problem("stop.min_stop", _found(min_stop), "a number >= 0 in seconds")
             min_stop = 0.0
         release = self.choice(value, "release", "stop", ("auto", "manual"), "auto")
-        return StopConfig(
-            repeat_s=self.seconds(value, "repeat", "stop", 0.05),
-            frames=self.frames(value.get("frames"), "stop.frames"),
-            confirm=self.confirm(value.get("confirm")),
-            escalate=self.frames(value.get("escalate"), "stop.escalate"),
-            min_stop_s=float(min_stop),
-            release=release,
-        )
+        return StopConfig(self.seconds(value, "repeat", "stop", 0.05), self.frames(value.get("frames"), "stop.frames"),
+                          self.confirm(value.get("confirm")), self.frames(value.get("escalate"), "stop.escalate"),
+                          float(min_stop), release)
 
     def actions(self, value: Any) -> dict[str, ActionConfig]:
         result: dict[str, ActionConfig] = {}

@@ -270,9 +270,7 @@ class _Sources(_Checks):
 
 SOURCE_KINDS: tuple[SourceKind, ...] = ("battery", "joints", "current")
 _KIND_KEYS: dict[str, tuple[str, ...]] = {
-    "battery": ("message", "current", "present", "counter"),
-    "joints": ("effort",),
-    "current": ("message", "signal", "present", "counter"),
-}
+    "battery": ("message", "current", "present", "counter"), "joints": ("effort",),
+    "current": ("message", "signal", "present", "counter")}
 """The keys of each source kind besides kind, bus and max_age (the first two, or the one, required), in role order."""
 _IDENT = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
