@@ -30,11 +30,7 @@ class _Screen(Screen):
     def __init__(self, t: FloatArray, a: FloatArray, thr: FloatArray, recovery_a: float, gaps: IndexArray,
                  inrush: tuple[float | None, float | None, float | None, int] | None) -> None:
         super().__init__(a >= thr, a <= recovery_a)
-        self.t = t
-        self.a = a
-        self.thr = thr
-        self.gaps = gaps
-        self.inrush = inrush
+        self.t, self.a, self.thr, self.gaps, self.inrush = t, a, thr, gaps, inrush
 
 
 class Hysteresis(LatchedModel[_Screen]):

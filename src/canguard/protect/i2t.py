@@ -100,9 +100,7 @@ class _Screen(Screen):
     def __init__(self, a: FloatArray, acc: FloatArray, trip: BoolArray, low: BoolArray,
                  stale: IndexArray) -> None:
         super().__init__(trip, low)
-        self.a = a
-        self.acc = acc
-        self.stale = stale
+        self.a, self.acc, self.stale = a, acc, stale
 
 
 class _I2tModel(LatchedModel[_Screen]):

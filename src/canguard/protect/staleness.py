@@ -35,6 +35,8 @@ ROW_ROLES = NON_VALUE_ROLES - {PRESENT}
 _BIG = 1.7976931348623157e308
 """The largest float: open range bounds, so that +-inf (and NaN) fail the range test."""
 _ANY = (-_BIG, _BIG)
+_PER_ROLE = ("_latest_t", "_invalid", "_value", "_valid_t")
+"""The state kept per role (copied by :meth:`SourceHealth.mark`)."""
 
 
 class SourceHealth:
@@ -201,11 +203,16 @@ class SourceHealth:
 
     def mark(self) -> dict[str, Any]:
         """The running state, to go back to with :meth:`rewind` (nothing is changed)."""
-        return {k: dict(v) if type(v) is dict else v for k, v in self.__dict__.items()}
+        state = self.__dict__.copy()
+        for k in _PER_ROLE:
+            state[k] = dict(state[k])
+        return state
 
     def rewind(self, mark: dict[str, Any]) -> None:
         """Go back to the state :meth:`mark` gave, as if the runs taken since had not come."""
-        self.__dict__.update({k: dict(v) if type(v) is dict else v for k, v in mark.items()})
+        self.__dict__.update(mark)
+        for k in _PER_ROLE:  # copies again: a mark may be gone back to more than once
+            self.__dict__[k] = dict(mark[k])
 
     def _invalid_code(self, role: str, value: float, own: str) -> str:
         if own:
