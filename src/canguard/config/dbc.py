@@ -64,18 +64,25 @@ class _Text:
     signal_lines: dict[int, list[_SgLine]] = field(default_factory=dict)
 
 
-_NAMING = tuple(p.split() for p in (
-    "VAL_ # S", "SIG_VALTYPE_ # S", "SG_MUL_VAL_ # S", "BO_TX_BU_ #", "CM_ BO_ #", "CM_ SG_ # S", 'BA_ " BO_ #',
-    'BA_ " SG_ # S', 'BA_REL_ " BU_SG_REL_ * SG_ # S', 'BA_REL_ " BU_BO_REL_ * #'))
-"""The statements that name a message, word by word: ``#`` its DBC id, ``S`` a signal, ``"`` a string, ``*`` any."""
-_FITS = {"#": str.isdigit, '"': lambda w: w.startswith('"'), "S": bool, "*": bool}
-
-
-def _named_message(words: list[str]) -> tuple[int, str | None] | None:
-    """The DBC message id (and signal name) a statement's words refer to, or None when it names no message."""
-    for parts in _NAMING:
-        if len(words) >= len(parts) and all(_FITS.get(p, p.__eq__)(w) for w, p in zip(words, parts, strict=False)):
-            return int(words[parts.index("#")]), words[parts.index("S")] if "S" in parts else None
+def _named_message(tokens: list[str]) -> tuple[int, str | None] | None:
+    """The DBC message id (and signal name) a statement's tokens refer to, or None when it names no message."""
+    kind = tokens[0]
+    rest = tokens[1:]
+    if kind in ("VAL_", "SIG_VALTYPE_", "SG_MUL_VAL_"):
+        if len(rest) >= 2 and rest[0].isdigit():
+            return int(rest[0]), rest[1]
+        return None
+    if kind == "BO_TX_BU_":
+        return (int(rest[0]), None) if rest and rest[0].isdigit() else None
+    if kind == "CM_":
+        return _object_ref(rest)
+    if kind == "BA_":
+        return _object_ref(rest[1:]) if rest and rest[0].startswith('"') else None
+    if kind == "BA_REL_" and len(rest) >= 3 and rest[0].startswith('"'):
+        if rest[1] == "BU_SG_REL_" and len(rest) >= 6 and rest[3] == "SG_" and rest[4].isdigit():
+            return int(rest[4]), rest[5]
+        if rest[1] == "BU_BO_REL_" and len(rest) >= 4 and rest[3].isdigit():
+            return int(rest[3]), None
     return None
 
 
@@ -87,6 +94,15 @@ def _label(words: list[str]) -> str:
     attribute = f" {words[1]}" if words[0] in ("BA_", "BA_REL_") else ""
     of_signal = f" of signal {signal}" if signal is not None else ""
     return f"{words[0]}{attribute}{of_signal} of message {dbc_id}"
+
+
+def _object_ref(rest: list[str]) -> tuple[int, str | None] | None:
+    """``BO_ <id>`` or ``SG_ <id> <signal>`` at the start of ``rest``."""
+    if len(rest) >= 2 and rest[0] == "BO_" and rest[1].isdigit():
+        return int(rest[1]), None
+    if len(rest) >= 3 and rest[0] == "SG_" and rest[1].isdigit():
+        return int(rest[1]), rest[2]
+    return None
 
 
 class _Prepass:
