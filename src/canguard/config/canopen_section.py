@@ -147,11 +147,7 @@ class CanopenSection:
             if not isinstance(objects, list) or not objects:
                 self.checks.problem(pkey, _found(objects), "a non-empty list of objects ('0x6041', '0x6077:0')")
                 continue
-            refs: list[tuple[int, int | None]] = []
-            for i, item in enumerate(objects):
-                ref = self.resolve(eds, item, f"{pkey}[{i}]")
-                if ref is not None:
-                    refs.append(ref)
+            refs = [r for i, item in enumerate(objects) if (r := self.resolve(eds, item, f"{pkey}[{i}]")) is not None]
             if len(refs) != len(objects):
                 continue
             try:
@@ -178,9 +174,8 @@ class CanopenSection:
             return None
         return parsed
 
-    def source_refs(
-        self, source: str, role: str, value: Mapping[str, Any], key: str
-    ) -> tuple[str, float, list[SignalRef]]:
+    def source_refs(self, source: str, role: str, value: Mapping[str, Any], key: str
+                    ) -> tuple[str, float, list[SignalRef]]:
         """The signals of a ``canopen:`` source: (bus, max_age, [its value, then the drive's health roles])."""
         c = self.checks
         drive = self.drive_of(value.get("canopen"), key)
