@@ -34,7 +34,7 @@ Children = list[py_trees.behaviour.Behaviour] | None
 SKIPPED = "SKIPPED"
 """BT.CPP 4's SKIPPED, which py_trees lacks: the node stays IDLE (INVALID) and sets its ``skipped`` flag,
 which the parent clears before ticking it (:func:`tick_child`) and reads after (:func:`outcome`)."""
-STATUS_NAMES = {"SUCCESS": SUCCESS, "FAILURE": FAILURE, "RUNNING": RUNNING, SKIPPED: SKIPPED}
+STATUS_NAMES = ("SUCCESS", "FAILURE", "RUNNING", SKIPPED)
 
 
 def outcome(node: py_trees.behaviour.Behaviour) -> Status | str:
@@ -56,13 +56,13 @@ def mark_skipped(node: py_trees.behaviour.Behaviour) -> None:
 
 
 def end_as(node: py_trees.behaviour.Behaviour, name: str) -> None:
-    """``node`` returns the status named ``name`` (a key of :data:`STATUS_NAMES`)."""
+    """``node`` returns the status named ``name`` (one of :data:`STATUS_NAMES`)."""
     if name == SKIPPED:
         mark_skipped(node)
     elif name == "RUNNING":
         node.status = RUNNING
     else:
-        node.stop(STATUS_NAMES[name])
+        node.stop(Status[name])
 
 
 def count_of(node: py_trees.behaviour.Behaviour, port: str, default: int) -> int:
