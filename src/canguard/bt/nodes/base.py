@@ -62,7 +62,7 @@ def end_as(node: py_trees.behaviour.Behaviour, name: str) -> None:
     elif name == "RUNNING":
         node.status = RUNNING
     else:
-        node.stop(Status[name])
+        node.stop(Status.__members__[name])
 
 
 def count_of(node: py_trees.behaviour.Behaviour, port: str, default: int) -> int:
