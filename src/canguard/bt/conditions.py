@@ -1,9 +1,7 @@
 """BehaviorTree.CPP 4's pre- and post-conditions on any node: ``_failureIf``, ``_successIf``, ``_onSuccess``...
 
-Parsed once at load (a syntax error is a load error with the file and line), run on the
-node's (sub)tree blackboard in BT.CPP's order (``checkPreConditions``, ``executeTick``;
-docs/trees.md, "Pre- and post-conditions"). A script that fails while it runs fails the
-node, fail-safe (BT.CPP throws); one in ``_onHalted`` is only reported.
+Run in BT.CPP's order (``checkPreConditions``, ``executeTick``). A script that fails while it runs
+fails the node, fail-safe (BT.CPP throws); one in ``_onHalted`` is only reported.
 """
 
 from __future__ import annotations
@@ -79,8 +77,7 @@ def _precondition(node: py_trees.behaviour.Behaviour, scripts: Mapping[str, Scri
 
 
 def install(node: py_trees.behaviour.Behaviour, scripts: Mapping[str, Script], board: TreeBlackboard) -> None:
-    """Wrap ``node``'s tick and stop with its conditions, run on ``board`` (instance attributes: the class
-    is untouched)."""
+    """Wrap ``node``'s tick and stop (instance attributes) with its conditions, run on ``board``."""
     if not scripts:
         return
     tick, stop = node.tick, node.stop
