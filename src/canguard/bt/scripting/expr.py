@@ -1,11 +1,7 @@
-"""The syntax tree of a script and its evaluation, with BehaviorTree.CPP 4's semantics.
+"""The syntax tree of a script and its evaluation, with BehaviorTree.CPP 4's semantics (:mod:`.values`).
 
-Each node keeps the offset of its token (an operator's own position) so a
-runtime error names the column. Evaluation never calls Python's eval/exec; it
-walks these nodes. See :mod:`.values` for the typing rules.
-
-Two BT.CPP behaviours worth knowing: ``&&`` and ``||`` evaluate both operands
-(no short-circuit), and comparisons chain (``1 < x < 3`` is ``1 < x and x < 3``).
+Each node keeps its token's offset, so a runtime error names the column. As BT.CPP, ``&&`` and ``||``
+evaluate both operands.
 """
 
 from __future__ import annotations
@@ -56,7 +52,7 @@ def _real(value: int | float, pos: int) -> float:
 
 
 def _arithmetic(op: str, a: float, b: float) -> float:
-    """``a op b`` for ``+ - * /`` as C++ doubles: x/0 is +-inf, 0/0 is nan (IEEE division)."""
+    """``a op b`` for ``+ - * /`` as C++ doubles (IEEE division)."""
     if op != "/":
         return a + b if op == "+" else a - b if op == "-" else a * b
     if b != 0.0:

@@ -1,13 +1,7 @@
-"""Recursive-descent (precedence-climbing) parser of BehaviorTree.CPP's scripting language.
+"""Precedence-climbing parser of BehaviorTree.CPP's scripting language, with BT.CPP 4's binding powers.
 
-Precedence, loosest first (BT.CPP 4's binding powers): assignment ``:= = += -= *= /=`` (right:
-``a := b := 1``), ternary ``c ? x : y`` (right in ``y``), ``||``, ``&&``, comparison
-``== != < <= > >=`` (chained: ``a < b < c``), ``| ^``, ``&``, ``+ - ..``, ``* /`` (these left),
-prefix ``- ! ~``. Comparisons bind looser than the bitwise operators (``x & 1 == 1`` is
-``(x & 1) == 1``), unlike C. Statements are separated by ``;`` (repeated or trailing ``;`` are
-fine; as in BT.CPP a new statement may also simply follow a complete one). The left side of an
-assignment must be a name: anything else is a parse error here (BT.CPP only notices when the
-script runs).
+Comparisons chain and bind looser than the bitwise operators (``x & 1 == 1`` is ``(x & 1) == 1``).
+The left side of an assignment must be a name: a parse error here (BT.CPP notices only at run).
 """
 
 from __future__ import annotations
