@@ -40,8 +40,11 @@ class Env:
     enums: Mapping[str, int] | None = None
 
 
-def _not_init(side: str, op: str, pos: int) -> ScriptError:
-    return ScriptError(f"the {side} operand of the operator [{op}] is not initialized", pos)
+def _set(op: str, pos: int, **operands: object) -> None:
+    """Raise the error of the first operand (``left=``, ``right=``) that holds no value."""
+    for side, value in operands.items():
+        if value is UNSET:
+            raise ScriptError(f"the {side} operand of the operator [{op}] is not initialized", pos)
 
 
 def _real(value: int | float, pos: int) -> float:
@@ -112,8 +115,7 @@ class Unary(Expr):
             if math.isnan(rv) or rv > INT64_MAX or rv < INT64_MIN:
                 raise ScriptError(f"{describe(value)} is out of range for the bitwise operator [~]", self.pos)
             return float(~int(value))
-        if value is UNSET:
-            raise _not_init("right", self.op, self.pos)
+        _set(self.op, self.pos, right=value)
         raise ScriptError(f"the operator [{self.op}] expects a number, got {describe(value)}", self.pos)
 
 
@@ -127,10 +129,7 @@ class Binary(Expr):
         op = self.op
         lv = self.lhs.evaluate(env)
         rv = self.rhs.evaluate(env)
-        if lv is UNSET:
-            raise _not_init("left", op, self.pos)
-        if rv is UNSET:
-            raise _not_init("right", op, self.pos)
+        _set(op, self.pos, left=lv, right=rv)
         if isinstance(lv, (int, float)) and isinstance(rv, (int, float)):
             if op in "+-*/":
                 return _arithmetic(op, _real(lv, self.pos), _real(rv, self.pos))
@@ -195,10 +194,7 @@ class Compare(Expr):
         lv = self.operands[0].evaluate(env)
         for (op, pos), operand in zip(self.ops, self.operands[1:], strict=True):
             rv = operand.evaluate(env)
-            if lv is UNSET:
-                raise _not_init("left", op, pos)
-            if rv is UNSET:
-                raise _not_init("right", op, pos)
+            _set(op, pos, left=lv, right=rv)
             a: object
             b: object
             if is_number(lv) and is_number(rv):
@@ -238,9 +234,8 @@ class Ternary(Expr):
             chosen = value != ""
         elif isinstance(value, (int, float)):
             chosen = value != 0
-        elif value is UNSET:
-            raise _not_init("left", "?", self.pos)
         else:
+            _set("?", self.pos, left=value)
             raise ScriptError(f"the condition of [?] must be a number or a string, got {describe(value)}", self.pos)
         return self.then.evaluate(env) if chosen else self.otherwise.evaluate(env)
 
@@ -260,8 +255,7 @@ class Assign(Expr):
                 self.pos,
             )
         value = self.rhs.evaluate(env)
-        if value is UNSET:
-            raise _not_init("right", op, self.pos)
+        _set(op, self.pos, right=value)
         try:
             current = bb.get(key)
         except KeyError:
@@ -291,8 +285,7 @@ class Assign(Expr):
 
     def _compound(self, value: object, current: object, declared: type | None, env: Env) -> object:
         op = self.op
-        if current is UNSET:
-            raise _not_init("left", op, self.pos)
+        _set(op, self.pos, left=current)
         result: object
         if isinstance(value, (int, float)):
             if not isinstance(current, (int, float)):
