@@ -276,18 +276,10 @@ class CanguardNode(PortsMixin, register=False):
         BT.CPP does (:func:`_number_as`); None when a wired key holds nothing or a wrong type (``_bad_port``)."""
         if name not in self._dynamic:
             return self._static.get(name)
-        if Blackboard.activity_stream is None:
-            value = Blackboard.storage.get(self._keys[name], _MISSING)
-            if value is _MISSING:
-                info = self.input_ports()[name]
-                return info.default_value if info.has_default else None
-        else:  # the client's path, so that the activity stream sees the read
-            try:
-                value = self.get_input(name)
-            except NoDataAvailable:
-                return None
-            except TypeError:
-                value = self.blackboard_client.get(name)
+        value = Blackboard.storage.get(self._keys[name], _MISSING)
+        if value is _MISSING:
+            info = self.input_ports()[name]
+            return info.default_value if info.has_default else None
         expected = self.input_ports()[name].data_type
         if isinstance(value, expected) and (expected is bool or not isinstance(value, bool)):
             return value
@@ -302,10 +294,7 @@ class CanguardNode(PortsMixin, register=False):
     def write(self, name: str, value: Any) -> None:
         """Write output port ``name`` when it is wired (a no-op otherwise, as in BehaviorTree.CPP)."""
         if name in self._wired:
-            if Blackboard.activity_stream is None:
-                Blackboard.storage[self._keys[name]] = value
-            else:
-                self._set_output(name, value)
+            Blackboard.storage[self._keys[name]] = value
 
     def emit_wake_up(self) -> None:
         """Ask ``tickOnce()`` to tick the root again at once (BT.CPP's ``emitWakeUpSignal``)."""

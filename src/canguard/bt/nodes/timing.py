@@ -8,13 +8,12 @@ from collections.abc import Callable
 from typing import Any
 
 import py_trees
-from py_trees.ports_utils import PortsLogger
+from py_trees.blackboard import Blackboard
 
 from canguard.bt.nodes.base import FAILURE, SUCCESS, CanguardNode, PortError, port_info
 
 OPERATORS = ("GT", "LT", "GTE", "LTE", "EQ")
 REFERENCES = ("first_tick", "tree_start", "last_reset", "blackboard")
-_TIMER = "_timer_start"  # the client's key of a named timer (write access)
 
 
 class _TimerUser(CanguardNode):
@@ -22,22 +21,16 @@ class _TimerUser(CanguardNode):
 
     _own_start: float | None = None  # kept across halts (note 000)
 
-    def setup_ports(self, port_remappings: dict | None = None, subtree_namespace: str = "/",
-                    logger: PortsLogger | None = None) -> None:
-        """Register the ports, then the named timer's key (write access, so a first tick can start it)."""
-        super().setup_ports(port_remappings, subtree_namespace, logger)
-        key = (port_remappings or {}).get("timer")
-        self.timer_key: str | None = None
-        if key is None:
-            return
-        self.timer_key = py_trees.blackboard.Blackboard.absolute_name(subtree_namespace, key)
-        self.blackboard_client.register_key(key=_TIMER, access=py_trees.common.Access.WRITE, remap_to=self.timer_key)
+    @property
+    def timer_key(self) -> str | None:
+        """The storage key of the shared timer wired to ``timer``; None: the node's own."""
+        return self._keys.get("timer")
 
     def timer_start(self) -> float | None:
         """The timer's start time (the named key's, or its own); None when not started."""
         if self.timer_key is None:
             return self._own_start
-        value = self.blackboard_client.get(_TIMER) if self.blackboard_client.exists(_TIMER) else None
+        value = Blackboard.storage.get(self.timer_key)
         return float(value) if isinstance(value, int | float) and not isinstance(value, bool) else None
 
     def start_timer(self, now: float) -> None:
@@ -45,7 +38,7 @@ class _TimerUser(CanguardNode):
         if self.timer_key is None:
             self._own_start = float(now)
         else:
-            self.blackboard_client.set(_TIMER, float(now))
+            Blackboard.storage[self.timer_key] = float(now)
 
 
 _COMPARE: dict[str, Callable[[float, float], bool]] = {
@@ -219,5 +212,5 @@ class RecordTime(CanguardNode, py_trees.behaviour.Behaviour):
     }
 
     def update(self) -> py_trees.common.Status:
-        self._set_output("output_time", float(self.ctx.clock.now()))
+        self.write("output_time", float(self.ctx.clock.now()))
         return SUCCESS
