@@ -50,7 +50,7 @@ class _Versioned(dict[str, Any]):
 
 
 def versioned_storage() -> _Versioned:
-    """``Blackboard.storage`` as a :class:`_Versioned` dict (installed once; the entries are kept)."""
+    """``Blackboard.storage`` as a :class:`_Versioned` dict (installed at the first look; the entries kept)."""
     storage = Blackboard.storage
     if not isinstance(storage, _Versioned):
         storage = _Versioned(storage)
@@ -87,10 +87,6 @@ class WasEntryUpdated(CanguardNode, py_trees.behaviour.Behaviour):
         super().__init__(name=name, **kwargs)
         self.seen = 0
 
-    def setup_ports(self, *args: Any, **kwargs: Any) -> None:
-        versioned_storage()
-        super().setup_ports(*args, **kwargs)
-
     def update(self) -> py_trees.common.Status:
         return SUCCESS if _updated(self) else FAILURE
 
@@ -106,10 +102,6 @@ class _EntryUpdated(DecoratorNode):
         super().__init__(name=name, child=child, **kwargs)
         self.seen = 0
         self.still_running = False
-
-    def setup_ports(self, *args: Any, **kwargs: Any) -> None:
-        versioned_storage()
-        super().setup_ports(*args, **kwargs)
 
     def tick(self) -> Any:
         if not self.still_running and not _updated(self):
