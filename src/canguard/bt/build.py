@@ -106,7 +106,7 @@ class _Loader(_Validator):
         return f"{text} ({hints})" if hints else text
 
     def finish(self, root: py_trees.behaviour.Behaviour, main_id: str) -> LoadedTree:
-        nodes = list(root.iterate())
+        nodes = list(_preorder(root))  # BT.CPP creates (and types the entries) in this order
         placed: list[tuple[py_trees.behaviour.Behaviour, NodeInfo, str]] = []
         boards = self.scoped_boards(main_id)
         for node in nodes:
@@ -125,8 +125,6 @@ class _Loader(_Validator):
             prefix = [p for p in parts[:-1] if p not in self.infos]
             placed.append((node, info, "/".join([*prefix, info.name])))
         self.install_subtree_conditions(nodes, boards)
-        order = {id(n): i for i, n in enumerate(_preorder(root))}
-        placed.sort(key=lambda t: order[id(t[0])])
         counts: dict[str, int] = {}
         loaded_nodes: dict[Any, NodeInfo] = {}
         for node, info, readable in placed:
