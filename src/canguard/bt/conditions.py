@@ -41,17 +41,6 @@ def take_conditions(attrib: dict[str, str]) -> tuple[dict[str, Script], list[str
     return scripts, problems
 
 
-class _ScriptFailed(Exception):
-    """A pre-condition script failed while it ran: the node fails (BT.CPP throws out of the tick)."""
-
-
-def _holds(node: py_trees.behaviour.Behaviour, script: Script, board: TreeBlackboard, attr: str) -> bool:
-    try:
-        return bool(run_script(node, attr, script, board, condition=True))
-    except ScriptError:
-        raise _ScriptFailed from None
-
-
 def _run(node: py_trees.behaviour.Behaviour, script: Script | None, board: TreeBlackboard, attr: str) -> bool:
     """Run a post-condition script; False when it failed (its error noted on the node)."""
     if script is None:
@@ -68,10 +57,10 @@ def _precondition(node: py_trees.behaviour.Behaviour, scripts: Mapping[str, Scri
     if node.status != RUNNING:
         for attr, status in (("_failureIf", FAILURE), ("_successIf", SUCCESS), ("_skipIf", SKIPPED)):
             script = scripts.get(attr)
-            if script is not None and _holds(node, script, board, attr):
+            if script is not None and run_script(node, attr, script, board, condition=True):
                 return status
     script = scripts.get("_while")
-    if script is not None and not _holds(node, script, board, "_while"):
+    if script is not None and not run_script(node, "_while", script, board, condition=True):
         return SKIPPED  # while running: halted below (mark_skipped stops it: _onHalted runs)
     return None
 
@@ -85,7 +74,7 @@ def install(node: py_trees.behaviour.Behaviour, scripts: Mapping[str, Script], b
     def tick_with_conditions() -> Iterator[py_trees.behaviour.Behaviour]:
         try:
             substituted = _precondition(node, scripts, board)
-        except _ScriptFailed:  # fail-safe: the node fails (halted first if it was running)
+        except ScriptError:  # fail-safe: the node fails (halted first if it was running)
             if node.status == RUNNING:
                 stop_with_conditions(INVALID)
             stop(FAILURE)

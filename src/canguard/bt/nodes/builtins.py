@@ -52,11 +52,6 @@ class _Scripted(CanguardNode):
         self.scripts: dict[str, ParsedScript] = {}
         self.board = TreeBlackboard("/")
 
-    def setup_ports(self, port_remappings: dict | None = None, subtree_namespace: str = "/",
-                    logger: Any = None) -> None:
-        super().setup_ports(port_remappings, subtree_namespace, logger)
-        self.board = TreeBlackboard(subtree_namespace)
-
     def bind(self) -> None:
         from canguard.bt.scripting import parse  # the language: only for trees with scripts
 
