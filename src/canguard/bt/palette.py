@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from canguard.bt.registry import children_problem
-from canguard.bt.xmlread import Where, _read_xml
+from canguard.bt.xmlsrc import Where, _read_xml
 from canguard.errors import TreeError, quote
 
 KINDS = ("Action", "Condition", "Decorator", "Control", "SubTree")

@@ -1,9 +1,8 @@
-"""Reading BehaviorTree.CPP XML (each element's file and line, includes) and v3 -> v4 rewriting."""
+"""Reading BehaviorTree.CPP XML (with line numbers, includes) and v3 -> v4 rewriting."""
 
 from __future__ import annotations
 
 import xml.etree.ElementTree as ET
-import xml.parsers.expat
 from collections.abc import Collection
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
@@ -12,36 +11,12 @@ from canguard.bt.context import Context
 from canguard.bt.loaded import NodeInfo
 from canguard.bt.registry import _PORT_ALIASES, _SUBTREE, _TAG_ALIASES, _TOKEN, _V3_WRAPPERS, Registry, build_registry
 from canguard.bt.scopes import Inline, subtree_ports
+from canguard.bt.xmlsrc import Where, _read_xml
 from canguard.errors import TreeError, closest, quote
 
 if TYPE_CHECKING:
     from canguard.bt.palette import Palette, PaletteNode
     from canguard.bt.scripting import Script as ParsedScript
-
-
-Where = tuple[Path, int]
-
-
-def _read_xml(path: Path, where: dict[ET.Element, Where]) -> ET.Element:
-    """Parse ``path`` with expat, recording each element's (file, line) in ``where``."""
-    try:
-        data = path.read_bytes()
-    except OSError as exc:
-        raise TreeError(f"{path}: cannot read the tree file: {exc.strerror or exc}") from None
-    builder = ET.TreeBuilder()
-    parser = xml.parsers.expat.ParserCreate()
-
-    def start(tag: str, attrs: dict[str, str]) -> None:
-        where[builder.start(tag, attrs)] = (path, parser.CurrentLineNumber)
-
-    parser.StartElementHandler = start
-    parser.EndElementHandler = builder.end
-    try:
-        parser.Parse(data, True)
-    except xml.parsers.expat.ExpatError as exc:
-        msg = xml.parsers.expat.ErrorString(exc.code)
-        raise TreeError(f"{path}:{exc.lineno}: not well-formed XML: {msg} (column {exc.offset + 1})") from None
-    return builder.close()
 
 
 def _closest(word: str, choices: Collection[str]) -> list[str]:
