@@ -159,16 +159,13 @@ class Binary(Expr):
         raise _not_permitted(op, lv, rv, self.pos)
 
 
+_TAKES = {"..": "at least one string (and otherwise numbers)", "+": "two numbers or two strings",
+          "&&": "booleans, or the numbers 0 and 1", "||": "booleans, or the numbers 0 and 1"}
+
+
 def _not_permitted(op: str, lv: object, rv: object, pos: int) -> ScriptError:
     """The error of a binary operator ``op`` given operands it does not take."""
-    if op == "..":
-        expected = "at least one string (and otherwise numbers)"
-    elif op == "+":
-        expected = "two numbers or two strings"
-    elif op in ("&&", "||"):
-        expected = "booleans, or the numbers 0 and 1"
-    else:
-        expected = "numbers"
+    expected = _TAKES.get(op, "numbers")
     return ScriptError(
         f"operation not permitted: [{op}] between {describe(lv)} and {describe(rv)} (expected {expected})", pos
     )
