@@ -84,32 +84,26 @@ AlwaysSuccess, AlwaysFailure = node_types(_Always, __name__, {
     "AlwaysFailure": {"RESULT": FAILURE, "DESCRIPTION": "FAILURE"}})
 
 
-class Script(_Scripted, py_trees.behaviour.Behaviour):
-    """runs code (BT.CPP scripting) on the blackboard: SUCCESS (FAILURE if it fails at run time)"""
+class _Code(_Scripted, py_trees.behaviour.Behaviour):
+    """BT.CPP Script / ScriptCondition: runs ``code``; FAILURE when it fails at run time (or a condition is false)."""
 
-    INPUT_PORTS = {"code": port_info(str, "the script, e.g. count := count + 1")}  # noqa: RUF012
     SCRIPT_PORTS = ("code",)
 
     def update(self) -> py_trees.common.Status:
+        condition = self.KIND == "Condition"
         try:
-            self.run_script("code")
+            value = self.run_script("code", condition=condition)
         except ScriptError:
             return FAILURE
-        return SUCCESS
+        return SUCCESS if value or not condition else FAILURE
 
 
-class ScriptCondition(_Scripted, py_trees.behaviour.Behaviour):
-    """SUCCESS when code (BT.CPP scripting) is true, else FAILURE"""
-
-    KIND = "Condition"
-    INPUT_PORTS = {"code": port_info(str, "a boolean expression, e.g. battery > 20")}  # noqa: RUF012
-    SCRIPT_PORTS = ("code",)
-
-    def update(self) -> py_trees.common.Status:
-        try:
-            return SUCCESS if self.run_script("code", condition=True) else FAILURE
-        except ScriptError:
-            return FAILURE
+_CODE = {"Script": "the script, e.g. count := count + 1", "ScriptCondition": "a boolean expression, e.g. battery > 20"}
+Script, ScriptCondition = node_types(_Code, __name__, {
+    "Script": {"INPUT_PORTS": {"code": port_info(str, _CODE["Script"])}, "DESCRIPTION": (
+        "runs code (BT.CPP scripting) on the blackboard: SUCCESS (FAILURE if it fails at run time)")},
+    "ScriptCondition": {"KIND": "Condition", "INPUT_PORTS": {"code": port_info(str, _CODE["ScriptCondition"])},
+                        "DESCRIPTION": "SUCCESS when code (BT.CPP scripting) is true, else FAILURE"}})
 
 
 class SetBlackboard(_Scripted, py_trees.behaviour.Behaviour):
