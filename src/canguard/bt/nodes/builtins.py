@@ -258,12 +258,9 @@ class _Branching(CanguardNode, py_trees.composites.Composite):
         super().stop(new_status)
 
 
-class IfThenElse(_Branching):
-    """first child decides: SUCCESS ticks the second, FAILURE the third (or fails); not re-checked"""
-
-
-class WhileDoElse(_Branching):
-    """like IfThenElse, but the first child is ticked every time: a change halts the running branch"""
-
-    REACTIVE = True
+IfThenElse, WhileDoElse = node_types(_Branching, __name__, {
+    "IfThenElse": {"DESCRIPTION": "first child decides: SUCCESS ticks the second, FAILURE the third (or fails); "
+                                  "not re-checked"},
+    "WhileDoElse": {"REACTIVE": True, "DESCRIPTION": "like IfThenElse, but the first child is ticked every time: "
+                                                     "a change halts the running branch"}})
 

@@ -22,6 +22,7 @@ from canguard.bt.nodes.base import (
     Status,
     count_of,
     mark_skipped,
+    node_types,
     outcome,
     port_info,
     reset,
@@ -174,24 +175,18 @@ class _Cycles(DecoratorNode):
         yield self
 
 
-class RetryUntilSuccessful(_Cycles):
-    """a FAILURE is retried, up to num_attempts attempts (-1: forever)"""
-
-    INPUT_PORTS = {  # noqa: RUF012
-        "num_attempts": port_info(int, "attempts before giving up (-1: forever; 0: FAILURE, the child not ticked)"),
-    }
-    ENDS, DONE, LIMIT = SUCCESS, FAILURE, "num_attempts"
-    AGAIN_TEXT, DONE_TEXT = "attempt {} failed, retrying", "failed {} time(s)"
-
-
-class Repeat(_Cycles):
-    """a SUCCESS is repeated, num_cycles times (-1: forever); FAILURE ends it"""
-
-    INPUT_PORTS = {  # noqa: RUF012
-        "num_cycles": port_info(int, "successes to collect (-1: forever; 0: SUCCESS, the child not ticked)"),
-    }
-    ENDS, DONE, LIMIT = FAILURE, SUCCESS, "num_cycles"
-    AGAIN_TEXT = "cycle {} done"
+RetryUntilSuccessful, Repeat = node_types(_Cycles, __name__, {
+    "RetryUntilSuccessful": {
+        "INPUT_PORTS": {"num_attempts": port_info(
+            int, "attempts before giving up (-1: forever; 0: FAILURE, the child not ticked)")},
+        "ENDS": SUCCESS, "DONE": FAILURE, "LIMIT": "num_attempts", "AGAIN_TEXT": "attempt {} failed, retrying",
+        "DONE_TEXT": "failed {} time(s)",
+        "DESCRIPTION": "a FAILURE is retried, up to num_attempts attempts (-1: forever)"},
+    "Repeat": {
+        "INPUT_PORTS": {"num_cycles": port_info(
+            int, "successes to collect (-1: forever; 0: SUCCESS, the child not ticked)")},
+        "ENDS": FAILURE, "DONE": SUCCESS, "LIMIT": "num_cycles", "AGAIN_TEXT": "cycle {} done",
+        "DESCRIPTION": "a SUCCESS is repeated, num_cycles times (-1: forever); FAILURE ends it"}})
 
 
 class Timeout(DecoratorNode):

@@ -20,6 +20,7 @@ from canguard.bt.nodes.base import (
     DecoratorNode,
     end_as,
     mark_skipped,
+    node_types,
     port_info,
 )
 
@@ -116,16 +117,11 @@ class _EntryUpdated(DecoratorNode):
             self.still_running = False
 
 
-class SkipUnlessUpdated(_EntryUpdated):
-    """ticks the child when the entry was written since the last look, else SKIPPED"""
-
-    IF_NOT_UPDATED = "SKIPPED"
-
-
-class WaitValueUpdate(_EntryUpdated):
-    """RUNNING until the entry is written (since the last look), then ticks the child"""
-
-    IF_NOT_UPDATED = "RUNNING"
+SkipUnlessUpdated, WaitValueUpdate = node_types(_EntryUpdated, __name__, {
+    "SkipUnlessUpdated": {
+        "DESCRIPTION": "ticks the child when the entry was written since the last look, else SKIPPED"},
+    "WaitValueUpdate": {"IF_NOT_UPDATED": "RUNNING", "DESCRIPTION": (
+        "RUNNING until the entry is written (since the last look), then ticks the child")}})
 
 
 class RunOnce(DecoratorNode):
