@@ -17,7 +17,7 @@ from canguard.config.schema import FrameSpec, SignalRef
 from canguard.config.yamlsrc import _closest, _found, _path
 
 if TYPE_CHECKING:
-    from canguard.config.checks import _Checks
+    from canguard.config.checks import Checks
 
 DRIVE_KEYS = ("eds", "node", "bus", "heartbeat", "pdo", "configure", "tpdo_period")
 CONFIGURED_HEARTBEAT_S = 0.1
@@ -29,7 +29,7 @@ DEFAULT_TPDO_PERIOD_S = 0.01
 class CanopenSection:
     """``canopen:`` drives and what sources and frames take from them."""
 
-    def __init__(self, checks: _Checks) -> None:
+    def __init__(self, checks: Checks) -> None:
         self.checks = checks
         self.drives: dict[str, CanopenDrive] = {}
         self._signals: dict[tuple[str, int], dict[str, Any]] = {}
@@ -67,7 +67,7 @@ class CanopenSection:
         if isinstance(node, bool) or not isinstance(node, int) or not 1 <= node <= 127:
             c.problem(_path(key, "node"), _found(node), "a CANopen node id 1..127")
             return None
-        bus = c.bus(body.get("bus"), _path(key, "bus"))
+        bus = c.bus(body, key)
         path = c.file_path(body["eds"], _path(key, "eds"))
         if path is None:
             return None

@@ -1,4 +1,4 @@
-"""The loader's state and its generic checks (mapping, string, number, seconds, path, bus name)."""
+"""One config file's problems and the generic checks of a value (mapping, string, number, seconds, path, bus)."""
 
 from __future__ import annotations
 
@@ -7,56 +7,25 @@ import os
 from collections.abc import Mapping
 from functools import cached_property
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import Any
 
 from canguard.config import yamlsrc
-from canguard.config.dbc import DbcChecks
-from canguard.config.schema import FrameSpec, SignalRef, SourceConfig
 from canguard.config.yamlsrc import _SECONDS_KEYS, _closest, _found, _line_of, _path, _shown
 from canguard.errors import ConfigError
 
-if TYPE_CHECKING:
-    from canguard.config.canopen import CanopenDrive
 
-
-class CanopenDrives(Protocol):
-    """What the loader asks of its ``canopen:`` section (:class:`canguard.config.canopen_section.CanopenSection`)."""
-
-    drives: dict[str, CanopenDrive]
-
-    def load(self, value: Any) -> None: ...
-
-    def source_refs(self, source: str, role: str, value: Mapping[str, Any], key: str
-                    ) -> tuple[str, float, list[SignalRef]]: ...
-
-    def messages(self) -> list[Any]: ...
-
-    def frame(self, value: Mapping[str, Any], key: str) -> FrameSpec | None: ...
-
-
-class _Checks:
+class Checks:
     """One pass over one config file: the problems found so far and the generic checks of a value."""
 
     def __init__(self, path: Path, display: str, text: str = "") -> None:
-        self.path = path
         self.base = path.parent
         self.display = display
+        self.text = text
         self.problems: list[str] = []
         self.located: list[str] = []
         """``problems`` with the line of their key: ``file:line: key: found X, expected Y``."""
-        self.text = text
-        self.database: Any = None
-        self.dbc_checks = DbcChecks()
-        """What the DBC files get wrong: errors where the config reads it, notes elsewhere."""
-        self.messages_ok = False
-        self._by_name: dict[str, Any] = {}
-        self._by_id: dict[int, list[Any]] = {}
         self.bus_names: tuple[str, ...] = ()
-        self.sources: dict[str, SourceConfig] = {}
-        self._broken_sources: set[str] = set()
-        self._sources_ok = True
-        self.canopen: CanopenDrives | None = None
-        """The ``canopen:`` drives, when the config has any."""
+        """The configured buses, which every ``bus:`` key names."""
 
     @cached_property
     def lines(self) -> dict[str, int]:
@@ -137,8 +106,10 @@ class _Checks:
             return None
         return Path(os.path.normpath(p if p.is_absolute() else self.base / p))
 
-    def bus(self, value: Any, key: str) -> str:
-        """Resolve a ``bus:`` key (``value`` None = left out)."""
+    def bus(self, mapping: Mapping[str, Any], key: str) -> str:
+        """Resolve ``mapping``'s ``bus:`` key (left out: the only bus)."""
+        value = mapping.get("bus")
+        key = _path(key, "bus")
         if value is None:
             if len(self.bus_names) == 1:
                 return self.bus_names[0]
@@ -151,5 +122,3 @@ class _Checks:
                 self.problem(key, _found(value), "a configured bus" + _closest(value, self.bus_names))
             return ""
         return value
-
-    # -- DBC ---------------------------------------------------------------
