@@ -8,16 +8,13 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from canguard.config import canopen as co
 from canguard.config.canopen import CanopenDrive, MappedObject, Pdo, SdoWrite
 from canguard.config.canopen_eds import Eds, EdsError
 from canguard.config.schema import FrameSpec, SignalRef
-from canguard.config.yamlsrc import _closest, _found, _path
-
-if TYPE_CHECKING:
-    from canguard.config.checks import Checks
+from canguard.config.yamlsrc import Checks, _closest, _found, _path
 
 DRIVE_KEYS = ("eds", "node", "bus", "heartbeat", "pdo", "configure", "tpdo_period")
 CONFIGURED_HEARTBEAT_S = 0.1

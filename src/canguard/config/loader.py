@@ -13,11 +13,10 @@ from typing import Any
 import yaml
 
 from canguard.config import sections
-from canguard.config.checks import Checks
 from canguard.config.node_ids import RESERVED_NODE_IDS
 from canguard.config.schema import ActionConfig, Config, PartialConfig, TreeConfig
 from canguard.config.sources import _IDENT, Messages, ReadSources, read_sources
-from canguard.config.yamlsrc import load_yaml
+from canguard.config.yamlsrc import Checks, load_yaml
 from canguard.errors import ConfigError
 
 

@@ -9,10 +9,9 @@ from typing import TYPE_CHECKING, Any, NamedTuple, cast
 
 import cantools
 
-from canguard.config.checks import Checks
 from canguard.config.dbc import DbcChecks, load_dbc_file
 from canguard.config.schema import NON_VALUE_ROLES, SignalRef, SourceConfig, SourceKind
-from canguard.config.yamlsrc import _closest, _found, _path, _shown
+from canguard.config.yamlsrc import Checks, _closest, _found, _path, _shown
 from canguard.errors import clip, quote
 
 if TYPE_CHECKING:
