@@ -28,6 +28,7 @@ class CanopenSection:
 
     def __init__(self, checks: Checks) -> None:
         self.checks = checks
+        self.problem = checks.problem
         self.drives: dict[str, CanopenDrive] = {}
         self._signals: dict[tuple[str, int], dict[str, Any]] = {}
         """Per (drive, COB-ID): signal name -> cantools Signal, for the messages built at the end."""
@@ -42,12 +43,12 @@ class CanopenSection:
     def load(self, value: Any) -> None:
         """Read every ``canopen:`` drive (problems recorded, broken drives left out)."""
         if not isinstance(value, Mapping):
-            self.checks.problem("canopen", _found(value), "a mapping of drive name -> {eds, node, bus, heartbeat, pdo}")
+            self.problem("canopen", _found(value), "a mapping of drive name -> {eds, node, bus, heartbeat, pdo}")
             return
         for name, body in value.items():
             key = _path("canopen", name)
             if not isinstance(name, str) or not name:
-                self.checks.problem(key, _found(name), "a drive name (a string)")
+                self.problem(key, _found(name), "a drive name (a string)")
                 continue
             drive = self.drive(name, body, key)
             if drive is not None:
@@ -112,10 +113,10 @@ class CanopenSection:
         if configure:
             return CONFIGURED_HEARTBEAT_S
         told = ms if ms is not None else "absent"
-        self.checks.problem(_path(key, "heartbeat"), f"nothing (the EDS's 0x1017 producer heartbeat time is {told}: "
-                            "the drive sends no heartbeat by default)",
-                            "the drive's heartbeat period in seconds (heartbeat: 0.1), with the drive told 0x1017 = "
-                            "that period in ms, or configure: true (canguard tells it)")
+        self.problem(_path(key, "heartbeat"), f"nothing (the EDS's 0x1017 producer heartbeat time is {told}: "
+                     "the drive sends no heartbeat by default)",
+                     "the drive's heartbeat period in seconds (heartbeat: 0.1), with the drive told 0x1017 = "
+                     "that period in ms, or configure: true (canguard tells it)")
         return CONFIGURED_HEARTBEAT_S
 
     def setup(self, eds: Eds, tpdos: list[Pdo], body: Mapping[str, Any], key: str,
@@ -132,17 +133,17 @@ class CanopenSection:
     def overrides(self, eds: Eds, tpdos: list[Pdo], value: Any, key: str) -> list[Pdo]:
         """``pdo: {TPDO3: [objects...]}``: those TPDOs (disabled in the EDS or not) map these objects instead."""
         if not isinstance(value, Mapping):
-            self.checks.problem(key, _found(value), "a mapping of TPDO name -> list of objects")
+            self.problem(key, _found(value), "a mapping of TPDO name -> list of objects")
             return tpdos
         by_name = {p.name: p for p in tpdos}
         out = dict(by_name)
         for pname, objects in value.items():
             pkey = _path(key, pname)
             if pname not in by_name:
-                self.checks.problem(pkey, _found(pname), f"a TPDO of {eds.path.name}" + _closest(pname, list(by_name)))
+                self.problem(pkey, _found(pname), f"a TPDO of {eds.path.name}" + _closest(pname, list(by_name)))
                 continue
             if not isinstance(objects, list) or not objects:
-                self.checks.problem(pkey, _found(objects), "a non-empty list of objects ('0x6041', '0x6077:0')")
+                self.problem(pkey, _found(objects), "a non-empty list of objects ('0x6041', '0x6077:0')")
                 continue
             refs = [r for i, item in enumerate(objects) if (r := self.resolve(eds, item, f"{pkey}[{i}]")) is not None]
             if len(refs) != len(objects):
@@ -150,24 +151,23 @@ class CanopenSection:
             try:
                 out[pname] = co.override(eds, by_name[pname], refs)
             except EdsError as exc:
-                self.checks.problem(pkey, str(exc), "PDO-mappable numbers that fit in 8 bytes")
+                self.problem(pkey, str(exc), "PDO-mappable numbers that fit in 8 bytes")
         return [out[p.name] for p in tpdos]
 
     def resolve(self, eds: Eds, value: Any, key: str) -> tuple[int, int | None] | None:
         """``value`` (hex ``INDEX[:SUB]`` or a ParameterName) as (index, subindex) of an object of ``eds``."""
         parsed = co.parse_object(value)
         if parsed is None:
-            self.checks.problem(key, _found(value), "an object: INDEX or INDEX:SUB in hex, or its EDS ParameterName")
+            self.problem(key, _found(value), "an object: INDEX or INDEX:SUB in hex, or its EDS ParameterName")
             return None
         if isinstance(parsed, str):
             var = eds.by_name(parsed)
             if var is None:
-                self.checks.problem(key, repr(parsed),
-                                    f"an object of {eds.path.name} (hex INDEX[:SUB] or ParameterName)")
+                self.problem(key, repr(parsed), f"an object of {eds.path.name} (hex INDEX[:SUB] or ParameterName)")
                 return None
             return int(var.index), int(var.subindex)
         if eds.entry(parsed[0]) is None or (parsed[1] is not None and eds.variable(parsed[0], parsed[1]) is None):
-            self.checks.problem(key, f"0x{parsed[0]:04X}:{parsed[1] or 0:02X}", f"an object of {eds.path.name}")
+            self.problem(key, f"0x{parsed[0]:04X}:{parsed[1] or 0:02X}", f"an object of {eds.path.name}")
             return None
         return parsed
 
@@ -197,14 +197,13 @@ class CanopenSection:
         """The drive ``canopen: NAME`` names; None, with a problem unless that drive's own entry has one."""
         drive = self.drives.get(dname) if isinstance(dname, str) else None
         if drive is None and dname not in self.failed:
-            self.checks.problem(_path(key, "canopen"), _found(dname),
-                                "a drive of canopen:" + _closest(dname, list(self.drives)))
+            self.problem(_path(key, "canopen"), _found(dname), "a drive of canopen:" + _closest(dname, self.drives))
         return drive
 
     def tpdo_object(self, drive: CanopenDrive, value: Any, key: str) -> tuple[Pdo, MappedObject] | None:
         """The TPDO that maps ``object:`` and where; else a problem naming the TPDOs and what they map."""
         if value is None:
-            self.checks.problem(key, "nothing", "the object the source reads (hex INDEX[:SUB] or ParameterName)")
+            self.problem(key, "nothing", "the object the source reads (hex INDEX[:SUB] or ParameterName)")
             return None
         parsed = co.parse_object(value)
         if isinstance(parsed, str):
@@ -218,12 +217,12 @@ class CanopenSection:
                 try:
                     eds.pdo_value(parsed[0], None)
                 except EdsError as exc:  # a record or array: its sub-index 0 is a count, never a value
-                    self.checks.problem(key, _found(value), f"a variable, not a whole object: {exc}")
+                    self.problem(key, _found(value), f"a variable, not a whole object: {exc}")
                     return None
             found = drive.tpdo_of(parsed[0], parsed[1] or 0)
             if found is not None and found[1].name == co.UNDESCRIBED:
-                self.checks.problem(key, f"{found[1].ref}, which {found[0].name} maps but {drive.eds.name} does not "
-                                    "describe", "an object the EDS describes (its data type gives its size and sign)")
+                self.problem(key, f"{found[1].ref}, which {found[0].name} maps but {drive.eds.name} does not "
+                             "describe", "an object the EDS describes (its data type gives its size and sign)")
                 return None
             if found is not None:
                 return found
@@ -231,8 +230,7 @@ class CanopenSection:
         off = [p.name for p in drive.tpdos if not p.enabled]
         hint = (f"; {', '.join(off)} disabled in the EDS: map it there with canopen.{drive.name}.pdo "
                 "(`canguard init --canopen` writes one)" if off else "")
-        self.checks.problem(key, _found(value),
-                            f"an object a TPDO of {drive.name} maps ({mapped or 'no TPDO'}{hint})")
+        self.problem(key, _found(value), f"an object a TPDO of {drive.name} maps ({mapped or 'no TPDO'}{hint})")
         return None
 
     def health_refs(self, drive: CanopenDrive, near: Pdo | None) -> list[SignalRef]:

@@ -62,10 +62,9 @@ class Messages:
         files, databases = self.dbc_files(value)
         if len(databases) != len(value):
             return tuple(files)
-        messages: list[Any] = []
         where: dict[str, Path] = {}
         ids: dict[tuple[int, bool], tuple[str, Path]] = {}
-        clash = False
+        before = len(self.checks.problems)
         for p, db in databases:
             for m in db.messages:
                 key = (m.frame_id, bool(m.is_extended_frame))
@@ -76,16 +75,13 @@ class Messages:
                     self.problem("dbc", f"frame id 0x{m.frame_id:X} as {other!r} in {op} and as {m.name!r} in {p}",
                                  "unique frame ids")
                 else:
-                    where[m.name] = p
-                    ids[key] = (m.name, p)
-                    messages.append(m)
-                    continue
-                clash = True
-        if clash:
+                    where[m.name], ids[key] = p, (m.name, p)
+        if len(self.checks.problems) > before:
             return tuple(files)
         if len(databases) == 1:
             self.database = databases[0][1]
         else:
+            messages = [m for _, db in databases for m in db.messages]
             nodes = [n for _, db in databases for n in db.nodes]
             # not strict, as each file loaded: two signals of one name stay in their message
             self.database = cantools.database.can.Database(messages=messages, nodes=nodes, strict=False)
