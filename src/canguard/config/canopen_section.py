@@ -45,11 +45,7 @@ class CanopenSection:
         if not isinstance(value, Mapping):
             self.problem("canopen", _found(value), "a mapping of drive name -> {eds, node, bus, heartbeat, pdo}")
             return
-        for name, body in value.items():
-            key = _path("canopen", name)
-            if not isinstance(name, str) or not name:
-                self.problem(key, _found(name), "a drive name (a string)")
-                continue
+        for name, body, key in self.checks.named(value, "canopen", "a drive name"):
             drive = self.drive(name, body, key)
             if drive is not None:
                 self.drives[name] = drive

@@ -47,11 +47,7 @@ def buses(c: Checks, value: Any) -> dict[str, BusConfig]:
     if not isinstance(value, Mapping) or not value:
         c.problem("buses", _found(value), "a mapping of bus name -> python-can Bus arguments")
         return result
-    for name, kwargs in value.items():
-        key = _path("buses", name)
-        if not isinstance(name, str) or not name:
-            c.problem(key, _found(name), "a bus name (a string)")
-            continue
+    for name, kwargs, key in c.named(value, "buses", "a bus name"):
         if not isinstance(kwargs, Mapping):
             c.problem(key, _found(kwargs), "a mapping of python-can Bus arguments (interface, channel, ...)")
             continue

@@ -299,13 +299,11 @@ class ReadSources(NamedTuple):
 
 def read_sources(c: Checks, m: Messages, value: Any) -> ReadSources:
     """Every source of ``sources:`` (``value``; None: none), each problem recorded."""
-    read = ReadSources({}, set(), isinstance(value or {}, Mapping))
+    value = value or {}
+    read = ReadSources({}, set(), isinstance(value, Mapping))
     if not read.ok:
         c.problem("sources", _found(value), "a mapping of source name -> source")
-    for name, body in (value or {}).items() if read.ok else ():
-        if not isinstance(name, str) or not name:
-            c.problem(_path("sources", name), _found(name), "a source name (a string)")
-            continue
+    for name, body, _ in c.named(value if read.ok else {}, "sources", "a source name"):
         before = len(c.problems)
         src = source(c, m, name, body)
         if src is not None:

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import math
 import os
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from functools import cached_property
 from pathlib import Path
 from typing import Any, Literal
@@ -193,6 +193,14 @@ class Checks:
             if k not in value:
                 self.problem(_path(key, k), "nothing", "a value (required key)")
         return True
+
+    def named(self, value: Mapping[Any, Any], key: str, what: str) -> Iterator[tuple[str, Any, str]]:
+        """Each ``name: body`` of ``value`` and its key path; a problem for each name that is not a string."""
+        for name, body in value.items():
+            if isinstance(name, str) and name:
+                yield name, body, _path(key, name)
+            else:
+                self.problem(_path(key, name), _found(name), f"{what} (a string)")
 
     def section(self, value: Any, key: str, allowed: tuple[str, ...], required: tuple[str, ...] = ()) -> Any:
         """An optional section: ``value`` when it is a mapping (its keys checked by :meth:`mapping`), else None."""
