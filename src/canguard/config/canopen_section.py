@@ -62,7 +62,7 @@ class CanopenSection:
             c.problem(_path(key, "node"), _found(node), "a CANopen node id 1..127")
             return None
         bus = c.bus(body, key)
-        path = c.file_path(body["eds"], _path(key, "eds"))
+        path = c.file_path(body["eds"], _path(key, "eds")) if "eds" in body else None
         if path is None:
             return None
         try:
@@ -192,7 +192,7 @@ class CanopenSection:
     def drive_of(self, dname: Any, key: str) -> CanopenDrive | None:
         """The drive ``canopen: NAME`` names; None, with a problem unless that drive's own entry has one."""
         drive = self.drives.get(dname) if isinstance(dname, str) else None
-        if drive is None and dname not in self.failed:
+        if drive is None and not (isinstance(dname, str) and dname in self.failed):
             self.problem(_path(key, "canopen"), _found(dname), "a drive of canopen:" + _closest(dname, self.drives))
         return drive
 
