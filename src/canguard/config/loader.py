@@ -15,7 +15,7 @@ import yaml
 from canguard.config import sections
 from canguard.config.node_ids import RESERVED_NODE_IDS
 from canguard.config.schema import ActionConfig, Config, PartialConfig, TreeConfig
-from canguard.config.sources import _IDENT, Messages, ReadSources, read_sources
+from canguard.config.sources import Messages, ReadSources, read_sources
 from canguard.config.yamlsrc import Checks, load_yaml
 from canguard.errors import ConfigError
 
@@ -23,11 +23,7 @@ from canguard.errors import ConfigError
 def _partial(doc: Mapping[str, Any], tree: TreeConfig | None, actions: Mapping[str, ActionConfig],
              read: ReadSources) -> PartialConfig:
     """What of a config with problems is sound enough to check its tree against."""
-    raw_actions = doc.get("actions")
-    names = [n for n in raw_actions if isinstance(n, str)] if isinstance(raw_actions, Mapping) else []
-    # An action whose frames are wrong is still an action node ID the tree may use.
-    all_actions = {n: actions.get(n, ActionConfig(name=n)) for n in names
-                   if _IDENT.fullmatch(n) and n not in RESERVED_NODE_IDS}
+    all_actions = {n: a for n, a in actions.items() if n not in RESERVED_NODE_IDS}
     raw_sources = doc.get("sources")
     declared = frozenset(str(n) for n in raw_sources) if isinstance(raw_sources, Mapping) else frozenset()
     return PartialConfig(tree=tree if tree is not None and tree.file.is_file() else None,

@@ -23,7 +23,7 @@ from canguard.config.schema import (
     TaskConfig,
     TreeConfig,
 )
-from canguard.config.sources import _IDENT, Messages, ReadSources
+from canguard.config.sources import Messages, ReadSources
 from canguard.config.yamlsrc import _CONFIRM_OPS, _FD_LENGTHS, Checks, _closest, _found, _path, _shown
 
 _BUILT_IN_INTERFACES = frozenset({
@@ -72,9 +72,7 @@ def tree(c: Checks, value: Any) -> TreeConfig | None:
         return None
     file = c.file_path(value["file"], "tree.file") if "file" in value else None
     main = value.get("main")
-    if main is not None and not (isinstance(main, str) and main):
-        c.problem("tree.main", _found(main), "the ID of a BehaviorTree in the file")
-        main = None
+    main = None if main is None else c.string(main, "tree.main", "the ID of a BehaviorTree in the file")
     tick_hz = c.seconds(value, "tick_hz", "tree", 100.0)
     if file is None:
         return None
@@ -155,14 +153,13 @@ def actions(c: Checks, m: Messages, value: Any) -> dict[str, ActionConfig]:
         return result
     for name, body in value.items():
         key = _path("actions", name)
-        if not isinstance(name, str) or not _IDENT.fullmatch(name):
+        if not isinstance(name, str) or not (name.isascii() and name.isidentifier()):
             c.problem(key, _found(name), "an action node ID (letters, digits, underscores)")
             continue
         if name in RESERVED_NODE_IDS:  # its frames are still checked below
             c.problem(key, "the ID of a built-in node type", "a new action name")
-        if body is None:
-            result[name] = ActionConfig(name=name)
-        elif c.mapping(body, key, ("frames", "role")):
+        result[name] = ActionConfig(name=name)  # with a problem in its body, still a node ID the tree may use
+        if body is not None and c.mapping(body, key, ("frames", "role")):
             role = c.choice(body, "role", key, ("task", "recovery", "auto"), "auto")
             result[name] = ActionConfig(name=name, frames=frames(c, m, body, "frames", key), role=role)
     return result

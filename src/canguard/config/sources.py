@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import re
 from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, NamedTuple, cast
@@ -319,4 +318,3 @@ _KIND_KEYS: dict[str, tuple[str, ...]] = {
     "battery": ("message", "current", "present", "counter"), "joints": ("effort",),
     "current": ("message", "signal", "present", "counter")}
 """The keys of each source kind besides kind, bus and max_age (the first two, or the one, required), in role order."""
-_IDENT = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
