@@ -13,7 +13,7 @@ from typing import Any
 from canguard.config import canopen as co
 from canguard.config.canopen import CanopenDrive, MappedObject, Pdo, SdoWrite
 from canguard.config.canopen_eds import Eds, EdsError
-from canguard.config.schema import FrameSpec, SignalRef
+from canguard.config.schema import FrameSpec, SignalRef, SourceConfig
 from canguard.config.yamlsrc import Checks, _closest, _found, _path
 
 DRIVE_KEYS = ("eds", "node", "bus", "heartbeat", "pdo", "configure", "tpdo_period")
@@ -76,12 +76,8 @@ class CanopenSection:
             tpdos = self.overrides(eds, tpdos, body["pdo"], _path(key, "pdo"))
         configure = c.choice(body, "configure", key, (True, False), False)
         heartbeat = self.heartbeat(eds, body, key, configure)
-        defaults: dict[tuple[int, int], int | float] = {}
-        for pdo in rpdos:
-            for obj in pdo.objects:
-                v = eds.value(obj.index, obj.subindex)
-                if isinstance(v, (int, float)) and not isinstance(v, bool):
-                    defaults[(obj.index, obj.subindex)] = v
+        values = {(o.index, o.subindex): eds.value(o.index, o.subindex) for pdo in rpdos for o in pdo.objects}
+        defaults = {at: v for at, v in values.items() if isinstance(v, (int, float)) and not isinstance(v, bool)}
         setup = self.setup(eds, tpdos, body, key, heartbeat) if configure else ()
         if "tpdo_period" in body and not configure:
             c.problem(_path(key, "tpdo_period"), f"{body['tpdo_period']!r} without configure: true",
@@ -91,10 +87,8 @@ class CanopenSection:
         if not configure and told != round(heartbeat * 1000):
             notes.append(f"the EDS's 0x1017 producer heartbeat time is {told} ms: the drive must be told "
                          f"{round(heartbeat * 1000)} ms (configure: true does)")
-        for pdo in tpdos:
-            if pdo.overridden and not configure:
-                notes.append(f"{pdo.name} is a pdo: override: the drive must be told its mapping and COB-ID "
-                             "(configure: true does)")
+        notes += [f"{pdo.name} is a pdo: override: the drive must be told its mapping and COB-ID (configure: true does)"
+                  for pdo in tpdos if pdo.overridden and not configure]
         return CanopenDrive(name=name, eds=path, node=node, bus=bus, heartbeat_s=heartbeat, tpdos=tuple(tpdos),
                             rpdos=tuple(rpdos), defaults=defaults, device=eds.device, setup=setup, notes=tuple(notes))
 
@@ -167,13 +161,12 @@ class CanopenSection:
             return None
         return parsed
 
-    def source_refs(self, source: str, role: str, value: Mapping[str, Any], key: str
-                    ) -> tuple[str, float, list[SignalRef]]:
-        """The signals of a ``canopen:`` source: (bus, max_age, [its value, then the drive's health roles])."""
+    def source(self, name: str, value: Mapping[str, Any], key: str) -> SourceConfig:
+        """A ``kind: current`` source of a drive: the object's value, then the drive's health roles."""
         c = self.checks
         drive = self.drive_of(value.get("canopen"), key)
         if drive is None:
-            return "", 0.5, []
+            return SourceConfig(name=name, kind="current", bus="", signals=(), max_age_s=0.5)
         scale = value.get("scale", 1.0)
         if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not math.isfinite(scale) or scale == 0:
             c.problem(_path(key, "scale"), _found(scale), "a finite number other than 0")
@@ -184,10 +177,10 @@ class CanopenSection:
         where = self.tpdo_object(drive, value.get("object"), _path(key, "object"))
         if where is not None:
             pdo, obj = where
-            refs.append(self.ref(drive, pdo, role, f"{source}_{role}", obj.start_bit, obj.bits, signed=obj.signed,
-                                 is_float=obj.is_float, scale=float(scale)))
+            refs.append(self.ref(drive, pdo, "current", f"{name}_current", obj.start_bit, obj.bits,
+                                 signed=obj.signed, is_float=obj.is_float, scale=float(scale)))
         refs.extend(self.health_refs(drive, where[0] if where is not None else None))
-        return drive.bus, max_age, refs
+        return SourceConfig(name=name, kind="current", bus=drive.bus, signals=tuple(refs), max_age_s=max_age)
 
     def drive_of(self, dname: Any, key: str) -> CanopenDrive | None:
         """The drive ``canopen: NAME`` names; None, with a problem unless that drive's own entry has one."""

@@ -284,8 +284,7 @@ def _canopen_source(c: Checks, m: Messages, name: str, kind: Any, value: Mapping
     if m.canopen is None:
         c.problem(_path(key, "canopen"), _found(value.get("canopen")), "a drive of canopen: (none configured)")
         return None
-    bus, max_age, signals = m.canopen.source_refs(name, "current", value, key)
-    return SourceConfig(name=name, kind="current", bus=bus, signals=tuple(signals), max_age_s=max_age)
+    return m.canopen.source(name, value, key)
 
 
 class ReadSources(NamedTuple):
