@@ -273,16 +273,11 @@ def _dbc_frame(c: Checks, m: Messages, value: Mapping[str, Any], key: str) -> Fr
         return None
     if msg is None:
         return None
-    data: dict[str, Any] = {s.name: _initial(s) for s in msg.signals}
     ok = _unsound_left_out(c, m, msg, signals, key)
-    for sname, sval in signals.items():
-        v = frame_value(c, m, msg, sname, sval, _path(_path(key, "signals"), sname))
-        if v is None:
-            ok = False
-        else:
-            data[sname] = v
-    if not ok:
+    values = {name: frame_value(c, m, msg, name, v, f"{key}.signals.{name}") for name, v in signals.items()}
+    if not ok or None in values.values():
         return None
+    data: dict[str, Any] = {**{s.name: _initial(s) for s in msg.signals}, **values}
     try:
         payload = msg.encode(data, scaling=True, padding=False, strict=True)
     except Exception as exc:  # cantools EncodeError / ValueError / KeyError
