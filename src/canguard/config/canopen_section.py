@@ -1,7 +1,7 @@
 """The loader's ``canopen:`` section: drives from their EDS, sources reading their objects, their frames.
 
-Composed into the config loader (its public checks only), which adds :meth:`CanopenSection.messages` to
-the config's database.
+It records its problems in the loader's :class:`~canguard.config.yamlsrc.Checks`; the loader adds
+:meth:`CanopenSection.messages` to the config's database.
 """
 
 from __future__ import annotations
