@@ -247,6 +247,37 @@ class TestDaemonReceivesDirectly:
             peer.shutdown()
         assert result == [0]
 
+    @pytest.mark.parametrize("filtered", [True, False])
+    def test_foreign_frames_are_not_taken_and_a_configured_one_still_trips(self, tmp_path: Path,
+                                                                         filtered: bool) -> None:
+        """Frames of ids the config does not read never reach the engine (``filter: false``: they are counted
+        as skipped), and the overcurrent after them still brings the Estop."""
+        bus = unique_udp()
+        edit = None if filtered else lambda doc: doc["buses"]["main"].update(filter=False)
+        daemon = Daemon(write_config(tmp_path, bus, edit=edit), notifier=Notifier(env={}))
+        peer = can.Bus(**bus)
+        thread = threading.Thread(target=daemon.run, name="daemon", daemon=True)
+        thread.start()
+        try:
+            with BmsFeeder(peer) as feeder:
+                receive_until(peer, is_task, "task frame while the current is normal")
+                with feeder.held:
+                    for i in range(40):
+                        peer.send(can.Message(arbitration_id=0x600 + i, data=bytes(8), is_extended_id=False))
+                        peer.send(can.Message(arbitration_id=0x1ABC00 + i, data=bytes(8), is_extended_id=True))
+                    feeder.current_a = 40.0
+                receive_until(peer, is_stop, "Estop after the overcurrent")
+            decoder = daemon.engine.decoder
+            if filtered:
+                assert decoder.skipped == 0
+                assert daemon.reader.received["main"] == decoder.frames
+            else:
+                wait_until(lambda: decoder.skipped >= 80, what="the 80 foreign frames counted")
+        finally:
+            daemon.request_stop("test over")
+            thread.join(10)
+            peer.shutdown()
+
 
 class TestJournalSyncsInBackground:
     """The live daemon's journal fsyncs in a thread of its own, so the loop never waits for the disk."""

@@ -22,6 +22,13 @@
   :class:`queue.SimpleQueue`, so no frame is dropped while the engine is busy;
   ``received`` is when the thread got it.
 
+**Filters.** ``wanted`` names, per bus, the id keys of the frames the config reads
+(:func:`receive_keys`; None: every frame). On SocketCAN they go to the kernel as python-can's
+``can_filters`` (:func:`kernel_filters`): a foreign frame never wakes the daemon. Either way
+:func:`wants` drops a foreign message before anything is built of it (on interfaces without kernel
+filters: python-can's own check would drop error frames, and costs a comparison a filter);
+error frames always pass.
+
 Each frame keeps the message's kernel / hardware timestamp. A receive error is
 logged on ``canguard.io.bus``, handed to ``on_error(bus_name, exc)``, and the bus is
 closed and reopened with exponential backoff (``backoff_min_s`` .. ``backoff_max_s``,
@@ -43,18 +50,51 @@ import threading
 import time
 from collections.abc import Callable, Iterable, Mapping
 from time import monotonic
+from typing import TYPE_CHECKING
 
 import can
 
-from canguard.config.schema import BusConfig
+from canguard.config.schema import BusConfig, Config
 from canguard.errors import BusError
+from canguard.io.block import EXT_KEY
 from canguard.io.frame import Frame
 from canguard.io.pycan import frames_from_messages
+
+if TYPE_CHECKING:
+    from can.typechecking import CanFilter
 
 log = logging.getLogger(__name__)
 
 ErrorCallback = Callable[[str, BaseException], None]
 Opener = Callable[[BusConfig], can.BusABC]
+Wanted = Mapping[str, frozenset[int] | None]
+"""Per bus, the id keys (as :attr:`Block.keys <canguard.io.block.Block.keys>`) of the frames taken; None: all."""
+
+KERNEL_FILTERS_MAX = 512
+"""SocketCAN takes at most this many filters a socket (``CAN_RAW_FILTER_MAX``); past it canguard filters alone."""
+
+
+def receive_keys(cfg: Config) -> dict[str, frozenset[int] | None]:
+    """Per bus of ``cfg``, the id keys of the frames the config reads (each source's messages, a CANopen drive's
+    PDOs, heartbeat and EMCY); None for a bus with ``filter: false``."""
+    keys: dict[str, set[int]] = {name: set() for name in cfg.buses}
+    for source in cfg.sources.values():
+        for ref in source.signals:
+            keys.setdefault(ref.bus, set()).add(ref.frame_id + EXT_KEY if ref.is_extended_id else ref.frame_id)
+    return {name: frozenset(keys[name]) if bus.filter else None for name, bus in cfg.buses.items()}
+
+
+def kernel_filters(keys: Iterable[int]) -> list[CanFilter]:
+    """python-can ``can_filters`` passing exactly the frames of ``keys``: each id under a full mask, with its
+    extended flag (SocketCAN then matches the frame format too)."""
+    return [{"can_id": k - EXT_KEY, "can_mask": 0x1FFFFFFF, "extended": True} if k >= EXT_KEY
+            else {"can_id": k, "can_mask": 0x7FF, "extended": False} for k in sorted(keys)]
+
+
+def wants(keys: frozenset[int] | None, msg: can.Message) -> bool:
+    """Whether a bus receiving ``keys`` (:data:`Wanted`) takes ``msg``: an error frame always."""
+    return (keys is None or (msg.arbitration_id + EXT_KEY if msg.is_extended_id else msg.arbitration_id) in keys
+            or msg.is_error_frame)
 
 
 def open_bus(cfg: BusConfig) -> can.BusABC:
@@ -147,6 +187,7 @@ class BusReader:
         backoff_max_s: float = 5.0,
         opener: Opener = open_bus,
         direct: bool = False,
+        wanted: Wanted | None = None,
     ) -> None:
         configs = list(buses.values()) if isinstance(buses, Mapping) else list(buses)
         self.configs: dict[str, BusConfig] = {c.name: c for c in configs}
@@ -157,6 +198,8 @@ class BusReader:
         self.backoff_min_s = backoff_min_s
         self.backoff_max_s = backoff_max_s
         self._opener = opener
+        self.wanted: dict[str, frozenset[int] | None] = {name: (wanted or {}).get(name) for name in self.configs}
+        """Per bus, the id keys of the frames taken (:func:`wants`); None: every frame. Set with :meth:`want`."""
         self._direct_wanted = direct
         self.direct = False
         """True once started without threads: :meth:`receive` waits on the buses' sockets itself."""
@@ -188,8 +231,8 @@ class BusReader:
             raise RuntimeError("BusReader already started")
         self._stop.clear()
         try:
-            for name, cfg in self.configs.items():
-                self._buses[name] = self._opener(cfg)
+            for name in self.configs:
+                self._buses[name] = self._open(name)
         except Exception:
             self._shutdown_all()
             raise
@@ -230,6 +273,29 @@ class BusReader:
                    and (self.direct or (name in self._threads and self._threads[name].is_alive())))
             for name in self.configs
         }
+
+    def want(self, wanted: Wanted) -> None:
+        """Take the frames of ``wanted`` from now on (a config reloaded): the kernel's filters follow."""
+        self.wanted = {name: wanted.get(name) for name in self.configs}
+        with self._lock:
+            for name, bus in self._buses.items():
+                if bus is not None:
+                    self._filter(name, bus)
+
+    def _open(self, name: str) -> can.BusABC:
+        """Open bus ``name`` with the kernel's filters of :attr:`wanted` (SocketCAN)."""
+        bus = self._opener(self.configs[name])
+        self._filter(name, bus)
+        return bus
+
+    def _filter(self, name: str, bus: can.BusABC) -> None:
+        """On SocketCAN (and no ``can_filters`` of the config's own), :attr:`wanted`'s ids as the kernel's filters:
+        every frame when they are None, empty or too many for the kernel (:func:`wants` filters them then)."""
+        cfg = self.configs[name]
+        if cfg.interface != "socketcan" or "can_filters" in cfg.kwargs:
+            return
+        keys = self.wanted[name]
+        bus.set_filters(kernel_filters(keys) if keys and len(keys) <= KERNEL_FILTERS_MAX else None)
 
     # -- consuming ---------------------------------------------------------
     def receive(self, timeout_s: float | None, limit: int) -> list[tuple[str, Frame, float]]:
@@ -273,9 +339,22 @@ class BusReader:
 
     # -- receiving directly -------------------------------------------------
     def _receive_direct(self, timeout_s: float | None, limit: int) -> list[tuple[str, Frame, float]]:
-        """Wait on the open buses' sockets, then drain each ready one with ``recv(0)``; reopen buses due."""
-        if self._stop.is_set():
-            return []
+        """Wait on the open buses' sockets, then drain each ready one with ``recv(0)``; reopen buses due. A wake-up
+        that brought only foreign frames waits again, until ``timeout_s`` is over."""
+        end = math.inf if timeout_s is None else monotonic() + timeout_s
+        while not self._stop.is_set():
+            out = self._wake(timeout_s, limit)
+            if out is not None:
+                return out
+            left = end - monotonic()
+            if left <= 0.0:
+                break
+            timeout_s = None if left == math.inf else left
+        return []
+
+    def _wake(self, timeout_s: float | None, limit: int) -> list[tuple[str, Frame, float]] | None:
+        """One wait on the sockets and the drain of those ready: the frames taken; [] when none is ready in
+        ``timeout_s``, None when the ready ones held only frames :func:`wants` drops."""
         buses = self._buses
         if None in buses.values():  # a bus closed: reopened when due, waited on until then
             now = monotonic()
@@ -299,7 +378,7 @@ class BusReader:
                 self._drain_bus(name, share, out)
         if len(ready) > 1:
             out.sort(key=lambda item: item[2])  # buses drained one after the other: back to arrival order
-        return out
+        return out if out or None in self._buses.values() else None
 
     def _drain_bus(self, name: str, limit: int, out: list[tuple[str, Frame, float]]) -> None:
         """Append up to ``limit`` frames the kernel holds for bus ``name`` (after the first, a poll of its socket
@@ -310,13 +389,15 @@ class BusReader:
         msgs: list[can.Message] = []
         recv = bus.recv
         pending = self._pending[name]
+        keys = self.wanted[name]
         try:
             while len(msgs) < limit:
                 msg = recv(0)
                 if msg is None:
                     break
-                msgs.append(msg)
-                if len(msgs) == 1 and not pending(0):  # a frame alone, the usual wake-up: no recv(0) that finds none
+                if wants(keys, msg):
+                    msgs.append(msg)
+                if len(msgs) < 2 and not pending(0):  # a frame alone, the usual wake-up: no recv(0) that finds none
                     break
         except Exception as exc:  # the bus went away (or a backend bug): report, close, reopen later
             self._failed(name, exc)
@@ -380,7 +461,7 @@ class BusReader:
                 continue
             try:
                 msg = bus.recv(timeout)
-                if msg is None:
+                if msg is None or not wants(self.wanted[name], msg):
                     continue
                 put((name, frames_from_messages([msg], name)[0], monotonic()))  # arrival: how long it then waits
             except Exception as exc:  # the bus went away (or a backend bug): report, close, reopen
@@ -419,7 +500,7 @@ class BusReader:
     def _open_once(self, name: str, delay: float) -> can.BusABC | None:
         """Try once to reopen ``name``; the bus, or None (logged, saying when the next try is)."""
         try:
-            bus = self._opener(self.configs[name])
+            bus = self._open(name)
         except Exception as exc:
             log.warning("bus %s: reopen failed (%s); retrying in %.1f s", name, exc, delay)
             return None

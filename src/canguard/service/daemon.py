@@ -31,7 +31,7 @@ from canguard.engine.ratelimit import held_note
 from canguard.engine.stats import EventSink
 from canguard.errors import CanguardError, ConfigError
 from canguard.io.block import Block
-from canguard.io.bus import BusReader
+from canguard.io.bus import BusReader, receive_keys
 from canguard.io.clock import BootClock, LiveClock
 from canguard.io.frame import Frame
 from canguard.io.outputs import check_config_outputs, load_run_config
@@ -95,6 +95,9 @@ class Daemon:
     watch = True
     """The config's ``monitor:`` is served; the realtime replay bench serves none."""
 
+    filters = True
+    """Each bus receives the frames the config reads (``filter:``); the realtime replay bench counts every frame."""
+
     def __init__(self, config_path: Path, *, metrics_addr: str | None = None,
                  notifier: Notifier | None = None, cfg: Config | None = None, state_dir: Path | None = None,
                  http: str | None = None, groot2: str | None = None) -> None:
@@ -130,7 +133,7 @@ class Daemon:
         self._watchdog_held = ""
         self._bus_errors: queue.SimpleQueue[tuple[str, str]] = queue.SimpleQueue()
         self.exit_reason = "exit"
-        self.reader = BusReader(self.cfg.buses, on_error=self._bus_error, direct=True)
+        self.reader = BusReader(self.cfg.buses, on_error=self._bus_error, direct=True, wanted=self.wanted(self.cfg))
         self.sink: FrameSink = BusSink(
             self.reader.send, on_error=self.metrics.send_error if self.metrics is not None else None,
             on_refused=self._send_refused,
@@ -159,6 +162,10 @@ class Daemon:
         except BaseException:
             release_clients(registered_clients() - before)  # a tree built half-way leaves no keys behind
             raise
+
+    def wanted(self, cfg: Config) -> dict[str, frozenset[int] | None]:
+        """Per bus, the id keys of the frames received (:func:`~canguard.io.bus.receive_keys`; None: every frame)."""
+        return receive_keys(cfg) if self.filters else {}
 
     def load(self) -> Config:
         """The config file as this daemon runs it (its outputs moved to :attr:`state_dir`, when set)."""
@@ -332,6 +339,7 @@ class Daemon:
             self.setup = drive_setup(cfg)
         old.store_heat(now)  # the new guards start from the heat the old ones had
         self.cfg, self.engine = cfg, new
+        self.reader.want(self.wanted(cfg))  # the new sources' frames from now on
         self.overrun_limit_s = overrun_limit(cfg)
         new.start(now)
         # The task's state, the sources' data and the counters carry over: a running task goes on
