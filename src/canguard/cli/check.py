@@ -66,7 +66,8 @@ def describe(cfg: Config, verbose: bool = False) -> str:
     for name, bus in cfg.buses.items():
         extra = {k: v for k, v in bus.kwargs.items() if k not in ("interface", "channel")}
         more = "".join(f", {k}={v!r}" for k, v in extra.items())
-        lines.append(f"  {name}: interface {bus.interface}, channel {bus.channel}{more}")
+        every = "" if bus.filter else "; filter: false (every frame received)"
+        lines.append(f"  {name}: interface {bus.interface}, channel {bus.channel}{more}{every}")
 
     if cfg.canopen:
         lines.append("canopen:")
