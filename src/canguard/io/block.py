@@ -47,6 +47,7 @@ __all__ = [
     "Block",
     "PayloadSource",
     "channel_name",
+    "one_block",
 ]
 
 FLAG_FD = 1
@@ -166,11 +167,7 @@ class Block:
     def of_frames(cls, frames: Iterable[Frame]) -> Block:
         """The frames as a block (the live drain, a simulator, tests)."""
         listed = frames if type(frames) is tuple else tuple(frames)
-        if len(listed) == 1:  # a frame on a quiet bus
-            one = _one(listed[0])
-            if one is not None:
-                return one
-        return _of_frames(listed)
+        return one_block(listed[0]) if len(listed) == 1 else _of_frames(listed)
 
     @classmethod
     def of_messages(cls, msgs: Sequence[can.Message], channel: str | None = None) -> Block:
@@ -326,11 +323,10 @@ _ROW_TYPES: dict[int, np.dtype] = {}
 """Each payload width seen in a block of one: a dtype of that many bytes, which ``frombuffer`` reads as one row."""
 
 
-def _one(frame: Frame) -> Block | None:
-    """One frame as a block (a live frame on a quiet bus), or None when it is no CAN frame (the rows' builder
-    says why): its fields read at once, its columns checked by construction, its id's columns and each small
-    integer's shared, what the engine reads of it (:attr:`Block.keys`, :attr:`Block.times`, :attr:`Block.ordered`...)
-    known at once."""
+def one_block(frame: Frame) -> Block:
+    """One frame as a block (a live frame on a quiet bus; :meth:`Block.of_frames` of one): its fields read at once,
+    its columns checked by construction, its id's columns and each small integer's shared, what the engine reads
+    of it (:attr:`Block.keys`, :attr:`Block.times`, :attr:`Block.ordered`...) known at once."""
     t, channel, cid, data, ext, fd, err, remote, brs, esi, dlc = frame
     flags = ((FLAG_FD if fd else 0) | (FLAG_BRS if brs else 0) | (FLAG_ESI if esi else 0)
              | (FLAG_REMOTE if remote else 0) | (FLAG_ERROR if err else 0)) if fd or err or remote or brs or esi else 0
@@ -338,7 +334,7 @@ def _one(frame: Frame) -> Block | None:
     if dlc < 0:
         dlc = width
     if not (0 <= cid <= 0xFFFFFFFF and width <= 255 and dlc <= 255):
-        return None
+        return _of_frames((frame,))  # no CAN frame: the rows' builder says why
     key = cid + EXT_KEY if ext else cid
     ids = _IDS.get(key)
     if ids is None:
