@@ -23,6 +23,7 @@ from canguard.errors import BusError
 from canguard.io.block import EXT_KEY
 from canguard.io.bus import KERNEL_FILTERS_MAX, BusReader, kernel_filters, open_bus, receive_keys
 from canguard.io.frame import Frame
+from canguard.io.pycan import frame_from_message
 from checkout import REPO, SRC
 from test_canopen_config import config as canopen_config
 from test_daemon import unique_udp
@@ -39,7 +40,7 @@ def frames_from(reader: BusReader, n: int) -> list[tuple[str, Frame]]:
     out: list[tuple[str, Frame]] = []
 
     def enough() -> bool:
-        out.extend((name, frame) for name, frame, _received in reader.receive(0.05, n - len(out)))
+        out.extend((name, frame_from_message(msg, name)) for name, msg, _received in reader.receive(0.05, n - len(out)))
         return len(out) >= n
 
     wait_until(enough, what=f"{n} frames on the reader's queue")

@@ -170,9 +170,9 @@ class Block:
         return one_block(listed[0]) if len(listed) == 1 else _of_frames(listed)
 
     @classmethod
-    def of_messages(cls, msgs: Sequence[can.Message], channel: str | None = None) -> Block:
-        """python-can messages as a block, field for field (``channel`` overrides each message's; python-can's
-        integer channels are named ``canN``)."""
+    def of_messages(cls, msgs: Sequence[can.Message], channel: str | Sequence[str] | None = None) -> Block:
+        """python-can messages as a block, field for field (``channel`` overrides each message's, or names each
+        message's in turn (a live batch of several buses); python-can's integer channels are named ``canN``)."""
         return _of_messages(msgs, channel)
 
     # -- what the engine reads ----------------------------------------------------------------
@@ -330,11 +330,15 @@ def one_block(frame: Frame) -> Block:
     t, channel, cid, data, ext, fd, err, remote, brs, esi, dlc = frame
     flags = ((FLAG_FD if fd else 0) | (FLAG_BRS if brs else 0) | (FLAG_ESI if esi else 0)
              | (FLAG_REMOTE if remote else 0) | (FLAG_ERROR if err else 0)) if fd or err or remote or brs or esi else 0
+    block = _one(t, channel, cid, data, ext, flags, len(data) if dlc < 0 else dlc)
+    return _of_frames((frame,)) if block is None else block  # None: no CAN frame (the rows' builder says why)
+
+
+def _one(t: float, channel: str, cid: int, data: bytes, ext: bool, flags: int, dlc: int) -> Block | None:
+    """One row's fields as a block (None: no CAN frame)."""
     width = len(data)
-    if dlc < 0:
-        dlc = width
     if not (0 <= cid <= 0xFFFFFFFF and width <= 255 and dlc <= 255):
-        return _of_frames((frame,))  # no CAN frame: the rows' builder says why
+        return None
     key = cid + EXT_KEY if ext else cid
     ids = _IDS.get(key)
     if ids is None:
@@ -386,17 +390,19 @@ def _of_frames(frames: Sequence[Frame]) -> Block:
     return _rows(t, ids, ext, flags, codes, datas, chans, lengths)
 
 
-def _of_messages(msgs: Sequence[can.Message], channel: str | None) -> Block:
-    """python-can messages as a block, field for field."""
-    times, ids, ext, flags, dlcs, datas, chans = [], [], [], [], [], [], []
+def _of_messages(msgs: Sequence[can.Message], channel: str | Sequence[str] | None) -> Block:
+    """python-can messages as a block, field for field (one message: :func:`_one`)."""
+    times, ids, ext, flags, dlcs, datas = [], [], [], [], [], []
+    chans: list[str] = [] if channel is None or type(channel) is str else list(channel)
     names: dict[Any, str] = {}
     for m in msgs:
         if channel is None:
             name = names.get(m.channel)
             if name is None:
                 name = names[m.channel] = channel_name(m.channel)
-        else:
-            name = channel
+            chans.append(name)
+        elif type(channel) is str:
+            chans.append(channel)
         times.append(float(m.timestamp or 0.0))
         ids.append(int(m.arbitration_id))
         ext.append(bool(m.is_extended_id))
@@ -405,7 +411,10 @@ def _of_messages(msgs: Sequence[can.Message], channel: str | None) -> Block:
                      | (FLAG_ERROR if m.is_error_frame else 0))
         dlcs.append(int(m.dlc))
         datas.append(bytes(m.data) if m.data is not None else b"")
-        chans.append(name)
+    if len(times) == 1:  # a live frame
+        one = _one(times[0], chans[0], ids[0], datas[0], ext[0], flags[0], dlcs[0])
+        if one is not None:
+            return one
     return _rows(times, ids, ext, flags, dlcs, datas, chans)
 
 

@@ -5,7 +5,8 @@
 :class:`~canguard.errors.BusError` that names the bus and the interface.
 
 :class:`BusReader` receives in one of two ways; :meth:`BusReader.receive` gives
-``(bus_name, frame, received)`` in arrival order either way:
+``(bus_name, message, received)`` (python-can's message as received: the daemon builds its block of them)
+in arrival order either way:
 
 - **Direct** (``direct=True`` and every bus has a socket (:func:`bus_fileno`): SocketCAN,
   udp_multicast): no thread. The caller's thread waits on the buses' sockets with
@@ -17,9 +18,8 @@
   base) whenever the bus stamps with the wall clock, so a wait in the kernel's buffer
   counts as a wait.
 - **Threads** (otherwise: python-can's ``virtual`` bus, vendor drivers with their own
-  queues): one daemon thread per bus does nothing but ``bus.recv(timeout)``, build a
-  :class:`~canguard.io.frame.Frame` and put it on one unbounded
-  :class:`queue.SimpleQueue`, so no frame is dropped while the engine is busy;
+  queues): one daemon thread per bus does nothing but ``bus.recv(timeout)`` and put the message
+  on one unbounded :class:`queue.SimpleQueue`, so no frame is dropped while the engine is busy;
   ``received`` is when the thread got it.
 
 **Filters.** ``wanted`` names, per bus, the id keys of the frames the config reads
@@ -57,8 +57,6 @@ import can
 from canguard.config.schema import BusConfig, Config
 from canguard.errors import BusError
 from canguard.io.block import EXT_KEY
-from canguard.io.frame import Frame
-from canguard.io.pycan import frames_from_messages
 
 if TYPE_CHECKING:
     from can.typechecking import CanFilter
@@ -191,8 +189,8 @@ class BusReader:
     ) -> None:
         configs = list(buses.values()) if isinstance(buses, Mapping) else list(buses)
         self.configs: dict[str, BusConfig] = {c.name: c for c in configs}
-        self.queue: queue.SimpleQueue[tuple[str, Frame, float]] = queue.SimpleQueue()
-        """``(bus_name, frame, received)``: ``received`` is ``time.monotonic()`` when the receive thread got it."""
+        self.queue: queue.SimpleQueue[tuple[str, can.Message, float]] = queue.SimpleQueue()
+        """``(bus_name, message, received)``: ``received`` is ``time.monotonic()`` when the receive thread got it."""
         self.on_error = on_error
         self.recv_timeout_s = recv_timeout_s
         self.backoff_min_s = backoff_min_s
@@ -298,8 +296,8 @@ class BusReader:
         bus.set_filters(kernel_filters(keys) if keys and len(keys) <= KERNEL_FILTERS_MAX else None)
 
     # -- consuming ---------------------------------------------------------
-    def receive(self, timeout_s: float | None, limit: int) -> list[tuple[str, Frame, float]]:
-        """Up to ``limit`` frames as ``(bus_name, frame, received)`` in arrival order, waiting up to ``timeout_s``
+    def receive(self, timeout_s: float | None, limit: int) -> list[tuple[str, can.Message, float]]:
+        """Up to ``limit`` frames as ``(bus_name, message, received)`` in arrival order, waiting up to ``timeout_s``
         (None: without end) for the first; ``received`` is on ``time.monotonic()``'s base. Empty on timeout."""
         if self.direct:
             return self._receive_direct(timeout_s, limit)
@@ -338,7 +336,7 @@ class BusReader:
         return True
 
     # -- receiving directly -------------------------------------------------
-    def _receive_direct(self, timeout_s: float | None, limit: int) -> list[tuple[str, Frame, float]]:
+    def _receive_direct(self, timeout_s: float | None, limit: int) -> list[tuple[str, can.Message, float]]:
         """Wait on the open buses' sockets, then drain each ready one with ``recv(0)``; reopen buses due. A wake-up
         that brought only foreign frames waits again, until ``timeout_s`` is over."""
         end = math.inf if timeout_s is None else monotonic() + timeout_s
@@ -352,7 +350,7 @@ class BusReader:
             timeout_s = None if left == math.inf else left
         return []
 
-    def _wake(self, timeout_s: float | None, limit: int) -> list[tuple[str, Frame, float]] | None:
+    def _wake(self, timeout_s: float | None, limit: int) -> list[tuple[str, can.Message, float]] | None:
         """One wait on the sockets and the drain of those ready: the frames taken; [] when none is ready in
         ``timeout_s``, None when the ready ones held only frames :func:`wants` drops."""
         buses = self._buses
@@ -371,7 +369,7 @@ class BusReader:
             ready = fds
         if not ready:
             return []
-        out: list[tuple[str, Frame, float]] = []
+        out: list[tuple[str, can.Message, float]] = []
         share = max(1, limit // len(ready))  # a busy bus does not starve the others
         for name, fd in self._fds.items():
             if fd in ready and self._buses[name] is not None:
@@ -380,7 +378,7 @@ class BusReader:
             out.sort(key=lambda item: item[2])  # buses drained one after the other: back to arrival order
         return out if out or None in self._buses.values() else None
 
-    def _drain_bus(self, name: str, limit: int, out: list[tuple[str, Frame, float]]) -> None:
+    def _drain_bus(self, name: str, limit: int, out: list[tuple[str, can.Message, float]]) -> None:
         """Append up to ``limit`` frames the kernel holds for bus ``name`` (after the first, a poll of its socket
         asks whether there is another: cheaper than a ``recv(0)`` that finds none; one poll a drain, not one a
         frame: a poll costs a system call); a failure closes the bus."""
@@ -405,8 +403,9 @@ class BusReader:
         if msgs:
             self.admit(name, msgs, out)
 
-    def admit(self, name: str, msgs: list[can.Message], out: list[tuple[str, Frame, float]]) -> None:
-        """Append the messages just received from bus ``name`` to ``out`` as ``(name, frame, received)``; count them.
+    def admit(self, name: str, msgs: list[can.Message], out: list[tuple[str, can.Message, float]]) -> None:
+        """Append the messages just received from bus ``name`` to ``out`` as ``(name, message, received)``; count
+        them.
 
         ``received`` is the message's kernel stamp on ``time.monotonic()``'s base (never after now) once the
         bus is found to stamp with the wall clock (:data:`WALL_STAMP_S`), else now.
@@ -414,11 +413,11 @@ class BusReader:
         now = monotonic()
         offset = time.time() - now  # wall clock minus monotonic: a wall-clock stamp to monotonic's base
         wall = self._wall_stamps[name]
-        for frame in frames_from_messages(msgs, name):
-            t = frame.t - offset
+        for msg in msgs:
+            t = float(msg.timestamp or 0.0) - offset
             if not wall:  # until one of its frames says so: does the bus stamp with the wall clock?
                 wall = self._wall_stamps[name] = abs(t - now) < WALL_STAMP_S
-            out.append((name, frame, (now if now < t else t) if wall else now))  # min(t, now), NaN kept
+            out.append((name, msg, (now if now < t else t) if wall else now))  # min(t, now), NaN kept
         self.received[name] += len(msgs)
         self._delay[name] = self.backoff_min_s
 
@@ -463,7 +462,7 @@ class BusReader:
                 msg = bus.recv(timeout)
                 if msg is None or not wants(self.wanted[name], msg):
                     continue
-                put((name, frames_from_messages([msg], name)[0], monotonic()))  # arrival: how long it then waits
+                put((name, msg, monotonic()))  # arrival: how long it then waits
             except Exception as exc:  # the bus went away (or a backend bug): report, close, reopen
                 if stop.is_set():
                     break
