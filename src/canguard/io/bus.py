@@ -96,18 +96,13 @@ def wants(keys: frozenset[int] | None, msg: can.Message) -> bool:
 
 
 def open_bus(cfg: BusConfig) -> can.BusABC:
-    """Open ``cfg`` with ``can.Bus(**cfg.kwargs)``.
-
-    Raises :class:`BusError` naming the bus, interface and channel, chained to
-    python-can's own exception.
-    """
+    """Open ``cfg`` with ``can.Bus(**cfg.kwargs)``; a :class:`BusError` naming the bus, interface and channel
+    (chained to python-can's own exception) when it does not open."""
     try:
         bus = can.Bus(**dict(cfg.kwargs))
     except Exception as exc:  # python-can raises CanError, OSError, ImportError, ValueError... per backend
-        raise BusError(
-            f"bus {cfg.name!r} (interface {cfg.interface or '?'}, channel {cfg.channel}) does not open: "
-            f"{type(exc).__name__}: {exc}"
-        ) from exc
+        raise BusError(f"bus {cfg.name!r} (interface {cfg.interface or '?'}, channel {cfg.channel}) does not open: "
+                       f"{type(exc).__name__}: {exc}") from exc
     enlarge_receive_buffer(bus, cfg.name)
     return bus
 
@@ -117,22 +112,15 @@ RECEIVE_BUFFER_BYTES = 4 << 20
 
 
 def enlarge_receive_buffer(bus: can.BusABC, name: str, size: int = RECEIVE_BUFFER_BYTES) -> int | None:
-    """Ask the kernel for a larger receive buffer on a socket-based bus; returns the size granted.
-
-    A burst that arrives while the receive thread waits for the GIL is then held
-    by the kernel instead of dropped. SocketCAN and udp_multicast buses have a
-    socket; others (virtual, vendor drivers with their own queues) are left alone.
-    Without CAP_NET_ADMIN the kernel caps the size at ``net.core.rmem_max``
-    (raise it with sysctl on the robot); SO_RCVBUFFORCE is tried first.
-    """
+    """Ask the kernel for a larger receive buffer on a socket-based bus (SocketCAN, udp_multicast; others are left
+    alone), so that a burst while the loop is busy is held, not dropped; the size granted. SO_RCVBUFFORCE is tried
+    first: without CAP_NET_ADMIN the kernel caps the size at ``net.core.rmem_max`` (raise it on the robot)."""
     sock = getattr(bus, "socket", None)
     if not isinstance(sock, socket.socket):
         sock = getattr(getattr(bus, "_multicast", None), "_socket", None)
     if not isinstance(sock, socket.socket):
         return None
-    for opt in (getattr(socket, "SO_RCVBUFFORCE", None), socket.SO_RCVBUF):
-        if opt is None:
-            continue
+    for opt in filter(None, (getattr(socket, "SO_RCVBUFFORCE", None), socket.SO_RCVBUF)):
         try:
             sock.setsockopt(socket.SOL_SOCKET, opt, size)
             break
@@ -166,14 +154,9 @@ longer than this when its first frames came) its frames arrive when canguard rec
 
 
 class BusReader:
-    """Receives from every configured bus on its own daemon thread into one queue.
-
-    Use as a context manager, or call :meth:`start` and :meth:`stop`; take frames
-    with :meth:`receive`. ``direct=True`` lets the caller's thread receive when every
-    bus has a socket (:attr:`direct` says whether it does, once started).
-    Counters (by bus name): :attr:`received`, :attr:`sent`, :attr:`send_failures`,
-    :attr:`recv_errors`, :attr:`reopens`.
-    """
+    """Receives from every configured bus (see the module docstring): a context manager, or :meth:`start` and
+    :meth:`stop`; frames come from :meth:`receive`. Counters by bus name: :attr:`received`, :attr:`sent`,
+    :attr:`send_failures`, :attr:`recv_errors`, :attr:`reopens`."""
 
     def __init__(
         self,
@@ -220,11 +203,8 @@ class BusReader:
 
     # -- life cycle --------------------------------------------------------
     def start(self) -> None:
-        """Open every bus, then start one receive thread per bus (none when receiving directly).
-
-        Raises :class:`BusError` for the first bus that does not open (the buses
-        already opened are shut down again).
-        """
+        """Open every bus, then start one receive thread per bus (none when receiving directly); a :class:`BusError`
+        for the first bus that does not open (the buses already opened are shut down again)."""
         if self._started:
             raise RuntimeError("BusReader already started")
         self._stop.clear()
