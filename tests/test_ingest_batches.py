@@ -1,10 +1,9 @@
-"""A live batch on its way in: python-can messages to frames, the reader's receive stamps, several buses merged.
+"""A live batch on its way in: the reader's receive stamps, several buses merged, stamps far from the clock.
 
-The daemon's loop drains its buses (:class:`~canguard.io.bus.BusReader`), turns each bus's messages into
-frames at once (:meth:`BusReader.admit`) and hands the batch, merged by kernel stamp, to the engine
+The daemon's loop drains its buses (:class:`~canguard.io.bus.BusReader`), stamps each bus's messages with their
+arrival (:meth:`BusReader.admit`) and hands the batch, merged by kernel stamp, to the engine as one block
 (:meth:`Daemon.take_received`). These tests hold each step to what a frame taken alone gives.
 """
-
 from __future__ import annotations
 
 import time
@@ -131,6 +130,26 @@ class TestMergedBuses:
             assert (counts["b"].frames, counts["b"].decoded) == (3, 3)
             battery = engine.ctx.health["/battery_state"]
             assert battery.value("current") == 14.0
+        finally:
+            engine.finish(reason="test over")
+            daemon.journal.close()
+
+
+class TestStamps:
+    def test_a_stamp_far_from_the_clock_is_taken_as_received_now(self, tmp_path: Path) -> None:
+        """A frame stamped 100 s ahead of the daemon's clock (a device's own counter) is taken at the time of its
+        batch: its value reaches the source, and the latest frame time does not jump ahead."""
+        bus = {"interface": "virtual", "channel": f"skew-{uuid.uuid4().hex[:12]}"}
+        daemon = Daemon(write_config(tmp_path, bus), notifier=Notifier(env={}))
+        engine = daemon.engine
+        try:
+            engine.start(daemon.clock.now())
+            now = daemon.clock.now()
+            msgs = [can.Message(timestamp=now, arbitration_id=BMS_ID, data=bms_data(12.0)),
+                    can.Message(timestamp=now + 100.0, arbitration_id=BMS_ID, data=bms_data(13.0))]
+            daemon.take_received(engine, [("main", m, time.monotonic()) for m in msgs])
+            assert engine.ctx.health["/battery_state"].value("current") == 13.0
+            assert now <= engine.last_frame_t < now + 1.0
         finally:
             engine.finish(reason="test over")
             daemon.journal.close()
