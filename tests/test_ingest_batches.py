@@ -4,6 +4,7 @@ The daemon's loop drains its buses (:class:`~canguard.io.bus.BusReader`), stamps
 arrival (:meth:`BusReader.admit`) and hands the batch, merged by kernel stamp, to the engine as one block
 (:meth:`Daemon.take_received`). These tests hold each step to what a frame taken alone gives.
 """
+
 from __future__ import annotations
 
 import time
