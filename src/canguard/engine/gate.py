@@ -28,6 +28,7 @@ from __future__ import annotations
 import logging
 import math
 import operator
+import os
 import time
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any, TextIO
@@ -84,7 +85,7 @@ class TaskGate:
         self._ran_this_tick = False
         self.inhibits: dict[str, str] = {}
         """Reasons the task may not run whatever the tree says (a bus down, a stale source), by key."""
-        self.explain: Callable[[], str] | None = None
+        self.explain: Callable[[], str] = str
         """Says why the tree halted the task (the failing guards); set by the engine."""
         self.tree_has_task = True
         """False when the tree holds no ExecuteTask and no task action: a tick without FAILURE asks for the task."""
@@ -131,25 +132,28 @@ class TaskGate:
         return "reset requested"
 
     def halt(self, node: str, now: float) -> None:
-        """ExecuteTask was halted: stop the task at once."""
+        """ExecuteTask was halted: stop the task at once (why is worked out once the stop frames left)."""
         if self.state == self.RUNNING:
-            why = self.explain() if self.explain is not None else ""
-            self.stop(now, reason=f"{node} halted" + (f" ({why})" if why else ""), node=node)
+            self.stop(now, reason=lambda: f"{node} halted" + (f" ({why})" if (why := self.explain()) else ""),
+                      node=node)
 
     # -- driven by the engine --------------------------------------------------------------
-    def stop(self, now: float, reason: str, node: str = "") -> None:
-        """Stop the task (idempotent): stop frames at once, then every ``stop.repeat``."""
+    def stop(self, now: float, reason: str | Callable[[], str], node: str = "") -> None:
+        """Stop the task (idempotent): stop frames at once, then every ``stop.repeat``.
+
+        The frames leave first: ``reason`` (a callable: asked after the send) and the ``stop`` event follow.
+        """
         if self.state == self.STOPPED:
             return
+        self._send_stop(now)
         self.state = self.STOPPED
         self.stop_since = now
-        self.stop_reason = reason
+        self.stop_reason = reason if isinstance(reason, str) else reason()
         self.stops += 1
         self._next_task = math.inf
         self._confirm_pending = self.stop_cfg.confirm is not None
         self._cause = None
-        self._event("stop", now, node=node, reason=reason)
-        self._send_stop(now)
+        self._event("stop", now, node=node, reason=self.stop_reason)
 
     def inhibit(self, key: str, reason: str, now: float, node: str = "") -> None:
         """Hold the task stopped for ``key`` (stopping it now if it runs) until :meth:`release`."""
@@ -426,6 +430,8 @@ class BusSink:
     A bus that went away refuses every frame: each refusal is counted (``failed``, ``on_error``),
     but reported (the stderr warning and ``on_refused``, the daemon's journal event) once a
     second per bus and origin, each report saying how many it stands for (:mod:`.ratelimit`).
+    Once the stop frames are out the loop yields the CPU: a process on this machine waiting for
+    them (a bridge, a logger) runs before the loop's bookkeeping of the stop.
     """
 
     def __init__(self, send: Callable[[str, Any], bool], on_error: EventFn | None = None,
@@ -434,6 +440,8 @@ class BusSink:
         import can  # only the live path needs python-can's Message
 
         self._message = can.Message
+        self._messages: dict[FrameSpec, Any] = {}
+        """Each frame's python-can Message, built at its first send (the specs are the config's, fixed)."""
         self._send = send
         self.on_error = on_error
         self.on_refused = on_refused
@@ -445,10 +453,12 @@ class BusSink:
 
     def send(self, frames: Sequence[FrameSpec], origin: str) -> None:
         """Hand each frame to its bus with timeout 0; a full queue or an error is counted, never raised."""
+        messages = self._messages
         for f in frames:
-            msg = self._message(
-                arbitration_id=f.arbitration_id, data=f.data, is_extended_id=f.is_extended_id, is_fd=f.is_fd
-            )
+            msg = messages.get(f)
+            if msg is None:
+                msg = messages[f] = self._message(arbitration_id=f.arbitration_id, data=f.data,
+                                                  is_extended_id=f.is_extended_id, is_fd=f.is_fd)
             if self._send(f.bus, msg):
                 self.sent += 1
                 continue
@@ -461,3 +471,5 @@ class BusSink:
             log.warning("could not send %s (%s) on bus %s%s", f.label, origin, f.bus, held_note(held))
             if self.on_refused is not None:
                 self.on_refused(f.bus, f.label, origin, held)
+        if origin == "stop":
+            os.sched_yield()
