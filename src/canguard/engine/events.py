@@ -15,9 +15,9 @@ Guarantees the daemon relies on:
   frames are sent, then writes them here at its flush).
 - **A power cut loses at most the last** ``sync_interval_s`` **(0.2 s).**
   :meth:`EventJournal.flush` ``fsync``s the file. The live daemon's journal
-  (``sync_in_background=True``) hands that ``fsync`` to a thread of its own and
-  coalesces them: at most one ``fsync`` every ``sync_interval_s``, whatever the
-  number of flushes (on a VM or an SD card one ``fsync`` can stall the machine for
+  (``sync_in_background=True``) hands that ``fsync`` to a thread of its own, made
+  ``sync_interval_s`` after the first flush since the last one, for every flush
+  meanwhile (on a VM or an SD card one ``fsync`` can stall the machine for
   milliseconds). A flushed line is on the disk within ``sync_interval_s`` plus the
   time the disk takes to sync; :meth:`EventJournal.close` syncs before it returns.
 - **Only appended.** Opening never truncates. Rotation by size renames
@@ -39,11 +39,9 @@ from __future__ import annotations
 import errno
 import json
 import logging
-import math
 import os
 import sys
 import threading
-import time
 from collections import deque
 from collections.abc import Mapping
 from pathlib import Path
@@ -66,7 +64,7 @@ log = logging.getLogger(__name__)
 DEFAULT_MAX_BYTES = 16 * 1024 * 1024
 
 SYNC_INTERVAL_S = 0.2
-"""A background-syncing journal's shortest time between two ``fsync``s: how long a flushed line may lag on disk."""
+"""A background-syncing journal's time from a flush to its ``fsync``: how long a flushed line may lag on disk."""
 
 _PENDING_MAX = 10_000
 """Lines kept in memory while the disk refuses them (full, read-only); older ones are dropped then."""
@@ -133,7 +131,7 @@ class EventJournal:
         if self.path is not None:
             self._open()
         self.sync_interval_s = float(sync_interval_s)
-        """With ``sync_in_background``: the shortest time between two ``fsync``s (flushes in between share one)."""
+        """With ``sync_in_background``: the time from a flush to its ``fsync`` (flushes in between share it)."""
         self.syncs = 0
         """``fsync``s of the file done so far (rotation's and close's included)."""
         self._sync_due = threading.Event()
@@ -309,13 +307,12 @@ class EventJournal:
                 self._failed(exc, "fsync")
 
     def _sync_loop(self) -> None:
-        """The sync thread: when asked, and no sooner than ``sync_interval_s`` after its last one, ``fsync`` a
-        duplicate of the file's descriptor outside the lock; flushes meanwhile share that ``fsync``."""
-        last = -math.inf
+        """The sync thread: ``sync_interval_s`` after the first flush since its last ``fsync``, ``fsync`` a duplicate of
+        the file's descriptor outside the lock; the flushes meanwhile share it. Never at once: the flush at the end
+        of a stop's tick does not start a disk stall while the stop frames are on their way to their readers."""
         while True:
             self._sync_due.wait()
-            wait_s = last + self.sync_interval_s - time.monotonic()
-            if (wait_s > 0 and self._sync_stop.wait(wait_s)) or self._sync_stop.is_set():
+            if self._sync_stop.wait(self.sync_interval_s):
                 return  # close() syncs what is left itself
             self._sync_due.clear()  # a flush from here on asks for the next fsync
             with self._lock:
@@ -327,7 +324,6 @@ class EventJournal:
                     self._failed(exc, "fsync")
                     continue
                 self._dirty = False
-            last = time.monotonic()
             try:
                 os.fsync(fd)
                 with self._lock:

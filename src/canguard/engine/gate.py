@@ -145,8 +145,8 @@ class TaskGate:
         """
         if self.state == self.STOPPED:
             return
-        self._send_stop(now)
         self.state = self.STOPPED
+        self._send_stop(now)
         self.stop_since = now
         self.stop_reason = reason if isinstance(reason, str) else reason()
         self.stops += 1
