@@ -19,7 +19,8 @@ import yaml
 
 from canguard.config.loader import load_config
 from canguard.engine.core import Engine
-from canguard.engine.events import FIRST_KEYS, EventJournal, read_events
+from canguard.engine.event_codec import FIRST_KEYS
+from canguard.engine.events import EventJournal, read_events
 from canguard.engine.gate import LogSink, TaskGate
 from canguard.io.clock import ManualClock
 from canguard.io.frame import Frame

@@ -104,11 +104,11 @@ class TestStopAndResume:
         assert rec.named("reason")[0][1]["previous"] == "overcurrent"
         g.release("bus main")
         g.release("source bms")
-        assert not g.may_release(1.4) and not g.may_release(1.4, failed=True)
+        assert g._release_rule(1.4, False) and g._release_rule(1.4, True)
         g.begin_tick()
         g.run("ExecuteTask", 1.4)
         g._reset_this_tick = True
-        assert g.may_release(1.4) and not g.may_release(1.4, failed=True)
+        assert not g._release_rule(1.4, False) and g._release_rule(1.4, True)
 
     def test_a_stop_resets_and_confirmation_state_after_resume(self) -> None:
         rec = Recorder()

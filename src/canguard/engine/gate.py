@@ -8,8 +8,9 @@ The :class:`TaskGate` turns the tree's decisions into frames:
   :meth:`TaskGate._release_rule` allows it; ExecuteTask's frames then go out at
   once and every ``task.period``, a task action's frames in the tick it ran.
 - ``halt()`` (ExecuteTask halted), ``stop()`` (the root returned FAILURE) or an
-  inhibit (a stale source, a bus down): stop frames go out at once, then every
-  ``stop.repeat`` until the stop is released. The stop latches: only
+  inhibit (a stale source, a bus down): stop frames go out at once (before the
+  stop's reason is worked out or recorded), then every ``stop.repeat`` until the
+  stop is released. The stop latches: only
   :meth:`TaskGate._release_rule` ends it (see README, "Stops").
 - While stopped, task actions' frames are withheld (counted in ``withheld``);
   recovery actions' frames go out. So in no tick do both task and stop frames go
@@ -41,14 +42,8 @@ from canguard.protect.staleness import SourceHealth
 
 log = logging.getLogger(__name__)
 
-_OPS: dict[str, Callable[[float, float], bool]] = {
-    "<": operator.lt,
-    "<=": operator.le,
-    ">": operator.gt,
-    ">=": operator.ge,
-    "==": operator.eq,
-    "!=": operator.ne,
-}
+_OPS: dict[str, Callable[[float, float], bool]] = {"<": operator.lt, "<=": operator.le, ">": operator.gt,
+                                                   ">=": operator.ge, "==": operator.eq, "!=": operator.ne}
 
 EventFn = Callable[..., None]
 
@@ -243,10 +238,6 @@ class TaskGate:
                 return "stop.release manual: waiting for ResetStop"
         return ""
 
-    def may_release(self, now: float, failed: bool = False) -> bool:
-        """True when :meth:`_release_rule` lets the task start or resume now."""
-        return not self._release_rule(now, failed)
-
     def _note_cause(self, now: float, cause: tuple[str, str]) -> None:
         """Journal a ``reason`` event when what holds the stop changes (the stop event said the first)."""
         if self._cause is None:
@@ -384,13 +375,8 @@ class TaskGate:
 
 
 class LogSink:
-    """Records sent frames: streamed to ``out`` as candump -L lines (``replay --emit``), kept, or counted.
-
-    ``out`` given: each frame is written as one candump -L line at once
-    (:func:`canguard.io.logs.format_candump_line`), so memory stays flat in the
-    log's length. ``keep`` True: frames are also kept in :attr:`frames` (tests).
-    Either way :attr:`sent` counts every frame.
-    """
+    """Records sent frames: streamed to ``out`` as candump -L lines at once (``replay --emit``: memory stays
+    flat in the log's length), kept in :attr:`frames` (``keep``: tests), and counted in :attr:`sent`."""
 
     def __init__(
         self, clock_now: Callable[[], float], buses: Mapping[str, BusConfig], *,
@@ -399,9 +385,7 @@ class LogSink:
         self._now = clock_now
         self._channel = {name: (b.channel or name) for name, b in buses.items()}
         self.out = out
-        """Where each frame is written as a candump -L line as it is sent (None: not written)."""
         self.keep = keep
-        """False: do not keep frames in memory (a replay stays flat in memory on long logs)."""
         self.sent = 0
         self.frames: list[Frame] = []
         self.origins: list[str] = []
