@@ -240,7 +240,8 @@ class TestDaemonReceivesDirectly:
                 assert not threads_named() - before
                 feeder.current_a = 40.0
                 receive_until(peer, is_stop, "Estop after the overcurrent")
-            assert daemon.engine.gate.state == TaskGate.STOPPED
+            # the stop frames leave first; the gate's state follows in the same step
+            wait_until(lambda: daemon.engine.gate.state == TaskGate.STOPPED, what="the task stopped")
         finally:
             daemon.request_stop("test over")
             thread.join(10)

@@ -91,6 +91,9 @@ class TaskGate:
         self._queued: list[tuple[str, Sequence[FrameSpec], Callable[[str], None] | None]] = []
         self._cause: tuple[str, str] | None = None
         """(node, reason) that holds the stop, as last journalled; None right after a stop."""
+        self.halts_next: Callable[[], bool] | None = None
+        """Says at a model's edge that the coming tick surely halts the running task (set by the engine)."""
+        self._ahead = False
 
     # -- driven by ExecuteTask -------------------------------------------------------------
     def run(self, node: str, now: float) -> None:
@@ -141,7 +144,9 @@ class TaskGate:
         if self.state == self.STOPPED:
             return
         self.state = self.STOPPED
-        self._send_stop(now)
+        if not self._ahead:
+            self._send_stop(now)
+        self._ahead = False
         self.stop_since = now
         self.stop_reason = reason if isinstance(reason, str) else reason()
         self.stops += 1
@@ -149,6 +154,13 @@ class TaskGate:
         self._confirm_pending = self.stop_cfg.confirm is not None
         self._cause = None
         self._event("stop", now, node=node, reason=self.stop_reason)
+
+    def ahead(self, now: float) -> None:
+        """At a model's edge, before its tick: when that tick surely halts the running task (:attr:`halts_next`),
+        the stop frames leave now, and the stop (its reason, its event) follows in the tick, or at its end."""
+        if self.state == self.RUNNING and self.halts_next is not None and self.halts_next():
+            self._send_stop(now)
+            self._ahead = True
 
     def inhibit(self, key: str, reason: str, now: float, node: str = "") -> None:
         """Hold the task stopped for ``key`` (stopping it now if it runs) until :meth:`release`."""
@@ -193,6 +205,8 @@ class TaskGate:
         Task action frames queued in the tick go out only if the task runs at its end.
         """
         queued, self._queued = self._queued, []
+        if self._ahead:  # stop frames sent ahead of a halt that did not come: they stand, the task stops
+            self.stop(now, reason="stop frames sent at a guard's trip; the tree did not halt the task")
         if self.state != self.RUNNING:
             hold = self._release_rule(now, failed)
             if not hold:
