@@ -1,6 +1,7 @@
-"""The event journal: guard transitions, stops, stale sources... as JSON lines (docs/events.md).
+"""The event journal: guard transitions, stops, stale sources... as JSON lines.
 
-One event is one line of JSON appended to the ``events:`` file of the config. What the daemon relies on:
+One event is one line of JSON appended to the ``events:`` file of the config (docs/events.md). What the
+daemon relies on:
 
 - **A line is whole, and nothing flushed is lost to a crash of the daemon**: :meth:`EventJournal.write`
   hands the whole line to the kernel with one ``os.write`` on an ``O_APPEND`` descriptor before it
