@@ -139,16 +139,16 @@ def compare(old: str, new: str, n: int = 15) -> None:
             print("      " + line)
 
 
-STAGES = ("receive → take", "take → edge tick", "edge tick → halt", "halt → send", "first frame's send",
+STAGES = ("receive → take", "take → edge tick", "edge tick → stop", "stop → send", "first frame's send",
           "receive → send", "send → next wait")
 """The columns of a stage line: µs from one mark to the next (the marks of :func:`trace_stages`)."""
 MARKS = ("recv", "take", "edge", "halt", "send", "sent")
 
 
 def trace_stages(out: Path) -> None:
-    """Mark each step of the loop (perf_counter at the receive's return, the take, the edge tick, the halt of a
-    running task, the stop's first send and its return); a step that sent a stop appends its stages to ``out``
-    at the loop's next wait."""
+    """Mark each step of the loop (perf_counter at the receive's return, the take, the edge tick, the stop of a
+    running task (the gate's ``ahead`` of a sure halt, or the halt), the stop's first send and its return); a
+    step that sent a stop appends its stages to ``out`` at the loop's next wait."""
     from canguard.engine.core import Engine
     from canguard.engine.gate import TaskGate
     from canguard.io.bus import BusReader
@@ -181,8 +181,13 @@ def trace_stages(out: Path) -> None:
 
     def halt_(self, *args):  # type: ignore[no-untyped-def]
         if self.state == TaskGate.RUNNING and "edge" in marks:
-            marks["halt"] = pc()
+            marks.setdefault("halt", pc())
         return halt(self, *args)
+
+    def ahead_(self, *args):  # type: ignore[no-untyped-def]
+        if self.state == TaskGate.RUNNING and "edge" in marks and self.halts_next is not None and self.halts_next():
+            marks.setdefault("halt", pc())
+        return ahead(self, *args)
 
     def send_(self, *args):  # type: ignore[no-untyped-def]
         if "halt" not in marks or "send" in marks:
@@ -194,6 +199,9 @@ def trace_stages(out: Path) -> None:
 
     BusReader.receive, Daemon.take_received, Engine.edge_tick = receive_, take_, edge_  # type: ignore[method-assign]
     TaskGate.halt, BusReader.send = halt_, send_  # type: ignore[method-assign]
+    ahead = getattr(TaskGate, "ahead", None)  # the stop sent at the trip, before the tree's tick
+    if ahead is not None:
+        TaskGate.ahead = ahead_  # type: ignore[method-assign]
 
 
 def stages(trials: int) -> int:
