@@ -74,9 +74,11 @@ class TaskGate:
         self.stopped_s = 0.0
         """Total time spent stopped (closed intervals only; see :meth:`stopped_total`)."""
         self.stops = 0
-        self._next_task = math.inf
+        self.next_task_t = math.inf
+        """When the task's periodic frames are next due (inf: not running)."""
         self._next_stop = math.inf
-        self._confirm_pending = False
+        self.confirm_pending = False
+        """A stop waits for its confirmation (``stop.confirm``)."""
         self._ran_this_tick = False
         self.inhibits: dict[str, str] = {}
         """Reasons the task may not run whatever the tree says (a bus down, a stale source), by key."""
@@ -89,8 +91,8 @@ class TaskGate:
         self._asked_by = ""
         self._reset_this_tick = False
         self._queued: list[tuple[str, Sequence[FrameSpec], Callable[[str], None] | None]] = []
-        self._cause: tuple[str, str] | None = None
-        """(node, reason) that holds the stop, as last journalled; None right after a stop."""
+        self.cause: tuple[str, str] | None = None
+        """(node, reason) that holds the stop, as the last ``reason`` event said; None right after a stop."""
         self.halts_next: Callable[[], bool] | None = None
         """Says at a model's edge that the coming tick surely halts the running task (set by the engine)."""
         self._ahead = False
@@ -150,9 +152,9 @@ class TaskGate:
         self.stop_since = now
         self.stop_reason = reason if isinstance(reason, str) else reason()
         self.stops += 1
-        self._next_task = math.inf
-        self._confirm_pending = self.stop_cfg.confirm is not None
-        self._cause = None
+        self.next_task_t = math.inf
+        self.confirm_pending = self.stop_cfg.confirm is not None
+        self.cause = None
         self._event("stop", now, node=node, reason=self.stop_reason)
 
     def ahead(self, now: float) -> None:
@@ -180,10 +182,10 @@ class TaskGate:
         self.stopped_s = old.stopped_s
         self.stops = old.stops
         self.inhibits = dict(old.inhibits)
-        self._next_task = old._next_task
+        self.next_task_t = old.next_task_t
         self._next_stop = old._next_stop
-        self._confirm_pending = old._confirm_pending and self.stop_cfg.confirm is not None
-        self._cause = old._cause
+        self.confirm_pending = old.confirm_pending and self.stop_cfg.confirm is not None
+        self.cause = old.cause
         self.withheld = old.withheld
 
     def resend_stop(self, now: float) -> None:
@@ -254,49 +256,34 @@ class TaskGate:
 
     def _note_cause(self, now: float, cause: tuple[str, str]) -> None:
         """Journal a ``reason`` event when what holds the stop changes (the stop event said the first)."""
-        if self._cause is None:
-            self._cause = cause
+        if self.cause is None:
+            self.cause = cause
             return
-        if cause != self._cause:
-            previous = self._cause[1]
-            self._cause = cause
+        if cause != self.cause:
+            previous = self.cause[1]
+            self.cause = cause
             self._event("reason", now, node=cause[0], reason=cause[1], previous=previous)
 
     def service(self, now: float) -> None:
         """After each tick and between ticks: periodic task / stop frames, stop confirmation."""
-        if self.state == self.RUNNING and now >= self._next_task:
+        if self.state == self.RUNNING and now >= self.next_task_t:
             self._send_task(now)
         elif self.state == self.STOPPED:
             if now >= self._next_stop:
                 self._send_stop(now)
-            if self._confirm_pending:
+            if self.confirm_pending:
                 self._check_confirm(now)
 
     def next_deadline(self) -> float:
         """The earliest time :meth:`service` has something to do (inf when nothing)."""
         if self.state == self.RUNNING:
-            return self._next_task
+            return self.next_task_t
         if self.state == self.STOPPED:
             nxt = self._next_stop
-            if self._confirm_pending and self.stop_cfg.confirm is not None and self.stop_since is not None:
+            if self.confirm_pending and self.stop_cfg.confirm is not None and self.stop_since is not None:
                 nxt = min(nxt, self.stop_since + self.stop_cfg.confirm.deadline_s)
             return nxt
         return math.inf
-
-    @property
-    def cause(self) -> tuple[str, str] | None:
-        """(node, reason) of what holds the stop now, as the last ``reason`` event said; None: not stopped."""
-        return self._cause
-
-    @property
-    def confirm_pending(self) -> bool:
-        """A stop waits for its confirmation (``stop.confirm``)."""
-        return self._confirm_pending
-
-    @property
-    def next_task_t(self) -> float:
-        """When the task's periodic frames are next due (inf: not running)."""
-        return self._next_task
 
     @property
     def counts_only(self) -> bool:
@@ -307,12 +294,12 @@ class TaskGate:
     def count_task_through(self, last: float) -> None:
         """The task's periodic sends due up to ``last`` counted at once, as :meth:`service` at each deadline
         would count them; only while :attr:`counts_only` (quiet replay ticks)."""
-        task, period, sends = self._next_task, self.task_cfg.period_s, 0
+        task, period, sends = self.next_task_t, self.task_cfg.period_s, 0
         while task <= last:  # as service at each deadline (a tick at the same time goes first)
             sends += 1
             task += period
         if sends:
-            self._next_task = task
+            self.next_task_t = task
             sink = self.sink
             assert isinstance(sink, LogSink)
             sink.sent += sends * len(self.task_cfg.frames)
@@ -322,7 +309,7 @@ class TaskGate:
 
         The stop confirmation deadline is not moved: it is one deadline, not a period.
         """
-        self._next_task = max(self._next_task, t)
+        self.next_task_t = max(self.next_task_t, t)
         self._next_stop = max(self._next_stop, t)
 
     def stopped_total(self, now: float) -> float:
@@ -337,16 +324,16 @@ class TaskGate:
         self._event("resume", now, node=node, reason=f"stopped for {now - since:.3f} s")
         self.stop_since = None
         self._next_stop = math.inf
-        self._confirm_pending = False
-        self._cause = None
+        self.confirm_pending = False
+        self.cause = None
 
     def _send_task(self, now: float) -> None:
         if self.task_cfg.frames:
             self.sink.send(self.task_cfg.frames, "task")
         # Schedule from the previous deadline when on time, so the period does not drift;
         # after a late service, restart from now rather than bursting to catch up.
-        nxt = self._next_task + self.task_cfg.period_s
-        self._next_task = nxt if math.isfinite(nxt) and nxt > now else now + self.task_cfg.period_s
+        nxt = self.next_task_t + self.task_cfg.period_s
+        self.next_task_t = nxt if math.isfinite(nxt) and nxt > now else now + self.task_cfg.period_s
 
     def _send_stop(self, now: float) -> None:
         if self.stop_cfg.frames:
@@ -356,7 +343,7 @@ class TaskGate:
     def _check_confirm(self, now: float) -> None:
         confirm = self.stop_cfg.confirm
         if confirm is None or self.stop_since is None:
-            self._confirm_pending = False
+            self.confirm_pending = False
             return
         health = self.health.get(confirm.source)
         value = health.value(confirm.signal) if health is not None else math.nan
@@ -368,13 +355,13 @@ class TaskGate:
         # is not "below 1 A". Equality (an axis state) compares the value itself.
         measured = value if confirm.op in ("==", "!=") else abs(value)
         if fresh and after_stop and _OPS[confirm.op](measured, confirm.value):
-            self._confirm_pending = False
+            self.confirm_pending = False
             self._event(
                 "confirmed", now, source=confirm.source, value=value, threshold=confirm.value,
                 reason=f"{confirm.signal} {confirm.op} {confirm.value} after {now - self.stop_since:.3f} s",
             )
         elif now >= self.stop_since + confirm.deadline_s:  # next_deadline()'s own sum: (a + d) - a < d in floats
-            self._confirm_pending = False
+            self.confirm_pending = False
             if self.stop_cfg.escalate:
                 self.sink.send(self.stop_cfg.escalate, "escalate")
             self._event(
