@@ -186,23 +186,21 @@ class EventJournal:
             except OSError:
                 self._size = os.fstat(self._fd).st_size if self._fd_ok() else start
                 if self._size != start:  # some bytes went out before the error
-                    self._torn_at = start
-                    self._torn = True
-                    self._cut_torn()
+                    self._cut_torn(start)
                 raise
             if n != len(line):
-                self._size = start + n
-                self._torn_at = start
-                self._torn = True
-                self._cut_torn()
+                self._cut_torn(start)
                 raise OSError(errno.ENOSPC, f"{os.strerror(errno.ENOSPC)} (a short write: {n} of {len(line)} "
                                             "bytes; the partial line was cut back)")
             self._size += n
             self._dirty = True
             self._pending.popleft()
 
-    def _cut_torn(self) -> None:
-        """Remove the part of a line a short write left at the end of the file (``ftruncate``)."""
+    def _cut_torn(self, at: int | None = None) -> None:
+        """Remove the part of a line a short write left at the end of the file (``ftruncate`` to ``at``, the line's
+        start; None: where a cut that failed was to go)."""
+        if at is not None:
+            self._torn_at, self._torn = at, True
         assert self._fd is not None
         os.ftruncate(self._fd, self._torn_at)
         self._size = self._torn_at
@@ -329,11 +327,6 @@ class EventJournal:
             sys.stderr.flush()
         except (OSError, ValueError):
             log.error("event journal %s: %d line(s) lost (%s; stderr refused them too)", self.path, len(lines), why)
-
-    @property
-    def closed(self) -> bool:
-        """True once :meth:`close` was called."""
-        return self._closed
 
     @property
     def pending(self) -> int:
