@@ -296,8 +296,9 @@ class Engine:
         """A sample at ``t`` changed a model's or a source's state: the tree ticks at once."""
         self._drive_clock(t)
         self.stats.edge_ticks += 1
-        self.gate.ahead(self.clock.now())  # a tick that surely halts the task: the stop frames leave first
-        self.tick(self.clock.now())
+        now = self.clock.now()
+        self.gate.ahead(now)  # a tick that surely halts the task: the stop frames leave first
+        self.tick(now)
 
     def runs_until(self, end_t: float, coming: Callable[[], Mapping[tuple[int, str], Any]]) -> float:
         """Until when a block's rows, the last at ``end_t``, may be taken as runs
