@@ -321,6 +321,28 @@ class TestJournalSyncsInBackground:
         finally:
             journal.close()
 
+    def test_flushes_that_never_pause_still_reach_the_disk_within_the_interval(
+            self, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+        """Flushes without a pause do not put the fsync off: the lines are synced an interval after the first one."""
+        synced: list[float] = []
+        real = os.fsync
+
+        def recording(fd: int) -> None:
+            if threading.current_thread().name == "canguard-journal-fsync":
+                synced.append(time.monotonic())
+            real(fd)
+
+        monkeypatch.setattr(os, "fsync", recording)
+        journal = EventJournal(tmp_path / "events.jsonl", sync_in_background=True, sync_interval_s=0.2)
+        try:
+            first = time.monotonic()
+            while not synced and time.monotonic() - first < 5.0:
+                journal.write({"event": "trip", "reason": "again"})
+                journal.flush()
+            assert synced and synced[0] - first < 0.2 + 1.0  # the interval, and a loaded machine's slack
+        finally:
+            journal.close()
+
     def test_a_failed_background_fsync_is_counted_and_tried_again(self, tmp_path: Path,
                                                                 monkeypatch: pytest.MonkeyPatch) -> None:
         """An fsync the disk refuses is counted as an error and done again at the next flush."""
