@@ -5,11 +5,9 @@ from __future__ import annotations
 import glob
 import sys
 from collections.abc import Callable, Sequence
-from functools import partial
 from pathlib import Path
 from typing import Any
 
-from canguard.cli.heap import lean_after
 from canguard.errors import ConfigError
 from canguard.io.bagopts import is_bag
 from canguard.io.logs import LOG_SUFFIXES
@@ -103,7 +101,7 @@ def run_dask(address: str, job: Callable[[Any], Any], jobs: list[Any]) -> list[A
         raise ConfigError(f"--dask {address}: cannot reach the scheduler: {exc}") from None
     progress = Progress(len(jobs))
     try:
-        futures = client.map(partial(lean_after, job), jobs, pure=False)
+        futures = client.map(job, jobs, pure=False)
         index = {f.key: i for i, f in enumerate(futures)}
         results: list[Any] = [None] * len(jobs)
         for future in as_completed(futures):

@@ -273,10 +273,14 @@ def _config_of(ref: ConfigRef) -> Config:
 
 
 def _job(args: tuple[Config | ConfigRef, Path, ReplayOptions]) -> tuple[dict[str, Any] | None, str]:
-    """Replay one log: with the config loaded by :func:`cmd_replay`, or (a --jobs / --dask worker) its reference."""
+    """Replay one log (freed memory kept until it ends): with the config loaded by :func:`cmd_replay`, or (a
+    --jobs / --dask worker) its reference."""
+    from canguard.cli.heap import keep_freed_memory
+
     cfg, log, opts = args
     try:
-        return replay_one(cfg if isinstance(cfg, Config) else _config_of(cfg), log, opts), ""
+        with keep_freed_memory():
+            return replay_one(cfg if isinstance(cfg, Config) else _config_of(cfg), log, opts), ""
     except CanguardError as exc:
         return None, str(exc)
 
