@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import glob
 import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -44,6 +43,8 @@ def expand_logs(given: Sequence[Path]) -> list[Path]:
                                   f"optionally + {' / '.join(COMPRESSIONS)})")
             out.extend(found)
         elif any(ch in text for ch in "*?[") and not item.exists():
+            import glob
+
             found = sorted(Path(p) for p in glob.glob(text, recursive=True) if Path(p).is_file())
             if not found:
                 raise ConfigError(f"replay: {text}: the pattern matches no file")

@@ -129,9 +129,11 @@ def replay_one(cfg: Config, log_path: Path, opts: ReplayOptions) -> dict[str, An
 
 
 def _mcap_export(opts: ReplayOptions) -> bool:
+    if opts.export is None:
+        return False
     from canguard.report.export import is_mcap
 
-    return opts.export is not None and is_mcap(opts.export)
+    return is_mcap(opts.export)
 
 
 def _outputs(stack: ExitStack, engine: Engine, sink: LogSink, opts: ReplayOptions, log: str) -> None:
@@ -488,10 +490,10 @@ def _report(args: argparse.Namespace, results: list[tuple[dict[str, Any] | None,
 def _export_path(path: Path | None, log: Path, many: bool, index: int) -> Path | None:
     """Where log number ``index`` writes ``--export-signals``: its Parquet part (joined after the run), or its own
     MCAP file (``FILE.<log name>.mcap`` of several logs)."""
-    from canguard.report import export
-
     if path is None:
         return None
+    from canguard.report import export
+
     return per_log_path(path, log, many) if export.is_mcap(path) else export.part_path(path, index)
 
 
