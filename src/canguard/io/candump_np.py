@@ -76,16 +76,12 @@ class Parsed:
 
 # --------------------------------------------------------------------------- the text rewritten: one shape
 
-_SPACES = re.compile(rb"[ \t]+")
-_EDGES = re.compile(rb"^ | $", re.M)
-_TAB_LED = re.compile(rb"^\t", re.M)
-_LONG_HEAD = rb"^\((\d{10,}\.\d+)\) ([^ \n]+) "
-_LONG_PLAIN = re.compile(_LONG_HEAD + rb"([0-9A-Fa-f]{3}|[0-9A-Fa-f]{8}) \[[0-8]\]((?: [0-9A-Fa-f]{2})*)(?: '[^\n]*)?$",
-                         re.M)
-_LONG_LENGTH = re.compile(rb"\[(\d\d?)\]")
-_LONG_ANY = re.compile(
-    rb"\((\d{10,}\.\d+)\) ([^ ]+) (?:([RT]X) ([B-]) ([E-]) )?([0-9A-Fa-f]{3}|[0-9A-Fa-f]{8}) \[(\d\d?)\]"
-    rb"((?: [0-9A-Fa-f]{2})*)( remote request|(?: '.*)?| ERRORFRAME.*)")
+_LONG_PLAIN = (rb"(?m)^\((\d{10,}\.\d+)\) ([^ \n]+) ([0-9A-Fa-f]{3}|[0-9A-Fa-f]{8}) \[[0-8]\]((?: [0-9A-Fa-f]{2})*)"
+               rb"(?: '[^\n]*)?$")
+_LONG_ANY = (rb"\((\d{10,}\.\d+)\) ([^ ]+) (?:([RT]X) ([B-]) ([E-]) )?([0-9A-Fa-f]{3}|[0-9A-Fa-f]{8}) \[(\d\d?)\]"
+             rb"((?: [0-9A-Fa-f]{2})*)( remote request|(?: '.*)?| ERRORFRAME.*)")
+"""candump -ta lines: classic ones (each block of them rewritten at once), and any (a line at a time); compiled
+at first use (by :mod:`re`'s cache), not at every start."""
 
 
 def _rewritten(raw: bytes) -> tuple[bytes, np.ndarray | None]:
@@ -94,21 +90,22 @@ def _rewritten(raw: bytes) -> tuple[bytes, np.ndarray | None]:
     announced ``[len]`` (-1: none) when there are -ta lines."""
     if b"\t" in raw or _loose_spaces(raw):
         if b"\t" in raw:
-            raw = _TAB_LED.sub(bytes([_INDENTED]), raw)
-        raw = _EDGES.sub(b"", _SPACES.sub(b" ", raw))
+            raw = re.sub(rb"(?m)^\t", bytes([_INDENTED]), raw)
+        raw = re.sub(rb"(?m)^ | $", b"", re.sub(rb"[ \t]+", b" ", raw))
     if b"[" not in raw:
         return raw, None
     n = raw.count(b"\n")
-    found = _LONG_PLAIN.findall(raw)
+    found = re.findall(_LONG_PLAIN, raw)
     if len(found) == n:  # every line a classic -ta line: rewritten in one pass
-        lengths = np.array(_LONG_LENGTH.findall(raw), dtype=np.int64)
+        lengths = np.array(re.findall(rb"\[(\d\d?)\]", raw), dtype=np.int64)
         if lengths.size == n:
             return b"".join(b"(%s) %s %s#%s\n" % (t, c, i, d.replace(b" ", b"")) for t, c, i, d in found), lengths
     lines = raw.split(b"\n")
     lines.pop()
     announced = np.full(n, -1, dtype=np.int64)
+    fullmatch = re.compile(_LONG_ANY).fullmatch
     for k, line in enumerate(lines):
-        if b"[" in line and (m := _LONG_ANY.fullmatch(line)) is not None:
+        if b"[" in line and (m := fullmatch(line)) is not None:
             lines[k], announced[k] = _compact(m)
     return b"\n".join(lines) + b"\n", announced
 
