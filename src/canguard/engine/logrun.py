@@ -369,13 +369,14 @@ class LogRun:
         """
         engine = self.engine
         while lo < hi and float(ts[hi - 1]) >= engine.due:
-            last = float(ts[hi - 1])
-            if last - engine.next_tick_t <= MAX_CATCH_UP_S:
-                # No gap among these rows: one advance runs every due time they bring, each at its own
-                # time, as row by row would (the rows change nothing else); the clock and the last
-                # frame time end at the row that brought the last of them.
-                engine.advance(last)
-                k = bisect_left(ts, engine.last_due_run, lo, hi, key=float)
+            near = bisect_right(ts, engine.next_tick_t + MAX_CATCH_UP_S, lo, hi, key=float)
+            if near > lo and float(ts[near - 1]) >= engine.due:
+                # The rows up to MAX_CATCH_UP_S after the next tick hold no gap the engine would skip: one
+                # advance runs every due time they bring, each at its own time, as row by row would (the
+                # rows change nothing else); the clock and the last frame time end at the row that brought
+                # the last of them.
+                engine.advance(float(ts[near - 1]))
+                k = bisect_left(ts, engine.last_due_run, lo, near, key=float)
             else:
                 k = bisect_left(ts, engine.due, lo, hi, key=float)
                 engine.advance(float(ts[k]))
