@@ -167,7 +167,8 @@ class LogRun:
             return
         block, buses = routed
         per_channel = None if block.only_channel is not None else block.channel  # each row's channel, or None
-        ts: Any = block.times if block.n <= 16 else block.time_s  # a live bus's few rows: a list (read faster)
+        times: Any = block.time_s
+        ts: Any = block.times if block.n <= 16 else times  # a live bus's few rows: a list (read faster)
         t0 = float(ts[0])
         if not cursor.started:
             cursor.started = True
@@ -187,7 +188,7 @@ class LogRun:
         picked = len(rows)
         last_row = int(rows[-1]) if picked else -1  # the last row fed or taken by a plan
         taken: list[tuple[MessagePlan, Any, Sequence[Any]]] | None = [] if export is not None else None
-        runs, alone = decode_rows(plans, rows, block, block.time_s, keys, taken, self._touched) if picked else ([], [])
+        runs, alone = decode_rows(plans, rows, block, times, keys, taken, self._touched) if picked else ([], [])
         bus = buses[0] if lanes is None else ""
         if not picked:
             pos = 0  # nothing to take: the rows only bring the ticks due among them
