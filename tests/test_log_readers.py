@@ -250,15 +250,15 @@ def test_reader_failure_part_way(tmp_path: Path, monkeypatch: pytest.MonkeyPatch
     path, _ = written("blf", tmp_path)
     whole = list(read_log(path))
 
-    def failing(fmt: str) -> Any:
-        def read(fobj: Any) -> Any:
-            for i, msg in enumerate(can.BLFReader(fobj)):
-                if i == 25:
-                    raise ValueError("corrupt object")
-                yield msg
-        return read
+    reader = can.BLFReader
 
-    monkeypatch.setattr(canguard.io.pycan, "_reader_class", failing)
+    def failing(fobj: Any) -> Any:
+        for i, msg in enumerate(reader(fobj)):
+            if i == 25:
+                raise ValueError("corrupt object")
+            yield msg
+
+    monkeypatch.setattr(can, "BLFReader", failing)
     monkeypatch.setattr(canguard.io.pycan, "BLOCK", 10)
     got: list[Frame] = []
     with pytest.raises(LogFormatError, match=r"x\.blf: BLF reader failed after 25 frames: ValueError: corrupt object"):

@@ -28,7 +28,7 @@ def test_a_killed_monitor_process_is_logged_once_and_the_guard_goes_on(
     """SIGKILL to the monitor process: the daemon says so once, and a trip still puts the Estop on the bus."""
     with watched_daemon(tmp_path, groot2=True) as w:
         wait_for("the task to run", lambda: running(w))
-        pid = w.daemon.monitor.hub.pid
+        pid = w.daemon.monitor.pid
         os.kill(pid, signal.SIGKILL)
 
         def said() -> list[str]:
@@ -45,7 +45,7 @@ def test_a_frozen_monitor_process_neither_delays_a_stop_nor_shows_stale_news_aft
     """SIGSTOP to the monitor process: a trip still stops on time; once it runs again, the page shows the stop."""
     with watched_daemon(tmp_path, groot2=True) as w:
         wait_for("the task to run", lambda: running(w))
-        pid = w.daemon.monitor.hub.pid
+        pid = w.daemon.monitor.pid
         os.kill(pid, signal.SIGSTOP)
         try:
             msg = w.trip_until_estop(2.0)
@@ -61,7 +61,7 @@ def test_a_frozen_monitor_process_neither_delays_a_stop_nor_shows_stale_news_aft
 def test_the_monitor_process_ends_with_the_daemon(tmp_path: Path) -> None:
     """When the daemon stops, its monitor process is gone too."""
     with watched_daemon(tmp_path, groot2=True) as w:
-        pid = w.daemon.monitor.hub.pid
+        pid = w.daemon.monitor.pid
         assert not gone(pid)
     wait_for("the monitor process to end", lambda: gone(pid))
 
@@ -72,7 +72,7 @@ def test_the_monitor_process_ends_when_the_daemon_is_killed(tmp_path: Path) -> N
         "from canguard.config.schema import MonitorConfig\n"
         "from canguard.service.monitor import Monitor\n"
         "m = Monitor(MonitorConfig(http='127.0.0.1:0'))\n"
-        "print(m.hub.pid, flush=True)\n"
+        "print(m.pid, flush=True)\n"
         "import time; time.sleep(600)\n"
     )
     env = {**os.environ, "PYTHONPATH": str(REPO / "src")}
@@ -128,7 +128,7 @@ def test_the_monitor_process_runs_below_the_daemon() -> None:
 
     monitor = Monitor(MonitorConfig(http="127.0.0.1:0"))
     try:
-        pid = monitor.hub.pid
+        pid = monitor.pid
         ours = os.getpriority(os.PRIO_PROCESS, 0)
 
         def threads() -> list[int]:

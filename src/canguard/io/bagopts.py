@@ -1,5 +1,4 @@
-"""What tells a ROS bag and what a replay asks of one: kept apart from the reader (:mod:`canguard.io.rosbag`),
-which imports numpy, so that choosing a log's reader imports nothing heavy."""
+"""What tells a ROS bag and what a replay asks of one (apart from :mod:`canguard.io.rosbag`: nothing heavy)."""
 
 from __future__ import annotations
 
@@ -16,12 +15,11 @@ NEEDS = ("rosbags", "pip install 'canguard[rosbags]'")
 
 @dataclass(frozen=True)
 class BagOptions:
-    """What a replay asks of a bag besides its path."""
+    """What a replay asks of a bag besides its path: the ``--topic`` s to read (empty: every topic of a CAN frame
+    type) and the ``--stamp`` (:data:`STAMPS`)."""
 
     topics: tuple[str, ...] = ()
-    """The topics to read (``--topic``); empty: every topic of a CAN frame type."""
     stamp: str = "header"
-    """``header`` or ``record`` (:data:`STAMPS`)."""
 
 
 def is_bag(path: Path) -> bool:

@@ -1,21 +1,9 @@
 """A bag's raw CAN messages a block at a time: which topics are read, and where each message's bytes lie.
 
-:class:`BagSource` opens a bag and gives :class:`RawBlock` s: messages one after another
-in one zero-padded byte buffer with their topic's :class:`Topic` (channel and layout),
-for :mod:`canguard.io.rosbag` to unpack. Where the bytes come from depends on the storage:
-
-* MCAP (a ``.mcap``, or a rosbag2 directory of them): canguard's own chunk reader
-  (:mod:`canguard.io.mcapscan`): no Python object per message, and a file cut short is
-  read up to the cut;
-* sqlite3 (``.db3``): the ``messages`` table through the connection rosbags opened, in
-  record time order as rosbag2 plays it;
-* ROS 1 ``.bag``: canguard's own chunk reader (:mod:`canguard.io.ros1scan`): rosbags' reader
-  makes an object per message of its index when it opens a bag, and refuses a cut one.
-
-A rosbag2 directory's metadata (topics, types, stored definitions, its files) and a ``.db3``'s
-come from rosbags. The topics read are every topic of a CAN frame type, or those asked for;
-:meth:`BagSource.choose` says what is wrong otherwise (no CAN topic, a topic the bag
-lacks, a CAN-ish type canguard does not know).
+Blocks of :class:`~canguard.io.mcapscan.Messages` with the :class:`Topic` of each of their channels. MCAP and ROS 1
+files are read by canguard's own chunk readers (:mod:`canguard.io.mcapscan`, :mod:`canguard.io.ros1scan`: no
+object per message, a cut file read up to the cut); a ``.db3`` through its ``messages`` table, in record time
+order; a rosbag2 directory's metadata comes from rosbags.
 """
 
 from __future__ import annotations
@@ -30,7 +18,7 @@ import numpy as np
 
 from canguard.errors import LogFormatError, clip
 from canguard.io.bagopts import BagOptions
-from canguard.io.mcapscan import McapCut, McapScan, padded
+from canguard.io.mcapscan import McapCut, McapScan, Messages, padded
 from canguard.io.ros1scan import Ros1Scan
 from canguard.io.rosmsgs import DEFINITIONS, Layout, layout_for, looks_like_can
 
@@ -46,30 +34,8 @@ class Topic:
     layout: Layout
 
 
-@dataclass
-class RawBlock:
-    """Messages one after another: ``buf`` (with :data:`~canguard.io.mcapscan.PAD` zero bytes after the last),
-    each one's ``start`` and ``lengths``, record time (ns) and topic."""
-
-    buf: np.ndarray
-    start: np.ndarray
-    lengths: np.ndarray
-    record_ns: np.ndarray
-    topics: list[Topic]
-    """Each message's topic (one entry per message)."""
-
-
-def joined(raws: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Raw messages one after another in one zero-padded buffer: (the buffer, each one's start, each one's length)."""
-    n = len(raws)
-    lens = np.fromiter(map(len, raws), np.int64, n)
-    start = np.zeros(n, dtype=np.int64)
-    np.cumsum(lens[:-1], out=start[1:])
-    return padded(b"".join(raws)), start, lens
-
-
 class BagSource:
-    """One bag: the topics read, their channels, and the raw messages a block at a time (module docstring)."""
+    """One bag: the topics read, their channels, and the raw messages a block at a time."""
 
     def __init__(self, path: Path, opts: BagOptions) -> None:
         self.path = path
@@ -81,8 +47,7 @@ class BagSource:
         self.total = 0
         """Messages of the topics read as the bag's index counts them (0: unknown)."""
         self._layouts: dict[tuple[str, str], Layout] = {}
-        self._seen: dict[str, str] = {}
-        """Every topic met, with its type (the errors list them)."""
+        self._seen: dict[str, str] = {}  # every topic met, with its type (the errors list them)
         self.reader: Any = None
         self.scans: list[McapScan] = []
 
@@ -117,9 +82,8 @@ class BagSource:
         self.choose([(c.topic, c.msgtype, c.msgdef.data) for c in conns])
         self.total = sum(int(c.msgcount or 0) for c in conns if c.topic in self.channels)
         files = [Path(s.path) for s in getattr(self.reader.storage, "storages", None) or ()]
-        if files and all(f.suffix == ".mcap" for f in files):
-            # read again by canguard's chunk reader, file by file (the reader stays open: a directory compressed
-            # file by file has its storages decompressed into a temporary directory while it is)
+        if files and all(f.suffix == ".mcap" for f in files):  # read file by file by canguard's chunk
+            # reader (rosbags' stays open: it may hold the files decompressed in a temporary directory)
             self.scans = [McapScan(f) for f in files]
 
     @staticmethod
@@ -163,48 +127,39 @@ class BagSource:
     def _wants(self, topic: str, msgtype: str) -> bool:
         """A topic met in a cut MCAP (no summary): read it?"""
         self._seen.setdefault(topic, msgtype)
-        if self.opts.topics:
-            return topic in self.opts.topics
-        return looks_like_can(msgtype)
+        return topic in self.opts.topics if self.opts.topics else looks_like_can(msgtype)
 
-    def blocks(self) -> Iterator[RawBlock]:
-        """The chosen topics' raw messages, a block at a time, in the storage's order."""
-        if self.scans:
-            for scan in self.scans:
-                yield from self._scan_blocks(scan)
-            return
-        yield from self._reader_blocks()
+    def blocks(self) -> Iterator[tuple[Messages, dict[int, Topic]]]:
+        """The chosen topics' raw messages a block at a time, in the storage's order, with their channels' topics."""
+        for scan in self.scans:
+            yield from self._scan_blocks(scan)
+        if not self.scans:
+            storage = self.reader.storage
+            for db in getattr(storage, "storages", None) or [storage]:
+                yield from self._sqlite_blocks(db)
 
-    def _scan_blocks(self, scan: Any) -> Iterator[RawBlock]:
+    def _scan_blocks(self, scan: Any) -> Iterator[tuple[Messages, dict[int, Topic]]]:
         """The chosen topics' messages of a file canguard reads itself (:class:`McapScan`, :class:`Ros1Scan`)."""
-        topics: dict[int, Topic | None] = {}
+        met: set[int] = set()
+        topics: dict[int, Topic] = {}
         for found in scan.messages():
-            for cid in set(np.unique(found.channel).tolist()) - topics.keys():
+            for cid in set(np.unique(found.channel).tolist()) - met:
+                met.add(cid)
                 channel = scan.channels.get(cid)
                 if channel is None:
                     raise McapCut(f"a message of channel {cid}, which no channel record defines")
-                if channel.message_encoding not in ("cdr", "ros1"):
-                    topics[cid] = None
-                    continue
-                take = channel.topic in self.channels or (not scan.whole and self._wants(channel.topic,
-                                                                                          channel.schema_name))
-                topics[cid] = self.topic(channel.topic, channel.schema_name, self._definition(channel)) \
-                    if take else None
-            keep = np.array([topics[c] is not None for c in found.channel.tolist()])
-            if not keep.any():
-                continue
-            rows = np.flatnonzero(keep) if not keep.all() else slice(None)
-            chans = found.channel[rows].tolist()
-            yield RawBlock(found.buf, found.start[rows], found.lengths[rows], found.log_ns[rows],
-                           [topics[c] for c in chans])  # type: ignore[misc]
+                if channel.message_encoding in ("cdr", "ros1") and (channel.topic in self.channels or (
+                        not scan.whole and self._wants(channel.topic, channel.schema_name))):
+                    topics[cid] = self.topic(channel.topic, channel.schema_name, self._definition(channel))
+            keep = np.isin(found.channel, list(topics))
+            if keep.all():
+                yield found, topics
+            elif keep.any():
+                rows = np.flatnonzero(keep)
+                yield Messages(found.channel[rows], found.log_ns[rows], found.buf, found.start[rows],
+                               found.lengths[rows]), topics
 
-    def _reader_blocks(self) -> Iterator[RawBlock]:
-        """A rosbag2 sqlite3 bag (a ``.db3``, or a directory of them): each storage's ``messages`` table."""
-        storage = self.reader.storage
-        for db in getattr(storage, "storages", None) or [storage]:
-            yield from self._sqlite_blocks(db)
-
-    def _sqlite_blocks(self, db: Any) -> Iterator[RawBlock]:
+    def _sqlite_blocks(self, db: Any) -> Iterator[tuple[Messages, dict[int, Topic]]]:
         """One sqlite3 storage's messages of the chosen topics, in record time order."""
         mine = {c.id: self.topic(c.topic, c.msgtype, self._stored(c)) for c in db.connections
                 if c.topic in self.channels}
@@ -215,10 +170,9 @@ class BagSource:
             f"SELECT topic_id, timestamp, data FROM messages WHERE topic_id IN ({ids}) ORDER BY timestamp")
         while batch := list(islice(cursor, BLOCK)):
             chans, stamps, raws = zip(*batch, strict=True)
-            buf, start, lens = joined(raws)
-            only = mine[chans[0]] if chans.count(chans[0]) == len(chans) else None
-            yield RawBlock(buf, start, lens, np.fromiter(stamps, np.int64, len(stamps)),
-                           [only] * len(chans) if only is not None else [mine[c] for c in chans])
+            lens = np.fromiter(map(len, raws), np.int64, len(raws))
+            yield Messages(np.fromiter(chans, np.int64, len(chans)), np.fromiter(stamps, np.int64, len(stamps)),
+                           padded(b"".join(raws)), np.concatenate(([0], np.cumsum(lens[:-1]))), lens), mine
 
     def _stored(self, conn: Any) -> str:
         """A storage's connection's definition, or the bag's (a directory keeps them with its connections)."""

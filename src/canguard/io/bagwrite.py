@@ -1,11 +1,8 @@
 """``replay --emit FILE.mcap`` / ``--emit DIR``: the frames canguard would send, as a bag ``ros2 bag play`` sends.
 
-Each frame is a ``can_msgs/msg/Frame`` on ``/to_can_bus`` (a CAN FD one a
-``ros2_socketcan_msgs/msg/FdFrame`` on ``/to_can_bus_fd``), the topics ros2_socketcan's
-sender takes, stamped and recorded at the time canguard sent it (the log's time base).
-``FILE.mcap`` is one MCAP file (:class:`~canguard.io.mcapwrite.McapWriter`); a path
-without a suffix is a rosbag2 directory (``metadata.yaml`` and its MCAP storage),
-written by the ``rosbags`` library.
+Each frame is a ``can_msgs/msg/Frame`` on ``/to_can_bus`` (CAN FD: ``ros2_socketcan_msgs/msg/FdFrame`` on
+``/to_can_bus_fd``, the topics ros2_socketcan's sender takes), stamped and recorded at the time canguard sent it.
+``FILE.mcap`` is written by :class:`~canguard.io.mcapwrite.McapWriter`, a rosbag2 directory by ``rosbags``.
 """
 
 from __future__ import annotations
@@ -20,58 +17,49 @@ from canguard.io.mcapwrite import McapWriter, ns_of
 from canguard.io.rosmsgs import DEFINITIONS, cdr_frame, frame_type, full_definition
 
 TOPICS = {False: "/to_can_bus", True: "/to_can_bus_fd"}
-"""Where classic and CAN FD frames go (ros2_socketcan's sender's topics)."""
 
 
 class BagEmit:
-    """The frames sent during a replay, written as they come (see the module docstring)."""
+    """The frames sent during a replay, written as they come."""
 
     def __init__(self, path: Path) -> None:
         self.path = path
         self._mcap: McapWriter | None = None
-        self._bag: Any = None
+        self._out: Any = None
         self._channels: dict[bool, Any] = {}
         if path.suffix.lower() == ".mcap":
-            self._mcap = McapWriter(path, profile="ros2")
+            self._out = self._mcap = McapWriter(path, profile="ros2")
+            self._write = self._mcap.message
             return
         try:
             from rosbags.rosbag2 import StoragePlugin, Writer
         except ImportError:
             raise ConfigError(f"--emit {path}: writing a rosbag2 directory needs rosbags: "
                               "pip install 'canguard[rosbags]' (or --emit FILE.mcap)") from None
-        self._bag = Writer(path, version=9, storage_plugin=StoragePlugin.MCAP)
-        self._bag.open()
+        self._out = Writer(path, version=9, storage_plugin=StoragePlugin.MCAP)
+        self._out.open()
+        self._write = self._out.write
 
     def _channel(self, fd: bool) -> Any:
-        found = self._channels.get(fd)
-        if found is not None:
-            return found
-        msgtype = frame_type(fd)
-        if self._mcap is not None:
-            schema = self._mcap.schema(msgtype, "ros2msg", full_definition(msgtype))
-            found = self._mcap.channel(TOPICS[fd], schema, "cdr")
-        else:
-            found = self._bag.add_connection(TOPICS[fd], msgtype, typestore=_typestore())
-        self._channels[fd] = found
-        return found
+        if fd not in self._channels:
+            msgtype = frame_type(fd)
+            if self._mcap is not None:
+                schema = self._mcap.schema(msgtype, "ros2msg", full_definition(msgtype))
+                self._channels[fd] = self._mcap.channel(TOPICS[fd], schema, "cdr")
+            else:
+                self._channels[fd] = self._out.add_connection(TOPICS[fd], msgtype, typestore=_typestore())
+        return self._channels[fd]
 
     def sent(self, frames: Sequence[Frame]) -> None:
         """Write frames canguard sent."""
         for f in frames:
             ns = int(ns_of(f.t))
             raw = cdr_frame(ns, f.channel, f.arbitration_id, bytes(f.data), extended=f.is_extended_id, fd=f.is_fd)
-            channel = self._channel(f.is_fd)
-            if self._mcap is not None:
-                self._mcap.message(channel, ns, raw)
-            else:
-                self._bag.write(channel, ns, raw)
+            self._write(self._channel(f.is_fd), ns, raw)
 
     def close(self) -> None:
         """End the file (or the directory's storage and ``metadata.yaml``)."""
-        if self._mcap is not None:
-            self._mcap.close()
-        else:
-            self._bag.close()
+        self._out.close()
 
 
 def _typestore() -> Any:

@@ -1,15 +1,10 @@
 """Is a BLF log whole? Its file header and object headers say how much should follow.
 
-python-can's BLF reader stops quietly where the file stops: a log cut in half replays
-as half a log. :class:`BlfLength` sits between the file and python-can's reader and
-follows the file's framing as the reader reads it (no second pass over the file): the
-file header gives its own size and the size of the whole file; each object header
-(``LOBJ``) its object's size, followed by ``size % 4`` padding bytes. At the end of
-the file, :meth:`BlfLength.cut` tells whether it ended inside the file header, an
-object header or an object (a log container cut in half), or before the size the file
-header records (a cut between two objects). A file header whose size field was never
-filled in (a writer that did not finish, or one that could not seek back) records
-nothing to hold the file to: then only the framing is checked.
+python-can's BLF reader stops quietly where the file stops: a log cut in half replays as half a log.
+:class:`BlfLength` sits between the file and python-can's reader and follows the framing as it is read (the file
+header gives its own size and the whole file's; each ``LOBJ`` header its object's, then ``size % 4`` padding), so
+at the end :meth:`BlfLength.cut` tells whether the file ended inside a header or an object, or before the size the
+file header records (a writer that never filled that in records nothing to hold the file to).
 """
 
 from __future__ import annotations
@@ -32,12 +27,9 @@ class BlfLength:
 
     def __init__(self, raw: Any) -> None:
         self.raw = raw
-        self.pos = 0
-        """Bytes read so far."""
-        self.ended = False
-        """A read came back short: the file ended there."""
-        self.file_size = 0
-        """The file size the file header records (0: none recorded yet)."""
+        self.pos = 0  # bytes read so far
+        self.ended = False  # a read came back short: the file ended there
+        self.file_size = 0  # the file size the file header records (0: none)
         self._head = b""  # the bytes of the header being read (file header first, then each object's)
         self._header_size = 0  # the file header's size, once its first 8 bytes are in
         self._skip = 0  # bytes of the current object (or of the file header) still to come
@@ -101,10 +93,8 @@ class BlfLength:
         self._object = (start, size, kind) if self._skip else None
 
     def note_file_size(self, file_size: int) -> None:
-        """The file size the file header records (python-can's reader has it): held against the end.
-
-        A writer that never came back to fill it in leaves the header's own size there.
-        """
+        """The file size the file header records (python-can's reader has it; a writer that never came back to fill
+        it in leaves the header's own size there): held against the end."""
         self.file_size = file_size if file_size > self._header_size else 0
 
     def cut(self) -> str:

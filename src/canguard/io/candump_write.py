@@ -10,13 +10,11 @@ from canguard.io.logtypes import CAN_EFF_MASK, CAN_ERR_FLAG, CAN_SFF_MASK, CANFD
 
 
 def format_candump_line(frame: Frame, default_channel: str = "can0") -> str:
-    """One candump -L line for ``frame``, without the newline.
+    """One candump -L line for ``frame``, without the newline (``default_channel`` for an empty channel).
 
-    ``(%.6f) channel ID#DATA``: 3 hex digits for standard ids, 8 for extended
-    ids and error frames (with CAN_ERR_FLAG), ``##F`` + data for CAN FD, ``R`` or
-    ``R<dlc>`` for remote frames, ``_<dlc>`` for a classic raw DLC above 8.
-    ``default_channel`` names frames whose channel is empty. Raises ValueError
-    for an id out of range or a channel with whitespace in it.
+    ``(%.6f) channel ID#DATA``: 3 hex digits for standard ids, 8 for extended ids and error frames (with
+    CAN_ERR_FLAG), ``##F`` + data for CAN FD, ``R`` or ``R<dlc>`` for remote frames, ``_<dlc>`` for a classic raw
+    DLC above 8. ValueError for an id out of range or a channel with whitespace in it.
     """
     channel = frame.channel or default_channel
     if not channel or channel.split() != [channel]:
@@ -45,14 +43,9 @@ def format_candump_line(frame: Frame, default_channel: str = "can0") -> str:
 
 
 def write_candump(frames: Iterable[Frame], out: TextIO, default_channel: str = "can0") -> int:
-    """Write ``frames`` to ``out`` as a candump -L log (one line each); return how many were written.
-
-    python-can's ``can.CanutilsLogReader`` and :func:`read_log` both read the result
-    back (the latter to equal frames, for timestamps with at most 6 decimals).
-    """
+    """Write ``frames`` to ``out`` as a candump -L log (one line each); return how many were written."""
     count = 0
-    write = out.write
     for frame in frames:
-        write(format_candump_line(frame, default_channel) + "\n")
+        out.write(format_candump_line(frame, default_channel) + "\n")
         count += 1
     return count

@@ -1,10 +1,7 @@
 """Clocks: the only place canguard reads the time.
 
-Nothing under ``protect/`` or ``nodes/`` calls ``time.time()`` or
-``time.monotonic()``; they are handed a :class:`Clock`. Live runs use
-:class:`LiveClock` (epoch seconds, advanced with the monotonic clock so a wall
-clock step cannot jump the models); replay uses :class:`ManualClock` driven by the
-log's own timestamps; tests use :class:`ManualClock` by hand.
+Nothing under ``protect/`` or ``nodes/`` calls ``time.time()`` or ``time.monotonic()``; they are handed a
+:class:`Clock`: :class:`LiveClock` live, :class:`ManualClock` in replay (driven by the log's timestamps) and tests.
 """
 
 from __future__ import annotations
@@ -18,7 +15,7 @@ class Clock(Protocol):
     """Tells the time in the frames' time base (seconds)."""
 
     def now(self) -> float:
-        """Return the current time in seconds."""
+        """The current time in seconds."""
         ...
 
     def advance_to(self, t: float) -> None:
@@ -27,17 +24,13 @@ class Clock(Protocol):
 
 
 class ManualClock:
-    """A clock that only moves when told: replay (log time) and tests.
-
-    ``advance_to`` never moves it backwards: a log whose timestamps go back does
-    not make time go back for the models.
-    """
+    """A clock that only moves when told, and never backwards by :meth:`advance_to` (a log going back in time)."""
 
     def __init__(self, start: float = 0.0) -> None:
         self._now = float(start)
 
     def now(self) -> float:
-        """Return the current time."""
+        """The current time."""
         return self._now
 
     def set(self, t: float) -> None:
@@ -46,28 +39,22 @@ class ManualClock:
 
     def advance(self, dt: float) -> None:
         """Move forward by ``dt`` seconds (ignored when negative)."""
-        if dt > 0:
-            self._now += dt
+        self.advance_to(self._now + dt)
 
     def advance_to(self, t: float) -> None:
         """Move forward to ``t``; a ``t`` in the past is ignored."""
-        if t > self._now:
-            self._now = t
+        self._now = max(self._now, t)
 
 
 class LiveClock:
-    """Epoch seconds that advance with the monotonic clock.
-
-    The epoch offset is taken once at start, so events line up with a candump
-    of the same bus, yet a wall-clock step (NTP, manual date) does not move
-    canguard's time.
-    """
+    """Epoch seconds that advance with the monotonic clock: events line up with a candump of the same bus, yet a
+    wall-clock step (NTP, manual date) does not move canguard's time (the offset is taken once)."""
 
     def __init__(self) -> None:
         self._offset = time.time() - time.monotonic()
 
     def now(self) -> float:
-        """Return the current time in epoch seconds, monotonic."""
+        """The current time in epoch seconds, monotonic."""
         return time.monotonic() + self._offset
 
     def advance_to(self, t: float) -> None:
@@ -75,12 +62,8 @@ class LiveClock:
 
 
 class PinnedClock:
-    """The engine's view of a clock: never goes back, and stands still for the length of a tick.
-
-    Live, the wall of time keeps moving while a tick runs; pinning it makes
-    every node of one tick, and every event the tick writes, see the same
-    ``now``, and keeps journal times in order.
-    """
+    """The engine's view of a clock: never goes back, and stands still for a tick (every node and event of one
+    tick sees the same ``now``, and journal times stay in order)."""
 
     def __init__(self, inner: Clock) -> None:
         self.inner = inner
@@ -89,10 +72,7 @@ class PinnedClock:
 
     def now(self) -> float:
         """The pinned time during a tick; otherwise the inner clock's, never below the last pin."""
-        if self._pinned is not None:
-            return self._pinned
-        t = self.inner.now()
-        return t if t > self._last else self._last
+        return self._pinned if self._pinned is not None else max(self._last, self.inner.now())
 
     def advance_to(self, t: float) -> None:
         """Drive the inner clock (replay); live clocks ignore it."""
@@ -100,10 +80,8 @@ class PinnedClock:
 
     def pin(self, t: float) -> float:
         """Stand still at ``t`` (or at the last pin, if that is later) until :meth:`unpin`; returns the pin."""
-        if t < self._last:
-            t = self._last
-        self._pinned = self._last = t
-        return t
+        self._pinned = self._last = max(t, self._last)
+        return self._pinned
 
     def unpin(self) -> None:
         """Let time move again."""
@@ -114,14 +92,10 @@ BOOT_ID_PATH = "/proc/sys/kernel/random/boot_id"
 
 
 class BootClock:
-    """Downtime that a wall-clock step cannot fake: this boot's id and the time since boot.
-
-    The I²t state file is stamped with both. On a restart within the same boot,
-    the downtime is measured with ``CLOCK_BOOTTIME`` (counts suspend, never
-    steps), so an NTP correction after boot, common on robots without a
-    battery-backed clock, is not taken for hours of cooling. After a reboot (or
-    where the kernel offers neither), it falls back to the wall-clock difference.
-    """
+    """Downtime that a wall-clock step cannot fake: this boot's id and the time since boot (the I²t state file is
+    stamped with both). Within one boot the downtime is ``CLOCK_BOOTTIME``'s (counts suspend, never steps: an NTP
+    correction after boot, common on robots without a battery-backed clock, is no hours of cooling); after a
+    reboot, or where the kernel offers neither, the wall-clock difference."""
 
     def __init__(self, boot_id_path: str = BOOT_ID_PATH) -> None:
         self._boot_id_path = boot_id_path

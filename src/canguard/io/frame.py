@@ -1,9 +1,7 @@
 """The two values that flow through canguard: frames in, samples out.
 
-``Frame`` is what every source (a live python-can bus, a candump log, a python-can
-log reader) yields; it is a ``NamedTuple`` rather than ``can.Message`` because the
-replay fast path makes millions of them and tuple construction is several times
-cheaper. ``Sample`` is one decoded, configured signal value.
+``Frame`` is a ``NamedTuple`` rather than ``can.Message``: replay makes millions, and a tuple is several times
+cheaper to build.
 """
 
 from __future__ import annotations
@@ -12,13 +10,8 @@ from typing import NamedTuple
 
 
 class Frame(NamedTuple):
-    """One CAN frame as received or recorded.
-
-    ``t`` is in the frames' time base: epoch seconds as candump writes them
-    (live: the kernel/hardware timestamp python-can reports).
-    ``channel`` is the bus channel name as recorded (``can0``) or, live, the
-    configured bus name.
-    """
+    """One CAN frame as received or recorded: ``t`` in epoch seconds as candump writes them (live: the time
+    python-can reports), ``channel`` as recorded (``can0``) or, live, the configured bus name."""
 
     t: float
     channel: str
@@ -43,14 +36,9 @@ INVALID_PAYLOAD = "undecodable"
 
 
 class Sample(NamedTuple):
-    """One decoded value of a configured source signal.
-
-    ``signal`` is the role inside the source: ``current`` and ``present`` for
-    battery / current sources, the joint ``name`` for joints sources.
-    ``reason`` is empty for a valid value and names why it is invalid otherwise
-    (``nan``, ``inf``, ``out_of_range``, ``bad_length``, ``undecodable``); an
-    invalid sample carries ``value = nan``.
-    """
+    """One decoded value of a configured source signal: ``signal`` is its role in the source (``current``,
+    ``present``, a joint's ``name``); ``reason`` is empty for a valid value, else one of the ``INVALID_*`` above
+    (and ``value`` is nan)."""
 
     source: str
     signal: str

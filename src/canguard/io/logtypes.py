@@ -17,8 +17,6 @@ if TYPE_CHECKING:
 
 
 _TEXT_PYTHON_CAN = ("asc", "trc", "csv")
-
-
 COMPRESSIONS = (".gz", ".xz", ".zst")
 """Compressed logs: any format may carry one of these on top (``robot.log.xz``)."""
 
@@ -55,10 +53,8 @@ def open_decompressed(raw: Any, compression: str) -> Any:
 
 
 class CrLines:
-    """A binary log whose lines end in a lone CR (or in any mix of CR, LF and CRLF), read with each ending as LF.
-
-    Through a latin-1 text layer with universal newlines: every other byte comes back as it was.
-    """
+    """A binary log whose lines end in a lone CR (or any mix of CR, LF and CRLF), read with each ending as LF
+    (through a latin-1 text layer with universal newlines: every other byte comes back as it was)."""
 
     def __init__(self, f: Any) -> None:
         self._text = io.TextIOWrapper(f, encoding="latin-1", newline=None)
@@ -104,51 +100,39 @@ class BadLine(NamedTuple):
 
 @dataclass
 class ReadStats:
-    """What a reader saw; pass one to :func:`read_log` to have it filled in.
+    """What a reader saw, counted as the log is read (pass one to :func:`read_log`; counts add up over calls).
 
-    Counts are updated as the log is read (a chunk at a time on the candump fast
-    path) and add up when the same object is passed to several calls.
+    Text ``lines`` (blank and comment ones included; 0 for binary formats), ``frames``, malformed lines skipped with
+    ``skip_bad`` (the first :data:`MAX_BAD_EXAMPLES` kept), frames whose time goes back or repeats the previous
+    one's, the file's size on disk (compressed) and the position reached in it, a block at a time; for bags, the
+    frames timed by their ``header`` stamp and by the ``record`` time.
     """
 
     path: str = ""
     format: str = ""
     lines: int = 0
-    """Text lines read, blank and comment lines included (0 for binary formats)."""
     frames: int = 0
     bad_lines: int = 0
-    """Malformed lines skipped with ``skip_bad=True``."""
     bad_examples: list[BadLine] = field(default_factory=list)
-    """The first :data:`MAX_BAD_EXAMPLES` bad lines."""
     backwards_timestamps: int = 0
-    """Frames whose timestamp is earlier than the previous frame's."""
     repeated_timestamps: int = 0
-    """Frames whose timestamp equals the previous frame's."""
     bytes_total: int = 0
-    """Size of the file on disk (compressed size for ``.gz``)."""
     bytes_read: int = 0
-    """Position reached in the file on disk, updated a chunk at a time (drives progress bars)."""
     stamps: dict[str, int] = field(default_factory=dict)
-    """Bags only: frames timed by their ``header`` stamp and by the ``record`` time (:mod:`canguard.io.rosbag`)."""
 
-    @property
-    def backward(self) -> int:
-        """Alias of :attr:`backwards_timestamps`."""
-        return self.backwards_timestamps
-
-    @property
-    def repeated(self) -> int:
-        """Alias of :attr:`repeated_timestamps`."""
-        return self.repeated_timestamps
+    def took(self, block: Block, last_t: float) -> float:
+        """Count ``block``'s frames and their times' order (after a frame at ``last_t``); its last time."""
+        backwards, repeated = block.order
+        first = float(block.time_s[0])
+        self.backwards_timestamps += backwards + (first < last_t)
+        self.repeated_timestamps += repeated + (first == last_t)
+        self.frames += block.n
+        return float(block.time_s[-1])
 
 
 class LogFrames(Iterator[Frame]):
-    """The frames of one log, streamed: what :func:`read_log` returns.
-
-    ``for frame in log_frames`` iterates the reader's generator directly (no
-    per-frame wrapper cost). ``stats`` is the :class:`ReadStats` being filled;
-    ``progress`` (settable until iteration ends) is updated with the file
-    position after each chunk and closed when the log has been read.
-    """
+    """The frames of one log, streamed (what :func:`read_log` returns): iterated frame by frame, or a block at a
+    time by :meth:`chunks` (one or the other). ``progress`` (settable until the end) follows the file position."""
 
     def __init__(self, path: Path, stats: ReadStats, progress: ProgressBar | None,
                  read: Callable[[LogFrames], Iterator[Block]] | None = None) -> None:
@@ -159,11 +143,7 @@ class LogFrames(Iterator[Frame]):
         self._frames: Iterator[Frame] = (frame for block in self._chunks for frame in block.frames())
 
     def chunks(self) -> Iterator[Block]:
-        """The same frames a block at a time (:class:`~canguard.io.block.Block`).
-
-        For consumers that work on whole blocks (the replay engine); use either
-        this or the frame iterator, not both.
-        """
+        """The same frames a block at a time (:class:`~canguard.io.block.Block`)."""
         return self._chunks
 
     def __iter__(self) -> Iterator[Frame]:

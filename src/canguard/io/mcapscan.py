@@ -1,17 +1,10 @@
 """An MCAP file's messages a chunk at a time, as arrays: where each message's bytes lie, its channel, its log time.
 
-rosbag2's MCAP storage writes a message record per frame inside compressed chunks.
-Reading them message by message in Python (a record header parsed, a ``bytes`` object
-and a tuple made per message) costs more than the whole replay of the same frames
-from candump text; here a chunk is decompressed once and its message records are
-found at once where they all have one length (a CAN topic's messages do: the same
-``frame_id`` and a fixed body), one by one only where they do not.
-
-The file is read from its start, record after record, so a file cut short (a
-recorder that died: no summary, no footer) gives every chunk before the cut, then
-:class:`McapCut` saying where it ends. The summary is read first when the file has
-one, so the channels are known before the first message (:attr:`McapScan.channels`);
-a cut file's channels become known as their records are met.
+A chunk is decompressed once and its message records are found at once where they all have one length (a CAN
+topic's messages do), one by one only where they do not: a Python object per message would cost more than the
+whole replay of the same frames from candump text. The file is read from its start, so a file cut short (a
+recorder that died: no summary) gives every chunk before the cut, then :class:`McapCut` saying where it ends; the
+summary, when there is one, is read first, so the channels are known before the first message.
 """
 
 from __future__ import annotations
@@ -37,7 +30,7 @@ _U16, _U32, _U64 = struct.Struct("<H"), struct.Struct("<I"), struct.Struct("<Q")
 
 
 class McapCut(Exception):
-    """The file ends (or turns to garbage) before its data section does: ``at``, and what was found there."""
+    """The file ends (or turns to garbage) before its data section does: where, and what was found there."""
 
     def __init__(self, what: str) -> None:
         super().__init__(what)
@@ -46,13 +39,12 @@ class McapCut(Exception):
 
 @dataclass(frozen=True)
 class Channel:
-    """An MCAP channel with its schema: a topic and the definition of its messages."""
+    """An MCAP channel with its schema (``schema_encoding``: ``ros2msg``, ``ros2idl``, ..., empty for none)."""
 
     id: int
     topic: str
     schema_name: str
     schema_encoding: str
-    """``ros2msg``, ``ros2idl``, ... (empty: no schema)."""
     schema: str
     message_encoding: str
 
@@ -109,7 +101,7 @@ def decompressed(compression: str, data: bytes, size: int, at: int) -> bytes:
 
 
 class McapScan:
-    """One MCAP file, read from its start (see the module docstring)."""
+    """One MCAP file, read from its start."""
 
     def __init__(self, path: Path) -> None:
         self.path = path
@@ -136,13 +128,9 @@ class McapScan:
         f = self.f
         if self.size < 8 + 9 + 20 + 8:
             return False
-        f.seek(self.size - 8)
-        if f.read(8) != MAGIC:
-            return False
         f.seek(self.size - 8 - 9 - 20)
-        op, _length = _OPLEN.unpack(f.read(9))
-        start, _offsets, _crc = struct.unpack("<QQI", f.read(20))
-        if op != OP_FOOTER:
+        op, _length, start, _offsets, _crc, magic = struct.unpack("<BQQQI8s", f.read(37))
+        if magic != MAGIC or op != OP_FOOTER:
             return False
         if start:
             f.seek(start)
@@ -169,15 +157,9 @@ class McapScan:
             name, schema_encoding, schema = self.schemas.get(sid, ("", "", ""))
             self.channels[cid] = Channel(cid, topic, name, schema_encoding, schema, encoding)
 
-    def _read(self, n: int, what: str, at: int) -> bytes:
-        data = self.f.read(n)
-        if len(data) < n:
-            raise McapCut(f"the file ends at byte {self.size}, inside the {what} that starts at byte {at}")
-        return data
-
     def messages(self) -> Iterator[Messages]:
         """Every message of the data section, a chunk (or a run of unchunked messages) at a time, in file order."""
-        loose: list[tuple[int, bytes]] = []
+        loose: list[bytes] = []
         f = self.f
         while True:
             at = f.tell()
@@ -192,9 +174,9 @@ class McapScan:
             what = f"{_NAMES.get(op, f'op {op:#04x}')} record of {length} bytes"
             if at + 9 + length > self.size:
                 raise McapCut(f"the file ends at byte {self.size}, inside the {what} that starts at byte {at}")
-            body = self._read(length, what, at)
+            body = f.read(length)
             if op == OP_MESSAGE:
-                loose.append((at, body))
+                loose.append(head + body)
                 continue
             if loose:
                 yield _loose(loose)
@@ -216,10 +198,9 @@ class McapScan:
         return _chunk_messages(decompressed(compression, body[pos + 8:pos + 8 + n], size, at), self._record)
 
 
-def _loose(records: list[tuple[int, bytes]]) -> Messages:
-    """Unchunked message records (their bodies) as arrays."""
-    data = b"".join(_OPLEN.pack(OP_MESSAGE, len(body)) + body for _at, body in records)
-    found = _chunk_messages(data, lambda op, body: None)
+def _loose(records: list[bytes]) -> Messages:
+    """Unchunked message records as arrays."""
+    found = _chunk_messages(b"".join(records), lambda op, body: None)
     assert found is not None
     return found
 

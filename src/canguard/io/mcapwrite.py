@@ -1,14 +1,9 @@
 """Write an MCAP file (what Foxglove opens) with many small messages at numpy speed.
 
-A replay's export writes a message per decoded sample: hundreds of thousands. A
-message record is 31 bytes of header and the data; :meth:`McapWriter.messages` lays out
-a whole column of messages of one size (``n x width`` bytes) as one structured array,
-so a block of samples costs a few numpy calls, not a Python call per message.
-
-The file is an indexed MCAP: schemas and channels first, messages in chunks (zstd when
-``zstandard`` is installed), then a summary (schemas, channels, statistics, chunk
-indexes) with its offsets, the footer and the closing magic. Messages need not be
-in time order: readers sort by log time.
+A replay's export writes a message per decoded sample; :meth:`McapWriter.messages` lays out a column of messages
+of one size as one structured array: a few numpy calls a block, not a Python call per message. The file is an
+indexed MCAP: schemas and channels, messages in chunks (zstd when ``zstandard`` is installed; not necessarily in
+time order: readers sort by log time), then a summary with its offsets, the footer and the closing magic.
 """
 
 from __future__ import annotations
@@ -70,8 +65,7 @@ class McapWriter:
         self._chunk: list[bytes] = []
         self._chunk_size = 0
         self._chunk_times = (2**64 - 1, 0)
-        self._index: dict[int, list[tuple[np.ndarray, np.ndarray]]] = {}
-        """Per channel, the chunk's messages: log times and offsets in the chunk (its message index)."""
+        self._index: dict[int, list[tuple[np.ndarray, np.ndarray]]] = {}  # per channel: log times, offsets
         self._chunk_indexes: list[bytes] = []
         self._counts: dict[int, int] = {}
         self._times = (2**64 - 1, 0)
@@ -102,14 +96,12 @@ class McapWriter:
         if not n:
             return
         width = int(data.shape[1])
-        rows = np.empty(n, dtype=np.dtype([("op", "u1"), ("len", "<u8"), ("channel", "<u2"), ("seq", "<u4"),
+        rows = np.zeros(n, dtype=np.dtype([("op", "u1"), ("len", "<u8"), ("channel", "<u2"), ("seq", "<u4"),
                                            ("log", "<u8"), ("pub", "<u8"), ("data", "u1", (width,))]))
         rows["op"] = OP_MESSAGE
         rows["len"] = 22 + width
         rows["channel"] = channel_id
-        rows["seq"] = 0
-        rows["log"] = log_ns
-        rows["pub"] = log_ns
+        rows["log"] = rows["pub"] = log_ns
         rows["data"] = data
         offsets = self._chunk_size + np.arange(n, dtype=np.int64) * (31 + width)
         self._index.setdefault(channel_id, []).append((np.asarray(log_ns, dtype=np.int64), offsets))

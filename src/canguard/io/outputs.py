@@ -1,16 +1,11 @@
 """Files canguard writes: can they be written there? Asked before anything runs, answered in words.
 
-Every file canguard writes (the event journal, the I²t state file, ``--emit``, ``simulate
---out``, ``--events`` of a replay or the demo) is checked here first, by
-:func:`output_problem`, so a path that cannot be written is one line naming the path and
-what is wrong (exit 2), never a traceback half-way through a run; ``canguard check`` asks
-the same question of a config (:func:`check_config_outputs`) that ``canguard run`` asks
-at start, so a config that passes the check does not fail at start for its paths.
-
-Writability is found by trying, not from permission bits (root ignores them; a read-only
-mount or a file where a directory should be refuses everyone). Nothing is left behind:
-missing directories are not created (the writers create them), a probe file made to try
-a directory is removed, an existing file is opened for appending and closed unchanged.
+Every file canguard writes (the journal, the I²t state file, ``--emit``, ``simulate --out``, ``--events``) is
+checked first (:func:`output_problem`): a path that cannot be written is one line naming it and what is wrong
+(exit 2), never a traceback half-way through a run; ``canguard check`` asks a config what ``canguard run`` asks at
+start (:func:`check_config_outputs`). Found by trying, not from permission bits (root ignores them; a read-only
+mount refuses everyone), and nothing is left behind: no directory made, a probe file removed, an existing file
+opened for appending and closed unchanged.
 """
 
 from __future__ import annotations
@@ -51,14 +46,6 @@ def _whose(path: Path) -> str:
             f"{_user(os.geteuid())}")
 
 
-def _existing_ancestor(path: Path) -> Path:
-    """The nearest of ``path``'s parents that exists (``/`` at worst)."""
-    parent = path.parent
-    while not parent.exists() and parent != parent.parent:
-        parent = parent.parent
-    return parent
-
-
 def _new_file_problem(directory: Path, target: Path) -> str:
     """Why ``directory`` takes no new file (or, when it is not ``target``'s parent, no new directory)."""
     if not directory.is_dir():
@@ -94,13 +81,10 @@ def _append_problem(path: Path) -> str:
 def output_problem(path: Path, *, beside: bool = False, makes_dirs: bool = False) -> str:
     """Why canguard cannot write the file ``path`` ("" when it can), found by trying it.
 
-    An existing regular file must open for appending (a file that exists is never
-    truncated here); a file still to be made needs a directory that takes a new file.
-    ``makes_dirs``: the writer makes missing directories (the journal, the state file), so
-    the nearest existing one must take a new directory; otherwise a missing directory is
-    the problem. ``beside``: the writer also makes new files in the same directory even
-    when ``path`` exists (the journal's rotation, the state file's atomic replace). A
-    device or a pipe (``/dev/stdout``) is taken as writable.
+    An existing regular file must open for appending; a new one needs a directory that takes a new file.
+    ``makes_dirs``: the writer makes missing directories (the nearest existing one must take one); else a missing
+    directory is the problem. ``beside``: the writer also makes new files beside an existing ``path`` (rotation,
+    atomic replace). A device or a pipe (``/dev/stdout``) is taken as writable.
     """
     path = Path(os.path.abspath(path))
     if path.is_dir():
@@ -111,7 +95,9 @@ def output_problem(path: Path, *, beside: bool = False, makes_dirs: bool = False
         why = _append_problem(path)
         if why or not beside:
             return why
-    ancestor = _existing_ancestor(path)
+    ancestor = path.parent  # the nearest that exists (``/`` at worst)
+    while not ancestor.exists() and ancestor != ancestor.parent:
+        ancestor = ancestor.parent
     if ancestor != path.parent and ancestor.is_dir() and not makes_dirs:
         return f"its directory {path.parent} does not exist"
     return _new_file_problem(ancestor, path)
@@ -119,11 +105,9 @@ def output_problem(path: Path, *, beside: bool = False, makes_dirs: bool = False
 
 def check_output(path: Path | None, flag: str, *, beside: bool = False, makes_dirs: bool = False,
                  expected: str = "") -> None:
-    """Before a command writes ``path`` (given by ``flag``): :class:`ConfigError` (exit 2) when it cannot.
-
-    The message is ``{flag} {path}: cannot be written: {why}`` (``; expected ...`` when given);
-    ``beside`` and ``makes_dirs`` as for :func:`output_problem`.
-    """
+    """Before a command writes ``path`` (given by ``flag``): :class:`ConfigError` ``{flag} {path}: cannot be written:
+    {why}`` (``; expected ...`` when given) when it cannot; ``beside`` and ``makes_dirs`` as for
+    :func:`output_problem`."""
     if path is None:
         return
     why = output_problem(path, beside=beside, makes_dirs=makes_dirs)
@@ -132,11 +116,8 @@ def check_output(path: Path | None, flag: str, *, beside: bool = False, makes_di
 
 
 def check_config_outputs(cfg: Config) -> None:
-    """Every file a config makes the daemon write (``events``, ``state.file``), as ``canguard run`` needs them.
-
-    One :class:`ConfigError` listing every path that cannot be written, each with its key;
-    ``canguard check`` and the daemon's start both call this.
-    """
+    """Every file a config makes the daemon write (``events``, ``state.file``): one :class:`ConfigError` listing
+    each path that cannot be written, with its key (``canguard check`` and the daemon's start)."""
     problems = []
     for key, path, what in (
         ("events", cfg.events, "the event journal would be lost"),
@@ -153,11 +134,8 @@ def check_config_outputs(cfg: Config) -> None:
 
 
 def outputs_in(cfg: Config, directory: Path) -> Config:
-    """``cfg`` with its event journal and I²t state file in ``directory`` (their file names kept).
-
-    For ``canguard run --state-dir`` (a trial run beside a service's own files) and for the
-    bundled config, which lives inside the installed package: read-only material.
-    """
+    """``cfg`` with its event journal and I²t state file in ``directory``, their names kept (``run --state-dir``,
+    and the bundled config, which lives in the read-only installed package)."""
     directory = Path(os.path.abspath(directory))
     events = None if cfg.events is None else directory / cfg.events.name
     state = cfg.state if cfg.state.file is None else dataclasses.replace(cfg.state,
@@ -174,11 +152,8 @@ def load_run_config(path: Path, state_dir: Path | None) -> Config:
 
 
 def user_state_dir() -> Path:
-    """``$XDG_STATE_HOME/canguard``, by default ``~/.local/state/canguard`` (the XDG base directory spec).
-
-    A relative ``$XDG_STATE_HOME`` is ignored, as the spec says. :class:`ConfigError` when there is
-    no home directory to default to.
-    """
+    """``$XDG_STATE_HOME/canguard`` (a relative one ignored, as the spec says), by default
+    ``~/.local/state/canguard``; :class:`ConfigError` when there is no home directory to default to."""
     xdg = os.environ.get("XDG_STATE_HOME", "")
     if xdg and os.path.isabs(xdg):
         return Path(xdg) / "canguard"

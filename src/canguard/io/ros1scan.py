@@ -1,17 +1,10 @@
 """A ROS 1 bag's messages a chunk at a time, as arrays (as :mod:`canguard.io.mcapscan` reads MCAP).
 
-A ROS 1 bag (format 2.0) is a bag header, then chunks (each followed by its index
-records), then the index: the connections and where each chunk is. The chunks are read
-from the start, record after record, so a bag cut short (a recorder that died: no index)
-gives every chunk before the cut, then :class:`~canguard.io.mcapscan.McapCut` saying
-where it ends. A whole bag's connections are read from its index first, so the topics
-are known before the first message; a cut bag's become known as their records are met
-(every chunk holds the connection records of its messages).
-
-A chunk holds records ``header length, header (op, conn, time fields), data length,
-data``. A CAN topic's message records all have one length and their fields in one
-order, so from the first message record of a chunk to its end they are found at once
-when they do (one check over the chunk's bytes); otherwise record by record.
+A ROS 1 bag (format 2.0) is a bag header, chunks (each followed by its index records), then the index (the
+connections, where each chunk is). Read from the start, so a bag cut short (no index) gives every chunk before the
+cut, then :class:`~canguard.io.mcapscan.McapCut`; a whole bag's connections are read from its index first, a cut
+bag's as their records are met. A chunk's records are ``header length, header (op, conn, time), data length,
+data``; a CAN topic's all have one length and one field order, so they are found at once where they do.
 """
 
 from __future__ import annotations
@@ -48,7 +41,7 @@ def _op(fields: dict[bytes, tuple[int, bytes]]) -> int:
 
 
 class Ros1Scan:
-    """One ROS 1 bag, read from its start (see the module docstring)."""
+    """One ROS 1 bag, read from its start."""
 
     def __init__(self, path: Path) -> None:
         self.path = path
@@ -74,12 +67,10 @@ class Ros1Scan:
         head = self.f.read(4)
         if not head:
             return None
-        if len(head) < 4:
-            raise McapCut(f"the file ends at byte {self.size}, inside the header of the record at byte {at}")
-        (hlen,) = _U32.unpack(head)
+        hlen = _U32.unpack(head)[0] if len(head) == 4 else 0
         header = self.f.read(hlen)
         size = self.f.read(4)
-        if len(header) < hlen or len(size) < 4:
+        if len(head) < 4 or len(header) < hlen or len(size) < 4:
             raise McapCut(f"the file ends at byte {self.size}, inside the header of the record at byte {at}")
         (dlen,) = _U32.unpack(size)
         if self.f.tell() + dlen > self.size:
@@ -102,17 +93,13 @@ class Ros1Scan:
             self.f.seek(index)
             try:
                 for _ in range(count):
-                    self._connection()
+                    if (found := self._record()) is None or _op(found[1]) != OP_CONNECTION:
+                        raise McapCut("not a connection record where the index says")
+                    self._take_connection(found[1], self.f.read(found[2]))
             except McapCut:
                 whole = False
         self.f.seek(first)
         return whole and len(self.channels) == count
-
-    def _connection(self) -> None:
-        found = self._record()
-        if found is None or _op(found[1]) != OP_CONNECTION:
-            raise McapCut("not a connection record where the index says")
-        self._take_connection(found[1], self.f.read(found[2]))
 
     def _take_connection(self, fields: dict[bytes, tuple[int, bytes]], data: bytes) -> None:
         conn = _U32.unpack(fields[b"conn"][1])[0]
@@ -140,10 +127,7 @@ class Ros1Scan:
         """The message records of a chunk's records (its connection records taken on the way)."""
         size = len(data)
         buf = padded(data)
-        conns: list[int] = []
-        times: list[int] = []
-        starts: list[int] = []
-        lens: list[int] = []
+        rows: list[tuple[int, int, int, int]] = []  # conn, time (ns), start, length
         pos = 0
         while pos + 8 <= size:
             (hlen,) = _U32.unpack_from(data, pos)
@@ -151,22 +135,19 @@ class Ros1Scan:
             (dlen,) = _U32.unpack_from(data, pos + 4 + hlen)
             op = _op(fields)
             if op == OP_MESSAGE:
-                if not conns:  # the first message record: the rest of the chunk at once, when it can be
+                if not rows:  # the first message record: the rest of the chunk at once, when it can be
                     run = _same_shape(buf, size, pos, hlen, dlen, fields)
                     if run is not None:
                         return run
-                conns.append(_U32.unpack(fields[b"conn"][1])[0])
                 secs, nsecs = struct.unpack("<II", fields[b"time"][1])
-                times.append(secs * 1_000_000_000 + nsecs)
-                starts.append(pos + 8 + hlen)
-                lens.append(dlen)
+                rows.append((_U32.unpack(fields[b"conn"][1])[0], secs * 1_000_000_000 + nsecs, pos + 8 + hlen, dlen))
             elif op == OP_CONNECTION:
                 self._take_connection(fields, data[pos + 8 + hlen:pos + 8 + hlen + dlen])
             pos += 8 + hlen + dlen
-        if not conns:
+        if not rows:
             return None
-        return Messages(np.array(conns, dtype=np.int64), np.array(times, dtype=np.int64), buf,
-                        np.array(starts, dtype=np.int64), np.array(lens, dtype=np.int64))
+        conns, times, starts, lens = np.array(rows, dtype=np.int64).T
+        return Messages(conns, times, buf, starts, lens)
 
 
 def _same_shape(buf: np.ndarray, size: int, pos: int, hlen: int, dlen: int,

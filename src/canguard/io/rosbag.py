@@ -1,30 +1,8 @@
 """ROS bags as CAN logs: rosbag2 (a directory with ``metadata.yaml``, a ``.db3`` or ``.mcap``) and ROS 1 ``.bag``.
 
-:mod:`canguard.io.bagsource` opens the bag (with the ``rosbags`` package, an optional
-extra: ``pip install 'canguard[rosbags]'``, where canguard does not read the file itself)
-and gives its raw messages a block at a time, one after another in one byte buffer;
-canguard never deserialises them one by one. The CAN frame types have a fixed layout
-after the header's ``frame_id`` (:mod:`canguard.io.rosmsgs`), so every field of every
-message of a block is gathered by numpy at once (:func:`unpack`), and the block becomes
-an :class:`~canguard.io.block.Block` at one place (:func:`block_of`).
-
-What a frame is, as candump has it:
-
-* its time is its ``header.stamp``; where that is zero (a driver that leaves it
-  unset), the time the bag recorded it; ``stamp="record"`` takes the record time
-  throughout. :attr:`ReadStats.stamps` counts which was used;
-* its channel is its topic (``/from_can_bus``): a config maps a topic to a bus as it
-  maps a candump channel;
-* its payload is ``data[:dlc]`` (ros2_socketcan reuses its buffer: the bytes past
-  ``dlc`` are leftovers of earlier frames); remote frames keep their DLC and no data,
-  error frames are 29-bit ids with the error flag, as candump reads ``-L`` lines.
-
-A message that does not hold what its layout says (cut short, a ``dlc`` above 8, an
-11-bit id above 7FF) is a bad line of the log: an error naming the topic and the
-message's number, or counted and skipped with ``skip_bad``. A bag that cannot be read
-(cut, not a bag), has no CAN topic, lacks a topic asked for, or holds a topic of a CAN
-type canguard does not know is a :class:`LogFormatError` naming the file and what was
-found, with the frames read before it.
+What a frame is (its time, channel, payload), what a bad message or a bad bag is: docs/commands.md. The CAN frame
+types have fixed offsets after the header's ``frame_id`` (:mod:`canguard.io.rosmsgs`), so every field of a block of
+raw messages (:class:`~canguard.io.bagsource.BagSource`) is gathered by numpy at once (:func:`unpack`).
 """
 
 from __future__ import annotations
@@ -39,7 +17,7 @@ import numpy as np
 
 from canguard.errors import LogFormatError
 from canguard.io.bagopts import BagOptions
-from canguard.io.bagsource import BagSource, RawBlock
+from canguard.io.bagsource import BagSource, Topic
 from canguard.io.block import FLAG_ERROR, FLAG_FD, FLAG_REMOTE, Block
 from canguard.io.logtypes import (
     CAN_EFF_MASK,
@@ -50,24 +28,21 @@ from canguard.io.logtypes import (
     LogFrames,
     ReadStats,
 )
-from canguard.io.mcapscan import McapCut, uint_at
+from canguard.io.mcapscan import McapCut, Messages, uint_at
 from canguard.io.rosmsgs import HEADER_SIZE, KVASER_ERROR_FRAME, KVASER_EXT, KVASER_RTR, STAMP_AT, Layout
 
 _FD_OK = np.zeros(256, dtype=bool)
 _FD_OK[sorted(CANFD_LENGTHS)] = True
 
 
-# --------------------------------------------------------------------------- one block of raw messages
-
-
 @dataclass
 class Rows:
-    """A block of frames as numpy columns, unpacked from raw messages (:func:`unpack`); ``good`` marks the rows
-    that hold a frame (the others are bad messages, with their reason in ``why``)."""
+    """A block's messages as numpy columns (:func:`unpack`); ``good`` marks the rows that hold a frame (the
+    others are bad messages, their reason in ``why``)."""
 
-    record_ns: np.ndarray
-    sec: np.ndarray
-    nanosec: np.ndarray
+    t: np.ndarray
+    by_record: np.ndarray
+    """The rows timed by the record time (else by their header stamp)."""
     ids: np.ndarray
     extended: np.ndarray
     remote: np.ndarray
@@ -76,7 +51,7 @@ class Rows:
     lengths: np.ndarray
     """Payload bytes (for a remote frame: its DLC, and no payload)."""
     data: np.ndarray
-    """``rows x width`` payload bytes, the first ``lengths`` of each row its payload."""
+    """``rows x width`` bytes, the first ``lengths`` of each row its payload."""
     good: np.ndarray
     why: list[str]
 
@@ -88,49 +63,49 @@ def _field(buf: np.ndarray, body: np.ndarray, lay: Layout, name: str) -> np.ndar
     return uint_at(buf, at, f.size) if f.count == 1 else buf[at[:, None] + np.arange(f.count)]
 
 
-def _mark(good: np.ndarray, why: list[str], mask: np.ndarray, reason: Callable[[int], str]) -> None:
+def _mark(rows: Rows, mask: np.ndarray, reason: Callable[[int], str]) -> None:
     """The rows of ``mask`` still good become bad, row ``i`` for ``reason(i)``."""
-    hits = mask & good
+    hits = mask & rows.good
     for i in np.flatnonzero(hits).tolist():
-        why[i] = reason(i)
-    good &= ~hits
+        rows.why[i] = reason(i)
+    rows.good &= ~hits
 
 
-def unpack(lay: Layout, buf: np.ndarray, start: np.ndarray, lens: np.ndarray, record_ns: np.ndarray) -> Rows:
-    """The frames of the messages at ``start`` (``lens`` bytes each, all of one layout) in ``buf`` (with
-    :data:`~canguard.io.mcapscan.PAD` zero bytes after the last), read from their fixed offsets all at once."""
-    n = start.size
-    why: list[str] = [""] * n
+def unpack(lay: Layout, raw: Messages, at: Any, record: bool) -> Rows:
+    """The frames of the messages ``at`` of ``raw`` (all of one layout), read from their fixed offsets at once and
+    checked; times as :func:`times` gives them (``record``: the record time throughout)."""
+    buf, start, lens = raw.buf, raw.start[at], raw.lengths[at]
     name_len = np.minimum(uint_at(buf, start + 12, 4), lens)  # a cut or garbled length: the size check catches it
     body = start + HEADER_SIZE + name_len
     if lay.cdr:
         body = (body - start + 3) // 4 * 4 + start  # aligned as CDR aligns, from the message's first byte
     body = np.minimum(body, start + lens)  # stays inside the padded buffer
     end = body + lay.fixed
-    seq_len = np.zeros(n, dtype=np.int64)
+    seq_len = np.zeros(start.size, dtype=np.int64)
     if lay.sequence >= 0:
         seq_len = np.where(body + lay.sequence + 4 <= start + lens, uint_at(buf, body + lay.sequence, 4), 0)
         end = body + lay.sequence + 4 + seq_len
-    good = np.ones(n, dtype=bool)
-    _mark(good, why, end > start + lens, lambda i: f"{int(lens[i])} bytes, shorter than its fields")
-    if lay.cdr:
-        _mark(good, why, buf[start + 1] == 0, lambda i: "big-endian CDR, which canguard does not read")
-    stamp = start + STAMP_AT
-    sec = uint_at(buf, stamp, 4)
+    sec = uint_at(buf, start + STAMP_AT, 4)
     if lay.cdr:
         sec = np.where(sec >= 1 << 31, sec - (1 << 32), sec)  # int32
-    nanosec = uint_at(buf, stamp + 4, 4)
-    ids, extended, remote, error, fd, lengths, data = _frame_fields(lay, buf, body, seq_len)
-    return Rows(record_ns, sec, nanosec, ids, extended, remote, error, fd, lengths, data, good, why)
+    t, by_record = times(raw.log_ns[at], sec, uint_at(buf, start + STAMP_AT + 4, 4), record)
+    rows = Rows(t, by_record, *_frame_fields(lay, buf, body, seq_len), np.ones(start.size, dtype=bool),
+                [""] * start.size)
+    _mark(rows, end > start + lens, lambda i: f"{int(lens[i])} bytes, shorter than its fields")
+    if lay.cdr:
+        _mark(rows, buf[start + 1] == 0, lambda i: "big-endian CDR, which canguard does not read")
+    check(rows)
+    return rows
 
 
-def _frame_fields(lay: Layout, buf: np.ndarray, body: np.ndarray, seq_len: np.ndarray) -> tuple[np.ndarray, ...]:
+_Cols = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+
+
+def _frame_fields(lay: Layout, buf: np.ndarray, body: np.ndarray, seq_len: np.ndarray) -> _Cols:
     """(ids, extended, remote, error, fd, lengths, data) of a block, as each type holds them."""
-    name = lay.msgtype
-    n = body.size
-    false = np.zeros(n, dtype=bool)
+    false = np.zeros(body.size, dtype=bool)
     ids = _field(buf, body, lay, "id")
-    if name == "autoware_can_msgs/msg/CANPacket":
+    if lay.msgtype == "autoware_can_msgs/msg/CANPacket":
         flag = _field(buf, body, lay, "flag")
         extended = ((flag & KVASER_EXT) != 0) | (ids > CAN_SFF_MASK)
         remote, error = (flag & KVASER_RTR) != 0, (flag & KVASER_ERROR_FRAME) != 0
@@ -139,93 +114,73 @@ def _frame_fields(lay: Layout, buf: np.ndarray, body: np.ndarray, seq_len: np.nd
     error = _field(buf, body, lay, "is_error") != 0
     remote = _field(buf, body, lay, "is_rtr") != 0 if "is_rtr" in lay.fields else false
     fd = _field(buf, body, lay, "is_fd_frame") != 0 if "is_fd_frame" in lay.fields else false
-    if name == "ros2_socketcan_msgs/msg/FdFrame":
+    if lay.msgtype == "ros2_socketcan_msgs/msg/FdFrame":
         fd = ~false
-    size = "len" if "len" in lay.fields else "dlc"
-    lengths = _field(buf, body, lay, size)
-    if lay.sequence >= 0:
-        data = buf[(body + lay.sequence + 4)[:, None] + np.arange(64)]
-        lengths = np.where(lengths > seq_len, -1, lengths)  # more than the data holds: refused below
-    else:
-        data = _field(buf, body, lay, "data")
+    lengths = _field(buf, body, lay, "len" if "len" in lay.fields else "dlc")
+    if lay.sequence < 0:
+        return ids, extended, remote, error, fd, lengths, _field(buf, body, lay, "data")
+    data = buf[(body + lay.sequence + 4)[:, None] + np.arange(64)]
+    lengths = np.where(lengths > seq_len, -1, lengths)  # more than the data holds: refused by check
     return ids, extended, remote, error, fd, lengths, data
 
 
 def check(rows: Rows) -> None:
-    """Mark the rows that are no CAN frame as candump knows one (``rows.good``, ``rows.why``)."""
-    lengths, ids, good, why = rows.lengths, rows.ids, rows.good, rows.why
-    _mark(good, why, ~rows.fd & ((lengths < 0) | (lengths > 8)),
+    """Mark the rows that are no CAN frame as candump knows one."""
+    lengths, ids = rows.lengths, rows.ids
+    _mark(rows, ~rows.fd & ((lengths < 0) | (lengths > 8)),
           lambda i: f"a classic frame's length {lengths[i]} is not 0-8")
-    _mark(good, why, rows.fd & ((lengths < 0) | ~_FD_OK[np.clip(lengths, 0, 255)] | rows.remote),
+    _mark(rows, rows.fd & ((lengths < 0) | ~_FD_OK[np.clip(lengths, 0, 255)] | rows.remote),
           lambda i: f"a CAN FD frame's length {lengths[i]} is not a CAN FD length")
-    _mark(good, why, ~rows.extended & ~rows.error & (ids > CAN_SFF_MASK),
-          lambda i: f"11-bit id {ids[i]:X} is above 7FF")
-    _mark(good, why, rows.extended & ~rows.error & (ids > CAN_EFF_MASK),
+    _mark(rows, ~rows.extended & ~rows.error & (ids > CAN_SFF_MASK), lambda i: f"11-bit id {ids[i]:X} is above 7FF")
+    _mark(rows, rows.extended & ~rows.error & (ids > CAN_EFF_MASK),
           lambda i: f"29-bit id {ids[i]:X} is above 1FFFFFFF")
 
 
-def times(rows: Rows, record: bool) -> tuple[np.ndarray, np.ndarray]:
+def times(record_ns: np.ndarray, sec: np.ndarray, nanosec: np.ndarray, record: bool) -> tuple[np.ndarray, np.ndarray]:
     """Each row's time in seconds (its header stamp, the record time where that is zero or with ``record``), and
     which rows took the record time. A whole number of microseconds is exactly the float candump's text of it
     reads as (one rounding of an exact integer of microseconds)."""
-    rec_s = rows.record_ns // 1_000_000_000
-    rec_ns = rows.record_ns % 1_000_000_000
-    use = np.ones(rows.sec.size, dtype=bool) if record else (rows.sec == 0) & (rows.nanosec == 0)
-    sec = np.where(use, rec_s, rows.sec)
-    nsec = np.where(use, rec_ns, rows.nanosec)
+    use = np.ones(sec.size, dtype=bool) if record else (sec == 0) & (nanosec == 0)
+    sec = np.where(use, record_ns // 1_000_000_000, sec)
+    nsec = np.where(use, record_ns % 1_000_000_000, nanosec)
     t = (sec * 1_000_000 + nsec // 1000) / 1e6
     sub = nsec % 1000
-    if sub.any():
-        t = t + sub * 1e-9
-    return t, use
+    return (t + sub * 1e-9 if sub.any() else t), use
 
 
-# --------------------------------------------------------------------------- the block the engine takes
-
-
-def block_of(rows: Rows, t: np.ndarray, lanes: np.ndarray, channels: list[str]) -> Block:
-    """The good rows of a block of messages as a :class:`~canguard.io.block.Block`: where a bag's columns become
-    what every reader gives."""
+def block_of(rows: Rows, lanes: np.ndarray, channels: list[str]) -> Block:
+    """The good rows as a :class:`~canguard.io.block.Block`: where a bag's columns become what every reader gives."""
     keep = np.flatnonzero(rows.good)
     sel: Any = keep if keep.size < rows.good.size else slice(None)
     ids, ext, rem, err, fd = rows.ids[sel], rows.extended[sel], rows.remote[sel], rows.error[sel], rows.fd[sel]
     lengths = rows.lengths[sel]
     flags = (np.where(fd, FLAG_FD, 0) | np.where(rem, FLAG_REMOTE, 0) | np.where(err, FLAG_ERROR, 0))
     payload_len = np.where(rem, 0, lengths)
-    data = rows.data[sel]
     width = int(payload_len.max()) if payload_len.size else 0
-    payload = data[:, :width] * (np.arange(width) < payload_len[:, None])  # data[:dlc]: zeros after, as Block keeps
-    return Block.build(t[sel], np.where(err, ids & CAN_EFF_MASK, ids), ext | err, payload, length=payload_len,
+    payload = rows.data[sel][:, :width] * (np.arange(width) < payload_len[:, None])  # data[:dlc], zeros after
+    return Block.build(rows.t[sel], np.where(err, ids & CAN_EFF_MASK, ids), ext | err, payload, length=payload_len,
                        flags=flags, dlc=lengths, channel=lanes[sel], channels=channels)
 
 
-def _merge(parts: list[tuple[np.ndarray, Rows]]) -> Rows:
-    """The rows of several layouts' unpacked parts (each with its rows' places in the batch) in the batch's order."""
-    order = np.argsort(np.concatenate([idx for idx, _rows in parts]), kind="stable")
-    width = max(rows.data.shape[1] for _idx, rows in parts)
-    cols = {f.name: np.concatenate([getattr(rows, f.name) for _idx, rows in parts])[order]
-            for f in fields(Rows) if f.name not in ("data", "why")}
-    data = np.concatenate([np.pad(rows.data, ((0, 0), (0, width - rows.data.shape[1]))) for _idx, rows in parts])
-    why = [w for _idx, rows in parts for w in rows.why]
-    return Rows(**cols, data=data[order], why=[why[i] for i in order.tolist()])
-
-
-def _block_rows(block: RawBlock) -> tuple[Rows, np.ndarray]:
-    """A block's rows unpacked (one layout at a time when the block mixes them), and each row's channel."""
-    topics = block.topics
-    first = topics[0]
-    if topics.count(first) == len(topics):
-        rows = unpack(first.layout, block.buf, block.start, block.lengths, block.record_ns)
-        return rows, np.full(len(topics), first.lane, dtype=np.intp)
-    lanes = np.fromiter((t.lane for t in topics), np.intp, len(topics))
+def _block_rows(raw: Messages, topics: dict[int, Topic], record: bool) -> tuple[Rows, np.ndarray]:
+    """A block's rows (unpacked one layout at a time when the block mixes them), and each row's channel."""
+    ids, row_id = np.unique(raw.channel, return_inverse=True)
+    mine = [topics[i] for i in ids.tolist()]
+    lanes = np.array([t.lane for t in mine], dtype=np.intp)[row_id]
     layouts: dict[int, tuple[Layout, list[int]]] = {}  # by the layout's id: topics of one type share theirs
-    for i, t in enumerate(topics):
-        layouts.setdefault(id(t.layout), (t.layout, []))[1].append(i)
-    parts = []
-    for lay, idx in layouts.values():
-        at = np.asarray(idx, dtype=np.intp)
-        parts.append((at, unpack(lay, block.buf, block.start[at], block.lengths[at], block.record_ns[at])))
-    return (parts[0][1] if len(parts) == 1 else _merge(parts)), lanes
+    for k, t in enumerate(mine):
+        layouts.setdefault(id(t.layout), (t.layout, []))[1].append(k)
+    if len(layouts) == 1:
+        return unpack(mine[0].layout, raw, slice(None), record), lanes
+    places = [np.flatnonzero(np.isin(row_id, ks)) for _lay, ks in layouts.values()]
+    parts = [unpack(lay, raw, at, record) for (lay, _ks), at in zip(layouts.values(), places, strict=True)]
+    order = np.argsort(np.concatenate(places), kind="stable")
+    width = max(p.data.shape[1] for p in parts)
+    cols = {f.name: np.concatenate([getattr(p, f.name) for p in parts])[order]
+            for f in fields(Rows) if f.name not in ("data", "why")}
+    data = np.concatenate([np.pad(p.data, ((0, 0), (0, width - p.data.shape[1]))) for p in parts])[order]
+    why = [w for p in parts for w in p.why]
+    return Rows(**cols, data=data, why=[why[i] for i in order.tolist()]), lanes
 
 
 def _note_bad(st: ReadStats, bag: BagSource, rows: Rows, lanes: np.ndarray, first: int, skip_bad: bool) -> None:
@@ -240,7 +195,8 @@ def _note_bad(st: ReadStats, bag: BagSource, rows: Rows, lanes: np.ndarray, firs
             st.bad_examples.append(BadLine(first + i + 1, rows.why[i], where))
 
 
-def _next(bag: BagSource, blocks: Iterator[RawBlock], st: ReadStats) -> RawBlock | None:
+def _next(bag: BagSource, blocks: Iterator[tuple[Messages, dict[int, Topic]]],
+          st: ReadStats) -> tuple[Messages, dict[int, Topic]] | None:
     """The next block, or None at the end; a cut or damaged storage as a LogFormatError saying how far it got."""
     try:
         return next(blocks, None)
@@ -256,32 +212,24 @@ def _next(bag: BagSource, blocks: Iterator[RawBlock], st: ReadStats) -> RawBlock
 def bag_chunks(p: Path, opts: BagOptions, st: ReadStats, owner: LogFrames, skip_bad: bool) -> Iterator[Block]:
     """The frames of bag ``p`` a block at a time; every problem a LogFormatError naming the bag."""
     bag = BagSource(p, opts)
-    record = opts.stamp == "record"
     read = 0
     last_t = -math.inf
     try:
         bag.open()
         blocks = bag.blocks()
         while (raw := _next(bag, blocks, st)) is not None:
-            rows, lanes = _block_rows(raw)
-            check(rows)
+            rows, lanes = _block_rows(*raw, opts.stamp == "record")
             if not rows.good.all():
                 _note_bad(st, bag, rows, lanes, read, skip_bad)
             read += lanes.size
-            t, from_record = times(rows, record)
-            block = block_of(rows, t, lanes, bag.channels)
-            by_record = int(np.count_nonzero(from_record & rows.good))
+            block = block_of(rows, lanes, bag.channels)
+            by_record = int(np.count_nonzero(rows.by_record & rows.good))
             st.stamps["record"] = st.stamps.get("record", 0) + by_record
             st.stamps["header"] = st.stamps.get("header", 0) + block.n - by_record
-            st.frames += block.n
             if bag.total:
                 owner.reached(min(st.bytes_total, st.bytes_total * read // bag.total))
             if block.n:
-                backwards, repeated = block.order
-                first = float(block.time_s[0])
-                st.backwards_timestamps += backwards + (first < last_t)
-                st.repeated_timestamps += repeated + (first == last_t)
-                last_t = float(block.time_s[-1])
+                last_t = st.took(block, last_t)
                 yield block
         bag.finish()
     finally:
@@ -289,4 +237,3 @@ def bag_chunks(p: Path, opts: BagOptions, st: ReadStats, owner: LogFrames, skip_
         owner.finished()
     if not st.frames and not st.bad_lines:
         raise LogFormatError(f"{p}: empty log: no frames on {', '.join(bag.channels) or 'its CAN topics'}")
-

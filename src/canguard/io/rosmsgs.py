@@ -1,21 +1,10 @@
 """The ROS message types of CAN frames canguard reads, their definitions, and where each field lies in a message.
 
-canguard carries the definitions (:data:`DEFINITIONS`) of every CAN frame type it reads,
-so a bag recorded without them (rosbag2 before Iron stores none) still replays. A bag
-that does store a definition is held to one of the carried ones: a type of the same
-name whose fields differ is refused (:func:`layout_for`), never read at guessed places.
-
-Every one of these types is a ``std_msgs/Header`` followed by fixed-size fields, the
-last of which may be a ``uint8`` sequence (the data of a CAN FD frame). The header's
-``frame_id`` is the only other part of variable length, so a message's fields lie at
-fixed offsets from the end of that string (:class:`Layout`), in both serialisations:
-
-* CDR (rosbag2): a 4-byte encapsulation header, then the fields each aligned to its
-  size; ``stamp`` is ``int32 sec, uint32 nanosec``;
-* ROS 1: packed, no alignment; the header starts with ``uint32 seq`` and ``stamp`` is
-  ``uint32 secs, uint32 nsecs``.
-
-:mod:`canguard.io.rosbag` reads a block of messages at once from these offsets.
+A bag's stored definition of one of these types with other fields is refused (:func:`layout_for`). Each type is a
+``std_msgs/Header`` then fixed-size fields, the last maybe a ``uint8`` sequence; the header's ``frame_id`` is the
+only other part of variable length, so the fields lie at fixed offsets from its end (:class:`Layout`): in CDR
+(rosbag2) after a 4-byte encapsulation header, each aligned to its size, ``stamp`` ``int32 sec, uint32 nanosec``;
+in ROS 1 packed, after ``uint32 seq``, ``stamp`` ``uint32 secs, uint32 nsecs``.
 """
 
 from __future__ import annotations
@@ -54,9 +43,7 @@ each with the definitions it may have had; the first is assumed for a bag that s
 DEPENDENCIES = {"std_msgs/msg/Header": HEADER, "builtin_interfaces/msg/Time": TIME}
 """The types the definitions name (ROS 2 spelling)."""
 
-KVASER_RTR = 0x01
-KVASER_EXT = 0x04
-KVASER_ERROR_FRAME = 0x20
+KVASER_RTR, KVASER_EXT, KVASER_ERROR_FRAME = 0x01, 0x04, 0x20
 """Kvaser CANlib's ``canMSG_RTR``, ``canMSG_EXT`` and ``canMSG_ERROR_FRAME`` (``CANPacket.flag``)."""
 
 HEADER_SIZE = 16
@@ -84,9 +71,8 @@ def looks_like_can(msgtype: str) -> bool:
 
 
 def fields_of(definition: str) -> list[tuple[str, str]]:
-    """The ``(type, name)`` of a message definition's own fields (``.msg`` text: comments, constants and the
-    definitions of its dependencies after a ``====`` line left out); types as written, ``pkg/Type`` as
-    ``pkg/Type`` (the header's type is checked by name only)."""
+    """The ``(type, name)`` of a ``.msg`` definition's own fields, types as written (comments, constants and the
+    definitions of its dependencies after a ``====`` line left out)."""
     out = []
     for raw in definition.splitlines():
         if raw.startswith("=" * 10):
@@ -103,8 +89,7 @@ def fields_of(definition: str) -> list[tuple[str, str]]:
 
 @dataclass(frozen=True)
 class Field:
-    """Where one fixed-size field lies, from the end of the header's ``frame_id`` (aligned as the serialisation
-    wants): ``offset``, ``size`` bytes (``count`` items for an array)."""
+    """Where one fixed-size field lies in a body: ``offset``, ``size`` bytes (``count`` items for an array)."""
 
     offset: int
     size: int
@@ -113,18 +98,15 @@ class Field:
 
 @dataclass(frozen=True)
 class Layout:
-    """Where a CAN frame type's fields lie in one serialisation (``cdr`` or ``ros1``).
-
-    Offsets are from the *body*: the first byte after the header's ``frame_id``, rounded up to 4 in CDR
-    (every body starts with a 4-byte field and holds nothing wider). ``sequence``: the offset of the length
-    of a trailing ``uint8`` sequence, its bytes right after it (-1: none).
-    """
+    """Where a CAN frame type's fields lie in one serialisation (``cdr`` or ROS 1), from the *body*: the first byte
+    after the header's ``frame_id``, rounded up to 4 in CDR (every body starts with a 4-byte field and holds nothing
+    wider). ``fixed``: bytes up to the end of the last fixed-size field; ``sequence``: the offset of the length of a
+    trailing ``uint8`` sequence, its bytes right after it (-1: none)."""
 
     msgtype: str
     cdr: bool
     fields: dict[str, Field]
     fixed: int
-    """Bytes of the body up to the end of its last fixed-size field."""
     sequence: int = -1
 
 
@@ -171,13 +153,9 @@ def layout_for(path: object, topic: str, msgtype: str, stored: str, cdr: bool) -
 
 
 def full_definition(msgtype: str) -> str:
-    """The ``.msg`` text of a carried type with its dependencies appended, as rosbag2's MCAP schemas and ROS 1
-    connection headers hold it (``ros2msg``)."""
-    sep = "=" * 80 + "\n"
-    parts = [DEFINITIONS[ros2_name(msgtype)][0]]
-    for dep, text in DEPENDENCIES.items():
-        parts.append(f"{sep}MSG: {dep.replace('/msg/', '/')}\n{text}")
-    return "".join(parts)
+    """The ``.msg`` text of a carried type with its dependencies appended, as rosbag2's MCAP schemas hold it."""
+    deps = "".join(f"{'=' * 80}\nMSG: {dep.replace('/msg/', '/')}\n{text}" for dep, text in DEPENDENCIES.items())
+    return DEFINITIONS[ros2_name(msgtype)][0] + deps
 
 
 def cdr_frame(stamp_ns: int, frame_id: str, arbitration_id: int, data: bytes, *, extended: bool = False,

@@ -63,7 +63,7 @@ def build_summary(cfg: Config, log_path: Path, engine: Engine, stats: Any, route
             "read": stats.frames, "decoded": d.decoded, "invalid": d.invalid, "skipped": d.skipped,
             "unmapped": sum(unmapped.values()), "error_frames": d.error_frames,
             "remote_frames": d.remote_frames, "bad_lines": stats.bad_lines,
-            "backward_timestamps": stats.backward, "repeated_timestamps": stats.repeated,
+            "backward_timestamps": stats.backwards_timestamps, "repeated_timestamps": stats.repeated_timestamps,
         },
         "unmapped_channels": unmapped,
         "samples": dict(sorted(es.samples.items())),

@@ -1,8 +1,7 @@
 """Taking a discarded tree out of py_trees' global blackboard (config reloads).
 
-py_trees keeps one blackboard per process (class attributes), where every node of a loaded tree
-registers a client and keys, and nothing removes them when a tree is dropped: the daemon releases
-the old tree after a reload, and whatever a rejected reload had registered.
+py_trees keeps one blackboard per process, where every node registers a client and keys that nothing removes when
+a tree is dropped: the daemon releases the old tree after a reload, and whatever a rejected reload registered.
 """
 
 from __future__ import annotations
@@ -25,14 +24,10 @@ def registered_clients() -> set[uuid.UUID]:
 
 
 def release_clients(ids: Iterable[uuid.UUID]) -> int:
-    """Remove these clients from the global blackboard; returns how many keys went with them.
-
-    A key goes (with its value) when no other client holds it (py_trees' ``Client.unregister(clear=True)``).
-    Works from the ids alone: also after a tree whose build failed half-way.
-    """
+    """Remove these clients from the global blackboard; how many keys (with their values) went with them: those no
+    other client holds, as py_trees' ``Client.unregister(clear=True)``. From the ids alone: also after a tree whose
+    build failed half-way."""
     ids = set(ids)
-    if not ids:
-        return 0
     gone = 0
     for key, meta in list(Blackboard.metadata.items()):
         if ids.isdisjoint(meta.read) and ids.isdisjoint(meta.write) and ids.isdisjoint(meta.exclusive):

@@ -1,13 +1,12 @@
 """``configure: true``: canguard gives a CANopen drive what its config expects, over SDO.
 
-At start and at each boot-up message, in a thread per drive: NMT pre-operational, the writes of
-:attr:`CanopenDrive.setup <canguard.config.canopen.CanopenDrive.setup>` read back and compared, NMT start. A
-write that fails is an ``error`` event and the drive stays pre-operational (fail safe); ``configure`` says
-when a drive was started. The ``canopen`` library does the SDO and NMT work on a bus of its own.
+At start and at each boot-up, as docs/config.md says: a write that fails is an ``error`` event and the drive stays
+pre-operational (fail safe). The ``canopen`` library does the SDO and NMT work on a bus of its own.
 """
 
 from __future__ import annotations
 
+import functools
 import logging
 import queue
 import threading
@@ -23,8 +22,7 @@ log = logging.getLogger(__name__)
 
 SDO_RESPONSE_BASE = 0x580
 NMT_PRE_OPERATIONAL, NMT_START = 0x80, 0x01
-BOOT_UP = 0x00
-"""The NMT state byte of a boot-up message."""
+BOOT_UP = 0x00  # the NMT state byte of a boot-up message
 NOTIFIER_CYCLE_S = 0.1
 """How long the library's receive thread waits per read: what stopping it may take (its default is 1 s)."""
 
@@ -74,18 +72,16 @@ class DriveSetup:
             for drive in drives:
                 node = canopen.RemoteNode(drive.node, canopen.ObjectDictionary())
                 network.add_node(node)
-                node.nmt.add_heartbeat_callback(self._on_state(drive.name))
+                node.nmt.add_heartbeat_callback(functools.partial(self._heard, drive.name))
                 self._nodes[drive.name] = node
         self._thread = threading.Thread(target=self._run, name="canopen-setup", daemon=True)
         self._thread.start()
         for name in self._nodes:
             self.request(name)
 
-    def _on_state(self, name: str) -> Any:
-        def on_state(state: int) -> None:
-            if state == BOOT_UP:  # the drive rebooted: what it was told is gone
-                self.request(name)
-        return on_state
+    def _heard(self, name: str, state: int) -> None:
+        if state == BOOT_UP:  # the drive rebooted: what it was told is gone
+            self.request(name)
 
     def request(self, name: str) -> None:
         """Configure drive ``name`` again (once, however often it is asked before the thread gets to it)."""
@@ -107,12 +103,7 @@ class DriveSetup:
 
     def events(self) -> list[dict[str, Any]]:
         """The ``configure`` and ``error`` events since the last call (the daemon journals them)."""
-        out = []
-        while True:
-            try:
-                out.append(self._events.get_nowait())
-            except queue.Empty:
-                return out
+        return [self._events.get_nowait() for _ in range(self._events.qsize())]
 
     def _run(self) -> None:
         while (name := self._jobs.get()) is not None:
@@ -138,11 +129,10 @@ class DriveSetup:
                 if got != step.value:
                     return _failed(drive, f"{step.describe()}: read back 0x{got:0{step.size * 2}X}")
             node.nmt.send_command(NMT_START)
-        except SdoAbortedError as exc:
+        except (SdoError, OSError) as exc:  # refused, no answer (timeout), a bus that failed
             what = step.describe() if step is not None else "SDO"
-            return _failed(drive, f"{what}: refused by the drive (SDO abort 0x{exc.code:08X}: {exc})")
-        except (SdoError, OSError) as exc:  # no answer (timeout), a bus that failed
-            what = step.describe() if step is not None else "SDO"
+            if isinstance(exc, SdoAbortedError):
+                return _failed(drive, f"{what}: refused by the drive (SDO abort 0x{exc.code:08X}: {exc})")
             return _failed(drive, f"{what}: {type(exc).__name__}: {exc}")
         return {"event": "configure", "source": drive.name,
                 "reason": f"node {drive.node} configured over SDO ({len(drive.setup)} writes, {len(checks)} read "

@@ -1,8 +1,4 @@
-"""Prometheus metrics (``canguard run --metrics 127.0.0.1:9108``; off by default).
-
-:class:`Metrics` (prometheus-client, an optional extra, on a private registry); the metrics are listed in
-docs/deploy.md.
-"""
+"""Prometheus metrics (``canguard run --metrics 127.0.0.1:9108``; off by default), listed in docs/deploy.md."""
 
 from __future__ import annotations
 
@@ -45,13 +41,12 @@ class Metrics:
                 "pip install 'canguard[metrics]' (or pip install prometheus-client)"
             ) from exc
         self._prom = prom
-        self.registry = prom.CollectorRegistry(auto_describe=True)
-        reg = self.registry
+        self.registry = reg = prom.CollectorRegistry(auto_describe=True)
         self._received = prom.Counter("canguard_frames_received", "CAN frames read from the bus", ["bus"], registry=reg)
         self._decoded = prom.Counter("canguard_frames_decoded", "CAN frames decoded into samples", ["bus"],
                                      registry=reg)
-        self._invalid = prom.Counter("canguard_frames_invalid", "Frames of configured ids that did not decode",
-                                     ["bus"], registry=reg)
+        self._invalid = prom.Counter("canguard_frames_invalid", "Frames of configured ids that did not decode", ["bus"],
+                                     registry=reg)
         self._send_errors = prom.Counter("canguard_send_errors", "Frames that could not be sent (full TX queue, error)",
                                          ["bus"], registry=reg)
         self._trips = prom.Counter("canguard_trips", "Guard trips", ["node"], registry=reg)
@@ -63,7 +58,6 @@ class Metrics:
         self._age = prom.Gauge("canguard_sample_age_seconds", "Age of the newest sample of each source", ["source"],
                                registry=reg)
         self._children: dict[tuple[int, str], Any] = {}
-        self._lock = threading.Lock()
         self._server: Any = None
         self._thread: threading.Thread | None = None
         self.host: str | None = None
@@ -73,15 +67,9 @@ class Metrics:
     def _child(self, metric: Any, label: str) -> Any:
         key = (id(metric), label)
         child = self._children.get(key)
-        if child is None:
-            with self._lock:
-                child = self._children.get(key)
-                if child is None:
-                    child = metric.labels(label)
-                    self._children[key] = child
+        if child is None:  # labels() is thread-safe and gives one child per label: a race stores the same one
+            child = self._children[key] = metric.labels(label)
         return child
-
-    # -- serving ---------------------------------------------------------------------
 
     def start(self, addr: str) -> None:
         """Serve ``/metrics`` over HTTP at ``addr`` (``HOST:PORT``) from a daemon thread (ValueError: malformed,
@@ -109,8 +97,6 @@ class Metrics:
     def render(self) -> bytes:
         """The metrics in Prometheus' text format, as ``/metrics`` serves them."""
         return bytes(self._prom.generate_latest(self.registry))
-
-    # -- what the engine calls -------------------------------------------------------
 
     def frame_received(self, bus: str, n: int = 1) -> None:
         """Count ``n`` frames read from ``bus``."""

@@ -24,23 +24,18 @@ class Notifier:
     socket is non-blocking (a full queue is a logged, counted error)."""
 
     def __init__(self, env: Mapping[str, str] | None = None) -> None:
-        env = os.environ if env is None else env
-        self._env = dict(env)
+        self._env = dict(os.environ if env is None else env)
         self.address: str | None = None
         """The socket address as passed to ``sendto`` (abstract names start with NUL), or None."""
         self.sent = 0
-        """Datagrams sent successfully."""
         self.errors = 0
-        """Datagrams that could not be sent."""
+        """Datagrams sent, and those that could not be."""
         self._sock: socket.socket | None = None
         self._warned = False
         raw = self._env.get("NOTIFY_SOCKET", "")
-        if raw.startswith("@"):
-            self.address = "\0" + raw[1:]
-        elif raw.startswith("/"):
-            self.address = raw
-        elif raw:
-            # e.g. "vsock:..." (systemd >= 254 in VMs): not something a robot's daemon meets.
+        if raw.startswith(("@", "/")):
+            self.address = "\0" + raw[1:] if raw[0] == "@" else raw
+        elif raw:  # e.g. "vsock:..." (systemd >= 254 in VMs): not something a robot's daemon meets
             log.warning("NOTIFY_SOCKET=%r is neither a path nor an @abstract name; notifications off", raw)
 
     @property
@@ -52,18 +47,16 @@ class Notifier:
         """Send ``fields`` (``"KEY=value"`` each) as one datagram; True if it was sent. Never raises."""
         if self.address is None or not fields:
             return False
-        payload = "\n".join(fields).encode("utf-8", "replace")
         try:
             if self._sock is None:
-                sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM | socket.SOCK_CLOEXEC)
-                sock.setblocking(False)
-                self._sock = sock
-            self._sock.sendto(payload, self.address)
+                self._sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM | socket.SOCK_CLOEXEC)
+                self._sock.setblocking(False)
+            self._sock.sendto("\n".join(fields).encode("utf-8", "replace"), self.address)
         except OSError as exc:
             self.errors += 1
-            level = logging.DEBUG if self._warned else logging.WARNING
+            log.log(logging.DEBUG if self._warned else logging.WARNING, "sd_notify to %r failed: %s",
+                    self._env.get("NOTIFY_SOCKET"), exc)
             self._warned = True
-            log.log(level, "sd_notify to %r failed: %s", self._env.get("NOTIFY_SOCKET"), exc)
             return False
         self.sent += 1
         return True
@@ -85,33 +78,21 @@ class Notifier:
         return self.notify("STOPPING=1", *([] if status is None else [_status_field(status)]))
 
     def reloading(self, monotonic_usec: int | None = None) -> bool:
-        """``RELOADING=1`` + ``MONOTONIC_USEC`` (CLOCK_MONOTONIC now, systemd >= 253 needs it).
-
-        Send :meth:`ready` once the new config runs (or the old one was kept).
-        """
+        """``RELOADING=1`` + ``MONOTONIC_USEC`` (CLOCK_MONOTONIC now, systemd >= 253 needs it); send :meth:`ready`
+        once the new config runs (or the old one was kept)."""
         usec = time.monotonic_ns() // 1000 if monotonic_usec is None else int(monotonic_usec)
         return self.notify("RELOADING=1", f"MONOTONIC_USEC={usec}")
 
     def watchdog_interval_s(self) -> float | None:
         """``WatchdogSec=`` in seconds when systemd expects pings from this process (``WATCHDOG_USEC`` a positive
         integer, ``WATCHDOG_PID`` unset or ours), else None."""
-        raw = self._env.get("WATCHDOG_USEC")
-        if not raw:
-            return None
+        pid = self._env.get("WATCHDOG_PID")
         try:
-            usec = int(raw)
+            usec = int(self._env.get("WATCHDOG_USEC") or 0)
+            ours = not pid or int(pid) == os.getpid()
         except ValueError:
             return None
-        if usec <= 0:
-            return None
-        pid = self._env.get("WATCHDOG_PID")
-        if pid:
-            try:
-                if int(pid) != os.getpid():
-                    return None
-            except ValueError:
-                return None
-        return usec / 1e6
+        return usec / 1e6 if usec > 0 and ours else None
 
     def close(self) -> None:
         """Close the socket (a later notify reopens it)."""
@@ -148,9 +129,8 @@ def watchdog_verdict(
     stale_unstopped: Iterable[str] = (),
     k: float = 3.0,
 ) -> WatchdogVerdict:
-    """Whether the daemon is healthy enough to send ``WATCHDOG=1``: a tick happened within ``k * tick_period_s``
-    of ``now`` (one monotonic time base), and ``stale_unstopped`` (sources the tree reads, stale, while the tree
-    is not stopping the task) is empty. Pure."""
+    """Whether the daemon may send ``WATCHDOG=1``: a tick within ``k * tick_period_s`` of ``now`` (one monotonic
+    time base), and no source the tree reads stale while the tree is not stopping the task (``stale_unstopped``)."""
     if tick_period_s <= 0:
         raise ValueError(f"tick_period_s must be > 0, got {tick_period_s}")
     if last_tick is None:
@@ -160,6 +140,4 @@ def watchdog_verdict(
     if late_s > limit_s:
         return WatchdogVerdict(False, f"loop stalled: last tick {late_s:.3f} s ago (limit {limit_s:.3f} s)")
     stale = sorted(set(stale_unstopped))
-    if stale:
-        return WatchdogVerdict(False, f"stale source(s) without a stop: {', '.join(stale)}")
-    return WatchdogVerdict(True)
+    return WatchdogVerdict(not stale, f"stale source(s) without a stop: {', '.join(stale)}" if stale else "")

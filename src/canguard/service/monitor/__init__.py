@@ -1,21 +1,30 @@
 """Watching the daemon live: the status page (:mod:`.web`) and Groot2's monitor (:mod:`.groot2`).
 
-After its tick the engine publishes an immutable snapshot (:class:`.snapshot.Observer`); the journal's
-events are copied on their way (:class:`EventTee`). :class:`.link.ChildLink` offers both to a process of
-their own (:mod:`.server`) without ever waiting (latest wins): nothing there can change what canguard
-does, nor make the loop wait. Imported only when a monitor is configured.
+Served by a process of their own (:mod:`.server`), fed by :class:`Monitor` after each tick without ever waiting
+(docs/monitor.md, "The loop comes first"). Imported only when a monitor is configured.
 """
 
 from __future__ import annotations
 
+import errno
+import json
 import logging
+import os
+import subprocess
+import sys
+import threading
+import time
+from collections import deque
 from collections.abc import Mapping
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from canguard.config.monitor import Address
 from canguard.config.schema import MonitorConfig
-from canguard.service.monitor.layout import TreeLayout
-from canguard.service.monitor.link import ChildLink
-from canguard.service.monitor.snapshot import Observer
+from canguard.errors import ConfigError
+from canguard.service.monitor import wire
+from canguard.service.monitor.layout import LayoutRecord, TreeLayout
+from canguard.service.monitor.snapshot import GuardState, Observer, TickSnapshot
 
 if TYPE_CHECKING:
     from canguard.engine.core import Engine
@@ -25,18 +34,28 @@ log = logging.getLogger(__name__)
 
 __all__ = ["EventTee", "Monitor"]
 
+KEEP_EVENTS = 500
+"""Journal events kept for a monitor process that is behind; past that the oldest are dropped (it says how many)."""
+START_TIMEOUT_S = 30.0
+"""How long the daemon waits at start for its monitor process to listen (a loaded robot takes seconds)."""
+BLACKBOARD_S = 1.0
+"""How long a Groot2 request for the blackboard puts it in the snapshots."""
+REQUESTS_S = 0.1
+"""How often the hand-over also reads the monitor process's requests (Groot2 waits 0.3 s for a blackboard; a system
+call per snapshot costs the loop more than the requests are worth)."""
+
 
 class EventTee:
     """The daemon's journal, and a copy of each event for the monitors (the journal first)."""
 
-    def __init__(self, journal: EventSink, hub: ChildLink) -> None:
+    def __init__(self, journal: EventSink, monitor: Monitor) -> None:
         self.journal = journal
-        self.hub = hub
+        self.monitor = monitor
 
     def write(self, event: Mapping[str, Any]) -> None:
         """Append to the journal, then keep a copy for the page."""
         self.journal.write(event)
-        self.hub.event(event)
+        self.monitor.event(event)
 
     def flush(self) -> None:
         """Flush the journal."""
@@ -44,39 +63,204 @@ class EventTee:
 
 
 class Monitor:
-    """The configured monitors of one daemon: their process started once, attached to each engine it runs.
-
-    Raises :class:`~canguard.errors.ConfigError` when a server cannot listen (naming the address and why).
-    """
+    """The monitor process of one daemon, attached to each engine it runs, and the engines' snapshot sink
+    (:class:`.snapshot.SnapshotSink`). :class:`~canguard.errors.ConfigError` when a server cannot listen."""
 
     def __init__(self, settings: MonitorConfig) -> None:
-        self.settings = settings
-        self.hub = ChildLink(settings)
-        """The monitor process, as the engine's snapshot sink."""
+        self._sock, theirs = wire.socket_pair()
+        try:
+            self._proc = _spawn(theirs)
+        finally:
+            theirs.close()
+        self.http: Address | None = None
+        """Where the status page listens (the port the system gave for port 0), when served."""
+        self.groot2: Address | None = None
+        """Where Groot2's REP socket listens (PUB: port + 1), when served."""
+        try:
+            self._start(settings)
+        except BaseException:
+            self.close()
+            raise
+        self._sock.setblocking(False)
+        self._io = wire.GilHoldingSocket(self._sock)  # the engine's thread never lets go of the GIL for it
+        self._latest: TickSnapshot | None = None
+        self._layout: LayoutRecord | None = None  # what the monitor process has (or is being sent)
+        self._guards: tuple[GuardState, ...] | None = None  # likewise
+        self._events: deque[tuple[int, dict[str, Any]]] = deque(maxlen=KEEP_EVENTS)
+        self._event_seq = 0
+        self._outbox: deque[bytes] = deque()  # the frames of a large message not all taken yet: they go first
+        self._sent: TickSnapshot | None = None
+        self._blackboard_until = -1.0
+        self._closing = self._failed = self._gone = False
+        self._requests_at = 0.0
+
+    def _start(self, settings: MonitorConfig) -> None:
+        """Tell the process what to serve; wait until it listens (its addresses) or says why it cannot."""
+        self._sock.sendall(json.dumps({"http": settings.http, "groot2": settings.groot2,
+                                       "token": settings.token}).encode())  # never on its command line
+        self._sock.settimeout(START_TIMEOUT_S)
+        try:
+            data = self._sock.recv(65536)
+        except TimeoutError:
+            raise ConfigError(f"monitor: the monitor process did not start within {START_TIMEOUT_S:.0f} s") from None
+        if not data:
+            code = self._proc.wait(5)
+            raise ConfigError(f"monitor: the monitor process ended at start (exit code {code}; its error is above)")
+        doc = json.loads(data.decode())
+        if not isinstance(doc, dict) or not ({"ready", "error"} & set(doc)):
+            raise ValueError(f"not a start answer: {data[:80]!r}")
+        if "error" in doc:
+            raise ConfigError(str(doc["error"]))
+        ready = doc["ready"]
+        self.http = Address(*ready["http"]) if ready.get("http") else None
+        self.groot2 = Address(*ready["groot2"]) if ready.get("groot2") else None
 
     def start(self) -> None:
         """Say where the monitors listen (and that a page on the network needs its token)."""
-        addr = self.hub.http
-        if addr is not None:
-            if addr.loopback:
-                log.warning("status page on http://%s/ (this machine only)", addr)
+        if self.http is not None:
+            if self.http.loopback:
+                log.warning("status page on http://%s/ (this machine only)", self.http)
             else:
                 log.warning("status page on http://%s/ reachable from the network: every request needs "
-                            "'Authorization: Bearer <monitor.token>' (or ?token=<monitor.token>)", addr)
-        addr = self.hub.groot2
-        if addr is not None:
-            where = "this machine only" if addr.loopback else "reachable from the network, read-only, no token"
-            log.warning("Groot2 monitor on %s (REP %d, PUB %d; %s)", addr, addr.port, addr.port + 1, where)
+                            "'Authorization: Bearer <monitor.token>' (or ?token=<monitor.token>)", self.http)
+        if self.groot2 is not None:
+            where = "this machine only" if self.groot2.loopback else "reachable from the network, read-only, no token"
+            log.warning("Groot2 monitor on %s (REP %d, PUB %d; %s)", self.groot2, self.groot2.port,
+                        self.groot2.port + 1, where)
 
     def attach(self, engine: Engine) -> None:
         """Watch ``engine`` from its next tick on (the daemon's engine at start and after each reload)."""
-        layout = TreeLayout(engine.loaded, engine.ctx)
-        engine.observer = Observer(engine, layout, self.hub)
+        engine.observer = Observer(engine, TreeLayout(engine.loaded, engine.ctx), self)
 
     def tee(self, journal: EventSink) -> EventTee:
         """The sink the engine writes events to: ``journal``, and the page's copy."""
-        return EventTee(journal, self.hub)
+        return EventTee(journal, self)
 
     def close(self) -> None:
-        """End the monitor process."""
-        self.hub.close()
+        """End the monitor process (it also ends by itself when the daemon's end of the socket closes)."""
+        self._closing = True
+        self._gone = True  # nothing is sent on the descriptor once closed (the system may reuse its number)
+        self._sock.close()
+        if self._proc.poll() is None:
+            self._proc.terminate()
+            try:
+                self._proc.wait(2)
+            except subprocess.TimeoutExpired:
+                self._proc.kill()
+                self._proc.wait(2)
+
+    @property
+    def pid(self) -> int:
+        """The monitor process's id."""
+        return self._proc.pid
+
+    # -- the engine's side: after its tick (the stop frames are out), never waiting -----------------
+    def put(self, snapshot: TickSnapshot) -> None:
+        """Publish the latest snapshot (at most every ``snapshot.PERIOD_S``) and offer it to the monitor process."""
+        self._latest = snapshot
+        self.flush()
+
+    def event(self, event: Mapping[str, Any]) -> None:
+        """Keep one journal event for the next record (the oldest go when the process is behind)."""
+        self._event_seq += 1
+        self._events.append((self._event_seq, dict(event)))
+
+    def flush(self) -> None:
+        """Offer what the monitor process has not had yet: one non-blocking send (a dead process is reported once,
+        by a thread of its own: reaping may take a moment the loop must not wait)."""
+        if self._gone or (self._latest is self._sent and not self._events and not self._outbox):
+            return
+        try:
+            now = time.monotonic()
+            if now >= self._requests_at:
+                self._requests_at = now + REQUESTS_S
+                self._read_requests()
+            self._flush()
+        except OSError as exc:
+            self._gone = True
+            if not self._closing:
+                threading.Thread(target=self._died, args=(exc,), name="canguard-monitor-gone", daemon=True).start()
+        except Exception:  # a record that cannot be pickled: dropped, the next one goes
+            if not self._failed:
+                log.exception("a monitor record could not be sent; the monitors show the last good one")
+            self._failed = True
+            self._events.clear()
+            self._sent = self._latest
+
+    def blackboard_wanted(self) -> bool:
+        """True while a Groot2 client has asked for the blackboard within the last second."""
+        return time.monotonic() < self._blackboard_until
+
+    # -- sending -----------------------------------------------------------------------------------
+    def _flush(self) -> None:
+        """Offer the layout (once per tree), then the events and latest snapshot; what is not taken waits for later."""
+        if not self._send_outbox():  # the rest of a large message first
+            return
+        snap = self._latest
+        if snap is not None and snap.layout is not self._layout:
+            if not self._offer(wire.frames(("layout", snap.layout))):
+                return
+            self._layout = snap.layout  # once per tree: the monitor process keeps it
+            self._guards = None
+        if snap is self._sent and not self._events:
+            return
+        events = list(self._events)
+        if self._offer(wire.frames(("tick", events, None if snap is None else self._record(snap)))):
+            for _ in events:
+                self._events.popleft()
+            self._sent = snap
+            self._guards = None if snap is None else snap.guards
+
+    def _offer(self, frames: list[bytes]) -> bool:
+        """Send one message (the rest of a large one as the socket takes it); False: nothing of it was taken."""
+        if not self._send_outbox() or not self._io.send(frames[0]):
+            return False  # the monitor process is behind: this record is dropped, the next one is newer
+        self._outbox.extend(frames[1:])
+        self._send_outbox()
+        return True
+
+    def _record(self, snap: TickSnapshot) -> tuple[Any, ...]:
+        """The snapshot as plain tuples (pickled faster than the named ones); guards only when new."""
+        guards = None
+        if snap.guards is not self._guards:  # the Observer reads them every 80 ms, and reuses the tuple between
+            guards = tuple(tuple(g) for g in snap.guards)
+        return (snap.seq, snap.t, bytes(snap.codes), tuple(snap.task), guards, snap.confirm, snap.blackboard)
+
+    def _send_outbox(self) -> bool:
+        """Send the frames waiting, in order; False when the socket cannot take more now."""
+        while self._outbox:
+            if not self._io.send(self._outbox[0]):
+                return False
+            self._outbox.popleft()
+        return True
+
+    def _read_requests(self) -> None:
+        """Take the monitor process's requests (a Groot2 client wants the blackboard); never waits."""
+        while (data := self._io.recv()) is not None:
+            if not data:
+                raise ConnectionResetError(errno.ECONNRESET, "the monitor process closed its socket")
+            if data == wire.WANT_BLACKBOARD:
+                self._blackboard_until = time.monotonic() + BLACKBOARD_S
+
+    def _died(self, exc: OSError) -> None:
+        """The monitor process is gone: say so once; the guard goes on (a thread of its own, started once)."""
+        try:
+            code: int | None = self._proc.wait(1)  # its socket closes a moment before it can be reaped
+        except subprocess.TimeoutExpired:
+            code = None
+        log.error("the monitor process (pid %d) %s (%s): the status page and Groot2's monitor are gone; "
+                  "the guard goes on", self._proc.pid,
+                  "is not answering" if code is None else f"ended with exit code {code}", exc)
+
+
+def _spawn(theirs: Any) -> subprocess.Popen[bytes]:
+    """``python -m canguard.service.monitor.server FD``, finding this canguard whatever sys.path the daemon has."""
+    import canguard
+
+    env = dict(os.environ)
+    here = str(Path(canguard.__file__).resolve().parents[1])
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (here, env.get("PYTHONPATH", "")) if p)
+    env.pop("NOTIFY_SOCKET", None)  # systemd's messages are the daemon's to send
+    env.pop("WATCHDOG_USEC", None)
+    return subprocess.Popen([sys.executable, "-m", "canguard.service.monitor.server", str(theirs.fileno())],
+                            pass_fds=(theirs.fileno(),), stdin=subprocess.DEVNULL, env=env)

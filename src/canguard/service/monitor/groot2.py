@@ -27,10 +27,9 @@ HEADER = struct.Struct("<BBI")
 """protocol, request type, request id: ``SerializeHeader(RequestHeader)``."""
 MAX_MESSAGE_BYTES = 64 * 1024
 """Largest request part taken (Groot2's are a few bytes, a BLACKBOARD's names a few hundred)."""
-HANDSHAKE_MS = 5000
-"""A connection that has not completed ZeroMQ's handshake by then is closed."""
-HEARTBEAT_MS = 5000
-"""ZeroMQ heartbeats: a peer that answers none for three of these is disconnected."""
+HANDSHAKE_MS = HEARTBEAT_MS = 5000
+"""A connection not through ZeroMQ's handshake by then is closed; a peer that answers none of three heartbeats
+this far apart is disconnected."""
 MALFORMED = (b"wrong request header", b"must be 2 parts message", b"Request not recognized")
 """The error replies to requests that are not Groot2's (logged; a refused hook is a user's click, not logged)."""
 READ_ONLY = ("canguard's Groot2 monitor is read-only: hooks, breakpoints and recording are refused, "
@@ -41,7 +40,6 @@ class Groot2Monitor:
     """The REP / PUB sockets and the thread serving them."""
 
     def __init__(self, address: Address, hub: Hub) -> None:
-        self._zmq = zmq
         self.hub = hub
         self._context = zmq.Context()
         self._server = self._context.socket(zmq.REP)
@@ -62,7 +60,6 @@ class Groot2Monitor:
 
     def _bind(self, address: Address) -> int:
         """Bind REP on the port and PUB on the next one; port 0: a free pair."""
-        zmq = self._zmq
         host = f"[{address.host}]" if ":" in address.host else address.host
         if ":" in address.host:
             for sock in (self._server, self._publisher):
@@ -97,7 +94,6 @@ class Groot2Monitor:
         self._publisher.close(0)
         self._context.term()
 
-    # -- serving --------------------------------------------------------------------------------
     def _serve(self) -> None:
         try:
             self._loop()
@@ -105,7 +101,6 @@ class Groot2Monitor:
             self._close_sockets()  # ZeroMQ sockets belong to the thread that uses them
 
     def _loop(self) -> None:
-        zmq = self._zmq
         poller = zmq.Poller()
         poller.register(self._server, zmq.POLLIN)
         while not self._stop.is_set():

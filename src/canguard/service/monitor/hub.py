@@ -1,9 +1,7 @@
 """In the monitor process: the latest snapshot, the last journal events, and who to wake.
 
-Receiving only assigns a reference or appends to a bounded deque; a dispatcher thread sleeps until
-there is news, renders the status document at most every :data:`DOCUMENT_S` (shared by every client)
-and wakes its subscribers. A slow client skips snapshots and, past :data:`KEEP_EVENTS`, loses the
-oldest events (it is told how many).
+Receiving only assigns a reference or appends to a bounded deque; a dispatcher thread renders the status document
+at most every :data:`DOCUMENT_S` (shared by every client) and wakes its subscribers.
 """
 
 from __future__ import annotations
@@ -31,14 +29,13 @@ STATUS_EVENTS = 30
 class Hub:
     """The latest :class:`TickSnapshot` and journal events, for any number of monitor threads."""
 
-    def __init__(self, ask_blackboard: Callable[[], None] | None = None) -> None:
-        self._ask_blackboard = ask_blackboard
-        """Tells the daemon that a monitor wants the blackboard in its snapshots."""
+    def __init__(self, ask_blackboard: Callable[[], None] = lambda: None) -> None:
+        self.want_blackboard = ask_blackboard
+        """Ask the engine to put the root blackboard into its snapshots for the next second."""
         self._latest: TickSnapshot | None = None
         self._events: deque[tuple[int, bytes, dict[str, Any]]] = deque(maxlen=KEEP_EVENTS)
         """(seq, journal line, the line as JSON): each event is encoded once, as it arrives."""
         self._event_seq = 0
-        self._blackboard_until = -math.inf
         self._subscribers: list[Callable[[], None]] = []
         self._version = 0
         self._doc: tuple[int, bytes] = (0, json.dumps(self.status()).encode())
@@ -47,30 +44,20 @@ class Hub:
         """Set by the receiving side on a new snapshot or event: the dispatcher sleeps until then."""
         self._thread: threading.Thread | None = None
 
-    # -- the daemon's side: never blocks --------------------------------------------------------
+    # -- the receiving side: never blocks ----------------------------------------------------------
     def put(self, snapshot: TickSnapshot) -> None:
         """Publish the latest snapshot."""
         self._latest = snapshot
         self._news.set()
 
-    def event(self, event: Mapping[str, Any], seq: int | None = None) -> None:
+    def event(self, event: Mapping[str, Any], seq: int) -> None:
         """Keep one journal event, numbered ``seq`` by the daemon (a gap: events it dropped); the oldest go."""
         line = encode_event(event)  # as the journal writes it (JSON-safe, rounded)
-        self._event_seq = self._event_seq + 1 if seq is None else seq
-        self._events.append((self._event_seq, line, json.loads(line)))
+        self._event_seq = seq
+        self._events.append((seq, line, json.loads(line)))
         self._news.set()
 
-    def blackboard_wanted(self) -> bool:
-        """True while a monitor has asked for the blackboard within the last second."""
-        return time.monotonic() < self._blackboard_until
-
     # -- the monitors' side ----------------------------------------------------------------------
-    def want_blackboard(self) -> None:
-        """Ask the engine to put the root blackboard into its snapshots for the next second."""
-        self._blackboard_until = time.monotonic() + 1.0
-        if self._ask_blackboard is not None:
-            self._ask_blackboard()
-
     def latest(self) -> TickSnapshot | None:
         """The latest published snapshot (None before the first tick)."""
         return self._latest
@@ -87,8 +74,7 @@ class Hub:
         return self._doc
 
     def subscribe(self, changed: Callable[[], None]) -> None:
-        """Call ``changed()`` (from the dispatcher's thread: it must not wait) each time the status document's
-        version changes; read it with :meth:`status_document`."""
+        """Call ``changed()`` (from the dispatcher's thread: it must not wait) at each new status document."""
         self._subscribers.append(changed)
 
     # -- the dispatcher ----------------------------------------------------------------------------
@@ -141,7 +127,7 @@ def _shown(status: dict[str, Any]) -> dict[str, Any]:
     return {**status, "t": None, "seq": None, "task": {**task, "for_s": None} if task else task}
 
 
-def _number(x: float) -> float | None:
+def _number(x: float | None) -> float | None:
     return x if isinstance(x, (int, float)) and math.isfinite(x) else None
 
 
@@ -162,29 +148,23 @@ def task_document(snap: TickSnapshot, events: list[dict[str, Any]]) -> dict[str,
     """State, since when, stopped by which guard and why, what holds it, confirmation / escalation."""
     task = snap.task
     stopped = task.state == "stopped"
+    since = task.since if stopped else None
     confirmation = None
-    if stopped and task.since is not None:
+    if since is not None:
         confirmation = "pending" if snap.confirm else None
         for ev in events:
-            if ev.get("event") in ("confirmed", "escalate") and (ev.get("t") or 0) >= task.since - 1e-6:
+            if ev.get("event") in ("confirmed", "escalate") and (ev.get("t") or 0) >= since - 1e-6:
                 confirmation = "confirmed" if ev["event"] == "confirmed" else "escalated"
-    return {
-        "state": task.state,
-        "since": _number(task.since) if stopped and task.since is not None else None,
-        "for_s": _number(snap.t - task.since) if stopped and task.since is not None else None,
-        "reason": task.reason if stopped else "",
-        "guards": list(task.stopped_by) if stopped else [],
-        "failing": list(task.failing),
-        "holding": [{"key": k, "reason": r} for k, r in task.holding],
-        "stops": task.stops,
-        "confirmation": confirmation,
-    }
+    return {"state": task.state, "since": _number(since), "for_s": None if since is None else _number(snap.t - since),
+            "reason": task.reason if stopped else "", "guards": list(task.stopped_by) if stopped else [],
+            "failing": list(task.failing), "holding": [{"key": k, "reason": r} for k, r in task.holding],
+            "stops": task.stops, "confirmation": confirmation}
 
 
 def guard_document(g: Any) -> dict[str, Any]:
     """One guard: name, source, value, unit, threshold, margin, status, role, kind, heat and reason."""
     return {
         "name": g.name, "source": g.source, "value": _number(g.value), "unit": g.unit,
-        "threshold": _number(g.threshold), "margin": _number(g.margin), "status": g.status,
+        "threshold": _number(g.threshold), "margin": _number(g.threshold - g.value), "status": g.status,
         "role": g.role, "kind": g.kind, "heat_pct": _number(g.heat_pct), "reason": g.reason,
     }

@@ -1,9 +1,8 @@
-"""The monitor process: ``python -m canguard.service.monitor.server FD``, started by the daemon (:mod:`.link`).
+"""The monitor process: ``python -m canguard.service.monitor.server FD``, started by the daemon (:class:`.Monitor`).
 
-It reads its settings from the socket ``FD`` (JSON: the token never shows on a command line), starts
-the servers around a :class:`~.hub.Hub`, answers where they listen (or why they cannot), then feeds the
-hub until the daemon's end closes or SIGTERM (SIGINT and SIGHUP are the daemon's). It runs below the
-daemon's CPU priority (:func:`lower_priority`).
+It reads its settings from the socket ``FD`` (JSON: the token never shows on a command line), starts the servers
+around a :class:`~.hub.Hub`, answers where they listen (or why they cannot), then feeds the hub until the daemon's
+end closes or SIGTERM (SIGINT and SIGHUP are the daemon's), below the daemon's CPU priority (:func:`lower_priority`).
 """
 
 from __future__ import annotations
@@ -29,6 +28,8 @@ log = logging.getLogger("canguard.service.monitor")
 
 NICE = 10
 """How much lower than the daemon's this process's CPU priority is: on a busy robot the loop gets the CPU first."""
+FILES = 65536
+"""File descriptors this process asks for (up to the hard limit): each client of the page or Groot2 holds one."""
 
 
 class MonitorServer:
@@ -37,38 +38,31 @@ class MonitorServer:
     def __init__(self, sock: socket.socket, settings: dict[str, Any]) -> None:
         self.sock = sock
         self.hub = Hub(ask_blackboard=self._ask_blackboard)
-        self.web: Any = None
-        self.groot2: Any = None
+        self.servers: dict[str, Any] = {}
+        """``http`` and ``groot2``, those served."""
         self._layout: LayoutRecord | None = None
         self._guards: tuple[GuardState, ...] = ()
         try:
             if settings.get("http"):
-                self.web = _web(_address(settings["http"]), self.hub, settings.get("token"))
+                self.servers["http"] = _web(_address(settings["http"]), self.hub, settings.get("token"))
             if settings.get("groot2"):
-                self.groot2 = _groot2(_address(settings["groot2"], port_span=2), self.hub)
+                self.servers["groot2"] = _groot2(_address(settings["groot2"], port_span=2), self.hub)
         except BaseException:
             self.close()
             raise
 
     def addresses(self) -> dict[str, Any]:
         """Where each server listens: ``{"http": [host, port] | None, "groot2": [host, port] | None}``."""
-        return {name: [server.address.host, server.address.port] if server is not None else None
-                for name, server in (("http", self.web), ("groot2", self.groot2))}
+        return {name: [s.address.host, s.address.port] if (s := self.servers.get(name)) else None
+                for name in ("http", "groot2")}
 
     def serve(self) -> None:
         """Start the servers, then feed the hub until the daemon's end closes."""
         self.hub.start()
-        for server in (self.web, self.groot2):
-            if server is not None:
-                server.start()
-        assembler = wire.Assembler()
-        while True:
-            frame = self.sock.recv(wire.FRAME_BYTES + 64)
-            if not frame:
-                return  # the daemon ended
-            done, message = assembler.feed(frame)
-            if done:
-                self.receive(message)
+        for server in self.servers.values():
+            server.start()
+        for message in wire.messages(self.sock):
+            self.receive(message)
 
     def receive(self, message: tuple[Any, ...]) -> None:
         """One message of the daemon: a tree's layout, or the journal events and latest snapshot of a tick."""
@@ -93,9 +87,8 @@ class MonitorServer:
     def close(self) -> None:
         """Stop every server and thread."""
         self.hub.close()
-        for server in (self.web, self.groot2):
-            if server is not None:
-                server.close()
+        for server in self.servers.values():
+            server.close()
 
 
 def _address(text: str, port_span: int = 1) -> Address:
@@ -129,26 +122,18 @@ def _groot2(address: Address, hub: Hub) -> Any:
 
 
 def lower_priority() -> None:
-    """Put this process below the daemon: ``SCHED_BATCH`` and :data:`NICE` steps nicer, where the system allows.
-
-    Before any thread starts (they inherit it). Not ``SCHED_IDLE``: that would starve the page whenever the CPUs
-    are busy, when a person most needs it.
-    """
+    """Put this process below the daemon, before any thread starts (they inherit it): ``SCHED_BATCH`` and
+    :data:`NICE` steps nicer, where the system allows. Not ``SCHED_IDLE``: that would starve the page whenever the
+    CPUs are busy, when a person most needs it."""
     with contextlib.suppress(OSError, AttributeError):  # AttributeError: not Linux
         os.sched_setscheduler(0, os.SCHED_BATCH, os.sched_param(0))
     with contextlib.suppress(OSError):
         os.nice(NICE)
 
 
-FILES = 65536
-"""File descriptors this process asks for (up to the hard limit): each client of the page or Groot2 holds one."""
-
-
 def more_descriptors() -> None:
-    """Raise this process's open-file limit from its soft value (often 1,024) to :data:`FILES` or the hard limit.
-
-    The status page keeps half of it for its connections (:class:`.web.Limits`).
-    """
+    """Raise this process's open-file limit from its soft value (often 1,024) to :data:`FILES` or the hard limit
+    (the status page keeps half of it for its connections: :class:`.web.Limits`)."""
     import resource
 
     with contextlib.suppress(OSError, ValueError):
@@ -176,10 +161,10 @@ def main(argv: list[str] | None = None) -> int:
     try:
         server = MonitorServer(sock, settings)
     except ConfigError as exc:
-        wire.answer(sock, {"error": str(exc)})
+        sock.send(json.dumps({"error": str(exc)}).encode())  # the one answer at start: ready, or why not
         return 2
     try:
-        wire.answer(sock, {"ready": server.addresses()})
+        sock.send(json.dumps({"ready": server.addresses()}).encode())
         server.serve()
     finally:
         server.close()

@@ -1,8 +1,8 @@
 """What the engine publishes once per tick: an immutable snapshot, built from public accessors.
 
-:class:`Observer` is the engine's ``observer``. A snapshot is taken when something changed (a node's
-status, the task's state, an event), at most every :data:`PERIOD_S`; the guards' values at most every
-:data:`GUARD_PERIOD_S`: the monitors' cost to the loop is bounded however fast the tree ticks.
+:class:`Observer` (the engine's ``observer``) takes one when something changed (a node's status, the task's state,
+an event), at most every :data:`PERIOD_S`, with the guards' values at most every :data:`GUARD_PERIOD_S`: the
+monitors' cost to the loop is bounded however fast the tree ticks.
 """
 
 from __future__ import annotations
@@ -11,14 +11,14 @@ import logging
 import math
 import time
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Any, NamedTuple, Protocol
 
 import py_trees
 
 from canguard.bt.dryrun import root_blackboard
-from canguard.protect.i2t import ThermalI2t
 
 if TYPE_CHECKING:
+    from canguard.bt.loaded import GuardView
     from canguard.engine.core import Engine
     from canguard.service.monitor.layout import LayoutRecord, TreeLayout
 
@@ -26,7 +26,7 @@ log = logging.getLogger(__name__)
 
 
 class SnapshotSink(Protocol):
-    """Where snapshots go (:class:`canguard.service.monitor.link.ChildLink`): never blocks the engine's thread."""
+    """Where snapshots go (:class:`canguard.service.monitor.Monitor`): never blocks the engine's thread."""
 
     def blackboard_wanted(self) -> bool: ...
 
@@ -43,12 +43,8 @@ GUARD_PERIOD_S = 0.08
 IDLE, RUNNING, SUCCESS, FAILURE, SKIPPED = 0, 1, 2, 3, 4
 """BehaviorTree.CPP's ``NodeStatus`` values (Groot2's STATUS carries them; ``10 + s``: idle after ``s``)."""
 STATUS_NAMES = ("IDLE", "RUNNING", "SUCCESS", "FAILURE", "SKIPPED")
-
-_CODES = {
-    py_trees.common.Status.RUNNING: RUNNING,
-    py_trees.common.Status.SUCCESS: SUCCESS,
-    py_trees.common.Status.FAILURE: FAILURE,
-}
+_CODES = {py_trees.common.Status.RUNNING: RUNNING, py_trees.common.Status.SUCCESS: SUCCESS,
+          py_trees.common.Status.FAILURE: FAILURE}
 
 
 def status_name(code: int) -> str:
@@ -56,38 +52,27 @@ def status_name(code: int) -> str:
     return STATUS_NAMES[code] if 0 <= code < len(STATUS_NAMES) else "IDLE"
 
 
-@dataclass(frozen=True)
-class GuardState:
-    """One guarded signal at one tick (the fields of ``/api/status``'s ``guards``)."""
+class GuardState(NamedTuple):
+    """One guarded signal at one tick: the fields of ``/api/status``'s ``guards`` (docs/monitor.md)."""
 
     name: str
     role: str
     kind: str
     source: str
     value: float
-    """|value| the guard last saw (threshold guards), or the I²t accumulator (``i2t``)."""
     unit: str
     threshold: float
-    """The trip threshold in force (inrush included), in ``unit``."""
     heat_pct: float
-    """How close to tripping, in % of the trip level (the I²t heat for ``i2t`` guards)."""
     status: str
-    """``ok``, ``tripped``, or why the source cannot be used (``stale``, ``no_data``, ``nan``...)."""
     reason: str
 
-    @property
-    def margin(self) -> float:
-        """How far below the threshold the value is (negative: above it), in ``unit``; NaN when unknown."""
-        return self.threshold - self.value
 
-
-@dataclass(frozen=True)
-class TaskState:
-    """The task gate at one tick."""
+class TaskState(NamedTuple):
+    """The task gate at one tick (a plain tuple to the monitor process, as :class:`GuardState`)."""
 
     state: str
     since: float | None
-    """When the running stop began (engine time, epoch seconds live), None when not stopped."""
+    """When the running stop began (engine time), None when not stopped."""
     reason: str
     stops: int
     holding: tuple[tuple[str, str], ...]
@@ -110,9 +95,9 @@ class TickSnapshot:
     task: TaskState
     guards: tuple[GuardState, ...]
     confirm: bool
-    """True when ``stop.confirm`` is configured (a stop then waits for its confirmation)."""
+    """``stop.confirm`` is configured (a stop then waits for its confirmation)."""
     blackboard: dict[str, Any] | None
-    """The root blackboard's entries, when a monitor asked for them lately; else None."""
+    """The root blackboard's entries, when a monitor asked for them lately."""
 
 
 class Observer:
@@ -123,7 +108,6 @@ class Observer:
         self.hub = hub
         self._guards = engine.guards()
         self._guard_nodes = engine.loaded.guard_nodes()
-        self._units = [_unit(engine, g) for g in self._guards]
         self._last_active = [IDLE] * len(layout.behaviours)
         self._seq = 0
         self._key: tuple[Any, ...] = ()
@@ -159,7 +143,7 @@ class Observer:
             self.hub.flush()  # what the monitor process could not take before goes now
             return
         if stale:  # a node's status or an event in between: published at once, with the guards as last read
-            self._guard_states = tuple(self._guard_state(engine, i, now) for i in range(len(self._guards)))
+            self._guard_states = tuple(self._guard_state(engine, g, now) for g in self._guards)
             self._guards_at = mono
         self._next_at = mono + PERIOD_S
         self._key = key
@@ -178,32 +162,21 @@ class Observer:
         out = []
         last = self._last_active
         for i, node in enumerate(self.layout.behaviours):
-            if node is None:
-                out.append(IDLE)
-                continue
             code = SKIPPED if getattr(node, "skipped", False) else _CODES.get(node.status, IDLE)
-            if code == IDLE:
-                code = 10 + last[i] if last[i] != IDLE else IDLE  # BT.CPP: IDLE after SUCCESS is 12
-            else:
+            if code != IDLE:
                 last[i] = code
+            elif last[i] != IDLE:
+                code = 10 + last[i]  # BT.CPP: IDLE after SUCCESS is 12
             out.append(code)
         return tuple(out)
 
-    def _guard_state(self, engine: Engine, i: int, now: float) -> GuardState:
-        g = self._guards[i]
+    @staticmethod
+    def _guard_state(engine: Engine, g: GuardView, now: float) -> GuardState:
         snap = g.snapshot()
         health = engine.ctx.health.get(g.source)
         why = health.reason(now, g.role) if health is not None else "no_data"
         value = snap.threshold * snap.level_pct / 100.0 if g.kind == "i2t" else snap.value
         status = why or ("tripped" if snap.tripped else "ok")
-        return GuardState(g.node, g.role, g.kind, g.source, value, self._units[i], snap.threshold, snap.level_pct,
+        return GuardState(g.node, g.role, g.kind, g.source, value, g.threshold_unit, snap.threshold, snap.level_pct,
                           status, why or snap.reason)
 
-
-def _unit(engine: Engine, guard: Any) -> str:
-    """The unit of a guard's value and threshold: the DBC signal's unit, A²s or θ for I²t."""
-    if guard.kind == "i2t":
-        return "θ" if isinstance(guard.model, ThermalI2t) else "A²s"
-    source = engine.cfg.sources.get(guard.source)
-    ref = source.signal(guard.role) if source is not None else None
-    return (ref.unit or "") if ref is not None else ""

@@ -1,8 +1,8 @@
 """The status page and its API: one asyncio event loop, in a thread of its own, serves every connection.
 
-``GET /``, ``GET /api/status`` (or its stream), ``GET /api/events`` (server-sent events), read-only, with an
-optional bearer token: docs/monitor.md. Whatever clients do, the page and ``/api/status`` answer
-(:class:`Limits`); what clients do wrong is logged one line per cause (:class:`.notes.ClientNotes`).
+``GET /``, ``GET /api/status`` (or its stream), ``GET /api/events``, read-only, with an optional bearer token; what
+it grants clients that misbehave (:class:`Limits`) and how it logs them (:class:`.notes.ClientNotes`):
+docs/monitor.md.
 """
 
 from __future__ import annotations
@@ -44,23 +44,17 @@ _PAGE_HEADERS = {"Content-Security-Policy": "default-src 'none'; script-src 'uns
 
 @dataclass(frozen=True)
 class Limits:
-    """What the status page's server grants its clients."""
+    """What the status page's server grants its clients (docs/monitor.md, "Clients that misbehave"): connections
+    (at most half the process's file descriptors), event streams in all and per address, the time a request head
+    may take, how long a client may take nothing, a stream's keep-alive, and the listen backlog."""
 
     max_connections: int = 2048
-    """Connections open at once (lowered to half the process's file-descriptor limit); past it, the oldest
-    connection still sending its request (or lingering after its answer) is closed for the new one."""
     max_streams: int = 64
-    """Event streams (``/api/events``, ``/api/status`` as a stream) at once; more get 503."""
     streams_per_address: int = 16
-    """Event streams at once from one client address (behind a reverse proxy: all of them)."""
     request_timeout_s: float = 5.0
-    """A request's head must arrive whole within this, from the connection's start or its previous answer."""
     send_timeout_s: float = 5.0
-    """A client that takes none of what is sent to it for this long is dropped."""
     keepalive_s: float = 15.0
-    """A stream with nothing new sends a comment this often (proxies and browsers keep it open)."""
     backlog: int = 1024
-    """Connections the system queues before the loop accepts them (a burst of reconnecting browsers)."""
 
 
 class _Refused(Exception):
@@ -68,7 +62,7 @@ class _Refused(Exception):
 
     def __init__(self, code: int, body: str, cause: str, headers: dict[str, str] | None = None) -> None:
         super().__init__(cause)
-        self.code, self.body, self.cause, self.headers = code, body, cause, headers or {}
+        self.code, self.body, self.cause, self.headers = code, body.encode(), cause, headers or {}
 
 
 @dataclass(frozen=True)
@@ -106,50 +100,117 @@ def _head(code: int, headers: dict[str, str]) -> bytes:
     return ("\r\n".join(lines) + "\r\n\r\n").encode("latin-1")
 
 
-class _Changes:
-    """The hub's news in the loop: each waiting stream wakes on the next change (or its keep-alive)."""
-
-    def __init__(self) -> None:
-        self._next = asyncio.Event()
-
-    def changed(self) -> None:
-        """Wake every stream waiting (in the loop's thread)."""
-        self._next.set()
-        self._next = asyncio.Event()
-
-    async def next(self, timeout_s: float) -> bool:
-        """True when something changed within ``timeout_s``."""
-        try:
-            await _within(self._next.wait(), timeout_s)
-        except asyncio.TimeoutError:
-            return False
-        return True
+def _task(step: Awaitable[T]) -> asyncio.Future[T]:
+    """``step`` as a task whose exception is always read, whoever awaits it (none is logged "never retrieved")."""
+    task = asyncio.ensure_future(step)
+    task.add_done_callback(lambda t: t.cancelled() or t.exception())
+    return task
 
 
-class _Site:
-    """The loop's side: each connection from accept to close, and the places they hold."""
+async def _within(step: Awaitable[T], timeout_s: float) -> T:
+    """``await step``, cancelled with asyncio.TimeoutError after ``timeout_s``.
 
-    def __init__(self, hub: Hub, token: str | None, page: bytes, limits: Limits) -> None:
+    Not ``asyncio.wait_for``: when it is cancelled just as its step fails (a drain woken by a reset), that
+    step's exception is left unread, and asyncio logs it.
+    """
+    task = _task(step)
+    try:
+        done, _ = await asyncio.wait((task,), timeout=max(0.0, timeout_s))
+    finally:
+        task.cancel()
+    if not done:
+        raise asyncio.TimeoutError
+    return task.result()
+
+
+async def _until_closed(reader: asyncio.StreamReader) -> None:
+    """Return when the client closed its end; ConnectionResetError when it reset it. What it sends is ignored."""
+    while await reader.read(4096):
+        pass
+
+
+async def _until_first(*steps: Awaitable[None]) -> None:
+    """Run ``steps`` together until the first ends (its exception raised), the others cancelled."""
+    tasks = [_task(step) for step in steps]
+    try:
+        done, _ = await asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED)
+    finally:
+        for task in tasks:
+            task.cancel()
+    errors = [error for task in done if (error := task.exception())]  # each one read: none left "never retrieved"
+    if errors:
+        raise errors[0]
+
+
+class WebMonitor:
+    """The HTTP server of the status page: its event loop, in a thread of its own, serves each connection from
+    accept to close."""
+
+    def __init__(self, address: Address, hub: Hub, token: str | None, limits: Limits | None = None) -> None:
+        limits = limits or Limits()
+        soft, _ = resource.getrlimit(resource.RLIMIT_NOFILE)  # half the descriptors: the rest Groot2's, the system's
+        if soft != resource.RLIM_INFINITY:
+            limits = dataclasses.replace(limits, max_connections=max(16, min(limits.max_connections, soft // 2)))
+        self.limits = limits
+        """What clients are granted (``max_connections`` as this process's descriptors allow)."""
         self.hub = hub
         self.token = token
-        self.page = page
-        self.limits = limits
+        self.page = data_path("monitor", "index.html").read_bytes()
         self.notes = ClientNotes(log, "status page")
-        self.changes = _Changes()
+        self.changed = asyncio.Event()
+        """Set and replaced on each new status document: every waiting stream wakes."""
         self.open = 0
         self.waiting: dict[asyncio.StreamWriter, None] = {}
-        """Connections reading a request head or lingering after their answer, oldest first: the first to go when
-        every place is taken."""
+        """Connections reading a request head or lingering after their answer, oldest first: the first to go."""
         self.streams: Counter[str] = Counter()
-        self.tasks: dict[asyncio.Task[Any], asyncio.StreamWriter] = {}
-        """Each connection's task and its writer: closed at shutdown (their transports aborted, so each ends)."""
+        family = socket.AF_INET6 if ":" in address.host else socket.AF_INET
+        self._sock = socket.create_server((address.host, address.port), family=family, backlog=limits.backlog)
+        host, port = self._sock.getsockname()[:2]
+        self.address = Address(str(host), int(port))
+        """Where it listens (the port the system gave for port 0)."""
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._stopping: asyncio.Event | None = None
+        self._ready = threading.Event()
+        self._thread = threading.Thread(target=asyncio.run, args=(self._main(),), name="canguard-monitor-http",
+                                        daemon=True)
+        hub.subscribe(self._news)
 
-    # -- a connection ----------------------------------------------------------------------------
+    def start(self) -> None:
+        """Serve in a thread of its own (listening already: connections wait in the backlog meanwhile)."""
+        self._thread.start()
+        self._ready.wait(5)
+
+    def close(self) -> None:
+        """Stop serving: every connection closed."""
+        loop, stopping = self._loop, self._stopping
+        if loop is not None and stopping is not None:
+            with contextlib.suppress(RuntimeError):  # the loop ended already
+                loop.call_soon_threadsafe(stopping.set)
+            self._thread.join(2)
+        self._sock.close()
+
+    def _news(self) -> None:
+        """The hub's dispatcher thread: a new status document (wakes the streams in the loop's thread)."""
+        loop = self._loop
+        if loop is not None:
+            with contextlib.suppress(RuntimeError):  # the loop is closing
+                loop.call_soon_threadsafe(self.change)
+
+    async def _main(self) -> None:
+        loop = asyncio.get_running_loop()
+        loop.set_exception_handler(self.on_loop_error)
+        self._stopping = asyncio.Event()
+        server = await asyncio.start_server(self.connection, sock=self._sock, backlog=self.limits.backlog,
+                                            limit=HEAD_BYTES + 4)
+        self._loop = loop
+        self._ready.set()
+        try:
+            await self._stopping.wait()
+        finally:
+            server.close()  # then asyncio.run cancels each connection's task: each aborts its transport
+
     async def connection(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
         """Serve one connection until it ends; nothing it does escapes as an exception."""
-        task = asyncio.current_task()
-        if task is not None:
-            self.tasks[task] = writer
         self.open += 1
         peer = writer.get_extra_info("peername")
         address = str(peer[0]) if peer else "?"
@@ -159,7 +220,7 @@ class _Site:
         except _Refused as refused:
             self.notes.note(refused.cause)
             with contextlib.suppress(OSError, asyncio.TimeoutError):
-                await self._answer(writer, refused.code, refused.body.encode(), _TEXT, refused.headers, False)
+                await self._answer(writer, refused.code, refused.body, _TEXT, refused.headers, False)
                 await self._close(reader, writer)
         except asyncio.TimeoutError:
             self.notes.note(f"a client took nothing sent to it for {self.limits.send_timeout_s:g} s (dropped)")
@@ -171,8 +232,6 @@ class _Site:
             self.waiting.pop(writer, None)
             self.open -= 1
             writer.transport.abort()  # after a graceful close: nothing; else the place is free now
-            if task is not None:
-                self.tasks.pop(task, None)
 
     def _admit(self) -> bool:
         """Room for one more connection: the oldest one still sending its request (or lingering) goes, or this one."""
@@ -228,49 +287,41 @@ class _Site:
         return head
 
     async def _close(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        """End our side once the answer is sent, and wait (``send_timeout_s`` at most) for the client to close
-        its side: closing with a request body unread would reset the connection, and the answer with it."""
+        """End our side once the answer is sent, and wait (``send_timeout_s`` at most) for the client to close its
+        side: closing with a request body unread would reset the connection, and the answer with it."""
         self.waiting[writer] = None  # lingering: the first to go when every place is taken
         with contextlib.suppress(OSError, asyncio.TimeoutError):  # it lingers or resets: it is closed all the same
             writer.write_eof()
             await _within(_until_closed(reader), self.limits.send_timeout_s)
 
-    # -- answers ---------------------------------------------------------------------------------
     async def _respond(self, req: _Request, reader: asyncio.StreamReader, writer: asyncio.StreamWriter,
                        address: str) -> bool:
         """Answer ``req``; True when the connection stays open for another request."""
+        keep, code, ctype, extra = req.keep_alive, 200, _TEXT, {}
         if req.method not in ("GET", "HEAD"):
-            await self._answer(writer, 405, b"read-only: canguard's monitor answers GET only\n", _TEXT,
-                               {"Allow": "GET, HEAD"}, False, req.method)
-            return False
-        if not self._authorized(req):
-            await self._answer(writer, 401, b"a bearer token is required (Authorization: Bearer TOKEN, or "
-                               b"?token=TOKEN)\n", _TEXT, {"WWW-Authenticate": 'Bearer realm="canguard"'},
-                               req.keep_alive, req.method)
-            return req.keep_alive
-        if req.path in ("/", "/index.html"):
+            keep, code, body = False, 405, b"read-only: canguard's monitor answers GET only\n"
+            extra = {"Allow": "GET, HEAD"}
+        elif not self._authorized(req):
+            code, body = 401, b"a bearer token is required (Authorization: Bearer TOKEN, or ?token=TOKEN)\n"
+            extra = {"WWW-Authenticate": 'Bearer realm="canguard"'}
+        elif req.path in ("/", "/index.html"):
             body, ctype, extra = self.page, "text/html; charset=utf-8", _PAGE_HEADERS
         elif req.path == "/api/status" and "text/event-stream" not in req.headers.get("accept", ""):
-            body, ctype, extra = self.hub.status_document()[1], "application/json", {}
+            body, ctype = self.hub.status_document()[1], "application/json"
         elif req.path in ("/api/status", "/api/events"):
             await self._stream(req, reader, writer, address)
             return False
         else:
-            body, ctype, extra = b"not found: try /, /api/status or /api/events\n", _TEXT, {}
-            await self._answer(writer, 404, body, ctype, extra, req.keep_alive, req.method)
-            return req.keep_alive
-        await self._answer(writer, 200, body, ctype, extra, req.keep_alive, req.method)
-        return req.keep_alive
+            code, body = 404, b"not found: try /, /api/status or /api/events\n"
+        await self._answer(writer, code, body, ctype, extra, keep, req.method)
+        return keep
 
     def _authorized(self, req: _Request) -> bool:
-        token = self.token
-        if not token:
-            return True
-        given = req.headers.get("authorization", "")
-        if given.startswith("Bearer ") and hmac.compare_digest(given[7:].strip().encode(), token.encode()):
-            return True
-        asked = parse_qs(req.query).get("token", [""])[0]
-        return bool(asked) and hmac.compare_digest(asked.encode(), token.encode())
+        token = (self.token or "").encode()
+        bearer = req.headers.get("authorization", "")
+        given = [bearer[7:].strip()] if bearer.startswith("Bearer ") else []
+        given += parse_qs(req.query).get("token", [])[:1]
+        return not token or any(g and hmac.compare_digest(g.encode(), token) for g in given)
 
     async def _answer(self, writer: asyncio.StreamWriter, code: int, body: bytes, ctype: str,
                       headers: dict[str, str], keep: bool, method: str = "GET") -> None:
@@ -283,7 +334,6 @@ class _Site:
         writer.write(data)
         await _within(writer.drain(), self.limits.send_timeout_s)
 
-    # -- streams ---------------------------------------------------------------------------------
     async def _stream(self, req: _Request, reader: asyncio.StreamReader, writer: asyncio.StreamWriter,
                       address: str) -> None:
         """A stream in a place of its own, until its client leaves (read as it happens) or stalls."""
@@ -315,7 +365,7 @@ class _Site:
             if version != sent:
                 await self._send(writer, b"event: status\ndata: " + doc + b"\n\n")
                 sent = version
-            elif not await self.changes.next(self.limits.keepalive_s):
+            elif not await self._next_change():
                 await self._send(writer, b": keep-alive\n\n")
 
     async def _events_stream(self, writer: asyncio.StreamWriter) -> None:
@@ -328,10 +378,22 @@ class _Site:
                 cursor = seq
             if out:
                 await self._send(writer, b"".join(out))
-            if not await self.changes.next(self.limits.keepalive_s):
+            if not await self._next_change():
                 await self._send(writer, b": keep-alive\n\n")
 
-    # -- the loop ----------------------------------------------------------------------------------
+    async def _next_change(self) -> bool:
+        """Wait for the next status document; False when none came within ``keepalive_s``."""
+        try:
+            await _within(self.changed.wait(), self.limits.keepalive_s)
+        except asyncio.TimeoutError:
+            return False
+        return True
+
+    def change(self) -> None:
+        """A new status document (in the loop's thread): wake every stream waiting."""
+        self.changed.set()
+        self.changed = asyncio.Event()
+
     def on_loop_error(self, _loop: asyncio.AbstractEventLoop, context: dict[str, Any]) -> None:
         """What the loop itself could not do (an accept out of descriptors): one line per cause, no traceback."""
         exc = context.get("exception")
@@ -342,115 +404,3 @@ class _Site:
             return
         self.notes.note(f"{context.get('message', 'event loop error')}"
                         f"{f' ({type(exc).__name__}: {exc})' if exc else ''}")
-
-
-def _task(step: Awaitable[T]) -> asyncio.Future[T]:
-    """``step`` as a task whose exception is always read, whoever awaits it (none is logged "never retrieved")."""
-    task = asyncio.ensure_future(step)
-    task.add_done_callback(lambda t: t.cancelled() or t.exception())
-    return task
-
-
-async def _within(step: Awaitable[T], timeout_s: float) -> T:
-    """``await step``, cancelled with asyncio.TimeoutError after ``timeout_s``.
-
-    Not ``asyncio.wait_for``: when it is cancelled just as its step fails (a drain woken by a reset), that
-    step's exception is left unread, and asyncio logs it.
-    """
-    task = _task(step)
-    try:
-        done, _ = await asyncio.wait((task,), timeout=max(0.0, timeout_s))
-    finally:
-        task.cancel()
-    if not done:
-        raise asyncio.TimeoutError
-    return task.result()
-
-
-async def _until_closed(reader: asyncio.StreamReader) -> None:
-    """Return when the client closed its end; ConnectionResetError when it reset it. What it sends is ignored."""
-    while await reader.read(4096):
-        pass
-
-
-async def _until_first(*steps: Awaitable[None]) -> None:
-    """Run ``steps`` together until the first ends (its exception raised), the others cancelled."""
-    tasks = [_task(step) for step in steps]
-    try:
-        done, _ = await asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED)
-    finally:
-        for task in tasks:
-            task.cancel()
-    errors = [task.exception() for task in done]  # each one read: none left "never retrieved"
-    for error in errors:
-        if error is not None:
-            raise error
-
-
-def _connection_budget(wanted: int) -> int:
-    """``wanted``, or half the file descriptors this process may open (the rest: Groot2's, the system's)."""
-    soft, _ = resource.getrlimit(resource.RLIMIT_NOFILE)
-    return wanted if soft == resource.RLIM_INFINITY else max(16, min(wanted, soft // 2))
-
-
-class WebMonitor:
-    """The HTTP server of the status page, its event loop in a thread of its own."""
-
-    def __init__(self, address: Address, hub: Hub, token: str | None, limits: Limits | None = None) -> None:
-        limits = limits or Limits()
-        limits = dataclasses.replace(limits, max_connections=_connection_budget(limits.max_connections))
-        self.limits = limits
-        """What clients are granted (``max_connections`` as this process's descriptors allow)."""
-        page = data_path("monitor", "index.html").read_bytes()
-        family = socket.AF_INET6 if ":" in address.host else socket.AF_INET
-        self._sock = socket.create_server((address.host, address.port), family=family, backlog=limits.backlog)
-        host, port = self._sock.getsockname()[:2]
-        self.address = Address(str(host), int(port))
-        """Where it listens (the port the system gave for port 0)."""
-        self._site = _Site(hub, token, page, limits)
-        self._loop: asyncio.AbstractEventLoop | None = None
-        self._stopping: asyncio.Event | None = None
-        self._ready = threading.Event()
-        self._thread = threading.Thread(target=asyncio.run, args=(self._main(),), name="canguard-monitor-http",
-                                        daemon=True)
-        hub.subscribe(self._changed)
-
-    def start(self) -> None:
-        """Serve in a thread of its own (listening already: connections wait in the backlog meanwhile)."""
-        self._thread.start()
-        self._ready.wait(5)
-
-    def close(self) -> None:
-        """Stop serving: every connection closed."""
-        loop, stopping = self._loop, self._stopping
-        if loop is not None and stopping is not None:
-            with contextlib.suppress(RuntimeError):  # the loop ended already
-                loop.call_soon_threadsafe(stopping.set)
-            self._thread.join(2)
-        self._sock.close()
-
-    def _changed(self) -> None:
-        """The hub's dispatcher thread: a new status document (wakes the streams in the loop's thread)."""
-        loop = self._loop
-        if loop is not None:
-            with contextlib.suppress(RuntimeError):  # the loop is closing
-                loop.call_soon_threadsafe(self._site.changes.changed)
-
-    async def _main(self) -> None:
-        site = self._site
-        loop = asyncio.get_running_loop()
-        loop.set_exception_handler(site.on_loop_error)
-        self._stopping = asyncio.Event()
-        server = await asyncio.start_server(site.connection, sock=self._sock, backlog=self.limits.backlog,
-                                            limit=HEAD_BYTES + 4)
-        self._loop = loop
-        self._ready.set()
-        try:
-            await self._stopping.wait()
-        finally:
-            server.close()
-            for writer in site.tasks.values():
-                writer.transport.abort()  # each connection's reads and writes end: its task returns
-            with contextlib.suppress(asyncio.TimeoutError):
-                await asyncio.wait_for(asyncio.gather(*site.tasks, return_exceptions=True), 1.0)
-

@@ -1,19 +1,18 @@
 """The daemon and its monitor process talk over one ``AF_UNIX`` ``SOCK_SEQPACKET`` socket pair.
 
-A seqpacket socket takes a message whole or not at all: the daemon sends without waiting. Daemon →
-monitor: pickled messages in frames of at most :data:`FRAME_BYTES` (a flag byte, ``M`` more or ``E``
-end). Monitor → daemon: fixed byte strings and one JSON answer (:data:`WANT_BLACKBOARD`, :func:`ready`):
-the daemon never unpickles what comes from the side the network can reach.
+A seqpacket socket takes a message whole or not at all: the daemon sends without waiting. Daemon → monitor: pickled
+messages in frames of at most :data:`FRAME_BYTES` (a flag byte, ``M`` more or ``E`` end). Monitor → daemon: fixed
+byte strings and one JSON answer: the daemon never unpickles what comes from the side the network can reach.
 """
 
 from __future__ import annotations
 
 import ctypes
 import errno
-import json
 import os
 import pickle
 import socket
+from collections.abc import Iterator
 from typing import Any
 
 FRAME_BYTES = 32 * 1024
@@ -25,20 +24,10 @@ WANT_BLACKBOARD = b"B"
 """Monitor process → daemon: a Groot2 client asked for the blackboard (put it in the snapshots for 1 s)."""
 
 
-def fields(record: Any) -> tuple[Any, ...]:
-    """A frozen dataclass's field values in their order (``type(record)(*fields(record))`` rebuilds it).
-
-    Pickling plain tuples takes a third of the time pickling the dataclasses does.
-    """
-    return tuple(vars(record).values())
-
-
 class GilHoldingSocket:
-    """Non-blocking send and receive on a socket's descriptor that keep the calling thread's GIL.
-
-    ``socket.send`` releases the GIL around its system call, and the loop then waits to get it back; through
-    :class:`ctypes.PyDLL` the GIL is kept, and a non-blocking local socket returns within microseconds.
-    """
+    """Non-blocking send and receive on a socket's descriptor that keep the calling thread's GIL: ``socket.send``
+    releases it around its system call, and the loop then waits to get it back; a non-blocking local socket
+    returns within microseconds."""
 
     _libc = ctypes.PyDLL(None, use_errno=True)
     _send = _libc.send
@@ -54,9 +43,7 @@ class GilHoldingSocket:
 
     def send(self, data: bytes) -> bool:
         """Send one message whole; False when the socket cannot take it now. OSError when the other end is gone."""
-        if self._send(self._fd, data, len(data), socket.MSG_DONTWAIT | socket.MSG_NOSIGNAL) >= 0:
-            return True
-        return _again()
+        return self._send(self._fd, data, len(data), socket.MSG_DONTWAIT | socket.MSG_NOSIGNAL) >= 0 or _again()
 
     def recv(self) -> bytes | None:
         """One short message (at most 64 bytes), b"" when the other end closed, None when none waits."""
@@ -91,32 +78,11 @@ def frames(message: Any) -> list[bytes]:
     return [MORE + p for p in parts[:-1]] + [END + parts[-1]]
 
 
-class Assembler:
-    """Frames back into messages (the monitor process's side)."""
-
-    def __init__(self) -> None:
-        self._parts: list[bytes] = []
-
-    def feed(self, frame: bytes) -> tuple[bool, Any]:
-        """(True, message) when ``frame`` completes one; (False, None) while more is to come."""
-        if not frame:
-            raise ValueError("empty frame: the daemon's end of the socket closed")
-        self._parts.append(frame[1:])
-        if frame[:1] == MORE:
-            return False, None
-        data = b"".join(self._parts)
-        self._parts = []
-        return True, pickle.loads(data)  # only ever from our own daemon, over a private socket pair
-
-
-def answer(sock: socket.socket, doc: dict[str, Any]) -> None:
-    """Monitor process → daemon: its one JSON answer at start (``ready`` with addresses, or ``error``)."""
-    sock.send(json.dumps(doc).encode())
-
-
-def read_answer(data: bytes) -> dict[str, Any]:
-    """The monitor process's start answer; ValueError when it is not one."""
-    doc = json.loads(data.decode())
-    if not isinstance(doc, dict) or not ({"ready", "error"} & set(doc)):
-        raise ValueError(f"not a start answer: {data[:80]!r}")
-    return doc
+def messages(sock: socket.socket) -> Iterator[Any]:
+    """The daemon's messages, each put back together from its frames, until the daemon's end closes."""
+    parts: list[bytes] = []
+    while frame := sock.recv(FRAME_BYTES + 64):
+        parts.append(frame[1:])
+        if frame[:1] == END:
+            yield pickle.loads(b"".join(parts))  # only ever from our own daemon, over a private socket pair
+            parts = []
