@@ -139,12 +139,12 @@ class TestSourceHealthAfterSamples:
         observe(h, Sample("c", "current", -20.0, 1.0))
         assert h.reason(1.0) == "out_of_range"
 
-    def test_reasons_list_presence_first(self) -> None:
+    def test_presence_is_judged_before_the_values(self) -> None:
         cfg = SourceConfig("bms", "battery", "can0", (ref("current"), ref("present")), 0.5)
         h = SourceHealth(cfg)
         observe(h, Sample("bms", "present", 0.0, 1.0))
         observe(h, Sample("bms", "current", 1.0, 1.0))
-        assert h.reasons(1.0) == {"present": "not_present", "current": ""}
+        assert h.reason(1.0) == "not_present" and h.reason(1.0, "current") == "not_present"
         assert h.age(1.5) == 0.5 and h.age(1.5, "current") == 0.5
         empty = SourceHealth(SourceConfig("x", "current", "can0", (ref("current"),), 0.5))
         assert empty.age(3.0) == math.inf

@@ -92,12 +92,12 @@ def _joints(max_age_s: float = 0.5) -> SourceHealth:
 
 
 def test_every_role_exactly_max_age_old_is_fresh_and_a_bit_older_is_stale() -> None:
-    """reasons() judges each role on its own: 0.5 s old with max_age 0.5 s is fresh, 0.51 s is stale."""
+    """reason(now, role) judges each role on its own: 0.5 s old with max_age 0.5 s is fresh, 0.51 s is stale."""
     h = _joints()
     observe(h, _sample("j1", 1.0, 1.0))
     observe(h, _sample("j2", 2.0, 1.0))
-    assert h.reasons(1.5) == {"j1": "", "j2": ""}
-    assert h.reasons(1.51) == {"j1": "stale", "j2": "stale"}
+    assert (h.reason(1.5, "j1"), h.reason(1.5, "j2")) == ("", "")
+    assert (h.reason(1.51, "j1"), h.reason(1.51, "j2")) == ("stale", "stale")
 
 
 def test_a_role_refreshed_on_the_fast_path_keeps_its_time_and_value() -> None:
@@ -108,7 +108,7 @@ def test_a_role_refreshed_on_the_fast_path_keeps_its_time_and_value() -> None:
         observe(h, _sample("j2", 10.0 + i, 0.1 * i + 0.01))
     assert h.last_t("j1") == 0.1 * 4 and h.last_t("j2") == 0.1 * 4 + 0.01
     assert h.value("j1") == 4.0 and h.value("j2") == 14.0
-    assert h.reasons(0.45) == {"j1": "", "j2": ""}
+    assert (h.reason(0.45, "j1"), h.reason(0.45, "j2")) == ("", "")
 
 
 def test_counters_count_samples_invalid_and_out_of_order() -> None:

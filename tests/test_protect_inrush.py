@@ -64,7 +64,7 @@ class TestInrushBlanking:
         blank.observe(0.0, 0.0)
         blank.observe(0.0, 1.0)
         assert blank.observe(50.0, 0.5) is False
-        assert blank.window_start is None
+        assert blank.running()[1] is None
 
     @pytest.mark.parametrize(
         ("args", "name"),

@@ -174,7 +174,7 @@ def assert_same_state(model: LatchedModel, ref: Any) -> None:
         over, under = model.timers
         assert close(over, ref.over_since) and close(under, ref.under_since)
         if model.inrush is not None:
-            assert close(model.inrush.window_start, ref.inrush.window_start)
+            assert close(model.inrush.running()[1], ref.inrush.window_start)
             assert model.inrush.starts == ref.inrush.starts
 
 
@@ -239,7 +239,7 @@ def test_inrush_run_matches_per_sample() -> None:
     want = [i for i in range(3000) if ref.observe(float(a[i]), float(t[i]))]
     helper = InrushBlanking(2.0, 0.1, 20.0)
     assert np.flatnonzero(helper.advance(t, a)).tolist() == want
-    assert helper.starts == ref.starts and helper.window_start == ref.window_start
+    assert helper.starts == ref.starts and helper.running()[1] == ref.window_start
 
 
 def health_run(health: SourceHealth, role: str, times: Any, values: Any, until_edge: bool = False,
@@ -342,11 +342,11 @@ def test_source_health_says_its_state_publicly() -> None:
     assert health.value_roles == ("current",) and health.latest_t("current") is None
     run = health_run(health, "current", [0.0, 0.01, 0.02, 0.03], [1.0, 2.0, 99.0, 3.0])
     assert run.index.tolist() == [0, 2, 3] and run.tripped.tolist() == [False, True, False]
-    assert health.latest_t("current") == 0.03 and health.invalid_reason("current") == ""
+    assert health.latest_t("current") == 0.03 and health.reason(0.03, "current") == ""
     assert health.value("current") == 3.0
     assert health.latest_times() == {"current": 0.03}
     health_run(health, "current", [0.04], [math.nan])
-    assert health.invalid_reason("current") == "nan" and health.value("current") == 3.0
+    assert health.reason(0.04, "current") == "nan" and health.value("current") == 3.0
 
 
 def test_heat_after_a_long_run_survives_a_restart() -> None:

@@ -176,4 +176,3 @@ class TestSourceHealth:
         observe(h, s("j2", -2.5, 0.0, source="arm"))
         assert h.reason(0.1) == ""
         assert h.values(0.1) == {"j1": 1.5, "j2": -2.5}
-        assert h.reasons(0.1) == {"j1": "", "j2": ""}

@@ -587,23 +587,15 @@ class TestJobs:
 class TestPlot:
     """--plot draws the currents, thresholds, I²t levels and stops to .png / .svg / .html."""
 
-    def test_recorder_keeps_hooks_set_before_it(self) -> None:
-        """A recorder hung on an engine after another sample / tick hook (an export) lets that one see every
-        sample and tick too, as the export lets a recorder hung before it."""
-        from types import SimpleNamespace
-
-        from canguard.io.frame import Sample
-        from canguard.report.plot import Recorder
-
-        seen: list[object] = []
-        engine = SimpleNamespace(sample_hook=seen.append, tick_hook=seen.append, listen=lambda fn: None,
-                                 ctx=SimpleNamespace(heat_models={}))
-        recorder = Recorder(engine)  # type: ignore[arg-type]
-        sample = Sample("axis0", "current", 3.5, 1.0)
-        engine.sample_hook(sample)
-        engine.tick_hook(1.01)
-        assert seen == [sample, 1.01]
-        assert list(recorder.series[("axis0", "current")][1]) == [3.5]
+    def test_plot_beside_an_export(self, run: Run, data: Data, tmp_path: Path) -> None:
+        """--plot and --export-signals together: the figure is drawn and the export keeps every sample."""
+        pytest.importorskip("matplotlib")
+        pq = pytest.importorskip("pyarrow.parquet")
+        png, table = tmp_path / "x.png", tmp_path / "s.parquet"
+        code, out, err = run(data["spike"], "-c", data["cfg"], "--plot", png, "--export-signals", table, "--json")
+        assert code == 0, err
+        assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+        assert pq.ParquetFile(table).metadata.num_rows == sum(json.loads(out)["samples"].values())
 
     def test_png(self, run: Run, data: Data, tmp_path: Path) -> None:
         """--plot x.png writes a PNG file."""

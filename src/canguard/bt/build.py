@@ -57,12 +57,7 @@ class _Loader(_Validator):
 
     def install_subtree_conditions(self, nodes: list[py_trees.behaviour.Behaviour],
                                    boards: dict[str, TreeBlackboard]) -> None:
-        """Pre/post conditions written on a ``<SubTree>`` element wrap its instance's root node.
-
-        BT.CPP puts them on the SubTree node, whose child is the subtree's root and whose
-        blackboard is the parent's: so they are checked before the root's own and run on the
-        parent's scope.
-        """
+        """Conditions on a ``<SubTree>`` wrap its instance's root, on the parent's scope (BT.CPP's SubTree node)."""
         for ns, scope in self.scopes.items():
             scripts = self.subtree_conditions.get(scope.element) if scope.element is not None else None
             if not scripts:
@@ -73,11 +68,7 @@ class _Loader(_Validator):
                     break
 
     def check_entry_types(self, nodes: list[py_trees.behaviour.Behaviour], infos: dict[Any, NodeInfo]) -> None:
-        """BT.CPP's rule: the first typed port wired to an entry fixes its type; another type later is an error.
-
-        (``xml_parsing.cpp``: unless the first was a string, which converts to anything; ports of any
-        type, :attr:`~canguard.bt.nodes.base.CanguardNode.UNTYPED_PORTS`, neither fix nor check it.)
-        """
+        """BT.CPP's rule: the first typed port wired to an entry fixes its type (a string converts to any)."""
         first: dict[str, tuple[type, str]] = {}
         for node in nodes:  # in tree order, as BT.CPP creates them
             if not isinstance(node, CanguardNode):
@@ -115,7 +106,7 @@ class _Loader(_Validator):
         return f"{text} ({hints})" if hints else text
 
     def finish(self, root: py_trees.behaviour.Behaviour, main_id: str) -> LoadedTree:
-        nodes = list(root.iterate())
+        nodes = list(_preorder(root))  # BT.CPP creates (and types the entries) in this order
         placed: list[tuple[py_trees.behaviour.Behaviour, NodeInfo, str]] = []
         boards = self.scoped_boards(main_id)
         for node in nodes:
@@ -134,8 +125,6 @@ class _Loader(_Validator):
             prefix = [p for p in parts[:-1] if p not in self.infos]
             placed.append((node, info, "/".join([*prefix, info.name])))
         self.install_subtree_conditions(nodes, boards)
-        order = {id(n): i for i, n in enumerate(_preorder(root))}
-        placed.sort(key=lambda t: order[id(t[0])])
         counts: dict[str, int] = {}
         loaded_nodes: dict[Any, NodeInfo] = {}
         for node, info, readable in placed:
@@ -180,9 +169,8 @@ def _namespace(node: py_trees.behaviour.Behaviour | None) -> str:
 
 def _checked(path: str | Path, ctx: Context, main: str | None, palette: Palette | None,
              *, to_run: bool) -> tuple[_Loader, str]:
-    """Steps 1 to 3 over ``path`` (``palette``: node types declared by ``--nodes`` files): the loader and the
-    main tree's ID; a TreeError listing every problem of the file (IDs, ports, declarations, children, cycles),
-    ``to_run``: palette-declared nodes that nothing implements too."""
+    """The checked loader of ``path`` and the main tree's ID; a TreeError listing every problem of the file
+    (``to_run``: palette-declared nodes that nothing implements too)."""
     loader = _Loader(Path(path), ctx)
     if palette is not None:
         loader.palette.nodes.update(palette.nodes)
@@ -197,9 +185,7 @@ def _checked(path: str | Path, ctx: Context, main: str | None, palette: Palette 
 def load_tree(path: str | Path, ctx: Context, main: str | None = None, palette: Palette | None = None) -> LoadedTree:
     """Load, validate and bind the BehaviorTree.CPP XML tree ``main`` of ``path`` for ``ctx``.
 
-    ``main`` defaults to the root's ``main_tree_to_execute``, or to the only tree.
-    ``palette``: node types declared by ``--nodes`` files (besides the file's own
-    ``<TreeNodesModel>``); a declared node must be bound (config action or plug-in) to run.
+    ``main`` defaults to ``main_tree_to_execute``, or the only tree; ``palette``: ``--nodes`` files.
     Every problem is a :class:`~canguard.errors.TreeError` naming file and line.
     """
     loader, main_id = _checked(path, ctx, main, palette, to_run=True)
@@ -212,9 +198,6 @@ def load_tree(path: str | Path, ctx: Context, main: str | None = None, palette: 
 
 def validate_tree(path: str | Path, ctx: Context, main: str | None = None,
                   palette: Palette | None = None) -> tuple[str, list[str]]:
-    """Check a tree file without building it: (main tree ID, why each palette-declared node cannot run yet).
-
-    Every problem of the file is a TreeError; a declared node that nothing implements is not a problem here.
-    """
+    """Check a tree file without building it: (main tree ID, why each palette-declared node cannot run yet)."""
     loader, main_id = _checked(path, ctx, main, palette, to_run=False)
     return main_id, list(loader.unbound)

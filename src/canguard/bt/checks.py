@@ -24,10 +24,8 @@ class TreeReport:
     """``canguard check``'s view of the config's tree."""
 
     loaded: LoadedTree
-    text: str
-    """A summary line and the tree drawing."""
-    warnings: list[str]
-    """Configured sources the tree does not read (they only give stale events), one line each."""
+    text: str  # a summary line and the tree drawing
+    warnings: list[str]  # configured sources the tree does not read
 
 
 def context_for(cfg: Config, clock: Any = None) -> Context:
@@ -50,12 +48,8 @@ def load_config_tree(cfg: Config, ctx: Context | None = None, palette: Palette |
 
 
 def partial_tree_problems(partial: PartialConfig | None) -> list[str]:
-    """The problems of the tree of a config that has problems itself (``ConfigError.partial``).
-
-    The tree is checked without being built: node IDs, ports, values, children, and the
-    guards' sources against the sources that loaded (a source the config declares but got
-    wrong is not reported again). Empty when the config names no readable tree.
-    """
+    """The problems of the tree of a config that has problems itself (``ConfigError.partial``), checked
+    without being built; a source the config declares but got wrong is not reported again."""
     if partial is None or partial.tree is None:
         return []
     from canguard.io.clock import ManualClock
@@ -85,11 +79,7 @@ def check_tree(cfg: Config, palette: Palette | None = None) -> TreeReport:
 
 
 def require_guard_coverage(loaded: LoadedTree) -> None:
-    """TreeError when a guard would not be re-checked while the task runs (see :func:`guard_coverage`).
-
-    Such a tree would keep sending the task's frames through an overcurrent or
-    a dead sensor: the daemon refuses it rather than run it.
-    """
+    """TreeError when a guard would not be re-checked while the task runs (see :func:`guard_coverage`)."""
     problems = guard_coverage(loaded)
     if problems:
         raise TreeError("\n".join(problems))
@@ -104,13 +94,8 @@ def _path_to(node: py_trees.behaviour.Behaviour) -> list[py_trees.behaviour.Beha
 
 
 def guard_coverage(loaded: LoadedTree) -> list[str]:
-    """Warnings for guards that are not re-checked while the task runs.
-
-    Under a composite with memory (BT.CPP's Sequence, SequenceWithMemory,
-    Fallback), a guard placed before the branch holding ExecuteTask is ticked
-    once, then skipped while ExecuteTask stays RUNNING: an overcurrent during the
-    task would never stop it. ReactiveSequence re-checks every tick.
-    """
+    """Guards placed before ExecuteTask's branch under a composite with memory: ticked once, then skipped
+    while the task runs, so an overcurrent during the task would never stop it."""
     from canguard.bt.nodes.actions import ExecuteTask
 
     tasks = [n for n in loaded.root.iterate() if isinstance(n, ExecuteTask)]

@@ -1,9 +1,7 @@
 """BehaviorTree.CPP 4's pre- and post-conditions on any node: ``_failureIf``, ``_successIf``, ``_onSuccess``...
 
-Parsed once at load (a syntax error is a load error with the file and line), run on the
-node's (sub)tree blackboard in BT.CPP's order (``checkPreConditions``, ``executeTick``;
-docs/trees.md, "Pre- and post-conditions"). A script that fails while it runs fails the
-node, fail-safe (BT.CPP throws); one in ``_onHalted`` is only reported.
+Run in BT.CPP's order (``checkPreConditions``, ``executeTick``). A script that fails while it runs
+fails the node, fail-safe (BT.CPP throws); one in ``_onHalted`` is only reported.
 """
 
 from __future__ import annotations
@@ -43,17 +41,6 @@ def take_conditions(attrib: dict[str, str]) -> tuple[dict[str, Script], list[str
     return scripts, problems
 
 
-class _ScriptFailed(Exception):
-    """A pre-condition script failed while it ran: the node fails (BT.CPP throws out of the tick)."""
-
-
-def _holds(node: py_trees.behaviour.Behaviour, script: Script, board: TreeBlackboard, attr: str) -> bool:
-    try:
-        return bool(run_script(node, attr, script, board, condition=True))
-    except ScriptError:
-        raise _ScriptFailed from None
-
-
 def _run(node: py_trees.behaviour.Behaviour, script: Script | None, board: TreeBlackboard, attr: str) -> bool:
     """Run a post-condition script; False when it failed (its error noted on the node)."""
     if script is None:
@@ -70,17 +57,16 @@ def _precondition(node: py_trees.behaviour.Behaviour, scripts: Mapping[str, Scri
     if node.status != RUNNING:
         for attr, status in (("_failureIf", FAILURE), ("_successIf", SUCCESS), ("_skipIf", SKIPPED)):
             script = scripts.get(attr)
-            if script is not None and _holds(node, script, board, attr):
+            if script is not None and run_script(node, attr, script, board, condition=True):
                 return status
     script = scripts.get("_while")
-    if script is not None and not _holds(node, script, board, "_while"):
+    if script is not None and not run_script(node, "_while", script, board, condition=True):
         return SKIPPED  # while running: halted below (mark_skipped stops it: _onHalted runs)
     return None
 
 
 def install(node: py_trees.behaviour.Behaviour, scripts: Mapping[str, Script], board: TreeBlackboard) -> None:
-    """Wrap ``node``'s tick and stop with its conditions, run on ``board`` (instance attributes: the class
-    is untouched)."""
+    """Wrap ``node``'s tick and stop (instance attributes) with its conditions, run on ``board``."""
     if not scripts:
         return
     tick, stop = node.tick, node.stop
@@ -88,7 +74,7 @@ def install(node: py_trees.behaviour.Behaviour, scripts: Mapping[str, Script], b
     def tick_with_conditions() -> Iterator[py_trees.behaviour.Behaviour]:
         try:
             substituted = _precondition(node, scripts, board)
-        except _ScriptFailed:  # fail-safe: the node fails (halted first if it was running)
+        except ScriptError:  # fail-safe: the node fails (halted first if it was running)
             if node.status == RUNNING:
                 stop_with_conditions(INVALID)
             stop(FAILURE)

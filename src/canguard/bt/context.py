@@ -1,8 +1,4 @@
-"""The context one tree runs in: clock, sources, protection models, frame sink, events.
-
-The engine builds one :class:`Context` per loaded tree and the registry hands it to every
-node, so nodes never reach for globals, clocks or buses themselves.
-"""
+"""The context one tree runs in (clock, sources, models, frame sink, events): nodes reach for nothing else."""
 
 from __future__ import annotations
 
@@ -69,10 +65,8 @@ class NullTaskGate:
 
 EventCallback = Callable[[dict[str, Any]], None]
 
-_DRIVE_EVENT_ROLES = frozenset({"nmt", "emcy"})
-"""A CANopen drive's roles whose samples are journalled (``nmt`` on a change, ``emcy`` each)."""
-NMT_STATES = {0x00: "boot_up", 0x04: "stopped", 0x05: "operational", 0x7F: "pre_operational"}
-"""The NMT states a heartbeat carries (CiA 301), by value."""
+_DRIVE_EVENT_ROLES = frozenset({"nmt", "emcy"})  # journalled: nmt on a change, emcy each
+NMT_STATES = {0x00: "boot_up", 0x04: "stopped", 0x05: "operational", 0x7F: "pre_operational"}  # CiA 301
 
 
 class Context:
@@ -96,14 +90,10 @@ class Context:
         self.on_event = on_event
         self.health: dict[str, SourceHealth] = {name: SourceHealth(cfg) for name, cfg in self.sources.items()}
         self._subscribers: dict[tuple[str, str], list[ProtectionModel]] = {}
-        self.read_sources: set[str] = set()
-        """Sources some node of the tree reads (the others only yield ``stale`` events)."""
-        self.tree_start: float | None = None
-        """Time of the tree's first tick, set by the engine."""
-        self.heat_models: dict[str, ProtectionModel] = {}
-        """I²t models by guard node name: their heat is saved to and restored from the state file."""
+        self.read_sources: set[str] = set()  # sources some node reads (the others only give stale events)
+        self.tree_start: float | None = None  # time of the tree's first tick
+        self.heat_models: dict[str, ProtectionModel] = {}  # I²t models by guard name (the state file)
         self.stop_frames: tuple[FrameSpec, ...] = tuple(stop_frames)
-        """The config's stop frames (``stop.frames``), sent by the EmitStop node."""
 
     def now(self) -> float:
         """The engine's time (seconds, the frames' time base)."""

@@ -1,11 +1,4 @@
-"""``canguard tree FILE.xml --tick N``: a tree ticked on its own, no config, on a manual clock.
-
-How an engineer checks a tree before it guards a robot: load it (every problem with
-its line), tick it N times ``dt`` apart, and read the root status after each tick
-and the root blackboard afterwards. ExecuteTask and stop nodes act on a recording
-task gate (:class:`~canguard.bt.context.NullTaskGate`); nodes that need a configured source
-say so (use ``-c CONFIG`` for those).
-"""
+"""``canguard tree FILE.xml --tick N``: a tree ticked on its own, no config, on a manual clock."""
 
 from __future__ import annotations
 
@@ -64,12 +57,8 @@ def dry_run(
     *,
     exactly_once: bool = False,
 ) -> dict[str, Any]:
-    """Load ``path`` and tick it ``ticks`` times ``dt`` seconds apart (clock from 0); ``palette``: ``--nodes``.
-
-    Each tick is BT.CPP's ``tickOnce()`` (the root re-ticked while a wake-up is pending), or
-    ``tickExactlyOnce()`` with ``exactly_once``. A script that fails while it runs fails its
-    node (or counts as false), as in the daemon; stderr names the node and the script.
-    """
+    """Load ``path`` and tick it ``ticks`` times ``dt`` s apart (clock from 0): each tick's root status and the
+    root blackboard. Each tick is ``tickOnce()`` (``tickExactlyOnce()`` with ``exactly_once``)."""
     Blackboard.storage.clear()
     Blackboard.metadata.clear()
     Blackboard.clients.clear()

@@ -20,14 +20,11 @@ from canguard.units import I2T_LIMIT_PCT
 class NodeInfo:
     """Where a node of a loaded tree comes from."""
 
-    node_id: str
-    """Its node type (``IsCurrentSafe``, ``PerformRecovery``...)."""
-    name: str
-    """Its readable, unique name (as in events and ``canguard tree``)."""
+    node_id: str  # its node type
+    name: str  # its readable, unique name (events, canguard tree)
     file: Path
     line: int
-    tree: str
-    """The ``<BehaviorTree ID>`` it is written in."""
+    tree: str  # the <BehaviorTree ID> it is written in
 
     @property
     def where(self) -> str:
@@ -42,16 +39,12 @@ GuardKind = Literal["threshold", "i2t"]
 class GuardView:
     """One guarded signal of a loaded tree, for reports, plots and the demo."""
 
-    node: str
-    """The guard node's readable name."""
+    node: str  # the guard node's readable name
     source: str
-    role: str
-    """The signal's role in the source (``current``, or a joint name)."""
+    role: str  # the signal's role in the source (current, or a joint name)
     kind: GuardKind
-    """``threshold`` (IsCurrentNormal, IsCurrentSafe, IsJointEffortNormal) or ``i2t`` (IsI2tSafe)."""
     model: ProtectionModel
-    unit: str = ""
-    """The signal's unit as the DBC gives it (``A``, ``Nm``; empty when it gives none)."""
+    unit: str = ""  # the signal's unit as the DBC gives it
 
     @property
     def threshold_unit(self) -> str:
@@ -81,14 +74,10 @@ class LoadedTree:
     main_id: str
     path: Path
     context: Context
-    format_version: int
-    """4 with ``BTCPP_format="4"``, else 3."""
-    tree_ids: tuple[str, ...]
-    """Every ``<BehaviorTree ID>`` of the document (includes inlined)."""
-    nodes: dict[Any, NodeInfo] = field(default_factory=dict)
-    """NodeInfo by behaviour id (``node.id``)."""
+    format_version: int  # 4 with BTCPP_format="4", else 3
+    tree_ids: tuple[str, ...]  # every <BehaviorTree ID>, includes inlined
+    nodes: dict[Any, NodeInfo] = field(default_factory=dict)  # by node.id
     wake_up: WakeUpSignal = field(default_factory=WakeUpSignal)
-    """The wake-up signal every node of the tree shares (see :mod:`canguard.bt.wakeup`)."""
 
     def tick(self) -> py_trees.common.Status:
         """Tick the root exactly once, BT.CPP's ``tickExactlyOnce()`` (sets ``ctx.tree_start`` at the first tick)."""

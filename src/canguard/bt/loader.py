@@ -1,13 +1,8 @@
-"""BehaviorTree.CPP XML trees on py_trees: registry, loader, validation and display tools.
+"""BehaviorTree.CPP XML trees on py_trees: the one place callers import the loader and its tools from.
 
-:func:`load_tree` reads the file with every element's file and line and inlines its includes,
-rewrites BT.CPP v3 spellings to v4 (:mod:`.xmlread`; docs/trees.md, "XML dialects"), validates
-every node against the registry (:mod:`.validate`, :mod:`.registry`), then lets py_trees' parser
-build the tree and binds every node (:mod:`.build`). Nodes reach py_trees' parser under placeholder
-names (it prefixes children's names with their parent's and names unnamed nodes by uuid) and get
-their readable names back after it. Every problem is a :class:`~canguard.errors.TreeError` naming
-file, line, node and port. :mod:`.loaded` holds the loaded tree, :mod:`.checks` the tree against its
-config, :mod:`.display` the renderings. This module is the one place callers import from.
+:mod:`.xmlread` reads (lines, includes, v3 spellings), :mod:`.validate` checks every node against
+the registry, :mod:`.build` lets py_trees' parser build the tree under placeholder names and binds
+it; :mod:`.loaded` holds the result, :mod:`.checks` checks it against its config.
 """
 
 from __future__ import annotations

@@ -1,9 +1,7 @@
 """Groot2 / BehaviorTree.CPP palettes: ``<TreeNodesModel>`` declarations of node types canguard does not implement.
 
-A palette (in the tree file, or ``--nodes FILE``; Nav2's ``nav2_tree_nodes.xml``) is what Groot2 and
-BT.CPP's ``writeTreeNodesModelXML`` write. Tree nodes are checked against their declaration (ports,
-``required="true"``, children); a declared node runs only once bound to a config action or a plug-in
-(docs/trees.md, "Palettes").
+Tree nodes are checked against their declaration; a declared node runs only once bound to a config
+action or a plug-in (docs/trees.md, "Palettes").
 """
 
 from __future__ import annotations
@@ -18,10 +16,7 @@ from canguard.bt.xmlsrc import Where, _read_xml
 from canguard.errors import TreeError, quote
 
 KINDS = ("Action", "Condition", "Decorator", "Control", "SubTree")
-"""The node kinds a ``<TreeNodesModel>`` may declare (BT.CPP's ``toStr(NodeType)``)."""
-
 DIRECTIONS = {"input_port": "input", "output_port": "output", "inout_port": "inout", "bidirectional_port": "inout"}
-"""Port elements and their direction (``bidirectional_port``: Groot2's and Nav2's name for inout)."""
 
 
 @dataclass(frozen=True)
@@ -29,15 +24,12 @@ class PalettePort:
     """One declared port."""
 
     name: str
-    direction: str
-    """input, output or inout."""
+    direction: str  # input, output or inout
     default: str | None
     type: str
     description: str
     required: bool = False
-    """BT.CPP's palettes have no notion of a required port (a port without ``default`` may
-    still be optional: Nav2's are); ``required="true"`` on the port element (a canguard
-    extension) makes leaving it out an error."""
+    """``required="true"``, a canguard extension: BT.CPP's palettes have no required ports."""
 
 
 @dataclass(frozen=True)

@@ -33,13 +33,12 @@ _PORT_ALIASES: dict[str, dict[str, str]] = {
     },
 }
 _SUBTREE = "SubTree"
-_TOKEN = "@"
-"""Placeholder node names handed to py_trees are ``@<n>``."""
+_TOKEN = "@"  # placeholder node names handed to py_trees are @<n>
 
 
 def plugin_entry_points() -> dict[str, EntryPoint]:
-    """The ``canguard.nodes`` entry points by node ID (not loaded); without a distribution whose
-    ``entry_points.txt`` names the group (its section header does), none are parsed (~0.7 ms, not ~1.8)."""
+    """The ``canguard.nodes`` entry points by node ID (not loaded); none parsed unless a distribution names
+    the group (a cheaper scan)."""
     if not any(ENTRY_POINT_GROUP in (dist.read_text("entry_points.txt") or "") for dist in distributions()):
         return {}
     return {ep.name: ep for ep in entry_points(group=ENTRY_POINT_GROUP)}
@@ -70,11 +69,8 @@ def _takes_context(cls: type) -> bool:
 def build_registry(ctx: Context, only: Collection[str] | None = None) -> Registry:
     """The closed table of node types for one tree: ``{node ID: partial(cls, context=ctx, ...)}``.
 
-    Built-in node types, one :class:`~canguard.bt.nodes.actions.ConfiguredAction` per
-    ``ctx.actions`` entry, and the ``canguard.nodes`` entry points. Built-in and plug-in
-    node types are imported lazily: only those named in ``only`` (all when None). A config
-    action named like a built-in node is a TreeError; a plug-in named like a built-in or
-    an action is ignored (built-ins and the config win).
+    Built-ins, one ConfiguredAction per ``ctx.actions`` entry, and the plug-ins, only those in ``only``
+    (all when None). An action named like a built-in is a TreeError; a plug-in named like either is ignored.
     """
     registry: Registry = {
         node_id: functools.partial(BUILTIN_NODES[node_id], context=ctx)

@@ -1,8 +1,6 @@
-"""The blackboard scope of each SubTree instance: BT.CPP's remapping entries, for scripts and SetBlackboard.
+"""The blackboard scope of each SubTree instance, as py_trees' parser remaps ports, for scripts and SetBlackboard.
 
-py_trees' parser gives each SubTree instance a namespace and remaps the ports inside; a
-:class:`Scope` gives scripts, pre/post conditions and Set/UnsetBlackboard the same view: a
-remapped name is the parent's entry, a literal on the element a typed entry of the instance,
+A remapped name is the parent's entry, a literal on the element a typed entry of the instance,
 ``@key`` the root's (docs/trees.md, "The blackboard").
 """
 
@@ -50,12 +48,9 @@ def subtree_ports(elem: ET.Element) -> tuple[dict[str, str], dict[str, str]]:
 class Inline:
     """An inlined ``_autoremap`` subtree instance: where its ``_`` entries live, and its element's ports."""
 
-    private: str
-    """The path (under the parent's namespace) of its ``_private`` entries and its literal ports."""
-    remaps: Mapping[str, str]
-    """Port -> the parent's entry name it remaps to (``out="{result}"``)."""
-    literals: Mapping[str, str]
-    """Port -> the literal text given on the element (``q="7;8"``): a typed entry of the instance."""
+    private: str  # the path of its _private entries and literal ports, under the parent's namespace
+    remaps: Mapping[str, str]  # port -> the parent's entry name
+    literals: Mapping[str, str]  # port -> the literal text on the element
 
 
 @dataclass
@@ -63,21 +58,14 @@ class Scope:
     """The names of one SubTree instance's blackboard (``namespace``: py_trees' namespace of it)."""
 
     namespace: str
-    aliases: dict[str, str] = field(default_factory=dict)
-    """Local name -> the storage key of the parent's entry it remaps to."""
-    literals: dict[str, int | float | str] = field(default_factory=dict)
-    """Local entries created from literal values on the SubTree element (storage key -> value)."""
-    parent: str = ""
-    """The namespace of the tree the SubTree element is written in ("" for the main tree's scope)."""
-    element: ET.Element | None = None
-    """The ``<SubTree>`` element (None for the main tree's scope)."""
-    private: str = ""
-    """In an inlined ``_autoremap`` subtree: the path its ``_`` entries live under (BT.CPP keeps them in the
-    subtree; see :mod:`canguard.bt.xmlread`)."""
+    aliases: dict[str, str] = field(default_factory=dict)  # local name -> the parent's storage key
+    literals: dict[str, int | float | str] = field(default_factory=dict)  # storage key -> literal value
+    parent: str = ""  # the namespace the SubTree element is written in ("" for the main tree)
+    element: ET.Element | None = None  # the <SubTree> element (None for the main tree)
+    private: str = ""  # in an inlined _autoremap subtree: the path its _ entries live under
 
     def inlined(self, inline: Inline) -> Scope:
-        """This scope as seen from inside an inlined ``_autoremap`` subtree: its remapped ports are aliases of
-        the parent's entries, its literal ports and ``_`` entries its own."""
+        """This scope as seen from inside an inlined ``_autoremap`` subtree."""
         own = self.namespace + inline.private + "/"
         aliases = dict(self.aliases)
         aliases.update({port: self.key(name) for port, name in inline.remaps.items()})
@@ -98,11 +86,7 @@ class Scope:
 
 
 def subtree_scopes(trees: Mapping[str, ET.Element], main_id: str) -> dict[str, Scope]:
-    """Every SubTree instance's scope under the tree ``main_id``, by namespace (``/`` is the main tree's).
-
-    ``trees``: the validated ``<BehaviorTree>`` elements by ID, every SubTree element named
-    (the validator gives each a unique ``name``, which py_trees uses for its namespace).
-    """
+    """Every SubTree instance's scope under the validated tree ``main_id``, by namespace (``/``: the main's)."""
     root = Scope("/")
     scopes = {"/": root}
 
@@ -126,17 +110,12 @@ def subtree_scopes(trees: Mapping[str, ET.Element], main_id: str) -> dict[str, S
 
 
 class TreeBlackboard:
-    """The scripting language's view of py_trees' blackboard, inside one (sub)tree's scope.
-
-    A name is the scope's entry (its namespace), or, when the SubTree element remaps it
-    (``input="{x}"``), the parent's entry it aliases; ``@name`` is the root's.
-    """
+    """The scripting language's view of py_trees' blackboard, inside one (sub)tree's :class:`Scope`."""
 
     def __init__(self, namespace: str, scope: Scope | None = None, declared: Mapping[str, type] | None = None) -> None:
         self.namespace = namespace if namespace.endswith("/") else namespace + "/"
         self.scope = scope if scope is not None else Scope(self.namespace)
-        self.declared: Mapping[str, type] = declared if declared is not None else {}
-        """Entries a typed port fixed the type of, by storage key (BT.CPP creates them at load)."""
+        self.declared: Mapping[str, type] = declared if declared is not None else {}  # typed ports' entries
 
     def has(self, key: str) -> bool:
         full = self.scope.key(key)

@@ -21,8 +21,7 @@ from canguard.bt.registry import _SUBTREE, _TOKEN, children_problem, known_node_
 from canguard.bt.xmlread import _closest, _Reader, _type_name
 from canguard.errors import TreeError, closest, quote
 
-NEAR_NODE_IDS = 5
-"""An unknown node ID is answered with at most this many known ones, the closest (not all ~60)."""
+NEAR_NODE_IDS = 5  # an unknown node ID is answered with this many known ones, the closest
 LIST_NODE_IDS = "`canguard tree --nodes-model FILE` writes every one with its ports"
 
 
@@ -30,10 +29,7 @@ class _Validator(_Reader):
     """Step 3: every node, port, SubTree and cycle checked; every problem collected."""
 
     def check(self, main: str | None) -> str:
-        """Steps 1 to 3: read, rewrite, choose the main tree, validate every node; the main tree's ID.
-
-        Problems are collected in ``errors``; a file that cannot be read or parsed raises at once.
-        """
+        """Read, rewrite, choose the main tree, validate: its ID; problems go to ``errors`` (unreadable: raise)."""
         self.read()
         self.rewrite()
         try:
@@ -48,8 +44,7 @@ class _Validator(_Reader):
     def validate(self) -> None:
         """Check every node of every tree, collecting every problem (see :meth:`raise_collected`)."""
         counter = 0
-        pending: list[tuple[int, str]] = []
-        """Unknown sources, with their place in ``errors``: reported only with other problems."""
+        pending: list[tuple[int, str]] = []  # unknown sources, with their place in errors
         for tree_id, bt in self.trees.items():
             if tree_id in self.broken_trees:
                 continue

@@ -1,9 +1,6 @@
 """BehaviorTree.CPP's wake-up signal, and ``tickOnce()``: the root re-ticked while a wake-up is pending.
 
-One latch per tree, shared by its nodes (BT.CPP's ``Tree::initialize``): a node emits it, the
-re-tick loop of ``tickOnce()`` consumes it while the root is RUNNING. Unlike BT.CPP the re-ticks
-of one tick are bounded (:data:`MAX_RETICKS`), the first capped tick of a run journalled
-(docs/trees.md, "Ticks").
+Unlike BT.CPP the re-ticks of one tick are bounded (:data:`MAX_RETICKS`; docs/trees.md, "Ticks").
 """
 
 from __future__ import annotations
@@ -17,23 +14,17 @@ if TYPE_CHECKING:
 
     from canguard.bt.context import Context
 
-MAX_RETICKS = 100
-"""Re-ticks of the root allowed in one tick (after the first); the rest wait for the next tick."""
+MAX_RETICKS = 100  # re-ticks of the root in one tick; the rest wait for the next tick
 
 
 class WakeUpSignal:
-    """The latch a tree's nodes share: ``emit()`` sets it, ``consume()`` reads and clears it.
-
-    Timers (``arm(owner, deadline)``) emit it once the clock reaches their deadline:
-    :func:`tick_once` fires the due ones before it ticks, as BT.CPP's timer thread
-    would have between two ticks. ``cancel(owner)`` drops a timer (halt, completion).
-    """
+    """The latch a tree's nodes share, and their timers, which :func:`tick_once` fires before it ticks (as
+    BT.CPP's timer thread would have between two ticks)."""
 
     def __init__(self) -> None:
         self.pending = False
         self._timers: dict[int, float] = {}
-        self.capped = False
-        """True while consecutive ticks hit the re-tick bound (the first of a run is journalled)."""
+        self.capped = False  # consecutive ticks hit the bound: only the first is journalled
 
     def emit(self) -> None:
         """Set the latch (BT.CPP's ``emitWakeUpSignal``)."""
@@ -74,16 +65,11 @@ class _Tree(Protocol):
 class Ticked:
     """What one :func:`tick_once` did."""
 
-    status: py_trees.common.Status
-    """The root's status after the last tick (INVALID when it was SKIPPED: see ``skipped``)."""
+    status: py_trees.common.Status  # the root's, after the last tick (INVALID when SKIPPED)
     skipped: bool
-    """The root returned BT.CPP's SKIPPED."""
-    reticks: int
-    """How many times the root was ticked again for a pending wake-up."""
-    capped: bool
-    """The re-ticks stopped at the bound with a wake-up still pending."""
-    reached: frozenset[py_trees.behaviour.Behaviour] | None
-    """With ``collect=True``: every node any of the ticks reached; else None."""
+    reticks: int  # how many times the root was ticked again for a wake-up
+    capped: bool  # the re-ticks stopped at the bound with a wake-up pending
+    reached: frozenset[py_trees.behaviour.Behaviour] | None  # collect=True: every node the ticks reached
 
 
 def _tick_root(root: py_trees.behaviour.Behaviour, reached: set | None) -> None:
@@ -99,12 +85,8 @@ def _tick_root(root: py_trees.behaviour.Behaviour, reached: set | None) -> None:
 def tick_once(
     tree: _Tree, max_reticks: int = MAX_RETICKS, *, exactly_once: bool = False, collect: bool = False
 ) -> Ticked:
-    """BT.CPP's ``tickOnce()``: tick the root, and again while it is RUNNING with a wake-up pending.
-
-    ``exactly_once``: BT.CPP's ``tickExactlyOnce()`` (one tick; a pending wake-up stays
-    pending). ``max_reticks`` bounds the re-ticks; hitting it is journalled (an ``error``
-    event naming the root) at the first tick of a run of capped ticks.
-    """
+    """BT.CPP's ``tickOnce()``: tick the root, and again while it is RUNNING with a wake-up pending (at most
+    ``max_reticks`` times, an ``error`` event at the first capped tick); ``exactly_once``: ``tickExactlyOnce()``."""
     from py_trees.common import Status
 
     signal = tree.wake_up

@@ -41,37 +41,25 @@ class _Reader:
         self.format_version = 3
         self.main_attr: str | None = None
         self.infos: dict[str, NodeInfo] = {}
-        self.conditions: dict[str, dict[str, ParsedScript]] = {}
-        """Pre/post-condition scripts (``_successIf``...) by node token (see :mod:`.conditions`)."""
-        self.subtree_conditions: dict[ET.Element, dict[str, ParsedScript]] = {}
-        """Pre/post-condition scripts on ``<SubTree>`` elements (run on the parent's blackboard)."""
-        self.private: dict[ET.Element, Inline] = {}
-        """Elements of an inlined ``_autoremap`` subtree -> that instance (its ``_private`` entries, its ports)."""
-        self.private_tokens: dict[str, Inline] = {}
-        """The same, by node token (set by the validator)."""
+        self.conditions: dict[str, dict[str, ParsedScript]] = {}  # pre/post conditions by node token
+        self.subtree_conditions: dict[ET.Element, dict[str, ParsedScript]] = {}  # run on the parent's board
+        self.private: dict[ET.Element, Inline] = {}  # elements of an inlined _autoremap subtree -> it
+        self.private_tokens: dict[str, Inline] = {}  # the same, by node token
         self._inlined = 0
         self.registry: Registry = {}
-        self.errors: list[str] = []
-        """Every problem found so far (one load reports them all, not only the first)."""
-        self.broken_trees: set[str] = set()
-        """BehaviorTrees whose rewrite failed: not validated further (no follow-on errors)."""
+        self.errors: list[str] = []  # every problem found so far: one load reports them all
+        self.broken_trees: set[str] = set()  # rewrite failed: not validated further (no follow-on errors)
         self.source_check: Literal["with_others", "always", "never"] = "with_others"
         """When :meth:`validate` checks guards' sources: with other problems (binding checks them
         otherwise), always (a tree checked without binding), or never (the sources are unknown)."""
-        self.unsure_sources: Collection[str] = ()
-        """Source names a config declares but could not build: not reported as unknown (follow-on)."""
+        self.unsure_sources: Collection[str] = ()  # declared by a config that could not build them
         self._palette: Palette | None = None
-        self.unbound: list[str] = []
-        """Palette-declared nodes of the tree that nothing implements: why each cannot run."""
-        self.palette_ports: list[tuple[ET.Element, list[str]]] = []
-        """Attributes checked against a palette that the bound class does not read: dropped before parsing."""
+        self.unbound: list[str] = []  # why each palette-declared node nothing implements cannot run
+        self.palette_ports: list[tuple[ET.Element, list[str]]] = []  # palette-checked, dropped before parsing
 
     @property
     def palette(self) -> Palette:
-        """Node types declared by ``<TreeNodesModel>`` (in the file, or ``--nodes`` files): see :mod:`.palette`.
-
-        Made when a palette is first read: a tree without one never imports :mod:`.palette`.
-        """
+        """Node types declared by ``<TreeNodesModel>`` (file, ``--nodes``); made (and imported) when first read."""
         if self._palette is None:
             from canguard.bt.palette import Palette
 
@@ -82,7 +70,6 @@ class _Reader:
         """The palette's declaration of ``node_id`` (None: not declared, or no palette read)."""
         return None if self._palette is None else self._palette.nodes.get(node_id)
 
-    # -- errors ------------------------------------------------------------------------
     def raise_collected(self) -> None:
         """Raise one TreeError listing every problem collected so far, if there is any."""
         if self.errors:
@@ -104,7 +91,6 @@ class _Reader:
             where += f", port {port}"
         return TreeError(f"{self.at(elem)}: {where}: {msg}")
 
-    # -- step 1: read, includes ---------------------------------------------------------
     def _document(self, path: Path) -> ET.Element:
         """The ``<root>`` element of the file ``path`` (its elements' lines recorded)."""
         root = _read_xml(path, self.where)
@@ -159,7 +145,6 @@ class _Reader:
         seen.add(key)
         self._collect(self._document(target), target, seen)
 
-    # -- step 2: rewrite v3 spellings ---------------------------------------------------
     def rewrite(self) -> None:
         for tree_id, bt in self.trees.items():
             for attr in [a for a in bt.attrib if a.startswith("_")]:
@@ -219,9 +204,8 @@ class _Reader:
         return value is not None and value.strip().lower() in ("true", "1")
 
     def _inline(self, sub: ET.Element, tree_id: str, chain: tuple[str, ...]) -> ET.Element:
-        """The subtree of an autoremapped SubTree, copied in its place on the parent's blackboard (BT.CPP's
-        ``_autoremap="true"``): its ports' remapped keys renamed or given the element's constants (scripts keep
-        their names), the element's conditions on the copy's root, its lines those of the definition."""
+        """The subtree of an ``_autoremap="true"`` SubTree, copied in its place on the parent's blackboard: its
+        ports renamed or given the element's constants, the element's conditions on the copy's root."""
         target = self.target(sub, tree_id)
         if target in chain:
             raise self.error(sub, f"SubTree cycle: {' -> '.join((*chain, target))}", tree_id)
@@ -249,8 +233,7 @@ class _Reader:
         return target
 
     def _copy(self, src: ET.Element, rename: dict[str, str], inline: Inline) -> ET.Element:
-        """A deep copy of ``src`` with its lines, ``{key}`` references renamed by ``rename``, ``{_key}`` ones
-        moved to the copy's own ``private`` scope."""
+        """A deep copy of ``src`` (with its lines), ``{key}``s renamed by ``rename``, ``{_key}``s made private."""
         attrib = {}
         for attr, value in src.attrib.items():
             text = value.strip()
@@ -268,14 +251,12 @@ class _Reader:
             dst.append(self._copy(child, rename, inline))
         return dst
 
-    # -- registry -------------------------------------------------------------------------
     def make_registry(self) -> None:
         used: set[str] = set()
         for bt in self.trees.values():
             used.update(e.tag for e in bt.iter() if e is not bt)
         self.registry = build_registry(self.ctx, only=used)
 
-    # -- step 3: validation ---------------------------------------------------------------
     def choose_main(self, main: str | None) -> str:
         if not self.trees:
             raise TreeError(f"{self.path}: no <BehaviorTree> in the file")

@@ -25,17 +25,9 @@ def _signal(ref: SignalRef) -> str:
 
 
 def _frames(title: str, frames: Iterable[FrameSpec]) -> list[str]:
-    frames = list(frames)
-    if not frames:
-        return [f"  {title}: (none)"]
-    lines = [f"  {title}:"]
-    for f in frames:
-        data = f.data.hex(" ") if f.data else "(empty)"
-        fd = " fd" if f.is_fd else ""
-        lines.append(
-            f"    {f.label:<28} bus {f.bus}  id {_id(f.arbitration_id, f.is_extended_id)}{fd}  data {data}"
-        )
-    return lines
+    lines = [f"    {f.label:<28} bus {f.bus}  id {_id(f.arbitration_id, f.is_extended_id)}{' fd' if f.is_fd else ''}"
+             f"  data {f.data.hex(' ') if f.data else '(empty)'}" for f in frames]
+    return [f"  {title}:", *lines] if lines else [f"  {title}: (none)"]
 
 
 def _dbc_notes(notes: tuple[str, ...], verbose: bool) -> list[str]:
@@ -50,32 +42,20 @@ def _dbc_notes(notes: tuple[str, ...], verbose: bool) -> list[str]:
 
 
 def describe(cfg: Config, verbose: bool = False) -> str:
-    """The text ``canguard check`` prints for a config that loaded without errors.
-
-    ``verbose`` (``check -v``): also what reading each CANopen drive's EDS tolerated, the SDO
-    writes of a drive canguard configures, and what a drive must be told.
-    """
-    lines = [f"config {cfg.path}"]
-    lines.append("dbc:")
+    """The text ``canguard check`` prints for a config that loaded without errors (``verbose``: ``check -v``, also
+    what each CANopen drive's EDS tolerated, the SDO writes canguard makes and what a drive must be told)."""
     n_messages = len(cfg.database.messages) if cfg.database is not None else 0
-    lines += [f"  {p}" for p in cfg.dbc_files]
-    lines.append(f"  ({n_messages} messages)")
-    lines += _dbc_notes(cfg.dbc_notes, verbose)
-
-    lines.append("buses:")
+    lines = [f"config {cfg.path}", "dbc:", *(f"  {p}" for p in cfg.dbc_files), f"  ({n_messages} messages)",
+             *_dbc_notes(cfg.dbc_notes, verbose), "buses:"]
     for name, bus in cfg.buses.items():
-        extra = {k: v for k, v in bus.kwargs.items() if k not in ("interface", "channel")}
-        more = "".join(f", {k}={v!r}" for k, v in extra.items())
+        more = "".join(f", {k}={v!r}" for k, v in bus.kwargs.items() if k not in ("interface", "channel"))
         lines.append(f"  {name}: interface {bus.interface}, channel {bus.channel}{more}")
-
     if cfg.canopen:
         lines.append("canopen:")
         for drive in cfg.canopen.values():
             lines += [f"  {line}" for line in drive.describe(verbose)]
 
-    lines.append("sources:")
-    if not cfg.sources:
-        lines.append("  (none)")
+    lines += ["sources:", *([] if cfg.sources else ["  (none)"])]
     for name, src in cfg.sources.items():
         lines.append(f"  {name} ({src.kind}, bus {src.bus}, max_age {src.max_age_s:g} s)")
         by_message: dict[tuple[str, str], list[SignalRef]] = {}
@@ -89,29 +69,20 @@ def describe(cfg: Config, verbose: bool = False) -> str:
         if src.kind == "battery" and src.signal("present") is None:
             lines.append("       present = (a valid frame arrived)")
 
-    if cfg.tree is not None:
-        lines.append(
-            f"tree: {cfg.tree.file} main {cfg.tree.main or '(main_tree_to_execute)'}, {cfg.tree.tick_hz:g} Hz"
-        )
-    else:
-        lines.append("tree: (none)")
-    lines.append(f"task: every {cfg.task.period_s:g} s")
-    lines += _frames("frames", cfg.task.frames)
-    lines.append(f"stop: repeat every {cfg.stop.repeat_s:g} s")
-    lines += _frames("frames", cfg.stop.frames)
+    tree = cfg.tree
+    lines.append(f"tree: {tree.file} main {tree.main or '(main_tree_to_execute)'}, {tree.tick_hz:g} Hz"
+                 if tree is not None else "tree: (none)")
+    lines += [f"task: every {cfg.task.period_s:g} s", *_frames("frames", cfg.task.frames),
+              f"stop: repeat every {cfg.stop.repeat_s:g} s", *_frames("frames", cfg.stop.frames)]
     c = cfg.stop.confirm
     if c is not None:
         lines.append(f"  confirm: {c.source}.{c.signal} {c.op} {c.value:g} within {c.deadline_s:g} s")
     if c is not None or cfg.stop.escalate:
         lines += _frames("escalate", cfg.stop.escalate)
-    lines.append("actions:")
-    if not cfg.actions:
-        lines.append("  (none)")
+    lines += ["actions:", *([] if cfg.actions else ["  (none)"])]
     for name, action in cfg.actions.items():
         lines += _frames(name, action.frames)
-    lines.append(f"events: {cfg.events or '(none)'}")
     st = cfg.state
-    lines.append(
-        f"state: {st.file or '(not kept)'}, on_corrupt {st.on_corrupt}, saved every {st.save_period_s:g} s"
-    )
+    lines += [f"events: {cfg.events or '(none)'}",
+              f"state: {st.file or '(not kept)'}, on_corrupt {st.on_corrupt}, saved every {st.save_period_s:g} s"]
     return "\n".join(lines)

@@ -165,6 +165,24 @@ def one_blas_thread() -> None:
         os.environ.setdefault(name, "1")
 
 
+class TappedSink:
+    """A daemon's frame sink whose sends are shown to ``tap`` first (``--emit``'s recorder, the demo's stopwatch)."""
+
+    def __init__(self, inner: Any, tap: Callable[[Any, str], None]) -> None:
+        self.inner = inner
+        self.tap = tap
+
+    @property
+    def sent(self) -> int:
+        """Frames the inner sink put on the bus."""
+        return int(self.inner.sent)
+
+    def send(self, frames: Any, origin: str) -> None:
+        """Show the frames to the tap, then send them."""
+        self.tap(frames, origin)
+        self.inner.send(frames, origin)
+
+
 def add_monitor_options(p: argparse.ArgumentParser) -> None:
     """``--http HOST:PORT`` and ``--groot2 PORT``: the live monitors (``monitor:`` in the config)."""
     p.add_argument("--http", metavar="HOST:PORT",

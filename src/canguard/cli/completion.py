@@ -16,12 +16,10 @@ _SHELLS = ("bash", "zsh")
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """Register ``canguard completion``."""
-    p = subcommand(
-        sub, "completion", cmd_completion,
-        description="Print a completion script for subcommands and options. bash: "
-                    "`source <(canguard completion bash)` or save it to "
-                    "/etc/bash_completion.d/canguard; zsh: `source <(canguard completion zsh)` in ~/.zshrc.",
-    )
+    p = subcommand(sub, "completion", cmd_completion,
+                   description="Print a completion script for subcommands and options. bash: `source <(canguard "
+                               "completion bash)` or save it to /etc/bash_completion.d/canguard; zsh: `source "
+                               "<(canguard completion zsh)` in ~/.zshrc.")
     p.add_argument("shell", choices=_SHELLS)
 
 

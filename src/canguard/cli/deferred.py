@@ -20,12 +20,8 @@ log reader and py_trees' demos and programs are other tools' parts)."""
 
 
 def defer(name: str) -> bool:
-    """Load the submodule ``name`` (``package.module``) only when one of its attributes is first read.
-
-    True when deferred; False (nothing changed) when its package is imported already, or
-    is not installed, or keeps the module somewhere other than ``package/module.py`` or
-    ``package/module/__init__.py``.
-    """
+    """Load the submodule ``name`` (``package.module``) only when one of its attributes is first read; True when
+    deferred, False (nothing changed) when its package is imported already, missing, or keeps it elsewhere."""
     package, _, leaf = name.rpartition(".")
     if not package or package in sys.modules or name in sys.modules:
         return False

@@ -17,7 +17,7 @@ import time
 from pathlib import Path
 from typing import Any, TextIO
 
-from canguard.cli.common import add_monitor_options, subcommand
+from canguard.cli.common import TappedSink, add_monitor_options, subcommand
 from canguard.config.schema import BusConfig, Config
 from canguard.data import data_path
 from canguard.errors import ConfigError
@@ -32,11 +32,10 @@ DEMO_SCENARIOS = ("normal", "spike@4", "overload@9", "dropout@18", "garbage@24",
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """Register ``canguard demo``."""
-    p = subcommand(
-        sub, "demo", cmd_demo,
-        description="Run the simulated robot and the daemon together on a private virtual bus with the bundled "
-                    "config; walk through the scenarios; print what tripped, when, and how fast the stop went out.",
-    )
+    p = subcommand(sub, "demo", cmd_demo,
+                   description="Run the simulated robot and the daemon together on a private virtual bus with the "
+                               "bundled config; walk through the scenarios; print what tripped, when, and how fast "
+                               "the stop went out.")
     p.add_argument("-c", "--config", type=Path, default=None,
                    help="YAML config (default: the bundled config/examples/robot_guard.yaml: the whole robot guarded)")
     p.add_argument("--duration", type=float, default=36.0, metavar="S", help="seconds to run (default 36)")
@@ -54,23 +53,6 @@ def demo_config(cfg: Config, events: Path) -> Config:
     return dataclasses.replace(cfg, buses=buses, events=events, state=state)
 
 
-class _TimedSink:
-    """Wraps the daemon's sink: remembers the wall time the first stop frame of each stop went out."""
-
-    def __init__(self, inner: Any) -> None:
-        self.inner = inner
-        self.stop_sent_wall: list[float] = []
-        self._in_stop = False
-
-    def send(self, frames: Any, origin: str) -> None:
-        if origin == "stop" and not self._in_stop:
-            self.stop_sent_wall.append(time.time())
-            self._in_stop = True
-        elif origin == "task":
-            self._in_stop = False
-        self.inner.send(frames, origin)
-
-
 class LiveView:
     """Per source: value, threshold, I²t level, state; trips; frames/s. Redrawn on a terminal."""
 
@@ -83,36 +65,33 @@ class LiveView:
         self._last = self.t0
 
     def event(self, ev: dict[str, Any]) -> None:
+        """One line per event, when not drawing."""
         if self.tty:
             return
-        t = time.monotonic() - self.t0
         unit = trip_unit(self.daemon.engine, ev)
         fields = " ".join(f"{k}={_fmt(ev[k], unit if k in ('value', 'threshold') else None)}"
                           for k in ("node", "source", "value", "threshold", "reason") if ev.get(k) not in (None, ""))
-        print(f"[{t:6.2f} s] {ev.get('event')}: {fields}", file=self.out, flush=True)
+        print(f"[{time.monotonic() - self.t0:6.2f} s] {ev.get('event')}: {fields}", file=self.out, flush=True)
 
     def draw(self) -> None:
+        """Redraw the view, on a terminal."""
         if not self.tty:
             return
         engine = self.daemon.engine
         now = engine.clock.now()
         mono = time.monotonic()
-        frames = engine.stats.frames
-        fps = (frames - self._frames) / max(1e-3, mono - self._last)
-        self._frames, self._last = frames, mono
+        fps = (engine.stats.frames - self._frames) / max(1e-3, mono - self._last)
+        self._frames, self._last = engine.stats.frames, mono
         lines = [f"canguard demo  t={mono - self.t0:5.1f} s  task: {engine.gate.state:8s}  "
-                 f"trips: {engine.stats.trip_count}  stops: {engine.gate.stops}  {fps:7.0f} frames/s", ""]
-        lines.append(f"{'guard':28s} {'source':20s} {'value':>10s} {'threshold':>12s} {'level':>8s}  state")
+                 f"trips: {engine.stats.trip_count}  stops: {engine.gate.stops}  {fps:7.0f} frames/s", "",
+                 f"{'guard':28s} {'source':20s} {'value':>10s} {'threshold':>12s} {'level':>8s}  state"]
         for g in engine.guards():
             health = engine.ctx.health[g.source]
-            reason = health.reason(now, g.role)
-            value = health.value(g.role)
             snap = g.snapshot()
-            state = reason or ("TRIPPED" if snap.tripped else "ok")
-            thr = g.threshold()
+            state = health.reason(now, g.role) or ("TRIPPED" if snap.tripped else "ok")
             where = g.source if g.role == "current" else f"{g.source}:{g.role}"
-            lines.append(f"{g.node[:28]:28s} {where[:20]:20s} {_fmt(value, g.unit):>10s} "
-                         f"{_fmt(thr if math.isfinite(thr) else math.nan, g.threshold_unit):>12s} "
+            lines.append(f"{g.node[:28]:28s} {where[:20]:20s} {_fmt(health.value(g.role), g.unit):>10s} "
+                         f"{_fmt(g.threshold() if math.isfinite(g.threshold()) else math.nan, g.threshold_unit):>12s} "
                          f"{_fmt(snap.level_pct, '%'):>8s}  {state}")
         lines.append("")
         for ev in engine.stats.trips[-5:]:
@@ -140,8 +119,16 @@ def cmd_demo(args: argparse.Namespace) -> int:
     events = args.events if args.events is not None else Path(tmp.name) / "events.jsonl"
     cfg = demo_config(load_config(cfg_path), events)
     daemon = Daemon(cfg_path, cfg=cfg, http=args.http, groot2=args.groot2)
-    sink = _TimedSink(daemon.sink)
-    daemon.sink = sink
+    stop_walls: list[float] = []  # the wall time the first stop frame of each stop went out
+    in_stop = False
+
+    def stopwatch(_frames: Any, origin: str) -> None:
+        nonlocal in_stop
+        if origin == "stop" and not in_stop:
+            stop_walls.append(time.time())
+        in_stop = origin == "stop" or (in_stop and origin != "task")
+
+    daemon.sink = TappedSink(daemon.sink, stopwatch)
     daemon.engine = daemon.build_engine(cfg)
     out = sys.stdout
     view = LiveView(daemon, out, tty=out.isatty())
@@ -153,22 +140,18 @@ def cmd_demo(args: argparse.Namespace) -> int:
         view.event(ev)
 
     daemon.engine.extra_on_event = on_event
-    bus_kwargs = dict(next(iter(cfg.buses.values())).kwargs)
-    robot_bus = can.Bus(**bus_kwargs)
+    robot_bus = can.Bus(**dict(next(iter(cfg.buses.values())).kwargs))
     stop = threading.Event()
     scenarios = tuple(s for s in DEMO_SCENARIOS if float(s.partition("@")[2] or 0) < args.duration)
-    robot = threading.Thread(
-        target=run_on_bus, name="canguard-demo-robot",
-        kwargs={"bus": robot_bus, "duration_s": args.duration + 1.0, "stop_event": stop, "db": cfg.database,
-                "scenarios": scenarios, "seed": args.seed, "start_t": time.time()},
-        daemon=True,
-    )
+    robot = threading.Thread(target=run_on_bus, name="canguard-demo-robot", daemon=True,
+                             kwargs={"bus": robot_bus, "duration_s": args.duration + 1.0, "stop_event": stop,
+                                     "db": cfg.database, "scenarios": scenarios, "seed": args.seed,
+                                     "start_t": time.time()})
     print(f"canguard demo: {cfg_path.name}, tree {cfg.tree.main if cfg.tree else '-'}, scenarios "
           f"{', '.join(scenarios)}; {args.duration:g} s", file=out, flush=True)
-    drawer_stop = threading.Event()
 
     def drawer() -> None:
-        while not drawer_stop.wait(0.25):
+        while not stop.wait(0.25):
             view.draw()
 
     draw_thread = threading.Thread(target=drawer, name="canguard-demo-view", daemon=True)
@@ -178,12 +161,10 @@ def cmd_demo(args: argparse.Namespace) -> int:
         code = daemon.run(duration_s=args.duration)
     finally:
         stop.set()
-        drawer_stop.set()
         robot.join(5)
         draw_thread.join(2)
         robot_bus.shutdown()
-    engine = daemon.engine
-    print(summary_text(engine, trip_walls, sink.stop_sent_wall, events if args.events else None), file=out)
+    print(summary_text(daemon.engine, trip_walls, stop_walls, events if args.events else None), file=out)
     tmp.cleanup()
     return code
 
@@ -213,9 +194,9 @@ def summary_text(engine: Any, trips: list[tuple[float, dict[str, Any]]], stop_wa
              f"{engine.events_seen['escalate']}, confirmations {engine.events_seen['confirmed']}"]
     for wall, ev in trips:
         t = float(ev.get("t", math.nan))  # the triggering frame's bus time: wall time, as the stop's send
-        after = [s for s in stop_walls if s >= wall - 0.001]
-        latency = f"stop frames out {1000 * (after[0] - t):.2f} ms after the trip's time" if after else \
-            "no new stop (already stopped)"
+        after = next((s for s in stop_walls if s >= wall - 0.001), None)
+        latency = "no new stop (already stopped)" if after is None else \
+            f"stop frames out {1000 * (after - t):.2f} ms after the trip's time"
         unit = trip_unit(engine, ev)
         lines.append(f"  t={t - first:7.3f} s  {ev.get('node')}  {ev.get('source')}  "
                      f"value={_fmt(ev.get('value'), unit)}  threshold={_fmt(ev.get('threshold'), unit)}  "

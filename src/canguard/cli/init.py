@@ -20,12 +20,10 @@ DEFAULT_STATE_DIR = Path("/var/lib/canguard")
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """Register ``canguard init``."""
-    p = subcommand(
-        sub, "init", cmd_init,
-        description="Write DIR/canguard.yaml (the whole-robot example, with paths fitted to DIR), "
-                    "DIR/robot_guard.xml and DIR/robot.dbc. Edit them for your robot, then "
-                    "`canguard check -c DIR/canguard.yaml`. See docs/deploy.md.",
-    )
+    p = subcommand(sub, "init", cmd_init,
+                   description="Write DIR/canguard.yaml (the whole-robot example, with paths fitted to DIR), "
+                               "DIR/robot_guard.xml and DIR/robot.dbc. Edit them for your robot, then "
+                               "`canguard check -c DIR/canguard.yaml`. See docs/deploy.md.")
     p.add_argument("dir", type=Path, metavar="DIR")
     p.add_argument("--channel", default="can0", help="the SocketCAN interface of the bus (default can0)")
     p.add_argument("--simulation", action="store_true",
@@ -44,15 +42,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 def starter_config(text: str, *, channel: str, simulation: bool, state_dir: Path) -> str:
     """The example config's text with the paths and the bus of a deployment (comments kept)."""
-    def sub(pattern: str, repl: str, s: str) -> str:
-        return replace_once(s, pattern, repl, f"{EXAMPLE}.yaml")
-
-    text = sub(r"^dbc: \[[^\]]*\]", "dbc: [robot.dbc]", text)
-    text = sub(r"\{file: [^,]*robot_guard\.xml,", "{file: robot_guard.xml,", text)
     bus = "{interface: virtual, channel: can0}" if simulation else f"{{interface: socketcan, channel: {channel}}}"
-    text = sub(r"^  main: \{interface: [^}]*\}", f"  main: {bus}", text)
-    text = sub(r"^events: \S+", f"events: {state_dir / 'events.jsonl'}", text)
-    text = sub(r"^state: \{file: [^,]*,", f"state: {{file: {state_dir / 'i2t_state.json'},", text)
+    for pattern, repl in ((r"^dbc: \[[^\]]*\]", "dbc: [robot.dbc]"),
+                          (r"\{file: [^,]*robot_guard\.xml,", "{file: robot_guard.xml,"),
+                          (r"^  main: \{interface: [^}]*\}", f"  main: {bus}"),
+                          (r"^events: \S+", f"events: {state_dir / 'events.jsonl'}"),
+                          (r"^state: \{file: [^,]*,", f"state: {{file: {state_dir / 'i2t_state.json'},")):
+        text = replace_once(text, pattern, repl, f"{EXAMPLE}.yaml")
     head = (f"# Written by `canguard init`: {'a simulation on the virtual bus' if simulation else 'the robot'}.\n"
             "# Edit the sources, thresholds and frames for your drives; check with `canguard check -c <this file>`.\n")
     if simulation:
@@ -69,14 +65,12 @@ def canopen_files(args: argparse.Namespace, target: Path, state_dir: Path) -> di
         raise ConfigError(f"init --canopen: --node: found {args.node}, expected the drive's node id 1..127")
     if not eds.is_file():
         raise ConfigError(f"init --canopen: {eds}: no such file, expected the drive's EDS")
-    made = drive_files(eds, args.node, bus="can0" if args.simulation else args.channel,
-                       state_dir=state_dir.expanduser().absolute(), simulation=args.simulation,
-                       configure=args.configure)
-    files: dict[Path, str | Path] = {target / name: text for name, text in made.files.items()}
-    files[target / eds.name] = eds
-    for line in made.messages:
+    made, messages = drive_files(eds, args.node, bus="can0" if args.simulation else args.channel,
+                                 state_dir=state_dir.expanduser().absolute(), simulation=args.simulation,
+                                 configure=args.configure)
+    for line in messages:
         print(f"canguard init: {line}", file=sys.stderr)
-    return files
+    return {**{target / name: text for name, text in made.items()}, target / eds.name: eds}
 
 
 def cmd_init(args: argparse.Namespace) -> int:

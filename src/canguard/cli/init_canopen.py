@@ -1,15 +1,11 @@
 """``canguard init DIR --canopen EDS --node N``: a starting config and tree for one CANopen drive.
 
-The torque and current actual values (0x6077, 0x6078) become guarded sources (% of rated), read from a
-default TPDO or mapped with a ``pdo:`` override (:func:`choose_tpdo`); what the drive must be told is
-said in the config and on stderr. Stop / task frames: quick stop / enable operation when an RPDO maps the
-controlword, else NMT stop.
+What it guards, how it reads and stops the drive, and what it tells: docs/commands.md (``canguard init``).
 """
 
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field
 from pathlib import Path
 
 from canguard.config.canopen import (
@@ -40,16 +36,6 @@ WRITABLE = frozenset({"rw", "wo", "rww", "rwr"})
 """EDS AccessTypes an SDO may write."""
 
 
-@dataclass
-class DriveInit:
-    """What ``init`` writes for one drive and what it tells the user on stderr."""
-
-    files: dict[str, str]
-    """File name -> text (the config and the tree)."""
-    messages: list[str] = field(default_factory=list)
-    """Lines for stderr: the TPDO chosen, what the drive must be told, warnings."""
-
-
 def q(text: str) -> str:
     """``text`` as a YAML double-quoted scalar (JSON's quoting is YAML's): any file name round-trips."""
     return json.dumps(text)
@@ -64,15 +50,13 @@ def read_drive(eds_path: Path, node: int) -> Eds:
     profile = eds.profile
     if profile is not None and profile != CIA_402 and (profile in PROFILES or not _guarded_objects(eds)):
         named = PROFILES.get(profile, f"profile {profile}" if profile else "no standard profile")
-        raise ConfigError(
-            f"init --canopen {eds_path}: {eds.where(DEVICE_TYPE)} device type 0x{int(eds.value(DEVICE_TYPE)):08X}: "
-            f"this is a {named} device, not a drive; expected a CiA 402 drive (0x1000 bits 0..15 = 402)"
-        )
+        raise ConfigError(f"init --canopen {eds_path}: {eds.where(DEVICE_TYPE)} device type "
+                          f"0x{int(eds.value(DEVICE_TYPE)):08X}: this is a {named} device, not a drive; expected a "
+                          "CiA 402 drive (0x1000 bits 0..15 = 402)")
     if not _guarded_objects(eds):
-        raise ConfigError(
-            f"init --canopen {eds_path}: found neither 0x6077 (torque actual value) nor 0x6078 (current actual "
-            f"value) in {eds_path.name}, expected a CiA 402 drive's torque or current actual value"
-        )
+        raise ConfigError(f"init --canopen {eds_path}: found neither 0x6077 (torque actual value) nor 0x6078 "
+                          f"(current actual value) in {eds_path.name}, expected a CiA 402 drive's torque or current "
+                          "actual value")
     return eds
 
 
@@ -81,12 +65,8 @@ def _guarded_objects(eds: Eds) -> list[int]:
 
 
 def choose_tpdo(eds: Eds, tpdos: list[Pdo]) -> tuple[Pdo, bool]:
-    """The TPDO that carries the guarded values, and whether it is a new mapping (a ``pdo:`` override).
-
-    A default TPDO that maps 0x6077 or 0x6078 is taken as it is. Else the statusword (for
-    its Fault bit), 0x6077 and 0x6078 (those that can be PDO values, as many as fit in 64
-    bits) go into the first disabled TPDO, else after the objects of the first TPDO with room.
-    """
+    """The TPDO that carries the guarded values, and whether it is a new mapping (a ``pdo:`` override): a default
+    TPDO that maps them, else the statusword (its Fault bit) and them in the first TPDO with room."""
     for pdo in tpdos:
         if pdo.enabled and any(pdo.find(index, 0) for index in GUARDED):
             return pdo, False
@@ -109,10 +89,9 @@ def choose_tpdo(eds: Eds, tpdos: list[Pdo]) -> tuple[Pdo, bool]:
                 continue
     mapped = "; ".join(f"{p.name}: {p.bits} bits" + ("" if p.enabled else " (disabled)")
                        + ("" if _remappable(eds, p) else " (mapping not writable)") for p in tpdos)
-    raise ConfigError(
-        f"init --canopen {eds.path}: found no TPDO free or with room for 0x6077/0x6078 ({mapped or 'no TPDO'}), "
-        "expected a disabled TPDO or one with 16 bits free (map one by hand with canopen.DRIVE.pdo, see docs/config.md)"
-    )
+    raise ConfigError(f"init --canopen {eds.path}: found no TPDO free or with room for 0x6077/0x6078 "
+                      f"({mapped or 'no TPDO'}), expected a disabled TPDO or one with 16 bits free (map one by hand "
+                      "with canopen.DRIVE.pdo, see docs/config.md)")
 
 
 def _remappable(eds: Eds, pdo: Pdo) -> bool:
@@ -124,17 +103,13 @@ def _remappable(eds: Eds, pdo: Pdo) -> bool:
 
 def _fits(wanted: list[int]) -> list[list[int]]:
     """``wanted``, then with fewer objects from its end, down to one guarded value."""
-    out = []
-    for n in range(len(wanted), 0, -1):
-        part = wanted[:n]
-        if any(i in GUARDED for i in part):
-            out.append(part)
-    return out
+    return [wanted[:n] for n in range(len(wanted), 0, -1) if any(i in GUARDED for i in wanted[:n])]
 
 
 def drive_files(eds_path: Path, node: int, *, bus: str, state_dir: Path, simulation: bool,
-                configure: bool = False) -> DriveInit:
-    """The config and tree texts (by file name) for the drive of ``eds_path`` at ``node``, and what to tell."""
+                configure: bool = False) -> tuple[dict[str, str], list[str]]:
+    """The config and tree texts (by file name) for the drive of ``eds_path`` at ``node``, and the lines for stderr
+    (the TPDO chosen, what the drive must be told, warnings)."""
     eds = read_drive(eds_path, node)
     try:
         tpdos, rpdos = drive_pdos(eds)
@@ -142,7 +117,7 @@ def drive_files(eds_path: Path, node: int, *, bus: str, state_dir: Path, simulat
         raise ConfigError(f"init --canopen {eds_path}: {exc}") from None
     pdo, new = choose_tpdo(eds, tpdos)
     sources = [(f"drive_{what}", index) for index, what in GUARDED.items() if pdo.find(index, 0)]
-    out = DriveInit({})
+    messages: list[str] = []
     told = eds.value(PRODUCER_HEARTBEAT)
     heartbeat = None if isinstance(told, int) and told > 0 else HEARTBEAT_S
     writes: list[SdoWrite] = []
@@ -151,16 +126,16 @@ def drive_files(eds_path: Path, node: int, *, bus: str, state_dir: Path, simulat
     if new:
         writes += pdo_writes(eds, pdo, TPDO_PERIOD_MS)
     carried = ", ".join(f"{o.ref} {o.name}" for o in pdo.objects)
-    out.messages.append(f"{pdo.name} 0x{pdo.cob_id:03X} carries {carried}"
-                        + (" (a pdo: override: the EDS does not map it by default)" if new else ""))
+    messages.append(f"{pdo.name} 0x{pdo.cob_id:03X} carries {carried}"
+                    + (" (a pdo: override: the EDS does not map it by default)" if new else ""))
     if writes and configure:
-        out.messages.append("configure: true: canguard tells the drive over SDO at start and after each boot-up: "
-                            + "; ".join(w.describe() for w in writes))
+        messages.append("configure: true: canguard tells the drive over SDO at start and after each boot-up: "
+                        + "; ".join(w.describe() for w in writes))
     elif writes:
-        out.messages += ["the drive must be told (or set configure: true, and canguard tells it over SDO):",
-                         *(f"  {w.describe()}" for w in writes)]
-    out.messages += [f"warning: {w}" for w in eds.foreign_cob_ids()]
-    out.messages += [f"note: {n}" for n in eds.notes]
+        messages += ["the drive must be told (or set configure: true, and canguard tells it over SDO):",
+                     *(f"  {w.describe()}" for w in writes)]
+    messages += [f"warning: {w}" for w in eds.foreign_cob_ids()]
+    messages += [f"note: {n}" for n in eds.notes]
     interface = "virtual" if simulation else "socketcan"
     lines = _config_lines(eds, node, interface, bus, tpdos, (pdo, new), heartbeat, configure, writes)
     lines += ["", "sources:"]
@@ -172,8 +147,7 @@ def drive_files(eds_path: Path, node: int, *, bus: str, state_dir: Path, simulat
               f"state: {{file: {q(str(state_dir / 'i2t_state.json'))}}}"]
     if simulation:
         lines.append("simulation: true")
-    out.files = {"canguard.yaml": "\n".join(lines) + "\n", "drive_guard.xml": _tree([n for n, _ in sources])}
-    return out
+    return {"canguard.yaml": "\n".join(lines) + "\n", "drive_guard.xml": _tree([n for n, _ in sources])}, messages
 
 
 def _config_lines(eds: Eds, node: int, interface: str, bus: str, tpdos: list[Pdo], chosen: tuple[Pdo, bool],
@@ -236,20 +210,15 @@ def _frames(has_controlword: bool) -> list[str]:
 
 
 def _tree(names: list[str]) -> str:
-    guards = "\n".join(
-        f'      <IsCurrentSafe topic_name="{name}" overcurrent_threshold="{OVERCURRENT_PCT}"'
-        f' recovery_threshold="{RECOVERY_PCT}"/>'
-        for name in names
-    )
-    return (
-        '<?xml version="1.0" encoding="UTF-8"?>\n'
-        "<!-- Written by canguard init for one CANopen drive: the task runs while every guarded value is safe. -->\n"
-        '<root BTCPP_format="4" main_tree_to_execute="DriveGuard">\n'
-        '  <BehaviorTree ID="DriveGuard">\n'
-        "    <ReactiveSequence>\n"
-        f"{guards}\n"
-        "      <ExecuteTask/>\n"
-        "    </ReactiveSequence>\n"
-        "  </BehaviorTree>\n"
-        "</root>\n"
-    )
+    guards = "".join(f'      <IsCurrentSafe topic_name="{name}" overcurrent_threshold="{OVERCURRENT_PCT}"'
+                     f' recovery_threshold="{RECOVERY_PCT}"/>\n' for name in names)
+    return f"""<?xml version="1.0" encoding="UTF-8"?>
+<!-- Written by canguard init for one CANopen drive: the task runs while every guarded value is safe. -->
+<root BTCPP_format="4" main_tree_to_execute="DriveGuard">
+  <BehaviorTree ID="DriveGuard">
+    <ReactiveSequence>
+{guards}      <ExecuteTask/>
+    </ReactiveSequence>
+  </BehaviorTree>
+</root>
+"""

@@ -12,36 +12,23 @@ import json
 import sys
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Iterable
 from contextlib import ExitStack
 from pathlib import Path
-from typing import Any, TextIO
+from typing import TextIO
 
-from canguard.config.schema import Config, FrameSpec
+import can
+
+from canguard.cli.common import TappedSink
+from canguard.config.schema import Config
 from canguard.engine.core import Engine
 from canguard.engine.gate import LogSink
 from canguard.errors import ConfigError
+from canguard.io.frame import Frame
 from canguard.service.daemon import Daemon
 
 DRAIN_S = 10.0
 """Longest wait, after the last frame was played, for the daemon to have fed every frame."""
-
-
-class _TeeSink:
-    """The daemon's bus sink, and a :class:`LogSink` writing every frame handed to it (``--emit``)."""
-
-    def __init__(self, inner: Any, record: LogSink) -> None:
-        self.inner = inner
-        self.record = record
-
-    @property
-    def sent(self) -> int:
-        """Frames the daemon's sink put on the bus."""
-        return int(self.inner.sent)
-
-    def send(self, frames: Sequence[FrameSpec], origin: str) -> None:
-        self.record.send(frames, origin)
-        self.inner.send(frames, origin)
 
 
 class _ReplayDaemon(Daemon):
@@ -60,8 +47,8 @@ class _ReplayDaemon(Daemon):
         from canguard.io.clock import BootClock
         from canguard.protect.state import HeatStore
 
-        if self._emit is not None and not isinstance(self.sink, _TeeSink):
-            self.sink = _TeeSink(self.sink, LogSink(self.clock.now, cfg.buses, out=self._emit, keep=False))
+        if self._emit is not None and not isinstance(self.sink, TappedSink):  # every frame handed to it: --emit
+            self.sink = TappedSink(self.sink, LogSink(self.clock.now, cfg.buses, out=self._emit, keep=False).send)
         engine = super().build_engine(cfg, previous)
         engine.heat = (HeatStore(self._state_path, cfg.state.on_corrupt, clock=BootClock())
                        if self._state_path is not None else None)
@@ -72,10 +59,9 @@ class _ReplayDaemon(Daemon):
 def _refuse_unsupported(args: argparse.Namespace) -> None:
     """Exit 2 (ConfigError) on the replay flags --realtime cannot honour, rather than ignoring them."""
     refused = [flag for flag, given in (
-        ("--plot", getattr(args, "plot", None) is not None),
-        ("--export-signals", getattr(args, "export_signals", None) is not None),
-        ("--baseline", getattr(args, "baseline", None) is not None), ("--jobs", getattr(args, "jobs", 1) > 1),
-        ("--map (--realtime plays every frame onto --bus)", bool(getattr(args, "map", None)))) if given]
+        ("--plot", args.plot is not None), ("--export-signals", args.export_signals is not None),
+        ("--baseline", args.baseline is not None), ("--jobs", args.jobs > 1),
+        ("--map (--realtime plays every frame onto --bus)", bool(args.map))) if given]
     if refused:
         raise ConfigError(f"--realtime cannot be combined with {', '.join(refused)}: "
                           "run the offline replay (without --realtime) for that")
@@ -95,13 +81,10 @@ def _play_bus(cfg: Config, args: argparse.Namespace) -> str:
 def replay_realtime(cfg: Config, args: argparse.Namespace, names: list[Path] | None = None) -> int:
     """Play each log onto the bus while the daemon runs (journal ``--events``, no ``state.file``); print the
     daemon's summary; exit code as replay. ``names``: the logs as the user gave them."""
-    import can
-
     from canguard.cli.common import per_log_path
     from canguard.engine.routing import ChannelRouter
     from canguard.io.logs import ReadStats, read_log
     from canguard.report.summary import build_summary, render_text
-    from canguard.sim.io import to_message
 
     _refuse_unsupported(args)
     speed = float(args.realtime)
@@ -111,10 +94,8 @@ def replay_realtime(cfg: Config, args: argparse.Namespace, names: list[Path] | N
     many = len(args.logs) > 1
     tripped = False
     for log_path, name in zip(args.logs, names or args.logs, strict=True):
-        run_cfg = dataclasses.replace(
-            cfg, events=per_log_path(args.events, name, many),
-            state=dataclasses.replace(cfg.state, file=None),
-        )
+        run_cfg = dataclasses.replace(cfg, events=per_log_path(args.events, name, many),
+                                      state=dataclasses.replace(cfg.state, file=None))
         emit_path = per_log_path(args.emit, name, many)
         stats = ReadStats()
         frames = read_log(log_path, skip_bad=args.skip_bad, stats=stats)  # a missing file fails here, first
@@ -125,43 +106,8 @@ def replay_realtime(cfg: Config, args: argparse.Namespace, names: list[Path] | N
             daemon = _ReplayDaemon(run_cfg, state=args.state, emit=emit)
             player = can.Bus(**dict(cfg.buses[bus_name].kwargs))
             done = threading.Event()
-
-            def play(frames: Any = frames, player: Any = player, done: threading.Event = done,
-                     daemon: Daemon = daemon, channels: dict[str, int] = channels,
-                     failed: list[Exception] = failed) -> None:
-                sent = 0
-                try:
-                    # python-can's virtual bus delivers only to the buses open when a frame is sent
-                    ready_by = time.monotonic() + DRAIN_S
-                    while not all(daemon.reader.alive().values()) and time.monotonic() < ready_by:
-                        time.sleep(0.005)
-                    start_wall = time.monotonic()
-                    start_log = None
-                    for frame in frames:
-                        if frame.is_error_frame:
-                            continue
-                        channels[frame.channel] = channels.get(frame.channel, 0) + 1
-                        if start_log is None:
-                            start_log = frame.t
-                        due = start_wall + (frame.t - start_log) / speed
-                        delay = due - time.monotonic()
-                        if delay > 0.0005:
-                            time.sleep(delay)
-                        player.send(to_message(frame))
-                        sent += 1
-                except Exception as exc:  # a bad line: reported by the main thread, not as a thread traceback
-                    failed.append(exc)
-                finally:
-                    # Stop once the daemon has fed every frame played; give up after DRAIN_S.
-                    deadline = time.monotonic() + DRAIN_S
-                    while daemon.engine.stats.frames < sent and time.monotonic() < deadline:
-                        time.sleep(0.01)
-                    time.sleep(0.05)  # the tick that follows the last frame
-                    done.set()
-                    daemon.request_stop("end of log")
-
-            thread = threading.Thread(target=play, name="canguard-player", daemon=True)
-            thread.start()
+            threading.Thread(target=_play, args=(frames, speed, player, daemon, channels, failed, done),
+                             name="canguard-player", daemon=True).start()
             try:
                 daemon.run()
             finally:
@@ -181,3 +127,36 @@ def replay_realtime(cfg: Config, args: argparse.Namespace, names: list[Path] | N
         return 1
     print("note: --realtime runs the live daemon; its times follow the wall clock, not the log", file=sys.stderr)
     return 0
+
+
+def _play(frames: Iterable[Frame], speed: float, player: can.BusABC, daemon: Daemon, channels: dict[str, int],
+          failed: list[Exception], done: threading.Event) -> None:
+    """Send the log's frames at its pace x ``speed``, then stop the daemon once it has fed them all."""
+    from canguard.sim.io import to_message
+
+    sent = 0
+    try:
+        # python-can's virtual bus delivers only to the buses open when a frame is sent
+        ready_by = time.monotonic() + DRAIN_S
+        while not all(daemon.reader.alive().values()) and time.monotonic() < ready_by:
+            time.sleep(0.005)
+        start_wall, start_log = time.monotonic(), None
+        for frame in frames:
+            if frame.is_error_frame:
+                continue
+            channels[frame.channel] = channels.get(frame.channel, 0) + 1
+            start_log = frame.t if start_log is None else start_log
+            delay = start_wall + (frame.t - start_log) / speed - time.monotonic()
+            if delay > 0.0005:
+                time.sleep(delay)
+            player.send(to_message(frame))
+            sent += 1
+    except Exception as exc:  # a bad line: reported by the main thread, not as a thread traceback
+        failed.append(exc)
+    finally:
+        deadline = time.monotonic() + DRAIN_S  # give up waiting after DRAIN_S
+        while daemon.engine.stats.frames < sent and time.monotonic() < deadline:
+            time.sleep(0.01)
+        time.sleep(0.05)  # the tick that follows the last frame
+        done.set()
+        daemon.request_stop("end of log")

@@ -15,12 +15,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     from canguard.sim import SCENARIOS
 
     scen = "; ".join(f"{k}: {v.splitlines()[0] if v else ''}" for k, v in SCENARIOS.items())
-    p = subcommand(
-        sub, "simulate", cmd_simulate,
-        description="Send the bundled DBC's frames as a robot would, on a configured bus (--bus, answering "
-                    "canguard's Estop / Clear_Errors / Set_Axis_State) or into a candump -L file (--out). "
-                    f"Scenarios (combine them; NAME@S shifts one by S seconds): {scen}",
-    )
+    p = subcommand(sub, "simulate", cmd_simulate,
+                   description="Send the bundled DBC's frames as a robot would, on a configured bus (--bus, "
+                               "answering canguard's Estop / Clear_Errors / Set_Axis_State) or into a candump -L "
+                               f"file (--out). Scenarios (combine them; NAME@S shifts one by S seconds): {scen}")
     p.add_argument("-c", "--config", type=Path, default=None, help="YAML config (its DBC and buses)")
     where = p.add_mutually_exclusive_group(required=True)
     where.add_argument("--bus", metavar="NAME", help="a bus of the config to run on, in real time")

@@ -16,7 +16,7 @@ import uuid
 from pathlib import Path
 from typing import Any
 
-from canguard.cli.common import EXIT_BAD_INPUT, EXIT_OK, EXIT_TRIPPED, config_path, subcommand
+from canguard.cli.common import EXIT_OK, EXIT_TRIPPED, add_config, config_path, subcommand
 from canguard.config.loader import load_config
 from canguard.config.schema import Config
 from canguard.errors import ConfigError
@@ -30,7 +30,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p = subcommand(sub, "tune", cmd_tune, description=__doc__.split("\n\n")[0])
     p.add_argument("logs", nargs="*", type=Path, metavar="HEALTHY_LOG",
                    help="logs of healthy operation (files, directories, quoted globs, @LIST)")
-    p.add_argument("-c", "--config", type=Path, default=None, help="YAML config (default: as for `canguard run`)")
+    add_config(p)
     p.add_argument("--fault", action="append", type=Path, default=[], metavar="LOG",
                    help="a log of a fault the guards must trip on (repeatable)")
     p.add_argument("--expect", type=Path, metavar="FILE",
@@ -85,15 +85,6 @@ def load_expect(path: Path) -> dict[str, dict[str, Any]]:
     return out
 
 
-def _expected(expect: dict[str, dict[str, Any]] | None, log: Path) -> dict[str, Any] | None:
-    if expect is None:
-        return None
-    for key in (str(log), log.name):
-        if key in expect:
-            return expect[key]
-    return None
-
-
 def _replay_all(args: argparse.Namespace, cfg: Config, cfg_path: Path, logs: list[Path], *,
                 tune: bool) -> list[dict[str, Any]]:
     """Every log's replay summary (the statistics with ``tune``); ConfigError naming a log that failed."""
@@ -102,9 +93,8 @@ def _replay_all(args: argparse.Namespace, cfg: Config, cfg_path: Path, logs: lis
     pool = (args.jobs > 1 and len(logs) > 1) or args.dask is not None
     ref: Config | ConfigRef = ConfigRef(cfg_path, uuid.uuid4().hex) if pool else cfg
     opts = ReplayOptions(tune=tune, tune_i2t=args.tune_i2t)
-    results = run_jobs(args, cfg, [(ref, log, opts) for log in logs], pool)
     out = []
-    for (summary, err), log in zip(results, logs, strict=True):
+    for (summary, err), log in zip(run_jobs(args, cfg, [(ref, log, opts) for log in logs], pool), logs, strict=True):
         if summary is None:
             raise ConfigError(f"tune: {log}: {err}")
         out.append(summary)
@@ -124,7 +114,7 @@ def cmd_tune(args: argparse.Namespace) -> int:
     faults = expand_logs(args.fault) if args.fault else []
     if not healthy:
         raise ConfigError("tune: name at least one healthy log (the thresholds are set above what they reach)")
-    expect = load_expect(args.expect) if args.expect is not None else None
+    expect = load_expect(args.expect) if args.expect is not None else {}
     _check_out(args.out, cfg)
     if args.plot is not None:
         from canguard.io.outputs import check_output
@@ -133,52 +123,41 @@ def cmd_tune(args: argparse.Namespace) -> int:
         require_matplotlib()
         check_output(args.plot, "--plot", expected="a file name such as tune.png in a writable directory")
     logs = healthy + faults
-    is_fault = [False] * len(healthy) + [True] * len(faults)
-    if expect is not None:
-        wanted = [_expected(expect, log) for log in logs]
-        is_fault = [fault if w is None else "trips" in w for w, fault in zip(wanted, is_fault, strict=True)]
+    wanted = [expect.get(str(log), expect.get(log.name)) for log in logs]
+    is_fault = [i >= len(healthy) if w is None else "trips" in w for i, w in enumerate(wanted)]
     before = _replay_all(args, cfg, cfg_path, logs, tune=True)
-    stats = [LogStats(str(log), fault, s["tune"], s) for log, fault, s in zip(logs, is_fault, before, strict=True)]
-    needs = None
-    if expect is not None:
-        needs = {str(log): [g for g, _by in (_expected(expect, log) or {}).get("trips", [])] for log in logs}
+    stats = [LogStats(str(log), fault, s["tune"]) for log, fault, s in zip(logs, is_fault, before, strict=True)]
+    needs = {str(log): [g for g, _by in (w or {}).get("trips", [])] for log, w in zip(logs, wanted, strict=True)}
     ages = {name: src.max_age_s for name, src in cfg.sources.items()}
-    guards, age_props = propose(stats, ages, needs, args.margin / 100.0, args.tune_i2t)
+    guards, age_props = propose(stats, ages, needs if args.expect is not None else None, args.margin / 100.0,
+                                args.tune_i2t)
     report: dict[str, Any] = {"config": str(cfg_path), "margin_pct": args.margin,
                               "guards": [g.as_json() for g in guards], "max_age": [a.as_json() for a in age_props]}
-    conflicts = [g for g in guards if g.status == "conflict"] + [a for a in age_props if a.status == "conflict"]
-    status = EXIT_OK
-    if conflicts:
-        report["result"] = "conflict"
-        status = EXIT_NO_SEPARATION
-    else:
+    conflicts = any(g.status == "conflict" for g in guards) or any(a.status == "conflict" for a in age_props)
+    report["result"] = "conflict" if conflicts else "refused"
+    if not conflicts:
         with tempfile.TemporaryDirectory(prefix="canguard-tune-") as tmp:
             tuned_cfg = _write_tuned(cfg, cfg_path, guards, age_props, Path(tmp))
             after = _replay_all(args, load_config(tuned_cfg), tuned_cfg, logs, tune=False)
-            proof = _prove(logs, is_fault, expect, before, after)
-            report["proof"] = proof
-            ok = all(p["ok"] for p in proof)
-            report["result"] = "proven" if ok else "refused"
-            if not ok:
-                status = EXIT_NO_SEPARATION
-            elif args.out is not None:
-                args.out.mkdir(parents=True, exist_ok=True)
-                for f in sorted(Path(tmp).iterdir()):
-                    shutil.copy2(f, args.out / f.name)
-                report["written"] = sorted(str(args.out / f.name) for f in Path(tmp).iterdir())
+            report["proof"] = _prove(logs, is_fault, wanted, before, after)
+            if all(p["ok"] for p in report["proof"]):
+                report["result"] = "proven"
+                if args.out is not None:
+                    args.out.mkdir(parents=True, exist_ok=True)
+                    for f in sorted(Path(tmp).iterdir()):
+                        shutil.copy2(f, args.out / f.name)
+                    report["written"] = sorted(str(args.out / f.name) for f in Path(tmp).iterdir())
     if args.plot is not None:
-        from canguard.report.tuneplot import plot_tune
+        from canguard.report.plot import plot_tune
 
-        plot_tune(args.plot, guards, stats)
-    if args.json:
-        print(json.dumps(report, indent=2, sort_keys=True))
-    else:
-        print(render(report))
-    if status != EXIT_OK:
-        print("canguard tune: nothing written: " + ("no value separates the healthy logs from a fault"
-                                                   if conflicts else "the tuned config failed the proving replay"),
-              file=sys.stderr)
-    return status
+        plot_tune(args.plot, guards)
+    print(json.dumps(report, indent=2, sort_keys=True) if args.json else render(report))
+    if report["result"] == "proven":
+        return EXIT_OK
+    print("canguard tune: nothing written: " + ("no value separates the healthy logs from a fault"
+                                               if conflicts else "the tuned config failed the proving replay"),
+          file=sys.stderr)
+    return EXIT_NO_SEPARATION
 
 
 def _check_out(out: Path | None, cfg: Config) -> None:
@@ -187,38 +166,34 @@ def _check_out(out: Path | None, cfg: Config) -> None:
         return
     if out.exists() and not out.is_dir():
         raise ConfigError(f"--out {out}: expected a directory, found a file")
-    target = out.resolve()
-    homes = {cfg.path.resolve().parent}
-    if cfg.tree is not None:
-        homes.add(cfg.tree.file.resolve().parent)
-    if target in homes:
+    homes = {cfg.path.resolve().parent, *([cfg.tree.file.resolve().parent] if cfg.tree is not None else [])}
+    if out.resolve() in homes:
         raise ConfigError(f"--out {out}: the original config or tree lives there; tune writes beside, never over")
 
 
 def _write_tuned(cfg: Config, cfg_path: Path, guards: list[Any], ages: list[Any], out: Path) -> Path:
     """The tuned config and tree in ``out``, under the originals' names; the tuned config's path."""
-    from canguard.report.tunefiles import port_text, set_attributes, tuned_config
+    from canguard.report.tunefiles import set_attributes, tuned_config
 
     assert cfg.tree is not None
     tree_path = cfg.tree.file
     tree_text = tree_path.read_text(encoding="utf-8")
     for g in guards:
-        if g.status != "tuned" or g.new is None:
-            continue
-        values = _attributes(g, tree_text, port_text)
+        values = _attributes(g, tree_text) if g.status == "tuned" and g.new is not None else {}
         if values:
             tree_text = set_attributes(tree_text, g.node, values, str(tree_path))
     (out / tree_path.name).write_text(tree_text, encoding="utf-8")
     ages_new = {a.source: a.new for a in ages if a.status == "tuned" and a.new is not None}
-    cfg_text = tuned_config(Path(cfg_path).read_text(encoding="utf-8"), Path(cfg_path).resolve().parent,
-                            tree_path.name, ages_new)
-    target = out / Path(cfg_path).name
-    target.write_text(cfg_text, encoding="utf-8")
+    target = out / cfg_path.name
+    target.write_text(tuned_config(cfg_path.read_text(encoding="utf-8"), cfg_path.resolve().parent, tree_path.name,
+                                   ages_new), encoding="utf-8")
     return target
 
 
-def _attributes(g: Any, tree_text: str, port_text: Any) -> dict[str, float]:
+def _attributes(g: Any, tree_text: str) -> dict[str, float]:
     """The XML attributes a tuned guard gets (a port wired to a blackboard key is left, and said)."""
+    from canguard.report.tunefiles import port_text
+
     written = port_text(tree_text, g.node, g.port)
     if written is not None and written.strip().startswith("{"):
         g.status, g.new = "left", None
@@ -246,36 +221,30 @@ def _attributes(g: Any, tree_text: str, port_text: Any) -> dict[str, float]:
 def _first_trip(summary: dict[str, Any], guard: str | None = None) -> float | None:
     times = [t["t"] for t in summary["trips"] if guard is None or t["node"] == guard]
     first = summary.get("first_t")
-    if not times:
-        return None
-    return min(times) - (first if isinstance(first, (int, float)) else 0.0)
+    return min(times) - (first if isinstance(first, (int, float)) else 0.0) if times else None
 
 
-def _prove(logs: list[Path], is_fault: list[bool], expect: dict[str, dict[str, Any]] | None,
+def _prove(logs: list[Path], is_fault: list[bool], wanted: list[dict[str, Any] | None],
            before: list[dict[str, Any]], after: list[dict[str, Any]]) -> list[dict[str, Any]]:
     """Per log: what the proving replay showed, and whether that is what the log asks."""
     out = []
-    for log, fault, old, new in zip(logs, is_fault, before, after, strict=True):
-        row: dict[str, Any] = {"log": str(log), "fault": fault, "trips_before": old["trip_count"],
-                               "trips_after": new["trip_count"], "first_trip_before": _first_trip(old),
-                               "first_trip_after": _first_trip(new)}
-        wanted = _expected(expect, log)
+    for log, fault, want, old, new in zip(logs, is_fault, wanted, before, after, strict=True):
+        count = new["trip_count"]
         if not fault:
-            row["ok"] = new["trip_count"] == 0
-            row["why"] = "" if row["ok"] else "a healthy log trips: " + ", ".join(
+            why = "" if count == 0 else "a healthy log trips: " + ", ".join(
                 sorted({f"{t['node']} ({t['reason']})" for t in new["trips"]}))
-        elif wanted is not None and "trips" in wanted:
+        elif want is not None and "trips" in want:
             misses = []
-            for guard, by in wanted["trips"]:
+            for guard, by in want["trips"]:
                 at = _first_trip(new, guard)
                 if at is None or (by is not None and at > by + 1e-9):
                     misses.append(f"{guard} " + ("does not trip" if at is None else f"trips at {at:.3f} s > {by} s"))
-            row["ok"] = not misses
-            row["why"] = "; ".join(misses)
+            why = "; ".join(misses)
         else:
-            row["ok"] = new["trip_count"] > 0
-            row["why"] = "" if row["ok"] else "the fault trips no guard"
-        out.append(row)
+            why = "" if count > 0 else "the fault trips no guard"
+        out.append({"log": str(log), "fault": fault, "trips_before": old["trip_count"], "trips_after": count,
+                    "first_trip_before": _first_trip(old), "first_trip_after": _first_trip(new), "ok": not why,
+                    "why": why})
     return out
 
 
@@ -283,17 +252,18 @@ def _fmt(x: Any) -> str:
     return "-" if x is None else f"{x:.4g}" if isinstance(x, float) else str(x)
 
 
+def _why(row: dict[str, Any]) -> str:
+    return f" ({row['why']})" if row["why"] else ""
+
+
 def render(report: dict[str, Any]) -> str:
     """The report as text: a line per guard and source, then the proving replay per log."""
     lines = [f"canguard tune: {report['config']} (margin {report['margin_pct']:g} %)", "guards:"]
     for g in report["guards"]:
-        head = f"  {g['node']} ({g['type']} on {g['source']})"
-        if g["status"] == "tuned":
-            what = "rating x" if g["rating_scale"] else f"{g['port']}"
-            head += f": {what} {_fmt(g['old']) if not g['rating_scale'] else '1'} -> {_fmt(g['new'])}"
-        else:
-            head += f": {g['status']}"
-        lines.append(head + (f" ({g['why']})" if g["why"] else ""))
+        old = "rating x 1" if g["rating_scale"] else f"{g['port']} {_fmt(g['old'])}"
+        what = f"{old} -> {_fmt(g['new'])}"
+        lines.append(f"  {g['node']} ({g['type']} on {g['source']}): "
+                     f"{what if g['status'] == 'tuned' else g['status']}{_why(g)}")
         ceil, peak = g["healthy_ceiling"], g["healthy_peak"]
         if peak is not None:
             lines.append(f"      healthy: peak {_fmt(peak['value'])} ({peak['log']} t={_fmt(peak['t'])}), "
@@ -304,31 +274,18 @@ def render(report: dict[str, Any]) -> str:
             window = f"inrush_time {_fmt(i['old'])} -> {_fmt(i['new'])} s" if i["new"] is not None else "inrush window"
             lines.append(f"      {window}: {i['starts']} healthy starts, highest |I| in a window {_fmt(i['peak'])}"
                          f" ({i['why']})")
-        for f in g["faults"]:
-            lines.append(f"      fault {f['log']}: trips below {_fmt(f['value'])} (t={_fmt(f['t'])})")
-        for h in g["heat_pct"]:
-            lines.append(f"      heat {h['log']}: {_fmt(h['value'])} % of the trip level")
-    if report["max_age"]:
-        lines.append("max_age:")
+        lines += [f"      fault {f['log']}: trips below {_fmt(f['value'])} (t={_fmt(f['t'])})" for f in g["faults"]]
+        lines += [f"      heat {h['log']}: {_fmt(h['value'])} % of the trip level" for h in g["heat_pct"]]
+    lines += ["max_age:"] if report["max_age"] else []
     for a in report["max_age"]:
         gap = a["healthy_gap"]
-        text = f"  {a['source']}: {a['status']}"
-        if a["status"] == "tuned":
-            text = f"  {a['source']}: max_age {_fmt(a['old'])} -> {_fmt(a['new'])} s"
-        lines.append(text + (f" ({a['why']})" if a["why"] else "")
-                     + (f"; longest healthy gap {_fmt(gap['value'])} s ({gap['log']}), "
-                        f"period {_fmt(a['period'])} s" if gap else ""))
-    if report.get("proof"):
-        lines.append("proving replay with the tuned config:")
+        state = f"max_age {_fmt(a['old'])} -> {_fmt(a['new'])} s" if a["status"] == "tuned" else a["status"]
+        gap_text = f"; longest healthy gap {_fmt(gap['value'])} s ({gap['log']}), period {_fmt(a['period'])} s"
+        lines.append(f"  {a['source']}: {state}{_why(a)}{gap_text if gap else ''}")
+    lines += ["proving replay with the tuned config:"] if report.get("proof") else []
     for p in report.get("proof", []):
-        mark = "ok  " if p["ok"] else "FAIL"
-        kind = "fault  " if p["fault"] else "healthy"
-        lines.append(f"  {mark} {kind} {p['log']}: trips {p['trips_before']} -> {p['trips_after']}"
-                     f", first trip {_fmt(p['first_trip_before'])} -> {_fmt(p['first_trip_after'])} s"
-                     + (f" ({p['why']})" if p["why"] else ""))
-    lines.append(f"result: {report['result']}" + (f"; written: {', '.join(report['written'])}"
-                                                   if report.get("written") else ""))
-    return "\n".join(lines)
-
-
-__all__ = ["EXIT_BAD_INPUT", "add_parser", "cmd_tune", "load_expect", "render"]
+        lines.append(f"  {'ok  ' if p['ok'] else 'FAIL'} {'fault  ' if p['fault'] else 'healthy'} {p['log']}: trips "
+                     f"{p['trips_before']} -> {p['trips_after']}, first trip {_fmt(p['first_trip_before'])} -> "
+                     f"{_fmt(p['first_trip_after'])} s{_why(p)}")
+    written = f"; written: {', '.join(report['written'])}" if report.get("written") else ""
+    return "\n".join([*lines, f"result: {report['result']}{written}"])

@@ -19,11 +19,9 @@ UNIT_FILE = "canguard.service"
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """Register ``canguard unit``."""
-    p = subcommand(
-        sub, "unit", cmd_unit,
-        description="Print canguard.service with ExecStart pointing at this install's canguard, the "
-                    "config path and the CAN interface(s) it binds to.",
-    )
+    p = subcommand(sub, "unit", cmd_unit,
+                   description="Print canguard.service with ExecStart pointing at this install's canguard, the "
+                               "config path and the CAN interface(s) it binds to.")
     p.add_argument("--config", type=Path, default=DEFAULT_CONFIG, metavar="PATH",
                    help=f"the config the service runs (default {DEFAULT_CONFIG})")
     p.add_argument("--channel", action="append", default=None, metavar="CANx",

@@ -1,10 +1,8 @@
 """CANopen drives (``canopen:``): an EDS's PDO mapping, heartbeat and EMCY as cantools messages and raw frames.
 
-Translated once, at config load: each TPDO a source reads becomes a cantools ``Message``
-(little-endian signals at the mapped bits), the heartbeat (``0x700 + node``) and EMCY (``0x080 + node``:
-code u16, error register u8, 5 manufacturer bytes) too, and CiA 402 controlword and NMT commands
-become raw frames; no CANopen code path runs later. With ``configure: true`` a drive also carries
-the :class:`SdoWrite` s that give it what the config expects (:mod:`canguard.service.canopen_setup`).
+Translated once, at config load: TPDOs, heartbeat (``0x700 + node``) and EMCY (``0x080 + node``: code u16,
+error register u8, 5 manufacturer bytes) become cantools messages, CiA 402 and NMT commands raw frames; no
+CANopen code runs later. ``configure: true`` adds the :class:`SdoWrite` s that configure the drive.
 """
 
 from __future__ import annotations
@@ -35,22 +33,13 @@ HEARTBEAT_FACTOR = 1.5
 """A heartbeat consumer's timeout, in producer heartbeat periods."""
 
 COMMANDS: Mapping[str, int] = {
-    "quick_stop": 0x0002,
-    "enable_operation": 0x000F,
-    "shutdown": 0x0006,
-    "switch_on": 0x0007,
-    "disable_voltage": 0x0000,
-    "disable_operation": 0x0007,
-    "fault_reset": 0x0080,
+    "quick_stop": 0x0002, "enable_operation": 0x000F, "shutdown": 0x0006, "switch_on": 0x0007,
+    "disable_voltage": 0x0000, "disable_operation": 0x0007, "fault_reset": 0x0080,
 }
 """CiA 402 controlword commands (``command:`` of a frame) and their controlword values."""
 
 NMT_COMMANDS: Mapping[str, int] = {
-    "start": 0x01,
-    "stop": 0x02,
-    "pre_operational": 0x80,
-    "reset_node": 0x81,
-    "reset_communication": 0x82,
+    "start": 0x01, "stop": 0x02, "pre_operational": 0x80, "reset_node": 0x81, "reset_communication": 0x82,
 }
 """NMT commands (``nmt:`` of a frame): the command specifier of ``0x000: CS NODE``."""
 
@@ -77,11 +66,8 @@ class MappedObject:
 
 @dataclass(frozen=True)
 class Pdo:
-    """One PDO of a drive: its name (``TPDO1``), COB-ID and mapped objects in order.
-
-    ``enabled``: valid (COB-ID bit 31 clear) in the EDS, or made valid by a ``pdo:`` override;
-    only enabled PDOs carry sources and frames. ``overridden``: a ``pdo:`` override set its mapping.
-    """
+    """One PDO of a drive: its name (``TPDO1``), COB-ID and mapped objects in order; ``enabled``: valid in the EDS
+    (COB-ID bit 31 clear) or made valid by a ``pdo:`` override (``overridden``)."""
 
     name: str
     cob_id: int
@@ -159,36 +145,25 @@ class CanopenDrive:
         return tuple(p for p in self.tpdos if p.enabled)
 
     def command_data(self, command: int) -> tuple[Pdo, bytes] | None:
-        """The RPDO mapping the controlword and its payload with ``command`` in it, or None.
-
-        The RPDO's other mapped objects carry their EDS values: a frame that changes only
-        the controlword, as far as the drive's defaults go.
-        """
+        """The RPDO mapping the controlword and its payload with ``command`` in it (the other objects at their EDS
+        values), or None."""
         found = _first_mapping(self.rpdos, CONTROLWORD, 0)
         if found is None:
             return None
         pdo, _ = found
         payload = 0
         for obj in pdo.objects:
-            value = (
-                command
-                if (obj.index, obj.subindex) == (CONTROLWORD, 0)
-                else self.defaults.get((obj.index, obj.subindex), 0)
-            )
+            at = (obj.index, obj.subindex)
+            value = command if at == (CONTROLWORD, 0) else self.defaults.get(at, 0)
             payload |= _raw_bits(obj, value) << obj.start_bit
         return pdo, payload.to_bytes(pdo.length, "little")
 
     def describe(self, verbose: bool = False) -> list[str]:
-        """Lines for ``canguard check``: COB-IDs, which object sits where, heartbeat and EMCY ids.
-
-        ``verbose`` (``check -v``) adds what reading the EDS tolerated and what the drive must be told.
-        """
-        lines = [
-            f"{self.name}: node {self.node} on {self.bus}, {self.eds.name}"
-            + (f" ({self.device})" if self.device else ""),
-            f"  heartbeat 0x{self.heartbeat_id:03X} every {self.heartbeat_s:g} s (timeout {self.timeout_s:g} s),"
-            f" EMCY 0x{self.emcy_id:03X}",
-        ]
+        """Lines for ``canguard check``: COB-IDs, which object sits where; ``verbose``: the notes too."""
+        device = f" ({self.device})" if self.device else ""
+        lines = [f"{self.name}: node {self.node} on {self.bus}, {self.eds.name}{device}",
+                 f"  heartbeat 0x{self.heartbeat_id:03X} every {self.heartbeat_s:g} s (timeout {self.timeout_s:g} s),"
+                 f" EMCY 0x{self.emcy_id:03X}"]
         for pdo in (*self.tpdos, *self.rpdos):
             objs = ", ".join(f"{o.ref} {o.name} [bits {o.start_bit}..{o.start_bit + o.bits - 1}]" for o in pdo.objects)
             state = " (pdo: override)" if pdo.overridden else "" if pdo.enabled else " (disabled in the EDS)"
@@ -204,11 +179,8 @@ class CanopenDrive:
 
 @dataclass(frozen=True)
 class SdoWrite:
-    """One SDO download that configures a drive: ``index:subindex`` = ``value`` (``size`` bytes).
-
-    ``check``: read back and compared after all writes (False for the steps of the CiA 301
-    mapping procedure that later writes overwrite: disabling the PDO, clearing its count).
-    """
+    """One SDO download that configures a drive; ``check``: read back after all writes (False for the CiA 301
+    mapping steps later writes overwrite)."""
 
     index: int
     subindex: int
@@ -228,20 +200,14 @@ class SdoWrite:
 
 
 def pdo_writes(eds: Eds, pdo: Pdo, period_ms: int) -> list[SdoWrite]:
-    """The CiA 301 procedure giving the TPDO ``pdo``'s mapping, COB-ID and event timer.
-
-    Disable it (COB-ID bit 31), clear its mapping count, write the entries, set the count,
-    make it event-driven (transmission type 0xFF) every ``period_ms`` where the EDS has those
-    sub-indices, then write the COB-ID with bit 31 cleared (its bits 29..30 as the EDS has them).
-    """
+    """The CiA 301 procedure giving the TPDO ``pdo``'s mapping, COB-ID and event timer: disable it, clear the count,
+    write the entries and the count, event-driven every ``period_ms`` (where the EDS has those), enable it."""
     comm, mapping = TPDO_COMM + pdo.number - 1, TPDO_MAP + pdo.number - 1
     raw = eds.value(comm, 1)
     flags = (int(raw) if isinstance(raw, int) else 0) & 0x60000000
     cob = flags | pdo.cob_id
-    out = [
-        SdoWrite(comm, 1, cob | 0x80000000, 4, f"{pdo.name} disabled while it is mapped", check=False),
-        SdoWrite(mapping, 0, 0, 1, f"{pdo.name} mapping cleared", check=False),
-    ]
+    out = [SdoWrite(comm, 1, cob | 0x80000000, 4, f"{pdo.name} disabled while it is mapped", check=False),
+           SdoWrite(mapping, 0, 0, 1, f"{pdo.name} mapping cleared", check=False)]
     for k, obj in enumerate(pdo.objects, 1):
         entry = (obj.index << 16) | (obj.subindex << 8) | obj.bits
         out.append(SdoWrite(mapping, k, entry, 4, f"{pdo.name} entry {k}: {obj.ref} {obj.name}"))
@@ -276,9 +242,8 @@ def drive_pdos(eds: Eds) -> tuple[list[Pdo], list[Pdo]]:
 
 
 def _read_pdos(eds: Eds, comm_base: int, map_base: int, prefix: str) -> list[Pdo]:
-    """Every PDO the EDS defines at ``comm_base``/``map_base``, valid or not. A disabled PDO without a COB-ID of
-    its own (only bit 31) gets the predefined connection set's (PDO 1..4); beyond those 0 (no override may name it).
-    """
+    """Every PDO the EDS defines, valid or not; a disabled one without a COB-ID gets the predefined set's (PDO 1..4),
+    else 0 (no override may name it)."""
     from canguard.config.canopen_eds import DISABLED, PREDEFINED_RPDO, PREDEFINED_TPDO
 
     predefined = PREDEFINED_TPDO if comm_base == TPDO_COMM else PREDEFINED_RPDO
@@ -308,23 +273,13 @@ def mapped(eds: Eds, var: Any, start_bit: int, bits: int | None = None) -> Mappe
     from canopen.objectdictionary import datatypes
 
     size = bits if bits is not None else (1 if var.data_type == datatypes.BOOLEAN else len(var))
-    return MappedObject(
-        index=int(var.index),
-        subindex=int(var.subindex),
-        name=var.name,
-        start_bit=start_bit,
-        bits=size,
-        signed=var.data_type in datatypes.SIGNED_TYPES,
-        is_float=var.data_type in datatypes.FLOAT_TYPES,
-    )
+    return MappedObject(int(var.index), int(var.subindex), var.name, start_bit, size,
+                        signed=var.data_type in datatypes.SIGNED_TYPES, is_float=var.data_type in datatypes.FLOAT_TYPES)
 
 
 def override(eds: Eds, pdo: Pdo, objects: list[tuple[int, int | None]]) -> Pdo:
-    """``pdo`` mapping ``objects`` in order instead (each of its EDS data type's size), enabled.
-
-    Raises :class:`~canguard.config.canopen_eds.EdsError` for an object that cannot be a PDO
-    value (where it is written and why) or a mapping longer than a CAN frame.
-    """
+    """``pdo`` mapping ``objects`` in order instead, enabled; EdsError for an object that cannot be a PDO value
+    (where and why) or a mapping longer than a CAN frame."""
     from canguard.config.canopen_eds import EdsError
 
     out: list[MappedObject] = []
@@ -349,10 +304,8 @@ def _raw_bits(obj: MappedObject, value: int | float) -> int:
 
 
 def parse_object(value: Any) -> tuple[int, int | None] | str | None:
-    """``object:`` as (index, subindex) when it is hex (``0x6077``, ``6077:0``, a YAML int), else its name.
-
-    The subindex is None where none is written (``0x6077``): a variable then, a record or array refused.
-    """
+    """``object:`` as (index, subindex) when it is hex (``0x6077``, ``6077:0``, a YAML int), else its name; the
+    subindex is None where none is written."""
     if isinstance(value, bool):
         return None
     if isinstance(value, int):
@@ -363,5 +316,3 @@ def parse_object(value: Any) -> tuple[int, int | None] | str | None:
     if m is None:
         return value.strip()
     return int(m.group(1), 16), (int(m.group(2), 16) if m.group(2) else None)
-
-

@@ -1,9 +1,8 @@
 """An EDS or DCF as drive vendors publish it, read with the ``canopen`` library for one node id.
 
-The text is scanned before ``import_od`` for what the library does not give: each section's line (errors name
-``file:line [6077]``), and leniency: deviations outside the object dictionary (a malformed
-``[Comments]``, an incomplete ``[DummyUsage]``, unknown keys) are noted in :attr:`Eds.notes`
-(``canguard check -v``), not refused.
+Scanned first for each section's line (errors name ``file:line [6077]``) and for deviations outside the
+object dictionary (a malformed ``[Comments]``, an incomplete ``[DummyUsage]``, unknown keys): noted in
+:attr:`Eds.notes` (``canguard check -v``), not refused.
 """
 
 from __future__ import annotations
@@ -16,13 +15,9 @@ from typing import Any
 
 DEVICE_TYPE = 0x1000
 PROFILES = {
-    401: "CiA 401 (generic I/O module)",
-    402: "CiA 402 (drive and motion control)",
-    404: "CiA 404 (measuring device / closed-loop controller)",
-    406: "CiA 406 (encoder)",
-    410: "CiA 410 (inclinometer)",
-    418: "CiA 418 (battery module)",
-    419: "CiA 419 (battery charger)",
+    401: "CiA 401 (generic I/O module)", 402: "CiA 402 (drive and motion control)",
+    404: "CiA 404 (measuring device / closed-loop controller)", 406: "CiA 406 (encoder)",
+    410: "CiA 410 (inclinometer)", 418: "CiA 418 (battery module)", 419: "CiA 419 (battery charger)",
 }
 """Device profiles by number (0x1000 bits 0..15): what ``init`` names a device that is not a drive."""
 DISABLED = 0x80000000
@@ -52,7 +47,7 @@ class _Section:
     keys: dict[str, int]
     """Key (as written) -> line (its first)."""
     again: list[int]
-    """Lines of keys written a second time."""
+    """Lines of keys written again."""
 
     @property
     def is_object(self) -> bool:
@@ -104,7 +99,7 @@ class Eds:
         self.path = path
         self.node = node
         self.notes: list[str] = []
-        """Deviations tolerated while reading (``canguard check -v`` lists them)."""
+        """Deviations tolerated while reading."""
         sections, lines = _scan(_decode(raw))
         self._lines = {s.name.casefold(): s.line for s in sections}
         drop = self._lenient(sections, lines)
@@ -116,7 +111,6 @@ class Eds:
         except Exception as exc:  # configparser and the canopen library raise many kinds
             raise EdsError(self._load_error(exc)) from exc
 
-    # -- reading -----------------------------------------------------------------------------
     def _lenient(self, sections: list[_Section], lines: list[str]) -> set[int]:
         """Lines to leave out and notes for deviations outside the object dictionary."""
         drop: set[int] = set()
@@ -185,7 +179,6 @@ class Eds:
                     return self.where_section(name)
         return self.where_section(f"{index:04X}")
 
-    # -- objects -------------------------------------------------------------------------------
     @property
     def device(self) -> str:
         """Vendor and product name from ``[DeviceInfo]``."""
@@ -239,11 +232,8 @@ class Eds:
         return var.value if var.value is not None else var.default
 
     def pdo_value(self, index: int, subindex: int | None) -> Any:
-        """The variable ``index[:subindex]`` when it can be a PDO value; else :class:`EdsError` saying where and why.
-
-        Refused: a record or array without a sub-index (sub-index 0 is its entry count, a
-        constant), an object with ``PDOMapping=0``, strings and domains (no number to guard).
-        """
+        """The variable ``index[:subindex]`` when it can be a PDO value; else :class:`EdsError` saying where and why
+        (a record or array without a sub-index, ``PDOMapping=0``, strings and domains)."""
         entry = self.entry(index)
         if entry is None:
             raise EdsError(f"0x{index:04X} is not an object of {self.path.name}")

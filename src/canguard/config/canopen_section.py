@@ -1,7 +1,7 @@
 """The loader's ``canopen:`` section: drives from their EDS, sources reading their objects, their frames.
 
-Composed into the config loader (its public checks only); :meth:`CanopenSection.messages` hands the
-drive messages the sources read to the loader, which adds them to the config's database.
+Composed into the config loader (its public checks only), which adds :meth:`CanopenSection.messages` to
+the config's database.
 """
 
 from __future__ import annotations
@@ -10,41 +10,14 @@ import math
 from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any
 
-from canguard.config.canopen import (
-    COMMANDS,
-    FAULT_BIT,
-    NMT_COMMANDS,
-    NMT_ID,
-    PRODUCER_HEARTBEAT,
-    STATUSWORD,
-    UNDESCRIBED,
-    CanopenDrive,
-    MappedObject,
-    Pdo,
-    SdoWrite,
-    drive_pdos,
-    heartbeat_write,
-    mapped_text,
-    override,
-    parse_object,
-    pdo_writes,
-)
+from canguard.config import canopen as co
+from canguard.config.canopen import CanopenDrive, MappedObject, Pdo, SdoWrite
 from canguard.config.canopen_eds import Eds, EdsError
 from canguard.config.schema import FrameSpec, SignalRef
 from canguard.config.yamlsrc import _closest, _found, _path
 
 if TYPE_CHECKING:
     from canguard.config.checks import _Checks
-
-ROLE_NMT = "nmt"
-"""A CANopen source's heartbeat role: the drive's NMT state."""
-ROLE_EMCY = "emcy"
-"""A CANopen source's EMCY role: the error register of the drive's last EMCY."""
-ROLE_EMCY_CODE = "emcy_code"
-ROLE_EMCY_DATA = "emcy_data"
-ROLE_FAULT = "fault"
-"""A CANopen source's statusword Fault bit (when a TPDO maps 0x6041)."""
-
 
 DRIVE_KEYS = ("eds", "node", "bus", "heartbeat", "pdo", "configure", "tpdo_period")
 CONFIGURED_HEARTBEAT_S = 0.1
@@ -64,12 +37,11 @@ class CanopenSection:
         self._labels: dict[tuple[str, int], tuple[str, int]] = {}
         """Per (drive, COB-ID): (message name, payload length)."""
         self.failed: set[str] = set()
-        """Drives whose entry has a problem: their sources and frames add none of their own (one error per cause)."""
+        """Drives whose entry has a problem: their sources and frames add no follow-on errors."""
         self._eds: dict[str, Eds] = {}
         self._events: set[str] = set()
-        """Drives whose EMCY event roles a source already carries (one ``emcy`` event per EMCY frame)."""
+        """Drives one of whose sources already carries the EMCY event roles."""
 
-    # -- canopen: --------------------------------------------------------------
     def load(self, value: Any) -> None:
         """Read every ``canopen:`` drive (problems recorded, broken drives left out)."""
         if not isinstance(value, Mapping):
@@ -101,17 +73,14 @@ class CanopenSection:
             return None
         try:
             eds = Eds(path, node)
-            tpdos, rpdos = drive_pdos(eds)
+            tpdos, rpdos = co.drive_pdos(eds)
         except EdsError as exc:
             c.problem(_path(key, "eds"), repr(str(body["eds"])) + f" ({exc})", "a readable EDS or DCF file")
             return None
         self._eds[name] = eds
         if "pdo" in body:
             tpdos = self.overrides(eds, tpdos, body["pdo"], _path(key, "pdo"))
-        configure = body.get("configure", False)
-        if not isinstance(configure, bool):
-            c.problem(_path(key, "configure"), _found(configure), "true or false")
-            configure = False
+        configure = c.choice(body, "configure", key, (True, False), False)
         heartbeat = self.heartbeat(eds, body, key, configure)
         defaults: dict[tuple[int, int], int | float] = {}
         for pdo in rpdos:
@@ -124,7 +93,7 @@ class CanopenSection:
             c.problem(_path(key, "tpdo_period"), f"{body['tpdo_period']!r} without configure: true",
                       "configure: true with it (the period is what canguard tells the drive)")
         notes = [*eds.notes, *eds.foreign_cob_ids()]
-        told = eds.value(PRODUCER_HEARTBEAT)
+        told = eds.value(co.PRODUCER_HEARTBEAT)
         if not configure and told != round(heartbeat * 1000):
             notes.append(f"the EDS's 0x1017 producer heartbeat time is {told} ms: the drive must be told "
                          f"{round(heartbeat * 1000)} ms (configure: true does)")
@@ -132,41 +101,24 @@ class CanopenSection:
             if pdo.overridden and not configure:
                 notes.append(f"{pdo.name} is a pdo: override: the drive must be told its mapping and COB-ID "
                              "(configure: true does)")
-        return CanopenDrive(
-            name=name,
-            eds=path,
-            node=node,
-            bus=bus,
-            heartbeat_s=heartbeat,
-            tpdos=tuple(tpdos),
-            rpdos=tuple(rpdos),
-            defaults=defaults,
-            device=eds.device,
-            setup=setup,
-            notes=tuple(notes),
-        )
+        return CanopenDrive(name=name, eds=path, node=node, bus=bus, heartbeat_s=heartbeat, tpdos=tuple(tpdos),
+                            rpdos=tuple(rpdos), defaults=defaults, device=eds.device, setup=setup, notes=tuple(notes))
 
     def heartbeat(self, eds: Eds, body: Mapping[str, Any], key: str, configure: bool) -> float:
-        """``heartbeat:`` (s), else the EDS's producer heartbeat time (0x1017, ms) when it is not 0.
-
-        With ``configure: true`` and neither, :data:`CONFIGURED_HEARTBEAT_S` (canguard tells the drive).
-        A problem is recorded where there is none; the drive is still built with a stand-in period
-        so that its sources and frames do not report the same cause again.
-        """
+        """``heartbeat:`` (s), else the EDS's 0x1017 (ms) when not 0, else (``configure: true``)
+        :data:`CONFIGURED_HEARTBEAT_S`; else a problem, and that as a stand-in (no follow-on errors)."""
         if "heartbeat" in body:
             return self.checks.seconds(body, "heartbeat", key, CONFIGURED_HEARTBEAT_S)
-        ms = eds.value(PRODUCER_HEARTBEAT)
+        ms = eds.value(co.PRODUCER_HEARTBEAT)
         if isinstance(ms, int) and ms > 0:
             return ms / 1000.0
         if configure:
             return CONFIGURED_HEARTBEAT_S
-        self.checks.problem(
-            _path(key, "heartbeat"),
-            f"nothing (the EDS's 0x1017 producer heartbeat time is {ms if ms is not None else 'absent'}: "
-            "the drive sends no heartbeat by default)",
-            "the drive's heartbeat period in seconds (heartbeat: 0.1), with the drive told 0x1017 = that period "
-            "in ms, or configure: true (canguard tells it)",
-        )
+        told = ms if ms is not None else "absent"
+        self.checks.problem(_path(key, "heartbeat"), f"nothing (the EDS's 0x1017 producer heartbeat time is {told}: "
+                            "the drive sends no heartbeat by default)",
+                            "the drive's heartbeat period in seconds (heartbeat: 0.1), with the drive told 0x1017 = "
+                            "that period in ms, or configure: true (canguard tells it)")
         return CONFIGURED_HEARTBEAT_S
 
     def setup(self, eds: Eds, tpdos: list[Pdo], body: Mapping[str, Any], key: str,
@@ -174,10 +126,10 @@ class CanopenSection:
         """``configure: true``: the heartbeat, then each ``pdo:`` override's mapping, COB-ID and event timer."""
         period_s = self.checks.seconds(body, "tpdo_period", key, DEFAULT_TPDO_PERIOD_S)
         period_ms = max(1, min(0xFFFF, round(period_s * 1000)))
-        writes = [heartbeat_write(heartbeat_s)]
+        writes = [co.heartbeat_write(heartbeat_s)]
         for pdo in tpdos:
             if pdo.overridden:
-                writes += pdo_writes(eds, pdo, period_ms)
+                writes += co.pdo_writes(eds, pdo, period_ms)
         return tuple(writes)
 
     def overrides(self, eds: Eds, tpdos: list[Pdo], value: Any, key: str) -> list[Pdo]:
@@ -195,31 +147,26 @@ class CanopenSection:
             if not isinstance(objects, list) or not objects:
                 self.checks.problem(pkey, _found(objects), "a non-empty list of objects ('0x6041', '0x6077:0')")
                 continue
-            refs: list[tuple[int, int | None]] = []
-            for i, item in enumerate(objects):
-                ref = self.resolve(eds, item, f"{pkey}[{i}]")
-                if ref is not None:
-                    refs.append(ref)
+            refs = [r for i, item in enumerate(objects) if (r := self.resolve(eds, item, f"{pkey}[{i}]")) is not None]
             if len(refs) != len(objects):
                 continue
             try:
-                out[pname] = override(eds, by_name[pname], refs)
+                out[pname] = co.override(eds, by_name[pname], refs)
             except EdsError as exc:
                 self.checks.problem(pkey, str(exc), "PDO-mappable numbers that fit in 8 bytes")
         return [out[p.name] for p in tpdos]
 
     def resolve(self, eds: Eds, value: Any, key: str) -> tuple[int, int | None] | None:
         """``value`` (hex ``INDEX[:SUB]`` or a ParameterName) as (index, subindex) of an object of ``eds``."""
-        parsed = parse_object(value)
+        parsed = co.parse_object(value)
         if parsed is None:
             self.checks.problem(key, _found(value), "an object: INDEX or INDEX:SUB in hex, or its EDS ParameterName")
             return None
         if isinstance(parsed, str):
             var = eds.by_name(parsed)
             if var is None:
-                self.checks.problem(
-                    key, repr(parsed), f"an object of {eds.path.name} (hex INDEX[:SUB] or ParameterName)"
-                )
+                self.checks.problem(key, repr(parsed),
+                                    f"an object of {eds.path.name} (hex INDEX[:SUB] or ParameterName)")
                 return None
             return int(var.index), int(var.subindex)
         if eds.entry(parsed[0]) is None or (parsed[1] is not None and eds.variable(parsed[0], parsed[1]) is None):
@@ -227,10 +174,8 @@ class CanopenSection:
             return None
         return parsed
 
-    # -- sources ---------------------------------------------------------------
-    def source_refs(
-        self, source: str, role: str, value: Mapping[str, Any], key: str
-    ) -> tuple[str, float, list[SignalRef]]:
+    def source_refs(self, source: str, role: str, value: Mapping[str, Any], key: str
+                    ) -> tuple[str, float, list[SignalRef]]:
         """The signals of a ``canopen:`` source: (bus, max_age, [its value, then the drive's health roles])."""
         c = self.checks
         drive = self.drive_of(value.get("canopen"), key)
@@ -255,9 +200,8 @@ class CanopenSection:
         """The drive ``canopen: NAME`` names; None, with a problem unless that drive's own entry has one."""
         drive = self.drives.get(dname) if isinstance(dname, str) else None
         if drive is None and dname not in self.failed:
-            self.checks.problem(
-                _path(key, "canopen"), _found(dname), "a drive of canopen:" + _closest(dname, list(self.drives))
-            )
+            self.checks.problem(_path(key, "canopen"), _found(dname),
+                                "a drive of canopen:" + _closest(dname, list(self.drives)))
         return drive
 
     def tpdo_object(self, drive: CanopenDrive, value: Any, key: str) -> tuple[Pdo, MappedObject] | None:
@@ -265,7 +209,7 @@ class CanopenSection:
         if value is None:
             self.checks.problem(key, "nothing", "the object the source reads (hex INDEX[:SUB] or ParameterName)")
             return None
-        parsed = parse_object(value)
+        parsed = co.parse_object(value)
         if isinstance(parsed, str):
             for pdo in drive.enabled_tpdos:
                 for obj in pdo.objects:
@@ -280,15 +224,13 @@ class CanopenSection:
                     self.checks.problem(key, _found(value), f"a variable, not a whole object: {exc}")
                     return None
             found = drive.tpdo_of(parsed[0], parsed[1] or 0)
-            if found is not None and found[1].name == UNDESCRIBED:
-                self.checks.problem(
-                    key, f"{found[1].ref}, which {found[0].name} maps but {drive.eds.name} does not describe",
-                    "an object the EDS describes (its data type gives its size and sign)",
-                )
+            if found is not None and found[1].name == co.UNDESCRIBED:
+                self.checks.problem(key, f"{found[1].ref}, which {found[0].name} maps but {drive.eds.name} does not "
+                                    "describe", "an object the EDS describes (its data type gives its size and sign)")
                 return None
             if found is not None:
                 return found
-        mapped = mapped_text(drive.enabled_tpdos)
+        mapped = co.mapped_text(drive.enabled_tpdos)
         off = [p.name for p in drive.tpdos if not p.enabled]
         hint = (f"; {', '.join(off)} disabled in the EDS: map it there with canopen.{drive.name}.pdo "
                 "(`canguard init --canopen` writes one)" if off else "")
@@ -297,24 +239,21 @@ class CanopenSection:
         return None
 
     def health_refs(self, drive: CanopenDrive, near: Pdo | None) -> list[SignalRef]:
-        """The drive's heartbeat, EMCY and (statusword mapped) Fault-bit roles of every source it feeds.
-
-        The Fault bit is read from ``near`` (the TPDO of the source's own object) when it maps
-        the statusword too, so the bit and the value arrive in one frame.
-        """
+        """The drive's heartbeat, EMCY and (statusword mapped) Fault-bit roles of every source it feeds; the Fault
+        bit from ``near`` (the source's own TPDO) when it maps the statusword, so bit and value come in one frame."""
         name, emcy = drive.name, drive.emcy_id
-        refs = [self.ref(drive, None, ROLE_NMT, f"{name}_nmt_state", 0, 7, cob_id=drive.heartbeat_id,
+        refs = [self.ref(drive, None, "nmt", f"{name}_nmt_state", 0, 7, cob_id=drive.heartbeat_id,
                          max_age_s=drive.timeout_s)]
         if name not in self._events:  # one source per drive carries the EMCY event's fields
             self._events.add(name)
-            refs.append(self.ref(drive, None, ROLE_EMCY_CODE, f"{name}_emcy_code", 0, 16, cob_id=emcy))
-            refs.append(self.ref(drive, None, ROLE_EMCY_DATA, f"{name}_emcy_data", 24, 40, cob_id=emcy))
-        refs.append(self.ref(drive, None, ROLE_EMCY, f"{name}_error_register", 16, 8, cob_id=emcy))
-        in_near = near.find(STATUSWORD, 0) if near is not None else None
-        status = (near, in_near) if near is not None and in_near is not None else drive.tpdo_of(STATUSWORD, 0)
+            refs.append(self.ref(drive, None, "emcy_code", f"{name}_emcy_code", 0, 16, cob_id=emcy))
+            refs.append(self.ref(drive, None, "emcy_data", f"{name}_emcy_data", 24, 40, cob_id=emcy))
+        refs.append(self.ref(drive, None, "emcy", f"{name}_error_register", 16, 8, cob_id=emcy))
+        in_near = near.find(co.STATUSWORD, 0) if near is not None else None
+        status = (near, in_near) if near is not None and in_near is not None else drive.tpdo_of(co.STATUSWORD, 0)
         if status is not None:
             pdo, obj = status
-            refs.append(self.ref(drive, pdo, ROLE_FAULT, f"{name}_fault", obj.start_bit + FAULT_BIT, 1))
+            refs.append(self.ref(drive, pdo, "fault", f"{name}_fault", obj.start_bit + co.FAULT_BIT, 1))
         return refs
 
     def ref(self, drive: CanopenDrive, pdo: Pdo | None, role: str, signal: str, start: int, bits: int, *,
@@ -332,9 +271,8 @@ class CanopenSection:
             label, length = f"{drive.name}_emcy", 8
         self._labels[(drive.name, cob_id)] = (label, length)
         conversion = BaseConversion.factory(scale=scale, offset=0, is_float=is_float)
-        self._signals.setdefault((drive.name, cob_id), {})[signal] = Signal(
-            signal, start, bits, "little_endian", is_signed=signed, conversion=conversion
-        )
+        self._signals.setdefault((drive.name, cob_id), {})[signal] = Signal(signal, start, bits, "little_endian",
+                                                                             is_signed=signed, conversion=conversion)
         return SignalRef(role=role, bus=drive.bus, message=label, frame_id=cob_id, is_extended_id=False, signal=signal,
                          max_age_s=max_age_s)
 
@@ -342,22 +280,10 @@ class CanopenSection:
         """The cantools messages of every drive frame a source reads (built once every source is read)."""
         from cantools.database.can import Message
 
-        out = []
-        for (dname, cob_id), signals in self._signals.items():
-            label, length = self._labels[(dname, cob_id)]
-            out.append(
-                Message(
-                    frame_id=cob_id,
-                    name=label,
-                    length=length,
-                    signals=list(signals.values()),
-                    strict=False,
-                    bus_name=self.drives[dname].bus,
-                )
-            )
-        return out
+        return [Message(frame_id=cob_id, name=self._labels[(dname, cob_id)][0], length=self._labels[(dname, cob_id)][1],
+                        signals=list(signals.values()), strict=False, bus_name=self.drives[dname].bus)
+                for (dname, cob_id), signals in self._signals.items()]
 
-    # -- frames ----------------------------------------------------------------
     def frame(self, value: Mapping[str, Any], key: str) -> FrameSpec | None:
         """``{canopen: left, command: quick_stop}`` (the controlword in its RPDO) or ``{canopen: left, nmt: stop}``."""
         c = self.checks
@@ -369,26 +295,22 @@ class CanopenSection:
             c.problem(key, "both or neither of command and nmt", "one of command: (CiA 402) or nmt:")
             return None
         if "nmt" in value:
-            cs = NMT_COMMANDS.get(value["nmt"]) if isinstance(value["nmt"], str) else None
+            cs = co.NMT_COMMANDS.get(value["nmt"]) if isinstance(value["nmt"], str) else None
             if cs is None:
-                c.problem(_path(key, "nmt"), _found(value["nmt"]), "one of " + ", ".join(NMT_COMMANDS))
+                c.problem(_path(key, "nmt"), _found(value["nmt"]), "one of " + ", ".join(co.NMT_COMMANDS))
                 return None
-            return FrameSpec(drive.bus, NMT_ID, bytes([cs, drive.node]), label=f"{drive.name}.nmt_{value['nmt']}")
+            return FrameSpec(drive.bus, co.NMT_ID, bytes([cs, drive.node]), label=f"{drive.name}.nmt_{value['nmt']}")
         command = value["command"]
-        word = COMMANDS.get(command) if isinstance(command, str) else None
+        word = co.COMMANDS.get(command) if isinstance(command, str) else None
         if word is None:
-            c.problem(
-                _path(key, "command"), _found(command), "one of " + ", ".join(COMMANDS) + _closest(command, COMMANDS)
-            )
+            c.problem(_path(key, "command"), _found(command),
+                      "one of " + ", ".join(co.COMMANDS) + _closest(command, co.COMMANDS))
             return None
         found = drive.command_data(word)
         if found is None:
-            mapped = mapped_text(drive.rpdos)
-            c.problem(
-                _path(key, "command"),
-                f"{command} for {drive.name}, whose RPDOs do not map 0x6040 ({mapped or 'no RPDO'})",
-                "a drive with the controlword in an RPDO",
-            )
+            mapped = co.mapped_text(drive.rpdos)
+            c.problem(_path(key, "command"), f"{command} for {drive.name}, whose RPDOs do not map 0x6040 "
+                      f"({mapped or 'no RPDO'})", "a drive with the controlword in an RPDO")
             return None
         pdo, data = found
         return FrameSpec(drive.bus, pdo.cob_id, data, label=f"{drive.name}.{command}")

@@ -26,9 +26,8 @@ class CanopenDrives(Protocol):
 
     def load(self, value: Any) -> None: ...
 
-    def source_refs(
-        self, source: str, role: str, value: Mapping[str, Any], key: str
-    ) -> tuple[str, float, list[SignalRef]]: ...
+    def source_refs(self, source: str, role: str, value: Mapping[str, Any], key: str
+                    ) -> tuple[str, float, list[SignalRef]]: ...
 
     def messages(self) -> list[Any]: ...
 
@@ -84,13 +83,25 @@ class _Checks:
             return False
         for k in value:
             if k not in allowed:
-                self.problem(
-                    _path(key, k), f"unknown key {_shown(k)}", f"one of {', '.join(allowed)}" + _closest(k, allowed)
-                )
+                self.problem(_path(key, k), f"unknown key {_shown(k)}",
+                             f"one of {', '.join(allowed)}" + _closest(k, allowed))
         for k in required:
             if k not in value:
                 self.problem(_path(key, k), "nothing", "a value (required key)")
         return True
+
+    def section(self, value: Any, key: str, allowed: tuple[str, ...], required: tuple[str, ...] = ()) -> Any:
+        """An optional section: ``value`` when it is a mapping (its keys checked by :meth:`mapping`), else None."""
+        return value if value is not None and self.mapping(value, key, allowed, required) else None
+
+    def choice(self, mapping: Mapping[str, Any], name: str, key: str, options: tuple[Any, ...], default: Any) -> Any:
+        """``mapping[name]`` (``default`` when left out) if it is one of ``options``, else a problem and ``default``."""
+        value = mapping.get(name, default)
+        if type(value) is type(options[0]) and value in options:
+            return value
+        shown = [str(o).lower() if isinstance(o, bool) else str(o) for o in options]
+        self.problem(_path(key, name), _found(value), ", ".join(shown[:-1]) + " or " + shown[-1])
+        return default
 
     def string(self, value: Any, key: str, expected: str = "a string") -> str | None:
         if isinstance(value, str) and value:
@@ -132,11 +143,8 @@ class _Checks:
             if len(self.bus_names) == 1:
                 return self.bus_names[0]
             if self.bus_names:
-                self.problem(
-                    key,
-                    "nothing",
-                    f"one of the buses {', '.join(self.bus_names)} (several buses are configured)",
-                )
+                buses = ", ".join(self.bus_names)
+                self.problem(key, "nothing", f"one of the buses {buses} (several buses are configured)")
             return ""
         if not isinstance(value, str) or value not in self.bus_names:
             if self.bus_names:

@@ -1,15 +1,10 @@
 """DBC files as teams and vendors export them: loaded as cantools loads them without strict checks.
 
-:func:`load_dbc_file` reads one database file and returns a :class:`DbcFile`:
-
-- a pre-pass blanks (keeping line numbers) what cantools refuses even when not strict: Vector's
-  ``VECTOR__INDEPENDENT_SIG_MSG`` and statements (``VAL_``, ``BA_``, ``CM_``...) of a message or signal
-  the file does not define; each a :attr:`DbcFile.notes` line;
-- cantools loads the text with ``strict=False``, then every message is checked as strict mode would:
-  overlapping signals (outside exclusive multiplexer pages), signals that do not fit, and what they
-  multiplex are taken out of their message; two signals of one name stay, but are ambiguous. Each is a
-  :class:`SignalProblem` (file, line, signals, message): an error where the config reads an involved
-  signal (:meth:`DbcChecks.involved`), a note otherwise.
+A pre-pass blanks (keeping line numbers) what cantools refuses even when not strict: Vector's
+``VECTOR__INDEPENDENT_SIG_MSG`` and statements of a message or signal the file does not define (each a
+note). Then every message is checked as strict mode would: overlapping signals (outside exclusive
+multiplexer pages), signals that do not fit, and what they multiplex are taken out of their message.
+Each is a :class:`SignalProblem`: an error where the config reads an involved signal, a note otherwise.
 """
 
 from __future__ import annotations
@@ -27,9 +22,9 @@ PSEUDO_MESSAGE = "VECTOR__INDEPENDENT_SIG_MSG"
 """The message Vector's tools keep the signals of no message in (DLC 0; cantools refuses what refers to it)."""
 
 _WORD = re.compile(r'"(?:[^"\\]|\\.)*"|;|[^\s";]+')
-"""A word of a statement: a string (which may span lines and hold ``;``), a ``;``, or a run of anything else."""
+"""A word of a statement: a string (may span lines and hold ``;``), a ``;``, or a run of anything else."""
 _WORDS_NAMING = 6
-"""A statement names its message (and signal) within its first words (``BA_REL_ "a" BU_SG_REL_ n SG_ 5 s``)."""
+"""A statement names its message (and signal) within this many words (``BA_REL_ "a" BU_SG_REL_ n SG_ 5 s``)."""
 _BO = re.compile(r"BO_\s+(\d+)\s+(\w+)\s*:")
 _SG = re.compile(r"SG_\s+(\w+)\s*(?:\w+\s*)?:\s*(\d+)\|(\d+)@([01])")
 _STATEMENTS = frozenset({"VAL_", "SIG_VALTYPE_", "BA_", "CM_", "BO_TX_BU_", "SG_MUL_VAL_", "BA_REL_"})
@@ -47,7 +42,6 @@ class SignalProblem:
 
     message: str
     signals: tuple[str, ...]
-    """The names of the signals involved (one or two)."""
     text: str
     """``file:line: ...`` naming the signals and the message."""
 
@@ -63,12 +57,11 @@ class _SgLine:
 
 @dataclass
 class _Text:
-    """The pre-pass over one DBC text: the text cantools is given, the notes, and each message's signal lines."""
+    """The pre-pass's result: the text cantools is given, the notes, and each message's ``SG_`` lines by DBC id."""
 
     text: str
     notes: list[str] = field(default_factory=list)
     signal_lines: dict[int, list[_SgLine]] = field(default_factory=dict)
-    """Per DBC message id (extended flag included): its ``SG_`` lines in file order."""
 
 
 def _named_message(tokens: list[str]) -> tuple[int, str | None] | None:
@@ -216,7 +209,6 @@ class _Prepass:
         return "".join(parts)
 
 
-# -- the checks of one message ------------------------------------------------------------------
 def _bits(signal: Any) -> int:
     """The bits ``signal`` covers as a mask over the payload (bit ``8 * byte + bit``, as the DBC numbers them)."""
     length = int(signal.length)
@@ -264,15 +256,14 @@ class _MessageCheck:
         self.taken: set[int] = set()
         self.problems: list[SignalProblem] = []
         self.broken: set[int] = set()
-        """``id()`` of each signal involved in a problem."""
+        """``id()`` of each signal taken out."""
         self.pages: list[SignalProblem] = []
-        """Multiplexer values that select only signals left out (the message's frames on them do not decode)."""
+        """Multiplexer values that select only signals taken out (frames on them do not decode)."""
 
     def line(self, signal: Any) -> int:
         """The line of ``signal``'s ``SG_`` line (0 when the format has no lines)."""
-        match = [k for k, s in enumerate(self.lines)
-                 if (s.start, s.length, s.little) == (signal.start, signal.length,
-                                                      signal.byte_order == "little_endian")]
+        where = (signal.start, signal.length, signal.byte_order == "little_endian")
+        match = [k for k, s in enumerate(self.lines) if (s.start, s.length, s.little) == where]
         named = [k for k in match if self.lines[k].name == signal.name] or match
         free = [k for k in named if k not in self.taken] or named
         if not free:
@@ -281,8 +272,7 @@ class _MessageCheck:
         return self.lines[free[0]].line
 
     def add(self, signals: Iterable[Any], text: str, *, take_out: bool = True) -> None:
-        """Record a problem of ``signals``; ``take_out``: they leave the message (cantools cannot decode it with
-        them)."""
+        """Record a problem of ``signals``; ``take_out``: they leave the message."""
         signals = list(signals)
         if take_out:
             self.broken.update(id(s) for s in signals)
@@ -326,8 +316,7 @@ class _MessageCheck:
         return sound
 
     def emptied(self, signals: list[Any], sound: list[Any], where: dict[int, str]) -> None:
-        """A multiplexer page that only signals left out were on: cantools refuses a frame on it (no signal is
-        multiplexed on that value), so the message's frames on that page no longer decode."""
+        """Multiplexer pages only signals taken out were on: cantools refuses a frame on them."""
         for mux in sound:
             if not mux.is_multiplexer:
                 continue
@@ -356,7 +345,6 @@ class _MessageCheck:
                     changed = True
 
 
-# -- files -------------------------------------------------------------------------------------
 @dataclass
 class DbcFile:
     """One loaded database file: cantools' database with its unsound signals taken out, and what was found."""
@@ -369,15 +357,12 @@ class DbcFile:
     dropped: dict[str, list[Any]]
     """Per message name: the signals taken out of it."""
     pages: list[SignalProblem]
-    """Multiplexer values of a message that select only signals taken out: frames on them do not decode."""
 
 
 def load_dbc_file(path: Path, display: str | None = None) -> DbcFile:
     """Load a database file as cantools does without strict checks, then check every message strictly.
 
-    A ``.dbc`` file goes through the pre-pass first; other formats cantools reads (KCD, SYM, ARXML)
-    are loaded as they are, and their problems name the file without a line. Raises what cantools raises
-    (``FileNotFoundError``, its parse errors).
+    Only a ``.dbc`` file has the pre-pass and lines; raises what cantools raises.
     """
     shown = str(path) if display is None else display
     if path.suffix.lower() == ".dbc":

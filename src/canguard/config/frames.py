@@ -20,7 +20,7 @@ class _Frames(_Sources):
         if sig is None:
             return None
         if isinstance(value, str):
-            return self.choice(sig, value, key)
+            return self.choice_value(sig, value, key)
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
             self.problem(key, _found(value), f"a number for {sig.name}")
             return None
@@ -31,7 +31,7 @@ class _Frames(_Sources):
             return None
         return value if self.exact(sig, value, key) else None
 
-    def choice(self, sig: Any, name: str, key: str) -> int | float | None:
+    def choice_value(self, sig: Any, name: str, key: str) -> int | float | None:
         """The value of the VAL_ choice ``name`` of ``sig``; None after a problem naming the choices."""
         choices = _choices(sig)
         if name in choices:
@@ -41,11 +41,7 @@ class _Frames(_Sources):
         return None
 
     def exact(self, sig: Any, value: float, key: str) -> bool:
-        """Whether the number ``value`` encodes exactly: one of the VAL_ choices, or a whole raw value.
-
-        cantools rounds a raw value silently (1.5 would be sent as 2), so a number a signal
-        cannot carry exactly is a problem, not a guess.
-        """
+        """Whether ``value`` encodes exactly (a VAL_ choice, or a whole raw value): cantools rounds silently."""
         raw = _whole_raw(sig, value)
         if sig.choices:
             if raw is not None and raw in sig.choices:
@@ -80,9 +76,8 @@ class _Frames(_Sources):
         self.mapping(value, key, ("message", "signals", "bus"), ("message",))
         bus = self.bus(value.get("bus"), _path(key, "bus"))
         msg = self.message(value["message"], _path(key, "message"))
-        signals = value.get("signals", {})
-        if signals is None:
-            signals = {}
+        signals = value.get("signals")
+        signals = {} if signals is None else signals
         if not isinstance(signals, Mapping):
             self.problem(_path(key, "signals"), _found(signals), "a mapping of signal name -> value")
             return None
@@ -102,24 +97,15 @@ class _Frames(_Sources):
             payload = msg.encode(data, scaling=True, padding=False, strict=True)
         except Exception as exc:  # cantools EncodeError / ValueError / KeyError
             given = ", ".join(f"{k}={v!r}" for k, v in signals.items()) or "no signals"
-            self.problem(
-                _path(key, "signals"),
-                f"{given}, which does not encode ({exc})",
-                f"values within the ranges of {msg.name}'s signals",
-            )
+            self.problem(_path(key, "signals"), f"{given}, which does not encode ({exc})",
+                         f"values within the ranges of {msg.name}'s signals")
             return None
-        return FrameSpec(
-            bus=bus,
-            arbitration_id=msg.frame_id,
-            data=bytes(payload),
-            is_extended_id=bool(msg.is_extended_frame),
-            is_fd=bool(msg.is_fd),
-            label=msg.name,
-        )
+        return FrameSpec(bus, msg.frame_id, bytes(payload), is_extended_id=bool(msg.is_extended_frame),
+                         is_fd=bool(msg.is_fd), label=msg.name)
 
     def unsound_left_out(self, msg: Any, given: Mapping[str, Any], key: str) -> bool:
-        """Whether the signals the DBC gets wrong that a frame leaves out (taken out of the message: their bits
-        are sent as 0) would have been 0 at their initial values; a problem naming each that would not."""
+        """Whether the signals the DBC gets wrong that a frame leaves out (sent as 0) are 0 at their initial values;
+        a problem naming each that is not."""
         ok = True
         for s in self.dbc_checks.dropped(msg.name):
             if s.name in given:
@@ -128,12 +114,9 @@ class _Frames(_Sources):
             if _whole_raw(s, initial) == 0:
                 continue
             why = "; ".join(p.text for p in self.dbc_checks.involved(msg.name, s.name))
-            self.problem(
-                _path(key, "message"),
-                f"{msg.name}, whose signal {s.name} the frame would send at its initial value {initial:g} but "
-                f"the DBC gets it wrong ({why})",
-                "a message whose signals the DBC gets wrong are 0 when left out, or a raw frame {id, data}",
-            )
+            self.problem(_path(key, "message"), f"{msg.name}, whose signal {s.name} the frame would send at its "
+                         f"initial value {initial:g} but the DBC gets it wrong ({why})",
+                         "a message whose signals the DBC gets wrong are 0 when left out, or a raw frame {id, data}")
             ok = False
         return ok
 
@@ -156,9 +139,7 @@ class _Frames(_Sources):
             self.problem(_path(key, "extended"), _found(extended), "true or false")
             return None
         if not extended and raw_id > 0x7FF:
-            self.problem(
-                _path(key, "id"), f"0x{raw_id:X}", "a standard frame id 0..0x7FF (or extended: true)"
-            )
+            self.problem(_path(key, "id"), f"0x{raw_id:X}", "a standard frame id 0..0x7FF (or extended: true)")
             return None
         fd = value.get("fd", False)
         if not isinstance(fd, bool):
@@ -171,14 +152,11 @@ class _Frames(_Sources):
         return FrameSpec(bus, raw_id, payload_b, is_extended_id=extended, is_fd=fd, label=label)
 
     def raw_data(self, value: Any, key: str, fd: bool) -> bytes | None:
-        if value is None:
-            value = ""
+        value = "" if value is None else value
         try:
             if isinstance(value, str):
                 data = bytes.fromhex(value.replace(" ", "").replace(":", ""))
-            elif isinstance(value, list) and all(
-                isinstance(b, int) and not isinstance(b, bool) for b in value
-            ):
+            elif isinstance(value, list) and all(isinstance(b, int) and not isinstance(b, bool) for b in value):
                 data = bytes(value)
             else:
                 raise ValueError
@@ -186,11 +164,7 @@ class _Frames(_Sources):
             self.problem(key, _found(value), "hex bytes ('00 ff') or a list of byte values 0..255")
             return None
         if (fd and len(data) not in _FD_LENGTHS) or (not fd and len(data) > 8):
-            what = (
-                "a CAN FD length (0..8, 12, 16, 20, 24, 32, 48, 64)"
-                if fd
-                else "at most 8 bytes (fd: true for more)"
-            )
+            what = "a CAN FD length (0..8, 12, 16, 20, 24, 32, 48, 64)" if fd else "at most 8 bytes (fd: true for more)"
             self.problem(key, f"{len(data)} bytes", what)
             return None
         return data

@@ -29,20 +29,14 @@ class _Loader(_Sections):
         """What of a config with problems is sound enough to check its tree against."""
         raw_actions = doc.get("actions")
         names = [n for n in raw_actions if isinstance(n, str)] if isinstance(raw_actions, Mapping) else []
-        builtin = RESERVED_NODE_IDS if names else frozenset()
         # An action whose frames are wrong is still an action node ID the tree may use.
-        all_actions = {
-            n: actions.get(n, ActionConfig(name=n)) for n in names if _IDENT.fullmatch(n) and n not in builtin
-        }
+        all_actions = {n: actions.get(n, ActionConfig(name=n)) for n in names
+                       if _IDENT.fullmatch(n) and n not in RESERVED_NODE_IDS}
         raw_sources = doc.get("sources")
         declared = frozenset(str(n) for n in raw_sources) if isinstance(raw_sources, Mapping) else frozenset()
-        return PartialConfig(
-            tree=tree if tree is not None and tree.file.is_file() else None,
-            sources=MappingProxyType(dict(self.sources)),
-            declared_sources=declared,
-            sources_ok=self._sources_ok,
-            actions=MappingProxyType(all_actions),
-        )
+        return PartialConfig(tree=tree if tree is not None and tree.file.is_file() else None,
+                             sources=MappingProxyType(dict(self.sources)), declared_sources=declared,
+                             sources_ok=self._sources_ok, actions=MappingProxyType(all_actions))
 
     def config(self, doc: Any) -> Config:
         top = ("dbc", "buses", "canopen", "sources", "tree", "task", "stop", "actions", "events", "state",
@@ -83,31 +77,17 @@ class _Loader(_Sections):
         events = self.file_path(doc["events"], "events") if doc.get("events") is not None else None
         state = self.state(doc.get("state"))
         monitor = self.monitor(doc.get("monitor"))
-        simulation = doc.get("simulation", False)
-        if not isinstance(simulation, bool):
-            self.problem("simulation", _found(simulation), "true or false")
-            simulation = False
+        simulation = self.choice(doc, "simulation", "", (True, False), False)
         if self.problems:
             err = self.fail()
             err.partial = self.partial(doc, tree, actions)
             raise err
-        return Config(
-            path=self.path,
-            dbc_files=dbc_files,
-            buses=MappingProxyType(buses),
-            sources=MappingProxyType(dict(self.sources)),
-            tree=tree,
-            task=task,
-            stop=stop,
-            actions=MappingProxyType(actions),
-            events=events,
-            state=state,
-            monitor=monitor,
-            simulation=simulation,
-            database=self.database,
-            canopen=MappingProxyType(dict(self.canopen.drives) if self.canopen is not None else {}),
-            dbc_notes=tuple(self.dbc_checks.notes),
-        )
+        drives = MappingProxyType(dict(self.canopen.drives) if self.canopen is not None else {})
+        return Config(path=self.path, dbc_files=dbc_files, buses=MappingProxyType(buses),
+                      sources=MappingProxyType(dict(self.sources)), tree=tree, task=task, stop=stop,
+                      actions=MappingProxyType(actions), events=events, state=state, monitor=monitor,
+                      simulation=simulation, database=self.database, canopen=drives,
+                      dbc_notes=tuple(self.dbc_checks.notes))
 
 
 def load_config_text(text: str, path: str | Path) -> Config:
@@ -128,9 +108,7 @@ def load_config_text(text: str, path: str | Path) -> Config:
         detail = f"{context}, {problem}" if context else str(problem)
         raise ConfigError(f"{where}: YAML syntax error: {detail}") from exc
     if doc is None:
-        raise ConfigError(
-            f"{display}: (top level): found an empty file, expected a mapping with dbc, buses, sources"
-        )
+        raise ConfigError(f"{display}: (top level): found an empty file, expected a mapping with dbc, buses, sources")
     return _Loader(p, display, text).config(doc)
 
 
@@ -139,13 +117,10 @@ def load_config(path: str | Path) -> Config:
     try:
         text = Path(path).expanduser().read_text(encoding="utf-8")
     except OSError as exc:
-        raise ConfigError(
-            f"{path}: found a file that cannot be read ({exc.strerror or exc}), expected a YAML config"
-        ) from exc
+        why = exc.strerror or exc
+        raise ConfigError(f"{path}: found a file that cannot be read ({why}), expected a YAML config") from exc
     except RuntimeError as exc:  # Path.expanduser: ~user of no such user
         raise ConfigError(f"{path}: found {exc}, expected a config path whose ~ names an existing user") from exc
     except UnicodeDecodeError as exc:
-        raise ConfigError(
-            f"{path}: found bytes that are not UTF-8 ({exc.reason}), expected a YAML text file"
-        ) from exc
+        raise ConfigError(f"{path}: found bytes that are not UTF-8 ({exc.reason}), expected a YAML text file") from exc
     return load_config_text(text, path)

@@ -1,9 +1,4 @@
-"""``monitor:``: where the status page and the Groot2 monitor listen, checked once for the config and the CLI.
-
-``http: "HOST:PORT"`` (the page; loopback unless the config says otherwise), ``token:`` (the bearer
-token a non-loopback page requires), ``groot2: PORT`` or ``"HOST:PORT"`` (BehaviorTree.CPP's Groot2
-publisher protocol: REP on PORT, PUB on PORT + 1). Port 0 asks the system for a free port.
-"""
+"""``monitor:``: where the status page and the Groot2 monitor listen, checked once for the config and the CLI."""
 
 from __future__ import annotations
 
@@ -40,10 +35,8 @@ def is_loopback(host: str) -> bool:
 
 
 def parse_address(value: object, *, port_span: int = 1) -> Address | str:
-    """``"HOST:PORT"``, ``"[V6]:PORT"`` or a bare port (loopback) as an :class:`Address`; else what was expected.
-
-    ``port_span``: how many consecutive ports the server takes (Groot2: 2, PORT and PORT + 1).
-    """
+    """``"HOST:PORT"``, ``"[V6]:PORT"`` or a bare port (loopback) as an :class:`Address`, else what was expected;
+    ``port_span``: how many consecutive ports the server takes (port 0: any free one)."""
     expected = "HOST:PORT (e.g. 127.0.0.1:8470) or a port number"
     top = 65535 - (port_span - 1)
     if isinstance(value, int) and not isinstance(value, bool):
@@ -78,11 +71,8 @@ def needs_token(address: Address, token: str | None) -> bool:
 
 
 def with_overrides(monitor: MonitorConfig, *, http: str | None = None, groot2: str | None = None) -> MonitorConfig:
-    """The config's ``monitor:`` with ``--http`` / ``--groot2`` in place of its addresses.
-
-    Raises :class:`ConfigError` naming the flag: a malformed address, or a page that would be
-    open to the network without ``monitor.token``.
-    """
+    """The config's ``monitor:`` with ``--http`` / ``--groot2`` in place of its addresses; ConfigError naming the
+    flag for a malformed address, or a page open to the network without ``monitor.token``."""
     found = {"http": monitor.http, "groot2": monitor.groot2}
     for flag, key, given, span in (("--http", "http", http, 1), ("--groot2", "groot2", groot2, 2)):
         if given is None:

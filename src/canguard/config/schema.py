@@ -37,11 +37,7 @@ class BusConfig:
 
 @dataclass(frozen=True)
 class SignalRef:
-    """One DBC signal a source reads, resolved against the loaded DBC files.
-
-    ``role`` is the name the signal has inside its source: ``current`` or
-    ``present`` for battery / current sources, the joint name for joints.
-    """
+    """One DBC signal a source reads; ``role``: its name in the source (``current``, ``present``, a joint's name)."""
 
     role: str
     bus: str
@@ -53,7 +49,7 @@ class SignalRef:
     minimum: float | None = None
     maximum: float | None = None
     max_age_s: float | None = None
-    """How old this signal may be, where it has its own timeout (a CANopen drive's heartbeat); None: the source's."""
+    """Its own timeout (a CANopen drive's heartbeat); None: the source's."""
 
 
 @dataclass(frozen=True)
@@ -72,7 +68,7 @@ class SourceConfig:
 
     @property
     def value_roles(self) -> tuple[str, ...]:
-        """The roles that carry values guards check (every role but ``present``, ``counter`` and a drive's health)."""
+        """The roles that carry values guards check (not :data:`NON_VALUE_ROLES`)."""
         return tuple(s.role for s in self.signals if s.role not in NON_VALUE_ROLES)
 
 
@@ -86,7 +82,7 @@ class FrameSpec:
     is_extended_id: bool = False
     is_fd: bool = False
     label: str = ""
-    """The DBC message name, or the hex id of a raw frame (for events and logs)."""
+    """The DBC message name, or the hex id of a raw frame."""
 
 
 @dataclass(frozen=True)
@@ -126,9 +122,9 @@ class StopConfig:
     confirm: StopConfirm | None = None
     escalate: tuple[FrameSpec, ...] = ()
     min_stop_s: float = 0.0
-    """``stop.min_stop``: a stop lasts at least this long (s), whatever the tree says (0: no minimum)."""
+    """A stop lasts at least this long, whatever the tree says."""
     release: Literal["auto", "manual"] = "auto"
-    """``stop.release``: ``manual`` also needs a ResetStop node ticked in the releasing tick."""
+    """``manual``: releasing also needs a ResetStop node ticked in the releasing tick."""
 
 
 @dataclass(frozen=True)
@@ -138,8 +134,8 @@ class ActionConfig:
     name: str
     frames: tuple[FrameSpec, ...] = ()
     role: Literal["auto", "task", "recovery"] = "auto"
-    """``task``: part of the task (withheld while stopped); ``recovery``: sends during a stop too;
-    ``auto``: task when the tree has no ExecuteTask node, recovery when it has one."""
+    """``task``: withheld while stopped; ``recovery``: sends during a stop too; ``auto``: task unless the tree has
+    an ExecuteTask node."""
 
 
 @dataclass(frozen=True)
@@ -156,11 +152,11 @@ class MonitorConfig:
     """``monitor:``: the status page and the Groot2 monitor (both off unless configured)."""
 
     http: str | None = None
-    """``HOST:PORT`` of the status page (``GET /``, ``/api/status``, ``/api/events``)."""
+    """``HOST:PORT`` of the status page."""
     token: str | None = None
-    """The bearer token the page and its API require; needed when ``http`` is not loopback."""
+    """The bearer token the page requires (needed when ``http`` is not loopback)."""
     groot2: str | None = None
-    """``PORT`` or ``HOST:PORT`` of the Groot2 monitor (REP on PORT, PUB on PORT + 1)."""
+    """``HOST:PORT`` of the Groot2 monitor (REP on PORT, PUB on PORT + 1)."""
 
 
 @dataclass(frozen=True)
@@ -175,18 +171,18 @@ class Config:
     task: TaskConfig
     stop: StopConfig
     actions: Mapping[str, ActionConfig]
+    """Every well-formed action node ID declared."""
     events: Path | None
     state: StateConfig = field(default_factory=StateConfig)
     monitor: MonitorConfig = field(default_factory=MonitorConfig)
     simulation: bool = False
-    """``simulation: true``: the config may guard only ``virtual`` buses under systemd (a bench, not a robot)."""
+    """A bench, not a robot: the config may guard only ``virtual`` buses under systemd."""
     database: Any = field(default=None, compare=False, repr=False)
-    """The merged ``cantools.database.Database`` of every DBC file (and of the ``canopen:`` drives' frames)."""
+    """The merged ``cantools.database.Database`` of every DBC file and the ``canopen:`` drives' frames."""
     canopen: Mapping[str, CanopenDrive] = field(default_factory=dict)
-    """``canopen:``: the CANopen drives by name, resolved against their EDS."""
+    """The ``canopen:`` drives by name."""
     dbc_notes: tuple[str, ...] = ()
-    """What the DBC files get wrong where this config does not read them (signals taken out of their message,
-    statements skipped), one ``file:line: ...`` each: ``canguard check -v`` lists them."""
+    """What the DBC files get wrong where this config does not read them (``canguard check -v``)."""
 
 
 @dataclass(frozen=True)
@@ -196,10 +192,10 @@ class PartialConfig:
     tree: TreeConfig | None
     """``tree:`` when it names an existing file."""
     sources: Mapping[str, SourceConfig]
-    """The sources that were built (some may miss signals the config got wrong)."""
+    """The sources that were built (some may miss signals)."""
     declared_sources: frozenset[str]
-    """Every source name declared: a tree naming one that was not built is a follow-on error."""
+    """Every source name declared (a tree naming one not built is a follow-on error)."""
     sources_ok: bool
-    """False when ``sources:`` itself is unusable: the tree's source names are not checked then."""
+    """False when ``sources:`` itself is unusable (the tree's source names are not checked)."""
     actions: Mapping[str, ActionConfig]
-    """Every well-formed action node ID declared (with its frames when they loaded)."""
+    """Every well-formed action node ID declared."""

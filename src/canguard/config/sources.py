@@ -52,25 +52,19 @@ class _Sources(_Checks):
         clash = False
         for p, db in databases:
             for m in db.messages:
-                if m.name in where:
-                    self.problem(
-                        "dbc", f"message {m.name!r} in both {where[m.name]} and {p}", "unique message names"
-                    )
-                    clash = True
-                    continue
                 key = (m.frame_id, bool(m.is_extended_frame))
-                if key in ids:
+                if m.name in where:
+                    self.problem("dbc", f"message {m.name!r} in both {where[m.name]} and {p}", "unique message names")
+                elif key in ids:
                     other, op = ids[key]
-                    self.problem(
-                        "dbc",
-                        f"frame id 0x{m.frame_id:X} as {other!r} in {op} and as {m.name!r} in {p}",
-                        "unique frame ids",
-                    )
-                    clash = True
+                    self.problem("dbc", f"frame id 0x{m.frame_id:X} as {other!r} in {op} and as {m.name!r} in {p}",
+                                 "unique frame ids")
+                else:
+                    where[m.name] = p
+                    ids[key] = (m.name, p)
+                    messages.append(m)
                     continue
-                where[m.name] = p
-                ids[key] = (m.name, p)
-                messages.append(m)
+                clash = True
         if clash:
             return tuple(files)
         if len(databases) == 1:
@@ -79,9 +73,7 @@ class _Sources(_Checks):
             nodes = [n for _, db in databases for n in db.nodes]
             # not strict, as each file loaded: two signals of one name stay in their message
             self.database = cantools.database.can.Database(messages=messages, nodes=nodes, strict=False)
-        for m in self.database.messages:
-            self._by_name[m.name] = m
-            self._by_id.setdefault(m.frame_id, []).append(m)
+        self._index(self.database.messages)
         self.messages_ok = True
         return tuple(files)
 
@@ -126,7 +118,10 @@ class _Sources(_Checks):
         else:
             self.database.messages.extend(added)
             self.database.refresh()
-        for m in added:
+        self._index(added)
+
+    def _index(self, messages: list[Any]) -> None:
+        for m in messages:
             self._by_name[m.name] = m
             self._by_id.setdefault(m.frame_id, []).append(m)
 
@@ -141,9 +136,7 @@ class _Sources(_Checks):
             try:
                 number = int(text, 16) if text.startswith("0x") else int(text, 10)
             except ValueError:
-                self.problem(
-                    key, _shown(value), "a DBC message name or frame id" + _closest(value, self._by_name)
-                )
+                self.problem(key, _shown(value), "a DBC message name or frame id" + _closest(value, self._by_name))
                 return None
             value = number
         if isinstance(value, int) and not isinstance(value, bool):
@@ -160,10 +153,7 @@ class _Sources(_Checks):
         return None
 
     def signal(self, message: Any, value: Any, key: str) -> Any:
-        """The signal ``value`` of ``message``; None after recording a problem.
-
-        A signal the DBC gets wrong (:mod:`canguard.config.dbc`) is a problem naming what is wrong with it.
-        """
+        """The signal ``value`` of ``message``; None after recording a problem (also naming what the DBC gets wrong)."""
         names = [s.name for s in message.signals]
         involved = self.dbc_checks.involved(message.name, value) if isinstance(value, str) else []
         if not involved and value in names:
@@ -188,78 +178,54 @@ class _Sources(_Checks):
             return None
         return sig
 
-    # -- sections ----------------------------------------------------------
     def signal_ref(self, role: str, bus: str, message: Any, signal: Any) -> SignalRef:
-        return SignalRef(
-            role=role,
-            bus=bus,
-            message=message.name,
-            frame_id=message.frame_id,
-            is_extended_id=bool(message.is_extended_frame),
-            signal=signal.name,
-            unit=signal.unit or None,
-            minimum=None if signal.minimum is None else float(signal.minimum),
-            maximum=None if signal.maximum is None else float(signal.maximum),
-        )
+        return SignalRef(role, bus, message.name, message.frame_id, bool(message.is_extended_frame), signal.name,
+                         unit=signal.unit or None, minimum=None if signal.minimum is None else float(signal.minimum),
+                         maximum=None if signal.maximum is None else float(signal.maximum))
 
-    def _message_signals(self, key: str, value: Mapping[str, Any], kind: Any, bus: str) -> list[SignalRef]:
-        """The signals of a source of one message (battery, current; any kind when the kind is unknown)."""
-        signals: list[SignalRef] = []
+    def _message_signals(self, key: str, value: Mapping[str, Any], keys: tuple[str, ...], bus: str) -> list[SignalRef]:
+        """The signals a source of one message reads (``keys``: its kind's, in role order)."""
         msg = self.message(value["message"], _path(key, "message")) if "message" in value else None
-        roles: tuple[tuple[str, str], ...]
-        if kind == "battery":
-            roles = (("current", "current"), ("present", "present"), ("counter", "counter"))
-        elif kind == "current":
-            roles = (("current", "signal"), ("present", "present"), ("counter", "counter"))
-        else:
-            roles = (("current", "current"), ("current", "signal"), ("present", "present"), ("counter", "counter"))
-        for role, k in roles:
-            if msg is None or k not in value:
+        signals: list[SignalRef] = []
+        for k in keys:
+            if msg is None or k in ("message", "effort") or k not in value:
                 continue
             sig = self.read_signal(msg, value[k], _path(key, k))
             if sig is not None:
-                signals.append(self.signal_ref(role, bus, msg, sig))
+                signals.append(self.signal_ref("current" if k == "signal" else k, bus, msg, sig))
         return signals
 
     def _effort_signals(self, key: str, value: Mapping[str, Any], bus: str) -> list[SignalRef]:
         """The joints of a ``joints`` source (``effort:``), each a signal named by its joint."""
-        signals: list[SignalRef] = []
         effort = value.get("effort")
         if not isinstance(effort, list) or not effort:
             if "effort" in value:
-                self.problem(
-                    _path(key, "effort"), _found(effort), "a non-empty list of {message, signal, name}"
-                )
-        else:
-            seen: set[str] = set()
-            for i, item in enumerate(effort):
-                ikey = f"{key}.effort[{i}]"
-                if not self.mapping(
-                    item, ikey, ("message", "signal", "name", "bus"), ("message", "signal", "name")
-                ):
-                    continue
-                jname = item.get("name")
-                if "name" in item:
-                    if not isinstance(jname, str) or not jname or jname in NON_VALUE_ROLES:
-                        self.problem(
-                            _path(ikey, "name"), _found(jname),
-                            "a joint name (a string, not " + ", ".join(sorted(NON_VALUE_ROLES)) + ")",
-                        )
-                        jname = None
-                    elif jname in seen:
-                        self.problem(
-                            _path(ikey, "name"), f"{jname!r} again", "a joint name unique in the source"
-                        )
-                        jname = None
-                    else:
-                        seen.add(jname)
-                ibus = bus if "bus" not in item else self.bus(item["bus"], _path(ikey, "bus"))
-                msg = self.message(item["message"], _path(ikey, "message")) if "message" in item else None
-                if msg is None or "signal" not in item:
-                    continue
-                sig = self.read_signal(msg, item["signal"], _path(ikey, "signal"))
-                if sig is not None and jname is not None:
-                    signals.append(self.signal_ref(jname, ibus, msg, sig))
+                self.problem(_path(key, "effort"), _found(effort), "a non-empty list of {message, signal, name}")
+            return []
+        signals: list[SignalRef] = []
+        seen: set[str] = set()
+        for i, item in enumerate(effort):
+            ikey = f"{key}.effort[{i}]"
+            if not self.mapping(item, ikey, ("message", "signal", "name", "bus"), ("message", "signal", "name")):
+                continue
+            jname = item.get("name")
+            if "name" in item:
+                if not isinstance(jname, str) or not jname or jname in NON_VALUE_ROLES:
+                    self.problem(_path(ikey, "name"), _found(jname),
+                                 "a joint name (a string, not " + ", ".join(sorted(NON_VALUE_ROLES)) + ")")
+                    jname = None
+                elif jname in seen:
+                    self.problem(_path(ikey, "name"), f"{jname!r} again", "a joint name unique in the source")
+                    jname = None
+                else:
+                    seen.add(jname)
+            ibus = bus if "bus" not in item else self.bus(item["bus"], _path(ikey, "bus"))
+            msg = self.message(item["message"], _path(ikey, "message")) if "message" in item else None
+            if msg is None or "signal" not in item:
+                continue
+            sig = self.read_signal(msg, item["signal"], _path(ikey, "signal"))
+            if sig is not None and jname is not None:
+                signals.append(self.signal_ref(jname, ibus, msg, sig))
         return signals
 
     def source(self, name: str, value: Any) -> SourceConfig | None:
@@ -270,39 +236,24 @@ class _Sources(_Checks):
         kind = value.get("kind")
         if "canopen" in value:
             return self.canopen_source(name, kind, value, key)
-        common = ("kind", "bus", "max_age")
-        allowed: tuple[str, ...]
-        required: tuple[str, ...]
-        if kind == "battery":
-            allowed, required = (*common, "message", "current", "present", "counter"), ("message", "current")
-        elif kind == "current":
-            allowed, required = (*common, "message", "signal", "present", "counter"), ("message", "signal")
-        elif kind == "joints":
-            allowed, required = (*common, "effort"), ("effort",)
-        else:
-            self.problem(
-                _path(key, "kind"),
-                _found(kind),
-                "one of battery, joints, current" + _closest(kind, SOURCE_KINDS),
-            )
-            # Still check what can be checked without the kind: keys of any kind, the bus,
-            # max_age, messages and signal names (the source itself is not built).
-            allowed, required = (*common, "message", "current", "signal", "present", "counter", "effort"), ()
-        self.mapping(value, key, allowed, required)
+        keys = _KIND_KEYS.get(kind) if isinstance(kind, str) else None
+        known = keys is not None
+        if keys is None:
+            self.problem(_path(key, "kind"), _found(kind),
+                         "one of battery, joints, current" + _closest(kind, SOURCE_KINDS))
+            # Still check what can be checked without the kind (the source itself is not built).
+            keys = ("message", "current", "signal", "present", "counter", "effort")
+        self.mapping(value, key, ("kind", "bus", "max_age", *keys), keys[:2] if known else ())
         bus = self.bus(value.get("bus"), _path(key, "bus"))
         max_age = self.seconds(value, "max_age", key, 0.5)
         signals: list[SignalRef] = []
-        known = kind in SOURCE_KINDS
-        if kind in ("battery", "current") or (not known and "message" in value):
-            signals.extend(self._message_signals(key, value, kind, bus))
-        if kind == "joints" or (not known and "effort" in value):
+        if "message" in keys and (known or "message" in value):
+            signals.extend(self._message_signals(key, value, keys, bus))
+        if "effort" in keys and (known or "effort" in value):
             signals.extend(self._effort_signals(key, value, bus))
         if not known:
             return None
-        return SourceConfig(
-            name=name, kind=cast(SourceKind, kind), bus=bus, signals=tuple(signals), max_age_s=max_age
-        )
-
+        return SourceConfig(name=name, kind=cast(SourceKind, kind), bus=bus, signals=tuple(signals), max_age_s=max_age)
 
     def canopen_source(self, name: str, kind: Any, value: Mapping[str, Any], key: str) -> SourceConfig | None:
         """A source reading an object of a ``canopen:`` drive (``kind: current``)."""
@@ -318,4 +269,8 @@ class _Sources(_Checks):
 
 
 SOURCE_KINDS: tuple[SourceKind, ...] = ("battery", "joints", "current")
+_KIND_KEYS: dict[str, tuple[str, ...]] = {
+    "battery": ("message", "current", "present", "counter"), "joints": ("effort",),
+    "current": ("message", "signal", "present", "counter")}
+"""The keys of each source kind besides kind, bus and max_age (the first two, or the one, required), in role order."""
 _IDENT = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")

@@ -24,20 +24,13 @@ def _construct_unique_mapping(loader: _UniqueKeyLoader, node: yaml.MappingNode) 
     for key_node, value_node in node.value:
         key = loader.construct_object(key_node, deep=True)
         if key in mapping:
-            raise yaml.constructor.ConstructorError(
-                "while constructing a mapping",
-                node.start_mark,
-                f"found duplicate key {key!r}",
-                key_node.start_mark,
-            )
+            raise yaml.constructor.ConstructorError("while constructing a mapping", node.start_mark,
+                                                    f"found duplicate key {key!r}", key_node.start_mark)
         mapping[key] = loader.construct_object(value_node, deep=True)
     return mapping
 
 
-_UniqueKeyLoader.add_constructor(
-    yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG,
-    _construct_unique_mapping,
-)
+_UniqueKeyLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _construct_unique_mapping)
 
 _FastUniqueKeyLoader: Any = None
 if getattr(yaml, "__with_libyaml__", False):
@@ -50,11 +43,8 @@ if getattr(yaml, "__with_libyaml__", False):
 
 
 def load_yaml(text: str) -> Any:
-    """``text`` as :class:`_UniqueKeyLoader` reads it: through libyaml when PyYAML has it.
-
-    Whenever libyaml finds a problem, the pure-Python loader reads the text again, so a
-    config's errors (and whatever it accepts) are those of :class:`_UniqueKeyLoader`.
-    """
+    """``text`` as :class:`_UniqueKeyLoader` reads it, through libyaml when PyYAML has it (its errors: the pure-Python
+    loader's, which reads the text again)."""
     if _FastUniqueKeyLoader is not None:
         try:
             return yaml.load(text, Loader=_FastUniqueKeyLoader)
@@ -100,8 +90,7 @@ def _path(parent: str, key: Any) -> str:
 
 
 def _compose(text: str) -> yaml.Node | None:
-    """The node tree of ``text`` (each node with its line): libyaml's, as :func:`load_yaml` reads, about 8x faster;
-    the pure-Python composer's where libyaml is missing or finds a problem; None where both do."""
+    """The node tree of ``text`` (each node with its line), as :func:`load_yaml` reads; None on a problem."""
     for loader in (_FastUniqueKeyLoader, _UniqueKeyLoader):
         if loader is not None:
             try:
@@ -112,11 +101,7 @@ def _compose(text: str) -> yaml.Node | None:
 
 
 def key_lines(text: str) -> dict[str, int]:
-    """The line (1-based) of every key path of a YAML document, in the loader's spelling.
-
-    ``sources.axis0.signal`` is the line of the ``signal:`` key, ``task.frames[1]`` the line
-    of the list item; problems name key paths, and this gives them their line in the file.
-    """
+    """The line (1-based) of every key path of a YAML document (``sources.axis0.signal``, ``task.frames[1]``)."""
     root = _compose(text)
     lines: dict[str, int] = {}
     constructor = yaml.SafeLoader("")

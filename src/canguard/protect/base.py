@@ -1,28 +1,9 @@
 """What every protection model is: a pure state machine that advances over runs of samples.
 
-**The run API** (the only way samples reach a model; docs/protection.md tells how the engine uses it):
-``model.advance(times, values, *, until_edge=False) -> Run``.
-
-- A *run*: two equal-length 1-D columns (lists, tuples, anything ``numpy.asarray`` takes), ``times``
-  in seconds and ``values`` in the signal's unit (A, or N·m; signed: the model takes |value|), in
-  arrival order; one sample (the live bus) or millions (a log). Mismatched or non-1-D columns raise
-  ValueError naming both shapes.
-- The :class:`Run` says where the tripped state changed (``index``, ``t``, ``tripped``) and how many
-  samples were taken. With ``until_edge`` the model stops right after the first edge: the engine
-  ticks the tree there and calls ``advance`` again with the rest.
-- State carries between runs, so a run fed whole, sample by sample or split anywhere gives the same
-  edges at the same samples and the same state (floats within 1e-9 relative): the tests hold every
-  model to the per-sample maths of ``tests/reference_models.py``. :meth:`~ProtectionModel.mark` /
-  :meth:`~ProtectionModel.rewind` take a model back to where it stood.
-- A sample whose value or time is not finite is ignored and counted in ``rejected``; one older than
-  the latest accepted one in ``out_of_order``; a repeated timestamp is a normal sample.
-- Time moves a model only through samples (never with time alone): the engine relies on it to count
-  a grid tick proven to repeat the last one (:mod:`canguard.engine.quiet`;
-  ``tests/test_protect_contract.py`` holds every model to it).
-
-Models report at tick time (:meth:`~ProtectionModel.poll`) with a *peak latch*: a trip at any moment
-since the previous poll is reported even when the latest sample is normal again. Invalid data (stale,
-not present, out of range) is :class:`canguard.protect.staleness.SourceHealth`'s, not the models'.
+The run API, ``model.advance(times, values, *, until_edge=False) -> Run`` over two equal-length 1-D columns
+(a sample is a run of one), is the only way samples reach a model (docs/protection.md): a run fed whole or
+split anywhere gives the same edges and state. Time moves a model only through samples
+(:mod:`canguard.engine.quiet` relies on it).
 """
 
 from __future__ import annotations
@@ -49,16 +30,12 @@ REASON_STALE = "stale"
 REASON_NOT_PRESENT = "not_present"
 
 TIME_EPS_S = 1e-9
-"""Tolerance of duration comparisons (``held >= trip_after_s``): timestamps like
-``21 * 0.01`` carry float rounding, and candump resolves microseconds only."""
+"""Tolerance of duration comparisons: ``21 * 0.01`` carries float rounding, candump resolves microseconds."""
 
 _FIRST_CHUNK = 16
-"""With ``until_edge``, a long run is screened in chunks that double from twice the typical
-distance at which the previous stops found their edge (a running average; at least this many
-samples): chattering edges cost a short screen each, rare ones a few passes over the run."""
+"""With ``until_edge``, chunks double from twice the running average distance to the edge (at least this)."""
 _LAST_CHUNK = 1 << 16
-"""A long run is screened in chunks of at most this many samples: the temporary columns
-stay in the CPU cache and memory stays flat however long the run."""
+"""The largest chunk screened at once: its temporary columns stay in cache, memory stays flat."""
 
 
 def check_limit(name: str, value: float, *, positive: bool = False) -> float:
@@ -85,7 +62,10 @@ class ProtectionModel(ABC):
 
     @abstractmethod
     def advance(self, times: npt.ArrayLike, values: npt.ArrayLike, *, until_edge: bool = False) -> Run:
-        """Advance over a run of samples (see the module docstring); where the tripped state changed."""
+        """Advance over a run of samples (see the module docstring); where the tripped state changed.
+
+        With ``until_edge`` the model stops right after the first edge (the engine ticks the tree there).
+        """
 
     @abstractmethod
     def mark(self) -> Any:
@@ -115,12 +95,8 @@ S = TypeVar("S", bound=Screen)
 class LatchedModel(ProtectionModel, Generic[S]):
     """What every concrete model shares: the run filter, tripped state, edge time, peak latch, snapshots.
 
-    One kernel, :meth:`_step` (one accepted sample, Python floats), decides. A run of one goes
-    straight to it; a run in order, finite and on the model's quiet side (:meth:`_quiet`) is taken
-    whole from its last sample; any other short run (up to :data:`SHORT_RUN`) sample by sample; a
-    long run is screened with numpy (:meth:`_screen`) for the samples where the kernel can act, the
-    kernel runs there and while a timer runs (:meth:`_at_rest`), the stretches between are taken
-    whole (:meth:`_rest`). All ways are the same maths.
+    One kernel, :meth:`_step`, decides; a quiet run (:meth:`_quiet`) is taken whole, a short one sample by
+    sample, a long one screened with numpy (:meth:`_screen`) and the kernel run only where it can act.
     """
 
     reason_tripped: str = REASON_OVERCURRENT
@@ -133,14 +109,13 @@ class LatchedModel(ProtectionModel, Generic[S]):
         self._value = math.nan
         self._last_t: float | None = None
         self.out_of_order = 0
-        """Samples ignored because they were older than the latest one."""
+        """Samples ignored as older than the latest one."""
         self.rejected = 0
-        """Samples ignored because their value or time was not finite."""
+        """Samples ignored as not finite."""
         self._reach = _LAST_CHUNK // 64
 
     @property
     def tripped(self) -> bool:
-        """True while the model is tripped (no latch)."""
         return self._tripped
 
     @property
@@ -191,12 +166,10 @@ class LatchedModel(ProtectionModel, Generic[S]):
         return self.__dict__.copy()
 
     def rewind(self, mark: Any) -> None:
-        """Go back to the state :meth:`mark` gave."""
         self.__dict__.update(mark)
 
     def _screened(self, t: Any, v: Any) -> bool:
-        """A run in order (none before the latest, times not going back), finite and on the model's quiet side
-        (:meth:`_quiet`): taken whole from its last sample; False: nothing done. Lists or numpy columns."""
+        """Take a run in order, finite and on the quiet side (:meth:`_quiet`) whole; False: nothing done."""
         if not ordered(t):
             return False
         last = self._last_t
@@ -216,9 +189,8 @@ class LatchedModel(ProtectionModel, Generic[S]):
         return True
 
     def _quiet(self, t: Any, low_a: float, high_a: float, final_a: float) -> bool:
-        """Take a run (times ``t`` in order, after the latest; every |value| in [``low_a``, ``high_a``], the last
-        ``final_a``) when its samples fed one by one would change nothing but the latest time and value (the
-        base sets those); False: nothing taken. The default: every sample to the kernel."""
+        """Take an ordered run with every |value| in [``low_a``, ``high_a``] when its samples would change nothing
+        but the latest time and value (the base sets those); False: nothing taken."""
         return False
 
     def _feed(self, t: float, a: float, tripped: bool) -> bool:
@@ -233,7 +205,7 @@ class LatchedModel(ProtectionModel, Generic[S]):
         return True
 
     def _sample(self, t: float, v: float) -> bool | None:
-        """One sample of a short run: None when ignored (counted), else True on an edge."""
+        """One sample: None when ignored (counted), else True on an edge."""
         if not (math.isfinite(t) and math.isfinite(v)):
             self.rejected += 1
             return None
@@ -244,7 +216,6 @@ class LatchedModel(ProtectionModel, Generic[S]):
         return self._feed(t, a, self._step(t, a))
 
     def _advance_few(self, times: Sequence[float], values: Sequence[float], until_edge: bool) -> Run:
-        """A short run: every sample filtered and fed to the kernel, no numpy on the way."""
         index: list[int] = []
         taken = len(times)
         sample = self._sample
@@ -259,7 +230,6 @@ class LatchedModel(ProtectionModel, Generic[S]):
         return edges(index, [times[i] for i in index], alternate(self._tripped, len(index)), taken)
 
     def _advance_long(self, t: FloatArray, v: FloatArray, until_edge: bool) -> Run:
-        """A long run: filtered with numpy, screened, the candidates fed to the kernel."""
         import numpy as np
 
         finite = np.isfinite(v) & np.isfinite(t)
@@ -305,7 +275,6 @@ class LatchedModel(ProtectionModel, Generic[S]):
         return found, n - 1
 
     def _count_ignored(self, finite: BoolArray, ok: BoolArray, taken: int) -> None:
-        """Count the first ``taken`` samples' ignored ones: not finite, or out of order."""
         import numpy as np
 
         self.rejected += int(np.count_nonzero(~finite[:taken]))
@@ -313,8 +282,7 @@ class LatchedModel(ProtectionModel, Generic[S]):
 
     @abstractmethod
     def _step(self, t: float, a: float) -> bool:
-        """The kernel: take one accepted sample (|value| ``a`` at ``t``, ``self._last_t`` the previous one);
-        the tripped state right after it (the base records edges, time and value)."""
+        """The kernel: the tripped state after one accepted sample (the base records edges, time and value)."""
 
     def _step_at(self, screen: S, j: int, t: float, a: float) -> bool:
         """The kernel on sample ``j`` of a screened run (a model may take columns the screen holds)."""
@@ -328,18 +296,16 @@ class LatchedModel(ProtectionModel, Generic[S]):
         """Take the quiet samples ``first`` .. ``last`` of the screened run (the base sets time and value)."""
 
     def _finish(self, screen: S, last: int) -> None:
-        """The walk over a screened run ended right after its sample ``last``: take what the screen still holds."""
+        """The walk ended right after sample ``last``: take what the screen still holds."""
 
     def _at_rest(self) -> bool:
-        """True when the screen may take over again: no timer or other state the kernel must follow."""
+        """True when the screen may take over again (no timer the kernel must follow)."""
         return True
 
     def carry_from(self, old: ProtectionModel) -> None:
-        """Take over the running state of the model this one replaces (config reload, same guard).
+        """Take over the running state of the model this one replaces (config reload; its own parameters kept).
 
-        The new model keeps its own parameters and continues from where the old one stood (tripped
-        and since when, the latest sample, an unreported trip in the latch); subclasses add what their
-        maths keeps. A model of another kind carries only this part. A reload never clears a trip.
+        A reload never clears a trip; a model of another kind carries only this base part.
         """
         if isinstance(old, LatchedModel):
             self._tripped, self._since, self._latch, self._value, self._last_t = old.running()
@@ -360,13 +326,11 @@ class LatchedModel(ProtectionModel, Generic[S]):
     def poll(self, now: float) -> Snapshot:
         """The state at tick time ``now``: tripped if tripped now or if a trip began since the last poll.
 
-        The latch is then cleared: a model still tripped keeps reporting tripped, a spike
-        already over is reported exactly once, and a recovery since the last poll at this poll.
+        The latch is then cleared: a spike already over is reported exactly once.
         """
         snap = self._make_snapshot(self._tripped or self._latch)
         self._latch = False
         return snap
 
     def snapshot(self) -> Snapshot:
-        """The present state, without reading or resetting the latch."""
         return self._make_snapshot(self._tripped)

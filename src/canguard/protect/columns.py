@@ -1,8 +1,4 @@
-"""Column helpers of the models' runs: a run's columns, the short-run check, its order filter, the screen.
-
-Every helper works on the samples of one run (1-D numpy columns, or lists where it says so)
-and has no state of its own.
-"""
+"""Column helpers of the models' runs: a run's columns, the short-run check, its order filter, the screen."""
 
 from __future__ import annotations
 
@@ -20,8 +16,7 @@ if TYPE_CHECKING:  # numpy is imported by the first long run (or numpy column), 
     BoolArray = npt.NDArray[np.bool_]
 
 SHORT_RUN = 48
-"""Runs of at most this many samples skip the numpy screen: every sample goes to the kernel
-(below a few dozen samples the screen's fixed numpy calls cost more than the kernel)."""
+"""Runs up to this long go sample by sample to the kernel: the screen's fixed numpy cost is higher."""
 
 
 def as_run(times: npt.ArrayLike, values: npt.ArrayLike) -> tuple[FloatArray, FloatArray]:
@@ -36,11 +31,8 @@ def as_run(times: npt.ArrayLike, values: npt.ArrayLike) -> tuple[FloatArray, Flo
 
 
 def in_order(t: FloatArray, finite: BoolArray, last_t: float | None) -> BoolArray:
-    """Which samples are not older than the latest accepted one before them (``finite``: the usable ones).
-
-    An ignored finite sample is older than an accepted one, so the latest accepted time before
-    each sample is the running maximum of the usable times (and of ``last_t``).
-    """
+    """Which samples are not older than the latest accepted one before them (``finite``: the usable ones):
+    the running maximum of the usable times (and ``last_t``), as an ignored sample is older than an accepted one."""
     if t.size <= 1:
         return finite if last_t is None or t.size == 0 else finite & (t >= last_t)
     import numpy as np
@@ -53,11 +45,7 @@ def in_order(t: FloatArray, finite: BoolArray, last_t: float | None) -> BoolArra
 
 
 def short_run(times: npt.ArrayLike, values: npt.ArrayLike, most: int) -> tuple[list[float], list[float]] | None:
-    """A run of at most ``most`` samples as two lists of Python floats (no numpy on the way); None otherwise.
-
-    Lists and tuples of numbers of one length, and 1-D numpy columns, qualify; anything
-    else (long, mismatched, nested) is None and goes to :func:`as_run`, which converts or explains.
-    """
+    """A run of at most ``most`` samples (lists, tuples, 1-D numpy) as two lists of floats; None: :func:`as_run`'s."""
     if isinstance(times, (tuple, list)) and isinstance(values, (tuple, list)):
         if not len(times) == len(values) <= most:
             return None
@@ -109,13 +97,8 @@ def values_span(values: Any) -> tuple[float, float] | None:
 
 
 class Screen:
-    """A model's numpy look at a long run of accepted samples: where its kernel can change something.
-
-    ``clear``: the samples that may trip the model or start a timer while it is not tripped;
-    ``tripped``: those that may recover it or start a timer while it is. The samples between
-    are *quiet*: fed to the kernel one by one they would change nothing but what the model's
-    ``_rest`` takes from the screen.
-    """
+    """Where a model's kernel can act over a long run: ``clear`` marks the samples that matter while not tripped,
+    ``tripped`` those while tripped; the samples between are quiet (the model's ``_rest`` takes them)."""
 
     def __init__(self, clear: BoolArray, tripped: BoolArray) -> None:
         self.size = clear.size
@@ -123,7 +106,7 @@ class Screen:
         self.tripped = tripped.nonzero()[0]
 
     def next(self, pos: int, tripped: bool) -> int:
-        """The first sample at or after ``pos`` the kernel must see, the model at rest in ``tripped`` (size: none)."""
+        """The first sample at or after ``pos`` the kernel must see in state ``tripped`` (size: none)."""
         marks = self.tripped if tripped else self.clear
         k = int(marks.searchsorted(pos))
         return int(marks[k]) if k < marks.size else self.size

@@ -1,12 +1,4 @@
-"""Overcurrent with hysteresis: behind IsCurrentSafe (docs/protection.md).
-
-Trips when |I| >= ``overcurrent_a``, recovers only when |I| <= ``recovery_a`` (both inclusive); in
-between the state holds. With ``trip_after_s`` / ``recover_after_s`` > 0 the condition must hold at
-every sample for that long, from the first such sample; a sample that breaks it, or a gap between
-samples longer than ``max_gap_s`` (stale data), restarts the timer. With ``inrush`` every sample is
-first fed to it and the overcurrent threshold in force is the one it gives (None: no overcurrent
-check in the window); recovery is never blanked.
-"""
+"""Overcurrent with hysteresis: behind IsCurrentSafe (docs/protection.md)."""
 
 from __future__ import annotations
 
@@ -27,51 +19,28 @@ def check_thresholds(overcurrent_a: float, recovery_a: float) -> tuple[float, fl
     over = check_limit("overcurrent_a", overcurrent_a)
     rec = check_limit("recovery_a", recovery_a)
     if rec > over:
-        raise ValueError(
-            f"recovery_a ({recovery_a!r} A) must not exceed overcurrent_a ({overcurrent_a!r} A): "
-            "the current must fall below the trip threshold to recover"
-        )
+        raise ValueError(f"recovery_a ({recovery_a!r} A) must not exceed overcurrent_a ({overcurrent_a!r} A): "
+                         "the current must fall below the trip threshold to recover")
     return over, rec
 
 
 class _Screen(Screen):
-    """A long run screened for the hysteresis kernel.
-
-    ``thr``: the overcurrent threshold in force at each sample (inf: no check, inrush blanking).
-    ``gaps``: how many gaps over ``max_gap_s`` lie before or at each sample.
-    ``inrush``: the inrush helper's state before the run (None: no helper).
-    """
+    """A long run with the threshold in force at each sample, the stale gaps up to it, the inrush state before."""
 
     def __init__(self, t: FloatArray, a: FloatArray, thr: FloatArray, recovery_a: float, gaps: IndexArray,
                  inrush: tuple[float | None, float | None, float | None, int] | None) -> None:
         super().__init__(a >= thr, a <= recovery_a)
-        self.t = t
-        self.a = a
-        self.thr = thr
-        self.gaps = gaps
-        self.inrush = inrush
+        self.t, self.a, self.thr, self.gaps, self.inrush = t, a, thr, gaps, inrush
 
 
 class Hysteresis(LatchedModel[_Screen]):
-    """Overcurrent guard with a trip and a lower recovery threshold; reason ``overcurrent``.
-
-    ``overcurrent_a`` (A, default 35), ``recovery_a`` (A, default 25, at most ``overcurrent_a``),
-    ``trip_after_s`` / ``recover_after_s`` (s, default 0: immediate), ``inrush`` (optional
-    blanking helper), ``max_gap_s`` (s, default inf). ValueError on a value out of range.
-    """
+    """Overcurrent guard with a trip and a lower recovery threshold; reason ``overcurrent``; ValueError out of range."""
 
     reason_tripped = REASON_OVERCURRENT
 
-    def __init__(
-        self,
-        overcurrent_a: float = 35.0,
-        recovery_a: float = 25.0,
-        trip_after_s: float = 0.0,
-        recover_after_s: float = 0.0,
-        inrush: InrushBlanking | None = None,
-        *,
-        max_gap_s: float = math.inf,
-    ) -> None:
+    def __init__(self, overcurrent_a: float = 35.0, recovery_a: float = 25.0, trip_after_s: float = 0.0,
+                 recover_after_s: float = 0.0, inrush: InrushBlanking | None = None, *,
+                 max_gap_s: float = math.inf) -> None:
         super().__init__()
         self.overcurrent_a, self.recovery_a = check_thresholds(overcurrent_a, recovery_a)
         self.trip_after_s = check_limit("trip_after_s", trip_after_s)
@@ -86,7 +55,7 @@ class Hysteresis(LatchedModel[_Screen]):
         self.overcurrent_a, self.recovery_a = check_thresholds(overcurrent_a, recovery_a)
 
     def carry_from(self, old: ProtectionModel) -> None:
-        """The base state plus the running persistence timers and the inrush window (see base)."""
+        """The base state plus the persistence timers and the inrush window."""
         super().carry_from(old)
         if isinstance(old, Hysteresis):
             self._over_since, self._under_since = old.timers
@@ -95,11 +64,10 @@ class Hysteresis(LatchedModel[_Screen]):
 
     @property
     def timers(self) -> tuple[float | None, float | None]:
-        """The running persistence timers: since when the overcurrent, and the recovery, held (None: not running)."""
+        """Since when the overcurrent, and the recovery, held (None: not running)."""
         return self._over_since, self._under_since
 
     def _step(self, t: float, a: float) -> bool:
-        """The inrush helper sees the sample first, then :meth:`_decide` on the threshold it gives."""
         thr = self.overcurrent_a
         if self.inrush is not None:
             self.inrush.observe(a, t)
@@ -108,7 +76,7 @@ class Hysteresis(LatchedModel[_Screen]):
         return self._decide(t, a, thr)
 
     def _decide(self, t: float, a: float, thr: float) -> bool:
-        """The kernel: the tripped state after a sample ``a`` at ``t`` with ``thr`` the threshold in force."""
+        """The kernel, ``thr`` the threshold in force."""
         if self._last_t is not None and t - self._last_t > self.max_gap_s:
             self._over_since = self._under_since = None
         if not self._tripped:
@@ -132,7 +100,6 @@ class Hysteresis(LatchedModel[_Screen]):
         return True
 
     def _screen(self, t: FloatArray, a: FloatArray) -> _Screen:
-        """The threshold in force at each sample (the inrush helper run over the run first) and the gaps."""
         import numpy as np
 
         gap = np.empty(a.size, dtype=bool)
@@ -151,41 +118,38 @@ class Hysteresis(LatchedModel[_Screen]):
         return self._decide(t, a, float(screen.thr[j]))
 
     def _rest(self, screen: _Screen, first: int, last: int) -> None:
-        """Quiet samples keep the resting timer unset; a gap among them restarts the other one too."""
+        """A gap among quiet samples restarts the other timer too."""
         if screen.gaps[last] - (screen.gaps[first - 1] if first else 0) > 0:
             self._over_since = self._under_since = None
 
     def _at_rest(self) -> bool:
-        """No persistence timer running on the side the state is on."""
         return (self._under_since if self._tripped else self._over_since) is None
 
     def _finish(self, screen: _Screen, last: int) -> None:
-        """A walk stopped before the run's end leaves the inrush helper right after sample ``last`` too."""
         if self.inrush is None or screen.inrush is None or last == screen.size - 1:
             return
         self.inrush.resume(screen.inrush)
         self.inrush.starts_in(screen.t[: last + 1], screen.a[: last + 1])
 
     def mark(self) -> Any:
-        """The base's running state and the inrush helper's."""
+        """The running state, the inrush helper's too."""
         return super().mark(), None if self.inrush is None else self.inrush.running()
 
     def rewind(self, mark: Any) -> None:
-        """Back to :meth:`mark`'s state, the inrush helper's too."""
+        """Back to :meth:`mark`'s state."""
         own, inrush = mark
         super().rewind(own)
         if self.inrush is not None and inrush is not None:
             self.inrush.resume(inrush)
 
     def _quiet(self, t: Any, low_a: float, high_a: float, final_a: float) -> bool:
-        """No timer, no inrush helper, every sample below the trip threshold (not tripped) or above the recovery
-        one (tripped): each sample only keeps its side's timer unset (a gap restarts timers that are unset)."""
+        """No timer, no inrush helper, every sample on the side the state is on."""
         if self.inrush is not None or self._over_since is not None or self._under_since is not None:
             return False
         return low_a > self.recovery_a if self._tripped else high_a < self.overcurrent_a
 
     def _levels(self) -> tuple[float, float]:
-        """The overcurrent threshold in force at the latest sample (inf: no check during inrush blanking)."""
+        """The overcurrent threshold in force at the latest sample (inf: blanked)."""
         thr: float | None = self.overcurrent_a
         if self.inrush is not None and self._last_t is not None:
             thr = self.inrush.threshold(self.overcurrent_a, self._last_t)

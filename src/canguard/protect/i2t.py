@@ -1,16 +1,7 @@
 """I²t protection: how much heat the current has put into the motor (docs/protection.md has the maths).
 
-Both models trip at 100 % of their trip level and recover below ``recover_fraction`` of it.
-:class:`LeakyI2t`: ``A' = I² − I_cont²`` floored at 0, trip level ``S = (I_peak² − I_cont²)·t_peak``
-(A²s). :class:`ThermalI2t` (IEC 60255-8): ``θ' = (I²/I_cont² − θ)/τ``, trip at θ >= 1, τ from
-:func:`thermal_tau` unless given, ``tau_cool_s`` while θ falls.
-
-Each sample's |I| is held until the next and each interval integrated with its exact solution, so
-trip times do not depend on the sample rate. A sample older than the latest is ignored (counted in
-``out_of_order``); a gap over ``max_gap_s`` is integrated for ``max_gap_s`` only, then the state is
-frozen (counted in ``stale_gaps``). The state is never NaN or negative, and is capped at
-:data:`MAX_LEVEL` trip levels. ``export()`` / ``restore(state, downtime_s)``: see
-:mod:`canguard.protect.state` (the level is carried over, cooled by the saved model's own law).
+:class:`LeakyI2t` (``A' = I² − I_cont²`` floored at 0) and :class:`ThermalI2t` (IEC 60255-8,
+``θ' = (I²/I_cont² − θ)/τ``); ``export`` / ``restore``: :mod:`canguard.protect.state`.
 """
 
 from __future__ import annotations
@@ -51,11 +42,9 @@ def next_where(mask: np.ndarray) -> np.ndarray:
 def clamped_sum(start: float, steps: FloatArray, cap: float, add: Callable[[float, float], float]) -> FloatArray:
     """The running sum ``acc ← add(acc, step)`` from ``start``, after each step; ``add`` bounds it to [0, ``cap``].
 
-    Exactly the float results of ``add`` one step after the other (the kernel): between the
-    samples where a bound is hit, a sequential ``numpy.add.accumulate`` from the last value adds
-    in the same order; at a bound ``add`` itself takes the step, and the steps that keep it
-    there (<= 0 at the floor, >= 0 at the cap) are skipped as a block. The scan runs in
-    windows that double while no bound is hit, so a run costs a few passes.
+    The same floats as ``add`` step by step: between bounds a sequential ``numpy.add.accumulate`` adds in
+    the same order; at a bound ``add`` takes the step and the steps that keep it there are skipped as a
+    block. Windows double while no bound is hit.
     """
     import numpy as np
 
@@ -87,10 +76,9 @@ def clamped_sum(start: float, steps: FloatArray, cap: float, add: Callable[[floa
 
 def thermal_steps(theta: float, q: Sequence[float], dt: Sequence[float], tau_heat: float, tau_cool: float,
                   cap: float) -> list[float]:
-    """θ after each step ``θ ← q + (θ − q)·exp(−dt/τ)`` (no step where dt is 0), clamped to [0, ``cap``].
+    """θ after each step ``θ ← q + (θ − q)·exp(−dt/τ)`` (none where dt is 0), clamped to [0, ``cap``].
 
-    τ is ``tau_cool`` while ``q < θ`` (cooling), else ``tau_heat``: the state picks the time
-    constant, so the steps run one after the other, over plain floats.
+    τ is ``tau_cool`` while ``q < θ``, else ``tau_heat``: the state picks it, so the steps run one by one.
     """
     exp = math.exp
     out: list[float] = []
@@ -107,30 +95,22 @@ def thermal_steps(theta: float, q: Sequence[float], dt: Sequence[float], tau_hea
 
 
 class _Screen(Screen):
-    """A long run screened for the I²t kernel: the accumulator after each sample and the stale gaps up to it.
-
-    Marked: where the level reaches 1 (may trip) and where it is below ``recover_fraction`` (may recover).
-    """
+    """A long run's accumulator after each sample and its stale gaps; marked where the level may flip the state."""
 
     def __init__(self, a: FloatArray, acc: FloatArray, trip: BoolArray, low: BoolArray,
                  stale: IndexArray) -> None:
         super().__init__(trip, low)
-        self.a = a
-        self.acc = acc
-        self.stale = stale
+        self.a, self.acc, self.stale = a, acc, stale
 
 
 class _I2tModel(LatchedModel[_Screen]):
-    """What both I²t models share: sampling, gaps, trip/recover on the level, persistence.
-
-    ``continuous_a`` (A, > 0) is I_cont itself (the caller multiplies I_rated by k); ``peak_a``
-    (A, > continuous_a) and ``peak_time_s`` (s, > 0) the datasheet's peak point; ``recover_fraction``
-    (0..1 exclusive); ``max_gap_s`` (s; pass the source's max_age_s). ValueError naming the
-    parameter at fault.
-    """
+    """What both I²t models share: ``continuous_a`` is I_cont (A), ``peak_a`` / ``peak_time_s`` the datasheet's peak
+    point, ``max_gap_s`` the source's max_age_s; ValueError naming the parameter at fault."""
 
     kind: str = ""
     reason_tripped = REASON_I2T
+    trip_level: float
+    """The accumulator value at which the model trips (A²s, or θ = 1)."""
 
     def __init__(self, continuous_a: float, recover_fraction: float, max_gap_s: float, peak_a: float | None,
                  peak_time_s: float | None) -> None:
@@ -147,23 +127,16 @@ class _I2tModel(LatchedModel[_Screen]):
         self._held = math.nan
         self._acc = 0.0
         self._peak = 0.0
-        """The highest accumulator value the model stood at (see :attr:`peak_level_pct`)."""
         self.stale_gaps = 0
         """Gaps longer than ``max_gap_s`` seen so far."""
 
-    @property
-    @abstractmethod
-    def trip_level(self) -> float:
-        """The accumulator value at which the model trips (A²s, or θ = 1)."""
-
     @abstractmethod
     def _accumulate(self, held: FloatArray, dt: FloatArray) -> FloatArray:
-        """The accumulator after each step: |I| = ``held[i]`` for ``dt[i]`` s (0: no step), from the present one:
-        the same floats as :meth:`_integrate` one step after the other (the screen of long runs)."""
+        """The accumulator after each step ``held[i]`` A for ``dt[i]`` s: :meth:`_integrate`'s floats, step by step."""
 
     @abstractmethod
     def _integrate(self, held: float, dt: float) -> float:
-        """The accumulator after ``dt`` > 0 s at a constant ``held`` A from the present one (the kernel's step)."""
+        """The accumulator after ``dt`` > 0 s at a constant ``held`` A from the present one."""
 
     def params(self) -> dict[str, float | None]:
         """The model's parameters, JSON-able (inf as None)."""
@@ -178,7 +151,7 @@ class _I2tModel(LatchedModel[_Screen]):
 
     @property
     def held_a(self) -> float:
-        """The |I| held since the latest sample (A; NaN before any sample and after a restore)."""
+        """The |I| held since the latest sample (A; NaN before any and after a restore)."""
         return self._held
 
     @property
@@ -188,11 +161,7 @@ class _I2tModel(LatchedModel[_Screen]):
 
     @property
     def peak_level_pct(self) -> float:
-        """The highest level the model stood at, in % of the trip level (the replay summary's I²t peak).
-
-        Over every sample taken (the heat moves only at samples) and every state the model was put
-        in (a restore, a reload's carry, the worst case); a :meth:`rewind` takes it back.
-        """
+        """The highest level the model stood at (samples, restores, carries), in % of the trip level."""
         return 100.0 * (self._peak / self.trip_level)
 
     def _set_acc(self, acc: float) -> None:
@@ -204,8 +173,7 @@ class _I2tModel(LatchedModel[_Screen]):
             self._peak = self._acc
 
     def carry_from(self, old: ProtectionModel) -> None:
-        """The base state plus the heat as a fraction of the trip level (as a restore does) and the held current:
-        thresholds or kind may differ, the new model starts as close to tripping as the old one stood."""
+        """The base state, the held current and the heat as a fraction of the trip level (as a restore does)."""
         super().carry_from(old)
         if isinstance(old, _I2tModel):
             self._set_acc(old.level * self.trip_level)
@@ -213,8 +181,7 @@ class _I2tModel(LatchedModel[_Screen]):
             self.stale_gaps = old.stale_gaps
 
     def _step(self, t: float, a: float) -> bool:
-        """The kernel: integrate the held |I| up to ``t`` (a stale gap cut to ``max_gap_s``), hold ``a``, decide:
-        tripped from level 1 on, recovered below ``recover_fraction``, else as it was."""
+        """Integrate the held |I| up to ``t`` (a stale gap cut to ``max_gap_s``), hold ``a``, decide."""
         if self._last_t is not None and not math.isnan(self._held):
             dt = t - self._last_t
             if dt > self.max_gap_s:
@@ -229,12 +196,7 @@ class _I2tModel(LatchedModel[_Screen]):
         return level >= 1.0 or (self._tripped and level >= self.recover_fraction)
 
     def _screen(self, t: FloatArray, a: FloatArray) -> _Screen:
-        """The accumulator after each sample (see :meth:`_accumulate`), marked where the level can flip the state.
-
-        The time steps are the time column's differences (the first against the
-        previous run's last sample), cut to ``max_gap_s`` (a stale gap) and zero where
-        nothing is integrated (before any sample, a repeated timestamp).
-        """
+        """Steps: the time differences cut to ``max_gap_s``, zero where nothing is integrated."""
         import numpy as np
 
         held = np.empty(a.size)
@@ -251,13 +213,11 @@ class _I2tModel(LatchedModel[_Screen]):
         return _Screen(a, acc, level >= 1.0, level < self.recover_fraction, np.cumsum(stale))
 
     def _rest(self, screen: _Screen, first: int, last: int) -> None:
-        """Quiet samples: the accumulator the screen found after the last one, its current held, its stale gaps."""
         self._acc = float(screen.acc[last])
         self._held = float(screen.a[last])
         self.stale_gaps += int(screen.stale[last] - (screen.stale[first - 1] if first else 0))
 
     def _finish(self, screen: _Screen, last: int) -> None:
-        """The peak over the samples taken: the screen's accumulator is the kernel's, sample for sample."""
         top = float(screen.acc[: last + 1].max())
         if top > self._peak:
             self._peak = top
@@ -268,8 +228,7 @@ class _I2tModel(LatchedModel[_Screen]):
     def set_hot(self, t: float | None = None) -> None:
         """Worst case: put the state at the trip level; the model trips (``t`` becomes ``since``).
 
-        Only the trip edge arms the latch: a trip the last poll already reported must not be
-        reported again after its recovery.
+        Only the trip edge arms the latch: a trip already reported is not reported again.
         """
         self._set_acc(self.trip_level)
         if not self._tripped:
@@ -278,22 +237,14 @@ class _I2tModel(LatchedModel[_Screen]):
 
     def export(self) -> dict[str, Any]:
         """The state as a JSON-able dict: kind, version, parameters, accumulator, level, tripped, time."""
-        return {
-            "kind": self.kind,
-            "version": STATE_VERSION,
-            "params": self.params(),
-            "accumulator": self._acc,
-            "level": self.level,
-            "tripped": self._tripped,
-            "t": self._last_t,
-        }
+        return {"kind": self.kind, "version": STATE_VERSION, "params": self.params(), "accumulator": self._acc,
+                "level": self.level, "tripped": self._tripped, "t": self._last_t}
 
     def restore(self, state: Mapping[str, Any], downtime_s: float) -> None:
         """Take over an exported state cooled for ``downtime_s`` seconds, whatever the saved parameters or kind.
 
-        Tripped after it when the cooled level is >= 1, or when the saved model was tripped and the
-        level has not yet fallen below ``recover_fraction``. The sample history restarts (the next
-        sample only sets the held current). ValueError on a malformed state (the model unchanged).
+        Tripped when the cooled level is >= 1, or was tripped and is not below ``recover_fraction``; the
+        sample history restarts. ValueError on a malformed state (the model unchanged).
         """
         lvl = cooled_level(state, downtime_s)
         was_tripped = state.get("tripped") is True
@@ -306,45 +257,28 @@ class _I2tModel(LatchedModel[_Screen]):
 
 
 class LeakyI2t(_I2tModel):
-    """Leaky-bucket I²t (servo-drive style); reason ``i2t``; trip level S = (peak_a² − continuous_a²)·peak_time_s.
-
-    ``recover_fraction`` default 0.5, ``max_gap_s`` default inf (see :class:`_I2tModel`).
-    """
+    """Leaky-bucket I²t (servo-drive style), reason ``i2t``: trip level S = (peak_a² − continuous_a²)·peak_time_s."""
 
     kind = KIND_LEAKY
     THRESHOLD_UNIT = AMPERE2_SECOND
 
-    def __init__(
-        self,
-        continuous_a: float,
-        peak_a: float,
-        peak_time_s: float,
-        recover_fraction: float = 0.5,
-        max_gap_s: float = math.inf,
-    ) -> None:
+    def __init__(self, continuous_a: float, peak_a: float, peak_time_s: float, recover_fraction: float = 0.5,
+                 max_gap_s: float = math.inf) -> None:
         super().__init__(continuous_a, recover_fraction, max_gap_s, peak_a, peak_time_s)
         assert self.peak_a is not None and self.peak_time_s is not None
-        self._s = (self.peak_a**2 - self.continuous_a**2) * self.peak_time_s
-
-    @property
-    def trip_level(self) -> float:
-        """S = (peak_a² − continuous_a²)·peak_time_s, in A²s."""
-        return self._s
+        self.trip_level = (self.peak_a**2 - self.continuous_a**2) * self.peak_time_s
 
     def _accumulate(self, held: FloatArray, dt: FloatArray) -> FloatArray:
-        """A running sum of ``(I² − I_cont²)·dt`` floored at 0 and capped (see :func:`clamped_sum`)."""
         import numpy as np
 
         c2 = self.continuous_a * self.continuous_a
         with np.errstate(invalid="ignore", over="ignore"):
             rate = held * held - c2
             steps = np.where(dt > 0, rate * dt, 0.0)
-        return clamped_sum(self._acc, steps, MAX_LEVEL * self._s, self._add)
+        return clamped_sum(self._acc, steps, MAX_LEVEL * self.trip_level, self._add)
 
     def _quiet(self, t: Any, low_a: float, high_a: float, final_a: float) -> bool:
-        """An empty bucket (not tripped) that stays empty: every current held through the run at or below
-        I_cont (each step adds <= 0 to a sum floored at 0), and no gap over ``max_gap_s`` to count; the last
-        sample's current is held from then on."""
+        """An empty bucket that stays empty: every current held at or below I_cont, no stale gap to count."""
         if self._acc != 0.0 or self._tripped:
             return False
         cont = self.continuous_a
@@ -358,17 +292,15 @@ class LeakyI2t(_I2tModel):
         return True
 
     def _integrate(self, held: float, dt: float) -> float:
-        """A + (I² − I_cont²)·dt, floored at 0 and capped."""
         return self._add(self._acc, (held * held - self.continuous_a * self.continuous_a) * dt)
 
     def _add(self, acc: float, step: float) -> float:
-        """The leaky sum's one step: ``acc + step`` floored at 0 and capped at MAX_LEVEL trip levels."""
+        """One step of the leaky sum, floored at 0 and capped."""
         out = acc + step
         if out < 0.0:
             return 0.0
-        cap = MAX_LEVEL * self._s
+        cap = MAX_LEVEL * self.trip_level
         return cap if not out <= cap else out
-
 
 
 def thermal_tau(continuous_a: float, peak_a: float, peak_time_s: float) -> float:
@@ -381,44 +313,28 @@ def thermal_tau(continuous_a: float, peak_a: float, peak_time_s: float) -> float
 class ThermalI2t(_I2tModel):
     """First-order thermal image (IEC 60255-8), θ in units of the steady state at I_cont; reason ``i2t``.
 
-    τ is ``tau_s`` (s) when given, else :func:`thermal_tau` of ``peak_a`` and ``peak_time_s`` (both
-    then required); ``tau_cool_s`` (s, default τ) applies while θ falls. Other parameters as
-    :class:`_I2tModel`.
+    τ is ``tau_s``, else :func:`thermal_tau` of the peak point; ``tau_cool_s`` (default τ) while θ falls.
     """
 
     kind = KIND_THERMAL
     THRESHOLD_UNIT = THETA
 
-    def __init__(
-        self,
-        continuous_a: float,
-        peak_a: float | None = None,
-        peak_time_s: float | None = None,
-        tau_s: float | None = None,
-        tau_cool_s: float | None = None,
-        recover_fraction: float = 0.5,
-        max_gap_s: float = math.inf,
-    ) -> None:
+    def __init__(self, continuous_a: float, peak_a: float | None = None, peak_time_s: float | None = None,
+                 tau_s: float | None = None, tau_cool_s: float | None = None, recover_fraction: float = 0.5,
+                 max_gap_s: float = math.inf) -> None:
         super().__init__(continuous_a, recover_fraction, max_gap_s, peak_a, peak_time_s)
         if tau_s is not None:
             self.tau_s = check_limit("tau_s", tau_s, positive=True)
         elif self.peak_a is not None and self.peak_time_s is not None:
             self.tau_s = thermal_tau(self.continuous_a, self.peak_a, self.peak_time_s)
         else:
-            raise ValueError(
-                "tau_s is required unless both peak_a and peak_time_s are given "
-                f"(got tau_s=None, peak_a={peak_a!r}, peak_time_s={peak_time_s!r})"
-            )
+            raise ValueError("tau_s is required unless both peak_a and peak_time_s are given "
+                             f"(got tau_s=None, peak_a={peak_a!r}, peak_time_s={peak_time_s!r})")
         self.tau_cool_s = self.tau_s if tau_cool_s is None else check_limit("tau_cool_s", tau_cool_s, positive=True)
         self._c2 = self.continuous_a * self.continuous_a
-
-    @property
-    def trip_level(self) -> float:
-        """θ = 1."""
-        return 1.0
+        self.trip_level = 1.0
 
     def _accumulate(self, held: FloatArray, dt: FloatArray) -> FloatArray:
-        """θ ← q + (θ − q)·exp(−dt/τ) per step, q = I²/I_cont² (capped), by :func:`thermal_steps`."""
         import numpy as np
 
         with np.errstate(invalid="ignore", over="ignore"):
@@ -426,7 +342,6 @@ class ThermalI2t(_I2tModel):
         return np.asarray(thermal_steps(self._acc, q.tolist(), dt.tolist(), self.tau_s, self.tau_cool_s, MAX_LEVEL))
 
     def _integrate(self, held: float, dt: float) -> float:
-        """θ after one step (the same :func:`thermal_steps` the screen runs over a column)."""
         q = min(held * held / self._c2, MAX_LEVEL)
         return thermal_steps(self._acc, (q,), (dt,), self.tau_s, self.tau_cool_s, MAX_LEVEL)[0]
 

@@ -1,12 +1,4 @@
-"""Inrush blanking: a higher (or no) overcurrent threshold just after a motor start (docs/protection.md).
-
-A *motor start* is |I| rising above ``start_current_a`` after having been at or below it for at
-least ``inrush_time_s`` (each sample held until the next one). It opens a window
-``[t_start, t_start + inrush_time_s)`` in which the threshold in force is ``inrush_threshold_a``
-(None: no overcurrent check). Fail safe: no start before the current was seen low that long, and
-dips shorter than ``inrush_time_s`` do not re-arm it. A helper of
-:class:`~canguard.protect.hysteresis.Hysteresis`, not a protection model itself.
-"""
+"""Inrush blanking: a higher (or no) overcurrent threshold just after a motor start (docs/protection.md)."""
 
 from __future__ import annotations
 
@@ -23,47 +15,27 @@ if TYPE_CHECKING:
 
 
 def in_window(start: Any, t: Any, length_s: float) -> Any:
-    """``start <= t < start + length_s`` (the end less TIME_EPS_S), for floats or numpy columns alike.
-
-    A NaN start (no window) is never in force.
-    """
+    """``start <= t < start + length_s`` (less TIME_EPS_S; a NaN start never), for floats or numpy columns."""
     return (start <= t) & (t < start + length_s - TIME_EPS_S)
 
 
 class InrushBlanking:
-    """Tracks motor starts and tells which overcurrent threshold is in force.
+    """Tracks motor starts (|I| above ``start_current_a`` after ``inrush_time_s`` at or below it) and tells which
+    overcurrent threshold is in force (``inrush_threshold_a`` in a window; None: no check); a Hysteresis helper."""
 
-    ``start_current_a`` (A): above it the motor counts as running.
-    ``inrush_time_s`` (s): how long the motor must have been stopped for a rise
-    to count as a start, and how long the blanking window lasts.
-    ``inrush_threshold_a`` (A): the threshold during the window; None turns the
-    overcurrent check off during the window.
-    """
-
-    def __init__(
-        self, start_current_a: float, inrush_time_s: float, inrush_threshold_a: float | None = None
-    ) -> None:
+    def __init__(self, start_current_a: float, inrush_time_s: float, inrush_threshold_a: float | None = None) -> None:
         self.start_current_a = check_limit("start_current_a", start_current_a)
         self.inrush_time_s = check_limit("inrush_time_s", inrush_time_s)
-        self.inrush_threshold_a = (
-            None if inrush_threshold_a is None else check_limit("inrush_threshold_a", inrush_threshold_a)
-        )
+        self.inrush_threshold_a = None if inrush_threshold_a is None else check_limit("inrush_threshold_a",
+                                                                                      inrush_threshold_a)
         self._below_since: float | None = None
         self._window_start: float | None = None
         self._last_t: float | None = None
         self.starts = 0
         """Motor starts recognised so far."""
 
-    @property
-    def window_start(self) -> float | None:
-        """Time of the latest recognised motor start, None if none yet."""
-        return self._window_start
-
     def observe(self, abs_value: float, t: float) -> bool:
-        """The kernel: one |I| sample at ``t``; True when it is a motor start (opens a window).
-
-        A sample older than the latest one, or not finite, is ignored (never a start).
-        """
+        """The kernel: one |I| sample at ``t``; True when it is a motor start (ignored: out of order, not finite)."""
         a, t = float(abs_value), float(t)
         if not (math.isfinite(a) and math.isfinite(t)) or (self._last_t is not None and t < self._last_t):
             return False
@@ -80,10 +52,7 @@ class InrushBlanking:
         return started
 
     def advance(self, times: npt.ArrayLike, abs_values: npt.ArrayLike) -> BoolArray:
-        """Feed a run of |I| samples; which of them are motor starts (each opens a window).
-
-        Samples older than the latest one, and non-finite ones, are ignored (never a start).
-        """
+        """Feed a run of |I| samples; which of them are motor starts (ignored: out of order, not finite)."""
         import numpy as np
 
         t, a = as_run(times, abs_values)
@@ -94,11 +63,9 @@ class InrushBlanking:
         return out
 
     def starts_in(self, t: FloatArray, a: FloatArray) -> list[int]:
-        """Feed accepted |I| samples (finite, in order); the positions of the motor starts among them.
+        """Feed accepted |I| samples; the positions of the motor starts among them.
 
-        The screen: only a sample rising above ``start_current_a`` after a stretch at or
-        below it that began long enough before can be a start; those go to :meth:`observe`
-        (the kernel decides), the state before each taken from the stretches' start times.
+        Only a rise after a long enough low stretch can be a start: those go to :meth:`observe`.
         """
         import numpy as np
 
@@ -124,10 +91,7 @@ class InrushBlanking:
         return started
 
     def windows(self, t: FloatArray, started: list[int], before: float | None) -> FloatArray:
-        """The window start in force at each of the samples at times ``t`` (NaN: none), given its starts.
-
-        ``before``: the window start in force before the first sample.
-        """
+        """The window start in force at each time ``t`` (NaN: none), given the starts and the one ``before``."""
         import numpy as np
 
         latest = np.full(t.size, -1)
@@ -149,8 +113,5 @@ class InrushBlanking:
         return w is not None and bool(in_window(w, t, self.inrush_time_s))
 
     def threshold(self, normal: float, t: float) -> float | None:
-        """The overcurrent threshold in force at ``t``: ``normal`` outside a window,
-        ``inrush_threshold_a`` inside one (None: no overcurrent check)."""
-        if self.blanking(t):
-            return self.inrush_threshold_a
-        return normal
+        """The overcurrent threshold in force at ``t``: ``normal``, or ``inrush_threshold_a`` in a window."""
+        return self.inrush_threshold_a if self.blanking(t) else normal

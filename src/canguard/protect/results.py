@@ -12,16 +12,8 @@ if TYPE_CHECKING:
 
 @dataclass(frozen=True)
 class Snapshot:
-    """A model's state, small enough for events, metrics and plots.
-
-    ``value``: the latest |value| the model saw (A, or N·m), NaN before any.
-    ``threshold``: the trip threshold in force (same unit as value; for I²t the
-    trip level of the accumulator, A²s or θ = 1).
-    ``level_pct``: how close to tripping, in % of the trip level (100 = trip).
-    ``tripped``: True while tripped (or, from ``poll``, tripped at any moment since the last poll).
-    ``since``: time of the last trip / recover edge, None if never.
-    ``reason``: "" when fine, otherwise why not (``overcurrent``, ``i2t``, ...).
-    """
+    """A model's state for events, metrics and plots: latest |value|, trip threshold in force (I²t: the trip level),
+    % of it, tripped (``poll``: latched), the last edge's time, and the reason ("" when fine)."""
 
     value: float
     threshold: float
@@ -33,31 +25,24 @@ class Snapshot:
 
 @dataclass(slots=True)
 class Run:
-    """What a model's (or a source health's) ``advance`` did with a run of samples.
-
-    ``index``: positions in the run (int) of the samples at which the state changed (an edge),
-    ascending. ``t``: their times (s). ``tripped``: the state entered at each (a model's: they
-    alternate; a source health's: unusable). ``taken``: samples consumed from the start of
-    the run (all of them unless ``until_edge`` stopped early). A result: read it, never
-    change it (not frozen only because a frozen dataclass costs a run of one ~1 µs more).
-    """
+    """What ``advance`` did with a run: the positions, times and states entered of its edges, and the samples
+    ``taken`` (fewer when ``until_edge`` stopped). Read only (not frozen: that costs a run of one time)."""
 
     index: IndexArray
     t: FloatArray
     tripped: BoolArray
     taken: int
     changed: bool = field(init=False)
-    """True when the run changed the state at least once (an edge: tick the tree)."""
+    """True when the run had an edge (tick the tree)."""
 
     def __post_init__(self) -> None:
         self.changed = bool(self.index.size)
 
 
 QUIET_RUNS: dict[int, Run] = {}
-"""The :class:`Run` of ``n`` samples taken without an edge, by ``n`` (short runs: built once each, shared)."""
+"""The shared :class:`Run` of ``n`` short samples taken without an edge."""
 quiet_cached = QUIET_RUNS.get
-"""``quiet_cached(n) or quiet_run(n)``: a cached result with no Python call (``QUIET_RUNS.get`` on a name an
-import bound compiles to an attribute load that builds a bound method at each call)."""
+"""``quiet_cached(n) or quiet_run(n)``: a cached result without building a bound method per call."""
 
 
 def quiet_run(n: int) -> Run:
@@ -79,7 +64,7 @@ def quiet_run(n: int) -> Run:
 
 def edges(index: Sequence[int] | IndexArray, times: Sequence[float] | FloatArray, states: Sequence[bool],
           taken: int) -> Run:
-    """The result of a run with edges: their positions, times and the states entered (lists or numpy columns)."""
+    """The result of a run with edges (lists or numpy columns)."""
     import numpy as np
 
     return Run(np.array(index, dtype=np.intp), np.array(times, dtype=np.float64), np.array(states, dtype=bool), taken)

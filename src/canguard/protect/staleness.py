@@ -1,29 +1,9 @@
 """Staleness and validity of one source: is there a usable, fresh value? (docs/protection.md)
 
-:class:`SourceHealth` sees every sample of one configured source (valid or not, see
-:class:`~canguard.io.frame.Sample`) and answers, at any time ``now``, why the source cannot be
-trusted (fail safe: every non-empty reason fails the guard):
-
-=============== ===========================================================
-``no_data``     no sample of that role yet
-``stale``       the latest sample is older than the source's ``max_age_s``
-``not_present`` the source's ``present`` signal was last seen 0
-``nan``/``inf`` the latest sample was NaN / infinite
-``out_of_range`` the latest value lies outside the DBC signal's [min|max]
-``bad_length``/``undecodable`` the latest frame could not be decoded
-``frozen_counter`` the alive counter has not changed for longer than ``max_age_s``
-``no_heartbeat`` (CANopen) the drive's heartbeat is older than its own timeout (the ``nmt`` signal's ``max_age_s``)
-``not_present`` (CANopen) also: the drive's NMT state is not operational
-``emcy``        (CANopen) the drive's last EMCY had a non-zero error register
-``drive_fault`` (CANopen) the drive's statusword has its Fault bit set
-=============== ===========================================================
-
-A CANopen drive's health roles (``nmt``, ``emcy``, ``fault``) gate every value of the source, as
-``present`` does, and are checked first, in that order; no EMCY yet is fine. The *latest* sample of
-a role decides: a newer valid sample clears an invalid reason, an invalid sample never replaces the
-latest valid value (:meth:`SourceHealth.value`). A sample older than the latest of its role is
-counted in ``out_of_order`` and changes nothing; a repeated timestamp is a normal sample.
-Precedence, per role: ``no_data``, ``stale``, the latest sample's invalid reason, ``not_present``.
+Every sample of one source goes to :class:`SourceHealth`, which answers why the source cannot be trusted at
+``now`` (every non-empty reason fails the guard; the reasons: docs/protection.md). A drive's health roles
+(``nmt``, ``emcy``, ``fault``) gate every value, as ``present`` does, and are checked first. The latest
+sample decides, but an invalid one never replaces the latest valid value.
 """
 
 from __future__ import annotations
@@ -49,14 +29,14 @@ REASON_NO_HEARTBEAT = "no_heartbeat"
 REASON_EMCY = "emcy"
 REASON_DRIVE_FAULT = "drive_fault"
 GATE_ROLES = (NMT, EMCY, FAULT)
-FULL_ROLES = NON_VALUE_ROLES
-"""Roles whose every sample takes :meth:`SourceHealth.advance`'s full path (their value can change a reason)."""
 ROW_ROLES = NON_VALUE_ROLES - {PRESENT}
-"""Roles a replay block cannot take as columns (the presence flag it checks itself): every row is fed."""
+"""Roles a replay block cannot take as columns: every row is fed."""
 
 _BIG = 1.7976931348623157e308
-"""The largest float: open range bounds, so that +-inf (and NaN) fail the range test of the usual sample."""
+"""The largest float: open range bounds, so that +-inf (and NaN) fail the range test."""
 _ANY = (-_BIG, _BIG)
+_PER_ROLE = ("_latest_t", "_invalid", "_value", "_valid_t")
+"""The state kept per role (copied by :meth:`SourceHealth.mark`)."""
 
 
 class SourceHealth:
@@ -71,40 +51,29 @@ class SourceHealth:
         self._roles = frozenset(s.role for s in source.signals)
         nmt = source.signal(NMT)
         self._heartbeat_s = self.max_age_s if nmt is None or nmt.max_age_s is None else float(nmt.max_age_s)
-        """How old the drive's heartbeat may be (its own timeout: a TPDO's period is not the heartbeat's)."""
+        """How old the drive's heartbeat may be (its own timeout, not a TPDO's period)."""
         self._window_s = min(self.max_age_s, self._heartbeat_s)
-        """How long after every role was last usable nothing can have gone stale (:attr:`_ok_since`)."""
         self._counter: float | None = None
         self._counter_since = math.nan
-        """When the alive counter last changed (its first sample counts as a change)."""
         self._frozen = False
         self._ranges: dict[str, tuple[float | None, float | None]] = {
-            s.role: (s.minimum, s.maximum)
-            for s in source.signals
-            if s.minimum is not None or s.maximum is not None
-        }
+            s.role: (s.minimum, s.maximum) for s in source.signals if s.minimum is not None or s.maximum is not None}
         self._limits = {role: (-_BIG if lo is None else float(lo), _BIG if hi is None else float(hi))
                         for role, (lo, hi) in self._ranges.items()}
-        """Each ranged role's bounds as floats (the largest float where open: +-inf and NaN fail them too)."""
         self._latest_t: dict[str, float] = {}
         self._invalid: dict[str, str] = {}
         self._value: dict[str, float] = {}
         self._valid_t: dict[str, float] = {}
         self._last_reason = REASON_NO_DATA
         self._ok_since = math.nan
-        """When every role was last found usable: the oldest of their latest times (NaN: not known).
-
-        While ``now - _ok_since <= _window_s`` (``max_age_s``, or the heartbeat's timeout when
-        shorter) nothing can be stale, so :meth:`reason` is "" without looking at each role.
-        Only :meth:`advance`'s full path can make a role unusable; it clears this. Its fast
-        path (a fresh valid sample) only makes roles younger, which keeps the shortcut true.
-        """
+        """When every role was last usable, the oldest of their latest times (NaN: not known): within ``_window_s``
+        of it :meth:`reason` is "" (only the full path can make a role unusable; it clears this)."""
         self.samples = 0
         """Samples observed (out-of-order ones included)."""
         self.invalid_samples = 0
         """Samples that carried no usable value."""
         self.out_of_order = 0
-        """Samples ignored because they were older than the latest of their role."""
+        """Samples ignored as older than the latest of their role."""
 
     @property
     def ranges(self) -> dict[str, tuple[float | None, float | None]]:
@@ -112,12 +81,8 @@ class SourceHealth:
         return self._ranges
 
     def latest_t(self, role: str) -> float | None:
-        """Time of the latest sample of ``role``, valid or not (None: none yet); a run's samples must not be older."""
+        """Time of the latest sample of ``role``, valid or not (None: none yet)."""
         return self._latest_t.get(role)
-
-    def invalid_reason(self, role: str) -> str:
-        """The invalid reason of the latest sample of ``role`` ("" when it was valid or there was none)."""
-        return self._invalid.get(role, "")
 
     @property
     def name(self) -> str:
@@ -126,16 +91,8 @@ class SourceHealth:
 
     def advance(self, roles: Sequence[str], times: Sequence[float], columns: Sequence[Sequence[float]],
                 reasons: Sequence[Sequence[str]] | None = None, *, until_edge: bool = False) -> Run:
-        """Take a run of rows of this source, in arrival order (a frame: a run of one row); where its reason changed.
-
-        Row ``i`` at ``times[i]`` (s) holds ``columns[k][i]`` of ``roles[k]`` (taken in that order) with its own
-        invalid reason ``reasons[k][i]`` ("" when its decoder found none; None: none at all). A sample is an
-        edge when the reason right after it differs from the one just before it at its time (data back after a
-        stale spell) or from the one the previous sample left (a source found stale or invalid); a row is an
-        edge when one of its samples is. A run that changes nothing but each role's latest value
-        (:meth:`_quiet`) is taken whole from its last row. ``until_edge`` and the result are the models' (see
-        :mod:`canguard.protect.base`); ``tripped``: the source unusable after the edge.
-        """
+        """Take a run of rows (row ``i``: ``columns[k][i]`` of ``roles[k]`` at ``times[i]``, its own invalid reason
+        ``reasons[k][i]``) in arrival order; where the reason changed (``tripped``: unusable after the edge)."""
         n = len(times)
         if n == 1 and reasons is None:  # a live frame: each sample to the kernel, nothing built
             t = float(times[0])
@@ -176,9 +133,8 @@ class SourceHealth:
         return edges(found, [times[i] for i in found], after, taken)
 
     def take_quiet(self, parts: Sequence[tuple[Sequence[str], Sequence[float], Sequence[Sequence[float]]]]) -> bool:
-        """Runs of rows of this source from several messages (``parts``: roles, times, columns), each message with
-        roles of its own: taken whole when each is quiet (:meth:`_quiet`); False: nothing taken. A quiet sample
-        only becomes its role's latest, so how the runs interleave in time changes nothing."""
+        """Runs of rows from several messages (roles, times, columns; roles of their own), taken whole when each is
+        quiet (a quiet sample only becomes its role's latest, so their order does not matter); False: none taken."""
         seen: set[str] = set()
         for roles, times, columns in parts:
             if not len(times) or not seen.isdisjoint(roles) or not self._quiet(roles, times, columns):
@@ -189,7 +145,6 @@ class SourceHealth:
         return True
 
     def _take_quiet(self, roles: Sequence[str], times: Sequence[float], columns: Sequence[Sequence[float]]) -> None:
-        """Take a run :meth:`_quiet` found quiet: each role's latest sample is its last row's."""
         last = float(times[-1])
         for role, column in zip(roles, columns, strict=True):
             self._latest_t[role] = self._valid_t[role] = last
@@ -197,10 +152,8 @@ class SourceHealth:
         self.samples += len(times) * len(roles)
 
     def _quiet(self, roles: Sequence[str], times: Sequence[float], columns: Sequence[Sequence[float]]) -> bool:
-        """True when a run of rows (no reasons of their own; lists or numpy columns) changes nothing but each
-        role's latest value: times in order, the first within ``max_age_s`` of each role's latest sample and no
-        two rows further apart; each role's latest sample valid, its values finite and in range; no role whose
-        value gates the reason (alive counter, drive health), a presence flag only while set and staying set."""
+        """True when a run of rows changes nothing but each role's latest value: in order, fresh, valid, in range,
+        no role whose value gates the reason (a presence flag only while set and staying set)."""
         if not ordered(times):
             return False
         first, final = float(times[0]), float(times[-1])
@@ -212,7 +165,7 @@ class SourceHealth:
             latest = latest_t.get(role)
             if latest is None or not latest <= first or first - latest > max_age or invalid.get(role):
                 return False
-            if role in FULL_ROLES and not (role == PRESENT and self._present_quiet(roles, column)):
+            if role in NON_VALUE_ROLES and not (role == PRESENT and self._present_quiet(roles, column)):
                 return False
             lo, hi = self._limits.get(role, _ANY)
             span = values_span(column)
@@ -221,18 +174,15 @@ class SourceHealth:
         return True
 
     def _present_quiet(self, roles: Sequence[str], column: Sequence[float]) -> bool:
-        """A presence flag's samples change nothing: it was set and stays set, and the run carries every role of
-        the source, so that the reason each sample's full look finds is the "" the last one left."""
+        """A presence flag that was set and stays set, in a run carrying every role of the source."""
         return (not self._last_reason and not self._frozen and bool(self._value.get(PRESENT))
                 and bool(all(column) if type(column) is list or type(column) is tuple else column.all())  # type: ignore[attr-defined]
                 and self._roles.issubset(roles))
 
     def _sample(self, role: str, t: float, value: float, own: str = "") -> bool:
-        """The kernel: one sample of ``role`` at ``t`` (``own``: its own invalid reason, "" for none); True on an edge.
+        """The kernel: one sample of ``role`` at ``t`` (``own``: its own invalid reason); True on an edge.
 
-        A sample out of order (NaN time, older than the latest of its role) is counted and changes nothing;
-        the usual one (valid, within ``max_age_s`` of a valid previous one of a value role) only becomes the
-        latest.
+        The usual sample (valid, fresh, of a value role) only becomes the latest.
         """
         self.samples += 1
         latest = self._latest_t.get(role)
@@ -241,7 +191,7 @@ class SourceHealth:
                 self.out_of_order += 1
                 return False
             lo, hi = self._limits.get(role, _ANY)
-            if not own and lo <= value <= hi and t - latest <= self.max_age_s and role not in FULL_ROLES \
+            if not own and lo <= value <= hi and t - latest <= self.max_age_s and role not in NON_VALUE_ROLES \
                     and not self._invalid.get(role):
                 self._latest_t[role] = self._valid_t[role] = t
                 self._value[role] = value
@@ -251,21 +201,20 @@ class SourceHealth:
             return False
         return self._full_step(role, t, value, self._invalid_code(role, value, own))
 
-    def mark(self) -> tuple[Any, ...]:
+    def mark(self) -> dict[str, Any]:
         """The running state, to go back to with :meth:`rewind` (nothing is changed)."""
-        return (dict(self._latest_t), dict(self._invalid), dict(self._value), dict(self._valid_t), self._last_reason,
-                self._ok_since, self._counter, self._counter_since, self._frozen, self.samples,
-                self.invalid_samples, self.out_of_order)
+        state = self.__dict__.copy()
+        for k in _PER_ROLE:
+            state[k] = dict(state[k])
+        return state
 
-    def rewind(self, mark: tuple[Any, ...]) -> None:
+    def rewind(self, mark: dict[str, Any]) -> None:
         """Go back to the state :meth:`mark` gave, as if the runs taken since had not come."""
-        (latest_t, invalid, value, valid_t, self._last_reason, self._ok_since, self._counter, self._counter_since,
-         self._frozen, self.samples, self.invalid_samples, self.out_of_order) = mark
-        self._latest_t, self._invalid = dict(latest_t), dict(invalid)
-        self._value, self._valid_t = dict(value), dict(valid_t)
+        self.__dict__.update(mark)
+        for k in _PER_ROLE:  # copies again: a mark may be gone back to more than once
+            self.__dict__[k] = dict(mark[k])
 
     def _invalid_code(self, role: str, value: float, own: str) -> str:
-        """A sample's invalid reason: its own, else NaN / inf / out of the role's range ("" when valid)."""
         if own:
             return own
         if math.isnan(value):
@@ -276,7 +225,6 @@ class SourceHealth:
         return "" if lo <= value <= hi else INVALID_RANGE
 
     def _full_step(self, role: str, t: float, value: float, bad: str) -> bool:
-        """One sample that may change the reason; True on an edge (see :meth:`advance`)."""
         before = self.reason(t)
         if role == COUNTER and not bad:
             if value != self._counter:
@@ -296,8 +244,7 @@ class SourceHealth:
         return edge
 
     def _role_reason(self, now: float, role: str) -> str:
-        """The reason of one role: no data, stale (a drive's NMT: no heartbeat), its latest sample's own, then
-        what its value says (presence at 0, NMT not operational, Fault bit). An EMCY never goes stale."""
+        """The reason of one role (an EMCY never goes stale)."""
         t = self._latest_t.get(role)
         if role == EMCY:
             return REASON_EMCY if t is not None and (self._invalid.get(role) or self._value.get(role, 0.0)) else ""
@@ -318,11 +265,9 @@ class SourceHealth:
         return REASON_NOT_PRESENT if role == PRESENT and self._value.get(PRESENT, 0.0) == 0 else REASON_OK
 
     def reason(self, now: float, role: str | None = None) -> str:
-        """Why the source (or its ``role`` signal) cannot be used at ``now``; "" when it can.
+        """Why the source (or its ``role`` signal, with gates and presence) cannot be used at ``now``; "" if it can.
 
-        ``role=None`` checks presence and then every value role in config order
-        and returns the first reason found. A named role is checked together
-        with presence when the source has a ``present`` signal.
+        ``role=None``: the first reason of the gates, presence, then every value role in config order.
         """
         if self._frozen:
             return REASON_FROZEN
@@ -345,11 +290,6 @@ class SourceHealth:
         if self._latest_t:
             self._ok_since = min(self._latest_t.values())
         return REASON_OK
-
-    def reasons(self, now: float) -> dict[str, str]:
-        """The reason of every configured role (``present`` included) at ``now``."""
-        roles = self._gates + ((PRESENT,) if self._has_present else ()) + self._value_roles
-        return {r: self._role_reason(now, r) for r in roles}
 
     def value(self, role: str) -> float:
         """The latest valid value of ``role`` (however old), NaN if none."""

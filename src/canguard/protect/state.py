@@ -1,14 +1,7 @@
 """Heat that survives restarts: the I²t state file (docs/protection.md, "Heat across restarts").
 
-One small JSON document, ``{"format": "canguard-heat", "version": 1, "t": <save time, s>, "models":
-{"<key>": <model.export()>, ...}}``, written atomically (temporary file, fsync, ``os.replace``,
-directory fsync: a crash leaves the old file or the new one). A missing file is a first start
-(cold); a corrupt or unreadable one logs a warning naming the file and why, and every model
-restored from it starts at ``on_corrupt`` (``hot``, fail safe: at the trip level; or ``cold``); a
-malformed entry does so for its model only; a key the file does not know starts cold. The downtime
-a restored model cools for is ``now − saved time``, or, given a ``clock`` that stamps saves
-(:class:`canguard.io.clock.BootClock`), the time since boot when the save was made in this same
-boot (a wall-clock step is never taken for cooling). ``path=None`` never reads or writes.
+``{"format": "canguard-heat", "version": 1, "t": <save time, s>, "models": {"<key>": <model.export()>}}``;
+a clock that stamps saves (:class:`canguard.io.clock.BootClock`) keeps a wall-clock step out of the downtime.
 """
 
 from __future__ import annotations
@@ -37,10 +30,8 @@ def _param(params: Mapping[str, Any], name: str) -> float:
 
 
 def cooled_level(state: Mapping[str, Any], downtime_s: float) -> float:
-    """The trip-level fraction of an exported state after ``downtime_s`` at zero current.
-
-    Uses the saved model's own parameters and law. ValueError when the state is malformed.
-    """
+    """The trip-level fraction of an exported state after ``downtime_s`` at zero current, by the saved model's own
+    parameters and law; ValueError when the state is malformed."""
     if not isinstance(state, Mapping):
         raise ValueError(f"i2t state: expected a mapping, got {type(state).__name__}")
     kind = state.get("kind")
@@ -74,40 +65,26 @@ ON_CORRUPT = ("hot", "cold")
 
 
 class DowntimeClock(Protocol):
-    """Stamps saves and measures downtime (the daemon passes :class:`canguard.io.clock.BootClock`)."""
+    """Stamps saves (``stamp()``) and measures the downtime since one (``downtime(saved, wall_downtime_s)``)."""
 
-    def stamp(self) -> dict[str, object]:
-        """What a save records besides its time."""
-        ...
+    def stamp(self) -> dict[str, object]: ...
 
-    def downtime(self, saved: object, wall_downtime_s: float) -> float:
-        """Seconds since the save that recorded ``saved``; ``wall_downtime_s`` when it cannot tell better."""
-        ...
+    def downtime(self, saved: object, wall_downtime_s: float) -> float: ...
 
 
 @runtime_checkable
 class HeatModel(Protocol):
-    """What the state file needs of a model: LeakyI2t and ThermalI2t."""
+    """What the state file needs of a model (LeakyI2t and ThermalI2t): ``export``, ``restore``, ``set_hot``."""
 
-    def export(self) -> dict[str, Any]:
-        """The state as a JSON-able dict."""
-        ...
+    def export(self) -> dict[str, Any]: ...
 
-    def restore(self, state: Mapping[str, Any], downtime_s: float) -> None:
-        """Take over a saved state cooled for ``downtime_s``."""
-        ...
+    def restore(self, state: Mapping[str, Any], downtime_s: float) -> None: ...
 
-    def set_hot(self, t: float | None = None) -> None:
-        """Put the state at the trip level."""
-        ...
+    def set_hot(self, t: float | None = None) -> None: ...
 
 
 class HeatStore:
-    """Saves and restores I²t state to/from one JSON file (``path=None``: never persists).
-
-    ``on_corrupt``: ``"hot"`` (default) or ``"cold"``, the start state of models
-    after a corrupt or unreadable file. ValueError on any other value.
-    """
+    """Saves and restores I²t state to/from one JSON file; ``on_corrupt``: ``"hot"`` or ``"cold"`` (ValueError else)."""
 
     def __init__(self, path: Path | str | None, on_corrupt: str = "hot", clock: DowntimeClock | None = None) -> None:
         if on_corrupt not in ON_CORRUPT:
@@ -120,7 +97,6 @@ class HeatStore:
         self._states: dict[str, Any] = {}
         self._saved_stamp: object = None
         self.clock = clock
-        """Stamps saves and measures downtime across a wall-clock step; None: ``now − saved time``."""
         self._last_save_t: float | None = None
         self.saves = 0
         """Successful saves so far."""
@@ -138,21 +114,19 @@ class HeatStore:
         if self.path is None:
             return
         try:
-            text = self.path.read_text(encoding="utf-8")
+            doc = json.loads(self.path.read_text(encoding="utf-8"))
         except FileNotFoundError:
             log.info("no I²t state file %s: starting cold", self.path)
             return
         except (OSError, UnicodeDecodeError) as exc:
-            self._mark_corrupt(f"cannot read it: {exc}")
-            return
-        try:
-            doc = json.loads(text)
+            problem = f"cannot read it: {exc}"
         except ValueError as exc:
-            self._mark_corrupt(f"not valid JSON: {exc}")
-            return
-        problem = _check_doc(doc)
+            problem = f"not valid JSON: {exc}"
+        else:
+            problem = _check_doc(doc)
         if problem:
-            self._mark_corrupt(problem)
+            self._corrupt = problem
+            log.warning("I²t state file %s is unusable (%s): models start %s", self.path, problem, self.on_corrupt)
             return
         self._saved_t = float(doc["t"])
         self._states = dict(doc["models"])
@@ -160,27 +134,17 @@ class HeatStore:
         log.debug("loaded I²t state of %d models from %s (saved %.3f s before %.3f)",
                   len(self._states), self.path, now - self._saved_t, now)
 
-    def _mark_corrupt(self, why: str) -> None:
-        self._corrupt = why
-        log.warning("I²t state file %s is unusable (%s): models start %s", self.path, why, self.on_corrupt)
-
-    def _apply_corrupt(self, model: HeatModel, now: float) -> None:
-        if self.on_corrupt == "hot":
-            model.set_hot(now)
-
     def restore(self, key: str, model: Any, now: float) -> None:
-        """Restore ``model`` (a LeakyI2t / ThermalI2t) under ``key``, cooled for ``now`` − saved time.
-
-        Loads the file first if :meth:`load` was not called. TypeError when the
-        model cannot hold heat (no export / restore / set_hot).
-        """
+        """Restore ``model`` under ``key``, cooled for the downtime (the file loaded first); TypeError when the
+        model cannot hold heat."""
         if not isinstance(model, HeatModel):
             raise TypeError(f"model {key!r} ({type(model).__name__}) has no heat state to restore")
         self.load(now)
         if self.path is None:
             return
         if self._corrupt is not None:
-            self._apply_corrupt(model, now)
+            if self.on_corrupt == "hot":
+                model.set_hot(now)
             return
         state = self._states.get(key)
         if state is None or self._saved_t is None:
@@ -191,26 +155,19 @@ class HeatStore:
         try:
             model.restore(state, downtime)
         except (ValueError, TypeError, KeyError) as exc:
-            log.warning("I²t state of %r in %s is unusable (%s): it starts %s",
-                        key, self.path, exc, self.on_corrupt)
-            self._apply_corrupt(model, now)
+            log.warning("I²t state of %r in %s is unusable (%s): it starts %s", key, self.path, exc, self.on_corrupt)
+            if self.on_corrupt == "hot":
+                model.set_hot(now)
 
     def save(self, models: Mapping[str, Any], now: float) -> None:
-        """Write every model's state atomically, stamped ``now``. StateFileError when it cannot be written.
-
-        TypeError (before anything is written) when a model cannot hold heat.
-        """
+        """Write every model's state atomically, stamped ``now``: StateFileError when it cannot be written,
+        TypeError (before anything is written) when a model cannot hold heat."""
         if self.path is None:
             return
         for key, model in models.items():
             if not isinstance(model, HeatModel):
                 raise TypeError(f"model {key!r} ({type(model).__name__}) has no heat state to save")
-        doc = {
-            "format": FORMAT,
-            "version": VERSION,
-            "t": now,
-            "models": {key: model.export() for key, model in models.items()},
-        }
+        doc = {"format": FORMAT, "version": VERSION, "t": now, "models": {k: m.export() for k, m in models.items()}}
         if self.clock is not None:
             doc["stamp"] = self.clock.stamp()
         try:
@@ -229,10 +186,7 @@ class HeatStore:
         return -math.inf if last is None else last + period_s
 
     def maybe_save(self, models: Mapping[str, Any], now: float, period_s: float) -> bool:
-        """Save when ``period_s`` has passed since the last save (or none yet, or time went back).
-
-        Returns True when it saved.
-        """
+        """Save when ``period_s`` has passed since the last save (or none yet, or time went back); True if it saved."""
         if self.path is None:
             return False
         last = self._last_save_t

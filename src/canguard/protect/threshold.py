@@ -1,8 +1,4 @@
-"""A plain limit with a peak latch: behind IsCurrentNormal and IsJointEffortNormal (docs/protection.md).
-
-Trips while |value| > ``max_value`` and clears as soon as |value| <= ``max_value`` (no hysteresis);
-the peak latch reports a one-frame spike between two ticks at the next tick.
-"""
+"""A plain limit with a peak latch: behind IsCurrentNormal and IsJointEffortNormal (docs/protection.md)."""
 
 from __future__ import annotations
 
@@ -33,12 +29,10 @@ class Threshold(LatchedModel[Screen]):
         return a > self.max_value
 
     def _screen(self, t: FloatArray, a: FloatArray) -> Screen:
-        """Only a sample on the other side of the limit changes anything."""
         over = a > self.max_value
         return Screen(over, ~over)
 
     def _quiet(self, t: Any, low_a: float, high_a: float, final_a: float) -> bool:
-        """Every sample on the side of ``max_value`` the model is on."""
         return low_a > self.max_value if self._tripped else not high_a > self.max_value
 
     def _levels(self) -> tuple[float, float]:

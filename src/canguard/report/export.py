@@ -1,17 +1,16 @@
 """``replay --export-signals FILE.parquet``: every decoded sample, as a table for pandas / polars.
 
-:class:`SignalExport` sees every sample the engine's models see (:attr:`Engine.sample_hook
-<canguard.engine.core.Engine.sample_hook>`, or whole column blocks through ``sample_block``) and hands
-:data:`BATCH_ROWS` rows at a time to its table (one Parquet row group): memory stays flat. Each log
-writes its own part file (:func:`part_path`), joined in input order by :func:`combine_parts`. pyarrow
-is an optional extra (``fleet``), imported only when used.
+:class:`SignalExport` sees every sample the models see (``Engine.sample_hook``, or whole column blocks
+through ``sample_block``) and hands :data:`BATCH_ROWS` rows at a time (a Parquet row group) to its table:
+memory stays flat. Each log writes its own part file, joined in input order by :func:`combine_parts`.
+pyarrow (the ``fleet`` extra) is imported only when used.
 """
 
 from __future__ import annotations
 
 import math
 import os
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
 
@@ -22,32 +21,28 @@ if TYPE_CHECKING:
     from canguard.io.frame import Sample
 
 FLAG = "--export-signals"
-COLUMNS = ("log", "t", "bus", "source", "signal", "value", "reason")
-"""The exported columns, in order."""
+COLUMNS = {"log": "string", "t": "float64", "bus": "string", "source": "string", "signal": "string",
+           "value": "float64", "reason": "string"}
+"""The exported columns, in order, and their Arrow types."""
 BATCH_ROWS = 65_536
 """Rows buffered before they are written as one record batch (a Parquet row group)."""
 OUT_OF_RANGE = "out_of_range"
 
 
-_NO_PYARROW = (f"{FLAG}: writing Parquet needs pyarrow, an optional extra: "
-               "pip install 'canguard[fleet]' (or pip install pyarrow)")
-
-
-def require_pyarrow() -> tuple[Any, Any]:
+def require_pyarrow(flag: str = FLAG) -> tuple[Any, Any]:
     """``(pyarrow, pyarrow.parquet)``, or a ConfigError (exit 2) naming the flag and the extra."""
     try:
         import pyarrow as pa
         import pyarrow.parquet as pq
     except ImportError:
-        raise ConfigError(_NO_PYARROW) from None
+        raise ConfigError(f"{flag}: writing Parquet needs pyarrow, an optional extra: "
+                          "pip install 'canguard[fleet]' (or pip install pyarrow)") from None
     return pa, pq
 
 
-def schema(pa: Any) -> Any:
-    """The Parquet schema of the export."""
-    text, real = pa.string(), pa.float64()
-    types = {"log": text, "t": real, "bus": text, "source": text, "signal": text, "value": real, "reason": text}
-    return pa.schema([(c, types[c]) for c in COLUMNS])
+def schema(pa: Any, columns: dict[str, str] = COLUMNS) -> Any:
+    """The Arrow schema of ``columns`` (name: type name)."""
+    return pa.schema([(name, getattr(pa, kind)()) for name, kind in columns.items()])
 
 
 def check_export(path: Path, *, dask: bool = False) -> None:
@@ -60,7 +55,7 @@ def check_export(path: Path, *, dask: bool = False) -> None:
     import importlib.util
 
     if not is_mcap(path) and importlib.util.find_spec("pyarrow") is None:
-        raise ConfigError(_NO_PYARROW)
+        require_pyarrow()  # raises: named, not imported
     from canguard.io.outputs import check_output
 
     check_output(path, FLAG, beside=True, expected="a file name such as signals.parquet in a writable directory")
@@ -79,28 +74,14 @@ def part_path(path: Path, index: int) -> Path:
 class SignalExport:
     """Streams every sample an engine decodes into one Parquet file, in bounded memory."""
 
-    def __init__(self, engine: Engine, path: Path, log: str, *, batch_rows: int | None = None,
-                 table: SampleTable | None = None) -> None:
-        self.path = path
-        self.log = log
-        self.batch_rows = batch_rows or BATCH_ROWS
-        self.rows = 0
+    def __init__(self, engine: Engine, path: Path, log: str, *, table: SampleTable | None = None) -> None:
+        self.batch_rows = BATCH_ROWS
         bus = {name: src.bus for name, src in engine.cfg.sources.items()}
         self.table: SampleTable = table if table is not None else ParquetTable(path, log, bus)
         """Where each batch of rows goes: a Parquet file, or an MCAP export's channels."""
         # The DBC [min|max] the source's health checks: a value outside is rejected as out_of_range
         # by the models although the decoder passed it (the decoder does not check ranges).
         self._ranges = {name: health.ranges for name, health in engine.ctx.health.items()}
-        self._clear()
-        self._codes: dict[tuple[str, str, str], int] = {}
-        self._keys: list[tuple[str, str, str]] = []
-        previous = engine.sample_hook  # --plot's recorder, when there is one: both see every sample
-        self._previous: Callable[[Any], None] | None = previous
-        engine.sample_hook = self._sample
-        if previous is None:  # alone: a replay's column blocks are taken whole (the recorder wants every sample)
-            engine.sample_block = self._block
-
-    def _clear(self) -> None:
         self._t: list[float] = []
         self._c: list[int] = []
         self._v: list[float] = []
@@ -108,10 +89,12 @@ class SignalExport:
         self._chunks: list[tuple[Any, Any, Any]] = []
         """Columns of samples in order (time, code, value arrays), waiting for a batch to be full."""
         self._pending = 0
+        self._codes: dict[tuple[str, str, str], int] = {}
+        self._keys: list[tuple[str, str, str]] = []
+        engine.sample_hook = self._sample
+        engine.sample_block = self._block  # a replay's column blocks, taken whole
 
     def _sample(self, s: Sample) -> None:
-        if self._previous is not None:
-            self._previous(s)
         self._t.append(s.t)
         self._c.append(self._code((s.source, s.signal), self._reason_of(s)))
         self._v.append(s.value)
@@ -139,19 +122,17 @@ class SignalExport:
 
     def _block(self, times: Sequence[Any], taken: list[tuple[list[tuple[str, str]], list[int], Sequence[Any]]],
                fed: list[tuple[int, Sample]]) -> None:
-        """A replay's column block (:attr:`Engine.sample_block`): its samples in row order, as frame by frame.
+        """A replay's column block (``Engine.sample_block``): its samples in row order, as frame by frame.
 
-        ``taken``: per configured message, its outputs' (source, signal), its rows and their decoded
-        values (None: the row was fed, EMPTY: no sample; numpy columns when the decoder kept them);
-        ``fed``: the samples of the rows fed, with their row. A row decoded but then fed (its source
-        coming back, say) is in both: its samples are the fed ones. The column checks pass only valid,
-        in-range values: their reason is "". The samples are laid out row by row, each message's in
-        output order and the fed ones as they came, then put in row order by a stable sort.
+        ``taken``: per configured message, its outputs' (source, signal), its rows and their decoded values;
+        ``fed``: the samples of the rows fed, with their row (a row in both: its samples are the fed ones).
+        The column checks pass only valid, in-range values: their reason is "".
         """
         import numpy as np
 
         from canguard.decode.rows import valued_table
 
+        stamp = np.asarray(times, dtype=np.float64)
         fed_rows = np.array([row for row, _s in fed], dtype=np.intp)
         rows, stamps, values, codes = [], [], [], []
         for names, group, decoded in taken:
@@ -163,7 +144,7 @@ class SignalExport:
                 continue
             width, taken_rows = len(names), idx[keep]
             rows.append(np.repeat(taken_rows, width))
-            stamps.append(np.repeat(_times_at(times, taken_rows), width))
+            stamps.append(np.repeat(stamp[taken_rows], width))
             values.append(table[keep].ravel())  # row by row, each row's outputs in order
             codes.append(np.tile([self._code(name, "") for name in names], taken_rows.size))
         if fed:
@@ -200,7 +181,6 @@ class SignalExport:
         t, codes, values = (np.concatenate(cols) for cols in zip(*self._chunks, strict=True))
         n = min(t.size, self.batch_rows)
         self.table.write(t[:n], codes[:n], values[:n], self._keys)
-        self.rows += n
         self._chunks = [(t[n:], codes[n:], values[n:])] if n < t.size else []
         self._pending = t.size - n
 
@@ -234,20 +214,11 @@ class ParquetTable:
         """One record batch."""
         import numpy as np
 
-        pa = self.pa
-        n = len(t)
-        names = [np.array([k[i] for k in keys], dtype=object)[codes] for i in range(3)]
+        source, signal, reason = (np.array([k[i] for k in keys], dtype=object)[codes] for i in range(3))
         bus = np.array([self.bus.get(k[0], "") for k in keys], dtype=object)[codes]
-        columns = [
-            pa.array([self.log] * n, pa.string()),
-            pa.array(t, pa.float64()),
-            pa.array(bus, pa.string()),
-            pa.array(names[0], pa.string()),
-            pa.array(names[1], pa.string()),
-            pa.array(values, pa.float64()),
-            pa.array(names[2], pa.string()),
-        ]
-        self._writer.write_batch(pa.RecordBatch.from_arrays(columns, schema=self._schema))
+        columns = [[self.log] * len(t), t, bus, source, signal, values, reason]
+        self._writer.write_batch(self.pa.RecordBatch.from_arrays(
+            [self.pa.array(c, f.type) for c, f in zip(columns, self._schema, strict=True)], schema=self._schema))
 
     def close(self) -> None:
         """Close the file."""
@@ -282,11 +253,3 @@ def combine_parts(path: Path, parts: Sequence[Path], ok: Sequence[bool]) -> int:
     finally:
         discard_parts(parts)
 
-
-def _times_at(times: Sequence[Any], rows: Any) -> Any:
-    """The times of ``rows`` as float64: a numpy block's directly, else each ``float()`` of the text or float."""
-    import numpy as np
-
-    if hasattr(times, "dtype"):
-        return times[rows]
-    return np.array([float(times[i]) for i in rows.tolist()], dtype=np.float64)

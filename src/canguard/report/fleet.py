@@ -11,11 +11,12 @@ from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
-from canguard.errors import ConfigError
+from canguard.report.export import require_pyarrow, schema
 
-COLUMNS = ("log", "status", "reason", "frames", "trips", "stops", "first_trip_t", "stopped_s",
-           "worst_node", "worst_signal", "worst_margin_pct")
-"""The fleet summary's columns, in order."""
+COLUMNS = {"log": "string", "status": "string", "reason": "string", "frames": "int64", "trips": "int64",
+           "stops": "int64", "first_trip_t": "float64", "stopped_s": "float64", "worst_node": "string",
+           "worst_signal": "string", "worst_margin_pct": "float64"}
+"""The fleet summary's columns, in order, and their Arrow types."""
 
 
 def fleet_row(log: str, summary: Mapping[str, Any] | None, error: str = "") -> dict[str, Any]:
@@ -27,15 +28,12 @@ def fleet_row(log: str, summary: Mapping[str, Any] | None, error: str = "") -> d
         return row
     trips = summary.get("trips") or []
     margins = [m for m in summary.get("margins") or [] if m.get("margin_pct") is not None]
-    worst = min(margins, key=lambda m: m["margin_pct"], default=None)
-    frames = summary.get("frames") or {}
+    worst: Mapping[str, Any] = min(margins, key=lambda m: m["margin_pct"], default={})
     row.update(
-        status="ok", reason="", frames=frames.get("read"), trips=int(summary.get("trip_count", len(trips))),
-        stops=summary.get("stops"), first_trip_t=min((t["t"] for t in trips), default=None),
-        stopped_s=summary.get("stopped_s"),
-        worst_node=None if worst is None else worst.get("node"),
-        worst_signal=None if worst is None else worst.get("signal"),
-        worst_margin_pct=None if worst is None else worst.get("margin_pct"),
+        status="ok", reason="", frames=(summary.get("frames") or {}).get("read"),
+        trips=int(summary.get("trip_count", len(trips))), stops=summary.get("stops"),
+        first_trip_t=min((t["t"] for t in trips), default=None), stopped_s=summary.get("stopped_s"),
+        worst_node=worst.get("node"), worst_signal=worst.get("signal"), worst_margin_pct=worst.get("margin_pct"),
     )
     return row
 
@@ -44,23 +42,10 @@ def write_fleet_summary(path: Path, rows: Iterable[Mapping[str, Any]]) -> None:
     """Write ``rows``: Parquet when ``path`` ends with ``.parquet`` (pyarrow), else JSON lines."""
     rows = list(rows)
     if path.suffix.lower() == ".parquet":
-        try:
-            import pyarrow as pa
-            import pyarrow.parquet as pq
-        except ImportError:
-            raise ConfigError(f"--fleet-summary {path}: writing Parquet needs pyarrow: "
-                              "pip install 'canguard[fleet]'") from None
-        table = pa.Table.from_pylist([{c: r.get(c) for c in COLUMNS} for r in rows], schema=_schema(pa))
+        pa, pq = require_pyarrow(f"--fleet-summary {path}")
+        table = pa.Table.from_pylist([{c: r.get(c) for c in COLUMNS} for r in rows], schema=schema(pa, COLUMNS))
         pq.write_table(table, path)
         return
     with open(path, "w", encoding="utf-8") as out:
         for r in rows:
             out.write(json.dumps({c: r.get(c) for c in COLUMNS}, sort_keys=False) + "\n")
-
-
-def _schema(pa: Any) -> Any:
-    text, whole, real = pa.string(), pa.int64(), pa.float64()
-    types = {"log": text, "status": text, "reason": text, "frames": whole, "trips": whole, "stops": whole,
-             "first_trip_t": real, "stopped_s": real, "worst_node": text, "worst_signal": text,
-             "worst_margin_pct": real}
-    return pa.schema([(c, types[c]) for c in COLUMNS])

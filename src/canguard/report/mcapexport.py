@@ -1,8 +1,6 @@
 """``replay --export-signals FILE.mcap``: what the engine saw and did, as MCAP channels Foxglove plots as they are.
 
-In the log's time base, one channel per source and role (``/canguard/samples/...``), per guard
-(``/canguard/guards/<node>``), the events (JSON) and the frames sent (``/canguard/frames_out``,
-``/canguard/frames_out_fd``): docs/commands.md. Messages are ROS 2 CDR with their ``.msg`` schemas.
+In the log's time base, as ROS 2 CDR messages with their ``.msg`` schemas; the channels: docs/commands.md.
 """
 
 from __future__ import annotations

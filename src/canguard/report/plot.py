@@ -1,7 +1,8 @@
 """``replay --plot``: what an engineer looks at first after a trip.
 
 Per guarded source: the value over time with its thresholds, the I²t level of its guards, trips and stops
-shaded. ``.png`` / ``.svg`` by matplotlib (an optional extra); ``.html``: the SVG inline.
+shaded. ``.png`` / ``.svg`` by matplotlib (an optional extra); ``.html``: the SVG inline. ``tune --plot``:
+per guard, the healthy |values| with the old and new figures and the faults.
 """
 
 from __future__ import annotations
@@ -13,11 +14,11 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from canguard.errors import ConfigError
+from canguard.report.tune import BIN_RATIO, Capture
 from canguard.units import I2T_LIMIT_PCT, quantity
 
 if TYPE_CHECKING:
     from canguard.engine.core import Engine
-    from canguard.io.frame import Sample
 
 FORMATS = (".png", ".svg", ".html")
 
@@ -30,35 +31,25 @@ def require_matplotlib() -> Any:
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
     except ImportError as exc:
-        raise ConfigError(
-            "--plot needs matplotlib, an optional extra: pip install 'canguard[plot]' (or pip install matplotlib)"
-        ) from exc
+        raise ConfigError("--plot needs matplotlib, an optional extra: pip install 'canguard[plot]' "
+                          "(or pip install matplotlib)") from exc
     return plt
 
 
 class Recorder:
-    """Collects samples, I²t levels and stop intervals from an engine while it runs."""
+    """Collects the valid samples of every value, I²t levels and stop intervals from an engine while it runs."""
 
     def __init__(self, engine: Engine) -> None:
         self.engine = engine
-        self.series: dict[tuple[str, str], tuple[array, array]] = {}
+        self.series = {(name, role): Capture() for name, src in engine.cfg.sources.items() for role in src.value_roles}
+        for (name, role), capture in self.series.items():
+            engine.ctx.subscribe(name, role, capture)  # fed as the models are
         self.levels: dict[str, tuple[array, array]] = {}
         self.trips: list[tuple[float, str, str]] = []
         self.stops: list[list[float]] = []
-        # hooks set before this recorder keep being called (an export, another recorder)
-        self._next_sample, self._next_tick = engine.sample_hook, engine.tick_hook
-        engine.sample_hook = self._sample
+        self._next_tick = engine.tick_hook  # one set before this recorder keeps being called
         engine.tick_hook = self._tick
         engine.listen(self._event)
-
-    def _sample(self, s: Sample) -> None:
-        if self._next_sample is not None:
-            self._next_sample(s)
-        if s.reason or s.signal == "present":
-            return
-        ts, vs = self.series.setdefault((s.source, s.signal), (array("d"), array("d")))
-        ts.append(s.t)
-        vs.append(s.value)
 
     def _tick(self, now: float) -> None:
         if self._next_tick is not None:
@@ -85,15 +76,16 @@ class Recorder:
             raise ConfigError(f"--plot {path}: unknown extension {suffix!r}, expected one of {', '.join(FORMATS)}")
         plt = require_matplotlib()
         guards = self.engine.guards()
-        sources = sorted({(g.source, g.role) for g in guards} & set(self.series)) or sorted(self.series)
+        series = {key: cols for key, cols in ((k, c.columns()) for k, c in self.series.items()) if cols[0].size}
+        sources = sorted({(g.source, g.role) for g in guards} & set(series)) or sorted(series)
         level_nodes = sorted(self.levels)
         rows = max(1, len(sources)) + (1 if level_nodes else 0)
         fig, axes = plt.subplots(rows, 1, figsize=(11, 2.6 * rows), sharex=True, squeeze=False)
         t0 = summary.get("first_t") or 0.0
         end = summary.get("last_t") or t0
         for ax, (source, role) in zip(axes[:, 0], sources, strict=False):
-            ts, vs = self.series[(source, role)]
-            ax.plot([t - t0 for t in ts], list(vs), lw=0.8, label=f"{source} {role}")
+            ts, vs = series[(source, role)]
+            ax.plot(ts - t0, vs, lw=0.8, label=f"{source} {role}")
             for g in guards:
                 if (g.source, g.role) == (source, role) and g.kind == "threshold":
                     thr = g.threshold()
@@ -105,8 +97,8 @@ class Recorder:
         if level_nodes:
             ax = axes[-1, 0]
             for node in level_nodes:
-                ts, vs = self.levels[node]
-                ax.plot([t - t0 for t in ts], list(vs), lw=0.8, label=node)
+                times, levels = self.levels[node]
+                ax.plot([t - t0 for t in times], list(levels), lw=0.8, label=node)
             ax.axhline(100.0, ls="--", lw=0.8, color="tab:red")
             ax.set_ylabel(f"I²t level ({I2T_LIMIT_PCT})")
             ax.legend(loc="upper right", fontsize=7)
@@ -122,11 +114,34 @@ class Recorder:
         if suffix == ".html":
             buf = io.StringIO()
             fig.savefig(buf, format="svg")
-            path.write_text(
-                "<!doctype html><html><head><meta charset='utf-8'><title>canguard replay</title></head>"
-                f"<body>{buf.getvalue()}</body></html>",
-                encoding="utf-8",
-            )
+            path.write_text("<!doctype html><html><head><meta charset='utf-8'><title>canguard replay</title></head>"
+                            f"<body>{buf.getvalue()}</body></html>", encoding="utf-8")
         else:
             fig.savefig(path)
         plt.close(fig)
+
+
+def plot_tune(path: Path, guards: list[Any]) -> None:
+    """One panel per threshold guard the healthy logs exercised (I²t ratings are factors: not drawn)."""
+    plt = require_matplotlib()
+    shown = [g for g in guards if g.hist and not g.scale]
+    fig, axes = plt.subplots(max(len(shown), 1), 1, figsize=(8, 2.2 * max(len(shown), 1)), squeeze=False)
+    for ax, g in zip(axes[:, 0], shown, strict=False):
+        bins = sorted((int(k), c) for k, c in g.hist.items() if k != "z")
+        if bins:
+            left = [BIN_RATIO ** k for k, _c in bins]
+            width = [x * (BIN_RATIO - 1.0) for x in left]
+            ax.bar(left, [c for _k, c in bins], width=width, align="edge", color="tab:blue", label="healthy |value|")
+            ax.set_xscale("log")
+            ax.set_yscale("log")
+        if g.old is not None and math.isfinite(g.old):
+            ax.axvline(g.old, color="grey", linestyle="--", label=f"old {g.port} {g.old:.4g}")
+        if g.new is not None:
+            ax.axvline(g.new, color="tab:green", label=f"new {g.new:.4g}")
+        for f in g.faults:
+            ax.axvline(f.value, color="tab:red", linestyle=":", label=f"fault {Path(f.log).name} {f.value:.4g}")
+        ax.set_title(f"{g.node} ({g.type} on {g.source}): {g.status}", fontsize=9)
+        ax.legend(fontsize=7, loc="upper right")
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)

@@ -1,8 +1,8 @@
 """``canguard tune``'s proposal: each guard's figure between what healthy logs reach and what faults need.
 
-From every log's :class:`~canguard.report.tune.TuneStats` result: per guard the healthy ceiling × (1 + margin),
-rounded up while below what every fault assigned to it needs (else the midpoint, said; else a conflict); a
-source's ``max_age`` only where the value in force fails a log. The rules: docs/commands.md (``canguard tune``).
+Per guard the healthy ceiling × (1 + margin), rounded up while below what every fault assigned to it needs
+(else the midpoint, said; else a conflict); a source's ``max_age`` only where the value in force fails a log.
+The rules: docs/commands.md (``canguard tune``).
 """
 
 from __future__ import annotations
@@ -25,7 +25,6 @@ class LogStats:
     name: str
     fault: bool
     tune: dict[str, Any]
-    summary: dict[str, Any]
 
 
 @dataclass(frozen=True)
@@ -52,7 +51,7 @@ class Proposal:
     old: float | None
     new: float | None = None
     status: str = "left"
-    """``tuned``, ``left`` (nothing to change or nothing exercised it) or ``conflict``."""
+    """``tuned``, ``left`` or ``conflict``."""
     why: str = ""
     healthy: Need | None = None
     peak: Need | None = None
@@ -121,11 +120,8 @@ def separate(healthy: float, needs: list[float], margin: float) -> tuple[float |
     return None, ""
 
 
-def _signals(log: LogStats, node: str) -> tuple[dict[str, Any] | None, list[dict[str, Any]]]:
-    for guard in log.tune["guards"]:
-        if guard["node"] == node:
-            return guard, guard["signals"]
-    return None, []
+def _signals(log: LogStats, node: str) -> list[dict[str, Any]]:
+    return next((g["signals"] for g in log.tune["guards"] if g["node"] == node), [])
 
 
 def _best(needs: list[Need]) -> Need | None:
@@ -135,38 +131,31 @@ def _best(needs: list[Need]) -> Need | None:
 def propose_guard(node: str, logs: list[LogStats], expect: dict[str, list[str]] | None, margin: float,
                   tune_i2t: bool) -> Proposal:
     """The proposal for one guard node of the tree (see the module docstring)."""
-    head = next(g for g in (_signals(log, node)[0] for log in logs) if g is not None)
+    head = next(g for log in logs for g in log.tune["guards"] if g["node"] == node)
     is_i2t = head["type"] == "IsI2tSafe"
     prop = Proposal(node, head["type"], head["source"], head["port"], head["value"], scale=is_i2t)
     ceilings: list[Need] = []
     peaks: list[Need] = []
-    hist: dict[str, int] = {}
     faults: list[Need] = []
     for log in logs:
-        _guard, signals = _signals(log, node)
-        mine = [s for s in signals if s.get("samples")]
-        if is_i2t and mine:
-            prop.heat.append(Need(log.name, max(s.get("heat_pct", math.nan) for s in mine), None))
+        mine = [s for s in _signals(log, node) if s.get("samples")]
         if not mine:
             continue
+        if is_i2t:
+            prop.heat.append(Need(log.name, max(s.get("heat_pct", math.nan) for s in mine), None))
         top = max(mine, key=lambda s: s.get("ceiling", -math.inf))
-        ceiling = Need(log.name, top["ceiling"], top.get("ceiling_t")) if "ceiling" in top else None
+        ceiling = [Need(log.name, top["ceiling"], top.get("ceiling_t"))] if "ceiling" in top else []
         if log.fault:
-            if ceiling is not None:
-                faults.append(ceiling)
+            faults += ceiling
             continue
         peak = max(mine, key=lambda s: s["peak"])
         peaks.append(Need(log.name, peak["peak"], peak["peak_t"]))
-        for s in mine:
-            for k, c in s["hist"].items():
-                hist[k] = hist.get(k, 0) + c
-        if ceiling is not None:
-            ceilings.append(ceiling)
-    prop.peak = _best(peaks)
-    prop.healthy = _best(ceilings)
-    prop.hist = hist
-    starts = [s["inrush"] for log in logs if not log.fault for s in _signals(log, node)[1] if s.get("inrush")]
-    prop.p99, prop.p999 = percentile(hist, 99.0), percentile(hist, 99.9)
+        for k, c in ((k, c) for s in mine for k, c in s["hist"].items()):
+            prop.hist[k] = prop.hist.get(k, 0) + c
+        ceilings += ceiling
+    prop.peak, prop.healthy = _best(peaks), _best(ceilings)
+    starts = [s["inrush"] for log in logs if not log.fault for s in _signals(log, node) if s.get("inrush")]
+    prop.p99, prop.p999 = percentile(prop.hist, 99.0), percentile(prop.hist, 99.9)
     if expect is not None:
         prop.faults = [f for f in faults if node in expect.get(f.log, [])]
     else:  # a fault the guard clearly sees: beyond the healthy ceiling by more than the margin
@@ -179,11 +168,8 @@ def propose_guard(node: str, logs: list[LogStats], expect: dict[str, list[str]] 
 
 
 def _inrush(starts: list[dict[str, Any]], threshold: float | None, margin: float) -> dict[str, Any]:
-    """The healthy motor starts of an inrush-blanked guard, and its window: as long as the longest start.
-
-    A start lasts while its |I| is above the (tuned) overcurrent threshold; the window proposed is the
-    longest healthy start × (1 + margin). Kept when no start rises above the threshold, or none was seen.
-    """
+    """The healthy motor starts of an inrush-blanked guard, and its window: the longest healthy start (above the
+    tuned threshold) × (1 + margin); kept when no start rises above the threshold, or none was seen."""
     window = starts[0]["window"]
     count = sum(s["starts"] for s in starts)
     out: dict[str, Any] = {"starts": count, "peak": max(s["peak"] for s in starts), "old": window, "new": None}
@@ -267,12 +253,7 @@ def propose_age(source: str, old: float, logs: list[LogStats]) -> AgeProposal | 
 def propose(logs: list[LogStats], ages: dict[str, float], expect: dict[str, list[str]] | None, margin: float,
             tune_i2t: bool) -> tuple[list[Proposal], list[AgeProposal]]:
     """Every guard's proposal (tree order) and every guarded source's ``max_age``."""
-    nodes: list[str] = []
-    for log in logs:
-        for g in log.tune["guards"]:
-            if g["node"] not in nodes:
-                nodes.append(g["node"])
+    nodes = dict.fromkeys(g["node"] for log in logs for g in log.tune["guards"])
     guards = [propose_guard(n, logs, expect, margin, tune_i2t) for n in nodes]
-    sources = [p.source for p in guards]
-    out = [propose_age(s, ages[s], logs) for s in dict.fromkeys(sources) if s in ages]
+    out = [propose_age(s, ages[s], logs) for s in dict.fromkeys(p.source for p in guards) if s in ages]
     return guards, [a for a in out if a is not None]

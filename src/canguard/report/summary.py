@@ -23,11 +23,6 @@ def rounded(x: float | None, nd: int = 6) -> float | None:
     return None if x is None or not math.isfinite(x) else round(x, nd)
 
 
-def unguarded_sources(cfg: Config, samples: dict[str, int]) -> list[str]:
-    """The configured sources this log gave no sample of: their guards judged nothing."""
-    return sorted(name for name in cfg.sources if not samples.get(name))
-
-
 def build_summary(cfg: Config, log_path: Path, engine: Engine, stats: Any, router: ChannelRouter) -> dict[str, Any]:
     """The summary of one replay: counters, trips, time stopped and the lowest margin to each threshold."""
     d = engine.decoder
@@ -67,7 +62,7 @@ def build_summary(cfg: Config, log_path: Path, engine: Engine, stats: Any, route
         },
         "unmapped_channels": unmapped,
         "samples": dict(sorted(es.samples.items())),
-        "unguarded_sources": unguarded_sources(cfg, es.samples),
+        "unguarded_sources": sorted(n for n in cfg.sources if not es.samples.get(n)),  # their guards judged nothing
         "ticks": es.ticks, "edge_ticks": es.edge_ticks, "tick_errors": es.tick_errors,
         "trips": trips,
         "trip_count": es.trip_count,
@@ -137,12 +132,8 @@ class Change(NamedTuple):
 
 
 def diff_baseline(base: dict[str, Any], new: dict[str, Any], margin_tolerance_pct: float = 0.0) -> list[Change]:
-    """What changed against a saved --json summary: new trips, lost trips, margins that shrank, stop counts.
-
-    A trip gained or lost is a regression; so is a margin that shrank by more than
-    ``margin_tolerance_pct`` percent of its guard's threshold (a shrink at all, with the default 0).
-    Stop counts follow from the trips and are reported only.
-    """
+    """What changed against a saved --json summary: trips gained or lost and margins that shrank by more than
+    ``margin_tolerance_pct`` % of their threshold (regressions), stop counts (reported only)."""
 
     def key(t: dict[str, Any]) -> tuple[str, str, str]:
         return (str(t.get("node")), str(t.get("source")), str(t.get("reason")))

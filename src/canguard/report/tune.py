@@ -1,10 +1,8 @@
 """``canguard tune``'s statistics of one log: what each guard of the tree would need to trip on it.
 
-A replay carries a :class:`TuneStats`, whose :class:`Capture` subscribes to every signal a guard
-reads (as the guards' models do). At the end of the log each guard's model, as built, is advanced over
-the captured columns with its tunable figure changed (:class:`Knob`), searching the figure at which it
-stops tripping: its *ceiling*. The model's own maths decides, so nothing restates a guard's semantics.
-:meth:`TuneStats.result` is small and JSON-able (it travels in the replay summary).
+A :class:`Capture` keeps every sample a guard's models get; at the end of the log a fresh copy of each
+model is advanced over them with its tunable figure (:class:`Knob`) moved, searching the figure at which it
+stops tripping: its *ceiling*. The model's own maths decides: nothing restates a guard's semantics.
 """
 
 from __future__ import annotations
@@ -30,14 +28,10 @@ BIN_RATIO = 1.01
 """Histogram bins of |value| are 1 % wide (log-spaced): percentiles merge across logs and workers exactly."""
 _LOG_BIN = math.log(BIN_RATIO)
 SEARCH_STEPS = 40
-"""Bisection steps of a ceiling search (relative precision far below any threshold's rounding)."""
+"""Bisection steps of a ceiling search, which stops once the bracket is :data:`SEARCH_REL` of its upper end."""
 SEARCH_REL = 1e-5
-"""A ceiling search stops once the bracket is this narrow, relative to its upper end."""
-
-
 _EMPTY = np.empty(0)
-_EMPTY_INDEX = np.empty(0, dtype=np.intp)
-_EMPTY_STATES = np.empty(0, dtype=bool)
+_NO_EDGE = (np.empty(0, dtype=np.intp), _EMPTY, np.empty(0, dtype=bool))
 
 
 class Capture(ProtectionModel):
@@ -53,12 +47,10 @@ class Capture(ProtectionModel):
         if len(times) == 1:  # a frame on its own
             self._t.append(float(times[0]))
             self._v.append(float(values[0]))
-            return Run(_EMPTY_INDEX, _EMPTY, _EMPTY_STATES, 1)
+            return Run(*_NO_EDGE, 1)
         self._spill()
-        t = np.array(times, dtype=np.float64)
-        v = np.array(values, dtype=np.float64)
-        self._runs.append((t, v))
-        return Run(_EMPTY_INDEX, _EMPTY, _EMPTY_STATES, int(t.size))
+        self._runs.append((np.array(times, dtype=np.float64), np.array(values, dtype=np.float64)))
+        return Run(*_NO_EDGE, len(times))
 
     def mark(self) -> Any:
         """How many samples are kept (the engine goes back to it when a run went past another source's edge)."""
@@ -91,7 +83,7 @@ class Capture(ProtectionModel):
         return self.snapshot()
 
     def snapshot(self) -> Snapshot:
-        """Never tripped: nothing to report."""
+        """Never tripped."""
         return Snapshot(math.nan, math.nan, 0.0, False, None, "")
 
     @property
@@ -102,12 +94,9 @@ class Capture(ProtectionModel):
 
 @dataclass(frozen=True)
 class Knob:
-    """One figure of a guard that tune can move, and how a model is tried with another value of it.
-
-    ``scale``: the figure is tried by scaling the samples instead (I²t: a rating scaled by ``s``
-    trips exactly where the currents divided by ``s`` trip the rated model, every figure of the
-    rating being a current); otherwise ``set`` puts the value into a copy of the model.
-    """
+    """One figure of a guard that tune can move: ``set`` puts a value into a copy of the model; without it the
+    samples are scaled instead (I²t: a rating scaled by ``s`` trips where the currents divided by ``s`` trip
+    the rated model, every figure of the rating being a current)."""
 
     port: str
     value: float
@@ -164,34 +153,32 @@ def trip_time(model: ProtectionModel, knob: Knob, value: float, t: np.ndarray, v
 def ceiling(model: ProtectionModel, knob: Knob, t: np.ndarray, v: np.ndarray) -> tuple[float, float | None]:
     """The knob's value at and above which the model no longer trips on the samples, and the trip time just below.
 
-    ``(0.0, None)`` when it does not trip even at the smallest value; ``(inf, time)`` when it trips
-    whatever the value (an inrush threshold or a stale gap trips it, not this figure).
+    ``(0.0, None)``: no trip even at the smallest value; ``(inf, time)``: a trip whatever the value (another
+    figure, an inrush threshold or a stale gap, trips it).
     """
-    peak = float(np.max(np.abs(v))) if v.size else 0.0
+    def trips(value: float) -> float | None:
+        return trip_time(model, knob, value, t, v)
+
     if knob.scale:
         lo, hi = 1e-3, 1.0
-        while trip_time(model, knob, hi, t, v) is not None:
+        while trips(hi) is not None:
             lo, hi = hi, hi * 2.0
             if hi > 1e6:
-                return math.inf, trip_time(model, knob, lo, t, v)
+                return math.inf, trips(lo)
     else:
-        if peak == 0.0:
+        if not v.size or not np.any(v):
             return 0.0, None
-        hi = peak * (1.0 + 1e-9) + 1e-12
-        if trip_time(model, knob, hi, t, v) is not None:
-            return math.inf, trip_time(model, knob, hi, t, v)
-        lo = 0.0
-    if trip_time(model, knob, lo, t, v) is None:
+        lo, hi = 0.0, float(np.max(np.abs(v))) * (1.0 + 1e-9) + 1e-12
+        if trips(hi) is not None:
+            return math.inf, trips(hi)
+    if trips(lo) is None:
         return lo, None
     for _ in range(SEARCH_STEPS):
         if hi - lo <= SEARCH_REL * hi:
             break
         mid = 0.5 * (lo + hi)
-        if trip_time(model, knob, mid, t, v) is None:
-            hi = mid
-        else:
-            lo = mid
-    return hi, trip_time(model, knob, lo, t, v)
+        lo, hi = (lo, mid) if trips(mid) is None else (mid, hi)
+    return hi, trips(lo)
 
 
 INRUSH_HORIZON = 4.0
@@ -210,29 +197,25 @@ def staircase(dt: np.ndarray, a: np.ndarray) -> list[list[float]]:
 
 
 def envelope(model: ProtectionModel, t: np.ndarray, v: np.ndarray) -> dict[str, Any] | None:
-    """An inrush-blanked guard's motor starts on a log: how many, the highest |I| in a window, the staircase.
-
-    The guard's own start detection (a copy of its :class:`~canguard.protect.inrush.InrushBlanking`) finds
-    the starts; None for a guard without inrush blanking.
-    """
+    """An inrush-blanked guard's motor starts, as its own start detection finds them: how many, the highest |I| in
+    a window, the staircase; None for a guard without inrush blanking."""
     inrush = getattr(model, "inrush", None)
     if inrush is None or not t.size:
         return None
     window = float(inrush.inrush_time_s)
     a = np.abs(v)
     starts = np.flatnonzero(copy.deepcopy(inrush).advance(t, a))
-    points: list[list[float]] = []
-    peak = 0.0
+    since: list[np.ndarray] = [_EMPTY]
+    seen: list[np.ndarray] = [_EMPTY]
     for i, s in enumerate(starts.tolist()):
         stop = int(starts[i + 1]) if i + 1 < starts.size else t.size
         stop = min(stop, int(np.searchsorted(t, t[s] + INRUSH_HORIZON * window, side="right")))
-        seg_t, seg_a = t[s:stop] - t[s], a[s:stop]
-        inside = seg_t < window
-        if inside.any():
-            peak = max(peak, float(seg_a[inside].max()))
-        points += staircase(seg_t, seg_a)
-    merged = staircase(np.array([p[0] for p in points]), np.array([p[1] for p in points]))
-    return {"starts": int(starts.size), "peak": peak, "window": window, "envelope": merged}
+        since.append(t[s:stop] - t[s])
+        seen.append(a[s:stop])
+    dt, level = np.concatenate(since), np.concatenate(seen)
+    inside = level[dt < window]
+    return {"starts": int(starts.size), "peak": float(inside.max()) if inside.size else 0.0, "window": window,
+            "envelope": staircase(dt, level)}
 
 
 def histogram(a: np.ndarray) -> dict[str, int]:
@@ -290,10 +273,8 @@ class TuneStats:
                     engine.ctx.subscribe(node.topic_name, role, cap)
 
     def result(self) -> dict[str, Any]:
-        """Per guard node: its knob, and per signal the samples' statistics and the ceiling on this log.
-
-        Times are seconds from the log's first frame (as ``--expect``'s ``by``).
-        """
+        """Per guard node: its knob, and per signal the samples' statistics and the ceiling on this log (small and
+        JSON-able: it travels in the replay summary). Times are seconds from the log's first frame."""
         start = self.engine.first_frame_t
         start = start if math.isfinite(start) else 0.0
         guards = []

@@ -1,10 +1,9 @@
 """The tuned config and tree, as text edits of the originals: layout and comments kept.
 
-A tree's guard figures are XML attributes of the guard's element (found by its ``name``), changed
-in place or added before the tag's end. A config gets its ``max_age`` values changed in place (or
-added to the source's mapping, flow or block style), its ``tree.file`` pointed at the tuned tree
-beside it, and every other relative path it names (``dbc``, ``events``, ``state.file``, a drive's
-``eds``) made absolute, so the tuned config, written elsewhere, still finds them.
+A guard's figures are attributes of its element, changed in place or added. A config gets its ``max_age``
+values changed in place (or added to the source's mapping), its ``tree.file`` pointed at the tuned tree, and
+every other relative path (``dbc``, ``events``, ``state.file``, ``eds``) made absolute: written elsewhere,
+it still finds them.
 """
 
 from __future__ import annotations
@@ -29,11 +28,7 @@ def figure(value: float) -> str:
 
 
 def _named(text: str, node: str) -> list[re.Match[str]]:
-    """The start tags of the elements a tree node named ``node`` is read from.
-
-    A node is named by its ``name`` attribute, else by its ID: the tag (BT.CPP 4), or the ``ID``
-    attribute of a v3 ``<Condition ID="X"/>``-style element.
-    """
+    """The start tags of the elements named ``node``: by ``name``, else the ID (the tag, or a v3 ``ID=``)."""
     found = []
     for m in _TAG.finditer(text):
         attrs = {a.group(1): a.group(3)[1:-1] for a in _ATTR.finditer(m.group(2))}
@@ -78,10 +73,6 @@ def _mapping_get(node: yaml.Node, key: str) -> tuple[yaml.Node, yaml.Node] | Non
     return None
 
 
-def _quoted(path: str) -> str:
-    return json.dumps(path)  # a JSON string is a YAML double-quoted scalar
-
-
 def tuned_config(text: str, config_dir: Path, tree_name: str, ages: Mapping[str, float]) -> str:
     """The config's text with the tuned ``max_age`` values, the tree beside it, and absolute paths."""
     root = yaml.compose(text)
@@ -92,7 +83,7 @@ def tuned_config(text: str, config_dir: Path, tree_name: str, ages: Mapping[str,
     tree_file = _mapping_get(tree[1], "file") if tree is not None else None
     if tree_file is not None:
         node = tree_file[1]
-        edits.append((node.start_mark.index, node.end_mark.index, _quoted(tree_name)))
+        edits.append((node.start_mark.index, node.end_mark.index, json.dumps(tree_name)))  # YAML-quoted
     sources = _mapping_get(root, "sources")
     for name, seconds in ages.items():
         source = _mapping_get(sources[1], name) if sources is not None else None
@@ -106,24 +97,14 @@ def tuned_config(text: str, config_dir: Path, tree_name: str, ages: Mapping[str,
 
 def _path_nodes(root: yaml.Node) -> list[yaml.Node]:
     """The scalars of the paths a config names besides its tree: ``dbc``, ``events``, ``state.file``, ``eds``."""
-    out: list[yaml.Node] = []
     dbc = _mapping_get(root, "dbc")
-    if dbc is not None:
-        out.extend(dbc[1].value if isinstance(dbc[1], yaml.SequenceNode) else [dbc[1]])
-    events = _mapping_get(root, "events")
-    if events is not None:
-        out.append(events[1])
+    out: list[yaml.Node] = [] if dbc is None else dbc[1].value if isinstance(dbc[1], yaml.SequenceNode) else [dbc[1]]
     state = _mapping_get(root, "state")
-    state_file = _mapping_get(state[1], "file") if state is not None else None
-    if state_file is not None:
-        out.append(state_file[1])
     canopen = _mapping_get(root, "canopen")
-    if canopen is not None and isinstance(canopen[1], yaml.MappingNode):
-        for _key, drive in canopen[1].value:
-            eds = _mapping_get(drive, "eds")
-            if eds is not None:
-                out.append(eds[1])
-    return out
+    drives = canopen[1].value if canopen is not None and isinstance(canopen[1], yaml.MappingNode) else []
+    found = [_mapping_get(root, "events"), state and _mapping_get(state[1], "file"),
+             *(_mapping_get(drive, "eds") for _key, drive in drives)]
+    return out + [hit[1] for hit in found if hit is not None]
 
 
 def _absolute(node: yaml.Node, config_dir: Path) -> tuple[int, int, str] | None:
@@ -133,7 +114,7 @@ def _absolute(node: yaml.Node, config_dir: Path) -> tuple[int, int, str] | None:
     path = Path(node.value).expanduser()
     if path.is_absolute():
         return None
-    return node.start_mark.index, node.end_mark.index, _quoted(str((config_dir / path).resolve()))
+    return node.start_mark.index, node.end_mark.index, json.dumps(str((config_dir / path).resolve()))
 
 
 def _age_edit(text: str, mapping: yaml.Node, value: str) -> tuple[int, int, str]:

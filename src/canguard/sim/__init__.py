@@ -6,24 +6,10 @@ candump -L file; :func:`run_on_bus` plays the robot on a bus and answers canguar
 """
 
 from canguard.sim.encode import MessageEncoder
-from canguard.sim.io import MAX_FRAMES_PER_S_1MBIT, run_on_bus, write_log
+from canguard.sim.io import run_on_bus, write_log
 from canguard.sim.motion import AXIS_STATE_CLOSED_LOOP, AXIS_STATE_IDLE, ERROR_ESTOP_REQUESTED, KT_NM_PER_A
-from canguard.sim.robot import DEFAULT_RATES_HZ, SimRobot
-from canguard.sim.scenarios import SCENARIO_CLASSES, SCENARIOS, Scenario, parse_scenario
+from canguard.sim.robot import SimRobot
+from canguard.sim.scenarios import SCENARIOS
 
-__all__ = [
-    "AXIS_STATE_CLOSED_LOOP",
-    "AXIS_STATE_IDLE",
-    "DEFAULT_RATES_HZ",
-    "ERROR_ESTOP_REQUESTED",
-    "KT_NM_PER_A",
-    "MAX_FRAMES_PER_S_1MBIT",
-    "SCENARIOS",
-    "SCENARIO_CLASSES",
-    "MessageEncoder",
-    "Scenario",
-    "SimRobot",
-    "parse_scenario",
-    "run_on_bus",
-    "write_log",
-]
+__all__ = ["AXIS_STATE_CLOSED_LOOP", "AXIS_STATE_IDLE", "ERROR_ESTOP_REQUESTED", "KT_NM_PER_A", "SCENARIOS",
+           "MessageEncoder", "SimRobot", "run_on_bus", "write_log"]

@@ -10,11 +10,10 @@ from typing import Any
 
 
 class MessageEncoder:
-    """Encodes one DBC message's physical signal values into frame bytes (``pack``: values in start-bit order)."""
+    """Encodes one DBC message's physical signal values into frame bytes."""
 
     def __init__(self, message: Any) -> None:
         self.message = message
-        self.name: str = message.name
         self.frame_id: int = message.frame_id
         self.is_extended_id: bool = bool(message.is_extended_frame)
         self.length: int = message.length

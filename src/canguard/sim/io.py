@@ -1,7 +1,6 @@
 """Where the simulated robot's frames go: a candump -L file, or a python-can bus.
 
-:func:`run_on_bus` is the one place the simulator reads the wall clock (to pace frames and map received
-ones back to simulated time).
+:func:`run_on_bus` is the one place the simulator reads the wall clock (to pace and to map received frames).
 """
 
 from __future__ import annotations
@@ -9,6 +8,7 @@ from __future__ import annotations
 import contextlib
 import gzip
 import io
+import itertools
 import logging
 import threading
 import time
@@ -24,9 +24,6 @@ from canguard.sim.robot import SimRobot
 
 log = logging.getLogger(__name__)
 
-MAX_FRAMES_PER_S_1MBIT = 8000
-"""About the most 8-byte standard frames a 1 Mbit/s bus carries per second (~125 bits each)."""
-
 _SLEEP_MIN_S = 0.001  # frames due closer than this are sent at once: batching beats oversleeping
 _RECV_EVERY = 16  # in fast (non-realtime) mode, poll the bus for commands every N frames
 
@@ -41,25 +38,17 @@ def _open_text(path: str | PathLike[str], stack: contextlib.ExitStack) -> IO[str
 
 
 def write_log(path: str | PathLike[str], duration_s: float, **robot_kwargs: Any) -> int:
-    """Simulate ``duration_s`` seconds into a candump -L file; return the number of frames written.
+    """Simulate ``duration_s`` seconds into a candump -L file (the same arguments, the same bytes); the frames.
 
-    ``robot_kwargs`` are :class:`SimRobot`'s (``db`` is required). The same
-    arguments always give a byte-identical file (``.gz`` included).
+    ``robot_kwargs`` are :class:`SimRobot`'s (``db`` is required).
     """
-    robot = SimRobot(**robot_kwargs)
+    frames = SimRobot(**robot_kwargs).frames(duration_s)
     count = 0
-    chunk: list[str] = []
-    fmt = format_candump_line  # the replay reader's own writer: read_log gives these frames back
     with contextlib.ExitStack() as stack:
         out = _open_text(path, stack)
-        for frame in robot.frames(duration_s):
-            chunk.append(fmt(frame) + "\n")
-            if len(chunk) >= 4096:
-                out.write("".join(chunk))
-                count += len(chunk)
-                chunk.clear()
-        out.write("".join(chunk))
-        count += len(chunk)
+        while chunk := [format_candump_line(f) + "\n" for f in itertools.islice(frames, 4096)]:
+            out.write("".join(chunk))  # the replay reader's own writer: read_log gives these frames back
+            count += len(chunk)
     return count
 
 
@@ -83,20 +72,12 @@ def _pace(bus: can.BusABC, due: float, answer: Callable[[can.Message | None], No
             return
 
 
-def run_on_bus(
-    bus: can.BusABC,
-    duration_s: float,
-    *,
-    realtime: bool = True,
-    stop_event: threading.Event | None = None,
-    robot: SimRobot | None = None,
-    **robot_kwargs: Any,
-) -> int:
-    """Run the simulated robot on ``bus`` for ``duration_s`` seconds; return frames sent.
+def run_on_bus(bus: can.BusABC, duration_s: float, *, realtime: bool = True, stop_event: threading.Event | None = None,
+               robot: SimRobot | None = None, **robot_kwargs: Any) -> int:
+    """Run ``robot`` (or ``SimRobot(**robot_kwargs)``) on ``bus`` for ``duration_s`` seconds; the frames sent.
 
-    Paced to the wall clock when ``realtime``; frames from the bus are answered through
-    :meth:`SimRobot.receive` while waiting for the next due one. Error frames go only on software buses;
-    a refused send is logged and skipped. ``robot`` or ``robot_kwargs`` (``db`` required) give the robot.
+    Paced to the wall clock when ``realtime``; the bus' frames are answered (:meth:`SimRobot.receive`)
+    meanwhile. Error frames go only on software buses; a refused send is logged and skipped.
     """
     if robot is None:
         robot = SimRobot(**robot_kwargs)
@@ -107,13 +88,10 @@ def run_on_bus(
     wall0 = time.monotonic()
     sent = failed = 0
 
-    def sim_now() -> float:
-        return sim0 + (time.monotonic() - wall0)
-
     def answer(msg: can.Message | None) -> None:
-        while msg is not None:
+        while msg is not None:  # at the simulated time of its arrival
             channel = str(msg.channel) if msg.channel is not None else robot.channel
-            robot.receive(frame_from_message(msg, channel)._replace(t=sim_now()))
+            robot.receive(frame_from_message(msg, channel)._replace(t=sim0 + (time.monotonic() - wall0)))
             msg = bus.recv(0)
 
     for n, frame in enumerate(robot.frames(duration_s)):

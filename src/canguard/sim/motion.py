@@ -5,7 +5,7 @@ from __future__ import annotations
 import bisect
 import math
 import random
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
@@ -29,19 +29,13 @@ IDLE_NOISE_A = 0.005
 PACK_NOISE_A = 0.05
 JITTER_S = 20e-6
 
-# Duty cycle: one 4 s back-and-forth move per axis, as (start_s, |level| name, sign).
+# Duty cycle: one 4 s back-and-forth move per axis, as (start_s, current setpoint).
 _CYCLE_S = 4.0
 _RAMP_S = 0.02
 _ACCEL_A, _CRUISE_A, _BRAKE_A, _HOLD_A = 7.0, 2.0, 4.0, 1.0
 _SEGMENTS: tuple[tuple[float, float], ...] = (
-    (0.00, +_ACCEL_A),
-    (0.25, +_CRUISE_A),
-    (0.75, -_BRAKE_A),
-    (1.00, +_HOLD_A),
-    (2.00, -_ACCEL_A),
-    (2.25, -_CRUISE_A),
-    (2.75, +_BRAKE_A),
-    (3.00, +_HOLD_A),
+    (0.00, +_ACCEL_A), (0.25, +_CRUISE_A), (0.75, -_BRAKE_A), (1.00, +_HOLD_A),
+    (2.00, -_ACCEL_A), (2.25, -_CRUISE_A), (2.75, +_BRAKE_A), (3.00, +_HOLD_A),
 )
 _SEG_STARTS = [s for s, _ in _SEGMENTS]
 _VMAX_REV_S = 2.0
@@ -60,7 +54,6 @@ class _Axis:
     edge_i: float = 0.0
     pos_rev: float = 0.0
     enc_t: float = 0.0
-    ids: dict[str, int] = field(default_factory=dict)
 
 
 class Motion:
@@ -88,14 +81,7 @@ class Motion:
         u = (t + ax.index * _STAGGER_S) % _CYCLE_S
         sign = 1.0 if u < 2.0 else -1.0
         u %= 2.0
-        if u < 0.25:
-            v = u / 0.25
-        elif u < 0.75:
-            v = 1.0
-        elif u < 1.0:
-            v = (1.0 - u) / 0.25
-        else:
-            v = 0.0
+        v = max(0.0, min(u / 0.25, 1.0, (1.0 - u) / 0.25))  # 0.25 s up, 0.5 s at full speed, 0.25 s down, then still
         return sign * v * _VMAX_REV_S * ax.scale
 
     def setpoint(self, ax: _Axis, t: float) -> float:

@@ -1,21 +1,10 @@
 """The simulator's scenarios: what goes wrong, on which axis, and when.
 
-Every scenario runs on top of the normal duty cycle and changes only what its
-docstring says. Times are in seconds from the start of the simulation, shifted
-by the scenario's ``offset_s`` (select ``"spike@10"`` to move the spike ten
-seconds later). Figures are chosen against the bundled config:
-
-* ``/battery_state``: IsCurrentSafe trips above 35 A and recovers below 25 A;
-  ``max_age`` 0.5 s. MultiCurrentMonitoring: BMS 40 A, joint effort 150 N·m.
-* I²t (leaky bucket): continuous 10 A, peak 20 A for 1 s gives
-  S = (20² − 10²)·1 = 300 A²s; at 20 A from cold the trip time is
-  300 / (20² − 10²) = 1.0 s. The thermal image with the same figures
-  (τ = 1 / ln(400/300) = 3.48 s) trips after 1.0 s from cold too, earlier
-  when the duty cycle has warmed it.
-
-The normal duty cycle itself (see :mod:`canguard.sim.robot`) keeps every axis
-at |Iq| ≤ 7 A (below the 10 A continuous current, so a leaky I²t stays at 0)
-and the pack current below 18 A.
+Every scenario (docs/commands.md has the table) runs over the normal duty cycle and changes only what its
+docstring says. Times are seconds from the start, shifted by ``offset_s`` (``"spike@10"``: ten seconds
+later). Figures are chosen against the bundled config: IsCurrentSafe on ``/battery_state`` trips
+above 35 A and recovers below 25 A (``max_age`` 0.5 s); I²t continuous 10 A, peak 20 A for 1 s
+(S = 300 A²s) trips 1.0 s into 20 A from cold.
 """
 
 from __future__ import annotations
@@ -49,8 +38,7 @@ class RobotHandle(Protocol):
                   error: bool = False) -> Frame: ...
     def bms_frame(self, t: float, pack_current_a: float | None = None) -> Frame: ...
 
-# linux/can/error.h: the flag candump writes into the id of an error frame, and error classes.
-CAN_ERR_FLAG = 0x20000000
+# linux/can/error.h: error classes and their details.
 CAN_ERR_CRTL = 0x00000004
 CAN_ERR_PROT = 0x00000008
 CAN_ERR_BUSERROR = 0x00000080
@@ -73,13 +61,8 @@ def _at_steps(robot: RobotHandle, t0: float, step_s: float, frames: list[tuple[i
 
 
 class Scenario:
-    """A named disturbance over the normal duty cycle; the base class changes nothing.
-
-    Hooks, all with ``t`` in seconds from the start of the simulation:
-    ``setup`` schedules extra frames, ``setpoint`` may replace an axis' current
-    setpoint, ``suppress`` may drop a periodic frame of a message kind
-    (``"BMS_Status"``, ``"Get_Iq"``, ...).
-    """
+    """A named disturbance over the normal duty cycle (hooks, ``t`` in seconds from the start); the base changes
+    nothing."""
 
     name: ClassVar[str] = ""
     summary: ClassVar[str] = ""
@@ -102,28 +85,18 @@ class Scenario:
 
 
 class Normal(Scenario):
-    """Normal duty cycle only: never trips.
-
-    Each axis repeats a 4 s back-and-forth move (accelerate at up to 7 A for
-    0.25 s, cruise at 2 A, brake at 4 A, hold at 1 A), the axes staggered by
-    0.5 s so their accelerations never overlap. Pack current = 2 A base load +
-    Σ|Iq| stays below 18 A, well below the 25 A recovery threshold.
-    """
+    """The duty cycle only (4 s moves at up to 7 A, the axes 0.5 s apart; pack < 18 A): never trips."""
 
     name = "normal"
     summary = "duty cycle only: |Iq| <= 7 A per axis, pack < 18 A; must never trip"
 
 
 class Inrush(Scenario):
-    """Motor start on axis 1 at 1.5 s: Iq = 25 A for 80 ms, then settles into its move.
+    """Motor start on axis 1 at 1.5 s: Iq = 25 A for 80 ms, then a τ 10 ms decay into its move (0 A before).
 
-    Axis 1 stands still (closed loop, 0 A) until ``START_S``; from then its
-    setpoint is ``PEAK_A`` (3.6× its 7 A acceleration current) for
-    ``DURATION_S``, then decays into the duty cycle with τ = 10 ms. While it
-    starts (``START_S`` − 20 ms to ``START_S`` + 200 ms) the other axes hold at
-    most 1 A, as a controller sequencing motor starts does, so the pack current
-    rises above 25 A (≈ 30 A) but stays below the 35 A BMS trip. An axis guard
-    below 25 A trips on axis 1 unless inrush blanking covers at least 0.1 s.
+    Meanwhile (−20 ms to +200 ms) the other axes hold at most 1 A, as a controller sequencing starts does:
+    the pack reaches ≈ 30 A, below the 35 A trip. An axis guard below 25 A trips unless inrush blanking
+    covers 0.1 s.
     """
 
     name = "inrush"
@@ -150,12 +123,7 @@ class Inrush(Scenario):
 
 
 class Spike(Scenario):
-    """One BMS_Status frame with Pack_Current = 60 A, 10 ms after the BMS frame due at 1.5 s.
-
-    The frame sits between two normal BMS frames (50 Hz, so 10 ms on either
-    side); every other frame is normal. A guard without peak latch can miss it;
-    IsCurrentSafe (35 A) must trip on it.
-    """
+    """One BMS_Status frame of 60 A between the 50 Hz ones due at 1.5 and 1.52 s: IsCurrentSafe must trip."""
 
     name = "spike"
     summary = "one BMS frame of 60 A at 1.51 s between two normal ones"
@@ -169,16 +137,8 @@ class Spike(Scenario):
 
 
 class Overload(Scenario):
-    """Sustained 2× continuous current on axis 0: Iq = 20 A from 2.0 s to 5.0 s.
-
-    With continuous 10 A / peak 20 A / 1 s, a leaky I²t from cold trips
-    1.0 s after the start (t = 3.0 s). Before 2.0 s axis 0 runs the duty cycle
-    (|Iq| ≤ 7 A < 10 A, so the leaky bucket is empty); the thermal image with
-    the same figures starts warm from that duty and trips ≈ 0.97 s after the
-    start (t ≈ 2.97 s, seed 0). The pack current follows
-    (≈ 22–32 A), below the 35 A BMS trip. After an Estop the axis is idle; if
-    resumed before 5.0 s it overloads again at once.
-    """
+    """Axis 0 at 20 A (2× continuous) from 2.0 s to 5.0 s: a leaky I²t trips at 3.0 s, the thermal image (warm
+    from the duty cycle) at ≈ 2.97 s; the pack stays below 35 A. Resumed before 5.0 s, it overloads again."""
 
     name = "overload"
     summary = "axis0 at 20 A (2x continuous 10 A) from 2.0 s to 5.0 s: leaky I2t trips at 3.0 s"
@@ -195,12 +155,7 @@ class Overload(Scenario):
 
 
 class Dropout(Scenario):
-    """The BMS falls silent from 2.0 s to 3.5 s: no BMS_Status (nor BMS_Temperatures) frame.
-
-    With 50 Hz BMS frames the gap between the last frame before and the first
-    after is 1.5 s plus one period (≈ 1.52 s); with ``max_age`` 0.5 s the
-    battery data is stale from ≈ 2.48 s until the first frame at 3.5 s.
-    """
+    """No BMS frame from 2.0 s to 3.5 s: with ``max_age`` 0.5 s the battery is stale from ≈ 2.48 s to 3.5 s."""
 
     name = "dropout"
     summary = "no BMS frames from 2.0 s to 3.5 s (stale after max_age 0.5 s)"
@@ -213,10 +168,8 @@ class Dropout(Scenario):
 
 
 class Garbage(Scenario):
-    """Bad payloads on configured messages, one every 50 ms from 1.0 s (axis 2, or the last axis).
-
-    The normal frames keep coming in between, so each invalid sample is followed by valid ones.
-    """
+    """Bad payloads on configured messages, one every 50 ms from 1.0 s (axis 2, or the last), normal ones
+    between."""
 
     name = "garbage"
     summary = "NaN/inf Iq, wrong-length Iq and BMS frames, NaN torque, random bytes, from 1.0 s (axis2)"
@@ -246,11 +199,8 @@ class Garbage(Scenario):
 
 
 class ErrorBurst(Scenario):
-    """32 CAN error frames 0.2 ms apart from 1.0 s (a 6.4 ms burst), as a loose connector produces.
-
-    Bus errors with the error counters rising by 8 per frame, ending in a controller warning; read back
-    as ``is_error_frame`` with the class bits (without CAN_ERR_FLAG) as ``arbitration_id``.
-    """
+    """32 CAN error frames 0.2 ms apart from 1.0 s (a loose connector): bus errors, the counters rising by 8 a
+    frame, ending in a controller warning (read back with the class bits, without CAN_ERR_FLAG, as the id)."""
 
     name = "errorburst"
     summary = "32 error frames 0.2 ms apart from 1.0 s"
@@ -273,8 +223,7 @@ class ErrorBurst(Scenario):
 
 
 class Load(Scenario):
-    """Background traffic on 40 ids no config uses, from 0 s, up to 8,000 frames/s in total (about a full
-    1 Mbit/s bus): the target minus the robot's own rate, split unevenly, random DLC and bytes per id."""
+    """Background traffic on 40 unused ids up to 8,000 frames/s in all (a full 1 Mbit/s bus), split unevenly."""
 
     name = "load"
     summary = "background frames on 40 unconfigured ids: 8,000 frames/s in total"
@@ -309,10 +258,7 @@ SCENARIOS: dict[str, str] = {name: cls.summary for name, cls in SCENARIO_CLASSES
 
 
 def parse_scenario(spec: str) -> Scenario:
-    """Build a scenario from ``"name"`` or ``"name@offset_s"`` (e.g. ``"spike@10"``).
-
-    Raises ValueError naming the known scenarios for an unknown name or a bad offset.
-    """
+    """The scenario of ``"name"`` or ``"name@offset_s"``; ValueError naming the known ones, or the bad offset."""
     name, _, offset = spec.strip().partition("@")
     cls = SCENARIO_CLASSES.get(name)
     if cls is None:

@@ -1,11 +1,7 @@
 """canguard's node library: py_trees behaviours with typed ports, by BehaviorTree.CPP node ID.
 
-:data:`BUILTIN_NODES` is the closed table of node types canguard provides, extended per tree by
-:func:`canguard.bt.registry.build_registry` (config actions, ``canguard.nodes`` plug-ins): node IDs
-read from XML are only ever looked up there. A family's module is imported when one of its classes
-is first looked up, so a tree pays at start-up only for the families it uses. A plug-in node type
-is a :class:`py_trees.ports.PortsMixin` py_trees behaviour (best a :class:`CanguardNode`); a
-constructor taking ``context=`` receives the tree's :class:`~canguard.bt.context.Context`.
+:data:`BUILTIN_NODES` is the closed table (extended per tree by config actions and plug-ins); a
+family's module is imported when one of its classes is first looked up.
 """
 
 from __future__ import annotations
@@ -42,11 +38,11 @@ _MODULES: dict[str, str] = {
     "LoopInt": "loops", "LoopDouble": "loops", "LoopString": "loops", "LoopBool": "loops",
     "RunOnce": "once", "WasEntryUpdated": "once", "SkipUnlessUpdated": "once", "WaitValueUpdate": "once",
 }
-"""Every node ID canguard provides and the module ``canguard.bt.nodes.<module>`` of its class (named as the ID)."""
+"""Every node ID canguard provides -> the module ``canguard.bt.nodes.<module>`` of its class."""
 
 
 class _NodeTable(Mapping[str, "type[CanguardNode]"]):
-    """Node ID -> class, in :data:`_MODULES`' order; a class's module is imported when it is first looked up."""
+    """Node ID -> class, in :data:`_MODULES`' order, imported when first looked up."""
 
     def __getitem__(self, node_id: str) -> type[CanguardNode]:
         cls: type[CanguardNode] = getattr(import_module(f"{__name__}.{_MODULES[node_id]}"), node_id)

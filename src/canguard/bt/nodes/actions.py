@@ -1,10 +1,6 @@
-"""Action nodes: frames handed to the context's sink or task gate.
+"""Action nodes: frames handed to the context's sink or task gate (ExecuteTask, EmitStop, ResetStop, config actions).
 
-ExecuteTask drives ``ctx.task`` (run while ticked, halt on a halt), EmitStop sends the
-config's stop frames, ResetStop is ``stop.release: manual``'s reset, and one
-:class:`ConfiguredAction` node type per ``actions:`` entry hands its frames to the task gate
-(its ``role``: ``task`` frames are withheld during a stop, ``recovery`` frames are not;
-``auto`` is resolved per tree by :func:`assign_roles`).
+A config action's ``task`` frames are withheld during a stop, ``recovery`` frames are not.
 """
 
 from __future__ import annotations
@@ -23,12 +19,10 @@ class ExecuteTask(CanguardNode, py_trees.behaviour.Behaviour):
     QUIET_RETICK = True
 
     def update(self) -> py_trees.common.Status:
-        """Keep the task running."""
         self.ctx.task.run(self.name, self.ctx.clock.now())
         return RUNNING
 
     def terminate(self, new_status: py_trees.common.Status) -> None:
-        """A halt (interrupted while RUNNING) stops the task."""
         if halted(self, new_status):
             self.ctx.task.halt(self.name, self.ctx.clock.now())
 
@@ -37,7 +31,6 @@ class EmitStop(CanguardNode, py_trees.behaviour.Behaviour):
     """send the config's stop frames once"""
 
     def update(self) -> py_trees.common.Status:
-        """Hand the stop frames to the sink."""
         frames = self.ctx.stop_frames
         if frames:
             self.ctx.sink.send(frames, origin=self.name)
@@ -56,11 +49,9 @@ class ConfiguredAction(CanguardNode, py_trees.behaviour.Behaviour):
     def __init__(self, name: str, *, action: ActionConfig, **kwargs: Any) -> None:
         super().__init__(name=name, **kwargs)
         self.action = action
-        self.role = "task" if action.role == "auto" else action.role
-        """``task`` or ``recovery``; ``auto`` is resolved per tree by :func:`assign_roles`."""
+        self.role = "task" if action.role == "auto" else action.role  # auto: see assign_roles
 
     def update(self) -> py_trees.common.Status:
-        """Hand the frames to the task gate (or straight to the sink without one), note the time."""
         frames = self.action.frames
         now = float(self.ctx.clock.now())
         gate_action = getattr(self.ctx.task, "action", None)
@@ -82,18 +73,14 @@ class ResetStop(CanguardNode, py_trees.behaviour.Behaviour):
     """reset a stop (stop.release: manual): the stop ends at this tick's end if the release rule holds"""
 
     def update(self) -> py_trees.common.Status:
-        """Ask the gate to release the stop in this tick."""
         reset = getattr(self.ctx.task, "reset", None)
         self.feedback_message = reset(self.name, self.ctx.clock.now()) if reset is not None else "no task gate"
         return SUCCESS
 
 
 def assign_roles(root: py_trees.behaviour.Behaviour) -> bool:
-    """Resolve ``role: auto`` of every config action of the tree; True when the tree has a task.
-
-    auto = ``task`` when the tree holds no ExecuteTask, ``recovery`` when it does.
-    A tree "has a task" when it holds ExecuteTask or an action of role ``task``.
-    """
+    """Resolve ``role: auto`` (``recovery`` in a tree with ExecuteTask, else ``task``); True when the tree has a
+    task (ExecuteTask or an action of role ``task``)."""
     nodes = list(root.iterate())
     has_execute = any(isinstance(n, ExecuteTask) for n in nodes)
     has_task = has_execute

@@ -1,11 +1,7 @@
-"""What every canguard node shares: typed ports, the context, a load-time ``bind()``.
+"""What every canguard node shares: typed ports under BT.CPP's names, the context, a load-time ``bind()``.
 
-:class:`CanguardNode` is a :class:`py_trees.ports.PortsMixin` declaring ``INPUT_PORTS`` /
-``OUTPUT_PORTS`` under BehaviorTree.CPP's names. It gets the tree's context from the registry,
-stays out of py_trees' global auto-registry, reads constant ports once at ``setup_ports()`` (only
-``{key}`` ports at tick, straight from ``Blackboard.storage`` unless py_trees' activity stream is
-on), writes output ports only when wired (as BT.CPP), and checks its ports in :meth:`~CanguardNode.bind`
-once the whole tree is parsed, so a bad value is a load-time TreeError naming file, line, node and port.
+Constant ports are read once at ``setup_ports()``, ``{key}`` ports at tick; output ports are written only
+when wired (as BT.CPP); :meth:`~CanguardNode.bind` checks the ports once the whole tree is parsed.
 """
 
 from __future__ import annotations
@@ -36,12 +32,9 @@ Status = py_trees.common.Status
 Children = list[py_trees.behaviour.Behaviour] | None
 
 SKIPPED = "SKIPPED"
-"""BehaviorTree.CPP 4's SKIPPED, which py_trees' :class:`~py_trees.common.Status` lacks.
-
-As in BT.CPP, a skipped node keeps (or goes back to) IDLE — py_trees' INVALID — and
-only its parent learns that it was skipped: the node's ``skipped`` flag, which the
-parent clears before each tick of the child (:func:`tick_child`) and reads after it
-(:func:`outcome`)."""
+"""BT.CPP 4's SKIPPED, which py_trees lacks: the node stays IDLE (INVALID) and sets its ``skipped`` flag,
+which the parent clears before ticking it (:func:`tick_child`) and reads after (:func:`outcome`)."""
+STATUS_NAMES = ("SUCCESS", "FAILURE", "RUNNING", SKIPPED)
 
 
 def outcome(node: py_trees.behaviour.Behaviour) -> Status | str:
@@ -60,6 +53,23 @@ def mark_skipped(node: py_trees.behaviour.Behaviour) -> None:
     if node.status != INVALID:
         node.stop(INVALID)
     node.skipped = True  # type: ignore[attr-defined]
+
+
+def end_as(node: py_trees.behaviour.Behaviour, name: str) -> None:
+    """``node`` returns the status named ``name`` (one of :data:`STATUS_NAMES`)."""
+    if name == SKIPPED:
+        mark_skipped(node)
+    elif name == "RUNNING":
+        node.status = RUNNING
+    else:
+        node.stop(Status.__members__[name])
+
+
+def count_of(node: py_trees.behaviour.Behaviour, port: str, default: int) -> int:
+    """A count port of a parallel node; a negative one is children + 1 + n (so -1 = all)."""
+    value = node.port(port)  # type: ignore[attr-defined]
+    value = default if value is None else int(value)
+    return max(len(node.children) + value + 1, 0) if value < 0 else value
 
 
 def halt_running(children: Iterable[py_trees.behaviour.Behaviour]) -> None:
@@ -91,9 +101,8 @@ def follow(node: py_trees.composites.Composite, child: py_trees.behaviour.Behavi
 
 def run_script(node: py_trees.behaviour.Behaviour, attr: str, script: Script, board: ScriptBlackboard,
                *, condition: bool = False) -> object:
-    """Run ``node``'s script ``attr`` on ``board``: its value (``condition``: as a boolean). A ScriptError it
-    raises is noted on the node (its feedback, and ``script_error`` for ``canguard tree --tick``) and raised
-    again: BT.CPP throws out of ``tickOnce()``; canguard fails the node, or counts a condition as false."""
+    """Run ``node``'s script ``attr`` on ``board``: its value (``condition``: as a boolean). A ScriptError is
+    noted on the node (feedback, ``script_error`` for ``canguard tree --tick``) and raised again."""
     try:
         return script.condition(board) if condition else script.run(board)
     except ScriptError as exc:
@@ -103,8 +112,6 @@ def run_script(node: py_trees.behaviour.Behaviour, attr: str, script: Script, bo
 
 
 _MISSING = object()
-
-
 BOOL_TEXT = {"true": True, "false": False, "1": True, "0": False}
 """Texts of a bool as BT.CPP reads them."""
 
@@ -130,8 +137,7 @@ def _number_as(expected: Any, value: Any) -> Any:
 
 
 def node_kind(cls: type) -> NodeKind:
-    """Action, Condition, Control or Decorator: Condition where the class's ``KIND`` says so, else its py_trees
-    base's (any node class, plug-ins too)."""
+    """Action, Condition, Control or Decorator: ``KIND`` for a Condition, else from the py_trees base class."""
     if getattr(cls, "KIND", None) == "Condition":
         return "Condition"
     if issubclass(cls, py_trees.decorators.Decorator):
@@ -170,34 +176,27 @@ class CanguardNode(PortsMixin, register=False):
     """Mixin of every canguard node (combine with a py_trees Behaviour / Decorator / Composite)."""
 
     KIND: ClassVar[NodeKind] = "Action"
-    """The BehaviorTree.CPP node category (Groot2 palette, docs): Condition where a class says so, else its
-    py_trees base's (Decorator, Control or Action)."""
+    """The BT.CPP node category (Groot2 palette): see :func:`node_kind`."""
     INPUT_PORTS: dict = {}  # noqa: RUF012 - py_trees reads ports as plain class dicts
     OUTPUT_PORTS: dict = {}  # noqa: RUF012
     DESCRIPTION: ClassVar[str] = ""
-    """One line for the Groot2 palette and ``canguard tree --nodes-model``: the first paragraph of the class's
-    docstring unless the class sets it."""
+    """One line for the Groot2 palette: the class docstring's first paragraph unless set."""
     CONST_PORTS: ClassVar[frozenset[str]] = frozenset()
-    """Input ports that configure the node once at load time: a ``{key}`` there is a load-time error."""
+    """Input ports read once at load time: a ``{key}`` there is a load-time error."""
     KEY_PORTS: ClassVar[frozenset[str]] = frozenset()
-    """Input ports that must be wired to a ``{key}`` (a constant there is a load-time error)."""
+    """Input ports that must be wired to a ``{key}``."""
     USES_BOARD: ClassVar[bool] = False
-    """True for nodes with a ``board`` (:class:`~canguard.bt.scopes.TreeBlackboard`) the loader sets to
-    their scope's: scripts, SetBlackboard, UnsetBlackboard."""
+    """The loader gives the node its scope's ``board`` (:class:`~canguard.bt.scopes.TreeBlackboard`)."""
     UNTYPED_PORTS: ClassVar[frozenset[str]] = frozenset()
-    """Ports that take an entry of any type (BT.CPP's ``AnyTypeAllowed`` / ``BT::Any``): they neither fix
-    nor check the type of the entry they are wired to (see :func:`canguard.bt.build` entry types)."""
+    """Ports of any type (BT.CPP's ``AnyTypeAllowed``): they neither fix nor check their entry's type."""
     CHOICES: ClassVar[Mapping[str, tuple[str, ...]]] = {}
     """Allowed values of string ports, checked at load time for constants."""
     QUIET_RETICK: ClassVar[bool] = False
-    """True when ticking the node again, with the same inputs and its children answering as before,
-    changes nothing and answers as before: no timer, counter, memory or output of its own.
-    A property of the node's own logic, not of a mode: the engine counts a grid tick instead of running
-    it when every node the last tick reached says so and the proof of :mod:`canguard.engine.quiet` holds
-    (a guard's models move only with samples: the contract of :mod:`canguard.protect.base`)."""
+    """Ticking the node again with the same inputs and children changes nothing and answers as before (no
+    timer, counter, memory or output of its own): the engine may count such a tick (:mod:`canguard.engine.quiet`)."""
 
     wake_up: WakeUpSignal | None = None
-    """The tree's wake-up signal, given to every node at load (BT.CPP's ``setWakeUpInstance``)."""
+    """The tree's wake-up signal (BT.CPP's ``setWakeUpInstance``)."""
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
         # Stay out of py_trees' global auto-registry: canguard's parser gets an explicit,
@@ -230,8 +229,7 @@ class CanguardNode(PortsMixin, register=False):
         self._wired: frozenset[str] = frozenset()
         self._keys: dict[str, str] = {}
         self._bad_port = ""
-        self.skipped = False
-        """True when the node returned BT.CPP's SKIPPED in its last tick (see :data:`SKIPPED`)."""
+        self.skipped = False  # the last tick returned SKIPPED
 
     @property
     def ctx(self) -> Context:
@@ -240,13 +238,8 @@ class CanguardNode(PortsMixin, register=False):
             raise RuntimeError(f"{self.name}: no context")
         return self._context
 
-    # -- ports ---------------------------------------------------------------------------
-    def setup_ports(
-        self,
-        port_remappings: dict | None = None,
-        subtree_namespace: str = "/",
-        logger: PortsLogger | None = None,
-    ) -> None:
+    def setup_ports(self, port_remappings: dict | None = None, subtree_namespace: str = "/",
+                    logger: PortsLogger | None = None) -> None:
         """Register the ports (py_trees), then cache constants and note which ports are wired."""
         super().setup_ports(port_remappings, subtree_namespace, logger)
         remap = port_remappings or {}
@@ -268,10 +261,7 @@ class CanguardNode(PortsMixin, register=False):
         return name in self._dynamic or name in self._wired
 
     def resolve_root_keys(self) -> None:
-        """``{@key}`` (BT.CPP's root blackboard, from any depth): wired ports go to the root's entry ``/key``.
-
-        (py_trees' parser resolves ``{@key}`` inside its namespace, ``/Sub/@key``; the loader calls this once.)
-        """
+        """``{@key}`` (the root's entry from any depth; py_trees resolves it to ``/Sub/@key``) to ``/key``."""
         for port, key in self._keys.items():
             last = key.rsplit("/", 1)[-1]
             if last.startswith("@"):
@@ -282,27 +272,14 @@ class CanguardNode(PortsMixin, register=False):
         return dict(self._keys)
 
     def port(self, name: str) -> Any:
-        """The value of input port ``name``: cached constant/default, or the blackboard's at tick.
-
-        None when a wired key holds nothing yet or holds a value of the wrong type
-        (``self._bad_port`` then says which); an int on a float port is accepted, and
-        so are the values BT.CPP casts (a real 0/1 on a bool port, an integral real on an int port, a string
-        entry parsed to the port's type, a number on a string port as ``std::to_string`` writes it).
-        """
+        """The value of input port ``name``: cached constant/default, or the blackboard's at tick, cast as
+        BT.CPP does (:func:`_number_as`); None when a wired key holds nothing or a wrong type (``_bad_port``)."""
         if name not in self._dynamic:
             return self._static.get(name)
-        if Blackboard.activity_stream is None:
-            value = Blackboard.storage.get(self._keys[name], _MISSING)
-            if value is _MISSING:
-                info = self.input_ports()[name]
-                return info.default_value if info.has_default else None
-        else:  # the client's path, so that the activity stream sees the read
-            try:
-                value = self.get_input(name)
-            except NoDataAvailable:
-                return None
-            except TypeError:
-                value = self.blackboard_client.get(name)
+        value = Blackboard.storage.get(self._keys[name], _MISSING)
+        if value is _MISSING:
+            info = self.input_ports()[name]
+            return info.default_value if info.has_default else None
         expected = self.input_ports()[name].data_type
         if isinstance(value, expected) and (expected is bool or not isinstance(value, bool)):
             return value
@@ -317,12 +294,8 @@ class CanguardNode(PortsMixin, register=False):
     def write(self, name: str, value: Any) -> None:
         """Write output port ``name`` when it is wired (a no-op otherwise, as in BehaviorTree.CPP)."""
         if name in self._wired:
-            if Blackboard.activity_stream is None:
-                Blackboard.storage[self._keys[name]] = value
-            else:
-                self._set_output(name, value)
+            Blackboard.storage[self._keys[name]] = value
 
-    # -- wake-up -------------------------------------------------------------------------
     def emit_wake_up(self) -> None:
         """Ask ``tickOnce()`` to tick the root again at once (BT.CPP's ``emitWakeUpSignal``)."""
         if self.wake_up is not None:
@@ -338,14 +311,12 @@ class CanguardNode(PortsMixin, register=False):
         if self.wake_up is not None:
             self.wake_up.cancel(self)
 
-    # -- life cycle ----------------------------------------------------------------------
     def bind(self) -> None:
         """Load-time set-up from the ports (models, sources); raise :class:`PortError` on bad values."""
 
 
 def _leaf_tick(self: py_trees.behaviour.Behaviour) -> Iterator[py_trees.behaviour.Behaviour]:
-    """:meth:`py_trees.behaviour.Behaviour.tick` of a leaf, the same steps, its debug lines formatted only when
-    the logger would print them."""
+    """py_trees' ``Behaviour.tick`` of a leaf, its debug lines formatted only when they would print."""
     if py_trees.logging.level < py_trees.logging.Level.INFO:  # py_trees' own module-wide level
         self.logger.debug(f"{self.__class__.__name__}.tick()")
     if self.status != RUNNING:
@@ -363,12 +334,8 @@ def _leaf_tick(self: py_trees.behaviour.Behaviour) -> Iterator[py_trees.behaviou
 def _skip_through(
     tick: Callable[[Any], Iterator[py_trees.behaviour.Behaviour]],
 ) -> Callable[[Any], Iterator[py_trees.behaviour.Behaviour]]:
-    """A decorator's tick with BT.CPP's rule for a SKIPPED child: the decorator is SKIPPED too.
-
-    (Inverter, ForceSuccess/Failure, Retry, Repeat, Timeout, Delay, Precondition... all
-    return a skipped child's SKIPPED.) A decorator with ``SKIP_THROUGH = False`` sees the
-    skipped child as it is (IDLE) in its own ``update``.
-    """
+    """A decorator's tick with BT.CPP's rule: a SKIPPED child makes it SKIPPED (unless ``SKIP_THROUGH = False``:
+    it then sees the child IDLE)."""
 
     def skip_aware_tick(self: Any) -> Iterator[py_trees.behaviour.Behaviour]:
         child = self.decorated
@@ -402,8 +369,8 @@ def _leaf_stop(self: py_trees.behaviour.Behaviour, new_status: Status) -> None:
 
 
 def halted(node: py_trees.behaviour.Behaviour, new_status: py_trees.common.Status) -> bool:
-    """True when ``terminate(new_status)`` is a BehaviorTree.CPP *halt*: a RUNNING node interrupted (py_trees
-    also stops finished children with INVALID when a composite starts over; that is no halt)."""
+    """True when ``terminate(new_status)`` is a BT.CPP *halt*: a RUNNING node interrupted (not a finished child
+    py_trees resets)."""
     return new_status == INVALID and node.status == RUNNING
 
 

@@ -1,8 +1,4 @@
-"""BehaviorTree.CPP 4 Switch2..Switch6, ParallelAll and TryCatch, with its IDs, ports and semantics.
-
-As BT.CPP 4's ``switch_node.h`` and ``parallel_all_node.cpp`` and its gtests show them (each
-node's ``DESCRIPTION`` says what it does); a switch compares as :func:`same_case` says.
-"""
+"""BehaviorTree.CPP 4 Switch2..Switch6, ParallelAll and TryCatch."""
 
 from __future__ import annotations
 
@@ -21,6 +17,7 @@ from canguard.bt.nodes.base import (
     CanguardNode,
     Children,
     PortError,
+    count_of,
     follow,
     halt_running,
     halted,
@@ -73,7 +70,6 @@ class _Switch(CanguardNode, py_trees.composites.Composite):
         self.running = -1
 
     def bind(self) -> None:
-        """N cases need N + 1 children (the last is the default): a load error otherwise."""
         want = self.CASES + 1
         if len(self.children) != want:
             raise PortError("children", f"{type(self).__name__} needs {want} children ({self.CASES} cases + "
@@ -87,7 +83,7 @@ class _Switch(CanguardNode, py_trees.composites.Composite):
         return None if value is None else _text(value)
 
     def match(self) -> int:
-        """Index of the child to tick: the first matching case, else the default (last)."""
+        """The child to tick: the first matching case, else the default (last)."""
         variable = self.variable()
         if variable is not None:
             for i in range(self.CASES):
@@ -129,12 +125,9 @@ class ParallelAll(CanguardNode, py_trees.composites.Composite):
         self.finished: dict[int, py_trees.common.Status] = {}
 
     def threshold(self) -> int:
-        value = self.port("max_failures")
-        value = 1 if value is None else int(value)
-        return max(len(self.children) + value + 1, 0) if value < 0 else value
+        return count_of(self, "max_failures", 1)
 
     def bind(self) -> None:
-        """A threshold above the number of children can never be met (BT.CPP: a logic error)."""
         if not self.is_wired("max_failures") and self.threshold() > len(self.children):
             raise PortError("max_failures", f"{self.threshold()} failures needed but only "
                                             f"{len(self.children)} children: can never fail")

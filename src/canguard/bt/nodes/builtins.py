@@ -1,11 +1,7 @@
-"""More of BehaviorTree.CPP 4's built-in nodes, with its IDs, ports and semantics.
+"""More of BehaviorTree.CPP 4's built-in nodes: Always*, scripts, Set/UnsetBlackboard, Sleep, branches.
 
-AlwaysSuccess, AlwaysFailure, Script, ScriptCondition, SetBlackboard, UnsetBlackboard, Sleep,
-KeepRunningUntilFailure, IfThenElse, WhileDoElse and Precondition, as BT.CPP 4's sources and
-gtests show them (each node's ``DESCRIPTION`` says what it does). Scripts are parsed once, at
-load (a syntax error is a load error naming the port), and read and write the blackboard of
-the node's (sub)tree; a script that fails while it runs fails its node (BT.CPP throws; a guard
-daemon must not crash on a tree's script).
+A script that fails while it runs fails its node (BT.CPP throws; a guard daemon must not crash
+on a tree's script).
 """
 
 from __future__ import annotations
@@ -20,15 +16,16 @@ from canguard.bt.nodes.base import (
     INVALID,
     RUNNING,
     SKIPPED,
+    STATUS_NAMES,
     SUCCESS,
     CanguardNode,
     Children,
     DecoratorNode,
     PortError,
     Status,
+    end_as,
     follow,
     halt_running,
-    mark_skipped,
     node_types,
     outcome,
     port_info,
@@ -42,7 +39,6 @@ if TYPE_CHECKING:
     from canguard.bt.scripting import Script as ParsedScript
 
 _NOTHING = object()
-_STATUS = {"SUCCESS": SUCCESS, "FAILURE": FAILURE, "RUNNING": RUNNING}
 
 
 class _Scripted(CanguardNode):
@@ -56,14 +52,7 @@ class _Scripted(CanguardNode):
         self.scripts: dict[str, ParsedScript] = {}
         self.board = TreeBlackboard("/")
 
-    def setup_ports(self, port_remappings: dict | None = None, subtree_namespace: str = "/",
-                    logger: Any = None) -> None:
-        """Remember the (sub)tree's namespace: scripts name entries relative to it."""
-        super().setup_ports(port_remappings, subtree_namespace, logger)
-        self.board = TreeBlackboard(subtree_namespace)
-
     def bind(self) -> None:
-        """Parse every script port once; a syntax error is a load error naming the port and column."""
         from canguard.bt.scripting import parse  # the language: only for trees with scripts
 
         for name in self.SCRIPT_PORTS:
@@ -76,7 +65,7 @@ class _Scripted(CanguardNode):
                 raise PortError(name, f"script {text!r}: {exc}") from None
 
     def run_script(self, name: str, *, condition: bool = False) -> object:
-        """Run script ``name``; a runtime error is noted on the node and raised (:func:`.base.run_script`)."""
+        """Run script ``name`` (see :func:`.base.run_script`)."""
         return run_script(self, name, self.scripts[name], self.board, condition=condition)
 
 
@@ -95,32 +84,26 @@ AlwaysSuccess, AlwaysFailure = node_types(_Always, __name__, {
     "AlwaysFailure": {"RESULT": FAILURE, "DESCRIPTION": "FAILURE"}})
 
 
-class Script(_Scripted, py_trees.behaviour.Behaviour):
-    """runs code (BT.CPP scripting) on the blackboard: SUCCESS (FAILURE if it fails at run time)"""
+class _Code(_Scripted, py_trees.behaviour.Behaviour):
+    """BT.CPP Script / ScriptCondition: runs ``code``; FAILURE when it fails at run time (or a condition is false)."""
 
-    INPUT_PORTS = {"code": port_info(str, "the script, e.g. count := count + 1")}  # noqa: RUF012
     SCRIPT_PORTS = ("code",)
 
     def update(self) -> py_trees.common.Status:
+        condition = self.KIND == "Condition"
         try:
-            self.run_script("code")
+            value = self.run_script("code", condition=condition)
         except ScriptError:
             return FAILURE
-        return SUCCESS
+        return SUCCESS if value or not condition else FAILURE
 
 
-class ScriptCondition(_Scripted, py_trees.behaviour.Behaviour):
-    """SUCCESS when code (BT.CPP scripting) is true, else FAILURE"""
-
-    KIND = "Condition"
-    INPUT_PORTS = {"code": port_info(str, "a boolean expression, e.g. battery > 20")}  # noqa: RUF012
-    SCRIPT_PORTS = ("code",)
-
-    def update(self) -> py_trees.common.Status:
-        try:
-            return SUCCESS if self.run_script("code", condition=True) else FAILURE
-        except ScriptError:
-            return FAILURE
+_CODE = {"Script": "the script, e.g. count := count + 1", "ScriptCondition": "a boolean expression, e.g. battery > 20"}
+Script, ScriptCondition = node_types(_Code, __name__, {
+    "Script": {"INPUT_PORTS": {"code": port_info(str, _CODE["Script"])}, "DESCRIPTION": (
+        "runs code (BT.CPP scripting) on the blackboard: SUCCESS (FAILURE if it fails at run time)")},
+    "ScriptCondition": {"KIND": "Condition", "INPUT_PORTS": {"code": port_info(str, _CODE["ScriptCondition"])},
+                        "DESCRIPTION": "SUCCESS when code (BT.CPP scripting) is true, else FAILURE"}})
 
 
 class SetBlackboard(_Scripted, py_trees.behaviour.Behaviour):
@@ -218,24 +201,17 @@ class Precondition(_Scripted, DecoratorNode):
 
     def bind(self) -> None:
         super().bind()
-        if str(self.port("else")).upper() not in (*_STATUS, "SKIPPED"):
+        if str(self.port("else")).upper() not in STATUS_NAMES:
             raise PortError("else", f"{self.port('else')!r}: expected SUCCESS, FAILURE, RUNNING or SKIPPED")
 
     def tick(self) -> Any:
-        """Check the condition unless the child is running (BT.CPP: also again after else="RUNNING")."""
         if self.status != RUNNING or self.decorated.status != RUNNING:
             try:
                 ok = bool(self.run_script("if", condition=True))
             except ScriptError:
                 ok = False
             if not ok:
-                otherwise = str(self.port("else")).upper()
-                if otherwise == "SKIPPED":
-                    mark_skipped(self)
-                elif otherwise == "RUNNING":
-                    self.status = RUNNING
-                else:
-                    self.stop(_STATUS[otherwise])
+                end_as(self, str(self.port("else")).upper())
                 yield self
                 return
         yield from py_trees.decorators.Decorator.tick(self)  # the plain tick: this one is already skip-aware
@@ -282,12 +258,9 @@ class _Branching(CanguardNode, py_trees.composites.Composite):
         super().stop(new_status)
 
 
-class IfThenElse(_Branching):
-    """first child decides: SUCCESS ticks the second, FAILURE the third (or fails); not re-checked"""
-
-
-class WhileDoElse(_Branching):
-    """like IfThenElse, but the first child is ticked every time: a change halts the running branch"""
-
-    REACTIVE = True
+IfThenElse, WhileDoElse = node_types(_Branching, __name__, {
+    "IfThenElse": {"DESCRIPTION": "first child decides: SUCCESS ticks the second, FAILURE the third (or fails); "
+                                  "not re-checked"},
+    "WhileDoElse": {"REACTIVE": True, "DESCRIPTION": "like IfThenElse, but the first child is ticked every time: "
+                                                     "a change halts the running branch"}})
 

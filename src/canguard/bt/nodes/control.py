@@ -1,9 +1,6 @@
-"""Control nodes with BehaviorTree.CPP (v4) semantics, on py_trees composites and decorators.
+"""Parallel and the decorators of BehaviorTree.CPP 4, on py_trees' classes where the semantics match.
 
-Ports-enabled classes under the BT.CPP names, on py_trees' classes where the semantics match
-(Inverter, ForceSuccess, ForceFailure) and with their own ``tick`` where they do not; Timeout
-and Delay read the context's clock (py_trees' Timeout reads ``time.monotonic``). The sequences
-and fallbacks are in :mod:`.sequences`; docs/trees.md says what each node does.
+Timeout and Delay read the context's clock (py_trees' Timeout reads ``time.monotonic``).
 """
 
 from __future__ import annotations
@@ -23,7 +20,9 @@ from canguard.bt.nodes.base import (
     DecoratorNode,
     PortError,
     Status,
+    count_of,
     mark_skipped,
+    node_types,
     outcome,
     port_info,
     reset,
@@ -43,18 +42,11 @@ class Parallel(CanguardNode, py_trees.composites.Parallel):
     def __init__(self, name: str, children: Children = None, **kwargs: Any) -> None:
         policy = py_trees.common.ParallelPolicy.SuccessOnAll(synchronise=False)
         super().__init__(name=name, policy=policy, children=children, **kwargs)
-        self.finished: dict[int, py_trees.common.Status] = {}
-        """Children that completed during the current run (index -> status), not ticked again."""
+        self.finished: dict[int, py_trees.common.Status] = {}  # completed this run: not ticked again
 
     def thresholds(self) -> tuple[int, int]:
-        """(successes needed, failures allowed before failing), negatives resolved against the child count."""
-        n = len(self.children)
-
-        def resolve(v: int) -> int:
-            return max(n + v + 1, 0) if v < 0 else v
-
-        s, f = self.port("success_count"), self.port("failure_count")
-        return resolve(-1 if s is None else s), resolve(1 if f is None else f)
+        """(successes needed, failures that fail it)."""
+        return count_of(self, "success_count", -1), count_of(self, "failure_count", 1)
 
     def bind(self) -> None:
         """Counts larger than the number of children can never be met: a load-time error."""
@@ -66,7 +58,6 @@ class Parallel(CanguardNode, py_trees.composites.Parallel):
             raise PortError("failure_count", f"{f} failures needed but only {n} children: can never fail")
 
     def tick(self) -> Any:
-        """Tick the unfinished children; decide after each one, as BT.CPP does."""
         if self.status != RUNNING:
             reset(self.children)
             self.finished.clear()
@@ -129,19 +120,14 @@ class ForceFailure(CanguardNode, py_trees.decorators.SuccessIsFailure):
 
 
 class _Cycles(DecoratorNode):
-    """BT.CPP 4's loop of ``retry_node.cpp`` / ``repeat_node.cpp``: the child's ``ENDS`` status ends it, any
-    other completion is counted and the child run again, up to ``LIMIT`` runs (-1: forever), then ``DONE``.
-
-    A child that completed at once (it was not RUNNING) runs again at the next pass: BT.CPP returns
-    RUNNING there and emits the wake-up signal, so ``tickOnce()`` ticks the root again at once. A child
-    that was RUNNING and then completed runs again within the same pass (so at most two runs a pass).
-    """
+    """BT.CPP 4's ``retry_node.cpp`` / ``repeat_node.cpp``: the child's ``ENDS`` status ends it, another
+    completion is counted and run again, up to ``LIMIT`` runs (-1: forever), then ``DONE``. A child that
+    completed at once runs again at the next pass (RUNNING and a wake-up, as BT.CPP)."""
 
     ENDS: ClassVar[Status]
     DONE: ClassVar[Status]
     LIMIT: ClassVar[str]
-    AGAIN_TEXT: ClassVar[str]
-    """Feedback when the child runs again at the next pass; ``{}``: the count."""
+    AGAIN_TEXT: ClassVar[str]  # feedback when the child runs again at the next pass; {}: the count
     DONE_TEXT: ClassVar[str] = ""
 
     def __init__(self, name: str, child: py_trees.behaviour.Behaviour, **kwargs: Any) -> None:
@@ -149,12 +135,10 @@ class _Cycles(DecoratorNode):
         self.count = 0
 
     def terminate(self, new_status: py_trees.common.Status) -> None:
-        """A halt forgets the count (BT.CPP's ``halt``)."""
         if new_status == INVALID:
             self.count = 0
 
     def tick(self) -> Any:
-        """BT.CPP's loop: ``ENDS`` ends it, another completion is counted and run again, RUNNING is passed up."""
         limit = self.port(self.LIMIT)
         if limit is None:
             self.stop(FAILURE)
@@ -191,24 +175,18 @@ class _Cycles(DecoratorNode):
         yield self
 
 
-class RetryUntilSuccessful(_Cycles):
-    """a FAILURE is retried, up to num_attempts attempts (-1: forever)"""
-
-    INPUT_PORTS = {  # noqa: RUF012
-        "num_attempts": port_info(int, "attempts before giving up (-1: forever; 0: FAILURE, the child not ticked)"),
-    }
-    ENDS, DONE, LIMIT = SUCCESS, FAILURE, "num_attempts"
-    AGAIN_TEXT, DONE_TEXT = "attempt {} failed, retrying", "failed {} time(s)"
-
-
-class Repeat(_Cycles):
-    """a SUCCESS is repeated, num_cycles times (-1: forever); FAILURE ends it"""
-
-    INPUT_PORTS = {  # noqa: RUF012
-        "num_cycles": port_info(int, "successes to collect (-1: forever; 0: SUCCESS, the child not ticked)"),
-    }
-    ENDS, DONE, LIMIT = FAILURE, SUCCESS, "num_cycles"
-    AGAIN_TEXT = "cycle {} done"
+RetryUntilSuccessful, Repeat = node_types(_Cycles, __name__, {
+    "RetryUntilSuccessful": {
+        "INPUT_PORTS": {"num_attempts": port_info(
+            int, "attempts before giving up (-1: forever; 0: FAILURE, the child not ticked)")},
+        "ENDS": SUCCESS, "DONE": FAILURE, "LIMIT": "num_attempts", "AGAIN_TEXT": "attempt {} failed, retrying",
+        "DONE_TEXT": "failed {} time(s)",
+        "DESCRIPTION": "a FAILURE is retried, up to num_attempts attempts (-1: forever)"},
+    "Repeat": {
+        "INPUT_PORTS": {"num_cycles": port_info(
+            int, "successes to collect (-1: forever; 0: SUCCESS, the child not ticked)")},
+        "ENDS": FAILURE, "DONE": SUCCESS, "LIMIT": "num_cycles", "AGAIN_TEXT": "cycle {} done",
+        "DESCRIPTION": "a SUCCESS is repeated, num_cycles times (-1: forever); FAILURE ends it"}})
 
 
 class Timeout(DecoratorNode):
@@ -223,7 +201,6 @@ class Timeout(DecoratorNode):
         self.deadline: float | None = None
 
     def tick(self) -> Any:
-        """On the first tick start the timer; on a tick at or after the deadline fail without ticking."""
         now = self.ctx.clock.now()
         if self.status != RUNNING:
             msec = self.port("msec")
@@ -247,7 +224,6 @@ class Timeout(DecoratorNode):
         yield self
 
     def terminate(self, new_status: py_trees.common.Status) -> None:
-        """A halt cancels the timer."""
         if new_status == INVALID:
             self.cancel_timer()
 
@@ -264,7 +240,6 @@ class Delay(DecoratorNode):
         self.started: float | None = None
 
     def tick(self) -> Any:
-        """Wait, then delegate; a completed child ends the run (the next one waits again)."""
         now = self.ctx.clock.now()
         delay = self.port("delay_msec")
         if self.status != RUNNING or self.started is None:
@@ -287,7 +262,6 @@ class Delay(DecoratorNode):
         yield self
 
     def terminate(self, new_status: py_trees.common.Status) -> None:
-        """A halt cancels the wait."""
         if new_status == INVALID:
             self.started = None
             self.cancel_timer()

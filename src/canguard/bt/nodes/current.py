@@ -1,11 +1,8 @@
 """Current guards (design note 004): IsCurrentNormal, IsCurrentSafe, IsI2tSafe.
 
-A guard resolves ``topic_name`` to a configured source at load, builds its protection model
-from its ports and subscribes it, so the model sees every sample. At tick it fails when the
-source cannot be trusted (``SourceHealth.reason``) or the model tripped since the last tick
-(its peak latch), and journals status edges as ``trip`` / ``recover`` events (a first tick that
-fails is a trip; one before the source's first sample is not). ``{key}`` thresholds are re-read
-at every tick.
+A guard subscribes its model to its source at load, so the model sees every sample. At tick it
+fails when the source cannot be trusted or the model tripped since the last tick (its peak latch),
+and journals status edges as ``trip`` / ``recover`` events.
 """
 
 from __future__ import annotations
@@ -37,26 +34,20 @@ class GuardNode(CanguardNode, py_trees.behaviour.Behaviour):
     CONST_PORTS = frozenset({"topic_name"})
     SOURCE_KINDS: ClassVar[tuple[SourceKind, ...]] = ("battery", "current")
     MODEL_KIND: ClassVar[str] = "threshold"
-    ROLE: ClassVar[str] = "current"
-    """The source signal a single-signal guard reads."""
-    QUIET_RETICK = True
-    """A guard answers from its source's health and its models: quiet when the models are sample-driven."""
+    ROLE: ClassVar[str] = "current"  # the source signal a single-signal guard reads
+    QUIET_RETICK = True  # it answers from its source's health and its sample-driven models
     QUIET_OUTPUTS: ClassVar[frozenset[str]] = frozenset()
     """Output ports a quiet re-tick writes again (:meth:`quiet_retick`); another wired output makes it loud."""
-    _NAMES: ClassVar[dict[str, str]] = {}
-    """The models' parameter names -> the ports that give them (errors are said in port names)."""
+    _NAMES: ClassVar[dict[str, str]] = {}  # the models' parameter names -> the ports that give them
     model: ProtectionModel
 
     def __init__(self, name: str, **kwargs: Any) -> None:
         super().__init__(name=name, **kwargs)
         self.source: SourceConfig | None = None
         self.health: SourceHealth | None = None
-        self.ok: bool | None = None
-        """The status of the last tick as a bool (None before the first tick)."""
-        self.reason = ""
-        """Why the last tick failed ("" when it succeeded)."""
-        self.judged_t = math.nan
-        """When the guard was last ticked (the engine checks that the guards of a running task still are)."""
+        self.ok: bool | None = None  # the last tick's status (None before the first)
+        self.reason = ""  # why the last tick failed
+        self.judged_t = math.nan  # when last ticked: a running task's guards must keep being ticked
 
     @property
     def topic_name(self) -> str:
@@ -91,10 +82,7 @@ class GuardNode(CanguardNode, py_trees.behaviour.Behaviour):
         return [(self.ROLE, self.model, self.MODEL_KIND)]
 
     def _model_error(self, exc: ValueError) -> PortError:
-        """A model's ValueError as a PortError on the port holding the first parameter it names.
-
-        The message is rewritten in port names (``recovery_a`` -> ``recovery_threshold``, by ``_NAMES``).
-        """
+        """A model's ValueError as a PortError on the first port it names, said in port names (``_NAMES``)."""
         names = self._NAMES
         text = str(exc)
         found = {}
@@ -108,9 +96,8 @@ class GuardNode(CanguardNode, py_trees.behaviour.Behaviour):
 
     def _reread(self, ports: tuple[str, ...], models: Iterable[Any], limits: Callable[[Any], tuple],
                 apply: Callable[..., None]) -> str:
-        """Thresholds wired to ``{key}``s, read again at tick: a change is applied to ``models`` and their latest
-        sample judged again under it (a repeated timestamp is a normal sample); REASON_BAD_THRESHOLD when one
-        holds nothing or a value the model refuses."""
+        """Thresholds wired to ``{key}``s, read again: a change is applied to ``models`` and their latest sample
+        judged again; REASON_BAD_THRESHOLD when one holds nothing or a value the model refuses."""
         if not self._dynamic:
             return ""
         values = tuple(self.port(p) for p in ports)
@@ -127,9 +114,7 @@ class GuardNode(CanguardNode, py_trees.behaviour.Behaviour):
         return ""
 
     def _judge(self, now: float, snap: Snapshot, reason: str, value: float | None = None) -> py_trees.common.Status:
-        """A port problem (``reason``) first, then the source's health, then the model's latched
-        state: SUCCESS or FAILURE, with status changes journalled. ``value`` overrides the
-        snapshot's value in events."""
+        """SUCCESS or FAILURE (see :meth:`_why`), status changes journalled; ``value``: the events' value."""
         self.judged_t = now
         reason = self._why(now, self.ROLE, snap, reason)
         ok = not reason
@@ -143,7 +128,7 @@ class GuardNode(CanguardNode, py_trees.behaviour.Behaviour):
         return bad or self.health.reason(now, role) or (snap.reason if snap.tripped else "")
 
     def _units(self, role: str) -> tuple[str, str]:
-        """The unit of ``role``'s signal (A, Nm) and of its model's threshold (the same, or A²s / θ for I²t)."""
+        """The unit of ``role``'s signal and of its model's threshold (the same, or A²s / θ for I²t)."""
         unit = self.ctx.unit(self.source.name, role) if self.source is not None else ""
         model = next((m for r, m, _ in self.guarded() if r == role), None)
         return unit, (model.THRESHOLD_UNIT if model is not None else None) or unit
@@ -185,7 +170,6 @@ class IsCurrentNormal(GuardNode):
         self.ctx.subscribe(source.name, self.ROLE, self.model)
 
     def update(self) -> py_trees.common.Status:
-        """Health first, then the model's latched state."""
         now = self._clock.now()
         reason = self._reread(("max_current",), (self.model,), lambda m: (m.max_value,), Threshold.set_max)
         return self._judge(now, self.model.poll(now), reason)
@@ -246,7 +230,6 @@ class IsCurrentSafe(GuardNode):
         self.ctx.subscribe(source.name, self.ROLE, self.model)
 
     def update(self) -> py_trees.common.Status:
-        """Health first, then the hysteresis state (latched)."""
         now = self._clock.now()
         reason = self._reread(("overcurrent_threshold", "recovery_threshold"), (self.model,),
                               lambda m: (m.overcurrent_a, m.recovery_a), Hysteresis.set_thresholds)
@@ -339,13 +322,12 @@ class IsI2tSafe(GuardNode):
                 f"({role} |{quantity(current, amps)}|)")
 
     def quiet_retick(self, now: float) -> None:
-        """Ticked again: ``level`` is written again (the heat moved with the samples since)."""
+        """``level`` is written again (the heat moved with the samples)."""
         super().quiet_retick(now)
         if self._write_level:
             self.write("level", float(self.model.snapshot().level_pct))
 
     def update(self) -> py_trees.common.Status:
-        """Health first, then the I²t state (latched); writes ``level`` when wired."""
         now = self._clock.now()
         snap = self.model.poll(now)
         if self._write_level:

@@ -1,11 +1,4 @@
-"""IsJointEffortNormal (design note 004, section 3.2): every joint's |effort| within a limit.
-
-The joints source of the config lists one DBC signal per joint (JointState.effort
-in the ROS original); each joint gets its own :class:`~canguard.protect.threshold.Threshold`
-fed with every sample. FAILURE when the source has no joints, any joint has no
-usable value (no data, stale, NaN/inf, out of range), or any joint's |effort|
-exceeded ``max_effort`` since the last tick.
-"""
+"""IsJointEffortNormal (design note 004, section 3.2): every joint's |effort| within a limit, one Threshold each."""
 
 from __future__ import annotations
 
@@ -29,8 +22,7 @@ class IsJointEffortNormal(GuardNode):
     }
     SOURCE_KINDS = ("joints",)
     _NAMES = {"max_value": "max_effort"}  # noqa: RUF012
-    failed_joint = ""
-    """The joint the feedback names (the first failing one)."""
+    failed_joint = ""  # the first failing joint, named by the feedback
 
     def _build(self, source: SourceConfig) -> None:
         limit = self.port("max_effort")
@@ -45,7 +37,6 @@ class IsJointEffortNormal(GuardNode):
         return [(role, model, "threshold") for role, model in self.models]
 
     def update(self) -> py_trees.common.Status:
-        """Every joint: health, then its latched limit; the first failing joint names the reason."""
         now = self._clock.now()
         self.judged_t = now  # the engine checks that a running task's guards keep being ticked (T4)
         bad = self._reread(("max_effort",), (m for _, m in self.models), lambda m: (m.max_value,), Threshold.set_max)

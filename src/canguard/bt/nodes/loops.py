@@ -1,13 +1,7 @@
-"""BehaviorTree.CPP 4 LoopInt / LoopDouble / LoopString / LoopBool (its loop_node.h semantics).
+"""BehaviorTree.CPP 4 LoopInt / LoopDouble / LoopString / LoopBool (``loop_node.h``).
 
-Each tick at which the child is not RUNNING, the next element of ``queue`` is taken
-off the front and written to ``value``; the child is ticked with it. The loop is
-RUNNING while elements remain, FAILURE as soon as the child fails, and ``if_empty``
-(default SUCCESS; FAILURE or SKIPPED) when there is nothing left to take (an empty queue
-never ticks the child). A skipped child leaves the loop RUNNING, as in BT.CPP.
-``queue`` is either a constant "1;2;3" (parsed at load; a bad element is a load error
-naming the port) or a blackboard entry holding a list (consumed in place,
-as BT.CPP's shared queue is) or such a string (parsed at the start of the run).
+``queue`` is a constant "1;2;3" (parsed at load), or an entry holding a list (consumed in place,
+as BT.CPP's shared queue is) or such a string (parsed when the run starts).
 """
 
 from __future__ import annotations
@@ -15,23 +9,18 @@ from __future__ import annotations
 from collections import deque
 from typing import Any
 
-import py_trees
 from py_trees.blackboard import Blackboard
 
 from canguard.bt.nodes.base import (
     BOOL_TEXT,
     FAILURE,
     RUNNING,
-    SKIPPED,
-    SUCCESS,
     DecoratorNode,
     PortError,
-    mark_skipped,
+    end_as,
     node_types,
     port_info,
 )
-
-_EMPTY: dict[str, py_trees.common.Status | str] = {"SUCCESS": SUCCESS, "FAILURE": FAILURE, "SKIPPED": SKIPPED}
 
 
 def _to_bool(text: str) -> bool:
@@ -68,7 +57,7 @@ class _Loop(DecoratorNode):
         self.child_running = False
 
     def parse(self, text: str) -> list[Any]:
-        """'1;2;3' as a list of ITEM (BT.CPP splits on ';'; an empty string is an empty queue)."""
+        """'1;2;3' as a list of ITEM ('' is an empty queue)."""
         if text == "":
             return []
         convert = _to_bool if self.ITEM is bool else self.ITEM
@@ -82,7 +71,7 @@ class _Loop(DecoratorNode):
                 raise PortError("queue", f"{self.port('queue')!r}: not a list of {self.ITEM.__name__}: {exc}") from None
 
     def _take(self) -> tuple[bool, Any]:
-        """(True, element) taken off the queue, or (False, None) when there is none."""
+        """(True, the next element), or (False, None) when there is none."""
         if self.static is None:
             raw = Blackboard.storage.get(self._keys["queue"])
             if isinstance(raw, list | deque):
@@ -110,11 +99,7 @@ class _Loop(DecoratorNode):
                 yield self
                 return
             if not taken:
-                status = _EMPTY[str(self.port("if_empty")).upper()]
-                if isinstance(status, py_trees.common.Status):
-                    self.stop(status)
-                else:
-                    mark_skipped(self)
+                end_as(self, str(self.port("if_empty")).upper())
                 yield self
                 return
             self.write("value", item)

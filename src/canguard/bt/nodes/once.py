@@ -1,12 +1,8 @@
 """BehaviorTree.CPP 4's RunOnce and the entry-update nodes: WasEntryUpdated, SkipUnlessUpdated, WaitValueUpdate.
 
-The entry-update nodes ask whether a blackboard entry was *written* since they last
-looked, as BT.CPP does with each entry's ``sequence_id`` (``updated_action.cpp``,
-``updated_decorator.cpp``): writing the same value again counts as an update.
-py_trees' blackboard keeps no such counter, so :func:`versioned_storage` puts a dict
-that counts writes per key in place of ``Blackboard.storage`` (same keys, same
-values; every writer — scripts, SetBlackboard, output ports, py_trees clients — goes
-through it).
+The entry-update nodes ask whether an entry was *written* since they last looked (BT.CPP's
+``sequence_id``: the same value again counts). py_trees keeps no such counter, so
+:func:`versioned_storage` puts a dict counting writes per key in place of ``Blackboard.storage``.
 """
 
 from __future__ import annotations
@@ -22,7 +18,9 @@ from canguard.bt.nodes.base import (
     SUCCESS,
     CanguardNode,
     DecoratorNode,
+    end_as,
     mark_skipped,
+    node_types,
     port_info,
 )
 
@@ -53,7 +51,7 @@ class _Versioned(dict[str, Any]):
 
 
 def versioned_storage() -> _Versioned:
-    """``Blackboard.storage`` as a :class:`_Versioned` dict (installed once; the entries are kept)."""
+    """``Blackboard.storage`` as a :class:`_Versioned` dict (installed at the first look; the entries kept)."""
     storage = Blackboard.storage
     if not isinstance(storage, _Versioned):
         storage = _Versioned(storage)
@@ -62,8 +60,7 @@ def versioned_storage() -> _Versioned:
 
 
 def _updated(node: WasEntryUpdated | _EntryUpdated) -> bool:
-    """Whether the node's ``entry`` (resolved in its namespace) was written since the node last looked (it looks
-    now: ``seen`` takes the entry's write count); False while there is no such entry."""
+    """Whether the node's ``entry`` was written since it last looked (now: ``seen`` takes the write count)."""
     storage = versioned_storage()
     key = node.wired_keys().get("entry")
     if key is None:
@@ -91,16 +88,12 @@ class WasEntryUpdated(CanguardNode, py_trees.behaviour.Behaviour):
         super().__init__(name=name, **kwargs)
         self.seen = 0
 
-    def setup_ports(self, *args: Any, **kwargs: Any) -> None:
-        versioned_storage()
-        super().setup_ports(*args, **kwargs)
-
     def update(self) -> py_trees.common.Status:
         return SUCCESS if _updated(self) else FAILURE
 
 
 class _EntryUpdated(DecoratorNode):
-    """BT.CPP's EntryUpdatedDecorator: tick the child only when ``entry`` was written since the last look."""
+    """BT.CPP's EntryUpdatedDecorator: the child ticks only after ``entry`` was written."""
 
     INPUT_PORTS = dict(_ENTRY)  # noqa: RUF012
     UNTYPED_PORTS = frozenset({"entry"})  # BT.CPP: InputPort<BT::Any>
@@ -111,17 +104,9 @@ class _EntryUpdated(DecoratorNode):
         self.seen = 0
         self.still_running = False
 
-    def setup_ports(self, *args: Any, **kwargs: Any) -> None:
-        versioned_storage()
-        super().setup_ports(*args, **kwargs)
-
     def tick(self) -> Any:
-        """A running child goes on; else the child runs only after a write (else SKIPPED / RUNNING)."""
         if not self.still_running and not _updated(self):
-            if self.IF_NOT_UPDATED == "SKIPPED":
-                mark_skipped(self)
-            else:
-                self.status = RUNNING
+            end_as(self, self.IF_NOT_UPDATED)
             yield self
             return
         yield from py_trees.decorators.Decorator.tick(self)  # the plain tick: this one is already skip-aware
@@ -132,16 +117,11 @@ class _EntryUpdated(DecoratorNode):
             self.still_running = False
 
 
-class SkipUnlessUpdated(_EntryUpdated):
-    """ticks the child when the entry was written since the last look, else SKIPPED"""
-
-    IF_NOT_UPDATED = "SKIPPED"
-
-
-class WaitValueUpdate(_EntryUpdated):
-    """RUNNING until the entry is written (since the last look), then ticks the child"""
-
-    IF_NOT_UPDATED = "RUNNING"
+SkipUnlessUpdated, WaitValueUpdate = node_types(_EntryUpdated, __name__, {
+    "SkipUnlessUpdated": {
+        "DESCRIPTION": "ticks the child when the entry was written since the last look, else SKIPPED"},
+    "WaitValueUpdate": {"IF_NOT_UPDATED": "RUNNING", "DESCRIPTION": (
+        "RUNNING until the entry is written (since the last look), then ticks the child")}})
 
 
 class RunOnce(DecoratorNode):
@@ -153,11 +133,9 @@ class RunOnce(DecoratorNode):
 
     def __init__(self, name: str, child: py_trees.behaviour.Behaviour, **kwargs: Any) -> None:
         super().__init__(name=name, child=child, **kwargs)
-        self.returned: py_trees.common.Status | None = None
-        """The child's completed status (None until it completed once); kept across halts, as BT.CPP."""
+        self.returned: py_trees.common.Status | None = None  # the first completed status; kept across halts
 
     def tick(self) -> Any:
-        """After the first completed run: SKIPPED, or that run's status, without ticking the child."""
         if self.returned is not None:
             if self.port("then_skip") is False:
                 self.stop(self.returned)

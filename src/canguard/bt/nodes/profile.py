@@ -1,10 +1,7 @@
 """Profile: a transparent decorator that times its child's tick (design note 003).
 
-The one real clock in nodes/: it measures CPU work with :func:`time.perf_counter` (in replay
-the context's clock stands still during a tick). The child's subtree is ticked to completion
-inside the measured interval and its nodes handed up after it (tree visitors are not counted);
-the statistics restart only on a halt (interrupted while RUNNING), not when py_trees stops a
-finished child.
+The one real clock in nodes/: it measures CPU work (in replay the context's clock stands still
+during a tick), the child's subtree ticked to completion inside the measured interval.
 """
 
 from __future__ import annotations
@@ -45,12 +42,11 @@ class Profile(DecoratorNode):
         return self.total_ms / self.count if self.count else 0.0
 
     def setup_ports(self, *args: Any, **kwargs: Any) -> None:
-        """Register ports, then pick the wired outputs once (fewer checks per tick)."""
+        """Register ports, then pick the wired outputs once."""
         super().setup_ports(*args, **kwargs)
         self._outputs = tuple(p for p in ("last_ms", "avg_ms", "max_ms", "count") if self.is_wired(p))
 
     def tick(self) -> Any:
-        """Tick the child to completion under the timer, then publish statistics and the child's status."""
         if self.status != RUNNING:
             self.initialise()
         t0 = perf_counter()
@@ -71,6 +67,5 @@ class Profile(DecoratorNode):
         yield self
 
     def terminate(self, new_status: py_trees.common.Status) -> None:
-        """Reset the statistics on a halt (interrupted while RUNNING), as note 003 says."""
         if halted(self, new_status):
             self.reset_stats()

@@ -24,16 +24,12 @@ from canguard.bt.nodes.base import (
 
 
 class _Ordered(CanguardNode, py_trees.composites.Composite):
-    """BT.CPP 4's sequences and fallbacks, SKIPPED included (``sequence_node.cpp``, ``fallback_node.cpp`` ...).
+    """BT.CPP 4's sequences and fallbacks (``sequence_node.cpp``, ``fallback_node.cpp`` ...).
 
-    ``GO_ON``: the child status that moves to the next child (SUCCESS in a sequence,
-    FAILURE in a fallback); the other completed status ends the run with it. A SKIPPED
-    child is passed over; a run whose children were all skipped is SKIPPED.
-    ``REACTIVE``: every tick starts at the first child, a RUNNING child halts the others.
-    ``ASYNC``: after a child that completed in one tick from IDLE the node returns
-    RUNNING and goes on at the next tick (BT.CPP's wake-up signal, which every tree its
-    factory builds has). ``KEEP_ON_STOP``: the next tick resumes at the child that ended
-    the run (SequenceWithMemory).
+    ``GO_ON``: the child status that moves on (SUCCESS in a sequence, FAILURE in a fallback); the
+    other ends the run; SKIPPED children are passed over (all skipped: SKIPPED). ``REACTIVE``: every
+    tick starts at the first child. ``ASYNC``: after a child that completed at once, RUNNING and a
+    wake-up. ``KEEP_ON_STOP``: the next run resumes at the child that ended this one.
     """
 
     GO_ON: ClassVar[py_trees.common.Status] = SUCCESS
@@ -43,8 +39,7 @@ class _Ordered(CanguardNode, py_trees.composites.Composite):
 
     def __init__(self, name: str, children: Children = None, **kwargs: Any) -> None:
         super().__init__(name=name, children=children, **kwargs)
-        self.index = 0
-        """The child the next tick starts at (not reactive)."""
+        self.index = 0  # the child the next tick starts at
         self.skipped_count = 0
 
     @property
@@ -53,13 +48,11 @@ class _Ordered(CanguardNode, py_trees.composites.Composite):
         return not self.REACTIVE
 
     def terminate(self, new_status: py_trees.common.Status) -> None:
-        """A halt (INVALID) starts over at the first child, as BT.CPP's ``halt`` (SequenceWithMemory keeps it)."""
         if new_status == INVALID and not self.KEEP_ON_STOP:
             self.index = 0
             self.skipped_count = 0
 
     def tick(self) -> Any:
-        """One tick, child by child (see the class docstring)."""
         children = self.children
         n = len(children)
         if self.status != RUNNING:

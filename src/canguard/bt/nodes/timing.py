@@ -1,10 +1,4 @@
-"""Time conditions and timer actions (design note 000), all on the context's clock.
-
-Time comes only from ``ctx.now()``. An IsElapsedTimeCompare without ``timer`` has its own
-timer (started at its first tick); ``timer="{key}"`` names a timer shared through that
-blackboard key. ResetTimer restarts that key, or without ``timer`` the own timers of the
-comparisons under its closest ancestor that has any (docs/trees.md, "Timers").
-"""
+"""Time conditions and timer actions (design note 000), on the context's clock (docs/trees.md, "Timers")."""
 
 from __future__ import annotations
 
@@ -14,50 +8,37 @@ from collections.abc import Callable
 from typing import Any
 
 import py_trees
-from py_trees.ports_utils import PortsLogger
+from py_trees.blackboard import Blackboard
 
 from canguard.bt.nodes.base import FAILURE, SUCCESS, CanguardNode, PortError, port_info
 
 OPERATORS = ("GT", "LT", "GTE", "LTE", "EQ")
 REFERENCES = ("first_tick", "tree_start", "last_reset", "blackboard")
-_TIMER = "_timer_start"
-"""Private client key (write access) on a named timer's blackboard key."""
 
 
 class _TimerUser(CanguardNode):
     """A node with a timer: the key wired to ``timer`` (shared), or its own (``timer_key`` None)."""
 
-    _own_start: float | None = None
-    """The own timer's start, None until started; kept across halts as in note 000."""
+    _own_start: float | None = None  # kept across halts (note 000)
 
-    def setup_ports(
-        self,
-        port_remappings: dict | None = None,
-        subtree_namespace: str = "/",
-        logger: PortsLogger | None = None,
-    ) -> None:
-        """Register the ports, then the named timer's key (write access, so a first tick can start it)."""
-        super().setup_ports(port_remappings, subtree_namespace, logger)
-        key = (port_remappings or {}).get("timer")
-        self.timer_key: str | None = None
-        if key is None:
-            return
-        self.timer_key = py_trees.blackboard.Blackboard.absolute_name(subtree_namespace, key)
-        self.blackboard_client.register_key(key=_TIMER, access=py_trees.common.Access.WRITE, remap_to=self.timer_key)
+    @property
+    def timer_key(self) -> str | None:
+        """The storage key of the shared timer wired to ``timer``; None: the node's own."""
+        return self._keys.get("timer")
 
     def timer_start(self) -> float | None:
-        """The timer's start time: the named key's, or the node's own; None when not started (or not a number)."""
+        """The timer's start time (the named key's, or its own); None when not started."""
         if self.timer_key is None:
             return self._own_start
-        value = self.blackboard_client.get(_TIMER) if self.blackboard_client.exists(_TIMER) else None
+        value = Blackboard.storage.get(self.timer_key)
         return float(value) if isinstance(value, int | float) and not isinstance(value, bool) else None
 
     def start_timer(self, now: float) -> None:
-        """(Re)start the timer at ``now``: write the named key, or the node's own timer."""
+        """(Re)start the timer at ``now``."""
         if self.timer_key is None:
             self._own_start = float(now)
         else:
-            self.blackboard_client.set(_TIMER, float(now))
+            Blackboard.storage[self.timer_key] = float(now)
 
 
 _COMPARE: dict[str, Callable[[float, float], bool]] = {
@@ -70,10 +51,7 @@ def compare(op: str, elapsed: float, reference: float, tolerance: float) -> bool
 
 
 class IsElapsedTimeCompare(_TimerUser, py_trees.behaviour.Behaviour):
-    """SUCCESS when (now − reference time) <operator> reference_sec
-
-    Its timer is its own unless ``timer`` names a shared key (module docstring).
-    """
+    """SUCCESS when (now − reference time) <operator> reference_sec"""
 
     KIND = "Condition"
     INPUT_PORTS = {  # noqa: RUF012 - py_trees reads ports as plain class dicts
@@ -92,7 +70,6 @@ class IsElapsedTimeCompare(_TimerUser, py_trees.behaviour.Behaviour):
     KEY_PORTS = frozenset({"timer"})
 
     def bind(self) -> None:
-        """``reference="blackboard"`` needs the key to read: a ``timer`` port."""
         if self.port("reference") == "blackboard" and not self.is_wired("timer"):
             raise PortError("timer", 'required with reference="blackboard" (the key holding the event time)')
         tol = self.port("tolerance")
@@ -100,7 +77,6 @@ class IsElapsedTimeCompare(_TimerUser, py_trees.behaviour.Behaviour):
             raise PortError("tolerance", f"must be >= 0, got {tol!r}")
 
     def update(self) -> py_trees.common.Status:
-        """Elapsed time since the reference, compared; FAILURE when there is no reference yet."""
         now = self.ctx.clock.now()
         ref_mode = self.port("reference")
         if ref_mode not in REFERENCES:
@@ -146,7 +122,6 @@ class IsElapsedSinceEvent(CanguardNode, py_trees.behaviour.Behaviour):
     }
 
     def update(self) -> py_trees.common.Status:
-        """FAILURE outside the window and while no event time has been written."""
         event = self.port("event_timestamp")
         lo, hi = self.port("min_elapsed_sec"), self.port("max_elapsed_sec")
         if event is None or lo is None or hi is None:
@@ -168,7 +143,6 @@ class IsCooldownElapsed(CanguardNode, py_trees.behaviour.Behaviour):
     }
 
     def update(self) -> py_trees.common.Status:
-        """As note 000: a missing or non-positive last time means "never executed"."""
         last = self.port("last_execution_time")
         cooldown = self.port("cooldown_sec")
         if last is None or last <= 0.0:
@@ -196,11 +170,9 @@ class ResetTimer(_TimerUser, py_trees.behaviour.Behaviour):
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
-        self.targets: list[IsElapsedTimeCompare] = []
-        """The comparisons whose own timers this node restarts (no ``timer`` port)."""
+        self.targets: list[IsElapsedTimeCompare] = []  # whose own timers it restarts (no timer port)
 
     def bind(self) -> None:
-        """Without ``timer``: find the own timers nearest to this node; none in the tree is an error."""
         if self.timer_key is not None:
             return
         ancestor = self.parent
@@ -221,7 +193,6 @@ class ResetTimer(_TimerUser, py_trees.behaviour.Behaviour):
         )
 
     def update(self) -> py_trees.common.Status:
-        """Write now to the timer's key, or restart the nearest own timers."""
         now = self.ctx.clock.now()
         if self.timer_key is not None:
             self.start_timer(now)
@@ -241,6 +212,5 @@ class RecordTime(CanguardNode, py_trees.behaviour.Behaviour):
     }
 
     def update(self) -> py_trees.common.Status:
-        """Write now."""
-        self._set_output("output_time", float(self.ctx.clock.now()))
+        self.write("output_time", float(self.ctx.clock.now()))
         return SUCCESS

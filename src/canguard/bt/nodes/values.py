@@ -1,11 +1,4 @@
-"""IsValueBelow / IsValueAbove: compare a blackboard value with a threshold (note 003, latency warning).
-
-Typical use, after a Profile decorator wrote ``{tick_time}``::
-
-    <Condition ID="IsValueBelow" value="{tick_time}" threshold="50.0"/>
-
-FAILURE while the value has not been written yet (or is not a number).
-"""
+"""IsValueBelow / IsValueAbove: compare a blackboard value with a threshold (note 003, latency warning)."""
 
 from __future__ import annotations
 
@@ -27,7 +20,6 @@ class _Compare(CanguardNode, py_trees.behaviour.Behaviour):
     SYMBOL: ClassVar[str]
 
     def update(self) -> py_trees.common.Status:
-        """SUCCESS when the comparison holds; FAILURE otherwise or without a value."""
         value = self.port("value")
         threshold = self.port("threshold")
         if value is None or threshold is None:

@@ -1,9 +1,5 @@
-"""BehaviorTree.CPP v4's scripting language (``Script``, ``ScriptCondition``, pre/post conditions).
-
-No Python eval/exec: a tokenizer, a precedence-climbing parser and a tree-walking evaluator with
-BT.CPP 4's typing rules (:mod:`.values`). Only :class:`ScriptError` is imported with the package;
-the language (its expression classes cost ~5 ms to create) by the first :func:`parse`.
-"""
+"""BehaviorTree.CPP v4's scripting language: a tokenizer, a precedence-climbing parser and a tree-walking
+evaluator (no eval/exec). The language is imported by the first :func:`parse`."""
 
 from __future__ import annotations
 

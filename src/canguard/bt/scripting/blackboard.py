@@ -6,11 +6,7 @@ from typing import Protocol
 
 
 class ScriptBlackboard(Protocol):
-    """The blackboard a script reads and writes.
-
-    An entry can exist without a value (a port declared with a type, not written
-    yet): ``has`` is then true and ``get`` raises KeyError.
-    """
+    """The blackboard a script reads and writes; an entry may exist without a value (a typed port's)."""
 
     def has(self, key: str) -> bool:
         """Whether the entry exists (with or without a value)."""

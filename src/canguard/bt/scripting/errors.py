@@ -4,14 +4,8 @@ from __future__ import annotations
 
 
 class ScriptError(ValueError):
-    """A script that does not parse (at load) or that fails while it runs (at tick).
-
-    ``message`` says what went wrong and what was expected; ``pos`` is the 0-based
-    offset in the script (``None`` when the error concerns the whole script),
-    ``line`` and ``column`` are 1-based. ``str()`` reads
-    ``column 7: expected ')' ...`` (``line 2, column 3: ...`` for multi-line scripts),
-    so a caller can prefix it with the file, line and attribute the script came from.
-    """
+    """A script that does not parse (at load) or that fails while it runs (at tick): ``column 7: expected ')'
+    ...`` (``line 2, column 3: ...`` in a multi-line script; ``pos``: the 0-based offset, None: the whole)."""
 
     def __init__(self, message: str, pos: int | None = None, script: str | None = None) -> None:
         self.message = message

@@ -1,11 +1,7 @@
-"""The syntax tree of a script and its evaluation, with BehaviorTree.CPP 4's semantics.
+"""The syntax tree of a script and its evaluation, with BehaviorTree.CPP 4's semantics (:mod:`.values`).
 
-Each node keeps the offset of its token (an operator's own position) so a
-runtime error names the column. Evaluation never calls Python's eval/exec; it
-walks these nodes. See :mod:`.values` for the typing rules.
-
-Two BT.CPP behaviours worth knowing: ``&&`` and ``||`` evaluate both operands
-(no short-circuit), and comparisons chain (``1 < x < 3`` is ``1 < x and x < 3``).
+Each node keeps its token's offset, so a runtime error names the column. As BT.CPP, ``&&`` and ``||``
+evaluate both operands.
 """
 
 from __future__ import annotations
@@ -44,8 +40,11 @@ class Env:
     enums: Mapping[str, int] | None = None
 
 
-def _not_init(side: str, op: str, pos: int) -> ScriptError:
-    return ScriptError(f"the {side} operand of the operator [{op}] is not initialized", pos)
+def _set(op: str, pos: int, **operands: object) -> None:
+    """Raise the error of the first operand (``left=``, ``right=``) that holds no value."""
+    for side, value in operands.items():
+        if value is UNSET:
+            raise ScriptError(f"the {side} operand of the operator [{op}] is not initialized", pos)
 
 
 def _real(value: int | float, pos: int) -> float:
@@ -56,7 +55,7 @@ def _real(value: int | float, pos: int) -> float:
 
 
 def _arithmetic(op: str, a: float, b: float) -> float:
-    """``a op b`` for ``+ - * /`` as C++ doubles: x/0 is +-inf, 0/0 is nan (IEEE division)."""
+    """``a op b`` for ``+ - * /`` as C++ doubles (IEEE division)."""
     if op != "/":
         return a + b if op == "+" else a - b if op == "-" else a * b
     if b != 0.0:
@@ -116,8 +115,7 @@ class Unary(Expr):
             if math.isnan(rv) or rv > INT64_MAX or rv < INT64_MIN:
                 raise ScriptError(f"{describe(value)} is out of range for the bitwise operator [~]", self.pos)
             return float(~int(value))
-        if value is UNSET:
-            raise _not_init("right", self.op, self.pos)
+        _set(self.op, self.pos, right=value)
         raise ScriptError(f"the operator [{self.op}] expects a number, got {describe(value)}", self.pos)
 
 
@@ -131,10 +129,7 @@ class Binary(Expr):
         op = self.op
         lv = self.lhs.evaluate(env)
         rv = self.rhs.evaluate(env)
-        if lv is UNSET:
-            raise _not_init("left", op, self.pos)
-        if rv is UNSET:
-            raise _not_init("right", op, self.pos)
+        _set(op, self.pos, left=lv, right=rv)
         if isinstance(lv, (int, float)) and isinstance(rv, (int, float)):
             if op in "+-*/":
                 return _arithmetic(op, _real(lv, self.pos), _real(rv, self.pos))
@@ -164,16 +159,13 @@ class Binary(Expr):
         raise _not_permitted(op, lv, rv, self.pos)
 
 
+_TAKES = {"..": "at least one string (and otherwise numbers)", "+": "two numbers or two strings",
+          "&&": "booleans, or the numbers 0 and 1", "||": "booleans, or the numbers 0 and 1"}
+
+
 def _not_permitted(op: str, lv: object, rv: object, pos: int) -> ScriptError:
     """The error of a binary operator ``op`` given operands it does not take."""
-    if op == "..":
-        expected = "at least one string (and otherwise numbers)"
-    elif op == "+":
-        expected = "two numbers or two strings"
-    elif op in ("&&", "||"):
-        expected = "booleans, or the numbers 0 and 1"
-    else:
-        expected = "numbers"
+    expected = _TAKES.get(op, "numbers")
     return ScriptError(
         f"operation not permitted: [{op}] between {describe(lv)} and {describe(rv)} (expected {expected})", pos
     )
@@ -199,10 +191,7 @@ class Compare(Expr):
         lv = self.operands[0].evaluate(env)
         for (op, pos), operand in zip(self.ops, self.operands[1:], strict=True):
             rv = operand.evaluate(env)
-            if lv is UNSET:
-                raise _not_init("left", op, pos)
-            if rv is UNSET:
-                raise _not_init("right", op, pos)
+            _set(op, pos, left=lv, right=rv)
             a: object
             b: object
             if is_number(lv) and is_number(rv):
@@ -242,9 +231,8 @@ class Ternary(Expr):
             chosen = value != ""
         elif isinstance(value, (int, float)):
             chosen = value != 0
-        elif value is UNSET:
-            raise _not_init("left", "?", self.pos)
         else:
+            _set("?", self.pos, left=value)
             raise ScriptError(f"the condition of [?] must be a number or a string, got {describe(value)}", self.pos)
         return self.then.evaluate(env) if chosen else self.otherwise.evaluate(env)
 
@@ -264,8 +252,7 @@ class Assign(Expr):
                 self.pos,
             )
         value = self.rhs.evaluate(env)
-        if value is UNSET:
-            raise _not_init("right", op, self.pos)
+        _set(op, self.pos, right=value)
         try:
             current = bb.get(key)
         except KeyError:
@@ -295,8 +282,7 @@ class Assign(Expr):
 
     def _compound(self, value: object, current: object, declared: type | None, env: Env) -> object:
         op = self.op
-        if current is UNSET:
-            raise _not_init("left", op, self.pos)
+        _set(op, self.pos, left=current)
         result: object
         if isinstance(value, (int, float)):
             if not isinstance(current, (int, float)):

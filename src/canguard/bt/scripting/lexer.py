@@ -1,13 +1,5 @@
-"""Tokenizer of BehaviorTree.CPP's scripting language.
-
-Tokens: integers (``42``, ``0x2A``), reals (``3.14``, ``3e2``, ``3.14e-2``),
-'single-quoted' strings (no escapes, as BT.CPP), ``true``/``false``, names
-(``[A-Za-z_@][A-Za-z0-9_]*``; ``@`` marks a root-blackboard key), and the
-operators ``:= = += -= *= /= + - * / .. & | ^ ~ ! && || == != < <= > >= ? : ( ) ;``.
-Whitespace is space, tab, newline and carriage return. A malformed number
-(``65.``, ``3foo``, ``0x``, ``3e+``), an unterminated string or a stray
-character becomes an ``error`` token, which the parser reports with its column.
-"""
+"""Tokenizer of BehaviorTree.CPP's scripting language: one pattern; a malformed number (``65.``, ``3foo``,
+``0x``, ``3e+``), an unterminated string or a stray character is an ``error`` token the parser reports."""
 
 from __future__ import annotations
 
@@ -32,8 +24,7 @@ _NUMBER_ERRORS = {
 
 @dataclass(frozen=True)
 class Token:
-    """One token. ``kind``: int, real, str, bool, name, op, end or error; ``text``: the
-    source text (a string's content without quotes; an error's reason is in ``reason``)."""
+    """One token: ``kind`` int, real, str, bool, name, op, end or error; ``text`` (a string's without quotes)."""
 
     kind: str
     text: str

@@ -1,13 +1,7 @@
-"""Recursive-descent (precedence-climbing) parser of BehaviorTree.CPP's scripting language.
+"""Precedence-climbing parser of BehaviorTree.CPP's scripting language, with BT.CPP 4's binding powers.
 
-Precedence, loosest first (BT.CPP 4's binding powers): assignment ``:= = += -= *= /=`` (right:
-``a := b := 1``), ternary ``c ? x : y`` (right in ``y``), ``||``, ``&&``, comparison
-``== != < <= > >=`` (chained: ``a < b < c``), ``| ^``, ``&``, ``+ - ..``, ``* /`` (these left),
-prefix ``- ! ~``. Comparisons bind looser than the bitwise operators (``x & 1 == 1`` is
-``(x & 1) == 1``), unlike C. Statements are separated by ``;`` (repeated or trailing ``;`` are
-fine; as in BT.CPP a new statement may also simply follow a complete one). The left side of an
-assignment must be a name: anything else is a parse error here (BT.CPP only notices when the
-script runs).
+Comparisons chain and bind looser than the bitwise operators (``x & 1 == 1`` is ``(x & 1) == 1``).
+The left side of an assignment must be a name: a parse error here (BT.CPP notices only at run).
 """
 
 from __future__ import annotations
@@ -19,24 +13,12 @@ from canguard.bt.scripting.values import INT64_MAX
 
 ASSIGNMENT_OPS = frozenset({":=", "=", "+=", "-=", "*=", "/="})
 COMPARISON_OPS = frozenset({"==", "!=", "<", "<=", ">", ">="})
-_ASSIGN_BP = 2
 _TERNARY_BP = 4
 _COMPARISON_BP = 10
 _PREFIX_BP = 20
-_BINARY_BP = {"||": 6, "&&": 8, "|": 12, "^": 12, "&": 14, "+": 16, "-": 16, "..": 16, "*": 18, "/": 18}
+_LEFT_BP = {**dict.fromkeys(ASSIGNMENT_OPS, 2), "?": _TERNARY_BP, **dict.fromkeys(COMPARISON_OPS, _COMPARISON_BP),
+            "||": 6, "&&": 8, "|": 12, "^": 12, "&": 14, "+": 16, "-": 16, "..": 16, "*": 18, "/": 18}
 _STARTS_OPERAND = frozenset({"int", "real", "str", "bool", "name"})
-
-
-def _left_bp(tok: Token) -> int:
-    if tok.kind != "op":
-        return -1
-    if tok.text in ASSIGNMENT_OPS:
-        return _ASSIGN_BP
-    if tok.text == "?":
-        return _TERNARY_BP
-    if tok.text in COMPARISON_OPS:
-        return _COMPARISON_BP
-    return _BINARY_BP.get(tok.text, -1)
 
 
 def _shown(tok: Token) -> str:
@@ -91,7 +73,7 @@ class _Parser:
         left = self.prefix()
         while True:
             tok = self.peek()
-            bp = _left_bp(tok)
+            bp = _LEFT_BP.get(tok.text, -1) if tok.kind == "op" else -1
             if bp < 0 or bp < min_bp:
                 return left
             if tok.text in ASSIGNMENT_OPS:

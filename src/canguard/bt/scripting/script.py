@@ -11,9 +11,7 @@ from canguard.bt.scripting.expr import Env, Expr
 from canguard.bt.scripting.parser import parse_statements
 from canguard.bt.scripting.values import UNSET, as_condition
 
-MAX_DEPTH = 200
-"""Deepest expression tree a script may have (nesting and operator chains); keeps a
-tick's evaluation far from Python's recursion limit."""
+MAX_DEPTH = 200  # deepest expression tree a script may have: far from Python's recursion limit
 
 
 def _depth(expr: Expr) -> int:
@@ -30,8 +28,7 @@ def _depth(expr: Expr) -> int:
 
 
 class Script:
-    """The statements of one script (BT.CPP's ``code``, ``_skipIf`` ... attributes); a failure is a
-    :class:`ScriptError` naming the column."""
+    """The statements of one script; a failure is a :class:`ScriptError` naming the column."""
 
     __slots__ = ("_statements", "text")
 
@@ -61,10 +58,7 @@ class Script:
         return None if value is UNSET else value
 
     def condition(self, blackboard: ScriptBlackboard, enums: Mapping[str, int] | None = None) -> bool:
-        """Run the script and take its value as a boolean (ScriptCondition, ``_skipIf`` ...).
-
-        ScriptError when the value is not boolean-convertible (see :func:`.values.as_condition`).
-        """
+        """Run the script and take its value as a boolean (:func:`.values.as_condition`)."""
         value = self.run(blackboard, enums)
         try:
             return as_condition(value)

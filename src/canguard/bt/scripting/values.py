@@ -1,20 +1,6 @@
-"""Values of the scripting language and BehaviorTree.CPP's rules for converting them.
-
-BT.CPP keeps script values in its ``Any``: integers (int64), reals (double) and
-strings. Here they are Python ``int``, ``float`` and ``str``; a Python ``bool``
-counts as a number, as a C++ ``bool`` does in BT.CPP (an integer 0 or 1).
-
-The rules (BT.CPP 4, ``scripting/operators.hpp`` and ``utils/safe_any.hpp``):
-
-- integer literals are integers; every arithmetic result (``+ - * /``, unary
-  ``-``, bitwise ``& | ^ ~``) is a real, as in BT.CPP; ``/`` by zero gives
-  ``inf``/``-inf``/``nan`` as IEEE doubles do;
-- a number converts to an integer only when it is integral and fits int64, to a
-  real only when it is exact (integers beyond 2**53 are refused);
-- a value assigned to an entry that already holds one keeps the entry's type:
-  a real with a fraction into an integer entry is an error ("can't assign ...");
-- for ``&&``, ``||`` and conditions a real is true when not zero, an integer must
-  be 0 or 1, a string is an error.
+"""Values of the scripting language and BehaviorTree.CPP 4's rules for converting them (``operators.hpp``,
+``safe_any.hpp``): int64 integers, doubles and strings as ``int``, ``float``, ``str`` (a ``bool`` is a number);
+every arithmetic result is a real; an entry keeps its type.
 """
 
 from __future__ import annotations
@@ -23,13 +9,11 @@ import math
 import re
 from collections.abc import Mapping
 
-FLT_EPSILON = 1.1920928955078125e-07
-"""Two reals are equal when they differ by at most float's epsilon (BT.CPP's ``IsSame``)."""
+FLT_EPSILON = 1.1920928955078125e-07  # reals this close are equal (BT.CPP's IsSame)
 
 INT64_MIN = -(2**63)
 INT64_MAX = 2**63 - 1
-EXACT_INT = 2**53 - 1
-"""The largest integer a double holds exactly; BT.CPP refuses to convert larger ones."""
+EXACT_INT = 2**53 - 1  # the largest integer a double holds exactly
 
 
 class _Unset:
@@ -100,11 +84,7 @@ def logic_bool(value: object) -> bool | None:
 
 
 def as_condition(value: object) -> bool:
-    """The boolean a ScriptCondition or a pre/post condition takes from a script's value.
-
-    As BT.CPP: a boolean is itself, a real is true when not zero, an integer must be 0
-    or 1; a string or an unset value is an error (ValueError saying what was expected).
-    """
+    """The boolean a condition takes from a script's value (:func:`logic_bool`); ValueError if none."""
     result = logic_bool(value)
     if result is None:
         raise ValueError(f"expected a boolean result (true/false, or a number 0 or 1), got {describe(value)}")
@@ -121,8 +101,8 @@ def number_text(value: int | float) -> str:
 
 
 def string_to_real(text: str, enums: Mapping[str, int] | None) -> float | None:
-    """A string compared with (or assigned to) a number: 'true', 'false', an enum name or
-    a number's text; None when it is none of them (BT.CPP's ``StringToDouble``)."""
+    """A string compared with (or assigned to) a number: 'true', 'false', an enum name or a number's text;
+    None otherwise (BT.CPP's ``StringToDouble``)."""
     if text == "true":
         return 1.0
     if text == "false":
@@ -135,12 +115,7 @@ def string_to_real(text: str, enums: Mapping[str, int] | None) -> float | None:
 
 
 def convert_for_entry(value: object, target: type, enums: Mapping[str, int] | None) -> object:
-    """``value`` converted to ``target``, the type of the entry it is assigned to.
-
-    ValueError (a message saying what the entry takes) when BT.CPP would refuse it:
-    a real with a fraction into an integer, a number into a string, a string that is
-    not a number into a number, anything but 0/1 into a boolean.
-    """
+    """``value`` converted to ``target``, its entry's type; ValueError saying what it takes if BT.CPP refuses."""
     if target is str:
         if isinstance(value, str):
             return value
