@@ -230,7 +230,8 @@ def take_runs(runs: Sequence[tuple[MessagePlan, Any, Any, list[Any]]]) -> tuple[
     for key, (health, _rows, parts) in health_units.items():
         if len(parts) > 1:  # several messages of one source: every row of theirs, in order
             at = next(i for i, unit in enumerate(units) if unit[0] is health)
-            units[at] = health_units[key] = (health, sorted(chain.from_iterable(part[3] for part in parts)), parts)
+            every = sorted(chain.from_iterable(_ints(part[3]) for part in parts))
+            units[at] = health_units[key] = (health, every, parts)
     bound, edge = _advance_units(units, last)
     for plan, rows, _ts, columns in runs:
         m = len(rows) if bound == last else bisect_right(rows, bound)
