@@ -64,7 +64,7 @@ def decode_rows(
             decoded = plan.entry.decode(block.payload_rows(group), block.length[group])
         if taken is not None:
             taken.append((plan, group, decoded))
-        run = _split(plan, group, decoded, ts, block.times, fed)
+        run = _split(plan, group, decoded, ts, block, fed)
         if run is not None:
             whole.append(run)
     if len(fed) > 1:
@@ -91,10 +91,10 @@ def _groups(plans: Mapping[int, MessagePlan | None], rows: Any, keys: Any,
     return groups
 
 
-def _split(plan: MessagePlan, group: Any, decoded: Sequence[Any], ts: Any, times: list[float],
+def _split(plan: MessagePlan, group: Any, decoded: Sequence[Any], ts: Any, block: Block,
            fed: list[tuple[int, MessagePlan | None]]) -> Run | None:
-    """A message's decoded rows (``ts``: the block's time column, ``times``: as floats): those whole and valid as a
-    run of columns (None: none), those for the frame decoder added to ``fed``, the EMPTY ones counted."""
+    """A message's decoded rows (``ts``: the block's time column): those whole and valid as a run of columns (None:
+    none), those for the frame decoder added to ``fed``, the EMPTY ones counted."""
     if type(decoded) is ColumnRows:
         import numpy as np
 
@@ -128,9 +128,9 @@ def _split(plan: MessagePlan, group: Any, decoded: Sequence[Any], ts: Any, times
             plan.count_empty(empty)
         if not rows:
             return None
-    if len(rows) == len(times):  # every row of the block (a live frame's)
-        return plan, rows, times, list(zip(*values, strict=True))
+    if len(rows) == block.n:  # every row of the block (a live frame's): its times as floats, made with it
+        return plan, rows, block.times, list(zip(*values, strict=True))
     stamps = []  # loops, not comprehensions: no function object per block (Python < 3.12)
     for i in rows:
-        stamps.append(times[i])
+        stamps.append(float(ts[i]))
     return plan, rows, stamps, list(zip(*values, strict=True))
