@@ -173,7 +173,30 @@ class Block:
     def of_messages(cls, msgs: Sequence[can.Message], channel: str | Sequence[str] | None = None) -> Block:
         """python-can messages as a block, field for field (``channel`` overrides each message's, or names each
         message's in turn (a live batch of several buses); python-can's integer channels are named ``canN``)."""
-        return _of_messages(msgs, channel)
+        times, ids, ext, flags, dlcs, datas = [], [], [], [], [], []
+        chans: list[str] = [] if channel is None or type(channel) is str else list(channel)
+        names: dict[Any, str] = {}
+        for m in msgs:
+            if channel is None:
+                name = names.get(m.channel)
+                if name is None:
+                    name = names[m.channel] = channel_name(m.channel)
+                chans.append(name)
+            elif type(channel) is str:
+                chans.append(channel)
+            times.append(float(m.timestamp or 0.0))
+            ids.append(int(m.arbitration_id))
+            ext.append(bool(m.is_extended_id))
+            flags.append((FLAG_FD if m.is_fd else 0) | (FLAG_BRS if m.bitrate_switch else 0)
+                         | (FLAG_ESI if m.error_state_indicator else 0) | (FLAG_REMOTE if m.is_remote_frame else 0)
+                         | (FLAG_ERROR if m.is_error_frame else 0))
+            dlcs.append(int(m.dlc))
+            datas.append(bytes(m.data) if m.data is not None else b"")
+        if len(times) == 1:  # a live frame
+            one = _one(times[0], chans[0], ids[0], datas[0], ext[0], flags[0], dlcs[0])
+            if one is not None:
+                return one
+        return _rows(times, ids, ext, flags, dlcs, datas, chans)
 
     # -- what the engine reads ----------------------------------------------------------------
     @_cached
@@ -388,34 +411,6 @@ def _of_frames(frames: Sequence[Frame]) -> Block:
     lengths = list(map(len, datas))
     codes = lengths if max(dlcs) < 0 else [n if d < 0 else d for n, d in zip(lengths, dlcs, strict=True)]
     return _rows(t, ids, ext, flags, codes, datas, chans, lengths)
-
-
-def _of_messages(msgs: Sequence[can.Message], channel: str | Sequence[str] | None) -> Block:
-    """python-can messages as a block, field for field (one message: :func:`_one`)."""
-    times, ids, ext, flags, dlcs, datas = [], [], [], [], [], []
-    chans: list[str] = [] if channel is None or type(channel) is str else list(channel)
-    names: dict[Any, str] = {}
-    for m in msgs:
-        if channel is None:
-            name = names.get(m.channel)
-            if name is None:
-                name = names[m.channel] = channel_name(m.channel)
-            chans.append(name)
-        elif type(channel) is str:
-            chans.append(channel)
-        times.append(float(m.timestamp or 0.0))
-        ids.append(int(m.arbitration_id))
-        ext.append(bool(m.is_extended_id))
-        flags.append((FLAG_FD if m.is_fd else 0) | (FLAG_BRS if m.bitrate_switch else 0)
-                     | (FLAG_ESI if m.error_state_indicator else 0) | (FLAG_REMOTE if m.is_remote_frame else 0)
-                     | (FLAG_ERROR if m.is_error_frame else 0))
-        dlcs.append(int(m.dlc))
-        datas.append(bytes(m.data) if m.data is not None else b"")
-    if len(times) == 1:  # a live frame
-        one = _one(times[0], chans[0], ids[0], datas[0], ext[0], flags[0], dlcs[0])
-        if one is not None:
-            return one
-    return _rows(times, ids, ext, flags, dlcs, datas, chans)
 
 
 def _rows(times: Sequence[float], ids: Sequence[int], ext: Sequence[bool], flags: Sequence[int],
