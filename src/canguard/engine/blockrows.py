@@ -34,14 +34,11 @@ def decode_rows(
     rows the frame decoder takes, in row order (with their plan; None: a remote or error frame). Rows without a
     configured signal are only counted.
 
-    Each message's rows are decoded together by its :class:`~canguard.decode.message.MessageDecoder` (a row
-    goes to the frame decoder when its length is wrong, cantools would refuse its payload, a value is NaN,
-    infinite or outside the DBC range, a presence flag is 0, a multiplexed message carries some configured
-    signals but not all; every row of a message with an alive counter or a drive's health role). ``ts``: the
-    block's times;
-    ``keys``: each row's key in ``plans`` (:attr:`Block.keys <canguard.io.block.Block.keys>`, plus a channel's
-    lane). ``taken``, when given, receives each message's (plan, rows, decoded values) (``--export-signals``);
-    ``touched``, when given, each plan that took rows.
+    Each message's rows are decoded together by its :class:`~canguard.decode.message.MessageDecoder` (a row it
+    finds invalid, and every row of a message with an alive counter or a drive's health role, goes to the frame
+    decoder). ``ts``: the block's time column; ``keys``: each row's key in ``plans`` (:attr:`Block.keys
+    <canguard.io.block.Block.keys>`, plus a channel's lane). ``taken``, when given, receives each message's
+    (plan, rows, decoded values) (``--export-signals``); ``touched``, when given, each plan that took rows.
     """
     special = block.special
     if len(rows) == 1 and not special.size:  # one row (a live frame): nothing to group
