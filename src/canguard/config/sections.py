@@ -66,7 +66,12 @@ class _Sections(_Frames):
                     interface not in _BUILT_IN_INTERFACES and interface not in _valid_interfaces()):
                 self.problem(_path(key, "interface"), _found(interface),
                              "a python-can interface" + _closest(interface, _valid_interfaces()))
-            result[name] = BusConfig(name=name, kwargs=MappingProxyType(dict(kwargs)))
+            only = kwargs.get("filter", True)
+            if not isinstance(only, bool):
+                self.problem(_path(key, "filter"), _found(only),
+                             "true (receive only the frames the config reads) or false (every frame)")
+            args = {k: v for k, v in kwargs.items() if k != "filter"}
+            result[name] = BusConfig(name=name, kwargs=MappingProxyType(args), filter=only is not False)
         self.bus_names = tuple(result)
         return result
 

@@ -40,7 +40,7 @@ from canguard.engine.logrun import MAX_CATCH_UP_S, LogCursor, LogRun
 from canguard.engine.quiet import QuietTicks
 from canguard.engine.stats import EngineStats, EventSink, TickObserver
 from canguard.engine.watch import SourceWatch
-from canguard.io.block import Block
+from canguard.io.block import Block, one_block
 from canguard.io.clock import Clock, PinnedClock
 from canguard.io.frame import Frame
 from canguard.protect.base import LatchedModel
@@ -290,7 +290,7 @@ class Engine:
         """Process one frame received on ``bus`` at ``frame.t``: :meth:`take` of a block of one."""
         cursor = self._live
         cursor.route, cursor.default_bus = _NO_ROUTE, bus
-        self._blocks.take(Block.of_frames((frame,)), cursor)
+        self._blocks.take(one_block(frame), cursor)
 
     def edge_tick(self, t: float) -> None:
         """A sample at ``t`` changed a model's or a source's state: the tree ticks at once."""
