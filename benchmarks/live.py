@@ -145,15 +145,16 @@ class Child:
 
 
 class Daemon:
-    """``canguard run`` on ``bus`` as a subprocess, config and journal in ``tmp`` (``monitor:`` as given); its
-    stderr kept (it says there where its monitors listen)."""
+    """``canguard run`` on ``bus`` as a subprocess (or ``script run``, with ``env``), config and journal in ``tmp``
+    (``monitor:`` as given); its stderr kept (it says there where its monitors listen)."""
 
-    def __init__(self, tmp: Path, bus: dict[str, Any], src: Path, monitor: dict[str, Any] | None = None) -> None:
+    def __init__(self, tmp: Path, bus: dict[str, Any], src: Path, monitor: dict[str, Any] | None = None,
+                 script: Path | None = None, env: dict[str, str] | None = None) -> None:
         tmp.mkdir(parents=True, exist_ok=True)
         config = kit.write_config(tmp, bus, monitor)
-        cmd = [sys.executable, "-m", "canguard", "run", "-c", str(config)]
+        cmd = [sys.executable, *([str(script)] if script else ["-m", "canguard"]), "run", "-c", str(config)]
         self.said: list[str] = []
-        self.proc = subprocess.Popen(cmd, env=kit.child_env(src), text=True, stderr=subprocess.PIPE)
+        self.proc = subprocess.Popen(cmd, env=kit.child_env(src, **(env or {})), text=True, stderr=subprocess.PIPE)
         self.relay = threading.Thread(target=self.keep_stderr, daemon=True)
         self.relay.start()
         events = tmp / "events.jsonl"

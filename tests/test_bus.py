@@ -5,20 +5,27 @@ from __future__ import annotations
 import itertools
 import logging
 import os
+import struct
 import subprocess
 import sys
 import threading
 import time
 import uuid
+from pathlib import Path
 
 import can
 import pytest
+import yaml
 
+from canguard.config.loader import load_config
 from canguard.config.schema import BusConfig
 from canguard.errors import BusError
-from canguard.io.bus import BusReader, open_bus
+from canguard.io.block import EXT_KEY
+from canguard.io.bus import KERNEL_FILTERS_MAX, BusReader, kernel_filters, open_bus, receive_keys
 from canguard.io.frame import Frame
-from checkout import SRC
+from canguard.io.pycan import frame_from_message
+from checkout import REPO, SRC
+from test_canopen_config import config as canopen_config
 from test_daemon import unique_udp
 from waitkit import wait_until
 
@@ -33,7 +40,7 @@ def frames_from(reader: BusReader, n: int) -> list[tuple[str, Frame]]:
     out: list[tuple[str, Frame]] = []
 
     def enough() -> bool:
-        out.extend((name, frame) for name, frame, _received in reader.receive(0.05, n - len(out)))
+        out.extend((name, frame_from_message(msg, name)) for name, msg, _received in reader.receive(0.05, n - len(out)))
         return len(out) >= n
 
     wait_until(enough, what=f"{n} frames on the reader's queue")
@@ -240,3 +247,75 @@ class TestUdpMulticast:
                 if peer.poll() is None:
                     peer.kill()
         assert out.strip() == "0x2"
+
+
+class TestReceiveFilters:
+    """Each bus receives the frames the config reads: SocketCAN's kernel filters, canguard's check elsewhere."""
+
+    KEYS = frozenset({0x74, 0x18FF50E5 + EXT_KEY, 0x282, 0x702, 0x82})
+    """A DBC current (0x74), the extended BMS id, a CANopen drive's TPDO2, heartbeat and EMCY (node 2)."""
+
+    def test_the_keys_are_the_ids_the_config_reads(self, tmp_path: Path) -> None:
+        """Standard, extended and CANopen ids of every source; none with ``filter: false``."""
+        path = canopen_config(tmp_path, dbc=[str(REPO / "dbc" / "robot.dbc")])
+        doc = yaml.safe_load(path.read_text(encoding="utf-8"))
+        doc["sources"]["axis3"] = {"kind": "current", "message": "Axis3_Get_Iq", "signal": "Iq_Measured"}
+        doc["sources"]["bms"] = {"kind": "battery", "message": "BMS_Status", "current": "Pack_Current"}
+        path.write_text(yaml.safe_dump(doc), encoding="utf-8")
+        assert receive_keys(load_config(path)) == {"main": self.KEYS}
+        doc["buses"]["main"]["filter"] = False
+        path.write_text(yaml.safe_dump(doc), encoding="utf-8")
+        cfg = load_config(path)
+        assert receive_keys(cfg) == {"main": None}
+        assert "filter" not in cfg.buses["main"].kwargs  # never handed to can.Bus
+
+    def test_the_kernel_passes_exactly_the_configured_frames(self) -> None:
+        """The filters as SocketCAN packs and matches them pass those ids in their own frame format only."""
+        from can.interfaces.socketcan.constants import CAN_EFF_FLAG
+        from can.interfaces.socketcan.utils import pack_filters
+
+        packed = pack_filters(kernel_filters(self.KEYS))
+        words = struct.unpack(f"={len(packed) // 4}I", packed)
+        pairs = list(zip(words[::2], words[1::2], strict=True))
+
+        def passes(cid: int, extended: bool) -> bool:
+            word = cid | (CAN_EFF_FLAG if extended else 0)
+            return any(word & mask == fid & mask for fid, mask in pairs)
+
+        candidates = [(cid, ext) for cid in range(0x800) for ext in (False, True)]
+        candidates += [(0x18FF50E5, True), (0x18FF50E5 ^ 1, True), (0x18FF50E5 | 1 << 28, True), (0x1FFFFFFF, True)]
+        passed = {cid + EXT_KEY if ext else cid for cid, ext in candidates if passes(cid, ext)}
+        assert passed == self.KEYS
+
+    def test_a_socketcan_bus_gets_the_kernel_filters(self) -> None:
+        """On a SocketCAN bus the reader sets python-can's filters, anew after a reload; past the kernel's limit
+        none (canguard's own check then)."""
+        opened: list[can.BusABC] = []
+        cfg = BusConfig("main", {"interface": "socketcan", "channel": "can0"})
+
+        def opener(_cfg: BusConfig) -> can.BusABC:
+            opened.append(can.Bus(interface="virtual", channel=f"t-{uuid.uuid4().hex}"))
+            return opened[-1]
+
+        with BusReader([cfg], opener=opener, wanted={"main": self.KEYS}) as reader:
+            assert opened[0].filters == kernel_filters(self.KEYS)
+            reader.want({"main": frozenset({0x74})})
+            assert opened[0].filters == [{"can_id": 0x74, "can_mask": 0x7FF, "extended": False}]
+            reader.want({"main": frozenset(range(KERNEL_FILTERS_MAX + 1))})
+            assert opened[0].filters is None
+
+    def test_foreign_frames_are_dropped_and_error_frames_kept(self) -> None:
+        """A bus with canguard's check (no kernel filters) gives its configured and error frames only."""
+        cfg = virtual()
+        peer = can.Bus(**cfg.kwargs)
+        try:
+            with BusReader([cfg], wanted={"main": frozenset({0x74, 0x123 + EXT_KEY})}) as reader:
+                wait_until(lambda: all(reader.alive().values()), what="the receive thread")
+                for cid, ext, err in [(0x600, False, False), (0x123, False, False), (0x74, True, False),
+                                      (0x74, False, False), (0x4, False, True), (0x123, True, False)]:
+                    peer.send(can.Message(arbitration_id=cid, is_extended_id=ext, is_error_frame=err, data=b"\1"))
+                got = [(f.arbitration_id, f.is_extended_id, f.is_error_frame) for _name, f in frames_from(reader, 3)]
+                assert got == [(0x74, False, False), (0x4, False, True), (0x123, True, False)]
+                assert reader.received["main"] == 3
+        finally:
+            peer.shutdown()

@@ -198,6 +198,14 @@ class TestConfigErrors:
             "closest: socketcan"
         )
 
+    def test_bus_filter_takes_true_or_false(self) -> None:
+        """``filter:`` under a bus is a boolean: anything else names the key and the two meanings."""
+        [p] = problems("", buses="aux: {interface: virtual, channel: can1, filter: 'no'}\n")
+        assert p == (f"{CFG}: buses.aux.filter: found 'no', expected true (receive only the frames the config "
+                     "reads) or false (every frame)")
+        cfg = load("", buses="aux: {interface: virtual, channel: can1, filter: false}\n")
+        assert "  aux: interface virtual, channel can1; filter: false (every frame received)" in describe(cfg)
+
     def test_built_in_interfaces_are_python_cans(self) -> None:
         """The interface names a config may give without importing python-can are all the installed one's."""
         import can.interfaces

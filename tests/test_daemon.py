@@ -35,7 +35,6 @@ import cantools
 import pytest
 import yaml
 
-from canguard.io.frame import Frame
 from canguard.service.daemon import Daemon
 from canguard.service.systemd import Notifier
 from checkout import REPO, SRC
@@ -379,8 +378,8 @@ class TestDaemonInProcess:
                 t0, queued = daemon.clock.now(), time.monotonic()
                 for k in range(101):  # put at once: the loop drains them as one block
                     current_a = 40.0 if k == 60 else 10.0
-                    frame = Frame(t0 + k * 1e-5, "main", BMS_ID, bms_data(current_a), True)
-                    daemon.reader.queue.put(("main", frame, queued))
+                    msg = can.Message(timestamp=t0 + k * 1e-5, arbitration_id=BMS_ID, data=bms_data(current_a))
+                    daemon.reader.queue.put(("main", msg, queued))
             receive_until(inproc.peer, is_stop, "Estop after the one-frame spike")
             wait_until(event_after(inproc.events, "recover"), what="the recovery at the next frame")
         trips = [e for e in read_events(inproc.events) if e["event"] == "trip"]

@@ -19,7 +19,8 @@ import yaml
 
 from canguard.config.loader import load_config
 from canguard.engine.core import Engine
-from canguard.engine.events import FIRST_KEYS, EventJournal, read_events
+from canguard.engine.event_codec import FIRST_KEYS
+from canguard.engine.events import EventJournal, read_events
 from canguard.engine.gate import LogSink, TaskGate
 from canguard.io.clock import ManualClock
 from canguard.io.frame import Frame
@@ -289,12 +290,26 @@ class StopWitness:
         self.out = out
         self.journal = journal
         self.recorded_at_stop: list[str] | None = None
+        self.engine: Engine | None = None
+        self.trips_at_stop = -1
+        """The trips the tree had judged (its guards' ``trip`` events, held or written) at the first stop frame."""
 
     def send(self, frames: Any, origin: str) -> None:
-        """Note the journal's events at the first stop frame, then pass the frames on."""
+        """Note the journal's events (and the trips judged) at the first stop frame, then pass the frames on."""
         if origin == "stop" and self.recorded_at_stop is None:
             self.recorded_at_stop = [e["event"] for e in read_events(self.journal)]
+            self.trips_at_stop = self.engine.events_seen["trip"] if self.engine is not None else -1
         self.out.send(frames, origin)
+
+
+GUARD = ('<Condition ID="IsCurrentSafe" topic_name="/battery_state" overcurrent_threshold="35.0" '
+         'recovery_threshold="25.0"/>')
+TREES = {  # the ReactiveSequence's children: the guard's place in the tree
+    "the bundled tree": (GUARD, "ahead"),
+    "guard under two Inverters": (f"<Inverter><Inverter>{GUARD}</Inverter></Inverter>", "in the tick"),
+    "guard with a pre-condition": (GUARD.replace("/>", ' _skipIf="false"/>'), "in the tick"),
+    "trip handled by a Fallback": (f"<Fallback>{GUARD}<AlwaysSuccess/></Fallback>", "no stop"),
+}
 
 
 class TestStopFirst:
@@ -325,6 +340,38 @@ class TestStopFirst:
         assert names[-2:] == ["trip", "stop"]
         assert [e["t"] for e in events[-2:]] == [pytest.approx(t_over, abs=1e-6)] * 2
         journal.close()
+
+    @pytest.mark.parametrize("tree", list(TREES))
+    def test_a_trip_the_tree_surely_halts_on_stops_before_the_tree_ticks(self, tmp_path: Path, tree: str) -> None:
+        """Where the guard's failure surely halts the task (a ReactiveSequence above it, nothing between), the stop
+        frames leave at the trip, before the tree's tick; elsewhere the tick decides; the events are the same."""
+        guard, expected = TREES[tree]
+        xml = tmp_path / "tree.xml"
+        xml.write_text(f'<root main_tree_to_execute="T"><BehaviorTree ID="T"><ReactiveSequence>{guard}'
+                       '<Action ID="ExecuteTask"/></ReactiveSequence></BehaviorTree></root>', encoding="utf-8")
+        path = tmp_path / "events.jsonl"
+        journal = EventJournal(path)
+        cfg = load_config(write_config(tmp_path, tree={"file": str(xml), "tick_hz": 100}))
+        clock = ManualClock(T0)
+        witness = StopWitness(LogSink(clock.now, cfg.buses), path)
+        engine = witness.engine = Engine(cfg, clock, witness, events=journal)
+        engine.start(T0)
+        t = T0
+        while engine.gate.state != TaskGate.RUNNING:
+            t += 0.01
+            engine.feed("main", bms_frame(t, 10.0))
+            engine.advance(t)
+        ticks, trips = engine.stats.ticks, engine.events_seen["trip"]
+        engine.feed("main", bms_frame(t + 0.0013, 40.0))
+        journal.close()
+        names = [e["event"] for e in read_events(path)]
+        if expected == "no stop":
+            assert engine.gate.state == TaskGate.RUNNING and witness.trips_at_stop == -1
+            assert names[-1] == "trip"
+            return
+        assert witness.trips_at_stop == (trips if expected == "ahead" else trips + 1)
+        assert engine.stats.ticks == ticks + 1 and names[-2:] == ["trip", "stop"]
+        assert len(witness.out.frames) == len(cfg.stop.frames) + witness.out.origins.count("task")
 
 
 class TestFinish:

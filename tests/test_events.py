@@ -18,7 +18,8 @@ from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from canguard.engine import events as events_mod
-from canguard.engine.events import EventJournal, encode_event, journal_files, read_events
+from canguard.engine.event_codec import FIRST_KEYS, encode_event
+from canguard.engine.events import EventJournal, journal_files, read_events
 from canguard.errors import LogFormatError
 from checkout import SRC
 
@@ -94,7 +95,7 @@ class TestEncodeEvent:
         assert line.endswith(b"\n") and line.count(b"\n") == 1
         obj = json.loads(line, parse_constant=lambda c: pytest.fail(f"non-standard JSON constant {c}"))
         assert obj["event"] == "stale"
-        assert list(obj)[:7] == list(events_mod.FIRST_KEYS)
+        assert list(obj)[:7] == list(FIRST_KEYS)
 
 
 class TestEventJournal:

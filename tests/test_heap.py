@@ -1,4 +1,4 @@
-"""A replay on a Dask worker keeps its freed memory until it ends (canguard.cli.heap).
+"""A replay keeps its freed memory until it ends (canguard.cli.heap).
 
 Dask starts its workers with ``MALLOC_TRIM_THRESHOLD_=65536``; in such a process every large
 buffer a replay frees is given back and faulted in again. These tests run a process with that
@@ -54,8 +54,9 @@ class TestKeepFreedMemory:
         assert got["inside"] < got["outside"] / 20, got
         assert got["after"] > 200 * 200, got  # the environment's thresholds are back
 
-    def test_plain_environment_untouched(self, monkeypatch: pytest.MonkeyPatch) -> None:
-        """Without the variable glibc adapts by itself: the scope calls nothing (it would turn that off)."""
+    def test_thresholds_put_back(self, monkeypatch: pytest.MonkeyPatch) -> None:
+        """The scope raises the thresholds once for replays at once, and puts back the environment's, else
+        glibc's defaults, when the last ends."""
         calls: list[tuple[str, tuple[int, ...]]] = []
 
         class Spy:
@@ -69,11 +70,14 @@ class TestKeepFreedMemory:
 
         monkeypatch.setattr(heap, "_libc", Spy())
         monkeypatch.delenv("MALLOC_TRIM_THRESHOLD_", raising=False)
+        monkeypatch.delenv("MALLOC_MMAP_THRESHOLD_", raising=False)
         with heap.keep_freed_memory():
             pass
-        assert calls == []
+        assert calls[2:] == [("mallopt", (heap.M_MMAP_THRESHOLD, heap.DEFAULT_THRESHOLD)),
+                             ("mallopt", (heap.M_TRIM_THRESHOLD, heap.DEFAULT_THRESHOLD)), ("malloc_trim", (0,))]
+        calls.clear()
         monkeypatch.setenv("MALLOC_TRIM_THRESHOLD_", "65536")
         with heap.keep_freed_memory(), heap.keep_freed_memory():  # two replays at once (threads of one worker)
             assert [c[0] for c in calls] == ["mallopt", "mallopt"]
-        assert calls[2:] == [("mallopt", (heap.M_MMAP_THRESHOLD, heap.DEFAULT_MMAP_THRESHOLD)),
+        assert calls[2:] == [("mallopt", (heap.M_MMAP_THRESHOLD, heap.DEFAULT_THRESHOLD)),
                              ("mallopt", (heap.M_TRIM_THRESHOLD, 65536)), ("malloc_trim", (0,))]

@@ -1,7 +1,7 @@
-"""A live batch on its way in: python-can messages to frames, the reader's receive stamps, several buses merged.
+"""A live batch on its way in: the reader's receive stamps, several buses merged, stamps far from the clock.
 
-The daemon's loop drains its buses (:class:`~canguard.io.bus.BusReader`), turns each bus's messages into
-frames at once (:meth:`BusReader.admit`) and hands the batch, merged by kernel stamp, to the engine
+The daemon's loop drains its buses (:class:`~canguard.io.bus.BusReader`), stamps each bus's messages with their
+arrival (:meth:`BusReader.admit`) and hands the batch, merged by kernel stamp, to the engine as one block
 (:meth:`Daemon.take_received`). These tests hold each step to what a frame taken alone gives.
 """
 
@@ -16,7 +16,6 @@ import can
 
 from canguard.config.schema import BusConfig
 from canguard.io.bus import WALL_STAMP_S, BusReader
-from canguard.io.frame import Frame
 from canguard.io.pycan import frame_from_message, frames_from_messages
 from canguard.service.daemon import Daemon
 from canguard.service.systemd import Notifier
@@ -65,10 +64,10 @@ class TestAdmit:
         wall, mono = time.time(), time.monotonic()
         msgs = [can.Message(timestamp=wall - 0.05, arbitration_id=0x600, data=bytes(8)),
                 can.Message(timestamp=wall + 0.2, arbitration_id=0x601, data=bytes(8))]
-        out: list[tuple[str, Frame, float]] = []
+        out: list[tuple[str, can.Message, float]] = []
         reader.admit("main", msgs, out)
         after = time.monotonic()
-        assert [(name, frame.arbitration_id, frame.t) for name, frame, _ in out] == [
+        assert [(name, msg.arbitration_id, msg.timestamp) for name, msg, _ in out] == [
             ("main", 0x600, wall - 0.05), ("main", 0x601, wall + 0.2)]
         assert mono - 0.05 - 0.01 < out[0][2] < mono - 0.05 + 0.01
         assert mono <= out[1][2] <= after
@@ -78,13 +77,13 @@ class TestAdmit:
         """A bus whose stamps are not the wall clock (a device's own counter): its frames arrive when read."""
         reader = BusReader([BusConfig(name="main", kwargs={"interface": "virtual", "channel": "unused"})])
         before = time.monotonic()
-        out: list[tuple[str, Frame, float]] = []
+        out: list[tuple[str, can.Message, float]] = []
         reader.admit("main", [can.Message(timestamp=5.0, arbitration_id=0x600, data=bytes(8))], out)
         assert before <= out[0][2] <= time.monotonic()
-        assert out[0][1].t == 5.0
+        assert out[0][1].timestamp == 5.0
 
 
-def _interleaved(daemon: Daemon, age_s: float) -> list[tuple[str, Frame, float]]:
+def _interleaved(daemon: Daemon, age_s: float) -> list[tuple[str, can.Message, float]]:
     """A batch of three unconfigured frames of bus ``a`` and three BMS frames (12, 13, 14 A) of bus ``b``,
     alternating, stamped ``age_s`` ago, as the reader gives it."""
     past = time.time() - age_s
@@ -93,7 +92,7 @@ def _interleaved(daemon: Daemon, age_s: float) -> list[tuple[str, Frame, float]]
         "b": [can.Message(timestamp=past + i * 1e-4 + 5e-5, arbitration_id=BMS_ID, is_extended_id=True,
                           data=bms_data(12.0 + i)) for i in range(3)],
     }
-    items: list[tuple[str, Frame, float]] = []
+    items: list[tuple[str, can.Message, float]] = []
     for bus, batch in msgs.items():
         daemon.reader.admit(bus, batch, items)
     items.sort(key=lambda item: item[2])
@@ -132,6 +131,26 @@ class TestMergedBuses:
             assert (counts["b"].frames, counts["b"].decoded) == (3, 3)
             battery = engine.ctx.health["/battery_state"]
             assert battery.value("current") == 14.0
+        finally:
+            engine.finish(reason="test over")
+            daemon.journal.close()
+
+
+class TestStamps:
+    def test_a_stamp_far_from_the_clock_is_taken_as_received_now(self, tmp_path: Path) -> None:
+        """A frame stamped 100 s ahead of the daemon's clock (a device's own counter) is taken at the time of its
+        batch: its value reaches the source, and the latest frame time does not jump ahead."""
+        bus = {"interface": "virtual", "channel": f"skew-{uuid.uuid4().hex[:12]}"}
+        daemon = Daemon(write_config(tmp_path, bus), notifier=Notifier(env={}))
+        engine = daemon.engine
+        try:
+            engine.start(daemon.clock.now())
+            now = daemon.clock.now()
+            msgs = [can.Message(timestamp=now, arbitration_id=BMS_ID, data=bms_data(12.0)),
+                    can.Message(timestamp=now + 100.0, arbitration_id=BMS_ID, data=bms_data(13.0))]
+            daemon.take_received(engine, [("main", m, time.monotonic()) for m in msgs])
+            assert engine.ctx.health["/battery_state"].value("current") == 13.0
+            assert now <= engine.last_frame_t < now + 1.0
         finally:
             engine.finish(reason="test over")
             daemon.journal.close()

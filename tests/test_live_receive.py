@@ -21,7 +21,6 @@ from canguard.config.schema import BusConfig
 from canguard.engine.events import EventJournal, read_events
 from canguard.engine.gate import TaskGate
 from canguard.io.bus import BusReader, open_bus
-from canguard.io.frame import Frame
 from canguard.service.daemon import Daemon
 from canguard.service.systemd import Notifier
 from test_daemon import BmsFeeder, is_stop, is_task, unique_udp, write_config
@@ -40,9 +39,9 @@ def threads_named(name_prefix: str = "canguard-bus-") -> set[threading.Thread]:
     return {t for t in threading.enumerate() if t.name.startswith(name_prefix) and t.is_alive()}
 
 
-def collect(reader: BusReader, n: int) -> list[tuple[str, Frame, float]]:
+def collect(reader: BusReader, n: int) -> list[tuple[str, can.Message, float]]:
     """The next ``n`` frames :meth:`BusReader.receive` gives, as soon as they are there."""
-    out: list[tuple[str, Frame, float]] = []
+    out: list[tuple[str, can.Message, float]] = []
 
     def enough() -> bool:
         out.extend(reader.receive(0.05, n - len(out)))
@@ -182,6 +181,7 @@ class TestDirectReceive:
                 assert reader.direct
                 for i in range(20):
                     peers[i % 2].send(can.Message(arbitration_id=0x127, data=bytes([i]), is_extended_id=False))
+                    assert peers[i % 2].recv(5) is not None  # its loopback copy: the reader's socket holds it too
                 got = collect(reader, 20)
             assert [f.data[0] for _, f, _ in got] == list(range(20))
             assert [name for name, _, _ in got] == ["a", "b"] * 10
@@ -240,12 +240,44 @@ class TestDaemonReceivesDirectly:
                 assert not threads_named() - before
                 feeder.current_a = 40.0
                 receive_until(peer, is_stop, "Estop after the overcurrent")
-            assert daemon.engine.gate.state == TaskGate.STOPPED
+            # the stop frames leave first; the gate's state follows in the same step
+            wait_until(lambda: daemon.engine.gate.state == TaskGate.STOPPED, what="the task stopped")
         finally:
             daemon.request_stop("test over")
             thread.join(10)
             peer.shutdown()
         assert result == [0]
+
+    @pytest.mark.parametrize("filtered", [True, False])
+    def test_foreign_frames_are_not_taken_and_a_configured_one_still_trips(self, tmp_path: Path,
+                                                                         filtered: bool) -> None:
+        """Frames of ids the config does not read never reach the engine (``filter: false``: they are counted
+        as skipped), and the overcurrent after them still brings the Estop."""
+        bus = unique_udp()
+        edit = None if filtered else lambda doc: doc["buses"]["main"].update(filter=False)
+        daemon = Daemon(write_config(tmp_path, bus, edit=edit), notifier=Notifier(env={}))
+        peer = can.Bus(**bus)
+        thread = threading.Thread(target=daemon.run, name="daemon", daemon=True)
+        thread.start()
+        try:
+            with BmsFeeder(peer) as feeder:
+                receive_until(peer, is_task, "task frame while the current is normal")
+                with feeder.held:
+                    for i in range(40):
+                        peer.send(can.Message(arbitration_id=0x600 + i, data=bytes(8), is_extended_id=False))
+                        peer.send(can.Message(arbitration_id=0x1ABC00 + i, data=bytes(8), is_extended_id=True))
+                    feeder.current_a = 40.0
+                receive_until(peer, is_stop, "Estop after the overcurrent")
+            decoder = daemon.engine.decoder
+            if not filtered:
+                wait_until(lambda: decoder.skipped >= 80, what="the 80 foreign frames counted")
+        finally:
+            daemon.request_stop("test over")
+            thread.join(10)
+            peer.shutdown()
+        if filtered:  # the loop has ended: every frame it received was taken
+            assert decoder.skipped == 0
+            assert daemon.reader.received["main"] == decoder.frames
 
 
 class TestJournalSyncsInBackground:
@@ -290,8 +322,8 @@ class TestJournalSyncsInBackground:
 
     def test_flushes_within_the_interval_share_one_fsync_made_in_time(self, tmp_path: Path,
                                                                      monkeypatch: pytest.MonkeyPatch) -> None:
-        """After an fsync, the flushes of the next sync_interval_s share one fsync, made at its end without
-        another flush: a flushed line lags on disk by the interval (and the disk's sync time), no more."""
+        """A flush's fsync comes sync_interval_s later, never at once (a stop's flush starts no disk stall),
+        shared by the flushes meanwhile: a flushed line lags on disk by the interval (and the disk's sync time)."""
         path = tmp_path / "events.jsonl"
         synced: list[tuple[float, int]] = []  # (when, file size) at each fsync of the journal's file
         real = os.fsync
@@ -305,8 +337,10 @@ class TestJournalSyncsInBackground:
         journal = EventJournal(path, sync_in_background=True, sync_interval_s=0.3)
         try:
             journal.write({"event": "start", "reason": "first"})
+            flushed = time.monotonic()
             journal.flush()
             wait_until(lambda: synced, what="the first fsync")
+            assert synced[0][0] - flushed >= 0.25
             for k in range(20):
                 journal.write({"event": "trip", "reason": f"trip {k}"})
                 journal.flush()
@@ -315,6 +349,28 @@ class TestJournalSyncsInBackground:
             assert synced[1][0] - synced[0][0] >= 0.25  # not at once: at the end of the interval
             assert synced[1][1] == size  # every line flushed meanwhile, in that one fsync
             assert len(synced) == 2
+        finally:
+            journal.close()
+
+    def test_flushes_that_never_pause_still_reach_the_disk_within_the_interval(
+            self, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+        """Flushes without a pause do not put the fsync off: the lines are synced an interval after the first one."""
+        synced: list[float] = []
+        real = os.fsync
+
+        def recording(fd: int) -> None:
+            if threading.current_thread().name == "canguard-journal-fsync":
+                synced.append(time.monotonic())
+            real(fd)
+
+        monkeypatch.setattr(os, "fsync", recording)
+        journal = EventJournal(tmp_path / "events.jsonl", sync_in_background=True, sync_interval_s=0.2)
+        try:
+            first = time.monotonic()
+            while not synced and time.monotonic() - first < 5.0:
+                journal.write({"event": "trip", "reason": "again"})
+                journal.flush()
+            assert synced and synced[0] - first < 0.2 + 1.0  # the interval, and a loaded machine's slack
         finally:
             journal.close()
 

@@ -65,6 +65,28 @@ class TestStopAndResume:
         assert t == 3.5 and fields == {"node": "ExecuteTask", "reason": "stopped for 2.500 s"}
         assert g.state == TaskGate.RUNNING and g.stop_since is None
 
+    def test_stop_frames_sent_ahead_go_out_once_and_the_stop_follows_even_without_a_halt(self) -> None:
+        """Frames sent ahead of a sure halt are not sent again by it; a tick that does not halt still stops."""
+        rec = Recorder()
+        g = gate(rec)
+        g.halts_next = lambda: True
+        tick(g, 0.0)
+        for halt in (True, False):
+            stops = len(rec.named("stop"))
+            g.ahead(1.0)
+            assert rec.frames[-1] == ("stop", "Estop") and g.state == TaskGate.RUNNING
+            assert len(rec.named("stop")) == stops  # recorded in the tick, after the frames
+            g.begin_tick()
+            if halt:
+                g.halt("ExecuteTask", 1.0)
+            g.end_tick(1.0, False)
+            assert g.state == TaskGate.STOPPED and rec.frames.count(("stop", "Estop")) == 1
+            assert rec.named("stop")[-1][1]["reason"] == ("ExecuteTask halted" if halt else
+                                                          "stop frames sent at a guard's trip; the tree did not "
+                                                          "halt the task")
+            tick(g, 1.1)  # released
+            rec.frames.clear()
+
     def test_stopped_time_adds_up_over_stops(self) -> None:
         rec = Recorder()
         g = gate(rec)
@@ -104,11 +126,11 @@ class TestStopAndResume:
         assert rec.named("reason")[0][1]["previous"] == "overcurrent"
         g.release("bus main")
         g.release("source bms")
-        assert not g.may_release(1.4) and not g.may_release(1.4, failed=True)
+        assert g._release_rule(1.4, False) and g._release_rule(1.4, True)
         g.begin_tick()
         g.run("ExecuteTask", 1.4)
         g._reset_this_tick = True
-        assert g.may_release(1.4) and not g.may_release(1.4, failed=True)
+        assert not g._release_rule(1.4, False) and g._release_rule(1.4, True)
 
     def test_a_stop_resets_and_confirmation_state_after_resume(self) -> None:
         rec = Recorder()

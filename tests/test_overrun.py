@@ -12,11 +12,11 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
+import can
 import yaml
 
 from canguard.config.loader import load_config
 from canguard.engine.gate import TaskGate
-from canguard.io.frame import Frame
 from canguard.service.daemon import OVERRUN_FLOOR_S, overrun_limit
 from test_daemon import (
     BMS_ID,
@@ -46,7 +46,7 @@ class TestOverrun:
         limit = daemon.overrun_limit_s
         with BmsFeeder(peer):
             receive_until(peer, is_task, "task frame")
-            late = Frame(daemon.clock.now(), "main", BMS_ID, bms_data(10.0), True)
+            late = can.Message(timestamp=daemon.clock.now(), arbitration_id=BMS_ID, data=bms_data(10.0))
             daemon.reader.queue.put(("main", late, time.monotonic() - 2 * limit))  # waited twice the limit
             receive_until(peer, is_stop, "Estop once the daemon is behind")
             wait_until(lambda: len(overruns(inproc.events)) >= 2, what="the overrun event and its caught-up one")

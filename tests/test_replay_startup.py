@@ -73,8 +73,10 @@ def replay_loads(log: Path, modules: tuple[str, ...]) -> str:
 
 
 def test_plain_replay_imports_neither_process_pool_nor_matplotlib(logs: list[Path]) -> None:
-    """A replay without --jobs N or --plot does not import concurrent.futures.process or matplotlib."""
-    assert replay_loads(logs[0], ("concurrent.futures.process", "matplotlib")) == "LOADED 0"
+    """A replay without --jobs N, --plot or --export-signals imports neither a process pool, matplotlib, the
+    export writer."""
+    modules = ("concurrent.futures.process", "matplotlib", "canguard.report.export")
+    assert replay_loads(logs[0], modules) == "LOADED 0"
 
 
 def test_tree_without_scripts_or_palette_imports_neither(logs: list[Path]) -> None:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import itertools
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -118,6 +120,41 @@ def guard_coverage(loaded: LoadedTree) -> list[str]:
                     f"or a dead sensor; put them under a ReactiveSequence to guard the task at every tick"
                 )
     return out
+
+
+def halt_ahead(loaded: LoadedTree) -> Callable[[], bool] | None:
+    """What says, at a protection model's edge, that the coming tick halts the running task: ExecuteTask runs and a
+    model of a guard whose failure surely halts it has tripped (the model's peak latch fails the guard at that
+    tick). None when no guard is such (the config actions' roles assigned first).
+
+    A guard's failure surely halts the task when the guard and every node above it are ReactiveSequences'
+    children without pre-/post-conditions (each tick starts at the first child; a failing child fails the
+    sequence and halts its running children; a RUNNING child before it halts all the others), ExecuteTask is
+    the tree's one task node and lies in no child before the guard's branch, and no port of the guard is
+    wired (a ``{key}`` threshold may change in the tick).
+    """
+    from canguard.bt.nodes.actions import ConfiguredAction, ExecuteTask
+    from canguard.bt.nodes.base import RUNNING
+    from canguard.bt.nodes.sequences import ReactiveSequence
+
+    nodes = list(loaded.root.iterate())
+    tasks = [n for n in nodes if isinstance(n, ExecuteTask) or (isinstance(n, ConfiguredAction) and n.role == "task")]
+    if len(tasks) != 1 or not isinstance(tasks[0], ExecuteTask):
+        return None
+    task = tasks[0]
+
+    def halts(guard: Any) -> bool:
+        path = _path_to(guard)
+        if guard.wired_keys() or any("tick" in vars(n) for n in path):  # conditions wrap a node's own tick
+            return False
+        return all(type(parent) is ReactiveSequence and not any(task in c.iterate() for c in
+                                                                parent.children[:parent.children.index(child)])
+                   for child, parent in itertools.pairwise(path))
+
+    models = [m for g in loaded.guard_nodes() if halts(g) for _, m, _ in g.guarded()]
+    if not models:
+        return None
+    return lambda: task.status == RUNNING and any(m.tripped for m in models)
 
 
 def _with_stop_roles(text: str, root: py_trees.behaviour.Behaviour, stop: Any) -> str:

@@ -12,6 +12,7 @@ from canguard.bt.checks import (
     check_tree,
     context_for,
     guard_coverage,
+    halt_ahead,
     load_config_tree,
     partial_tree_problems,
     require_guard_coverage,
@@ -22,6 +23,6 @@ from canguard.bt.loaded import GuardView, LoadedTree
 from canguard.bt.nodes.base import node_kind
 from canguard.bt.registry import build_registry
 
-__all__ = ["GuardView", "LoadedTree", "build_registry", "check_tree", "context_for", "guard_coverage",
+__all__ = ["GuardView", "LoadedTree", "build_registry", "check_tree", "context_for", "guard_coverage", "halt_ahead",
            "load_config_tree", "load_tree", "node_kind", "nodes_model_xml", "partial_tree_problems", "render_dot",
            "render_text", "require_guard_coverage", "show_tree"]

@@ -49,7 +49,8 @@ def describe(cfg: Config, verbose: bool = False) -> str:
              *_dbc_notes(cfg.dbc_notes, verbose), "buses:"]
     for name, bus in cfg.buses.items():
         more = "".join(f", {k}={v!r}" for k, v in bus.kwargs.items() if k not in ("interface", "channel"))
-        lines.append(f"  {name}: interface {bus.interface}, channel {bus.channel}{more}")
+        every = "" if bus.filter else "; filter: false (every frame received)"
+        lines.append(f"  {name}: interface {bus.interface}, channel {bus.channel}{more}{every}")
     if cfg.canopen:
         lines.append("canopen:")
         for drive in cfg.canopen.values():

@@ -192,9 +192,9 @@ def summary_text(engine: Any, trips: list[tuple[float, dict[str, Any]]], stop_wa
              f"  trips: {len(trips)}; stops: {engine.gate.stops}; stopped "
              f"{engine.gate.stopped_total(engine.clock.now()):.2f} s; escalations "
              f"{engine.events_seen['escalate']}, confirmations {engine.events_seen['confirmed']}"]
-    for wall, ev in trips:
+    for _wall, ev in trips:
         t = float(ev.get("t", math.nan))  # the triggering frame's bus time: wall time, as the stop's send
-        after = next((s for s in stop_walls if s >= wall - 0.001), None)
+        after = next((s for s in stop_walls if s >= t - 0.001), None)  # the stop leaves before the trip is recorded
         latency = "no new stop (already stopped)" if after is None else \
             f"stop frames out {1000 * (after - t):.2f} ms after the trip's time"
         unit = trip_unit(engine, ev)

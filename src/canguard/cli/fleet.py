@@ -2,14 +2,11 @@
 
 from __future__ import annotations
 
-import glob
 import sys
 from collections.abc import Callable, Sequence
-from functools import partial
 from pathlib import Path
 from typing import Any
 
-from canguard.cli.heap import lean_after
 from canguard.errors import ConfigError
 from canguard.io.bagopts import is_bag
 from canguard.io.logs import LOG_SUFFIXES
@@ -46,6 +43,8 @@ def expand_logs(given: Sequence[Path]) -> list[Path]:
                                   f"optionally + {' / '.join(COMPRESSIONS)})")
             out.extend(found)
         elif any(ch in text for ch in "*?[") and not item.exists():
+            import glob
+
             found = sorted(Path(p) for p in glob.glob(text, recursive=True) if Path(p).is_file())
             if not found:
                 raise ConfigError(f"replay: {text}: the pattern matches no file")
@@ -103,7 +102,7 @@ def run_dask(address: str, job: Callable[[Any], Any], jobs: list[Any]) -> list[A
         raise ConfigError(f"--dask {address}: cannot reach the scheduler: {exc}") from None
     progress = Progress(len(jobs))
     try:
-        futures = client.map(partial(lean_after, job), jobs, pure=False)
+        futures = client.map(job, jobs, pure=False)
         index = {f.key: i for i, f in enumerate(futures)}
         results: list[Any] = [None] * len(jobs)
         for future in as_completed(futures):

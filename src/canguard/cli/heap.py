@@ -1,19 +1,19 @@
-"""A replay on a Dask worker keeps the memory it frees until the replay ends, then gives it back.
+"""A replay keeps the memory it frees until it ends, then gives it back.
 
-Dask's nanny sets ``MALLOC_TRIM_THRESHOLD_``, which turns glibc's adaptive thresholds off: every
-large buffer a replay makes and frees block after block is then a fresh ``mmap`` and a trim (12-30 %
-more CPU). :func:`keep_freed_memory` raises the trim and mmap thresholds while replays run and puts
-the environment's back (and trims once) when the last ends; it does nothing without that variable
-or without glibc's ``mallopt``.
+A replay makes and frees large buffers block after block. glibc gives freed memory at the top of
+its heap back to the kernel past a trim threshold (128 KiB, adaptive; fixed where Dask's nanny sets
+``MALLOC_TRIM_THRESHOLD_``), so each block faults its pages in again. :func:`keep_freed_memory` raises
+the trim and mmap thresholds while replays run and puts the environment's (or glibc's defaults) back,
+and trims once, when the last ends; it does nothing without glibc's ``mallopt``.
 """
 
 from __future__ import annotations
 
 import os
 import threading
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from contextlib import contextmanager
-from typing import Any, TypeVar
+from typing import Any
 
 M_TRIM_THRESHOLD = -1
 M_MMAP_THRESHOLD = -3
@@ -21,12 +21,12 @@ M_MMAP_THRESHOLD = -3
 KEEP_BYTES = 32 << 20
 """The thresholds while a replay runs: freed blocks of up to 32 MiB stay in the heap (glibc's own adaptive
 ceiling on 64-bit)."""
-DEFAULT_MMAP_THRESHOLD = 128 * 1024
+DEFAULT_THRESHOLD = 128 * 1024
+"""glibc's default trim and mmap thresholds."""
 
 _lock = threading.Lock()
 _running = 0
 _libc: Any = None
-_T = TypeVar("_T")
 
 
 def _glibc() -> Any:
@@ -52,9 +52,9 @@ def _env_bytes(name: str, default: int) -> int:
 
 @contextmanager
 def keep_freed_memory() -> Iterator[None]:
-    """Within: freed memory stays in the heap (when the environment had turned glibc's adaptive thresholds off)."""
+    """Within: freed memory stays in the heap."""
     global _running
-    libc = _glibc() if "MALLOC_TRIM_THRESHOLD_" in os.environ else None
+    libc = _glibc()
     if libc is None:
         yield
         return
@@ -69,12 +69,7 @@ def keep_freed_memory() -> Iterator[None]:
         with _lock:
             _running -= 1
             if _running == 0:
-                libc.mallopt(M_MMAP_THRESHOLD, _env_bytes("MALLOC_MMAP_THRESHOLD_", DEFAULT_MMAP_THRESHOLD))
-                libc.mallopt(M_TRIM_THRESHOLD, _env_bytes("MALLOC_TRIM_THRESHOLD_", 0))
+                libc.mallopt(M_MMAP_THRESHOLD, _env_bytes("MALLOC_MMAP_THRESHOLD_", DEFAULT_THRESHOLD))
+                libc.mallopt(M_TRIM_THRESHOLD, _env_bytes("MALLOC_TRIM_THRESHOLD_", DEFAULT_THRESHOLD))
                 libc.malloc_trim(0)
 
-
-def lean_after(job: Callable[[_T], Any], arg: _T) -> Any:
-    """``job(arg)`` within :func:`keep_freed_memory`: what a Dask worker runs for one log."""
-    with keep_freed_memory():
-        return job(arg)

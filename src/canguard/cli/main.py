@@ -271,10 +271,11 @@ def parse_args(parser: argparse.ArgumentParser, argv: Sequence[str] | None = Non
     return args
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of the ``canguard`` console script; returns the exit code."""
-    one_blas_thread()  # before anything imports numpy
-    parser = build_parser(_command_in(sys.argv[1:] if argv is None else argv))
+def main(argv: Sequence[str] | None = None, parser: argparse.ArgumentParser | None = None) -> int:
+    """Entry point of the ``canguard`` console script; returns the exit code (``parser``: built already)."""
+    if parser is None:
+        one_blas_thread()  # before anything imports numpy
+        parser = build_parser(_command_in(sys.argv[1:] if argv is None else argv))
     args = parse_args(parser, argv)
     level = logging.WARNING - 10 * min(args.verbose, 2)
     logging.basicConfig(level=level, format="%(asctime)s %(name)s %(levelname)s: %(message)s")
@@ -310,13 +311,19 @@ def main(argv: Sequence[str] | None = None) -> int:
 def console() -> int:
     """The process's entry point (console script, ``python -m canguard``): :func:`main`, then exit.
 
-    The heap is frozen before exit so that Python's collector does not walk every imported object
-    (~30 ms after a replay); not in :func:`main`, which tests and embedding programs call.
+    The objects the command's imports make live until exit: the collector is off while they are made
+    (a tenth of a short replay's start) and they are frozen out of its walks after, as the whole heap is
+    before exit (~30 ms after a replay); not in :func:`main`, which tests and embedding programs call.
     """
     from canguard.cli.deferred import defer_unused
 
     defer_unused()
-    code = main()
+    one_blas_thread()  # before anything imports numpy
+    gc.disable()
+    parser = build_parser(_command_in(sys.argv[1:]))
+    gc.freeze()
+    gc.enable()
+    code = main(parser=parser)
     gc.freeze()
     return code
 

@@ -37,6 +37,7 @@ class _ReplayDaemon(Daemon):
 
     refuse_virtual = False
     watch = False
+    filters = False  # the summary counts every frame played, and the player waits until each was fed
 
     def __init__(self, cfg: Config, *, state: Path | None, emit: TextIO | None) -> None:
         self._state_path = state

@@ -129,9 +129,11 @@ def replay_one(cfg: Config, log_path: Path, opts: ReplayOptions) -> dict[str, An
 
 
 def _mcap_export(opts: ReplayOptions) -> bool:
+    if opts.export is None:
+        return False
     from canguard.report.export import is_mcap
 
-    return opts.export is not None and is_mcap(opts.export)
+    return is_mcap(opts.export)
 
 
 def _outputs(stack: ExitStack, engine: Engine, sink: LogSink, opts: ReplayOptions, log: str) -> None:
@@ -273,10 +275,14 @@ def _config_of(ref: ConfigRef) -> Config:
 
 
 def _job(args: tuple[Config | ConfigRef, Path, ReplayOptions]) -> tuple[dict[str, Any] | None, str]:
-    """Replay one log: with the config loaded by :func:`cmd_replay`, or (a --jobs / --dask worker) its reference."""
+    """Replay one log (freed memory kept until it ends): with the config loaded by :func:`cmd_replay`, or (a
+    --jobs / --dask worker) its reference."""
+    from canguard.cli.heap import keep_freed_memory
+
     cfg, log, opts = args
     try:
-        return replay_one(cfg if isinstance(cfg, Config) else _config_of(cfg), log, opts), ""
+        with keep_freed_memory():
+            return replay_one(cfg if isinstance(cfg, Config) else _config_of(cfg), log, opts), ""
     except CanguardError as exc:
         return None, str(exc)
 
@@ -484,10 +490,10 @@ def _report(args: argparse.Namespace, results: list[tuple[dict[str, Any] | None,
 def _export_path(path: Path | None, log: Path, many: bool, index: int) -> Path | None:
     """Where log number ``index`` writes ``--export-signals``: its Parquet part (joined after the run), or its own
     MCAP file (``FILE.<log name>.mcap`` of several logs)."""
-    from canguard.report import export
-
     if path is None:
         return None
+    from canguard.report import export
+
     return per_log_path(path, log, many) if export.is_mcap(path) else export.part_path(path, index)
 
 

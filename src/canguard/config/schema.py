@@ -18,10 +18,12 @@ NON_VALUE_ROLES = frozenset({"present", "counter", "nmt", "emcy", "emcy_code", "
 
 @dataclass(frozen=True)
 class BusConfig:
-    """One python-can bus: ``kwargs`` are passed to ``can.Bus(**kwargs)`` as given."""
+    """One python-can bus: ``kwargs`` are passed to ``can.Bus(**kwargs)`` as given (all but ``filter``)."""
 
     name: str
     kwargs: Mapping[str, Any]
+    filter: bool = True
+    """Receive only the frames the config reads (the kernel's filters on SocketCAN); False: every frame."""
 
     @property
     def interface(self) -> str:

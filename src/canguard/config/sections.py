@@ -61,7 +61,12 @@ def buses(c: Checks, value: Any) -> dict[str, BusConfig]:
                 interface not in _BUILT_IN_INTERFACES and interface not in _valid_interfaces()):
             c.problem(_path(key, "interface"), _found(interface),
                       "a python-can interface" + _closest(interface, _valid_interfaces()))
-        result[name] = BusConfig(name=name, kwargs=MappingProxyType(dict(kwargs)))
+        only = kwargs.get("filter", True)
+        if not isinstance(only, bool):
+            c.problem(_path(key, "filter"), _found(only),
+                      "true (receive only the frames the config reads) or false (every frame)")
+        args = {k: v for k, v in kwargs.items() if k != "filter"}
+        result[name] = BusConfig(name=name, kwargs=MappingProxyType(args), filter=only is not False)
     c.bus_names = tuple(result)
     return result
 

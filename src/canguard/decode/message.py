@@ -258,8 +258,6 @@ class MessageDecoder:
         n = len(lengths)
         if not n:
             return []
-        if type(lengths) is not np.ndarray:
-            lengths = np.asarray(lengths, dtype=np.int64)
         one = n == 1  # a block of one: the row's Python numbers, not one-row columns
         length: Any = int(lengths[0]) if one else lengths
         first, padded = self.lengths
@@ -270,7 +268,17 @@ class MessageDecoder:
             decodable, values, pages = self._read_cantools(payload, lengths, n)
         else:
             ops = _Numbers if one else _Columns
-            lanes = self._lanes(payload, one)
+            lanes = []  # loops, not comprehensions: no function object per block (Python < 3.12)
+            if one:  # the row's words as Python numbers
+                data = payload.tobytes()
+                if len(data) != self.width:
+                    data = data[:self.width].ljust(self.width, b"\0")
+                for words in self._row_words:
+                    lanes.append(words(data))
+            else:  # the block's word columns
+                view = (payload if payload.shape[1] == self.width else _fit(payload, self.width)).view
+                for dtype in self._dtypes:
+                    lanes.append(view(dtype).T)
             values = []
             if self._guard and not one:
                 with np.errstate(all="ignore"):  # a float scaled past the largest float: inf, as in Python
@@ -297,24 +305,6 @@ class MessageDecoder:
         if one:
             return OneRow(EMPTY if empty is not None and empty else None, lambda k: self._verdict(read, k, True))
         return ColumnRows(n, carried, ok ^ True, empty, lambda k: self._verdict(read, k, False))
-
-    def _lanes(self, payload: np.ndarray, one: bool) -> Lanes:
-        """The payload's :data:`Lanes`: a block's word columns, or a block of one's words as Python numbers."""
-        width = self.width
-        lanes = []  # loops, not comprehensions: no function object per block (Python < 3.12)
-        if one:
-            data = payload.tobytes()
-            if len(data) != width:
-                data = data[:width].ljust(width, b"\0")
-            for words in self._row_words:
-                lanes.append(words(data))
-            return lanes
-        if payload.shape[1] != width:
-            payload = _fit(payload, width)
-        view = payload.view
-        for dtype in self._dtypes:
-            lanes.append(view(dtype).T)
-        return lanes
 
     def _multiplexers(self, lanes: Lanes, ops: Any) -> tuple[Column | None, list[Column | None]]:
         """The rows cantools would decode (their selected multiplexers hold values some signal is multiplexed

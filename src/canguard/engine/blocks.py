@@ -3,9 +3,9 @@
 A block of frames (:meth:`Engine.take <canguard.engine.core.Engine.take>`: a live bus's
 queue drained, or a log's block) reaches the engine's block runner
 (:class:`~canguard.engine.logrun.LogRun`). In a block (:class:`~canguard.io.block.Block`) the rows of each
-configured message are decoded together (:meth:`MessagePlan.decode`: the message's
-:class:`~canguard.decode.message.MessageDecoder`, the same object that decodes a live frame;
-checked together: NaN, inf, the DBC range, the multiplexer, presence flags).
+configured message are decoded together (:func:`~canguard.engine.blockrows.decode_rows`: the
+message's :class:`~canguard.decode.message.MessageDecoder`, the same object that decodes a live
+frame; checked together: NaN, inf, the DBC range, the multiplexer, presence flags).
 
 Then the rows, in time order up to the next due time (a tick, a gate deadline), are taken
 by :func:`take_runs`, the one way a frame's samples change anything: each source's health
@@ -27,7 +27,6 @@ from collections.abc import Sequence
 from itertools import chain
 from typing import TYPE_CHECKING, Any
 
-from canguard.decode.rows import Row
 from canguard.protect.staleness import ROW_ROLES
 
 if TYPE_CHECKING:
@@ -35,7 +34,6 @@ if TYPE_CHECKING:
     from canguard.decode.decoder import DecodeCounters
     from canguard.decode.message import MessageDecoder
     from canguard.engine.stats import EngineStats
-    from canguard.io.block import Block
     from canguard.io.frame import Sample
     from canguard.protect.staleness import SourceHealth
 
@@ -93,22 +91,6 @@ class MessagePlan:
         """Each output's samples taken through :meth:`take_samples` since the last :meth:`flush`."""
         self.index = {(source, role): j for j, (source, role, *_rest) in enumerate(self.outputs)}
         """Each output's index by (source, role): where a decoded sample goes."""
-
-    # -- the columns -------------------------------------------------------------------
-    def decode(self, block: Block, rows: Any) -> Sequence[Row]:
-        """Each of ``rows``' configured values (in output order), ``EMPTY``, or None: the row goes to the frame decoder.
-
-        The rows :meth:`MessageDecoder.decode <canguard.decode.message.MessageDecoder.decode>`
-        gives over ``rows``' payloads and lengths (None: a wrong length, a payload cantools would
-        refuse, a value NaN, infinite or outside the DBC range, a presence flag at 0, some
-        configured signals of a multiplexed message but not all); every row when the message
-        carries an alive counter or a drive's health role.
-        """
-        if self.counter:
-            return [None] * len(rows)
-        if len(rows) == block.n:  # every row of the block (a live frame's)
-            return self.entry.decode(block.payload, block.length)
-        return self.entry.decode(block.payload_rows(rows), block.length[rows])
 
     # -- one row ------------------------------------------------------------------------
     def take_row(self, values: tuple[float, ...], t: float) -> bool:
@@ -228,10 +210,7 @@ def take_runs(runs: Sequence[tuple[MessagePlan, Any, Any, list[Any]]]) -> tuple[
     """
     if len(runs) == 1 and len(runs[0][1]) == 1:  # one row (a live frame): a run of one for each
         plan, rows, ts, columns = runs[0]
-        values = []  # a loop, not a comprehension: no function object per row (Python < 3.12)
-        for column in columns:
-            values.append(float(column[0]))
-        return int(rows[0]), plan.take_row(tuple(values), float(ts[0]))
+        return int(rows[0]), plan.take_row(tuple(map(float, next(zip(*columns, strict=True)))), float(ts[0]))
     units: list[_Unit] = []
     health_units: dict[int, _Unit] = {}
     last = -1
@@ -251,7 +230,8 @@ def take_runs(runs: Sequence[tuple[MessagePlan, Any, Any, list[Any]]]) -> tuple[
     for key, (health, _rows, parts) in health_units.items():
         if len(parts) > 1:  # several messages of one source: every row of theirs, in order
             at = next(i for i, unit in enumerate(units) if unit[0] is health)
-            units[at] = health_units[key] = (health, sorted(chain.from_iterable(part[3] for part in parts)), parts)
+            every = sorted(chain.from_iterable(_ints(part[3]) for part in parts))
+            units[at] = health_units[key] = (health, every, parts)
     bound, edge = _advance_units(units, last)
     for plan, rows, _ts, columns in runs:
         m = len(rows) if bound == last else bisect_right(rows, bound)

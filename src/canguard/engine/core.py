@@ -40,7 +40,7 @@ from canguard.engine.logrun import MAX_CATCH_UP_S, LogCursor, LogRun
 from canguard.engine.quiet import QuietTicks
 from canguard.engine.stats import EngineStats, EventSink, TickObserver
 from canguard.engine.watch import SourceWatch
-from canguard.io.block import Block
+from canguard.io.block import Block, one_block
 from canguard.io.clock import Clock, PinnedClock
 from canguard.io.frame import Frame
 from canguard.protect.base import LatchedModel
@@ -81,7 +81,8 @@ class Engine:
         on_event: Callable[[dict[str, Any]], None] | None = None,
         previous: Engine | None = None,
     ) -> None:
-        from canguard.bt.loader import load_tree, require_guard_coverage  # the node library pulls in py_trees' parser
+        # the node library pulls in py_trees' parser
+        from canguard.bt.loader import halt_ahead, load_tree, require_guard_coverage
 
         if cfg.tree is None:
             from canguard.errors import ConfigError
@@ -135,6 +136,7 @@ class Engine:
         from canguard.bt.nodes.actions import assign_roles
 
         self.gate.tree_has_task = assign_roles(self.root)
+        self.gate.halts_next = halt_ahead(self.loaded)
         ages = [s.max_age_s for s in cfg.sources.values()]
         self._gap_horizon_s = max(ages, default=0.0) + MAX_CATCH_UP_S
         """How much of a gap is ticked through before the rest is jumped: every source goes stale in it."""
@@ -288,13 +290,15 @@ class Engine:
         """Process one frame received on ``bus`` at ``frame.t``: :meth:`take` of a block of one."""
         cursor = self._live
         cursor.route, cursor.default_bus = _NO_ROUTE, bus
-        self._blocks.take(Block.of_frames((frame,)), cursor)
+        self._blocks.take(one_block(frame), cursor)
 
     def edge_tick(self, t: float) -> None:
         """A sample at ``t`` changed a model's or a source's state: the tree ticks at once."""
         self._drive_clock(t)
         self.stats.edge_ticks += 1
-        self.tick(self.clock.now())
+        now = self.clock.now()
+        self.gate.ahead(now)  # a tick that surely halts the task: the stop frames leave first
+        self.tick(now)
 
     def runs_until(self, end_t: float, coming: Callable[[], Mapping[tuple[int, str], Any]]) -> float:
         """Until when a block's rows, the last at ``end_t``, may be taken as runs

@@ -1,37 +1,21 @@
 """The event journal: guard transitions, stops, stale sources... as JSON lines.
 
-One event is one line of JSON appended to the ``events:`` file of the config::
+One event is one line of JSON appended to the ``events:`` file of the config (docs/events.md). What the
+daemon relies on:
 
-    {"t":1700000000.123456,"event":"trip","node":"MotorCurrent","source":"left_drive",
-     "value":31.2,"threshold":30.0,"reason":"overcurrent"}
-
-Guarantees the daemon relies on:
-
-- **A line is whole, and nothing flushed is lost to a crash of the daemon.**
-  :meth:`EventJournal.write` hands the whole line to the kernel with one ``os.write``
-  on an ``O_APPEND`` descriptor before it returns, so a ``kill -9`` after it loses
-  nothing and never leaves half a line (the engine's
-  :class:`~canguard.engine.journal.Journal` holds a tick's events until the tick's
-  frames are sent, then writes them here at its flush).
-- **A power cut loses at most the last** ``sync_interval_s`` **(0.2 s).**
-  :meth:`EventJournal.flush` ``fsync``s the file. The live daemon's journal
-  (``sync_in_background=True``) hands that ``fsync`` to a thread of its own and
-  coalesces them: at most one ``fsync`` every ``sync_interval_s``, whatever the
-  number of flushes (on a VM or an SD card one ``fsync`` can stall the machine for
-  milliseconds). A flushed line is on the disk within ``sync_interval_s`` plus the
-  time the disk takes to sync; :meth:`EventJournal.close` syncs before it returns.
-- **Only appended.** Opening never truncates. Rotation by size renames
-  ``events.jsonl`` to ``events.jsonl.1`` after shifting the older backups up
-  (``.1`` -> ``.2`` -> ``.3`` ...) and by default never deletes one, so every line
-  ever written is kept; the highest number is the oldest file.
-- **Deterministic.** The first keys are always ``t, event, node, source, value,
-  threshold, reason`` (``null`` when the event has none), then the other keys
-  sorted; floats are rounded (``t`` to the microsecond, other values to 10
-  significant digits). A non-finite top-level number is written as ``null``
-  with its text in ``<key>_text`` (``"value": null, "value_text": "nan"``), so a
-  number field only ever holds a number or null and every line is valid JSON;
-  inside nested values NaN / ±inf are the strings ``"nan"``, ``"inf"``, ``"-inf"``. The same events give a
-  byte-identical file on every run, which is what makes replay comparable.
+- **A line is whole, and nothing flushed is lost to a crash of the daemon**: :meth:`EventJournal.write`
+  hands the whole line to the kernel with one ``os.write`` on an ``O_APPEND`` descriptor before it
+  returns (the engine's :class:`~canguard.engine.journal.Journal` holds a tick's events until the
+  tick's frames are sent).
+- **A power cut loses at most the last** ``sync_interval_s``: :meth:`EventJournal.flush` ``fsync``s
+  the file; with ``sync_in_background`` (the daemon) a thread of its own does, ``sync_interval_s``
+  after the first flush since its last one, for every flush meanwhile: the loop never waits for a
+  disk (on a VM or an SD card one ``fsync`` can stall the machine for milliseconds), and no ``fsync``
+  starts while a stop's frames travel. :meth:`EventJournal.close` syncs before it returns.
+- **Only appended**: opening never truncates; rotation by size shifts ``.1`` -> ``.2`` ... and by
+  default deletes none (the highest number is the oldest file).
+- **Deterministic**: :func:`~canguard.engine.event_codec.encode_event` (fixed first keys, rounded
+  floats, non-finite numbers as ``null`` with their text): the same events give a byte-identical file.
 """
 
 from __future__ import annotations
@@ -39,34 +23,23 @@ from __future__ import annotations
 import errno
 import json
 import logging
-import math
 import os
 import sys
 import threading
-import time
 from collections import deque
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from canguard.engine.event_codec import EVENT_TYPES, FIRST_KEYS, encode_event
+from canguard.engine.event_codec import encode_event
 from canguard.errors import LogFormatError, quote
-
-__all__ = [
-    "EVENT_TYPES",
-    "FIRST_KEYS",
-    "EventJournal",
-    "encode_event",
-    "journal_files",
-    "read_events",
-]
 
 log = logging.getLogger(__name__)
 
 DEFAULT_MAX_BYTES = 16 * 1024 * 1024
 
 SYNC_INTERVAL_S = 0.2
-"""A background-syncing journal's shortest time between two ``fsync``s: how long a flushed line may lag on disk."""
+"""A background-syncing journal's time from a flush to its ``fsync``: how long a flushed line may lag on disk."""
 
 _PENDING_MAX = 10_000
 """Lines kept in memory while the disk refuses them (full, read-only); older ones are dropped then."""
@@ -75,20 +48,14 @@ _PENDING_MAX = 10_000
 class EventJournal:
     """Appends events to a JSON-lines file, rotated by size, keeping every line.
 
-    ``path`` None gives a journal that only counts (``lines``, ``bytes_written``).
-    ``max_bytes`` is the size at which the file is rotated (a line is never split
-    across files, so a file may exceed it by one line); ``backups`` None keeps
-    every rotated file, an integer keeps that many and deletes older ones (opt-in:
-    the issue asks that every line be kept).
-
-    Thread-safe: receive threads may report ``bus_error`` events while the loop writes.
-    Disk errors (full disk, read-only file system) never raise out of
-    :meth:`write` or :meth:`flush`: they are logged once, counted in ``errors``,
-    and the lines are kept in memory (up to 10,000) and written on the next call
-    that succeeds, so a full disk cannot stop the guard. A line is in the file
-    whole or not at all (a short write is cut back with ``ftruncate``). Lines that
-    overflow the backlog, and lines still refused at :meth:`close`, are written to
-    stderr (the systemd journal), counted in ``to_stderr``.
+    ``path`` None only counts (``lines``, ``bytes_written``). ``max_bytes``: the size at which the file is
+    rotated (a line is never split, so a file may exceed it by one line); ``backups`` None keeps every
+    rotated file, an integer that many (opt-in). Thread-safe: receive threads may report ``bus_error``
+    events while the loop writes. Disk errors (full, read-only) never raise out of :meth:`write` or
+    :meth:`flush`: logged, counted in ``errors``, the lines kept in memory (up to 10,000) and written at the
+    next call that succeeds, so a full disk cannot stop the guard; a line is in the file whole or not at
+    all (a short write is cut back with ``ftruncate``). Lines that overflow the backlog or are still
+    refused at :meth:`close` go to stderr (the systemd journal), counted in ``to_stderr``.
     """
 
     def __init__(
@@ -133,9 +100,7 @@ class EventJournal:
         if self.path is not None:
             self._open()
         self.sync_interval_s = float(sync_interval_s)
-        """With ``sync_in_background``: the shortest time between two ``fsync``s (flushes in between share one)."""
-        self.syncs = 0
-        """``fsync``s of the file done so far (rotation's and close's included)."""
+        """With ``sync_in_background``: the time from a flush to its ``fsync`` (flushes in between share it)."""
         self._sync_due = threading.Event()
         self._sync_stop = threading.Event()
         self._syncer: threading.Thread | None = None
@@ -178,7 +143,6 @@ class EventJournal:
         """Rename the full file to ``.1`` after shifting older backups up; open a fresh one."""
         assert self.path is not None and self._fd is not None
         os.fsync(self._fd)
-        self.syncs += 1
         os.close(self._fd)
         self._fd = None
         self._dirty = False
@@ -222,23 +186,21 @@ class EventJournal:
             except OSError:
                 self._size = os.fstat(self._fd).st_size if self._fd_ok() else start
                 if self._size != start:  # some bytes went out before the error
-                    self._torn_at = start
-                    self._torn = True
-                    self._cut_torn()
+                    self._cut_torn(start)
                 raise
             if n != len(line):
-                self._size = start + n
-                self._torn_at = start
-                self._torn = True
-                self._cut_torn()
+                self._cut_torn(start)
                 raise OSError(errno.ENOSPC, f"{os.strerror(errno.ENOSPC)} (a short write: {n} of {len(line)} "
                                             "bytes; the partial line was cut back)")
             self._size += n
             self._dirty = True
             self._pending.popleft()
 
-    def _cut_torn(self) -> None:
-        """Remove the part of a line a short write left at the end of the file (``ftruncate``)."""
+    def _cut_torn(self, at: int | None = None) -> None:
+        """Remove the part of a line a short write left at the end of the file (``ftruncate`` to ``at``, the line's
+        start; None: where a cut that failed was to go)."""
+        if at is not None:
+            self._torn_at, self._torn = at, True
         assert self._fd is not None
         os.ftruncate(self._fd, self._torn_at)
         self._size = self._torn_at
@@ -303,19 +265,17 @@ class EventJournal:
                         self._sync_due.set()  # the sync thread waits for the disk, the caller does not
                         return
                     os.fsync(self._fd)
-                    self.syncs += 1
                     self._dirty = False
             except OSError as exc:
                 self._failed(exc, "fsync")
 
     def _sync_loop(self) -> None:
-        """The sync thread: when asked, and no sooner than ``sync_interval_s`` after its last one, ``fsync`` a
-        duplicate of the file's descriptor outside the lock; flushes meanwhile share that ``fsync``."""
-        last = -math.inf
+        """The sync thread: ``sync_interval_s`` after the first flush since its last ``fsync``, ``fsync`` a duplicate of
+        the file's descriptor outside the lock; the flushes meanwhile share it. Never at once: the flush at the end
+        of a stop's tick does not start a disk stall while the stop frames are on their way to their readers."""
         while True:
             self._sync_due.wait()
-            wait_s = last + self.sync_interval_s - time.monotonic()
-            if (wait_s > 0 and self._sync_stop.wait(wait_s)) or self._sync_stop.is_set():
+            if self._sync_stop.wait(self.sync_interval_s):
                 return  # close() syncs what is left itself
             self._sync_due.clear()  # a flush from here on asks for the next fsync
             with self._lock:
@@ -327,11 +287,8 @@ class EventJournal:
                     self._failed(exc, "fsync")
                     continue
                 self._dirty = False
-            last = time.monotonic()
             try:
                 os.fsync(fd)
-                with self._lock:
-                    self.syncs += 1
             except OSError as exc:
                 with self._lock:
                     self._dirty = True
@@ -370,11 +327,6 @@ class EventJournal:
             sys.stderr.flush()
         except (OSError, ValueError):
             log.error("event journal %s: %d line(s) lost (%s; stderr refused them too)", self.path, len(lines), why)
-
-    @property
-    def closed(self) -> bool:
-        """True once :meth:`close` was called."""
-        return self._closed
 
     @property
     def pending(self) -> int:

@@ -8,8 +8,9 @@ The :class:`TaskGate` turns the tree's decisions into frames:
   :meth:`TaskGate._release_rule` allows it; ExecuteTask's frames then go out at
   once and every ``task.period``, a task action's frames in the tick it ran.
 - ``halt()`` (ExecuteTask halted), ``stop()`` (the root returned FAILURE) or an
-  inhibit (a stale source, a bus down): stop frames go out at once, then every
-  ``stop.repeat`` until the stop is released. The stop latches: only
+  inhibit (a stale source, a bus down): stop frames go out at once (before the
+  stop's reason is worked out or recorded), then every ``stop.repeat`` until the
+  stop is released. The stop latches: only
   :meth:`TaskGate._release_rule` ends it (see README, "Stops").
 - While stopped, task actions' frames are withheld (counted in ``withheld``);
   recovery actions' frames go out. So in no tick do both task and stop frames go
@@ -28,6 +29,7 @@ from __future__ import annotations
 import logging
 import math
 import operator
+import os
 import time
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any, TextIO
@@ -40,14 +42,8 @@ from canguard.protect.staleness import SourceHealth
 
 log = logging.getLogger(__name__)
 
-_OPS: dict[str, Callable[[float, float], bool]] = {
-    "<": operator.lt,
-    "<=": operator.le,
-    ">": operator.gt,
-    ">=": operator.ge,
-    "==": operator.eq,
-    "!=": operator.ne,
-}
+_OPS: dict[str, Callable[[float, float], bool]] = {"<": operator.lt, "<=": operator.le, ">": operator.gt,
+                                                   ">=": operator.ge, "==": operator.eq, "!=": operator.ne}
 
 EventFn = Callable[..., None]
 
@@ -78,13 +74,15 @@ class TaskGate:
         self.stopped_s = 0.0
         """Total time spent stopped (closed intervals only; see :meth:`stopped_total`)."""
         self.stops = 0
-        self._next_task = math.inf
+        self.next_task_t = math.inf
+        """When the task's periodic frames are next due (inf: not running)."""
         self._next_stop = math.inf
-        self._confirm_pending = False
+        self.confirm_pending = False
+        """A stop waits for its confirmation (``stop.confirm``)."""
         self._ran_this_tick = False
         self.inhibits: dict[str, str] = {}
         """Reasons the task may not run whatever the tree says (a bus down, a stale source), by key."""
-        self.explain: Callable[[], str] | None = None
+        self.explain: Callable[[], str] = str
         """Says why the tree halted the task (the failing guards); set by the engine."""
         self.tree_has_task = True
         """False when the tree holds no ExecuteTask and no task action: a tick without FAILURE asks for the task."""
@@ -93,8 +91,11 @@ class TaskGate:
         self._asked_by = ""
         self._reset_this_tick = False
         self._queued: list[tuple[str, Sequence[FrameSpec], Callable[[str], None] | None]] = []
-        self._cause: tuple[str, str] | None = None
-        """(node, reason) that holds the stop, as last journalled; None right after a stop."""
+        self.cause: tuple[str, str] | None = None
+        """(node, reason) that holds the stop, as the last ``reason`` event said; None right after a stop."""
+        self.halts_next: Callable[[], bool] | None = None
+        """Says at a model's edge that the coming tick surely halts the running task (set by the engine)."""
+        self._ahead = False
 
     # -- driven by ExecuteTask -------------------------------------------------------------
     def run(self, node: str, now: float) -> None:
@@ -131,25 +132,37 @@ class TaskGate:
         return "reset requested"
 
     def halt(self, node: str, now: float) -> None:
-        """ExecuteTask was halted: stop the task at once."""
+        """ExecuteTask was halted: stop the task at once (why is worked out once the stop frames left)."""
         if self.state == self.RUNNING:
-            why = self.explain() if self.explain is not None else ""
-            self.stop(now, reason=f"{node} halted" + (f" ({why})" if why else ""), node=node)
+            self.stop(now, reason=lambda: f"{node} halted" + (f" ({why})" if (why := self.explain()) else ""),
+                      node=node)
 
     # -- driven by the engine --------------------------------------------------------------
-    def stop(self, now: float, reason: str, node: str = "") -> None:
-        """Stop the task (idempotent): stop frames at once, then every ``stop.repeat``."""
+    def stop(self, now: float, reason: str | Callable[[], str], node: str = "") -> None:
+        """Stop the task (idempotent): stop frames at once, then every ``stop.repeat``.
+
+        The frames leave first: ``reason`` (a callable: asked after the send) and the ``stop`` event follow.
+        """
         if self.state == self.STOPPED:
             return
         self.state = self.STOPPED
+        if not self._ahead:
+            self._send_stop(now)
+        self._ahead = False
         self.stop_since = now
-        self.stop_reason = reason
+        self.stop_reason = reason if isinstance(reason, str) else reason()
         self.stops += 1
-        self._next_task = math.inf
-        self._confirm_pending = self.stop_cfg.confirm is not None
-        self._cause = None
-        self._event("stop", now, node=node, reason=reason)
-        self._send_stop(now)
+        self.next_task_t = math.inf
+        self.confirm_pending = self.stop_cfg.confirm is not None
+        self.cause = None
+        self._event("stop", now, node=node, reason=self.stop_reason)
+
+    def ahead(self, now: float) -> None:
+        """At a model's edge, before its tick: when that tick surely halts the running task (:attr:`halts_next`),
+        the stop frames leave now, and the stop (its reason, its event) follows in the tick, or at its end."""
+        if self.state == self.RUNNING and self.halts_next is not None and self.halts_next():
+            self._send_stop(now)
+            self._ahead = True
 
     def inhibit(self, key: str, reason: str, now: float, node: str = "") -> None:
         """Hold the task stopped for ``key`` (stopping it now if it runs) until :meth:`release`."""
@@ -169,10 +182,10 @@ class TaskGate:
         self.stopped_s = old.stopped_s
         self.stops = old.stops
         self.inhibits = dict(old.inhibits)
-        self._next_task = old._next_task
+        self.next_task_t = old.next_task_t
         self._next_stop = old._next_stop
-        self._confirm_pending = old._confirm_pending and self.stop_cfg.confirm is not None
-        self._cause = old._cause
+        self.confirm_pending = old.confirm_pending and self.stop_cfg.confirm is not None
+        self.cause = old.cause
         self.withheld = old.withheld
 
     def resend_stop(self, now: float) -> None:
@@ -194,6 +207,8 @@ class TaskGate:
         Task action frames queued in the tick go out only if the task runs at its end.
         """
         queued, self._queued = self._queued, []
+        if self._ahead:  # stop frames sent ahead of a halt that did not come: they stand, the task stops
+            self.stop(now, reason="stop frames sent at a guard's trip; the tree did not halt the task")
         if self.state != self.RUNNING:
             hold = self._release_rule(now, failed)
             if not hold:
@@ -239,55 +254,36 @@ class TaskGate:
                 return "stop.release manual: waiting for ResetStop"
         return ""
 
-    def may_release(self, now: float, failed: bool = False) -> bool:
-        """True when :meth:`_release_rule` lets the task start or resume now."""
-        return not self._release_rule(now, failed)
-
     def _note_cause(self, now: float, cause: tuple[str, str]) -> None:
         """Journal a ``reason`` event when what holds the stop changes (the stop event said the first)."""
-        if self._cause is None:
-            self._cause = cause
+        if self.cause is None:
+            self.cause = cause
             return
-        if cause != self._cause:
-            previous = self._cause[1]
-            self._cause = cause
+        if cause != self.cause:
+            previous = self.cause[1]
+            self.cause = cause
             self._event("reason", now, node=cause[0], reason=cause[1], previous=previous)
 
     def service(self, now: float) -> None:
         """After each tick and between ticks: periodic task / stop frames, stop confirmation."""
-        if self.state == self.RUNNING and now >= self._next_task:
+        if self.state == self.RUNNING and now >= self.next_task_t:
             self._send_task(now)
         elif self.state == self.STOPPED:
             if now >= self._next_stop:
                 self._send_stop(now)
-            if self._confirm_pending:
+            if self.confirm_pending:
                 self._check_confirm(now)
 
     def next_deadline(self) -> float:
         """The earliest time :meth:`service` has something to do (inf when nothing)."""
         if self.state == self.RUNNING:
-            return self._next_task
+            return self.next_task_t
         if self.state == self.STOPPED:
             nxt = self._next_stop
-            if self._confirm_pending and self.stop_cfg.confirm is not None and self.stop_since is not None:
+            if self.confirm_pending and self.stop_cfg.confirm is not None and self.stop_since is not None:
                 nxt = min(nxt, self.stop_since + self.stop_cfg.confirm.deadline_s)
             return nxt
         return math.inf
-
-    @property
-    def cause(self) -> tuple[str, str] | None:
-        """(node, reason) of what holds the stop now, as the last ``reason`` event said; None: not stopped."""
-        return self._cause
-
-    @property
-    def confirm_pending(self) -> bool:
-        """A stop waits for its confirmation (``stop.confirm``)."""
-        return self._confirm_pending
-
-    @property
-    def next_task_t(self) -> float:
-        """When the task's periodic frames are next due (inf: not running)."""
-        return self._next_task
 
     @property
     def counts_only(self) -> bool:
@@ -298,12 +294,12 @@ class TaskGate:
     def count_task_through(self, last: float) -> None:
         """The task's periodic sends due up to ``last`` counted at once, as :meth:`service` at each deadline
         would count them; only while :attr:`counts_only` (quiet replay ticks)."""
-        task, period, sends = self._next_task, self.task_cfg.period_s, 0
+        task, period, sends = self.next_task_t, self.task_cfg.period_s, 0
         while task <= last:  # as service at each deadline (a tick at the same time goes first)
             sends += 1
             task += period
         if sends:
-            self._next_task = task
+            self.next_task_t = task
             sink = self.sink
             assert isinstance(sink, LogSink)
             sink.sent += sends * len(self.task_cfg.frames)
@@ -313,7 +309,7 @@ class TaskGate:
 
         The stop confirmation deadline is not moved: it is one deadline, not a period.
         """
-        self._next_task = max(self._next_task, t)
+        self.next_task_t = max(self.next_task_t, t)
         self._next_stop = max(self._next_stop, t)
 
     def stopped_total(self, now: float) -> float:
@@ -328,16 +324,16 @@ class TaskGate:
         self._event("resume", now, node=node, reason=f"stopped for {now - since:.3f} s")
         self.stop_since = None
         self._next_stop = math.inf
-        self._confirm_pending = False
-        self._cause = None
+        self.confirm_pending = False
+        self.cause = None
 
     def _send_task(self, now: float) -> None:
         if self.task_cfg.frames:
             self.sink.send(self.task_cfg.frames, "task")
         # Schedule from the previous deadline when on time, so the period does not drift;
         # after a late service, restart from now rather than bursting to catch up.
-        nxt = self._next_task + self.task_cfg.period_s
-        self._next_task = nxt if math.isfinite(nxt) and nxt > now else now + self.task_cfg.period_s
+        nxt = self.next_task_t + self.task_cfg.period_s
+        self.next_task_t = nxt if math.isfinite(nxt) and nxt > now else now + self.task_cfg.period_s
 
     def _send_stop(self, now: float) -> None:
         if self.stop_cfg.frames:
@@ -347,7 +343,7 @@ class TaskGate:
     def _check_confirm(self, now: float) -> None:
         confirm = self.stop_cfg.confirm
         if confirm is None or self.stop_since is None:
-            self._confirm_pending = False
+            self.confirm_pending = False
             return
         health = self.health.get(confirm.source)
         value = health.value(confirm.signal) if health is not None else math.nan
@@ -359,13 +355,13 @@ class TaskGate:
         # is not "below 1 A". Equality (an axis state) compares the value itself.
         measured = value if confirm.op in ("==", "!=") else abs(value)
         if fresh and after_stop and _OPS[confirm.op](measured, confirm.value):
-            self._confirm_pending = False
+            self.confirm_pending = False
             self._event(
                 "confirmed", now, source=confirm.source, value=value, threshold=confirm.value,
                 reason=f"{confirm.signal} {confirm.op} {confirm.value} after {now - self.stop_since:.3f} s",
             )
         elif now >= self.stop_since + confirm.deadline_s:  # next_deadline()'s own sum: (a + d) - a < d in floats
-            self._confirm_pending = False
+            self.confirm_pending = False
             if self.stop_cfg.escalate:
                 self.sink.send(self.stop_cfg.escalate, "escalate")
             self._event(
@@ -380,13 +376,8 @@ class TaskGate:
 
 
 class LogSink:
-    """Records sent frames: streamed to ``out`` as candump -L lines (``replay --emit``), kept, or counted.
-
-    ``out`` given: each frame is written as one candump -L line at once
-    (:func:`canguard.io.logs.format_candump_line`), so memory stays flat in the
-    log's length. ``keep`` True: frames are also kept in :attr:`frames` (tests).
-    Either way :attr:`sent` counts every frame.
-    """
+    """Records sent frames: streamed to ``out`` as candump -L lines at once (``replay --emit``: memory stays
+    flat in the log's length), kept in :attr:`frames` (``keep``: tests), and counted in :attr:`sent`."""
 
     def __init__(
         self, clock_now: Callable[[], float], buses: Mapping[str, BusConfig], *,
@@ -395,9 +386,7 @@ class LogSink:
         self._now = clock_now
         self._channel = {name: (b.channel or name) for name, b in buses.items()}
         self.out = out
-        """Where each frame is written as a candump -L line as it is sent (None: not written)."""
         self.keep = keep
-        """False: do not keep frames in memory (a replay stays flat in memory on long logs)."""
         self.sent = 0
         self.frames: list[Frame] = []
         self.origins: list[str] = []
@@ -426,6 +415,8 @@ class BusSink:
     A bus that went away refuses every frame: each refusal is counted (``failed``, ``on_error``),
     but reported (the stderr warning and ``on_refused``, the daemon's journal event) once a
     second per bus and origin, each report saying how many it stands for (:mod:`.ratelimit`).
+    Once the stop frames are out the loop yields the CPU: a process on this machine waiting for
+    them (a bridge, a logger) runs before the loop's bookkeeping of the stop.
     """
 
     def __init__(self, send: Callable[[str, Any], bool], on_error: EventFn | None = None,
@@ -434,6 +425,8 @@ class BusSink:
         import can  # only the live path needs python-can's Message
 
         self._message = can.Message
+        self._messages: dict[FrameSpec, Any] = {}
+        """Each frame's python-can Message, built at its first send (the specs are the config's, fixed)."""
         self._send = send
         self.on_error = on_error
         self.on_refused = on_refused
@@ -445,10 +438,12 @@ class BusSink:
 
     def send(self, frames: Sequence[FrameSpec], origin: str) -> None:
         """Hand each frame to its bus with timeout 0; a full queue or an error is counted, never raised."""
+        messages = self._messages
         for f in frames:
-            msg = self._message(
-                arbitration_id=f.arbitration_id, data=f.data, is_extended_id=f.is_extended_id, is_fd=f.is_fd
-            )
+            msg = messages.get(f)
+            if msg is None:
+                msg = messages[f] = self._message(arbitration_id=f.arbitration_id, data=f.data,
+                                                  is_extended_id=f.is_extended_id, is_fd=f.is_fd)
             if self._send(f.bus, msg):
                 self.sent += 1
                 continue
@@ -461,3 +456,5 @@ class BusSink:
             log.warning("could not send %s (%s) on bus %s%s", f.label, origin, f.bus, held_note(held))
             if self.on_refused is not None:
                 self.on_refused(f.bus, f.label, origin, held)
+        if origin == "stop":
+            os.sched_yield()

@@ -41,6 +41,8 @@ def configured_rows(keys: Any, tables: tuple[Any, Any, frozenset[int]]) -> Any:
     """The rows of a block whose id key has a plan, ascending: a list for a block of a few rows, else an index
     array."""
     table, every, known = tables
+    if keys.size == 1:  # a live frame
+        return [0] if keys.item(0) in known else []
     if keys.size <= _FEW:
         rows = []
         for i, key in enumerate(keys.tolist()):

@@ -167,7 +167,8 @@ class LogRun:
             return
         block, buses = routed
         per_channel = None if block.only_channel is not None else block.channel  # each row's channel, or None
-        ts: Any = block.time_s  # a list is made only when rows are taken
+        times: Any = block.time_s
+        ts: Any = block.times if block.n <= 16 else times  # a live bus's few rows: a list (read faster)
         t0 = float(ts[0])
         if not cursor.started:
             cursor.started = True
@@ -187,9 +188,7 @@ class LogRun:
         picked = len(rows)
         last_row = int(rows[-1]) if picked else -1  # the last row fed or taken by a plan
         taken: list[tuple[MessagePlan, Any, Sequence[Any]]] | None = [] if export is not None else None
-        runs, alone = decode_rows(plans, rows, block, ts, keys, taken, self._touched) if picked else ([], [])
-        if picked:
-            ts = block.times  # read row by row below: as floats
+        runs, alone = decode_rows(plans, rows, block, times, keys, taken, self._touched) if picked else ([], [])
         bus = buses[0] if lanes is None else ""
         if not picked:
             pos = 0  # nothing to take: the rows only bring the ticks due among them
@@ -290,24 +289,22 @@ class LogRun:
         rows whole and valid (:func:`.blockrows.decode_rows`); ``alone``: the rows the frame decoder takes, in order,
         with their plan; ``bus``: the bus of every row, or "" when ``lanes`` (each row's channel, an index into
         ``buses``, the bus of each of the block's channels) sends them to several."""
-        engine = self.engine  # ts: a list of floats (the block's rows taken one by one)
+        engine = self.engine
         pos, done = self._at_once(ts, runs_in, alone)
         if done:
             return pos
-        runs = []  # each message's run and where it goes on: [next, plan, rows (a list: bisected), times, columns]
-        for plan, rows, times, columns in runs_in:
-            runs.append([0, plan, rows if type(rows) is list else rows.tolist(), times, columns])
+        runs = [[0, *run] for run in runs_in]  # each message's run and where it goes on: [next, plan, rows, ...]
         if pos:
             _drop(runs, pos - 1)
         next_alone, alones = 0, len(alone)
         end_rows = block.n
-        end_t = ts[-1]
+        end_t = float(ts[-1])
         while True:
             at_alone = alone[next_alone][0] if next_alone < alones else end_rows
             i = _first_row(runs, at_alone)
             if i == end_rows:
                 break
-            t = ts[i]
+            t = float(ts[i])
             if t >= engine.due:
                 if pos < i:
                     self._cross(ts, pos, i)  # a tick falls due among the rows before this one, or at it
@@ -323,12 +320,12 @@ class LogRun:
                 continue
             # the stretch before the engine must act (the next due time, or the end of its quiet ticks)
             until = engine.runs_until(end_t, lambda: _coming(runs))
-            stop = end_rows if end_t < until else bisect_left(ts, until, i, end_rows)
+            stop = end_rows if end_t < until else bisect_left(ts, until, i, end_rows, key=float)
             if at_alone < stop:
                 stop = at_alone
             last, edge = blocks.take_runs(_stretch(runs, stop))
             _drop(runs, last)
-            t_last = ts[last]
+            t_last = float(ts[last])
             if i < last:
                 self._cross(ts, i, last)  # the quiet ticks the stretch spanned, each at its own time
             if t_last >= engine.due:
@@ -344,11 +341,11 @@ class LogRun:
         stretch, up to the first edge (the tree ticks there). (The row after the last taken, True when every
         row was taken); (0, False) for any other block."""
         engine = self.engine
-        if alone or not ts[-1] < engine.due:
+        if alone or not float(ts[-1]) < engine.due:
             return 0, False
         last, edge = blocks.take_runs(runs)
         if edge:
-            engine.edge_tick(ts[last])
+            engine.edge_tick(float(ts[last]))
         return last + 1, not edge
 
     def _count_lanes(self, cursor: LogCursor, block: Block, lanes: Any, buses: list[str], rows: Any) -> None:
@@ -373,13 +370,14 @@ class LogRun:
         """
         engine = self.engine
         while lo < hi and float(ts[hi - 1]) >= engine.due:
-            last = float(ts[hi - 1])
-            if last - engine.next_tick_t <= MAX_CATCH_UP_S:
-                # No gap among these rows: one advance runs every due time they bring, each at its own
-                # time, as row by row would (the rows change nothing else); the clock and the last
-                # frame time end at the row that brought the last of them.
-                engine.advance(last)
-                k = bisect_left(ts, engine.last_due_run, lo, hi, key=float)
+            near = bisect_right(ts, engine.next_tick_t + MAX_CATCH_UP_S, lo, hi, key=float)
+            if near > lo and float(ts[near - 1]) >= engine.due:
+                # The rows up to MAX_CATCH_UP_S after the next tick hold no gap the engine would skip: one
+                # advance runs every due time they bring, each at its own time, as row by row would (the
+                # rows change nothing else); the clock and the last frame time end at the row that brought
+                # the last of them.
+                engine.advance(float(ts[near - 1]))
+                k = bisect_left(ts, engine.last_due_run, lo, near, key=float)
             else:
                 k = bisect_left(ts, engine.due, lo, hi, key=float)
                 engine.advance(float(ts[k]))
@@ -410,7 +408,7 @@ def _first_row(runs: list[list[Any]], first: int) -> int:
     when it comes before them."""
     for at, _plan, rows, _times, _columns in runs:
         if at < len(rows) and rows[at] < first:
-            first = rows[at]
+            first = int(rows[at])
     return first
 
 
@@ -426,16 +424,17 @@ def _coming(runs: list[list[Any]]) -> dict[tuple[int, str], Any]:
     return out
 
 
-def _stretch(runs: list[list[Any]], stop: int) -> list[tuple[Any, list[int], Any, list[Any]]]:
+def _stretch(runs: list[list[Any]], stop: int) -> list[tuple[Any, Any, Any, list[Any]]]:
     """Each message's rows not taken yet before row ``stop``, as (plan, rows, times, columns): a short stretch's
     times and columns as lists (the models' and healths' runs of a few samples go sample by sample, faster over
     Python floats than numpy's calls), a long one's as they are (numpy columns: screened with numpy)."""
     out = []
     for at, plan, rows, times, columns in runs:
         if at < len(rows) and rows[at] < stop:
-            k = bisect_left(rows, stop, at)
+            k = bisect_left(rows, stop, at) if type(rows) is list else int(rows.searchsorted(stop))
             if k - at <= SHORT_RUN and type(times) is not list:
-                out.append((plan, rows[at:k], times[at:k].tolist(), [c[at:k].tolist() for c in columns]))
+                few = rows[at:k] if type(rows) is list else rows[at:k].tolist()
+                out.append((plan, few, times[at:k].tolist(), [c[at:k].tolist() for c in columns]))
             elif at == 0 and k == len(rows):
                 out.append((plan, rows, times, columns))
             else:
@@ -448,6 +447,11 @@ def _drop(runs: list[list[Any]], last: int) -> None:
     for run in runs:
         at, rows = run[0], run[2]
         if at < len(rows) and rows[at] <= last:
+            if rows[-1] <= last:
+                run[0] = len(rows)
+                continue
+            if type(rows) is not list:  # cut within: a list from now on (bisected at every stretch of the block)
+                rows = run[2] = rows.tolist()
             run[0] = bisect_right(rows, last, at)
 
 

@@ -253,6 +253,8 @@ def _quiet_node(node: Any) -> bool:
 def _first_gap(times: Any, max_age: float) -> int:
     """The position after which the first step of ``times`` (in order) longer than ``max_age`` comes (their length:
     none)."""
+    if not float(times[-1]) - float(times[0]) > max_age:  # no step is longer than all of them (rounding is monotone)
+        return len(times)
     import numpy as np
 
     times = np.asarray(times)

@@ -47,6 +47,7 @@ __all__ = [
     "Block",
     "PayloadSource",
     "channel_name",
+    "one_block",
 ]
 
 FLAG_FD = 1
@@ -166,17 +167,36 @@ class Block:
     def of_frames(cls, frames: Iterable[Frame]) -> Block:
         """The frames as a block (the live drain, a simulator, tests)."""
         listed = frames if type(frames) is tuple else tuple(frames)
-        if len(listed) == 1:  # a frame on a quiet bus
-            one = _one(listed[0])
-            if one is not None:
-                return one
-        return _of_frames(listed)
+        return one_block(listed[0]) if len(listed) == 1 else _of_frames(listed)
 
     @classmethod
-    def of_messages(cls, msgs: Sequence[can.Message], channel: str | None = None) -> Block:
-        """python-can messages as a block, field for field (``channel`` overrides each message's; python-can's
-        integer channels are named ``canN``)."""
-        return _of_messages(msgs, channel)
+    def of_messages(cls, msgs: Sequence[can.Message], channel: str | Sequence[str] | None = None) -> Block:
+        """python-can messages as a block, field for field (``channel`` overrides each message's, or names each
+        message's in turn (a live batch of several buses); python-can's integer channels are named ``canN``)."""
+        times, ids, ext, flags, dlcs, datas = [], [], [], [], [], []
+        chans: list[str] = [] if channel is None or type(channel) is str else list(channel)
+        names: dict[Any, str] = {}
+        for m in msgs:
+            if channel is None:
+                name = names.get(m.channel)
+                if name is None:
+                    name = names[m.channel] = channel_name(m.channel)
+                chans.append(name)
+            elif type(channel) is str:
+                chans.append(channel)
+            times.append(float(m.timestamp or 0.0))
+            ids.append(int(m.arbitration_id))
+            ext.append(bool(m.is_extended_id))
+            flags.append((FLAG_FD if m.is_fd else 0) | (FLAG_BRS if m.bitrate_switch else 0)
+                         | (FLAG_ESI if m.error_state_indicator else 0) | (FLAG_REMOTE if m.is_remote_frame else 0)
+                         | (FLAG_ERROR if m.is_error_frame else 0))
+            dlcs.append(int(m.dlc))
+            datas.append(bytes(m.data) if m.data is not None else b"")
+        if len(times) == 1:  # a live frame
+            one = _one(times[0], chans[0], ids[0], datas[0], ext[0], flags[0], dlcs[0])
+            if one is not None:
+                return one
+        return _rows(times, ids, ext, flags, dlcs, datas, chans)
 
     # -- what the engine reads ----------------------------------------------------------------
     @_cached
@@ -326,17 +346,20 @@ _ROW_TYPES: dict[int, np.dtype] = {}
 """Each payload width seen in a block of one: a dtype of that many bytes, which ``frombuffer`` reads as one row."""
 
 
-def _one(frame: Frame) -> Block | None:
-    """One frame as a block (a live frame on a quiet bus), or None when it is no CAN frame (the rows' builder
-    says why): its fields read at once, its columns checked by construction, its id's columns and each small
-    integer's shared, what the engine reads of it (:attr:`Block.keys`, :attr:`Block.times`, :attr:`Block.ordered`...)
-    known at once."""
+def one_block(frame: Frame) -> Block:
+    """One frame as a block (a live frame on a quiet bus; :meth:`Block.of_frames` of one): its fields read at once,
+    its columns checked by construction, its id's columns and each small integer's shared, what the engine reads
+    of it (:attr:`Block.keys`, :attr:`Block.times`, :attr:`Block.ordered`...) known at once."""
     t, channel, cid, data, ext, fd, err, remote, brs, esi, dlc = frame
     flags = ((FLAG_FD if fd else 0) | (FLAG_BRS if brs else 0) | (FLAG_ESI if esi else 0)
              | (FLAG_REMOTE if remote else 0) | (FLAG_ERROR if err else 0)) if fd or err or remote or brs or esi else 0
+    block = _one(t, channel, cid, data, ext, flags, len(data) if dlc < 0 else dlc)
+    return _of_frames((frame,)) if block is None else block  # None: no CAN frame (the rows' builder says why)
+
+
+def _one(t: float, channel: str, cid: int, data: bytes, ext: bool, flags: int, dlc: int) -> Block | None:
+    """One row's fields as a block (None: no CAN frame)."""
     width = len(data)
-    if dlc < 0:
-        dlc = width
     if not (0 <= cid <= 0xFFFFFFFF and width <= 255 and dlc <= 255):
         return None
     key = cid + EXT_KEY if ext else cid
@@ -388,29 +411,6 @@ def _of_frames(frames: Sequence[Frame]) -> Block:
     lengths = list(map(len, datas))
     codes = lengths if max(dlcs) < 0 else [n if d < 0 else d for n, d in zip(lengths, dlcs, strict=True)]
     return _rows(t, ids, ext, flags, codes, datas, chans, lengths)
-
-
-def _of_messages(msgs: Sequence[can.Message], channel: str | None) -> Block:
-    """python-can messages as a block, field for field."""
-    times, ids, ext, flags, dlcs, datas, chans = [], [], [], [], [], [], []
-    names: dict[Any, str] = {}
-    for m in msgs:
-        if channel is None:
-            name = names.get(m.channel)
-            if name is None:
-                name = names[m.channel] = channel_name(m.channel)
-        else:
-            name = channel
-        times.append(float(m.timestamp or 0.0))
-        ids.append(int(m.arbitration_id))
-        ext.append(bool(m.is_extended_id))
-        flags.append((FLAG_FD if m.is_fd else 0) | (FLAG_BRS if m.bitrate_switch else 0)
-                     | (FLAG_ESI if m.error_state_indicator else 0) | (FLAG_REMOTE if m.is_remote_frame else 0)
-                     | (FLAG_ERROR if m.is_error_frame else 0))
-        dlcs.append(int(m.dlc))
-        datas.append(bytes(m.data) if m.data is not None else b"")
-        chans.append(name)
-    return _rows(times, ids, ext, flags, dlcs, datas, chans)
 
 
 def _rows(times: Sequence[float], ids: Sequence[int], ext: Sequence[bool], flags: Sequence[int],

@@ -5,7 +5,8 @@
 :class:`~canguard.errors.BusError` that names the bus and the interface.
 
 :class:`BusReader` receives in one of two ways; :meth:`BusReader.receive` gives
-``(bus_name, frame, received)`` in arrival order either way:
+``(bus_name, message, received)`` (python-can's message as received: the daemon builds its block of them)
+in arrival order either way:
 
 - **Direct** (``direct=True`` and every bus has a socket (:func:`bus_fileno`): SocketCAN,
   udp_multicast): no thread. The caller's thread waits on the buses' sockets with
@@ -17,10 +18,16 @@
   base) whenever the bus stamps with the wall clock, so a wait in the kernel's buffer
   counts as a wait.
 - **Threads** (otherwise: python-can's ``virtual`` bus, vendor drivers with their own
-  queues): one daemon thread per bus does nothing but ``bus.recv(timeout)``, build a
-  :class:`~canguard.io.frame.Frame` and put it on one unbounded
-  :class:`queue.SimpleQueue`, so no frame is dropped while the engine is busy;
+  queues): one daemon thread per bus does nothing but ``bus.recv(timeout)`` and put the message
+  on one unbounded :class:`queue.SimpleQueue`, so no frame is dropped while the engine is busy;
   ``received`` is when the thread got it.
+
+**Filters.** ``wanted`` names, per bus, the id keys of the frames the config reads
+(:func:`receive_keys`; None: every frame). On SocketCAN they go to the kernel as python-can's
+``can_filters`` (:func:`kernel_filters`): a foreign frame never wakes the daemon. Either way
+:func:`wants` drops a foreign message before anything is built of it (on interfaces without kernel
+filters: python-can's own check would drop error frames, and costs a comparison a filter);
+error frames always pass.
 
 Each frame keeps the message's kernel / hardware timestamp. A receive error is
 logged on ``canguard.io.bus``, handed to ``on_error(bus_name, exc)``, and the bus is
@@ -43,33 +50,59 @@ import threading
 import time
 from collections.abc import Callable, Iterable, Mapping
 from time import monotonic
+from typing import TYPE_CHECKING
 
 import can
 
-from canguard.config.schema import BusConfig
+from canguard.config.schema import BusConfig, Config
 from canguard.errors import BusError
-from canguard.io.frame import Frame
-from canguard.io.pycan import frames_from_messages
+from canguard.io.block import EXT_KEY
+
+if TYPE_CHECKING:
+    from can.typechecking import CanFilter
 
 log = logging.getLogger(__name__)
 
 ErrorCallback = Callable[[str, BaseException], None]
 Opener = Callable[[BusConfig], can.BusABC]
+Wanted = Mapping[str, frozenset[int] | None]
+"""Per bus, the id keys (as :attr:`Block.keys <canguard.io.block.Block.keys>`) of the frames taken; None: all."""
+
+KERNEL_FILTERS_MAX = 512
+"""SocketCAN takes at most this many filters a socket (``CAN_RAW_FILTER_MAX``); past it canguard filters alone."""
+
+
+def receive_keys(cfg: Config) -> dict[str, frozenset[int] | None]:
+    """Per bus of ``cfg``, the id keys of the frames the config reads (each source's messages, a CANopen drive's
+    PDOs, heartbeat and EMCY); None for a bus with ``filter: false``."""
+    keys: dict[str, set[int]] = {name: set() for name in cfg.buses}
+    for source in cfg.sources.values():
+        for ref in source.signals:
+            keys.setdefault(ref.bus, set()).add(ref.frame_id + EXT_KEY if ref.is_extended_id else ref.frame_id)
+    return {name: frozenset(keys[name]) if bus.filter else None for name, bus in cfg.buses.items()}
+
+
+def kernel_filters(keys: Iterable[int]) -> list[CanFilter]:
+    """python-can ``can_filters`` passing exactly the frames of ``keys``: each id under a full mask, with its
+    extended flag (SocketCAN then matches the frame format too)."""
+    return [{"can_id": k - EXT_KEY, "can_mask": 0x1FFFFFFF, "extended": True} if k >= EXT_KEY
+            else {"can_id": k, "can_mask": 0x7FF, "extended": False} for k in sorted(keys)]
+
+
+def wants(keys: frozenset[int] | None, msg: can.Message) -> bool:
+    """Whether a bus receiving ``keys`` (:data:`Wanted`) takes ``msg``: an error frame always."""
+    return (keys is None or (msg.arbitration_id + EXT_KEY if msg.is_extended_id else msg.arbitration_id) in keys
+            or msg.is_error_frame)
 
 
 def open_bus(cfg: BusConfig) -> can.BusABC:
-    """Open ``cfg`` with ``can.Bus(**cfg.kwargs)``.
-
-    Raises :class:`BusError` naming the bus, interface and channel, chained to
-    python-can's own exception.
-    """
+    """Open ``cfg`` with ``can.Bus(**cfg.kwargs)``; a :class:`BusError` naming the bus, interface and channel
+    (chained to python-can's own exception) when it does not open."""
     try:
         bus = can.Bus(**dict(cfg.kwargs))
     except Exception as exc:  # python-can raises CanError, OSError, ImportError, ValueError... per backend
-        raise BusError(
-            f"bus {cfg.name!r} (interface {cfg.interface or '?'}, channel {cfg.channel}) does not open: "
-            f"{type(exc).__name__}: {exc}"
-        ) from exc
+        raise BusError(f"bus {cfg.name!r} (interface {cfg.interface or '?'}, channel {cfg.channel}) does not open: "
+                       f"{type(exc).__name__}: {exc}") from exc
     enlarge_receive_buffer(bus, cfg.name)
     return bus
 
@@ -79,22 +112,15 @@ RECEIVE_BUFFER_BYTES = 4 << 20
 
 
 def enlarge_receive_buffer(bus: can.BusABC, name: str, size: int = RECEIVE_BUFFER_BYTES) -> int | None:
-    """Ask the kernel for a larger receive buffer on a socket-based bus; returns the size granted.
-
-    A burst that arrives while the receive thread waits for the GIL is then held
-    by the kernel instead of dropped. SocketCAN and udp_multicast buses have a
-    socket; others (virtual, vendor drivers with their own queues) are left alone.
-    Without CAP_NET_ADMIN the kernel caps the size at ``net.core.rmem_max``
-    (raise it with sysctl on the robot); SO_RCVBUFFORCE is tried first.
-    """
+    """Ask the kernel for a larger receive buffer on a socket-based bus (SocketCAN, udp_multicast; others are left
+    alone), so that a burst while the loop is busy is held, not dropped; the size granted. SO_RCVBUFFORCE is tried
+    first: without CAP_NET_ADMIN the kernel caps the size at ``net.core.rmem_max`` (raise it on the robot)."""
     sock = getattr(bus, "socket", None)
     if not isinstance(sock, socket.socket):
         sock = getattr(getattr(bus, "_multicast", None), "_socket", None)
     if not isinstance(sock, socket.socket):
         return None
-    for opt in (getattr(socket, "SO_RCVBUFFORCE", None), socket.SO_RCVBUF):
-        if opt is None:
-            continue
+    for opt in filter(None, (getattr(socket, "SO_RCVBUFFORCE", None), socket.SO_RCVBUF)):
         try:
             sock.setsockopt(socket.SOL_SOCKET, opt, size)
             break
@@ -128,14 +154,9 @@ longer than this when its first frames came) its frames arrive when canguard rec
 
 
 class BusReader:
-    """Receives from every configured bus on its own daemon thread into one queue.
-
-    Use as a context manager, or call :meth:`start` and :meth:`stop`; take frames
-    with :meth:`receive`. ``direct=True`` lets the caller's thread receive when every
-    bus has a socket (:attr:`direct` says whether it does, once started).
-    Counters (by bus name): :attr:`received`, :attr:`sent`, :attr:`send_failures`,
-    :attr:`recv_errors`, :attr:`reopens`.
-    """
+    """Receives from every configured bus (see the module docstring): a context manager, or :meth:`start` and
+    :meth:`stop`; frames come from :meth:`receive`. Counters by bus name: :attr:`received`, :attr:`sent`,
+    :attr:`send_failures`, :attr:`recv_errors`, :attr:`reopens`."""
 
     def __init__(
         self,
@@ -147,16 +168,19 @@ class BusReader:
         backoff_max_s: float = 5.0,
         opener: Opener = open_bus,
         direct: bool = False,
+        wanted: Wanted | None = None,
     ) -> None:
         configs = list(buses.values()) if isinstance(buses, Mapping) else list(buses)
         self.configs: dict[str, BusConfig] = {c.name: c for c in configs}
-        self.queue: queue.SimpleQueue[tuple[str, Frame, float]] = queue.SimpleQueue()
-        """``(bus_name, frame, received)``: ``received`` is ``time.monotonic()`` when the receive thread got it."""
+        self.queue: queue.SimpleQueue[tuple[str, can.Message, float]] = queue.SimpleQueue()
+        """``(bus_name, message, received)``: ``received`` is ``time.monotonic()`` when the receive thread got it."""
         self.on_error = on_error
         self.recv_timeout_s = recv_timeout_s
         self.backoff_min_s = backoff_min_s
         self.backoff_max_s = backoff_max_s
         self._opener = opener
+        self.wanted: dict[str, frozenset[int] | None] = {name: (wanted or {}).get(name) for name in self.configs}
+        """Per bus, the id keys of the frames taken (:func:`wants`); None: every frame. Set with :meth:`want`."""
         self._direct_wanted = direct
         self.direct = False
         """True once started without threads: :meth:`receive` waits on the buses' sockets itself."""
@@ -179,17 +203,14 @@ class BusReader:
 
     # -- life cycle --------------------------------------------------------
     def start(self) -> None:
-        """Open every bus, then start one receive thread per bus (none when receiving directly).
-
-        Raises :class:`BusError` for the first bus that does not open (the buses
-        already opened are shut down again).
-        """
+        """Open every bus, then start one receive thread per bus (none when receiving directly); a :class:`BusError`
+        for the first bus that does not open (the buses already opened are shut down again)."""
         if self._started:
             raise RuntimeError("BusReader already started")
         self._stop.clear()
         try:
-            for name, cfg in self.configs.items():
-                self._buses[name] = self._opener(cfg)
+            for name in self.configs:
+                self._buses[name] = self._open(name)
         except Exception:
             self._shutdown_all()
             raise
@@ -231,9 +252,32 @@ class BusReader:
             for name in self.configs
         }
 
+    def want(self, wanted: Wanted) -> None:
+        """Take the frames of ``wanted`` from now on (a config reloaded): the kernel's filters follow."""
+        self.wanted = {name: wanted.get(name) for name in self.configs}
+        with self._lock:
+            for name, bus in self._buses.items():
+                if bus is not None:
+                    self._filter(name, bus)
+
+    def _open(self, name: str) -> can.BusABC:
+        """Open bus ``name`` with the kernel's filters of :attr:`wanted` (SocketCAN)."""
+        bus = self._opener(self.configs[name])
+        self._filter(name, bus)
+        return bus
+
+    def _filter(self, name: str, bus: can.BusABC) -> None:
+        """On SocketCAN (and no ``can_filters`` of the config's own), :attr:`wanted`'s ids as the kernel's filters:
+        every frame when they are None, empty or too many for the kernel (:func:`wants` filters them then)."""
+        cfg = self.configs[name]
+        if cfg.interface != "socketcan" or "can_filters" in cfg.kwargs:
+            return
+        keys = self.wanted[name]
+        bus.set_filters(kernel_filters(keys) if keys and len(keys) <= KERNEL_FILTERS_MAX else None)
+
     # -- consuming ---------------------------------------------------------
-    def receive(self, timeout_s: float | None, limit: int) -> list[tuple[str, Frame, float]]:
-        """Up to ``limit`` frames as ``(bus_name, frame, received)`` in arrival order, waiting up to ``timeout_s``
+    def receive(self, timeout_s: float | None, limit: int) -> list[tuple[str, can.Message, float]]:
+        """Up to ``limit`` frames as ``(bus_name, message, received)`` in arrival order, waiting up to ``timeout_s``
         (None: without end) for the first; ``received`` is on ``time.monotonic()``'s base. Empty on timeout."""
         if self.direct:
             return self._receive_direct(timeout_s, limit)
@@ -272,10 +316,23 @@ class BusReader:
         return True
 
     # -- receiving directly -------------------------------------------------
-    def _receive_direct(self, timeout_s: float | None, limit: int) -> list[tuple[str, Frame, float]]:
-        """Wait on the open buses' sockets, then drain each ready one with ``recv(0)``; reopen buses due."""
-        if self._stop.is_set():
-            return []
+    def _receive_direct(self, timeout_s: float | None, limit: int) -> list[tuple[str, can.Message, float]]:
+        """Wait on the open buses' sockets, then drain each ready one with ``recv(0)``; reopen buses due. A wake-up
+        that brought only foreign frames waits again, until ``timeout_s`` is over."""
+        end = math.inf if timeout_s is None else monotonic() + timeout_s
+        while not self._stop.is_set():
+            out = self._wake(timeout_s, limit)
+            if out is not None:
+                return out
+            left = end - monotonic()
+            if left <= 0.0:
+                break
+            timeout_s = None if left == math.inf else left
+        return []
+
+    def _wake(self, timeout_s: float | None, limit: int) -> list[tuple[str, can.Message, float]] | None:
+        """One wait on the sockets and the drain of those ready: the frames taken; [] when none is ready in
+        ``timeout_s``, None when the ready ones held only frames :func:`wants` drops."""
         buses = self._buses
         if None in buses.values():  # a bus closed: reopened when due, waited on until then
             now = monotonic()
@@ -292,16 +349,16 @@ class BusReader:
             ready = fds
         if not ready:
             return []
-        out: list[tuple[str, Frame, float]] = []
+        out: list[tuple[str, can.Message, float]] = []
         share = max(1, limit // len(ready))  # a busy bus does not starve the others
         for name, fd in self._fds.items():
             if fd in ready and self._buses[name] is not None:
                 self._drain_bus(name, share, out)
         if len(ready) > 1:
             out.sort(key=lambda item: item[2])  # buses drained one after the other: back to arrival order
-        return out
+        return out if out or None in self._buses.values() else None
 
-    def _drain_bus(self, name: str, limit: int, out: list[tuple[str, Frame, float]]) -> None:
+    def _drain_bus(self, name: str, limit: int, out: list[tuple[str, can.Message, float]]) -> None:
         """Append up to ``limit`` frames the kernel holds for bus ``name`` (after the first, a poll of its socket
         asks whether there is another: cheaper than a ``recv(0)`` that finds none; one poll a drain, not one a
         frame: a poll costs a system call); a failure closes the bus."""
@@ -310,13 +367,15 @@ class BusReader:
         msgs: list[can.Message] = []
         recv = bus.recv
         pending = self._pending[name]
+        keys = self.wanted[name]
         try:
             while len(msgs) < limit:
                 msg = recv(0)
                 if msg is None:
                     break
-                msgs.append(msg)
-                if len(msgs) == 1 and not pending(0):  # a frame alone, the usual wake-up: no recv(0) that finds none
+                if wants(keys, msg):
+                    msgs.append(msg)
+                if len(msgs) < 2 and not pending(0):  # a frame alone, the usual wake-up: no recv(0) that finds none
                     break
         except Exception as exc:  # the bus went away (or a backend bug): report, close, reopen later
             self._failed(name, exc)
@@ -324,8 +383,9 @@ class BusReader:
         if msgs:
             self.admit(name, msgs, out)
 
-    def admit(self, name: str, msgs: list[can.Message], out: list[tuple[str, Frame, float]]) -> None:
-        """Append the messages just received from bus ``name`` to ``out`` as ``(name, frame, received)``; count them.
+    def admit(self, name: str, msgs: list[can.Message], out: list[tuple[str, can.Message, float]]) -> None:
+        """Append the messages just received from bus ``name`` to ``out`` as ``(name, message, received)``; count
+        them.
 
         ``received`` is the message's kernel stamp on ``time.monotonic()``'s base (never after now) once the
         bus is found to stamp with the wall clock (:data:`WALL_STAMP_S`), else now.
@@ -333,11 +393,11 @@ class BusReader:
         now = monotonic()
         offset = time.time() - now  # wall clock minus monotonic: a wall-clock stamp to monotonic's base
         wall = self._wall_stamps[name]
-        for frame in frames_from_messages(msgs, name):
-            t = frame.t - offset
+        for msg in msgs:
+            t = float(msg.timestamp or 0.0) - offset
             if not wall:  # until one of its frames says so: does the bus stamp with the wall clock?
                 wall = self._wall_stamps[name] = abs(t - now) < WALL_STAMP_S
-            out.append((name, frame, (now if now < t else t) if wall else now))  # min(t, now), NaN kept
+            out.append((name, msg, (now if now < t else t) if wall else now))  # min(t, now), NaN kept
         self.received[name] += len(msgs)
         self._delay[name] = self.backoff_min_s
 
@@ -380,9 +440,9 @@ class BusReader:
                 continue
             try:
                 msg = bus.recv(timeout)
-                if msg is None:
+                if msg is None or not wants(self.wanted[name], msg):
                     continue
-                put((name, frames_from_messages([msg], name)[0], monotonic()))  # arrival: how long it then waits
+                put((name, msg, monotonic()))  # arrival: how long it then waits
             except Exception as exc:  # the bus went away (or a backend bug): report, close, reopen
                 if stop.is_set():
                     break
@@ -419,7 +479,7 @@ class BusReader:
     def _open_once(self, name: str, delay: float) -> can.BusABC | None:
         """Try once to reopen ``name``; the bus, or None (logged, saying when the next try is)."""
         try:
-            bus = self._opener(self.configs[name])
+            bus = self._open(name)
         except Exception as exc:
             log.warning("bus %s: reopen failed (%s); retrying in %.1f s", name, exc, delay)
             return None

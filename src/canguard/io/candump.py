@@ -36,9 +36,9 @@ from canguard.io.logtypes import (
 # --------------------------------------------------------------------------- candump text
 
 
-CHUNK_CHARS = 1 << 19
-"""Bytes per chunk (~11,000 -L lines). Against 1 << 17: 10-20 % less replay time on four of five
-shapes of 2 M frames, the fifth the same; 1 << 20 and more no faster (a block's arrays outgrow L2)."""
+CHUNK_CHARS = 1 << 20
+"""Bytes per chunk (~22,000 -L lines): the engine's work per message and block spread over more rows; twice as
+many make the parser slower (its passes outgrow the caches)."""
 
 _MARKERS = frozenset("TRtr")
 

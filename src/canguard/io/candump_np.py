@@ -42,8 +42,11 @@ _MARKERS = np.zeros(256, dtype=bool)
 _MARKERS[list(b"TRtr")] = True
 _U = np.uint64
 _LE64 = np.dtype("<u8")
-_U16 = np.uint16
 _LE16 = np.dtype("<u2")
+_NIBBLES = np.array([int(chr(c), 16) if chr(c) in "0123456789abcdefABCDEF" else 0 for c in range(256)], dtype=np.uint8)
+_PAIRS = ((_NIBBLES[None, :] << 4) | _NIBBLES[:, None]).ravel()
+"""By byte, its value as a hex digit (anything else: 0, refused by a check); :data:`_PAIRS`: by the little-endian
+16-bit word of two hex digits' bytes (the first digit in the low byte), the byte they spell."""
 _EXACT = 1 << 53
 _NO_ROWS = np.zeros(0, dtype=np.intp)
 _ERR_FLAG = 0x20000000
@@ -73,16 +76,12 @@ class Parsed:
 
 # --------------------------------------------------------------------------- the text rewritten: one shape
 
-_SPACES = re.compile(rb"[ \t]+")
-_EDGES = re.compile(rb"^ | $", re.M)
-_TAB_LED = re.compile(rb"^\t", re.M)
-_LONG_HEAD = rb"^\((\d{10,}\.\d+)\) ([^ \n]+) "
-_LONG_PLAIN = re.compile(_LONG_HEAD + rb"([0-9A-Fa-f]{3}|[0-9A-Fa-f]{8}) \[[0-8]\]((?: [0-9A-Fa-f]{2})*)(?: '[^\n]*)?$",
-                         re.M)
-_LONG_LENGTH = re.compile(rb"\[(\d\d?)\]")
-_LONG_ANY = re.compile(
-    rb"\((\d{10,}\.\d+)\) ([^ ]+) (?:([RT]X) ([B-]) ([E-]) )?([0-9A-Fa-f]{3}|[0-9A-Fa-f]{8}) \[(\d\d?)\]"
-    rb"((?: [0-9A-Fa-f]{2})*)( remote request|(?: '.*)?| ERRORFRAME.*)")
+_LONG_PLAIN = (rb"(?m)^\((\d{10,}\.\d+)\) ([^ \n]+) ([0-9A-Fa-f]{3}|[0-9A-Fa-f]{8}) \[[0-8]\]((?: [0-9A-Fa-f]{2})*)"
+               rb"(?: '[^\n]*)?$")
+_LONG_ANY = (rb"\((\d{10,}\.\d+)\) ([^ ]+) (?:([RT]X) ([B-]) ([E-]) )?([0-9A-Fa-f]{3}|[0-9A-Fa-f]{8}) \[(\d\d?)\]"
+             rb"((?: [0-9A-Fa-f]{2})*)( remote request|(?: '.*)?| ERRORFRAME.*)")
+"""candump -ta lines: classic ones (each block of them rewritten at once), and any (a line at a time); compiled
+at first use (by :mod:`re`'s cache), not at every start."""
 
 
 def _rewritten(raw: bytes) -> tuple[bytes, np.ndarray | None]:
@@ -91,21 +90,22 @@ def _rewritten(raw: bytes) -> tuple[bytes, np.ndarray | None]:
     announced ``[len]`` (-1: none) when there are -ta lines."""
     if b"\t" in raw or _loose_spaces(raw):
         if b"\t" in raw:
-            raw = _TAB_LED.sub(bytes([_INDENTED]), raw)
-        raw = _EDGES.sub(b"", _SPACES.sub(b" ", raw))
+            raw = re.sub(rb"(?m)^\t", bytes([_INDENTED]), raw)
+        raw = re.sub(rb"(?m)^ | $", b"", re.sub(rb"[ \t]+", b" ", raw))
     if b"[" not in raw:
         return raw, None
     n = raw.count(b"\n")
-    found = _LONG_PLAIN.findall(raw)
+    found = re.findall(_LONG_PLAIN, raw)
     if len(found) == n:  # every line a classic -ta line: rewritten in one pass
-        lengths = np.array(_LONG_LENGTH.findall(raw), dtype=np.int64)
+        lengths = np.array(re.findall(rb"\[(\d\d?)\]", raw), dtype=np.int64)
         if lengths.size == n:
             return b"".join(b"(%s) %s %s#%s\n" % (t, c, i, d.replace(b" ", b"")) for t, c, i, d in found), lengths
     lines = raw.split(b"\n")
     lines.pop()
     announced = np.full(n, -1, dtype=np.int64)
+    fullmatch = re.compile(_LONG_ANY).fullmatch
     for k, line in enumerate(lines):
-        if b"[" in line and (m := _LONG_ANY.fullmatch(line)) is not None:
+        if b"[" in line and (m := fullmatch(line)) is not None:
             lines[k], announced[k] = _compact(m)
     return b"\n".join(lines) + b"\n", announced
 
@@ -337,7 +337,7 @@ class _Columns:
         ds = h1 + 1
         if has_fd:
             checks.append(~fd | ((h1 + 2 < fe) & _HEX[digit]))
-            self.fd_digit = np.where(fd, _hex_value(digit), 0)
+            self.fd_digit = np.where(fd, _NIBBLES[digit], 0)
             ds = np.where(fd, h1 + 3, ds)
         else:
             self.fd_digit = np.zeros(fe.size, dtype=np.int64)
@@ -347,7 +347,7 @@ class _Columns:
             under = _next(self.b, 95, ds, fe)  # "_": a raw DLC
             raw_dlc = under < fe
             de = np.where(raw_dlc, under, fe)
-            dlc_digit = _hex_value(pad[under + 1])
+            dlc_digit = _NIBBLES[pad[under + 1]]
             checks.append(~raw_dlc | (~fd & ~remote & (fe == under + 2) & (de - ds == 16) & _HEX[pad[under + 1]]
                                       & (dlc_digit >= 9)))
         rl = fe - h1 - 2
@@ -527,7 +527,7 @@ class HexPayloads:
             for r in np.flatnonzero(start > last).tolist():
                 at = int(start[r])
                 cells[r, :digits.size - at] = digits[at:]  # its digits, then anything: past its length, zeroed
-        payload = _hex_bytes(cells)
+        payload = _PAIRS.take(cells.view(_LE16))  # two digits at a time
         if not (length == width >> 1).all():
             payload[np.arange(width >> 1) >= length[:, None]] = 0  # past a shorter row's data: the next bytes
         return payload
@@ -602,27 +602,12 @@ def _few(codes: np.ndarray, most: int = 8) -> tuple[np.ndarray, np.ndarray] | No
     return lanes, np.array(firsts, dtype=np.intp)
 
 
-def _hex_value(digits: np.ndarray) -> np.ndarray:
-    """The value of each ASCII hex digit (anything else: junk, to be refused by a check)."""
-    d = digits.astype(np.int64)
-    return (d & 0x0F) + ((d >> 6) & 1) * 9
-
-
 def _extended_values(x: np.ndarray) -> np.ndarray:
     """The values of 8 hex digits (``x``: their bytes, little-endian words), unchecked."""
     nib = (x & _U(0x0F0F0F0F0F0F0F0F)) + ((x >> _U(6)) & _U(0x0101010101010101)) * _U(9)  # byte k: digit k
     x = ((nib & _U(0x000F000F000F000F)) << _U(4)) | ((nib >> _U(8)) & _U(0x000F000F000F000F))
     x = ((x & _U(0x000000FF000000FF)) << _U(8)) | ((x >> _U(16)) & _U(0x000000FF000000FF))
     return ((x & _U(0xFFFF)) << _U(16)) | ((x >> _U(32)) & _U(0xFFFF))
-
-
-def _hex_bytes(cells: np.ndarray) -> np.ndarray:
-    """The bytes that the rows of ``cells`` spell (hex digits, an even number a row, C-contiguous): a
-    ``rows x half as many`` matrix. Two digits at a time, as little-endian 16-bit words (the first digit in
-    the low byte)."""
-    pairs = cells.view(_LE16)
-    nib = (pairs & _U16(0x0F0F)) + ((pairs >> _U16(6)) & _U16(0x0101)) * _U16(9)  # each byte: its digit's value
-    return ((nib << _U16(4)) | (nib >> _U16(8))).astype(np.uint8)  # the low byte: first digit * 16 + second
 
 
 def _rows(b: np.ndarray, pos: np.ndarray, width: int) -> np.ndarray:

@@ -8,13 +8,9 @@
     .mf4                 python-can's MF4 reader (needs ``python-can[mf4]``)
     .bag .db3 .mcap      ROS bags (io.rosbag; needs ``rosbags``), and a rosbag2 directory (its metadata.yaml)
 
-Every reader streams: the log is read in chunks of :data:`CHUNK_CHARS` characters
-and never held whole, so memory stays flat in the log's length.
-
-Every reader gives the same :class:`~canguard.io.block.Block` (numpy columns); the
-candump reader parses a plain block with numpy (:mod:`canguard.io.candump_np`), a
-block of other shapes (comments, error frames, raw DLCs...) line by line, naming the
-file:line of a bad line.
+Every reader streams (a chunk of :data:`CHUNK_CHARS` characters at a time: memory stays flat in the log's
+length) the same :class:`~canguard.io.block.Block` (numpy columns); the candump reader names the file:line of
+a bad line.
 
 Timestamps of python-can formats are what python-can reports: ASC timestamps are
 relative to the measurement start (python-can's default), which keeps a replay

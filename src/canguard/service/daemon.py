@@ -8,6 +8,7 @@ other buses get a reader thread each.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import os
@@ -16,10 +17,12 @@ import signal
 import sys
 import threading
 import time
-from operator import eq, itemgetter
 from pathlib import Path
 from types import FrameType
 from typing import Any
+
+import can
+import numpy as np
 
 from canguard.bt.context import FrameSink
 from canguard.config.monitor import with_overrides
@@ -31,9 +34,8 @@ from canguard.engine.ratelimit import held_note
 from canguard.engine.stats import EventSink
 from canguard.errors import CanguardError, ConfigError
 from canguard.io.block import Block
-from canguard.io.bus import BusReader
+from canguard.io.bus import BusReader, receive_keys
 from canguard.io.clock import BootClock, LiveClock
-from canguard.io.frame import Frame
 from canguard.io.outputs import check_config_outputs, load_run_config
 from canguard.protect.state import HeatStore
 from canguard.service.blackboard import registered_clients, release_clients, tree_clients
@@ -53,10 +55,6 @@ DRAIN = 512
 DRAIN_DIRECT = 32
 """The same where the loop reads the sockets itself: each read costs tens of microseconds, and a frame
 that trips waits for the reads after it in its batch before the engine sees it (512: up to ~15 ms)."""
-
-
-_STAMP, _CHANNEL = itemgetter(0), itemgetter(1)
-"""A frame's ``t`` and ``channel``."""
 
 
 def guarding(cfg: Config) -> str:
@@ -95,6 +93,9 @@ class Daemon:
     watch = True
     """The config's ``monitor:`` is served; the realtime replay bench serves none."""
 
+    filters = True
+    """Each bus receives the frames the config reads (``filter:``); the realtime replay bench counts every frame."""
+
     def __init__(self, config_path: Path, *, metrics_addr: str | None = None,
                  notifier: Notifier | None = None, cfg: Config | None = None, state_dir: Path | None = None,
                  http: str | None = None, groot2: str | None = None) -> None:
@@ -130,7 +131,7 @@ class Daemon:
         self._watchdog_held = ""
         self._bus_errors: queue.SimpleQueue[tuple[str, str]] = queue.SimpleQueue()
         self.exit_reason = "exit"
-        self.reader = BusReader(self.cfg.buses, on_error=self._bus_error, direct=True)
+        self.reader = BusReader(self.cfg.buses, on_error=self._bus_error, direct=True, wanted=self.wanted(self.cfg))
         self.sink: FrameSink = BusSink(
             self.reader.send, on_error=self.metrics.send_error if self.metrics is not None else None,
             on_refused=self._send_refused,
@@ -159,6 +160,10 @@ class Daemon:
         except BaseException:
             release_clients(registered_clients() - before)  # a tree built half-way leaves no keys behind
             raise
+
+    def wanted(self, cfg: Config) -> dict[str, frozenset[int] | None]:
+        """Per bus, the id keys of the frames received (:func:`~canguard.io.bus.receive_keys`; None: every frame)."""
+        return receive_keys(cfg) if self.filters else {}
 
     def load(self) -> Config:
         """The config file as this daemon runs it (its outputs moved to :attr:`state_dir`, when set)."""
@@ -261,44 +266,42 @@ class Daemon:
         fps = ", ".join(f"{bus} {r:.0f} fps" for bus, r in rates.items())
         self.notifier.status(f"{engine.status_line()}; {fps}; {guarding(self.cfg)}")
 
-    def take_received(self, engine: Engine, items: list[tuple[str, Frame, float]]) -> None:
-        """The frames received (up to :data:`DRAIN` + 1 or :data:`DRAIN_DIRECT`, so that a tick never starves) as
-        blocks of frames in arrival order through :meth:`Engine.take`: one block, unless a frame's wait since it
-        arrived starts or ends an overrun (a block ends before it: it then comes after the frames before it).
-        The frames of several buses go as one block when each frame's channel names its bus (as
-        :class:`~canguard.io.bus.BusReader` gives them), else a block also ends where the bus changes. A
-        frame's wait and the skew of its stamp are judged at the time the batch is taken."""
+    def take_received(self, engine: Engine, items: list[tuple[str, can.Message, float]]) -> None:
+        """The messages received (up to :data:`DRAIN` + 1 or :data:`DRAIN_DIRECT`, so that a tick never starves)
+        as one block in arrival order through :meth:`Engine.take`, each row's channel its bus, unless a frame's
+        wait since it arrived starts or ends an overrun (a block ends before it: it then comes after the frames
+        before it). A frame's wait and the skew of its stamp (beyond :data:`LIVE_SKEW_S`: the receive time) are
+        judged at the time the batch is taken."""
         mono = time.monotonic()
         now = self.clock.now()
         limit = self.overrun_limit_s
-        names, frames, arrivals = zip(*items, strict=True)
-        split = False  # a block ends where the bus changes
+        names, msgs, arrivals = zip(*items, strict=True)
         target: str | None = names[0]
         if names.count(target) != len(names):
-            target = None  # several buses in one block: each frame goes to the bus its channel names
-            split = not all(map(eq, names, map(_CHANNEL, frames)))
-        stamps = list(map(_STAMP, frames))
-        if (not split and not mono - min(arrivals) > limit and min(stamps) >= now - LIVE_SKEW_S
-                and max(stamps) <= now + LIVE_SKEW_S and "overrun" not in engine.gate.inhibits):
-            engine.take(target, Block.of_frames(frames))  # the usual batch (no overrun starts, stamps sane): one block
+            target = None  # several buses in one block: each row's channel names its bus
+        block = Block.of_messages(msgs, names if target is None else target)
+        stamps = block.times
+        sane = min(stamps) >= now - LIVE_SKEW_S and max(stamps) <= now + LIVE_SKEW_S
+        if sane and not mono - min(arrivals) > limit and "overrun" not in engine.gate.inhibits:
+            engine.take(target, block)  # the usual batch (no overrun starts, stamps sane): one block
             return
-        bus = names[0]
-        block: list[Frame] = []
-        for name, frame, received in items:
+        if not sane:  # insane stamps: the receive time (a NaN stamp is kept)
+            times = block.time_s
+            block = dataclasses.replace(block, time_s=np.where(np.abs(times - now) > LIVE_SKEW_S, now, times))
+        start = 0
+        for i, received in enumerate(arrivals):
             waited = mono - received
             held = "overrun" in engine.gate.inhibits
             behind = not held and waited > limit  # its data is older than the config allows
             back = held and waited < limit / 2
-            if block and ((split and name != bus) or behind or back):
-                engine.take(bus if split else target, Block.of_frames(block))
-                block = []
-            bus = name
+            if i > start and (behind or back):
+                engine.take(target, block.select(slice(start, i)))
+                start = i
             if behind:
                 engine.overrun(waited, limit)
             elif back:
                 engine.caught_up(waited)
-            block.append(frame._replace(t=now) if abs(frame.t - now) > LIVE_SKEW_S else frame)  # insane stamps
-        engine.take(bus if split else target, Block.of_frames(block))
+        engine.take(target, block.select(slice(start, None)))
 
     def _watchdog_ok(self, engine: Engine) -> bool:
         now = self.clock.now()
@@ -332,6 +335,7 @@ class Daemon:
             self.setup = drive_setup(cfg)
         old.store_heat(now)  # the new guards start from the heat the old ones had
         self.cfg, self.engine = cfg, new
+        self.reader.want(self.wanted(cfg))  # the new sources' frames from now on
         self.overrun_limit_s = overrun_limit(cfg)
         new.start(now)
         # The task's state, the sources' data and the counters carry over: a running task goes on
