@@ -173,6 +173,18 @@ class TestTranslation:
         with pytest.raises(ConfigError, match=key.replace(".", r"\.")):
             load_config(config(tmp_path, drive=drive, source=source))
 
+    def test_a_drive_without_eds_and_a_list_for_a_drive_name_are_errors(self, tmp_path: Path) -> None:
+        """A drive entry with no ``eds:`` and a source whose ``canopen:`` is a list: errors naming each key."""
+        path = config(tmp_path, source={"canopen": ["left"]})
+        doc = yaml.safe_load(path.read_text(encoding="utf-8"))
+        doc["canopen"]["right"] = {"node": 3}
+        path.write_text(yaml.safe_dump(doc), encoding="utf-8")
+        with pytest.raises(ConfigError) as err:
+            load_config(path)
+        text = str(err.value)
+        assert "canopen.right.eds: found nothing, expected a value (required key)" in text
+        assert "sources.left_torque.canopen: found a list, expected a drive of canopen:" in text
+
     def test_dbc_messages_and_a_drive_mix_on_one_bus(self, tmp_path: Path) -> None:
         """With a DBC too, its sources and the drive's load side by side in one database."""
         dbc = REPO / "dbc" / "robot.dbc"

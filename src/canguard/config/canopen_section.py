@@ -1,23 +1,20 @@
 """The loader's ``canopen:`` section: drives from their EDS, sources reading their objects, their frames.
 
-Composed into the config loader (its public checks only), which adds :meth:`CanopenSection.messages` to
-the config's database.
+It records its problems in the loader's :class:`~canguard.config.yamlsrc.Checks`; the loader adds
+:meth:`CanopenSection.messages` to the config's database.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from canguard.config import canopen as co
 from canguard.config.canopen import CanopenDrive, MappedObject, Pdo, SdoWrite
 from canguard.config.canopen_eds import Eds, EdsError
-from canguard.config.schema import FrameSpec, SignalRef
-from canguard.config.yamlsrc import _closest, _found, _path
-
-if TYPE_CHECKING:
-    from canguard.config.checks import _Checks
+from canguard.config.schema import FrameSpec, SignalRef, SourceConfig
+from canguard.config.yamlsrc import Checks, _closest, _found, _path
 
 DRIVE_KEYS = ("eds", "node", "bus", "heartbeat", "pdo", "configure", "tpdo_period")
 CONFIGURED_HEARTBEAT_S = 0.1
@@ -29,8 +26,9 @@ DEFAULT_TPDO_PERIOD_S = 0.01
 class CanopenSection:
     """``canopen:`` drives and what sources and frames take from them."""
 
-    def __init__(self, checks: _Checks) -> None:
+    def __init__(self, checks: Checks) -> None:
         self.checks = checks
+        self.problem = checks.problem
         self.drives: dict[str, CanopenDrive] = {}
         self._signals: dict[tuple[str, int], dict[str, Any]] = {}
         """Per (drive, COB-ID): signal name -> cantools Signal, for the messages built at the end."""
@@ -45,13 +43,9 @@ class CanopenSection:
     def load(self, value: Any) -> None:
         """Read every ``canopen:`` drive (problems recorded, broken drives left out)."""
         if not isinstance(value, Mapping):
-            self.checks.problem("canopen", _found(value), "a mapping of drive name -> {eds, node, bus, heartbeat, pdo}")
+            self.problem("canopen", _found(value), "a mapping of drive name -> {eds, node, bus, heartbeat, pdo}")
             return
-        for name, body in value.items():
-            key = _path("canopen", name)
-            if not isinstance(name, str) or not name:
-                self.checks.problem(key, _found(name), "a drive name (a string)")
-                continue
+        for name, body, key in self.checks.named(value, "canopen", "a drive name"):
             drive = self.drive(name, body, key)
             if drive is not None:
                 self.drives[name] = drive
@@ -67,8 +61,8 @@ class CanopenSection:
         if isinstance(node, bool) or not isinstance(node, int) or not 1 <= node <= 127:
             c.problem(_path(key, "node"), _found(node), "a CANopen node id 1..127")
             return None
-        bus = c.bus(body.get("bus"), _path(key, "bus"))
-        path = c.file_path(body["eds"], _path(key, "eds"))
+        bus = c.bus(body, key)
+        path = c.file_path(body["eds"], _path(key, "eds")) if "eds" in body else None
         if path is None:
             return None
         try:
@@ -82,12 +76,8 @@ class CanopenSection:
             tpdos = self.overrides(eds, tpdos, body["pdo"], _path(key, "pdo"))
         configure = c.choice(body, "configure", key, (True, False), False)
         heartbeat = self.heartbeat(eds, body, key, configure)
-        defaults: dict[tuple[int, int], int | float] = {}
-        for pdo in rpdos:
-            for obj in pdo.objects:
-                v = eds.value(obj.index, obj.subindex)
-                if isinstance(v, (int, float)) and not isinstance(v, bool):
-                    defaults[(obj.index, obj.subindex)] = v
+        values = {(o.index, o.subindex): eds.value(o.index, o.subindex) for pdo in rpdos for o in pdo.objects}
+        defaults = {at: v for at, v in values.items() if isinstance(v, (int, float)) and not isinstance(v, bool)}
         setup = self.setup(eds, tpdos, body, key, heartbeat) if configure else ()
         if "tpdo_period" in body and not configure:
             c.problem(_path(key, "tpdo_period"), f"{body['tpdo_period']!r} without configure: true",
@@ -97,10 +87,8 @@ class CanopenSection:
         if not configure and told != round(heartbeat * 1000):
             notes.append(f"the EDS's 0x1017 producer heartbeat time is {told} ms: the drive must be told "
                          f"{round(heartbeat * 1000)} ms (configure: true does)")
-        for pdo in tpdos:
-            if pdo.overridden and not configure:
-                notes.append(f"{pdo.name} is a pdo: override: the drive must be told its mapping and COB-ID "
-                             "(configure: true does)")
+        notes += [f"{pdo.name} is a pdo: override: the drive must be told its mapping and COB-ID (configure: true does)"
+                  for pdo in tpdos if pdo.overridden and not configure]
         return CanopenDrive(name=name, eds=path, node=node, bus=bus, heartbeat_s=heartbeat, tpdos=tuple(tpdos),
                             rpdos=tuple(rpdos), defaults=defaults, device=eds.device, setup=setup, notes=tuple(notes))
 
@@ -115,10 +103,10 @@ class CanopenSection:
         if configure:
             return CONFIGURED_HEARTBEAT_S
         told = ms if ms is not None else "absent"
-        self.checks.problem(_path(key, "heartbeat"), f"nothing (the EDS's 0x1017 producer heartbeat time is {told}: "
-                            "the drive sends no heartbeat by default)",
-                            "the drive's heartbeat period in seconds (heartbeat: 0.1), with the drive told 0x1017 = "
-                            "that period in ms, or configure: true (canguard tells it)")
+        self.problem(_path(key, "heartbeat"), f"nothing (the EDS's 0x1017 producer heartbeat time is {told}: "
+                     "the drive sends no heartbeat by default)",
+                     "the drive's heartbeat period in seconds (heartbeat: 0.1), with the drive told 0x1017 = "
+                     "that period in ms, or configure: true (canguard tells it)")
         return CONFIGURED_HEARTBEAT_S
 
     def setup(self, eds: Eds, tpdos: list[Pdo], body: Mapping[str, Any], key: str,
@@ -135,17 +123,17 @@ class CanopenSection:
     def overrides(self, eds: Eds, tpdos: list[Pdo], value: Any, key: str) -> list[Pdo]:
         """``pdo: {TPDO3: [objects...]}``: those TPDOs (disabled in the EDS or not) map these objects instead."""
         if not isinstance(value, Mapping):
-            self.checks.problem(key, _found(value), "a mapping of TPDO name -> list of objects")
+            self.problem(key, _found(value), "a mapping of TPDO name -> list of objects")
             return tpdos
         by_name = {p.name: p for p in tpdos}
         out = dict(by_name)
         for pname, objects in value.items():
             pkey = _path(key, pname)
             if pname not in by_name:
-                self.checks.problem(pkey, _found(pname), f"a TPDO of {eds.path.name}" + _closest(pname, list(by_name)))
+                self.problem(pkey, _found(pname), f"a TPDO of {eds.path.name}" + _closest(pname, list(by_name)))
                 continue
             if not isinstance(objects, list) or not objects:
-                self.checks.problem(pkey, _found(objects), "a non-empty list of objects ('0x6041', '0x6077:0')")
+                self.problem(pkey, _found(objects), "a non-empty list of objects ('0x6041', '0x6077:0')")
                 continue
             refs = [r for i, item in enumerate(objects) if (r := self.resolve(eds, item, f"{pkey}[{i}]")) is not None]
             if len(refs) != len(objects):
@@ -153,34 +141,32 @@ class CanopenSection:
             try:
                 out[pname] = co.override(eds, by_name[pname], refs)
             except EdsError as exc:
-                self.checks.problem(pkey, str(exc), "PDO-mappable numbers that fit in 8 bytes")
+                self.problem(pkey, str(exc), "PDO-mappable numbers that fit in 8 bytes")
         return [out[p.name] for p in tpdos]
 
     def resolve(self, eds: Eds, value: Any, key: str) -> tuple[int, int | None] | None:
         """``value`` (hex ``INDEX[:SUB]`` or a ParameterName) as (index, subindex) of an object of ``eds``."""
         parsed = co.parse_object(value)
         if parsed is None:
-            self.checks.problem(key, _found(value), "an object: INDEX or INDEX:SUB in hex, or its EDS ParameterName")
+            self.problem(key, _found(value), "an object: INDEX or INDEX:SUB in hex, or its EDS ParameterName")
             return None
         if isinstance(parsed, str):
             var = eds.by_name(parsed)
             if var is None:
-                self.checks.problem(key, repr(parsed),
-                                    f"an object of {eds.path.name} (hex INDEX[:SUB] or ParameterName)")
+                self.problem(key, repr(parsed), f"an object of {eds.path.name} (hex INDEX[:SUB] or ParameterName)")
                 return None
             return int(var.index), int(var.subindex)
         if eds.entry(parsed[0]) is None or (parsed[1] is not None and eds.variable(parsed[0], parsed[1]) is None):
-            self.checks.problem(key, f"0x{parsed[0]:04X}:{parsed[1] or 0:02X}", f"an object of {eds.path.name}")
+            self.problem(key, f"0x{parsed[0]:04X}:{parsed[1] or 0:02X}", f"an object of {eds.path.name}")
             return None
         return parsed
 
-    def source_refs(self, source: str, role: str, value: Mapping[str, Any], key: str
-                    ) -> tuple[str, float, list[SignalRef]]:
-        """The signals of a ``canopen:`` source: (bus, max_age, [its value, then the drive's health roles])."""
+    def source(self, name: str, value: Mapping[str, Any], key: str) -> SourceConfig:
+        """A ``kind: current`` source of a drive: the object's value, then the drive's health roles."""
         c = self.checks
         drive = self.drive_of(value.get("canopen"), key)
         if drive is None:
-            return "", 0.5, []
+            return SourceConfig(name=name, kind="current", bus="", signals=(), max_age_s=0.5)
         scale = value.get("scale", 1.0)
         if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not math.isfinite(scale) or scale == 0:
             c.problem(_path(key, "scale"), _found(scale), "a finite number other than 0")
@@ -191,23 +177,22 @@ class CanopenSection:
         where = self.tpdo_object(drive, value.get("object"), _path(key, "object"))
         if where is not None:
             pdo, obj = where
-            refs.append(self.ref(drive, pdo, role, f"{source}_{role}", obj.start_bit, obj.bits, signed=obj.signed,
-                                 is_float=obj.is_float, scale=float(scale)))
+            refs.append(self.ref(drive, pdo, "current", f"{name}_current", obj.start_bit, obj.bits,
+                                 signed=obj.signed, is_float=obj.is_float, scale=float(scale)))
         refs.extend(self.health_refs(drive, where[0] if where is not None else None))
-        return drive.bus, max_age, refs
+        return SourceConfig(name=name, kind="current", bus=drive.bus, signals=tuple(refs), max_age_s=max_age)
 
     def drive_of(self, dname: Any, key: str) -> CanopenDrive | None:
         """The drive ``canopen: NAME`` names; None, with a problem unless that drive's own entry has one."""
         drive = self.drives.get(dname) if isinstance(dname, str) else None
-        if drive is None and dname not in self.failed:
-            self.checks.problem(_path(key, "canopen"), _found(dname),
-                                "a drive of canopen:" + _closest(dname, list(self.drives)))
+        if drive is None and not (isinstance(dname, str) and dname in self.failed):
+            self.problem(_path(key, "canopen"), _found(dname), "a drive of canopen:" + _closest(dname, self.drives))
         return drive
 
     def tpdo_object(self, drive: CanopenDrive, value: Any, key: str) -> tuple[Pdo, MappedObject] | None:
         """The TPDO that maps ``object:`` and where; else a problem naming the TPDOs and what they map."""
         if value is None:
-            self.checks.problem(key, "nothing", "the object the source reads (hex INDEX[:SUB] or ParameterName)")
+            self.problem(key, "nothing", "the object the source reads (hex INDEX[:SUB] or ParameterName)")
             return None
         parsed = co.parse_object(value)
         if isinstance(parsed, str):
@@ -221,12 +206,12 @@ class CanopenSection:
                 try:
                     eds.pdo_value(parsed[0], None)
                 except EdsError as exc:  # a record or array: its sub-index 0 is a count, never a value
-                    self.checks.problem(key, _found(value), f"a variable, not a whole object: {exc}")
+                    self.problem(key, _found(value), f"a variable, not a whole object: {exc}")
                     return None
             found = drive.tpdo_of(parsed[0], parsed[1] or 0)
             if found is not None and found[1].name == co.UNDESCRIBED:
-                self.checks.problem(key, f"{found[1].ref}, which {found[0].name} maps but {drive.eds.name} does not "
-                                    "describe", "an object the EDS describes (its data type gives its size and sign)")
+                self.problem(key, f"{found[1].ref}, which {found[0].name} maps but {drive.eds.name} does not "
+                             "describe", "an object the EDS describes (its data type gives its size and sign)")
                 return None
             if found is not None:
                 return found
@@ -234,8 +219,7 @@ class CanopenSection:
         off = [p.name for p in drive.tpdos if not p.enabled]
         hint = (f"; {', '.join(off)} disabled in the EDS: map it there with canopen.{drive.name}.pdo "
                 "(`canguard init --canopen` writes one)" if off else "")
-        self.checks.problem(key, _found(value),
-                            f"an object a TPDO of {drive.name} maps ({mapped or 'no TPDO'}{hint})")
+        self.problem(key, _found(value), f"an object a TPDO of {drive.name} maps ({mapped or 'no TPDO'}{hint})")
         return None
 
     def health_refs(self, drive: CanopenDrive, near: Pdo | None) -> list[SignalRef]:

@@ -2,18 +2,19 @@
 
 from __future__ import annotations
 
-import re
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, cast
+from typing import TYPE_CHECKING, Any, NamedTuple, cast
 
 import cantools
 
-from canguard.config.checks import _Checks
-from canguard.config.dbc import load_dbc_file
+from canguard.config.dbc import DbcChecks, load_dbc_file
 from canguard.config.schema import NON_VALUE_ROLES, SignalRef, SourceConfig, SourceKind
-from canguard.config.yamlsrc import _closest, _found, _path, _shown
+from canguard.config.yamlsrc import Checks, _closest, _found, _path, _shown
 from canguard.errors import clip, quote
+
+if TYPE_CHECKING:
+    from canguard.config.canopen_section import CanopenSection
 
 _SNIFF_BYTES = 4096
 """How much of a DBC that does not load is looked at to tell binary data from a text with a syntax error."""
@@ -34,10 +35,24 @@ def _not_loaded(path: Path, exc: Exception) -> str:
     return f"does not load ({clip(str(exc))})"
 
 
-class _Sources(_Checks):
-    """``dbc:`` and ``sources:``: every message and signal resolved against the loaded DBC files."""
+class Messages:
+    """The messages a source or frame may name: the ``dbc:`` files' and the ``canopen:`` drives'."""
+
+    def __init__(self, checks: Checks) -> None:
+        self.checks = checks
+        self.problem = checks.problem
+        self.database: Any = None
+        self.dbc_checks = DbcChecks()
+        """What the DBC files get wrong: errors where the config reads it, notes elsewhere."""
+        self.ok = False
+        """Whether the DBC files loaded (else no message is looked up: their problems are recorded)."""
+        self.by_name: dict[str, Any] = {}
+        self._by_id: dict[int, list[Any]] = {}
+        self.canopen: CanopenSection | None = None
+        """The ``canopen:`` drives, when the config has any."""
 
     def load_dbc(self, value: Any) -> tuple[Path, ...]:
+        """Load ``dbc:`` (one path or a list): a problem for each file that does not load, and for clashes."""
         if isinstance(value, str):
             value = [value]
         if not isinstance(value, list) or not value:
@@ -46,10 +61,9 @@ class _Sources(_Checks):
         files, databases = self.dbc_files(value)
         if len(databases) != len(value):
             return tuple(files)
-        messages: list[Any] = []
         where: dict[str, Path] = {}
         ids: dict[tuple[int, bool], tuple[str, Path]] = {}
-        clash = False
+        before = len(self.checks.problems)
         for p, db in databases:
             for m in db.messages:
                 key = (m.frame_id, bool(m.is_extended_frame))
@@ -60,21 +74,18 @@ class _Sources(_Checks):
                     self.problem("dbc", f"frame id 0x{m.frame_id:X} as {other!r} in {op} and as {m.name!r} in {p}",
                                  "unique frame ids")
                 else:
-                    where[m.name] = p
-                    ids[key] = (m.name, p)
-                    messages.append(m)
-                    continue
-                clash = True
-        if clash:
+                    where[m.name], ids[key] = p, (m.name, p)
+        if len(self.checks.problems) > before:
             return tuple(files)
         if len(databases) == 1:
             self.database = databases[0][1]
         else:
+            messages = [m for _, db in databases for m in db.messages]
             nodes = [n for _, db in databases for n in db.nodes]
             # not strict, as each file loaded: two signals of one name stay in their message
             self.database = cantools.database.can.Database(messages=messages, nodes=nodes, strict=False)
         self._index(self.database.messages)
-        self.messages_ok = True
+        self.ok = True
         return tuple(files)
 
     def dbc_files(self, value: list[Any]) -> tuple[list[Path], list[tuple[Path, Any]]]:
@@ -82,7 +93,7 @@ class _Sources(_Checks):
         files: list[Path] = []
         databases: list[tuple[Path, Any]] = []
         for i, item in enumerate(value):
-            p = self.file_path(item, f"dbc[{i}]")
+            p = self.checks.file_path(item, f"dbc[{i}]")
             if p is None:
                 continue
             files.append(p)
@@ -97,7 +108,7 @@ class _Sources(_Checks):
                 self.dbc_checks.add(loaded)
         return files, databases
 
-    def add_messages(self, messages: list[Any]) -> None:
+    def add(self, messages: list[Any]) -> None:
         """Add messages made elsewhere (a CANopen drive's PDOs, heartbeat, EMCY) to the config's database."""
         if not messages:
             return
@@ -122,21 +133,23 @@ class _Sources(_Checks):
 
     def _index(self, messages: list[Any]) -> None:
         for m in messages:
-            self._by_name[m.name] = m
+            self.by_name[m.name] = m
             self._by_id.setdefault(m.frame_id, []).append(m)
 
-    def message(self, value: Any, key: str) -> Any:
-        """The cantools message named (or numbered) by ``value``; None after recording a problem."""
-        if not self.messages_ok:
+    def message(self, mapping: Mapping[str, Any], key: str) -> Any:
+        """The cantools message ``mapping``'s ``message:`` names (or numbers); None when left out or after a problem."""
+        if "message" not in mapping or not self.ok:
             return None
+        value = mapping["message"]
+        key = _path(key, "message")
         if isinstance(value, str):
-            if value in self._by_name:
-                return self._by_name[value]
+            if value in self.by_name:
+                return self.by_name[value]
             text = value.strip().lower()
             try:
                 number = int(text, 16) if text.startswith("0x") else int(text, 10)
             except ValueError:
-                self.problem(key, _shown(value), "a DBC message name or frame id" + _closest(value, self._by_name))
+                self.problem(key, _shown(value), "a DBC message name or frame id" + _closest(value, self.by_name))
                 return None
             value = number
         if isinstance(value, int) and not isinstance(value, bool):
@@ -178,94 +191,125 @@ class _Sources(_Checks):
             return None
         return sig
 
-    def signal_ref(self, role: str, bus: str, message: Any, signal: Any) -> SignalRef:
-        return SignalRef(role, bus, message.name, message.frame_id, bool(message.is_extended_frame), signal.name,
-                         unit=signal.unit or None, minimum=None if signal.minimum is None else float(signal.minimum),
-                         maximum=None if signal.maximum is None else float(signal.maximum))
 
-    def _message_signals(self, key: str, value: Mapping[str, Any], keys: tuple[str, ...], bus: str) -> list[SignalRef]:
-        """The signals a source of one message reads (``keys``: its kind's, in role order)."""
-        msg = self.message(value["message"], _path(key, "message")) if "message" in value else None
-        signals: list[SignalRef] = []
-        for k in keys:
-            if msg is None or k in ("message", "effort") or k not in value:
-                continue
-            sig = self.read_signal(msg, value[k], _path(key, k))
-            if sig is not None:
-                signals.append(self.signal_ref("current" if k == "signal" else k, bus, msg, sig))
-        return signals
+def _ref(role: str, bus: str, message: Any, signal: Any) -> SignalRef:
+    return SignalRef(role, bus, message.name, message.frame_id, bool(message.is_extended_frame), signal.name,
+                     unit=signal.unit or None, minimum=None if signal.minimum is None else float(signal.minimum),
+                     maximum=None if signal.maximum is None else float(signal.maximum))
 
-    def _effort_signals(self, key: str, value: Mapping[str, Any], bus: str) -> list[SignalRef]:
-        """The joints of a ``joints`` source (``effort:``), each a signal named by its joint."""
-        effort = value.get("effort")
-        if not isinstance(effort, list) or not effort:
-            if "effort" in value:
-                self.problem(_path(key, "effort"), _found(effort), "a non-empty list of {message, signal, name}")
-            return []
-        signals: list[SignalRef] = []
-        seen: set[str] = set()
-        for i, item in enumerate(effort):
-            ikey = f"{key}.effort[{i}]"
-            if not self.mapping(item, ikey, ("message", "signal", "name", "bus"), ("message", "signal", "name")):
-                continue
-            jname = item.get("name")
-            if "name" in item:
-                if not isinstance(jname, str) or not jname or jname in NON_VALUE_ROLES:
-                    self.problem(_path(ikey, "name"), _found(jname),
-                                 "a joint name (a string, not " + ", ".join(sorted(NON_VALUE_ROLES)) + ")")
-                    jname = None
-                elif jname in seen:
-                    self.problem(_path(ikey, "name"), f"{jname!r} again", "a joint name unique in the source")
-                    jname = None
-                else:
-                    seen.add(jname)
-            ibus = bus if "bus" not in item else self.bus(item["bus"], _path(ikey, "bus"))
-            msg = self.message(item["message"], _path(ikey, "message")) if "message" in item else None
-            if msg is None or "signal" not in item:
-                continue
-            sig = self.read_signal(msg, item["signal"], _path(ikey, "signal"))
-            if sig is not None and jname is not None:
-                signals.append(self.signal_ref(jname, ibus, msg, sig))
-        return signals
 
-    def source(self, name: str, value: Any) -> SourceConfig | None:
-        key = _path("sources", name)
-        if not isinstance(value, Mapping):
-            self.problem(key, _found(value), "a mapping with kind: battery | joints | current")
-            return None
-        kind = value.get("kind")
-        if "canopen" in value:
-            return self.canopen_source(name, kind, value, key)
-        keys = _KIND_KEYS.get(kind) if isinstance(kind, str) else None
-        known = keys is not None
-        if keys is None:
-            self.problem(_path(key, "kind"), _found(kind),
-                         "one of battery, joints, current" + _closest(kind, SOURCE_KINDS))
-            # Still check what can be checked without the kind (the source itself is not built).
-            keys = ("message", "current", "signal", "present", "counter", "effort")
-        self.mapping(value, key, ("kind", "bus", "max_age", *keys), keys[:2] if known else ())
-        bus = self.bus(value.get("bus"), _path(key, "bus"))
-        max_age = self.seconds(value, "max_age", key, 0.5)
-        signals: list[SignalRef] = []
-        if "message" in keys and (known or "message" in value):
-            signals.extend(self._message_signals(key, value, keys, bus))
-        if "effort" in keys and (known or "effort" in value):
-            signals.extend(self._effort_signals(key, value, bus))
-        if not known:
-            return None
-        return SourceConfig(name=name, kind=cast(SourceKind, kind), bus=bus, signals=tuple(signals), max_age_s=max_age)
+def _message_signals(m: Messages, key: str, value: Mapping[str, Any], keys: tuple[str, ...], bus: str
+                     ) -> list[SignalRef]:
+    """The signals a source of one message reads (``keys``: its kind's, in role order)."""
+    msg = m.message(value, key)
+    signals: list[SignalRef] = []
+    for k in keys:
+        if msg is None or k in ("message", "effort") or k not in value:
+            continue
+        sig = m.read_signal(msg, value[k], _path(key, k))
+        if sig is not None:
+            signals.append(_ref("current" if k == "signal" else k, bus, msg, sig))
+    return signals
 
-    def canopen_source(self, name: str, kind: Any, value: Mapping[str, Any], key: str) -> SourceConfig | None:
-        """A source reading an object of a ``canopen:`` drive (``kind: current``)."""
-        self.mapping(value, key, ("kind", "canopen", "object", "scale", "max_age"), ("kind", "canopen", "object"))
-        if kind != "current":
-            self.problem(_path(key, "kind"), _found(kind), "current (a source of a canopen: drive)")
-            return None
-        if self.canopen is None:
-            self.problem(_path(key, "canopen"), _found(value.get("canopen")), "a drive of canopen: (none configured)")
-            return None
-        bus, max_age, signals = self.canopen.source_refs(name, "current", value, key)
-        return SourceConfig(name=name, kind="current", bus=bus, signals=tuple(signals), max_age_s=max_age)
+
+def _effort_signals(c: Checks, m: Messages, key: str, value: Mapping[str, Any], bus: str) -> list[SignalRef]:
+    """The joints of a ``joints`` source (``effort:``), each a signal named by its joint."""
+    effort = value.get("effort")
+    if not isinstance(effort, list) or not effort:
+        if "effort" in value:
+            c.problem(_path(key, "effort"), _found(effort), "a non-empty list of {message, signal, name}")
+        return []
+    signals: list[SignalRef] = []
+    seen: set[str] = set()
+    for i, item in enumerate(effort):
+        ikey = f"{key}.effort[{i}]"
+        if not c.mapping(item, ikey, ("message", "signal", "name", "bus"), ("message", "signal", "name")):
+            continue
+        jname = item.get("name")
+        if "name" in item:
+            if not isinstance(jname, str) or not jname or jname in NON_VALUE_ROLES:
+                c.problem(_path(ikey, "name"), _found(jname),
+                          "a joint name (a string, not " + ", ".join(sorted(NON_VALUE_ROLES)) + ")")
+                jname = None
+            elif jname in seen:
+                c.problem(_path(ikey, "name"), f"{jname!r} again", "a joint name unique in the source")
+                jname = None
+            else:
+                seen.add(jname)
+        ibus = c.bus(item, ikey) if "bus" in item else bus
+        msg = m.message(item, ikey)
+        if msg is None or "signal" not in item:
+            continue
+        sig = m.read_signal(msg, item["signal"], _path(ikey, "signal"))
+        if sig is not None and jname is not None:
+            signals.append(_ref(jname, ibus, msg, sig))
+    return signals
+
+
+def source(c: Checks, m: Messages, name: str, value: Any) -> SourceConfig | None:
+    """The source ``sources.NAME``; None after a problem."""
+    key = _path("sources", name)
+    if not isinstance(value, Mapping):
+        c.problem(key, _found(value), "a mapping with kind: battery | joints | current")
+        return None
+    kind = value.get("kind")
+    if "canopen" in value:
+        return _canopen_source(c, m, name, kind, value, key)
+    keys = _KIND_KEYS.get(kind) if isinstance(kind, str) else None
+    known = keys is not None
+    if keys is None:
+        c.problem(_path(key, "kind"), _found(kind), "one of battery, joints, current" + _closest(kind, SOURCE_KINDS))
+        # Still check what can be checked without the kind (the source itself is not built).
+        keys = ("message", "current", "signal", "present", "counter", "effort")
+    c.mapping(value, key, ("kind", "bus", "max_age", *keys), keys[:2] if known else ())
+    bus = c.bus(value, key)
+    max_age = c.seconds(value, "max_age", key, 0.5)
+    signals: list[SignalRef] = []
+    if "message" in keys and (known or "message" in value):
+        signals.extend(_message_signals(m, key, value, keys, bus))
+    if "effort" in keys and (known or "effort" in value):
+        signals.extend(_effort_signals(c, m, key, value, bus))
+    if not known:
+        return None
+    return SourceConfig(name=name, kind=cast(SourceKind, kind), bus=bus, signals=tuple(signals), max_age_s=max_age)
+
+
+def _canopen_source(c: Checks, m: Messages, name: str, kind: Any, value: Mapping[str, Any], key: str
+                    ) -> SourceConfig | None:
+    """A source reading an object of a ``canopen:`` drive (``kind: current``)."""
+    c.mapping(value, key, ("kind", "canopen", "object", "scale", "max_age"), ("kind", "canopen", "object"))
+    if kind != "current":
+        c.problem(_path(key, "kind"), _found(kind), "current (a source of a canopen: drive)")
+        return None
+    if m.canopen is None:
+        c.problem(_path(key, "canopen"), _found(value.get("canopen")), "a drive of canopen: (none configured)")
+        return None
+    return m.canopen.source(name, value, key)
+
+
+class ReadSources(NamedTuple):
+    """``sources:`` as read: the sound sources, the names of those with a problem, whether it was a mapping."""
+
+    sources: dict[str, SourceConfig]
+    broken: set[str]
+    ok: bool
+
+
+def read_sources(c: Checks, m: Messages, value: Any) -> ReadSources:
+    """Every source of ``sources:`` (``value``; None: none), each problem recorded."""
+    value = value or {}
+    read = ReadSources({}, set(), isinstance(value, Mapping))
+    if not read.ok:
+        c.problem("sources", _found(value), "a mapping of source name -> source")
+    for name, body, _ in c.named(value if read.ok else {}, "sources", "a source name"):
+        before = len(c.problems)
+        src = source(c, m, name, body)
+        if src is not None:
+            read.sources[name] = src
+        if len(c.problems) > before:
+            # Already reported: references to this source must not add follow-on errors.
+            read.broken.add(name)
+    return read
 
 
 SOURCE_KINDS: tuple[SourceKind, ...] = ("battery", "joints", "current")
@@ -273,4 +317,3 @@ _KIND_KEYS: dict[str, tuple[str, ...]] = {
     "battery": ("message", "current", "present", "counter"), "joints": ("effort",),
     "current": ("message", "signal", "present", "counter")}
 """The keys of each source kind besides kind, bus and max_age (the first two, or the one, required), in role order."""
-_IDENT = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")

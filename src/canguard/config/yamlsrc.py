@@ -1,13 +1,20 @@
-"""YAML with line numbers: duplicate keys refused, each key path's line, and the words of a problem."""
+"""YAML with line numbers, and a config file's problems: their words and the generic checks of a value.
+
+Duplicate keys are refused; each problem is located at its key path's line.
+"""
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+import math
+import os
+from collections.abc import Iterator, Mapping
+from functools import cached_property
+from pathlib import Path
 from typing import Any, Literal
 
 import yaml
 
-from canguard.errors import clip, closest, quote
+from canguard.errors import ConfigError, clip, closest, quote
 
 _SECONDS_KEYS = ("period", "repeat", "max_age", "deadline", "save_period")
 _CONFIRM_OPS: dict[str, Literal["<", ">", "=="]] = {"below": "<", "above": ">", "equals": "=="}
@@ -140,3 +147,121 @@ def _line_of(lines: Mapping[str, int], key: str) -> int | None:
             return None
         k = k[:cut]
     return None
+
+
+class Checks:
+    """One pass over one config file: the problems found so far and the generic checks of a value."""
+
+    def __init__(self, path: Path, display: str, text: str = "") -> None:
+        self.base = path.parent
+        self.display = display
+        self.text = text
+        self.problems: list[str] = []
+        self.located: list[str] = []
+        """``problems`` with the line of their key: ``file:line: key: found X, expected Y``."""
+        self.bus_names: tuple[str, ...] = ()
+        """The configured buses, which every ``bus:`` key names."""
+
+    @cached_property
+    def lines(self) -> dict[str, int]:
+        """Each key path's line in :attr:`text`, worked out when a problem first asks (a valid config never does)."""
+        return key_lines(self.text)
+
+    # -- problems ----------------------------------------------------------
+    def problem(self, key: str, found: str, expected: str) -> None:
+        """Record ``file: key: found X, expected Y`` (and its located form ``file:line: key: ...``)."""
+        self.problems.append(f"{self.display}: {key}: found {found}, expected {expected}")
+        line = _line_of(self.lines, key)
+        where = self.display if line is None else f"{self.display}:{line}"
+        self.located.append(f"{where}: {key}: found {found}, expected {expected}")
+
+    def fail(self) -> ConfigError:
+        """The ConfigError listing every problem recorded so far."""
+        return ConfigError(self.problems, self.located)
+
+    # -- generic checks ----------------------------------------------------
+    def mapping(self, value: Any, key: str, allowed: tuple[str, ...], required: tuple[str, ...] = ()) -> bool:
+        """Check ``value`` is a mapping with only ``allowed`` keys and every ``required`` one."""
+        if not isinstance(value, Mapping):
+            self.problem(key or "(top level)", _found(value), f"a mapping with keys {', '.join(allowed)}")
+            return False
+        for k in value:
+            if k not in allowed:
+                self.problem(_path(key, k), f"unknown key {_shown(k)}",
+                             f"one of {', '.join(allowed)}" + _closest(k, allowed))
+        for k in required:
+            if k not in value:
+                self.problem(_path(key, k), "nothing", "a value (required key)")
+        return True
+
+    def named(self, value: Mapping[Any, Any], key: str, what: str) -> Iterator[tuple[str, Any, str]]:
+        """Each ``name: body`` of ``value`` and its key path; a problem for each name that is not a string."""
+        for name, body in value.items():
+            if isinstance(name, str) and name:
+                yield name, body, _path(key, name)
+            else:
+                self.problem(_path(key, name), _found(name), f"{what} (a string)")
+
+    def section(self, value: Any, key: str, allowed: tuple[str, ...], required: tuple[str, ...] = ()) -> Any:
+        """An optional section: ``value`` when it is a mapping (its keys checked by :meth:`mapping`), else None."""
+        return value if value is not None and self.mapping(value, key, allowed, required) else None
+
+    def choice(self, mapping: Mapping[str, Any], name: str, key: str, options: tuple[Any, ...], default: Any) -> Any:
+        """``mapping[name]`` (``default`` when left out) if it is one of ``options``, else a problem and ``default``."""
+        value = mapping.get(name, default)
+        if type(value) is type(options[0]) and value in options:
+            return value
+        shown = [str(o).lower() if isinstance(o, bool) else str(o) for o in options]
+        self.problem(_path(key, name), _found(value), ", ".join(shown[:-1]) + " or " + shown[-1])
+        return default
+
+    def string(self, value: Any, key: str, expected: str = "a string") -> str | None:
+        if isinstance(value, str) and value:
+            return value
+        self.problem(key, _found(value), expected)
+        return None
+
+    def number(self, value: Any, key: str, *, positive: bool = False) -> float | None:
+        ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+        if ok and (not positive or value > 0):
+            return float(value)
+        if positive:
+            unit = " in seconds" if key.rsplit(".", 1)[-1] in _SECONDS_KEYS else ""
+            self.problem(key, _found(value), f"a number > 0{unit}")
+        else:
+            self.problem(key, _found(value), "a finite number")
+        return None
+
+    def seconds(self, mapping: Mapping[str, Any], name: str, key: str, default: float) -> float:
+        if name not in mapping:
+            return default
+        value = self.number(mapping[name], _path(key, name), positive=True)
+        return default if value is None else value
+
+    def file_path(self, value: Any, key: str) -> Path | None:
+        text = self.string(value, key, "a file path (relative to the config file or absolute)")
+        if text is None:
+            return None
+        try:
+            p = Path(text).expanduser()
+        except RuntimeError:  # ~user of a user that does not exist, or no home directory
+            self.problem(key, _found(text), "a file path whose ~ names an existing user's home directory")
+            return None
+        return Path(os.path.normpath(p if p.is_absolute() else self.base / p))
+
+    def bus(self, mapping: Mapping[str, Any], key: str) -> str:
+        """Resolve ``mapping``'s ``bus:`` key (left out: the only bus)."""
+        value = mapping.get("bus")
+        key = _path(key, "bus")
+        if value is None:
+            if len(self.bus_names) == 1:
+                return self.bus_names[0]
+            if self.bus_names:
+                buses = ", ".join(self.bus_names)
+                self.problem(key, "nothing", f"one of the buses {buses} (several buses are configured)")
+            return ""
+        if not isinstance(value, str) or value not in self.bus_names:
+            if self.bus_names:
+                self.problem(key, _found(value), "a configured bus" + _closest(value, self.bus_names))
+            return ""
+        return value
