@@ -16,7 +16,7 @@ import can
 
 from canguard.config.schema import BusConfig
 from canguard.io.bus import WALL_STAMP_S, BusReader
-from canguard.io.pycan import frame_from_message, frames_from_messages
+from canguard.io.pycan import frame_from_message
 from canguard.service.daemon import Daemon
 from canguard.service.systemd import Notifier
 from test_daemon import BMS_ID, bms_data, write_config
@@ -39,10 +39,9 @@ def _two_buses(doc: dict[str, Any]) -> None:
             frame["bus"] = "a"
 
 
-class TestFramesFromMessages:
-    def test_a_batch_gives_the_frames_each_message_gives_alone(self) -> None:
-        """Every kind of message (data, extended, remote with a DLC, CAN FD, error, no data) converts in a batch
-        to exactly the frame it converts to alone."""
+class TestFrameFromMessage:
+    def test_every_kind_of_message_converts_to_its_frame(self) -> None:
+        """Data, extended, remote with a DLC, CAN FD, error and data-less messages keep what a frame carries."""
         msgs = [
             can.Message(timestamp=1.5, arbitration_id=0x123, data=b"\x01\x02", channel=0),
             can.Message(timestamp=1.6, arbitration_id=0x18FF50E5, data=bytes(8), is_extended_id=True),
@@ -51,9 +50,14 @@ class TestFramesFromMessages:
             can.Message(timestamp=1.9, arbitration_id=0x0, is_error_frame=True, data=b"\x04"),
             can.Message(timestamp=0.0, arbitration_id=0x20, data=None, channel="vcan1"),
         ]
-        assert frames_from_messages(msgs) == [frame_from_message(m) for m in msgs]
-        assert frames_from_messages(msgs, "main") == [frame_from_message(m, "main") for m in msgs]
-        assert frames_from_messages(msgs)[2].dlc == 4 and frames_from_messages(msgs)[0].channel == "can0"
+        frames = [frame_from_message(m) for m in msgs]
+        assert [f.channel for f in frames] == ["can0", "", "", "", "", "vcan1"]
+        assert frames[0].data == b"\x01\x02" and frames[0].dlc == -1 and frames[0].t == 1.5
+        assert frames[1].is_extended_id and frames[1].arbitration_id == 0x18FF50E5
+        assert frames[2].is_remote_frame and frames[2].dlc == 4 and frames[2].data == b""
+        assert frames[3].is_fd and frames[3].bitrate_switch and len(frames[3].data) == 12
+        assert frames[4].is_error_frame and frames[5].data == b"" and frames[5].dlc == -1
+        assert frame_from_message(msgs[0], "main").channel == "main"
 
 
 class TestAdmit:

@@ -9,7 +9,7 @@ import gc
 import io
 import math
 import sys
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterator
 from itertools import islice
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -24,24 +24,14 @@ if TYPE_CHECKING:
     import can
 
 def frame_from_message(msg: can.Message, channel: str | None = None) -> Frame:
-    """Convert a ``can.Message`` to a :class:`Frame` (``channel`` overrides the message's)."""
-    return frames_from_messages((msg,), channel)[0]
-
-
-def frames_from_messages(msgs: Iterable[can.Message], channel: str | None = None) -> list[Frame]:
-    """Convert ``can.Message`` objects to :class:`Frame` s (``channel`` overrides each message's): a live bus's
-    batch in one call. A remote frame keeps its DLC; a data frame's DLC is -1 when it is the data's length."""
-    out: list[Frame] = []
-    append = out.append
-    for msg in msgs:
-        data = bytes(msg.data) if msg.data is not None else b""
-        dlc = msg.dlc
-        remote = bool(msg.is_remote_frame)
-        append(_new(Frame, (float(msg.timestamp or 0.0), channel_name(msg.channel) if channel is None else channel,
-                            int(msg.arbitration_id), data, bool(msg.is_extended_id), bool(msg.is_fd),
-                            bool(msg.is_error_frame), remote, bool(msg.bitrate_switch),
-                            bool(msg.error_state_indicator), -1 if dlc == len(data) or (dlc == 0 and remote) else dlc)))
-    return out
+    """Convert a ``can.Message`` to a :class:`Frame` (``channel`` overrides the message's). A remote frame keeps
+    its DLC; a data frame's DLC is -1 when it is the data's length."""
+    data = bytes(msg.data) if msg.data is not None else b""
+    dlc, remote = msg.dlc, bool(msg.is_remote_frame)
+    return _new(Frame, (float(msg.timestamp or 0.0), channel_name(msg.channel) if channel is None else channel,
+                        int(msg.arbitration_id), data, bool(msg.is_extended_id), bool(msg.is_fd),
+                        bool(msg.is_error_frame), remote, bool(msg.bitrate_switch), bool(msg.error_state_indicator),
+                        -1 if dlc == len(data) or (dlc == 0 and remote) else dlc))
 
 
 def _free_quietly(exc: BaseException) -> None:
