@@ -832,12 +832,15 @@ def channels(tmp_path_factory: pytest.TempPathFactory) -> tuple[Config, Path]:
 class TestCustomLog:
     """The scripted log on the custom config: every handler case, at many block sizes."""
 
-    def test_a_sample_hook_sees_each_frames_samples_in_log_order(self, custom: tuple[Config, Path]) -> None:
-        """A plot's recorder (a sample hook, no block export) gets every sample the frame decoder makes of the
-        log's frames, with its reason, in log order, from blocks that mix messages and go back in time."""
+    def test_a_block_export_sees_each_frames_samples_in_log_order(self, custom: tuple[Config, Path]) -> None:
+        """The block export (``Engine.sample_block``: ``--export-signals``, plots) gets every sample the frame
+        decoder makes of the log's frames, with its reason, in log order, from blocks that mix messages and go
+        back in time: the column rows' samples and the rows the frame decoder took, merged by row."""
         from canguard.decode.decoder import Decoder
+        from canguard.decode.rows import valued_table
         from canguard.engine.gate import LogSink
         from canguard.io.clock import ManualClock
+        from canguard.io.frame import Sample
 
         cfg, log = custom
         [bus] = cfg.buses
@@ -848,7 +851,21 @@ class TestCustomLog:
         engine = Engine(cfg, clock, LogSink(clock.now, cfg.buses, out=None, keep=False), durable=False,
                         save_heat=False)
         seen: list[str] = []
-        engine.sample_hook = lambda sample: seen.append(repr(sample))
+
+        def block(times: Any, taken: Any, fed: list[tuple[int, Sample]]) -> None:
+            fed_rows = {row for row, _sample in fed}
+            out = [(row, 1, sample) for row, sample in fed]
+            for names, group, decoded in taken:
+                keep, table = valued_table(decoded, len(names))
+                rows = group if type(group) is list else group.tolist()
+                for row, kept, values in zip(rows, keep.tolist(), table.tolist(), strict=True):
+                    if kept and row not in fed_rows:
+                        out.extend((row, 0, Sample(source, role, v, float(times[row])))
+                                   for (source, role), v in zip(names, values, strict=True))
+            out.sort(key=lambda r: r[:2])  # stable: each row's samples in output order
+            seen.extend(repr(sample) for _row, _k, sample in out)
+
+        engine.sample_block = block
         blocks = [Block.of_frames(frames[i:i + 97]) for i in range(0, len(frames), 97)]
         assert not all(block.ordered for block in blocks)
         engine.run_log(blocks, {}, bus, {})

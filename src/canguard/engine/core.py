@@ -103,12 +103,10 @@ class Engine:
         self.heat = heat
         self.save_heat = save_heat
         """False: heat is only restored from the state file, never written (replay reads, never mutates)."""
-        self.sample_hook: Callable[[Any], None] | None = None
-        """Called with every decoded sample (plots); None keeps the hot path lean."""
         self.sample_block: Callable[[Any, list[Any], list[tuple[int, Any]]], None] | None = None
-        """Set beside :attr:`sample_hook` by a hook that takes a replay's column blocks whole (``--export-signals``):
-        called once a block with its times, each message's ((source, signal) names, rows, decoded values) and the
-        samples of the rows fed (with their row); None: a sample hook is called with each sample, in row order."""
+        """Called once a block with every sample the models see (``--export-signals``, plots): the block's times,
+        each message's ((source, signal) names, rows, decoded values) and the samples of the rows the frame
+        decoder took (with their row); None keeps the hot path lean."""
         self.tick_hook: Callable[[float], None] | None = None
         """Called after every tick with its time (plots)."""
         self.observer: TickObserver | None = None

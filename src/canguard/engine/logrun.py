@@ -18,7 +18,6 @@ from bisect import bisect_left, bisect_right
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from itertools import pairwise
-from operator import itemgetter
 from typing import TYPE_CHECKING, Any, Protocol
 
 from canguard.decode.decoder import DecodeCounters
@@ -28,8 +27,6 @@ from canguard.engine.lanes import LANE, configured_rows, key_table, lane_plans
 from canguard.io.block import EXT_KEY, Block
 from canguard.io.frame import Frame, Sample
 from canguard.protect.columns import SHORT_RUN
-
-_new = tuple.__new__  # a Sample from a ready tuple
 
 MAX_CATCH_UP_S = 2.0
 """Longest stretch of missed ticks the engine replays one by one after a gap (see :meth:`Engine.advance`)."""
@@ -47,7 +44,6 @@ class Engine(Protocol):
     decoder: Decoder
     stats: EngineStats
     ctx: Context
-    sample_hook: Callable[[Any], None] | None
     sample_block: Callable[[Any, list[Any], list[tuple[int, Any]]], None] | None
     last_due_run: float
 
@@ -83,6 +79,8 @@ class LogRun:
         """The plans that took rows of this block (flushed at its end)."""
         self._row = 0
         """The row the frame decoder takes (an export keeps its samples with it)."""
+        self._fed: list[tuple[int, Sample]] | None = None
+        """While a block is exported: the frame decoder's samples, with their row."""
 
     def run(
         self, blocks: Iterable[Block], route: Mapping[str, str], default_bus: str | None,
@@ -141,10 +139,10 @@ class LogRun:
         samples = self.decoder.decode(frame, bus)
         if not samples:
             return False
-        hook = engine.sample_hook
-        if hook is not None:
-            for sample in samples:
-                hook(sample)
+        fed = self._fed
+        if fed is not None:
+            row = self._row
+            fed.extend((row, sample) for sample in samples)
         assert plan is not None  # the decoder gives samples only of a configured message's data frame
         self._touched.add(plan)
         return plan.take_samples(samples)
@@ -160,8 +158,6 @@ class LogRun:
             return
         engine = self.engine
         export = engine.sample_block
-        if export is None and engine.sample_hook is not None:  # a plot's recorder: every sample, in row order
-            export = _SampleCalls(engine.sample_hook)
         routed = self._route(block, None if block.only_channel is not None else block.channel, cursor)
         if routed is None:
             return
@@ -196,12 +192,12 @@ class LogRun:
             pos = self._walk(block, ts, runs, alone, bus, buses, lanes)
         else:  # --export-signals, a plot: the samples of fed rows kept with their row, for the block's export
             assert export is not None
-            fed: list[tuple[int, Any]] = []
-            hook, engine.sample_hook = engine.sample_hook, lambda sample: fed.append((self._row, sample))
+            fed: list[tuple[int, Sample]] = []
+            self._fed = fed
             try:
                 pos = self._walk(block, ts, runs, alone, bus, buses, lanes)
             finally:
-                engine.sample_hook = hook  # the export's own hook back, whatever the block raised
+                self._fed = None  # whatever the block raised
             export(ts, [(plan.names, group, decoded) for plan, group, decoded in taken], fed)
         if pos < block.n:
             self._cross(ts, pos, block.n)
@@ -470,34 +466,6 @@ def _lane_tally(block: Block, lanes: Any, rows: Any) -> list[tuple[int, int]]:
 def _count(counts: dict[str, int], name: str, n: int) -> None:
     """Add ``n`` to ``counts[name]``."""
     counts[name] = counts.get(name, 0) + n
-
-
-class _SampleCalls:
-    """A sample hook (:attr:`Engine.sample_hook`: a plot's recorder) called as a block export
-    (:attr:`Engine.sample_block`): with each sample of a block's rows in row order, as frame by frame."""
-
-    def __init__(self, hook: Callable[[Sample], None]) -> None:
-        self.hook = hook
-
-    def __call__(self, times: Sequence[Any], taken: list[tuple[list[tuple[str, str]], Any, Sequence[Any]]],
-                 fed: list[tuple[int, Sample]]) -> None:
-        from canguard.decode.rows import valued_table
-
-        fed_rows = {row for row, _sample in fed}
-        out: list[tuple[int, int, Sample]] = []
-        for names, group, decoded in taken:
-            keep, table = valued_table(decoded, len(names))
-            rows = group if type(group) is list else group.tolist()
-            for row, kept, values in zip(rows, keep.tolist(), table.tolist(), strict=True):
-                if kept and row not in fed_rows:
-                    t = float(times[row])
-                    out.extend((row, 0, _new(Sample, (source, role, v, t, "")))
-                               for (source, role), v in zip(names, values, strict=True))
-        out.extend((row, 1, sample) for row, sample in fed)
-        out.sort(key=itemgetter(0, 1))  # stable: each row's samples in output order, the fed ones as they came
-        hook = self.hook
-        for _row, _k, sample in out:
-            hook(sample)
 
 
 @dataclass

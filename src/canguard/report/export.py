@@ -1,7 +1,7 @@
 """``replay --export-signals FILE.parquet``: every decoded sample, as a table for pandas / polars.
 
-:class:`SignalExport` sees every sample the models see (``Engine.sample_hook``, or whole column blocks
-through ``sample_block``) and hands :data:`BATCH_ROWS` rows at a time (a Parquet row group) to its table:
+:class:`SignalExport` sees every sample the models see (whole column blocks, through ``Engine.sample_block``)
+and hands :data:`BATCH_ROWS` rows at a time (a Parquet row group) to its table:
 memory stays flat. Each log writes its own part file, joined in input order by :func:`combine_parts`.
 pyarrow (the ``fleet`` extra) is imported only when used.
 """
@@ -82,34 +82,12 @@ class SignalExport:
         # The DBC [min|max] the source's health checks: a value outside is rejected as out_of_range
         # by the models although the decoder passed it (the decoder does not check ranges).
         self._ranges = {name: health.ranges for name, health in engine.ctx.health.items()}
-        self._t: list[float] = []
-        self._c: list[int] = []
-        self._v: list[float] = []
-        """Samples taken one at a time, not yet a chunk: time, code (:meth:`_code`), value."""
         self._chunks: list[tuple[Any, Any, Any]] = []
         """Columns of samples in order (time, code, value arrays), waiting for a batch to be full."""
         self._pending = 0
         self._codes: dict[tuple[str, str, str], int] = {}
         self._keys: list[tuple[str, str, str]] = []
-        engine.sample_hook = self._sample
-        engine.sample_block = self._block  # a replay's column blocks, taken whole
-
-    def _sample(self, s: Sample) -> None:
-        self._t.append(s.t)
-        self._c.append(self._code((s.source, s.signal), self._reason_of(s)))
-        self._v.append(s.value)
-        self._pending += 1
-        if self._pending >= self.batch_rows:
-            self._flush()
-
-    def _singles(self) -> None:
-        """The samples taken one at a time, as a chunk (before a block's, which come after them)."""
-        if self._t:
-            import numpy as np
-
-            self._chunks.append((np.array(self._t, dtype=np.float64), np.array(self._c, dtype=np.intp),
-                                 np.array(self._v, dtype=np.float64)))
-            self._t, self._c, self._v = [], [], []
+        engine.sample_block = self._block
 
     def _reason_of(self, s: Sample) -> str:
         """The sample's reason, or ``out_of_range`` for a value the source's DBC range rejects."""
@@ -155,7 +133,6 @@ class SignalExport:
         if not rows:
             return
         order = np.argsort(np.concatenate(rows), kind="stable")
-        self._singles()
         self._chunks.append((np.concatenate(stamps)[order], np.concatenate(codes).astype(np.intp)[order],
                              np.concatenate(values).astype(np.float64)[order]))
         self._pending += order.size
@@ -175,7 +152,6 @@ class SignalExport:
         """The first :attr:`batch_rows` samples waiting (all of them, when fewer) to the table."""
         import numpy as np
 
-        self._singles()
         if not self._chunks:
             return
         t, codes, values = (np.concatenate(cols) for cols in zip(*self._chunks, strict=True))
