@@ -47,10 +47,11 @@ trap 'kill "$mypy_pid" 2>/dev/null || true; rm -f "$mypy_out"' EXIT
 # Its findings, if any, the run itself reports.
 [ "$#" -gt 0 ] || .venv/bin/python -m pytest -q -p no:cacheprovider --collect-only >/dev/null 2>&1 || true
 # In parallel (pytest-xdist): a worker per core and one more, since the slow tests, which mostly wait on
-# subprocesses and the clock, start first (tests/conftest.py) and leave a core half idle meanwhile; worksteal
-# evens out tests of very different lengths. `bash scripts/test.sh -n 0` runs them in one process.
+# subprocesses and the clock, start first (tests/conftest.py) and leave a core half idle meanwhile. xdist's
+# default scheduler: worksteal took the same wall time (118 s both, 2026-11-29) and once left the run waiting
+# forever on an idle worker after the last test. `bash scripts/test.sh -n 0` runs them in one process.
 status=0
-.venv/bin/python -m pytest -q -p no:cacheprovider -n "$(( $(nproc) + 1 ))" --dist worksteal "$@" || status=$?
+.venv/bin/python -m pytest -q -p no:cacheprovider -n "$(( $(nproc) + 1 ))" --dist load "$@" || status=$?
 mypy_status=0
 wait "$mypy_pid" || mypy_status=$?
 cat "$mypy_out"
