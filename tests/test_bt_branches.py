@@ -234,7 +234,7 @@ def test_nodes_model_declares_the_new_controls_as_groot2_does() -> None:
     """The Groot2 model lists Switch2..6 with their case ports and TryCatch's bool default as 'false'."""
     import xml.etree.ElementTree as ET
 
-    from canguard.bt.loader import nodes_model_xml
+    from canguard.bt.checks import nodes_model_xml
 
     model = ET.fromstring(nodes_model_xml(None, include_plugins=False)).find("TreeNodesModel")
     assert model is not None

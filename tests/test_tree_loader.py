@@ -5,22 +5,16 @@ from __future__ import annotations
 import importlib.metadata
 import re
 import xml.etree.ElementTree as ET
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any, ClassVar
 
 import py_trees
 import pytest
 
-import canguard.bt.display as display_module
-import canguard.bt.registry as tree_module
-from canguard.bt.loader import (
-    build_registry,
-    load_tree,
-    nodes_model_xml,
-    render_dot,
-    render_text,
-)
+import canguard.bt.checks as display_module
+import canguard.bt.loader as tree_module
+from canguard.bt.checks import nodes_model_xml, render_dot, render_text
+from canguard.bt.loader import build_registry, load_tree
 from canguard.bt.nodes import BUILTIN_NODES, CanguardNode, port_info
 from canguard.config.schema import ActionConfig
 from canguard.errors import TreeError
@@ -650,5 +644,3 @@ def test_fixture_shape_helper_is_exhaustive() -> None:
     loaded = Rig().load(TREES / "time_windowed_action.xml")
     assert len(shape(loaded.root)) == len(list(loaded.root.iterate()))
 
-
-_: Callable[..., Any] = load_tree  # re-exported name used by the CLI

@@ -9,13 +9,13 @@ from typing import TYPE_CHECKING, Any
 
 from py_trees.blackboard import Blackboard
 
-from canguard.bt.build import load_tree
 from canguard.bt.context import Context
+from canguard.bt.loader import load_tree
 from canguard.io.clock import ManualClock
 
 if TYPE_CHECKING:
     from canguard.bt.loaded import LoadedTree
-    from canguard.bt.palette import Palette
+    from canguard.bt.loader import Palette
 
 
 def _json_value(value: Any) -> Any:
