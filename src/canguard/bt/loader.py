@@ -676,8 +676,7 @@ class _Load:
         for namespace, scope in self.scopes.items():  # the scripts' view of every SubTree instance's scope
             Blackboard.storage.update(scope.literals)
             boards[namespace] = TreeBlackboard(namespace, scope, self.entry_types)
-        loaded = LoadedTree(root, py_trees.trees.BehaviourTree(root=root), main_id, self.path, self.ctx,
-                            self.format_version, tuple(self.trees))
+        loaded = LoadedTree(root, main_id, self.path, self.ctx, self.format_version)
         counts: dict[str, int] = {}
         for node in nodes:
             parts = node.name.split(".")
