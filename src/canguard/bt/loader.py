@@ -303,7 +303,6 @@ class _Load:
         (a tree checked without binding), or never (the sources are unknown)."""
         self.unsure_sources: Collection[str] = ()  # declared by a config that could not build them
         self.unbound: list[str] = []  # why each palette-declared node nothing implements cannot run
-        self.palette_ports: list[tuple[ET.Element, list[str]]] = []  # palette-checked, dropped before parsing
         self.entry_types: dict[str, type] = {}  # typed entries (filled by _check_entry_types)
 
     def raise_collected(self) -> None:
@@ -581,8 +580,8 @@ class _Load:
             self.errors.extend(self.palette.check(elem, decl, self.at(elem), tree_id))
             if cls is None:
                 self.unbound.append(unbound_message(node_id, self.at(elem), decl))
-            elif extra := [a for a in elem.attrib if a in decl.ports]:
-                self.palette_ports.append((elem, extra))
+            for attr in [a for a in elem.attrib if a in decl.ports]:
+                del elem.attrib[attr]  # checked against the palette; the bound config action does not read them
             return cls
         if cls is None:
             known = {*BUILTIN_NODES, *plugin_entry_points(), SUBTREE, *self.ctx.actions, *self.palette.nodes}
@@ -658,9 +657,6 @@ class _Load:
 
     def build(self, main_id: str) -> LoadedTree:
         """The tree ``main_id`` built by py_trees' parser, its nodes named, given their scopes and bound."""
-        for elem, attrs in self.palette_ports:
-            for attr in attrs:  # checked against the palette; the bound config action does not read them
-                elem.attrib.pop(attr, None)
         main = self.trees[main_id]
         try:
             root = pyxml.build_tree_from_xml(main, pyxml.build_subtree_remapping(main, self.trees, {}, "/"),
