@@ -667,11 +667,9 @@ class _Load:
                 NotImplementedError) as exc:
             raise TreeError(f"{self.path}: BehaviorTree {main_id}: {self._untoken(str(exc))}") from exc
         nodes = list(_preorder(root))  # BT.CPP creates (and types the entries) in this order
-        self.scopes = subtree_scopes(self.trees, main_id)
-        boards = {}
-        for namespace, scope in self.scopes.items():  # the scripts' view of every SubTree instance's scope
-            Blackboard.storage.update(scope.literals)
-            boards[namespace] = TreeBlackboard(namespace, scope, self.entry_types)
+        boards = subtree_scopes(self.trees, main_id, self.entry_types)
+        for board in boards.values():
+            Blackboard.storage.update(board.literals)
         loaded = LoadedTree(root, main_id, self.path, self.ctx, self.format_version)
         counts: dict[str, int] = {}
         for node in nodes:
@@ -679,9 +677,8 @@ class _Load:
             elem, info = self.elements[parts[-1]], self.infos[parts[-1]]
             board = boards.get(_namespace(node), boards["/"])
             if elem in self.private:  # a node of an inlined _autoremap subtree: its ports and _keys
-                scope = board.scope.inlined(self.private[elem])
-                Blackboard.storage.update({k: v for k, v in scope.literals.items() if k not in Blackboard.storage})
-                board = TreeBlackboard(_namespace(node), scope, self.entry_types)
+                board = board.inlined(self.private[elem])
+                Blackboard.storage.update({k: v for k, v in board.literals.items() if k not in Blackboard.storage})
             if isinstance(node, CanguardNode) and node.USES_BOARD:
                 node.board = board  # type: ignore[attr-defined]
             conditions.install(node, self.conditions.get(elem, {}), board)
@@ -696,7 +693,7 @@ class _Load:
     def _install_subtree_conditions(self, nodes: list[py_trees.behaviour.Behaviour],
                                     boards: dict[str, TreeBlackboard]) -> None:
         """Conditions on a ``<SubTree>`` wrap its instance's root, on the parent's scope (BT.CPP's SubTree node)."""
-        for ns, scope in self.scopes.items():
+        for ns, scope in boards.items():
             scripts = self.conditions.get(scope.element) if scope.element is not None else None
             if not scripts:
                 continue
