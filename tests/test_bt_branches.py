@@ -236,7 +236,7 @@ def test_nodes_model_declares_the_new_controls_as_groot2_does() -> None:
 
     from canguard.bt.checks import nodes_model_xml
 
-    model = ET.fromstring(nodes_model_xml(None, include_plugins=False)).find("TreeNodesModel")
+    model = ET.fromstring(nodes_model_xml(None)).find("TreeNodesModel")
     assert model is not None
     by_id = {e.get("ID"): e for e in model}
     assert [p.get("name") for p in by_id["Switch4"]

@@ -40,12 +40,8 @@ def context_for(cfg: Config, clock: Any = None) -> Context:
     """A context for ``cfg`` (sources, actions, stop frames) on ``clock`` (a ManualClock at 0 by default)."""
     from canguard.io.clock import ManualClock
 
-    return Context(
-        clock if clock is not None else ManualClock(),
-        cfg.sources,
-        actions=cfg.actions,
-        stop_frames=cfg.stop.frames,
-    )
+    clock = clock if clock is not None else ManualClock()
+    return Context(clock, cfg.sources, actions=cfg.actions, stop_frames=cfg.stop.frames)
 
 
 def load_config_tree(cfg: Config, ctx: Context | None = None, palette: Palette | None = None) -> LoadedTree:
@@ -205,24 +201,22 @@ def render_dot(root: py_trees.behaviour.Behaviour, path: str | Path) -> Path:
     return out
 
 
-def nodes_model_xml(ctx: Context | None = None, include_plugins: bool = True) -> str:
+def nodes_model_xml(ctx: Context | None = None) -> str:
     """A Groot2 ``<TreeNodesModel>`` of every canguard node type and its ports.
 
     With ``ctx``, the config's actions are included (each with its ``output_time`` port).
     """
     doc = ET.Element("root", {"BTCPP_format": "4"})
     model = ET.SubElement(doc, "TreeNodesModel")
+    actions = ctx.actions if ctx is not None else {}
     entries: list[tuple[str, type[PortsMixin], str]] = [
-        (n, c, getattr(c, "DESCRIPTION", "")) for n, c in BUILTIN_NODES.items()
+        *((n, c, getattr(c, "DESCRIPTION", "")) for n, c in BUILTIN_NODES.items()),
+        *((n, ConfiguredAction, f"config action: {len(a.frames)} frame(s)") for n, a in actions.items()),
     ]
-    if ctx is not None:
-        for name, action in ctx.actions.items():
-            entries.append((name, ConfiguredAction, f"config action: {len(action.frames)} frame(s)"))
-    if include_plugins:
-        for name, ep in loader.plugin_entry_points().items():
-            if name not in BUILTIN_NODES:
-                cls = loader.load_plugin(ep)
-                entries.append((name, cls, getattr(cls, "DESCRIPTION", "") or f"plug-in {ep.value}"))
+    for name, ep in loader.plugin_entry_points().items():
+        if name not in BUILTIN_NODES:
+            cls = loader.load_plugin(ep)
+            entries.append((name, cls, getattr(cls, "DESCRIPTION", "") or f"plug-in {ep.value}"))
     for name, cls, description in entries:
         elem = ET.SubElement(model, node_kind(cls), {"ID": name})
         for direction, ports in (("input_port", cls.input_ports()), ("output_port", cls.output_ports())):
