@@ -55,10 +55,8 @@ def check_tree(cfg: Config, palette: Palette | None = None) -> TreeReport:
     """Load and validate the config's tree against the config (and ``--nodes`` palettes); TreeError on any problem."""
     loaded = load_config_tree(cfg, palette=palette)  # binding checks every guard's topic_name against cfg.sources
     count = sum(1 for _ in loaded.root.iterate())
-    head = (
-        f"tree: {loaded.main_id} from {loaded.path} (BTCPP_format {loaded.format_version}), {count} nodes, "
-        f"reads {', '.join(sorted(loaded.context.read_sources)) or 'no source'}"
-    )
+    head = (f"tree: {loaded.main_id} from {loaded.path} (BTCPP_format {loaded.format_version}), {count} nodes, "
+            f"reads {', '.join(sorted(loaded.context.read_sources)) or 'no source'}")
     require_guard_coverage(loaded)
     unread = [n for n in cfg.sources if n not in loaded.context.read_sources]
     return TreeReport(loaded, f"{head}\n{render_text(loaded.root)}", [
@@ -190,10 +188,8 @@ def render_dot(root: py_trees.behaviour.Behaviour, path: str | Path) -> Path:
     if fmt not in ("png", "svg", "pdf"):
         raise TreeError(f"{out}: unknown drawing format {out.suffix!r}; use .dot, .png, .svg or .pdf")
     if shutil.which("dot") is None:
-        raise TreeError(
-            f"{out}: drawing .{fmt} needs Graphviz's `dot` program, which is not installed "
-            "(e.g. apt install graphviz); a .dot file works without it"
-        )
+        raise TreeError(f"{out}: drawing .{fmt} needs Graphviz's `dot` program, which is not installed "
+                        "(e.g. apt install graphviz); a .dot file works without it")
     try:
         graph.write(str(out), format=fmt)
     except (OSError, AssertionError) as exc:  # pydot reports dot's own failures as AssertionError

@@ -68,16 +68,9 @@ NMT_STATES = {0x00: "boot_up", 0x04: "stopped", 0x05: "operational", 0x7F: "pre_
 class Context:
     """Everything a node of one tree may use; built by the engine, shared by all nodes."""
 
-    def __init__(
-        self,
-        clock: Clock,
-        sources: Mapping[str, SourceConfig],
-        sink: FrameSink | None = None,
-        actions: Mapping[str, ActionConfig] | None = None,
-        task: TaskGate | None = None,
-        on_event: EventCallback | None = None,
-        stop_frames: Sequence[FrameSpec] = (),
-    ) -> None:
+    def __init__(self, clock: Clock, sources: Mapping[str, SourceConfig], sink: FrameSink | None = None,
+                 actions: Mapping[str, ActionConfig] | None = None, task: TaskGate | None = None,
+                 on_event: EventCallback | None = None, stop_frames: Sequence[FrameSpec] = ()) -> None:
         self.clock = clock
         self.sources = dict(sources)
         self.sink: FrameSink = sink if sink is not None else ListSink()

@@ -48,15 +48,8 @@ def _script_errors(loaded: LoadedTree) -> list[str]:
     return out
 
 
-def dry_run(
-    path: Path,
-    ticks: int,
-    dt: float,
-    main: str | None = None,
-    palette: Palette | None = None,
-    *,
-    exactly_once: bool = False,
-) -> dict[str, Any]:
+def dry_run(path: Path, ticks: int, dt: float, main: str | None = None, palette: Palette | None = None, *,
+            exactly_once: bool = False) -> dict[str, Any]:
     """Load ``path`` and tick it ``ticks`` times ``dt`` s apart (clock from 0): each tick's root status and the
     root blackboard. Each tick is ``tickOnce()`` (``tickExactlyOnce()`` with ``exactly_once``)."""
     Blackboard.storage.clear()

@@ -108,12 +108,9 @@ class LoadedTree:
 
     def guards(self) -> list[GuardView]:
         """One :class:`GuardView` per guarded signal (a joints guard gives one per joint), in tree order."""
-        return [
-            GuardView(node.name, node.topic_name, role, cast("GuardKind", kind), model,
-                      self.context.unit(node.topic_name, role))
-            for node in self.guard_nodes()
-            for role, model, kind in node.guarded()
-        ]
+        return [GuardView(node.name, node.topic_name, role, cast("GuardKind", kind), model,
+                          self.context.unit(node.topic_name, role))
+                for node in self.guard_nodes() for role, model, kind in node.guarded()]
 
 
 def _preorder(node: py_trees.behaviour.Behaviour) -> Iterator[py_trees.behaviour.Behaviour]:

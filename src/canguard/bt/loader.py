@@ -330,9 +330,8 @@ class _Load:
         """The ``<root>`` element of the file ``path`` (its elements' lines recorded)."""
         root = read_xml(path, self.where)
         if root.tag != "root":
-            raise TreeError(
-                f"{self.at(root)}: the document element is <{root.tag}>, expected <root> (BehaviorTree.CPP XML)"
-            )
+            raise TreeError(f"{self.at(root)}: the document element is <{root.tag}>, expected <root> "
+                            "(BehaviorTree.CPP XML)")
         return root
 
     def read(self, main: str | None) -> str:
@@ -411,9 +410,8 @@ class _Load:
         for attr in ("__shared_blackboard", "_autoremap", "__autoremap"):
             value = elem.attrib.pop(attr, None)
             if value is not None and value.strip().lower() not in ("false", "0"):
-                raise self.error(
-                    elem, f'{attr}="{value}" is not supported: remap the SubTree\'s ports explicitly', tree_id
-                )
+                raise self.error(elem, f'{attr}="{value}" is not supported: remap the SubTree\'s ports explicitly',
+                                 tree_id)
         for i, child in enumerate(elem):
             if _autoremapped(child):
                 elem[i] = self._inline(child, tree_id, (tree_id,))
@@ -475,10 +473,8 @@ class _Load:
         if chosen is None and len(self.trees) == 1:
             return next(iter(self.trees))
         if chosen is None:
-            raise TreeError(
-                f"{self.path}: several BehaviorTrees ({', '.join(self.trees)}) and no main_tree_to_execute; "
-                "name the one to run (tree: main: in the config)"
-            )
+            raise TreeError(f"{self.path}: several BehaviorTrees ({', '.join(self.trees)}) and no "
+                            "main_tree_to_execute; name the one to run (tree: main: in the config)")
         if chosen not in self.trees:
             known = ", ".join(_closest(chosen, self.trees))
             raise TreeError(f"{self.path}: no BehaviorTree with ID {quote(chosen)}; trees in the file: {known}")
@@ -565,9 +561,8 @@ class _Load:
         try:
             return pyxml.is_key(value)
         except ValueError:
-            raise self.error(
-                elem, f"malformed blackboard reference {quote(value)} (expected {{key}})", tree_id, attr
-            ) from None
+            raise self.error(elem, f"malformed blackboard reference {quote(value)} (expected {{key}})", tree_id,
+                             attr) from None
 
     def _check_node(self, elem: ET.Element, tree_id: str) -> type[PortsMixin] | None:
         """Record every problem of one node (ID, each port, children); its class, or None if unknown."""
@@ -586,10 +581,9 @@ class _Load:
         if cls is None:
             known = {*BUILTIN_NODES, *plugin_entry_points(), SUBTREE, *self.ctx.actions, *self.palette.nodes}
             near = closest(node_id, known, NEAR_NODE_IDS) or _closest(node_id, known)[:NEAR_NODE_IDS]
-            self.errors.append(
-                f"{self.at(elem)}: unknown node ID {quote(node_id)} (BehaviorTree {tree_id}); "
-                f"known node IDs, closest first: {', '.join(near)} ({len(known)} in all: {LIST_NODE_IDS})"
-            )
+            self.errors.append(f"{self.at(elem)}: unknown node ID {quote(node_id)} (BehaviorTree {tree_id}); "
+                               f"known node IDs, closest first: {', '.join(near)} ({len(known)} in all: "
+                               f"{LIST_NODE_IDS})")
             return None
         ports = port_table(cls)
         for attr, value in elem.attrib.items():
@@ -601,9 +595,8 @@ class _Load:
         missing = [n for n, (_, info) in ports.items()
                    if info.required and not info.has_default and n not in elem.attrib]
         if missing:
-            self.errors.append(str(self.error(
-                elem, f"missing required port {', '.join(missing)} (ports of {node_id}: {', '.join(ports)})", tree_id
-            )))
+            why = f"missing required port {', '.join(missing)} (ports of {node_id}: {', '.join(ports)})"
+            self.errors.append(str(self.error(elem, why, tree_id)))
         kind_error = _children_problem(node_kind(cls), len(elem))
         if kind_error is not None:
             self.errors.append(str(self.error(elem, kind_error, tree_id)))
@@ -736,11 +729,9 @@ class _Load:
                     continue
                 was, at = first[key]
                 if was is not kind and was is not str:
-                    self.errors.append(
-                        f"{info.where}, port {port}: the entry [{key.lstrip('/')}] was created with type "
-                        f"[{type_name(was, cpp=True)}] ({at}) and is used here as [{type_name(kind, cpp=True)}]; "
-                        "one entry has one type (as in BT.CPP)"
-                    )
+                    self.errors.append(f"{info.where}, port {port}: the entry [{key.lstrip('/')}] was created with "
+                                       f"type [{type_name(was, cpp=True)}] ({at}) and is used here as "
+                                       f"[{type_name(kind, cpp=True)}]; one entry has one type (as in BT.CPP)")
 
     def _untoken(self, text: str) -> str:
         def name(m: re.Match) -> str:

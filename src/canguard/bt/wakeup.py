@@ -75,9 +75,8 @@ def _tick_root(root: py_trees.behaviour.Behaviour, reached: set | None) -> None:
         reached.update(nodes)
 
 
-def tick_once(
-    tree: _Tree, max_reticks: int = MAX_RETICKS, *, exactly_once: bool = False, collect: bool = False
-) -> Ticked:
+def tick_once(tree: _Tree, max_reticks: int = MAX_RETICKS, *, exactly_once: bool = False,
+              collect: bool = False) -> Ticked:
     """BT.CPP's ``tickOnce()``: tick the root, and again while it is RUNNING with a wake-up pending (at most
     ``max_reticks`` times, an ``error`` event at the first capped tick); ``exactly_once``: ``tickExactlyOnce()``."""
     from py_trees.common import Status
@@ -94,12 +93,8 @@ def tick_once(
         _tick_root(root, reached)
     capped = not exactly_once and root.status == Status.RUNNING and signal.pending  # stopped at the bound
     if capped and not signal.capped:
-        tree.context.record(
-            "error",
-            node=root.name,
-            reason=f"the tree kept waking itself up: {max_reticks} re-ticks in one tick, "
-            "the next tick goes on (BT.CPP's tickOnce would not have returned yet)",
-        )
+        tree.context.record("error", node=root.name, reason=f"the tree kept waking itself up: {max_reticks} re-ticks "
+                            "in one tick, the next tick goes on (BT.CPP's tickOnce would not have returned yet)")
     signal.capped = capped
     return Ticked(root.status, bool(getattr(root, "skipped", False)), reticks, capped,
                   frozenset(reached) if reached is not None else None)
