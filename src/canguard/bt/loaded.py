@@ -87,10 +87,6 @@ class LoadedTree:
             self.context.tree_start = self.context.now()
         return tick_once(self, max_reticks, exactly_once=exactly_once)
 
-    def halt(self) -> None:
-        """Halt the whole tree (every RUNNING node is stopped)."""
-        self.root.stop(py_trees.common.Status.INVALID)
-
     def find(self, name: str) -> py_trees.behaviour.Behaviour:
         """The node with that readable name; KeyError listing the names."""
         for node in self.root.iterate():

@@ -21,11 +21,7 @@ SUBTREE = "SubTree"
 
 def typed_literal(text: str) -> int | float | str:
     """A literal port value on a SubTree element as BT.CPP stores it: an integer, else a real, else the text."""
-    if INT_TEXT.match(text):
-        return int(text)
-    if REAL_TEXT.match(text):
-        return float(text)
-    return text
+    return int(text) if INT_TEXT.match(text) else float(text) if REAL_TEXT.match(text) else text
 
 
 def subtree_ports(elem: ET.Element) -> tuple[dict[str, str], dict[str, str]]:
