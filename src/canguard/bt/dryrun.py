@@ -52,9 +52,7 @@ def dry_run(path: Path, ticks: int, dt: float, main: str | None = None, palette:
             exactly_once: bool = False) -> dict[str, Any]:
     """Load ``path`` and tick it ``ticks`` times ``dt`` s apart (clock from 0): each tick's root status and the
     root blackboard. Each tick is ``tickOnce()`` (``tickExactlyOnce()`` with ``exactly_once``)."""
-    Blackboard.storage.clear()
-    Blackboard.metadata.clear()
-    Blackboard.clients.clear()
+    Blackboard.clear()
     clock = ManualClock()
     ctx = Context(clock, {}, on_event=lambda event: print(f"canguard tree: {event.get('reason')}", file=sys.stderr))
     loaded = load_tree(path, ctx, main, palette)

@@ -51,8 +51,6 @@ _PORT_ALIASES = {"Parallel": {"success_threshold": "success_count", "failure_thr
 _TOKEN = "@"  # placeholder node names handed to py_trees are @<n>
 _KINDS = ("Action", "Condition", "Decorator", "Control", "SubTree")
 _DIRECTIONS = {"input_port": "input", "output_port": "output", "inout_port": "inout", "bidirectional_port": "inout"}
-NEAR_NODE_IDS = 5  # an unknown node ID is answered with this many known ones, the closest
-LIST_NODE_IDS = "`canguard tree --nodes-model FILE` writes every one with its ports"
 
 
 def _closest(word: str, choices: Collection[str]) -> list[str]:
@@ -495,8 +493,7 @@ class _Load:
                 scripts, problems = conditions.take_conditions(elem.attrib)  # a SubTree's: on that node, as BT.CPP
                 what = f"SubTree {elem.attrib.get('ID')}" if subtree else f"node {elem.tag}"
                 self.errors.extend(f"{self.at(elem)}: {what} (BehaviorTree {tree_id}), {p}" for p in problems)
-                if scripts:
-                    self.conditions[elem] = scripts
+                self.conditions[elem] = scripts
                 if subtree:
                     try:
                         self._check_subtree(elem, tree_id, subtree_names)
@@ -580,10 +577,10 @@ class _Load:
             return cls
         if cls is None:
             known = {*BUILTIN_NODES, *plugin_entry_points(), SUBTREE, *self.ctx.actions, *self.palette.nodes}
-            near = closest(node_id, known, NEAR_NODE_IDS) or _closest(node_id, known)[:NEAR_NODE_IDS]
+            near = closest(node_id, known, 5) or _closest(node_id, known)[:5]  # the five closest known IDs
             self.errors.append(f"{self.at(elem)}: unknown node ID {quote(node_id)} (BehaviorTree {tree_id}); "
                                f"known node IDs, closest first: {', '.join(near)} ({len(known)} in all: "
-                               f"{LIST_NODE_IDS})")
+                               "`canguard tree --nodes-model FILE` writes every one with its ports)")
             return None
         ports = port_table(cls)
         for attr, value in elem.attrib.items():

@@ -65,9 +65,8 @@ class TreeBlackboard:
     def inlined(self, inline: Inline) -> TreeBlackboard:
         """This scope as seen from inside an inlined ``_autoremap`` subtree."""
         own = self.namespace + inline.private + "/"
-        aliases = dict(self.aliases)
-        aliases.update({port: self.key(name) for port, name in inline.remaps.items()})
-        aliases.update({port: own + port for port in inline.literals})
+        aliases = {**self.aliases, **{port: self.key(name) for port, name in inline.remaps.items()},
+                   **{port: own + port for port in inline.literals}}
         literals = {own + port: typed_literal(text) for port, text in inline.literals.items()}
         return TreeBlackboard(self.namespace, aliases, literals, self.parent, self.element, inline.private,
                               self.declared)
