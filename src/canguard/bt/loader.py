@@ -177,38 +177,32 @@ class Palette:
 
     def read(self, model: ET.Element, where: Mapping[ET.Element, Where], path: Path, problems: list[str]) -> None:
         """Add the node types of one ``<TreeNodesModel>`` element; problems with file:line."""
-        for decl in model:
-            at = "{}:{}".format(*where.get(decl, (path, 0)))
-            node_id = decl.attrib.get("ID")
-            if decl.tag not in _KINDS:
-                problems.append(f"{at}: <{decl.tag}> in <TreeNodesModel>: expected one of {', '.join(_KINDS)}")
-            elif not node_id:
-                problems.append(f"{at}: <{decl.tag}> in <TreeNodesModel> without ID=\"...\"")
-            else:
-                self.add(PaletteNode(node_id, decl.tag, self._ports(decl, node_id, where, path, problems), at),
-                         problems)
+        def at(elem: ET.Element) -> str:
+            return "{}:{}".format(*where.get(elem, (path, 0)))
 
-    @staticmethod
-    def _ports(decl: ET.Element, node_id: str, where: Mapping[ET.Element, Where], path: Path,
-               problems: list[str]) -> dict[str, PalettePort]:
-        ports: dict[str, PalettePort] = {}
-        for port in decl:
-            at = "{}:{}".format(*where.get(port, (path, 0)))
-            direction = _DIRECTIONS.get(port.tag)
-            name = port.attrib.get("name")
-            if port.tag in ("description", "metadata"):
+        for decl in model:
+            node_id = decl.attrib.get("ID")
+            if decl.tag not in _KINDS or not node_id:
+                problems.append(f"{at(decl)}: <{decl.tag}> in <TreeNodesModel>: expected one of {', '.join(_KINDS)}"
+                                if decl.tag not in _KINDS else
+                                f"{at(decl)}: <{decl.tag}> in <TreeNodesModel> without ID=\"...\"")
                 continue
-            if direction is None:
-                problems.append(f"{at}: <{port.tag}> in {node_id}: expected {', '.join(_DIRECTIONS)}")
-            elif not name:
-                problems.append(f"{at}: <{port.tag}> of {node_id} without name=\"...\"")
-            elif name in ports:
-                problems.append(f"{at}: port {quote(name)} of {node_id} declared twice")
-            else:
-                required = port.attrib.get("required", "").strip().lower() in ("true", "1")
-                ports[name] = PalettePort(direction, port.attrib.get("default"), port.attrib.get("type", ""),
-                                          (port.text or "").strip(), required and direction != "output")
-        return ports
+            ports: dict[str, PalettePort] = {}
+            for port in decl:
+                direction, name = _DIRECTIONS.get(port.tag), port.attrib.get("name")
+                if port.tag in ("description", "metadata"):
+                    continue
+                if direction is None:
+                    problems.append(f"{at(port)}: <{port.tag}> in {node_id}: expected {', '.join(_DIRECTIONS)}")
+                elif not name:
+                    problems.append(f"{at(port)}: <{port.tag}> of {node_id} without name=\"...\"")
+                elif name in ports:
+                    problems.append(f"{at(port)}: port {quote(name)} of {node_id} declared twice")
+                else:
+                    required = port.attrib.get("required", "").strip().lower() in ("true", "1")
+                    ports[name] = PalettePort(direction, port.attrib.get("default"), port.attrib.get("type", ""),
+                                              (port.text or "").strip(), required and direction != "output")
+            self.add(PaletteNode(node_id, decl.tag, ports, at(decl)), problems)
 
     def add(self, node: PaletteNode, problems: list[str]) -> None:
         """Declare ``node``; a problem when its ID was declared before differently."""
