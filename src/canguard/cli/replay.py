@@ -141,7 +141,7 @@ def _outputs(stack: ExitStack, engine: Engine, sink: LogSink, opts: ReplayOption
     the frames sent go to those that take them (kept by ``sink``, handed over after every tick and at the end)."""
     watch = _AfterTicks(sink, engine.observer)
     if opts.export is not None and _mcap_export(opts):
-        from canguard.report.mcapexport import McapExport
+        from canguard.report.export import McapExport
 
         mcap = McapExport(engine, opts.export, log)
         stack.callback(mcap.close)
@@ -527,7 +527,7 @@ def _replay_offline(cfg: Config, cfg_path: Path, args: argparse.Namespace, names
         export.combine_parts(args.export_signals, [opts.export for _, _, opts in jobs if opts.export is not None],
                              [summary is not None for summary, _ in results])
     if args.fleet_summary is not None:
-        from canguard.report.fleet import fleet_row, write_fleet_summary
+        from canguard.report.export import fleet_row, write_fleet_summary
 
         write_fleet_summary(args.fleet_summary, [fleet_row(str(name), summary, err)
                                                  for (summary, err), name in zip(results, names, strict=True)])

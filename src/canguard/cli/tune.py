@@ -1,7 +1,7 @@
 """``canguard tune``: thresholds proposed from healthy logs and known faults, proven by replay.
 
 A statistics pass over every log (:class:`~canguard.report.tune.TuneStats`), a proposal per guard
-(:mod:`canguard.report.proposal`), a proving replay of the tuned files, then ``--out DIR``: docs/commands.md.
+(:func:`canguard.report.tune.propose`), a proving replay of the tuned files, then ``--out DIR``: docs/commands.md.
 """
 
 from __future__ import annotations
@@ -104,7 +104,7 @@ def _replay_all(args: argparse.Namespace, cfg: Config, cfg_path: Path, logs: lis
 def cmd_tune(args: argparse.Namespace) -> int:
     """Statistics, proposal, proving replay, files: exit 0, 1 (no separation / proof failed) or 2."""
     from canguard.cli.fleet import expand_logs
-    from canguard.report.proposal import LogStats, propose
+    from canguard.report.tune import LogStats, propose
 
     cfg_path = config_path(args)
     cfg = load_config(cfg_path)
