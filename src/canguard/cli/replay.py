@@ -58,16 +58,11 @@ class ReplayOptions:
     state: Path | None = None
     plot: Path | None = None
     progress: bool = False
-    export: Path | None = None
-    """``--export-signals``: this log's part file (see :mod:`canguard.report.export`)."""
+    export: Path | None = None  # --export-signals: this log's part file, its rows' log column export_log
     export_log: str = ""
-    """The ``log`` column of its rows: the log as the user named it."""
     bag: BagOptions = field(default_factory=BagOptions)
-    """ROS bags: the topics to read (``--topic``) and the stamps (``--stamp``)."""
-    tune: bool = False
-    """``canguard tune``'s statistics pass: the summary gets a ``tune`` entry (:mod:`canguard.report.tune`)."""
+    tune: bool = False  # canguard tune's statistics pass (a "tune" entry in the summary), tune_i2t: --tune-i2t
     tune_i2t: bool = False
-    """With :attr:`tune`: search I²t ratings too (``--tune-i2t``)."""
 
 
 def replay_one(cfg: Config, log_path: Path, opts: ReplayOptions) -> dict[str, Any]:
@@ -129,11 +124,7 @@ def replay_one(cfg: Config, log_path: Path, opts: ReplayOptions) -> dict[str, An
 
 
 def _mcap_export(opts: ReplayOptions) -> bool:
-    if opts.export is None:
-        return False
-    from canguard.report.export import is_mcap
-
-    return is_mcap(opts.export)
+    return opts.export is not None and opts.export.suffix.lower() == ".mcap"
 
 
 def _outputs(stack: ExitStack, engine: Engine, sink: LogSink, opts: ReplayOptions, log: str) -> None:
