@@ -404,14 +404,15 @@ def cmd_replay(args: argparse.Namespace) -> int:
         return _replay_offline(cfg, cfg_path, args, names)
 
 
-def run_jobs(args: argparse.Namespace, cfg: Config, jobs: list[tuple[Config | ConfigRef, Path, ReplayOptions]],
-             pool: bool) -> list[tuple[dict[str, Any] | None, str]]:
-    """Every job's (summary, error), in input order: on Dask, in ``args.jobs`` processes (largest log first) or
-    here."""
-    if not pool:
-        return [_job(j) for j in jobs]
-    order = sorted(range(len(jobs)), key=lambda i: -_size(jobs[i][1]))
-    todo = [jobs[i] for i in order]
+def run_jobs(args: argparse.Namespace, cfg: Config, cfg_path: Path,
+             logs: list[tuple[Path, ReplayOptions]]) -> list[tuple[dict[str, Any] | None, str]]:
+    """Every log's (summary, error), in input order: on Dask (``--dask``), in ``--jobs`` processes (largest log
+    first) or here."""
+    if not ((args.jobs > 1 and len(logs) > 1) or args.dask is not None):
+        return [_job((cfg, log, opts)) for log, opts in logs]
+    ref = ConfigRef(cfg_path, uuid.uuid4().hex)
+    order = sorted(range(len(logs)), key=lambda i: -_size(logs[i][0]))
+    todo: list[tuple[Config | ConfigRef, Path, ReplayOptions]] = [(ref, *logs[i]) for i in order]
     if args.dask is not None:
         from canguard.cli.fleet import run_dask
 
@@ -419,15 +420,13 @@ def run_jobs(args: argparse.Namespace, cfg: Config, jobs: list[tuple[Config | Co
     else:
         from canguard.cli.fleet import run_processes
 
-        ref = jobs[0][0]
-        assert isinstance(ref, ConfigRef)
         _CONFIGS.clear()
         _CONFIGS[ref] = cfg  # forked workers start with it: no worker reads the config again
         try:
             done = run_processes(args.jobs, _job, todo, warm=_WORKER_MODULES)
         finally:
             _CONFIGS.clear()
-    results: list[tuple[dict[str, Any] | None, str]] = [(None, "")] * len(jobs)
+    results: list[tuple[dict[str, Any] | None, str]] = [(None, "")] * len(logs)
     for i, result in zip(order, done, strict=True):
         results[i] = result
     return results
@@ -494,9 +493,7 @@ def _replay_offline(cfg: Config, cfg_path: Path, args: argparse.Namespace, names
         from canguard.report import export  # --export-signals only (pyarrow's part files)
     many = len(args.logs) > 1
     base = _load_baseline(args.baseline) if args.baseline else None
-    pool = (args.jobs > 1 and many) or args.dask is not None
-    job_cfg: Config | ConfigRef = ConfigRef(cfg_path, uuid.uuid4().hex) if pool else cfg
-    jobs: list[tuple[Config | ConfigRef, Path, ReplayOptions]] = []
+    jobs: list[tuple[Path, ReplayOptions]] = []
     for log, name in zip(args.logs, names, strict=True):
         opts = ReplayOptions(
             channel_map=channel_map, events=per_log_path(args.events, name, many),
@@ -506,16 +503,16 @@ def _replay_offline(cfg: Config, cfg_path: Path, args: argparse.Namespace, names
             export=_export_path(args.export_signals, name, many, len(jobs)),
             export_log=str(name), bag=BagOptions(tuple(args.topic), args.stamp),
         )
-        jobs.append((job_cfg, log, opts))
+        jobs.append((log, opts))
     try:
-        results = run_jobs(args, cfg, jobs, pool)
+        results = run_jobs(args, cfg, cfg_path, jobs)
     except BaseException:
         if args.export_signals is not None and not export.is_mcap(args.export_signals):
-            export.discard_parts([opts.export for _, _, opts in jobs])
+            export.discard_parts([opts.export for _, opts in jobs])
         raise
     if args.export_signals is not None and not export.is_mcap(args.export_signals):
         # In input order; a log that failed contributes no rows (its part may be cut short).
-        export.combine_parts(args.export_signals, [opts.export for _, _, opts in jobs if opts.export is not None],
+        export.combine_parts(args.export_signals, [opts.export for _, opts in jobs if opts.export is not None],
                              [summary is not None for summary, _ in results])
     if args.fleet_summary is not None:
         from canguard.report.export import fleet_row, write_fleet_summary

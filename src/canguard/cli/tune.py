@@ -12,7 +12,6 @@ import math
 import shutil
 import sys
 import tempfile
-import uuid
 from pathlib import Path
 from typing import Any
 
@@ -88,13 +87,11 @@ def load_expect(path: Path) -> dict[str, dict[str, Any]]:
 def _replay_all(args: argparse.Namespace, cfg: Config, cfg_path: Path, logs: list[Path], *,
                 tune: bool) -> list[dict[str, Any]]:
     """Every log's replay summary (the statistics with ``tune``); ConfigError naming a log that failed."""
-    from canguard.cli.replay import ConfigRef, ReplayOptions, run_jobs
+    from canguard.cli.replay import ReplayOptions, run_jobs
 
-    pool = (args.jobs > 1 and len(logs) > 1) or args.dask is not None
-    ref: Config | ConfigRef = ConfigRef(cfg_path, uuid.uuid4().hex) if pool else cfg
     opts = ReplayOptions(tune=tune, tune_i2t=args.tune_i2t)
     out = []
-    for (summary, err), log in zip(run_jobs(args, cfg, [(ref, log, opts) for log in logs], pool), logs, strict=True):
+    for (summary, err), log in zip(run_jobs(args, cfg, cfg_path, [(log, opts) for log in logs]), logs, strict=True):
         if summary is None:
             raise ConfigError(f"tune: {log}: {err}")
         out.append(summary)
