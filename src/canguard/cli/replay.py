@@ -398,9 +398,14 @@ def cmd_replay(args: argparse.Namespace) -> int:
             from canguard.cli.realtime import replay_realtime
 
             try:
-                return replay_realtime(cfg, args, names)
+                live: list[tuple[dict[str, Any] | None, str]] = [*replay_realtime(cfg, args, names)]
             except LogFormatError as exc:  # named as the user named the log (`-`), not as the spool file
                 raise LogFormatError(_as_named(str(exc), args.logs, names)) from None
+            code = _report(args, live, names, None, len(names) > 1)
+            if code == EXIT_OK:
+                print("note: --realtime runs the live daemon; its times follow the wall clock, not the log",
+                      file=sys.stderr)
+            return code
         return _replay_offline(cfg, cfg_path, args, names)
 
 
