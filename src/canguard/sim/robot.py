@@ -3,7 +3,7 @@
 Everything is a function of the seed, the scenarios and the frames received (one seeded
 :class:`random.Random`, no wall clock). Frames come out of a heap of scheduled producers in time order;
 periodic streams are scheduled from their nominal times plus a seeded jitter of 0 to 20 µs (never early),
-so rates never drift. The physics (:class:`Motion`), simple so that tests and example logs can
+so rates never drift. The physics, simple so that tests and example logs can
 assert it:
 
 * Current loop: in CLOSED_LOOP_CONTROL (8) Iq is the setpoint plus noise (σ 0.03 A), rising to it with
@@ -76,70 +76,6 @@ class _Axis:
     enc_t: float = 0.0
 
 
-class Motion:
-    """Setpoints, currents and the battery pack of the simulated robot: functions of time and the axes' state."""
-
-    def __init__(self, rng: random.Random, axes: list[_Axis], setpoint_hooks: list[Scenario]) -> None:
-        self.rng = rng
-        self.axes = axes
-        self.setpoint_hooks = setpoint_hooks
-        self.soc_pct = START_SOC_PCT
-
-    def duty(self, ax: _Axis, t: float) -> float:
-        """The duty cycle's current setpoint: trapezoid moves with 20 ms ramps."""
-        u = (t + ax.index * _STAGGER_S) % _CYCLE_S
-        i = bisect.bisect_right(_SEG_STARTS, u) - 1
-        start, level = _SEGMENTS[i]
-        into = u - start
-        if into < _RAMP_S:
-            prev = _SEGMENTS[i - 1][1]
-            level = prev + (level - prev) * into / _RAMP_S
-        return level * ax.scale
-
-    def velocity(self, ax: _Axis, t: float) -> float:
-        """Velocity of the duty cycle's move (rev/s): trapezoid rising while accelerating."""
-        u = (t + ax.index * _STAGGER_S) % _CYCLE_S
-        sign = 1.0 if u < 2.0 else -1.0
-        u %= 2.0
-        v = max(0.0, min(u / 0.25, 1.0, (1.0 - u) / 0.25))  # 0.25 s up, 0.5 s at full speed, 0.25 s down, then still
-        return sign * v * _VMAX_REV_S * ax.scale
-
-    def setpoint(self, ax: _Axis, t: float) -> float:
-        """The current setpoint: the duty cycle's as the scenarios change it; 0 unless in closed loop."""
-        if ax.state != AXIS_STATE_CLOSED_LOOP:
-            return 0.0
-        iq = self.duty(ax, t)
-        for sc in self.setpoint_hooks:
-            iq = sc.setpoint(ax.index, t, iq)
-        return iq
-
-    def current(self, ax: _Axis, t: float) -> float:
-        """Noise-free Iq: the setpoint in closed loop (after a resume ramp), a decay when idle."""
-        dt = t - ax.edge_t
-        if ax.state == AXIS_STATE_CLOSED_LOOP:
-            sp = self.setpoint(ax, t)
-            if dt < 10 * RESUME_TAU_S:
-                return sp + (ax.edge_i - sp) * math.exp(-max(dt, 0.0) / RESUME_TAU_S)
-            return sp
-        if dt > 30 * STOP_TAU_S:
-            return 0.0
-        return ax.edge_i * math.exp(-max(dt, 0.0) / STOP_TAU_S)
-
-    def measured(self, ax: _Axis, t: float) -> float:
-        """Iq as the drive measures it (with noise)."""
-        noise = IQ_NOISE_A if ax.state == AXIS_STATE_CLOSED_LOOP else IDLE_NOISE_A
-        return self.current(ax, t) + self.rng.gauss(0.0, noise)
-
-    def pack_current(self, t: float) -> float:
-        """The BMS's pack current: base load + Σ|Iq| + noise."""
-        total = BASE_LOAD_A + sum(abs(self.current(ax, t)) for ax in self.axes)
-        return total + self.rng.gauss(0.0, PACK_NOISE_A)
-
-    def pack_voltage(self, current_a: float) -> float:
-        """Open-circuit voltage at the state of charge, less the pack's resistance drop."""
-        ocv = PACK_CELLS * (3.3 + 0.9 * self.soc_pct / 100.0)
-        return ocv - PACK_R_OHM * current_a
-
 DEFAULT_RATES_HZ: dict[str, float] = {
     "Get_Iq": 250.0, "Get_Torques": 250.0, "Get_Encoder_Estimates": 100.0, "Get_Bus_Voltage_Current": 20.0,
     "Heartbeat": 10.0, "BMS_Status": 50.0, "BMS_Temperatures": 1.0,
@@ -198,7 +134,8 @@ class SimRobot:
         self._seq = 0
         self._now = 0.0
         self._stream_rates: dict[str, float] = {}
-        self.motion = Motion(self.rng, self._axes, [s for s in parsed if type(s).setpoint is not Scenario.setpoint])
+        self._setpoint_hooks = [s for s in parsed if type(s).setpoint is not Scenario.setpoint]
+        self.soc_pct = START_SOC_PCT
         self._suppress_hooks = [s for s in parsed if type(s).suppress is not Scenario.suppress]
         self._add_base_streams()
         for sc in sorted(parsed, key=lambda s: s.setup_last):
@@ -252,7 +189,7 @@ class SimRobot:
 
     def current_a(self, axis: int) -> float:
         """The noise-free Iq of ``axis`` at the current time, in amps."""
-        return self.motion.current(self._axes[axis], self._now)
+        return self.current(self._axes[axis], self._now)
 
     def nominal_rate_hz(self) -> float:
         """Frames per second of all periodic streams (scenarios' one-off frames not counted)."""
@@ -295,15 +232,14 @@ class SimRobot:
 
     def bms_frame(self, t: float, pack_current_a: float | None = None) -> Frame:
         """A BMS_Status frame at ``t``; ``pack_current_a`` overrides the measured current (the spike)."""
-        motion = self.motion
-        current = motion.pack_current(t)
+        current = self.pack_current(t)
         dt = max(0.0, t - self._soc_t)
         self._soc_t = max(self._soc_t, t)
-        motion.soc_pct = max(0.0, motion.soc_pct - current * dt / (PACK_CAPACITY_AH * 36.0))
+        self.soc_pct = max(0.0, self.soc_pct - current * dt / (PACK_CAPACITY_AH * 36.0))
         self._alive = (self._alive + 1) & 0xFF
         enc = self._by_name["BMS_Status"]
         data = enc.encode({"Pack_Current": current if pack_current_a is None else pack_current_a,
-                           "Pack_Voltage": motion.pack_voltage(current), "State_Of_Charge": motion.soc_pct,
+                           "Pack_Voltage": self.pack_voltage(current), "State_Of_Charge": self.soc_pct,
                            "Present": 1, "Fault": 0, "Alive_Counter": self._alive})
         return self.raw_frame(t, enc.frame_id, data, enc.is_extended_id)
 
@@ -315,6 +251,61 @@ class SimRobot:
         while self._cmds and self._cmds[0][0] <= t:
             at, _, frame = heapq.heappop(self._cmds)
             self._apply(at, frame)
+
+    def duty(self, ax: _Axis, t: float) -> float:
+        """The duty cycle's current setpoint: trapezoid moves with 20 ms ramps."""
+        u = (t + ax.index * _STAGGER_S) % _CYCLE_S
+        i = bisect.bisect_right(_SEG_STARTS, u) - 1
+        start, level = _SEGMENTS[i]
+        into = u - start
+        if into < _RAMP_S:
+            prev = _SEGMENTS[i - 1][1]
+            level = prev + (level - prev) * into / _RAMP_S
+        return level * ax.scale
+
+    def velocity(self, ax: _Axis, t: float) -> float:
+        """Velocity of the duty cycle's move (rev/s): trapezoid rising while accelerating."""
+        u = (t + ax.index * _STAGGER_S) % _CYCLE_S
+        sign = 1.0 if u < 2.0 else -1.0
+        u %= 2.0
+        v = max(0.0, min(u / 0.25, 1.0, (1.0 - u) / 0.25))  # 0.25 s up, 0.5 s at full speed, 0.25 s down, then still
+        return sign * v * _VMAX_REV_S * ax.scale
+
+    def setpoint(self, ax: _Axis, t: float) -> float:
+        """The current setpoint: the duty cycle's as the scenarios change it; 0 unless in closed loop."""
+        if ax.state != AXIS_STATE_CLOSED_LOOP:
+            return 0.0
+        iq = self.duty(ax, t)
+        for sc in self._setpoint_hooks:
+            iq = sc.setpoint(ax.index, t, iq)
+        return iq
+
+    def current(self, ax: _Axis, t: float) -> float:
+        """Noise-free Iq: the setpoint in closed loop (after a resume ramp), a decay when idle."""
+        dt = t - ax.edge_t
+        if ax.state == AXIS_STATE_CLOSED_LOOP:
+            sp = self.setpoint(ax, t)
+            if dt < 10 * RESUME_TAU_S:
+                return sp + (ax.edge_i - sp) * math.exp(-max(dt, 0.0) / RESUME_TAU_S)
+            return sp
+        if dt > 30 * STOP_TAU_S:
+            return 0.0
+        return ax.edge_i * math.exp(-max(dt, 0.0) / STOP_TAU_S)
+
+    def measured(self, ax: _Axis, t: float) -> float:
+        """Iq as the drive measures it (with noise)."""
+        noise = IQ_NOISE_A if ax.state == AXIS_STATE_CLOSED_LOOP else IDLE_NOISE_A
+        return self.current(ax, t) + self.rng.gauss(0.0, noise)
+
+    def pack_current(self, t: float) -> float:
+        """The BMS's pack current: base load + Σ|Iq| + noise."""
+        total = BASE_LOAD_A + sum(abs(self.current(ax, t)) for ax in self._axes)
+        return total + self.rng.gauss(0.0, PACK_NOISE_A)
+
+    def pack_voltage(self, current_a: float) -> float:
+        """Open-circuit voltage at the state of charge, less the pack's resistance drop."""
+        ocv = PACK_CELLS * (3.3 + 0.9 * self.soc_pct / 100.0)
+        return ocv - PACK_R_OHM * current_a
 
     def _add_base_streams(self) -> None:
         for slot, kind in enumerate(AXIS_KINDS):
@@ -330,7 +321,7 @@ class SimRobot:
 
     def _set_state(self, ax: _Axis, t: float, state: int) -> None:
         if state != ax.state:
-            ax.edge_i = self.motion.current(ax, t)
+            ax.edge_i = self.current(ax, t)
             ax.edge_t = t
             ax.state = state
 
@@ -352,18 +343,17 @@ class SimRobot:
 
     def _telemetry(self, kind: str, ax: _Axis, t: float) -> tuple[float, float]:
         """The two float32 signals of an axis' telemetry ``kind`` at ``t``."""
-        m = self.motion
         if kind == "Get_Iq":
-            return m.setpoint(ax, t), m.measured(ax, t)
+            return self.setpoint(ax, t), self.measured(ax, t)
         if kind == "Get_Torques":
-            return KT_NM_PER_A * m.setpoint(ax, t), KT_NM_PER_A * m.measured(ax, t)
+            return KT_NM_PER_A * self.setpoint(ax, t), KT_NM_PER_A * self.measured(ax, t)
         if kind == "Get_Encoder_Estimates":
-            vel = m.velocity(ax, t) if ax.state == AXIS_STATE_CLOSED_LOOP else 0.0
+            vel = self.velocity(ax, t) if ax.state == AXIS_STATE_CLOSED_LOOP else 0.0
             ax.pos_rev += vel * max(0.0, t - ax.enc_t)
             ax.enc_t = max(ax.enc_t, t)
             return ax.pos_rev, vel
-        iq = abs(m.measured(ax, t))  # Get_Bus_Voltage_Current
-        return m.pack_voltage(m.pack_current(t)) - 0.1, iq
+        iq = abs(self.measured(ax, t))  # Get_Bus_Voltage_Current
+        return self.pack_voltage(self.pack_current(t)) - 0.1, iq
 
     def _telemetry_producer(self, kind: str, ax: _Axis) -> Producer:
         enc = self.encoder(ax.index, kind)
@@ -373,7 +363,7 @@ class SimRobot:
         enc = self.encoder(ax.index, "Heartbeat")
 
         def produce(t: float) -> Frame:
-            done = int(ax.state != AXIS_STATE_CLOSED_LOOP or self.motion.velocity(ax, t) == 0.0)
+            done = int(ax.state != AXIS_STATE_CLOSED_LOOP or self.velocity(ax, t) == 0.0)
             return self.raw_frame(t, enc.frame_id, enc.encode({"Axis_Error": ax.errors, "Axis_State": ax.state,
                                                                "Procedure_Result": 0, "Trajectory_Done_Flag": done}))
 
@@ -381,7 +371,7 @@ class SimRobot:
 
     def _temps(self, t: float) -> Frame:
         enc = self._by_name["BMS_Temperatures"]
-        cell_v = self.motion.pack_voltage(0.0) / PACK_CELLS
+        cell_v = self.pack_voltage(0.0) / PACK_CELLS
         data = enc.encode({"Cell_Temp_Min": 27.0 + self.rng.uniform(0, 1),
                            "Cell_Temp_Max": 30.0 + self.rng.uniform(0, 1), "Cell_Voltage_Min": cell_v - 0.01,
                            "Cell_Voltage_Max": cell_v + 0.01, "Pack_Temp_Delta": 3.0})
