@@ -21,7 +21,6 @@ from canguard.cli.common import (
     EXIT_BAD_INPUT,
     EXIT_BROKEN_PIPE,
     EXIT_INTERRUPTED,
-    Formatter,
     add_global_options,
     add_monitor_options,
     add_state_dir,
@@ -214,7 +213,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="canguard",
         description="CAN-bus motor-driver monitoring: DBC decoding, protection models, behaviour trees.",
-        epilog=exit_codes_epilog(), formatter_class=Formatter,
+        epilog=exit_codes_epilog(), formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("--version", action=_VersionAction)
     add_global_options(parser, in_subcommand=False)

@@ -319,32 +319,30 @@ def _as_named(text: str, read: list[Path], names: list[Path]) -> str:
     return text
 
 
-def _check_state(path: Path | None) -> None:
-    """``--state`` is only read: a path that cannot be read is exit 2 now, not a silent cold start."""
-    if path is None:
-        return
+def _check_args(args: argparse.Namespace) -> None:
+    """The options, and every file the replay reads or writes, tried before the first log is read: one line and
+    exit 2 (ConfigError), not a traceback or a silent cold start."""
+    from canguard.io.outputs import check_output
     from canguard.protect.state import readable_problem
 
-    why = readable_problem(path)
-    if why:
-        raise ConfigError(f"--state {path}: cannot be read ({why}): expected an I²t state file saved by "
+    why = readable_problem(args.state) if args.state is not None else ""
+    if why:  # --state is only read
+        raise ConfigError(f"--state {args.state}: cannot be read ({why}): expected an I²t state file saved by "
                           "`canguard run` (its state.file); leave --state out to start cold")
-
-
-def _check_outputs(args: argparse.Namespace) -> None:
-    """Every file the replay writes, tried before the first log is read: one line and exit 2, not a traceback."""
-    from canguard.io.outputs import check_output
-
     many = len(args.logs) > 1
     for log in args.logs:
         check_output(per_log_path(args.events, log, many), "--events", beside=True, makes_dirs=True)
         check_output(per_log_path(args.emit, log, many), "--emit")
         check_output(per_log_path(args.plot, log, many), "--plot")
     check_output(args.fleet_summary, "--fleet-summary")
+    if args.export_signals is not None and args.realtime is None:
+        from canguard.report.export import check_export
 
-
-def _check_regression_gate(args: argparse.Namespace) -> None:
-    """``--fail-on-regression`` needs something to regress from; a tolerance is a finite percentage >= 0."""
+        check_export(args.export_signals, dask=args.dask is not None)
+    if args.dask is not None and args.realtime is not None:
+        raise ConfigError("replay: --dask and --realtime do not go together (a realtime replay plays one log live)")
+    if args.logs.count(Path("-")) > 1:
+        raise ConfigError("replay: '-' (stdin) can be given once")
     if args.fail_on_regression and args.baseline is None:
         raise ConfigError("replay: --fail-on-regression needs --baseline FILE (a saved `canguard replay --json`)")
     tol = args.margin_tolerance
@@ -377,20 +375,10 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
     cfg_path = config_path(args)
     cfg = load_config(cfg_path)
-    _check_state(args.state)
     from canguard.cli.fleet import expand_logs
 
     args.logs = expand_logs(args.logs)
-    _check_outputs(args)
-    if args.export_signals is not None and args.realtime is None:
-        from canguard.report.export import check_export
-
-        check_export(args.export_signals, dask=args.dask is not None)
-    if args.dask is not None and args.realtime is not None:
-        raise ConfigError("replay: --dask and --realtime do not go together (a realtime replay plays one log live)")
-    if args.logs.count(Path("-")) > 1:
-        raise ConfigError("replay: '-' (stdin) can be given once")
-    _check_regression_gate(args)
+    _check_args(args)
     with tempfile.TemporaryDirectory(prefix="canguard-replay-") as tmp:
         names = list(args.logs)
         args.logs = [_as_format(log, args.format, Path(tmp)) for log in names]
