@@ -220,10 +220,10 @@ class SimRobot:
         def stream(t: float) -> Frame | None:
             nonlocal k
             k += 1  # the next one from its nominal time: the rate never drifts
-            self.schedule_once(phase_s + k * period_s + self.jitter_s(), stream)
+            self.schedule_once(phase_s + k * period_s + self.rng.uniform(0.0, JITTER_S), stream)
             return None if any(s.suppress(kind, t) for s in self._suppress_hooks) else produce(t)
 
-        self.schedule_once(phase_s + self.jitter_s(), stream)
+        self.schedule_once(phase_s + self.rng.uniform(0.0, JITTER_S), stream)  # a real bus' jitter
 
     def raw_frame(self, t: float, frame_id: int, data: bytes, extended: bool = False, *, error: bool = False
                   ) -> Frame:
@@ -242,10 +242,6 @@ class SimRobot:
                            "Pack_Voltage": self.pack_voltage(current), "State_Of_Charge": self.soc_pct,
                            "Present": 1, "Fault": 0, "Alive_Counter": self._alive})
         return self.raw_frame(t, enc.frame_id, data, enc.is_extended_id)
-
-    def jitter_s(self) -> float:
-        """A random delay of a periodic frame (a real bus' scheduling jitter)."""
-        return self.rng.uniform(0.0, JITTER_S)
 
     def _apply_until(self, t: float) -> None:
         while self._cmds and self._cmds[0][0] <= t:
