@@ -129,7 +129,7 @@ def cmd_tune(args: argparse.Namespace) -> int:
     guards, age_props = propose(stats, ages, needs if args.expect is not None else None, args.margin / 100.0,
                                 args.tune_i2t)
     report: dict[str, Any] = {"config": str(cfg_path), "margin_pct": args.margin,
-                              "guards": [g.as_json() for g in guards], "max_age": [a.as_json() for a in age_props]}
+                              "max_age": [a.as_json() for a in age_props]}
     conflicts = any(g.status == "conflict" for g in guards) or any(a.status == "conflict" for a in age_props)
     report["result"] = "conflict" if conflicts else "refused"
     if not conflicts:
@@ -144,6 +144,7 @@ def cmd_tune(args: argparse.Namespace) -> int:
                     for f in sorted(Path(tmp).iterdir()):
                         shutil.copy2(f, args.out / f.name)
                     report["written"] = sorted(str(args.out / f.name) for f in Path(tmp).iterdir())
+    report["guards"] = [g.as_json() for g in guards]  # as written: a port read from the blackboard is left
     if args.plot is not None:
         from canguard.report.plot import plot_tune
 
