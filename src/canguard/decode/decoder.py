@@ -87,10 +87,6 @@ class Decoder:
             self._table[key] = MessageDecoder(message, [_output(ref, src) for ref, src in refs])
 
     # -- introspection -----------------------------------------------------
-    def keys(self) -> Iterable[tuple[str, int, bool]]:
-        """The configured ``(bus, arbitration_id, is_extended_id)`` triples."""
-        return self._table.keys()
-
     def entries(self) -> Iterable[tuple[tuple[str, int, bool], MessageDecoder]]:
         """Every configured ``(bus, arbitration_id, is_extended_id)`` with its message's decoder."""
         return self._table.items()
