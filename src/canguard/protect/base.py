@@ -13,7 +13,7 @@ from abc import ABC, abstractmethod
 from typing import TYPE_CHECKING, Any, ClassVar
 
 from canguard.protect.columns import SHORT_RUN, as_run, ordered, short_run, values_span
-from canguard.protect.results import Run, Snapshot, alternate, edges, quiet_cached, quiet_run
+from canguard.protect.results import Run, Snapshot, edges, quiet_cached, quiet_run
 
 if TYPE_CHECKING:
     import numpy.typing as npt
@@ -133,17 +133,19 @@ class LatchedModel(ProtectionModel):
         else:
             t, v = few
         index: list[int] = []
+        after: list[bool] = []
         taken = len(t)
         sample = self._sample
         for i in range(taken):
             if sample(t[i], v[i]):
                 index.append(i)
+                after.append(self._tripped)
                 if until_edge:
                     taken = i + 1
                     break
         if not index:
             return quiet_run(taken)
-        return edges(index, [t[i] for i in index], alternate(self._tripped, len(index)), taken)
+        return edges(index, [t[i] for i in index], after, taken)
 
     def mark(self) -> Any:
         """The running state (every attribute: parameters are only read back as they were)."""
