@@ -29,6 +29,7 @@ REASON_NOT_PRESENT = "not_present"
 TIME_EPS_S = 1e-9
 """Tolerance of duration comparisons: ``21 * 0.01`` carries float rounding, candump resolves microseconds."""
 
+
 def check_limit(name: str, value: float, *, positive: bool = False) -> float:
     """``value`` as float; ValueError naming ``name`` when it is not finite, negative, or (``positive``) 0."""
     v = float(value)
