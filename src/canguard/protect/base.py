@@ -128,25 +128,26 @@ class LatchedModel(ProtectionModel):
             ta, va = as_run(times, values)
             if ta.size and self._screened(ta, va):
                 return quiet_run(ta.size)
-            t, v = ta.tolist(), va.tolist()
+            taken, rows = ta.size, zip(map(float, ta), map(float, va), strict=True)  # lazily: an edge may stop it
         elif few[0] and self._screened(*few):
             return quiet_run(len(few[0]))
         else:
-            t, v = few
+            taken, rows = len(few[0]), zip(*few, strict=True)
         index: list[int] = []
+        stamps: list[float] = []
         after: list[bool] = []
-        taken = len(t)
         sample = self._sample
-        for i in range(taken):
-            if sample(t[i], v[i]):
+        for i, (t, v) in enumerate(rows):
+            if sample(t, v):
                 index.append(i)
+                stamps.append(t)
                 after.append(self._tripped)
                 if until_edge:
                     taken = i + 1
                     break
         if not index:
             return quiet_run(taken)
-        return edges(index, [t[i] for i in index], after, taken)
+        return edges(index, stamps, after, taken)
 
     def mark(self) -> Any:
         """The running state (every attribute: parameters are only read back as they were)."""
