@@ -18,20 +18,15 @@ if TYPE_CHECKING:
     from canguard.bt.loader import Palette
 
 
-def _json_value(value: Any) -> Any:
-    """Numbers, strings and booleans as they are; NaN/inf and anything else as text."""
-    if value is None or isinstance(value, str | int) or (isinstance(value, float) and math.isfinite(value)):
-        return value
-    return str(value)
-
-
 def root_blackboard() -> dict[str, Any]:
-    """The root namespace's entries (``/key``), without the loader's port constants."""
+    """The root namespace's entries (``/key``), without the loader's port constants: numbers, strings and
+    booleans as they are, NaN/inf and anything else as text."""
     out = {}
     for key, value in Blackboard.storage.items():
         name = key[1:]
         if key.startswith("/") and "/" not in name and not name.endswith("__const"):
-            out[name] = _json_value(value)
+            plain = value is None or isinstance(value, str | int) or (isinstance(value, float) and math.isfinite(value))
+            out[name] = value if plain else str(value)
     return dict(sorted(out.items()))
 
 
