@@ -83,7 +83,7 @@ def test_tree_without_scripts_or_palette_imports_neither(logs: list[Path]) -> No
     """The bundled tree has no Script node, no pre/post condition and no <TreeNodesModel>: its replay imports
     neither the scripting language (~5 ms of classes at start-up) nor the palette reader, nor the node
     families it does not use (BT.CPP's built-ins: Script, Sleep, IfThenElse...)."""
-    modules = ("canguard.bt.scripting.script", "canguard.bt.scripting.expr", "canguard.bt.palette",
+    modules = ("canguard.bt.scripting.script", "canguard.bt.palette",
                "canguard.bt.nodes.builtins")
     assert replay_loads(logs[0], modules) == "LOADED 0"
 

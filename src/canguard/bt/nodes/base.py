@@ -20,7 +20,7 @@ from canguard.bt.wakeup import WakeUpSignal
 
 if TYPE_CHECKING:
     from canguard.bt.scripting import Script
-    from canguard.bt.scripting.blackboard import ScriptBlackboard
+    from canguard.bt.scripting.script import ScriptBlackboard
 
 NodeKind = Literal["Action", "Condition", "Control", "Decorator"]
 

@@ -125,7 +125,7 @@ class SetBlackboard(_Scripted, py_trees.behaviour.Behaviour):
             return FAILURE
         name = str(key).strip("{}")
         if not wired and self.board.has(name):  # BT.CPP: text into a typed entry is parsed to its type
-            from canguard.bt.scripting.values import convert_for_entry, entry_type
+            from canguard.bt.scripting.script import convert_for_entry, entry_type
 
             try:
                 target: type | None = entry_type(self.board.get(name))
