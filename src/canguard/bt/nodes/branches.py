@@ -18,10 +18,10 @@ from canguard.bt.nodes.base import (
     Children,
     PortError,
     count_of,
+    end_as,
     follow,
     halt_running,
     halted,
-    mark_skipped,
     node_types,
     outcome,
     port_info,
@@ -147,18 +147,12 @@ class ParallelAll(CanguardNode, py_trees.composites.Composite):
                 skipped += 1
             elif child.status in (SUCCESS, FAILURE):
                 self.finished[index] = child.status
-        if skipped == len(self.children):  # BT.CPP: all skipped, the parallel too
-            mark_skipped(self)
-            yield self
-            return
-        if skipped + len(self.finished) < len(self.children):
-            self.status = RUNNING
-            yield self
+        if skipped + len(self.finished) < len(self.children):  # BT.CPP: all skipped, the parallel too
+            yield end_as(self, SKIPPED if skipped == len(self.children) else RUNNING)
             return
         failures = sum(1 for s in self.finished.values() if s == FAILURE)
         self.finished.clear()
-        self.stop(FAILURE if failures >= self.threshold() else SUCCESS)
-        yield self
+        yield end_as(self, FAILURE if failures >= self.threshold() else SUCCESS)
 
     def stop(self, new_status: py_trees.common.Status = INVALID) -> None:
         halt_running(self.children)
@@ -201,8 +195,7 @@ class TryCatch(CanguardNode, py_trees.composites.Composite):
                 self.skipped_count += 1
                 continue
             if child.status == RUNNING:
-                self.status = RUNNING
-                yield self
+                yield end_as(self, RUNNING)
                 return
             if child.status == FAILURE:
                 self.in_catch = True
@@ -210,21 +203,15 @@ class TryCatch(CanguardNode, py_trees.composites.Composite):
             else:
                 self.index += 1
         if not self.in_catch:
-            if self.skipped_count == len(tries):  # BT.CPP: every try skipped
+            all_skipped = self.skipped_count == len(tries)  # BT.CPP: every try skipped
+            if all_skipped:
                 self.index = 0
-                mark_skipped(self)
-            else:
-                self.stop(SUCCESS)
-            yield self
+            yield end_as(self, SKIPPED if all_skipped else SUCCESS)
             return
         catch = self.children[-1]
         self.current_child = catch
         yield from catch.tick()
-        if catch.status == RUNNING:
-            self.status = RUNNING
-        else:
-            self.stop(FAILURE)
-        yield self
+        yield end_as(self, RUNNING if catch.status == RUNNING else FAILURE)
 
     def stop(self, new_status: py_trees.common.Status = INVALID) -> None:
         if halted(self, new_status) and not self.in_catch and self.port("catch_on_halt"):

@@ -211,8 +211,7 @@ class Precondition(_Scripted, DecoratorNode):
             except ScriptError:
                 ok = False
             if not ok:
-                end_as(self, str(self.port("else")).upper())
-                yield self
+                yield end_as(self, str(self.port("else")).upper())
                 return
         yield from py_trees.decorators.Decorator.tick(self)  # the plain tick: this one is already skip-aware
 
@@ -240,16 +239,14 @@ class _Branching(CanguardNode, py_trees.composites.Composite):
             if outcome(cond) == SKIPPED:  # BT.CPP throws here too: a skipped condition decides nothing
                 raise RuntimeError(f"{type(self).__name__} {self.name}: its condition (first child) was skipped")
             if cond.status == RUNNING:
-                self.status = RUNNING
-                yield self
+                yield end_as(self, RUNNING)
                 return
             branch = 1 if cond.status == SUCCESS else 2
             if self.branch and branch != self.branch and self.children[self.branch].status == RUNNING:
                 self.children[self.branch].stop(INVALID)  # WhileDoElse: the condition changed
             self.branch = branch
         if self.branch >= len(self.children):
-            self.stop(FAILURE)
-            yield self
+            yield end_as(self, FAILURE)
             return
         yield from follow(self, self.children[self.branch])  # BT.CPP returns the branch's status, SKIPPED too
 

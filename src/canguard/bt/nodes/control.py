@@ -21,7 +21,7 @@ from canguard.bt.nodes.base import (
     PortError,
     Status,
     count_of,
-    mark_skipped,
+    end_as,
     node_types,
     outcome,
     port_info,
@@ -65,8 +65,7 @@ class Parallel(CanguardNode, py_trees.composites.Parallel):
             self.initialise()
         n = len(self.children)
         if not n:
-            self.stop(SUCCESS)
-            yield self
+            yield end_as(self, SUCCESS)
             return
         need_s, need_f = self.thresholds()
         all_needed = (self.port("success_count") or -1) < 0
@@ -81,24 +80,14 @@ class Parallel(CanguardNode, py_trees.composites.Parallel):
             successes = sum(1 for s in self.finished.values() if s == SUCCESS)
             failures = len(self.finished) - successes
             # BT.CPP: with a negative success_count, skipped children count towards it
-            if successes >= need_s or (all_needed and successes + skipped >= need_s):
-                yield from self._finish(SUCCESS, child)
-                return
-            if n - failures < need_s or failures >= need_f:
-                yield from self._finish(FAILURE, child)
+            done = successes >= need_s or (all_needed and successes + skipped >= need_s)
+            if done or n - failures < need_s or failures >= need_f:
+                self.current_child = child
+                self.finished.clear()
+                yield end_as(self, SUCCESS if done else FAILURE)  # py_trees' Parallel.stop halts the running
                 return
         self.current_child = self.children[-1]
-        if skipped == n:  # every child skipped: the parallel too
-            mark_skipped(self)
-        else:
-            self.status = RUNNING
-        yield self
-
-    def _finish(self, status: py_trees.common.Status, child: py_trees.behaviour.Behaviour) -> Any:
-        self.current_child = child
-        self.finished.clear()
-        self.stop(status)  # py_trees' Parallel.stop halts the children still RUNNING
-        yield self
+        yield end_as(self, SKIPPED if skipped == n else RUNNING)  # every child skipped: the parallel too
 
 
 class Inverter(CanguardNode, py_trees.decorators.Inverter):
@@ -141,22 +130,17 @@ class _Cycles(DecoratorNode):
     def tick(self) -> Any:
         limit = self.port(self.LIMIT)
         if limit is None:
-            self.stop(FAILURE)
-            yield self
+            yield end_as(self, FAILURE)
             return
         child = self.decorated
         while self.count < limit or limit == -1:
             fresh = child.status != RUNNING
             yield from tick_child(child)
             status = child.status
-            if status == RUNNING:
-                self.status = RUNNING
-                yield self
-                return
             if status == self.ENDS:
                 self.count = 0
-                self.stop(status)
-                yield self
+            if status in (RUNNING, self.ENDS):
+                yield end_as(self, status)
                 return
             self.count += 1
             limit = self.port(self.LIMIT)
@@ -165,14 +149,12 @@ class _Cycles(DecoratorNode):
             if fresh and (self.count < limit or limit == -1):
                 self.feedback_message = self.AGAIN_TEXT.format(self.count)
                 self.emit_wake_up()
-                self.status = RUNNING
-                yield self
+                yield end_as(self, RUNNING)
                 return
         if self.DONE_TEXT:
             self.feedback_message = self.DONE_TEXT.format(self.count)
         self.count = 0
-        self.stop(self.DONE)
-        yield self
+        yield end_as(self, self.DONE)
 
 
 RetryUntilSuccessful, Repeat = node_types(_Cycles, __name__, {
@@ -212,16 +194,12 @@ class Timeout(DecoratorNode):
             if self.decorated.status == RUNNING:
                 self.decorated.stop(INVALID)
             self.feedback_message = "timed out"
-            self.stop(FAILURE)
-            yield self
+            yield end_as(self, FAILURE)
             return
         yield from self.decorated.tick()
-        status = self.decorated.status
-        if status != RUNNING:
+        if self.decorated.status != RUNNING:
             self.cancel_timer()
-            self.stop(status)
-        self.status = status
-        yield self
+        yield end_as(self, self.decorated.status)
 
     def terminate(self, new_status: py_trees.common.Status) -> None:
         if new_status == INVALID:
@@ -249,17 +227,13 @@ class Delay(DecoratorNode):
             self.initialise()
         if delay is None or now - self.started < delay / 1000.0:
             self.feedback_message = "waiting"
-            self.status = RUNNING
-            yield self
+            yield end_as(self, RUNNING)
             return
         self.feedback_message = ""
         yield from self.decorated.tick()
-        status = self.decorated.status
-        if status != RUNNING:
+        if self.decorated.status != RUNNING:
             self.started = None
-            self.stop(status)
-        self.status = status
-        yield self
+        yield end_as(self, self.decorated.status)
 
     def terminate(self, new_status: py_trees.common.Status) -> None:
         if new_status == INVALID:

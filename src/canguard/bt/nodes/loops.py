@@ -95,22 +95,16 @@ class _Loop(DecoratorNode):
                 taken, item = self._take()
             except ValueError as exc:  # BT.CPP throws; the guard fails this node and says why
                 self.feedback_message = str(exc)
-                self.stop(FAILURE)
-                yield self
+                yield end_as(self, FAILURE)
                 return
             if not taken:
-                end_as(self, str(self.port("if_empty")).upper())
-                yield self
+                yield end_as(self, str(self.port("if_empty")).upper())
                 return
             self.write("value", item)
         child = self.decorated
         yield from child.tick()
         self.child_running = child.status == RUNNING
-        if child.status == FAILURE:
-            self.stop(FAILURE)
-        else:
-            self.status = RUNNING
-        yield self
+        yield end_as(self, FAILURE if child.status == FAILURE else RUNNING)
 
 
 LoopInt, LoopDouble, LoopString, LoopBool = node_types(_Loop, __name__, {

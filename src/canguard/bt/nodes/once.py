@@ -15,11 +15,11 @@ from py_trees.blackboard import Blackboard
 from canguard.bt.nodes.base import (
     FAILURE,
     RUNNING,
+    SKIPPED,
     SUCCESS,
     CanguardNode,
     DecoratorNode,
     end_as,
-    mark_skipped,
     node_types,
     port_info,
 )
@@ -106,8 +106,7 @@ class _EntryUpdated(DecoratorNode):
 
     def tick(self) -> Any:
         if not self.still_running and not _updated(self):
-            end_as(self, self.IF_NOT_UPDATED)
-            yield self
+            yield end_as(self, self.IF_NOT_UPDATED)
             return
         yield from py_trees.decorators.Decorator.tick(self)  # the plain tick: this one is already skip-aware
         self.still_running = self.status == RUNNING
@@ -137,11 +136,7 @@ class RunOnce(DecoratorNode):
 
     def tick(self) -> Any:
         if self.returned is not None:
-            if self.port("then_skip") is False:
-                self.stop(self.returned)
-            else:
-                mark_skipped(self)
-            yield self
+            yield end_as(self, self.returned if self.port("then_skip") is False else SKIPPED)
             return
         yield from py_trees.decorators.Decorator.tick(self)  # the plain tick: this one is already skip-aware
 
