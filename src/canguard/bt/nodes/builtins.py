@@ -171,10 +171,7 @@ class Sleep(CanguardNode, py_trees.behaviour.Behaviour):
     """RUNNING until msec have elapsed (the engine's clock), then SUCCESS"""
 
     INPUT_PORTS = {"msec": port_info(float, "how long (ms)")}  # noqa: RUF012
-
-    def __init__(self, *args: Any, **kwargs: Any) -> None:
-        super().__init__(*args, **kwargs)
-        self.until: float | None = None
+    until: float | None = None
 
     def initialise(self) -> None:
         msec = self.port("msec") or 0.0
@@ -233,10 +230,7 @@ class _Branching(CanguardNode, py_trees.composites.Composite):
     """IfThenElse / WhileDoElse: the first child decides, the second or third runs."""
 
     REACTIVE = False
-
-    def __init__(self, name: str, children: Children = None, **kwargs: Any) -> None:
-        super().__init__(name=name, children=children, **kwargs)
-        self.branch = 0
+    branch = 0
 
     def bind(self) -> None:
         if len(self.children) not in (2, 3):  # BT.CPP: both take 2 or 3 (without a third, a FAILURE fails)
@@ -299,6 +293,7 @@ class _Switch(CanguardNode, py_trees.composites.Composite):
     """Switch with ``CASES`` cases and a default child."""
 
     CASES = 0
+    running = -1
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
         ports = {"variable": port_info(str, "the value to compare with the cases (usually {key})")}
@@ -308,10 +303,6 @@ class _Switch(CanguardNode, py_trees.composites.Composite):
         cls.DESCRIPTION = (f"ticks the child of the first case_1..case_{cls.CASES} equal to variable "
                            f"(as text or number), else the last (default) child; a change halts the running one")
         super().__init_subclass__(**kwargs)
-
-    def __init__(self, name: str, children: Children = None, **kwargs: Any) -> None:
-        super().__init__(name=name, children=children, **kwargs)
-        self.running = -1
 
     def bind(self) -> None:
         want = self.CASES + 1
@@ -412,12 +403,9 @@ class TryCatch(CanguardNode, py_trees.composites.Composite):
     INPUT_PORTS = {  # noqa: RUF012
         "catch_on_halt": port_info(bool, "when halted while trying, tick the catch child once", False),
     }
-
-    def __init__(self, name: str, children: Children = None, **kwargs: Any) -> None:
-        super().__init__(name=name, children=children, **kwargs)
-        self.index = 0
-        self.in_catch = False
-        self.skipped_count = 0
+    index = 0
+    in_catch = False
+    skipped_count = 0
 
     def bind(self) -> None:
         if len(self.children) < 2:
@@ -481,6 +469,9 @@ class _Loop(DecoratorNode):
     CHOICES = {"if_empty": ("SUCCESS", "FAILURE", "SKIPPED")}  # noqa: RUF012
     SKIP_THROUGH = False  # BT.CPP's loop_node.h: a skipped child leaves the loop RUNNING
     UNTYPED_PORTS = frozenset({"queue"})  # BT.CPP: an untyped BidirectionalPort (a list, a vector or a string)
+    static: list[Any] | None = None
+    queue: list[Any] | deque[Any] | None = None
+    child_running = False
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
         name = cls.ITEM.__name__
@@ -493,12 +484,6 @@ class _Loop(DecoratorNode):
         cls.DESCRIPTION = (f"ticks the child once per element of queue ({name}), written to value; RUNNING while "
                            "elements remain, FAILURE when the child fails, if_empty when none are left")
         super().__init_subclass__(**kwargs)
-
-    def __init__(self, *args: Any, **kwargs: Any) -> None:
-        super().__init__(*args, **kwargs)
-        self.static: list[Any] | None = None
-        self.queue: list[Any] | deque[Any] | None = None
-        self.child_running = False
 
     def parse(self, text: str) -> list[Any]:
         """'1;2;3' as a list of ITEM ('' is an empty queue)."""
@@ -613,10 +598,7 @@ class WasEntryUpdated(CanguardNode, py_trees.behaviour.Behaviour):
     KIND = "Condition"
     INPUT_PORTS = dict(_ENTRY)  # noqa: RUF012
     UNTYPED_PORTS = frozenset({"entry"})  # BT.CPP: InputPort<BT::Any>
-
-    def __init__(self, name: str, **kwargs: Any) -> None:
-        super().__init__(name=name, **kwargs)
-        self.seen = 0
+    seen = 0
 
     def update(self) -> py_trees.common.Status:
         return SUCCESS if _updated(self) else FAILURE
@@ -628,11 +610,8 @@ class _EntryUpdated(DecoratorNode):
     INPUT_PORTS = dict(_ENTRY)  # noqa: RUF012
     UNTYPED_PORTS = frozenset({"entry"})  # BT.CPP: InputPort<BT::Any>
     IF_NOT_UPDATED: str = "SKIPPED"
-
-    def __init__(self, name: str, child: py_trees.behaviour.Behaviour, **kwargs: Any) -> None:
-        super().__init__(name=name, child=child, **kwargs)
-        self.seen = 0
-        self.still_running = False
+    seen = 0
+    still_running = False
 
     def tick(self) -> Any:
         if not self.still_running and not _updated(self):
@@ -659,10 +638,7 @@ class RunOnce(DecoratorNode):
     INPUT_PORTS = {  # noqa: RUF012
         "then_skip": port_info(bool, "after the first run: true = SKIPPED, false = the status it returned", True),
     }
-
-    def __init__(self, name: str, child: py_trees.behaviour.Behaviour, **kwargs: Any) -> None:
-        super().__init__(name=name, child=child, **kwargs)
-        self.returned: py_trees.common.Status | None = None  # the first completed status; kept across halts
+    returned: py_trees.common.Status | None = None  # the first completed status; kept across halts
 
     def tick(self) -> Any:
         if self.returned is not None:

@@ -118,10 +118,7 @@ class _Cycles(DecoratorNode):
     LIMIT: ClassVar[str]
     AGAIN_TEXT: ClassVar[str]  # feedback when the child runs again at the next pass; {}: the count
     DONE_TEXT: ClassVar[str] = ""
-
-    def __init__(self, name: str, child: py_trees.behaviour.Behaviour, **kwargs: Any) -> None:
-        super().__init__(name=name, child=child, **kwargs)
-        self.count = 0
+    count = 0
 
     def terminate(self, new_status: py_trees.common.Status) -> None:
         if new_status == INVALID:
@@ -177,10 +174,7 @@ class Timeout(DecoratorNode):
     INPUT_PORTS = {  # noqa: RUF012
         "msec": port_info(float, "time limit (ms, the engine's clock); 0: none"),
     }
-
-    def __init__(self, name: str, child: py_trees.behaviour.Behaviour, **kwargs: Any) -> None:
-        super().__init__(name=name, child=child, **kwargs)
-        self.deadline: float | None = None
+    deadline: float | None = None
 
     def tick(self) -> Any:
         now = self.ctx.clock.now()
@@ -212,10 +206,7 @@ class Delay(DecoratorNode):
     INPUT_PORTS = {  # noqa: RUF012
         "delay_msec": port_info(float, "delay before the child is ticked (ms, the engine's clock)"),
     }
-
-    def __init__(self, name: str, child: py_trees.behaviour.Behaviour, **kwargs: Any) -> None:
-        super().__init__(name=name, child=child, **kwargs)
-        self.started: float | None = None
+    started: float | None = None
 
     def tick(self) -> Any:
         now = self.ctx.clock.now()

@@ -41,14 +41,11 @@ class GuardNode(CanguardNode, py_trees.behaviour.Behaviour):
     """Output ports a quiet re-tick writes again (:meth:`quiet_retick`); another wired output makes it loud."""
     _NAMES: ClassVar[dict[str, str]] = {}  # the models' parameter names -> the ports that give them
     model: ProtectionModel
-
-    def __init__(self, name: str, **kwargs: Any) -> None:
-        super().__init__(name=name, **kwargs)
-        self.source: SourceConfig | None = None
-        self.health: SourceHealth | None = None
-        self.ok: bool | None = None  # the last tick's status (None before the first)
-        self.reason = ""  # why the last tick failed
-        self.judged_t = math.nan  # when last ticked: a running task's guards must keep being ticked
+    source: SourceConfig | None = None
+    health: SourceHealth | None = None
+    ok: bool | None = None  # the last tick's status (None before the first)
+    reason = ""  # why the last tick failed
+    judged_t = math.nan  # when last ticked: a running task's guards must keep being ticked
 
     @property
     def topic_name(self) -> str:

@@ -14,7 +14,6 @@ from canguard.bt.nodes.base import (
     SKIPPED,
     SUCCESS,
     CanguardNode,
-    Children,
     end_as,
     node_types,
     outcome,
@@ -36,11 +35,8 @@ class _Ordered(CanguardNode, py_trees.composites.Composite):
     REACTIVE: ClassVar[bool] = False
     ASYNC: ClassVar[bool] = False
     KEEP_ON_STOP: ClassVar[bool] = False
-
-    def __init__(self, name: str, children: Children = None, **kwargs: Any) -> None:
-        super().__init__(name=name, children=children, **kwargs)
-        self.index = 0  # the child the next tick starts at
-        self.skipped_count = 0
+    index = 0  # the child the next tick starts at
+    skipped_count = 0
 
     @property
     def memory(self) -> bool:
