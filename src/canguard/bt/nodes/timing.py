@@ -60,12 +60,8 @@ class IsElapsedTimeCompare(_TimerUser, py_trees.behaviour.Behaviour):
         "operator": port_info(str, "GT, LT, GTE, LTE or EQ (|elapsed − reference_sec| < tolerance)", "GT"),
         "tolerance": port_info(float, "tolerance of EQ (s)", 0.1),
         "reference": port_info(str, "first_tick, tree_start, last_reset or blackboard", "first_tick"),
-        "timer": port_info(
-            float,
-            "blackboard key holding the timer's start time (s), shared by every node naming it; "
-            "default: the node's own timer",
-            required=False,
-        ),
+        "timer": port_info(float, "blackboard key holding the timer's start time (s), shared by every node naming it; "
+                                  "default: the node's own timer", required=False),
     }
     CHOICES = {"operator": OPERATORS, "reference": REFERENCES}  # noqa: RUF012
     KEY_PORTS = frozenset({"timer"})
@@ -161,12 +157,9 @@ class ResetTimer(_TimerUser, py_trees.behaviour.Behaviour):
     """restart a timer: write now to its key (default: the nearest comparisons' own timers)"""
 
     OUTPUT_PORTS = {  # noqa: RUF012
-        "timer": port_info(
-            float,
-            "blackboard key of the timer to restart; default: the own timers of the IsElapsedTimeCompare "
-            "nodes without timer under this node's closest ancestor that has any",
-            required=False,
-        ),
+        "timer": port_info(float, "blackboard key of the timer to restart; default: the own timers of the "
+                                  "IsElapsedTimeCompare nodes without timer under this node's closest ancestor that "
+                                  "has any", required=False),
     }
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
