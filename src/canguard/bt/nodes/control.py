@@ -90,22 +90,12 @@ class Parallel(CanguardNode, py_trees.composites.Parallel):
         yield end_as(self, SKIPPED if skipped == n else RUNNING)  # every child skipped: the parallel too
 
 
-class Inverter(CanguardNode, py_trees.decorators.Inverter):
-    """SUCCESS <-> FAILURE; RUNNING unchanged"""
-
-    QUIET_RETICK = True
-
-
-class ForceSuccess(CanguardNode, py_trees.decorators.FailureIsSuccess):
-    """FAILURE becomes SUCCESS; RUNNING unchanged"""
-
-    QUIET_RETICK = True
-
-
-class ForceFailure(CanguardNode, py_trees.decorators.SuccessIsFailure):
-    """SUCCESS becomes FAILURE; RUNNING unchanged"""
-
-    QUIET_RETICK = True
+Inverter, ForceSuccess, ForceFailure = (  # py_trees' own decorators, under BT.CPP's names
+    type(node_id, (CanguardNode, base), {"__module__": __name__, "__doc__": doc, "QUIET_RETICK": True})
+    for node_id, base, doc in (
+        ("Inverter", py_trees.decorators.Inverter, "SUCCESS <-> FAILURE; RUNNING unchanged"),
+        ("ForceSuccess", py_trees.decorators.FailureIsSuccess, "FAILURE becomes SUCCESS; RUNNING unchanged"),
+        ("ForceFailure", py_trees.decorators.SuccessIsFailure, "SUCCESS becomes FAILURE; RUNNING unchanged")))
 
 
 class _Cycles(DecoratorNode):
