@@ -118,7 +118,7 @@ def halt_ahead(loaded: LoadedTree) -> Callable[[], bool] | None:
     """
     from canguard.bt.nodes.actions import ConfiguredAction, ExecuteTask
     from canguard.bt.nodes.base import RUNNING
-    from canguard.bt.nodes.sequences import ReactiveSequence
+    from canguard.bt.nodes.control import ReactiveSequence
 
     nodes = list(loaded.root.iterate())
     tasks = [n for n in nodes if isinstance(n, ExecuteTask) or (isinstance(n, ConfiguredAction) and n.role == "task")]

@@ -17,7 +17,7 @@ from canguard.errors import quote
 
 if TYPE_CHECKING:
     from canguard.bt.scopes import TreeBlackboard
-    from canguard.bt.scripting import Script
+    from canguard.bt.scripting.script import Script
 
 ALL = ("_failureIf", "_successIf", "_skipIf", "_while", "_onSuccess", "_onFailure", "_post", "_onHalted")
 """BT.CPP's pre-conditions, then its post-conditions."""
@@ -31,10 +31,10 @@ def take_conditions(attrib: dict[str, str]) -> tuple[dict[str, Script], list[str
         text = attrib.pop(attr, None)
         if text is None:
             continue
-        from canguard.bt.scripting import parse  # the language: only for nodes with conditions
+        from canguard.bt.scripting.script import Script  # the language: only for nodes with conditions
 
         try:
-            scripts[attr] = parse(text)
+            scripts[attr] = Script(text)
         except ScriptError as exc:
             problems.append(f"{attr}: script {quote(text)}: {exc}")
     return scripts, problems

@@ -34,7 +34,7 @@ from canguard.bt.scopes import SUBTREE, Inline, TreeBlackboard, subtree_ports, s
 from canguard.errors import TreeError, closest, quote
 
 if TYPE_CHECKING:
-    from canguard.bt.scripting import Script
+    from canguard.bt.scripting.script import Script
     from canguard.config.schema import PartialConfig
 
 Registry = dict[str, functools.partial]

@@ -83,19 +83,24 @@ class TreeBlackboard:
         return alias if alias is not None else self.namespace + name
 
     def has(self, key: str) -> bool:
+        """Whether the entry exists (with or without a value: a typed port declares it)."""
         full = self.key(key)
         return full in Blackboard.storage or full in self.declared
 
     def get(self, key: str) -> object:
+        """The entry's value; KeyError when the entry does not exist or holds no value."""
         return Blackboard.storage[self.key(key)]
 
     def set(self, key: str, value: object) -> None:
+        """Create or overwrite the entry's value."""
         Blackboard.storage[self.key(key)] = value
 
     def declared_type(self, key: str) -> type | None:
+        """The type a typed port declared the entry with, or None: any type."""
         return self.declared.get(self.key(key))
 
     def unset(self, key: str) -> None:
+        """Remove the entry (nothing when there is none)."""
         Blackboard.storage.pop(self.key(key), None)
 
 

@@ -17,9 +17,8 @@ _FAMILIES = (  # conditions, actions, decorators, controls, then more of Behavio
     ("current", "IsCurrentNormal IsJointEffortNormal IsCurrentSafe IsI2tSafe"),
     ("timing", "IsElapsedTimeCompare IsElapsedSinceEvent IsCooldownElapsed IsValueBelow IsValueAbove"),
     ("actions", "ExecuteTask EmitStop ResetStop"), ("timing", "ResetTimer RecordTime"), ("profile", "Profile"),
-    ("control", "Inverter ForceSuccess ForceFailure RetryUntilSuccessful Repeat Timeout Delay"),
-    ("sequences", "Sequence AsyncSequence ReactiveSequence SequenceWithMemory Fallback AsyncFallback ReactiveFallback"),
-    ("control", "Parallel"),
+    ("control", "Inverter ForceSuccess ForceFailure RetryUntilSuccessful Repeat Timeout Delay Sequence AsyncSequence "
+                "ReactiveSequence SequenceWithMemory Fallback AsyncFallback ReactiveFallback Parallel"),
     ("builtins", "AlwaysSuccess AlwaysFailure Script ScriptCondition SetBlackboard UnsetBlackboard Sleep "
                  "KeepRunningUntilFailure Precondition IfThenElse WhileDoElse Switch2 Switch3 Switch4 Switch5 Switch6 "
                  "ParallelAll TryCatch LoopInt LoopDouble LoopString LoopBool RunOnce WasEntryUpdated "

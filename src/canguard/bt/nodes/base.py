@@ -19,8 +19,8 @@ from canguard.bt.scripting import ScriptError
 from canguard.bt.wakeup import WakeUpSignal
 
 if TYPE_CHECKING:
-    from canguard.bt.scripting import Script
-    from canguard.bt.scripting.script import ScriptBlackboard
+    from canguard.bt.scopes import TreeBlackboard
+    from canguard.bt.scripting.script import Script
 
 NodeKind = Literal["Action", "Condition", "Control", "Decorator"]
 
@@ -96,7 +96,7 @@ def follow(node: py_trees.composites.Composite, child: py_trees.behaviour.Behavi
     yield end_as(node, outcome(child))
 
 
-def run_script(node: py_trees.behaviour.Behaviour, attr: str, script: Script, board: ScriptBlackboard,
+def run_script(node: py_trees.behaviour.Behaviour, attr: str, script: Script, board: TreeBlackboard,
                *, condition: bool = False) -> object:
     """Run ``node``'s script ``attr`` on ``board``: its value (``condition``: as a boolean). A ScriptError is
     noted on the node (feedback, ``script_error`` for ``canguard tree --tick``) and raised again."""

@@ -49,7 +49,7 @@ from canguard.bt.scopes import INT_TEXT, REAL_TEXT, TreeBlackboard
 from canguard.bt.scripting import ScriptError
 
 if TYPE_CHECKING:
-    from canguard.bt.scripting import Script as ParsedScript
+    from canguard.bt.scripting.script import Script as ParsedScript
 
 _NOTHING = object()
 
@@ -66,14 +66,14 @@ class _Scripted(CanguardNode):
         self.board = TreeBlackboard("/")
 
     def bind(self) -> None:
-        from canguard.bt.scripting import parse  # the language: only for trees with scripts
+        from canguard.bt.scripting.script import Script  # the language: only for trees with scripts
 
         for name in self.SCRIPT_PORTS:
             text = self.port(name)
             if text is None:
                 continue
             try:
-                self.scripts[name] = parse(str(text))
+                self.scripts[name] = Script(str(text))
             except ScriptError as exc:
                 raise PortError(name, f"script {text!r}: {exc}") from None
 

@@ -13,9 +13,12 @@ import math
 import operator
 import re
 from collections.abc import Callable, Mapping
-from typing import Any, NamedTuple, Protocol
+from typing import TYPE_CHECKING, Any, NamedTuple
 
-from canguard.bt.scripting.errors import ScriptError
+from canguard.bt.scripting import ScriptError
+
+if TYPE_CHECKING:
+    from canguard.bt.scopes import TreeBlackboard
 
 FLT_EPSILON = 1.1920928955078125e-07  # reals this close are equal (BT.CPP's IsSame)
 INT64_MIN = -(2**63)
@@ -26,24 +29,8 @@ UNSET: Any = object()
 """The value of an entry that exists but holds nothing yet (BT.CPP's empty ``Any``)."""
 
 
-class ScriptBlackboard(Protocol):
-    """The blackboard a script reads and writes; an entry may exist without a value (a typed port's)."""
-
-    def has(self, key: str) -> bool:
-        """Whether the entry exists (with or without a value)."""
-
-    def get(self, key: str) -> object:
-        """The entry's value; KeyError when the entry does not exist or holds no value."""
-
-    def set(self, key: str, value: object) -> None:
-        """Create or overwrite the entry's value."""
-
-    def declared_type(self, key: str) -> type | None:
-        """The type the entry was declared with (a typed port), or None: any type."""
-
-
 Enums = Mapping[str, int] | None
-Run = Callable[[ScriptBlackboard, Enums], Any]
+Run = Callable[["TreeBlackboard", Enums], Any]
 
 _NUMBER_TEXT = re.compile(r"-?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?|-?(?:inf|infinity|nan)", re.IGNORECASE)
 
@@ -229,7 +216,7 @@ def _compare(op: str, a: Any, b: Any) -> bool:
     return _ORDER[op](a, b)
 
 
-def _assigned(op: str, key: str, pos: int, value: object, bb: ScriptBlackboard, enums: Enums) -> object:
+def _assigned(op: str, key: str, pos: int, value: object, bb: TreeBlackboard, enums: Enums) -> object:
     """What ``key op value`` writes to the entry: BT.CPP's ``ExprAssignment``."""
     try:
         current = bb.get(key)
@@ -282,7 +269,7 @@ def _literal(value: object, pos: int) -> _Expr:
 
 
 def _name(name: str, pos: int) -> _Expr:
-    def run(bb: ScriptBlackboard, enums: Enums) -> object:
+    def run(bb: TreeBlackboard, enums: Enums) -> object:
         if enums is not None and name in enums:  # a registered enum wins over an entry, as in BT.CPP
             return float(enums[name])
         if not bb.has(name):
@@ -298,7 +285,7 @@ def _name(name: str, pos: int) -> _Expr:
 def _unary(op: str, pos: int, operand: _Expr) -> _Expr:
     inner = operand.run
 
-    def run(bb: ScriptBlackboard, enums: Enums) -> object:
+    def run(bb: TreeBlackboard, enums: Enums) -> object:
         value = inner(bb, enums)
         if not isinstance(value, (int, float)):
             _set(op, pos, right=value)
@@ -317,7 +304,7 @@ def _unary(op: str, pos: int, operand: _Expr) -> _Expr:
 def _binary(op: str, pos: int, lhs: _Expr, rhs: _Expr) -> _Expr:
     left, right, apply = lhs.run, rhs.run, _BINARY[op]
 
-    def run(bb: ScriptBlackboard, enums: Enums) -> object:
+    def run(bb: TreeBlackboard, enums: Enums) -> object:
         lv = left(bb, enums)
         rv = right(bb, enums)
         _set(op, pos, left=lv, right=rv)
@@ -327,7 +314,7 @@ def _binary(op: str, pos: int, lhs: _Expr, rhs: _Expr) -> _Expr:
 
 
 def _chain(first: _Expr, rest: list[tuple[str, int, _Expr]]) -> _Expr:
-    def run(bb: ScriptBlackboard, enums: Enums) -> object:
+    def run(bb: TreeBlackboard, enums: Enums) -> object:
         lv = first.run(bb, enums)
         for op, pos, operand in rest:
             rv = operand.run(bb, enums)
@@ -341,7 +328,7 @@ def _chain(first: _Expr, rest: list[tuple[str, int, _Expr]]) -> _Expr:
 
 
 def _ternary(pos: int, condition: _Expr, then: _Expr, otherwise: _Expr) -> _Expr:
-    def run(bb: ScriptBlackboard, enums: Enums) -> object:
+    def run(bb: TreeBlackboard, enums: Enums) -> object:
         value = condition.run(bb, enums)
         if not isinstance(value, (str, int, float)):
             _set("?", pos, left=value)
@@ -352,7 +339,7 @@ def _ternary(pos: int, condition: _Expr, then: _Expr, otherwise: _Expr) -> _Expr
 
 
 def _assign(op: str, pos: int, key: str, rhs: _Expr) -> _Expr:
-    def run(bb: ScriptBlackboard, enums: Enums) -> object:
+    def run(bb: TreeBlackboard, enums: Enums) -> object:
         if op != ":=" and not bb.has(key):
             raise ScriptError(f"the blackboard entry [{key}] doesn't exist yet; "
                               f"to create it, use the operator [:=] instead of [{op}]", pos)
@@ -541,7 +528,7 @@ class Script:
     def __repr__(self) -> str:
         return f"Script({self.text!r})"
 
-    def run(self, blackboard: ScriptBlackboard, enums: Enums = None) -> object:
+    def run(self, blackboard: TreeBlackboard, enums: Enums = None) -> object:
         """Run every statement; the value of the last one (None when that is an entry without a value)."""
         value: object = None
         try:
@@ -551,7 +538,7 @@ class Script:
             raise ScriptError(exc.message, exc.pos, self.text) from None
         return None if value is UNSET else value
 
-    def condition(self, blackboard: ScriptBlackboard, enums: Enums = None) -> bool:
+    def condition(self, blackboard: TreeBlackboard, enums: Enums = None) -> bool:
         """Run the script and take its value as a boolean (:func:`logic_bool`)."""
         value = self.run(blackboard, enums)
         result = logic_bool(value)
