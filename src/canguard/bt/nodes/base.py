@@ -1,8 +1,4 @@
-"""What every canguard node shares: typed ports under BT.CPP's names, the context, a load-time ``bind()``.
-
-Constant ports are read once at ``setup_ports()``, ``{key}`` ports at tick; output ports are written only
-when wired (as BT.CPP); :meth:`~CanguardNode.bind` checks the ports once the whole tree is parsed.
-"""
+"""What every canguard node shares: typed ports under BT.CPP's names, the context, a load-time ``bind()``."""
 
 from __future__ import annotations
 
@@ -157,15 +153,9 @@ class PortError(ValueError):
         super().__init__(f"port {port}: {message}")
 
 
-def port_info(
-    data_type: Any,
-    description: str,
-    default: Any = None,
-    required: bool | None = None,
-) -> PortInformation:
+def port_info(data_type: Any, description: str, default: Any = None, required: bool | None = None) -> PortInformation:
     """A :class:`PortInformation`; required unless it has a default (or ``required=False``)."""
-    if required is None:
-        required = default is None
+    required = default is None if required is None else required
     return PortInformation(data_type=data_type, required=required, description=description, default_value=default)
 
 
@@ -192,9 +182,6 @@ class CanguardNode(PortsMixin, register=False):
     """Ticking the node again with the same inputs and children changes nothing and answers as before (no
     timer, counter, memory or output of its own): the engine may count such a tick (:mod:`canguard.engine.quiet`)."""
 
-    wake_up: WakeUpSignal | None = None
-    """The tree's wake-up signal (BT.CPP's ``setWakeUpInstance``)."""
-
     def __init_subclass__(cls, **kwargs: Any) -> None:
         # Stay out of py_trees' global auto-registry: canguard's parser gets an explicit,
         # closed registry, and importing canguard must not change anybody else's "auto".
@@ -202,8 +189,7 @@ class CanguardNode(PortsMixin, register=False):
         if kwargs["register"] or "tag" in kwargs or cls.INPUT_PORTS.keys() & cls.OUTPUT_PORTS.keys():
             super().__init_subclass__(**kwargs)  # py_trees' own: its registry, or its error
         else:
-            # Unregistered, PortsMixin's only work is the check above, behind a dir()-wide scan
-            # for abstract methods (~25 µs a class, ~1.5 ms for the node library at every start).
+            # Unregistered, PortsMixin's only work is the check above, behind a slow dir()-wide scan.
             del kwargs["register"]
             super(PortsMixin, cls).__init_subclass__(**kwargs)
         if "DESCRIPTION" not in cls.__dict__ and cls.__doc__:
@@ -227,6 +213,7 @@ class CanguardNode(PortsMixin, register=False):
         self._keys: dict[str, str] = {}
         self._bad_port = ""
         self.skipped = False  # the last tick returned SKIPPED
+        self.wake_up = WakeUpSignal()  # the loader gives it the tree's (BT.CPP's setWakeUpInstance)
 
     @property
     def ctx(self) -> Context:
@@ -292,21 +279,6 @@ class CanguardNode(PortsMixin, register=False):
         """Write output port ``name`` when it is wired (a no-op otherwise, as in BehaviorTree.CPP)."""
         if name in self._wired:
             Blackboard.storage[self._keys[name]] = value
-
-    def emit_wake_up(self) -> None:
-        """Ask ``tickOnce()`` to tick the root again at once (BT.CPP's ``emitWakeUpSignal``)."""
-        if self.wake_up is not None:
-            self.wake_up.emit()
-
-    def arm_timer(self, deadline: float) -> None:
-        """A timer that emits the wake-up signal once the engine's clock reaches ``deadline`` (s)."""
-        if self.wake_up is not None:
-            self.wake_up.arm(self, deadline)
-
-    def cancel_timer(self) -> None:
-        """Drop this node's timer (halted or completed)."""
-        if self.wake_up is not None:
-            self.wake_up.cancel(self)
 
     def bind(self) -> None:
         """Load-time set-up from the ports (models, sources); raise :class:`PortError` on bad values."""

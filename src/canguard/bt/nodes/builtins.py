@@ -177,7 +177,7 @@ class Sleep(CanguardNode, py_trees.behaviour.Behaviour):
         msec = self.port("msec") or 0.0
         self.until = self.ctx.clock.now() + msec / 1000.0
         if msec > 0:  # BT.CPP: its timer wakes the tree up when it expires
-            self.arm_timer(self.until)
+            self.wake_up.arm(self, self.until)
 
     def update(self) -> py_trees.common.Status:
         if self.until is None or self.ctx.clock.now() >= self.until:
@@ -186,7 +186,7 @@ class Sleep(CanguardNode, py_trees.behaviour.Behaviour):
 
     def terminate(self, new_status: py_trees.common.Status) -> None:
         self.until = None if new_status == INVALID else self.until
-        self.cancel_timer()
+        self.wake_up.cancel(self)
 
 
 class KeepRunningUntilFailure(DecoratorNode):

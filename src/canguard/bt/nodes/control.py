@@ -135,7 +135,7 @@ class _Cycles(DecoratorNode):
                 break
             if fresh and (self.count < limit or limit == -1):
                 self.feedback_message = self.AGAIN_TEXT.format(self.count)
-                self.emit_wake_up()
+                self.wake_up.emit()
                 yield end_as(self, RUNNING)
                 return
         if self.DONE_TEXT:
@@ -172,7 +172,7 @@ class Timeout(DecoratorNode):
             msec = self.port("msec")
             self.deadline = now + msec / 1000.0 if msec else None
             if self.deadline is not None:
-                self.arm_timer(self.deadline)  # BT.CPP: the timer wakes the tree up when it expires
+                self.wake_up.arm(self, self.deadline)  # BT.CPP: the timer wakes the tree up when it expires
             self.initialise()
         elif self.deadline is not None and now >= self.deadline:
             if self.decorated.status == RUNNING:
@@ -182,12 +182,12 @@ class Timeout(DecoratorNode):
             return
         yield from self.decorated.tick()
         if self.decorated.status != RUNNING:
-            self.cancel_timer()
+            self.wake_up.cancel(self)
         yield end_as(self, self.decorated.status)
 
     def terminate(self, new_status: py_trees.common.Status) -> None:
         if new_status == INVALID:
-            self.cancel_timer()
+            self.wake_up.cancel(self)
 
 
 class Delay(DecoratorNode):
@@ -204,7 +204,7 @@ class Delay(DecoratorNode):
         if self.status != RUNNING or self.started is None:
             self.started = now
             if delay is not None:
-                self.arm_timer(now + delay / 1000.0)  # BT.CPP: the timer wakes the tree up when it expires
+                self.wake_up.arm(self, now + delay / 1000.0)  # BT.CPP: the timer wakes the tree up when it expires
             self.initialise()
         if delay is None or now - self.started < delay / 1000.0:
             self.feedback_message = "waiting"
@@ -219,7 +219,7 @@ class Delay(DecoratorNode):
     def terminate(self, new_status: py_trees.common.Status) -> None:
         if new_status == INVALID:
             self.started = None
-            self.cancel_timer()
+            self.wake_up.cancel(self)
 
 
 class _Ordered(CanguardNode, py_trees.composites.Composite):
@@ -280,7 +280,7 @@ class _Ordered(CanguardNode, py_trees.composites.Composite):
                 return
             self.index += 1
             if self.ASYNC and before == INVALID and self.index < n:
-                self.emit_wake_up()
+                self.wake_up.emit()
                 yield end_as(self, RUNNING)
                 return
         all_skipped = self.skipped_count == n
