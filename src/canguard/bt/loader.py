@@ -1,9 +1,4 @@
-"""Loading BehaviorTree.CPP XML trees onto py_trees: read, checked against the node registry, built, bound.
-
-One load reads the file with its lines (includes, v3 spellings, ``<TreeNodesModel>`` palettes), checks
-every node, port and SubTree collecting every problem, lets py_trees' parser build the tree under
-placeholder names (``@n``) and binds canguard's nodes; every problem is one TreeError naming file and line.
-"""
+"""Loading BehaviorTree.CPP XML trees onto py_trees: read, checked against the node registry, built, bound."""
 
 from __future__ import annotations
 
@@ -89,8 +84,7 @@ def read_xml(path: Path, where: dict[ET.Element, Where]) -> ET.Element:
 # -- the node registry ------------------------------------------------------------------------------------------
 
 def plugin_entry_points() -> dict[str, EntryPoint]:
-    """The ``canguard.nodes`` entry points by node ID (not loaded); none parsed unless a distribution names
-    the group (a cheaper scan)."""
+    """The ``canguard.nodes`` entry points by node ID (not loaded; parsed only if a distribution names the group)."""
     if not any(ENTRY_POINT_GROUP in (dist.read_text("entry_points.txt") or "") for dist in distributions()):
         return {}
     return {ep.name: ep for ep in entry_points(group=ENTRY_POINT_GROUP)}
@@ -116,11 +110,8 @@ def _takes_context(cls: type) -> bool:
 
 
 def build_registry(ctx: Context, only: Collection[str] | None = None) -> Registry:
-    """The closed table of node types for one tree: ``{node ID: partial(cls, context=ctx, ...)}``.
-
-    Built-ins, one ConfiguredAction per ``ctx.actions`` entry, and the plug-ins, only those in ``only``
-    (all when None). An action named like a built-in is a TreeError; a plug-in named like either is ignored.
-    """
+    """The closed table of node types for one tree: built-ins, config actions, plug-ins (those in ``only``, all
+    when None). An action named like a built-in is a TreeError; a plug-in named like either is ignored."""
     registry: Registry = {node_id: functools.partial(BUILTIN_NODES[node_id], context=ctx)  # imported when used
                           for node_id in BUILTIN_NODES if only is None or node_id in only}
     for name, action in ctx.actions.items():
@@ -167,11 +158,7 @@ class PaletteNode:
 
 @dataclass
 class Palette:
-    """Every node type declared by the palettes of one load, by ID (the first declaration wins).
-
-    A tree node is checked against its declaration; it runs only once bound to a config action or a
-    plug-in (docs/trees.md, "Palettes").
-    """
+    """Every node type declared by the palettes of one load, by ID (the first declaration wins)."""
 
     nodes: dict[str, PaletteNode] = field(default_factory=dict)
 
@@ -687,8 +674,7 @@ class _Load:
                     break
 
     def _bind(self, nodes: list[py_trees.behaviour.Behaviour], loaded: LoadedTree) -> None:
-        """Type the entries, give every node the tree's wake-up signal and bind it; every node that cannot bind
-        is a problem, not only the first."""
+        """Type the entries, give every node the tree's wake-up signal and bind it, collecting every problem."""
         ours = [node for node in nodes if isinstance(node, CanguardNode)]
         for node in ours:
             node.resolve_root_keys()
@@ -740,8 +726,8 @@ class _Load:
 
 def _checked(path: str | Path, ctx: Context, main: str | None, palette: Palette | None,
              *, to_run: bool) -> tuple[_Load, str]:
-    """The checked load of ``path`` and the main tree's ID; a TreeError listing every problem of the file
-    (``to_run``: palette-declared nodes that nothing implements too)."""
+    """The checked load of ``path`` and the main tree's ID; a TreeError listing every problem (``to_run``: unbound
+    palette nodes too)."""
     load = _Load(Path(path), ctx, palette)
     main_id = load.read(main)
     load.check()
@@ -753,11 +739,8 @@ def _checked(path: str | Path, ctx: Context, main: str | None, palette: Palette 
 
 
 def load_tree(path: str | Path, ctx: Context, main: str | None = None, palette: Palette | None = None) -> LoadedTree:
-    """Load, validate and bind the BehaviorTree.CPP XML tree ``main`` of ``path`` for ``ctx``.
-
-    ``main`` defaults to ``main_tree_to_execute``, or the only tree; ``palette``: ``--nodes`` files.
-    Every problem is a :class:`~canguard.errors.TreeError` naming file and line.
-    """
+    """Load, validate and bind the tree ``main`` of ``path`` (default: ``main_tree_to_execute``, or the only tree)
+    for ``ctx``; ``palette``: ``--nodes`` files. A TreeError names file and line of every problem."""
     load, main_id = _checked(path, ctx, main, palette, to_run=True)
     return load.build(main_id)
 

@@ -49,10 +49,4 @@ BUILTIN_NODES: Mapping[str, type[CanguardNode]] = _NodeTable()
 """Every node type canguard provides, by node ID (the closed table)."""
 
 
-def __getattr__(name: str) -> type[CanguardNode]:
-    if name in _MODULES:
-        return BUILTIN_NODES[name]
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
 __all__ = ["BUILTIN_NODES", "CanguardNode", "ConfiguredAction", "GuardNode", "PortError", "port_info"]

@@ -1,14 +1,7 @@
 """BehaviorTree.CPP 4's built-in nodes that canguard's own trees do not use (imported for a tree that does):
 Always*, scripts, Set/UnsetBlackboard, Sleep, branches, Switch2..6, ParallelAll, TryCatch, Loop*, RunOnce and
-the entry-update nodes.
-
-A script that fails while it runs fails its node (BT.CPP throws; a guard daemon must not crash
-on a tree's script). A loop's ``queue`` is a constant "1;2;3" (parsed at load), or an entry holding a list
-(consumed in place, as BT.CPP's shared queue is) or such a string (parsed when the run starts).
-
-The entry-update nodes ask whether an entry was *written* since they last looked (BT.CPP's
-``sequence_id``: the same value again counts). py_trees keeps no such counter, so
-:func:`versioned_storage` puts a dict counting writes per key in place of ``Blackboard.storage``.
+the entry-update nodes. A script that fails while it runs fails its node (BT.CPP throws; a guard daemon must
+not crash on a tree's script).
 """
 
 from __future__ import annotations
@@ -77,10 +70,6 @@ class _Scripted(CanguardNode):
             except ScriptError as exc:
                 raise PortError(name, f"script {text!r}: {exc}") from None
 
-    def run_script(self, name: str, *, condition: bool = False) -> object:
-        """Run script ``name`` (see :func:`.base.run_script`)."""
-        return run_script(self, name, self.scripts[name], self.board, condition=condition)
-
 
 class _Always(CanguardNode, py_trees.behaviour.Behaviour):
     """BT.CPP AlwaysSuccess / AlwaysFailure: ``RESULT``."""
@@ -105,7 +94,7 @@ class _Code(_Scripted, py_trees.behaviour.Behaviour):
     def update(self) -> py_trees.common.Status:
         condition = self.KIND == "Condition"
         try:
-            value = self.run_script("code", condition=condition)
+            value = run_script(self, "code", self.scripts["code"], self.board, condition=condition)
         except ScriptError:
             return FAILURE
         return SUCCESS if value or not condition else FAILURE
@@ -217,7 +206,7 @@ class Precondition(_Scripted, DecoratorNode):
     def tick(self) -> Any:
         if self.status != RUNNING or self.decorated.status != RUNNING:
             try:
-                ok = bool(self.run_script("if", condition=True))
+                ok = bool(run_script(self, "if", self.scripts["if"], self.board, condition=True))
             except ScriptError:
                 ok = False
             if not ok:
@@ -463,7 +452,8 @@ def _to_bool(text: str) -> bool:
 
 
 class _Loop(DecoratorNode):
-    """A loop over a queue of ``ITEM`` values."""
+    """A loop over a queue of ``ITEM`` values: a constant "1;2;3" (parsed at load), an entry holding a list
+    (consumed in place, as BT.CPP's shared queue) or such a string (parsed when the run starts)."""
 
     ITEM: type = str
     CHOICES = {"if_empty": ("SUCCESS", "FAILURE", "SKIPPED")}  # noqa: RUF012
@@ -541,7 +531,8 @@ LoopInt, LoopDouble, LoopString, LoopBool = node_types(_Loop, __name__, {
 
 
 class _Versioned(dict[str, Any]):
-    """A dict that counts the writes of each key (``versions``): BT.CPP's entry ``sequence_id``."""
+    """A dict that counts the writes of each key (``versions``): BT.CPP's entry ``sequence_id``, which py_trees
+    lacks (the same value written again counts)."""
 
     def __init__(self, *args: Any) -> None:
         super().__init__(*args)
@@ -565,18 +556,11 @@ class _Versioned(dict[str, Any]):
         self.versions.clear()
 
 
-def versioned_storage() -> _Versioned:
-    """``Blackboard.storage`` as a :class:`_Versioned` dict (installed at the first look; the entries kept)."""
-    storage = Blackboard.storage
-    if not isinstance(storage, _Versioned):
-        storage = _Versioned(storage)
-        Blackboard.storage = storage
-    return storage
-
-
 def _updated(node: WasEntryUpdated | _EntryUpdated) -> bool:
     """Whether the node's ``entry`` was written since it last looked (now: ``seen`` takes the write count)."""
-    storage = versioned_storage()
+    storage = Blackboard.storage
+    if not isinstance(storage, _Versioned):  # installed at the first look, the entries kept
+        storage = Blackboard.storage = _Versioned(storage)
     key = node.wired_keys().get("entry")
     if key is None:
         name = str(node.port("entry") or "").strip().strip("{}")
