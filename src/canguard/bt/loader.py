@@ -676,8 +676,6 @@ class _Load:
     def _bind(self, nodes: list[py_trees.behaviour.Behaviour], loaded: LoadedTree) -> None:
         """Type the entries, give every node the tree's wake-up signal and bind it, collecting every problem."""
         ours = [node for node in nodes if isinstance(node, CanguardNode)]
-        for node in ours:
-            node.resolve_root_keys()
         self._check_entry_types(ours, loaded.nodes)
         for node in ours:
             node.wake_up = loaded.wake_up  # BT.CPP's factory gives every node of a tree its wake-up signal

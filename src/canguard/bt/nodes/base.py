@@ -229,7 +229,11 @@ class CanguardNode(PortsMixin, register=False):
         remap = port_remappings or {}
         self._dynamic = frozenset(p for p in self.input_ports() if p in remap and CONST_PREFIX not in remap[p])
         self._wired = frozenset(p for p in self.output_ports() if p in remap)
-        self._keys = {p: self._get_blackboard_key(p) for p in self._dynamic | self._wired}
+        self._keys = {}
+        for port in self._dynamic | self._wired:
+            key = self._get_blackboard_key(port)
+            last = key.rsplit("/", 1)[-1]  # {@key}: the root's entry from any depth (py_trees gives /Sub/@key)
+            self._keys[port] = "/" + last[1:] if last.startswith("@") else key
         static: dict[str, Any] = {}
         for name in self.input_ports():
             if name in self._dynamic:
@@ -243,13 +247,6 @@ class CanguardNode(PortsMixin, register=False):
     def is_wired(self, name: str) -> bool:
         """True when the port was given in the XML as a ``{key}`` (input) or at all (output)."""
         return name in self._dynamic or name in self._wired
-
-    def resolve_root_keys(self) -> None:
-        """``{@key}`` (the root's entry from any depth; py_trees resolves it to ``/Sub/@key``) to ``/key``."""
-        for port, key in self._keys.items():
-            last = key.rsplit("/", 1)[-1]
-            if last.startswith("@"):
-                self._keys[port] = "/" + last[1:]
 
     def wired_keys(self) -> dict[str, str]:
         """The storage key of every port wired to a ``{key}`` (inputs) or given (outputs), by port name."""
