@@ -1,7 +1,6 @@
 """BehaviorTree.CPP 4's pre- and post-conditions on any node: ``_failureIf``, ``_successIf``, ``_onSuccess``...
 
-Run in BT.CPP's order (``checkPreConditions``, ``executeTick``). A script that fails while it runs
-fails the node, fail-safe (BT.CPP throws); one in ``_onHalted`` is only reported.
+A script that fails while it runs fails the node, fail-safe (BT.CPP throws); one in ``_onHalted`` is only reported.
 """
 
 from __future__ import annotations

@@ -1,8 +1,4 @@
-"""The blackboard scope of each SubTree instance, as py_trees' parser remaps ports, for scripts and SetBlackboard.
-
-A remapped name is the parent's entry, a literal on the element a typed entry of the instance,
-``@key`` the root's (docs/trees.md, "The blackboard").
-"""
+"""The blackboard scope of each SubTree instance, as py_trees' parser remaps ports, for scripts and SetBlackboard."""
 
 from __future__ import annotations
 

@@ -1,7 +1,4 @@
-"""BehaviorTree.CPP's wake-up signal, and ``tickOnce()``: the root re-ticked while a wake-up is pending.
-
-Unlike BT.CPP the re-ticks of one tick are bounded (:data:`MAX_RETICKS`; docs/trees.md, "Ticks").
-"""
+"""BehaviorTree.CPP's wake-up signal, and ``tickOnce()``: the root re-ticked while a wake-up is pending."""
 
 from __future__ import annotations
 
@@ -14,7 +11,7 @@ if TYPE_CHECKING:
 
     from canguard.bt.context import Context
 
-MAX_RETICKS = 100  # re-ticks of the root in one tick; the rest wait for the next tick
+MAX_RETICKS = 100  # re-ticks of the root in one tick, unlike BT.CPP (docs/trees.md): the rest wait for the next
 
 
 class WakeUpSignal:

@@ -1,8 +1,4 @@
-"""canguard's node library: py_trees behaviours with typed ports, by BehaviorTree.CPP node ID.
-
-:data:`BUILTIN_NODES` is the closed table (extended per tree by config actions and plug-ins); a
-family's module is imported when one of its classes is first looked up.
-"""
+"""canguard's node library: py_trees behaviours with typed ports, by BehaviorTree.CPP node ID."""
 
 from __future__ import annotations
 
@@ -46,7 +42,7 @@ class _NodeTable(Mapping[str, "type[CanguardNode]"]):
 
 
 BUILTIN_NODES: Mapping[str, type[CanguardNode]] = _NodeTable()
-"""Every node type canguard provides, by node ID (the closed table)."""
+"""Every node type canguard provides, by node ID: the closed table that config actions and plug-ins extend per tree."""
 
 
 __all__ = ["BUILTIN_NODES", "CanguardNode", "ConfiguredAction", "GuardNode", "PortError", "port_info"]

@@ -1,7 +1,6 @@
 """Profile: a transparent decorator that times its child's tick (design note 003).
 
-The one real clock in nodes/: it measures CPU work (in replay the context's clock stands still
-during a tick), the child's subtree ticked to completion inside the measured interval.
+The one real clock in nodes/: it measures CPU work (in replay the context's clock stands still during a tick).
 """
 
 from __future__ import annotations
@@ -26,7 +25,6 @@ class Profile(DecoratorNode):
 
     def __init__(self, name: str, child: py_trees.behaviour.Behaviour, **kwargs: Any) -> None:
         super().__init__(name=name, child=child, **kwargs)
-        self._outputs: tuple[str, ...] = ()
         self.reset_stats()
 
     def reset_stats(self) -> None:
@@ -41,11 +39,6 @@ class Profile(DecoratorNode):
         """Mean duration since the last reset (ms); 0 before any tick."""
         return self.total_ms / self.count if self.count else 0.0
 
-    def setup_ports(self, *args: Any, **kwargs: Any) -> None:
-        """Register ports, then pick the wired outputs once."""
-        super().setup_ports(*args, **kwargs)
-        self._outputs = tuple(p for p in ("last_ms", "avg_ms", "max_ms", "count") if self.is_wired(p))
-
     def tick(self) -> Any:
         if self.status != RUNNING:
             self.initialise()
@@ -58,8 +51,8 @@ class Profile(DecoratorNode):
         self.total_ms += ms
         if ms > self.max_ms:
             self.max_ms = ms
-        for name in self._outputs:
-            self.write(name, getattr(self, name))
+        for name in self.OUTPUT_PORTS:
+            self.write(name, getattr(self, name))  # written when wired
         yield end_as(self, self.decorated.status)
 
     def terminate(self, new_status: py_trees.common.Status) -> None:

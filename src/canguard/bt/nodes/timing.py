@@ -171,20 +171,13 @@ class ResetTimer(_TimerUser, py_trees.behaviour.Behaviour):
             return
         ancestor = self.parent
         while ancestor is not None:
-            found = [
-                n
-                for n in ancestor.iterate()
-                if isinstance(n, IsElapsedTimeCompare) and n.timer_key is None
-            ]
+            found = [n for n in ancestor.iterate() if isinstance(n, IsElapsedTimeCompare) and n.timer_key is None]
             if found:
                 self.targets = found
                 return
             ancestor = ancestor.parent
-        raise PortError(
-            "timer",
-            "no IsElapsedTimeCompare without a timer port in this tree to restart; "
-            'name the timer to restart (timer="{key}", the same key as the comparison\'s)',
-        )
+        raise PortError("timer", "no IsElapsedTimeCompare without a timer port in this tree to restart; "
+                                 'name the timer to restart (timer="{key}", the same key as the comparison\'s)')
 
     def update(self) -> py_trees.common.Status:
         now = self.ctx.clock.now()

@@ -1,10 +1,8 @@
 """The scripting language itself: a tokenizer (one pattern), a Pratt parser that compiles each expression
 into a closure at load, and BehaviorTree.CPP 4's rules for values (``operators.hpp``, ``safe_any.hpp``).
 
-Values are int64 integers, doubles and strings as ``int``, ``float``, ``str`` (a ``bool`` is a number); every
-arithmetic, logic and comparison result is a real; an entry keeps its type. Comparisons chain and bind looser
-than the bitwise operators (``x & 1 == 1`` is ``(x & 1) == 1``); as BT.CPP, ``&&`` and ``||`` evaluate both
-operands. A runtime error names the column of its operator or name.
+As BT.CPP: comparisons chain and bind looser than the bitwise operators (``x & 1 == 1`` is ``(x & 1) == 1``),
+and ``&&`` and ``||`` evaluate both operands (the value rules: docs/trees.md, "Scripts").
 """
 
 from __future__ import annotations
