@@ -20,11 +20,10 @@ from py_trees.parsers import behaviour_tree_xml as pyxml
 from py_trees.ports import PortInformation, PortsMixin
 from py_trees.ports_utils import convert_str_to_type
 
-from canguard.bt import conditions
 from canguard.bt.context import Context
 from canguard.bt.loaded import LoadedTree, NodeInfo, _preorder
 from canguard.bt.nodes import BUILTIN_NODES, CanguardNode, ConfiguredAction, GuardNode, PortError
-from canguard.bt.nodes.base import node_kind, port_table
+from canguard.bt.nodes.base import CONDITIONS, install_conditions, node_kind, port_table, take_conditions
 from canguard.bt.scopes import SUBTREE, Inline, TreeBlackboard, subtree_ports, subtree_scopes
 from canguard.errors import TreeError, closest, quote
 
@@ -471,7 +470,7 @@ class _Load:
             subtree_names: dict[str, int] = {}
             for elem in bt[0].iter():
                 subtree = elem.tag == SUBTREE
-                scripts, problems = conditions.take_conditions(elem.attrib)  # a SubTree's: on that node, as BT.CPP
+                scripts, problems = take_conditions(elem.attrib)  # a SubTree's: on that node, as BT.CPP
                 what = f"SubTree {elem.attrib.get('ID')}" if subtree else f"node {elem.tag}"
                 self.errors.extend(f"{self.at(elem)}: {what} (BehaviorTree {tree_id}), {p}" for p in problems)
                 self.conditions[elem] = scripts
@@ -585,7 +584,7 @@ class _Load:
         """Raise the TreeError of one attribute of a node of ``cls`` (unknown port, bad value...), if any."""
         if attr.startswith("_"):
             raise self.error(elem, f"attribute {attr} (BT.CPP pre/post-conditions) is not supported; "
-                                   f"the supported ones: {', '.join(conditions.ALL)}", tree_id)
+                                   f"the supported ones: {', '.join(CONDITIONS)}", tree_id)
         if attr not in ports:
             listing = ", ".join(_closest(attr, ports)) if ports else "(none)"
             raise self.error(elem, f"unknown port {quote(attr)}; ports of {elem.tag}: {listing}", tree_id)
@@ -652,7 +651,7 @@ class _Load:
                 Blackboard.storage.update({k: v for k, v in board.literals.items() if k not in Blackboard.storage})
             if isinstance(node, CanguardNode) and node.USES_BOARD:
                 node.board = board  # type: ignore[attr-defined]
-            conditions.install(node, self.conditions.get(elem, {}), board)
+            install_conditions(node, self.conditions.get(elem, {}), board)
             readable = "/".join([*(p for p in parts[:-1] if p not in self.infos), info.name])
             counts[readable] = k = counts.get(readable, 0) + 1
             node.name = readable if k == 1 else f"{readable}#{k}"
@@ -670,7 +669,7 @@ class _Load:
                 continue
             for node in nodes:  # the instance's root: the one node of its scope whose parent is outside it
                 if _namespace(node).startswith(ns) and not _namespace(node.parent).startswith(ns):
-                    conditions.install(node, scripts, boards[scope.parent])
+                    install_conditions(node, scripts, boards[scope.parent])
                     break
 
     def _bind(self, nodes: list[py_trees.behaviour.Behaviour], loaded: LoadedTree) -> None:
