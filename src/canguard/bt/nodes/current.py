@@ -84,15 +84,10 @@ class GuardNode(CanguardNode, py_trees.behaviour.Behaviour):
     def _model_error(self, exc: ValueError) -> PortError:
         """A model's ValueError as a PortError on the first port it names, said in port names (``_NAMES``)."""
         names = self._NAMES
-        text = str(exc)
-        found = {}
-        for param, port_name in names.items():
-            m = re.search(rf"\b{param}\b", text)
-            if m:
-                found[m.start()] = port_name
-        for param in sorted(names, key=len, reverse=True):
-            text = re.sub(rf"\b{param}\b", names[param], text)
-        return PortError(found[min(found)] if found else next(iter(names.values())), text)
+        params = re.compile(r"\b(" + "|".join(sorted(names, key=len, reverse=True)) + r")\b")
+        first = params.search(str(exc))
+        text = params.sub(lambda m: names[m[1]], str(exc))
+        return PortError(names[first[1]] if first else next(iter(names.values())), text)
 
     def update(self) -> py_trees.common.Status:
         """The model's latch and the source's health, judged (thresholds read again first)."""
