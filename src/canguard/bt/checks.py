@@ -18,10 +18,13 @@ from canguard.bt import loader
 from canguard.bt.context import Context
 from canguard.bt.loaded import LoadedTree, _preorder
 from canguard.bt.loader import load_tree, type_name
-from canguard.bt.nodes import BUILTIN_NODES, ConfiguredAction
-from canguard.bt.nodes.base import node_kind
+from canguard.bt.nodes import BUILTIN_NODES, ConfiguredAction, GuardNode
+from canguard.bt.nodes.actions import EmitStop, ExecuteTask, ResetStop, assign_roles
+from canguard.bt.nodes.base import RUNNING, node_kind
 from canguard.config.schema import Config
 from canguard.errors import TreeError, quote
+from canguard.protect.hysteresis import Hysteresis
+from canguard.protect.i2t import _I2tModel
 
 if TYPE_CHECKING:
     from canguard.bt.loader import Palette
@@ -81,8 +84,6 @@ def _path_to(node: py_trees.behaviour.Behaviour) -> list[py_trees.behaviour.Beha
 def guard_coverage(loaded: LoadedTree) -> list[str]:
     """Guards placed before ExecuteTask's branch under a composite with memory: ticked once, then skipped
     while the task runs, so an overcurrent during the task would never stop it."""
-    from canguard.bt.nodes.actions import ExecuteTask
-
     tasks = [n for n in loaded.root.iterate() if isinstance(n, ExecuteTask)]
     out: list[str] = []
     for guard in loaded.guard_nodes():
@@ -116,8 +117,6 @@ def halt_ahead(loaded: LoadedTree) -> Callable[[], bool] | None:
     the tree's one task node and lies in no child before the guard's branch, and no port of the guard is
     wired (a ``{key}`` threshold may change in the tick).
     """
-    from canguard.bt.nodes.actions import ConfiguredAction, ExecuteTask
-    from canguard.bt.nodes.base import RUNNING
     from canguard.bt.nodes.control import ReactiveSequence
 
     nodes = list(loaded.root.iterate())
@@ -140,17 +139,38 @@ def halt_ahead(loaded: LoadedTree) -> Callable[[], bool] | None:
     return lambda: task.status == RUNNING and any(m.tripped for m in models)
 
 
+_STOP_ROLES = ((ExecuteTask, "TASK task frames; asks to release the stop"), (EmitStop, "STOP sends the stop frames"),
+               (ResetStop, "RESET releases a manual stop"))
+
+
+def _stop_role(node: py_trees.behaviour.Behaviour) -> str:
+    """What ``node`` does to a stop, in words ("" when nothing)."""
+    if isinstance(node, GuardNode):
+        holds = []  # how long its failure holds: its models' recovery rules
+        for _, model, _ in node.guarded():
+            if isinstance(model, Hysteresis):
+                holds.append(f"holds until |I| <= {model.recovery_a:g} A (hysteresis)")
+            elif isinstance(model, _I2tModel):
+                holds.append(f"holds until the I²t level < {model.recover_fraction * 100:g} % (i2t)")
+            else:
+                holds.append("holds for the tick it fails in (threshold)")
+        return "LATCH trips a stop; " + ("; ".join(dict.fromkeys(holds)) or "fails while its source is stale")
+    if isinstance(node, ConfiguredAction):
+        return ("TASK frames withheld while stopped; asks to release the stop" if node.role == "task"
+                else "RECOVERY frames sent during a stop too")
+    return next((role for cls, role in _STOP_ROLES if isinstance(node, cls)), "")
+
+
 def _with_stop_roles(text: str, root: py_trees.behaviour.Behaviour, stop: Any) -> str:
     """The drawing with, per node, what it does to a stop (LATCH, TASK, RECOVERY...), and the release rule."""
-    from canguard.bt.nodes.actions import stop_roles
-
-    roles = stop_roles(root)
+    assign_roles(root)
     lines = text.splitlines()
     nodes = list(_preorder(root))
     if len(lines) != len(nodes):  # not the one-line-per-node drawing: leave it as it is
         return text
     width = max(len(line) for line in lines) + 2
-    out = [f"{line:<{width}}{roles[n]}".rstrip() if n in roles else line for line, n in zip(lines, nodes, strict=True)]
+    roles = map(_stop_role, nodes)
+    out = [f"{line:<{width}}{role}".rstrip() if role else line for line, role in zip(lines, roles, strict=True)]
     manual = ", with ResetStop ticked (stop.release: manual)" if stop.release == "manual" else ""
     out.append(
         f"stop: latches when the tree fails, a LATCH node halts the task or a read source goes stale; released at "
