@@ -299,21 +299,15 @@ class _Switch(CanguardNode, py_trees.composites.Composite):
             raise PortError("children", f"{type(self).__name__} needs {want} children ({self.CASES} cases + "
                                         f"default), has {len(self.children)}")
 
-    def variable(self) -> str | None:
-        """The variable as text; None when it is wired to an entry that holds nothing."""
-        value = self.port("variable")
-        if value is None and self.is_wired("variable"):
-            value = Blackboard.storage.get(self._keys["variable"])  # any type: compared as text
-        return None if value is None else _text(value)
-
     def match(self) -> int:
-        """The child to tick: the first matching case, else the default (last)."""
-        variable = self.variable()
-        if variable is not None:
-            for i in range(self.CASES):
-                case = self.port(f"case_{i + 1}")
-                if case is not None and same_case(variable, _text(case)):
-                    return i
+        """The child to tick: the first case equal to the variable, else the default (last)."""
+        variable = self.port("variable")
+        if variable is None and self.is_wired("variable"):
+            variable = Blackboard.storage.get(self._keys["variable"])  # any type: compared as text
+        for i in range(self.CASES if variable is not None else 0):
+            case = self.port(f"case_{i + 1}")
+            if case is not None and same_case(_text(variable), _text(case)):
+                return i
         return self.CASES
 
     def tick(self) -> Any:

@@ -223,18 +223,13 @@ class Delay(DecoratorNode):
 
 
 class _Ordered(CanguardNode, py_trees.composites.Composite):
-    """BT.CPP 4's sequences and fallbacks (``sequence_node.cpp``, ``fallback_node.cpp`` ...).
+    """BT.CPP 4's sequences and fallbacks (``sequence_node.cpp``, ``fallback_node.cpp`` ...); SKIPPED children are
+    passed over (all skipped: SKIPPED)."""
 
-    ``GO_ON``: the child status that moves on (SUCCESS in a sequence, FAILURE in a fallback); the
-    other ends the run; SKIPPED children are passed over (all skipped: SKIPPED). ``REACTIVE``: every
-    tick starts at the first child. ``ASYNC``: after a child that completed at once, RUNNING and a
-    wake-up. ``KEEP_ON_STOP``: the next run resumes at the child that ended this one.
-    """
-
-    GO_ON: ClassVar[py_trees.common.Status] = SUCCESS
-    REACTIVE: ClassVar[bool] = False
-    ASYNC: ClassVar[bool] = False
-    KEEP_ON_STOP: ClassVar[bool] = False
+    GO_ON: ClassVar[py_trees.common.Status] = SUCCESS  # the status that moves on (FAILURE in a fallback), not the run
+    REACTIVE: ClassVar[bool] = False  # every tick starts at the first child
+    ASYNC: ClassVar[bool] = False  # after a child that completed at once: RUNNING and a wake-up
+    KEEP_ON_STOP: ClassVar[bool] = False  # the next run resumes at the child that ended this one
     index = 0  # the child the next tick starts at
     skipped_count = 0
 

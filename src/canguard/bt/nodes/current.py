@@ -328,22 +328,22 @@ class IsJointEffortNormal(GuardNode):
         now = self._clock.now()
         self.judged_t = now  # the engine checks that a running task's guards keep being ticked (T4)
         bad = self._reread(m for _, m in self.models)
-        failed: tuple[str, str, float, float] | None = None
+        failed: tuple[str, str, float, float] | None = None  # (reason, joint, value, threshold)
         for role, model in self.models:
             snap = model.poll(now)  # poll every joint: each latch restarts at every tick
             reason = "" if failed is not None else self._why(now, role, snap, bad)
             if reason:
-                failed = (role, reason, snap.value, snap.threshold)
+                failed = (reason, role, snap.value, snap.threshold)
         if not self.models:
-            failed = ("", REASON_NO_DATA, math.nan, math.nan)
+            failed = (REASON_NO_DATA, "", math.nan, math.nan)
         ok = failed is None
         # Another joint failing for the same reason is a new cause too (its feedback names the joint).
-        if ok is not self.ok or (failed is not None and (failed[1], failed[0]) != (self.reason, self.failed_joint)):
-            self.failed_joint = failed[0] if failed is not None else ""
+        if ok is not self.ok or (failed is not None and failed[:2] != (self.reason, self.failed_joint)):
+            self.failed_joint = failed[1] if failed is not None else ""
             if failed is None:
                 seen = [(m.snapshot(), role) for role, m in self.models if m.last_t is not None]
                 snap, role = max(seen, key=lambda sr: sr[0].value)
                 self._edge(True, "", role, snap.value, snap.threshold)
             else:
-                self._edge(False, failed[1], failed[0], failed[2], failed[3])
+                self._edge(False, *failed)
         return SUCCESS if ok else FAILURE

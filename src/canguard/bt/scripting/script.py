@@ -523,9 +523,6 @@ class Script:
         self.text = text
         self._runs = tuple(stmt.run for stmt in statements)
 
-    def __repr__(self) -> str:
-        return f"Script({self.text!r})"
-
     def run(self, blackboard: TreeBlackboard, enums: Enums = None) -> object:
         """Run every statement; the value of the last one (None when that is an entry without a value)."""
         value: object = None
