@@ -226,7 +226,7 @@ class _Ordered(CanguardNode, py_trees.composites.Composite):
     """BT.CPP 4's sequences and fallbacks (``sequence_node.cpp``, ``fallback_node.cpp`` ...); SKIPPED children are
     passed over (all skipped: SKIPPED)."""
 
-    GO_ON: ClassVar[py_trees.common.Status] = SUCCESS  # the status that moves on (FAILURE in a fallback), not the run
+    GO_ON: ClassVar[py_trees.common.Status] = SUCCESS  # the child status that moves on (fallback: FAILURE)
     REACTIVE: ClassVar[bool] = False  # every tick starts at the first child
     ASYNC: ClassVar[bool] = False  # after a child that completed at once: RUNNING and a wake-up
     KEEP_ON_STOP: ClassVar[bool] = False  # the next run resumes at the child that ended this one
