@@ -101,13 +101,6 @@ def load_plugin(ep: EntryPoint) -> type[PortsMixin]:
     return cls
 
 
-def _takes_context(cls: type) -> bool:
-    try:
-        return issubclass(cls, CanguardNode) or "context" in inspect.signature(cls).parameters
-    except (TypeError, ValueError):
-        return False
-
-
 def build_registry(ctx: Context, only: Collection[str] | None = None) -> Registry:
     """The closed table of node types for one tree: built-ins, config actions, plug-ins (those in ``only``, all
     when None). An action named like a built-in is a TreeError; a plug-in named like either is ignored."""
@@ -120,7 +113,11 @@ def build_registry(ctx: Context, only: Collection[str] | None = None) -> Registr
     for name, ep in plugin_entry_points().items():
         if name not in BUILTIN_NODES and name not in registry and (only is None or name in only):
             cls = load_plugin(ep)
-            registry[name] = functools.partial(cls, context=ctx) if _takes_context(cls) else functools.partial(cls)
+            try:
+                takes_context = issubclass(cls, CanguardNode) or "context" in inspect.signature(cls).parameters
+            except (TypeError, ValueError):
+                takes_context = False
+            registry[name] = functools.partial(cls, context=ctx) if takes_context else functools.partial(cls)
     return registry
 
 
@@ -188,14 +185,10 @@ class Palette:
                     required = port.attrib.get("required", "").strip().lower() in ("true", "1")
                     ports[name] = PalettePort(direction, port.attrib.get("default"), port.attrib.get("type", ""),
                                               (port.text or "").strip(), required and direction != "output")
-            self.add(PaletteNode(node_id, decl.tag, ports, at(decl)), problems)
-
-    def add(self, node: PaletteNode, problems: list[str]) -> None:
-        """Declare ``node``; a problem when its ID was declared before differently."""
-        first = self.nodes.setdefault(node.node_id, node)
-        if (first.kind, dict(first.ports)) != (node.kind, dict(node.ports)):
-            problems.append(f"{node.where}: {node.kind} {node.node_id} is declared again differently "
-                            f"(first at {first.where})")
+            first = self.nodes.setdefault(node_id, PaletteNode(node_id, decl.tag, ports, at(decl)))
+            if (first.kind, dict(first.ports)) != (decl.tag, ports):
+                problems.append(f"{at(decl)}: {decl.tag} {node_id} is declared again differently "
+                                f"(first at {first.where})")
 
     def check(self, elem: ET.Element, decl: PaletteNode, at: str, tree_id: str) -> list[str]:
         """The problems of one tree node against its declaration ``decl`` (ports, children)."""
