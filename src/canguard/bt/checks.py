@@ -97,12 +97,11 @@ def guard_coverage(loaded: LoadedTree) -> list[str]:
             t_child = t_path[t_path.index(common) - 1]
             if common.children.index(g_child) < common.children.index(t_child):
                 info = loaded.info(guard)
-                out.append(
-                    f"{info.file}:{info.line}: {guard.name} is checked only before {task.name} starts: under "
-                    f"{common.name} ({loaded.info(common).node_id}, which keeps its place while a child is RUNNING) "
-                    f"it is not ticked again while the task runs, so the task would go on through an overcurrent "
-                    f"or a dead sensor; put them under a ReactiveSequence to guard the task at every tick"
-                )
+                out.append(f"{info.file}:{info.line}: {guard.name} is checked only before {task.name} starts: under "
+                           f"{common.name} ({loaded.info(common).node_id}, which keeps its place while a child is "
+                           "RUNNING) it is not ticked again while the task runs, so the task would go on through an "
+                           "overcurrent or a dead sensor; put them under a ReactiveSequence to guard the task at "
+                           "every tick")
     return out
 
 
@@ -172,11 +171,9 @@ def _with_stop_roles(text: str, root: py_trees.behaviour.Behaviour, stop: Any) -
     roles = map(_stop_role, nodes)
     out = [f"{line:<{width}}{role}".rstrip() if role else line for line, role in zip(lines, roles, strict=True)]
     manual = ", with ResetStop ticked (stop.release: manual)" if stop.release == "manual" else ""
-    out.append(
-        f"stop: latches when the tree fails, a LATCH node halts the task or a read source goes stale; released at "
-        f"the end of a tick without FAILURE that reaches the task, no inhibit left, after stop.min_stop "
-        f"{stop.min_stop_s:g} s{manual}"
-    )
+    out.append("stop: latches when the tree fails, a LATCH node halts the task or a read source goes stale; released "
+               "at the end of a tick without FAILURE that reaches the task, no inhibit left, after stop.min_stop "
+               f"{stop.min_stop_s:g} s{manual}")
     return "\n".join(out) + "\n"
 
 
@@ -218,10 +215,7 @@ def render_dot(root: py_trees.behaviour.Behaviour, path: str | Path) -> Path:
 
 
 def nodes_model_xml(ctx: Context | None = None) -> str:
-    """A Groot2 ``<TreeNodesModel>`` of every canguard node type and its ports.
-
-    With ``ctx``, the config's actions are included (each with its ``output_time`` port).
-    """
+    """A Groot2 ``<TreeNodesModel>`` of every canguard node type and its ports (with ``ctx``, the config's actions)."""
     doc = ET.Element("root", {"BTCPP_format": "4"})
     model = ET.SubElement(doc, "TreeNodesModel")
     actions = ctx.actions if ctx is not None else {}
