@@ -99,13 +99,12 @@ Inverter, ForceSuccess, ForceFailure = (  # py_trees' own decorators, under BT.C
 
 
 class _Cycles(DecoratorNode):
-    """BT.CPP 4's ``retry_node.cpp`` / ``repeat_node.cpp``: the child's ``ENDS`` status ends it, another
-    completion is counted and run again, up to ``LIMIT`` runs (-1: forever), then ``DONE``. A child that
-    completed at once runs again at the next pass (RUNNING and a wake-up, as BT.CPP)."""
+    """BT.CPP 4's ``retry_node.cpp`` / ``repeat_node.cpp``; a child that completed at once runs again at the next
+    pass (RUNNING and a wake-up, as BT.CPP)."""
 
-    ENDS: ClassVar[Status]
-    DONE: ClassVar[Status]
-    LIMIT: ClassVar[str]
+    ENDS: ClassVar[Status]  # the child's status that ends it; another completion is counted and run again
+    DONE: ClassVar[Status]  # the status after LIMIT runs
+    LIMIT: ClassVar[str]  # the port of the number of runs (-1: forever)
     AGAIN_TEXT: ClassVar[str]  # feedback when the child runs again at the next pass; {}: the count
     DONE_TEXT: ClassVar[str] = ""
     count = 0

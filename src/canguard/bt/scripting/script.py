@@ -253,13 +253,12 @@ def _assigned(op: str, key: str, pos: int, value: object, bb: TreeBlackboard, en
 
 
 class _Expr(NamedTuple):
-    """A compiled expression: its closure, the offset its runtime errors name, its tree's depth and, for a bare
-    name, the name (the left side of an assignment)."""
+    """A compiled expression: its closure and what the parser checks of it."""
 
     run: Run
-    pos: int
-    depth: int = 1
-    name: str | None = None
+    pos: int  # the offset its runtime errors name
+    depth: int = 1  # its tree's depth
+    name: str | None = None  # a bare name's (the left side of an assignment)
 
 
 def _literal(value: object, pos: int) -> _Expr:
