@@ -12,7 +12,7 @@ from canguard.bt.nodes.current import GuardNode
 _FAMILIES = (  # conditions, actions, decorators, controls, then more of BehaviorTree.CPP 4's built-ins
     ("current", "IsCurrentNormal IsJointEffortNormal IsCurrentSafe IsI2tSafe"),
     ("timing", "IsElapsedTimeCompare IsElapsedSinceEvent IsCooldownElapsed IsValueBelow IsValueAbove"),
-    ("actions", "ExecuteTask EmitStop ResetStop"), ("timing", "ResetTimer RecordTime"), ("profile", "Profile"),
+    ("actions", "ExecuteTask EmitStop ResetStop"), ("timing", "ResetTimer RecordTime"), ("control", "Profile"),
     ("control", "Inverter ForceSuccess ForceFailure RetryUntilSuccessful Repeat Timeout Delay Sequence AsyncSequence "
                 "ReactiveSequence SequenceWithMemory Fallback AsyncFallback ReactiveFallback Parallel"),
     ("builtins", "AlwaysSuccess AlwaysFailure Script ScriptCondition SetBlackboard UnsetBlackboard Sleep "

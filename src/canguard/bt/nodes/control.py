@@ -1,10 +1,12 @@
-"""BehaviorTree.CPP 4's sequences, fallbacks, Parallel and decorators, SKIPPED included.
+"""BehaviorTree.CPP 4's sequences, fallbacks, Parallel and decorators, SKIPPED included, and Profile.
 
-Timeout and Delay read the context's clock (py_trees' Timeout reads ``time.monotonic``).
+Timeout and Delay read the context's clock (py_trees' Timeout reads ``time.monotonic``). Profile (design note 003)
+reads the one real clock in nodes/: it measures CPU work (in replay the context's clock stands still during a tick).
 """
 
 from __future__ import annotations
 
+from time import perf_counter
 from typing import Any, ClassVar
 
 import py_trees
@@ -22,6 +24,7 @@ from canguard.bt.nodes.base import (
     Status,
     count_of,
     end_as,
+    halted,
     node_types,
     outcome,
     port_info,
@@ -317,3 +320,50 @@ Sequence, AsyncSequence, ReactiveSequence, SequenceWithMemory, Fallback, AsyncFa
         "ReactiveFallback": {"QUIET_RETICK": True, "GO_ON": FAILURE, "REACTIVE": True, "DESCRIPTION": (
             "children in order, from the first at every tick (higher priorities interrupt)")},
     })
+
+
+class Profile(DecoratorNode):
+    """transparent: times its child's tick, outputs last/avg/max ms and count; resets on halt"""
+
+    OUTPUT_PORTS = {  # noqa: RUF012
+        "last_ms": port_info(float, "duration of the child's last tick (ms)", required=False),
+        "avg_ms": port_info(float, "mean duration since the last reset (ms)", required=False),
+        "max_ms": port_info(float, "longest duration since the last reset (ms)", required=False),
+        "count": port_info(int, "ticks measured since the last reset", required=False),
+    }
+
+    def __init__(self, name: str, child: py_trees.behaviour.Behaviour, **kwargs: Any) -> None:
+        super().__init__(name=name, child=child, **kwargs)
+        self.reset_stats()
+
+    def reset_stats(self) -> None:
+        """Forget every measurement."""
+        self.last_ms = 0.0
+        self.total_ms = 0.0
+        self.max_ms = 0.0
+        self.count = 0
+
+    @property
+    def avg_ms(self) -> float:
+        """Mean duration since the last reset (ms); 0 before any tick."""
+        return self.total_ms / self.count if self.count else 0.0
+
+    def tick(self) -> Any:
+        if self.status != RUNNING:
+            self.initialise()
+        t0 = perf_counter()
+        nodes = list(self.decorated.tick())
+        ms = (perf_counter() - t0) * 1000.0
+        yield from nodes
+        self.last_ms = ms
+        self.count += 1
+        self.total_ms += ms
+        if ms > self.max_ms:
+            self.max_ms = ms
+        for name in self.OUTPUT_PORTS:
+            self.write(name, getattr(self, name))  # written when wired
+        yield end_as(self, self.decorated.status)
+
+    def terminate(self, new_status: py_trees.common.Status) -> None:
+        if halted(self, new_status):
+            self.reset_stats()
