@@ -1,9 +1,7 @@
-"""Current and effort guards (design note 004): IsCurrentNormal, IsCurrentSafe, IsI2tSafe, IsJointEffortNormal
-(section 3.2: every joint's |effort| within a limit, one Threshold each).
+"""Current and effort guards (design note 004): IsCurrentNormal, IsCurrentSafe, IsI2tSafe, IsJointEffortNormal.
 
-A guard subscribes its model to its source at load, so the model sees every sample. At tick it
-fails when the source cannot be trusted or the model tripped since the last tick (its peak latch),
-and journals status edges as ``trip`` / ``recover`` events.
+A guard's models, subscribed to its source at load, see every sample; at tick it fails when the source cannot be
+trusted or a model tripped since the last tick (its peak latch), and journals ``trip`` / ``recover`` edges.
 """
 
 from __future__ import annotations
