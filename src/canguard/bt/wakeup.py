@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections import deque
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Protocol
 
@@ -64,12 +64,10 @@ class Ticked:
 
 def _tick_root(root: py_trees.behaviour.Behaviour, reached: set | None) -> None:
     root.skipped = False  # type: ignore[attr-defined]
-    nodes: Iterator[py_trees.behaviour.Behaviour] = root.tick()
     if reached is None:
-        for _ in nodes:  # py_trees' tick_once, without building the list
-            pass
+        deque(root.tick(), maxlen=0)  # py_trees' tick_once, without building the list
     else:
-        reached.update(nodes)
+        reached.update(root.tick())
 
 
 def tick_once(tree: _Tree, max_reticks: int = MAX_RETICKS, *, exactly_once: bool = False,
