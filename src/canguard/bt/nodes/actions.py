@@ -60,8 +60,7 @@ class ConfiguredAction(CanguardNode, py_trees.behaviour.Behaviour):
             self.feedback_message = f"{self.action.name}: {len(frames)} frame(s)"
         else:
             gate_action(self.name, self.role, frames, now, self._note)
-        if self._wired:
-            self.write("output_time", now)
+        self.write("output_time", now)
         return SUCCESS
 
     def _note(self, what: str) -> None:
