@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections import deque
+from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Protocol
 
@@ -64,10 +64,12 @@ class Ticked:
 
 def _tick_root(root: py_trees.behaviour.Behaviour, reached: set | None) -> None:
     root.skipped = False  # type: ignore[attr-defined]
+    nodes: Iterator[py_trees.behaviour.Behaviour] = root.tick()
     if reached is None:
-        deque(root.tick(), maxlen=0)  # py_trees' tick_once, without building the list
+        for _ in nodes:  # py_trees' tick_once, without building the list
+            pass
     else:
-        reached.update(root.tick())
+        reached.update(nodes)
 
 
 def tick_once(tree: _Tree, max_reticks: int = MAX_RETICKS, *, exactly_once: bool = False,
