@@ -39,12 +39,11 @@ class TreeReport:
     warnings: list[str]  # configured sources the tree does not read
 
 
-def context_for(cfg: Config, clock: Any = None) -> Context:
-    """A context for ``cfg`` (sources, actions, stop frames) on ``clock`` (a ManualClock at 0 by default)."""
+def context_for(cfg: Config) -> Context:
+    """A context for ``cfg`` (sources, actions, stop frames) on a ManualClock at 0."""
     from canguard.io.clock import ManualClock
 
-    clock = clock if clock is not None else ManualClock()
-    return Context(clock, cfg.sources, actions=cfg.actions, stop_frames=cfg.stop.frames)
+    return Context(ManualClock(), cfg.sources, actions=cfg.actions, stop_frames=cfg.stop.frames)
 
 
 def load_config_tree(cfg: Config, ctx: Context | None = None, palette: Palette | None = None) -> LoadedTree:

@@ -28,8 +28,7 @@ class _NodeTable(Mapping[str, "type[CanguardNode]"]):
     """Node ID -> class, in :data:`_MODULES`' order, imported when first looked up."""
 
     def __getitem__(self, node_id: str) -> type[CanguardNode]:
-        cls: type[CanguardNode] = getattr(import_module(f"{__name__}.{_MODULES[node_id]}"), node_id)
-        return cls
+        return getattr(import_module(f"{__name__}.{_MODULES[node_id]}"), node_id)
 
     def __contains__(self, node_id: object) -> bool:
         return node_id in _MODULES  # a known ID, without importing its class

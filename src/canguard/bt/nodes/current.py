@@ -170,7 +170,6 @@ class IsCurrentNormal(GuardNode):
         self.ctx.subscribe(source.name, self.ROLE, self.model)
 
 
-
 class IsCurrentSafe(GuardNode):
     """hysteresis overcurrent guard: FAILURE from |I| >= overcurrent_threshold until |I| <= recovery_threshold; optional
     persistence and inrush blanking"""
@@ -212,7 +211,6 @@ class IsCurrentSafe(GuardNode):
         self.model = Hysteresis(over, rec, trip_after_s=self.port("trip_after"),
                                 recover_after_s=self.port("recover_after"), inrush=inrush, max_gap_s=source.max_age_s)
         self.ctx.subscribe(source.name, self.ROLE, self.model)
-
 
 
 class IsI2tSafe(GuardNode):
