@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import Any, ClassVar
 
 import py_trees
 from py_trees.blackboard import Blackboard
@@ -40,9 +40,8 @@ from canguard.bt.nodes.base import (
 )
 from canguard.bt.scopes import INT_TEXT, REAL_TEXT, TreeBlackboard
 from canguard.bt.scripting import ScriptError
-
-if TYPE_CHECKING:
-    from canguard.bt.scripting.script import Script as ParsedScript
+from canguard.bt.scripting.script import Script as ParsedScript
+from canguard.bt.scripting.script import convert_for_entry, entry_type
 
 _NOTHING = object()
 
@@ -59,14 +58,12 @@ class _Scripted(CanguardNode):
         self.board = TreeBlackboard("/")
 
     def bind(self) -> None:
-        from canguard.bt.scripting.script import Script  # the language: only for trees with scripts
-
         for name in self.SCRIPT_PORTS:
             text = self.port(name)
             if text is None:
                 continue
             try:
-                self.scripts[name] = Script(str(text))
+                self.scripts[name] = ParsedScript(str(text))
             except ScriptError as exc:
                 raise PortError(name, f"script {text!r}: {exc}") from None
 
@@ -127,8 +124,6 @@ class SetBlackboard(_Scripted, py_trees.behaviour.Behaviour):
             return FAILURE
         name = str(key).strip("{}")
         if not wired and self.board.has(name):  # BT.CPP: text into a typed entry is parsed to its type
-            from canguard.bt.scripting.script import convert_for_entry, entry_type
-
             try:
                 target: type | None = entry_type(self.board.get(name))
             except KeyError:  # declared by a typed port, no value yet

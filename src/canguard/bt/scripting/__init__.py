@@ -1,4 +1,4 @@
-"""BehaviorTree.CPP v4's scripting language (no eval/exec); :mod:`.script` is imported by a tree's first script."""
+"""BehaviorTree.CPP v4's scripting language (no eval/exec); :mod:`.script` loads with the built-ins or a condition."""
 
 from __future__ import annotations
 
