@@ -31,13 +31,13 @@ class Board:
         return self.types.get(key)
 
 
-def run(text: str, bb: Board | None = None, enums: dict[str, int] | None = None) -> object:
-    return Script(text).run(bb if bb is not None else Board(), enums)
+def run(text: str, bb: Board | None = None) -> object:
+    return Script(text).run(bb if bb is not None else Board())
 
 
-def error(text: str, bb: Board | None = None, enums: dict[str, int] | None = None) -> ScriptError:
+def error(text: str, bb: Board | None = None) -> ScriptError:
     with pytest.raises(ScriptError) as info:
-        run(text, bb, enums)
+        run(text, bb)
     return info.value
 
 
@@ -207,16 +207,8 @@ def test_entry_without_value(text: str) -> None:
     assert "is not initialized" in str(error(text, bb))
 
 
-# ParserTest.EnumsBasic (and EnumsXML's registerScriptingEnum)
-def test_enums() -> None:
-    enums = {"RED": 1, "BLUE": 3, "GREEN": 5, "THE_ANSWER": 42}
-    bb = Board()
-    run("A:=RED; B:=RED; C:=BLUE; D:=THE_ANSWER", bb, enums)
-    assert run("A==B", bb, enums) == 1.0
-    assert run("A!=C", bb, enums) == 1.0
-    assert (bb.values["A"], bb.values["C"], bb.values["D"]) == (1, 3, 42)
-    # a string compared with a number may be an enum's name
-    assert run("name := 'GREEN'; name == 5", bb, enums) == 1.0
+def test_a_name_without_an_entry_is_not_found() -> None:
+    """No enums are registered (BT.CPP registers them from C++ only): an unknown name is an error."""
     assert "variable not found: [RED]" in str(error("A := RED", Board()))
 
 

@@ -130,7 +130,7 @@ class SetBlackboard(_Scripted, py_trees.behaviour.Behaviour):
                 target = self.board.declared_type(name)
             if target is not None and target is not str:
                 try:
-                    value = convert_for_entry(value, target, None)
+                    value = convert_for_entry(value, target)
                 except ValueError as exc:
                     self.feedback_message = f"can't convert {value!r} for the entry [{name}]: {exc}"
                     return FAILURE
