@@ -188,7 +188,7 @@ class TestMainAndNames:
             "ExecuteTask",
         ]
         assert not UUID.search(render_text(loaded.root))
-        info = loaded.info(loaded.find("battery guard"))
+        info = loaded.nodes[loaded.find("battery guard").id]
         assert (info.node_id, info.line, info.tree) == ("IsCurrentNormal", 3, "T")
 
     def test_events_name_the_node(self, tmp_path: Path) -> None:

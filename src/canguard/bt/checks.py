@@ -95,9 +95,9 @@ def guard_coverage(loaded: LoadedTree) -> list[str]:
             g_child = g_path[g_path.index(common) - 1]
             t_child = t_path[t_path.index(common) - 1]
             if common.children.index(g_child) < common.children.index(t_child):
-                info = loaded.info(guard)
+                info = loaded.nodes[guard.id]
                 out.append(f"{info.file}:{info.line}: {guard.name} is checked only before {task.name} starts: under "
-                           f"{common.name} ({loaded.info(common).node_id}, which keeps its place while a child is "
+                           f"{common.name} ({loaded.nodes[common.id].node_id}, which keeps its place while a child is "
                            "RUNNING) it is not ticked again while the task runs, so the task would go on through an "
                            "overcurrent or a dead sensor; put them under a ReactiveSequence to guard the task at "
                            "every tick")

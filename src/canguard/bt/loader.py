@@ -262,8 +262,7 @@ class _Load:
         self.format_version = 3
         self.palette = Palette(dict(palette.nodes) if palette is not None else {})
         self.registry: Registry = {}
-        self.infos: dict[str, NodeInfo] = {}  # by node token
-        self.elements: dict[str, ET.Element] = {}  # the same
+        self.tokens: dict[str, tuple[ET.Element, NodeInfo]] = {}  # the node's element and info by its token
         self.conditions: dict[ET.Element, dict[str, Script]] = {}  # a SubTree's run on the parent's board
         self.private: dict[ET.Element, Inline] = {}  # elements of an inlined _autoremap subtree -> it
         self.inlined = 0
@@ -477,10 +476,9 @@ class _Load:
                 source_error = self._check_source(elem, cls, tree_id)
                 if source_error is not None:
                     pending.append((len(self.errors), source_error))
-                token = f"{_TOKEN}{len(self.infos) + 1}"
+                token = f"{_TOKEN}{len(self.tokens) + 1}"
                 file, line = self.where.get(elem, (self.path, 0))
-                self.infos[token] = NodeInfo(elem.tag, elem.attrib.get("name") or elem.tag, file, line, tree_id)
-                self.elements[token] = elem
+                self.tokens[token] = elem, NodeInfo(elem.tag, elem.attrib.get("name") or elem.tag, file, line, tree_id)
                 elem.attrib["name"] = token
         if self.source_check == "always" or (self.errors and self.source_check == "with_others"):
             # The tree will not be built, so binding (which resolves the sources and reports an
@@ -637,7 +635,7 @@ class _Load:
         counts: dict[str, int] = {}
         for node in nodes:
             parts = node.name.split(".")
-            elem, info = self.elements[parts[-1]], self.infos[parts[-1]]
+            elem, info = self.tokens[parts[-1]]
             board = boards.get(_namespace(node), boards["/"])
             if elem in self.private:  # a node of an inlined _autoremap subtree: its ports and _keys
                 board = board.inlined(self.private[elem])
@@ -645,7 +643,7 @@ class _Load:
             if isinstance(node, CanguardNode) and node.USES_BOARD:
                 node.board = board  # type: ignore[attr-defined]
             install_conditions(node, self.conditions.get(elem, {}), board)
-            readable = "/".join([*(p for p in parts[:-1] if p not in self.infos), info.name])
+            readable = "/".join([*(p for p in parts[:-1] if p not in self.tokens), info.name])
             counts[readable] = k = counts.get(readable, 0) + 1
             node.name = readable if k == 1 else f"{readable}#{k}"
             loaded.nodes[node.id] = NodeInfo(info.node_id, node.name, info.file, info.line, info.tree)
@@ -702,12 +700,12 @@ class _Load:
 
     def _untoken(self, text: str) -> str:
         def name(m: re.Match) -> str:
-            info = self.infos.get(m.group(0))
+            _, info = self.tokens.get(m.group(0), (None, None))
             return f"{info.node_id} at line {info.line}" if info else m.group(0)
 
         text = re.sub(re.escape(_TOKEN) + r"\d+", name, text)
         lines: dict[str, list[str]] = {}
-        for info in self.infos.values():
+        for _, info in self.tokens.values():
             if f"'{info.node_id}'" in text:
                 lines.setdefault(info.node_id, []).append(f"{info.file.name}:{info.line}")
         hints = "; ".join(f"{node_id} at {', '.join(where)}" for node_id, where in lines.items())
