@@ -336,8 +336,7 @@ def _leaf_stop(self: py_trees.behaviour.Behaviour, new_status: Status) -> None:
 
 
 def halted(node: py_trees.behaviour.Behaviour, new_status: py_trees.common.Status) -> bool:
-    """True when ``terminate(new_status)`` is a BT.CPP *halt*: a RUNNING node interrupted (not a finished child
-    py_trees resets)."""
+    """True when ``terminate(new_status)`` is a BT.CPP *halt*: a RUNNING node interrupted (not a finished one reset)."""
     return new_status == INVALID and node.status == RUNNING
 
 

@@ -261,15 +261,13 @@ class IsI2tSafe(GuardNode):
                 raise PortError("peak_current", f"required when k >= {RATED_OVERLOAD:g} (the derived peak {peak:g} "
                                 f"A = {RATED_OVERLOAD:g} × continuous_current must exceed I_cont = k × "
                                 f"continuous_current = {cont * k:g} A)")
-        model: ProtectionModel
         if kind == "leaky":
-            model = LeakyI2t(cont * k, peak, peak_t, self.port("recover_fraction"), source.max_age_s)
+            self.model = LeakyI2t(cont * k, peak, peak_t, self.port("recover_fraction"), source.max_age_s)
         else:
-            model = ThermalI2t(cont * k, peak, peak_t, tau_s=self.port("tau"), tau_cool_s=self.port("tau_cool"),
-                               recover_fraction=self.port("recover_fraction"), max_gap_s=source.max_age_s)
-        self.model = model
-        self.ctx.subscribe(source.name, self.ROLE, model)
-        self.ctx.heat_models[self.name] = model
+            self.model = ThermalI2t(cont * k, peak, peak_t, tau_s=self.port("tau"), tau_cool_s=self.port("tau_cool"),
+                                    recover_fraction=self.port("recover_fraction"), max_gap_s=source.max_age_s)
+        self.ctx.subscribe(source.name, self.ROLE, self.model)
+        self.ctx.heat_models[self.name] = self.model
         self._write_level = self.is_wired("level")
 
     def _feedback(self, reason: str, role: str, value: float, threshold: float) -> str:
