@@ -275,11 +275,6 @@ class _Load:
         self.unbound: list[str] = []  # why each palette-declared node nothing implements cannot run
         self.entry_types: dict[str, type] = {}  # typed entries (filled by _check_entry_types)
 
-    def raise_collected(self) -> None:
-        """Raise one TreeError listing every problem collected so far, if there is any."""
-        if self.errors:
-            raise TreeError(self.errors)
-
     def at(self, elem: ET.Element) -> str:
         """``file:line`` of ``elem``."""
         return "{}:{}".format(*self.where.get(elem, (self.path, 0)))
@@ -675,7 +670,8 @@ class _Load:
                 self.errors.append(f"{loaded.nodes[node.id].where}, port {exc.port}: {exc.message}")
             except (ValueError, KeyError, TypeError) as exc:
                 self.errors.append(f"{loaded.nodes[node.id].where}: {exc}")
-        self.raise_collected()
+        if self.errors:
+            raise TreeError(self.errors)
 
     def _check_entry_types(self, nodes: list[CanguardNode], infos: dict[Any, NodeInfo]) -> None:
         """BT.CPP's rule: the first typed port wired to an entry fixes its type (a string converts to any)."""
@@ -721,7 +717,8 @@ def _checked(path: str | Path, ctx: Context, main: str | None, palette: Palette 
     load.check()
     if to_run:
         load.errors.extend(load.unbound)
-    load.raise_collected()
+    if load.errors:
+        raise TreeError(load.errors)
     load.check_cycles(main_id)
     return load, main_id
 
