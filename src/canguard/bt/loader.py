@@ -710,8 +710,7 @@ class _Load:
 
 def _checked(path: str | Path, ctx: Context, main: str | None, palette: Palette | None,
              *, to_run: bool) -> tuple[_Load, str]:
-    """The checked load of ``path`` and the main tree's ID; a TreeError listing every problem (``to_run``: unbound
-    palette nodes too)."""
+    """The checked load and the main tree's ID; a TreeError listing every problem (``to_run``: unbound nodes too)."""
     load = _Load(Path(path), ctx, palette)
     main_id = load.read(main)
     load.check()

@@ -54,8 +54,7 @@ def mark_skipped(node: py_trees.behaviour.Behaviour) -> None:
 
 
 def end_as(node: B, result: Status | str) -> B:
-    """``node`` returns ``result`` (a status, or one of :data:`STATUS_NAMES`): RUNNING is set, a completion
-    stops the node, SKIPPED marks it. The node, to yield."""
+    """``node`` returns ``result`` (one of :data:`STATUS_NAMES`): RUNNING set, a completion stopped, SKIPPED marked."""
     if result == SKIPPED:
         mark_skipped(node)
     elif Status(result) == RUNNING:

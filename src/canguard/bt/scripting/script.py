@@ -187,8 +187,7 @@ _ORDER: dict[str, Callable[[Any, Any], bool]] = {
 
 
 def _comparable(op: str, lv: Any, rv: Any, pos: int) -> tuple[Any, Any]:
-    """The operands of ``lv op rv`` as compared: two reals or two strings (a string beside a number is read
-    as one)."""
+    """The operands of ``lv op rv`` as compared: two reals or two strings (a string beside a number read as one)."""
     if _numbers(lv, rv):
         return to_real(lv, pos), to_real(rv, pos)
     if isinstance(lv, str) and isinstance(rv, str):
