@@ -5,7 +5,7 @@ from __future__ import annotations
 import re
 import xml.etree.ElementTree as ET
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 from py_trees.blackboard import Blackboard
 
@@ -64,8 +64,7 @@ class TreeBlackboard:
         aliases = {**self.aliases, **{port: self.key(name) for port, name in inline.remaps.items()},
                    **{port: own + port for port in inline.literals}}
         literals = {own + port: typed_literal(text) for port, text in inline.literals.items()}
-        return TreeBlackboard(self.namespace, aliases, literals, self.parent, self.element, inline.private,
-                              self.declared)
+        return replace(self, aliases=aliases, literals=literals, private=inline.private)
 
     def key(self, name: str) -> str:
         """The storage key of entry ``name`` as seen from this scope (``@name``: the root's)."""

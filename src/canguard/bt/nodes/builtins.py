@@ -478,8 +478,8 @@ class _Loop(DecoratorNode):
             except ValueError as exc:
                 raise PortError("queue", f"{self.port('queue')!r}: not a list of {self.ITEM.__name__}: {exc}") from None
 
-    def _take(self) -> tuple[bool, Any]:
-        """(True, the next element), or (False, None) when there is none."""
+    def _take(self) -> Any:
+        """The next element, or ``_NOTHING`` when there is none."""
         if self.static is None:
             raw = Blackboard.storage.get(self._keys["queue"])
             if isinstance(raw, list | deque):
@@ -489,9 +489,8 @@ class _Loop(DecoratorNode):
             elif raw is None or not isinstance(raw, str):
                 raise ValueError(f"queue holds {raw!r}: expected a list or a ';'-separated string")
         if not self.queue:
-            return False, None
-        item = self.queue.popleft() if isinstance(self.queue, deque) else self.queue.pop(0)
-        return True, item
+            return _NOTHING
+        return self.queue.popleft() if isinstance(self.queue, deque) else self.queue.pop(0)
 
     def tick(self) -> Any:
         if self.status != RUNNING:
@@ -500,12 +499,12 @@ class _Loop(DecoratorNode):
             self.initialise()
         if not self.child_running:
             try:
-                taken, item = self._take()
+                item = self._take()
             except ValueError as exc:  # BT.CPP throws; the guard fails this node and says why
                 self.feedback_message = str(exc)
                 yield end_as(self, FAILURE)
                 return
-            if not taken:
+            if item is _NOTHING:
                 yield end_as(self, str(self.port("if_empty")).upper())
                 return
             self.write("value", item)
