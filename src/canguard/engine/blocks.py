@@ -3,7 +3,7 @@
 A block of frames (:meth:`Engine.take <canguard.engine.core.Engine.take>`: a live bus's
 queue drained, or a log's block) reaches the engine's block runner
 (:class:`~canguard.engine.logrun.LogRun`). In a block (:class:`~canguard.io.block.Block`) the rows of each
-configured message are decoded together (:func:`~canguard.engine.blockrows.decode_rows`: the
+configured message are decoded together (:class:`~canguard.engine.logrun.LogRun`: the
 message's :class:`~canguard.decode.message.MessageDecoder`, the same object that decodes a live
 frame; checked together: NaN, inf, the DBC range, the multiplexer, presence flags).
 
