@@ -57,14 +57,12 @@ _NO_ROUTE: Mapping[str, str] = MappingProxyType({})
 """The live cursor's route while a block is given for one bus: every frame goes to that bus."""
 
 
-
 class Engine:
     """Runs one config's tree over frames from any source, on any clock.
 
-    Built from parts with public interfaces: the task gate (:class:`TaskGate`: frames out, the stop
-    rule), the journal (:class:`Journal`: every event), the source watch (:class:`SourceWatch`:
-    stale sources, buses down), the quiet-tick proof (:class:`QuietTicks`) and the log runner
-    (:class:`LogRun`: every block of frames, live or recorded, through one row step: :meth:`take`).
+    Built from parts: the task gate (:class:`TaskGate`), the journal (:class:`Journal`), the source
+    watch (:class:`SourceWatch`), the quiet-tick proof (:class:`QuietTicks`) and the block runner
+    (:class:`LogRun`).
     """
 
     def __init__(
@@ -90,11 +88,10 @@ class Engine:
             raise ConfigError(f"{cfg.path}: tree: missing, expected {{file: TREE.xml, main: ID, tick_hz: HZ}}")
         self.cfg = cfg
         self.clock = PinnedClock(clock)
-        self._drive_clock = clock.advance_to
-        """The inner clock's advance (a no-op live): called per frame, so bound once."""
+        self.drive_clock: Callable[[float], None] = clock.advance_to
+        """Replay: a frame at ``t`` moves the clock (live clocks ignore it); called per frame, so bound once."""
         self.due = -math.inf
-        """Earliest time a tick or gate deadline is due: a frame before it changes nothing but the models (it
-        skips :meth:`advance`). Read it; the engine sets it (a plain attribute: every frame reads it)."""
+        """Earliest time a tick or gate deadline is due: a frame before it changes nothing but the models."""
         clock = self.clock
         self.sink = sink
         self.journal = Journal(clock.now, events, durable=durable, on_event=on_event)
@@ -105,20 +102,18 @@ class Engine:
         """False: heat is only restored from the state file, never written (replay reads, never mutates)."""
         self.sample_block: Callable[[Any, list[Any], list[tuple[int, Any]]], None] | None = None
         """Called once a block with every sample the models see (``--export-signals``, plots): the block's times,
-        each message's ((source, signal) names, rows, decoded values) and the samples of the rows the frame
-        decoder took (with their row); None keeps the hot path lean."""
+        each message's ((source, signal) names, rows, decoded values) and the frame decoder's (row, sample)s."""
         self.tick_hook: Callable[[float], None] | None = None
         """Called after every tick with its time (plots)."""
         self.observer: TickObserver | None = None
-        """Told after every tick (the live monitors: it builds an immutable snapshot from public accessors)."""
+        """Told after every tick (the live monitors)."""
         self.stats = EngineStats()
         self.decoder = Decoder(cfg)
         self.ctx = Context(clock, cfg.sources, sink=sink, actions=cfg.actions, on_event=self._node_event,
                            stop_frames=cfg.stop.frames)
         self.stats.heat_models = self.ctx.heat_models  # the I²t peaks are the models' own
         if previous is not None:
-            # A reload: sources configured as before keep their data, so the new tree does not
-            # start blind (and fail on "no data") while the robot is running.
+            # A reload: sources configured as before keep their data (the new tree must not start blind).
             for name, health in previous.ctx.health.items():
                 if previous.ctx.sources.get(name) == self.ctx.sources.get(name):
                     self.ctx.health[name] = health
@@ -142,22 +137,22 @@ class Engine:
         self.watch = SourceWatch(cfg, self.ctx, self.gate, self.journal, metrics, self.clock,
                                  self.guard_nodes, self.period_s)
         self.quiet = QuietTicks(self.root, self.ctx, self.gate, self.journal, self.watch, cfg.sources, self.period_s)
-        self._next_tick = math.nan
+        self.next_tick_t = math.nan
+        """When the next grid tick is due (NaN before the start)."""
         self._heat_failed = False
-        self._last_frame_t = -math.inf
+        self.last_frame_t = -math.inf
+        """The latest frame time seen (-inf: none)."""
         self.first_frame_t = math.nan
         self.last_status = py_trees.common.Status.INVALID
         self.last_tick_t = math.nan
         self.last_due_run = -math.inf
         """The time of the last tick or gate deadline run (which row brought it: :meth:`_cross`)."""
         self._blocks = LogRun(self)
-        """The block runner (it keeps its message plans, compiled at the first block of each bus)."""
         self._live = LogCursor(_NO_ROUTE, None, {}, None)
         """Where :meth:`take` is: every frame goes to the bus it is given for, or by :attr:`_bus_names`."""
         self._bus_names = {name: name for name in cfg.buses}
         """Each bus by its own name: the route of a frame whose channel names its bus (:meth:`take` of None)."""
 
-    # -- the parts' state, as the others read it ---------------------------------------------
     @property
     def events_seen(self) -> Counter[str]:
         """How many events of each name were written (summaries count escalations...)."""
@@ -185,26 +180,12 @@ class Engine:
 
         self.journal.on_event = both
 
-    @property
-    def next_tick_t(self) -> float:
-        """When the next grid tick is due (NaN before the start)."""
-        return self._next_tick
-
-    @property
-    def last_frame_t(self) -> float:
-        """The latest frame time seen (-inf: none)."""
-        return self._last_frame_t
-
-    def drive_clock(self, t: float) -> None:
-        """Replay: a frame at ``t`` moves the clock (live clocks ignore it)."""
-        self._drive_clock(t)
-
     def frame_time(self, t: float) -> None:
         """A frame at ``t`` was taken: the latest frame time moves (the first one is :attr:`first_frame_t`)."""
-        if t > self._last_frame_t:
-            if self._last_frame_t == -math.inf:
+        if t > self.last_frame_t:
+            if self.last_frame_t == -math.inf:
                 self.first_frame_t = t
-            self._last_frame_t = t
+            self.last_frame_t = t
 
     # -- life cycle ------------------------------------------------------------------------
     def start(self, now: float | None = None) -> None:
@@ -212,7 +193,7 @@ class Engine:
         t = self.clock.now() if now is None else now
         self.clock.advance_to(t)
         self.watch.started_at = t
-        self._next_tick = t
+        self.next_tick_t = t
         if self.heat is not None:
             self.heat.load(t)
             for key, model in self.ctx.heat_models.items():
@@ -230,18 +211,13 @@ class Engine:
         self.stats.frames = old.stats.frames
         self.watch.adopt(old.watch)
         self.first_frame_t = old.first_frame_t
-        self._last_frame_t = old.last_frame_t
-        self.due = min(self._next_tick, self.gate.next_deadline())
+        self.last_frame_t = old.last_frame_t
+        self.due = min(self.next_tick_t, self.gate.next_deadline())
 
     def _carry_models(self, old: Engine) -> None:
-        """Each guard of the new tree continues the model state of the same guard in the old tree.
-
-        The same guard: same node name, node type and source. Its new model keeps the new
-        parameters and takes over the old model's running state (:meth:`LatchedModel.carry_from`):
-        a trip (a hysteresis guard sitting between its thresholds stays tripped), a running
-        ``trip_after`` / ``recover_after`` timer, an inrush window, I²t heat. Without it a
-        reload that changed a threshold restarted the guard cold.
-        """
+        """Each guard of the new tree (same node name, type and source as an old one) keeps its new parameters and
+        takes over the old model's running state (:meth:`LatchedModel.carry_from`): a trip, a running timer, an
+        inrush window, I²t heat. Without it a reload that changed a threshold restarted the guard cold."""
         old_guards = {g.name: g for g in old.guard_nodes}
         for guard in self.guard_nodes:
             before = old_guards.get(guard.name)
@@ -266,16 +242,13 @@ class Engine:
 
     # -- frames in -------------------------------------------------------------------------
     def take(self, bus: str | None, block: Block) -> None:
-        """Process a block of frames received on ``bus``, in order: the one way frames come in.
+        """Process a block of frames received on ``bus``, in order: the one way frames come in (:class:`LogRun`).
 
-        The live daemon drains its receive queue into a block (one frame on a quiet bus);
-        a recorded log gives blocks of thousands (:meth:`run_log`, which routes each of its
-        channels to a bus). Every frame goes through the same steps (:class:`LogRun`): the
-        ticks and gate deadlines due before it run first, at their own times, then its
-        message's row step (the sources' health, the protection models), then a tick at
-        once when it changed a model's or a source's state. ``bus`` None: each frame's
-        ``channel`` is the name of its bus (a live batch drained from several buses, merged
-        in arrival order); a frame of no configured bus is counted as unmapped.
+        The ticks and gate deadlines due before a frame run first, at their own times, then its
+        message's row step (the sources' health, the protection models), then a tick at once
+        when it changed a model's or a source's state. ``bus`` None: each frame's ``channel`` is
+        the name of its bus (a live batch drained from several buses); a frame of no configured
+        bus is counted as unmapped.
         """
         cursor = self._live
         if bus is None:
@@ -292,34 +265,29 @@ class Engine:
 
     def edge_tick(self, t: float) -> None:
         """A sample at ``t`` changed a model's or a source's state: the tree ticks at once."""
-        self._drive_clock(t)
+        self.drive_clock(t)
         self.stats.edge_ticks += 1
         now = self.clock.now()
         self.gate.ahead(now)  # a tick that surely halts the task: the stop frames leave first
         self.tick(now)
 
     def runs_until(self, end_t: float, coming: Callable[[], Mapping[tuple[int, str], Any]]) -> float:
-        """Until when a block's rows, the last at ``end_t``, may be taken as runs
-        (:func:`~canguard.engine.blocks.take_runs`), the engine idle.
+        """Until when a block's rows, the last at ``end_t``, may be taken as runs, the engine idle.
 
-        The next due time (a tick, a gate deadline), or, while the ticks and gate deadlines before
-        it read nothing the rows change, the end of the quiet stretch the rows still to come
-        (``coming()``: each source signal's times, :meth:`QuietTicks.reach`) keep the sources fresh to:
-        the next grid tick is proven quiet (it will be counted, not run), nothing watches each tick
-        (metrics, a tick hook, a monitor), the skipped ticks write no model's state (an I²t guard's
-        wired ``level``: :attr:`QuietTicks.writes`), no stop waits for its confirmation (which reads
-        a source between ticks) and no I²t heat is due to be saved before it (a save writes the heat
-        of its tick's time). The I²t peaks are the models' own (over every sample), so their runs
-        may span ticks. An edge in the runs still ticks at once: the quiet ticks before it are counted
-        first, at their own times. Nothing is drawn when the rows end before the due time (a live
-        frame between two ticks).
+        The next due time, or, while the ticks before it read nothing the rows change, the end of
+        the quiet stretch the rows still to come (``coming()``: each source signal's times,
+        :meth:`QuietTicks.reach`) keep the sources fresh to. That needs: the next grid tick proven
+        quiet, nothing watching each tick, no model state written by a skipped tick
+        (:attr:`QuietTicks.writes`), no stop waiting for its confirmation (it reads a source between
+        ticks) and no I²t heat due to be saved (a save writes the heat of its tick's time). An edge
+        in the runs still ticks at once, after the quiet ticks before it are counted.
         """
         due = self.due
         if end_t < due:
             return due
         quiet = self.quiet
         if (self.metrics is None and self.tick_hook is None and self.observer is None and not quiet.writes
-                and not self.gate.confirm_pending and quiet.may_skip(self._next_tick) and quiet.until > due):
+                and not self.gate.confirm_pending and quiet.may_skip(self.next_tick_t) and quiet.until > due):
             until = quiet.until if quiet.until > end_t else quiet.reach(coming())
             return max(due, min(until, self._heat_due()))
         return due
@@ -332,9 +300,9 @@ class Engine:
 
     def next_due(self) -> float:
         """The next time the engine has something to do (a tick or a gate deadline)."""
-        if math.isnan(self._next_tick):
+        if math.isnan(self.next_tick_t):
             return -math.inf
-        return min(self._next_tick, self.gate.next_deadline())
+        return min(self.next_tick_t, self.gate.next_deadline())
 
     def advance(self, now: float) -> None:
         """Run every tick and gate deadline due up to ``now``, each at its own time."""
@@ -343,39 +311,39 @@ class Engine:
             return
         if now < self.quiet.until and self._quiet_advance(now):
             return  # one quiet grid tick, in fewer steps
-        if math.isnan(self._next_tick):
+        if math.isnan(self.next_tick_t):
             self.start(now)
-        if now - self._next_tick > MAX_CATCH_UP_S:
+        if now - self.next_tick_t > MAX_CATCH_UP_S:
             # A gap: tick through its beginning, where sources go stale and guards trip at their
             # own times (max_age after the last frame); then jump the quiet rest of it.
-            self._run_due(min(now, self._next_tick + self._gap_horizon_s))
-            missed = math.floor((now - self._next_tick - MAX_CATCH_UP_S) / self.period_s)
+            self._run_due(min(now, self.next_tick_t + self._gap_horizon_s))
+            missed = math.floor((now - self.next_tick_t - MAX_CATCH_UP_S) / self.period_s)
             if missed > 0:
-                self._next_tick += missed * self.period_s
+                self.next_tick_t += missed * self.period_s
                 self.stats.skipped_ticks += missed
                 # The gate's periodic frames skip the gap too: sent one by one, a day-long gap in a
                 # log was millions of task frames (a replay that never ended).
-                self.gate.skip_to(self._next_tick)
+                self.gate.skip_to(self.next_tick_t)
         self._run_due(now)
-        self.due = min(self._next_tick, self.gate.next_deadline())
+        self.due = min(self.next_tick_t, self.gate.next_deadline())
         self.journal.flush()
 
     def _run_due(self, now: float) -> None:
         """Every tick and gate deadline due up to ``now``, in time order, each at its own time."""
         while True:
             due_gate = self.gate.next_deadline()
-            due = min(self._next_tick, due_gate)
+            due = min(self.next_tick_t, due_gate)
             if due > now:
                 break
             self.clock.advance_to(due)
             self.last_due_run = due
-            if self._next_tick <= due_gate:
+            if self.next_tick_t <= due_gate:
                 if not self.quiet.may_skip(due):
                     self.tick(due)
-                    self._next_tick += self.period_s
+                    self.next_tick_t += self.period_s
                 else:
                     self._count_quiet(due, 1)
-                    self._next_tick += self.period_s
+                    self.next_tick_t += self.period_s
                     self._quiet_run(now, due_gate)  # the quiet ticks after it, in one go
             else:
                 self.gate.service(self.clock.pin(due))
@@ -433,7 +401,7 @@ class Engine:
         self.gate.service(now)
         self.store_heat(now, periodic=True)
         self.journal.flush()
-        self.due = min(self._next_tick, self.gate.next_deadline())
+        self.due = min(self.next_tick_t, self.gate.next_deadline())
         self.quiet.after_tick(now, events_before,
                              self.metrics is not None or self.tick_hook is not None or self.observer is not None)
         if self.observer is not None:
@@ -444,15 +412,11 @@ class Engine:
     def _quiet_advance(self, now: float) -> bool:
         """:meth:`advance` to ``now`` when all that is due up to it is one quiet grid tick; False: nothing done.
 
-        The usual case between two rows of a replay whose tree sits at a fixed point: the
-        tick at ``_next_tick`` is the only one due, the task runs and its next deadline is
-        not before the tick nor between the tick and ``now`` (one at the tick is serviced
-        by it). The steps are those of :meth:`advance`, :meth:`_run_due` and
-        :meth:`_quiet_run` (which has nothing left to count), in their order, without
-        their loop and tests: on a log of frames every millisecond, 25,000 ticks took 3.4 µs
-        each that way (live, a frame between two ticks takes the same way).
+        The usual case between two rows while the tree sits at a fixed point: the steps of
+        :meth:`advance`, :meth:`_run_due` and :meth:`_quiet_run`, in their order, without their
+        loops and tests (the task's deadline is neither before the tick nor after it up to ``now``).
         """
-        nxt = self._next_tick
+        nxt = self.next_tick_t
         gate = self.gate
         if not nxt <= now:
             return False
@@ -465,29 +429,23 @@ class Engine:
         self.clock.advance_to(nxt)
         self.last_due_run = nxt
         self._count_quiet(nxt, 1)
-        self._next_tick = after
+        self.next_tick_t = after
         if gate.next_deadline() <= now:  # the task serviced at the tick is due again already: the loop goes on
             self._run_due(now)
-        self.due = min(self._next_tick, gate.next_deadline())
+        self.due = min(self.next_tick_t, gate.next_deadline())
         self.journal.flush()
         return True
 
     def _quiet_run(self, now: float, until: float) -> None:
-        """After a quiet tick: the grid ticks due before ``until`` (and up to ``now``) counted in one go.
-
-        Only while the task runs and no heat is saved: then between two ticks with no frame
-        fed in between a quiet tick changes nothing but what the last of them leaves (the
-        guards' tick times, the counts): ``gate.service`` has nothing due before ``until``
-        (the gate's next deadline) and the heat levels move only with samples. Each tick
-        time is still reached by the same additions as one by one.
-        """
+        """After a quiet tick: the grid ticks due before ``until`` (the gate's next deadline) and up to ``now``
+        counted in one go, while the task runs and no heat is saved (then only the last of them leaves a
+        trace); each tick time is reached by the same additions as one by one."""
         gate = self.gate
         if gate.state != TaskGate.RUNNING or (self.heat is not None and self.save_heat):
             return
         counted = gate.counts_only
-        nxt, period, last, count = self._next_tick, self.period_s, 0.0, 0
-        # The task's periodic frames only counted (a replay without --emit): its deadlines among the
-        # ticks change nothing a tick sees, and are sent in one go below; else they end the run.
+        nxt, period, last, count = self.next_tick_t, self.period_s, 0.0, 0
+        # Task frames only counted (a replay without --emit): counted in one go below; else they end the run.
         quiet_until = self.quiet.until
         until = quiet_until if counted else min(until, quiet_until)
         while nxt <= now and nxt < until:
@@ -499,7 +457,7 @@ class Engine:
                 gate.count_task_through(last)
             self.clock.advance_to(last)
             self.last_due_run = last
-            self._next_tick = nxt
+            self.next_tick_t = nxt
             self._count_quiet(last, count)
 
     def _count_quiet(self, now: float, count: int) -> None:
@@ -515,7 +473,7 @@ class Engine:
             gate.service(now)
             self.store_heat(now, periodic=True)
             self.journal.flush()
-            self.due = min(self._next_tick, gate.next_deadline())
+            self.due = min(self.next_tick_t, gate.next_deadline())
         finally:
             self.clock.unpin()
 
@@ -538,11 +496,8 @@ class Engine:
             self._heat_failed = False
 
     def _failure_cause(self, tip: str) -> tuple[str, str]:
-        """(node, reason) of a failed tick: the failing guards with why, else the node the tree failed at.
-
-        Made of what only changes at an edge (guard feedback is written at trips and reason
-        changes), so a ``reason`` event marks a real change, not a new sample.
-        """
+        """(node, reason) of a failed tick: the failing guards with why, else the node the tree failed at; made of
+        what only changes at an edge, so a ``reason`` event marks a real change, not a new sample."""
         failed = py_trees.common.Status.FAILURE
         first = next((g.name for g in self.guard_nodes if g.status == failed), "")
         if first:
@@ -561,8 +516,6 @@ class Engine:
         """Every guarded signal of the tree (node, source, role, kind, model), in tree order."""
         return self._guards
 
-    # -- watchdog and status ---------------------------------------------------------------
-
     def status_line(self) -> str:
         """A one-line summary for systemd's STATUS=."""
         d = self.decoder
@@ -576,9 +529,8 @@ class Engine:
 
     def _node_event(self, event: dict[str, Any]) -> None:
         """An event of a tree node (a guard's trip, recovery...): trips are counted for the summaries."""
-        # A guard failing for "no_data" in the start window (see SourceWatch.starting) only keeps the task from
-        # starting: journalled, but not a trip (the live daemon's first tick often precedes the first
-        # frame; counted, it made `replay --realtime --fail-on-trip` fail at random on clean logs).
+        # A guard failing for "no_data" in the start window (SourceWatch.starting) only keeps the task from
+        # starting: journalled, not a trip (the daemon's first tick often precedes the first frame).
         if event.get("event") == "trip" and not (
             event.get("reason") == "no_data" and self.watch.starting(float(event.get("t", self.clock.now())))
         ):
