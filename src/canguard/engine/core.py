@@ -34,8 +34,8 @@ import py_trees
 from canguard.bt.context import Context, FrameSink
 from canguard.config.schema import Config
 from canguard.decode.decoder import Decoder
+from canguard.engine.events import Journal
 from canguard.engine.gate import TaskGate
-from canguard.engine.journal import Journal
 from canguard.engine.logrun import MAX_CATCH_UP_S, LogCursor, LogRun
 from canguard.engine.quiet import QuietTicks
 from canguard.engine.stats import EngineStats, EventSink, TickObserver

@@ -56,7 +56,7 @@ from canguard.engine.gate import TaskGate
 
 if TYPE_CHECKING:
     from canguard.bt.context import Context
-    from canguard.engine.journal import Journal
+    from canguard.engine.events import Journal
     from canguard.engine.watch import SourceWatch
 
 MARGIN_S = 1e-6

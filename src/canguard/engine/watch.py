@@ -10,7 +10,7 @@ from canguard.engine.gate import TaskGate
 if TYPE_CHECKING:
     from canguard.bt.context import Context
     from canguard.config.schema import Config
-    from canguard.engine.journal import Journal
+    from canguard.engine.events import Journal
     from canguard.io.clock import PinnedClock
 
 
