@@ -136,7 +136,7 @@ class Engine:
         self.period_s = 1.0 / cfg.tree.tick_hz
         self.watch = SourceWatch(cfg, self.ctx, self.gate, self.journal, metrics, self.clock,
                                  self.guard_nodes, self.period_s)
-        self.quiet = QuietTicks(self.root, self.ctx, self.gate, self.journal, self.watch, cfg.sources, self.period_s)
+        self.quiet = QuietTicks(self.root, self.ctx, self.gate, self.journal, self.watch)
         self.next_tick_t = math.nan
         """When the next grid tick is due (NaN before the start)."""
         self._heat_failed = False

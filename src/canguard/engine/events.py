@@ -51,14 +51,13 @@ _PENDING_MAX = 10_000
 class EventJournal:
     """Appends events to a JSON-lines file, rotated by size, keeping every line.
 
-    ``path`` None only counts (``lines``, ``bytes_written``). ``max_bytes``: the size at which the file is
-    rotated (a line is never split, so a file may exceed it by one line); ``backups`` None keeps every
-    rotated file, an integer that many (opt-in). Thread-safe: receive threads may report ``bus_error``
-    events while the loop writes. Disk errors (full, read-only) never raise out of :meth:`write` or
-    :meth:`flush`: logged, counted in ``errors``, the lines kept in memory (up to 10,000) and written at the
-    next call that succeeds, so a full disk cannot stop the guard; a line is in the file whole or not at
-    all (a short write is cut back with ``ftruncate``). Lines that overflow the backlog or are still
-    refused at :meth:`close` go to stderr (the systemd journal), counted in ``to_stderr``.
+    ``path`` None only counts. ``max_bytes``: the size at which the file is rotated (a file may exceed it
+    by one line); ``backups`` None keeps every rotated file, an integer that many. Thread-safe (receive
+    threads report ``bus_error`` events). Disk errors never raise out of :meth:`write` or :meth:`flush`:
+    logged, counted in ``errors``, the lines kept in memory (up to 10,000) and written at the next call
+    that succeeds, so a full disk cannot stop the guard; a line is in the file whole or not at all.
+    Lines that overflow the backlog or are still refused at :meth:`close` go to stderr (the systemd
+    journal), counted in ``to_stderr``.
     """
 
     def __init__(
@@ -169,10 +168,8 @@ class EventJournal:
     def _drain(self) -> None:
         """Write every pending line (normally just the new one); raises OSError if the disk fails.
 
-        A line reaches the file whole or not at all: a write that puts only part of it
-        (the disk filled up in the middle) is cut back to the line's start with
-        ``ftruncate`` and the line stays first in the queue, so a later retry writes it
-        whole. Rotation only happens between lines.
+        A write that puts only part of a line (the disk filled up) is cut back to the line's start
+        with ``ftruncate`` and the line stays first in the queue: a later retry writes it whole.
         """
         while self._pending:
             line = self._pending[0]
@@ -229,11 +226,8 @@ class EventJournal:
     # -- public API ------------------------------------------------------------------
 
     def write(self, event: Mapping[str, Any]) -> None:
-        """Append one event as a JSON line, handed to the OS before returning.
-
-        Raises ValueError for an event without an ``event`` key or a closed journal;
-        disk errors are logged and retried, not raised (see the class docstring).
-        """
+        """Append one event as a JSON line, handed to the OS before returning; ValueError for an event without an
+        ``event`` key or a closed journal (disk errors are logged and retried, not raised)."""
         line = encode_event(event)
         with self._lock:
             if self._closed:
@@ -358,13 +352,9 @@ def journal_files(path: Path | str) -> list[Path]:
 
 
 def read_events(path: Path | str, include_rotated: bool = False) -> list[dict[str, Any]]:
-    """Read a journal back as a list of dicts, in the order written.
-
-    ``include_rotated`` also reads the rotated backups (oldest first). A last line
-    without its newline (a power cut mid-write) is skipped; any other line that is
-    not a JSON object raises :class:`~canguard.errors.LogFormatError` naming file:line.
-    A missing file raises FileNotFoundError.
-    """
+    """Read a journal back as a list of dicts, in the order written (``include_rotated``: the rotated backups first,
+    oldest first). A torn last line (a power cut mid-write) is skipped; any other line that is not a JSON object
+    raises :class:`~canguard.errors.LogFormatError` naming file:line; a missing file FileNotFoundError."""
     path = Path(path)
     files = journal_files(path) if include_rotated else [path]
     if not files:
