@@ -138,7 +138,7 @@ def engine_state(engine: Engine) -> dict[str, Any]:
         "health": health, "models": models, "now": engine.clock.now(), "last_tick_t": engine.last_tick_t,
         "first_frame_t": engine.first_frame_t, "gate": engine.gate.state, "stops": engine.gate.stops,
         "next_task": engine.gate.next_task_t, "next_stop": engine.gate._next_stop, "sent": engine.gate.sink.sent,
-        "stale": engine.watch.stale, "events_seen": dict(engine.events_seen),
+        "stale": engine.stale, "events_seen": dict(engine.events_seen),
     })
 
 

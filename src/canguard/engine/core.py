@@ -39,7 +39,6 @@ from canguard.engine.gate import TaskGate
 from canguard.engine.logrun import MAX_CATCH_UP_S, LogCursor, LogRun
 from canguard.engine.quiet import QuietTicks
 from canguard.engine.stats import EngineStats, EventSink, TickObserver
-from canguard.engine.watch import SourceWatch
 from canguard.io.block import Block, one_block
 from canguard.io.clock import Clock, PinnedClock
 from canguard.io.frame import Frame
@@ -53,6 +52,13 @@ log = logging.getLogger(__name__)
 MAX_KEPT_TRIPS = 100_000
 """Trip events kept in memory for summaries and the live view; later ones are only counted."""
 
+CAN_ERR_CRTL = 0x004
+"""linux/can/error.h: the error class of controller problems (the state is in data[1])."""
+CAN_ERR_CRTL_RX_PASSIVE = 0x10
+CAN_ERR_CRTL_TX_PASSIVE = 0x20
+CAN_ERR_CRTL_ACTIVE = 0x40
+"""The controller is back to error-active."""
+
 _NO_ROUTE: Mapping[str, str] = MappingProxyType({})
 """The live cursor's route while a block is given for one bus: every frame goes to that bus."""
 
@@ -60,9 +66,10 @@ _NO_ROUTE: Mapping[str, str] = MappingProxyType({})
 class Engine:
     """Runs one config's tree over frames from any source, on any clock.
 
-    Built from parts: the task gate (:class:`TaskGate`), the journal (:class:`Journal`), the source
-    watch (:class:`SourceWatch`), the quiet-tick proof (:class:`QuietTicks`) and the block runner
-    (:class:`LogRun`).
+    Built from parts: the task gate (:class:`TaskGate`), the journal (:class:`Journal`), the quiet-tick
+    proof (:class:`QuietTicks`) and the block runner (:class:`LogRun`). It watches its inputs itself:
+    stale sources, buses down, a receive queue behind, each as an inhibit of the gate, whatever the
+    tree says.
     """
 
     def __init__(
@@ -134,9 +141,16 @@ class Engine:
         self._gap_horizon_s = max(ages, default=0.0) + MAX_CATCH_UP_S
         """How much of a gap is ticked through before the rest is jumped: every source goes stale in it."""
         self.period_s = 1.0 / cfg.tree.tick_hz
-        self.watch = SourceWatch(cfg, self.ctx, self.gate, self.journal, metrics, self.clock,
-                                 self.guard_nodes, self.period_s)
-        self.quiet = QuietTicks(self.root, self.ctx, self.gate, self.journal, self.watch)
+        read = [cfg.sources[s].max_age_s for s in self.ctx.read_sources if s in cfg.sources]
+        self.start_grace_s = max(read, default=0.0)
+        """How long after the start a failing tree only keeps the task from starting (:meth:`starting`)."""
+        self.started_at = math.nan
+        """When the engine started."""
+        self.stale: dict[str, str] = {}
+        """Each source's reason as the last tick saw it ("" fresh)."""
+        self._cover: list[Any] = []
+        """The guards ticked when the task last started: they must keep being ticked (:meth:`_guards_ticked`)."""
+        self.quiet = QuietTicks(self.root, self.ctx, self.gate, self.journal, self)
         self.next_tick_t = math.nan
         """When the next grid tick is due (NaN before the start)."""
         self._heat_failed = False
@@ -192,7 +206,7 @@ class Engine:
         """Begin: the first tick is due at once; heat is restored from the state file."""
         t = self.clock.now() if now is None else now
         self.clock.advance_to(t)
-        self.watch.started_at = t
+        self.started_at = t
         self.next_tick_t = t
         if self.heat is not None:
             self.heat.load(t)
@@ -203,13 +217,14 @@ class Engine:
         self.journal.write({"event": "start", "reason": f"tree {self.loaded.main_id} from {source}"})
 
     def adopt(self, old: Engine) -> None:
-        """Take over a running engine's task state, counters and source watch (config reload)."""
+        """Take over a running engine's task state, counters, sources' reasons and start (config reload)."""
         self.gate.adopt(old.gate)
         self._carry_models(old)
         self.stats.trips = old.stats.trips
         self.stats.trip_count = old.stats.trip_count
         self.stats.frames = old.stats.frames
-        self.watch.adopt(old.watch)
+        self.stale = dict(old.stale)
+        self.started_at = old.started_at
         self.first_frame_t = old.first_frame_t
         self.last_frame_t = old.last_frame_t
         self.due = min(self.next_tick_t, self.gate.next_deadline())
@@ -364,7 +379,7 @@ class Engine:
         events_before = self.journal.written
         # Sources first: a stale one holds the task before the tree runs, and one that is fine
         # again releases it in time for this tick's ExecuteTask.
-        self.watch.sources(now)
+        self._sources(now)
         self.gate.begin_tick()
         t0 = time.perf_counter()
         try:
@@ -386,16 +401,17 @@ class Engine:
         if failed:
             tip = self.root.tip()
             node = tip.name if tip is not None else self.root.name
-            if not self.watch.starting(now):
+            if not self.starting(now):
                 detail = tip.feedback_message if tip is not None else ""
                 self.gate.stop(now, reason=f"tree failed at {node}" + (f": {detail}" if detail else ""), node=node)
             cause = self._failure_cause(node)
         # The one place a stop may end (TaskGate._release_rule), and task action frames go out or are withheld.
         was_running = self.gate.state == TaskGate.RUNNING
         self.gate.end_tick(now, failed, cause)
-        self.watch.guards(now, was_running)
+        self._guards_ticked(now, was_running)
         if self.metrics is not None:
-            self.watch.levels()
+            for node, model in self.ctx.heat_models.items():
+                self.metrics.set_i2t_level(node, model.snapshot().level_pct)
         if self.tick_hook is not None:
             self.tick_hook(now)
         self.gate.service(now)
@@ -529,10 +545,10 @@ class Engine:
 
     def _node_event(self, event: dict[str, Any]) -> None:
         """An event of a tree node (a guard's trip, recovery...): trips are counted for the summaries."""
-        # A guard failing for "no_data" in the start window (SourceWatch.starting) only keeps the task from
+        # A guard failing for "no_data" in the start window (:meth:`starting`) only keeps the task from
         # starting: journalled, not a trip (the daemon's first tick often precedes the first frame).
         if event.get("event") == "trip" and not (
-            event.get("reason") == "no_data" and self.watch.starting(float(event.get("t", self.clock.now())))
+            event.get("reason") == "no_data" and self.starting(float(event.get("t", self.clock.now())))
         ):
             self.stats.trip_count += 1
             if len(self.stats.trips) < MAX_KEPT_TRIPS:
@@ -541,36 +557,121 @@ class Engine:
                 self.metrics.trip(str(event.get("node", "")))
         self.journal.write(event)
 
-    # -- the watch over inputs (the daemon's calls) ------------------------------------------
-    def _deadlines_moved(self) -> None:
+    # -- the watch over inputs ------------------------------------------------------------------
+    def starting(self, now: float) -> bool:
+        """True while the task never ran and the sources still have their first max_age to speak: a tree that
+        fails then only keeps the task from starting (stop frames to drives never enabled would latch an ESTOP
+        error that needs clearing)."""
+        return self.gate.state == TaskGate.IDLE and now - self.started_at < self.start_grace_s
+
+    def _sources(self, now: float) -> None:
+        """At a tick: each source's reason; a source the tree reads holds the task while it is stale."""
+        ctx, gate = self.ctx, self.gate
+        for name, health in ctx.health.items():
+            reason = health.reason(now)
+            if reason == "no_data" and now - self.started_at < ctx.sources[name].max_age_s:
+                reason = ""  # not yet: every source gets max_age to send its first frame
+            prev = self.stale.get(name, "")
+            if name in ctx.read_sources:
+                # Backstop, whatever the tree's shape: a stale source the tree reads holds the task stopped.
+                if reason:
+                    gate.inhibit(f"source {name}", f"source {name}: {reason}", now)
+                elif prev:
+                    gate.release(f"source {name}")
+            if reason != prev:
+                self.stale[name] = reason
+                if reason:
+                    self.journal.write({"event": "stale", "source": name, "reason": reason,
+                                        "read_by_tree": name in ctx.read_sources})
+                else:
+                    self.journal.write({"event": "fresh", "source": name, "reason": f"{prev} cleared"})
+            if self.metrics is not None:
+                age = health.age(now, None) if hasattr(health, "age") else math.nan
+                self.metrics.set_sample_age(name, age)
+
+    def _guards_ticked(self, now: float, was_running: bool) -> None:
+        """Every guard of the tree must keep being ticked while the task runs (safety table row T4).
+
+        A guard left behind (a RunOnce around it, a branch the tree stopped visiting) sees every
+        sample, but no failure of it reaches the tree: one not ticked for longer than its source's
+        ``max_age`` (a tick period at least) holds the task stopped (inhibit ``guards``) until every
+        guard is ticked again. Conservative on purpose: guards belong where every tick reaches them.
+        """
+        gate = self.gate
+        if gate.state == TaskGate.RUNNING and not was_running:
+            self._cover = list(self.guard_nodes)
+        left = [
+            g for g in self._cover
+            if g.source is not None and now - g.judged_t > max(g.source.max_age_s, self.period_s)
+        ]
+        if left and gate.state == TaskGate.RUNNING:
+            names = ", ".join(g.name for g in left)
+            gate.inhibit("guards", f"guards not ticked while the task runs: {names}", now, node=left[0].name)
+        elif "guards" in gate.inhibits and all(g.judged_t == now for g in self._cover):
+            gate.release("guards")
+
+    def _inhibit(self, key: str, reason: str, event: dict[str, Any]) -> None:
+        """Journal ``event`` and hold the task stopped for ``key`` (the stop frames leave before the event is
+        recorded); the gate's deadlines are read again."""
+        self.journal.write(event)
+        self.gate.inhibit(key, reason, self.clock.now())
+        self.journal.flush()
         self.due = min(self.due, self.gate.next_deadline())
 
     def bus_down(self, bus: str, reason: str) -> None:
         """A bus went away: the task stops (frames out on the buses still up) until :meth:`bus_up`."""
-        self.watch.bus_down(bus, reason)
-        self._deadlines_moved()
+        event = {"event": "bus_error", "source": bus, "reason": reason}
+        self._inhibit(f"bus {bus}", f"bus {bus} down: {reason}", event)
 
     def bus_up(self, bus: str) -> None:
         """The bus is open again: its inhibits are released (the tree decides whether the task resumes)."""
-        self.watch.bus_up(bus)
+        self.gate.release(f"bus {bus}")
+        self.gate.release(f"bus {bus} passive")  # a reopened controller starts error-active
 
     def controller_state(self, bus: str, frame: Any) -> None:
-        """An error frame's controller report: error-passive holds the task (:meth:`SourceWatch.controller_state`)."""
-        self.watch.controller_state(bus, frame)
-        self._deadlines_moved()
+        """An error frame's controller report (SocketCAN's ``CAN_ERR_CRTL`` class): error-passive holds the task.
+
+        Its frames, our stop frames among them, may no longer get through: journalled (``bus_error``)
+        and held stopped (inhibit ``bus NAME passive``) until the controller reports error-active
+        again (``CAN_ERR_CRTL_ACTIVE``, sent by Linux since 5.x) or the bus is reopened.
+        """
+        if not frame.arbitration_id & CAN_ERR_CRTL or len(frame.data) < 2:
+            return
+        state = frame.data[1]
+        key = f"bus {bus} passive"
+        if state & (CAN_ERR_CRTL_RX_PASSIVE | CAN_ERR_CRTL_TX_PASSIVE):
+            if key not in self.gate.inhibits:
+                side = "/".join(s for s, bit in (("rx", CAN_ERR_CRTL_RX_PASSIVE), ("tx", CAN_ERR_CRTL_TX_PASSIVE))
+                                if state & bit)
+                reason = f"bus {bus}: controller error-passive ({side}): frames may not get through"
+                self._inhibit(key, reason, {"event": "bus_error", "source": bus, "reason": reason})
+        elif state & CAN_ERR_CRTL_ACTIVE and key in self.gate.inhibits:
+            again = f"bus {bus}: controller error-active again"
+            self.journal.write({"event": "bus_error", "source": bus, "reason": again})
+            self.gate.release(key)
 
     def overrun(self, waited_s: float, limit_s: float) -> None:
-        """Frames waited ``waited_s`` in the daemon's receive queue: the task stops (:meth:`SourceWatch.overrun`)."""
-        self.watch.overrun(waited_s, limit_s)
-        self._deadlines_moved()
+        """Frames waited ``waited_s`` in the daemon's receive queue: the models would judge data older than
+        ``max_age`` as fresh (safety row H2b), so the task is held stopped (inhibit ``overrun``) until
+        :meth:`caught_up`."""
+        if "overrun" not in self.gate.inhibits:
+            reason = (f"frames waited {waited_s:.3f} s in canguard's receive queue (limit {limit_s:.3f} s): "
+                      "the daemon is behind its buses")
+            self._inhibit("overrun", reason, {"event": "overrun", "reason": reason})
 
     def caught_up(self, waited_s: float) -> None:
         """Frames wait no more than ``waited_s`` again: the ``overrun`` inhibit is released."""
-        self.watch.caught_up(waited_s)
+        if "overrun" not in self.gate.inhibits:
+            return
+        self.journal.write({"event": "overrun", "reason": f"caught up: frames wait {waited_s:.3f} s"})
+        self.gate.release("overrun")
+        self.journal.flush()
 
     def stale_unstopped(self, now: float) -> list[str]:
         """Sources the tree reads that are stale while the task is not stopped (a blind daemon)."""
-        return self.watch.stale_unstopped(now)
+        if self.gate.state == TaskGate.STOPPED:
+            return []
+        return [s for s in self.ctx.read_sources if self.ctx.health[s].reason(now)]
 
     # -- recorded logs -----------------------------------------------------------------------
     def run_log(

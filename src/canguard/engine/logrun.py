@@ -387,8 +387,7 @@ class LogRun:
 
 
 def _first_row(runs: list[list[Any]], first: int) -> int:
-    """The first row not taken yet of any message's run (``[next, plan, rows, times, columns]``), or ``first``
-    when it comes before them."""
+    """The first row not taken yet of any message's run (``[next, plan, rows, ...]``), or an earlier ``first``."""
     for at, _plan, rows, _times, _columns in runs:
         if at < len(rows) and rows[at] < first:
             first = int(rows[at])
@@ -409,8 +408,7 @@ def _coming(runs: list[list[Any]]) -> dict[tuple[int, str], Any]:
 
 def _stretch(runs: list[list[Any]], stop: int) -> list[tuple[Any, Any, Any, list[Any]]]:
     """Each message's rows not taken yet before row ``stop``, as (plan, rows, times, columns): a short stretch's
-    times and columns as lists (the models' and healths' runs of a few samples go sample by sample, faster over
-    Python floats than numpy's calls), a long one's as they are (numpy columns: screened with numpy)."""
+    as lists (a few samples go faster over Python floats than numpy's calls), a long one's as numpy columns."""
     out = []
     for at, plan, rows, times, columns in runs:
         if at < len(rows) and rows[at] < stop:
@@ -439,7 +437,7 @@ def _drop(runs: list[list[Any]], last: int) -> None:
 
 
 def _lane_tally(block: Block, lanes: Any, rows: Any) -> list[tuple[int, int]]:
-    """Per channel of a block (one when ``lanes`` is None): its rows, and those fed or taken by a plan (``rows``)."""
+    """Per channel of a block (one when ``lanes`` is None): its rows, and those of ``rows``."""
     if lanes is None:
         return [(block.n, len(rows))]
     import numpy as np

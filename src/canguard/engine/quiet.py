@@ -33,7 +33,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 import py_trees
 
@@ -43,10 +43,18 @@ from canguard.engine.gate import TaskGate
 if TYPE_CHECKING:
     from canguard.bt.context import Context
     from canguard.engine.events import Journal
-    from canguard.engine.watch import SourceWatch
 
 MARGIN_S = 1e-6
 """A time-driven change is taken to come this much earlier than computed (rounding)."""
+
+
+class Watched(Protocol):
+    """What :class:`QuietTicks` reads of the engine (:class:`canguard.engine.core.Engine` is one)."""
+
+    guard_nodes: list[Any]
+    started_at: float
+    start_grace_s: float
+    period_s: float
 
 
 class QuietTicks:
@@ -54,12 +62,12 @@ class QuietTicks:
     asks it (:meth:`may_skip`, :attr:`until`) and tells it about every tick that ran (:meth:`after_tick`)."""
 
     def __init__(self, root: py_trees.behaviour.Behaviour, ctx: Context, gate: TaskGate, journal: Journal,
-                 watch: SourceWatch) -> None:
+                 engine: Watched) -> None:
         self.root = root
         self.ctx = ctx
         self.gate = gate
         self.journal = journal
-        self.watch = watch
+        self.engine = engine
         self.nodes = list(root.iterate())
         """The tree's nodes."""
         self.loud = frozenset(node for node in self.nodes if not _quiet_node(node))
@@ -78,7 +86,7 @@ class QuietTicks:
         """(health, role) of each source signal fresh at the fixed point (None: no fixed point)."""
         self._timers = math.inf
         """When a start window ends or a guard the fixed point left behind reads as such (:meth:`_timer_horizon`)."""
-        self._writers = frozenset(g for g in watch.guard_nodes
+        self._writers = frozenset(g for g in engine.guard_nodes
                                   if any(map(g.is_wired, getattr(type(g), "QUIET_OUTPUTS", ()))))
         """The guards whose quiet re-tick writes an output (an I²t guard's wired ``level``)."""
         self.writes = False
@@ -121,7 +129,7 @@ class QuietTicks:
         self.until = self._horizon()
         self._events = self.journal.written
         self._gate = (gate.state, dict(gate.inhibits))
-        self.ticked = [g for g in self.watch.guard_nodes if g.judged_t == now]
+        self.ticked = [g for g in self.engine.guard_nodes if g.judged_t == now]
         self.writes = not self._writers.isdisjoint(self.ticked)
 
     def _horizon(self) -> float:
@@ -162,14 +170,14 @@ class QuietTicks:
     def _timer_horizon(self, now: float) -> float:
         """When a start window ends or a guard the tick at ``now`` left behind reads as such."""
         horizon = math.inf
-        start = self.watch.started_at
+        start = self.engine.started_at
         windows = [source.max_age_s for source in self.ctx.sources.values()]  # each source's no_data grace
-        windows.append(self.watch.start_grace_s)  # the start window (SourceWatch.starting)
+        windows.append(self.engine.start_grace_s)  # the start window (Engine.starting)
         for width in windows:
             if now - start < width and start + width < horizon:
                 horizon = start + width
-        period = self.watch.period_s
-        for g in self.watch.guard_nodes:
+        period = self.engine.period_s
+        for g in self.engine.guard_nodes:
             if g.source is not None and g.judged_t < now:  # not reached by this tick: "left behind" later
                 limit = max(g.source.max_age_s, period)
                 if not now - g.judged_t > limit and g.judged_t + limit < horizon:
