@@ -85,10 +85,9 @@ class LogRun:
         self.decoder = engine.decoder
         self.stats = engine.stats
         self.ctx = engine.ctx
-        self._plans: dict[str, dict[int, MessagePlan | None]] = {}
-        """Per bus: id key -> the message's plan (None: no source of it in the tree's context)."""
         self._tables: dict[tuple[str, ...], tuple[dict[int, MessagePlan | None], _Keys]] = {}
-        """Per bus, or per channels-to-buses of a block that mixes buses: its plans and their keys."""
+        """Per bus (a tuple of one), or per channels-to-buses of a block that mixes buses: its plans by key (None: no
+        source of the message in the tree's context), and their keys."""
         self._touched: set[MessagePlan] = set()
         """The plans that took rows of this block (flushed at its end)."""
         self._row = 0
@@ -260,17 +259,12 @@ class LogRun:
         """(plans, the block's rows of configured messages, the keys its plans are looked up by, each row's
         channel (an index into ``buses``) when its channels go to several buses, else None)."""
         keys = block.keys
-        one = len(buses) == 1 or buses.count(buses[0]) == len(buses)
-        at = (buses[0],) if one else tuple(buses)
-        known = self._tables.get(at)
-        if known is None:
-            plans = self._plans_of(buses[0]) if one else {
-                key + lane * LANE: plan for lane, bus in enumerate(buses) for key, plan in self._plans_of(bus).items()}
-            known = self._tables[at] = (plans, _key_table(plans))
-        if one:
-            return known[0], _configured_rows(keys, known[1]), keys, None
+        if len(buses) == 1 or buses.count(buses[0]) == len(buses):
+            plans, table = self._table((buses[0],))
+            return plans, _configured_rows(keys, table), keys, None
+        plans, table = self._table(tuple(buses))
         keys = keys + lanes.astype(keys.dtype) * LANE  # channels of several buses: a key per (channel, id)
-        return known[0], _configured_rows(keys, known[1]), keys, lanes
+        return plans, _configured_rows(keys, table), keys, lanes
 
     def _walk(self, block: Block, ts: Sequence[Any], runs_in: list[_Run],
               alone: list[tuple[int, MessagePlan | None]], bus: str, buses: list[str], lanes: Any) -> int:
@@ -341,10 +335,18 @@ class LogRun:
     def _count_lanes(self, cursor: LogCursor, block: Block, lanes: Any, buses: list[str], rows: Any) -> None:
         """Count a block's rows per channel (``cursor.channels``) and per bus those not in ``rows`` (skipped)."""
         channels = cursor.channels
-        for lane, (count, taken) in enumerate(_lane_tally(block, lanes, rows)):
+        if lanes is None:
+            tally: Iterable[tuple[int, int]] = [(block.n, len(rows))]
+        else:
+            import numpy as np
+
+            size = len(block.channels)
+            taken = np.bincount(lanes[rows], minlength=size).tolist() if len(rows) else [0] * size
+            tally = zip(np.bincount(lanes, minlength=size).tolist(), taken, strict=True)
+        for lane, (count, picked) in enumerate(tally):
             if channels is not None:
                 _count(channels, block.channels[block.only_channel if lanes is None else lane], count)  # type: ignore[index]
-            skipped = count - taken
+            skipped = count - picked
             if skipped:
                 counters = self.decoder.per_bus[buses[lane]]
                 counters.frames += skipped
@@ -370,20 +372,20 @@ class LogRun:
             engine.frame_time(t)
             lo = k + 1
 
-    def _plans_of(self, bus: str) -> dict[int, MessagePlan | None]:
-        """Every message configured on ``bus`` by its id key, with its plan or None (made at the bus's first block)."""
-        made = self._plans.get(bus)
-        if made is not None:
-            return made
-        counters = self.decoder.per_bus[bus]
-        plans: dict[int, MessagePlan | None] = {}
-        for (b, cid, ext), entry in self.decoder.entries():
-            if b != bus:
-                continue
-            plan = blocks.compile_plan(entry, counters, self.ctx, self.stats)
-            plans[cid + EXT_KEY if ext else cid] = plan
-        self._plans[bus] = plans
-        return plans
+    def _table(self, buses: tuple[str, ...]) -> tuple[dict[int, MessagePlan | None], _Keys]:
+        """The plans of the messages configured on ``buses`` (channel ``c``'s id key ``k`` at ``k + c * LANE``) and
+        their keys, made at their first block."""
+        known = self._tables.get(buses)
+        if known is None:
+            if len(buses) == 1:
+                counters = self.decoder.per_bus[buses[0]]
+                plans = {cid + EXT_KEY if ext else cid: blocks.compile_plan(entry, counters, self.ctx, self.stats)
+                         for (bus, cid, ext), entry in self.decoder.entries() if bus == buses[0]}
+            else:
+                plans = {key + lane * LANE: plan for lane, bus in enumerate(buses)
+                         for key, plan in self._table((bus,))[0].items()}
+            known = self._tables[buses] = (plans, _key_table(plans))
+        return known
 
 
 def _first_row(runs: list[list[Any]], first: int) -> int:
@@ -434,18 +436,6 @@ def _drop(runs: list[list[Any]], last: int) -> None:
             if type(rows) is not list:  # cut within: a list from now on (bisected at every stretch of the block)
                 rows = run[2] = rows.tolist()
             run[0] = bisect_right(rows, last, at)
-
-
-def _lane_tally(block: Block, lanes: Any, rows: Any) -> list[tuple[int, int]]:
-    """Per channel of a block (one when ``lanes`` is None): its rows, and those of ``rows``."""
-    if lanes is None:
-        return [(block.n, len(rows))]
-    import numpy as np
-
-    size = len(block.channels)
-    per_lane = np.bincount(lanes, minlength=size).tolist()
-    taken = np.bincount(lanes[rows], minlength=size).tolist() if len(rows) else [0] * size
-    return list(zip(per_lane, taken, strict=True))
 
 
 def _count(counts: dict[str, int], name: str, n: int) -> None:
