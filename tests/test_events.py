@@ -159,7 +159,7 @@ class TestEventJournal:
             f"""
             import itertools
             from canguard.engine.events import EventJournal
-            from canguard.engine.events import Journal
+            from canguard.engine.stats import Journal
             sink = EventJournal({str(path)!r}, max_bytes=64 * 1024, sync_in_background=True)
             journal = Journal(lambda: 0.0, sink)
             for i in itertools.count():  # until the SIGKILL

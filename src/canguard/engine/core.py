@@ -34,11 +34,10 @@ import py_trees
 from canguard.bt.context import Context, FrameSink
 from canguard.config.schema import Config
 from canguard.decode.decoder import Decoder
-from canguard.engine.events import Journal
 from canguard.engine.gate import TaskGate
 from canguard.engine.logrun import MAX_CATCH_UP_S, LogCursor, LogRun
 from canguard.engine.quiet import QuietTicks
-from canguard.engine.stats import EngineStats, EventSink, TickObserver
+from canguard.engine.stats import EngineStats, EventSink, Journal, TickObserver
 from canguard.io.block import Block, one_block
 from canguard.io.clock import Clock, PinnedClock
 from canguard.io.frame import Frame

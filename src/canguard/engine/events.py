@@ -6,9 +6,8 @@ daemon relies on:
 - **A line is whole, and nothing flushed is lost to a crash of the daemon**: :meth:`EventJournal.write`
   hands the whole line to the kernel with one ``os.write`` on an ``O_APPEND`` descriptor before it
   returns.
-- **Recorded after the frames they caused**: the engine writes its events to a :class:`Journal`, which
-  stamps and counts them at once and records them at :meth:`Journal.flush` (the end of every tick and
-  :meth:`~canguard.engine.core.Engine.advance`): a trip's stop frames leave before anything is recorded.
+- **Recorded after the frames they caused**: the engine's :class:`~canguard.engine.stats.Journal` holds
+  its events until the frames of their tick are sent.
 - **A power cut loses at most the last** ``sync_interval_s``: :meth:`EventJournal.flush` ``fsync``s
   the file; with ``sync_in_background`` (the daemon) a thread of its own does, ``sync_interval_s``
   after the first flush since its last one, for every flush meanwhile: the loop never waits for a
@@ -28,13 +27,12 @@ import logging
 import os
 import sys
 import threading
-from collections import Counter, deque
-from collections.abc import Callable, Mapping
+from collections import deque
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 from canguard.engine.event_codec import encode_event
-from canguard.engine.stats import EventSink
 from canguard.errors import LogFormatError, quote
 
 log = logging.getLogger(__name__)
@@ -382,52 +380,3 @@ def read_events(path: Path | str, include_rotated: bool = False) -> list[dict[st
 def _shown(raw: bytes) -> str:
     """A journal line as an error quotes it: capped, its length said, bytes that are not UTF-8 replaced."""
     return quote(raw.decode("utf-8", errors="replace"))
-
-
-class Journal:
-    """Stamps events with the clock's time, counts them by name, and records them to ``sink`` (when given) at
-    :meth:`flush`."""
-
-    def __init__(
-        self,
-        now: Callable[[], float],
-        sink: EventSink | None,
-        *,
-        durable: bool = True,
-        on_event: Callable[[dict[str, Any]], None] | None = None,
-    ) -> None:
-        self.now = now
-        self.sink = sink
-        self.durable = durable
-        """False: :meth:`flush` never fsyncs (replay writes a journal nobody reads during the run)."""
-        self.on_event = on_event
-        """Also called with every event, at :meth:`flush` (the live view, the realtime replay)."""
-        self.seen: Counter[str] = Counter()
-        """How many events of each name were written (summaries count escalations...); bounded, live for weeks."""
-        self.written = 0
-        """Events written so far, held ones included (a quiet stretch of ticks ends at any event)."""
-        self._held: list[dict[str, Any]] = []
-        self._dirty = False
-
-    def write(self, event: dict[str, Any]) -> None:
-        """Take one event, recorded at the next :meth:`flush`; ``t`` is the clock's time now unless it has one."""
-        if "t" not in event:
-            event = {"t": self.now(), **event}
-        self.seen[str(event.get("event"))] += 1
-        self.written += 1
-        self._held.append(event)
-
-    def flush(self) -> None:
-        """Record the events held, in order, and make them durable (when the journal is)."""
-        if self._held:
-            held, self._held = self._held, []
-            sink, on_event = self.sink, self.on_event
-            for event in held:
-                if sink is not None:
-                    sink.write(event)
-                    self._dirty = True
-                if on_event is not None:
-                    on_event(event)
-        if self._dirty and self.durable and self.sink is not None:
-            self.sink.flush()
-            self._dirty = False

@@ -100,12 +100,7 @@ class LogRun:
         unmapped: dict[str, int], channels: dict[str, int] | None = None,
     ) -> None:
         """Take a log's blocks: each frame goes to the bus its channel maps to (``route``, else ``default_bus``);
-        ``channels``, when given, counts the frames of each channel.
-
-        Frames of no configured message are counted as the decoder would count them and never
-        decoded; the ticks and gate deadlines still run at their own times, brought up by the
-        first frame at or after them, exactly as if every frame had been fed.
-        """
+        ``channels``, when given, counts the frames of each channel."""
         cursor = LogCursor(route, default_bus, unmapped, channels)
         engine = self.engine
         for block in blocks:
@@ -536,14 +531,10 @@ def _decode_rows(
     plans: Mapping[int, MessagePlan | None], rows: Any, block: Block, ts: Sequence[Any], keys: Any,
     taken: list[tuple[MessagePlan, Any, Sequence[Any]]] | None, touched: set[MessagePlan],
 ) -> tuple[list[_Run], list[tuple[int, MessagePlan | None]]]:
-    """Each configured message's rows whole and valid, as columns, and the rows the frame decoder takes, in row
-    order, with their plan (None: a remote or error frame).
-
-    Each message's rows are decoded together by its :class:`~canguard.decode.message.MessageDecoder`; a row it
-    finds invalid, and every row of a message with an alive counter or a drive's health role, goes to the frame
-    decoder. ``ts``: the block's time column; ``keys``: each row's key in ``plans``. ``taken``, when given,
-    receives each message's (plan, rows, decoded values) (``--export-signals``); ``touched`` each plan that
-    took rows.
+    """Each configured message's rows whole and valid, as columns (decoded together by its
+    :class:`~canguard.decode.message.MessageDecoder`), and the rows the frame decoder takes (an invalid one, every
+    row of a message with an alive counter...), in row order, with their plan (None: a remote or error frame).
+    ``taken``, when given, receives each message's (plan, rows, decoded values); ``touched`` each plan that took rows.
     """
     special = block.special
     if len(rows) == 1 and not special.size:  # one row (a live frame): nothing to group

@@ -42,7 +42,7 @@ from canguard.engine.gate import TaskGate
 
 if TYPE_CHECKING:
     from canguard.bt.context import Context
-    from canguard.engine.events import Journal
+    from canguard.engine.stats import Journal
 
 MARGIN_S = 1e-6
 """A time-driven change is taken to come this much earlier than computed (rounding)."""
