@@ -323,8 +323,6 @@ class Engine:
         if now < self.due:  # nothing due (due is never later than the next tick or gate deadline): most live calls
             self.journal.flush()
             return
-        if now < self.quiet.until and self._quiet_advance(now):
-            return  # one quiet grid tick, in fewer steps
         if math.isnan(self.next_tick_t):
             self.start(now)
         if now - self.next_tick_t > MAX_CATCH_UP_S:
@@ -424,33 +422,6 @@ class Engine:
         return status
 
     # -- quiet ticks: counted, not run (canguard.engine.quiet has the proof) ---------------------
-    def _quiet_advance(self, now: float) -> bool:
-        """:meth:`advance` to ``now`` when all that is due up to it is one quiet grid tick; False: nothing done.
-
-        The usual case between two rows while the tree sits at a fixed point: the steps of
-        :meth:`advance`, :meth:`_run_due` and :meth:`_quiet_run`, in their order, without their
-        loops and tests (the task's deadline is neither before the tick nor after it up to ``now``).
-        """
-        nxt = self.next_tick_t
-        gate = self.gate
-        if not nxt <= now:
-            return False
-        after = nxt + self.period_s
-        task = gate.next_task_t
-        if after <= now or task < nxt or nxt < task <= now or now - nxt > MAX_CATCH_UP_S:
-            return False
-        if not self.quiet.running_unchanged():
-            return False
-        self.clock.advance_to(nxt)
-        self.last_due_run = nxt
-        self._count_quiet(nxt, 1)
-        self.next_tick_t = after
-        if gate.next_deadline() <= now:  # the task serviced at the tick is due again already: the loop goes on
-            self._run_due(now)
-        self.due = min(self.next_tick_t, gate.next_deadline())
-        self.journal.flush()
-        return True
-
     def _quiet_run(self, now: float, until: float) -> None:
         """After a quiet tick: the grid ticks due before ``until`` (the gate's next deadline) and up to ``now``
         counted in one go, while the task runs and no heat is saved (then only the last of them leaves a

@@ -200,10 +200,6 @@ class QuietTicks:
             self.until = self._horizon()
         return now < self.until and self.unchanged()
 
-    def running_unchanged(self) -> bool:
-        """The task runs and nothing the last fixed point saw has changed (a quiet tick may be counted at once)."""
-        return self.gate.state == TaskGate.RUNNING and self._gate[:1] == (TaskGate.RUNNING,) and self.unchanged()
-
 
 def _quiet_node(node: Any) -> bool:
     """True when ``node`` may be re-ticked quietly: its type says so, no conditions, no ``{key}`` read, no
