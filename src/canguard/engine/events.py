@@ -22,7 +22,6 @@ daemon relies on:
 from __future__ import annotations
 
 import errno
-import json
 import logging
 import os
 import sys
@@ -33,7 +32,6 @@ from pathlib import Path
 from typing import Any
 
 from canguard.engine.event_codec import encode_event
-from canguard.errors import LogFormatError, quote
 
 log = logging.getLogger(__name__)
 
@@ -334,49 +332,3 @@ class EventJournal:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
-
-def journal_files(path: Path | str) -> list[Path]:
-    """The journal's files oldest first: ``path.N`` ... ``path.1``, then ``path`` (existing ones only)."""
-    path = Path(path)
-    numbered: list[tuple[int, Path]] = []
-    for p in path.parent.glob(f"{path.name}.*"):
-        suffix = p.name[len(path.name) + 1 :]
-        if suffix.isdigit():
-            numbered.append((int(suffix), p))
-    files = [p for _, p in sorted(numbered, reverse=True)]
-    if path.exists():
-        files.append(path)
-    return files
-
-
-def read_events(path: Path | str, include_rotated: bool = False) -> list[dict[str, Any]]:
-    """Read a journal back as a list of dicts, in the order written (``include_rotated``: the rotated backups first,
-    oldest first). A torn last line (a power cut mid-write) is skipped; any other line that is not a JSON object
-    raises :class:`~canguard.errors.LogFormatError` naming file:line; a missing file FileNotFoundError."""
-    path = Path(path)
-    files = journal_files(path) if include_rotated else [path]
-    if not files:
-        raise FileNotFoundError(f"no event journal at {path}")
-    events: list[dict[str, Any]] = []
-    for file in files:
-        data = file.read_bytes()
-        lines = data.split(b"\n")
-        torn = lines.pop()  # b"" when the file ends with a newline
-        for lineno, raw in enumerate(lines, 1):
-            if not raw.strip():
-                continue
-            try:
-                obj = json.loads(raw)
-            except ValueError as exc:
-                raise LogFormatError(f"{file}:{lineno}: not a JSON event line ({exc}): {_shown(raw)}") from None
-            if not isinstance(obj, dict):
-                raise LogFormatError(f"{file}:{lineno}: not a JSON object: {_shown(raw)}")
-            events.append(obj)
-        if torn.strip():
-            log.warning("%s: skipping a torn last line (%d bytes, no newline)", file, len(torn))
-    return events
-
-
-def _shown(raw: bytes) -> str:
-    """A journal line as an error quotes it: capped, its length said, bytes that are not UTF-8 replaced."""
-    return quote(raw.decode("utf-8", errors="replace"))
