@@ -158,14 +158,6 @@ class MessagePlan:
                 sampled[j] = 0
 
 
-def compile_plan(entry: MessageDecoder, counters: DecodeCounters, ctx: Context,
-                 stats: EngineStats) -> MessagePlan | None:
-    """The :class:`MessagePlan` of ``entry``'s frames, or None when a source of it is not in the tree's context."""
-    if any(out.source not in ctx.health for out in entry.outputs) or not entry.outputs:
-        return None
-    return MessagePlan(entry, counters, ctx, stats)
-
-
 _Unit = tuple[Any, Any, Any]
 """One health or model of :func:`take_runs`: (it, the rows it takes (ascending), what it advances over: a model's
 (times, values); a health's (roles, times, columns, rows) sub-runs, one per message that feeds it)."""

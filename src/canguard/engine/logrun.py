@@ -25,6 +25,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 from canguard.decode.decoder import DecodeCounters
 from canguard.decode.rows import EMPTY, ColumnRows
 from canguard.engine import blocks
+from canguard.engine.blocks import MessagePlan
 from canguard.io.block import EXT_KEY, Block
 from canguard.io.frame import Frame, Sample
 from canguard.protect.columns import SHORT_RUN
@@ -46,7 +47,6 @@ cost more than the rows."""
 if TYPE_CHECKING:
     from canguard.bt.context import Context
     from canguard.decode.decoder import Decoder
-    from canguard.engine.blocks import MessagePlan
     from canguard.engine.stats import EngineStats
 
 _Run = tuple["MessagePlan", Any, Any, list[Any]]
@@ -372,9 +372,10 @@ class LogRun:
         their keys, made at their first block."""
         known = self._tables.get(buses)
         if known is None:
-            if len(buses) == 1:
-                counters = self.decoder.per_bus[buses[0]]
-                plans = {cid + EXT_KEY if ext else cid: blocks.compile_plan(entry, counters, self.ctx, self.stats)
+            if len(buses) == 1:  # None: a message with a source not in the tree's context
+                counters, health = self.decoder.per_bus[buses[0]], self.ctx.health
+                plans = {cid + EXT_KEY if ext else cid: MessagePlan(entry, counters, self.ctx, self.stats)
+                         if entry.outputs and all(out.source in health for out in entry.outputs) else None
                          for (bus, cid, ext), entry in self.decoder.entries() if bus == buses[0]}
             else:
                 plans = {key + lane * LANE: plan for lane, bus in enumerate(buses)
