@@ -283,7 +283,7 @@ def test_a_failing_monitor_never_stops_the_guard(tmp_path: Path, caplog: pytest.
     with watched_daemon(tmp_path) as w:
         wait_for("the task to run", lambda: running(w))
 
-        def broken(snapshot: object) -> None:
+        def broken(*_record: object) -> None:
             raise RuntimeError("monitor broke")
 
         monkeypatch.setattr(w.daemon.monitor, "put", broken)

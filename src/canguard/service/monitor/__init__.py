@@ -1,7 +1,9 @@
 """Watching the daemon live: the status page (:mod:`.web`) and Groot2's monitor (:mod:`.groot2`).
 
 Served by a process of their own (:mod:`.server`), fed by :class:`Monitor` after each tick without ever waiting
-(docs/monitor.md, "The loop comes first"). Imported only when a monitor is configured.
+(docs/monitor.md, "The loop comes first"): the engine's :class:`Observer` takes a record of a tick when something
+changed, at most every :data:`PERIOD_S`, with the guards' values at most every :data:`GUARD_PERIOD_S`. Imported only
+when a monitor is configured.
 """
 
 from __future__ import annotations
@@ -9,6 +11,7 @@ from __future__ import annotations
 import errno
 import json
 import logging
+import math
 import os
 import subprocess
 import sys
@@ -17,32 +20,77 @@ import time
 from collections import deque
 from collections.abc import Mapping
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, NamedTuple
 
+import py_trees
+
+from canguard.bt.dryrun import root_blackboard
 from canguard.config.monitor import Address
 from canguard.config.schema import MonitorConfig
 from canguard.errors import ConfigError
 from canguard.service.monitor import wire
 from canguard.service.monitor.layout import LayoutRecord, TreeLayout
-from canguard.service.monitor.snapshot import GuardState, Observer, TickSnapshot
 
 if TYPE_CHECKING:
+    from canguard.bt.loaded import GuardView
     from canguard.engine.core import Engine
     from canguard.engine.stats import EventSink
 
 log = logging.getLogger(__name__)
 
-__all__ = ["EventTee", "Monitor"]
+__all__ = ["EventTee", "Monitor", "Observer"]
 
 KEEP_EVENTS = 500
 """Journal events kept for a monitor process that is behind; past that the oldest are dropped (it says how many)."""
 START_TIMEOUT_S = 30.0
 """How long the daemon waits at start for its monitor process to listen (a loaded robot takes seconds)."""
 BLACKBOARD_S = 1.0
-"""How long a Groot2 request for the blackboard puts it in the snapshots."""
+"""How long a Groot2 request for the blackboard puts it in the records."""
 REQUESTS_S = 0.1
 """How often the hand-over also reads the monitor process's requests (Groot2 waits 0.3 s for a blackboard; a system
-call per snapshot costs the loop more than the requests are worth)."""
+call per record costs the loop more than the requests are worth)."""
+PERIOD_S = 0.02
+"""Shortest time between two records: a change is published in the first tick this long after the last one
+(Groot2 polls STATUS at up to 50 Hz; the page draws at most 10 times a second)."""
+GUARD_PERIOD_S = 0.08
+"""Longest time between two readings of the guards' values while nothing else changes."""
+
+IDLE, RUNNING, SUCCESS, FAILURE, SKIPPED = 0, 1, 2, 3, 4
+"""BehaviorTree.CPP's ``NodeStatus`` values (Groot2's STATUS carries them; ``10 + s``: idle after ``s``)."""
+STATUS_NAMES = ("IDLE", "RUNNING", "SUCCESS", "FAILURE", "SKIPPED")
+_CODES = {py_trees.common.Status.RUNNING: RUNNING, py_trees.common.Status.SUCCESS: SUCCESS,
+          py_trees.common.Status.FAILURE: FAILURE}
+
+
+class GuardState(NamedTuple):
+    """One guarded signal at one tick: the fields of ``/api/status``'s ``guards`` (docs/monitor.md)."""
+
+    name: str
+    role: str
+    kind: str
+    source: str
+    value: float
+    unit: str
+    threshold: float
+    heat_pct: float
+    status: str
+    reason: str
+
+
+class TaskState(NamedTuple):
+    """The task gate at one tick (sent as a plain tuple, as :class:`GuardState`: pickled faster)."""
+
+    state: str
+    since: float | None
+    """When the running stop began (engine time), None when not stopped."""
+    reason: str
+    stops: int
+    holding: tuple[tuple[str, str], ...]
+    """What holds the task besides the tree (a stale source, a bus down, an overrun): (key, reason)."""
+    failing: tuple[str, ...]
+    """The guard nodes that failed in this tick."""
+    stopped_by: tuple[str, ...]
+    """The guard nodes that had failed in the tick the running stop began."""
 
 
 class EventTee:
@@ -63,8 +111,8 @@ class EventTee:
 
 
 class Monitor:
-    """The monitor process of one daemon, attached to each engine it runs, and the engines' snapshot sink
-    (:class:`.snapshot.SnapshotSink`). :class:`~canguard.errors.ConfigError` when a server cannot listen."""
+    """The monitor process of one daemon, attached to each engine it runs (through an :class:`Observer`, which
+    hands it each record). :class:`~canguard.errors.ConfigError` when a server cannot listen."""
 
     def __init__(self, settings: MonitorConfig) -> None:
         self._sock, theirs = wire.socket_pair()
@@ -83,13 +131,13 @@ class Monitor:
             raise
         self._sock.setblocking(False)
         self._io = wire.GilHoldingSocket(self._sock)  # the engine's thread never lets go of the GIL for it
-        self._latest: TickSnapshot | None = None
+        self._latest: tuple[LayoutRecord, tuple[Any, ...], tuple[GuardState, ...]] | None = None
         self._layout: LayoutRecord | None = None  # what the monitor process has (or is being sent)
         self._guards: tuple[GuardState, ...] | None = None  # likewise
         self._events: deque[tuple[int, dict[str, Any]]] = deque(maxlen=KEEP_EVENTS)
         self._event_seq = 0
         self._outbox: deque[bytes] = deque()  # the frames of a large message not all taken yet: they go first
-        self._sent: TickSnapshot | None = None
+        self._sent: tuple[Any, ...] | None = None
         self._blackboard_until = -1.0
         self._closing = self._failed = self._gone = False
         self._requests_at = 0.0
@@ -130,7 +178,7 @@ class Monitor:
 
     def attach(self, engine: Engine) -> None:
         """Watch ``engine`` from its next tick on (the daemon's engine at start and after each reload)."""
-        engine.observer = Observer(engine, TreeLayout(engine.loaded, engine.ctx), self)
+        engine.observer = Observer(engine, self)
 
     def tee(self, journal: EventSink) -> EventTee:
         """The sink the engine writes events to: ``journal``, and the page's copy."""
@@ -155,9 +203,10 @@ class Monitor:
         return self._proc.pid
 
     # -- the engine's side: after its tick (the stop frames are out), never waiting -----------------
-    def put(self, snapshot: TickSnapshot) -> None:
-        """Publish the latest snapshot (at most every ``snapshot.PERIOD_S``) and offer it to the monitor process."""
-        self._latest = snapshot
+    def put(self, layout: LayoutRecord, record: tuple[Any, ...], guards: tuple[GuardState, ...]) -> None:
+        """Publish a tick's record (``(seq, t, codes, task, confirm, blackboard)``, at most every :data:`PERIOD_S`)
+        and offer it to the monitor process."""
+        self._latest = (layout, record, guards)
         self.flush()
 
     def event(self, event: Mapping[str, Any]) -> None:
@@ -193,23 +242,27 @@ class Monitor:
 
     # -- sending -----------------------------------------------------------------------------------
     def _flush(self) -> None:
-        """Offer the layout (once per tree), then the events and latest snapshot; what is not taken waits for later."""
+        """Offer the layout (once per tree), then the events and latest record; what is not taken waits for later."""
         if not self._send_outbox():  # the rest of a large message first
             return
-        snap = self._latest
-        if snap is not None and snap.layout is not self._layout:
-            if not self._offer(wire.frames(("layout", snap.layout))):
+        latest = self._latest
+        if latest is not None and latest[0] is not self._layout:
+            if not self._offer(wire.frames(("layout", latest[0]))):
                 return
-            self._layout = snap.layout  # once per tree: the monitor process keeps it
+            self._layout = latest[0]  # once per tree: the monitor process keeps it
             self._guards = None
-        if snap is self._sent and not self._events:
+        if latest is self._sent and not self._events:
             return
         events = list(self._events)
-        if self._offer(wire.frames(("tick", events, None if snap is None else self._record(snap)))):
+        record = None
+        if latest is not None:  # the guards only when new (the Observer reuses their tuple between readings)
+            guards = latest[2]
+            record = (*latest[1], None if guards is self._guards else tuple(tuple(g) for g in guards))
+        if self._offer(wire.frames(("tick", events, record))):
             for _ in events:
                 self._events.popleft()
-            self._sent = snap
-            self._guards = None if snap is None else snap.guards
+            self._sent = latest
+            self._guards = None if latest is None else latest[2]
 
     def _offer(self, frames: list[bytes]) -> bool:
         """Send one message (the rest of a large one as the socket takes it); False: nothing of it was taken."""
@@ -218,13 +271,6 @@ class Monitor:
         self._outbox.extend(frames[1:])
         self._send_outbox()
         return True
-
-    def _record(self, snap: TickSnapshot) -> tuple[Any, ...]:
-        """The snapshot as plain tuples (pickled faster than the named ones); guards only when new."""
-        guards = None
-        if snap.guards is not self._guards:  # the Observer reads them every 80 ms, and reuses the tuple between
-            guards = tuple(tuple(g) for g in snap.guards)
-        return (snap.seq, snap.t, bytes(snap.codes), tuple(snap.task), guards, snap.confirm, snap.blackboard)
 
     def _send_outbox(self) -> bool:
         """Send the frames waiting, in order; False when the socket cannot take more now."""
@@ -251,6 +297,86 @@ class Monitor:
         log.error("the monitor process (pid %d) %s (%s): the status page and Groot2's monitor are gone; "
                   "the guard goes on", self._proc.pid,
                   "is not answering" if code is None else f"ended with exit code {code}", exc)
+
+
+class Observer:
+    """The engine's per-tick publication point for the monitors (one per engine: a reload attaches a new one)."""
+
+    def __init__(self, engine: Engine, monitor: Monitor) -> None:
+        self.layout = TreeLayout(engine.loaded, engine.ctx)
+        self.monitor = monitor
+        self._guards = engine.guards()
+        self._guard_nodes = engine.loaded.guard_nodes()
+        self._last_active = [IDLE] * len(self.layout.behaviours)
+        self._seq = 0
+        self._key: tuple[Any, ...] = ()
+        self._guard_states: tuple[GuardState, ...] = ()
+        self._guards_at = -math.inf
+        self._next_at = -math.inf
+        self._stops = -1
+        self._stopped_by: tuple[str, ...] = ()
+        self._failed = False
+
+    def publish(self, engine: Engine, now: float) -> None:
+        """Called by the engine after each tick: publish this tick's record (never raises, never waits)."""
+        try:
+            self._publish(engine, now)
+        except Exception:  # a monitor must never take the loop down with it
+            if not self._failed:
+                log.exception("monitor snapshot failed; the monitors show the last good one")
+            self._failed = True
+
+    def _publish(self, engine: Engine, now: float) -> None:
+        gate = engine.gate
+        if gate.stops != self._stops:  # read in the tick the stop began, however soon the next record is due
+            self._stops = gate.stops
+            self._stopped_by = self._failing()
+        mono = time.monotonic()
+        if mono < self._next_at:  # the one bound on what the monitors cost the loop, however fast it ticks
+            return
+        codes = self._codes()
+        key = (codes, gate.state, gate.stops, engine.journal.written, gate.stop_reason)
+        stale = mono - self._guards_at >= GUARD_PERIOD_S
+        if key == self._key and not stale:
+            self.monitor.flush()  # what the monitor process could not take before goes now
+            return
+        if stale:  # a node's status or an event in between: published at once, with the guards as last read
+            self._guard_states = tuple(self._guard_state(engine, g, now) for g in self._guards)
+            self._guards_at = mono
+        self._next_at = mono + PERIOD_S
+        self._key = key
+        self._seq += 1
+        task = (gate.state, gate.stop_since, gate.stop_reason, gate.stops, tuple(gate.inhibits.items()),
+                self._failing(), self._stopped_by)  # a TaskState, as a plain tuple
+        blackboard = root_blackboard() if self.monitor.blackboard_wanted() else None
+        self.monitor.put(self.layout.record, (self._seq, now, codes, task, engine.cfg.stop.confirm is not None,
+                                              blackboard), self._guard_states)
+
+    def _failing(self) -> tuple[str, ...]:
+        """The guard nodes that failed in the tick just done."""
+        return tuple(g.name for g in self._guard_nodes if g.status == py_trees.common.Status.FAILURE)
+
+    def _codes(self) -> bytes:
+        out = bytearray()
+        last = self._last_active
+        for i, node in enumerate(self.layout.behaviours):
+            code = SKIPPED if getattr(node, "skipped", False) else _CODES.get(node.status, IDLE)
+            if code != IDLE:
+                last[i] = code
+            elif last[i] != IDLE:
+                code = 10 + last[i]  # BT.CPP: IDLE after SUCCESS is 12
+            out.append(code)
+        return bytes(out)
+
+    @staticmethod
+    def _guard_state(engine: Engine, g: GuardView, now: float) -> GuardState:
+        snap = g.snapshot()
+        health = engine.ctx.health.get(g.source)
+        why = health.reason(now, g.role) if health is not None else "no_data"
+        value = snap.threshold * snap.level_pct / 100.0 if g.kind == "i2t" else snap.value
+        status = why or ("tripped" if snap.tripped else "ok")
+        return GuardState(g.node, g.role, g.kind, g.source, value, g.threshold_unit, snap.threshold, snap.level_pct,
+                          status, why or snap.reason)
 
 
 def _spawn(theirs: Any) -> subprocess.Popen[bytes]:

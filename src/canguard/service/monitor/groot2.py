@@ -2,7 +2,7 @@
 
 As ``BT::Groot2Publisher``: a ZeroMQ REP socket on PORT answers FULLTREE (``T``), STATUS (``S``) and
 BLACKBOARD (``B``) requests, a PUB socket is bound on PORT + 1; hooks, breakpoints and recording are refused
-(docs/monitor.md). Misbehaving clients are logged one line per cause (:class:`.notes.ClientNotes`).
+(docs/monitor.md). Misbehaving clients are logged one line per cause (:class:`.hub.ClientNotes`).
 """
 
 from __future__ import annotations
@@ -16,9 +16,8 @@ from typing import Any
 import zmq
 
 from canguard.config.monitor import Address
-from canguard.service.monitor.hub import Hub
+from canguard.service.monitor.hub import ClientNotes, Hub
 from canguard.service.monitor.layout import LayoutRecord
-from canguard.service.monitor.notes import ClientNotes
 
 log = logging.getLogger(__name__)
 

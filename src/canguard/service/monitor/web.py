@@ -1,7 +1,7 @@
 """The status page and its API: one asyncio event loop, in a thread of its own, serves every connection.
 
 ``GET /``, ``GET /api/status`` (or its stream), ``GET /api/events``, read-only, with an optional bearer token; what
-it grants clients that misbehave (:class:`Limits`) and how it logs them (:class:`.notes.ClientNotes`):
+it grants clients that misbehave (:class:`Limits`) and how it logs them (:class:`.hub.ClientNotes`):
 docs/monitor.md.
 """
 
@@ -27,8 +27,7 @@ from urllib.parse import parse_qs, urlsplit
 
 from canguard.config.monitor import Address
 from canguard.data import data_path
-from canguard.service.monitor.hub import Hub
-from canguard.service.monitor.notes import ClientNotes
+from canguard.service.monitor.hub import ClientNotes, Hub
 
 log = logging.getLogger(__name__)
 T = TypeVar("T")
