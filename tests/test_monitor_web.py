@@ -16,7 +16,7 @@ from typing import Any
 
 import pytest
 
-from canguard.service.monitor.hub import DOCUMENT_S
+from canguard.service.monitor.web import DOCUMENT_S
 from monitorkit import DEMO_GUARDS, ESTOP_IDS, WAIT_S, Watched, running, shared_daemon, wait_for, watched_daemon
 
 GUARD_FIELDS = {"name", "source", "value", "unit", "threshold", "margin", "status"}

@@ -7,7 +7,6 @@ import json
 import logging
 import math
 import socket
-import threading
 import time
 from collections import deque
 from collections.abc import Callable
@@ -17,9 +16,6 @@ from canguard.engine.event_codec import encode_event
 from canguard.service.monitor import STATUS_NAMES, GuardState, TaskState, wire
 from canguard.service.monitor.layout import LayoutRecord
 
-DOCUMENT_S = 0.125
-"""Shortest time between two status documents (a browser spends ~5 ms drawing each): a change still reaches a
-page within 200 ms."""
 KEEP_EVENTS = 500
 """Journal events kept for clients; a client further behind loses the oldest."""
 STATUS_EVENTS = 30
@@ -69,8 +65,7 @@ class ClientNotes:
 
 class Hub:
     """The latest :class:`Tick` and journal events, fed from the daemon's socket ``sock`` and read by any number of
-    server threads. Receiving only assigns a reference or appends to a bounded deque; a dispatcher thread renders
-    the status document at most every :data:`DOCUMENT_S` (shared by every client) and wakes its subscribers."""
+    server threads. Receiving only assigns a reference or appends to a bounded deque, then calls :attr:`on_news`."""
 
     def __init__(self, sock: socket.socket | None = None) -> None:
         self.sock = sock
@@ -80,15 +75,9 @@ class Hub:
         self._events: deque[tuple[int, bytes, dict[str, Any]]] = deque(maxlen=KEEP_EVENTS)
         """(seq, journal line, the line as JSON): each event is encoded once, as it arrives."""
         self._event_seq = 0
-        self._subscribers: list[Callable[[], None]] = []
-        self._version = 0
-        self._doc: tuple[int, bytes] = (0, json.dumps(self.status()).encode())
-        self._closed = threading.Event()
-        self._news = threading.Event()
-        """Set by the receiving side on a new tick or event: the dispatcher sleeps until then."""
-        self._thread: threading.Thread | None = None
+        self.on_news: Callable[[], None] = lambda: None
+        """Called after each message of the daemon, in the receiving thread (it must not wait)."""
 
-    # -- the receiving side: never blocks ----------------------------------------------------------
     def receive(self, message: tuple[Any, ...]) -> None:
         """One message of the daemon: a tree's layout, or the journal events and latest record of a tick
         (``(seq, t, codes, task, confirm, blackboard, guards)``, guards None when as in the last one)."""
@@ -106,9 +95,8 @@ class Hub:
             if guards is not None:
                 self._guards = tuple(GuardState(*g) for g in guards)
             self._latest = Tick(seq, t, self.layout, codes, TaskState(*task), self._guards, confirm, blackboard)
-        self._news.set()
+        self.on_news()
 
-    # -- the servers' side -------------------------------------------------------------------------
     def latest(self) -> Tick | None:
         """The latest tick (None before the first)."""
         return self._latest
@@ -125,48 +113,6 @@ class Hub:
         newer = [(n, line) for n, line, _ in kept if n > seq]
         first = newer[0][0] if newer else self._event_seq + 1
         return newer, max(0, first - seq - 1)
-
-    def status_document(self) -> tuple[int, bytes]:
-        """(version, ``/api/status`` JSON): the latest document, its version bumped when more than its time changed."""
-        return self._doc
-
-    def subscribe(self, changed: Callable[[], None]) -> None:
-        """Call ``changed()`` (from the dispatcher's thread: it must not wait) at each new status document."""
-        self._subscribers.append(changed)
-
-    # -- the dispatcher ----------------------------------------------------------------------------
-    def start(self) -> None:
-        """Start the dispatcher thread."""
-        self._thread = threading.Thread(target=self._dispatch, name="canguard-monitor-hub", daemon=True)
-        self._thread.start()
-
-    def close(self) -> None:
-        """Stop the dispatcher."""
-        self._closed.set()
-        self._news.set()
-        if self._thread is not None:
-            self._thread.join(2)
-
-    def _dispatch(self) -> None:
-        shown: dict[str, Any] | None = None
-        due = -math.inf
-        while True:
-            self._news.wait()  # a tick or an event came (or close)
-            wait_s = due - time.monotonic()
-            if self._closed.is_set() or (wait_s > 0 and self._closed.wait(wait_s)):
-                return  # else: what came until the next document is due goes into it
-            self._news.clear()  # before reading: news after this wakes the next round
-            due = time.monotonic() + DOCUMENT_S
-            status = self.status()
-            doc = json.dumps(status, allow_nan=False, separators=(",", ":")).encode()
-            task = status.get("task")  # what a page shows, without what changes with the clock alone
-            news = {**status, "t": None, "seq": None, "task": {**task, "for_s": None} if task else task}
-            self._version += news != shown  # streams get a document when what a page shows changed
-            self._doc = (self._version, doc)  # one tuple assigned: a plain GET always gets the latest
-            if news != shown:
-                for tell in self._subscribers:
-                    tell()
-            shown = news
 
     def status(self) -> dict[str, Any]:
         """The ``/api/status`` document: tree, task, guards, events."""

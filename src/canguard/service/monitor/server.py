@@ -117,13 +117,11 @@ def main(argv: list[str] | None = None) -> int:
                  for name in ("http", "groot2")}
         sock.send(json.dumps({"ready": ready}).encode())
         try:
-            hub.start()
             for server in serving.values():
                 server.start()
             for message in wire.messages(sock):
                 hub.receive(message)
         finally:
-            hub.close()
             for server in serving.values():
                 server.close()
     finally:
