@@ -1,4 +1,4 @@
-"""In the monitor process: the latest tick, the last journal events, and who to wake (the servers read it)."""
+"""In the monitor process: the latest tick and the last journal events, which the servers read."""
 
 from __future__ import annotations
 

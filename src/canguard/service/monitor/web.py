@@ -103,46 +103,33 @@ def _head(code: int, headers: dict[str, str]) -> bytes:
     return ("\r\n".join(lines) + "\r\n\r\n").encode("latin-1")
 
 
-def _task(step: Awaitable[T]) -> asyncio.Future[T]:
-    """``step`` as a task whose exception is always read, whoever awaits it (none is logged "never retrieved")."""
-    task = asyncio.ensure_future(step)
-    task.add_done_callback(lambda t: t.cancelled() or t.exception())
-    return task
-
-
-async def _within(step: Awaitable[T], timeout_s: float) -> T:
-    """``await step``, cancelled with asyncio.TimeoutError after ``timeout_s``.
+async def _first(*steps: Awaitable[T], timeout_s: float | None = None) -> T:
+    """Run ``steps`` together until the first ends (its result returned, its exception raised), the others
+    cancelled; asyncio.TimeoutError when none ended within ``timeout_s``.
 
     Not ``asyncio.wait_for``: when it is cancelled just as its step fails (a drain woken by a reset), that
-    step's exception is left unread, and asyncio logs it.
+    step's exception is left unread, and asyncio logs it; here each task's exception is read, whoever awaits it.
     """
-    task = _task(step)
+    tasks = [asyncio.ensure_future(step) for step in steps]
+    for task in tasks:
+        task.add_done_callback(lambda t: t.cancelled() or t.exception())
     try:
-        done, _ = await asyncio.wait((task,), timeout=max(0.0, timeout_s))
+        done, _ = await asyncio.wait(tasks, timeout=timeout_s, return_when=asyncio.FIRST_COMPLETED)
     finally:
-        task.cancel()
+        for task in tasks:
+            task.cancel()
     if not done:
         raise asyncio.TimeoutError
-    return task.result()
+    errors = [error for task in done if (error := task.exception())]
+    if errors:
+        raise errors[0]
+    return done.pop().result()
 
 
 async def _until_closed(reader: asyncio.StreamReader) -> None:
     """Return when the client closed its end; ConnectionResetError when it reset it. What it sends is ignored."""
     while await reader.read(4096):
         pass
-
-
-async def _until_first(*steps: Awaitable[None]) -> None:
-    """Run ``steps`` together until the first ends (its exception raised), the others cancelled."""
-    tasks = [_task(step) for step in steps]
-    try:
-        done, _ = await asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED)
-    finally:
-        for task in tasks:
-            task.cancel()
-    errors = [error for task in done if (error := task.exception())]  # each one read: none left "never retrieved"
-    if errors:
-        raise errors[0]
 
 
 class WebMonitor:
@@ -303,7 +290,7 @@ class WebMonitor:
                 raise _Refused(431, "request head too large\n", f"a request head over {HEAD_BYTES} bytes "
                                "(answered 431)")
             try:
-                chunk = await _within(reader.read(HEAD_BYTES + 4), deadline - loop.time())
+                chunk = await _first(reader.read(HEAD_BYTES + 4), timeout_s=max(0.0, deadline - loop.time()))
             except asyncio.TimeoutError:
                 if buffered or first:
                     self.notes.note(f"a request not sent whole within {self.limits.request_timeout_s:g} s "
@@ -322,7 +309,7 @@ class WebMonitor:
         self.waiting[writer] = None  # lingering: the first to go when every place is taken
         with contextlib.suppress(OSError, asyncio.TimeoutError):  # it lingers or resets: it is closed all the same
             writer.write_eof()
-            await _within(_until_closed(reader), self.limits.send_timeout_s)
+            await _first(_until_closed(reader), timeout_s=self.limits.send_timeout_s)
 
     async def _respond(self, req: _Request, reader: asyncio.StreamReader, writer: asyncio.StreamWriter,
                        address: str) -> bool:
@@ -362,7 +349,7 @@ class WebMonitor:
     async def _send(self, writer: asyncio.StreamWriter, data: bytes) -> None:
         """Write; asyncio.TimeoutError when the client takes none of it for ``send_timeout_s``."""
         writer.write(data)
-        await _within(writer.drain(), self.limits.send_timeout_s)
+        await _first(writer.drain(), timeout_s=self.limits.send_timeout_s)
 
     async def _stream(self, req: _Request, reader: asyncio.StreamReader, writer: asyncio.StreamWriter,
                       address: str) -> None:
@@ -382,7 +369,7 @@ class WebMonitor:
             if req.method == "HEAD":
                 return
             body = self._status_stream(writer) if req.path == "/api/status" else self._events_stream(writer)
-            await _until_first(body, _until_closed(reader))
+            await _first(body, _until_closed(reader))
         finally:
             self.streams[address] -= 1
             if not self.streams[address]:
@@ -414,7 +401,7 @@ class WebMonitor:
     async def _next_change(self) -> bool:
         """Wait for the next status document; False when none came within ``keepalive_s``."""
         try:
-            await _within(self.changed.wait(), self.limits.keepalive_s)
+            await _first(self.changed.wait(), timeout_s=self.limits.keepalive_s)
         except asyncio.TimeoutError:
             return False
         return True
