@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from canguard.service.systemd import Notifier, watchdog_verdict
+from canguard.service.systemd import Notifier, watchdog_hold
 from checkout import REPO
 
 SYSTEMD_DIR = REPO / "systemd"
@@ -55,12 +55,13 @@ class TestNotifier:
     def test_each_message_is_one_datagram(self, notify_socket: tuple[socket.socket, str]) -> None:
         """watchdog, status, stopping and reloading each arrive as one exact datagram, in order."""
         sock, path = notify_socket
-        with Notifier({"NOTIFY_SOCKET": path}) as n:
-            n.watchdog()
-            n.status("line one\nline two")
-            n.stopping()
-            n.reloading(monotonic_usec=123456789)
-            n.stopping("bye")
+        n = Notifier({"NOTIFY_SOCKET": path})
+        n.watchdog()
+        n.status("line one\nline two")
+        n.stopping()
+        n.reloading(monotonic_usec=123456789)
+        n.stopping("bye")
+        n.close()
         assert [_recv(sock) for _ in range(5)] == [
             b"WATCHDOG=1",
             b"STATUS=line one line two",
@@ -144,30 +145,28 @@ def time_usec() -> int:
 
 
 class TestWatchdogVerdict:
-    """watchdog_verdict: the pure decision to feed systemd's watchdog."""
+    """watchdog_hold: the pure decision to feed systemd's watchdog, and why not."""
 
     def test_on_time_and_fresh_is_ok(self) -> None:
         """A loop that ticked within k periods with no stale unstopped source may feed the watchdog."""
-        assert watchdog_verdict(now=10.025, last_tick=10.0, tick_period_s=0.01, k=3.0).ok
+        assert watchdog_hold(now=10.025, last_tick=10.0, tick_period_s=0.01, k=3.0) == ""
 
     def test_stalled_loop_is_not_ok(self) -> None:
         """A loop whose last tick is more than k periods old must not feed the watchdog."""
-        v = watchdog_verdict(now=10.031, last_tick=10.0, tick_period_s=0.01, k=3.0)
-        assert not v and "stalled" in v.reason
+        assert "stalled" in watchdog_hold(now=10.031, last_tick=10.0, tick_period_s=0.01, k=3.0)
 
     def test_no_tick_yet_is_not_ok(self) -> None:
         """Before the first tick the daemon is not healthy."""
-        assert watchdog_verdict(now=1.0, last_tick=None, tick_period_s=0.01).reason == "no tick yet"
+        assert watchdog_hold(now=1.0, last_tick=None, tick_period_s=0.01) == "no tick yet"
 
     def test_stale_source_without_stop_is_not_ok(self) -> None:
         """A stale source the tree reads that has not caused a stop withholds the ping and is named."""
-        v = watchdog_verdict(10.0, 10.0, 0.01, stale_unstopped=["bms", "bms", "left"])
-        assert not v and v.reason.endswith("bms, left")
+        assert watchdog_hold(10.0, 10.0, 0.01, stale_unstopped=["bms", "bms", "left"]).endswith(": bms, left")
 
     def test_bad_period_is_refused(self) -> None:
         """A non-positive tick period is a ValueError."""
         with pytest.raises(ValueError, match="tick_period_s"):
-            watchdog_verdict(1.0, 1.0, 0.0)
+            watchdog_hold(1.0, 1.0, 0.0)
 
 
 def _run(*args: str) -> subprocess.CompletedProcess[str]:

@@ -39,7 +39,7 @@ from canguard.io.clock import BootClock, LiveClock
 from canguard.io.outputs import check_config_outputs, load_run_config
 from canguard.protect.state import HeatStore
 from canguard.service.blackboard import registered_clients, release_clients, tree_clients
-from canguard.service.systemd import Notifier, watchdog_verdict
+from canguard.service.systemd import Notifier, watchdog_hold
 
 log = logging.getLogger(__name__)
 
@@ -306,11 +306,11 @@ class Daemon:
     def _watchdog_ok(self, engine: Engine) -> bool:
         now = self.clock.now()
         last = None if math.isnan(engine.last_tick_t) else engine.last_tick_t
-        verdict = watchdog_verdict(now, last, engine.period_s, engine.stale_unstopped(now), k=4.0)
-        if not verdict and verdict.reason != self._watchdog_held:
-            log.warning("watchdog ping held back: %s", verdict.reason)
-        self._watchdog_held = "" if verdict else verdict.reason
-        return bool(verdict)
+        held = watchdog_hold(now, last, engine.period_s, engine.stale_unstopped(now), k=4.0)
+        if held and held != self._watchdog_held:
+            log.warning("watchdog ping held back: %s", held)
+        self._watchdog_held = held
+        return not held
 
     # -- reload and errors ------------------------------------------------------------------
     def reload(self) -> bool:

@@ -2,7 +2,7 @@
 
 :class:`Notifier` sends one AF_UNIX datagram of ``KEY=value`` lines to ``$NOTIFY_SOCKET`` (a path or
 ``@abstract``); outside systemd every call is a no-op, and no call raises (errors logged once, counted).
-``WATCHDOG=1`` goes only while :func:`watchdog_verdict` (a pure function) says the loop is healthy.
+``WATCHDOG=1`` goes only while :func:`watchdog_hold` (a pure function) finds nothing wrong with the loop.
 """
 
 from __future__ import annotations
@@ -12,9 +12,8 @@ import os
 import socket
 import time
 from collections.abc import Iterable, Mapping
-from dataclasses import dataclass
 
-__all__ = ["Notifier", "WatchdogVerdict", "watchdog_verdict"]
+__all__ = ["Notifier", "watchdog_hold"]
 
 log = logging.getLogger(__name__)
 
@@ -66,7 +65,7 @@ class Notifier:
         return self.notify("READY=1", *([] if status is None else [_status_field(status)]))
 
     def watchdog(self) -> bool:
-        """``WATCHDOG=1``: feed the watchdog. Call only when :func:`watchdog_verdict` says so."""
+        """``WATCHDOG=1``: feed the watchdog. Call only when :func:`watchdog_hold` finds nothing."""
         return self.notify("WATCHDOG=1")
 
     def status(self, text: str) -> bool:
@@ -100,44 +99,23 @@ class Notifier:
             self._sock.close()
             self._sock = None
 
-    def __enter__(self) -> Notifier:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
 
 def _status_field(text: str) -> str:
     return "STATUS=" + " ".join(str(text).splitlines())
 
 
-@dataclass(frozen=True)
-class WatchdogVerdict:
-    """Whether the watchdog may be fed now, and why not when it may not."""
-
-    ok: bool
-    reason: str = ""
-
-    def __bool__(self) -> bool:
-        return self.ok
-
-
-def watchdog_verdict(
-    now: float,
-    last_tick: float | None,
-    tick_period_s: float,
-    stale_unstopped: Iterable[str] = (),
-    k: float = 3.0,
-) -> WatchdogVerdict:
-    """Whether the daemon may send ``WATCHDOG=1``: a tick within ``k * tick_period_s`` of ``now`` (one monotonic
-    time base), and no source the tree reads stale while the tree is not stopping the task (``stale_unstopped``)."""
+def watchdog_hold(now: float, last_tick: float | None, tick_period_s: float, stale_unstopped: Iterable[str] = (),
+                  k: float = 3.0) -> str:
+    """Why the daemon may not send ``WATCHDOG=1`` now ("" when it may): no tick within ``k * tick_period_s`` of
+    ``now`` (one monotonic time base), or a source the tree reads stale while the tree is not stopping the task
+    (``stale_unstopped``)."""
     if tick_period_s <= 0:
         raise ValueError(f"tick_period_s must be > 0, got {tick_period_s}")
     if last_tick is None:
-        return WatchdogVerdict(False, "no tick yet")
+        return "no tick yet"
     late_s = now - last_tick
     limit_s = k * tick_period_s
     if late_s > limit_s:
-        return WatchdogVerdict(False, f"loop stalled: last tick {late_s:.3f} s ago (limit {limit_s:.3f} s)")
+        return f"loop stalled: last tick {late_s:.3f} s ago (limit {limit_s:.3f} s)"
     stale = sorted(set(stale_unstopped))
-    return WatchdogVerdict(not stale, f"stale source(s) without a stop: {', '.join(stale)}" if stale else "")
+    return f"stale source(s) without a stop: {', '.join(stale)}" if stale else ""
