@@ -368,43 +368,33 @@ class WebMonitor:
                                                  "Connection": "close"}))
             if req.method == "HEAD":
                 return
-            body = self._status_stream(writer) if req.path == "/api/status" else self._events_stream(writer)
-            await _first(body, _until_closed(reader))
+            await _first(self._stream_data(writer, req.path == "/api/status"), _until_closed(reader))
         finally:
             self.streams[address] -= 1
             if not self.streams[address]:
                 del self.streams[address]
 
-    async def _status_stream(self, writer: asyncio.StreamWriter) -> None:
-        sent = -1
+    async def _stream_data(self, writer: asyncio.StreamWriter, status: bool) -> None:
+        """Each new status document (``status``), else each journal event as it comes; a keep-alive comment when
+        nothing came for ``keepalive_s``."""
+        sent, cursor = -1, 0
         while True:
-            version, doc = self.document
-            if version != sent:
-                await self._send(writer, b"event: status\ndata: " + doc + b"\n\n")
-                sent = version
-            elif not await self._next_change():
-                await self._send(writer, b": keep-alive\n\n")
-
-    async def _events_stream(self, writer: asyncio.StreamWriter) -> None:
-        cursor = 0
-        while True:
-            events, lost = self.hub.events_after(cursor)
-            out = [b"event: lost\ndata: " + json.dumps({"events": lost}).encode() + b"\n\n"] if lost else []
-            for seq, line in events:
-                out.append(b"id: %d\ndata: " % seq + line.rstrip(b"\n") + b"\n\n")
-                cursor = seq
+            changed = self.changed  # set by a change from now on, while this stream writes too
+            out = []
+            if status and self.document[0] != sent:
+                sent, doc = self.document
+                out.append(b"event: status\ndata: " + doc + b"\n\n")
+            elif not status:
+                events, lost = self.hub.events_after(cursor)
+                out += [b"event: lost\ndata: " + json.dumps({"events": lost}).encode() + b"\n\n"] if lost else []
+                for cursor, line in events:
+                    out.append(b"id: %d\ndata: " % cursor + line.rstrip(b"\n") + b"\n\n")
             if out:
                 await self._send(writer, b"".join(out))
-            if not await self._next_change():
+            try:
+                await _first(changed.wait(), timeout_s=self.limits.keepalive_s)
+            except asyncio.TimeoutError:
                 await self._send(writer, b": keep-alive\n\n")
-
-    async def _next_change(self) -> bool:
-        """Wait for the next status document; False when none came within ``keepalive_s``."""
-        try:
-            await _first(self.changed.wait(), timeout_s=self.limits.keepalive_s)
-        except asyncio.TimeoutError:
-            return False
-        return True
 
     def change(self) -> None:
         """A new status document (in the loop's thread): wake every stream waiting."""
