@@ -42,10 +42,9 @@ class TestMetrics:
         """Counters, gauges and the tick histogram appear over HTTP with their labels and values."""
         m = served
         for _ in range(3):
-            m.frame_received("can0")
-        m.frame_received("can1", 5)
-        m.frames_decoded("can0", 2)
-        m.frame_invalid("can0")
+            m.frames("can0", 1, 0, 0)
+        m.frames("can1", 5, 0, 0)
+        m.frames("can0", 0, 2, 1)
         m.send_error("can1")
         m.trip("LeftCurrent")
         m.trip("LeftCurrent")

@@ -64,15 +64,11 @@ def guarding(cfg: Config) -> str:
     return f"guarding {buses}; {len(cfg.sources)} sources" + ("; simulation" if cfg.simulation else "")
 
 
-def refuse_unguarded(cfg: Config, env: dict[str, str] | os._Environ[str] | None = None) -> None:
-    """Under systemd (``NOTIFY_SOCKET`` set), refuse a config whose buses are all ``virtual``.
-
-    Such a service would start, send READY=1 and feed the watchdog while it guards no
-    motor at all. ``simulation: true`` in the config says that this is intended (a bench).
-    Raises :class:`ConfigError` (exit 2) naming the config and the way out.
-    """
-    env = os.environ if env is None else env
-    if not env.get("NOTIFY_SOCKET") or cfg.simulation or not cfg.buses:
+def refuse_unguarded(cfg: Config) -> None:
+    """Under systemd (``NOTIFY_SOCKET`` set), refuse a config whose buses are all ``virtual``
+    (:class:`ConfigError`, exit 2): such a service would start, send READY=1 and feed the watchdog while it guards
+    no motor at all. ``simulation: true`` in the config says that this is intended (a bench)."""
+    if not os.environ.get("NOTIFY_SOCKET") or cfg.simulation or not cfg.buses:
         return
     if all(b.interface == "virtual" for b in cfg.buses.values()):
         names = ", ".join(cfg.buses)
@@ -126,7 +122,9 @@ class Daemon:
             self.events = self.monitor.tee(self.journal)
         self._stop = threading.Event()
         self._reload = threading.Event()
-        self._last_publish: tuple[float, dict[str, tuple[int, int, int]]] = (time.monotonic(), {})
+        self._published_at = time.monotonic()
+        self._counts: dict[str, tuple[int, int, int]] = {}
+        """Per bus, the decoder's (frames, decoded, invalid) at the last STATUS=."""
         self._down: set[str] = set()
         self._watchdog_held = ""
         self._bus_errors: queue.SimpleQueue[tuple[str, str]] = queue.SimpleQueue()
@@ -247,24 +245,21 @@ class Daemon:
 
     def _publish(self, engine: Engine, mono: float) -> None:
         """Once a second: STATUS= with state, trips and frame rates; counters to the metrics."""
-        rates: dict[str, float] = {}
-        dt = max(1e-3, mono - self._last_publish[0])
-        last = self._last_publish[1]
+        dt = max(1e-3, mono - self._published_at)
+        self._published_at = mono
+        fps = []
         for bus, c in engine.decoder.per_bus.items():
-            prev = last.get(bus, (0, 0, 0))
-            if c.frames < prev[0]:  # a reload started a fresh decoder
-                prev = (0, 0, 0)
-            rates[bus] = (c.frames - prev[0]) / dt
+            counts = (c.frames, c.decoded, c.invalid)
+            last = self._counts.get(bus, (0, 0, 0))
+            if c.frames < last[0]:  # a reload started a fresh decoder
+                last = (0, 0, 0)
+            self._counts[bus] = counts
+            fps.append(f"{bus} {(c.frames - last[0]) / dt:.0f} fps")
             if self.metrics is not None:
-                self.metrics.frame_received(bus, c.frames - prev[0])
-                self.metrics.frames_decoded(bus, c.decoded - prev[1])
-                self.metrics.frame_invalid(bus, c.invalid - prev[2])
-            last[bus] = (c.frames, c.decoded, c.invalid)
-        self._last_publish = (mono, last)
+                self.metrics.frames(bus, *(n - m for n, m in zip(counts, last, strict=True)))
         if self.metrics is not None:
             self.metrics.set_stop_state(engine.gate.state == TaskGate.STOPPED)
-        fps = ", ".join(f"{bus} {r:.0f} fps" for bus, r in rates.items())
-        self.notifier.status(f"{engine.status_line()}; {fps}; {guarding(self.cfg)}")
+        self.notifier.status(f"{engine.status_line()}; {', '.join(fps)}; {guarding(self.cfg)}")
 
     def take_received(self, engine: Engine, items: list[tuple[str, can.Message, float]]) -> None:
         """The messages received (up to :data:`DRAIN` + 1 or :data:`DRAIN_DIRECT`, so that a tick never starves)

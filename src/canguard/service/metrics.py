@@ -98,18 +98,10 @@ class Metrics:
         """The metrics in Prometheus' text format, as ``/metrics`` serves them."""
         return bytes(self._prom.generate_latest(self.registry))
 
-    def frame_received(self, bus: str, n: int = 1) -> None:
-        """Count ``n`` frames read from ``bus``."""
-        self._child(self._received, bus).inc(n)
-
-    def frames_decoded(self, bus: str, n: int) -> None:
-        """Count ``n`` frames of ``bus`` decoded into samples."""
-        if n:
-            self._child(self._decoded, bus).inc(n)
-
-    def frame_invalid(self, bus: str, n: int = 1) -> None:
-        """Count ``n`` frames of ``bus`` with a configured id that did not decode."""
-        self._child(self._invalid, bus).inc(n)
+    def frames(self, bus: str, received: int, decoded: int, invalid: int) -> None:
+        """Count frames of ``bus``: read, decoded into samples, and of a configured id that did not decode."""
+        for metric, n in ((self._received, received), (self._decoded, decoded), (self._invalid, invalid)):
+            self._child(metric, bus).inc(n)
 
     def send_error(self, bus: str, n: int = 1) -> None:
         """Count ``n`` frames that could not be sent on ``bus``."""

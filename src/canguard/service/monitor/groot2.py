@@ -86,18 +86,13 @@ class Groot2Monitor:
         if self._thread.is_alive():
             self._thread.join(2)
         else:  # never started
-            self._close_sockets()
-
-    def _close_sockets(self) -> None:
-        self._server.close(0)
-        self._publisher.close(0)
-        self._context.term()
+            self._context.destroy(0)
 
     def _serve(self) -> None:
         try:
             self._loop()
         finally:
-            self._close_sockets()  # ZeroMQ sockets belong to the thread that uses them
+            self._context.destroy(0)  # its sockets too: ZeroMQ sockets belong to the thread that uses them
 
     def _loop(self) -> None:
         poller = zmq.Poller()
