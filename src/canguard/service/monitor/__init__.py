@@ -1,9 +1,8 @@
 """Watching the daemon live: the status page (:mod:`.web`) and Groot2's monitor (:mod:`.groot2`).
 
 Served by a process of their own (:mod:`.server`), fed by :class:`Monitor` after each tick without ever waiting
-(docs/monitor.md, "The loop comes first"): the engine's :class:`Observer` takes a record of a tick when something
-changed, at most every :data:`PERIOD_S`, with the guards' values at most every :data:`GUARD_PERIOD_S`. Imported only
-when a monitor is configured.
+(docs/monitor.md, "The loop comes first"): it takes a record of a tick when something changed, at most every
+:data:`PERIOD_S`, with the guards' values at most every :data:`GUARD_PERIOD_S`. Imported only when configured.
 """
 
 from __future__ import annotations
@@ -38,7 +37,7 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
-__all__ = ["EventTee", "Monitor", "Observer"]
+__all__ = ["EventTee", "Monitor"]
 
 KEEP_EVENTS = 500
 """Journal events kept for a monitor process that is behind; past that the oldest are dropped (it says how many)."""
@@ -111,8 +110,9 @@ class EventTee:
 
 
 class Monitor:
-    """The monitor process of one daemon, attached to each engine it runs (through an :class:`Observer`, which
-    hands it each record). :class:`~canguard.errors.ConfigError` when a server cannot listen."""
+    """The monitor process of one daemon, and the observer of each engine the daemon runs (:meth:`attach`): after
+    each tick it takes a record of it and hands it over without waiting. :class:`~canguard.errors.ConfigError`
+    when a server cannot listen."""
 
     def __init__(self, settings: MonitorConfig) -> None:
         self._sock, theirs = wire.socket_pair()
@@ -131,13 +131,25 @@ class Monitor:
             raise
         self._sock.setblocking(False)
         self._io = wire.GilHoldingSocket(self._sock)  # the engine's thread never lets go of the GIL for it
-        self._latest: tuple[LayoutRecord, tuple[Any, ...], tuple[GuardState, ...]] | None = None
-        self._layout: LayoutRecord | None = None  # what the monitor process has (or is being sent)
-        self._guards: tuple[GuardState, ...] | None = None  # likewise
+        # the engine's tree, and what was read of it
+        self._tree: TreeLayout | None = None
+        self._guard_views: list[GuardView] = []
+        self._guard_nodes: list[Any] = []
+        self._last_active: list[int] = []
+        self._seq = 0
+        self._key: tuple[Any, ...] = ()
+        self._guard_states: tuple[GuardState, ...] = ()
+        self._guards_at = self._next_at = -math.inf
+        self._stops = -1
+        self._stopped_by: tuple[str, ...] = ()
+        # what the monitor process has (or is being sent), and what it has not had yet
+        self._record: tuple[Any, ...] | None = None
+        self._sent: tuple[Any, ...] | None = None
+        self._layout: LayoutRecord | None = None
+        self._guards: tuple[GuardState, ...] | None = None
         self._events: deque[tuple[int, dict[str, Any]]] = deque(maxlen=KEEP_EVENTS)
         self._event_seq = 0
         self._outbox: deque[bytes] = deque()  # the frames of a large message not all taken yet: they go first
-        self._sent: tuple[Any, ...] | None = None
         self._blackboard_until = -1.0
         self._closing = self._failed = self._gone = False
         self._requests_at = 0.0
@@ -178,7 +190,12 @@ class Monitor:
 
     def attach(self, engine: Engine) -> None:
         """Watch ``engine`` from its next tick on (the daemon's engine at start and after each reload)."""
-        engine.observer = Observer(engine, self)
+        tree = TreeLayout(engine.loaded, engine.ctx)
+        self._tree, self._guard_views, self._guard_nodes = tree, engine.guards(), engine.loaded.guard_nodes()
+        self._last_active = [IDLE] * len(tree.behaviours)
+        self._key, self._guard_states, self._guards_at, self._next_at = (), (), -math.inf, -math.inf
+        self._stops, self._stopped_by, self._record = -1, (), None
+        engine.observer = self
 
     def tee(self, journal: EventSink) -> EventTee:
         """The sink the engine writes events to: ``journal``, and the page's copy."""
@@ -203,66 +220,115 @@ class Monitor:
         return self._proc.pid
 
     # -- the engine's side: after its tick (the stop frames are out), never waiting -----------------
-    def put(self, layout: LayoutRecord, record: tuple[Any, ...], guards: tuple[GuardState, ...]) -> None:
-        """Publish a tick's record (``(seq, t, codes, task, confirm, blackboard)``, at most every :data:`PERIOD_S`)
-        and offer it to the monitor process."""
-        self._latest = (layout, record, guards)
-        self.flush()
-
     def event(self, event: Mapping[str, Any]) -> None:
         """Keep one journal event for the next record (the oldest go when the process is behind)."""
         self._event_seq += 1
         self._events.append((self._event_seq, dict(event)))
 
+    def publish(self, engine: Engine, now: float) -> None:
+        """Called by the engine after each tick: take its record when something changed, at most every
+        :data:`PERIOD_S`, and offer what the monitor process has not had yet (never raises, never waits)."""
+        try:
+            if self._take(engine, now):
+                self.flush()
+        except Exception:  # a monitor must never take the loop down with it (a record that cannot be pickled)
+            if not self._failed:
+                log.exception("monitor snapshot failed; the monitors show the last good one")
+            self._failed = True
+            self._events.clear()
+            self._sent = self._record  # dropped: the next one goes
+
+    def _take(self, engine: Engine, now: float) -> bool:
+        """This tick's record, when something changed; False when the next one is not due yet."""
+        gate = engine.gate
+        if gate.stops != self._stops:  # read in the tick the stop began, however soon the next record is due
+            self._stops = gate.stops
+            self._stopped_by = self._failing()
+        mono = time.monotonic()
+        if mono < self._next_at or self._tree is None:  # the one bound on what the monitors cost the loop
+            return False
+        codes = self._codes(self._tree)
+        key = (codes, gate.state, gate.stops, engine.journal.written, gate.stop_reason)
+        stale = mono - self._guards_at >= GUARD_PERIOD_S
+        if key == self._key and not stale:
+            return True  # nothing new: what the monitor process could not take before goes now
+        if stale:  # a node's status or an event in between: published at once, with the guards as last read
+            self._guard_states = tuple(self._guard_state(engine, g, now) for g in self._guard_views)
+            self._guards_at = mono
+        self._next_at = mono + PERIOD_S
+        self._key = key
+        self._seq += 1
+        task = (gate.state, gate.stop_since, gate.stop_reason, gate.stops, tuple(gate.inhibits.items()),
+                self._failing(), self._stopped_by)  # a TaskState, as a plain tuple
+        blackboard = root_blackboard() if time.monotonic() < self._blackboard_until else None
+        self._record = (self._seq, now, codes, task, engine.cfg.stop.confirm is not None, blackboard)
+        return True
+
+    def _failing(self) -> tuple[str, ...]:
+        """The guard nodes that failed in the tick just done."""
+        return tuple(g.name for g in self._guard_nodes if g.status == py_trees.common.Status.FAILURE)
+
+    def _codes(self, tree: TreeLayout) -> bytes:
+        out = bytearray()
+        last = self._last_active
+        for i, node in enumerate(tree.behaviours):
+            code = SKIPPED if getattr(node, "skipped", False) else _CODES.get(node.status, IDLE)
+            if code != IDLE:
+                last[i] = code
+            elif last[i] != IDLE:
+                code = 10 + last[i]  # BT.CPP: IDLE after SUCCESS is 12
+            out.append(code)
+        return bytes(out)
+
+    @staticmethod
+    def _guard_state(engine: Engine, g: GuardView, now: float) -> GuardState:
+        snap = g.snapshot()
+        health = engine.ctx.health.get(g.source)
+        why = health.reason(now, g.role) if health is not None else "no_data"
+        value = snap.threshold * snap.level_pct / 100.0 if g.kind == "i2t" else snap.value
+        status = why or ("tripped" if snap.tripped else "ok")
+        return GuardState(g.node, g.role, g.kind, g.source, value, g.threshold_unit, snap.threshold, snap.level_pct,
+                          status, why or snap.reason)
+
+    # -- sending -----------------------------------------------------------------------------------
     def flush(self) -> None:
         """Offer what the monitor process has not had yet: one non-blocking send (a dead process is reported once,
         by a thread of its own: reaping may take a moment the loop must not wait)."""
-        if self._gone or (self._latest is self._sent and not self._events and not self._outbox):
+        if self._gone or (self._record is self._sent and not self._events and not self._outbox):
             return
         try:
             now = time.monotonic()
             if now >= self._requests_at:
                 self._requests_at = now + REQUESTS_S
                 self._read_requests()
-            self._flush()
+            self._send()
         except OSError as exc:
             self._gone = True
             if not self._closing:
                 threading.Thread(target=self._died, args=(exc,), name="canguard-monitor-gone", daemon=True).start()
-        except Exception:  # a record that cannot be pickled: dropped, the next one goes
-            if not self._failed:
-                log.exception("a monitor record could not be sent; the monitors show the last good one")
-            self._failed = True
-            self._events.clear()
-            self._sent = self._latest
 
-    def blackboard_wanted(self) -> bool:
-        """True while a Groot2 client has asked for the blackboard within the last second."""
-        return time.monotonic() < self._blackboard_until
-
-    # -- sending -----------------------------------------------------------------------------------
-    def _flush(self) -> None:
+    def _send(self) -> None:
         """Offer the layout (once per tree), then the events and latest record; what is not taken waits for later."""
         if not self._send_outbox():  # the rest of a large message first
             return
-        latest = self._latest
-        if latest is not None and latest[0] is not self._layout:
-            if not self._offer(wire.frames(("layout", latest[0]))):
+        record = self._record
+        layout = None if self._tree is None else self._tree.record
+        if record is not None and layout is not self._layout:
+            if not self._offer(wire.frames(("layout", layout))):
                 return
-            self._layout = latest[0]  # once per tree: the monitor process keeps it
+            self._layout = layout  # once per tree: the monitor process keeps it
             self._guards = None
-        if latest is self._sent and not self._events:
+        if record is self._sent and not self._events:
             return
         events = list(self._events)
-        record = None
-        if latest is not None:  # the guards only when new (the Observer reuses their tuple between readings)
-            guards = latest[2]
-            record = (*latest[1], None if guards is self._guards else tuple(tuple(g) for g in guards))
+        guards = self._guard_states  # the guards only when new (their tuple is kept between readings)
+        if record is not None:
+            record = (*record, None if guards is self._guards else tuple(tuple(g) for g in guards))
         if self._offer(wire.frames(("tick", events, record))):
             for _ in events:
                 self._events.popleft()
-            self._sent = latest
-            self._guards = None if latest is None else latest[2]
+            self._sent = self._record
+            self._guards = guards if record is not None else None
 
     def _offer(self, frames: list[bytes]) -> bool:
         """Send one message (the rest of a large one as the socket takes it); False: nothing of it was taken."""
@@ -297,86 +363,6 @@ class Monitor:
         log.error("the monitor process (pid %d) %s (%s): the status page and Groot2's monitor are gone; "
                   "the guard goes on", self._proc.pid,
                   "is not answering" if code is None else f"ended with exit code {code}", exc)
-
-
-class Observer:
-    """The engine's per-tick publication point for the monitors (one per engine: a reload attaches a new one)."""
-
-    def __init__(self, engine: Engine, monitor: Monitor) -> None:
-        self.layout = TreeLayout(engine.loaded, engine.ctx)
-        self.monitor = monitor
-        self._guards = engine.guards()
-        self._guard_nodes = engine.loaded.guard_nodes()
-        self._last_active = [IDLE] * len(self.layout.behaviours)
-        self._seq = 0
-        self._key: tuple[Any, ...] = ()
-        self._guard_states: tuple[GuardState, ...] = ()
-        self._guards_at = -math.inf
-        self._next_at = -math.inf
-        self._stops = -1
-        self._stopped_by: tuple[str, ...] = ()
-        self._failed = False
-
-    def publish(self, engine: Engine, now: float) -> None:
-        """Called by the engine after each tick: publish this tick's record (never raises, never waits)."""
-        try:
-            self._publish(engine, now)
-        except Exception:  # a monitor must never take the loop down with it
-            if not self._failed:
-                log.exception("monitor snapshot failed; the monitors show the last good one")
-            self._failed = True
-
-    def _publish(self, engine: Engine, now: float) -> None:
-        gate = engine.gate
-        if gate.stops != self._stops:  # read in the tick the stop began, however soon the next record is due
-            self._stops = gate.stops
-            self._stopped_by = self._failing()
-        mono = time.monotonic()
-        if mono < self._next_at:  # the one bound on what the monitors cost the loop, however fast it ticks
-            return
-        codes = self._codes()
-        key = (codes, gate.state, gate.stops, engine.journal.written, gate.stop_reason)
-        stale = mono - self._guards_at >= GUARD_PERIOD_S
-        if key == self._key and not stale:
-            self.monitor.flush()  # what the monitor process could not take before goes now
-            return
-        if stale:  # a node's status or an event in between: published at once, with the guards as last read
-            self._guard_states = tuple(self._guard_state(engine, g, now) for g in self._guards)
-            self._guards_at = mono
-        self._next_at = mono + PERIOD_S
-        self._key = key
-        self._seq += 1
-        task = (gate.state, gate.stop_since, gate.stop_reason, gate.stops, tuple(gate.inhibits.items()),
-                self._failing(), self._stopped_by)  # a TaskState, as a plain tuple
-        blackboard = root_blackboard() if self.monitor.blackboard_wanted() else None
-        self.monitor.put(self.layout.record, (self._seq, now, codes, task, engine.cfg.stop.confirm is not None,
-                                              blackboard), self._guard_states)
-
-    def _failing(self) -> tuple[str, ...]:
-        """The guard nodes that failed in the tick just done."""
-        return tuple(g.name for g in self._guard_nodes if g.status == py_trees.common.Status.FAILURE)
-
-    def _codes(self) -> bytes:
-        out = bytearray()
-        last = self._last_active
-        for i, node in enumerate(self.layout.behaviours):
-            code = SKIPPED if getattr(node, "skipped", False) else _CODES.get(node.status, IDLE)
-            if code != IDLE:
-                last[i] = code
-            elif last[i] != IDLE:
-                code = 10 + last[i]  # BT.CPP: IDLE after SUCCESS is 12
-            out.append(code)
-        return bytes(out)
-
-    @staticmethod
-    def _guard_state(engine: Engine, g: GuardView, now: float) -> GuardState:
-        snap = g.snapshot()
-        health = engine.ctx.health.get(g.source)
-        why = health.reason(now, g.role) if health is not None else "no_data"
-        value = snap.threshold * snap.level_pct / 100.0 if g.kind == "i2t" else snap.value
-        status = why or ("tripped" if snap.tripped else "ok")
-        return GuardState(g.node, g.role, g.kind, g.source, value, g.threshold_unit, snap.threshold, snap.level_pct,
-                          status, why or snap.reason)
 
 
 def _spawn(theirs: Any) -> subprocess.Popen[bytes]:
