@@ -19,7 +19,7 @@ import time
 from collections import deque
 from collections.abc import Mapping
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, NamedTuple
+from typing import TYPE_CHECKING, Any
 
 import py_trees
 
@@ -59,37 +59,6 @@ IDLE, RUNNING, SUCCESS, FAILURE, SKIPPED = 0, 1, 2, 3, 4
 STATUS_NAMES = ("IDLE", "RUNNING", "SUCCESS", "FAILURE", "SKIPPED")
 _CODES = {py_trees.common.Status.RUNNING: RUNNING, py_trees.common.Status.SUCCESS: SUCCESS,
           py_trees.common.Status.FAILURE: FAILURE}
-
-
-class GuardState(NamedTuple):
-    """One guarded signal at one tick: the fields of ``/api/status``'s ``guards`` (docs/monitor.md)."""
-
-    name: str
-    role: str
-    kind: str
-    source: str
-    value: float
-    unit: str
-    threshold: float
-    heat_pct: float
-    status: str
-    reason: str
-
-
-class TaskState(NamedTuple):
-    """The task gate at one tick (sent as a plain tuple, as :class:`GuardState`: pickled faster)."""
-
-    state: str
-    since: float | None
-    """When the running stop began (engine time), None when not stopped."""
-    reason: str
-    stops: int
-    holding: tuple[tuple[str, str], ...]
-    """What holds the task besides the tree (a stale source, a bus down, an overrun): (key, reason)."""
-    failing: tuple[str, ...]
-    """The guard nodes that failed in this tick."""
-    stopped_by: tuple[str, ...]
-    """The guard nodes that had failed in the tick the running stop began."""
 
 
 class EventTee:
@@ -138,7 +107,7 @@ class Monitor:
         self._last_active: list[int] = []
         self._seq = 0
         self._key: tuple[Any, ...] = ()
-        self._guard_states: tuple[GuardState, ...] = ()
+        self._guard_states: tuple[tuple[Any, ...], ...] = ()
         self._guards_at = self._next_at = -math.inf
         self._stops = -1
         self._stopped_by: tuple[str, ...] = ()
@@ -146,7 +115,7 @@ class Monitor:
         self._record: tuple[Any, ...] | None = None
         self._sent: tuple[Any, ...] | None = None
         self._layout: LayoutRecord | None = None
-        self._guards: tuple[GuardState, ...] | None = None
+        self._guards: tuple[tuple[Any, ...], ...] | None = None
         self._events: deque[tuple[int, dict[str, Any]]] = deque(maxlen=KEEP_EVENTS)
         self._event_seq = 0
         self._outbox: deque[bytes] = deque()  # the frames of a large message not all taken yet: they go first
@@ -259,7 +228,7 @@ class Monitor:
         self._key = key
         self._seq += 1
         task = (gate.state, gate.stop_since, gate.stop_reason, gate.stops, tuple(gate.inhibits.items()),
-                self._failing(), self._stopped_by)  # a TaskState, as a plain tuple
+                self._failing(), self._stopped_by)  # as hub.task_document reads it
         blackboard = root_blackboard() if time.monotonic() < self._blackboard_until else None
         self._record = (self._seq, now, codes, task, engine.cfg.stop.confirm is not None, blackboard)
         return True
@@ -281,14 +250,15 @@ class Monitor:
         return bytes(out)
 
     @staticmethod
-    def _guard_state(engine: Engine, g: GuardView, now: float) -> GuardState:
+    def _guard_state(engine: Engine, g: GuardView, now: float) -> tuple[Any, ...]:
+        """One guarded signal now, as :func:`.hub.guard_document` reads it."""
         snap = g.snapshot()
         health = engine.ctx.health.get(g.source)
         why = health.reason(now, g.role) if health is not None else "no_data"
         value = snap.threshold * snap.level_pct / 100.0 if g.kind == "i2t" else snap.value
         status = why or ("tripped" if snap.tripped else "ok")
-        return GuardState(g.node, g.role, g.kind, g.source, value, g.threshold_unit, snap.threshold, snap.level_pct,
-                          status, why or snap.reason)
+        return (g.node, g.role, g.kind, g.source, value, g.threshold_unit, snap.threshold, snap.level_pct, status,
+                why or snap.reason)
 
     # -- sending -----------------------------------------------------------------------------------
     def flush(self) -> None:
@@ -323,7 +293,7 @@ class Monitor:
         events = list(self._events)
         guards = self._guard_states  # the guards only when new (their tuple is kept between readings)
         if record is not None:
-            record = (*record, None if guards is self._guards else tuple(tuple(g) for g in guards))
+            record = (*record, None if guards is self._guards else guards)
         if self._offer(wire.frames(("tick", events, record))):
             for _ in events:
                 self._events.popleft()

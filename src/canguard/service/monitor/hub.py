@@ -13,7 +13,7 @@ from collections.abc import Callable
 from typing import Any, NamedTuple
 
 from canguard.engine.event_codec import encode_event
-from canguard.service.monitor import STATUS_NAMES, GuardState, TaskState, wire
+from canguard.service.monitor import STATUS_NAMES, wire
 from canguard.service.monitor.layout import LayoutRecord
 
 KEEP_EVENTS = 500
@@ -32,8 +32,10 @@ class Tick(NamedTuple):
     layout: LayoutRecord
     codes: bytes
     """Per UID (``codes[uid - 1]``), BT.CPP's status code."""
-    task: TaskState
-    guards: tuple[GuardState, ...]
+    task: tuple[Any, ...]
+    """As :func:`task_document` reads it."""
+    guards: tuple[tuple[Any, ...], ...]
+    """Each as :func:`guard_document` reads it."""
     confirm: bool
     """``stop.confirm`` is configured (a stop then waits for its confirmation)."""
     blackboard: dict[str, Any] | None
@@ -70,7 +72,7 @@ class Hub:
     def __init__(self, sock: socket.socket | None = None) -> None:
         self.sock = sock
         self.layout: LayoutRecord | None = None
-        self._guards: tuple[GuardState, ...] = ()
+        self._guards: tuple[tuple[Any, ...], ...] = ()
         self._latest: Tick | None = None
         self._events: deque[tuple[int, bytes, dict[str, Any]]] = deque(maxlen=KEEP_EVENTS)
         """(seq, journal line, the line as JSON): each event is encoded once, as it arrives."""
@@ -93,8 +95,8 @@ class Hub:
         if record is not None and self.layout is not None:
             seq, t, codes, task, confirm, blackboard, guards = record
             if guards is not None:
-                self._guards = tuple(GuardState(*g) for g in guards)
-            self._latest = Tick(seq, t, self.layout, codes, TaskState(*task), self._guards, confirm, blackboard)
+                self._guards = guards
+            self._latest = Tick(seq, t, self.layout, codes, task, self._guards, confirm, blackboard)
         self.on_news()
 
     def latest(self) -> Tick | None:
@@ -140,26 +142,28 @@ def _with_status(node: dict[str, Any], codes: bytes) -> dict[str, Any]:
 
 
 def task_document(tick: Tick, events: list[dict[str, Any]]) -> dict[str, Any]:
-    """State, since when, stopped by which guard and why, what holds it, confirmation / escalation."""
-    task = tick.task
-    stopped = task.state == "stopped"
-    since = task.since if stopped else None
+    """State, since when, stopped by which guard and why, what holds it (a stale source, a bus down, an overrun),
+    the guard nodes failing now, confirmation / escalation."""
+    state, since, reason, stops, holding, failing, stopped_by = tick.task  # as the daemon's Monitor takes it
+    stopped = state == "stopped"
+    since = since if stopped else None
     confirmation = None
     if since is not None:
         confirmation = "pending" if tick.confirm else None
         for ev in events:
             if ev.get("event") in ("confirmed", "escalate") and (ev.get("t") or 0) >= since - 1e-6:
                 confirmation = "confirmed" if ev["event"] == "confirmed" else "escalated"
-    return {"state": task.state, "since": _number(since), "for_s": None if since is None else _number(tick.t - since),
-            "reason": task.reason if stopped else "", "guards": list(task.stopped_by) if stopped else [],
-            "failing": list(task.failing), "holding": [{"key": k, "reason": r} for k, r in task.holding],
-            "stops": task.stops, "confirmation": confirmation}
+    return {"state": state, "since": _number(since), "for_s": None if since is None else _number(tick.t - since),
+            "reason": reason if stopped else "", "guards": list(stopped_by) if stopped else [],
+            "failing": list(failing), "holding": [{"key": k, "reason": r} for k, r in holding],
+            "stops": stops, "confirmation": confirmation}
 
 
-def guard_document(g: GuardState) -> dict[str, Any]:
+def guard_document(guard: tuple[Any, ...]) -> dict[str, Any]:
     """One guard: name, source, value, unit, threshold, margin, status, role, kind, heat and reason."""
+    name, role, kind, source, value, unit, threshold, heat_pct, status, reason = guard  # as the Monitor reads it
     return {
-        "name": g.name, "source": g.source, "value": _number(g.value), "unit": g.unit,
-        "threshold": _number(g.threshold), "margin": _number(g.threshold - g.value), "status": g.status,
-        "role": g.role, "kind": g.kind, "heat_pct": _number(g.heat_pct), "reason": g.reason,
+        "name": name, "source": source, "value": _number(value), "unit": unit, "threshold": _number(threshold),
+        "margin": _number(threshold - value), "status": status, "role": role, "kind": kind,
+        "heat_pct": _number(heat_pct), "reason": reason,
     }
