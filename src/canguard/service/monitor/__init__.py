@@ -3,15 +3,23 @@
 Served by a process of their own (:mod:`.server`), fed by :class:`Monitor` after each tick without ever waiting
 (docs/monitor.md, "The loop comes first"): it takes a record of a tick when something changed, at most every
 :data:`PERIOD_S`, with the guards' values at most every :data:`GUARD_PERIOD_S`. Imported only when configured.
+
+The two talk over one ``AF_UNIX`` ``SOCK_SEQPACKET`` socket pair, which takes a message whole or not at all: the
+daemon sends without waiting. Daemon → monitor: pickled messages in frames of at most :data:`FRAME_BYTES` (a flag
+byte, ``M`` more or ``E`` end). Monitor → daemon: fixed byte strings and one JSON answer: the daemon never unpickles
+what comes from the side the network can reach.
 """
 
 from __future__ import annotations
 
+import ctypes
 import errno
 import json
 import logging
 import math
 import os
+import pickle
+import socket
 import subprocess
 import sys
 import threading
@@ -27,7 +35,6 @@ from canguard.bt.dryrun import root_blackboard
 from canguard.config.monitor import Address
 from canguard.config.schema import MonitorConfig
 from canguard.errors import ConfigError
-from canguard.service.monitor import wire
 from canguard.service.monitor.layout import LayoutRecord, TreeLayout
 
 if TYPE_CHECKING:
@@ -61,6 +68,69 @@ _CODES = {py_trees.common.Status.RUNNING: RUNNING, py_trees.common.Status.SUCCES
           py_trees.common.Status.FAILURE: FAILURE}
 
 
+FRAME_BYTES = 32 * 1024
+"""Largest frame (a seqpacket message must fit the socket's send buffer, 208 kB by default on Linux)."""
+SEND_BUFFER_BYTES = 1 << 20
+"""Send buffer asked for (Linux caps it at ``net.core.wmem_max``)."""
+MORE, END = b"M", b"E"
+WANT_BLACKBOARD = b"B"
+"""Monitor process → daemon: a Groot2 client asked for the blackboard (put it in the records for 1 s)."""
+
+
+class GilHoldingSocket:
+    """Non-blocking send and receive on a socket's descriptor that keep the calling thread's GIL: ``socket.send``
+    releases it around its system call, and the loop then waits to get it back; a non-blocking local socket
+    returns within microseconds."""
+
+    _libc = ctypes.PyDLL(None, use_errno=True)
+    _send = _libc.send
+    _send.argtypes = (ctypes.c_int, ctypes.c_char_p, ctypes.c_size_t, ctypes.c_int)
+    _send.restype = ctypes.c_ssize_t
+    _recv = _libc.recv
+    _recv.argtypes = (ctypes.c_int, ctypes.c_char_p, ctypes.c_size_t, ctypes.c_int)
+    _recv.restype = ctypes.c_ssize_t
+
+    def __init__(self, sock: socket.socket) -> None:
+        self._fd = sock.fileno()
+        self._buf = ctypes.create_string_buffer(64)
+
+    def send(self, data: bytes) -> bool:
+        """Send one message whole; False when the socket cannot take it now. OSError when the other end is gone."""
+        return self._send(self._fd, data, len(data), socket.MSG_DONTWAIT | socket.MSG_NOSIGNAL) >= 0 or _again()
+
+    def recv(self) -> bytes | None:
+        """One short message (at most 64 bytes), b"" when the other end closed, None when none waits."""
+        n = self._recv(self._fd, self._buf, len(self._buf), socket.MSG_DONTWAIT)
+        if n >= 0:
+            return self._buf.raw[:n]
+        _again()
+        return None
+
+
+def _again() -> bool:
+    """False for ``EAGAIN`` (nothing done, try later); OSError for any other error of the call just made."""
+    code = ctypes.get_errno()
+    if code in (errno.EAGAIN, errno.EWOULDBLOCK, errno.EINTR):
+        return False
+    raise OSError(code, os.strerror(code))
+
+
+def socket_pair() -> tuple[socket.socket, socket.socket]:
+    """(the daemon's end, the monitor process's end); neither is inherited by other children."""
+    ours, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
+    for sock in (ours, theirs):
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, SEND_BUFFER_BYTES)
+    return ours, theirs
+
+
+def frames(message: Any) -> list[bytes]:
+    """``message`` pickled and cut into frames (one for all but the largest messages)."""
+    data = pickle.dumps(message, protocol=pickle.HIGHEST_PROTOCOL)
+    size = FRAME_BYTES - 1
+    parts = [data[i:i + size] for i in range(0, len(data), size)] or [b""]
+    return [MORE + p for p in parts[:-1]] + [END + parts[-1]]
+
+
 class EventTee:
     """The daemon's journal, and a copy of each event for the monitors (the journal first)."""
 
@@ -84,7 +154,7 @@ class Monitor:
     when a server cannot listen."""
 
     def __init__(self, settings: MonitorConfig) -> None:
-        self._sock, theirs = wire.socket_pair()
+        self._sock, theirs = socket_pair()
         try:
             self._proc = _spawn(theirs)
         finally:
@@ -99,7 +169,7 @@ class Monitor:
             self.close()
             raise
         self._sock.setblocking(False)
-        self._io = wire.GilHoldingSocket(self._sock)  # the engine's thread never lets go of the GIL for it
+        self._io = GilHoldingSocket(self._sock)  # the engine's thread never lets go of the GIL for it
         # the engine's tree, and what was read of it
         self._tree: TreeLayout | None = None
         self._guard_views: list[GuardView] = []
@@ -284,7 +354,7 @@ class Monitor:
         record = self._record
         layout = None if self._tree is None else self._tree.record
         if record is not None and layout is not self._layout:
-            if not self._offer(wire.frames(("layout", layout))):
+            if not self._offer(frames(("layout", layout))):
                 return
             self._layout = layout  # once per tree: the monitor process keeps it
             self._guards = None
@@ -294,7 +364,7 @@ class Monitor:
         guards = self._guard_states  # the guards only when new (their tuple is kept between readings)
         if record is not None:
             record = (*record, None if guards is self._guards else guards)
-        if self._offer(wire.frames(("tick", events, record))):
+        if self._offer(frames(("tick", events, record))):
             for _ in events:
                 self._events.popleft()
             self._sent = self._record
@@ -321,7 +391,7 @@ class Monitor:
         while (data := self._io.recv()) is not None:
             if not data:
                 raise ConnectionResetError(errno.ECONNRESET, "the monitor process closed its socket")
-            if data == wire.WANT_BLACKBOARD:
+            if data == WANT_BLACKBOARD:
                 self._blackboard_until = time.monotonic() + BLACKBOARD_S
 
     def _died(self, exc: OSError) -> None:

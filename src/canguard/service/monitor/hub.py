@@ -13,7 +13,7 @@ from collections.abc import Callable
 from typing import Any, NamedTuple
 
 from canguard.engine.event_codec import encode_event
-from canguard.service.monitor import STATUS_NAMES, wire
+from canguard.service.monitor import STATUS_NAMES, WANT_BLACKBOARD
 from canguard.service.monitor.layout import LayoutRecord
 
 KEEP_EVENTS = 500
@@ -107,7 +107,7 @@ class Hub:
         """Ask the daemon to put the root blackboard into its records for the next second."""
         if self.sock is not None:
             with contextlib.suppress(OSError):  # the daemon is busy or gone: no blackboard this time
-                self.sock.send(wire.WANT_BLACKBOARD, socket.MSG_DONTWAIT)
+                self.sock.send(WANT_BLACKBOARD, socket.MSG_DONTWAIT)
 
     def events_after(self, seq: int) -> tuple[list[tuple[int, bytes]], int]:
         """Events newer than ``seq`` as (seq, journal line), and how many of them were already dropped."""

@@ -11,15 +11,17 @@ import contextlib
 import json
 import logging
 import os
+import pickle
 import signal
 import socket
 import sys
+from collections.abc import Iterator
 from types import FrameType
 from typing import Any
 
 from canguard.config.monitor import Address, parse_address
 from canguard.errors import ConfigError
-from canguard.service.monitor import wire
+from canguard.service.monitor import END, FRAME_BYTES
 from canguard.service.monitor.hub import Hub
 
 log = logging.getLogger("canguard.service.monitor")
@@ -92,6 +94,16 @@ def more_descriptors() -> None:
             resource.setrlimit(resource.RLIMIT_NOFILE, (wanted, hard))
 
 
+def messages(sock: socket.socket) -> Iterator[Any]:
+    """The daemon's messages, each put back together from its frames, until the daemon's end closes."""
+    parts: list[bytes] = []
+    while frame := sock.recv(FRAME_BYTES + 64):
+        parts.append(frame[1:])
+        if frame[:1] == END:
+            yield pickle.loads(b"".join(parts))  # only ever from our own daemon, over a private socket pair
+            parts = []
+
+
 def _on_term(_signum: int, _frame: FrameType | None) -> None:
     raise SystemExit(0)
 
@@ -119,7 +131,7 @@ def main(argv: list[str] | None = None) -> int:
         try:
             for server in serving.values():
                 server.start()
-            for message in wire.messages(sock):
+            for message in messages(sock):
                 hub.receive(message)
         finally:
             for server in serving.values():
