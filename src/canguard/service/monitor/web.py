@@ -209,8 +209,9 @@ class WebMonitor:
         changed = shown != self._shown
         self._shown = shown
         self.document = (self.document[0] + changed, doc)
-        if changed:
-            self.change()
+        if changed:  # every waiting stream wakes
+            self.changed.set()
+            self.changed = asyncio.Event()
 
     async def _main(self) -> None:
         loop = asyncio.get_running_loop()
@@ -395,11 +396,6 @@ class WebMonitor:
                 await _first(changed.wait(), timeout_s=self.limits.keepalive_s)
             except asyncio.TimeoutError:
                 await self._send(writer, b": keep-alive\n\n")
-
-    def change(self) -> None:
-        """A new status document (in the loop's thread): wake every stream waiting."""
-        self.changed.set()
-        self.changed = asyncio.Event()
 
     def on_loop_error(self, _loop: asyncio.AbstractEventLoop, context: dict[str, Any]) -> None:
         """What the loop itself could not do (an accept out of descriptors): one line per cause, no traceback."""
