@@ -175,8 +175,7 @@ class Daemon:
         signal.signal(signal.SIGHUP, self._on_hup)
 
     def _on_term(self, signum: int, _frame: FrameType | None) -> None:
-        self.exit_reason = signal.Signals(signum).name
-        self._stop.set()
+        self.request_stop(signal.Signals(signum).name)
 
     def _on_hup(self, _signum: int, _frame: FrameType | None) -> None:
         self._reload.set()
@@ -216,11 +215,9 @@ class Daemon:
                 if items:
                     self.take_received(engine, items)
                 engine.advance(self.clock.now())
-                self._drain_bus_errors(engine)
+                self._watch_buses(engine)
                 if self.setup is not None:
                     journal_setup(engine, self.setup)
-                if self._down:
-                    self._check_buses_back(engine)
                 mono = time.monotonic()
                 if wd_interval is not None and mono >= next_wd and self._watchdog_ok(engine):
                     self.notifier.watchdog()
@@ -360,18 +357,14 @@ class Daemon:
         # The reader reopens the bus with backoff; guards reading its sources go stale and stop the task.
         self._bus_errors.put((bus, f"{type(exc).__name__}: {exc}"))
 
-    def _drain_bus_errors(self, engine: Engine) -> None:
-        while True:
-            try:
-                bus, text = self._bus_errors.get_nowait()
-            except queue.Empty:
-                return
+    def _watch_buses(self, engine: Engine) -> None:
+        """The receive threads' bus errors into the engine; a bus the reader reopened releases the task (the tree
+        still decides whether it resumes)."""
+        while not self._bus_errors.empty():  # the loop is the one reader
+            bus, text = self._bus_errors.get_nowait()
             engine.bus_down(bus, text)
             self._down.add(bus)
-
-    def _check_buses_back(self, engine: Engine) -> None:
-        """A bus the reader reopened releases the task (the tree still decides whether it resumes)."""
-        alive = self.reader.alive()
+        alive = self.reader.alive() if self._down else {}
         for bus in [b for b in self._down if alive.get(b)]:
             self._down.discard(bus)
             engine.bus_up(bus)
