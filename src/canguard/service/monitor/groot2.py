@@ -121,7 +121,7 @@ class Groot2Monitor:
         if not request or len(request[0]) != HEADER.size:
             return [b"error", b"wrong request header"]
         _protocol, kind, request_id = HEADER.unpack(request[0])
-        snap = self.hub.latest()
+        snap = self.hub.latest
         if snap is None:
             return [b"error", b"the tree has not ticked yet"]
         layout = snap.layout
@@ -148,7 +148,7 @@ class Groot2Monitor:
         self.hub.want_blackboard()
         deadline = time.monotonic() + 0.3
         while True:
-            snap = self.hub.latest()
+            snap = self.hub.latest
             if snap is not None and snap.blackboard is not None:
                 return dict(snap.blackboard)
             if time.monotonic() > deadline or self._stop.wait(0.01):

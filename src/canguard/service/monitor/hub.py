@@ -46,16 +46,15 @@ class ClientNotes:
     """What clients did wrong, per cause: the first occurrence logged at once, then at most one line per
     :data:`NOTE_EVERY_S` with the count."""
 
-    def __init__(self, log: logging.Logger, server: str, clock: Callable[[], float] = time.monotonic) -> None:
+    def __init__(self, log: logging.Logger, server: str) -> None:
         self._log = log
         self._server = server
-        self._clock = clock
         self._causes: dict[str, tuple[float, int]] = {}
         """cause -> (when its next line may be written, occurrences not yet logged)."""
 
     def note(self, cause: str) -> None:
         """One more occurrence of ``cause`` (a sentence of what the client did and what was done about it)."""
-        now = self._clock()
+        now = time.monotonic()
         next_s, held = self._causes.get(cause, (-1.0, 0))
         if now < next_s:
             self._causes[cause] = (next_s, held + 1)
@@ -73,7 +72,8 @@ class Hub:
         self.sock = sock
         self.layout: LayoutRecord | None = None
         self._guards: tuple[tuple[Any, ...], ...] = ()
-        self._latest: Tick | None = None
+        self.latest: Tick | None = None
+        """The latest tick (None before the first)."""
         self._events: deque[tuple[int, bytes, dict[str, Any]]] = deque(maxlen=KEEP_EVENTS)
         """(seq, journal line, the line as JSON): each event is encoded once, as it arrives."""
         self._event_seq = 0
@@ -96,12 +96,8 @@ class Hub:
             seq, t, codes, task, confirm, blackboard, guards = record
             if guards is not None:
                 self._guards = guards
-            self._latest = Tick(seq, t, self.layout, codes, task, self._guards, confirm, blackboard)
+            self.latest = Tick(seq, t, self.layout, codes, task, self._guards, confirm, blackboard)
         self.on_news()
-
-    def latest(self) -> Tick | None:
-        """The latest tick (None before the first)."""
-        return self._latest
 
     def want_blackboard(self) -> None:
         """Ask the daemon to put the root blackboard into its records for the next second."""
@@ -118,7 +114,7 @@ class Hub:
 
     def status(self) -> dict[str, Any]:
         """The ``/api/status`` document: tree, task, guards, events."""
-        tick = self._latest
+        tick = self.latest
         events = [form for _, _, form in list(self._events)[-STATUS_EVENTS:]]
         if tick is None:
             return {"tree": None, "task": None, "guards": [], "events": events}

@@ -24,12 +24,12 @@ from canguard.errors import ConfigError
 from canguard.service.monitor import END, FRAME_BYTES
 from canguard.service.monitor.hub import Hub
 
-log = logging.getLogger("canguard.service.monitor")
-
 NICE = 10
 """How much lower than the daemon's this process's CPU priority is: on a busy robot the loop gets the CPU first."""
 FILES = 65536
 """File descriptors this process asks for (up to the hard limit): each client of the page or Groot2 holds one."""
+
+
 def _address(text: str, port_span: int = 1) -> Address:
     address = parse_address(text, port_span=port_span)
     if isinstance(address, str):  # validated by the config loader / with_overrides already
