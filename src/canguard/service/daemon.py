@@ -17,12 +17,16 @@ import signal
 import sys
 import threading
 import time
+import uuid
+from collections.abc import Iterable
 from pathlib import Path
 from types import FrameType
 from typing import Any
 
 import can
 import numpy as np
+import py_trees
+from py_trees.blackboard import Blackboard
 
 from canguard.bt.context import FrameSink
 from canguard.config.monitor import with_overrides
@@ -38,7 +42,6 @@ from canguard.io.bus import BusReader, receive_keys
 from canguard.io.clock import BootClock, LiveClock
 from canguard.io.outputs import check_config_outputs, load_run_config
 from canguard.protect.state import HeatStore
-from canguard.service.blackboard import registered_clients, release_clients, tree_clients
 from canguard.service.systemd import Notifier, watchdog_hold
 
 log = logging.getLogger(__name__)
@@ -148,7 +151,7 @@ class Daemon:
 
     def build_engine(self, cfg: Config, previous: Engine | None = None) -> Engine:
         heat = HeatStore(cfg.state.file, cfg.state.on_corrupt, clock=BootClock())
-        before = registered_clients()
+        before = set(Blackboard.clients)
         try:
             engine = Engine(cfg, self.clock, self.sink, events=self.events, durable=True,
                             metrics=self.metrics, heat=heat, previous=previous)
@@ -156,7 +159,7 @@ class Daemon:
                 self.monitor.attach(engine)
             return engine
         except BaseException:
-            release_clients(registered_clients() - before)  # a tree built half-way leaves no keys behind
+            release_clients(set(Blackboard.clients) - before)  # a tree built half-way leaves no keys behind
             raise
 
     def wanted(self, cfg: Config) -> dict[str, frozenset[int] | None]:
@@ -340,12 +343,9 @@ class Daemon:
         return True
 
     def _send_refused(self, bus: str, label: str, origin: str, held: int) -> None:
-        """A frame the bus refused (full TX queue, bus-off) goes in the journal, as often as on stderr.
-
-        A stop frame that never reached the bus is what a safety engineer asks about
-        first; it is sent again every ``stop.repeat``, and this event says it had to be.
-        The sink reports once a second per bus and origin; ``held`` counts the refusals since.
-        """
+        """A frame the bus refused (full TX queue, bus-off) goes in the journal, as often as on stderr (once a
+        second per bus and origin; ``held``: the refusals since): a stop frame that never reached the bus is what a
+        safety engineer asks about first, and it is sent again every ``stop.repeat``."""
         engine = getattr(self, "engine", None)
         if engine is not None:
             engine.journal.write({"event": "bus_error", "source": bus,
@@ -353,8 +353,7 @@ class Daemon:
                                             f"{held_note(held)}"})
 
     def _bus_error(self, bus: str, exc: BaseException) -> None:
-        # Called from a receive thread: hand it to the loop, which owns the journal.
-        # The reader reopens the bus with backoff; guards reading its sources go stale and stop the task.
+        # from a receive thread, to the loop (which owns the journal); the reader reopens the bus with backoff
         self._bus_errors.put((bus, f"{type(exc).__name__}: {exc}"))
 
     def _watch_buses(self, engine: Engine) -> None:
@@ -372,10 +371,8 @@ class Daemon:
 
 
 def drive_setup(cfg: Config) -> Any:
-    """A started :class:`~canguard.service.canopen_setup.DriveSetup` when a drive has ``configure: true``, else None.
-
-    Imported only then: the ``canopen`` library is an optional extra.
-    """
+    """A started :class:`~canguard.service.canopen_setup.DriveSetup` when a drive has ``configure: true``, else None
+    (imported only then: the ``canopen`` library is an optional extra)."""
     if not any(d.configure for d in cfg.canopen.values()):
         return None
     from canguard.service.canopen_setup import DriveSetup
@@ -395,9 +392,38 @@ def journal_setup(engine: Engine, setup: Any) -> None:
 
 
 def overrun_limit(cfg: Config) -> float:
-    """How long a frame may wait between its arrival and the engine: the shortest ``max_age`` of the sources.
-
-    A frame that waited longer carries data the config already calls stale, judged as fresh.
-    """
+    """How long a frame may wait between its arrival and the engine: the shortest ``max_age`` of the sources (a
+    frame that waited longer carries data the config already calls stale, judged as fresh)."""
     ages = [source.max_age_s for source in cfg.sources.values()]
     return max(OVERRUN_FLOOR_S, min(ages, default=LIVE_SKEW_S))
+
+
+def tree_clients(root: py_trees.behaviour.Behaviour) -> set[uuid.UUID]:
+    """The ids of the blackboard clients attached to the nodes of the tree under ``root``.
+
+    py_trees keeps one blackboard per process, where every node registers a client and keys that nothing removes
+    when a tree is dropped: the daemon releases the old tree after a reload, and whatever a rejected reload
+    registered (:func:`release_clients`).
+    """
+    return {client.id() for node in root.iterate() for client in node.blackboards}
+
+
+def release_clients(ids: Iterable[uuid.UUID]) -> int:
+    """Remove these clients from the global blackboard; how many keys (with their values) went with them: those no
+    other client holds, as py_trees' ``Client.unregister(clear=True)``. From the ids alone: also after a tree whose
+    build failed half-way."""
+    ids = set(ids)
+    gone = 0
+    for key, meta in list(Blackboard.metadata.items()):
+        if ids.isdisjoint(meta.read) and ids.isdisjoint(meta.write) and ids.isdisjoint(meta.exclusive):
+            continue
+        meta.read -= ids
+        meta.write -= ids
+        meta.exclusive -= ids
+        if not (meta.read or meta.write or meta.exclusive):
+            del Blackboard.metadata[key]
+            Blackboard.storage.pop(key, None)
+            gone += 1
+    for client in ids:
+        Blackboard.clients.pop(client, None)
+    return gone
