@@ -286,7 +286,7 @@ def test_a_failing_monitor_never_stops_the_guard(tmp_path: Path, caplog: pytest.
         def broken(*_record: object) -> None:
             raise RuntimeError("monitor broke")
 
-        monkeypatch.setattr(w.daemon.monitor, "flush", broken)
+        monkeypatch.setattr(w.daemon.monitor, "offer", broken)
         msg = w.trip_until_estop(WAIT_S)
         assert msg is not None and msg.arbitration_id in ESTOP_IDS
         # the stop's snapshot is taken in a tick after the Estop went out: wait for it, not for the daemon's end

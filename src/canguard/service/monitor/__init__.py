@@ -44,7 +44,7 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
-__all__ = ["EventTee", "Monitor"]
+__all__ = ["Monitor"]
 
 KEEP_EVENTS = 500
 """Journal events kept for a monitor process that is behind; past that the oldest are dropped (it says how many)."""
@@ -131,23 +131,6 @@ def frames(message: Any) -> list[bytes]:
     return [MORE + p for p in parts[:-1]] + [END + parts[-1]]
 
 
-class EventTee:
-    """The daemon's journal, and a copy of each event for the monitors (the journal first)."""
-
-    def __init__(self, journal: EventSink, monitor: Monitor) -> None:
-        self.journal = journal
-        self.monitor = monitor
-
-    def write(self, event: Mapping[str, Any]) -> None:
-        """Append to the journal, then keep a copy for the page."""
-        self.journal.write(event)
-        self.monitor.event(event)
-
-    def flush(self) -> None:
-        """Flush the journal."""
-        self.journal.flush()
-
-
 class Monitor:
     """The monitor process of one daemon, and the observer of each engine the daemon runs (:meth:`attach`): after
     each tick it takes a record of it and hands it over without waiting. :class:`~canguard.errors.ConfigError`
@@ -186,6 +169,7 @@ class Monitor:
         self._sent: tuple[Any, ...] | None = None
         self._layout: LayoutRecord | None = None
         self._guards: tuple[tuple[Any, ...], ...] | None = None
+        self._journal: EventSink  # set by tee()
         self._events: deque[tuple[int, dict[str, Any]]] = deque(maxlen=KEEP_EVENTS)
         self._event_seq = 0
         self._outbox: deque[bytes] = deque()  # the frames of a large message not all taken yet: they go first
@@ -236,9 +220,10 @@ class Monitor:
         self._stops, self._stopped_by, self._record = -1, (), None
         engine.observer = self
 
-    def tee(self, journal: EventSink) -> EventTee:
-        """The sink the engine writes events to: ``journal``, and the page's copy."""
-        return EventTee(journal, self)
+    def tee(self, journal: EventSink) -> EventSink:
+        """The sink the engine writes events to (this monitor): ``journal`` first, then a copy for the monitors."""
+        self._journal = journal
+        return self
 
     def close(self) -> None:
         """End the monitor process (it also ends by itself when the daemon's end of the socket closes)."""
@@ -259,17 +244,23 @@ class Monitor:
         return self._proc.pid
 
     # -- the engine's side: after its tick (the stop frames are out), never waiting -----------------
-    def event(self, event: Mapping[str, Any]) -> None:
-        """Keep one journal event for the next record (the oldest go when the process is behind)."""
+    def write(self, event: Mapping[str, Any]) -> None:
+        """Append ``event`` to the journal, then keep a copy for the next record (the oldest go when the monitor
+        process is behind)."""
+        self._journal.write(event)
         self._event_seq += 1
         self._events.append((self._event_seq, dict(event)))
+
+    def flush(self) -> None:
+        """Flush the journal."""
+        self._journal.flush()
 
     def publish(self, engine: Engine, now: float) -> None:
         """Called by the engine after each tick: take its record when something changed, at most every
         :data:`PERIOD_S`, and offer what the monitor process has not had yet (never raises, never waits)."""
         try:
             if self._take(engine, now):
-                self.flush()
+                self.offer()
         except Exception:  # a monitor must never take the loop down with it (a record that cannot be pickled)
             if not self._failed:
                 log.exception("monitor snapshot failed; the monitors show the last good one")
@@ -331,7 +322,7 @@ class Monitor:
                 why or snap.reason)
 
     # -- sending -----------------------------------------------------------------------------------
-    def flush(self) -> None:
+    def offer(self) -> None:
         """Offer what the monitor process has not had yet: one non-blocking send (a dead process is reported once,
         by a thread of its own: reaping may take a moment the loop must not wait)."""
         if self._gone or (self._record is self._sent and not self._events and not self._outbox):
