@@ -232,9 +232,23 @@ class WebMonitor:
         self.open += 1
         peer = writer.get_extra_info("peername")
         address = str(peer[0]) if peer else "?"
+        buffered = bytearray()  # what came of the next request's head
+        first = True
         try:
-            if self._admit():
-                await self._serve(reader, writer, address)
+            if not self._admit():
+                return
+            while True:
+                self.waiting[writer] = None  # reading a request head: the first to go when every place is taken
+                try:
+                    head = await self._read_head(reader, buffered, first)
+                finally:
+                    self.waiting.pop(writer, None)
+                if head is None:
+                    return
+                first = False
+                if not await self._respond(_parse(head), reader, writer, address):
+                    await self._close(reader, writer)
+                    return
         except _Refused as refused:
             self.notes.note(refused.cause)
             with contextlib.suppress(OSError, asyncio.TimeoutError):
@@ -264,23 +278,6 @@ class WebMonitor:
         self.notes.note(f"{self.limits.max_connections} connections open: the oldest unfinished request closed "
                         "for a new one")
         return True
-
-    async def _serve(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter, address: str) -> None:
-        buffered = bytearray()
-        first = True
-        while True:
-            self.waiting[writer] = None
-            try:
-                head = await self._read_head(reader, buffered, first)
-            finally:
-                self.waiting.pop(writer, None)
-            if head is None:
-                return
-            first = False
-            request = _parse(head)
-            if not await self._respond(request, reader, writer, address):
-                await self._close(reader, writer)
-                return
 
     async def _read_head(self, reader: asyncio.StreamReader, buffered: bytearray, first: bool) -> bytes | None:
         """The next request's head; None when the client closed, or did not send it whole in time."""
