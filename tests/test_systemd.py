@@ -48,7 +48,6 @@ class TestNotifier:
         assert n.address == path
         assert n.ready()
         assert _recv(sock) == b"READY=1"
-        n.close()
 
     def test_each_message_is_one_datagram(self, notify_socket: tuple[socket.socket, str]) -> None:
         """watchdog, status, stopping and reloading each arrive as one exact datagram, in order."""
@@ -58,7 +57,6 @@ class TestNotifier:
         n.status("line one\nline two")
         n.stopping()
         n.reloading(monotonic_usec=123456789)
-        n.close()
         assert [_recv(sock) for _ in range(4)] == [
             b"WATCHDOG=1",
             b"STATUS=line one line two",

@@ -83,12 +83,6 @@ class Notifier:
             return None
         return usec / 1e6 if usec > 0 and ours else None
 
-    def close(self) -> None:
-        """Close the socket (a later notify reopens it)."""
-        if self._sock is not None:
-            self._sock.close()
-            self._sock = None
-
 
 def watchdog_hold(now: float, last_tick: float | None, tick_period_s: float, stale_unstopped: Iterable[str] = (),
                   k: float = 3.0) -> str:
