@@ -363,11 +363,12 @@ class Daemon:
             bus, text = self._bus_errors.get_nowait()
             engine.bus_down(bus, text)
             self._down.add(bus)
-        alive = self.reader.alive() if self._down else {}
-        for bus in [b for b in self._down if alive.get(b)]:
-            self._down.discard(bus)
-            engine.bus_up(bus)
-            engine.journal.write({"event": "bus_error", "source": bus, "reason": "reopened"})
+        if self._down:
+            alive = self.reader.alive()
+            for bus in [b for b in self._down if alive.get(b)]:
+                self._down.discard(bus)
+                engine.bus_up(bus)
+                engine.journal.write({"event": "bus_error", "source": bus, "reason": "reopened"})
 
 
 def drive_setup(cfg: Config) -> Any:
