@@ -153,17 +153,8 @@ class Monitor:
             raise
         self._sock.setblocking(False)
         self._io = GilHoldingSocket(self._sock)  # the engine's thread never lets go of the GIL for it
-        # the engine's tree, and what was read of it
-        self._tree: TreeLayout | None = None
-        self._guard_views: list[GuardView] = []
-        self._guard_nodes: list[Any] = []
-        self._last_active: list[int] = []
+        self._tree: TreeLayout | None = None  # the engine's (attach sets what is read of it)
         self._seq = 0
-        self._key: tuple[Any, ...] = ()
-        self._guard_states: tuple[tuple[Any, ...], ...] = ()
-        self._guards_at = self._next_at = -math.inf
-        self._stops = -1
-        self._stopped_by: tuple[str, ...] = ()
         # what the monitor process has (or is being sent), and what it has not had yet
         self._record: tuple[Any, ...] | None = None
         self._sent: tuple[Any, ...] | None = None
@@ -216,8 +207,11 @@ class Monitor:
         tree = TreeLayout(engine.loaded, engine.ctx)
         self._tree, self._guard_views, self._guard_nodes = tree, engine.guards(), engine.loaded.guard_nodes()
         self._last_active = [IDLE] * len(tree.behaviours)
-        self._key, self._guard_states, self._guards_at, self._next_at = (), (), -math.inf, -math.inf
-        self._stops, self._stopped_by, self._record = -1, (), None
+        self._key: tuple[Any, ...] = ()
+        self._guard_states: tuple[tuple[Any, ...], ...] = ()
+        self._guards_at = self._next_at = -math.inf
+        self._stops, self._record = -1, None
+        self._stopped_by: tuple[str, ...] = ()
         engine.observer = self
 
     def tee(self, journal: EventSink) -> EventSink:
