@@ -50,26 +50,23 @@ def servers(settings: dict[str, Any], hub: Hub) -> dict[str, Any]:
             except OSError as exc:
                 raise ConfigError(f"status page on {address}: cannot listen ({exc.strerror or exc})") from exc
         if settings.get("groot2"):
-            out["groot2"] = _groot2(_address(settings["groot2"], port_span=2), hub)
+            address = _address(settings["groot2"], port_span=2)
+            try:
+                from canguard.service.monitor.groot2 import Groot2Monitor
+            except ModuleNotFoundError as exc:
+                if exc.name != "zmq":
+                    raise
+                raise ConfigError(f"Groot2 monitor on {address}: needs pyzmq, which is not installed: "
+                                  "pip install 'canguard[monitor]'") from None
+            try:
+                out["groot2"] = Groot2Monitor(address, hub)
+            except Exception as exc:  # zmq.ZMQError: address in use, no such interface
+                raise ConfigError(f"Groot2 monitor on {address}: cannot listen ({exc})") from exc
     except BaseException:
         for server in out.values():
             server.close()
         raise
     return out
-
-
-def _groot2(address: Address, hub: Hub) -> Any:
-    try:
-        from canguard.service.monitor.groot2 import Groot2Monitor
-    except ModuleNotFoundError as exc:
-        if exc.name != "zmq":
-            raise
-        raise ConfigError(f"Groot2 monitor on {address}: needs pyzmq, which is not installed: "
-                          "pip install 'canguard[monitor]'") from None
-    try:
-        return Groot2Monitor(address, hub)
-    except Exception as exc:  # zmq.ZMQError: address in use, no such interface
-        raise ConfigError(f"Groot2 monitor on {address}: cannot listen ({exc})") from exc
 
 
 def lower_priority() -> None:
