@@ -89,32 +89,29 @@ class Groot2Monitor:
             self._context.destroy(0)
 
     def _serve(self) -> None:
-        try:
-            self._loop()
-        finally:
-            self._context.destroy(0)  # its sockets too: ZeroMQ sockets belong to the thread that uses them
-
-    def _loop(self) -> None:
         poller = zmq.Poller()
         poller.register(self._server, zmq.POLLIN)
-        while not self._stop.is_set():
-            if not poller.poll(100):
-                continue
-            try:
-                request = self._server.recv_multipart(zmq.NOBLOCK)
-            except zmq.ZMQError:
-                continue
-            try:
-                reply = self.answer(request)
-            except Exception as exc:  # canguard's fault, not the client's (answer takes any bytes): say where
-                log.exception("Groot2 request failed")
-                reply = [b"error", f"{type(exc).__name__}: {exc}".encode()]
-            if reply[0] == b"error" and reply[1] in MALFORMED:
-                self.notes.note(f"a malformed request ({reply[1].decode()})")
-            try:
-                self._server.send_multipart(reply)
-            except zmq.ZMQError as exc:
-                self.notes.note(f"a reply not sent ({exc})")
+        try:
+            while not self._stop.is_set():
+                if not poller.poll(100):
+                    continue
+                try:
+                    request = self._server.recv_multipart(zmq.NOBLOCK)
+                except zmq.ZMQError:
+                    continue
+                try:
+                    reply = self.answer(request)
+                except Exception as exc:  # canguard's fault, not the client's (answer takes any bytes): say where
+                    log.exception("Groot2 request failed")
+                    reply = [b"error", f"{type(exc).__name__}: {exc}".encode()]
+                if reply[0] == b"error" and reply[1] in MALFORMED:
+                    self.notes.note(f"a malformed request ({reply[1].decode()})")
+                try:
+                    self._server.send_multipart(reply)
+                except zmq.ZMQError as exc:
+                    self.notes.note(f"a reply not sent ({exc})")
+        finally:
+            self._context.destroy(0)  # its sockets too: ZeroMQ sockets belong to the thread that uses them
 
     def answer(self, request: list[bytes]) -> list[bytes]:
         """The reply to one multipart request (the parts as the REP socket sends them)."""
