@@ -47,6 +47,7 @@ __all__ = [
     "Block",
     "PayloadSource",
     "channel_name",
+    "frame_from_message",
     "one_block",
 ]
 
@@ -100,6 +101,17 @@ class PayloadSource(Protocol):
         """Row ``i``'s payload."""
 
 
+def frame_from_message(msg: can.Message, channel: str | None = None) -> Frame:
+    """Convert a ``can.Message`` to a :class:`Frame` (``channel`` overrides the message's). A remote frame keeps
+    its DLC; a data frame's DLC is -1 when it is the data's length."""
+    data = bytes(msg.data) if msg.data is not None else b""
+    dlc, remote = msg.dlc, bool(msg.is_remote_frame)
+    return _new(Frame, (float(msg.timestamp or 0.0), channel_name(msg.channel) if channel is None else channel,
+                        int(msg.arbitration_id), data, bool(msg.is_extended_id), bool(msg.is_fd),
+                        bool(msg.is_error_frame), remote, bool(msg.bitrate_switch), bool(msg.error_state_indicator),
+                        -1 if dlc == len(data) or (dlc == 0 and remote) else dlc))
+
+
 def channel_name(channel: Any) -> str:
     """A python-can channel as a string: ints (and digit strings) become ``canN``, None becomes ``""``."""
     if channel is None:
@@ -111,8 +123,8 @@ def channel_name(channel: Any) -> str:
 
 @dataclass(frozen=True, eq=False)
 class Block:
-    """``n`` CAN frames as numpy columns (see the module docstring); build one with :meth:`build`,
-    :meth:`of_frames` or :meth:`of_messages`."""
+    """``n`` CAN frames as numpy columns (see the module docstring); build one with :meth:`of_frames`
+    or :meth:`of_messages` (a reader of columns: the constructor)."""
 
     time_s: np.ndarray
     can_id: np.ndarray
@@ -142,28 +154,6 @@ class Block:
 
     # -- building ----------------------------------------------------------------------------
     @classmethod
-    def build(cls, time_s: Any, can_id: Any, extended: Any, payload: Any, *, length: Any = None,
-              flags: Any = None, dlc: Any = None, channel: Any = None,
-              channels: Sequence[str] = ("",)) -> Block:
-        """A block from array-likes, each converted to its column's type; ``length`` defaults to the payload's
-        width, ``flags`` to 0, ``dlc`` to ``length``, ``channel`` to 0 (the first of ``channels``)."""
-        times = np.ascontiguousarray(time_s, dtype=np.float64)
-        n = times.shape[0]
-        data = np.ascontiguousarray(payload, dtype=np.uint8)
-        if data.ndim == 1 and not data.size:
-            data = data.reshape(n, 0)
-        lengths = (np.full(n, data.shape[1] if data.ndim == 2 else 0, dtype=np.uint8) if length is None
-                   else np.ascontiguousarray(length, dtype=np.uint8))
-        return cls(
-            times, np.ascontiguousarray(can_id, dtype=np.uint32), np.ascontiguousarray(extended, dtype=np.bool_),
-            np.zeros(n, np.uint8) if flags is None else np.ascontiguousarray(flags, dtype=np.uint8),
-            lengths.copy() if dlc is None else np.ascontiguousarray(dlc, dtype=np.uint8),
-            lengths, data,
-            np.zeros(n, np.uint16) if channel is None else np.ascontiguousarray(channel, dtype=np.uint16),
-            tuple(channels),
-        )
-
-    @classmethod
     def of_frames(cls, frames: Iterable[Frame]) -> Block:
         """The frames as a block (the live drain, a simulator, tests)."""
         listed = frames if type(frames) is tuple else tuple(frames)
@@ -171,32 +161,10 @@ class Block:
 
     @classmethod
     def of_messages(cls, msgs: Sequence[can.Message], channel: str | Sequence[str] | None = None) -> Block:
-        """python-can messages as a block, field for field (``channel`` overrides each message's, or names each
-        message's in turn (a live batch of several buses); python-can's integer channels are named ``canN``)."""
-        times, ids, ext, flags, dlcs, datas = [], [], [], [], [], []
-        chans: list[str] = [] if channel is None or type(channel) is str else list(channel)
-        names: dict[Any, str] = {}
-        for m in msgs:
-            if channel is None:
-                name = names.get(m.channel)
-                if name is None:
-                    name = names[m.channel] = channel_name(m.channel)
-                chans.append(name)
-            elif type(channel) is str:
-                chans.append(channel)
-            times.append(float(m.timestamp or 0.0))
-            ids.append(int(m.arbitration_id))
-            ext.append(bool(m.is_extended_id))
-            flags.append((FLAG_FD if m.is_fd else 0) | (FLAG_BRS if m.bitrate_switch else 0)
-                         | (FLAG_ESI if m.error_state_indicator else 0) | (FLAG_REMOTE if m.is_remote_frame else 0)
-                         | (FLAG_ERROR if m.is_error_frame else 0))
-            dlcs.append(int(m.dlc))
-            datas.append(bytes(m.data) if m.data is not None else b"")
-        if len(times) == 1:  # a live frame
-            one = _one(times[0], chans[0], ids[0], datas[0], ext[0], flags[0], dlcs[0])
-            if one is not None:
-                return one
-        return _rows(times, ids, ext, flags, dlcs, datas, chans)
+        """python-can messages as a block, each as :func:`frame_from_message` reads it (``channel`` overrides each
+        message's, or names each message's in turn: a live batch of several buses)."""
+        names = repeat(channel) if channel is None or type(channel) is str else channel
+        return cls.of_frames(tuple(map(frame_from_message, msgs, names)))
 
     # -- what the engine reads ----------------------------------------------------------------
     @_cached
@@ -302,30 +270,6 @@ class Block:
         """The rows ``rows`` (an index array, a boolean mask or a slice) as a block of their own."""
         return Block(self.time_s[rows], self.can_id[rows], self.extended[rows], self.flags[rows], self.dlc[rows],
                      self.length[rows], self.payload[rows], self.channel[rows], self.channels)
-
-    @classmethod
-    def join(cls, blocks: Sequence[Block]) -> Block:
-        """The rows of ``blocks`` one after another, as one block (channels merged by name)."""
-        if len(blocks) == 1:
-            return blocks[0]
-        index: dict[str, int] = {}
-        lanes = []
-        for b in blocks:
-            table = np.array([index.setdefault(c, len(index)) for c in b.channels] or [0], dtype=np.uint16)
-            lanes.append(table[b.channel])
-        names = list(index) or [""]
-        width = max((b.payload.shape[1] for b in blocks), default=0)
-        payload = np.zeros((sum(b.n for b in blocks), width), dtype=np.uint8)
-        at = 0
-        for b in blocks:
-            payload[at:at + b.n, :b.payload.shape[1]] = b.payload
-            at += b.n
-
-        def cat(name: str) -> np.ndarray:
-            return np.concatenate([getattr(b, name) for b in blocks])
-
-        return cls(cat("time_s"), cat("can_id"), cat("extended"), cat("flags"), cat("dlc"), cat("length"), payload,
-                   np.concatenate(lanes) if lanes else np.zeros(0, np.uint16), tuple(names))
 
 
 _U8_ONE: tuple[np.ndarray, ...] = tuple(np.full(1, v, np.uint8) for v in range(256))

@@ -6,7 +6,6 @@ lines; the reader names a bad line's file:line and says what is wrong with it
 
 from __future__ import annotations
 
-import math
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -17,19 +16,17 @@ from canguard.errors import LogFormatError, quote
 from canguard.io.block import Block
 from canguard.io.candump_np import parse_block
 from canguard.io.logtypes import (
-    _HEX,
     CAN_EFF_MASK,
     CAN_ERR_FLAG,
     CAN_SFF_MASK,
     CANFD_LENGTHS,
     MAX_BAD_EXAMPLES,
     BadLine,
+    Blocks,
     CrLines,
-    LogFrames,
     ReadStats,
     _Bad,
     decompress_errors,
-    note_order,
     open_decompressed,
 )
 
@@ -41,6 +38,7 @@ CHUNK_CHARS = 1 << 20
 many make the parser slower (its passes outgrow the caches)."""
 
 _MARKERS = frozenset("TRtr")
+_HEX = "0123456789abcdefABCDEF"
 
 
 def _is_hex(s: str) -> bool:
@@ -187,42 +185,33 @@ def _as_text(block: bytes) -> str:
     return text.replace("\r\n", "\n").replace("\r", "\n") if "\r" in text else text
 
 
-def candump_chunks(p: Path, gz: str, skip_bad: bool, st: ReadStats, want_ts_stats: bool,
-                   owner: LogFrames) -> Iterator[Block]:
+def candump_blocks(p: Path, gz: str, skip_bad: bool, st: ReadStats) -> Blocks:
     """The candump text reader's blocks (a bad line raises, naming its file:line, after the frames before it;
     with ``skip_bad`` it is counted)."""
-    reader = _CandumpReader(p, gz, skip_bad, st, want_ts_stats)
+    reader = _CandumpReader(p, gz, skip_bad, st)
     try:
         for block in reader.blocks():
-            yield from reader.parse(block)
-            owner.reached(reader.position())
+            for frames in reader.parse(block):
+                yield frames, None
+            yield None, reader.raw.tell()
     finally:
         reader.close()
-        owner.finished()
-    if reader.frames == 0:
-        skipped = f" ({st.bad_lines} bad lines skipped)" if st.bad_lines else ""
-        raise LogFormatError(f"{p}: empty log: no frames{skipped}")
+    return ""
 
 
 class _CandumpReader:
-    """One candump text log, read a block of whole lines at a time (see :func:`candump_chunks`)."""
+    """One candump text log, read a block of whole lines at a time (see :func:`candump_blocks`)."""
 
-    def __init__(self, p: Path, gz: str, skip_bad: bool, st: ReadStats, want_ts_stats: bool) -> None:
-        self.p, self.gz, self.skip_bad, self.st, self.want_ts_stats = p, gz, skip_bad, st, want_ts_stats
+    def __init__(self, p: Path, gz: str, skip_bad: bool, st: ReadStats) -> None:
+        self.p, self.gz, self.skip_bad, self.st = p, gz, skip_bad, st
         self.raw = open(p, "rb")  # noqa: SIM115 -- closed by close()
         self.f: Any = open_decompressed(self.raw, gz)
-        self.frames = 0
         self.lineno = 0
         """Lines before the current block."""
-        self.last_t = -math.inf
         self.error_last = False
         """The last frame read is an error frame (``candump -e`` explains it on indented lines below)."""
         self.count = 0
         """Blocks read."""
-
-    def position(self) -> int:
-        """The position reached in the file on disk."""
-        return self.raw.tell()
 
     def close(self) -> None:
         self.f.close()
@@ -264,7 +253,7 @@ class _CandumpReader:
             yield block
 
     def parse(self, raw: bytes) -> Iterator[Block]:
-        """The block's frames (counted); a bad line raises after the frames before it, or is counted."""
+        """The block's frames; a bad line raises after the frames before it, or is counted."""
         parsed = parse_block(raw, self.error_last)
         st = self.st
         bad = parsed.bad
@@ -274,7 +263,8 @@ class _CandumpReader:
             if block is not None:
                 before = int(np.searchsorted(parsed.rows_line, line))
                 if before:
-                    yield self._counted(block.select(slice(0, before)), line)
+                    st.lines += line
+                    yield block.select(slice(0, before))
             text = _line(raw, line)
             raise LogFormatError(f"{self.p}:{self.lineno + line + 1}: {why_bad(text)}: {quote(text)}")
         st.lines += parsed.lines
@@ -286,21 +276,7 @@ class _CandumpReader:
         self.lineno += parsed.lines
         self.error_last = parsed.error_last
         if block is not None:
-            yield self._counted(block, 0)
-
-    def _counted(self, block: Block, lines: int) -> Block:
-        """``block`` counted in the statistics (``lines``: the lines it came from when not a whole block's)."""
-        st = self.st
-        st.lines += lines
-        if self.want_ts_stats:
-            note_order(st, float(block.time_s[0]), self.last_t)
-            backwards, repeated = block.order
-            st.backwards_timestamps += backwards
-            st.repeated_timestamps += repeated
-        self.last_t = float(block.time_s[-1])
-        self.frames += block.n
-        st.frames += block.n
-        return block
+            yield block
 
 
 def _line(raw: bytes, k: int) -> str:

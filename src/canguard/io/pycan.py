@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import gc
 import io
-import math
 import sys
 from collections.abc import Iterator
 from itertools import islice
@@ -16,22 +15,13 @@ from typing import TYPE_CHECKING, Any
 
 from canguard.errors import LogFormatError, clip
 from canguard.io.blf_length import BlfLength
-from canguard.io.block import Block, channel_name
-from canguard.io.frame import Frame
-from canguard.io.logtypes import _TEXT_PYTHON_CAN, LogFrames, ReadStats, _new, open_decompressed
+from canguard.io.block import Block
+from canguard.io.logtypes import Blocks, open_decompressed
 
 if TYPE_CHECKING:
     import can
 
-def frame_from_message(msg: can.Message, channel: str | None = None) -> Frame:
-    """Convert a ``can.Message`` to a :class:`Frame` (``channel`` overrides the message's). A remote frame keeps
-    its DLC; a data frame's DLC is -1 when it is the data's length."""
-    data = bytes(msg.data) if msg.data is not None else b""
-    dlc, remote = msg.dlc, bool(msg.is_remote_frame)
-    return _new(Frame, (float(msg.timestamp or 0.0), channel_name(msg.channel) if channel is None else channel,
-                        int(msg.arbitration_id), data, bool(msg.is_extended_id), bool(msg.is_fd),
-                        bool(msg.is_error_frame), remote, bool(msg.bitrate_switch), bool(msg.error_state_indicator),
-                        -1 if dlc == len(data) or (dlc == 0 and remote) else dlc))
+_TEXT_FORMATS = ("asc", "trc", "csv")
 
 
 def _free_quietly(exc: BaseException) -> None:
@@ -61,7 +51,7 @@ class _Messages:
             fobj: Any = open_decompressed(self.raw, gz)
             if fmt == "blf":
                 fobj = self.length = BlfLength(fobj)
-            if fmt in _TEXT_PYTHON_CAN:
+            if fmt in _TEXT_FORMATS:
                 fobj = io.TextIOWrapper(fobj, encoding="utf-8", errors="replace")
             import can
 
@@ -107,9 +97,9 @@ class _Messages:
         self.count += len(batch)
         return batch
 
-    def position(self, st: ReadStats) -> int:
-        """The position reached in the file on disk (its size once python-can has closed it)."""
-        return st.bytes_total if self.raw.closed else self.raw.tell()
+    def position(self, size: int) -> int:
+        """The position reached in the file on disk (its ``size`` once python-can has closed it)."""
+        return size if self.raw.closed else self.raw.tell()
 
     def close(self) -> None:
         self.raw.close()
@@ -119,24 +109,16 @@ BLOCK = 2048
 """Messages taken from python-can's reader at a time: one block (replays a BLF log faster than 1024 or 4096)."""
 
 
-def python_can_chunks(p: Path, fmt: str, gz: str, st: ReadStats, owner: LogFrames) -> Iterator[Block]:
-    """One of python-can's readers as blocks; its errors as LogFormatError."""
-    reader: _Messages | None = None
-    before = st.frames
-    last_t = -math.inf
+def python_can_blocks(p: Path, fmt: str, gz: str, size: int) -> Blocks:
+    """One of python-can's readers as blocks (``size``: the file's on disk); its errors as LogFormatError."""
+    reader = _Messages(p, fmt, gz)
     try:
-        reader = _Messages(p, fmt, gz)
         while msgs := reader.next_batch(BLOCK):
             try:
                 block = Block.of_messages(msgs)
             except LogFormatError as exc:
                 raise LogFormatError(f"{p}: {exc}") from None
-            last_t = st.took(block, last_t)
-            yield block
-            owner.reached(reader.position(st))
+            yield block, reader.position(size)
     finally:
-        if reader is not None:
-            reader.close()
-        owner.finished()
-    if st.frames == before:
-        raise LogFormatError(f"{p}: empty log: no frames")
+        reader.close()
+    return ""

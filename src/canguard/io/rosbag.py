@@ -7,7 +7,6 @@ raw messages (:class:`~canguard.io.bagsource.BagSource`) is gathered by numpy at
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, fields
 from pathlib import Path
@@ -25,7 +24,7 @@ from canguard.io.logtypes import (
     CANFD_LENGTHS,
     MAX_BAD_EXAMPLES,
     BadLine,
-    LogFrames,
+    Blocks,
     ReadStats,
 )
 from canguard.io.mcapscan import McapCut, Messages, uint_at
@@ -154,12 +153,13 @@ def block_of(rows: Rows, lanes: np.ndarray, channels: list[str]) -> Block:
     sel: Any = keep if keep.size < rows.good.size else slice(None)
     ids, ext, rem, err, fd = rows.ids[sel], rows.extended[sel], rows.remote[sel], rows.error[sel], rows.fd[sel]
     lengths = rows.lengths[sel]
-    flags = (np.where(fd, FLAG_FD, 0) | np.where(rem, FLAG_REMOTE, 0) | np.where(err, FLAG_ERROR, 0))
+    flags = np.where(fd, FLAG_FD, 0) | np.where(rem, FLAG_REMOTE, 0) | np.where(err, FLAG_ERROR, 0)
     payload_len = np.where(rem, 0, lengths)
     width = int(payload_len.max()) if payload_len.size else 0
     payload = rows.data[sel][:, :width] * (np.arange(width) < payload_len[:, None])  # data[:dlc], zeros after
-    return Block.build(rows.t[sel], np.where(err, ids & CAN_EFF_MASK, ids), ext | err, payload, length=payload_len,
-                       flags=flags, dlc=lengths, channel=lanes[sel], channels=channels)
+    return Block(rows.t[sel], np.where(err, ids & CAN_EFF_MASK, ids).astype(np.uint32), ext | err,
+                 flags.astype(np.uint8), lengths.astype(np.uint8), payload_len.astype(np.uint8),
+                 payload.astype(np.uint8), lanes[sel].astype(np.uint16), tuple(channels))
 
 
 def _block_rows(raw: Messages, topics: dict[int, Topic], record: bool) -> tuple[Rows, np.ndarray]:
@@ -209,11 +209,10 @@ def _next(bag: BagSource, blocks: Iterator[tuple[Messages, dict[int, Topic]]],
         raise bag.failed(f"cut or damaged; {st.frames} frames were read before it", exc) from None
 
 
-def bag_chunks(p: Path, opts: BagOptions, st: ReadStats, owner: LogFrames, skip_bad: bool) -> Iterator[Block]:
+def bag_blocks(p: Path, opts: BagOptions, st: ReadStats, skip_bad: bool) -> Blocks:
     """The frames of bag ``p`` a block at a time; every problem a LogFormatError naming the bag."""
     bag = BagSource(p, opts)
     read = 0
-    last_t = -math.inf
     try:
         bag.open()
         blocks = bag.blocks()
@@ -226,14 +225,8 @@ def bag_chunks(p: Path, opts: BagOptions, st: ReadStats, owner: LogFrames, skip_
             by_record = int(np.count_nonzero(rows.by_record & rows.good))
             st.stamps["record"] = st.stamps.get("record", 0) + by_record
             st.stamps["header"] = st.stamps.get("header", 0) + block.n - by_record
-            if bag.total:
-                owner.reached(min(st.bytes_total, st.bytes_total * read // bag.total))
-            if block.n:
-                last_t = st.took(block, last_t)
-                yield block
+            yield block, min(st.bytes_total, st.bytes_total * read // bag.total) if bag.total else None
         bag.finish()
     finally:
         bag.close()
-        owner.finished()
-    if not st.frames and not st.bad_lines:
-        raise LogFormatError(f"{p}: empty log: no frames on {', '.join(bag.channels) or 'its CAN topics'}")
+    return f" on {', '.join(bag.channels) or 'its CAN topics'}"
