@@ -161,10 +161,22 @@ class Block:
 
     @classmethod
     def of_messages(cls, msgs: Sequence[can.Message], channel: str | Sequence[str] | None = None) -> Block:
-        """python-can messages as a block, each as :func:`frame_from_message` reads it (``channel`` overrides each
-        message's, or names each message's in turn: a live batch of several buses)."""
-        names = repeat(channel) if channel is None or type(channel) is str else channel
-        return cls.of_frames(tuple(map(frame_from_message, msgs, names)))
+        """python-can messages as a block, field for field (``channel`` overrides each message's, or names each
+        message's in turn (a live batch of several buses); python-can's integer channels are named ``canN``)."""
+        if len(msgs) == 1:  # a live frame
+            return one_block(frame_from_message(msgs[0], channel if channel is None or type(channel) is str
+                                                else channel[0]))
+        if channel is None:
+            names: dict[Any, str] = {}  # each message's channel named once
+            chans = [names.get(m.channel) or names.setdefault(m.channel, channel_name(m.channel)) for m in msgs]
+        else:
+            chans = [channel] * len(msgs) if type(channel) is str else list(channel)
+        flags = [(FLAG_FD if m.is_fd else 0) | (FLAG_BRS if m.bitrate_switch else 0)
+                 | (FLAG_ESI if m.error_state_indicator else 0) | (FLAG_REMOTE if m.is_remote_frame else 0)
+                 | (FLAG_ERROR if m.is_error_frame else 0) for m in msgs]
+        return _rows([float(m.timestamp or 0.0) for m in msgs], [int(m.arbitration_id) for m in msgs],
+                     [bool(m.is_extended_id) for m in msgs], flags, [int(m.dlc) for m in msgs],
+                     [bytes(m.data) if m.data is not None else b"" for m in msgs], chans)
 
     # -- what the engine reads ----------------------------------------------------------------
     @_cached

@@ -6,14 +6,12 @@ lines; the reader names a bad line's file:line and says what is wrong with it
 
 from __future__ import annotations
 
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from canguard.errors import LogFormatError, quote
-from canguard.io.block import Block
 from canguard.io.candump_np import parse_block
 from canguard.io.logtypes import (
     CAN_EFF_MASK,
@@ -186,97 +184,64 @@ def _as_text(block: bytes) -> str:
 
 
 def candump_blocks(p: Path, gz: str, skip_bad: bool, st: ReadStats) -> Blocks:
-    """The candump text reader's blocks (a bad line raises, naming its file:line, after the frames before it;
-    with ``skip_bad`` it is counted)."""
-    reader = _CandumpReader(p, gz, skip_bad, st)
+    """The candump text reader's blocks, a block of whole lines at a time (a bad line raises, naming its file:line,
+    after the frames before it; with ``skip_bad`` it is counted)."""
+    raw = open(p, "rb")  # noqa: SIM115 -- closed below
+    files = [open_decompressed(raw, gz)]  # the last one is read (lines that end in a lone CR: read again)
+    lineno = 0  # lines before the current block
+    error_last = False  # the last frame read is an error frame (``candump -e`` explains it on indented lines below)
     try:
-        for block in reader.blocks():
-            for frames in reader.parse(block):
-                yield frames, None
-            yield None, reader.raw.tell()
+        while text := _text(p, raw, gz, files, lineno):
+            parsed = parse_block(text, error_last)
+            bad, block = parsed.bad, parsed.block
+            if bad and not skip_bad:
+                line = bad[0]
+                before = 0 if block is None else int(np.searchsorted(parsed.rows_line, line))
+                if block is not None and before:
+                    st.lines += line
+                    yield block.select(slice(0, before)), None
+                text_of = _line(text, line)
+                raise LogFormatError(f"{p}:{lineno + line + 1}: {why_bad(text_of)}: {quote(text_of)}")
+            st.lines += parsed.lines
+            st.bad_lines += len(bad)
+            for line in bad[:max(0, MAX_BAD_EXAMPLES - len(st.bad_examples))]:
+                text_of = _line(text, line)
+                st.bad_examples.append(BadLine(lineno + line + 1, why_bad(text_of), text_of))
+            lineno += parsed.lines
+            error_last = parsed.error_last
+            yield block, raw.tell()
     finally:
-        reader.close()
+        files[-1].close()
+        raw.close()
     return ""
 
 
-class _CandumpReader:
-    """One candump text log, read a block of whole lines at a time (see :func:`candump_blocks`)."""
-
-    def __init__(self, p: Path, gz: str, skip_bad: bool, st: ReadStats) -> None:
-        self.p, self.gz, self.skip_bad, self.st = p, gz, skip_bad, st
-        self.raw = open(p, "rb")  # noqa: SIM115 -- closed by close()
-        self.f: Any = open_decompressed(self.raw, gz)
-        self.lineno = 0
-        """Lines before the current block."""
-        self.error_last = False
-        """The last frame read is an error frame (``candump -e`` explains it on indented lines below)."""
-        self.count = 0
-        """Blocks read."""
-
-    def close(self) -> None:
-        self.f.close()
-        self.raw.close()
-
-    def _read(self, longest: int) -> bytes:
-        """A chunk and the rest of its last line."""
-        try:
-            block: bytes = self.f.read(CHUNK_CHARS)
-            if block and block[-1] != 10:
-                block += self.f.readline(longest)
-        except decompress_errors() as exc:
-            kind = {"gz": " gzip", "xz": " xz", "zst": " zstd"}.get(self.gz, "")
-            raise LogFormatError(f"{self.p}: cannot read{kind} log: {exc}") from None
-        return block
-
-    def blocks(self) -> Iterator[bytes]:
-        """The log's blocks of whole lines, each ending in a line break."""
-        longest = 4 * CHUNK_CHARS
-        while True:
-            block = self._read(longest)
-            raw = self.raw
-            if not self.count and b"\n" not in block and b"\r" in block and raw.seekable():
-                if self.f is not raw:
-                    self.f.close()  # a decompressor: raw stays open
-                raw.seek(0)  # lines that end in a lone CR (old Mac tools): read again, each CR as a LF
-                self.f = CrLines(open_decompressed(raw, self.gz))
-                continue
-            block = block[3:] if not self.count and block[:3] == b"\xef\xbb\xbf" else block  # a UTF-8 BOM
-            if not block:
-                return
-            if block[-1] != 10:
-                tail = len(block) - block.rfind(b"\n") - 1
-                if tail >= longest:
-                    at = self.lineno + _as_text(block).count("\n") + 1
-                    raise LogFormatError(f"{self.p}:{at}: no line break in {tail} characters: not a candump log")
-                block += b"\n"  # the last line of the log, without its line break
-            self.count += 1
-            yield block
-
-    def parse(self, raw: bytes) -> Iterator[Block]:
-        """The block's frames; a bad line raises after the frames before it, or is counted."""
-        parsed = parse_block(raw, self.error_last)
-        st = self.st
-        bad = parsed.bad
-        block = parsed.block
-        if bad and not self.skip_bad:
-            line = bad[0]
-            if block is not None:
-                before = int(np.searchsorted(parsed.rows_line, line))
-                if before:
-                    st.lines += line
-                    yield block.select(slice(0, before))
-            text = _line(raw, line)
-            raise LogFormatError(f"{self.p}:{self.lineno + line + 1}: {why_bad(text)}: {quote(text)}")
-        st.lines += parsed.lines
-        if bad:
-            st.bad_lines += len(bad)
-            for line in bad[:max(0, MAX_BAD_EXAMPLES - len(st.bad_examples))]:
-                text = _line(raw, line)
-                st.bad_examples.append(BadLine(self.lineno + line + 1, why_bad(text), text))
-        self.lineno += parsed.lines
-        self.error_last = parsed.error_last
-        if block is not None:
-            yield block
+def _text(p: Path, raw: Any, gz: str, files: list[Any], lineno: int) -> bytes:
+    """The next block of whole lines of the log (``files[-1]`` reading it; ``lineno``: the lines before), each
+    ending in a line break; b"" at the end."""
+    longest = 4 * CHUNK_CHARS
+    try:
+        text: bytes = files[-1].read(CHUNK_CHARS)
+        if text and text[-1] != 10:
+            text += files[-1].readline(longest)
+    except decompress_errors() as exc:
+        kind = {"gz": " gzip", "xz": " xz", "zst": " zstd"}.get(gz, "")
+        raise LogFormatError(f"{p}: cannot read{kind} log: {exc}") from None
+    if not lineno:  # the first block
+        if len(files) == 1 and b"\n" not in text and b"\r" in text and raw.seekable():
+            if files[0] is not raw:
+                files[0].close()  # a decompressor: raw stays open
+            raw.seek(0)  # lines that end in a lone CR (old Mac tools): read again, each CR as a LF
+            files.append(CrLines(open_decompressed(raw, gz)))
+            return _text(p, raw, gz, files, lineno)
+        text = text[3:] if text[:3] == b"\xef\xbb\xbf" else text  # a UTF-8 BOM
+    if text and text[-1] != 10:
+        tail = len(text) - text.rfind(b"\n") - 1
+        if tail >= longest:
+            at = lineno + _as_text(text).count("\n") + 1
+            raise LogFormatError(f"{p}:{at}: no line break in {tail} characters: not a candump log")
+        text += b"\n"  # the last line of the log, without its line break
+    return text
 
 
 def _line(raw: bytes, k: int) -> str:
