@@ -25,7 +25,7 @@ from pathlib import Path
 
 from canguard.errors import LogFormatError
 from canguard.io.bagopts import BAG_SUFFIXES, NEEDS, BagOptions, is_bag
-from canguard.io.block import Block, frame_from_message
+from canguard.io.block import frame_from_message
 from canguard.io.candump import CHUNK_CHARS, candump_blocks
 from canguard.io.candump_write import format_candump_line, write_candump
 from canguard.io.logtypes import COMPRESSIONS, BadLine, Blocks, LogFrames, ReadStats
@@ -37,7 +37,6 @@ __all__ = [
     "LOG_READERS",
     "LOG_SUFFIXES",
     "BadLine",
-    "Block",
     "LogFrames",
     "ReadStats",
     "format_candump_line",
@@ -49,14 +48,8 @@ __all__ = [
 
 
 LOG_READERS: dict[str, str] = {
-    ".log": "candump",
-    ".candump": "candump",
-    ".txt": "candump",
-    ".asc": "asc",
-    ".blf": "blf",
-    ".trc": "trc",
-    ".csv": "csv",
-    ".mf4": "mf4",
+    **dict.fromkeys((".log", ".candump", ".txt"), "candump"),
+    **{f".{name}": name for name in ("asc", "blf", "trc", "csv", "mf4")},
     **dict.fromkeys(BAG_SUFFIXES, "rosbag"),
 }
 """The log formats keyed by file suffix (as python-can's ``MESSAGE_READERS``): a format is one entry."""
@@ -108,22 +101,13 @@ def read_log(
 ) -> LogFrames:
     """Stream the frames of a recorded log, in file order.
 
-    The path, extension and (for ``.mf4``) the optional dependency are checked at
-    once, when this is called; the log itself is read lazily as the returned
-    iterator is consumed, a chunk at a time.
-
-    A malformed candump line raises :class:`LogFormatError` naming
-    ``file:line``, the reason and the line's text; with ``skip_bad=True`` it is
-    counted in ``stats`` instead and skipped. A log with no frame at all raises
-    :class:`LogFormatError` when the iterator reaches its end. Errors inside
-    python-can's readers (corrupt BLF, bad ASC...) are re-raised as
-    :class:`LogFormatError` naming the file (they cannot be skipped).
-    ``bag`` says which topics of a ROS bag to read and which stamps (:class:`~canguard.io.rosbag.BagOptions`).
-    ``progress``, when given, is updated with the file position after each chunk
-    and closed at the end (see also :func:`canguard.io.progress.wrap_progress`).
-
-    Raises :class:`LogFormatError` for an unknown extension, a missing file, a
-    directory, or a missing optional dependency.
+    The path, its format and the optional dependencies are checked now (:class:`LogFormatError`: an unknown
+    extension, a missing file, a directory, a missing dependency); the log is read as the returned iterator is
+    consumed, a block at a time. A malformed candump line or bag message raises :class:`LogFormatError` naming
+    where it is, why, and its text; with ``skip_bad=True`` it is counted in ``stats`` and skipped. A log without
+    a frame, or errors inside python-can's readers (corrupt BLF, bad ASC...), raise :class:`LogFormatError` naming
+    the file. ``bag``: the topics and stamps of a ROS bag; ``progress``: updated with the file position after each
+    block, closed at the end (see also :func:`canguard.io.progress.wrap_progress`).
     """
     p = Path(path)
     fmt, gz = _reader(p)  # gz: the compression ("" none)
