@@ -123,8 +123,8 @@ def channel_name(channel: Any) -> str:
 
 @dataclass(frozen=True, eq=False)
 class Block:
-    """``n`` CAN frames as numpy columns (see the module docstring); build one with :meth:`of_frames`
-    or :meth:`of_messages` (a reader of columns: the constructor)."""
+    """``n`` CAN frames as numpy columns (see the module docstring); a reader of columns builds one
+    with the constructor, of frames with :meth:`of_frames`, of python-can messages with :meth:`of_messages`."""
 
     time_s: np.ndarray
     can_id: np.ndarray
@@ -307,17 +307,13 @@ def one_block(frame: Frame) -> Block:
     its columns checked by construction, its id's columns and each small integer's shared, what the engine reads
     of it (:attr:`Block.keys`, :attr:`Block.times`, :attr:`Block.ordered`...) known at once."""
     t, channel, cid, data, ext, fd, err, remote, brs, esi, dlc = frame
+    width = len(data)
+    if dlc < 0:
+        dlc = width
+    if not (0 <= cid <= 0xFFFFFFFF and width <= 255 and dlc <= 255):
+        return _of_frames((frame,))  # no CAN frame: the rows' builder says why
     flags = ((FLAG_FD if fd else 0) | (FLAG_BRS if brs else 0) | (FLAG_ESI if esi else 0)
              | (FLAG_REMOTE if remote else 0) | (FLAG_ERROR if err else 0)) if fd or err or remote or brs or esi else 0
-    block = _one(t, channel, cid, data, ext, flags, len(data) if dlc < 0 else dlc)
-    return _of_frames((frame,)) if block is None else block  # None: no CAN frame (the rows' builder says why)
-
-
-def _one(t: float, channel: str, cid: int, data: bytes, ext: bool, flags: int, dlc: int) -> Block | None:
-    """One row's fields as a block (None: no CAN frame)."""
-    width = len(data)
-    if not (0 <= cid <= 0xFFFFFFFF and width <= 255 and dlc <= 255):
-        return None
     key = cid + EXT_KEY if ext else cid
     ids = _IDS.get(key)
     if ids is None:
@@ -342,14 +338,6 @@ def _one(t: float, channel: str, cid: int, data: bytes, ext: bool, flags: int, d
         "channels": (channel,), "n": 1, "keys": ids[2], "times": [float(t)], "ordered": True, "only_channel": 0,
         "special": _ROW_0 if flags & (FLAG_REMOTE | FLAG_ERROR) else _NO_ROWS,
     })
-    return block
-
-
-def _made(**columns: Any) -> Block:
-    """A block of the columns a builder here made, each of its type by construction (not checked again), with
-    any of what the engine reads of it known already."""
-    block = _new_object(Block)
-    block.__dict__.update(columns, payload_source=columns["payload"])
     return block
 
 
@@ -391,7 +379,10 @@ def _rows(times: Sequence[float], ids: Sequence[int], ext: Sequence[bool], flags
         i = bad[0] if bad else lengths.index(width)
         raise LogFormatError(f"frame {i}: id {ids[i]:#x}, dlc {dlcs[i]}, {lengths[i]} data bytes: "
                              "not a CAN frame")
-    return _made(time_s=np.array(times, dtype=np.float64), can_id=np.array(ids, dtype=np.uint32),
-                 extended=np.array(ext, dtype=np.bool_), flags=np.array(flags, dtype=np.uint8),
-                 dlc=np.array(dlcs, dtype=np.uint8), length=np.array(lengths, dtype=np.uint8),
-                 payload=payload, channel=np.array(lanes, dtype=np.uint16), channels=tuple(names) or ("",), n=n)
+    block = _new_object(Block)  # its columns of their types by construction: not checked again
+    block.__dict__.update(
+        time_s=np.array(times, dtype=np.float64), can_id=np.array(ids, dtype=np.uint32),
+        extended=np.array(ext, dtype=np.bool_), flags=np.array(flags, dtype=np.uint8),
+        dlc=np.array(dlcs, dtype=np.uint8), length=np.array(lengths, dtype=np.uint8), payload_source=payload,
+        payload=payload, channel=np.array(lanes, dtype=np.uint16), channels=tuple(names) or ("",), n=n)
+    return block
