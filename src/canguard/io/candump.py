@@ -1,4 +1,5 @@
-"""candump text logs (``-L``, ``-l``, plain ``-ta``): read a block of lines at a time, parsed by numpy.
+"""candump text logs (``-L``, ``-l``, plain ``-ta``): read a block of lines at a time, parsed by numpy; written
+a -L line at a time (:func:`format_candump_line`: ``--emit``, ``canguard simulate --out``).
 
 The parser (:func:`canguard.io.candump_np.parse_block`) gives each block's frames and its bad
 lines; the reader names a bad line's file:line and says what is wrong with it
@@ -13,10 +14,13 @@ import numpy as np
 
 from canguard.errors import LogFormatError, quote
 from canguard.io.candump_np import parse_block
+from canguard.io.frame import Frame
 from canguard.io.logtypes import (
     CAN_EFF_MASK,
     CAN_ERR_FLAG,
     CAN_SFF_MASK,
+    CANFD_BRS,
+    CANFD_ESI,
     CANFD_LENGTHS,
     MAX_BAD_EXAMPLES,
     BadLine,
@@ -247,3 +251,36 @@ def _text(p: Path, raw: Any, gz: str, files: list[Any], lineno: int) -> bytes:
 def _line(raw: bytes, k: int) -> str:
     """Line ``k`` of a block, as text (UTF-8, junk replaced)."""
     return _as_text(raw).split("\n")[k]
+
+
+def format_candump_line(frame: Frame, default_channel: str = "can0") -> str:
+    """One candump -L line for ``frame``, without the newline (``default_channel`` for an empty channel).
+
+    ``(%.6f) channel ID#DATA``: 3 hex digits for standard ids, 8 for extended ids and error frames (with
+    CAN_ERR_FLAG), ``##F`` + data for CAN FD, ``R`` or ``R<dlc>`` for remote frames, ``_<dlc>`` for a classic raw
+    DLC above 8. ValueError for an id out of range or a channel with whitespace in it.
+    """
+    channel = frame.channel or default_channel
+    if not channel or channel.split() != [channel]:
+        raise ValueError(f"channel {channel!r} cannot be written to a candump log (empty or has whitespace)")
+    cid = frame.arbitration_id
+    if frame.is_error_frame:
+        id_text = f"{(cid & CAN_EFF_MASK) | CAN_ERR_FLAG:08X}"
+    elif frame.is_extended_id:
+        if not 0 <= cid <= CAN_EFF_MASK:
+            raise ValueError(f"extended id {cid:#x} out of range")
+        id_text = f"{cid:08X}"
+    else:
+        if not 0 <= cid <= CAN_SFF_MASK:
+            raise ValueError(f"standard id {cid:#x} out of range (use is_extended_id=True above 0x7FF)")
+        id_text = f"{cid:03X}"
+    if frame.is_remote_frame:
+        body = f"R{frame.dlc}" if 0 < frame.dlc <= 8 else "R"
+    elif frame.is_fd:
+        flags = (CANFD_BRS if frame.bitrate_switch else 0) | (CANFD_ESI if frame.error_state_indicator else 0)
+        body = f"#{flags:X}{frame.data.hex().upper()}"
+    else:
+        body = frame.data.hex().upper()
+        if len(frame.data) == 8 and 8 < frame.dlc <= 15:
+            body += f"_{frame.dlc:X}"
+    return f"({frame.t:.6f}) {channel} {id_text}#{body}"

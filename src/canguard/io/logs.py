@@ -1,4 +1,4 @@
-"""Read recorded CAN logs as streams of :class:`~canguard.io.block.Block` s (or frames); write candump -L logs.
+"""Read recorded CAN logs as streams of :class:`~canguard.io.block.Block` s (or frames); format candump -L lines.
 
 :func:`read_log` picks the reader by file extension (``.gz`` on any of them)::
 
@@ -26,8 +26,7 @@ from pathlib import Path
 from canguard.errors import LogFormatError
 from canguard.io.bagopts import BAG_SUFFIXES, NEEDS, BagOptions, is_bag
 from canguard.io.block import frame_from_message
-from canguard.io.candump import CHUNK_CHARS, candump_blocks
-from canguard.io.candump_write import format_candump_line, write_candump
+from canguard.io.candump import CHUNK_CHARS, candump_blocks, format_candump_line
 from canguard.io.logtypes import COMPRESSIONS, BadLine, Blocks, LogFrames, ReadStats
 from canguard.io.progress import ProgressBar
 from canguard.io.pycan import python_can_blocks
@@ -43,7 +42,6 @@ __all__ = [
     "frame_from_message",
     "log_format",
     "read_log",
-    "write_candump",
 ]
 
 
