@@ -1,5 +1,6 @@
-"""candump text logs (``-L``, ``-l``, plain ``-ta``): read a block of lines at a time, parsed by numpy; written
-a -L line at a time (:func:`format_candump_line`: ``--emit``, ``canguard simulate --out``).
+"""candump text logs (``-L``, ``-l``, plain ``-ta``): read a block of lines at a time, written a line at a time.
+
+Blocks are parsed by numpy; a -L line is written by :func:`format_candump_line` (``--emit``, ``simulate --out``).
 
 The parser (:func:`canguard.io.candump_np.parse_block`) gives each block's frames and its bad
 lines; the reader names a bad line's file:line and says what is wrong with it
