@@ -2,7 +2,7 @@
 
 What a frame is (its time, channel, payload), what a bad message or a bad bag is: docs/commands.md. A bag's raw
 CAN messages come a block at a time (:class:`BagSource`): MCAP and ROS 1 files through canguard's own chunk readers
-(:mod:`canguard.io.mcapscan`, :mod:`canguard.io.ros1scan`: no object per message, a cut file read up to the cut), a
+(:mod:`canguard.io.bagscan`: no object per message, a cut file read up to the cut), a
 ``.db3`` through its ``messages`` table in record time order, a rosbag2 directory's metadata through rosbags. The
 CAN frame types have fixed offsets after the header's ``frame_id`` (:mod:`canguard.io.rosmsgs`), so every field of
 a block is gathered by numpy at once (:func:`unpack`).
@@ -20,6 +20,7 @@ import numpy as np
 
 from canguard.errors import LogFormatError, clip
 from canguard.io.bagopts import BagOptions
+from canguard.io.bagscan import McapCut, McapScan, Messages, Ros1Scan, padded, uint_at
 from canguard.io.block import FLAG_ERROR, FLAG_FD, FLAG_REMOTE, Block
 from canguard.io.logtypes import (
     CAN_EFF_MASK,
@@ -30,8 +31,6 @@ from canguard.io.logtypes import (
     Blocks,
     ReadStats,
 )
-from canguard.io.mcapscan import McapCut, McapScan, Messages, padded, uint_at
-from canguard.io.ros1scan import Ros1Scan
 from canguard.io.rosmsgs import (
     DEFINITIONS,
     HEADER_SIZE,
