@@ -184,34 +184,21 @@ class McapScan:
                 loose.append(head + body)
                 continue
             if loose:
-                yield _loose(loose)
+                yield from _chunk_messages(b"".join(loose), self._record)
                 loose = []
             if op == OP_CHUNK:
-                records = self._chunk(body, at)
-                if records is not None:
-                    yield records
+                (size,) = _U64.unpack_from(body, 16)
+                compression, pos = _string(body, 28)
+                (n,) = _U64.unpack_from(body, pos)
+                yield from _chunk_messages(decompressed(compression, body[pos + 8:pos + 8 + n], size, at),
+                                           self._record)
             else:
                 self._record(op, body)
-        if loose:
-            yield _loose(loose)
-
-    def _chunk(self, body: bytes, at: int) -> Messages | None:
-        """A chunk's message records as arrays (its schema and channel records taken on the way)."""
-        (size,) = _U64.unpack_from(body, 16)
-        compression, pos = _string(body, 28)
-        (n,) = _U64.unpack_from(body, pos)
-        return _chunk_messages(decompressed(compression, body[pos + 8:pos + 8 + n], size, at), self._record)
+        yield from _chunk_messages(b"".join(loose), self._record)
 
 
-def _loose(records: list[bytes]) -> Messages:
-    """Unchunked message records as arrays."""
-    found = _chunk_messages(b"".join(records), lambda op, body: None)
-    assert found is not None
-    return found
-
-
-def _chunk_messages(data: bytes, other: Callable[[int, bytes], None]) -> Messages | None:
-    """The message records of a chunk's ``data``; other records go to ``other``. None: no message."""
+def _chunk_messages(data: bytes, other: Callable[[int, bytes], None]) -> Iterator[Messages]:
+    """The message records of a chunk's ``data`` (none, or one :class:`Messages`); other records go to ``other``."""
     size = len(data)
     buf = padded(data)
     starts: list[Any] = []
@@ -231,13 +218,13 @@ def _chunk_messages(data: bytes, other: Callable[[int, bytes], None]) -> Message
             other(op, data[pos + 9:pos + 9 + length])
         pos += 9 + length
     if not starts:
-        return None
+        return
     rec = np.concatenate(starts)
     lens = uint_at(buf, rec + 1, 8)
     if (rec + 9 + lens > size).any() or (lens < _MESSAGE_HEAD).any():
         raise McapCut("a message record inside a chunk runs past the chunk's end")
-    return Messages(uint_at(buf, rec + 9, 2), uint_at(buf, rec + 9 + 6, 8), buf, rec + 9 + _MESSAGE_HEAD,
-                    lens - _MESSAGE_HEAD)
+    yield Messages(uint_at(buf, rec + 9, 2), uint_at(buf, rec + 9 + 6, 8), buf, rec + 9 + _MESSAGE_HEAD,
+                   lens - _MESSAGE_HEAD)
 
 
 def _same_length(buf: np.ndarray, pos: int, length: int, size: int) -> np.ndarray | None:
@@ -347,16 +334,15 @@ class Ros1Scan:
             op = _ros1_op(fields)
             if op == ROS1_CHUNK:
                 compression = fields.get(b"compression", (0, b"none"))[1].decode("latin-1")
-                messages = self._chunk(decompressed(compression, self.f.read(dlen), 0, at))
-                if messages is not None:
-                    yield messages
+                yield from self._chunk(decompressed(compression, self.f.read(dlen), 0, at))
             elif op == ROS1_CONNECTION:
                 self._take_connection(fields, self.f.read(dlen))
             else:
                 self.f.seek(dlen, 1)
 
-    def _chunk(self, data: bytes) -> Messages | None:
-        """The message records of a chunk's records (its connection records taken on the way)."""
+    def _chunk(self, data: bytes) -> Iterator[Messages]:
+        """The message records of a chunk's records (none, or one :class:`Messages`; its connection records taken
+        on the way)."""
         size = len(data)
         buf = padded(data)
         rows: list[tuple[int, int, int, int]] = []  # conn, time (ns), start, length
@@ -370,16 +356,16 @@ class Ros1Scan:
                 if not rows:  # the first message record: the rest of the chunk at once, when it can be
                     run = _same_shape(buf, size, pos, hlen, dlen, fields)
                     if run is not None:
-                        return run
+                        yield run
+                        return
                 secs, nsecs = struct.unpack("<II", fields[b"time"][1])
                 rows.append((_U32.unpack(fields[b"conn"][1])[0], secs * 1_000_000_000 + nsecs, pos + 8 + hlen, dlen))
             elif op == ROS1_CONNECTION:
                 self._take_connection(fields, data[pos + 8 + hlen:pos + 8 + hlen + dlen])
             pos += 8 + hlen + dlen
-        if not rows:
-            return None
-        conns, times, starts, lens = np.array(rows, dtype=np.int64).T
-        return Messages(conns, times, buf, starts, lens)
+        if rows:
+            conns, times, starts, lens = np.array(rows, dtype=np.int64).T
+            yield Messages(conns, times, buf, starts, lens)
 
 
 def _same_shape(buf: np.ndarray, size: int, pos: int, hlen: int, dlen: int,
