@@ -1,21 +1,11 @@
 """Read recorded CAN logs as streams of :class:`~canguard.io.block.Block` s (or frames); format candump -L lines.
 
-:func:`read_log` picks the reader by file extension (``.gz`` on any of them)::
-
-    .log .candump .txt   candump text: ``candump -L`` / ``-l`` lines (the fast path)
-                         or plain ``candump -ta`` output
-    .asc .blf .trc .csv  python-can's own readers
-    .mf4                 python-can's MF4 reader (needs ``python-can[mf4]``)
-    .bag .db3 .mcap      ROS bags (io.rosbag; needs ``rosbags``), and a rosbag2 directory (its metadata.yaml)
-
-Every reader streams (a chunk of :data:`CHUNK_CHARS` characters at a time: memory stays flat in the log's
-length) the same :class:`~canguard.io.block.Block` (numpy columns); the candump reader names the file:line of
-a bad line.
-
-Timestamps of python-can formats are what python-can reports: ASC timestamps are
-relative to the measurement start (python-can's default), which keeps a replay
-independent of the machine's time zone. python-can's integer channels are named
-the way python-can's candump writer names them: ``0`` -> ``can0``.
+:func:`read_log` picks the reader by file suffix (:data:`LOG_READERS`; a compression on top of any): candump text
+(``-L`` / ``-l`` lines, or plain ``-ta`` output), python-can's own readers (ASC, BLF, TRC, CSV; MF4 with
+``python-can[mf4]``), ROS bags and rosbag2 directories (:mod:`canguard.io.rosbag`; ``rosbags``). Every reader
+streams the same blocks: memory stays flat in the log's length. python-can's timestamps are what it reports (ASC:
+relative to the measurement start, so a replay does not depend on the machine's time zone); its integer channels are
+named as its candump writer names them (``0`` -> ``can0``).
 """
 
 from __future__ import annotations
@@ -80,12 +70,8 @@ def _reader(path: Path) -> tuple[str, str]:
 
 
 def log_format(path: str | Path) -> tuple[str, str]:
-    """Return ``(format, compression)`` for a log path, chosen by extension.
-
-    ``format`` is ``candump``, ``asc``, ``blf``, ``trc``, ``csv``, ``mf4`` or ``rosbag``;
-    ``compression`` is ``""``, ``gz``, ``xz`` or ``zst`` (``robot.log.xz``).
-    Raises :class:`LogFormatError` for an unknown extension.
-    """
+    """``(format, compression)`` of a log path by its suffix (:data:`LOG_READERS`; compression ``""``, ``gz``,
+    ``xz`` or ``zst``); :class:`LogFormatError` for an unknown one."""
     return _reader(Path(path))
 
 
