@@ -13,8 +13,6 @@ import io
 import struct
 from typing import Any
 
-__all__ = ["BlfLength"]
-
 _FILE_HEADER = struct.Struct("<4sL")
 """The start of the file header: signature ``LOGG``, the header's size."""
 _OBJ_HEADER = struct.Struct("<4sHHLL")

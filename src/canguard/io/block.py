@@ -37,19 +37,6 @@ from canguard.io.frame import Frame
 if TYPE_CHECKING:
     import can
 
-__all__ = [
-    "EXT_KEY",
-    "FLAG_BRS",
-    "FLAG_ERROR",
-    "FLAG_ESI",
-    "FLAG_FD",
-    "FLAG_REMOTE",
-    "Block",
-    "PayloadSource",
-    "channel_name",
-    "frame_from_message",
-    "one_block",
-]
 
 FLAG_FD = 1
 """A CAN FD frame."""
