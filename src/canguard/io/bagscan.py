@@ -1,15 +1,11 @@
 """A bag file's messages a chunk at a time, as arrays: where each message's bytes lie, its channel, its log time.
 
-MCAP (:class:`McapScan`) and ROS 1 bags (:class:`Ros1Scan`). A chunk is decompressed once and its message records
-are found at once where they all have one length (a CAN topic's messages do), one by one only where they do not: a
-Python object per message would cost more than the whole replay of the same frames from candump text. The file is
-read from its start, so a file cut short (a recorder that died: no summary, no index) gives every chunk before the
-cut, then :class:`McapCut` saying where it ends; a whole file's summary (MCAP) or index (ROS 1) is read first, so
-the channels are known before the first message, a cut file's as their records are met.
-
-A ROS 1 bag (format 2.0) is a bag header, chunks (each followed by its index records), then the index (the
-connections, where each chunk is). A chunk's records are ``header length, header (op, conn, time), data length,
-data``; a CAN topic's all have one length and one field order.
+MCAP (:class:`McapScan`) and ROS 1 bags (format 2.0, :class:`Ros1Scan`). A chunk is decompressed once and its
+message records are found at once where they all have one length (a CAN topic's messages do), one by one only where
+they do not: a Python object per message would cost more than the whole replay of the same frames from candump text.
+A file is read from its start, so one cut short (a recorder that died) gives every chunk before the cut, then
+:class:`McapCut` saying where it ends; a whole file's summary (MCAP) or index (ROS 1) is read first, so the channels
+are known before the first message, a cut file's as their records are met.
 """
 
 from __future__ import annotations
