@@ -18,7 +18,6 @@ from canguard.io.bagopts import BAG_SUFFIXES, NEEDS, BagOptions, is_bag
 from canguard.io.block import frame_from_message
 from canguard.io.candump import CHUNK_CHARS, candump_blocks, format_candump_line
 from canguard.io.logtypes import COMPRESSIONS, BadLine, Blocks, LogFrames, ReadStats
-from canguard.io.progress import ProgressBar
 from canguard.io.pycan import python_can_blocks
 
 __all__ = [
@@ -80,7 +79,6 @@ def read_log(
     *,
     skip_bad: bool = False,
     stats: ReadStats | None = None,
-    progress: ProgressBar | None = None,
     bag: BagOptions | None = None,
 ) -> LogFrames:
     """Stream the frames of a recorded log, in file order.
@@ -90,8 +88,8 @@ def read_log(
     consumed, a block at a time. A malformed candump line or bag message raises :class:`LogFormatError` naming
     where it is, why, and its text; with ``skip_bad=True`` it is counted in ``stats`` and skipped. A log without
     a frame, or errors inside python-can's readers (corrupt BLF, bad ASC...), raise :class:`LogFormatError` naming
-    the file. ``bag``: the topics and stamps of a ROS bag; ``progress``: updated with the file position after each
-    block, closed at the end (see also :func:`canguard.io.progress.wrap_progress`).
+    the file. ``bag``: the topics and stamps of a ROS bag. An attached progress bar follows the read
+    (:func:`canguard.io.progress.wrap_progress`).
     """
     p = Path(path)
     fmt, gz = _reader(p)  # gz: the compression ("" none)
@@ -124,4 +122,4 @@ def read_log(
             return bag_blocks(p, bag or BagOptions(), st, skip_bad)
         return python_can_blocks(p, fmt, gz, size)
 
-    return LogFrames(p, st, progress, read)
+    return LogFrames(p, st, read)

@@ -117,10 +117,10 @@ class LogFrames(Iterator[Frame]):
     """The frames of one log, streamed (what :func:`read_log` returns): iterated frame by frame, or a block at a
     time by :meth:`chunks` (one or the other). ``progress`` (settable until the end) follows the file position."""
 
-    def __init__(self, path: Path, stats: ReadStats, progress: ProgressBar | None, read: Callable[[], Blocks]) -> None:
+    def __init__(self, path: Path, stats: ReadStats, read: Callable[[], Blocks]) -> None:
         self.path = path
         self.stats = stats
-        self.progress = progress
+        self.progress: ProgressBar | None = None
         self._chunks = self._counted(read)
         self._frames: Iterator[Frame] = (frame for block in self._chunks for frame in block.frames())
 
