@@ -801,14 +801,15 @@ class TestEmitStreams:
         assert s["frames_sent"] > 0
         assert len(emit.read_text(encoding="ascii").splitlines()) == s["frames_sent"] == sink.sent
 
-    def test_streamed_lines_equal_the_candump_lines_of_kept_frames(self, run: Run, data: Data, tmp_path: Path) -> None:
-        """The streamed --emit file has the candump -L lines of the frames a keeping sink holds."""
+    def test_streamed_lines_equal_write_candump_of_kept_frames(self, run: Run, data: Data, tmp_path: Path) -> None:
+        """The streamed --emit file has the bytes write_candump gives for the frames a keeping sink holds."""
+        import io
 
         from canguard.config.loader import load_config
         from canguard.engine.core import Engine
         from canguard.engine.gate import LogSink
         from canguard.io.clock import ManualClock
-        from canguard.io.logs import format_candump_line, read_log
+        from canguard.io.logs import read_log, write_candump
 
         emit = tmp_path / "emit.log"
         code, _, err = run(data["spike"], "-c", data["cfg"], "--emit", emit)
@@ -820,8 +821,9 @@ class TestEmitStreams:
         engine.run_log(read_log(data["spike"]).chunks(), {"can0": "main"}, "main", {})
         engine.advance(clock.now())
         engine.finish(reason="end of log", stop=False)
-        lines = "".join(format_candump_line(f) + "\n" for f in sink.frames)
-        assert sink.frames and emit.read_bytes() == lines.encode("ascii")
+        buf = io.StringIO()
+        write_candump(sink.frames, buf)
+        assert sink.frames and emit.read_bytes() == buf.getvalue().encode("ascii")
 
     def test_logsink_writes_at_once(self) -> None:
         """LogSink(out=...) writes a candump -L line per frame as it is sent; keep=False keeps none."""

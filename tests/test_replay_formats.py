@@ -23,6 +23,7 @@ from canguard.io.logs import (
     frame_from_message,
     log_format,
     read_log,
+    write_candump,
 )
 from canguard.io.progress import ProgressBar, wrap_progress
 
@@ -557,13 +558,8 @@ SPECIAL = [
 ]
 
 
-def candump_text(frames: list[Frame]) -> str:
-    """``frames`` as the lines of a candump -L log."""
-    return "".join(format_candump_line(f) + "\n" for f in frames)
-
-
 class TestWriteCandump:
-    """format_candump_line: candump -L that both python-can and read_log read back."""
+    """write_candump / format_candump_line: candump -L that both python-can and read_log read back."""
 
     def test_line_format(self) -> None:
         """Lines follow candump -L: 6-decimal time, 3/8-digit ids, ``##F`` for FD, ``R<dlc>`` for remote."""
@@ -578,13 +574,15 @@ class TestWriteCandump:
     def test_read_log_round_trip(self, tmp_path: Path) -> None:
         """read_log reads written frames back exactly, every special case included."""
         path = tmp_path / "out.log"
-        path.write_text(candump_text(SPECIAL))
+        with path.open("w") as f:
+            assert write_candump(SPECIAL, f) == len(SPECIAL)
         assert list(read_log(path)) == SPECIAL
 
     def test_python_can_reads_it(self, tmp_path: Path) -> None:
         """python-can's CanutilsLogReader reads the written log to the same frames."""
         path = tmp_path / "out.log"
-        path.write_text(candump_text(SPECIAL))
+        with path.open("w") as f:
+            write_candump(SPECIAL, f)
         msgs = list(can.CanutilsLogReader(str(path)))
         assert len(msgs) == len(SPECIAL)
         for fr, msg in zip(SPECIAL, msgs, strict=True):
@@ -622,13 +620,15 @@ class TestWriteCandump:
     def test_property_round_trip(
         self, tmp_path: Path, rows: list[tuple[int, str, bool, int, bytes]]
     ) -> None:
-        """Any classic frames written as candump -L read back identical (bulk path included)."""
+        """Any classic frames written with write_candump read back identical (bulk path included)."""
         frames = [
             Frame(us / 1e6, ch, arb if ext else arb & 0x7FF, data, is_extended_id=ext)
             for us, ch, ext, arb, data in rows
         ]
+        buf = io.StringIO()
+        write_candump(frames, buf)
         path = tmp_path / "prop.log"
-        path.write_text(candump_text(frames))
+        path.write_text(buf.getvalue())
         assert list(read_log(path)) == frames
 
 

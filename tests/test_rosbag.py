@@ -22,7 +22,7 @@ from canguard.config.loader import load_config
 from canguard.errors import LogFormatError
 from canguard.io.bagopts import BagOptions
 from canguard.io.frame import Frame
-from canguard.io.logs import ReadStats, format_candump_line, read_log
+from canguard.io.logs import ReadStats, read_log, write_candump
 from checkout import REPO
 
 CONFIG = REPO / "config" / "canguard.yaml"
@@ -67,7 +67,8 @@ class TestFrames:
         frames = spike[:400] + ODD
         bag = write_bag(tmp_path / "bag", storage, {TOPIC: frames})
         log = tmp_path / "same.log"
-        log.write_text("".join(format_candump_line(f) + "\n" for f in frames), encoding="ascii")
+        with open(log, "w", encoding="ascii") as out:
+            write_candump(frames, out)
         stats = ReadStats()
         assert list(read_log(bag, stats=stats)) == list(read_log(log))
         assert stats.frames == len(frames)
@@ -127,7 +128,8 @@ class TestReplay:
         cfg = load_config(CONFIG)
         bag = write_bag(tmp_path / "bag", storage, {TOPIC: spike})
         log = tmp_path / "same.log"
-        log.write_text("".join(format_candump_line(f) + "\n" for f in spike), encoding="ascii")
+        with open(log, "w", encoding="ascii") as out:
+            write_candump(spike, out)
         got = replay_one(cfg, bag, ReplayOptions(events=tmp_path / "bag.jsonl"))
         want = replay_one(cfg, log, ReplayOptions(events=tmp_path / "log.jsonl"))
         assert want["trip_count"] == 1

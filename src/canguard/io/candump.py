@@ -1,6 +1,7 @@
 """candump text logs (``-L``, ``-l``, plain ``-ta``): read a block of lines at a time, written a line at a time.
 
-Blocks are parsed by numpy; a -L line is written by :func:`format_candump_line` (``--emit``, ``simulate --out``).
+Blocks are parsed by numpy; -L lines are written by :func:`format_candump_line` (``--emit``) and
+:func:`write_candump` (``simulate --out``).
 
 The parser (:func:`canguard.io.candump_np.parse_block`) gives each block's frames and its bad
 lines; the reader names a bad line's file:line and says what is wrong with it
@@ -8,8 +9,9 @@ lines; the reader names a bad line's file:line and says what is wrong with it
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from pathlib import Path
-from typing import Any
+from typing import Any, TextIO
 
 import numpy as np
 
@@ -285,3 +287,12 @@ def format_candump_line(frame: Frame, default_channel: str = "can0") -> str:
         if len(frame.data) == 8 and 8 < frame.dlc <= 15:
             body += f"_{frame.dlc:X}"
     return f"({frame.t:.6f}) {channel} {id_text}#{body}"
+
+
+def write_candump(frames: Iterable[Frame], out: TextIO, default_channel: str = "can0") -> int:
+    """Write ``frames`` to ``out`` as a candump -L log (one line each); return how many were written."""
+    count = 0
+    for frame in frames:
+        out.write(format_candump_line(frame, default_channel) + "\n")
+        count += 1
+    return count

@@ -1,4 +1,4 @@
-"""Read recorded CAN logs as streams of :class:`~canguard.io.block.Block` s (or frames); format candump -L lines.
+"""Read recorded CAN logs as streams of :class:`~canguard.io.block.Block` s (or frames); write candump -L logs.
 
 :func:`read_log` picks the reader by file suffix (:data:`LOG_READERS`; a compression on top of any): candump text
 (``-L`` / ``-l`` lines, or plain ``-ta`` output), python-can's own readers (ASC, BLF, TRC, CSV; MF4 with
@@ -16,7 +16,7 @@ from pathlib import Path
 from canguard.errors import LogFormatError
 from canguard.io.bagopts import BAG_SUFFIXES, NEEDS, BagOptions, is_bag
 from canguard.io.block import frame_from_message
-from canguard.io.candump import CHUNK_CHARS, candump_blocks, format_candump_line
+from canguard.io.candump import CHUNK_CHARS, candump_blocks, format_candump_line, write_candump
 from canguard.io.logtypes import COMPRESSIONS, BadLine, Blocks, LogFrames, ReadStats
 from canguard.io.pycan import python_can_blocks
 
@@ -31,6 +31,7 @@ __all__ = [
     "frame_from_message",
     "log_format",
     "read_log",
+    "write_candump",
 ]
 
 
