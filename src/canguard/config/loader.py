@@ -43,7 +43,7 @@ def _config(c: Checks, path: Path, doc: Any) -> Config:
     dbc_files = m.load_dbc(doc["dbc"]) if "dbc" in doc else ()
     buses = sections.buses(c, doc["buses"]) if "buses" in doc else {}
     if "canopen" in doc:
-        from canguard.config.canopen_section import CanopenSection
+        from canguard.config.canopen import CanopenSection
 
         m.canopen = CanopenSection(c)
         m.canopen.load(doc["canopen"])

@@ -14,7 +14,7 @@ from canguard.config.yamlsrc import Checks, _closest, _found, _path, _shown
 from canguard.errors import clip, quote
 
 if TYPE_CHECKING:
-    from canguard.config.canopen_section import CanopenSection
+    from canguard.config.canopen import CanopenSection
 
 _SNIFF_BYTES = 4096
 """How much of a DBC that does not load is looked at to tell binary data from a text with a syntax error."""
