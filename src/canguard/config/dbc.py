@@ -12,7 +12,7 @@ from __future__ import annotations
 import bisect
 import re
 from collections.abc import Iterable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -55,34 +55,23 @@ class _SgLine:
     line: int
 
 
-@dataclass
-class _Text:
-    """The pre-pass's result: the text cantools is given, the notes, and each message's ``SG_`` lines by DBC id."""
-
-    text: str
-    notes: list[str] = field(default_factory=list)
-    signal_lines: dict[int, list[_SgLine]] = field(default_factory=dict)
+_NAMING = tuple(t.split() for t in (
+    "VAL_ # S", "SIG_VALTYPE_ # S", "SG_MUL_VAL_ # S", "BO_TX_BU_ #", "CM_ BO_ #", "CM_ SG_ # S", 'BA_ " BO_ #',
+    'BA_ " SG_ # S', 'BA_REL_ " BU_SG_REL_ * SG_ # S', 'BA_REL_ " BU_BO_REL_ * #'))
+"""The statements that name a message: ``#`` its DBC id, ``S`` a signal, ``"`` a string, ``*`` any word."""
 
 
-def _named_message(tokens: list[str]) -> tuple[int, str | None] | None:
-    """The DBC message id (and signal name) a statement's tokens refer to, or None when it names no message."""
-    kind = tokens[0]
-    rest = tokens[1:]
-    if kind in ("VAL_", "SIG_VALTYPE_", "SG_MUL_VAL_"):
-        if len(rest) >= 2 and rest[0].isdigit():
-            return int(rest[0]), rest[1]
-        return None
-    if kind == "BO_TX_BU_":
-        return (int(rest[0]), None) if rest and rest[0].isdigit() else None
-    if kind == "CM_":
-        return _object_ref(rest)
-    if kind == "BA_":
-        return _object_ref(rest[1:]) if rest and rest[0].startswith('"') else None
-    if kind == "BA_REL_" and len(rest) >= 3 and rest[0].startswith('"'):
-        if rest[1] == "BU_SG_REL_" and len(rest) >= 6 and rest[3] == "SG_" and rest[4].isdigit():
-            return int(rest[4]), rest[5]
-        if rest[1] == "BU_BO_REL_" and len(rest) >= 4 and rest[3].isdigit():
-            return int(rest[3]), None
+def _fits(pattern: str, word: str) -> bool:
+    if pattern in ('#', '"'):
+        return word.isdigit() if pattern == "#" else word.startswith('"')
+    return pattern in ("*", "S") or pattern == word
+
+
+def _named_message(words: list[str]) -> tuple[int, str | None] | None:
+    """The DBC message id (and signal name) a statement's words refer to, or None when it names no message."""
+    for t in _NAMING:
+        if len(words) >= len(t) and all(_fits(p, w) for p, w in zip(t, words, strict=False)):
+            return int(words[t.index("#")]), words[t.index("S")] if "S" in t else None
     return None
 
 
@@ -94,15 +83,6 @@ def _label(words: list[str]) -> str:
     attribute = f" {words[1]}" if words[0] in ("BA_", "BA_REL_") else ""
     of_signal = f" of signal {signal}" if signal is not None else ""
     return f"{words[0]}{attribute}{of_signal} of message {dbc_id}"
-
-
-def _object_ref(rest: list[str]) -> tuple[int, str | None] | None:
-    """``BO_ <id>`` or ``SG_ <id> <signal>`` at the start of ``rest``."""
-    if len(rest) >= 2 and rest[0] == "BO_" and rest[1].isdigit():
-        return int(rest[1]), None
-    if len(rest) >= 3 and rest[0] == "SG_" and rest[1].isdigit():
-        return int(rest[1]), rest[2]
-    return None
 
 
 class _Prepass:
@@ -121,8 +101,10 @@ class _Prepass:
         end = self.text.find("\n", pos)
         return len(self.text) if end < 0 else end
 
-    def run(self) -> _Text:
-        out = _Text(self.text)
+    def run(self) -> tuple[str, list[str], dict[int, list[_SgLine]]]:
+        """The text cantools is given, the notes, and each message's ``SG_`` lines by DBC id."""
+        notes: list[str] = []
+        signal_lines: dict[int, list[_SgLine]] = {}
         messages: dict[int, str] = {}
         statements: list[tuple[int, int, list[str]]] = []
         current: int | None = None
@@ -143,26 +125,25 @@ class _Prepass:
             if tok == "BO_":
                 current = int(m.group(1))
                 messages[current] = m.group(2)
-                out.signal_lines[current] = []
+                signal_lines[current] = []
                 if m.group(2) == PSEUDO_MESSAGE:
                     pseudo = [pos, self.line_end(pos), 0]
             elif current is not None:
-                out.signal_lines[current].append(_SgLine(
+                signal_lines[current].append(_SgLine(
                     m.group(1), int(m.group(2)), int(m.group(3)), m.group(4) == "1", self.line(pos)))
                 if messages[current] == PSEUDO_MESSAGE:
                     pseudo[1:] = [self.line_end(pos), pseudo[2] + 1]
-        defined = {k: {s.name for s in v} for k, v in out.signal_lines.items() if messages[k] != PSEUDO_MESSAGE}
+        defined = {k: {s.name for s in v} for k, v in signal_lines.items() if messages[k] != PSEUDO_MESSAGE}
         if pseudo:
             self.blank.append((pseudo[0], pseudo[1]))
-            out.notes.append(f"{self.display}:{self.line(pseudo[0])}: skipped BO_ {PSEUDO_MESSAGE} "
+            notes.append(f"{self.display}:{self.line(pseudo[0])}: skipped BO_ {PSEUDO_MESSAGE} "
                              f"(Vector's pseudo-message for the signals of no message; signals: {pseudo[2]})")
         for start, stop, words in statements:
             why = self.refused(words, defined, messages)
             if why:
                 self.blank.append((start, stop))
-                out.notes.append(f"{self.display}:{self.line(start)}: skipped {_label(words)}: {why}")
-        out.text = self.blanked()
-        return out
+                notes.append(f"{self.display}:{self.line(start)}: skipped {_label(words)}: {why}")
+        return self.blanked(), notes, signal_lines
 
     def statement(self, pos: int, statements: list[tuple[int, int, list[str]]]) -> None:
         """Keep the statement starting at ``pos`` (up to its ``;``) when it names a message."""
@@ -369,9 +350,8 @@ def load_dbc_file(path: Path, display: str | None = None) -> DbcFile:
         # cantools reads a DBC as cp1252, a byte it cannot decode replaced
         with path.open(encoding="cp1252", errors="replace") as f:
             raw = f.read()
-        text = _Prepass(raw, shown).run()
-        db: Any = cantools.database.load_string(text.text, database_format="dbc", strict=False)
-        notes, lines = text.notes, text.signal_lines
+        text, notes, lines = _Prepass(raw, shown).run()
+        db: Any = cantools.database.load_string(text, database_format="dbc", strict=False)
     else:
         db = cantools.database.load_file(str(path), strict=False)
         notes, lines = [], {}
@@ -395,33 +375,25 @@ class DbcChecks:
     """The DBC files of one config together: which signals are involved in a problem, and the notes."""
 
     def __init__(self) -> None:
-        self._problems: dict[tuple[str, str], list[SignalProblem]] = {}
-        self._dropped: dict[str, list[Any]] = {}
-        self._pages: dict[str, list[SignalProblem]] = {}
-        self.notes: list[str] = []
-        """Every skipped statement and every signal problem, one ``file:line: ...`` line each."""
+        self.files: list[DbcFile] = []
 
     def add(self, dbc: DbcFile) -> None:
         """Take in one loaded file's findings."""
-        self.notes.extend(dbc.notes)
-        for p in dbc.problems:
-            self.notes.append(p.text)
-            for name in dict.fromkeys(p.signals):
-                self._problems.setdefault((p.message, name), []).append(p)
-        for message, signals in dbc.dropped.items():
-            self._dropped.setdefault(message, []).extend(signals)
-        for p in dbc.pages:
-            self.notes.append(p.text)
-            self._pages.setdefault(p.message, []).append(p)
+        self.files.append(dbc)
+
+    @property
+    def notes(self) -> list[str]:
+        """Every skipped statement and every signal problem, one ``file:line: ...`` line each."""
+        return [n for f in self.files for n in (*f.notes, *(p.text for p in (*f.problems, *f.pages)))]
 
     def involved(self, message: str, signal: str) -> list[SignalProblem]:
         """The problems signal ``signal`` of ``message`` is involved in (none: it is sound, or not in the file)."""
-        return self._problems.get((message, signal), [])
+        return [p for f in self.files for p in f.problems if p.message == message and signal in p.signals]
 
     def lost_pages(self, message: str) -> list[SignalProblem]:
         """The multiplexer values of ``message`` on which its frames no longer decode (none: all decode)."""
-        return self._pages.get(message, [])
+        return [p for f in self.files for p in f.pages if p.message == message]
 
     def dropped(self, message: str) -> list[Any]:
         """The signals taken out of ``message`` (cantools ``Signal`` objects)."""
-        return self._dropped.get(message, [])
+        return [s for f in self.files for s in f.dropped.get(message, [])]
