@@ -55,14 +55,6 @@ class _Section:
         return _OBJECT_SECTION.fullmatch(self.name) is not None
 
 
-def _decode(raw: bytes) -> str:
-    """The file's text: UTF-8, else Latin-1 (Windows tools write both)."""
-    try:
-        return raw.decode("utf-8-sig")
-    except UnicodeDecodeError:
-        return raw.decode("latin-1")
-
-
 def _scan(text: str) -> tuple[list[_Section], list[str]]:
     """The sections of an INI text with their lines and keys, and the text's lines."""
     lines = text.splitlines()
@@ -100,7 +92,11 @@ class Eds:
         self.node = node
         self.notes: list[str] = []
         """Deviations tolerated while reading."""
-        sections, lines = _scan(_decode(raw))
+        try:  # Windows tools write both
+            text = raw.decode("utf-8-sig")
+        except UnicodeDecodeError:
+            text = raw.decode("latin-1")
+        sections, lines = _scan(text)
         self._lines = {s.name.casefold(): s.line for s in sections}
         drop = self._lenient(sections, lines)
         kept = [line for no, line in enumerate(lines, 1) if no not in drop]

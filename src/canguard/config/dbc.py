@@ -175,19 +175,10 @@ class _Prepass:
 
     def blanked(self) -> str:
         """The text with each blanked range's characters turned to spaces, its line breaks kept."""
-        if not self.blank:
-            return self.text
-        parts = []
-        at = 0
-        for start, stop in sorted(self.blank):
-            start = max(start, at)  # a statement without its ';' may run into the next one
-            if stop <= start:
-                continue
-            parts.append(self.text[at:start])
-            parts.append(re.sub(r"[^\n]", " ", self.text[start:stop]))
-            at = stop
-        parts.append(self.text[at:])
-        return "".join(parts)
+        chars = list(self.text) if self.blank else []
+        for start, stop in self.blank:  # ranges may overlap (a statement without its ';' runs into the next)
+            chars[start:stop] = re.sub(r"[^\n]", " ", self.text[start:stop])
+        return "".join(chars) if self.blank else self.text
 
 
 def _bits(signal: Any) -> int:

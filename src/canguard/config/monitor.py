@@ -22,16 +22,11 @@ class Address:
     @property
     def loopback(self) -> bool:
         """True when only this machine can connect (127.0.0.0/8, ::1, ``localhost``)."""
-        return is_loopback(self.host)
+        ip = _ip(self.host)
+        return self.host == "localhost" or (ip is not None and ip.is_loopback)
 
     def __str__(self) -> str:
         return f"[{self.host}]:{self.port}" if ":" in self.host else f"{self.host}:{self.port}"
-
-
-def is_loopback(host: str) -> bool:
-    """True for a loopback address or ``localhost``; False for anything reachable from the network."""
-    ip = _ip(host)
-    return host == "localhost" or (ip is not None and ip.is_loopback)
 
 
 def parse_address(value: object, *, port_span: int = 1) -> Address | str:

@@ -386,12 +386,6 @@ def _initial(signal: Any) -> Any:
     return 0
 
 
-def _physical(signal: Any, raw: int) -> int | float:
-    """The physical value of ``raw`` (``raw * scale + offset``), an int when it is whole."""
-    value = raw * signal.scale + signal.offset
-    return int(value) if float(value).is_integer() else value
-
-
 def _whole_raw(signal: Any, value: float) -> int | None:
     """The raw value ``(value - offset) / scale`` when it is a whole number (within rounding), else None."""
     if not signal.scale:
@@ -402,5 +396,6 @@ def _whole_raw(signal: Any, value: float) -> int | None:
 
 
 def _choices(signal: Any) -> dict[str, int | float]:
-    """A signal's VAL_ choices as ``name -> physical value``."""
-    return {str(name): _physical(signal, int(raw)) for raw, name in (signal.choices or {}).items()}
+    """A signal's VAL_ choices as ``name -> physical value`` (an int when it is whole)."""
+    values = {str(name): int(raw) * signal.scale + signal.offset for raw, name in (signal.choices or {}).items()}
+    return {name: int(v) if float(v).is_integer() else v for name, v in values.items()}
