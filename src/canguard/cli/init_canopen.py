@@ -10,9 +10,13 @@ from pathlib import Path
 
 from canguard.config.canopen import (
     CONTROLWORD,
+    DEVICE_TYPE,
     PRODUCER_HEARTBEAT,
+    PROFILES,
     STATUSWORD,
     TPDO_MAP,
+    Eds,
+    EdsError,
     Pdo,
     SdoWrite,
     drive_pdos,
@@ -20,7 +24,6 @@ from canguard.config.canopen import (
     override,
     pdo_writes,
 )
-from canguard.config.canopen_eds import DEVICE_TYPE, PROFILES, Eds, EdsError
 from canguard.errors import ConfigError
 
 GUARDED = {0x6077: "torque", 0x6078: "current"}

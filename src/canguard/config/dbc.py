@@ -75,11 +75,8 @@ def _named_message(words: list[str]) -> tuple[int, str | None] | None:
     return None
 
 
-def _label(words: list[str]) -> str:
+def _label(words: list[str], dbc_id: int, signal: str | None) -> str:
     """A statement as a note names it: ``VAL_ of signal S of message 1712``."""
-    ref = _named_message(words)
-    assert ref is not None
-    dbc_id, signal = ref
     attribute = f" {words[1]}" if words[0] in ("BA_", "BA_REL_") else ""
     of_signal = f" of signal {signal}" if signal is not None else ""
     return f"{words[0]}{attribute}{of_signal} of message {dbc_id}"
@@ -106,7 +103,7 @@ class _Prepass:
         notes: list[str] = []
         signal_lines: dict[int, list[_SgLine]] = {}
         messages: dict[int, str] = {}
-        statements: list[tuple[int, int, list[str]]] = []
+        statements: list[tuple[int, int, list[str], tuple[int, str | None]]] = []
         current: int | None = None
         pseudo: list[int] = []  # the first and last position of the pseudo-message, then its signal count
         for found in _KEYWORD.finditer(self.text):
@@ -137,34 +134,32 @@ class _Prepass:
         if pseudo:
             self.blank.append((pseudo[0], pseudo[1]))
             notes.append(f"{self.display}:{self.line(pseudo[0])}: skipped BO_ {PSEUDO_MESSAGE} "
-                             f"(Vector's pseudo-message for the signals of no message; signals: {pseudo[2]})")
-        for start, stop, words in statements:
-            why = self.refused(words, defined, messages)
+                         f"(Vector's pseudo-message for the signals of no message; signals: {pseudo[2]})")
+        for start, stop, words, (dbc_id, signal) in statements:
+            why = self.refused(dbc_id, signal, defined, messages)
             if why:
                 self.blank.append((start, stop))
-                notes.append(f"{self.display}:{self.line(start)}: skipped {_label(words)}: {why}")
+                notes.append(f"{self.display}:{self.line(start)}: skipped {_label(words, dbc_id, signal)}: {why}")
         return self.blanked(), notes, signal_lines
 
-    def statement(self, pos: int, statements: list[tuple[int, int, list[str]]]) -> None:
+    def statement(self, pos: int, statements: list[tuple[int, int, list[str], tuple[int, str | None]]]) -> None:
         """Keep the statement starting at ``pos`` (up to its ``;``) when it names a message."""
         words: list[str] = []
         for w in _WORD.finditer(self.text, pos):  # the first words tell (a keyword alone names nothing)
             if w.group() == ";" or len(words) == _WORDS_NAMING:
                 break
             words.append(w.group())
-        if _named_message(words) is None:
+        ref = _named_message(words)
+        if ref is None:
             return
         for m in _END.finditer(self.text, pos):
             if m.group() == ";":
-                statements.append((pos, m.end(), words))
+                statements.append((pos, m.end(), words, ref))
                 return
 
     @staticmethod
-    def refused(words: list[str], defined: dict[int, set[str]], messages: dict[int, str]) -> str:
-        """Why a statement is skipped (it names what the file does not define), or ''."""
-        ref = _named_message(words)
-        assert ref is not None
-        dbc_id, signal = ref
+    def refused(dbc_id: int, signal: str | None, defined: dict[int, set[str]], messages: dict[int, str]) -> str:
+        """Why a statement naming ``dbc_id`` (and ``signal``) is skipped (the file does not define it), or ''."""
         if dbc_id not in defined:
             if messages.get(dbc_id) == PSEUDO_MESSAGE:
                 return f"it belongs to {PSEUDO_MESSAGE}, Vector's pseudo-message for the signals of no message"
