@@ -316,7 +316,6 @@ class _MessageCheck:
 class DbcFile:
     """One loaded database file: cantools' database with its unsound signals taken out, and what was found."""
 
-    path: Path
     database: Any
     notes: list[str]
     """What the pre-pass skipped, one ``file:line: ...`` each."""
@@ -326,12 +325,12 @@ class DbcFile:
     pages: list[SignalProblem]
 
 
-def load_dbc_file(path: Path, display: str | None = None) -> DbcFile:
+def load_dbc_file(path: Path) -> DbcFile:
     """Load a database file as cantools does without strict checks, then check every message strictly.
 
     Only a ``.dbc`` file has the pre-pass and lines; raises what cantools raises.
     """
-    shown = str(path) if display is None else display
+    shown = str(path)
     if path.suffix.lower() == ".dbc":
         # cantools reads a DBC as cp1252, a byte it cannot decode replaced
         with path.open(encoding="cp1252", errors="replace") as f:
@@ -354,7 +353,7 @@ def load_dbc_file(path: Path, display: str | None = None) -> DbcFile:
             dropped[m.name] = [s for s in m.signals if id(s) in check.broken]
             m.signals[:] = sound  # cantools' documented way: change the signals, then refresh()
             m.refresh()
-    return DbcFile(path, db, notes, problems, dropped, pages)
+    return DbcFile(db, notes, problems, dropped, pages)
 
 
 class DbcChecks:
