@@ -13,6 +13,7 @@ from typing import Any
 import yaml
 
 from canguard.config import sections
+from canguard.config.monitor import read_monitor
 from canguard.config.node_ids import RESERVED_NODE_IDS
 from canguard.config.schema import ActionConfig, Config, PartialConfig, TreeConfig
 from canguard.config.sources import Messages, ReadSources, read_sources
@@ -56,7 +57,7 @@ def _config(c: Checks, path: Path, doc: Any) -> Config:
     actions = sections.actions(c, m, doc.get("actions"))
     events = c.file_path(doc["events"], "events") if doc.get("events") is not None else None
     state = sections.state(c, doc.get("state"))
-    monitor = sections.monitor(c, doc.get("monitor"))
+    monitor = read_monitor(c, doc.get("monitor"))
     simulation = c.choice(doc, "simulation", "", (True, False), False)
     if c.problems:
         err = c.fail()

@@ -1,4 +1,4 @@
-"""The sections around the sources (buses, tree, task, stop, actions, state, monitor) and the frames they send.
+"""The sections around the sources (buses, tree, task, stop, actions, state) and the frames they send.
 
 A frame is encoded once, checked against the DBC.
 """
@@ -10,13 +10,11 @@ from collections.abc import Mapping
 from types import MappingProxyType
 from typing import Any
 
-from canguard.config.monitor import needs_token, parse_address
 from canguard.config.node_ids import RESERVED_NODE_IDS
 from canguard.config.schema import (
     ActionConfig,
     BusConfig,
     FrameSpec,
-    MonitorConfig,
     StateConfig,
     StopConfig,
     StopConfirm,
@@ -178,31 +176,6 @@ def state(c: Checks, value: Any) -> StateConfig:
     on_corrupt = c.choice(value, "on_corrupt", "state", ("hot", "cold"), "hot")
     save_period_s = c.seconds(value, "save_period", "state", 5.0)
     return StateConfig(file=file, on_corrupt=on_corrupt, save_period_s=save_period_s)
-
-
-def monitor(c: Checks, value: Any) -> MonitorConfig:
-    value = c.section(value, "monitor", ("http", "token", "groot2"))
-    if value is None:
-        return MonitorConfig()
-    found: dict[str, str | None] = {"http": None, "groot2": None}
-    for key, span in (("http", 1), ("groot2", 2)):
-        if value.get(key) is None:
-            continue
-        address = parse_address(value[key], port_span=span)
-        if isinstance(address, str):
-            c.problem(f"monitor.{key}", _found(value[key]), address)
-        else:
-            found[key] = str(address)
-    token = value.get("token")
-    if token is not None and not (isinstance(token, str) and token.strip()):
-        c.problem("monitor.token", _found(token), "a bearer token (a non-empty string)")
-        token = None
-    http = parse_address(found["http"]) if found["http"] else None
-    if http is not None and not isinstance(http, str) and needs_token(http, token) and "token" not in value:
-        c.problem("monitor.token", "nothing",
-                  f"a bearer token: monitor.http {http} is not loopback, so the page would be open to the "
-                  "network (or bind monitor.http to 127.0.0.1)")
-    return MonitorConfig(http=found["http"], token=token, groot2=found["groot2"])
 
 
 def frame_value(c: Checks, m: Messages, message: Any, sig_name: Any, value: Any, key: str) -> Any:
