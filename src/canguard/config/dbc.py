@@ -21,15 +21,11 @@ import cantools
 PSEUDO_MESSAGE = "VECTOR__INDEPENDENT_SIG_MSG"
 """The message Vector's tools keep the signals of no message in (DLC 0; cantools refuses what refers to it)."""
 
-_WORD = re.compile(r'"(?:[^"\\]|\\.)*"|;|[^\s";]+')
-"""A word of a statement: a string (may span lines and hold ``;``), a ``;``, or a run of anything else."""
-_WORDS_NAMING = 6
-"""A statement names its message (and signal) within this many words (``BA_REL_ "a" BU_SG_REL_ n SG_ 5 s``)."""
 _BO = re.compile(r"BO_\s+(\d+)\s+(\w+)\s*:")
 _SG = re.compile(r"SG_\s+(\w+)\s*(?:\w+\s*)?:\s*(\d+)\|(\d+)@([01])")
-_STATEMENTS = frozenset({"VAL_", "SIG_VALTYPE_", "BA_", "CM_", "BO_TX_BU_", "SG_MUL_VAL_", "BA_REL_"})
-"""Statements that may name a message (by its DBC id) the file does not define."""
 _STRING = r'"(?:[^"\\]|\\.)*"'
+_WORD = re.compile(_STRING + r'|;|[^\s";]+')
+"""A word of a statement: a string (may span lines and hold ``;``), a ``;``, or a run of anything else."""
 _KEYWORD = re.compile(_STRING + r'|^[ \t]*([A-Z][A-Z_]*_)(?=[\s:])', re.MULTILINE)
 """A string (skipped whole), or a keyword that starts a line: a statement (``BO_``, ``SG_``, ``VAL_``, ...)."""
 _END = re.compile(_STRING + "|;")
@@ -57,8 +53,12 @@ class _SgLine:
 
 _NAMING = tuple(t.split() for t in (
     "VAL_ # S", "SIG_VALTYPE_ # S", "SG_MUL_VAL_ # S", "BO_TX_BU_ #", "CM_ BO_ #", "CM_ SG_ # S", 'BA_ " BO_ #',
-    'BA_ " SG_ # S', 'BA_REL_ " BU_SG_REL_ * SG_ # S', 'BA_REL_ " BU_BO_REL_ * #'))
-"""The statements that name a message: ``#`` its DBC id, ``S`` a signal, ``"`` a string, ``*`` any word."""
+    'BA_ " SG_ # S', 'BA_REL_ " BU_BO_REL_ * #'))
+"""The statements that may name a message the file does not define (cantools refuses them): ``#`` its DBC id,
+``S`` a signal, ``"`` a string, ``*`` any word. (cantools ignores a ``BU_SG_REL_`` of an undefined message.)"""
+_STATEMENTS = frozenset(t[0] for t in _NAMING)
+_WORDS_NAMING = max(len(t) for t in _NAMING)
+"""A statement names its message (and signal) within this many words (``BA_ "a" SG_ 5 s``)."""
 
 
 def _fits(pattern: str, word: str) -> bool:
