@@ -354,31 +354,3 @@ def load_dbc_file(path: Path) -> DbcFile:
             m.signals[:] = sound  # cantools' documented way: change the signals, then refresh()
             m.refresh()
     return DbcFile(db, notes, problems, dropped, pages)
-
-
-class DbcChecks:
-    """The DBC files of one config together: which signals are involved in a problem, and the notes."""
-
-    def __init__(self) -> None:
-        self.files: list[DbcFile] = []
-
-    def add(self, dbc: DbcFile) -> None:
-        """Take in one loaded file's findings."""
-        self.files.append(dbc)
-
-    @property
-    def notes(self) -> list[str]:
-        """Every skipped statement and every signal problem, one ``file:line: ...`` line each."""
-        return [n for f in self.files for n in (*f.notes, *(p.text for p in (*f.problems, *f.pages)))]
-
-    def involved(self, message: str, signal: str) -> list[SignalProblem]:
-        """The problems signal ``signal`` of ``message`` is involved in (none: it is sound, or not in the file)."""
-        return [p for f in self.files for p in f.problems if p.message == message and signal in p.signals]
-
-    def lost_pages(self, message: str) -> list[SignalProblem]:
-        """The multiplexer values of ``message`` on which its frames no longer decode (none: all decode)."""
-        return [p for f in self.files for p in f.pages if p.message == message]
-
-    def dropped(self, message: str) -> list[Any]:
-        """The signals taken out of ``message`` (cantools ``Signal`` objects)."""
-        return [s for f in self.files for s in f.dropped.get(message, [])]

@@ -67,7 +67,7 @@ def _config(c: Checks, path: Path, doc: Any) -> Config:
     return Config(path=path, dbc_files=dbc_files, buses=MappingProxyType(buses),
                   sources=MappingProxyType(dict(read.sources)), tree=tree, task=task, stop=stop,
                   actions=MappingProxyType(actions), events=events, state=state, monitor=monitor,
-                  simulation=simulation, database=m.database, canopen=drives, dbc_notes=tuple(m.dbc_checks.notes))
+                  simulation=simulation, database=m.database, canopen=drives, dbc_notes=tuple(m.notes))
 
 
 def load_config_text(text: str, path: str | Path) -> Config:

@@ -271,13 +271,13 @@ def _unsound_left_out(c: Checks, m: Messages, msg: Any, given: Mapping[str, Any]
     """Whether the signals the DBC gets wrong that a frame leaves out (sent as 0) are 0 at their initial values;
     a problem naming each that is not."""
     ok = True
-    for s in m.dbc_checks.dropped(msg.name):
+    for s in m.dropped(msg.name):
         if s.name in given:
             continue  # named in signals: frame_value reports it
         initial = _initial(s)
         if _whole_raw(s, initial) == 0:
             continue
-        why = "; ".join(p.text for p in m.dbc_checks.involved(msg.name, s.name))
+        why = "; ".join(p.text for p in m.involved(msg.name, s.name))
         c.problem(_path(key, "message"), f"{msg.name}, whose signal {s.name} the frame would send at its "
                   f"initial value {initial:g} but the DBC gets it wrong ({why})",
                   "a message whose signals the DBC gets wrong are 0 when left out, or a raw frame {id, data}")

@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING, Any, NamedTuple, cast
 
 import cantools
 
-from canguard.config.dbc import DbcChecks, load_dbc_file
+from canguard.config.dbc import DbcFile, SignalProblem, load_dbc_file
 from canguard.config.schema import NON_VALUE_ROLES, SignalRef, SourceConfig, SourceKind
 from canguard.config.yamlsrc import Checks, _closest, _found, _path, _shown
 from canguard.errors import clip, quote
@@ -42,8 +42,8 @@ class Messages:
         self.checks = checks
         self.problem = checks.problem
         self.database: Any = None
-        self.dbc_checks = DbcChecks()
-        """What the DBC files get wrong: errors where the config reads it, notes elsewhere."""
+        self.dbcs: list[DbcFile] = []
+        """What each DBC file gets wrong: errors where the config reads it, notes elsewhere."""
         self.ok = False
         """Whether the DBC files loaded (else no message is looked up: their problems are recorded)."""
         self.by_name: dict[str, Any] = {}
@@ -105,7 +105,7 @@ class Messages:
                 self.problem(f"dbc[{i}]", f"{p} which {_not_loaded(p, exc)}", "a valid DBC file")
             else:
                 databases.append((p, loaded.database))
-                self.dbc_checks.add(loaded)
+                self.dbcs.append(loaded)
         return files, databases
 
     def add(self, messages: list[Any]) -> None:
@@ -135,6 +135,23 @@ class Messages:
         for m in messages:
             self.by_name[m.name] = m
             self._by_id.setdefault(m.frame_id, []).append(m)
+
+    @property
+    def notes(self) -> list[str]:
+        """Every statement the DBC files skipped and every signal problem, one ``file:line: ...`` line each."""
+        return [n for f in self.dbcs for n in (*f.notes, *(p.text for p in (*f.problems, *f.pages)))]
+
+    def involved(self, message: str, signal: str) -> list[SignalProblem]:
+        """The problems signal ``signal`` of ``message`` is involved in (none: it is sound, or not in the file)."""
+        return [p for f in self.dbcs for p in f.problems if p.message == message and signal in p.signals]
+
+    def lost_pages(self, message: str) -> list[SignalProblem]:
+        """The multiplexer values of ``message`` on which its frames no longer decode (none: all decode)."""
+        return [p for f in self.dbcs for p in f.pages if p.message == message]
+
+    def dropped(self, message: str) -> list[Any]:
+        """The signals the DBC files took out of ``message`` (cantools ``Signal`` objects)."""
+        return [s for f in self.dbcs for s in f.dropped.get(message, [])]
 
     def message(self, mapping: Mapping[str, Any], key: str) -> Any:
         """The cantools message ``mapping``'s ``message:`` names (or numbers); None when left out or after a problem."""
@@ -168,7 +185,7 @@ class Messages:
     def signal(self, message: Any, value: Any, key: str) -> Any:
         """The signal ``value`` of ``message``; None after recording a problem (also naming what the DBC gets wrong)."""
         names = [s.name for s in message.signals]
-        involved = self.dbc_checks.involved(message.name, value) if isinstance(value, str) else []
+        involved = self.involved(message.name, value) if isinstance(value, str) else []
         if not involved and value in names:
             return message.get_signal_by_name(value)
         if involved:
@@ -183,7 +200,7 @@ class Messages:
         """:meth:`signal`, for a source to read: None after a problem, also when some of the message's frames do
         not decode (a multiplexer page of only signals the DBC gets wrong)."""
         sig = self.signal(message, value, key)
-        lost = self.dbc_checks.lost_pages(message.name) if sig is not None else []
+        lost = self.lost_pages(message.name) if sig is not None else []
         if lost:
             why = "; ".join(p.text for p in lost)
             self.problem(key, f"{value!r}, of a message whose frames do not all decode ({why})",
