@@ -251,7 +251,7 @@ class TestInit:
         assert main(["init", str(tmp_path / "d"), "--canopen", str(source), "--node", "5"]) == 2
         assert capsys.readouterr().err and not (tmp_path / "d").exists()
         with pytest.raises(ConfigError, match=message):
-            from canguard.cli.init_canopen import drive_files
+            from canguard.cli.init import drive_files
 
             drive_files(source, 5, bus="can0", state_dir=tmp_path, simulation=True)
 

@@ -68,7 +68,8 @@ class TestKeepFreedMemory:
                 calls.append(("malloc_trim", a))
                 return 1
 
-        monkeypatch.setattr(heap, "_libc", Spy())
+        spy = Spy()
+        monkeypatch.setattr(heap, "_glibc", lambda: spy)
         monkeypatch.delenv("MALLOC_TRIM_THRESHOLD_", raising=False)
         monkeypatch.delenv("MALLOC_MMAP_THRESHOLD_", raising=False)
         with heap.keep_freed_memory():

@@ -12,8 +12,7 @@ import pytest
 from canguard.cli.tune import load_expect
 from canguard.config.loader import load_config
 from canguard.errors import ConfigError
-from canguard.report.proposal import nice_up, separate
-from canguard.report.tune import histogram, percentile
+from canguard.report.tune import histogram, nice_up, percentile, separate
 from canguard.report.tunefiles import port_text, set_attributes, tuned_config
 from clikit import cli
 

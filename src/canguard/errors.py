@@ -10,14 +10,10 @@
      +-- BusError (OSError)            a bus that does not open or went away
      +-- StateFileError (OSError)      an I²t state file that cannot be read or written
 
-Every error also inherits the matching built-in, so callers that only know
-Python's own exceptions still catch them. ConfigError and TreeError carry every
-problem one load found (``problems``), not only the first: ``canguard check``
-prints them all, one ``file:line: ...`` per line (at most :data:`MAX_SHOWN`).
-
-The words of an error come from here too: :func:`quote` / :func:`clip` show a bad
-line or value capped to one printable line with its length, :func:`closest` the few
-known names nearest to a misspelt one.
+Every error also inherits the matching built-in. ConfigError and TreeError carry every problem one load
+found (``problems``): ``canguard check`` prints them all, one ``file:line: ...`` per line. The words of an
+error come from here too: :func:`quote` / :func:`clip` (a bad line or value on one printable line),
+:func:`closest` (the known names nearest to a misspelt one).
 """
 
 from __future__ import annotations
@@ -61,11 +57,8 @@ def _printable(text: str, limit: int) -> tuple[str, bool]:
 
 
 def clip(text: str, limit: int = QUOTE_CHARS) -> str:
-    """``text`` on one printable line of at most about ``limit`` characters; a longer one is cut, with its length.
-
-    For messages quoted inside an error (a library's exception text): escapes count towards
-    the limit, so a line of NUL bytes shows ``limit // 4`` of them.
-    """
+    """``text`` on one printable line of at most about ``limit`` characters (escapes count); a longer one is cut,
+    with its length."""
     shown, cut = _printable(text, limit)
     return f"{shown}... ({len(text)} characters in all)" if cut else shown
 
@@ -80,9 +73,8 @@ def closest(word: str, choices: Iterable[str], n: int = 5, cutoff: float = 0.5, 
     """The ``n`` choices nearest to ``word``, closest first: case ignored, difflib's similarity >= ``cutoff``
     and within ``spread`` of the best one (a small spread gives a clear typo one answer, not a list).
 
-    A choice whose similarity cannot reach ``cutoff`` (difflib's upper bounds from the lengths and the
-    letters, as ``difflib.get_close_matches`` checks them) is not compared further: a 100 kB value is
-    answered at once, not after a second of comparing it with every name."""
+    difflib's quick upper bounds skip a choice that cannot reach ``cutoff``: a 100 kB value is answered at once.
+    """
     word = word.lower()
     scored = []
     for c in set(choices):
@@ -97,14 +89,8 @@ def closest(word: str, choices: Iterable[str], n: int = 5, cutoff: float = 0.5, 
 
 
 class ConfigError(CanguardError, ValueError):
-    """One or more problems in a YAML config file.
-
-    ``problems`` holds every problem found (several errors in one file are all
-    reported, not only the first), each as ``file: key: found X, expected Y``;
-    ``located`` holds the same problems with the line of the key in the file
-    (``file:line: key: ...``) when the loader knows it. ``str()`` is the located
-    form, one per line, capped at :data:`MAX_SHOWN`.
-    """
+    """One or more problems in a YAML config file: ``problems``, each ``file: key: found X, expected Y``;
+    ``located``, the same with the key's line (``file:line: key: ...``) where known, is what ``str()`` lists."""
 
     partial: Any = None
     """The sound parts of the config (a ``canguard.config.schema.PartialConfig``), set by the loader."""
@@ -120,11 +106,7 @@ class DbcError(CanguardError, ValueError):
 
 
 class TreeError(CanguardError, ValueError):
-    """A behaviour tree that does not load: names the file, line, node and port at fault.
-
-    ``problems`` holds every problem found in one load (each ``file:line: node ...: what``);
-    ``str()`` lists them one per line, capped at :data:`MAX_SHOWN`.
-    """
+    """A behaviour tree that does not load: ``problems``, each ``file:line: node ...: what``, one per line."""
 
     def __init__(self, problems: str | Iterable[str]) -> None:
         self.problems: list[str] = [problems] if isinstance(problems, str) else list(problems)

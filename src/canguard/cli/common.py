@@ -123,17 +123,12 @@ def add_global_options(p: argparse.ArgumentParser, *, in_subcommand: bool) -> No
     p.add_argument("-v", "--verbose", action="count", default=0, dest=dest, help="more log output (-vv: debug)")
 
 
-class Formatter(argparse.RawDescriptionHelpFormatter):
-    """Keeps the epilog's exit-code table as written."""
-
-
 def subcommand(sub: argparse._SubParsersAction, name: str, func: Callable[[argparse.Namespace], int],
                **kwargs: Any) -> argparse.ArgumentParser:
     """``sub.add_parser`` running ``func``, with the global options and the exit-code epilog every subcommand shares."""
     kwargs.setdefault("help", COMMANDS[name])
-    epilog = kwargs.pop("epilog", None)
-    text = exit_codes_epilog() if epilog is None else f"{epilog}\n\n{exit_codes_epilog()}"
-    p: argparse.ArgumentParser = sub.add_parser(name, epilog=text, formatter_class=Formatter, **kwargs)
+    p: argparse.ArgumentParser = sub.add_parser(name, epilog=exit_codes_epilog(),
+                                                formatter_class=argparse.RawDescriptionHelpFormatter, **kwargs)
     add_global_options(p, in_subcommand=True)
     p.set_defaults(func=func)
     return p

@@ -132,14 +132,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     daemon.engine = daemon.build_engine(cfg)
     out = sys.stdout
     view = LiveView(daemon, out, tty=out.isatty())
-    trip_walls: list[tuple[float, dict[str, Any]]] = []
-
-    def on_event(ev: dict[str, Any]) -> None:
-        if ev.get("event") == "trip":
-            trip_walls.append((time.time(), ev))
-        view.event(ev)
-
-    daemon.engine.extra_on_event = on_event
+    daemon.engine.extra_on_event = view.event
     robot_bus = can.Bus(**dict(next(iter(cfg.buses.values())).kwargs))
     stop = threading.Event()
     scenarios = tuple(s for s in DEMO_SCENARIOS if float(s.partition("@")[2] or 0) < args.duration)
@@ -164,7 +157,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
         robot.join(5)
         draw_thread.join(2)
         robot_bus.shutdown()
-    print(summary_text(daemon.engine, trip_walls, stop_walls, events if args.events else None), file=out)
+    print(summary_text(daemon.engine, stop_walls, events if args.events else None), file=out)
     tmp.cleanup()
     return code
 
@@ -182,17 +175,16 @@ def trip_unit(engine: Any, ev: dict[str, Any]) -> str:
     return ""
 
 
-def summary_text(engine: Any, trips: list[tuple[float, dict[str, Any]]], stop_walls: list[float],
-                 events: Path | None) -> str:
-    """What tripped, when, and how fast the stop went out."""
+def summary_text(engine: Any, stop_walls: list[float], events: Path | None) -> str:
+    """What tripped (the engine's trips), when, and how fast the stop went out."""
     first = engine.first_frame_t
     lines = ["", "canguard demo summary",
              f"  frames {engine.stats.frames}, decoded {engine.decoder.decoded}, invalid {engine.decoder.invalid}, "
              f"error frames {engine.decoder.error_frames}; ticks {engine.stats.ticks}",
-             f"  trips: {len(trips)}; stops: {engine.gate.stops}; stopped "
+             f"  trips: {engine.stats.trip_count}; stops: {engine.gate.stops}; stopped "
              f"{engine.gate.stopped_total(engine.clock.now()):.2f} s; escalations "
              f"{engine.events_seen['escalate']}, confirmations {engine.events_seen['confirmed']}"]
-    for _wall, ev in trips:
+    for ev in engine.stats.trips:
         t = float(ev.get("t", math.nan))  # the triggering frame's bus time: wall time, as the stop's send
         after = next((s for s in stop_walls if s >= t - 0.001), None)  # the stop leaves before the trip is recorded
         latency = "no new stop (already stopped)" if after is None else \

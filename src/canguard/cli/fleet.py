@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -70,19 +70,15 @@ def _read_list(path: Path) -> list[Path]:
     return out
 
 
-class Progress:
-    """``N of M logs`` on stderr while a fleet runs (only on a terminal)."""
-
-    def __init__(self, total: int) -> None:
-        self.total = total
-        self.done = 0
-        self.show = sys.stderr.isatty() and total > 1
-
-    def step(self) -> None:
-        self.done += 1
-        if self.show:
-            end = "\n" if self.done == self.total else ""
-            print(f"\rcanguard replay: {self.done} of {self.total} logs", end=end, file=sys.stderr, flush=True)
+def _collect(futures: Iterable[Any], index: Callable[[Any], int], total: int) -> list[Any]:
+    """The futures' results in input order (``index``: a future's place); ``N of M logs`` on a terminal's stderr."""
+    results: list[Any] = [None] * total
+    for done, future in enumerate(futures, 1):
+        results[index(future)] = future.result()
+        if sys.stderr.isatty() and total > 1:
+            print(f"\rcanguard replay: {done} of {total} logs", end="\n" if done == total else "", file=sys.stderr,
+                  flush=True)
+    return results
 
 
 def run_dask(address: str, job: Callable[[Any], Any], jobs: list[Any]) -> list[Any]:
@@ -100,15 +96,10 @@ def run_dask(address: str, job: Callable[[Any], Any], jobs: list[Any]) -> list[A
         client = Client(address, timeout=CONNECT_TIMEOUT)
     except (OSError, TimeoutError) as exc:
         raise ConfigError(f"--dask {address}: cannot reach the scheduler: {exc}") from None
-    progress = Progress(len(jobs))
     try:
         futures = client.map(job, jobs, pure=False)
         index = {f.key: i for i, f in enumerate(futures)}
-        results: list[Any] = [None] * len(jobs)
-        for future in as_completed(futures):
-            results[index[future.key]] = future.result()
-            progress.step()
-        return results
+        return _collect(as_completed(futures), lambda f: index[f.key], len(jobs))
     finally:
         client.close()
 
@@ -163,15 +154,10 @@ def run_processes(workers: int, job: Callable[[Any], Any], jobs: list[Any],
         for name in warm:
             importlib.import_module(name)
         gc.freeze()  # the collector would otherwise write to (and so copy) every inherited page
-    progress = Progress(len(jobs))
-    results: list[Any] = [None] * len(jobs)
     try:
         with ProcessPoolExecutor(max_workers=min(workers, len(jobs)), mp_context=context,
                                  initializer=_worker_start) as executor:
             futures = {executor.submit(job, j): i for i, j in enumerate(jobs)}
-            for future in as_completed(futures):
-                results[futures[future]] = future.result()
-                progress.step()
+            return _collect(as_completed(futures), futures.__getitem__, len(jobs))
     finally:
         gc.unfreeze()
-    return results

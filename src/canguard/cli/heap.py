@@ -9,6 +9,7 @@ and trims once, when the last ends; it does nothing without glibc's ``mallopt``.
 
 from __future__ import annotations
 
+import functools
 import os
 import threading
 from collections.abc import Iterator
@@ -26,21 +27,18 @@ DEFAULT_THRESHOLD = 128 * 1024
 
 _lock = threading.Lock()
 _running = 0
-_libc: Any = None
 
 
+@functools.cache
 def _glibc() -> Any:
     """glibc through ctypes, or None (another libc, or no ``mallopt``)."""
-    global _libc
-    if _libc is None:
-        try:
-            import ctypes
+    import ctypes
 
-            lib = ctypes.CDLL("libc.so.6")
-            _libc = lib if hasattr(lib, "mallopt") and hasattr(lib, "malloc_trim") else False
-        except (OSError, AttributeError):
-            _libc = False
-    return _libc or None
+    try:
+        lib = ctypes.CDLL("libc.so.6")
+    except OSError:
+        return None
+    return lib if hasattr(lib, "mallopt") and hasattr(lib, "malloc_trim") else None
 
 
 def _env_bytes(name: str, default: int) -> int:

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import gc
+import importlib
 import logging
 import math
 import os
@@ -20,7 +21,6 @@ from canguard.cli.common import (
     EXIT_BAD_INPUT,
     EXIT_BROKEN_PIPE,
     EXIT_INTERRUPTED,
-    Formatter,
     add_global_options,
     add_monitor_options,
     add_state_dir,
@@ -142,7 +142,7 @@ def _dry_run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--tick {args.tick}: expected a number of ticks >= 0")
     if not math.isfinite(args.dt) or args.dt <= 0:
         raise ConfigError(f"--dt {args.dt}: expected seconds > 0")
-    from canguard.bt.build import validate_tree
+    from canguard.bt.build import load_tree, validate_tree
     from canguard.bt.context import Context, NullTaskGate
     from canguard.io.clock import ManualClock
 
@@ -158,8 +158,6 @@ def _dry_run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(result))
         return 0
-    from canguard.bt.build import load_tree
-
     loaded = load_tree(args.file, Context(ManualClock(), {}, task=NullTaskGate()), args.main, palette)
     print(render_text(loaded.root), end="")
     if args.tick:
@@ -206,10 +204,6 @@ class _VersionAction(argparse._VersionAction):
         super().__call__(parser, namespace, values, option_string)
 
 
-_EXTRA_MODULES = ("replay", "tune", "simulate", "demo", "init", "unit", "completion")
-"""Subcommands that live in their own module ``canguard.cli.<name>`` (its ``add_parser``)."""
-
-
 def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     """The full argument parser (every subcommand has -h).
 
@@ -219,35 +213,20 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="canguard",
         description="CAN-bus motor-driver monitoring: DBC decoding, protection models, behaviour trees.",
-        epilog=exit_codes_epilog(), formatter_class=Formatter,
+        epilog=exit_codes_epilog(), formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("--version", action=_VersionAction)
     add_global_options(parser, in_subcommand=False)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    builtin = {"run": _add_run, "check": _add_check, "tree": _add_tree}
+    builtin = {"run": _add_run, "check": _add_check, "tree": _add_tree}  # the others: canguard.cli.<name>
     for name in COMMANDS:
         if command is not None and name != command:
             sub.add_parser(name, help=COMMANDS[name])  # named and listed; never parsed
-            continue
-        add = builtin.get(name) or _module_adder(name)
-        if add is not None:
-            add(sub)
+        elif name in builtin:
+            builtin[name](sub)
+        else:
+            importlib.import_module(f"canguard.cli.{name}").add_parser(sub)
     return parser
-
-
-def _module_adder(name: str) -> Callable[[argparse._SubParsersAction], None] | None:
-    """``canguard.cli.<name>.add_parser``; None for a subcommand module this install lacks."""
-    if name not in _EXTRA_MODULES:
-        return None
-    module = f"canguard.cli.{name}"
-    try:
-        mod = __import__(module, fromlist=["add_parser"])
-    except ModuleNotFoundError as exc:
-        if exc.name != module:
-            raise
-        return None
-    adder: Callable[[argparse._SubParsersAction], None] = mod.add_parser
-    return adder
 
 
 def _command_in(argv: Sequence[str]) -> str | None:

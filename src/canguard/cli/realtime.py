@@ -8,14 +8,12 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
-import sys
 import threading
 import time
 from collections.abc import Iterable
 from contextlib import ExitStack
 from pathlib import Path
-from typing import TextIO
+from typing import Any, TextIO
 
 import can
 
@@ -79,13 +77,13 @@ def _play_bus(cfg: Config, args: argparse.Namespace) -> str:
     return str(bus_name)
 
 
-def replay_realtime(cfg: Config, args: argparse.Namespace, names: list[Path] | None = None) -> int:
-    """Play each log onto the bus while the daemon runs (journal ``--events``, no ``state.file``); print the
-    daemon's summary; exit code as replay. ``names``: the logs as the user gave them."""
+def replay_realtime(cfg: Config, args: argparse.Namespace, names: list[Path]) -> list[tuple[dict[str, Any], str]]:
+    """Play each log onto the bus while the daemon runs (journal ``--events``, no ``state.file``); each log's
+    (summary, ""), printed as replay's. ``names``: the logs as the user gave them."""
     from canguard.cli.common import per_log_path
     from canguard.engine.routing import ChannelRouter
     from canguard.io.logs import ReadStats, read_log
-    from canguard.report.summary import build_summary, render_text
+    from canguard.report.summary import build_summary
 
     _refuse_unsupported(args)
     speed = float(args.realtime)
@@ -93,8 +91,8 @@ def replay_realtime(cfg: Config, args: argparse.Namespace, names: list[Path] | N
         raise ConfigError(f"--realtime {speed}: expected a speed > 0 (1 = the log's own pace)")
     bus_name = _play_bus(cfg, args)
     many = len(args.logs) > 1
-    tripped = False
-    for log_path, name in zip(args.logs, names or args.logs, strict=True):
+    results = []
+    for log_path, name in zip(args.logs, names, strict=True):
         run_cfg = dataclasses.replace(cfg, events=per_log_path(args.events, name, many),
                                       state=dataclasses.replace(cfg.state, file=None))
         emit_path = per_log_path(args.emit, name, many)
@@ -122,12 +120,8 @@ def replay_realtime(cfg: Config, args: argparse.Namespace, names: list[Path] | N
             summary["merged_channels"] = dict(sorted(channels.items()))
             summary["merged_into"] = bus_name
         summary["realtime_speed"] = speed
-        tripped = tripped or bool(summary["trips"])
-        print(json.dumps(summary, indent=2, sort_keys=True) if args.json else render_text(summary))
-    if args.fail_on_trip and tripped:
-        return 1
-    print("note: --realtime runs the live daemon; its times follow the wall clock, not the log", file=sys.stderr)
-    return 0
+        results.append((summary, ""))
+    return results
 
 
 def _play(frames: Iterable[Frame], speed: float, player: can.BusABC, daemon: Daemon, channels: dict[str, int],

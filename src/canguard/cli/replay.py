@@ -58,16 +58,11 @@ class ReplayOptions:
     state: Path | None = None
     plot: Path | None = None
     progress: bool = False
-    export: Path | None = None
-    """``--export-signals``: this log's part file (see :mod:`canguard.report.export`)."""
+    export: Path | None = None  # --export-signals: this log's part file, its rows' log column export_log
     export_log: str = ""
-    """The ``log`` column of its rows: the log as the user named it."""
     bag: BagOptions = field(default_factory=BagOptions)
-    """ROS bags: the topics to read (``--topic``) and the stamps (``--stamp``)."""
-    tune: bool = False
-    """``canguard tune``'s statistics pass: the summary gets a ``tune`` entry (:mod:`canguard.report.tune`)."""
+    tune: bool = False  # canguard tune's statistics pass (a "tune" entry in the summary), tune_i2t: --tune-i2t
     tune_i2t: bool = False
-    """With :attr:`tune`: search I²t ratings too (``--tune-i2t``)."""
 
 
 def replay_one(cfg: Config, log_path: Path, opts: ReplayOptions) -> dict[str, Any]:
@@ -129,11 +124,7 @@ def replay_one(cfg: Config, log_path: Path, opts: ReplayOptions) -> dict[str, An
 
 
 def _mcap_export(opts: ReplayOptions) -> bool:
-    if opts.export is None:
-        return False
-    from canguard.report.export import is_mcap
-
-    return is_mcap(opts.export)
+    return opts.export is not None and opts.export.suffix.lower() == ".mcap"
 
 
 def _outputs(stack: ExitStack, engine: Engine, sink: LogSink, opts: ReplayOptions, log: str) -> None:
@@ -141,7 +132,7 @@ def _outputs(stack: ExitStack, engine: Engine, sink: LogSink, opts: ReplayOption
     the frames sent go to those that take them (kept by ``sink``, handed over after every tick and at the end)."""
     watch = _AfterTicks(sink, engine.observer)
     if opts.export is not None and _mcap_export(opts):
-        from canguard.report.mcapexport import McapExport
+        from canguard.report.export import McapExport
 
         mcap = McapExport(engine, opts.export, log)
         stack.callback(mcap.close)
@@ -328,32 +319,30 @@ def _as_named(text: str, read: list[Path], names: list[Path]) -> str:
     return text
 
 
-def _check_state(path: Path | None) -> None:
-    """``--state`` is only read: a path that cannot be read is exit 2 now, not a silent cold start."""
-    if path is None:
-        return
+def _check_args(args: argparse.Namespace) -> None:
+    """The options, and every file the replay reads or writes, tried before the first log is read: one line and
+    exit 2 (ConfigError), not a traceback or a silent cold start."""
+    from canguard.io.outputs import check_output
     from canguard.protect.state import readable_problem
 
-    why = readable_problem(path)
-    if why:
-        raise ConfigError(f"--state {path}: cannot be read ({why}): expected an I²t state file saved by "
+    why = readable_problem(args.state) if args.state is not None else ""
+    if why:  # --state is only read
+        raise ConfigError(f"--state {args.state}: cannot be read ({why}): expected an I²t state file saved by "
                           "`canguard run` (its state.file); leave --state out to start cold")
-
-
-def _check_outputs(args: argparse.Namespace) -> None:
-    """Every file the replay writes, tried before the first log is read: one line and exit 2, not a traceback."""
-    from canguard.io.outputs import check_output
-
     many = len(args.logs) > 1
     for log in args.logs:
         check_output(per_log_path(args.events, log, many), "--events", beside=True, makes_dirs=True)
         check_output(per_log_path(args.emit, log, many), "--emit")
         check_output(per_log_path(args.plot, log, many), "--plot")
     check_output(args.fleet_summary, "--fleet-summary")
+    if args.export_signals is not None and args.realtime is None:
+        from canguard.report.export import check_export
 
-
-def _check_regression_gate(args: argparse.Namespace) -> None:
-    """``--fail-on-regression`` needs something to regress from; a tolerance is a finite percentage >= 0."""
+        check_export(args.export_signals, dask=args.dask is not None)
+    if args.dask is not None and args.realtime is not None:
+        raise ConfigError("replay: --dask and --realtime do not go together (a realtime replay plays one log live)")
+    if args.logs.count(Path("-")) > 1:
+        raise ConfigError("replay: '-' (stdin) can be given once")
     if args.fail_on_regression and args.baseline is None:
         raise ConfigError("replay: --fail-on-regression needs --baseline FILE (a saved `canguard replay --json`)")
     tol = args.margin_tolerance
@@ -386,20 +375,10 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
     cfg_path = config_path(args)
     cfg = load_config(cfg_path)
-    _check_state(args.state)
     from canguard.cli.fleet import expand_logs
 
     args.logs = expand_logs(args.logs)
-    _check_outputs(args)
-    if args.export_signals is not None and args.realtime is None:
-        from canguard.report.export import check_export
-
-        check_export(args.export_signals, dask=args.dask is not None)
-    if args.dask is not None and args.realtime is not None:
-        raise ConfigError("replay: --dask and --realtime do not go together (a realtime replay plays one log live)")
-    if args.logs.count(Path("-")) > 1:
-        raise ConfigError("replay: '-' (stdin) can be given once")
-    _check_regression_gate(args)
+    _check_args(args)
     with tempfile.TemporaryDirectory(prefix="canguard-replay-") as tmp:
         names = list(args.logs)
         args.logs = [_as_format(log, args.format, Path(tmp)) for log in names]
@@ -407,20 +386,26 @@ def cmd_replay(args: argparse.Namespace) -> int:
             from canguard.cli.realtime import replay_realtime
 
             try:
-                return replay_realtime(cfg, args, names)
+                live: list[tuple[dict[str, Any] | None, str]] = [*replay_realtime(cfg, args, names)]
             except LogFormatError as exc:  # named as the user named the log (`-`), not as the spool file
                 raise LogFormatError(_as_named(str(exc), args.logs, names)) from None
+            code = _report(args, live, names, None, len(names) > 1)
+            if code == EXIT_OK:
+                print("note: --realtime runs the live daemon; its times follow the wall clock, not the log",
+                      file=sys.stderr)
+            return code
         return _replay_offline(cfg, cfg_path, args, names)
 
 
-def run_jobs(args: argparse.Namespace, cfg: Config, jobs: list[tuple[Config | ConfigRef, Path, ReplayOptions]],
-             pool: bool) -> list[tuple[dict[str, Any] | None, str]]:
-    """Every job's (summary, error), in input order: on Dask, in ``args.jobs`` processes (largest log first) or
-    here."""
-    if not pool:
-        return [_job(j) for j in jobs]
-    order = sorted(range(len(jobs)), key=lambda i: -_size(jobs[i][1]))
-    todo = [jobs[i] for i in order]
+def run_jobs(args: argparse.Namespace, cfg: Config, cfg_path: Path,
+             logs: list[tuple[Path, ReplayOptions]]) -> list[tuple[dict[str, Any] | None, str]]:
+    """Every log's (summary, error), in input order: on Dask (``--dask``), in ``--jobs`` processes (largest log
+    first) or here."""
+    if not ((args.jobs > 1 and len(logs) > 1) or args.dask is not None):
+        return [_job((cfg, log, opts)) for log, opts in logs]
+    ref = ConfigRef(cfg_path, uuid.uuid4().hex)
+    order = sorted(range(len(logs)), key=lambda i: -_size(logs[i][0]))
+    todo: list[tuple[Config | ConfigRef, Path, ReplayOptions]] = [(ref, *logs[i]) for i in order]
     if args.dask is not None:
         from canguard.cli.fleet import run_dask
 
@@ -428,15 +413,13 @@ def run_jobs(args: argparse.Namespace, cfg: Config, jobs: list[tuple[Config | Co
     else:
         from canguard.cli.fleet import run_processes
 
-        ref = jobs[0][0]
-        assert isinstance(ref, ConfigRef)
         _CONFIGS.clear()
         _CONFIGS[ref] = cfg  # forked workers start with it: no worker reads the config again
         try:
             done = run_processes(args.jobs, _job, todo, warm=_WORKER_MODULES)
         finally:
             _CONFIGS.clear()
-    results: list[tuple[dict[str, Any] | None, str]] = [(None, "")] * len(jobs)
+    results: list[tuple[dict[str, Any] | None, str]] = [(None, "")] * len(logs)
     for i, result in zip(order, done, strict=True):
         results[i] = result
     return results
@@ -503,9 +486,7 @@ def _replay_offline(cfg: Config, cfg_path: Path, args: argparse.Namespace, names
         from canguard.report import export  # --export-signals only (pyarrow's part files)
     many = len(args.logs) > 1
     base = _load_baseline(args.baseline) if args.baseline else None
-    pool = (args.jobs > 1 and many) or args.dask is not None
-    job_cfg: Config | ConfigRef = ConfigRef(cfg_path, uuid.uuid4().hex) if pool else cfg
-    jobs: list[tuple[Config | ConfigRef, Path, ReplayOptions]] = []
+    jobs: list[tuple[Path, ReplayOptions]] = []
     for log, name in zip(args.logs, names, strict=True):
         opts = ReplayOptions(
             channel_map=channel_map, events=per_log_path(args.events, name, many),
@@ -515,19 +496,19 @@ def _replay_offline(cfg: Config, cfg_path: Path, args: argparse.Namespace, names
             export=_export_path(args.export_signals, name, many, len(jobs)),
             export_log=str(name), bag=BagOptions(tuple(args.topic), args.stamp),
         )
-        jobs.append((job_cfg, log, opts))
+        jobs.append((log, opts))
     try:
-        results = run_jobs(args, cfg, jobs, pool)
+        results = run_jobs(args, cfg, cfg_path, jobs)
     except BaseException:
         if args.export_signals is not None and not export.is_mcap(args.export_signals):
-            export.discard_parts([opts.export for _, _, opts in jobs])
+            export.discard_parts([opts.export for _, opts in jobs])
         raise
     if args.export_signals is not None and not export.is_mcap(args.export_signals):
         # In input order; a log that failed contributes no rows (its part may be cut short).
-        export.combine_parts(args.export_signals, [opts.export for _, _, opts in jobs if opts.export is not None],
+        export.combine_parts(args.export_signals, [opts.export for _, opts in jobs if opts.export is not None],
                              [summary is not None for summary, _ in results])
     if args.fleet_summary is not None:
-        from canguard.report.fleet import fleet_row, write_fleet_summary
+        from canguard.report.export import fleet_row, write_fleet_summary
 
         write_fleet_summary(args.fleet_summary, [fleet_row(str(name), summary, err)
                                                  for (summary, err), name in zip(results, names, strict=True)])

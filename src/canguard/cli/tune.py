@@ -1,7 +1,7 @@
 """``canguard tune``: thresholds proposed from healthy logs and known faults, proven by replay.
 
 A statistics pass over every log (:class:`~canguard.report.tune.TuneStats`), a proposal per guard
-(:mod:`canguard.report.proposal`), a proving replay of the tuned files, then ``--out DIR``: docs/commands.md.
+(:func:`canguard.report.tune.propose`), a proving replay of the tuned files, then ``--out DIR``: docs/commands.md.
 """
 
 from __future__ import annotations
@@ -12,7 +12,6 @@ import math
 import shutil
 import sys
 import tempfile
-import uuid
 from pathlib import Path
 from typing import Any
 
@@ -88,13 +87,11 @@ def load_expect(path: Path) -> dict[str, dict[str, Any]]:
 def _replay_all(args: argparse.Namespace, cfg: Config, cfg_path: Path, logs: list[Path], *,
                 tune: bool) -> list[dict[str, Any]]:
     """Every log's replay summary (the statistics with ``tune``); ConfigError naming a log that failed."""
-    from canguard.cli.replay import ConfigRef, ReplayOptions, run_jobs
+    from canguard.cli.replay import ReplayOptions, run_jobs
 
-    pool = (args.jobs > 1 and len(logs) > 1) or args.dask is not None
-    ref: Config | ConfigRef = ConfigRef(cfg_path, uuid.uuid4().hex) if pool else cfg
     opts = ReplayOptions(tune=tune, tune_i2t=args.tune_i2t)
     out = []
-    for (summary, err), log in zip(run_jobs(args, cfg, [(ref, log, opts) for log in logs], pool), logs, strict=True):
+    for (summary, err), log in zip(run_jobs(args, cfg, cfg_path, [(log, opts) for log in logs]), logs, strict=True):
         if summary is None:
             raise ConfigError(f"tune: {log}: {err}")
         out.append(summary)
@@ -104,7 +101,7 @@ def _replay_all(args: argparse.Namespace, cfg: Config, cfg_path: Path, logs: lis
 def cmd_tune(args: argparse.Namespace) -> int:
     """Statistics, proposal, proving replay, files: exit 0, 1 (no separation / proof failed) or 2."""
     from canguard.cli.fleet import expand_logs
-    from canguard.report.proposal import LogStats, propose
+    from canguard.report.tune import LogStats, propose
 
     cfg_path = config_path(args)
     cfg = load_config(cfg_path)
@@ -132,7 +129,7 @@ def cmd_tune(args: argparse.Namespace) -> int:
     guards, age_props = propose(stats, ages, needs if args.expect is not None else None, args.margin / 100.0,
                                 args.tune_i2t)
     report: dict[str, Any] = {"config": str(cfg_path), "margin_pct": args.margin,
-                              "guards": [g.as_json() for g in guards], "max_age": [a.as_json() for a in age_props]}
+                              "max_age": [a.as_json() for a in age_props]}
     conflicts = any(g.status == "conflict" for g in guards) or any(a.status == "conflict" for a in age_props)
     report["result"] = "conflict" if conflicts else "refused"
     if not conflicts:
@@ -147,6 +144,7 @@ def cmd_tune(args: argparse.Namespace) -> int:
                     for f in sorted(Path(tmp).iterdir()):
                         shutil.copy2(f, args.out / f.name)
                     report["written"] = sorted(str(args.out / f.name) for f in Path(tmp).iterdir())
+    report["guards"] = [g.as_json() for g in guards]  # as written: a port read from the blackboard is left
     if args.plot is not None:
         from canguard.report.plot import plot_tune
 

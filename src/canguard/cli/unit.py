@@ -68,7 +68,6 @@ def render_network(text: str, channels: list[str]) -> str:
     return replace_once(text, r"^Name=can0$", f"Name={' '.join(channels)}", NETWORK_FILE)
 
 
-
 def cmd_unit(args: argparse.Namespace) -> int:
     """Print the unit (or the network file), or write both into a directory."""
     channels = args.channel or ["can0"]

@@ -359,9 +359,11 @@ class BusReader:
         return out if out or None in self._buses.values() else None
 
     def _drain_bus(self, name: str, limit: int, out: list[tuple[str, can.Message, float]]) -> None:
-        """Append up to ``limit`` frames the kernel holds for bus ``name`` (after the first, a poll of its socket
-        asks whether there is another: cheaper than a ``recv(0)`` that finds none; one poll a drain, not one a
-        frame: a poll costs a system call); a failure closes the bus."""
+        """Append up to ``limit`` frames the kernel holds for bus ``name``; a failure closes the bus.
+
+        System calls are what a frame costs here. A first frame that is dropped (:func:`wants`) ends the drain: the
+        next wait finds the socket ready at once if more came. After a first frame taken, a poll of the socket asks
+        whether there is another (cheaper than a ``recv(0)`` that finds none); after two, ``recv(0)`` until none."""
         bus = self._buses[name]
         assert bus is not None
         msgs: list[can.Message] = []
@@ -375,6 +377,8 @@ class BusReader:
                     break
                 if wants(keys, msg):
                     msgs.append(msg)
+                elif not msgs:
+                    break
                 if len(msgs) < 2 and not pending(0):  # a frame alone, the usual wake-up: no recv(0) that finds none
                     break
         except Exception as exc:  # the bus went away (or a backend bug): report, close, reopen later

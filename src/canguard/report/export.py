@@ -1,24 +1,35 @@
-"""``replay --export-signals FILE.parquet``: every decoded sample, as a table for pandas / polars.
+"""``replay --export-signals`` and ``--fleet-summary``: what a replay saw, as files other tools read.
 
-:class:`SignalExport` sees every sample the models see (whole column blocks, through ``Engine.sample_block``)
-and hands :data:`BATCH_ROWS` rows at a time (a Parquet row group) to its table:
-memory stays flat. Each log writes its own part file, joined in input order by :func:`combine_parts`.
-pyarrow (the ``fleet`` extra) is imported only when used.
+``FILE.parquet``: every decoded sample, as a table for pandas / polars. :class:`SignalExport` sees every
+sample the models see (whole column blocks, through ``Engine.sample_block``) and hands :data:`BATCH_ROWS` rows
+at a time (a Parquet row group) to its table: memory stays flat. Each log writes its own part file, joined in
+input order by :func:`combine_parts`. pyarrow (the ``fleet`` extra) is imported only when used.
+
+``FILE.mcap`` (:class:`McapExport`): what the engine saw and did, as MCAP channels Foxglove plots as they are,
+in the log's time base, as ROS 2 CDR messages with their ``.msg`` schemas; the channels: docs/commands.md.
+
+``--fleet-summary``: one row per replayed log (status, frames, trips, stops, the first trip's time, the worst
+margin) as JSON lines or Parquet.
 """
 
 from __future__ import annotations
 
+import json
 import math
 import os
-from collections.abc import Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
 
+import numpy as np
+
 from canguard.errors import ConfigError
+from canguard.io.mcapwrite import McapWriter, ns_of
+from canguard.io.rosmsgs import cdr_frame, frame_type, full_definition
 
 if TYPE_CHECKING:
     from canguard.engine.core import Engine
-    from canguard.io.frame import Sample
+    from canguard.io.frame import Frame, Sample
 
 FLAG = "--export-signals"
 COLUMNS = {"log": "string", "t": "float64", "bus": "string", "source": "string", "signal": "string",
@@ -62,7 +73,7 @@ def check_export(path: Path, *, dask: bool = False) -> None:
 
 
 def is_mcap(path: Path) -> bool:
-    """``--export-signals FILE.mcap``: an MCAP file per log (:mod:`canguard.report.mcapexport`), not Parquet."""
+    """``--export-signals FILE.mcap``: an MCAP file per log (:class:`McapExport`), not Parquet."""
     return path.suffix.lower() == ".mcap"
 
 
@@ -106,8 +117,6 @@ class SignalExport:
         ``fed``: the samples of the rows fed, with their row (a row in both: its samples are the fed ones).
         The column checks pass only valid, in-range values: their reason is "".
         """
-        import numpy as np
-
         from canguard.decode.rows import valued_table
 
         stamp = np.asarray(times, dtype=np.float64)
@@ -150,8 +159,6 @@ class SignalExport:
 
     def _flush(self) -> None:
         """The first :attr:`batch_rows` samples waiting (all of them, when fewer) to the table."""
-        import numpy as np
-
         if not self._chunks:
             return
         t, codes, values = (np.concatenate(cols) for cols in zip(*self._chunks, strict=True))
@@ -188,8 +195,6 @@ class ParquetTable:
 
     def write(self, t: Any, codes: Any, values: Any, keys: Sequence[tuple[str, str, str]]) -> None:
         """One record batch."""
-        import numpy as np
-
         source, signal, reason = (np.array([k[i] for k in keys], dtype=object)[codes] for i in range(3))
         bus = np.array([self.bus.get(k[0], "") for k in keys], dtype=object)[codes]
         columns = [[self.log] * len(t), t, bus, source, signal, values, reason]
@@ -229,3 +234,184 @@ def combine_parts(path: Path, parts: Sequence[Path], ok: Sequence[bool]) -> int:
     finally:
         discard_parts(parts)
 
+
+SAMPLE = ("canguard_msgs/msg/Sample", "float64 value\nbool valid\n")
+GUARD = ("canguard_msgs/msg/Guard", "float64 value\nfloat64 threshold\nfloat64 level_pct\nbool tripped\n")
+_CDR_LE = np.array([0, 1, 0, 0], dtype=np.uint8)
+_FLUSH = 65_536
+"""Guard states buffered before they are written."""
+
+
+def topic_name(*parts: str) -> str:
+    """A ROS topic name under ``/canguard`` of ``parts`` (a source named ``/battery_state`` as ``battery_state``;
+    characters a topic name may not hold as ``_``)."""
+    clean = ["".join(c if c.isalnum() or c == "_" else "_" for c in p.strip("/")) or "_" for p in parts]
+    return "/canguard/" + "/".join(clean)
+
+
+def _cdr(*columns: np.ndarray) -> np.ndarray:
+    """Messages of float64 columns then bool columns, as CDR lays them out: one row of bytes per message."""
+    n = columns[0].size
+    parts = [np.broadcast_to(_CDR_LE, (n, 4))]
+    for col in columns:
+        parts.append(col.astype("<f8").view(np.uint8).reshape(n, 8) if col.dtype != np.bool_
+                     else col.astype(np.uint8).reshape(n, 1))
+    return np.ascontiguousarray(np.hstack(parts))
+
+
+class _Samples:
+    """:class:`SignalExport`'s rows as one channel per source and role (a :class:`SampleTable`)."""
+
+    def __init__(self, writer: McapWriter) -> None:
+        self.writer = writer
+        self.schema = writer.schema(SAMPLE[0], "ros2msg", SAMPLE[1])
+        self.channels: dict[tuple[str, str], int] = {}
+        self._lanes: list[int] = []
+        """Per sample code: its channel."""
+        self._valid: list[bool] = []
+        """Per sample code: a valid value (no reason)."""
+
+    def write(self, t: Any, codes: Any, values: Any, keys: Sequence[tuple[str, str, str]]) -> None:
+        """A batch of samples, each (source, signal)'s on its channel."""
+        for key in keys[len(self._lanes):]:  # codes met since the last batch
+            channel = self.channels.get(key[:2])
+            if channel is None:
+                channel = self.channels[key[:2]] = self.writer.channel(topic_name("samples", *key[:2]), self.schema,
+                                                                       "cdr")
+            self._lanes.append(channel)
+            self._valid.append(not key[2])
+        lanes = np.asarray(self._lanes, dtype=np.int64)[codes]
+        valid = np.asarray(self._valid, dtype=bool)[codes]
+        times = ns_of(t)
+        for channel in np.unique(lanes).tolist():
+            rows = np.flatnonzero(lanes == channel)
+            self.writer.messages(channel, times[rows], _cdr(values[rows], valid[rows]))
+
+    def close(self) -> None:
+        """Nothing of its own: the export closes the file."""
+
+
+class McapExport:
+    """Everything an engine does on a replay, into one MCAP file (see the module docstring)."""
+
+    def __init__(self, engine: Engine, path: Path, log: str) -> None:
+        self.engine = engine
+        self.writer = McapWriter(path, profile="ros2")
+        self.signals = SignalExport(engine, path, log, table=_Samples(self.writer))
+        w = self.writer
+        guard_schema = w.schema(GUARD[0], "ros2msg", GUARD[1])
+        self._guards = [(g, w.channel(topic_name("guards", g.node), guard_schema, "cdr")) for g in engine.guards()]
+        self._states: list[list[float]] = [[] for _ in self._guards]
+        self._ticks: list[float] = []
+        events = w.schema("canguard.Event", "jsonschema", json.dumps({"type": "object"}))
+        self._events = w.channel("/canguard/events", events, "json")
+        self._frames: dict[bool, int] = {}
+        self._out: list[Frame] = []
+        engine.listen(self._event)
+
+    def publish(self, engine: Any, now: float) -> None:
+        """A tick that ran (a :class:`~canguard.engine.stats.TickObserver`: ticks proven to repeat the last one are
+        not run, and not recorded; a tick hook would have them all run): each guard's state."""
+        self._ticks.append(now)
+        for (guard, _channel), states in zip(self._guards, self._states, strict=True):
+            snap = guard.snapshot()
+            states.extend((snap.value, snap.threshold, snap.level_pct, 1.0 if snap.tripped else 0.0))
+        if len(self._ticks) >= _FLUSH:
+            self._flush_guards()
+
+    def _flush_guards(self) -> None:
+        times = ns_of(self._ticks)
+        for (_guard, channel), states in zip(self._guards, self._states, strict=True):
+            table = np.asarray(states, dtype=np.float64).reshape(-1, 4)
+            self.writer.messages(channel, times, _cdr(table[:, 0], table[:, 1], table[:, 2], table[:, 3] != 0))
+            states.clear()
+        self._ticks.clear()
+
+    def _event(self, ev: dict[str, Any]) -> None:
+        t = float(ev.get("t", math.nan))
+        if math.isfinite(t):  # JSON has no NaN: a value the event could not give is null
+            fields = {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in ev.items()}
+            text = json.dumps(fields, default=str, sort_keys=True)
+            self.writer.message(self._events, int(ns_of(t)), text.encode("utf-8"))
+
+    def sent(self, frames: list[Frame]) -> None:
+        """Frames canguard sent, as ROS CAN frame messages (written a batch at a time)."""
+        self._out.extend(frames)
+        if len(self._out) >= _FLUSH:
+            self._flush_frames()
+
+    def _flush_frames(self) -> None:
+        """The frames sent so far, each distinct frame serialised once and stamped per send by numpy."""
+        if not self._out:
+            return
+        stamps = ns_of([f.t for f in self._out])
+        groups: dict[tuple[Any, ...], list[int]] = {}
+        for i, f in enumerate(self._out):
+            groups.setdefault(f[1:6], []).append(i)  # channel, id, data, extended, fd: one message but its stamp
+        for (name, cid, data, extended, fd), rows in groups.items():
+            at = np.asarray(rows, dtype=np.intp)
+            ns = stamps[at]
+            template = np.frombuffer(cdr_frame(0, name, cid, bytes(data), extended=extended, fd=fd), np.uint8)
+            table = np.tile(template, (at.size, 1))
+            sec, nanosec = np.divmod(ns, 1_000_000_000)
+            table[:, 4:8] = sec.astype("<i4").view(np.uint8).reshape(-1, 4)
+            table[:, 8:12] = nanosec.astype("<u4").view(np.uint8).reshape(-1, 4)
+            self.writer.messages(self._frame_channel(fd), ns, table)
+        self._out.clear()
+
+    def _frame_channel(self, fd: bool) -> int:
+        channel = self._frames.get(fd)
+        if channel is None:
+            msgtype = frame_type(fd)
+            schema = self.writer.schema(msgtype, "ros2msg", full_definition(msgtype))
+            topic = "/canguard/frames_out_fd" if fd else "/canguard/frames_out"
+            channel = self._frames[fd] = self.writer.channel(topic, schema, "cdr")
+        return channel
+
+    def close(self) -> None:
+        """Write what is left and end the file."""
+        try:
+            self.signals.close()
+            self._flush_guards()
+            self._flush_frames()
+        finally:
+            self.writer.close()
+
+
+FLEET_COLUMNS = {"log": "string", "status": "string", "reason": "string", "frames": "int64", "trips": "int64",
+           "stops": "int64", "first_trip_t": "float64", "stopped_s": "float64", "worst_node": "string",
+           "worst_signal": "string", "worst_margin_pct": "float64"}
+"""The fleet summary's columns, in order, and their Arrow types."""
+
+
+def fleet_row(log: str, summary: Mapping[str, Any] | None, error: str = "") -> dict[str, Any]:
+    """One log's row: from its replay summary, or (``summary`` None) the reason it failed."""
+    row: dict[str, Any] = dict.fromkeys(FLEET_COLUMNS)
+    row["log"] = log
+    if summary is None:
+        row.update(status="failed", reason=error.strip().splitlines()[0] if error.strip() else "failed")
+        return row
+    trips = summary.get("trips") or []
+    margins = [m for m in summary.get("margins") or [] if m.get("margin_pct") is not None]
+    worst: Mapping[str, Any] = min(margins, key=lambda m: m["margin_pct"], default={})
+    row.update(
+        status="ok", reason="", frames=(summary.get("frames") or {}).get("read"),
+        trips=int(summary.get("trip_count", len(trips))), stops=summary.get("stops"),
+        first_trip_t=min((t["t"] for t in trips), default=None), stopped_s=summary.get("stopped_s"),
+        worst_node=worst.get("node"), worst_signal=worst.get("signal"), worst_margin_pct=worst.get("margin_pct"),
+    )
+    return row
+
+
+def write_fleet_summary(path: Path, rows: Iterable[Mapping[str, Any]]) -> None:
+    """Write ``rows``: Parquet when ``path`` ends with ``.parquet`` (pyarrow), else JSON lines."""
+    rows = list(rows)
+    if path.suffix.lower() == ".parquet":
+        pa, pq = require_pyarrow(f"--fleet-summary {path}")
+        table = pa.Table.from_pylist([{c: r.get(c) for c in FLEET_COLUMNS} for r in rows],
+                                     schema=schema(pa, FLEET_COLUMNS))
+        pq.write_table(table, path)
+        return
+    with open(path, "w", encoding="utf-8") as out:
+        for r in rows:
+            out.write(json.dumps({c: r.get(c) for c in FLEET_COLUMNS}, sort_keys=False) + "\n")

@@ -5,11 +5,8 @@ time; :data:`SCENARIOS` lists what can go wrong and when; :func:`write_log` writ
 candump -L file; :func:`run_on_bus` plays the robot on a bus and answers canguard's stop and recovery frames.
 """
 
-from canguard.sim.encode import MessageEncoder
 from canguard.sim.io import run_on_bus, write_log
-from canguard.sim.motion import AXIS_STATE_CLOSED_LOOP, AXIS_STATE_IDLE, ERROR_ESTOP_REQUESTED, KT_NM_PER_A
 from canguard.sim.robot import SimRobot
 from canguard.sim.scenarios import SCENARIOS
 
-__all__ = ["AXIS_STATE_CLOSED_LOOP", "AXIS_STATE_IDLE", "ERROR_ESTOP_REQUESTED", "KT_NM_PER_A", "SCENARIOS",
-           "MessageEncoder", "SimRobot", "run_on_bus", "write_log"]
+__all__ = ["SCENARIOS", "SimRobot", "run_on_bus", "write_log"]

@@ -8,18 +8,17 @@ from __future__ import annotations
 import contextlib
 import gzip
 import io
-import itertools
 import logging
 import threading
 import time
 from collections.abc import Callable
 from os import PathLike
-from typing import IO, Any
+from typing import Any, TextIO
 
 import can
 
 from canguard.io.frame import Frame
-from canguard.io.logs import format_candump_line, frame_from_message
+from canguard.io.logs import frame_from_message, write_candump
 from canguard.sim.robot import SimRobot
 
 log = logging.getLogger(__name__)
@@ -28,7 +27,7 @@ _SLEEP_MIN_S = 0.001  # frames due closer than this are sent at once: batching b
 _RECV_EVERY = 16  # in fast (non-realtime) mode, poll the bus for commands every N frames
 
 
-def _open_text(path: str | PathLike[str], stack: contextlib.ExitStack) -> IO[str]:
+def _open_text(path: str | PathLike[str], stack: contextlib.ExitStack) -> TextIO:
     """Open for writing; ``.gz`` is gzip'd with a zero mtime so the bytes depend on content only."""
     if str(path).endswith(".gz"):
         raw = stack.enter_context(open(path, "wb"))  # noqa: SIM115
@@ -42,14 +41,8 @@ def write_log(path: str | PathLike[str], duration_s: float, **robot_kwargs: Any)
 
     ``robot_kwargs`` are :class:`SimRobot`'s (``db`` is required).
     """
-    frames = SimRobot(**robot_kwargs).frames(duration_s)
-    count = 0
-    with contextlib.ExitStack() as stack:
-        out = _open_text(path, stack)
-        while chunk := [format_candump_line(f) + "\n" for f in itertools.islice(frames, 4096)]:
-            out.write("".join(chunk))  # the replay reader's own writer: read_log gives these frames back
-            count += len(chunk)
-    return count
+    with contextlib.ExitStack() as stack:  # the replay reader's own writer: read_log gives these frames back
+        return write_candump(SimRobot(**robot_kwargs).frames(duration_s), _open_text(path, stack))
 
 
 def to_message(frame: Frame) -> can.Message:

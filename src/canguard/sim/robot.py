@@ -3,7 +3,7 @@
 Everything is a function of the seed, the scenarios and the frames received (one seeded
 :class:`random.Random`, no wall clock). Frames come out of a heap of scheduled producers in time order;
 periodic streams are scheduled from their nominal times plus a seeded jitter of 0 to 20 µs (never early),
-so rates never drift. The physics (:mod:`canguard.sim.motion`), simple so that tests and example logs can
+so rates never drift. The physics, simple so that tests and example logs can
 assert it:
 
 * Current loop: in CLOSED_LOOP_CONTROL (8) Iq is the setpoint plus noise (σ 0.03 A), rising to it with
@@ -17,27 +17,64 @@ assert it:
 
 from __future__ import annotations
 
+import bisect
 import heapq
+import math
 import random
 from collections.abc import Iterator, Mapping, Sequence
+from dataclasses import dataclass
 from os import PathLike
 
 import cantools.database
 
 from canguard.io.frame import Frame
 from canguard.sim.encode import MessageEncoder
-from canguard.sim.motion import (
-    AXIS_STATE_CLOSED_LOOP,
-    AXIS_STATE_IDLE,
-    ERROR_ESTOP_REQUESTED,
-    JITTER_S,
-    KT_NM_PER_A,
-    PACK_CAPACITY_AH,
-    PACK_CELLS,
-    Motion,
-    _Axis,
-)
 from canguard.sim.scenarios import Producer, Scenario, parse_scenario
+
+AXIS_STATE_IDLE = 1
+AXIS_STATE_CLOSED_LOOP = 8
+ERROR_ESTOP_REQUESTED = 0x04000000
+"""ODrive ``ODriveError.ESTOP_REQUESTED``: set by an Estop, cleared by Clear_Errors."""
+
+KT_NM_PER_A = 8.27 / 100.0
+BASE_LOAD_A = 2.0
+PACK_R_OHM = 0.04
+PACK_CELLS = 13
+PACK_CAPACITY_AH = 20.0
+START_SOC_PCT = 85.0
+STOP_TAU_S = 0.002
+RESUME_TAU_S = 0.02
+IQ_NOISE_A = 0.03
+IDLE_NOISE_A = 0.005
+PACK_NOISE_A = 0.05
+JITTER_S = 20e-6
+
+# Duty cycle: one 4 s back-and-forth move per axis, as (start_s, current setpoint).
+_CYCLE_S = 4.0
+_RAMP_S = 0.02
+_ACCEL_A, _CRUISE_A, _BRAKE_A, _HOLD_A = 7.0, 2.0, 4.0, 1.0
+_SEGMENTS: tuple[tuple[float, float], ...] = (
+    (0.00, +_ACCEL_A), (0.25, +_CRUISE_A), (0.75, -_BRAKE_A), (1.00, +_HOLD_A),
+    (2.00, -_ACCEL_A), (2.25, -_CRUISE_A), (2.75, +_BRAKE_A), (3.00, +_HOLD_A),
+)
+_SEG_STARTS = [s for s, _ in _SEGMENTS]
+_VMAX_REV_S = 2.0
+_STAGGER_S = 0.5
+
+
+@dataclass
+class _Axis:
+    """One simulated ODrive axis' state."""
+
+    index: int
+    scale: float
+    state: int = AXIS_STATE_CLOSED_LOOP
+    errors: int = 0
+    edge_t: float = -math.inf
+    edge_i: float = 0.0
+    pos_rev: float = 0.0
+    enc_t: float = 0.0
+
 
 DEFAULT_RATES_HZ: dict[str, float] = {
     "Get_Iq": 250.0, "Get_Torques": 250.0, "Get_Encoder_Estimates": 100.0, "Get_Bus_Voltage_Current": 20.0,
@@ -97,7 +134,8 @@ class SimRobot:
         self._seq = 0
         self._now = 0.0
         self._stream_rates: dict[str, float] = {}
-        self.motion = Motion(self.rng, self._axes, [s for s in parsed if type(s).setpoint is not Scenario.setpoint])
+        self._setpoint_hooks = [s for s in parsed if type(s).setpoint is not Scenario.setpoint]
+        self.soc_pct = START_SOC_PCT
         self._suppress_hooks = [s for s in parsed if type(s).suppress is not Scenario.suppress]
         self._add_base_streams()
         for sc in sorted(parsed, key=lambda s: s.setup_last):
@@ -151,7 +189,7 @@ class SimRobot:
 
     def current_a(self, axis: int) -> float:
         """The noise-free Iq of ``axis`` at the current time, in amps."""
-        return self.motion.current(self._axes[axis], self._now)
+        return self.current(self._axes[axis], self._now)
 
     def nominal_rate_hz(self) -> float:
         """Frames per second of all periodic streams (scenarios' one-off frames not counted)."""
@@ -182,10 +220,10 @@ class SimRobot:
         def stream(t: float) -> Frame | None:
             nonlocal k
             k += 1  # the next one from its nominal time: the rate never drifts
-            self.schedule_once(phase_s + k * period_s + self.jitter_s(), stream)
+            self.schedule_once(phase_s + k * period_s + self.rng.uniform(0.0, JITTER_S), stream)
             return None if any(s.suppress(kind, t) for s in self._suppress_hooks) else produce(t)
 
-        self.schedule_once(phase_s + self.jitter_s(), stream)
+        self.schedule_once(phase_s + self.rng.uniform(0.0, JITTER_S), stream)  # a real bus' jitter
 
     def raw_frame(self, t: float, frame_id: int, data: bytes, extended: bool = False, *, error: bool = False
                   ) -> Frame:
@@ -194,26 +232,76 @@ class SimRobot:
 
     def bms_frame(self, t: float, pack_current_a: float | None = None) -> Frame:
         """A BMS_Status frame at ``t``; ``pack_current_a`` overrides the measured current (the spike)."""
-        motion = self.motion
-        current = motion.pack_current(t)
+        current = self.pack_current(t)
         dt = max(0.0, t - self._soc_t)
         self._soc_t = max(self._soc_t, t)
-        motion.soc_pct = max(0.0, motion.soc_pct - current * dt / (PACK_CAPACITY_AH * 36.0))
+        self.soc_pct = max(0.0, self.soc_pct - current * dt / (PACK_CAPACITY_AH * 36.0))
         self._alive = (self._alive + 1) & 0xFF
         enc = self._by_name["BMS_Status"]
         data = enc.encode({"Pack_Current": current if pack_current_a is None else pack_current_a,
-                           "Pack_Voltage": motion.pack_voltage(current), "State_Of_Charge": motion.soc_pct,
+                           "Pack_Voltage": self.pack_voltage(current), "State_Of_Charge": self.soc_pct,
                            "Present": 1, "Fault": 0, "Alive_Counter": self._alive})
         return self.raw_frame(t, enc.frame_id, data, enc.is_extended_id)
-
-    def jitter_s(self) -> float:
-        """A random delay of a periodic frame (a real bus' scheduling jitter)."""
-        return self.rng.uniform(0.0, JITTER_S)
 
     def _apply_until(self, t: float) -> None:
         while self._cmds and self._cmds[0][0] <= t:
             at, _, frame = heapq.heappop(self._cmds)
             self._apply(at, frame)
+
+    def duty(self, ax: _Axis, t: float) -> float:
+        """The duty cycle's current setpoint: trapezoid moves with 20 ms ramps."""
+        u = (t + ax.index * _STAGGER_S) % _CYCLE_S
+        i = bisect.bisect_right(_SEG_STARTS, u) - 1
+        start, level = _SEGMENTS[i]
+        into = u - start
+        if into < _RAMP_S:
+            prev = _SEGMENTS[i - 1][1]
+            level = prev + (level - prev) * into / _RAMP_S
+        return level * ax.scale
+
+    def velocity(self, ax: _Axis, t: float) -> float:
+        """Velocity of the duty cycle's move (rev/s): trapezoid rising while accelerating."""
+        u = (t + ax.index * _STAGGER_S) % _CYCLE_S
+        sign = 1.0 if u < 2.0 else -1.0
+        u %= 2.0
+        v = max(0.0, min(u / 0.25, 1.0, (1.0 - u) / 0.25))  # 0.25 s up, 0.5 s at full speed, 0.25 s down, then still
+        return sign * v * _VMAX_REV_S * ax.scale
+
+    def setpoint(self, ax: _Axis, t: float) -> float:
+        """The current setpoint: the duty cycle's as the scenarios change it; 0 unless in closed loop."""
+        if ax.state != AXIS_STATE_CLOSED_LOOP:
+            return 0.0
+        iq = self.duty(ax, t)
+        for sc in self._setpoint_hooks:
+            iq = sc.setpoint(ax.index, t, iq)
+        return iq
+
+    def current(self, ax: _Axis, t: float) -> float:
+        """Noise-free Iq: the setpoint in closed loop (after a resume ramp), a decay when idle."""
+        dt = t - ax.edge_t
+        if ax.state == AXIS_STATE_CLOSED_LOOP:
+            sp = self.setpoint(ax, t)
+            if dt < 10 * RESUME_TAU_S:
+                return sp + (ax.edge_i - sp) * math.exp(-max(dt, 0.0) / RESUME_TAU_S)
+            return sp
+        if dt > 30 * STOP_TAU_S:
+            return 0.0
+        return ax.edge_i * math.exp(-max(dt, 0.0) / STOP_TAU_S)
+
+    def measured(self, ax: _Axis, t: float) -> float:
+        """Iq as the drive measures it (with noise)."""
+        noise = IQ_NOISE_A if ax.state == AXIS_STATE_CLOSED_LOOP else IDLE_NOISE_A
+        return self.current(ax, t) + self.rng.gauss(0.0, noise)
+
+    def pack_current(self, t: float) -> float:
+        """The BMS's pack current: base load + Σ|Iq| + noise."""
+        total = BASE_LOAD_A + sum(abs(self.current(ax, t)) for ax in self._axes)
+        return total + self.rng.gauss(0.0, PACK_NOISE_A)
+
+    def pack_voltage(self, current_a: float) -> float:
+        """Open-circuit voltage at the state of charge, less the pack's resistance drop."""
+        ocv = PACK_CELLS * (3.3 + 0.9 * self.soc_pct / 100.0)
+        return ocv - PACK_R_OHM * current_a
 
     def _add_base_streams(self) -> None:
         for slot, kind in enumerate(AXIS_KINDS):
@@ -229,7 +317,7 @@ class SimRobot:
 
     def _set_state(self, ax: _Axis, t: float, state: int) -> None:
         if state != ax.state:
-            ax.edge_i = self.motion.current(ax, t)
+            ax.edge_i = self.current(ax, t)
             ax.edge_t = t
             ax.state = state
 
@@ -251,18 +339,17 @@ class SimRobot:
 
     def _telemetry(self, kind: str, ax: _Axis, t: float) -> tuple[float, float]:
         """The two float32 signals of an axis' telemetry ``kind`` at ``t``."""
-        m = self.motion
         if kind == "Get_Iq":
-            return m.setpoint(ax, t), m.measured(ax, t)
+            return self.setpoint(ax, t), self.measured(ax, t)
         if kind == "Get_Torques":
-            return KT_NM_PER_A * m.setpoint(ax, t), KT_NM_PER_A * m.measured(ax, t)
+            return KT_NM_PER_A * self.setpoint(ax, t), KT_NM_PER_A * self.measured(ax, t)
         if kind == "Get_Encoder_Estimates":
-            vel = m.velocity(ax, t) if ax.state == AXIS_STATE_CLOSED_LOOP else 0.0
+            vel = self.velocity(ax, t) if ax.state == AXIS_STATE_CLOSED_LOOP else 0.0
             ax.pos_rev += vel * max(0.0, t - ax.enc_t)
             ax.enc_t = max(ax.enc_t, t)
             return ax.pos_rev, vel
-        iq = abs(m.measured(ax, t))  # Get_Bus_Voltage_Current
-        return m.pack_voltage(m.pack_current(t)) - 0.1, iq
+        iq = abs(self.measured(ax, t))  # Get_Bus_Voltage_Current
+        return self.pack_voltage(self.pack_current(t)) - 0.1, iq
 
     def _telemetry_producer(self, kind: str, ax: _Axis) -> Producer:
         enc = self.encoder(ax.index, kind)
@@ -272,7 +359,7 @@ class SimRobot:
         enc = self.encoder(ax.index, "Heartbeat")
 
         def produce(t: float) -> Frame:
-            done = int(ax.state != AXIS_STATE_CLOSED_LOOP or self.motion.velocity(ax, t) == 0.0)
+            done = int(ax.state != AXIS_STATE_CLOSED_LOOP or self.velocity(ax, t) == 0.0)
             return self.raw_frame(t, enc.frame_id, enc.encode({"Axis_Error": ax.errors, "Axis_State": ax.state,
                                                                "Procedure_Result": 0, "Trajectory_Done_Flag": done}))
 
@@ -280,7 +367,7 @@ class SimRobot:
 
     def _temps(self, t: float) -> Frame:
         enc = self._by_name["BMS_Temperatures"]
-        cell_v = self.motion.pack_voltage(0.0) / PACK_CELLS
+        cell_v = self.pack_voltage(0.0) / PACK_CELLS
         data = enc.encode({"Cell_Temp_Min": 27.0 + self.rng.uniform(0, 1),
                            "Cell_Temp_Max": 30.0 + self.rng.uniform(0, 1), "Cell_Voltage_Min": cell_v - 0.01,
                            "Cell_Voltage_Max": cell_v + 0.01, "Pack_Temp_Delta": 3.0})

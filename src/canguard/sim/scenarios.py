@@ -64,8 +64,8 @@ class Scenario:
     """A named disturbance over the normal duty cycle (hooks, ``t`` in seconds from the start); the base changes
     nothing."""
 
-    name: ClassVar[str] = ""
     summary: ClassVar[str] = ""
+    """One line for ``--help`` and the demo; the scenario's name is its class name in lower case."""
     setup_last: ClassVar[bool] = False
     """True for scenarios that must see every other stream first (``load``)."""
 
@@ -87,7 +87,6 @@ class Scenario:
 class Normal(Scenario):
     """The duty cycle only (4 s moves at up to 7 A, the axes 0.5 s apart; pack < 18 A): never trips."""
 
-    name = "normal"
     summary = "duty cycle only: |Iq| <= 7 A per axis, pack < 18 A; must never trip"
 
 
@@ -99,7 +98,6 @@ class Inrush(Scenario):
     covers 0.1 s.
     """
 
-    name = "inrush"
     summary = "axis1 starts at 1.5 s: Iq 25 A for 80 ms, then its move; pack ~30 A, < 35 A"
     AXIS = 1
     START_S = 1.5
@@ -125,7 +123,6 @@ class Inrush(Scenario):
 class Spike(Scenario):
     """One BMS_Status frame of 60 A between the 50 Hz ones due at 1.5 and 1.52 s: IsCurrentSafe must trip."""
 
-    name = "spike"
     summary = "one BMS frame of 60 A at 1.51 s between two normal ones"
     AT_S = 1.5
     CURRENT_A = 60.0
@@ -140,7 +137,6 @@ class Overload(Scenario):
     """Axis 0 at 20 A (2× continuous) from 2.0 s to 5.0 s: a leaky I²t trips at 3.0 s, the thermal image (warm
     from the duty cycle) at ≈ 2.97 s; the pack stays below 35 A. Resumed before 5.0 s, it overloads again."""
 
-    name = "overload"
     summary = "axis0 at 20 A (2x continuous 10 A) from 2.0 s to 5.0 s: leaky I2t trips at 3.0 s"
     AXIS = 0
     START_S = 2.0
@@ -157,7 +153,6 @@ class Overload(Scenario):
 class Dropout(Scenario):
     """No BMS frame from 2.0 s to 3.5 s: with ``max_age`` 0.5 s the battery is stale from ≈ 2.48 s to 3.5 s."""
 
-    name = "dropout"
     summary = "no BMS frames from 2.0 s to 3.5 s (stale after max_age 0.5 s)"
     START_S = 2.0
     END_S = 3.5
@@ -171,7 +166,6 @@ class Garbage(Scenario):
     """Bad payloads on configured messages, one every 50 ms from 1.0 s (axis 2, or the last), normal ones
     between."""
 
-    name = "garbage"
     summary = "NaN/inf Iq, wrong-length Iq and BMS frames, NaN torque, random bytes, from 1.0 s (axis2)"
     AT_S = 1.0
     STEP_S = 0.05
@@ -202,7 +196,6 @@ class ErrorBurst(Scenario):
     """32 CAN error frames 0.2 ms apart from 1.0 s (a loose connector): bus errors, the counters rising by 8 a
     frame, ending in a controller warning (read back with the class bits, without CAN_ERR_FLAG, as the id)."""
 
-    name = "errorburst"
     summary = "32 error frames 0.2 ms apart from 1.0 s"
     AT_S = 1.0
     COUNT = 32
@@ -225,7 +218,6 @@ class ErrorBurst(Scenario):
 class Load(Scenario):
     """Background traffic on 40 unused ids up to 8,000 frames/s in all (a full 1 Mbit/s bus), split unevenly."""
 
-    name = "load"
     summary = "background frames on 40 unconfigured ids: 8,000 frames/s in total"
     setup_last = True
     TARGET_FPS = 8000.0
@@ -249,7 +241,7 @@ class Load(Scenario):
 
 
 SCENARIO_CLASSES: dict[str, type[Scenario]] = {
-    cls.name: cls for cls in (Normal, Inrush, Spike, Overload, Dropout, Garbage, ErrorBurst, Load)
+    cls.__name__.lower(): cls for cls in (Normal, Inrush, Spike, Overload, Dropout, Garbage, ErrorBurst, Load)
 }
 """Every scenario by name, in the order ``--help`` and the demo list them."""
 
