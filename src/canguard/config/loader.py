@@ -13,10 +13,11 @@ from typing import Any
 import yaml
 
 from canguard.config import sections
+from canguard.config.dbc import Messages
 from canguard.config.monitor import read_monitor
 from canguard.config.node_ids import RESERVED_NODE_IDS
 from canguard.config.schema import ActionConfig, Config, PartialConfig, TreeConfig
-from canguard.config.sources import Messages, ReadSources, read_sources
+from canguard.config.sections import ReadSources
 from canguard.config.yamlsrc import Checks, load_yaml
 from canguard.errors import ConfigError
 
@@ -48,7 +49,7 @@ def _config(c: Checks, path: Path, doc: Any) -> Config:
 
         m.canopen = CanopenSection(c)
         m.canopen.load(doc["canopen"])
-    read = read_sources(c, m, doc.get("sources"))
+    read = sections.read_sources(c, m, doc.get("sources"))
     if m.canopen is not None:
         m.add(m.canopen.messages())
     tree = sections.tree(c, doc.get("tree"))
