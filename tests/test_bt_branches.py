@@ -234,9 +234,9 @@ def test_nodes_model_declares_the_new_controls_as_groot2_does() -> None:
     """The Groot2 model lists Switch2..6 with their case ports and TryCatch's bool default as 'false'."""
     import xml.etree.ElementTree as ET
 
-    from canguard.bt.loader import nodes_model_xml
+    from canguard.bt.checks import nodes_model_xml
 
-    model = ET.fromstring(nodes_model_xml(None, include_plugins=False)).find("TreeNodesModel")
+    model = ET.fromstring(nodes_model_xml(None)).find("TreeNodesModel")
     assert model is not None
     by_id = {e.get("ID"): e for e in model}
     assert [p.get("name") for p in by_id["Switch4"]

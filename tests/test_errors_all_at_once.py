@@ -189,7 +189,7 @@ class TestTreeErrorsAtOnce:
             '<IsCurrentSafe topic_name="/bms"/>\n      <IsCurrentNormal topic_name="axis9"/>',
         )
         path = write(tmp_path, config_text(), tree)
-        from canguard.bt.loader import check_tree
+        from canguard.bt.checks import check_tree
         from canguard.config.loader import load_config
 
         with pytest.raises(TreeError) as info:
@@ -216,7 +216,7 @@ class TestTreeErrorsAtOnce:
 </root>
 """
         path = write(tmp_path, config_text(), tree)
-        from canguard.bt.loader import load_config_tree
+        from canguard.bt.checks import load_config_tree
         from canguard.config.loader import load_config
 
         with pytest.raises(TreeError) as info:

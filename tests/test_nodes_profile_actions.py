@@ -126,11 +126,11 @@ class TestExecuteTask:
         assert rig.task.calls[2] == ("halt", "ExecuteTask", pytest.approx(1000.02))
 
     def test_whole_tree_halt(self, tmp_path: Path) -> None:
-        """LoadedTree.halt() stops a running task."""
+        """Halting the whole tree (its root) stops a running task."""
         rig = Rig()
         loaded = rig.load_text(tmp_path, xml_tree("<ExecuteTask/>"))
         rig.tick()
-        loaded.halt()
+        loaded.root.stop(py_trees.common.Status.INVALID)
         assert [c[0] for c in rig.task.calls] == ["run", "halt"]
 
 

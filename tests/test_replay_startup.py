@@ -79,12 +79,11 @@ def test_plain_replay_imports_neither_process_pool_nor_matplotlib(logs: list[Pat
     assert replay_loads(logs[0], modules) == "LOADED 0"
 
 
-def test_tree_without_scripts_or_palette_imports_neither(logs: list[Path]) -> None:
-    """The bundled tree has no Script node, no pre/post condition and no <TreeNodesModel>: its replay imports
-    neither the scripting language (~5 ms of classes at start-up) nor the palette reader, nor the node
-    families it does not use (BT.CPP's built-ins: Script, Sleep, IfThenElse...)."""
-    modules = ("canguard.bt.scripting.script", "canguard.bt.scripting.expr", "canguard.bt.palette",
-               "canguard.bt.nodes.builtins")
+def test_tree_without_scripts_imports_neither(logs: list[Path]) -> None:
+    """The bundled tree has no Script node and no pre/post condition: its replay imports neither the scripting
+    language (~5 ms of classes at start-up) nor the node families it does not use (BT.CPP's built-ins: Script,
+    Sleep, IfThenElse...)."""
+    modules = ("canguard.bt.scripting.script", "canguard.bt.scripting.expr", "canguard.bt.nodes.builtins")
     assert replay_loads(logs[0], modules) == "LOADED 0"
 
 

@@ -20,7 +20,7 @@ import pytest
 import yaml
 
 from canguard.bt import nodes
-from canguard.bt.loader import show_tree
+from canguard.bt.checks import show_tree
 from canguard.bt.nodes.actions import ConfiguredAction
 from canguard.config.loader import load_config
 from canguard.config.schema import Config

@@ -6,7 +6,8 @@ from pathlib import Path
 
 import pytest
 
-from canguard.bt.loader import context_for, guard_coverage, load_tree
+from canguard.bt.checks import context_for, guard_coverage
+from canguard.bt.loader import load_tree
 from canguard.config.loader import load_config
 from checkout import REPO
 

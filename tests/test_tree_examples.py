@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from canguard.bt.loader import check_tree, context_for, load_config_tree, show_tree
+from canguard.bt.checks import check_tree, context_for, load_config_tree, show_tree
 from canguard.config.loader import load_config
 from canguard.errors import TreeError
 from checkout import REPO

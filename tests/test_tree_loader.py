@@ -5,22 +5,16 @@ from __future__ import annotations
 import importlib.metadata
 import re
 import xml.etree.ElementTree as ET
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any, ClassVar
 
 import py_trees
 import pytest
 
-import canguard.bt.display as display_module
-import canguard.bt.registry as tree_module
-from canguard.bt.loader import (
-    build_registry,
-    load_tree,
-    nodes_model_xml,
-    render_dot,
-    render_text,
-)
+import canguard.bt.checks as display_module
+import canguard.bt.loader as tree_module
+from canguard.bt.checks import nodes_model_xml, render_dot, render_text
+from canguard.bt.loader import build_registry, load_tree
 from canguard.bt.nodes import BUILTIN_NODES, CanguardNode, port_info
 from canguard.config.schema import ActionConfig
 from canguard.errors import TreeError
@@ -128,8 +122,7 @@ class TestSpellings:
     def test_groot_palette_in_the_file_is_ignored(self, tmp_path: Path) -> None:
         """A <TreeNodesModel> saved by Groot next to the trees is informative only."""
         xml = V4.replace("</root>", '<TreeNodesModel><Action ID="Other"/></TreeNodesModel></root>')
-        loaded = Rig().load_text(tmp_path, xml)
-        assert loaded.tree_ids == ("Main",)
+        assert Rig().load_text(tmp_path, xml).main_id == "Main"
 
     def test_equals_shortcut(self, tmp_path: Path) -> None:
         """{=} means the key named like the port (BT.CPP 4)."""
@@ -152,7 +145,6 @@ class TestMainAndNames:
         """load_tree(main=...) picks another tree of the file."""
         loaded = Rig().load(TREES / "profiling.xml", main="LatencyWarning")
         assert loaded.main_id == "LatencyWarning"
-        assert loaded.tree_ids == ("ProfiledNavigation", "PathBottleneck", "LatencyWarning")
 
     def test_single_tree_needs_no_main(self, tmp_path: Path) -> None:
         """A file with one tree and no main_tree_to_execute runs that tree."""
@@ -650,5 +642,3 @@ def test_fixture_shape_helper_is_exhaustive() -> None:
     loaded = Rig().load(TREES / "time_windowed_action.xml")
     assert len(shape(loaded.root)) == len(list(loaded.root.iterate()))
 
-
-_: Callable[..., Any] = load_tree  # re-exported name used by the CLI

@@ -15,9 +15,10 @@ import py_trees
 import pytest
 from tests.feed import dispatch
 
-from canguard.bt import registry as tree_module
+from canguard.bt import loader as tree_module
 from canguard.bt.context import Context, ListSink, NullTaskGate
-from canguard.bt.loader import LoadedTree, load_tree
+from canguard.bt.loaded import LoadedTree
+from canguard.bt.loader import load_tree
 from canguard.bt.nodes import CanguardNode, port_info
 from canguard.bt.nodes.base import halted
 from canguard.config.schema import ActionConfig, FrameSpec, SignalRef, SourceConfig, SourceKind
@@ -159,7 +160,7 @@ class Rig:
 
     def labels(self) -> list[str]:
         """Labels of every frame sent so far."""
-        return self.sink.labels()
+        return [f.label for _, f in self.sink.sent]
 
     def trips(self) -> list[dict[str, Any]]:
         """trip / recover events so far."""

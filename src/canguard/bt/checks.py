@@ -1,24 +1,30 @@
-"""A loaded tree against its config: sources, guard coverage, the report of `canguard check`."""
+"""A loaded tree against its config (sources, guard coverage, `canguard check`) and shown (text, Graphviz,
+the Groot2 nodes model, the stop roles of `canguard tree`)."""
 
 from __future__ import annotations
 
 import itertools
+import shutil
+import xml.etree.ElementTree as ET
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import py_trees
+from py_trees.ports import PortsMixin
 
-from canguard.bt.build import _Loader, load_tree
+from canguard.bt import loader
 from canguard.bt.context import Context
-from canguard.bt.display import render_dot, render_text
 from canguard.bt.loaded import LoadedTree, _preorder
-from canguard.config.schema import Config, PartialConfig
+from canguard.bt.loader import load_tree, type_name
+from canguard.bt.nodes import BUILTIN_NODES, ConfiguredAction
+from canguard.bt.nodes.base import node_kind
+from canguard.config.schema import Config
 from canguard.errors import TreeError, quote
 
 if TYPE_CHECKING:
-    from canguard.bt.palette import Palette
+    from canguard.bt.loader import Palette
 
 
 @dataclass(frozen=True)
@@ -34,12 +40,8 @@ def context_for(cfg: Config, clock: Any = None) -> Context:
     """A context for ``cfg`` (sources, actions, stop frames) on ``clock`` (a ManualClock at 0 by default)."""
     from canguard.io.clock import ManualClock
 
-    return Context(
-        clock if clock is not None else ManualClock(),
-        cfg.sources,
-        actions=cfg.actions,
-        stop_frames=cfg.stop.frames,
-    )
+    clock = clock if clock is not None else ManualClock()
+    return Context(clock, cfg.sources, actions=cfg.actions, stop_frames=cfg.stop.frames)
 
 
 def load_config_tree(cfg: Config, ctx: Context | None = None, palette: Palette | None = None) -> LoadedTree:
@@ -49,31 +51,12 @@ def load_config_tree(cfg: Config, ctx: Context | None = None, palette: Palette |
     return load_tree(cfg.tree.file, ctx if ctx is not None else context_for(cfg), cfg.tree.main, palette)
 
 
-def partial_tree_problems(partial: PartialConfig | None) -> list[str]:
-    """The problems of the tree of a config that has problems itself (``ConfigError.partial``), checked
-    without being built; a source the config declares but got wrong is not reported again."""
-    if partial is None or partial.tree is None:
-        return []
-    from canguard.io.clock import ManualClock
-
-    loader = _Loader(partial.tree.file, Context(ManualClock(), partial.sources, actions=partial.actions))
-    loader.source_check = "always" if partial.sources_ok else "never"
-    loader.unsure_sources = partial.declared_sources
-    try:
-        loader.check(partial.tree.main)
-    except TreeError as exc:  # unreadable or not well-formed XML, a broken include
-        return [*loader.errors, *exc.problems]
-    return loader.errors
-
-
 def check_tree(cfg: Config, palette: Palette | None = None) -> TreeReport:
     """Load and validate the config's tree against the config (and ``--nodes`` palettes); TreeError on any problem."""
     loaded = load_config_tree(cfg, palette=palette)  # binding checks every guard's topic_name against cfg.sources
     count = sum(1 for _ in loaded.root.iterate())
-    head = (
-        f"tree: {loaded.main_id} from {loaded.path} (BTCPP_format {loaded.format_version}), {count} nodes, "
-        f"reads {', '.join(sorted(loaded.context.read_sources)) or 'no source'}"
-    )
+    head = (f"tree: {loaded.main_id} from {loaded.path} (BTCPP_format {loaded.format_version}), {count} nodes, "
+            f"reads {', '.join(sorted(loaded.context.read_sources)) or 'no source'}")
     require_guard_coverage(loaded)
     unread = [n for n in cfg.sources if n not in loaded.context.read_sources]
     return TreeReport(loaded, f"{head}\n{render_text(loaded.root)}", [
@@ -187,3 +170,61 @@ def show_tree(config_path: str | Path, dot: str | Path | None = None) -> str:
     if dot is not None:
         text += f"wrote {render_dot(loaded.root, dot)}\n"
     return text
+
+
+def render_text(root: py_trees.behaviour.Behaviour, show_status: bool = False) -> str:
+    """py_trees' unicode drawing of the tree, with the loader's readable node names."""
+    return py_trees.display.unicode_tree(root, show_status=show_status)
+
+
+def render_dot(root: py_trees.behaviour.Behaviour, path: str | Path) -> Path:
+    """Write the tree as Graphviz: ``.dot`` text always; ``.png`` / ``.svg`` / ``.pdf`` need ``dot``."""
+    out = Path(path)
+    fmt = out.suffix.lower().lstrip(".")
+    graph = py_trees.display.dot_tree(root)
+    if fmt in ("dot", "gv"):
+        out.write_text(graph.to_string(), encoding="utf-8")
+        return out
+    if fmt not in ("png", "svg", "pdf"):
+        raise TreeError(f"{out}: unknown drawing format {out.suffix!r}; use .dot, .png, .svg or .pdf")
+    if shutil.which("dot") is None:
+        raise TreeError(f"{out}: drawing .{fmt} needs Graphviz's `dot` program, which is not installed "
+                        "(e.g. apt install graphviz); a .dot file works without it")
+    try:
+        graph.write(str(out), format=fmt)
+    except (OSError, AssertionError) as exc:  # pydot reports dot's own failures as AssertionError
+        raise TreeError(f"{out}: Graphviz failed: {exc}") from exc
+    return out
+
+
+def nodes_model_xml(ctx: Context | None = None) -> str:
+    """A Groot2 ``<TreeNodesModel>`` of every canguard node type and its ports.
+
+    With ``ctx``, the config's actions are included (each with its ``output_time`` port).
+    """
+    doc = ET.Element("root", {"BTCPP_format": "4"})
+    model = ET.SubElement(doc, "TreeNodesModel")
+    actions = ctx.actions if ctx is not None else {}
+    entries: list[tuple[str, type[PortsMixin], str]] = [
+        *((n, c, getattr(c, "DESCRIPTION", "")) for n, c in BUILTIN_NODES.items()),
+        *((n, ConfiguredAction, f"config action: {len(a.frames)} frame(s)") for n, a in actions.items()),
+    ]
+    for name, ep in loader.plugin_entry_points().items():
+        if name not in BUILTIN_NODES:
+            cls = loader.load_plugin(ep)
+            entries.append((name, cls, getattr(cls, "DESCRIPTION", "") or f"plug-in {ep.value}"))
+    for name, cls, description in entries:
+        elem = ET.SubElement(model, node_kind(cls), {"ID": name})
+        for direction, ports in (("input_port", cls.input_ports()), ("output_port", cls.output_ports())):
+            for port_name, info in ports.items():
+                attrs = {"name": port_name, "type": type_name(info.data_type, cpp=True)}
+                if info.has_default:  # BT.CPP writes and reads bools as true/false
+                    value = info.default_value
+                    attrs["default"] = str(value).lower() if isinstance(value, bool) else str(value)
+                port = ET.SubElement(elem, direction, attrs)
+                port.text = info.description
+        if description:  # BT.CPP 4 writes manifest metadata this way; Groot2 shows it
+            fields = ET.SubElement(elem, "MetadataFields")
+            ET.SubElement(fields, "Metadata", {"description": description})
+    ET.indent(doc, space="  ")
+    return ET.tostring(doc, encoding="unicode") + "\n"

@@ -19,9 +19,8 @@ if TYPE_CHECKING:
     from canguard.bt.scopes import TreeBlackboard
     from canguard.bt.scripting import Script
 
-PRE = ("_failureIf", "_successIf", "_skipIf", "_while")
-POST = ("_onSuccess", "_onFailure", "_post", "_onHalted")
-ALL = PRE + POST
+ALL = ("_failureIf", "_successIf", "_skipIf", "_while", "_onSuccess", "_onFailure", "_post", "_onHalted")
+"""BT.CPP's pre-conditions, then its post-conditions."""
 
 
 def take_conditions(attrib: dict[str, str]) -> tuple[dict[str, Script], list[str]]:

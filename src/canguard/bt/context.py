@@ -43,10 +43,6 @@ class ListSink:
         """Append every frame with its origin."""
         self.sent.extend((origin, f) for f in frames)
 
-    def labels(self) -> list[str]:
-        """The labels of every frame sent, in order."""
-        return [f.label for _, f in self.sent]
-
 
 class NullTaskGate:
     """A task gate that records calls only (tests, and trees without a task)."""
@@ -72,16 +68,9 @@ NMT_STATES = {0x00: "boot_up", 0x04: "stopped", 0x05: "operational", 0x7F: "pre_
 class Context:
     """Everything a node of one tree may use; built by the engine, shared by all nodes."""
 
-    def __init__(
-        self,
-        clock: Clock,
-        sources: Mapping[str, SourceConfig],
-        sink: FrameSink | None = None,
-        actions: Mapping[str, ActionConfig] | None = None,
-        task: TaskGate | None = None,
-        on_event: EventCallback | None = None,
-        stop_frames: Sequence[FrameSpec] = (),
-    ) -> None:
+    def __init__(self, clock: Clock, sources: Mapping[str, SourceConfig], sink: FrameSink | None = None,
+                 actions: Mapping[str, ActionConfig] | None = None, task: TaskGate | None = None,
+                 on_event: EventCallback | None = None, stop_frames: Sequence[FrameSpec] = ()) -> None:
         self.clock = clock
         self.sources = dict(sources)
         self.sink: FrameSink = sink if sink is not None else ListSink()
@@ -131,29 +120,25 @@ class Context:
         return role in _DRIVE_EVENT_ROLES and health is not None and health.source.signal("emcy_code") is not None
 
     def drive_event(self, sample: Sample, health: SourceHealth) -> None:
-        """Journal a CANopen drive's EMCY frames and NMT state changes (from its first source only)."""
+        """Journal a CANopen drive's EMCY frames (code, error register, manufacturer bytes) and NMT state
+        changes (from its first source only)."""
+        fields: dict[str, Any] = {"t": sample.t, "source": sample.source, "value": sample.value}
         if sample.signal == "emcy":
-            self._emcy(sample, health)
+            code, data = health.value("emcy_code"), health.value("emcy_data")
+            if sample.reason:
+                fields["reason"] = sample.reason
+            else:
+                fields.update(code=f"0x{int(code):04X}", error_register=int(sample.value),
+                              manufacturer=int(data).to_bytes(5, "little").hex().upper(),
+                              reset=int(code) == 0 and int(sample.value) == 0)
+            self.record("emcy", **fields)
             return
         before = health.value("nmt")
         if sample.reason or sample.value == before:
             return
-        state = int(sample.value)
-        self.record("nmt", t=sample.t, source=sample.source, value=state,
-                    state=NMT_STATES.get(state, f"0x{state:02X}"),
+        fields["value"] = state = int(sample.value)
+        self.record("nmt", **fields, state=NMT_STATES.get(state, f"0x{state:02X}"),
                     previous=None if before != before else NMT_STATES.get(int(before), f"0x{int(before):02X}"))
-
-    def _emcy(self, sample: Sample, health: SourceHealth) -> None:
-        """Journal one EMCY frame of a CANopen drive: code, error register, manufacturer bytes."""
-        code, data = health.value("emcy_code"), health.value("emcy_data")
-        fields: dict[str, Any] = {"t": sample.t, "source": sample.source, "value": sample.value}
-        if sample.reason:
-            fields["reason"] = sample.reason
-        else:
-            fields.update(code=f"0x{int(code):04X}", error_register=int(sample.value),
-                          manufacturer=int(data).to_bytes(5, "little").hex().upper(),
-                          reset=int(code) == 0 and int(sample.value) == 0)
-        self.record("emcy", **fields)
 
     def record(self, event: str, **fields: Any) -> None:
         """Report an event (``trip``, ``recover``, ...) with its fields to the journal, if any."""

@@ -9,29 +9,24 @@ from typing import TYPE_CHECKING, Any
 
 from py_trees.blackboard import Blackboard
 
-from canguard.bt.build import load_tree
 from canguard.bt.context import Context
+from canguard.bt.loader import load_tree
 from canguard.io.clock import ManualClock
 
 if TYPE_CHECKING:
     from canguard.bt.loaded import LoadedTree
-    from canguard.bt.palette import Palette
-
-
-def _json_value(value: Any) -> Any:
-    """Numbers, strings and booleans as they are; NaN/inf and anything else as text."""
-    if value is None or isinstance(value, str | int) or (isinstance(value, float) and math.isfinite(value)):
-        return value
-    return str(value)
+    from canguard.bt.loader import Palette
 
 
 def root_blackboard() -> dict[str, Any]:
-    """The root namespace's entries (``/key``), without the loader's port constants."""
+    """The root namespace's entries (``/key``), without the loader's port constants: numbers, strings and
+    booleans as they are, NaN/inf and anything else as text."""
     out = {}
     for key, value in Blackboard.storage.items():
         name = key[1:]
         if key.startswith("/") and "/" not in name and not name.endswith("__const"):
-            out[name] = _json_value(value)
+            plain = value is None or isinstance(value, str | int) or (isinstance(value, float) and math.isfinite(value))
+            out[name] = value if plain else str(value)
     return dict(sorted(out.items()))
 
 
@@ -48,20 +43,11 @@ def _script_errors(loaded: LoadedTree) -> list[str]:
     return out
 
 
-def dry_run(
-    path: Path,
-    ticks: int,
-    dt: float,
-    main: str | None = None,
-    palette: Palette | None = None,
-    *,
-    exactly_once: bool = False,
-) -> dict[str, Any]:
+def dry_run(path: Path, ticks: int, dt: float, main: str | None = None, palette: Palette | None = None, *,
+            exactly_once: bool = False) -> dict[str, Any]:
     """Load ``path`` and tick it ``ticks`` times ``dt`` s apart (clock from 0): each tick's root status and the
     root blackboard. Each tick is ``tickOnce()`` (``tickExactlyOnce()`` with ``exactly_once``)."""
-    Blackboard.storage.clear()
-    Blackboard.metadata.clear()
-    Blackboard.clients.clear()
+    Blackboard.clear()
     clock = ManualClock()
     ctx = Context(clock, {}, on_event=lambda event: print(f"canguard tree: {event.get('reason')}", file=sys.stderr))
     loaded = load_tree(path, ctx, main, palette)

@@ -70,12 +70,10 @@ class LoadedTree:
     """A parsed, validated and bound tree."""
 
     root: py_trees.behaviour.Behaviour
-    tree: py_trees.trees.BehaviourTree
     main_id: str
     path: Path
     context: Context
     format_version: int  # 4 with BTCPP_format="4", else 3
-    tree_ids: tuple[str, ...]  # every <BehaviorTree ID>, includes inlined
     nodes: dict[Any, NodeInfo] = field(default_factory=dict)  # by node.id
     wake_up: WakeUpSignal = field(default_factory=WakeUpSignal)
 
@@ -88,15 +86,6 @@ class LoadedTree:
         if self.context.tree_start is None:
             self.context.tree_start = self.context.now()
         return tick_once(self, max_reticks, exactly_once=exactly_once)
-
-    @property
-    def skipped(self) -> bool:
-        """True when the last tick's root returned BT.CPP's SKIPPED (its status then stays INVALID: IDLE)."""
-        return bool(getattr(self.root, "skipped", False))
-
-    def halt(self) -> None:
-        """Halt the whole tree (every RUNNING node is stopped)."""
-        self.root.stop(py_trees.common.Status.INVALID)
 
     def find(self, name: str) -> py_trees.behaviour.Behaviour:
         """The node with that readable name; KeyError listing the names."""
@@ -115,12 +104,9 @@ class LoadedTree:
 
     def guards(self) -> list[GuardView]:
         """One :class:`GuardView` per guarded signal (a joints guard gives one per joint), in tree order."""
-        return [
-            GuardView(node.name, node.topic_name, role, cast("GuardKind", kind), model,
-                      self.context.unit(node.topic_name, role))
-            for node in self.guard_nodes()
-            for role, model, kind in node.guarded()
-        ]
+        return [GuardView(node.name, node.topic_name, role, cast("GuardKind", kind), model,
+                          self.context.unit(node.topic_name, role))
+                for node in self.guard_nodes() for role, model, kind in node.guarded()]
 
 
 def _preorder(node: py_trees.behaviour.Behaviour) -> Iterator[py_trees.behaviour.Behaviour]:

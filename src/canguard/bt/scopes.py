@@ -21,11 +21,7 @@ SUBTREE = "SubTree"
 
 def typed_literal(text: str) -> int | float | str:
     """A literal port value on a SubTree element as BT.CPP stores it: an integer, else a real, else the text."""
-    if INT_TEXT.match(text):
-        return int(text)
-    if REAL_TEXT.match(text):
-        return float(text)
-    return text
+    return int(text) if INT_TEXT.match(text) else float(text) if REAL_TEXT.match(text) else text
 
 
 def subtree_ports(elem: ET.Element) -> tuple[dict[str, str], dict[str, str]]:
@@ -53,9 +49,10 @@ class Inline:
     literals: Mapping[str, str]  # port -> the literal text on the element
 
 
-@dataclass
-class Scope:
-    """The names of one SubTree instance's blackboard (``namespace``: py_trees' namespace of it)."""
+@dataclass(eq=False)
+class TreeBlackboard:
+    """One SubTree instance's blackboard scope (``namespace``: py_trees' namespace of it), and the scripting
+    language's view of py_trees' blackboard inside it."""
 
     namespace: str
     aliases: dict[str, str] = field(default_factory=dict)  # local name -> the parent's storage key
@@ -63,15 +60,16 @@ class Scope:
     parent: str = ""  # the namespace the SubTree element is written in ("" for the main tree)
     element: ET.Element | None = None  # the <SubTree> element (None for the main tree)
     private: str = ""  # in an inlined _autoremap subtree: the path its _ entries live under
+    declared: Mapping[str, type] = field(default_factory=dict)  # typed ports' entries, by storage key
 
-    def inlined(self, inline: Inline) -> Scope:
+    def inlined(self, inline: Inline) -> TreeBlackboard:
         """This scope as seen from inside an inlined ``_autoremap`` subtree."""
         own = self.namespace + inline.private + "/"
-        aliases = dict(self.aliases)
-        aliases.update({port: self.key(name) for port, name in inline.remaps.items()})
-        aliases.update({port: own + port for port in inline.literals})
+        aliases = {**self.aliases, **{port: self.key(name) for port, name in inline.remaps.items()},
+                   **{port: own + port for port in inline.literals}}
         literals = {own + port: typed_literal(text) for port, text in inline.literals.items()}
-        return Scope(self.namespace, aliases, literals, self.parent, self.element, inline.private)
+        return TreeBlackboard(self.namespace, aliases, literals, self.parent, self.element, inline.private,
+                              self.declared)
 
     def key(self, name: str) -> str:
         """The storage key of entry ``name`` as seen from this scope (``@name``: the root's)."""
@@ -84,19 +82,37 @@ class Scope:
         alias = self.aliases.get(name)
         return alias if alias is not None else self.namespace + name
 
+    def has(self, key: str) -> bool:
+        full = self.key(key)
+        return full in Blackboard.storage or full in self.declared
 
-def subtree_scopes(trees: Mapping[str, ET.Element], main_id: str) -> dict[str, Scope]:
+    def get(self, key: str) -> object:
+        return Blackboard.storage[self.key(key)]
+
+    def set(self, key: str, value: object) -> None:
+        Blackboard.storage[self.key(key)] = value
+
+    def declared_type(self, key: str) -> type | None:
+        return self.declared.get(self.key(key))
+
+    def unset(self, key: str) -> None:
+        Blackboard.storage.pop(self.key(key), None)
+
+
+def subtree_scopes(trees: Mapping[str, ET.Element], main_id: str,
+                   declared: Mapping[str, type]) -> dict[str, TreeBlackboard]:
     """Every SubTree instance's scope under the validated tree ``main_id``, by namespace (``/``: the main's)."""
-    root = Scope("/")
+    root = TreeBlackboard("/", declared=declared)
     scopes = {"/": root}
 
-    def walk(elem: ET.Element, scope: Scope) -> None:
+    def walk(elem: ET.Element, scope: TreeBlackboard) -> None:
         for child in elem:
             if child.tag != SUBTREE:
                 walk(child, scope)
                 continue
             target = child.attrib.get("ID", "")
-            sub = Scope(scope.namespace + child.attrib.get("name", target) + "/", parent=scope.namespace, element=child)
+            sub = TreeBlackboard(scope.namespace + child.attrib.get("name", target) + "/", parent=scope.namespace,
+                                 element=child, declared=declared)
             remaps, literals = subtree_ports(child)
             sub.aliases.update({port: scope.key(name) for port, name in remaps.items()})
             sub.literals.update({sub.namespace + port: typed_literal(text) for port, text in literals.items()})
@@ -107,28 +123,3 @@ def subtree_scopes(trees: Mapping[str, ET.Element], main_id: str) -> dict[str, S
     if main_id in trees:
         walk(trees[main_id], root)
     return scopes
-
-
-class TreeBlackboard:
-    """The scripting language's view of py_trees' blackboard, inside one (sub)tree's :class:`Scope`."""
-
-    def __init__(self, namespace: str, scope: Scope | None = None, declared: Mapping[str, type] | None = None) -> None:
-        self.namespace = namespace if namespace.endswith("/") else namespace + "/"
-        self.scope = scope if scope is not None else Scope(self.namespace)
-        self.declared: Mapping[str, type] = declared if declared is not None else {}  # typed ports' entries
-
-    def has(self, key: str) -> bool:
-        full = self.scope.key(key)
-        return full in Blackboard.storage or full in self.declared
-
-    def get(self, key: str) -> object:
-        return Blackboard.storage[self.scope.key(key)]
-
-    def set(self, key: str, value: object) -> None:
-        Blackboard.storage[self.scope.key(key)] = value
-
-    def declared_type(self, key: str) -> type | None:
-        return self.declared.get(self.scope.key(key))
-
-    def unset(self, key: str) -> None:
-        Blackboard.storage.pop(self.scope.key(key), None)

@@ -22,19 +22,13 @@ class WakeUpSignal:
     BT.CPP's timer thread would have between two ticks)."""
 
     def __init__(self) -> None:
-        self.pending = False
+        self.pending = False  # set by BT.CPP's emitWakeUpSignal, cleared by its waitFor(0)
         self._timers: dict[int, float] = {}
         self.capped = False  # consecutive ticks hit the bound: only the first is journalled
 
     def emit(self) -> None:
         """Set the latch (BT.CPP's ``emitWakeUpSignal``)."""
         self.pending = True
-
-    def consume(self) -> bool:
-        """Whether the latch was set; clears it (BT.CPP's ``waitFor(0)``)."""
-        was = self.pending
-        self.pending = False
-        return was
 
     def arm(self, owner: object, deadline: float) -> None:
         """A timer of ``owner`` that emits the signal at ``deadline`` (the engine's clock, s)."""
@@ -49,8 +43,7 @@ class WakeUpSignal:
         due = [owner for owner, deadline in self._timers.items() if deadline <= now]
         for owner in due:
             del self._timers[owner]
-        if due:
-            self.emit()
+        self.pending = self.pending or bool(due)
 
 
 class _Tree(Protocol):
@@ -82,9 +75,8 @@ def _tick_root(root: py_trees.behaviour.Behaviour, reached: set | None) -> None:
         reached.update(nodes)
 
 
-def tick_once(
-    tree: _Tree, max_reticks: int = MAX_RETICKS, *, exactly_once: bool = False, collect: bool = False
-) -> Ticked:
+def tick_once(tree: _Tree, max_reticks: int = MAX_RETICKS, *, exactly_once: bool = False,
+              collect: bool = False) -> Ticked:
     """BT.CPP's ``tickOnce()``: tick the root, and again while it is RUNNING with a wake-up pending (at most
     ``max_reticks`` times, an ``error`` event at the first capped tick); ``exactly_once``: ``tickExactlyOnce()``."""
     from py_trees.common import Status
@@ -95,26 +87,14 @@ def tick_once(
     root = tree.root
     _tick_root(root, reached)
     reticks = 0
-    capped = False
-    while not exactly_once and root.status == Status.RUNNING and signal.pending:
-        if reticks >= max_reticks:
-            capped = True
-            break
-        signal.consume()
+    while not exactly_once and root.status == Status.RUNNING and signal.pending and reticks < max_reticks:
+        signal.pending = False
         reticks += 1
         _tick_root(root, reached)
+    capped = not exactly_once and root.status == Status.RUNNING and signal.pending  # stopped at the bound
     if capped and not signal.capped:
-        tree.context.record(
-            "error",
-            node=root.name,
-            reason=f"the tree kept waking itself up: {max_reticks} re-ticks in one tick, "
-            "the next tick goes on (BT.CPP's tickOnce would not have returned yet)",
-        )
+        tree.context.record("error", node=root.name, reason=f"the tree kept waking itself up: {max_reticks} re-ticks "
+                            "in one tick, the next tick goes on (BT.CPP's tickOnce would not have returned yet)")
     signal.capped = capped
-    return Ticked(
-        status=root.status,
-        skipped=bool(getattr(root, "skipped", False)),
-        reticks=reticks,
-        capped=capped,
-        reached=frozenset(reached) if reached is not None else None,
-    )
+    return Ticked(root.status, bool(getattr(root, "skipped", False)), reticks, capped,
+                  frozenset(reached) if reached is not None else None)

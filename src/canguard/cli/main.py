@@ -57,13 +57,14 @@ def _add_nodes(p: argparse.ArgumentParser) -> None:
 
 
 def _palette(args: argparse.Namespace) -> Any:
-    from canguard.bt.palette import read_palettes
+    from canguard.bt.loader import read_palettes
 
     return read_palettes(args.nodes) if args.nodes else None
 
 
 def _cmd_check(args: argparse.Namespace) -> int:
-    from canguard.bt.loader import check_tree, partial_tree_problems
+    from canguard.bt.checks import check_tree
+    from canguard.bt.loader import partial_tree_problems
     from canguard.cli.check import describe
     from canguard.errors import ConfigError
     from canguard.io.outputs import check_config_outputs
@@ -109,7 +110,7 @@ def _add_tree(sub: argparse._SubParsersAction) -> None:
 
 
 def _cmd_tree(args: argparse.Namespace) -> int:
-    from canguard.bt.loader import nodes_model_xml, show_tree
+    from canguard.bt.checks import nodes_model_xml, show_tree
 
     if args.file is not None:
         return _dry_run(args)
@@ -118,7 +119,7 @@ def _cmd_tree(args: argparse.Namespace) -> int:
                           "canguard tree TREE.xml --tick N")
 
     if args.nodes_model is not None:
-        from canguard.bt.loader import context_for
+        from canguard.bt.checks import context_for
         from canguard.config.loader import load_config
 
         ctx = context_for(load_config(_config_path(args)))
@@ -132,8 +133,8 @@ def _dry_run(args: argparse.Namespace) -> int:
     """``canguard tree TREE.xml [--tick N --dt S] [--json]``: the tree alone, on a manual clock."""
     import json
 
+    from canguard.bt.checks import render_text
     from canguard.bt.dryrun import dry_run
-    from canguard.bt.loader import render_text
 
     if args.config is not None:
         raise ConfigError("tree TREE.xml runs the file on its own: leave out -c (or drop TREE.xml to show the "
@@ -142,8 +143,8 @@ def _dry_run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--tick {args.tick}: expected a number of ticks >= 0")
     if not math.isfinite(args.dt) or args.dt <= 0:
         raise ConfigError(f"--dt {args.dt}: expected seconds > 0")
-    from canguard.bt.build import load_tree, validate_tree
     from canguard.bt.context import Context, NullTaskGate
+    from canguard.bt.loader import load_tree, validate_tree
     from canguard.io.clock import ManualClock
 
     palette = _palette(args)

@@ -433,7 +433,7 @@ def _size(log: Path) -> int:
         return 0
 
 
-_WORKER_MODULES = ("canguard.engine.events", "canguard.io.logs", "canguard.protect.state", "canguard.bt.loader")
+_WORKER_MODULES = ("canguard.engine.events", "canguard.io.logs", "canguard.protect.state", "canguard.bt.checks")
 """What :func:`replay_one` imports on a first log: imported once before a forked pool, not in every worker."""
 
 

@@ -1,19 +1,12 @@
 """Frames -> samples: decode only the configured signals of the configured frames.
 
-:class:`Decoder` is built once from a :class:`~canguard.config.schema.Config`. Its
-:meth:`Decoder.decode` (the live path, and the replay's for rows a block does not take)
-finds a frame's message with one dict lookup on ``(bus, arbitration_id, is_extended_id)``
-(an unconfigured frame costs only that) and runs that message's
-:class:`~canguard.decode.message.MessageDecoder` kernel on it as a block of one
-(:func:`row_samples`: the samples of a row that is not valid, with reasons).
-
-Nothing raises out of :meth:`Decoder.decode`: a frame of the wrong length or a
-payload cantools cannot decode becomes one invalid sample (``bad_length`` /
-``undecodable``, value NaN) per configured signal; a NaN or infinite value
-becomes an invalid sample (``nan`` / ``inf``). Error and remote frames are
-counted, never decoded. The DBC [min|max] range and a presence flag at 0 make the
-row invalid for a block but not the sample: :class:`~canguard.protect.staleness.SourceHealth`
-reports those itself.
+:meth:`Decoder.decode` (live, and replay's rows a block does not take) finds a frame's message by one dict
+lookup on ``(bus, arbitration_id, is_extended_id)`` and runs its
+:class:`~canguard.decode.message.MessageDecoder` kernel on it as a block of one. It never raises: a wrong
+length or an undecodable payload gives one NaN sample per configured signal (``bad_length`` /
+``undecodable``), a NaN or infinite value an invalid sample (``nan`` / ``inf``); error and remote frames
+are counted, never decoded. The DBC range and a presence flag at 0 leave the sample valid:
+:class:`~canguard.protect.staleness.SourceHealth` reports those itself.
 """
 
 from __future__ import annotations
@@ -67,12 +60,8 @@ def _output(ref: SignalRef, source: str) -> Output:
 
 
 class Decoder:
-    """Decodes the configured signals of the configured frames of a :class:`Config`.
-
-    ``decode(frame, bus)`` never raises. Counters: :attr:`frames`, :attr:`decoded`,
-    :attr:`invalid`, :attr:`skipped`, :attr:`error_frames`, :attr:`remote_frames`
-    (all buses), :attr:`per_bus` (by bus name, with reasons).
-    """
+    """Decodes the configured signals of the configured frames of a :class:`Config`; counters summed over every
+    bus, and :attr:`per_bus` (by bus name, with reasons)."""
 
     def __init__(self, cfg: Config) -> None:
         self._table: dict[tuple[str, int, bool], MessageDecoder] = {}
@@ -87,10 +76,6 @@ class Decoder:
             self._table[key] = MessageDecoder(message, [_output(ref, src) for ref, src in refs])
 
     # -- introspection -----------------------------------------------------
-    def keys(self) -> Iterable[tuple[str, int, bool]]:
-        """The configured ``(bus, arbitration_id, is_extended_id)`` triples."""
-        return self._table.keys()
-
     def entries(self) -> Iterable[tuple[tuple[str, int, bool], MessageDecoder]]:
         """Every configured ``(bus, arbitration_id, is_extended_id)`` with its message's decoder."""
         return self._table.items()

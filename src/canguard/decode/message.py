@@ -1,40 +1,31 @@
 """One configured message's decoder: compiled once from the DBC, one kernel over a block of payloads.
 
-:class:`MessageDecoder` is built when the config is compiled, for one message on one
-bus and the signals sources read from it (:class:`Output`). It compiles the message once
-into **one kernel** over a block of rows: ``payload`` (an ``n x width`` uint8 array,
-each row a payload padded with anything) and ``lengths`` (each row's payload length).
-A live frame is a block of one and goes through the very same kernel.
+:class:`MessageDecoder` compiles one message on one bus, for the signals sources read from it
+(:class:`Output`), into **one kernel** over a block of rows: ``payload`` (``n x width`` uint8, each
+row a payload padded with anything) and ``lengths``. A live frame is a block of one through the
+same kernel.
 
-The kernel reads the payload as 64-bit words (``<u8`` for Intel, ``>u8`` for Motorola
-signals; an IEEE float at a boundary of its own size as ``f4``/``f8``): per signal a shift,
-a mask, the sign, then ``raw * scale + offset`` in float64 where that is what Python's
-arithmetic gives, in int64 where Python's exact integers are needed and fit, in Python
-integers where they do not. Over a block the operands are the block's numpy columns; over
-a block of one they are that row's words as Python numbers (:mod:`struct` over its bytes):
-the same operators, which give the same bits on a uint64 column and on a Python integer,
-and the same IEEE doubles, at a fraction of the cost of numpy's calls over one row. Only
-the casts differ (:class:`_Columns`, :class:`_Numbers`). Covered: any position and width up to 64
-bits, Intel or Motorola, signed, IEEE float32/float64, classic and CAN FD (bytes past the
-DBC length never read, as cantools cuts them), simple and extended multiplexing. The
-contract is equality with cantools' ``decode(..., decode_choices=False)`` to the bit
-(``tests/test_columns_vs_cantools.py``, ``tests/test_decode_message.py``).
+The kernel reads the payload as 64-bit words (``<u8`` Intel, ``>u8`` Motorola; an IEEE float at a
+boundary of its own size as ``f4``/``f8``): per signal a shift, a mask, the sign, then
+``raw * scale + offset`` in float64 where that is what Python's arithmetic gives, in int64 where
+Python's exact integers are needed and fit, in Python integers beyond. Over a block the operands
+are numpy columns; over a block of one, that row's words as Python numbers (:mod:`struct`): the
+same operators give the same bits and doubles at a fraction of numpy's per-call cost, only the
+casts differ (:class:`_Columns`, :class:`_Numbers`). The contract is equality with cantools'
+``decode(..., decode_choices=False)`` to the bit (``tests/test_columns_vs_cantools.py``,
+``tests/test_decode_message.py``).
 
-``cantools`` is the strategy of what that maths does not take: container messages, a
-conversion that is not identity or linear, a float of another width than 32 or 64 bits, a
-scaled or signed multiplexer (cantools picks the page by the scaled value), a signal outside
-the payload. Its kernel reads each row with cantools' ``decode_simple``; its values then take
-the same row check as every other message's.
+``cantools`` is the strategy of what that maths does not take (container messages, a conversion
+that is not linear, a float of another width than 32 or 64 bits, a scaled or signed multiplexer,
+a signal outside the payload): cantools' ``decode_simple`` per row, then the same row check.
 
-The row check, written once (:meth:`MessageDecoder.decode`): a row is valid when its length
-is the DBC length (or, CAN FD, the padded length), cantools would decode it (its selected
-multiplexers hold values some signal is multiplexed on), every configured signal is on its
-multiplexer page, and every value is usable: finite and in the configured [min|max], a
-presence flag non-zero (the row then carries 1.0). A multiplexed row with none of the
-configured signals on its page is :data:`~canguard.decode.rows.EMPTY`. Why a row is not
-valid (:class:`~canguard.decode.rows.Verdict`) is named on demand: ``bad_length``,
-``undecodable``, ``nan`` / ``inf``, ``absent`` (a presence flag at 0), ``out_of_range``,
-``other_page`` (some configured signals on the page, not all).
+The row check, written once (:meth:`MessageDecoder.decode`): a row is valid when its length is
+the DBC length (CAN FD: or the padded length), cantools would decode it, every configured signal
+is on its multiplexer page, and every value is finite and in the configured [min|max] (a presence
+flag non-zero: the row carries 1.0). A multiplexed row with none of the configured signals is
+:data:`~canguard.decode.rows.EMPTY`. Why a row is not valid (:class:`~canguard.decode.rows.Verdict`)
+is named on demand: ``bad_length``, ``undecodable``, ``nan`` / ``inf``, ``absent``,
+``out_of_range``, ``other_page``.
 """
 
 from __future__ import annotations
@@ -197,9 +188,9 @@ def _slot(dtypes: list[np.dtype], dtype: np.dtype) -> int:
 class MessageDecoder:
     """Decodes the configured signals of one message, a block of payloads at a time (a frame is a block of one)."""
 
-    __slots__ = ("_cantools", "_checks", "_dtypes", "_guard", "_limits", "_muxes", "_pages", "_refusals",
+    __slots__ = ("_cantools", "_checks", "_dtypes", "_guard", "_muxes", "_pages", "_refusals",
                  "_row_words", "_unpaged", "_values", "length", "lengths", "message", "multiplexed", "names", "outputs",
-                 "signals", "strategy", "width")
+                 "strategy", "width")
 
     def __init__(self, message: Any, outputs: Sequence[Output]) -> None:
         self.message = message
@@ -208,12 +199,10 @@ class MessageDecoder:
         # Accepted payload lengths: the DBC length; a CAN FD frame may carry padding up to the next DLC size.
         padded = next((n for n in _FD_LENGTHS if n >= self.length), self.length)
         self.lengths = (self.length, padded if message.is_fd else self.length)
-        self.signals = frozenset(o.signal for o in self.outputs)
         self.names = tuple((o.source, o.role) for o in self.outputs)
         """(source, role) of each output: the samples a row gives, in order."""
         self.multiplexed = bool(message.is_multiplexed())
-        self._limits = tuple((o.present, max(o.lo, -_BIG), min(o.hi, _BIG)) for o in self.outputs)
-        self._checks = tuple((j, *limits) for j, limits in enumerate(self._limits))
+        self._checks = tuple((j, o.present, max(o.lo, -_BIG), min(o.hi, _BIG)) for j, o in enumerate(self.outputs))
         self.width = max(8, -(-self.length // 8) * 8)
         """The payload bytes the kernel reads a row as (the DBC length rounded up to 64-bit words)."""
         by_name = {s.name: s for s in message.signals}
@@ -363,7 +352,7 @@ class MessageDecoder:
             return Verdict(INVALID_PAYLOAD, [])
         cells = []
         reason = ""
-        for j, ((present, lo, hi), value, page) in enumerate(zip(self._limits, read.values, read.pages, strict=True)):
+        for (j, present, lo, hi), value, page in zip(self._checks, read.values, read.pages, strict=True):
             if page is None or cell(page):
                 carried, why = _reason(float(cell(value)), present, lo, hi)
                 cells.append((j, carried, why))

@@ -1,13 +1,10 @@
 """A message's decoded rows in a block, kept as numpy columns until a row is asked for.
 
-What :meth:`MessageDecoder.decode <canguard.decode.message.MessageDecoder.decode>` gives:
-per row the configured values in output order (a tuple), :data:`EMPTY`, or None (the
-row is invalid and goes to the engine's ``feed``), and on demand why (:class:`Verdict`).
-Over a block of more than one row its kernel gives one float64 column per configured
-signal (:class:`ColumnRows`), made into tuples of Python floats only when the rows go
-one by one (``tolist`` gives the floats the tuples hold); a block taken whole reads the
-columns and masks. A block of one gives its row itself (a one-item list; :class:`OneRow`
-when it is not valid).
+What :meth:`MessageDecoder.decode <canguard.decode.message.MessageDecoder.decode>` gives: per row the
+configured values in output order (a tuple), :data:`EMPTY`, or None (invalid: the row goes to the engine's
+``feed``), and on demand why (:class:`Verdict`). A block of more than one row gives float64 columns
+(:class:`ColumnRows`, tuples built only when rows go one by one); a block of one its row itself (a one-item
+list, an :class:`OneRow` when it is not valid).
 """
 
 from __future__ import annotations

@@ -46,7 +46,7 @@ from canguard.io.frame import Frame
 from canguard.protect.base import LatchedModel
 
 if TYPE_CHECKING:
-    from canguard.bt.loader import GuardView
+    from canguard.bt.loaded import GuardView
 
 log = logging.getLogger(__name__)
 
@@ -82,7 +82,8 @@ class Engine:
         previous: Engine | None = None,
     ) -> None:
         # the node library pulls in py_trees' parser
-        from canguard.bt.loader import halt_ahead, load_tree, require_guard_coverage
+        from canguard.bt.checks import halt_ahead, require_guard_coverage
+        from canguard.bt.loader import load_tree
 
         if cfg.tree is None:
             from canguard.errors import ConfigError

@@ -10,16 +10,13 @@ from __future__ import annotations
 
 import math
 from abc import ABC, abstractmethod
-from collections.abc import Sequence
-from typing import TYPE_CHECKING, Any, ClassVar, Generic, TypeVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
-from canguard.protect.columns import SHORT_RUN, Screen, as_run, in_order, ordered, short_run, values_span
-from canguard.protect.results import Run, Snapshot, alternate, edges, quiet_cached, quiet_run
+from canguard.protect.columns import SHORT_RUN, as_run, ordered, short_run, values_span
+from canguard.protect.results import Run, Snapshot, edges, quiet_cached, quiet_run
 
 if TYPE_CHECKING:
     import numpy.typing as npt
-
-    from canguard.protect.columns import BoolArray, FloatArray
 
 # Reasons a guard is not satisfied, as they appear in snapshots and events.
 REASON_OK = ""
@@ -31,11 +28,6 @@ REASON_NOT_PRESENT = "not_present"
 
 TIME_EPS_S = 1e-9
 """Tolerance of duration comparisons: ``21 * 0.01`` carries float rounding, candump resolves microseconds."""
-
-_FIRST_CHUNK = 16
-"""With ``until_edge``, chunks double from twice the running average distance to the edge (at least this)."""
-_LAST_CHUNK = 1 << 16
-"""The largest chunk screened at once: its temporary columns stay in cache, memory stays flat."""
 
 
 def check_limit(name: str, value: float, *, positive: bool = False) -> float:
@@ -89,14 +81,11 @@ class ProtectionModel(ABC):
         """True while the model is tripped (no latch)."""
 
 
-S = TypeVar("S", bound=Screen)
-
-
-class LatchedModel(ProtectionModel, Generic[S]):
+class LatchedModel(ProtectionModel):
     """What every concrete model shares: the run filter, tripped state, edge time, peak latch, snapshots.
 
-    One kernel, :meth:`_step`, decides; a quiet run (:meth:`_quiet`) is taken whole, a short one sample by
-    sample, a long one screened with numpy (:meth:`_screen`) and the kernel run only where it can act.
+    One kernel, :meth:`_step`, decides; a quiet run (:meth:`_quiet`) is taken whole, any other sample by sample
+    (the engine's runs end at the next tick: past the quiet screen they are short).
     """
 
     reason_tripped: str = REASON_OVERCURRENT
@@ -112,7 +101,6 @@ class LatchedModel(ProtectionModel, Generic[S]):
         """Samples ignored as older than the latest one."""
         self.rejected = 0
         """Samples ignored as not finite."""
-        self._reach = _LAST_CHUNK // 64
 
     @property
     def tripped(self) -> bool:
@@ -136,30 +124,30 @@ class LatchedModel(ProtectionModel, Generic[S]):
                 return quiet_cached(1) or quiet_run(1)
             return edges((0,), (one,), (self._tripped,), 1)
         few = short_run(times, values, SHORT_RUN)
-        if few is not None:
-            if few[0] and self._screened(few[0], few[1]):
-                return quiet_run(len(few[0]))
-            return self._advance_few(few[0], few[1], until_edge)
-        t, v = as_run(times, values)
-        if t.size and self._screened(t, v):
-            return quiet_run(t.size)
-        size = max(_FIRST_CHUNK, 2 * self._reach) if until_edge else _LAST_CHUNK
-        parts: list[tuple[int, Run]] = []
-        start = 0
-        while start < t.size:
-            part = self._advance_long(t[start : start + size], v[start : start + size], until_edge)
-            parts.append((start, part))
-            start += part.taken
-            if until_edge and part.changed:
-                self._reach = (self._reach + start) // 2
-                break
-            size = min(2 * size, _LAST_CHUNK)
-        if len(parts) <= 1:
-            return parts[0][1] if parts else quiet_run(0)
-        import numpy as np
-
-        return Run(np.concatenate([p.index + at for at, p in parts]), np.concatenate([p.t for _, p in parts]),
-                   np.concatenate([p.tripped for _, p in parts]), start)
+        if few is None:  # a long run: screened as numpy columns, walked as floats
+            ta, va = as_run(times, values)
+            if ta.size and self._screened(ta, va):
+                return quiet_run(ta.size)
+            taken, rows = ta.size, zip(map(float, ta), map(float, va), strict=True)  # lazily: an edge may stop it
+        elif few[0] and self._screened(*few):
+            return quiet_run(len(few[0]))
+        else:
+            taken, rows = len(few[0]), zip(*few, strict=True)
+        index: list[int] = []
+        stamps: list[float] = []
+        after: list[bool] = []
+        sample = self._sample
+        for i, (t, v) in enumerate(rows):
+            if sample(t, v):
+                index.append(i)
+                stamps.append(t)
+                after.append(self._tripped)
+                if until_edge:
+                    taken = i + 1
+                    break
+        if not index:
+            return quiet_run(taken)
+        return edges(index, stamps, after, taken)
 
     def mark(self) -> Any:
         """The running state (every attribute: parameters are only read back as they were)."""
@@ -193,8 +181,16 @@ class LatchedModel(ProtectionModel, Generic[S]):
         but the latest time and value (the base sets those); False: nothing taken."""
         return False
 
-    def _feed(self, t: float, a: float, tripped: bool) -> bool:
-        """Record an accepted sample the kernel left in ``tripped``; True on an edge (time and latch taken)."""
+    def _sample(self, t: float, v: float) -> bool | None:
+        """One sample: None when ignored (counted), else True on an edge (its time and the latch taken)."""
+        if not (math.isfinite(t) and math.isfinite(v)):
+            self.rejected += 1
+            return None
+        if self._last_t is not None and t < self._last_t:
+            self.out_of_order += 1
+            return None
+        a = abs(v)
+        tripped = self._step(t, a)
         self._last_t = t
         self._value = a
         if tripped == self._tripped:
@@ -204,103 +200,9 @@ class LatchedModel(ProtectionModel, Generic[S]):
         self._latch = self._latch or tripped
         return True
 
-    def _sample(self, t: float, v: float) -> bool | None:
-        """One sample: None when ignored (counted), else True on an edge."""
-        if not (math.isfinite(t) and math.isfinite(v)):
-            self.rejected += 1
-            return None
-        if self._last_t is not None and t < self._last_t:
-            self.out_of_order += 1
-            return None
-        a = abs(v)
-        return self._feed(t, a, self._step(t, a))
-
-    def _advance_few(self, times: Sequence[float], values: Sequence[float], until_edge: bool) -> Run:
-        index: list[int] = []
-        taken = len(times)
-        sample = self._sample
-        for i in range(taken):
-            if sample(times[i], values[i]):
-                index.append(i)
-                if until_edge:
-                    taken = i + 1
-                    break
-        if not index:
-            return quiet_run(taken)
-        return edges(index, [times[i] for i in index], alternate(self._tripped, len(index)), taken)
-
-    def _advance_long(self, t: FloatArray, v: FloatArray, until_edge: bool) -> Run:
-        import numpy as np
-
-        finite = np.isfinite(v) & np.isfinite(t)
-        ok = in_order(t, finite, self._last_t)
-        everything = bool(ok.all())
-        picked = np.arange(t.size) if everything else ok.nonzero()[0]
-        if not picked.size:
-            self._count_ignored(finite, ok, t.size)
-            return quiet_run(t.size)
-        ta = t if everything else t[picked]
-        a = np.abs(v if everything else v[picked])
-        found, last = self._walk(ta, a, until_edge)
-        taken = int(picked[last]) + 1 if until_edge and found else t.size
-        if not everything:
-            self._count_ignored(finite, ok, taken)
-        at = np.array(found, dtype=np.intp)
-        return edges(picked[at], ta[at], alternate(self._tripped, len(found)), taken)
-
-    def _walk(self, t: FloatArray, a: FloatArray, until_edge: bool) -> tuple[list[int], int]:
-        """Feed a long run's candidates to the kernel; the edges' positions and the last sample taken."""
-        n = a.size
-        screen = self._screen(t, a)
-        found: list[int] = []
-        pos = 0
-        while pos < n:
-            j = screen.next(pos, self._tripped) if self._at_rest() else pos
-            if j > pos:
-                self._rest(screen, pos, j - 1)
-                self._last_t = float(t[j - 1])
-                self._value = float(a[j - 1])
-            while j < n:
-                tj, aj = float(t[j]), float(a[j])
-                if self._feed(tj, aj, self._step_at(screen, j, tj, aj)):
-                    found.append(j)
-                    if until_edge:
-                        self._finish(screen, j)
-                        return found, j
-                j += 1
-                if self._at_rest():
-                    break
-            pos = j
-        self._finish(screen, n - 1)
-        return found, n - 1
-
-    def _count_ignored(self, finite: BoolArray, ok: BoolArray, taken: int) -> None:
-        import numpy as np
-
-        self.rejected += int(np.count_nonzero(~finite[:taken]))
-        self.out_of_order += int(np.count_nonzero(finite[:taken] & ~ok[:taken]))
-
     @abstractmethod
     def _step(self, t: float, a: float) -> bool:
         """The kernel: the tripped state after one accepted sample (the base records edges, time and value)."""
-
-    def _step_at(self, screen: S, j: int, t: float, a: float) -> bool:
-        """The kernel on sample ``j`` of a screened run (a model may take columns the screen holds)."""
-        return self._step(t, a)
-
-    @abstractmethod
-    def _screen(self, t: FloatArray, a: FloatArray) -> S:
-        """A numpy screen of a long run of accepted samples, from the present state (nothing changed)."""
-
-    def _rest(self, screen: S, first: int, last: int) -> None:
-        """Take the quiet samples ``first`` .. ``last`` of the screened run (the base sets time and value)."""
-
-    def _finish(self, screen: S, last: int) -> None:
-        """The walk ended right after sample ``last``: take what the screen still holds."""
-
-    def _at_rest(self) -> bool:
-        """True when the screen may take over again (no timer the kernel must follow)."""
-        return True
 
     def carry_from(self, old: ProtectionModel) -> None:
         """Take over the running state of the model this one replaces (config reload; its own parameters kept).

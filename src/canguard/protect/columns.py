@@ -1,4 +1,4 @@
-"""Column helpers of the models' runs: a run's columns, the short-run check, its order filter, the screen."""
+"""Column helpers of the models' runs: a run's columns, the short-run check, the quiet screen's spans."""
 
 from __future__ import annotations
 
@@ -28,20 +28,6 @@ def as_run(times: npt.ArrayLike, values: npt.ArrayLike) -> tuple[FloatArray, Flo
     if t.ndim != 1 or t.shape != v.shape:
         raise ValueError(f"a run needs 1-D times and values of one length, got shapes {t.shape} and {v.shape}")
     return t, v
-
-
-def in_order(t: FloatArray, finite: BoolArray, last_t: float | None) -> BoolArray:
-    """Which samples are not older than the latest accepted one before them (``finite``: the usable ones):
-    the running maximum of the usable times (and ``last_t``), as an ignored sample is older than an accepted one."""
-    if t.size <= 1:
-        return finite if last_t is None or t.size == 0 else finite & (t >= last_t)
-    import numpy as np
-
-    before = np.empty_like(t)
-    before[0] = -np.inf if last_t is None else last_t
-    np.maximum.accumulate(np.where(finite[:-1], t[:-1], -np.inf), out=before[1:])
-    np.maximum(before[1:], before[0], out=before[1:])
-    return finite & (t >= before)
 
 
 def short_run(times: npt.ArrayLike, values: npt.ArrayLike, most: int) -> tuple[list[float], list[float]] | None:
@@ -94,19 +80,3 @@ def values_span(values: Any) -> tuple[float, float] | None:
         return min(values), max(values)
     low, high = float(values.min()), float(values.max())  # NaN propagates
     return (low, high) if math.isfinite(low) and math.isfinite(high) else None
-
-
-class Screen:
-    """Where a model's kernel can act over a long run: ``clear`` marks the samples that matter while not tripped,
-    ``tripped`` those while tripped; the samples between are quiet (the model's ``_rest`` takes them)."""
-
-    def __init__(self, clear: BoolArray, tripped: BoolArray) -> None:
-        self.size = clear.size
-        self.clear = clear.nonzero()[0]
-        self.tripped = tripped.nonzero()[0]
-
-    def next(self, pos: int, tripped: bool) -> int:
-        """The first sample at or after ``pos`` the kernel must see in state ``tripped`` (size: none)."""
-        marks = self.tripped if tripped else self.clear
-        k = int(marks.searchsorted(pos))
-        return int(marks[k]) if k < marks.size else self.size

@@ -3,15 +3,11 @@
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from canguard.protect.base import REASON_OVERCURRENT, TIME_EPS_S, LatchedModel, ProtectionModel, check_gap, check_limit
-from canguard.protect.columns import Screen
-from canguard.protect.inrush import InrushBlanking, in_window
+from canguard.protect.inrush import InrushBlanking
 from canguard.protect.threshold import level_pct
-
-if TYPE_CHECKING:
-    from canguard.protect.columns import FloatArray, IndexArray
 
 
 def check_thresholds(overcurrent_a: float, recovery_a: float) -> tuple[float, float]:
@@ -24,16 +20,7 @@ def check_thresholds(overcurrent_a: float, recovery_a: float) -> tuple[float, fl
     return over, rec
 
 
-class _Screen(Screen):
-    """A long run with the threshold in force at each sample, the stale gaps up to it, the inrush state before."""
-
-    def __init__(self, t: FloatArray, a: FloatArray, thr: FloatArray, recovery_a: float, gaps: IndexArray,
-                 inrush: tuple[float | None, float | None, float | None, int] | None) -> None:
-        super().__init__(a >= thr, a <= recovery_a)
-        self.t, self.a, self.thr, self.gaps, self.inrush = t, a, thr, gaps, inrush
-
-
-class Hysteresis(LatchedModel[_Screen]):
+class Hysteresis(LatchedModel):
     """Overcurrent guard with a trip and a lower recovery threshold; reason ``overcurrent``; ValueError out of range."""
 
     reason_tripped = REASON_OVERCURRENT
@@ -73,10 +60,6 @@ class Hysteresis(LatchedModel[_Screen]):
             self.inrush.observe(a, t)
             in_force = self.inrush.threshold(thr, t)
             thr = math.inf if in_force is None else in_force
-        return self._decide(t, a, thr)
-
-    def _decide(self, t: float, a: float, thr: float) -> bool:
-        """The kernel, ``thr`` the threshold in force."""
         if self._last_t is not None and t - self._last_t > self.max_gap_s:
             self._over_since = self._under_since = None
         if not self._tripped:
@@ -98,38 +81,6 @@ class Hysteresis(LatchedModel[_Screen]):
             self._under_since = None
             return False
         return True
-
-    def _screen(self, t: FloatArray, a: FloatArray) -> _Screen:
-        import numpy as np
-
-        gap = np.empty(a.size, dtype=bool)
-        gap[0] = self._last_t is not None and t[0] - self._last_t > self.max_gap_s
-        np.greater(np.diff(t), self.max_gap_s, out=gap[1:])
-        thr = np.full(a.size, self.overcurrent_a)
-        inrush = None
-        if self.inrush is not None:
-            inrush = self.inrush.running()
-            window = self.inrush.windows(t, self.inrush.starts_in(t, a), inrush[1])
-            blank = self.inrush.inrush_threshold_a
-            thr[in_window(window, t, self.inrush.inrush_time_s)] = math.inf if blank is None else blank
-        return _Screen(t, a, thr, self.recovery_a, np.cumsum(gap), inrush)
-
-    def _step_at(self, screen: _Screen, j: int, t: float, a: float) -> bool:
-        return self._decide(t, a, float(screen.thr[j]))
-
-    def _rest(self, screen: _Screen, first: int, last: int) -> None:
-        """A gap among quiet samples restarts the other timer too."""
-        if screen.gaps[last] - (screen.gaps[first - 1] if first else 0) > 0:
-            self._over_since = self._under_since = None
-
-    def _at_rest(self) -> bool:
-        return (self._under_since if self._tripped else self._over_since) is None
-
-    def _finish(self, screen: _Screen, last: int) -> None:
-        if self.inrush is None or screen.inrush is None or last == screen.size - 1:
-            return
-        self.inrush.resume(screen.inrush)
-        self.inrush.starts_in(screen.t[: last + 1], screen.a[: last + 1])
 
     def mark(self) -> Any:
         """The running state, the inrush helper's too."""

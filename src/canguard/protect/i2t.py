@@ -8,18 +8,13 @@ from __future__ import annotations
 
 import math
 from abc import abstractmethod
-from collections.abc import Callable, Mapping, Sequence
-from typing import TYPE_CHECKING, Any
+from collections.abc import Mapping
+from typing import Any
 
 from canguard.protect.base import REASON_I2T, LatchedModel, ProtectionModel, check_gap, check_limit
-from canguard.protect.columns import Screen, longest_step
+from canguard.protect.columns import longest_step
 from canguard.protect.state import KIND_LEAKY, KIND_THERMAL, cooled_level
 from canguard.units import AMPERE2_SECOND, THETA
-
-if TYPE_CHECKING:
-    import numpy as np
-
-    from canguard.protect.columns import BoolArray, FloatArray, IndexArray
 
 STATE_VERSION = 1
 MAX_LEVEL = 1e6
@@ -30,80 +25,7 @@ RATED_OVERLOAD_S = 120.0
 """... allowed for this long from cold (IEC 60034-1: 1.5 × I_rated for 2 minutes)."""
 
 
-def next_where(mask: np.ndarray) -> np.ndarray:
-    """For each position, the first position at or after it where ``mask`` is set (``len``: none)."""
-    import numpy as np
-
-    n = mask.size
-    pos = np.where(mask, np.arange(n), n)
-    return np.minimum.accumulate(pos[::-1])[::-1]
-
-
-def clamped_sum(start: float, steps: FloatArray, cap: float, add: Callable[[float, float], float]) -> FloatArray:
-    """The running sum ``acc ← add(acc, step)`` from ``start``, after each step; ``add`` bounds it to [0, ``cap``].
-
-    The same floats as ``add`` step by step: between bounds a sequential ``numpy.add.accumulate`` adds in
-    the same order; at a bound ``add`` takes the step and the steps that keep it there are skipped as a
-    block. Windows double while no bound is hit.
-    """
-    import numpy as np
-
-    n = steps.size
-    out = np.empty(n)
-    stays: tuple[np.ndarray, np.ndarray] | None = None  # where each bound is left, found at the first hit
-    acc, pos, size = float(start), 0, 64
-    while pos < n:
-        end = min(n, pos + size)
-        run = np.add.accumulate(np.concatenate(((acc,), steps[pos:end])))[1:]
-        hit = (~((run >= 0.0) & (run <= cap))).nonzero()[0]
-        if not hit.size:
-            out[pos:end] = run
-            acc, pos, size = float(run[-1]), end, 2 * size
-            continue
-        p = pos + int(hit[0])
-        out[pos:p] = run[: p - pos]
-        acc = add(float(out[p - 1]) if p > pos else acc, float(steps[p]))
-        if p + 1 == n:
-            out[p] = acc
-            break
-        if stays is None:
-            stays = next_where(steps > 0), next_where(steps < 0)
-        stay = int(stays[acc != 0.0][p + 1])
-        out[p:stay] = acc
-        pos, size = stay, 64
-    return out
-
-
-def thermal_steps(theta: float, q: Sequence[float], dt: Sequence[float], tau_heat: float, tau_cool: float,
-                  cap: float) -> list[float]:
-    """θ after each step ``θ ← q + (θ − q)·exp(−dt/τ)`` (none where dt is 0), clamped to [0, ``cap``].
-
-    τ is ``tau_cool`` while ``q < θ``, else ``tau_heat``: the state picks it, so the steps run one by one.
-    """
-    exp = math.exp
-    out: list[float] = []
-    append = out.append
-    for qi, d in zip(q, dt, strict=True):
-        if d > 0.0:
-            theta = qi + (theta - qi) * exp(-d / (tau_cool if qi < theta else tau_heat))
-            if theta < 0.0:
-                theta = 0.0
-            elif theta > cap:
-                theta = cap
-        append(theta)
-    return out
-
-
-class _Screen(Screen):
-    """A long run's accumulator after each sample and its stale gaps; marked where the level may flip the state."""
-
-    def __init__(self, a: FloatArray, acc: FloatArray, trip: BoolArray, low: BoolArray,
-                 stale: IndexArray) -> None:
-        super().__init__(trip, low)
-        self.a, self.acc, self.stale = a, acc, stale
-
-
-class _I2tModel(LatchedModel[_Screen]):
+class _I2tModel(LatchedModel):
     """What both I²t models share: ``continuous_a`` is I_cont (A), ``peak_a`` / ``peak_time_s`` the datasheet's peak
     point, ``max_gap_s`` the source's max_age_s; ValueError naming the parameter at fault."""
 
@@ -129,10 +51,6 @@ class _I2tModel(LatchedModel[_Screen]):
         self._peak = 0.0
         self.stale_gaps = 0
         """Gaps longer than ``max_gap_s`` seen so far."""
-
-    @abstractmethod
-    def _accumulate(self, held: FloatArray, dt: FloatArray) -> FloatArray:
-        """The accumulator after each step ``held[i]`` A for ``dt[i]`` s: :meth:`_integrate`'s floats, step by step."""
 
     @abstractmethod
     def _integrate(self, held: float, dt: float) -> float:
@@ -195,33 +113,6 @@ class _I2tModel(LatchedModel[_Screen]):
         level = self._acc / self.trip_level
         return level >= 1.0 or (self._tripped and level >= self.recover_fraction)
 
-    def _screen(self, t: FloatArray, a: FloatArray) -> _Screen:
-        """Steps: the time differences cut to ``max_gap_s``, zero where nothing is integrated."""
-        import numpy as np
-
-        held = np.empty(a.size)
-        held[0] = self._held
-        held[1:] = a[:-1]
-        dt = np.empty(a.size)
-        dt[0] = math.nan if self._last_t is None else t[0] - self._last_t
-        np.subtract(t[1:], t[:-1], out=dt[1:])
-        stale = dt > self.max_gap_s
-        stale[0] &= not math.isnan(self._held)
-        dt = np.where(np.isnan(held) | ~(dt > 0), 0.0, np.minimum(dt, self.max_gap_s))
-        acc = self._accumulate(held, dt)
-        level = acc / self.trip_level
-        return _Screen(a, acc, level >= 1.0, level < self.recover_fraction, np.cumsum(stale))
-
-    def _rest(self, screen: _Screen, first: int, last: int) -> None:
-        self._acc = float(screen.acc[last])
-        self._held = float(screen.a[last])
-        self.stale_gaps += int(screen.stale[last] - (screen.stale[first - 1] if first else 0))
-
-    def _finish(self, screen: _Screen, last: int) -> None:
-        top = float(screen.acc[: last + 1].max())
-        if top > self._peak:
-            self._peak = top
-
     def _levels(self) -> tuple[float, float]:
         return self.trip_level, 100.0 * self.level
 
@@ -268,15 +159,6 @@ class LeakyI2t(_I2tModel):
         assert self.peak_a is not None and self.peak_time_s is not None
         self.trip_level = (self.peak_a**2 - self.continuous_a**2) * self.peak_time_s
 
-    def _accumulate(self, held: FloatArray, dt: FloatArray) -> FloatArray:
-        import numpy as np
-
-        c2 = self.continuous_a * self.continuous_a
-        with np.errstate(invalid="ignore", over="ignore"):
-            rate = held * held - c2
-            steps = np.where(dt > 0, rate * dt, 0.0)
-        return clamped_sum(self._acc, steps, MAX_LEVEL * self.trip_level, self._add)
-
     def _quiet(self, t: Any, low_a: float, high_a: float, final_a: float) -> bool:
         """An empty bucket that stays empty: every current held at or below I_cont, no stale gap to count."""
         if self._acc != 0.0 or self._tripped:
@@ -292,11 +174,8 @@ class LeakyI2t(_I2tModel):
         return True
 
     def _integrate(self, held: float, dt: float) -> float:
-        return self._add(self._acc, (held * held - self.continuous_a * self.continuous_a) * dt)
-
-    def _add(self, acc: float, step: float) -> float:
-        """One step of the leaky sum, floored at 0 and capped."""
-        out = acc + step
+        """The leaky sum after one step, floored at 0 and capped."""
+        out = self._acc + (held * held - self.continuous_a * self.continuous_a) * dt
         if out < 0.0:
             return 0.0
         cap = MAX_LEVEL * self.trip_level
@@ -334,16 +213,12 @@ class ThermalI2t(_I2tModel):
         self._c2 = self.continuous_a * self.continuous_a
         self.trip_level = 1.0
 
-    def _accumulate(self, held: FloatArray, dt: FloatArray) -> FloatArray:
-        import numpy as np
-
-        with np.errstate(invalid="ignore", over="ignore"):
-            q = np.minimum(held * held / self._c2, MAX_LEVEL)
-        return np.asarray(thermal_steps(self._acc, q.tolist(), dt.tolist(), self.tau_s, self.tau_cool_s, MAX_LEVEL))
-
     def _integrate(self, held: float, dt: float) -> float:
+        """θ ← q + (θ − q)·exp(−dt/τ), τ ``tau_cool_s`` while q < θ, clamped to [0, MAX_LEVEL]."""
         q = min(held * held / self._c2, MAX_LEVEL)
-        return thermal_steps(self._acc, (q,), (dt,), self.tau_s, self.tau_cool_s, MAX_LEVEL)[0]
+        theta = self._acc
+        theta = q + (theta - q) * math.exp(-dt / (self.tau_cool_s if q < theta else self.tau_s))
+        return 0.0 if theta < 0.0 else (MAX_LEVEL if theta > MAX_LEVEL else theta)
 
     def params(self) -> dict[str, float | None]:
         """The shared parameters, and tau_s and tau_cool_s (resolved)."""

@@ -3,20 +3,15 @@
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from canguard.protect.base import TIME_EPS_S, check_limit
-from canguard.protect.columns import as_run, in_order
+from canguard.protect.columns import as_run
 
 if TYPE_CHECKING:
     import numpy.typing as npt
 
-    from canguard.protect.columns import BoolArray, FloatArray
-
-
-def in_window(start: Any, t: Any, length_s: float) -> Any:
-    """``start <= t < start + length_s`` (less TIME_EPS_S; a NaN start never), for floats or numpy columns."""
-    return (start <= t) & (t < start + length_s - TIME_EPS_S)
+    from canguard.protect.columns import BoolArray
 
 
 class InrushBlanking:
@@ -56,48 +51,8 @@ class InrushBlanking:
         import numpy as np
 
         t, a = as_run(times, abs_values)
-        ok = in_order(t, np.isfinite(a) & np.isfinite(t), self._last_t)
-        picked = ok.nonzero()[0]
-        out = np.zeros(t.size, dtype=bool)
-        out[picked[self.starts_in(t[picked], np.abs(a[picked]))]] = True
-        return out
-
-    def starts_in(self, t: FloatArray, a: FloatArray) -> list[int]:
-        """Feed accepted |I| samples; the positions of the motor starts among them.
-
-        Only a rise after a long enough low stretch can be a start: those go to :meth:`observe`.
-        """
-        import numpy as np
-
-        if not t.size:
-            return []
-        below = a <= self.start_current_a
-        flips = np.empty(a.size, dtype=bool)
-        flips[0] = bool(below[0]) != (self._below_since is not None)
-        np.not_equal(below[1:], below[:-1], out=flips[1:])
-        began = np.maximum.accumulate(np.where(flips & below, t, -np.inf))
-        if self._below_since is not None:
-            np.maximum(began, self._below_since, out=began)
-        rises = flips & ~below
-        rises[rises] = t[rises] - began[rises] >= self.inrush_time_s - TIME_EPS_S
-        started: list[int] = []
-        for j in rises.nonzero()[0].tolist():
-            self._last_t = float(t[j - 1]) if j else self._last_t
-            self._below_since = float(began[j])
-            if self.observe(float(a[j]), float(t[j])):
-                started.append(j)
-        self._last_t = float(t[-1])
-        self._below_since = float(began[-1]) if below[-1] else None
-        return started
-
-    def windows(self, t: FloatArray, started: list[int], before: float | None) -> FloatArray:
-        """The window start in force at each time ``t`` (NaN: none), given the starts and the one ``before``."""
-        import numpy as np
-
-        latest = np.full(t.size, -1)
-        latest[started] = started
-        np.maximum.accumulate(latest, out=latest)
-        return np.where(latest >= 0, t[np.maximum(latest, 0)], math.nan if before is None else before)
+        observe = self.observe
+        return np.array([observe(x, s) for s, x in zip(t.tolist(), np.abs(a).tolist(), strict=True)], dtype=bool)
 
     def resume(self, state: tuple[float | None, float | None, float | None, int]) -> None:
         """Go back to (or, on a reload, take over) a state :meth:`running` gave."""
@@ -110,7 +65,7 @@ class InrushBlanking:
     def blanking(self, t: float) -> bool:
         """True when ``t`` lies inside a blanking window."""
         w = self._window_start
-        return w is not None and bool(in_window(w, t, self.inrush_time_s))
+        return w is not None and w <= t < w + self.inrush_time_s - TIME_EPS_S
 
     def threshold(self, normal: float, t: float) -> float | None:
         """The overcurrent threshold in force at ``t``: ``normal``, or ``inrush_threshold_a`` in a window."""

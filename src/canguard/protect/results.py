@@ -69,7 +69,3 @@ def edges(index: Sequence[int] | IndexArray, times: Sequence[float] | FloatArray
 
     return Run(np.array(index, dtype=np.intp), np.array(times, dtype=np.float64), np.array(states, dtype=bool), taken)
 
-
-def alternate(last: bool, n: int) -> list[bool]:
-    """The states entered at ``n`` alternating edges, the last one entering ``last``."""
-    return [last == ((n - 1 - i) % 2 == 0) for i in range(n)]

@@ -3,16 +3,12 @@
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from canguard.protect.base import REASON_OVERCURRENT, LatchedModel, check_limit
-from canguard.protect.columns import Screen
-
-if TYPE_CHECKING:
-    from canguard.protect.columns import FloatArray
 
 
-class Threshold(LatchedModel[Screen]):
+class Threshold(LatchedModel):
     """Tripped while |value| > ``max_value`` (A, or N·m for efforts); reason ``overcurrent``."""
 
     reason_tripped = REASON_OVERCURRENT
@@ -27,10 +23,6 @@ class Threshold(LatchedModel[Screen]):
 
     def _step(self, t: float, a: float) -> bool:
         return a > self.max_value
-
-    def _screen(self, t: FloatArray, a: FloatArray) -> Screen:
-        over = a > self.max_value
-        return Screen(over, ~over)
 
     def _quiet(self, t: Any, low_a: float, high_a: float, final_a: float) -> bool:
         return low_a > self.max_value if self._tripped else not high_a > self.max_value

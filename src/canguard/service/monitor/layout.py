@@ -15,7 +15,8 @@ from xml.parsers import expat
 
 import py_trees
 
-from canguard.bt.loader import LoadedTree, nodes_model_xml
+from canguard.bt.checks import nodes_model_xml
+from canguard.bt.loaded import LoadedTree
 
 
 @dataclass(frozen=True)
