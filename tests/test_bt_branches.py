@@ -16,7 +16,7 @@ from canguard.bt.context import Context, ListSink, NullTaskGate
 from canguard.bt.dryrun import dry_run
 from canguard.bt.loaded import LoadedTree
 from canguard.bt.loader import load_tree
-from canguard.bt.nodes.branches import same_case
+from canguard.bt.nodes.builtins import same_case
 from canguard.errors import TreeError
 from canguard.io.clock import ManualClock
 

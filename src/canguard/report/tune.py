@@ -120,8 +120,7 @@ def _set_max(model: ProtectionModel, value: float) -> None:
 
 def knob_of(node: GuardNode) -> Knob | None:
     """The tunable figure of a guard node, None for a guard tune does not know."""
-    from canguard.bt.nodes.current import IsCurrentNormal, IsCurrentSafe, IsI2tSafe
-    from canguard.bt.nodes.effort import IsJointEffortNormal
+    from canguard.bt.nodes.current import IsCurrentNormal, IsCurrentSafe, IsI2tSafe, IsJointEffortNormal
 
     if isinstance(node, IsCurrentNormal):
         return Knob("max_current", node.model.max_value, _set_max)

@@ -13,31 +13,19 @@ from canguard.bt.nodes.actions import ConfiguredAction
 from canguard.bt.nodes.base import CanguardNode, PortError, port_info
 from canguard.bt.nodes.current import GuardNode
 
-_MODULES: dict[str, str] = {
-    # conditions
-    "IsCurrentNormal": "current", "IsJointEffortNormal": "effort", "IsCurrentSafe": "current",
-    "IsI2tSafe": "current", "IsElapsedTimeCompare": "timing", "IsElapsedSinceEvent": "timing",
-    "IsCooldownElapsed": "timing", "IsValueBelow": "values", "IsValueAbove": "values",
-    # actions
-    "ExecuteTask": "actions", "EmitStop": "actions", "ResetStop": "actions", "ResetTimer": "timing",
-    "RecordTime": "timing",
-    # decorators
-    "Profile": "profile", "Inverter": "control", "ForceSuccess": "control", "ForceFailure": "control",
-    "RetryUntilSuccessful": "control", "Repeat": "control", "Timeout": "control", "Delay": "control",
-    # controls
-    "Sequence": "sequences", "AsyncSequence": "sequences", "ReactiveSequence": "sequences",
-    "SequenceWithMemory": "sequences", "Fallback": "sequences", "AsyncFallback": "sequences",
-    "ReactiveFallback": "sequences", "Parallel": "control",
-    # more BehaviorTree.CPP 4 built-ins
-    "AlwaysSuccess": "builtins", "AlwaysFailure": "builtins", "Script": "builtins", "ScriptCondition": "builtins",
-    "SetBlackboard": "builtins", "UnsetBlackboard": "builtins", "Sleep": "builtins",
-    "KeepRunningUntilFailure": "builtins", "Precondition": "builtins", "IfThenElse": "builtins",
-    "WhileDoElse": "builtins",
-    "Switch2": "branches", "Switch3": "branches", "Switch4": "branches", "Switch5": "branches",
-    "Switch6": "branches", "ParallelAll": "branches", "TryCatch": "branches",
-    "LoopInt": "loops", "LoopDouble": "loops", "LoopString": "loops", "LoopBool": "loops",
-    "RunOnce": "once", "WasEntryUpdated": "once", "SkipUnlessUpdated": "once", "WaitValueUpdate": "once",
-}
+_FAMILIES = (  # conditions, actions, decorators, controls, then more of BehaviorTree.CPP 4's built-ins
+    ("current", "IsCurrentNormal IsJointEffortNormal IsCurrentSafe IsI2tSafe"),
+    ("timing", "IsElapsedTimeCompare IsElapsedSinceEvent IsCooldownElapsed IsValueBelow IsValueAbove"),
+    ("actions", "ExecuteTask EmitStop ResetStop"), ("timing", "ResetTimer RecordTime"), ("profile", "Profile"),
+    ("control", "Inverter ForceSuccess ForceFailure RetryUntilSuccessful Repeat Timeout Delay"),
+    ("sequences", "Sequence AsyncSequence ReactiveSequence SequenceWithMemory Fallback AsyncFallback ReactiveFallback"),
+    ("control", "Parallel"),
+    ("builtins", "AlwaysSuccess AlwaysFailure Script ScriptCondition SetBlackboard UnsetBlackboard Sleep "
+                 "KeepRunningUntilFailure Precondition IfThenElse WhileDoElse Switch2 Switch3 Switch4 Switch5 Switch6 "
+                 "ParallelAll TryCatch LoopInt LoopDouble LoopString LoopBool RunOnce WasEntryUpdated "
+                 "SkipUnlessUpdated WaitValueUpdate"),
+)
+_MODULES = {node_id: module for module, ids in _FAMILIES for node_id in ids.split()}
 """Every node ID canguard provides -> the module ``canguard.bt.nodes.<module>`` of its class."""
 
 

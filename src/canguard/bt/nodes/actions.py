@@ -41,9 +41,8 @@ class ConfiguredAction(CanguardNode, py_trees.behaviour.Behaviour):
     """an actions: entry of the config: send its frames"""
 
     OUTPUT_PORTS = {  # noqa: RUF012
-        "output_time": port_info(
-            float, "receives the time (s) the action ran, e.g. {last_recovery_time}", required=False
-        ),
+        "output_time": port_info(float, "receives the time (s) the action ran, e.g. {last_recovery_time}",
+                                 required=False),
     }
 
     def __init__(self, name: str, *, action: ActionConfig, **kwargs: Any) -> None:

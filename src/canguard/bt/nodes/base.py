@@ -7,7 +7,7 @@ when wired (as BT.CPP); :meth:`~CanguardNode.bind` checks the ports once the who
 from __future__ import annotations
 
 from collections.abc import Callable, Generator, Iterable, Iterator, Mapping
-from typing import TYPE_CHECKING, Any, ClassVar, Literal
+from typing import TYPE_CHECKING, Any, ClassVar, Literal, TypeVar
 
 import py_trees
 from py_trees.blackboard import Blackboard
@@ -20,7 +20,7 @@ from canguard.bt.wakeup import WakeUpSignal
 
 if TYPE_CHECKING:
     from canguard.bt.scripting import Script
-    from canguard.bt.scripting.blackboard import ScriptBlackboard
+    from canguard.bt.scripting.script import ScriptBlackboard
 
 NodeKind = Literal["Action", "Condition", "Control", "Decorator"]
 
@@ -30,6 +30,7 @@ RUNNING = py_trees.common.Status.RUNNING
 INVALID = py_trees.common.Status.INVALID
 Status = py_trees.common.Status
 Children = list[py_trees.behaviour.Behaviour] | None
+B = TypeVar("B", bound=py_trees.behaviour.Behaviour)
 
 SKIPPED = "SKIPPED"
 """BT.CPP 4's SKIPPED, which py_trees lacks: the node stays IDLE (INVALID) and sets its ``skipped`` flag,
@@ -55,14 +56,16 @@ def mark_skipped(node: py_trees.behaviour.Behaviour) -> None:
     node.skipped = True  # type: ignore[attr-defined]
 
 
-def end_as(node: py_trees.behaviour.Behaviour, name: str) -> None:
-    """``node`` returns the status named ``name`` (one of :data:`STATUS_NAMES`)."""
-    if name == SKIPPED:
+def end_as(node: B, result: Status | str) -> B:
+    """``node`` returns ``result`` (a status, or one of :data:`STATUS_NAMES`): RUNNING is set, a completion
+    stops the node, SKIPPED marks it. The node, to yield."""
+    if result == SKIPPED:
         mark_skipped(node)
-    elif name == "RUNNING":
+    elif Status(result) == RUNNING:
         node.status = RUNNING
     else:
-        node.stop(Status.__members__[name])
+        node.stop(Status(result))
+    return node
 
 
 def count_of(node: py_trees.behaviour.Behaviour, port: str, default: int) -> int:
@@ -90,13 +93,7 @@ def follow(node: py_trees.composites.Composite, child: py_trees.behaviour.Behavi
     """Tick ``child`` and give ``node`` what it returned (RUNNING, SUCCESS, FAILURE or SKIPPED)."""
     node.current_child = child
     yield from tick_child(child)
-    if outcome(child) == SKIPPED:
-        mark_skipped(node)
-    elif child.status == RUNNING:
-        node.status = RUNNING
-    else:
-        node.stop(child.status)
-    yield node
+    yield end_as(node, outcome(child))
 
 
 def run_script(node: py_trees.behaviour.Behaviour, attr: str, script: Script, board: ScriptBlackboard,

@@ -1,17 +1,27 @@
-"""More of BehaviorTree.CPP 4's built-in nodes: Always*, scripts, Set/UnsetBlackboard, Sleep, branches.
+"""BehaviorTree.CPP 4's built-in nodes that canguard's own trees do not use (imported for a tree that does):
+Always*, scripts, Set/UnsetBlackboard, Sleep, branches, Switch2..6, ParallelAll, TryCatch, Loop*, RunOnce and
+the entry-update nodes.
 
 A script that fails while it runs fails its node (BT.CPP throws; a guard daemon must not crash
-on a tree's script).
+on a tree's script). A loop's ``queue`` is a constant "1;2;3" (parsed at load), or an entry holding a list
+(consumed in place, as BT.CPP's shared queue is) or such a string (parsed when the run starts).
+
+The entry-update nodes ask whether an entry was *written* since they last looked (BT.CPP's
+``sequence_id``: the same value again counts). py_trees keeps no such counter, so
+:func:`versioned_storage` puts a dict counting writes per key in place of ``Blackboard.storage``.
 """
 
 from __future__ import annotations
 
+import math
+from collections import deque
 from typing import TYPE_CHECKING, Any, ClassVar
 
 import py_trees
 from py_trees.blackboard import Blackboard
 
 from canguard.bt.nodes.base import (
+    BOOL_TEXT,
     FAILURE,
     INVALID,
     RUNNING,
@@ -23,16 +33,19 @@ from canguard.bt.nodes.base import (
     DecoratorNode,
     PortError,
     Status,
+    count_of,
     end_as,
     follow,
     halt_running,
+    halted,
     node_types,
     outcome,
     port_info,
+    reset,
     run_script,
     tick_child,
 )
-from canguard.bt.scopes import TreeBlackboard
+from canguard.bt.scopes import INT_TEXT, REAL_TEXT, TreeBlackboard
 from canguard.bt.scripting import ScriptError
 
 if TYPE_CHECKING:
@@ -125,7 +138,7 @@ class SetBlackboard(_Scripted, py_trees.behaviour.Behaviour):
             return FAILURE
         name = str(key).strip("{}")
         if not wired and self.board.has(name):  # BT.CPP: text into a typed entry is parsed to its type
-            from canguard.bt.scripting.values import convert_for_entry, entry_type
+            from canguard.bt.scripting.script import convert_for_entry, entry_type
 
             try:
                 target: type | None = entry_type(self.board.get(name))
@@ -158,10 +171,7 @@ class Sleep(CanguardNode, py_trees.behaviour.Behaviour):
     """RUNNING until msec have elapsed (the engine's clock), then SUCCESS"""
 
     INPUT_PORTS = {"msec": port_info(float, "how long (ms)")}  # noqa: RUF012
-
-    def __init__(self, *args: Any, **kwargs: Any) -> None:
-        super().__init__(*args, **kwargs)
-        self.until: float | None = None
+    until: float | None = None
 
     def initialise(self) -> None:
         msec = self.port("msec") or 0.0
@@ -211,8 +221,7 @@ class Precondition(_Scripted, DecoratorNode):
             except ScriptError:
                 ok = False
             if not ok:
-                end_as(self, str(self.port("else")).upper())
-                yield self
+                yield end_as(self, str(self.port("else")).upper())
                 return
         yield from py_trees.decorators.Decorator.tick(self)  # the plain tick: this one is already skip-aware
 
@@ -221,10 +230,7 @@ class _Branching(CanguardNode, py_trees.composites.Composite):
     """IfThenElse / WhileDoElse: the first child decides, the second or third runs."""
 
     REACTIVE = False
-
-    def __init__(self, name: str, children: Children = None, **kwargs: Any) -> None:
-        super().__init__(name=name, children=children, **kwargs)
-        self.branch = 0
+    branch = 0
 
     def bind(self) -> None:
         if len(self.children) not in (2, 3):  # BT.CPP: both take 2 or 3 (without a third, a FAILURE fails)
@@ -240,16 +246,14 @@ class _Branching(CanguardNode, py_trees.composites.Composite):
             if outcome(cond) == SKIPPED:  # BT.CPP throws here too: a skipped condition decides nothing
                 raise RuntimeError(f"{type(self).__name__} {self.name}: its condition (first child) was skipped")
             if cond.status == RUNNING:
-                self.status = RUNNING
-                yield self
+                yield end_as(self, RUNNING)
                 return
             branch = 1 if cond.status == SUCCESS else 2
             if self.branch and branch != self.branch and self.children[self.branch].status == RUNNING:
                 self.children[self.branch].stop(INVALID)  # WhileDoElse: the condition changed
             self.branch = branch
         if self.branch >= len(self.children):
-            self.stop(FAILURE)
-            yield self
+            yield end_as(self, FAILURE)
             return
         yield from follow(self, self.children[self.branch])  # BT.CPP returns the branch's status, SKIPPED too
 
@@ -264,3 +268,386 @@ IfThenElse, WhileDoElse = node_types(_Branching, __name__, {
     "WhileDoElse": {"REACTIVE": True, "DESCRIPTION": "like IfThenElse, but the first child is ticked every time: "
                                                      "a change halts the running branch"}})
 
+
+def _text(value: object) -> str:
+    """A blackboard value as BT.CPP would read it into a string port."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, float):
+        return f"{value:f}"  # std::to_string
+    return str(value)
+
+
+def same_case(variable: str, case: str) -> bool:
+    """BT.CPP's switch comparison: equal text, or equal as integers, or equal as reals."""
+    if variable == case:
+        return True
+    if INT_TEXT.match(variable) and INT_TEXT.match(case):
+        return int(variable) == int(case)
+    if REAL_TEXT.match(variable) and REAL_TEXT.match(case):
+        return math.isclose(float(variable), float(case), rel_tol=0.0, abs_tol=0.0)
+    return False
+
+
+class _Switch(CanguardNode, py_trees.composites.Composite):
+    """Switch with ``CASES`` cases and a default child."""
+
+    CASES = 0
+    running = -1
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        ports = {"variable": port_info(str, "the value to compare with the cases (usually {key})")}
+        for i in range(1, cls.CASES + 1):
+            ports[f"case_{i}"] = port_info(str, f"the value that selects child {i}", required=False)
+        cls.INPUT_PORTS = ports
+        cls.DESCRIPTION = (f"ticks the child of the first case_1..case_{cls.CASES} equal to variable "
+                           f"(as text or number), else the last (default) child; a change halts the running one")
+        super().__init_subclass__(**kwargs)
+
+    def bind(self) -> None:
+        want = self.CASES + 1
+        if len(self.children) != want:
+            raise PortError("children", f"{type(self).__name__} needs {want} children ({self.CASES} cases + "
+                                        f"default), has {len(self.children)}")
+
+    def variable(self) -> str | None:
+        """The variable as text; None when it is wired to an entry that holds nothing."""
+        value = self.port("variable")
+        if value is None and self.is_wired("variable"):
+            value = Blackboard.storage.get(self._keys["variable"])  # any type: compared as text
+        return None if value is None else _text(value)
+
+    def match(self) -> int:
+        """The child to tick: the first matching case, else the default (last)."""
+        variable = self.variable()
+        if variable is not None:
+            for i in range(self.CASES):
+                case = self.port(f"case_{i + 1}")
+                if case is not None and same_case(variable, _text(case)):
+                    return i
+        return self.CASES
+
+    def tick(self) -> Any:
+        if self.status != RUNNING:
+            self.running = -1
+            self.initialise()
+        index = self.match()
+        if self.running not in (-1, index):
+            self.children[self.running].stop(INVALID)
+        yield from follow(self, self.children[index])  # BT.CPP: the matching child skipped, the switch too
+        self.running = index if self.status == RUNNING else -1
+
+    def stop(self, new_status: py_trees.common.Status = INVALID) -> None:
+        halt_running(self.children)
+        self.running = -1
+        super().stop(new_status)
+
+
+Switch2, Switch3, Switch4, Switch5, Switch6 = node_types(
+    _Switch, __name__, {f"Switch{n}": {"CASES": n} for n in range(2, 7)})
+
+
+class ParallelAll(CanguardNode, py_trees.composites.Composite):
+    """ticks every unfinished child each tick until all have finished; then FAILURE when at least max_failures failed
+    (negative: children + 1 + n), else SUCCESS"""
+
+    INPUT_PORTS = {  # noqa: RUF012
+        "max_failures": port_info(int, "failures that make it fail (negative: children + 1 + n, -1 = all)", 1),
+    }
+
+    def __init__(self, name: str, children: Children = None, **kwargs: Any) -> None:
+        super().__init__(name=name, children=children, **kwargs)
+        self.finished: dict[int, py_trees.common.Status] = {}
+
+    def threshold(self) -> int:
+        return count_of(self, "max_failures", 1)
+
+    def bind(self) -> None:
+        if not self.is_wired("max_failures") and self.threshold() > len(self.children):
+            raise PortError("max_failures", f"{self.threshold()} failures needed but only "
+                                            f"{len(self.children)} children: can never fail")
+
+    def tick(self) -> Any:
+        if self.status != RUNNING:
+            reset(self.children)
+            self.finished.clear()
+            self.initialise()
+        skipped = 0
+        for index, child in enumerate(self.children):
+            if index in self.finished:
+                continue
+            self.current_child = child
+            yield from tick_child(child)
+            if outcome(child) == SKIPPED:
+                skipped += 1
+            elif child.status in (SUCCESS, FAILURE):
+                self.finished[index] = child.status
+        if skipped + len(self.finished) < len(self.children):  # BT.CPP: all skipped, the parallel too
+            yield end_as(self, SKIPPED if skipped == len(self.children) else RUNNING)
+            return
+        failures = sum(1 for s in self.finished.values() if s == FAILURE)
+        self.finished.clear()
+        yield end_as(self, FAILURE if failures >= self.threshold() else SUCCESS)
+
+    def stop(self, new_status: py_trees.common.Status = INVALID) -> None:
+        halt_running(self.children)
+        if new_status == INVALID:
+            self.finished.clear()
+        super().stop(new_status)
+
+
+class TryCatch(CanguardNode, py_trees.composites.Composite):
+    """ticks all but the last child as a Sequence (SUCCESS when all succeed); when one fails, the last (catch) child
+    runs to its end and TryCatch fails; catch_on_halt: a halt runs it too"""
+
+    INPUT_PORTS = {  # noqa: RUF012
+        "catch_on_halt": port_info(bool, "when halted while trying, tick the catch child once", False),
+    }
+    index = 0
+    in_catch = False
+    skipped_count = 0
+
+    def bind(self) -> None:
+        if len(self.children) < 2:
+            raise PortError("children", f"TryCatch needs at least 2 children, has {len(self.children)}")
+
+    def tick(self) -> Any:
+        if self.status != RUNNING:
+            self.index, self.in_catch = 0, False
+            self.initialise()
+        tries = self.children[:-1]
+        if self.index == 0:
+            self.skipped_count = 0
+        while not self.in_catch and self.index < len(tries):
+            child = tries[self.index]
+            self.current_child = child
+            yield from tick_child(child)
+            if outcome(child) == SKIPPED:
+                self.index += 1
+                self.skipped_count += 1
+                continue
+            if child.status == RUNNING:
+                yield end_as(self, RUNNING)
+                return
+            if child.status == FAILURE:
+                self.in_catch = True
+                reset(tries)
+            else:
+                self.index += 1
+        if not self.in_catch:
+            all_skipped = self.skipped_count == len(tries)  # BT.CPP: every try skipped
+            if all_skipped:
+                self.index = 0
+            yield end_as(self, SKIPPED if all_skipped else SUCCESS)
+            return
+        catch = self.children[-1]
+        self.current_child = catch
+        yield from catch.tick()
+        yield end_as(self, RUNNING if catch.status == RUNNING else FAILURE)
+
+    def stop(self, new_status: py_trees.common.Status = INVALID) -> None:
+        if halted(self, new_status) and not self.in_catch and self.port("catch_on_halt"):
+            halt_running(self.children[:-1])
+            for _ in self.children[-1].tick():
+                pass
+        halt_running(self.children)
+        self.index, self.in_catch = 0, False
+        super().stop(new_status)
+
+
+def _to_bool(text: str) -> bool:
+    try:
+        return BOOL_TEXT[text.strip().lower()]
+    except KeyError:
+        raise ValueError(f"{text!r} is not a bool (true/false/1/0)") from None
+
+
+class _Loop(DecoratorNode):
+    """A loop over a queue of ``ITEM`` values."""
+
+    ITEM: type = str
+    CHOICES = {"if_empty": ("SUCCESS", "FAILURE", "SKIPPED")}  # noqa: RUF012
+    SKIP_THROUGH = False  # BT.CPP's loop_node.h: a skipped child leaves the loop RUNNING
+    UNTYPED_PORTS = frozenset({"queue"})  # BT.CPP: an untyped BidirectionalPort (a list, a vector or a string)
+    static: list[Any] | None = None
+    queue: list[Any] | deque[Any] | None = None
+    child_running = False
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        name = cls.ITEM.__name__
+        cls.INPUT_PORTS = {
+            "queue": port_info(str, f"values separated by ';' (e.g. 1;2;3), or {{key}} of a list of {name}"),
+            "if_empty": port_info(str, "status when nothing is left to take: SUCCESS, FAILURE or SKIPPED",
+                                  "SUCCESS"),
+        }
+        cls.OUTPUT_PORTS = {"value": port_info(cls.ITEM, "the element the child is ticked with", required=False)}
+        cls.DESCRIPTION = (f"ticks the child once per element of queue ({name}), written to value; RUNNING while "
+                           "elements remain, FAILURE when the child fails, if_empty when none are left")
+        super().__init_subclass__(**kwargs)
+
+    def parse(self, text: str) -> list[Any]:
+        """'1;2;3' as a list of ITEM ('' is an empty queue)."""
+        if text == "":
+            return []
+        convert = _to_bool if self.ITEM is bool else self.ITEM
+        return [convert(part) for part in text.split(";")]
+
+    def bind(self) -> None:
+        if not self.is_wired("queue"):
+            try:
+                self.static = self.parse(str(self.port("queue") or ""))
+            except ValueError as exc:
+                raise PortError("queue", f"{self.port('queue')!r}: not a list of {self.ITEM.__name__}: {exc}") from None
+
+    def _take(self) -> tuple[bool, Any]:
+        """(True, the next element), or (False, None) when there is none."""
+        if self.static is None:
+            raw = Blackboard.storage.get(self._keys["queue"])
+            if isinstance(raw, list | deque):
+                self.queue = raw  # shared: the loop consumes the entry itself
+            elif isinstance(raw, str) and self.queue is None:
+                self.queue = self.parse(raw)
+            elif raw is None or not isinstance(raw, str):
+                raise ValueError(f"queue holds {raw!r}: expected a list or a ';'-separated string")
+        if not self.queue:
+            return False, None
+        item = self.queue.popleft() if isinstance(self.queue, deque) else self.queue.pop(0)
+        return True, item
+
+    def tick(self) -> Any:
+        if self.status != RUNNING:
+            self.child_running = False
+            self.queue = None if self.static is None else list(self.static)
+            self.initialise()
+        if not self.child_running:
+            try:
+                taken, item = self._take()
+            except ValueError as exc:  # BT.CPP throws; the guard fails this node and says why
+                self.feedback_message = str(exc)
+                yield end_as(self, FAILURE)
+                return
+            if not taken:
+                yield end_as(self, str(self.port("if_empty")).upper())
+                return
+            self.write("value", item)
+        child = self.decorated
+        yield from child.tick()
+        self.child_running = child.status == RUNNING
+        yield end_as(self, FAILURE if child.status == FAILURE else RUNNING)
+
+
+LoopInt, LoopDouble, LoopString, LoopBool = node_types(_Loop, __name__, {
+    "LoopInt": {"ITEM": int}, "LoopDouble": {"ITEM": float}, "LoopString": {"ITEM": str}, "LoopBool": {"ITEM": bool}})
+
+
+class _Versioned(dict[str, Any]):
+    """A dict that counts the writes of each key (``versions``): BT.CPP's entry ``sequence_id``."""
+
+    def __init__(self, *args: Any) -> None:
+        super().__init__(*args)
+        self.versions: dict[str, int] = dict.fromkeys(self, 1)
+
+    def __setitem__(self, key: str, value: Any) -> None:
+        super().__setitem__(key, value)
+        self.versions[key] = self.versions.get(key, 0) + 1
+
+    def setdefault(self, key: str, default: Any = None) -> Any:
+        if key not in self:
+            self[key] = default
+        return self[key]
+
+    def update(self, *args: Any, **kwargs: Any) -> None:
+        for key, value in dict(*args, **kwargs).items():
+            self[key] = value
+
+    def clear(self) -> None:
+        super().clear()
+        self.versions.clear()
+
+
+def versioned_storage() -> _Versioned:
+    """``Blackboard.storage`` as a :class:`_Versioned` dict (installed at the first look; the entries kept)."""
+    storage = Blackboard.storage
+    if not isinstance(storage, _Versioned):
+        storage = _Versioned(storage)
+        Blackboard.storage = storage
+    return storage
+
+
+def _updated(node: WasEntryUpdated | _EntryUpdated) -> bool:
+    """Whether the node's ``entry`` was written since it last looked (now: ``seen`` takes the write count)."""
+    storage = versioned_storage()
+    key = node.wired_keys().get("entry")
+    if key is None:
+        name = str(node.port("entry") or "").strip().strip("{}")
+        namespace = getattr(node, "_subtree_namespace", None) or "/"
+        key = name if name.startswith("/") else namespace.rstrip("/") + "/" + name
+    if key not in storage:
+        return False
+    current = storage.versions.get(key, 1)
+    updated, node.seen = current != node.seen, current
+    return updated
+
+
+_ENTRY = {"entry": port_info(str, "the blackboard entry to watch ({key} or key)")}
+
+
+class WasEntryUpdated(CanguardNode, py_trees.behaviour.Behaviour):
+    """SUCCESS when the entry was written since the last tick of this node (same value too)"""
+
+    KIND = "Condition"
+    INPUT_PORTS = dict(_ENTRY)  # noqa: RUF012
+    UNTYPED_PORTS = frozenset({"entry"})  # BT.CPP: InputPort<BT::Any>
+    seen = 0
+
+    def update(self) -> py_trees.common.Status:
+        return SUCCESS if _updated(self) else FAILURE
+
+
+class _EntryUpdated(DecoratorNode):
+    """BT.CPP's EntryUpdatedDecorator: the child ticks only after ``entry`` was written."""
+
+    INPUT_PORTS = dict(_ENTRY)  # noqa: RUF012
+    UNTYPED_PORTS = frozenset({"entry"})  # BT.CPP: InputPort<BT::Any>
+    IF_NOT_UPDATED: str = "SKIPPED"
+    seen = 0
+    still_running = False
+
+    def tick(self) -> Any:
+        if not self.still_running and not _updated(self):
+            yield end_as(self, self.IF_NOT_UPDATED)
+            return
+        yield from py_trees.decorators.Decorator.tick(self)  # the plain tick: this one is already skip-aware
+        self.still_running = self.status == RUNNING
+
+    def terminate(self, new_status: py_trees.common.Status) -> None:
+        if new_status == py_trees.common.Status.INVALID:
+            self.still_running = False
+
+
+SkipUnlessUpdated, WaitValueUpdate = node_types(_EntryUpdated, __name__, {
+    "SkipUnlessUpdated": {
+        "DESCRIPTION": "ticks the child when the entry was written since the last look, else SKIPPED"},
+    "WaitValueUpdate": {"IF_NOT_UPDATED": "RUNNING", "DESCRIPTION": (
+        "RUNNING until the entry is written (since the last look), then ticks the child")}})
+
+
+class RunOnce(DecoratorNode):
+    """runs the child once; afterwards SKIPPED (then_skip=true) or the child's first result"""
+
+    INPUT_PORTS = {  # noqa: RUF012
+        "then_skip": port_info(bool, "after the first run: true = SKIPPED, false = the status it returned", True),
+    }
+    returned: py_trees.common.Status | None = None  # the first completed status; kept across halts
+
+    def tick(self) -> Any:
+        if self.returned is not None:
+            yield end_as(self, self.returned if self.port("then_skip") is False else SKIPPED)
+            return
+        yield from py_trees.decorators.Decorator.tick(self)  # the plain tick: this one is already skip-aware
+
+    def update(self) -> py_trees.common.Status:
+        status = self.decorated.status
+        if status in (SUCCESS, FAILURE):
+            self.returned = status
+        return status

@@ -21,7 +21,7 @@ from canguard.bt.nodes.base import (
     PortError,
     Status,
     count_of,
-    mark_skipped,
+    end_as,
     node_types,
     outcome,
     port_info,
@@ -65,8 +65,7 @@ class Parallel(CanguardNode, py_trees.composites.Parallel):
             self.initialise()
         n = len(self.children)
         if not n:
-            self.stop(SUCCESS)
-            yield self
+            yield end_as(self, SUCCESS)
             return
         need_s, need_f = self.thresholds()
         all_needed = (self.port("success_count") or -1) < 0
@@ -81,42 +80,22 @@ class Parallel(CanguardNode, py_trees.composites.Parallel):
             successes = sum(1 for s in self.finished.values() if s == SUCCESS)
             failures = len(self.finished) - successes
             # BT.CPP: with a negative success_count, skipped children count towards it
-            if successes >= need_s or (all_needed and successes + skipped >= need_s):
-                yield from self._finish(SUCCESS, child)
-                return
-            if n - failures < need_s or failures >= need_f:
-                yield from self._finish(FAILURE, child)
+            done = successes >= need_s or (all_needed and successes + skipped >= need_s)
+            if done or n - failures < need_s or failures >= need_f:
+                self.current_child = child
+                self.finished.clear()
+                yield end_as(self, SUCCESS if done else FAILURE)  # py_trees' Parallel.stop halts the running
                 return
         self.current_child = self.children[-1]
-        if skipped == n:  # every child skipped: the parallel too
-            mark_skipped(self)
-        else:
-            self.status = RUNNING
-        yield self
-
-    def _finish(self, status: py_trees.common.Status, child: py_trees.behaviour.Behaviour) -> Any:
-        self.current_child = child
-        self.finished.clear()
-        self.stop(status)  # py_trees' Parallel.stop halts the children still RUNNING
-        yield self
+        yield end_as(self, SKIPPED if skipped == n else RUNNING)  # every child skipped: the parallel too
 
 
-class Inverter(CanguardNode, py_trees.decorators.Inverter):
-    """SUCCESS <-> FAILURE; RUNNING unchanged"""
-
-    QUIET_RETICK = True
-
-
-class ForceSuccess(CanguardNode, py_trees.decorators.FailureIsSuccess):
-    """FAILURE becomes SUCCESS; RUNNING unchanged"""
-
-    QUIET_RETICK = True
-
-
-class ForceFailure(CanguardNode, py_trees.decorators.SuccessIsFailure):
-    """SUCCESS becomes FAILURE; RUNNING unchanged"""
-
-    QUIET_RETICK = True
+Inverter, ForceSuccess, ForceFailure = (  # py_trees' own decorators, under BT.CPP's names
+    type(node_id, (CanguardNode, base), {"__module__": __name__, "__doc__": doc, "QUIET_RETICK": True})
+    for node_id, base, doc in (
+        ("Inverter", py_trees.decorators.Inverter, "SUCCESS <-> FAILURE; RUNNING unchanged"),
+        ("ForceSuccess", py_trees.decorators.FailureIsSuccess, "FAILURE becomes SUCCESS; RUNNING unchanged"),
+        ("ForceFailure", py_trees.decorators.SuccessIsFailure, "SUCCESS becomes FAILURE; RUNNING unchanged")))
 
 
 class _Cycles(DecoratorNode):
@@ -129,10 +108,7 @@ class _Cycles(DecoratorNode):
     LIMIT: ClassVar[str]
     AGAIN_TEXT: ClassVar[str]  # feedback when the child runs again at the next pass; {}: the count
     DONE_TEXT: ClassVar[str] = ""
-
-    def __init__(self, name: str, child: py_trees.behaviour.Behaviour, **kwargs: Any) -> None:
-        super().__init__(name=name, child=child, **kwargs)
-        self.count = 0
+    count = 0
 
     def terminate(self, new_status: py_trees.common.Status) -> None:
         if new_status == INVALID:
@@ -141,22 +117,17 @@ class _Cycles(DecoratorNode):
     def tick(self) -> Any:
         limit = self.port(self.LIMIT)
         if limit is None:
-            self.stop(FAILURE)
-            yield self
+            yield end_as(self, FAILURE)
             return
         child = self.decorated
         while self.count < limit or limit == -1:
             fresh = child.status != RUNNING
             yield from tick_child(child)
             status = child.status
-            if status == RUNNING:
-                self.status = RUNNING
-                yield self
-                return
             if status == self.ENDS:
                 self.count = 0
-                self.stop(status)
-                yield self
+            if status in (RUNNING, self.ENDS):
+                yield end_as(self, status)
                 return
             self.count += 1
             limit = self.port(self.LIMIT)
@@ -165,14 +136,12 @@ class _Cycles(DecoratorNode):
             if fresh and (self.count < limit or limit == -1):
                 self.feedback_message = self.AGAIN_TEXT.format(self.count)
                 self.emit_wake_up()
-                self.status = RUNNING
-                yield self
+                yield end_as(self, RUNNING)
                 return
         if self.DONE_TEXT:
             self.feedback_message = self.DONE_TEXT.format(self.count)
         self.count = 0
-        self.stop(self.DONE)
-        yield self
+        yield end_as(self, self.DONE)
 
 
 RetryUntilSuccessful, Repeat = node_types(_Cycles, __name__, {
@@ -195,10 +164,7 @@ class Timeout(DecoratorNode):
     INPUT_PORTS = {  # noqa: RUF012
         "msec": port_info(float, "time limit (ms, the engine's clock); 0: none"),
     }
-
-    def __init__(self, name: str, child: py_trees.behaviour.Behaviour, **kwargs: Any) -> None:
-        super().__init__(name=name, child=child, **kwargs)
-        self.deadline: float | None = None
+    deadline: float | None = None
 
     def tick(self) -> Any:
         now = self.ctx.clock.now()
@@ -212,16 +178,12 @@ class Timeout(DecoratorNode):
             if self.decorated.status == RUNNING:
                 self.decorated.stop(INVALID)
             self.feedback_message = "timed out"
-            self.stop(FAILURE)
-            yield self
+            yield end_as(self, FAILURE)
             return
         yield from self.decorated.tick()
-        status = self.decorated.status
-        if status != RUNNING:
+        if self.decorated.status != RUNNING:
             self.cancel_timer()
-            self.stop(status)
-        self.status = status
-        yield self
+        yield end_as(self, self.decorated.status)
 
     def terminate(self, new_status: py_trees.common.Status) -> None:
         if new_status == INVALID:
@@ -234,10 +196,7 @@ class Delay(DecoratorNode):
     INPUT_PORTS = {  # noqa: RUF012
         "delay_msec": port_info(float, "delay before the child is ticked (ms, the engine's clock)"),
     }
-
-    def __init__(self, name: str, child: py_trees.behaviour.Behaviour, **kwargs: Any) -> None:
-        super().__init__(name=name, child=child, **kwargs)
-        self.started: float | None = None
+    started: float | None = None
 
     def tick(self) -> Any:
         now = self.ctx.clock.now()
@@ -249,17 +208,13 @@ class Delay(DecoratorNode):
             self.initialise()
         if delay is None or now - self.started < delay / 1000.0:
             self.feedback_message = "waiting"
-            self.status = RUNNING
-            yield self
+            yield end_as(self, RUNNING)
             return
         self.feedback_message = ""
         yield from self.decorated.tick()
-        status = self.decorated.status
-        if status != RUNNING:
+        if self.decorated.status != RUNNING:
             self.started = None
-            self.stop(status)
-        self.status = status
-        yield self
+        yield end_as(self, self.decorated.status)
 
     def terminate(self, new_status: py_trees.common.Status) -> None:
         if new_status == INVALID:

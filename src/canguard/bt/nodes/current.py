@@ -1,4 +1,5 @@
-"""Current guards (design note 004): IsCurrentNormal, IsCurrentSafe, IsI2tSafe.
+"""Current and effort guards (design note 004): IsCurrentNormal, IsCurrentSafe, IsI2tSafe, IsJointEffortNormal
+(section 3.2: every joint's |effort| within a limit, one Threshold each).
 
 A guard subscribes its model to its source at load, so the model sees every sample. At tick it
 fails when the source cannot be trusted or the model tripped since the last tick (its peak latch),
@@ -39,15 +40,14 @@ class GuardNode(CanguardNode, py_trees.behaviour.Behaviour):
     QUIET_OUTPUTS: ClassVar[frozenset[str]] = frozenset()
     """Output ports a quiet re-tick writes again (:meth:`quiet_retick`); another wired output makes it loud."""
     _NAMES: ClassVar[dict[str, str]] = {}  # the models' parameter names -> the ports that give them
+    LIMITS: ClassVar[tuple[tuple[str, ...], Callable[[Any], tuple], Callable[..., None]]]
+    """The threshold ports a tick reads again when wired to ``{key}``s, the model's values of them, its setter."""
     model: ProtectionModel
-
-    def __init__(self, name: str, **kwargs: Any) -> None:
-        super().__init__(name=name, **kwargs)
-        self.source: SourceConfig | None = None
-        self.health: SourceHealth | None = None
-        self.ok: bool | None = None  # the last tick's status (None before the first)
-        self.reason = ""  # why the last tick failed
-        self.judged_t = math.nan  # when last ticked: a running task's guards must keep being ticked
+    source: SourceConfig | None = None
+    health: SourceHealth | None = None
+    ok: bool | None = None  # the last tick's status (None before the first)
+    reason = ""  # why the last tick failed
+    judged_t = math.nan  # when last ticked: a running task's guards must keep being ticked
 
     @property
     def topic_name(self) -> str:
@@ -94,12 +94,18 @@ class GuardNode(CanguardNode, py_trees.behaviour.Behaviour):
             text = re.sub(rf"\b{param}\b", names[param], text)
         return PortError(found[min(found)] if found else next(iter(names.values())), text)
 
-    def _reread(self, ports: tuple[str, ...], models: Iterable[Any], limits: Callable[[Any], tuple],
-                apply: Callable[..., None]) -> str:
-        """Thresholds wired to ``{key}``s, read again: a change is applied to ``models`` and their latest sample
-        judged again; REASON_BAD_THRESHOLD when one holds nothing or a value the model refuses."""
+    def update(self) -> py_trees.common.Status:
+        """The model's latch and the source's health, judged (thresholds read again first)."""
+        now = self._clock.now()
+        reason = self._reread((self.model,))
+        return self._judge(now, self.model.poll(now), reason)
+
+    def _reread(self, models: Iterable[Any]) -> str:
+        """:data:`LIMITS` wired to ``{key}``s, read again: a change is applied to ``models`` and their latest
+        sample judged again; REASON_BAD_THRESHOLD when one holds nothing or a value the model refuses."""
         if not self._dynamic:
             return ""
+        ports, limits, apply = self.LIMITS
         values = tuple(self.port(p) for p in ports)
         try:
             if None in values:
@@ -163,16 +169,13 @@ class IsCurrentNormal(GuardNode):
         "max_current": port_info(float, "maximum allowed |current| (A)", 30.0),
     }
     _NAMES = {"max_value": "max_current"}  # noqa: RUF012
+    LIMITS = (("max_current",), lambda m: (m.max_value,), Threshold.set_max)
     model: Threshold
 
     def _build(self, source: SourceConfig) -> None:
         self.model = Threshold(self.port("max_current"))
         self.ctx.subscribe(source.name, self.ROLE, self.model)
 
-    def update(self) -> py_trees.common.Status:
-        now = self._clock.now()
-        reason = self._reread(("max_current",), (self.model,), lambda m: (m.max_value,), Threshold.set_max)
-        return self._judge(now, self.model.poll(now), reason)
 
 
 class IsCurrentSafe(GuardNode):
@@ -186,25 +189,19 @@ class IsCurrentSafe(GuardNode):
         "trip_after": port_info(float, "the overcurrent must last this long to trip (s)", 0.0),
         "recover_after": port_info(float, "the recovery must last this long to recover (s)", 0.0),
         "inrush_time": port_info(float, "inrush blanking window after a motor start (s); 0: off", 0.0),
-        "inrush_threshold": port_info(
-            float, "threshold inside the inrush window (A); absent: no check there", required=False
-        ),
-        "start_current": port_info(
-            float, "|I| above this counts as a motor start (A); needed with inrush_time", required=False
-        ),
+        "inrush_threshold": port_info(float, "threshold inside the inrush window (A); absent: no check there",
+                                      required=False),
+        "start_current": port_info(float, "|I| above this counts as a motor start (A); needed with inrush_time",
+                                   required=False),
     }
-    CONST_PORTS = frozenset(
-        {"topic_name", "trip_after", "recover_after", "inrush_time", "inrush_threshold", "start_current"}
-    )
+    CONST_PORTS = frozenset({"topic_name", "trip_after", "recover_after", "inrush_time", "inrush_threshold",
+                             "start_current"})
     _NAMES: ClassVar[dict[str, str]] = {
-        "overcurrent_a": "overcurrent_threshold",
-        "recovery_a": "recovery_threshold",
-        "trip_after_s": "trip_after",
-        "recover_after_s": "recover_after",
-        "inrush_time_s": "inrush_time",
-        "inrush_threshold_a": "inrush_threshold",
-        "start_current_a": "start_current",
-    }
+        "overcurrent_a": "overcurrent_threshold", "recovery_a": "recovery_threshold", "trip_after_s": "trip_after",
+        "recover_after_s": "recover_after", "inrush_time_s": "inrush_time", "inrush_threshold_a": "inrush_threshold",
+        "start_current_a": "start_current"}
+    LIMITS = (("overcurrent_threshold", "recovery_threshold"), lambda m: (m.overcurrent_a, m.recovery_a),
+              Hysteresis.set_thresholds)
     model: Hysteresis
 
     def _build(self, source: SourceConfig) -> None:
@@ -219,21 +216,10 @@ class IsCurrentSafe(GuardNode):
         rec = self.port("recovery_threshold")
         if over is None or rec is None:  # wired to keys not written yet: the defaults until they are
             over, rec = 35.0, 25.0
-        self.model = Hysteresis(
-            over,
-            rec,
-            trip_after_s=self.port("trip_after"),
-            recover_after_s=self.port("recover_after"),
-            inrush=inrush,
-            max_gap_s=source.max_age_s,
-        )
+        self.model = Hysteresis(over, rec, trip_after_s=self.port("trip_after"),
+                                recover_after_s=self.port("recover_after"), inrush=inrush, max_gap_s=source.max_age_s)
         self.ctx.subscribe(source.name, self.ROLE, self.model)
 
-    def update(self) -> py_trees.common.Status:
-        now = self._clock.now()
-        reason = self._reread(("overcurrent_threshold", "recovery_threshold"), (self.model,),
-                              lambda m: (m.overcurrent_a, m.recovery_a), Hysteresis.set_thresholds)
-        return self._judge(now, self.model.poll(now), reason)
 
 
 class IsI2tSafe(GuardNode):
@@ -243,15 +229,12 @@ class IsI2tSafe(GuardNode):
         "topic_name": port_info(str, "source name (battery or current kind) from the config"),
         "model": port_info(str, "leaky (servo-drive bucket) or thermal (IEC 60255-8 image)", "leaky"),
         "continuous_current": port_info(float, "rated continuous current I_rated (A); I_cont = k * I_rated"),
-        "peak_current": port_info(
-            float, "datasheet peak current (A); default 1.5 × continuous_current (IEC 60034-1)", required=False
-        ),
-        "peak_time": port_info(
-            float, "how long the peak current is allowed from cold (s); default 120 without peak", required=False
-        ),
-        "tau": port_info(
-            float, "thermal time constant (s), thermal model; default from the peak figures", required=False
-        ),
+        "peak_current": port_info(float, "datasheet peak current (A); default 1.5 × continuous_current (IEC 60034-1)",
+                                  required=False),
+        "peak_time": port_info(float, "how long the peak current is allowed from cold (s); default 120 without peak",
+                               required=False),
+        "tau": port_info(float, "thermal time constant (s), thermal model; default from the peak figures",
+                         required=False),
         "tau_cool": port_info(float, "cooling time constant (s), thermal model; default tau", required=False),
         "k": port_info(float, "IEC k factor: I_cont = k * continuous_current", 1.0),
         "recover_fraction": port_info(float, "recover below this fraction of the trip level", 0.5),
@@ -264,13 +247,8 @@ class IsI2tSafe(GuardNode):
     MODEL_KIND = "i2t"
     QUIET_OUTPUTS = frozenset({"level"})
     _NAMES: ClassVar[dict[str, str]] = {
-        "continuous_a": "continuous_current",
-        "peak_a": "peak_current",
-        "peak_time_s": "peak_time",
-        "tau_cool_s": "tau_cool",
-        "tau_s": "tau",
-        "recover_fraction": "recover_fraction",
-    }
+        "continuous_a": "continuous_current", "peak_a": "peak_current", "peak_time_s": "peak_time",
+        "tau_cool_s": "tau_cool", "tau_s": "tau", "recover_fraction": "recover_fraction"}
 
     def _build(self, source: SourceConfig) -> None:
         kind = self.port("model")
@@ -289,24 +267,15 @@ class IsI2tSafe(GuardNode):
             peak = RATED_OVERLOAD * cont
             peak_t = RATED_OVERLOAD_S if peak_t is None else peak_t
             if peak <= cont * k:
-                raise PortError(
-                    "peak_current",
-                    f"required when k >= {RATED_OVERLOAD:g} (the derived peak {peak:g} A = {RATED_OVERLOAD:g} × "
-                    f"continuous_current must exceed I_cont = k × continuous_current = {cont * k:g} A)",
-                )
+                raise PortError("peak_current", f"required when k >= {RATED_OVERLOAD:g} (the derived peak {peak:g} "
+                                f"A = {RATED_OVERLOAD:g} × continuous_current must exceed I_cont = k × "
+                                f"continuous_current = {cont * k:g} A)")
         model: ProtectionModel
         if kind == "leaky":
             model = LeakyI2t(cont * k, peak, peak_t, self.port("recover_fraction"), source.max_age_s)
         else:
-            model = ThermalI2t(
-                cont * k,
-                peak,
-                peak_t,
-                tau_s=self.port("tau"),
-                tau_cool_s=self.port("tau_cool"),
-                recover_fraction=self.port("recover_fraction"),
-                max_gap_s=source.max_age_s,
-            )
+            model = ThermalI2t(cont * k, peak, peak_t, tau_s=self.port("tau"), tau_cool_s=self.port("tau_cool"),
+                               recover_fraction=self.port("recover_fraction"), max_gap_s=source.max_age_s)
         self.model = model
         self.ctx.subscribe(source.name, self.ROLE, model)
         self.ctx.heat_models[self.name] = model
@@ -334,3 +303,52 @@ class IsI2tSafe(GuardNode):
             self.write("level", float(snap.level_pct))
         # The event compares like with like: the accumulator (A²s, or θ) against its trip level.
         return self._judge(now, snap, "", float(getattr(self.model, "accumulator", snap.value)))
+
+
+class IsJointEffortNormal(GuardNode):
+    """SUCCESS while every joint's |effort| <= max_effort and every joint is fresh and finite"""
+
+    INPUT_PORTS = {  # noqa: RUF012 - py_trees reads ports as plain class dicts
+        "topic_name": port_info(str, "source name (joints kind) from the config"),
+        "max_effort": port_info(float, "maximum allowed |effort| of any joint (N·m or N)", 100.0),
+    }
+    SOURCE_KINDS = ("joints",)
+    _NAMES = {"max_value": "max_effort"}  # noqa: RUF012
+    LIMITS = (("max_effort",), lambda m: (m.max_value,), Threshold.set_max)
+    failed_joint = ""  # the first failing joint, named by the feedback
+
+    def _build(self, source: SourceConfig) -> None:
+        limit = self.port("max_effort")
+        self.models: list[tuple[str, Threshold]] = []
+        for role in source.value_roles:
+            model = Threshold(limit)
+            self.ctx.subscribe(source.name, role, model)
+            self.models.append((role, model))
+
+    def guarded(self) -> list[tuple[str, ProtectionModel, str]]:
+        """One ``(joint, model, "threshold")`` per joint."""
+        return [(role, model, "threshold") for role, model in self.models]
+
+    def update(self) -> py_trees.common.Status:
+        now = self._clock.now()
+        self.judged_t = now  # the engine checks that a running task's guards keep being ticked (T4)
+        bad = self._reread(m for _, m in self.models)
+        failed: tuple[str, str, float, float] | None = None
+        for role, model in self.models:
+            snap = model.poll(now)  # poll every joint: each latch restarts at every tick
+            reason = "" if failed is not None else self._why(now, role, snap, bad)
+            if reason:
+                failed = (role, reason, snap.value, snap.threshold)
+        if not self.models:
+            failed = ("", REASON_NO_DATA, math.nan, math.nan)
+        ok = failed is None
+        # Another joint failing for the same reason is a new cause too (its feedback names the joint).
+        if ok is not self.ok or (failed is not None and (failed[1], failed[0]) != (self.reason, self.failed_joint)):
+            self.failed_joint = failed[0] if failed is not None else ""
+            if failed is None:
+                seen = [(m.snapshot(), role) for role, m in self.models if m.last_t is not None]
+                snap, role = max(seen, key=lambda sr: sr[0].value)
+                self._edge(True, "", role, snap.value, snap.threshold)
+            else:
+                self._edge(False, failed[1], failed[0], failed[2], failed[3])
+        return SUCCESS if ok else FAILURE

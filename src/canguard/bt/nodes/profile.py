@@ -11,7 +11,7 @@ from typing import Any
 
 import py_trees
 
-from canguard.bt.nodes.base import RUNNING, DecoratorNode, halted, port_info
+from canguard.bt.nodes.base import RUNNING, DecoratorNode, end_as, halted, port_info
 
 
 class Profile(DecoratorNode):
@@ -60,11 +60,7 @@ class Profile(DecoratorNode):
             self.max_ms = ms
         for name in self._outputs:
             self.write(name, getattr(self, name))
-        new_status = self.decorated.status
-        if new_status != RUNNING:
-            self.stop(new_status)
-        self.status = new_status
-        yield self
+        yield end_as(self, self.decorated.status)
 
     def terminate(self, new_status: py_trees.common.Status) -> None:
         if halted(self, new_status):

@@ -14,8 +14,7 @@ from canguard.bt.nodes.base import (
     SKIPPED,
     SUCCESS,
     CanguardNode,
-    Children,
-    mark_skipped,
+    end_as,
     node_types,
     outcome,
     reset,
@@ -36,11 +35,8 @@ class _Ordered(CanguardNode, py_trees.composites.Composite):
     REACTIVE: ClassVar[bool] = False
     ASYNC: ClassVar[bool] = False
     KEEP_ON_STOP: ClassVar[bool] = False
-
-    def __init__(self, name: str, children: Children = None, **kwargs: Any) -> None:
-        super().__init__(name=name, children=children, **kwargs)
-        self.index = 0  # the child the next tick starts at
-        self.skipped_count = 0
+    index = 0  # the child the next tick starts at
+    skipped_count = 0
 
     @property
     def memory(self) -> bool:
@@ -70,8 +66,7 @@ class _Ordered(CanguardNode, py_trees.composites.Composite):
             yield from tick_child(child)
             result = outcome(child)
             if result == RUNNING:
-                self.status = RUNNING
-                yield self
+                yield end_as(self, RUNNING)
                 return
             if result == SKIPPED:
                 self.index += 1
@@ -81,23 +76,17 @@ class _Ordered(CanguardNode, py_trees.composites.Composite):
                 reset(children[self.index + 1:])
                 if not self.KEEP_ON_STOP:
                     self.index = 0
-                self.stop(child.status)
-                yield self
+                yield end_as(self, child.status)
                 return
             self.index += 1
             if self.ASYNC and before == INVALID and self.index < n:
                 self.emit_wake_up()
-                self.status = RUNNING
-                yield self
+                yield end_as(self, RUNNING)
                 return
         all_skipped = self.skipped_count == n
         self.index = 0
         self.skipped_count = 0
-        if all_skipped:
-            mark_skipped(self)
-        else:
-            self.stop(self.GO_ON)
-        yield self
+        yield end_as(self, SKIPPED if all_skipped else self.GO_ON)
 
     def _tick_reactive(self, children: list[py_trees.behaviour.Behaviour]) -> Any:
         all_skipped = True
@@ -111,17 +100,9 @@ class _Ordered(CanguardNode, py_trees.composites.Composite):
                 for i, other in enumerate(children):
                     if i != index and (other.status == RUNNING or (i > index and other.status != INVALID)):
                         other.stop(INVALID)
-                if result == RUNNING:
-                    self.status = RUNNING
-                else:
-                    self.stop(child.status)
-                yield self
+                yield end_as(self, child.status)
                 return
-        if all_skipped:
-            mark_skipped(self)
-        else:
-            self.stop(self.GO_ON)
-        yield self
+        yield end_as(self, SKIPPED if all_skipped else self.GO_ON)
 
 
 Sequence, AsyncSequence, ReactiveSequence, SequenceWithMemory, Fallback, AsyncFallback, ReactiveFallback = node_types(

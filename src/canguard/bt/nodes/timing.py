@@ -1,16 +1,17 @@
-"""Time conditions and timer actions (design note 000), on the context's clock (docs/trees.md, "Timers")."""
+"""Time conditions and timer actions (design note 000), on the context's clock (docs/trees.md, "Timers"), and
+IsValueBelow / IsValueAbove: a blackboard value against a threshold (note 003, latency warning)."""
 
 from __future__ import annotations
 
 import math
 import operator
 from collections.abc import Callable
-from typing import Any
+from typing import Any, ClassVar
 
 import py_trees
 from py_trees.blackboard import Blackboard
 
-from canguard.bt.nodes.base import FAILURE, SUCCESS, CanguardNode, PortError, port_info
+from canguard.bt.nodes.base import FAILURE, SUCCESS, CanguardNode, PortError, node_types, port_info
 
 OPERATORS = ("GT", "LT", "GTE", "LTE", "EQ")
 REFERENCES = ("first_tick", "tree_start", "last_reset", "blackboard")
@@ -59,12 +60,8 @@ class IsElapsedTimeCompare(_TimerUser, py_trees.behaviour.Behaviour):
         "operator": port_info(str, "GT, LT, GTE, LTE or EQ (|elapsed − reference_sec| < tolerance)", "GT"),
         "tolerance": port_info(float, "tolerance of EQ (s)", 0.1),
         "reference": port_info(str, "first_tick, tree_start, last_reset or blackboard", "first_tick"),
-        "timer": port_info(
-            float,
-            "blackboard key holding the timer's start time (s), shared by every node naming it; "
-            "default: the node's own timer",
-            required=False,
-        ),
+        "timer": port_info(float, "blackboard key holding the timer's start time (s), shared by every node naming it; "
+                                  "default: the node's own timer", required=False),
     }
     CHOICES = {"operator": OPERATORS, "reference": REFERENCES}  # noqa: RUF012
     KEY_PORTS = frozenset({"timer"})
@@ -160,12 +157,9 @@ class ResetTimer(_TimerUser, py_trees.behaviour.Behaviour):
     """restart a timer: write now to its key (default: the nearest comparisons' own timers)"""
 
     OUTPUT_PORTS = {  # noqa: RUF012
-        "timer": port_info(
-            float,
-            "blackboard key of the timer to restart; default: the own timers of the IsElapsedTimeCompare "
-            "nodes without timer under this node's closest ancestor that has any",
-            required=False,
-        ),
+        "timer": port_info(float, "blackboard key of the timer to restart; default: the own timers of the "
+                                  "IsElapsedTimeCompare nodes without timer under this node's closest ancestor that "
+                                  "has any", required=False),
     }
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
@@ -214,3 +208,29 @@ class RecordTime(CanguardNode, py_trees.behaviour.Behaviour):
     def update(self) -> py_trees.common.Status:
         self.write("output_time", float(self.ctx.clock.now()))
         return SUCCESS
+
+
+class _Compare(CanguardNode, py_trees.behaviour.Behaviour):
+    """``value <SYMBOL> threshold``."""
+
+    KIND = "Condition"
+    INPUT_PORTS = {  # noqa: RUF012 - py_trees reads ports as plain class dicts
+        "value": port_info(float, "the value to check, usually a {key}"),
+        "threshold": port_info(float, "the limit"),
+    }
+    SYMBOL: ClassVar[str]
+
+    def update(self) -> py_trees.common.Status:
+        value = self.port("value")
+        threshold = self.port("threshold")
+        if value is None or threshold is None:
+            self.feedback_message = f"no value yet {self._bad_port}".rstrip()
+            return FAILURE
+        ok = value < threshold if self.SYMBOL == "<" else value > threshold
+        self.feedback_message = f"{value:g} {self.SYMBOL} {threshold:g}: {ok}"
+        return SUCCESS if ok else FAILURE
+
+
+IsValueBelow, IsValueAbove = node_types(_Compare, __name__, {
+    "IsValueBelow": {"SYMBOL": "<", "DESCRIPTION": "SUCCESS when value < threshold"},
+    "IsValueAbove": {"SYMBOL": ">", "DESCRIPTION": "SUCCESS when value > threshold"}})

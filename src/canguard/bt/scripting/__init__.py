@@ -1,5 +1,4 @@
-"""BehaviorTree.CPP v4's scripting language: a tokenizer, a precedence-climbing parser and a tree-walking
-evaluator (no eval/exec). The language is imported by the first :func:`parse`."""
+"""BehaviorTree.CPP v4's scripting language (no eval/exec), imported by the first :func:`parse`."""
 
 from __future__ import annotations
 

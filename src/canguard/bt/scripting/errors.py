@@ -19,17 +19,8 @@ class ScriptError(ValueError):
             self.column = pos - (before.rfind("\n") + 1) + 1
         super().__init__(str(self))
 
-    def located(self, script: str) -> ScriptError:
-        """This error with line and column computed against ``script`` (a copy if it had none)."""
-        if self.script is not None:
-            return self
-        err = ScriptError(self.message, self.pos, script)
-        err.__cause__ = self.__cause__
-        return err
-
     def __str__(self) -> str:
         if self.column is None:
             return self.message
-        multiline = self.script is not None and "\n" in self.script
-        where = f"line {self.line}, column {self.column}" if multiline else f"column {self.column}"
+        where = f"line {self.line}, column {self.column}" if "\n" in (self.script or "") else f"column {self.column}"
         return f"{where}: {self.message}"
