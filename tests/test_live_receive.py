@@ -18,12 +18,12 @@ import can
 import pytest
 
 from canguard.config.schema import BusConfig
-from canguard.engine.events import EventJournal, read_events
+from canguard.engine.events import EventJournal
 from canguard.engine.gate import TaskGate
 from canguard.io.bus import BusReader, open_bus
 from canguard.service.daemon import Daemon
 from canguard.service.systemd import Notifier
-from test_daemon import BmsFeeder, is_stop, is_task, unique_udp, write_config
+from test_daemon import BmsFeeder, is_stop, is_task, read_events, unique_udp, write_config
 from waitkit import receive_until, wait_until
 
 pytest.importorskip("msgpack")  # python-can's udp_multicast needs it
