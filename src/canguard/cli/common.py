@@ -1,8 +1,4 @@
-"""What every ``canguard`` subcommand shares: the config default, global options, exit codes.
-
-One place, so ``-h`` of every subcommand lists the same exit codes and ``-v``
-works before and after the subcommand name (python-can / cantools users type both).
-"""
+"""What every ``canguard`` subcommand shares: the config default, global options, exit codes."""
 
 from __future__ import annotations
 
@@ -154,8 +150,8 @@ BLAS_THREADS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 
 
 def one_blas_thread() -> None:
-    """One thread for each BLAS pool numpy would start, unless the user set one (canguard's numpy work is
-    block by block, never worth a pool). Before numpy is imported."""
+    """One thread for each BLAS pool numpy would start, unless the user set one (block-sized work is never worth a
+    pool). Before numpy is imported."""
     for name in BLAS_THREADS:
         os.environ.setdefault(name, "1")
 

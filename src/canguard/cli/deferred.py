@@ -1,10 +1,8 @@
 """Submodules of our dependencies that ``canguard`` commands never use, loaded on first use instead of at import.
 
-``import cantools`` imports ``cantools.tester``, and with it python-can whole (~35 ms of a replay);
-``py_trees`` imports ``py_trees.display`` and pydot. :func:`defer` puts a stand-in into ``sys.modules``
-before the package is imported; the first attribute read runs the real module's code in it (PEP 562).
-Only the process entry point (:func:`canguard.cli.main.console`) defers, never a library import.
-(The stdlib's ``LazyLoader`` is not thread-safe before Python 3.12.)
+``import cantools`` imports ``cantools.tester`` and with it python-can whole; ``py_trees`` imports pydot.
+Only the process entry point defers, never a library import. (The stdlib's ``LazyLoader`` is not thread-safe
+before Python 3.12.)
 """
 
 from __future__ import annotations
@@ -15,8 +13,7 @@ import sys
 import threading
 
 UNUSED = ("cantools.tester", "cantools.logreader", "py_trees.display", "py_trees.demos", "py_trees.programs")
-"""The submodules :func:`defer_unused` defers: none of them is read on a replay, check or daemon run (cantools'
-log reader and py_trees' demos and programs are other tools' parts)."""
+"""The submodules :func:`defer_unused` defers: none is read on a replay, check or daemon run."""
 
 
 def defer(name: str) -> bool:

@@ -21,8 +21,7 @@ def _is_log(path: Path) -> bool:
 def expand_logs(given: Sequence[Path]) -> list[Path]:
     """The log files ``given`` names, in order: files as they are, directories, globs and ``@LIST`` files expanded.
 
-    ConfigError naming what matched nothing (an empty directory, a glob without a match,
-    a list file that cannot be read); a missing plain file is left for the reader to name.
+    ConfigError naming what matched nothing; a missing plain file is left for the reader to name.
     """
     out: list[Path] = []
     for item in given:
@@ -84,7 +83,6 @@ def _collect(futures: Iterable[Any], index: Callable[[Any], int], total: int) ->
 def run_dask(address: str, job: Callable[[Any], Any], jobs: list[Any]) -> list[Any]:
     """Run ``job`` over ``jobs`` on the Dask scheduler at ``address``; results in the order of ``jobs``.
 
-    One failed log is a failed result (the job returns its error), never a lost fleet.
     ConfigError when the ``fleet`` extra is missing or the scheduler cannot be reached.
     """
     try:
@@ -142,8 +140,7 @@ def run_processes(workers: int, job: Callable[[Any], Any], jobs: list[Any],
                   warm: Sequence[str] = ()) -> list[Any]:
     """Run ``job`` over ``jobs`` in ``workers`` local processes; results in the order of ``jobs``.
 
-    ``warm``: modules every job imports, imported here first when the workers are forked
-    (once, instead of once per worker). How they start: :func:`_pool_context`.
+    ``warm``: modules every job imports, imported here first when the workers are forked (once, not per worker).
     """
     import gc
     import importlib

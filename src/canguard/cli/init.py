@@ -1,8 +1,6 @@
 """``canguard init DIR``: a starter config, its tree and a DBC copy, ready to edit and deploy.
 
-The packaged whole-robot example fitted to DIR, a bus and a state directory. ``--canopen EDS --node N``: a
-config and tree for one CANopen drive instead; what it guards, how it reads and stops the drive, and what it
-tells: docs/commands.md (``canguard init``).
+``--canopen EDS --node N``: a config and tree for one CANopen drive instead (docs/commands.md).
 """
 
 from __future__ import annotations

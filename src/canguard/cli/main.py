@@ -1,7 +1,4 @@
-"""The ``canguard`` command: one subcommand = ``add_parser(sub)`` + a function returning an exit code.
-
-Exit codes: one table, :data:`canguard.cli.common.EXIT_CODES`, printed by every ``-h``.
-"""
+"""The ``canguard`` command: one subcommand = ``add_parser(sub)`` + a function returning an exit code."""
 
 from __future__ import annotations
 
@@ -206,11 +203,7 @@ class _VersionAction(argparse._VersionAction):
 
 
 def build_parser(command: str | None = None) -> argparse.ArgumentParser:
-    """The full argument parser (every subcommand has -h).
-
-    With ``command``, only that subcommand is built in full (its module imported); the others are
-    listed by name and help, so one command's start-up does not import every other one.
-    """
+    """The full argument parser; with ``command``, only that subcommand in full (the others listed, not imported)."""
     parser = argparse.ArgumentParser(
         prog="canguard",
         description="CAN-bus motor-driver monitoring: DBC decoding, protection models, behaviour trees.",
@@ -231,11 +224,8 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
 
 
 def _command_in(argv: Sequence[str]) -> str | None:
-    """The subcommand ``argv`` runs, when it can be told before parsing ("" for none); None: build them all.
-
-    The top-level options (-h, --version, -v) take no value, so the first word that is not an
-    option is the subcommand. ``completion`` prints every subcommand's options: it needs them all.
-    """
+    """The subcommand ``argv`` runs ("" for none; the top-level options take no value); None: build them all
+    (``completion`` prints every subcommand's options)."""
     for word in argv:
         if word == "--":
             return None
@@ -291,9 +281,8 @@ def main(argv: Sequence[str] | None = None, parser: argparse.ArgumentParser | No
 def console() -> int:
     """The process's entry point (console script, ``python -m canguard``): :func:`main`, then exit.
 
-    The objects the command's imports make live until exit: the collector is off while they are made
-    (a tenth of a short replay's start) and they are frozen out of its walks after, as the whole heap is
-    before exit (~30 ms after a replay); not in :func:`main`, which tests and embedding programs call.
+    The objects the imports make live until exit: the collector is off while they are made and they are frozen
+    out of its walks after, as the whole heap is before exit (not in :func:`main`, which tests call).
     """
     from canguard.cli.deferred import defer_unused
 

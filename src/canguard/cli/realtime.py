@@ -1,7 +1,6 @@
 """``canguard replay --realtime [SPEED]``: a bench test through the real daemon path.
 
-The log is played onto a configured bus at its pace (x SPEED) from a second connection while a
-:class:`~canguard.service.daemon.Daemon` runs live on that bus.
+The log is played onto a configured bus at its pace from a second connection while the daemon runs live on it.
 """
 
 from __future__ import annotations

@@ -1,10 +1,7 @@
 """``canguard replay``: the daemon's engine over recorded logs.
 
-The same :class:`~canguard.engine.core.Engine` as ``canguard run``, with a
-:class:`~canguard.io.clock.ManualClock` driven by the log's timestamps and a
-:class:`~canguard.engine.gate.LogSink` in place of the buses: the answer to "what
-would the daemon have done on this log?". The summary and the events depend
-only on the log and the config, so two runs give byte-identical output.
+The same engine as ``canguard run`` on the log's clock, a :class:`~canguard.engine.gate.LogSink` in place of
+the buses; the summary and the events depend only on the log and the config (byte-identical runs).
 """
 
 from __future__ import annotations

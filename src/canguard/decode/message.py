@@ -1,31 +1,12 @@
 """One configured message's decoder: compiled once from the DBC, one kernel over a block of payloads.
 
-:class:`MessageDecoder` compiles one message on one bus, for the signals sources read from it
-(:class:`Output`), into **one kernel** over a block of rows: ``payload`` (``n x width`` uint8, each
-row a payload padded with anything) and ``lengths``. A live frame is a block of one through the
-same kernel.
-
-The kernel reads the payload as 64-bit words (``<u8`` Intel, ``>u8`` Motorola; an IEEE float at a
-boundary of its own size as ``f4``/``f8``): per signal a shift, a mask, the sign, then
-``raw * scale + offset`` in float64 where that is what Python's arithmetic gives, in int64 where
-Python's exact integers are needed and fit, in Python integers beyond. Over a block the operands
-are numpy columns; over a block of one, that row's words as Python numbers (:mod:`struct`): the
-same operators give the same bits and doubles at a fraction of numpy's per-call cost, only the
-casts differ (:class:`_Columns`, :class:`_Numbers`). The contract is equality with cantools'
-``decode(..., decode_choices=False)`` to the bit (``tests/test_columns_vs_cantools.py``,
-``tests/test_decode_message.py``).
-
-``cantools`` is the strategy of what that maths does not take (container messages, a conversion
-that is not linear, a float of another width than 32 or 64 bits, a scaled or signed multiplexer,
-a signal outside the payload): cantools' ``decode_simple`` per row, then the same row check.
-
-The row check, written once (:meth:`MessageDecoder.decode`): a row is valid when its length is
-the DBC length (CAN FD: or the padded length), cantools would decode it, every configured signal
-is on its multiplexer page, and every value is finite and in the configured [min|max] (a presence
-flag non-zero: the row carries 1.0). A multiplexed row with none of the configured signals is
-:data:`~canguard.decode.rows.EMPTY`. Why a row is not valid (:class:`~canguard.decode.rows.Verdict`)
-is named on demand: ``bad_length``, ``undecodable``, ``nan`` / ``inf``, ``absent``,
-``out_of_range``, ``other_page``.
+The kernel reads the payload as 64-bit words (an aligned IEEE float as ``f4``/``f8``): per signal a shift,
+a mask, the sign, then ``raw * scale + offset`` in the number type that gives Python's result (float64,
+int64 or Python integers). A block of one runs the same operators on that row's Python numbers
+(:class:`_Numbers`), cheaper than numpy per call. The contract is equality with cantools'
+``decode(..., decode_choices=False)`` to the bit. What the maths does not take (containers, a conversion
+that is not linear, a float of another width than 32 or 64 bits, a scaled or signed multiplexer, a signal
+outside the payload) goes through cantools' ``decode_simple`` per row, then the same row check.
 """
 
 from __future__ import annotations
@@ -72,9 +53,7 @@ _ONE_LENGTH = tuple(np.array([k], dtype=np.int64) for k in range(65))
 """The ``lengths`` of a block of one payload of each length (read only, shared)."""
 
 Lanes = list[Any]
-"""A block's payload as each dtype its message reads, in the message's order of :func:`_slot` slots: ``lanes[s][k]``
-is word ``k`` of every row (a column of the ``n x words`` view), or of a block of one, that row's word as a Python
-number."""
+"""Per :func:`_slot` dtype, the block's words: ``lanes[s][k]`` is word ``k`` (a column, or one row's number)."""
 Column = Any
 """A column of the block (an array) or, in a block of one, that row's Python number: the kernel treats both alike."""
 _WRAP = 1 << 64
@@ -88,9 +67,7 @@ class _Columns:
     """The kernel's casts over a block's numpy columns."""
 
     f = _F
-    """To float64."""
-    i = _I
-    """To int64 (a uint64 wraps: two's complement)."""
+    i = _I  # a uint64 wraps: two's complement
 
     @staticmethod
     def f32(bits: Column) -> Column:
@@ -138,11 +115,9 @@ class Output:
 
 
 def check(value: Column, present: bool, lo: float, hi: float) -> tuple[Column, Column]:
-    """The row check of one output's values: (the values a valid row carries, which are usable).
+    """The row check of one output's values (a column or one float): (what a valid row carries, which are usable).
 
-    Usable: finite and within [lo, hi] (NaN and +-inf fail both comparisons: the bounds are
-    finite); a presence flag: finite and non-zero, and then it carries 1.0, which must be in
-    [lo, hi]. ``value``: a float64 column, or one row's float.
+    Usable: finite and in [lo, hi] (the bounds are finite: NaN and +-inf fail); a presence flag: non-zero, carrying 1.0.
     """
     if present:
         nonzero = value != 0.0
@@ -238,11 +213,9 @@ class MessageDecoder:
     def decode(self, payload: np.ndarray, lengths: np.ndarray) -> Sequence[Row]:
         """The checked rows of a block: per row its values in output order, EMPTY, or None (invalid).
 
-        ``payload``: ``n x width`` uint8, row ``k`` holding a payload of ``lengths[k]`` bytes
-        (an integer array) at its start, any bytes after it. A block of more than one row gives
-        :class:`~canguard.decode.rows.ColumnRows` (the values as float64 columns); a block of
-        one an :class:`~canguard.decode.rows.OneRow`. Either says why a row is not a tuple
-        (``verdict(k)``). Never raises on a payload.
+        ``payload``: ``n x width`` uint8, row ``k`` starting with its ``lengths[k]`` bytes. Several rows give
+        :class:`~canguard.decode.rows.ColumnRows`, one a list (an :class:`~canguard.decode.rows.OneRow` when
+        it is not valid); ``verdict(k)`` says why. Never raises on a payload.
         """
         n = len(lengths)
         if not n:
@@ -340,8 +313,7 @@ class MessageDecoder:
                 [np.array(p) if self._pages[j] else None for j, p in enumerate(pages)])
 
     def _verdict(self, read: _Read, k: int, one: bool) -> Verdict:
-        """Why row ``k`` of ``read`` is what :meth:`_rows` made of it, with each value on its page as a sample carries
-        it."""
+        """Why row ``k`` of ``read`` is what :meth:`decode` made of it, each value on its page as a sample has it."""
 
         def cell(column: Column) -> Any:
             return column if one else column[k]
@@ -569,9 +541,8 @@ def _float_bits(bits: _Getter, length: int) -> _Getter:
 def _integer(bits: _Getter, length: int, signed: bool, scale: Any, offset: Any) -> _Getter:
     """An integer signal's ``raw * scale + offset`` as float64, equal to Python's result ``float()``-ed.
 
-    Python computes in floats when the scale or the offset is one (``float(raw)`` first, correctly
-    rounded as numpy's cast), and in exact integers when both are integers: float64 then where every
-    product and sum stays below 2**53, int64 where it fits, Python integers beyond.
+    Python computes in floats when the scale or the offset is a float, in exact integers when both are integers:
+    float64 then where every product and sum stays below 2**53, int64 where it fits, Python integers beyond.
     """
     sign = 1 << (length - 1) if signed else 0
     integers = type(scale) is int and type(offset) is int

@@ -1,7 +1,4 @@
-"""Protection models: pure state machines that take time as an argument and advance over runs of samples.
-
-The contract: :mod:`canguard.protect.base`; the models: docs/protection.md.
-"""
+"""Protection models: pure state machines that take time as an argument and advance over runs of samples."""
 
 from canguard.protect.base import LatchedModel, ProtectionModel, Run, Snapshot
 from canguard.protect.hysteresis import Hysteresis

@@ -1,9 +1,7 @@
 """What every protection model is: a pure state machine that advances over runs of samples.
 
-The run API, ``model.advance(times, values, *, until_edge=False) -> Run`` over two equal-length 1-D columns
-(a sample is a run of one), is the only way samples reach a model (docs/protection.md): a run fed whole or
-split anywhere gives the same edges and state. Time moves a model only through samples
-(:mod:`canguard.engine.quiet` relies on it).
+``advance`` is the only way samples reach a model: a run fed whole or split anywhere gives the same edges and
+state. Time moves a model only through samples (:mod:`canguard.engine.quiet` relies on it).
 """
 
 from __future__ import annotations
@@ -54,10 +52,7 @@ class ProtectionModel(ABC):
 
     @abstractmethod
     def advance(self, times: npt.ArrayLike, values: npt.ArrayLike, *, until_edge: bool = False) -> Run:
-        """Advance over a run of samples (see the module docstring); where the tripped state changed.
-
-        With ``until_edge`` the model stops right after the first edge (the engine ticks the tree there).
-        """
+        """Advance over a run of samples; where the tripped state changed (``until_edge``: stop after the first)."""
 
     @abstractmethod
     def mark(self) -> Any:
@@ -84,8 +79,7 @@ class ProtectionModel(ABC):
 class LatchedModel(ProtectionModel):
     """What every concrete model shares: the run filter, tripped state, edge time, peak latch, snapshots.
 
-    One kernel, :meth:`_step`, decides; a quiet run (:meth:`_quiet`) is taken whole, any other sample by sample
-    (the engine's runs end at the next tick: past the quiet screen they are short).
+    One kernel, :meth:`_step`, decides; a quiet run (:meth:`_quiet`) is taken whole, any other sample by sample.
     """
 
     reason_tripped: str = REASON_OVERCURRENT

@@ -134,9 +134,8 @@ class _I2tModel(LatchedModel):
     def restore(self, state: Mapping[str, Any], downtime_s: float) -> None:
         """Take over an exported state cooled for ``downtime_s`` seconds, whatever the saved parameters or kind.
 
-        Tripped when the cooled level is >= 1, or was tripped and is not below ``recover_fraction``; the
-        sample history restarts. ValueError on a malformed state (the model unchanged).
-        """
+        Tripped when the cooled level is >= 1, or was tripped and is not below ``recover_fraction``. ValueError on
+        a malformed state (the model unchanged)."""
         lvl = cooled_level(state, downtime_s)
         was_tripped = state.get("tripped") is True
         self._set_acc(lvl * self.trip_level)

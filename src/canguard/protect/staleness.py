@@ -1,9 +1,7 @@
 """Staleness and validity of one source: is there a usable, fresh value? (docs/protection.md)
 
-Every sample of one source goes to :class:`SourceHealth`, which answers why the source cannot be trusted at
-``now`` (every non-empty reason fails the guard; the reasons: docs/protection.md). A drive's health roles
-(``nmt``, ``emcy``, ``fault``) gate every value, as ``present`` does, and are checked first. The latest
-sample decides, but an invalid one never replaces the latest valid value.
+A drive's health roles gate every value, as ``present`` does, and are checked first. The latest sample decides,
+but an invalid one never replaces the latest valid value.
 """
 
 from __future__ import annotations
@@ -180,10 +178,7 @@ class SourceHealth:
                 and self._roles.issubset(roles))
 
     def _sample(self, role: str, t: float, value: float, own: str = "") -> bool:
-        """The kernel: one sample of ``role`` at ``t`` (``own``: its own invalid reason); True on an edge.
-
-        The usual sample (valid, fresh, of a value role) only becomes the latest.
-        """
+        """The kernel: one sample of ``role`` at ``t`` (``own``: its own invalid reason); True on an edge."""
         self.samples += 1
         latest = self._latest_t.get(role)
         if latest is not None:
@@ -267,8 +262,7 @@ class SourceHealth:
     def reason(self, now: float, role: str | None = None) -> str:
         """Why the source (or its ``role`` signal, with gates and presence) cannot be used at ``now``; "" if it can.
 
-        ``role=None``: the first reason of the gates, presence, then every value role in config order.
-        """
+        ``role=None``: the first reason of the gates, presence, then every value role in config order."""
         if self._frozen:
             return REASON_FROZEN
         if now - self._ok_since <= self._window_s:

@@ -1,42 +1,22 @@
 """The simulator's scenarios: what goes wrong, on which axis, and when.
 
-Every scenario (docs/commands.md has the table) runs over the normal duty cycle and changes only what its
-docstring says. Times are seconds from the start, shifted by ``offset_s`` (``"spike@10"``: ten seconds
-later). Figures are chosen against the bundled config: IsCurrentSafe on ``/battery_state`` trips
-above 35 A and recovers below 25 A (``max_age`` 0.5 s); I²t continuous 10 A, peak 20 A for 1 s
-(S = 300 A²s) trips 1.0 s into 20 A from cold.
+Times are seconds from the start plus ``offset_s`` (``"spike@10"``). Figures are chosen against the bundled
+config: the pack trips above 35 A, recovers below 25 A, ``max_age`` 0.5 s; I²t 10 A continuous, 20 A for 1 s.
 """
 
 from __future__ import annotations
 
 import math
-import random
 from collections.abc import Callable
 from functools import partial
-from typing import TYPE_CHECKING, ClassVar, Protocol
+from typing import TYPE_CHECKING, ClassVar
 
 if TYPE_CHECKING:
     from canguard.io.frame import Frame
-    from canguard.sim.encode import MessageEncoder
+    from canguard.sim.robot import SimRobot
 
 Producer = Callable[[float], "Frame | None"]
 
-
-class RobotHandle(Protocol):
-    """What a scenario asks of the simulated robot (:class:`canguard.sim.robot.SimRobot` is one)."""
-
-    axes: int
-    rng: random.Random
-
-    def period_s(self, kind: str) -> float: ...
-    def encoder(self, axis: int | None, kind: str) -> MessageEncoder: ...
-    def known_ids(self) -> set[int]: ...
-    def nominal_rate_hz(self) -> float: ...
-    def schedule_once(self, t: float, produce: Producer) -> None: ...
-    def add_periodic(self, kind: str, period_s: float, phase_s: float, produce: Producer) -> None: ...
-    def raw_frame(self, t: float, frame_id: int, data: bytes, extended: bool = False, *,
-                  error: bool = False) -> Frame: ...
-    def bms_frame(self, t: float, pack_current_a: float | None = None) -> Frame: ...
 
 # linux/can/error.h: error classes and their details.
 CAN_ERR_CRTL = 0x00000004
@@ -48,12 +28,12 @@ CAN_ERR_PROT_BIT = 0x01
 CAN_ERR_PROT_FORM = 0x02
 
 
-def _noise(robot: RobotHandle, frame_id: int, dlc: int) -> Producer:
+def _noise(robot: SimRobot, frame_id: int, dlc: int) -> Producer:
     """A producer of ``dlc`` fresh random bytes (the robot's seeded generator) on ``frame_id``."""
     return lambda t: robot.raw_frame(t, frame_id, robot.rng.randbytes(dlc))
 
 
-def _at_steps(robot: RobotHandle, t0: float, step_s: float, frames: list[tuple[int, bytes, bool, bool]]) -> None:
+def _at_steps(robot: SimRobot, t0: float, step_s: float, frames: list[tuple[int, bytes, bool, bool]]) -> None:
     """Schedule fixed ``frames`` (id, data, extended, error), ``step_s`` apart from ``t0``."""
     for i, (fid, data, ext, error) in enumerate(frames):
         robot.schedule_once(t0 + i * step_s, partial(robot.raw_frame, frame_id=fid, data=data, extended=ext,
@@ -61,8 +41,7 @@ def _at_steps(robot: RobotHandle, t0: float, step_s: float, frames: list[tuple[i
 
 
 class Scenario:
-    """A named disturbance over the normal duty cycle (hooks, ``t`` in seconds from the start); the base changes
-    nothing."""
+    """A named disturbance over the normal duty cycle (hooks, ``t`` in seconds from the start)."""
 
     summary: ClassVar[str] = ""
     """One line for ``--help`` and the demo; the scenario's name is its class name in lower case."""
@@ -72,7 +51,7 @@ class Scenario:
     def __init__(self, offset_s: float = 0.0) -> None:
         self.offset_s = float(offset_s)
 
-    def setup(self, robot: RobotHandle) -> None:
+    def setup(self, robot: SimRobot) -> None:
         """Schedule this scenario's own frames on ``robot`` (called once, before the first frame)."""
 
     def setpoint(self, axis: int, t: float, iq_a: float) -> float:
@@ -93,9 +72,7 @@ class Normal(Scenario):
 class Inrush(Scenario):
     """Motor start on axis 1 at 1.5 s: Iq = 25 A for 80 ms, then a τ 10 ms decay into its move (0 A before).
 
-    Meanwhile (−20 ms to +200 ms) the other axes hold at most 1 A, as a controller sequencing starts does:
-    the pack reaches ≈ 30 A, below the 35 A trip. An axis guard below 25 A trips unless inrush blanking
-    covers 0.1 s.
+    The other axes hold at most 1 A meanwhile (−20 ms to +200 ms): the pack reaches ≈ 30 A, below the 35 A trip.
     """
 
     summary = "axis1 starts at 1.5 s: Iq 25 A for 80 ms, then its move; pack ~30 A, < 35 A"
@@ -127,7 +104,7 @@ class Spike(Scenario):
     AT_S = 1.5
     CURRENT_A = 60.0
 
-    def setup(self, robot: RobotHandle) -> None:
+    def setup(self, robot: SimRobot) -> None:
         """Schedule the spike half a BMS period after the BMS frame due at ``AT_S``."""
         t = self.offset_s + self.AT_S + robot.period_s("BMS_Status") / 2
         robot.schedule_once(t, lambda tt: robot.bms_frame(tt, pack_current_a=self.CURRENT_A))
@@ -163,15 +140,14 @@ class Dropout(Scenario):
 
 
 class Garbage(Scenario):
-    """Bad payloads on configured messages, one every 50 ms from 1.0 s (axis 2, or the last), normal ones
-    between."""
+    """Bad payloads on configured messages, one every 50 ms from 1.0 s (axis 2, or the last)."""
 
     summary = "NaN/inf Iq, wrong-length Iq and BMS frames, NaN torque, random bytes, from 1.0 s (axis2)"
     AT_S = 1.0
     STEP_S = 0.05
     UNKNOWN_ID = 0x7E5
 
-    def setup(self, robot: RobotHandle) -> None:
+    def setup(self, robot: SimRobot) -> None:
         """Schedule the seven bad frames."""
         axis = min(2, robot.axes - 1)
         t0 = self.offset_s + self.AT_S
@@ -201,7 +177,7 @@ class ErrorBurst(Scenario):
     COUNT = 32
     STEP_S = 0.0002
 
-    def setup(self, robot: RobotHandle) -> None:
+    def setup(self, robot: SimRobot) -> None:
         """Schedule the burst."""
         burst = []
         for i in range(self.COUNT):
@@ -223,7 +199,7 @@ class Load(Scenario):
     TARGET_FPS = 8000.0
     IDS = 40
 
-    def setup(self, robot: RobotHandle) -> None:
+    def setup(self, robot: SimRobot) -> None:
         """Add the background streams."""
         rng = robot.rng
         extra = self.TARGET_FPS - robot.nominal_rate_hz()
