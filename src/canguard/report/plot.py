@@ -1,6 +1,6 @@
-"""``replay --plot``: what an engineer looks at first after a trip (and ``tune --plot``).
+"""``replay --plot``: what an engineer looks at first after a trip.
 
-``.png`` / ``.svg`` by matplotlib (an optional extra); ``.html``: the SVG inline.
+``.png`` / ``.svg`` by matplotlib (an optional extra); ``.html``: the SVG inline. ``tune --plot``: per guard.
 """
 
 from __future__ import annotations
