@@ -104,23 +104,16 @@ def run_dask(address: str, job: Callable[[Any], Any], jobs: list[Any]) -> list[A
 
 def _pool_context() -> Any:
     """How ``--jobs`` starts its workers: 'fork' on Linux while this process runs one thread (they inherit the
-    loaded config), else 'spawn' (a forked child of a threaded process can hang on a lock copied while held)."""
+    loaded config), else 'spawn' (a forked child of a threaded process can hang on a lock copied while held).
+    Threads as the kernel counts them: C libraries' included."""
     import multiprocessing
-
-    if sys.platform == "linux" and _threads() == 1:
-        return multiprocessing.get_context("fork")
-    return multiprocessing.get_context("spawn")
-
-
-def _threads() -> int:
-    """This process's threads, as the kernel counts them (C libraries' included); Python's count elsewhere."""
     import os
-    import threading
 
     try:
-        return len(os.listdir("/proc/self/task"))
+        threads = len(os.listdir("/proc/self/task"))
     except OSError:
-        return threading.active_count()
+        threads = 0  # no /proc: spawn, always safe
+    return multiprocessing.get_context("fork" if sys.platform == "linux" and threads == 1 else "spawn")
 
 
 CONNECT_TIMEOUT = "10s"

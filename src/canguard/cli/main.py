@@ -258,8 +258,11 @@ def main(argv: Sequence[str] | None = None, parser: argparse.ArgumentParser | No
         code = func(args)
         sys.stdout.flush()  # a closed pipe shows here, inside the try, not at interpreter exit
         return code
-    except BrokenPipeError:
-        return _quiet_broken_pipe()
+    except BrokenPipeError:  # the reader of stdout went away (``| head``): stdout to devnull, a quiet final flush
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+        return EXIT_BROKEN_PIPE
     except CanguardError as exc:
         # ConfigError / TreeError carry every problem of one load: all are printed, one per line.
         problems = getattr(exc, "problems", None)
@@ -295,15 +298,3 @@ def console() -> int:
     code = main(parser=parser)
     gc.freeze()
     return code
-
-
-def _quiet_broken_pipe() -> int:
-    """The reader of stdout went away (``| head``): stdout to devnull, so the final flush is quiet."""
-    devnull = os.open(os.devnull, os.O_WRONLY)
-    os.dup2(devnull, sys.stdout.fileno())
-    os.close(devnull)
-    return EXIT_BROKEN_PIPE
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -333,15 +333,6 @@ class MessageDecoder:
             return Verdict(NO_SIGNAL, cells)
         return Verdict(reason or (OTHER_PAGE if len(cells) < len(self.outputs) else ""), cells)
 
-    def explain(self, data: bytes) -> Verdict:
-        """Why one payload's row is what :meth:`decode` gives, with each value as a sample carries it."""
-        rows = self.decode(*self.one(data))
-        row = rows[0]
-        if row:
-            return Verdict("", [(j, v, "") for j, v in enumerate(row)])
-        assert isinstance(rows, OneRow)
-        return rows.verdict(0)
-
 
 def _on_pages(ok: Column, whole: Column, pages: list[Column | None]) -> tuple[Column, Column | None]:
     """The rows of a multiplexed message still valid once every output must be on its page, and those whole rows
