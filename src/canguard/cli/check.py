@@ -42,8 +42,7 @@ def _dbc_notes(notes: tuple[str, ...], verbose: bool) -> list[str]:
 
 
 def describe(cfg: Config, verbose: bool = False) -> str:
-    """The text ``canguard check`` prints for a config that loaded without errors (``verbose``: ``check -v``, also
-    what each CANopen drive's EDS tolerated, the SDO writes canguard makes and what a drive must be told)."""
+    """The text ``canguard check`` prints for a config that loaded without errors (``verbose``: ``check -v``)."""
     n_messages = len(cfg.database.messages) if cfg.database is not None else 0
     lines = [f"config {cfg.path}", "dbc:", *(f"  {p}" for p in cfg.dbc_files), f"  ({n_messages} messages)",
              *_dbc_notes(cfg.dbc_notes, verbose), "buses:"]

@@ -17,8 +17,7 @@ UNUSED = ("cantools.tester", "cantools.logreader", "py_trees.display", "py_trees
 
 
 def defer(name: str) -> bool:
-    """Load the submodule ``name`` (``package.module``) only when one of its attributes is first read; True when
-    deferred, False (nothing changed) when its package is imported already, missing, or keeps it elsewhere."""
+    """Load the submodule ``name`` only when one of its attributes is first read; False: it cannot be deferred."""
     package, _, leaf = name.rpartition(".")
     if not package or package in sys.modules or name in sys.modules:
         return False

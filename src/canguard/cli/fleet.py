@@ -19,10 +19,8 @@ def _is_log(path: Path) -> bool:
 
 
 def expand_logs(given: Sequence[Path]) -> list[Path]:
-    """The log files ``given`` names, in order: files as they are, directories, globs and ``@LIST`` files expanded.
-
-    ConfigError naming what matched nothing; a missing plain file is left for the reader to name.
-    """
+    """The log files ``given`` names, in order: directories, globs and ``@LIST`` files expanded; ConfigError naming
+    what matched nothing (a missing plain file is left for the reader to name)."""
     out: list[Path] = []
     for item in given:
         text = str(item)
@@ -81,10 +79,8 @@ def _collect(futures: Iterable[Any], index: Callable[[Any], int], total: int) ->
 
 
 def run_dask(address: str, job: Callable[[Any], Any], jobs: list[Any]) -> list[Any]:
-    """Run ``job`` over ``jobs`` on the Dask scheduler at ``address``; results in the order of ``jobs``.
-
-    ConfigError when the ``fleet`` extra is missing or the scheduler cannot be reached.
-    """
+    """Run ``job`` over ``jobs`` on the Dask scheduler at ``address``; results in the order of ``jobs``. ConfigError
+    when the ``fleet`` extra is missing or the scheduler cannot be reached."""
     try:
         from distributed import Client, as_completed
     except ImportError:
@@ -131,10 +127,8 @@ def _worker_start() -> None:
 
 def run_processes(workers: int, job: Callable[[Any], Any], jobs: list[Any],
                   warm: Sequence[str] = ()) -> list[Any]:
-    """Run ``job`` over ``jobs`` in ``workers`` local processes; results in the order of ``jobs``.
-
-    ``warm``: modules every job imports, imported here first when the workers are forked (once, not per worker).
-    """
+    """Run ``job`` over ``jobs`` in ``workers`` local processes; results in the order of ``jobs``. ``warm``: modules
+    every job imports, imported here first when the workers are forked (once, not per worker)."""
     import gc
     import importlib
     from concurrent.futures import ProcessPoolExecutor, as_completed

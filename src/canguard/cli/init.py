@@ -219,8 +219,7 @@ def _fits(wanted: list[int]) -> list[list[int]]:
 
 def drive_files(eds_path: Path, node: int, *, bus: str, state_dir: Path, simulation: bool,
                 configure: bool = False) -> tuple[dict[str, str], list[str]]:
-    """The config and tree texts (by file name) for the drive of ``eds_path`` at ``node``, and the lines for stderr
-    (the TPDO chosen, what the drive must be told, warnings)."""
+    """The config and tree texts (by file name) for the drive of ``eds_path`` at ``node``, and lines for stderr."""
     eds = read_drive(eds_path, node)
     try:
         tpdos, rpdos = drive_pdos(eds)

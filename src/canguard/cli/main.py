@@ -224,8 +224,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
 
 
 def _command_in(argv: Sequence[str]) -> str | None:
-    """The subcommand ``argv`` runs ("" for none; the top-level options take no value); None: build them all
-    (``completion`` prints every subcommand's options)."""
+    """The subcommand ``argv`` runs ("" for none); None: build them all (``completion`` needs every option)."""
     for word in argv:
         if word == "--":
             return None
@@ -282,11 +281,8 @@ def main(argv: Sequence[str] | None = None, parser: argparse.ArgumentParser | No
 
 
 def console() -> int:
-    """The process's entry point (console script, ``python -m canguard``): :func:`main`, then exit.
-
-    The objects the imports make live until exit: the collector is off while they are made and they are frozen
-    out of its walks after, as the whole heap is before exit (not in :func:`main`, which tests call).
-    """
+    """The process's entry point (console script, ``python -m canguard``): :func:`main`, then exit. The imports'
+    objects live until exit: made with the collector off, then frozen out of its walks (not in :func:`main`)."""
     from canguard.cli.deferred import defer_unused
 
     defer_unused()

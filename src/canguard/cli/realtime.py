@@ -77,8 +77,7 @@ def _play_bus(cfg: Config, args: argparse.Namespace) -> str:
 
 
 def replay_realtime(cfg: Config, args: argparse.Namespace, names: list[Path]) -> list[tuple[dict[str, Any], str]]:
-    """Play each log onto the bus while the daemon runs (journal ``--events``, no ``state.file``); each log's
-    (summary, ""), printed as replay's. ``names``: the logs as the user gave them."""
+    """Play each log onto the bus while the daemon runs; each log's (summary, ""). ``names``: as the user gave them."""
     from canguard.cli.common import per_log_path
     from canguard.engine.routing import ChannelRouter
     from canguard.io.logs import ReadStats, read_log

@@ -49,8 +49,7 @@ def _output(ref: SignalRef, source: str) -> Output:
 
 
 class Decoder:
-    """Decodes the configured signals of the configured frames of a :class:`Config`; counters summed over every
-    bus, and :attr:`per_bus` (by bus name, with reasons)."""
+    """Decodes the configured signals of the configured frames; counters summed over every bus, and :attr:`per_bus`."""
 
     def __init__(self, cfg: Config) -> None:
         self._table: dict[tuple[str, int, bool], MessageDecoder] = {}

@@ -116,9 +116,7 @@ class Output:
 
 def check(value: Column, present: bool, lo: float, hi: float) -> tuple[Column, Column]:
     """The row check of one output's values (a column or one float): (what a valid row carries, which are usable).
-
-    Usable: finite and in [lo, hi] (the bounds are finite: NaN and +-inf fail); a presence flag: non-zero, carrying 1.0.
-    """
+    Usable: finite and in [lo, hi] (finite bounds: NaN and +-inf fail); a presence flag: non-zero, carrying 1.0."""
     if present:
         nonzero = value != 0.0
         good = (value >= -_BIG) & (value <= _BIG) & nonzero
@@ -211,12 +209,9 @@ class MessageDecoder:
 
     # -- the kernel ---------------------------------------------------------------------
     def decode(self, payload: np.ndarray, lengths: np.ndarray) -> Sequence[Row]:
-        """The checked rows of a block: per row its values in output order, EMPTY, or None (invalid).
-
-        ``payload``: ``n x width`` uint8, row ``k`` starting with its ``lengths[k]`` bytes. Several rows give
-        :class:`~canguard.decode.rows.ColumnRows`, one a list (an :class:`~canguard.decode.rows.OneRow` when
-        it is not valid); ``verdict(k)`` says why. Never raises on a payload.
-        """
+        """The checked rows of a block: per row its values in output order, EMPTY, or None (invalid); ``verdict(k)``
+        says why. ``payload``: ``n x width`` uint8, row ``k`` starting with its ``lengths[k]`` bytes. Several rows
+        give a ColumnRows, one a list (a OneRow when it is not valid). Never raises on a payload."""
         n = len(lengths)
         if not n:
             return []
@@ -502,8 +497,7 @@ def _float_lane(signal: Any, size: int, dtypes: list[np.dtype]) -> _Getter | Non
 
 
 def _value(signal: Any, size: int, dtypes: list[np.dtype]) -> tuple[_Getter, bool] | None:
-    """``signal``'s physical value as float64 (cantools' value, ``float()``-ed), and whether numpy may flag it
-    (an overflow, a float32 signalling NaN)."""
+    """``signal``'s physical value as float64, and whether numpy may flag it (overflow, a float32 signalling NaN)."""
     length = int(signal.length)
     if not _linear(signal) or (signal.is_float and length not in (32, 64)):
         return None
@@ -530,11 +524,9 @@ def _float_bits(bits: _Getter, length: int) -> _Getter:
 
 
 def _integer(bits: _Getter, length: int, signed: bool, scale: Any, offset: Any) -> _Getter:
-    """An integer signal's ``raw * scale + offset`` as float64, equal to Python's result ``float()``-ed.
-
-    Python computes in floats when the scale or the offset is a float, in exact integers when both are integers:
-    float64 then where every product and sum stays below 2**53, int64 where it fits, Python integers beyond.
-    """
+    """An integer signal's ``raw * scale + offset`` as float64, equal to Python's result ``float()``-ed. Python
+    computes in floats when the scale or the offset is a float, in exact integers when both are integers: float64
+    then where every product and sum stays below 2**53, int64 where it fits, Python integers beyond."""
     sign = 1 << (length - 1) if signed else 0
     integers = type(scale) is int and type(offset) is int
     bound = (1 << length) * abs(scale) + abs(offset)

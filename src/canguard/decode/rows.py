@@ -41,10 +41,8 @@ class OneRow(list[Row]):
 
 
 class ColumnRows(Sequence[Row]):
-    """The rows of one message in a block: ``columns[j][k]`` is output ``j`` of row ``k``.
-
-    ``fed`` marks the rows that go to ``feed`` (None), ``empty`` the EMPTY ones (it wins over ``fed``).
-    """
+    """The rows of one message in a block: ``columns[j][k]`` is output ``j`` of row ``k``; ``fed`` marks the rows
+    that go to ``feed`` (None), ``empty`` the EMPTY ones (it wins over ``fed``)."""
 
     __slots__ = ("_rows", "_why", "columns", "empty", "fed", "n")
 

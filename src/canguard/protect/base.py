@@ -77,10 +77,8 @@ class ProtectionModel(ABC):
 
 
 class LatchedModel(ProtectionModel):
-    """What every concrete model shares: the run filter, tripped state, edge time, peak latch, snapshots.
-
-    One kernel, :meth:`_step`, decides; a quiet run (:meth:`_quiet`) is taken whole, any other sample by sample.
-    """
+    """What every concrete model shares: the run filter, tripped state, edge time, peak latch, snapshots. One kernel,
+    :meth:`_step`, decides; a quiet run (:meth:`_quiet`) is taken whole, any other sample by sample."""
 
     reason_tripped: str = REASON_OVERCURRENT
     """The snapshot reason while tripped."""
@@ -199,10 +197,8 @@ class LatchedModel(ProtectionModel):
         """The kernel: the tripped state after one accepted sample (the base records edges, time and value)."""
 
     def carry_from(self, old: ProtectionModel) -> None:
-        """Take over the running state of the model this one replaces (config reload; its own parameters kept).
-
-        A reload never clears a trip; a model of another kind carries only this base part.
-        """
+        """Take over the running state of the model this one replaces (config reload; its own parameters kept): a
+        reload never clears a trip; a model of another kind carries only this base part."""
         if isinstance(old, LatchedModel):
             self._tripped, self._since, self._latch, self._value, self._last_t = old.running()
 
@@ -220,10 +216,8 @@ class LatchedModel(ProtectionModel):
         return Snapshot(self._value, threshold, level, tripped, self._since, reason)
 
     def poll(self, now: float) -> Snapshot:
-        """The state at tick time ``now``: tripped if tripped now or if a trip began since the last poll.
-
-        The latch is then cleared: a spike already over is reported exactly once.
-        """
+        """The state at tick time ``now``: tripped if tripped now or if a trip began since the last poll. The latch
+        is then cleared: a spike already over is reported exactly once."""
         snap = self._make_snapshot(self._tripped or self._latch)
         self._latch = False
         return snap

@@ -117,10 +117,8 @@ class _I2tModel(LatchedModel):
         return self.trip_level, 100.0 * self.level
 
     def set_hot(self, t: float | None = None) -> None:
-        """Worst case: put the state at the trip level; the model trips (``t`` becomes ``since``).
-
-        Only the trip edge arms the latch: a trip already reported is not reported again.
-        """
+        """Worst case: put the state at the trip level; the model trips (``t`` becomes ``since``). Only the trip edge
+        arms the latch: a trip already reported is not reported again."""
         self._set_acc(self.trip_level)
         if not self._tripped:
             self._tripped = self._latch = True
@@ -132,10 +130,8 @@ class _I2tModel(LatchedModel):
                 "level": self.level, "tripped": self._tripped, "t": self._last_t}
 
     def restore(self, state: Mapping[str, Any], downtime_s: float) -> None:
-        """Take over an exported state cooled for ``downtime_s`` seconds, whatever the saved parameters or kind.
-
-        Tripped when the cooled level is >= 1, or was tripped and is not below ``recover_fraction``. ValueError on
-        a malformed state (the model unchanged)."""
+        """Take over an exported state cooled for ``downtime_s`` s, whatever the saved parameters or kind: tripped when
+        the cooled level is >= 1, or was tripped and is not below ``recover_fraction``. ValueError: malformed."""
         lvl = cooled_level(state, downtime_s)
         was_tripped = state.get("tripped") is True
         self._set_acc(lvl * self.trip_level)
@@ -189,10 +185,8 @@ def thermal_tau(continuous_a: float, peak_a: float, peak_time_s: float) -> float
 
 
 class ThermalI2t(_I2tModel):
-    """First-order thermal image (IEC 60255-8), θ in units of the steady state at I_cont; reason ``i2t``.
-
-    τ is ``tau_s``, else :func:`thermal_tau` of the peak point; ``tau_cool_s`` (default τ) while θ falls.
-    """
+    """First-order thermal image (IEC 60255-8), θ in units of the steady state at I_cont; reason ``i2t``. τ is
+    ``tau_s``, else :func:`thermal_tau` of the peak point; ``tau_cool_s`` (default τ) while θ falls."""
 
     kind = KIND_THERMAL
     THRESHOLD_UNIT = THETA

@@ -260,9 +260,8 @@ class SourceHealth:
         return REASON_NOT_PRESENT if role == PRESENT and self._value.get(PRESENT, 0.0) == 0 else REASON_OK
 
     def reason(self, now: float, role: str | None = None) -> str:
-        """Why the source (or its ``role`` signal, with gates and presence) cannot be used at ``now``; "" if it can.
-
-        ``role=None``: the first reason of the gates, presence, then every value role in config order."""
+        """Why the source (or its ``role`` signal, with gates and presence) cannot be used at ``now``; "" if it can
+        (``role=None``: the first reason of the gates, presence, then every value role in config order)."""
         if self._frozen:
             return REASON_FROZEN
         if now - self._ok_since <= self._window_s:

@@ -131,8 +131,7 @@ class HeatStore:
                   len(self._states), self.path, now - self._saved_t, now)
 
     def restore(self, key: str, model: Any, now: float) -> None:
-        """Restore ``model`` under ``key``, cooled for the downtime (the file loaded first); TypeError when the
-        model cannot hold heat."""
+        """Restore ``model`` under ``key``, cooled for the downtime; TypeError when the model cannot hold heat."""
         if not isinstance(model, HeatModel):
             raise TypeError(f"model {key!r} ({type(model).__name__}) has no heat state to restore")
         self.load(now)

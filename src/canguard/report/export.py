@@ -102,11 +102,9 @@ class SignalExport:
 
     def _block(self, times: Sequence[Any], taken: list[tuple[list[tuple[str, str]], list[int], Sequence[Any]]],
                fed: list[tuple[int, Sample]]) -> None:
-        """A replay's column block (``Engine.sample_block``): its samples in row order, as frame by frame.
-
-        ``taken``: per message its outputs' (source, signal), rows and values (valid and in range: reason "");
-        ``fed``: the fed rows' samples (a row in both: its samples are the fed ones).
-        """
+        """A replay's column block (``Engine.sample_block``): its samples in row order, as frame by frame. ``taken``:
+        per message its outputs' (source, signal), rows and values (valid, in range: reason ""); ``fed``: the fed
+        rows' samples (a row in both: its samples are the fed ones)."""
         from canguard.decode.rows import valued_table
 
         stamp = np.asarray(times, dtype=np.float64)

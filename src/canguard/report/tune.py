@@ -149,11 +149,8 @@ def trip_time(model: ProtectionModel, knob: Knob, value: float, t: np.ndarray, v
 
 
 def ceiling(model: ProtectionModel, knob: Knob, t: np.ndarray, v: np.ndarray) -> tuple[float, float | None]:
-    """The knob's value at and above which the model no longer trips on the samples, and the trip time just below.
-
-    ``(0.0, None)``: no trip even at the smallest value; ``(inf, time)``: a trip whatever the value (another
-    figure, an inrush threshold or a stale gap, trips it).
-    """
+    """The knob's value at and above which the model no longer trips on the samples, and the trip time just below;
+    ``(0.0, None)``: no trip at all; ``(inf, time)``: a trip whatever the value (another figure trips it)."""
     def trips(value: float) -> float | None:
         return trip_time(model, knob, value, t, v)
 

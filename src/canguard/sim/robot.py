@@ -84,11 +84,8 @@ COMMANDS = ("Estop", "Set_Axis_State", "Clear_Errors")
 
 
 class SimRobot:
-    """A deterministic simulated robot: N ODrive CANSimple axes and a BMS on one bus (messages as ``dbc/robot.dbc``).
-
-    ``scenarios``: names of :data:`canguard.sim.SCENARIOS`, optionally ``name@offset_s``. ValueError for an
-    unknown scenario, an axis count or a message the DBC lacks.
-    """
+    """A deterministic simulated robot: N ODrive CANSimple axes and a BMS on one bus (messages as ``dbc/robot.dbc``);
+    ``scenarios``: ``name`` or ``name@offset_s``. ValueError for a bad scenario, axis count or missing message."""
 
     def __init__(self, db: cantools.database.Database | str | PathLike[str], *, axes: int = 4, seed: int = 0,
                  scenarios: Sequence[str] = ("normal",), channel: str = "can0", start_t: float = 1_700_000_000.0,

@@ -87,10 +87,8 @@ class Normal(Scenario):
 
 
 class Inrush(Scenario):
-    """Motor start on axis 1 at 1.5 s: Iq = 25 A for 80 ms, then a τ 10 ms decay into its move (0 A before).
-
-    The other axes hold at most 1 A meanwhile (−20 ms to +200 ms): the pack reaches ≈ 30 A, below the 35 A trip.
-    """
+    """Motor start on axis 1 at 1.5 s: Iq = 25 A for 80 ms, then a τ 10 ms decay into its move (0 A before); the
+    other axes hold at most 1 A meanwhile (−20 ms to +200 ms): the pack reaches ≈ 30 A, below the 35 A trip."""
 
     summary = "axis1 starts at 1.5 s: Iq 25 A for 80 ms, then its move; pack ~30 A, < 35 A"
     AXIS = 1
