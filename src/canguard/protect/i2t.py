@@ -100,8 +100,8 @@ class _I2tModel(LatchedModel):
 
     def _step(self, t: float, a: float) -> bool:
         """Integrate the held |I| up to ``t`` (a stale gap cut to ``max_gap_s``), hold ``a``, decide."""
-        if self._last_t is not None and not math.isnan(self._held):
-            dt = t - self._last_t
+        if self.last_t is not None and not math.isnan(self._held):
+            dt = t - self.last_t
             if dt > self.max_gap_s:
                 self.stale_gaps += 1
                 dt = self.max_gap_s
@@ -122,12 +122,12 @@ class _I2tModel(LatchedModel):
         self._set_acc(self.trip_level)
         if not self._tripped:
             self._tripped = self._latch = True
-            self._since = t
+            self.since = t
 
     def export(self) -> dict[str, Any]:
         """The state as a JSON-able dict: kind, version, parameters, accumulator, level, tripped, time."""
         return {"kind": self.kind, "version": STATE_VERSION, "params": self.params(), "accumulator": self._acc,
-                "level": self.level, "tripped": self._tripped, "t": self._last_t}
+                "level": self.level, "tripped": self._tripped, "t": self.last_t}
 
     def restore(self, state: Mapping[str, Any], downtime_s: float) -> None:
         """Take over an exported state cooled for ``downtime_s`` s, whatever the saved parameters or kind: tripped when
@@ -135,11 +135,11 @@ class _I2tModel(LatchedModel):
         lvl = cooled_level(state, downtime_s)
         was_tripped = state.get("tripped") is True
         self._set_acc(lvl * self.trip_level)
-        self._last_t = None
+        self.last_t = None
         self._held = self._value = math.nan
         self._tripped = self.level >= 1.0 or (was_tripped and self.level >= self.recover_fraction)
         self._latch = self._tripped
-        self._since = None
+        self.since = None
 
 
 class LeakyI2t(_I2tModel):
@@ -161,7 +161,7 @@ class LeakyI2t(_I2tModel):
         cont = self.continuous_a
         if self._held > cont or high_a > cont:  # a NaN held (no sample yet) integrates nothing
             return False
-        last = self._last_t
+        last = self.last_t
         if self.max_gap_s != math.inf and (
                 (last is not None and float(t[0]) - last > self.max_gap_s) or longest_step(t) > self.max_gap_s):
             return False
