@@ -143,12 +143,9 @@ class _Read(NamedTuple):
     """What the kernel read from a block, before the row check: per output its values and its page."""
 
     length_ok: Column
-    decodable: Column | None
-    """Rows cantools would decode (None: all of them)."""
-    values: list[Column]
-    """Each output's physical value, float64."""
-    pages: list[Column | None]
-    """Each output's rows on its multiplexer page (None: every row)."""
+    decodable: Column | None  # rows cantools would decode (None: all of them)
+    values: list[Column]  # each output's physical value, float64
+    pages: list[Column | None]  # each output's rows on its multiplexer page (None: every row)
 
 
 def _slot(dtypes: list[np.dtype], dtype: np.dtype) -> int:

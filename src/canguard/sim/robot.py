@@ -1,15 +1,8 @@
 """The simulated robot: ODrive-style drivers and a BMS, in simulated time.
 
 Everything is a function of the seed, the scenarios and the frames received (no wall clock). Periodic
-streams run from their nominal times plus a seeded jitter of 0 to 20 µs, so rates never drift. The physics:
-
-* Current loop: in CLOSED_LOOP_CONTROL (8) Iq is the setpoint plus noise (σ 0.03 A), rising to it with
-  τ 20 ms after a resume; in IDLE (1) it decays with τ 2 ms (σ 0.005 A). Torque = Kt·Iq, Kt 0.0827 N·m/A.
-* Pack current = 2 A + Σ|Iq| + noise (σ 0.05 A); pack voltage = a 13S pack's open-circuit voltage at its
-  state of charge (from 85 % of 20 Ah) − 0.04 Ω × pack current.
-* Commands (:meth:`SimRobot.receive`): ``Axis*_Estop`` → IDLE with ESTOP_REQUESTED set;
-  ``Axis*_Set_Axis_State`` 1 → IDLE, 8 → CLOSED_LOOP only while no error is active (as an ODrive);
-  ``Axis*_Clear_Errors`` clears the errors. Heartbeats (10 Hz) report Axis_Error and Axis_State.
+streams run from their nominal times plus a seeded jitter of 0 to 20 µs, so rates never drift. As an ODrive,
+an Estop leaves the axis IDLE with ESTOP_REQUESTED set, and CLOSED_LOOP is entered only while no error is active.
 """
 
 from __future__ import annotations
