@@ -11,17 +11,13 @@ def _id(frame_id: int, extended: bool) -> str:
     return f"0x{frame_id:08X} (extended)" if extended else f"0x{frame_id:03X}"
 
 
-def _range(ref: SignalRef) -> str:
+def _signal(ref: SignalRef) -> str:
+    text = f"{ref.role} = {ref.signal}" + (f" {ref.unit}" if ref.unit else "")
     if ref.minimum is None and ref.maximum is None:
-        return ""
+        return text
     lo = "-inf" if ref.minimum is None else f"{ref.minimum:g}"
     hi = "inf" if ref.maximum is None else f"{ref.maximum:g}"
-    return f" [{lo} .. {hi}]"
-
-
-def _signal(ref: SignalRef) -> str:
-    unit = f" {ref.unit}" if ref.unit else ""
-    return f"{ref.role} = {ref.signal}{unit}{_range(ref)}"
+    return f"{text} [{lo} .. {hi}]"
 
 
 def _frames(title: str, frames: Iterable[FrameSpec]) -> list[str]:

@@ -192,7 +192,8 @@ def choose_tpdo(eds: Eds, tpdos: list[Pdo]) -> tuple[Pdo, bool]:
         keep = [] if not pdo.enabled else [(o.index, o.subindex) for o in pdo.objects]
         if pdo.enabled and len(pdo.objects) and pdo.bits != sum(o.bits for o in pdo.objects):
             continue  # dummy entries: a new mapping would move the objects others read
-        for extra in _fits(wanted):
+        # ``wanted``, then with fewer objects from its end, down to one guarded value
+        for extra in (wanted[:n] for n in range(len(wanted), 0, -1) if any(i in GUARDED for i in wanted[:n])):
             try:
                 refs: list[tuple[int, int | None]] = [*keep, *((i, None) for i in extra if (i, 0) not in keep)]
                 return override(eds, pdo, refs), True
@@ -210,11 +211,6 @@ def _remappable(eds: Eds, pdo: Pdo) -> bool:
     index = TPDO_MAP + pdo.number - 1
     return all(var is not None and var.access_type in WRITABLE
                for var in (eds.variable(index, 0), eds.variable(index, 1)))
-
-
-def _fits(wanted: list[int]) -> list[list[int]]:
-    """``wanted``, then with fewer objects from its end, down to one guarded value."""
-    return [wanted[:n] for n in range(len(wanted), 0, -1) if any(i in GUARDED for i in wanted[:n])]
 
 
 def drive_files(eds_path: Path, node: int, *, bus: str, state_dir: Path, simulation: bool,

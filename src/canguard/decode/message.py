@@ -539,7 +539,7 @@ def _integer(bits: _Getter, length: int, signed: bool, scale: Any, offset: Any) 
             if type(offset) is int:
                 return lambda lanes, ops: ops.f(as_int(lanes, ops) * scale + offset)
             return lambda lanes, ops: ops.f(as_int(lanes, ops) * scale) + offset
-        exact = np.frompyfunc(lambda r: float(_py_signed(int(r), sign) * scale + offset), 1, 1)
+        exact = np.frompyfunc(lambda r: float(((int(r) ^ sign) - sign) * scale + offset), 1, 1)
         return lambda lanes, ops: ops.f(exact(bits(lanes, ops)))
     as_int = _signed_int(bits, length, sign)  # a float scale: float(raw), correctly rounded, then float maths
     return lambda lanes, ops: ops.f(as_int(lanes, ops)) * scale + offset
@@ -560,11 +560,6 @@ def _signed_int(bits: _Getter, length: int, sign: int) -> _Getter:
     if length == 64:
         return lambda lanes, ops: ops.i(bits(lanes, ops))  # two's complement: the cast wraps
     return lambda lanes, ops: ops.i(bits(lanes, ops) ^ sign) - sign
-
-
-def _py_signed(raw: int, sign: int) -> int:
-    """A field's raw bits as Python's signed integer."""
-    return raw - (sign << 1) if raw & sign else raw
 
 
 # -- cantools -------------------------------------------------------------------------------

@@ -231,8 +231,8 @@ _FLUSH = 65_536
 
 
 def topic_name(*parts: str) -> str:
-    """A ROS topic name under ``/canguard`` of ``parts`` (a source named ``/battery_state`` as ``battery_state``;
-    characters a topic name may not hold as ``_``)."""
+    """A ROS topic name under ``/canguard`` of ``parts`` (``/battery_state`` as ``battery_state``; other characters
+    a topic name may not hold as ``_``)."""
     clean = ["".join(c if c.isalnum() or c == "_" else "_" for c in p.strip("/")) or "_" for p in parts]
     return "/canguard/" + "/".join(clean)
 
