@@ -45,8 +45,7 @@ def _printable(text: str, limit: int) -> tuple[str, bool]:
 
 
 def clip(text: str, limit: int = QUOTE_CHARS) -> str:
-    """``text`` on one printable line of at most about ``limit`` characters (escapes count); a longer one is cut,
-    with its length."""
+    """``text`` on one printable line of at most about ``limit`` characters; a longer one is cut, with its length."""
     shown, cut = _printable(text, limit)
     return f"{shown}... ({len(text)} characters in all)" if cut else shown
 

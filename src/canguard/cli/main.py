@@ -63,7 +63,6 @@ def _cmd_check(args: argparse.Namespace) -> int:
     from canguard.bt.checks import check_tree
     from canguard.bt.loader import partial_tree_problems
     from canguard.cli.check import describe
-    from canguard.errors import ConfigError
     from canguard.io.outputs import check_config_outputs
 
     try:

@@ -29,8 +29,7 @@ DRAIN_S = 10.0
 
 
 class _ReplayDaemon(Daemon):
-    """The daemon with replay's promises: I²t heat only read from ``--state`` (never saved), ``--emit``; the
-    bench's (often virtual) bus allowed."""
+    """The daemon with replay's promises: heat only read from ``--state``, ``--emit``, the bench's bus allowed."""
 
     refuse_virtual = False
     watch = False

@@ -108,8 +108,7 @@ class Decoder:
 
 
 def row_samples(entry: MessageDecoder, rows: Any, k: int, t: float, counters: DecodeCounters) -> list[Sample]:
-    """The samples of row ``k`` of ``rows`` (what ``entry`` decoded), a row that is not a tuple of valid values
-    (EMPTY or None), each with its reason, counted in ``counters`` (but for the frame itself)."""
+    """The samples of row ``k`` of ``rows`` (EMPTY or None), each with its reason, counted (but for the frame)."""
     if rows[k] is EMPTY:  # a multiplexer page that carries none of the configured signals
         counters.decoded += 1
         return []

@@ -76,7 +76,6 @@ class _Columns:
 
     @staticmethod
     def f64(bits: Column) -> Column:
-        """64 bits as an IEEE float64."""
         return bits.view(np.float64)
 
 
@@ -97,7 +96,6 @@ class _Numbers:
 
     @staticmethod
     def f64(bits: int) -> float:
-        """64 bits as an IEEE float64."""
         return _F64.unpack(_U64.pack(bits))[0]
 
 

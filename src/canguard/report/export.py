@@ -163,8 +163,7 @@ class SignalExport:
 
 
 class SampleTable(Protocol):
-    """Where :class:`SignalExport` writes its rows, a batch of columns at a time; ``keys[code]``: (source, signal,
-    reason)."""
+    """Where :class:`SignalExport` writes its rows, a batch of columns at a time (``keys[code]``: the row's key)."""
 
     def write(self, t: Any, codes: Any, values: Any, keys: Sequence[tuple[str, str, str]]) -> None: ...
 
@@ -296,8 +295,7 @@ class McapExport:
         engine.listen(self._event)
 
     def publish(self, engine: Any, now: float) -> None:
-        """A tick that ran (a :class:`~canguard.engine.stats.TickObserver`; quiet ticks are not run): each guard's
-        state."""
+        """A tick that ran (quiet ticks are not run): each guard's state."""
         self._ticks.append(now)
         for (guard, _channel), states in zip(self._guards, self._states, strict=True):
             snap = guard.snapshot()
