@@ -8,18 +8,5 @@ from canguard.protect.staleness import SourceHealth
 from canguard.protect.state import HeatModel, HeatStore
 from canguard.protect.threshold import Threshold
 
-__all__ = [
-    "HeatModel",
-    "HeatStore",
-    "Hysteresis",
-    "InrushBlanking",
-    "LatchedModel",
-    "LeakyI2t",
-    "ProtectionModel",
-    "Run",
-    "Snapshot",
-    "SourceHealth",
-    "ThermalI2t",
-    "Threshold",
-    "thermal_tau",
-]
+__all__ = ["HeatModel", "HeatStore", "Hysteresis", "InrushBlanking", "LatchedModel", "LeakyI2t", "ProtectionModel",
+           "Run", "Snapshot", "SourceHealth", "ThermalI2t", "Threshold", "thermal_tau"]
