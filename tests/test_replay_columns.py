@@ -695,7 +695,7 @@ def chunk_starting_at(log: Path, i: int) -> int:
     """A block size (4,000 to 12,000 characters: about 100 lines) at which a block of ``log`` starts at line ``i``.
 
     A block is the next ``size`` characters and the rest of the line the last of them is in
-    (:func:`canguard.io.candump.candump_chunks`): the next block starts at the line after it.
+    (:func:`canguard.io.candump.candump_blocks`): the next block starts at the line after it.
     """
     offsets = line_offsets(log)
     target = offsets[i]

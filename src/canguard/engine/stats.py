@@ -20,7 +20,7 @@ class EventSink(Protocol):
 
 
 class TickObserver(Protocol):
-    """What watches the engine tick by tick (the live monitors: :class:`canguard.service.monitor.snapshot.Observer`)."""
+    """What watches the engine tick by tick (the live monitors: :class:`canguard.service.monitor.Monitor`)."""
 
     def publish(self, engine: Any, now: float) -> None:
         """Called with the engine at the end of each tick; must neither raise nor wait."""
