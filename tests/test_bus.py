@@ -20,10 +20,9 @@ import yaml
 from canguard.config.loader import load_config
 from canguard.config.schema import BusConfig
 from canguard.errors import BusError
-from canguard.io.block import EXT_KEY
+from canguard.io.block import EXT_KEY, frame_from_message
 from canguard.io.bus import KERNEL_FILTERS_MAX, BusReader, kernel_filters, open_bus, receive_keys
 from canguard.io.frame import Frame
-from canguard.io.pycan import frame_from_message
 from checkout import REPO, SRC
 from test_canopen_config import config as canopen_config
 from test_daemon import unique_udp

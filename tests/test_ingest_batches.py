@@ -15,8 +15,8 @@ from typing import Any
 import can
 
 from canguard.config.schema import BusConfig
+from canguard.io.block import frame_from_message
 from canguard.io.bus import WALL_STAMP_S, BusReader
-from canguard.io.pycan import frame_from_message
 from canguard.service.daemon import Daemon
 from canguard.service.systemd import Notifier
 from test_daemon import BMS_ID, bms_data, write_config

@@ -28,15 +28,12 @@ LIMITS = Limits(max_streams=6, streams_per_address=4, request_timeout_s=1.0, max
 @contextlib.contextmanager
 def serving(limits: Limits) -> Iterator[WebMonitor]:
     """A status page server on an ephemeral loopback port with ``limits``, around a hub of its own."""
-    hub = Hub()
-    web = WebMonitor(Address("127.0.0.1", 0), hub, None, limits)
-    hub.start()
+    web = WebMonitor(Address("127.0.0.1", 0), Hub(), None, limits)
     web.start()
     try:
         yield web
     finally:
         web.close()
-        hub.close()
 
 
 @pytest.fixture

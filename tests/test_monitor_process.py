@@ -145,15 +145,15 @@ def test_the_monitor_process_runs_below_the_daemon() -> None:
 
 def test_sends_to_the_monitor_process_never_wait_and_a_gone_one_is_an_error() -> None:
     """The daemon's end takes whole messages while there is room, refuses the next at once, and raises once closed."""
-    from canguard.service.monitor import wire
+    from canguard.service.monitor import WANT_BLACKBOARD, GilHoldingSocket, socket_pair
 
-    ours, theirs = wire.socket_pair()
+    ours, theirs = socket_pair()
     try:
         ours.setblocking(False)
-        end = wire.GilHoldingSocket(ours)
+        end = GilHoldingSocket(ours)
         assert end.recv() is None  # nothing asked
-        theirs.send(wire.WANT_BLACKBOARD)
-        assert end.recv() == wire.WANT_BLACKBOARD
+        theirs.send(WANT_BLACKBOARD)
+        assert end.recv() == WANT_BLACKBOARD
         sent = 0
         while end.send(b"x" * 1000):  # the monitor process reads nothing: its buffer fills, no send waits
             sent += 1

@@ -16,7 +16,7 @@ from typing import Any
 
 import pytest
 
-from canguard.service.monitor.hub import DOCUMENT_S
+from canguard.service.monitor.web import DOCUMENT_S
 from monitorkit import DEMO_GUARDS, ESTOP_IDS, WAIT_S, Watched, running, shared_daemon, wait_for, watched_daemon
 
 GUARD_FIELDS = {"name", "source", "value", "unit", "threshold", "margin", "status"}
@@ -283,10 +283,10 @@ def test_a_failing_monitor_never_stops_the_guard(tmp_path: Path, caplog: pytest.
     with watched_daemon(tmp_path) as w:
         wait_for("the task to run", lambda: running(w))
 
-        def broken(snapshot: object) -> None:
+        def broken(*_record: object) -> None:
             raise RuntimeError("monitor broke")
 
-        monkeypatch.setattr(w.daemon.monitor, "put", broken)
+        monkeypatch.setattr(w.daemon.monitor, "offer", broken)
         msg = w.trip_until_estop(WAIT_S)
         assert msg is not None and msg.arbitration_id in ESTOP_IDS
         # the stop's snapshot is taken in a tick after the Estop went out: wait for it, not for the daemon's end

@@ -17,8 +17,7 @@ import yaml
 from py_trees.blackboard import Blackboard
 
 from canguard.engine.core import Engine
-from canguard.service.blackboard import tree_clients
-from canguard.service.daemon import Daemon
+from canguard.service.daemon import Daemon, tree_clients
 from canguard.service.systemd import Notifier
 from checkout import REPO
 

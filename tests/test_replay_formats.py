@@ -662,7 +662,9 @@ class TestProgressBar:
         monkeypatch.setattr(candump, "CHUNK_CHARS", 256)
         path = _write(tmp_path / "x.log", "".join(f"({i}.000000) can0 123#11\n" for i in range(200)))
         bar = ProgressBar(path.stat().st_size, stream=self._Tty(), min_interval_s=0.0)
-        list(read_log(path, progress=bar))
+        frames = read_log(path)
+        frames.progress = bar
+        list(frames)
         assert bar.position == path.stat().st_size
 
     def test_wrap_progress_attaches_to_the_reader(self, tmp_path: Path) -> None:

@@ -13,8 +13,6 @@ import io
 import struct
 from typing import Any
 
-__all__ = ["BlfLength"]
-
 _FILE_HEADER = struct.Struct("<4sL")
 """The start of the file header: signature ``LOGG``, the header's size."""
 _OBJ_HEADER = struct.Struct("<4sHHLL")
@@ -30,11 +28,10 @@ class BlfLength:
         self.pos = 0  # bytes read so far
         self.ended = False  # a read came back short: the file ended there
         self.file_size = 0  # the file size the file header records (0: none)
-        self._head = b""  # the bytes of the header being read (file header first, then each object's)
         self._header_size = 0  # the file header's size, once its first 8 bytes are in
-        self._skip = 0  # bytes of the current object (or of the file header) still to come
-        self._pad = 0  # of them, the padding that follows the object
-        self._object: tuple[int, int, int] | None = None  # the object being read: start, size, type
+        self._next = 0  # where the next header starts (the file header's at 0)
+        self._head = b""  # its bytes read so far
+        self._object = (0, 0, -1)  # the last object whose header was read: start, size, type (-1: the file header)
         self._lost = False  # a header without its signature: not BLF framing (python-can says what it is)
 
     def read(self, size: int = -1) -> bytes:
@@ -42,7 +39,24 @@ class BlfLength:
         data: bytes = self.raw.read(size)
         if size is None or size < 0 or len(data) < size:
             self.ended = True
-        self._follow(data)
+        start = self.pos
+        self.pos += len(data)
+        while not self._lost and self._next + len(self._head) < self.pos:
+            need = (_OBJ_HEADER if self._header_size else _FILE_HEADER).size
+            at = self._next + len(self._head) - start
+            self._head += data[at:at + need - len(self._head)]
+            if len(self._head) < need:
+                break
+            if not self._header_size:  # the file header's first bytes: its size; the rest is skipped
+                signature, length = _FILE_HEADER.unpack(self._head)
+                self._lost = signature != b"LOGG"
+                self._header_size = self._next = max(length, _FILE_HEADER.size)
+            else:
+                signature, _, _, length, kind = _OBJ_HEADER.unpack(self._head)
+                self._lost = signature != b"LOBJ"
+                self._object = (self._next, length, kind)
+                self._next += max(length, _OBJ_HEADER.size) + length % 4  # then ``size % 4`` padding
+            self._head = b""
         return data
 
     def close(self) -> None:
@@ -54,44 +68,6 @@ class BlfLength:
         for a path to open) only when it has both ``read`` and ``write``."""
         raise io.UnsupportedOperation("write")
 
-    def _follow(self, data: bytes) -> None:
-        view = memoryview(data)
-        while view and not self._lost:
-            if self._skip:
-                n = min(self._skip, len(view))
-                self._skip -= n
-                self.pos += n
-                view = view[n:]
-                if not self._skip:
-                    self._object = None
-                continue
-            need = (_FILE_HEADER.size if not self._header_size else _OBJ_HEADER.size) - len(self._head)
-            n = min(need, len(view))
-            self._head += bytes(view[:n])
-            self.pos += n
-            view = view[n:]
-            if n == need:
-                self._header_done()
-
-    def _header_done(self) -> None:
-        """A whole header has been read: what follows it, and how long."""
-        if not self._header_size:  # the file header's first bytes: its size; the rest is skipped
-            signature, self._header_size = _FILE_HEADER.unpack(self._head)
-            self._lost = signature != b"LOGG"
-            self._header_size = max(self._header_size, _FILE_HEADER.size)
-            self._skip = self._header_size - _FILE_HEADER.size
-            self._pad = 0
-            self._head = b""
-            self._object = (0, self._header_size, -1)
-            return
-        signature, _, _, size, kind = _OBJ_HEADER.unpack(self._head)
-        self._lost = signature != b"LOBJ"
-        start = self.pos - _OBJ_HEADER.size
-        self._head = b""
-        self._pad = size % 4
-        self._skip = max(size - _OBJ_HEADER.size, 0) + self._pad
-        self._object = (start, size, kind) if self._skip else None
-
     def note_file_size(self, file_size: int) -> None:
         """The file size the file header records (python-can's reader has it; a writer that never came back to fill
         it in leaves the header's own size there): held against the end."""
@@ -102,13 +78,12 @@ class BlfLength:
         not BLF framing at all: python-can's reader says what is wrong then)."""
         if not self.ended or self._lost:
             return ""
-        if self._header_size == 0 or (self._object is not None and self._object[2] == -1):
+        if not self._header_size or self.pos < self._header_size:
             return f"the file ends at byte {self.pos}, inside its file header"
         if self._head:
-            start = self.pos - len(self._head)
-            return f"the file ends at byte {self.pos}, inside the header of the object at byte {start}"
-        if self._object is not None and self._skip > self._pad:
-            start, size, kind = self._object
+            return f"the file ends at byte {self.pos}, inside the header of the object at byte {self._next}"
+        start, size, kind = self._object
+        if kind >= 0 and self.pos < start + max(size, _OBJ_HEADER.size):
             what = "log container" if kind == _LOG_CONTAINER else f"object (type {kind})"
             return (f"the file ends at byte {self.pos}, {self.pos - start} bytes into the {size}-byte {what} "
                     f"at byte {start}")

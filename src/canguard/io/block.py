@@ -37,18 +37,6 @@ from canguard.io.frame import Frame
 if TYPE_CHECKING:
     import can
 
-__all__ = [
-    "EXT_KEY",
-    "FLAG_BRS",
-    "FLAG_ERROR",
-    "FLAG_ESI",
-    "FLAG_FD",
-    "FLAG_REMOTE",
-    "Block",
-    "PayloadSource",
-    "channel_name",
-    "one_block",
-]
 
 FLAG_FD = 1
 """A CAN FD frame."""
@@ -100,6 +88,17 @@ class PayloadSource(Protocol):
         """Row ``i``'s payload."""
 
 
+def frame_from_message(msg: can.Message, channel: str | None = None) -> Frame:
+    """Convert a ``can.Message`` to a :class:`Frame` (``channel`` overrides the message's). A remote frame keeps
+    its DLC; a data frame's DLC is -1 when it is the data's length."""
+    data = bytes(msg.data) if msg.data is not None else b""
+    dlc, remote = msg.dlc, bool(msg.is_remote_frame)
+    return _new(Frame, (float(msg.timestamp or 0.0), channel_name(msg.channel) if channel is None else channel,
+                        int(msg.arbitration_id), data, bool(msg.is_extended_id), bool(msg.is_fd),
+                        bool(msg.is_error_frame), remote, bool(msg.bitrate_switch), bool(msg.error_state_indicator),
+                        -1 if dlc == len(data) or (dlc == 0 and remote) else dlc))
+
+
 def channel_name(channel: Any) -> str:
     """A python-can channel as a string: ints (and digit strings) become ``canN``, None becomes ``""``."""
     if channel is None:
@@ -111,8 +110,8 @@ def channel_name(channel: Any) -> str:
 
 @dataclass(frozen=True, eq=False)
 class Block:
-    """``n`` CAN frames as numpy columns (see the module docstring); build one with :meth:`build`,
-    :meth:`of_frames` or :meth:`of_messages`."""
+    """``n`` CAN frames as numpy columns (see the module docstring); a reader of columns builds one
+    with the constructor, of frames with :meth:`of_frames`, of python-can messages with :meth:`of_messages`."""
 
     time_s: np.ndarray
     can_id: np.ndarray
@@ -142,28 +141,6 @@ class Block:
 
     # -- building ----------------------------------------------------------------------------
     @classmethod
-    def build(cls, time_s: Any, can_id: Any, extended: Any, payload: Any, *, length: Any = None,
-              flags: Any = None, dlc: Any = None, channel: Any = None,
-              channels: Sequence[str] = ("",)) -> Block:
-        """A block from array-likes, each converted to its column's type; ``length`` defaults to the payload's
-        width, ``flags`` to 0, ``dlc`` to ``length``, ``channel`` to 0 (the first of ``channels``)."""
-        times = np.ascontiguousarray(time_s, dtype=np.float64)
-        n = times.shape[0]
-        data = np.ascontiguousarray(payload, dtype=np.uint8)
-        if data.ndim == 1 and not data.size:
-            data = data.reshape(n, 0)
-        lengths = (np.full(n, data.shape[1] if data.ndim == 2 else 0, dtype=np.uint8) if length is None
-                   else np.ascontiguousarray(length, dtype=np.uint8))
-        return cls(
-            times, np.ascontiguousarray(can_id, dtype=np.uint32), np.ascontiguousarray(extended, dtype=np.bool_),
-            np.zeros(n, np.uint8) if flags is None else np.ascontiguousarray(flags, dtype=np.uint8),
-            lengths.copy() if dlc is None else np.ascontiguousarray(dlc, dtype=np.uint8),
-            lengths, data,
-            np.zeros(n, np.uint16) if channel is None else np.ascontiguousarray(channel, dtype=np.uint16),
-            tuple(channels),
-        )
-
-    @classmethod
     def of_frames(cls, frames: Iterable[Frame]) -> Block:
         """The frames as a block (the live drain, a simulator, tests)."""
         listed = frames if type(frames) is tuple else tuple(frames)
@@ -173,30 +150,20 @@ class Block:
     def of_messages(cls, msgs: Sequence[can.Message], channel: str | Sequence[str] | None = None) -> Block:
         """python-can messages as a block, field for field (``channel`` overrides each message's, or names each
         message's in turn (a live batch of several buses); python-can's integer channels are named ``canN``)."""
-        times, ids, ext, flags, dlcs, datas = [], [], [], [], [], []
-        chans: list[str] = [] if channel is None or type(channel) is str else list(channel)
-        names: dict[Any, str] = {}
-        for m in msgs:
-            if channel is None:
-                name = names.get(m.channel)
-                if name is None:
-                    name = names[m.channel] = channel_name(m.channel)
-                chans.append(name)
-            elif type(channel) is str:
-                chans.append(channel)
-            times.append(float(m.timestamp or 0.0))
-            ids.append(int(m.arbitration_id))
-            ext.append(bool(m.is_extended_id))
-            flags.append((FLAG_FD if m.is_fd else 0) | (FLAG_BRS if m.bitrate_switch else 0)
-                         | (FLAG_ESI if m.error_state_indicator else 0) | (FLAG_REMOTE if m.is_remote_frame else 0)
-                         | (FLAG_ERROR if m.is_error_frame else 0))
-            dlcs.append(int(m.dlc))
-            datas.append(bytes(m.data) if m.data is not None else b"")
-        if len(times) == 1:  # a live frame
-            one = _one(times[0], chans[0], ids[0], datas[0], ext[0], flags[0], dlcs[0])
-            if one is not None:
-                return one
-        return _rows(times, ids, ext, flags, dlcs, datas, chans)
+        if len(msgs) == 1:  # a live frame
+            return one_block(frame_from_message(msgs[0], channel if channel is None or type(channel) is str
+                                                else channel[0]))
+        if channel is None:
+            names: dict[Any, str] = {}  # each message's channel named once
+            chans = [names.get(m.channel) or names.setdefault(m.channel, channel_name(m.channel)) for m in msgs]
+        else:
+            chans = [channel] * len(msgs) if type(channel) is str else list(channel)
+        flags = [(FLAG_FD if m.is_fd else 0) | (FLAG_BRS if m.bitrate_switch else 0)
+                 | (FLAG_ESI if m.error_state_indicator else 0) | (FLAG_REMOTE if m.is_remote_frame else 0)
+                 | (FLAG_ERROR if m.is_error_frame else 0) for m in msgs]
+        return _rows([float(m.timestamp or 0.0) for m in msgs], [int(m.arbitration_id) for m in msgs],
+                     [bool(m.is_extended_id) for m in msgs], flags, [int(m.dlc) for m in msgs],
+                     [bytes(m.data) if m.data is not None else b"" for m in msgs], chans)
 
     # -- what the engine reads ----------------------------------------------------------------
     @_cached
@@ -303,30 +270,6 @@ class Block:
         return Block(self.time_s[rows], self.can_id[rows], self.extended[rows], self.flags[rows], self.dlc[rows],
                      self.length[rows], self.payload[rows], self.channel[rows], self.channels)
 
-    @classmethod
-    def join(cls, blocks: Sequence[Block]) -> Block:
-        """The rows of ``blocks`` one after another, as one block (channels merged by name)."""
-        if len(blocks) == 1:
-            return blocks[0]
-        index: dict[str, int] = {}
-        lanes = []
-        for b in blocks:
-            table = np.array([index.setdefault(c, len(index)) for c in b.channels] or [0], dtype=np.uint16)
-            lanes.append(table[b.channel])
-        names = list(index) or [""]
-        width = max((b.payload.shape[1] for b in blocks), default=0)
-        payload = np.zeros((sum(b.n for b in blocks), width), dtype=np.uint8)
-        at = 0
-        for b in blocks:
-            payload[at:at + b.n, :b.payload.shape[1]] = b.payload
-            at += b.n
-
-        def cat(name: str) -> np.ndarray:
-            return np.concatenate([getattr(b, name) for b in blocks])
-
-        return cls(cat("time_s"), cat("can_id"), cat("extended"), cat("flags"), cat("dlc"), cat("length"), payload,
-                   np.concatenate(lanes) if lanes else np.zeros(0, np.uint16), tuple(names))
-
 
 _U8_ONE: tuple[np.ndarray, ...] = tuple(np.full(1, v, np.uint8) for v in range(256))
 """Each uint8 value as a column of one row (shared: a block never writes its arrays)."""
@@ -351,17 +294,13 @@ def one_block(frame: Frame) -> Block:
     its columns checked by construction, its id's columns and each small integer's shared, what the engine reads
     of it (:attr:`Block.keys`, :attr:`Block.times`, :attr:`Block.ordered`...) known at once."""
     t, channel, cid, data, ext, fd, err, remote, brs, esi, dlc = frame
+    width = len(data)
+    if dlc < 0:
+        dlc = width
+    if not (0 <= cid <= 0xFFFFFFFF and width <= 255 and dlc <= 255):
+        return _of_frames((frame,))  # no CAN frame: the rows' builder says why
     flags = ((FLAG_FD if fd else 0) | (FLAG_BRS if brs else 0) | (FLAG_ESI if esi else 0)
              | (FLAG_REMOTE if remote else 0) | (FLAG_ERROR if err else 0)) if fd or err or remote or brs or esi else 0
-    block = _one(t, channel, cid, data, ext, flags, len(data) if dlc < 0 else dlc)
-    return _of_frames((frame,)) if block is None else block  # None: no CAN frame (the rows' builder says why)
-
-
-def _one(t: float, channel: str, cid: int, data: bytes, ext: bool, flags: int, dlc: int) -> Block | None:
-    """One row's fields as a block (None: no CAN frame)."""
-    width = len(data)
-    if not (0 <= cid <= 0xFFFFFFFF and width <= 255 and dlc <= 255):
-        return None
     key = cid + EXT_KEY if ext else cid
     ids = _IDS.get(key)
     if ids is None:
@@ -386,14 +325,6 @@ def _one(t: float, channel: str, cid: int, data: bytes, ext: bool, flags: int, d
         "channels": (channel,), "n": 1, "keys": ids[2], "times": [float(t)], "ordered": True, "only_channel": 0,
         "special": _ROW_0 if flags & (FLAG_REMOTE | FLAG_ERROR) else _NO_ROWS,
     })
-    return block
-
-
-def _made(**columns: Any) -> Block:
-    """A block of the columns a builder here made, each of its type by construction (not checked again), with
-    any of what the engine reads of it known already."""
-    block = _new_object(Block)
-    block.__dict__.update(columns, payload_source=columns["payload"])
     return block
 
 
@@ -435,7 +366,10 @@ def _rows(times: Sequence[float], ids: Sequence[int], ext: Sequence[bool], flags
         i = bad[0] if bad else lengths.index(width)
         raise LogFormatError(f"frame {i}: id {ids[i]:#x}, dlc {dlcs[i]}, {lengths[i]} data bytes: "
                              "not a CAN frame")
-    return _made(time_s=np.array(times, dtype=np.float64), can_id=np.array(ids, dtype=np.uint32),
-                 extended=np.array(ext, dtype=np.bool_), flags=np.array(flags, dtype=np.uint8),
-                 dlc=np.array(dlcs, dtype=np.uint8), length=np.array(lengths, dtype=np.uint8),
-                 payload=payload, channel=np.array(lanes, dtype=np.uint16), channels=tuple(names) or ("",), n=n)
+    block = _new_object(Block)  # its columns of their types by construction: not checked again
+    block.__dict__.update(
+        time_s=np.array(times, dtype=np.float64), can_id=np.array(ids, dtype=np.uint32),
+        extended=np.array(ext, dtype=np.bool_), flags=np.array(flags, dtype=np.uint8),
+        dlc=np.array(dlcs, dtype=np.uint8), length=np.array(lengths, dtype=np.uint8), payload_source=payload,
+        payload=payload, channel=np.array(lanes, dtype=np.uint16), channels=tuple(names) or ("",), n=n)
+    return block

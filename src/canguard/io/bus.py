@@ -296,12 +296,8 @@ class BusReader:
 
     # -- sending -----------------------------------------------------------
     def send(self, bus_name: str, msg: can.Message) -> bool:
-        """Send ``msg`` on ``bus_name`` without blocking (timeout 0).
-
-        Returns True when the bus took it; a failure (unknown or closed bus, full
-        transmit buffer, ...) is counted in :attr:`send_failures` and logged at
-        debug level, never raised.
-        """
+        """Send ``msg`` on ``bus_name`` without blocking: True when the bus took it; a failure (unknown or closed
+        bus, full transmit buffer...) is counted in :attr:`send_failures` and logged, never raised."""
         bus = self._buses.get(bus_name)
         if bus is None:
             self.send_failures[bus_name] = self.send_failures.get(bus_name, 0) + 1

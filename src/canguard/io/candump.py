@@ -1,4 +1,7 @@
-"""candump text logs (``-L``, ``-l``, plain ``-ta``): read a block of lines at a time, parsed by numpy.
+"""candump text logs (``-L``, ``-l``, plain ``-ta``): read a block of lines at a time, written a line at a time.
+
+Blocks are parsed by numpy; -L lines are written by :func:`format_candump_line` (``--emit``) and
+:func:`write_candump` (``simulate --out``).
 
 The parser (:func:`canguard.io.candump_np.parse_block`) gives each block's frames and its bad
 lines; the reader names a bad line's file:line and says what is wrong with it
@@ -6,30 +9,29 @@ lines; the reader names a bad line's file:line and says what is wrong with it
 
 from __future__ import annotations
 
-import math
-from collections.abc import Iterator
+from collections.abc import Iterable
 from pathlib import Path
-from typing import Any
+from typing import Any, TextIO
 
 import numpy as np
 
 from canguard.errors import LogFormatError, quote
-from canguard.io.block import Block
 from canguard.io.candump_np import parse_block
+from canguard.io.frame import Frame
 from canguard.io.logtypes import (
-    _HEX,
     CAN_EFF_MASK,
     CAN_ERR_FLAG,
     CAN_SFF_MASK,
+    CANFD_BRS,
+    CANFD_ESI,
     CANFD_LENGTHS,
     MAX_BAD_EXAMPLES,
     BadLine,
+    Blocks,
     CrLines,
-    LogFrames,
     ReadStats,
     _Bad,
     decompress_errors,
-    note_order,
     open_decompressed,
 )
 
@@ -41,6 +43,7 @@ CHUNK_CHARS = 1 << 20
 many make the parser slower (its passes outgrow the caches)."""
 
 _MARKERS = frozenset("TRtr")
+_HEX = "0123456789abcdefABCDEF"
 
 
 def _is_hex(s: str) -> bool:
@@ -187,122 +190,109 @@ def _as_text(block: bytes) -> str:
     return text.replace("\r\n", "\n").replace("\r", "\n") if "\r" in text else text
 
 
-def candump_chunks(p: Path, gz: str, skip_bad: bool, st: ReadStats, want_ts_stats: bool,
-                   owner: LogFrames) -> Iterator[Block]:
-    """The candump text reader's blocks (a bad line raises, naming its file:line, after the frames before it;
-    with ``skip_bad`` it is counted)."""
-    reader = _CandumpReader(p, gz, skip_bad, st, want_ts_stats)
+def candump_blocks(p: Path, gz: str, skip_bad: bool, st: ReadStats) -> Blocks:
+    """The candump text reader's blocks, a block of whole lines at a time (a bad line raises, naming its file:line,
+    after the frames before it; with ``skip_bad`` it is counted)."""
+    raw = open(p, "rb")  # noqa: SIM115 -- closed below
+    files = [open_decompressed(raw, gz)]  # the last one is read (lines that end in a lone CR: read again)
+    lineno = 0  # lines before the current block
+    error_last = False  # the last frame read is an error frame (``candump -e`` explains it on indented lines below)
     try:
-        for block in reader.blocks():
-            yield from reader.parse(block)
-            owner.reached(reader.position())
-    finally:
-        reader.close()
-        owner.finished()
-    if reader.frames == 0:
-        skipped = f" ({st.bad_lines} bad lines skipped)" if st.bad_lines else ""
-        raise LogFormatError(f"{p}: empty log: no frames{skipped}")
-
-
-class _CandumpReader:
-    """One candump text log, read a block of whole lines at a time (see :func:`candump_chunks`)."""
-
-    def __init__(self, p: Path, gz: str, skip_bad: bool, st: ReadStats, want_ts_stats: bool) -> None:
-        self.p, self.gz, self.skip_bad, self.st, self.want_ts_stats = p, gz, skip_bad, st, want_ts_stats
-        self.raw = open(p, "rb")  # noqa: SIM115 -- closed by close()
-        self.f: Any = open_decompressed(self.raw, gz)
-        self.frames = 0
-        self.lineno = 0
-        """Lines before the current block."""
-        self.last_t = -math.inf
-        self.error_last = False
-        """The last frame read is an error frame (``candump -e`` explains it on indented lines below)."""
-        self.count = 0
-        """Blocks read."""
-
-    def position(self) -> int:
-        """The position reached in the file on disk."""
-        return self.raw.tell()
-
-    def close(self) -> None:
-        self.f.close()
-        self.raw.close()
-
-    def _read(self, longest: int) -> bytes:
-        """A chunk and the rest of its last line."""
-        try:
-            block: bytes = self.f.read(CHUNK_CHARS)
-            if block and block[-1] != 10:
-                block += self.f.readline(longest)
-        except decompress_errors() as exc:
-            kind = {"gz": " gzip", "xz": " xz", "zst": " zstd"}.get(self.gz, "")
-            raise LogFormatError(f"{self.p}: cannot read{kind} log: {exc}") from None
-        return block
-
-    def blocks(self) -> Iterator[bytes]:
-        """The log's blocks of whole lines, each ending in a line break."""
-        longest = 4 * CHUNK_CHARS
-        while True:
-            block = self._read(longest)
-            raw = self.raw
-            if not self.count and b"\n" not in block and b"\r" in block and raw.seekable():
-                if self.f is not raw:
-                    self.f.close()  # a decompressor: raw stays open
-                raw.seek(0)  # lines that end in a lone CR (old Mac tools): read again, each CR as a LF
-                self.f = CrLines(open_decompressed(raw, self.gz))
-                continue
-            block = block[3:] if not self.count and block[:3] == b"\xef\xbb\xbf" else block  # a UTF-8 BOM
-            if not block:
-                return
-            if block[-1] != 10:
-                tail = len(block) - block.rfind(b"\n") - 1
-                if tail >= longest:
-                    at = self.lineno + _as_text(block).count("\n") + 1
-                    raise LogFormatError(f"{self.p}:{at}: no line break in {tail} characters: not a candump log")
-                block += b"\n"  # the last line of the log, without its line break
-            self.count += 1
-            yield block
-
-    def parse(self, raw: bytes) -> Iterator[Block]:
-        """The block's frames (counted); a bad line raises after the frames before it, or is counted."""
-        parsed = parse_block(raw, self.error_last)
-        st = self.st
-        bad = parsed.bad
-        block = parsed.block
-        if bad and not self.skip_bad:
-            line = bad[0]
-            if block is not None:
-                before = int(np.searchsorted(parsed.rows_line, line))
-                if before:
-                    yield self._counted(block.select(slice(0, before)), line)
-            text = _line(raw, line)
-            raise LogFormatError(f"{self.p}:{self.lineno + line + 1}: {why_bad(text)}: {quote(text)}")
-        st.lines += parsed.lines
-        if bad:
+        while text := _text(p, raw, gz, files, lineno):
+            parsed = parse_block(text, error_last)
+            bad, block = parsed.bad, parsed.block
+            if bad and not skip_bad:
+                line = bad[0]
+                before = 0 if block is None else int(np.searchsorted(parsed.rows_line, line))
+                if block is not None and before:
+                    st.lines += line
+                    yield block.select(slice(0, before)), None
+                text_of = _line(text, line)
+                raise LogFormatError(f"{p}:{lineno + line + 1}: {why_bad(text_of)}: {quote(text_of)}")
+            st.lines += parsed.lines
             st.bad_lines += len(bad)
             for line in bad[:max(0, MAX_BAD_EXAMPLES - len(st.bad_examples))]:
-                text = _line(raw, line)
-                st.bad_examples.append(BadLine(self.lineno + line + 1, why_bad(text), text))
-        self.lineno += parsed.lines
-        self.error_last = parsed.error_last
-        if block is not None:
-            yield self._counted(block, 0)
+                text_of = _line(text, line)
+                st.bad_examples.append(BadLine(lineno + line + 1, why_bad(text_of), text_of))
+            lineno += parsed.lines
+            error_last = parsed.error_last
+            yield block, raw.tell()
+    finally:
+        files[-1].close()
+        raw.close()
+    return ""
 
-    def _counted(self, block: Block, lines: int) -> Block:
-        """``block`` counted in the statistics (``lines``: the lines it came from when not a whole block's)."""
-        st = self.st
-        st.lines += lines
-        if self.want_ts_stats:
-            note_order(st, float(block.time_s[0]), self.last_t)
-            backwards, repeated = block.order
-            st.backwards_timestamps += backwards
-            st.repeated_timestamps += repeated
-        self.last_t = float(block.time_s[-1])
-        self.frames += block.n
-        st.frames += block.n
-        return block
+
+def _text(p: Path, raw: Any, gz: str, files: list[Any], lineno: int) -> bytes:
+    """The next block of whole lines of the log (``files[-1]`` reading it; ``lineno``: the lines before), each
+    ending in a line break; b"" at the end."""
+    longest = 4 * CHUNK_CHARS
+    try:
+        text: bytes = files[-1].read(CHUNK_CHARS)
+        if text and text[-1] != 10:
+            text += files[-1].readline(longest)
+    except decompress_errors() as exc:
+        kind = {"gz": " gzip", "xz": " xz", "zst": " zstd"}.get(gz, "")
+        raise LogFormatError(f"{p}: cannot read{kind} log: {exc}") from None
+    if not lineno:  # the first block
+        if len(files) == 1 and b"\n" not in text and b"\r" in text and raw.seekable():
+            if files[0] is not raw:
+                files[0].close()  # a decompressor: raw stays open
+            raw.seek(0)  # lines that end in a lone CR (old Mac tools): read again, each CR as a LF
+            files.append(CrLines(open_decompressed(raw, gz)))
+            return _text(p, raw, gz, files, lineno)
+        text = text[3:] if text[:3] == b"\xef\xbb\xbf" else text  # a UTF-8 BOM
+    if text and text[-1] != 10:
+        tail = len(text) - text.rfind(b"\n") - 1
+        if tail >= longest:
+            at = lineno + _as_text(text).count("\n") + 1
+            raise LogFormatError(f"{p}:{at}: no line break in {tail} characters: not a candump log")
+        text += b"\n"  # the last line of the log, without its line break
+    return text
 
 
 def _line(raw: bytes, k: int) -> str:
     """Line ``k`` of a block, as text (UTF-8, junk replaced)."""
     return _as_text(raw).split("\n")[k]
+
+
+def format_candump_line(frame: Frame, default_channel: str = "can0") -> str:
+    """One candump -L line for ``frame``, without the newline (``default_channel`` for an empty channel).
+
+    ``(%.6f) channel ID#DATA``: 3 hex digits for standard ids, 8 for extended ids and error frames (with
+    CAN_ERR_FLAG), ``##F`` + data for CAN FD, ``R`` or ``R<dlc>`` for remote frames, ``_<dlc>`` for a classic raw
+    DLC above 8. ValueError for an id out of range or a channel with whitespace in it.
+    """
+    channel = frame.channel or default_channel
+    if not channel or channel.split() != [channel]:
+        raise ValueError(f"channel {channel!r} cannot be written to a candump log (empty or has whitespace)")
+    cid = frame.arbitration_id
+    if frame.is_error_frame:
+        id_text = f"{(cid & CAN_EFF_MASK) | CAN_ERR_FLAG:08X}"
+    elif frame.is_extended_id:
+        if not 0 <= cid <= CAN_EFF_MASK:
+            raise ValueError(f"extended id {cid:#x} out of range")
+        id_text = f"{cid:08X}"
+    else:
+        if not 0 <= cid <= CAN_SFF_MASK:
+            raise ValueError(f"standard id {cid:#x} out of range (use is_extended_id=True above 0x7FF)")
+        id_text = f"{cid:03X}"
+    if frame.is_remote_frame:
+        body = f"R{frame.dlc}" if 0 < frame.dlc <= 8 else "R"
+    elif frame.is_fd:
+        flags = (CANFD_BRS if frame.bitrate_switch else 0) | (CANFD_ESI if frame.error_state_indicator else 0)
+        body = f"#{flags:X}{frame.data.hex().upper()}"
+    else:
+        body = frame.data.hex().upper()
+        if len(frame.data) == 8 and 8 < frame.dlc <= 15:
+            body += f"_{frame.dlc:X}"
+    return f"({frame.t:.6f}) {channel} {id_text}#{body}"
+
+
+def write_candump(frames: Iterable[Frame], out: TextIO, default_channel: str = "can0") -> int:
+    """Write ``frames`` to ``out`` as a candump -L log (one line each); return how many were written."""
+    count = 0
+    for frame in frames:
+        out.write(format_candump_line(frame, default_channel) + "\n")
+        count += 1
+    return count

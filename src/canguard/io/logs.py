@@ -1,48 +1,31 @@
 """Read recorded CAN logs as streams of :class:`~canguard.io.block.Block` s (or frames); write candump -L logs.
 
-:func:`read_log` picks the reader by file extension (``.gz`` on any of them)::
-
-    .log .candump .txt   candump text: ``candump -L`` / ``-l`` lines (the fast path)
-                         or plain ``candump -ta`` output
-    .asc .blf .trc .csv  python-can's own readers
-    .mf4                 python-can's MF4 reader (needs ``python-can[mf4]``)
-    .bag .db3 .mcap      ROS bags (io.rosbag; needs ``rosbags``), and a rosbag2 directory (its metadata.yaml)
-
-Every reader streams (a chunk of :data:`CHUNK_CHARS` characters at a time: memory stays flat in the log's
-length) the same :class:`~canguard.io.block.Block` (numpy columns); the candump reader names the file:line of
-a bad line.
-
-Timestamps of python-can formats are what python-can reports: ASC timestamps are
-relative to the measurement start (python-can's default), which keeps a replay
-independent of the machine's time zone. python-can's integer channels are named
-the way python-can's candump writer names them: ``0`` -> ``can0``.
+:func:`read_log` picks the reader by file suffix (:data:`LOG_READERS`; a compression on top of any): candump text
+(``-L`` / ``-l`` lines, or plain ``-ta`` output), python-can's own readers (ASC, BLF, TRC, CSV; MF4 with
+``python-can[mf4]``), ROS bags and rosbag2 directories (:mod:`canguard.io.rosbag`; ``rosbags``). Every reader
+streams the same blocks: memory stays flat in the log's length. python-can's timestamps are what it reports (ASC:
+relative to the measurement start, so a replay does not depend on the machine's time zone); its integer channels are
+named as its candump writer names them (``0`` -> ``can0``).
 """
 
 from __future__ import annotations
 
 import importlib.util
-from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field
 from pathlib import Path
 
 from canguard.errors import LogFormatError
 from canguard.io.bagopts import BAG_SUFFIXES, NEEDS, BagOptions, is_bag
-from canguard.io.block import Block
-from canguard.io.candump import CHUNK_CHARS, candump_chunks
-from canguard.io.candump_write import format_candump_line, write_candump
-from canguard.io.logtypes import COMPRESSIONS, BadLine, LogFrames, ReadStats
-from canguard.io.progress import ProgressBar
-from canguard.io.pycan import frame_from_message, python_can_chunks
+from canguard.io.block import frame_from_message
+from canguard.io.candump import CHUNK_CHARS, candump_blocks, format_candump_line, write_candump
+from canguard.io.logtypes import COMPRESSIONS, BadLine, Blocks, LogFrames, ReadStats
+from canguard.io.pycan import python_can_blocks
 
 __all__ = [
     "CHUNK_CHARS",
     "LOG_READERS",
     "LOG_SUFFIXES",
     "BadLine",
-    "Block",
-    "LogFormat",
     "LogFrames",
-    "LogRequest",
     "ReadStats",
     "format_candump_line",
     "frame_from_message",
@@ -52,79 +35,25 @@ __all__ = [
 ]
 
 
-# --------------------------------------------------------------------------- the readers, by suffix
-
-
-@dataclass(frozen=True)
-class LogRequest:
-    """What :func:`read_log` asks of a format's reader."""
-
-    path: Path
-    compression: str
-    """The compression: "" (none), ``gz``, ``xz`` or ``zst``."""
-    stats: ReadStats
-    skip_bad: bool
-    """Malformed lines are counted in ``stats`` and skipped, not raised (text formats that check their lines)."""
-    order_stats: bool
-    """The caller reads ``stats``' timestamp order counts (a reader may spare counting them otherwise)."""
-    bag: BagOptions = field(default_factory=BagOptions)
-    """What a bag's reader is asked besides the path (topics, stamps)."""
-
-
-@dataclass(frozen=True)
-class LogFormat:
-    """One log format: its name and the reader that gives its blocks."""
-
-    name: str
-    read: Callable[[LogRequest, LogFrames], Iterator[Block]]
-    needs: tuple[str, str] | None = None
-    """(module, how to install it) of an optional dependency, checked before the log is opened."""
-
-
-def _read_candump(req: LogRequest, owner: LogFrames) -> Iterator[Block]:
-    return candump_chunks(req.path, req.compression, req.skip_bad, req.stats, req.order_stats, owner)
-
-
-def _read_bag(req: LogRequest, owner: LogFrames) -> Iterator[Block]:
-    from canguard.io.rosbag import bag_chunks  # numpy and rosbags: imported for bags only
-
-    return bag_chunks(req.path, req.bag, req.stats, owner, req.skip_bad)
-
-
-def _python_can(name: str, needs: tuple[str, str] | None = None) -> LogFormat:
-    def read(req: LogRequest, owner: LogFrames) -> Iterator[Block]:
-        return python_can_chunks(req.path, name, req.compression, req.stats, owner)
-
-    return LogFormat(name, read, needs)
-
-
-_CANDUMP = LogFormat("candump", _read_candump)
-_BAG = LogFormat("rosbag", _read_bag, NEEDS)
-
-LOG_READERS: dict[str, LogFormat] = {
-    ".log": _CANDUMP,
-    ".candump": _CANDUMP,
-    ".txt": _CANDUMP,
-    ".asc": _python_can("asc"),
-    ".blf": _python_can("blf"),
-    ".trc": _python_can("trc"),
-    ".csv": _python_can("csv"),
-    ".mf4": _python_can("mf4", ("asammdf", "pip install 'python-can[mf4]'")),
-    **dict.fromkeys(BAG_SUFFIXES, _BAG),
+LOG_READERS: dict[str, str] = {
+    **dict.fromkeys((".log", ".candump", ".txt"), "candump"),
+    **{f".{name}": name for name in ("asc", "blf", "trc", "csv", "mf4")},
+    **dict.fromkeys(BAG_SUFFIXES, "rosbag"),
 }
-"""The log readers keyed by file suffix (as python-can's ``MESSAGE_READERS``): a format is one entry."""
+"""The log formats keyed by file suffix (as python-can's ``MESSAGE_READERS``): a format is one entry."""
 
 LOG_SUFFIXES = tuple(LOG_READERS)
 """Every suffix :func:`read_log` reads (each may carry a compression on top: :data:`COMPRESSIONS`)."""
 
-_COMPRESSORS = {"zst": ("zstandard", "pip install zstandard")}
-"""Compressions that need an optional dependency."""
+_NEEDS = {"mf4": ("asammdf", "pip install 'python-can[mf4]'"), "rosbag": NEEDS, "zst": ("zstandard", "pip install "
+                                                                                          "zstandard")}
+"""Formats and compressions that need an optional dependency: (module, how to install it)."""
 
 
-def _reader(path: Path) -> tuple[LogFormat, str]:
+def _reader(path: Path) -> tuple[str, str]:
     """The format of ``path`` by its suffix, and its compression ("" none)."""
     if path.is_dir() and is_bag(path):
-        return _BAG, ""
+        return "rosbag", ""
     suffix = path.suffix.lower()
     compression = ""
     if suffix in COMPRESSIONS:
@@ -141,20 +70,9 @@ def _reader(path: Path) -> tuple[LogFormat, str]:
 
 
 def log_format(path: str | Path) -> tuple[str, str]:
-    """Return ``(format, compression)`` for a log path, chosen by extension.
-
-    ``format`` is ``candump``, ``asc``, ``blf``, ``trc``, ``csv``, ``mf4`` or ``rosbag``;
-    ``compression`` is ``""``, ``gz``, ``xz`` or ``zst`` (``robot.log.xz``).
-    Raises :class:`LogFormatError` for an unknown extension.
-    """
-    fmt, compression = _reader(Path(path))
-    return fmt.name, compression
-
-
-def _require(p: Path, what: str, needs: tuple[str, str] | None) -> None:
-    """Raise :class:`LogFormatError` when the optional module ``needs`` names is not installed."""
-    if needs is not None and importlib.util.find_spec(needs[0]) is None:
-        raise LogFormatError(f"{p}: reading {what} needs {needs[0]}: {needs[1]}")
+    """``(format, compression)`` of a log path by its suffix (:data:`LOG_READERS`; compression ``""``, ``gz``,
+    ``xz`` or ``zst``); :class:`LogFormatError` for an unknown one."""
+    return _reader(Path(path))
 
 
 def read_log(
@@ -162,45 +80,47 @@ def read_log(
     *,
     skip_bad: bool = False,
     stats: ReadStats | None = None,
-    progress: ProgressBar | None = None,
     bag: BagOptions | None = None,
 ) -> LogFrames:
     """Stream the frames of a recorded log, in file order.
 
-    The path, extension and (for ``.mf4``) the optional dependency are checked at
-    once, when this is called; the log itself is read lazily as the returned
-    iterator is consumed, a chunk at a time.
-
-    A malformed candump line raises :class:`LogFormatError` naming
-    ``file:line``, the reason and the line's text; with ``skip_bad=True`` it is
-    counted in ``stats`` instead and skipped. A log with no frame at all raises
-    :class:`LogFormatError` when the iterator reaches its end. Errors inside
-    python-can's readers (corrupt BLF, bad ASC...) are re-raised as
-    :class:`LogFormatError` naming the file (they cannot be skipped).
-    ``bag`` says which topics of a ROS bag to read and which stamps (:class:`~canguard.io.rosbag.BagOptions`).
-    ``progress``, when given, is updated with the file position after each chunk
-    and closed at the end (see also :func:`canguard.io.progress.wrap_progress`).
-
-    Raises :class:`LogFormatError` for an unknown extension, a missing file, a
-    directory, or a missing optional dependency.
+    The path, its format and the optional dependencies are checked now (:class:`LogFormatError`: an unknown
+    extension, a missing file, a directory, a missing dependency); the log is read as the returned iterator is
+    consumed, a block at a time. A malformed candump line or bag message raises :class:`LogFormatError` naming
+    where it is, why, and its text; with ``skip_bad=True`` it is counted in ``stats`` and skipped. A log without
+    a frame, or errors inside python-can's readers (corrupt BLF, bad ASC...), raise :class:`LogFormatError` naming
+    the file. ``bag``: the topics and stamps of a ROS bag. An attached progress bar follows the read
+    (:func:`canguard.io.progress.wrap_progress`).
     """
     p = Path(path)
     fmt, gz = _reader(p)  # gz: the compression ("" none)
     if not p.exists():
         raise LogFormatError(f"{p}: no such file")
-    if not p.is_file() and fmt is not _BAG:
+    if not p.is_file() and fmt != "rosbag":
         raise LogFormatError(f"{p}: not a regular file")
-    if fmt is _BAG and gz:
+    if fmt == "rosbag" and gz:
         raise LogFormatError(f"{p}: a bag compressed as a whole (.{gz}) is not read: decompress it first (rosbag2 and "
                              "ROS 1 compress inside the bag)")
-    _require(p, "ROS bags" if fmt is _BAG else f".{fmt.name} logs", fmt.needs)
-    _require(p, f".{gz} logs", _COMPRESSORS.get(gz))
+    for what, needs in (("ROS bags" if fmt == "rosbag" else f".{fmt} logs", _NEEDS.get(fmt)),
+                        (f".{gz} logs", _NEEDS.get(gz))):
+        if needs is not None and importlib.util.find_spec(needs[0]) is None:
+            raise LogFormatError(f"{p}: reading {what} needs {needs[0]}: {needs[1]}")
     st = stats if stats is not None else ReadStats()
     st.path = str(p)
-    st.format = fmt.name + (f".{gz}" if gz else "")
+    st.format = fmt + (f".{gz}" if gz else "")
     try:
-        st.bytes_total += sum(f.stat().st_size for f in p.iterdir()) if p.is_dir() else p.stat().st_size
+        size = sum(f.stat().st_size for f in p.iterdir()) if p.is_dir() else p.stat().st_size
     except OSError as exc:
         raise LogFormatError(f"{p}: cannot read: {exc.strerror or exc}") from None
-    request = LogRequest(p, gz, st, skip_bad, stats is not None, bag or BagOptions())
-    return LogFrames(p, st, progress, lambda owner: fmt.read(request, owner))
+    st.bytes_total += size
+
+    def read() -> Blocks:
+        if fmt == "candump":
+            return candump_blocks(p, gz, skip_bad, st)
+        if fmt == "rosbag":
+            from canguard.io.rosbag import bag_blocks  # numpy and rosbags: imported for bags only
+
+            return bag_blocks(p, bag or BagOptions(), st, skip_bad)
+        return python_can_blocks(p, fmt, gz, size)
+
+    return LogFrames(p, st, read)

@@ -3,20 +3,17 @@
 from __future__ import annotations
 
 import io
-from collections.abc import Iterator
+import math
+from collections.abc import Callable, Generator, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, NamedTuple
+from typing import Any, NamedTuple
 
+from canguard.errors import LogFormatError
 from canguard.io.block import Block
 from canguard.io.frame import Frame
 from canguard.io.progress import ProgressBar
 
-if TYPE_CHECKING:
-    from collections.abc import Callable
-
-
-_TEXT_PYTHON_CAN = ("asc", "trc", "csv")
 COMPRESSIONS = (".gz", ".xz", ".zst")
 """Compressed logs: any format may carry one of these on top (``robot.log.xz``)."""
 
@@ -29,9 +26,6 @@ CAN_SFF_MASK = 0x7FF
 CANFD_BRS = 0x01
 CANFD_ESI = 0x02
 CANFD_LENGTHS = frozenset((0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48, 64))
-
-_HEX = "0123456789abcdefABCDEF"
-_new = tuple.__new__  # builds a Frame from a ready tuple in C: several times cheaper than Frame(...)
 
 
 def open_decompressed(raw: Any, compression: str) -> Any:
@@ -67,14 +61,6 @@ class CrLines:
 
     def close(self) -> None:
         self._text.close()
-
-
-def note_order(st: ReadStats, t: float, last_t: float) -> None:
-    """Count ``t`` in ``st`` as going back or repeating when it does, against the previous frame's ``last_t``."""
-    if t < last_t:
-        st.backwards_timestamps += 1
-    elif t == last_t:
-        st.repeated_timestamps += 1
 
 
 def decompress_errors() -> tuple[type[BaseException], ...]:
@@ -120,26 +106,22 @@ class ReadStats:
     bytes_read: int = 0
     stamps: dict[str, int] = field(default_factory=dict)
 
-    def took(self, block: Block, last_t: float) -> float:
-        """Count ``block``'s frames and their times' order (after a frame at ``last_t``); its last time."""
-        backwards, repeated = block.order
-        first = float(block.time_s[0])
-        self.backwards_timestamps += backwards + (first < last_t)
-        self.repeated_timestamps += repeated + (first == last_t)
-        self.frames += block.n
-        return float(block.time_s[-1])
+
+Blocks = Generator[tuple[Block | None, int | None], None, str]
+"""What a format's reader gives: its blocks (None: none this time), each with the position reached in the file on
+disk (None: not known); its return value names what was read (`` on /can``) in the error of a log without
+frames."""
 
 
 class LogFrames(Iterator[Frame]):
     """The frames of one log, streamed (what :func:`read_log` returns): iterated frame by frame, or a block at a
     time by :meth:`chunks` (one or the other). ``progress`` (settable until the end) follows the file position."""
 
-    def __init__(self, path: Path, stats: ReadStats, progress: ProgressBar | None,
-                 read: Callable[[LogFrames], Iterator[Block]] | None = None) -> None:
+    def __init__(self, path: Path, stats: ReadStats, read: Callable[[], Blocks]) -> None:
         self.path = path
         self.stats = stats
-        self.progress = progress
-        self._chunks: Iterator[Block] = read(self) if read is not None else iter(())
+        self.progress: ProgressBar | None = None
+        self._chunks = self._counted(read)
         self._frames: Iterator[Frame] = (frame for block in self._chunks for frame in block.frames())
 
     def chunks(self) -> Iterator[Block]:
@@ -152,16 +134,38 @@ class LogFrames(Iterator[Frame]):
     def __next__(self) -> Frame:
         return next(self._frames)
 
-    def reached(self, position: int) -> None:
-        """The reader got to ``position`` in the file on disk (statistics, progress bar)."""
-        self.stats.bytes_read = position
-        if self.progress is not None:
-            self.progress.update(position)
-
-    def finished(self) -> None:
-        """The reader is done with the file (the progress bar closes)."""
-        if self.progress is not None:
-            self.progress.close()
+    def _counted(self, read: Callable[[], Blocks]) -> Iterator[Block]:
+        """The reader's blocks, counted in :attr:`stats` (frames, their times' order, the position reached) as they
+        pass; the progress bar closed at the end; a log without a frame a LogFormatError."""
+        st = self.stats
+        before = st.frames
+        last_t = -math.inf
+        blocks = read()
+        try:
+            while True:
+                try:
+                    block, position = next(blocks)
+                except StopIteration as end:
+                    where = end.value or ""
+                    break
+                if block is not None and block.n:
+                    backwards, repeated = block.order
+                    first = float(block.time_s[0])
+                    st.backwards_timestamps += backwards + (first < last_t)
+                    st.repeated_timestamps += repeated + (first == last_t)
+                    st.frames += block.n
+                    last_t = float(block.time_s[-1])
+                    yield block
+                if position is not None:
+                    st.bytes_read = position
+                    if self.progress is not None:
+                        self.progress.update(position)
+        finally:
+            if self.progress is not None:
+                self.progress.close()
+        if st.frames == before:
+            skipped = f" ({st.bad_lines} bad lines skipped)" if st.bad_lines else ""
+            raise LogFormatError(f"{self.path}: empty log: no frames{where}{skipped}")
 
 
 class _Bad(Exception):

@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from canguard.io.mcapscan import MAGIC, OP_CHANNEL, OP_CHUNK, OP_DATA_END, OP_FOOTER, OP_MESSAGE, OP_SCHEMA
+from canguard.io.bagscan import MAGIC, OP_CHANNEL, OP_CHUNK, OP_DATA_END, OP_FOOTER, OP_MESSAGE, OP_SCHEMA
 
 OP_HEADER, OP_MESSAGE_INDEX, OP_CHUNK_INDEX, OP_STATISTICS, OP_SUMMARY_OFFSET = 0x01, 0x07, 0x08, 0x0B, 0x0E
 CHUNK_BYTES = 1 << 20

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import gc
 import io
-import math
 import sys
 from collections.abc import Iterator
 from itertools import islice
@@ -16,22 +15,13 @@ from typing import TYPE_CHECKING, Any
 
 from canguard.errors import LogFormatError, clip
 from canguard.io.blf_length import BlfLength
-from canguard.io.block import Block, channel_name
-from canguard.io.frame import Frame
-from canguard.io.logtypes import _TEXT_PYTHON_CAN, LogFrames, ReadStats, _new, open_decompressed
+from canguard.io.block import Block
+from canguard.io.logtypes import Blocks, open_decompressed
 
 if TYPE_CHECKING:
     import can
 
-def frame_from_message(msg: can.Message, channel: str | None = None) -> Frame:
-    """Convert a ``can.Message`` to a :class:`Frame` (``channel`` overrides the message's). A remote frame keeps
-    its DLC; a data frame's DLC is -1 when it is the data's length."""
-    data = bytes(msg.data) if msg.data is not None else b""
-    dlc, remote = msg.dlc, bool(msg.is_remote_frame)
-    return _new(Frame, (float(msg.timestamp or 0.0), channel_name(msg.channel) if channel is None else channel,
-                        int(msg.arbitration_id), data, bool(msg.is_extended_id), bool(msg.is_fd),
-                        bool(msg.is_error_frame), remote, bool(msg.bitrate_switch), bool(msg.error_state_indicator),
-                        -1 if dlc == len(data) or (dlc == 0 and remote) else dlc))
+_TEXT_FORMATS = ("asc", "trc", "csv")
 
 
 def _free_quietly(exc: BaseException) -> None:
@@ -47,96 +37,69 @@ def _free_quietly(exc: BaseException) -> None:
         sys.unraisablehook = hook
 
 
-class _Messages:
-    """python-can's reader of one log, opened: its messages, with python-can's errors as LogFormatError (raised
-    by the call after the one that gave the messages read before the failure, as the candump reader does)."""
-
-    def __init__(self, p: Path, fmt: str, gz: str) -> None:
-        self.p, self.name = p, fmt.upper()
-        self.raw = open(p, "rb")  # noqa: SIM115 -- closed by close()
-        self.count = 0
-        self._failed: LogFormatError | None = None
-        self.length: BlfLength | None = None  # a BLF's framing, followed as python-can reads it
-        try:
-            fobj: Any = open_decompressed(self.raw, gz)
-            if fmt == "blf":
-                fobj = self.length = BlfLength(fobj)
-            if fmt in _TEXT_PYTHON_CAN:
-                fobj = io.TextIOWrapper(fobj, encoding="utf-8", errors="replace")
-            import can
-
-            try:
-                reader = getattr(can, f"{self.name}Reader")(fobj)  # ASCReader, BLFReader, ... MF4Reader
-            except Exception as exc:  # python-can raises many types for a bad header; none may escape raw
-                _free_quietly(exc)
-                raise self._cut(0) or LogFormatError(
-                    f"{p}: not a valid {self.name} log: {type(exc).__name__}: {clip(str(exc))}") from exc
-            self.messages: Iterator[can.Message] = iter(reader)
-            if self.length is not None:
-                self.length.note_file_size(int(getattr(reader, "file_size", 0) or 0))
-        except BaseException:
-            self.raw.close()
-            raise
-
-    def _cut(self, read: int) -> LogFormatError | None:
-        """The error of a log that ended where its framing says it may not, after ``read`` frames; None: whole."""
-        why = self.length.cut() if self.length is not None else ""
-        if not why:
-            return None
-        return LogFormatError(f"{self.p}: truncated {self.name} log: {why}; {read} frames were read before the cut")
-
-    def next_batch(self, size: int) -> list[can.Message]:
-        """Up to ``size`` messages; [] at the end of the log."""
-        if self._failed is not None:
-            raise self._failed
-        batch: list[can.Message] = []
-        try:
-            batch.extend(islice(self.messages, size))
-        except Exception as exc:  # corrupt input deep inside python-can: name the file instead
-            # python-can fails on a cut object header (struct.error): then the cut is the news
-            self._failed = self._cut(self.count + len(batch)) or LogFormatError(
-                f"{self.p}: {self.name} reader failed after {self.count + len(batch)} frames: "
-                f"{type(exc).__name__}: {clip(str(exc))}"
-            )
-            self._failed.__cause__ = exc
-        else:
-            if len(batch) < size:  # the end of the log: python-can stops quietly where the file stops
-                self._failed = self._cut(self.count + len(batch))
-        if self._failed is not None and not batch:
-            raise self._failed
-        self.count += len(batch)
-        return batch
-
-    def position(self, st: ReadStats) -> int:
-        """The position reached in the file on disk (its size once python-can has closed it)."""
-        return st.bytes_total if self.raw.closed else self.raw.tell()
-
-    def close(self) -> None:
-        self.raw.close()
-
-
 BLOCK = 2048
 """Messages taken from python-can's reader at a time: one block (replays a BLF log faster than 1024 or 4096)."""
 
 
-def python_can_chunks(p: Path, fmt: str, gz: str, st: ReadStats, owner: LogFrames) -> Iterator[Block]:
-    """One of python-can's readers as blocks; its errors as LogFormatError."""
-    reader: _Messages | None = None
-    before = st.frames
-    last_t = -math.inf
+def python_can_blocks(p: Path, fmt: str, gz: str, size: int) -> Blocks:
+    """One of python-can's readers as blocks (``size``: the file's on disk); its errors as LogFormatError, raised
+    after the frames read before the failure (as the candump reader does)."""
+    name = fmt.upper()
+    raw = open(p, "rb")  # noqa: SIM115 -- closed below
     try:
-        reader = _Messages(p, fmt, gz)
-        while msgs := reader.next_batch(BLOCK):
+        fobj = open_decompressed(raw, gz)
+        length = BlfLength(fobj) if fmt == "blf" else None  # a BLF's framing, followed as python-can reads it
+        messages = _messages(p, name, length or fobj, fmt in _TEXT_FORMATS, length)
+        count = 0
+        while True:
+            batch: list[can.Message] = []
+            failed: LogFormatError | None = None
             try:
-                block = Block.of_messages(msgs)
-            except LogFormatError as exc:
-                raise LogFormatError(f"{p}: {exc}") from None
-            last_t = st.took(block, last_t)
-            yield block
-            owner.reached(reader.position(st))
+                batch.extend(islice(messages, BLOCK))
+            except Exception as exc:  # corrupt input deep inside python-can: name the file instead
+                # python-can fails on a cut object header (struct.error): then the cut is the news
+                failed = _cut(p, name, length, count + len(batch)) or LogFormatError(
+                    f"{p}: {name} reader failed after {count + len(batch)} frames: {type(exc).__name__}: "
+                    f"{clip(str(exc))}")
+                failed.__cause__ = exc
+            else:
+                if len(batch) < BLOCK:  # the end of the log: python-can stops quietly where the file stops
+                    failed = _cut(p, name, length, count + len(batch))
+            if batch:
+                count += len(batch)
+                try:
+                    block = Block.of_messages(batch)
+                except LogFormatError as exc:
+                    raise LogFormatError(f"{p}: {exc}") from None
+                yield block, size if raw.closed else raw.tell()  # python-can closes the file at its end
+            if failed is not None:
+                raise failed
+            if len(batch) < BLOCK:
+                return ""
     finally:
-        if reader is not None:
-            reader.close()
-        owner.finished()
-    if st.frames == before:
-        raise LogFormatError(f"{p}: empty log: no frames")
+        raw.close()
+
+
+def _messages(p: Path, name: str, fobj: Any, text: bool, length: BlfLength | None) -> Iterator[can.Message]:
+    """python-can's reader of format ``name`` (``ASC``, ``BLF``...) over ``fobj``; LogFormatError when it does not
+    open."""
+    import can
+
+    try:
+        reader = getattr(can, f"{name}Reader")(io.TextIOWrapper(fobj, encoding="utf-8", errors="replace")
+                                               if text else fobj)  # ASCReader, BLFReader, ... MF4Reader
+    except Exception as exc:  # python-can raises many types for a bad header; none may escape raw
+        _free_quietly(exc)
+        raise _cut(p, name, length, 0) or LogFormatError(
+            f"{p}: not a valid {name} log: {type(exc).__name__}: {clip(str(exc))}") from exc
+    if length is not None:
+        length.note_file_size(int(getattr(reader, "file_size", 0) or 0))
+    return iter(reader)
+
+
+def _cut(p: Path, name: str, length: BlfLength | None, read: int) -> LogFormatError | None:
+    """The error of a log that ended where its framing says it may not, after ``read`` frames; None: whole."""
+    why = length.cut() if length is not None else ""
+    if not why:
+        return None
+    return LogFormatError(f"{p}: truncated {name} log: {why}; {read} frames were read before the cut")

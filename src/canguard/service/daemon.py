@@ -17,12 +17,16 @@ import signal
 import sys
 import threading
 import time
+import uuid
+from collections.abc import Iterable
 from pathlib import Path
 from types import FrameType
 from typing import Any
 
 import can
 import numpy as np
+import py_trees
+from py_trees.blackboard import Blackboard
 
 from canguard.bt.context import FrameSink
 from canguard.config.monitor import with_overrides
@@ -38,8 +42,7 @@ from canguard.io.bus import BusReader, receive_keys
 from canguard.io.clock import BootClock, LiveClock
 from canguard.io.outputs import check_config_outputs, load_run_config
 from canguard.protect.state import HeatStore
-from canguard.service.blackboard import registered_clients, release_clients, tree_clients
-from canguard.service.systemd import Notifier, watchdog_verdict
+from canguard.service.systemd import Notifier, watchdog_hold
 
 log = logging.getLogger(__name__)
 
@@ -64,15 +67,11 @@ def guarding(cfg: Config) -> str:
     return f"guarding {buses}; {len(cfg.sources)} sources" + ("; simulation" if cfg.simulation else "")
 
 
-def refuse_unguarded(cfg: Config, env: dict[str, str] | os._Environ[str] | None = None) -> None:
-    """Under systemd (``NOTIFY_SOCKET`` set), refuse a config whose buses are all ``virtual``.
-
-    Such a service would start, send READY=1 and feed the watchdog while it guards no
-    motor at all. ``simulation: true`` in the config says that this is intended (a bench).
-    Raises :class:`ConfigError` (exit 2) naming the config and the way out.
-    """
-    env = os.environ if env is None else env
-    if not env.get("NOTIFY_SOCKET") or cfg.simulation or not cfg.buses:
+def refuse_unguarded(cfg: Config) -> None:
+    """Under systemd (``NOTIFY_SOCKET`` set), refuse a config whose buses are all ``virtual``
+    (:class:`ConfigError`, exit 2): such a service would start, send READY=1 and feed the watchdog while it guards
+    no motor at all. ``simulation: true`` in the config says that this is intended (a bench)."""
+    if not os.environ.get("NOTIFY_SOCKET") or cfg.simulation or not cfg.buses:
         return
     if all(b.interface == "virtual" for b in cfg.buses.values()):
         names = ", ".join(cfg.buses)
@@ -126,7 +125,9 @@ class Daemon:
             self.events = self.monitor.tee(self.journal)
         self._stop = threading.Event()
         self._reload = threading.Event()
-        self._last_publish: tuple[float, dict[str, tuple[int, int, int]]] = (time.monotonic(), {})
+        self._published_at = time.monotonic()
+        self._counts: dict[str, tuple[int, int, int]] = {}
+        """Per bus, the decoder's (frames, decoded, invalid) at the last STATUS=."""
         self._down: set[str] = set()
         self._watchdog_held = ""
         self._bus_errors: queue.SimpleQueue[tuple[str, str]] = queue.SimpleQueue()
@@ -150,7 +151,7 @@ class Daemon:
 
     def build_engine(self, cfg: Config, previous: Engine | None = None) -> Engine:
         heat = HeatStore(cfg.state.file, cfg.state.on_corrupt, clock=BootClock())
-        before = registered_clients()
+        before = set(Blackboard.clients)
         try:
             engine = Engine(cfg, self.clock, self.sink, events=self.events, durable=True,
                             metrics=self.metrics, heat=heat, previous=previous)
@@ -158,7 +159,7 @@ class Daemon:
                 self.monitor.attach(engine)
             return engine
         except BaseException:
-            release_clients(registered_clients() - before)  # a tree built half-way leaves no keys behind
+            release_clients(set(Blackboard.clients) - before)  # a tree built half-way leaves no keys behind
             raise
 
     def wanted(self, cfg: Config) -> dict[str, frozenset[int] | None]:
@@ -177,8 +178,7 @@ class Daemon:
         signal.signal(signal.SIGHUP, self._on_hup)
 
     def _on_term(self, signum: int, _frame: FrameType | None) -> None:
-        self.exit_reason = signal.Signals(signum).name
-        self._stop.set()
+        self.request_stop(signal.Signals(signum).name)
 
     def _on_hup(self, _signum: int, _frame: FrameType | None) -> None:
         self._reload.set()
@@ -218,11 +218,9 @@ class Daemon:
                 if items:
                     self.take_received(engine, items)
                 engine.advance(self.clock.now())
-                self._drain_bus_errors(engine)
+                self._watch_buses(engine)
                 if self.setup is not None:
                     journal_setup(engine, self.setup)
-                if self._down:
-                    self._check_buses_back(engine)
                 mono = time.monotonic()
                 if wd_interval is not None and mono >= next_wd and self._watchdog_ok(engine):
                     self.notifier.watchdog()
@@ -247,24 +245,21 @@ class Daemon:
 
     def _publish(self, engine: Engine, mono: float) -> None:
         """Once a second: STATUS= with state, trips and frame rates; counters to the metrics."""
-        rates: dict[str, float] = {}
-        dt = max(1e-3, mono - self._last_publish[0])
-        last = self._last_publish[1]
+        dt = max(1e-3, mono - self._published_at)
+        self._published_at = mono
+        fps = []
         for bus, c in engine.decoder.per_bus.items():
-            prev = last.get(bus, (0, 0, 0))
-            if c.frames < prev[0]:  # a reload started a fresh decoder
-                prev = (0, 0, 0)
-            rates[bus] = (c.frames - prev[0]) / dt
+            counts = (c.frames, c.decoded, c.invalid)
+            last = self._counts.get(bus, (0, 0, 0))
+            if c.frames < last[0]:  # a reload started a fresh decoder
+                last = (0, 0, 0)
+            self._counts[bus] = counts
+            fps.append(f"{bus} {(c.frames - last[0]) / dt:.0f} fps")
             if self.metrics is not None:
-                self.metrics.frame_received(bus, c.frames - prev[0])
-                self.metrics.frames_decoded(bus, c.decoded - prev[1])
-                self.metrics.frame_invalid(bus, c.invalid - prev[2])
-            last[bus] = (c.frames, c.decoded, c.invalid)
-        self._last_publish = (mono, last)
+                self.metrics.frames(bus, *(n - m for n, m in zip(counts, last, strict=True)))
         if self.metrics is not None:
             self.metrics.set_stop_state(engine.gate.state == TaskGate.STOPPED)
-        fps = ", ".join(f"{bus} {r:.0f} fps" for bus, r in rates.items())
-        self.notifier.status(f"{engine.status_line()}; {fps}; {guarding(self.cfg)}")
+        self.notifier.status(f"{engine.status_line()}; {', '.join(fps)}; {guarding(self.cfg)}")
 
     def take_received(self, engine: Engine, items: list[tuple[str, can.Message, float]]) -> None:
         """The messages received (up to :data:`DRAIN` + 1 or :data:`DRAIN_DIRECT`, so that a tick never starves)
@@ -306,11 +301,11 @@ class Daemon:
     def _watchdog_ok(self, engine: Engine) -> bool:
         now = self.clock.now()
         last = None if math.isnan(engine.last_tick_t) else engine.last_tick_t
-        verdict = watchdog_verdict(now, last, engine.period_s, engine.stale_unstopped(now), k=4.0)
-        if not verdict and verdict.reason != self._watchdog_held:
-            log.warning("watchdog ping held back: %s", verdict.reason)
-        self._watchdog_held = "" if verdict else verdict.reason
-        return bool(verdict)
+        held = watchdog_hold(now, last, engine.period_s, engine.stale_unstopped(now), k=4.0)
+        if held and held != self._watchdog_held:
+            log.warning("watchdog ping held back: %s", held)
+        self._watchdog_held = held
+        return not held
 
     # -- reload and errors ------------------------------------------------------------------
     def reload(self) -> bool:
@@ -348,12 +343,9 @@ class Daemon:
         return True
 
     def _send_refused(self, bus: str, label: str, origin: str, held: int) -> None:
-        """A frame the bus refused (full TX queue, bus-off) goes in the journal, as often as on stderr.
-
-        A stop frame that never reached the bus is what a safety engineer asks about
-        first; it is sent again every ``stop.repeat``, and this event says it had to be.
-        The sink reports once a second per bus and origin; ``held`` counts the refusals since.
-        """
+        """A frame the bus refused (full TX queue, bus-off) goes in the journal, as often as on stderr (once a
+        second per bus and origin; ``held``: the refusals since): a stop frame that never reached the bus is what a
+        safety engineer asks about first, and it is sent again every ``stop.repeat``."""
         engine = getattr(self, "engine", None)
         if engine is not None:
             engine.journal.write({"event": "bus_error", "source": bus,
@@ -361,33 +353,27 @@ class Daemon:
                                             f"{held_note(held)}"})
 
     def _bus_error(self, bus: str, exc: BaseException) -> None:
-        # Called from a receive thread: hand it to the loop, which owns the journal.
-        # The reader reopens the bus with backoff; guards reading its sources go stale and stop the task.
+        # from a receive thread, to the loop (which owns the journal); the reader reopens the bus with backoff
         self._bus_errors.put((bus, f"{type(exc).__name__}: {exc}"))
 
-    def _drain_bus_errors(self, engine: Engine) -> None:
-        while True:
-            try:
-                bus, text = self._bus_errors.get_nowait()
-            except queue.Empty:
-                return
+    def _watch_buses(self, engine: Engine) -> None:
+        """The receive threads' bus errors into the engine; a bus the reader reopened releases the task (the tree
+        still decides whether it resumes)."""
+        while not self._bus_errors.empty():  # the loop is the one reader
+            bus, text = self._bus_errors.get_nowait()
             engine.bus_down(bus, text)
             self._down.add(bus)
-
-    def _check_buses_back(self, engine: Engine) -> None:
-        """A bus the reader reopened releases the task (the tree still decides whether it resumes)."""
-        alive = self.reader.alive()
-        for bus in [b for b in self._down if alive.get(b)]:
-            self._down.discard(bus)
-            engine.bus_up(bus)
-            engine.journal.write({"event": "bus_error", "source": bus, "reason": "reopened"})
+        if self._down:
+            alive = self.reader.alive()
+            for bus in [b for b in self._down if alive.get(b)]:
+                self._down.discard(bus)
+                engine.bus_up(bus)
+                engine.journal.write({"event": "bus_error", "source": bus, "reason": "reopened"})
 
 
 def drive_setup(cfg: Config) -> Any:
-    """A started :class:`~canguard.service.canopen_setup.DriveSetup` when a drive has ``configure: true``, else None.
-
-    Imported only then: the ``canopen`` library is an optional extra.
-    """
+    """A started :class:`~canguard.service.canopen_setup.DriveSetup` when a drive has ``configure: true``, else None
+    (imported only then: the ``canopen`` library is an optional extra)."""
     if not any(d.configure for d in cfg.canopen.values()):
         return None
     from canguard.service.canopen_setup import DriveSetup
@@ -407,9 +393,38 @@ def journal_setup(engine: Engine, setup: Any) -> None:
 
 
 def overrun_limit(cfg: Config) -> float:
-    """How long a frame may wait between its arrival and the engine: the shortest ``max_age`` of the sources.
-
-    A frame that waited longer carries data the config already calls stale, judged as fresh.
-    """
+    """How long a frame may wait between its arrival and the engine: the shortest ``max_age`` of the sources (a
+    frame that waited longer carries data the config already calls stale, judged as fresh)."""
     ages = [source.max_age_s for source in cfg.sources.values()]
     return max(OVERRUN_FLOOR_S, min(ages, default=LIVE_SKEW_S))
+
+
+def tree_clients(root: py_trees.behaviour.Behaviour) -> set[uuid.UUID]:
+    """The ids of the blackboard clients attached to the nodes of the tree under ``root``.
+
+    py_trees keeps one blackboard per process, where every node registers a client and keys that nothing removes
+    when a tree is dropped: the daemon releases the old tree after a reload, and whatever a rejected reload
+    registered (:func:`release_clients`).
+    """
+    return {client.id() for node in root.iterate() for client in node.blackboards}
+
+
+def release_clients(ids: Iterable[uuid.UUID]) -> int:
+    """Remove these clients from the global blackboard; how many keys (with their values) went with them: those no
+    other client holds, as py_trees' ``Client.unregister(clear=True)``. From the ids alone: also after a tree whose
+    build failed half-way."""
+    ids = set(ids)
+    gone = 0
+    for key, meta in list(Blackboard.metadata.items()):
+        if ids.isdisjoint(meta.read) and ids.isdisjoint(meta.write) and ids.isdisjoint(meta.exclusive):
+            continue
+        meta.read -= ids
+        meta.write -= ids
+        meta.exclusive -= ids
+        if not (meta.read or meta.write or meta.exclusive):
+            del Blackboard.metadata[key]
+            Blackboard.storage.pop(key, None)
+            gone += 1
+    for client in ids:
+        Blackboard.clients.pop(client, None)
+    return gone

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import threading
 from typing import Any
 
 from canguard.config.monitor import parse_address as monitor_address
@@ -58,9 +57,6 @@ class Metrics:
         self._age = prom.Gauge("canguard_sample_age_seconds", "Age of the newest sample of each source", ["source"],
                                registry=reg)
         self._children: dict[tuple[int, str], Any] = {}
-        self._server: Any = None
-        self._thread: threading.Thread | None = None
-        self.host: str | None = None
         self.port: int | None = None
         """The port actually served (the OS's choice when started with port 0)."""
 
@@ -72,44 +68,19 @@ class Metrics:
         return child
 
     def start(self, addr: str) -> None:
-        """Serve ``/metrics`` over HTTP at ``addr`` (``HOST:PORT``) from a daemon thread (ValueError: malformed,
-        OSError naming the address: cannot bind, RuntimeError: already serving)."""
+        """Serve ``/metrics`` over HTTP at ``addr`` (``HOST:PORT``) from a daemon thread, for the daemon's life
+        (ValueError: malformed, OSError naming the address: cannot bind)."""
         host, port = parse_address(addr)
-        if self._server is not None:
-            raise RuntimeError(f"metrics already served on {self.host}:{self.port}")
         try:
-            server, thread = self._prom.start_http_server(port, addr=host, registry=self.registry)
+            server, _thread = self._prom.start_http_server(port, addr=host, registry=self.registry)
         except OSError as exc:
             raise OSError(exc.errno, f"cannot serve metrics on {addr}: {exc.strerror or exc}") from exc
-        self._server, self._thread = server, thread
-        self.host = host
         self.port = int(server.server_address[1])
 
-    def stop(self) -> None:
-        """Stop serving (idempotent); the metrics themselves keep their values."""
-        if self._server is not None:
-            self._server.shutdown()
-            self._server.server_close()
-            if self._thread is not None:
-                self._thread.join(timeout=5)
-            self._server = self._thread = None
-
-    def render(self) -> bytes:
-        """The metrics in Prometheus' text format, as ``/metrics`` serves them."""
-        return bytes(self._prom.generate_latest(self.registry))
-
-    def frame_received(self, bus: str, n: int = 1) -> None:
-        """Count ``n`` frames read from ``bus``."""
-        self._child(self._received, bus).inc(n)
-
-    def frames_decoded(self, bus: str, n: int) -> None:
-        """Count ``n`` frames of ``bus`` decoded into samples."""
-        if n:
-            self._child(self._decoded, bus).inc(n)
-
-    def frame_invalid(self, bus: str, n: int = 1) -> None:
-        """Count ``n`` frames of ``bus`` with a configured id that did not decode."""
-        self._child(self._invalid, bus).inc(n)
+    def frames(self, bus: str, received: int, decoded: int, invalid: int) -> None:
+        """Count frames of ``bus``: read, decoded into samples, and of a configured id that did not decode."""
+        for metric, n in ((self._received, received), (self._decoded, decoded), (self._invalid, invalid)):
+            self._child(metric, bus).inc(n)
 
     def send_error(self, bus: str, n: int = 1) -> None:
         """Count ``n`` frames that could not be sent on ``bus``."""

@@ -1,8 +1,8 @@
 """sd_notify from scratch, and the policy deciding when the watchdog may be fed.
 
 :class:`Notifier` sends one AF_UNIX datagram of ``KEY=value`` lines to ``$NOTIFY_SOCKET`` (a path or
-``@abstract``); outside systemd every call is a no-op, and no call raises (errors logged once, counted).
-``WATCHDOG=1`` goes only while :func:`watchdog_verdict` (a pure function) says the loop is healthy.
+``@abstract``); outside systemd every call is a no-op, and no call raises (the first error logged as a warning).
+``WATCHDOG=1`` goes only while :func:`watchdog_hold` (a pure function) finds nothing wrong with the loop.
 """
 
 from __future__ import annotations
@@ -12,24 +12,20 @@ import os
 import socket
 import time
 from collections.abc import Iterable, Mapping
-from dataclasses import dataclass
 
-__all__ = ["Notifier", "WatchdogVerdict", "watchdog_verdict"]
+__all__ = ["Notifier", "watchdog_hold"]
 
 log = logging.getLogger(__name__)
 
 
 class Notifier:
     """Sends sd_notify messages to systemd; a no-op outside systemd. ``env`` (``os.environ``) is read once; the
-    socket is non-blocking (a full queue is a logged, counted error)."""
+    socket is non-blocking (a full queue is a logged error)."""
 
     def __init__(self, env: Mapping[str, str] | None = None) -> None:
         self._env = dict(os.environ if env is None else env)
         self.address: str | None = None
-        """The socket address as passed to ``sendto`` (abstract names start with NUL), or None."""
-        self.sent = 0
-        self.errors = 0
-        """Datagrams sent, and those that could not be."""
+        """The socket address as passed to ``sendto`` (abstract names start with NUL); None: not under systemd."""
         self._sock: socket.socket | None = None
         self._warned = False
         raw = self._env.get("NOTIFY_SOCKET", "")
@@ -37,11 +33,6 @@ class Notifier:
             self.address = "\0" + raw[1:] if raw[0] == "@" else raw
         elif raw:  # e.g. "vsock:..." (systemd >= 254 in VMs): not something a robot's daemon meets
             log.warning("NOTIFY_SOCKET=%r is neither a path nor an @abstract name; notifications off", raw)
-
-    @property
-    def enabled(self) -> bool:
-        """True when running under systemd with a notification socket."""
-        return self.address is not None
 
     def notify(self, *fields: str) -> bool:
         """Send ``fields`` (``"KEY=value"`` each) as one datagram; True if it was sent. Never raises."""
@@ -53,29 +44,27 @@ class Notifier:
                 self._sock.setblocking(False)
             self._sock.sendto("\n".join(fields).encode("utf-8", "replace"), self.address)
         except OSError as exc:
-            self.errors += 1
             log.log(logging.DEBUG if self._warned else logging.WARNING, "sd_notify to %r failed: %s",
                     self._env.get("NOTIFY_SOCKET"), exc)
             self._warned = True
             return False
-        self.sent += 1
         return True
 
-    def ready(self, status: str | None = None) -> bool:
-        """``READY=1`` (with an optional ``STATUS=``): buses open, tree loaded; or a reload finished."""
-        return self.notify("READY=1", *([] if status is None else [_status_field(status)]))
+    def ready(self) -> bool:
+        """``READY=1``: buses open, tree loaded; or a reload finished."""
+        return self.notify("READY=1")
 
     def watchdog(self) -> bool:
-        """``WATCHDOG=1``: feed the watchdog. Call only when :func:`watchdog_verdict` says so."""
+        """``WATCHDOG=1``: feed the watchdog. Call only when :func:`watchdog_hold` finds nothing."""
         return self.notify("WATCHDOG=1")
 
     def status(self, text: str) -> bool:
         """``STATUS=text`` (one line; newlines are replaced by spaces): shown by ``systemctl status``."""
-        return self.notify(_status_field(text))
+        return self.notify("STATUS=" + " ".join(str(text).splitlines()))
 
-    def stopping(self, status: str | None = None) -> bool:
+    def stopping(self) -> bool:
         """``STOPPING=1``: the daemon is shutting down (SIGTERM received)."""
-        return self.notify("STOPPING=1", *([] if status is None else [_status_field(status)]))
+        return self.notify("STOPPING=1")
 
     def reloading(self, monotonic_usec: int | None = None) -> bool:
         """``RELOADING=1`` + ``MONOTONIC_USEC`` (CLOCK_MONOTONIC now, systemd >= 253 needs it); send :meth:`ready`
@@ -94,50 +83,19 @@ class Notifier:
             return None
         return usec / 1e6 if usec > 0 and ours else None
 
-    def close(self) -> None:
-        """Close the socket (a later notify reopens it)."""
-        if self._sock is not None:
-            self._sock.close()
-            self._sock = None
 
-    def __enter__(self) -> Notifier:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
-
-def _status_field(text: str) -> str:
-    return "STATUS=" + " ".join(str(text).splitlines())
-
-
-@dataclass(frozen=True)
-class WatchdogVerdict:
-    """Whether the watchdog may be fed now, and why not when it may not."""
-
-    ok: bool
-    reason: str = ""
-
-    def __bool__(self) -> bool:
-        return self.ok
-
-
-def watchdog_verdict(
-    now: float,
-    last_tick: float | None,
-    tick_period_s: float,
-    stale_unstopped: Iterable[str] = (),
-    k: float = 3.0,
-) -> WatchdogVerdict:
-    """Whether the daemon may send ``WATCHDOG=1``: a tick within ``k * tick_period_s`` of ``now`` (one monotonic
-    time base), and no source the tree reads stale while the tree is not stopping the task (``stale_unstopped``)."""
+def watchdog_hold(now: float, last_tick: float | None, tick_period_s: float, stale_unstopped: Iterable[str] = (),
+                  k: float = 3.0) -> str:
+    """Why the daemon may not send ``WATCHDOG=1`` now ("" when it may): no tick within ``k * tick_period_s`` of
+    ``now`` (one monotonic time base), or a source the tree reads stale while the tree is not stopping the task
+    (``stale_unstopped``)."""
     if tick_period_s <= 0:
         raise ValueError(f"tick_period_s must be > 0, got {tick_period_s}")
     if last_tick is None:
-        return WatchdogVerdict(False, "no tick yet")
+        return "no tick yet"
     late_s = now - last_tick
     limit_s = k * tick_period_s
     if late_s > limit_s:
-        return WatchdogVerdict(False, f"loop stalled: last tick {late_s:.3f} s ago (limit {limit_s:.3f} s)")
+        return f"loop stalled: last tick {late_s:.3f} s ago (limit {limit_s:.3f} s)"
     stale = sorted(set(stale_unstopped))
-    return WatchdogVerdict(not stale, f"stale source(s) without a stop: {', '.join(stale)}" if stale else "")
+    return f"stale source(s) without a stop: {', '.join(stale)}" if stale else ""

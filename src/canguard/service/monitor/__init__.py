@@ -1,15 +1,25 @@
 """Watching the daemon live: the status page (:mod:`.web`) and Groot2's monitor (:mod:`.groot2`).
 
 Served by a process of their own (:mod:`.server`), fed by :class:`Monitor` after each tick without ever waiting
-(docs/monitor.md, "The loop comes first"). Imported only when a monitor is configured.
+(docs/monitor.md, "The loop comes first"): it takes a record of a tick when something changed, at most every
+:data:`PERIOD_S`, with the guards' values at most every :data:`GUARD_PERIOD_S`. Imported only when configured.
+
+The two talk over one ``AF_UNIX`` ``SOCK_SEQPACKET`` socket pair, which takes a message whole or not at all: the
+daemon sends without waiting. Daemon → monitor: pickled messages in frames of at most :data:`FRAME_BYTES` (a flag
+byte, ``M`` more or ``E`` end). Monitor → daemon: fixed byte strings and one JSON answer: the daemon never unpickles
+what comes from the side the network can reach.
 """
 
 from __future__ import annotations
 
+import ctypes
 import errno
 import json
 import logging
+import math
 import os
+import pickle
+import socket
 import subprocess
 import sys
 import threading
@@ -19,55 +29,115 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import py_trees
+
+from canguard.bt.dryrun import root_blackboard
 from canguard.config.monitor import Address
 from canguard.config.schema import MonitorConfig
 from canguard.errors import ConfigError
-from canguard.service.monitor import wire
 from canguard.service.monitor.layout import LayoutRecord, TreeLayout
-from canguard.service.monitor.snapshot import GuardState, Observer, TickSnapshot
 
 if TYPE_CHECKING:
+    from canguard.bt.loaded import GuardView
     from canguard.engine.core import Engine
     from canguard.engine.stats import EventSink
 
 log = logging.getLogger(__name__)
 
-__all__ = ["EventTee", "Monitor"]
+__all__ = ["Monitor"]
 
 KEEP_EVENTS = 500
 """Journal events kept for a monitor process that is behind; past that the oldest are dropped (it says how many)."""
 START_TIMEOUT_S = 30.0
 """How long the daemon waits at start for its monitor process to listen (a loaded robot takes seconds)."""
 BLACKBOARD_S = 1.0
-"""How long a Groot2 request for the blackboard puts it in the snapshots."""
+"""How long a Groot2 request for the blackboard puts it in the records."""
 REQUESTS_S = 0.1
 """How often the hand-over also reads the monitor process's requests (Groot2 waits 0.3 s for a blackboard; a system
-call per snapshot costs the loop more than the requests are worth)."""
+call per record costs the loop more than the requests are worth)."""
+PERIOD_S = 0.02
+"""Shortest time between two records: a change is published in the first tick this long after the last one
+(Groot2 polls STATUS at up to 50 Hz; the page draws at most 10 times a second)."""
+GUARD_PERIOD_S = 0.08
+"""Longest time between two readings of the guards' values while nothing else changes."""
+
+IDLE, RUNNING, SUCCESS, FAILURE, SKIPPED = 0, 1, 2, 3, 4
+"""BehaviorTree.CPP's ``NodeStatus`` values (Groot2's STATUS carries them; ``10 + s``: idle after ``s``)."""
+STATUS_NAMES = ("IDLE", "RUNNING", "SUCCESS", "FAILURE", "SKIPPED")
+_CODES = {py_trees.common.Status.RUNNING: RUNNING, py_trees.common.Status.SUCCESS: SUCCESS,
+          py_trees.common.Status.FAILURE: FAILURE}
 
 
-class EventTee:
-    """The daemon's journal, and a copy of each event for the monitors (the journal first)."""
+FRAME_BYTES = 32 * 1024
+"""Largest frame (a seqpacket message must fit the socket's send buffer, 208 kB by default on Linux)."""
+SEND_BUFFER_BYTES = 1 << 20
+"""Send buffer asked for (Linux caps it at ``net.core.wmem_max``)."""
+MORE, END = b"M", b"E"
+WANT_BLACKBOARD = b"B"
+"""Monitor process → daemon: a Groot2 client asked for the blackboard (put it in the records for 1 s)."""
 
-    def __init__(self, journal: EventSink, monitor: Monitor) -> None:
-        self.journal = journal
-        self.monitor = monitor
 
-    def write(self, event: Mapping[str, Any]) -> None:
-        """Append to the journal, then keep a copy for the page."""
-        self.journal.write(event)
-        self.monitor.event(event)
+class GilHoldingSocket:
+    """Non-blocking send and receive on a socket's descriptor that keep the calling thread's GIL: ``socket.send``
+    releases it around its system call, and the loop then waits to get it back; a non-blocking local socket
+    returns within microseconds."""
 
-    def flush(self) -> None:
-        """Flush the journal."""
-        self.journal.flush()
+    _libc = ctypes.PyDLL(None, use_errno=True)
+    _send = _libc.send
+    _send.argtypes = (ctypes.c_int, ctypes.c_char_p, ctypes.c_size_t, ctypes.c_int)
+    _send.restype = ctypes.c_ssize_t
+    _recv = _libc.recv
+    _recv.argtypes = (ctypes.c_int, ctypes.c_char_p, ctypes.c_size_t, ctypes.c_int)
+    _recv.restype = ctypes.c_ssize_t
+
+    def __init__(self, sock: socket.socket) -> None:
+        self._fd = sock.fileno()
+        self._buf = ctypes.create_string_buffer(64)
+
+    def send(self, data: bytes) -> bool:
+        """Send one message whole; False when the socket cannot take it now. OSError when the other end is gone."""
+        return self._send(self._fd, data, len(data), socket.MSG_DONTWAIT | socket.MSG_NOSIGNAL) >= 0 or _again()
+
+    def recv(self) -> bytes | None:
+        """One short message (at most 64 bytes), b"" when the other end closed, None when none waits."""
+        n = self._recv(self._fd, self._buf, len(self._buf), socket.MSG_DONTWAIT)
+        if n >= 0:
+            return self._buf.raw[:n]
+        _again()
+        return None
+
+
+def _again() -> bool:
+    """False for ``EAGAIN`` (nothing done, try later); OSError for any other error of the call just made."""
+    code = ctypes.get_errno()
+    if code in (errno.EAGAIN, errno.EWOULDBLOCK, errno.EINTR):
+        return False
+    raise OSError(code, os.strerror(code))
+
+
+def socket_pair() -> tuple[socket.socket, socket.socket]:
+    """(the daemon's end, the monitor process's end); neither is inherited by other children."""
+    ours, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
+    for sock in (ours, theirs):
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, SEND_BUFFER_BYTES)
+    return ours, theirs
+
+
+def frames(message: Any) -> list[bytes]:
+    """``message`` pickled and cut into frames (one for all but the largest messages)."""
+    data = pickle.dumps(message, protocol=pickle.HIGHEST_PROTOCOL)
+    size = FRAME_BYTES - 1
+    parts = [data[i:i + size] for i in range(0, len(data), size)] or [b""]
+    return [MORE + p for p in parts[:-1]] + [END + parts[-1]]
 
 
 class Monitor:
-    """The monitor process of one daemon, attached to each engine it runs, and the engines' snapshot sink
-    (:class:`.snapshot.SnapshotSink`). :class:`~canguard.errors.ConfigError` when a server cannot listen."""
+    """The monitor process of one daemon, and the observer of each engine the daemon runs (:meth:`attach`): after
+    each tick it takes a record of it and hands it over without waiting. :class:`~canguard.errors.ConfigError`
+    when a server cannot listen."""
 
     def __init__(self, settings: MonitorConfig) -> None:
-        self._sock, theirs = wire.socket_pair()
+        self._sock, theirs = socket_pair()
         try:
             self._proc = _spawn(theirs)
         finally:
@@ -82,14 +152,18 @@ class Monitor:
             self.close()
             raise
         self._sock.setblocking(False)
-        self._io = wire.GilHoldingSocket(self._sock)  # the engine's thread never lets go of the GIL for it
-        self._latest: TickSnapshot | None = None
-        self._layout: LayoutRecord | None = None  # what the monitor process has (or is being sent)
-        self._guards: tuple[GuardState, ...] | None = None  # likewise
+        self._io = GilHoldingSocket(self._sock)  # the engine's thread never lets go of the GIL for it
+        self._tree: TreeLayout | None = None  # the engine's (attach sets what is read of it)
+        self._seq = 0
+        # what the monitor process has (or is being sent), and what it has not had yet
+        self._record: tuple[Any, ...] | None = None
+        self._sent: tuple[Any, ...] | None = None
+        self._layout: LayoutRecord | None = None
+        self._guards: tuple[tuple[Any, ...], ...] | None = None
+        self._journal: EventSink  # set by tee()
         self._events: deque[tuple[int, dict[str, Any]]] = deque(maxlen=KEEP_EVENTS)
         self._event_seq = 0
         self._outbox: deque[bytes] = deque()  # the frames of a large message not all taken yet: they go first
-        self._sent: TickSnapshot | None = None
         self._blackboard_until = -1.0
         self._closing = self._failed = self._gone = False
         self._requests_at = 0.0
@@ -130,11 +204,20 @@ class Monitor:
 
     def attach(self, engine: Engine) -> None:
         """Watch ``engine`` from its next tick on (the daemon's engine at start and after each reload)."""
-        engine.observer = Observer(engine, TreeLayout(engine.loaded, engine.ctx), self)
+        tree = TreeLayout(engine.loaded, engine.ctx)
+        self._tree, self._guard_views, self._guard_nodes = tree, engine.guards(), engine.loaded.guard_nodes()
+        self._last_active = [IDLE] * len(tree.behaviours)
+        self._key: tuple[Any, ...] = ()
+        self._guard_states: tuple[tuple[Any, ...], ...] = ()
+        self._guards_at = self._next_at = -math.inf
+        self._stops, self._record = -1, None
+        self._stopped_by: tuple[str, ...] = ()
+        engine.observer = self
 
-    def tee(self, journal: EventSink) -> EventTee:
-        """The sink the engine writes events to: ``journal``, and the page's copy."""
-        return EventTee(journal, self)
+    def tee(self, journal: EventSink) -> EventSink:
+        """The sink the engine writes events to (this monitor): ``journal`` first, then a copy for the monitors."""
+        self._journal = journal
+        return self
 
     def close(self) -> None:
         """End the monitor process (it also ends by itself when the daemon's end of the socket closes)."""
@@ -155,61 +238,122 @@ class Monitor:
         return self._proc.pid
 
     # -- the engine's side: after its tick (the stop frames are out), never waiting -----------------
-    def put(self, snapshot: TickSnapshot) -> None:
-        """Publish the latest snapshot (at most every ``snapshot.PERIOD_S``) and offer it to the monitor process."""
-        self._latest = snapshot
-        self.flush()
-
-    def event(self, event: Mapping[str, Any]) -> None:
-        """Keep one journal event for the next record (the oldest go when the process is behind)."""
+    def write(self, event: Mapping[str, Any]) -> None:
+        """Append ``event`` to the journal, then keep a copy for the next record (the oldest go when the monitor
+        process is behind)."""
+        self._journal.write(event)
         self._event_seq += 1
         self._events.append((self._event_seq, dict(event)))
 
     def flush(self) -> None:
+        """Flush the journal."""
+        self._journal.flush()
+
+    def publish(self, engine: Engine, now: float) -> None:
+        """Called by the engine after each tick: take its record when something changed, at most every
+        :data:`PERIOD_S`, and offer what the monitor process has not had yet (never raises, never waits)."""
+        try:
+            if self._take(engine, now):
+                self.offer()
+        except Exception:  # a monitor must never take the loop down with it (a record that cannot be pickled)
+            if not self._failed:
+                log.exception("monitor snapshot failed; the monitors show the last good one")
+            self._failed = True
+            self._events.clear()
+            self._sent = self._record  # dropped: the next one goes
+
+    def _take(self, engine: Engine, now: float) -> bool:
+        """This tick's record, when something changed; False when the next one is not due yet."""
+        gate = engine.gate
+        if gate.stops != self._stops:  # read in the tick the stop began, however soon the next record is due
+            self._stops = gate.stops
+            self._stopped_by = self._failing()
+        mono = time.monotonic()
+        if mono < self._next_at or self._tree is None:  # the one bound on what the monitors cost the loop
+            return False
+        codes = self._codes(self._tree)
+        key = (codes, gate.state, gate.stops, engine.journal.written, gate.stop_reason)
+        stale = mono - self._guards_at >= GUARD_PERIOD_S
+        if key == self._key and not stale:
+            return True  # nothing new: what the monitor process could not take before goes now
+        if stale:  # a node's status or an event in between: published at once, with the guards as last read
+            self._guard_states = tuple(self._guard_state(engine, g, now) for g in self._guard_views)
+            self._guards_at = mono
+        self._next_at = mono + PERIOD_S
+        self._key = key
+        self._seq += 1
+        task = (gate.state, gate.stop_since, gate.stop_reason, gate.stops, tuple(gate.inhibits.items()),
+                self._failing(), self._stopped_by)  # as hub.task_document reads it
+        blackboard = root_blackboard() if time.monotonic() < self._blackboard_until else None
+        self._record = (self._seq, now, codes, task, engine.cfg.stop.confirm is not None, blackboard)
+        return True
+
+    def _failing(self) -> tuple[str, ...]:
+        """The guard nodes that failed in the tick just done."""
+        return tuple(g.name for g in self._guard_nodes if g.status == py_trees.common.Status.FAILURE)
+
+    def _codes(self, tree: TreeLayout) -> bytes:
+        out = bytearray()
+        last = self._last_active
+        for i, node in enumerate(tree.behaviours):
+            code = SKIPPED if getattr(node, "skipped", False) else _CODES.get(node.status, IDLE)
+            if code != IDLE:
+                last[i] = code
+            elif last[i] != IDLE:
+                code = 10 + last[i]  # BT.CPP: IDLE after SUCCESS is 12
+            out.append(code)
+        return bytes(out)
+
+    @staticmethod
+    def _guard_state(engine: Engine, g: GuardView, now: float) -> tuple[Any, ...]:
+        """One guarded signal now, as :func:`.hub.guard_document` reads it."""
+        snap = g.snapshot()
+        health = engine.ctx.health.get(g.source)
+        why = health.reason(now, g.role) if health is not None else "no_data"
+        value = snap.threshold * snap.level_pct / 100.0 if g.kind == "i2t" else snap.value
+        status = why or ("tripped" if snap.tripped else "ok")
+        return (g.node, g.role, g.kind, g.source, value, g.threshold_unit, snap.threshold, snap.level_pct, status,
+                why or snap.reason)
+
+    # -- sending -----------------------------------------------------------------------------------
+    def offer(self) -> None:
         """Offer what the monitor process has not had yet: one non-blocking send (a dead process is reported once,
         by a thread of its own: reaping may take a moment the loop must not wait)."""
-        if self._gone or (self._latest is self._sent and not self._events and not self._outbox):
+        if self._gone or (self._record is self._sent and not self._events and not self._outbox):
             return
         try:
             now = time.monotonic()
             if now >= self._requests_at:
                 self._requests_at = now + REQUESTS_S
                 self._read_requests()
-            self._flush()
+            self._send()
         except OSError as exc:
             self._gone = True
             if not self._closing:
                 threading.Thread(target=self._died, args=(exc,), name="canguard-monitor-gone", daemon=True).start()
-        except Exception:  # a record that cannot be pickled: dropped, the next one goes
-            if not self._failed:
-                log.exception("a monitor record could not be sent; the monitors show the last good one")
-            self._failed = True
-            self._events.clear()
-            self._sent = self._latest
 
-    def blackboard_wanted(self) -> bool:
-        """True while a Groot2 client has asked for the blackboard within the last second."""
-        return time.monotonic() < self._blackboard_until
-
-    # -- sending -----------------------------------------------------------------------------------
-    def _flush(self) -> None:
-        """Offer the layout (once per tree), then the events and latest snapshot; what is not taken waits for later."""
+    def _send(self) -> None:
+        """Offer the layout (once per tree), then the events and latest record; what is not taken waits for later."""
         if not self._send_outbox():  # the rest of a large message first
             return
-        snap = self._latest
-        if snap is not None and snap.layout is not self._layout:
-            if not self._offer(wire.frames(("layout", snap.layout))):
+        record = self._record
+        layout = None if self._tree is None else self._tree.record
+        if record is not None and layout is not self._layout:
+            if not self._offer(frames(("layout", layout))):
                 return
-            self._layout = snap.layout  # once per tree: the monitor process keeps it
+            self._layout = layout  # once per tree: the monitor process keeps it
             self._guards = None
-        if snap is self._sent and not self._events:
+        if record is self._sent and not self._events:
             return
         events = list(self._events)
-        if self._offer(wire.frames(("tick", events, None if snap is None else self._record(snap)))):
+        guards = self._guard_states  # the guards only when new (their tuple is kept between readings)
+        if record is not None:
+            record = (*record, None if guards is self._guards else guards)
+        if self._offer(frames(("tick", events, record))):
             for _ in events:
                 self._events.popleft()
-            self._sent = snap
-            self._guards = None if snap is None else snap.guards
+            self._sent = self._record
+            self._guards = guards if record is not None else None
 
     def _offer(self, frames: list[bytes]) -> bool:
         """Send one message (the rest of a large one as the socket takes it); False: nothing of it was taken."""
@@ -218,13 +362,6 @@ class Monitor:
         self._outbox.extend(frames[1:])
         self._send_outbox()
         return True
-
-    def _record(self, snap: TickSnapshot) -> tuple[Any, ...]:
-        """The snapshot as plain tuples (pickled faster than the named ones); guards only when new."""
-        guards = None
-        if snap.guards is not self._guards:  # the Observer reads them every 80 ms, and reuses the tuple between
-            guards = tuple(tuple(g) for g in snap.guards)
-        return (snap.seq, snap.t, bytes(snap.codes), tuple(snap.task), guards, snap.confirm, snap.blackboard)
 
     def _send_outbox(self) -> bool:
         """Send the frames waiting, in order; False when the socket cannot take more now."""
@@ -239,7 +376,7 @@ class Monitor:
         while (data := self._io.recv()) is not None:
             if not data:
                 raise ConnectionResetError(errno.ECONNRESET, "the monitor process closed its socket")
-            if data == wire.WANT_BLACKBOARD:
+            if data == WANT_BLACKBOARD:
                 self._blackboard_until = time.monotonic() + BLACKBOARD_S
 
     def _died(self, exc: OSError) -> None:

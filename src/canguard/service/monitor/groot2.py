@@ -2,7 +2,7 @@
 
 As ``BT::Groot2Publisher``: a ZeroMQ REP socket on PORT answers FULLTREE (``T``), STATUS (``S``) and
 BLACKBOARD (``B``) requests, a PUB socket is bound on PORT + 1; hooks, breakpoints and recording are refused
-(docs/monitor.md). Misbehaving clients are logged one line per cause (:class:`.notes.ClientNotes`).
+(docs/monitor.md). Misbehaving clients are logged one line per cause (:class:`.hub.ClientNotes`).
 """
 
 from __future__ import annotations
@@ -16,9 +16,8 @@ from typing import Any
 import zmq
 
 from canguard.config.monitor import Address
-from canguard.service.monitor.hub import Hub
+from canguard.service.monitor.hub import ClientNotes, Hub
 from canguard.service.monitor.layout import LayoutRecord
-from canguard.service.monitor.notes import ClientNotes
 
 log = logging.getLogger(__name__)
 
@@ -87,47 +86,39 @@ class Groot2Monitor:
         if self._thread.is_alive():
             self._thread.join(2)
         else:  # never started
-            self._close_sockets()
-
-    def _close_sockets(self) -> None:
-        self._server.close(0)
-        self._publisher.close(0)
-        self._context.term()
+            self._context.destroy(0)
 
     def _serve(self) -> None:
-        try:
-            self._loop()
-        finally:
-            self._close_sockets()  # ZeroMQ sockets belong to the thread that uses them
-
-    def _loop(self) -> None:
         poller = zmq.Poller()
         poller.register(self._server, zmq.POLLIN)
-        while not self._stop.is_set():
-            if not poller.poll(100):
-                continue
-            try:
-                request = self._server.recv_multipart(zmq.NOBLOCK)
-            except zmq.ZMQError:
-                continue
-            try:
-                reply = self.answer(request)
-            except Exception as exc:  # canguard's fault, not the client's (answer takes any bytes): say where
-                log.exception("Groot2 request failed")
-                reply = [b"error", f"{type(exc).__name__}: {exc}".encode()]
-            if reply[0] == b"error" and reply[1] in MALFORMED:
-                self.notes.note(f"a malformed request ({reply[1].decode()})")
-            try:
-                self._server.send_multipart(reply)
-            except zmq.ZMQError as exc:
-                self.notes.note(f"a reply not sent ({exc})")
+        try:
+            while not self._stop.is_set():
+                if not poller.poll(100):
+                    continue
+                try:
+                    request = self._server.recv_multipart(zmq.NOBLOCK)
+                except zmq.ZMQError:
+                    continue
+                try:
+                    reply = self.answer(request)
+                except Exception as exc:  # canguard's fault, not the client's (answer takes any bytes): say where
+                    log.exception("Groot2 request failed")
+                    reply = [b"error", f"{type(exc).__name__}: {exc}".encode()]
+                if reply[0] == b"error" and reply[1] in MALFORMED:
+                    self.notes.note(f"a malformed request ({reply[1].decode()})")
+                try:
+                    self._server.send_multipart(reply)
+                except zmq.ZMQError as exc:
+                    self.notes.note(f"a reply not sent ({exc})")
+        finally:
+            self._context.destroy(0)  # its sockets too: ZeroMQ sockets belong to the thread that uses them
 
     def answer(self, request: list[bytes]) -> list[bytes]:
         """The reply to one multipart request (the parts as the REP socket sends them)."""
         if not request or len(request[0]) != HEADER.size:
             return [b"error", b"wrong request header"]
         _protocol, kind, request_id = HEADER.unpack(request[0])
-        snap = self.hub.latest()
+        snap = self.hub.latest
         if snap is None:
             return [b"error", b"the tree has not ticked yet"]
         layout = snap.layout
@@ -154,7 +145,7 @@ class Groot2Monitor:
         self.hub.want_blackboard()
         deadline = time.monotonic() + 0.3
         while True:
-            snap = self.hub.latest()
+            snap = self.hub.latest
             if snap is not None and snap.blackboard is not None:
                 return dict(snap.blackboard)
             if time.monotonic() > deadline or self._stop.wait(0.01):

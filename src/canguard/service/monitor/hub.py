@@ -1,170 +1,165 @@
-"""In the monitor process: the latest snapshot, the last journal events, and who to wake.
-
-Receiving only assigns a reference or appends to a bounded deque; a dispatcher thread renders the status document
-at most every :data:`DOCUMENT_S` (shared by every client) and wakes its subscribers.
-"""
+"""In the monitor process: the latest tick and the last journal events, which the servers read."""
 
 from __future__ import annotations
 
+import contextlib
 import json
+import logging
 import math
-import threading
+import socket
 import time
 from collections import deque
-from collections.abc import Callable, Mapping
-from typing import Any
+from collections.abc import Callable
+from typing import Any, NamedTuple
 
 from canguard.engine.event_codec import encode_event
-from canguard.service.monitor.snapshot import TickSnapshot, status_name
+from canguard.service.monitor import STATUS_NAMES, WANT_BLACKBOARD
+from canguard.service.monitor.layout import LayoutRecord
 
-DOCUMENT_S = 0.125
-"""Shortest time between two status documents (a browser spends ~5 ms drawing each): a change still reaches a
-page within 200 ms."""
 KEEP_EVENTS = 500
 """Journal events kept for clients; a client further behind loses the oldest."""
 STATUS_EVENTS = 30
 """Journal events ``/api/status`` carries."""
+NOTE_EVERY_S = 60.0
+"""Shortest time between two log lines of the same client misbehaviour; the ones between are counted."""
+
+
+class Tick(NamedTuple):
+    """One tick of the daemon as the monitors show it."""
+
+    seq: int
+    t: float
+    layout: LayoutRecord
+    codes: bytes
+    """Per UID (``codes[uid - 1]``), BT.CPP's status code."""
+    task: tuple[Any, ...]
+    """As :func:`task_document` reads it."""
+    guards: tuple[tuple[Any, ...], ...]
+    """Each as :func:`guard_document` reads it."""
+    confirm: bool
+    """``stop.confirm`` is configured (a stop then waits for its confirmation)."""
+    blackboard: dict[str, Any] | None
+    """The root blackboard's entries, when a monitor asked for them lately."""
+
+
+class ClientNotes:
+    """What clients did wrong, per cause: the first occurrence logged at once, then at most one line per
+    :data:`NOTE_EVERY_S` with the count."""
+
+    def __init__(self, log: logging.Logger, server: str) -> None:
+        self._log = log
+        self._server = server
+        self._causes: dict[str, tuple[float, int]] = {}
+        """cause -> (when its next line may be written, occurrences not yet logged)."""
+
+    def note(self, cause: str) -> None:
+        """One more occurrence of ``cause`` (a sentence of what the client did and what was done about it)."""
+        now = time.monotonic()
+        next_s, held = self._causes.get(cause, (-1.0, 0))
+        if now < next_s:
+            self._causes[cause] = (next_s, held + 1)
+            return
+        self._causes[cause] = (now + NOTE_EVERY_S, 0)
+        more = f" ({held} more times since the last such line)" if held else ""
+        self._log.warning("%s: %s%s", self._server, cause, more)
 
 
 class Hub:
-    """The latest :class:`TickSnapshot` and journal events, for any number of monitor threads."""
+    """The latest :class:`Tick` and journal events, fed from the daemon's socket ``sock`` and read by any number of
+    server threads. Receiving only assigns a reference or appends to a bounded deque, then calls :attr:`on_news`."""
 
-    def __init__(self, ask_blackboard: Callable[[], None] = lambda: None) -> None:
-        self.want_blackboard = ask_blackboard
-        """Ask the engine to put the root blackboard into its snapshots for the next second."""
-        self._latest: TickSnapshot | None = None
+    def __init__(self, sock: socket.socket | None = None) -> None:
+        self.sock = sock
+        self.layout: LayoutRecord | None = None
+        self._guards: tuple[tuple[Any, ...], ...] = ()
+        self.latest: Tick | None = None
+        """The latest tick (None before the first)."""
         self._events: deque[tuple[int, bytes, dict[str, Any]]] = deque(maxlen=KEEP_EVENTS)
         """(seq, journal line, the line as JSON): each event is encoded once, as it arrives."""
         self._event_seq = 0
-        self._subscribers: list[Callable[[], None]] = []
-        self._version = 0
-        self._doc: tuple[int, bytes] = (0, json.dumps(self.status()).encode())
-        self._closed = threading.Event()
-        self._news = threading.Event()
-        """Set by the receiving side on a new snapshot or event: the dispatcher sleeps until then."""
-        self._thread: threading.Thread | None = None
+        self.on_news: Callable[[], None] = lambda: None
+        """Called after each message of the daemon, in the receiving thread (it must not wait)."""
 
-    # -- the receiving side: never blocks ----------------------------------------------------------
-    def put(self, snapshot: TickSnapshot) -> None:
-        """Publish the latest snapshot."""
-        self._latest = snapshot
-        self._news.set()
+    def receive(self, message: tuple[Any, ...]) -> None:
+        """One message of the daemon: a tree's layout, or the journal events and latest record of a tick
+        (``(seq, t, codes, task, confirm, blackboard, guards)``, guards None when as in the last one)."""
+        if message[0] == "layout":
+            self.layout = message[1]
+            self._guards = ()
+            return
+        _, events, record = message
+        for seq, event in events:  # numbered by the daemon (a gap: events it dropped)
+            line = encode_event(event)  # as the journal writes it (JSON-safe, rounded)
+            self._event_seq = seq
+            self._events.append((seq, line, json.loads(line)))
+        if record is not None and self.layout is not None:
+            seq, t, codes, task, confirm, blackboard, guards = record
+            if guards is not None:
+                self._guards = guards
+            self.latest = Tick(seq, t, self.layout, codes, task, self._guards, confirm, blackboard)
+        self.on_news()
 
-    def event(self, event: Mapping[str, Any], seq: int) -> None:
-        """Keep one journal event, numbered ``seq`` by the daemon (a gap: events it dropped); the oldest go."""
-        line = encode_event(event)  # as the journal writes it (JSON-safe, rounded)
-        self._event_seq = seq
-        self._events.append((seq, line, json.loads(line)))
-        self._news.set()
-
-    # -- the monitors' side ----------------------------------------------------------------------
-    def latest(self) -> TickSnapshot | None:
-        """The latest published snapshot (None before the first tick)."""
-        return self._latest
+    def want_blackboard(self) -> None:
+        """Ask the daemon to put the root blackboard into its records for the next second."""
+        if self.sock is not None:
+            with contextlib.suppress(OSError):  # the daemon is busy or gone: no blackboard this time
+                self.sock.send(WANT_BLACKBOARD, socket.MSG_DONTWAIT)
 
     def events_after(self, seq: int) -> tuple[list[tuple[int, bytes]], int]:
         """Events newer than ``seq`` as (seq, journal line), and how many of them were already dropped."""
-        kept = list(self._events)  # one C-level copy: atomic against the engine's appends
+        kept = list(self._events)  # one C-level copy: atomic against the receiving side's appends
         newer = [(n, line) for n, line, _ in kept if n > seq]
         first = newer[0][0] if newer else self._event_seq + 1
         return newer, max(0, first - seq - 1)
 
-    def status_document(self) -> tuple[int, bytes]:
-        """(version, ``/api/status`` JSON): the latest document, its version bumped when more than its time changed."""
-        return self._doc
-
-    def subscribe(self, changed: Callable[[], None]) -> None:
-        """Call ``changed()`` (from the dispatcher's thread: it must not wait) at each new status document."""
-        self._subscribers.append(changed)
-
-    # -- the dispatcher ----------------------------------------------------------------------------
-    def start(self) -> None:
-        """Start the dispatcher thread."""
-        self._thread = threading.Thread(target=self._dispatch, name="canguard-monitor-hub", daemon=True)
-        self._thread.start()
-
-    def close(self) -> None:
-        """Stop the dispatcher."""
-        self._closed.set()
-        self._news.set()
-        if self._thread is not None:
-            self._thread.join(2)
-
-    def _dispatch(self) -> None:
-        shown: dict[str, Any] | None = None
-        due = -math.inf
-        while True:
-            self._news.wait()  # a snapshot or an event came (or close)
-            wait_s = due - time.monotonic()
-            if self._closed.is_set() or (wait_s > 0 and self._closed.wait(wait_s)):
-                return  # else: what came until the next document is due goes into it
-            self._news.clear()  # before reading: news after this wakes the next round
-            due = time.monotonic() + DOCUMENT_S
-            status = self.status()
-            doc = json.dumps(status, allow_nan=False, separators=(",", ":")).encode()
-            news = _shown(status)
-            changed = news != shown  # streams get a document when what a page shows changed, not its clock alone
-            self._version += changed
-            self._doc = (self._version, doc)  # one tuple assigned: a plain GET always gets the latest
-            shown = news
-            if changed:
-                for tell in self._subscribers:
-                    tell()
-
     def status(self) -> dict[str, Any]:
         """The ``/api/status`` document: tree, task, guards, events."""
-        snap = self._latest
+        tick = self.latest
         events = [form for _, _, form in list(self._events)[-STATUS_EVENTS:]]
-        if snap is None:
+        if tick is None:
             return {"tree": None, "task": None, "guards": [], "events": events}
-        return {"t": snap.t, "seq": snap.seq, "tree": tree_document(snap), "task": task_document(snap, events),
-                "guards": [guard_document(g) for g in snap.guards], "events": events}
-
-
-def _shown(status: dict[str, Any]) -> dict[str, Any]:
-    """``status`` without what changes with the clock alone (the page counts a stop's duration itself)."""
-    task = status.get("task")
-    return {**status, "t": None, "seq": None, "task": {**task, "for_s": None} if task else task}
+        root = _with_status(tick.layout.tree, tick.codes)
+        return {"t": tick.t, "seq": tick.seq, "tree": {"main": tick.layout.main_id, "status": root["status"],
+                                                       "root": root},
+                "task": task_document(tick, events), "guards": [guard_document(g) for g in tick.guards],
+                "events": events}
 
 
 def _number(x: float | None) -> float | None:
     return x if isinstance(x, (int, float)) and math.isfinite(x) else None
 
 
-def tree_document(snap: TickSnapshot) -> dict[str, Any]:
-    """The tree with each node's status: ``{"main", "status", "root": {uid, type, name, status, children}}``."""
-    root = _with_status(snap.layout.tree, snap.codes)
-    return {"main": snap.layout.main_id, "status": root["status"], "root": root}
-
-
-def _with_status(node: dict[str, Any], codes: tuple[int, ...]) -> dict[str, Any]:
-    """A copy of the static ``node`` and its children, each with its status (the static tree stays as it is)."""
-    out = {**node, "status": status_name(codes[node["uid"] - 1])}
+def _with_status(node: dict[str, Any], codes: bytes) -> dict[str, Any]:
+    """A copy of the static ``node`` and its children, each with its status (``IDLE`` for an idle-after code)."""
+    code = codes[node["uid"] - 1]
+    out = {**node, "status": STATUS_NAMES[code] if code < len(STATUS_NAMES) else "IDLE"}
     out["children"] = [_with_status(child, codes) for child in node["children"]]
     return out
 
 
-def task_document(snap: TickSnapshot, events: list[dict[str, Any]]) -> dict[str, Any]:
-    """State, since when, stopped by which guard and why, what holds it, confirmation / escalation."""
-    task = snap.task
-    stopped = task.state == "stopped"
-    since = task.since if stopped else None
+def task_document(tick: Tick, events: list[dict[str, Any]]) -> dict[str, Any]:
+    """State, since when, stopped by which guard and why, what holds it (a stale source, a bus down, an overrun),
+    the guard nodes failing now, confirmation / escalation."""
+    state, since, reason, stops, holding, failing, stopped_by = tick.task  # as the daemon's Monitor takes it
+    stopped = state == "stopped"
+    since = since if stopped else None
     confirmation = None
     if since is not None:
-        confirmation = "pending" if snap.confirm else None
+        confirmation = "pending" if tick.confirm else None
         for ev in events:
             if ev.get("event") in ("confirmed", "escalate") and (ev.get("t") or 0) >= since - 1e-6:
                 confirmation = "confirmed" if ev["event"] == "confirmed" else "escalated"
-    return {"state": task.state, "since": _number(since), "for_s": None if since is None else _number(snap.t - since),
-            "reason": task.reason if stopped else "", "guards": list(task.stopped_by) if stopped else [],
-            "failing": list(task.failing), "holding": [{"key": k, "reason": r} for k, r in task.holding],
-            "stops": task.stops, "confirmation": confirmation}
+    return {"state": state, "since": _number(since), "for_s": None if since is None else _number(tick.t - since),
+            "reason": reason if stopped else "", "guards": list(stopped_by) if stopped else [],
+            "failing": list(failing), "holding": [{"key": k, "reason": r} for k, r in holding],
+            "stops": stops, "confirmation": confirmation}
 
 
-def guard_document(g: Any) -> dict[str, Any]:
+def guard_document(guard: tuple[Any, ...]) -> dict[str, Any]:
     """One guard: name, source, value, unit, threshold, margin, status, role, kind, heat and reason."""
+    name, role, kind, source, value, unit, threshold, heat_pct, status, reason = guard  # as the Monitor reads it
     return {
-        "name": g.name, "source": g.source, "value": _number(g.value), "unit": g.unit,
-        "threshold": _number(g.threshold), "margin": _number(g.threshold - g.value), "status": g.status,
-        "role": g.role, "kind": g.kind, "heat_pct": _number(g.heat_pct), "reason": g.reason,
+        "name": name, "source": source, "value": _number(value), "unit": unit, "threshold": _number(threshold),
+        "margin": _number(threshold - value), "status": status, "role": role, "kind": kind,
+        "heat_pct": _number(heat_pct), "reason": reason,
     }

@@ -38,7 +38,8 @@ class TreeLayout:
 
     def __init__(self, loaded: LoadedTree, context: Any = None) -> None:
         self._loaded = loaded
-        self._sources = _SourceAttrs()
+        self._files: dict[Path, dict[int, list[tuple[str, dict[str, str]]]]] = {}
+        """Per tree file, its elements (tag, attributes) by the line they start at (the loader keeps each node's)."""
         self._paths: list[str] = []
         self.behaviours: list[py_trees.behaviour.Behaviour] = []
         """Whose status each UID shows, in UID order (what a snapshot reads per tick)."""
@@ -66,7 +67,7 @@ class TreeLayout:
             return {"uid": uid, "type": "SubTree", "name": path.rsplit("/", 1)[-1], "subtree": info.tree,
                     "children": [self._place(behaviour, info.tree, inner)]}
         node_id = info.node_id if info is not None else type(behaviour).__name__
-        attrs = self._sources.attrs(info.file, info.line, node_id) if info is not None else {}
+        attrs = self._attrs(info.file, info.line, node_id) if info is not None else {}
         name = attrs.get("name", node_id)  # as in the file: BT.CPP's name, not the page's unique one
         elem = ET.SubElement(parent, node_id, {"name": name, "_uid": str(uid),
                                                **{k: v for k, v in attrs.items() if k not in ("ID", "name")}})
@@ -74,32 +75,27 @@ class TreeLayout:
                 "children": [self._place(child, tree_id, elem) for child in behaviour.children]}
 
 
-class _SourceAttrs:
-    """The attributes of the elements of a tree file, found by line (the loader keeps each node's line)."""
-
-    def __init__(self) -> None:
-        self._files: dict[Path, dict[int, list[tuple[str, dict[str, str]]]]] = {}
-
-    def attrs(self, path: Path, line: int, node_id: str) -> dict[str, str]:
+    def _attrs(self, path: Path, line: int, node_id: str) -> dict[str, str]:
         """The attributes of the element for ``node_id`` that starts at ``line`` of ``path`` ({} if unknown)."""
-        elements = self._read(path).get(line, [])
+        if path not in self._files:
+            self._files[path] = _elements(path)
+        elements = self._files[path].get(line, [])
         for tag, attrs in elements:
             if node_id in (tag, attrs.get("ID")):
                 return attrs
         return dict(elements[0][1]) if elements else {}
 
-    def _read(self, path: Path) -> dict[int, list[tuple[str, dict[str, str]]]]:
-        if path not in self._files:
-            by_line: dict[int, list[tuple[str, dict[str, str]]]] = {}
-            parser = expat.ParserCreate()
 
-            def start(tag: str, attrs: dict[str, str]) -> None:
-                by_line.setdefault(parser.CurrentLineNumber, []).append((tag, attrs))
+def _elements(path: Path) -> dict[int, list[tuple[str, dict[str, str]]]]:
+    by_line: dict[int, list[tuple[str, dict[str, str]]]] = {}
+    parser = expat.ParserCreate()
 
-            parser.StartElementHandler = start
-            try:
-                parser.Parse(path.read_bytes(), True)
-            except (OSError, expat.ExpatError):
-                by_line = {}  # changed on disk since it was loaded: the names and UIDs are still right
-            self._files[path] = by_line
-        return self._files[path]
+    def start(tag: str, attrs: dict[str, str]) -> None:
+        by_line.setdefault(parser.CurrentLineNumber, []).append((tag, attrs))
+
+    parser.StartElementHandler = start
+    try:
+        parser.Parse(path.read_bytes(), True)
+    except (OSError, expat.ExpatError):
+        return {}  # changed on disk since it was loaded: the names and UIDs are still right
+    return by_line

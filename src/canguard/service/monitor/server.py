@@ -1,8 +1,8 @@
 """The monitor process: ``python -m canguard.service.monitor.server FD``, started by the daemon (:class:`.Monitor`).
 
 It reads its settings from the socket ``FD`` (JSON: the token never shows on a command line), starts the servers
-around a :class:`~.hub.Hub`, answers where they listen (or why they cannot), then feeds the hub until the daemon's
-end closes or SIGTERM (SIGINT and SIGHUP are the daemon's), below the daemon's CPU priority (:func:`lower_priority`).
+around a :class:`~.hub.Hub`, answers where they listen (or why they cannot), then feeds the hub until the daemon's end
+closes or SIGTERM (SIGINT and SIGHUP are the daemon's), below the daemon's CPU priority (:func:`lower_priority`).
 """
 
 from __future__ import annotations
@@ -11,84 +11,23 @@ import contextlib
 import json
 import logging
 import os
+import pickle
 import signal
 import socket
 import sys
+from collections.abc import Iterator
 from types import FrameType
 from typing import Any
 
 from canguard.config.monitor import Address, parse_address
 from canguard.errors import ConfigError
-from canguard.service.monitor import wire
+from canguard.service.monitor import END, FRAME_BYTES
 from canguard.service.monitor.hub import Hub
-from canguard.service.monitor.layout import LayoutRecord
-from canguard.service.monitor.snapshot import GuardState, TaskState, TickSnapshot
-
-log = logging.getLogger("canguard.service.monitor")
 
 NICE = 10
 """How much lower than the daemon's this process's CPU priority is: on a busy robot the loop gets the CPU first."""
 FILES = 65536
 """File descriptors this process asks for (up to the hard limit): each client of the page or Groot2 holds one."""
-
-
-class MonitorServer:
-    """The servers of one monitor process and the hub they read, fed from the daemon's socket."""
-
-    def __init__(self, sock: socket.socket, settings: dict[str, Any]) -> None:
-        self.sock = sock
-        self.hub = Hub(ask_blackboard=self._ask_blackboard)
-        self.servers: dict[str, Any] = {}
-        """``http`` and ``groot2``, those served."""
-        self._layout: LayoutRecord | None = None
-        self._guards: tuple[GuardState, ...] = ()
-        try:
-            if settings.get("http"):
-                self.servers["http"] = _web(_address(settings["http"]), self.hub, settings.get("token"))
-            if settings.get("groot2"):
-                self.servers["groot2"] = _groot2(_address(settings["groot2"], port_span=2), self.hub)
-        except BaseException:
-            self.close()
-            raise
-
-    def addresses(self) -> dict[str, Any]:
-        """Where each server listens: ``{"http": [host, port] | None, "groot2": [host, port] | None}``."""
-        return {name: [s.address.host, s.address.port] if (s := self.servers.get(name)) else None
-                for name in ("http", "groot2")}
-
-    def serve(self) -> None:
-        """Start the servers, then feed the hub until the daemon's end closes."""
-        self.hub.start()
-        for server in self.servers.values():
-            server.start()
-        for message in wire.messages(self.sock):
-            self.receive(message)
-
-    def receive(self, message: tuple[Any, ...]) -> None:
-        """One message of the daemon: a tree's layout, or the journal events and latest snapshot of a tick."""
-        if message[0] == "layout":
-            self._layout = message[1]
-            self._guards = ()
-            return
-        _, events, record = message
-        for seq, event in events:
-            self.hub.event(event, seq)
-        if record is not None and self._layout is not None:
-            seq, t, codes, task, guards, confirm, blackboard = record
-            if guards is not None:  # else: as in the last snapshot
-                self._guards = tuple(GuardState(*g) for g in guards)
-            self.hub.put(TickSnapshot(seq, t, self._layout, tuple(codes), TaskState(*task), self._guards, confirm,
-                                      blackboard))
-
-    def _ask_blackboard(self) -> None:
-        with contextlib.suppress(OSError):  # the daemon is busy or gone: no blackboard this time
-            self.sock.send(wire.WANT_BLACKBOARD, socket.MSG_DONTWAIT)
-
-    def close(self) -> None:
-        """Stop every server and thread."""
-        self.hub.close()
-        for server in self.servers.values():
-            server.close()
 
 
 def _address(text: str, port_span: int = 1) -> Address:
@@ -98,27 +37,36 @@ def _address(text: str, port_span: int = 1) -> Address:
     return address
 
 
-def _web(address: Address, hub: Hub, token: str | None) -> Any:
-    from canguard.service.monitor.web import WebMonitor
-
+def servers(settings: dict[str, Any], hub: Hub) -> dict[str, Any]:
+    """The servers ``settings`` ask for (``http``, ``groot2``), listening; :class:`ConfigError` when one cannot."""
+    out: dict[str, Any] = {}
     try:
-        return WebMonitor(address, hub, token)
-    except OSError as exc:
-        raise ConfigError(f"status page on {address}: cannot listen ({exc.strerror or exc})") from exc
+        if settings.get("http"):
+            from canguard.service.monitor.web import WebMonitor
 
-
-def _groot2(address: Address, hub: Hub) -> Any:
-    try:
-        from canguard.service.monitor.groot2 import Groot2Monitor
-    except ModuleNotFoundError as exc:
-        if exc.name != "zmq":
-            raise
-        raise ConfigError(f"Groot2 monitor on {address}: needs pyzmq, which is not installed: "
-                          "pip install 'canguard[monitor]'") from None
-    try:
-        return Groot2Monitor(address, hub)
-    except Exception as exc:  # zmq.ZMQError: address in use, no such interface
-        raise ConfigError(f"Groot2 monitor on {address}: cannot listen ({exc})") from exc
+            address = _address(settings["http"])
+            try:
+                out["http"] = WebMonitor(address, hub, settings.get("token"))
+            except OSError as exc:
+                raise ConfigError(f"status page on {address}: cannot listen ({exc.strerror or exc})") from exc
+        if settings.get("groot2"):
+            address = _address(settings["groot2"], port_span=2)
+            try:
+                from canguard.service.monitor.groot2 import Groot2Monitor
+            except ModuleNotFoundError as exc:
+                if exc.name != "zmq":
+                    raise
+                raise ConfigError(f"Groot2 monitor on {address}: needs pyzmq, which is not installed: "
+                                  "pip install 'canguard[monitor]'") from None
+            try:
+                out["groot2"] = Groot2Monitor(address, hub)
+            except Exception as exc:  # zmq.ZMQError: address in use, no such interface
+                raise ConfigError(f"Groot2 monitor on {address}: cannot listen ({exc})") from exc
+    except BaseException:
+        for server in out.values():
+            server.close()
+        raise
+    return out
 
 
 def lower_priority() -> None:
@@ -143,6 +91,16 @@ def more_descriptors() -> None:
             resource.setrlimit(resource.RLIMIT_NOFILE, (wanted, hard))
 
 
+def messages(sock: socket.socket) -> Iterator[Any]:
+    """The daemon's messages, each put back together from its frames, until the daemon's end closes."""
+    parts: list[bytes] = []
+    while frame := sock.recv(FRAME_BYTES + 64):
+        parts.append(frame[1:])
+        if frame[:1] == END:
+            yield pickle.loads(b"".join(parts))  # only ever from our own daemon, over a private socket pair
+            parts = []
+
+
 def _on_term(_signum: int, _frame: FrameType | None) -> None:
     raise SystemExit(0)
 
@@ -157,17 +115,25 @@ def main(argv: list[str] | None = None) -> int:
     more_descriptors()
     logging.basicConfig(level=logging.WARNING, format="canguard monitor: %(levelname)s %(name)s: %(message)s")
     sock = socket.socket(fileno=int(args[0]))
-    settings = json.loads(sock.recv(65536).decode() or "{}")
+    hub = Hub(sock)
     try:
-        server = MonitorServer(sock, settings)
-    except ConfigError as exc:
-        sock.send(json.dumps({"error": str(exc)}).encode())  # the one answer at start: ready, or why not
-        return 2
-    try:
-        sock.send(json.dumps({"ready": server.addresses()}).encode())
-        server.serve()
+        try:
+            serving = servers(json.loads(sock.recv(65536).decode() or "{}"), hub)
+        except ConfigError as exc:
+            sock.send(json.dumps({"error": str(exc)}).encode())  # the one answer at start: ready, or why not
+            return 2
+        ready = {name: [s.address.host, s.address.port] if (s := serving.get(name)) else None
+                 for name in ("http", "groot2")}
+        sock.send(json.dumps({"ready": ready}).encode())
+        try:
+            for server in serving.values():
+                server.start()
+            for message in messages(sock):
+                hub.receive(message)
+        finally:
+            for server in serving.values():
+                server.close()
     finally:
-        server.close()
         sock.close()
     return 0
 

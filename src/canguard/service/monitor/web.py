@@ -1,7 +1,7 @@
 """The status page and its API: one asyncio event loop, in a thread of its own, serves every connection.
 
 ``GET /``, ``GET /api/status`` (or its stream), ``GET /api/events``, read-only, with an optional bearer token; what
-it grants clients that misbehave (:class:`Limits`) and how it logs them (:class:`.notes.ClientNotes`):
+it grants clients that misbehave (:class:`Limits`) and how it logs them (:class:`.hub.ClientNotes`):
 docs/monitor.md.
 """
 
@@ -14,6 +14,7 @@ import email.utils
 import hmac
 import json
 import logging
+import math
 import re
 import resource
 import socket
@@ -27,8 +28,7 @@ from urllib.parse import parse_qs, urlsplit
 
 from canguard.config.monitor import Address
 from canguard.data import data_path
-from canguard.service.monitor.hub import Hub
-from canguard.service.monitor.notes import ClientNotes
+from canguard.service.monitor.hub import ClientNotes, Hub
 
 log = logging.getLogger(__name__)
 T = TypeVar("T")
@@ -38,6 +38,9 @@ HEAD_BYTES = 16 * 1024
 _HEAD_END = re.compile(rb"\r?\n\r?\n")
 _LINE = re.compile(r"\r?\n")
 _TEXT = "text/plain; charset=utf-8"
+DOCUMENT_S = 0.125
+"""Shortest time between two status documents (a browser spends ~5 ms drawing each): a change still reaches a
+page within 200 ms."""
 _PAGE_HEADERS = {"Content-Security-Policy": "default-src 'none'; script-src 'unsafe-inline'; "
                                             "style-src 'unsafe-inline'; connect-src 'self'; img-src data:"}
 
@@ -100,46 +103,33 @@ def _head(code: int, headers: dict[str, str]) -> bytes:
     return ("\r\n".join(lines) + "\r\n\r\n").encode("latin-1")
 
 
-def _task(step: Awaitable[T]) -> asyncio.Future[T]:
-    """``step`` as a task whose exception is always read, whoever awaits it (none is logged "never retrieved")."""
-    task = asyncio.ensure_future(step)
-    task.add_done_callback(lambda t: t.cancelled() or t.exception())
-    return task
-
-
-async def _within(step: Awaitable[T], timeout_s: float) -> T:
-    """``await step``, cancelled with asyncio.TimeoutError after ``timeout_s``.
+async def _first(*steps: Awaitable[T], timeout_s: float | None = None) -> T:
+    """Run ``steps`` together until the first ends (its result returned, its exception raised), the others
+    cancelled; asyncio.TimeoutError when none ended within ``timeout_s``.
 
     Not ``asyncio.wait_for``: when it is cancelled just as its step fails (a drain woken by a reset), that
-    step's exception is left unread, and asyncio logs it.
+    step's exception is left unread, and asyncio logs it; here each task's exception is read, whoever awaits it.
     """
-    task = _task(step)
+    tasks = [asyncio.ensure_future(step) for step in steps]
+    for task in tasks:
+        task.add_done_callback(lambda t: t.cancelled() or t.exception())
     try:
-        done, _ = await asyncio.wait((task,), timeout=max(0.0, timeout_s))
+        done, _ = await asyncio.wait(tasks, timeout=timeout_s, return_when=asyncio.FIRST_COMPLETED)
     finally:
-        task.cancel()
+        for task in tasks:
+            task.cancel()
     if not done:
         raise asyncio.TimeoutError
-    return task.result()
+    errors = [error for task in done if (error := task.exception())]
+    if errors:
+        raise errors[0]
+    return done.pop().result()
 
 
 async def _until_closed(reader: asyncio.StreamReader) -> None:
     """Return when the client closed its end; ConnectionResetError when it reset it. What it sends is ignored."""
     while await reader.read(4096):
         pass
-
-
-async def _until_first(*steps: Awaitable[None]) -> None:
-    """Run ``steps`` together until the first ends (its exception raised), the others cancelled."""
-    tasks = [_task(step) for step in steps]
-    try:
-        done, _ = await asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED)
-    finally:
-        for task in tasks:
-            task.cancel()
-    errors = [error for task in done if (error := task.exception())]  # each one read: none left "never retrieved"
-    if errors:
-        raise errors[0]
 
 
 class WebMonitor:
@@ -159,6 +149,11 @@ class WebMonitor:
         self.notes = ClientNotes(log, "status page")
         self.changed = asyncio.Event()
         """Set and replaced on each new status document: every waiting stream wakes."""
+        self.document = (0, json.dumps(hub.status()).encode())
+        """(version, ``/api/status`` JSON): the latest, its version bumped when more than its time changed."""
+        self._shown: dict[str, Any] | None = None
+        self._due = -math.inf
+        self._rendering = False
         self.open = 0
         self.waiting: dict[asyncio.StreamWriter, None] = {}
         """Connections reading a request head or lingering after their answer, oldest first: the first to go."""
@@ -173,7 +168,7 @@ class WebMonitor:
         self._ready = threading.Event()
         self._thread = threading.Thread(target=asyncio.run, args=(self._main(),), name="canguard-monitor-http",
                                         daemon=True)
-        hub.subscribe(self._news)
+        hub.on_news = self._news
 
     def start(self) -> None:
         """Serve in a thread of its own (listening already: connections wait in the backlog meanwhile)."""
@@ -190,11 +185,33 @@ class WebMonitor:
         self._sock.close()
 
     def _news(self) -> None:
-        """The hub's dispatcher thread: a new status document (wakes the streams in the loop's thread)."""
+        """The hub's receiving thread: news for the next status document (made in the loop's thread)."""
         loop = self._loop
         if loop is not None:
             with contextlib.suppress(RuntimeError):  # the loop is closing
-                loop.call_soon_threadsafe(self.change)
+                loop.call_soon_threadsafe(self._schedule)
+
+    def _schedule(self) -> None:
+        """Make the next document at once, or :data:`DOCUMENT_S` after the last: what comes meanwhile goes in it."""
+        if not self._rendering and self._loop is not None:
+            self._rendering = True
+            self._loop.call_at(max(self._loop.time(), self._due), self._render)
+
+    def _render(self) -> None:
+        """One status document for every client; the streams wake when what a page shows changed, not the
+        clock alone (the page counts a stop's duration itself)."""
+        self._rendering = False
+        self._due = asyncio.get_running_loop().time() + DOCUMENT_S
+        status = self.hub.status()
+        doc = json.dumps(status, allow_nan=False, separators=(",", ":")).encode()
+        task = status.get("task")
+        shown = {**status, "t": None, "seq": None, "task": {**task, "for_s": None} if task else task}
+        changed = shown != self._shown
+        self._shown = shown
+        self.document = (self.document[0] + changed, doc)
+        if changed:  # every waiting stream wakes
+            self.changed.set()
+            self.changed = asyncio.Event()
 
     async def _main(self) -> None:
         loop = asyncio.get_running_loop()
@@ -203,6 +220,7 @@ class WebMonitor:
         server = await asyncio.start_server(self.connection, sock=self._sock, backlog=self.limits.backlog,
                                             limit=HEAD_BYTES + 4)
         self._loop = loop
+        self._schedule()
         self._ready.set()
         try:
             await self._stopping.wait()
@@ -214,9 +232,23 @@ class WebMonitor:
         self.open += 1
         peer = writer.get_extra_info("peername")
         address = str(peer[0]) if peer else "?"
+        buffered = bytearray()  # what came of the next request's head
+        first = True
         try:
-            if self._admit():
-                await self._serve(reader, writer, address)
+            if not self._admit():
+                return
+            while True:
+                self.waiting[writer] = None  # reading a request head: the first to go when every place is taken
+                try:
+                    head = await self._read_head(reader, buffered, first)
+                finally:
+                    self.waiting.pop(writer, None)
+                if head is None:
+                    return
+                first = False
+                if not await self._respond(_parse(head), reader, writer, address):
+                    await self._close(reader, writer)
+                    return
         except _Refused as refused:
             self.notes.note(refused.cause)
             with contextlib.suppress(OSError, asyncio.TimeoutError):
@@ -247,23 +279,6 @@ class WebMonitor:
                         "for a new one")
         return True
 
-    async def _serve(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter, address: str) -> None:
-        buffered = bytearray()
-        first = True
-        while True:
-            self.waiting[writer] = None
-            try:
-                head = await self._read_head(reader, buffered, first)
-            finally:
-                self.waiting.pop(writer, None)
-            if head is None:
-                return
-            first = False
-            request = _parse(head)
-            if not await self._respond(request, reader, writer, address):
-                await self._close(reader, writer)
-                return
-
     async def _read_head(self, reader: asyncio.StreamReader, buffered: bytearray, first: bool) -> bytes | None:
         """The next request's head; None when the client closed, or did not send it whole in time."""
         loop = asyncio.get_running_loop()
@@ -273,7 +288,7 @@ class WebMonitor:
                 raise _Refused(431, "request head too large\n", f"a request head over {HEAD_BYTES} bytes "
                                "(answered 431)")
             try:
-                chunk = await _within(reader.read(HEAD_BYTES + 4), deadline - loop.time())
+                chunk = await _first(reader.read(HEAD_BYTES + 4), timeout_s=max(0.0, deadline - loop.time()))
             except asyncio.TimeoutError:
                 if buffered or first:
                     self.notes.note(f"a request not sent whole within {self.limits.request_timeout_s:g} s "
@@ -292,7 +307,7 @@ class WebMonitor:
         self.waiting[writer] = None  # lingering: the first to go when every place is taken
         with contextlib.suppress(OSError, asyncio.TimeoutError):  # it lingers or resets: it is closed all the same
             writer.write_eof()
-            await _within(_until_closed(reader), self.limits.send_timeout_s)
+            await _first(_until_closed(reader), timeout_s=self.limits.send_timeout_s)
 
     async def _respond(self, req: _Request, reader: asyncio.StreamReader, writer: asyncio.StreamWriter,
                        address: str) -> bool:
@@ -307,7 +322,7 @@ class WebMonitor:
         elif req.path in ("/", "/index.html"):
             body, ctype, extra = self.page, "text/html; charset=utf-8", _PAGE_HEADERS
         elif req.path == "/api/status" and "text/event-stream" not in req.headers.get("accept", ""):
-            body, ctype = self.hub.status_document()[1], "application/json"
+            body, ctype = self.document[1], "application/json"
         elif req.path in ("/api/status", "/api/events"):
             await self._stream(req, reader, writer, address)
             return False
@@ -332,7 +347,7 @@ class WebMonitor:
     async def _send(self, writer: asyncio.StreamWriter, data: bytes) -> None:
         """Write; asyncio.TimeoutError when the client takes none of it for ``send_timeout_s``."""
         writer.write(data)
-        await _within(writer.drain(), self.limits.send_timeout_s)
+        await _first(writer.drain(), timeout_s=self.limits.send_timeout_s)
 
     async def _stream(self, req: _Request, reader: asyncio.StreamReader, writer: asyncio.StreamWriter,
                       address: str) -> None:
@@ -351,48 +366,33 @@ class WebMonitor:
                                                  "Connection": "close"}))
             if req.method == "HEAD":
                 return
-            body = self._status_stream(writer) if req.path == "/api/status" else self._events_stream(writer)
-            await _until_first(body, _until_closed(reader))
+            await _first(self._stream_data(writer, req.path == "/api/status"), _until_closed(reader))
         finally:
             self.streams[address] -= 1
             if not self.streams[address]:
                 del self.streams[address]
 
-    async def _status_stream(self, writer: asyncio.StreamWriter) -> None:
-        sent = -1
+    async def _stream_data(self, writer: asyncio.StreamWriter, status: bool) -> None:
+        """Each new status document (``status``), else each journal event as it comes; a keep-alive comment when
+        nothing came for ``keepalive_s``."""
+        sent, cursor = -1, 0
         while True:
-            version, doc = self.hub.status_document()
-            if version != sent:
-                await self._send(writer, b"event: status\ndata: " + doc + b"\n\n")
-                sent = version
-            elif not await self._next_change():
-                await self._send(writer, b": keep-alive\n\n")
-
-    async def _events_stream(self, writer: asyncio.StreamWriter) -> None:
-        cursor = 0
-        while True:
-            events, lost = self.hub.events_after(cursor)
-            out = [b"event: lost\ndata: " + json.dumps({"events": lost}).encode() + b"\n\n"] if lost else []
-            for seq, line in events:
-                out.append(b"id: %d\ndata: " % seq + line.rstrip(b"\n") + b"\n\n")
-                cursor = seq
+            changed = self.changed  # set by a change from now on, while this stream writes too
+            out = []
+            if status and self.document[0] != sent:
+                sent, doc = self.document
+                out.append(b"event: status\ndata: " + doc + b"\n\n")
+            elif not status:
+                events, lost = self.hub.events_after(cursor)
+                out += [b"event: lost\ndata: " + json.dumps({"events": lost}).encode() + b"\n\n"] if lost else []
+                for cursor, line in events:
+                    out.append(b"id: %d\ndata: " % cursor + line.rstrip(b"\n") + b"\n\n")
             if out:
                 await self._send(writer, b"".join(out))
-            if not await self._next_change():
+            try:
+                await _first(changed.wait(), timeout_s=self.limits.keepalive_s)
+            except asyncio.TimeoutError:
                 await self._send(writer, b": keep-alive\n\n")
-
-    async def _next_change(self) -> bool:
-        """Wait for the next status document; False when none came within ``keepalive_s``."""
-        try:
-            await _within(self.changed.wait(), self.limits.keepalive_s)
-        except asyncio.TimeoutError:
-            return False
-        return True
-
-    def change(self) -> None:
-        """A new status document (in the loop's thread): wake every stream waiting."""
-        self.changed.set()
-        self.changed = asyncio.Event()
 
     def on_loop_error(self, _loop: asyncio.AbstractEventLoop, context: dict[str, Any]) -> None:
         """What the loop itself could not do (an accept out of descriptors): one line per cause, no traceback."""
