@@ -31,9 +31,8 @@ class EmitStop(CanguardNode, py_trees.behaviour.Behaviour):
     """send the config's stop frames once"""
 
     def update(self) -> py_trees.common.Status:
-        frames = self.ctx.stop_frames
-        if frames:
-            self.ctx.sink.send(frames, origin=self.name)
+        if self.ctx.stop_frames:
+            self.ctx.sink.send(self.ctx.stop_frames, origin=self.name)
         return SUCCESS
 
 

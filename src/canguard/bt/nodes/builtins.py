@@ -164,9 +164,7 @@ class Sleep(CanguardNode, py_trees.behaviour.Behaviour):
             self.wake_up.arm(self, self.until)
 
     def update(self) -> py_trees.common.Status:
-        if self.until is None or self.ctx.clock.now() >= self.until:
-            return SUCCESS
-        return RUNNING
+        return SUCCESS if self.until is None or self.ctx.clock.now() >= self.until else RUNNING
 
     def terminate(self, new_status: py_trees.common.Status) -> None:
         self.until = None if new_status == INVALID else self.until

@@ -307,12 +307,10 @@ class IsJointEffortNormal(GuardNode):
     failed_joint = ""  # the first failing joint, named by the feedback
 
     def _build(self, source: SourceConfig) -> None:
-        limit = self.port("max_effort")
-        self.models: list[tuple[str, Threshold]] = []
-        for role in source.value_roles:
-            model = Threshold(limit)
+        self.models: list[tuple[str, Threshold]] = [(role, Threshold(self.port("max_effort")))
+                                                    for role in source.value_roles]
+        for role, model in self.models:
             self.ctx.subscribe(source.name, role, model)
-            self.models.append((role, model))
 
     def guarded(self) -> list[tuple[str, ProtectionModel, str]]:
         """One ``(joint, model, "threshold")`` per joint."""

@@ -125,9 +125,8 @@ class IsElapsedSinceEvent(CanguardNode, py_trees.behaviour.Behaviour):
             self.feedback_message = f"no event time yet {self._bad_port}".rstrip()
             return FAILURE
         elapsed = self.ctx.clock.now() - event
-        ok = lo <= elapsed <= hi
         self.feedback_message = f"{elapsed:.3f} s since the event, window [{lo:g}, {hi:g}]"
-        return SUCCESS if ok else FAILURE
+        return SUCCESS if lo <= elapsed <= hi else FAILURE
 
 
 class IsCooldownElapsed(CanguardNode, py_trees.behaviour.Behaviour):
