@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable, Generator, Iterable, Iterator, Mapping
+from contextlib import suppress
 from typing import TYPE_CHECKING, Any, ClassVar, Literal, TypeVar
 
 import py_trees
@@ -234,15 +235,10 @@ class CanguardNode(PortsMixin, register=False):
             key = self._get_blackboard_key(port)
             last = key.rsplit("/", 1)[-1]  # {@key}: the root's entry from any depth (py_trees gives /Sub/@key)
             self._keys[port] = "/" + last[1:] if last.startswith("@") else key
-        static: dict[str, Any] = {}
-        for name in self.input_ports():
-            if name in self._dynamic:
-                continue
-            try:
-                static[name] = self.get_input(name)
-            except NoDataAvailable:
-                continue  # optional port left out: reads give None
-        self._static = static
+        self._static = {}
+        for name in self.input_ports().keys() - self._dynamic:
+            with suppress(NoDataAvailable):  # an optional port left out: reads give None
+                self._static[name] = self.get_input(name)
 
     def is_wired(self, name: str) -> bool:
         """True when the port was given in the XML as a ``{key}`` (input) or at all (output)."""
