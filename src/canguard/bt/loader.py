@@ -269,8 +269,7 @@ class _Load:
         self.errors: list[str] = []  # every problem found so far: one load reports them all
         self.broken_trees: set[str] = set()  # rewrite failed: not validated further (no follow-on errors)
         self.source_check: Literal["with_others", "always", "never"] = "with_others"
-        """When guards' sources are checked: with other problems (binding checks them otherwise), always
-        (a tree checked without binding), or never (the sources are unknown)."""
+        """When guards' sources are checked: with other problems (else binding does), always, or never (unknown)."""
         self.unsure_sources: Collection[str] = ()  # declared by a config that could not build them
         self.unbound: list[str] = []  # why each palette-declared node nothing implements cannot run
         self.entry_types: dict[str, type] = {}  # typed entries (filled by _check_entry_types)
@@ -288,8 +287,6 @@ class _Load:
             node += f' "{name}"'
         where = f"node {node}" + (f" (BehaviorTree {tree})" if tree else "") + (f", port {port}" if port else "")
         return TreeError(f"{self.at(elem)}: {where}: {msg}")
-
-    # -- reading and rewriting -----------------------------------------------------------------------------
 
     def _document(self, path: Path) -> ET.Element:
         """The ``<root>`` element of the file ``path`` (its elements' lines recorded)."""
@@ -444,8 +441,6 @@ class _Load:
             known = ", ".join(_closest(chosen, self.trees))
             raise TreeError(f"{self.path}: no BehaviorTree with ID {quote(chosen)}; trees in the file: {known}")
         return chosen
-
-    # -- checking --------------------------------------------------------------------------------------------
 
     def check(self) -> None:
         """Check every node of every tree against the registry, collecting every problem."""
@@ -608,8 +603,6 @@ class _Load:
                 visit(target, [*stack, target])
 
         visit(main_id, [main_id])
-
-    # -- building --------------------------------------------------------------------------------------------
 
     def build(self, main_id: str) -> LoadedTree:
         """The tree ``main_id`` built by py_trees' parser, its nodes named, given their scopes and bound."""
