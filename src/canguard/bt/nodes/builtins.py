@@ -335,13 +335,11 @@ class ParallelAll(CanguardNode, py_trees.composites.Composite):
         super().__init__(name=name, children=children, **kwargs)
         self.finished: dict[int, py_trees.common.Status] = {}
 
-    def threshold(self) -> int:
-        return count_of(self, "max_failures", 1)
-
     def bind(self) -> None:
-        if not self.is_wired("max_failures") and self.threshold() > len(self.children):
-            raise PortError("max_failures", f"{self.threshold()} failures needed but only "
-                                            f"{len(self.children)} children: can never fail")
+        needed = count_of(self, "max_failures", 1)
+        if not self.is_wired("max_failures") and needed > len(self.children):
+            raise PortError("max_failures", f"{needed} failures needed but only {len(self.children)} children: can "
+                                            "never fail")
 
     def tick(self) -> Any:
         if self.status != RUNNING:
@@ -363,7 +361,7 @@ class ParallelAll(CanguardNode, py_trees.composites.Composite):
             return
         failures = sum(1 for s in self.finished.values() if s == FAILURE)
         self.finished.clear()
-        yield end_as(self, FAILURE if failures >= self.threshold() else SUCCESS)
+        yield end_as(self, FAILURE if failures >= count_of(self, "max_failures", 1) else SUCCESS)
 
     def stop(self, new_status: py_trees.common.Status = INVALID) -> None:
         halt_running(self.children)
