@@ -23,10 +23,6 @@ class WakeUpSignal:
         self._timers: dict[int, float] = {}
         self.capped = False  # consecutive ticks hit the bound: only the first is journalled
 
-    def emit(self) -> None:
-        """Set the latch (BT.CPP's ``emitWakeUpSignal``)."""
-        self.pending = True
-
     def arm(self, owner: object, deadline: float) -> None:
         """A timer of ``owner`` that emits the signal at ``deadline`` (the engine's clock, s)."""
         self._timers[id(owner)] = deadline

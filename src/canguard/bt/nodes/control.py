@@ -137,7 +137,7 @@ class _Cycles(DecoratorNode):
                 break
             if fresh and (self.count < limit or limit == -1):
                 self.feedback_message = self.AGAIN_TEXT.format(self.count)
-                self.wake_up.emit()
+                self.wake_up.pending = True  # BT.CPP's emitWakeUpSignal
                 yield end_as(self, RUNNING)
                 return
         if self.DONE_TEXT:
@@ -277,7 +277,7 @@ class _Ordered(CanguardNode, py_trees.composites.Composite):
                 return
             self.index += 1
             if self.ASYNC and before == INVALID and self.index < n:
-                self.wake_up.emit()
+                self.wake_up.pending = True  # BT.CPP's emitWakeUpSignal
                 yield end_as(self, RUNNING)
                 return
         all_skipped = self.skipped_count == n
