@@ -1,12 +1,8 @@
 """DBC files as teams and vendors export them: loaded as cantools loads them without strict checks.
 
-A pre-pass blanks (keeping line numbers) what cantools refuses even when not strict: Vector's
-``VECTOR__INDEPENDENT_SIG_MSG`` and statements of a message or signal the file does not define (each a
-note). Then every message is checked as strict mode would: overlapping signals (outside exclusive
-multiplexer pages), signals that do not fit, and what they multiplex are taken out of their message.
-Each is a :class:`SignalProblem`: an error where the config reads an involved signal, a note otherwise.
-
-:class:`Messages` is what a config names from them (and from its ``canopen:`` drives).
+A pre-pass blanks what cantools refuses even when not strict (Vector's ``VECTOR__INDEPENDENT_SIG_MSG``, statements
+of a message or signal the file does not define), keeping line numbers. Signals strict mode would refuse (overlapping,
+not fitting, multiplexed by one of those) leave their message: an error where the config reads one, else a note.
 """
 
 from __future__ import annotations
@@ -65,8 +61,7 @@ _NAMING = tuple(t.split() for t in (
 """The statements that may name a message the file does not define (cantools refuses them): ``#`` its DBC id,
 ``S`` a signal, ``"`` a string, ``*`` any word. (cantools ignores a ``BU_SG_REL_`` of an undefined message.)"""
 _STATEMENTS = frozenset(t[0] for t in _NAMING)
-_WORDS_NAMING = max(len(t) for t in _NAMING)
-"""A statement names its message (and signal) within this many words (``BA_ "a" SG_ 5 s``)."""
+_WORDS_NAMING = max(len(t) for t in _NAMING)  # the words that name a message and signal (``BA_ "a" SG_ 5 s``)
 
 
 def _fits(pattern: str, word: str) -> bool:
@@ -230,10 +225,8 @@ class _MessageCheck:
         self.lines = lines
         self.taken: set[int] = set()
         self.problems: list[SignalProblem] = []
-        self.broken: set[int] = set()
-        """``id()`` of each signal taken out."""
-        self.pages: list[SignalProblem] = []
-        """Multiplexer values that select only signals taken out (frames on them do not decode)."""
+        self.broken: set[int] = set()  # id() of each signal taken out
+        self.pages: list[SignalProblem] = []  # multiplexer values that select only signals taken out
 
     def line(self, signal: Any) -> int:
         """The line of ``signal``'s ``SG_`` line (0 when the format has no lines)."""
@@ -325,19 +318,14 @@ class DbcFile:
     """One loaded database file: cantools' database with its unsound signals taken out, and what was found."""
 
     database: Any
-    notes: list[str]
-    """What the pre-pass skipped, one ``file:line: ...`` each."""
+    notes: list[str]  # what the pre-pass skipped
     problems: list[SignalProblem]
-    dropped: dict[str, list[Any]]
-    """Per message name: the signals taken out of it."""
+    dropped: dict[str, list[Any]]  # per message name: the signals taken out of it
     pages: list[SignalProblem]
 
 
 def load_dbc_file(path: Path) -> DbcFile:
-    """Load a database file as cantools does without strict checks, then check every message strictly.
-
-    Only a ``.dbc`` file has the pre-pass and lines; raises what cantools raises.
-    """
+    """Load a database file as cantools does without strict checks (a ``.dbc`` after the pre-pass), then check it."""
     shown = str(path)
     if path.suffix.lower() == ".dbc":
         # cantools reads a DBC as cp1252, a byte it cannot decode replaced
@@ -364,15 +352,11 @@ def load_dbc_file(path: Path) -> DbcFile:
     return DbcFile(db, notes, problems, dropped, pages)
 
 
-_SNIFF_BYTES = 4096
-"""How much of a DBC that does not load is looked at to tell binary data from a text with a syntax error."""
-
-
 def _not_loaded(path: Path, exc: Exception) -> str:
     """Why a DBC file did not load, printable and short: binary data is named as such, not echoed."""
     try:
         with path.open("rb") as f:
-            head = f.read(_SNIFF_BYTES)
+            head = f.read(4096)
     except OSError as err:
         return f"cannot be read ({err.strerror or err})"
     text = head.decode("utf-8", errors="replace")
@@ -391,13 +375,10 @@ class Messages:
         self.problem = checks.problem
         self.database: Any = None
         self.dbcs: list[DbcFile] = []
-        """What each DBC file gets wrong: errors where the config reads it, notes elsewhere."""
-        self.ok = False
-        """Whether the DBC files loaded (else no message is looked up: their problems are recorded)."""
+        self.ok = False  # the DBC files loaded (else no message is looked up: their problems are recorded)
         self.by_name: dict[str, Any] = {}
         self._by_id: dict[int, list[Any]] = {}
         self.canopen: CanopenSection | None = None
-        """The ``canopen:`` drives, when the config has any."""
 
     def load_dbc(self, value: Any) -> tuple[Path, ...]:
         """Load ``dbc:`` (one path or a list): a problem for each file that does not load, and for clashes."""
@@ -545,8 +526,7 @@ class Messages:
         return None
 
     def read_signal(self, message: Any, value: Any, key: str) -> Any:
-        """:meth:`signal`, for a source to read: None after a problem, also when some of the message's frames do
-        not decode (a multiplexer page of only signals the DBC gets wrong)."""
+        """:meth:`signal`, for a source to read: also a problem when some of the message's frames do not decode."""
         sig = self.signal(message, value, key)
         lost = self.lost_pages(message.name) if sig is not None else []
         if lost:

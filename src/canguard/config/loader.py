@@ -1,7 +1,4 @@
-"""YAML config -> frozen dataclasses, validated once.
-
-The dataclasses are :mod:`.schema`'s; every problem of a file comes in one :class:`ConfigError`.
-"""
+"""YAML config -> frozen dataclasses, validated once."""
 
 from __future__ import annotations
 
@@ -74,8 +71,7 @@ def _config(c: Checks, path: Path, doc: Any) -> Config:
 def load_config_text(text: str, path: str | Path) -> Config:
     """Validate config ``text`` as if read from ``path`` (relative paths resolve against its folder).
 
-    Raises :class:`ConfigError` listing every problem, each as
-    ``"{file}: {key.path}: found ..., expected ..."``; YAML syntax errors as ``"{file}:{line}: ..."``.
+    Raises :class:`ConfigError` listing every problem, each ``"{file}:{line}: {key.path}: found ..., expected ..."``.
     """
     display = str(path)
     p = Path(path).expanduser().absolute()

@@ -11,8 +11,7 @@ from canguard.config.schema import MonitorConfig
 from canguard.config.yamlsrc import Checks, _found
 from canguard.errors import ConfigError
 
-LOOPBACK = "127.0.0.1"
-"""Where a monitor given only a port listens."""
+LOOPBACK = "127.0.0.1"  # where a monitor given only a port listens
 
 
 @dataclass(frozen=True)
@@ -94,8 +93,7 @@ def read_monitor(c: Checks, value: Any) -> MonitorConfig:
 
 
 def with_overrides(monitor: MonitorConfig, *, http: str | None = None, groot2: str | None = None) -> MonitorConfig:
-    """The config's ``monitor:`` with ``--http`` / ``--groot2`` in place of its addresses; ConfigError naming the
-    flag for a malformed address, or a page open to the network without ``monitor.token``."""
+    """The config's ``monitor:`` with ``--http`` / ``--groot2`` for its addresses; ConfigError naming the flag."""
     found = {"http": monitor.http, "groot2": monitor.groot2}
     given = {"http": http, "groot2": groot2}
     parsed = _addresses(given)

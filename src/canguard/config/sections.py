@@ -1,8 +1,5 @@
 """The config's sections besides ``dbc:``, ``canopen:`` and ``monitor:``: buses, sources, tree, task, stop, actions,
-state, and the frames they send.
-
-A frame is encoded once, checked against the DBC.
-"""
+state, and the frames they send."""
 
 from __future__ import annotations
 
