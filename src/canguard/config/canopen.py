@@ -76,11 +76,7 @@ class _Section:
     line: int
     keys: dict[str, int]  # key as written -> its first line
     again: list[int]  # lines of keys written again
-
-    @property
-    def is_object(self) -> bool:
-        """True for a section of the object dictionary (``[6077]``, ``[1A00sub1]``, ``[1003Name]``...)."""
-        return _OBJECT_SECTION.fullmatch(self.name) is not None
+    is_object: bool  # a section of the object dictionary ([6077], [1A00sub1], [1003Name]...)
 
 
 def _scan(text: str) -> tuple[list[_Section], list[str]]:
@@ -92,7 +88,8 @@ def _scan(text: str) -> tuple[list[_Section], list[str]]:
         if not s or s[0] in ";#":
             continue
         if s.startswith("[") and "]" in s:
-            sections.append(_Section(s[1:s.index("]")].strip(), no, {}, []))
+            name = s[1:s.index("]")].strip()
+            sections.append(_Section(name, no, {}, [], _OBJECT_SECTION.fullmatch(name) is not None))
         elif sections and "=" in s:
             key = s.split("=", 1)[0].strip()
             if key in sections[-1].keys:
@@ -131,8 +128,11 @@ class Eds:
         source.name = str(path)  # import_od picks the format by the name's suffix
         try:
             self.od: Any = import_od(source, node)
-        except Exception as exc:  # configparser and the canopen library raise many kinds
-            raise EdsError(self._load_error(exc)) from exc
+        except Exception as exc:  # configparser and the canopen library raise many kinds; name the section's line
+            named = re.search(r"section:? '?\[?([0-9A-Za-z_]+)", str(exc))
+            section = getattr(exc, "section", None) or (named.group(1) if named else None)
+            where = self.where_section(str(section)) if section else str(self.path)
+            raise EdsError(f"{where}: does not load as an EDS ({type(exc).__name__}: {exc})") from exc
 
     def _lenient(self, sections: list[_Section], lines: list[str]) -> set[int]:
         """Lines to leave out and notes for deviations outside the object dictionary."""
@@ -175,15 +175,6 @@ class Eds:
             return int(lines[line - 1].split("=", 1)[1].split(";")[0].strip(), 0)
         except (ValueError, IndexError):
             return 0
-
-    def _load_error(self, exc: Exception) -> str:
-        """The library's error, with the file and line of the section it names."""
-        section = getattr(exc, "section", None)
-        if section is None:
-            m = re.search(r"section:? '?\[?([0-9A-Za-z_]+)", str(exc))
-            section = m.group(1) if m else None
-        where = self.where_section(str(section)) if section else str(self.path)
-        return f"{where}: does not load as an EDS ({type(exc).__name__}: {exc})"
 
     def note(self, line: int, what: str, text: str) -> None:
         """Record a tolerated deviation at ``line``."""
@@ -406,7 +397,9 @@ class CanopenDrive:
         for obj in pdo.objects:
             at = (obj.index, obj.subindex)
             value = command if at == (CONTROLWORD, 0) else self.defaults.get(at, 0)
-            payload |= _raw_bits(obj, value) << obj.start_bit
+            raw = (int.from_bytes(struct.pack("<f" if obj.bits == 32 else "<d", float(value)), "little")
+                   if obj.is_float else int(value) & ((1 << obj.bits) - 1))
+            payload |= raw << obj.start_bit
         return pdo, payload.to_bytes(pdo.length, "little")
 
     def describe(self, verbose: bool = False) -> list[str]:
@@ -538,14 +531,6 @@ def override(eds: Eds, pdo: Pdo, objects: list[tuple[int, int | None]]) -> Pdo:
     return Pdo(name=pdo.name, cob_id=pdo.cob_id, objects=tuple(out), enabled=True, overridden=True)
 
 
-def _raw_bits(obj: MappedObject, value: int | float) -> int:
-    """``value`` as the unsigned bits ``obj`` occupies."""
-    if obj.is_float:
-        fmt = "<f" if obj.bits == 32 else "<d"
-        return int.from_bytes(struct.pack(fmt, float(value)), "little")
-    return int(value) & ((1 << obj.bits) - 1)
-
-
 def parse_object(value: Any) -> tuple[int, int | None] | str | None:
     """``object:`` as (index, subindex or None) when it is hex (``0x6077``, ``6077:0``, an int), else its name."""
     if isinstance(value, bool):
@@ -653,11 +638,8 @@ class CanopenSection:
         """``configure: true``: the heartbeat, then each ``pdo:`` override's mapping, COB-ID and event timer."""
         period_s = self.checks.seconds(body, "tpdo_period", key, DEFAULT_TPDO_PERIOD_S)
         period_ms = max(1, min(0xFFFF, round(period_s * 1000)))
-        writes = [heartbeat_write(heartbeat_s)]
-        for pdo in tpdos:
-            if pdo.overridden:
-                writes += pdo_writes(eds, pdo, period_ms)
-        return tuple(writes)
+        writes = [w for pdo in tpdos if pdo.overridden for w in pdo_writes(eds, pdo, period_ms)]
+        return (heartbeat_write(heartbeat_s), *writes)
 
     def overrides(self, eds: Eds, tpdos: list[Pdo], value: Any, key: str) -> list[Pdo]:
         """``pdo: {TPDO3: [objects...]}``: those TPDOs (disabled in the EDS or not) map these objects instead."""
@@ -735,10 +717,9 @@ class CanopenSection:
             return None
         parsed = parse_object(value)
         if isinstance(parsed, str):
-            for pdo in drive.enabled_tpdos:
-                for obj in pdo.objects:
-                    if obj.name.casefold() == parsed.casefold():
-                        return pdo, obj
+            named = [(p, o) for p in drive.enabled_tpdos for o in p.objects if o.name.casefold() == parsed.casefold()]
+            if named:
+                return named[0]
         elif parsed is not None:
             eds = self._eds[drive.name]
             if parsed[1] is None and hasattr(eds.entry(parsed[0]), "subindices"):

@@ -33,7 +33,6 @@ _WORD = re.compile(_STRING + r'|;|[^\s";]+')
 _KEYWORD = re.compile(_STRING + r'|^[ \t]*([A-Z][A-Z_]*_)(?=[\s:])', re.MULTILINE)
 """A string (skipped whole), or a keyword that starts a line: a statement (``BO_``, ``SG_``, ``VAL_``, ...)."""
 _END = re.compile(_STRING + "|;")
-_NEWLINE = re.compile("\n")
 
 
 @dataclass(frozen=True)
@@ -91,7 +90,7 @@ class _Prepass:
     def __init__(self, text: str, display: str) -> None:
         self.text = text
         self.display = display
-        self.newlines = [m.start() for m in _NEWLINE.finditer(text)]
+        self.newlines = [m.start() for m in re.finditer("\n", text)]
         self.blank: list[tuple[int, int]] = []
 
     def line(self, pos: int) -> int:
@@ -474,10 +473,6 @@ class Messages:
         """The problems signal ``signal`` of ``message`` is involved in (none: it is sound, or not in the file)."""
         return [p for f in self.dbcs for p in f.problems if p.message == message and signal in p.signals]
 
-    def lost_pages(self, message: str) -> list[SignalProblem]:
-        """The multiplexer values of ``message`` on which its frames no longer decode (none: all decode)."""
-        return [p for f in self.dbcs for p in f.pages if p.message == message]
-
     def dropped(self, message: str) -> list[Any]:
         """The signals the DBC files took out of ``message`` (cantools ``Signal`` objects)."""
         return [s for f in self.dbcs for s in f.dropped.get(message, [])]
@@ -528,7 +523,7 @@ class Messages:
     def read_signal(self, message: Any, value: Any, key: str) -> Any:
         """:meth:`signal`, for a source to read: also a problem when some of the message's frames do not decode."""
         sig = self.signal(message, value, key)
-        lost = self.lost_pages(message.name) if sig is not None else []
+        lost = [p for f in self.dbcs for p in f.pages if p.message == message.name] if sig is not None else []
         if lost:
             why = "; ".join(p.text for p in lost)
             self.problem(key, f"{value!r}, of a message whose frames do not all decode ({why})",

@@ -148,14 +148,12 @@ class StateConfig:
 
 @dataclass(frozen=True)
 class MonitorConfig:
-    """``monitor:``: the status page and the Groot2 monitor (both off unless configured)."""
+    """``monitor:``: ``HOST:PORT`` of the status page (``http``; ``token``: the bearer token it requires, needed when
+    not loopback) and of the Groot2 monitor (``groot2``: REP on PORT, PUB on PORT + 1); both off unless configured."""
 
     http: str | None = None
-    """``HOST:PORT`` of the status page."""
     token: str | None = None
-    """The bearer token the page requires (needed when ``http`` is not loopback)."""
     groot2: str | None = None
-    """``HOST:PORT`` of the Groot2 monitor (REP on PORT, PUB on PORT + 1)."""
 
 
 @dataclass(frozen=True)

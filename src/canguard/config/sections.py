@@ -34,14 +34,6 @@ _BUILT_IN_INTERFACES = frozenset({
 ``canguard replay`` of a candump log otherwise never does)."""
 
 
-def _valid_interfaces() -> frozenset[str]:
-    """python-can's interface names (plugins included), imported when a config names another."""
-    import can.interfaces
-
-    names: frozenset[str] = can.interfaces.VALID_INTERFACES
-    return names
-
-
 def buses(c: Checks, value: Any) -> dict[str, BusConfig]:
     result: dict[str, BusConfig] = {}
     if not isinstance(value, Mapping) or not value:
@@ -57,10 +49,12 @@ def buses(c: Checks, value: Any) -> dict[str, BusConfig]:
         interface = kwargs.get("interface")
         if interface is None:
             c.problem(_path(key, "interface"), "nothing", "a python-can interface name (socketcan, virtual, ...)")
-        elif not isinstance(interface, str) or (
-                interface not in _BUILT_IN_INTERFACES and interface not in _valid_interfaces()):
-            c.problem(_path(key, "interface"), _found(interface),
-                      "a python-can interface" + _closest(interface, _valid_interfaces()))
+        elif not isinstance(interface, str) or interface not in _BUILT_IN_INTERFACES:
+            import can.interfaces  # python-can's names, plugins included
+
+            if not isinstance(interface, str) or interface not in can.interfaces.VALID_INTERFACES:
+                c.problem(_path(key, "interface"), _found(interface),
+                          "a python-can interface" + _closest(interface, can.interfaces.VALID_INTERFACES))
         only = kwargs.get("filter", True)
         if not isinstance(only, bool):
             c.problem(_path(key, "filter"), _found(only),
@@ -132,8 +126,15 @@ def source(c: Checks, m: Messages, name: str, value: Any) -> SourceConfig | None
         c.problem(key, _found(value), "a mapping with kind: battery | joints | current")
         return None
     kind = value.get("kind")
-    if "canopen" in value:
-        return _canopen_source(c, m, name, kind, value, key)
+    if "canopen" in value:  # an object of a canopen: drive
+        c.mapping(value, key, ("kind", "canopen", "object", "scale", "max_age"), ("kind", "canopen", "object"))
+        if kind != "current":
+            c.problem(_path(key, "kind"), _found(kind), "current (a source of a canopen: drive)")
+        elif m.canopen is None:
+            c.problem(_path(key, "canopen"), _found(value.get("canopen")), "a drive of canopen: (none configured)")
+        else:
+            return m.canopen.source(name, value, key)
+        return None
     keys = _KIND_KEYS.get(kind) if isinstance(kind, str) else None
     known = keys is not None
     if keys is None:
@@ -151,19 +152,6 @@ def source(c: Checks, m: Messages, name: str, value: Any) -> SourceConfig | None
     if not known:
         return None
     return SourceConfig(name=name, kind=cast(SourceKind, kind), bus=bus, signals=tuple(signals), max_age_s=max_age)
-
-
-def _canopen_source(c: Checks, m: Messages, name: str, kind: Any, value: Mapping[str, Any], key: str
-                    ) -> SourceConfig | None:
-    """A source reading an object of a ``canopen:`` drive (``kind: current``)."""
-    c.mapping(value, key, ("kind", "canopen", "object", "scale", "max_age"), ("kind", "canopen", "object"))
-    if kind != "current":
-        c.problem(_path(key, "kind"), _found(kind), "current (a source of a canopen: drive)")
-        return None
-    if m.canopen is None:
-        c.problem(_path(key, "canopen"), _found(value.get("canopen")), "a drive of canopen: (none configured)")
-        return None
-    return m.canopen.source(name, value, key)
 
 
 class ReadSources(NamedTuple):
@@ -247,7 +235,6 @@ def _confirm(c: Checks, m: Messages, value: Any, read: ReadSources) -> StopConfi
     op_name = ops[0]
     raw = value[op_name]
     sig = m.by_name[ref.message].get_signal_by_name(ref.signal) if ref is not None else None
-    number: float | None = None
     if op_name == "equals" and isinstance(raw, str):
         choice = choice_value(c, sig, raw, _path(key, op_name)) if sig is not None else None
         number = None if choice is None else float(choice)  # no sig: a source or signal already reported
