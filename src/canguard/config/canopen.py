@@ -355,8 +355,7 @@ class CanopenDrive:
     device: str = ""  # the EDS's vendor and product name
     setup: tuple[SdoWrite, ...] = ()
     """``configure: true``: the SDO writes that give the drive what the config expects (empty: not configured)."""
-    notes: tuple[str, ...] = ()
-    """What reading the EDS tolerated or the drive must be told (``canguard check -v``)."""
+    notes: tuple[str, ...] = ()  # what reading the EDS tolerated or the drive must be told (``canguard check -v``)
 
     @property
     def heartbeat_id(self) -> int:
@@ -546,10 +545,8 @@ def parse_object(value: Any) -> tuple[int, int | None] | str | None:
 
 
 DRIVE_KEYS = ("eds", "node", "bus", "heartbeat", "pdo", "configure", "tpdo_period")
-CONFIGURED_HEARTBEAT_S = 0.1
-"""The heartbeat canguard tells a drive (``configure: true``) whose entry and EDS give none."""
-DEFAULT_TPDO_PERIOD_S = 0.01
-"""The event timer canguard gives a ``pdo:`` TPDO it configures (``tpdo_period:``)."""
+CONFIGURED_HEARTBEAT_S = 0.1  # what canguard tells a drive (configure: true) whose entry and EDS give none
+DEFAULT_TPDO_PERIOD_S = 0.01  # the event timer canguard gives a ``pdo:`` TPDO it configures (``tpdo_period:``)
 
 
 class CanopenSection:
@@ -603,7 +600,11 @@ class CanopenSection:
         heartbeat = self.heartbeat(eds, body, key, configure)
         values = {(o.index, o.subindex): eds.value(o.index, o.subindex) for pdo in rpdos for o in pdo.objects}
         defaults = {at: v for at, v in values.items() if isinstance(v, (int, float)) and not isinstance(v, bool)}
-        setup = self.setup(eds, tpdos, body, key, heartbeat) if configure else ()
+        setup: tuple[SdoWrite, ...] = ()
+        if configure:  # the heartbeat, then each pdo: override's mapping, COB-ID and event timer
+            period_ms = max(1, min(0xFFFF, round(c.seconds(body, "tpdo_period", key, DEFAULT_TPDO_PERIOD_S) * 1000)))
+            writes = [w for pdo in tpdos if pdo.overridden for w in pdo_writes(eds, pdo, period_ms)]
+            setup = (heartbeat_write(heartbeat), *writes)
         if "tpdo_period" in body and not configure:
             c.problem(_path(key, "tpdo_period"), f"{body['tpdo_period']!r} without configure: true",
                       "configure: true with it (the period is what canguard tells the drive)")
@@ -632,14 +633,6 @@ class CanopenSection:
                      "the drive's heartbeat period in seconds (heartbeat: 0.1), with the drive told 0x1017 = "
                      "that period in ms, or configure: true (canguard tells it)")
         return CONFIGURED_HEARTBEAT_S
-
-    def setup(self, eds: Eds, tpdos: list[Pdo], body: Mapping[str, Any], key: str,
-              heartbeat_s: float) -> tuple[SdoWrite, ...]:
-        """``configure: true``: the heartbeat, then each ``pdo:`` override's mapping, COB-ID and event timer."""
-        period_s = self.checks.seconds(body, "tpdo_period", key, DEFAULT_TPDO_PERIOD_S)
-        period_ms = max(1, min(0xFFFF, round(period_s * 1000)))
-        writes = [w for pdo in tpdos if pdo.overridden for w in pdo_writes(eds, pdo, period_ms)]
-        return (heartbeat_write(heartbeat_s), *writes)
 
     def overrides(self, eds: Eds, tpdos: list[Pdo], value: Any, key: str) -> list[Pdo]:
         """``pdo: {TPDO3: [objects...]}``: those TPDOs (disabled in the EDS or not) map these objects instead."""

@@ -41,8 +41,7 @@ class SignalProblem:
 
     message: str
     signals: tuple[str, ...]
-    text: str
-    """``file:line: ...`` naming the signals and the message."""
+    text: str  # ``file:line: ...`` naming the signals and the message
 
 
 @dataclass(frozen=True)
@@ -316,6 +315,7 @@ class _MessageCheck:
 class DbcFile:
     """One loaded database file: cantools' database with its unsound signals taken out, and what was found."""
 
+    path: Path
     database: Any
     notes: list[str]  # what the pre-pass skipped
     problems: list[SignalProblem]
@@ -335,20 +335,18 @@ def load_dbc_file(path: Path) -> DbcFile:
     else:
         db = cantools.database.load_file(str(path), strict=False)
         notes, lines = [], {}
-    problems: list[SignalProblem] = []
-    pages: list[SignalProblem] = []
-    dropped: dict[str, list[Any]] = {}
+    loaded = DbcFile(path, db, notes, [], {}, [])
     for m in db.messages:
         dbc_id = m.frame_id | (0x80000000 if m.is_extended_frame else 0)
         check = _MessageCheck(m, lines.get(dbc_id, []), shown)
         sound = check.run()
         if check.problems:
-            problems.extend(check.problems)
-            pages.extend(check.pages)
-            dropped[m.name] = [s for s in m.signals if id(s) in check.broken]
+            loaded.problems.extend(check.problems)
+            loaded.pages.extend(check.pages)
+            loaded.dropped[m.name] = [s for s in m.signals if id(s) in check.broken]
             m.signals[:] = sound  # cantools' documented way: change the signals, then refresh()
             m.refresh()
-    return DbcFile(db, notes, problems, dropped, pages)
+    return loaded
 
 
 def _not_loaded(path: Path, exc: Exception) -> str:
@@ -386,40 +384,40 @@ class Messages:
         if not isinstance(value, list) or not value:
             self.problem("dbc", _found(value), "a DBC file path or a non-empty list of them")
             return ()
-        files, databases = self.dbc_files(value)
-        if len(databases) != len(value):
-            return tuple(files)
+        files = self.dbc_files(value)
+        if len(self.dbcs) != len(value):
+            return files
         where: dict[str, Path] = {}
         ids: dict[tuple[int, bool], tuple[str, Path]] = {}
         before = len(self.checks.problems)
-        for p, db in databases:
-            for m in db.messages:
+        for f in self.dbcs:
+            for m in f.database.messages:
                 key = (m.frame_id, bool(m.is_extended_frame))
                 if m.name in where:
-                    self.problem("dbc", f"message {m.name!r} in both {where[m.name]} and {p}", "unique message names")
+                    self.problem("dbc", f"message {m.name!r} in both {where[m.name]} and {f.path}",
+                                 "unique message names")
                 elif key in ids:
                     other, op = ids[key]
-                    self.problem("dbc", f"frame id 0x{m.frame_id:X} as {other!r} in {op} and as {m.name!r} in {p}",
+                    self.problem("dbc", f"frame id 0x{m.frame_id:X} as {other!r} in {op} and as {m.name!r} in {f.path}",
                                  "unique frame ids")
                 else:
-                    where[m.name], ids[key] = p, (m.name, p)
+                    where[m.name], ids[key] = f.path, (m.name, f.path)
         if len(self.checks.problems) > before:
-            return tuple(files)
-        if len(databases) == 1:
-            self.database = databases[0][1]
+            return files
+        if len(self.dbcs) == 1:
+            self.database = self.dbcs[0].database
         else:
-            messages = [m for _, db in databases for m in db.messages]
-            nodes = [n for _, db in databases for n in db.nodes]
+            messages = [m for f in self.dbcs for m in f.database.messages]
+            nodes = [n for f in self.dbcs for n in f.database.nodes]
             # not strict, as each file loaded: two signals of one name stay in their message
             self.database = cantools.database.can.Database(messages=messages, nodes=nodes, strict=False)
         self._index(self.database.messages)
         self.ok = True
-        return tuple(files)
+        return files
 
-    def dbc_files(self, value: list[Any]) -> tuple[list[Path], list[tuple[Path, Any]]]:
-        """Each file of ``dbc:`` (a problem for each that does not load) and the database of each that does."""
+    def dbc_files(self, value: list[Any]) -> tuple[Path, ...]:
+        """Each file of ``dbc:``, each that loads in :attr:`dbcs` (a problem for each that does not)."""
         files: list[Path] = []
-        databases: list[tuple[Path, Any]] = []
         for i, item in enumerate(value):
             p = self.checks.file_path(item, f"dbc[{i}]")
             if p is None:
@@ -432,9 +430,8 @@ class Messages:
             except Exception as exc:  # cantools raises many kinds of parse errors
                 self.problem(f"dbc[{i}]", f"{p} which {_not_loaded(p, exc)}", "a valid DBC file")
             else:
-                databases.append((p, loaded.database))
                 self.dbcs.append(loaded)
-        return files, databases
+        return tuple(files)
 
     def add(self, messages: list[Any]) -> None:
         """Add messages made elsewhere (a CANopen drive's PDOs, heartbeat, EMCY) to the config's database."""

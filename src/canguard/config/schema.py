@@ -47,8 +47,7 @@ class SignalRef:
     unit: str | None = None
     minimum: float | None = None
     maximum: float | None = None
-    max_age_s: float | None = None
-    """Its own timeout (a CANopen drive's heartbeat); None: the source's."""
+    max_age_s: float | None = None  # its own timeout (a CANopen drive's heartbeat); None: the source's
 
 
 @dataclass(frozen=True)
@@ -80,8 +79,7 @@ class FrameSpec:
     data: bytes
     is_extended_id: bool = False
     is_fd: bool = False
-    label: str = ""
-    """The DBC message name, or the hex id of a raw frame."""
+    label: str = ""  # the DBC message name, or the hex id of a raw frame
 
 
 @dataclass(frozen=True)
@@ -120,8 +118,7 @@ class StopConfig:
     frames: tuple[FrameSpec, ...] = ()
     confirm: StopConfirm | None = None
     escalate: tuple[FrameSpec, ...] = ()
-    min_stop_s: float = 0.0
-    """A stop lasts at least this long, whatever the tree says."""
+    min_stop_s: float = 0.0  # a stop lasts at least this long, whatever the tree says
     release: Literal["auto", "manual"] = "auto"
     """``manual``: releasing also needs a ResetStop node ticked in the releasing tick."""
 
@@ -167,13 +164,11 @@ class Config:
     tree: TreeConfig | None
     task: TaskConfig
     stop: StopConfig
-    actions: Mapping[str, ActionConfig]
-    """Every well-formed action node ID declared."""
+    actions: Mapping[str, ActionConfig]  # every well-formed action node ID declared
     events: Path | None
     state: StateConfig = field(default_factory=StateConfig)
     monitor: MonitorConfig = field(default_factory=MonitorConfig)
-    simulation: bool = False
-    """A bench, not a robot: the config may guard only ``virtual`` buses under systemd."""
+    simulation: bool = False  # a bench, not a robot: the config may guard only ``virtual`` buses under systemd
     database: Any = field(default=None, compare=False, repr=False)
     """The merged ``cantools.database.Database`` of every DBC file and the ``canopen:`` drives' frames."""
     canopen: Mapping[str, Any] = field(default_factory=dict)
@@ -186,13 +181,8 @@ class Config:
 class PartialConfig:
     """The sound parts of a config that has problems (``ConfigError.partial``): ``check`` judges the tree by them."""
 
-    tree: TreeConfig | None
-    """``tree:`` when it names an existing file."""
-    sources: Mapping[str, SourceConfig]
-    """The sources that were built (some may miss signals)."""
-    declared_sources: frozenset[str]
-    """Every source name declared (a tree naming one not built is a follow-on error)."""
-    sources_ok: bool
-    """False when ``sources:`` itself is unusable (the tree's source names are not checked)."""
-    actions: Mapping[str, ActionConfig]
-    """Every well-formed action node ID declared."""
+    tree: TreeConfig | None  # ``tree:`` when it names an existing file
+    sources: Mapping[str, SourceConfig]  # the sources that were built (some may miss signals)
+    declared_sources: frozenset[str]  # every source name declared (a tree naming one not built is a follow-on error)
+    sources_ok: bool  # False when ``sources:`` itself is unusable (the tree's source names are not checked)
+    actions: Mapping[str, ActionConfig]  # every well-formed action node ID declared

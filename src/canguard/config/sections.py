@@ -30,8 +30,7 @@ _BUILT_IN_INTERFACES = frozenset({
     "socketcan", "socketcand", "virtual", "udp_multicast", "slcan", "serial", "gs_usb", "pcan", "kvaser",
     "vector", "ixxat",
 })
-"""Interfaces every python-can canguard supports has built in: accepted without importing python-can (which
-``canguard replay`` of a candump log otherwise never does)."""
+"""Built into every python-can canguard supports: accepted without importing it (a candump replay never does)."""
 
 
 def buses(c: Checks, value: Any) -> dict[str, BusConfig]:
@@ -173,8 +172,7 @@ def read_sources(c: Checks, m: Messages, value: Any) -> ReadSources:
         src = source(c, m, name, body)
         if src is not None:
             read.sources[name] = src
-        if len(c.problems) > before:
-            # Already reported: references to this source must not add follow-on errors.
+        if len(c.problems) > before:  # reported: references to this source add no follow-on errors
             read.broken.add(name)
     return read
 
@@ -206,8 +204,7 @@ def task(c: Checks, m: Messages, value: Any) -> TaskConfig:
     value = c.section(value, "task", ("period", "frames"))
     if value is None:
         return TaskConfig()
-    return TaskConfig(period_s=c.seconds(value, "period", "task", 0.02),
-                      frames=frames(c, m, value, "frames", "task"))
+    return TaskConfig(period_s=c.seconds(value, "period", "task", 0.02), frames=frames(c, m, value, "frames", "task"))
 
 
 def _confirm(c: Checks, m: Messages, value: Any, read: ReadSources) -> StopConfirm | None:
@@ -289,9 +286,8 @@ def state(c: Checks, value: Any) -> StateConfig:
     if value is None:
         return StateConfig()
     file = c.file_path(value["file"], "state.file") if value.get("file") is not None else None
-    on_corrupt = c.choice(value, "on_corrupt", "state", ("hot", "cold"), "hot")
-    save_period_s = c.seconds(value, "save_period", "state", 5.0)
-    return StateConfig(file=file, on_corrupt=on_corrupt, save_period_s=save_period_s)
+    return StateConfig(file=file, on_corrupt=c.choice(value, "on_corrupt", "state", ("hot", "cold"), "hot"),
+                       save_period_s=c.seconds(value, "save_period", "state", 5.0))
 
 
 def frame_value(c: Checks, m: Messages, message: Any, sig_name: Any, value: Any, key: str) -> Any:
@@ -384,8 +380,7 @@ def _dbc_frame(c: Checks, m: Messages, value: Mapping[str, Any], key: str) -> Fr
 
 
 def _unsound_left_out(c: Checks, m: Messages, msg: Any, given: Mapping[str, Any], key: str) -> bool:
-    """Whether the signals the DBC gets wrong that a frame leaves out (sent as 0) are 0 at their initial values;
-    a problem naming each that is not."""
+    """Whether each signal the DBC gets wrong that a frame leaves out (so sends as 0) is 0 at its initial value."""
     ok = True
     for s in m.dropped(msg.name):
         if s.name in given:

@@ -215,11 +215,8 @@ class Checks:
         ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
         if ok and (not positive or value > 0):
             return float(value)
-        if positive:
-            unit = " in seconds" if key.rsplit(".", 1)[-1] in _SECONDS_KEYS else ""
-            self.problem(key, _found(value), f"a number > 0{unit}")
-        else:
-            self.problem(key, _found(value), "a finite number")
+        unit = " in seconds" if key.rsplit(".", 1)[-1] in _SECONDS_KEYS else ""
+        self.problem(key, _found(value), f"a number > 0{unit}" if positive else "a finite number")
         return None
 
     def seconds(self, mapping: Mapping[str, Any], name: str, key: str, default: float) -> float:
