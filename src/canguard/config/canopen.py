@@ -353,8 +353,7 @@ class CanopenDrive:
     defaults: Mapping[tuple[int, int], int | float] = field(default_factory=dict)
     """The EDS value (DCF ``ParameterValue``, else ``DefaultValue``) of each object an RPDO maps."""
     device: str = ""  # the EDS's vendor and product name
-    setup: tuple[SdoWrite, ...] = ()
-    """``configure: true``: the SDO writes that give the drive what the config expects (empty: not configured)."""
+    setup: tuple[SdoWrite, ...] = ()  # configure: true: the SDO writes that give the drive what the config expects
     notes: tuple[str, ...] = ()  # what reading the EDS tolerated or the drive must be told (``canguard check -v``)
 
     @property

@@ -19,8 +19,7 @@ class BusConfig:
 
     name: str
     kwargs: Mapping[str, Any]
-    filter: bool = True
-    """Receive only the frames the config reads (the kernel's filters on SocketCAN); False: every frame."""
+    filter: bool = True  # receive only the frames the config reads (kernel filters on SocketCAN); False: every frame
 
     @property
     def interface(self) -> str:
@@ -119,8 +118,7 @@ class StopConfig:
     confirm: StopConfirm | None = None
     escalate: tuple[FrameSpec, ...] = ()
     min_stop_s: float = 0.0  # a stop lasts at least this long, whatever the tree says
-    release: Literal["auto", "manual"] = "auto"
-    """``manual``: releasing also needs a ResetStop node ticked in the releasing tick."""
+    release: Literal["auto", "manual"] = "auto"  # manual: a release also needs a ResetStop node ticked in that tick
 
 
 @dataclass(frozen=True)
@@ -173,8 +171,7 @@ class Config:
     """The merged ``cantools.database.Database`` of every DBC file and the ``canopen:`` drives' frames."""
     canopen: Mapping[str, Any] = field(default_factory=dict)
     """The ``canopen:`` drives by name (:class:`canguard.config.canopen.CanopenDrive`, which reads this module)."""
-    dbc_notes: tuple[str, ...] = ()
-    """What the DBC files get wrong where this config does not read them (``canguard check -v``)."""
+    dbc_notes: tuple[str, ...] = ()  # what the DBC files get wrong where this config does not read them (check -v)
 
 
 @dataclass(frozen=True)
