@@ -1,40 +1,18 @@
 """Open the configured python-can buses and receive from them without losing frames.
 
-:func:`open_bus` opens one :class:`~canguard.config.schema.BusConfig` with ``can.Bus``
-(any interface python-can supports), turning a failure into a
-:class:`~canguard.errors.BusError` that names the bus and the interface.
+:func:`open_bus` turns a failure into a :class:`~canguard.errors.BusError` naming bus and interface.
+:meth:`BusReader.receive` gives ``(bus_name, message, received)`` in arrival order, one of two ways:
 
-:class:`BusReader` receives in one of two ways; :meth:`BusReader.receive` gives
-``(bus_name, message, received)`` (python-can's message as received: the daemon builds its block of them)
-in arrival order either way:
+- **Direct** (``direct=True`` and every bus has a socket, :func:`bus_fileno`): no thread; the caller ``select``s
+  on the sockets and drains them with ``recv(0)``. The kernel's buffer is the queue (no thread hand-off, no wait
+  for the GIL); ``received`` is the kernel's stamp when the bus stamps with the wall clock.
+- **Threads** (otherwise: ``virtual``, vendor drivers): one thread per bus puts each message on an unbounded
+  :class:`queue.SimpleQueue`, so no frame is dropped while the engine is busy.
 
-- **Direct** (``direct=True`` and every bus has a socket (:func:`bus_fileno`): SocketCAN,
-  udp_multicast): no thread. The caller's thread waits on the buses' sockets with
-  ``select`` until a frame arrives or its own deadline passes, then drains what the
-  kernel holds with ``recv(0)`` (a poll of the socket after the first frame: a frame
-  alone costs no ``recv`` that finds none). The kernel's socket buffer is the receive
-  queue, so a frame costs no thread hand-off: no queue, no waiting for the GIL held by
-  another thread. ``received`` is the kernel's receive stamp (on ``time.monotonic()``'s
-  base) whenever the bus stamps with the wall clock, so a wait in the kernel's buffer
-  counts as a wait.
-- **Threads** (otherwise: python-can's ``virtual`` bus, vendor drivers with their own
-  queues): one daemon thread per bus does nothing but ``bus.recv(timeout)`` and put the message
-  on one unbounded :class:`queue.SimpleQueue`, so no frame is dropped while the engine is busy;
-  ``received`` is when the thread got it.
-
-**Filters.** ``wanted`` names, per bus, the id keys of the frames the config reads
-(:func:`receive_keys`; None: every frame). On SocketCAN they go to the kernel as python-can's
-``can_filters`` (:func:`kernel_filters`): a foreign frame never wakes the daemon. Either way
-:func:`wants` drops a foreign message before anything is built of it (on interfaces without kernel
-filters: python-can's own check would drop error frames, and costs a comparison a filter);
-error frames always pass.
-
-Each frame keeps the message's kernel / hardware timestamp. A receive error is
-logged on ``canguard.io.bus``, handed to ``on_error(bus_name, exc)``, and the bus is
-closed and reopened with exponential backoff (``backoff_min_s`` .. ``backoff_max_s``,
-reset by the next frame received): never a silent hang, never a dead thread. In the
-direct way a reopen is tried from :meth:`BusReader.receive` when its delay has passed,
-so the caller never sleeps through a backoff.
+**Filters**: per bus the id keys the config reads (:func:`receive_keys`) go to SocketCAN as kernel filters (a
+foreign frame never wakes the daemon); :func:`wants` drops foreign frames on any interface; error frames always
+pass. A receive error is logged, handed to ``on_error``, and the bus reopened with exponential backoff: never a
+silent hang, never a dead thread (in the direct way the reopen is tried from :meth:`BusReader.receive`).
 """
 
 from __future__ import annotations
@@ -132,12 +110,8 @@ def enlarge_receive_buffer(bus: can.BusABC, name: str, size: int = RECEIVE_BUFFE
 
 
 def bus_fileno(bus: can.BusABC) -> int:
-    """The socket ``select`` can wait on for ``bus``'s frames, or -1 when it has none.
-
-    Only a socket counts (SocketCAN, udp_multicast: the kernel holds every frame until python-can
-    reads it). A serial adapter's descriptor (slcan, serial) does not: python-can reads several
-    frames from it at once and keeps the rest, which a ``select`` on the descriptor cannot see.
-    """
+    """The socket ``select`` can wait on for ``bus``'s frames, or -1. Only a socket: python-can reads several frames
+    from a serial adapter's descriptor at once and keeps the rest, which ``select`` cannot see."""
     try:
         fd = bus.fileno()
         if not isinstance(fd, int) or fd < 0 or not stat.S_ISSOCK(os.fstat(fd).st_mode):
@@ -148,15 +122,13 @@ def bus_fileno(bus: can.BusABC) -> int:
 
 
 WALL_STAMP_S = 1.0
-"""A bus one of whose frames has a stamp this close to the wall clock stamps with it: from that frame on,
-its stamps are taken as arrival times. Until then (a bus that stamps otherwise, or a daemon starved for
-longer than this when its first frames came) its frames arrive when canguard receives them."""
+"""A bus whose frame has a stamp this close to the wall clock stamps with it: its stamps are arrival times from
+then on (until then its frames arrive when canguard receives them)."""
 
 
 class BusReader:
-    """Receives from every configured bus (see the module docstring): a context manager, or :meth:`start` and
-    :meth:`stop`; frames come from :meth:`receive`. Counters by bus name: :attr:`received`, :attr:`sent`,
-    :attr:`send_failures`, :attr:`recv_errors`, :attr:`reopens`."""
+    """Receives from every configured bus: a context manager, or :meth:`start` and :meth:`stop`; frames come from
+    :meth:`receive`. Counters by bus name: :attr:`received`, :attr:`sent`, :attr:`send_failures`, :attr:`reopens`."""
 
     def __init__(
         self,
@@ -198,7 +170,6 @@ class BusReader:
         self.received: dict[str, int] = dict.fromkeys(self.configs, 0)
         self.sent: dict[str, int] = dict.fromkeys(self.configs, 0)
         self.send_failures: dict[str, int] = dict.fromkeys(self.configs, 0)
-        self.recv_errors: dict[str, int] = dict.fromkeys(self.configs, 0)
         self.reopens: dict[str, int] = dict.fromkeys(self.configs, 0)
 
     # -- life cycle --------------------------------------------------------
@@ -355,11 +326,9 @@ class BusReader:
         return out if out or None in self._buses.values() else None
 
     def _drain_bus(self, name: str, limit: int, out: list[tuple[str, can.Message, float]]) -> None:
-        """Append up to ``limit`` frames the kernel holds for bus ``name``; a failure closes the bus.
-
-        System calls are what a frame costs here. A first frame that is dropped (:func:`wants`) ends the drain: the
-        next wait finds the socket ready at once if more came. After a first frame taken, a poll of the socket asks
-        whether there is another (cheaper than a ``recv(0)`` that finds none); after two, ``recv(0)`` until none."""
+        """Append up to ``limit`` frames the kernel holds for bus ``name``; a failure closes the bus. System calls
+        are the cost: a dropped first frame ends the drain; after one frame taken a poll (cheaper than a ``recv(0)``
+        that finds none) asks for another; after two, ``recv(0)`` until none."""
         bus = self._buses[name]
         assert bus is not None
         msgs: list[can.Message] = []
@@ -384,12 +353,10 @@ class BusReader:
             self.admit(name, msgs, out)
 
     def admit(self, name: str, msgs: list[can.Message], out: list[tuple[str, can.Message, float]]) -> None:
-        """Append the messages just received from bus ``name`` to ``out`` as ``(name, message, received)``; count
-        them.
+        """Append the messages just received from bus ``name`` to ``out`` as ``(name, message, received)``: the
+        kernel stamp on ``time.monotonic()``'s base (never after now) once the bus stamps with the wall clock
+        (:data:`WALL_STAMP_S`), else now."""
 
-        ``received`` is the message's kernel stamp on ``time.monotonic()``'s base (never after now) once the
-        bus is found to stamp with the wall clock (:data:`WALL_STAMP_S`), else now.
-        """
         now = monotonic()
         offset = time.time() - now  # wall clock minus monotonic: a wall-clock stamp to monotonic's base
         wall = self._wall_stamps[name]
@@ -455,7 +422,6 @@ class BusReader:
 
     def _failed(self, name: str, exc: BaseException) -> None:
         """Log and report a receive error and close the bus (the thread reopens it)."""
-        self.recv_errors[name] += 1
         cfg = self.configs[name]
         log.error(
             "bus %s (%s, channel %s): receive failed: %s; reopening", name, cfg.interface, cfg.channel, exc

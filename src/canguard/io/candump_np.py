@@ -1,24 +1,11 @@
 """The candump text parser: a block of lines parsed by numpy into a :class:`~canguard.io.block.Block`.
 
-:func:`parse_block` reads every shape candump writes (``-L`` / ``-l``: ``(secs) channel ID#DATA``,
-CAN FD ``ID##FDATA``, remote ``ID#R`` / ``ID#R4``, a raw DLC ``ID#DATA_D``, error frames (the
-CAN_ERR_FLAG in an 8-digit id), a T/R marker; comments and blank lines; the long ``-ta``
-output, with ``-x`` columns, remote requests and ``ERRORFRAME``, which is first rewritten as
-``-L``; ``-e``'s indented lines under an error frame) with passes over the block's bytes, one
-per field, each a column over every line:
-
-* each line's fields are found where they are (the first ")" of the line, the spaces
-  after it, the "#" after the id), so timestamps, channel names and ids of any widths mix;
-* the timestamps as floats, each equal to Python's ``float()`` of its text: the digits make
-  an exact integer (below 2**53) divided by an exact power of ten, one correctly rounded
-  division (a longer one is converted by ``float()`` itself);
-* the ids read 8 bytes at a time (SWAR on little-endian words);
-* the payloads' lengths and kinds; their digits are checked with the ids' by one count over the block
-  (or, when a line fails, each line's), and left as text: a block's :class:`HexPayloads` makes the bytes
-  of the rows the engine reads (a configured message's), two hex digits at a time.
-
-Each check gives a column of verdicts; a line that fails one is a bad line, named by its index
-in the block (:attr:`Parsed.bad`): the reader names its file:line.
+:func:`parse_block` reads every shape candump writes (``-L`` / ``-l``, CAN FD, remote, raw DLC, error frames, T/R
+markers, comments; ``-ta`` lines, first rewritten as ``-L``; ``-e``'s indented lines) with one pass per field over
+the block's bytes: fields found where they are (any widths mix), timestamps equal to ``float()`` of their text (an
+exact integer over an exact power of ten), ids read 8 bytes at a time, hex digits checked by one count over the
+block, payloads left as text until a row is read (:class:`HexPayloads`). A line failing a check is a bad line,
+by its index in the block (:attr:`Parsed.bad`).
 """
 
 from __future__ import annotations
@@ -45,8 +32,8 @@ _LE64 = np.dtype("<u8")
 _LE16 = np.dtype("<u2")
 _NIBBLES = np.array([int(chr(c), 16) if chr(c) in "0123456789abcdefABCDEF" else 0 for c in range(256)], dtype=np.uint8)
 _PAIRS = ((_NIBBLES[None, :] << 4) | _NIBBLES[:, None]).ravel()
-"""By byte, its value as a hex digit (anything else: 0, refused by a check); :data:`_PAIRS`: by the little-endian
-16-bit word of two hex digits' bytes (the first digit in the low byte), the byte they spell."""
+"""By the little-endian 16-bit word of two hex digits' bytes, the byte they spell (:data:`_NIBBLES`: by byte, its
+value as a hex digit, else 0)."""
 _EXACT = 1 << 53
 _NO_ROWS = np.zeros(0, dtype=np.intp)
 _ERR_FLAG = 0x20000000
@@ -80,8 +67,7 @@ _LONG_PLAIN = (rb"(?m)^\((\d{10,}\.\d+)\) ([^ \n]+) ([0-9A-Fa-f]{3}|[0-9A-Fa-f]{
                rb"(?: '[^\n]*)?$")
 _LONG_ANY = (rb"\((\d{10,}\.\d+)\) ([^ ]+) (?:([RT]X) ([B-]) ([E-]) )?([0-9A-Fa-f]{3}|[0-9A-Fa-f]{8}) \[(\d\d?)\]"
              rb"((?: [0-9A-Fa-f]{2})*)( remote request|(?: '.*)?| ERRORFRAME.*)")
-"""candump -ta lines: classic ones (each block of them rewritten at once), and any (a line at a time); compiled
-at first use (by :mod:`re`'s cache), not at every start."""
+"""candump -ta lines: classic ones (a block rewritten at once), and any (a line at a time)."""
 
 
 def _rewritten(raw: bytes) -> tuple[bytes, np.ndarray | None]:
@@ -206,11 +192,8 @@ def _indented(at: np.ndarray, rows_line: np.ndarray, errors: np.ndarray, bad: np
 
 class _Columns:
     """The fields of the lines from ``start`` to ``end`` (their newline), found and checked: :attr:`ok`.
-
-    ``whole``: every line of the block is one of these (no blank, comment or indented line): then one count
-    of the block's bytes that are not hex digits, held to what the fields found account for, proves at once
-    that the ids and payloads are hex digits (else each line's fields are counted on their own).
-    ``has_under``: the block has an underscore (a raw DLC's, maybe). ``opening``: each line's first byte.
+    ``whole`` (every line a frame's): one count of the block's non-hex bytes against what the fields account for
+    checks every id and payload at once. ``has_under``: the block has an "_". ``opening``: each line's first byte.
     """
 
     def __init__(self, b: np.ndarray, pad: np.ndarray, start: np.ndarray, end: np.ndarray, whole: bool,
@@ -498,12 +481,8 @@ class _Columns:
 
 
 class HexPayloads:
-    """A block's payloads as the hex digits of its lines: the bytes of the rows asked for are made then, each
-    message's as wide as its longest (a block of CAN FD and classic frames makes no 64-byte row of a classic one).
-
-    ``text``: the block's text (``digits``: the same bytes as an array); ``start``: each row's first digit in it;
-    ``length``: each row's payload bytes (its digits checked by the parser).
-    """
+    """A block's payloads as the hex digits of its lines (``start``: each row's first digit in ``text``, whose
+    bytes ``digits`` are): the rows asked for are made when read, as wide as their longest."""
 
     __slots__ = ("digits", "length", "start", "text")
 
@@ -546,12 +525,9 @@ _VOIDS: dict[int, np.dtype] = {}
 
 
 def _buffer(name: str, count: int, dtype: type) -> np.ndarray:
-    """This thread's scratch array ``name``, ``count`` items, kept from block to block.
+    """This thread's scratch array ``name``, ``count`` items, kept from block to block (a process that gives freed
+    memory back at once would fault a new block-sized array in page by page, every block)."""
 
-    A block's passes over its bytes then make no new block-sized array, which a process that
-    gives freed memory back to the kernel at once (Dask starts its workers with
-    ``MALLOC_TRIM_THRESHOLD_`` set) would fault in again page by page, every block.
-    """
     have: np.ndarray | None = getattr(_LOCAL, name, None)
     if have is None or have.size < count:
         have = np.empty(count + count // 4 + 64, dtype=dtype)
