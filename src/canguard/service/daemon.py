@@ -397,7 +397,6 @@ def tree_clients(root: py_trees.behaviour.Behaviour) -> set[uuid.UUID]:
 def release_clients(ids: Iterable[uuid.UUID]) -> int:
     """Remove these clients from the global blackboard, and the keys no other client holds (as py_trees'
     ``Client.unregister(clear=True)``, from the ids alone); how many keys went."""
-
     ids = set(ids)
     gone = 0
     for key, meta in list(Blackboard.metadata.items()):

@@ -309,7 +309,6 @@ class Monitor:
     # -- sending -----------------------------------------------------------------------------------
     def offer(self) -> None:
         """Offer what the monitor process has not had yet, never waiting (a dead one is reported by a thread)."""
-
         if self._gone or (self._record is self._sent and not self._events and not self._outbox):
             return
         try:

@@ -138,7 +138,6 @@ def _with_status(node: dict[str, Any], codes: bytes) -> dict[str, Any]:
 
 def task_document(tick: Tick, events: list[dict[str, Any]]) -> dict[str, Any]:
     """The task: state, since when, stopped by which guards and why, what holds it, confirmation / escalation."""
-
     state, since, reason, stops, holding, failing, stopped_by = tick.task  # as the daemon's Monitor takes it
     stopped = state == "stopped"
     since = since if stopped else None

@@ -363,7 +363,6 @@ class WebMonitor:
 
     async def _stream_data(self, writer: asyncio.StreamWriter, status: bool) -> None:
         """Each new status document (``status``), else each journal event; a keep-alive after ``keepalive_s``."""
-
         sent, cursor = -1, 0
         while True:
             changed = self.changed  # set by a change from now on, while this stream writes too
