@@ -1,8 +1,4 @@
-"""Clocks: the only place canguard reads the time.
-
-Nothing under ``protect/`` or ``nodes/`` calls ``time.time()`` or ``time.monotonic()``; they are handed a
-:class:`Clock`: :class:`LiveClock` live, :class:`ManualClock` in replay (driven by the log's timestamps) and tests.
-"""
+"""Clocks: the only place canguard reads the time (:class:`LiveClock` live, :class:`ManualClock` in replay)."""
 
 from __future__ import annotations
 
@@ -92,10 +88,9 @@ BOOT_ID_PATH = "/proc/sys/kernel/random/boot_id"
 
 
 class BootClock:
-    """Downtime that a wall-clock step cannot fake: this boot's id and the time since boot (the I²t state file is
-    stamped with both). Within one boot the downtime is ``CLOCK_BOOTTIME``'s (counts suspend, never steps: an NTP
-    correction after boot, common on robots without a battery-backed clock, is no hours of cooling); after a
-    reboot, or where the kernel offers neither, the wall-clock difference."""
+    """Downtime a wall-clock step cannot fake (the I²t state file is stamped with boot id and time since boot):
+    ``CLOCK_BOOTTIME``'s within one boot (an NTP correction after boot is no hours of cooling), else the wall
+    clock's."""
 
     def __init__(self, boot_id_path: str = BOOT_ID_PATH) -> None:
         self._boot_id_path = boot_id_path
