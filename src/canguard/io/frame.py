@@ -1,8 +1,4 @@
-"""The two values that flow through canguard: frames in, samples out.
-
-``Frame`` is a ``NamedTuple`` rather than ``can.Message``: replay makes millions, and a tuple is several times
-cheaper to build.
-"""
+"""The two values that flow through canguard: frames in, samples out (tuples: cheaper than ``can.Message``)."""
 
 from __future__ import annotations
 
