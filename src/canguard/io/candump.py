@@ -1,11 +1,6 @@
-"""candump text logs (``-L``, ``-l``, plain ``-ta``): read a block of lines at a time, written a line at a time.
-
-Blocks are parsed by numpy; -L lines are written by :func:`format_candump_line` (``--emit``) and
-:func:`write_candump` (``simulate --out``).
-
-The parser (:func:`canguard.io.candump_np.parse_block`) gives each block's frames and its bad
-lines; the reader names a bad line's file:line and says what is wrong with it
-(:func:`why_bad`: the checks of each field, in the order a reader of the line would make them)."""
+"""candump text logs (``-L``, ``-l``, plain ``-ta``): read a block of lines at a time (parsed by
+:func:`canguard.io.candump_np.parse_block`; a bad line named by file:line and :func:`why_bad`), written a line at a
+time."""
 
 from __future__ import annotations
 
@@ -39,8 +34,7 @@ from canguard.io.logtypes import (
 
 
 CHUNK_CHARS = 1 << 20
-"""Bytes per chunk (~22,000 -L lines): the engine's work per message and block spread over more rows; twice as
-many make the parser slower (its passes outgrow the caches)."""
+"""Bytes per chunk (~22,000 -L lines); twice as many make the parser slower (its passes outgrow the caches)."""
 
 _MARKERS = frozenset("TRtr")
 _HEX = "0123456789abcdefABCDEF"
@@ -257,12 +251,8 @@ def _line(raw: bytes, k: int) -> str:
 
 
 def format_candump_line(frame: Frame, default_channel: str = "can0") -> str:
-    """One candump -L line for ``frame``, without the newline (``default_channel`` for an empty channel).
-
-    ``(%.6f) channel ID#DATA``: 3 hex digits for standard ids, 8 for extended ids and error frames (with
-    CAN_ERR_FLAG), ``##F`` + data for CAN FD, ``R`` or ``R<dlc>`` for remote frames, ``_<dlc>`` for a classic raw
-    DLC above 8. ValueError for an id out of range or a channel with whitespace in it.
-    """
+    """One candump -L line for ``frame``, without the newline (``default_channel`` for an empty channel);
+    ValueError for an id out of range or a channel with whitespace in it."""
     channel = frame.channel or default_channel
     if not channel or channel.split() != [channel]:
         raise ValueError(f"channel {channel!r} cannot be written to a candump log (empty or has whitespace)")

@@ -109,8 +109,8 @@ class BagSource:
         return channel.schema if channel.schema_encoding in ("ros2msg", "ros1msg") else ""
 
     def choose(self, connections: list[tuple[str, str, str]]) -> None:
-        """Choose the topics to read among ``(topic, type, stored definition)``; LogFormatError saying what the
-        bag holds when nothing is left to read or a topic asked for is missing."""
+        """Choose the topics to read among ``(topic, type, stored definition)``; LogFormatError saying what the bag
+        holds when none is left or one asked for is missing."""
         types: dict[str, str] = {}
         for topic, msgtype, _definition in connections:
             types.setdefault(topic, msgtype)
