@@ -81,16 +81,14 @@ class PayloadSource(Protocol):
     """A block's payloads not yet made into bytes (a candump block's hex digits): rows made when read."""
 
     def rows(self, rows: Any) -> np.ndarray:
-        """The payloads of ``rows`` (an index array or a slice) as a uint8 matrix, one row each: the payload in its
-        first ``length`` bytes, zeros after; as wide as the longest of them."""
+        """The payloads of ``rows`` (index array or slice), zero-padded to the longest of them."""
 
     def one(self, i: int) -> bytes:
         """Row ``i``'s payload."""
 
 
 def frame_from_message(msg: can.Message, channel: str | None = None) -> Frame:
-    """Convert a ``can.Message`` to a :class:`Frame` (``channel`` overrides the message's). A remote frame keeps
-    its DLC; a data frame's DLC is -1 when it is the data's length."""
+    """A ``can.Message`` as a :class:`Frame` (``channel`` overrides the message's; ``dlc`` as :class:`Frame` says)."""
     data = bytes(msg.data) if msg.data is not None else b""
     dlc, remote = msg.dlc, bool(msg.is_remote_frame)
     return _new(Frame, (float(msg.timestamp or 0.0), channel_name(msg.channel) if channel is None else channel,
@@ -110,8 +108,7 @@ def channel_name(channel: Any) -> str:
 
 @dataclass(frozen=True, eq=False)
 class Block:
-    """``n`` CAN frames as numpy columns (see the module docstring); a reader of columns builds one
-    with the constructor, of frames with :meth:`of_frames`, of python-can messages with :meth:`of_messages`."""
+    """``n`` CAN frames as numpy columns (see the module docstring); also :meth:`of_frames`, :meth:`of_messages`."""
 
     time_s: np.ndarray
     can_id: np.ndarray
@@ -148,8 +145,7 @@ class Block:
 
     @classmethod
     def of_messages(cls, msgs: Sequence[can.Message], channel: str | Sequence[str] | None = None) -> Block:
-        """python-can messages as a block, field for field (``channel`` overrides each message's, or names each
-        message's in turn (a live batch of several buses); python-can's integer channels are named ``canN``)."""
+        """python-can messages as a block (``channel``: one for all, or one per message; ints named ``canN``)."""
         if len(msgs) == 1:  # a live frame
             return one_block(frame_from_message(msgs[0], channel if channel is None or type(channel) is str
                                                 else channel[0]))
@@ -181,8 +177,7 @@ class Block:
         return source if isinstance(source, np.ndarray) else source.rows(slice(None))
 
     def payload_rows(self, rows: Any) -> np.ndarray:
-        """:attr:`payload`'s ``rows`` (an index array), as wide as the longest of them or wider; made for these
-        rows alone while :attr:`payload` is not made."""
+        """:attr:`payload`'s ``rows`` (an index array), made for these rows alone while :attr:`payload` is not."""
         source = self._made_payload()
         return source[rows] if isinstance(source, np.ndarray) else source.rows(rows)
 
@@ -247,8 +242,7 @@ class Block:
         return self.payload_source if made is None else made
 
     def frames(self) -> Iterator[Frame]:
-        """Every row as a :class:`Frame`, in order (each column converted once: what :meth:`frame` gives row by row,
-        at a fraction of its cost)."""
+        """Every row as a :class:`Frame`, in order (each column converted once)."""
         n = self.n
         flags = self.flags
         length = self.length.astype(np.int64)
@@ -347,8 +341,7 @@ def _of_frames(frames: Sequence[Frame]) -> Block:
 def _rows(times: Sequence[float], ids: Sequence[int], ext: Sequence[bool], flags: Sequence[int],
           dlcs: Sequence[int], datas: Sequence[bytes], chans: Sequence[str],
           lengths: list[int] | None = None) -> Block:
-    """Rows gathered one by one (frames, python-can messages) as a block; a row that is no CAN frame (an id
-    beyond 32 bits, a DLC or payload beyond 255) is a LogFormatError."""
+    """Rows gathered one by one as a block; a row that is no CAN frame is a LogFormatError."""
     if lengths is None:
         lengths = list(map(len, datas))
     width = max(lengths, default=0)

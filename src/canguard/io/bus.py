@@ -51,8 +51,7 @@ KERNEL_FILTERS_MAX = 512
 
 
 def receive_keys(cfg: Config) -> dict[str, frozenset[int] | None]:
-    """Per bus of ``cfg``, the id keys of the frames the config reads (each source's messages, a CANopen drive's
-    PDOs, heartbeat and EMCY); None for a bus with ``filter: false``."""
+    """Per bus of ``cfg``, the id keys of the frames the config reads; None for a bus with ``filter: false``."""
     keys: dict[str, set[int]] = {name: set() for name in cfg.buses}
     for source in cfg.sources.values():
         for ref in source.signals:
@@ -61,8 +60,7 @@ def receive_keys(cfg: Config) -> dict[str, frozenset[int] | None]:
 
 
 def kernel_filters(keys: Iterable[int]) -> list[CanFilter]:
-    """python-can ``can_filters`` passing exactly the frames of ``keys``: each id under a full mask, with its
-    extended flag (SocketCAN then matches the frame format too)."""
+    """python-can ``can_filters`` passing exactly the frames of ``keys`` (each id, full mask, its extended flag)."""
     return [{"can_id": k - EXT_KEY, "can_mask": 0x1FFFFFFF, "extended": True} if k >= EXT_KEY
             else {"can_id": k, "can_mask": 0x7FF, "extended": False} for k in sorted(keys)]
 
@@ -74,8 +72,7 @@ def wants(keys: frozenset[int] | None, msg: can.Message) -> bool:
 
 
 def open_bus(cfg: BusConfig) -> can.BusABC:
-    """Open ``cfg`` with ``can.Bus(**cfg.kwargs)``; a :class:`BusError` naming the bus, interface and channel
-    (chained to python-can's own exception) when it does not open."""
+    """Open ``cfg`` with ``can.Bus``; a :class:`BusError` naming bus, interface and channel when it does not open."""
     try:
         bus = can.Bus(**dict(cfg.kwargs))
     except Exception as exc:  # python-can raises CanError, OSError, ImportError, ValueError... per backend
@@ -122,8 +119,7 @@ def bus_fileno(bus: can.BusABC) -> int:
 
 
 WALL_STAMP_S = 1.0
-"""A bus whose frame has a stamp this close to the wall clock stamps with it: its stamps are arrival times from
-then on (until then its frames arrive when canguard receives them)."""
+"""A frame stamped this close to the wall clock: the bus stamps with it, its stamps are arrival times from then on."""
 
 
 class BusReader:
@@ -174,8 +170,7 @@ class BusReader:
 
     # -- life cycle --------------------------------------------------------
     def start(self) -> None:
-        """Open every bus, then start one receive thread per bus (none when receiving directly); a :class:`BusError`
-        for the first bus that does not open (the buses already opened are shut down again)."""
+        """Open every bus and start its receive thread (none when direct); BusError for the first that does not open."""
         if self._started:
             raise RuntimeError("BusReader already started")
         self._stop.clear()
@@ -238,8 +233,7 @@ class BusReader:
         return bus
 
     def _filter(self, name: str, bus: can.BusABC) -> None:
-        """On SocketCAN (and no ``can_filters`` of the config's own), :attr:`wanted`'s ids as the kernel's filters:
-        every frame when they are None, empty or too many for the kernel (:func:`wants` filters them then)."""
+        """On SocketCAN (no ``can_filters`` of its own): :attr:`wanted` as kernel filters, or all when too many."""
         cfg = self.configs[name]
         if cfg.interface != "socketcan" or "can_filters" in cfg.kwargs:
             return
@@ -248,8 +242,7 @@ class BusReader:
 
     # -- consuming ---------------------------------------------------------
     def receive(self, timeout_s: float | None, limit: int) -> list[tuple[str, can.Message, float]]:
-        """Up to ``limit`` frames as ``(bus_name, message, received)`` in arrival order, waiting up to ``timeout_s``
-        (None: without end) for the first; ``received`` is on ``time.monotonic()``'s base. Empty on timeout."""
+        """Up to ``limit`` ``(bus_name, message, received)`` in arrival order, waiting ``timeout_s`` for the first."""
         if self.direct:
             return self._receive_direct(timeout_s, limit)
         try:
@@ -267,8 +260,7 @@ class BusReader:
 
     # -- sending -----------------------------------------------------------
     def send(self, bus_name: str, msg: can.Message) -> bool:
-        """Send ``msg`` on ``bus_name`` without blocking: True when the bus took it; a failure (unknown or closed
-        bus, full transmit buffer...) is counted in :attr:`send_failures` and logged, never raised."""
+        """Send ``msg`` without blocking: True when the bus took it; a failure is counted and logged, never raised."""
         bus = self._buses.get(bus_name)
         if bus is None:
             self.send_failures[bus_name] = self.send_failures.get(bus_name, 0) + 1
@@ -284,8 +276,7 @@ class BusReader:
 
     # -- receiving directly -------------------------------------------------
     def _receive_direct(self, timeout_s: float | None, limit: int) -> list[tuple[str, can.Message, float]]:
-        """Wait on the open buses' sockets, then drain each ready one with ``recv(0)``; reopen buses due. A wake-up
-        that brought only foreign frames waits again, until ``timeout_s`` is over."""
+        """Wait on the open buses' sockets, drain the ready ones, reopen those due; until ``timeout_s`` is over."""
         end = math.inf if timeout_s is None else monotonic() + timeout_s
         while not self._stop.is_set():
             out = self._wake(timeout_s, limit)
@@ -298,8 +289,7 @@ class BusReader:
         return []
 
     def _wake(self, timeout_s: float | None, limit: int) -> list[tuple[str, can.Message, float]] | None:
-        """One wait on the sockets and the drain of those ready: the frames taken; [] when none is ready in
-        ``timeout_s``, None when the ready ones held only frames :func:`wants` drops."""
+        """One wait and drain: the frames taken; [] when none is ready, None when the ready held only dropped frames."""
         buses = self._buses
         if None in buses.values():  # a bus closed: reopened when due, waited on until then
             now = monotonic()

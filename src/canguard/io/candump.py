@@ -185,8 +185,7 @@ def _as_text(block: bytes) -> str:
 
 
 def candump_blocks(p: Path, gz: str, skip_bad: bool, st: ReadStats) -> Blocks:
-    """The candump text reader's blocks, a block of whole lines at a time (a bad line raises, naming its file:line,
-    after the frames before it; with ``skip_bad`` it is counted)."""
+    """The candump reader's blocks of whole lines; a bad line raises naming its file:line (or, ``skip_bad``, counts)."""
     raw = open(p, "rb")  # noqa: SIM115 -- closed below
     files = [open_decompressed(raw, gz)]  # the last one is read (lines that end in a lone CR: read again)
     lineno = 0  # lines before the current block
@@ -218,8 +217,7 @@ def candump_blocks(p: Path, gz: str, skip_bad: bool, st: ReadStats) -> Blocks:
 
 
 def _text(p: Path, raw: Any, gz: str, files: list[Any], lineno: int) -> bytes:
-    """The next block of whole lines of the log (``files[-1]`` reading it; ``lineno``: the lines before), each
-    ending in a line break; b"" at the end."""
+    """The next block of whole lines (``files[-1]`` reading it; ``lineno``: lines before); b"" at the end."""
     longest = 4 * CHUNK_CHARS
     try:
         text: bytes = files[-1].read(CHUNK_CHARS)
@@ -251,8 +249,7 @@ def _line(raw: bytes, k: int) -> str:
 
 
 def format_candump_line(frame: Frame, default_channel: str = "can0") -> str:
-    """One candump -L line for ``frame``, without the newline (``default_channel`` for an empty channel);
-    ValueError for an id out of range or a channel with whitespace in it."""
+    """One candump -L line for ``frame``, no newline; ValueError for an id out of range or a channel with spaces."""
     channel = frame.channel or default_channel
     if not channel or channel.split() != [channel]:
         raise ValueError(f"channel {channel!r} cannot be written to a candump log (empty or has whitespace)")

@@ -97,8 +97,7 @@ def _rewritten(raw: bytes) -> tuple[bytes, np.ndarray | None]:
 
 
 def _loose_spaces(raw: bytes) -> bool:
-    """Two spaces in a row, or a space at a line's start or end, anywhere in ``raw`` (two-byte searches cost
-    ten times these passes)."""
+    """Two spaces in a row, or a space at a line's start or end, anywhere in ``raw``."""
     b = np.frombuffer(raw, dtype=np.uint8)
     space = b == 32
     if not space.any():
@@ -108,8 +107,7 @@ def _loose_spaces(raw: bytes) -> bool:
 
 
 def _compact(m: re.Match[bytes]) -> tuple[bytes, int]:
-    """A -ta line's fields (:data:`_LONG_ANY`) as a -L line, and its announced length (-1: a line the parser
-    must refuse, left as it was)."""
+    """A -ta line's fields as a -L line, and its announced length (-1: left as it was, refused)."""
     stamp, chan, _direction, brs, esi, cid, size, data, tail = m.groups()
     length = int(size)
     body = data.replace(b" ", b"")
@@ -249,8 +247,7 @@ class _Columns:
         return close, _after(np.flatnonzero(self.b == 32), close + 2, end)
 
     def _field_end(self, sp2: np.ndarray, end: np.ndarray) -> np.ndarray:
-        """Where each line's ID#DATA ends: its end, or the space before a T/R marker (a space anywhere else is
-        found by the count of what is not a hex digit)."""
+        """Where each line's ID#DATA ends: its end, or the space before a T/R marker."""
         pad = self.pad
         spaced = pad[end - 2] == 32
         if not spaced.any():
@@ -308,8 +305,7 @@ class _Columns:
         return (ext | (size == 3)) & np.where(ext, (value <= _U(_MAX_EXTENDED)) | err, low <= _U(_MAX_STANDARD))
 
     def _data(self, h1: np.ndarray, fe: np.ndarray) -> np.ndarray:
-        """The payloads after the "#": classic, CAN FD (``##F``), remote (``R``, ``R4``), raw DLC (``_D``); the checks
-        of each kind made only where the block has one."""
+        """The payloads after the "#" (classic, FD, remote, raw DLC), each kind checked only where present."""
         pad = self.pad
         after = pad[h1 + 1]
         fd = after == 35
@@ -391,8 +387,7 @@ class _Columns:
         return ok
 
     def _dot_place(self, start: np.ndarray, close: np.ndarray) -> int:
-        """Where the first line's timestamp has its dot (from the line's start), when every line's has one there;
-        else 0."""
+        """Where every line's timestamp has its dot, when it is where the first line's is; else 0."""
         if start.size:
             at = self.pad[int(start[0]):int(close[0])].tobytes().find(b".")
             if at > 0 and ((self.pad[start + at] == 46) & (start + at < close)).all():
@@ -470,8 +465,7 @@ class _Columns:
         return rank[lanes], [listed[k] for k in order.tolist()]
 
     def block(self, text: bytes, rows: np.ndarray) -> Block:
-        """The frames of ``rows`` (good lines of ``text``) as a block; their payloads read from ``text`` when asked
-        for (:class:`HexPayloads`)."""
+        """The frames of ``rows`` (good lines of ``text``) as a block (payloads: :class:`HexPayloads`)."""
         lanes, names = self.channels(rows)
         pick: Any = slice(None) if rows.size == self.start.size else rows  # every line: the columns as they are
         length = self.length[pick]
@@ -490,8 +484,7 @@ class HexPayloads:
         self.text, self.digits, self.start, self.length = text, digits, start, length
 
     def rows(self, rows: Any) -> np.ndarray:
-        """The bytes of ``rows``' digits (an index array, or a slice): a ``len(rows) x longest`` matrix, zeros past
-        each one's length."""
+        """The bytes of ``rows``' digits as a ``len(rows) x longest`` matrix, zeros past each one's length."""
         start = self.start[rows]
         length = self.length[rows]
         width = int(length.max()) * 2 if start.size else 0
@@ -562,8 +555,7 @@ def _after(positions: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
 
 
 def _few(codes: np.ndarray, most: int = 8) -> tuple[np.ndarray, np.ndarray] | None:
-    """Each of ``codes``' index among the distinct codes in the order they first come, and where each first comes;
-    None when there are more than ``most`` (then a sort is cheaper than a pass for each)."""
+    """Each code's index among the distinct codes (first-come order) and their first rows; None: over ``most``."""
     lanes = np.zeros(codes.size, dtype=np.uint16)
     firsts = [0]
     rest = codes != codes[0]

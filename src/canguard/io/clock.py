@@ -43,8 +43,7 @@ class ManualClock:
 
 
 class LiveClock:
-    """Epoch seconds that advance with the monotonic clock: events line up with a candump of the same bus, yet a
-    wall-clock step (NTP, manual date) does not move canguard's time (the offset is taken once)."""
+    """Epoch seconds advancing with the monotonic clock (a wall-clock step does not move canguard's time)."""
 
     def __init__(self) -> None:
         self._offset = time.time() - time.monotonic()
@@ -58,8 +57,7 @@ class LiveClock:
 
 
 class PinnedClock:
-    """The engine's view of a clock: never goes back, and stands still for a tick (every node and event of one
-    tick sees the same ``now``, and journal times stay in order)."""
+    """The engine's view of a clock: never goes back, and stands still for a tick (one ``now`` per tick)."""
 
     def __init__(self, inner: Clock) -> None:
         self.inner = inner

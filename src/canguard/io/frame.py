@@ -6,8 +6,7 @@ from typing import NamedTuple
 
 
 class Frame(NamedTuple):
-    """One CAN frame as received or recorded: ``t`` in epoch seconds as candump writes them (live: the time
-    python-can reports), ``channel`` as recorded (``can0``) or, live, the configured bus name."""
+    """One CAN frame: ``t`` in epoch seconds, ``channel`` as recorded (``can0``) or, live, the bus name."""
 
     t: float
     channel: str

@@ -47,8 +47,7 @@ _NEEDS = {"mf4": ("asammdf", "pip install 'python-can[mf4]'"), "rosbag": NEEDS, 
 
 
 def log_format(path: str | Path) -> tuple[str, str]:
-    """``(format, compression)`` of a log path by its suffix (:data:`LOG_READERS`; compression ``""``, ``gz``,
-    ``xz`` or ``zst``); :class:`LogFormatError` for an unknown one."""
+    """``(format, compression)`` of a log path by its suffix; :class:`LogFormatError` for an unknown one."""
     path = Path(path)
     if path.is_dir() and is_bag(path):
         return "rosbag", ""

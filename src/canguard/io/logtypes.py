@@ -103,13 +103,11 @@ class ReadStats:
 
 
 Blocks = Generator[tuple[Block | None, int | None], None, str]
-"""A format's reader: its blocks (None: none this time) with the position reached on disk (None: unknown); its
-return value names what was read (`` on /can``) for the error of a log without frames."""
+"""A reader's blocks (None: none this time) with the position on disk; returns what was read (`` on /can``)."""
 
 
 class LogFrames(Iterator[Frame]):
-    """The frames of one log, streamed (:func:`read_log`): frame by frame, or by :meth:`chunks` (one or the other).
-    ``progress`` (settable until the end) follows the file position."""
+    """The frames of one log (:func:`read_log`): frame by frame, or by :meth:`chunks`; ``progress`` follows it."""
 
     def __init__(self, path: Path, stats: ReadStats, read: Callable[[], Blocks]) -> None:
         self.path = path

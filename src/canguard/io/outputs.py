@@ -73,8 +73,7 @@ def _append_problem(path: Path) -> str:
 
 
 def output_problem(path: Path, *, beside: bool = False, makes_dirs: bool = False) -> str:
-    """Why canguard cannot write the file ``path`` ("" when it can), found by trying it. ``makes_dirs``: the writer
-    makes missing directories; ``beside``: it also makes files beside ``path`` (rotation, atomic replace)."""
+    """Why canguard cannot write ``path`` ("" when it can), found by trying; ``makes_dirs``/``beside``: the writer's."""
     path = Path(os.path.abspath(path))
     if path.is_dir():
         return "it is a directory, expected a file path"

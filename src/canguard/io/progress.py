@@ -15,8 +15,7 @@ _MIN_INTERVAL_S = 0.2  # redraw at most five times a second: a terminal write is
 
 
 class ProgressBar:
-    """``[#####.....]  42%  19.5/46.5 MB  label`` on one line of ``stream``, redrawn in place when it is a terminal
-    (``total_bytes`` 0 or less: unknown, bytes only)."""
+    """``[#####.....]  42%  19.5/46.5 MB  label`` on one line of ``stream``, redrawn in place on a terminal."""
 
     def __init__(self, total_bytes: int, stream: TextIO | None = None, *, label: str = "",
                  min_interval_s: float = _MIN_INTERVAL_S) -> None:
@@ -67,8 +66,7 @@ class ProgressBar:
 
 
 def wrap_progress(frames: _FramesT, path: str | Path, stream: TextIO | None = None) -> _FramesT:
-    """Attach a :class:`ProgressBar` for ``path`` to ``frames`` (a reader from ``read_log``: its ``progress``) when
-    ``stream`` is a terminal; ``frames`` is returned either way."""
+    """Attach a :class:`ProgressBar` for ``path`` to the reader ``frames`` when ``stream`` is a terminal."""
     p = Path(path)
     try:
         total = p.stat().st_size

@@ -41,8 +41,7 @@ BLOCK = 2048
 
 
 def python_can_blocks(p: Path, fmt: str, gz: str, size: int) -> Blocks:
-    """One of python-can's readers as blocks (``size``: the file's on disk); its errors as LogFormatError, after
-    the frames read before the failure."""
+    """One of python-can's readers as blocks (``size``: on disk); its errors as LogFormatError after the frames read."""
     name = fmt.upper()
     raw = open(p, "rb")  # noqa: SIM115 -- closed below
     try:
@@ -80,8 +79,7 @@ def python_can_blocks(p: Path, fmt: str, gz: str, size: int) -> Blocks:
 
 
 def _messages(p: Path, name: str, fobj: Any, text: bool, length: BlfLength | None) -> Iterator[can.Message]:
-    """python-can's reader of format ``name`` (``ASC``, ``BLF``...) over ``fobj``; LogFormatError when it does not
-    open."""
+    """python-can's reader of format ``name`` over ``fobj``; LogFormatError when it does not open."""
     import can
 
     try:

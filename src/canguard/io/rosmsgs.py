@@ -34,8 +34,7 @@ DEFINITIONS: dict[str, tuple[str, ...]] = {
     "ros2_socketcan_msgs/msg/Frame": (SOCKETCAN_FRAME, SOCKETCAN_FRAME_SEQ),
     "autoware_can_msgs/msg/CANPacket": (AUTOWARE_CAN_PACKET,),
 }
-"""The CAN frame types canguard reads, by ROS 2 name, each with the definitions it has had (the first assumed for
-a bag that stores none)."""
+"""The CAN frame types canguard reads, by ROS 2 name, with their definitions (the first assumed when none)."""
 
 DEPENDENCIES = {"std_msgs/msg/Header": HEADER, "builtin_interfaces/msg/Time": TIME}
 """The types the definitions name (ROS 2 spelling)."""
@@ -60,8 +59,7 @@ def ros2_name(msgtype: str) -> str:
 
 
 def looks_like_can(msgtype: str) -> bool:
-    """A type whose name says it is a CAN frame: read, or refused by name when canguard does not know it, never
-    passed over as if the bag had no CAN topic."""
+    """A type whose name says CAN frame: read, or refused by name, never passed over as if no CAN topic."""
     low = msgtype.lower()
     return "can" in low.split("/")[0] or any(w in low.rsplit("/", 1)[-1] for w in ("can", "fdframe"))
 
@@ -128,8 +126,7 @@ def layout(msgtype: str, definition: str, cdr: bool) -> Layout:
 
 
 def layout_for(path: object, topic: str, msgtype: str, stored: str, cdr: bool) -> Layout:
-    """The layout of ``topic``'s messages: of the known definition its ``stored`` one matches field by field (the
-    first when none is stored); LogFormatError otherwise."""
+    """The layout of ``topic``'s messages by its ``stored`` definition (else the first known); LogFormatError."""
     name = ros2_name(msgtype)
     known = DEFINITIONS.get(name)
     if known is None:

@@ -361,8 +361,7 @@ class Daemon:
 
 
 def drive_setup(cfg: Config) -> Any:
-    """A started :class:`~canguard.service.canopen_setup.DriveSetup` when a drive has ``configure: true``, else None
-    (``canopen`` is an optional extra)."""
+    """A started :class:`~.canopen_setup.DriveSetup` when a drive has ``configure: true``, else None."""
     if not any(d.configure for d in cfg.canopen.values()):
         return None
     from canguard.service.canopen_setup import DriveSetup

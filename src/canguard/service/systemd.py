@@ -62,14 +62,12 @@ class Notifier:
         return self.notify("STOPPING=1")
 
     def reloading(self, monotonic_usec: int | None = None) -> bool:
-        """``RELOADING=1`` + ``MONOTONIC_USEC`` (CLOCK_MONOTONIC now, systemd >= 253 needs it); send :meth:`ready`
-        once the new config runs (or the old one was kept)."""
+        """``RELOADING=1`` + ``MONOTONIC_USEC`` (systemd >= 253); :meth:`ready` once the reload is done."""
         usec = time.monotonic_ns() // 1000 if monotonic_usec is None else int(monotonic_usec)
         return self.notify("RELOADING=1", f"MONOTONIC_USEC={usec}")
 
     def watchdog_interval_s(self) -> float | None:
-        """``WatchdogSec=`` in seconds when systemd expects pings from this process (``WATCHDOG_USEC`` a positive
-        integer, ``WATCHDOG_PID`` unset or ours), else None."""
+        """``WatchdogSec=`` in seconds when systemd expects pings from this process, else None."""
         pid = self._env.get("WATCHDOG_PID")
         try:
             usec = int(self._env.get("WATCHDOG_USEC") or 0)

@@ -241,8 +241,7 @@ class Monitor:
         self._journal.flush()
 
     def publish(self, engine: Engine, now: float) -> None:
-        """After each tick: a record when something changed (at most every :data:`PERIOD_S`), offered to the
-        monitor process (never raises, never waits)."""
+        """After each tick: a record when something changed, offered to the monitor process (never raises or waits)."""
         try:
             if self._take(engine, now):
                 self.offer()

@@ -80,8 +80,7 @@ class Hub:
         """Called after each message of the daemon, in the receiving thread (it must not wait)."""
 
     def receive(self, message: tuple[Any, ...]) -> None:
-        """One message of the daemon: a tree's layout, or a tick's journal events and record (guards None: as
-        before)."""
+        """One message of the daemon: a tree's layout, or a tick's journal events and record."""
         if message[0] == "layout":
             self.layout = message[1]
             self._guards = ()
