@@ -392,7 +392,8 @@ class BusReader:
         while not stop.is_set():
             bus = self._buses[name]
             if bus is None:
-                if not self._reopen(name, delay):
+                if self._open_once(name, delay) is None:
+                    stop.wait(delay)
                     delay = min(delay * 2, self.backoff_max_s)
                 continue
             try:
@@ -425,12 +426,6 @@ class BusReader:
             bus, self._buses[name] = self._buses[name], None
         _shutdown(bus, name)
 
-    def _reopen(self, name: str, delay: float) -> bool:
-        """Try once to reopen ``name``; on failure wait ``delay`` (or until stopped)."""
-        if self._open_once(name, delay) is not None:
-            return True
-        self._stop.wait(delay)
-        return False
 
     def _open_once(self, name: str, delay: float) -> can.BusABC | None:
         """Try once to reopen ``name``; the bus, or None (logged, saying when the next try is)."""
