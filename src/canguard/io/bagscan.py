@@ -1,9 +1,5 @@
-"""A bag file's messages a chunk at a time, as arrays: where each message's bytes lie, its channel, its log time.
-
-MCAP (:class:`McapScan`) and ROS 1 bags (:class:`Ros1Scan`): a chunk's records are found at once where they all
-have one length (no Python object per message). A file is read from its start: one cut short gives every chunk
-before the cut, then :class:`McapCut` saying where it ends.
-"""
+"""MCAP and ROS 1 bag files' messages a chunk at a time, as arrays (no Python object per message), read from the
+start: one cut short gives every chunk before the cut, then :class:`McapCut` saying where it ends."""
 
 from __future__ import annotations
 

@@ -1,5 +1,4 @@
-"""``replay --emit FILE.mcap`` / ``--emit DIR``: the frames canguard would send, as a bag ``ros2 bag play`` sends
-(on the topics ros2_socketcan's sender takes), stamped and recorded at the time canguard sent them."""
+"""``replay --emit FILE.mcap`` / ``--emit DIR``: the frames canguard would send, as a bag ``ros2 bag play`` sends."""
 
 from __future__ import annotations
 

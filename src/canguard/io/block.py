@@ -1,9 +1,6 @@
 """One block of CAN frames as numpy columns: what every log reader and the live drain give the engine.
 
-A :class:`Block` holds ``n`` frames in time order as read (a log's block of thousands, a live
-bus's drained queue, a frame on a quiet bus: a block of one). Every reader builds the same type
-(candump, ASC, BLF, TRC, CSV, MF4, bags); the engine reads its columns and never asks which format
-it came from. The columns::
+``n`` frames in order as read (a live frame: a block of one); the engine never asks which format it came from::
 
     time_s     float64 (n,)    the frame's time in the log's (live: the bus's) time base, seconds
     can_id     uint32  (n,)    the arbitration id, without flags (an error frame's id without CAN_ERR_FLAG)
@@ -12,10 +9,8 @@ it came from. The columns::
     dlc        uint8   (n,)    the data length code as python-can's ``Message.dlc`` gives it: the payload's
                                length, or what a remote frame asks for, or a classic raw DLC of 9..15
     length     uint8   (n,)    payload bytes
-    payload    uint8   (n, w)  each row's payload in its first ``length`` bytes, zeros after; ``w`` is the
-                               longest payload of the block (0 when every frame is empty); a reader may
-                               give a :class:`PayloadSource` instead, read at first use, and
-                               :meth:`Block.payload_rows` reads the rows asked for alone
+    payload    uint8   (n, w)  each row's payload in its first ``length`` bytes, zeros after (``w``: the longest);
+                               or a :class:`PayloadSource`, read at first use (:meth:`Block.payload_rows`)
     channel    uint16  (n,)    each row's index into ``channels``
     channels   tuple[str]      the channel names (``can0``; live: the bus name)
 
@@ -63,8 +58,7 @@ _T = TypeVar("_T")
 
 
 class _cached(Generic[_T]):  # a decorator, as functools.cached_property
-    """A value computed at first use and kept in the instance (functools.cached_property without its lock,
-    which costs a live block of one more than the value)."""
+    """Computed at first use and kept in the instance (functools.cached_property without its lock's cost)."""
 
     def __init__(self, fn: Callable[[Any], _T]) -> None:
         self.fn = fn

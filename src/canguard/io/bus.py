@@ -123,8 +123,7 @@ WALL_STAMP_S = 1.0
 
 
 class BusReader:
-    """Receives from every configured bus: a context manager, or :meth:`start` and :meth:`stop`; frames come from
-    :meth:`receive`. Counters by bus name: :attr:`received`, :attr:`sent`, :attr:`send_failures`, :attr:`reopens`."""
+    """Receives from the configured buses (a context manager); per bus: received, sent, send_failures, reopens."""
 
     def __init__(
         self,

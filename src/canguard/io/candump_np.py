@@ -32,8 +32,7 @@ _LE64 = np.dtype("<u8")
 _LE16 = np.dtype("<u2")
 _NIBBLES = np.array([int(chr(c), 16) if chr(c) in "0123456789abcdefABCDEF" else 0 for c in range(256)], dtype=np.uint8)
 _PAIRS = ((_NIBBLES[None, :] << 4) | _NIBBLES[:, None]).ravel()
-"""By the little-endian 16-bit word of two hex digits' bytes, the byte they spell (:data:`_NIBBLES`: by byte, its
-value as a hex digit, else 0)."""
+"""By the little-endian word of two hex digits' bytes, the byte they spell (:data:`_NIBBLES`: each byte's digit)."""
 _EXACT = 1 << 53
 _NO_ROWS = np.zeros(0, dtype=np.intp)
 _ERR_FLAG = 0x20000000
@@ -475,8 +474,7 @@ class _Columns:
 
 
 class HexPayloads:
-    """A block's payloads as the hex digits of its lines (``start``: each row's first digit in ``text``, whose
-    bytes ``digits`` are): the rows asked for are made when read, as wide as their longest."""
+    """A block's payloads as its lines' hex digits (``start``: each row's first in ``text``), rows made when read."""
 
     __slots__ = ("digits", "length", "start", "text")
 

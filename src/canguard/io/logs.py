@@ -1,8 +1,5 @@
-"""Read recorded CAN logs as streams of :class:`~canguard.io.block.Block` s (or frames); write candump -L logs.
-
-:func:`read_log` picks the reader by file suffix (:data:`LOG_READERS`, a compression on top of any): candump text,
-python-can's readers, ROS bags. Every reader streams the same blocks: memory stays flat in the log's length.
-"""
+"""Read recorded CAN logs as streams of :class:`~canguard.io.block.Block` s (or frames), the reader chosen by file
+suffix (:data:`LOG_READERS`): memory stays flat in the log's length. Write candump -L logs."""
 
 from __future__ import annotations
 

@@ -1,7 +1,4 @@
-"""python-can's own log readers (ASC, BLF, TRC, CSV, MF4) as :class:`~canguard.io.block.Block` s.
-
-Each batch of up to :data:`BLOCK` messages becomes one block (:meth:`~canguard.io.block.Block.of_messages`).
-"""
+"""python-can's own log readers (ASC, BLF, TRC, CSV, MF4) as :class:`~canguard.io.block.Block` s."""
 
 from __future__ import annotations
 

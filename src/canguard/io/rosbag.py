@@ -1,8 +1,5 @@
-"""ROS bags as CAN logs (docs/commands.md): rosbag2 (a directory, a ``.db3`` or ``.mcap``) and ROS 1 ``.bag``.
-
-Raw messages come a block at a time (:class:`BagSource`: MCAP and ROS 1 through :mod:`canguard.io.bagscan`, a
-``.db3`` through its ``messages`` table); every field of a block is gathered by numpy at once (:func:`unpack`).
-"""
+"""ROS bags as CAN logs (docs/commands.md): rosbag2 (a directory, a ``.db3`` or ``.mcap``) and ROS 1 ``.bag``,
+a block of raw messages at a time (:class:`BagSource`), every field gathered by numpy at once (:func:`unpack`)."""
 
 from __future__ import annotations
 

@@ -43,8 +43,7 @@ KVASER_RTR, KVASER_EXT, KVASER_ERROR_FRAME = 0x01, 0x04, 0x20
 """Kvaser CANlib's ``canMSG_RTR``, ``canMSG_EXT`` and ``canMSG_ERROR_FRAME`` (``CANPacket.flag``)."""
 
 HEADER_SIZE = 16
-"""Bytes before ``frame_id``'s characters, from the message's first byte: the CDR encapsulation (4), then ``sec,
-nanosec`` and the string's length; in ROS 1 ``seq, secs, nsecs`` and the length."""
+"""Bytes before ``frame_id``'s characters: CDR encapsulation or ROS 1 ``seq``, the stamp, the string's length."""
 STAMP_AT = 4
 """Where ``stamp``'s two 32-bit fields start, from the message's first byte (both serialisations)."""
 

@@ -1,5 +1,4 @@
-"""``canguard run``: the live engine as a systemd service (docs/deploy.md): frames until the engine's next
-deadline, handed to :meth:`Engine.take` as blocks, the engine advanced to now, systemd told how things stand."""
+"""``canguard run``: the live engine as a systemd service (docs/deploy.md)."""
 
 from __future__ import annotations
 
@@ -388,14 +387,12 @@ def overrun_limit(cfg: Config) -> float:
 
 
 def tree_clients(root: py_trees.behaviour.Behaviour) -> set[uuid.UUID]:
-    """The ids of the blackboard clients of the nodes under ``root`` (py_trees' one blackboard per process keeps a
-    dropped tree's keys: the daemon releases them after a reload, :func:`release_clients`)."""
+    """The ids of the blackboard clients of the nodes under ``root`` (py_trees keeps a dropped tree's keys)."""
     return {client.id() for node in root.iterate() for client in node.blackboards}
 
 
 def release_clients(ids: Iterable[uuid.UUID]) -> int:
-    """Remove these clients from the global blackboard, and the keys no other client holds (as py_trees'
-    ``Client.unregister(clear=True)``, from the ids alone); how many keys went."""
+    """Remove these clients, and the keys no other client holds, from py_trees' global blackboard; how many keys."""
     ids = set(ids)
     gone = 0
     for key, meta in list(Blackboard.metadata.items()):

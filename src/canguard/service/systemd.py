@@ -1,5 +1,4 @@
-"""sd_notify from scratch (:class:`Notifier`), and the policy deciding when the watchdog may be fed: ``WATCHDOG=1``
-goes only while :func:`watchdog_hold` finds nothing wrong with the loop."""
+"""sd_notify from scratch (:class:`Notifier`); ``WATCHDOG=1`` only while :func:`watchdog_hold` finds nothing wrong."""
 
 from __future__ import annotations
 

@@ -125,8 +125,7 @@ def frames(message: Any) -> list[bytes]:
 
 
 class Monitor:
-    """The monitor process of one daemon, and the observer of each engine it runs (:meth:`attach`): a record of
-    each tick handed over without waiting. :class:`~canguard.errors.ConfigError` when a server cannot listen."""
+    """The monitor process of one daemon, observer of each engine it runs; ConfigError when a server cannot listen."""
 
     def __init__(self, settings: MonitorConfig) -> None:
         self._sock, theirs = socket_pair()

@@ -1,5 +1,4 @@
-"""Groot2's monitor: BehaviorTree.CPP 4's Groot2 publisher protocol (REP on PORT, PUB on PORT + 1), read-only:
-hooks, breakpoints and recording are refused (docs/monitor.md)."""
+"""Groot2's monitor: BehaviorTree.CPP 4's Groot2 publisher protocol (REP on PORT, PUB on PORT + 1), read-only."""
 
 from __future__ import annotations
 

@@ -64,8 +64,7 @@ class ClientNotes:
 
 
 class Hub:
-    """The latest :class:`Tick` and journal events, fed from the daemon's socket ``sock``, read by server threads
-    (receiving only assigns a reference or appends to a bounded deque, then calls :attr:`on_news`)."""
+    """The latest :class:`Tick` and journal events from the daemon's socket, for server threads (no lock needed)."""
 
     def __init__(self, sock: socket.socket | None = None) -> None:
         self.sock = sock

@@ -1,5 +1,4 @@
-"""The running tree as BehaviorTree.CPP numbers it: node UIDs, subtree instances, Groot2's FULLTREE XML (built once
-per engine; py_trees inlines a subtree, its ``<SubTree>`` node is put back here)."""
+"""The running tree as BehaviorTree.CPP numbers it: node UIDs, subtree instances, Groot2's FULLTREE XML."""
 
 from __future__ import annotations
 

@@ -1,5 +1,4 @@
-"""The monitor process: ``python -m canguard.service.monitor.server FD``, started by the daemon (:class:`.Monitor`).
-Its settings come over the socket ``FD`` (the token never shows on a command line)."""
+"""The monitor process, started by :class:`.Monitor`; its settings come over socket ``FD`` (no token in argv)."""
 
 from __future__ import annotations
 

@@ -1,5 +1,4 @@
-"""The status page and its API (docs/monitor.md): one asyncio event loop, in a thread of its own, serves every
-connection, read-only, with an optional bearer token."""
+"""The status page and its API (docs/monitor.md): read-only, one asyncio loop in a thread of its own."""
 
 from __future__ import annotations
 
@@ -42,8 +41,7 @@ _PAGE_HEADERS = {"Content-Security-Policy": "default-src 'none'; script-src 'uns
 
 @dataclass(frozen=True)
 class Limits:
-    """What the status page's server grants its clients (docs/monitor.md, "Clients that misbehave"); connections
-    at most half the process's file descriptors."""
+    """What the status page's server grants its clients (docs/monitor.md, "Clients that misbehave")."""
 
     max_connections: int = 2048
     max_streams: int = 64
@@ -291,8 +289,7 @@ class WebMonitor:
         return head
 
     async def _close(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        """End our side and wait (``send_timeout_s`` at most) for the client to close its own: closing with a
-        request body unread would reset the connection, and the answer with it."""
+        """End our side, then wait for the client's close (closing with a request body unread resets the answer)."""
         self.waiting[writer] = None  # lingering: the first to go when every place is taken
         with contextlib.suppress(OSError, asyncio.TimeoutError):  # it lingers or resets: it is closed all the same
             writer.write_eof()
