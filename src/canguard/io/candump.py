@@ -30,9 +30,6 @@ from canguard.io.logtypes import (
     open_decompressed,
 )
 
-# --------------------------------------------------------------------------- candump text
-
-
 CHUNK_CHARS = 1 << 20
 """Bytes per chunk (~22,000 -L lines); twice as many make the parser slower (its passes outgrow the caches)."""
 
