@@ -62,7 +62,7 @@ class Firmware:
     def __init__(self, channel: str) -> None:
         import canopen
 
-        from canguard.config.canopen_eds import Eds
+        from canguard.config.canopen import Eds
 
         self.network = canopen.Network()
         self.network.NOTIFIER_CYCLE = CYCLE_S

@@ -16,9 +16,13 @@ from pathlib import Path
 from canguard.cli.common import replace_once, subcommand
 from canguard.config.canopen import (
     CONTROLWORD,
+    DEVICE_TYPE,
     PRODUCER_HEARTBEAT,
+    PROFILES,
     STATUSWORD,
     TPDO_MAP,
+    Eds,
+    EdsError,
     Pdo,
     SdoWrite,
     drive_pdos,
@@ -26,7 +30,6 @@ from canguard.config.canopen import (
     override,
     pdo_writes,
 )
-from canguard.config.canopen_eds import DEVICE_TYPE, PROFILES, Eds, EdsError
 from canguard.data import data_path
 from canguard.errors import ConfigError
 

@@ -5,31 +5,35 @@ A pre-pass blanks (keeping line numbers) what cantools refuses even when not str
 note). Then every message is checked as strict mode would: overlapping signals (outside exclusive
 multiplexer pages), signals that do not fit, and what they multiplex are taken out of their message.
 Each is a :class:`SignalProblem`: an error where the config reads an involved signal, a note otherwise.
+
+:class:`Messages` is what a config names from them (and from its ``canopen:`` drives).
 """
 
 from __future__ import annotations
 
 import bisect
 import re
-from collections.abc import Iterable
-from dataclasses import dataclass, field
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import cantools
+
+from canguard.config.yamlsrc import Checks, _closest, _found, _path, _shown
+from canguard.errors import clip, quote
+
+if TYPE_CHECKING:
+    from canguard.config.canopen import CanopenSection
 
 PSEUDO_MESSAGE = "VECTOR__INDEPENDENT_SIG_MSG"
 """The message Vector's tools keep the signals of no message in (DLC 0; cantools refuses what refers to it)."""
 
-_WORD = re.compile(r'"(?:[^"\\]|\\.)*"|;|[^\s";]+')
-"""A word of a statement: a string (may span lines and hold ``;``), a ``;``, or a run of anything else."""
-_WORDS_NAMING = 6
-"""A statement names its message (and signal) within this many words (``BA_REL_ "a" BU_SG_REL_ n SG_ 5 s``)."""
 _BO = re.compile(r"BO_\s+(\d+)\s+(\w+)\s*:")
 _SG = re.compile(r"SG_\s+(\w+)\s*(?:\w+\s*)?:\s*(\d+)\|(\d+)@([01])")
-_STATEMENTS = frozenset({"VAL_", "SIG_VALTYPE_", "BA_", "CM_", "BO_TX_BU_", "SG_MUL_VAL_", "BA_REL_"})
-"""Statements that may name a message (by its DBC id) the file does not define."""
 _STRING = r'"(?:[^"\\]|\\.)*"'
+_WORD = re.compile(_STRING + r'|;|[^\s";]+')
+"""A word of a statement: a string (may span lines and hold ``;``), a ``;``, or a run of anything else."""
 _KEYWORD = re.compile(_STRING + r'|^[ \t]*([A-Z][A-Z_]*_)(?=[\s:])', re.MULTILINE)
 """A string (skipped whole), or a keyword that starts a line: a statement (``BO_``, ``SG_``, ``VAL_``, ...)."""
 _END = re.compile(_STRING + "|;")
@@ -55,54 +59,35 @@ class _SgLine:
     line: int
 
 
-@dataclass
-class _Text:
-    """The pre-pass's result: the text cantools is given, the notes, and each message's ``SG_`` lines by DBC id."""
+_NAMING = tuple(t.split() for t in (
+    "VAL_ # S", "SIG_VALTYPE_ # S", "SG_MUL_VAL_ # S", "BO_TX_BU_ #", "CM_ BO_ #", "CM_ SG_ # S", 'BA_ " BO_ #',
+    'BA_ " SG_ # S', 'BA_REL_ " BU_BO_REL_ * #'))
+"""The statements that may name a message the file does not define (cantools refuses them): ``#`` its DBC id,
+``S`` a signal, ``"`` a string, ``*`` any word. (cantools ignores a ``BU_SG_REL_`` of an undefined message.)"""
+_STATEMENTS = frozenset(t[0] for t in _NAMING)
+_WORDS_NAMING = max(len(t) for t in _NAMING)
+"""A statement names its message (and signal) within this many words (``BA_ "a" SG_ 5 s``)."""
 
-    text: str
-    notes: list[str] = field(default_factory=list)
-    signal_lines: dict[int, list[_SgLine]] = field(default_factory=dict)
+
+def _fits(pattern: str, word: str) -> bool:
+    if pattern in ('#', '"'):
+        return word.isdigit() if pattern == "#" else word.startswith('"')
+    return pattern in ("*", "S") or pattern == word
 
 
-def _named_message(tokens: list[str]) -> tuple[int, str | None] | None:
-    """The DBC message id (and signal name) a statement's tokens refer to, or None when it names no message."""
-    kind = tokens[0]
-    rest = tokens[1:]
-    if kind in ("VAL_", "SIG_VALTYPE_", "SG_MUL_VAL_"):
-        if len(rest) >= 2 and rest[0].isdigit():
-            return int(rest[0]), rest[1]
-        return None
-    if kind == "BO_TX_BU_":
-        return (int(rest[0]), None) if rest and rest[0].isdigit() else None
-    if kind == "CM_":
-        return _object_ref(rest)
-    if kind == "BA_":
-        return _object_ref(rest[1:]) if rest and rest[0].startswith('"') else None
-    if kind == "BA_REL_" and len(rest) >= 3 and rest[0].startswith('"'):
-        if rest[1] == "BU_SG_REL_" and len(rest) >= 6 and rest[3] == "SG_" and rest[4].isdigit():
-            return int(rest[4]), rest[5]
-        if rest[1] == "BU_BO_REL_" and len(rest) >= 4 and rest[3].isdigit():
-            return int(rest[3]), None
+def _named_message(words: list[str]) -> tuple[int, str | None] | None:
+    """The DBC message id (and signal name) a statement's words refer to, or None when it names no message."""
+    for t in _NAMING:
+        if len(words) >= len(t) and all(_fits(p, w) for p, w in zip(t, words, strict=False)):
+            return int(words[t.index("#")]), words[t.index("S")] if "S" in t else None
     return None
 
 
-def _label(words: list[str]) -> str:
+def _label(words: list[str], dbc_id: int, signal: str | None) -> str:
     """A statement as a note names it: ``VAL_ of signal S of message 1712``."""
-    ref = _named_message(words)
-    assert ref is not None
-    dbc_id, signal = ref
     attribute = f" {words[1]}" if words[0] in ("BA_", "BA_REL_") else ""
     of_signal = f" of signal {signal}" if signal is not None else ""
     return f"{words[0]}{attribute}{of_signal} of message {dbc_id}"
-
-
-def _object_ref(rest: list[str]) -> tuple[int, str | None] | None:
-    """``BO_ <id>`` or ``SG_ <id> <signal>`` at the start of ``rest``."""
-    if len(rest) >= 2 and rest[0] == "BO_" and rest[1].isdigit():
-        return int(rest[1]), None
-    if len(rest) >= 3 and rest[0] == "SG_" and rest[1].isdigit():
-        return int(rest[1]), rest[2]
-    return None
 
 
 class _Prepass:
@@ -121,10 +106,12 @@ class _Prepass:
         end = self.text.find("\n", pos)
         return len(self.text) if end < 0 else end
 
-    def run(self) -> _Text:
-        out = _Text(self.text)
+    def run(self) -> tuple[str, list[str], dict[int, list[_SgLine]]]:
+        """The text cantools is given, the notes, and each message's ``SG_`` lines by DBC id."""
+        notes: list[str] = []
+        signal_lines: dict[int, list[_SgLine]] = {}
         messages: dict[int, str] = {}
-        statements: list[tuple[int, int, list[str]]] = []
+        statements: list[tuple[int, int, list[str], tuple[int, str | None]]] = []
         current: int | None = None
         pseudo: list[int] = []  # the first and last position of the pseudo-message, then its signal count
         for found in _KEYWORD.finditer(self.text):
@@ -143,47 +130,44 @@ class _Prepass:
             if tok == "BO_":
                 current = int(m.group(1))
                 messages[current] = m.group(2)
-                out.signal_lines[current] = []
+                signal_lines[current] = []
                 if m.group(2) == PSEUDO_MESSAGE:
                     pseudo = [pos, self.line_end(pos), 0]
             elif current is not None:
-                out.signal_lines[current].append(_SgLine(
+                signal_lines[current].append(_SgLine(
                     m.group(1), int(m.group(2)), int(m.group(3)), m.group(4) == "1", self.line(pos)))
                 if messages[current] == PSEUDO_MESSAGE:
                     pseudo[1:] = [self.line_end(pos), pseudo[2] + 1]
-        defined = {k: {s.name for s in v} for k, v in out.signal_lines.items() if messages[k] != PSEUDO_MESSAGE}
+        defined = {k: {s.name for s in v} for k, v in signal_lines.items() if messages[k] != PSEUDO_MESSAGE}
         if pseudo:
             self.blank.append((pseudo[0], pseudo[1]))
-            out.notes.append(f"{self.display}:{self.line(pseudo[0])}: skipped BO_ {PSEUDO_MESSAGE} "
-                             f"(Vector's pseudo-message for the signals of no message; signals: {pseudo[2]})")
-        for start, stop, words in statements:
-            why = self.refused(words, defined, messages)
+            notes.append(f"{self.display}:{self.line(pseudo[0])}: skipped BO_ {PSEUDO_MESSAGE} "
+                         f"(Vector's pseudo-message for the signals of no message; signals: {pseudo[2]})")
+        for start, stop, words, (dbc_id, signal) in statements:
+            why = self.refused(dbc_id, signal, defined, messages)
             if why:
                 self.blank.append((start, stop))
-                out.notes.append(f"{self.display}:{self.line(start)}: skipped {_label(words)}: {why}")
-        out.text = self.blanked()
-        return out
+                notes.append(f"{self.display}:{self.line(start)}: skipped {_label(words, dbc_id, signal)}: {why}")
+        return self.blanked(), notes, signal_lines
 
-    def statement(self, pos: int, statements: list[tuple[int, int, list[str]]]) -> None:
+    def statement(self, pos: int, statements: list[tuple[int, int, list[str], tuple[int, str | None]]]) -> None:
         """Keep the statement starting at ``pos`` (up to its ``;``) when it names a message."""
         words: list[str] = []
         for w in _WORD.finditer(self.text, pos):  # the first words tell (a keyword alone names nothing)
             if w.group() == ";" or len(words) == _WORDS_NAMING:
                 break
             words.append(w.group())
-        if _named_message(words) is None:
+        ref = _named_message(words)
+        if ref is None:
             return
         for m in _END.finditer(self.text, pos):
             if m.group() == ";":
-                statements.append((pos, m.end(), words))
+                statements.append((pos, m.end(), words, ref))
                 return
 
     @staticmethod
-    def refused(words: list[str], defined: dict[int, set[str]], messages: dict[int, str]) -> str:
-        """Why a statement is skipped (it names what the file does not define), or ''."""
-        ref = _named_message(words)
-        assert ref is not None
-        dbc_id, signal = ref
+    def refused(dbc_id: int, signal: str | None, defined: dict[int, set[str]], messages: dict[int, str]) -> str:
+        """Why a statement naming ``dbc_id`` (and ``signal``) is skipped (the file does not define it), or ''."""
         if dbc_id not in defined:
             if messages.get(dbc_id) == PSEUDO_MESSAGE:
                 return f"it belongs to {PSEUDO_MESSAGE}, Vector's pseudo-message for the signals of no message"
@@ -194,19 +178,10 @@ class _Prepass:
 
     def blanked(self) -> str:
         """The text with each blanked range's characters turned to spaces, its line breaks kept."""
-        if not self.blank:
-            return self.text
-        parts = []
-        at = 0
-        for start, stop in sorted(self.blank):
-            start = max(start, at)  # a statement without its ';' may run into the next one
-            if stop <= start:
-                continue
-            parts.append(self.text[at:start])
-            parts.append(re.sub(r"[^\n]", " ", self.text[start:stop]))
-            at = stop
-        parts.append(self.text[at:])
-        return "".join(parts)
+        chars = list(self.text) if self.blank else []
+        for start, stop in self.blank:  # ranges may overlap (a statement without its ';' runs into the next)
+            chars[start:stop] = re.sub(r"[^\n]", " ", self.text[start:stop])
+        return "".join(chars) if self.blank else self.text
 
 
 def _bits(signal: Any) -> int:
@@ -349,7 +324,6 @@ class _MessageCheck:
 class DbcFile:
     """One loaded database file: cantools' database with its unsound signals taken out, and what was found."""
 
-    path: Path
     database: Any
     notes: list[str]
     """What the pre-pass skipped, one ``file:line: ...`` each."""
@@ -359,19 +333,18 @@ class DbcFile:
     pages: list[SignalProblem]
 
 
-def load_dbc_file(path: Path, display: str | None = None) -> DbcFile:
+def load_dbc_file(path: Path) -> DbcFile:
     """Load a database file as cantools does without strict checks, then check every message strictly.
 
     Only a ``.dbc`` file has the pre-pass and lines; raises what cantools raises.
     """
-    shown = str(path) if display is None else display
+    shown = str(path)
     if path.suffix.lower() == ".dbc":
         # cantools reads a DBC as cp1252, a byte it cannot decode replaced
         with path.open(encoding="cp1252", errors="replace") as f:
             raw = f.read()
-        text = _Prepass(raw, shown).run()
-        db: Any = cantools.database.load_string(text.text, database_format="dbc", strict=False)
-        notes, lines = text.notes, text.signal_lines
+        text, notes, lines = _Prepass(raw, shown).run()
+        db: Any = cantools.database.load_string(text, database_format="dbc", strict=False)
     else:
         db = cantools.database.load_file(str(path), strict=False)
         notes, lines = [], {}
@@ -388,40 +361,197 @@ def load_dbc_file(path: Path, display: str | None = None) -> DbcFile:
             dropped[m.name] = [s for s in m.signals if id(s) in check.broken]
             m.signals[:] = sound  # cantools' documented way: change the signals, then refresh()
             m.refresh()
-    return DbcFile(path, db, notes, problems, dropped, pages)
+    return DbcFile(db, notes, problems, dropped, pages)
 
 
-class DbcChecks:
-    """The DBC files of one config together: which signals are involved in a problem, and the notes."""
+_SNIFF_BYTES = 4096
+"""How much of a DBC that does not load is looked at to tell binary data from a text with a syntax error."""
 
-    def __init__(self) -> None:
-        self._problems: dict[tuple[str, str], list[SignalProblem]] = {}
-        self._dropped: dict[str, list[Any]] = {}
-        self._pages: dict[str, list[SignalProblem]] = {}
-        self.notes: list[str] = []
-        """Every skipped statement and every signal problem, one ``file:line: ...`` line each."""
 
-    def add(self, dbc: DbcFile) -> None:
-        """Take in one loaded file's findings."""
-        self.notes.extend(dbc.notes)
-        for p in dbc.problems:
-            self.notes.append(p.text)
-            for name in dict.fromkeys(p.signals):
-                self._problems.setdefault((p.message, name), []).append(p)
-        for message, signals in dbc.dropped.items():
-            self._dropped.setdefault(message, []).extend(signals)
-        for p in dbc.pages:
-            self.notes.append(p.text)
-            self._pages.setdefault(p.message, []).append(p)
+def _not_loaded(path: Path, exc: Exception) -> str:
+    """Why a DBC file did not load, printable and short: binary data is named as such, not echoed."""
+    try:
+        with path.open("rb") as f:
+            head = f.read(_SNIFF_BYTES)
+    except OSError as err:
+        return f"cannot be read ({err.strerror or err})"
+    text = head.decode("utf-8", errors="replace")
+    odd = sum(1 for c in text if c == "\ufffd" or (not c.isprintable() and c not in "\t\r\n"))
+    if b"\0" in head or odd > len(text) // 20:
+        start = quote(head.decode("utf-8", "backslashreplace"), 40)
+        return f"is not a DBC file: binary data, not text (it starts {start})"
+    return f"does not load ({clip(str(exc))})"
+
+
+class Messages:
+    """The messages a source or frame may name: the ``dbc:`` files' and the ``canopen:`` drives'."""
+
+    def __init__(self, checks: Checks) -> None:
+        self.checks = checks
+        self.problem = checks.problem
+        self.database: Any = None
+        self.dbcs: list[DbcFile] = []
+        """What each DBC file gets wrong: errors where the config reads it, notes elsewhere."""
+        self.ok = False
+        """Whether the DBC files loaded (else no message is looked up: their problems are recorded)."""
+        self.by_name: dict[str, Any] = {}
+        self._by_id: dict[int, list[Any]] = {}
+        self.canopen: CanopenSection | None = None
+        """The ``canopen:`` drives, when the config has any."""
+
+    def load_dbc(self, value: Any) -> tuple[Path, ...]:
+        """Load ``dbc:`` (one path or a list): a problem for each file that does not load, and for clashes."""
+        if isinstance(value, str):
+            value = [value]
+        if not isinstance(value, list) or not value:
+            self.problem("dbc", _found(value), "a DBC file path or a non-empty list of them")
+            return ()
+        files, databases = self.dbc_files(value)
+        if len(databases) != len(value):
+            return tuple(files)
+        where: dict[str, Path] = {}
+        ids: dict[tuple[int, bool], tuple[str, Path]] = {}
+        before = len(self.checks.problems)
+        for p, db in databases:
+            for m in db.messages:
+                key = (m.frame_id, bool(m.is_extended_frame))
+                if m.name in where:
+                    self.problem("dbc", f"message {m.name!r} in both {where[m.name]} and {p}", "unique message names")
+                elif key in ids:
+                    other, op = ids[key]
+                    self.problem("dbc", f"frame id 0x{m.frame_id:X} as {other!r} in {op} and as {m.name!r} in {p}",
+                                 "unique frame ids")
+                else:
+                    where[m.name], ids[key] = p, (m.name, p)
+        if len(self.checks.problems) > before:
+            return tuple(files)
+        if len(databases) == 1:
+            self.database = databases[0][1]
+        else:
+            messages = [m for _, db in databases for m in db.messages]
+            nodes = [n for _, db in databases for n in db.nodes]
+            # not strict, as each file loaded: two signals of one name stay in their message
+            self.database = cantools.database.can.Database(messages=messages, nodes=nodes, strict=False)
+        self._index(self.database.messages)
+        self.ok = True
+        return tuple(files)
+
+    def dbc_files(self, value: list[Any]) -> tuple[list[Path], list[tuple[Path, Any]]]:
+        """Each file of ``dbc:`` (a problem for each that does not load) and the database of each that does."""
+        files: list[Path] = []
+        databases: list[tuple[Path, Any]] = []
+        for i, item in enumerate(value):
+            p = self.checks.file_path(item, f"dbc[{i}]")
+            if p is None:
+                continue
+            files.append(p)
+            try:
+                loaded = load_dbc_file(p)
+            except FileNotFoundError:
+                self.problem(f"dbc[{i}]", _shown(item), f"an existing DBC file (no such file: {p})")
+            except Exception as exc:  # cantools raises many kinds of parse errors
+                self.problem(f"dbc[{i}]", f"{p} which {_not_loaded(p, exc)}", "a valid DBC file")
+            else:
+                databases.append((p, loaded.database))
+                self.dbcs.append(loaded)
+        return files, databases
+
+    def add(self, messages: list[Any]) -> None:
+        """Add messages made elsewhere (a CANopen drive's PDOs, heartbeat, EMCY) to the config's database."""
+        if not messages:
+            return
+        existing = list(self.database.messages) if self.database is not None else []
+        ids = {(m.frame_id, bool(m.is_extended_frame)): m.name for m in existing}
+        names = {m.name for m in existing}
+        added = []
+        for m in messages:
+            other = ids.get((m.frame_id, False))
+            if other is not None or m.name in names:
+                what = f"COB-ID 0x{m.frame_id:03X} of {m.name} also message {other or m.name!r}"
+                self.problem("canopen", what, "CANopen frames whose ids and names no other message uses")
+                continue
+            ids[(m.frame_id, False)], names = m.name, names | {m.name}
+            added.append(m)
+        if self.database is None:
+            self.database = cantools.database.can.Database(messages=added)
+        else:
+            self.database.messages.extend(added)
+            self.database.refresh()
+        self._index(added)
+
+    def _index(self, messages: list[Any]) -> None:
+        for m in messages:
+            self.by_name[m.name] = m
+            self._by_id.setdefault(m.frame_id, []).append(m)
+
+    @property
+    def notes(self) -> list[str]:
+        """Every statement the DBC files skipped and every signal problem, one ``file:line: ...`` line each."""
+        return [n for f in self.dbcs for n in (*f.notes, *(p.text for p in (*f.problems, *f.pages)))]
 
     def involved(self, message: str, signal: str) -> list[SignalProblem]:
         """The problems signal ``signal`` of ``message`` is involved in (none: it is sound, or not in the file)."""
-        return self._problems.get((message, signal), [])
+        return [p for f in self.dbcs for p in f.problems if p.message == message and signal in p.signals]
 
     def lost_pages(self, message: str) -> list[SignalProblem]:
         """The multiplexer values of ``message`` on which its frames no longer decode (none: all decode)."""
-        return self._pages.get(message, [])
+        return [p for f in self.dbcs for p in f.pages if p.message == message]
 
     def dropped(self, message: str) -> list[Any]:
-        """The signals taken out of ``message`` (cantools ``Signal`` objects)."""
-        return self._dropped.get(message, [])
+        """The signals the DBC files took out of ``message`` (cantools ``Signal`` objects)."""
+        return [s for f in self.dbcs for s in f.dropped.get(message, [])]
+
+    def message(self, mapping: Mapping[str, Any], key: str) -> Any:
+        """The cantools message ``mapping``'s ``message:`` names (or numbers); None when left out or after a problem."""
+        if "message" not in mapping or not self.ok:
+            return None
+        value = mapping["message"]
+        key = _path(key, "message")
+        if isinstance(value, str):
+            if value in self.by_name:
+                return self.by_name[value]
+            text = value.strip().lower()
+            try:
+                number = int(text, 16) if text.startswith("0x") else int(text, 10)
+            except ValueError:
+                self.problem(key, _shown(value), "a DBC message name or frame id" + _closest(value, self.by_name))
+                return None
+            value = number
+        if isinstance(value, int) and not isinstance(value, bool):
+            found = self._by_id.get(value & 0x1FFFFFFF, [])
+            if len(found) == 1:
+                return found[0]
+            if len(found) > 1:
+                names = ", ".join(m.name for m in found)
+                self.problem(key, f"frame id 0x{value:X} of several messages ({names})", "a message name")
+                return None
+            self.problem(key, f"0x{value:X}", "the frame id of a DBC message")
+            return None
+        self.problem(key, _found(value), "a DBC message name or frame id")
+        return None
+
+    def signal(self, message: Any, value: Any, key: str) -> Any:
+        """The signal ``value`` of ``message``; None after recording a problem (also naming what the DBC gets wrong)."""
+        names = [s.name for s in message.signals]
+        involved = self.involved(message.name, value) if isinstance(value, str) else []
+        if not involved and value in names:
+            return message.get_signal_by_name(value)
+        if involved:
+            why = "; ".join(p.text for p in involved)
+            self.problem(key, f"{value!r}, which the DBC gets wrong ({why})",
+                         f"a signal of {message.name} that fits it, shares no bits and has a name of its own")
+            return None
+        self.problem(key, _found(value), f"a signal of {message.name}" + _closest(value, names))
+        return None
+
+    def read_signal(self, message: Any, value: Any, key: str) -> Any:
+        """:meth:`signal`, for a source to read: None after a problem, also when some of the message's frames do
+        not decode (a multiplexer page of only signals the DBC gets wrong)."""
+        sig = self.signal(message, value, key)
+        lost = self.lost_pages(message.name) if sig is not None else []
+        if lost:
+            why = "; ".join(p.text for p in lost)
+            self.problem(key, f"{value!r}, of a message whose frames do not all decode ({why})",
+                         "a signal of a message whose every frame decodes (fix the DBC, or read another message)")
+            return None
+        return sig

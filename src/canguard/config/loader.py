@@ -13,9 +13,11 @@ from typing import Any
 import yaml
 
 from canguard.config import sections
+from canguard.config.dbc import Messages
+from canguard.config.monitor import read_monitor
 from canguard.config.node_ids import RESERVED_NODE_IDS
 from canguard.config.schema import ActionConfig, Config, PartialConfig, TreeConfig
-from canguard.config.sources import Messages, ReadSources, read_sources
+from canguard.config.sections import ReadSources
 from canguard.config.yamlsrc import Checks, load_yaml
 from canguard.errors import ConfigError
 
@@ -43,11 +45,11 @@ def _config(c: Checks, path: Path, doc: Any) -> Config:
     dbc_files = m.load_dbc(doc["dbc"]) if "dbc" in doc else ()
     buses = sections.buses(c, doc["buses"]) if "buses" in doc else {}
     if "canopen" in doc:
-        from canguard.config.canopen_section import CanopenSection
+        from canguard.config.canopen import CanopenSection
 
         m.canopen = CanopenSection(c)
         m.canopen.load(doc["canopen"])
-    read = read_sources(c, m, doc.get("sources"))
+    read = sections.read_sources(c, m, doc.get("sources"))
     if m.canopen is not None:
         m.add(m.canopen.messages())
     tree = sections.tree(c, doc.get("tree"))
@@ -56,7 +58,7 @@ def _config(c: Checks, path: Path, doc: Any) -> Config:
     actions = sections.actions(c, m, doc.get("actions"))
     events = c.file_path(doc["events"], "events") if doc.get("events") is not None else None
     state = sections.state(c, doc.get("state"))
-    monitor = sections.monitor(c, doc.get("monitor"))
+    monitor = read_monitor(c, doc.get("monitor"))
     simulation = c.choice(doc, "simulation", "", (True, False), False)
     if c.problems:
         err = c.fail()
@@ -66,7 +68,7 @@ def _config(c: Checks, path: Path, doc: Any) -> Config:
     return Config(path=path, dbc_files=dbc_files, buses=MappingProxyType(buses),
                   sources=MappingProxyType(dict(read.sources)), tree=tree, task=task, stop=stop,
                   actions=MappingProxyType(actions), events=events, state=state, monitor=monitor,
-                  simulation=simulation, database=m.database, canopen=drives, dbc_notes=tuple(m.dbc_checks.notes))
+                  simulation=simulation, database=m.database, canopen=drives, dbc_notes=tuple(m.notes))
 
 
 def load_config_text(text: str, path: str | Path) -> Config:

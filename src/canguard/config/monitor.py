@@ -3,9 +3,12 @@
 from __future__ import annotations
 
 import ipaddress
+from collections.abc import Mapping
 from dataclasses import dataclass, replace
+from typing import Any
 
 from canguard.config.schema import MonitorConfig
+from canguard.config.yamlsrc import Checks, _found
 from canguard.errors import ConfigError
 
 LOOPBACK = "127.0.0.1"
@@ -22,16 +25,11 @@ class Address:
     @property
     def loopback(self) -> bool:
         """True when only this machine can connect (127.0.0.0/8, ::1, ``localhost``)."""
-        return is_loopback(self.host)
+        ip = _ip(self.host)
+        return self.host == "localhost" or (ip is not None and ip.is_loopback)
 
     def __str__(self) -> str:
         return f"[{self.host}]:{self.port}" if ":" in self.host else f"{self.host}:{self.port}"
-
-
-def is_loopback(host: str) -> bool:
-    """True for a loopback address or ``localhost``; False for anything reachable from the network."""
-    ip = _ip(host)
-    return host == "localhost" or (ip is not None and ip.is_loopback)
 
 
 def parse_address(value: object, *, port_span: int = 1) -> Address | str:
@@ -65,26 +63,49 @@ def _ip(host: str) -> ipaddress.IPv4Address | ipaddress.IPv6Address | None:
         return None
 
 
-def needs_token(address: Address, token: str | None) -> bool:
-    """True when a page at ``address`` would be reachable from the network without a bearer token."""
-    return not address.loopback and not token
+def _addresses(values: Mapping[str, Any]) -> dict[str, Address | str]:
+    """``http`` and ``groot2`` where ``values`` gives them: each an :class:`Address`, or what was expected."""
+    return {key: parse_address(values[key], port_span=span) for key, span in (("http", 1), ("groot2", 2))
+            if values.get(key) is not None}
+
+
+def read_monitor(c: Checks, value: Any) -> MonitorConfig:
+    """The config's ``monitor:`` section (``value``; None: left out), each problem recorded."""
+    value = c.section(value, "monitor", ("http", "token", "groot2"))
+    if value is None:
+        return MonitorConfig()
+    found: dict[str, Address] = {}
+    for key, address in _addresses(value).items():
+        if isinstance(address, str):
+            c.problem(f"monitor.{key}", _found(value[key]), address)
+        else:
+            found[key] = address
+    token = value.get("token")
+    if token is not None and not (isinstance(token, str) and token.strip()):
+        c.problem("monitor.token", _found(token), "a bearer token (a non-empty string)")
+        token = None
+    http = found.get("http")
+    if http is not None and not http.loopback and not token and "token" not in value:
+        c.problem("monitor.token", "nothing",
+                  f"a bearer token: monitor.http {http} is not loopback, so the page would be open to the "
+                  "network (or bind monitor.http to 127.0.0.1)")
+    shown = {key: str(address) for key, address in found.items()}
+    return MonitorConfig(http=shown.get("http"), token=token, groot2=shown.get("groot2"))
 
 
 def with_overrides(monitor: MonitorConfig, *, http: str | None = None, groot2: str | None = None) -> MonitorConfig:
     """The config's ``monitor:`` with ``--http`` / ``--groot2`` in place of its addresses; ConfigError naming the
     flag for a malformed address, or a page open to the network without ``monitor.token``."""
     found = {"http": monitor.http, "groot2": monitor.groot2}
-    for flag, key, given, span in (("--http", "http", http, 1), ("--groot2", "groot2", groot2, 2)):
-        if given is None:
-            continue
-        address = parse_address(given, port_span=span)
+    given = {"http": http, "groot2": groot2}
+    parsed = _addresses(given)
+    for key, address in parsed.items():
         if isinstance(address, str):
-            raise ConfigError(f"{flag} {given!r}: expected {address}")
+            raise ConfigError(f"--{key} {given[key]!r}: expected {address}")
         found[key] = str(address)
-    if http is not None and found["http"]:
-        address = parse_address(found["http"])
-        if isinstance(address, Address) and needs_token(address, monitor.token):
-            raise ConfigError(f"--http {http}: not a loopback address, so the page would be open to the network: "
-                              "set monitor.token in the config (every request then needs it as a bearer token), "
-                              "or use 127.0.0.1")
+    page = parsed.get("http")
+    if isinstance(page, Address) and not page.loopback and not monitor.token:
+        raise ConfigError(f"--http {http}: not a loopback address, so the page would be open to the network: "
+                          "set monitor.token in the config (every request then needs it as a bearer token), "
+                          "or use 127.0.0.1")
     return replace(monitor, http=found["http"], groot2=found["groot2"])

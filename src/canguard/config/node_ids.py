@@ -5,8 +5,8 @@ Names only: the config layer does not import the node library.
 
 from __future__ import annotations
 
-BTCPP_BUILTIN_IDS = (
-    # controls
+RESERVED_NODE_IDS = frozenset((
+    # BehaviorTree.CPP 4's factory (``BehaviorTreeFactory`` constructor): controls
     "Sequence", "AsyncSequence", "SequenceWithMemory", "SequenceStar", "ReactiveSequence", "Fallback",
     "AsyncFallback", "ReactiveFallback",
     "Parallel", "ParallelAll", "IfThenElse", "WhileDoElse", "Switch2", "Switch3", "Switch4", "Switch5",
@@ -18,14 +18,8 @@ BTCPP_BUILTIN_IDS = (
     # actions and conditions
     "AlwaysSuccess", "AlwaysFailure", "Script", "ScriptCondition", "SetBlackboard", "UnsetBlackboard",
     "Sleep", "WasEntryUpdated",
-)
-"""The IDs BehaviorTree.CPP 4's factory registers (``BehaviorTreeFactory`` constructor)."""
-
-CANGUARD_NODE_IDS = (
+    # canguard's own node types (design notes and the stop rule)
     "EmitStop", "ExecuteTask", "IsCooldownElapsed", "IsCurrentNormal", "IsCurrentSafe", "IsElapsedSinceEvent",
     "IsElapsedTimeCompare", "IsI2tSafe", "IsJointEffortNormal", "IsValueAbove", "IsValueBelow", "Profile",
     "RecordTime", "ResetStop", "ResetTimer",
-)
-"""canguard's own node types (design notes and the stop rule)."""
-
-RESERVED_NODE_IDS = frozenset(BTCPP_BUILTIN_IDS + CANGUARD_NODE_IDS)
+))

@@ -5,10 +5,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Literal
-
-if TYPE_CHECKING:
-    from canguard.config.canopen import CanopenDrive
+from typing import Any, Literal
 
 SourceKind = Literal["battery", "joints", "current"]
 
@@ -181,8 +178,8 @@ class Config:
     """A bench, not a robot: the config may guard only ``virtual`` buses under systemd."""
     database: Any = field(default=None, compare=False, repr=False)
     """The merged ``cantools.database.Database`` of every DBC file and the ``canopen:`` drives' frames."""
-    canopen: Mapping[str, CanopenDrive] = field(default_factory=dict)
-    """The ``canopen:`` drives by name."""
+    canopen: Mapping[str, Any] = field(default_factory=dict)
+    """The ``canopen:`` drives by name (:class:`canguard.config.canopen.CanopenDrive`, which reads this module)."""
     dbc_notes: tuple[str, ...] = ()
     """What the DBC files get wrong where this config does not read them (``canguard check -v``)."""
 

@@ -1,4 +1,5 @@
-"""The sections around the sources (buses, tree, task, stop, actions, state, monitor) and the frames they send.
+"""The config's sections besides ``dbc:``, ``canopen:`` and ``monitor:``: buses, sources, tree, task, stop, actions,
+state, and the frames they send.
 
 A frame is encoded once, checked against the DBC.
 """
@@ -8,22 +9,24 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from types import MappingProxyType
-from typing import Any
+from typing import Any, NamedTuple, cast
 
-from canguard.config.monitor import needs_token, parse_address
+from canguard.config.dbc import Messages
 from canguard.config.node_ids import RESERVED_NODE_IDS
 from canguard.config.schema import (
+    NON_VALUE_ROLES,
     ActionConfig,
     BusConfig,
     FrameSpec,
-    MonitorConfig,
+    SignalRef,
+    SourceConfig,
+    SourceKind,
     StateConfig,
     StopConfig,
     StopConfirm,
     TaskConfig,
     TreeConfig,
 )
-from canguard.config.sources import Messages, ReadSources
 from canguard.config.yamlsrc import _CONFIRM_OPS, _FD_LENGTHS, Checks, _closest, _found, _path, _shown
 
 _BUILT_IN_INTERFACES = frozenset({
@@ -69,6 +72,133 @@ def buses(c: Checks, value: Any) -> dict[str, BusConfig]:
         result[name] = BusConfig(name=name, kwargs=MappingProxyType(args), filter=only is not False)
     c.bus_names = tuple(result)
     return result
+
+
+def _ref(role: str, bus: str, message: Any, signal: Any) -> SignalRef:
+    return SignalRef(role, bus, message.name, message.frame_id, bool(message.is_extended_frame), signal.name,
+                     unit=signal.unit or None, minimum=None if signal.minimum is None else float(signal.minimum),
+                     maximum=None if signal.maximum is None else float(signal.maximum))
+
+
+def _message_signals(m: Messages, key: str, value: Mapping[str, Any], keys: tuple[str, ...], bus: str
+                     ) -> list[SignalRef]:
+    """The signals a source of one message reads (``keys``: its kind's, in role order)."""
+    msg = m.message(value, key)
+    signals: list[SignalRef] = []
+    for k in keys:
+        if msg is None or k in ("message", "effort") or k not in value:
+            continue
+        sig = m.read_signal(msg, value[k], _path(key, k))
+        if sig is not None:
+            signals.append(_ref("current" if k == "signal" else k, bus, msg, sig))
+    return signals
+
+
+def _effort_signals(c: Checks, m: Messages, key: str, value: Mapping[str, Any], bus: str) -> list[SignalRef]:
+    """The joints of a ``joints`` source (``effort:``), each a signal named by its joint."""
+    effort = value.get("effort")
+    if not isinstance(effort, list) or not effort:
+        if "effort" in value:
+            c.problem(_path(key, "effort"), _found(effort), "a non-empty list of {message, signal, name}")
+        return []
+    signals: list[SignalRef] = []
+    seen: set[str] = set()
+    for i, item in enumerate(effort):
+        ikey = f"{key}.effort[{i}]"
+        if not c.mapping(item, ikey, ("message", "signal", "name", "bus"), ("message", "signal", "name")):
+            continue
+        jname = item.get("name")
+        if "name" in item:
+            if not isinstance(jname, str) or not jname or jname in NON_VALUE_ROLES:
+                c.problem(_path(ikey, "name"), _found(jname),
+                          "a joint name (a string, not " + ", ".join(sorted(NON_VALUE_ROLES)) + ")")
+                jname = None
+            elif jname in seen:
+                c.problem(_path(ikey, "name"), f"{jname!r} again", "a joint name unique in the source")
+                jname = None
+            else:
+                seen.add(jname)
+        ibus = c.bus(item, ikey) if "bus" in item else bus
+        msg = m.message(item, ikey)
+        if msg is None or "signal" not in item:
+            continue
+        sig = m.read_signal(msg, item["signal"], _path(ikey, "signal"))
+        if sig is not None and jname is not None:
+            signals.append(_ref(jname, ibus, msg, sig))
+    return signals
+
+
+def source(c: Checks, m: Messages, name: str, value: Any) -> SourceConfig | None:
+    """The source ``sources.NAME``; None after a problem."""
+    key = _path("sources", name)
+    if not isinstance(value, Mapping):
+        c.problem(key, _found(value), "a mapping with kind: battery | joints | current")
+        return None
+    kind = value.get("kind")
+    if "canopen" in value:
+        return _canopen_source(c, m, name, kind, value, key)
+    keys = _KIND_KEYS.get(kind) if isinstance(kind, str) else None
+    known = keys is not None
+    if keys is None:
+        c.problem(_path(key, "kind"), _found(kind), "one of battery, joints, current" + _closest(kind, SOURCE_KINDS))
+        # Still check what can be checked without the kind (the source itself is not built).
+        keys = ("message", "current", "signal", "present", "counter", "effort")
+    c.mapping(value, key, ("kind", "bus", "max_age", *keys), keys[:2] if known else ())
+    bus = c.bus(value, key)
+    max_age = c.seconds(value, "max_age", key, 0.5)
+    signals: list[SignalRef] = []
+    if "message" in keys and (known or "message" in value):
+        signals.extend(_message_signals(m, key, value, keys, bus))
+    if "effort" in keys and (known or "effort" in value):
+        signals.extend(_effort_signals(c, m, key, value, bus))
+    if not known:
+        return None
+    return SourceConfig(name=name, kind=cast(SourceKind, kind), bus=bus, signals=tuple(signals), max_age_s=max_age)
+
+
+def _canopen_source(c: Checks, m: Messages, name: str, kind: Any, value: Mapping[str, Any], key: str
+                    ) -> SourceConfig | None:
+    """A source reading an object of a ``canopen:`` drive (``kind: current``)."""
+    c.mapping(value, key, ("kind", "canopen", "object", "scale", "max_age"), ("kind", "canopen", "object"))
+    if kind != "current":
+        c.problem(_path(key, "kind"), _found(kind), "current (a source of a canopen: drive)")
+        return None
+    if m.canopen is None:
+        c.problem(_path(key, "canopen"), _found(value.get("canopen")), "a drive of canopen: (none configured)")
+        return None
+    return m.canopen.source(name, value, key)
+
+
+class ReadSources(NamedTuple):
+    """``sources:`` as read: the sound sources, the names of those with a problem, whether it was a mapping."""
+
+    sources: dict[str, SourceConfig]
+    broken: set[str]
+    ok: bool
+
+
+def read_sources(c: Checks, m: Messages, value: Any) -> ReadSources:
+    """Every source of ``sources:`` (``value``; None: none), each problem recorded."""
+    value = value or {}
+    read = ReadSources({}, set(), isinstance(value, Mapping))
+    if not read.ok:
+        c.problem("sources", _found(value), "a mapping of source name -> source")
+    for name, body, _ in c.named(value if read.ok else {}, "sources", "a source name"):
+        before = len(c.problems)
+        src = source(c, m, name, body)
+        if src is not None:
+            read.sources[name] = src
+        if len(c.problems) > before:
+            # Already reported: references to this source must not add follow-on errors.
+            read.broken.add(name)
+    return read
+
+
+SOURCE_KINDS: tuple[SourceKind, ...] = ("battery", "joints", "current")
+_KIND_KEYS: dict[str, tuple[str, ...]] = {
+    "battery": ("message", "current", "present", "counter"), "joints": ("effort",),
+    "current": ("message", "signal", "present", "counter")}
+"""The keys of each source kind besides kind, bus and max_age (the first two, or the one, required), in role order."""
 
 
 def tree(c: Checks, value: Any) -> TreeConfig | None:
@@ -180,31 +310,6 @@ def state(c: Checks, value: Any) -> StateConfig:
     return StateConfig(file=file, on_corrupt=on_corrupt, save_period_s=save_period_s)
 
 
-def monitor(c: Checks, value: Any) -> MonitorConfig:
-    value = c.section(value, "monitor", ("http", "token", "groot2"))
-    if value is None:
-        return MonitorConfig()
-    found: dict[str, str | None] = {"http": None, "groot2": None}
-    for key, span in (("http", 1), ("groot2", 2)):
-        if value.get(key) is None:
-            continue
-        address = parse_address(value[key], port_span=span)
-        if isinstance(address, str):
-            c.problem(f"monitor.{key}", _found(value[key]), address)
-        else:
-            found[key] = str(address)
-    token = value.get("token")
-    if token is not None and not (isinstance(token, str) and token.strip()):
-        c.problem("monitor.token", _found(token), "a bearer token (a non-empty string)")
-        token = None
-    http = parse_address(found["http"]) if found["http"] else None
-    if http is not None and not isinstance(http, str) and needs_token(http, token) and "token" not in value:
-        c.problem("monitor.token", "nothing",
-                  f"a bearer token: monitor.http {http} is not loopback, so the page would be open to the "
-                  "network (or bind monitor.http to 127.0.0.1)")
-    return MonitorConfig(http=found["http"], token=token, groot2=found["groot2"])
-
-
 def frame_value(c: Checks, m: Messages, message: Any, sig_name: Any, value: Any, key: str) -> Any:
     """One ``signals:`` value: a number, or a choice name of a signal with VAL_ choices."""
     sig = m.signal(message, sig_name, key)
@@ -298,13 +403,13 @@ def _unsound_left_out(c: Checks, m: Messages, msg: Any, given: Mapping[str, Any]
     """Whether the signals the DBC gets wrong that a frame leaves out (sent as 0) are 0 at their initial values;
     a problem naming each that is not."""
     ok = True
-    for s in m.dbc_checks.dropped(msg.name):
+    for s in m.dropped(msg.name):
         if s.name in given:
             continue  # named in signals: frame_value reports it
         initial = _initial(s)
         if _whole_raw(s, initial) == 0:
             continue
-        why = "; ".join(p.text for p in m.dbc_checks.involved(msg.name, s.name))
+        why = "; ".join(p.text for p in m.involved(msg.name, s.name))
         c.problem(_path(key, "message"), f"{msg.name}, whose signal {s.name} the frame would send at its "
                   f"initial value {initial:g} but the DBC gets it wrong ({why})",
                   "a message whose signals the DBC gets wrong are 0 when left out, or a raw frame {id, data}")
@@ -386,12 +491,6 @@ def _initial(signal: Any) -> Any:
     return 0
 
 
-def _physical(signal: Any, raw: int) -> int | float:
-    """The physical value of ``raw`` (``raw * scale + offset``), an int when it is whole."""
-    value = raw * signal.scale + signal.offset
-    return int(value) if float(value).is_integer() else value
-
-
 def _whole_raw(signal: Any, value: float) -> int | None:
     """The raw value ``(value - offset) / scale`` when it is a whole number (within rounding), else None."""
     if not signal.scale:
@@ -402,5 +501,6 @@ def _whole_raw(signal: Any, value: float) -> int | None:
 
 
 def _choices(signal: Any) -> dict[str, int | float]:
-    """A signal's VAL_ choices as ``name -> physical value``."""
-    return {str(name): _physical(signal, int(raw)) for raw, name in (signal.choices or {}).items()}
+    """A signal's VAL_ choices as ``name -> physical value`` (an int when it is whole)."""
+    values = {str(name): int(raw) * signal.scale + signal.offset for raw, name in (signal.choices or {}).items()}
+    return {name: int(v) if float(v).is_integer() else v for name, v in values.items()}

@@ -47,17 +47,23 @@ if getattr(yaml, "__with_libyaml__", False):
 
     _CUniqueKeyLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _construct_unique_mapping)
     _FastUniqueKeyLoader = _CUniqueKeyLoader
+_LOADERS = (*([_FastUniqueKeyLoader] if _FastUniqueKeyLoader is not None else []), _UniqueKeyLoader)
+"""libyaml's first where PyYAML has it; a problem is reported in the pure-Python loader's words."""
+
+
+def _read(text: str, read: Any) -> Any:
+    """``read(text, Loader=...)`` with each of :data:`_LOADERS` until one succeeds (the last one's error raised)."""
+    for loader in _LOADERS[:-1]:
+        try:
+            return read(text, Loader=loader)
+        except yaml.YAMLError:
+            pass
+    return read(text, Loader=_LOADERS[-1])
 
 
 def load_yaml(text: str) -> Any:
-    """``text`` as :class:`_UniqueKeyLoader` reads it, through libyaml when PyYAML has it (its errors: the pure-Python
-    loader's, which reads the text again)."""
-    if _FastUniqueKeyLoader is not None:
-        try:
-            return yaml.load(text, Loader=_FastUniqueKeyLoader)
-        except yaml.YAMLError:
-            pass
-    return yaml.load(text, Loader=_UniqueKeyLoader)
+    """``text`` as :class:`_UniqueKeyLoader` reads it, through libyaml when PyYAML has it."""
+    return _read(text, yaml.load)
 
 
 def _shown(value: Any) -> str:
@@ -96,20 +102,12 @@ def _path(parent: str, key: Any) -> str:
     return f"{parent}.{key}" if parent else str(key)
 
 
-def _compose(text: str) -> yaml.Node | None:
-    """The node tree of ``text`` (each node with its line), as :func:`load_yaml` reads; None on a problem."""
-    for loader in (_FastUniqueKeyLoader, _UniqueKeyLoader):
-        if loader is not None:
-            try:
-                return yaml.compose(text, Loader=loader)
-            except yaml.YAMLError:
-                continue
-    return None
-
-
 def key_lines(text: str) -> dict[str, int]:
     """The line (1-based) of every key path of a YAML document (``sources.axis0.signal``, ``task.frames[1]``)."""
-    root = _compose(text)
+    try:
+        root = _read(text, yaml.compose)
+    except yaml.YAMLError:
+        root = None
     lines: dict[str, int] = {}
     constructor = yaml.SafeLoader("")
 
