@@ -1,5 +1,8 @@
-"""MCAP and ROS 1 bag files' messages a chunk at a time, as arrays (no Python object per message), read from the
-start: one cut short gives every chunk before the cut, then :class:`McapCut` saying where it ends."""
+"""A bag file's messages a chunk at a time, as arrays: where each message's bytes lie, its channel, its log time.
+
+MCAP and ROS 1 bags, no Python object per message, read from the start: one cut short gives every chunk before the
+cut, then :class:`McapCut` saying where it ends.
+"""
 
 from __future__ import annotations
 

@@ -1,5 +1,7 @@
-"""Is a BLF log whole? python-can's BLF reader stops quietly where the file stops (a log cut in half replays as
-half a log): :class:`BlfLength` follows the file and object headers as python-can reads, and says where it was cut.
+"""Is a BLF log whole? Its file header and object headers say how much should follow.
+
+python-can's BLF reader stops quietly where the file stops (a log cut in half replays as half a log):
+:class:`BlfLength` follows the headers as python-can reads, and says where it was cut.
 """
 
 from __future__ import annotations

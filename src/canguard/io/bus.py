@@ -1,18 +1,13 @@
 """Open the configured python-can buses and receive from them without losing frames.
 
-:func:`open_bus` turns a failure into a :class:`~canguard.errors.BusError` naming bus and interface.
 :meth:`BusReader.receive` gives ``(bus_name, message, received)`` in arrival order, one of two ways:
-
-- **Direct** (``direct=True`` and every bus has a socket, :func:`bus_fileno`): no thread; the caller ``select``s
-  on the sockets and drains them with ``recv(0)``. The kernel's buffer is the queue (no thread hand-off, no wait
-  for the GIL); ``received`` is the kernel's stamp when the bus stamps with the wall clock.
+- **Direct** (``direct=True``, every bus a socket): no thread; the caller ``select``s on the sockets and drains them
+  with ``recv(0)``: the kernel's buffer is the queue (no thread hand-off, no wait for the GIL).
 - **Threads** (otherwise: ``virtual``, vendor drivers): one thread per bus puts each message on an unbounded
   :class:`queue.SimpleQueue`, so no frame is dropped while the engine is busy.
-
-**Filters**: per bus the id keys the config reads (:func:`receive_keys`) go to SocketCAN as kernel filters (a
-foreign frame never wakes the daemon); :func:`wants` drops foreign frames on any interface; error frames always
-pass. A receive error is logged, handed to ``on_error``, and the bus reopened with exponential backoff: never a
-silent hang, never a dead thread (in the direct way the reopen is tried from :meth:`BusReader.receive`).
+Per bus the id keys the config reads go to SocketCAN as kernel filters (a foreign frame never wakes the daemon);
+:func:`wants` drops foreign frames on any interface. A receive error is logged, handed to ``on_error``, and the bus
+reopened with exponential backoff: never a silent hang, never a dead thread.
 """
 
 from __future__ import annotations

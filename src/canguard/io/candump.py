@@ -1,6 +1,7 @@
-"""candump text logs (``-L``, ``-l``, plain ``-ta``): read a block of lines at a time (parsed by
-:func:`canguard.io.candump_np.parse_block`; a bad line named by file:line and :func:`why_bad`), written a line at a
-time."""
+"""candump text logs (``-L``, ``-l``, plain ``-ta``): read a block of lines at a time, written a line at a time.
+
+Blocks are parsed by :func:`canguard.io.candump_np.parse_block`; a bad line is named by file:line and :func:`why_bad`.
+"""
 
 from __future__ import annotations
 

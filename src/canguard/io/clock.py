@@ -1,4 +1,6 @@
-"""Clocks: the only place canguard reads the time (:class:`LiveClock` live, :class:`ManualClock` in replay)."""
+"""Clocks: the only place canguard reads the time.
+
+:class:`LiveClock` live, :class:`ManualClock` in replay and tests; ``protect/`` and ``nodes/`` are handed one."""
 
 from __future__ import annotations
 

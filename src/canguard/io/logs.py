@@ -1,5 +1,6 @@
-"""Read recorded CAN logs as streams of :class:`~canguard.io.block.Block` s (or frames), the reader chosen by file
-suffix (:data:`LOG_READERS`): memory stays flat in the log's length. Write candump -L logs."""
+"""Read recorded CAN logs as streams of :class:`~canguard.io.block.Block` s (or frames); write candump -L logs.
+
+The reader is chosen by file suffix (:data:`LOG_READERS`); memory stays flat in the log's length."""
 
 from __future__ import annotations
 

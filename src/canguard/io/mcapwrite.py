@@ -1,5 +1,7 @@
-"""Write an indexed MCAP file (what Foxglove opens) with many small messages at numpy speed: a column of messages of
-one size is one structured array (:meth:`McapWriter.messages`), chunks zstd-compressed when ``zstandard`` is there.
+"""Write an MCAP file (what Foxglove opens) with many small messages at numpy speed.
+
+A column of messages of one size is one structured array (:meth:`McapWriter.messages`); the file is indexed, its
+chunks zstd-compressed when ``zstandard`` is there.
 """
 
 from __future__ import annotations

@@ -1,5 +1,7 @@
-"""Files canguard writes: can they be written there? Asked before anything runs (one line naming the path and
-what is wrong, never a traceback half-way), found by trying (root ignores permission bits), nothing left behind.
+"""Files canguard writes: can they be written there? Asked before anything runs, answered in words.
+
+One line naming the path and what is wrong, never a traceback half-way; found by trying (root ignores permission
+bits), nothing left behind.
 """
 
 from __future__ import annotations

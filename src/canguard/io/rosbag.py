@@ -1,5 +1,8 @@
-"""ROS bags as CAN logs (docs/commands.md): rosbag2 (a directory, a ``.db3`` or ``.mcap``) and ROS 1 ``.bag``,
-a block of raw messages at a time (:class:`BagSource`), every field gathered by numpy at once (:func:`unpack`)."""
+"""ROS bags as CAN logs: rosbag2 (a directory with ``metadata.yaml``, a ``.db3`` or ``.mcap``) and ROS 1 ``.bag``.
+
+A block of raw messages at a time (:class:`BagSource`), every field gathered by numpy at once (:func:`unpack`);
+what a frame, a bad message or a bad bag is: docs/commands.md.
+"""
 
 from __future__ import annotations
 

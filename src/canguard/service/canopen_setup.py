@@ -1,5 +1,7 @@
-"""``configure: true``: canguard gives a CANopen drive what its config expects over SDO, at start and at each
-boot-up (docs/config.md); a write that fails is an ``error`` event and the drive stays pre-operational (fail safe).
+"""``configure: true``: canguard gives a CANopen drive what its config expects, over SDO.
+
+At start and at each boot-up (docs/config.md); a write that fails is an ``error`` event and the drive stays
+pre-operational (fail safe).
 """
 
 from __future__ import annotations

@@ -1,4 +1,6 @@
-"""``canguard run``: the live engine as a systemd service (docs/deploy.md)."""
+"""``canguard run``: the live engine, as a systemd service.
+
+The loop and what it tells systemd: docs/deploy.md."""
 
 from __future__ import annotations
 

@@ -1,4 +1,6 @@
-"""sd_notify from scratch (:class:`Notifier`); ``WATCHDOG=1`` only while :func:`watchdog_hold` finds nothing wrong."""
+"""sd_notify from scratch, and the policy deciding when the watchdog may be fed.
+
+``WATCHDOG=1`` goes only while :func:`watchdog_hold` finds nothing wrong with the loop."""
 
 from __future__ import annotations
 

@@ -1,9 +1,9 @@
-"""Watching the daemon live: the status page (:mod:`.web`) and Groot2's monitor (:mod:`.groot2`), served by a
-process of their own (:mod:`.server`), fed by :class:`Monitor` after each tick without ever waiting (docs/monitor.md).
+"""Watching the daemon live: the status page (:mod:`.web`) and Groot2's monitor (:mod:`.groot2`).
 
-One ``AF_UNIX`` ``SOCK_SEQPACKET`` pair (a message whole or not at all). Daemon → monitor: pickled messages in
-frames of :data:`FRAME_BYTES` (flag byte ``M`` more / ``E`` end). Monitor → daemon: fixed byte strings and one JSON
-answer: the daemon never unpickles what comes from the side the network can reach.
+Served by a process of their own (:mod:`.server`), fed by :class:`Monitor` after each tick without ever waiting
+(docs/monitor.md), over one ``AF_UNIX`` ``SOCK_SEQPACKET`` pair (a message whole or not at all). Daemon → monitor:
+pickled messages in frames of :data:`FRAME_BYTES` (flag byte ``M`` more / ``E`` end). Monitor → daemon: fixed byte
+strings and one JSON answer: the daemon never unpickles what comes from the side the network can reach.
 """
 
 from __future__ import annotations

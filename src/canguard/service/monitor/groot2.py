@@ -1,4 +1,6 @@
-"""Groot2's monitor: BehaviorTree.CPP 4's Groot2 publisher protocol (REP on PORT, PUB on PORT + 1), read-only."""
+"""Groot2's monitor: BehaviorTree.CPP 4's Groot2 publisher protocol, read-only.
+
+REP on PORT, PUB on PORT + 1; hooks, breakpoints and recording are refused (docs/monitor.md)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,6 @@
-"""The monitor process, started by :class:`.Monitor`; its settings come over socket ``FD`` (no token in argv)."""
+"""The monitor process: ``python -m canguard.service.monitor.server FD``, started by the daemon (:class:`.Monitor`).
+
+Its settings come over the socket ``FD`` (the token never shows on a command line)."""
 
 from __future__ import annotations
 

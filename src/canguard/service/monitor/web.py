@@ -1,4 +1,6 @@
-"""The status page and its API (docs/monitor.md): read-only, one asyncio loop in a thread of its own."""
+"""The status page and its API: one asyncio event loop, in a thread of its own, serves every connection.
+
+Read-only, with an optional bearer token (docs/monitor.md)."""
 
 from __future__ import annotations
 
