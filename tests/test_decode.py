@@ -88,7 +88,7 @@ class TestDecoderMatchesCantools:
         """200 random payloads of each message decode to cantools' exact values, through the expected strategy."""
         decoder = Decoder(exotic)
         m = exotic.database.get_message_by_name(message)
-        assert decoder.strategy("main", m.frame_id, m.is_extended_frame) == strategy
+        assert dict(decoder.entries())["main", m.frame_id, m.is_extended_frame].strategy == strategy
         rng = random.Random(message)
         for i in range(200):
             data = finite_payload(exotic, message, rng)

@@ -20,11 +20,12 @@ import yaml
 from canguard.config.loader import load_config
 from canguard.engine.core import Engine
 from canguard.engine.event_codec import FIRST_KEYS
-from canguard.engine.events import EventJournal, read_events
+from canguard.engine.events import EventJournal
 from canguard.engine.gate import LogSink, TaskGate
 from canguard.io.clock import ManualClock
 from canguard.io.frame import Frame
 from checkout import REPO
+from test_daemon import read_events
 
 BUNDLED = REPO / "config" / "canguard.yaml"
 DBC = REPO / "dbc" / "robot.dbc"

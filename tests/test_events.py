@@ -19,13 +19,24 @@ from hypothesis import strategies as st
 
 from canguard.engine import events as events_mod
 from canguard.engine.event_codec import FIRST_KEYS, encode_event
-from canguard.engine.events import EventJournal, journal_files, read_events
-from canguard.errors import LogFormatError
+from canguard.engine.events import EventJournal
 from checkout import SRC
+from test_daemon import read_events
 
 CHARS = st.characters(exclude_categories=["Cs"])
 """``st.text()``'s own alphabet (every code point but the surrogates), named by its Unicode category: found by
 encoding each code point as UTF-8, it costs ~3 CPU-s in each process that draws from it first."""
+
+
+def journal_files(path: Path) -> list[Path]:
+    """The journal's files oldest first: ``path.N`` ... ``path.1``, then ``path`` (as a reader must take them)."""
+    numbered = sorted((int(p.suffix[1:]), p) for p in path.parent.glob(f"{path.name}.*") if p.suffix[1:].isdigit())
+    return [p for _n, p in reversed(numbered)] + ([path] if path.exists() else [])
+
+
+def rotated_events(path: Path) -> list[dict[str, Any]]:
+    """Every event of the journal and of its rotated files, oldest first."""
+    return [event for file in journal_files(path) for event in read_events(file)]
 
 
 def _trip(i: int) -> dict[str, Any]:
@@ -159,7 +170,7 @@ class TestEventJournal:
             f"""
             import itertools
             from canguard.engine.events import EventJournal
-            from canguard.engine.journal import Journal
+            from canguard.engine.stats import Journal
             sink = EventJournal({str(path)!r}, max_bytes=64 * 1024, sync_in_background=True)
             journal = Journal(lambda: 0.0, sink)
             for i in itertools.count():  # until the SIGKILL
@@ -188,7 +199,7 @@ class TestEventJournal:
         for file in files:
             data = file.read_bytes()
             assert not data or data.endswith(b"\n"), f"{file}: a torn last line"
-        values = [e["value"] for e in read_events(path, include_rotated=True)]
+        values = [e["value"] for e in rotated_events(path)]
         assert values == list(range(len(values)))
         assert len(values) > flushed
 
@@ -202,7 +213,7 @@ class TestEventJournal:
         files = journal_files(path)
         assert files[-1] == path and files[-2].name == "events.jsonl.1"
         assert all(f.stat().st_size <= 1000 for f in files)
-        assert [e["value"] for e in read_events(path, include_rotated=True)] == [30.0 + i for i in range(100)]
+        assert [e["value"] for e in rotated_events(path)] == [30.0 + i for i in range(100)]
 
     def test_rotation_continues_numbering_after_restart(self, tmp_path: Path) -> None:
         """A restarted daemon rotates on top of existing backups without overwriting any of them."""
@@ -211,7 +222,7 @@ class TestEventJournal:
             with EventJournal(path, max_bytes=500) as j:
                 for i in range(20):
                     j.write(_trip(run * 20 + i))
-        assert len(read_events(path, include_rotated=True)) == 60
+        assert len(rotated_events(path)) == 60
 
     def test_backups_limit_is_opt_in(self, tmp_path: Path) -> None:
         """With backups=2 only the two newest rotated files are kept."""
@@ -227,7 +238,7 @@ class TestEventJournal:
         with EventJournal(path, max_bytes=50) as j:
             j.write({"event": "start", "t": 0.0})
             j.write({"event": "error", "t": 1.0, "reason": "x" * 200})
-        assert [e["event"] for e in read_events(path, include_rotated=True)] == ["start", "error"]
+        assert [e["event"] for e in rotated_events(path)] == ["start", "error"]
 
     def test_no_path_only_counts(self, tmp_path: Path) -> None:
         """A journal without a path counts events and writes nothing."""
@@ -282,24 +293,3 @@ class TestEventJournal:
         j.close()
         assert [e["event"] for e in read_events(path)] == ["start", "trip", "stop", "recover"]
 
-
-class TestReadEvents:
-    """read_events: reading a journal back for tests and replay comparisons."""
-
-    def test_torn_last_line_is_skipped(self, tmp_path: Path) -> None:
-        """A last line without its newline (power cut mid-write) is skipped, earlier lines kept."""
-        path = tmp_path / "events.jsonl"
-        path.write_bytes(encode_event({"event": "start", "t": 1.0}) + b'{"t":2.0,"eve')
-        assert [e["event"] for e in read_events(path)] == ["start"]
-
-    def test_corrupt_line_names_file_and_line(self, tmp_path: Path) -> None:
-        """A line in the middle that is not JSON raises LogFormatError naming file:line."""
-        path = tmp_path / "events.jsonl"
-        path.write_bytes(encode_event({"event": "start"}) + b"garbage\n" + encode_event({"event": "exit"}))
-        with pytest.raises(LogFormatError, match=r"events\.jsonl:2"):
-            read_events(path)
-
-    def test_missing_file_raises(self, tmp_path: Path) -> None:
-        """Reading a journal that does not exist raises FileNotFoundError."""
-        with pytest.raises(FileNotFoundError):
-            read_events(tmp_path / "nope.jsonl", include_rotated=True)

@@ -18,12 +18,12 @@ import can
 import pytest
 
 from canguard.config.schema import BusConfig
-from canguard.engine.events import EventJournal, read_events
+from canguard.engine.events import EventJournal
 from canguard.engine.gate import TaskGate
 from canguard.io.bus import BusReader, open_bus
 from canguard.service.daemon import Daemon
 from canguard.service.systemd import Notifier
-from test_daemon import BmsFeeder, is_stop, is_task, unique_udp, write_config
+from test_daemon import BmsFeeder, is_stop, is_task, read_events, unique_udp, write_config
 from waitkit import receive_until, wait_until
 
 pytest.importorskip("msgpack")  # python-can's udp_multicast needs it
@@ -49,6 +49,22 @@ def collect(reader: BusReader, n: int) -> list[tuple[str, can.Message, float]]:
 
     wait_until(enough, what=f"{n} frames from the reader")
     return out
+
+
+def kernel_stamps_on(reader: BusReader, peer: can.BusABC) -> None:
+    """Wait until a frame left in the reader's socket comes out stamped when it arrived. Linux switches its receive
+    timestamps on for every socket a moment after the first socket asks (deferred work, late on a loaded machine)
+    and off after the last one closes; until then a datagram is stamped when it is read."""
+
+    def stamped() -> bool:
+        peer.send(can.Message(arbitration_id=0x7FF, data=b"", is_extended_id=False))
+        peer.recv(5)  # the peer's own loopback copy
+        time.sleep(0.02)  # the frame waits in the reader's socket
+        read = time.monotonic()
+        ((_, _, received),) = collect(reader, 1)
+        return received < read - 0.01
+
+    wait_until(stamped, what="the kernel's receive timestamps")
 
 
 @pytest.fixture
@@ -85,8 +101,7 @@ class TestDirectReceive:
         """A frame left in the socket's buffer is received with the time it arrived, not the time it was read."""
         cfg, peer = udp
         with BusReader([cfg], direct=True) as reader:
-            peer.send(can.Message(arbitration_id=0x124, data=b"\x01", is_extended_id=False))
-            collect(reader, 1)  # the bus's first frame tells that it stamps with the wall clock
+            kernel_stamps_on(reader, peer)  # and the bus's first frame tells that it stamps with the wall clock
             sent = time.monotonic()
             peer.send(can.Message(arbitration_id=0x124, data=b"\x02", is_extended_id=False))
             time.sleep(0.5)  # the loop is busy elsewhere: the frame waits in the kernel's buffer
@@ -179,6 +194,8 @@ class TestDirectReceive:
         try:
             with BusReader([first, second], direct=True) as reader:
                 assert reader.direct
+                for peer in peers:
+                    kernel_stamps_on(reader, peer)
                 for i in range(20):
                     peers[i % 2].send(can.Message(arbitration_id=0x127, data=bytes([i]), is_extended_id=False))
                     assert peers[i % 2].recv(5) is not None  # its loopback copy: the reader's socket holds it too

@@ -138,7 +138,7 @@ def engine_state(engine: Engine) -> dict[str, Any]:
         "health": health, "models": models, "now": engine.clock.now(), "last_tick_t": engine.last_tick_t,
         "first_frame_t": engine.first_frame_t, "gate": engine.gate.state, "stops": engine.gate.stops,
         "next_task": engine.gate.next_task_t, "next_stop": engine.gate._next_stop, "sent": engine.gate.sink.sent,
-        "stale": engine.watch.stale, "events_seen": dict(engine.events_seen),
+        "stale": engine.stale, "events_seen": dict(engine.events_seen),
     })
 
 
@@ -171,7 +171,7 @@ def replay(cfg: Config, log: Path, out: Path, *, columns: bool, chunk: int | Blo
     counts = {"blocks": 0, "handled": 0, "fed": 0, "widest": 0, "in_block": 0}
     handled_ids: set[int] = set()
     run_columns = LogRun._run_columns
-    compile_plan = canguard.engine.blocks.compile_plan
+    take_samples = canguard.engine.blocks.MessagePlan.take_samples
     take_runs = canguard.engine.blocks.take_runs
     build_summary = canguard.cli.replay.build_summary
 
@@ -184,17 +184,9 @@ def replay(cfg: Config, log: Path, out: Path, *, columns: bool, chunk: int | Blo
         counts["blocks"] += block.n > 1
         counts["widest"] = max(counts["widest"], block.n)
 
-    def counted_compile_plan(entry: Any, *args: Any) -> Any:
-        plan = compile_plan(entry, *args)
-        if plan is not None:
-            inner_samples = plan.take_samples
-
-            def take_samples(samples: Any) -> bool:
-                counts["fed"] += counts["in_block"]
-                return inner_samples(samples)
-
-            plan.take_samples = take_samples
-        return plan
+    def counted_take_samples(plan: Any, samples: Any) -> bool:
+        counts["fed"] += counts["in_block"]
+        return take_samples(plan, samples)
 
     def counted_take_runs(runs: Any) -> tuple[int, bool]:
         last, edge = take_runs(runs)
@@ -215,7 +207,7 @@ def replay(cfg: Config, log: Path, out: Path, *, columns: bool, chunk: int | Blo
         if not columns:
             mp.setattr(canguard.io.logs, "read_log", lambda *a, **k: _OneByOne(read_log(*a, **k)))
         mp.setattr(LogRun, "_run_columns", counted_run_columns)
-        mp.setattr(canguard.engine.blocks, "compile_plan", counted_compile_plan)
+        mp.setattr(canguard.engine.blocks.MessagePlan, "take_samples", counted_take_samples)
         mp.setattr(canguard.engine.blocks, "take_runs", counted_take_runs)
         mp.setattr(canguard.cli.replay, "build_summary", capturing_build_summary)
         mp.setattr(canguard.io.candump, "CHUNK_CHARS", chunk)

@@ -1,9 +1,4 @@
-"""canguard: a CAN-bus motor-driver monitoring daemon.
-
-Frames in (python-can), samples out (cantools and the robot's DBC files),
-protection models per sample, a BehaviorTree.CPP-format tree on py_trees to gate
-the robot's task, and stop frames back onto the bus when the tree fails.
-"""
+"""canguard: a CAN-bus motor-driver monitoring daemon."""
 
 from __future__ import annotations
 
@@ -11,11 +6,8 @@ __all__ = ["__version__"]
 
 
 def __getattr__(name: str) -> str:
-    """``canguard.__version__``, looked up in the installed metadata when first asked for.
-
-    Lazy: importing ``importlib.metadata`` and scanning ``sys.path`` for the distribution
-    cost every ``canguard`` command ~30 ms at start-up, for a value only ``--version`` prints.
-    """
+    """``canguard.__version__``, looked up in the installed metadata when first asked for (lazy: the lookup costs
+    every command's start-up, for a value only ``--version`` prints)."""
     if name != "__version__":
         raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
     from importlib.metadata import PackageNotFoundError, version

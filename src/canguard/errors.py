@@ -1,19 +1,7 @@
 """The one exception tree of canguard.
 
-::
-
-    CanguardError
-     +-- ConfigError (ValueError)      YAML config: file, key path, what was found and expected
-     +-- DbcError (ValueError)         a DBC file that does not load
-     +-- TreeError (ValueError)        BehaviorTree.CPP XML: file, line, node, port
-     +-- LogFormatError (ValueError)   a recorded log line that does not parse: file:line and text
-     +-- BusError (OSError)            a bus that does not open or went away
-     +-- StateFileError (OSError)      an I²t state file that cannot be read or written
-
-Every error also inherits the matching built-in. ConfigError and TreeError carry every problem one load
-found (``problems``): ``canguard check`` prints them all, one ``file:line: ...`` per line. The words of an
-error come from here too: :func:`quote` / :func:`clip` (a bad line or value on one printable line),
-:func:`closest` (the known names nearest to a misspelt one).
+Every error also inherits the matching built-in (ValueError, OSError). ConfigError and TreeError carry every
+problem one load found (``problems``): ``canguard check`` prints them all, one per line.
 """
 
 from __future__ import annotations
@@ -57,8 +45,7 @@ def _printable(text: str, limit: int) -> tuple[str, bool]:
 
 
 def clip(text: str, limit: int = QUOTE_CHARS) -> str:
-    """``text`` on one printable line of at most about ``limit`` characters (escapes count); a longer one is cut,
-    with its length."""
+    """``text`` on one printable line of at most about ``limit`` characters; a longer one is cut, with its length."""
     shown, cut = _printable(text, limit)
     return f"{shown}... ({len(text)} characters in all)" if cut else shown
 
@@ -71,10 +58,7 @@ def quote(text: str, limit: int = QUOTE_CHARS) -> str:
 
 def closest(word: str, choices: Iterable[str], n: int = 5, cutoff: float = 0.5, spread: float = 1.0) -> list[str]:
     """The ``n`` choices nearest to ``word``, closest first: case ignored, difflib's similarity >= ``cutoff``
-    and within ``spread`` of the best one (a small spread gives a clear typo one answer, not a list).
-
-    difflib's quick upper bounds skip a choice that cannot reach ``cutoff``: a 100 kB value is answered at once.
-    """
+    and within ``spread`` of the best one (a small spread gives a clear typo one answer, not a list)."""
     word = word.lower()
     scored = []
     for c in set(choices):

@@ -1,10 +1,4 @@
-"""Values with their units, one way everywhere a person reads them.
-
-The replay summary, the margin report, the baseline diff and the demo's live view all
-print a value beside its unit through :func:`quantity`: amps (``A``) for currents, the
-DBC's unit for other signals (``Nm``), ``A²s`` for a leaky I²t accumulator and its trip
-level, and ``% of the I²t limit`` for an I²t level (100 = trip).
-"""
+"""Values with their units, one way everywhere a person reads them."""
 
 from __future__ import annotations
 

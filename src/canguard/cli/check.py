@@ -11,17 +11,13 @@ def _id(frame_id: int, extended: bool) -> str:
     return f"0x{frame_id:08X} (extended)" if extended else f"0x{frame_id:03X}"
 
 
-def _range(ref: SignalRef) -> str:
+def _signal(ref: SignalRef) -> str:
+    text = f"{ref.role} = {ref.signal}" + (f" {ref.unit}" if ref.unit else "")
     if ref.minimum is None and ref.maximum is None:
-        return ""
+        return text
     lo = "-inf" if ref.minimum is None else f"{ref.minimum:g}"
     hi = "inf" if ref.maximum is None else f"{ref.maximum:g}"
-    return f" [{lo} .. {hi}]"
-
-
-def _signal(ref: SignalRef) -> str:
-    unit = f" {ref.unit}" if ref.unit else ""
-    return f"{ref.role} = {ref.signal}{unit}{_range(ref)}"
+    return f"{text} [{lo} .. {hi}]"
 
 
 def _frames(title: str, frames: Iterable[FrameSpec]) -> list[str]:
@@ -42,8 +38,7 @@ def _dbc_notes(notes: tuple[str, ...], verbose: bool) -> list[str]:
 
 
 def describe(cfg: Config, verbose: bool = False) -> str:
-    """The text ``canguard check`` prints for a config that loaded without errors (``verbose``: ``check -v``, also
-    what each CANopen drive's EDS tolerated, the SDO writes canguard makes and what a drive must be told)."""
+    """The text ``canguard check`` prints for a config that loaded without errors (``verbose``: ``check -v``)."""
     n_messages = len(cfg.database.messages) if cfg.database is not None else 0
     lines = [f"config {cfg.path}", "dbc:", *(f"  {p}" for p in cfg.dbc_files), f"  ({n_messages} messages)",
              *_dbc_notes(cfg.dbc_notes, verbose), "buses:"]

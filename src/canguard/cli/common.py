@@ -1,8 +1,4 @@
-"""What every ``canguard`` subcommand shares: the config default, global options, exit codes.
-
-One place, so ``-h`` of every subcommand lists the same exit codes and ``-v``
-works before and after the subcommand name (python-can / cantools users type both).
-"""
+"""What every ``canguard`` subcommand shares: the config default, global options, exit codes."""
 
 from __future__ import annotations
 
@@ -117,8 +113,7 @@ def run_config(args: argparse.Namespace) -> tuple[Config, Path | None]:
 
 
 def add_global_options(p: argparse.ArgumentParser, *, in_subcommand: bool) -> None:
-    """``-v`` anywhere: a subcommand's count is ``sub_verbose`` (argparse copies a subparser's namespace over the
-    main one), added up by :func:`canguard.cli.main.parse_args`."""
+    """``-v`` anywhere: a subcommand's count is ``sub_verbose``, added up by :func:`canguard.cli.main.parse_args`."""
     dest = "sub_verbose" if in_subcommand else "verbose"
     p.add_argument("-v", "--verbose", action="count", default=0, dest=dest, help="more log output (-vv: debug)")
 
@@ -154,8 +149,7 @@ BLAS_THREADS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 
 
 def one_blas_thread() -> None:
-    """One thread for each BLAS pool numpy would start, unless the user set one (canguard's numpy work is
-    block by block, never worth a pool). Before numpy is imported."""
+    """One thread per BLAS pool unless the user set one (block-sized work is never worth a pool); before numpy."""
     for name in BLAS_THREADS:
         os.environ.setdefault(name, "1")
 

@@ -1,7 +1,6 @@
 """``canguard completion bash|zsh``: a shell completion script generated from the argument parser.
 
-Generated, not written by hand, so a new subcommand or option completes the day it
-lands. zsh loads the bash function through ``bashcompinit`` (as argcomplete does).
+zsh loads the bash function through ``bashcompinit`` (as argcomplete does).
 """
 
 from __future__ import annotations

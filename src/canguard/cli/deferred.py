@@ -1,10 +1,8 @@
 """Submodules of our dependencies that ``canguard`` commands never use, loaded on first use instead of at import.
 
-``import cantools`` imports ``cantools.tester``, and with it python-can whole (~35 ms of a replay);
-``py_trees`` imports ``py_trees.display`` and pydot. :func:`defer` puts a stand-in into ``sys.modules``
-before the package is imported; the first attribute read runs the real module's code in it (PEP 562).
-Only the process entry point (:func:`canguard.cli.main.console`) defers, never a library import.
-(The stdlib's ``LazyLoader`` is not thread-safe before Python 3.12.)
+``import cantools`` imports ``cantools.tester`` and with it python-can whole; ``py_trees`` imports pydot.
+Only the process entry point defers, never a library import. (The stdlib's ``LazyLoader`` is not thread-safe
+before Python 3.12.)
 """
 
 from __future__ import annotations
@@ -15,13 +13,11 @@ import sys
 import threading
 
 UNUSED = ("cantools.tester", "cantools.logreader", "py_trees.display", "py_trees.demos", "py_trees.programs")
-"""The submodules :func:`defer_unused` defers: none of them is read on a replay, check or daemon run (cantools'
-log reader and py_trees' demos and programs are other tools' parts)."""
+"""The submodules :func:`defer_unused` defers: none is read on a replay, check or daemon run."""
 
 
 def defer(name: str) -> bool:
-    """Load the submodule ``name`` (``package.module``) only when one of its attributes is first read; True when
-    deferred, False (nothing changed) when its package is imported already, missing, or keeps it elsewhere."""
+    """Load the submodule ``name`` only when one of its attributes is first read; False: it cannot be deferred."""
     package, _, leaf = name.rpartition(".")
     if not package or package in sys.modules or name in sys.modules:
         return False

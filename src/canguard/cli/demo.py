@@ -1,7 +1,6 @@
 """``canguard demo``: the simulated robot and the daemon, one command, no hardware.
 
-Both on one private ``virtual`` channel (the robot in a thread). A live view on a terminal (else one line
-per event); at the end, what tripped, when, and how fast the stop frames went out.
+Both on one private ``virtual`` channel (the robot in a thread); a live view on a terminal, else one line per event.
 """
 
 from __future__ import annotations

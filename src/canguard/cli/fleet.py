@@ -19,11 +19,8 @@ def _is_log(path: Path) -> bool:
 
 
 def expand_logs(given: Sequence[Path]) -> list[Path]:
-    """The log files ``given`` names, in order: files as they are, directories, globs and ``@LIST`` files expanded.
-
-    ConfigError naming what matched nothing (an empty directory, a glob without a match,
-    a list file that cannot be read); a missing plain file is left for the reader to name.
-    """
+    """The log files ``given`` names, in order: directories, globs and ``@LIST`` files expanded; ConfigError naming
+    what matched nothing (a missing plain file is left for the reader to name)."""
     out: list[Path] = []
     for item in given:
         text = str(item)
@@ -82,11 +79,8 @@ def _collect(futures: Iterable[Any], index: Callable[[Any], int], total: int) ->
 
 
 def run_dask(address: str, job: Callable[[Any], Any], jobs: list[Any]) -> list[Any]:
-    """Run ``job`` over ``jobs`` on the Dask scheduler at ``address``; results in the order of ``jobs``.
-
-    One failed log is a failed result (the job returns its error), never a lost fleet.
-    ConfigError when the ``fleet`` extra is missing or the scheduler cannot be reached.
-    """
+    """Run ``job`` over ``jobs`` on the Dask scheduler at ``address``; results in the order of ``jobs``. ConfigError
+    when the ``fleet`` extra is missing or the scheduler cannot be reached."""
     try:
         from distributed import Client, as_completed
     except ImportError:
@@ -106,23 +100,16 @@ def run_dask(address: str, job: Callable[[Any], Any], jobs: list[Any]) -> list[A
 
 def _pool_context() -> Any:
     """How ``--jobs`` starts its workers: 'fork' on Linux while this process runs one thread (they inherit the
-    loaded config), else 'spawn' (a forked child of a threaded process can hang on a lock copied while held)."""
+    loaded config), else 'spawn' (a forked child of a threaded process can hang on a lock copied while held).
+    Threads as the kernel counts them: C libraries' included."""
     import multiprocessing
-
-    if sys.platform == "linux" and _threads() == 1:
-        return multiprocessing.get_context("fork")
-    return multiprocessing.get_context("spawn")
-
-
-def _threads() -> int:
-    """This process's threads, as the kernel counts them (C libraries' included); Python's count elsewhere."""
     import os
-    import threading
 
     try:
-        return len(os.listdir("/proc/self/task"))
+        threads = len(os.listdir("/proc/self/task"))
     except OSError:
-        return threading.active_count()
+        threads = 0  # no /proc: spawn, always safe
+    return multiprocessing.get_context("fork" if sys.platform == "linux" and threads == 1 else "spawn")
 
 
 CONNECT_TIMEOUT = "10s"
@@ -140,11 +127,8 @@ def _worker_start() -> None:
 
 def run_processes(workers: int, job: Callable[[Any], Any], jobs: list[Any],
                   warm: Sequence[str] = ()) -> list[Any]:
-    """Run ``job`` over ``jobs`` in ``workers`` local processes; results in the order of ``jobs``.
-
-    ``warm``: modules every job imports, imported here first when the workers are forked
-    (once, instead of once per worker). How they start: :func:`_pool_context`.
-    """
+    """Run ``job`` over ``jobs`` in ``workers`` local processes; results in the order of ``jobs``. ``warm``: modules
+    every job imports, imported here first when the workers are forked (once, not per worker)."""
     import gc
     import importlib
     from concurrent.futures import ProcessPoolExecutor, as_completed

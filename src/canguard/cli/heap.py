@@ -1,10 +1,7 @@
 """A replay keeps the memory it frees until it ends, then gives it back.
 
-A replay makes and frees large buffers block after block. glibc gives freed memory at the top of
-its heap back to the kernel past a trim threshold (128 KiB, adaptive; fixed where Dask's nanny sets
-``MALLOC_TRIM_THRESHOLD_``), so each block faults its pages in again. :func:`keep_freed_memory` raises
-the trim and mmap thresholds while replays run and puts the environment's (or glibc's defaults) back,
-and trims once, when the last ends; it does nothing without glibc's ``mallopt``.
+glibc gives freed memory back to the kernel past a trim threshold (fixed where Dask's nanny sets
+``MALLOC_TRIM_THRESHOLD_``), so each block of a replay would fault its pages in again.
 """
 
 from __future__ import annotations
@@ -20,8 +17,7 @@ M_TRIM_THRESHOLD = -1
 M_MMAP_THRESHOLD = -3
 """glibc's ``mallopt`` parameters (malloc.h)."""
 KEEP_BYTES = 32 << 20
-"""The thresholds while a replay runs: freed blocks of up to 32 MiB stay in the heap (glibc's own adaptive
-ceiling on 64-bit)."""
+"""The thresholds while a replay runs (glibc's own adaptive ceiling on 64-bit)."""
 DEFAULT_THRESHOLD = 128 * 1024
 """glibc's default trim and mmap thresholds."""
 

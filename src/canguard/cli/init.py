@@ -1,8 +1,6 @@
 """``canguard init DIR``: a starter config, its tree and a DBC copy, ready to edit and deploy.
 
-The packaged whole-robot example fitted to DIR, a bus and a state directory. ``--canopen EDS --node N``: a
-config and tree for one CANopen drive instead; what it guards, how it reads and stops the drive, and what it
-tells: docs/commands.md (``canguard init``).
+``--canopen EDS --node N``: a config and tree for one CANopen drive instead (docs/commands.md).
 """
 
 from __future__ import annotations
@@ -197,7 +195,8 @@ def choose_tpdo(eds: Eds, tpdos: list[Pdo]) -> tuple[Pdo, bool]:
         keep = [] if not pdo.enabled else [(o.index, o.subindex) for o in pdo.objects]
         if pdo.enabled and len(pdo.objects) and pdo.bits != sum(o.bits for o in pdo.objects):
             continue  # dummy entries: a new mapping would move the objects others read
-        for extra in _fits(wanted):
+        # ``wanted``, then with fewer objects from its end, down to one guarded value
+        for extra in (wanted[:n] for n in range(len(wanted), 0, -1) if any(i in GUARDED for i in wanted[:n])):
             try:
                 refs: list[tuple[int, int | None]] = [*keep, *((i, None) for i in extra if (i, 0) not in keep)]
                 return override(eds, pdo, refs), True
@@ -217,15 +216,9 @@ def _remappable(eds: Eds, pdo: Pdo) -> bool:
                for var in (eds.variable(index, 0), eds.variable(index, 1)))
 
 
-def _fits(wanted: list[int]) -> list[list[int]]:
-    """``wanted``, then with fewer objects from its end, down to one guarded value."""
-    return [wanted[:n] for n in range(len(wanted), 0, -1) if any(i in GUARDED for i in wanted[:n])]
-
-
 def drive_files(eds_path: Path, node: int, *, bus: str, state_dir: Path, simulation: bool,
                 configure: bool = False) -> tuple[dict[str, str], list[str]]:
-    """The config and tree texts (by file name) for the drive of ``eds_path`` at ``node``, and the lines for stderr
-    (the TPDO chosen, what the drive must be told, warnings)."""
+    """The config and tree texts (by file name) for the drive of ``eds_path`` at ``node``, and lines for stderr."""
     eds = read_drive(eds_path, node)
     try:
         tpdos, rpdos = drive_pdos(eds)

@@ -1,7 +1,4 @@
-"""The ``canguard`` command: one subcommand = ``add_parser(sub)`` + a function returning an exit code.
-
-Exit codes: one table, :data:`canguard.cli.common.EXIT_CODES`, printed by every ``-h``.
-"""
+"""The ``canguard`` command: one subcommand = ``add_parser(sub)`` + a function returning an exit code."""
 
 from __future__ import annotations
 
@@ -66,7 +63,6 @@ def _cmd_check(args: argparse.Namespace) -> int:
     from canguard.bt.checks import check_tree
     from canguard.bt.loader import partial_tree_problems
     from canguard.cli.check import describe
-    from canguard.errors import ConfigError
     from canguard.io.outputs import check_config_outputs
 
     try:
@@ -206,11 +202,7 @@ class _VersionAction(argparse._VersionAction):
 
 
 def build_parser(command: str | None = None) -> argparse.ArgumentParser:
-    """The full argument parser (every subcommand has -h).
-
-    With ``command``, only that subcommand is built in full (its module imported); the others are
-    listed by name and help, so one command's start-up does not import every other one.
-    """
+    """The full argument parser; with ``command``, only that subcommand in full (the others listed, not imported)."""
     parser = argparse.ArgumentParser(
         prog="canguard",
         description="CAN-bus motor-driver monitoring: DBC decoding, protection models, behaviour trees.",
@@ -231,11 +223,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
 
 
 def _command_in(argv: Sequence[str]) -> str | None:
-    """The subcommand ``argv`` runs, when it can be told before parsing ("" for none); None: build them all.
-
-    The top-level options (-h, --version, -v) take no value, so the first word that is not an
-    option is the subcommand. ``completion`` prints every subcommand's options: it needs them all.
-    """
+    """The subcommand ``argv`` runs ("" for none); None: build them all (``completion`` needs every option)."""
     for word in argv:
         if word == "--":
             return None
@@ -268,8 +256,11 @@ def main(argv: Sequence[str] | None = None, parser: argparse.ArgumentParser | No
         code = func(args)
         sys.stdout.flush()  # a closed pipe shows here, inside the try, not at interpreter exit
         return code
-    except BrokenPipeError:
-        return _quiet_broken_pipe()
+    except BrokenPipeError:  # the reader of stdout went away (``| head``): stdout to devnull, a quiet final flush
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+        return EXIT_BROKEN_PIPE
     except CanguardError as exc:
         # ConfigError / TreeError carry every problem of one load: all are printed, one per line.
         problems = getattr(exc, "problems", None)
@@ -289,12 +280,8 @@ def main(argv: Sequence[str] | None = None, parser: argparse.ArgumentParser | No
 
 
 def console() -> int:
-    """The process's entry point (console script, ``python -m canguard``): :func:`main`, then exit.
-
-    The objects the command's imports make live until exit: the collector is off while they are made
-    (a tenth of a short replay's start) and they are frozen out of its walks after, as the whole heap is
-    before exit (~30 ms after a replay); not in :func:`main`, which tests and embedding programs call.
-    """
+    """The process's entry point (console script, ``python -m canguard``): :func:`main`, then exit. The imports'
+    objects live until exit: made with the collector off, then frozen out of its walks (not in :func:`main`)."""
     from canguard.cli.deferred import defer_unused
 
     defer_unused()
@@ -306,15 +293,3 @@ def console() -> int:
     code = main(parser=parser)
     gc.freeze()
     return code
-
-
-def _quiet_broken_pipe() -> int:
-    """The reader of stdout went away (``| head``): stdout to devnull, so the final flush is quiet."""
-    devnull = os.open(os.devnull, os.O_WRONLY)
-    os.dup2(devnull, sys.stdout.fileno())
-    os.close(devnull)
-    return EXIT_BROKEN_PIPE
-
-
-if __name__ == "__main__":
-    sys.exit(main())

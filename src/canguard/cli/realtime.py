@@ -1,7 +1,6 @@
 """``canguard replay --realtime [SPEED]``: a bench test through the real daemon path.
 
-The log is played onto a configured bus at its pace (x SPEED) from a second connection while a
-:class:`~canguard.service.daemon.Daemon` runs live on that bus.
+The log is played onto a configured bus at its pace from a second connection while the daemon runs live on it.
 """
 
 from __future__ import annotations
@@ -30,8 +29,7 @@ DRAIN_S = 10.0
 
 
 class _ReplayDaemon(Daemon):
-    """The daemon with replay's promises: I²t heat only read from ``--state`` (never saved), ``--emit``; the
-    bench's (often virtual) bus allowed."""
+    """The daemon with replay's promises: heat only read from ``--state``, ``--emit``, the bench's bus allowed."""
 
     refuse_virtual = False
     watch = False
@@ -78,8 +76,7 @@ def _play_bus(cfg: Config, args: argparse.Namespace) -> str:
 
 
 def replay_realtime(cfg: Config, args: argparse.Namespace, names: list[Path]) -> list[tuple[dict[str, Any], str]]:
-    """Play each log onto the bus while the daemon runs (journal ``--events``, no ``state.file``); each log's
-    (summary, ""), printed as replay's. ``names``: the logs as the user gave them."""
+    """Play each log onto the bus while the daemon runs; each log's (summary, ""). ``names``: as the user gave them."""
     from canguard.cli.common import per_log_path
     from canguard.engine.routing import ChannelRouter
     from canguard.io.logs import ReadStats, read_log

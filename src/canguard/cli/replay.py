@@ -1,10 +1,7 @@
 """``canguard replay``: the daemon's engine over recorded logs.
 
-The same :class:`~canguard.engine.core.Engine` as ``canguard run``, with a
-:class:`~canguard.io.clock.ManualClock` driven by the log's timestamps and a
-:class:`~canguard.engine.gate.LogSink` in place of the buses: the answer to "what
-would the daemon have done on this log?". The summary and the events depend
-only on the log and the config, so two runs give byte-identical output.
+The same engine as ``canguard run`` on the log's clock, a :class:`~canguard.engine.gate.LogSink` in place of
+the buses; the summary and the events depend only on the log and the config (byte-identical runs).
 """
 
 from __future__ import annotations
@@ -128,8 +125,7 @@ def _mcap_export(opts: ReplayOptions) -> bool:
 
 
 def _outputs(stack: ExitStack, engine: Engine, sink: LogSink, opts: ReplayOptions, log: str) -> None:
-    """The exports a replay writes as it goes (``--export-signals``, ``--emit`` as a bag), each closed at the end;
-    the frames sent go to those that take them (kept by ``sink``, handed over after every tick and at the end)."""
+    """The exports a replay writes as it goes (``--export-signals``, ``--emit`` as a bag), each closed at the end."""
     watch = _AfterTicks(sink, engine.observer)
     if opts.export is not None and _mcap_export(opts):
         from canguard.report.export import McapExport
@@ -154,8 +150,7 @@ def _outputs(stack: ExitStack, engine: Engine, sink: LogSink, opts: ReplayOption
 
 
 class _AfterTicks:
-    """After every tick that runs (the engine's observer: quiet ticks stay unrun): the frames sent go to their
-    takers, and the exports' observers see the tick."""
+    """The engine's observer: after every tick that runs, the frames sent go to their takers; observers see it."""
 
     def __init__(self, sink: LogSink, previous: Any) -> None:
         self.sink = sink
@@ -266,8 +261,7 @@ def _config_of(ref: ConfigRef) -> Config:
 
 
 def _job(args: tuple[Config | ConfigRef, Path, ReplayOptions]) -> tuple[dict[str, Any] | None, str]:
-    """Replay one log (freed memory kept until it ends): with the config loaded by :func:`cmd_replay`, or (a
-    --jobs / --dask worker) its reference."""
+    """Replay one log (freed memory kept until it ends), with the config or (a worker) its reference."""
     from canguard.cli.heap import keep_freed_memory
 
     cfg, log, opts = args
@@ -320,8 +314,7 @@ def _as_named(text: str, read: list[Path], names: list[Path]) -> str:
 
 
 def _check_args(args: argparse.Namespace) -> None:
-    """The options, and every file the replay reads or writes, tried before the first log is read: one line and
-    exit 2 (ConfigError), not a traceback or a silent cold start."""
+    """Every option and file of the replay tried before the first log is read (ConfigError: one line, exit 2)."""
     from canguard.io.outputs import check_output
     from canguard.protect.state import readable_problem
 
@@ -399,8 +392,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
 def run_jobs(args: argparse.Namespace, cfg: Config, cfg_path: Path,
              logs: list[tuple[Path, ReplayOptions]]) -> list[tuple[dict[str, Any] | None, str]]:
-    """Every log's (summary, error), in input order: on Dask (``--dask``), in ``--jobs`` processes (largest log
-    first) or here."""
+    """Every log's (summary, error), in input order: on Dask, in ``--jobs`` processes (largest first) or here."""
     if not ((args.jobs > 1 and len(logs) > 1) or args.dask is not None):
         return [_job((cfg, log, opts)) for log, opts in logs]
     ref = ConfigRef(cfg_path, uuid.uuid4().hex)
@@ -471,8 +463,7 @@ def _report(args: argparse.Namespace, results: list[tuple[dict[str, Any] | None,
 
 
 def _export_path(path: Path | None, log: Path, many: bool, index: int) -> Path | None:
-    """Where log number ``index`` writes ``--export-signals``: its Parquet part (joined after the run), or its own
-    MCAP file (``FILE.<log name>.mcap`` of several logs)."""
+    """Where log number ``index`` writes ``--export-signals``: its Parquet part, or its own MCAP file."""
     if path is None:
         return None
     from canguard.report import export

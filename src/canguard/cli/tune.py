@@ -1,8 +1,4 @@
-"""``canguard tune``: thresholds proposed from healthy logs and known faults, proven by replay.
-
-A statistics pass over every log (:class:`~canguard.report.tune.TuneStats`), a proposal per guard
-(:func:`canguard.report.tune.propose`), a proving replay of the tuned files, then ``--out DIR``: docs/commands.md.
-"""
+"""``canguard tune``: thresholds proposed from healthy logs and known faults, proven by replay."""
 
 from __future__ import annotations
 

@@ -1,12 +1,8 @@
 """Frames -> samples: decode only the configured signals of the configured frames.
 
-:meth:`Decoder.decode` (live, and replay's rows a block does not take) finds a frame's message by one dict
-lookup on ``(bus, arbitration_id, is_extended_id)`` and runs its
-:class:`~canguard.decode.message.MessageDecoder` kernel on it as a block of one. It never raises: a wrong
-length or an undecodable payload gives one NaN sample per configured signal (``bad_length`` /
-``undecodable``), a NaN or infinite value an invalid sample (``nan`` / ``inf``); error and remote frames
-are counted, never decoded. The DBC range and a presence flag at 0 leave the sample valid:
-:class:`~canguard.protect.staleness.SourceHealth` reports those itself.
+Never raises: a wrong length or an undecodable payload gives one NaN sample per configured signal, a NaN
+or infinite value an invalid sample; error and remote frames are counted, never decoded. The range and a
+presence flag at 0 leave the sample valid: :class:`~canguard.protect.staleness.SourceHealth` reports those.
 """
 
 from __future__ import annotations
@@ -29,14 +25,7 @@ _new = tuple.__new__  # builds a Sample without NamedTuple.__new__'s keyword han
 
 @dataclass
 class DecodeCounters:
-    """What one bus fed the decoder.
-
-    ``frames``: every frame given to :meth:`Decoder.decode`; ``decoded``: configured
-    frames decoded; ``invalid``: configured frames that produced invalid samples
-    (wrong length, undecodable payload, NaN/inf value); ``skipped``: frames of no
-    configured message; ``error_frames`` / ``remote_frames``: counted, never decoded.
-    ``reasons`` counts invalid samples by reason.
-    """
+    """What one bus fed the decoder (the summary's ``frames``); ``reasons`` counts invalid samples by reason."""
 
     frames: int = 0
     decoded: int = 0
@@ -60,8 +49,7 @@ def _output(ref: SignalRef, source: str) -> Output:
 
 
 class Decoder:
-    """Decodes the configured signals of the configured frames of a :class:`Config`; counters summed over every
-    bus, and :attr:`per_bus` (by bus name, with reasons)."""
+    """Decodes the configured signals of the configured frames; counters summed over every bus, and :attr:`per_bus`."""
 
     def __init__(self, cfg: Config) -> None:
         self._table: dict[tuple[str, int, bool], MessageDecoder] = {}
@@ -79,11 +67,6 @@ class Decoder:
     def entries(self) -> Iterable[tuple[tuple[str, int, bool], MessageDecoder]]:
         """Every configured ``(bus, arbitration_id, is_extended_id)`` with its message's decoder."""
         return self._table.items()
-
-    def strategy(self, bus: str, arbitration_id: int, is_extended_id: bool) -> str | None:
-        """How that configured frame is decoded (``bits`` or ``cantools``), or None (not configured)."""
-        entry = self._table.get((bus, arbitration_id, is_extended_id))
-        return None if entry is None else entry.strategy
 
     frames = _all_buses("frames", "Frames given to :meth:`decode`")
     decoded = _all_buses("decoded", "Configured frames decoded")
@@ -125,8 +108,7 @@ class Decoder:
 
 
 def row_samples(entry: MessageDecoder, rows: Any, k: int, t: float, counters: DecodeCounters) -> list[Sample]:
-    """The samples of row ``k`` of ``rows`` (what ``entry`` decoded), a row that is not a tuple of valid values
-    (EMPTY or None), each with its reason, counted in ``counters`` (but for the frame itself)."""
+    """The samples of row ``k`` of ``rows`` (EMPTY or None), each with its reason, counted (but for the frame)."""
     if rows[k] is EMPTY:  # a multiplexer page that carries none of the configured signals
         counters.decoded += 1
         return []

@@ -1,31 +1,12 @@
 """One configured message's decoder: compiled once from the DBC, one kernel over a block of payloads.
 
-:class:`MessageDecoder` compiles one message on one bus, for the signals sources read from it
-(:class:`Output`), into **one kernel** over a block of rows: ``payload`` (``n x width`` uint8, each
-row a payload padded with anything) and ``lengths``. A live frame is a block of one through the
-same kernel.
-
-The kernel reads the payload as 64-bit words (``<u8`` Intel, ``>u8`` Motorola; an IEEE float at a
-boundary of its own size as ``f4``/``f8``): per signal a shift, a mask, the sign, then
-``raw * scale + offset`` in float64 where that is what Python's arithmetic gives, in int64 where
-Python's exact integers are needed and fit, in Python integers beyond. Over a block the operands
-are numpy columns; over a block of one, that row's words as Python numbers (:mod:`struct`): the
-same operators give the same bits and doubles at a fraction of numpy's per-call cost, only the
-casts differ (:class:`_Columns`, :class:`_Numbers`). The contract is equality with cantools'
-``decode(..., decode_choices=False)`` to the bit (``tests/test_columns_vs_cantools.py``,
-``tests/test_decode_message.py``).
-
-``cantools`` is the strategy of what that maths does not take (container messages, a conversion
-that is not linear, a float of another width than 32 or 64 bits, a scaled or signed multiplexer,
-a signal outside the payload): cantools' ``decode_simple`` per row, then the same row check.
-
-The row check, written once (:meth:`MessageDecoder.decode`): a row is valid when its length is
-the DBC length (CAN FD: or the padded length), cantools would decode it, every configured signal
-is on its multiplexer page, and every value is finite and in the configured [min|max] (a presence
-flag non-zero: the row carries 1.0). A multiplexed row with none of the configured signals is
-:data:`~canguard.decode.rows.EMPTY`. Why a row is not valid (:class:`~canguard.decode.rows.Verdict`)
-is named on demand: ``bad_length``, ``undecodable``, ``nan`` / ``inf``, ``absent``,
-``out_of_range``, ``other_page``.
+The kernel reads the payload as 64-bit words (an aligned IEEE float as ``f4``/``f8``): per signal a shift,
+a mask, the sign, then ``raw * scale + offset`` in the number type that gives Python's result (float64,
+int64 or Python integers). A block of one runs the same operators on that row's Python numbers
+(:class:`_Numbers`), cheaper than numpy per call. The contract is equality with cantools'
+``decode(..., decode_choices=False)`` to the bit. What the maths does not take (containers, a conversion
+that is not linear, a float of another width than 32 or 64 bits, a scaled or signed multiplexer, a signal
+outside the payload) goes through cantools' ``decode_simple`` per row, then the same row check.
 """
 
 from __future__ import annotations
@@ -72,9 +53,7 @@ _ONE_LENGTH = tuple(np.array([k], dtype=np.int64) for k in range(65))
 """The ``lengths`` of a block of one payload of each length (read only, shared)."""
 
 Lanes = list[Any]
-"""A block's payload as each dtype its message reads, in the message's order of :func:`_slot` slots: ``lanes[s][k]``
-is word ``k`` of every row (a column of the ``n x words`` view), or of a block of one, that row's word as a Python
-number."""
+"""Per :func:`_slot` dtype, the block's words: ``lanes[s][k]`` is word ``k`` (a column, or one row's number)."""
 Column = Any
 """A column of the block (an array) or, in a block of one, that row's Python number: the kernel treats both alike."""
 _WRAP = 1 << 64
@@ -88,9 +67,7 @@ class _Columns:
     """The kernel's casts over a block's numpy columns."""
 
     f = _F
-    """To float64."""
-    i = _I
-    """To int64 (a uint64 wraps: two's complement)."""
+    i = _I  # a uint64 wraps: two's complement
 
     @staticmethod
     def f32(bits: Column) -> Column:
@@ -99,7 +76,6 @@ class _Columns:
 
     @staticmethod
     def f64(bits: Column) -> Column:
-        """64 bits as an IEEE float64."""
         return bits.view(np.float64)
 
 
@@ -120,7 +96,6 @@ class _Numbers:
 
     @staticmethod
     def f64(bits: int) -> float:
-        """64 bits as an IEEE float64."""
         return _F64.unpack(_U64.pack(bits))[0]
 
 
@@ -138,12 +113,8 @@ class Output:
 
 
 def check(value: Column, present: bool, lo: float, hi: float) -> tuple[Column, Column]:
-    """The row check of one output's values: (the values a valid row carries, which are usable).
-
-    Usable: finite and within [lo, hi] (NaN and +-inf fail both comparisons: the bounds are
-    finite); a presence flag: finite and non-zero, and then it carries 1.0, which must be in
-    [lo, hi]. ``value``: a float64 column, or one row's float.
-    """
+    """The row check of one output's values (a column or one float): (what a valid row carries, which are usable).
+    Usable: finite and in [lo, hi] (finite bounds: NaN and +-inf fail); a presence flag: non-zero, carrying 1.0."""
     if present:
         nonzero = value != 0.0
         good = (value >= -_BIG) & (value <= _BIG) & nonzero
@@ -170,12 +141,9 @@ class _Read(NamedTuple):
     """What the kernel read from a block, before the row check: per output its values and its page."""
 
     length_ok: Column
-    decodable: Column | None
-    """Rows cantools would decode (None: all of them)."""
-    values: list[Column]
-    """Each output's physical value, float64."""
-    pages: list[Column | None]
-    """Each output's rows on its multiplexer page (None: every row)."""
+    decodable: Column | None  # rows cantools would decode (None: all of them)
+    values: list[Column]  # each output's physical value, float64
+    pages: list[Column | None]  # each output's rows on its multiplexer page (None: every row)
 
 
 def _slot(dtypes: list[np.dtype], dtype: np.dtype) -> int:
@@ -236,14 +204,9 @@ class MessageDecoder:
 
     # -- the kernel ---------------------------------------------------------------------
     def decode(self, payload: np.ndarray, lengths: np.ndarray) -> Sequence[Row]:
-        """The checked rows of a block: per row its values in output order, EMPTY, or None (invalid).
-
-        ``payload``: ``n x width`` uint8, row ``k`` holding a payload of ``lengths[k]`` bytes
-        (an integer array) at its start, any bytes after it. A block of more than one row gives
-        :class:`~canguard.decode.rows.ColumnRows` (the values as float64 columns); a block of
-        one an :class:`~canguard.decode.rows.OneRow`. Either says why a row is not a tuple
-        (``verdict(k)``). Never raises on a payload.
-        """
+        """The checked rows of a block: per row its values in output order, EMPTY, or None (invalid); ``verdict(k)``
+        says why. ``payload``: ``n x width`` uint8, row ``k`` starting with its ``lengths[k]`` bytes. Several rows
+        give a ColumnRows, one a list (a OneRow when it is not valid). Never raises on a payload."""
         n = len(lengths)
         if not n:
             return []
@@ -340,8 +303,7 @@ class MessageDecoder:
                 [np.array(p) if self._pages[j] else None for j, p in enumerate(pages)])
 
     def _verdict(self, read: _Read, k: int, one: bool) -> Verdict:
-        """Why row ``k`` of ``read`` is what :meth:`_rows` made of it, with each value on its page as a sample carries
-        it."""
+        """Why row ``k`` of ``read`` is what :meth:`decode` made of it, each value on its page as a sample has it."""
 
         def cell(column: Column) -> Any:
             return column if one else column[k]
@@ -360,15 +322,6 @@ class MessageDecoder:
         if not cells:
             return Verdict(NO_SIGNAL, cells)
         return Verdict(reason or (OTHER_PAGE if len(cells) < len(self.outputs) else ""), cells)
-
-    def explain(self, data: bytes) -> Verdict:
-        """Why one payload's row is what :meth:`decode` gives, with each value as a sample carries it."""
-        rows = self.decode(*self.one(data))
-        row = rows[0]
-        if row:
-            return Verdict("", [(j, v, "") for j, v in enumerate(row)])
-        assert isinstance(rows, OneRow)
-        return rows.verdict(0)
 
 
 def _on_pages(ok: Column, whole: Column, pages: list[Column | None]) -> tuple[Column, Column | None]:
@@ -539,8 +492,7 @@ def _float_lane(signal: Any, size: int, dtypes: list[np.dtype]) -> _Getter | Non
 
 
 def _value(signal: Any, size: int, dtypes: list[np.dtype]) -> tuple[_Getter, bool] | None:
-    """``signal``'s physical value as float64 (cantools' value, ``float()``-ed), and whether numpy may flag it
-    (an overflow, a float32 signalling NaN)."""
+    """``signal``'s physical value as float64, and whether numpy may flag it (overflow, a float32 signalling NaN)."""
     length = int(signal.length)
     if not _linear(signal) or (signal.is_float and length not in (32, 64)):
         return None
@@ -567,12 +519,9 @@ def _float_bits(bits: _Getter, length: int) -> _Getter:
 
 
 def _integer(bits: _Getter, length: int, signed: bool, scale: Any, offset: Any) -> _Getter:
-    """An integer signal's ``raw * scale + offset`` as float64, equal to Python's result ``float()``-ed.
-
-    Python computes in floats when the scale or the offset is one (``float(raw)`` first, correctly
-    rounded as numpy's cast), and in exact integers when both are integers: float64 then where every
-    product and sum stays below 2**53, int64 where it fits, Python integers beyond.
-    """
+    """An integer signal's ``raw * scale + offset`` as float64, equal to Python's result ``float()``-ed. Python
+    computes in floats when the scale or the offset is a float, in exact integers when both are integers: float64
+    then where every product and sum stays below 2**53, int64 where it fits, Python integers beyond."""
     sign = 1 << (length - 1) if signed else 0
     integers = type(scale) is int and type(offset) is int
     bound = (1 << length) * abs(scale) + abs(offset)
@@ -588,7 +537,7 @@ def _integer(bits: _Getter, length: int, signed: bool, scale: Any, offset: Any) 
             if type(offset) is int:
                 return lambda lanes, ops: ops.f(as_int(lanes, ops) * scale + offset)
             return lambda lanes, ops: ops.f(as_int(lanes, ops) * scale) + offset
-        exact = np.frompyfunc(lambda r: float(_py_signed(int(r), sign) * scale + offset), 1, 1)
+        exact = np.frompyfunc(lambda r: float(((int(r) ^ sign) - sign) * scale + offset), 1, 1)
         return lambda lanes, ops: ops.f(exact(bits(lanes, ops)))
     as_int = _signed_int(bits, length, sign)  # a float scale: float(raw), correctly rounded, then float maths
     return lambda lanes, ops: ops.f(as_int(lanes, ops)) * scale + offset
@@ -609,11 +558,6 @@ def _signed_int(bits: _Getter, length: int, sign: int) -> _Getter:
     if length == 64:
         return lambda lanes, ops: ops.i(bits(lanes, ops))  # two's complement: the cast wraps
     return lambda lanes, ops: ops.i(bits(lanes, ops) ^ sign) - sign
-
-
-def _py_signed(raw: int, sign: int) -> int:
-    """A field's raw bits as Python's signed integer."""
-    return raw - (sign << 1) if raw & sign else raw
 
 
 # -- cantools -------------------------------------------------------------------------------

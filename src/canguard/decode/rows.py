@@ -1,11 +1,4 @@
-"""A message's decoded rows in a block, kept as numpy columns until a row is asked for.
-
-What :meth:`MessageDecoder.decode <canguard.decode.message.MessageDecoder.decode>` gives: per row the
-configured values in output order (a tuple), :data:`EMPTY`, or None (invalid: the row goes to the engine's
-``feed``), and on demand why (:class:`Verdict`). A block of more than one row gives float64 columns
-(:class:`ColumnRows`, tuples built only when rows go one by one); a block of one its row itself (a one-item
-list, an :class:`OneRow` when it is not valid).
-"""
+"""A message's decoded rows in a block, kept as numpy columns until a row is asked for."""
 
 from __future__ import annotations
 
@@ -23,12 +16,7 @@ EMPTY: tuple[float, ...] = ()
 
 
 class Verdict(NamedTuple):
-    """Why one row is not a tuple of values, and what it carries.
-
-    ``reason``: "" (the row is valid), or one of :mod:`canguard.decode.message`'s reasons. ``cells``: per
-    configured signal on the payload's multiplexer page, (its output index, its value as a sample
-    carries it, its own reason); empty for ``bad_length`` and ``undecodable``.
-    """
+    """Why one row is not a tuple of values ("": valid), and per signal on its page (output index, value, reason)."""
 
     reason: str
     cells: list[tuple[int, float, str]]
@@ -39,10 +27,7 @@ Why = Callable[[int], Verdict]
 
 
 class OneRow(list[Row]):
-    """The row of a block of one payload that is not a tuple of values (EMPTY or None), with :meth:`verdict`.
-
-    (A valid row of one comes as a plain one-item list: nobody asks it why.)
-    """
+    """The row of a block of one payload that is not a tuple of values (EMPTY or None), with :meth:`verdict`."""
 
     __slots__ = ("_why",)
 
@@ -56,12 +41,8 @@ class OneRow(list[Row]):
 
 
 class ColumnRows(Sequence[Row]):
-    """The rows of one message in a block: ``columns[j][k]`` is output ``j`` of row ``k``.
-
-    ``fed`` marks the rows that go to ``feed`` (None), ``empty`` those without a configured
-    signal (EMPTY; it wins over ``fed``, as the row decoder marks them); either may be None (no row).
-    ``why`` gives the :class:`Verdict` on a row (:meth:`verdict`).
-    """
+    """The rows of one message in a block: ``columns[j][k]`` is output ``j`` of row ``k``; ``fed`` marks the rows
+    that go to ``feed`` (None), ``empty`` the EMPTY ones (it wins over ``fed``)."""
 
     __slots__ = ("_rows", "_why", "columns", "empty", "fed", "n")
 

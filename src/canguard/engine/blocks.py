@@ -1,23 +1,16 @@
-"""A configured message on one bus: its rows decoded as columns, and the runs its rows feed (live and replay).
+"""A configured message on one bus, and the runs its rows feed (live and replay).
 
-A block of frames (:meth:`Engine.take <canguard.engine.core.Engine.take>`: a live bus's
-queue drained, or a log's block) reaches the engine's block runner
-(:class:`~canguard.engine.logrun.LogRun`). In a block (:class:`~canguard.io.block.Block`) the rows of each
-configured message are decoded together (:func:`~canguard.engine.blockrows.decode_rows`: the
-message's :class:`~canguard.decode.message.MessageDecoder`, the same object that decodes a live
-frame; checked together: NaN, inf, the DBC range, the multiplexer, presence flags).
-
-Then the rows, in time order up to the next due time (a tick, a gate deadline), are taken
-by :func:`take_runs`, the one way a frame's samples change anything: each source's health
+The block runner (:class:`~canguard.engine.logrun.LogRun`) decodes a block's rows of each
+configured message together (its :class:`~canguard.decode.message.MessageDecoder`, the same
+object that decodes a live frame). Then the rows, in time order up to the next due time, are
+taken by :func:`take_runs`, the one way a frame's samples change anything: each source's health
 (:meth:`SourceHealth.advance <canguard.protect.staleness.SourceHealth.advance>`) and each
 protection model (:meth:`ProtectionModel.advance <canguard.protect.base.ProtectionModel.advance>`)
-advances over the run of its own samples, up to the first row where one of them changed
-state (an edge: the engine ticks the tree there, and the rest of the run follows). A live
-frame is a run of one. A row the column decoder leaves to the frame decoder (a wrong length,
-an invalid value with its reason, a presence flag at 0, a multiplexer page with part of the
-signals, an alive counter or a drive's health roles, a remote frame) is taken alone, its
-samples each a run of one (:meth:`MessagePlan.take_samples`). The counts reach the decoder's
-and the engine's counters at :meth:`MessagePlan.flush`. No code is generated.
+advances over the run of its own samples, up to the first row where one of them changed state
+(an edge: the engine ticks the tree there). A live frame is a run of one. A row the column
+decoder leaves to the frame decoder (an invalid value with its reason, a presence flag at 0, an
+alive counter, a remote frame...) is taken alone (:meth:`MessagePlan.take_samples`). The counts
+reach the decoder's and the engine's counters at :meth:`MessagePlan.flush`.
 """
 
 from __future__ import annotations
@@ -38,10 +31,6 @@ if TYPE_CHECKING:
     from canguard.protect.staleness import SourceHealth
 
 
-_BIG = 1.7976931348623157e308
-"""The largest float: the default range bounds, so that +-inf fails the range check like NaN does."""
-
-
 class MessagePlan:
     """One configured message on one bus: its column decode, and what its rows feed."""
 
@@ -50,26 +39,18 @@ class MessagePlan:
         self.counters = counters
         self.stats = stats
         self.ctx = ctx
-        message = entry.message
-        self.message = message
-        self.length = int(message.length)
-        self.frame_id = int(message.frame_id)
-        self.outputs: list[tuple[str, str, str, bool, Any, float, float, tuple[Any, ...]]] = []
-        """(source, role, signal, present, health, lo, hi, models) of each configured signal."""
-        for out in entry.outputs:
-            health = ctx.health[out.source]
-            lo, hi = health.ranges.get(out.role, (None, None))
-            self.outputs.append((out.source, out.role, out.signal, out.present, health,
-                                 -_BIG if lo is None else float(lo), _BIG if hi is None else float(hi),
-                                 tuple(ctx.subscribers(out.source, out.role))))
-        self.names = [(o[0], o[1]) for o in self.outputs]
+        self.frame_id = int(entry.message.frame_id)
+        self.names = [(out.source, out.role) for out in entry.outputs]
         """(source, role) of each output: the samples a decoded row gives, in order."""
+        self.outputs = [(role, ctx.health[source], tuple(ctx.subscribers(source, role)), ctx.journals(source, role))
+                        for source, role in self.names]
+        """(role, health, models, journalled: a CANopen drive's NMT / EMCY) of each configured signal."""
         self.keys = tuple((source, (source, role)) for source, role in self.names)
         """(source, (source, role)) of each output: where :meth:`flush` counts it."""
-        self.counter = any(role in ROW_ROLES for _src, role, *_rest in self.outputs)
+        self.counter = any(role in ROW_ROLES for _source, role in self.names)
         """An alive counter or a drive's health role: every row goes to the frame decoder (its journal events)."""
         healths: dict[int, tuple[SourceHealth, list[str], list[int]]] = {}
-        for j, (_source, role, _signal, _present, health, *_rest) in enumerate(self.outputs):
+        for j, (role, health, _models, _journalled) in enumerate(self.outputs):
             _health, roles, js = healths.setdefault(id(health), (health, [], []))
             roles.append(role)
             js.append(j)
@@ -79,17 +60,16 @@ class MessagePlan:
         """One configured signal (most messages)."""
         self.one_source = self.healths[0][:2] if self.single else None
         """(health, roles) of a message of one configured signal."""
-        self.models = tuple((j, model) for j, (*_head, models) in enumerate(self.outputs) for model in models)
+        self.models = tuple((j, model) for j, (_role, _health, models, _j) in enumerate(self.outputs)
+                            for model in models)
         """(output, model) of every protection model a row feeds."""
-        self.drive = tuple(ctx.journals(source, role) for source, role in self.names)
-        """Each output's samples are journalled before its health takes them (a CANopen drive's NMT / EMCY)."""
         self.seen = 0
         self.empty = 0
         self.tops = [-1.0] * len(self.outputs)
         """The largest |value| of each output's valid samples since the last :meth:`flush`."""
         self.sampled = [0] * len(self.outputs)
         """Each output's samples taken through :meth:`take_samples` since the last :meth:`flush`."""
-        self.index = {(source, role): j for j, (source, role, *_rest) in enumerate(self.outputs)}
+        self.index = {name: j for j, name in enumerate(self.names)}
         """Each output's index by (source, role): where a decoded sample goes."""
 
     # -- one row ------------------------------------------------------------------------
@@ -125,16 +105,15 @@ class MessagePlan:
 
     # -- frames the frame decoder read ------------------------------------------------
     def take_samples(self, samples: Sequence[Sample]) -> bool:
-        """Take the samples the frame decoder made of one frame of this message (any reason, any subset of
-        the outputs, in output order), each a run of one; True on an edge. Counted here; the frame itself
-        by the decoder."""
+        """Take the samples the frame decoder made of one frame of this message (any reason, any subset of the
+        outputs, in output order), each a run of one; True on an edge."""
         edge = False
         index, outputs, tops = self.index, self.outputs, self.tops
         for sample in samples:
             j = index[sample.source, sample.signal]
-            _source, role, _signal, _present, health, _lo, _hi, models = outputs[j]
+            role, health, models, journalled = outputs[j]
             reason, v, t = sample.reason, sample.value, sample.t
-            if self.drive[j]:
+            if journalled:
                 self.ctx.drive_event(sample, health)
             if health.advance((role,), (t,), ((v,),), ((reason,),)).changed:
                 edge = True
@@ -179,34 +158,21 @@ class MessagePlan:
                 sampled[j] = 0
 
 
-def compile_plan(entry: MessageDecoder, counters: DecodeCounters, ctx: Context,
-                 stats: EngineStats) -> MessagePlan | None:
-    """The :class:`MessagePlan` of ``entry``'s frames, or None when a source of it is not in the tree's context."""
-    if any(out.source not in ctx.health for out in entry.outputs) or not entry.outputs:
-        return None
-    return MessagePlan(entry, counters, ctx, stats)
-
-
 _Unit = tuple[Any, Any, Any]
-"""One health or model of :func:`take_runs`: (it, the rows it takes (positions in the run, ascending), what it
-advances over: a model's (times, values); a health's list of (roles, times, columns, rows) sub-runs, one per
-message that feeds it)."""
+"""One health or model of :func:`take_runs`: (it, the rows it takes (ascending), what it advances over: a model's
+(times, values); a health's (roles, times, columns, rows) sub-runs, one per message that feeds it)."""
 
 
 def take_runs(runs: Sequence[tuple[MessagePlan, Any, Any, list[Any]]]) -> tuple[int, bool]:
-    """Take the rows whole and valid of a stretch of a block, in time order, each message's as a run of columns
-    (``runs``: (plan, rows (ascending positions in the block), their times, each output's column)): each
-    source's health and each model advances over the run of its own samples, up to the first row with an
-    edge. (The last row taken, True when it is an edge: the engine ticks the tree at its time.)
+    """Take the rows whole and valid of a stretch of a block, each message's as a run of columns (``runs``: (plan,
+    rows (ascending positions in the block), their times, each output's column: numpy or lists)), up to the first
+    row with an edge. (The last row taken, True when it is an edge: the engine ticks the tree at its time.)
 
-    Each health and model advances over its whole run, stopping at its own first edge; the
-    first of those rows is where every one of them must stand when the tree ticks. One that
-    went past it goes back to its mark and advances again up to that row (no edge before it:
-    it would have stopped there). A row the engine ticks at is taken whole (all its samples).
-    A source fed by several messages takes their runs whole when each is quiet
-    (:meth:`SourceHealth.take_quiet <canguard.protect.staleness.SourceHealth.take_quiet>`), else
-    their rows in time order, a message's stretch at a time. The columns are numpy columns (a
-    block's column decode) or lists (rows decoded one by one).
+    Each health and model advances over its whole run, stopping at its own first edge; one that
+    went past the first of those rows goes back to its mark and advances again up to it (a row
+    the engine ticks at is taken whole). A source fed by several messages takes their runs whole
+    when each is quiet (:meth:`SourceHealth.take_quiet
+    <canguard.protect.staleness.SourceHealth.take_quiet>`), else their rows in time order.
     """
     if len(runs) == 1 and len(runs[0][1]) == 1:  # one row (a live frame): a run of one for each
         plan, rows, ts, columns = runs[0]

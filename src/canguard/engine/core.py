@@ -35,11 +35,9 @@ from canguard.bt.context import Context, FrameSink
 from canguard.config.schema import Config
 from canguard.decode.decoder import Decoder
 from canguard.engine.gate import TaskGate
-from canguard.engine.journal import Journal
 from canguard.engine.logrun import MAX_CATCH_UP_S, LogCursor, LogRun
 from canguard.engine.quiet import QuietTicks
-from canguard.engine.stats import EngineStats, EventSink, TickObserver
-from canguard.engine.watch import SourceWatch
+from canguard.engine.stats import EngineStats, EventSink, Journal, TickObserver
 from canguard.io.block import Block, one_block
 from canguard.io.clock import Clock, PinnedClock
 from canguard.io.frame import Frame
@@ -53,18 +51,24 @@ log = logging.getLogger(__name__)
 MAX_KEPT_TRIPS = 100_000
 """Trip events kept in memory for summaries and the live view; later ones are only counted."""
 
+CAN_ERR_CRTL = 0x004
+"""linux/can/error.h: the error class of controller problems (the state is in data[1])."""
+CAN_ERR_CRTL_RX_PASSIVE = 0x10
+CAN_ERR_CRTL_TX_PASSIVE = 0x20
+CAN_ERR_CRTL_ACTIVE = 0x40
+"""The controller is back to error-active."""
+
 _NO_ROUTE: Mapping[str, str] = MappingProxyType({})
 """The live cursor's route while a block is given for one bus: every frame goes to that bus."""
-
 
 
 class Engine:
     """Runs one config's tree over frames from any source, on any clock.
 
-    Built from parts with public interfaces: the task gate (:class:`TaskGate`: frames out, the stop
-    rule), the journal (:class:`Journal`: every event), the source watch (:class:`SourceWatch`:
-    stale sources, buses down), the quiet-tick proof (:class:`QuietTicks`) and the log runner
-    (:class:`LogRun`: every block of frames, live or recorded, through one row step: :meth:`take`).
+    Built from parts: the task gate (:class:`TaskGate`), the journal (:class:`Journal`), the quiet-tick
+    proof (:class:`QuietTicks`) and the block runner (:class:`LogRun`). It watches its inputs itself:
+    stale sources, buses down, a receive queue behind, each as an inhibit of the gate, whatever the
+    tree says.
     """
 
     def __init__(
@@ -91,11 +95,10 @@ class Engine:
             raise ConfigError(f"{cfg.path}: tree: missing, expected {{file: TREE.xml, main: ID, tick_hz: HZ}}")
         self.cfg = cfg
         self.clock = PinnedClock(clock)
-        self._drive_clock = clock.advance_to
-        """The inner clock's advance (a no-op live): called per frame, so bound once."""
+        self.drive_clock: Callable[[float], None] = clock.advance_to
+        """Replay: a frame at ``t`` moves the clock (live clocks ignore it); called per frame, so bound once."""
         self.due = -math.inf
-        """Earliest time a tick or gate deadline is due: a frame before it changes nothing but the models (it
-        skips :meth:`advance`). Read it; the engine sets it (a plain attribute: every frame reads it)."""
+        """Earliest time a tick or gate deadline is due: a frame before it changes nothing but the models."""
         clock = self.clock
         self.sink = sink
         self.journal = Journal(clock.now, events, durable=durable, on_event=on_event)
@@ -106,20 +109,18 @@ class Engine:
         """False: heat is only restored from the state file, never written (replay reads, never mutates)."""
         self.sample_block: Callable[[Any, list[Any], list[tuple[int, Any]]], None] | None = None
         """Called once a block with every sample the models see (``--export-signals``, plots): the block's times,
-        each message's ((source, signal) names, rows, decoded values) and the samples of the rows the frame
-        decoder took (with their row); None keeps the hot path lean."""
+        each message's ((source, signal) names, rows, decoded values) and the frame decoder's (row, sample)s."""
         self.tick_hook: Callable[[float], None] | None = None
         """Called after every tick with its time (plots)."""
         self.observer: TickObserver | None = None
-        """Told after every tick (the live monitors: it builds an immutable snapshot from public accessors)."""
+        """Told after every tick (the live monitors)."""
         self.stats = EngineStats()
         self.decoder = Decoder(cfg)
         self.ctx = Context(clock, cfg.sources, sink=sink, actions=cfg.actions, on_event=self._node_event,
                            stop_frames=cfg.stop.frames)
         self.stats.heat_models = self.ctx.heat_models  # the I²t peaks are the models' own
         if previous is not None:
-            # A reload: sources configured as before keep their data, so the new tree does not
-            # start blind (and fail on "no data") while the robot is running.
+            # A reload: sources configured as before keep their data (the new tree must not start blind).
             for name, health in previous.ctx.health.items():
                 if previous.ctx.sources.get(name) == self.ctx.sources.get(name):
                     self.ctx.health[name] = health
@@ -140,25 +141,32 @@ class Engine:
         self._gap_horizon_s = max(ages, default=0.0) + MAX_CATCH_UP_S
         """How much of a gap is ticked through before the rest is jumped: every source goes stale in it."""
         self.period_s = 1.0 / cfg.tree.tick_hz
-        self.watch = SourceWatch(cfg, self.ctx, self.gate, self.journal, metrics, self.clock,
-                                 self.guard_nodes, self.period_s)
-        self.quiet = QuietTicks(self.root, self.ctx, self.gate, self.journal, self.watch, cfg.sources, self.period_s)
-        self._next_tick = math.nan
+        read = [cfg.sources[s].max_age_s for s in self.ctx.read_sources if s in cfg.sources]
+        self.start_grace_s = max(read, default=0.0)
+        """How long after the start a failing tree only keeps the task from starting (:meth:`starting`)."""
+        self.started_at = math.nan
+        """When the engine started."""
+        self.stale: dict[str, str] = {}
+        """Each source's reason as the last tick saw it ("" fresh)."""
+        self._cover: list[Any] = []
+        """The guards ticked when the task last started: they must keep being ticked (:meth:`_guards_ticked`)."""
+        self.quiet = QuietTicks(self.root, self.ctx, self.gate, self.journal, self)
+        self.next_tick_t = math.nan
+        """When the next grid tick is due (NaN before the start)."""
         self._heat_failed = False
-        self._last_frame_t = -math.inf
+        self.last_frame_t = -math.inf
+        """The latest frame time seen (-inf: none)."""
         self.first_frame_t = math.nan
         self.last_status = py_trees.common.Status.INVALID
         self.last_tick_t = math.nan
         self.last_due_run = -math.inf
         """The time of the last tick or gate deadline run (which row brought it: :meth:`_cross`)."""
         self._blocks = LogRun(self)
-        """The block runner (it keeps its message plans, compiled at the first block of each bus)."""
         self._live = LogCursor(_NO_ROUTE, None, {}, None)
         """Where :meth:`take` is: every frame goes to the bus it is given for, or by :attr:`_bus_names`."""
         self._bus_names = {name: name for name in cfg.buses}
         """Each bus by its own name: the route of a frame whose channel names its bus (:meth:`take` of None)."""
 
-    # -- the parts' state, as the others read it ---------------------------------------------
     @property
     def events_seen(self) -> Counter[str]:
         """How many events of each name were written (summaries count escalations...)."""
@@ -186,34 +194,20 @@ class Engine:
 
         self.journal.on_event = both
 
-    @property
-    def next_tick_t(self) -> float:
-        """When the next grid tick is due (NaN before the start)."""
-        return self._next_tick
-
-    @property
-    def last_frame_t(self) -> float:
-        """The latest frame time seen (-inf: none)."""
-        return self._last_frame_t
-
-    def drive_clock(self, t: float) -> None:
-        """Replay: a frame at ``t`` moves the clock (live clocks ignore it)."""
-        self._drive_clock(t)
-
     def frame_time(self, t: float) -> None:
         """A frame at ``t`` was taken: the latest frame time moves (the first one is :attr:`first_frame_t`)."""
-        if t > self._last_frame_t:
-            if self._last_frame_t == -math.inf:
+        if t > self.last_frame_t:
+            if self.last_frame_t == -math.inf:
                 self.first_frame_t = t
-            self._last_frame_t = t
+            self.last_frame_t = t
 
     # -- life cycle ------------------------------------------------------------------------
     def start(self, now: float | None = None) -> None:
         """Begin: the first tick is due at once; heat is restored from the state file."""
         t = self.clock.now() if now is None else now
         self.clock.advance_to(t)
-        self.watch.started_at = t
-        self._next_tick = t
+        self.started_at = t
+        self.next_tick_t = t
         if self.heat is not None:
             self.heat.load(t)
             for key, model in self.ctx.heat_models.items():
@@ -223,26 +217,22 @@ class Engine:
         self.journal.write({"event": "start", "reason": f"tree {self.loaded.main_id} from {source}"})
 
     def adopt(self, old: Engine) -> None:
-        """Take over a running engine's task state, counters and source watch (config reload)."""
+        """Take over a running engine's task state, counters, sources' reasons and start (config reload)."""
         self.gate.adopt(old.gate)
         self._carry_models(old)
         self.stats.trips = old.stats.trips
         self.stats.trip_count = old.stats.trip_count
         self.stats.frames = old.stats.frames
-        self.watch.adopt(old.watch)
+        self.stale = dict(old.stale)
+        self.started_at = old.started_at
         self.first_frame_t = old.first_frame_t
-        self._last_frame_t = old.last_frame_t
-        self.due = min(self._next_tick, self.gate.next_deadline())
+        self.last_frame_t = old.last_frame_t
+        self.due = min(self.next_tick_t, self.gate.next_deadline())
 
     def _carry_models(self, old: Engine) -> None:
-        """Each guard of the new tree continues the model state of the same guard in the old tree.
-
-        The same guard: same node name, node type and source. Its new model keeps the new
-        parameters and takes over the old model's running state (:meth:`LatchedModel.carry_from`):
-        a trip (a hysteresis guard sitting between its thresholds stays tripped), a running
-        ``trip_after`` / ``recover_after`` timer, an inrush window, I²t heat. Without it a
-        reload that changed a threshold restarted the guard cold.
-        """
+        """Each guard of the new tree (same node name, type and source as an old one) keeps its new parameters and
+        takes over the old model's running state (:meth:`LatchedModel.carry_from`): a trip, a running timer, an
+        inrush window, I²t heat. Without it a reload that changed a threshold restarted the guard cold."""
         old_guards = {g.name: g for g in old.guard_nodes}
         for guard in self.guard_nodes:
             before = old_guards.get(guard.name)
@@ -267,16 +257,13 @@ class Engine:
 
     # -- frames in -------------------------------------------------------------------------
     def take(self, bus: str | None, block: Block) -> None:
-        """Process a block of frames received on ``bus``, in order: the one way frames come in.
+        """Process a block of frames received on ``bus``, in order: the one way frames come in (:class:`LogRun`).
 
-        The live daemon drains its receive queue into a block (one frame on a quiet bus);
-        a recorded log gives blocks of thousands (:meth:`run_log`, which routes each of its
-        channels to a bus). Every frame goes through the same steps (:class:`LogRun`): the
-        ticks and gate deadlines due before it run first, at their own times, then its
-        message's row step (the sources' health, the protection models), then a tick at
-        once when it changed a model's or a source's state. ``bus`` None: each frame's
-        ``channel`` is the name of its bus (a live batch drained from several buses, merged
-        in arrival order); a frame of no configured bus is counted as unmapped.
+        The ticks and gate deadlines due before a frame run first, at their own times, then its
+        message's row step (the sources' health, the protection models), then a tick at once
+        when it changed a model's or a source's state. ``bus`` None: each frame's ``channel`` is
+        the name of its bus (a live batch drained from several buses); a frame of no configured
+        bus is counted as unmapped.
         """
         cursor = self._live
         if bus is None:
@@ -293,34 +280,29 @@ class Engine:
 
     def edge_tick(self, t: float) -> None:
         """A sample at ``t`` changed a model's or a source's state: the tree ticks at once."""
-        self._drive_clock(t)
+        self.drive_clock(t)
         self.stats.edge_ticks += 1
         now = self.clock.now()
         self.gate.ahead(now)  # a tick that surely halts the task: the stop frames leave first
         self.tick(now)
 
     def runs_until(self, end_t: float, coming: Callable[[], Mapping[tuple[int, str], Any]]) -> float:
-        """Until when a block's rows, the last at ``end_t``, may be taken as runs
-        (:func:`~canguard.engine.blocks.take_runs`), the engine idle.
+        """Until when a block's rows, the last at ``end_t``, may be taken as runs, the engine idle.
 
-        The next due time (a tick, a gate deadline), or, while the ticks and gate deadlines before
-        it read nothing the rows change, the end of the quiet stretch the rows still to come
-        (``coming()``: each source signal's times, :meth:`QuietTicks.reach`) keep the sources fresh to:
-        the next grid tick is proven quiet (it will be counted, not run), nothing watches each tick
-        (metrics, a tick hook, a monitor), the skipped ticks write no model's state (an I²t guard's
-        wired ``level``: :attr:`QuietTicks.writes`), no stop waits for its confirmation (which reads
-        a source between ticks) and no I²t heat is due to be saved before it (a save writes the heat
-        of its tick's time). The I²t peaks are the models' own (over every sample), so their runs
-        may span ticks. An edge in the runs still ticks at once: the quiet ticks before it are counted
-        first, at their own times. Nothing is drawn when the rows end before the due time (a live
-        frame between two ticks).
+        The next due time, or, while the ticks before it read nothing the rows change, the end of
+        the quiet stretch the rows still to come (``coming()``: each source signal's times,
+        :meth:`QuietTicks.reach`) keep the sources fresh to. That needs: the next grid tick proven
+        quiet, nothing watching each tick, no model state written by a skipped tick
+        (:attr:`QuietTicks.writes`), no stop waiting for its confirmation (it reads a source between
+        ticks) and no I²t heat due to be saved (a save writes the heat of its tick's time). An edge
+        in the runs still ticks at once, after the quiet ticks before it are counted.
         """
         due = self.due
         if end_t < due:
             return due
         quiet = self.quiet
         if (self.metrics is None and self.tick_hook is None and self.observer is None and not quiet.writes
-                and not self.gate.confirm_pending and quiet.may_skip(self._next_tick) and quiet.until > due):
+                and not self.gate.confirm_pending and quiet.may_skip(self.next_tick_t) and quiet.until > due):
             until = quiet.until if quiet.until > end_t else quiet.reach(coming())
             return max(due, min(until, self._heat_due()))
         return due
@@ -333,50 +315,48 @@ class Engine:
 
     def next_due(self) -> float:
         """The next time the engine has something to do (a tick or a gate deadline)."""
-        if math.isnan(self._next_tick):
+        if math.isnan(self.next_tick_t):
             return -math.inf
-        return min(self._next_tick, self.gate.next_deadline())
+        return min(self.next_tick_t, self.gate.next_deadline())
 
     def advance(self, now: float) -> None:
         """Run every tick and gate deadline due up to ``now``, each at its own time."""
         if now < self.due:  # nothing due (due is never later than the next tick or gate deadline): most live calls
             self.journal.flush()
             return
-        if now < self.quiet.until and self._quiet_advance(now):
-            return  # one quiet grid tick, in fewer steps
-        if math.isnan(self._next_tick):
+        if math.isnan(self.next_tick_t):
             self.start(now)
-        if now - self._next_tick > MAX_CATCH_UP_S:
+        if now - self.next_tick_t > MAX_CATCH_UP_S:
             # A gap: tick through its beginning, where sources go stale and guards trip at their
             # own times (max_age after the last frame); then jump the quiet rest of it.
-            self._run_due(min(now, self._next_tick + self._gap_horizon_s))
-            missed = math.floor((now - self._next_tick - MAX_CATCH_UP_S) / self.period_s)
+            self._run_due(min(now, self.next_tick_t + self._gap_horizon_s))
+            missed = math.floor((now - self.next_tick_t - MAX_CATCH_UP_S) / self.period_s)
             if missed > 0:
-                self._next_tick += missed * self.period_s
+                self.next_tick_t += missed * self.period_s
                 self.stats.skipped_ticks += missed
                 # The gate's periodic frames skip the gap too: sent one by one, a day-long gap in a
                 # log was millions of task frames (a replay that never ended).
-                self.gate.skip_to(self._next_tick)
+                self.gate.skip_to(self.next_tick_t)
         self._run_due(now)
-        self.due = min(self._next_tick, self.gate.next_deadline())
+        self.due = min(self.next_tick_t, self.gate.next_deadline())
         self.journal.flush()
 
     def _run_due(self, now: float) -> None:
         """Every tick and gate deadline due up to ``now``, in time order, each at its own time."""
         while True:
             due_gate = self.gate.next_deadline()
-            due = min(self._next_tick, due_gate)
+            due = min(self.next_tick_t, due_gate)
             if due > now:
                 break
             self.clock.advance_to(due)
             self.last_due_run = due
-            if self._next_tick <= due_gate:
+            if self.next_tick_t <= due_gate:
                 if not self.quiet.may_skip(due):
                     self.tick(due)
-                    self._next_tick += self.period_s
+                    self.next_tick_t += self.period_s
                 else:
                     self._count_quiet(due, 1)
-                    self._next_tick += self.period_s
+                    self.next_tick_t += self.period_s
                     self._quiet_run(now, due_gate)  # the quiet ticks after it, in one go
             else:
                 self.gate.service(self.clock.pin(due))
@@ -397,7 +377,7 @@ class Engine:
         events_before = self.journal.written
         # Sources first: a stale one holds the task before the tree runs, and one that is fine
         # again releases it in time for this tick's ExecuteTask.
-        self.watch.sources(now)
+        self._sources(now)
         self.gate.begin_tick()
         t0 = time.perf_counter()
         try:
@@ -419,22 +399,23 @@ class Engine:
         if failed:
             tip = self.root.tip()
             node = tip.name if tip is not None else self.root.name
-            if not self.watch.starting(now):
+            if not self.starting(now):
                 detail = tip.feedback_message if tip is not None else ""
                 self.gate.stop(now, reason=f"tree failed at {node}" + (f": {detail}" if detail else ""), node=node)
             cause = self._failure_cause(node)
         # The one place a stop may end (TaskGate._release_rule), and task action frames go out or are withheld.
         was_running = self.gate.state == TaskGate.RUNNING
         self.gate.end_tick(now, failed, cause)
-        self.watch.guards(now, was_running)
+        self._guards_ticked(now, was_running)
         if self.metrics is not None:
-            self.watch.levels()
+            for node, model in self.ctx.heat_models.items():
+                self.metrics.set_i2t_level(node, model.snapshot().level_pct)
         if self.tick_hook is not None:
             self.tick_hook(now)
         self.gate.service(now)
         self.store_heat(now, periodic=True)
         self.journal.flush()
-        self.due = min(self._next_tick, self.gate.next_deadline())
+        self.due = min(self.next_tick_t, self.gate.next_deadline())
         self.quiet.after_tick(now, events_before,
                              self.metrics is not None or self.tick_hook is not None or self.observer is not None)
         if self.observer is not None:
@@ -442,53 +423,16 @@ class Engine:
         return status
 
     # -- quiet ticks: counted, not run (canguard.engine.quiet has the proof) ---------------------
-    def _quiet_advance(self, now: float) -> bool:
-        """:meth:`advance` to ``now`` when all that is due up to it is one quiet grid tick; False: nothing done.
-
-        The usual case between two rows of a replay whose tree sits at a fixed point: the
-        tick at ``_next_tick`` is the only one due, the task runs and its next deadline is
-        not before the tick nor between the tick and ``now`` (one at the tick is serviced
-        by it). The steps are those of :meth:`advance`, :meth:`_run_due` and
-        :meth:`_quiet_run` (which has nothing left to count), in their order, without
-        their loop and tests: on a log of frames every millisecond, 25,000 ticks took 3.4 µs
-        each that way (live, a frame between two ticks takes the same way).
-        """
-        nxt = self._next_tick
-        gate = self.gate
-        if not nxt <= now:
-            return False
-        after = nxt + self.period_s
-        task = gate.next_task_t
-        if after <= now or task < nxt or nxt < task <= now or now - nxt > MAX_CATCH_UP_S:
-            return False
-        if not self.quiet.running_unchanged():
-            return False
-        self.clock.advance_to(nxt)
-        self.last_due_run = nxt
-        self._count_quiet(nxt, 1)
-        self._next_tick = after
-        if gate.next_deadline() <= now:  # the task serviced at the tick is due again already: the loop goes on
-            self._run_due(now)
-        self.due = min(self._next_tick, gate.next_deadline())
-        self.journal.flush()
-        return True
-
     def _quiet_run(self, now: float, until: float) -> None:
-        """After a quiet tick: the grid ticks due before ``until`` (and up to ``now``) counted in one go.
-
-        Only while the task runs and no heat is saved: then between two ticks with no frame
-        fed in between a quiet tick changes nothing but what the last of them leaves (the
-        guards' tick times, the counts): ``gate.service`` has nothing due before ``until``
-        (the gate's next deadline) and the heat levels move only with samples. Each tick
-        time is still reached by the same additions as one by one.
-        """
+        """After a quiet tick: the grid ticks due before ``until`` (the gate's next deadline) and up to ``now``
+        counted in one go, while the task runs and no heat is saved (then only the last of them leaves a
+        trace); each tick time is reached by the same additions as one by one."""
         gate = self.gate
         if gate.state != TaskGate.RUNNING or (self.heat is not None and self.save_heat):
             return
         counted = gate.counts_only
-        nxt, period, last, count = self._next_tick, self.period_s, 0.0, 0
-        # The task's periodic frames only counted (a replay without --emit): its deadlines among the
-        # ticks change nothing a tick sees, and are sent in one go below; else they end the run.
+        nxt, period, last, count = self.next_tick_t, self.period_s, 0.0, 0
+        # Task frames only counted (a replay without --emit): counted in one go below; else they end the run.
         quiet_until = self.quiet.until
         until = quiet_until if counted else min(until, quiet_until)
         while nxt <= now and nxt < until:
@@ -500,7 +444,7 @@ class Engine:
                 gate.count_task_through(last)
             self.clock.advance_to(last)
             self.last_due_run = last
-            self._next_tick = nxt
+            self.next_tick_t = nxt
             self._count_quiet(last, count)
 
     def _count_quiet(self, now: float, count: int) -> None:
@@ -516,7 +460,7 @@ class Engine:
             gate.service(now)
             self.store_heat(now, periodic=True)
             self.journal.flush()
-            self.due = min(self._next_tick, gate.next_deadline())
+            self.due = min(self.next_tick_t, gate.next_deadline())
         finally:
             self.clock.unpin()
 
@@ -539,11 +483,8 @@ class Engine:
             self._heat_failed = False
 
     def _failure_cause(self, tip: str) -> tuple[str, str]:
-        """(node, reason) of a failed tick: the failing guards with why, else the node the tree failed at.
-
-        Made of what only changes at an edge (guard feedback is written at trips and reason
-        changes), so a ``reason`` event marks a real change, not a new sample.
-        """
+        """(node, reason) of a failed tick: the failing guards with why, else the node the tree failed at; made of
+        what only changes at an edge, so a ``reason`` event marks a real change, not a new sample."""
         failed = py_trees.common.Status.FAILURE
         first = next((g.name for g in self.guard_nodes if g.status == failed), "")
         if first:
@@ -562,8 +503,6 @@ class Engine:
         """Every guarded signal of the tree (node, source, role, kind, model), in tree order."""
         return self._guards
 
-    # -- watchdog and status ---------------------------------------------------------------
-
     def status_line(self) -> str:
         """A one-line summary for systemd's STATUS=."""
         d = self.decoder
@@ -577,11 +516,10 @@ class Engine:
 
     def _node_event(self, event: dict[str, Any]) -> None:
         """An event of a tree node (a guard's trip, recovery...): trips are counted for the summaries."""
-        # A guard failing for "no_data" in the start window (see SourceWatch.starting) only keeps the task from
-        # starting: journalled, but not a trip (the live daemon's first tick often precedes the first
-        # frame; counted, it made `replay --realtime --fail-on-trip` fail at random on clean logs).
+        # A guard failing for "no_data" in the start window (:meth:`starting`) only keeps the task from
+        # starting: journalled, not a trip (the daemon's first tick often precedes the first frame).
         if event.get("event") == "trip" and not (
-            event.get("reason") == "no_data" and self.watch.starting(float(event.get("t", self.clock.now())))
+            event.get("reason") == "no_data" and self.starting(float(event.get("t", self.clock.now())))
         ):
             self.stats.trip_count += 1
             if len(self.stats.trips) < MAX_KEPT_TRIPS:
@@ -590,36 +528,121 @@ class Engine:
                 self.metrics.trip(str(event.get("node", "")))
         self.journal.write(event)
 
-    # -- the watch over inputs (the daemon's calls) ------------------------------------------
-    def _deadlines_moved(self) -> None:
+    # -- the watch over inputs ------------------------------------------------------------------
+    def starting(self, now: float) -> bool:
+        """True while the task never ran and the sources still have their first max_age to speak: a tree that
+        fails then only keeps the task from starting (stop frames to drives never enabled would latch an ESTOP
+        error that needs clearing)."""
+        return self.gate.state == TaskGate.IDLE and now - self.started_at < self.start_grace_s
+
+    def _sources(self, now: float) -> None:
+        """At a tick: each source's reason; a source the tree reads holds the task while it is stale."""
+        ctx, gate = self.ctx, self.gate
+        for name, health in ctx.health.items():
+            reason = health.reason(now)
+            if reason == "no_data" and now - self.started_at < ctx.sources[name].max_age_s:
+                reason = ""  # not yet: every source gets max_age to send its first frame
+            prev = self.stale.get(name, "")
+            if name in ctx.read_sources:
+                # Backstop, whatever the tree's shape: a stale source the tree reads holds the task stopped.
+                if reason:
+                    gate.inhibit(f"source {name}", f"source {name}: {reason}", now)
+                elif prev:
+                    gate.release(f"source {name}")
+            if reason != prev:
+                self.stale[name] = reason
+                if reason:
+                    self.journal.write({"event": "stale", "source": name, "reason": reason,
+                                        "read_by_tree": name in ctx.read_sources})
+                else:
+                    self.journal.write({"event": "fresh", "source": name, "reason": f"{prev} cleared"})
+            if self.metrics is not None:
+                age = health.age(now, None) if hasattr(health, "age") else math.nan
+                self.metrics.set_sample_age(name, age)
+
+    def _guards_ticked(self, now: float, was_running: bool) -> None:
+        """Every guard of the tree must keep being ticked while the task runs (safety table row T4).
+
+        A guard left behind (a RunOnce around it, a branch the tree stopped visiting) sees every
+        sample, but no failure of it reaches the tree: one not ticked for longer than its source's
+        ``max_age`` (a tick period at least) holds the task stopped (inhibit ``guards``) until every
+        guard is ticked again. Conservative on purpose: guards belong where every tick reaches them.
+        """
+        gate = self.gate
+        if gate.state == TaskGate.RUNNING and not was_running:
+            self._cover = list(self.guard_nodes)
+        left = [
+            g for g in self._cover
+            if g.source is not None and now - g.judged_t > max(g.source.max_age_s, self.period_s)
+        ]
+        if left and gate.state == TaskGate.RUNNING:
+            names = ", ".join(g.name for g in left)
+            gate.inhibit("guards", f"guards not ticked while the task runs: {names}", now, node=left[0].name)
+        elif "guards" in gate.inhibits and all(g.judged_t == now for g in self._cover):
+            gate.release("guards")
+
+    def _inhibit(self, key: str, reason: str, event: dict[str, Any]) -> None:
+        """Journal ``event`` and hold the task stopped for ``key`` (the stop frames leave before the event is
+        recorded); the gate's deadlines are read again."""
+        self.journal.write(event)
+        self.gate.inhibit(key, reason, self.clock.now())
+        self.journal.flush()
         self.due = min(self.due, self.gate.next_deadline())
 
     def bus_down(self, bus: str, reason: str) -> None:
         """A bus went away: the task stops (frames out on the buses still up) until :meth:`bus_up`."""
-        self.watch.bus_down(bus, reason)
-        self._deadlines_moved()
+        event = {"event": "bus_error", "source": bus, "reason": reason}
+        self._inhibit(f"bus {bus}", f"bus {bus} down: {reason}", event)
 
     def bus_up(self, bus: str) -> None:
         """The bus is open again: its inhibits are released (the tree decides whether the task resumes)."""
-        self.watch.bus_up(bus)
+        self.gate.release(f"bus {bus}")
+        self.gate.release(f"bus {bus} passive")  # a reopened controller starts error-active
 
     def controller_state(self, bus: str, frame: Any) -> None:
-        """An error frame's controller report: error-passive holds the task (:meth:`SourceWatch.controller_state`)."""
-        self.watch.controller_state(bus, frame)
-        self._deadlines_moved()
+        """An error frame's controller report (SocketCAN's ``CAN_ERR_CRTL`` class): error-passive holds the task.
+
+        Its frames, our stop frames among them, may no longer get through: journalled (``bus_error``)
+        and held stopped (inhibit ``bus NAME passive``) until the controller reports error-active
+        again (``CAN_ERR_CRTL_ACTIVE``, sent by Linux since 5.x) or the bus is reopened.
+        """
+        if not frame.arbitration_id & CAN_ERR_CRTL or len(frame.data) < 2:
+            return
+        state = frame.data[1]
+        key = f"bus {bus} passive"
+        if state & (CAN_ERR_CRTL_RX_PASSIVE | CAN_ERR_CRTL_TX_PASSIVE):
+            if key not in self.gate.inhibits:
+                side = "/".join(s for s, bit in (("rx", CAN_ERR_CRTL_RX_PASSIVE), ("tx", CAN_ERR_CRTL_TX_PASSIVE))
+                                if state & bit)
+                reason = f"bus {bus}: controller error-passive ({side}): frames may not get through"
+                self._inhibit(key, reason, {"event": "bus_error", "source": bus, "reason": reason})
+        elif state & CAN_ERR_CRTL_ACTIVE and key in self.gate.inhibits:
+            again = f"bus {bus}: controller error-active again"
+            self.journal.write({"event": "bus_error", "source": bus, "reason": again})
+            self.gate.release(key)
 
     def overrun(self, waited_s: float, limit_s: float) -> None:
-        """Frames waited ``waited_s`` in the daemon's receive queue: the task stops (:meth:`SourceWatch.overrun`)."""
-        self.watch.overrun(waited_s, limit_s)
-        self._deadlines_moved()
+        """Frames waited ``waited_s`` in the daemon's receive queue: the models would judge data older than
+        ``max_age`` as fresh (safety row H2b), so the task is held stopped (inhibit ``overrun``) until
+        :meth:`caught_up`."""
+        if "overrun" not in self.gate.inhibits:
+            reason = (f"frames waited {waited_s:.3f} s in canguard's receive queue (limit {limit_s:.3f} s): "
+                      "the daemon is behind its buses")
+            self._inhibit("overrun", reason, {"event": "overrun", "reason": reason})
 
     def caught_up(self, waited_s: float) -> None:
         """Frames wait no more than ``waited_s`` again: the ``overrun`` inhibit is released."""
-        self.watch.caught_up(waited_s)
+        if "overrun" not in self.gate.inhibits:
+            return
+        self.journal.write({"event": "overrun", "reason": f"caught up: frames wait {waited_s:.3f} s"})
+        self.gate.release("overrun")
+        self.journal.flush()
 
     def stale_unstopped(self, now: float) -> list[str]:
         """Sources the tree reads that are stale while the task is not stopped (a blind daemon)."""
-        return self.watch.stale_unstopped(now)
+        if self.gate.state == TaskGate.STOPPED:
+            return []
+        return [s for s in self.ctx.read_sources if self.ctx.health[s].reason(now)]
 
     # -- recorded logs -----------------------------------------------------------------------
     def run_log(

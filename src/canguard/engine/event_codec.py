@@ -13,28 +13,6 @@ import math
 from collections.abc import Mapping
 from typing import Any
 
-EVENT_TYPES = frozenset(
-    {
-        "trip",
-        "recover",
-        "stop",
-        "resume",
-        "confirmed",
-        "escalate",
-        "stale",
-        "fresh",
-        "bus_error",
-        "emcy",
-        "nmt",
-        "configure",
-        "reload",
-        "start",
-        "exit",
-        "error",
-    }
-)
-"""The event names canguard itself writes (plug-ins may write others)."""
-
 FIRST_KEYS = ("t", "event", "node", "source", "value", "threshold", "reason")
 """Keys every line carries, in this order; the event's other keys follow, sorted."""
 

@@ -5,8 +5,9 @@ daemon relies on:
 
 - **A line is whole, and nothing flushed is lost to a crash of the daemon**: :meth:`EventJournal.write`
   hands the whole line to the kernel with one ``os.write`` on an ``O_APPEND`` descriptor before it
-  returns (the engine's :class:`~canguard.engine.journal.Journal` holds a tick's events until the
-  tick's frames are sent).
+  returns.
+- **Recorded after the frames they caused**: the engine's :class:`~canguard.engine.stats.Journal` holds
+  its events until the frames of their tick are sent.
 - **A power cut loses at most the last** ``sync_interval_s``: :meth:`EventJournal.flush` ``fsync``s
   the file; with ``sync_in_background`` (the daemon) a thread of its own does, ``sync_interval_s``
   after the first flush since its last one, for every flush meanwhile: the loop never waits for a
@@ -21,7 +22,6 @@ daemon relies on:
 from __future__ import annotations
 
 import errno
-import json
 import logging
 import os
 import sys
@@ -32,7 +32,6 @@ from pathlib import Path
 from typing import Any
 
 from canguard.engine.event_codec import encode_event
-from canguard.errors import LogFormatError, quote
 
 log = logging.getLogger(__name__)
 
@@ -48,14 +47,13 @@ _PENDING_MAX = 10_000
 class EventJournal:
     """Appends events to a JSON-lines file, rotated by size, keeping every line.
 
-    ``path`` None only counts (``lines``, ``bytes_written``). ``max_bytes``: the size at which the file is
-    rotated (a line is never split, so a file may exceed it by one line); ``backups`` None keeps every
-    rotated file, an integer that many (opt-in). Thread-safe: receive threads may report ``bus_error``
-    events while the loop writes. Disk errors (full, read-only) never raise out of :meth:`write` or
-    :meth:`flush`: logged, counted in ``errors``, the lines kept in memory (up to 10,000) and written at the
-    next call that succeeds, so a full disk cannot stop the guard; a line is in the file whole or not at
-    all (a short write is cut back with ``ftruncate``). Lines that overflow the backlog or are still
-    refused at :meth:`close` go to stderr (the systemd journal), counted in ``to_stderr``.
+    ``path`` None only counts. ``max_bytes``: the size at which the file is rotated (a file may exceed it
+    by one line); ``backups`` None keeps every rotated file, an integer that many. Thread-safe (receive
+    threads report ``bus_error`` events). Disk errors never raise out of :meth:`write` or :meth:`flush`:
+    logged, counted in ``errors``, the lines kept in memory (up to 10,000) and written at the next call
+    that succeeds, so a full disk cannot stop the guard; a line is in the file whole or not at all.
+    Lines that overflow the backlog or are still refused at :meth:`close` go to stderr (the systemd
+    journal), counted in ``to_stderr``.
     """
 
     def __init__(
@@ -166,10 +164,8 @@ class EventJournal:
     def _drain(self) -> None:
         """Write every pending line (normally just the new one); raises OSError if the disk fails.
 
-        A line reaches the file whole or not at all: a write that puts only part of it
-        (the disk filled up in the middle) is cut back to the line's start with
-        ``ftruncate`` and the line stays first in the queue, so a later retry writes it
-        whole. Rotation only happens between lines.
+        A write that puts only part of a line (the disk filled up) is cut back to the line's start
+        with ``ftruncate`` and the line stays first in the queue: a later retry writes it whole.
         """
         while self._pending:
             line = self._pending[0]
@@ -226,11 +222,8 @@ class EventJournal:
     # -- public API ------------------------------------------------------------------
 
     def write(self, event: Mapping[str, Any]) -> None:
-        """Append one event as a JSON line, handed to the OS before returning.
-
-        Raises ValueError for an event without an ``event`` key or a closed journal;
-        disk errors are logged and retried, not raised (see the class docstring).
-        """
+        """Append one event as a JSON line, handed to the OS before returning; ValueError for an event without an
+        ``event`` key or a closed journal (disk errors are logged and retried, not raised)."""
         line = encode_event(event)
         with self._lock:
             if self._closed:
@@ -339,53 +332,3 @@ class EventJournal:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
-
-def journal_files(path: Path | str) -> list[Path]:
-    """The journal's files oldest first: ``path.N`` ... ``path.1``, then ``path`` (existing ones only)."""
-    path = Path(path)
-    numbered: list[tuple[int, Path]] = []
-    for p in path.parent.glob(f"{path.name}.*"):
-        suffix = p.name[len(path.name) + 1 :]
-        if suffix.isdigit():
-            numbered.append((int(suffix), p))
-    files = [p for _, p in sorted(numbered, reverse=True)]
-    if path.exists():
-        files.append(path)
-    return files
-
-
-def read_events(path: Path | str, include_rotated: bool = False) -> list[dict[str, Any]]:
-    """Read a journal back as a list of dicts, in the order written.
-
-    ``include_rotated`` also reads the rotated backups (oldest first). A last line
-    without its newline (a power cut mid-write) is skipped; any other line that is
-    not a JSON object raises :class:`~canguard.errors.LogFormatError` naming file:line.
-    A missing file raises FileNotFoundError.
-    """
-    path = Path(path)
-    files = journal_files(path) if include_rotated else [path]
-    if not files:
-        raise FileNotFoundError(f"no event journal at {path}")
-    events: list[dict[str, Any]] = []
-    for file in files:
-        data = file.read_bytes()
-        lines = data.split(b"\n")
-        torn = lines.pop()  # b"" when the file ends with a newline
-        for lineno, raw in enumerate(lines, 1):
-            if not raw.strip():
-                continue
-            try:
-                obj = json.loads(raw)
-            except ValueError as exc:
-                raise LogFormatError(f"{file}:{lineno}: not a JSON event line ({exc}): {_shown(raw)}") from None
-            if not isinstance(obj, dict):
-                raise LogFormatError(f"{file}:{lineno}: not a JSON object: {_shown(raw)}")
-            events.append(obj)
-        if torn.strip():
-            log.warning("%s: skipping a torn last line (%d bytes, no newline)", file, len(torn))
-    return events
-
-
-def _shown(raw: bytes) -> str:
-    """A journal line as an error quotes it: capped, its length said, bytes that are not UTF-8 replaced."""
-    return quote(raw.decode("utf-8", errors="replace"))

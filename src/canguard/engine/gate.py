@@ -2,26 +2,22 @@
 
 The :class:`TaskGate` turns the tree's decisions into frames:
 
-- ``run()`` (ExecuteTask ticked) or ``action()`` of a task action (an ``actions:``
-  entry whose role is ``task``): the tree asks for the task in this tick. At the
-  tick's end (``end_tick()``) the gate starts or resumes the task when
-  :meth:`TaskGate._release_rule` allows it; ExecuteTask's frames then go out at
-  once and every ``task.period``, a task action's frames in the tick it ran.
-- ``halt()`` (ExecuteTask halted), ``stop()`` (the root returned FAILURE) or an
-  inhibit (a stale source, a bus down): stop frames go out at once (before the
-  stop's reason is worked out or recorded), then every ``stop.repeat`` until the
-  stop is released. The stop latches: only
-  :meth:`TaskGate._release_rule` ends it (see README, "Stops").
-- While stopped, task actions' frames are withheld (counted in ``withheld``);
-  recovery actions' frames go out. So in no tick do both task and stop frames go
-  out. A change of what holds the stop is a ``reason`` event.
-- Optional confirmation: after a stop, ``stop.confirm`` (a source signal and a
-  condition) must hold within its deadline, or ``stop.escalate`` frames go out
-  and an ``escalate`` event is recorded.
+- ``run()`` (ExecuteTask ticked) or ``action()`` of a task action: the tree asks for the task
+  in this tick. At the tick's end (``end_tick()``) the gate starts or resumes the task when
+  :meth:`TaskGate._release_rule` allows it; ExecuteTask's frames then go out at once and every
+  ``task.period``, a task action's frames in the tick it ran.
+- ``halt()`` (ExecuteTask halted), ``stop()`` (the root returned FAILURE) or an inhibit (a stale
+  source, a bus down): stop frames go out at once (before the stop's reason is worked out or
+  recorded), then every ``stop.repeat``. The stop latches: only :meth:`TaskGate._release_rule`
+  ends it (see README, "Stops").
+- While stopped, task actions' frames are withheld (counted in ``withheld``); recovery actions'
+  frames go out. So in no tick do both task and stop frames go out. A change of what holds the
+  stop is a ``reason`` event.
+- Optional confirmation: after a stop, ``stop.confirm`` must hold within its deadline, or
+  ``stop.escalate`` frames go out and an ``escalate`` event is recorded.
 
-Sinks never block the loop: :class:`BusSink` hands frames to python-can with
-``timeout=0`` and counts failures, :class:`LogSink` keeps them as candump-ready
-:class:`~canguard.io.frame.Frame` objects for ``replay --emit``.
+Sinks never block the loop: :class:`BusSink` hands frames to python-can with ``timeout=0``,
+:class:`LogSink` keeps or writes them for ``replay --emit``.
 """
 
 from __future__ import annotations
@@ -108,10 +104,8 @@ class TaskGate:
         self, node: str, role: str, frames: Sequence[FrameSpec], now: float,
         note: Callable[[str], None] | None = None,
     ) -> None:
-        """A config action was ticked: recovery frames go out now; task frames at the tick's end unless stopped.
-
-        ``note`` is called with what became of the frames (the node's feedback).
-        """
+        """A config action was ticked: recovery frames go out now; task frames at the tick's end unless stopped
+        (``note`` is told what became of them: the node's feedback)."""
         if role != "task":
             if frames:
                 self.sink.send(frames, node)
@@ -139,10 +133,8 @@ class TaskGate:
 
     # -- driven by the engine --------------------------------------------------------------
     def stop(self, now: float, reason: str | Callable[[], str], node: str = "") -> None:
-        """Stop the task (idempotent): stop frames at once, then every ``stop.repeat``.
-
-        The frames leave first: ``reason`` (a callable: asked after the send) and the ``stop`` event follow.
-        """
+        """Stop the task (idempotent): stop frames at once, then every ``stop.repeat``; ``reason`` (a callable: asked
+        after the send) and the ``stop`` event follow."""
         if self.state == self.STOPPED:
             return
         self.state = self.STOPPED
@@ -201,11 +193,8 @@ class TaskGate:
         self._queued = []
 
     def end_tick(self, now: float, failed: bool, cause: tuple[str, str] = ("", "")) -> None:
-        """After each tick (and after the engine's :meth:`stop` on FAILURE): start, resume or hold; task frames.
-
-        ``failed``: the root returned FAILURE; ``cause``: (node, reason) of that failure.
-        Task action frames queued in the tick go out only if the task runs at its end.
-        """
+        """After each tick: start, resume or hold (``failed``: the root returned FAILURE; ``cause``: (node, reason) of
+        that failure); task action frames queued in the tick go out only if the task runs at its end."""
         queued, self._queued = self._queued, []
         if self._ahead:  # stop frames sent ahead of a halt that did not come: they stand, the task stops
             self.stop(now, reason="stop frames sent at a guard's trip; the tree did not halt the task")
@@ -292,8 +281,7 @@ class TaskGate:
         return isinstance(sink, LogSink) and sink.out is None and not sink.keep
 
     def count_task_through(self, last: float) -> None:
-        """The task's periodic sends due up to ``last`` counted at once, as :meth:`service` at each deadline
-        would count them; only while :attr:`counts_only` (quiet replay ticks)."""
+        """The task's periodic sends due up to ``last`` counted at once (quiet ticks while :attr:`counts_only`)."""
         task, period, sends = self.next_task_t, self.task_cfg.period_s, 0
         while task <= last:  # as service at each deadline (a tick at the same time goes first)
             sends += 1
@@ -305,10 +293,7 @@ class TaskGate:
             sink.sent += sends * len(self.task_cfg.frames)
 
     def skip_to(self, t: float) -> None:
-        """After a gap in time (a stall, a gap in a log): periodic frames due before ``t`` are due at ``t``.
-
-        The stop confirmation deadline is not moved: it is one deadline, not a period.
-        """
+        """After a gap in time: periodic frames due before ``t`` are due at ``t`` (the confirmation deadline stays)."""
         self.next_task_t = max(self.next_task_t, t)
         self._next_stop = max(self._next_stop, t)
 
@@ -412,11 +397,9 @@ class LogSink:
 class BusSink:
     """Sends frames on live buses without ever blocking the loop; failures are logged and counted.
 
-    A bus that went away refuses every frame: each refusal is counted (``failed``, ``on_error``),
-    but reported (the stderr warning and ``on_refused``, the daemon's journal event) once a
-    second per bus and origin, each report saying how many it stands for (:mod:`.ratelimit`).
-    Once the stop frames are out the loop yields the CPU: a process on this machine waiting for
-    them (a bridge, a logger) runs before the loop's bookkeeping of the stop.
+    Each refusal is counted (``failed``, ``on_error``) but reported (stderr and ``on_refused``) once
+    a second per bus and origin (:mod:`.ratelimit`). Once the stop frames are out the loop yields
+    the CPU: a process on this machine waiting for them runs before the loop's bookkeeping.
     """
 
     def __init__(self, send: Callable[[str, Any], bool], on_error: EventFn | None = None,

@@ -1,14 +1,15 @@
 """The engine's block runner: every block of frames, live or recorded, goes through it, one way.
 
-:class:`LogRun` is what :meth:`Engine.take <canguard.engine.core.Engine.take>` (the live
-daemon's blocks; a frame on a quiet bus is a block of one) and :meth:`Engine.run_log
-<canguard.engine.core.Engine.run_log>` (a recorded log's blocks, each channel routed to a
-bus) call. A block (:class:`~canguard.io.block.Block`) is taken as columns: its configured
-rows decoded per message at once, the frames of no configured message counted without
-decoding while nothing is due; every configured row takes its message's row step
-(:mod:`canguard.engine.blocks`), with the ticks and gate deadlines due before it run
-first and a tick at once after an edge. A block whose rows go back in time is taken as its
-ordered stretches, one after another. It talks to the engine through its public interface only.
+:class:`LogRun` takes what :meth:`Engine.take <canguard.engine.core.Engine.take>` (a live bus's
+drained queue; a frame on a quiet bus is a block of one) and :meth:`Engine.run_log
+<canguard.engine.core.Engine.run_log>` (a log's blocks, each channel routed to a bus) give it.
+A block's rows of configured messages are found by their integer id keys
+(:attr:`Block.keys <canguard.io.block.Block.keys>`; a block whose channels go to several buses
+adds each channel's index times :data:`LANE`), decoded per message at once, and taken in time
+order by their message's row step (:mod:`canguard.engine.blocks`), the ticks and gate deadlines
+due before a row run first and a tick at once after an edge; the frames of no configured message
+are only counted while nothing is due. A block whose rows go back in time is taken as its ordered
+stretches, one after another.
 """
 
 from __future__ import annotations
@@ -18,12 +19,13 @@ from bisect import bisect_left, bisect_right
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from itertools import pairwise
+from operator import itemgetter
 from typing import TYPE_CHECKING, Any, Protocol
 
 from canguard.decode.decoder import DecodeCounters
+from canguard.decode.rows import EMPTY, ColumnRows
 from canguard.engine import blocks
-from canguard.engine.blockrows import Run, decode_rows
-from canguard.engine.lanes import LANE, configured_rows, key_table, lane_plans
+from canguard.engine.blocks import MessagePlan
 from canguard.io.block import EXT_KEY, Block
 from canguard.io.frame import Frame, Sample
 from canguard.protect.columns import SHORT_RUN
@@ -31,11 +33,27 @@ from canguard.protect.columns import SHORT_RUN
 MAX_CATCH_UP_S = 2.0
 """Longest stretch of missed ticks the engine replays one by one after a gap (see :meth:`Engine.advance`)."""
 
+_LANE_BITS = 34
+LANE = 1 << _LANE_BITS
+"""Above every id key (extended ids are below 2**33): one key space per channel of a block."""
+_RADIX = 1 << 16
+"""Keys of a block spanning fewer values than this are sorted as 16-bit offsets (:func:`_runs_by_key`)."""
+_STANDARD = 0x800
+"""Standard ids are below this: their configured rows are found through a table of this size."""
+_FEW = 16
+"""A block of at most this many rows (a live bus's drained queue) is looked up row by row in Python: numpy's calls
+cost more than the rows."""
+
 if TYPE_CHECKING:
     from canguard.bt.context import Context
     from canguard.decode.decoder import Decoder
-    from canguard.engine.blocks import MessagePlan
     from canguard.engine.stats import EngineStats
+
+_Run = tuple["MessagePlan", Any, Any, list[Any]]
+"""A message's rows of a block whole and valid: (plan, the rows (ascending), their times, each output's column):
+numpy columns from a block's column decode, lists from its rows one by one."""
+_Keys = tuple[Any, Any, frozenset[int]]
+"""A plan table's keys as blocks look them up (:func:`_key_table`)."""
 
 
 class Engine(Protocol):
@@ -48,33 +66,28 @@ class Engine(Protocol):
     last_due_run: float
 
     due: float
-    @property
-    def next_tick_t(self) -> float: ...
-    @property
-    def last_frame_t(self) -> float: ...
+    next_tick_t: float
+    last_frame_t: float
+    drive_clock: Callable[[float], None]
+
     def edge_tick(self, t: float) -> None: ...
     def runs_until(self, end_t: float, coming: Callable[[], Mapping[tuple[int, str], Any]]) -> float: ...
     def controller_state(self, bus: str, frame: Frame) -> None: ...
     def advance(self, now: float) -> None: ...
-    def drive_clock(self, t: float) -> None: ...
     def frame_time(self, t: float) -> None: ...
 
 
 class LogRun:
-    """Feeds a recorded log to one engine (see the module docstring); it keeps its message plans per bus."""
+    """Takes every block of frames through one engine (see the module docstring); keeps the message plans per bus."""
 
     def __init__(self, engine: Engine) -> None:
         self.engine = engine
         self.decoder = engine.decoder
         self.stats = engine.stats
         self.ctx = engine.ctx
-        self._plans: dict[str, dict[int, MessagePlan | None]] = {}
-        """Per bus: id key -> the message's plan (see :mod:`canguard.engine.blocks`)."""
-        self._plan_tables: dict[str, tuple[dict[int, MessagePlan | None], tuple[Any, Any, frozenset[int]]]] = {}
-        """Per bus: its plans and their keys, as blocks look them up (:func:`.lanes.key_table`)."""
-        self._lane_plans: dict[tuple[str, ...], tuple[dict[int, MessagePlan | None],
-                                                      tuple[Any, Any, frozenset[int]]]] = {}
-        """Per channels-to-buses of a block that mixes buses: its plans and their key table (:mod:`.lanes`)."""
+        self._tables: dict[tuple[str, ...], tuple[dict[int, MessagePlan | None], _Keys]] = {}
+        """Per bus (a tuple of one), or per channels-to-buses of a block that mixes buses: its plans by key (None: no
+        source of the message in the tree's context), and their keys."""
         self._touched: set[MessagePlan] = set()
         """The plans that took rows of this block (flushed at its end)."""
         self._row = 0
@@ -86,15 +99,8 @@ class LogRun:
         self, blocks: Iterable[Block], route: Mapping[str, str], default_bus: str | None,
         unmapped: dict[str, int], channels: dict[str, int] | None = None,
     ) -> None:
-        """Feed a recorded log's blocks: each frame goes to the bus its channel maps to (``route``, else
-        ``default_bus``); ``channels``, when given, counts the frames of each channel.
-
-        Frames of no configured message (most of a busy bus) are counted as the decoder would
-        count them and never decoded. Nothing else changes: ticks and gate deadlines still run
-        at their own times, brought up by the first frame at or after them (a bisection over
-        the block's times), exactly as if every frame had been fed; the first frame is always
-        fed (it starts the engine's clock).
-        """
+        """Take a log's blocks: each frame goes to the bus its channel maps to (``route``, else ``default_bus``);
+        ``channels``, when given, counts the frames of each channel."""
         cursor = LogCursor(route, default_bus, unmapped, channels)
         engine = self.engine
         for block in blocks:
@@ -105,14 +111,8 @@ class LogRun:
             engine.frame_time(last_t)
 
     def take(self, block: Block, cursor: LogCursor) -> None:
-        """One block of frames through the engine, whatever its source: a live bus's queue drained (a frame on a
-        quiet bus: a block of one), a log's block.
-
-        Its rows are taken as columns (:meth:`_run_columns`); a block whose rows go back in time, as its
-        ordered stretches one after another. Each configured row takes its message's row step
-        (:func:`~canguard.engine.blocks.take_runs` / :meth:`~canguard.engine.blocks.MessagePlan.take_samples`),
-        and the counts are added at the end.
-        """
+        """One block of frames through the engine (:meth:`_run_columns`; a block whose rows go back in time, as its
+        ordered stretches one after another); the plans' counts are added at the end."""
         try:
             if block.ordered:
                 self._run_columns(block, cursor)
@@ -128,10 +128,9 @@ class LogRun:
                 touched.pop().flush()
 
     def _decoded(self, bus: str, frame: Frame, plan: MessagePlan | None) -> bool:
-        """A row the column decoder left to the frame decoder (a wrong length, an invalid value with its reason,
-        an alive counter or a drive's health roles, a remote or error frame): :meth:`Decoder.decode` counts its
-        every reason, its samples go to its plan's row step (:meth:`MessagePlan.take_samples
-        <canguard.engine.blocks.MessagePlan.take_samples>`); True on an edge."""
+        """A row the column decoder left to the frame decoder (a wrong length, an invalid value, an alive counter,
+        a remote or error frame): it counts every reason, its samples go to :meth:`MessagePlan.take_samples
+        <canguard.engine.blocks.MessagePlan.take_samples>`; True on an edge."""
         engine = self.engine
         self.stats.frames += 1
         if frame.is_error_frame:
@@ -148,12 +147,8 @@ class LogRun:
         return plan.take_samples(samples)
 
     def _run_columns(self, block: Block, cursor: LogCursor) -> None:
-        """:meth:`run` over a block whose rows are in order, as columns.
-
-        A block may mix channels: each row then goes to its channel's bus, with the plans of that
-        bus (one key per channel and id when the buses differ). The first row of a stream starts a replay's
-        engine; rows before the latest time of the stream are counted as out of order.
-        """
+        """A block whose rows are in order, as columns: each row to its channel's bus; the first row of a stream
+        starts a replay's engine; rows before the latest time of the stream are counted as out of order."""
         if not block.n:
             return
         engine = self.engine
@@ -184,7 +179,7 @@ class LogRun:
         picked = len(rows)
         last_row = int(rows[-1]) if picked else -1  # the last row fed or taken by a plan
         taken: list[tuple[MessagePlan, Any, Sequence[Any]]] | None = [] if export is not None else None
-        runs, alone = decode_rows(plans, rows, block, times, keys, taken, self._touched) if picked else ([], [])
+        runs, alone = _decode_rows(plans, rows, block, times, keys, taken, self._touched) if picked else ([], [])
         bus = buses[0] if lanes is None else ""
         if not picked:
             pos = 0  # nothing to take: the rows only bring the ticks due among them
@@ -210,9 +205,8 @@ class LogRun:
             engine.frame_time(float(ts[last_row]))  # the last row fed or taken (not ts[-1])
 
     def _route(self, block: Block, lanes: Any, cursor: LogCursor) -> tuple[Block, list[str]] | None:
-        """(The block's rows on a channel that maps to a bus, the bus of each of its channels) (``lanes``: each
-        row's channel, None when all rows are on one); rows of a channel of no bus are counted as unmapped (None:
-        no row left)."""
+        """(The block's rows on a channel of a bus, the bus of each of its channels); rows of a channel of no bus are
+        counted as unmapped (None: no row left). ``lanes``: each row's channel, None when all are on one."""
         route, default_bus, per_bus = cursor.route, cursor.default_bus, self.decoder.per_bus
         if lanes is None:
             channel = block.channels[block.only_channel]  # type: ignore[index]
@@ -249,9 +243,8 @@ class LogRun:
         return block, [somewhere if routed is None else routed for routed in found]  # a channel of no row: any bus
 
     def _count_backward(self, ts: Sequence[Any], rows: Any, latest: float) -> None:
-        """Rows of an ordered block that start before ``latest``, the latest time of its stream: out of order.
-        A row fed or taken by a plan (``rows``) counts when it is before the latest frame time the engine
-        took; any other when it is before ``latest``."""
+        """Count the rows of an ordered block out of order: one of ``rows`` (fed or taken by a plan) when before the
+        latest frame time the engine took, any other when before ``latest`` (the latest time of its stream)."""
         before = bisect_left(ts, latest, key=float)
         behind = bisect_left(ts, self.engine.last_frame_t, key=float)
         picked = list(rows)
@@ -261,30 +254,20 @@ class LogRun:
         """(plans, the block's rows of configured messages, the keys its plans are looked up by, each row's
         channel (an index into ``buses``) when its channels go to several buses, else None)."""
         keys = block.keys
-        bus = buses[0]
-        if len(buses) == 1 or buses.count(bus) == len(buses):  # one bus
-            known = self._plan_tables.get(bus)
-            if known is None:
-                plans = self._plans_of(bus)
-                known = self._plan_tables[bus] = (plans, key_table(plans))
-            return known[0], configured_rows(keys, known[1]), keys, None
-        assert lanes is not None  # channels of several buses: a key per (channel, id)
-        lane = self._lane_plans.get(tuple(buses))
-        if lane is None:
-            joined = lane_plans([self._plans_of(b) for b in buses])
-            lane = self._lane_plans[tuple(buses)] = (joined, key_table(joined))
-        keys = keys + lanes.astype(keys.dtype) * LANE
-        return lane[0], configured_rows(keys, lane[1]), keys, lanes
+        if len(buses) == 1 or buses.count(buses[0]) == len(buses):
+            plans, table = self._table((buses[0],))
+            return plans, _configured_rows(keys, table), keys, None
+        plans, table = self._table(tuple(buses))
+        keys = keys + lanes.astype(keys.dtype) * LANE  # channels of several buses: a key per (channel, id)
+        return plans, _configured_rows(keys, table), keys, lanes
 
-    def _walk(self, block: Block, ts: Sequence[Any], runs_in: list[Run], alone: list[tuple[int, MessagePlan | None]],
-              bus: str, buses: list[str], lanes: Any) -> int:
-        """A block's configured rows in time order: the ticks due among them, each stretch of rows whole and valid
-        up to the next due time taken as runs (:func:`~canguard.engine.blocks.take_runs`: to the first edge, where
-        the tree ticks), the rows for the frame decoder one by one (:attr:`_row`: the row it takes); the row after
-        the last row walked. ``runs_in``: each configured message's
-        rows whole and valid (:func:`.blockrows.decode_rows`); ``alone``: the rows the frame decoder takes, in order,
-        with their plan; ``bus``: the bus of every row, or "" when ``lanes`` (each row's channel, an index into
-        ``buses``, the bus of each of the block's channels) sends them to several."""
+    def _walk(self, block: Block, ts: Sequence[Any], runs_in: list[_Run],
+              alone: list[tuple[int, MessagePlan | None]], bus: str, buses: list[str], lanes: Any) -> int:
+        """A block's configured rows in time order; the row after the last walked. The ticks due among them run;
+        each stretch of rows whole and valid (``runs_in``) up to the next due time is taken as runs
+        (:func:`~canguard.engine.blocks.take_runs`: to the first edge, where the tree ticks); the rows for the
+        frame decoder (``alone``, with their plan) one by one. ``bus``: the bus of every row, or "" when
+        ``lanes`` (each row's index into ``buses``) sends them to several."""
         engine = self.engine
         pos, done = self._at_once(ts, runs_in, alone)
         if done:
@@ -331,11 +314,11 @@ class LogRun:
                 engine.edge_tick(t_last)
         return pos
 
-    def _at_once(self, ts: Sequence[float], runs: list[Run], alone: list[tuple[int, MessagePlan | None]]
+    def _at_once(self, ts: Sequence[float], runs: list[_Run], alone: list[tuple[int, MessagePlan | None]]
                  ) -> tuple[int, bool]:
-        """A block whose rows come before the next due time, none for the frame decoder: its runs taken as one
-        stretch, up to the first edge (the tree ticks there). (The row after the last taken, True when every
-        row was taken); (0, False) for any other block."""
+        """A block whose rows all come before the next due time, none for the frame decoder: its runs taken as one
+        stretch, up to the first edge. (The row after the last taken, True when every row was taken); (0, False)
+        for any other block."""
         engine = self.engine
         if alone or not float(ts[-1]) < engine.due:
             return 0, False
@@ -345,13 +328,20 @@ class LogRun:
         return last + 1, not edge
 
     def _count_lanes(self, cursor: LogCursor, block: Block, lanes: Any, buses: list[str], rows: Any) -> None:
-        """Count a block's rows per channel (``cursor.channels``) and its skipped rows (neither fed nor taken
-        by a plan: not in ``rows``) per bus, as the decoder counts them."""
+        """Count a block's rows per channel (``cursor.channels``) and per bus those not in ``rows`` (skipped)."""
         channels = cursor.channels
-        for lane, (count, taken) in enumerate(_lane_tally(block, lanes, rows)):
+        if lanes is None:
+            tally: Iterable[tuple[int, int]] = [(block.n, len(rows))]
+        else:
+            import numpy as np
+
+            size = len(block.channels)
+            taken = np.bincount(lanes[rows], minlength=size).tolist() if len(rows) else [0] * size
+            tally = zip(np.bincount(lanes, minlength=size).tolist(), taken, strict=True)
+        for lane, (count, picked) in enumerate(tally):
             if channels is not None:
                 _count(channels, block.channels[block.only_channel if lanes is None else lane], count)  # type: ignore[index]
-            skipped = count - taken
+            skipped = count - picked
             if skipped:
                 counters = self.decoder.per_bus[buses[lane]]
                 counters.frames += skipped
@@ -359,19 +349,14 @@ class LogRun:
                 self.stats.frames += skipped
 
     def _cross(self, ts: Sequence[Any], lo: int, hi: int) -> None:
-        """Rows ``lo..hi-1`` (ordered, of no configured message): the first at or after the due time brings the ticks.
-
-        The row that brings them runs the ticks and gate deadlines due up to its time, moves the clock
-        and the latest frame time to it; repeated while another due time falls among the rows left.
-        """
+        """Rows ``lo..hi-1`` (of no configured message): the first at or after each due time runs the ticks and gate
+        deadlines due up to its time and moves the clock and the latest frame time to it."""
         engine = self.engine
         while lo < hi and float(ts[hi - 1]) >= engine.due:
             near = bisect_right(ts, engine.next_tick_t + MAX_CATCH_UP_S, lo, hi, key=float)
             if near > lo and float(ts[near - 1]) >= engine.due:
-                # The rows up to MAX_CATCH_UP_S after the next tick hold no gap the engine would skip: one
-                # advance runs every due time they bring, each at its own time, as row by row would (the
-                # rows change nothing else); the clock and the last frame time end at the row that brought
-                # the last of them.
+                # No gap the engine would skip up to MAX_CATCH_UP_S after the next tick: one advance runs every
+                # due time these rows bring, each at its own time, as row by row would.
                 engine.advance(float(ts[near - 1]))
                 k = bisect_left(ts, engine.last_due_run, lo, near, key=float)
             else:
@@ -382,26 +367,25 @@ class LogRun:
             engine.frame_time(t)
             lo = k + 1
 
-    def _plans_of(self, bus: str) -> dict[int, MessagePlan | None]:
-        """Every message configured on ``bus`` by its id key (:attr:`Block.keys <canguard.io.block.Block.keys>`),
-        with its plan, or None (made at the bus's first block)."""
-        made = self._plans.get(bus)
-        if made is not None:
-            return made
-        counters = self.decoder.per_bus[bus]
-        plans: dict[int, MessagePlan | None] = {}
-        for (b, cid, ext), entry in self.decoder.entries():
-            if b != bus:
-                continue
-            plan = blocks.compile_plan(entry, counters, self.ctx, self.stats)
-            plans[cid + EXT_KEY if ext else cid] = plan
-        self._plans[bus] = plans
-        return plans
+    def _table(self, buses: tuple[str, ...]) -> tuple[dict[int, MessagePlan | None], _Keys]:
+        """The plans of the messages configured on ``buses`` (channel ``c``'s id key ``k`` at ``k + c * LANE``) and
+        their keys, made at their first block."""
+        known = self._tables.get(buses)
+        if known is None:
+            if len(buses) == 1:  # None: a message with a source not in the tree's context
+                counters, health = self.decoder.per_bus[buses[0]], self.ctx.health
+                plans = {cid + EXT_KEY if ext else cid: MessagePlan(entry, counters, self.ctx, self.stats)
+                         if entry.outputs and all(out.source in health for out in entry.outputs) else None
+                         for (bus, cid, ext), entry in self.decoder.entries() if bus == buses[0]}
+            else:
+                plans = {key + lane * LANE: plan for lane, bus in enumerate(buses)
+                         for key, plan in self._table((bus,))[0].items()}
+            known = self._tables[buses] = (plans, _key_table(plans))
+        return known
 
 
 def _first_row(runs: list[list[Any]], first: int) -> int:
-    """The first row not taken yet of any message's run (``[next, plan, rows, times, columns]``), or ``first``
-    when it comes before them."""
+    """The first row not taken yet of any message's run (``[next, plan, rows, ...]``), or an earlier ``first``."""
     for at, _plan, rows, _times, _columns in runs:
         if at < len(rows) and rows[at] < first:
             first = int(rows[at])
@@ -422,8 +406,7 @@ def _coming(runs: list[list[Any]]) -> dict[tuple[int, str], Any]:
 
 def _stretch(runs: list[list[Any]], stop: int) -> list[tuple[Any, Any, Any, list[Any]]]:
     """Each message's rows not taken yet before row ``stop``, as (plan, rows, times, columns): a short stretch's
-    times and columns as lists (the models' and healths' runs of a few samples go sample by sample, faster over
-    Python floats than numpy's calls), a long one's as they are (numpy columns: screened with numpy)."""
+    as lists (a few samples go faster over Python floats than numpy's calls), a long one's as numpy columns."""
     out = []
     for at, plan, rows, times, columns in runs:
         if at < len(rows) and rows[at] < stop:
@@ -451,18 +434,6 @@ def _drop(runs: list[list[Any]], last: int) -> None:
             run[0] = bisect_right(rows, last, at)
 
 
-def _lane_tally(block: Block, lanes: Any, rows: Any) -> list[tuple[int, int]]:
-    """Per channel of a block (one when ``lanes`` is None): its rows, and those fed or taken by a plan (``rows``)."""
-    if lanes is None:
-        return [(block.n, len(rows))]
-    import numpy as np
-
-    size = len(block.channels)
-    per_lane = np.bincount(lanes, minlength=size).tolist()
-    taken = np.bincount(lanes[rows], minlength=size).tolist() if len(rows) else [0] * size
-    return list(zip(per_lane, taken, strict=True))
-
-
 def _count(counts: dict[str, int], name: str, n: int) -> None:
     """Add ``n`` to ``counts[name]``."""
     counts[name] = counts.get(name, 0) + n
@@ -478,3 +449,180 @@ class LogCursor:
     channels: dict[str, int] | None
     last_t: float = -math.inf
     started: bool = False
+
+
+def _key_table(plans: Mapping[int, Any]) -> _Keys:
+    """The integer keys of ``plans``: a table of the standard ones (:data:`_STANDARD` entries per channel); all,
+    sorted; all, as a set."""
+    import numpy as np
+
+    known = list(plans)
+    table = np.zeros(_STANDARD * (1 + max((k // LANE for k in known), default=0)), dtype=bool)
+    table[[k // LANE * _STANDARD + k % LANE for k in known if k % LANE < _STANDARD]] = True
+    return table, np.array(sorted(known), dtype=np.int64), frozenset(known)
+
+
+def _configured_rows(keys: Any, tables: _Keys) -> Any:
+    """The rows of a block whose key has a plan, ascending: a list for a block of a few rows, else an index array."""
+    table, every, known = tables
+    if keys.size == 1:  # a live frame
+        return [0] if keys.item(0) in known else []
+    if keys.size <= _FEW:
+        rows = []
+        for i, key in enumerate(keys.tolist()):
+            if key in known:
+                rows.append(i)
+        return rows
+    import numpy as np
+
+    if keys.size:
+        top = int(keys.max())
+        if top < _STANDARD:
+            return np.flatnonzero(table[keys])
+        if top < LANE * (table.size // _STANDARD):  # several channels: standard ids on each?
+            ids = keys & (LANE - 1)
+            if int(ids.max()) < _STANDARD:
+                return np.flatnonzero(table[(keys >> _LANE_BITS) * _STANDARD + ids])
+    return np.flatnonzero(np.isin(keys, every))
+
+
+def _runs_by_key(keys: Any, rows: Any) -> list[tuple[int, Any]]:
+    """``rows`` of a block (a list of a few, or an index array) grouped by key in key order, each group in row
+    order (a list, or an index array: numpy's stable sort)."""
+    if not len(rows):
+        return []
+    if type(rows) is list:  # a few rows (a live bus's block): grouped in Python
+        of = keys.tolist()
+        groups: dict[int, list[int]] = {}
+        for i in rows:
+            group = groups.get(of[i])
+            if group is None:
+                groups[of[i]] = [i]
+            else:
+                group.append(i)
+        return sorted(groups.items()) if len(groups) > 1 else list(groups.items())
+    import numpy as np
+
+    picked = np.asarray(rows, dtype=np.intp)
+    of = keys[picked]
+    order = np.argsort(_radix_keys(of), kind="stable")
+    ranked = of[order]
+    cuts = (np.flatnonzero(ranked[1:] != ranked[:-1]) + 1).tolist()
+    ordered = picked[order]
+    bounds = [0, *cuts, len(ordered)]
+    return list(zip(ranked[bounds[:-1]].tolist(), map(ordered.__getitem__, map(slice, bounds, bounds[1:])),
+                    strict=True))
+
+
+def _radix_keys(of: Any) -> Any:
+    """Keys ordered as ``of``, as 16-bit integers where they fit, which numpy sorts stably by radix (~3x faster
+    than int64 keys): offsets from the lowest, or (channel, standard id) packed."""
+    import numpy as np
+
+    low = int(of.min())
+    if int(of.max()) - low < _RADIX:
+        return (of - low).astype(np.uint16)
+    ids = of & (LANE - 1)
+    if int(ids.max()) < _STANDARD and int(of.max()) < LANE * (_RADIX // _STANDARD):
+        return ((of >> _LANE_BITS) * _STANDARD + ids).astype(np.uint16)
+    return of
+
+
+def _decode_rows(
+    plans: Mapping[int, MessagePlan | None], rows: Any, block: Block, ts: Sequence[Any], keys: Any,
+    taken: list[tuple[MessagePlan, Any, Sequence[Any]]] | None, touched: set[MessagePlan],
+) -> tuple[list[_Run], list[tuple[int, MessagePlan | None]]]:
+    """Each configured message's rows whole and valid, as columns (decoded together by its
+    :class:`~canguard.decode.message.MessageDecoder`), and the rows the frame decoder takes (an invalid one, every
+    row of a message with an alive counter...), in row order, with their plan (None: a remote or error frame).
+    ``taken``, when given, receives each message's (plan, rows, decoded values); ``touched`` each plan that took rows.
+    """
+    special = block.special
+    if len(rows) == 1 and not special.size:  # one row (a live frame): nothing to group
+        groups: dict[MessagePlan | None, Any] = {plans[keys.item(rows[0])]: rows}
+    else:
+        groups = _groups(plans, rows, keys, special)
+    whole: list[_Run] = []
+    fed: list[tuple[int, MessagePlan | None]] = []
+    for plan, group in groups.items():
+        if plan is None:
+            fed.extend((int(i), None) for i in group)
+            continue
+        touched.add(plan)
+        if plan.counter:  # an alive counter or a drive's health role: every row to the frame decoder (its events)
+            decoded: Sequence[Any] = [None] * len(group)
+        elif len(group) == block.n:  # every row of the block (a live frame's)
+            decoded = plan.entry.decode(block.payload, block.length)
+        else:
+            decoded = plan.entry.decode(block.payload_rows(group), block.length[group])
+        if taken is not None:
+            taken.append((plan, group, decoded))
+        run = _split(plan, group, decoded, ts, block, fed)
+        if run is not None:
+            whole.append(run)
+    if len(fed) > 1:
+        fed.sort(key=itemgetter(0))
+    return whole, fed
+
+
+def _groups(plans: Mapping[int, MessagePlan | None], rows: Any, keys: Any,
+            special: Any) -> dict[MessagePlan | None, Any]:
+    """``rows`` by plan, each in row order; the remote and error frames among them (``special``) under None."""
+    groups: dict[MessagePlan | None, Any] = {}
+    if special.size:
+        import numpy as np
+
+        picked = np.asarray(rows, dtype=np.intp)
+        odd = np.isin(picked, special)
+        groups[None] = picked[odd]
+        rows = picked[~odd]
+    for key, same in _runs_by_key(keys, rows):
+        plan = plans[key]
+        group = groups.get(plan)
+        groups[plan] = same if group is None else sorted([*group, *same])  # a second id without a plan
+    return groups
+
+
+def _split(plan: MessagePlan, group: Any, decoded: Sequence[Any], ts: Any, block: Block,
+           fed: list[tuple[int, MessagePlan | None]]) -> _Run | None:
+    """A message's decoded rows: those whole and valid as a run of columns (None: none), those for the frame
+    decoder added to ``fed``, the EMPTY ones counted."""
+    if type(decoded) is ColumnRows:
+        import numpy as np
+
+        at = np.asarray(group, dtype=np.intp)
+        if decoded.fed is not None:
+            alone = decoded.fed if decoded.empty is None else decoded.fed & ~decoded.empty
+            fed.extend((i, plan) for i in at[alone].tolist())
+        plan.count_empty(decoded.count_empty())
+        keep = None if decoded.clean() else decoded.valued()
+        if keep is not None:
+            at = at[keep]
+        if not at.size:
+            return None
+        stamps = ts.take(at)
+        columns = [c if keep is None else c[keep] for c in decoded.columns]
+        return plan, at, stamps, columns  # numpy columns: the models screen long runs of them
+    rows: list[int] = group if type(group) is list else group.tolist()
+    values: Sequence[Any] = decoded
+    if None in decoded or EMPTY in decoded:  # some rows are not whole and valid (most blocks: none)
+        rows, values = [], []
+        empty = 0
+        for i, row in zip(group if type(group) is list else group.tolist(), decoded, strict=True):
+            if row is EMPTY:
+                empty += 1
+            elif row is None:
+                fed.append((i, plan))
+            else:
+                rows.append(i)
+                values.append(row)
+        if empty:
+            plan.count_empty(empty)
+        if not rows:
+            return None
+    if len(rows) == block.n:  # every row of the block (a live frame's): its times as floats, made with it
+        return plan, rows, block.times, list(zip(*values, strict=True))
+    stamps = []  # loops, not comprehensions: no function object per block (Python < 3.12)
+    for i in rows:
+        stamps.append(float(ts[i]))
+    return plan, rows, stamps, list(zip(*values, strict=True))

@@ -1,53 +1,39 @@
 """Quiet ticks: a grid tick proven to repeat the last one is counted, not run (live and in replay).
 
-A replay of a long log (and the daemon, all day) spends most of its time ticking a tree that
-answers the same thing 100 times a second: 20 guards at 100 Hz were half of a replay's process time.
-BehaviorTree.CPP's answer would be "tick less"; ours must not change a single event,
-frame or summary field. So a grid tick is skipped only when it is *proven* to be an
-exact repetition of the last tick that ran, and the proof is made of three parts:
+A long replay (and the daemon, all day) ticks a tree that answers the same thing 100 times a
+second. A grid tick is skipped only when it is *proven* to be an exact repetition of the last
+tick that ran, so that no event, frame or summary field changes. The proof has three parts:
 
-1. **The tree cannot tell two ticks apart.** Every node the tick reached is of a
-   type that declares ``QUIET_RETICK`` (no timer, counter, memory or output of its
-   own: the reactive and plain sequences and fallbacks, Inverter, ForceSuccess/Failure,
-   AlwaysSuccess/Failure, ExecuteTask, the guards), carries no pre/post condition,
-   reads no ``{key}`` and writes none but what its quiet re-tick writes again (an I²t
-   guard's ``level``); a guard's models change state only at samples (the
-   contract of every protection model: :mod:`canguard.protect.base`). Nodes the tick did not reach may be anything (a
-   PerformRecovery before ExecuteTask in a Sequence runs once, then is not reached
-   while the task runs). No metrics, no tick hook.
-2. **The last tick was a fixed point.** The tick that ran left every node with the
-   status, feedback, position and SKIPPED flag the tick before it left, wrote no
-   event, and left the task gate in the same state, with the same inhibits and the
-   same cause, in a state whose release rule does not wait on time (running, or held
-   by a failing tree or an inhibit). Ticking the same tree again on the same inputs
-   then gives the same tick again.
-3. **No input changed since.** Every sample that changes what a guard answers (a
-   model's trip or recovery, a source's health reason) is an edge, and an edge ticks
-   the tree at once for real (ending the quiet stretch); no event was written since
-   (a bus error, a controller going error-passive...); and no time-driven change is
-   due: each source's freshness deadline (its roles' latest sample + ``max_age``), the
-   start windows (``no_data`` grace, the start grace), and the "guards left behind"
-   deadline of a guard the fixed-point tick did not reach all lie after the tick (by
-   a microsecond's margin against rounding). The freshness deadlines are those of the
-   signals fresh at the fixed point, with their latest samples: when the skipped ticks
-   reach the first of them, the samples taken since have moved it on (drawn again,
-   not a tick run); a block's rows still to come move it on as far as they keep every
-   such signal fresh (:meth:`QuietTicks.reach`), so its rows run on to there.
+1. **The tree cannot tell two ticks apart.** Every node the tick reached is of a type that
+   declares ``QUIET_RETICK`` (no timer, counter, memory or output of its own: sequences and
+   fallbacks, Inverter, ForceSuccess/Failure, AlwaysSuccess/Failure, ExecuteTask, the guards),
+   carries no pre/post condition, reads no ``{key}`` and writes none but what its quiet re-tick
+   writes again (an I²t guard's ``level``); a guard's models change state only at samples (the
+   contract of every protection model: :mod:`canguard.protect.base`). Nodes the tick did not
+   reach may be anything. No metrics, no tick hook.
+2. **The last tick was a fixed point.** It left every node with the status, feedback, position
+   and SKIPPED flag the tick before it left, wrote no event, and left the task gate in the same
+   state, inhibits and cause, in a state whose release rule does not wait on time (running, or
+   held by a failing tree or an inhibit).
+3. **No input changed since.** Every sample that changes what a guard answers is an edge, and an
+   edge ticks the tree at once for real; no event was written since; and no time-driven change
+   is due: each source's freshness deadline (its roles' latest sample + ``max_age``), the start
+   windows, and the "guards left behind" deadline of a guard the fixed point did not reach all
+   lie after the tick (by a microsecond's margin against rounding). Samples taken since move the
+   freshness deadlines on (drawn again at the first of them), and a block's rows still to come
+   move them on as far as they keep every such signal fresh (:meth:`QuietTicks.reach`).
 
-A skipped tick still does what a tick does outside the tree: it is counted, it marks
-the guards it would have ticked as ticked (``judged_t``), an I²t guard writes its wired
-``level`` again, and it services the gate's periodic frames at its own time. It is one
-policy: the live daemon and a replay count the same ticks. Between two ticks that write
-nothing the rows of a block run on across the skipped ticks
-(:meth:`Engine.runs_until <canguard.engine.core.Engine.runs_until>`): the models' state is
-read at no tick (the I²t peaks are the models' own, over every sample).
+A skipped tick still does what a tick does outside the tree: it is counted, it marks the guards
+it would have ticked as ticked (``judged_t``), an I²t guard writes its wired ``level`` again, and
+it services the gate's periodic frames at its own time. It is one policy: the live daemon and a
+replay count the same ticks.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 import py_trees
 
@@ -56,29 +42,32 @@ from canguard.engine.gate import TaskGate
 
 if TYPE_CHECKING:
     from canguard.bt.context import Context
-    from canguard.engine.journal import Journal
-    from canguard.engine.watch import SourceWatch
+    from canguard.engine.stats import Journal
 
 MARGIN_S = 1e-6
 """A time-driven change is taken to come this much earlier than computed (rounding)."""
 
 
-class QuietTicks:
-    """The proof that a grid tick repeats the last one (see the module docstring), kept tick by tick.
+class Watched(Protocol):
+    """What :class:`QuietTicks` reads of the engine (:class:`canguard.engine.core.Engine` is one)."""
 
-    Owned by the engine, which asks it whether a grid tick may be counted instead of run
-    (:meth:`may_skip`, :attr:`until`) and tells it about every tick that ran (:meth:`after_tick`).
-    """
+    guard_nodes: list[Any]
+    started_at: float
+    start_grace_s: float
+    period_s: float
+
+
+class QuietTicks:
+    """The proof that a grid tick repeats the last one (see the module docstring), kept tick by tick: the engine
+    asks it (:meth:`may_skip`, :attr:`until`) and tells it about every tick that ran (:meth:`after_tick`)."""
 
     def __init__(self, root: py_trees.behaviour.Behaviour, ctx: Context, gate: TaskGate, journal: Journal,
-                 watch: SourceWatch, sources: Mapping[str, Any], period_s: float) -> None:
+                 engine: Watched) -> None:
         self.root = root
         self.ctx = ctx
         self.gate = gate
         self.journal = journal
-        self.watch = watch
-        self.sources = sources
-        self.period_s = period_s
+        self.engine = engine
         self.nodes = list(root.iterate())
         """The tree's nodes."""
         self.loud = frozenset(node for node in self.nodes if not _quiet_node(node))
@@ -97,13 +86,12 @@ class QuietTicks:
         """(health, role) of each source signal fresh at the fixed point (None: no fixed point)."""
         self._timers = math.inf
         """When a start window ends or a guard the fixed point left behind reads as such (:meth:`_timer_horizon`)."""
-        self._writers = frozenset(g for g in watch.guard_nodes
+        self._writers = frozenset(g for g in engine.guard_nodes
                                   if any(map(g.is_wired, getattr(type(g), "QUIET_OUTPUTS", ()))))
         """The guards whose quiet re-tick writes an output (an I²t guard's wired ``level``)."""
         self.writes = False
         """A skipped tick writes the blackboard (a guard of :attr:`ticked` writes its model's level): the
-        samples between two ticks must be taken before each (:meth:`Engine.runs_until
-        <canguard.engine.core.Engine.runs_until>`)."""
+        samples between two ticks must be taken before each."""
 
     def tick_root(self, loaded: Any) -> py_trees.common.Status:
         """Tick the tree as BT.CPP's ``tickOnce()`` (:func:`canguard.bt.wakeup.tick_once`), noting whether the
@@ -114,10 +102,8 @@ class QuietTicks:
         return ticked.status
 
     def after_tick(self, now: float, events_before: int, watched: bool) -> None:
-        """After a tick that ran: note whether it was a fixed point, and until when nothing can change.
-
-        ``watched``: metrics or a tick hook look at every tick (none may be skipped).
-        """
+        """After a tick that ran: note whether it was a fixed point, and until when nothing can change
+        (``watched``: metrics or a tick hook look at every tick: none may be skipped)."""
         self.until = -math.inf
         self._fresh = None
         if self._heard or watched:
@@ -129,8 +115,7 @@ class QuietTicks:
                   for n in self.nodes),
             gate.state, tuple(gate.inhibits.items()), gate.cause,
         )
-        # Belt and braces: the quiet node types answer from their inputs alone, so one tick already
-        # settles them; requiring a repeated state also covers a node whose declaration were wrong.
+        # Belt and braces: a repeated state also covers a node whose QUIET_RETICK declaration were wrong.
         fixed = state == self._state and self.journal.written == events_before
         self._state = state
         if not fixed:
@@ -144,19 +129,13 @@ class QuietTicks:
         self.until = self._horizon()
         self._events = self.journal.written
         self._gate = (gate.state, dict(gate.inhibits))
-        self.ticked = [g for g in self.watch.guard_nodes if g.judged_t == now]
+        self.ticked = [g for g in self.engine.guard_nodes if g.judged_t == now]
         self.writes = not self._writers.isdisjoint(self.ticked)
 
     def _horizon(self) -> float:
-        """The earliest time after the fixed point at which time alone may change what a tick sees (part 3).
-
-        Each source signal fresh at the fixed point goes stale ``max_age`` after its latest sample
-        (taken when it was still ahead by the very test the engine makes, ``now - t > max_age``: when
-        rounding puts that sum at or before a tick, the horizon is in the past and the tick runs); the
-        timers (:meth:`_timer_horizon`) end when they end. Samples taken since the fixed point move the
-        first deadline on (:meth:`may_skip`); a signal stale at the fixed point changes what a tick
-        sees only with a sample, an edge.
-        """
+        """The earliest time after the fixed point at which time alone may change what a tick sees (part 3):
+        a signal fresh at it goes stale ``max_age`` after its latest sample, the timers (:meth:`_timer_horizon`)
+        end when they end; a signal stale at it changes what a tick sees only with a sample, an edge."""
         horizon = self._timers
         assert self._fresh is not None
         for health, role in self._fresh:
@@ -167,13 +146,9 @@ class QuietTicks:
         return horizon - MARGIN_S
 
     def reach(self, coming: Mapping[tuple[int, str], Any]) -> float:
-        """The horizon (:meth:`_horizon`) with the rows a block still holds: where the skipped ticks may go on to.
-
-        ``coming``: by (``id`` of a source's health, role), the times of its samples still to be taken
-        (in order). A signal fresh at the fixed point stays fresh through them while no two of them
-        (its latest sample first) lie more than ``max_age`` apart; it may go stale ``max_age`` after
-        the last before such a gap, or after the last of them. -inf: no fixed point.
-        """
+        """The horizon (:meth:`_horizon`) with the rows a block still holds (``coming``: by (``id`` of a source's
+        health, role), the times of its samples still to be taken): a signal fresh at the fixed point stays fresh
+        through them up to the first gap over ``max_age``. -inf: no fixed point."""
         if self._fresh is None:
             return -math.inf
         horizon = self._timers
@@ -195,14 +170,14 @@ class QuietTicks:
     def _timer_horizon(self, now: float) -> float:
         """When a start window ends or a guard the tick at ``now`` left behind reads as such."""
         horizon = math.inf
-        start = self.watch.started_at
-        windows = [source.max_age_s for source in self.sources.values()]  # each source's no_data grace
-        windows.append(self.watch.start_grace_s)  # the start window (SourceWatch.starting)
+        start = self.engine.started_at
+        windows = [source.max_age_s for source in self.ctx.sources.values()]  # each source's no_data grace
+        windows.append(self.engine.start_grace_s)  # the start window (Engine.starting)
         for width in windows:
             if now - start < width and start + width < horizon:
                 horizon = start + width
-        period = self.period_s
-        for g in self.watch.guard_nodes:
+        period = self.engine.period_s
+        for g in self.engine.guard_nodes:
             if g.source is not None and g.judged_t < now:  # not reached by this tick: "left behind" later
                 limit = max(g.source.max_age_s, period)
                 if not now - g.judged_t > limit and g.judged_t + limit < horizon:
@@ -217,25 +192,18 @@ class QuietTicks:
         return self.gate.state == state and self.gate.inhibits == inhibits
 
     def may_skip(self, now: float) -> bool:
-        """The grid tick at ``now`` is proven quiet: count it instead of running it.
-
-        At the horizon, the samples taken since the fixed point (every one before ``now``: a tick
-        runs when the first row at or after it comes) may have moved it on: it is drawn again.
-        """
+        """The grid tick at ``now`` is proven quiet: count it instead of running it (at the horizon, the samples
+        taken since the fixed point may have moved it on: it is drawn again)."""
         if not now < self.until:
             if self._fresh is None:
                 return False
             self.until = self._horizon()
         return now < self.until and self.unchanged()
 
-    def running_unchanged(self) -> bool:
-        """The task runs and nothing the last fixed point saw has changed (a quiet tick may be counted at once)."""
-        return self.gate.state == TaskGate.RUNNING and self._gate[:1] == (TaskGate.RUNNING,) and self.unchanged()
-
 
 def _quiet_node(node: Any) -> bool:
     """True when ``node`` may be re-ticked quietly: its type says so, no conditions, no ``{key}`` read, no
-    output but those its quiet re-tick writes again (a guard's models move only with samples: their contract)."""
+    output but those its quiet re-tick writes again."""
     if not getattr(type(node), "QUIET_RETICK", False):
         return False
     if "tick" in vars(node) or "stop" in vars(node):  # pre/post conditions wrap the node's tick
@@ -251,8 +219,7 @@ def _quiet_node(node: Any) -> bool:
 
 
 def _first_gap(times: Any, max_age: float) -> int:
-    """The position after which the first step of ``times`` (in order) longer than ``max_age`` comes (their length:
-    none)."""
+    """The position after which the first step of ``times`` longer than ``max_age`` comes (their length: none)."""
     if not float(times[-1]) - float(times[0]) > max_age:  # no step is longer than all of them (rounding is monotone)
         return len(times)
     import numpy as np

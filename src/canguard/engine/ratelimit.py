@@ -1,9 +1,7 @@
 """At most one report a second per key: a fault that repeats every frame must not flood stderr or the journal.
 
-A bus that went away refuses every frame canguard sends (four task frames every 20 ms
-and the stop frames): hundreds a second. Each refusal is counted; the first of each key
-(bus and origin) in an interval is reported, the others are held back and counted, and
-the next report says how many it stands for. Time is injected (the caller's clock).
+A bus that went away refuses hundreds of frames a second: the first of each key (bus and origin) in an
+interval is reported, the others are held back and counted, and the next report says how many it stands for.
 """
 
 from __future__ import annotations

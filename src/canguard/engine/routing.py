@@ -26,13 +26,9 @@ def parse_map(items: Sequence[str], cfg: Config) -> dict[str, str]:
 
 
 class ChannelRouter:
-    """Maps a log's channel names to the config's buses: --map, then bus names and channels, then the only bus.
-
-    The only-bus fallback (one configured bus, no --map) lets a single-channel log on
-    any channel name replay without a map; when it makes that bus take the frames of
-    several channels, :meth:`merged` reports them (a log of can0 and can1 is not one bus).
-    With --map the routing is explicit: a channel neither --map nor a bus names is unmapped.
-    """
+    """Maps a log's channel names to the config's buses: --map, then bus names and channels, then the only bus
+    (one configured bus, no --map: a log on any channel name replays; :meth:`merged` says when that merged
+    several channels). With --map a channel neither --map nor a bus names is unmapped."""
 
     def __init__(self, cfg: Config, overrides: dict[str, str]) -> None:
         self.table: dict[str, str] = {b.channel: name for name, b in cfg.buses.items() if b.channel}

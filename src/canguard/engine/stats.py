@@ -1,8 +1,15 @@
-"""What the engine counts, and what it writes events to."""
+"""What the engine counts, and what it writes events to.
+
+The engine, its task gate and the daemon write their events to the engine's :class:`Journal`: each is
+stamped and counted at once, and recorded to the sink at :meth:`Journal.flush` (the end of every tick
+and :meth:`~canguard.engine.core.Engine.advance`). So a trip's stop frames leave before anything is
+recorded about it, and the events keep the times they happened at.
+"""
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections import Counter
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
@@ -55,3 +62,52 @@ class EngineStats:
         """Largest accumulator level (% of trip) per I²t guard node: each model's own peak over every sample it
         took (:attr:`~canguard.protect.i2t.LeakyI2t.peak_level_pct`)."""
         return {node: model.peak_level_pct for node, model in self.heat_models.items()}
+
+
+class Journal:
+    """Stamps events with the clock's time, counts them by name, and records them to ``sink`` (when given) at
+    :meth:`flush`."""
+
+    def __init__(
+        self,
+        now: Callable[[], float],
+        sink: EventSink | None,
+        *,
+        durable: bool = True,
+        on_event: Callable[[dict[str, Any]], None] | None = None,
+    ) -> None:
+        self.now = now
+        self.sink = sink
+        self.durable = durable
+        """False: :meth:`flush` never fsyncs (replay writes a journal nobody reads during the run)."""
+        self.on_event = on_event
+        """Also called with every event, at :meth:`flush` (the live view, the realtime replay)."""
+        self.seen: Counter[str] = Counter()
+        """How many events of each name were written (summaries count escalations...); bounded, live for weeks."""
+        self.written = 0
+        """Events written so far, held ones included (a quiet stretch of ticks ends at any event)."""
+        self._held: list[dict[str, Any]] = []
+        self._dirty = False
+
+    def write(self, event: dict[str, Any]) -> None:
+        """Take one event, recorded at the next :meth:`flush`; ``t`` is the clock's time now unless it has one."""
+        if "t" not in event:
+            event = {"t": self.now(), **event}
+        self.seen[str(event.get("event"))] += 1
+        self.written += 1
+        self._held.append(event)
+
+    def flush(self) -> None:
+        """Record the events held, in order, and make them durable (when the journal is)."""
+        if self._held:
+            held, self._held = self._held, []
+            sink, on_event = self.sink, self.on_event
+            for event in held:
+                if sink is not None:
+                    sink.write(event)
+                    self._dirty = True
+                if on_event is not None:
+                    on_event(event)
+        if self._dirty and self.durable and self.sink is not None:
+            self.sink.flush()
+            self._dirty = False

@@ -1,7 +1,4 @@
-"""Protection models: pure state machines that take time as an argument and advance over runs of samples.
-
-The contract: :mod:`canguard.protect.base`; the models: docs/protection.md.
-"""
+"""Protection models: pure state machines that take time as an argument and advance over runs of samples."""
 
 from canguard.protect.base import LatchedModel, ProtectionModel, Run, Snapshot
 from canguard.protect.hysteresis import Hysteresis
@@ -11,18 +8,5 @@ from canguard.protect.staleness import SourceHealth
 from canguard.protect.state import HeatModel, HeatStore
 from canguard.protect.threshold import Threshold
 
-__all__ = [
-    "HeatModel",
-    "HeatStore",
-    "Hysteresis",
-    "InrushBlanking",
-    "LatchedModel",
-    "LeakyI2t",
-    "ProtectionModel",
-    "Run",
-    "Snapshot",
-    "SourceHealth",
-    "ThermalI2t",
-    "Threshold",
-    "thermal_tau",
-]
+__all__ = ["HeatModel", "HeatStore", "Hysteresis", "InrushBlanking", "LatchedModel", "LeakyI2t", "ProtectionModel",
+           "Run", "Snapshot", "SourceHealth", "ThermalI2t", "Threshold", "thermal_tau"]

@@ -1,9 +1,7 @@
 """What every protection model is: a pure state machine that advances over runs of samples.
 
-The run API, ``model.advance(times, values, *, until_edge=False) -> Run`` over two equal-length 1-D columns
-(a sample is a run of one), is the only way samples reach a model (docs/protection.md): a run fed whole or
-split anywhere gives the same edges and state. Time moves a model only through samples
-(:mod:`canguard.engine.quiet` relies on it).
+``advance`` is the only way samples reach a model: a run fed whole or split anywhere gives the same edges and
+state. Time moves a model only through samples (:mod:`canguard.engine.quiet` relies on it).
 """
 
 from __future__ import annotations
@@ -54,10 +52,7 @@ class ProtectionModel(ABC):
 
     @abstractmethod
     def advance(self, times: npt.ArrayLike, values: npt.ArrayLike, *, until_edge: bool = False) -> Run:
-        """Advance over a run of samples (see the module docstring); where the tripped state changed.
-
-        With ``until_edge`` the model stops right after the first edge (the engine ticks the tree there).
-        """
+        """Advance over a run of samples; where the tripped state changed (``until_edge``: stop after the first)."""
 
     @abstractmethod
     def mark(self) -> Any:
@@ -82,11 +77,8 @@ class ProtectionModel(ABC):
 
 
 class LatchedModel(ProtectionModel):
-    """What every concrete model shares: the run filter, tripped state, edge time, peak latch, snapshots.
-
-    One kernel, :meth:`_step`, decides; a quiet run (:meth:`_quiet`) is taken whole, any other sample by sample
-    (the engine's runs end at the next tick: past the quiet screen they are short).
-    """
+    """What every concrete model shares: the run filter, tripped state, edge time, peak latch, snapshots. One kernel,
+    :meth:`_step`, decides; a quiet run (:meth:`_quiet`) is taken whole, any other sample by sample."""
 
     reason_tripped: str = REASON_OVERCURRENT
     """The snapshot reason while tripped."""
@@ -94,9 +86,11 @@ class LatchedModel(ProtectionModel):
     def __init__(self) -> None:
         self._tripped = False
         self._latch = False
-        self._since: float | None = None
+        self.since: float | None = None
+        """Time of the last trip / recover edge, None if never."""
         self._value = math.nan
-        self._last_t: float | None = None
+        self.last_t: float | None = None
+        """Time of the latest accepted sample, None before any."""
         self.out_of_order = 0
         """Samples ignored as older than the latest one."""
         self.rejected = 0
@@ -105,16 +99,6 @@ class LatchedModel(ProtectionModel):
     @property
     def tripped(self) -> bool:
         return self._tripped
-
-    @property
-    def last_t(self) -> float | None:
-        """Time of the latest accepted sample, None before any."""
-        return self._last_t
-
-    @property
-    def since(self) -> float | None:
-        """Time of the last trip / recover edge, None if never."""
-        return self._since
 
     def advance(self, times: npt.ArrayLike, values: npt.ArrayLike, *, until_edge: bool = False) -> Run:
         """Advance over a run of samples; see :mod:`canguard.protect.base` for the contract."""
@@ -160,7 +144,7 @@ class LatchedModel(ProtectionModel):
         """Take a run in order, finite and on the quiet side (:meth:`_quiet`) whole; False: nothing done."""
         if not ordered(t):
             return False
-        last = self._last_t
+        last = self.last_t
         if last is not None and not float(t[0]) >= last:
             return False
         span = values_span(v)
@@ -172,7 +156,7 @@ class LatchedModel(ProtectionModel):
         final_a = abs(float(v[-1]))
         if not self._quiet(t, low_a, high_a, final_a):
             return False
-        self._last_t = float(t[-1])
+        self.last_t = float(t[-1])
         self._value = final_a
         return True
 
@@ -186,17 +170,17 @@ class LatchedModel(ProtectionModel):
         if not (math.isfinite(t) and math.isfinite(v)):
             self.rejected += 1
             return None
-        if self._last_t is not None and t < self._last_t:
+        if self.last_t is not None and t < self.last_t:
             self.out_of_order += 1
             return None
         a = abs(v)
         tripped = self._step(t, a)
-        self._last_t = t
+        self.last_t = t
         self._value = a
         if tripped == self._tripped:
             return False
         self._tripped = tripped
-        self._since = t
+        self.since = t
         self._latch = self._latch or tripped
         return True
 
@@ -205,16 +189,14 @@ class LatchedModel(ProtectionModel):
         """The kernel: the tripped state after one accepted sample (the base records edges, time and value)."""
 
     def carry_from(self, old: ProtectionModel) -> None:
-        """Take over the running state of the model this one replaces (config reload; its own parameters kept).
-
-        A reload never clears a trip; a model of another kind carries only this base part.
-        """
+        """Take over the running state of the model this one replaces (config reload; its own parameters kept): a
+        reload never clears a trip; a model of another kind carries only this base part."""
         if isinstance(old, LatchedModel):
-            self._tripped, self._since, self._latch, self._value, self._last_t = old.running()
+            self._tripped, self.since, self._latch, self._value, self.last_t = old.running()
 
     def running(self) -> tuple[bool, float | None, bool, float, float | None]:
         """What a reload carries of every model: (tripped, since, peak latch armed, latest |value|, latest time)."""
-        return self._tripped, self._since, self._latch, self._value, self._last_t
+        return self._tripped, self.since, self._latch, self._value, self.last_t
 
     @abstractmethod
     def _levels(self) -> tuple[float, float]:
@@ -223,13 +205,11 @@ class LatchedModel(ProtectionModel):
     def _make_snapshot(self, tripped: bool) -> Snapshot:
         threshold, level = self._levels()
         reason = self.reason_tripped if tripped else REASON_OK
-        return Snapshot(self._value, threshold, level, tripped, self._since, reason)
+        return Snapshot(self._value, threshold, level, tripped, self.since, reason)
 
     def poll(self, now: float) -> Snapshot:
-        """The state at tick time ``now``: tripped if tripped now or if a trip began since the last poll.
-
-        The latch is then cleared: a spike already over is reported exactly once.
-        """
+        """The state at tick time ``now``: tripped if tripped now or if a trip began since the last poll. The latch
+        is then cleared: a spike already over is reported exactly once."""
         snap = self._make_snapshot(self._tripped or self._latch)
         self._latch = False
         return snap

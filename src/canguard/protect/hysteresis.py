@@ -60,7 +60,7 @@ class Hysteresis(LatchedModel):
             self.inrush.observe(a, t)
             in_force = self.inrush.threshold(thr, t)
             thr = math.inf if in_force is None else in_force
-        if self._last_t is not None and t - self._last_t > self.max_gap_s:
+        if self.last_t is not None and t - self.last_t > self.max_gap_s:
             self._over_since = self._under_since = None
         if not self._tripped:
             if a < thr:
@@ -102,6 +102,6 @@ class Hysteresis(LatchedModel):
     def _levels(self) -> tuple[float, float]:
         """The overcurrent threshold in force at the latest sample (inf: blanked)."""
         thr: float | None = self.overcurrent_a
-        if self.inrush is not None and self._last_t is not None:
-            thr = self.inrush.threshold(self.overcurrent_a, self._last_t)
+        if self.inrush is not None and self.last_t is not None:
+            thr = self.inrush.threshold(self.overcurrent_a, self.last_t)
         return (math.inf if thr is None else thr), level_pct(self._value, thr)

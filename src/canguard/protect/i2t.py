@@ -46,8 +46,10 @@ class _I2tModel(LatchedModel):
         self.peak_time_s = None if peak_time_s is None else check_limit("peak_time_s", peak_time_s, positive=True)
         if self.peak_a is not None and self.peak_a <= self.continuous_a:
             raise ValueError(f"peak_a ({peak_a!r} A) must exceed continuous_a ({continuous_a!r} A)")
-        self._held = math.nan
-        self._acc = 0.0
+        self.held_a = math.nan
+        """The |I| held since the latest sample (A; NaN before any and after a restore)."""
+        self.accumulator = 0.0
+        """The raw state: A (A²s) for the leaky bucket, θ for the thermal image."""
         self._peak = 0.0
         self.stale_gaps = 0
         """Gaps longer than ``max_gap_s`` seen so far."""
@@ -63,19 +65,9 @@ class _I2tModel(LatchedModel):
                 "max_gap_s": None if self.max_gap_s == math.inf else self.max_gap_s}
 
     @property
-    def accumulator(self) -> float:
-        """The raw state: A (A²s) for the leaky bucket, θ for the thermal image."""
-        return self._acc
-
-    @property
-    def held_a(self) -> float:
-        """The |I| held since the latest sample (A; NaN before any and after a restore)."""
-        return self._held
-
-    @property
     def level(self) -> float:
         """The state as a fraction of the trip level (1.0 = trip); may exceed 1."""
-        return self._acc / self.trip_level
+        return self.accumulator / self.trip_level
 
     @property
     def peak_level_pct(self) -> float:
@@ -86,65 +78,60 @@ class _I2tModel(LatchedModel):
         cap = MAX_LEVEL * self.trip_level
         if math.isnan(acc):  # unreachable by construction; fail safe if it ever happens
             acc = cap
-        self._acc = min(max(acc, 0.0), cap)
-        if self._acc > self._peak:
-            self._peak = self._acc
+        self.accumulator = min(max(acc, 0.0), cap)
+        if self.accumulator > self._peak:
+            self._peak = self.accumulator
 
     def carry_from(self, old: ProtectionModel) -> None:
         """The base state, the held current and the heat as a fraction of the trip level (as a restore does)."""
         super().carry_from(old)
         if isinstance(old, _I2tModel):
             self._set_acc(old.level * self.trip_level)
-            self._held = old.held_a
+            self.held_a = old.held_a
             self.stale_gaps = old.stale_gaps
 
     def _step(self, t: float, a: float) -> bool:
         """Integrate the held |I| up to ``t`` (a stale gap cut to ``max_gap_s``), hold ``a``, decide."""
-        if self._last_t is not None and not math.isnan(self._held):
-            dt = t - self._last_t
+        if self.last_t is not None and not math.isnan(self.held_a):
+            dt = t - self.last_t
             if dt > self.max_gap_s:
                 self.stale_gaps += 1
                 dt = self.max_gap_s
             if dt > 0:
-                acc = self._acc = self._integrate(self._held, dt)
+                acc = self.accumulator = self._integrate(self.held_a, dt)
                 if acc > self._peak:
                     self._peak = acc
-        self._held = a
-        level = self._acc / self.trip_level
+        self.held_a = a
+        level = self.accumulator / self.trip_level
         return level >= 1.0 or (self._tripped and level >= self.recover_fraction)
 
     def _levels(self) -> tuple[float, float]:
         return self.trip_level, 100.0 * self.level
 
     def set_hot(self, t: float | None = None) -> None:
-        """Worst case: put the state at the trip level; the model trips (``t`` becomes ``since``).
-
-        Only the trip edge arms the latch: a trip already reported is not reported again.
-        """
+        """Worst case: put the state at the trip level; the model trips (``t`` becomes ``since``). Only the trip edge
+        arms the latch: a trip already reported is not reported again."""
         self._set_acc(self.trip_level)
         if not self._tripped:
             self._tripped = self._latch = True
-            self._since = t
+            self.since = t
 
     def export(self) -> dict[str, Any]:
         """The state as a JSON-able dict: kind, version, parameters, accumulator, level, tripped, time."""
-        return {"kind": self.kind, "version": STATE_VERSION, "params": self.params(), "accumulator": self._acc,
-                "level": self.level, "tripped": self._tripped, "t": self._last_t}
+        return {"kind": self.kind, "version": STATE_VERSION, "params": self.params(), "accumulator": self.accumulator,
+                "level": self.level, "tripped": self._tripped, "t": self.last_t}
 
     def restore(self, state: Mapping[str, Any], downtime_s: float) -> None:
-        """Take over an exported state cooled for ``downtime_s`` seconds, whatever the saved parameters or kind.
-
-        Tripped when the cooled level is >= 1, or was tripped and is not below ``recover_fraction``; the
-        sample history restarts. ValueError on a malformed state (the model unchanged).
-        """
+        """Take over an exported state cooled for ``downtime_s`` s, whatever the saved parameters or kind: tripped when
+        the cooled level is >= 1, or was tripped and is not below ``recover_fraction``. ValueError: malformed."""
         lvl = cooled_level(state, downtime_s)
         was_tripped = state.get("tripped") is True
         self._set_acc(lvl * self.trip_level)
-        self._last_t = None
-        self._held = self._value = math.nan
+        self.last_t = None
+        self.held_a = self._value = math.nan
         self._tripped = self.level >= 1.0 or (was_tripped and self.level >= self.recover_fraction)
         self._latch = self._tripped
-        self._since = None
+        self.since = None
 
 
 class LeakyI2t(_I2tModel):
@@ -161,21 +148,21 @@ class LeakyI2t(_I2tModel):
 
     def _quiet(self, t: Any, low_a: float, high_a: float, final_a: float) -> bool:
         """An empty bucket that stays empty: every current held at or below I_cont, no stale gap to count."""
-        if self._acc != 0.0 or self._tripped:
+        if self.accumulator != 0.0 or self._tripped:
             return False
         cont = self.continuous_a
-        if self._held > cont or high_a > cont:  # a NaN held (no sample yet) integrates nothing
+        if self.held_a > cont or high_a > cont:  # a NaN held (no sample yet) integrates nothing
             return False
-        last = self._last_t
+        last = self.last_t
         if self.max_gap_s != math.inf and (
                 (last is not None and float(t[0]) - last > self.max_gap_s) or longest_step(t) > self.max_gap_s):
             return False
-        self._held = final_a
+        self.held_a = final_a
         return True
 
     def _integrate(self, held: float, dt: float) -> float:
         """The leaky sum after one step, floored at 0 and capped."""
-        out = self._acc + (held * held - self.continuous_a * self.continuous_a) * dt
+        out = self.accumulator + (held * held - self.continuous_a * self.continuous_a) * dt
         if out < 0.0:
             return 0.0
         cap = MAX_LEVEL * self.trip_level
@@ -190,10 +177,8 @@ def thermal_tau(continuous_a: float, peak_a: float, peak_time_s: float) -> float
 
 
 class ThermalI2t(_I2tModel):
-    """First-order thermal image (IEC 60255-8), θ in units of the steady state at I_cont; reason ``i2t``.
-
-    τ is ``tau_s``, else :func:`thermal_tau` of the peak point; ``tau_cool_s`` (default τ) while θ falls.
-    """
+    """First-order thermal image (IEC 60255-8), θ in units of the steady state at I_cont; reason ``i2t``. τ is
+    ``tau_s``, else :func:`thermal_tau` of the peak point; ``tau_cool_s`` (default τ) while θ falls."""
 
     kind = KIND_THERMAL
     THRESHOLD_UNIT = THETA
@@ -216,7 +201,7 @@ class ThermalI2t(_I2tModel):
     def _integrate(self, held: float, dt: float) -> float:
         """θ ← q + (θ − q)·exp(−dt/τ), τ ``tau_cool_s`` while q < θ, clamped to [0, MAX_LEVEL]."""
         q = min(held * held / self._c2, MAX_LEVEL)
-        theta = self._acc
+        theta = self.accumulator
         theta = q + (theta - q) * math.exp(-dt / (self.tau_cool_s if q < theta else self.tau_s))
         return 0.0 if theta < 0.0 else (MAX_LEVEL if theta > MAX_LEVEL else theta)
 

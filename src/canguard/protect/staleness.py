@@ -1,9 +1,7 @@
 """Staleness and validity of one source: is there a usable, fresh value? (docs/protection.md)
 
-Every sample of one source goes to :class:`SourceHealth`, which answers why the source cannot be trusted at
-``now`` (every non-empty reason fails the guard; the reasons: docs/protection.md). A drive's health roles
-(``nmt``, ``emcy``, ``fault``) gate every value, as ``present`` does, and are checked first. The latest
-sample decides, but an invalid one never replaces the latest valid value.
+A drive's health roles gate every value, as ``present`` does, and are checked first. The latest sample decides,
+but an invalid one never replaces the latest valid value.
 """
 
 from __future__ import annotations
@@ -45,7 +43,10 @@ class SourceHealth:
     def __init__(self, source: SourceConfig) -> None:
         self.source = source
         self.max_age_s = float(source.max_age_s)
-        self._value_roles: tuple[str, ...] = source.value_roles
+        self.name = source.name
+        """The source's configured name."""
+        self.value_roles: tuple[str, ...] = source.value_roles
+        """The source's value roles, in config order (``present`` and ``counter`` are not value roles)."""
         self._has_present = source.signal(PRESENT) is not None
         self._gates = tuple(r for r in GATE_ROLES if source.signal(r) is not None)
         self._roles = frozenset(s.role for s in source.signals)
@@ -56,10 +57,11 @@ class SourceHealth:
         self._counter: float | None = None
         self._counter_since = math.nan
         self._frozen = False
-        self._ranges: dict[str, tuple[float | None, float | None]] = {
+        self.ranges: dict[str, tuple[float | None, float | None]] = {
             s.role: (s.minimum, s.maximum) for s in source.signals if s.minimum is not None or s.maximum is not None}
+        """The DBC [min|max] of each role that has one: values outside are ``out_of_range``."""
         self._limits = {role: (-_BIG if lo is None else float(lo), _BIG if hi is None else float(hi))
-                        for role, (lo, hi) in self._ranges.items()}
+                        for role, (lo, hi) in self.ranges.items()}
         self._latest_t: dict[str, float] = {}
         self._invalid: dict[str, str] = {}
         self._value: dict[str, float] = {}
@@ -75,19 +77,9 @@ class SourceHealth:
         self.out_of_order = 0
         """Samples ignored as older than the latest of their role."""
 
-    @property
-    def ranges(self) -> dict[str, tuple[float | None, float | None]]:
-        """The DBC [min|max] of each role that has one: values outside are ``out_of_range``."""
-        return self._ranges
-
     def latest_t(self, role: str) -> float | None:
         """Time of the latest sample of ``role``, valid or not (None: none yet)."""
         return self._latest_t.get(role)
-
-    @property
-    def name(self) -> str:
-        """The source's configured name."""
-        return self.source.name
 
     def advance(self, roles: Sequence[str], times: Sequence[float], columns: Sequence[Sequence[float]],
                 reasons: Sequence[Sequence[str]] | None = None, *, until_edge: bool = False) -> Run:
@@ -180,10 +172,7 @@ class SourceHealth:
                 and self._roles.issubset(roles))
 
     def _sample(self, role: str, t: float, value: float, own: str = "") -> bool:
-        """The kernel: one sample of ``role`` at ``t`` (``own``: its own invalid reason); True on an edge.
-
-        The usual sample (valid, fresh, of a value role) only becomes the latest.
-        """
+        """The kernel: one sample of ``role`` at ``t`` (``own``: its own invalid reason); True on an edge."""
         self.samples += 1
         latest = self._latest_t.get(role)
         if latest is not None:
@@ -265,10 +254,8 @@ class SourceHealth:
         return REASON_NOT_PRESENT if role == PRESENT and self._value.get(PRESENT, 0.0) == 0 else REASON_OK
 
     def reason(self, now: float, role: str | None = None) -> str:
-        """Why the source (or its ``role`` signal, with gates and presence) cannot be used at ``now``; "" if it can.
-
-        ``role=None``: the first reason of the gates, presence, then every value role in config order.
-        """
+        """Why the source (or its ``role`` signal, with gates and presence) cannot be used at ``now``; "" if it can
+        (``role=None``: the first reason of the gates, presence, then every value role in config order)."""
         if self._frozen:
             return REASON_FROZEN
         if now - self._ok_since <= self._window_s:
@@ -283,7 +270,7 @@ class SourceHealth:
                 return r
         if role is not None:
             return self._role_reason(now, role)
-        for r_name in self._value_roles:
+        for r_name in self.value_roles:
             r = self._role_reason(now, r_name)
             if r:
                 return r
@@ -302,18 +289,13 @@ class SourceHealth:
     def age(self, now: float, role: str | None = None) -> float:
         """Seconds since the latest valid value of ``role`` (inf if none); ``None``: the oldest value role."""
         if role is None:
-            return max((self.age(now, r) for r in self._value_roles), default=math.inf)
+            return max((self.age(now, r) for r in self.value_roles), default=math.inf)
         t = self._valid_t.get(role)
         return math.inf if t is None else now - t
 
     def values(self, now: float) -> dict[str, float]:
         """Every value role's latest value, NaN where :meth:`reason` for that role is not empty at ``now``."""
-        return {r: (self.value(r) if not self.reason(now, r) else math.nan) for r in self._value_roles}
-
-    @property
-    def value_roles(self) -> tuple[str, ...]:
-        """The source's value roles, in config order (``present`` and ``counter`` are not value roles)."""
-        return self._value_roles
+        return {r: (self.value(r) if not self.reason(now, r) else math.nan) for r in self.value_roles}
 
     def latest_times(self) -> dict[str, float]:
         """Each role's latest sample time, valid or not (a copy)."""

@@ -92,7 +92,8 @@ class HeatStore:
         self.path = None if path is None else Path(path)
         self.on_corrupt = on_corrupt
         self._loaded = False
-        self._corrupt: str | None = None
+        self.corrupt: str | None = None
+        """Why the file could not be used (None when it loaded, was missing or was never read)."""
         self._saved_t: float | None = None
         self._states: dict[str, Any] = {}
         self._saved_stamp: object = None
@@ -100,11 +101,6 @@ class HeatStore:
         self._last_save_t: float | None = None
         self.saves = 0
         """Successful saves so far."""
-
-    @property
-    def corrupt(self) -> str | None:
-        """Why the file could not be used (None when it loaded, was missing or was never read)."""
-        return self._corrupt
 
     def load(self, now: float) -> None:
         """Read the state file once (later calls do nothing); ``now`` is the start time, for the log."""
@@ -125,7 +121,7 @@ class HeatStore:
         else:
             problem = _check_doc(doc)
         if problem:
-            self._corrupt = problem
+            self.corrupt = problem
             log.warning("I²t state file %s is unusable (%s): models start %s", self.path, problem, self.on_corrupt)
             return
         self._saved_t = float(doc["t"])
@@ -135,14 +131,13 @@ class HeatStore:
                   len(self._states), self.path, now - self._saved_t, now)
 
     def restore(self, key: str, model: Any, now: float) -> None:
-        """Restore ``model`` under ``key``, cooled for the downtime (the file loaded first); TypeError when the
-        model cannot hold heat."""
+        """Restore ``model`` under ``key``, cooled for the downtime; TypeError when the model cannot hold heat."""
         if not isinstance(model, HeatModel):
             raise TypeError(f"model {key!r} ({type(model).__name__}) has no heat state to restore")
         self.load(now)
         if self.path is None:
             return
-        if self._corrupt is not None:
+        if self.corrupt is not None:
             if self.on_corrupt == "hot":
                 model.set_hot(now)
             return

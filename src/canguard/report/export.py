@@ -1,15 +1,7 @@
 """``replay --export-signals`` and ``--fleet-summary``: what a replay saw, as files other tools read.
 
-``FILE.parquet``: every decoded sample, as a table for pandas / polars. :class:`SignalExport` sees every
-sample the models see (whole column blocks, through ``Engine.sample_block``) and hands :data:`BATCH_ROWS` rows
-at a time (a Parquet row group) to its table: memory stays flat. Each log writes its own part file, joined in
-input order by :func:`combine_parts`. pyarrow (the ``fleet`` extra) is imported only when used.
-
-``FILE.mcap`` (:class:`McapExport`): what the engine saw and did, as MCAP channels Foxglove plots as they are,
-in the log's time base, as ROS 2 CDR messages with their ``.msg`` schemas; the channels: docs/commands.md.
-
-``--fleet-summary``: one row per replayed log (status, frames, trips, stops, the first trip's time, the worst
-margin) as JSON lines or Parquet.
+Files and channels: docs/commands.md. Samples go out :data:`BATCH_ROWS` at a time (memory stays flat); each
+log writes its own Parquet part file, joined in input order by :func:`combine_parts`.
 """
 
 from __future__ import annotations
@@ -86,7 +78,6 @@ class SignalExport:
     """Streams every sample an engine decodes into one Parquet file, in bounded memory."""
 
     def __init__(self, engine: Engine, path: Path, log: str, *, table: SampleTable | None = None) -> None:
-        self.batch_rows = BATCH_ROWS
         bus = {name: src.bus for name, src in engine.cfg.sources.items()}
         self.table: SampleTable = table if table is not None else ParquetTable(path, log, bus)
         """Where each batch of rows goes: a Parquet file, or an MCAP export's channels."""
@@ -111,12 +102,9 @@ class SignalExport:
 
     def _block(self, times: Sequence[Any], taken: list[tuple[list[tuple[str, str]], list[int], Sequence[Any]]],
                fed: list[tuple[int, Sample]]) -> None:
-        """A replay's column block (``Engine.sample_block``): its samples in row order, as frame by frame.
-
-        ``taken``: per configured message, its outputs' (source, signal), its rows and their decoded values;
-        ``fed``: the samples of the rows fed, with their row (a row in both: its samples are the fed ones).
-        The column checks pass only valid, in-range values: their reason is "".
-        """
+        """A replay's column block (``Engine.sample_block``): its samples in row order, as frame by frame. ``taken``:
+        per message its outputs' (source, signal), rows and values (valid, in range: reason ""); ``fed``: the fed
+        rows' samples (a row in both: its samples are the fed ones)."""
         from canguard.decode.rows import valued_table
 
         stamp = np.asarray(times, dtype=np.float64)
@@ -145,7 +133,7 @@ class SignalExport:
         self._chunks.append((np.concatenate(stamps)[order], np.concatenate(codes).astype(np.intp)[order],
                              np.concatenate(values).astype(np.float64)[order]))
         self._pending += order.size
-        while self._pending >= self.batch_rows:  # the row groups of one sample at a time
+        while self._pending >= BATCH_ROWS:  # the row groups of one sample at a time
             self._flush()
 
     def _code(self, name: tuple[str, str], reason: str) -> int:
@@ -158,11 +146,11 @@ class SignalExport:
         return code
 
     def _flush(self) -> None:
-        """The first :attr:`batch_rows` samples waiting (all of them, when fewer) to the table."""
+        """The first :data:`BATCH_ROWS` samples waiting (all of them, when fewer) to the table."""
         if not self._chunks:
             return
         t, codes, values = (np.concatenate(cols) for cols in zip(*self._chunks, strict=True))
-        n = min(t.size, self.batch_rows)
+        n = min(t.size, BATCH_ROWS)
         self.table.write(t[:n], codes[:n], values[:n], self._keys)
         self._chunks = [(t[n:], codes[n:], values[n:])] if n < t.size else []
         self._pending = t.size - n
@@ -175,8 +163,7 @@ class SignalExport:
 
 
 class SampleTable(Protocol):
-    """Where :class:`SignalExport` writes its rows, a batch at a time: columns of times, codes and values (float64,
-    int, float64 arrays); ``keys[code]`` is the row's (source, signal, reason)."""
+    """Where :class:`SignalExport` writes its rows, a batch of columns at a time (``keys[code]``: the row's key)."""
 
     def write(self, t: Any, codes: Any, values: Any, keys: Sequence[tuple[str, str, str]]) -> None: ...
 
@@ -243,8 +230,8 @@ _FLUSH = 65_536
 
 
 def topic_name(*parts: str) -> str:
-    """A ROS topic name under ``/canguard`` of ``parts`` (a source named ``/battery_state`` as ``battery_state``;
-    characters a topic name may not hold as ``_``)."""
+    """A ROS topic name under ``/canguard`` of ``parts`` (``/battery_state`` as ``battery_state``; other characters
+    a topic name may not hold as ``_``)."""
     clean = ["".join(c if c.isalnum() or c == "_" else "_" for c in p.strip("/")) or "_" for p in parts]
     return "/canguard/" + "/".join(clean)
 
@@ -266,10 +253,8 @@ class _Samples:
         self.writer = writer
         self.schema = writer.schema(SAMPLE[0], "ros2msg", SAMPLE[1])
         self.channels: dict[tuple[str, str], int] = {}
-        self._lanes: list[int] = []
-        """Per sample code: its channel."""
+        self._lanes: list[int] = []  # per sample code: its channel, and whether its value is valid
         self._valid: list[bool] = []
-        """Per sample code: a valid value (no reason)."""
 
     def write(self, t: Any, codes: Any, values: Any, keys: Sequence[tuple[str, str, str]]) -> None:
         """A batch of samples, each (source, signal)'s on its channel."""
@@ -310,8 +295,7 @@ class McapExport:
         engine.listen(self._event)
 
     def publish(self, engine: Any, now: float) -> None:
-        """A tick that ran (a :class:`~canguard.engine.stats.TickObserver`: ticks proven to repeat the last one are
-        not run, and not recorded; a tick hook would have them all run): each guard's state."""
+        """A tick that ran (quiet ticks are not run): each guard's state."""
         self._ticks.append(now)
         for (guard, _channel), states in zip(self._guards, self._states, strict=True):
             snap = guard.snapshot()

@@ -1,8 +1,6 @@
 """``replay --plot``: what an engineer looks at first after a trip.
 
-Per guarded source: the value over time with its thresholds, the I²t level of its guards, trips and stops
-shaded. ``.png`` / ``.svg`` by matplotlib (an optional extra); ``.html``: the SVG inline. ``tune --plot``:
-per guard, the healthy |values| with the old and new figures and the faults.
+``.png`` / ``.svg`` by matplotlib (an optional extra); ``.html``: the SVG inline. ``tune --plot``: per guard.
 """
 
 from __future__ import annotations

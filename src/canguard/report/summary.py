@@ -1,7 +1,6 @@
 """The summary of one replay: counters, trips, stops, margins and what went unguarded.
 
-Deterministic (the same log and config give byte-identical JSON), printed as text
-or JSON by ``canguard replay`` and compared with a saved one by ``--baseline``.
+Deterministic: the same log and config give byte-identical JSON (``--baseline`` compares saved ones).
 """
 
 from __future__ import annotations

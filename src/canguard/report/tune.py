@@ -1,12 +1,7 @@
 """``canguard tune``'s maths: the statistics of one log, and the proposal they add up to.
 
-A :class:`Capture` keeps every sample a guard's models get; at the end of the log a fresh copy of each model
-is advanced over them with its tunable figure (:class:`Knob`) moved, searching the figure at which it stops
-tripping: its *ceiling*. The model's own maths decides: nothing restates a guard's semantics.
-
-The proposal (:func:`propose`): per guard the healthy ceiling × (1 + margin), rounded up while below what
-every fault assigned to it needs (else the midpoint, said; else a conflict); a source's ``max_age`` only where
-the value in force fails a log. The rules: docs/commands.md (``canguard tune``).
+A guard's *ceiling* is the figure at which a fresh copy of its model, advanced over the captured samples, stops
+tripping: the model's own maths decides. The proposal's rules: docs/commands.md (``canguard tune``).
 """
 
 from __future__ import annotations
@@ -100,8 +95,7 @@ class Capture(ProtectionModel):
 @dataclass(frozen=True)
 class Knob:
     """One figure of a guard that tune can move: ``set`` puts a value into a copy of the model; without it the
-    samples are scaled instead (I²t: a rating scaled by ``s`` trips where the currents divided by ``s`` trip
-    the rated model, every figure of the rating being a current)."""
+    samples are scaled instead (an I²t rating scaled by ``s`` trips where the currents divided by ``s`` do)."""
 
     port: str
     value: float
@@ -155,11 +149,8 @@ def trip_time(model: ProtectionModel, knob: Knob, value: float, t: np.ndarray, v
 
 
 def ceiling(model: ProtectionModel, knob: Knob, t: np.ndarray, v: np.ndarray) -> tuple[float, float | None]:
-    """The knob's value at and above which the model no longer trips on the samples, and the trip time just below.
-
-    ``(0.0, None)``: no trip even at the smallest value; ``(inf, time)``: a trip whatever the value (another
-    figure, an inrush threshold or a stale gap, trips it).
-    """
+    """The knob's value at and above which the model no longer trips on the samples, and the trip time just below;
+    ``(0.0, None)``: no trip at all; ``(inf, time)``: a trip whatever the value (another figure trips it)."""
     def trips(value: float) -> float | None:
         return trip_time(model, knob, value, t, v)
 
@@ -277,8 +268,8 @@ class TuneStats:
                     engine.ctx.subscribe(node.topic_name, role, cap)
 
     def result(self) -> dict[str, Any]:
-        """Per guard node: its knob, and per signal the samples' statistics and the ceiling on this log (small and
-        JSON-able: it travels in the replay summary). Times are seconds from the log's first frame."""
+        """Per guard node: its knob, and per signal the samples' statistics and the ceiling on this log (JSON-able;
+        times from the log's first frame)."""
         start = self.engine.first_frame_t
         start = start if math.isfinite(start) else 0.0
         guards = []

@@ -1,9 +1,6 @@
 """The tuned config and tree, as text edits of the originals: layout and comments kept.
 
-A guard's figures are attributes of its element, changed in place or added. A config gets its ``max_age``
-values changed in place (or added to the source's mapping), its ``tree.file`` pointed at the tuned tree, and
-every other relative path (``dbc``, ``events``, ``state.file``, ``eds``) made absolute: written elsewhere,
-it still finds them.
+The config's other relative paths are made absolute: written elsewhere, it still finds them.
 """
 
 from __future__ import annotations

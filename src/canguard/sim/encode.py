@@ -1,7 +1,4 @@
-"""Encoders for the simulator: one per DBC message, built once.
-
-Each encodes through cantools' ``Message.encode``.
-"""
+"""Encoders for the simulator: one per DBC message, built once."""
 
 from __future__ import annotations
 

@@ -37,10 +37,7 @@ def _open_text(path: str | PathLike[str], stack: contextlib.ExitStack) -> TextIO
 
 
 def write_log(path: str | PathLike[str], duration_s: float, **robot_kwargs: Any) -> int:
-    """Simulate ``duration_s`` seconds into a candump -L file (the same arguments, the same bytes); the frames.
-
-    ``robot_kwargs`` are :class:`SimRobot`'s (``db`` is required).
-    """
+    """Simulate ``duration_s`` seconds of ``SimRobot(**robot_kwargs)`` into a candump -L file; the frames written."""
     with contextlib.ExitStack() as stack:  # the replay reader's own writer: read_log gives these frames back
         return write_candump(SimRobot(**robot_kwargs).frames(duration_s), _open_text(path, stack))
 
@@ -67,11 +64,8 @@ def _pace(bus: can.BusABC, due: float, answer: Callable[[can.Message | None], No
 
 def run_on_bus(bus: can.BusABC, duration_s: float, *, realtime: bool = True, stop_event: threading.Event | None = None,
                robot: SimRobot | None = None, **robot_kwargs: Any) -> int:
-    """Run ``robot`` (or ``SimRobot(**robot_kwargs)``) on ``bus`` for ``duration_s`` seconds; the frames sent.
-
-    Paced to the wall clock when ``realtime``; the bus' frames are answered (:meth:`SimRobot.receive`)
-    meanwhile. Error frames go only on software buses; a refused send is logged and skipped.
-    """
+    """Run ``robot`` (or ``SimRobot(**robot_kwargs)``) on ``bus`` for ``duration_s`` seconds, answering the bus'
+    frames; the frames sent. Error frames go only on software buses; a refused send is logged and skipped."""
     if robot is None:
         robot = SimRobot(**robot_kwargs)
     elif robot_kwargs:

@@ -1,18 +1,8 @@
 """The simulated robot: ODrive-style drivers and a BMS, in simulated time.
 
-Everything is a function of the seed, the scenarios and the frames received (one seeded
-:class:`random.Random`, no wall clock). Frames come out of a heap of scheduled producers in time order;
-periodic streams are scheduled from their nominal times plus a seeded jitter of 0 to 20 µs (never early),
-so rates never drift. The physics, simple so that tests and example logs can
-assert it:
-
-* Current loop: in CLOSED_LOOP_CONTROL (8) Iq is the setpoint plus noise (σ 0.03 A), rising to it with
-  τ 20 ms after a resume; in IDLE (1) it decays with τ 2 ms (σ 0.005 A). Torque = Kt·Iq, Kt 0.0827 N·m/A.
-* Pack current = 2 A + Σ|Iq| + noise (σ 0.05 A); pack voltage = a 13S pack's open-circuit voltage at its
-  state of charge (from 85 % of 20 Ah) − 0.04 Ω × pack current.
-* Commands (:meth:`SimRobot.receive`): ``Axis*_Estop`` → IDLE with ESTOP_REQUESTED set;
-  ``Axis*_Set_Axis_State`` 1 → IDLE, 8 → CLOSED_LOOP only while no error is active (as an ODrive);
-  ``Axis*_Clear_Errors`` clears the errors. Heartbeats (10 Hz) report Axis_Error and Axis_State.
+Everything is a function of the seed, the scenarios and the frames received (no wall clock). Periodic
+streams run from their nominal times plus a seeded jitter of 0 to 20 µs, so rates never drift. As an ODrive,
+an Estop leaves the axis IDLE with ESTOP_REQUESTED set, and CLOSED_LOOP is entered only while no error is active.
 """
 
 from __future__ import annotations
@@ -87,14 +77,8 @@ COMMANDS = ("Estop", "Set_Axis_State", "Clear_Errors")
 
 
 class SimRobot:
-    """A deterministic simulated robot: N ODrive CANSimple axes and a BMS on one bus.
-
-    ``db``: a cantools Database or DBC path with ``Axis{n}_Heartbeat``, ``Axis{n}_Get_Iq``, ... and
-    ``BMS_Status`` (as ``dbc/robot.dbc``); ``scenarios``: names of :data:`canguard.sim.SCENARIOS`, optionally
-    ``name@offset_s``; ``rates_hz`` overrides :data:`DEFAULT_RATES_HZ`. Frame times are ``start_t`` + simulated
-    seconds, rounded to microseconds as candump writes them. ValueError for an unknown scenario, an axis
-    count or a message the DBC lacks.
-    """
+    """A deterministic simulated robot: N ODrive CANSimple axes and a BMS on one bus (messages as ``dbc/robot.dbc``);
+    ``scenarios``: ``name`` or ``name@offset_s``. ValueError for a bad scenario, axis count or missing message."""
 
     def __init__(self, db: cantools.database.Database | str | PathLike[str], *, axes: int = 4, seed: int = 0,
                  scenarios: Sequence[str] = ("normal",), channel: str = "can0", start_t: float = 1_700_000_000.0,
@@ -147,10 +131,7 @@ class SimRobot:
         return self.start_t + self._now
 
     def frames(self, duration_s: float) -> Iterator[Frame]:
-        """The next ``duration_s`` seconds of frames, in time order, from where the previous call stopped.
-
-        Frames :meth:`receive` gets meanwhile take effect from their time on (at once when it is past).
-        """
+        """The next ``duration_s`` seconds of frames, in time order, from where the previous call stopped."""
         end = self._now + float(duration_s)
         heap = self._heap
         while heap and heap[0][0] < end:
@@ -164,10 +145,7 @@ class SimRobot:
         self._now = max(self._now, end)
 
     def receive(self, frame: Frame) -> None:
-        """Answer a driver command from the bus (Estop, Set_Axis_State, Clear_Errors); other frames are ignored.
-
-        It takes effect at ``frame.t`` if that is still ahead of the simulated time, else at once.
-        """
+        """Answer a driver command (Estop, Set_Axis_State, Clear_Errors) at ``frame.t``, or at once if that is past."""
         if frame.is_error_frame or frame.is_remote_frame or frame.is_extended_id:
             return
         if frame.arbitration_id not in self._commands:

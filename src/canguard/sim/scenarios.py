@@ -1,10 +1,7 @@
 """The simulator's scenarios: what goes wrong, on which axis, and when.
 
-Every scenario (docs/commands.md has the table) runs over the normal duty cycle and changes only what its
-docstring says. Times are seconds from the start, shifted by ``offset_s`` (``"spike@10"``: ten seconds
-later). Figures are chosen against the bundled config: IsCurrentSafe on ``/battery_state`` trips
-above 35 A and recovers below 25 A (``max_age`` 0.5 s); I²t continuous 10 A, peak 20 A for 1 s
-(S = 300 A²s) trips 1.0 s into 20 A from cold.
+Times are seconds from the start plus ``offset_s`` (``"spike@10"``). Figures are chosen against the bundled
+config: the pack trips above 35 A, recovers below 25 A, ``max_age`` 0.5 s; I²t 10 A continuous, 20 A for 1 s.
 """
 
 from __future__ import annotations
@@ -61,8 +58,7 @@ def _at_steps(robot: RobotHandle, t0: float, step_s: float, frames: list[tuple[i
 
 
 class Scenario:
-    """A named disturbance over the normal duty cycle (hooks, ``t`` in seconds from the start); the base changes
-    nothing."""
+    """A named disturbance over the normal duty cycle (hooks, ``t`` in seconds from the start)."""
 
     summary: ClassVar[str] = ""
     """One line for ``--help`` and the demo; the scenario's name is its class name in lower case."""
@@ -91,12 +87,8 @@ class Normal(Scenario):
 
 
 class Inrush(Scenario):
-    """Motor start on axis 1 at 1.5 s: Iq = 25 A for 80 ms, then a τ 10 ms decay into its move (0 A before).
-
-    Meanwhile (−20 ms to +200 ms) the other axes hold at most 1 A, as a controller sequencing starts does:
-    the pack reaches ≈ 30 A, below the 35 A trip. An axis guard below 25 A trips unless inrush blanking
-    covers 0.1 s.
-    """
+    """Motor start on axis 1 at 1.5 s: Iq = 25 A for 80 ms, then a τ 10 ms decay into its move (0 A before); the
+    other axes hold at most 1 A meanwhile (−20 ms to +200 ms): the pack reaches ≈ 30 A, below the 35 A trip."""
 
     summary = "axis1 starts at 1.5 s: Iq 25 A for 80 ms, then its move; pack ~30 A, < 35 A"
     AXIS = 1
@@ -163,8 +155,7 @@ class Dropout(Scenario):
 
 
 class Garbage(Scenario):
-    """Bad payloads on configured messages, one every 50 ms from 1.0 s (axis 2, or the last), normal ones
-    between."""
+    """Bad payloads on configured messages, one every 50 ms from 1.0 s (axis 2, or the last)."""
 
     summary = "NaN/inf Iq, wrong-length Iq and BMS frames, NaN torque, random bytes, from 1.0 s (axis2)"
     AT_S = 1.0
