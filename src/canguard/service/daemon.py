@@ -16,7 +16,6 @@ import time
 import uuid
 from collections.abc import Iterable
 from pathlib import Path
-from types import FrameType
 from typing import Any
 
 import can
@@ -64,19 +63,16 @@ def guarding(cfg: Config) -> str:
 
 
 def refuse_unguarded(cfg: Config) -> None:
-    """Under systemd (``NOTIFY_SOCKET`` set), refuse a config whose buses are all ``virtual``
-    (:class:`ConfigError`, exit 2): such a service would start, send READY=1 and feed the watchdog while it guards
-    no motor at all. ``simulation: true`` in the config says that this is intended (a bench)."""
+    """Under systemd, ConfigError for all-``virtual`` buses (READY=1 and a fed watchdog while guarding no motor),
+    unless the config says ``simulation: true`` (a bench)."""
     if not os.environ.get("NOTIFY_SOCKET") or cfg.simulation or not cfg.buses:
         return
     if all(b.interface == "virtual" for b in cfg.buses.values()):
         names = ", ".join(cfg.buses)
-        raise ConfigError(
-            f"{cfg.path}: buses: every bus ({names}) is interface: virtual, so this service would guard "
-            "no real bus while systemd reports it healthy. For the robot set interface: socketcan and "
-            "channel: can0 (see docs/deploy.md); to run a simulation as a service on purpose, add "
-            "'simulation: true' to the config"
-        )
+        raise ConfigError(f"{cfg.path}: buses: every bus ({names}) is interface: virtual, so this service would guard "
+                          "no real bus while systemd reports it healthy. For the robot set interface: socketcan and "
+                          "channel: can0 (see docs/deploy.md); to run a simulation as a service on purpose, add "
+                          "'simulation: true' to the config")
 
 
 class Daemon:
@@ -167,15 +163,9 @@ class Daemon:
     # -- signals ---------------------------------------------------------------------------
     def install_signals(self) -> None:
         """SIGTERM / SIGINT stop the daemon cleanly; SIGHUP reloads the config."""
-        signal.signal(signal.SIGTERM, self._on_term)
-        signal.signal(signal.SIGINT, self._on_term)
-        signal.signal(signal.SIGHUP, self._on_hup)
-
-    def _on_term(self, signum: int, _frame: FrameType | None) -> None:
-        self.request_stop(signal.Signals(signum).name)
-
-    def _on_hup(self, _signum: int, _frame: FrameType | None) -> None:
-        self._reload.set()
+        for signum in (signal.SIGTERM, signal.SIGINT):
+            signal.signal(signum, lambda num, _frame: self.request_stop(signal.Signals(num).name))
+        signal.signal(signal.SIGHUP, lambda _num, _frame: self._reload.set())
 
     def request_stop(self, reason: str = "stop requested") -> None:
         """Ask the loop to end (tests, the demo)."""
