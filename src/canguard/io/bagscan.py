@@ -96,21 +96,19 @@ def decompressed(compression: str, data: bytes, size: int, at: int) -> bytes:
     raise McapCut(f"a chunk compressed as {compression!r}, which canguard does not read")
 
 
-class McapScan:
-    """One MCAP file, read from its start."""
+class _Scan:
+    """A bag file, read from its start; ``whole``: ``index`` read every channel first (the file then at its data)."""
 
-    def __init__(self, path: Path) -> None:
+    def __init__(self, path: Path, magic: bytes, not_one: str, index: Callable[[], bool]) -> None:
         self.path = path
-        self.schemas: dict[int, tuple[str, str, str]] = {}
         self.channels: dict[int, Channel] = {}
         self.f: BinaryIO = open(path, "rb")  # noqa: SIM115 -- closed by close()
         try:
             self.size = self.f.seek(0, 2)
             self.f.seek(0)
-            if self.f.read(8) != MAGIC:
-                raise McapCut("no MCAP magic at its start: not an MCAP file")
-            self.whole = self._summary()
-            self.f.seek(8)
+            if self.f.read(len(magic)) != magic:
+                raise McapCut(f"no {not_one}")
+            self.whole = index()
         except BaseException:
             self.f.close()
             raise
@@ -119,6 +117,14 @@ class McapScan:
         """Close the file."""
         self.f.close()
 
+
+class McapScan(_Scan):
+    """One MCAP file, read from its start."""
+
+    def __init__(self, path: Path) -> None:
+        self.schemas: dict[int, tuple[str, str, str]] = {}
+        super().__init__(path, MAGIC, "MCAP magic at its start: not an MCAP file", self._summary)
+
     def _summary(self) -> bool:
         """Read the summary's schemas and channels when the file ends as a whole MCAP does; False: it does not."""
         f = self.f
@@ -126,9 +132,8 @@ class McapScan:
             return False
         f.seek(self.size - 8 - 9 - 20)
         op, _length, start, _offsets, _crc, magic = struct.unpack("<BQQQI8s", f.read(37))
-        if magic != MAGIC or op != OP_FOOTER:
-            return False
-        if start:
+        whole = magic == MAGIC and op == OP_FOOTER
+        if whole and start:
             f.seek(start)
             summary = f.read(self.size - 8 - 29 - start)
             pos = 0
@@ -136,7 +141,8 @@ class McapScan:
                 op, length = _OPLEN.unpack_from(summary, pos)
                 self._record(op, summary[pos + 9:pos + 9 + length])
                 pos += 9 + length
-        return True
+        f.seek(8)
+        return whole
 
     def _record(self, op: int, body: bytes) -> None:
         """Take a schema or channel record."""
@@ -250,26 +256,11 @@ def _ros1_op(fields: dict[bytes, tuple[int, bytes]]) -> int:
     return value[0] if len(value) == 1 else -1
 
 
-class Ros1Scan:
+class Ros1Scan(_Scan):
     """One ROS 1 bag, read from its start."""
 
     def __init__(self, path: Path) -> None:
-        self.path = path
-        self.channels: dict[int, Channel] = {}
-        self.f: BinaryIO = open(path, "rb")  # noqa: SIM115 -- closed by close()
-        try:
-            self.size = self.f.seek(0, 2)
-            self.f.seek(0)
-            if self.f.read(len(ROS1_MAGIC)) != ROS1_MAGIC:
-                raise McapCut("no '#ROSBAG V2.0' at its start: not a ROS 1 bag")
-            self.whole = self._index()
-        except BaseException:
-            self.f.close()
-            raise
-
-    def close(self) -> None:
-        """Close the file."""
-        self.f.close()
+        super().__init__(path, ROS1_MAGIC, "'#ROSBAG V2.0' at its start: not a ROS 1 bag", self._index)
 
     def _record(self) -> tuple[int, dict[bytes, tuple[int, bytes]], int] | None:
         """The next record's (start, header fields, data length), the file at its data; None at the end."""

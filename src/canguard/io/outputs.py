@@ -19,8 +19,6 @@ from canguard.errors import ConfigError
 if TYPE_CHECKING:
     from canguard.config.schema import Config
 
-__all__ = ["check_config_outputs", "check_output", "load_run_config", "output_problem", "outputs_in", "user_state_dir"]
-
 
 def _user(uid: int) -> str:
     """The name of user ``uid`` (its number when it has none, e.g. a systemd dynamic user that has gone)."""

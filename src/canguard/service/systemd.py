@@ -10,8 +10,6 @@ import socket
 import time
 from collections.abc import Iterable, Mapping
 
-__all__ = ["Notifier", "watchdog_hold"]
-
 log = logging.getLogger(__name__)
 
 

@@ -13,7 +13,6 @@ import signal
 import socket
 import sys
 from collections.abc import Iterator
-from types import FrameType
 from typing import Any
 
 from canguard.config.monitor import Address, parse_address
@@ -97,16 +96,12 @@ def messages(sock: socket.socket) -> Iterator[Any]:
             parts = []
 
 
-def _on_term(_signum: int, _frame: FrameType | None) -> None:
-    raise SystemExit(0)
-
-
 def main(argv: list[str] | None = None) -> int:
     """Serve the monitors for the daemon at the other end of socket ``argv[0]``; 0 when it ended, 2 on bad settings."""
     args = sys.argv[1:] if argv is None else argv
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGHUP, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, _on_term)
+    signal.signal(signal.SIGTERM, lambda _num, _frame: sys.exit(0))
     lower_priority()
     more_descriptors()
     logging.basicConfig(level=logging.WARNING, format="canguard monitor: %(levelname)s %(name)s: %(message)s")
