@@ -51,8 +51,7 @@ OVERRUN_FLOOR_S = 0.05
 DRAIN = 512
 """Frames received after the first, at most, before the engine advances to now."""
 DRAIN_DIRECT = 32
-"""The same where the loop reads the sockets itself: a frame that trips waits for the reads after it in its batch
-(tens of microseconds each) before the engine sees it."""
+"""The same where the loop reads the sockets itself (a tripping frame waits for the reads after it in its batch)."""
 
 
 def guarding(cfg: Config) -> str:
@@ -246,9 +245,8 @@ class Daemon:
         self.notifier.status(f"{engine.status_line()}; {', '.join(fps)}; {guarding(self.cfg)}")
 
     def take_received(self, engine: Engine, items: list[tuple[str, can.Message, float]]) -> None:
-        """The messages received as one block in arrival order through :meth:`Engine.take` (each row's channel its
-        bus), cut before a frame whose wait starts or ends an overrun; a stamp further than :data:`LIVE_SKEW_S`
-        from now becomes the receive time."""
+        """The messages received, one block in arrival order into :meth:`Engine.take`, cut where a frame's wait starts
+        or ends an overrun; a stamp further than :data:`LIVE_SKEW_S` from now becomes the receive time."""
         mono = time.monotonic()
         now = self.clock.now()
         limit = self.overrun_limit_s
@@ -325,8 +323,8 @@ class Daemon:
         return True
 
     def _send_refused(self, bus: str, label: str, origin: str, held: int) -> None:
-        """A frame the bus refused (full TX queue, bus-off) goes in the journal, as often as on stderr (``held``:
-        the refusals since): a stop frame that never reached the bus is what a safety engineer asks about first."""
+        """A frame the bus refused (full TX queue, bus-off) into the journal, as often as on stderr (``held``: the
+        refusals since): a stop frame that never reached the bus is what a safety engineer asks about first."""
         engine = getattr(self, "engine", None)
         if engine is not None:
             engine.journal.write({"event": "bus_error", "source": bus,
@@ -372,8 +370,7 @@ def journal_setup(engine: Engine, setup: Any) -> None:
 
 
 def overrun_limit(cfg: Config) -> float:
-    """How long a frame may wait between its arrival and the engine: the shortest ``max_age`` of the sources (a
-    frame that waited longer carries data the config already calls stale, judged as fresh)."""
+    """How long a frame may wait before the engine: the sources' shortest ``max_age`` (older data is stale)."""
     ages = [source.max_age_s for source in cfg.sources.values()]
     return max(OVERRUN_FLOOR_S, min(ages, default=LIVE_SKEW_S))
 

@@ -70,8 +70,7 @@ WANT_BLACKBOARD = b"B"
 
 
 class GilHoldingSocket:
-    """Non-blocking send and receive that keep the GIL (``socket.send`` releases it, and the loop then waits to get
-    it back; a non-blocking local socket returns within microseconds)."""
+    """Non-blocking send and receive that keep the GIL (``socket.send`` releases it, then the loop waits for it)."""
 
     _libc = ctypes.PyDLL(None, use_errno=True)
     _send = _libc.send

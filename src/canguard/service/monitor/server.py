@@ -66,9 +66,8 @@ def servers(settings: dict[str, Any], hub: Hub) -> dict[str, Any]:
 
 
 def lower_priority() -> None:
-    """Put this process below the daemon, before any thread starts (they inherit it): ``SCHED_BATCH`` and
-    :data:`NICE` steps nicer, where the system allows. Not ``SCHED_IDLE``: that would starve the page whenever the
-    CPUs are busy, when a person most needs it."""
+    """``SCHED_BATCH`` and :data:`NICE` below the daemon, before any thread starts (they inherit it); not
+    ``SCHED_IDLE``: that would starve the page whenever the CPUs are busy, when a person most needs it."""
     with contextlib.suppress(OSError, AttributeError):  # AttributeError: not Linux
         os.sched_setscheduler(0, os.SCHED_BATCH, os.sched_param(0))
     with contextlib.suppress(OSError):
