@@ -10,23 +10,12 @@ from pathlib import Path
 from canguard.errors import LogFormatError
 from canguard.io.bagopts import BAG_SUFFIXES, NEEDS, BagOptions, is_bag
 from canguard.io.block import frame_from_message
-from canguard.io.candump import CHUNK_CHARS, candump_blocks, format_candump_line, write_candump
+from canguard.io.candump import candump_blocks, format_candump_line, write_candump
 from canguard.io.logtypes import COMPRESSIONS, BadLine, Blocks, LogFrames, ReadStats
 from canguard.io.pycan import python_can_blocks
 
-__all__ = [
-    "CHUNK_CHARS",
-    "LOG_READERS",
-    "LOG_SUFFIXES",
-    "BadLine",
-    "LogFrames",
-    "ReadStats",
-    "format_candump_line",
-    "frame_from_message",
-    "log_format",
-    "read_log",
-    "write_candump",
-]
+__all__ = ["LOG_READERS", "LOG_SUFFIXES", "BadLine", "ReadStats", "format_candump_line", "frame_from_message",
+           "log_format", "read_log", "write_candump"]
 
 
 LOG_READERS: dict[str, str] = {
