@@ -380,10 +380,9 @@ def tree_clients(root: py_trees.behaviour.Behaviour) -> set[uuid.UUID]:
     return {client.id() for node in root.iterate() for client in node.blackboards}
 
 
-def release_clients(ids: Iterable[uuid.UUID]) -> int:
-    """Remove these clients, and the keys no other client holds, from py_trees' global blackboard; how many keys."""
+def release_clients(ids: Iterable[uuid.UUID]) -> None:
+    """Remove these clients, and the keys no other client holds, from py_trees' global blackboard."""
     ids = set(ids)
-    gone = 0
     for key, meta in list(Blackboard.metadata.items()):
         if ids.isdisjoint(meta.read) and ids.isdisjoint(meta.write) and ids.isdisjoint(meta.exclusive):
             continue
@@ -393,7 +392,5 @@ def release_clients(ids: Iterable[uuid.UUID]) -> int:
         if not (meta.read or meta.write or meta.exclusive):
             del Blackboard.metadata[key]
             Blackboard.storage.pop(key, None)
-            gone += 1
     for client in ids:
         Blackboard.clients.pop(client, None)
-    return gone
