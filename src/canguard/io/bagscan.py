@@ -29,10 +29,6 @@ _U16, _U32, _U64 = struct.Struct("<H"), struct.Struct("<I"), struct.Struct("<Q")
 class McapCut(Exception):
     """The file ends (or turns to garbage) before its data section does: where, and what was found there."""
 
-    def __init__(self, what: str) -> None:
-        super().__init__(what)
-        self.what = what
-
 
 @dataclass(frozen=True)
 class Channel:

@@ -70,7 +70,7 @@ class BagSource:
 
     def failed(self, what: str, exc: BaseException) -> LogFormatError:
         """The error of a bag that could not be read (``what``: where and how far), naming the bag."""
-        why = exc.what if isinstance(exc, McapCut) else f"{type(exc).__name__}: {clip(str(exc))}"
+        why = str(exc) if isinstance(exc, McapCut) else f"{type(exc).__name__}: {clip(str(exc))}"
         return LogFormatError(f"{self.path}: not a readable {self.kind} ({what}): {why}")
 
     def open(self) -> None:
@@ -91,7 +91,7 @@ class BagSource:
             raise
         except McapCut as exc:
             self.close()
-            raise LogFormatError(f"{self.path}: not a {self.kind}: {exc.what}") from None
+            raise LogFormatError(f"{self.path}: not a {self.kind}: {exc}") from None
         except Exception as exc:  # rosbags raises its ReaderError, but also struct, yaml and OS errors on a cut bag
             self.close()
             raise self.failed("cut short, unindexed or not a bag; 0 frames were read", exc) from None
@@ -379,7 +379,7 @@ def _next(bag: BagSource, blocks: Iterator[tuple[Messages, dict[int, Topic]]],
     except LogFormatError:
         raise
     except McapCut as exc:
-        raise LogFormatError(f"{bag.path}: truncated {bag.kind}: {exc.what}; {st.frames} frames were read before "
+        raise LogFormatError(f"{bag.path}: truncated {bag.kind}: {exc}; {st.frames} frames were read before "
                              "the cut") from None
     except Exception as exc:  # a cut or damaged storage deep inside the readers
         raise bag.failed(f"cut or damaged; {st.frames} frames were read before it", exc) from None
