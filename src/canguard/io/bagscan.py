@@ -196,19 +196,15 @@ def _chunk_messages(data: bytes, other: Callable[[int, bytes], None]) -> Iterato
     buf = padded(data)
     starts: list[Any] = []
     pos = 0
-    tried = False
     while pos + 9 <= size:
         op, length = _OPLEN.unpack_from(data, pos)
-        if op == OP_MESSAGE and not tried:
-            tried = True  # once a chunk: records of one length from here to its end are found at once
-            run = _same_length(buf, pos, length, size)
-            if run is not None:
-                starts.append(run)
-                break
-        if op == OP_MESSAGE:
-            starts.append(np.array([pos], dtype=np.int64))
-        else:
+        if op != OP_MESSAGE:
             other(op, data[pos + 9:pos + 9 + length])
+        elif not starts and (run := _same_length(buf, pos, length, size)) is not None:
+            starts.append(run)  # the chunk's first message: records of one length from it to the end, found at once
+            break
+        else:
+            starts.append(np.array([pos], dtype=np.int64))
         pos += 9 + length
     if not starts:
         return
