@@ -1,8 +1,4 @@
-"""Which configured bus takes the frames of each channel of a recorded log.
-
-``canguard replay`` and ``canguard replay --realtime`` route the same way: ``--map``
-first, then bus names and the buses' channels, then the only bus.
-"""
+"""Which configured bus takes the frames of each channel of a recorded log."""
 
 from __future__ import annotations
 
