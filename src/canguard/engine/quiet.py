@@ -33,7 +33,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Any
 
 import py_trees
 
@@ -42,19 +42,11 @@ from canguard.engine.gate import TaskGate
 
 if TYPE_CHECKING:
     from canguard.bt.context import Context
+    from canguard.engine.core import Engine
     from canguard.engine.stats import Journal
 
 MARGIN_S = 1e-6
 """A time-driven change is taken to come this much earlier than computed (rounding)."""
-
-
-class Watched(Protocol):
-    """What :class:`QuietTicks` reads of the engine (:class:`canguard.engine.core.Engine` is one)."""
-
-    guard_nodes: list[Any]
-    started_at: float
-    start_grace_s: float
-    period_s: float
 
 
 class QuietTicks:
@@ -62,36 +54,28 @@ class QuietTicks:
     asks it (:meth:`may_skip`, :attr:`until`) and tells it about every tick that ran (:meth:`after_tick`)."""
 
     def __init__(self, root: py_trees.behaviour.Behaviour, ctx: Context, gate: TaskGate, journal: Journal,
-                 engine: Watched) -> None:
+                 engine: Engine) -> None:
         self.root = root
         self.ctx = ctx
         self.gate = gate
         self.journal = journal
         self.engine = engine
         self.nodes = list(root.iterate())
-        """The tree's nodes."""
+        # the nodes a tick may not reach to be a fixed point (part 1), and whether the last tick reached one
         self.loud = frozenset(node for node in self.nodes if not _quiet_node(node))
-        """The nodes that may not be re-ticked quietly: a tick that reaches one is no fixed point (part 1)."""
         self._heard = False
-        """The last tick reached one of :attr:`loud`."""
-        self._state: tuple[Any, ...] | None = None
-        """What the last tick that ran left (nodes, gate), to recognise a fixed point."""
-        self.until = -math.inf
-        """Grid ticks before this time may be skipped (set by a fixed-point tick)."""
+        self._state: tuple[Any, ...] | None = None  # what the last tick that ran left (nodes, gate)
+        self.until = -math.inf  # grid ticks before this time may be skipped
         self._events = -1
         self._gate: tuple[Any, ...] = ()
-        self.ticked: list[Any] = []
-        """The guards the fixed-point tick ticked: a skipped tick marks them ticked."""
-        self._fresh: list[tuple[Any, str]] | None = None
-        """(health, role) of each source signal fresh at the fixed point (None: no fixed point)."""
-        self._timers = math.inf
-        """When a start window ends or a guard the fixed point left behind reads as such (:meth:`_timer_horizon`)."""
+        self.ticked: list[Any] = []  # the guards the fixed point ticked: a skipped tick marks them ticked
+        self._fresh: list[tuple[Any, str]] | None = None  # (health, role) fresh at the fixed point (None: none)
+        self._timers = math.inf  # :meth:`_timer_horizon`
+        # the guards whose quiet re-tick writes an output (an I²t guard's wired ``level``)
         self._writers = frozenset(g for g in engine.guard_nodes
                                   if any(map(g.is_wired, getattr(type(g), "QUIET_OUTPUTS", ()))))
-        """The guards whose quiet re-tick writes an output (an I²t guard's wired ``level``)."""
+        # a skipped tick writes the blackboard: the samples between two ticks must be taken before each
         self.writes = False
-        """A skipped tick writes the blackboard (a guard of :attr:`ticked` writes its model's level): the
-        samples between two ticks must be taken before each."""
 
     def tick_root(self, loaded: Any) -> py_trees.common.Status:
         """Tick the tree as BT.CPP's ``tickOnce()`` (:func:`canguard.bt.wakeup.tick_once`), noting whether the
@@ -133,9 +117,8 @@ class QuietTicks:
         self.writes = not self._writers.isdisjoint(self.ticked)
 
     def _horizon(self) -> float:
-        """The earliest time after the fixed point at which time alone may change what a tick sees (part 3):
-        a signal fresh at it goes stale ``max_age`` after its latest sample, the timers (:meth:`_timer_horizon`)
-        end when they end; a signal stale at it changes what a tick sees only with a sample, an edge."""
+        """The earliest time after the fixed point at which time alone may change what a tick sees (part 3): a
+        fresh signal goes stale, a timer ends (a stale signal changes only with a sample, an edge)."""
         horizon = self._timers
         assert self._fresh is not None
         for health, role in self._fresh:
@@ -146,9 +129,8 @@ class QuietTicks:
         return horizon - MARGIN_S
 
     def reach(self, coming: Mapping[tuple[int, str], Any]) -> float:
-        """The horizon (:meth:`_horizon`) with the rows a block still holds (``coming``: by (``id`` of a source's
-        health, role), the times of its samples still to be taken): a signal fresh at the fixed point stays fresh
-        through them up to the first gap over ``max_age``. -inf: no fixed point."""
+        """:meth:`_horizon` with the rows a block still holds (``coming``: their times by (``id`` of a health, role)):
+        a fresh signal stays fresh through them up to the first gap over ``max_age``. -inf: no fixed point."""
         if self._fresh is None:
             return -math.inf
         horizon = self._timers
