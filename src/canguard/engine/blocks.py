@@ -31,7 +31,6 @@ class MessagePlan:
         self.counters = counters
         self.stats = stats
         self.ctx = ctx
-        self.frame_id = int(entry.message.frame_id)
         self.names = [(out.source, out.role) for out in entry.outputs]  # in a decoded row's order
         self.outputs = [(role, ctx.health[source], tuple(ctx.subscribers(source, role)), ctx.journals(source, role))
                         for source, role in self.names]

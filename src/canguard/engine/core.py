@@ -266,14 +266,10 @@ class Engine:
         if (self.metrics is None and self.tick_hook is None and self.observer is None and not quiet.writes
                 and not self.gate.confirm_pending and quiet.may_skip(self.next_tick_t) and quiet.until > due):
             until = quiet.until if quiet.until > end_t else quiet.reach(coming())
-            return max(due, min(until, self._heat_due()))
+            if self.heat is not None and self.save_heat and self.ctx.heat_models:  # a save due at a tick
+                until = min(until, float(self.heat.next_save_t(self.cfg.state.save_period_s)))
+            return max(due, until)
         return due
-
-    def _heat_due(self) -> float:
-        """From when the heat is saved again at a tick (inf: never; -inf: at the next tick)."""
-        if self.heat is None or not self.save_heat or not self.ctx.heat_models:
-            return math.inf
-        return float(self.heat.next_save_t(self.cfg.state.save_period_s))
 
     def next_due(self) -> float:
         """The next time the engine has something to do (a tick or a gate deadline)."""

@@ -61,8 +61,6 @@ class EventJournal:
         self.max_bytes = int(max_bytes)
         self.backups = backups
         self.lines = 0  # events accepted by :meth:`write` (also when ``path`` is None)
-        self.bytes_written = 0
-        self.rotations = 0
         self.errors = 0  # disk errors (each logged; only the first of a run at WARNING)
         self.dropped = 0  # lines that overflowed the in-memory backlog
         self._fd: int | None = None
@@ -72,7 +70,6 @@ class EventJournal:
         self._pending: deque[bytes] = deque()
         self._torn = False
         self._torn_at = 0
-        self.cut_lines = 0  # partial lines cut back out of the file after a short write
         self.to_stderr = 0  # lines that went to stderr instead of the file
         self._failing = False
         self._lock = threading.Lock()
@@ -138,7 +135,6 @@ class EventJournal:
                 self._backup(i).unlink()
                 i += 1
         self._fsync_dir()
-        self.rotations += 1
         self._open()
 
     def _drain(self) -> None:
@@ -178,7 +174,6 @@ class EventJournal:
         os.ftruncate(self._fd, self._torn_at)
         self._size = self._torn_at
         self._torn = False
-        self.cut_lines += 1
 
     def _failed(self, exc: OSError, what: str) -> None:
         self.errors += 1
@@ -206,7 +201,6 @@ class EventJournal:
             if self._closed:
                 raise ValueError("write to a closed EventJournal")
             self.lines += 1
-            self.bytes_written += len(line)
             if self.path is None:
                 return
             self._pending.append(line)
