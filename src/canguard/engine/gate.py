@@ -111,8 +111,7 @@ class TaskGate:
 
     # -- driven by the engine --------------------------------------------------------------
     def stop(self, now: float, reason: str | Callable[[], str], node: str = "") -> None:
-        """Stop the task (idempotent): stop frames at once, then every ``stop.repeat``; ``reason`` (a callable: asked
-        after the send) and the ``stop`` event follow."""
+        """Stop the task (idempotent): stop frames at once, then ``reason`` (a callable: asked after the send)."""
         if self.state == self.STOPPED:
             return
         self.state = self.STOPPED

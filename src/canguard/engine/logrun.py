@@ -212,8 +212,7 @@ class LogRun:
         self.stats.backward_frames += before - bisect_left(picked, before) + bisect_left(picked, behind)
 
     def _configured(self, block: Block, buses: list[str], lanes: Any) -> tuple[Any, Any, Any, Any]:
-        """(plans, the block's rows of configured messages, the keys its plans are looked up by, each row's
-        channel (an index into ``buses``) when its channels go to several buses, else None)."""
+        """(plans, the block's configured rows, their lookup keys, each row's index into ``buses`` or None)."""
         keys = block.keys
         if len(buses) == 1 or buses.count(buses[0]) == len(buses):
             plans, table = self._table((buses[0],))
@@ -326,8 +325,7 @@ class LogRun:
             lo = k + 1
 
     def _table(self, buses: tuple[str, ...]) -> tuple[dict[int, MessagePlan | None], _Keys]:
-        """The plans of the messages configured on ``buses`` (channel ``c``'s id key ``k`` at ``k + c * LANE``) and
-        their keys, made at their first block."""
+        """The plans of the messages on ``buses`` (channel ``c``'s key ``k`` at ``k + c * LANE``), and their keys."""
         known = self._tables.get(buses)
         if known is None:
             if len(buses) == 1:  # None: a message with a source not in the tree's context
@@ -410,8 +408,7 @@ class LogCursor:
 
 
 def _key_table(plans: Mapping[int, Any]) -> _Keys:
-    """The integer keys of ``plans``: a table of the standard ones (:data:`_STANDARD` entries per channel); all,
-    sorted; all, as a set."""
+    """The keys of ``plans``: a table of the standard ones per channel; all, sorted; all, as a set."""
     import numpy as np
 
     known = list(plans)

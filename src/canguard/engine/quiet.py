@@ -1,32 +1,23 @@
 """Quiet ticks: a grid tick proven to repeat the last one is counted, not run (live and in replay).
 
-A long replay (and the daemon, all day) ticks a tree that answers the same thing 100 times a
-second. A grid tick is skipped only when it is *proven* to be an exact repetition of the last
-tick that ran, so that no event, frame or summary field changes. The proof has three parts:
+A grid tick is skipped only when it is *proven* an exact repetition of the last tick that ran, so that
+no event, frame or summary field changes:
 
-1. **The tree cannot tell two ticks apart.** Every node the tick reached is of a type that
-   declares ``QUIET_RETICK`` (no timer, counter, memory or output of its own: sequences and
-   fallbacks, Inverter, ForceSuccess/Failure, AlwaysSuccess/Failure, ExecuteTask, the guards),
-   carries no pre/post condition, reads no ``{key}`` and writes none but what its quiet re-tick
-   writes again (an I²t guard's ``level``); a guard's models change state only at samples (the
-   contract of every protection model: :mod:`canguard.protect.base`). Nodes the tick did not
-   reach may be anything. No metrics, no tick hook.
-2. **The last tick was a fixed point.** It left every node with the status, feedback, position
-   and SKIPPED flag the tick before it left, wrote no event, and left the task gate in the same
-   state, inhibits and cause, in a state whose release rule does not wait on time (running, or
-   held by a failing tree or an inhibit).
-3. **No input changed since.** Every sample that changes what a guard answers is an edge, and an
-   edge ticks the tree at once for real; no event was written since; and no time-driven change
-   is due: each source's freshness deadline (its roles' latest sample + ``max_age``), the start
-   windows, and the "guards left behind" deadline of a guard the fixed point did not reach all
-   lie after the tick (by a microsecond's margin against rounding). Samples taken since move the
-   freshness deadlines on (drawn again at the first of them), and a block's rows still to come
-   move them on as far as they keep every such signal fresh (:meth:`QuietTicks.reach`).
+1. **The tree cannot tell two ticks apart.** Every node the tick reached declares ``QUIET_RETICK`` (no
+   timer, counter, memory or output of its own), carries no pre/post condition, reads no ``{key}`` and
+   writes none but what its quiet re-tick writes again (an I²t guard's ``level``); a guard's models change
+   state only at samples (:mod:`canguard.protect.base`). No metrics, no tick hook.
+2. **The last tick was a fixed point.** It left every node's status, feedback, position and SKIPPED flag
+   as the tick before it did, wrote no event, and left the gate's state, inhibits and cause unchanged, in
+   a state whose release rule does not wait on time (running, or held by a failing tree or an inhibit).
+3. **No input changed since.** A sample that changes what a guard answers is an edge, which ticks the
+   tree for real; no event was written since; and every time-driven change (a source's freshness
+   deadline, the start windows, a guard's "left behind" deadline) lies after the tick, by a
+   microsecond's margin. Samples taken since, and a block's rows still to come
+   (:meth:`QuietTicks.reach`), move the freshness deadlines on.
 
-A skipped tick still does what a tick does outside the tree: it is counted, it marks the guards
-it would have ticked as ticked (``judged_t``), an I²t guard writes its wired ``level`` again, and
-it services the gate's periodic frames at its own time. It is one policy: the live daemon and a
-replay count the same ticks.
+A skipped tick is still counted, marks the guards it would have ticked (``judged_t``), writes an I²t
+guard's ``level`` again and services the gate at its own time: the daemon and a replay count the same ticks.
 """
 
 from __future__ import annotations
@@ -50,8 +41,7 @@ MARGIN_S = 1e-6
 
 
 class QuietTicks:
-    """The proof that a grid tick repeats the last one (see the module docstring), kept tick by tick: the engine
-    asks it (:meth:`may_skip`, :attr:`until`) and tells it about every tick that ran (:meth:`after_tick`)."""
+    """The proof that a grid tick repeats the last one, kept tick by tick (see the module docstring)."""
 
     def __init__(self, root: py_trees.behaviour.Behaviour, ctx: Context, gate: TaskGate, journal: Journal,
                  engine: Engine) -> None:
@@ -78,8 +68,7 @@ class QuietTicks:
         self.writes = False
 
     def tick_root(self, loaded: Any) -> py_trees.common.Status:
-        """Tick the tree as BT.CPP's ``tickOnce()`` (:func:`canguard.bt.wakeup.tick_once`), noting whether the
-        tick reached a loud node; the root's status."""
+        """Tick the tree as BT.CPP's ``tickOnce()``, noting whether the tick reached a loud node; the root's status."""
         ticked = tick_once(loaded, collect=bool(self.loud))
         if ticked.reached is not None:
             self._heard = not self.loud.isdisjoint(ticked.reached)
