@@ -15,8 +15,7 @@ NEEDS = ("rosbags", "pip install 'canguard[rosbags]'")
 
 @dataclass(frozen=True)
 class BagOptions:
-    """What a replay asks of a bag besides its path: the ``--topic`` s to read (empty: every topic of a CAN frame
-    type) and the ``--stamp`` (:data:`STAMPS`)."""
+    """What a replay asks of a bag: the ``--topic`` s (empty: every CAN frame topic) and the ``--stamp``."""
 
     topics: tuple[str, ...] = ()
     stamp: str = "header"
@@ -30,6 +29,5 @@ def is_bag(path: Path) -> bool:
 
 
 def emits_bag(path: Path) -> bool:
-    """``--emit`` writes a bag to ``path`` (an ``.mcap`` file, or a rosbag2 directory: no suffix), not candump text
-    (:mod:`canguard.io.bagwrite`)."""
+    """``--emit`` writes a bag to ``path`` (``.mcap``, or a directory: no suffix), not candump text."""
     return path.suffix.lower() == ".mcap" or not path.suffix

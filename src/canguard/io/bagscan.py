@@ -1,11 +1,7 @@
 """A bag file's messages a chunk at a time, as arrays: where each message's bytes lie, its channel, its log time.
 
-MCAP (:class:`McapScan`) and ROS 1 bags (format 2.0, :class:`Ros1Scan`). A chunk is decompressed once and its
-message records are found at once where they all have one length (a CAN topic's messages do), one by one only where
-they do not: a Python object per message would cost more than the whole replay of the same frames from candump text.
-A file is read from its start, so one cut short (a recorder that died) gives every chunk before the cut, then
-:class:`McapCut` saying where it ends; a whole file's summary (MCAP) or index (ROS 1) is read first, so the channels
-are known before the first message, a cut file's as their records are met.
+MCAP and ROS 1 bags, no Python object per message, read from the start: one cut short gives every chunk before the
+cut, then :class:`McapCut` saying where it ends.
 """
 
 from __future__ import annotations
@@ -79,8 +75,7 @@ def uint_at(buf: np.ndarray, at: np.ndarray, size: int) -> np.ndarray:
 
 
 def decompressed(compression: str, data: bytes, size: int, at: int) -> bytes:
-    """A chunk's records (MCAP: zstd or lz4; ROS 1: bz2 or lz4; ``size``: the uncompressed size, 0 unknown),
-    with ``lz4`` and ``zstandard``, rosbags' own dependencies. McapCut when it does not decompress."""
+    """A chunk's records (``size``: uncompressed, 0 unknown); McapCut when it does not decompress."""
     try:
         if compression in ("", "none"):
             return data
@@ -337,8 +332,7 @@ class Ros1Scan:
                 self.f.seek(dlen, 1)
 
     def _chunk(self, data: bytes) -> Iterator[Messages]:
-        """The message records of a chunk's records (none, or one :class:`Messages`; its connection records taken
-        on the way)."""
+        """The message records of a chunk (none, or one :class:`Messages`), its connection records taken."""
         size = len(data)
         buf = padded(data)
         rows: list[tuple[int, int, int, int]] = []  # conn, time (ns), start, length
@@ -366,8 +360,7 @@ class Ros1Scan:
 
 def _same_shape(buf: np.ndarray, size: int, pos: int, hlen: int, dlen: int,
                 fields: dict[bytes, tuple[int, bytes]]) -> Messages | None:
-    """The message records from ``pos`` to the chunk's end, when each has the first one's lengths and its
-    ``op`` field at the same place."""
+    """The message records from ``pos`` to the chunk's end, when each has the first one's lengths and ``op``."""
     step = 8 + hlen + dlen
     if (size - pos) % step or b"conn" not in fields or b"time" not in fields:
         return None

@@ -1,9 +1,4 @@
-"""``replay --emit FILE.mcap`` / ``--emit DIR``: the frames canguard would send, as a bag ``ros2 bag play`` sends.
-
-Each frame is a ``can_msgs/msg/Frame`` on ``/to_can_bus`` (CAN FD: ``ros2_socketcan_msgs/msg/FdFrame`` on
-``/to_can_bus_fd``, the topics ros2_socketcan's sender takes), stamped and recorded at the time canguard sent it.
-``FILE.mcap`` is written by :class:`~canguard.io.mcapwrite.McapWriter`, a rosbag2 directory by ``rosbags``.
-"""
+"""``replay --emit FILE.mcap`` / ``--emit DIR``: the frames canguard would send, as a bag ``ros2 bag play`` sends."""
 
 from __future__ import annotations
 

@@ -1,10 +1,7 @@
 """Is a BLF log whole? Its file header and object headers say how much should follow.
 
-python-can's BLF reader stops quietly where the file stops: a log cut in half replays as half a log.
-:class:`BlfLength` sits between the file and python-can's reader and follows the framing as it is read (the file
-header gives its own size and the whole file's; each ``LOBJ`` header its object's, then ``size % 4`` padding), so
-at the end :meth:`BlfLength.cut` tells whether the file ended inside a header or an object, or before the size the
-file header records (a writer that never filled that in records nothing to hold the file to).
+python-can's BLF reader stops quietly where the file stops (a log cut in half replays as half a log):
+:class:`BlfLength` follows the headers as python-can reads, and says where it was cut.
 """
 
 from __future__ import annotations
@@ -64,18 +61,15 @@ class BlfLength:
         self.raw.close()
 
     def write(self, data: bytes) -> int:
-        """Refused, as by any file opened for reading; python-can before 4.6 takes an object for a file (and not
-        for a path to open) only when it has both ``read`` and ``write``."""
+        """Refused (python-can before 4.6 takes an object for a file only when it has ``read`` and ``write``)."""
         raise io.UnsupportedOperation("write")
 
     def note_file_size(self, file_size: int) -> None:
-        """The file size the file header records (python-can's reader has it; a writer that never came back to fill
-        it in leaves the header's own size there): held against the end."""
+        """The file size the file header records (python-can's reader has it), held against the end."""
         self.file_size = file_size if file_size > self._header_size else 0
 
     def cut(self) -> str:
-        """Why the file read so far is not whole ("" when it is, when its end has not been reached, or when it is
-        not BLF framing at all: python-can's reader says what is wrong then)."""
+        """Why the file read so far is not whole ("" when it is, not ended yet, or not BLF framing at all)."""
         if not self.ended or self._lost:
             return ""
         if not self._header_size or self.pos < self._header_size:

@@ -1,9 +1,6 @@
 """One block of CAN frames as numpy columns: what every log reader and the live drain give the engine.
 
-A :class:`Block` holds ``n`` frames in time order as read (a log's block of thousands, a live
-bus's drained queue, a frame on a quiet bus: a block of one). Every reader builds the same type
-(candump, ASC, BLF, TRC, CSV, MF4, bags); the engine reads its columns and never asks which format
-it came from. The columns::
+``n`` frames in order as read (a live frame: a block of one); the engine never asks which format it came from::
 
     time_s     float64 (n,)    the frame's time in the log's (live: the bus's) time base, seconds
     can_id     uint32  (n,)    the arbitration id, without flags (an error frame's id without CAN_ERR_FLAG)
@@ -12,10 +9,8 @@ it came from. The columns::
     dlc        uint8   (n,)    the data length code as python-can's ``Message.dlc`` gives it: the payload's
                                length, or what a remote frame asks for, or a classic raw DLC of 9..15
     length     uint8   (n,)    payload bytes
-    payload    uint8   (n, w)  each row's payload in its first ``length`` bytes, zeros after; ``w`` is the
-                               longest payload of the block (0 when every frame is empty); a reader may
-                               give a :class:`PayloadSource` instead, read at first use, and
-                               :meth:`Block.payload_rows` reads the rows asked for alone
+    payload    uint8   (n, w)  each row's payload in its first ``length`` bytes, zeros after (``w``: the longest);
+                               or a :class:`PayloadSource`, read at first use (:meth:`Block.payload_rows`)
     channel    uint16  (n,)    each row's index into ``channels``
     channels   tuple[str]      the channel names (``can0``; live: the bus name)
 
@@ -63,8 +58,7 @@ _T = TypeVar("_T")
 
 
 class _cached(Generic[_T]):  # a decorator, as functools.cached_property
-    """A value computed at first use and kept in the instance (functools.cached_property without its lock,
-    which costs a live block of one more than the value)."""
+    """Computed at first use and kept in the instance (functools.cached_property without its lock's cost)."""
 
     def __init__(self, fn: Callable[[Any], _T]) -> None:
         self.fn = fn
@@ -81,16 +75,14 @@ class PayloadSource(Protocol):
     """A block's payloads not yet made into bytes (a candump block's hex digits): rows made when read."""
 
     def rows(self, rows: Any) -> np.ndarray:
-        """The payloads of ``rows`` (an index array or a slice) as a uint8 matrix, one row each: the payload in its
-        first ``length`` bytes, zeros after; as wide as the longest of them."""
+        """The payloads of ``rows`` (index array or slice), zero-padded to the longest of them."""
 
     def one(self, i: int) -> bytes:
         """Row ``i``'s payload."""
 
 
 def frame_from_message(msg: can.Message, channel: str | None = None) -> Frame:
-    """Convert a ``can.Message`` to a :class:`Frame` (``channel`` overrides the message's). A remote frame keeps
-    its DLC; a data frame's DLC is -1 when it is the data's length."""
+    """A ``can.Message`` as a :class:`Frame` (``channel`` overrides the message's; ``dlc`` as :class:`Frame` says)."""
     data = bytes(msg.data) if msg.data is not None else b""
     dlc, remote = msg.dlc, bool(msg.is_remote_frame)
     return _new(Frame, (float(msg.timestamp or 0.0), channel_name(msg.channel) if channel is None else channel,
@@ -110,8 +102,7 @@ def channel_name(channel: Any) -> str:
 
 @dataclass(frozen=True, eq=False)
 class Block:
-    """``n`` CAN frames as numpy columns (see the module docstring); a reader of columns builds one
-    with the constructor, of frames with :meth:`of_frames`, of python-can messages with :meth:`of_messages`."""
+    """``n`` CAN frames as numpy columns (see the module docstring); also :meth:`of_frames`, :meth:`of_messages`."""
 
     time_s: np.ndarray
     can_id: np.ndarray
@@ -148,8 +139,7 @@ class Block:
 
     @classmethod
     def of_messages(cls, msgs: Sequence[can.Message], channel: str | Sequence[str] | None = None) -> Block:
-        """python-can messages as a block, field for field (``channel`` overrides each message's, or names each
-        message's in turn (a live batch of several buses); python-can's integer channels are named ``canN``)."""
+        """python-can messages as a block (``channel``: one for all, or one per message; ints named ``canN``)."""
         if len(msgs) == 1:  # a live frame
             return one_block(frame_from_message(msgs[0], channel if channel is None or type(channel) is str
                                                 else channel[0]))
@@ -181,8 +171,7 @@ class Block:
         return source if isinstance(source, np.ndarray) else source.rows(slice(None))
 
     def payload_rows(self, rows: Any) -> np.ndarray:
-        """:attr:`payload`'s ``rows`` (an index array), as wide as the longest of them or wider; made for these
-        rows alone while :attr:`payload` is not made."""
+        """:attr:`payload`'s ``rows`` (an index array), made for these rows alone while :attr:`payload` is not."""
         source = self._made_payload()
         return source[rows] if isinstance(source, np.ndarray) else source.rows(rows)
 
@@ -247,8 +236,7 @@ class Block:
         return self.payload_source if made is None else made
 
     def frames(self) -> Iterator[Frame]:
-        """Every row as a :class:`Frame`, in order (each column converted once: what :meth:`frame` gives row by row,
-        at a fraction of its cost)."""
+        """Every row as a :class:`Frame`, in order (each column converted once)."""
         n = self.n
         flags = self.flags
         length = self.length.astype(np.int64)
@@ -347,8 +335,7 @@ def _of_frames(frames: Sequence[Frame]) -> Block:
 def _rows(times: Sequence[float], ids: Sequence[int], ext: Sequence[bool], flags: Sequence[int],
           dlcs: Sequence[int], datas: Sequence[bytes], chans: Sequence[str],
           lengths: list[int] | None = None) -> Block:
-    """Rows gathered one by one (frames, python-can messages) as a block; a row that is no CAN frame (an id
-    beyond 32 bits, a DLC or payload beyond 255) is a LogFormatError."""
+    """Rows gathered one by one as a block; a row that is no CAN frame is a LogFormatError."""
     if lengths is None:
         lengths = list(map(len, datas))
     width = max(lengths, default=0)

@@ -1,40 +1,13 @@
 """Open the configured python-can buses and receive from them without losing frames.
 
-:func:`open_bus` opens one :class:`~canguard.config.schema.BusConfig` with ``can.Bus``
-(any interface python-can supports), turning a failure into a
-:class:`~canguard.errors.BusError` that names the bus and the interface.
-
-:class:`BusReader` receives in one of two ways; :meth:`BusReader.receive` gives
-``(bus_name, message, received)`` (python-can's message as received: the daemon builds its block of them)
-in arrival order either way:
-
-- **Direct** (``direct=True`` and every bus has a socket (:func:`bus_fileno`): SocketCAN,
-  udp_multicast): no thread. The caller's thread waits on the buses' sockets with
-  ``select`` until a frame arrives or its own deadline passes, then drains what the
-  kernel holds with ``recv(0)`` (a poll of the socket after the first frame: a frame
-  alone costs no ``recv`` that finds none). The kernel's socket buffer is the receive
-  queue, so a frame costs no thread hand-off: no queue, no waiting for the GIL held by
-  another thread. ``received`` is the kernel's receive stamp (on ``time.monotonic()``'s
-  base) whenever the bus stamps with the wall clock, so a wait in the kernel's buffer
-  counts as a wait.
-- **Threads** (otherwise: python-can's ``virtual`` bus, vendor drivers with their own
-  queues): one daemon thread per bus does nothing but ``bus.recv(timeout)`` and put the message
-  on one unbounded :class:`queue.SimpleQueue`, so no frame is dropped while the engine is busy;
-  ``received`` is when the thread got it.
-
-**Filters.** ``wanted`` names, per bus, the id keys of the frames the config reads
-(:func:`receive_keys`; None: every frame). On SocketCAN they go to the kernel as python-can's
-``can_filters`` (:func:`kernel_filters`): a foreign frame never wakes the daemon. Either way
-:func:`wants` drops a foreign message before anything is built of it (on interfaces without kernel
-filters: python-can's own check would drop error frames, and costs a comparison a filter);
-error frames always pass.
-
-Each frame keeps the message's kernel / hardware timestamp. A receive error is
-logged on ``canguard.io.bus``, handed to ``on_error(bus_name, exc)``, and the bus is
-closed and reopened with exponential backoff (``backoff_min_s`` .. ``backoff_max_s``,
-reset by the next frame received): never a silent hang, never a dead thread. In the
-direct way a reopen is tried from :meth:`BusReader.receive` when its delay has passed,
-so the caller never sleeps through a backoff.
+:meth:`BusReader.receive` gives ``(bus_name, message, received)`` in arrival order, one of two ways:
+- **Direct** (``direct=True``, every bus a socket): no thread; the caller ``select``s on the sockets and drains them
+  with ``recv(0)``: the kernel's buffer is the queue (no thread hand-off, no wait for the GIL).
+- **Threads** (otherwise: ``virtual``, vendor drivers): one thread per bus puts each message on an unbounded
+  :class:`queue.SimpleQueue`, so no frame is dropped while the engine is busy.
+Per bus the id keys the config reads go to SocketCAN as kernel filters (a foreign frame never wakes the daemon);
+:func:`wants` drops foreign frames on any interface. A receive error is logged, handed to ``on_error``, and the bus
+reopened with exponential backoff: never a silent hang, never a dead thread.
 """
 
 from __future__ import annotations
@@ -73,8 +46,7 @@ KERNEL_FILTERS_MAX = 512
 
 
 def receive_keys(cfg: Config) -> dict[str, frozenset[int] | None]:
-    """Per bus of ``cfg``, the id keys of the frames the config reads (each source's messages, a CANopen drive's
-    PDOs, heartbeat and EMCY); None for a bus with ``filter: false``."""
+    """Per bus of ``cfg``, the id keys of the frames the config reads; None for a bus with ``filter: false``."""
     keys: dict[str, set[int]] = {name: set() for name in cfg.buses}
     for source in cfg.sources.values():
         for ref in source.signals:
@@ -83,8 +55,7 @@ def receive_keys(cfg: Config) -> dict[str, frozenset[int] | None]:
 
 
 def kernel_filters(keys: Iterable[int]) -> list[CanFilter]:
-    """python-can ``can_filters`` passing exactly the frames of ``keys``: each id under a full mask, with its
-    extended flag (SocketCAN then matches the frame format too)."""
+    """python-can ``can_filters`` passing exactly the frames of ``keys`` (each id, full mask, its extended flag)."""
     return [{"can_id": k - EXT_KEY, "can_mask": 0x1FFFFFFF, "extended": True} if k >= EXT_KEY
             else {"can_id": k, "can_mask": 0x7FF, "extended": False} for k in sorted(keys)]
 
@@ -96,8 +67,7 @@ def wants(keys: frozenset[int] | None, msg: can.Message) -> bool:
 
 
 def open_bus(cfg: BusConfig) -> can.BusABC:
-    """Open ``cfg`` with ``can.Bus(**cfg.kwargs)``; a :class:`BusError` naming the bus, interface and channel
-    (chained to python-can's own exception) when it does not open."""
+    """Open ``cfg`` with ``can.Bus``; a :class:`BusError` naming bus, interface and channel when it does not open."""
     try:
         bus = can.Bus(**dict(cfg.kwargs))
     except Exception as exc:  # python-can raises CanError, OSError, ImportError, ValueError... per backend
@@ -132,12 +102,8 @@ def enlarge_receive_buffer(bus: can.BusABC, name: str, size: int = RECEIVE_BUFFE
 
 
 def bus_fileno(bus: can.BusABC) -> int:
-    """The socket ``select`` can wait on for ``bus``'s frames, or -1 when it has none.
-
-    Only a socket counts (SocketCAN, udp_multicast: the kernel holds every frame until python-can
-    reads it). A serial adapter's descriptor (slcan, serial) does not: python-can reads several
-    frames from it at once and keeps the rest, which a ``select`` on the descriptor cannot see.
-    """
+    """The socket ``select`` can wait on for ``bus``'s frames, or -1. Only a socket: python-can reads several frames
+    from a serial adapter's descriptor at once and keeps the rest, which ``select`` cannot see."""
     try:
         fd = bus.fileno()
         if not isinstance(fd, int) or fd < 0 or not stat.S_ISSOCK(os.fstat(fd).st_mode):
@@ -148,15 +114,11 @@ def bus_fileno(bus: can.BusABC) -> int:
 
 
 WALL_STAMP_S = 1.0
-"""A bus one of whose frames has a stamp this close to the wall clock stamps with it: from that frame on,
-its stamps are taken as arrival times. Until then (a bus that stamps otherwise, or a daemon starved for
-longer than this when its first frames came) its frames arrive when canguard receives them."""
+"""A frame stamped this close to the wall clock: the bus stamps with it, its stamps are arrival times from then on."""
 
 
 class BusReader:
-    """Receives from every configured bus (see the module docstring): a context manager, or :meth:`start` and
-    :meth:`stop`; frames come from :meth:`receive`. Counters by bus name: :attr:`received`, :attr:`sent`,
-    :attr:`send_failures`, :attr:`recv_errors`, :attr:`reopens`."""
+    """Receives from the configured buses (a context manager); per bus: received, sent, send_failures, reopens."""
 
     def __init__(
         self,
@@ -198,13 +160,11 @@ class BusReader:
         self.received: dict[str, int] = dict.fromkeys(self.configs, 0)
         self.sent: dict[str, int] = dict.fromkeys(self.configs, 0)
         self.send_failures: dict[str, int] = dict.fromkeys(self.configs, 0)
-        self.recv_errors: dict[str, int] = dict.fromkeys(self.configs, 0)
         self.reopens: dict[str, int] = dict.fromkeys(self.configs, 0)
 
     # -- life cycle --------------------------------------------------------
     def start(self) -> None:
-        """Open every bus, then start one receive thread per bus (none when receiving directly); a :class:`BusError`
-        for the first bus that does not open (the buses already opened are shut down again)."""
+        """Open every bus and start its receive thread (none when direct); BusError for the first that does not open."""
         if self._started:
             raise RuntimeError("BusReader already started")
         self._stop.clear()
@@ -267,8 +227,7 @@ class BusReader:
         return bus
 
     def _filter(self, name: str, bus: can.BusABC) -> None:
-        """On SocketCAN (and no ``can_filters`` of the config's own), :attr:`wanted`'s ids as the kernel's filters:
-        every frame when they are None, empty or too many for the kernel (:func:`wants` filters them then)."""
+        """On SocketCAN (no ``can_filters`` of its own): :attr:`wanted` as kernel filters, or all when too many."""
         cfg = self.configs[name]
         if cfg.interface != "socketcan" or "can_filters" in cfg.kwargs:
             return
@@ -277,8 +236,7 @@ class BusReader:
 
     # -- consuming ---------------------------------------------------------
     def receive(self, timeout_s: float | None, limit: int) -> list[tuple[str, can.Message, float]]:
-        """Up to ``limit`` frames as ``(bus_name, message, received)`` in arrival order, waiting up to ``timeout_s``
-        (None: without end) for the first; ``received`` is on ``time.monotonic()``'s base. Empty on timeout."""
+        """Up to ``limit`` ``(bus_name, message, received)`` in arrival order, waiting ``timeout_s`` for the first."""
         if self.direct:
             return self._receive_direct(timeout_s, limit)
         try:
@@ -296,8 +254,7 @@ class BusReader:
 
     # -- sending -----------------------------------------------------------
     def send(self, bus_name: str, msg: can.Message) -> bool:
-        """Send ``msg`` on ``bus_name`` without blocking: True when the bus took it; a failure (unknown or closed
-        bus, full transmit buffer...) is counted in :attr:`send_failures` and logged, never raised."""
+        """Send ``msg`` without blocking: True when the bus took it; a failure is counted and logged, never raised."""
         bus = self._buses.get(bus_name)
         if bus is None:
             self.send_failures[bus_name] = self.send_failures.get(bus_name, 0) + 1
@@ -313,8 +270,7 @@ class BusReader:
 
     # -- receiving directly -------------------------------------------------
     def _receive_direct(self, timeout_s: float | None, limit: int) -> list[tuple[str, can.Message, float]]:
-        """Wait on the open buses' sockets, then drain each ready one with ``recv(0)``; reopen buses due. A wake-up
-        that brought only foreign frames waits again, until ``timeout_s`` is over."""
+        """Wait on the open buses' sockets, drain the ready ones, reopen those due; until ``timeout_s`` is over."""
         end = math.inf if timeout_s is None else monotonic() + timeout_s
         while not self._stop.is_set():
             out = self._wake(timeout_s, limit)
@@ -327,8 +283,7 @@ class BusReader:
         return []
 
     def _wake(self, timeout_s: float | None, limit: int) -> list[tuple[str, can.Message, float]] | None:
-        """One wait on the sockets and the drain of those ready: the frames taken; [] when none is ready in
-        ``timeout_s``, None when the ready ones held only frames :func:`wants` drops."""
+        """One wait and drain: the frames taken; [] when none is ready, None when the ready held only dropped frames."""
         buses = self._buses
         if None in buses.values():  # a bus closed: reopened when due, waited on until then
             now = monotonic()
@@ -355,11 +310,9 @@ class BusReader:
         return out if out or None in self._buses.values() else None
 
     def _drain_bus(self, name: str, limit: int, out: list[tuple[str, can.Message, float]]) -> None:
-        """Append up to ``limit`` frames the kernel holds for bus ``name``; a failure closes the bus.
-
-        System calls are what a frame costs here. A first frame that is dropped (:func:`wants`) ends the drain: the
-        next wait finds the socket ready at once if more came. After a first frame taken, a poll of the socket asks
-        whether there is another (cheaper than a ``recv(0)`` that finds none); after two, ``recv(0)`` until none."""
+        """Append up to ``limit`` frames the kernel holds for bus ``name``; a failure closes the bus. System calls
+        are the cost: a dropped first frame ends the drain; after one frame taken a poll (cheaper than a ``recv(0)``
+        that finds none) asks for another; after two, ``recv(0)`` until none."""
         bus = self._buses[name]
         assert bus is not None
         msgs: list[can.Message] = []
@@ -384,12 +337,10 @@ class BusReader:
             self.admit(name, msgs, out)
 
     def admit(self, name: str, msgs: list[can.Message], out: list[tuple[str, can.Message, float]]) -> None:
-        """Append the messages just received from bus ``name`` to ``out`` as ``(name, message, received)``; count
-        them.
+        """Append the messages just received from bus ``name`` to ``out`` as ``(name, message, received)``: the
+        kernel stamp on ``time.monotonic()``'s base (never after now) once the bus stamps with the wall clock
+        (:data:`WALL_STAMP_S`), else now."""
 
-        ``received`` is the message's kernel stamp on ``time.monotonic()``'s base (never after now) once the
-        bus is found to stamp with the wall clock (:data:`WALL_STAMP_S`), else now.
-        """
         now = monotonic()
         offset = time.time() - now  # wall clock minus monotonic: a wall-clock stamp to monotonic's base
         wall = self._wall_stamps[name]
@@ -435,7 +386,8 @@ class BusReader:
         while not stop.is_set():
             bus = self._buses[name]
             if bus is None:
-                if not self._reopen(name, delay):
+                if self._open_once(name, delay) is None:
+                    stop.wait(delay)
                     delay = min(delay * 2, self.backoff_max_s)
                 continue
             try:
@@ -455,7 +407,6 @@ class BusReader:
 
     def _failed(self, name: str, exc: BaseException) -> None:
         """Log and report a receive error and close the bus (the thread reopens it)."""
-        self.recv_errors[name] += 1
         cfg = self.configs[name]
         log.error(
             "bus %s (%s, channel %s): receive failed: %s; reopening", name, cfg.interface, cfg.channel, exc
@@ -469,12 +420,6 @@ class BusReader:
             bus, self._buses[name] = self._buses[name], None
         _shutdown(bus, name)
 
-    def _reopen(self, name: str, delay: float) -> bool:
-        """Try once to reopen ``name``; on failure wait ``delay`` (or until stopped)."""
-        if self._open_once(name, delay) is not None:
-            return True
-        self._stop.wait(delay)
-        return False
 
     def _open_once(self, name: str, delay: float) -> can.BusABC | None:
         """Try once to reopen ``name``; the bus, or None (logged, saying when the next try is)."""

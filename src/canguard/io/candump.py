@@ -1,11 +1,7 @@
 """candump text logs (``-L``, ``-l``, plain ``-ta``): read a block of lines at a time, written a line at a time.
 
-Blocks are parsed by numpy; -L lines are written by :func:`format_candump_line` (``--emit``) and
-:func:`write_candump` (``simulate --out``).
-
-The parser (:func:`canguard.io.candump_np.parse_block`) gives each block's frames and its bad
-lines; the reader names a bad line's file:line and says what is wrong with it
-(:func:`why_bad`: the checks of each field, in the order a reader of the line would make them)."""
+Blocks are parsed by :func:`canguard.io.candump_np.parse_block`; a bad line is named by file:line and :func:`why_bad`.
+"""
 
 from __future__ import annotations
 
@@ -35,12 +31,8 @@ from canguard.io.logtypes import (
     open_decompressed,
 )
 
-# --------------------------------------------------------------------------- candump text
-
-
 CHUNK_CHARS = 1 << 20
-"""Bytes per chunk (~22,000 -L lines): the engine's work per message and block spread over more rows; twice as
-many make the parser slower (its passes outgrow the caches)."""
+"""Bytes per chunk (~22,000 -L lines); twice as many make the parser slower (its passes outgrow the caches)."""
 
 _MARKERS = frozenset("TRtr")
 _HEX = "0123456789abcdefABCDEF"
@@ -191,8 +183,7 @@ def _as_text(block: bytes) -> str:
 
 
 def candump_blocks(p: Path, gz: str, skip_bad: bool, st: ReadStats) -> Blocks:
-    """The candump text reader's blocks, a block of whole lines at a time (a bad line raises, naming its file:line,
-    after the frames before it; with ``skip_bad`` it is counted)."""
+    """The candump reader's blocks of whole lines; a bad line raises naming its file:line (or, ``skip_bad``, counts)."""
     raw = open(p, "rb")  # noqa: SIM115 -- closed below
     files = [open_decompressed(raw, gz)]  # the last one is read (lines that end in a lone CR: read again)
     lineno = 0  # lines before the current block
@@ -224,8 +215,7 @@ def candump_blocks(p: Path, gz: str, skip_bad: bool, st: ReadStats) -> Blocks:
 
 
 def _text(p: Path, raw: Any, gz: str, files: list[Any], lineno: int) -> bytes:
-    """The next block of whole lines of the log (``files[-1]`` reading it; ``lineno``: the lines before), each
-    ending in a line break; b"" at the end."""
+    """The next block of whole lines (``files[-1]`` reading it; ``lineno``: lines before); b"" at the end."""
     longest = 4 * CHUNK_CHARS
     try:
         text: bytes = files[-1].read(CHUNK_CHARS)
@@ -257,12 +247,7 @@ def _line(raw: bytes, k: int) -> str:
 
 
 def format_candump_line(frame: Frame, default_channel: str = "can0") -> str:
-    """One candump -L line for ``frame``, without the newline (``default_channel`` for an empty channel).
-
-    ``(%.6f) channel ID#DATA``: 3 hex digits for standard ids, 8 for extended ids and error frames (with
-    CAN_ERR_FLAG), ``##F`` + data for CAN FD, ``R`` or ``R<dlc>`` for remote frames, ``_<dlc>`` for a classic raw
-    DLC above 8. ValueError for an id out of range or a channel with whitespace in it.
-    """
+    """One candump -L line for ``frame``, no newline; ValueError for an id out of range or a channel with spaces."""
     channel = frame.channel or default_channel
     if not channel or channel.split() != [channel]:
         raise ValueError(f"channel {channel!r} cannot be written to a candump log (empty or has whitespace)")

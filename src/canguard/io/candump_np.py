@@ -1,24 +1,11 @@
 """The candump text parser: a block of lines parsed by numpy into a :class:`~canguard.io.block.Block`.
 
-:func:`parse_block` reads every shape candump writes (``-L`` / ``-l``: ``(secs) channel ID#DATA``,
-CAN FD ``ID##FDATA``, remote ``ID#R`` / ``ID#R4``, a raw DLC ``ID#DATA_D``, error frames (the
-CAN_ERR_FLAG in an 8-digit id), a T/R marker; comments and blank lines; the long ``-ta``
-output, with ``-x`` columns, remote requests and ``ERRORFRAME``, which is first rewritten as
-``-L``; ``-e``'s indented lines under an error frame) with passes over the block's bytes, one
-per field, each a column over every line:
-
-* each line's fields are found where they are (the first ")" of the line, the spaces
-  after it, the "#" after the id), so timestamps, channel names and ids of any widths mix;
-* the timestamps as floats, each equal to Python's ``float()`` of its text: the digits make
-  an exact integer (below 2**53) divided by an exact power of ten, one correctly rounded
-  division (a longer one is converted by ``float()`` itself);
-* the ids read 8 bytes at a time (SWAR on little-endian words);
-* the payloads' lengths and kinds; their digits are checked with the ids' by one count over the block
-  (or, when a line fails, each line's), and left as text: a block's :class:`HexPayloads` makes the bytes
-  of the rows the engine reads (a configured message's), two hex digits at a time.
-
-Each check gives a column of verdicts; a line that fails one is a bad line, named by its index
-in the block (:attr:`Parsed.bad`): the reader names its file:line.
+:func:`parse_block` reads every shape candump writes (``-L`` / ``-l``, CAN FD, remote, raw DLC, error frames, T/R
+markers, comments; ``-ta`` lines, first rewritten as ``-L``; ``-e``'s indented lines) with one pass per field over
+the block's bytes: fields found where they are (any widths mix), timestamps equal to ``float()`` of their text (an
+exact integer over an exact power of ten), ids read 8 bytes at a time, hex digits checked by one count over the
+block, payloads left as text until a row is read (:class:`HexPayloads`). A line failing a check is a bad line,
+by its index in the block (:attr:`Parsed.bad`).
 """
 
 from __future__ import annotations
@@ -45,8 +32,7 @@ _LE64 = np.dtype("<u8")
 _LE16 = np.dtype("<u2")
 _NIBBLES = np.array([int(chr(c), 16) if chr(c) in "0123456789abcdefABCDEF" else 0 for c in range(256)], dtype=np.uint8)
 _PAIRS = ((_NIBBLES[None, :] << 4) | _NIBBLES[:, None]).ravel()
-"""By byte, its value as a hex digit (anything else: 0, refused by a check); :data:`_PAIRS`: by the little-endian
-16-bit word of two hex digits' bytes (the first digit in the low byte), the byte they spell."""
+"""By the little-endian word of two hex digits' bytes, the byte they spell (:data:`_NIBBLES`: each byte's digit)."""
 _EXACT = 1 << 53
 _NO_ROWS = np.zeros(0, dtype=np.intp)
 _ERR_FLAG = 0x20000000
@@ -80,8 +66,7 @@ _LONG_PLAIN = (rb"(?m)^\((\d{10,}\.\d+)\) ([^ \n]+) ([0-9A-Fa-f]{3}|[0-9A-Fa-f]{
                rb"(?: '[^\n]*)?$")
 _LONG_ANY = (rb"\((\d{10,}\.\d+)\) ([^ ]+) (?:([RT]X) ([B-]) ([E-]) )?([0-9A-Fa-f]{3}|[0-9A-Fa-f]{8}) \[(\d\d?)\]"
              rb"((?: [0-9A-Fa-f]{2})*)( remote request|(?: '.*)?| ERRORFRAME.*)")
-"""candump -ta lines: classic ones (each block of them rewritten at once), and any (a line at a time); compiled
-at first use (by :mod:`re`'s cache), not at every start."""
+"""candump -ta lines: classic ones (a block rewritten at once), and any (a line at a time)."""
 
 
 def _rewritten(raw: bytes) -> tuple[bytes, np.ndarray | None]:
@@ -111,8 +96,7 @@ def _rewritten(raw: bytes) -> tuple[bytes, np.ndarray | None]:
 
 
 def _loose_spaces(raw: bytes) -> bool:
-    """Two spaces in a row, or a space at a line's start or end, anywhere in ``raw`` (two-byte searches cost
-    ten times these passes)."""
+    """Two spaces in a row, or a space at a line's start or end, anywhere in ``raw``."""
     b = np.frombuffer(raw, dtype=np.uint8)
     space = b == 32
     if not space.any():
@@ -122,8 +106,7 @@ def _loose_spaces(raw: bytes) -> bool:
 
 
 def _compact(m: re.Match[bytes]) -> tuple[bytes, int]:
-    """A -ta line's fields (:data:`_LONG_ANY`) as a -L line, and its announced length (-1: a line the parser
-    must refuse, left as it was)."""
+    """A -ta line's fields as a -L line, and its announced length (-1: left as it was, refused)."""
     stamp, chan, _direction, brs, esi, cid, size, data, tail = m.groups()
     length = int(size)
     body = data.replace(b" ", b"")
@@ -206,11 +189,8 @@ def _indented(at: np.ndarray, rows_line: np.ndarray, errors: np.ndarray, bad: np
 
 class _Columns:
     """The fields of the lines from ``start`` to ``end`` (their newline), found and checked: :attr:`ok`.
-
-    ``whole``: every line of the block is one of these (no blank, comment or indented line): then one count
-    of the block's bytes that are not hex digits, held to what the fields found account for, proves at once
-    that the ids and payloads are hex digits (else each line's fields are counted on their own).
-    ``has_under``: the block has an underscore (a raw DLC's, maybe). ``opening``: each line's first byte.
+    ``whole`` (every line a frame's): one count of the block's non-hex bytes against what the fields account for
+    checks every id and payload at once. ``has_under``: the block has an "_". ``opening``: each line's first byte.
     """
 
     def __init__(self, b: np.ndarray, pad: np.ndarray, start: np.ndarray, end: np.ndarray, whole: bool,
@@ -266,8 +246,7 @@ class _Columns:
         return close, _after(np.flatnonzero(self.b == 32), close + 2, end)
 
     def _field_end(self, sp2: np.ndarray, end: np.ndarray) -> np.ndarray:
-        """Where each line's ID#DATA ends: its end, or the space before a T/R marker (a space anywhere else is
-        found by the count of what is not a hex digit)."""
+        """Where each line's ID#DATA ends: its end, or the space before a T/R marker."""
         pad = self.pad
         spaced = pad[end - 2] == 32
         if not spaced.any():
@@ -325,8 +304,7 @@ class _Columns:
         return (ext | (size == 3)) & np.where(ext, (value <= _U(_MAX_EXTENDED)) | err, low <= _U(_MAX_STANDARD))
 
     def _data(self, h1: np.ndarray, fe: np.ndarray) -> np.ndarray:
-        """The payloads after the "#": classic, CAN FD (``##F``), remote (``R``, ``R4``), raw DLC (``_D``); the checks
-        of each kind made only where the block has one."""
+        """The payloads after the "#" (classic, FD, remote, raw DLC), each kind checked only where present."""
         pad = self.pad
         after = pad[h1 + 1]
         fd = after == 35
@@ -408,8 +386,7 @@ class _Columns:
         return ok
 
     def _dot_place(self, start: np.ndarray, close: np.ndarray) -> int:
-        """Where the first line's timestamp has its dot (from the line's start), when every line's has one there;
-        else 0."""
+        """Where every line's timestamp has its dot, when it is where the first line's is; else 0."""
         if start.size:
             at = self.pad[int(start[0]):int(close[0])].tobytes().find(b".")
             if at > 0 and ((self.pad[start + at] == 46) & (start + at < close)).all():
@@ -487,8 +464,7 @@ class _Columns:
         return rank[lanes], [listed[k] for k in order.tolist()]
 
     def block(self, text: bytes, rows: np.ndarray) -> Block:
-        """The frames of ``rows`` (good lines of ``text``) as a block; their payloads read from ``text`` when asked
-        for (:class:`HexPayloads`)."""
+        """The frames of ``rows`` (good lines of ``text``) as a block (payloads: :class:`HexPayloads`)."""
         lanes, names = self.channels(rows)
         pick: Any = slice(None) if rows.size == self.start.size else rows  # every line: the columns as they are
         length = self.length[pick]
@@ -498,12 +474,7 @@ class _Columns:
 
 
 class HexPayloads:
-    """A block's payloads as the hex digits of its lines: the bytes of the rows asked for are made then, each
-    message's as wide as its longest (a block of CAN FD and classic frames makes no 64-byte row of a classic one).
-
-    ``text``: the block's text (``digits``: the same bytes as an array); ``start``: each row's first digit in it;
-    ``length``: each row's payload bytes (its digits checked by the parser).
-    """
+    """A block's payloads as its lines' hex digits (``start``: each row's first in ``text``), rows made when read."""
 
     __slots__ = ("digits", "length", "start", "text")
 
@@ -511,8 +482,7 @@ class HexPayloads:
         self.text, self.digits, self.start, self.length = text, digits, start, length
 
     def rows(self, rows: Any) -> np.ndarray:
-        """The bytes of ``rows``' digits (an index array, or a slice): a ``len(rows) x longest`` matrix, zeros past
-        each one's length."""
+        """The bytes of ``rows``' digits as a ``len(rows) x longest`` matrix, zeros past each one's length."""
         start = self.start[rows]
         length = self.length[rows]
         width = int(length.max()) * 2 if start.size else 0
@@ -546,12 +516,9 @@ _VOIDS: dict[int, np.dtype] = {}
 
 
 def _buffer(name: str, count: int, dtype: type) -> np.ndarray:
-    """This thread's scratch array ``name``, ``count`` items, kept from block to block.
+    """This thread's scratch array ``name``, ``count`` items, kept from block to block (a process that gives freed
+    memory back at once would fault a new block-sized array in page by page, every block)."""
 
-    A block's passes over its bytes then make no new block-sized array, which a process that
-    gives freed memory back to the kernel at once (Dask starts its workers with
-    ``MALLOC_TRIM_THRESHOLD_`` set) would fault in again page by page, every block.
-    """
     have: np.ndarray | None = getattr(_LOCAL, name, None)
     if have is None or have.size < count:
         have = np.empty(count + count // 4 + 64, dtype=dtype)
@@ -586,8 +553,7 @@ def _after(positions: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
 
 
 def _few(codes: np.ndarray, most: int = 8) -> tuple[np.ndarray, np.ndarray] | None:
-    """Each of ``codes``' index among the distinct codes in the order they first come, and where each first comes;
-    None when there are more than ``most`` (then a sort is cheaper than a pass for each)."""
+    """Each code's index among the distinct codes (first-come order) and their first rows; None: over ``most``."""
     lanes = np.zeros(codes.size, dtype=np.uint16)
     firsts = [0]
     rest = codes != codes[0]

@@ -1,8 +1,6 @@
 """Clocks: the only place canguard reads the time.
 
-Nothing under ``protect/`` or ``nodes/`` calls ``time.time()`` or ``time.monotonic()``; they are handed a
-:class:`Clock`: :class:`LiveClock` live, :class:`ManualClock` in replay (driven by the log's timestamps) and tests.
-"""
+:class:`LiveClock` live, :class:`ManualClock` in replay and tests; ``protect/`` and ``nodes/`` are handed one."""
 
 from __future__ import annotations
 
@@ -47,8 +45,7 @@ class ManualClock:
 
 
 class LiveClock:
-    """Epoch seconds that advance with the monotonic clock: events line up with a candump of the same bus, yet a
-    wall-clock step (NTP, manual date) does not move canguard's time (the offset is taken once)."""
+    """Epoch seconds advancing with the monotonic clock (a wall-clock step does not move canguard's time)."""
 
     def __init__(self) -> None:
         self._offset = time.time() - time.monotonic()
@@ -62,8 +59,7 @@ class LiveClock:
 
 
 class PinnedClock:
-    """The engine's view of a clock: never goes back, and stands still for a tick (every node and event of one
-    tick sees the same ``now``, and journal times stay in order)."""
+    """The engine's view of a clock: never goes back, and stands still for a tick (one ``now`` per tick)."""
 
     def __init__(self, inner: Clock) -> None:
         self.inner = inner
@@ -92,10 +88,9 @@ BOOT_ID_PATH = "/proc/sys/kernel/random/boot_id"
 
 
 class BootClock:
-    """Downtime that a wall-clock step cannot fake: this boot's id and the time since boot (the I²t state file is
-    stamped with both). Within one boot the downtime is ``CLOCK_BOOTTIME``'s (counts suspend, never steps: an NTP
-    correction after boot, common on robots without a battery-backed clock, is no hours of cooling); after a
-    reboot, or where the kernel offers neither, the wall-clock difference."""
+    """Downtime a wall-clock step cannot fake (the I²t state file is stamped with boot id and time since boot):
+    ``CLOCK_BOOTTIME``'s within one boot (an NTP correction after boot is no hours of cooling), else the wall
+    clock's."""
 
     def __init__(self, boot_id_path: str = BOOT_ID_PATH) -> None:
         self._boot_id_path = boot_id_path

@@ -1,8 +1,6 @@
 """The two values that flow through canguard: frames in, samples out.
 
-``Frame`` is a ``NamedTuple`` rather than ``can.Message``: replay makes millions, and a tuple is several times
-cheaper to build.
-"""
+Tuples: replay makes millions, and a tuple is several times cheaper to build than a ``can.Message``."""
 
 from __future__ import annotations
 
@@ -10,8 +8,7 @@ from typing import NamedTuple
 
 
 class Frame(NamedTuple):
-    """One CAN frame as received or recorded: ``t`` in epoch seconds as candump writes them (live: the time
-    python-can reports), ``channel`` as recorded (``can0``) or, live, the configured bus name."""
+    """One CAN frame: ``t`` in epoch seconds, ``channel`` as recorded (``can0``) or, live, the bus name."""
 
     t: float
     channel: str

@@ -1,12 +1,6 @@
 """Read recorded CAN logs as streams of :class:`~canguard.io.block.Block` s (or frames); write candump -L logs.
 
-:func:`read_log` picks the reader by file suffix (:data:`LOG_READERS`; a compression on top of any): candump text
-(``-L`` / ``-l`` lines, or plain ``-ta`` output), python-can's own readers (ASC, BLF, TRC, CSV; MF4 with
-``python-can[mf4]``), ROS bags and rosbag2 directories (:mod:`canguard.io.rosbag`; ``rosbags``). Every reader
-streams the same blocks: memory stays flat in the log's length. python-can's timestamps are what it reports (ASC:
-relative to the measurement start, so a replay does not depend on the machine's time zone); its integer channels are
-named as its candump writer names them (``0`` -> ``can0``).
-"""
+The reader is chosen by file suffix (:data:`LOG_READERS`); memory stays flat in the log's length."""
 
 from __future__ import annotations
 
@@ -50,8 +44,9 @@ _NEEDS = {"mf4": ("asammdf", "pip install 'python-can[mf4]'"), "rosbag": NEEDS, 
 """Formats and compressions that need an optional dependency: (module, how to install it)."""
 
 
-def _reader(path: Path) -> tuple[str, str]:
-    """The format of ``path`` by its suffix, and its compression ("" none)."""
+def log_format(path: str | Path) -> tuple[str, str]:
+    """``(format, compression)`` of a log path by its suffix; :class:`LogFormatError` for an unknown one."""
+    path = Path(path)
     if path.is_dir() and is_bag(path):
         return "rosbag", ""
     suffix = path.suffix.lower()
@@ -69,12 +64,6 @@ def _reader(path: Path) -> tuple[str, str]:
     return found, compression
 
 
-def log_format(path: str | Path) -> tuple[str, str]:
-    """``(format, compression)`` of a log path by its suffix (:data:`LOG_READERS`; compression ``""``, ``gz``,
-    ``xz`` or ``zst``); :class:`LogFormatError` for an unknown one."""
-    return _reader(Path(path))
-
-
 def read_log(
     path: str | Path,
     *,
@@ -82,18 +71,12 @@ def read_log(
     stats: ReadStats | None = None,
     bag: BagOptions | None = None,
 ) -> LogFrames:
-    """Stream the frames of a recorded log, in file order.
-
-    The path, its format and the optional dependencies are checked now (:class:`LogFormatError`: an unknown
-    extension, a missing file, a directory, a missing dependency); the log is read as the returned iterator is
-    consumed, a block at a time. A malformed candump line or bag message raises :class:`LogFormatError` naming
-    where it is, why, and its text; with ``skip_bad=True`` it is counted in ``stats`` and skipped. A log without
-    a frame, or errors inside python-can's readers (corrupt BLF, bad ASC...), raise :class:`LogFormatError` naming
-    the file. ``bag``: the topics and stamps of a ROS bag. An attached progress bar follows the read
-    (:func:`canguard.io.progress.wrap_progress`).
-    """
+    """Stream the frames of a recorded log, in file order, a block at a time as the iterator is consumed. Path,
+    format and optional dependencies are checked now; every problem is a :class:`LogFormatError` naming the file
+    (a bad line or message: where and why, or counted in ``stats`` and skipped with ``skip_bad``). ``bag``: the
+    topics and stamps of a ROS bag."""
     p = Path(path)
-    fmt, gz = _reader(p)  # gz: the compression ("" none)
+    fmt, gz = log_format(p)  # gz: the compression ("" none)
     if not p.exists():
         raise LogFormatError(f"{p}: no such file")
     if not p.is_file() and fmt != "rosbag":

@@ -47,8 +47,7 @@ def open_decompressed(raw: Any, compression: str) -> Any:
 
 
 class CrLines:
-    """A binary log whose lines end in a lone CR (or any mix of CR, LF and CRLF), read with each ending as LF
-    (through a latin-1 text layer with universal newlines: every other byte comes back as it was)."""
+    """A binary log whose lines end in CR, LF or CRLF, read with each ending as LF (latin-1, universal newlines)."""
 
     def __init__(self, f: Any) -> None:
         self._text = io.TextIOWrapper(f, encoding="latin-1", newline=None)
@@ -86,13 +85,9 @@ class BadLine(NamedTuple):
 
 @dataclass
 class ReadStats:
-    """What a reader saw, counted as the log is read (pass one to :func:`read_log`; counts add up over calls).
-
-    Text ``lines`` (blank and comment ones included; 0 for binary formats), ``frames``, malformed lines skipped with
-    ``skip_bad`` (the first :data:`MAX_BAD_EXAMPLES` kept), frames whose time goes back or repeats the previous
-    one's, the file's size on disk (compressed) and the position reached in it, a block at a time; for bags, the
-    frames timed by their ``header`` stamp and by the ``record`` time.
-    """
+    """What a reader saw, counted as the log is read (pass one to :func:`read_log`; counts add up over calls):
+    text ``lines`` (0 for binary formats), bad lines skipped (the first :data:`MAX_BAD_EXAMPLES` kept), times going
+    back or repeated, bytes on disk and read; for bags, frames timed by ``header`` stamp and by ``record`` time."""
 
     path: str = ""
     format: str = ""
@@ -108,14 +103,11 @@ class ReadStats:
 
 
 Blocks = Generator[tuple[Block | None, int | None], None, str]
-"""What a format's reader gives: its blocks (None: none this time), each with the position reached in the file on
-disk (None: not known); its return value names what was read (`` on /can``) in the error of a log without
-frames."""
+"""A reader's blocks (None: none this time) with the position on disk; returns what was read (`` on /can``)."""
 
 
 class LogFrames(Iterator[Frame]):
-    """The frames of one log, streamed (what :func:`read_log` returns): iterated frame by frame, or a block at a
-    time by :meth:`chunks` (one or the other). ``progress`` (settable until the end) follows the file position."""
+    """The frames of one log (:func:`read_log`): frame by frame, or by :meth:`chunks`; ``progress`` follows it."""
 
     def __init__(self, path: Path, stats: ReadStats, read: Callable[[], Blocks]) -> None:
         self.path = path
@@ -135,8 +127,7 @@ class LogFrames(Iterator[Frame]):
         return next(self._frames)
 
     def _counted(self, read: Callable[[], Blocks]) -> Iterator[Block]:
-        """The reader's blocks, counted in :attr:`stats` (frames, their times' order, the position reached) as they
-        pass; the progress bar closed at the end; a log without a frame a LogFormatError."""
+        """The reader's blocks, counted in :attr:`stats` as they pass; a log without a frame a LogFormatError."""
         st = self.stats
         before = st.frames
         last_t = -math.inf

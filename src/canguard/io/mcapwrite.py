@@ -1,9 +1,7 @@
 """Write an MCAP file (what Foxglove opens) with many small messages at numpy speed.
 
-A replay's export writes a message per decoded sample; :meth:`McapWriter.messages` lays out a column of messages
-of one size as one structured array: a few numpy calls a block, not a Python call per message. The file is an
-indexed MCAP: schemas and channels, messages in chunks (zstd when ``zstandard`` is installed; not necessarily in
-time order: readers sort by log time), then a summary with its offsets, the footer and the closing magic.
+A column of messages of one size is one structured array (:meth:`McapWriter.messages`); the file is indexed, its
+chunks zstd-compressed when ``zstandard`` is there.
 """
 
 from __future__ import annotations
@@ -23,8 +21,7 @@ CHUNK_BYTES = 1 << 20
 
 
 def ns_of(t: Any) -> np.ndarray:
-    """Seconds (a float or an array of them) as whole nanoseconds (int64): whole seconds and their fraction apart
-    (exact), so an epoch time keeps its nanoseconds (``t * 1e9`` rounds an epoch time to 256 ns)."""
+    """Seconds as whole nanoseconds (int64), whole seconds and fraction apart (``t * 1e9`` rounds to 256 ns)."""
     s = np.asarray(t, dtype=np.float64)
     whole = np.floor(s)
     return whole.astype(np.int64) * 1_000_000_000 + np.rint((s - whole) * 1e9).astype(np.int64)

@@ -1,11 +1,7 @@
 """Files canguard writes: can they be written there? Asked before anything runs, answered in words.
 
-Every file canguard writes (the journal, the I²t state file, ``--emit``, ``simulate --out``, ``--events``) is
-checked first (:func:`output_problem`): a path that cannot be written is one line naming it and what is wrong
-(exit 2), never a traceback half-way through a run; ``canguard check`` asks a config what ``canguard run`` asks at
-start (:func:`check_config_outputs`). Found by trying, not from permission bits (root ignores them; a read-only
-mount refuses everyone), and nothing is left behind: no directory made, a probe file removed, an existing file
-opened for appending and closed unchanged.
+One line naming the path and what is wrong, never a traceback half-way; found by trying (root ignores permission
+bits), nothing left behind.
 """
 
 from __future__ import annotations
@@ -79,13 +75,7 @@ def _append_problem(path: Path) -> str:
 
 
 def output_problem(path: Path, *, beside: bool = False, makes_dirs: bool = False) -> str:
-    """Why canguard cannot write the file ``path`` ("" when it can), found by trying it.
-
-    An existing regular file must open for appending; a new one needs a directory that takes a new file.
-    ``makes_dirs``: the writer makes missing directories (the nearest existing one must take one); else a missing
-    directory is the problem. ``beside``: the writer also makes new files beside an existing ``path`` (rotation,
-    atomic replace). A device or a pipe (``/dev/stdout``) is taken as writable.
-    """
+    """Why canguard cannot write ``path`` ("" when it can), found by trying; ``makes_dirs``/``beside``: the writer's."""
     path = Path(os.path.abspath(path))
     if path.is_dir():
         return "it is a directory, expected a file path"
@@ -105,9 +95,7 @@ def output_problem(path: Path, *, beside: bool = False, makes_dirs: bool = False
 
 def check_output(path: Path | None, flag: str, *, beside: bool = False, makes_dirs: bool = False,
                  expected: str = "") -> None:
-    """Before a command writes ``path`` (given by ``flag``): :class:`ConfigError` ``{flag} {path}: cannot be written:
-    {why}`` (``; expected ...`` when given) when it cannot; ``beside`` and ``makes_dirs`` as for
-    :func:`output_problem`."""
+    """:class:`ConfigError` naming ``flag`` and ``path`` when a command cannot write it (:func:`output_problem`)."""
     if path is None:
         return
     why = output_problem(path, beside=beside, makes_dirs=makes_dirs)
@@ -116,8 +104,7 @@ def check_output(path: Path | None, flag: str, *, beside: bool = False, makes_di
 
 
 def check_config_outputs(cfg: Config) -> None:
-    """Every file a config makes the daemon write (``events``, ``state.file``): one :class:`ConfigError` listing
-    each path that cannot be written, with its key (``canguard check`` and the daemon's start)."""
+    """One :class:`ConfigError` listing each file the config makes the daemon write that cannot be written."""
     problems = []
     for key, path, what in (
         ("events", cfg.events, "the event journal would be lost"),
@@ -134,8 +121,7 @@ def check_config_outputs(cfg: Config) -> None:
 
 
 def outputs_in(cfg: Config, directory: Path) -> Config:
-    """``cfg`` with its event journal and I²t state file in ``directory``, their names kept (``run --state-dir``,
-    and the bundled config, which lives in the read-only installed package)."""
+    """``cfg`` with its event journal and I²t state file in ``directory``, their names kept (``run --state-dir``)."""
     directory = Path(os.path.abspath(directory))
     events = None if cfg.events is None else directory / cfg.events.name
     state = cfg.state if cfg.state.file is None else dataclasses.replace(cfg.state,
@@ -152,8 +138,7 @@ def load_run_config(path: Path, state_dir: Path | None) -> Config:
 
 
 def user_state_dir() -> Path:
-    """``$XDG_STATE_HOME/canguard`` (a relative one ignored, as the spec says), by default
-    ``~/.local/state/canguard``; :class:`ConfigError` when there is no home directory to default to."""
+    """``$XDG_STATE_HOME/canguard`` (if absolute), else ``~/.local/state/canguard``; ConfigError without a home."""
     xdg = os.environ.get("XDG_STATE_HOME", "")
     if xdg and os.path.isabs(xdg):
         return Path(xdg) / "canguard"

@@ -1,8 +1,4 @@
-"""A progress bar on stderr for long logs, in bytes of the file on disk (for a ``.gz`` log: the compressed bytes).
-
-Drawn only on a terminal; elsewhere (CI, systemd, a redirect) each ``update`` is a couple of attribute reads, so
-the readers call it unconditionally, once per block.
-"""
+"""A progress bar on stderr for long logs, in bytes of the file on disk (for a ``.gz`` log: the compressed bytes)."""
 
 from __future__ import annotations
 
@@ -19,27 +15,20 @@ _MIN_INTERVAL_S = 0.2  # redraw at most five times a second: a terminal write is
 
 
 class ProgressBar:
-    """``[#####.....]  42%  19.5/46.5 MB  label`` on one line of ``stream``, redrawn in place.
-
-    ``total_bytes`` 0 or less: unknown (bytes only). ``enabled``: whether ``stream`` is a terminal, unless forced.
-    """
+    """``[#####.....]  42%  19.5/46.5 MB  label`` on one line of ``stream``, redrawn in place on a terminal."""
 
     def __init__(self, total_bytes: int, stream: TextIO | None = None, *, label: str = "",
-                 enabled: bool | None = None, min_interval_s: float = _MIN_INTERVAL_S) -> None:
+                 min_interval_s: float = _MIN_INTERVAL_S) -> None:
         self.total_bytes = int(total_bytes)
         self.stream: TextIO = sys.stderr if stream is None else stream
         self.label = label
-        if enabled is None:
-            try:
-                enabled = bool(self.stream.isatty())
-            except (AttributeError, ValueError, OSError):  # a closed or odd stream
-                enabled = False
-        self.enabled: bool = enabled
+        try:
+            self.enabled = bool(self.stream.isatty())
+        except (AttributeError, ValueError, OSError):  # a closed or odd stream
+            self.enabled = False
         self.min_interval_s = min_interval_s
         self.position = 0
         self._last_draw = float("-inf")
-        self._drawn = False
-        self._closed = False
 
     def update(self, position: int) -> None:
         """Record that ``position`` bytes of the file have been read; redraw if due."""
@@ -51,16 +40,6 @@ class ProgressBar:
             self._last_draw = now
             self._draw()
 
-    def render(self) -> str:
-        """The bar's text for the current position (without the leading carriage return)."""
-        done = f"{self.position / 1e6:.1f}"
-        text = f"{done} MB"
-        if self.total_bytes > 0:
-            frac = min(max(self.position / self.total_bytes, 0.0), 1.0)
-            bar = "#" * int(frac * _BAR_WIDTH)
-            text = f"[{bar:.<{_BAR_WIDTH}}] {frac * 100:3.0f}%  {done}/{self.total_bytes / 1e6:.1f} MB"
-        return f"{text}  {self.label}" if self.label else text
-
     def _write(self, text: str) -> None:
         try:
             self.stream.write(text)
@@ -69,22 +48,25 @@ class ProgressBar:
             self.enabled = False
 
     def _draw(self) -> None:
-        self._write("\r" + self.render())
-        self._drawn = self._drawn or self.enabled
+        done = f"{self.position / 1e6:.1f}"
+        text = f"{done} MB"
+        if self.total_bytes > 0:
+            frac = min(max(self.position / self.total_bytes, 0.0), 1.0)
+            bar = "#" * int(frac * _BAR_WIDTH)
+            text = f"[{bar:.<{_BAR_WIDTH}}] {frac * 100:3.0f}%  {done}/{self.total_bytes / 1e6:.1f} MB"
+        self._write(f"\r{text}  {self.label}" if self.label else f"\r{text}")
 
     def close(self) -> None:
-        """Draw the final state and end the line (nothing when disabled or never drawn)."""
-        if self._closed:
-            return
-        self._closed = True
+        """Draw the final state and end the line (once; nothing off a terminal)."""
         if self.enabled:
             self._draw()
-            if self._drawn:
+            if self.enabled:
                 self._write("\n")
+            self.enabled = False
+
 
 def wrap_progress(frames: _FramesT, path: str | Path, stream: TextIO | None = None) -> _FramesT:
-    """Attach a :class:`ProgressBar` for ``path`` to ``frames`` (a reader from ``read_log``: its ``progress``) when
-    ``stream`` is a terminal; ``frames`` is returned either way."""
+    """Attach a :class:`ProgressBar` for ``path`` to the reader ``frames`` when ``stream`` is a terminal."""
     p = Path(path)
     try:
         total = p.stat().st_size

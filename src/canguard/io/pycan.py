@@ -1,7 +1,4 @@
-"""python-can's own log readers (ASC, BLF, TRC, CSV, MF4) as :class:`~canguard.io.block.Block` s.
-
-Each batch of up to :data:`BLOCK` messages becomes one block (:meth:`~canguard.io.block.Block.of_messages`).
-"""
+"""python-can's own log readers (ASC, BLF, TRC, CSV, MF4) as :class:`~canguard.io.block.Block` s."""
 
 from __future__ import annotations
 
@@ -25,9 +22,8 @@ _TEXT_FORMATS = ("asc", "trc", "csv")
 
 
 def _free_quietly(exc: BaseException) -> None:
-    """Free now, without a word, what a reader that failed to open left behind (``exc`` keeps its message): asammdf
-    leaves a truncated .mf4's MDF4 in a cycle of the traceback's frames, whose ``__del__`` fails again later
-    ("Exception ignored in MDF4.__del__" and a traceback after canguard's one-line error)."""
+    """Free now, quietly, what a reader that failed to open left behind: asammdf leaves a truncated .mf4's MDF4 in a
+    cycle whose ``__del__`` fails later (a traceback after canguard's one-line error)."""
     exc.__traceback__ = None
     hook = sys.unraisablehook
     sys.unraisablehook = lambda _: None
@@ -42,8 +38,7 @@ BLOCK = 2048
 
 
 def python_can_blocks(p: Path, fmt: str, gz: str, size: int) -> Blocks:
-    """One of python-can's readers as blocks (``size``: the file's on disk); its errors as LogFormatError, raised
-    after the frames read before the failure (as the candump reader does)."""
+    """One of python-can's readers as blocks (``size``: on disk); its errors as LogFormatError after the frames read."""
     name = fmt.upper()
     raw = open(p, "rb")  # noqa: SIM115 -- closed below
     try:
@@ -81,8 +76,7 @@ def python_can_blocks(p: Path, fmt: str, gz: str, size: int) -> Blocks:
 
 
 def _messages(p: Path, name: str, fobj: Any, text: bool, length: BlfLength | None) -> Iterator[can.Message]:
-    """python-can's reader of format ``name`` (``ASC``, ``BLF``...) over ``fobj``; LogFormatError when it does not
-    open."""
+    """python-can's reader of format ``name`` over ``fobj``; LogFormatError when it does not open."""
     import can
 
     try:

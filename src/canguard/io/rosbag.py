@@ -1,11 +1,7 @@
 """ROS bags as CAN logs: rosbag2 (a directory with ``metadata.yaml``, a ``.db3`` or ``.mcap``) and ROS 1 ``.bag``.
 
-What a frame is (its time, channel, payload), what a bad message or a bad bag is: docs/commands.md. A bag's raw
-CAN messages come a block at a time (:class:`BagSource`): MCAP and ROS 1 files through canguard's own chunk readers
-(:mod:`canguard.io.bagscan`: no object per message, a cut file read up to the cut), a
-``.db3`` through its ``messages`` table in record time order, a rosbag2 directory's metadata through rosbags. The
-CAN frame types have fixed offsets after the header's ``frame_id`` (:mod:`canguard.io.rosmsgs`), so every field of
-a block is gathered by numpy at once (:func:`unpack`).
+A block of raw messages at a time (:class:`BagSource`), every field gathered by numpy at once (:func:`unpack`);
+what a frame, a bad message or a bad bag is: docs/commands.md.
 """
 
 from __future__ import annotations
@@ -113,8 +109,7 @@ class BagSource:
         return channel.schema if channel.schema_encoding in ("ros2msg", "ros1msg") else ""
 
     def choose(self, connections: list[tuple[str, str, str]]) -> None:
-        """Choose the topics to read among ``(topic, type, stored definition)``; LogFormatError saying what the
-        bag holds when nothing is left to read or a topic asked for is missing."""
+        """Choose the topics to read; LogFormatError saying what the bag holds when none is or one is missing."""
         types: dict[str, str] = {}
         for topic, msgtype, _definition in connections:
             types.setdefault(topic, msgtype)
@@ -221,8 +216,7 @@ _FD_OK[sorted(CANFD_LENGTHS)] = True
 
 @dataclass
 class Rows:
-    """A block's messages as numpy columns (:func:`unpack`); ``good`` marks the rows that hold a frame (the
-    others are bad messages, their reason in ``why``)."""
+    """A block's messages as numpy columns (:func:`unpack`); ``good``: the rows that hold a frame (else ``why``)."""
 
     t: np.ndarray
     by_record: np.ndarray
@@ -256,8 +250,7 @@ def _mark(rows: Rows, mask: np.ndarray, reason: Callable[[int], str]) -> None:
 
 
 def unpack(lay: Layout, raw: Messages, at: Any, record: bool) -> Rows:
-    """The frames of the messages ``at`` of ``raw`` (all of one layout), read from their fixed offsets at once and
-    checked; times as :func:`times` gives them (``record``: the record time throughout)."""
+    """The frames of messages ``at`` of ``raw`` (one layout), read at once and checked (``record``: record times)."""
     buf, start, lens = raw.buf, raw.start[at], raw.lengths[at]
     name_len = np.minimum(uint_at(buf, start + 12, 4), lens)  # a cut or garbled length: the size check catches it
     body = start + HEADER_SIZE + name_len
@@ -321,9 +314,7 @@ def check(rows: Rows) -> None:
 
 
 def times(record_ns: np.ndarray, sec: np.ndarray, nanosec: np.ndarray, record: bool) -> tuple[np.ndarray, np.ndarray]:
-    """Each row's time in seconds (its header stamp, the record time where that is zero or with ``record``), and
-    which rows took the record time. A whole number of microseconds is exactly the float candump's text of it
-    reads as (one rounding of an exact integer of microseconds)."""
+    """Each row's time in seconds (header stamp, else record time), and which rows took the record time."""
     use = np.ones(sec.size, dtype=bool) if record else (sec == 0) & (nanosec == 0)
     sec = np.where(use, record_ns // 1_000_000_000, sec)
     nsec = np.where(use, record_ns % 1_000_000_000, nanosec)

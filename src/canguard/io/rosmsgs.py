@@ -1,10 +1,7 @@
 """The ROS message types of CAN frames canguard reads, their definitions, and where each field lies in a message.
 
-A bag's stored definition of one of these types with other fields is refused (:func:`layout_for`). Each type is a
-``std_msgs/Header`` then fixed-size fields, the last maybe a ``uint8`` sequence; the header's ``frame_id`` is the
-only other part of variable length, so the fields lie at fixed offsets from its end (:class:`Layout`): in CDR
-(rosbag2) after a 4-byte encapsulation header, each aligned to its size, ``stamp`` ``int32 sec, uint32 nanosec``;
-in ROS 1 packed, after ``uint32 seq``, ``stamp`` ``uint32 secs, uint32 nsecs``.
+Each type is a ``std_msgs/Header`` then fixed-size fields (the last maybe a ``uint8`` sequence), so the fields lie
+at fixed offsets from the end of the header's ``frame_id`` (:class:`Layout`), in CDR (aligned) or ROS 1 (packed).
 """
 
 from __future__ import annotations
@@ -37,8 +34,7 @@ DEFINITIONS: dict[str, tuple[str, ...]] = {
     "ros2_socketcan_msgs/msg/Frame": (SOCKETCAN_FRAME, SOCKETCAN_FRAME_SEQ),
     "autoware_can_msgs/msg/CANPacket": (AUTOWARE_CAN_PACKET,),
 }
-"""The CAN frame types canguard reads, by their ROS 2 name (ROS 1's ``pkg/Type`` is read as ``pkg/msg/Type``),
-each with the definitions it may have had; the first is assumed for a bag that stores none."""
+"""The CAN frame types canguard reads, by ROS 2 name, with their definitions (the first assumed when none)."""
 
 DEPENDENCIES = {"std_msgs/msg/Header": HEADER, "builtin_interfaces/msg/Time": TIME}
 """The types the definitions name (ROS 2 spelling)."""
@@ -47,8 +43,7 @@ KVASER_RTR, KVASER_EXT, KVASER_ERROR_FRAME = 0x01, 0x04, 0x20
 """Kvaser CANlib's ``canMSG_RTR``, ``canMSG_EXT`` and ``canMSG_ERROR_FRAME`` (``CANPacket.flag``)."""
 
 HEADER_SIZE = 16
-"""Bytes before ``frame_id``'s characters, from the message's first byte: the CDR encapsulation (4), then ``sec,
-nanosec`` and the string's length; in ROS 1 ``seq, secs, nsecs`` and the length."""
+"""Bytes before ``frame_id``'s characters: CDR encapsulation or ROS 1 ``seq``, the stamp, the string's length."""
 STAMP_AT = 4
 """Where ``stamp``'s two 32-bit fields start, from the message's first byte (both serialisations)."""
 
@@ -63,16 +58,13 @@ def ros2_name(msgtype: str) -> str:
 
 
 def looks_like_can(msgtype: str) -> bool:
-    """A type whose name says it is a CAN frame (``can_msgs/...``, ``.../CanFrame``...; every one of
-    :data:`DEFINITIONS`): read, or refused by name when canguard does not know it, never passed over as if the bag
-    had no CAN topic."""
+    """A type whose name says CAN frame: read, or refused by name, never passed over as if no CAN topic."""
     low = msgtype.lower()
     return "can" in low.split("/")[0] or any(w in low.rsplit("/", 1)[-1] for w in ("can", "fdframe"))
 
 
 def fields_of(definition: str) -> list[tuple[str, str]]:
-    """The ``(type, name)`` of a ``.msg`` definition's own fields, types as written (comments, constants and the
-    definitions of its dependencies after a ``====`` line left out)."""
+    """The ``(type, name)`` of a ``.msg`` definition's own fields (no comments, constants or dependencies)."""
     out = []
     for raw in definition.splitlines():
         if raw.startswith("=" * 10):
@@ -98,10 +90,9 @@ class Field:
 
 @dataclass(frozen=True)
 class Layout:
-    """Where a CAN frame type's fields lie in one serialisation (``cdr`` or ROS 1), from the *body*: the first byte
-    after the header's ``frame_id``, rounded up to 4 in CDR (every body starts with a 4-byte field and holds nothing
-    wider). ``fixed``: bytes up to the end of the last fixed-size field; ``sequence``: the offset of the length of a
-    trailing ``uint8`` sequence, its bytes right after it (-1: none)."""
+    """Where a CAN frame type's fields lie in one serialisation, from the *body* (the first byte after ``frame_id``,
+    rounded up to 4 in CDR). ``fixed``: bytes up to the end of the last fixed-size field; ``sequence``: the offset of
+    a trailing ``uint8`` sequence's length (-1: none)."""
 
     msgtype: str
     cdr: bool
@@ -134,8 +125,7 @@ def layout(msgtype: str, definition: str, cdr: bool) -> Layout:
 
 
 def layout_for(path: object, topic: str, msgtype: str, stored: str, cdr: bool) -> Layout:
-    """The layout of topic ``topic``'s messages: of the carried definition its bag's ``stored`` one matches
-    (field by field), or of the first carried one when the bag stores none. LogFormatError otherwise."""
+    """The layout of ``topic``'s messages by its ``stored`` definition (else the first known); LogFormatError."""
     name = ros2_name(msgtype)
     known = DEFINITIONS.get(name)
     if known is None:
@@ -160,8 +150,7 @@ def full_definition(msgtype: str) -> str:
 
 def cdr_frame(stamp_ns: int, frame_id: str, arbitration_id: int, data: bytes, *, extended: bool = False,
               remote: bool = False, error: bool = False, fd: bool = False) -> bytes:
-    """A frame serialised as rosbag2 stores it (little-endian CDR): ``can_msgs/msg/Frame`` for a classic frame,
-    ``ros2_socketcan_msgs/msg/FdFrame`` for a CAN FD one (:func:`frame_type` says which)."""
+    """A frame serialised as rosbag2 stores it (little-endian CDR), as :func:`frame_type`."""
     sec, nanosec = divmod(stamp_ns, 1_000_000_000)
     name = frame_id.encode("utf-8") + b"\x00"
     head = struct.pack("<4siII", b"\x00\x01\x00\x00", sec, nanosec, len(name)) + name

@@ -1,7 +1,7 @@
 """``configure: true``: canguard gives a CANopen drive what its config expects, over SDO.
 
-At start and at each boot-up, as docs/config.md says: a write that fails is an ``error`` event and the drive stays
-pre-operational (fail safe). The ``canopen`` library does the SDO and NMT work on a bus of its own.
+At start and at each boot-up (docs/config.md); a write that fails is an ``error`` event and the drive stays
+pre-operational (fail safe).
 """
 
 from __future__ import annotations

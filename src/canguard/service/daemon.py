@@ -1,10 +1,6 @@
 """``canguard run``: the live engine, as a systemd service.
 
-The loop waits for frames until the engine's next deadline, hands them to :meth:`Engine.take` as blocks,
-advances the engine to now and tells systemd how things stand (READY, WATCHDOG, STATUS, STOPPING, reload on
-SIGHUP: docs/deploy.md). Where every bus has a socket the loop reads it itself (``BusReader(direct=True)``);
-other buses get a reader thread each.
-"""
+The loop and what it tells systemd: docs/deploy.md."""
 
 from __future__ import annotations
 
@@ -56,8 +52,8 @@ OVERRUN_FLOOR_S = 0.05
 DRAIN = 512
 """Frames received after the first, at most, before the engine advances to now."""
 DRAIN_DIRECT = 32
-"""The same where the loop reads the sockets itself: each read costs tens of microseconds, and a frame
-that trips waits for the reads after it in its batch before the engine sees it (512: up to ~15 ms)."""
+"""The same where the loop reads the sockets itself: a frame that trips waits for the reads after it in its batch
+(tens of microseconds each) before the engine sees it."""
 
 
 def guarding(cfg: Config) -> str:
@@ -88,10 +84,8 @@ class Daemon:
 
     refuse_virtual = True
     """``canguard run`` refuses all-virtual buses under systemd; the realtime replay bench does not."""
-
     watch = True
     """The config's ``monitor:`` is served; the realtime replay bench serves none."""
-
     filters = True
     """Each bus receives the frames the config reads (``filter:``); the realtime replay bench counts every frame."""
 
@@ -262,11 +256,9 @@ class Daemon:
         self.notifier.status(f"{engine.status_line()}; {', '.join(fps)}; {guarding(self.cfg)}")
 
     def take_received(self, engine: Engine, items: list[tuple[str, can.Message, float]]) -> None:
-        """The messages received (up to :data:`DRAIN` + 1 or :data:`DRAIN_DIRECT`, so that a tick never starves)
-        as one block in arrival order through :meth:`Engine.take`, each row's channel its bus, unless a frame's
-        wait since it arrived starts or ends an overrun (a block ends before it: it then comes after the frames
-        before it). A frame's wait and the skew of its stamp (beyond :data:`LIVE_SKEW_S`: the receive time) are
-        judged at the time the batch is taken."""
+        """The messages received as one block in arrival order through :meth:`Engine.take` (each row's channel its
+        bus), cut before a frame whose wait starts or ends an overrun; a stamp further than :data:`LIVE_SKEW_S`
+        from now becomes the receive time."""
         mono = time.monotonic()
         now = self.clock.now()
         limit = self.overrun_limit_s
@@ -343,9 +335,8 @@ class Daemon:
         return True
 
     def _send_refused(self, bus: str, label: str, origin: str, held: int) -> None:
-        """A frame the bus refused (full TX queue, bus-off) goes in the journal, as often as on stderr (once a
-        second per bus and origin; ``held``: the refusals since): a stop frame that never reached the bus is what a
-        safety engineer asks about first, and it is sent again every ``stop.repeat``."""
+        """A frame the bus refused (full TX queue, bus-off) goes in the journal, as often as on stderr (``held``:
+        the refusals since): a stop frame that never reached the bus is what a safety engineer asks about first."""
         engine = getattr(self, "engine", None)
         if engine is not None:
             engine.journal.write({"event": "bus_error", "source": bus,
@@ -357,8 +348,7 @@ class Daemon:
         self._bus_errors.put((bus, f"{type(exc).__name__}: {exc}"))
 
     def _watch_buses(self, engine: Engine) -> None:
-        """The receive threads' bus errors into the engine; a bus the reader reopened releases the task (the tree
-        still decides whether it resumes)."""
+        """The receive threads' bus errors into the engine; a reopened bus releases the task (the tree decides)."""
         while not self._bus_errors.empty():  # the loop is the one reader
             bus, text = self._bus_errors.get_nowait()
             engine.bus_down(bus, text)
@@ -372,8 +362,7 @@ class Daemon:
 
 
 def drive_setup(cfg: Config) -> Any:
-    """A started :class:`~canguard.service.canopen_setup.DriveSetup` when a drive has ``configure: true``, else None
-    (imported only then: the ``canopen`` library is an optional extra)."""
+    """A started :class:`~.canopen_setup.DriveSetup` when a drive has ``configure: true``, else None."""
     if not any(d.configure for d in cfg.canopen.values()):
         return None
     from canguard.service.canopen_setup import DriveSetup
@@ -400,19 +389,12 @@ def overrun_limit(cfg: Config) -> float:
 
 
 def tree_clients(root: py_trees.behaviour.Behaviour) -> set[uuid.UUID]:
-    """The ids of the blackboard clients attached to the nodes of the tree under ``root``.
-
-    py_trees keeps one blackboard per process, where every node registers a client and keys that nothing removes
-    when a tree is dropped: the daemon releases the old tree after a reload, and whatever a rejected reload
-    registered (:func:`release_clients`).
-    """
+    """The ids of the blackboard clients of the nodes under ``root`` (py_trees keeps a dropped tree's keys)."""
     return {client.id() for node in root.iterate() for client in node.blackboards}
 
 
 def release_clients(ids: Iterable[uuid.UUID]) -> int:
-    """Remove these clients from the global blackboard; how many keys (with their values) went with them: those no
-    other client holds, as py_trees' ``Client.unregister(clear=True)``. From the ids alone: also after a tree whose
-    build failed half-way."""
+    """Remove these clients, and the keys no other client holds, from py_trees' global blackboard; how many keys."""
     ids = set(ids)
     gone = 0
     for key, meta in list(Blackboard.metadata.items()):

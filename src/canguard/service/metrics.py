@@ -18,8 +18,7 @@ class MetricsUnavailable(CanguardError, ImportError):
 
 
 def parse_address(addr: str) -> tuple[str, int]:
-    """``--metrics HOST:PORT``: read as the monitors' addresses (:func:`canguard.config.monitor.parse_address`),
-    the host required (port 0: any free one); ValueError quoting ``addr`` when malformed."""
+    """``--metrics HOST:PORT`` (port 0: any free one); ValueError quoting ``addr`` when malformed."""
     text = addr.strip()
     found = "HOST:PORT, e.g. 127.0.0.1:9108 or [::1]:9108" if text.isdigit() else monitor_address(text)
     if isinstance(found, str):
@@ -28,8 +27,7 @@ def parse_address(addr: str) -> tuple[str, int]:
 
 
 class Metrics:
-    """canguard's Prometheus metrics on a private ``CollectorRegistry`` (:class:`MetricsUnavailable` without
-    prometheus-client); :meth:`start` serves them. Updates are thread-safe and cheap (labelled children cached)."""
+    """canguard's Prometheus metrics on a private registry; :meth:`start` serves them (updates thread-safe)."""
 
     def __init__(self) -> None:
         try:
@@ -68,8 +66,7 @@ class Metrics:
         return child
 
     def start(self, addr: str) -> None:
-        """Serve ``/metrics`` over HTTP at ``addr`` (``HOST:PORT``) from a daemon thread, for the daemon's life
-        (ValueError: malformed, OSError naming the address: cannot bind)."""
+        """Serve ``/metrics`` at ``addr`` from a daemon thread (ValueError: malformed, OSError: cannot bind)."""
         host, port = parse_address(addr)
         try:
             server, _thread = self._prom.start_http_server(port, addr=host, registry=self.registry)

@@ -1,9 +1,6 @@
 """sd_notify from scratch, and the policy deciding when the watchdog may be fed.
 
-:class:`Notifier` sends one AF_UNIX datagram of ``KEY=value`` lines to ``$NOTIFY_SOCKET`` (a path or
-``@abstract``); outside systemd every call is a no-op, and no call raises (the first error logged as a warning).
-``WATCHDOG=1`` goes only while :func:`watchdog_hold` (a pure function) finds nothing wrong with the loop.
-"""
+``WATCHDOG=1`` goes only while :func:`watchdog_hold` finds nothing wrong with the loop."""
 
 from __future__ import annotations
 
@@ -19,8 +16,7 @@ log = logging.getLogger(__name__)
 
 
 class Notifier:
-    """Sends sd_notify messages to systemd; a no-op outside systemd. ``env`` (``os.environ``) is read once; the
-    socket is non-blocking (a full queue is a logged error)."""
+    """Sends sd_notify datagrams to ``$NOTIFY_SOCKET`` (read once); a no-op outside systemd, never raising."""
 
     def __init__(self, env: Mapping[str, str] | None = None) -> None:
         self._env = dict(os.environ if env is None else env)
@@ -67,14 +63,12 @@ class Notifier:
         return self.notify("STOPPING=1")
 
     def reloading(self, monotonic_usec: int | None = None) -> bool:
-        """``RELOADING=1`` + ``MONOTONIC_USEC`` (CLOCK_MONOTONIC now, systemd >= 253 needs it); send :meth:`ready`
-        once the new config runs (or the old one was kept)."""
+        """``RELOADING=1`` + ``MONOTONIC_USEC`` (systemd >= 253); :meth:`ready` once the reload is done."""
         usec = time.monotonic_ns() // 1000 if monotonic_usec is None else int(monotonic_usec)
         return self.notify("RELOADING=1", f"MONOTONIC_USEC={usec}")
 
     def watchdog_interval_s(self) -> float | None:
-        """``WatchdogSec=`` in seconds when systemd expects pings from this process (``WATCHDOG_USEC`` a positive
-        integer, ``WATCHDOG_PID`` unset or ours), else None."""
+        """``WatchdogSec=`` in seconds when systemd expects pings from this process, else None."""
         pid = self._env.get("WATCHDOG_PID")
         try:
             usec = int(self._env.get("WATCHDOG_USEC") or 0)
@@ -86,9 +80,8 @@ class Notifier:
 
 def watchdog_hold(now: float, last_tick: float | None, tick_period_s: float, stale_unstopped: Iterable[str] = (),
                   k: float = 3.0) -> str:
-    """Why the daemon may not send ``WATCHDOG=1`` now ("" when it may): no tick within ``k * tick_period_s`` of
-    ``now`` (one monotonic time base), or a source the tree reads stale while the tree is not stopping the task
-    (``stale_unstopped``)."""
+    """Why the daemon may not send ``WATCHDOG=1`` now ("" when it may): no tick within ``k * tick_period_s``, or a
+    source stale while the tree is not stopping the task (``stale_unstopped``)."""
     if tick_period_s <= 0:
         raise ValueError(f"tick_period_s must be > 0, got {tick_period_s}")
     if last_tick is None:

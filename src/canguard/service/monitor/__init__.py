@@ -1,13 +1,9 @@
 """Watching the daemon live: the status page (:mod:`.web`) and Groot2's monitor (:mod:`.groot2`).
 
 Served by a process of their own (:mod:`.server`), fed by :class:`Monitor` after each tick without ever waiting
-(docs/monitor.md, "The loop comes first"): it takes a record of a tick when something changed, at most every
-:data:`PERIOD_S`, with the guards' values at most every :data:`GUARD_PERIOD_S`. Imported only when configured.
-
-The two talk over one ``AF_UNIX`` ``SOCK_SEQPACKET`` socket pair, which takes a message whole or not at all: the
-daemon sends without waiting. Daemon → monitor: pickled messages in frames of at most :data:`FRAME_BYTES` (a flag
-byte, ``M`` more or ``E`` end). Monitor → daemon: fixed byte strings and one JSON answer: the daemon never unpickles
-what comes from the side the network can reach.
+(docs/monitor.md), over one ``AF_UNIX`` ``SOCK_SEQPACKET`` pair (a message whole or not at all). Daemon → monitor:
+pickled messages in frames of :data:`FRAME_BYTES` (flag byte ``M`` more / ``E`` end). Monitor → daemon: fixed byte
+strings and one JSON answer: the daemon never unpickles what comes from the side the network can reach.
 """
 
 from __future__ import annotations
@@ -53,11 +49,9 @@ START_TIMEOUT_S = 30.0
 BLACKBOARD_S = 1.0
 """How long a Groot2 request for the blackboard puts it in the records."""
 REQUESTS_S = 0.1
-"""How often the hand-over also reads the monitor process's requests (Groot2 waits 0.3 s for a blackboard; a system
-call per record costs the loop more than the requests are worth)."""
+"""How often the hand-over also reads the monitor process's requests (Groot2 waits 0.3 s for a blackboard)."""
 PERIOD_S = 0.02
-"""Shortest time between two records: a change is published in the first tick this long after the last one
-(Groot2 polls STATUS at up to 50 Hz; the page draws at most 10 times a second)."""
+"""Shortest time between two records (Groot2 polls STATUS at up to 50 Hz)."""
 GUARD_PERIOD_S = 0.08
 """Longest time between two readings of the guards' values while nothing else changes."""
 
@@ -78,9 +72,8 @@ WANT_BLACKBOARD = b"B"
 
 
 class GilHoldingSocket:
-    """Non-blocking send and receive on a socket's descriptor that keep the calling thread's GIL: ``socket.send``
-    releases it around its system call, and the loop then waits to get it back; a non-blocking local socket
-    returns within microseconds."""
+    """Non-blocking send and receive that keep the GIL (``socket.send`` releases it, and the loop then waits to get
+    it back; a non-blocking local socket returns within microseconds)."""
 
     _libc = ctypes.PyDLL(None, use_errno=True)
     _send = _libc.send
@@ -132,9 +125,7 @@ def frames(message: Any) -> list[bytes]:
 
 
 class Monitor:
-    """The monitor process of one daemon, and the observer of each engine the daemon runs (:meth:`attach`): after
-    each tick it takes a record of it and hands it over without waiting. :class:`~canguard.errors.ConfigError`
-    when a server cannot listen."""
+    """The monitor process of one daemon, observer of each engine it runs; ConfigError when a server cannot listen."""
 
     def __init__(self, settings: MonitorConfig) -> None:
         self._sock, theirs = socket_pair()
@@ -239,8 +230,7 @@ class Monitor:
 
     # -- the engine's side: after its tick (the stop frames are out), never waiting -----------------
     def write(self, event: Mapping[str, Any]) -> None:
-        """Append ``event`` to the journal, then keep a copy for the next record (the oldest go when the monitor
-        process is behind)."""
+        """Append ``event`` to the journal, then keep a copy for the next record."""
         self._journal.write(event)
         self._event_seq += 1
         self._events.append((self._event_seq, dict(event)))
@@ -250,8 +240,7 @@ class Monitor:
         self._journal.flush()
 
     def publish(self, engine: Engine, now: float) -> None:
-        """Called by the engine after each tick: take its record when something changed, at most every
-        :data:`PERIOD_S`, and offer what the monitor process has not had yet (never raises, never waits)."""
+        """After each tick: a record when something changed, offered to the monitor process (never raises or waits)."""
         try:
             if self._take(engine, now):
                 self.offer()
@@ -317,8 +306,7 @@ class Monitor:
 
     # -- sending -----------------------------------------------------------------------------------
     def offer(self) -> None:
-        """Offer what the monitor process has not had yet: one non-blocking send (a dead process is reported once,
-        by a thread of its own: reaping may take a moment the loop must not wait)."""
+        """Offer what the monitor process has not had yet, never waiting (a dead one is reported by a thread)."""
         if self._gone or (self._record is self._sent and not self._events and not self._outbox):
             return
         try:

@@ -1,9 +1,6 @@
 """Groot2's monitor: BehaviorTree.CPP 4's Groot2 publisher protocol, read-only.
 
-As ``BT::Groot2Publisher``: a ZeroMQ REP socket on PORT answers FULLTREE (``T``), STATUS (``S``) and
-BLACKBOARD (``B``) requests, a PUB socket is bound on PORT + 1; hooks, breakpoints and recording are refused
-(docs/monitor.md). Misbehaving clients are logged one line per cause (:class:`.hub.ClientNotes`).
-"""
+REP on PORT, PUB on PORT + 1; hooks, breakpoints and recording are refused (docs/monitor.md)."""
 
 from __future__ import annotations
 
@@ -27,8 +24,7 @@ HEADER = struct.Struct("<BBI")
 MAX_MESSAGE_BYTES = 64 * 1024
 """Largest request part taken (Groot2's are a few bytes, a BLACKBOARD's names a few hundred)."""
 HANDSHAKE_MS = HEARTBEAT_MS = 5000
-"""A connection not through ZeroMQ's handshake by then is closed; a peer that answers none of three heartbeats
-this far apart is disconnected."""
+"""ZeroMQ's handshake limit, and heartbeat interval (three unanswered: disconnected)."""
 MALFORMED = (b"wrong request header", b"must be 2 parts message", b"Request not recognized")
 """The error replies to requests that are not Groot2's (logged; a refused hook is a user's click, not logged)."""
 READ_ONLY = ("canguard's Groot2 monitor is read-only: hooks, breakpoints and recording are refused, "

@@ -43,8 +43,7 @@ class Tick(NamedTuple):
 
 
 class ClientNotes:
-    """What clients did wrong, per cause: the first occurrence logged at once, then at most one line per
-    :data:`NOTE_EVERY_S` with the count."""
+    """What clients did wrong, per cause: logged at once, then at most every :data:`NOTE_EVERY_S` with the count."""
 
     def __init__(self, log: logging.Logger, server: str) -> None:
         self._log = log
@@ -65,8 +64,7 @@ class ClientNotes:
 
 
 class Hub:
-    """The latest :class:`Tick` and journal events, fed from the daemon's socket ``sock`` and read by any number of
-    server threads. Receiving only assigns a reference or appends to a bounded deque, then calls :attr:`on_news`."""
+    """The latest :class:`Tick` and journal events from the daemon's socket, for server threads (no lock needed)."""
 
     def __init__(self, sock: socket.socket | None = None) -> None:
         self.sock = sock
@@ -81,8 +79,7 @@ class Hub:
         """Called after each message of the daemon, in the receiving thread (it must not wait)."""
 
     def receive(self, message: tuple[Any, ...]) -> None:
-        """One message of the daemon: a tree's layout, or the journal events and latest record of a tick
-        (``(seq, t, codes, task, confirm, blackboard, guards)``, guards None when as in the last one)."""
+        """One message of the daemon: a tree's layout, or a tick's journal events and record."""
         if message[0] == "layout":
             self.layout = message[1]
             self._guards = ()
@@ -138,8 +135,7 @@ def _with_status(node: dict[str, Any], codes: bytes) -> dict[str, Any]:
 
 
 def task_document(tick: Tick, events: list[dict[str, Any]]) -> dict[str, Any]:
-    """State, since when, stopped by which guard and why, what holds it (a stale source, a bus down, an overrun),
-    the guard nodes failing now, confirmation / escalation."""
+    """The task: state, since when, stopped by which guards and why, what holds it, confirmation / escalation."""
     state, since, reason, stops, holding, failing, stopped_by = tick.task  # as the daemon's Monitor takes it
     stopped = state == "stopped"
     since = since if stopped else None

@@ -1,8 +1,4 @@
-"""The running tree as BehaviorTree.CPP numbers it: node UIDs, subtree instances, Groot2's FULLTREE XML.
-
-Built once per engine, never per tick, as docs/monitor.md describes FULLTREE (py_trees inlines a subtree: its
-``<SubTree>`` node is put back here, with the status of the subtree's root).
-"""
+"""The running tree as BehaviorTree.CPP numbers it: node UIDs, subtree instances, Groot2's FULLTREE XML."""
 
 from __future__ import annotations
 
@@ -27,8 +23,7 @@ class LayoutRecord:
     tree: dict[str, Any]
     """The static tree: ``{uid, type, name, [subtree], children}``; statuses come per snapshot."""
     xml: str
-    """Groot2's FULLTREE XML, the tree's 16-byte id in its replies, and the ``_fullpath`` of each subtree instance
-    (Groot2's BLACKBOARD names them)."""
+    """Groot2's FULLTREE XML, the tree's 16-byte id, and each subtree instance's ``_fullpath``."""
     uuid: bytes
     paths: tuple[str, ...]
 
@@ -73,7 +68,6 @@ class TreeLayout:
                                                **{k: v for k, v in attrs.items() if k not in ("ID", "name")}})
         return {"uid": uid, "type": node_id, "name": behaviour.name,
                 "children": [self._place(child, tree_id, elem) for child in behaviour.children]}
-
 
     def _attrs(self, path: Path, line: int, node_id: str) -> dict[str, str]:
         """The attributes of the element for ``node_id`` that starts at ``line`` of ``path`` ({} if unknown)."""

@@ -1,9 +1,6 @@
 """The monitor process: ``python -m canguard.service.monitor.server FD``, started by the daemon (:class:`.Monitor`).
 
-It reads its settings from the socket ``FD`` (JSON: the token never shows on a command line), starts the servers
-around a :class:`~.hub.Hub`, answers where they listen (or why they cannot), then feeds the hub until the daemon's end
-closes or SIGTERM (SIGINT and SIGHUP are the daemon's), below the daemon's CPU priority (:func:`lower_priority`).
-"""
+Its settings come over the socket ``FD`` (the token never shows on a command line)."""
 
 from __future__ import annotations
 
@@ -80,8 +77,7 @@ def lower_priority() -> None:
 
 
 def more_descriptors() -> None:
-    """Raise this process's open-file limit from its soft value (often 1,024) to :data:`FILES` or the hard limit
-    (the status page keeps half of it for its connections: :class:`.web.Limits`)."""
+    """Raise this process's open-file limit to :data:`FILES` or the hard limit (:class:`.web.Limits`)."""
     import resource
 
     with contextlib.suppress(OSError, ValueError):

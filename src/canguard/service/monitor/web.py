@@ -1,9 +1,6 @@
 """The status page and its API: one asyncio event loop, in a thread of its own, serves every connection.
 
-``GET /``, ``GET /api/status`` (or its stream), ``GET /api/events``, read-only, with an optional bearer token; what
-it grants clients that misbehave (:class:`Limits`) and how it logs them (:class:`.hub.ClientNotes`):
-docs/monitor.md.
-"""
+Read-only, with an optional bearer token (docs/monitor.md)."""
 
 from __future__ import annotations
 
@@ -39,17 +36,14 @@ _HEAD_END = re.compile(rb"\r?\n\r?\n")
 _LINE = re.compile(r"\r?\n")
 _TEXT = "text/plain; charset=utf-8"
 DOCUMENT_S = 0.125
-"""Shortest time between two status documents (a browser spends ~5 ms drawing each): a change still reaches a
-page within 200 ms."""
+"""Shortest time between two status documents: a change still reaches a page within 200 ms."""
 _PAGE_HEADERS = {"Content-Security-Policy": "default-src 'none'; script-src 'unsafe-inline'; "
                                             "style-src 'unsafe-inline'; connect-src 'self'; img-src data:"}
 
 
 @dataclass(frozen=True)
 class Limits:
-    """What the status page's server grants its clients (docs/monitor.md, "Clients that misbehave"): connections
-    (at most half the process's file descriptors), event streams in all and per address, the time a request head
-    may take, how long a client may take nothing, a stream's keep-alive, and the listen backlog."""
+    """What the status page's server grants its clients (docs/monitor.md, "Clients that misbehave")."""
 
     max_connections: int = 2048
     max_streams: int = 64
@@ -104,12 +98,9 @@ def _head(code: int, headers: dict[str, str]) -> bytes:
 
 
 async def _first(*steps: Awaitable[T], timeout_s: float | None = None) -> T:
-    """Run ``steps`` together until the first ends (its result returned, its exception raised), the others
-    cancelled; asyncio.TimeoutError when none ended within ``timeout_s``.
-
-    Not ``asyncio.wait_for``: when it is cancelled just as its step fails (a drain woken by a reset), that
-    step's exception is left unread, and asyncio logs it; here each task's exception is read, whoever awaits it.
-    """
+    """Run ``steps`` until the first ends (its result or exception), the others cancelled; asyncio.TimeoutError
+    after ``timeout_s``. Not ``asyncio.wait_for``: cancelled just as its step fails, that leaves the step's
+    exception unread (and logged)."""
     tasks = [asyncio.ensure_future(step) for step in steps]
     for task in tasks:
         task.add_done_callback(lambda t: t.cancelled() or t.exception())
@@ -133,8 +124,7 @@ async def _until_closed(reader: asyncio.StreamReader) -> None:
 
 
 class WebMonitor:
-    """The HTTP server of the status page: its event loop, in a thread of its own, serves each connection from
-    accept to close."""
+    """The HTTP server of the status page, its event loop in a thread of its own."""
 
     def __init__(self, address: Address, hub: Hub, token: str | None, limits: Limits | None = None) -> None:
         limits = limits or Limits()
@@ -198,8 +188,7 @@ class WebMonitor:
             self._loop.call_at(max(self._loop.time(), self._due), self._render)
 
     def _render(self) -> None:
-        """One status document for every client; the streams wake when what a page shows changed, not the
-        clock alone (the page counts a stop's duration itself)."""
+        """One status document for every client; the streams wake when what a page shows changed."""
         self._rendering = False
         self._due = asyncio.get_running_loop().time() + DOCUMENT_S
         status = self.hub.status()
@@ -302,8 +291,7 @@ class WebMonitor:
         return head
 
     async def _close(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        """End our side once the answer is sent, and wait (``send_timeout_s`` at most) for the client to close its
-        side: closing with a request body unread would reset the connection, and the answer with it."""
+        """End our side, then wait for the client's close (closing with a request body unread resets the answer)."""
         self.waiting[writer] = None  # lingering: the first to go when every place is taken
         with contextlib.suppress(OSError, asyncio.TimeoutError):  # it lingers or resets: it is closed all the same
             writer.write_eof()
@@ -373,8 +361,7 @@ class WebMonitor:
                 del self.streams[address]
 
     async def _stream_data(self, writer: asyncio.StreamWriter, status: bool) -> None:
-        """Each new status document (``status``), else each journal event as it comes; a keep-alive comment when
-        nothing came for ``keepalive_s``."""
+        """Each new status document (``status``), else each journal event; a keep-alive after ``keepalive_s``."""
         sent, cursor = -1, 0
         while True:
             changed = self.changed  # set by a change from now on, while this stream writes too
