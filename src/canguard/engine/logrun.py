@@ -9,11 +9,11 @@ from __future__ import annotations
 
 import math
 from bisect import bisect_left, bisect_right
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from itertools import pairwise
 from operator import itemgetter
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 from canguard.decode.decoder import DecodeCounters
 from canguard.decode.rows import EMPTY, ColumnRows
@@ -37,11 +37,33 @@ _FEW = 16
 """A block of at most this many rows (a live bus's drained queue) is looked up in Python: numpy costs more."""
 
 if TYPE_CHECKING:
-    from canguard.engine.core import Engine
+    from canguard.bt.context import Context
+    from canguard.decode.decoder import Decoder
+    from canguard.engine.stats import EngineStats
 
 _Run = tuple["MessagePlan", Any, Any, list[Any]]
 """A message's rows of a block whole and valid: (plan, rows ascending, their times, each output's column)."""
 _Keys = tuple[Any, Any, frozenset[int]]  # a plan table's keys (:func:`_key_table`)
+
+
+class Engine(Protocol):
+    """What :class:`LogRun` asks of the engine (:class:`canguard.engine.core.Engine` is one)."""
+
+    decoder: Decoder
+    stats: EngineStats
+    ctx: Context
+    sample_block: Callable[[Any, list[Any], list[tuple[int, Any]]], None] | None
+    last_due_run: float
+    due: float
+    next_tick_t: float
+    last_frame_t: float
+    drive_clock: Callable[[float], None]
+
+    def edge_tick(self, t: float) -> None: ...
+    def runs_until(self, end_t: float, coming: Callable[[], Mapping[tuple[int, str], Any]]) -> float: ...
+    def controller_state(self, bus: str, frame: Frame) -> None: ...
+    def advance(self, now: float) -> None: ...
+    def frame_time(self, t: float) -> None: ...
 
 
 class LogRun:

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 import py_trees
 
@@ -33,18 +33,26 @@ from canguard.engine.gate import TaskGate
 
 if TYPE_CHECKING:
     from canguard.bt.context import Context
-    from canguard.engine.core import Engine
     from canguard.engine.stats import Journal
 
 MARGIN_S = 1e-6
 """A time-driven change is taken to come this much earlier than computed (rounding)."""
 
 
+class Watched(Protocol):
+    """What :class:`QuietTicks` reads of the engine (:class:`canguard.engine.core.Engine` is one)."""
+
+    guard_nodes: list[Any]
+    started_at: float
+    start_grace_s: float
+    period_s: float
+
+
 class QuietTicks:
     """The proof that a grid tick repeats the last one, kept tick by tick (see the module docstring)."""
 
     def __init__(self, root: py_trees.behaviour.Behaviour, ctx: Context, gate: TaskGate, journal: Journal,
-                 engine: Engine) -> None:
+                 engine: Watched) -> None:
         self.root = root
         self.ctx = ctx
         self.gate = gate
