@@ -8,9 +8,8 @@ from __future__ import annotations
 
 import struct
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, BinaryIO
+from typing import Any, BinaryIO, NamedTuple
 
 import numpy as np
 
@@ -30,8 +29,7 @@ class McapCut(Exception):
     """The file ends (or turns to garbage) before its data section does: where, and what was found there."""
 
 
-@dataclass(frozen=True)
-class Channel:
+class Channel(NamedTuple):
     """An MCAP channel with its schema (``schema_encoding``: ``ros2msg``, ``ros2idl``, ..., empty for none)."""
 
     id: int
@@ -42,8 +40,7 @@ class Channel:
     message_encoding: str
 
 
-@dataclass
-class Messages:
+class Messages(NamedTuple):
     """A chunk's messages: each one's channel, log time (ns), and where its data lies in ``buf`` (zero-padded)."""
 
     channel: np.ndarray

@@ -10,7 +10,7 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass, fields
 from itertools import islice
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -43,8 +43,7 @@ BLOCK = 4096
 """Raw messages taken at a time from a sqlite3 storage (an MCAP or ROS 1 block is one chunk)."""
 
 
-@dataclass(frozen=True)
-class Topic:
+class Topic(NamedTuple):
     """A topic read: its channel's index (:attr:`BagSource.channels`) and the layout of its messages."""
 
     lane: int
