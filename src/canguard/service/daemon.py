@@ -90,7 +90,7 @@ class Daemon:
         self.config_path = config_path
         self.state_dir = state_dir
         """``--state-dir``: the journal and the I²t state file go there, at start and at every reload."""
-        self.cfg: Config = cfg if cfg is not None else self.load()
+        self.cfg: Config = cfg if cfg is not None else load_run_config(config_path, state_dir)
         if self.refuse_virtual:
             refuse_unguarded(self.cfg)
         check_config_outputs(self.cfg)
@@ -154,10 +154,6 @@ class Daemon:
     def wanted(self, cfg: Config) -> dict[str, frozenset[int] | None]:
         """Per bus, the id keys of the frames received (:func:`~canguard.io.bus.receive_keys`; None: every frame)."""
         return receive_keys(cfg) if self.filters else {}
-
-    def load(self) -> Config:
-        """The config file as this daemon runs it (its outputs moved to :attr:`state_dir`, when set)."""
-        return load_run_config(self.config_path, self.state_dir)
 
     # -- signals ---------------------------------------------------------------------------
     def install_signals(self) -> None:
@@ -292,7 +288,7 @@ class Daemon:
         """Load the config and tree again; keep the running ones when the new ones are bad."""
         self.notifier.reloading()
         try:
-            cfg = self.load()
+            cfg = load_run_config(self.config_path, self.state_dir)  # its outputs in --state-dir, when given
             if dict(cfg.buses) != dict(self.cfg.buses):
                 raise CanguardError("buses changed: a bus change needs a restart (systemctl restart canguard)")
             new = self.build_engine(cfg, previous=self.engine)
