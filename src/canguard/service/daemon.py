@@ -42,7 +42,8 @@ from canguard.service.systemd import Notifier, watchdog_hold
 log = logging.getLogger(__name__)
 
 SWITCH_INTERVAL_S = 0.0005
-"""GIL switch interval while the daemon runs (Python's default is 5 ms)."""
+"""GIL switch interval while the daemon runs: at Python's default 5 ms a frame a bus thread (or the monitor's)
+received could wait that long for the loop."""
 
 LIVE_SKEW_S = 0.5
 """A frame timestamp further than this from the daemon's clock is replaced by the receive time."""
@@ -185,8 +186,6 @@ class Daemon:
         end = time.monotonic() + duration_s if duration_s is not None else math.inf
         receive = self.reader.receive
         batch = DRAIN_DIRECT if self.reader.direct else DRAIN + 1
-        # Python hands the GIL between threads every 5 ms by default: a frame received by a
-        # bus thread (or the monitor's) could wait that long for the loop. 0.5 ms keeps the tail short.
         previous_switch = sys.getswitchinterval()
         sys.setswitchinterval(SWITCH_INTERVAL_S)
         try:
