@@ -126,14 +126,13 @@ def _mcap_export(opts: ReplayOptions) -> bool:
 
 def _outputs(stack: ExitStack, engine: Engine, sink: LogSink, opts: ReplayOptions, log: str) -> None:
     """The exports a replay writes as it goes (``--export-signals``, ``--emit`` as a bag), each closed at the end."""
-    watch = _AfterTicks(sink, engine.observer)
+    watch = _AfterTicks(sink)
     if opts.export is not None and _mcap_export(opts):
         from canguard.report.export import McapExport
 
-        mcap = McapExport(engine, opts.export, log)
-        stack.callback(mcap.close)
-        watch.takers.append(mcap.sent)
-        watch.observers.append(mcap)
+        watch.mcap = McapExport(engine, opts.export, log)
+        stack.callback(watch.mcap.close)
+        watch.takers.append(watch.mcap.sent)
     elif opts.export is not None:
         from canguard.report.export import SignalExport
 
@@ -150,17 +149,18 @@ def _outputs(stack: ExitStack, engine: Engine, sink: LogSink, opts: ReplayOption
 
 
 class _AfterTicks:
-    """The engine's observer: after every tick that runs, the frames sent go to their takers; observers see it."""
+    """The engine's observer: after every tick that runs, the frames sent go to their takers; an MCAP export sees
+    the tick."""
 
-    def __init__(self, sink: LogSink, previous: Any) -> None:
+    def __init__(self, sink: LogSink) -> None:
         self.sink = sink
         self.takers: list[Callable[[list[Frame]], None]] = []
-        self.observers: list[Any] = [previous] if previous is not None else []
+        self.mcap: Any = None
 
     def publish(self, engine: Any, now: float) -> None:
         """A tick ran."""
-        for observer in self.observers:
-            observer.publish(engine, now)
+        if self.mcap is not None:
+            self.mcap.publish(engine, now)
         self.hand_over()
 
     def hand_over(self) -> None:

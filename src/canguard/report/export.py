@@ -11,7 +11,7 @@ import math
 import os
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -77,9 +77,9 @@ def part_path(path: Path, index: int) -> Path:
 class SignalExport:
     """Streams every sample an engine decodes into one Parquet file, in bounded memory."""
 
-    def __init__(self, engine: Engine, path: Path, log: str, *, table: SampleTable | None = None) -> None:
+    def __init__(self, engine: Engine, path: Path, log: str, *, table: _Samples | None = None) -> None:
         bus = {name: src.bus for name, src in engine.cfg.sources.items()}
-        self.table: SampleTable = table if table is not None else ParquetTable(path, log, bus)
+        self.table: ParquetTable | _Samples = table if table is not None else ParquetTable(path, log, bus)
         """Where each batch of rows goes: a Parquet file, or an MCAP export's channels."""
         # The DBC [min|max] the source's health checks: a value outside is rejected as out_of_range
         # by the models although the decoder passed it (the decoder does not check ranges).
@@ -162,14 +162,6 @@ class SignalExport:
         self.table.close()
 
 
-class SampleTable(Protocol):
-    """Where :class:`SignalExport` writes its rows, a batch of columns at a time (``keys[code]``: the row's key)."""
-
-    def write(self, t: Any, codes: Any, values: Any, keys: Sequence[tuple[str, str, str]]) -> None: ...
-
-    def close(self) -> None: ...
-
-
 class ParquetTable:
     """The rows as a Parquet file (:data:`COLUMNS`), a record batch (row group) per batch."""
 
@@ -247,7 +239,7 @@ def _cdr(*columns: np.ndarray) -> np.ndarray:
 
 
 class _Samples:
-    """:class:`SignalExport`'s rows as one channel per source and role (a :class:`SampleTable`)."""
+    """:class:`SignalExport`'s rows as one channel per source and role (as :class:`ParquetTable` writes them)."""
 
     def __init__(self, writer: McapWriter) -> None:
         self.writer = writer

@@ -101,11 +101,6 @@ class Knob:
     value: float
     set: Callable[[ProtectionModel, float], None] | None = None
 
-    @property
-    def scale(self) -> bool:
-        """True when tried by scaling the samples (the value is a factor on the rating)."""
-        return self.set is None
-
 
 def _set_max(model: ProtectionModel, value: float) -> None:
     assert isinstance(model, Threshold)
@@ -138,10 +133,9 @@ def knob_of(node: GuardNode) -> Knob | None:
 def trip_time(model: ProtectionModel, knob: Knob, value: float, t: np.ndarray, v: np.ndarray) -> float | None:
     """When a fresh copy of ``model`` with the knob at ``value`` first trips over the samples; None: never."""
     trial = copy.deepcopy(model)
-    if knob.scale:
+    if knob.set is None:
         v = v / value
     else:
-        assert knob.set is not None
         knob.set(trial, value)
     run = trial.advance(t, v)
     hit = np.flatnonzero(run.tripped)
@@ -154,7 +148,7 @@ def ceiling(model: ProtectionModel, knob: Knob, t: np.ndarray, v: np.ndarray) ->
     def trips(value: float) -> float | None:
         return trip_time(model, knob, value, t, v)
 
-    if knob.scale:
+    if knob.set is None:
         lo, hi = 1e-3, 1.0
         while trips(hi) is not None:
             lo, hi = hi, hi * 2.0
@@ -284,7 +278,7 @@ class TuneStats:
                     longest, median = gaps(t)
                     entry.update(peak=float(a[at]), peak_t=float(t[at]) - start, hist=histogram(a),
                                  gap=longest, period=median)
-                    if knob is not None and (not knob.scale or self.tune_i2t):
+                    if knob is not None and (knob.set is not None or self.tune_i2t):
                         top, when = ceiling(model, knob, t, v)
                         entry.update(ceiling=top, ceiling_t=None if when is None else when - start)
                     inrush = envelope(model, t, v)
@@ -297,7 +291,7 @@ class TuneStats:
             guards.append({
                 "node": node.name, "type": type(node).__name__, "source": node.topic_name,
                 "port": knob.port if knob is not None else None,
-                "value": knob.value if knob is not None and not knob.scale else None,
+                "value": knob.value if knob is not None and knob.set is not None else None,
                 "signals": signals,
             })
         return {"guards": guards}
@@ -528,15 +522,14 @@ def propose_age(source: str, old: float, logs: list[LogStats]) -> AgeProposal | 
         return None
     period = sorted(periods)[len(periods) // 2]
     caught = [f for f in faults if f.value > top.value * GAP_FACTOR]  # a dropout, not jitter
-    fails = top.value >= old or any(f.value <= old for f in caught)
-    if not fails:
-        return AgeProposal(source, old, None, "left", f"fits: longest healthy gap {top.value:.3g} s < max_age",
-                           top, period, caught)
     value, note = separate(top.value, [f.value for f in caught], GAP_FACTOR - 1.0)
-    if value is None:
-        return AgeProposal(source, old, None, "conflict", f"healthy log {top.log} has a gap of {top.value:.3g} s, "
-                           "as long as a fault's", top, period, caught)
-    return AgeProposal(source, old, max(value, period), "tuned", note, top, period, caught)
+    if top.value < old and all(f.value > old for f in caught):
+        value, status, note = None, "left", f"fits: longest healthy gap {top.value:.3g} s < max_age"
+    elif value is None:
+        status, note = "conflict", f"healthy log {top.log} has a gap of {top.value:.3g} s, as long as a fault's"
+    else:
+        value, status = max(value, period), "tuned"
+    return AgeProposal(source, old, value, status, note, top, period, caught)
 
 
 def propose(logs: list[LogStats], ages: dict[str, float], expect: dict[str, list[str]] | None, margin: float,

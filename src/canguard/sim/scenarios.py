@@ -199,10 +199,10 @@ class Load(Scenario):
     def setup(self, robot: SimRobot) -> None:
         """Add the background streams."""
         rng = robot.rng
-        extra = self.TARGET_FPS - robot.nominal_rate_hz()
+        extra = self.TARGET_FPS - sum(robot.stream_rates_hz.values())
         if extra <= 0:
             return
-        known = robot.known_ids()
+        known = {m.frame_id for m in robot.db.messages}
         ids = rng.sample([i for i in range(0x200, 0x800) if i not in known], self.IDS)
         weights = [rng.uniform(0.5, 1.5) for _ in ids]
         total = sum(weights)
