@@ -298,8 +298,7 @@ class SimRobot:
             for ax in self.drives:
                 # Spread the axes and kinds over the period so frames do not all collide.
                 phase = period * ((ax.index + slot / len(AXIS_KINDS)) / self.axes)
-                produce = self._heartbeat_producer(ax) if kind == "Heartbeat" else self._telemetry_producer(kind, ax)
-                self.add_periodic(kind, period, phase, produce)
+                self.add_periodic(kind, period, phase, self._producer(kind, ax))
         self.add_periodic("BMS_Status", self.period_s("BMS_Status"), 0.0, self.bms_frame)
         self.add_periodic("BMS_Temperatures", self.period_s("BMS_Temperatures"), 0.5 * self.period_s("BMS_Status"),
                           self._temps)
@@ -326,33 +325,27 @@ class SimRobot:
             elif requested == AXIS_STATE_CLOSED_LOOP and ax.errors == 0:
                 self._set_state(ax, t, AXIS_STATE_CLOSED_LOOP)
 
-    def _telemetry(self, kind: str, ax: _Axis, t: float) -> tuple[float, float]:
-        """The two float32 signals of an axis' telemetry ``kind`` at ``t``."""
+    def _payload(self, enc: MessageEncoder, kind: str, ax: _Axis, t: float) -> bytes:
+        """The bytes of an axis' ``kind`` frame at ``t`` (telemetry: its two float32 signals)."""
+        if kind == "Heartbeat":
+            done = int(ax.state != AXIS_STATE_CLOSED_LOOP or self.velocity(ax, t) == 0.0)
+            return enc.encode({"Axis_Error": ax.errors, "Axis_State": ax.state, "Procedure_Result": 0,
+                               "Trajectory_Done_Flag": done})
         if kind == "Get_Iq":
-            return self.setpoint(ax, t), self.measured(ax, t)
+            return enc.pack(self.setpoint(ax, t), self.measured(ax, t))
         if kind == "Get_Torques":
-            return KT_NM_PER_A * self.setpoint(ax, t), KT_NM_PER_A * self.measured(ax, t)
+            return enc.pack(KT_NM_PER_A * self.setpoint(ax, t), KT_NM_PER_A * self.measured(ax, t))
         if kind == "Get_Encoder_Estimates":
             vel = self.velocity(ax, t) if ax.state == AXIS_STATE_CLOSED_LOOP else 0.0
             ax.pos_rev += vel * max(0.0, t - ax.enc_t)
             ax.enc_t = max(ax.enc_t, t)
-            return ax.pos_rev, vel
+            return enc.pack(ax.pos_rev, vel)
         iq = abs(self.measured(ax, t))  # Get_Bus_Voltage_Current
-        return self.pack_voltage(self.pack_current(t)) - 0.1, iq
+        return enc.pack(self.pack_voltage(self.pack_current(t)) - 0.1, iq)
 
-    def _telemetry_producer(self, kind: str, ax: _Axis) -> Producer:
+    def _producer(self, kind: str, ax: _Axis) -> Producer:
         enc = self.encoder(ax.index, kind)
-        return lambda t: self.raw_frame(t, enc.frame_id, enc.pack(*self._telemetry(kind, ax, t)))
-
-    def _heartbeat_producer(self, ax: _Axis) -> Producer:
-        enc = self.encoder(ax.index, "Heartbeat")
-
-        def produce(t: float) -> Frame:
-            done = int(ax.state != AXIS_STATE_CLOSED_LOOP or self.velocity(ax, t) == 0.0)
-            return self.raw_frame(t, enc.frame_id, enc.encode({"Axis_Error": ax.errors, "Axis_State": ax.state,
-                                                               "Procedure_Result": 0, "Trajectory_Done_Flag": done}))
-
-        return produce
+        return lambda t: self.raw_frame(t, enc.frame_id, self._payload(enc, kind, ax, t))
 
     def _temps(self, t: float) -> Frame:
         enc = self._by_name["BMS_Temperatures"]
