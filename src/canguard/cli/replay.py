@@ -100,9 +100,9 @@ def replay_one(cfg: Config, log_path: Path, opts: ReplayOptions) -> dict[str, An
         _outputs(stack, engine, sink, opts, opts.export_log or str(log_path))  # after the recorder: it sees samples
         tuning = None
         if opts.tune:
-            from canguard.report.tune import TuneStats
+            from canguard.report.tune import tune_stats
 
-            tuning = TuneStats(engine, tune_i2t=opts.tune_i2t)
+            tuning = tune_stats(engine, tune_i2t=opts.tune_i2t)
         try:
             engine.run_log(frames.chunks(), router.table, router.only, router.unmapped,
                            router.channels if router.only is not None else None)
@@ -114,7 +114,7 @@ def replay_one(cfg: Config, log_path: Path, opts: ReplayOptions) -> dict[str, An
                 journal.close()
     summary = build_summary(cfg, log_path, engine, stats, router)
     if tuning is not None:
-        summary["tune"] = tuning.result()
+        summary["tune"] = tuning()
     if recorder is not None and opts.plot is not None:
         recorder.save(opts.plot, summary)
     return summary

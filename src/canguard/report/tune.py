@@ -242,35 +242,25 @@ def gaps(t: np.ndarray) -> tuple[float, float]:
     return float(d.max()), float(np.median(d))
 
 
-class TuneStats:
-    """Hung on an engine before its log: at the end, each guard's ceiling and the statistics of its signals."""
+def tune_stats(engine: Engine, *, tune_i2t: bool = False) -> Callable[[], dict[str, Any]]:
+    """Hung on an engine before its log: what, at the end, gives per guard node its knob, and per signal the
+    samples' statistics and the ceiling on this log (JSON-able; times from the log's first frame)."""
+    captures: dict[tuple[str, str], Capture] = {}
+    nodes = [(node, knob_of(node), [(role, copy.deepcopy(model)) for role, model, _kind in node.guarded()])
+             for node in engine.guard_nodes]  # the models as the tree built them: each trial starts from a copy
+    for node, _knob, fresh in nodes:
+        for role, _model in fresh:
+            if (node.topic_name, role) not in captures:
+                captures[(node.topic_name, role)] = cap = Capture()
+                engine.ctx.subscribe(node.topic_name, role, cap)
 
-    def __init__(self, engine: Engine, *, tune_i2t: bool = False) -> None:
-        self.engine = engine
-        self.tune_i2t = tune_i2t
-        self._captures: dict[tuple[str, str], Capture] = {}
-        self._guards: list[tuple[GuardNode, Knob | None, list[tuple[str, ProtectionModel]]]] = []
-        for node in engine.guard_nodes:
-            knob = knob_of(node)
-            # The models as the tree built them, before any sample: each trial starts from a copy.
-            fresh = [(role, copy.deepcopy(model)) for role, model, _kind in node.guarded()]
-            self._guards.append((node, knob, fresh))
-            for role, _model in fresh:
-                key = (node.topic_name, role)
-                if key not in self._captures:
-                    cap = self._captures[key] = Capture()
-                    engine.ctx.subscribe(node.topic_name, role, cap)
-
-    def result(self) -> dict[str, Any]:
-        """Per guard node: its knob, and per signal the samples' statistics and the ceiling on this log (JSON-able;
-        times from the log's first frame)."""
-        start = self.engine.first_frame_t
-        start = start if math.isfinite(start) else 0.0
+    def result() -> dict[str, Any]:
+        start = engine.first_frame_t if math.isfinite(engine.first_frame_t) else 0.0
         guards = []
-        for node, knob, fresh in self._guards:
+        for node, knob, fresh in nodes:
             signals = []
             for role, model in fresh:
-                t, v = self._captures[(node.topic_name, role)].columns()
+                t, v = captures[(node.topic_name, role)].columns()
                 a = np.abs(v)
                 entry: dict[str, Any] = {"role": role, "samples": int(a.size)}
                 if a.size:
@@ -278,15 +268,14 @@ class TuneStats:
                     longest, median = gaps(t)
                     entry.update(peak=float(a[at]), peak_t=float(t[at]) - start, hist=histogram(a),
                                  gap=longest, period=median)
-                    if knob is not None and (knob.set is not None or self.tune_i2t):
+                    if knob is not None and (knob.set is not None or tune_i2t):
                         top, when = ceiling(model, knob, t, v)
                         entry.update(ceiling=top, ceiling_t=None if when is None else when - start)
                     inrush = envelope(model, t, v)
                     if inrush is not None:
                         entry["inrush"] = inrush
-                    heat = getattr(model, "trip_level", None)
-                    if heat is not None:
-                        entry["heat_pct"] = float(self.engine.stats.max_level_pct.get(node.name, math.nan))
+                    if getattr(model, "trip_level", None) is not None:
+                        entry["heat_pct"] = float(engine.stats.max_level_pct.get(node.name, math.nan))
                 signals.append(entry)
             guards.append({
                 "node": node.name, "type": type(node).__name__, "source": node.topic_name,
@@ -295,6 +284,8 @@ class TuneStats:
                 "signals": signals,
             })
         return {"guards": guards}
+
+    return result
 
 
 GAP_FACTOR = 1.5
