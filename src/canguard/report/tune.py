@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import copy
 import math
+from array import array
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
@@ -38,43 +39,31 @@ class Capture(ProtectionModel):
     """A model that never trips: it keeps every sample the engine feeds it, as the guards' models get them."""
 
     def __init__(self) -> None:
-        self._runs: list[tuple[np.ndarray, np.ndarray]] = []
-        self._t: list[float] = []
-        self._v: list[float] = []
+        self._t = array("d")
+        self._v = array("d")
 
     def advance(self, times: Any, values: Any, *, until_edge: bool = False) -> Run:
-        """Keep the run (copied; a run of one kept as plain floats) and report no edge."""
+        """Keep the run and report no edge."""
         if len(times) == 1:  # a frame on its own
             self._t.append(float(times[0]))
             self._v.append(float(values[0]))
-            return Run(*_NO_EDGE, 1)
-        self._spill()
-        self._runs.append((np.array(times, dtype=np.float64), np.array(values, dtype=np.float64)))
+        else:
+            self._t.frombytes(np.asarray(times, dtype=np.float64).tobytes())
+            self._v.frombytes(np.asarray(values, dtype=np.float64).tobytes())
         return Run(*_NO_EDGE, len(times))
 
     def mark(self) -> Any:
         """How many samples are kept (the engine goes back to it when a run went past another source's edge)."""
-        self._spill()
-        return len(self._runs)
+        return len(self._t)
 
     def rewind(self, mark: Any) -> None:
-        """Forget the runs kept since :meth:`mark`."""
-        self._spill()
-        del self._runs[mark:]
-
-    def _spill(self) -> None:
-        if self._t:
-            self._runs.append((np.array(self._t, dtype=np.float64), np.array(self._v, dtype=np.float64)))
-            self._t, self._v = [], []
+        """Forget the samples kept since :meth:`mark`."""
+        del self._t[mark:]
+        del self._v[mark:]
 
     def columns(self) -> tuple[np.ndarray, np.ndarray]:
         """Every sample kept so far, in arrival order: (times, values), finite ones only."""
-        self._spill()
-        if not self._runs:
-            return np.empty(0), np.empty(0)
-        t = np.concatenate([r[0] for r in self._runs])
-        v = np.concatenate([r[1] for r in self._runs])
-        self._runs = [(t, v)]
+        t, v = np.array(self._t, dtype=np.float64), np.array(self._v, dtype=np.float64)
         ok = np.isfinite(t) & np.isfinite(v)
         return (t, v) if ok.all() else (t[ok], v[ok])
 
