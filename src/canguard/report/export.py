@@ -88,7 +88,7 @@ class SignalExport:
         """Columns of samples in order (time, code, value arrays), waiting for a batch to be full."""
         self._pending = 0
         self._codes: dict[tuple[str, str, str], int] = {}
-        self._keys: list[tuple[str, str, str]] = []
+        """A small number per (source, signal, reason), the same for the whole export, in order of first use."""
         engine.sample_block = self._block
 
     def _reason_of(self, s: Sample) -> str:
@@ -137,13 +137,7 @@ class SignalExport:
             self._flush()
 
     def _code(self, name: tuple[str, str], reason: str) -> int:
-        """A small number for (source, signal, reason), the same for the whole export."""
-        key = (*name, reason)
-        code = self._codes.get(key)
-        if code is None:
-            code = self._codes[key] = len(self._keys)
-            self._keys.append(key)
-        return code
+        return self._codes.setdefault((*name, reason), len(self._codes))
 
     def _flush(self) -> None:
         """The first :data:`BATCH_ROWS` samples waiting (all of them, when fewer) to the table."""
@@ -151,7 +145,7 @@ class SignalExport:
             return
         t, codes, values = (np.concatenate(cols) for cols in zip(*self._chunks, strict=True))
         n = min(t.size, BATCH_ROWS)
-        self.table.write(t[:n], codes[:n], values[:n], self._keys)
+        self.table.write(t[:n], codes[:n], values[:n], list(self._codes))
         self._chunks = [(t[n:], codes[n:], values[n:])] if n < t.size else []
         self._pending = t.size - n
 
