@@ -72,20 +72,21 @@ def replay_one(cfg: Config, log_path: Path, opts: ReplayOptions) -> dict[str, An
     Blackboard.metadata.clear()
     Blackboard.clients.clear()
     clock = ManualClock()
-    journal = None
-    if opts.events is not None:
-        from canguard.engine.events import EventJournal
-
-        journal = EventJournal(opts.events)
-    heat = HeatStore(opts.state, cfg.state.on_corrupt) if opts.state is not None else None
-    stats = ReadStats()
-    router = ChannelRouter(cfg, opts.channel_map)
-    frames = read_log(log_path, skip_bad=opts.skip_bad, stats=stats, bag=opts.bag)
-    if opts.progress:
-        from canguard.io.progress import wrap_progress
-
-        frames = wrap_progress(frames, log_path)  # attaches to the reader: before any wrapping
     with ExitStack() as stack:
+        journal = None
+        if opts.events is not None:
+            from canguard.engine.events import EventJournal
+
+            journal = EventJournal(opts.events)
+            stack.callback(journal.close)  # the last to close: after the exports below (LIFO)
+        heat = HeatStore(opts.state, cfg.state.on_corrupt) if opts.state is not None else None
+        stats = ReadStats()
+        router = ChannelRouter(cfg, opts.channel_map)
+        frames = read_log(log_path, skip_bad=opts.skip_bad, stats=stats, bag=opts.bag)
+        if opts.progress:
+            from canguard.io.progress import wrap_progress
+
+            frames = wrap_progress(frames, log_path)  # attaches to the reader: before any wrapping
         # --emit streams each frame to the file as it is sent: memory stays flat in the log's length.
         bag_out = opts.emit is not None and emits_bag(opts.emit)
         text_out = opts.emit is not None and not bag_out
@@ -103,15 +104,11 @@ def replay_one(cfg: Config, log_path: Path, opts: ReplayOptions) -> dict[str, An
             from canguard.report.tune import tune_stats
 
             tuning = tune_stats(engine, tune_i2t=opts.tune_i2t)
-        try:
-            engine.run_log(frames.chunks(), router.table, router.only, router.unmapped,
-                           router.channels if router.only is not None else None)
-            if engine.stats.frames:
-                engine.advance(clock.now())
-                engine.finish(reason="end of log", stop=False)
-        finally:
-            if journal is not None:
-                journal.close()
+        engine.run_log(frames.chunks(), router.table, router.only, router.unmapped,
+                       router.channels if router.only is not None else None)
+        if engine.stats.frames:
+            engine.advance(clock.now())
+            engine.finish(reason="end of log", stop=False)
     summary = build_summary(cfg, log_path, engine, stats, router)
     if tuning is not None:
         summary["tune"] = tuning()
