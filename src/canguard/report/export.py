@@ -375,13 +375,10 @@ def fleet_row(log: str, summary: Mapping[str, Any] | None, error: str = "") -> d
 
 def write_fleet_summary(path: Path, rows: Iterable[Mapping[str, Any]]) -> None:
     """Write ``rows``: Parquet when ``path`` ends with ``.parquet`` (pyarrow), else JSON lines."""
-    rows = list(rows)
+    table = [{c: r.get(c) for c in FLEET_COLUMNS} for r in rows]
     if path.suffix.lower() == ".parquet":
         pa, pq = require_pyarrow(f"--fleet-summary {path}")
-        table = pa.Table.from_pylist([{c: r.get(c) for c in FLEET_COLUMNS} for r in rows],
-                                     schema=schema(pa, FLEET_COLUMNS))
-        pq.write_table(table, path)
+        pq.write_table(pa.Table.from_pylist(table, schema=schema(pa, FLEET_COLUMNS)), path)
         return
     with open(path, "w", encoding="utf-8") as out:
-        for r in rows:
-            out.write(json.dumps({c: r.get(c) for c in FLEET_COLUMNS}, sort_keys=False) + "\n")
+        out.writelines(json.dumps(r) + "\n" for r in table)
