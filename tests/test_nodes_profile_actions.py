@@ -7,7 +7,7 @@ from pathlib import Path
 import py_trees
 import pytest
 
-import canguard.bt.nodes.profile as profile_module
+import canguard.bt.nodes.control as profile_module
 from treekit import F, R, Rig, S, frame, install_scripted, xml_tree
 
 BB = py_trees.blackboard.Blackboard

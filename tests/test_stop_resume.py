@@ -222,7 +222,7 @@ class TestEverySeedTreeResumes:
             fake["t"] += 0.08 if 1.0 <= s < 1.5 else 0.0005  # a tick's time is its second read's step
             return fake["t"]
 
-        monkeypatch.setattr(nodes.profile, "perf_counter", perf_counter)
+        monkeypatch.setattr(nodes.control, "perf_counter", perf_counter)
         run.until(2.0)
         _resumes_after(run, 1.0, 1.5, 0.021)
         run.check_frames_never_mix()

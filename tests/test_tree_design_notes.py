@@ -9,7 +9,7 @@ import math
 
 import pytest
 
-import canguard.bt.nodes.profile as profile_module
+import canguard.bt.nodes.control as profile_module
 from treekit import TREES, F, R, Rig, S
 
 

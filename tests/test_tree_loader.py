@@ -188,7 +188,7 @@ class TestMainAndNames:
             "ExecuteTask",
         ]
         assert not UUID.search(render_text(loaded.root))
-        info = loaded.info(loaded.find("battery guard"))
+        info = loaded.nodes[loaded.find("battery guard").id]
         assert (info.node_id, info.line, info.tree) == ("IsCurrentNormal", 3, "T")
 
     def test_events_name_the_node(self, tmp_path: Path) -> None:
@@ -558,7 +558,7 @@ class TestRegistry:
         rig.load_text(tmp_path, xml_tree('<Sequence><Blink period="2"/></Sequence>'))
         assert calls == ["Blink"]
         assert [rig.tick() for _ in range(3)] == [S, F, S]
-        assert type(rig.loaded.root).__module__ == "canguard.bt.nodes.sequences"  # type: ignore[union-attr]
+        assert type(rig.loaded.root).__module__ == "canguard.bt.nodes.control"  # type: ignore[union-attr]
 
     def test_broken_plugin_names_itself(self, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
         """A plug-in that fails to import, or is not a ports behaviour, is a TreeError naming it."""

@@ -18,10 +18,13 @@ from canguard.bt import loader
 from canguard.bt.context import Context
 from canguard.bt.loaded import LoadedTree, _preorder
 from canguard.bt.loader import load_tree, type_name
-from canguard.bt.nodes import BUILTIN_NODES, ConfiguredAction
-from canguard.bt.nodes.base import node_kind
+from canguard.bt.nodes import BUILTIN_NODES, ConfiguredAction, GuardNode
+from canguard.bt.nodes.actions import EmitStop, ExecuteTask, ResetStop, assign_roles
+from canguard.bt.nodes.base import RUNNING, node_kind
 from canguard.config.schema import Config
 from canguard.errors import TreeError, quote
+from canguard.protect.hysteresis import Hysteresis
+from canguard.protect.i2t import _I2tModel
 
 if TYPE_CHECKING:
     from canguard.bt.loader import Palette
@@ -36,12 +39,11 @@ class TreeReport:
     warnings: list[str]  # configured sources the tree does not read
 
 
-def context_for(cfg: Config, clock: Any = None) -> Context:
-    """A context for ``cfg`` (sources, actions, stop frames) on ``clock`` (a ManualClock at 0 by default)."""
+def context_for(cfg: Config) -> Context:
+    """A context for ``cfg`` (sources, actions, stop frames) on a ManualClock at 0."""
     from canguard.io.clock import ManualClock
 
-    clock = clock if clock is not None else ManualClock()
-    return Context(clock, cfg.sources, actions=cfg.actions, stop_frames=cfg.stop.frames)
+    return Context(ManualClock(), cfg.sources, actions=cfg.actions, stop_frames=cfg.stop.frames)
 
 
 def load_config_tree(cfg: Config, ctx: Context | None = None, palette: Palette | None = None) -> LoadedTree:
@@ -81,8 +83,6 @@ def _path_to(node: py_trees.behaviour.Behaviour) -> list[py_trees.behaviour.Beha
 def guard_coverage(loaded: LoadedTree) -> list[str]:
     """Guards placed before ExecuteTask's branch under a composite with memory: ticked once, then skipped
     while the task runs, so an overcurrent during the task would never stop it."""
-    from canguard.bt.nodes.actions import ExecuteTask
-
     tasks = [n for n in loaded.root.iterate() if isinstance(n, ExecuteTask)]
     out: list[str] = []
     for guard in loaded.guard_nodes():
@@ -95,13 +95,12 @@ def guard_coverage(loaded: LoadedTree) -> list[str]:
             g_child = g_path[g_path.index(common) - 1]
             t_child = t_path[t_path.index(common) - 1]
             if common.children.index(g_child) < common.children.index(t_child):
-                info = loaded.info(guard)
-                out.append(
-                    f"{info.file}:{info.line}: {guard.name} is checked only before {task.name} starts: under "
-                    f"{common.name} ({loaded.info(common).node_id}, which keeps its place while a child is RUNNING) "
-                    f"it is not ticked again while the task runs, so the task would go on through an overcurrent "
-                    f"or a dead sensor; put them under a ReactiveSequence to guard the task at every tick"
-                )
+                info = loaded.nodes[guard.id]
+                out.append(f"{info.file}:{info.line}: {guard.name} is checked only before {task.name} starts: under "
+                           f"{common.name} ({loaded.nodes[common.id].node_id}, which keeps its place while a child is "
+                           "RUNNING) it is not ticked again while the task runs, so the task would go on through an "
+                           "overcurrent or a dead sensor; put them under a ReactiveSequence to guard the task at "
+                           "every tick")
     return out
 
 
@@ -116,9 +115,7 @@ def halt_ahead(loaded: LoadedTree) -> Callable[[], bool] | None:
     the tree's one task node and lies in no child before the guard's branch, and no port of the guard is
     wired (a ``{key}`` threshold may change in the tick).
     """
-    from canguard.bt.nodes.actions import ConfiguredAction, ExecuteTask
-    from canguard.bt.nodes.base import RUNNING
-    from canguard.bt.nodes.sequences import ReactiveSequence
+    from canguard.bt.nodes.control import ReactiveSequence
 
     nodes = list(loaded.root.iterate())
     tasks = [n for n in nodes if isinstance(n, ExecuteTask) or (isinstance(n, ConfiguredAction) and n.role == "task")]
@@ -140,23 +137,42 @@ def halt_ahead(loaded: LoadedTree) -> Callable[[], bool] | None:
     return lambda: task.status == RUNNING and any(m.tripped for m in models)
 
 
+_STOP_ROLES = ((ExecuteTask, "TASK task frames; asks to release the stop"), (EmitStop, "STOP sends the stop frames"),
+               (ResetStop, "RESET releases a manual stop"))
+
+
+def _stop_role(node: py_trees.behaviour.Behaviour) -> str:
+    """What ``node`` does to a stop, in words ("" when nothing)."""
+    if isinstance(node, GuardNode):
+        holds = []  # how long its failure holds: its models' recovery rules
+        for _, model, _ in node.guarded():
+            if isinstance(model, Hysteresis):
+                holds.append(f"holds until |I| <= {model.recovery_a:g} A (hysteresis)")
+            elif isinstance(model, _I2tModel):
+                holds.append(f"holds until the I²t level < {model.recover_fraction * 100:g} % (i2t)")
+            else:
+                holds.append("holds for the tick it fails in (threshold)")
+        return "LATCH trips a stop; " + ("; ".join(dict.fromkeys(holds)) or "fails while its source is stale")
+    if isinstance(node, ConfiguredAction):
+        return ("TASK frames withheld while stopped; asks to release the stop" if node.role == "task"
+                else "RECOVERY frames sent during a stop too")
+    return next((role for cls, role in _STOP_ROLES if isinstance(node, cls)), "")
+
+
 def _with_stop_roles(text: str, root: py_trees.behaviour.Behaviour, stop: Any) -> str:
     """The drawing with, per node, what it does to a stop (LATCH, TASK, RECOVERY...), and the release rule."""
-    from canguard.bt.nodes.actions import stop_roles
-
-    roles = stop_roles(root)
+    assign_roles(root)
     lines = text.splitlines()
     nodes = list(_preorder(root))
     if len(lines) != len(nodes):  # not the one-line-per-node drawing: leave it as it is
         return text
     width = max(len(line) for line in lines) + 2
-    out = [f"{line:<{width}}{roles[n]}".rstrip() if n in roles else line for line, n in zip(lines, nodes, strict=True)]
+    roles = map(_stop_role, nodes)
+    out = [f"{line:<{width}}{role}".rstrip() if role else line for line, role in zip(lines, roles, strict=True)]
     manual = ", with ResetStop ticked (stop.release: manual)" if stop.release == "manual" else ""
-    out.append(
-        f"stop: latches when the tree fails, a LATCH node halts the task or a read source goes stale; released at "
-        f"the end of a tick without FAILURE that reaches the task, no inhibit left, after stop.min_stop "
-        f"{stop.min_stop_s:g} s{manual}"
-    )
+    out.append("stop: latches when the tree fails, a LATCH node halts the task or a read source goes stale; released "
+               "at the end of a tick without FAILURE that reaches the task, no inhibit left, after stop.min_stop "
+               f"{stop.min_stop_s:g} s{manual}")
     return "\n".join(out) + "\n"
 
 
@@ -198,10 +214,7 @@ def render_dot(root: py_trees.behaviour.Behaviour, path: str | Path) -> Path:
 
 
 def nodes_model_xml(ctx: Context | None = None) -> str:
-    """A Groot2 ``<TreeNodesModel>`` of every canguard node type and its ports.
-
-    With ``ctx``, the config's actions are included (each with its ``output_time`` port).
-    """
+    """A Groot2 ``<TreeNodesModel>`` of every canguard node type and its ports (with ``ctx``, the config's actions)."""
     doc = ET.Element("root", {"BTCPP_format": "4"})
     model = ET.SubElement(doc, "TreeNodesModel")
     actions = ctx.actions if ctx is not None else {}

@@ -18,7 +18,6 @@ class FrameSink(Protocol):
 
     def send(self, frames: Sequence[FrameSpec], origin: str) -> None:
         """Queue ``frames`` for sending; ``origin`` names the node or action that sent them."""
-        ...
 
 
 class TaskGate(Protocol):
@@ -26,11 +25,9 @@ class TaskGate(Protocol):
 
     def run(self, node: str, now: float) -> None:
         """ExecuteTask was ticked: the task runs (send task frames every period)."""
-        ...
 
     def halt(self, node: str, now: float) -> None:
         """ExecuteTask was halted: the task stops (send stop frames at once)."""
-        ...
 
 
 class ListSink:

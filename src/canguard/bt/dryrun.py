@@ -5,17 +5,13 @@ from __future__ import annotations
 import math
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from py_trees.blackboard import Blackboard
 
 from canguard.bt.context import Context
-from canguard.bt.loader import load_tree
+from canguard.bt.loader import Palette, load_tree
 from canguard.io.clock import ManualClock
-
-if TYPE_CHECKING:
-    from canguard.bt.loaded import LoadedTree
-    from canguard.bt.loader import Palette
 
 
 def root_blackboard() -> dict[str, Any]:
@@ -28,19 +24,6 @@ def root_blackboard() -> dict[str, Any]:
             plain = value is None or isinstance(value, str | int) or (isinstance(value, float) and math.isfinite(value))
             out[name] = value if plain else str(value)
     return dict(sorted(out.items()))
-
-
-def _script_errors(loaded: LoadedTree) -> list[str]:
-    """Every script that failed in the tick just done: the node, where it is written, the script and why."""
-    out = []
-    for node in loaded.root.iterate():
-        error = getattr(node, "script_error", None)
-        if error:
-            info = loaded.nodes.get(node.id)
-            where = f"{info.file}:{info.line}: " if info is not None else ""
-            out.append(f"{where}node {node.name}: script {error}")
-            node.script_error = None  # type: ignore[attr-defined]
-    return out
 
 
 def dry_run(path: Path, ticks: int, dt: float, main: str | None = None, palette: Palette | None = None, *,
@@ -61,7 +44,12 @@ def dry_run(path: Path, ticks: int, dt: float, main: str | None = None, palette:
             statuses.append("FAILURE")
             continue
         finally:
-            for line in _script_errors(loaded):
-                print(f"canguard tree: tick {i + 1}: {line}", file=sys.stderr)
+            for node in loaded.root.iterate():  # every script that failed in the tick: where, the script, why
+                error = getattr(node, "script_error", None)
+                if error:
+                    info = loaded.nodes.get(node.id)
+                    where = f"{info.file}:{info.line}: " if info is not None else ""
+                    print(f"canguard tree: tick {i + 1}: {where}node {node.name}: script {error}", file=sys.stderr)
+                    node.script_error = None  # type: ignore[attr-defined]
         statuses.append("SKIPPED" if ticked.skipped else ticked.status.name)
     return {"ticks": statuses, "blackboard": root_blackboard()}

@@ -94,10 +94,6 @@ class LoadedTree:
                 return node
         raise KeyError(f"no node named {name!r}; nodes: {', '.join(n.name for n in self.root.iterate())}")
 
-    def info(self, node: py_trees.behaviour.Behaviour) -> NodeInfo:
-        """Where ``node`` is written."""
-        return self.nodes[node.id]
-
     def guard_nodes(self) -> list[GuardNode]:
         """Every guard condition (the nodes that read sources), in tree order."""
         return [n for n in _preorder(self.root) if isinstance(n, GuardNode)]

@@ -1,9 +1,4 @@
-"""Loading BehaviorTree.CPP XML trees onto py_trees: read, checked against the node registry, built, bound.
-
-One load reads the file with its lines (includes, v3 spellings, ``<TreeNodesModel>`` palettes), checks
-every node, port and SubTree collecting every problem, lets py_trees' parser build the tree under
-placeholder names (``@n``) and binds canguard's nodes; every problem is one TreeError naming file and line.
-"""
+"""Loading BehaviorTree.CPP XML trees onto py_trees: read, checked against the node registry, built, bound."""
 
 from __future__ import annotations
 
@@ -25,16 +20,15 @@ from py_trees.parsers import behaviour_tree_xml as pyxml
 from py_trees.ports import PortInformation, PortsMixin
 from py_trees.ports_utils import convert_str_to_type
 
-from canguard.bt import conditions
 from canguard.bt.context import Context
 from canguard.bt.loaded import LoadedTree, NodeInfo, _preorder
 from canguard.bt.nodes import BUILTIN_NODES, CanguardNode, ConfiguredAction, GuardNode, PortError
-from canguard.bt.nodes.base import node_kind, port_table
+from canguard.bt.nodes.base import CONDITIONS, install_conditions, node_kind, port_table, take_conditions
 from canguard.bt.scopes import SUBTREE, Inline, TreeBlackboard, subtree_ports, subtree_scopes
 from canguard.errors import TreeError, closest, quote
 
 if TYPE_CHECKING:
-    from canguard.bt.scripting import Script
+    from canguard.bt.scripting.script import Script
     from canguard.config.schema import PartialConfig
 
 Registry = dict[str, functools.partial]
@@ -89,8 +83,7 @@ def read_xml(path: Path, where: dict[ET.Element, Where]) -> ET.Element:
 # -- the node registry ------------------------------------------------------------------------------------------
 
 def plugin_entry_points() -> dict[str, EntryPoint]:
-    """The ``canguard.nodes`` entry points by node ID (not loaded); none parsed unless a distribution names
-    the group (a cheaper scan)."""
+    """The ``canguard.nodes`` entry points by node ID (not loaded; parsed only if a distribution names the group)."""
     if not any(ENTRY_POINT_GROUP in (dist.read_text("entry_points.txt") or "") for dist in distributions()):
         return {}
     return {ep.name: ep for ep in entry_points(group=ENTRY_POINT_GROUP)}
@@ -108,19 +101,9 @@ def load_plugin(ep: EntryPoint) -> type[PortsMixin]:
     return cls
 
 
-def _takes_context(cls: type) -> bool:
-    try:
-        return issubclass(cls, CanguardNode) or "context" in inspect.signature(cls).parameters
-    except (TypeError, ValueError):
-        return False
-
-
 def build_registry(ctx: Context, only: Collection[str] | None = None) -> Registry:
-    """The closed table of node types for one tree: ``{node ID: partial(cls, context=ctx, ...)}``.
-
-    Built-ins, one ConfiguredAction per ``ctx.actions`` entry, and the plug-ins, only those in ``only``
-    (all when None). An action named like a built-in is a TreeError; a plug-in named like either is ignored.
-    """
+    """The closed table of node types for one tree: built-ins, config actions, plug-ins (those in ``only``, all
+    when None). An action named like a built-in is a TreeError; a plug-in named like either is ignored."""
     registry: Registry = {node_id: functools.partial(BUILTIN_NODES[node_id], context=ctx)  # imported when used
                           for node_id in BUILTIN_NODES if only is None or node_id in only}
     for name, action in ctx.actions.items():
@@ -130,7 +113,11 @@ def build_registry(ctx: Context, only: Collection[str] | None = None) -> Registr
     for name, ep in plugin_entry_points().items():
         if name not in BUILTIN_NODES and name not in registry and (only is None or name in only):
             cls = load_plugin(ep)
-            registry[name] = functools.partial(cls, context=ctx) if _takes_context(cls) else functools.partial(cls)
+            try:
+                takes_context = issubclass(cls, CanguardNode) or "context" in inspect.signature(cls).parameters
+            except (TypeError, ValueError):
+                takes_context = False
+            registry[name] = functools.partial(cls, context=ctx) if takes_context else functools.partial(cls)
     return registry
 
 
@@ -167,11 +154,7 @@ class PaletteNode:
 
 @dataclass
 class Palette:
-    """Every node type declared by the palettes of one load, by ID (the first declaration wins).
-
-    A tree node is checked against its declaration; it runs only once bound to a config action or a
-    plug-in (docs/trees.md, "Palettes").
-    """
+    """Every node type declared by the palettes of one load, by ID (the first declaration wins)."""
 
     nodes: dict[str, PaletteNode] = field(default_factory=dict)
 
@@ -202,14 +185,10 @@ class Palette:
                     required = port.attrib.get("required", "").strip().lower() in ("true", "1")
                     ports[name] = PalettePort(direction, port.attrib.get("default"), port.attrib.get("type", ""),
                                               (port.text or "").strip(), required and direction != "output")
-            self.add(PaletteNode(node_id, decl.tag, ports, at(decl)), problems)
-
-    def add(self, node: PaletteNode, problems: list[str]) -> None:
-        """Declare ``node``; a problem when its ID was declared before differently."""
-        first = self.nodes.setdefault(node.node_id, node)
-        if (first.kind, dict(first.ports)) != (node.kind, dict(node.ports)):
-            problems.append(f"{node.where}: {node.kind} {node.node_id} is declared again differently "
-                            f"(first at {first.where})")
+            first = self.nodes.setdefault(node_id, PaletteNode(node_id, decl.tag, ports, at(decl)))
+            if (first.kind, dict(first.ports)) != (decl.tag, ports):
+                problems.append(f"{at(decl)}: {decl.tag} {node_id} is declared again differently "
+                                f"(first at {first.where})")
 
     def check(self, elem: ET.Element, decl: PaletteNode, at: str, tree_id: str) -> list[str]:
         """The problems of one tree node against its declaration ``decl`` (ports, children)."""
@@ -283,24 +262,17 @@ class _Load:
         self.format_version = 3
         self.palette = Palette(dict(palette.nodes) if palette is not None else {})
         self.registry: Registry = {}
-        self.infos: dict[str, NodeInfo] = {}  # by node token
-        self.elements: dict[str, ET.Element] = {}  # the same
+        self.tokens: dict[str, tuple[ET.Element, NodeInfo]] = {}  # the node's element and info by its token
         self.conditions: dict[ET.Element, dict[str, Script]] = {}  # a SubTree's run on the parent's board
         self.private: dict[ET.Element, Inline] = {}  # elements of an inlined _autoremap subtree -> it
         self.inlined = 0
         self.errors: list[str] = []  # every problem found so far: one load reports them all
         self.broken_trees: set[str] = set()  # rewrite failed: not validated further (no follow-on errors)
         self.source_check: Literal["with_others", "always", "never"] = "with_others"
-        """When guards' sources are checked: with other problems (binding checks them otherwise), always
-        (a tree checked without binding), or never (the sources are unknown)."""
+        """When guards' sources are checked: with other problems (else binding does), always, or never (unknown)."""
         self.unsure_sources: Collection[str] = ()  # declared by a config that could not build them
         self.unbound: list[str] = []  # why each palette-declared node nothing implements cannot run
         self.entry_types: dict[str, type] = {}  # typed entries (filled by _check_entry_types)
-
-    def raise_collected(self) -> None:
-        """Raise one TreeError listing every problem collected so far, if there is any."""
-        if self.errors:
-            raise TreeError(self.errors)
 
     def at(self, elem: ET.Element) -> str:
         """``file:line`` of ``elem``."""
@@ -315,8 +287,6 @@ class _Load:
             node += f' "{name}"'
         where = f"node {node}" + (f" (BehaviorTree {tree})" if tree else "") + (f", port {port}" if port else "")
         return TreeError(f"{self.at(elem)}: {where}: {msg}")
-
-    # -- reading and rewriting -----------------------------------------------------------------------------
 
     def _document(self, path: Path) -> ET.Element:
         """The ``<root>`` element of the file ``path`` (its elements' lines recorded)."""
@@ -472,8 +442,6 @@ class _Load:
             raise TreeError(f"{self.path}: no BehaviorTree with ID {quote(chosen)}; trees in the file: {known}")
         return chosen
 
-    # -- checking --------------------------------------------------------------------------------------------
-
     def check(self) -> None:
         """Check every node of every tree against the registry, collecting every problem."""
         self.registry = build_registry(self.ctx, only={e.tag for bt in self.trees.values() for e in bt.iter()})
@@ -484,7 +452,7 @@ class _Load:
             subtree_names: dict[str, int] = {}
             for elem in bt[0].iter():
                 subtree = elem.tag == SUBTREE
-                scripts, problems = conditions.take_conditions(elem.attrib)  # a SubTree's: on that node, as BT.CPP
+                scripts, problems = take_conditions(elem.attrib)  # a SubTree's: on that node, as BT.CPP
                 what = f"SubTree {elem.attrib.get('ID')}" if subtree else f"node {elem.tag}"
                 self.errors.extend(f"{self.at(elem)}: {what} (BehaviorTree {tree_id}), {p}" for p in problems)
                 self.conditions[elem] = scripts
@@ -498,10 +466,9 @@ class _Load:
                 source_error = self._check_source(elem, cls, tree_id)
                 if source_error is not None:
                     pending.append((len(self.errors), source_error))
-                token = f"{_TOKEN}{len(self.infos) + 1}"
+                token = f"{_TOKEN}{len(self.tokens) + 1}"
                 file, line = self.where.get(elem, (self.path, 0))
-                self.infos[token] = NodeInfo(elem.tag, elem.attrib.get("name") or elem.tag, file, line, tree_id)
-                self.elements[token] = elem
+                self.tokens[token] = elem, NodeInfo(elem.tag, elem.attrib.get("name") or elem.tag, file, line, tree_id)
                 elem.attrib["name"] = token
         if self.source_check == "always" or (self.errors and self.source_check == "with_others"):
             # The tree will not be built, so binding (which resolves the sources and reports an
@@ -598,7 +565,7 @@ class _Load:
         """Raise the TreeError of one attribute of a node of ``cls`` (unknown port, bad value...), if any."""
         if attr.startswith("_"):
             raise self.error(elem, f"attribute {attr} (BT.CPP pre/post-conditions) is not supported; "
-                                   f"the supported ones: {', '.join(conditions.ALL)}", tree_id)
+                                   f"the supported ones: {', '.join(CONDITIONS)}", tree_id)
         if attr not in ports:
             listing = ", ".join(_closest(attr, ports)) if ports else "(none)"
             raise self.error(elem, f"unknown port {quote(attr)}; ports of {elem.tag}: {listing}", tree_id)
@@ -637,8 +604,6 @@ class _Load:
 
         visit(main_id, [main_id])
 
-    # -- building --------------------------------------------------------------------------------------------
-
     def build(self, main_id: str) -> LoadedTree:
         """The tree ``main_id`` built by py_trees' parser, its nodes named, given their scopes and bound."""
         main = self.trees[main_id]
@@ -658,15 +623,15 @@ class _Load:
         counts: dict[str, int] = {}
         for node in nodes:
             parts = node.name.split(".")
-            elem, info = self.elements[parts[-1]], self.infos[parts[-1]]
+            elem, info = self.tokens[parts[-1]]
             board = boards.get(_namespace(node), boards["/"])
             if elem in self.private:  # a node of an inlined _autoremap subtree: its ports and _keys
                 board = board.inlined(self.private[elem])
                 Blackboard.storage.update({k: v for k, v in board.literals.items() if k not in Blackboard.storage})
             if isinstance(node, CanguardNode) and node.USES_BOARD:
                 node.board = board  # type: ignore[attr-defined]
-            conditions.install(node, self.conditions.get(elem, {}), board)
-            readable = "/".join([*(p for p in parts[:-1] if p not in self.infos), info.name])
+            install_conditions(node, self.conditions.get(elem, {}), board)
+            readable = "/".join([*(p for p in parts[:-1] if p not in self.tokens), info.name])
             counts[readable] = k = counts.get(readable, 0) + 1
             node.name = readable if k == 1 else f"{readable}#{k}"
             loaded.nodes[node.id] = NodeInfo(info.node_id, node.name, info.file, info.line, info.tree)
@@ -683,15 +648,12 @@ class _Load:
                 continue
             for node in nodes:  # the instance's root: the one node of its scope whose parent is outside it
                 if _namespace(node).startswith(ns) and not _namespace(node.parent).startswith(ns):
-                    conditions.install(node, scripts, boards[scope.parent])
+                    install_conditions(node, scripts, boards[scope.parent])
                     break
 
     def _bind(self, nodes: list[py_trees.behaviour.Behaviour], loaded: LoadedTree) -> None:
-        """Type the entries, give every node the tree's wake-up signal and bind it; every node that cannot bind
-        is a problem, not only the first."""
+        """Type the entries, give every node the tree's wake-up signal and bind it, collecting every problem."""
         ours = [node for node in nodes if isinstance(node, CanguardNode)]
-        for node in ours:
-            node.resolve_root_keys()
         self._check_entry_types(ours, loaded.nodes)
         for node in ours:
             node.wake_up = loaded.wake_up  # BT.CPP's factory gives every node of a tree its wake-up signal
@@ -701,7 +663,8 @@ class _Load:
                 self.errors.append(f"{loaded.nodes[node.id].where}, port {exc.port}: {exc.message}")
             except (ValueError, KeyError, TypeError) as exc:
                 self.errors.append(f"{loaded.nodes[node.id].where}: {exc}")
-        self.raise_collected()
+        if self.errors:
+            raise TreeError(self.errors)
 
     def _check_entry_types(self, nodes: list[CanguardNode], infos: dict[Any, NodeInfo]) -> None:
         """BT.CPP's rule: the first typed port wired to an entry fixes its type (a string converts to any)."""
@@ -726,12 +689,12 @@ class _Load:
 
     def _untoken(self, text: str) -> str:
         def name(m: re.Match) -> str:
-            info = self.infos.get(m.group(0))
+            _, info = self.tokens.get(m.group(0), (None, None))
             return f"{info.node_id} at line {info.line}" if info else m.group(0)
 
         text = re.sub(re.escape(_TOKEN) + r"\d+", name, text)
         lines: dict[str, list[str]] = {}
-        for info in self.infos.values():
+        for _, info in self.tokens.values():
             if f"'{info.node_id}'" in text:
                 lines.setdefault(info.node_id, []).append(f"{info.file.name}:{info.line}")
         hints = "; ".join(f"{node_id} at {', '.join(where)}" for node_id, where in lines.items())
@@ -740,24 +703,21 @@ class _Load:
 
 def _checked(path: str | Path, ctx: Context, main: str | None, palette: Palette | None,
              *, to_run: bool) -> tuple[_Load, str]:
-    """The checked load of ``path`` and the main tree's ID; a TreeError listing every problem of the file
-    (``to_run``: palette-declared nodes that nothing implements too)."""
+    """The checked load and the main tree's ID; a TreeError listing every problem (``to_run``: unbound nodes too)."""
     load = _Load(Path(path), ctx, palette)
     main_id = load.read(main)
     load.check()
     if to_run:
         load.errors.extend(load.unbound)
-    load.raise_collected()
+    if load.errors:
+        raise TreeError(load.errors)
     load.check_cycles(main_id)
     return load, main_id
 
 
 def load_tree(path: str | Path, ctx: Context, main: str | None = None, palette: Palette | None = None) -> LoadedTree:
-    """Load, validate and bind the BehaviorTree.CPP XML tree ``main`` of ``path`` for ``ctx``.
-
-    ``main`` defaults to ``main_tree_to_execute``, or the only tree; ``palette``: ``--nodes`` files.
-    Every problem is a :class:`~canguard.errors.TreeError` naming file and line.
-    """
+    """Load, validate and bind the tree ``main`` of ``path`` (default: ``main_tree_to_execute``, or the only tree)
+    for ``ctx``; ``palette``: ``--nodes`` files. A TreeError names file and line of every problem."""
     load, main_id = _checked(path, ctx, main, palette, to_run=True)
     return load.build(main_id)
 

@@ -1,15 +1,11 @@
-"""The blackboard scope of each SubTree instance, as py_trees' parser remaps ports, for scripts and SetBlackboard.
-
-A remapped name is the parent's entry, a literal on the element a typed entry of the instance,
-``@key`` the root's (docs/trees.md, "The blackboard").
-"""
+"""The blackboard scope of each SubTree instance, as py_trees' parser remaps ports, for scripts and SetBlackboard."""
 
 from __future__ import annotations
 
 import re
 import xml.etree.ElementTree as ET
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 from py_trees.blackboard import Blackboard
 
@@ -68,8 +64,7 @@ class TreeBlackboard:
         aliases = {**self.aliases, **{port: self.key(name) for port, name in inline.remaps.items()},
                    **{port: own + port for port in inline.literals}}
         literals = {own + port: typed_literal(text) for port, text in inline.literals.items()}
-        return TreeBlackboard(self.namespace, aliases, literals, self.parent, self.element, inline.private,
-                              self.declared)
+        return replace(self, aliases=aliases, literals=literals, private=inline.private)
 
     def key(self, name: str) -> str:
         """The storage key of entry ``name`` as seen from this scope (``@name``: the root's)."""
@@ -83,19 +78,24 @@ class TreeBlackboard:
         return alias if alias is not None else self.namespace + name
 
     def has(self, key: str) -> bool:
+        """Whether the entry exists (with or without a value: a typed port declares it)."""
         full = self.key(key)
         return full in Blackboard.storage or full in self.declared
 
     def get(self, key: str) -> object:
+        """The entry's value; KeyError when the entry does not exist or holds no value."""
         return Blackboard.storage[self.key(key)]
 
     def set(self, key: str, value: object) -> None:
+        """Create or overwrite the entry's value."""
         Blackboard.storage[self.key(key)] = value
 
     def declared_type(self, key: str) -> type | None:
+        """The type a typed port declared the entry with, or None: any type."""
         return self.declared.get(self.key(key))
 
     def unset(self, key: str) -> None:
+        """Remove the entry (nothing when there is none)."""
         Blackboard.storage.pop(self.key(key), None)
 
 

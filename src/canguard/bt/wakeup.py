@@ -1,7 +1,4 @@
-"""BehaviorTree.CPP's wake-up signal, and ``tickOnce()``: the root re-ticked while a wake-up is pending.
-
-Unlike BT.CPP the re-ticks of one tick are bounded (:data:`MAX_RETICKS`; docs/trees.md, "Ticks").
-"""
+"""BehaviorTree.CPP's wake-up signal, and ``tickOnce()``: the root re-ticked while a wake-up is pending."""
 
 from __future__ import annotations
 
@@ -14,7 +11,7 @@ if TYPE_CHECKING:
 
     from canguard.bt.context import Context
 
-MAX_RETICKS = 100  # re-ticks of the root in one tick; the rest wait for the next tick
+MAX_RETICKS = 100  # re-ticks of the root in one tick, unlike BT.CPP (docs/trees.md): the rest wait for the next
 
 
 class WakeUpSignal:
@@ -25,10 +22,6 @@ class WakeUpSignal:
         self.pending = False  # set by BT.CPP's emitWakeUpSignal, cleared by its waitFor(0)
         self._timers: dict[int, float] = {}
         self.capped = False  # consecutive ticks hit the bound: only the first is journalled
-
-    def emit(self) -> None:
-        """Set the latch (BT.CPP's ``emitWakeUpSignal``)."""
-        self.pending = True
 
     def arm(self, owner: object, deadline: float) -> None:
         """A timer of ``owner`` that emits the signal at ``deadline`` (the engine's clock, s)."""

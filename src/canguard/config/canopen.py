@@ -1,14 +1,8 @@
 """CANopen drives (``canopen:``): an EDS's PDO mapping, heartbeat and EMCY as cantools messages and raw frames.
 
-Translated once, at config load: TPDOs, heartbeat (``0x700 + node``) and EMCY (``0x080 + node``: code u16,
-error register u8, 5 manufacturer bytes) become cantools messages, CiA 402 and NMT commands raw frames; no
-CANopen code runs later. ``configure: true`` adds the :class:`SdoWrite` s that configure the drive. The loader's
-:class:`CanopenSection` reads the section, the sources of its drives and their frames.
-
-An EDS or DCF (:class:`Eds`) is read as drive vendors publish it, with the ``canopen`` library for one node id;
-it is scanned first for each section's line (errors name ``file:line [6077]``) and for deviations outside the
-object dictionary (a malformed ``[Comments]``, an incomplete ``[DummyUsage]``, unknown keys): noted in
-:attr:`Eds.notes` (``canguard check -v``), not refused.
+Translated once, at config load: no CANopen code runs later. An EDS or DCF is read as drive vendors publish it:
+deviations outside the object dictionary (a malformed ``[Comments]``, an incomplete ``[DummyUsage]``, unknown
+keys) are noted (``canguard check -v``), not refused.
 """
 
 from __future__ import annotations
@@ -33,12 +27,10 @@ TPDO_COMM, TPDO_MAP = 0x1800, 0x1A00
 PRODUCER_HEARTBEAT = 0x1017
 CONTROLWORD = 0x6040
 STATUSWORD = 0x6041
-FAULT_BIT = 3
-"""Statusword bit 3 (CiA 402): Fault."""
+FAULT_BIT = 3  # the statusword's Fault bit (CiA 402)
 UNDESCRIBED = "(not in the EDS)"
 """The name of an object a PDO maps that the EDS does not describe (its type, so its sign, is unknown)."""
-HEARTBEAT_FACTOR = 1.5
-"""A heartbeat consumer's timeout, in producer heartbeat periods."""
+HEARTBEAT_FACTOR = 1.5  # a heartbeat consumer's timeout, in producer heartbeat periods
 
 COMMANDS: Mapping[str, int] = {
     "quick_stop": 0x0002, "enable_operation": 0x000F, "shutdown": 0x0006, "switch_on": 0x0007,
@@ -52,8 +44,6 @@ NMT_COMMANDS: Mapping[str, int] = {
 """NMT commands (``nmt:`` of a frame): the command specifier of ``0x000: CS NODE``."""
 
 _OBJECT = re.compile(r"(?:0x)?([0-9A-Fa-f]{4})(?::(?:0x)?([0-9A-Fa-f]{1,2}))?")
-
-
 DEVICE_TYPE = 0x1000
 PROFILES = {
     401: "CiA 401 (generic I/O module)", 402: "CiA 402 (drive and motion control)",
@@ -61,8 +51,7 @@ PROFILES = {
     410: "CiA 410 (inclinometer)", 418: "CiA 418 (battery module)", 419: "CiA 419 (battery charger)",
 }
 """Device profiles by number (0x1000 bits 0..15): what ``init`` names a device that is not a drive."""
-DISABLED = 0x80000000
-"""A PDO COB-ID's bit 31: the PDO is not valid (the drive does not send or take it)."""
+DISABLED = 0x80000000  # a PDO COB-ID's bit 31: the PDO is not valid (the drive does not send or take it)
 PREDEFINED_TPDO, PREDEFINED_RPDO = (0x180, 0x280, 0x380, 0x480), (0x200, 0x300, 0x400, 0x500)
 """The predefined connection set: the COB-ID of PDO n (1..4) is ``base[n-1] + node``."""
 
@@ -85,15 +74,9 @@ class EdsError(ValueError):
 class _Section:
     name: str
     line: int
-    keys: dict[str, int]
-    """Key (as written) -> line (its first)."""
-    again: list[int]
-    """Lines of keys written again."""
-
-    @property
-    def is_object(self) -> bool:
-        """True for a section of the object dictionary (``[6077]``, ``[1A00sub1]``, ``[1003Name]``...)."""
-        return _OBJECT_SECTION.fullmatch(self.name) is not None
+    keys: dict[str, int]  # key as written -> its first line
+    again: list[int]  # lines of keys written again
+    is_object: bool  # a section of the object dictionary ([6077], [1A00sub1], [1003Name]...)
 
 
 def _scan(text: str) -> tuple[list[_Section], list[str]]:
@@ -105,7 +88,8 @@ def _scan(text: str) -> tuple[list[_Section], list[str]]:
         if not s or s[0] in ";#":
             continue
         if s.startswith("[") and "]" in s:
-            sections.append(_Section(s[1:s.index("]")].strip(), no, {}, []))
+            name = s[1:s.index("]")].strip()
+            sections.append(_Section(name, no, {}, [], _OBJECT_SECTION.fullmatch(name) is not None))
         elif sections and "=" in s:
             key = s.split("=", 1)[0].strip()
             if key in sections[-1].keys:
@@ -131,8 +115,7 @@ class Eds:
             raise EdsError(f"{path}: {exc.strerror or exc}") from exc
         self.path = path
         self.node = node
-        self.notes: list[str] = []
-        """Deviations tolerated while reading."""
+        self.notes: list[str] = []  # deviations tolerated while reading
         try:  # Windows tools write both
             text = raw.decode("utf-8-sig")
         except UnicodeDecodeError:
@@ -145,8 +128,11 @@ class Eds:
         source.name = str(path)  # import_od picks the format by the name's suffix
         try:
             self.od: Any = import_od(source, node)
-        except Exception as exc:  # configparser and the canopen library raise many kinds
-            raise EdsError(self._load_error(exc)) from exc
+        except Exception as exc:  # configparser and the canopen library raise many kinds; name the section's line
+            named = re.search(r"section:? '?\[?([0-9A-Za-z_]+)", str(exc))
+            section = getattr(exc, "section", None) or (named.group(1) if named else None)
+            where = self.where_section(str(section)) if section else str(self.path)
+            raise EdsError(f"{where}: does not load as an EDS ({type(exc).__name__}: {exc})") from exc
 
     def _lenient(self, sections: list[_Section], lines: list[str]) -> set[int]:
         """Lines to leave out and notes for deviations outside the object dictionary."""
@@ -190,15 +176,6 @@ class Eds:
         except (ValueError, IndexError):
             return 0
 
-    def _load_error(self, exc: Exception) -> str:
-        """The library's error, with the file and line of the section it names."""
-        section = getattr(exc, "section", None)
-        if section is None:
-            m = re.search(r"section:? '?\[?([0-9A-Za-z_]+)", str(exc))
-            section = m.group(1) if m else None
-        where = self.where_section(str(section)) if section else str(self.path)
-        return f"{where}: does not load as an EDS ({type(exc).__name__}: {exc})"
-
     def note(self, line: int, what: str, text: str) -> None:
         """Record a tolerated deviation at ``line``."""
         self.notes.append(f"{self.path.name}:{line} {what}: {text}")
@@ -230,10 +207,7 @@ class Eds:
 
     def entry(self, index: int) -> Any:
         """The OD entry at ``index`` (variable, record or array), or None."""
-        try:
-            return self.od[index]
-        except KeyError:
-            return None
+        return self.od.get(index)
 
     def variable(self, index: int, subindex: int = 0) -> Any:
         """The OD variable ``index:subindex`` (or the variable ``index`` itself), or None."""
@@ -242,10 +216,7 @@ class Eds:
             return None
         if not hasattr(entry, "subindices"):
             return entry if subindex == 0 else None
-        try:
-            return entry[subindex]
-        except KeyError:
-            return None
+        return entry.get(subindex)
 
     def by_name(self, name: str) -> Any:
         """The variable whose ParameterName is ``name`` (``Record.Sub`` for a sub-object), or None."""
@@ -269,8 +240,7 @@ class Eds:
         return var.value if var.value is not None else var.default
 
     def pdo_value(self, index: int, subindex: int | None) -> Any:
-        """The variable ``index[:subindex]`` when it can be a PDO value; else :class:`EdsError` saying where and why
-        (a record or array without a sub-index, ``PDOMapping=0``, strings and domains)."""
+        """The variable ``index[:subindex]`` when it can be a PDO value; else :class:`EdsError` saying where and why."""
         entry = self.entry(index)
         if entry is None:
             raise EdsError(f"0x{index:04X} is not an object of {self.path.name}")
@@ -341,8 +311,7 @@ class MappedObject:
 
 @dataclass(frozen=True)
 class Pdo:
-    """One PDO of a drive: its name (``TPDO1``), COB-ID and mapped objects in order; ``enabled``: valid in the EDS
-    (COB-ID bit 31 clear) or made valid by a ``pdo:`` override (``overridden``)."""
+    """One PDO of a drive (``TPDO1``); ``enabled``: valid in the EDS or made valid by a ``pdo:`` override."""
 
     name: str
     cob_id: int
@@ -383,12 +352,9 @@ class CanopenDrive:
     rpdos: tuple[Pdo, ...]
     defaults: Mapping[tuple[int, int], int | float] = field(default_factory=dict)
     """The EDS value (DCF ``ParameterValue``, else ``DefaultValue``) of each object an RPDO maps."""
-    device: str = ""
-    """The EDS's vendor and product name."""
-    setup: tuple[SdoWrite, ...] = ()
-    """``configure: true``: the SDO writes that give the drive what the config expects (empty: not configured)."""
-    notes: tuple[str, ...] = ()
-    """What reading the EDS tolerated or the drive must be told (``canguard check -v``)."""
+    device: str = ""  # the EDS's vendor and product name
+    setup: tuple[SdoWrite, ...] = ()  # configure: true: the SDO writes that give the drive what the config expects
+    notes: tuple[str, ...] = ()  # what reading the EDS tolerated or the drive must be told (``canguard check -v``)
 
     @property
     def heartbeat_id(self) -> int:
@@ -420,8 +386,7 @@ class CanopenDrive:
         return tuple(p for p in self.tpdos if p.enabled)
 
     def command_data(self, command: int) -> tuple[Pdo, bytes] | None:
-        """The RPDO mapping the controlword and its payload with ``command`` in it (the other objects at their EDS
-        values), or None."""
+        """The RPDO mapping the controlword, and its payload: ``command``, the other objects at their EDS values."""
         found = _first_mapping(self.rpdos, CONTROLWORD, 0)
         if found is None:
             return None
@@ -430,7 +395,9 @@ class CanopenDrive:
         for obj in pdo.objects:
             at = (obj.index, obj.subindex)
             value = command if at == (CONTROLWORD, 0) else self.defaults.get(at, 0)
-            payload |= _raw_bits(obj, value) << obj.start_bit
+            raw = (int.from_bytes(struct.pack("<f" if obj.bits == 32 else "<d", float(value)), "little")
+                   if obj.is_float else int(value) & ((1 << obj.bits) - 1))
+            payload |= raw << obj.start_bit
         return pdo, payload.to_bytes(pdo.length, "little")
 
     def describe(self, verbose: bool = False) -> list[str]:
@@ -454,8 +421,7 @@ class CanopenDrive:
 
 @dataclass(frozen=True)
 class SdoWrite:
-    """One SDO download that configures a drive; ``check``: read back after all writes (False for the CiA 301
-    mapping steps later writes overwrite)."""
+    """One SDO download that configures a drive; ``check``: read back after all writes (not a step later undone)."""
 
     index: int
     subindex: int
@@ -475,8 +441,7 @@ class SdoWrite:
 
 
 def pdo_writes(eds: Eds, pdo: Pdo, period_ms: int) -> list[SdoWrite]:
-    """The CiA 301 procedure giving the TPDO ``pdo``'s mapping, COB-ID and event timer: disable it, clear the count,
-    write the entries and the count, event-driven every ``period_ms`` (where the EDS has those), enable it."""
+    """The CiA 301 writes giving the TPDO ``pdo`` its mapping, COB-ID and event timer (``period_ms``)."""
     comm, mapping = TPDO_COMM + pdo.number - 1, TPDO_MAP + pdo.number - 1
     raw = eds.value(comm, 1)
     flags = (int(raw) if isinstance(raw, int) else 0) & 0x60000000
@@ -517,8 +482,7 @@ def drive_pdos(eds: Eds) -> tuple[list[Pdo], list[Pdo]]:
 
 
 def _read_pdos(eds: Eds, comm_base: int, map_base: int, prefix: str) -> list[Pdo]:
-    """Every PDO the EDS defines, valid or not; a disabled one without a COB-ID gets the predefined set's (PDO 1..4),
-    else 0 (no override may name it)."""
+    """Every PDO the EDS defines; one without a COB-ID gets the predefined set's (PDO 1..4), else 0."""
     predefined = PREDEFINED_TPDO if comm_base == TPDO_COMM else PREDEFINED_RPDO
     found: list[Pdo] = []
     for n in range(512):
@@ -551,8 +515,7 @@ def mapped(eds: Eds, var: Any, start_bit: int, bits: int | None = None) -> Mappe
 
 
 def override(eds: Eds, pdo: Pdo, objects: list[tuple[int, int | None]]) -> Pdo:
-    """``pdo`` mapping ``objects`` in order instead, enabled; EdsError for an object that cannot be a PDO value
-    (where and why) or a mapping longer than a CAN frame."""
+    """``pdo`` mapping ``objects`` instead, enabled; EdsError for an object no PDO can carry, or over 64 bits."""
     out: list[MappedObject] = []
     start = 0
     for index, subindex in objects:
@@ -566,17 +529,8 @@ def override(eds: Eds, pdo: Pdo, objects: list[tuple[int, int | None]]) -> Pdo:
     return Pdo(name=pdo.name, cob_id=pdo.cob_id, objects=tuple(out), enabled=True, overridden=True)
 
 
-def _raw_bits(obj: MappedObject, value: int | float) -> int:
-    """``value`` as the unsigned bits ``obj`` occupies."""
-    if obj.is_float:
-        fmt = "<f" if obj.bits == 32 else "<d"
-        return int.from_bytes(struct.pack(fmt, float(value)), "little")
-    return int(value) & ((1 << obj.bits) - 1)
-
-
 def parse_object(value: Any) -> tuple[int, int | None] | str | None:
-    """``object:`` as (index, subindex) when it is hex (``0x6077``, ``6077:0``, a YAML int), else its name; the
-    subindex is None where none is written."""
+    """``object:`` as (index, subindex or None) when it is hex (``0x6077``, ``6077:0``, an int), else its name."""
     if isinstance(value, bool):
         return None
     if isinstance(value, int):
@@ -590,10 +544,8 @@ def parse_object(value: Any) -> tuple[int, int | None] | str | None:
 
 
 DRIVE_KEYS = ("eds", "node", "bus", "heartbeat", "pdo", "configure", "tpdo_period")
-CONFIGURED_HEARTBEAT_S = 0.1
-"""The heartbeat canguard tells a drive (``configure: true``) whose entry and EDS give none."""
-DEFAULT_TPDO_PERIOD_S = 0.01
-"""The event timer canguard gives a ``pdo:`` TPDO it configures (``tpdo_period:``)."""
+CONFIGURED_HEARTBEAT_S = 0.1  # what canguard tells a drive (configure: true) whose entry and EDS give none
+DEFAULT_TPDO_PERIOD_S = 0.01  # the event timer canguard gives a ``pdo:`` TPDO it configures (``tpdo_period:``)
 
 
 class CanopenSection:
@@ -605,11 +557,9 @@ class CanopenSection:
         self.drives: dict[str, CanopenDrive] = {}
         self._messages: dict[tuple[str, int], tuple[str, int, dict[str, Any]]] = {}
         """Per (drive, COB-ID): message name, payload length, signal name -> cantools Signal (built at the end)."""
-        self.failed: set[str] = set()
-        """Drives whose entry has a problem: their sources and frames add no follow-on errors."""
+        self.failed: set[str] = set()  # drives with a problem: their sources and frames add no follow-on errors
         self._eds: dict[str, Eds] = {}
-        self._events: set[str] = set()
-        """Drives one of whose sources already carries the EMCY event roles."""
+        self._events: set[str] = set()  # drives one of whose sources carries the EMCY event roles
 
     def load(self, value: Any) -> None:
         """Read every ``canopen:`` drive (problems recorded, broken drives left out)."""
@@ -649,7 +599,11 @@ class CanopenSection:
         heartbeat = self.heartbeat(eds, body, key, configure)
         values = {(o.index, o.subindex): eds.value(o.index, o.subindex) for pdo in rpdos for o in pdo.objects}
         defaults = {at: v for at, v in values.items() if isinstance(v, (int, float)) and not isinstance(v, bool)}
-        setup = self.setup(eds, tpdos, body, key, heartbeat) if configure else ()
+        setup: tuple[SdoWrite, ...] = ()
+        if configure:  # the heartbeat, then each pdo: override's mapping, COB-ID and event timer
+            period_ms = max(1, min(0xFFFF, round(c.seconds(body, "tpdo_period", key, DEFAULT_TPDO_PERIOD_S) * 1000)))
+            writes = [w for pdo in tpdos if pdo.overridden for w in pdo_writes(eds, pdo, period_ms)]
+            setup = (heartbeat_write(heartbeat), *writes)
         if "tpdo_period" in body and not configure:
             c.problem(_path(key, "tpdo_period"), f"{body['tpdo_period']!r} without configure: true",
                       "configure: true with it (the period is what canguard tells the drive)")
@@ -664,8 +618,7 @@ class CanopenSection:
                             rpdos=tuple(rpdos), defaults=defaults, device=eds.device, setup=setup, notes=tuple(notes))
 
     def heartbeat(self, eds: Eds, body: Mapping[str, Any], key: str, configure: bool) -> float:
-        """``heartbeat:`` (s), else the EDS's 0x1017 (ms) when not 0, else (``configure: true``)
-        :data:`CONFIGURED_HEARTBEAT_S`; else a problem, and that as a stand-in (no follow-on errors)."""
+        """``heartbeat:``, else the EDS's 0x1017 when not 0, else (configured, or after a problem) the default."""
         if "heartbeat" in body:
             return self.checks.seconds(body, "heartbeat", key, CONFIGURED_HEARTBEAT_S)
         ms = eds.value(PRODUCER_HEARTBEAT)
@@ -679,17 +632,6 @@ class CanopenSection:
                      "the drive's heartbeat period in seconds (heartbeat: 0.1), with the drive told 0x1017 = "
                      "that period in ms, or configure: true (canguard tells it)")
         return CONFIGURED_HEARTBEAT_S
-
-    def setup(self, eds: Eds, tpdos: list[Pdo], body: Mapping[str, Any], key: str,
-              heartbeat_s: float) -> tuple[SdoWrite, ...]:
-        """``configure: true``: the heartbeat, then each ``pdo:`` override's mapping, COB-ID and event timer."""
-        period_s = self.checks.seconds(body, "tpdo_period", key, DEFAULT_TPDO_PERIOD_S)
-        period_ms = max(1, min(0xFFFF, round(period_s * 1000)))
-        writes = [heartbeat_write(heartbeat_s)]
-        for pdo in tpdos:
-            if pdo.overridden:
-                writes += pdo_writes(eds, pdo, period_ms)
-        return tuple(writes)
 
     def overrides(self, eds: Eds, tpdos: list[Pdo], value: Any, key: str) -> list[Pdo]:
         """``pdo: {TPDO3: [objects...]}``: those TPDOs (disabled in the EDS or not) map these objects instead."""
@@ -767,10 +709,9 @@ class CanopenSection:
             return None
         parsed = parse_object(value)
         if isinstance(parsed, str):
-            for pdo in drive.enabled_tpdos:
-                for obj in pdo.objects:
-                    if obj.name.casefold() == parsed.casefold():
-                        return pdo, obj
+            named = [(p, o) for p in drive.enabled_tpdos for o in p.objects if o.name.casefold() == parsed.casefold()]
+            if named:
+                return named[0]
         elif parsed is not None:
             eds = self._eds[drive.name]
             if parsed[1] is None and hasattr(eds.entry(parsed[0]), "subindices"):
@@ -794,8 +735,7 @@ class CanopenSection:
         return None
 
     def health_refs(self, drive: CanopenDrive, near: Pdo | None) -> list[SignalRef]:
-        """The drive's heartbeat, EMCY and (statusword mapped) Fault-bit roles of every source it feeds; the Fault
-        bit from ``near`` (the source's own TPDO) when it maps the statusword, so bit and value come in one frame."""
+        """The drive's health roles; the Fault bit from ``near`` (the source's TPDO) if it can: one frame for both."""
         name, emcy = drive.name, drive.emcy_id
         refs = [self.ref(drive, None, "nmt", f"{name}_nmt_state", 0, 7, cob_id=drive.heartbeat_id,
                          max_age_s=drive.timeout_s)]

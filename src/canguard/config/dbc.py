@@ -1,12 +1,8 @@
 """DBC files as teams and vendors export them: loaded as cantools loads them without strict checks.
 
-A pre-pass blanks (keeping line numbers) what cantools refuses even when not strict: Vector's
-``VECTOR__INDEPENDENT_SIG_MSG`` and statements of a message or signal the file does not define (each a
-note). Then every message is checked as strict mode would: overlapping signals (outside exclusive
-multiplexer pages), signals that do not fit, and what they multiplex are taken out of their message.
-Each is a :class:`SignalProblem`: an error where the config reads an involved signal, a note otherwise.
-
-:class:`Messages` is what a config names from them (and from its ``canopen:`` drives).
+A pre-pass blanks what cantools refuses even when not strict (Vector's ``VECTOR__INDEPENDENT_SIG_MSG``, statements
+of a message or signal the file does not define), keeping line numbers. Signals strict mode would refuse (overlapping,
+not fitting, multiplexed by one of those) leave their message: an error where the config reads one, else a note.
 """
 
 from __future__ import annotations
@@ -37,7 +33,6 @@ _WORD = re.compile(_STRING + r'|;|[^\s";]+')
 _KEYWORD = re.compile(_STRING + r'|^[ \t]*([A-Z][A-Z_]*_)(?=[\s:])', re.MULTILINE)
 """A string (skipped whole), or a keyword that starts a line: a statement (``BO_``, ``SG_``, ``VAL_``, ...)."""
 _END = re.compile(_STRING + "|;")
-_NEWLINE = re.compile("\n")
 
 
 @dataclass(frozen=True)
@@ -46,8 +41,7 @@ class SignalProblem:
 
     message: str
     signals: tuple[str, ...]
-    text: str
-    """``file:line: ...`` naming the signals and the message."""
+    text: str  # ``file:line: ...`` naming the signals and the message
 
 
 @dataclass(frozen=True)
@@ -65,8 +59,7 @@ _NAMING = tuple(t.split() for t in (
 """The statements that may name a message the file does not define (cantools refuses them): ``#`` its DBC id,
 ``S`` a signal, ``"`` a string, ``*`` any word. (cantools ignores a ``BU_SG_REL_`` of an undefined message.)"""
 _STATEMENTS = frozenset(t[0] for t in _NAMING)
-_WORDS_NAMING = max(len(t) for t in _NAMING)
-"""A statement names its message (and signal) within this many words (``BA_ "a" SG_ 5 s``)."""
+_WORDS_NAMING = max(len(t) for t in _NAMING)  # the words that name a message and signal (``BA_ "a" SG_ 5 s``)
 
 
 def _fits(pattern: str, word: str) -> bool:
@@ -96,7 +89,7 @@ class _Prepass:
     def __init__(self, text: str, display: str) -> None:
         self.text = text
         self.display = display
-        self.newlines = [m.start() for m in _NEWLINE.finditer(text)]
+        self.newlines = [m.start() for m in re.finditer("\n", text)]
         self.blank: list[tuple[int, int]] = []
 
     def line(self, pos: int) -> int:
@@ -230,10 +223,8 @@ class _MessageCheck:
         self.lines = lines
         self.taken: set[int] = set()
         self.problems: list[SignalProblem] = []
-        self.broken: set[int] = set()
-        """``id()`` of each signal taken out."""
-        self.pages: list[SignalProblem] = []
-        """Multiplexer values that select only signals taken out (frames on them do not decode)."""
+        self.broken: set[int] = set()  # id() of each signal taken out
+        self.pages: list[SignalProblem] = []  # multiplexer values that select only signals taken out
 
     def line(self, signal: Any) -> int:
         """The line of ``signal``'s ``SG_`` line (0 when the format has no lines)."""
@@ -324,20 +315,16 @@ class _MessageCheck:
 class DbcFile:
     """One loaded database file: cantools' database with its unsound signals taken out, and what was found."""
 
+    path: Path
     database: Any
-    notes: list[str]
-    """What the pre-pass skipped, one ``file:line: ...`` each."""
+    notes: list[str]  # what the pre-pass skipped
     problems: list[SignalProblem]
-    dropped: dict[str, list[Any]]
-    """Per message name: the signals taken out of it."""
+    dropped: dict[str, list[Any]]  # per message name: the signals taken out of it
     pages: list[SignalProblem]
 
 
 def load_dbc_file(path: Path) -> DbcFile:
-    """Load a database file as cantools does without strict checks, then check every message strictly.
-
-    Only a ``.dbc`` file has the pre-pass and lines; raises what cantools raises.
-    """
+    """Load a database file as cantools does without strict checks (a ``.dbc`` after the pre-pass), then check it."""
     shown = str(path)
     if path.suffix.lower() == ".dbc":
         # cantools reads a DBC as cp1252, a byte it cannot decode replaced
@@ -348,31 +335,25 @@ def load_dbc_file(path: Path) -> DbcFile:
     else:
         db = cantools.database.load_file(str(path), strict=False)
         notes, lines = [], {}
-    problems: list[SignalProblem] = []
-    pages: list[SignalProblem] = []
-    dropped: dict[str, list[Any]] = {}
+    loaded = DbcFile(path, db, notes, [], {}, [])
     for m in db.messages:
         dbc_id = m.frame_id | (0x80000000 if m.is_extended_frame else 0)
         check = _MessageCheck(m, lines.get(dbc_id, []), shown)
         sound = check.run()
         if check.problems:
-            problems.extend(check.problems)
-            pages.extend(check.pages)
-            dropped[m.name] = [s for s in m.signals if id(s) in check.broken]
+            loaded.problems.extend(check.problems)
+            loaded.pages.extend(check.pages)
+            loaded.dropped[m.name] = [s for s in m.signals if id(s) in check.broken]
             m.signals[:] = sound  # cantools' documented way: change the signals, then refresh()
             m.refresh()
-    return DbcFile(db, notes, problems, dropped, pages)
-
-
-_SNIFF_BYTES = 4096
-"""How much of a DBC that does not load is looked at to tell binary data from a text with a syntax error."""
+    return loaded
 
 
 def _not_loaded(path: Path, exc: Exception) -> str:
     """Why a DBC file did not load, printable and short: binary data is named as such, not echoed."""
     try:
         with path.open("rb") as f:
-            head = f.read(_SNIFF_BYTES)
+            head = f.read(4096)
     except OSError as err:
         return f"cannot be read ({err.strerror or err})"
     text = head.decode("utf-8", errors="replace")
@@ -391,13 +372,10 @@ class Messages:
         self.problem = checks.problem
         self.database: Any = None
         self.dbcs: list[DbcFile] = []
-        """What each DBC file gets wrong: errors where the config reads it, notes elsewhere."""
-        self.ok = False
-        """Whether the DBC files loaded (else no message is looked up: their problems are recorded)."""
+        self.ok = False  # the DBC files loaded (else no message is looked up: their problems are recorded)
         self.by_name: dict[str, Any] = {}
         self._by_id: dict[int, list[Any]] = {}
         self.canopen: CanopenSection | None = None
-        """The ``canopen:`` drives, when the config has any."""
 
     def load_dbc(self, value: Any) -> tuple[Path, ...]:
         """Load ``dbc:`` (one path or a list): a problem for each file that does not load, and for clashes."""
@@ -406,40 +384,40 @@ class Messages:
         if not isinstance(value, list) or not value:
             self.problem("dbc", _found(value), "a DBC file path or a non-empty list of them")
             return ()
-        files, databases = self.dbc_files(value)
-        if len(databases) != len(value):
-            return tuple(files)
+        files = self.dbc_files(value)
+        if len(self.dbcs) != len(value):
+            return files
         where: dict[str, Path] = {}
         ids: dict[tuple[int, bool], tuple[str, Path]] = {}
         before = len(self.checks.problems)
-        for p, db in databases:
-            for m in db.messages:
+        for f in self.dbcs:
+            for m in f.database.messages:
                 key = (m.frame_id, bool(m.is_extended_frame))
                 if m.name in where:
-                    self.problem("dbc", f"message {m.name!r} in both {where[m.name]} and {p}", "unique message names")
+                    self.problem("dbc", f"message {m.name!r} in both {where[m.name]} and {f.path}",
+                                 "unique message names")
                 elif key in ids:
                     other, op = ids[key]
-                    self.problem("dbc", f"frame id 0x{m.frame_id:X} as {other!r} in {op} and as {m.name!r} in {p}",
+                    self.problem("dbc", f"frame id 0x{m.frame_id:X} as {other!r} in {op} and as {m.name!r} in {f.path}",
                                  "unique frame ids")
                 else:
-                    where[m.name], ids[key] = p, (m.name, p)
+                    where[m.name], ids[key] = f.path, (m.name, f.path)
         if len(self.checks.problems) > before:
-            return tuple(files)
-        if len(databases) == 1:
-            self.database = databases[0][1]
+            return files
+        if len(self.dbcs) == 1:
+            self.database = self.dbcs[0].database
         else:
-            messages = [m for _, db in databases for m in db.messages]
-            nodes = [n for _, db in databases for n in db.nodes]
+            messages = [m for f in self.dbcs for m in f.database.messages]
+            nodes = [n for f in self.dbcs for n in f.database.nodes]
             # not strict, as each file loaded: two signals of one name stay in their message
             self.database = cantools.database.can.Database(messages=messages, nodes=nodes, strict=False)
         self._index(self.database.messages)
         self.ok = True
-        return tuple(files)
+        return files
 
-    def dbc_files(self, value: list[Any]) -> tuple[list[Path], list[tuple[Path, Any]]]:
-        """Each file of ``dbc:`` (a problem for each that does not load) and the database of each that does."""
+    def dbc_files(self, value: list[Any]) -> tuple[Path, ...]:
+        """Each file of ``dbc:``, each that loads in :attr:`dbcs` (a problem for each that does not)."""
         files: list[Path] = []
-        databases: list[tuple[Path, Any]] = []
         for i, item in enumerate(value):
             p = self.checks.file_path(item, f"dbc[{i}]")
             if p is None:
@@ -452,9 +430,8 @@ class Messages:
             except Exception as exc:  # cantools raises many kinds of parse errors
                 self.problem(f"dbc[{i}]", f"{p} which {_not_loaded(p, exc)}", "a valid DBC file")
             else:
-                databases.append((p, loaded.database))
                 self.dbcs.append(loaded)
-        return files, databases
+        return tuple(files)
 
     def add(self, messages: list[Any]) -> None:
         """Add messages made elsewhere (a CANopen drive's PDOs, heartbeat, EMCY) to the config's database."""
@@ -492,10 +469,6 @@ class Messages:
     def involved(self, message: str, signal: str) -> list[SignalProblem]:
         """The problems signal ``signal`` of ``message`` is involved in (none: it is sound, or not in the file)."""
         return [p for f in self.dbcs for p in f.problems if p.message == message and signal in p.signals]
-
-    def lost_pages(self, message: str) -> list[SignalProblem]:
-        """The multiplexer values of ``message`` on which its frames no longer decode (none: all decode)."""
-        return [p for f in self.dbcs for p in f.pages if p.message == message]
 
     def dropped(self, message: str) -> list[Any]:
         """The signals the DBC files took out of ``message`` (cantools ``Signal`` objects)."""
@@ -545,10 +518,9 @@ class Messages:
         return None
 
     def read_signal(self, message: Any, value: Any, key: str) -> Any:
-        """:meth:`signal`, for a source to read: None after a problem, also when some of the message's frames do
-        not decode (a multiplexer page of only signals the DBC gets wrong)."""
+        """:meth:`signal`, for a source to read: also a problem when some of the message's frames do not decode."""
         sig = self.signal(message, value, key)
-        lost = self.lost_pages(message.name) if sig is not None else []
+        lost = [p for f in self.dbcs for p in f.pages if p.message == message.name] if sig is not None else []
         if lost:
             why = "; ".join(p.text for p in lost)
             self.problem(key, f"{value!r}, of a message whose frames do not all decode ({why})",

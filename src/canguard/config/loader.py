@@ -1,7 +1,4 @@
-"""YAML config -> frozen dataclasses, validated once.
-
-The dataclasses are :mod:`.schema`'s; every problem of a file comes in one :class:`ConfigError`.
-"""
+"""YAML config -> frozen dataclasses, validated once."""
 
 from __future__ import annotations
 
@@ -16,21 +13,9 @@ from canguard.config import sections
 from canguard.config.dbc import Messages
 from canguard.config.monitor import read_monitor
 from canguard.config.node_ids import RESERVED_NODE_IDS
-from canguard.config.schema import ActionConfig, Config, PartialConfig, TreeConfig
-from canguard.config.sections import ReadSources
+from canguard.config.schema import Config, PartialConfig
 from canguard.config.yamlsrc import Checks, load_yaml
 from canguard.errors import ConfigError
-
-
-def _partial(doc: Mapping[str, Any], tree: TreeConfig | None, actions: Mapping[str, ActionConfig],
-             read: ReadSources) -> PartialConfig:
-    """What of a config with problems is sound enough to check its tree against."""
-    all_actions = {n: a for n, a in actions.items() if n not in RESERVED_NODE_IDS}
-    raw_sources = doc.get("sources")
-    declared = frozenset(str(n) for n in raw_sources) if isinstance(raw_sources, Mapping) else frozenset()
-    return PartialConfig(tree=tree if tree is not None and tree.file.is_file() else None,
-                         sources=MappingProxyType(dict(read.sources)), declared_sources=declared,
-                         sources_ok=read.ok, actions=MappingProxyType(all_actions))
 
 
 def _config(c: Checks, path: Path, doc: Any) -> Config:
@@ -60,23 +45,25 @@ def _config(c: Checks, path: Path, doc: Any) -> Config:
     state = sections.state(c, doc.get("state"))
     monitor = read_monitor(c, doc.get("monitor"))
     simulation = c.choice(doc, "simulation", "", (True, False), False)
-    if c.problems:
+    sources = MappingProxyType(dict(read.sources))
+    if c.problems:  # what is sound enough to check the tree against goes with the error
         err = c.fail()
-        err.partial = _partial(doc, tree, actions, read)
+        named = doc.get("sources")
+        err.partial = PartialConfig(
+            tree=tree if tree is not None and tree.file.is_file() else None, sources=sources,
+            declared_sources=frozenset(str(n) for n in named) if isinstance(named, Mapping) else frozenset(),
+            sources_ok=read.ok,
+            actions=MappingProxyType({n: a for n, a in actions.items() if n not in RESERVED_NODE_IDS}))
         raise err
     drives = MappingProxyType(dict(m.canopen.drives) if m.canopen is not None else {})
-    return Config(path=path, dbc_files=dbc_files, buses=MappingProxyType(buses),
-                  sources=MappingProxyType(dict(read.sources)), tree=tree, task=task, stop=stop,
-                  actions=MappingProxyType(actions), events=events, state=state, monitor=monitor,
+    return Config(path=path, dbc_files=dbc_files, buses=MappingProxyType(buses), sources=sources, tree=tree,
+                  task=task, stop=stop, actions=MappingProxyType(actions), events=events, state=state, monitor=monitor,
                   simulation=simulation, database=m.database, canopen=drives, dbc_notes=tuple(m.notes))
 
 
 def load_config_text(text: str, path: str | Path) -> Config:
-    """Validate config ``text`` as if read from ``path`` (relative paths resolve against its folder).
-
-    Raises :class:`ConfigError` listing every problem, each as
-    ``"{file}: {key.path}: found ..., expected ..."``; YAML syntax errors as ``"{file}:{line}: ..."``.
-    """
+    """Validate config ``text`` as if read from ``path`` (relative paths resolve against its folder); ConfigError
+    lists every problem, each ``"{file}:{line}: {key.path}: found ..., expected ..."``."""
     display = str(path)
     p = Path(path).expanduser().absolute()
     try:

@@ -11,8 +11,7 @@ from canguard.config.schema import MonitorConfig
 from canguard.config.yamlsrc import Checks, _found
 from canguard.errors import ConfigError
 
-LOOPBACK = "127.0.0.1"
-"""Where a monitor given only a port listens."""
+LOOPBACK = "127.0.0.1"  # where a monitor given only a port listens
 
 
 @dataclass(frozen=True)
@@ -89,23 +88,19 @@ def read_monitor(c: Checks, value: Any) -> MonitorConfig:
         c.problem("monitor.token", "nothing",
                   f"a bearer token: monitor.http {http} is not loopback, so the page would be open to the "
                   "network (or bind monitor.http to 127.0.0.1)")
-    shown = {key: str(address) for key, address in found.items()}
-    return MonitorConfig(http=shown.get("http"), token=token, groot2=shown.get("groot2"))
+    return MonitorConfig(token=token, **{key: str(address) for key, address in found.items()})
 
 
 def with_overrides(monitor: MonitorConfig, *, http: str | None = None, groot2: str | None = None) -> MonitorConfig:
-    """The config's ``monitor:`` with ``--http`` / ``--groot2`` in place of its addresses; ConfigError naming the
-    flag for a malformed address, or a page open to the network without ``monitor.token``."""
-    found = {"http": monitor.http, "groot2": monitor.groot2}
+    """The config's ``monitor:`` with ``--http`` / ``--groot2`` for its addresses; ConfigError naming the flag."""
     given = {"http": http, "groot2": groot2}
     parsed = _addresses(given)
     for key, address in parsed.items():
         if isinstance(address, str):
             raise ConfigError(f"--{key} {given[key]!r}: expected {address}")
-        found[key] = str(address)
     page = parsed.get("http")
     if isinstance(page, Address) and not page.loopback and not monitor.token:
         raise ConfigError(f"--http {http}: not a loopback address, so the page would be open to the network: "
                           "set monitor.token in the config (every request then needs it as a bearer token), "
                           "or use 127.0.0.1")
-    return replace(monitor, http=found["http"], groot2=found["groot2"])
+    return replace(monitor, **{key: str(address) for key, address in parsed.items()})

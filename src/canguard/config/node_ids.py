@@ -1,7 +1,6 @@
 """Node IDs a config's ``actions:`` may not take: BehaviorTree.CPP 4's built-ins and canguard's nodes.
 
-Names only: the config layer does not import the node library.
-"""
+Names only: the config layer does not import the node library."""
 
 from __future__ import annotations
 

@@ -19,8 +19,7 @@ class BusConfig:
 
     name: str
     kwargs: Mapping[str, Any]
-    filter: bool = True
-    """Receive only the frames the config reads (the kernel's filters on SocketCAN); False: every frame."""
+    filter: bool = True  # receive only the frames the config reads (kernel filters on SocketCAN); False: every frame
 
     @property
     def interface(self) -> str:
@@ -47,8 +46,7 @@ class SignalRef:
     unit: str | None = None
     minimum: float | None = None
     maximum: float | None = None
-    max_age_s: float | None = None
-    """Its own timeout (a CANopen drive's heartbeat); None: the source's."""
+    max_age_s: float | None = None  # its own timeout (a CANopen drive's heartbeat); None: the source's
 
 
 @dataclass(frozen=True)
@@ -80,8 +78,7 @@ class FrameSpec:
     data: bytes
     is_extended_id: bool = False
     is_fd: bool = False
-    label: str = ""
-    """The DBC message name, or the hex id of a raw frame."""
+    label: str = ""  # the DBC message name, or the hex id of a raw frame
 
 
 @dataclass(frozen=True)
@@ -120,10 +117,8 @@ class StopConfig:
     frames: tuple[FrameSpec, ...] = ()
     confirm: StopConfirm | None = None
     escalate: tuple[FrameSpec, ...] = ()
-    min_stop_s: float = 0.0
-    """A stop lasts at least this long, whatever the tree says."""
-    release: Literal["auto", "manual"] = "auto"
-    """``manual``: releasing also needs a ResetStop node ticked in the releasing tick."""
+    min_stop_s: float = 0.0  # a stop lasts at least this long, whatever the tree says
+    release: Literal["auto", "manual"] = "auto"  # manual: a release also needs a ResetStop node ticked in that tick
 
 
 @dataclass(frozen=True)
@@ -148,14 +143,12 @@ class StateConfig:
 
 @dataclass(frozen=True)
 class MonitorConfig:
-    """``monitor:``: the status page and the Groot2 monitor (both off unless configured)."""
+    """``monitor:``: ``HOST:PORT`` of the status page (``http``; ``token``: the bearer token it requires, needed when
+    not loopback) and of the Groot2 monitor (``groot2``: REP on PORT, PUB on PORT + 1); both off unless configured."""
 
     http: str | None = None
-    """``HOST:PORT`` of the status page."""
     token: str | None = None
-    """The bearer token the page requires (needed when ``http`` is not loopback)."""
     groot2: str | None = None
-    """``HOST:PORT`` of the Groot2 monitor (REP on PORT, PUB on PORT + 1)."""
 
 
 @dataclass(frozen=True)
@@ -169,32 +162,24 @@ class Config:
     tree: TreeConfig | None
     task: TaskConfig
     stop: StopConfig
-    actions: Mapping[str, ActionConfig]
-    """Every well-formed action node ID declared."""
+    actions: Mapping[str, ActionConfig]  # every well-formed action node ID declared
     events: Path | None
     state: StateConfig = field(default_factory=StateConfig)
     monitor: MonitorConfig = field(default_factory=MonitorConfig)
-    simulation: bool = False
-    """A bench, not a robot: the config may guard only ``virtual`` buses under systemd."""
+    simulation: bool = False  # a bench, not a robot: the config may guard only ``virtual`` buses under systemd
     database: Any = field(default=None, compare=False, repr=False)
     """The merged ``cantools.database.Database`` of every DBC file and the ``canopen:`` drives' frames."""
     canopen: Mapping[str, Any] = field(default_factory=dict)
     """The ``canopen:`` drives by name (:class:`canguard.config.canopen.CanopenDrive`, which reads this module)."""
-    dbc_notes: tuple[str, ...] = ()
-    """What the DBC files get wrong where this config does not read them (``canguard check -v``)."""
+    dbc_notes: tuple[str, ...] = ()  # what the DBC files get wrong where this config does not read them (check -v)
 
 
 @dataclass(frozen=True)
 class PartialConfig:
     """The sound parts of a config that has problems (``ConfigError.partial``): ``check`` judges the tree by them."""
 
-    tree: TreeConfig | None
-    """``tree:`` when it names an existing file."""
-    sources: Mapping[str, SourceConfig]
-    """The sources that were built (some may miss signals)."""
-    declared_sources: frozenset[str]
-    """Every source name declared (a tree naming one not built is a follow-on error)."""
-    sources_ok: bool
-    """False when ``sources:`` itself is unusable (the tree's source names are not checked)."""
-    actions: Mapping[str, ActionConfig]
-    """Every well-formed action node ID declared."""
+    tree: TreeConfig | None  # ``tree:`` when it names an existing file
+    sources: Mapping[str, SourceConfig]  # the sources that were built (some may miss signals)
+    declared_sources: frozenset[str]  # every source name declared (a tree naming one not built is a follow-on error)
+    sources_ok: bool  # False when ``sources:`` itself is unusable (the tree's source names are not checked)
+    actions: Mapping[str, ActionConfig]  # every well-formed action node ID declared

@@ -1,8 +1,5 @@
 """The config's sections besides ``dbc:``, ``canopen:`` and ``monitor:``: buses, sources, tree, task, stop, actions,
-state, and the frames they send.
-
-A frame is encoded once, checked against the DBC.
-"""
+state, and the frames they send."""
 
 from __future__ import annotations
 
@@ -33,16 +30,7 @@ _BUILT_IN_INTERFACES = frozenset({
     "socketcan", "socketcand", "virtual", "udp_multicast", "slcan", "serial", "gs_usb", "pcan", "kvaser",
     "vector", "ixxat",
 })
-"""Interfaces every python-can canguard supports has built in: accepted without importing python-can (which
-``canguard replay`` of a candump log otherwise never does)."""
-
-
-def _valid_interfaces() -> frozenset[str]:
-    """python-can's interface names (plugins included), imported when a config names another."""
-    import can.interfaces
-
-    names: frozenset[str] = can.interfaces.VALID_INTERFACES
-    return names
+"""Built into every python-can canguard supports: accepted without importing it (a candump replay never does)."""
 
 
 def buses(c: Checks, value: Any) -> dict[str, BusConfig]:
@@ -60,10 +48,12 @@ def buses(c: Checks, value: Any) -> dict[str, BusConfig]:
         interface = kwargs.get("interface")
         if interface is None:
             c.problem(_path(key, "interface"), "nothing", "a python-can interface name (socketcan, virtual, ...)")
-        elif not isinstance(interface, str) or (
-                interface not in _BUILT_IN_INTERFACES and interface not in _valid_interfaces()):
-            c.problem(_path(key, "interface"), _found(interface),
-                      "a python-can interface" + _closest(interface, _valid_interfaces()))
+        elif not isinstance(interface, str) or interface not in _BUILT_IN_INTERFACES:
+            import can.interfaces  # python-can's names, plugins included
+
+            if not isinstance(interface, str) or interface not in can.interfaces.VALID_INTERFACES:
+                c.problem(_path(key, "interface"), _found(interface),
+                          "a python-can interface" + _closest(interface, can.interfaces.VALID_INTERFACES))
         only = kwargs.get("filter", True)
         if not isinstance(only, bool):
             c.problem(_path(key, "filter"), _found(only),
@@ -135,8 +125,15 @@ def source(c: Checks, m: Messages, name: str, value: Any) -> SourceConfig | None
         c.problem(key, _found(value), "a mapping with kind: battery | joints | current")
         return None
     kind = value.get("kind")
-    if "canopen" in value:
-        return _canopen_source(c, m, name, kind, value, key)
+    if "canopen" in value:  # an object of a canopen: drive
+        c.mapping(value, key, ("kind", "canopen", "object", "scale", "max_age"), ("kind", "canopen", "object"))
+        if kind != "current":
+            c.problem(_path(key, "kind"), _found(kind), "current (a source of a canopen: drive)")
+        elif m.canopen is None:
+            c.problem(_path(key, "canopen"), _found(value.get("canopen")), "a drive of canopen: (none configured)")
+        else:
+            return m.canopen.source(name, value, key)
+        return None
     keys = _KIND_KEYS.get(kind) if isinstance(kind, str) else None
     known = keys is not None
     if keys is None:
@@ -154,19 +151,6 @@ def source(c: Checks, m: Messages, name: str, value: Any) -> SourceConfig | None
     if not known:
         return None
     return SourceConfig(name=name, kind=cast(SourceKind, kind), bus=bus, signals=tuple(signals), max_age_s=max_age)
-
-
-def _canopen_source(c: Checks, m: Messages, name: str, kind: Any, value: Mapping[str, Any], key: str
-                    ) -> SourceConfig | None:
-    """A source reading an object of a ``canopen:`` drive (``kind: current``)."""
-    c.mapping(value, key, ("kind", "canopen", "object", "scale", "max_age"), ("kind", "canopen", "object"))
-    if kind != "current":
-        c.problem(_path(key, "kind"), _found(kind), "current (a source of a canopen: drive)")
-        return None
-    if m.canopen is None:
-        c.problem(_path(key, "canopen"), _found(value.get("canopen")), "a drive of canopen: (none configured)")
-        return None
-    return m.canopen.source(name, value, key)
 
 
 class ReadSources(NamedTuple):
@@ -188,8 +172,7 @@ def read_sources(c: Checks, m: Messages, value: Any) -> ReadSources:
         src = source(c, m, name, body)
         if src is not None:
             read.sources[name] = src
-        if len(c.problems) > before:
-            # Already reported: references to this source must not add follow-on errors.
+        if len(c.problems) > before:  # reported: references to this source add no follow-on errors
             read.broken.add(name)
     return read
 
@@ -221,8 +204,7 @@ def task(c: Checks, m: Messages, value: Any) -> TaskConfig:
     value = c.section(value, "task", ("period", "frames"))
     if value is None:
         return TaskConfig()
-    return TaskConfig(period_s=c.seconds(value, "period", "task", 0.02),
-                      frames=frames(c, m, value, "frames", "task"))
+    return TaskConfig(period_s=c.seconds(value, "period", "task", 0.02), frames=frames(c, m, value, "frames", "task"))
 
 
 def _confirm(c: Checks, m: Messages, value: Any, read: ReadSources) -> StopConfirm | None:
@@ -250,7 +232,6 @@ def _confirm(c: Checks, m: Messages, value: Any, read: ReadSources) -> StopConfi
     op_name = ops[0]
     raw = value[op_name]
     sig = m.by_name[ref.message].get_signal_by_name(ref.signal) if ref is not None else None
-    number: float | None = None
     if op_name == "equals" and isinstance(raw, str):
         choice = choice_value(c, sig, raw, _path(key, op_name)) if sig is not None else None
         number = None if choice is None else float(choice)  # no sig: a source or signal already reported
@@ -305,9 +286,8 @@ def state(c: Checks, value: Any) -> StateConfig:
     if value is None:
         return StateConfig()
     file = c.file_path(value["file"], "state.file") if value.get("file") is not None else None
-    on_corrupt = c.choice(value, "on_corrupt", "state", ("hot", "cold"), "hot")
-    save_period_s = c.seconds(value, "save_period", "state", 5.0)
-    return StateConfig(file=file, on_corrupt=on_corrupt, save_period_s=save_period_s)
+    return StateConfig(file=file, on_corrupt=c.choice(value, "on_corrupt", "state", ("hot", "cold"), "hot"),
+                       save_period_s=c.seconds(value, "save_period", "state", 5.0))
 
 
 def frame_value(c: Checks, m: Messages, message: Any, sig_name: Any, value: Any, key: str) -> Any:
@@ -400,8 +380,7 @@ def _dbc_frame(c: Checks, m: Messages, value: Mapping[str, Any], key: str) -> Fr
 
 
 def _unsound_left_out(c: Checks, m: Messages, msg: Any, given: Mapping[str, Any], key: str) -> bool:
-    """Whether the signals the DBC gets wrong that a frame leaves out (sent as 0) are 0 at their initial values;
-    a problem naming each that is not."""
+    """Whether each signal the DBC gets wrong that a frame leaves out (so sends as 0) is 0 at its initial value."""
     ok = True
     for s in m.dropped(msg.name):
         if s.name in given:

@@ -1,7 +1,4 @@
-"""YAML with line numbers, and a config file's problems: their words and the generic checks of a value.
-
-Duplicate keys are refused; each problem is located at its key path's line.
-"""
+"""YAML with line numbers, and a config file's problems: their words and the generic checks of a value."""
 
 from __future__ import annotations
 
@@ -39,16 +36,15 @@ def _construct_unique_mapping(loader: _UniqueKeyLoader, node: yaml.MappingNode) 
 
 _UniqueKeyLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _construct_unique_mapping)
 
-_FastUniqueKeyLoader: Any = None
+_LOADERS: tuple[Any, ...] = (_UniqueKeyLoader,)
+"""libyaml's loader first where PyYAML has it (8x faster); a problem is reported in the pure-Python one's words."""
 if getattr(yaml, "__with_libyaml__", False):
 
     class _CUniqueKeyLoader(yaml.CSafeLoader):
-        """The same loader on libyaml's parser (about 8x faster on a config; same constructors)."""
+        """The same loader on libyaml's parser."""
 
     _CUniqueKeyLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _construct_unique_mapping)
-    _FastUniqueKeyLoader = _CUniqueKeyLoader
-_LOADERS = (*([_FastUniqueKeyLoader] if _FastUniqueKeyLoader is not None else []), _UniqueKeyLoader)
-"""libyaml's first where PyYAML has it; a problem is reported in the pure-Python loader's words."""
+    _LOADERS = (_CUniqueKeyLoader, _UniqueKeyLoader)
 
 
 def _read(text: str, read: Any) -> Any:
@@ -155,17 +151,14 @@ class Checks:
         self.display = display
         self.text = text
         self.problems: list[str] = []
-        self.located: list[str] = []
-        """``problems`` with the line of their key: ``file:line: key: found X, expected Y``."""
-        self.bus_names: tuple[str, ...] = ()
-        """The configured buses, which every ``bus:`` key names."""
+        self.located: list[str] = []  # ``problems`` with the line of their key: ``file:line: key: ...``
+        self.bus_names: tuple[str, ...] = ()  # the configured buses, which every ``bus:`` key names
 
     @cached_property
     def lines(self) -> dict[str, int]:
         """Each key path's line in :attr:`text`, worked out when a problem first asks (a valid config never does)."""
         return key_lines(self.text)
 
-    # -- problems ----------------------------------------------------------
     def problem(self, key: str, found: str, expected: str) -> None:
         """Record ``file: key: found X, expected Y`` (and its located form ``file:line: key: ...``)."""
         self.problems.append(f"{self.display}: {key}: found {found}, expected {expected}")
@@ -177,7 +170,6 @@ class Checks:
         """The ConfigError listing every problem recorded so far."""
         return ConfigError(self.problems, self.located)
 
-    # -- generic checks ----------------------------------------------------
     def mapping(self, value: Any, key: str, allowed: tuple[str, ...], required: tuple[str, ...] = ()) -> bool:
         """Check ``value`` is a mapping with only ``allowed`` keys and every ``required`` one."""
         if not isinstance(value, Mapping):
@@ -223,11 +215,8 @@ class Checks:
         ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
         if ok and (not positive or value > 0):
             return float(value)
-        if positive:
-            unit = " in seconds" if key.rsplit(".", 1)[-1] in _SECONDS_KEYS else ""
-            self.problem(key, _found(value), f"a number > 0{unit}")
-        else:
-            self.problem(key, _found(value), "a finite number")
+        unit = " in seconds" if key.rsplit(".", 1)[-1] in _SECONDS_KEYS else ""
+        self.problem(key, _found(value), f"a number > 0{unit}" if positive else "a finite number")
         return None
 
     def seconds(self, mapping: Mapping[str, Any], name: str, key: str, default: float) -> float:

@@ -1,8 +1,4 @@
-"""canguard's node library: py_trees behaviours with typed ports, by BehaviorTree.CPP node ID.
-
-:data:`BUILTIN_NODES` is the closed table (extended per tree by config actions and plug-ins); a
-family's module is imported when one of its classes is first looked up.
-"""
+"""canguard's node library: py_trees behaviours with typed ports, by BehaviorTree.CPP node ID."""
 
 from __future__ import annotations
 
@@ -16,10 +12,9 @@ from canguard.bt.nodes.current import GuardNode
 _FAMILIES = (  # conditions, actions, decorators, controls, then more of BehaviorTree.CPP 4's built-ins
     ("current", "IsCurrentNormal IsJointEffortNormal IsCurrentSafe IsI2tSafe"),
     ("timing", "IsElapsedTimeCompare IsElapsedSinceEvent IsCooldownElapsed IsValueBelow IsValueAbove"),
-    ("actions", "ExecuteTask EmitStop ResetStop"), ("timing", "ResetTimer RecordTime"), ("profile", "Profile"),
-    ("control", "Inverter ForceSuccess ForceFailure RetryUntilSuccessful Repeat Timeout Delay"),
-    ("sequences", "Sequence AsyncSequence ReactiveSequence SequenceWithMemory Fallback AsyncFallback ReactiveFallback"),
-    ("control", "Parallel"),
+    ("actions", "ExecuteTask EmitStop ResetStop"), ("timing", "ResetTimer RecordTime"), ("control", "Profile"),
+    ("control", "Inverter ForceSuccess ForceFailure RetryUntilSuccessful Repeat Timeout Delay Sequence AsyncSequence "
+                "ReactiveSequence SequenceWithMemory Fallback AsyncFallback ReactiveFallback Parallel"),
     ("builtins", "AlwaysSuccess AlwaysFailure Script ScriptCondition SetBlackboard UnsetBlackboard Sleep "
                  "KeepRunningUntilFailure Precondition IfThenElse WhileDoElse Switch2 Switch3 Switch4 Switch5 Switch6 "
                  "ParallelAll TryCatch LoopInt LoopDouble LoopString LoopBool RunOnce WasEntryUpdated "
@@ -33,8 +28,7 @@ class _NodeTable(Mapping[str, "type[CanguardNode]"]):
     """Node ID -> class, in :data:`_MODULES`' order, imported when first looked up."""
 
     def __getitem__(self, node_id: str) -> type[CanguardNode]:
-        cls: type[CanguardNode] = getattr(import_module(f"{__name__}.{_MODULES[node_id]}"), node_id)
-        return cls
+        return getattr(import_module(f"{__name__}.{_MODULES[node_id]}"), node_id)
 
     def __contains__(self, node_id: object) -> bool:
         return node_id in _MODULES  # a known ID, without importing its class
@@ -47,13 +41,7 @@ class _NodeTable(Mapping[str, "type[CanguardNode]"]):
 
 
 BUILTIN_NODES: Mapping[str, type[CanguardNode]] = _NodeTable()
-"""Every node type canguard provides, by node ID (the closed table)."""
-
-
-def __getattr__(name: str) -> type[CanguardNode]:
-    if name in _MODULES:
-        return BUILTIN_NODES[name]
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+"""Every node type canguard provides, by node ID: the closed table that config actions and plug-ins extend per tree."""
 
 
 __all__ = ["BUILTIN_NODES", "CanguardNode", "ConfiguredAction", "GuardNode", "PortError", "port_info"]

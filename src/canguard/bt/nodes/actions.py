@@ -31,9 +31,8 @@ class EmitStop(CanguardNode, py_trees.behaviour.Behaviour):
     """send the config's stop frames once"""
 
     def update(self) -> py_trees.common.Status:
-        frames = self.ctx.stop_frames
-        if frames:
-            self.ctx.sink.send(frames, origin=self.name)
+        if self.ctx.stop_frames:
+            self.ctx.sink.send(self.ctx.stop_frames, origin=self.name)
         return SUCCESS
 
 
@@ -60,8 +59,7 @@ class ConfiguredAction(CanguardNode, py_trees.behaviour.Behaviour):
             self.feedback_message = f"{self.action.name}: {len(frames)} frame(s)"
         else:
             gate_action(self.name, self.role, frames, now, self._note)
-        if self._wired:
-            self.write("output_time", now)
+        self.write("output_time", now)
         return SUCCESS
 
     def _note(self, what: str) -> None:
@@ -89,41 +87,3 @@ def assign_roles(root: py_trees.behaviour.Behaviour) -> bool:
             has_task = has_task or n.role == "task"
     return has_task
 
-
-def stop_roles(root: py_trees.behaviour.Behaviour) -> dict[py_trees.behaviour.Behaviour, str]:
-    """What each node of the tree does to a stop, in words (``canguard tree``); nodes without a part are left out."""
-    from canguard.bt.nodes.current import GuardNode
-
-    assign_roles(root)
-    out: dict[py_trees.behaviour.Behaviour, str] = {}
-    for n in root.iterate():
-        if isinstance(n, GuardNode):
-            out[n] = "LATCH trips a stop; " + _holds(n)
-        elif isinstance(n, ExecuteTask):
-            out[n] = "TASK task frames; asks to release the stop"
-        elif isinstance(n, ConfiguredAction):
-            out[n] = (
-                "TASK frames withheld while stopped; asks to release the stop" if n.role == "task"
-                else "RECOVERY frames sent during a stop too"
-            )
-        elif isinstance(n, EmitStop):
-            out[n] = "STOP sends the stop frames"
-        elif isinstance(n, ResetStop):
-            out[n] = "RESET releases a manual stop"
-    return out
-
-
-def _holds(guard: Any) -> str:
-    """How long a guard's failure holds: its models' recovery rules."""
-    from canguard.protect.hysteresis import Hysteresis
-    from canguard.protect.i2t import _I2tModel
-
-    kinds = []
-    for _, model, _ in guard.guarded():
-        if isinstance(model, Hysteresis):
-            kinds.append(f"holds until |I| <= {model.recovery_a:g} A (hysteresis)")
-        elif isinstance(model, _I2tModel):
-            kinds.append(f"holds until the I²t level < {model.recover_fraction * 100:g} % (i2t)")
-        else:
-            kinds.append("holds for the tick it fails in (threshold)")
-    return "; ".join(dict.fromkeys(kinds)) or "fails while its source is stale"

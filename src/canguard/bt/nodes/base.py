@@ -1,12 +1,9 @@
-"""What every canguard node shares: typed ports under BT.CPP's names, the context, a load-time ``bind()``.
-
-Constant ports are read once at ``setup_ports()``, ``{key}`` ports at tick; output ports are written only
-when wired (as BT.CPP); :meth:`~CanguardNode.bind` checks the ports once the whole tree is parsed.
-"""
+"""What every canguard node shares: typed ports under BT.CPP's names, the context, a load-time ``bind()``."""
 
 from __future__ import annotations
 
 from collections.abc import Callable, Generator, Iterable, Iterator, Mapping
+from contextlib import suppress
 from typing import TYPE_CHECKING, Any, ClassVar, Literal, TypeVar
 
 import py_trees
@@ -17,10 +14,11 @@ from py_trees.ports_utils import PortsLogger
 from canguard.bt.context import Context
 from canguard.bt.scripting import ScriptError
 from canguard.bt.wakeup import WakeUpSignal
+from canguard.errors import quote
 
 if TYPE_CHECKING:
-    from canguard.bt.scripting import Script
-    from canguard.bt.scripting.script import ScriptBlackboard
+    from canguard.bt.scopes import TreeBlackboard
+    from canguard.bt.scripting.script import Script
 
 NodeKind = Literal["Action", "Condition", "Control", "Decorator"]
 
@@ -57,8 +55,7 @@ def mark_skipped(node: py_trees.behaviour.Behaviour) -> None:
 
 
 def end_as(node: B, result: Status | str) -> B:
-    """``node`` returns ``result`` (a status, or one of :data:`STATUS_NAMES`): RUNNING is set, a completion
-    stops the node, SKIPPED marks it. The node, to yield."""
+    """``node`` returns ``result`` (one of :data:`STATUS_NAMES`): RUNNING set, a completion stopped, SKIPPED marked."""
     if result == SKIPPED:
         mark_skipped(node)
     elif Status(result) == RUNNING:
@@ -96,7 +93,7 @@ def follow(node: py_trees.composites.Composite, child: py_trees.behaviour.Behavi
     yield end_as(node, outcome(child))
 
 
-def run_script(node: py_trees.behaviour.Behaviour, attr: str, script: Script, board: ScriptBlackboard,
+def run_script(node: py_trees.behaviour.Behaviour, attr: str, script: Script, board: TreeBlackboard,
                *, condition: bool = False) -> object:
     """Run ``node``'s script ``attr`` on ``board``: its value (``condition``: as a boolean). A ScriptError is
     noted on the node (feedback, ``script_error`` for ``canguard tree --tick``) and raised again."""
@@ -157,15 +154,9 @@ class PortError(ValueError):
         super().__init__(f"port {port}: {message}")
 
 
-def port_info(
-    data_type: Any,
-    description: str,
-    default: Any = None,
-    required: bool | None = None,
-) -> PortInformation:
+def port_info(data_type: Any, description: str, default: Any = None, required: bool | None = None) -> PortInformation:
     """A :class:`PortInformation`; required unless it has a default (or ``required=False``)."""
-    if required is None:
-        required = default is None
+    required = default is None if required is None else required
     return PortInformation(data_type=data_type, required=required, description=description, default_value=default)
 
 
@@ -192,9 +183,6 @@ class CanguardNode(PortsMixin, register=False):
     """Ticking the node again with the same inputs and children changes nothing and answers as before (no
     timer, counter, memory or output of its own): the engine may count such a tick (:mod:`canguard.engine.quiet`)."""
 
-    wake_up: WakeUpSignal | None = None
-    """The tree's wake-up signal (BT.CPP's ``setWakeUpInstance``)."""
-
     def __init_subclass__(cls, **kwargs: Any) -> None:
         # Stay out of py_trees' global auto-registry: canguard's parser gets an explicit,
         # closed registry, and importing canguard must not change anybody else's "auto".
@@ -202,8 +190,7 @@ class CanguardNode(PortsMixin, register=False):
         if kwargs["register"] or "tag" in kwargs or cls.INPUT_PORTS.keys() & cls.OUTPUT_PORTS.keys():
             super().__init_subclass__(**kwargs)  # py_trees' own: its registry, or its error
         else:
-            # Unregistered, PortsMixin's only work is the check above, behind a dir()-wide scan
-            # for abstract methods (~25 µs a class, ~1.5 ms for the node library at every start).
+            # Unregistered, PortsMixin's only work is the check above, behind a slow dir()-wide scan.
             del kwargs["register"]
             super(PortsMixin, cls).__init_subclass__(**kwargs)
         if "DESCRIPTION" not in cls.__dict__ and cls.__doc__:
@@ -227,6 +214,7 @@ class CanguardNode(PortsMixin, register=False):
         self._keys: dict[str, str] = {}
         self._bad_port = ""
         self.skipped = False  # the last tick returned SKIPPED
+        self.wake_up = WakeUpSignal()  # the loader gives it the tree's (BT.CPP's setWakeUpInstance)
 
     @property
     def ctx(self) -> Context:
@@ -242,27 +230,19 @@ class CanguardNode(PortsMixin, register=False):
         remap = port_remappings or {}
         self._dynamic = frozenset(p for p in self.input_ports() if p in remap and CONST_PREFIX not in remap[p])
         self._wired = frozenset(p for p in self.output_ports() if p in remap)
-        self._keys = {p: self._get_blackboard_key(p) for p in self._dynamic | self._wired}
-        static: dict[str, Any] = {}
-        for name in self.input_ports():
-            if name in self._dynamic:
-                continue
-            try:
-                static[name] = self.get_input(name)
-            except NoDataAvailable:
-                continue  # optional port left out: reads give None
-        self._static = static
+        self._keys = {}
+        for port in self._dynamic | self._wired:
+            key = self._get_blackboard_key(port)
+            last = key.rsplit("/", 1)[-1]  # {@key}: the root's entry from any depth (py_trees gives /Sub/@key)
+            self._keys[port] = "/" + last[1:] if last.startswith("@") else key
+        self._static = {}
+        for name in self.input_ports().keys() - self._dynamic:
+            with suppress(NoDataAvailable):  # an optional port left out: reads give None
+                self._static[name] = self.get_input(name)
 
     def is_wired(self, name: str) -> bool:
         """True when the port was given in the XML as a ``{key}`` (input) or at all (output)."""
         return name in self._dynamic or name in self._wired
-
-    def resolve_root_keys(self) -> None:
-        """``{@key}`` (the root's entry from any depth; py_trees resolves it to ``/Sub/@key``) to ``/key``."""
-        for port, key in self._keys.items():
-            last = key.rsplit("/", 1)[-1]
-            if last.startswith("@"):
-                self._keys[port] = "/" + last[1:]
 
     def wired_keys(self) -> dict[str, str]:
         """The storage key of every port wired to a ``{key}`` (inputs) or given (outputs), by port name."""
@@ -292,21 +272,6 @@ class CanguardNode(PortsMixin, register=False):
         """Write output port ``name`` when it is wired (a no-op otherwise, as in BehaviorTree.CPP)."""
         if name in self._wired:
             Blackboard.storage[self._keys[name]] = value
-
-    def emit_wake_up(self) -> None:
-        """Ask ``tickOnce()`` to tick the root again at once (BT.CPP's ``emitWakeUpSignal``)."""
-        if self.wake_up is not None:
-            self.wake_up.emit()
-
-    def arm_timer(self, deadline: float) -> None:
-        """A timer that emits the wake-up signal once the engine's clock reaches ``deadline`` (s)."""
-        if self.wake_up is not None:
-            self.wake_up.arm(self, deadline)
-
-    def cancel_timer(self) -> None:
-        """Drop this node's timer (halted or completed)."""
-        if self.wake_up is not None:
-            self.wake_up.cancel(self)
 
     def bind(self) -> None:
         """Load-time set-up from the ports (models, sources); raise :class:`PortError` on bad values."""
@@ -366,8 +331,7 @@ def _leaf_stop(self: py_trees.behaviour.Behaviour, new_status: Status) -> None:
 
 
 def halted(node: py_trees.behaviour.Behaviour, new_status: py_trees.common.Status) -> bool:
-    """True when ``terminate(new_status)`` is a BT.CPP *halt*: a RUNNING node interrupted (not a finished child
-    py_trees resets)."""
+    """True when ``terminate(new_status)`` is a BT.CPP *halt*: a RUNNING node interrupted (not a finished one reset)."""
     return new_status == INVALID and node.status == RUNNING
 
 
@@ -383,3 +347,94 @@ class DecoratorNode(CanguardNode, py_trees.decorators.Decorator):
     def update(self) -> Status:
         """The child's status."""
         return self.decorated.status
+
+
+# -- BehaviorTree.CPP 4's pre- and post-conditions on any node -----------------------------------------------
+# A script that fails while it runs fails the node, fail-safe (BT.CPP throws); one in _onHalted is only reported.
+
+CONDITIONS = ("_failureIf", "_successIf", "_skipIf", "_while", "_onSuccess", "_onFailure", "_post", "_onHalted")
+"""BT.CPP's pre-conditions, then its post-conditions."""
+
+
+def take_conditions(attrib: dict[str, str]) -> tuple[dict[str, Script], list[str]]:
+    """Remove the condition attributes from ``attrib``; (parsed scripts, problems as 'attr: why')."""
+    scripts: dict[str, Script] = {}
+    problems: list[str] = []
+    for attr in CONDITIONS:
+        text = attrib.pop(attr, None)
+        if text is None:
+            continue
+        from canguard.bt.scripting.script import Script  # the language: only for nodes with conditions
+
+        try:
+            scripts[attr] = Script(text)
+        except ScriptError as exc:
+            problems.append(f"{attr}: script {quote(text)}: {exc}")
+    return scripts, problems
+
+
+def _run_post(node: py_trees.behaviour.Behaviour, script: Script | None, board: TreeBlackboard, attr: str) -> bool:
+    """Run a post-condition script; False when it failed (its error noted on the node)."""
+    if script is None:
+        return True
+    try:
+        run_script(node, attr, script, board)
+    except ScriptError:
+        return False
+    return True
+
+
+def _precondition(node: py_trees.behaviour.Behaviour, scripts: Mapping[str, Script], board: TreeBlackboard) -> Any:
+    """The status BT.CPP's ``checkPreConditions`` substitutes (None: tick the node)."""
+    if node.status != RUNNING:
+        for attr, status in (("_failureIf", FAILURE), ("_successIf", SUCCESS), ("_skipIf", SKIPPED)):
+            script = scripts.get(attr)
+            if script is not None and run_script(node, attr, script, board, condition=True):
+                return status
+    script = scripts.get("_while")
+    if script is not None and not run_script(node, "_while", script, board, condition=True):
+        return SKIPPED  # while running: halted below (mark_skipped stops it: _onHalted runs)
+    return None
+
+
+def install_conditions(node: py_trees.behaviour.Behaviour, scripts: Mapping[str, Script],
+                       board: TreeBlackboard) -> None:
+    """Wrap ``node``'s tick and stop (instance attributes) with its conditions, run on ``board``."""
+    if not scripts:
+        return
+    tick, stop = node.tick, node.stop
+
+    def tick_with_conditions() -> Iterator[py_trees.behaviour.Behaviour]:
+        try:
+            substituted = _precondition(node, scripts, board)
+        except ScriptError:  # fail-safe: the node fails (halted first if it was running)
+            if node.status == RUNNING:
+                stop_with_conditions(INVALID)
+            stop(FAILURE)
+            yield node
+            return
+        if substituted is SKIPPED:
+            mark_skipped(node)
+            yield node
+            return
+        if substituted is not None:
+            stop(substituted)
+            yield node
+        else:
+            yield from tick()
+        # as BT.CPP's executeTick: the post-conditions follow a completed status, substituted or ticked
+        if getattr(node, "skipped", False) or node.status not in (SUCCESS, FAILURE):
+            return
+        first = "_onSuccess" if node.status == SUCCESS else "_onFailure"
+        if not (_run_post(node, scripts.get(first), board, first)
+                and _run_post(node, scripts.get("_post"), board, "_post")):
+            node.status = FAILURE  # a post-condition that fails fails the node (BT.CPP throws)
+
+    def stop_with_conditions(new_status: Any = INVALID) -> None:
+        was_halted = halted(node, new_status)
+        stop(new_status)
+        if was_halted:
+            _run_post(node, scripts.get("_onHalted"), board, "_onHalted")
+
+    node.tick = tick_with_conditions  # type: ignore[method-assign]
+    node.stop = stop_with_conditions  # type: ignore[method-assign]

@@ -1,21 +1,14 @@
 """BehaviorTree.CPP 4's built-in nodes that canguard's own trees do not use (imported for a tree that does):
 Always*, scripts, Set/UnsetBlackboard, Sleep, branches, Switch2..6, ParallelAll, TryCatch, Loop*, RunOnce and
-the entry-update nodes.
-
-A script that fails while it runs fails its node (BT.CPP throws; a guard daemon must not crash
-on a tree's script). A loop's ``queue`` is a constant "1;2;3" (parsed at load), or an entry holding a list
-(consumed in place, as BT.CPP's shared queue is) or such a string (parsed when the run starts).
-
-The entry-update nodes ask whether an entry was *written* since they last looked (BT.CPP's
-``sequence_id``: the same value again counts). py_trees keeps no such counter, so
-:func:`versioned_storage` puts a dict counting writes per key in place of ``Blackboard.storage``.
+the entry-update nodes. A script that fails while it runs fails its node (BT.CPP throws; a guard daemon must
+not crash on a tree's script).
 """
 
 from __future__ import annotations
 
 import math
 from collections import deque
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import Any, ClassVar
 
 import py_trees
 from py_trees.blackboard import Blackboard
@@ -47,9 +40,8 @@ from canguard.bt.nodes.base import (
 )
 from canguard.bt.scopes import INT_TEXT, REAL_TEXT, TreeBlackboard
 from canguard.bt.scripting import ScriptError
-
-if TYPE_CHECKING:
-    from canguard.bt.scripting import Script as ParsedScript
+from canguard.bt.scripting.script import Script as ParsedScript
+from canguard.bt.scripting.script import convert_for_entry, entry_type
 
 _NOTHING = object()
 
@@ -66,20 +58,14 @@ class _Scripted(CanguardNode):
         self.board = TreeBlackboard("/")
 
     def bind(self) -> None:
-        from canguard.bt.scripting import parse  # the language: only for trees with scripts
-
         for name in self.SCRIPT_PORTS:
             text = self.port(name)
             if text is None:
                 continue
             try:
-                self.scripts[name] = parse(str(text))
+                self.scripts[name] = ParsedScript(str(text))
             except ScriptError as exc:
                 raise PortError(name, f"script {text!r}: {exc}") from None
-
-    def run_script(self, name: str, *, condition: bool = False) -> object:
-        """Run script ``name`` (see :func:`.base.run_script`)."""
-        return run_script(self, name, self.scripts[name], self.board, condition=condition)
 
 
 class _Always(CanguardNode, py_trees.behaviour.Behaviour):
@@ -105,7 +91,7 @@ class _Code(_Scripted, py_trees.behaviour.Behaviour):
     def update(self) -> py_trees.common.Status:
         condition = self.KIND == "Condition"
         try:
-            value = self.run_script("code", condition=condition)
+            value = run_script(self, "code", self.scripts["code"], self.board, condition=condition)
         except ScriptError:
             return FAILURE
         return SUCCESS if value or not condition else FAILURE
@@ -138,15 +124,13 @@ class SetBlackboard(_Scripted, py_trees.behaviour.Behaviour):
             return FAILURE
         name = str(key).strip("{}")
         if not wired and self.board.has(name):  # BT.CPP: text into a typed entry is parsed to its type
-            from canguard.bt.scripting.script import convert_for_entry, entry_type
-
             try:
                 target: type | None = entry_type(self.board.get(name))
             except KeyError:  # declared by a typed port, no value yet
                 target = self.board.declared_type(name)
             if target is not None and target is not str:
                 try:
-                    value = convert_for_entry(value, target, None)
+                    value = convert_for_entry(value, target)
                 except ValueError as exc:
                     self.feedback_message = f"can't convert {value!r} for the entry [{name}]: {exc}"
                     return FAILURE
@@ -177,16 +161,14 @@ class Sleep(CanguardNode, py_trees.behaviour.Behaviour):
         msec = self.port("msec") or 0.0
         self.until = self.ctx.clock.now() + msec / 1000.0
         if msec > 0:  # BT.CPP: its timer wakes the tree up when it expires
-            self.arm_timer(self.until)
+            self.wake_up.arm(self, self.until)
 
     def update(self) -> py_trees.common.Status:
-        if self.until is None or self.ctx.clock.now() >= self.until:
-            return SUCCESS
-        return RUNNING
+        return SUCCESS if self.until is None or self.ctx.clock.now() >= self.until else RUNNING
 
     def terminate(self, new_status: py_trees.common.Status) -> None:
         self.until = None if new_status == INVALID else self.until
-        self.cancel_timer()
+        self.wake_up.cancel(self)
 
 
 class KeepRunningUntilFailure(DecoratorNode):
@@ -217,7 +199,7 @@ class Precondition(_Scripted, DecoratorNode):
     def tick(self) -> Any:
         if self.status != RUNNING or self.decorated.status != RUNNING:
             try:
-                ok = bool(self.run_script("if", condition=True))
+                ok = bool(run_script(self, "if", self.scripts["if"], self.board, condition=True))
             except ScriptError:
                 ok = False
             if not ok:
@@ -310,21 +292,15 @@ class _Switch(CanguardNode, py_trees.composites.Composite):
             raise PortError("children", f"{type(self).__name__} needs {want} children ({self.CASES} cases + "
                                         f"default), has {len(self.children)}")
 
-    def variable(self) -> str | None:
-        """The variable as text; None when it is wired to an entry that holds nothing."""
-        value = self.port("variable")
-        if value is None and self.is_wired("variable"):
-            value = Blackboard.storage.get(self._keys["variable"])  # any type: compared as text
-        return None if value is None else _text(value)
-
     def match(self) -> int:
-        """The child to tick: the first matching case, else the default (last)."""
-        variable = self.variable()
-        if variable is not None:
-            for i in range(self.CASES):
-                case = self.port(f"case_{i + 1}")
-                if case is not None and same_case(variable, _text(case)):
-                    return i
+        """The child to tick: the first case equal to the variable, else the default (last)."""
+        variable = self.port("variable")
+        if variable is None and self.is_wired("variable"):
+            variable = Blackboard.storage.get(self._keys["variable"])  # any type: compared as text
+        for i in range(self.CASES if variable is not None else 0):
+            case = self.port(f"case_{i + 1}")
+            if case is not None and same_case(_text(variable), _text(case)):
+                return i
         return self.CASES
 
     def tick(self) -> Any:
@@ -359,13 +335,11 @@ class ParallelAll(CanguardNode, py_trees.composites.Composite):
         super().__init__(name=name, children=children, **kwargs)
         self.finished: dict[int, py_trees.common.Status] = {}
 
-    def threshold(self) -> int:
-        return count_of(self, "max_failures", 1)
-
     def bind(self) -> None:
-        if not self.is_wired("max_failures") and self.threshold() > len(self.children):
-            raise PortError("max_failures", f"{self.threshold()} failures needed but only "
-                                            f"{len(self.children)} children: can never fail")
+        needed = count_of(self, "max_failures", 1)
+        if not self.is_wired("max_failures") and needed > len(self.children):
+            raise PortError("max_failures", f"{needed} failures needed but only {len(self.children)} children: can "
+                                            "never fail")
 
     def tick(self) -> Any:
         if self.status != RUNNING:
@@ -387,7 +361,7 @@ class ParallelAll(CanguardNode, py_trees.composites.Composite):
             return
         failures = sum(1 for s in self.finished.values() if s == FAILURE)
         self.finished.clear()
-        yield end_as(self, FAILURE if failures >= self.threshold() else SUCCESS)
+        yield end_as(self, FAILURE if failures >= count_of(self, "max_failures", 1) else SUCCESS)
 
     def stop(self, new_status: py_trees.common.Status = INVALID) -> None:
         halt_running(self.children)
@@ -463,7 +437,8 @@ def _to_bool(text: str) -> bool:
 
 
 class _Loop(DecoratorNode):
-    """A loop over a queue of ``ITEM`` values."""
+    """A loop over a queue of ``ITEM`` values: a constant "1;2;3" (parsed at load), an entry holding a list
+    (consumed in place, as BT.CPP's shared queue) or such a string (parsed when the run starts)."""
 
     ITEM: type = str
     CHOICES = {"if_empty": ("SUCCESS", "FAILURE", "SKIPPED")}  # noqa: RUF012
@@ -499,8 +474,8 @@ class _Loop(DecoratorNode):
             except ValueError as exc:
                 raise PortError("queue", f"{self.port('queue')!r}: not a list of {self.ITEM.__name__}: {exc}") from None
 
-    def _take(self) -> tuple[bool, Any]:
-        """(True, the next element), or (False, None) when there is none."""
+    def _take(self) -> Any:
+        """The next element, or ``_NOTHING`` when there is none."""
         if self.static is None:
             raw = Blackboard.storage.get(self._keys["queue"])
             if isinstance(raw, list | deque):
@@ -510,9 +485,8 @@ class _Loop(DecoratorNode):
             elif raw is None or not isinstance(raw, str):
                 raise ValueError(f"queue holds {raw!r}: expected a list or a ';'-separated string")
         if not self.queue:
-            return False, None
-        item = self.queue.popleft() if isinstance(self.queue, deque) else self.queue.pop(0)
-        return True, item
+            return _NOTHING
+        return self.queue.popleft() if isinstance(self.queue, deque) else self.queue.pop(0)
 
     def tick(self) -> Any:
         if self.status != RUNNING:
@@ -521,12 +495,12 @@ class _Loop(DecoratorNode):
             self.initialise()
         if not self.child_running:
             try:
-                taken, item = self._take()
+                item = self._take()
             except ValueError as exc:  # BT.CPP throws; the guard fails this node and says why
                 self.feedback_message = str(exc)
                 yield end_as(self, FAILURE)
                 return
-            if not taken:
+            if item is _NOTHING:
                 yield end_as(self, str(self.port("if_empty")).upper())
                 return
             self.write("value", item)
@@ -541,7 +515,8 @@ LoopInt, LoopDouble, LoopString, LoopBool = node_types(_Loop, __name__, {
 
 
 class _Versioned(dict[str, Any]):
-    """A dict that counts the writes of each key (``versions``): BT.CPP's entry ``sequence_id``."""
+    """A dict that counts the writes of each key (``versions``): BT.CPP's entry ``sequence_id``, which py_trees
+    lacks (the same value written again counts)."""
 
     def __init__(self, *args: Any) -> None:
         super().__init__(*args)
@@ -565,18 +540,11 @@ class _Versioned(dict[str, Any]):
         self.versions.clear()
 
 
-def versioned_storage() -> _Versioned:
-    """``Blackboard.storage`` as a :class:`_Versioned` dict (installed at the first look; the entries kept)."""
-    storage = Blackboard.storage
-    if not isinstance(storage, _Versioned):
-        storage = _Versioned(storage)
-        Blackboard.storage = storage
-    return storage
-
-
 def _updated(node: WasEntryUpdated | _EntryUpdated) -> bool:
     """Whether the node's ``entry`` was written since it last looked (now: ``seen`` takes the write count)."""
-    storage = versioned_storage()
+    storage = Blackboard.storage
+    if not isinstance(storage, _Versioned):  # installed at the first look, the entries kept
+        storage = Blackboard.storage = _Versioned(storage)
     key = node.wired_keys().get("entry")
     if key is None:
         name = str(node.port("entry") or "").strip().strip("{}")

@@ -1,10 +1,12 @@
-"""Parallel and the decorators of BehaviorTree.CPP 4, on py_trees' classes where the semantics match.
+"""BehaviorTree.CPP 4's sequences, fallbacks, Parallel and decorators, SKIPPED included, and Profile.
 
-Timeout and Delay read the context's clock (py_trees' Timeout reads ``time.monotonic``).
+Timeout and Delay read the context's clock (py_trees' Timeout reads ``time.monotonic``). Profile (design note 003)
+reads the one real clock in nodes/: it measures CPU work (in replay the context's clock stands still during a tick).
 """
 
 from __future__ import annotations
 
+from time import perf_counter
 from typing import Any, ClassVar
 
 import py_trees
@@ -22,6 +24,7 @@ from canguard.bt.nodes.base import (
     Status,
     count_of,
     end_as,
+    halted,
     node_types,
     outcome,
     port_info,
@@ -99,13 +102,12 @@ Inverter, ForceSuccess, ForceFailure = (  # py_trees' own decorators, under BT.C
 
 
 class _Cycles(DecoratorNode):
-    """BT.CPP 4's ``retry_node.cpp`` / ``repeat_node.cpp``: the child's ``ENDS`` status ends it, another
-    completion is counted and run again, up to ``LIMIT`` runs (-1: forever), then ``DONE``. A child that
-    completed at once runs again at the next pass (RUNNING and a wake-up, as BT.CPP)."""
+    """BT.CPP 4's ``retry_node.cpp`` / ``repeat_node.cpp``; a child that completed at once runs again at the next
+    pass (RUNNING and a wake-up, as BT.CPP)."""
 
-    ENDS: ClassVar[Status]
-    DONE: ClassVar[Status]
-    LIMIT: ClassVar[str]
+    ENDS: ClassVar[Status]  # the child's status that ends it; another completion is counted and run again
+    DONE: ClassVar[Status]  # the status after LIMIT runs
+    LIMIT: ClassVar[str]  # the port of the number of runs (-1: forever)
     AGAIN_TEXT: ClassVar[str]  # feedback when the child runs again at the next pass; {}: the count
     DONE_TEXT: ClassVar[str] = ""
     count = 0
@@ -135,7 +137,7 @@ class _Cycles(DecoratorNode):
                 break
             if fresh and (self.count < limit or limit == -1):
                 self.feedback_message = self.AGAIN_TEXT.format(self.count)
-                self.emit_wake_up()
+                self.wake_up.pending = True  # BT.CPP's emitWakeUpSignal
                 yield end_as(self, RUNNING)
                 return
         if self.DONE_TEXT:
@@ -172,7 +174,7 @@ class Timeout(DecoratorNode):
             msec = self.port("msec")
             self.deadline = now + msec / 1000.0 if msec else None
             if self.deadline is not None:
-                self.arm_timer(self.deadline)  # BT.CPP: the timer wakes the tree up when it expires
+                self.wake_up.arm(self, self.deadline)  # BT.CPP: the timer wakes the tree up when it expires
             self.initialise()
         elif self.deadline is not None and now >= self.deadline:
             if self.decorated.status == RUNNING:
@@ -182,12 +184,12 @@ class Timeout(DecoratorNode):
             return
         yield from self.decorated.tick()
         if self.decorated.status != RUNNING:
-            self.cancel_timer()
+            self.wake_up.cancel(self)
         yield end_as(self, self.decorated.status)
 
     def terminate(self, new_status: py_trees.common.Status) -> None:
         if new_status == INVALID:
-            self.cancel_timer()
+            self.wake_up.cancel(self)
 
 
 class Delay(DecoratorNode):
@@ -204,7 +206,7 @@ class Delay(DecoratorNode):
         if self.status != RUNNING or self.started is None:
             self.started = now
             if delay is not None:
-                self.arm_timer(now + delay / 1000.0)  # BT.CPP: the timer wakes the tree up when it expires
+                self.wake_up.arm(self, now + delay / 1000.0)  # BT.CPP: the timer wakes the tree up when it expires
             self.initialise()
         if delay is None or now - self.started < delay / 1000.0:
             self.feedback_message = "waiting"
@@ -219,4 +221,149 @@ class Delay(DecoratorNode):
     def terminate(self, new_status: py_trees.common.Status) -> None:
         if new_status == INVALID:
             self.started = None
-            self.cancel_timer()
+            self.wake_up.cancel(self)
+
+
+class _Ordered(CanguardNode, py_trees.composites.Composite):
+    """BT.CPP 4's sequences and fallbacks (``sequence_node.cpp``, ``fallback_node.cpp`` ...); SKIPPED children are
+    passed over (all skipped: SKIPPED)."""
+
+    GO_ON: ClassVar[py_trees.common.Status] = SUCCESS  # the child status that moves on (fallback: FAILURE)
+    REACTIVE: ClassVar[bool] = False  # every tick starts at the first child
+    ASYNC: ClassVar[bool] = False  # after a child that completed at once: RUNNING and a wake-up
+    KEEP_ON_STOP: ClassVar[bool] = False  # the next run resumes at the child that ended this one
+    index = 0  # the child the next tick starts at
+    skipped_count = 0
+
+    @property
+    def memory(self) -> bool:
+        """py_trees' word: a RUNNING child is resumed without re-ticking the earlier ones (not reactive)."""
+        return not self.REACTIVE
+
+    def terminate(self, new_status: py_trees.common.Status) -> None:
+        if new_status == INVALID and not self.KEEP_ON_STOP:
+            self.index = 0
+            self.skipped_count = 0
+
+    def tick(self) -> Any:
+        children = self.children
+        n = len(children)
+        if self.status != RUNNING:
+            self.skipped_count = 0
+            # py_trees' way of BT.CPP's resetChildren: a new run starts from IDLE children
+            reset(children[0 if self.REACTIVE else self.index:])
+            self.initialise()
+        if self.REACTIVE:
+            yield from self._tick_reactive(children)
+            return
+        while self.index < n:
+            child = children[self.index]
+            self.current_child = child
+            before = child.status
+            yield from tick_child(child)
+            result = outcome(child)
+            if result == RUNNING:
+                yield end_as(self, RUNNING)
+                return
+            if result == SKIPPED:
+                self.index += 1
+                self.skipped_count += 1
+                continue
+            if result != self.GO_ON:  # the run ends with this child's status
+                reset(children[self.index + 1:])
+                if not self.KEEP_ON_STOP:
+                    self.index = 0
+                yield end_as(self, child.status)
+                return
+            self.index += 1
+            if self.ASYNC and before == INVALID and self.index < n:
+                self.wake_up.pending = True  # BT.CPP's emitWakeUpSignal
+                yield end_as(self, RUNNING)
+                return
+        all_skipped = self.skipped_count == n
+        self.index = 0
+        self.skipped_count = 0
+        yield end_as(self, SKIPPED if all_skipped else self.GO_ON)
+
+    def _tick_reactive(self, children: list[py_trees.behaviour.Behaviour]) -> Any:
+        all_skipped = True
+        for index, child in enumerate(children):
+            self.current_child = child
+            yield from tick_child(child)
+            result = outcome(child)
+            all_skipped = all_skipped and result == SKIPPED
+            if result == RUNNING or (result != SKIPPED and result != self.GO_ON):
+                # halt the others: a running child interrupted by an earlier one, the rest of the run
+                for i, other in enumerate(children):
+                    if i != index and (other.status == RUNNING or (i > index and other.status != INVALID)):
+                        other.stop(INVALID)
+                yield end_as(self, child.status)
+                return
+        yield end_as(self, SKIPPED if all_skipped else self.GO_ON)
+
+
+Sequence, AsyncSequence, ReactiveSequence, SequenceWithMemory, Fallback, AsyncFallback, ReactiveFallback = node_types(
+    _Ordered, __name__, {
+        "Sequence": {"QUIET_RETICK": True,
+                     "DESCRIPTION": "children in order; a RUNNING child is resumed (earlier ones not re-ticked)"},
+        "AsyncSequence": {"ASYNC": True,
+                          "DESCRIPTION": "a Sequence that yields (RUNNING) after each child that succeeded at once"},
+        "ReactiveSequence": {"QUIET_RETICK": True, "REACTIVE": True, "DESCRIPTION": (
+            "children in order, from the first at every tick (guards re-checked while a child runs)")},
+        # BT.CPP 4's SequenceWithMemory always yields after a child that completed at once
+        "SequenceWithMemory": {"ASYNC": True, "KEEP_ON_STOP": True, "DESCRIPTION": (
+            "children in order; after a FAILURE or RUNNING the next tick resumes at that child")},
+        "Fallback": {"QUIET_RETICK": True, "GO_ON": FAILURE,
+                     "DESCRIPTION": "children in order until one does not fail; a RUNNING child is resumed"},
+        "AsyncFallback": {"GO_ON": FAILURE, "ASYNC": True,
+                          "DESCRIPTION": "a Fallback that yields (RUNNING) after each child that failed at once"},
+        "ReactiveFallback": {"QUIET_RETICK": True, "GO_ON": FAILURE, "REACTIVE": True, "DESCRIPTION": (
+            "children in order, from the first at every tick (higher priorities interrupt)")},
+    })
+
+
+class Profile(DecoratorNode):
+    """transparent: times its child's tick, outputs last/avg/max ms and count; resets on halt"""
+
+    OUTPUT_PORTS = {  # noqa: RUF012
+        "last_ms": port_info(float, "duration of the child's last tick (ms)", required=False),
+        "avg_ms": port_info(float, "mean duration since the last reset (ms)", required=False),
+        "max_ms": port_info(float, "longest duration since the last reset (ms)", required=False),
+        "count": port_info(int, "ticks measured since the last reset", required=False),
+    }
+
+    def __init__(self, name: str, child: py_trees.behaviour.Behaviour, **kwargs: Any) -> None:
+        super().__init__(name=name, child=child, **kwargs)
+        self.reset_stats()
+
+    def reset_stats(self) -> None:
+        """Forget every measurement."""
+        self.last_ms = 0.0
+        self.total_ms = 0.0
+        self.max_ms = 0.0
+        self.count = 0
+
+    @property
+    def avg_ms(self) -> float:
+        """Mean duration since the last reset (ms); 0 before any tick."""
+        return self.total_ms / self.count if self.count else 0.0
+
+    def tick(self) -> Any:
+        if self.status != RUNNING:
+            self.initialise()
+        t0 = perf_counter()
+        nodes = list(self.decorated.tick())
+        ms = (perf_counter() - t0) * 1000.0
+        yield from nodes
+        self.last_ms = ms
+        self.count += 1
+        self.total_ms += ms
+        if ms > self.max_ms:
+            self.max_ms = ms
+        for name in self.OUTPUT_PORTS:
+            self.write(name, getattr(self, name))  # written when wired
+        yield end_as(self, self.decorated.status)
+
+    def terminate(self, new_status: py_trees.common.Status) -> None:
+        if halted(self, new_status):
+            self.reset_stats()

@@ -1,9 +1,7 @@
-"""Current and effort guards (design note 004): IsCurrentNormal, IsCurrentSafe, IsI2tSafe, IsJointEffortNormal
-(section 3.2: every joint's |effort| within a limit, one Threshold each).
+"""Current and effort guards (design note 004): IsCurrentNormal, IsCurrentSafe, IsI2tSafe, IsJointEffortNormal.
 
-A guard subscribes its model to its source at load, so the model sees every sample. At tick it
-fails when the source cannot be trusted or the model tripped since the last tick (its peak latch),
-and journals status edges as ``trip`` / ``recover`` events.
+A guard's models, subscribed to its source at load, see every sample; at tick it fails when the source cannot be
+trusted or a model tripped since the last tick (its peak latch), and journals ``trip`` / ``recover`` edges.
 """
 
 from __future__ import annotations
@@ -84,15 +82,10 @@ class GuardNode(CanguardNode, py_trees.behaviour.Behaviour):
     def _model_error(self, exc: ValueError) -> PortError:
         """A model's ValueError as a PortError on the first port it names, said in port names (``_NAMES``)."""
         names = self._NAMES
-        text = str(exc)
-        found = {}
-        for param, port_name in names.items():
-            m = re.search(rf"\b{param}\b", text)
-            if m:
-                found[m.start()] = port_name
-        for param in sorted(names, key=len, reverse=True):
-            text = re.sub(rf"\b{param}\b", names[param], text)
-        return PortError(found[min(found)] if found else next(iter(names.values())), text)
+        params = re.compile(r"\b(" + "|".join(sorted(names, key=len, reverse=True)) + r")\b")
+        first = params.search(str(exc))
+        text = params.sub(lambda m: names[m[1]], str(exc))
+        return PortError(names[first[1]] if first else next(iter(names.values())), text)
 
     def update(self) -> py_trees.common.Status:
         """The model's latch and the source's health, judged (thresholds read again first)."""
@@ -177,7 +170,6 @@ class IsCurrentNormal(GuardNode):
         self.ctx.subscribe(source.name, self.ROLE, self.model)
 
 
-
 class IsCurrentSafe(GuardNode):
     """hysteresis overcurrent guard: FAILURE from |I| >= overcurrent_threshold until |I| <= recovery_threshold; optional
     persistence and inrush blanking"""
@@ -219,7 +211,6 @@ class IsCurrentSafe(GuardNode):
         self.model = Hysteresis(over, rec, trip_after_s=self.port("trip_after"),
                                 recover_after_s=self.port("recover_after"), inrush=inrush, max_gap_s=source.max_age_s)
         self.ctx.subscribe(source.name, self.ROLE, self.model)
-
 
 
 class IsI2tSafe(GuardNode):
@@ -270,15 +261,13 @@ class IsI2tSafe(GuardNode):
                 raise PortError("peak_current", f"required when k >= {RATED_OVERLOAD:g} (the derived peak {peak:g} "
                                 f"A = {RATED_OVERLOAD:g} × continuous_current must exceed I_cont = k × "
                                 f"continuous_current = {cont * k:g} A)")
-        model: ProtectionModel
         if kind == "leaky":
-            model = LeakyI2t(cont * k, peak, peak_t, self.port("recover_fraction"), source.max_age_s)
+            self.model = LeakyI2t(cont * k, peak, peak_t, self.port("recover_fraction"), source.max_age_s)
         else:
-            model = ThermalI2t(cont * k, peak, peak_t, tau_s=self.port("tau"), tau_cool_s=self.port("tau_cool"),
-                               recover_fraction=self.port("recover_fraction"), max_gap_s=source.max_age_s)
-        self.model = model
-        self.ctx.subscribe(source.name, self.ROLE, model)
-        self.ctx.heat_models[self.name] = model
+            self.model = ThermalI2t(cont * k, peak, peak_t, tau_s=self.port("tau"), tau_cool_s=self.port("tau_cool"),
+                                    recover_fraction=self.port("recover_fraction"), max_gap_s=source.max_age_s)
+        self.ctx.subscribe(source.name, self.ROLE, self.model)
+        self.ctx.heat_models[self.name] = self.model
         self._write_level = self.is_wired("level")
 
     def _feedback(self, reason: str, role: str, value: float, threshold: float) -> str:
@@ -318,12 +307,10 @@ class IsJointEffortNormal(GuardNode):
     failed_joint = ""  # the first failing joint, named by the feedback
 
     def _build(self, source: SourceConfig) -> None:
-        limit = self.port("max_effort")
-        self.models: list[tuple[str, Threshold]] = []
-        for role in source.value_roles:
-            model = Threshold(limit)
+        self.models: list[tuple[str, Threshold]] = [(role, Threshold(self.port("max_effort")))
+                                                    for role in source.value_roles]
+        for role, model in self.models:
             self.ctx.subscribe(source.name, role, model)
-            self.models.append((role, model))
 
     def guarded(self) -> list[tuple[str, ProtectionModel, str]]:
         """One ``(joint, model, "threshold")`` per joint."""
@@ -333,22 +320,22 @@ class IsJointEffortNormal(GuardNode):
         now = self._clock.now()
         self.judged_t = now  # the engine checks that a running task's guards keep being ticked (T4)
         bad = self._reread(m for _, m in self.models)
-        failed: tuple[str, str, float, float] | None = None
+        failed: tuple[str, str, float, float] | None = None  # (reason, joint, value, threshold)
         for role, model in self.models:
             snap = model.poll(now)  # poll every joint: each latch restarts at every tick
             reason = "" if failed is not None else self._why(now, role, snap, bad)
             if reason:
-                failed = (role, reason, snap.value, snap.threshold)
+                failed = (reason, role, snap.value, snap.threshold)
         if not self.models:
-            failed = ("", REASON_NO_DATA, math.nan, math.nan)
+            failed = (REASON_NO_DATA, "", math.nan, math.nan)
         ok = failed is None
         # Another joint failing for the same reason is a new cause too (its feedback names the joint).
-        if ok is not self.ok or (failed is not None and (failed[1], failed[0]) != (self.reason, self.failed_joint)):
-            self.failed_joint = failed[0] if failed is not None else ""
+        if ok is not self.ok or (failed is not None and failed[:2] != (self.reason, self.failed_joint)):
+            self.failed_joint = failed[1] if failed is not None else ""
             if failed is None:
                 seen = [(m.snapshot(), role) for role, m in self.models if m.last_t is not None]
                 snap, role = max(seen, key=lambda sr: sr[0].value)
                 self._edge(True, "", role, snap.value, snap.threshold)
             else:
-                self._edge(False, failed[1], failed[0], failed[2], failed[3])
+                self._edge(False, *failed)
         return SUCCESS if ok else FAILURE

@@ -125,9 +125,8 @@ class IsElapsedSinceEvent(CanguardNode, py_trees.behaviour.Behaviour):
             self.feedback_message = f"no event time yet {self._bad_port}".rstrip()
             return FAILURE
         elapsed = self.ctx.clock.now() - event
-        ok = lo <= elapsed <= hi
         self.feedback_message = f"{elapsed:.3f} s since the event, window [{lo:g}, {hi:g}]"
-        return SUCCESS if ok else FAILURE
+        return SUCCESS if lo <= elapsed <= hi else FAILURE
 
 
 class IsCooldownElapsed(CanguardNode, py_trees.behaviour.Behaviour):
@@ -171,20 +170,13 @@ class ResetTimer(_TimerUser, py_trees.behaviour.Behaviour):
             return
         ancestor = self.parent
         while ancestor is not None:
-            found = [
-                n
-                for n in ancestor.iterate()
-                if isinstance(n, IsElapsedTimeCompare) and n.timer_key is None
-            ]
+            found = [n for n in ancestor.iterate() if isinstance(n, IsElapsedTimeCompare) and n.timer_key is None]
             if found:
                 self.targets = found
                 return
             ancestor = ancestor.parent
-        raise PortError(
-            "timer",
-            "no IsElapsedTimeCompare without a timer port in this tree to restart; "
-            'name the timer to restart (timer="{key}", the same key as the comparison\'s)',
-        )
+        raise PortError("timer", "no IsElapsedTimeCompare without a timer port in this tree to restart; "
+                                 'name the timer to restart (timer="{key}", the same key as the comparison\'s)')
 
     def update(self) -> py_trees.common.Status:
         now = self.ctx.clock.now()

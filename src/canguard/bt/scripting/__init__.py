@@ -1,19 +1,22 @@
-"""BehaviorTree.CPP v4's scripting language (no eval/exec), imported by the first :func:`parse`."""
+"""BehaviorTree.CPP v4's scripting language (no eval/exec); :mod:`.script` loads with the built-ins or a condition."""
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
 
-from canguard.bt.scripting.errors import ScriptError
+class ScriptError(ValueError):
+    """A script that does not parse (at load) or that fails while it runs (at tick): ``column 7: expected ')'
+    ...`` (``line 2, column 3: ...`` in a multi-line script; ``pos``: the 0-based offset, None: the whole)."""
 
-if TYPE_CHECKING:
-    from canguard.bt.scripting.script import Script
+    def __init__(self, message: str, pos: int | None = None, script: str | None = None) -> None:
+        self.message = message
+        self.pos = pos
+        self.line: int | None = None
+        self.column: int | None = None
+        where = ""
+        if pos is not None and script is not None:
+            before = script[:pos]
+            self.line = before.count("\n") + 1
+            self.column = pos - before.rfind("\n")
+            where = f"line {self.line}, column {self.column}: " if "\n" in script else f"column {self.column}: "
+        super().__init__(where + message)
 
-__all__ = ["ScriptError", "parse"]
-
-
-def parse(text: str) -> Script:
-    """Parse ``text`` once (at load); ScriptError with the column when it does not parse."""
-    from canguard.bt.scripting.script import Script
-
-    return Script(text)

@@ -1,10 +1,8 @@
 """The scripting language itself: a tokenizer (one pattern), a Pratt parser that compiles each expression
 into a closure at load, and BehaviorTree.CPP 4's rules for values (``operators.hpp``, ``safe_any.hpp``).
 
-Values are int64 integers, doubles and strings as ``int``, ``float``, ``str`` (a ``bool`` is a number); every
-arithmetic, logic and comparison result is a real; an entry keeps its type. Comparisons chain and bind looser
-than the bitwise operators (``x & 1 == 1`` is ``(x & 1) == 1``); as BT.CPP, ``&&`` and ``||`` evaluate both
-operands. A runtime error names the column of its operator or name.
+As BT.CPP: comparisons chain and bind looser than the bitwise operators (``x & 1 == 1`` is ``(x & 1) == 1``),
+and ``&&`` and ``||`` evaluate both operands (the value rules: docs/trees.md, "Scripts").
 """
 
 from __future__ import annotations
@@ -12,10 +10,13 @@ from __future__ import annotations
 import math
 import operator
 import re
-from collections.abc import Callable, Mapping
-from typing import Any, NamedTuple, Protocol
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any, NamedTuple
 
-from canguard.bt.scripting.errors import ScriptError
+from canguard.bt.scripting import ScriptError
+
+if TYPE_CHECKING:
+    from canguard.bt.scopes import TreeBlackboard
 
 FLT_EPSILON = 1.1920928955078125e-07  # reals this close are equal (BT.CPP's IsSame)
 INT64_MIN = -(2**63)
@@ -26,24 +27,7 @@ UNSET: Any = object()
 """The value of an entry that exists but holds nothing yet (BT.CPP's empty ``Any``)."""
 
 
-class ScriptBlackboard(Protocol):
-    """The blackboard a script reads and writes; an entry may exist without a value (a typed port's)."""
-
-    def has(self, key: str) -> bool:
-        """Whether the entry exists (with or without a value)."""
-
-    def get(self, key: str) -> object:
-        """The entry's value; KeyError when the entry does not exist or holds no value."""
-
-    def set(self, key: str, value: object) -> None:
-        """Create or overwrite the entry's value."""
-
-    def declared_type(self, key: str) -> type | None:
-        """The type the entry was declared with (a typed port), or None: any type."""
-
-
-Enums = Mapping[str, int] | None
-Run = Callable[[ScriptBlackboard, Enums], Any]
+Run = Callable[["TreeBlackboard"], Any]
 
 _NUMBER_TEXT = re.compile(r"-?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?|-?(?:inf|infinity|nan)", re.IGNORECASE)
 
@@ -94,17 +78,14 @@ def _text(value: str | int | float) -> str:
     return str(int(value)) if isinstance(value, int) else f"{value:f}"
 
 
-def string_to_real(text: str, enums: Enums) -> float | None:
-    """A string compared with (or assigned to) a number: 'true', 'false', an enum name or a number's text;
-    None otherwise (BT.CPP's ``StringToDouble``)."""
+def string_to_real(text: str) -> float | None:
+    """A string compared with (or assigned to) a number: 'true', 'false' or a number's text; else None."""
     if text in ("true", "false"):
         return float(text == "true")
-    if enums is not None and text in enums:
-        return float(enums[text])
     return float(text) if _NUMBER_TEXT.fullmatch(text) else None
 
 
-def convert_for_entry(value: object, target: type, enums: Enums) -> object:
+def convert_for_entry(value: object, target: type) -> object:
     """``value`` converted to ``target``, its entry's type; ValueError saying what it takes if BT.CPP refuses."""
     if target not in (bool, int, float):
         if isinstance(value, target):
@@ -112,7 +93,7 @@ def convert_for_entry(value: object, target: type, enums: Enums) -> object:
         raise ValueError(f"expected {type_name(target)}")
     number: object = value
     if isinstance(value, str):
-        number = string_to_real(value, enums)
+        number = string_to_real(value)
         if number is None:
             raise ValueError("expected a number, or a string holding one, true, false or an enum name")
     if not isinstance(number, (int, float)):
@@ -205,9 +186,8 @@ _ORDER: dict[str, Callable[[Any, Any], bool]] = {
     "<": operator.lt, ">": operator.gt, "<=": operator.le, ">=": operator.ge}
 
 
-def _comparable(op: str, lv: Any, rv: Any, pos: int, enums: Enums) -> tuple[Any, Any]:
-    """The operands of ``lv op rv`` as compared: two reals or two strings (a string beside a number is read
-    as one)."""
+def _comparable(op: str, lv: Any, rv: Any, pos: int) -> tuple[Any, Any]:
+    """The operands of ``lv op rv`` as compared: two reals or two strings (a string beside a number read as one)."""
     if _numbers(lv, rv):
         return to_real(lv, pos), to_real(rv, pos)
     if isinstance(lv, str) and isinstance(rv, str):
@@ -215,7 +195,7 @@ def _comparable(op: str, lv: Any, rv: Any, pos: int, enums: Enums) -> tuple[Any,
     text, other = (lv, rv) if isinstance(lv, str) else (rv, lv)
     if not isinstance(text, str) or not isinstance(other, _NUMERIC):
         raise ScriptError(f"can't mix different types in a comparison: {describe(lv)} [{op}] {describe(rv)}", pos)
-    number = string_to_real(text, enums)
+    number = string_to_real(text)
     if number is None:
         raise ScriptError(f"can't compare {describe(text)} with a number: expected a number's text, "
                           "true, false or an enum name", pos)
@@ -229,7 +209,7 @@ def _compare(op: str, a: Any, b: Any) -> bool:
     return _ORDER[op](a, b)
 
 
-def _assigned(op: str, key: str, pos: int, value: object, bb: ScriptBlackboard, enums: Enums) -> object:
+def _assigned(op: str, key: str, pos: int, value: object, bb: TreeBlackboard) -> object:
     """What ``key op value`` writes to the entry: BT.CPP's ``ExprAssignment``."""
     try:
         current = bb.get(key)
@@ -260,7 +240,7 @@ def _assigned(op: str, key: str, pos: int, value: object, bb: ScriptBlackboard, 
     target = entry_type(current) if current is not UNSET else declared
     assert target is not None
     try:
-        return convert_for_entry(value, target, enums)
+        return convert_for_entry(value, target)
     except ValueError as exc:
         what = "holds" if current is not UNSET else "is declared as"
         raise ScriptError(f"can't assign {describe(value)} to the entry [{key}], which {what} "
@@ -268,23 +248,20 @@ def _assigned(op: str, key: str, pos: int, value: object, bb: ScriptBlackboard, 
 
 
 class _Expr(NamedTuple):
-    """A compiled expression: its closure, the offset its runtime errors name, its tree's depth and, for a bare
-    name, the name (the left side of an assignment)."""
+    """A compiled expression: its closure and what the parser checks of it."""
 
     run: Run
-    pos: int
-    depth: int = 1
-    name: str | None = None
+    pos: int  # the offset its runtime errors name
+    depth: int = 1  # its tree's depth
+    name: str | None = None  # a bare name's (the left side of an assignment)
 
 
 def _literal(value: object, pos: int) -> _Expr:
-    return _Expr(lambda bb, enums: value, pos)
+    return _Expr(lambda bb: value, pos)
 
 
 def _name(name: str, pos: int) -> _Expr:
-    def run(bb: ScriptBlackboard, enums: Enums) -> object:
-        if enums is not None and name in enums:  # a registered enum wins over an entry, as in BT.CPP
-            return float(enums[name])
+    def run(bb: TreeBlackboard) -> object:
         if not bb.has(name):
             raise ScriptError(f"variable not found: [{name}] (no blackboard entry and no enum of that name)", pos)
         try:
@@ -298,8 +275,8 @@ def _name(name: str, pos: int) -> _Expr:
 def _unary(op: str, pos: int, operand: _Expr) -> _Expr:
     inner = operand.run
 
-    def run(bb: ScriptBlackboard, enums: Enums) -> object:
-        value = inner(bb, enums)
+    def run(bb: TreeBlackboard) -> object:
+        value = inner(bb)
         if not isinstance(value, (int, float)):
             _set(op, pos, right=value)
             raise ScriptError(f"the operator [{op}] expects a number, got {describe(value)}", pos)
@@ -317,9 +294,9 @@ def _unary(op: str, pos: int, operand: _Expr) -> _Expr:
 def _binary(op: str, pos: int, lhs: _Expr, rhs: _Expr) -> _Expr:
     left, right, apply = lhs.run, rhs.run, _BINARY[op]
 
-    def run(bb: ScriptBlackboard, enums: Enums) -> object:
-        lv = left(bb, enums)
-        rv = right(bb, enums)
+    def run(bb: TreeBlackboard) -> object:
+        lv = left(bb)
+        rv = right(bb)
         _set(op, pos, left=lv, right=rv)
         return apply(op, lv, rv, pos)
 
@@ -327,12 +304,12 @@ def _binary(op: str, pos: int, lhs: _Expr, rhs: _Expr) -> _Expr:
 
 
 def _chain(first: _Expr, rest: list[tuple[str, int, _Expr]]) -> _Expr:
-    def run(bb: ScriptBlackboard, enums: Enums) -> object:
-        lv = first.run(bb, enums)
+    def run(bb: TreeBlackboard) -> object:
+        lv = first.run(bb)
         for op, pos, operand in rest:
-            rv = operand.run(bb, enums)
+            rv = operand.run(bb)
             _set(op, pos, left=lv, right=rv)
-            if not _compare(op, *_comparable(op, lv, rv, pos, enums)):
+            if not _compare(op, *_comparable(op, lv, rv, pos)):
                 return 0.0  # BT.CPP: a comparison is the real 1.0 or 0.0
             lv = rv
         return 1.0
@@ -341,24 +318,24 @@ def _chain(first: _Expr, rest: list[tuple[str, int, _Expr]]) -> _Expr:
 
 
 def _ternary(pos: int, condition: _Expr, then: _Expr, otherwise: _Expr) -> _Expr:
-    def run(bb: ScriptBlackboard, enums: Enums) -> object:
-        value = condition.run(bb, enums)
+    def run(bb: TreeBlackboard) -> object:
+        value = condition.run(bb)
         if not isinstance(value, (str, int, float)):
             _set("?", pos, left=value)
             raise ScriptError(f"the condition of [?] must be a number or a string, got {describe(value)}", pos)
-        return (then if value != "" and value != 0 else otherwise).run(bb, enums)
+        return (then if value != "" and value != 0 else otherwise).run(bb)
 
     return _Expr(run, pos, max(condition.depth, then.depth, otherwise.depth) + 1)
 
 
 def _assign(op: str, pos: int, key: str, rhs: _Expr) -> _Expr:
-    def run(bb: ScriptBlackboard, enums: Enums) -> object:
+    def run(bb: TreeBlackboard) -> object:
         if op != ":=" and not bb.has(key):
             raise ScriptError(f"the blackboard entry [{key}] doesn't exist yet; "
                               f"to create it, use the operator [:=] instead of [{op}]", pos)
-        value = rhs.run(bb, enums)
+        value = rhs.run(bb)
         _set(op, pos, right=value)
-        result = _assigned(op, key, pos, value, bb, enums)
+        result = _assigned(op, key, pos, value, bb)
         bb.set(key, result)
         return result
 
@@ -538,22 +515,19 @@ class Script:
         self.text = text
         self._runs = tuple(stmt.run for stmt in statements)
 
-    def __repr__(self) -> str:
-        return f"Script({self.text!r})"
-
-    def run(self, blackboard: ScriptBlackboard, enums: Enums = None) -> object:
+    def run(self, blackboard: TreeBlackboard) -> object:
         """Run every statement; the value of the last one (None when that is an entry without a value)."""
         value: object = None
         try:
             for run in self._runs:
-                value = run(blackboard, enums)
+                value = run(blackboard)
         except ScriptError as exc:
             raise ScriptError(exc.message, exc.pos, self.text) from None
         return None if value is UNSET else value
 
-    def condition(self, blackboard: ScriptBlackboard, enums: Enums = None) -> bool:
+    def condition(self, blackboard: TreeBlackboard) -> bool:
         """Run the script and take its value as a boolean (:func:`logic_bool`)."""
-        value = self.run(blackboard, enums)
+        value = self.run(blackboard)
         result = logic_bool(value)
         if result is None:
             raise ScriptError(f"expected a boolean result (true/false, or a number 0 or 1), got {describe(value)} "
