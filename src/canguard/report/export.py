@@ -326,17 +326,12 @@ class McapExport:
             sec, nanosec = np.divmod(ns, 1_000_000_000)
             table[:, 4:8] = sec.astype("<i4").view(np.uint8).reshape(-1, 4)
             table[:, 8:12] = nanosec.astype("<u4").view(np.uint8).reshape(-1, 4)
-            self.writer.messages(self._frame_channel(fd), ns, table)
+            if fd not in self._frames:
+                msgtype = frame_type(fd)
+                schema = self.writer.schema(msgtype, "ros2msg", full_definition(msgtype))
+                self._frames[fd] = self.writer.channel(f"/canguard/frames_out{'_fd' if fd else ''}", schema, "cdr")
+            self.writer.messages(self._frames[fd], ns, table)
         self._out.clear()
-
-    def _frame_channel(self, fd: bool) -> int:
-        channel = self._frames.get(fd)
-        if channel is None:
-            msgtype = frame_type(fd)
-            schema = self.writer.schema(msgtype, "ros2msg", full_definition(msgtype))
-            topic = "/canguard/frames_out_fd" if fd else "/canguard/frames_out"
-            channel = self._frames[fd] = self.writer.channel(topic, schema, "cdr")
-        return channel
 
     def close(self) -> None:
         """Write what is left and end the file."""
