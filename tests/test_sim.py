@@ -19,12 +19,12 @@ import pytest
 from canguard.io.frame import Frame
 from canguard.io.logs import read_log
 from canguard.sim import SCENARIOS, SimRobot, run_on_bus, write_log
+from canguard.sim.encode import MessageEncoder
 from canguard.sim.robot import (
     AXIS_STATE_CLOSED_LOOP,
     AXIS_STATE_IDLE,
     ERROR_ESTOP_REQUESTED,
     KT_NM_PER_A,
-    MessageEncoder,
 )
 from checkout import REPO
 from waitkit import WAIT_S

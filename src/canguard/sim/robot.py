@@ -14,11 +14,11 @@ import random
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from os import PathLike
-from typing import Any
 
 import cantools.database
 
 from canguard.io.frame import Frame
+from canguard.sim.encode import MessageEncoder
 from canguard.sim.scenarios import Producer, Scenario, parse_scenario
 
 AXIS_STATE_IDLE = 1
@@ -50,31 +50,6 @@ _SEGMENTS: tuple[tuple[float, float], ...] = (
 _SEG_STARTS = [s for s, _ in _SEGMENTS]
 _VMAX_REV_S = 2.0
 _STAGGER_S = 0.5
-
-
-class MessageEncoder:
-    """Encodes one DBC message's physical signal values into frame bytes."""
-
-    def __init__(self, message: Any) -> None:
-        self.message = message
-        self.frame_id: int = message.frame_id
-        self.is_extended_id: bool = bool(message.is_extended_frame)
-        self.length: int = message.length
-        self._defaults: dict[str, float] = {s.name: 0 for s in message.signals}
-        self.by_start: tuple[str, ...] = tuple(s.name for s in sorted(message.signals, key=lambda s: s.start))
-        """The signal names in start-bit order: what :meth:`pack` takes, positionally."""
-
-    def encode(self, values: Mapping[str, float]) -> bytes:
-        """Encode physical values (scaled, as in the DBC); missing ones are 0, unknown names are ignored."""
-        if not self._defaults:
-            return bytes(self.length)
-        full = dict(self._defaults)
-        full.update((key, value) for key, value in values.items() if key in full)
-        return bytes(self.message.encode(full, scaling=True, strict=False))
-
-    def pack(self, *values: float) -> bytes:
-        """Encode a value for each signal, in :attr:`by_start` order (the telemetry's setpoint then measured value)."""
-        return bytes(self.message.encode(dict(zip(self.by_start, values, strict=True)), scaling=True, strict=False))
 
 
 @dataclass

@@ -7,15 +7,35 @@ config: the pack trips above 35 A, recovers below 25 A, ``max_age`` 0.5 s; I²t 
 from __future__ import annotations
 
 import math
+import random
 from collections.abc import Callable
 from functools import partial
-from typing import TYPE_CHECKING, ClassVar
+from typing import TYPE_CHECKING, ClassVar, Protocol
 
 if TYPE_CHECKING:
+    import cantools.database
+
     from canguard.io.frame import Frame
-    from canguard.sim.robot import SimRobot
+    from canguard.sim.encode import MessageEncoder
 
 Producer = Callable[[float], "Frame | None"]
+
+
+class RobotHandle(Protocol):
+    """What a scenario asks of the simulated robot (:class:`canguard.sim.robot.SimRobot` is one)."""
+
+    axes: int
+    rng: random.Random
+    db: cantools.database.Database
+    stream_rates_hz: dict[str, float]
+
+    def period_s(self, kind: str) -> float: ...
+    def encoder(self, axis: int | None, kind: str) -> MessageEncoder: ...
+    def schedule_once(self, t: float, produce: Producer) -> None: ...
+    def add_periodic(self, kind: str, period_s: float, phase_s: float, produce: Producer) -> None: ...
+    def raw_frame(self, t: float, frame_id: int, data: bytes, extended: bool = False, *,
+                  error: bool = False) -> Frame: ...
+    def bms_frame(self, t: float, pack_current_a: float | None = None) -> Frame: ...
 
 # linux/can/error.h: error classes and their details.
 CAN_ERR_CRTL = 0x00000004
@@ -27,12 +47,12 @@ CAN_ERR_PROT_BIT = 0x01
 CAN_ERR_PROT_FORM = 0x02
 
 
-def _noise(robot: SimRobot, frame_id: int, dlc: int) -> Producer:
+def _noise(robot: RobotHandle, frame_id: int, dlc: int) -> Producer:
     """A producer of ``dlc`` fresh random bytes (the robot's seeded generator) on ``frame_id``."""
     return lambda t: robot.raw_frame(t, frame_id, robot.rng.randbytes(dlc))
 
 
-def _at_steps(robot: SimRobot, t0: float, step_s: float, frames: list[tuple[int, bytes, bool, bool]]) -> None:
+def _at_steps(robot: RobotHandle, t0: float, step_s: float, frames: list[tuple[int, bytes, bool, bool]]) -> None:
     """Schedule fixed ``frames`` (id, data, extended, error), ``step_s`` apart from ``t0``."""
     for i, (fid, data, ext, error) in enumerate(frames):
         robot.schedule_once(t0 + i * step_s, partial(robot.raw_frame, frame_id=fid, data=data, extended=ext,
@@ -50,7 +70,7 @@ class Scenario:
     def __init__(self, offset_s: float = 0.0) -> None:
         self.offset_s = float(offset_s)
 
-    def setup(self, robot: SimRobot) -> None:
+    def setup(self, robot: RobotHandle) -> None:
         """Schedule this scenario's own frames on ``robot`` (called once, before the first frame)."""
 
     def setpoint(self, axis: int, t: float, iq_a: float) -> float:
@@ -101,7 +121,7 @@ class Spike(Scenario):
     AT_S = 1.5
     CURRENT_A = 60.0
 
-    def setup(self, robot: SimRobot) -> None:
+    def setup(self, robot: RobotHandle) -> None:
         """Schedule the spike half a BMS period after the BMS frame due at ``AT_S``."""
         t = self.offset_s + self.AT_S + robot.period_s("BMS_Status") / 2
         robot.schedule_once(t, lambda tt: robot.bms_frame(tt, pack_current_a=self.CURRENT_A))
@@ -144,7 +164,7 @@ class Garbage(Scenario):
     STEP_S = 0.05
     UNKNOWN_ID = 0x7E5
 
-    def setup(self, robot: SimRobot) -> None:
+    def setup(self, robot: RobotHandle) -> None:
         """Schedule the seven bad frames."""
         axis = min(2, robot.axes - 1)
         t0 = self.offset_s + self.AT_S
@@ -174,7 +194,7 @@ class ErrorBurst(Scenario):
     COUNT = 32
     STEP_S = 0.0002
 
-    def setup(self, robot: SimRobot) -> None:
+    def setup(self, robot: RobotHandle) -> None:
         """Schedule the burst."""
         burst = []
         for i in range(self.COUNT):
@@ -196,7 +216,7 @@ class Load(Scenario):
     TARGET_FPS = 8000.0
     IDS = 40
 
-    def setup(self, robot: SimRobot) -> None:
+    def setup(self, robot: RobotHandle) -> None:
         """Add the background streams."""
         rng = robot.rng
         extra = self.TARGET_FPS - sum(robot.stream_rates_hz.values())
