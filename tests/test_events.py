@@ -209,8 +209,8 @@ class TestEventJournal:
         with EventJournal(path, max_bytes=1000) as j:
             for i in range(100):
                 j.write(_trip(i))
-            assert j.rotations >= 5
         files = journal_files(path)
+        assert len(files) >= 6
         assert files[-1] == path and files[-2].name == "events.jsonl.1"
         assert all(f.stat().st_size <= 1000 for f in files)
         assert [e["value"] for e in rotated_events(path)] == [30.0 + i for i in range(100)]
@@ -246,7 +246,7 @@ class TestEventJournal:
         j.write({"event": "start"})
         j.flush()
         j.close()
-        assert j.lines == 1 and j.bytes_written > 0
+        assert j.lines == 1
 
     def test_write_after_close_raises(self, tmp_path: Path) -> None:
         """Writing to a closed journal is a programming error and says so."""

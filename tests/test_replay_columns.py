@@ -192,7 +192,7 @@ def replay(cfg: Config, log: Path, out: Path, *, columns: bool, chunk: int | Blo
         last, edge = take_runs(runs)
         for plan, rows, *_rest in runs:  # a block's rows
             counts["handled"] += bisect.bisect_right(rows, last)
-            handled_ids.add(plan.frame_id)
+            handled_ids.add(int(plan.entry.message.frame_id))
         return last, edge
 
     boards: list[dict[str, Any]] = []

@@ -1,16 +1,8 @@
 """A configured message on one bus, and the runs its rows feed (live and replay).
 
-The block runner (:class:`~canguard.engine.logrun.LogRun`) decodes a block's rows of each
-configured message together (its :class:`~canguard.decode.message.MessageDecoder`, the same
-object that decodes a live frame). Then the rows, in time order up to the next due time, are
-taken by :func:`take_runs`, the one way a frame's samples change anything: each source's health
-(:meth:`SourceHealth.advance <canguard.protect.staleness.SourceHealth.advance>`) and each
-protection model (:meth:`ProtectionModel.advance <canguard.protect.base.ProtectionModel.advance>`)
-advances over the run of its own samples, up to the first row where one of them changed state
-(an edge: the engine ticks the tree there). A live frame is a run of one. A row the column
-decoder leaves to the frame decoder (an invalid value with its reason, a presence flag at 0, an
-alive counter, a remote frame...) is taken alone (:meth:`MessagePlan.take_samples`). The counts
-reach the decoder's and the engine's counters at :meth:`MessagePlan.flush`.
+:func:`take_runs` is the one way a frame's samples change anything: each source's health and each
+protection model advances over the run of its own samples, up to the first row where one of them changed
+state (an edge: the engine ticks the tree there). A live frame is a run of one.
 """
 
 from __future__ import annotations
@@ -39,14 +31,11 @@ class MessagePlan:
         self.counters = counters
         self.stats = stats
         self.ctx = ctx
-        self.frame_id = int(entry.message.frame_id)
-        self.names = [(out.source, out.role) for out in entry.outputs]
-        """(source, role) of each output: the samples a decoded row gives, in order."""
+        self.names = [(out.source, out.role) for out in entry.outputs]  # in a decoded row's order
         self.outputs = [(role, ctx.health[source], tuple(ctx.subscribers(source, role)), ctx.journals(source, role))
                         for source, role in self.names]
         """(role, health, models, journalled: a CANopen drive's NMT / EMCY) of each configured signal."""
-        self.keys = tuple((source, (source, role)) for source, role in self.names)
-        """(source, (source, role)) of each output: where :meth:`flush` counts it."""
+        self.keys = tuple((source, (source, role)) for source, role in self.names)  # where :meth:`flush` counts
         self.counter = any(role in ROW_ROLES for _source, role in self.names)
         """An alive counter or a drive's health role: every row goes to the frame decoder (its journal events)."""
         healths: dict[int, tuple[SourceHealth, list[str], list[int]]] = {}
@@ -56,21 +45,16 @@ class MessagePlan:
             js.append(j)
         self.healths = tuple((health, tuple(roles), tuple(js)) for health, roles, js in healths.values())
         """Each source the message feeds: (its health, its roles here, their outputs), in output order."""
-        self.single = len(self.outputs) == 1
-        """One configured signal (most messages)."""
-        self.one_source = self.healths[0][:2] if self.single else None
-        """(health, roles) of a message of one configured signal."""
+        self.single = len(self.outputs) == 1  # one configured signal (most messages)
+        self.one_source = self.healths[0][:2] if self.single else None  # its (health, roles)
         self.models = tuple((j, model) for j, (_role, _health, models, _j) in enumerate(self.outputs)
                             for model in models)
         """(output, model) of every protection model a row feeds."""
         self.seen = 0
         self.empty = 0
-        self.tops = [-1.0] * len(self.outputs)
-        """The largest |value| of each output's valid samples since the last :meth:`flush`."""
-        self.sampled = [0] * len(self.outputs)
-        """Each output's samples taken through :meth:`take_samples` since the last :meth:`flush`."""
-        self.index = {name: j for j, name in enumerate(self.names)}
-        """Each output's index by (source, role): where a decoded sample goes."""
+        self.tops = [-1.0] * len(self.outputs)  # each output's largest valid |value| since :meth:`flush`
+        self.sampled = [0] * len(self.outputs)  # each output's :meth:`take_samples` since :meth:`flush`
+        self.index = {name: j for j, name in enumerate(self.names)}  # by (source, role)
 
     # -- one row ------------------------------------------------------------------------
     def take_row(self, values: tuple[float, ...], t: float) -> bool:
@@ -164,16 +148,10 @@ _Unit = tuple[Any, Any, Any]
 
 
 def take_runs(runs: Sequence[tuple[MessagePlan, Any, Any, list[Any]]]) -> tuple[int, bool]:
-    """Take the rows whole and valid of a stretch of a block, each message's as a run of columns (``runs``: (plan,
-    rows (ascending positions in the block), their times, each output's column: numpy or lists)), up to the first
-    row with an edge. (The last row taken, True when it is an edge: the engine ticks the tree at its time.)
-
-    Each health and model advances over its whole run, stopping at its own first edge; one that
-    went past the first of those rows goes back to its mark and advances again up to it (a row
-    the engine ticks at is taken whole). A source fed by several messages takes their runs whole
-    when each is quiet (:meth:`SourceHealth.take_quiet
-    <canguard.protect.staleness.SourceHealth.take_quiet>`), else their rows in time order.
-    """
+    """Take the rows whole and valid of a stretch of a block (``runs``: (plan, rows ascending, their times, each
+    output's column)) up to the first row with an edge: (the last row taken, True when it is an edge). Each health
+    and model advances to its own first edge; one that went past the earliest goes back to its mark and up to it.
+    A source fed by several messages takes their runs whole when each is quiet, else their rows in time order."""
     if len(runs) == 1 and len(runs[0][1]) == 1:  # one row (a live frame): a run of one for each
         plan, rows, ts, columns = runs[0]
         return int(rows[0]), plan.take_row(tuple(map(float, next(zip(*columns, strict=True)))), float(ts[0]))

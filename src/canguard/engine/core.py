@@ -1,22 +1,10 @@
 """The engine: frames -> decode -> protection models -> blackboard -> tree -> frames out.
 
-One engine for the daemon and for replay; they differ only in where frames come
-from and in the clock (live: :class:`~canguard.io.clock.LiveClock`; replay: a
-:class:`~canguard.io.clock.ManualClock` driven by the log's timestamps). Nothing
-here asks which one it is.
-
-Tick policy (the same live and in replay):
-
-- the tree ticks on a fixed grid of ``1 / tick_hz`` in the clock's time; ticks
-  due before a frame's time run, at their own time, before that frame;
-- a sample that changes a protection model's state (an edge) ticks the tree at
-  once, at the sample's time, so a trip reaches the bus without waiting for the
-  next period;
-- periodic task / stop frames and the stop confirmation deadline are serviced at
-  their own times between ticks.
-
-A gap in time (a daemon stall, a gap in a log) longer than ``MAX_CATCH_UP_S``
-does not replay every missed tick: the grid jumps forward and the jump is counted.
+One engine for the daemon and for replay: only the frames' source and the clock differ. The tree ticks
+on a grid of ``1 / tick_hz`` (ticks due before a frame run first, at their own times) and at once at an
+edge (a sample that changed a model's state: a trip reaches the bus without waiting for the next period);
+the gate's deadlines run at their own times between ticks. A gap longer than ``MAX_CATCH_UP_S`` is not
+ticked through: the grid jumps forward and the jump is counted.
 """
 
 from __future__ import annotations
@@ -63,13 +51,8 @@ _NO_ROUTE: Mapping[str, str] = MappingProxyType({})
 
 
 class Engine:
-    """Runs one config's tree over frames from any source, on any clock.
-
-    Built from parts: the task gate (:class:`TaskGate`), the journal (:class:`Journal`), the quiet-tick
-    proof (:class:`QuietTicks`) and the block runner (:class:`LogRun`). It watches its inputs itself:
-    stale sources, buses down, a receive queue behind, each as an inhibit of the gate, whatever the
-    tree says.
-    """
+    """Runs one config's tree over frames from any source, on any clock; stale sources, buses down and a
+    receive queue behind each hold the task stopped (an inhibit of the gate), whatever the tree says."""
 
     def __init__(
         self,
@@ -101,8 +84,7 @@ class Engine:
         """Earliest time a tick or gate deadline is due: a frame before it changes nothing but the models."""
         clock = self.clock
         self.sink = sink
-        self.journal = Journal(clock.now, events, durable=durable, on_event=on_event)
-        """Every event of this engine (the daemon writes its own here too: a reload, a bus reopened)."""
+        self.journal = Journal(clock.now, events, durable=durable, on_event=on_event)  # the daemon's events too
         self.metrics = metrics
         self.heat = heat
         self.save_heat = save_heat
@@ -110,10 +92,8 @@ class Engine:
         self.sample_block: Callable[[Any, list[Any], list[tuple[int, Any]]], None] | None = None
         """Called once a block with every sample the models see (``--export-signals``, plots): the block's times,
         each message's ((source, signal) names, rows, decoded values) and the frame decoder's (row, sample)s."""
-        self.tick_hook: Callable[[float], None] | None = None
-        """Called after every tick with its time (plots)."""
-        self.observer: TickObserver | None = None
-        """Told after every tick (the live monitors)."""
+        self.tick_hook: Callable[[float], None] | None = None  # called after every tick with its time (plots)
+        self.observer: TickObserver | None = None  # told after every tick (the live monitors)
         self.stats = EngineStats()
         self.decoder = Decoder(cfg)
         self.ctx = Context(clock, cfg.sources, sink=sink, actions=cfg.actions, on_event=self._node_event,
@@ -130,8 +110,7 @@ class Engine:
         require_guard_coverage(self.loaded)
         self.root: py_trees.behaviour.Behaviour = self.loaded.root
         self._guards = self.loaded.guards()
-        self.guard_nodes = self.loaded.guard_nodes()
-        """The tree's guard nodes, in tree order."""
+        self.guard_nodes = self.loaded.guard_nodes()  # in tree order
         self.gate.explain = self._explain
         from canguard.bt.nodes.actions import assign_roles
 
@@ -145,27 +124,21 @@ class Engine:
         self.start_grace_s = max(read, default=0.0)
         """How long after the start a failing tree only keeps the task from starting (:meth:`starting`)."""
         self.started_at = math.nan
-        """When the engine started."""
-        self.stale: dict[str, str] = {}
-        """Each source's reason as the last tick saw it ("" fresh)."""
+        self.stale: dict[str, str] = {}  # each source's reason as the last tick saw it ("" fresh)
         self._cover: list[Any] = []
         """The guards ticked when the task last started: they must keep being ticked (:meth:`_guards_ticked`)."""
         self.quiet = QuietTicks(self.root, self.ctx, self.gate, self.journal, self)
-        self.next_tick_t = math.nan
-        """When the next grid tick is due (NaN before the start)."""
+        self.next_tick_t = math.nan  # NaN before the start
         self._heat_failed = False
-        self.last_frame_t = -math.inf
-        """The latest frame time seen (-inf: none)."""
+        self.last_frame_t = -math.inf  # the latest frame time seen
         self.first_frame_t = math.nan
         self.last_status = py_trees.common.Status.INVALID
         self.last_tick_t = math.nan
         self.last_due_run = -math.inf
         """The time of the last tick or gate deadline run (which row brought it: :meth:`_cross`)."""
         self._blocks = LogRun(self)
-        self._live = LogCursor(_NO_ROUTE, None, {}, None)
-        """Where :meth:`take` is: every frame goes to the bus it is given for, or by :attr:`_bus_names`."""
-        self._bus_names = {name: name for name in cfg.buses}
-        """Each bus by its own name: the route of a frame whose channel names its bus (:meth:`take` of None)."""
+        self._live = LogCursor(_NO_ROUTE, None, {}, None)  # where :meth:`take` is
+        self._bus_names = {name: name for name in cfg.buses}  # the route of :meth:`take` of None
 
     @property
     def events_seen(self) -> Counter[str]:
@@ -258,13 +231,7 @@ class Engine:
     # -- frames in -------------------------------------------------------------------------
     def take(self, bus: str | None, block: Block) -> None:
         """Process a block of frames received on ``bus``, in order: the one way frames come in (:class:`LogRun`).
-
-        The ticks and gate deadlines due before a frame run first, at their own times, then its
-        message's row step (the sources' health, the protection models), then a tick at once
-        when it changed a model's or a source's state. ``bus`` None: each frame's ``channel`` is
-        the name of its bus (a live batch drained from several buses); a frame of no configured
-        bus is counted as unmapped.
-        """
+        ``bus`` None: each frame's ``channel`` names its bus (a batch drained from several buses)."""
         cursor = self._live
         if bus is None:
             cursor.route, cursor.default_bus = self._bus_names, None
@@ -287,16 +254,11 @@ class Engine:
         self.tick(now)
 
     def runs_until(self, end_t: float, coming: Callable[[], Mapping[tuple[int, str], Any]]) -> float:
-        """Until when a block's rows, the last at ``end_t``, may be taken as runs, the engine idle.
-
-        The next due time, or, while the ticks before it read nothing the rows change, the end of
-        the quiet stretch the rows still to come (``coming()``: each source signal's times,
-        :meth:`QuietTicks.reach`) keep the sources fresh to. That needs: the next grid tick proven
-        quiet, nothing watching each tick, no model state written by a skipped tick
-        (:attr:`QuietTicks.writes`), no stop waiting for its confirmation (it reads a source between
-        ticks) and no I²t heat due to be saved (a save writes the heat of its tick's time). An edge
-        in the runs still ticks at once, after the quiet ticks before it are counted.
-        """
+        """Until when a block's rows, the last at ``end_t``, may be taken as runs, the engine idle: the next due
+        time, or the end of the quiet ticks the rows still to come keep the sources fresh to (``coming()``:
+        :meth:`QuietTicks.reach`). That needs nothing watching each tick, no model state written by a skipped
+        tick, no stop waiting for its confirmation (it reads a source between ticks) and no heat save due (a
+        save writes the heat of its tick's time). An edge in the runs still ticks at once."""
         due = self.due
         if end_t < due:
             return due
@@ -304,14 +266,10 @@ class Engine:
         if (self.metrics is None and self.tick_hook is None and self.observer is None and not quiet.writes
                 and not self.gate.confirm_pending and quiet.may_skip(self.next_tick_t) and quiet.until > due):
             until = quiet.until if quiet.until > end_t else quiet.reach(coming())
-            return max(due, min(until, self._heat_due()))
+            if self.heat is not None and self.save_heat and self.ctx.heat_models:  # a save due at a tick
+                until = min(until, float(self.heat.next_save_t(self.cfg.state.save_period_s)))
+            return max(due, until)
         return due
-
-    def _heat_due(self) -> float:
-        """From when the heat is saved again at a tick (inf: never; -inf: at the next tick)."""
-        if self.heat is None or not self.save_heat or not self.ctx.heat_models:
-            return math.inf
-        return float(self.heat.next_save_t(self.cfg.state.save_period_s))
 
     def next_due(self) -> float:
         """The next time the engine has something to do (a tick or a gate deadline)."""
@@ -424,9 +382,8 @@ class Engine:
 
     # -- quiet ticks: counted, not run (canguard.engine.quiet has the proof) ---------------------
     def _quiet_run(self, now: float, until: float) -> None:
-        """After a quiet tick: the grid ticks due before ``until`` (the gate's next deadline) and up to ``now``
-        counted in one go, while the task runs and no heat is saved (then only the last of them leaves a
-        trace); each tick time is reached by the same additions as one by one."""
+        """After a quiet tick: the grid ticks due up to ``now`` and before ``until`` (the gate's next deadline)
+        counted in one go, by the same additions as one by one, while the task runs and no heat is saved."""
         gate = self.gate
         if gate.state != TaskGate.RUNNING or (self.heat is not None and self.save_heat):
             return
@@ -483,8 +440,8 @@ class Engine:
             self._heat_failed = False
 
     def _failure_cause(self, tip: str) -> tuple[str, str]:
-        """(node, reason) of a failed tick: the failing guards with why, else the node the tree failed at; made of
-        what only changes at an edge, so a ``reason`` event marks a real change, not a new sample."""
+        """(node, reason) of a failed tick, made of what only changes at an edge (a ``reason`` event marks a real
+        change, not a new sample)."""
         failed = py_trees.common.Status.FAILURE
         first = next((g.name for g in self.guard_nodes if g.status == failed), "")
         if first:
@@ -561,13 +518,8 @@ class Engine:
                 self.metrics.set_sample_age(name, age)
 
     def _guards_ticked(self, now: float, was_running: bool) -> None:
-        """Every guard of the tree must keep being ticked while the task runs (safety table row T4).
-
-        A guard left behind (a RunOnce around it, a branch the tree stopped visiting) sees every
-        sample, but no failure of it reaches the tree: one not ticked for longer than its source's
-        ``max_age`` (a tick period at least) holds the task stopped (inhibit ``guards``) until every
-        guard is ticked again. Conservative on purpose: guards belong where every tick reaches them.
-        """
+        """Safety row T4: a guard not ticked for its source's ``max_age`` (a period at least) while the task runs
+        (a RunOnce around it, a branch left) holds the task stopped (inhibit ``guards``) until all are again."""
         gate = self.gate
         if gate.state == TaskGate.RUNNING and not was_running:
             self._cover = list(self.guard_nodes)
@@ -600,12 +552,8 @@ class Engine:
         self.gate.release(f"bus {bus} passive")  # a reopened controller starts error-active
 
     def controller_state(self, bus: str, frame: Any) -> None:
-        """An error frame's controller report (SocketCAN's ``CAN_ERR_CRTL`` class): error-passive holds the task.
-
-        Its frames, our stop frames among them, may no longer get through: journalled (``bus_error``)
-        and held stopped (inhibit ``bus NAME passive``) until the controller reports error-active
-        again (``CAN_ERR_CRTL_ACTIVE``, sent by Linux since 5.x) or the bus is reopened.
-        """
+        """An error frame's controller report (``CAN_ERR_CRTL``): error-passive (our stop frames may not get
+        through) holds the task (inhibit ``bus NAME passive``) until error-active again or the bus reopens."""
         if not frame.arbitration_id & CAN_ERR_CRTL or len(frame.data) < 2:
             return
         state = frame.data[1]
@@ -622,9 +570,8 @@ class Engine:
             self.gate.release(key)
 
     def overrun(self, waited_s: float, limit_s: float) -> None:
-        """Frames waited ``waited_s`` in the daemon's receive queue: the models would judge data older than
-        ``max_age`` as fresh (safety row H2b), so the task is held stopped (inhibit ``overrun``) until
-        :meth:`caught_up`."""
+        """Frames waited ``waited_s`` in the receive queue (safety row H2b: old data judged fresh): the task is
+        held stopped (inhibit ``overrun``) until :meth:`caught_up`."""
         if "overrun" not in self.gate.inhibits:
             reason = (f"frames waited {waited_s:.3f} s in canguard's receive queue (limit {limit_s:.3f} s): "
                       "the daemon is behind its buses")

@@ -1,10 +1,4 @@
-"""One event -> one deterministic JSON line (the journal's format).
-
-The first keys are always ``t, event, node, source, value, threshold, reason``
-(``null`` when the event has none), then the other keys sorted; floats are rounded
-(``t`` to the microsecond, other values to 10 significant digits); a non-finite
-top-level number is ``null`` with its text in ``<key>_text``.
-"""
+"""One event -> one deterministic JSON line (the journal's format)."""
 
 from __future__ import annotations
 
@@ -58,10 +52,7 @@ def _top(value: Any, key: str) -> Any:
 
 
 def encode_event(event: Mapping[str, Any]) -> bytes:
-    """Encode one event as one JSON line (UTF-8, ending in ``\\n``), deterministically.
-
-    Raises ValueError when ``event`` has no ``event`` key.
-    """
+    """Encode one event as one JSON line (UTF-8, ending in ``\\n``); ValueError without an ``event`` key."""
     if "event" not in event:
         raise ValueError(f"an event needs an 'event' key (trip, recover, ...); got keys {sorted(event)}")
     # A number field stays a number or null: a non-finite value is written as null, and its text

@@ -1,22 +1,11 @@
 """The event journal: guard transitions, stops, stale sources... as JSON lines.
 
-One event is one line of JSON appended to the ``events:`` file of the config (docs/events.md). What the
-daemon relies on:
-
-- **A line is whole, and nothing flushed is lost to a crash of the daemon**: :meth:`EventJournal.write`
-  hands the whole line to the kernel with one ``os.write`` on an ``O_APPEND`` descriptor before it
-  returns.
-- **Recorded after the frames they caused**: the engine's :class:`~canguard.engine.stats.Journal` holds
-  its events until the frames of their tick are sent.
-- **A power cut loses at most the last** ``sync_interval_s``: :meth:`EventJournal.flush` ``fsync``s
-  the file; with ``sync_in_background`` (the daemon) a thread of its own does, ``sync_interval_s``
-  after the first flush since its last one, for every flush meanwhile: the loop never waits for a
-  disk (on a VM or an SD card one ``fsync`` can stall the machine for milliseconds), and no ``fsync``
-  starts while a stop's frames travel. :meth:`EventJournal.close` syncs before it returns.
-- **Only appended**: opening never truncates; rotation by size shifts ``.1`` -> ``.2`` ... and by
-  default deletes none (the highest number is the oldest file).
-- **Deterministic**: :func:`~canguard.engine.event_codec.encode_event` (fixed first keys, rounded
-  floats, non-finite numbers as ``null`` with their text): the same events give a byte-identical file.
+A line is whole and survives a crash of the daemon once :meth:`EventJournal.write` returns (one ``os.write``
+on an ``O_APPEND`` descriptor). A power cut loses at most the last ``sync_interval_s``: with
+``sync_in_background`` (the daemon) a thread of its own ``fsync``s, ``sync_interval_s`` after the first flush
+since its last one, so the loop never waits for a disk (on a VM or an SD card one ``fsync`` can stall the
+machine for milliseconds) and no ``fsync`` starts while a stop's frames travel. Rotation never deletes by
+default (the highest number is the oldest file).
 """
 
 from __future__ import annotations
@@ -45,15 +34,12 @@ _PENDING_MAX = 10_000
 
 
 class EventJournal:
-    """Appends events to a JSON-lines file, rotated by size, keeping every line.
+    """Appends events to a JSON-lines file, rotated at ``max_bytes``; ``backups`` None keeps every rotated file.
 
-    ``path`` None only counts. ``max_bytes``: the size at which the file is rotated (a file may exceed it
-    by one line); ``backups`` None keeps every rotated file, an integer that many. Thread-safe (receive
-    threads report ``bus_error`` events). Disk errors never raise out of :meth:`write` or :meth:`flush`:
-    logged, counted in ``errors``, the lines kept in memory (up to 10,000) and written at the next call
-    that succeeds, so a full disk cannot stop the guard; a line is in the file whole or not at all.
-    Lines that overflow the backlog or are still refused at :meth:`close` go to stderr (the systemd
-    journal), counted in ``to_stderr``.
+    ``path`` None only counts. Thread-safe (receive threads report ``bus_error``). Disk errors never raise out
+    of :meth:`write` or :meth:`flush`, so a full disk cannot stop the guard: the lines wait in memory for the
+    next call that succeeds (whole or not at all); the backlog's overflow and lines left at :meth:`close` go
+    to stderr (the systemd journal).
     """
 
     def __init__(
@@ -74,14 +60,9 @@ class EventJournal:
         self.path: Path | None = None if path is None else Path(path)
         self.max_bytes = int(max_bytes)
         self.backups = backups
-        self.lines = 0
-        """Events accepted by :meth:`write` (counted also when ``path`` is None)."""
-        self.bytes_written = 0
-        self.rotations = 0
-        self.errors = 0
-        """Disk errors met so far (each logged; only the first of a run at WARNING)."""
-        self.dropped = 0
-        """Lines lost because the disk kept failing and the in-memory backlog overflowed."""
+        self.lines = 0  # events accepted by :meth:`write` (also when ``path`` is None)
+        self.errors = 0  # disk errors (each logged; only the first of a run at WARNING)
+        self.dropped = 0  # lines that overflowed the in-memory backlog
         self._fd: int | None = None
         self._size = 0
         self._dirty = False
@@ -89,16 +70,12 @@ class EventJournal:
         self._pending: deque[bytes] = deque()
         self._torn = False
         self._torn_at = 0
-        self.cut_lines = 0
-        """Partial lines cut back out of the file after a short write (each then retried whole)."""
-        self.to_stderr = 0
-        """Lines that could not reach the file and went to stderr instead (dropped or left at close)."""
+        self.to_stderr = 0  # lines that went to stderr instead of the file
         self._failing = False
         self._lock = threading.Lock()
         if self.path is not None:
             self._open()
         self.sync_interval_s = float(sync_interval_s)
-        """With ``sync_in_background``: the time from a flush to its ``fsync`` (flushes in between share it)."""
         self._sync_due = threading.Event()
         self._sync_stop = threading.Event()
         self._syncer: threading.Thread | None = None
@@ -158,15 +135,11 @@ class EventJournal:
                 self._backup(i).unlink()
                 i += 1
         self._fsync_dir()
-        self.rotations += 1
         self._open()
 
     def _drain(self) -> None:
-        """Write every pending line (normally just the new one); raises OSError if the disk fails.
-
-        A write that puts only part of a line (the disk filled up) is cut back to the line's start
-        with ``ftruncate`` and the line stays first in the queue: a later retry writes it whole.
-        """
+        """Write every pending line; raises OSError if the disk fails. A line written in part (a full disk) is cut
+        back with ``ftruncate`` and stays first in the queue: a later retry writes it whole."""
         while self._pending:
             line = self._pending[0]
             if self._fd is None:
@@ -201,7 +174,6 @@ class EventJournal:
         os.ftruncate(self._fd, self._torn_at)
         self._size = self._torn_at
         self._torn = False
-        self.cut_lines += 1
 
     def _failed(self, exc: OSError, what: str) -> None:
         self.errors += 1
@@ -229,7 +201,6 @@ class EventJournal:
             if self._closed:
                 raise ValueError("write to a closed EventJournal")
             self.lines += 1
-            self.bytes_written += len(line)
             if self.path is None:
                 return
             self._pending.append(line)
@@ -263,9 +234,8 @@ class EventJournal:
                 self._failed(exc, "fsync")
 
     def _sync_loop(self) -> None:
-        """The sync thread: ``sync_interval_s`` after the first flush since its last ``fsync``, ``fsync`` a duplicate of
-        the file's descriptor outside the lock; the flushes meanwhile share it. Never at once: the flush at the end
-        of a stop's tick does not start a disk stall while the stop frames are on their way to their readers."""
+        """The sync thread: ``fsync`` a duplicate descriptor outside the lock ``sync_interval_s`` after the first flush
+        since the last one; never at once, so a stop's tick does not stall the disk while its frames travel."""
         while True:
             self._sync_due.wait()
             if self._sync_stop.wait(self.sync_interval_s):

@@ -1,23 +1,8 @@
 """Frames out: the task gate (enable / heartbeat vs stop) and the frame sinks.
 
-The :class:`TaskGate` turns the tree's decisions into frames:
-
-- ``run()`` (ExecuteTask ticked) or ``action()`` of a task action: the tree asks for the task
-  in this tick. At the tick's end (``end_tick()``) the gate starts or resumes the task when
-  :meth:`TaskGate._release_rule` allows it; ExecuteTask's frames then go out at once and every
-  ``task.period``, a task action's frames in the tick it ran.
-- ``halt()`` (ExecuteTask halted), ``stop()`` (the root returned FAILURE) or an inhibit (a stale
-  source, a bus down): stop frames go out at once (before the stop's reason is worked out or
-  recorded), then every ``stop.repeat``. The stop latches: only :meth:`TaskGate._release_rule`
-  ends it (see README, "Stops").
-- While stopped, task actions' frames are withheld (counted in ``withheld``); recovery actions'
-  frames go out. So in no tick do both task and stop frames go out. A change of what holds the
-  stop is a ``reason`` event.
-- Optional confirmation: after a stop, ``stop.confirm`` must hold within its deadline, or
-  ``stop.escalate`` frames go out and an ``escalate`` event is recorded.
-
-Sinks never block the loop: :class:`BusSink` hands frames to python-can with ``timeout=0``,
-:class:`LogSink` keeps or writes them for ``replay --emit``.
+A stop's frames go out at once (before its reason is worked out or recorded), then every ``stop.repeat``;
+the stop latches until :meth:`TaskGate._release_rule` ends it, at a tick's end. While stopped, task frames
+are withheld, so in no tick do both task and stop frames go out. Sinks never block the loop.
 """
 
 from __future__ import annotations
@@ -67,28 +52,21 @@ class TaskGate:
         self.state = self.IDLE
         self.stop_since: float | None = None
         self.stop_reason = ""
-        self.stopped_s = 0.0
-        """Total time spent stopped (closed intervals only; see :meth:`stopped_total`)."""
+        self.stopped_s = 0.0  # closed intervals only (:meth:`stopped_total`)
         self.stops = 0
-        self.next_task_t = math.inf
-        """When the task's periodic frames are next due (inf: not running)."""
+        self.next_task_t = math.inf  # when the task's periodic frames are next due
         self._next_stop = math.inf
-        self.confirm_pending = False
-        """A stop waits for its confirmation (``stop.confirm``)."""
+        self.confirm_pending = False  # a stop waits for ``stop.confirm``
         self._ran_this_tick = False
-        self.inhibits: dict[str, str] = {}
-        """Reasons the task may not run whatever the tree says (a bus down, a stale source), by key."""
-        self.explain: Callable[[], str] = str
-        """Says why the tree halted the task (the failing guards); set by the engine."""
+        self.inhibits: dict[str, str] = {}  # why the task may not run whatever the tree says, by key
+        self.explain: Callable[[], str] = str  # why the tree halted the task (the failing guards): the engine's
         self.tree_has_task = True
         """False when the tree holds no ExecuteTask and no task action: a tick without FAILURE asks for the task."""
-        self.withheld = 0
-        """Task action frames not sent because the task was stopped (or not started)."""
+        self.withheld = 0  # task action frames not sent: the task was stopped (or not started)
         self._asked_by = ""
         self._reset_this_tick = False
         self._queued: list[tuple[str, Sequence[FrameSpec], Callable[[str], None] | None]] = []
-        self.cause: tuple[str, str] | None = None
-        """(node, reason) that holds the stop, as the last ``reason`` event said; None right after a stop."""
+        self.cause: tuple[str, str] | None = None  # (node, reason) holding the stop; None right after a stop
         self.halts_next: Callable[[], bool] | None = None
         """Says at a model's edge that the coming tick surely halts the running task (set by the engine)."""
         self._ahead = False
@@ -133,8 +111,7 @@ class TaskGate:
 
     # -- driven by the engine --------------------------------------------------------------
     def stop(self, now: float, reason: str | Callable[[], str], node: str = "") -> None:
-        """Stop the task (idempotent): stop frames at once, then every ``stop.repeat``; ``reason`` (a callable: asked
-        after the send) and the ``stop`` event follow."""
+        """Stop the task (idempotent): stop frames at once, then ``reason`` (a callable: asked after the send)."""
         if self.state == self.STOPPED:
             return
         self.state = self.STOPPED
@@ -220,15 +197,9 @@ class TaskGate:
                 note(f"{len(frames)} frame(s) " + ("sent" if running else f"withheld: task {self.state}"))
 
     def _release_rule(self, now: float, failed: bool) -> str:
-        """THE stop/resume rule: "" when the task may start or resume at the end of this tick, else what holds it.
-
-        All must hold, checked at the end of a tick: (1) the root did not return FAILURE;
-        (2) no inhibit is left (stale source, bus down); (3) the tree asked for the task in
-        this tick (ExecuteTask or a task action ticked; a tree without either asks by not
-        failing); (4) a stop has lasted ``stop.min_stop``; (5) with ``stop.release: manual``,
-        a ResetStop node was ticked in this same tick. (4) and (5) apply to stops only, not
-        to the first start.
-        """
+        """THE stop/resume rule: "" when the task may start or resume at the end of this tick, else what holds it:
+        a failed root, an inhibit, a tree that did not ask for the task in this tick (a tree without ExecuteTask or
+        task action asks by not failing); for a stop also ``stop.min_stop`` and a ResetStop if release is manual."""
         if failed:
             return "tree failed"
         if self.inhibits:
@@ -395,12 +366,8 @@ class LogSink:
 
 
 class BusSink:
-    """Sends frames on live buses without ever blocking the loop; failures are logged and counted.
-
-    Each refusal is counted (``failed``, ``on_error``) but reported (stderr and ``on_refused``) once
-    a second per bus and origin (:mod:`.ratelimit`). Once the stop frames are out the loop yields
-    the CPU: a process on this machine waiting for them runs before the loop's bookkeeping.
-    """
+    """Sends frames on live buses with timeout 0; each refusal counted, reported once a second per bus and origin.
+    Once the stop frames are out the loop yields the CPU: a local process waiting for them runs first."""
 
     def __init__(self, send: Callable[[str, Any], bool], on_error: EventFn | None = None,
                  on_refused: Callable[[str, str, str, int], None] | None = None,
@@ -408,8 +375,7 @@ class BusSink:
         import can  # only the live path needs python-can's Message
 
         self._message = can.Message
-        self._messages: dict[FrameSpec, Any] = {}
-        """Each frame's python-can Message, built at its first send (the specs are the config's, fixed)."""
+        self._messages: dict[FrameSpec, Any] = {}  # each frame's python-can Message, built at its first send
         self._send = send
         self.on_error = on_error
         self.on_refused = on_refused

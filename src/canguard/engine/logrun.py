@@ -1,15 +1,8 @@
 """The engine's block runner: every block of frames, live or recorded, goes through it, one way.
 
-:class:`LogRun` takes what :meth:`Engine.take <canguard.engine.core.Engine.take>` (a live bus's
-drained queue; a frame on a quiet bus is a block of one) and :meth:`Engine.run_log
-<canguard.engine.core.Engine.run_log>` (a log's blocks, each channel routed to a bus) give it.
-A block's rows of configured messages are found by their integer id keys
-(:attr:`Block.keys <canguard.io.block.Block.keys>`; a block whose channels go to several buses
-adds each channel's index times :data:`LANE`), decoded per message at once, and taken in time
-order by their message's row step (:mod:`canguard.engine.blocks`), the ticks and gate deadlines
-due before a row run first and a tick at once after an edge; the frames of no configured message
-are only counted while nothing is due. A block whose rows go back in time is taken as its ordered
-stretches, one after another.
+A block's rows of configured messages are found by their id keys (plus channel × :data:`LANE` when its
+channels go to several buses), decoded per message at once and taken in time order
+(:mod:`canguard.engine.blocks`), the ticks due before a row first; other frames are only counted.
 """
 
 from __future__ import annotations
@@ -41,8 +34,7 @@ _RADIX = 1 << 16
 _STANDARD = 0x800
 """Standard ids are below this: their configured rows are found through a table of this size."""
 _FEW = 16
-"""A block of at most this many rows (a live bus's drained queue) is looked up row by row in Python: numpy's calls
-cost more than the rows."""
+"""A block of at most this many rows (a live bus's drained queue) is looked up in Python: numpy costs more."""
 
 if TYPE_CHECKING:
     from canguard.bt.context import Context
@@ -50,10 +42,8 @@ if TYPE_CHECKING:
     from canguard.engine.stats import EngineStats
 
 _Run = tuple["MessagePlan", Any, Any, list[Any]]
-"""A message's rows of a block whole and valid: (plan, the rows (ascending), their times, each output's column):
-numpy columns from a block's column decode, lists from its rows one by one."""
-_Keys = tuple[Any, Any, frozenset[int]]
-"""A plan table's keys as blocks look them up (:func:`_key_table`)."""
+"""A message's rows of a block whole and valid: (plan, rows ascending, their times, each output's column)."""
+_Keys = tuple[Any, Any, frozenset[int]]  # a plan table's keys (:func:`_key_table`)
 
 
 class Engine(Protocol):
@@ -64,7 +54,6 @@ class Engine(Protocol):
     ctx: Context
     sample_block: Callable[[Any, list[Any], list[tuple[int, Any]]], None] | None
     last_due_run: float
-
     due: float
     next_tick_t: float
     last_frame_t: float
@@ -85,15 +74,11 @@ class LogRun:
         self.decoder = engine.decoder
         self.stats = engine.stats
         self.ctx = engine.ctx
+        # per bus (a tuple of one) or channels-to-buses of a block: plans by key (None: no source in the context)
         self._tables: dict[tuple[str, ...], tuple[dict[int, MessagePlan | None], _Keys]] = {}
-        """Per bus (a tuple of one), or per channels-to-buses of a block that mixes buses: its plans by key (None: no
-        source of the message in the tree's context), and their keys."""
-        self._touched: set[MessagePlan] = set()
-        """The plans that took rows of this block (flushed at its end)."""
-        self._row = 0
-        """The row the frame decoder takes (an export keeps its samples with it)."""
-        self._fed: list[tuple[int, Sample]] | None = None
-        """While a block is exported: the frame decoder's samples, with their row."""
+        self._touched: set[MessagePlan] = set()  # the plans that took rows of this block (flushed at its end)
+        self._row = 0  # the row the frame decoder takes (an export keeps its samples with it)
+        self._fed: list[tuple[int, Sample]] | None = None  # while a block is exported: the decoder's samples
 
     def run(
         self, blocks: Iterable[Block], route: Mapping[str, str], default_bus: str | None,
@@ -111,8 +96,7 @@ class LogRun:
             engine.frame_time(last_t)
 
     def take(self, block: Block, cursor: LogCursor) -> None:
-        """One block of frames through the engine (:meth:`_run_columns`; a block whose rows go back in time, as its
-        ordered stretches one after another); the plans' counts are added at the end."""
+        """One block of frames through the engine (one whose rows go back in time as its ordered stretches)."""
         try:
             if block.ordered:
                 self._run_columns(block, cursor)
@@ -129,8 +113,7 @@ class LogRun:
 
     def _decoded(self, bus: str, frame: Frame, plan: MessagePlan | None) -> bool:
         """A row the column decoder left to the frame decoder (a wrong length, an invalid value, an alive counter,
-        a remote or error frame): it counts every reason, its samples go to :meth:`MessagePlan.take_samples
-        <canguard.engine.blocks.MessagePlan.take_samples>`; True on an edge."""
+        a remote or error frame); True on an edge."""
         engine = self.engine
         self.stats.frames += 1
         if frame.is_error_frame:
@@ -251,8 +234,7 @@ class LogRun:
         self.stats.backward_frames += before - bisect_left(picked, before) + bisect_left(picked, behind)
 
     def _configured(self, block: Block, buses: list[str], lanes: Any) -> tuple[Any, Any, Any, Any]:
-        """(plans, the block's rows of configured messages, the keys its plans are looked up by, each row's
-        channel (an index into ``buses``) when its channels go to several buses, else None)."""
+        """(plans, the block's configured rows, their lookup keys, each row's index into ``buses`` or None)."""
         keys = block.keys
         if len(buses) == 1 or buses.count(buses[0]) == len(buses):
             plans, table = self._table((buses[0],))
@@ -263,11 +245,9 @@ class LogRun:
 
     def _walk(self, block: Block, ts: Sequence[Any], runs_in: list[_Run],
               alone: list[tuple[int, MessagePlan | None]], bus: str, buses: list[str], lanes: Any) -> int:
-        """A block's configured rows in time order; the row after the last walked. The ticks due among them run;
-        each stretch of rows whole and valid (``runs_in``) up to the next due time is taken as runs
-        (:func:`~canguard.engine.blocks.take_runs`: to the first edge, where the tree ticks); the rows for the
-        frame decoder (``alone``, with their plan) one by one. ``bus``: the bus of every row, or "" when
-        ``lanes`` (each row's index into ``buses``) sends them to several."""
+        """A block's configured rows in time order, the ticks due among them run; the row after the last walked.
+        Stretches of ``runs_in`` up to the next due time go as runs (to the first edge), ``alone`` one by one.
+        ``bus``: every row's, or "" when ``lanes`` (each row's index into ``buses``) sends them to several."""
         engine = self.engine
         pos, done = self._at_once(ts, runs_in, alone)
         if done:
@@ -316,9 +296,8 @@ class LogRun:
 
     def _at_once(self, ts: Sequence[float], runs: list[_Run], alone: list[tuple[int, MessagePlan | None]]
                  ) -> tuple[int, bool]:
-        """A block whose rows all come before the next due time, none for the frame decoder: its runs taken as one
-        stretch, up to the first edge. (The row after the last taken, True when every row was taken); (0, False)
-        for any other block."""
+        """A block whose rows all come before the next due time, none for the frame decoder, as one stretch to
+        the first edge: (the row after the last taken, True when all were); (0, False) for any other."""
         engine = self.engine
         if alone or not float(ts[-1]) < engine.due:
             return 0, False
@@ -368,8 +347,7 @@ class LogRun:
             lo = k + 1
 
     def _table(self, buses: tuple[str, ...]) -> tuple[dict[int, MessagePlan | None], _Keys]:
-        """The plans of the messages configured on ``buses`` (channel ``c``'s id key ``k`` at ``k + c * LANE``) and
-        their keys, made at their first block."""
+        """The plans of the messages on ``buses`` (channel ``c``'s key ``k`` at ``k + c * LANE``), and their keys."""
         known = self._tables.get(buses)
         if known is None:
             if len(buses) == 1:  # None: a message with a source not in the tree's context
@@ -452,8 +430,7 @@ class LogCursor:
 
 
 def _key_table(plans: Mapping[int, Any]) -> _Keys:
-    """The integer keys of ``plans``: a table of the standard ones (:data:`_STANDARD` entries per channel); all,
-    sorted; all, as a set."""
+    """The keys of ``plans``: a table of the standard ones per channel; all, sorted; all, as a set."""
     import numpy as np
 
     known = list(plans)
@@ -532,11 +509,8 @@ def _decode_rows(
     plans: Mapping[int, MessagePlan | None], rows: Any, block: Block, ts: Sequence[Any], keys: Any,
     taken: list[tuple[MessagePlan, Any, Sequence[Any]]] | None, touched: set[MessagePlan],
 ) -> tuple[list[_Run], list[tuple[int, MessagePlan | None]]]:
-    """Each configured message's rows whole and valid, as columns (decoded together by its
-    :class:`~canguard.decode.message.MessageDecoder`), and the rows the frame decoder takes (an invalid one, every
-    row of a message with an alive counter...), in row order, with their plan (None: a remote or error frame).
-    ``taken``, when given, receives each message's (plan, rows, decoded values); ``touched`` each plan that took rows.
-    """
+    """Each configured message's rows whole and valid, as columns, and the rows for the frame decoder in row
+    order with their plan (None: a remote or error frame). ``taken`` receives each (plan, rows, decoded values)."""
     special = block.special
     if len(rows) == 1 and not special.size:  # one row (a live frame): nothing to group
         groups: dict[MessagePlan | None, Any] = {plans[keys.item(rows[0])]: rows}

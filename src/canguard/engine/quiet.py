@@ -1,32 +1,23 @@
 """Quiet ticks: a grid tick proven to repeat the last one is counted, not run (live and in replay).
 
-A long replay (and the daemon, all day) ticks a tree that answers the same thing 100 times a
-second. A grid tick is skipped only when it is *proven* to be an exact repetition of the last
-tick that ran, so that no event, frame or summary field changes. The proof has three parts:
+A grid tick is skipped only when it is *proven* an exact repetition of the last tick that ran, so that
+no event, frame or summary field changes:
 
-1. **The tree cannot tell two ticks apart.** Every node the tick reached is of a type that
-   declares ``QUIET_RETICK`` (no timer, counter, memory or output of its own: sequences and
-   fallbacks, Inverter, ForceSuccess/Failure, AlwaysSuccess/Failure, ExecuteTask, the guards),
-   carries no pre/post condition, reads no ``{key}`` and writes none but what its quiet re-tick
-   writes again (an I²t guard's ``level``); a guard's models change state only at samples (the
-   contract of every protection model: :mod:`canguard.protect.base`). Nodes the tick did not
-   reach may be anything. No metrics, no tick hook.
-2. **The last tick was a fixed point.** It left every node with the status, feedback, position
-   and SKIPPED flag the tick before it left, wrote no event, and left the task gate in the same
-   state, inhibits and cause, in a state whose release rule does not wait on time (running, or
-   held by a failing tree or an inhibit).
-3. **No input changed since.** Every sample that changes what a guard answers is an edge, and an
-   edge ticks the tree at once for real; no event was written since; and no time-driven change
-   is due: each source's freshness deadline (its roles' latest sample + ``max_age``), the start
-   windows, and the "guards left behind" deadline of a guard the fixed point did not reach all
-   lie after the tick (by a microsecond's margin against rounding). Samples taken since move the
-   freshness deadlines on (drawn again at the first of them), and a block's rows still to come
-   move them on as far as they keep every such signal fresh (:meth:`QuietTicks.reach`).
+1. **The tree cannot tell two ticks apart.** Every node the tick reached declares ``QUIET_RETICK`` (no
+   timer, counter, memory or output of its own), carries no pre/post condition, reads no ``{key}`` and
+   writes none but what its quiet re-tick writes again (an I²t guard's ``level``); a guard's models change
+   state only at samples (:mod:`canguard.protect.base`). No metrics, no tick hook.
+2. **The last tick was a fixed point.** It left every node's status, feedback, position and SKIPPED flag
+   as the tick before it did, wrote no event, and left the gate's state, inhibits and cause unchanged, in
+   a state whose release rule does not wait on time (running, or held by a failing tree or an inhibit).
+3. **No input changed since.** A sample that changes what a guard answers is an edge, which ticks the
+   tree for real; no event was written since; and every time-driven change (a source's freshness
+   deadline, the start windows, a guard's "left behind" deadline) lies after the tick, by a
+   microsecond's margin. Samples taken since, and a block's rows still to come
+   (:meth:`QuietTicks.reach`), move the freshness deadlines on.
 
-A skipped tick still does what a tick does outside the tree: it is counted, it marks the guards
-it would have ticked as ticked (``judged_t``), an I²t guard writes its wired ``level`` again, and
-it services the gate's periodic frames at its own time. It is one policy: the live daemon and a
-replay count the same ticks.
+A skipped tick is still counted, marks the guards it would have ticked (``judged_t``), writes an I²t
+guard's ``level`` again and services the gate at its own time: the daemon and a replay count the same ticks.
 """
 
 from __future__ import annotations
@@ -58,8 +49,7 @@ class Watched(Protocol):
 
 
 class QuietTicks:
-    """The proof that a grid tick repeats the last one (see the module docstring), kept tick by tick: the engine
-    asks it (:meth:`may_skip`, :attr:`until`) and tells it about every tick that ran (:meth:`after_tick`)."""
+    """The proof that a grid tick repeats the last one, kept tick by tick (see the module docstring)."""
 
     def __init__(self, root: py_trees.behaviour.Behaviour, ctx: Context, gate: TaskGate, journal: Journal,
                  engine: Watched) -> None:
@@ -69,33 +59,24 @@ class QuietTicks:
         self.journal = journal
         self.engine = engine
         self.nodes = list(root.iterate())
-        """The tree's nodes."""
+        # the nodes a tick may not reach to be a fixed point (part 1), and whether the last tick reached one
         self.loud = frozenset(node for node in self.nodes if not _quiet_node(node))
-        """The nodes that may not be re-ticked quietly: a tick that reaches one is no fixed point (part 1)."""
         self._heard = False
-        """The last tick reached one of :attr:`loud`."""
-        self._state: tuple[Any, ...] | None = None
-        """What the last tick that ran left (nodes, gate), to recognise a fixed point."""
-        self.until = -math.inf
-        """Grid ticks before this time may be skipped (set by a fixed-point tick)."""
+        self._state: tuple[Any, ...] | None = None  # what the last tick that ran left (nodes, gate)
+        self.until = -math.inf  # grid ticks before this time may be skipped
         self._events = -1
         self._gate: tuple[Any, ...] = ()
-        self.ticked: list[Any] = []
-        """The guards the fixed-point tick ticked: a skipped tick marks them ticked."""
-        self._fresh: list[tuple[Any, str]] | None = None
-        """(health, role) of each source signal fresh at the fixed point (None: no fixed point)."""
-        self._timers = math.inf
-        """When a start window ends or a guard the fixed point left behind reads as such (:meth:`_timer_horizon`)."""
+        self.ticked: list[Any] = []  # the guards the fixed point ticked: a skipped tick marks them ticked
+        self._fresh: list[tuple[Any, str]] | None = None  # (health, role) fresh at the fixed point (None: none)
+        self._timers = math.inf  # :meth:`_timer_horizon`
+        # the guards whose quiet re-tick writes an output (an I²t guard's wired ``level``)
         self._writers = frozenset(g for g in engine.guard_nodes
                                   if any(map(g.is_wired, getattr(type(g), "QUIET_OUTPUTS", ()))))
-        """The guards whose quiet re-tick writes an output (an I²t guard's wired ``level``)."""
+        # a skipped tick writes the blackboard: the samples between two ticks must be taken before each
         self.writes = False
-        """A skipped tick writes the blackboard (a guard of :attr:`ticked` writes its model's level): the
-        samples between two ticks must be taken before each."""
 
     def tick_root(self, loaded: Any) -> py_trees.common.Status:
-        """Tick the tree as BT.CPP's ``tickOnce()`` (:func:`canguard.bt.wakeup.tick_once`), noting whether the
-        tick reached a loud node; the root's status."""
+        """Tick the tree as BT.CPP's ``tickOnce()``, noting whether the tick reached a loud node; the root's status."""
         ticked = tick_once(loaded, collect=bool(self.loud))
         if ticked.reached is not None:
             self._heard = not self.loud.isdisjoint(ticked.reached)
@@ -133,9 +114,8 @@ class QuietTicks:
         self.writes = not self._writers.isdisjoint(self.ticked)
 
     def _horizon(self) -> float:
-        """The earliest time after the fixed point at which time alone may change what a tick sees (part 3):
-        a signal fresh at it goes stale ``max_age`` after its latest sample, the timers (:meth:`_timer_horizon`)
-        end when they end; a signal stale at it changes what a tick sees only with a sample, an edge."""
+        """The earliest time after the fixed point at which time alone may change what a tick sees (part 3): a
+        fresh signal goes stale, a timer ends (a stale signal changes only with a sample, an edge)."""
         horizon = self._timers
         assert self._fresh is not None
         for health, role in self._fresh:
@@ -146,9 +126,8 @@ class QuietTicks:
         return horizon - MARGIN_S
 
     def reach(self, coming: Mapping[tuple[int, str], Any]) -> float:
-        """The horizon (:meth:`_horizon`) with the rows a block still holds (``coming``: by (``id`` of a source's
-        health, role), the times of its samples still to be taken): a signal fresh at the fixed point stays fresh
-        through them up to the first gap over ``max_age``. -inf: no fixed point."""
+        """:meth:`_horizon` with the rows a block still holds (``coming``: their times by (``id`` of a health, role)):
+        a fresh signal stays fresh through them up to the first gap over ``max_age``. -inf: no fixed point."""
         if self._fresh is None:
             return -math.inf
         horizon = self._timers

@@ -1,8 +1,4 @@
-"""At most one report a second per key: a fault that repeats every frame must not flood stderr or the journal.
-
-A bus that went away refuses hundreds of frames a second: the first of each key (bus and origin) in an
-interval is reported, the others are held back and counted, and the next report says how many it stands for.
-"""
+"""At most one report a second per key: a fault that repeats every frame must not flood stderr or the journal."""
 
 from __future__ import annotations
 

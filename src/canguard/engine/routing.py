@@ -1,8 +1,4 @@
-"""Which configured bus takes the frames of each channel of a recorded log.
-
-``canguard replay`` and ``canguard replay --realtime`` route the same way: ``--map``
-first, then bus names and the buses' channels, then the only bus.
-"""
+"""Which configured bus takes the frames of each channel of a recorded log."""
 
 from __future__ import annotations
 
@@ -27,8 +23,7 @@ def parse_map(items: Sequence[str], cfg: Config) -> dict[str, str]:
 
 class ChannelRouter:
     """Maps a log's channel names to the config's buses: --map, then bus names and channels, then the only bus
-    (one configured bus, no --map: a log on any channel name replays; :meth:`merged` says when that merged
-    several channels). With --map a channel neither --map nor a bus names is unmapped."""
+    (one bus, no --map: any channel; :meth:`merged` says when that merged several)."""
 
     def __init__(self, cfg: Config, overrides: dict[str, str]) -> None:
         self.table: dict[str, str] = {b.channel: name for name, b in cfg.buses.items() if b.channel}

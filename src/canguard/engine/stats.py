@@ -1,9 +1,7 @@
 """What the engine counts, and what it writes events to.
 
-The engine, its task gate and the daemon write their events to the engine's :class:`Journal`: each is
-stamped and counted at once, and recorded to the sink at :meth:`Journal.flush` (the end of every tick
-and :meth:`~canguard.engine.core.Engine.advance`). So a trip's stop frames leave before anything is
-recorded about it, and the events keep the times they happened at.
+Events are stamped and counted at once, recorded at :meth:`Journal.flush` (the end of every tick): a trip's
+stop frames leave before anything is recorded about it.
 """
 
 from __future__ import annotations
@@ -42,25 +40,18 @@ class EngineStats:
     ticks: int = 0
     edge_ticks: int = 0
     skipped_ticks: int = 0
-    quiet_ticks: int = 0
-    """Grid ticks proven to repeat the last tick, counted in ``ticks`` but not run (:mod:`canguard.engine.quiet`)."""
+    quiet_ticks: int = 0  # counted in ``ticks`` but not run (:mod:`canguard.engine.quiet`)
     tick_errors: int = 0
     backward_frames: int = 0
-    trips: list[dict[str, Any]] = field(default_factory=list)
-    """Every trip event, up to :data:`MAX_KEPT_TRIPS` (a guard flapping for days must not eat the memory)."""
-    trip_count: int = 0
-    """Every trip, kept or not."""
-    samples: dict[str, int] = field(default_factory=dict)
-    """Samples decoded per source."""
-    max_abs: dict[tuple[str, str], float] = field(default_factory=dict)
-    """Largest |value| seen per (source, role): for the lowest margin to each threshold."""
-    heat_models: Mapping[str, Any] = field(default_factory=dict, repr=False)
-    """The I²t models by guard node (the engine's context's): :attr:`max_level_pct` reads their peaks."""
+    trips: list[dict[str, Any]] = field(default_factory=list)  # up to MAX_KEPT_TRIPS: a flapping guard
+    trip_count: int = 0  # every trip, kept or not
+    samples: dict[str, int] = field(default_factory=dict)  # per source
+    max_abs: dict[tuple[str, str], float] = field(default_factory=dict)  # per (source, role)
+    heat_models: Mapping[str, Any] = field(default_factory=dict, repr=False)  # the I²t models by guard node
 
     @property
     def max_level_pct(self) -> dict[str, float]:
-        """Largest accumulator level (% of trip) per I²t guard node: each model's own peak over every sample it
-        took (:attr:`~canguard.protect.i2t.LeakyI2t.peak_level_pct`)."""
+        """Largest accumulator level (% of trip) per I²t guard node over every sample it took."""
         return {node: model.peak_level_pct for node, model in self.heat_models.items()}
 
 
@@ -78,14 +69,10 @@ class Journal:
     ) -> None:
         self.now = now
         self.sink = sink
-        self.durable = durable
-        """False: :meth:`flush` never fsyncs (replay writes a journal nobody reads during the run)."""
-        self.on_event = on_event
-        """Also called with every event, at :meth:`flush` (the live view, the realtime replay)."""
-        self.seen: Counter[str] = Counter()
-        """How many events of each name were written (summaries count escalations...); bounded, live for weeks."""
-        self.written = 0
-        """Events written so far, held ones included (a quiet stretch of ticks ends at any event)."""
+        self.durable = durable  # False: never fsync (replay: nobody reads the journal during the run)
+        self.on_event = on_event  # also called with every event, at :meth:`flush`
+        self.seen: Counter[str] = Counter()  # events written by name (summaries count escalations...)
+        self.written = 0  # held ones included (a quiet stretch of ticks ends at any event)
         self._held: list[dict[str, Any]] = []
         self._dirty = False
 
