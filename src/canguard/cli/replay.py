@@ -459,19 +459,14 @@ def _report(args: argparse.Namespace, results: list[tuple[dict[str, Any] | None,
     return EXIT_OK
 
 
-def _export_path(path: Path | None, log: Path, many: bool, index: int) -> Path | None:
-    """Where log number ``index`` writes ``--export-signals``: its Parquet part, or its own MCAP file."""
-    if path is None:
-        return None
-    from canguard.report import export
-
-    return per_log_path(path, log, many) if export.is_mcap(path) else export.part_path(path, index)
-
-
 def _replay_offline(cfg: Config, cfg_path: Path, args: argparse.Namespace, names: list[Path]) -> int:
     channel_map = parse_map(args.map, cfg)
-    if args.export_signals is not None:
-        from canguard.report import export  # --export-signals only (pyarrow's part files)
+    out = args.export_signals
+    parts: list[Path] = []  # --export-signals FILE.parquet: a part file per log (else FILE.mcap: a file per log)
+    if out is not None:
+        from canguard.report import export
+
+        parts = [] if export.is_mcap(out) else [export.part_path(out, i) for i in range(len(args.logs))]
     many = len(args.logs) > 1
     base = _load_baseline(args.baseline) if args.baseline else None
     jobs: list[tuple[Path, ReplayOptions]] = []
@@ -481,20 +476,18 @@ def _replay_offline(cfg: Config, cfg_path: Path, args: argparse.Namespace, names
             emit=per_log_path(args.emit, name, many), skip_bad=args.skip_bad, state=args.state,
             plot=per_log_path(args.plot, name, many),
             progress=sys.stderr.isatty() and args.jobs <= 1 and args.dask is None,
-            export=_export_path(args.export_signals, name, many, len(jobs)),
+            export=parts[len(jobs)] if parts else per_log_path(out, name, many),
             export_log=str(name), bag=BagOptions(tuple(args.topic), args.stamp),
         )
         jobs.append((log, opts))
     try:
         results = run_jobs(args, cfg, cfg_path, jobs)
     except BaseException:
-        if args.export_signals is not None and not export.is_mcap(args.export_signals):
-            export.discard_parts([opts.export for _, opts in jobs])
+        if parts:
+            export.discard_parts(parts)
         raise
-    if args.export_signals is not None and not export.is_mcap(args.export_signals):
-        # In input order; a log that failed contributes no rows (its part may be cut short).
-        export.combine_parts(args.export_signals, [opts.export for _, opts in jobs if opts.export is not None],
-                             [summary is not None for summary, _ in results])
+    if parts:  # in input order; a log that failed contributes no rows (its part may be cut short)
+        export.combine_parts(out, parts, [summary is not None for summary, _ in results])
     if args.fleet_summary is not None:
         from canguard.report.export import fleet_row, write_fleet_summary
 
