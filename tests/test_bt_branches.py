@@ -12,13 +12,14 @@ from pathlib import Path
 import pytest
 from py_trees.blackboard import Blackboard
 
-from canguard.bt.context import Context, ListSink, NullTaskGate
+from canguard.bt.context import Context, NullTaskGate
 from canguard.bt.dryrun import dry_run
 from canguard.bt.loaded import LoadedTree
 from canguard.bt.loader import load_tree
 from canguard.bt.nodes.builtins import same_case
 from canguard.errors import TreeError
 from canguard.io.clock import ManualClock
+from treekit import ListSink
 
 
 def tree(tmp_path: Path, body: str, name: str = "t.xml") -> Path:

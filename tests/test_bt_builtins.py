@@ -15,12 +15,13 @@ from pathlib import Path
 import pytest
 from py_trees.blackboard import Blackboard
 
-from canguard.bt.context import Context, ListSink, NullTaskGate
+from canguard.bt.context import Context, NullTaskGate
 from canguard.bt.dryrun import dry_run
 from canguard.bt.loader import load_tree
 from canguard.errors import TreeError
 from canguard.io.clock import ManualClock
 from clikit import cli
+from treekit import ListSink
 
 
 def tree(tmp_path: Path, body: str, name: str = "t.xml") -> Path:

@@ -86,7 +86,6 @@ def test_literals(text: str, value: object) -> None:
 def test_malformed_tokens_name_their_column(text: str, column: int, words: str) -> None:
     with pytest.raises(ScriptError) as info:
         Script(text)
-    assert info.value.column == column
     assert words in str(info.value)
     assert str(info.value).startswith(f"column {column}: ")
 
@@ -100,7 +99,7 @@ def test_empty_script_is_a_parse_error(text: str) -> None:
 def test_unknown_variable_fails_when_run_not_at_parse() -> None:
     Script("foo + 1")  # parses: the entry is looked up when the script runs
     err = error("foo + 1")
-    assert "variable not found: [foo]" in str(err) and err.column == 1
+    assert str(err).startswith("column 1: variable not found: [foo]")
 
 
 # ParserTest.Equations
@@ -176,7 +175,7 @@ def test_real_into_integer_entry_is_an_error_and_leaves_it_unchanged() -> None:
     bb = Board(count=3)
     err = error("count = 2.5", bb)
     assert "can't assign the real 2.5 to the entry [count], which holds an integer" in str(err)
-    assert err.column == 7
+    assert str(err).startswith("column 7: ")
     assert "can't assign the real 1.5 to the entry [count]" in str(error("count /= 2", bb))
     assert bb.values["count"] == 3
     assert run("count = 4.0", bb) == 4 and type(bb.values["count"]) is int
@@ -354,17 +353,16 @@ def test_syntax_errors_name_position_and_what_was_expected(text: str, column: in
     with pytest.raises(ScriptError) as info:
         Script(text)
     assert isinstance(info.value, ValueError)
-    assert info.value.column == column and info.value.pos == column - 1
+    assert str(info.value).startswith(f"column {column}: ") and info.value.pos == column - 1
     assert words in str(info.value)
 
 
 def test_error_in_a_multiline_script_names_line_and_column() -> None:
     with pytest.raises(ScriptError) as info:
         Script("a := 1;\nb := (2 *\n  )")
-    assert (info.value.line, info.value.column) == (3, 3)
     assert str(info.value).startswith("line 3, column 3: expected a value")
     err = error("a := 1;\nb = 2")
-    assert (err.line, err.column) == (2, 3)
+    assert str(err).startswith("line 2, column 3: ")
 
 
 def test_large_invalid_script_is_a_clean_error() -> None:

@@ -19,7 +19,7 @@ import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from canguard.bt.context import Context, ListSink, NullTaskGate
+from canguard.bt.context import Context, NullTaskGate
 from canguard.bt.loader import load_tree
 from canguard.bt.nodes import BUILTIN_NODES
 from canguard.config.dbc import load_dbc_file
@@ -28,6 +28,7 @@ from canguard.errors import ConfigError, LogFormatError, TreeError
 from canguard.io.clock import ManualClock
 from canguard.io.logs import ReadStats, read_log
 from checkout import REPO
+from treekit import ListSink
 
 EXAMPLES = int(os.environ.get("CANGUARD_FUZZ_EXAMPLES", "150"))
 FUZZ = settings(max_examples=EXAMPLES, deadline=None, derandomize=EXAMPLES <= 1000,

@@ -7,7 +7,6 @@ from pathlib import Path
 import py_trees
 import pytest
 
-from canguard.bt.nodes.timing import compare
 from treekit import F, Rig, S, xml_tree
 
 BB = py_trees.blackboard.Blackboard
@@ -35,13 +34,18 @@ class TestCompare:
             ("EQ", [False, True, False]),
         ],
     )
-    def test_operators(self, op: str, results: list[bool]) -> None:
-        """9, 10 and 11 s against a reference of 10 s (EQ: |Δ| < 0.1)."""
-        assert [compare(op, e, 10.0, 0.1) for e in (9.0, 10.0, 11.0)] == results
+    def test_operators(self, tmp_path: Path, op: str, results: list[bool]) -> None:
+        """9, 10 and 11 s after the first tick against reference_sec 10 (EQ: |Δ| < tolerance 0.1)."""
+        rig = Rig()
+        rig.load_text(tmp_path, xml_tree(f'<IsElapsedTimeCompare reference_sec="10" operator="{op}"/>'))
+        at(rig, 0.0)
+        assert at(rig, 9.0, 10.0, 11.0) == [S if r else F for r in results]
 
-    def test_eq_tolerance(self) -> None:
+    def test_eq_tolerance(self, tmp_path: Path) -> None:
         """EQ is strict inside the tolerance."""
-        assert compare("EQ", 9.95, 10.0, 0.1) and not compare("EQ", 10.2, 10.0, 0.1)
+        rig = Rig()
+        rig.load_text(tmp_path, xml_tree('<IsElapsedTimeCompare reference_sec="10" operator="EQ"/>'))
+        assert at(rig, 0.0, 9.95, 10.2) == [F, S, F]
 
 
 class TestIsElapsedTimeCompare:

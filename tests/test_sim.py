@@ -20,7 +20,12 @@ from canguard.io.frame import Frame
 from canguard.io.logs import read_log
 from canguard.sim import SCENARIOS, SimRobot, run_on_bus, write_log
 from canguard.sim.encode import MessageEncoder
-from canguard.sim.robot import AXIS_STATE_CLOSED_LOOP, AXIS_STATE_IDLE, ERROR_ESTOP_REQUESTED, KT_NM_PER_A
+from canguard.sim.robot import (
+    AXIS_STATE_CLOSED_LOOP,
+    AXIS_STATE_IDLE,
+    ERROR_ESTOP_REQUESTED,
+    KT_NM_PER_A,
+)
 from checkout import REPO
 from waitkit import WAIT_S
 
@@ -309,7 +314,7 @@ class TestReceive:
         beat = _heartbeats(db, after, 0)[0]
         assert beat[0] < 2.6
         assert beat[1]["Axis_State"] == AXIS_STATE_IDLE and beat[1]["Axis_Error"] == ERROR_ESTOP_REQUESTED
-        assert robot.axis_state(1) == AXIS_STATE_CLOSED_LOOP
+        assert robot.drives[1].state == AXIS_STATE_CLOSED_LOOP
         assert [abs(a) for t, a in _floats(after, _ids(db, "Axis1_Get_Iq"))][-1] > 0.5
 
     def test_closed_loop_request_is_refused_until_errors_are_cleared(
@@ -320,7 +325,7 @@ class TestReceive:
         robot.receive(_cmd(db, "Axis0_Estop", 2.5))
         robot.receive(_cmd(db, "Axis0_Set_Axis_State", 2.7, Axis_Requested_State=8))
         list(robot.frames(2.8))
-        assert robot.axis_state(0) == AXIS_STATE_IDLE
+        assert robot.drives[0].state == AXIS_STATE_IDLE
         robot.receive(_cmd(db, "Axis0_Clear_Errors", 2.8))
         robot.receive(_cmd(db, "Axis0_Set_Axis_State", 2.81, Axis_Requested_State=8))
         after = list(robot.frames(0.4))
@@ -328,7 +333,7 @@ class TestReceive:
         assert all(abs(a - 20.0) < 0.3 for t, a in iq if t >= 2.91)
         states = [hb["Axis_State"] for t, hb in _heartbeats(db, after, 0) if t > 2.85]
         assert states and set(states) == {AXIS_STATE_CLOSED_LOOP}
-        assert robot.axis_errors(0) == 0
+        assert robot.drives[0].errors == 0
 
     def test_idle_request_stops_without_error_and_other_frames_are_ignored(
         self, db: cantools.database.Database
@@ -339,9 +344,9 @@ class TestReceive:
         robot.receive(Frame(START + 0.5, "can0", 0x123, b"\x01"))
         robot.receive(Frame(START + 0.5, "can0", _ids(db, "Axis3_Estop"), b"", is_error_frame=True))
         robot.receive(Frame(START + 0.5, "can0", _ids(db, "Axis3_Set_Axis_State"), b"\x01"))
-        assert robot.axis_state(3) == AXIS_STATE_CLOSED_LOOP
+        assert robot.drives[3].state == AXIS_STATE_CLOSED_LOOP
         robot.receive(_cmd(db, "Axis3_Set_Axis_State", 0.5, Axis_Requested_State=1))
-        assert robot.axis_state(3) == AXIS_STATE_IDLE and robot.axis_errors(3) == 0
+        assert robot.drives[3].state == AXIS_STATE_IDLE and robot.drives[3].errors == 0
         list(robot.frames(0.05))
         assert abs(robot.current_a(3)) < 1e-6
 

@@ -16,7 +16,7 @@ import pytest
 from tests.feed import dispatch
 
 from canguard.bt import loader as tree_module
-from canguard.bt.context import Context, ListSink, NullTaskGate
+from canguard.bt.context import Context
 from canguard.bt.loaded import LoadedTree
 from canguard.bt.loader import load_tree
 from canguard.bt.nodes import CanguardNode, port_info
@@ -79,6 +79,29 @@ ACTION_NAMES = (
 )
 
 
+class ListSink:
+    """A frame sink that keeps every frame it was given, with its origin."""
+
+    def __init__(self) -> None:
+        self.sent: list[tuple[str, FrameSpec]] = []
+
+    def send(self, frames: Iterable[FrameSpec], origin: str) -> None:
+        self.sent.extend((origin, f) for f in frames)
+
+
+class TaskRecorder:
+    """A task gate that records each run and halt ExecuteTask asks for."""
+
+    def __init__(self) -> None:
+        self.calls: list[tuple[str, str, float]] = []
+
+    def run(self, node: str, now: float) -> None:
+        self.calls.append(("run", node, now))
+
+    def halt(self, node: str, now: float) -> None:
+        self.calls.append(("halt", node, now))
+
+
 class Rig:
     """A context on a manual clock with a list sink, a recording task gate and an event list."""
 
@@ -91,7 +114,7 @@ class Rig:
     ) -> None:
         self.clock = ManualClock(start)
         self.sink = ListSink()
-        self.task = NullTaskGate()
+        self.task = TaskRecorder()
         self.events: list[dict[str, Any]] = []
         self.ctx = Context(
             self.clock,

@@ -30,30 +30,21 @@ class TaskGate(Protocol):
         """ExecuteTask was halted: the task stops (send stop frames at once)."""
 
 
-class ListSink:
-    """A frame sink that keeps what it was given: tests and ``--emit`` dry runs."""
-
-    def __init__(self) -> None:
-        self.sent: list[tuple[str, FrameSpec]] = []
+class NullSink:
+    """A frame sink that drops what it is given (a tree checked or ticked without a bus)."""
 
     def send(self, frames: Sequence[FrameSpec], origin: str) -> None:
-        """Append every frame with its origin."""
-        self.sent.extend((origin, f) for f in frames)
+        """Drop the frames."""
 
 
 class NullTaskGate:
-    """A task gate that records calls only (tests, and trees without a task)."""
-
-    def __init__(self) -> None:
-        self.calls: list[tuple[str, str, float]] = []
+    """A task gate that does nothing (a tree checked or ticked without a task)."""
 
     def run(self, node: str, now: float) -> None:
-        """Record a run."""
-        self.calls.append(("run", node, now))
+        """Nothing runs."""
 
     def halt(self, node: str, now: float) -> None:
-        """Record a halt."""
-        self.calls.append(("halt", node, now))
+        """Nothing halts."""
 
 
 EventCallback = Callable[[dict[str, Any]], None]
@@ -70,7 +61,7 @@ class Context:
                  on_event: EventCallback | None = None, stop_frames: Sequence[FrameSpec] = ()) -> None:
         self.clock = clock
         self.sources = dict(sources)
-        self.sink: FrameSink = sink if sink is not None else ListSink()
+        self.sink: FrameSink = sink if sink is not None else NullSink()
         self.actions = dict(actions or {})
         self.task: TaskGate = task if task is not None else NullTaskGate()
         self.on_event = on_event

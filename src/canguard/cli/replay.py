@@ -72,20 +72,21 @@ def replay_one(cfg: Config, log_path: Path, opts: ReplayOptions) -> dict[str, An
     Blackboard.metadata.clear()
     Blackboard.clients.clear()
     clock = ManualClock()
-    journal = None
-    if opts.events is not None:
-        from canguard.engine.events import EventJournal
-
-        journal = EventJournal(opts.events)
-    heat = HeatStore(opts.state, cfg.state.on_corrupt) if opts.state is not None else None
-    stats = ReadStats()
-    router = ChannelRouter(cfg, opts.channel_map)
-    frames = read_log(log_path, skip_bad=opts.skip_bad, stats=stats, bag=opts.bag)
-    if opts.progress:
-        from canguard.io.progress import wrap_progress
-
-        frames = wrap_progress(frames, log_path)  # attaches to the reader: before any wrapping
     with ExitStack() as stack:
+        journal = None
+        if opts.events is not None:
+            from canguard.engine.events import EventJournal
+
+            journal = EventJournal(opts.events)
+            stack.callback(journal.close)  # the last to close: after the exports below (LIFO)
+        heat = HeatStore(opts.state, cfg.state.on_corrupt) if opts.state is not None else None
+        stats = ReadStats()
+        router = ChannelRouter(cfg, opts.channel_map)
+        frames = read_log(log_path, skip_bad=opts.skip_bad, stats=stats, bag=opts.bag)
+        if opts.progress:
+            from canguard.io.progress import wrap_progress
+
+            frames = wrap_progress(frames, log_path)  # attaches to the reader: before any wrapping
         # --emit streams each frame to the file as it is sent: memory stays flat in the log's length.
         bag_out = opts.emit is not None and emits_bag(opts.emit)
         text_out = opts.emit is not None and not bag_out
@@ -100,21 +101,17 @@ def replay_one(cfg: Config, log_path: Path, opts: ReplayOptions) -> dict[str, An
         _outputs(stack, engine, sink, opts, opts.export_log or str(log_path))  # after the recorder: it sees samples
         tuning = None
         if opts.tune:
-            from canguard.report.tune import TuneStats
+            from canguard.report.tune import tune_stats
 
-            tuning = TuneStats(engine, tune_i2t=opts.tune_i2t)
-        try:
-            engine.run_log(frames.chunks(), router.table, router.only, router.unmapped,
-                           router.channels if router.only is not None else None)
-            if engine.stats.frames:
-                engine.advance(clock.now())
-                engine.finish(reason="end of log", stop=False)
-        finally:
-            if journal is not None:
-                journal.close()
+            tuning = tune_stats(engine, tune_i2t=opts.tune_i2t)
+        engine.run_log(frames.chunks(), router.table, router.only, router.unmapped,
+                       router.channels if router.only is not None else None)
+        if engine.stats.frames:
+            engine.advance(clock.now())
+            engine.finish(reason="end of log", stop=False)
     summary = build_summary(cfg, log_path, engine, stats, router)
     if tuning is not None:
-        summary["tune"] = tuning.result()
+        summary["tune"] = tuning()
     if recorder is not None and opts.plot is not None:
         recorder.save(opts.plot, summary)
     return summary
@@ -126,14 +123,13 @@ def _mcap_export(opts: ReplayOptions) -> bool:
 
 def _outputs(stack: ExitStack, engine: Engine, sink: LogSink, opts: ReplayOptions, log: str) -> None:
     """The exports a replay writes as it goes (``--export-signals``, ``--emit`` as a bag), each closed at the end."""
-    watch = _AfterTicks(sink, engine.observer)
+    watch = _AfterTicks(sink)
     if opts.export is not None and _mcap_export(opts):
         from canguard.report.export import McapExport
 
-        mcap = McapExport(engine, opts.export, log)
-        stack.callback(mcap.close)
-        watch.takers.append(mcap.sent)
-        watch.observers.append(mcap)
+        watch.mcap = McapExport(engine, opts.export, log)
+        stack.callback(watch.mcap.close)
+        watch.takers.append(watch.mcap.sent)
     elif opts.export is not None:
         from canguard.report.export import SignalExport
 
@@ -150,17 +146,18 @@ def _outputs(stack: ExitStack, engine: Engine, sink: LogSink, opts: ReplayOption
 
 
 class _AfterTicks:
-    """The engine's observer: after every tick that runs, the frames sent go to their takers; observers see it."""
+    """The engine's observer: after every tick that runs, the frames sent go to their takers; an MCAP export sees
+    the tick."""
 
-    def __init__(self, sink: LogSink, previous: Any) -> None:
+    def __init__(self, sink: LogSink) -> None:
         self.sink = sink
         self.takers: list[Callable[[list[Frame]], None]] = []
-        self.observers: list[Any] = [previous] if previous is not None else []
+        self.mcap: Any = None
 
     def publish(self, engine: Any, now: float) -> None:
         """A tick ran."""
-        for observer in self.observers:
-            observer.publish(engine, now)
+        if self.mcap is not None:
+            self.mcap.publish(engine, now)
         self.hand_over()
 
     def hand_over(self) -> None:
@@ -462,19 +459,14 @@ def _report(args: argparse.Namespace, results: list[tuple[dict[str, Any] | None,
     return EXIT_OK
 
 
-def _export_path(path: Path | None, log: Path, many: bool, index: int) -> Path | None:
-    """Where log number ``index`` writes ``--export-signals``: its Parquet part, or its own MCAP file."""
-    if path is None:
-        return None
-    from canguard.report import export
-
-    return per_log_path(path, log, many) if export.is_mcap(path) else export.part_path(path, index)
-
-
 def _replay_offline(cfg: Config, cfg_path: Path, args: argparse.Namespace, names: list[Path]) -> int:
     channel_map = parse_map(args.map, cfg)
-    if args.export_signals is not None:
-        from canguard.report import export  # --export-signals only (pyarrow's part files)
+    out = args.export_signals
+    parts: list[Path] = []  # --export-signals FILE.parquet: a part file per log (else FILE.mcap: a file per log)
+    if out is not None:
+        from canguard.report import export
+
+        parts = [] if export.is_mcap(out) else [export.part_path(out, i) for i in range(len(args.logs))]
     many = len(args.logs) > 1
     base = _load_baseline(args.baseline) if args.baseline else None
     jobs: list[tuple[Path, ReplayOptions]] = []
@@ -484,20 +476,18 @@ def _replay_offline(cfg: Config, cfg_path: Path, args: argparse.Namespace, names
             emit=per_log_path(args.emit, name, many), skip_bad=args.skip_bad, state=args.state,
             plot=per_log_path(args.plot, name, many),
             progress=sys.stderr.isatty() and args.jobs <= 1 and args.dask is None,
-            export=_export_path(args.export_signals, name, many, len(jobs)),
+            export=parts[len(jobs)] if parts else per_log_path(out, name, many),
             export_log=str(name), bag=BagOptions(tuple(args.topic), args.stamp),
         )
         jobs.append((log, opts))
     try:
         results = run_jobs(args, cfg, cfg_path, jobs)
     except BaseException:
-        if args.export_signals is not None and not export.is_mcap(args.export_signals):
-            export.discard_parts([opts.export for _, opts in jobs])
+        if parts:
+            export.discard_parts(parts)
         raise
-    if args.export_signals is not None and not export.is_mcap(args.export_signals):
-        # In input order; a log that failed contributes no rows (its part may be cut short).
-        export.combine_parts(args.export_signals, [opts.export for _, opts in jobs if opts.export is not None],
-                             [summary is not None for summary, _ in results])
+    if parts:  # in input order; a log that failed contributes no rows (its part may be cut short)
+        export.combine_parts(out, parts, [summary is not None for summary, _ in results])
     if args.fleet_summary is not None:
         from canguard.report.export import fleet_row, write_fleet_summary
 

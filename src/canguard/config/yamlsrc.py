@@ -132,15 +132,9 @@ def key_lines(text: str) -> dict[str, int]:
 
 def _line_of(lines: Mapping[str, int], key: str) -> int | None:
     """The line of ``key``, else of its nearest enclosing key that is in the file (a missing key)."""
-    k = key
-    while k:
-        if k in lines:
-            return lines[k]
-        cut = max(k.rfind("."), k.rfind("["))
-        if cut <= 0:
-            return None
-        k = k[:cut]
-    return None
+    while key and key not in lines:
+        key = key[:max(key.rfind("."), key.rfind("["), 0)]
+    return lines.get(key) if key else None
 
 
 class Checks:

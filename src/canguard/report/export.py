@@ -11,7 +11,7 @@ import math
 import os
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -77,9 +77,9 @@ def part_path(path: Path, index: int) -> Path:
 class SignalExport:
     """Streams every sample an engine decodes into one Parquet file, in bounded memory."""
 
-    def __init__(self, engine: Engine, path: Path, log: str, *, table: SampleTable | None = None) -> None:
+    def __init__(self, engine: Engine, path: Path, log: str, *, table: _Samples | None = None) -> None:
         bus = {name: src.bus for name, src in engine.cfg.sources.items()}
-        self.table: SampleTable = table if table is not None else ParquetTable(path, log, bus)
+        self.table: ParquetTable | _Samples = table if table is not None else ParquetTable(path, log, bus)
         """Where each batch of rows goes: a Parquet file, or an MCAP export's channels."""
         # The DBC [min|max] the source's health checks: a value outside is rejected as out_of_range
         # by the models although the decoder passed it (the decoder does not check ranges).
@@ -88,7 +88,7 @@ class SignalExport:
         """Columns of samples in order (time, code, value arrays), waiting for a batch to be full."""
         self._pending = 0
         self._codes: dict[tuple[str, str, str], int] = {}
-        self._keys: list[tuple[str, str, str]] = []
+        """A small number per (source, signal, reason), the same for the whole export, in order of first use."""
         engine.sample_block = self._block
 
     def _reason_of(self, s: Sample) -> str:
@@ -137,13 +137,7 @@ class SignalExport:
             self._flush()
 
     def _code(self, name: tuple[str, str], reason: str) -> int:
-        """A small number for (source, signal, reason), the same for the whole export."""
-        key = (*name, reason)
-        code = self._codes.get(key)
-        if code is None:
-            code = self._codes[key] = len(self._keys)
-            self._keys.append(key)
-        return code
+        return self._codes.setdefault((*name, reason), len(self._codes))
 
     def _flush(self) -> None:
         """The first :data:`BATCH_ROWS` samples waiting (all of them, when fewer) to the table."""
@@ -151,7 +145,7 @@ class SignalExport:
             return
         t, codes, values = (np.concatenate(cols) for cols in zip(*self._chunks, strict=True))
         n = min(t.size, BATCH_ROWS)
-        self.table.write(t[:n], codes[:n], values[:n], self._keys)
+        self.table.write(t[:n], codes[:n], values[:n], list(self._codes))
         self._chunks = [(t[n:], codes[n:], values[n:])] if n < t.size else []
         self._pending = t.size - n
 
@@ -160,14 +154,6 @@ class SignalExport:
         while self._pending:
             self._flush()
         self.table.close()
-
-
-class SampleTable(Protocol):
-    """Where :class:`SignalExport` writes its rows, a batch of columns at a time (``keys[code]``: the row's key)."""
-
-    def write(self, t: Any, codes: Any, values: Any, keys: Sequence[tuple[str, str, str]]) -> None: ...
-
-    def close(self) -> None: ...
 
 
 class ParquetTable:
@@ -247,7 +233,7 @@ def _cdr(*columns: np.ndarray) -> np.ndarray:
 
 
 class _Samples:
-    """:class:`SignalExport`'s rows as one channel per source and role (a :class:`SampleTable`)."""
+    """:class:`SignalExport`'s rows as one channel per source and role (as :class:`ParquetTable` writes them)."""
 
     def __init__(self, writer: McapWriter) -> None:
         self.writer = writer
@@ -340,17 +326,12 @@ class McapExport:
             sec, nanosec = np.divmod(ns, 1_000_000_000)
             table[:, 4:8] = sec.astype("<i4").view(np.uint8).reshape(-1, 4)
             table[:, 8:12] = nanosec.astype("<u4").view(np.uint8).reshape(-1, 4)
-            self.writer.messages(self._frame_channel(fd), ns, table)
+            if fd not in self._frames:
+                msgtype = frame_type(fd)
+                schema = self.writer.schema(msgtype, "ros2msg", full_definition(msgtype))
+                self._frames[fd] = self.writer.channel(f"/canguard/frames_out{'_fd' if fd else ''}", schema, "cdr")
+            self.writer.messages(self._frames[fd], ns, table)
         self._out.clear()
-
-    def _frame_channel(self, fd: bool) -> int:
-        channel = self._frames.get(fd)
-        if channel is None:
-            msgtype = frame_type(fd)
-            schema = self.writer.schema(msgtype, "ros2msg", full_definition(msgtype))
-            topic = "/canguard/frames_out_fd" if fd else "/canguard/frames_out"
-            channel = self._frames[fd] = self.writer.channel(topic, schema, "cdr")
-        return channel
 
     def close(self) -> None:
         """Write what is left and end the file."""
@@ -389,13 +370,10 @@ def fleet_row(log: str, summary: Mapping[str, Any] | None, error: str = "") -> d
 
 def write_fleet_summary(path: Path, rows: Iterable[Mapping[str, Any]]) -> None:
     """Write ``rows``: Parquet when ``path`` ends with ``.parquet`` (pyarrow), else JSON lines."""
-    rows = list(rows)
+    table = [{c: r.get(c) for c in FLEET_COLUMNS} for r in rows]
     if path.suffix.lower() == ".parquet":
         pa, pq = require_pyarrow(f"--fleet-summary {path}")
-        table = pa.Table.from_pylist([{c: r.get(c) for c in FLEET_COLUMNS} for r in rows],
-                                     schema=schema(pa, FLEET_COLUMNS))
-        pq.write_table(table, path)
+        pq.write_table(pa.Table.from_pylist(table, schema=schema(pa, FLEET_COLUMNS)), path)
         return
     with open(path, "w", encoding="utf-8") as out:
-        for r in rows:
-            out.write(json.dumps({c: r.get(c) for c in FLEET_COLUMNS}, sort_keys=False) + "\n")
+        out.writelines(json.dumps(r) + "\n" for r in table)

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import copy
 import math
+from array import array
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
@@ -38,43 +39,31 @@ class Capture(ProtectionModel):
     """A model that never trips: it keeps every sample the engine feeds it, as the guards' models get them."""
 
     def __init__(self) -> None:
-        self._runs: list[tuple[np.ndarray, np.ndarray]] = []
-        self._t: list[float] = []
-        self._v: list[float] = []
+        self._t = array("d")
+        self._v = array("d")
 
     def advance(self, times: Any, values: Any, *, until_edge: bool = False) -> Run:
-        """Keep the run (copied; a run of one kept as plain floats) and report no edge."""
+        """Keep the run and report no edge."""
         if len(times) == 1:  # a frame on its own
             self._t.append(float(times[0]))
             self._v.append(float(values[0]))
-            return Run(*_NO_EDGE, 1)
-        self._spill()
-        self._runs.append((np.array(times, dtype=np.float64), np.array(values, dtype=np.float64)))
+        else:
+            self._t.frombytes(np.asarray(times, dtype=np.float64).tobytes())
+            self._v.frombytes(np.asarray(values, dtype=np.float64).tobytes())
         return Run(*_NO_EDGE, len(times))
 
     def mark(self) -> Any:
         """How many samples are kept (the engine goes back to it when a run went past another source's edge)."""
-        self._spill()
-        return len(self._runs)
+        return len(self._t)
 
     def rewind(self, mark: Any) -> None:
-        """Forget the runs kept since :meth:`mark`."""
-        self._spill()
-        del self._runs[mark:]
-
-    def _spill(self) -> None:
-        if self._t:
-            self._runs.append((np.array(self._t, dtype=np.float64), np.array(self._v, dtype=np.float64)))
-            self._t, self._v = [], []
+        """Forget the samples kept since :meth:`mark`."""
+        del self._t[mark:]
+        del self._v[mark:]
 
     def columns(self) -> tuple[np.ndarray, np.ndarray]:
         """Every sample kept so far, in arrival order: (times, values), finite ones only."""
-        self._spill()
-        if not self._runs:
-            return np.empty(0), np.empty(0)
-        t = np.concatenate([r[0] for r in self._runs])
-        v = np.concatenate([r[1] for r in self._runs])
-        self._runs = [(t, v)]
+        t, v = np.array(self._t, dtype=np.float64), np.array(self._v, dtype=np.float64)
         ok = np.isfinite(t) & np.isfinite(v)
         return (t, v) if ok.all() else (t[ok], v[ok])
 
@@ -100,11 +89,6 @@ class Knob:
     port: str
     value: float
     set: Callable[[ProtectionModel, float], None] | None = None
-
-    @property
-    def scale(self) -> bool:
-        """True when tried by scaling the samples (the value is a factor on the rating)."""
-        return self.set is None
 
 
 def _set_max(model: ProtectionModel, value: float) -> None:
@@ -138,10 +122,9 @@ def knob_of(node: GuardNode) -> Knob | None:
 def trip_time(model: ProtectionModel, knob: Knob, value: float, t: np.ndarray, v: np.ndarray) -> float | None:
     """When a fresh copy of ``model`` with the knob at ``value`` first trips over the samples; None: never."""
     trial = copy.deepcopy(model)
-    if knob.scale:
+    if knob.set is None:
         v = v / value
     else:
-        assert knob.set is not None
         knob.set(trial, value)
     run = trial.advance(t, v)
     hit = np.flatnonzero(run.tripped)
@@ -154,7 +137,7 @@ def ceiling(model: ProtectionModel, knob: Knob, t: np.ndarray, v: np.ndarray) ->
     def trips(value: float) -> float | None:
         return trip_time(model, knob, value, t, v)
 
-    if knob.scale:
+    if knob.set is None:
         lo, hi = 1e-3, 1.0
         while trips(hi) is not None:
             lo, hi = hi, hi * 2.0
@@ -248,35 +231,25 @@ def gaps(t: np.ndarray) -> tuple[float, float]:
     return float(d.max()), float(np.median(d))
 
 
-class TuneStats:
-    """Hung on an engine before its log: at the end, each guard's ceiling and the statistics of its signals."""
+def tune_stats(engine: Engine, *, tune_i2t: bool = False) -> Callable[[], dict[str, Any]]:
+    """Hung on an engine before its log: what, at the end, gives per guard node its knob, and per signal the
+    samples' statistics and the ceiling on this log (JSON-able; times from the log's first frame)."""
+    captures: dict[tuple[str, str], Capture] = {}
+    nodes = [(node, knob_of(node), [(role, copy.deepcopy(model)) for role, model, _kind in node.guarded()])
+             for node in engine.guard_nodes]  # the models as the tree built them: each trial starts from a copy
+    for node, _knob, fresh in nodes:
+        for role, _model in fresh:
+            if (node.topic_name, role) not in captures:
+                captures[(node.topic_name, role)] = cap = Capture()
+                engine.ctx.subscribe(node.topic_name, role, cap)
 
-    def __init__(self, engine: Engine, *, tune_i2t: bool = False) -> None:
-        self.engine = engine
-        self.tune_i2t = tune_i2t
-        self._captures: dict[tuple[str, str], Capture] = {}
-        self._guards: list[tuple[GuardNode, Knob | None, list[tuple[str, ProtectionModel]]]] = []
-        for node in engine.guard_nodes:
-            knob = knob_of(node)
-            # The models as the tree built them, before any sample: each trial starts from a copy.
-            fresh = [(role, copy.deepcopy(model)) for role, model, _kind in node.guarded()]
-            self._guards.append((node, knob, fresh))
-            for role, _model in fresh:
-                key = (node.topic_name, role)
-                if key not in self._captures:
-                    cap = self._captures[key] = Capture()
-                    engine.ctx.subscribe(node.topic_name, role, cap)
-
-    def result(self) -> dict[str, Any]:
-        """Per guard node: its knob, and per signal the samples' statistics and the ceiling on this log (JSON-able;
-        times from the log's first frame)."""
-        start = self.engine.first_frame_t
-        start = start if math.isfinite(start) else 0.0
+    def result() -> dict[str, Any]:
+        start = engine.first_frame_t if math.isfinite(engine.first_frame_t) else 0.0
         guards = []
-        for node, knob, fresh in self._guards:
+        for node, knob, fresh in nodes:
             signals = []
             for role, model in fresh:
-                t, v = self._captures[(node.topic_name, role)].columns()
+                t, v = captures[(node.topic_name, role)].columns()
                 a = np.abs(v)
                 entry: dict[str, Any] = {"role": role, "samples": int(a.size)}
                 if a.size:
@@ -284,23 +257,24 @@ class TuneStats:
                     longest, median = gaps(t)
                     entry.update(peak=float(a[at]), peak_t=float(t[at]) - start, hist=histogram(a),
                                  gap=longest, period=median)
-                    if knob is not None and (not knob.scale or self.tune_i2t):
+                    if knob is not None and (knob.set is not None or tune_i2t):
                         top, when = ceiling(model, knob, t, v)
                         entry.update(ceiling=top, ceiling_t=None if when is None else when - start)
                     inrush = envelope(model, t, v)
                     if inrush is not None:
                         entry["inrush"] = inrush
-                    heat = getattr(model, "trip_level", None)
-                    if heat is not None:
-                        entry["heat_pct"] = float(self.engine.stats.max_level_pct.get(node.name, math.nan))
+                    if getattr(model, "trip_level", None) is not None:
+                        entry["heat_pct"] = float(engine.stats.max_level_pct.get(node.name, math.nan))
                 signals.append(entry)
             guards.append({
                 "node": node.name, "type": type(node).__name__, "source": node.topic_name,
                 "port": knob.port if knob is not None else None,
-                "value": knob.value if knob is not None and not knob.scale else None,
+                "value": knob.value if knob is not None and knob.set is not None else None,
                 "signals": signals,
             })
         return {"guards": guards}
+
+    return result
 
 
 GAP_FACTOR = 1.5
@@ -528,15 +502,14 @@ def propose_age(source: str, old: float, logs: list[LogStats]) -> AgeProposal | 
         return None
     period = sorted(periods)[len(periods) // 2]
     caught = [f for f in faults if f.value > top.value * GAP_FACTOR]  # a dropout, not jitter
-    fails = top.value >= old or any(f.value <= old for f in caught)
-    if not fails:
-        return AgeProposal(source, old, None, "left", f"fits: longest healthy gap {top.value:.3g} s < max_age",
-                           top, period, caught)
     value, note = separate(top.value, [f.value for f in caught], GAP_FACTOR - 1.0)
-    if value is None:
-        return AgeProposal(source, old, None, "conflict", f"healthy log {top.log} has a gap of {top.value:.3g} s, "
-                           "as long as a fault's", top, period, caught)
-    return AgeProposal(source, old, max(value, period), "tuned", note, top, period, caught)
+    if top.value < old and all(f.value > old for f in caught):
+        value, status, note = None, "left", f"fits: longest healthy gap {top.value:.3g} s < max_age"
+    elif value is None:
+        status, note = "conflict", f"healthy log {top.log} has a gap of {top.value:.3g} s, as long as a fault's"
+    else:
+        value, status = max(value, period), "tuned"
+    return AgeProposal(source, old, value, status, note, top, period, caught)
 
 
 def propose(logs: list[LogStats], ages: dict[str, float], expect: dict[str, list[str]] | None, margin: float,

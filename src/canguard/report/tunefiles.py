@@ -54,11 +54,8 @@ def set_attributes(text: str, node: str, values: Mapping[str, float], where: str
 
 def port_text(text: str, node: str, port: str) -> str | None:
     """The attribute text of ``port`` on the element named ``node`` (None: not written there)."""
-    for m in _named(text, node):
-        for a in _ATTR.finditer(m.group(2)):
-            if a.group(1) == port:
-                return a.group(3)[1:-1]
-        return None
+    for m in _named(text, node)[:1]:
+        return next((a.group(3)[1:-1] for a in _ATTR.finditer(m.group(2)) if a.group(1) == port), None)
     return None
 
 

@@ -109,7 +109,8 @@ class SimRobot:
         for name in needed:
             if name not in self._by_name:
                 raise ValueError(f"the DBC has no message {name!r}: the simulator needs ODrive axes and a BMS")
-        self._axes = [_Axis(index=n, scale=self.rng.uniform(0.85, 1.0)) for n in range(axes)]
+        self.drives = [_Axis(index=n, scale=self.rng.uniform(0.85, 1.0)) for n in range(axes)]
+        """Each axis' state now: ``state`` (1 IDLE, 8 CLOSED_LOOP), ``errors`` (ERROR_ESTOP_REQUESTED after Estop)."""
         self._commands = {self.encoder(n, kind).frame_id: (n, kind) for n in range(axes) for kind in COMMANDS}
         self._soc_t = 0.0
         self._alive = 0
@@ -117,7 +118,8 @@ class SimRobot:
         self._cmds: list[tuple[float, int, Frame]] = []
         self._seq = 0
         self._now = 0.0
-        self._stream_rates: dict[str, float] = {}
+        self.stream_rates_hz: dict[str, float] = {}
+        """Frames per second of each periodic stream (scenarios' one-off frames not counted)."""
         self._setpoint_hooks = [s for s in parsed if type(s).setpoint is not Scenario.setpoint]
         self.soc_pct = START_SOC_PCT
         self._suppress_hooks = [s for s in parsed if type(s).suppress is not Scenario.suppress]
@@ -157,21 +159,9 @@ class SimRobot:
             self._seq += 1
             heapq.heappush(self._cmds, (t, self._seq, frame))
 
-    def axis_state(self, axis: int) -> int:
-        """The ODrive axis state of ``axis`` (1 IDLE, 8 CLOSED_LOOP_CONTROL) at the current time."""
-        return self._axes[axis].state
-
-    def axis_errors(self, axis: int) -> int:
-        """The active error bits of ``axis`` (``ERROR_ESTOP_REQUESTED`` after an Estop)."""
-        return self._axes[axis].errors
-
     def current_a(self, axis: int) -> float:
         """The noise-free Iq of ``axis`` at the current time, in amps."""
-        return self.current(self._axes[axis], self._now)
-
-    def nominal_rate_hz(self) -> float:
-        """Frames per second of all periodic streams (scenarios' one-off frames not counted)."""
-        return sum(self._stream_rates.values())
+        return self.current(self.drives[axis], self._now)
 
     def period_s(self, kind: str) -> float:
         """The period of a periodic message kind (``"BMS_Status"``, ``"Get_Iq"``, ...)."""
@@ -181,10 +171,6 @@ class SimRobot:
         """The encoder of ``Axis{axis}_{kind}``, or of the BMS message ``kind`` when axis is None."""
         return self._by_name[kind if axis is None else f"Axis{axis}_{kind}"]
 
-    def known_ids(self) -> set[int]:
-        """Every arbitration id of the DBC."""
-        return {m.frame_id for m in self.db.messages}
-
     def schedule_once(self, t: float, produce: Producer) -> None:
         """Call ``produce(t)`` for one frame at ``t`` seconds from the start."""
         self._seq += 1
@@ -192,7 +178,7 @@ class SimRobot:
 
     def add_periodic(self, kind: str, period_s: float, phase_s: float, produce: Producer) -> None:
         """Add a periodic stream: ``produce(t)`` at ``phase_s + k·period_s`` (k = 0, 1, ...) unless suppressed."""
-        self._stream_rates[kind] = self._stream_rates.get(kind, 0.0) + 1.0 / period_s
+        self.stream_rates_hz[kind] = self.stream_rates_hz.get(kind, 0.0) + 1.0 / period_s
         k = 0
 
         def stream(t: float) -> Frame | None:
@@ -273,7 +259,7 @@ class SimRobot:
 
     def pack_current(self, t: float) -> float:
         """The BMS's pack current: base load + Σ|Iq| + noise."""
-        total = BASE_LOAD_A + sum(abs(self.current(ax, t)) for ax in self._axes)
+        total = BASE_LOAD_A + sum(abs(self.current(ax, t)) for ax in self.drives)
         return total + self.rng.gauss(0.0, PACK_NOISE_A)
 
     def pack_voltage(self, current_a: float) -> float:
@@ -284,11 +270,10 @@ class SimRobot:
     def _add_base_streams(self) -> None:
         for slot, kind in enumerate(AXIS_KINDS):
             period = self.period_s(kind)
-            for ax in self._axes:
+            for ax in self.drives:
                 # Spread the axes and kinds over the period so frames do not all collide.
                 phase = period * ((ax.index + slot / len(AXIS_KINDS)) / self.axes)
-                produce = self._heartbeat_producer(ax) if kind == "Heartbeat" else self._telemetry_producer(kind, ax)
-                self.add_periodic(kind, period, phase, produce)
+                self.add_periodic(kind, period, phase, self._producer(kind, ax))
         self.add_periodic("BMS_Status", self.period_s("BMS_Status"), 0.0, self.bms_frame)
         self.add_periodic("BMS_Temperatures", self.period_s("BMS_Temperatures"), 0.5 * self.period_s("BMS_Status"),
                           self._temps)
@@ -302,7 +287,7 @@ class SimRobot:
     def _apply(self, t: float, frame: Frame) -> None:
         """Apply one driver command at simulated time ``t``."""
         axis, kind = self._commands[frame.arbitration_id]
-        ax = self._axes[axis]
+        ax = self.drives[axis]
         if kind == "Estop":
             ax.errors |= ERROR_ESTOP_REQUESTED
             self._set_state(ax, t, AXIS_STATE_IDLE)
@@ -315,33 +300,27 @@ class SimRobot:
             elif requested == AXIS_STATE_CLOSED_LOOP and ax.errors == 0:
                 self._set_state(ax, t, AXIS_STATE_CLOSED_LOOP)
 
-    def _telemetry(self, kind: str, ax: _Axis, t: float) -> tuple[float, float]:
-        """The two float32 signals of an axis' telemetry ``kind`` at ``t``."""
+    def _payload(self, enc: MessageEncoder, kind: str, ax: _Axis, t: float) -> bytes:
+        """The bytes of an axis' ``kind`` frame at ``t`` (telemetry: its two float32 signals)."""
+        if kind == "Heartbeat":
+            done = int(ax.state != AXIS_STATE_CLOSED_LOOP or self.velocity(ax, t) == 0.0)
+            return enc.encode({"Axis_Error": ax.errors, "Axis_State": ax.state, "Procedure_Result": 0,
+                               "Trajectory_Done_Flag": done})
         if kind == "Get_Iq":
-            return self.setpoint(ax, t), self.measured(ax, t)
+            return enc.pack(self.setpoint(ax, t), self.measured(ax, t))
         if kind == "Get_Torques":
-            return KT_NM_PER_A * self.setpoint(ax, t), KT_NM_PER_A * self.measured(ax, t)
+            return enc.pack(KT_NM_PER_A * self.setpoint(ax, t), KT_NM_PER_A * self.measured(ax, t))
         if kind == "Get_Encoder_Estimates":
             vel = self.velocity(ax, t) if ax.state == AXIS_STATE_CLOSED_LOOP else 0.0
             ax.pos_rev += vel * max(0.0, t - ax.enc_t)
             ax.enc_t = max(ax.enc_t, t)
-            return ax.pos_rev, vel
+            return enc.pack(ax.pos_rev, vel)
         iq = abs(self.measured(ax, t))  # Get_Bus_Voltage_Current
-        return self.pack_voltage(self.pack_current(t)) - 0.1, iq
+        return enc.pack(self.pack_voltage(self.pack_current(t)) - 0.1, iq)
 
-    def _telemetry_producer(self, kind: str, ax: _Axis) -> Producer:
+    def _producer(self, kind: str, ax: _Axis) -> Producer:
         enc = self.encoder(ax.index, kind)
-        return lambda t: self.raw_frame(t, enc.frame_id, enc.pack(*self._telemetry(kind, ax, t)))
-
-    def _heartbeat_producer(self, ax: _Axis) -> Producer:
-        enc = self.encoder(ax.index, "Heartbeat")
-
-        def produce(t: float) -> Frame:
-            done = int(ax.state != AXIS_STATE_CLOSED_LOOP or self.velocity(ax, t) == 0.0)
-            return self.raw_frame(t, enc.frame_id, enc.encode({"Axis_Error": ax.errors, "Axis_State": ax.state,
-                                                               "Procedure_Result": 0, "Trajectory_Done_Flag": done}))
-
-        return produce
+        return lambda t: self.raw_frame(t, enc.frame_id, self._payload(enc, kind, ax, t))
 
     def _temps(self, t: float) -> Frame:
         enc = self._by_name["BMS_Temperatures"]

@@ -13,6 +13,8 @@ from functools import partial
 from typing import TYPE_CHECKING, ClassVar, Protocol
 
 if TYPE_CHECKING:
+    import cantools.database
+
     from canguard.io.frame import Frame
     from canguard.sim.encode import MessageEncoder
 
@@ -24,11 +26,11 @@ class RobotHandle(Protocol):
 
     axes: int
     rng: random.Random
+    db: cantools.database.Database
+    stream_rates_hz: dict[str, float]
 
     def period_s(self, kind: str) -> float: ...
     def encoder(self, axis: int | None, kind: str) -> MessageEncoder: ...
-    def known_ids(self) -> set[int]: ...
-    def nominal_rate_hz(self) -> float: ...
     def schedule_once(self, t: float, produce: Producer) -> None: ...
     def add_periodic(self, kind: str, period_s: float, phase_s: float, produce: Producer) -> None: ...
     def raw_frame(self, t: float, frame_id: int, data: bytes, extended: bool = False, *,
@@ -217,10 +219,10 @@ class Load(Scenario):
     def setup(self, robot: RobotHandle) -> None:
         """Add the background streams."""
         rng = robot.rng
-        extra = self.TARGET_FPS - robot.nominal_rate_hz()
+        extra = self.TARGET_FPS - sum(robot.stream_rates_hz.values())
         if extra <= 0:
             return
-        known = robot.known_ids()
+        known = {m.frame_id for m in robot.db.messages}
         ids = rng.sample([i for i in range(0x200, 0x800) if i not in known], self.IDS)
         weights = [rng.uniform(0.5, 1.5) for _ in ids]
         total = sum(weights)

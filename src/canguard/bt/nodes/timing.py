@@ -46,11 +46,6 @@ _COMPARE: dict[str, Callable[[float, float], bool]] = {
     "GT": operator.gt, "LT": operator.lt, "GTE": operator.ge, "LTE": operator.le}
 
 
-def compare(op: str, elapsed: float, reference: float, tolerance: float) -> bool:
-    """``elapsed <op> reference``; EQ is ``|elapsed − reference| < tolerance``. KeyError on other ops."""
-    return abs(elapsed - reference) < tolerance if op == "EQ" else _COMPARE[op](elapsed, reference)
-
-
 class IsElapsedTimeCompare(_TimerUser, py_trees.behaviour.Behaviour):
     """SUCCESS when (now − reference time) <operator> reference_sec"""
 
@@ -99,11 +94,10 @@ class IsElapsedTimeCompare(_TimerUser, py_trees.behaviour.Behaviour):
             return FAILURE
         elapsed = now - t0
         op = self.port("operator")
-        try:
-            ok = compare(op, elapsed, reference, tolerance)
-        except KeyError:
+        if op not in OPERATORS:
             self.feedback_message = f"unknown operator {op!r}; expected one of {', '.join(OPERATORS)}"
             return FAILURE
+        ok = abs(elapsed - reference) < tolerance if op == "EQ" else _COMPARE[op](elapsed, reference)
         self.feedback_message = f"elapsed {elapsed:.3f} s {op} {reference:g} s: {ok}"
         return SUCCESS if ok else FAILURE
 

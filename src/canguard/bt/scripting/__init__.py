@@ -10,13 +10,10 @@ class ScriptError(ValueError):
     def __init__(self, message: str, pos: int | None = None, script: str | None = None) -> None:
         self.message = message
         self.pos = pos
-        self.line: int | None = None
-        self.column: int | None = None
         where = ""
         if pos is not None and script is not None:
             before = script[:pos]
-            self.line = before.count("\n") + 1
-            self.column = pos - before.rfind("\n")
-            where = f"line {self.line}, column {self.column}: " if "\n" in script else f"column {self.column}: "
+            line, column = before.count("\n") + 1, pos - before.rfind("\n")
+            where = f"line {line}, column {column}: " if "\n" in script else f"column {column}: "
         super().__init__(where + message)
 
