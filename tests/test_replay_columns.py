@@ -61,7 +61,7 @@ BUNDLED = REPO / "config" / "canguard.yaml"
 ROBOT_GUARD = REPO / "config" / "examples" / "robot_guard.yaml"
 MULTI = REPO / "config" / "examples" / "multi_current_monitoring.yaml"
 TIMED = REPO / "config" / "examples" / "time_windowed_action.yaml"
-DEFAULT_CHUNK = canguard.io.logs.CHUNK_CHARS
+DEFAULT_CHUNK = canguard.io.candump.CHUNK_CHARS
 
 SMALL_CHUNKS = (97, 300, 1009, 4096)
 """Block sizes (characters) besides the reader's default: 2 lines a block up to about a hundred."""

@@ -650,7 +650,7 @@ class TestProgressBar:
     def test_draws_on_a_tty(self) -> None:
         """On a terminal the bar shows the percentage and ends its line on close."""
         out = self._Tty()
-        bar = ProgressBar(1_000_000, stream=out, min_interval_s=0.0, label="x.log")
+        bar = ProgressBar(1_000_000, stream=out, label="x.log")
         bar.update(500_000)
         bar.close()
         text = out.getvalue()
@@ -661,7 +661,7 @@ class TestProgressBar:
         """read_log moves the bar to the end of the file by the time the log is read."""
         monkeypatch.setattr(candump, "CHUNK_CHARS", 256)
         path = _write(tmp_path / "x.log", "".join(f"({i}.000000) can0 123#11\n" for i in range(200)))
-        bar = ProgressBar(path.stat().st_size, stream=self._Tty(), min_interval_s=0.0)
+        bar = ProgressBar(path.stat().st_size, stream=self._Tty())
         frames = read_log(path)
         frames.progress = bar
         list(frames)

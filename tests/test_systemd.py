@@ -56,13 +56,10 @@ class TestNotifier:
         n.watchdog()
         n.status("line one\nline two")
         n.stopping()
-        n.reloading(monotonic_usec=123456789)
-        assert [_recv(sock) for _ in range(4)] == [
-            b"WATCHDOG=1",
-            b"STATUS=line one line two",
-            b"STOPPING=1",
-            b"RELOADING=1\nMONOTONIC_USEC=123456789",
-        ]
+        n.reloading()
+        got = [_recv(sock) for _ in range(4)]
+        assert got[:3] == [b"WATCHDOG=1", b"STATUS=line one line two", b"STOPPING=1"]
+        assert got[3].startswith(b"RELOADING=1\nMONOTONIC_USEC=")
 
     def test_reloading_uses_the_monotonic_clock(self, notify_socket: tuple[socket.socket, str]) -> None:
         """RELOADING=1 carries MONOTONIC_USEC of CLOCK_MONOTONIC now, as systemd >= 253 requires."""

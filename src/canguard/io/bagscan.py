@@ -8,9 +8,8 @@ from __future__ import annotations
 
 import struct
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, BinaryIO
+from typing import Any, BinaryIO, NamedTuple
 
 import numpy as np
 
@@ -29,13 +28,8 @@ _U16, _U32, _U64 = struct.Struct("<H"), struct.Struct("<I"), struct.Struct("<Q")
 class McapCut(Exception):
     """The file ends (or turns to garbage) before its data section does: where, and what was found there."""
 
-    def __init__(self, what: str) -> None:
-        super().__init__(what)
-        self.what = what
 
-
-@dataclass(frozen=True)
-class Channel:
+class Channel(NamedTuple):
     """An MCAP channel with its schema (``schema_encoding``: ``ros2msg``, ``ros2idl``, ..., empty for none)."""
 
     id: int
@@ -46,8 +40,7 @@ class Channel:
     message_encoding: str
 
 
-@dataclass
-class Messages:
+class Messages(NamedTuple):
     """A chunk's messages: each one's channel, log time (ns), and where its data lies in ``buf`` (zero-padded)."""
 
     channel: np.ndarray
@@ -96,21 +89,19 @@ def decompressed(compression: str, data: bytes, size: int, at: int) -> bytes:
     raise McapCut(f"a chunk compressed as {compression!r}, which canguard does not read")
 
 
-class McapScan:
-    """One MCAP file, read from its start."""
+class _Scan:
+    """A bag file, read from its start; ``whole``: ``index`` read every channel first (the file then at its data)."""
 
-    def __init__(self, path: Path) -> None:
+    def __init__(self, path: Path, magic: bytes, not_one: str, index: Callable[[], bool]) -> None:
         self.path = path
-        self.schemas: dict[int, tuple[str, str, str]] = {}
         self.channels: dict[int, Channel] = {}
         self.f: BinaryIO = open(path, "rb")  # noqa: SIM115 -- closed by close()
         try:
             self.size = self.f.seek(0, 2)
             self.f.seek(0)
-            if self.f.read(8) != MAGIC:
-                raise McapCut("no MCAP magic at its start: not an MCAP file")
-            self.whole = self._summary()
-            self.f.seek(8)
+            if self.f.read(len(magic)) != magic:
+                raise McapCut(f"no {not_one}")
+            self.whole = index()
         except BaseException:
             self.f.close()
             raise
@@ -119,6 +110,14 @@ class McapScan:
         """Close the file."""
         self.f.close()
 
+
+class McapScan(_Scan):
+    """One MCAP file, read from its start."""
+
+    def __init__(self, path: Path) -> None:
+        self.schemas: dict[int, tuple[str, str, str]] = {}
+        super().__init__(path, MAGIC, "MCAP magic at its start: not an MCAP file", self._summary)
+
     def _summary(self) -> bool:
         """Read the summary's schemas and channels when the file ends as a whole MCAP does; False: it does not."""
         f = self.f
@@ -126,9 +125,8 @@ class McapScan:
             return False
         f.seek(self.size - 8 - 9 - 20)
         op, _length, start, _offsets, _crc, magic = struct.unpack("<BQQQI8s", f.read(37))
-        if magic != MAGIC or op != OP_FOOTER:
-            return False
-        if start:
+        whole = magic == MAGIC and op == OP_FOOTER
+        if whole and start:
             f.seek(start)
             summary = f.read(self.size - 8 - 29 - start)
             pos = 0
@@ -136,7 +134,8 @@ class McapScan:
                 op, length = _OPLEN.unpack_from(summary, pos)
                 self._record(op, summary[pos + 9:pos + 9 + length])
                 pos += 9 + length
-        return True
+        f.seek(8)
+        return whole
 
     def _record(self, op: int, body: bytes) -> None:
         """Take a schema or channel record."""
@@ -194,19 +193,15 @@ def _chunk_messages(data: bytes, other: Callable[[int, bytes], None]) -> Iterato
     buf = padded(data)
     starts: list[Any] = []
     pos = 0
-    tried = False
     while pos + 9 <= size:
         op, length = _OPLEN.unpack_from(data, pos)
-        if op == OP_MESSAGE and not tried:
-            tried = True  # once a chunk: records of one length from here to its end are found at once
-            run = _same_length(buf, pos, length, size)
-            if run is not None:
-                starts.append(run)
-                break
-        if op == OP_MESSAGE:
-            starts.append(np.array([pos], dtype=np.int64))
-        else:
+        if op != OP_MESSAGE:
             other(op, data[pos + 9:pos + 9 + length])
+        elif not starts and (run := _same_length(buf, pos, length, size)) is not None:
+            starts.append(run)  # the chunk's first message: records of one length from it to the end, found at once
+            break
+        else:
+            starts.append(np.array([pos], dtype=np.int64))
         pos += 9 + length
     if not starts:
         return
@@ -250,26 +245,11 @@ def _ros1_op(fields: dict[bytes, tuple[int, bytes]]) -> int:
     return value[0] if len(value) == 1 else -1
 
 
-class Ros1Scan:
+class Ros1Scan(_Scan):
     """One ROS 1 bag, read from its start."""
 
     def __init__(self, path: Path) -> None:
-        self.path = path
-        self.channels: dict[int, Channel] = {}
-        self.f: BinaryIO = open(path, "rb")  # noqa: SIM115 -- closed by close()
-        try:
-            self.size = self.f.seek(0, 2)
-            self.f.seek(0)
-            if self.f.read(len(ROS1_MAGIC)) != ROS1_MAGIC:
-                raise McapCut("no '#ROSBAG V2.0' at its start: not a ROS 1 bag")
-            self.whole = self._index()
-        except BaseException:
-            self.f.close()
-            raise
-
-    def close(self) -> None:
-        """Close the file."""
-        self.f.close()
+        super().__init__(path, ROS1_MAGIC, "'#ROSBAG V2.0' at its start: not a ROS 1 bag", self._index)
 
     def _record(self) -> tuple[int, dict[bytes, tuple[int, bytes]], int] | None:
         """The next record's (start, header fields, data length), the file at its data; None at the end."""

@@ -18,9 +18,8 @@ class BagEmit:
     """The frames sent during a replay, written as they come."""
 
     def __init__(self, path: Path) -> None:
-        self.path = path
         self._mcap: McapWriter | None = None
-        self._out: Any = None
+        self._out: Any
         self._channels: dict[bool, Any] = {}
         if path.suffix.lower() == ".mcap":
             self._out = self._mcap = McapWriter(path, profile="ros2")

@@ -278,9 +278,8 @@ _ROW_TYPES: dict[int, np.dtype] = {}
 
 
 def one_block(frame: Frame) -> Block:
-    """One frame as a block (a live frame on a quiet bus; :meth:`Block.of_frames` of one): its fields read at once,
-    its columns checked by construction, its id's columns and each small integer's shared, what the engine reads
-    of it (:attr:`Block.keys`, :attr:`Block.times`, :attr:`Block.ordered`...) known at once."""
+    """One frame as a block (a live frame on a quiet bus): fields read at once, columns checked by construction, the
+    id's and small integers' columns shared, what the engine reads (:attr:`Block.keys`, ...) known at once."""
     t, channel, cid, data, ext, fd, err, remote, brs, esi, dlc = frame
     width = len(data)
     if dlc < 0:

@@ -70,9 +70,8 @@ _LONG_ANY = (rb"\((\d{10,}\.\d+)\) ([^ ]+) (?:([RT]X) ([B-]) ([E-]) )?([0-9A-Fa-
 
 
 def _rewritten(raw: bytes) -> tuple[bytes, np.ndarray | None]:
-    """The block with one space between fields, none at a line's ends, an indented line led by
-    :data:`_INDENTED`, and candump -ta lines rewritten as -L (lines keep their places); with each line's
-    announced ``[len]`` (-1: none) when there are -ta lines."""
+    """The block with one space between fields, none at a line's ends, an indented line led by :data:`_INDENTED`,
+    -ta lines rewritten as -L (lines keep their places); each line's ``[len]`` (-1: none) when there are -ta lines."""
     if b"\t" in raw or _loose_spaces(raw):
         if b"\t" in raw:
             raw = re.sub(rb"(?m)^\t", bytes([_INDENTED]), raw)
@@ -126,10 +125,8 @@ def _compact(m: re.Match[bytes]) -> tuple[bytes, int]:
 
 
 def parse_block(raw: bytes, error_before: bool = False) -> Parsed:
-    """The frames of ``raw``, a block of whole lines each ending in a newline (``\\r\\n`` taken as one).
-
-    ``error_before``: the last frame before the block is an error frame (an indented first line is ``-e``'s).
-    """
+    """The frames of ``raw``, whole lines each ending in a newline (``\\r\\n`` taken as one); ``error_before``: the
+    last frame before the block is an error frame (an indented first line is ``-e``'s)."""
     if b"\r" in raw:
         raw = raw.replace(b"\r\n", b"\n").replace(b"\r", b"\n")
     spaced = b"\t" in raw or b"[" in raw  # rewritten first (-ta lines are spaced out): else only if lines fail
@@ -190,8 +187,7 @@ def _indented(at: np.ndarray, rows_line: np.ndarray, errors: np.ndarray, bad: np
 class _Columns:
     """The fields of the lines from ``start`` to ``end`` (their newline), found and checked: :attr:`ok`.
     ``whole`` (every line a frame's): one count of the block's non-hex bytes against what the fields account for
-    checks every id and payload at once. ``has_under``: the block has an "_". ``opening``: each line's first byte.
-    """
+    checks every id and payload at once. ``has_under``: the block has an "_". ``opening``: each line's first byte."""
 
     def __init__(self, b: np.ndarray, pad: np.ndarray, start: np.ndarray, end: np.ndarray, whole: bool,
                  has_under: bool, opening: np.ndarray) -> None:
@@ -359,8 +355,7 @@ class _Columns:
         return flags
 
     def _stamps(self, start: np.ndarray, close: np.ndarray, fixed: bool) -> np.ndarray:
-        """The timestamps (digits, a dot and digits, or digits alone, between "(" and ")") as :attr:`time_s`.
-
+        """The timestamps (digits, a dot and digits, or digits alone, between "(" and ")") as :attr:`time_s`;
         ``fixed``: every line's ")" is where the first line's is (every stamp as wide)."""
         n = start.size
         self.time_s = np.zeros(n, dtype=np.float64)

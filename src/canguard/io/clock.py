@@ -88,9 +88,8 @@ BOOT_ID_PATH = "/proc/sys/kernel/random/boot_id"
 
 
 class BootClock:
-    """Downtime a wall-clock step cannot fake (the I²t state file is stamped with boot id and time since boot):
-    ``CLOCK_BOOTTIME``'s within one boot (an NTP correction after boot is no hours of cooling), else the wall
-    clock's."""
+    """Downtime a wall-clock step cannot fake (the I²t state's stamp): ``CLOCK_BOOTTIME``'s within one boot (an NTP
+    correction after boot is no hours of cooling), else the wall clock's."""
 
     def __init__(self, boot_id_path: str = BOOT_ID_PATH) -> None:
         self._boot_id_path = boot_id_path

@@ -33,9 +33,8 @@ INVALID_PAYLOAD = "undecodable"
 
 
 class Sample(NamedTuple):
-    """One decoded value of a configured source signal: ``signal`` is its role in the source (``current``,
-    ``present``, a joint's ``name``); ``reason`` is empty for a valid value, else one of the ``INVALID_*`` above
-    (and ``value`` is nan)."""
+    """One decoded value: ``signal`` its role in the source (``current``, ``present``, a joint's ``name``);
+    ``reason`` empty when valid, else one of the ``INVALID_*`` above (and ``value`` nan)."""
 
     source: str
     signal: str

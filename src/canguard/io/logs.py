@@ -10,23 +10,12 @@ from pathlib import Path
 from canguard.errors import LogFormatError
 from canguard.io.bagopts import BAG_SUFFIXES, NEEDS, BagOptions, is_bag
 from canguard.io.block import frame_from_message
-from canguard.io.candump import CHUNK_CHARS, candump_blocks, format_candump_line, write_candump
+from canguard.io.candump import candump_blocks, format_candump_line, write_candump
 from canguard.io.logtypes import COMPRESSIONS, BadLine, Blocks, LogFrames, ReadStats
 from canguard.io.pycan import python_can_blocks
 
-__all__ = [
-    "CHUNK_CHARS",
-    "LOG_READERS",
-    "LOG_SUFFIXES",
-    "BadLine",
-    "LogFrames",
-    "ReadStats",
-    "format_candump_line",
-    "frame_from_message",
-    "log_format",
-    "read_log",
-    "write_candump",
-]
+__all__ = ["LOG_READERS", "LOG_SUFFIXES", "BadLine", "ReadStats", "format_candump_line", "frame_from_message",
+           "log_format", "read_log", "write_candump"]
 
 
 LOG_READERS: dict[str, str] = {
@@ -39,8 +28,8 @@ LOG_READERS: dict[str, str] = {
 LOG_SUFFIXES = tuple(LOG_READERS)
 """Every suffix :func:`read_log` reads (each may carry a compression on top: :data:`COMPRESSIONS`)."""
 
-_NEEDS = {"mf4": ("asammdf", "pip install 'python-can[mf4]'"), "rosbag": NEEDS, "zst": ("zstandard", "pip install "
-                                                                                          "zstandard")}
+_NEEDS = {"mf4": ("asammdf", "pip install 'python-can[mf4]'"), "rosbag": NEEDS,
+          "zst": ("zstandard", "pip install zstandard")}
 """Formats and compressions that need an optional dependency: (module, how to install it)."""
 
 
@@ -57,24 +46,15 @@ def log_format(path: str | Path) -> tuple[str, str]:
     found = LOG_READERS.get(suffix)
     if found is None:
         known = ", ".join(LOG_SUFFIXES)
-        raise LogFormatError(
-            f"{path}: unknown log format {(suffix or path.name)!r}: expected one of {known} "
-            f"(optionally + {' / '.join(COMPRESSIONS)})"
-        )
+        raise LogFormatError(f"{path}: unknown log format {(suffix or path.name)!r}: expected one of {known} "
+                             f"(optionally + {' / '.join(COMPRESSIONS)})")
     return found, compression
 
 
-def read_log(
-    path: str | Path,
-    *,
-    skip_bad: bool = False,
-    stats: ReadStats | None = None,
-    bag: BagOptions | None = None,
-) -> LogFrames:
-    """Stream the frames of a recorded log, in file order, a block at a time as the iterator is consumed. Path,
-    format and optional dependencies are checked now; every problem is a :class:`LogFormatError` naming the file
-    (a bad line or message: where and why, or counted in ``stats`` and skipped with ``skip_bad``). ``bag``: the
-    topics and stamps of a ROS bag."""
+def read_log(path: str | Path, *, skip_bad: bool = False, stats: ReadStats | None = None,
+             bag: BagOptions | None = None) -> LogFrames:
+    """Stream a log's frames a block at a time; path, format and dependencies checked now, every problem a
+    :class:`LogFormatError` naming the file (bad lines counted in ``stats`` with ``skip_bad``; ``bag``: ROS bags)."""
     p = Path(path)
     fmt, gz = log_format(p)  # gz: the compression ("" none)
     if not p.exists():

@@ -85,9 +85,8 @@ class BadLine(NamedTuple):
 
 @dataclass
 class ReadStats:
-    """What a reader saw, counted as the log is read (pass one to :func:`read_log`; counts add up over calls):
-    text ``lines`` (0 for binary formats), bad lines skipped (the first :data:`MAX_BAD_EXAMPLES` kept), times going
-    back or repeated, bytes on disk and read; for bags, frames timed by ``header`` stamp and by ``record`` time."""
+    """What a reader saw, added up over :func:`read_log` calls: text ``lines`` (0: binary), bad lines (the first
+    :data:`MAX_BAD_EXAMPLES` kept), times back or repeated, bytes, bag frames timed by ``header`` or ``record``."""
 
     path: str = ""
     format: str = ""

@@ -6,6 +6,7 @@ chunks zstd-compressed when ``zstandard`` is there.
 
 from __future__ import annotations
 
+import contextlib
 import struct
 import zlib
 from pathlib import Path
@@ -42,14 +43,6 @@ def _map(entries: dict[int, int], fmt: str) -> bytes:
     return struct.pack("<I", len(body)) + body
 
 
-def _compressor() -> tuple[str, Any]:
-    try:
-        import zstandard
-    except ImportError:
-        return "", None
-    return "zstd", zstandard.ZstdCompressor(level=1)
-
-
 class McapWriter:
     """An MCAP file being written: :meth:`schema`, :meth:`channel`, then messages; :meth:`close` ends it."""
 
@@ -66,7 +59,11 @@ class McapWriter:
         self._chunk_indexes: list[bytes] = []
         self._counts: dict[int, int] = {}
         self._times = (2**64 - 1, 0)
-        self._compression, self._zstd = _compressor()
+        self._compression, self._zstd = "", None
+        with contextlib.suppress(ImportError):
+            import zstandard
+
+            self._compression, self._zstd = "zstd", zstandard.ZstdCompressor(level=1)
 
     def schema(self, name: str, encoding: str, data: str) -> int:
         """Add a schema (``ros2msg``, ``jsonschema``, ...); its id."""

@@ -19,8 +19,6 @@ from canguard.errors import ConfigError
 if TYPE_CHECKING:
     from canguard.config.schema import Config
 
-__all__ = ["check_config_outputs", "check_output", "load_run_config", "output_problem", "outputs_in", "user_state_dir"]
-
 
 def _user(uid: int) -> str:
     """The name of user ``uid`` (its number when it has none, e.g. a systemd dynamic user that has gone)."""
@@ -120,21 +118,17 @@ def check_config_outputs(cfg: Config) -> None:
         raise ConfigError(problems)
 
 
-def outputs_in(cfg: Config, directory: Path) -> Config:
-    """``cfg`` with its event journal and I²t state file in ``directory``, their names kept (``run --state-dir``)."""
-    directory = Path(os.path.abspath(directory))
-    events = None if cfg.events is None else directory / cfg.events.name
-    state = cfg.state if cfg.state.file is None else dataclasses.replace(cfg.state,
-                                                                         file=directory / cfg.state.file.name)
-    return dataclasses.replace(cfg, events=events, state=state)
-
-
 def load_run_config(path: Path, state_dir: Path | None) -> Config:
-    """The config at ``path`` as ``canguard run`` runs it (and ``check`` judges it): outputs in ``state_dir`` if set."""
+    """The config at ``path`` as ``canguard run`` runs it (and ``check`` judges it): with ``state_dir``, its event
+    journal and I²t state file there, their names kept."""
     from canguard.config.loader import load_config
 
     cfg = load_config(path)
-    return cfg if state_dir is None else outputs_in(cfg, state_dir)
+    if state_dir is None:
+        return cfg
+    where = Path(os.path.abspath(state_dir))
+    state = cfg.state if cfg.state.file is None else dataclasses.replace(cfg.state, file=where / cfg.state.file.name)
+    return dataclasses.replace(cfg, events=None if cfg.events is None else where / cfg.events.name, state=state)
 
 
 def user_state_dir() -> Path:

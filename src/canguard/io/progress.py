@@ -17,8 +17,7 @@ _MIN_INTERVAL_S = 0.2  # redraw at most five times a second: a terminal write is
 class ProgressBar:
     """``[#####.....]  42%  19.5/46.5 MB  label`` on one line of ``stream``, redrawn in place on a terminal."""
 
-    def __init__(self, total_bytes: int, stream: TextIO | None = None, *, label: str = "",
-                 min_interval_s: float = _MIN_INTERVAL_S) -> None:
+    def __init__(self, total_bytes: int, stream: TextIO | None = None, *, label: str = "") -> None:
         self.total_bytes = int(total_bytes)
         self.stream: TextIO = sys.stderr if stream is None else stream
         self.label = label
@@ -26,7 +25,6 @@ class ProgressBar:
             self.enabled = bool(self.stream.isatty())
         except (AttributeError, ValueError, OSError):  # a closed or odd stream
             self.enabled = False
-        self.min_interval_s = min_interval_s
         self.position = 0
         self._last_draw = float("-inf")
 
@@ -36,7 +34,7 @@ class ProgressBar:
             return
         self.position = position
         now = time.monotonic()  # display only, not model time
-        if now - self._last_draw >= self.min_interval_s:
+        if now - self._last_draw >= _MIN_INTERVAL_S:
             self._last_draw = now
             self._draw()
 
@@ -60,8 +58,7 @@ class ProgressBar:
         """Draw the final state and end the line (once; nothing off a terminal)."""
         if self.enabled:
             self._draw()
-            if self.enabled:
-                self._write("\n")
+            self._write("\n")
             self.enabled = False
 
 

@@ -10,7 +10,7 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass, fields
 from itertools import islice
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -43,8 +43,7 @@ BLOCK = 4096
 """Raw messages taken at a time from a sqlite3 storage (an MCAP or ROS 1 block is one chunk)."""
 
 
-@dataclass(frozen=True)
-class Topic:
+class Topic(NamedTuple):
     """A topic read: its channel's index (:attr:`BagSource.channels`) and the layout of its messages."""
 
     lane: int
@@ -70,7 +69,7 @@ class BagSource:
 
     def failed(self, what: str, exc: BaseException) -> LogFormatError:
         """The error of a bag that could not be read (``what``: where and how far), naming the bag."""
-        why = exc.what if isinstance(exc, McapCut) else f"{type(exc).__name__}: {clip(str(exc))}"
+        why = str(exc) if isinstance(exc, McapCut) else f"{type(exc).__name__}: {clip(str(exc))}"
         return LogFormatError(f"{self.path}: not a readable {self.kind} ({what}): {why}")
 
     def open(self) -> None:
@@ -91,7 +90,7 @@ class BagSource:
             raise
         except McapCut as exc:
             self.close()
-            raise LogFormatError(f"{self.path}: not a {self.kind}: {exc.what}") from None
+            raise LogFormatError(f"{self.path}: not a {self.kind}: {exc}") from None
         except Exception as exc:  # rosbags raises its ReaderError, but also struct, yaml and OS errors on a cut bag
             self.close()
             raise self.failed("cut short, unindexed or not a bag; 0 frames were read", exc) from None
@@ -379,7 +378,7 @@ def _next(bag: BagSource, blocks: Iterator[tuple[Messages, dict[int, Topic]]],
     except LogFormatError:
         raise
     except McapCut as exc:
-        raise LogFormatError(f"{bag.path}: truncated {bag.kind}: {exc.what}; {st.frames} frames were read before "
+        raise LogFormatError(f"{bag.path}: truncated {bag.kind}: {exc}; {st.frames} frames were read before "
                              "the cut") from None
     except Exception as exc:  # a cut or damaged storage deep inside the readers
         raise bag.failed(f"cut or damaged; {st.frames} frames were read before it", exc) from None

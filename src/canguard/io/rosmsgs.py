@@ -90,9 +90,8 @@ class Field:
 
 @dataclass(frozen=True)
 class Layout:
-    """Where a CAN frame type's fields lie in one serialisation, from the *body* (the first byte after ``frame_id``,
-    rounded up to 4 in CDR). ``fixed``: bytes up to the end of the last fixed-size field; ``sequence``: the offset of
-    a trailing ``uint8`` sequence's length (-1: none)."""
+    """Where a frame type's fields lie from the *body* (after ``frame_id``, 4-aligned in CDR): ``fixed``: bytes to the
+    last fixed-size field's end; ``sequence``: the offset of a trailing ``uint8`` sequence's length (-1: none)."""
 
     msgtype: str
     cdr: bool

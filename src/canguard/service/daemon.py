@@ -16,7 +16,6 @@ import time
 import uuid
 from collections.abc import Iterable
 from pathlib import Path
-from types import FrameType
 from typing import Any
 
 import can
@@ -43,7 +42,8 @@ from canguard.service.systemd import Notifier, watchdog_hold
 log = logging.getLogger(__name__)
 
 SWITCH_INTERVAL_S = 0.0005
-"""GIL switch interval while the daemon runs (Python's default is 5 ms)."""
+"""GIL switch interval while the daemon runs: at Python's default 5 ms a frame a bus thread (or the monitor's)
+received could wait that long for the loop."""
 
 LIVE_SKEW_S = 0.5
 """A frame timestamp further than this from the daemon's clock is replaced by the receive time."""
@@ -52,8 +52,7 @@ OVERRUN_FLOOR_S = 0.05
 DRAIN = 512
 """Frames received after the first, at most, before the engine advances to now."""
 DRAIN_DIRECT = 32
-"""The same where the loop reads the sockets itself: a frame that trips waits for the reads after it in its batch
-(tens of microseconds each) before the engine sees it."""
+"""The same where the loop reads the sockets itself (a tripping frame waits for the reads after it in its batch)."""
 
 
 def guarding(cfg: Config) -> str:
@@ -64,19 +63,16 @@ def guarding(cfg: Config) -> str:
 
 
 def refuse_unguarded(cfg: Config) -> None:
-    """Under systemd (``NOTIFY_SOCKET`` set), refuse a config whose buses are all ``virtual``
-    (:class:`ConfigError`, exit 2): such a service would start, send READY=1 and feed the watchdog while it guards
-    no motor at all. ``simulation: true`` in the config says that this is intended (a bench)."""
+    """Under systemd, ConfigError for all-``virtual`` buses (READY=1 and a fed watchdog while guarding no motor),
+    unless the config says ``simulation: true`` (a bench)."""
     if not os.environ.get("NOTIFY_SOCKET") or cfg.simulation or not cfg.buses:
         return
     if all(b.interface == "virtual" for b in cfg.buses.values()):
         names = ", ".join(cfg.buses)
-        raise ConfigError(
-            f"{cfg.path}: buses: every bus ({names}) is interface: virtual, so this service would guard "
-            "no real bus while systemd reports it healthy. For the robot set interface: socketcan and "
-            "channel: can0 (see docs/deploy.md); to run a simulation as a service on purpose, add "
-            "'simulation: true' to the config"
-        )
+        raise ConfigError(f"{cfg.path}: buses: every bus ({names}) is interface: virtual, so this service would guard "
+                          "no real bus while systemd reports it healthy. For the robot set interface: socketcan and "
+                          "channel: can0 (see docs/deploy.md); to run a simulation as a service on purpose, add "
+                          "'simulation: true' to the config")
 
 
 class Daemon:
@@ -95,7 +91,7 @@ class Daemon:
         self.config_path = config_path
         self.state_dir = state_dir
         """``--state-dir``: the journal and the I²t state file go there, at start and at every reload."""
-        self.cfg: Config = cfg if cfg is not None else self.load()
+        self.cfg: Config = cfg if cfg is not None else load_run_config(config_path, state_dir)
         if self.refuse_virtual:
             refuse_unguarded(self.cfg)
         check_config_outputs(self.cfg)
@@ -160,22 +156,12 @@ class Daemon:
         """Per bus, the id keys of the frames received (:func:`~canguard.io.bus.receive_keys`; None: every frame)."""
         return receive_keys(cfg) if self.filters else {}
 
-    def load(self) -> Config:
-        """The config file as this daemon runs it (its outputs moved to :attr:`state_dir`, when set)."""
-        return load_run_config(self.config_path, self.state_dir)
-
     # -- signals ---------------------------------------------------------------------------
     def install_signals(self) -> None:
         """SIGTERM / SIGINT stop the daemon cleanly; SIGHUP reloads the config."""
-        signal.signal(signal.SIGTERM, self._on_term)
-        signal.signal(signal.SIGINT, self._on_term)
-        signal.signal(signal.SIGHUP, self._on_hup)
-
-    def _on_term(self, signum: int, _frame: FrameType | None) -> None:
-        self.request_stop(signal.Signals(signum).name)
-
-    def _on_hup(self, _signum: int, _frame: FrameType | None) -> None:
-        self._reload.set()
+        for signum in (signal.SIGTERM, signal.SIGINT):
+            signal.signal(signum, lambda num, _frame: self.request_stop(signal.Signals(num).name))
+        signal.signal(signal.SIGHUP, lambda _num, _frame: self._reload.set())
 
     def request_stop(self, reason: str = "stop requested") -> None:
         """Ask the loop to end (tests, the demo)."""
@@ -200,8 +186,6 @@ class Daemon:
         end = time.monotonic() + duration_s if duration_s is not None else math.inf
         receive = self.reader.receive
         batch = DRAIN_DIRECT if self.reader.direct else DRAIN + 1
-        # Python hands the GIL between threads every 5 ms by default: a frame received by a
-        # bus thread (or the monitor's) could wait that long for the loop. 0.5 ms keeps the tail short.
         previous_switch = sys.getswitchinterval()
         sys.setswitchinterval(SWITCH_INTERVAL_S)
         try:
@@ -256,9 +240,8 @@ class Daemon:
         self.notifier.status(f"{engine.status_line()}; {', '.join(fps)}; {guarding(self.cfg)}")
 
     def take_received(self, engine: Engine, items: list[tuple[str, can.Message, float]]) -> None:
-        """The messages received as one block in arrival order through :meth:`Engine.take` (each row's channel its
-        bus), cut before a frame whose wait starts or ends an overrun; a stamp further than :data:`LIVE_SKEW_S`
-        from now becomes the receive time."""
+        """The messages received, one block in arrival order into :meth:`Engine.take`, cut where a frame's wait starts
+        or ends an overrun; a stamp further than :data:`LIVE_SKEW_S` from now becomes the receive time."""
         mono = time.monotonic()
         now = self.clock.now()
         limit = self.overrun_limit_s
@@ -304,7 +287,7 @@ class Daemon:
         """Load the config and tree again; keep the running ones when the new ones are bad."""
         self.notifier.reloading()
         try:
-            cfg = self.load()
+            cfg = load_run_config(self.config_path, self.state_dir)  # its outputs in --state-dir, when given
             if dict(cfg.buses) != dict(self.cfg.buses):
                 raise CanguardError("buses changed: a bus change needs a restart (systemctl restart canguard)")
             new = self.build_engine(cfg, previous=self.engine)
@@ -335,8 +318,8 @@ class Daemon:
         return True
 
     def _send_refused(self, bus: str, label: str, origin: str, held: int) -> None:
-        """A frame the bus refused (full TX queue, bus-off) goes in the journal, as often as on stderr (``held``:
-        the refusals since): a stop frame that never reached the bus is what a safety engineer asks about first."""
+        """A frame the bus refused (full TX queue, bus-off) into the journal, as often as on stderr (``held``: the
+        refusals since): a stop frame that never reached the bus is what a safety engineer asks about first."""
         engine = getattr(self, "engine", None)
         if engine is not None:
             engine.journal.write({"event": "bus_error", "source": bus,
@@ -382,8 +365,7 @@ def journal_setup(engine: Engine, setup: Any) -> None:
 
 
 def overrun_limit(cfg: Config) -> float:
-    """How long a frame may wait between its arrival and the engine: the shortest ``max_age`` of the sources (a
-    frame that waited longer carries data the config already calls stale, judged as fresh)."""
+    """How long a frame may wait before the engine: the sources' shortest ``max_age`` (older data is stale)."""
     ages = [source.max_age_s for source in cfg.sources.values()]
     return max(OVERRUN_FLOOR_S, min(ages, default=LIVE_SKEW_S))
 
@@ -393,10 +375,9 @@ def tree_clients(root: py_trees.behaviour.Behaviour) -> set[uuid.UUID]:
     return {client.id() for node in root.iterate() for client in node.blackboards}
 
 
-def release_clients(ids: Iterable[uuid.UUID]) -> int:
-    """Remove these clients, and the keys no other client holds, from py_trees' global blackboard; how many keys."""
+def release_clients(ids: Iterable[uuid.UUID]) -> None:
+    """Remove these clients, and the keys no other client holds, from py_trees' global blackboard."""
     ids = set(ids)
-    gone = 0
     for key, meta in list(Blackboard.metadata.items()):
         if ids.isdisjoint(meta.read) and ids.isdisjoint(meta.write) and ids.isdisjoint(meta.exclusive):
             continue
@@ -406,7 +387,5 @@ def release_clients(ids: Iterable[uuid.UUID]) -> int:
         if not (meta.read or meta.write or meta.exclusive):
             del Blackboard.metadata[key]
             Blackboard.storage.pop(key, None)
-            gone += 1
     for client in ids:
         Blackboard.clients.pop(client, None)
-    return gone

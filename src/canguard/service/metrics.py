@@ -7,8 +7,6 @@ from typing import Any
 from canguard.config.monitor import parse_address as monitor_address
 from canguard.errors import CanguardError
 
-__all__ = ["TICK_BUCKETS_S", "Metrics", "MetricsUnavailable", "parse_address"]
-
 TICK_BUCKETS_S = (25e-6, 50e-6, 100e-6, 250e-6, 500e-6, 1e-3, 2.5e-3, 5e-3, 10e-3, 25e-3, 50e-3, 0.1)
 """Tick duration histogram buckets: a tick should take well under a millisecond."""
 
@@ -33,10 +31,8 @@ class Metrics:
         try:
             import prometheus_client as prom
         except ImportError as exc:
-            raise MetricsUnavailable(
-                "--metrics needs prometheus-client, which is not installed: "
-                "pip install 'canguard[metrics]' (or pip install prometheus-client)"
-            ) from exc
+            raise MetricsUnavailable("--metrics needs prometheus-client, which is not installed: "
+                                     "pip install 'canguard[metrics]' (or pip install prometheus-client)") from exc
         self._prom = prom
         self.registry = reg = prom.CollectorRegistry(auto_describe=True)
         self._received = prom.Counter("canguard_frames_received", "CAN frames read from the bus", ["bus"], registry=reg)

@@ -10,8 +10,6 @@ import socket
 import time
 from collections.abc import Iterable, Mapping
 
-__all__ = ["Notifier", "watchdog_hold"]
-
 log = logging.getLogger(__name__)
 
 
@@ -62,10 +60,9 @@ class Notifier:
         """``STOPPING=1``: the daemon is shutting down (SIGTERM received)."""
         return self.notify("STOPPING=1")
 
-    def reloading(self, monotonic_usec: int | None = None) -> bool:
+    def reloading(self) -> bool:
         """``RELOADING=1`` + ``MONOTONIC_USEC`` (systemd >= 253); :meth:`ready` once the reload is done."""
-        usec = time.monotonic_ns() // 1000 if monotonic_usec is None else int(monotonic_usec)
-        return self.notify("RELOADING=1", f"MONOTONIC_USEC={usec}")
+        return self.notify("RELOADING=1", f"MONOTONIC_USEC={time.monotonic_ns() // 1000}")
 
     def watchdog_interval_s(self) -> float | None:
         """``WatchdogSec=`` in seconds when systemd expects pings from this process, else None."""

@@ -40,8 +40,6 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
-__all__ = ["Monitor"]
-
 KEEP_EVENTS = 500
 """Journal events kept for a monitor process that is behind; past that the oldest are dropped (it says how many)."""
 START_TIMEOUT_S = 30.0
@@ -72,8 +70,7 @@ WANT_BLACKBOARD = b"B"
 
 
 class GilHoldingSocket:
-    """Non-blocking send and receive that keep the GIL (``socket.send`` releases it, and the loop then waits to get
-    it back; a non-blocking local socket returns within microseconds)."""
+    """Non-blocking send and receive that keep the GIL (``socket.send`` releases it, then the loop waits for it)."""
 
     _libc = ctypes.PyDLL(None, use_errno=True)
     _send = _libc.send

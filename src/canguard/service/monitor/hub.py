@@ -154,8 +154,6 @@ def task_document(tick: Tick, events: list[dict[str, Any]]) -> dict[str, Any]:
 def guard_document(guard: tuple[Any, ...]) -> dict[str, Any]:
     """One guard: name, source, value, unit, threshold, margin, status, role, kind, heat and reason."""
     name, role, kind, source, value, unit, threshold, heat_pct, status, reason = guard  # as the Monitor reads it
-    return {
-        "name": name, "source": source, "value": _number(value), "unit": unit, "threshold": _number(threshold),
-        "margin": _number(threshold - value), "status": status, "role": role, "kind": kind,
-        "heat_pct": _number(heat_pct), "reason": reason,
-    }
+    return {"name": name, "source": source, "value": _number(value), "unit": unit, "threshold": _number(threshold),
+            "margin": _number(threshold - value), "status": status, "role": role, "kind": kind,
+            "heat_pct": _number(heat_pct), "reason": reason}

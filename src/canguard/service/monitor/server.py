@@ -13,7 +13,6 @@ import signal
 import socket
 import sys
 from collections.abc import Iterator
-from types import FrameType
 from typing import Any
 
 from canguard.config.monitor import Address, parse_address
@@ -67,9 +66,8 @@ def servers(settings: dict[str, Any], hub: Hub) -> dict[str, Any]:
 
 
 def lower_priority() -> None:
-    """Put this process below the daemon, before any thread starts (they inherit it): ``SCHED_BATCH`` and
-    :data:`NICE` steps nicer, where the system allows. Not ``SCHED_IDLE``: that would starve the page whenever the
-    CPUs are busy, when a person most needs it."""
+    """``SCHED_BATCH`` and :data:`NICE` below the daemon, before any thread starts (they inherit it); not
+    ``SCHED_IDLE``: that would starve the page whenever the CPUs are busy, when a person most needs it."""
     with contextlib.suppress(OSError, AttributeError):  # AttributeError: not Linux
         os.sched_setscheduler(0, os.SCHED_BATCH, os.sched_param(0))
     with contextlib.suppress(OSError):
@@ -97,16 +95,12 @@ def messages(sock: socket.socket) -> Iterator[Any]:
             parts = []
 
 
-def _on_term(_signum: int, _frame: FrameType | None) -> None:
-    raise SystemExit(0)
-
-
 def main(argv: list[str] | None = None) -> int:
     """Serve the monitors for the daemon at the other end of socket ``argv[0]``; 0 when it ended, 2 on bad settings."""
     args = sys.argv[1:] if argv is None else argv
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGHUP, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, _on_term)
+    signal.signal(signal.SIGTERM, lambda _num, _frame: sys.exit(0))
     lower_priority()
     more_descriptors()
     logging.basicConfig(level=logging.WARNING, format="canguard monitor: %(levelname)s %(name)s: %(message)s")

@@ -98,9 +98,8 @@ def _head(code: int, headers: dict[str, str]) -> bytes:
 
 
 async def _first(*steps: Awaitable[T], timeout_s: float | None = None) -> T:
-    """Run ``steps`` until the first ends (its result or exception), the others cancelled; asyncio.TimeoutError
-    after ``timeout_s``. Not ``asyncio.wait_for``: cancelled just as its step fails, that leaves the step's
-    exception unread (and logged)."""
+    """Run ``steps`` until the first ends (its result or exception), the others cancelled; asyncio.TimeoutError after
+    ``timeout_s``. Not ``asyncio.wait_for``: cancelled as its step fails, it leaves that exception unread (logged)."""
     tasks = [asyncio.ensure_future(step) for step in steps]
     for task in tasks:
         task.add_done_callback(lambda t: t.cancelled() or t.exception())
