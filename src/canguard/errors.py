@@ -85,10 +85,6 @@ class ConfigError(CanguardError, ValueError):
         super().__init__(render_problems(self.located))
 
 
-class DbcError(CanguardError, ValueError):
-    """A DBC file that is missing or does not parse."""
-
-
 class TreeError(CanguardError, ValueError):
     """A behaviour tree that does not load: ``problems``, each ``file:line: node ...: what``, one per line."""
 
