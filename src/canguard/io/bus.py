@@ -311,8 +311,8 @@ class BusReader:
 
     def _drain_bus(self, name: str, limit: int, out: list[tuple[str, can.Message, float]]) -> None:
         """Append up to ``limit`` frames the kernel holds for bus ``name``; a failure closes the bus. System calls
-        are the cost: a dropped first frame ends the drain; after one frame taken a poll (cheaper than a ``recv(0)``
-        that finds none) asks for another; after two, ``recv(0)`` until none."""
+        are the cost: while fewer than two frames are taken a poll of the socket (cheaper than a ``recv(0)`` that
+        finds none, or than a wait) asks for another; after two, ``recv(0)`` until none."""
         bus = self._buses[name]
         assert bus is not None
         msgs: list[can.Message] = []
@@ -326,8 +326,6 @@ class BusReader:
                     break
                 if wants(keys, msg):
                     msgs.append(msg)
-                elif not msgs:
-                    break
                 if len(msgs) < 2 and not pending(0):  # a frame alone, the usual wake-up: no recv(0) that finds none
                     break
         except Exception as exc:  # the bus went away (or a backend bug): report, close, reopen later
