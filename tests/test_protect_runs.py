@@ -15,7 +15,7 @@ from tests.reference_models import RefHealth, RefHysteresis, RefI2t, RefInrush, 
 
 from canguard.config.schema import SignalRef, SourceConfig
 from canguard.protect import Hysteresis, InrushBlanking, LeakyI2t, SourceHealth, ThermalI2t, Threshold
-from canguard.protect.base import LatchedModel
+from canguard.protect.base import CHUNK, LatchedModel
 from canguard.protect.staleness import COUNTER, PRESENT
 
 REL = 1e-9
@@ -188,6 +188,32 @@ def test_runs_match_the_per_sample_reference(pair: tuple[str, Pair], stream: tup
     """Runs of one, one long run and a run split at random points all trip and recover where the reference does."""
     assert_ways_follow_the_reference(pair, stream, data, (("whole", False), ("ones", False), ("cuts", False),
                                                           ("cuts", True)))
+
+
+@st.composite
+def long_streams(draw: st.DrawFn) -> tuple[np.ndarray, np.ndarray]:
+    """Over three of the screen's chunks: a quiet current with bursts over the thresholds at drawn places (across
+    a chunk's edge among them), a repeated time, a gap and a not-a-number."""
+    n = 3 * CHUNK + draw(st.integers(0, 100))
+    rng = np.random.default_rng(draw(st.integers(0, 2**32 - 1)))
+    times = np.cumsum(np.full(n, 0.01))
+    values = rng.uniform(-3.0, 3.0, n)
+    for start in (CHUNK - 5, *draw(st.lists(st.integers(0, n - 1), min_size=1, max_size=4))):
+        values[start:start + draw(st.integers(1, 300))] = draw(st.sampled_from([15.0, -40.0, 11.0, 7.0]))
+    at = draw(st.integers(1, n - 2))
+    times[at] = times[at - 1]
+    times[at + 1:] += draw(st.sampled_from([0.0, 2.0]))
+    values[draw(st.integers(0, n - 1))] = math.nan
+    return times, values
+
+
+@settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(pair=pairs(), stream=long_streams(), data=st.data())
+def test_long_runs_match_the_per_sample_reference(pair: tuple[str, Pair], stream: tuple[np.ndarray, np.ndarray],
+                                                  data: st.DataObject) -> None:
+    """A run longer than the screen's chunk, whole or cut, edge by edge or not, trips and recovers where the
+    reference does (a quiet chunk taken whole, a busy one walked)."""
+    assert_ways_follow_the_reference(pair, stream, data, (("whole", False), ("whole", True), ("cuts", True)))
 
 
 @SETTINGS
