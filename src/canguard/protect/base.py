@@ -54,7 +54,11 @@ class ProtectionModel(ABC):
 
     @abstractmethod
     def advance(self, times: npt.ArrayLike, values: npt.ArrayLike, *, until_edge: bool = False) -> Run:
-        """Advance over a run of samples; where the tripped state changed (``until_edge``: stop after the first)."""
+        """Advance over a run of samples: ``times`` (s) and ``values`` (the signal's unit; |value| is taken), two
+        equal-length 1-D columns in arrival order (ValueError naming both shapes otherwise). The :class:`Run` says
+        where the tripped state changed and how many samples were taken (``until_edge``: up to the first edge).
+        A sample not finite is counted in ``rejected``, one older than the latest in ``out_of_order``; a repeated
+        time is a normal sample. Fed whole or split anywhere: the same edges and state."""
 
     @abstractmethod
     def mark(self) -> Any:
@@ -108,7 +112,7 @@ class LatchedModel(ProtectionModel):
         return self._tripped
 
     def advance(self, times: npt.ArrayLike, values: npt.ArrayLike, *, until_edge: bool = False) -> Run:
-        """Advance over a run of samples; see :mod:`canguard.protect.base` for the contract."""
+        """Advance over a run of samples (the contract: :meth:`ProtectionModel.advance`)."""
         if type(times) is tuple and len(times) == 1 == len(values):  # type: ignore[arg-type]  # a live frame's
             one = float(times[0])  # sample: the kernel, nothing built
             if not self._sample(one, float(values[0])):  # type: ignore[index,arg-type]
