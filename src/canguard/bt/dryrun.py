@@ -11,6 +11,7 @@ from py_trees.blackboard import Blackboard
 
 from canguard.bt.context import Context
 from canguard.bt.loader import Palette, load_tree
+from canguard.bt.wakeup import tick_once
 from canguard.io.clock import ManualClock
 
 
@@ -35,10 +36,11 @@ def dry_run(path: Path, ticks: int, dt: float, main: str | None = None, palette:
     ctx = Context(clock, {}, on_event=lambda event: print(f"canguard tree: {event.get('reason')}", file=sys.stderr))
     loaded = load_tree(path, ctx, main, palette)
     statuses = []
+    ctx.tree_start = 0.0  # the first tick's time
     for i in range(ticks):
         clock.set(i * dt)
         try:
-            ticked = loaded.tick_once(exactly_once=exactly_once)
+            ticked = tick_once(loaded, exactly_once=exactly_once)
         except Exception as exc:  # as the engine does: a tick that raises is a FAILURE, and says why
             print(f"canguard tree: tick {i + 1}: a node raised {type(exc).__name__}: {exc}", file=sys.stderr)
             statuses.append("FAILURE")

@@ -4,12 +4,12 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Protocol
+from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     import py_trees
 
-    from canguard.bt.context import Context
+    from canguard.bt.loaded import LoadedTree
 
 MAX_RETICKS = 100  # re-ticks of the root in one tick, unlike BT.CPP (docs/trees.md): the rest wait for the next
 
@@ -39,22 +39,12 @@ class WakeUpSignal:
         self.pending = self.pending or bool(due)
 
 
-class _Tree(Protocol):
-    """What :func:`tick_once` needs of a loaded tree."""
-
-    root: py_trees.behaviour.Behaviour
-    wake_up: WakeUpSignal
-    context: Context
-
-
 @dataclass(frozen=True)
 class Ticked:
     """What one :func:`tick_once` did."""
 
     status: py_trees.common.Status  # the root's, after the last tick (INVALID when SKIPPED)
     skipped: bool
-    reticks: int  # how many times the root was ticked again for a wake-up
-    capped: bool  # the re-ticks stopped at the bound with a wake-up pending
     reached: frozenset[py_trees.behaviour.Behaviour] | None  # collect=True: every node the ticks reached
 
 
@@ -68,7 +58,7 @@ def _tick_root(root: py_trees.behaviour.Behaviour, reached: set | None) -> None:
         reached.update(nodes)
 
 
-def tick_once(tree: _Tree, max_reticks: int = MAX_RETICKS, *, exactly_once: bool = False,
+def tick_once(tree: LoadedTree, max_reticks: int = MAX_RETICKS, *, exactly_once: bool = False,
               collect: bool = False) -> Ticked:
     """BT.CPP's ``tickOnce()``: tick the root, and again while it is RUNNING with a wake-up pending (at most
     ``max_reticks`` times, an ``error`` event at the first capped tick); ``exactly_once``: ``tickExactlyOnce()``."""
@@ -89,5 +79,5 @@ def tick_once(tree: _Tree, max_reticks: int = MAX_RETICKS, *, exactly_once: bool
         tree.context.record("error", node=root.name, reason=f"the tree kept waking itself up: {max_reticks} re-ticks "
                             "in one tick, the next tick goes on (BT.CPP's tickOnce would not have returned yet)")
     signal.capped = capped
-    return Ticked(root.status, bool(getattr(root, "skipped", False)), reticks, capped,
+    return Ticked(root.status, bool(getattr(root, "skipped", False)),
                   frozenset(reached) if reached is not None else None)
