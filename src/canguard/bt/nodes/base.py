@@ -205,9 +205,9 @@ class CanguardNode(PortsMixin, register=False):
         if issubclass(cls, py_trees.decorators.Decorator) and not getattr(cls.tick, "skip_aware", False):
             cls.tick = _skip_through(cls.tick)  # type: ignore[method-assign,assignment]
 
-    def __init__(self, *args: Any, context: Context | None = None, **kwargs: Any) -> None:
+    def __init__(self, *args: Any, context: Context, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
-        self._context = context
+        self.ctx = context  # the tree's context (clock, sources, sink, task, events)
         self._dynamic: frozenset[str] = frozenset()
         self._static: dict[str, Any] = {}
         self._wired: frozenset[str] = frozenset()
@@ -215,13 +215,6 @@ class CanguardNode(PortsMixin, register=False):
         self._bad_port = ""
         self.skipped = False  # the last tick returned SKIPPED
         self.wake_up = WakeUpSignal()  # the loader gives it the tree's (BT.CPP's setWakeUpInstance)
-
-    @property
-    def ctx(self) -> Context:
-        """The tree's context (clock, sources, sink, task, events)."""
-        if self._context is None:
-            raise RuntimeError(f"{self.name}: no context")
-        return self._context
 
     def setup_ports(self, port_remappings: dict | None = None, subtree_namespace: str = "/",
                     logger: PortsLogger | None = None) -> None:
