@@ -4,12 +4,12 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
 if TYPE_CHECKING:
     import py_trees
 
-    from canguard.bt.loaded import LoadedTree
+    from canguard.bt.context import Context
 
 MAX_RETICKS = 100  # re-ticks of the root in one tick, unlike BT.CPP (docs/trees.md): the rest wait for the next
 
@@ -39,6 +39,14 @@ class WakeUpSignal:
         self.pending = self.pending or bool(due)
 
 
+class _Tree(Protocol):
+    """What :func:`tick_once` needs of a loaded tree."""
+
+    root: py_trees.behaviour.Behaviour
+    wake_up: WakeUpSignal
+    context: Context
+
+
 @dataclass(frozen=True)
 class Ticked:
     """What one :func:`tick_once` did."""
@@ -58,7 +66,7 @@ def _tick_root(root: py_trees.behaviour.Behaviour, reached: set | None) -> None:
         reached.update(nodes)
 
 
-def tick_once(tree: LoadedTree, max_reticks: int = MAX_RETICKS, *, exactly_once: bool = False,
+def tick_once(tree: _Tree, max_reticks: int = MAX_RETICKS, *, exactly_once: bool = False,
               collect: bool = False) -> Ticked:
     """BT.CPP's ``tickOnce()``: tick the root, and again while it is RUNNING with a wake-up pending (at most
     ``max_reticks`` times, an ``error`` event at the first capped tick); ``exactly_once``: ``tickExactlyOnce()``."""
