@@ -526,11 +526,6 @@ class _Versioned(dict[str, Any]):
         super().__setitem__(key, value)
         self.versions[key] = self.versions.get(key, 0) + 1
 
-    def setdefault(self, key: str, default: Any = None) -> Any:
-        if key not in self:
-            self[key] = default
-        return self[key]
-
     def update(self, *args: Any, **kwargs: Any) -> None:
         for key, value in dict(*args, **kwargs).items():
             self[key] = value

@@ -66,10 +66,7 @@ class Parallel(CanguardNode, py_trees.composites.Parallel):
             self.finished.clear()
             self.current_child = None
             self.initialise()
-        n = len(self.children)
-        if not n:
-            yield end_as(self, SUCCESS)
-            return
+        n = len(self.children)  # at least one: the loader refuses a control node without children
         need_s, need_f = self.thresholds()
         all_needed = (self.port("success_count") or -1) < 0
         skipped = 0
