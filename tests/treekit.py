@@ -39,7 +39,7 @@ def tick(loaded: LoadedTree) -> Status:
     """Tick the root exactly once, BT.CPP's ``tickExactlyOnce()`` (``ctx.tree_start`` set at the first tick, as the
     engine does)."""
     if loaded.context.tree_start is None:
-        loaded.context.tree_start = loaded.context.now()
+        loaded.context.tree_start = loaded.context.clock.now()
     return tick_once(loaded, exactly_once=True).status
 
 

@@ -73,7 +73,7 @@ def tick_once(tree: _Tree, max_reticks: int = MAX_RETICKS, *, exactly_once: bool
     from py_trees.common import Status
 
     signal = tree.wake_up
-    signal.fire_due(tree.context.now())
+    signal.fire_due(tree.context.clock.now())
     reached: set | None = set() if collect else None
     root = tree.root
     _tick_root(root, reached)
