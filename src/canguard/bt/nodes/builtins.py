@@ -239,10 +239,6 @@ class _Branching(CanguardNode, py_trees.composites.Composite):
             return
         yield from follow(self, self.children[self.branch])  # BT.CPP returns the branch's status, SKIPPED too
 
-    def stop(self, new_status: py_trees.common.Status = INVALID) -> None:
-        halt_running(self.children)
-        super().stop(new_status)
-
 
 IfThenElse, WhileDoElse = node_types(_Branching, __name__, {
     "IfThenElse": {"DESCRIPTION": "first child decides: SUCCESS ticks the second, FAILURE the third (or fails); "
@@ -314,7 +310,6 @@ class _Switch(CanguardNode, py_trees.composites.Composite):
         self.running = index if self.status == RUNNING else -1
 
     def stop(self, new_status: py_trees.common.Status = INVALID) -> None:
-        halt_running(self.children)
         self.running = -1
         super().stop(new_status)
 
@@ -364,7 +359,6 @@ class ParallelAll(CanguardNode, py_trees.composites.Composite):
         yield end_as(self, FAILURE if failures >= count_of(self, "max_failures", 1) else SUCCESS)
 
     def stop(self, new_status: py_trees.common.Status = INVALID) -> None:
-        halt_running(self.children)
         if new_status == INVALID:
             self.finished.clear()
         super().stop(new_status)
@@ -424,7 +418,6 @@ class TryCatch(CanguardNode, py_trees.composites.Composite):
             halt_running(self.children[:-1])
             for _ in self.children[-1].tick():
                 pass
-        halt_running(self.children)
         self.index, self.in_catch = 0, False
         super().stop(new_status)
 

@@ -174,10 +174,8 @@ class Timeout(DecoratorNode):
                 self.wake_up.arm(self, self.deadline)  # BT.CPP: the timer wakes the tree up when it expires
             self.initialise()
         elif self.deadline is not None and now >= self.deadline:
-            if self.decorated.status == RUNNING:
-                self.decorated.stop(INVALID)
             self.feedback_message = "timed out"
-            yield end_as(self, FAILURE)
+            yield end_as(self, FAILURE)  # py_trees' Decorator.stop halts the running child
             return
         yield from self.decorated.tick()
         if self.decorated.status != RUNNING:
