@@ -51,13 +51,11 @@ class _Scripted(CanguardNode):
 
     SCRIPT_PORTS: tuple[str, ...] = ()
     USES_BOARD = True
-
-    def __init__(self, *args: Any, **kwargs: Any) -> None:
-        super().__init__(*args, **kwargs)
-        self.scripts: dict[str, ParsedScript] = {}
-        self.board = TreeBlackboard("/")
+    board: TreeBlackboard  # its subtree's scope, given by the loader
+    scripts: dict[str, ParsedScript]  # by port
 
     def bind(self) -> None:
+        self.scripts = {}
         for name in self.SCRIPT_PORTS:
             text = self.port(name)
             if text is None:
