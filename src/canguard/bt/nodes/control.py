@@ -327,21 +327,10 @@ class Profile(DecoratorNode):
         "count": port_info(int, "ticks measured since the last reset", required=False),
     }
 
-    def __init__(self, name: str, child: py_trees.behaviour.Behaviour, **kwargs: Any) -> None:
-        super().__init__(name=name, child=child, **kwargs)
-        self.reset_stats()
-
-    def reset_stats(self) -> None:
-        """Forget every measurement."""
-        self.last_ms = 0.0
-        self.total_ms = 0.0
-        self.max_ms = 0.0
-        self.count = 0
-
-    @property
-    def avg_ms(self) -> float:
-        """Mean duration since the last reset (ms); 0 before any tick."""
-        return self.total_ms / self.count if self.count else 0.0
+    last_ms = 0.0  # the measurements since the last reset (a halt)
+    avg_ms = 0.0
+    max_ms = 0.0
+    count = 0
 
     def tick(self) -> Any:
         if self.status != RUNNING:
@@ -352,13 +341,12 @@ class Profile(DecoratorNode):
         yield from nodes
         self.last_ms = ms
         self.count += 1
-        self.total_ms += ms
-        if ms > self.max_ms:
-            self.max_ms = ms
+        self.avg_ms += (ms - self.avg_ms) / self.count  # the running mean
+        self.max_ms = max(self.max_ms, ms)
         for name in self.OUTPUT_PORTS:
             self.write(name, getattr(self, name))  # written when wired
         yield end_as(self, self.decorated.status)
 
     def terminate(self, new_status: py_trees.common.Status) -> None:
-        if halted(self, new_status):
-            self.reset_stats()
+        if halted(self, new_status):  # forget every measurement
+            self.last_ms, self.avg_ms, self.max_ms, self.count = 0.0, 0.0, 0.0, 0
