@@ -23,6 +23,7 @@ from canguard.bt.nodes.actions import EmitStop, ExecuteTask, ResetStop, assign_r
 from canguard.bt.nodes.base import RUNNING, node_kind
 from canguard.config.schema import Config
 from canguard.errors import TreeError, quote
+from canguard.io.clock import ManualClock
 from canguard.protect.hysteresis import Hysteresis
 from canguard.protect.i2t import _I2tModel
 
@@ -40,8 +41,6 @@ class TreeReport:
 
 def context_for(cfg: Config) -> Context:
     """A context for ``cfg`` (sources, actions, stop frames) on a ManualClock at 0."""
-    from canguard.io.clock import ManualClock
-
     return Context(ManualClock(), cfg.sources, actions=cfg.actions, stop_frames=cfg.stop.frames)
 
 

@@ -26,6 +26,7 @@ from canguard.bt.nodes import BUILTIN_NODES, CanguardNode, ConfiguredAction, Gua
 from canguard.bt.nodes.base import CONDITIONS, install_conditions, node_kind, port_table, take_conditions
 from canguard.bt.scopes import SUBTREE, Inline, TreeBlackboard, subtree_ports, subtree_scopes
 from canguard.errors import TreeError, closest, quote
+from canguard.io.clock import ManualClock
 
 if TYPE_CHECKING:
     from canguard.bt.scripting.script import Script
@@ -732,8 +733,6 @@ def partial_tree_problems(partial: PartialConfig | None) -> list[str]:
     without being built; a source the config declares but got wrong is not reported again."""
     if partial is None or partial.tree is None:
         return []
-    from canguard.io.clock import ManualClock
-
     load = _Load(partial.tree.file, Context(ManualClock(), partial.sources, actions=partial.actions))
     load.source_check = "always" if partial.sources_ok else "never"
     load.unsure_sources = partial.declared_sources

@@ -64,7 +64,6 @@ class Parallel(CanguardNode, py_trees.composites.Parallel):
         if self.status != RUNNING:
             reset(self.children)
             self.finished.clear()
-            self.current_child = None
             self.initialise()
         n = len(self.children)  # at least one: the loader refuses a control node without children
         need_s, need_f = self.thresholds()
