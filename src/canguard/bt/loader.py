@@ -627,8 +627,8 @@ class _Load:
             if elem in self.private:  # a node of an inlined _autoremap subtree: its ports and _keys
                 board = board.inlined(self.private[elem])
                 Blackboard.storage.update({k: v for k, v in board.literals.items() if k not in Blackboard.storage})
-            if isinstance(node, CanguardNode) and node.USES_BOARD:
-                node.board = board  # type: ignore[attr-defined]
+            if isinstance(node, CanguardNode):
+                node.board = board
             install_conditions(node, self.conditions.get(elem, {}), board)
             readable = "/".join([*(p for p in parts[:-1] if p not in self.tokens), info.name])
             counts[readable] = k = counts.get(readable, 0) + 1

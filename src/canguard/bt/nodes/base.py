@@ -173,8 +173,7 @@ class CanguardNode(PortsMixin, register=False):
     """Input ports read once at load time: a ``{key}`` there is a load-time error."""
     KEY_PORTS: ClassVar[frozenset[str]] = frozenset()
     """Input ports that must be wired to a ``{key}``."""
-    USES_BOARD: ClassVar[bool] = False
-    """The loader gives the node its scope's ``board`` (:class:`~canguard.bt.scopes.TreeBlackboard`)."""
+    board: TreeBlackboard  # its scope's blackboard, given by the loader (scripts, SetBlackboard)
     UNTYPED_PORTS: ClassVar[frozenset[str]] = frozenset()
     """Ports of any type (BT.CPP's ``AnyTypeAllowed``): they neither fix nor check their entry's type."""
     CHOICES: ClassVar[Mapping[str, tuple[str, ...]]] = {}

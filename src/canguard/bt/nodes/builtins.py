@@ -38,7 +38,7 @@ from canguard.bt.nodes.base import (
     run_script,
     tick_child,
 )
-from canguard.bt.scopes import INT_TEXT, REAL_TEXT, TreeBlackboard
+from canguard.bt.scopes import INT_TEXT, REAL_TEXT
 from canguard.bt.scripting import ScriptError
 from canguard.bt.scripting.script import Script as ParsedScript
 from canguard.bt.scripting.script import convert_for_entry, entry_type
@@ -50,8 +50,6 @@ class _Scripted(CanguardNode):
     """A node with scripts in ports: parsed at bind, run against its subtree's blackboard."""
 
     SCRIPT_PORTS: tuple[str, ...] = ()
-    USES_BOARD = True
-    board: TreeBlackboard  # its subtree's scope, given by the loader
     scripts: dict[str, ParsedScript]  # by port
 
     def bind(self) -> None:
