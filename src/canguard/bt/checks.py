@@ -54,9 +54,8 @@ def load_config_tree(cfg: Config, palette: Palette | None = None) -> LoadedTree:
 def check_tree(cfg: Config, palette: Palette | None = None) -> TreeReport:
     """Load and validate the config's tree against the config (and ``--nodes`` palettes); TreeError on any problem."""
     loaded = load_config_tree(cfg, palette)  # binding checks every guard's topic_name against cfg.sources
-    count = sum(1 for _ in loaded.root.iterate())
-    head = (f"tree: {loaded.main_id} from {loaded.path} (BTCPP_format {loaded.format_version}), {count} nodes, "
-            f"reads {', '.join(sorted(loaded.context.read_sources)) or 'no source'}")
+    head = (f"tree: {loaded.main_id} from {loaded.path} (BTCPP_format {loaded.format_version}), "
+            f"{len(loaded.nodes)} nodes, reads {', '.join(sorted(loaded.context.read_sources)) or 'no source'}")
     require_guard_coverage(loaded)
     unread = [n for n in cfg.sources if n not in loaded.context.read_sources]
     return TreeReport(f"{head}\n{render_text(loaded.root)}", [

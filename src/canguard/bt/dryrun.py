@@ -49,9 +49,9 @@ def dry_run(path: Path, ticks: int, dt: float, main: str | None = None, palette:
             for node in loaded.root.iterate():  # every script that failed in the tick: where, the script, why
                 error = getattr(node, "script_error", None)
                 if error:
-                    info = loaded.nodes.get(node.id)
-                    where = f"{info.file}:{info.line}: " if info is not None else ""
-                    print(f"canguard tree: tick {i + 1}: {where}node {node.name}: script {error}", file=sys.stderr)
+                    info = loaded.nodes[node.id]  # every node of a loaded tree has one
+                    print(f"canguard tree: tick {i + 1}: {info.file}:{info.line}: node {node.name}: script {error}",
+                          file=sys.stderr)
                     node.script_error = None  # type: ignore[attr-defined]
         statuses.append("SKIPPED" if ticked.skipped else ticked.status.name)
     return {"ticks": statuses, "blackboard": root_blackboard()}
