@@ -72,13 +72,6 @@ def count_of(node: py_trees.behaviour.Behaviour, port: str, default: int) -> int
     return max(len(node.children) + value + 1, 0) if value < 0 else value
 
 
-def halt_running(children: Iterable[py_trees.behaviour.Behaviour]) -> None:
-    """Halt every one of ``children`` that is RUNNING."""
-    for child in children:
-        if child.status == RUNNING:
-            child.stop(INVALID)
-
-
 def reset(children: Iterable[py_trees.behaviour.Behaviour]) -> None:
     """Every one of ``children`` back to IDLE (BT.CPP's ``resetChildren``: a new run starts from IDLE)."""
     for child in children:

@@ -29,7 +29,6 @@ from canguard.bt.nodes.base import (
     count_of,
     end_as,
     follow,
-    halt_running,
     halted,
     node_types,
     outcome,
@@ -411,7 +410,9 @@ class TryCatch(CanguardNode, py_trees.composites.Composite):
 
     def stop(self, new_status: py_trees.common.Status = INVALID) -> None:
         if halted(self, new_status) and not self.in_catch and self.port("catch_on_halt"):
-            halt_running(self.children[:-1])
+            for child in self.children[:-1]:  # the running try halted, then the catch child ticked once
+                if child.status == RUNNING:
+                    child.stop(INVALID)
             for _ in self.children[-1].tick():
                 pass
         self.index, self.in_catch = 0, False
