@@ -808,8 +808,9 @@ class TestEmitStreams:
         from canguard.config.loader import load_config
         from canguard.engine.core import Engine
         from canguard.engine.gate import LogSink
+        from canguard.io.candump import write_candump
         from canguard.io.clock import ManualClock
-        from canguard.io.logs import read_log, write_candump
+        from canguard.io.logs import read_log
 
         emit = tmp_path / "emit.log"
         code, _, err = run(data["spike"], "-c", data["cfg"], "--emit", emit)

@@ -742,7 +742,7 @@ class BlockCuts:
 
 def sim_lines(seconds: float, channel: str, scenarios: list[str], seed: int) -> list[tuple[float, str]]:
     """(t, candump -L line) of a simulated robot on ``channel``."""
-    from canguard.io.logs import format_candump_line
+    from canguard.io.candump import format_candump_line
     from canguard.sim import SimRobot
 
     robot = SimRobot(str(DBC), channel=channel, scenarios=scenarios, seed=seed)

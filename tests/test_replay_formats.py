@@ -15,16 +15,11 @@ from hypothesis import strategies as st
 
 from canguard.errors import LogFormatError
 from canguard.io import candump
+from canguard.io.block import frame_from_message
+from canguard.io.candump import format_candump_line, write_candump
 from canguard.io.frame import Frame
-from canguard.io.logs import (
-    BadLine,
-    ReadStats,
-    format_candump_line,
-    frame_from_message,
-    log_format,
-    read_log,
-    write_candump,
-)
+from canguard.io.logs import ReadStats, log_format, read_log
+from canguard.io.logtypes import BadLine
 from canguard.io.progress import ProgressBar, wrap_progress
 
 T0 = 1547073727.670704

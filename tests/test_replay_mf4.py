@@ -33,9 +33,10 @@ import pytest
 
 import canguard.io.pycan
 from canguard.config.loader import load_config
-from canguard.io.block import FLAG_ERROR, FLAG_FD, FLAG_REMOTE, Block
+from canguard.io.block import FLAG_ERROR, FLAG_FD, FLAG_REMOTE, Block, frame_from_message
+from canguard.io.candump import format_candump_line
 from canguard.io.frame import Frame
-from canguard.io.logs import ReadStats, format_candump_line, frame_from_message, read_log
+from canguard.io.logs import ReadStats, read_log
 from checkout import SRC
 from test_replay_columns import (
     DEFAULT_CHUNK,

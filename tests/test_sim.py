@@ -348,7 +348,7 @@ class TestReceive:
         robot.receive(_cmd(db, "Axis3_Set_Axis_State", 0.5, Axis_Requested_State=1))
         assert robot.drives[3].state == AXIS_STATE_IDLE and robot.drives[3].errors == 0
         list(robot.frames(0.05))
-        assert abs(robot.current_a(3)) < 1e-6
+        assert abs(robot.current(robot.drives[3], robot._now)) < 1e-6
 
 
 class TestWriteLog:

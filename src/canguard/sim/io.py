@@ -17,8 +17,9 @@ from typing import Any, TextIO
 
 import can
 
+from canguard.io.block import frame_from_message
+from canguard.io.candump import write_candump
 from canguard.io.frame import Frame
-from canguard.io.logs import frame_from_message, write_candump
 from canguard.sim.robot import SimRobot
 
 log = logging.getLogger(__name__)

@@ -159,10 +159,6 @@ class SimRobot:
             self._seq += 1
             heapq.heappush(self._cmds, (t, self._seq, frame))
 
-    def current_a(self, axis: int) -> float:
-        """The noise-free Iq of ``axis`` at the current time, in amps."""
-        return self.current(self.drives[axis], self._now)
-
     def period_s(self, kind: str) -> float:
         """The period of a periodic message kind (``"BMS_Status"``, ``"Get_Iq"``, ...)."""
         return 1.0 / self.rates_hz[kind]
