@@ -35,10 +35,6 @@ class ManualClock:
         """Set the time, backwards included (tests only)."""
         self._now = float(t)
 
-    def advance(self, dt: float) -> None:
-        """Move forward by ``dt`` seconds (ignored when negative)."""
-        self.advance_to(self._now + dt)
-
     def advance_to(self, t: float) -> None:
         """Move forward to ``t``; a ``t`` in the past is ignored."""
         self._now = max(self._now, t)

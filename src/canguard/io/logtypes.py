@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import io
 import math
-from collections.abc import Callable, Generator, Iterator
+from collections.abc import Callable, Generator, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -105,7 +105,7 @@ Blocks = Generator[tuple[Block | None, int | None], None, str]
 """A reader's blocks (None: none this time) with the position on disk; returns what was read (`` on /can``)."""
 
 
-class LogFrames(Iterator[Frame]):
+class LogFrames(Iterable[Frame]):
     """The frames of one log (:func:`read_log`): frame by frame, or by :meth:`chunks`; ``progress`` follows it."""
 
     def __init__(self, path: Path, stats: ReadStats, read: Callable[[], Blocks]) -> None:
@@ -113,17 +113,13 @@ class LogFrames(Iterator[Frame]):
         self.stats = stats
         self.progress: ProgressBar | None = None
         self._chunks = self._counted(read)
-        self._frames: Iterator[Frame] = (frame for block in self._chunks for frame in block.frames())
 
     def chunks(self) -> Iterator[Block]:
         """The same frames a block at a time (:class:`~canguard.io.block.Block`)."""
         return self._chunks
 
     def __iter__(self) -> Iterator[Frame]:
-        return self._frames
-
-    def __next__(self) -> Frame:
-        return next(self._frames)
+        return (frame for block in self._chunks for frame in block.frames())
 
     def _counted(self, read: Callable[[], Blocks]) -> Iterator[Block]:
         """The reader's blocks, counted in :attr:`stats` as they pass; a log without a frame a LogFormatError."""

@@ -5,7 +5,6 @@
 
 from __future__ import annotations
 
-import contextlib
 import gzip
 import io
 import logging
@@ -13,7 +12,7 @@ import threading
 import time
 from collections.abc import Callable
 from os import PathLike
-from typing import Any, TextIO
+from typing import Any
 
 import can
 
@@ -28,19 +27,16 @@ _SLEEP_MIN_S = 0.001  # frames due closer than this are sent at once: batching b
 _RECV_EVERY = 16  # in fast (non-realtime) mode, poll the bus for commands every N frames
 
 
-def _open_text(path: str | PathLike[str], stack: contextlib.ExitStack) -> TextIO:
-    """Open for writing; ``.gz`` is gzip'd with a zero mtime so the bytes depend on content only."""
-    if str(path).endswith(".gz"):
-        raw = stack.enter_context(open(path, "wb"))  # noqa: SIM115
-        gz = stack.enter_context(gzip.GzipFile(filename="", mode="wb", fileobj=raw, mtime=0))
-        return stack.enter_context(io.TextIOWrapper(gz, encoding="ascii", newline="\n"))
-    return stack.enter_context(open(path, "w", encoding="ascii", newline="\n"))
-
-
 def write_log(path: str | PathLike[str], duration_s: float, **robot_kwargs: Any) -> int:
-    """Simulate ``duration_s`` seconds of ``SimRobot(**robot_kwargs)`` into a candump -L file; the frames written."""
-    with contextlib.ExitStack() as stack:  # the replay reader's own writer: read_log gives these frames back
-        return write_candump(SimRobot(**robot_kwargs).frames(duration_s), _open_text(path, stack))
+    """Simulate ``duration_s`` seconds of ``SimRobot(**robot_kwargs)`` into a candump -L file (``.gz``: gzip'd with a
+    zero mtime, so the bytes depend on content only); the frames written."""
+    frames = SimRobot(**robot_kwargs).frames(duration_s)  # the replay reader's own writer: read_log gives them back
+    if str(path).endswith(".gz"):
+        with (open(path, "wb") as raw, gzip.GzipFile(filename="", mode="wb", fileobj=raw, mtime=0) as gz,
+              io.TextIOWrapper(gz, encoding="ascii", newline="\n") as out):
+            return write_candump(frames, out)
+    with open(path, "w", encoding="ascii", newline="\n") as out:
+        return write_candump(frames, out)
 
 
 def to_message(frame: Frame) -> can.Message:
