@@ -77,7 +77,7 @@ def data(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     out = {"cfg": make_config(d / "cfg"), "cfg2": make_config(d / "cfg2", extra_bus=True)}
     for name, scenarios, seed in (("spike", ["spike"], 1), ("normal", ["normal"], 2)):
         out[name] = d / f"{name}.log"
-        write_log(out[name], DURATION_S, db=str(DBC), scenarios=scenarios, seed=seed)
+        write_log(out[name], DURATION_S, db=cantools.database.load_file(DBC), scenarios=scenarios, seed=seed)
     return out
 
 

@@ -370,10 +370,10 @@ class TestWriteLog:
     def test_gzip_logs_are_deterministic_too(self, db: cantools.database.Database, tmp_path: Path,
                                              monkeypatch: pytest.MonkeyPatch) -> None:
         """A ``.gz`` path writes gzip whose bytes depend only on the arguments, not on when it was written."""
-        write_log(tmp_path / "a.log.gz", 1.0, db=str(DBC))
+        write_log(tmp_path / "a.log.gz", 1.0, db=cantools.database.load_file(DBC))
         an_hour_later = time.time() + 3600.0
         monkeypatch.setattr(time, "time", lambda: an_hour_later)  # a gzip header with a wall-clock mtime would differ
-        write_log(tmp_path / "b.log.gz", 1.0, db=str(DBC))
+        write_log(tmp_path / "b.log.gz", 1.0, db=cantools.database.load_file(DBC))
         assert (tmp_path / "a.log.gz").read_bytes() == (tmp_path / "b.log.gz").read_bytes()
 
     def test_python_can_reads_the_log_back(self, db: cantools.database.Database, tmp_path: Path) -> None:

@@ -5,6 +5,7 @@ Blocks are parsed by :func:`canguard.io.candump_np.parse_block`; a bad line is n
 
 from __future__ import annotations
 
+import io
 from collections.abc import Iterable
 from pathlib import Path
 from typing import Any, TextIO
@@ -24,12 +25,47 @@ from canguard.io.logtypes import (
     MAX_BAD_EXAMPLES,
     BadLine,
     Blocks,
-    CrLines,
     ReadStats,
-    _Bad,
-    decompress_errors,
     open_decompressed,
 )
+
+
+class _Bad(Exception):
+    """Raised by the line parsers; carries the reason only (the caller adds file:line)."""
+
+    def __init__(self, reason: str) -> None:
+        super().__init__(reason)
+        self.reason = reason
+
+
+class CrLines:
+    """A binary log whose lines end in CR, LF or CRLF, read with each ending as LF (latin-1, universal newlines)."""
+
+    def __init__(self, f: Any) -> None:
+        self._text = io.TextIOWrapper(f, encoding="latin-1", newline=None)
+
+    def read(self, size: int = -1) -> bytes:
+        return self._text.read(size).encode("latin-1")
+
+    def readline(self, size: int = -1) -> bytes:
+        return self._text.readline(size).encode("latin-1")
+
+    def close(self) -> None:
+        self._text.close()
+
+
+def decompress_errors() -> tuple[type[BaseException], ...]:
+    """What reading through a decompressor may raise on data that is not what its suffix says."""
+    import lzma
+    import zlib
+
+    errors: tuple[type[BaseException], ...] = (OSError, EOFError, ValueError, zlib.error, lzma.LZMAError)
+    try:
+        import zstandard
+    except ImportError:
+        return errors
+    return (*errors, zstandard.ZstdError)
+
 
 CHUNK_CHARS = 1 << 20
 """Bytes per chunk (~22,000 -L lines); twice as many make the parser slower (its passes outgrow the caches)."""

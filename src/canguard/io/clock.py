@@ -87,13 +87,11 @@ class BootClock:
     """Downtime a wall-clock step cannot fake (the I²t state's stamp): ``CLOCK_BOOTTIME``'s within one boot (an NTP
     correction after boot is no hours of cooling), else the wall clock's."""
 
-    def __init__(self, boot_id_path: str = BOOT_ID_PATH) -> None:
-        self._boot_id_path = boot_id_path
-
-    def boot_id(self) -> str | None:
+    @staticmethod
+    def boot_id() -> str | None:
         """This boot's id, None where the kernel does not tell."""
         try:
-            with open(self._boot_id_path, encoding="ascii") as f:
+            with open(BOOT_ID_PATH, encoding="ascii") as f:
                 return f.read().strip() or None
         except OSError:
             return None

@@ -46,35 +46,6 @@ def open_decompressed(raw: Any, compression: str) -> Any:
     return raw
 
 
-class CrLines:
-    """A binary log whose lines end in CR, LF or CRLF, read with each ending as LF (latin-1, universal newlines)."""
-
-    def __init__(self, f: Any) -> None:
-        self._text = io.TextIOWrapper(f, encoding="latin-1", newline=None)
-
-    def read(self, size: int = -1) -> bytes:
-        return self._text.read(size).encode("latin-1")
-
-    def readline(self, size: int = -1) -> bytes:
-        return self._text.readline(size).encode("latin-1")
-
-    def close(self) -> None:
-        self._text.close()
-
-
-def decompress_errors() -> tuple[type[BaseException], ...]:
-    """What reading through a decompressor may raise on data that is not what its suffix says."""
-    import lzma
-    import zlib
-
-    errors: tuple[type[BaseException], ...] = (OSError, EOFError, ValueError, zlib.error, lzma.LZMAError)
-    try:
-        import zstandard
-    except ImportError:
-        return errors
-    return (*errors, zstandard.ZstdError)
-
-
 class BadLine(NamedTuple):
     """One malformed line: 1-based line number, why it is bad, and its text."""
 
@@ -152,11 +123,3 @@ class LogFrames(Iterable[Frame]):
         if st.frames == before:
             skipped = f" ({st.bad_lines} bad lines skipped)" if st.bad_lines else ""
             raise LogFormatError(f"{self.path}: empty log: no frames{where}{skipped}")
-
-
-class _Bad(Exception):
-    """Raised by the line parsers; carries the reason only (the caller adds file:line)."""
-
-    def __init__(self, reason: str) -> None:
-        super().__init__(reason)
-        self.reason = reason

@@ -13,7 +13,6 @@ import math
 import random
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
-from os import PathLike
 
 import cantools.database
 
@@ -80,14 +79,9 @@ class SimRobot:
     """A deterministic simulated robot: N ODrive CANSimple axes and a BMS on one bus (messages as ``dbc/robot.dbc``);
     ``scenarios``: ``name`` or ``name@offset_s``. ValueError for a bad scenario, axis count or missing message."""
 
-    def __init__(self, db: cantools.database.Database | str | PathLike[str], *, axes: int = 4, seed: int = 0,
+    def __init__(self, db: cantools.database.Database, *, axes: int = 4, seed: int = 0,
                  scenarios: Sequence[str] = ("normal",), channel: str = "can0", start_t: float = 1_700_000_000.0,
                  rates_hz: Mapping[str, float] | None = None) -> None:
-        if not isinstance(db, cantools.database.Database):
-            loaded = cantools.database.load_file(str(db))
-            if not isinstance(loaded, cantools.database.Database):
-                raise ValueError(f"{db}: not a DBC database")
-            db = loaded
         if isinstance(scenarios, str):
             scenarios = (scenarios,)
         if not 1 <= axes <= 63:
