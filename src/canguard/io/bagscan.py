@@ -93,7 +93,6 @@ class _Scan:
     """A bag file, read from its start; ``whole``: ``index`` read every channel first (the file then at its data)."""
 
     def __init__(self, path: Path, magic: bytes, not_one: str, index: Callable[[], bool]) -> None:
-        self.path = path
         self.channels: dict[int, Channel] = {}
         self.f: BinaryIO = open(path, "rb")  # noqa: SIM115 -- closed by close()
         try:
