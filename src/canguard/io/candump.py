@@ -232,11 +232,9 @@ def candump_blocks(p: Path, gz: str, skip_bad: bool, st: ReadStats) -> Blocks:
                 line = bad[0]
                 before = 0 if block is None else int(np.searchsorted(parsed.rows_line, line))
                 if block is not None and before:
-                    st.lines += line
                     yield block.select(slice(0, before)), None
                 text_of = _line(text, line)
                 raise LogFormatError(f"{p}:{lineno + line + 1}: {why_bad(text_of)}: {quote(text_of)}")
-            st.lines += parsed.lines
             st.bad_lines += len(bad)
             for line in bad[:max(0, MAX_BAD_EXAMPLES - len(st.bad_examples))]:
                 text_of = _line(text, line)

@@ -64,8 +64,6 @@ def read_log(path: str | Path, *, skip_bad: bool = False, stats: ReadStats | Non
         if needs is not None and importlib.util.find_spec(needs[0]) is None:
             raise LogFormatError(f"{p}: reading {what} needs {needs[0]}: {needs[1]}")
     st = stats if stats is not None else ReadStats()
-    st.path = str(p)
-    st.format = fmt + (f".{gz}" if gz else "")
     try:
         size = sum(f.stat().st_size for f in p.iterdir()) if p.is_dir() else p.stat().st_size
     except OSError as exc:

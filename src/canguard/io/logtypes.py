@@ -56,19 +56,15 @@ class BadLine(NamedTuple):
 
 @dataclass
 class ReadStats:
-    """What a reader saw, added up over :func:`read_log` calls: text ``lines`` (0: binary), bad lines (the first
-    :data:`MAX_BAD_EXAMPLES` kept), times back or repeated, bytes, bag frames timed by ``header`` or ``record``."""
+    """What a reader saw, added up over :func:`read_log` calls: frames, bad lines (the first :data:`MAX_BAD_EXAMPLES`
+    kept), times back or repeated, bytes on disk, bag frames timed by ``header`` or ``record``."""
 
-    path: str = ""
-    format: str = ""
-    lines: int = 0
     frames: int = 0
     bad_lines: int = 0
     bad_examples: list[BadLine] = field(default_factory=list)
     backwards_timestamps: int = 0
     repeated_timestamps: int = 0
     bytes_total: int = 0
-    bytes_read: int = 0
     stamps: dict[str, int] = field(default_factory=dict)
 
 
@@ -113,10 +109,8 @@ class LogFrames(Iterable[Frame]):
                     st.frames += block.n
                     last_t = float(block.time_s[-1])
                     yield block
-                if position is not None:
-                    st.bytes_read = position
-                    if self.progress is not None:
-                        self.progress.update(position)
+                if position is not None and self.progress is not None:
+                    self.progress.update(position)
         finally:
             if self.progress is not None:
                 self.progress.close()
