@@ -22,8 +22,6 @@ from canguard.io.logtypes import (
     CANFD_BRS,
     CANFD_ESI,
     CANFD_LENGTHS,
-    MAX_BAD_EXAMPLES,
-    BadLine,
     Blocks,
     ReadStats,
     open_decompressed,
@@ -236,9 +234,6 @@ def candump_blocks(p: Path, gz: str, skip_bad: bool, st: ReadStats) -> Blocks:
                 text_of = _line(text, line)
                 raise LogFormatError(f"{p}:{lineno + line + 1}: {why_bad(text_of)}: {quote(text_of)}")
             st.bad_lines += len(bad)
-            for line in bad[:max(0, MAX_BAD_EXAMPLES - len(st.bad_examples))]:
-                text_of = _line(text, line)
-                st.bad_examples.append(BadLine(lineno + line + 1, why_bad(text_of), text_of))
             lineno += parsed.lines
             error_last = parsed.error_last
             yield block, raw.tell()

@@ -7,7 +7,7 @@ import math
 from collections.abc import Callable, Generator, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import Any
 
 from canguard.errors import LogFormatError
 from canguard.io.block import Block
@@ -16,9 +16,6 @@ from canguard.io.progress import ProgressBar
 
 COMPRESSIONS = (".gz", ".xz", ".zst")
 """Compressed logs: any format may carry one of these on top (``robot.log.xz``)."""
-
-MAX_BAD_EXAMPLES = 5
-"""How many bad lines :class:`ReadStats` keeps as examples."""
 
 CAN_ERR_FLAG = 0x20000000
 CAN_EFF_MASK = 0x1FFFFFFF
@@ -46,22 +43,13 @@ def open_decompressed(raw: Any, compression: str) -> Any:
     return raw
 
 
-class BadLine(NamedTuple):
-    """One malformed line: 1-based line number, why it is bad, and its text."""
-
-    lineno: int
-    reason: str
-    text: str
-
-
 @dataclass
 class ReadStats:
-    """What a reader saw, added up over :func:`read_log` calls: frames, bad lines (the first :data:`MAX_BAD_EXAMPLES`
-    kept), times back or repeated, bytes on disk, bag frames timed by ``header`` or ``record``."""
+    """What a reader saw, added up over :func:`read_log` calls: frames, bad lines skipped, times back or repeated,
+    bytes on disk, bag frames timed by ``header`` or ``record``."""
 
     frames: int = 0
     bad_lines: int = 0
-    bad_examples: list[BadLine] = field(default_factory=list)
     backwards_timestamps: int = 0
     repeated_timestamps: int = 0
     bytes_total: int = 0
