@@ -446,11 +446,10 @@ class TestRunOnBus:
         states = [m.data[4] for m in received if m.arbitration_id == hb_id and m.timestamp > estop_at + 0.1]
         assert states and set(states) == {AXIS_STATE_IDLE}
 
-    def test_stop_event_ends_a_fast_run_early(self, db: cantools.database.Database) -> None:
-        """realtime=False sends as fast as the bus takes; a set stop_event ends the run at once."""
+    def test_stop_event_ends_a_run_at_once(self, db: cantools.database.Database) -> None:
+        """A set stop_event ends the run before its first frame."""
         channel = f"sim-{uuid.uuid4().hex}"
         with can.Bus(interface="virtual", channel=channel) as bus:
-            assert run_on_bus(bus, 0.2, realtime=False, db=db, scenarios=["errorburst"], seed=1) > 500
             stop = threading.Event()
             stop.set()
             assert run_on_bus(bus, 10.0, stop_event=stop, db=db) == 0

@@ -24,7 +24,6 @@ from canguard.sim.robot import SimRobot
 log = logging.getLogger(__name__)
 
 _SLEEP_MIN_S = 0.001  # frames due closer than this are sent at once: batching beats oversleeping
-_RECV_EVERY = 16  # in fast (non-realtime) mode, poll the bus for commands every N frames
 
 
 def write_log(path: str | PathLike[str], duration_s: float, **robot_kwargs: Any) -> int:
@@ -59,7 +58,7 @@ def _pace(bus: can.BusABC, due: float, answer: Callable[[can.Message | None], No
             return
 
 
-def run_on_bus(bus: can.BusABC, duration_s: float, *, realtime: bool = True, stop_event: threading.Event | None = None,
+def run_on_bus(bus: can.BusABC, duration_s: float, *, stop_event: threading.Event | None = None,
                robot: SimRobot | None = None, **robot_kwargs: Any) -> int:
     """Run ``robot`` (or ``SimRobot(**robot_kwargs)``) on ``bus`` for ``duration_s`` seconds, answering the bus'
     frames; the frames sent. Error frames go only on software buses; a refused send is logged and skipped."""
@@ -78,13 +77,10 @@ def run_on_bus(bus: can.BusABC, duration_s: float, *, realtime: bool = True, sto
             robot.receive(frame_from_message(msg, channel)._replace(t=sim0 + (time.monotonic() - wall0)))
             msg = bus.recv(0)
 
-    for n, frame in enumerate(robot.frames(duration_s)):
+    for frame in robot.frames(duration_s):
         if stop_event is not None and stop_event.is_set():
             break
-        if realtime:
-            _pace(bus, wall0 + (frame.t - sim0), answer, stop_event)
-        elif n % _RECV_EVERY == 0:
-            answer(bus.recv(0))
+        _pace(bus, wall0 + (frame.t - sim0), answer, stop_event)
         if frame.is_error_frame and not send_errors:
             continue
         try:
