@@ -275,10 +275,10 @@ def _line(raw: bytes, k: int) -> str:
     return _as_text(raw).split("\n")[k]
 
 
-def format_candump_line(frame: Frame, default_channel: str = "can0") -> str:
+def format_candump_line(frame: Frame) -> str:
     """One candump -L line for ``frame``, no newline; ValueError for an id out of range or a channel with spaces."""
-    channel = frame.channel or default_channel
-    if not channel or channel.split() != [channel]:
+    channel = frame.channel or "can0"
+    if channel.split() != [channel]:
         raise ValueError(f"channel {channel!r} cannot be written to a candump log (empty or has whitespace)")
     cid = frame.arbitration_id
     if frame.is_error_frame:
@@ -303,10 +303,10 @@ def format_candump_line(frame: Frame, default_channel: str = "can0") -> str:
     return f"({frame.t:.6f}) {channel} {id_text}#{body}"
 
 
-def write_candump(frames: Iterable[Frame], out: TextIO, default_channel: str = "can0") -> int:
+def write_candump(frames: Iterable[Frame], out: TextIO) -> int:
     """Write ``frames`` to ``out`` as a candump -L log (one line each); return how many were written."""
     count = 0
     for frame in frames:
-        out.write(format_candump_line(frame, default_channel) + "\n")
+        out.write(format_candump_line(frame) + "\n")
         count += 1
     return count
