@@ -49,15 +49,14 @@ class TestErrorsNameTheParameter:
 
 
 class TestCounters:
-    def test_rejected_and_out_of_order_count_each_sample(self) -> None:
+    def test_samples_not_finite_or_older_are_ignored(self) -> None:
         m = Threshold(10.0)
-        assert m.since is None and m.rejected == 0 and m.out_of_order == 0
         step(m, 1.0, 5.0)
         step(m, math.nan, 6.0)
         step(m, math.inf, 6.0)
-        step(m, 1.0, 4.0)
-        step(m, 1.0, 3.0)
-        assert (m.rejected, m.out_of_order) == (2, 2)
+        step(m, 2.0, 4.0)
+        step(m, 3.0, 3.0)
+        assert (m.last_t, m.snapshot().value) == (5.0, 1.0)
         assert m.snapshot().since is None  # never tripped
 
     def test_inrush_counts_every_start(self) -> None:
@@ -67,14 +66,14 @@ class TestCounters:
             starts.append(b.observe(a, t))
         assert b.starts == 2 and starts.count(True) == 2
 
-    def test_source_health_counts(self) -> None:
+    def test_source_health_ignores_older_samples(self) -> None:
         h = SourceHealth(SourceConfig("c", "current", "can0", (ref("current"),), 0.5))
         observe(h, Sample("c", "current", 1.0, 1.0))
         observe(h, Sample("c", "current", math.nan, 1.1, "nan"))
         observe(h, Sample("c", "current", math.nan, 1.2, "nan"))
         observe(h, Sample("c", "current", 1.0, 0.5))
         observe(h, Sample("c", "current", 1.0, 0.4))
-        assert (h.invalid_samples, h.out_of_order, h.samples) == (2, 2, 5)
+        assert (h.latest_t("current"), h.value("current"), h.reason(1.2)) == (1.2, 1.0, "nan")
 
 
 def ref(role: str, minimum: float | None = None, maximum: float | None = None) -> SignalRef:
@@ -166,7 +165,7 @@ class TestReloadCarries:
         new = Threshold(20.0)
         new.carry_from(old)
         step(new, 1.0, 4.0)
-        assert new.out_of_order == 1 and new.last_t == 5.0
+        assert new.last_t == 5.0 and new.snapshot().value == 1.0
 
     def test_inrush_starts_and_a_new_blanking_carry_over(self) -> None:
         old = Hysteresis(10.0, 5.0, inrush=InrushBlanking(2.0, 0.5))

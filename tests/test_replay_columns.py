@@ -117,7 +117,6 @@ def engine_state(engine: Engine) -> dict[str, Any]:
     st = engine.stats
     health = {
         name: {
-            "samples": h.samples, "invalid_samples": h.invalid_samples, "out_of_order": h.out_of_order,
             "latest_t": h._latest_t, "invalid": h._invalid, "value": h._value, "valid_t": h._valid_t,
             "last_reason": h._last_reason,
         }
@@ -125,7 +124,6 @@ def engine_state(engine: Engine) -> dict[str, Any]:
     }
     models = [
         {"node": g.node, "role": g.role, "snapshot": repr(g.model.snapshot()),
-         "out_of_order": g.model.out_of_order, "rejected": g.model.rejected,
          "last_t": getattr(g.model, "last_t", None)}
         for g in engine.guards()
     ]
