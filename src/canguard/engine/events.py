@@ -60,9 +60,6 @@ class EventJournal:
         self.path: Path | None = None if path is None else Path(path)
         self.max_bytes = int(max_bytes)
         self.backups = backups
-        self.lines = 0  # events accepted by :meth:`write` (also when ``path`` is None)
-        self.errors = 0  # disk errors (each logged; only the first of a run at WARNING)
-        self.dropped = 0  # lines that overflowed the in-memory backlog
         self._fd: int | None = None
         self._size = 0
         self._dirty = False
@@ -70,7 +67,6 @@ class EventJournal:
         self._pending: deque[bytes] = deque()
         self._torn = False
         self._torn_at = 0
-        self.to_stderr = 0  # lines that went to stderr instead of the file
         self._failing = False
         self._lock = threading.Lock()
         if self.path is not None:
@@ -176,7 +172,7 @@ class EventJournal:
         self._torn = False
 
     def _failed(self, exc: OSError, what: str) -> None:
-        self.errors += 1
+        """A disk error: logged (only the first of a run at WARNING); the lines wait in memory."""
         level = logging.DEBUG if self._failing else logging.WARNING
         log.log(level, "event journal %s: %s failed: %s (lines kept in memory)", self.path, what, exc)
         self._failing = True
@@ -200,14 +196,12 @@ class EventJournal:
         with self._lock:
             if self._closed:
                 raise ValueError("write to a closed EventJournal")
-            self.lines += 1
             if self.path is None:
                 return
             self._pending.append(line)
             if len(self._pending) > _PENDING_MAX:
                 # The backlog is full: the oldest line leaves memory for stderr (the systemd journal).
                 self._spill([self._pending.popleft()], "the in-memory backlog is full")
-                self.dropped += 1
             try:
                 self._drain()
             except OSError as exc:
@@ -280,8 +274,7 @@ class EventJournal:
                 self._spill(lines, "closing while the file refuses them")
 
     def _spill(self, lines: list[bytes], why: str) -> None:
-        """Lines that cannot reach the file go to stderr (the systemd journal), whole and counted."""
-        self.to_stderr += len(lines)
+        """Lines that cannot reach the file go to stderr (the systemd journal), whole, with their count."""
         try:
             sys.stderr.write(f"canguard: event journal {self.path}: {len(lines)} line(s) not written to the file "
                              f"({why}); here they are:\n")
@@ -290,11 +283,6 @@ class EventJournal:
             sys.stderr.flush()
         except (OSError, ValueError):
             log.error("event journal %s: %d line(s) lost (%s; stderr refused them too)", self.path, len(lines), why)
-
-    @property
-    def pending(self) -> int:
-        """Lines waiting in memory because the disk refused them."""
-        return len(self._pending)
 
     def __enter__(self) -> EventJournal:
         return self
