@@ -291,8 +291,8 @@ class TestMore:
         old.end_tick(0.6, False)
         new = TaskGate(TaskConfig(0.02, TASK), cfg, rec, health={"axis0": h}, on_event=rec.on_event)
         new.adopt(old)
-        assert (new.state, new.stop_since, new.stop_reason, new.inhibits, new.withheld, new.stops) == (
-            TaskGate.STOPPED, 0.5, "bms stale", {"source bms": "bms stale"}, 1, 1)
+        assert (new.state, new.stop_since, new.stop_reason, new.inhibits, new.stops) == (
+            TaskGate.STOPPED, 0.5, "bms stale", {"source bms": "bms stale"}, 1)
         assert new.next_deadline() == pytest.approx(0.55)  # the stop repeat, carried
         new.service(0.7)
         assert rec.named("escalate")  # the confirmation was still pending: carried too
