@@ -99,8 +99,6 @@ class HeatStore:
         self._saved_stamp: object = None
         self.clock = clock
         self._last_save_t: float | None = None
-        self.saves = 0
-        """Successful saves so far."""
 
     def load(self, now: float) -> None:
         """Read the state file once (later calls do nothing); ``now`` is the start time, for the log."""
@@ -171,7 +169,6 @@ class HeatStore:
             raise StateFileError(f"cannot encode I²t state for {self.path}: {exc}") from exc
         _atomic_write(self.path, data)
         self._last_save_t = now
-        self.saves += 1
 
     def next_save_t(self, period_s: float) -> float:
         """From when :meth:`maybe_save` saves again (-inf: at its next call; inf: never, no file)."""
