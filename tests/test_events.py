@@ -224,14 +224,6 @@ class TestEventJournal:
                     j.write(_trip(run * 20 + i))
         assert len(rotated_events(path)) == 60
 
-    def test_backups_limit_is_opt_in(self, tmp_path: Path) -> None:
-        """With backups=2 only the two newest rotated files are kept."""
-        path = tmp_path / "events.jsonl"
-        with EventJournal(path, max_bytes=300, backups=2) as j:
-            for i in range(40):
-                j.write(_trip(i))
-        assert [p.name for p in journal_files(path)] == ["events.jsonl.2", "events.jsonl.1", "events.jsonl"]
-
     def test_line_larger_than_max_bytes_is_still_written(self, tmp_path: Path) -> None:
         """An event bigger than max_bytes gets a file of its own instead of being cut or lost."""
         path = tmp_path / "events.jsonl"
@@ -258,11 +250,9 @@ class TestEventJournal:
             j.write({"event": "exit"})
 
     def test_bad_arguments_are_refused(self, tmp_path: Path) -> None:
-        """A non-positive max_bytes or backups count, a negative or NaN sync interval, is refused at construction."""
+        """A non-positive max_bytes, a negative or NaN sync interval, is refused at construction."""
         with pytest.raises(ValueError, match="max_bytes"):
             EventJournal(tmp_path / "e", max_bytes=0)
-        with pytest.raises(ValueError, match="backups"):
-            EventJournal(tmp_path / "e", backups=0)
         for bad in (-0.1, math.nan):
             with pytest.raises(ValueError, match="sync_interval_s"):
                 EventJournal(tmp_path / "e", sync_interval_s=bad)

@@ -34,7 +34,7 @@ _PENDING_MAX = 10_000
 
 
 class EventJournal:
-    """Appends events to a JSON-lines file, rotated at ``max_bytes``; ``backups`` None keeps every rotated file.
+    """Appends events to a JSON-lines file, rotated at ``max_bytes`` (every rotated file is kept).
 
     ``path`` None only counts. Thread-safe (receive threads report ``bus_error``). Disk errors never raise out
     of :meth:`write` or :meth:`flush`, so a full disk cannot stop the guard: the lines wait in memory for the
@@ -46,20 +46,16 @@ class EventJournal:
         self,
         path: Path | str | None,
         max_bytes: int = DEFAULT_MAX_BYTES,
-        backups: int | None = None,
         *,
         sync_in_background: bool = False,
         sync_interval_s: float = SYNC_INTERVAL_S,
     ) -> None:
         if max_bytes <= 0:
             raise ValueError(f"max_bytes must be > 0, got {max_bytes}")
-        if backups is not None and backups < 1:
-            raise ValueError(f"backups must be None (keep all) or >= 1, got {backups}")
         if not sync_interval_s >= 0:
             raise ValueError(f"sync_interval_s must be >= 0, got {sync_interval_s}")
         self.path: Path | None = None if path is None else Path(path)
         self.max_bytes = int(max_bytes)
-        self.backups = backups
         self._fd: int | None = None
         self._size = 0
         self._dirty = False
@@ -125,11 +121,6 @@ class EventJournal:
         for i in range(n - 1, 0, -1):
             os.replace(self._backup(i), self._backup(i + 1))
         os.replace(self.path, self._backup(1))
-        if self.backups is not None:
-            i = self.backups + 1
-            while self._backup(i).exists():
-                self._backup(i).unlink()
-                i += 1
         self._fsync_dir()
         self._open()
 
