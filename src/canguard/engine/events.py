@@ -36,7 +36,7 @@ _PENDING_MAX = 10_000
 class EventJournal:
     """Appends events to a JSON-lines file, rotated at ``max_bytes`` (every rotated file is kept).
 
-    ``path`` None only counts. Thread-safe (receive threads report ``bus_error``). Disk errors never raise out
+    ``path`` None writes nothing. Thread-safe (receive threads report ``bus_error``). Disk errors never raise out
     of :meth:`write` or :meth:`flush`, so a full disk cannot stop the guard: the lines wait in memory for the
     next call that succeeds (whole or not at all); the backlog's overflow and lines left at :meth:`close` go
     to stderr (the systemd journal).
