@@ -109,7 +109,7 @@ class TestBoundaries:
         assert not b.observe(0.0, 0.0)
         assert not b.observe(math.nan, 1.0) and not b.observe(5.0, math.inf)
         assert b.observe(5.0, 0.5)  # below since 0.0, for exactly inrush_time: a start, at a repeated time too
-        assert b.blanking(0.5) and b.blanking(0.99) and not b.blanking(1.0)
+        assert b.threshold(1.0, 0.5) is None and b.threshold(1.0, 0.99) is None and b.threshold(1.0, 1.0) == 1.0
 
     def test_a_start_needs_the_full_quiet_time(self) -> None:
         b = InrushBlanking(2.0, 0.5)

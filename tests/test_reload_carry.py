@@ -128,10 +128,10 @@ class TestModels:
         for i in range(60):
             step(old, 1.0, i * 0.01)  # motor stopped for 0.6 s
         step(old, 50.0, 0.6)  # a start: the inrush window opens at 0.6 s
-        assert old.inrush is not None and old.inrush.blanking(0.7)
+        assert old.inrush is not None and old.inrush.threshold(35.0, 0.7) == 80.0
         new = Hysteresis(36.0, 25.0, recover_after_s=1.0, inrush=InrushBlanking(2.0, 0.5, 80.0))
         new.carry_from(old)
-        assert new.inrush is not None and new.inrush.blanking(0.7)
+        assert new.inrush is not None and new.inrush.threshold(36.0, 0.7) == 80.0
         assert not step(new, 70.0, 0.7)  # inside the window: 80 A in force
         old2 = Hysteresis(35.0, 25.0, recover_after_s=1.0)
         step(old2, 50.0, 0.0)

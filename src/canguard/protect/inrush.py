@@ -62,11 +62,7 @@ class InrushBlanking:
         """The running state: (quiet since, window start, latest time, starts so far)."""
         return self._below_since, self._window_start, self._last_t, self.starts
 
-    def blanking(self, t: float) -> bool:
-        """True when ``t`` lies inside a blanking window."""
-        w = self._window_start
-        return w is not None and w <= t < w + self.inrush_time_s - TIME_EPS_S
-
     def threshold(self, normal: float, t: float) -> float | None:
-        """The overcurrent threshold in force at ``t``: ``normal``, or ``inrush_threshold_a`` in a window."""
-        return self.inrush_threshold_a if self.blanking(t) else normal
+        """The overcurrent threshold in force at ``t``: ``normal``, or ``inrush_threshold_a`` in a blanking window."""
+        w = self._window_start
+        return self.inrush_threshold_a if w is not None and w <= t < w + self.inrush_time_s - TIME_EPS_S else normal
