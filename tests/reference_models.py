@@ -68,7 +68,6 @@ class RefInrush:
     below_since: float | None = None
     window_start: float | None = None
     last_t: float | None = None
-    starts: int = 0
 
     def observe(self, a: float, t: float) -> bool:
         """One |I| sample; True on a motor start."""
@@ -83,7 +82,6 @@ class RefInrush:
         self.below_since = None
         if started:
             self.window_start = t
-            self.starts += 1
         return started
 
     def threshold(self, normal: float, t: float) -> float | None:

@@ -173,7 +173,6 @@ def assert_same_state(model: LatchedModel, ref: Any) -> None:
         assert close(over, ref.over_since) and close(under, ref.under_since)
         if model.inrush is not None:
             assert close(model.inrush.running()[1], ref.inrush.window_start)
-            assert model.inrush.starts == ref.inrush.starts
 
 
 SETTINGS = settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -263,7 +262,7 @@ def test_inrush_run_matches_per_sample() -> None:
     want = [i for i in range(3000) if ref.observe(float(a[i]), float(t[i]))]
     helper = InrushBlanking(2.0, 0.1, 20.0)
     assert np.flatnonzero(helper.advance(t, a)).tolist() == want
-    assert helper.starts == ref.starts and helper.running()[1] == ref.window_start
+    assert helper.running()[1] == ref.window_start
 
 
 def health_run(health: SourceHealth, role: str, times: Any, values: Any, until_edge: bool = False,
