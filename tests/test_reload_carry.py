@@ -19,6 +19,7 @@ from canguard.config.loader import load_config
 from canguard.config.schema import Config
 from canguard.engine.core import Engine
 from canguard.engine.gate import LogSink, TaskGate
+from canguard.io.block import one_block
 from canguard.io.clock import ManualClock
 from canguard.protect.hysteresis import Hysteresis
 from canguard.protect.i2t import LeakyI2t, ThermalI2t
@@ -76,7 +77,7 @@ class Reloadable:
         end = self.t + seconds
         while self.t + step_s <= end + 1e-9:
             self.t += step_s
-            self.engine.feed("main", bms_frame(self.t, current_a))
+            self.engine.take("main", one_block(bms_frame(self.t, current_a)))
         self.engine.advance(self.t)
 
 

@@ -27,6 +27,7 @@ from canguard.config.schema import Config
 from canguard.engine.core import Engine
 from canguard.engine.gate import LogSink
 from canguard.errors import ConfigError
+from canguard.io.block import one_block
 from canguard.io.clock import ManualClock
 from canguard.io.frame import Frame
 from checkout import REPO
@@ -93,7 +94,7 @@ class Run:
     def feed(self, frames: list[Frame]) -> None:
         """Feed frames on bus main."""
         for f in frames:
-            self.engine.feed("main", f)
+            self.engine.take("main", one_block(f))
 
     def until(self, end_s: float, frames: Callable[[float], list[Frame]] | None = None, step_s: float = 0.01) -> None:
         """Up to T0 + ``end_s``: ``frames(seconds)`` every ``step_s`` (or only ticks), then advance to it."""
