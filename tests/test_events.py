@@ -10,6 +10,7 @@ import signal
 import subprocess
 import sys
 import textwrap
+from contextlib import closing
 from pathlib import Path
 from typing import Any
 
@@ -115,7 +116,7 @@ class TestEventJournal:
     def test_lines_read_back_in_order(self, tmp_path: Path) -> None:
         """Events written come back from read_events in the same order with the same fields."""
         path = tmp_path / "events.jsonl"
-        with EventJournal(path) as j:
+        with closing(EventJournal(path)) as j:
             for i in range(3):
                 j.write(_trip(i))
         got = read_events(path)
@@ -125,9 +126,9 @@ class TestEventJournal:
     def test_opening_appends_never_truncates(self, tmp_path: Path) -> None:
         """A daemon restart keeps the previous run's events and appends after them."""
         path = tmp_path / "events.jsonl"
-        with EventJournal(path) as j:
+        with closing(EventJournal(path)) as j:
             j.write({"event": "start", "t": 1.0})
-        with EventJournal(path) as j:
+        with closing(EventJournal(path)) as j:
             j.write({"event": "start", "t": 2.0})
         assert [e["t"] for e in read_events(path)] == [1.0, 2.0]
 
@@ -135,7 +136,7 @@ class TestEventJournal:
         """Two runs writing the same events produce byte-identical files."""
         evs = [_trip(i) for i in range(50)] + [{"event": "stop", "t": 5.0, "node": "Guard", "frames": 2}]
         for name in ("a", "b"):
-            with EventJournal(tmp_path / name) as j:
+            with closing(EventJournal(tmp_path / name)) as j:
                 for e in evs:
                     j.write(dict(reversed(list(e.items()))))  # insertion order must not matter
         assert (tmp_path / "a").read_bytes() == (tmp_path / "b").read_bytes()
@@ -206,7 +207,7 @@ class TestEventJournal:
     def test_rotation_keeps_every_line(self, tmp_path: Path) -> None:
         """Rotating by size splits the journal into numbered files that together hold every line in order."""
         path = tmp_path / "events.jsonl"
-        with EventJournal(path, max_bytes=1000) as j:
+        with closing(EventJournal(path, max_bytes=1000)) as j:
             for i in range(100):
                 j.write(_trip(i))
         files = journal_files(path)
@@ -219,7 +220,7 @@ class TestEventJournal:
         """A restarted daemon rotates on top of existing backups without overwriting any of them."""
         path = tmp_path / "events.jsonl"
         for run in range(3):
-            with EventJournal(path, max_bytes=500) as j:
+            with closing(EventJournal(path, max_bytes=500)) as j:
                 for i in range(20):
                     j.write(_trip(run * 20 + i))
         assert len(rotated_events(path)) == 60
@@ -227,7 +228,7 @@ class TestEventJournal:
     def test_line_larger_than_max_bytes_is_still_written(self, tmp_path: Path) -> None:
         """An event bigger than max_bytes gets a file of its own instead of being cut or lost."""
         path = tmp_path / "events.jsonl"
-        with EventJournal(path, max_bytes=50) as j:
+        with closing(EventJournal(path, max_bytes=50)) as j:
             j.write({"event": "start", "t": 0.0})
             j.write({"event": "error", "t": 1.0, "reason": "x" * 200})
         assert [e["event"] for e in rotated_events(path)] == ["start", "error"]

@@ -275,9 +275,3 @@ class EventJournal:
         except (OSError, ValueError):
             log.error("event journal %s: %d line(s) lost (%s; stderr refused them too)", self.path, len(lines), why)
 
-    def __enter__(self) -> EventJournal:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
