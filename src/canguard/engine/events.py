@@ -1,8 +1,8 @@
 """The event journal: guard transitions, stops, stale sources... as JSON lines.
 
 A line is whole and survives a crash of the daemon once :meth:`EventJournal.write` returns (one ``os.write``
-on an ``O_APPEND`` descriptor). A power cut loses at most the last ``sync_interval_s``: with
-``sync_in_background`` (the daemon) a thread of its own ``fsync``s, ``sync_interval_s`` after the first flush
+on an ``O_APPEND`` descriptor). A power cut loses at most the last ``SYNC_INTERVAL_S``: with
+``sync_in_background`` (the daemon) a thread of its own ``fsync``s, ``SYNC_INTERVAL_S`` after the first flush
 since its last one, so the loop never waits for a disk (on a VM or an SD card one ``fsync`` can stall the
 machine for milliseconds) and no ``fsync`` starts while a stop's frames travel. Rotation never deletes by
 default (the highest number is the oldest file).
@@ -48,12 +48,9 @@ class EventJournal:
         max_bytes: int = DEFAULT_MAX_BYTES,
         *,
         sync_in_background: bool = False,
-        sync_interval_s: float = SYNC_INTERVAL_S,
     ) -> None:
         if max_bytes <= 0:
             raise ValueError(f"max_bytes must be > 0, got {max_bytes}")
-        if not sync_interval_s >= 0:
-            raise ValueError(f"sync_interval_s must be >= 0, got {sync_interval_s}")
         self.path: Path | None = None if path is None else Path(path)
         self.max_bytes = int(max_bytes)
         self._fd: int | None = None
@@ -67,7 +64,6 @@ class EventJournal:
         self._lock = threading.Lock()
         if self.path is not None:
             self._open()
-        self.sync_interval_s = float(sync_interval_s)
         self._sync_due = threading.Event()
         self._sync_stop = threading.Event()
         self._syncer: threading.Thread | None = None
@@ -219,11 +215,11 @@ class EventJournal:
                 self._failed(exc, "fsync")
 
     def _sync_loop(self) -> None:
-        """The sync thread: ``fsync`` a duplicate descriptor outside the lock ``sync_interval_s`` after the first flush
+        """The sync thread: ``fsync`` a duplicate descriptor outside the lock ``SYNC_INTERVAL_S`` after the first flush
         since the last one; never at once, so a stop's tick does not stall the disk while its frames travel."""
         while True:
             self._sync_due.wait()
-            if self._sync_stop.wait(self.sync_interval_s):
+            if self._sync_stop.wait(SYNC_INTERVAL_S):
                 return  # close() syncs what is left itself
             self._sync_due.clear()  # a flush from here on asks for the next fsync
             with self._lock:
