@@ -144,7 +144,7 @@ class TestSourceHealthAfterSamples:
         observe(h, Sample("bms", "present", 0.0, 1.0))
         observe(h, Sample("bms", "current", 1.0, 1.0))
         assert h.reason(1.0) == "not_present" and h.reason(1.0, "current") == "not_present"
-        assert h.age(1.5) == 0.5 and h.age(1.5, "current") == 0.5
+        assert h.age(1.5) == 0.5
         empty = SourceHealth(SourceConfig("x", "current", "can0", (ref("current"),), 0.5))
         assert empty.age(3.0) == math.inf
 

@@ -42,7 +42,7 @@ class TestSourceHealth:
         assert h.reason(0.0) == "no_data"
         assert h.reason(0.0, "current") == "no_data"
         assert math.isnan(h.value("current"))
-        assert h.last_t("current") is None and h.age(0.0, "current") == math.inf
+        assert h.last_t("current") is None and h.age(0.0) == math.inf
 
     def test_fresh_valid_present_source_is_healthy(self) -> None:
         """A present flag of 1 and a fresh current make the source healthy with its value."""
@@ -51,7 +51,7 @@ class TestSourceHealth:
         observe(h, s("current", -12.5, 0.1))
         assert h.reason(0.2) == ""
         assert h.value("current") == -12.5
-        assert h.age(0.3, "current") == pytest.approx(0.2)
+        assert h.age(0.3) == pytest.approx(0.2)
 
     def test_older_than_max_age_is_stale(self) -> None:
         """A current last seen more than max_age_s ago is stale; exactly max_age_s is still fresh."""

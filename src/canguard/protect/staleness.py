@@ -274,12 +274,9 @@ class SourceHealth:
         """Time of the latest valid value of ``role``, None if none."""
         return self._valid_t.get(role)
 
-    def age(self, now: float, role: str | None = None) -> float:
-        """Seconds since the latest valid value of ``role`` (inf if none); ``None``: the oldest value role."""
-        if role is None:
-            return max((self.age(now, r) for r in self.value_roles), default=math.inf)
-        t = self._valid_t.get(role)
-        return math.inf if t is None else now - t
+    def age(self, now: float) -> float:
+        """Seconds since the latest valid value of the oldest value role (inf while one has none)."""
+        return max((now - self._valid_t.get(r, -math.inf) for r in self.value_roles), default=math.inf)
 
     def latest_times(self) -> dict[str, float]:
         """Each role's latest sample time, valid or not (a copy)."""
