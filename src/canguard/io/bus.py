@@ -321,7 +321,7 @@ class BusReader:
         """Append up to ``limit`` frames the kernel holds for bus ``name``, the first waited for up to ``wait_s``; a
         failure closes the bus. The frames read (taken or dropped). System calls are the cost: after a frame taken
         alone a poll of the socket (cheaper than a ``recv(0)`` that finds none) asks for another, after two
-        ``recv(0)`` until none; after a frame dropped, none taken, the drain ends (the next wait costs a poll)."""
+        ``recv(0)`` until none; a frame dropped, none taken, costs no poll: the wait goes on (or the drain ends)."""
         bus = self._buses[name]
         assert bus is not None
         msgs: list[can.Message] = []
@@ -329,6 +329,7 @@ class BusReader:
         pending = self._pending[name]
         keys = self.wanted[name]
         read = 0
+        end = monotonic() + wait_s if wait_s else 0.0
         try:
             while len(msgs) < limit:
                 msg = recv(wait_s)
@@ -338,8 +339,11 @@ class BusReader:
                 if wants(keys, msg):
                     msgs.append(msg)
                     wait_s = 0.0
-                elif not msgs:
-                    break
+                elif not msgs:  # dropped, none taken: waited on for the rest of the time, if any
+                    wait_s = end - monotonic()
+                    if wait_s <= 0.0:
+                        break
+                    continue
                 if len(msgs) < 2 and not pending(0):  # a frame alone, the usual wake-up: no recv(0) that finds none
                     break
         except Exception as exc:  # the bus went away (or a backend bug): report, close, reopen later
