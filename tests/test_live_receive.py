@@ -97,6 +97,38 @@ class TestDirectReceive:
             assert reader.alive() == {cfg.name: True}
         assert reader.alive() == {cfg.name: False}
 
+    def test_foreign_traffic_that_never_stops_still_ends_each_wait_in_time(
+            self, udp: tuple[BusConfig, can.BusABC]) -> None:
+        """Frames of ids the config does not read, every millisecond: receive() still returns when its time is up
+        (the engine's ticks are due), empty, and a configured frame among them comes out alone."""
+        cfg, peer = udp
+        stop = threading.Event()
+        foreign = can.Message(arbitration_id=0x600, data=bytes(8), is_extended_id=False)
+
+        def flood() -> None:  # for 10 s at most: a receive that waited for the traffic to end fails, not hangs
+            end = time.monotonic() + 10.0
+            while not stop.is_set() and time.monotonic() < end:
+                peer.send(foreign)
+                time.sleep(0.001)
+
+        sender = threading.Thread(target=flood, daemon=True)
+        with BusReader([cfg], direct=True, wanted={cfg.name: frozenset({0x123})}) as reader:
+            sender.start()
+            try:
+                wait_until(lambda: reader.receive(0.0, 8) == [] and not reader.received[cfg.name],
+                           what="an empty receive while foreign frames flow")
+                for _ in range(5):
+                    t0 = time.monotonic()
+                    assert reader.receive(0.05, 8) == []
+                    assert time.monotonic() - t0 < 2.0  # ends at its time (0.05 s), not when the traffic does
+                peer.send(can.Message(arbitration_id=0x123, data=b"\x07", is_extended_id=False))
+                got = collect(reader, 1)
+            finally:
+                stop.set()
+                sender.join()
+        assert [(f.arbitration_id, bytes(f.data)) for _, f, _ in got] == [(0x123, b"\x07")]
+        assert reader.received[cfg.name] == 1
+
     def test_a_frame_that_waited_in_the_kernel_counts_its_wait(self, udp: tuple[BusConfig, can.BusABC]) -> None:
         """A frame left in the socket's buffer is received with the time it arrived, not the time it was read."""
         cfg, peer = udp
