@@ -126,7 +126,7 @@ class Engine:
         self.stale: dict[str, str] = {}  # each source's reason as the last tick saw it ("" fresh)
         self._cover: list[Any] = []
         """The guards ticked when the task last started: they must keep being ticked (:meth:`_guards_ticked`)."""
-        self.quiet = QuietTicks(self)
+        self.quiet = QuietTicks(self.root, self.ctx, self.gate, self.journal, self)
         self.next_tick_t = math.nan  # NaN before the start
         self._heat_failed = False
         self.last_frame_t = -math.inf  # the latest frame time seen

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 import py_trees
 
@@ -32,21 +32,31 @@ from canguard.bt.wakeup import tick_once
 from canguard.engine.gate import TaskGate
 
 if TYPE_CHECKING:
-    from canguard.engine.core import Engine
+    from canguard.bt.context import Context
+    from canguard.engine.stats import Journal
 
 MARGIN_S = 1e-6
 """A time-driven change is taken to come this much earlier than computed (rounding)."""
 
 
-class QuietTicks:
-    """The proof that a grid tick repeats the last one, kept tick by tick (see the module docstring), for ``engine``
-    (its tree, context, gate and journal as built; its times as they are)."""
+class Watched(Protocol):
+    """What :class:`QuietTicks` reads of the engine (:class:`canguard.engine.core.Engine` is one)."""
 
-    def __init__(self, engine: Engine) -> None:
-        root = self.root = engine.root
-        self.ctx = engine.ctx
-        self.gate = engine.gate
-        self.journal = engine.journal
+    guard_nodes: list[Any]
+    started_at: float
+    start_grace_s: float
+    period_s: float
+
+
+class QuietTicks:
+    """The proof that a grid tick repeats the last one, kept tick by tick (see the module docstring)."""
+
+    def __init__(self, root: py_trees.behaviour.Behaviour, ctx: Context, gate: TaskGate, journal: Journal,
+                 engine: Watched) -> None:
+        self.root = root
+        self.ctx = ctx
+        self.gate = gate
+        self.journal = journal
         self.engine = engine
         self.nodes = list(root.iterate())
         # the nodes a tick may not reach to be a fixed point (part 1), and whether the last tick reached one
