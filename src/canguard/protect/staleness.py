@@ -43,8 +43,6 @@ class SourceHealth:
     def __init__(self, source: SourceConfig) -> None:
         self.source = source
         self.max_age_s = float(source.max_age_s)
-        self.name = source.name
-        """The source's configured name."""
         self.value_roles: tuple[str, ...] = source.value_roles
         """The source's value roles, in config order (``present`` and ``counter`` are not value roles)."""
         self._has_present = source.signal(PRESENT) is not None
