@@ -563,14 +563,14 @@ class TestBusSink:
     """Frames the bus refuses are counted and reported, never raised."""
 
     def test_refused_frame_reaches_on_error(self, tmp_path: Path) -> None:
-        """A send that fails counts as failed and calls on_error with the bus name (the metrics hook)."""
+        """A send that fails calls on_error with the bus name (the metrics hook, which counts it)."""
         from canguard.engine.gate import BusSink
 
         cfg = load_config(write_config(tmp_path))
         errors: list[str] = []
         sink = BusSink(lambda bus, msg: False, on_error=errors.append)
         sink.send(cfg.stop.frames, "stop")
-        assert sink.failed == len(cfg.stop.frames) and sink.sent == 0
+        assert sink.sent == 0
         assert errors == ["main"] * len(cfg.stop.frames)
 
 

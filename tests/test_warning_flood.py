@@ -54,13 +54,13 @@ class TestRefusedFlood:
             wait_until(what="the refusal journalled", predicate=
                   lambda: any("send refused" in str(e.get("reason")) for e in read_events(rig.events)))
         warnings = [r.getMessage() for r in caplog.records if r.getMessage().startswith("could not send")]
-        assert sink.failed >= 50
+        assert rig.faults.refused_sends >= 50
         # per origin (task, perhaps stop): the first refusal, then one a second
         assert 2 <= len(warnings) <= 2 * (seconds + 1), (seconds, warnings)
         held = sum(int(m.group(1)) for w in warnings if (m := re.search(r"; (\d+) more like it held back", w)))
         said = (re.match(r"could not send .* \((\w+)\) on bus (\w+)", w) for w in warnings)
         keys = {(m.group(2), m.group(1)) for m in said if m}  # (bus, origin)
         pending = sum(sink.reports.allow(key, math.inf) or 0 for key in keys)  # held back since each key's last line
-        assert len(warnings) + held + pending == sink.failed  # every refusal is accounted for
+        assert len(warnings) + held + pending == rig.faults.refused_sends  # every refusal is accounted for
         refused = [e for e in read_events(rig.events) if "send refused" in str(e.get("reason"))]
         assert len(refused) <= len(warnings)

@@ -378,7 +378,6 @@ class BusSink:
         self._now = now
         self.reports = RateLimit()
         self.sent = 0
-        self.failed = 0
 
     def send(self, frames: Sequence[FrameSpec], origin: str) -> None:
         """Hand each frame to its bus with timeout 0; a full queue or an error is counted, never raised."""
@@ -391,7 +390,6 @@ class BusSink:
             if self._send(f.bus, msg):
                 self.sent += 1
                 continue
-            self.failed += 1
             if self.on_error is not None:
                 self.on_error(f.bus)
             held = self.reports.allow((f.bus, origin), self._now())
