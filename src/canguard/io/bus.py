@@ -320,8 +320,8 @@ class BusReader:
                    wait_s: float | None = 0.0) -> int:
         """Append up to ``limit`` frames the kernel holds for bus ``name``, the first waited for up to ``wait_s``; a
         failure closes the bus. The frames read (taken or dropped). System calls are the cost: after a frame taken
-        alone a poll of the socket (cheaper than a ``recv(0)`` that finds none) asks for another, after two
-        ``recv(0)`` until none; a frame dropped, none taken, costs no poll: the wait goes on (or the drain ends)."""
+        alone or dropped a poll of the socket (cheaper than a ``recv(0)`` that finds none) asks for another, after
+        two ``recv(0)`` until none; a frame dropped while the one bus is waited on: the wait goes on."""
         bus = self._buses[name]
         assert bus is not None
         msgs: list[can.Message] = []
@@ -339,7 +339,7 @@ class BusReader:
                 if wants(keys, msg):
                     msgs.append(msg)
                     wait_s = 0.0
-                elif not msgs:  # dropped, none taken: waited on for the rest of the time, if any
+                elif not msgs and wait_s:  # dropped while waiting on the one bus: waited on for the rest of the time
                     wait_s = end - monotonic()
                     if wait_s <= 0.0:
                         break
