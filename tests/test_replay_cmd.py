@@ -653,6 +653,7 @@ class TestLiveParity:
         from canguard.config.loader import load_config
         from canguard.engine.core import Engine
         from canguard.engine.gate import LogSink
+        from canguard.io.block import one_block
         from canguard.io.clock import ManualClock
         from canguard.io.logs import read_log
 
@@ -662,7 +663,7 @@ class TestLiveParity:
         engine.start(T0 - 0.05)  # the daemon is up 50 ms before the first frame
         engine.advance(T0 - 0.001)
         for frame in read_log(data["normal"]):
-            engine.feed("main", frame)
+            engine.take("main", one_block(frame))
         assert engine.stats.ticks > 0
         assert engine.stats.trips == []
         assert engine.gate.stops == 0

@@ -117,7 +117,6 @@ def engine_state(engine: Engine) -> dict[str, Any]:
     st = engine.stats
     health = {
         name: {
-            "samples": h.samples, "invalid_samples": h.invalid_samples, "out_of_order": h.out_of_order,
             "latest_t": h._latest_t, "invalid": h._invalid, "value": h._value, "valid_t": h._valid_t,
             "last_reason": h._last_reason,
         }
@@ -125,7 +124,6 @@ def engine_state(engine: Engine) -> dict[str, Any]:
     }
     models = [
         {"node": g.node, "role": g.role, "snapshot": repr(g.model.snapshot()),
-         "out_of_order": g.model.out_of_order, "rejected": g.model.rejected,
          "last_t": getattr(g.model, "last_t", None)}
         for g in engine.guards()
     ]
@@ -882,7 +880,6 @@ class TestCustomLog:
         assert summary["frames"]["backward_timestamps"] == 3 and summary["frames"]["repeated_timestamps"] >= 2
         assert summary["frames"]["remote_frames"] == 1 and summary["frames"]["error_frames"] == 1
         assert ref.state["skipped_ticks"] > 6000  # the 65 s gap was jumped
-        assert ref.state["health"]["axis0"]["out_of_order"] == 2
 
     def test_blocks_cover_what_they_should(self, custom: tuple[Config, Path]) -> None:
         """In blocks of 300 characters the reader gives every kind of block run_log tells apart."""
