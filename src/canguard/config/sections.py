@@ -414,10 +414,7 @@ def _raw_frame(c: Checks, value: Mapping[str, Any], key: str) -> FrameSpec | Non
     if not extended and raw_id > 0x7FF:
         c.problem(_path(key, "id"), f"0x{raw_id:X}", "a standard frame id 0..0x7FF (or extended: true)")
         return None
-    fd = value.get("fd", False)
-    if not isinstance(fd, bool):
-        c.problem(_path(key, "fd"), _found(fd), "true or false")
-        return None
+    fd = c.choice(value, "fd", key, (True, False), False)
     payload_b = _raw_data(c, value.get("data", ""), _path(key, "data"), fd)
     if payload_b is None:
         return None
