@@ -231,7 +231,7 @@ def candump_blocks(p: Path, gz: str, skip_bad: bool, st: ReadStats) -> Blocks:
                 before = 0 if block is None else int(np.searchsorted(parsed.rows_line, line))
                 if block is not None and before:
                     yield block.select(slice(0, before)), None
-                text_of = _line(text, line)
+                text_of = _as_text(text).split("\n")[line]
                 raise LogFormatError(f"{p}:{lineno + line + 1}: {why_bad(text_of)}: {quote(text_of)}")
             st.bad_lines += len(bad)
             lineno += parsed.lines
@@ -268,11 +268,6 @@ def _text(p: Path, raw: Any, gz: str, files: list[Any], lineno: int) -> bytes:
             raise LogFormatError(f"{p}:{at}: no line break in {tail} characters: not a candump log")
         text += b"\n"  # the last line of the log, without its line break
     return text
-
-
-def _line(raw: bytes, k: int) -> str:
-    """Line ``k`` of a block, as text (UTF-8, junk replaced)."""
-    return _as_text(raw).split("\n")[k]
 
 
 def format_candump_line(frame: Frame) -> str:
