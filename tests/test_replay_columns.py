@@ -740,10 +740,10 @@ class BlockCuts:
 
 def sim_lines(seconds: float, channel: str, scenarios: list[str], seed: int) -> list[tuple[float, str]]:
     """(t, candump -L line) of a simulated robot on ``channel``."""
-    from canguard.io.logs import format_candump_line
+    from canguard.io.candump import format_candump_line
     from canguard.sim import SimRobot
 
-    robot = SimRobot(str(DBC), channel=channel, scenarios=scenarios, seed=seed)
+    robot = SimRobot(cantools.database.load_file(DBC), channel=channel, scenarios=scenarios, seed=seed)
     return [(f.t, format_candump_line(f)) for f in robot.frames(seconds)]
 
 
@@ -804,7 +804,7 @@ def sim_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """Every simulator scenario at once, on a loaded bus (4 s, about 32,000 frames: the last event of the bundled
     configs' replays is at 3.5 s, the end of the BMS dropout)."""
     path = tmp_path_factory.mktemp("columns_sim") / "all.log"
-    write_log(path, 4.0, db=str(DBC), seed=5,
+    write_log(path, 4.0, db=cantools.database.load_file(DBC), seed=5,
               scenarios=["load", "overload", "inrush", "spike", "dropout", "garbage", "errorburst"])
     return path
 

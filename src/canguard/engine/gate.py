@@ -348,7 +348,7 @@ class LogSink:
         out, keep = self.out, self.keep
         if out is None and not keep:
             return
-        from canguard.io.logs import format_candump_line
+        from canguard.io.candump import format_candump_line
 
         t = self._now()
         for f in frames:
