@@ -10,7 +10,7 @@ import xml.etree.ElementTree as ET
 import xml.parsers.expat
 from collections.abc import Collection, Iterable, Mapping
 from dataclasses import dataclass, field
-from importlib.metadata import EntryPoint, entry_points
+from importlib.metadata import EntryPoint, distributions, entry_points
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal, NamedTuple, cast
 
@@ -84,7 +84,9 @@ def read_xml(path: Path, where: dict[ET.Element, Where]) -> ET.Element:
 # -- the node registry ------------------------------------------------------------------------------------------
 
 def plugin_entry_points() -> dict[str, EntryPoint]:
-    """The ``canguard.nodes`` entry points by node ID (not loaded)."""
+    """The ``canguard.nodes`` entry points by node ID (not loaded; parsed only if a distribution names the group)."""
+    if not any(ENTRY_POINT_GROUP in (dist.read_text("entry_points.txt") or "") for dist in distributions()):
+        return {}
     return {ep.name: ep for ep in entry_points(group=ENTRY_POINT_GROUP)}
 
 
