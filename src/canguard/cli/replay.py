@@ -88,17 +88,16 @@ def replay_one(cfg: Config, log_path: Path, opts: ReplayOptions) -> dict[str, An
 
             frames = wrap_progress(frames, log_path)  # attaches to the reader: before any wrapping
         # --emit streams each frame to the file as it is sent: memory stays flat in the log's length.
-        bag_out = opts.emit is not None and emits_bag(opts.emit)
-        text_out = opts.emit is not None and not bag_out
+        text_out = opts.emit is not None and not emits_bag(opts.emit)
         out = stack.enter_context(open(opts.emit, "w", encoding="ascii")) if text_out and opts.emit else None
-        sink = LogSink(clock.now, cfg.buses, out=out, keep=bag_out or _mcap_export(opts))
+        sink = LogSink(clock.now, cfg.buses, out=out, keep=False)  # kept when an export takes them (_outputs)
         engine = Engine(cfg, clock, sink, events=journal, durable=False, heat=heat, save_heat=False)
         recorder = None
         if opts.plot is not None:
             from canguard.report.plot import Recorder
 
             recorder = Recorder(engine)
-        _outputs(stack, engine, sink, opts, opts.export_log or str(log_path))  # after the recorder: it sees samples
+        _outputs(stack, engine, sink, opts, opts.export_log or str(log_path), recorder)
         tuning = None
         if opts.tune:
             from canguard.report.tune import tune_stats
@@ -117,47 +116,47 @@ def replay_one(cfg: Config, log_path: Path, opts: ReplayOptions) -> dict[str, An
     return summary
 
 
-def _mcap_export(opts: ReplayOptions) -> bool:
-    return opts.export is not None and opts.export.suffix.lower() == ".mcap"
-
-
-def _outputs(stack: ExitStack, engine: Engine, sink: LogSink, opts: ReplayOptions, log: str) -> None:
-    """The exports a replay writes as it goes (``--export-signals``, ``--emit`` as a bag), each closed at the end."""
+def _outputs(stack: ExitStack, engine: Engine, sink: LogSink, opts: ReplayOptions, log: str, recorder: Any) -> None:
+    """What watches each tick (``--plot``'s recorder, an MCAP export) and the exports a replay writes as it goes
+    (``--export-signals``, ``--emit`` as a bag), each closed at the end."""
     watch = _AfterTicks(sink)
-    if opts.export is not None and _mcap_export(opts):
-        from canguard.report.export import McapExport
+    if recorder is not None:
+        watch.watchers.append(recorder.publish)
+    if opts.export is not None:
+        from canguard.report.export import McapExport, SignalExport, is_mcap
 
-        watch.mcap = McapExport(engine, opts.export, log)
-        stack.callback(watch.mcap.close)
-        watch.takers.append(watch.mcap.sent)
-    elif opts.export is not None:
-        from canguard.report.export import SignalExport
-
-        stack.callback(SignalExport(engine, opts.export, log).close)
+        if is_mcap(opts.export):
+            mcap = McapExport(engine, opts.export, log)
+            stack.callback(mcap.close)
+            watch.watchers.append(mcap.publish)
+            watch.takers.append(mcap.sent)
+        else:
+            stack.callback(SignalExport(engine, opts.export, log).close)
     if opts.emit is not None and emits_bag(opts.emit):
         from canguard.io.bagwrite import BagEmit
 
         emit = BagEmit(opts.emit)
         stack.callback(emit.close)
         watch.takers.append(emit.sent)
-    if watch.takers:
+    sink.keep = bool(watch.takers)
+    if watch.watchers or watch.takers:
         engine.observer = watch
         stack.callback(watch.hand_over)  # the frames sent after the last tick: before the files close (LIFO)
 
 
 class _AfterTicks:
-    """The engine's observer: after every tick that runs, the frames sent go to their takers; an MCAP export sees
-    the tick."""
+    """The engine's observer: after every tick that runs, each watcher sees it, then the frames sent go to their
+    takers."""
 
     def __init__(self, sink: LogSink) -> None:
         self.sink = sink
+        self.watchers: list[Callable[[Any, float], None]] = []
         self.takers: list[Callable[[list[Frame]], None]] = []
-        self.mcap: Any = None
 
     def publish(self, engine: Any, now: float) -> None:
         """A tick ran."""
-        if self.mcap is not None:
-            self.mcap.publish(engine, now)
+        for watcher in self.watchers:
+            watcher(engine, now)
         self.hand_over()
 
     def hand_over(self) -> None:
