@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import shutil
 import sys
 import uuid
 from collections.abc import Callable
@@ -68,9 +69,7 @@ def replay_one(cfg: Config, log_path: Path, opts: ReplayOptions) -> dict[str, An
     from canguard.protect.state import HeatStore
 
     # py_trees keeps the blackboard in class-level storage: a log's summary must not depend on its neighbours.
-    Blackboard.storage.clear()
-    Blackboard.metadata.clear()
-    Blackboard.clients.clear()
+    Blackboard.clear()
     clock = ManualClock()
     with ExitStack() as stack:
         journal = None
@@ -256,14 +255,14 @@ def _config_of(ref: ConfigRef) -> Config:
     return cfg
 
 
-def _job(args: tuple[Config | ConfigRef, Path, ReplayOptions]) -> tuple[dict[str, Any] | None, str]:
-    """Replay one log (freed memory kept until it ends), with the config or (a worker) its reference."""
+def _job(args: tuple[ConfigRef, Path, ReplayOptions]) -> tuple[dict[str, Any] | None, str]:
+    """Replay one log (freed memory kept until it ends) with the config its reference names."""
     from canguard.cli.heap import keep_freed_memory
 
-    cfg, log, opts = args
+    ref, log, opts = args
     try:
         with keep_freed_memory():
-            return replay_one(cfg if isinstance(cfg, Config) else _config_of(cfg), log, opts), ""
+            return replay_one(_config_of(ref), log, opts), ""
     except CanguardError as exc:
         return None, str(exc)
 
@@ -291,8 +290,7 @@ def _as_format(log: Path, fmt: str | None, tmp: Path) -> Path:
         spooled = tmp / f"stdin{FORMAT_SUFFIX[fmt]}{gz}"
         with open(spooled, "wb") as out:
             out.write(head)
-            while chunk := sys.stdin.buffer.read(1 << 20):
-                out.write(chunk)
+            shutil.copyfileobj(sys.stdin.buffer, out)
         return spooled
     if fmt is None or not log.exists():
         return log  # a missing file: the reader names it as the user wrote it
@@ -389,24 +387,24 @@ def cmd_replay(args: argparse.Namespace) -> int:
 def run_jobs(args: argparse.Namespace, cfg: Config, cfg_path: Path,
              logs: list[tuple[Path, ReplayOptions]]) -> list[tuple[dict[str, Any] | None, str]]:
     """Every log's (summary, error), in input order: on Dask, in ``--jobs`` processes (largest first) or here."""
-    if not ((args.jobs > 1 and len(logs) > 1) or args.dask is not None):
-        return [_job((cfg, log, opts)) for log, opts in logs]
     ref = ConfigRef(cfg_path, uuid.uuid4().hex)
-    order = sorted(range(len(logs)), key=lambda i: -_size(logs[i][0]))
-    todo: list[tuple[Config | ConfigRef, Path, ReplayOptions]] = [(ref, *logs[i]) for i in order]
-    if args.dask is not None:
-        from canguard.cli.fleet import run_dask
+    _CONFIGS.clear()
+    _CONFIGS[ref] = cfg  # here and in forked workers: neither reads the config again
+    try:
+        if not ((args.jobs > 1 and len(logs) > 1) or args.dask is not None):
+            return [_job((ref, log, opts)) for log, opts in logs]
+        order = sorted(range(len(logs)), key=lambda i: -_size(logs[i][0]))
+        todo = [(ref, *logs[i]) for i in order]
+        if args.dask is not None:
+            from canguard.cli.fleet import run_dask
 
-        done = run_dask(args.dask, _job, todo)
-    else:
-        from canguard.cli.fleet import run_processes
+            done = run_dask(args.dask, _job, todo)
+        else:
+            from canguard.cli.fleet import run_processes
 
-        _CONFIGS.clear()
-        _CONFIGS[ref] = cfg  # forked workers start with it: no worker reads the config again
-        try:
             done = run_processes(args.jobs, _job, todo, warm=_WORKER_MODULES)
-        finally:
-            _CONFIGS.clear()
+    finally:
+        _CONFIGS.clear()
     results: list[tuple[dict[str, Any] | None, str]] = [(None, "")] * len(logs)
     for i, result in zip(order, done, strict=True):
         results[i] = result
