@@ -31,10 +31,9 @@ def expand_logs(given: Sequence[Path]) -> list[Path]:
         elif item.is_dir() and is_bag(item):
             out.append(item)  # a rosbag2 directory: one log
         elif item.is_dir():
-            bags = sorted(p for p in item.rglob("metadata.yaml") if p.is_file())
-            inside = {b.parent for b in bags}
-            found = sorted([*(b.parent for b in bags), *(p for p in item.rglob("*") if p.is_file() and _is_log(p)
-                                                          and not inside.intersection(p.parents))])
+            files = [p for p in item.rglob("*") if p.is_file()]
+            bags = {p.parent for p in files if p.name == "metadata.yaml"}
+            found = sorted([*bags, *(p for p in files if _is_log(p) and not bags.intersection(p.parents))])
             if not found:
                 raise ConfigError(f"replay: {item}: no log files in the directory (expected {', '.join(LOG_SUFFIXES)}, "
                                   f"optionally + {' / '.join(COMPRESSIONS)})")

@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from canguard.errors import ConfigError
+from canguard.io.frame import INVALID_RANGE
 from canguard.io.mcapwrite import McapWriter, ns_of
 from canguard.io.rosmsgs import cdr_frame, frame_type, full_definition
 
@@ -29,7 +30,6 @@ COLUMNS = {"log": "string", "t": "float64", "bus": "string", "source": "string",
 """The exported columns, in order, and their Arrow types."""
 BATCH_ROWS = 65_536
 """Rows buffered before they are written as one record batch (a Parquet row group)."""
-OUT_OF_RANGE = "out_of_range"
 
 
 def require_pyarrow(flag: str = FLAG) -> tuple[Any, Any]:
@@ -97,7 +97,7 @@ class SignalExport:
         if not reason and not math.isnan(value):
             lo, hi = self._ranges.get(s.source, {}).get(s.signal, (None, None))
             if (lo is not None and value < lo) or (hi is not None and value > hi):
-                return OUT_OF_RANGE
+                return INVALID_RANGE
         return reason
 
     def _block(self, times: Sequence[Any], taken: list[tuple[list[tuple[str, str]], list[int], Sequence[Any]]],
