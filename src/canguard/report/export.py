@@ -109,7 +109,7 @@ class SignalExport:
 
         stamp = np.asarray(times, dtype=np.float64)
         fed_rows = np.array([row for row, _s in fed], dtype=np.intp)
-        rows, stamps, values, codes = [], [], [], []
+        rows, values, codes = [], [], []
         for names, group, decoded in taken:
             idx = np.asarray(group, dtype=np.intp)
             keep, table = valued_table(decoded, len(names))
@@ -119,18 +119,17 @@ class SignalExport:
                 continue
             width, taken_rows = len(names), idx[keep]
             rows.append(np.repeat(taken_rows, width))
-            stamps.append(np.repeat(stamp[taken_rows], width))
             values.append(table[keep].ravel())  # row by row, each row's outputs in order
             codes.append(np.tile([self._code(name, "") for name in names], taken_rows.size))
         if fed:
             rows.append(fed_rows)
-            stamps.append(np.array([s.t for _row, s in fed], dtype=np.float64))
             values.append(np.array([s.value for _row, s in fed], dtype=np.float64))
             codes.append(np.array([self._code((s.source, s.signal), self._reason_of(s)) for _row, s in fed]))
         if not rows:
             return
-        order = np.argsort(np.concatenate(rows), kind="stable")
-        self._chunks.append((np.concatenate(stamps)[order], np.concatenate(codes).astype(np.intp)[order],
+        every = np.concatenate(rows)
+        order = np.argsort(every, kind="stable")  # a sample's time is its row's
+        self._chunks.append((stamp[every[order]], np.concatenate(codes).astype(np.intp)[order],
                              np.concatenate(values).astype(np.float64)[order]))
         self._pending += order.size
         while self._pending >= BATCH_ROWS:  # the row groups of one sample at a time
