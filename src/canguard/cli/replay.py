@@ -405,10 +405,8 @@ def run_jobs(args: argparse.Namespace, cfg: Config, cfg_path: Path,
             done = run_processes(args.jobs, _job, todo, warm=_WORKER_MODULES)
     finally:
         _CONFIGS.clear()
-    results: list[tuple[dict[str, Any] | None, str]] = [(None, "")] * len(logs)
-    for i, result in zip(order, done, strict=True):
-        results[i] = result
-    return results
+    placed = dict(zip(order, done, strict=True))
+    return [placed[i] for i in range(len(logs))]
 
 
 def _size(log: Path) -> int:
