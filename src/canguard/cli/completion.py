@@ -26,13 +26,6 @@ def _options(parser: argparse.ArgumentParser) -> list[str]:
     return sorted(o for a in parser._actions for o in a.option_strings)
 
 
-def _subparsers(parser: argparse.ArgumentParser) -> dict[str, argparse.ArgumentParser]:
-    for action in parser._actions:
-        if isinstance(action, argparse._SubParsersAction):
-            return dict(action.choices)
-    return {}
-
-
 def _choices(parser: argparse.ArgumentParser) -> list[str]:
     """The fixed values of positional arguments (``completion bash|zsh``)."""
     out: list[str] = []
@@ -44,7 +37,7 @@ def _choices(parser: argparse.ArgumentParser) -> list[str]:
 
 def bash_script(parser: argparse.ArgumentParser) -> str:
     """The bash completion function for ``parser`` (its subcommands, their options and choices)."""
-    subs = _subparsers(parser)
+    subs = next((dict(a.choices) for a in parser._actions if isinstance(a, argparse._SubParsersAction)), {})
     cases = []
     for name, p in subs.items():
         words = shlex.quote(" ".join(_options(p)))

@@ -13,11 +13,6 @@ from canguard.io.logs import LOG_SUFFIXES
 from canguard.io.logtypes import COMPRESSIONS
 
 
-def _is_log(path: Path) -> bool:
-    name = path.name.lower()
-    return any(name.endswith(s + comp) for comp in ("", *COMPRESSIONS) for s in LOG_SUFFIXES)
-
-
 def expand_logs(given: Sequence[Path]) -> list[Path]:
     """The log files ``given`` names, in order: directories, globs and ``@LIST`` files expanded; ConfigError naming
     what matched nothing (a missing plain file is left for the reader to name)."""
@@ -33,7 +28,9 @@ def expand_logs(given: Sequence[Path]) -> list[Path]:
         elif item.is_dir():
             files = [p for p in item.rglob("*") if p.is_file()]
             bags = {p.parent for p in files if p.name == "metadata.yaml"}
-            found = sorted([*bags, *(p for p in files if _is_log(p) and not bags.intersection(p.parents))])
+            endings = tuple(s + comp for comp in ("", *COMPRESSIONS) for s in LOG_SUFFIXES)  # of a log file name
+            found = sorted([*bags, *(p for p in files if p.name.lower().endswith(endings)
+                                     and not bags.intersection(p.parents))])
             if not found:
                 raise ConfigError(f"replay: {item}: no log files in the directory (expected {', '.join(LOG_SUFFIXES)}, "
                                   f"optionally + {' / '.join(COMPRESSIONS)})")

@@ -461,7 +461,7 @@ def _replay_offline(cfg: Config, cfg_path: Path, args: argparse.Namespace, names
     if out is not None:
         from canguard.report import export
 
-        parts = [] if export.is_mcap(out) else [export.part_path(out, i) for i in range(len(args.logs))]
+        parts = [] if export.is_mcap(out) else [out.with_name(f".{out.name}.part{i}") for i in range(len(args.logs))]
     many = len(args.logs) > 1
     base = _load_baseline(args.baseline) if args.baseline else None
     jobs: list[tuple[Path, ReplayOptions]] = []

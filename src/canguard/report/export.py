@@ -69,11 +69,6 @@ def is_mcap(path: Path) -> bool:
     return path.suffix.lower() == ".mcap"
 
 
-def part_path(path: Path, index: int) -> Path:
-    """Where log number ``index`` of the run writes its rows before :func:`combine_parts`."""
-    return path.with_name(f".{path.name}.part{index}")
-
-
 class SignalExport:
     """Streams every sample an engine decodes into one Parquet file, in bounded memory."""
 
