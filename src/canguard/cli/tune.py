@@ -136,9 +136,7 @@ def cmd_tune(args: argparse.Namespace) -> int:
             if all(p["ok"] for p in report["proof"]):
                 report["result"] = "proven"
                 if args.out is not None:
-                    args.out.mkdir(parents=True, exist_ok=True)
-                    for f in sorted(Path(tmp).iterdir()):
-                        shutil.copy2(f, args.out / f.name)
+                    shutil.copytree(tmp, args.out, dirs_exist_ok=True)
                     report["written"] = sorted(str(args.out / f.name) for f in Path(tmp).iterdir())
     report["guards"] = [g.as_json() for g in guards]  # as written: a port read from the blackboard is left
     if args.plot is not None:

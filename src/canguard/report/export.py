@@ -173,11 +173,10 @@ class ParquetTable:
         self._writer.close()
 
 
-def discard_parts(parts: Sequence[Path | None]) -> None:
+def discard_parts(parts: Sequence[Path]) -> None:
     """Remove the part files that exist (a run that did not finish leaves nothing behind)."""
     for p in parts:
-        if p is not None and p.exists():
-            p.unlink()
+        p.unlink(missing_ok=True)
 
 
 def combine_parts(path: Path, parts: Sequence[Path], ok: Sequence[bool]) -> int:
