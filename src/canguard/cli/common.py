@@ -91,24 +91,16 @@ def add_state_dir(p: argparse.ArgumentParser) -> None:
                         "$XDG_STATE_HOME/canguard (~/.local/state/canguard) unless this says otherwise")
 
 
-def state_dir(args: argparse.Namespace, config: Path) -> Path | None:
-    """Where a run of ``config`` keeps its events and heat, when not where the config says: ``--state-dir``, or,
-    for the bundled config (inside the installed package: read-only material), the user's state directory."""
-    if getattr(args, "state_dir", None) is not None:
-        return Path(args.state_dir)
-    if args.config is None and config == bundled_config():
-        from canguard.io.outputs import user_state_dir
-
-        return user_state_dir()
-    return None
-
-
 def run_config(args: argparse.Namespace) -> tuple[Config, Path | None]:
-    """The config ``canguard run`` (and ``check``, which judges it the same way) runs, and its state directory."""
-    from canguard.io.outputs import load_run_config
+    """The config ``canguard run`` (and ``check``, which judges it the same way) runs, and where it keeps its events
+    and heat when not where the config says: ``--state-dir``, or, for the bundled config (inside the installed
+    package: read-only material), the user's state directory."""
+    from canguard.io.outputs import load_run_config, user_state_dir
 
     path = config_path(args)
-    where = state_dir(args, path)
+    where = args.state_dir
+    if where is None and args.config is None and path == bundled_config():
+        where = user_state_dir()
     return load_run_config(path, where), where
 
 
