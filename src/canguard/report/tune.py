@@ -9,8 +9,10 @@ from __future__ import annotations
 import copy
 import math
 from array import array
+from bisect import bisect_left
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from itertools import accumulate
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -209,18 +211,12 @@ def histogram(a: np.ndarray) -> dict[str, int]:
 
 def percentile(hist: dict[str, int], q: float) -> float:
     """The ``q``-th percentile of the values a (merged) :func:`histogram` counted, at the upper edge of its bin."""
-    total = sum(hist.values())
-    if not total:
+    keys = sorted(int(k) for k in hist if k != "z")
+    seen = list(accumulate([hist.get("z", 0), *(hist[str(k)] for k in keys)]))  # counted up to each bin
+    if not seen[-1]:
         return math.nan
-    rank = q / 100.0 * total
-    seen = hist.get("z", 0)
-    if seen >= rank:
-        return 0.0
-    for key in sorted(int(k) for k in hist if k != "z"):
-        seen += hist[str(key)]
-        if seen >= rank:
-            return BIN_RATIO ** (key + 1)
-    return math.nan
+    at = bisect_left(seen, q / 100.0 * seen[-1])  # the first bin whose count reaches the rank
+    return 0.0 if at == 0 else BIN_RATIO ** (keys[at - 1] + 1)
 
 
 def gaps(t: np.ndarray) -> tuple[float, float]:
