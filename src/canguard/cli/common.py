@@ -57,9 +57,8 @@ COMMANDS: dict[str, str] = {
 """Every subcommand and its one-line help, in the order ``canguard -h`` lists them (no module imported)."""
 
 
-def exit_codes_epilog() -> str:
-    """The exit-code table printed at the end of every ``-h``."""
-    return "exit codes:\n" + "\n".join(f"  {code:<4} {text}" for code, text in EXIT_CODES)
+EXIT_CODES_EPILOG = "exit codes:\n" + "\n".join(f"  {code:<4} {text}" for code, text in EXIT_CODES)
+"""The exit-code table printed at the end of every ``-h``."""
 
 
 def default_config() -> Path:
@@ -114,7 +113,7 @@ def subcommand(sub: argparse._SubParsersAction, name: str, func: Callable[[argpa
                **kwargs: Any) -> argparse.ArgumentParser:
     """``sub.add_parser`` running ``func``, with the global options and the exit-code epilog every subcommand shares."""
     kwargs.setdefault("help", COMMANDS[name])
-    p: argparse.ArgumentParser = sub.add_parser(name, epilog=exit_codes_epilog(),
+    p: argparse.ArgumentParser = sub.add_parser(name, epilog=EXIT_CODES_EPILOG,
                                                 formatter_class=argparse.RawDescriptionHelpFormatter, **kwargs)
     add_global_options(p, in_subcommand=True)
     p.set_defaults(func=func)

@@ -259,7 +259,6 @@ class McapExport:
     """Everything an engine does on a replay, into one MCAP file (see the module docstring)."""
 
     def __init__(self, engine: Engine, path: Path, log: str) -> None:
-        self.engine = engine
         self.writer = McapWriter(path, profile="ros2")
         self.signals = SignalExport(engine, path, log, table=_Samples(self.writer))
         w = self.writer

@@ -203,9 +203,8 @@ def histogram(a: np.ndarray) -> dict[str, int]:
     zero = int(np.count_nonzero(a == 0))
     pos = a[a > 0]
     out: dict[str, int] = {"z": zero} if zero else {}
-    if pos.size:
-        keys, counts = np.unique(np.floor(np.log(pos) / _LOG_BIN).astype(np.int64), return_counts=True)
-        out.update({str(k): int(c) for k, c in zip(keys.tolist(), counts.tolist(), strict=True)})
+    keys, counts = np.unique(np.floor(np.log(pos) / _LOG_BIN).astype(np.int64), return_counts=True)
+    out.update({str(k): int(c) for k, c in zip(keys.tolist(), counts.tolist(), strict=True)})
     return out
 
 
