@@ -56,8 +56,7 @@ def _read_list(path: Path) -> list[Path]:
     for line in lines:
         entry = line.split("#", 1)[0].strip()
         if entry:
-            p = Path(entry)
-            out.append(p if p.is_absolute() else path.parent / p)
+            out.append(path.parent / entry)  # an absolute entry as it is
     if not out:
         raise ConfigError(f"replay: @{path}: the list names no log")
     return out

@@ -17,7 +17,7 @@ from typing import Any, TextIO
 
 import can
 
-from canguard.cli.common import TappedSink
+from canguard.cli.common import TappedSink, per_log_path
 from canguard.config.schema import Config
 from canguard.engine.core import Engine
 from canguard.engine.gate import LogSink
@@ -78,7 +78,6 @@ def _play_bus(cfg: Config, args: argparse.Namespace) -> str:
 
 def replay_realtime(cfg: Config, args: argparse.Namespace, names: list[Path]) -> list[tuple[dict[str, Any], str]]:
     """Play each log onto the bus while the daemon runs; each log's (summary, ""). ``names``: as the user gave them."""
-    from canguard.cli.common import per_log_path
     from canguard.engine.routing import ChannelRouter
     from canguard.io.logs import ReadStats, read_log
     from canguard.report.summary import build_summary

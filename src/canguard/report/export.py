@@ -16,13 +16,12 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from canguard.errors import ConfigError
-from canguard.io.frame import INVALID_RANGE
+from canguard.io.frame import INVALID_RANGE, Frame, Sample
 from canguard.io.mcapwrite import McapWriter, ns_of
 from canguard.io.rosmsgs import cdr_frame, frame_type, full_definition
 
 if TYPE_CHECKING:
     from canguard.engine.core import Engine
-    from canguard.io.frame import Frame, Sample
 
 FLAG = "--export-signals"
 COLUMNS = {"log": "string", "t": "float64", "bus": "string", "source": "string", "signal": "string",
