@@ -14,7 +14,7 @@ guard trial, so both meet the same machine:
   with python-can (``recv(0)`` until empty, every millisecond: python-can's cost of a frame, not of a
   wake-up; its count is the frames of the window: both read the same multicast datagrams). What
   canguard adds per frame, its wake-ups included, is the difference;
-* **a frame alone**: in a process of its own, the CPU of ``Engine.feed`` per frame of a recorded log
+* **a frame alone**: in a process of its own, the CPU of ``Engine.take`` per frame of a recorded log
   (examples/normal.log.gz on config/examples/robot_guard.yaml: each frame a block of one, as on a
   quiet bus), beside a plain cantools loop decoding the same frames' configured messages.
 """
@@ -84,6 +84,7 @@ import cantools
 from canguard.config.loader import load_config
 from canguard.engine.core import Engine
 from canguard.engine.gate import LogSink
+from canguard.io.block import one_block
 from canguard.io.clock import ManualClock
 from canguard.io.logs import read_log
 cfg = load_config(Path(sys.argv[1]))
@@ -99,7 +100,7 @@ def feed(part):
     t0 = time.process_time()
     for f in part:
         clock.advance_to(f.t)
-        engine.feed(bus, f)
+        engine.take(bus, one_block(f))
     return time.process_time() - t0
 def loop(part):
     t0 = time.process_time()
@@ -112,7 +113,7 @@ feed(frames[:warm]), loop(frames[:warm])
 rest = frames[warm:]
 print(len(rest), feed(rest) / len(rest) * 1e6, loop(rest) / len(rest) * 1e6)
 """
-"""``Engine.feed`` of a recorded log's frames one at a time, and a cantools loop over the same frames: frames,
+"""``Engine.take`` of a recorded log's frames one at a time, and a cantools loop over the same frames: frames,
 then µs of CPU a frame of each."""
 
 
@@ -275,12 +276,12 @@ def running(children: list[Child]) -> Iterator[list[Child]]:
 
 
 def alone_row(opts: Options) -> list[kit.Cell]:
-    """A recorded frame fed alone (``Engine.feed``: a block of one) beside a cantools loop, CPU µs a frame."""
+    """A recorded frame fed alone (``Engine.take``: a block of one) beside a cantools loop, CPU µs a frame."""
     args = [str(kit.REPO / "config" / "examples" / "robot_guard.yaml"), str(kit.REPO / "examples" / "normal.log.gz"),
             str(2000 if opts.quick else 20000)]
     runs = [kit.python(FEED, args, opts).out.decode().split()[-3:] for _ in range(1 if opts.quick else opts.rounds)]
     feed_us, loop_us = min(float(r[1]) for r in runs), min(float(r[2]) for r in runs)  # best of the rounds
-    return ["a recorded frame fed alone (Engine.feed, a block of one): CPU µs a frame", int(runs[0][0]), feed_us,
+    return ["a recorded frame fed alone (Engine.take, a block of one): CPU µs a frame", int(runs[0][0]), feed_us,
             None, "cantools decode_message of its frames (same process)", loop_us, None, kit.ratio(feed_us, loop_us)]
 
 

@@ -81,10 +81,12 @@ def overload_log(frames: int) -> tuple[Path, int]:
     log = shapes.CACHE / f"overload-v{shapes.VERSION}-{frames}.log"
     if not log.exists():
         shapes.CACHE.mkdir(parents=True, exist_ok=True)
+        import cantools
+
         from canguard.sim import write_log
 
         tmp = log.with_suffix(f".{os.getpid()}.tmp")
-        write_log(tmp, frames / 2571.0, db=str(kit.DBC), scenarios=["overload"], seed=0)
+        write_log(tmp, frames / 2571.0, db=cantools.database.load_file(kit.DBC), scenarios=["overload"], seed=0)
         tmp.replace(log)
     with open(log, "rb") as f:
         return log, sum(1 for _ in f)

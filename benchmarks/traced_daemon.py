@@ -261,7 +261,7 @@ def count(trials: int) -> int:
         normal, over = (bytes(bms(a).data) for a in (10.0, 40.0))
         for _ in range(trials):
             for data, dt in ((normal, 0.05), (over, 0.002)):
-                clock.advance(dt)
+                clock.advance_to(clock.now() + dt)
                 engine.take("main", Block.of_frames((Frame(clock.now(), "main", BMS_ID, data, True),)))
                 engine.advance(clock.now())
                 while peer.recv(0) is not None:

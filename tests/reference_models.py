@@ -26,16 +26,12 @@ class RefLatched:
     since: float | None = None
     value: float = math.nan
     last_t: float | None = None
-    rejected: int = 0
-    out_of_order: int = 0
 
     def accept(self, value: float, t: float) -> float | None:
-        """|value| when the sample may be used, None (counted) when it must be ignored."""
+        """|value| when the sample may be used, None when it must be ignored."""
         if not (math.isfinite(value) and math.isfinite(t)):
-            self.rejected += 1
             return None
         if self.last_t is not None and t < self.last_t:
-            self.out_of_order += 1
             return None
         return abs(value)
 
@@ -72,7 +68,6 @@ class RefInrush:
     below_since: float | None = None
     window_start: float | None = None
     last_t: float | None = None
-    starts: int = 0
 
     def observe(self, a: float, t: float) -> bool:
         """One |I| sample; True on a motor start."""
@@ -87,7 +82,6 @@ class RefInrush:
         self.below_since = None
         if started:
             self.window_start = t
-            self.starts += 1
         return started
 
     def threshold(self, normal: float, t: float) -> float | None:
@@ -157,7 +151,6 @@ class RefI2t(RefLatched):
     max_gap_s: float = math.inf
     acc: float = 0.0
     held: float = math.nan
-    stale_gaps: int = 0
     peak: float = 0.0
     """The highest accumulator value so far."""
     trip_level: float = field(init=False)
@@ -191,7 +184,6 @@ class RefI2t(RefLatched):
         if self.last_t is not None and not math.isnan(self.held):
             dt = t - self.last_t
             if dt > self.max_gap_s:
-                self.stale_gaps += 1
                 dt = self.max_gap_s
             if dt > 0:
                 self.integrate(self.held, dt)
@@ -220,9 +212,6 @@ class RefHealth:
     counter: float | None = None
     counter_since: float = math.nan
     frozen: bool = False
-    samples: int = 0
-    invalid_samples: int = 0
-    out_of_order: int = 0
 
     def check(self, role: str, value: float, reason: str) -> str:
         """The sample's invalid reason."""
@@ -239,10 +228,8 @@ class RefHealth:
 
     def observe(self, role: str, t: float, value: float, reason: str = "") -> bool:
         """One sample; True when the source's reason changed."""
-        self.samples += 1
         latest = self.latest_t.get(role)
         if math.isnan(t) or (latest is not None and t < latest):
-            self.out_of_order += 1
             return False
         bad = self.check(role, value, reason)
         if (not bad and latest is not None and role not in (PRESENT, COUNTER)
@@ -256,9 +243,7 @@ class RefHealth:
             self.frozen = t - self.counter_since > self.max_age_s
         self.latest_t[role] = t
         self.invalid[role] = bad
-        if bad:
-            self.invalid_samples += 1
-        else:
+        if not bad:
             self.values[role], self.valid_t[role] = value, t
         after = self.reason(t)
         edge = after != before or after != self.last_reason

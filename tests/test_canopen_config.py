@@ -22,6 +22,7 @@ from canguard.config.loader import load_config
 from canguard.engine.core import Engine
 from canguard.engine.gate import LogSink, TaskGate
 from canguard.errors import ConfigError
+from canguard.io.block import one_block
 from canguard.io.clock import ManualClock
 from canguard.io.frame import Frame
 from checkout import REPO
@@ -241,7 +242,7 @@ class Drive:
         """Nothing to make durable."""
 
     def frame(self, cob: int, data: bytes) -> None:
-        self.engine.feed("main", Frame(self.t, "can0", cob, data))
+        self.engine.take("main", one_block(Frame(self.t, "can0", cob, data)))
 
     def run(self, seconds: float, heartbeat: bool = True) -> None:
         """Send TPDO2 every 10 ms and the heartbeat every 100 ms for ``seconds``."""

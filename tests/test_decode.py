@@ -93,7 +93,7 @@ class TestDecoderMatchesCantools:
         for i in range(200):
             data = finite_payload(exotic, message, rng)
             samples = decoder.decode(frame_of(exotic, message, data, t=float(i)), "main")
-            assert all(s.valid and s.t == float(i) for s in samples)
+            assert all(not s.reason and s.t == float(i) for s in samples)
             assert {(s.source, s.signal, s.value) for s in samples} == expected_samples(
                 exotic, message, data, i
             )
@@ -196,7 +196,7 @@ class TestDecoderInvalidAndCounters:
             ("current", INVALID_LENGTH),
             ("present", INVALID_LENGTH),
         ]
-        assert all(math.isnan(s.value) and not s.valid for s in samples)
+        assert all(math.isnan(s.value) and s.reason for s in samples)
         assert decoder.invalid == 1 and decoder.decoded == 0
         assert decoder.per_bus["main"].reasons == {INVALID_LENGTH: 2}
 
@@ -270,7 +270,7 @@ class TestDecoderInvalidAndCounters:
         for decoder in fuzz_decoders():
             frame = Frame(0.5, "x", arbitration_id, data, extended, fd, error, remote)
             for s in decoder.decode(frame, bus):
-                assert (s.valid and math.isfinite(s.value)) or (s.reason and math.isnan(s.value))
+                assert (not s.reason and math.isfinite(s.value)) or (s.reason and math.isnan(s.value))
 
 
 @functools.cache

@@ -9,6 +9,7 @@ from pathlib import Path
 import pytest
 from tests.feed import step
 
+from canguard.io import clock
 from canguard.io.clock import BootClock
 from canguard.protect.i2t import LeakyI2t
 from canguard.protect.state import HeatStore
@@ -17,11 +18,12 @@ BOOT_ID = "5f1c0d8e-0000-4000-8000-000000000001"
 
 
 @pytest.fixture
-def boot(tmp_path: Path) -> BootClock:
+def boot(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> BootClock:
     """A BootClock reading a boot id from a file the test controls."""
     path = tmp_path / "boot_id"
     path.write_text(BOOT_ID + "\n", encoding="ascii")
-    return BootClock(str(path))
+    monkeypatch.setattr(clock, "BOOT_ID_PATH", str(path))
+    return BootClock()
 
 
 def hot_model() -> LeakyI2t:

@@ -77,13 +77,11 @@ class TestShortWrite:
         for i in range(4):
             journal.write(ev(i))
         assert [e["node"] for e in file_lines(path)] == ["Node0", "Node1"]
-        assert journal.pending == 2 and journal.errors >= 1
         disk.free = None
         journal.write(ev(4))
         journal.write(ev(5))
         journal.close()
         assert [e["node"] for e in file_lines(path)] == [f"Node{i}" for i in range(6)]
-        assert journal.to_stderr == 0
 
     def test_write_error_after_some_bytes_is_cut_back(self, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
         """A write that puts bytes out and then raises (EIO) leaves no fragment either."""
@@ -122,7 +120,6 @@ class TestNothingLostWithoutAWord:
         on_stderr = [e["node"] for e in stderr_events(err)]
         assert on_disk == ["Node0", "Node1", "Node2"]
         assert on_stderr == [f"Node{i}" for i in range(3, 10)]
-        assert journal.to_stderr == 7
         assert "7 line(s) not written to the file" in err
 
     def test_backlog_overflow_goes_to_stderr_oldest_first(self, tmp_path: Path, disk: Disk,
@@ -137,7 +134,6 @@ class TestNothingLostWithoutAWord:
             journal.write(ev(i))
         early = stderr_events(capsys.readouterr().err)
         assert [e["node"] for e in early] == ["Node0", "Node1", "Node2"]
-        assert journal.dropped == 3
         journal.close()
         late = stderr_events(capsys.readouterr().err)
         assert [e["node"] for e in late] == [f"Node{i}" for i in range(3, 8)]

@@ -27,10 +27,11 @@ import pytest
 import canguard.io.candump
 import canguard.io.pycan
 from canguard.errors import LogFormatError
-from canguard.io.block import Block
+from canguard.io.block import Block, frame_from_message
+from canguard.io.candump import format_candump_line
 from canguard.io.candump_np import parse_block
 from canguard.io.frame import Frame
-from canguard.io.logs import format_candump_line, frame_from_message, read_log
+from canguard.io.logs import read_log
 
 T0 = 1_700_000_000.0
 

@@ -11,6 +11,7 @@ import pytest
 import yaml
 
 from canguard.config.loader import load_config
+from canguard.engine.events import EventJournal
 from canguard.errors import ConfigError
 from checkout import REPO
 from clikit import cli
@@ -111,7 +112,7 @@ def test_network_page_says_so_at_start(caplog: pytest.LogCaptureFixture) -> None
     from canguard.config.schema import MonitorConfig
     from canguard.service.monitor import Monitor
 
-    monitor = Monitor(MonitorConfig(http="0.0.0.0:0", token="s3cret"))
+    monitor = Monitor(MonitorConfig(http="0.0.0.0:0", token="s3cret"), EventJournal(None))
     try:
         with caplog.at_level("WARNING", logger="canguard.service.monitor"):
             monitor.start()

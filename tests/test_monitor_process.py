@@ -10,6 +10,7 @@ from pathlib import Path
 
 import pytest
 
+from canguard.engine.events import EventJournal
 from checkout import REPO
 from monitorkit import ESTOP_IDS, WAIT_S, running, wait_for, watched_daemon
 
@@ -70,8 +71,9 @@ def test_the_monitor_process_ends_when_the_daemon_is_killed(tmp_path: Path) -> N
     """A daemon killed outright (no clean-up runs) leaves no monitor process behind: it sees its socket close."""
     code = (
         "from canguard.config.schema import MonitorConfig\n"
+        "from canguard.engine.events import EventJournal\n"
         "from canguard.service.monitor import Monitor\n"
-        "m = Monitor(MonitorConfig(http='127.0.0.1:0'))\n"
+        "m = Monitor(MonitorConfig(http='127.0.0.1:0'), EventJournal(None))\n"
         "print(m.pid, flush=True)\n"
         "import time; time.sleep(600)\n"
     )
@@ -106,7 +108,7 @@ def test_a_port_in_use_names_the_address_and_leaves_no_process() -> None:
         port = taken.getsockname()[1]
         before = set(children())
         with pytest.raises(ConfigError, match=rf"status page on 127\.0\.0\.1:{port}: cannot listen"):
-            Monitor(MonitorConfig(http=f"127.0.0.1:{port}"))
+            Monitor(MonitorConfig(http=f"127.0.0.1:{port}"), EventJournal(None))
         assert set(children()) <= before
     finally:
         taken.close()
@@ -126,7 +128,7 @@ def test_the_monitor_process_runs_below_the_daemon() -> None:
     from canguard.config.schema import MonitorConfig
     from canguard.service.monitor import Monitor
 
-    monitor = Monitor(MonitorConfig(http="127.0.0.1:0"))
+    monitor = Monitor(MonitorConfig(http="127.0.0.1:0"), EventJournal(None))
     try:
         pid = monitor.pid
         ours = os.getpriority(os.PRIO_PROCESS, 0)

@@ -16,9 +16,9 @@ class TestInrushBlanking:
         blank.observe(0.0, 0.0)
         blank.observe(0.5, 0.2)
         assert blank.observe(20.0, 0.3) is True
-        assert blank.blanking(0.3) and blank.blanking(0.599)
-        assert not blank.blanking(0.6)
-        assert not blank.blanking(0.29)
+        assert blank.threshold(1.0, 0.3) == blank.threshold(1.0, 0.599) == 60.0
+        assert blank.threshold(1.0, 0.6) == 1.0
+        assert blank.threshold(1.0, 0.29) == 1.0
 
     def test_short_stop_is_not_a_start(self) -> None:
         """A dip below start current shorter than inrush_time does not re-arm the blanking."""
@@ -27,8 +27,7 @@ class TestInrushBlanking:
         blank.observe(20.0, 1.0)
         blank.observe(0.0, 1.5)
         assert blank.observe(20.0, 1.7) is False
-        assert not blank.blanking(1.7)
-        assert blank.starts == 1
+        assert blank.threshold(1.0, 1.7) == 1.0
 
     def test_first_sample_above_start_current_is_not_a_start(self) -> None:
         """A motor already running when canguard starts is not blanked (fail safe)."""

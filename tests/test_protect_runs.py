@@ -159,23 +159,20 @@ def close(a: float | None, b: float | None, scale: float = 1.0) -> bool:
 
 
 def assert_same_state(model: LatchedModel, ref: Any) -> None:
-    """The model's state is the reference's: tripped, edge time, latest sample, counters, maths state."""
+    """The model's state is the reference's: tripped, edge time, latest sample, maths state."""
     assert model.tripped == ref.tripped
     assert close(model.since, ref.since)
     assert close(model.last_t, ref.last_t)
     assert close(model.snapshot().value, ref.value)
-    assert (model.rejected, model.out_of_order) == (ref.rejected, ref.out_of_order)
     if isinstance(model, (LeakyI2t, ThermalI2t)):
         assert close(model.accumulator, ref.acc, model.trip_level)
         assert close(model.held_a, ref.held)
-        assert model.stale_gaps == ref.stale_gaps
         assert close(model.peak_level_pct, 100.0 * ref.peak / ref.trip_level, 100.0)  # over every sample taken
     if isinstance(model, Hysteresis):
         over, under = model.timers
         assert close(over, ref.over_since) and close(under, ref.under_since)
         if model.inrush is not None:
             assert close(model.inrush.running()[1], ref.inrush.window_start)
-            assert model.inrush.starts == ref.inrush.starts
 
 
 SETTINGS = settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -265,7 +262,7 @@ def test_inrush_run_matches_per_sample() -> None:
     want = [i for i in range(3000) if ref.observe(float(a[i]), float(t[i]))]
     helper = InrushBlanking(2.0, 0.1, 20.0)
     assert np.flatnonzero(helper.advance(t, a)).tolist() == want
-    assert helper.starts == ref.starts and helper.running()[1] == ref.window_start
+    assert helper.running()[1] == ref.window_start
 
 
 def health_run(health: SourceHealth, role: str, times: Any, values: Any, until_edge: bool = False,
@@ -342,8 +339,6 @@ def assert_health_runs_follow_the_reference(stream: tuple[np.ndarray, np.ndarray
             pos += run.taken
         start = end
     assert got == want
-    assert (health.samples, health.invalid_samples, health.out_of_order) == (
-        ref.samples, ref.invalid_samples, ref.out_of_order)
     now = float(np.nanmax(np.where(np.isfinite(times), times, np.nan))) if np.isfinite(times).any() else 0.0
     assert health.reason(now) == ref.reason(now)
     assert close(health.value("current"), ref.values.get("current", math.nan))
@@ -470,8 +465,6 @@ def test_source_health_long_and_short_runs_match_the_reference(stream: tuple[np.
             got.extend((pos + run.index).tolist())
             pos += run.taken
     assert got == want
-    assert (health.samples, health.invalid_samples, health.out_of_order) == (
-        ref.samples, ref.invalid_samples, ref.out_of_order)
     assert close(health.value("current"), ref.values.get("current", math.nan))
     assert type(health.value("current")) is float
 
@@ -501,8 +494,6 @@ def test_source_health_rows_of_two_roles_match_the_reference(stream: tuple[np.nd
             got.extend((pos + run.index).tolist())
             pos += run.taken
     assert got == want
-    assert (health.samples, health.invalid_samples, health.out_of_order) == (
-        ref.samples, ref.invalid_samples, ref.out_of_order)
     assert health.reason(tl[-1] if tl else 0.0) == ref.reason(tl[-1] if tl else 0.0)
 
 
@@ -532,14 +523,14 @@ def test_quiet_runs_of_two_messages_are_taken_whole_or_not_at_all(drawn: list[tu
         rows.append((t if math.isfinite(step) else step, value, k))
     parts = [((role,), np.array([r[0] for r in rows if r[2] == k]), (np.array([r[1] for r in rows if r[2] == k]),))
              for k, role in enumerate(roles)]
-    before = health.samples
+    before = health.latest_times()
     took = health.take_quiet(parts)
     edges = [ref.observe(roles[k], t, v) for t, v, k in rows]
     if took:
         assert not any(edges)
-        assert health.samples == ref.samples and health.reason(0.0) == ref.reason(0.0)
+        assert health.reason(0.0) == ref.reason(0.0)
         for role in roles:
             assert health.latest_t(role) == ref.latest_t[role] and health.value(role) == ref.values[role]
             assert type(health.value(role)) is float
     else:
-        assert health.samples == before
+        assert health.latest_times() == before

@@ -42,7 +42,7 @@ class TestSourceHealth:
         assert h.reason(0.0) == "no_data"
         assert h.reason(0.0, "current") == "no_data"
         assert math.isnan(h.value("current"))
-        assert h.last_t("current") is None and h.age(0.0, "current") == math.inf
+        assert h.last_t("current") is None and h.age(0.0) == math.inf
 
     def test_fresh_valid_present_source_is_healthy(self) -> None:
         """A present flag of 1 and a fresh current make the source healthy with its value."""
@@ -51,8 +51,7 @@ class TestSourceHealth:
         observe(h, s("current", -12.5, 0.1))
         assert h.reason(0.2) == ""
         assert h.value("current") == -12.5
-        assert h.values(0.2) == {"current": -12.5}
-        assert h.age(0.3, "current") == pytest.approx(0.2)
+        assert h.age(0.3) == pytest.approx(0.2)
 
     def test_older_than_max_age_is_stale(self) -> None:
         """A current last seen more than max_age_s ago is stale; exactly max_age_s is still fresh."""
@@ -61,8 +60,8 @@ class TestSourceHealth:
         observe(h, s("current", 10.0, 1.0))
         assert h.reason(1.5) == ""
         assert h.reason(1.51) == "stale"
-        assert math.isnan(h.values(1.51)["current"])
-        assert h.value("current") == 10.0
+        assert h.reason(1.51, "current") == "stale"
+        assert h.value("current") == 10.0  # kept, however old
 
     def test_present_zero_is_not_present(self) -> None:
         """present = 0 fails the whole source, every role included."""
@@ -127,7 +126,7 @@ class TestSourceHealth:
         assert h.reason(1.0) == "stale"
         assert observe(h, s("current", 1.0, 1.0, source="c")) is True
 
-    def test_out_of_order_samples_are_counted_and_ignored(self) -> None:
+    def test_out_of_order_samples_are_ignored(self) -> None:
         """A sample older than the latest one neither changes the value nor clears a reason."""
         h = battery()
         observe(h, s("present", 1.0, 1.0))
@@ -135,14 +134,13 @@ class TestSourceHealth:
         assert observe(h, s("current", 7.0, 0.5)) is False
         assert h.reason(1.0) == "nan"
         assert math.isnan(h.value("current"))
-        assert h.out_of_order == 1
 
     def test_duplicate_timestamp_is_a_normal_sample(self) -> None:
         """A second sample with the same time replaces the value."""
         h = battery()
         observe(h, s("current", 1.0, 1.0))
         observe(h, s("current", 2.0, 1.0))
-        assert h.value("current") == 2.0 and h.out_of_order == 0
+        assert h.value("current") == 2.0
 
     def test_a_bad_sample_right_after_a_healthy_check_is_seen(self) -> None:
         """The "nothing can be stale yet" shortcut of reason() never hides a sample that made a role unusable."""
@@ -168,11 +166,11 @@ class TestSourceHealth:
         assert h.reason(0.5000001) == "stale"
 
     def test_joints_source_checks_every_joint(self) -> None:
-        """A joints source is healthy only when every joint is fresh; values() lists each joint."""
+        """A joints source is healthy only when every joint is fresh, with each joint's value."""
         h = joints()
         observe(h, s("j1", 1.5, 0.0, source="arm"))
         assert h.reason(0.0) == "no_data"
         assert h.reason(0.0, "j1") == ""
         observe(h, s("j2", -2.5, 0.0, source="arm"))
         assert h.reason(0.1) == ""
-        assert h.values(0.1) == {"j1": 1.5, "j2": -2.5}
+        assert (h.value("j1"), h.value("j2")) == (1.5, -2.5)

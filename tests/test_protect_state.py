@@ -136,7 +136,7 @@ class TestHeatStore:
         models = hot_models()
         results = [store.maybe_save(models, t, 5.0) for t in (0.0, 1.0, 4.9, 5.0, 6.0, 1.0)]
         assert results == [True, False, False, True, False, True]
-        assert store.saves == 3
+        assert json.loads((tmp_path / "heat.json").read_text(encoding="utf-8"))["t"] == 1.0  # the last save's
 
     def test_no_path_never_persists(self, tmp_path: Path) -> None:
         """With path None nothing is read or written and models stay as they are."""

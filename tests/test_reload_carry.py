@@ -19,6 +19,7 @@ from canguard.config.loader import load_config
 from canguard.config.schema import Config
 from canguard.engine.core import Engine
 from canguard.engine.gate import LogSink, TaskGate
+from canguard.io.block import one_block
 from canguard.io.clock import ManualClock
 from canguard.protect.hysteresis import Hysteresis
 from canguard.protect.i2t import LeakyI2t, ThermalI2t
@@ -76,7 +77,7 @@ class Reloadable:
         end = self.t + seconds
         while self.t + step_s <= end + 1e-9:
             self.t += step_s
-            self.engine.feed("main", bms_frame(self.t, current_a))
+            self.engine.take("main", one_block(bms_frame(self.t, current_a)))
         self.engine.advance(self.t)
 
 
@@ -128,10 +129,10 @@ class TestModels:
         for i in range(60):
             step(old, 1.0, i * 0.01)  # motor stopped for 0.6 s
         step(old, 50.0, 0.6)  # a start: the inrush window opens at 0.6 s
-        assert old.inrush is not None and old.inrush.blanking(0.7)
+        assert old.inrush is not None and old.inrush.threshold(35.0, 0.7) == 80.0
         new = Hysteresis(36.0, 25.0, recover_after_s=1.0, inrush=InrushBlanking(2.0, 0.5, 80.0))
         new.carry_from(old)
-        assert new.inrush is not None and new.inrush.blanking(0.7)
+        assert new.inrush is not None and new.inrush.threshold(36.0, 0.7) == 80.0
         assert not step(new, 70.0, 0.7)  # inside the window: 80 A in force
         old2 = Hysteresis(35.0, 25.0, recover_after_s=1.0)
         step(old2, 50.0, 0.0)

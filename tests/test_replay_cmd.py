@@ -77,7 +77,7 @@ def data(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     out = {"cfg": make_config(d / "cfg"), "cfg2": make_config(d / "cfg2", extra_bus=True)}
     for name, scenarios, seed in (("spike", ["spike"], 1), ("normal", ["normal"], 2)):
         out[name] = d / f"{name}.log"
-        write_log(out[name], DURATION_S, db=str(DBC), scenarios=scenarios, seed=seed)
+        write_log(out[name], DURATION_S, db=cantools.database.load_file(DBC), scenarios=scenarios, seed=seed)
     return out
 
 
@@ -653,6 +653,7 @@ class TestLiveParity:
         from canguard.config.loader import load_config
         from canguard.engine.core import Engine
         from canguard.engine.gate import LogSink
+        from canguard.io.block import one_block
         from canguard.io.clock import ManualClock
         from canguard.io.logs import read_log
 
@@ -662,7 +663,7 @@ class TestLiveParity:
         engine.start(T0 - 0.05)  # the daemon is up 50 ms before the first frame
         engine.advance(T0 - 0.001)
         for frame in read_log(data["normal"]):
-            engine.feed("main", frame)
+            engine.take("main", one_block(frame))
         assert engine.stats.ticks > 0
         assert engine.stats.trips == []
         assert engine.gate.stops == 0
@@ -808,8 +809,9 @@ class TestEmitStreams:
         from canguard.config.loader import load_config
         from canguard.engine.core import Engine
         from canguard.engine.gate import LogSink
+        from canguard.io.candump import write_candump
         from canguard.io.clock import ManualClock
-        from canguard.io.logs import read_log, write_candump
+        from canguard.io.logs import read_log
 
         emit = tmp_path / "emit.log"
         code, _, err = run(data["spike"], "-c", data["cfg"], "--emit", emit)

@@ -33,9 +33,10 @@ import pytest
 
 import canguard.io.pycan
 from canguard.config.loader import load_config
-from canguard.io.block import FLAG_ERROR, FLAG_FD, FLAG_REMOTE, Block
+from canguard.io.block import FLAG_ERROR, FLAG_FD, FLAG_REMOTE, Block, frame_from_message
+from canguard.io.candump import format_candump_line
 from canguard.io.frame import Frame
-from canguard.io.logs import ReadStats, format_candump_line, frame_from_message, read_log
+from canguard.io.logs import ReadStats, read_log
 from checkout import SRC
 from test_replay_columns import (
     DEFAULT_CHUNK,
@@ -140,7 +141,7 @@ def test_frames_are_python_cans(built: tuple[list[can.Message], Path]) -> None:
     stats = ReadStats()
     frames = list(read_log(path, stats=stats))
     assert frames == theirs
-    assert (stats.format, stats.frames, stats.backwards_timestamps) == ("mf4", len(msgs), 0)
+    assert (stats.frames, stats.backwards_timestamps) == (len(msgs), 0)
     built_frames = [frame_from_message(m) for m in msgs]
     assert [f._replace(t=0.0) for f in frames] == [f._replace(t=0.0) for f in built_frames]
     assert max(abs(f.t - b.t) for f, b in zip(frames, built_frames, strict=True)) <= 1e-6

@@ -313,8 +313,8 @@ def test_blocks_read_the_frames_python_can_reads(tmp_path_factory: Any, lines: l
     import pytest
 
     import canguard.io.candump
-    from canguard.io.block import Block
-    from canguard.io.logs import frame_from_message, read_log
+    from canguard.io.block import Block, frame_from_message
+    from canguard.io.logs import read_log
 
     path = tmp_path_factory.mktemp("blk") / "x.log"
     path.write_text("\n".join(lines) + "\n", encoding="ascii")

@@ -8,6 +8,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import cantools
 import pytest
 
 import canguard.cli.replay as replay_cmd
@@ -27,7 +28,7 @@ def logs(tmp_path_factory: pytest.TempPathFactory) -> list[Path]:
     out = []
     for name, seed in (("a", 1), ("b", 2)):
         path = d / f"{name}.log"
-        write_log(path, 0.5, db=str(DBC), scenarios=["normal"], seed=seed)
+        write_log(path, 0.5, db=cantools.database.load_file(DBC), scenarios=["normal"], seed=seed)
         out.append(path)
     return out
 

@@ -21,8 +21,9 @@ from canguard.cli.replay import ReplayOptions, replay_one
 from canguard.config.loader import load_config
 from canguard.errors import LogFormatError
 from canguard.io.bagopts import BagOptions
+from canguard.io.candump import write_candump
 from canguard.io.frame import Frame
-from canguard.io.logs import ReadStats, read_log, write_candump
+from canguard.io.logs import ReadStats, read_log
 from checkout import REPO
 
 CONFIG = REPO / "config" / "canguard.yaml"

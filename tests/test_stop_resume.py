@@ -27,6 +27,7 @@ from canguard.config.schema import Config
 from canguard.engine.core import Engine
 from canguard.engine.gate import LogSink
 from canguard.errors import ConfigError
+from canguard.io.block import one_block
 from canguard.io.clock import ManualClock
 from canguard.io.frame import Frame
 from checkout import REPO
@@ -93,7 +94,7 @@ class Run:
     def feed(self, frames: list[Frame]) -> None:
         """Feed frames on bus main."""
         for f in frames:
-            self.engine.feed("main", f)
+            self.engine.take("main", one_block(f))
 
     def until(self, end_s: float, frames: Callable[[float], list[Frame]] | None = None, step_s: float = 0.01) -> None:
         """Up to T0 + ``end_s``: ``frames(seconds)`` every ``step_s`` (or only ticks), then advance to it."""
@@ -279,8 +280,8 @@ class TestReleaseRule:
         assert "ResetStop" in run.events.named("reason")[-1]["reason"]
         run.check_frames_never_mix()
 
-    def test_withheld_task_frames_are_counted_and_said(self, tmp_path: Path) -> None:
-        """A task action ticked in a tick that fails later sends nothing; the gate counts it, the node says so."""
+    def test_withheld_task_frames_are_said(self, tmp_path: Path) -> None:
+        """A task action ticked in a tick that fails later sends nothing; the node says so."""
         self._cfg(tmp_path, seed="profiling.yaml")
         doc = yaml.safe_load((tmp_path / "c.yaml").read_text(encoding="utf-8"))
         doc["actions"]["ProcessSensorData"] = {"frames": [{"id": 0x123, "data": "01"}]}
@@ -298,7 +299,7 @@ class TestReleaseRule:
         Blackboard.storage["/load"] = 5.0
         run.until(1.0)
         node = next(n for n in run.engine.root.iterate() if n.name == "ProcessSensorData")
-        assert run.engine.gate.withheld == 11 and "withheld" in node.feedback_message  # ticks 0.0 ... 1.0 s
+        assert "1 frame(s) withheld" in node.feedback_message
         assert [o for o in run.sink.origins if o == "ProcessSensorData"] == []
         Blackboard.storage["/load"] = 0.0
         run.until(1.5)

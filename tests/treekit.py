@@ -165,7 +165,7 @@ class Rig:
 
     def advance(self, dt: float) -> None:
         """Move the clock forward."""
-        self.clock.advance(dt)
+        self.clock.advance_to(self.clock.now() + dt)
 
     def feed(self, src: str, role: str, value: float, t: float | None = None, reason: str = "") -> bool:
         """Dispatch one sample (at now unless ``t``)."""

@@ -715,11 +715,9 @@ class CanopenSection:
         elif parsed is not None:
             eds = self._eds[drive.name]
             if parsed[1] is None and hasattr(eds.entry(parsed[0]), "subindices"):
-                try:
-                    eds.pdo_value(parsed[0], None)
-                except EdsError as exc:  # a record or array: its sub-index 0 is a count, never a value
-                    self.problem(key, _found(value), f"a variable, not a whole object: {exc}")
-                    return None
+                # a record or array: its sub-index 0 is a count, never a value
+                self.problem(key, _found(value), f"a variable, not a whole object: {eds.refusal(parsed[0])}")
+                return None
             found = drive.tpdo_of(parsed[0], parsed[1] or 0)
             if found is not None and found[1].name == UNDESCRIBED:
                 self.problem(key, f"{found[1].ref}, which {found[0].name} maps but {drive.eds.name} does not "

@@ -410,17 +410,11 @@ def _raw_frame(c: Checks, value: Mapping[str, Any], key: str) -> FrameSpec | Non
     if isinstance(raw_id, bool) or not isinstance(raw_id, int) or not 0 <= raw_id <= 0x1FFFFFFF:
         c.problem(_path(key, "id"), _found(raw_id), "a frame id 0..0x1FFFFFFF")
         return None
-    extended = value.get("extended", raw_id > 0x7FF)
-    if not isinstance(extended, bool):
-        c.problem(_path(key, "extended"), _found(extended), "true or false")
-        return None
+    extended = c.choice(value, "extended", key, (True, False), raw_id > 0x7FF)
     if not extended and raw_id > 0x7FF:
         c.problem(_path(key, "id"), f"0x{raw_id:X}", "a standard frame id 0..0x7FF (or extended: true)")
         return None
-    fd = value.get("fd", False)
-    if not isinstance(fd, bool):
-        c.problem(_path(key, "fd"), _found(fd), "true or false")
-        return None
+    fd = c.choice(value, "fd", key, (True, False), False)
     payload_b = _raw_data(c, value.get("data", ""), _path(key, "data"), fd)
     if payload_b is None:
         return None

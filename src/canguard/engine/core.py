@@ -26,9 +26,8 @@ from canguard.engine.gate import TaskGate
 from canguard.engine.logrun import MAX_CATCH_UP_S, LogCursor, LogRun
 from canguard.engine.quiet import QuietTicks
 from canguard.engine.stats import EngineStats, EventSink, Journal, TickObserver
-from canguard.io.block import Block, one_block
+from canguard.io.block import Block
 from canguard.io.clock import Clock, PinnedClock
-from canguard.io.frame import Frame
 from canguard.protect.base import LatchedModel
 
 if TYPE_CHECKING:
@@ -238,12 +237,6 @@ class Engine:
         else:
             cursor.route, cursor.default_bus = _NO_ROUTE, bus
         self._blocks.take(block, cursor)
-
-    def feed(self, bus: str, frame: Frame) -> None:
-        """Process one frame received on ``bus`` at ``frame.t``: :meth:`take` of a block of one."""
-        cursor = self._live
-        cursor.route, cursor.default_bus = _NO_ROUTE, bus
-        self._blocks.take(one_block(frame), cursor)
 
     def edge_tick(self, t: float) -> None:
         """A sample at ``t`` changed a model's or a source's state: the tree ticks at once."""
@@ -514,8 +507,7 @@ class Engine:
                 else:
                     self.journal.write({"event": "fresh", "source": name, "reason": f"{prev} cleared"})
             if self.metrics is not None:
-                age = health.age(now, None) if hasattr(health, "age") else math.nan
-                self.metrics.set_sample_age(name, age)
+                self.metrics.set_sample_age(name, health.age(now))
 
     def _guards_ticked(self, now: float, was_running: bool) -> None:
         """Safety row T4: a guard not ticked for its source's ``max_age`` (a period at least) while the task runs

@@ -1,8 +1,8 @@
 """The event journal: guard transitions, stops, stale sources... as JSON lines.
 
 A line is whole and survives a crash of the daemon once :meth:`EventJournal.write` returns (one ``os.write``
-on an ``O_APPEND`` descriptor). A power cut loses at most the last ``sync_interval_s``: with
-``sync_in_background`` (the daemon) a thread of its own ``fsync``s, ``sync_interval_s`` after the first flush
+on an ``O_APPEND`` descriptor). A power cut loses at most the last ``SYNC_INTERVAL_S``: with
+``sync_in_background`` (the daemon) a thread of its own ``fsync``s, ``SYNC_INTERVAL_S`` after the first flush
 since its last one, so the loop never waits for a disk (on a VM or an SD card one ``fsync`` can stall the
 machine for milliseconds) and no ``fsync`` starts while a stop's frames travel. Rotation never deletes by
 default (the highest number is the oldest file).
@@ -34,9 +34,9 @@ _PENDING_MAX = 10_000
 
 
 class EventJournal:
-    """Appends events to a JSON-lines file, rotated at ``max_bytes``; ``backups`` None keeps every rotated file.
+    """Appends events to a JSON-lines file, rotated at ``max_bytes`` (every rotated file is kept).
 
-    ``path`` None only counts. Thread-safe (receive threads report ``bus_error``). Disk errors never raise out
+    ``path`` None writes nothing. Thread-safe (receive threads report ``bus_error``). Disk errors never raise out
     of :meth:`write` or :meth:`flush`, so a full disk cannot stop the guard: the lines wait in memory for the
     next call that succeeds (whole or not at all); the backlog's overflow and lines left at :meth:`close` go
     to stderr (the systemd journal).
@@ -46,23 +46,13 @@ class EventJournal:
         self,
         path: Path | str | None,
         max_bytes: int = DEFAULT_MAX_BYTES,
-        backups: int | None = None,
         *,
         sync_in_background: bool = False,
-        sync_interval_s: float = SYNC_INTERVAL_S,
     ) -> None:
         if max_bytes <= 0:
             raise ValueError(f"max_bytes must be > 0, got {max_bytes}")
-        if backups is not None and backups < 1:
-            raise ValueError(f"backups must be None (keep all) or >= 1, got {backups}")
-        if not sync_interval_s >= 0:
-            raise ValueError(f"sync_interval_s must be >= 0, got {sync_interval_s}")
         self.path: Path | None = None if path is None else Path(path)
         self.max_bytes = int(max_bytes)
-        self.backups = backups
-        self.lines = 0  # events accepted by :meth:`write` (also when ``path`` is None)
-        self.errors = 0  # disk errors (each logged; only the first of a run at WARNING)
-        self.dropped = 0  # lines that overflowed the in-memory backlog
         self._fd: int | None = None
         self._size = 0
         self._dirty = False
@@ -70,12 +60,10 @@ class EventJournal:
         self._pending: deque[bytes] = deque()
         self._torn = False
         self._torn_at = 0
-        self.to_stderr = 0  # lines that went to stderr instead of the file
         self._failing = False
         self._lock = threading.Lock()
         if self.path is not None:
             self._open()
-        self.sync_interval_s = float(sync_interval_s)
         self._sync_due = threading.Event()
         self._sync_stop = threading.Event()
         self._syncer: threading.Thread | None = None
@@ -129,11 +117,6 @@ class EventJournal:
         for i in range(n - 1, 0, -1):
             os.replace(self._backup(i), self._backup(i + 1))
         os.replace(self.path, self._backup(1))
-        if self.backups is not None:
-            i = self.backups + 1
-            while self._backup(i).exists():
-                self._backup(i).unlink()
-                i += 1
         self._fsync_dir()
         self._open()
 
@@ -176,7 +159,7 @@ class EventJournal:
         self._torn = False
 
     def _failed(self, exc: OSError, what: str) -> None:
-        self.errors += 1
+        """A disk error: logged (only the first of a run at WARNING); the lines wait in memory."""
         level = logging.DEBUG if self._failing else logging.WARNING
         log.log(level, "event journal %s: %s failed: %s (lines kept in memory)", self.path, what, exc)
         self._failing = True
@@ -200,14 +183,12 @@ class EventJournal:
         with self._lock:
             if self._closed:
                 raise ValueError("write to a closed EventJournal")
-            self.lines += 1
             if self.path is None:
                 return
             self._pending.append(line)
             if len(self._pending) > _PENDING_MAX:
                 # The backlog is full: the oldest line leaves memory for stderr (the systemd journal).
                 self._spill([self._pending.popleft()], "the in-memory backlog is full")
-                self.dropped += 1
             try:
                 self._drain()
             except OSError as exc:
@@ -234,11 +215,11 @@ class EventJournal:
                 self._failed(exc, "fsync")
 
     def _sync_loop(self) -> None:
-        """The sync thread: ``fsync`` a duplicate descriptor outside the lock ``sync_interval_s`` after the first flush
+        """The sync thread: ``fsync`` a duplicate descriptor outside the lock ``SYNC_INTERVAL_S`` after the first flush
         since the last one; never at once, so a stop's tick does not stall the disk while its frames travel."""
         while True:
             self._sync_due.wait()
-            if self._sync_stop.wait(self.sync_interval_s):
+            if self._sync_stop.wait(SYNC_INTERVAL_S):
                 return  # close() syncs what is left itself
             self._sync_due.clear()  # a flush from here on asks for the next fsync
             with self._lock:
@@ -280,8 +261,7 @@ class EventJournal:
                 self._spill(lines, "closing while the file refuses them")
 
     def _spill(self, lines: list[bytes], why: str) -> None:
-        """Lines that cannot reach the file go to stderr (the systemd journal), whole and counted."""
-        self.to_stderr += len(lines)
+        """Lines that cannot reach the file go to stderr (the systemd journal), whole, with their count."""
         try:
             sys.stderr.write(f"canguard: event journal {self.path}: {len(lines)} line(s) not written to the file "
                              f"({why}); here they are:\n")
@@ -290,15 +270,4 @@ class EventJournal:
             sys.stderr.flush()
         except (OSError, ValueError):
             log.error("event journal %s: %d line(s) lost (%s; stderr refused them too)", self.path, len(lines), why)
-
-    @property
-    def pending(self) -> int:
-        """Lines waiting in memory because the disk refused them."""
-        return len(self._pending)
-
-    def __enter__(self) -> EventJournal:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 

@@ -62,7 +62,6 @@ class TaskGate:
         self.explain: Callable[[], str] = str  # why the tree halted the task (the failing guards): the engine's
         self.tree_has_task = True
         """False when the tree holds no ExecuteTask and no task action: a tick without FAILURE asks for the task."""
-        self.withheld = 0  # task action frames not sent: the task was stopped (or not started)
         self._asked_by = ""
         self._reset_this_tick = False
         self._queued: list[tuple[str, Sequence[FrameSpec], Callable[[str], None] | None]] = []
@@ -155,7 +154,6 @@ class TaskGate:
         self._next_stop = old._next_stop
         self.confirm_pending = old.confirm_pending and self.stop_cfg.confirm is not None
         self.cause = old.cause
-        self.withheld = old.withheld
 
     def resend_stop(self, now: float) -> None:
         """Send the stop frames again now if the task is stopped (the daemon's exit)."""
@@ -188,11 +186,8 @@ class TaskGate:
                 self._note_cause(now, cause if failed and cause[1] else ("", hold))
         running = self.state == self.RUNNING
         for node, frames, note in queued:
-            if running:
-                if frames:
-                    self.sink.send(frames, node)
-            else:
-                self.withheld += len(frames)
+            if running and frames:
+                self.sink.send(frames, node)
             if note is not None:
                 note(f"{len(frames)} frame(s) " + ("sent" if running else f"withheld: task {self.state}"))
 
@@ -353,7 +348,7 @@ class LogSink:
         out, keep = self.out, self.keep
         if out is None and not keep:
             return
-        from canguard.io.logs import format_candump_line
+        from canguard.io.candump import format_candump_line
 
         t = self._now()
         for f in frames:
@@ -383,7 +378,6 @@ class BusSink:
         self._now = now
         self.reports = RateLimit()
         self.sent = 0
-        self.failed = 0
 
     def send(self, frames: Sequence[FrameSpec], origin: str) -> None:
         """Hand each frame to its bus with timeout 0; a full queue or an error is counted, never raised."""
@@ -396,7 +390,6 @@ class BusSink:
             if self._send(f.bus, msg):
                 self.sent += 1
                 continue
-            self.failed += 1
             if self.on_error is not None:
                 self.on_error(f.bus)
             held = self.reports.allow((f.bus, origin), self._now())

@@ -10,26 +10,22 @@ REPORT_INTERVAL_S = 1.0
 
 
 class RateLimit:
-    """Decides which of many equal reports to make: the first per key per ``interval_s``, counting the rest."""
+    """Decides which of many equal reports to make: the first per key per :data:`REPORT_INTERVAL_S`, counting the
+    rest."""
 
-    def __init__(self, interval_s: float = REPORT_INTERVAL_S) -> None:
-        self.interval_s = interval_s
+    def __init__(self) -> None:
         self._last: dict[Hashable, float] = {}
         self._held: dict[Hashable, int] = {}
 
     def allow(self, key: Hashable, now: float) -> int | None:
         """None when this report is held back (and counted); else how many were held back before it."""
-        if now - self._last.get(key, -math.inf) < self.interval_s:
+        if now - self._last.get(key, -math.inf) < REPORT_INTERVAL_S:
             self._held[key] = self._held.get(key, 0) + 1
             return None
         self._last[key] = now
         return self._held.pop(key, 0)
 
-    def held(self) -> int:
-        """Reports held back and not yet accounted for by a later one (all keys)."""
-        return sum(self._held.values())
 
-
-def held_note(held: int, interval_s: float = REPORT_INTERVAL_S) -> str:
+def held_note(held: int) -> str:
     """``"; 12 more like it held back (...)"`` (empty for none): what a report stands for besides itself."""
-    return f"; {held} more like it held back (at most one report per {interval_s:g} s)" if held else ""
+    return f"; {held} more like it held back (at most one report per {REPORT_INTERVAL_S:g} s)" if held else ""

@@ -32,7 +32,6 @@ class McapCut(Exception):
 class Channel(NamedTuple):
     """An MCAP channel with its schema (``schema_encoding``: ``ros2msg``, ``ros2idl``, ..., empty for none)."""
 
-    id: int
     topic: str
     schema_name: str
     schema_encoding: str
@@ -93,7 +92,6 @@ class _Scan:
     """A bag file, read from its start; ``whole``: ``index`` read every channel first (the file then at its data)."""
 
     def __init__(self, path: Path, magic: bytes, not_one: str, index: Callable[[], bool]) -> None:
-        self.path = path
         self.channels: dict[int, Channel] = {}
         self.f: BinaryIO = open(path, "rb")  # noqa: SIM115 -- closed by close()
         try:
@@ -150,7 +148,7 @@ class McapScan(_Scan):
             topic, pos = _string(body, 4)
             encoding, pos = _string(body, pos)
             name, schema_encoding, schema = self.schemas.get(sid, ("", "", ""))
-            self.channels[cid] = Channel(cid, topic, name, schema_encoding, schema, encoding)
+            self.channels[cid] = Channel(topic, name, schema_encoding, schema, encoding)
 
     def messages(self) -> Iterator[Messages]:
         """Every message of the data section, a chunk (or a run of unchunked messages) at a time, in file order."""
@@ -294,7 +292,7 @@ class Ros1Scan(_Scan):
     def _take_connection(self, fields: dict[bytes, tuple[int, bytes]], data: bytes) -> None:
         conn = _U32.unpack(fields[b"conn"][1])[0]
         info = {k: v for k, (_at, v) in _ros1_fields(data).items()}
-        self.channels[conn] = Channel(conn, fields.get(b"topic", (0, info.get(b"topic", b"")))[1].decode("utf-8"),
+        self.channels[conn] = Channel(fields.get(b"topic", (0, info.get(b"topic", b"")))[1].decode("utf-8"),
                                       info.get(b"type", b"").decode("utf-8"), "ros1msg",
                                       info.get(b"message_definition", b"").decode("utf-8", "replace"), "ros1")
 

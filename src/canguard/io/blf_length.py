@@ -24,7 +24,7 @@ class BlfLength:
         self.raw = raw
         self.pos = 0  # bytes read so far
         self.ended = False  # a read came back short: the file ended there
-        self.file_size = 0  # the file size the file header records (0: none)
+        self.file_size = 0  # the file size the file header records (python-can's reader tells it; 0: none)
         self._header_size = 0  # the file header's size, once its first 8 bytes are in
         self._next = 0  # where the next header starts (the file header's at 0)
         self._head = b""  # its bytes read so far
@@ -64,10 +64,6 @@ class BlfLength:
         """Refused (python-can before 4.6 takes an object for a file only when it has ``read`` and ``write``)."""
         raise io.UnsupportedOperation("write")
 
-    def note_file_size(self, file_size: int) -> None:
-        """The file size the file header records (python-can's reader has it), held against the end."""
-        self.file_size = file_size if file_size > self._header_size else 0
-
     def cut(self) -> str:
         """Why the file read so far is not whole ("" when it is, not ended yet, or not BLF framing at all)."""
         if not self.ended or self._lost:
@@ -81,6 +77,6 @@ class BlfLength:
             what = "log container" if kind == _LOG_CONTAINER else f"object (type {kind})"
             return (f"the file ends at byte {self.pos}, {self.pos - start} bytes into the {size}-byte {what} "
                     f"at byte {start}")
-        if self.file_size and self.pos < self.file_size:
+        if self.file_size > self._header_size and self.pos < self.file_size:
             return f"the file ends at byte {self.pos}; its header says {self.file_size}"
         return ""

@@ -1,8 +1,9 @@
 """Open the configured python-can buses and receive from them without losing frames.
 
 :meth:`BusReader.receive` gives ``(bus_name, message, received)`` in arrival order, one of two ways:
-- **Direct** (``direct=True``, every bus a socket): no thread; the caller ``select``s on the sockets and drains them
-  with ``recv(0)``: the kernel's buffer is the queue (no thread hand-off, no wait for the GIL).
+- **Direct** (``direct=True``, every bus a socket): no thread; the caller waits in python-can's ``recv`` (one bus) or
+  ``select``s on the sockets (several) and drains them with ``recv(0)``: the kernel's buffer is the queue (no thread
+  hand-off, no wait for the GIL).
 - **Threads** (otherwise: ``virtual``, vendor drivers): one thread per bus puts each message on an unbounded
   :class:`queue.SimpleQueue`, so no frame is dropped while the engine is busy.
 Per bus the id keys the config reads go to SocketCAN as kernel filters (a foreign frame never wakes the daemon);
@@ -283,8 +284,14 @@ class BusReader:
         return []
 
     def _wake(self, timeout_s: float | None, limit: int) -> list[tuple[str, can.Message, float]] | None:
-        """One wait and drain: the frames taken; [] when none is ready, None when the ready held only dropped frames."""
+        """One wait and drain: the frames taken; [] when none came in time, None when what came was all dropped.
+        One bus open: python-can's receive waits on its socket itself (one system call less a wake-up)."""
         buses = self._buses
+        if len(buses) == 1 and None not in buses.values():
+            out: list[tuple[str, can.Message, float]] = []
+            name = next(iter(buses))
+            read = self._drain_bus(name, limit, out, timeout_s)
+            return out if out or not read else None
         if None in buses.values():  # a bus closed: reopened when due, waited on until then
             now = monotonic()
             self._reopen_due(now)
@@ -300,7 +307,7 @@ class BusReader:
             ready = fds
         if not ready:
             return []
-        out: list[tuple[str, can.Message, float]] = []
+        out = []
         share = max(1, limit // len(ready))  # a busy bus does not starve the others
         for name, fd in self._fds.items():
             if fd in ready and self._buses[name] is not None:
@@ -309,23 +316,34 @@ class BusReader:
             out.sort(key=lambda item: item[2])  # buses drained one after the other: back to arrival order
         return out if out or None in self._buses.values() else None
 
-    def _drain_bus(self, name: str, limit: int, out: list[tuple[str, can.Message, float]]) -> None:
-        """Append up to ``limit`` frames the kernel holds for bus ``name``; a failure closes the bus. System calls
-        are the cost: while fewer than two frames are taken a poll of the socket (cheaper than a ``recv(0)`` that
-        finds none, or than a wait) asks for another; after two, ``recv(0)`` until none."""
+    def _drain_bus(self, name: str, limit: int, out: list[tuple[str, can.Message, float]],
+                   wait_s: float | None = 0.0) -> int:
+        """Append up to ``limit`` frames the kernel holds for bus ``name``, the first waited for up to ``wait_s``; a
+        failure closes the bus. The frames read (taken or dropped). System calls are the cost: after a frame taken
+        alone or dropped a poll of the socket (cheaper than a ``recv(0)`` that finds none) asks for another, after
+        two ``recv(0)`` until none; a frame dropped while the one bus is waited on: the wait goes on."""
         bus = self._buses[name]
         assert bus is not None
         msgs: list[can.Message] = []
         recv = bus.recv
         pending = self._pending[name]
         keys = self.wanted[name]
+        read = 0
+        end = monotonic() + wait_s if wait_s else 0.0
         try:
             while len(msgs) < limit:
-                msg = recv(0)
+                msg = recv(wait_s)
                 if msg is None:
                     break
+                read += 1
                 if wants(keys, msg):
                     msgs.append(msg)
+                    wait_s = 0.0
+                elif not msgs and wait_s:  # dropped while waiting on the one bus: waited on for the rest of the time
+                    wait_s = end - monotonic()
+                    if wait_s <= 0.0:
+                        break
+                    continue
                 if len(msgs) < 2 and not pending(0):  # a frame alone, the usual wake-up: no recv(0) that finds none
                     break
         except Exception as exc:  # the bus went away (or a backend bug): report, close, reopen later
@@ -333,6 +351,7 @@ class BusReader:
             self._reopen_at[name] = monotonic() + self._delay[name]
         if msgs:
             self.admit(name, msgs, out)
+        return read
 
     def admit(self, name: str, msgs: list[can.Message], out: list[tuple[str, can.Message, float]]) -> None:
         """Append the messages just received from bus ``name`` to ``out`` as ``(name, message, received)``: the

@@ -5,6 +5,7 @@ Blocks are parsed by :func:`canguard.io.candump_np.parse_block`; a bad line is n
 
 from __future__ import annotations
 
+import io
 from collections.abc import Iterable
 from pathlib import Path
 from typing import Any, TextIO
@@ -21,15 +22,48 @@ from canguard.io.logtypes import (
     CANFD_BRS,
     CANFD_ESI,
     CANFD_LENGTHS,
-    MAX_BAD_EXAMPLES,
-    BadLine,
     Blocks,
-    CrLines,
     ReadStats,
-    _Bad,
-    decompress_errors,
     open_decompressed,
 )
+
+
+class _Bad(Exception):
+    """Raised by the line parsers; carries the reason only (the caller adds file:line)."""
+
+    def __init__(self, reason: str) -> None:
+        super().__init__(reason)
+        self.reason = reason
+
+
+class CrLines:
+    """A binary log whose lines end in CR, LF or CRLF, read with each ending as LF (latin-1, universal newlines)."""
+
+    def __init__(self, f: Any) -> None:
+        self._text = io.TextIOWrapper(f, encoding="latin-1", newline=None)
+
+    def read(self, size: int = -1) -> bytes:
+        return self._text.read(size).encode("latin-1")
+
+    def readline(self, size: int = -1) -> bytes:
+        return self._text.readline(size).encode("latin-1")
+
+    def close(self) -> None:
+        self._text.close()
+
+
+def decompress_errors() -> tuple[type[BaseException], ...]:
+    """What reading through a decompressor may raise on data that is not what its suffix says."""
+    import lzma
+    import zlib
+
+    errors: tuple[type[BaseException], ...] = (OSError, EOFError, ValueError, zlib.error, lzma.LZMAError)
+    try:
+        import zstandard
+    except ImportError:
+        return errors
+    return (*errors, zstandard.ZstdError)
+
 
 CHUNK_CHARS = 1 << 20
 """Bytes per chunk (~22,000 -L lines); twice as many make the parser slower (its passes outgrow the caches)."""
@@ -196,15 +230,10 @@ def candump_blocks(p: Path, gz: str, skip_bad: bool, st: ReadStats) -> Blocks:
                 line = bad[0]
                 before = 0 if block is None else int(np.searchsorted(parsed.rows_line, line))
                 if block is not None and before:
-                    st.lines += line
                     yield block.select(slice(0, before)), None
-                text_of = _line(text, line)
+                text_of = _as_text(text).split("\n")[line]
                 raise LogFormatError(f"{p}:{lineno + line + 1}: {why_bad(text_of)}: {quote(text_of)}")
-            st.lines += parsed.lines
             st.bad_lines += len(bad)
-            for line in bad[:max(0, MAX_BAD_EXAMPLES - len(st.bad_examples))]:
-                text_of = _line(text, line)
-                st.bad_examples.append(BadLine(lineno + line + 1, why_bad(text_of), text_of))
             lineno += parsed.lines
             error_last = parsed.error_last
             yield block, raw.tell()
@@ -241,15 +270,10 @@ def _text(p: Path, raw: Any, gz: str, files: list[Any], lineno: int) -> bytes:
     return text
 
 
-def _line(raw: bytes, k: int) -> str:
-    """Line ``k`` of a block, as text (UTF-8, junk replaced)."""
-    return _as_text(raw).split("\n")[k]
-
-
-def format_candump_line(frame: Frame, default_channel: str = "can0") -> str:
+def format_candump_line(frame: Frame) -> str:
     """One candump -L line for ``frame``, no newline; ValueError for an id out of range or a channel with spaces."""
-    channel = frame.channel or default_channel
-    if not channel or channel.split() != [channel]:
+    channel = frame.channel or "can0"
+    if channel.split() != [channel]:
         raise ValueError(f"channel {channel!r} cannot be written to a candump log (empty or has whitespace)")
     cid = frame.arbitration_id
     if frame.is_error_frame:
@@ -274,10 +298,10 @@ def format_candump_line(frame: Frame, default_channel: str = "can0") -> str:
     return f"({frame.t:.6f}) {channel} {id_text}#{body}"
 
 
-def write_candump(frames: Iterable[Frame], out: TextIO, default_channel: str = "can0") -> int:
+def write_candump(frames: Iterable[Frame], out: TextIO) -> int:
     """Write ``frames`` to ``out`` as a candump -L log (one line each); return how many were written."""
     count = 0
     for frame in frames:
-        out.write(format_candump_line(frame, default_channel) + "\n")
+        out.write(format_candump_line(frame) + "\n")
         count += 1
     return count

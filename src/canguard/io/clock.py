@@ -35,10 +35,6 @@ class ManualClock:
         """Set the time, backwards included (tests only)."""
         self._now = float(t)
 
-    def advance(self, dt: float) -> None:
-        """Move forward by ``dt`` seconds (ignored when negative)."""
-        self.advance_to(self._now + dt)
-
     def advance_to(self, t: float) -> None:
         """Move forward to ``t``; a ``t`` in the past is ignored."""
         self._now = max(self._now, t)
@@ -91,13 +87,11 @@ class BootClock:
     """Downtime a wall-clock step cannot fake (the I²t state's stamp): ``CLOCK_BOOTTIME``'s within one boot (an NTP
     correction after boot is no hours of cooling), else the wall clock's."""
 
-    def __init__(self, boot_id_path: str = BOOT_ID_PATH) -> None:
-        self._boot_id_path = boot_id_path
-
-    def boot_id(self) -> str | None:
+    @staticmethod
+    def boot_id() -> str | None:
         """This boot's id, None where the kernel does not tell."""
         try:
-            with open(self._boot_id_path, encoding="ascii") as f:
+            with open(BOOT_ID_PATH, encoding="ascii") as f:
                 return f.read().strip() or None
         except OSError:
             return None

@@ -41,8 +41,3 @@ class Sample(NamedTuple):
     value: float
     t: float
     reason: str = ""
-
-    @property
-    def valid(self) -> bool:
-        """True when the value is a finite, in-range decoded number."""
-        return not self.reason

@@ -1,4 +1,4 @@
-"""Read recorded CAN logs as streams of :class:`~canguard.io.block.Block` s (or frames); write candump -L logs.
+"""Read recorded CAN logs as streams of :class:`~canguard.io.block.Block` s (or frames).
 
 The reader is chosen by file suffix (:data:`LOG_READERS`); memory stays flat in the log's length."""
 
@@ -9,14 +9,9 @@ from pathlib import Path
 
 from canguard.errors import LogFormatError
 from canguard.io.bagopts import BAG_SUFFIXES, NEEDS, BagOptions, is_bag
-from canguard.io.block import frame_from_message
-from canguard.io.candump import candump_blocks, format_candump_line, write_candump
-from canguard.io.logtypes import COMPRESSIONS, BadLine, Blocks, LogFrames, ReadStats
+from canguard.io.candump import candump_blocks
+from canguard.io.logtypes import COMPRESSIONS, Blocks, LogFrames, ReadStats
 from canguard.io.pycan import python_can_blocks
-
-__all__ = ["LOG_READERS", "LOG_SUFFIXES", "BadLine", "ReadStats", "format_candump_line", "frame_from_message",
-           "log_format", "read_log", "write_candump"]
-
 
 LOG_READERS: dict[str, str] = {
     **dict.fromkeys((".log", ".candump", ".txt"), "candump"),
@@ -69,8 +64,6 @@ def read_log(path: str | Path, *, skip_bad: bool = False, stats: ReadStats | Non
         if needs is not None and importlib.util.find_spec(needs[0]) is None:
             raise LogFormatError(f"{p}: reading {what} needs {needs[0]}: {needs[1]}")
     st = stats if stats is not None else ReadStats()
-    st.path = str(p)
-    st.format = fmt + (f".{gz}" if gz else "")
     try:
         size = sum(f.stat().st_size for f in p.iterdir()) if p.is_dir() else p.stat().st_size
     except OSError as exc:

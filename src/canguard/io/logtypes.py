@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import io
 import math
-from collections.abc import Callable, Generator, Iterator
+from collections.abc import Callable, Generator, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import Any
 
 from canguard.errors import LogFormatError
 from canguard.io.block import Block
@@ -16,9 +16,6 @@ from canguard.io.progress import ProgressBar
 
 COMPRESSIONS = (".gz", ".xz", ".zst")
 """Compressed logs: any format may carry one of these on top (``robot.log.xz``)."""
-
-MAX_BAD_EXAMPLES = 5
-"""How many bad lines :class:`ReadStats` keeps as examples."""
 
 CAN_ERR_FLAG = 0x20000000
 CAN_EFF_MASK = 0x1FFFFFFF
@@ -46,58 +43,16 @@ def open_decompressed(raw: Any, compression: str) -> Any:
     return raw
 
 
-class CrLines:
-    """A binary log whose lines end in CR, LF or CRLF, read with each ending as LF (latin-1, universal newlines)."""
-
-    def __init__(self, f: Any) -> None:
-        self._text = io.TextIOWrapper(f, encoding="latin-1", newline=None)
-
-    def read(self, size: int = -1) -> bytes:
-        return self._text.read(size).encode("latin-1")
-
-    def readline(self, size: int = -1) -> bytes:
-        return self._text.readline(size).encode("latin-1")
-
-    def close(self) -> None:
-        self._text.close()
-
-
-def decompress_errors() -> tuple[type[BaseException], ...]:
-    """What reading through a decompressor may raise on data that is not what its suffix says."""
-    import lzma
-    import zlib
-
-    errors: tuple[type[BaseException], ...] = (OSError, EOFError, ValueError, zlib.error, lzma.LZMAError)
-    try:
-        import zstandard
-    except ImportError:
-        return errors
-    return (*errors, zstandard.ZstdError)
-
-
-class BadLine(NamedTuple):
-    """One malformed line: 1-based line number, why it is bad, and its text."""
-
-    lineno: int
-    reason: str
-    text: str
-
-
 @dataclass
 class ReadStats:
-    """What a reader saw, added up over :func:`read_log` calls: text ``lines`` (0: binary), bad lines (the first
-    :data:`MAX_BAD_EXAMPLES` kept), times back or repeated, bytes, bag frames timed by ``header`` or ``record``."""
+    """What a reader saw, added up over :func:`read_log` calls: frames, bad lines skipped, times back or repeated,
+    bytes on disk, bag frames timed by ``header`` or ``record``."""
 
-    path: str = ""
-    format: str = ""
-    lines: int = 0
     frames: int = 0
     bad_lines: int = 0
-    bad_examples: list[BadLine] = field(default_factory=list)
     backwards_timestamps: int = 0
     repeated_timestamps: int = 0
     bytes_total: int = 0
-    bytes_read: int = 0
     stamps: dict[str, int] = field(default_factory=dict)
 
 
@@ -105,7 +60,7 @@ Blocks = Generator[tuple[Block | None, int | None], None, str]
 """A reader's blocks (None: none this time) with the position on disk; returns what was read (`` on /can``)."""
 
 
-class LogFrames(Iterator[Frame]):
+class LogFrames(Iterable[Frame]):
     """The frames of one log (:func:`read_log`): frame by frame, or by :meth:`chunks`; ``progress`` follows it."""
 
     def __init__(self, path: Path, stats: ReadStats, read: Callable[[], Blocks]) -> None:
@@ -113,17 +68,13 @@ class LogFrames(Iterator[Frame]):
         self.stats = stats
         self.progress: ProgressBar | None = None
         self._chunks = self._counted(read)
-        self._frames: Iterator[Frame] = (frame for block in self._chunks for frame in block.frames())
 
     def chunks(self) -> Iterator[Block]:
         """The same frames a block at a time (:class:`~canguard.io.block.Block`)."""
         return self._chunks
 
     def __iter__(self) -> Iterator[Frame]:
-        return self._frames
-
-    def __next__(self) -> Frame:
-        return next(self._frames)
+        return (frame for block in self._chunks for frame in block.frames())
 
     def _counted(self, read: Callable[[], Blocks]) -> Iterator[Block]:
         """The reader's blocks, counted in :attr:`stats` as they pass; a log without a frame a LogFormatError."""
@@ -146,21 +97,11 @@ class LogFrames(Iterator[Frame]):
                     st.frames += block.n
                     last_t = float(block.time_s[-1])
                     yield block
-                if position is not None:
-                    st.bytes_read = position
-                    if self.progress is not None:
-                        self.progress.update(position)
+                if position is not None and self.progress is not None:
+                    self.progress.update(position)
         finally:
             if self.progress is not None:
                 self.progress.close()
         if st.frames == before:
             skipped = f" ({st.bad_lines} bad lines skipped)" if st.bad_lines else ""
             raise LogFormatError(f"{self.path}: empty log: no frames{where}{skipped}")
-
-
-class _Bad(Exception):
-    """Raised by the line parsers; carries the reason only (the caller adds file:line)."""
-
-    def __init__(self, reason: str) -> None:
-        super().__init__(reason)
-        self.reason = reason

@@ -47,7 +47,6 @@ class McapWriter:
     """An MCAP file being written: :meth:`schema`, :meth:`channel`, then messages; :meth:`close` ends it."""
 
     def __init__(self, path: Path, profile: str = "") -> None:
-        self.path = path
         self.f = open(path, "wb")  # noqa: SIM115 -- closed by close()
         self.f.write(MAGIC + _record(OP_HEADER, _str(profile) + _str("canguard")))
         self._schemas: list[bytes] = []

@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import sys
 import time
-from collections.abc import Iterator
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any, TextIO, TypeVar
 
-_FramesT = TypeVar("_FramesT", bound=Iterator[Any])
+_FramesT = TypeVar("_FramesT", bound=Iterable[Any])
 
 _BAR_WIDTH = 30
 _MIN_INTERVAL_S = 0.2  # redraw at most five times a second: a terminal write is expensive

@@ -87,7 +87,7 @@ def _messages(p: Path, name: str, fobj: Any, text: bool, length: BlfLength | Non
         raise _cut(p, name, length, 0) or LogFormatError(
             f"{p}: not a valid {name} log: {type(exc).__name__}: {clip(str(exc))}") from exc
     if length is not None:
-        length.note_file_size(int(getattr(reader, "file_size", 0) or 0))
+        length.file_size = int(getattr(reader, "file_size", 0) or 0)
     return iter(reader)
 
 

@@ -22,8 +22,6 @@ from canguard.io.logtypes import (
     CAN_EFF_MASK,
     CAN_SFF_MASK,
     CANFD_LENGTHS,
-    MAX_BAD_EXAMPLES,
-    BadLine,
     Blocks,
     ReadStats,
 )
@@ -359,15 +357,13 @@ def _block_rows(raw: Messages, topics: dict[int, Topic], record: bool) -> tuple[
 
 
 def _note_bad(st: ReadStats, bag: BagSource, rows: Rows, lanes: np.ndarray, first: int, skip_bad: bool) -> None:
-    """Count the bad messages of a block (``first``: the number of its first message in the read), or raise."""
-    for i in np.flatnonzero(~rows.good).tolist():
-        where = f"message {first + i + 1} (topic {bag.channels[int(lanes[i])]})"
-        if not skip_bad:
-            raise LogFormatError(f"{bag.path}: {where}: {rows.why[i]}; {st.frames + int(rows.good[:i].sum())} "
-                                 "frames were read before it")
-        st.bad_lines += 1
-        if len(st.bad_examples) < MAX_BAD_EXAMPLES:
-            st.bad_examples.append(BadLine(first + i + 1, rows.why[i], where))
+    """Count the bad messages of a block, or raise naming the first (``first``: its first message's number - 1)."""
+    if skip_bad:
+        st.bad_lines += int(np.count_nonzero(~rows.good))
+        return
+    i = int(np.flatnonzero(~rows.good)[0])
+    raise LogFormatError(f"{bag.path}: message {first + i + 1} (topic {bag.channels[int(lanes[i])]}): {rows.why[i]}; "
+                         f"{st.frames + int(rows.good[:i].sum())} frames were read before it")
 
 
 def _next(bag: BagSource, blocks: Iterator[tuple[Messages, dict[int, Topic]]],

@@ -57,8 +57,8 @@ class ProtectionModel(ABC):
         """Advance over a run of samples: ``times`` (s) and ``values`` (the signal's unit; |value| is taken), two
         equal-length 1-D columns in arrival order (ValueError naming both shapes otherwise). The :class:`Run` says
         where the tripped state changed and how many samples were taken (``until_edge``: up to the first edge).
-        A sample not finite is counted in ``rejected``, one older than the latest in ``out_of_order``; a repeated
-        time is a normal sample. Fed whole or split anywhere: the same edges and state."""
+        A sample not finite, or older than the latest, is ignored; a repeated time is a normal sample. Fed whole or
+        split anywhere: the same edges and state."""
 
     @abstractmethod
     def mark(self) -> Any:
@@ -102,10 +102,6 @@ class LatchedModel(ProtectionModel):
         self._value = math.nan
         self.last_t: float | None = None
         """Time of the latest accepted sample, None before any."""
-        self.out_of_order = 0
-        """Samples ignored as older than the latest one."""
-        self.rejected = 0
-        """Samples ignored as not finite."""
 
     @property
     def tripped(self) -> bool:
@@ -178,13 +174,9 @@ class LatchedModel(ProtectionModel):
         return False
 
     def _sample(self, t: float, v: float) -> bool | None:
-        """One sample: None when ignored (counted), else True on an edge (its time and the latch taken)."""
-        if not (math.isfinite(t) and math.isfinite(v)):
-            self.rejected += 1
-            return None
-        if self.last_t is not None and t < self.last_t:
-            self.out_of_order += 1
-            return None
+        """One sample: None when ignored, else True on an edge (its time and the latch taken)."""
+        if not (math.isfinite(t) and math.isfinite(v)) or (self.last_t is not None and t < self.last_t):
+            return None  # not finite, or older than the latest: ignored
         a = abs(v)
         tripped = self._step(t, a)
         self.last_t = t

@@ -51,8 +51,6 @@ class _I2tModel(LatchedModel):
         self.accumulator = 0.0
         """The raw state: A (A²s) for the leaky bucket, θ for the thermal image."""
         self._peak = 0.0
-        self.stale_gaps = 0
-        """Gaps longer than ``max_gap_s`` seen so far."""
 
     @abstractmethod
     def _integrate(self, held: float, dt: float) -> float:
@@ -88,14 +86,12 @@ class _I2tModel(LatchedModel):
         if isinstance(old, _I2tModel):
             self._set_acc(old.level * self.trip_level)
             self.held_a = old.held_a
-            self.stale_gaps = old.stale_gaps
 
     def _step(self, t: float, a: float) -> bool:
         """Integrate the held |I| up to ``t`` (a stale gap cut to ``max_gap_s``), hold ``a``, decide."""
         if self.last_t is not None and not math.isnan(self.held_a):
             dt = t - self.last_t
-            if dt > self.max_gap_s:
-                self.stale_gaps += 1
+            if dt > self.max_gap_s:  # a stale gap integrates as max_gap_s
                 dt = self.max_gap_s
             if dt > 0:
                 acc = self.accumulator = self._integrate(self.held_a, dt)

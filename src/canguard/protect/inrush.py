@@ -26,8 +26,6 @@ class InrushBlanking:
         self._below_since: float | None = None
         self._window_start: float | None = None
         self._last_t: float | None = None
-        self.starts = 0
-        """Motor starts recognised so far."""
 
     def observe(self, abs_value: float, t: float) -> bool:
         """The kernel: one |I| sample at ``t``; True when it is a motor start (ignored: out of order, not finite)."""
@@ -43,7 +41,6 @@ class InrushBlanking:
         self._below_since = None
         if started:
             self._window_start = t
-            self.starts += 1
         return started
 
     def advance(self, times: npt.ArrayLike, abs_values: npt.ArrayLike) -> BoolArray:
@@ -54,19 +51,15 @@ class InrushBlanking:
         observe = self.observe
         return np.array([observe(x, s) for s, x in zip(t.tolist(), np.abs(a).tolist(), strict=True)], dtype=bool)
 
-    def resume(self, state: tuple[float | None, float | None, float | None, int]) -> None:
+    def resume(self, state: tuple[float | None, float | None, float | None]) -> None:
         """Go back to (or, on a reload, take over) a state :meth:`running` gave."""
-        self._below_since, self._window_start, self._last_t, self.starts = state
+        self._below_since, self._window_start, self._last_t = state
 
-    def running(self) -> tuple[float | None, float | None, float | None, int]:
-        """The running state: (quiet since, window start, latest time, starts so far)."""
-        return self._below_since, self._window_start, self._last_t, self.starts
-
-    def blanking(self, t: float) -> bool:
-        """True when ``t`` lies inside a blanking window."""
-        w = self._window_start
-        return w is not None and w <= t < w + self.inrush_time_s - TIME_EPS_S
+    def running(self) -> tuple[float | None, float | None, float | None]:
+        """The running state: (quiet since, window start, latest time)."""
+        return self._below_since, self._window_start, self._last_t
 
     def threshold(self, normal: float, t: float) -> float | None:
-        """The overcurrent threshold in force at ``t``: ``normal``, or ``inrush_threshold_a`` in a window."""
-        return self.inrush_threshold_a if self.blanking(t) else normal
+        """The overcurrent threshold in force at ``t``: ``normal``, or ``inrush_threshold_a`` in a blanking window."""
+        w = self._window_start
+        return self.inrush_threshold_a if w is not None and w <= t < w + self.inrush_time_s - TIME_EPS_S else normal

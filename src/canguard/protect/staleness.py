@@ -43,8 +43,6 @@ class SourceHealth:
     def __init__(self, source: SourceConfig) -> None:
         self.source = source
         self.max_age_s = float(source.max_age_s)
-        self.name = source.name
-        """The source's configured name."""
         self.value_roles: tuple[str, ...] = source.value_roles
         """The source's value roles, in config order (``present`` and ``counter`` are not value roles)."""
         self._has_present = source.signal(PRESENT) is not None
@@ -70,12 +68,6 @@ class SourceHealth:
         self._ok_since = math.nan
         """When every role was last usable, the oldest of their latest times (NaN: not known): within ``_window_s``
         of it :meth:`reason` is "" (only the full path can make a role unusable; it clears this)."""
-        self.samples = 0
-        """Samples observed (out-of-order ones included)."""
-        self.invalid_samples = 0
-        """Samples that carried no usable value."""
-        self.out_of_order = 0
-        """Samples ignored as older than the latest of their role."""
 
     def latest_t(self, role: str) -> float | None:
         """Time of the latest sample of ``role``, valid or not (None: none yet)."""
@@ -141,7 +133,6 @@ class SourceHealth:
         for role, column in zip(roles, columns, strict=True):
             self._latest_t[role] = self._valid_t[role] = last
             self._value[role] = float(column[-1])
-        self.samples += len(times) * len(roles)
 
     def _quiet(self, roles: Sequence[str], times: Sequence[float], columns: Sequence[Sequence[float]]) -> bool:
         """True when a run of rows changes nothing but each role's latest value: in order, fresh, valid, in range,
@@ -173,11 +164,9 @@ class SourceHealth:
 
     def _sample(self, role: str, t: float, value: float, own: str = "") -> bool:
         """The kernel: one sample of ``role`` at ``t`` (``own``: its own invalid reason); True on an edge."""
-        self.samples += 1
         latest = self._latest_t.get(role)
         if latest is not None:
-            if not t >= latest:  # older than the latest, or a NaN time
-                self.out_of_order += 1
+            if not t >= latest:  # older than the latest, or a NaN time: ignored
                 return False
             lo, hi = self._limits.get(role, _ANY)
             if not own and lo <= value <= hi and t - latest <= self.max_age_s and role not in NON_VALUE_ROLES \
@@ -186,7 +175,6 @@ class SourceHealth:
                 self._value[role] = value
                 return False
         elif t != t:
-            self.out_of_order += 1
             return False
         return self._full_step(role, t, value, self._invalid_code(role, value, own))
 
@@ -221,9 +209,7 @@ class SourceHealth:
             self._frozen = t - self._counter_since > self.max_age_s
         self._latest_t[role] = t
         self._invalid[role] = bad
-        if bad:
-            self.invalid_samples += 1
-        else:
+        if not bad:
             self._value[role] = value
             self._valid_t[role] = t
         self._ok_since = math.nan  # this sample may have made a role unusable
@@ -286,16 +272,9 @@ class SourceHealth:
         """Time of the latest valid value of ``role``, None if none."""
         return self._valid_t.get(role)
 
-    def age(self, now: float, role: str | None = None) -> float:
-        """Seconds since the latest valid value of ``role`` (inf if none); ``None``: the oldest value role."""
-        if role is None:
-            return max((self.age(now, r) for r in self.value_roles), default=math.inf)
-        t = self._valid_t.get(role)
-        return math.inf if t is None else now - t
-
-    def values(self, now: float) -> dict[str, float]:
-        """Every value role's latest value, NaN where :meth:`reason` for that role is not empty at ``now``."""
-        return {r: (self.value(r) if not self.reason(now, r) else math.nan) for r in self.value_roles}
+    def age(self, now: float) -> float:
+        """Seconds since the latest valid value of the oldest value role (inf while one has none)."""
+        return max((now - self._valid_t.get(r, -math.inf) for r in self.value_roles), default=math.inf)
 
     def latest_times(self) -> dict[str, float]:
         """Each role's latest sample time, valid or not (a copy)."""

@@ -14,9 +14,12 @@ import os
 import tempfile
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 from canguard.errors import StateFileError
+
+if TYPE_CHECKING:
+    from canguard.io.clock import BootClock
 
 KIND_LEAKY = "leaky"
 KIND_THERMAL = "thermal"
@@ -64,14 +67,6 @@ VERSION = 1
 ON_CORRUPT = ("hot", "cold")
 
 
-class DowntimeClock(Protocol):
-    """Stamps saves (``stamp()``) and measures the downtime since one (``downtime(saved, wall_downtime_s)``)."""
-
-    def stamp(self) -> dict[str, object]: ...
-
-    def downtime(self, saved: object, wall_downtime_s: float) -> float: ...
-
-
 @runtime_checkable
 class HeatModel(Protocol):
     """What the state file needs of a model (LeakyI2t and ThermalI2t): ``export``, ``restore``, ``set_hot``."""
@@ -86,7 +81,7 @@ class HeatModel(Protocol):
 class HeatStore:
     """Saves and restores I²t state to/from one JSON file; ``on_corrupt``: ``"hot"`` or ``"cold"`` (ValueError else)."""
 
-    def __init__(self, path: Path | str | None, on_corrupt: str = "hot", clock: DowntimeClock | None = None) -> None:
+    def __init__(self, path: Path | str | None, on_corrupt: str = "hot", clock: BootClock | None = None) -> None:
         if on_corrupt not in ON_CORRUPT:
             raise ValueError(f"on_corrupt must be 'hot' or 'cold', got {on_corrupt!r}")
         self.path = None if path is None else Path(path)
@@ -99,8 +94,6 @@ class HeatStore:
         self._saved_stamp: object = None
         self.clock = clock
         self._last_save_t: float | None = None
-        self.saves = 0
-        """Successful saves so far."""
 
     def load(self, now: float) -> None:
         """Read the state file once (later calls do nothing); ``now`` is the start time, for the log."""
@@ -171,7 +164,6 @@ class HeatStore:
             raise StateFileError(f"cannot encode I²t state for {self.path}: {exc}") from exc
         _atomic_write(self.path, data)
         self._last_save_t = now
-        self.saves += 1
 
     def next_save_t(self, period_s: float) -> float:
         """From when :meth:`maybe_save` saves again (-inf: at its next call; inf: never, no file)."""

@@ -111,8 +111,7 @@ class Daemon:
         if self.watch and (watched.http or watched.groot2):
             from canguard.service.monitor import Monitor
 
-            self.monitor = Monitor(watched)
-            self.events = self.monitor.tee(self.journal)
+            self.monitor = self.events = Monitor(watched, self.journal)
         self._stop = threading.Event()
         self._reload = threading.Event()
         self._published_at = time.monotonic()

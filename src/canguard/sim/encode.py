@@ -13,18 +13,13 @@ class MessageEncoder:
         self.message = message
         self.frame_id: int = message.frame_id
         self.is_extended_id: bool = bool(message.is_extended_frame)
-        self.length: int = message.length
         self._defaults: dict[str, float] = {s.name: 0 for s in message.signals}
         self.by_start: tuple[str, ...] = tuple(s.name for s in sorted(message.signals, key=lambda s: s.start))
         """The signal names in start-bit order: what :meth:`pack` takes, positionally."""
 
     def encode(self, values: Mapping[str, float]) -> bytes:
         """Encode physical values (scaled, as in the DBC); missing ones are 0, unknown names are ignored."""
-        if not self._defaults:
-            return bytes(self.length)
-        full = dict(self._defaults)
-        full.update((key, value) for key, value in values.items() if key in full)
-        return bytes(self.message.encode(full, scaling=True, strict=False))
+        return bytes(self.message.encode({**self._defaults, **values}, scaling=True, strict=False))
 
     def pack(self, *values: float) -> bytes:
         """Encode a value for each signal, in :attr:`by_start` order (the telemetry's setpoint then measured value)."""

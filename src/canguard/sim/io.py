@@ -5,7 +5,6 @@
 
 from __future__ import annotations
 
-import contextlib
 import gzip
 import io
 import logging
@@ -13,33 +12,30 @@ import threading
 import time
 from collections.abc import Callable
 from os import PathLike
-from typing import Any, TextIO
+from typing import Any
 
 import can
 
+from canguard.io.block import frame_from_message
+from canguard.io.candump import write_candump
 from canguard.io.frame import Frame
-from canguard.io.logs import frame_from_message, write_candump
 from canguard.sim.robot import SimRobot
 
 log = logging.getLogger(__name__)
 
 _SLEEP_MIN_S = 0.001  # frames due closer than this are sent at once: batching beats oversleeping
-_RECV_EVERY = 16  # in fast (non-realtime) mode, poll the bus for commands every N frames
-
-
-def _open_text(path: str | PathLike[str], stack: contextlib.ExitStack) -> TextIO:
-    """Open for writing; ``.gz`` is gzip'd with a zero mtime so the bytes depend on content only."""
-    if str(path).endswith(".gz"):
-        raw = stack.enter_context(open(path, "wb"))  # noqa: SIM115
-        gz = stack.enter_context(gzip.GzipFile(filename="", mode="wb", fileobj=raw, mtime=0))
-        return stack.enter_context(io.TextIOWrapper(gz, encoding="ascii", newline="\n"))
-    return stack.enter_context(open(path, "w", encoding="ascii", newline="\n"))
 
 
 def write_log(path: str | PathLike[str], duration_s: float, **robot_kwargs: Any) -> int:
-    """Simulate ``duration_s`` seconds of ``SimRobot(**robot_kwargs)`` into a candump -L file; the frames written."""
-    with contextlib.ExitStack() as stack:  # the replay reader's own writer: read_log gives these frames back
-        return write_candump(SimRobot(**robot_kwargs).frames(duration_s), _open_text(path, stack))
+    """Simulate ``duration_s`` seconds of ``SimRobot(**robot_kwargs)`` into a candump -L file (``.gz``: gzip'd with a
+    zero mtime, so the bytes depend on content only); the frames written."""
+    frames = SimRobot(**robot_kwargs).frames(duration_s)  # the replay reader's own writer: read_log gives them back
+    if str(path).endswith(".gz"):
+        with (open(path, "wb") as raw, gzip.GzipFile(filename="", mode="wb", fileobj=raw, mtime=0) as gz,
+              io.TextIOWrapper(gz, encoding="ascii", newline="\n") as out):
+            return write_candump(frames, out)
+    with open(path, "w", encoding="ascii", newline="\n") as out:
+        return write_candump(frames, out)
 
 
 def to_message(frame: Frame) -> can.Message:
@@ -62,7 +58,7 @@ def _pace(bus: can.BusABC, due: float, answer: Callable[[can.Message | None], No
             return
 
 
-def run_on_bus(bus: can.BusABC, duration_s: float, *, realtime: bool = True, stop_event: threading.Event | None = None,
+def run_on_bus(bus: can.BusABC, duration_s: float, *, stop_event: threading.Event | None = None,
                robot: SimRobot | None = None, **robot_kwargs: Any) -> int:
     """Run ``robot`` (or ``SimRobot(**robot_kwargs)``) on ``bus`` for ``duration_s`` seconds, answering the bus'
     frames; the frames sent. Error frames go only on software buses; a refused send is logged and skipped."""
@@ -81,13 +77,10 @@ def run_on_bus(bus: can.BusABC, duration_s: float, *, realtime: bool = True, sto
             robot.receive(frame_from_message(msg, channel)._replace(t=sim0 + (time.monotonic() - wall0)))
             msg = bus.recv(0)
 
-    for n, frame in enumerate(robot.frames(duration_s)):
+    for frame in robot.frames(duration_s):
         if stop_event is not None and stop_event.is_set():
             break
-        if realtime:
-            _pace(bus, wall0 + (frame.t - sim0), answer, stop_event)
-        elif n % _RECV_EVERY == 0:
-            answer(bus.recv(0))
+        _pace(bus, wall0 + (frame.t - sim0), answer, stop_event)
         if frame.is_error_frame and not send_errors:
             continue
         try:

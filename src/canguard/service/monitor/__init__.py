@@ -122,9 +122,10 @@ def frames(message: Any) -> list[bytes]:
 
 
 class Monitor:
-    """The monitor process of one daemon, observer of each engine it runs; ConfigError when a server cannot listen."""
+    """The monitor process of one daemon, observer of each engine it runs, and the sink its engines write events to:
+    ``journal`` first, then a copy for the monitors. ConfigError when a server cannot listen."""
 
-    def __init__(self, settings: MonitorConfig) -> None:
+    def __init__(self, settings: MonitorConfig, journal: EventSink) -> None:
         self._sock, theirs = socket_pair()
         try:
             self._proc = _spawn(theirs)
@@ -148,7 +149,7 @@ class Monitor:
         self._sent: tuple[Any, ...] | None = None
         self._layout: LayoutRecord | None = None
         self._guards: tuple[tuple[Any, ...], ...] | None = None
-        self._journal: EventSink  # set by tee()
+        self._journal = journal
         self._events: deque[tuple[int, dict[str, Any]]] = deque(maxlen=KEEP_EVENTS)
         self._event_seq = 0
         self._outbox: deque[bytes] = deque()  # the frames of a large message not all taken yet: they go first
@@ -201,11 +202,6 @@ class Monitor:
         self._stops, self._record = -1, None
         self._stopped_by: tuple[str, ...] = ()
         engine.observer = self
-
-    def tee(self, journal: EventSink) -> EventSink:
-        """The sink the engine writes events to (this monitor): ``journal`` first, then a copy for the monitors."""
-        self._journal = journal
-        return self
 
     def close(self) -> None:
         """End the monitor process (it also ends by itself when the daemon's end of the socket closes)."""
