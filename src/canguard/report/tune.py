@@ -12,6 +12,7 @@ from array import array
 from bisect import bisect_left
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import partial
 from itertools import accumulate
 from typing import TYPE_CHECKING, Any
 
@@ -136,9 +137,7 @@ def trip_time(model: ProtectionModel, knob: Knob, value: float, t: np.ndarray, v
 def ceiling(model: ProtectionModel, knob: Knob, t: np.ndarray, v: np.ndarray) -> tuple[float, float | None]:
     """The knob's value at and above which the model no longer trips on the samples, and the trip time just below;
     ``(0.0, None)``: no trip at all; ``(inf, time)``: a trip whatever the value (another figure trips it)."""
-    def trips(value: float) -> float | None:
-        return trip_time(model, knob, value, t, v)
-
+    trips = partial(trip_time, model, knob, t=t, v=v)  # when a copy with the knob at a value first trips
     if knob.set is None:
         lo, hi = 1e-3, 1.0
         while trips(hi) is not None:
