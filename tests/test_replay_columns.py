@@ -967,15 +967,19 @@ class TestSimulator:
 
 
 def replay_watched(cfg: Config, log: Path, out: Path, watched: bool) -> tuple[str, bytes, bytes, int]:
-    """Replay ``log`` in blocks of 4096 characters, every tick run when ``watched`` (a tick hook looks at each):
-    (summary, events, emitted frames, quiet ticks counted)."""
+    """Replay ``log`` in blocks of 4096 characters, every tick run when ``watched`` (an observer looks at each, as
+    the live monitors do): (summary, events, emitted frames, quiet ticks counted)."""
     engines: list[Engine] = []
+
+    class Looking:
+        def publish(self, engine: Engine, now: float) -> None:
+            pass
 
     class Watched(Engine):
         def __init__(self, *args: Any, **kwargs: Any) -> None:
             super().__init__(*args, **kwargs)
             if watched:
-                self.tick_hook = lambda t: None
+                self.observer = Looking()
             engines.append(self)
 
     out.mkdir()
@@ -993,7 +997,7 @@ class TestQuietTicks:
     """Counting the grid ticks proven quiet instead of running them changes nothing a user sees."""
 
     def test_every_tick_run_gives_the_same(self, custom: tuple[Config, Path], tmp_path: Path) -> None:
-        """The custom log (trips, stale gaps, I²t across skipped ticks) with every tick run (a tick hook
+        """The custom log (trips, stale gaps, I²t across skipped ticks) with every tick run (an observer
         watches each) gives the summary, events and frames it gives with the quiet ticks counted."""
         cfg, log = custom
         quiet = replay_watched(cfg, log, tmp_path / "quiet", False)

@@ -57,9 +57,8 @@ COMMANDS: dict[str, str] = {
 """Every subcommand and its one-line help, in the order ``canguard -h`` lists them (no module imported)."""
 
 
-def exit_codes_epilog() -> str:
-    """The exit-code table printed at the end of every ``-h``."""
-    return "exit codes:\n" + "\n".join(f"  {code:<4} {text}" for code, text in EXIT_CODES)
+EXIT_CODES_EPILOG = "exit codes:\n" + "\n".join(f"  {code:<4} {text}" for code, text in EXIT_CODES)
+"""The exit-code table printed at the end of every ``-h``."""
 
 
 def default_config() -> Path:
@@ -91,24 +90,16 @@ def add_state_dir(p: argparse.ArgumentParser) -> None:
                         "$XDG_STATE_HOME/canguard (~/.local/state/canguard) unless this says otherwise")
 
 
-def state_dir(args: argparse.Namespace, config: Path) -> Path | None:
-    """Where a run of ``config`` keeps its events and heat, when not where the config says: ``--state-dir``, or,
-    for the bundled config (inside the installed package: read-only material), the user's state directory."""
-    if getattr(args, "state_dir", None) is not None:
-        return Path(args.state_dir)
-    if args.config is None and config == bundled_config():
-        from canguard.io.outputs import user_state_dir
-
-        return user_state_dir()
-    return None
-
-
 def run_config(args: argparse.Namespace) -> tuple[Config, Path | None]:
-    """The config ``canguard run`` (and ``check``, which judges it the same way) runs, and its state directory."""
-    from canguard.io.outputs import load_run_config
+    """The config ``canguard run`` (and ``check``, which judges it the same way) runs, and where it keeps its events
+    and heat when not where the config says: ``--state-dir``, or, for the bundled config (inside the installed
+    package: read-only material), the user's state directory."""
+    from canguard.io.outputs import load_run_config, user_state_dir
 
     path = config_path(args)
-    where = state_dir(args, path)
+    where = args.state_dir
+    if where is None and args.config is None and path == bundled_config():
+        where = user_state_dir()
     return load_run_config(path, where), where
 
 
@@ -122,7 +113,7 @@ def subcommand(sub: argparse._SubParsersAction, name: str, func: Callable[[argpa
                **kwargs: Any) -> argparse.ArgumentParser:
     """``sub.add_parser`` running ``func``, with the global options and the exit-code epilog every subcommand shares."""
     kwargs.setdefault("help", COMMANDS[name])
-    p: argparse.ArgumentParser = sub.add_parser(name, epilog=exit_codes_epilog(),
+    p: argparse.ArgumentParser = sub.add_parser(name, epilog=EXIT_CODES_EPILOG,
                                                 formatter_class=argparse.RawDescriptionHelpFormatter, **kwargs)
     add_global_options(p, in_subcommand=True)
     p.set_defaults(func=func)

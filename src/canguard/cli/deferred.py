@@ -7,8 +7,8 @@ before Python 3.12.)
 
 from __future__ import annotations
 
+import importlib.machinery
 import importlib.util
-import os
 import sys
 import threading
 
@@ -18,7 +18,7 @@ UNUSED = ("cantools.tester", "cantools.logreader", "py_trees.display", "py_trees
 
 def defer(name: str) -> bool:
     """Load the submodule ``name`` only when one of its attributes is first read; False: it cannot be deferred."""
-    package, _, leaf = name.rpartition(".")
+    package = name.rpartition(".")[0]
     if not package or package in sys.modules or name in sys.modules:
         return False
     try:
@@ -27,15 +27,8 @@ def defer(name: str) -> bool:
         return False
     if parent is None or not parent.submodule_search_locations:
         return False
-    spec = None
-    for where in parent.submodule_search_locations:
-        if os.path.isfile(f"{where}/{leaf}.py"):
-            spec = importlib.util.spec_from_file_location(name, f"{where}/{leaf}.py")
-        elif os.path.isfile(f"{where}/{leaf}/__init__.py"):  # a package: its submodules import as usual once it runs
-            spec = importlib.util.spec_from_file_location(name, f"{where}/{leaf}/__init__.py",
-                                                          submodule_search_locations=[f"{where}/{leaf}"])
-        if spec is not None:
-            break
+    # as the import system finds it (a package: its submodules import as usual once it runs)
+    spec = importlib.machinery.PathFinder.find_spec(name, parent.submodule_search_locations)
     if spec is None or spec.loader is None:
         return False
     module = importlib.util.module_from_spec(spec)

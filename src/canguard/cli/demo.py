@@ -131,7 +131,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     daemon.engine = daemon.build_engine(cfg)
     out = sys.stdout
     view = LiveView(daemon, out, tty=out.isatty())
-    daemon.engine.extra_on_event = view.event
+    daemon.engine.listen(view.event)
     robot_bus = can.Bus(**dict(next(iter(cfg.buses.values())).kwargs))
     stop = threading.Event()
     scenarios = tuple(s for s in DEMO_SCENARIOS if float(s.partition("@")[2] or 0) < args.duration)

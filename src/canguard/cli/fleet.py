@@ -13,11 +13,6 @@ from canguard.io.logs import LOG_SUFFIXES
 from canguard.io.logtypes import COMPRESSIONS
 
 
-def _is_log(path: Path) -> bool:
-    name = path.name.lower()
-    return any(name.endswith(s + comp) for comp in ("", *COMPRESSIONS) for s in LOG_SUFFIXES)
-
-
 def expand_logs(given: Sequence[Path]) -> list[Path]:
     """The log files ``given`` names, in order: directories, globs and ``@LIST`` files expanded; ConfigError naming
     what matched nothing (a missing plain file is left for the reader to name)."""
@@ -31,10 +26,11 @@ def expand_logs(given: Sequence[Path]) -> list[Path]:
         elif item.is_dir() and is_bag(item):
             out.append(item)  # a rosbag2 directory: one log
         elif item.is_dir():
-            bags = sorted(p for p in item.rglob("metadata.yaml") if p.is_file())
-            inside = {b.parent for b in bags}
-            found = sorted([*(b.parent for b in bags), *(p for p in item.rglob("*") if p.is_file() and _is_log(p)
-                                                          and not inside.intersection(p.parents))])
+            files = [p for p in item.rglob("*") if p.is_file()]
+            bags = {p.parent for p in files if p.name == "metadata.yaml"}
+            endings = tuple(s + comp for comp in ("", *COMPRESSIONS) for s in LOG_SUFFIXES)  # of a log file name
+            found = sorted([*bags, *(p for p in files if p.name.lower().endswith(endings)
+                                     and not bags.intersection(p.parents))])
             if not found:
                 raise ConfigError(f"replay: {item}: no log files in the directory (expected {', '.join(LOG_SUFFIXES)}, "
                                   f"optionally + {' / '.join(COMPRESSIONS)})")
@@ -60,8 +56,7 @@ def _read_list(path: Path) -> list[Path]:
     for line in lines:
         entry = line.split("#", 1)[0].strip()
         if entry:
-            p = Path(entry)
-            out.append(p if p.is_absolute() else path.parent / p)
+            out.append(path.parent / entry)  # an absolute entry as it is
     if not out:
         raise ConfigError(f"replay: @{path}: the list names no log")
     return out

@@ -17,12 +17,12 @@ from canguard.cli.common import (
     COMMANDS,
     EXIT_BAD_INPUT,
     EXIT_BROKEN_PIPE,
+    EXIT_CODES_EPILOG,
     EXIT_INTERRUPTED,
     add_global_options,
     add_monitor_options,
     add_state_dir,
     default_config,
-    exit_codes_epilog,
     one_blas_thread,
     run_config,
     subcommand,
@@ -206,7 +206,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="canguard",
         description="CAN-bus motor-driver monitoring: DBC decoding, protection models, behaviour trees.",
-        epilog=exit_codes_epilog(), formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog=EXIT_CODES_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("--version", action=_VersionAction)
     add_global_options(parser, in_subcommand=False)

@@ -9,6 +9,7 @@ import argparse
 import dataclasses
 import threading
 import time
+from collections import Counter
 from collections.abc import Iterable
 from contextlib import ExitStack
 from pathlib import Path
@@ -16,7 +17,7 @@ from typing import Any, TextIO
 
 import can
 
-from canguard.cli.common import TappedSink
+from canguard.cli.common import TappedSink, per_log_path
 from canguard.config.schema import Config
 from canguard.engine.core import Engine
 from canguard.engine.gate import LogSink
@@ -77,7 +78,6 @@ def _play_bus(cfg: Config, args: argparse.Namespace) -> str:
 
 def replay_realtime(cfg: Config, args: argparse.Namespace, names: list[Path]) -> list[tuple[dict[str, Any], str]]:
     """Play each log onto the bus while the daemon runs; each log's (summary, ""). ``names``: as the user gave them."""
-    from canguard.cli.common import per_log_path
     from canguard.engine.routing import ChannelRouter
     from canguard.io.logs import ReadStats, read_log
     from canguard.report.summary import build_summary
@@ -95,7 +95,7 @@ def replay_realtime(cfg: Config, args: argparse.Namespace, names: list[Path]) ->
         emit_path = per_log_path(args.emit, name, many)
         stats = ReadStats()
         frames = read_log(log_path, skip_bad=args.skip_bad, stats=stats)  # a missing file fails here, first
-        channels: dict[str, int] = {}
+        channels: Counter[str] = Counter()  # frames played per channel
         failed: list[Exception] = []
         with ExitStack() as stack:
             emit = stack.enter_context(open(emit_path, "w", encoding="ascii")) if emit_path is not None else None
@@ -121,12 +121,11 @@ def replay_realtime(cfg: Config, args: argparse.Namespace, names: list[Path]) ->
     return results
 
 
-def _play(frames: Iterable[Frame], speed: float, player: can.BusABC, daemon: Daemon, channels: dict[str, int],
+def _play(frames: Iterable[Frame], speed: float, player: can.BusABC, daemon: Daemon, channels: Counter[str],
           failed: list[Exception], done: threading.Event) -> None:
     """Send the log's frames at its pace x ``speed``, then stop the daemon once it has fed them all."""
     from canguard.sim.io import to_message
 
-    sent = 0
     try:
         # python-can's virtual bus delivers only to the buses open when a frame is sent
         ready_by = time.monotonic() + DRAIN_S
@@ -136,18 +135,17 @@ def _play(frames: Iterable[Frame], speed: float, player: can.BusABC, daemon: Dae
         for frame in frames:
             if frame.is_error_frame:
                 continue
-            channels[frame.channel] = channels.get(frame.channel, 0) + 1
             start_log = frame.t if start_log is None else start_log
             delay = start_wall + (frame.t - start_log) / speed - time.monotonic()
             if delay > 0.0005:
                 time.sleep(delay)
             player.send(to_message(frame))
-            sent += 1
+            channels[frame.channel] += 1
     except Exception as exc:  # a bad line: reported by the main thread, not as a thread traceback
         failed.append(exc)
     finally:
         deadline = time.monotonic() + DRAIN_S  # give up waiting after DRAIN_S
-        while daemon.engine.stats.frames < sent and time.monotonic() < deadline:
+        while daemon.engine.stats.frames < channels.total() and time.monotonic() < deadline:
             time.sleep(0.01)
         time.sleep(0.05)  # the tick that follows the last frame
         done.set()

@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import shutil
 import sys
 import uuid
 from collections.abc import Callable
@@ -68,9 +69,7 @@ def replay_one(cfg: Config, log_path: Path, opts: ReplayOptions) -> dict[str, An
     from canguard.protect.state import HeatStore
 
     # py_trees keeps the blackboard in class-level storage: a log's summary must not depend on its neighbours.
-    Blackboard.storage.clear()
-    Blackboard.metadata.clear()
-    Blackboard.clients.clear()
+    Blackboard.clear()
     clock = ManualClock()
     with ExitStack() as stack:
         journal = None
@@ -88,17 +87,16 @@ def replay_one(cfg: Config, log_path: Path, opts: ReplayOptions) -> dict[str, An
 
             frames = wrap_progress(frames, log_path)  # attaches to the reader: before any wrapping
         # --emit streams each frame to the file as it is sent: memory stays flat in the log's length.
-        bag_out = opts.emit is not None and emits_bag(opts.emit)
-        text_out = opts.emit is not None and not bag_out
+        text_out = opts.emit is not None and not emits_bag(opts.emit)
         out = stack.enter_context(open(opts.emit, "w", encoding="ascii")) if text_out and opts.emit else None
-        sink = LogSink(clock.now, cfg.buses, out=out, keep=bag_out or _mcap_export(opts))
+        sink = LogSink(clock.now, cfg.buses, out=out, keep=False)  # kept when an export takes them (_outputs)
         engine = Engine(cfg, clock, sink, events=journal, durable=False, heat=heat, save_heat=False)
         recorder = None
         if opts.plot is not None:
             from canguard.report.plot import Recorder
 
             recorder = Recorder(engine)
-        _outputs(stack, engine, sink, opts, opts.export_log or str(log_path))  # after the recorder: it sees samples
+        _outputs(stack, engine, sink, opts, opts.export_log or str(log_path), recorder)
         tuning = None
         if opts.tune:
             from canguard.report.tune import tune_stats
@@ -117,47 +115,47 @@ def replay_one(cfg: Config, log_path: Path, opts: ReplayOptions) -> dict[str, An
     return summary
 
 
-def _mcap_export(opts: ReplayOptions) -> bool:
-    return opts.export is not None and opts.export.suffix.lower() == ".mcap"
-
-
-def _outputs(stack: ExitStack, engine: Engine, sink: LogSink, opts: ReplayOptions, log: str) -> None:
-    """The exports a replay writes as it goes (``--export-signals``, ``--emit`` as a bag), each closed at the end."""
+def _outputs(stack: ExitStack, engine: Engine, sink: LogSink, opts: ReplayOptions, log: str, recorder: Any) -> None:
+    """What watches each tick (``--plot``'s recorder, an MCAP export) and the exports a replay writes as it goes
+    (``--export-signals``, ``--emit`` as a bag), each closed at the end."""
     watch = _AfterTicks(sink)
-    if opts.export is not None and _mcap_export(opts):
-        from canguard.report.export import McapExport
+    if recorder is not None:
+        watch.watchers.append(recorder.publish)
+    if opts.export is not None:
+        from canguard.report.export import McapExport, SignalExport, is_mcap
 
-        watch.mcap = McapExport(engine, opts.export, log)
-        stack.callback(watch.mcap.close)
-        watch.takers.append(watch.mcap.sent)
-    elif opts.export is not None:
-        from canguard.report.export import SignalExport
-
-        stack.callback(SignalExport(engine, opts.export, log).close)
+        if is_mcap(opts.export):
+            mcap = McapExport(engine, opts.export, log)
+            stack.callback(mcap.close)
+            watch.watchers.append(mcap.publish)
+            watch.takers.append(mcap.sent)
+        else:
+            stack.callback(SignalExport(engine, opts.export, log).close)
     if opts.emit is not None and emits_bag(opts.emit):
         from canguard.io.bagwrite import BagEmit
 
         emit = BagEmit(opts.emit)
         stack.callback(emit.close)
         watch.takers.append(emit.sent)
-    if watch.takers:
+    sink.keep = bool(watch.takers)
+    if watch.watchers or watch.takers:
         engine.observer = watch
         stack.callback(watch.hand_over)  # the frames sent after the last tick: before the files close (LIFO)
 
 
 class _AfterTicks:
-    """The engine's observer: after every tick that runs, the frames sent go to their takers; an MCAP export sees
-    the tick."""
+    """The engine's observer: after every tick that runs, each watcher sees it, then the frames sent go to their
+    takers."""
 
     def __init__(self, sink: LogSink) -> None:
         self.sink = sink
+        self.watchers: list[Callable[[Any, float], None]] = []
         self.takers: list[Callable[[list[Frame]], None]] = []
-        self.mcap: Any = None
 
     def publish(self, engine: Any, now: float) -> None:
         """A tick ran."""
-        if self.mcap is not None:
-            self.mcap.publish(engine, now)
+        for watcher in self.watchers:
+            watcher(engine, now)
         self.hand_over()
 
     def hand_over(self) -> None:
@@ -257,14 +255,14 @@ def _config_of(ref: ConfigRef) -> Config:
     return cfg
 
 
-def _job(args: tuple[Config | ConfigRef, Path, ReplayOptions]) -> tuple[dict[str, Any] | None, str]:
-    """Replay one log (freed memory kept until it ends), with the config or (a worker) its reference."""
+def _job(args: tuple[ConfigRef, Path, ReplayOptions]) -> tuple[dict[str, Any] | None, str]:
+    """Replay one log (freed memory kept until it ends) with the config its reference names."""
     from canguard.cli.heap import keep_freed_memory
 
-    cfg, log, opts = args
+    ref, log, opts = args
     try:
         with keep_freed_memory():
-            return replay_one(cfg if isinstance(cfg, Config) else _config_of(cfg), log, opts), ""
+            return replay_one(_config_of(ref), log, opts), ""
     except CanguardError as exc:
         return None, str(exc)
 
@@ -292,8 +290,7 @@ def _as_format(log: Path, fmt: str | None, tmp: Path) -> Path:
         spooled = tmp / f"stdin{FORMAT_SUFFIX[fmt]}{gz}"
         with open(spooled, "wb") as out:
             out.write(head)
-            while chunk := sys.stdin.buffer.read(1 << 20):
-                out.write(chunk)
+            shutil.copyfileobj(sys.stdin.buffer, out)
         return spooled
     if fmt is None or not log.exists():
         return log  # a missing file: the reader names it as the user wrote it
@@ -390,28 +387,26 @@ def cmd_replay(args: argparse.Namespace) -> int:
 def run_jobs(args: argparse.Namespace, cfg: Config, cfg_path: Path,
              logs: list[tuple[Path, ReplayOptions]]) -> list[tuple[dict[str, Any] | None, str]]:
     """Every log's (summary, error), in input order: on Dask, in ``--jobs`` processes (largest first) or here."""
-    if not ((args.jobs > 1 and len(logs) > 1) or args.dask is not None):
-        return [_job((cfg, log, opts)) for log, opts in logs]
     ref = ConfigRef(cfg_path, uuid.uuid4().hex)
-    order = sorted(range(len(logs)), key=lambda i: -_size(logs[i][0]))
-    todo: list[tuple[Config | ConfigRef, Path, ReplayOptions]] = [(ref, *logs[i]) for i in order]
-    if args.dask is not None:
-        from canguard.cli.fleet import run_dask
+    _CONFIGS.clear()
+    _CONFIGS[ref] = cfg  # here and in forked workers: neither reads the config again
+    try:
+        if not ((args.jobs > 1 and len(logs) > 1) or args.dask is not None):
+            return [_job((ref, log, opts)) for log, opts in logs]
+        order = sorted(range(len(logs)), key=lambda i: -_size(logs[i][0]))
+        todo = [(ref, *logs[i]) for i in order]
+        if args.dask is not None:
+            from canguard.cli.fleet import run_dask
 
-        done = run_dask(args.dask, _job, todo)
-    else:
-        from canguard.cli.fleet import run_processes
+            done = run_dask(args.dask, _job, todo)
+        else:
+            from canguard.cli.fleet import run_processes
 
-        _CONFIGS.clear()
-        _CONFIGS[ref] = cfg  # forked workers start with it: no worker reads the config again
-        try:
             done = run_processes(args.jobs, _job, todo, warm=_WORKER_MODULES)
-        finally:
-            _CONFIGS.clear()
-    results: list[tuple[dict[str, Any] | None, str]] = [(None, "")] * len(logs)
-    for i, result in zip(order, done, strict=True):
-        results[i] = result
-    return results
+    finally:
+        _CONFIGS.clear()
+    placed = dict(zip(order, done, strict=True))
+    return [placed[i] for i in range(len(logs))]
 
 
 def _size(log: Path) -> int:
@@ -466,7 +461,7 @@ def _replay_offline(cfg: Config, cfg_path: Path, args: argparse.Namespace, names
     if out is not None:
         from canguard.report import export
 
-        parts = [] if export.is_mcap(out) else [export.part_path(out, i) for i in range(len(args.logs))]
+        parts = [] if export.is_mcap(out) else [out.with_name(f".{out.name}.part{i}") for i in range(len(args.logs))]
     many = len(args.logs) > 1
     base = _load_baseline(args.baseline) if args.baseline else None
     jobs: list[tuple[Path, ReplayOptions]] = []

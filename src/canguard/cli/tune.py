@@ -16,9 +16,6 @@ from canguard.config.loader import load_config
 from canguard.config.schema import Config
 from canguard.errors import ConfigError
 
-EXIT_NO_SEPARATION = EXIT_TRIPPED
-"""Exit 1: no value separates the healthy logs from a fault, or the proving replay failed; nothing written."""
-
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """``canguard tune``."""
@@ -136,9 +133,7 @@ def cmd_tune(args: argparse.Namespace) -> int:
             if all(p["ok"] for p in report["proof"]):
                 report["result"] = "proven"
                 if args.out is not None:
-                    args.out.mkdir(parents=True, exist_ok=True)
-                    for f in sorted(Path(tmp).iterdir()):
-                        shutil.copy2(f, args.out / f.name)
+                    shutil.copytree(tmp, args.out, dirs_exist_ok=True)
                     report["written"] = sorted(str(args.out / f.name) for f in Path(tmp).iterdir())
     report["guards"] = [g.as_json() for g in guards]  # as written: a port read from the blackboard is left
     if args.plot is not None:
@@ -151,7 +146,7 @@ def cmd_tune(args: argparse.Namespace) -> int:
     print("canguard tune: nothing written: " + ("no value separates the healthy logs from a fault"
                                                if conflicts else "the tuned config failed the proving replay"),
           file=sys.stderr)
-    return EXIT_NO_SEPARATION
+    return EXIT_TRIPPED  # exit 1, as a gate that failed: nothing written
 
 
 def _check_out(out: Path | None, cfg: Config) -> None:

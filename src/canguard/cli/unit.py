@@ -63,17 +63,13 @@ def render_unit(text: str, *, exe: str, config: Path, channels: list[str], metri
     return text
 
 
-def render_network(text: str, channels: list[str]) -> str:
-    """The shipped ``80-can0.network`` matching ``channels`` (networkd's ``Name=`` takes several)."""
-    return replace_once(text, r"^Name=can0$", f"Name={' '.join(channels)}", NETWORK_FILE)
-
-
 def cmd_unit(args: argparse.Namespace) -> int:
     """Print the unit (or the network file), or write both into a directory."""
     channels = args.channel or ["can0"]
     unit = render_unit(data_path("systemd", UNIT_FILE).read_text(encoding="utf-8"), exe=this_canguard(),
                        config=args.config.absolute(), channels=channels, metrics=args.metrics)
-    network = render_network(data_path("systemd", NETWORK_FILE).read_text(encoding="utf-8"), channels)
+    network = data_path("systemd", NETWORK_FILE).read_text(encoding="utf-8")  # networkd's Name= takes several
+    network = replace_once(network, r"^Name=can0$", f"Name={' '.join(channels)}", NETWORK_FILE)
     if args.write is None:
         print(network if args.network else unit, end="")
         return 0

@@ -91,7 +91,6 @@ class Engine:
         self.sample_block: Callable[[Any, list[Any], list[tuple[int, Any]]], None] | None = None
         """Called once a block with every sample the models see (``--export-signals``, plots): the block's times,
         each message's ((source, signal) names, rows, decoded values) and the frame decoder's (row, sample)s."""
-        self.tick_hook: Callable[[float], None] | None = None  # called after every tick with its time (plots)
         self.observer: TickObserver | None = None  # told after every tick (the live monitors)
         self.stats = EngineStats()
         self.decoder = Decoder(cfg)
@@ -144,17 +143,8 @@ class Engine:
         """How many events of each name were written (summaries count escalations...)."""
         return self.journal.seen
 
-    @property
-    def extra_on_event(self) -> Callable[[dict[str, Any]], None] | None:
-        """Also called with every event (plots, the live view)."""
-        return self.journal.on_event
-
-    @extra_on_event.setter
-    def extra_on_event(self, fn: Callable[[dict[str, Any]], None] | None) -> None:
-        self.journal.on_event = fn
-
     def listen(self, fn: Callable[[dict[str, Any]], None]) -> None:
-        """Also call ``fn`` with every event, before whatever :attr:`extra_on_event` called until now."""
+        """Also call ``fn`` with every event (plots, exports, the demo's view), before the listeners until now."""
         previous = self.journal.on_event
         if previous is None:
             self.journal.on_event = fn
@@ -256,7 +246,7 @@ class Engine:
         if end_t < due:
             return due
         quiet = self.quiet
-        if (self.metrics is None and self.tick_hook is None and self.observer is None and not quiet.writes
+        if (self.metrics is None and self.observer is None and not quiet.writes
                 and not self.gate.confirm_pending and quiet.may_skip(self.next_tick_t) and quiet.until > due):
             until = quiet.until if quiet.until > end_t else quiet.reach(coming())
             if self.heat is not None and self.save_heat and self.ctx.heat_models:  # a save due at a tick
@@ -361,14 +351,11 @@ class Engine:
         if self.metrics is not None:
             for node, model in self.ctx.heat_models.items():
                 self.metrics.set_i2t_level(node, model.snapshot().level_pct)
-        if self.tick_hook is not None:
-            self.tick_hook(now)
         self.gate.service(now)
         self.store_heat(now, periodic=True)
         self.journal.flush()
         self.due = min(self.next_tick_t, self.gate.next_deadline())
-        self.quiet.after_tick(now, events_before,
-                             self.metrics is not None or self.tick_hook is not None or self.observer is not None)
+        self.quiet.after_tick(now, events_before, self.metrics is not None or self.observer is not None)
         if self.observer is not None:
             self.observer.publish(self, now)
         return status

@@ -16,12 +16,12 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from canguard.errors import ConfigError
+from canguard.io.frame import INVALID_RANGE, Frame, Sample
 from canguard.io.mcapwrite import McapWriter, ns_of
 from canguard.io.rosmsgs import cdr_frame, frame_type, full_definition
 
 if TYPE_CHECKING:
     from canguard.engine.core import Engine
-    from canguard.io.frame import Frame, Sample
 
 FLAG = "--export-signals"
 COLUMNS = {"log": "string", "t": "float64", "bus": "string", "source": "string", "signal": "string",
@@ -29,7 +29,6 @@ COLUMNS = {"log": "string", "t": "float64", "bus": "string", "source": "string",
 """The exported columns, in order, and their Arrow types."""
 BATCH_ROWS = 65_536
 """Rows buffered before they are written as one record batch (a Parquet row group)."""
-OUT_OF_RANGE = "out_of_range"
 
 
 def require_pyarrow(flag: str = FLAG) -> tuple[Any, Any]:
@@ -69,11 +68,6 @@ def is_mcap(path: Path) -> bool:
     return path.suffix.lower() == ".mcap"
 
 
-def part_path(path: Path, index: int) -> Path:
-    """Where log number ``index`` of the run writes its rows before :func:`combine_parts`."""
-    return path.with_name(f".{path.name}.part{index}")
-
-
 class SignalExport:
     """Streams every sample an engine decodes into one Parquet file, in bounded memory."""
 
@@ -97,7 +91,7 @@ class SignalExport:
         if not reason and not math.isnan(value):
             lo, hi = self._ranges.get(s.source, {}).get(s.signal, (None, None))
             if (lo is not None and value < lo) or (hi is not None and value > hi):
-                return OUT_OF_RANGE
+                return INVALID_RANGE
         return reason
 
     def _block(self, times: Sequence[Any], taken: list[tuple[list[tuple[str, str]], list[int], Sequence[Any]]],
@@ -109,7 +103,7 @@ class SignalExport:
 
         stamp = np.asarray(times, dtype=np.float64)
         fed_rows = np.array([row for row, _s in fed], dtype=np.intp)
-        rows, stamps, values, codes = [], [], [], []
+        rows, values, codes = [], [], []
         for names, group, decoded in taken:
             idx = np.asarray(group, dtype=np.intp)
             keep, table = valued_table(decoded, len(names))
@@ -119,18 +113,17 @@ class SignalExport:
                 continue
             width, taken_rows = len(names), idx[keep]
             rows.append(np.repeat(taken_rows, width))
-            stamps.append(np.repeat(stamp[taken_rows], width))
             values.append(table[keep].ravel())  # row by row, each row's outputs in order
             codes.append(np.tile([self._code(name, "") for name in names], taken_rows.size))
         if fed:
             rows.append(fed_rows)
-            stamps.append(np.array([s.t for _row, s in fed], dtype=np.float64))
             values.append(np.array([s.value for _row, s in fed], dtype=np.float64))
             codes.append(np.array([self._code((s.source, s.signal), self._reason_of(s)) for _row, s in fed]))
         if not rows:
             return
-        order = np.argsort(np.concatenate(rows), kind="stable")
-        self._chunks.append((np.concatenate(stamps)[order], np.concatenate(codes).astype(np.intp)[order],
+        every = np.concatenate(rows)
+        order = np.argsort(every, kind="stable")  # a sample's time is its row's
+        self._chunks.append((stamp[every[order]], np.concatenate(codes).astype(np.intp)[order],
                              np.concatenate(values).astype(np.float64)[order]))
         self._pending += order.size
         while self._pending >= BATCH_ROWS:  # the row groups of one sample at a time
@@ -179,31 +172,25 @@ class ParquetTable:
         self._writer.close()
 
 
-def discard_parts(parts: Sequence[Path | None]) -> None:
+def discard_parts(parts: Sequence[Path]) -> None:
     """Remove the part files that exist (a run that did not finish leaves nothing behind)."""
     for p in parts:
-        if p is not None and p.exists():
-            p.unlink()
+        p.unlink(missing_ok=True)
 
 
-def combine_parts(path: Path, parts: Sequence[Path], ok: Sequence[bool]) -> int:
-    """Put the parts of the logs that replayed (``ok``) into ``path``, in order; remove every part; the rows."""
+def combine_parts(path: Path, parts: Sequence[Path], ok: Sequence[bool]) -> None:
+    """Put the parts of the logs that replayed (``ok``) into ``path``, in order; remove every part."""
     kept = [p for p, good in zip(parts, ok, strict=True) if good and p.exists()]
     pa, pq = require_pyarrow()
     try:
         if len(kept) == 1:
-            rows = int(pq.ParquetFile(kept[0]).metadata.num_rows)
             os.replace(kept[0], path)
-            return rows
-        rows = 0
+            return
         with pq.ParquetWriter(path, schema(pa)) as writer:
             for part in kept:
                 source = pq.ParquetFile(part)
                 for i in range(source.num_row_groups):  # one row group at a time: memory stays flat
-                    table = source.read_row_group(i)
-                    writer.write_table(table)
-                    rows += table.num_rows
-        return rows
+                    writer.write_table(source.read_row_group(i))
     finally:
         discard_parts(parts)
 
@@ -266,7 +253,6 @@ class McapExport:
     """Everything an engine does on a replay, into one MCAP file (see the module docstring)."""
 
     def __init__(self, engine: Engine, path: Path, log: str) -> None:
-        self.engine = engine
         self.writer = McapWriter(path, profile="ros2")
         self.signals = SignalExport(engine, path, log, table=_Samples(self.writer))
         w = self.writer

@@ -35,7 +35,7 @@ def require_matplotlib() -> Any:
 
 
 class Recorder:
-    """Collects the valid samples of every value, I²t levels and stop intervals from an engine while it runs."""
+    """Collects the valid samples of every value, I²t levels (:meth:`publish`: a tick) and stop intervals."""
 
     def __init__(self, engine: Engine) -> None:
         self.engine = engine
@@ -45,13 +45,10 @@ class Recorder:
         self.levels: dict[str, tuple[array, array]] = {}
         self.trips: list[tuple[float, str, str]] = []
         self.stops: list[list[float]] = []
-        self._next_tick = engine.tick_hook  # one set before this recorder keeps being called
-        engine.tick_hook = self._tick
         engine.listen(self._event)
 
-    def _tick(self, now: float) -> None:
-        if self._next_tick is not None:
-            self._next_tick(now)
+    def publish(self, engine: Any, now: float) -> None:
+        """After a tick: each I²t level."""
         for node, model in self.engine.ctx.heat_models.items():
             ts, vs = self.levels.setdefault(node, (array("d"), array("d")))
             ts.append(now)

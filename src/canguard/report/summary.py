@@ -105,8 +105,13 @@ def render_text(s: dict[str, Any]) -> str:
     lines.append(f"  stops: {s['stops']}, stopped {s['stopped_s']} s; frames canguard would send: "
                  f"{s['frames_sent']}; stop confirmations {s['confirmations']}, escalations {s['escalations']}")
     lines.append("  lowest margin to each threshold:")
-    for m in s["margins"]:
-        lines.append(f"    {m['node']} ({m['source']} {m['signal']}): {render_margin(m)}")
+    for m in s["margins"]:  # every figure with its unit (``peak 31.6 A vs threshold 35 A: ...``)
+        unit = m.get("unit")
+        pct = "" if unit == I2T_LIMIT_PCT else f" ({m.get('margin_pct')} % of the threshold)"
+        text = "no data" if m.get("margin") is None else (
+            f"peak {quantity(m['peak'], unit)} vs threshold {quantity(m['threshold'], unit)}: "
+            f"margin {quantity(m['margin'], unit)}{pct}")
+        lines.append(f"    {m['node']} ({m['source']} {m['signal']}): {text}")
     if s["unmapped_channels"]:
         lines.append("  warning: frames on channels no bus takes (use --map CHANNEL=BUS): "
                      + ", ".join(f"{k} ({v})" for k, v in s["unmapped_channels"].items()))
@@ -161,14 +166,3 @@ def diff_baseline(base: dict[str, Any], new: dict[str, Any], margin_tolerance_pc
     if base.get("stops") != new.get("stops"):
         out.append(Change(f"stops: {base.get('stops')} -> {new.get('stops')}", False))
     return out
-
-
-def render_margin(m: dict[str, Any]) -> str:
-    """One guard's lowest margin in words, every figure with its unit (``peak 31.6 A vs threshold 35 A: ...``)."""
-    if m.get("margin") is None:
-        return "no data"
-    unit = m.get("unit")
-    pct = "" if unit == I2T_LIMIT_PCT else f" ({m.get('margin_pct')} % of the threshold)"
-    return (f"peak {quantity(m['peak'], unit)} vs threshold {quantity(m['threshold'], unit)}: "
-            f"margin {quantity(m['margin'], unit)}{pct}")
-

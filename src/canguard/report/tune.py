@@ -9,8 +9,11 @@ from __future__ import annotations
 import copy
 import math
 from array import array
+from bisect import bisect_left
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import partial
+from itertools import accumulate
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -134,9 +137,7 @@ def trip_time(model: ProtectionModel, knob: Knob, value: float, t: np.ndarray, v
 def ceiling(model: ProtectionModel, knob: Knob, t: np.ndarray, v: np.ndarray) -> tuple[float, float | None]:
     """The knob's value at and above which the model no longer trips on the samples, and the trip time just below;
     ``(0.0, None)``: no trip at all; ``(inf, time)``: a trip whatever the value (another figure trips it)."""
-    def trips(value: float) -> float | None:
-        return trip_time(model, knob, value, t, v)
-
+    trips = partial(trip_time, model, knob, t=t, v=v)  # when a copy with the knob at a value first trips
     if knob.set is None:
         lo, hi = 1e-3, 1.0
         while trips(hi) is not None:
@@ -201,26 +202,19 @@ def histogram(a: np.ndarray) -> dict[str, int]:
     zero = int(np.count_nonzero(a == 0))
     pos = a[a > 0]
     out: dict[str, int] = {"z": zero} if zero else {}
-    if pos.size:
-        keys, counts = np.unique(np.floor(np.log(pos) / _LOG_BIN).astype(np.int64), return_counts=True)
-        out.update({str(k): int(c) for k, c in zip(keys.tolist(), counts.tolist(), strict=True)})
+    keys, counts = np.unique(np.floor(np.log(pos) / _LOG_BIN).astype(np.int64), return_counts=True)
+    out.update({str(k): int(c) for k, c in zip(keys.tolist(), counts.tolist(), strict=True)})
     return out
 
 
 def percentile(hist: dict[str, int], q: float) -> float:
     """The ``q``-th percentile of the values a (merged) :func:`histogram` counted, at the upper edge of its bin."""
-    total = sum(hist.values())
-    if not total:
+    keys = sorted(int(k) for k in hist if k != "z")
+    seen = list(accumulate([hist.get("z", 0), *(hist[str(k)] for k in keys)]))  # counted up to each bin
+    if not seen[-1]:
         return math.nan
-    rank = q / 100.0 * total
-    seen = hist.get("z", 0)
-    if seen >= rank:
-        return 0.0
-    for key in sorted(int(k) for k in hist if k != "z"):
-        seen += hist[str(key)]
-        if seen >= rank:
-            return BIN_RATIO ** (key + 1)
-    return math.nan
+    at = bisect_left(seen, q / 100.0 * seen[-1])  # the first bin whose count reaches the rank
+    return 0.0 if at == 0 else BIN_RATIO ** (keys[at - 1] + 1)
 
 
 def gaps(t: np.ndarray) -> tuple[float, float]:

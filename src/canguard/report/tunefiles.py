@@ -20,8 +20,7 @@ _ATTR = re.compile(r"([\w.:-]+)(\s*=\s*)(\"[^\"]*\"|'[^']*')")
 
 def figure(value: float) -> str:
     """A figure as a tree or config writes it: the shortest text that reads back as the same float."""
-    text = repr(float(value))
-    return text[:-2] if text.endswith(".0") and "e" not in text else text
+    return repr(float(value)).removesuffix(".0")  # a float's repr never ends in ".0" after an exponent
 
 
 def _named(text: str, node: str) -> list[re.Match[str]]:
