@@ -19,7 +19,7 @@ from canguard.bt.loader import load_tree
 from canguard.bt.nodes.builtins import same_case
 from canguard.errors import TreeError
 from canguard.io.clock import ManualClock
-from treekit import ListSink
+from treekit import ListSink, tick
 
 
 def tree(tmp_path: Path, body: str, name: str = "t.xml") -> Path:
@@ -60,10 +60,10 @@ class TestSwitch:
         loaded, clock = start(tmp_path)
         if value is not None:
             Blackboard.storage["/my_var"] = value
-        assert loaded.tick().name == "RUNNING"
+        assert tick(loaded).name == "RUNNING"
         assert running(loaded) == [branch]
         clock.set(0.3)
-        assert loaded.tick().name == "SUCCESS"
+        assert tick(loaded).name == "SUCCESS"
         assert Blackboard.storage["/done"] == done
         assert running(loaded) == []
 
@@ -71,30 +71,30 @@ class TestSwitch:
         """CaseSwitchToDefault: not reactive between ticks; at the next tick the change halts action_1."""
         loaded, clock = start(tmp_path)
         Blackboard.storage["/my_var"] = "1"
-        assert loaded.tick().name == "RUNNING"
+        assert tick(loaded).name == "RUNNING"
         clock.set(0.02)
-        assert loaded.tick().name == "RUNNING"
+        assert tick(loaded).name == "RUNNING"
         Blackboard.storage["/my_var"] = ""
         assert running(loaded) == [0]  # nothing happens until the next tick
         clock.set(0.04)
-        assert loaded.tick().name == "RUNNING"
+        assert tick(loaded).name == "RUNNING"
         assert running(loaded) == [2]
         assert loaded.root.children[0].status.name == "INVALID"  # halted
         clock.set(0.35)
-        assert loaded.tick().name == "SUCCESS"
+        assert tick(loaded).name == "SUCCESS"
         assert Blackboard.storage["/done"] == "action_default"
 
     def test_case_switch_to_action2(self, tmp_path: Path) -> None:
         """CaseSwitchToAction2: the variable changes to 42 -> action_1 halted, action_42 runs and ends."""
         loaded, clock = start(tmp_path)
         Blackboard.storage["/my_var"] = "1"
-        assert loaded.tick().name == "RUNNING"
+        assert tick(loaded).name == "RUNNING"
         Blackboard.storage["/my_var"] = "42"
         clock.set(0.02)
-        assert loaded.tick().name == "RUNNING"
+        assert tick(loaded).name == "RUNNING"
         assert running(loaded) == [1]
         clock.set(0.3)
-        assert loaded.tick().name == "SUCCESS"
+        assert tick(loaded).name == "SUCCESS"
         assert Blackboard.storage["/done"] == "action_42"
 
     def test_action_failure(self, tmp_path: Path) -> None:
@@ -103,9 +103,9 @@ class TestSwitch:
   <Sequence><Sleep msec="200"/><AlwaysFailure/></Sequence><AlwaysSuccess/><AlwaysSuccess/>
 </Switch2>""")
         Blackboard.storage["/my_var"] = "1"
-        assert loaded.tick().name == "RUNNING"
+        assert tick(loaded).name == "RUNNING"
         clock.set(0.3)
-        assert loaded.tick().name == "FAILURE"
+        assert tick(loaded).name == "FAILURE"
         assert running(loaded) == []
 
     def test_switch6_last_case_and_constant_variable(self, tmp_path: Path) -> None:
@@ -215,10 +215,10 @@ class TestTryCatch:
                 f'<Sleep msec="500"/>{self.CATCH}</TryCatch></ReactiveSequence>')
         loaded, clock = start(tmp_path, body)
         Blackboard.storage["/go"] = True
-        assert loaded.tick().name == "RUNNING"
+        assert tick(loaded).name == "RUNNING"
         Blackboard.storage["/go"] = False
         clock.set(0.1)
-        assert loaded.tick().name == "FAILURE"  # the condition halts the TryCatch
+        assert tick(loaded).name == "FAILURE"  # the condition halts the TryCatch
         assert ("/caught" in Blackboard.storage) is caught
 
     def test_re_execute_after_failure(self, tmp_path: Path) -> None:
@@ -226,8 +226,8 @@ class TestTryCatch:
         body = f'<TryCatch><Script code="n += 1"/><ScriptCondition code="n &gt; 1"/>{self.CATCH}</TryCatch>'
         loaded, _ = start(tmp_path, body)
         Blackboard.storage["/n"] = 0
-        assert loaded.tick().name == "FAILURE"
-        assert loaded.tick().name == "SUCCESS"
+        assert tick(loaded).name == "FAILURE"
+        assert tick(loaded).name == "SUCCESS"
         assert Blackboard.storage["/n"] == 2
 
 

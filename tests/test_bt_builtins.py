@@ -21,7 +21,7 @@ from canguard.bt.loader import load_tree
 from canguard.errors import TreeError
 from canguard.io.clock import ManualClock
 from clikit import cli
-from treekit import ListSink
+from treekit import ListSink, tick
 
 
 def tree(tmp_path: Path, body: str, name: str = "t.xml") -> Path:
@@ -96,12 +96,12 @@ class TestBranching:
         clock = ManualClock()
         loaded = load_tree(path, Context(clock, {}, sink=ListSink(), task=NullTaskGate()))
         Blackboard.storage["/go"] = True
-        assert loaded.tick().name == "RUNNING"
+        assert tick(loaded).name == "RUNNING"
         Blackboard.storage["/go"] = False
         clock.set(0.1)
-        assert loaded.tick().name == "RUNNING"
+        assert tick(loaded).name == "RUNNING"
         clock.set(0.3)
-        assert loaded.tick().name == "SUCCESS"
+        assert tick(loaded).name == "SUCCESS"
 
     def test_while_do_else_switches_and_halts(self, tmp_path: Path) -> None:
         """The condition changes while the do-branch runs: it is halted and the else-branch runs."""
@@ -110,11 +110,11 @@ class TestBranching:
         clock = ManualClock()
         loaded = load_tree(path, Context(clock, {}, sink=ListSink(), task=NullTaskGate()))
         Blackboard.storage["/go"] = True
-        assert loaded.tick().name == "RUNNING"
+        assert tick(loaded).name == "RUNNING"
         sleep = loaded.root.children[1]
         Blackboard.storage["/go"] = False
         clock.set(0.1)
-        assert loaded.tick().name == "SUCCESS"
+        assert tick(loaded).name == "SUCCESS"
         assert Blackboard.storage["/switched"] == 1.0  # BT.CPP: true is the real 1.0
         assert sleep.status.name == "INVALID"  # halted
 
@@ -125,9 +125,9 @@ class TestBranching:
         clock = ManualClock()
         loaded = load_tree(path, Context(clock, {}))
         Blackboard.storage["/go"] = True
-        assert loaded.tick().name == "RUNNING"
+        assert tick(loaded).name == "RUNNING"
         Blackboard.storage["/go"] = False
-        assert loaded.tick().name == "FAILURE"
+        assert tick(loaded).name == "FAILURE"
         assert Blackboard.storage["/halted"] == 1.0  # BT.CPP: true is the real 1.0
 
     def test_while_do_else_needs_two_or_three_children(self, tmp_path: Path) -> None:

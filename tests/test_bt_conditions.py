@@ -18,7 +18,7 @@ from canguard.bt.dryrun import dry_run
 from canguard.bt.loader import load_tree
 from canguard.errors import TreeError
 from canguard.io.clock import ManualClock
-from treekit import ListSink
+from treekit import ListSink, tick
 
 
 def tree(tmp_path: Path, body: str) -> Path:
@@ -49,14 +49,14 @@ def test_preconditions_are_not_rechecked_while_running(tmp_path: Path) -> None:
     clock = ManualClock()
     loaded = load_tree(path, Context(clock, {}, sink=ListSink(), task=NullTaskGate()))
     Blackboard.storage["/stop"] = False
-    assert loaded.tick().name == "RUNNING"
+    assert tick(loaded).name == "RUNNING"
     Blackboard.storage["/stop"] = True
     clock.set(0.1)
-    assert loaded.tick().name == "RUNNING"
+    assert tick(loaded).name == "RUNNING"
     clock.set(0.3)
-    assert loaded.tick().name == "SUCCESS"
+    assert tick(loaded).name == "SUCCESS"
     clock.set(0.4)
-    assert loaded.tick().name == "FAILURE"
+    assert tick(loaded).name == "FAILURE"
 
 
 def test_on_halted_runs_when_a_running_node_is_halted(tmp_path: Path) -> None:
@@ -66,11 +66,11 @@ def test_on_halted_runs_when_a_running_node_is_halted(tmp_path: Path) -> None:
     clock = ManualClock()
     loaded = load_tree(path, Context(clock, {}, sink=ListSink(), task=NullTaskGate()))
     Blackboard.storage["/go"] = True
-    assert loaded.tick().name == "RUNNING"
+    assert tick(loaded).name == "RUNNING"
     assert "/halted" not in Blackboard.storage
     Blackboard.storage["/go"] = False
     clock.set(0.1)
-    loaded.tick()
+    tick(loaded)
     assert Blackboard.storage["/halted"] == 1.0  # BT.CPP: true is the real 1.0
 
 

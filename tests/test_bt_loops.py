@@ -17,7 +17,7 @@ from canguard.bt.dryrun import dry_run
 from canguard.bt.loader import load_tree
 from canguard.errors import TreeError
 from canguard.io.clock import ManualClock
-from treekit import ListSink
+from treekit import ListSink, tick
 
 
 def tree(tmp_path: Path, body: str) -> Path:
@@ -36,7 +36,7 @@ def run(tmp_path: Path, body: str, ticks: int, setup: Callable[[], None] | None 
         setup()
     out = []
     for _ in range(ticks):
-        out.append(loaded.tick().name)
+        out.append(tick(loaded).name)
         if out[-1] != "RUNNING":
             break
     return out, {k[1:]: v for k, v in Blackboard.storage.items() if k.count("/") == 1}

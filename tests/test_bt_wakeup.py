@@ -13,11 +13,12 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from py_trees.blackboard import Blackboard
 
 from canguard.bt.context import Context, NullTaskGate
 from canguard.bt.dryrun import dry_run
 from canguard.bt.loader import load_tree
-from canguard.bt.wakeup import MAX_RETICKS
+from canguard.bt.wakeup import MAX_RETICKS, tick_once
 from canguard.cli.main import main
 from canguard.io.clock import ManualClock
 from checkout import REPO
@@ -30,7 +31,8 @@ def tree(tmp_path: Path, body: str) -> Path:
     return path
 
 
-REPEAT = '<Sequence><Script code="n := 0"/><Repeat num_cycles="3"><Script code="n += 1"/></Repeat></Sequence>'
+COUNT = '<Sequence><Script code="n := 0"/><Repeat num_cycles="{}"><Script code="n += 1"/></Repeat></Sequence>'
+REPEAT = COUNT.format(3)
 
 
 class TestTickOnce:
@@ -85,25 +87,24 @@ class TestBound:
 
     def test_a_tree_that_keeps_waking_itself_is_bounded_and_journalled(self, tmp_path: Path) -> None:
         """Repeat forever over an instant child: each tick stops at the bound, RUNNING; one error event says why."""
-        loaded, events = self._load(tmp_path, '<Repeat num_cycles="-1"><Script code="n := 1"/></Repeat>')
-        first = loaded.tick_once(max_reticks=10)
-        second = loaded.tick_once(max_reticks=10)
-        assert (first.status.name, first.reticks, first.capped) == ("RUNNING", 10, True)
-        assert (second.status.name, second.capped) == ("RUNNING", True)
+        loaded, events = self._load(tmp_path, COUNT.format("-1"))
+        first = tick_once(loaded, max_reticks=10)
+        assert (first.status.name, Blackboard.storage["/n"]) == ("RUNNING", 11)  # the tick and 10 re-ticks
+        assert tick_once(loaded, max_reticks=10).status.name == "RUNNING"
         assert [e["event"] for e in events] == ["error"]
-        assert "kept waking itself up" in events[0]["reason"]
+        assert "kept waking itself up: 10 re-ticks" in events[0]["reason"]
 
     def test_the_default_bound(self, tmp_path: Path) -> None:
         """The engine's bound is MAX_RETICKS re-ticks per tick."""
-        loaded, _ = self._load(tmp_path, '<Repeat num_cycles="-1"><AlwaysSuccess/></Repeat>')
-        assert loaded.tick_once().reticks == MAX_RETICKS
+        assert dry_run(tree(tmp_path, COUNT.format("-1")), 1, 0.1)["blackboard"] == {"n": MAX_RETICKS + 1}
 
     def test_each_run_of_capped_ticks_is_journalled_once(self, tmp_path: Path) -> None:
         """Repeat of 5 with a bound of 2: capped, then done, then capped again: two error events, not three."""
         loaded, events = self._load(tmp_path, '<Repeat num_cycles="5"><AlwaysSuccess/></Repeat>')
-        got = [loaded.tick_once(max_reticks=2) for _ in range(3)]
-        assert [(t.status.name, t.capped) for t in got] == [("RUNNING", True), ("SUCCESS", False), ("RUNNING", True)]
-        assert len(events) == 2
+        got = []
+        for _ in range(3):
+            got.append((tick_once(loaded, max_reticks=2).status.name, len(events)))
+        assert got == [("RUNNING", 1), ("SUCCESS", 1), ("RUNNING", 2)]
 
 
 class TestCommand:

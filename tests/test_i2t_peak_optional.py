@@ -17,7 +17,7 @@ import pytest
 
 from canguard.errors import TreeError
 from canguard.protect.i2t import RATED_OVERLOAD, RATED_OVERLOAD_S, LeakyI2t, ThermalI2t
-from treekit import F, Rig, S, xml_tree
+from treekit import F, Rig, S, find, xml_tree
 
 START = 1000.0
 SAMPLE_S = 0.125
@@ -48,7 +48,7 @@ class TestDerivedPeak:
         loaded = rig.load_text(
             tmp_path, xml_tree('<IsI2tSafe name="i2t" topic_name="axis0" continuous_current="10"/>')
         )
-        model = loaded.find("i2t").model
+        model = find(loaded, "i2t").model
         assert isinstance(model, LeakyI2t)
         assert (model.peak_a, model.peak_time_s) == (15.0, 120.0)
         assert model.trip_level == pytest.approx(15000.0)
@@ -62,7 +62,7 @@ class TestDerivedPeak:
             tmp_path,
             xml_tree('<IsI2tSafe name="i2t" topic_name="axis0" continuous_current="10" peak_time="10"/>'),
         )
-        assert loaded.find("i2t").model.trip_level == pytest.approx(1250.0)
+        assert find(loaded, "i2t").model.trip_level == pytest.approx(1250.0)
         assert first_failing_tick(rig, 20.0, 10.0) == 4.5
 
     def test_thermal_without_peak_or_tau(self, tmp_path: Path) -> None:
@@ -72,7 +72,7 @@ class TestDerivedPeak:
             tmp_path,
             xml_tree('<IsI2tSafe name="i2t" topic_name="axis0" model="thermal" continuous_current="10"/>'),
         )
-        model = loaded.find("i2t").model
+        model = find(loaded, "i2t").model
         assert isinstance(model, ThermalI2t)
         tau = 120.0 / math.log(2.25 / 1.25)
         assert model.tau_s == pytest.approx(tau)
@@ -85,7 +85,7 @@ class TestDerivedPeak:
         loaded = rig.load_text(
             tmp_path, xml_tree('<IsI2tSafe name="i2t" topic_name="axis0" continuous_current="10" k="1.2"/>')
         )
-        assert loaded.find("i2t").model.trip_level == pytest.approx((225.0 - 144.0) * 120.0)
+        assert find(loaded, "i2t").model.trip_level == pytest.approx((225.0 - 144.0) * 120.0)
 
     def test_constants(self) -> None:
         """The derivation's figures, as documented."""

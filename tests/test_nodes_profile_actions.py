@@ -8,7 +8,7 @@ import py_trees
 import pytest
 
 import canguard.bt.nodes.control as profile_module
-from treekit import F, R, Rig, S, frame, install_scripted, xml_tree
+from treekit import F, R, Rig, S, find, frame, install_scripted, xml_tree
 
 BB = py_trees.blackboard.Blackboard
 
@@ -65,7 +65,7 @@ class TestProfile:
                 '<Profile count="{c}"><Scripted name="A" script="R"/></Profile></ReactiveSequence>'
             ),
         )
-        profile = loaded.find("Profile")
+        profile = find(loaded, "Profile")
         for _ in range(3):
             rig.tick()
         assert profile.count == 3
@@ -85,7 +85,7 @@ class TestProfile:
         )
         for _ in range(5):
             assert rig.tick() == S
-        assert loaded.find("Profile").count == 5
+        assert find(loaded, "Profile").count == 5
 
     def test_measures_the_child(self, tmp_path: Path, log: list) -> None:
         """The measured time covers the child's work (a 2 ms busy child reads >= 2 ms)."""

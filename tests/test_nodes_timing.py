@@ -7,7 +7,7 @@ from pathlib import Path
 import py_trees
 import pytest
 
-from treekit import F, Rig, S, xml_tree
+from treekit import F, Rig, S, find, xml_tree
 
 BB = py_trees.blackboard.Blackboard
 
@@ -81,8 +81,8 @@ class TestIsElapsedTimeCompare:
         at(rig, 0.0)
         BB.set("/nav", 1008.0)  # as ResetTimer(timer="{nav}") would at 8 s
         at(rig, 10.0)
-        assert loaded.find("default").status == S
-        assert loaded.find("nav").status == F
+        assert find(loaded, "default").status == S
+        assert find(loaded, "nav").status == F
 
     def test_reset_timer_with_named_timer(self, tmp_path: Path) -> None:
         """ResetTimer(timer="{nav}") writes now to /nav; the comparison's own timer stays."""
@@ -95,7 +95,7 @@ class TestIsElapsedTimeCompare:
             ),
         )
         at(rig, 0.0, 3.0)
-        assert BB.get("/nav") == 1003.0 and loaded.find("IsElapsedTimeCompare").timer_start() == 1000.0
+        assert BB.get("/nav") == 1003.0 and find(loaded, "IsElapsedTimeCompare").timer_start() == 1000.0
 
     def test_tree_start_reference(self, tmp_path: Path) -> None:
         """reference="tree_start" measures from ctx.tree_start; ResetTimer does not move it."""

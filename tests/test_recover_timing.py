@@ -21,7 +21,7 @@ from canguard.engine.gate import TaskGate
 from canguard.io.frame import Frame
 from test_engine import SET_STATE_IDS, bms_frame
 from test_engine import Rig as EngineRig
-from treekit import F, Rig, S, Status, xml_tree
+from treekit import F, Rig, S, Status, find, xml_tree
 
 START = 1000.0
 TICK_S = 0.25
@@ -89,7 +89,7 @@ class TestIsCurrentSafe:
             return 10.0 if dt < 0.5 else 40.0 if dt < 1.5 else 30.0 if dt < 2.6 else 20.0
 
         statuses = drive(rig, lambda t, v: rig.feed("axis0", "current", v, t), current, 4.0)
-        model = loaded.find("guard").model
+        model = find(loaded, "guard").model
         t_trip, t_rec = START + 0.53125, START + 2.65625  # first samples at 40 A and at 20 A
         assert model.since == t_rec
         assert edges(statuses) == [(tick_at_or_after(t_trip), F), (tick_at_or_after(t_rec), S)]
@@ -108,7 +108,7 @@ class TestIsCurrentSafe:
             return 40.0 if 0.5 <= dt < 1.5 else 10.0
 
         statuses = drive(rig, lambda t, v: rig.feed("axis0", "current", v, t), current, 3.0)
-        t_rec = loaded.find("guard").model.since
+        t_rec = find(loaded, "guard").model.since
         # first sample <= 25 A at 1.53125 s; 0.3 s later, the first sample at or after 1.83125 s: 1.84375 s
         assert t_rec == START + 1.84375
         assert edges(statuses)[-1] == (START + 2.0, S)
@@ -152,7 +152,7 @@ class TestIsI2tSafe:
         )
         statuses = drive(rig, lambda t, v: rig.feed("axis0", "current", v, t), lambda dt: 12.0 if dt < 1.05 else 0.0,
                          4.0)
-        assert loaded.find("i2t").model.since == START + 2.84375
+        assert find(loaded, "i2t").model.since == START + 2.84375
         assert edges(statuses) == [(tick_at_or_after(START + 1.03125), F), (tick_at_or_after(START + 2.84375), S)]
         assert edges(statuses) == [(START + 1.25, F), (START + 3.0, S)]
         assert event_times(rig) == [("trip", START + 1.25), ("recover", START + 3.0)]

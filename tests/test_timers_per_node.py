@@ -16,7 +16,7 @@ import py_trees
 import pytest
 
 from canguard.errors import TreeError
-from treekit import F, Rig, S, xml_tree
+from treekit import F, Rig, S, find, xml_tree
 
 BB = py_trees.blackboard.Blackboard
 START = 1000.0
@@ -44,7 +44,7 @@ class TestIsElapsedTimeCompare:
         rig = Rig(start=START)
         loaded = rig.load_text(tmp_path, xml_tree(self.BODY.format(timer="")))
         assert at(rig, 0.0, 5.0, 7.9, 8.0) == [F, F, F, S]
-        assert loaded.find("b").feedback_message == "elapsed 3.000 s GTE 3 s: True"
+        assert find(loaded, "b").feedback_message == "elapsed 3.000 s GTE 3 s: True"
         assert not [k for k in BB.storage if "timer" in k]  # nothing shared on the blackboard
 
     def test_the_same_timer_key_is_shared(self, tmp_path: Path) -> None:
@@ -66,8 +66,8 @@ class TestIsElapsedTimeCompare:
         loaded = rig.load_text(tmp_path, xml_tree(body))
         BB.set("/nav", START - 20.0)
         at(rig, 0.0, 9.0)
-        assert loaded.find("own").feedback_message == "elapsed 9.000 s GTE 10 s: False"
-        assert loaded.find("nav").feedback_message == "elapsed 29.000 s GTE 10 s: True"
+        assert find(loaded, "own").feedback_message == "elapsed 9.000 s GTE 10 s: False"
+        assert find(loaded, "nav").feedback_message == "elapsed 29.000 s GTE 10 s: True"
 
 
 class TestResetTimer:
@@ -85,11 +85,11 @@ class TestResetTimer:
         )
         loaded = rig.load_text(tmp_path, xml_tree(body))
         at(rig, 0.0, 2.0)
-        assert loaded.find("ta").feedback_message == "elapsed 2.000 s GTE 2 s: True"  # then ra restarted it
+        assert find(loaded, "ta").feedback_message == "elapsed 2.000 s GTE 2 s: True"  # then ra restarted it
         at(rig, 3.0)
-        assert loaded.find("ta").feedback_message == "elapsed 1.000 s GTE 2 s: False"  # since the reset
+        assert find(loaded, "ta").feedback_message == "elapsed 1.000 s GTE 2 s: False"  # since the reset
         # 3 s since its own first tick: ra did not reset it
-        assert loaded.find("tb").feedback_message == "elapsed 3.000 s GTE 3 s: True"
+        assert find(loaded, "tb").feedback_message == "elapsed 3.000 s GTE 3 s: True"
 
     def test_reset_reaches_up_to_the_nearest_timers(self, tmp_path: Path) -> None:
         """A ResetTimer in a branch of its own restarts the comparison in the sibling branch (nearest ancestor)."""
@@ -116,15 +116,15 @@ class TestResetTimer:
         )
         loaded = rig.load_text(tmp_path, xml_tree(body))
         at(rig, 0.0, 5.0)
-        assert loaded.find("since_reset").status == F
-        assert "no reset yet" in loaded.find("since_reset").feedback_message
+        assert find(loaded, "since_reset").status == F
+        assert "no reset yet" in find(loaded, "since_reset").feedback_message
         BB.set("/go", START)
         at(rig, 5.0)  # the reset runs after since_reset in this tick
         BB.set("/go", START + 1e9)  # no more resets
         at(rig, 5.5)
-        assert loaded.find("since_reset").feedback_message == "elapsed 0.500 s GTE 1 s: False"
+        assert find(loaded, "since_reset").feedback_message == "elapsed 0.500 s GTE 1 s: False"
         at(rig, 6.0)
-        assert loaded.find("since_reset").feedback_message == "elapsed 1.000 s GTE 1 s: True"
+        assert find(loaded, "since_reset").feedback_message == "elapsed 1.000 s GTE 1 s: True"
 
     def test_reset_without_any_unnamed_timer_is_a_load_error(self, tmp_path: Path) -> None:
         """A ResetTimer with no timer to restart names the file, the node and the port."""

@@ -6,21 +6,27 @@ from pathlib import Path
 
 import pytest
 
-from canguard.bt.checks import context_for, guard_coverage
+from canguard.bt.checks import context_for, require_guard_coverage
 from canguard.bt.loader import load_tree
 from canguard.config.loader import load_config
+from canguard.errors import TreeError
 from checkout import REPO
 
 
 def coverage(tmp_path: Path, body: str) -> list[str]:
-    """guard_coverage() of a one-tree document around ``body``, with the bundled config's sources."""
+    """The guards require_guard_coverage() refuses in a one-tree document around ``body`` (the bundled config's
+    sources)."""
     xml = tmp_path / "t.xml"
     xml.write_text(
         f'<root BTCPP_format="4" main_tree_to_execute="T"><BehaviorTree ID="T">{body}</BehaviorTree></root>',
         encoding="utf-8",
     )
     cfg = load_config(REPO / "config" / "canguard.yaml")
-    return guard_coverage(load_tree(xml, context_for(cfg)))
+    try:
+        require_guard_coverage(load_tree(xml, context_for(cfg)))
+    except TreeError as exc:
+        return exc.problems[0].splitlines()
+    return []
 
 
 class TestGuardCoverage:
@@ -45,7 +51,7 @@ class TestGuardCoverage:
         for cfg_path in (REPO / "config" / "canguard.yaml", REPO / "config" / "examples" / "robot_guard.yaml"):
             cfg = load_config(cfg_path)
             assert cfg.tree is not None
-            assert guard_coverage(load_tree(cfg.tree.file, context_for(cfg), cfg.tree.main)) == []
+            require_guard_coverage(load_tree(cfg.tree.file, context_for(cfg), cfg.tree.main))
 
 
 class TestUncoveredTreeRefused:

@@ -10,7 +10,7 @@ import math
 import pytest
 
 import canguard.bt.nodes.control as profile_module
-from treekit import TREES, F, R, Rig, S
+from treekit import TREES, F, R, Rig, S, find
 
 
 class TestPeriodicHealthCheck:
@@ -61,7 +61,7 @@ class TestCooldownRecovery:
                 times.append(rig.now() - 2000.0)
             rig.advance(0.5)
         assert times == [0.0, 10.0, 20.0, 30.0, 40.0, 50.0, 60.0]
-        assert loaded.find("PerformRecovery").blackboard_client.get("output_time") == 2060.0
+        assert find(loaded, "PerformRecovery").blackboard_client.get("output_time") == 2060.0
 
     def test_recovery_runs_at_once_when_never_run(self) -> None:
         """No {last_recovery_time} yet means "never executed": the first tick recovers."""

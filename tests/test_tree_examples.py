@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from canguard.bt.checks import check_tree, context_for, load_config_tree, show_tree
+from canguard.bt.checks import check_tree, load_config_tree, show_tree
 from canguard.config.loader import load_config
 from canguard.errors import TreeError
 from checkout import REPO
@@ -18,9 +18,10 @@ EXAMPLES = sorted((REPO / "config" / "examples").glob("*.yaml"))
 @pytest.mark.parametrize("path", EXAMPLES, ids=[p.stem for p in EXAMPLES])
 def test_example_config_checks_clean(path: Path) -> None:
     """Each example config's tree loads, every topic_name matches, every configured source is read."""
-    report = check_tree(load_config(path))
+    cfg = load_config(path)
+    report = check_tree(cfg)
     assert report.warnings == []
-    assert report.text.startswith(f"tree: {report.loaded.main_id} from ")
+    assert report.text.startswith(f"tree: {load_config_tree(cfg).main_id} from ")
 
 
 def test_check_names_the_configured_sources_the_tree_does_not_read() -> None:
@@ -41,7 +42,7 @@ def test_every_shipped_tree_has_an_example() -> None:
 def test_bundled_config_runs_current_protected_operation() -> None:
     """config/canguard.yaml points at CurrentProtectedOperation in protected_operation.xml."""
     cfg = load_config(REPO / "config" / "canguard.yaml")
-    loaded = load_config_tree(cfg, context_for(cfg))
+    loaded = load_config_tree(cfg)
     assert loaded.main_id == "CurrentProtectedOperation"
     assert [g.node for g in loaded.guards()] == ["IsCurrentSafe"]
     view = loaded.guards()[0]

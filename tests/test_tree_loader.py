@@ -18,7 +18,7 @@ from canguard.bt.loader import build_registry, load_tree
 from canguard.bt.nodes import BUILTIN_NODES, CanguardNode, port_info
 from canguard.config.schema import ActionConfig
 from canguard.errors import TreeError
-from treekit import TREES, F, FakeEntryPoint, R, Rig, S, xml_tree
+from treekit import TREES, F, FakeEntryPoint, R, Rig, S, find, xml_tree
 
 UUID = re.compile(r"[0-9a-f]{8}-[0-9a-f]{4}-[0-9a-f]{4}-[0-9a-f]{4}-[0-9a-f]{12}")
 
@@ -188,7 +188,7 @@ class TestMainAndNames:
             "ExecuteTask",
         ]
         assert not UUID.search(render_text(loaded.root))
-        info = loaded.nodes[loaded.find("battery guard").id]
+        info = loaded.nodes[find(loaded, "battery guard").id]
         assert (info.node_id, info.line, info.tree) == ("IsCurrentNormal", 3, "T")
 
     def test_events_name_the_node(self, tmp_path: Path) -> None:
@@ -254,8 +254,8 @@ class TestSubTree:
         xml = self.XML.replace('limit="{left_limit}"', 'limit="15"').replace('limit="{right_limit}"', 'limit="50"')
         rig = Rig()
         loaded = rig.load_text(tmp_path, xml)
-        assert loaded.find("Left/IsCurrentNormal").model.max_value == 15.0
-        assert loaded.find("Right/IsCurrentNormal").model.max_value == 50.0
+        assert find(loaded, "Left/IsCurrentNormal").model.max_value == 15.0
+        assert find(loaded, "Right/IsCurrentNormal").model.max_value == 50.0
 
     def test_unnamed_subtrees_get_distinct_namespaces(self, tmp_path: Path) -> None:
         """Two unnamed instances of one tree are Guard and Guard_2."""

@@ -21,6 +21,7 @@ from canguard.bt.loaded import LoadedTree
 from canguard.bt.loader import load_tree
 from canguard.bt.nodes import CanguardNode, port_info
 from canguard.bt.nodes.base import halted
+from canguard.bt.wakeup import tick_once
 from canguard.config.schema import ActionConfig, FrameSpec, SignalRef, SourceConfig, SourceKind
 from canguard.io.clock import ManualClock
 from canguard.io.frame import Sample
@@ -32,6 +33,19 @@ Status = py_trees.common.Status
 S, F, R = Status.SUCCESS, Status.FAILURE, Status.RUNNING
 
 _ids = itertools.count(0x100)
+
+
+def tick(loaded: LoadedTree) -> Status:
+    """Tick the root exactly once, BT.CPP's ``tickExactlyOnce()`` (``ctx.tree_start`` set at the first tick, as the
+    engine does)."""
+    if loaded.context.tree_start is None:
+        loaded.context.tree_start = loaded.context.clock.now()
+    return tick_once(loaded, exactly_once=True).status
+
+
+def find(loaded: LoadedTree, name: str) -> Any:
+    """The node of ``loaded`` with that readable name (KeyError: none)."""
+    return {node.name: node for node in loaded.root.iterate()}[name]
 
 
 def sig(role: str, minimum: float | None = None, maximum: float | None = None) -> SignalRef:
@@ -151,12 +165,12 @@ class Rig:
     def tick(self) -> Status:
         """Tick the loaded tree once."""
         assert self.loaded is not None
-        return self.loaded.tick()
+        return tick(self.loaded)
 
     def node(self, name: str) -> Any:
         """A node of the loaded tree by readable name."""
         assert self.loaded is not None
-        return self.loaded.find(name)
+        return find(self.loaded, name)
 
     # -- time and samples ----------------------------------------------------------------
     def now(self) -> float:

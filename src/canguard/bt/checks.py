@@ -23,6 +23,7 @@ from canguard.bt.nodes.actions import EmitStop, ExecuteTask, ResetStop, assign_r
 from canguard.bt.nodes.base import RUNNING, node_kind
 from canguard.config.schema import Config
 from canguard.errors import TreeError, quote
+from canguard.io.clock import ManualClock
 from canguard.protect.hysteresis import Hysteresis
 from canguard.protect.i2t import _I2tModel
 
@@ -34,42 +35,31 @@ if TYPE_CHECKING:
 class TreeReport:
     """``canguard check``'s view of the config's tree."""
 
-    loaded: LoadedTree
     text: str  # a summary line and the tree drawing
     warnings: list[str]  # configured sources the tree does not read
 
 
 def context_for(cfg: Config) -> Context:
     """A context for ``cfg`` (sources, actions, stop frames) on a ManualClock at 0."""
-    from canguard.io.clock import ManualClock
-
     return Context(ManualClock(), cfg.sources, actions=cfg.actions, stop_frames=cfg.stop.frames)
 
 
-def load_config_tree(cfg: Config, ctx: Context | None = None, palette: Palette | None = None) -> LoadedTree:
+def load_config_tree(cfg: Config, palette: Palette | None = None) -> LoadedTree:
     """Load the tree ``cfg.tree`` names (TreeError when the config has none); ``palette``: ``--nodes`` files."""
     if cfg.tree is None:
         raise TreeError(f"{cfg.path}: tree: missing, expected {{file: TREE.xml, main: ID, tick_hz: HZ}}")
-    return load_tree(cfg.tree.file, ctx if ctx is not None else context_for(cfg), cfg.tree.main, palette)
+    return load_tree(cfg.tree.file, context_for(cfg), cfg.tree.main, palette)
 
 
 def check_tree(cfg: Config, palette: Palette | None = None) -> TreeReport:
     """Load and validate the config's tree against the config (and ``--nodes`` palettes); TreeError on any problem."""
-    loaded = load_config_tree(cfg, palette=palette)  # binding checks every guard's topic_name against cfg.sources
-    count = sum(1 for _ in loaded.root.iterate())
-    head = (f"tree: {loaded.main_id} from {loaded.path} (BTCPP_format {loaded.format_version}), {count} nodes, "
-            f"reads {', '.join(sorted(loaded.context.read_sources)) or 'no source'}")
+    loaded = load_config_tree(cfg, palette)  # binding checks every guard's topic_name against cfg.sources
+    head = (f"tree: {loaded.main_id} from {loaded.path} (BTCPP_format {loaded.format_version}), "
+            f"{len(loaded.nodes)} nodes, reads {', '.join(sorted(loaded.context.read_sources)) or 'no source'}")
     require_guard_coverage(loaded)
     unread = [n for n in cfg.sources if n not in loaded.context.read_sources]
-    return TreeReport(loaded, f"{head}\n{render_text(loaded.root)}", [
+    return TreeReport(f"{head}\n{render_text(loaded.root)}", [
         f"source {quote(n)} is configured but the tree does not read it (only stale events)" for n in unread])
-
-
-def require_guard_coverage(loaded: LoadedTree) -> None:
-    """TreeError when a guard would not be re-checked while the task runs (see :func:`guard_coverage`)."""
-    problems = guard_coverage(loaded)
-    if problems:
-        raise TreeError("\n".join(problems))
 
 
 def _path_to(node: py_trees.behaviour.Behaviour) -> list[py_trees.behaviour.Behaviour]:
@@ -80,9 +70,9 @@ def _path_to(node: py_trees.behaviour.Behaviour) -> list[py_trees.behaviour.Beha
     return path
 
 
-def guard_coverage(loaded: LoadedTree) -> list[str]:
-    """Guards placed before ExecuteTask's branch under a composite with memory: ticked once, then skipped
-    while the task runs, so an overcurrent during the task would never stop it."""
+def require_guard_coverage(loaded: LoadedTree) -> None:
+    """TreeError naming the guards placed before ExecuteTask's branch under a composite with memory: ticked once,
+    then skipped while the task runs, so an overcurrent during the task would never stop it."""
     tasks = [n for n in loaded.root.iterate() if isinstance(n, ExecuteTask)]
     out: list[str] = []
     for guard in loaded.guard_nodes():
@@ -101,7 +91,8 @@ def guard_coverage(loaded: LoadedTree) -> list[str]:
                            "RUNNING) it is not ticked again while the task runs, so the task would go on through an "
                            "overcurrent or a dead sensor; put them under a ReactiveSequence to guard the task at "
                            "every tick")
-    return out
+    if out:
+        raise TreeError("\n".join(out))
 
 
 def halt_ahead(loaded: LoadedTree) -> Callable[[], bool] | None:

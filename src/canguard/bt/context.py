@@ -72,10 +72,6 @@ class Context:
         self.heat_models: dict[str, ProtectionModel] = {}  # I²t models by guard name (the state file)
         self.stop_frames: tuple[FrameSpec, ...] = tuple(stop_frames)
 
-    def now(self) -> float:
-        """The engine's time (seconds, the frames' time base)."""
-        return self.clock.now()
-
     def source(self, name: str, kinds: tuple[SourceKind, ...]) -> SourceConfig:
         """The configured source ``name`` of one of ``kinds``; KeyError/ValueError naming the choices."""
         cfg = self.sources.get(name)
@@ -131,4 +127,4 @@ class Context:
     def record(self, event: str, **fields: Any) -> None:
         """Report an event (``trip``, ``recover``, ...) with its fields to the journal, if any."""
         if self.on_event is not None:
-            self.on_event({"t": self.now(), "event": event, **fields})
+            self.on_event({"t": self.clock.now(), "event": event, **fields})

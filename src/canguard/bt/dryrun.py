@@ -11,6 +11,7 @@ from py_trees.blackboard import Blackboard
 
 from canguard.bt.context import Context
 from canguard.bt.loader import Palette, load_tree
+from canguard.bt.wakeup import tick_once
 from canguard.io.clock import ManualClock
 
 
@@ -35,10 +36,11 @@ def dry_run(path: Path, ticks: int, dt: float, main: str | None = None, palette:
     ctx = Context(clock, {}, on_event=lambda event: print(f"canguard tree: {event.get('reason')}", file=sys.stderr))
     loaded = load_tree(path, ctx, main, palette)
     statuses = []
+    ctx.tree_start = 0.0  # the first tick's time
     for i in range(ticks):
         clock.set(i * dt)
         try:
-            ticked = loaded.tick_once(exactly_once=exactly_once)
+            ticked = tick_once(loaded, exactly_once=exactly_once)
         except Exception as exc:  # as the engine does: a tick that raises is a FAILURE, and says why
             print(f"canguard tree: tick {i + 1}: a node raised {type(exc).__name__}: {exc}", file=sys.stderr)
             statuses.append("FAILURE")
@@ -47,9 +49,9 @@ def dry_run(path: Path, ticks: int, dt: float, main: str | None = None, palette:
             for node in loaded.root.iterate():  # every script that failed in the tick: where, the script, why
                 error = getattr(node, "script_error", None)
                 if error:
-                    info = loaded.nodes.get(node.id)
-                    where = f"{info.file}:{info.line}: " if info is not None else ""
-                    print(f"canguard tree: tick {i + 1}: {where}node {node.name}: script {error}", file=sys.stderr)
+                    info = loaded.nodes[node.id]  # every node of a loaded tree has one
+                    print(f"canguard tree: tick {i + 1}: {info.file}:{info.line}: node {node.name}: script {error}",
+                          file=sys.stderr)
                     node.script_error = None  # type: ignore[attr-defined]
         statuses.append("SKIPPED" if ticked.skipped else ticked.status.name)
     return {"ticks": statuses, "blackboard": root_blackboard()}

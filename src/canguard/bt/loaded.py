@@ -11,7 +11,7 @@ import py_trees
 
 from canguard.bt.context import Context
 from canguard.bt.nodes import GuardNode
-from canguard.bt.wakeup import MAX_RETICKS, Ticked, WakeUpSignal, tick_once
+from canguard.bt.wakeup import WakeUpSignal
 from canguard.protect.base import ProtectionModel, Snapshot
 from canguard.units import I2T_LIMIT_PCT
 
@@ -76,23 +76,6 @@ class LoadedTree:
     format_version: int  # 4 with BTCPP_format="4", else 3
     nodes: dict[Any, NodeInfo] = field(default_factory=dict)  # by node.id
     wake_up: WakeUpSignal = field(default_factory=WakeUpSignal)
-
-    def tick(self) -> py_trees.common.Status:
-        """Tick the root exactly once, BT.CPP's ``tickExactlyOnce()`` (sets ``ctx.tree_start`` at the first tick)."""
-        return self.tick_once(exactly_once=True).status
-
-    def tick_once(self, max_reticks: int = MAX_RETICKS, *, exactly_once: bool = False) -> Ticked:
-        """BT.CPP's ``tickOnce()``: the root ticked, and again while a wake-up is pending (bounded)."""
-        if self.context.tree_start is None:
-            self.context.tree_start = self.context.now()
-        return tick_once(self, max_reticks, exactly_once=exactly_once)
-
-    def find(self, name: str) -> py_trees.behaviour.Behaviour:
-        """The node with that readable name; KeyError listing the names."""
-        for node in self.root.iterate():
-            if node.name == name:
-                return node
-        raise KeyError(f"no node named {name!r}; nodes: {', '.join(n.name for n in self.root.iterate())}")
 
     def guard_nodes(self) -> list[GuardNode]:
         """Every guard condition (the nodes that read sources), in tree order."""

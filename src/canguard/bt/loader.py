@@ -26,6 +26,7 @@ from canguard.bt.nodes import BUILTIN_NODES, CanguardNode, ConfiguredAction, Gua
 from canguard.bt.nodes.base import CONDITIONS, install_conditions, node_kind, port_table, take_conditions
 from canguard.bt.scopes import SUBTREE, Inline, TreeBlackboard, subtree_ports, subtree_scopes
 from canguard.errors import TreeError, closest, quote
+from canguard.io.clock import ManualClock
 
 if TYPE_CHECKING:
     from canguard.bt.scripting.script import Script
@@ -628,8 +629,8 @@ class _Load:
             if elem in self.private:  # a node of an inlined _autoremap subtree: its ports and _keys
                 board = board.inlined(self.private[elem])
                 Blackboard.storage.update({k: v for k, v in board.literals.items() if k not in Blackboard.storage})
-            if isinstance(node, CanguardNode) and node.USES_BOARD:
-                node.board = board  # type: ignore[attr-defined]
+            if isinstance(node, CanguardNode):
+                node.board = board
             install_conditions(node, self.conditions.get(elem, {}), board)
             readable = "/".join([*(p for p in parts[:-1] if p not in self.tokens), info.name])
             counts[readable] = k = counts.get(readable, 0) + 1
@@ -734,8 +735,6 @@ def partial_tree_problems(partial: PartialConfig | None) -> list[str]:
     without being built; a source the config declares but got wrong is not reported again."""
     if partial is None or partial.tree is None:
         return []
-    from canguard.io.clock import ManualClock
-
     load = _Load(partial.tree.file, Context(ManualClock(), partial.sources, actions=partial.actions))
     load.source_check = "always" if partial.sources_ok else "never"
     load.unsure_sources = partial.declared_sources

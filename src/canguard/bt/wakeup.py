@@ -6,11 +6,12 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Protocol
 
-if TYPE_CHECKING:
-    import py_trees
+import py_trees
 
+if TYPE_CHECKING:
     from canguard.bt.context import Context
 
+RUNNING = py_trees.common.Status.RUNNING
 MAX_RETICKS = 100  # re-ticks of the root in one tick, unlike BT.CPP (docs/trees.md): the rest wait for the next
 
 
@@ -53,8 +54,6 @@ class Ticked:
 
     status: py_trees.common.Status  # the root's, after the last tick (INVALID when SKIPPED)
     skipped: bool
-    reticks: int  # how many times the root was ticked again for a wake-up
-    capped: bool  # the re-ticks stopped at the bound with a wake-up pending
     reached: frozenset[py_trees.behaviour.Behaviour] | None  # collect=True: every node the ticks reached
 
 
@@ -72,22 +71,20 @@ def tick_once(tree: _Tree, max_reticks: int = MAX_RETICKS, *, exactly_once: bool
               collect: bool = False) -> Ticked:
     """BT.CPP's ``tickOnce()``: tick the root, and again while it is RUNNING with a wake-up pending (at most
     ``max_reticks`` times, an ``error`` event at the first capped tick); ``exactly_once``: ``tickExactlyOnce()``."""
-    from py_trees.common import Status
-
     signal = tree.wake_up
-    signal.fire_due(tree.context.now())
+    signal.fire_due(tree.context.clock.now())
     reached: set | None = set() if collect else None
     root = tree.root
     _tick_root(root, reached)
     reticks = 0
-    while not exactly_once and root.status == Status.RUNNING and signal.pending and reticks < max_reticks:
+    while not exactly_once and root.status == RUNNING and signal.pending and reticks < max_reticks:
         signal.pending = False
         reticks += 1
         _tick_root(root, reached)
-    capped = not exactly_once and root.status == Status.RUNNING and signal.pending  # stopped at the bound
+    capped = not exactly_once and root.status == RUNNING and signal.pending  # stopped at the bound
     if capped and not signal.capped:
         tree.context.record("error", node=root.name, reason=f"the tree kept waking itself up: {max_reticks} re-ticks "
                             "in one tick, the next tick goes on (BT.CPP's tickOnce would not have returned yet)")
     signal.capped = capped
-    return Ticked(root.status, bool(getattr(root, "skipped", False)), reticks, capped,
+    return Ticked(root.status, bool(getattr(root, "skipped", False)),
                   frozenset(reached) if reached is not None else None)

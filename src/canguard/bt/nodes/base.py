@@ -72,13 +72,6 @@ def count_of(node: py_trees.behaviour.Behaviour, port: str, default: int) -> int
     return max(len(node.children) + value + 1, 0) if value < 0 else value
 
 
-def halt_running(children: Iterable[py_trees.behaviour.Behaviour]) -> None:
-    """Halt every one of ``children`` that is RUNNING."""
-    for child in children:
-        if child.status == RUNNING:
-            child.stop(INVALID)
-
-
 def reset(children: Iterable[py_trees.behaviour.Behaviour]) -> None:
     """Every one of ``children`` back to IDLE (BT.CPP's ``resetChildren``: a new run starts from IDLE)."""
     for child in children:
@@ -173,8 +166,7 @@ class CanguardNode(PortsMixin, register=False):
     """Input ports read once at load time: a ``{key}`` there is a load-time error."""
     KEY_PORTS: ClassVar[frozenset[str]] = frozenset()
     """Input ports that must be wired to a ``{key}``."""
-    USES_BOARD: ClassVar[bool] = False
-    """The loader gives the node its scope's ``board`` (:class:`~canguard.bt.scopes.TreeBlackboard`)."""
+    board: TreeBlackboard  # its scope's blackboard, given by the loader (scripts, SetBlackboard)
     UNTYPED_PORTS: ClassVar[frozenset[str]] = frozenset()
     """Ports of any type (BT.CPP's ``AnyTypeAllowed``): they neither fix nor check their entry's type."""
     CHOICES: ClassVar[Mapping[str, tuple[str, ...]]] = {}
@@ -205,9 +197,9 @@ class CanguardNode(PortsMixin, register=False):
         if issubclass(cls, py_trees.decorators.Decorator) and not getattr(cls.tick, "skip_aware", False):
             cls.tick = _skip_through(cls.tick)  # type: ignore[method-assign,assignment]
 
-    def __init__(self, *args: Any, context: Context | None = None, **kwargs: Any) -> None:
+    def __init__(self, *args: Any, context: Context, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
-        self._context = context
+        self.ctx = context  # the tree's context (clock, sources, sink, task, events)
         self._dynamic: frozenset[str] = frozenset()
         self._static: dict[str, Any] = {}
         self._wired: frozenset[str] = frozenset()
@@ -215,13 +207,6 @@ class CanguardNode(PortsMixin, register=False):
         self._bad_port = ""
         self.skipped = False  # the last tick returned SKIPPED
         self.wake_up = WakeUpSignal()  # the loader gives it the tree's (BT.CPP's setWakeUpInstance)
-
-    @property
-    def ctx(self) -> Context:
-        """The tree's context (clock, sources, sink, task, events)."""
-        if self._context is None:
-            raise RuntimeError(f"{self.name}: no context")
-        return self._context
 
     def setup_ports(self, port_remappings: dict | None = None, subtree_namespace: str = "/",
                     logger: PortsLogger | None = None) -> None:

@@ -29,7 +29,6 @@ from canguard.bt.nodes.base import (
     count_of,
     end_as,
     follow,
-    halt_running,
     halted,
     node_types,
     outcome,
@@ -38,7 +37,7 @@ from canguard.bt.nodes.base import (
     run_script,
     tick_child,
 )
-from canguard.bt.scopes import INT_TEXT, REAL_TEXT, TreeBlackboard
+from canguard.bt.scopes import INT_TEXT, REAL_TEXT
 from canguard.bt.scripting import ScriptError
 from canguard.bt.scripting.script import Script as ParsedScript
 from canguard.bt.scripting.script import convert_for_entry, entry_type
@@ -50,14 +49,10 @@ class _Scripted(CanguardNode):
     """A node with scripts in ports: parsed at bind, run against its subtree's blackboard."""
 
     SCRIPT_PORTS: tuple[str, ...] = ()
-    USES_BOARD = True
-
-    def __init__(self, *args: Any, **kwargs: Any) -> None:
-        super().__init__(*args, **kwargs)
-        self.scripts: dict[str, ParsedScript] = {}
-        self.board = TreeBlackboard("/")
+    scripts: dict[str, ParsedScript]  # by port
 
     def bind(self) -> None:
+        self.scripts = {}
         for name in self.SCRIPT_PORTS:
             text = self.port(name)
             if text is None:
@@ -239,10 +234,6 @@ class _Branching(CanguardNode, py_trees.composites.Composite):
             return
         yield from follow(self, self.children[self.branch])  # BT.CPP returns the branch's status, SKIPPED too
 
-    def stop(self, new_status: py_trees.common.Status = INVALID) -> None:
-        halt_running(self.children)
-        super().stop(new_status)
-
 
 IfThenElse, WhileDoElse = node_types(_Branching, __name__, {
     "IfThenElse": {"DESCRIPTION": "first child decides: SUCCESS ticks the second, FAILURE the third (or fails); "
@@ -314,7 +305,6 @@ class _Switch(CanguardNode, py_trees.composites.Composite):
         self.running = index if self.status == RUNNING else -1
 
     def stop(self, new_status: py_trees.common.Status = INVALID) -> None:
-        halt_running(self.children)
         self.running = -1
         super().stop(new_status)
 
@@ -364,7 +354,6 @@ class ParallelAll(CanguardNode, py_trees.composites.Composite):
         yield end_as(self, FAILURE if failures >= count_of(self, "max_failures", 1) else SUCCESS)
 
     def stop(self, new_status: py_trees.common.Status = INVALID) -> None:
-        halt_running(self.children)
         if new_status == INVALID:
             self.finished.clear()
         super().stop(new_status)
@@ -421,10 +410,11 @@ class TryCatch(CanguardNode, py_trees.composites.Composite):
 
     def stop(self, new_status: py_trees.common.Status = INVALID) -> None:
         if halted(self, new_status) and not self.in_catch and self.port("catch_on_halt"):
-            halt_running(self.children[:-1])
+            for child in self.children[:-1]:  # the running try halted, then the catch child ticked once
+                if child.status == RUNNING:
+                    child.stop(INVALID)
             for _ in self.children[-1].tick():
                 pass
-        halt_running(self.children)
         self.index, self.in_catch = 0, False
         super().stop(new_status)
 
@@ -525,11 +515,6 @@ class _Versioned(dict[str, Any]):
     def __setitem__(self, key: str, value: Any) -> None:
         super().__setitem__(key, value)
         self.versions[key] = self.versions.get(key, 0) + 1
-
-    def setdefault(self, key: str, default: Any = None) -> Any:
-        if key not in self:
-            self[key] = default
-        return self[key]
 
     def update(self, *args: Any, **kwargs: Any) -> None:
         for key, value in dict(*args, **kwargs).items():

@@ -64,12 +64,8 @@ class Parallel(CanguardNode, py_trees.composites.Parallel):
         if self.status != RUNNING:
             reset(self.children)
             self.finished.clear()
-            self.current_child = None
             self.initialise()
-        n = len(self.children)
-        if not n:
-            yield end_as(self, SUCCESS)
-            return
+        n = len(self.children)  # at least one: the loader refuses a control node without children
         need_s, need_f = self.thresholds()
         all_needed = (self.port("success_count") or -1) < 0
         skipped = 0
@@ -177,10 +173,8 @@ class Timeout(DecoratorNode):
                 self.wake_up.arm(self, self.deadline)  # BT.CPP: the timer wakes the tree up when it expires
             self.initialise()
         elif self.deadline is not None and now >= self.deadline:
-            if self.decorated.status == RUNNING:
-                self.decorated.stop(INVALID)
             self.feedback_message = "timed out"
-            yield end_as(self, FAILURE)
+            yield end_as(self, FAILURE)  # py_trees' Decorator.stop halts the running child
             return
         yield from self.decorated.tick()
         if self.decorated.status != RUNNING:
@@ -332,21 +326,10 @@ class Profile(DecoratorNode):
         "count": port_info(int, "ticks measured since the last reset", required=False),
     }
 
-    def __init__(self, name: str, child: py_trees.behaviour.Behaviour, **kwargs: Any) -> None:
-        super().__init__(name=name, child=child, **kwargs)
-        self.reset_stats()
-
-    def reset_stats(self) -> None:
-        """Forget every measurement."""
-        self.last_ms = 0.0
-        self.total_ms = 0.0
-        self.max_ms = 0.0
-        self.count = 0
-
-    @property
-    def avg_ms(self) -> float:
-        """Mean duration since the last reset (ms); 0 before any tick."""
-        return self.total_ms / self.count if self.count else 0.0
+    last_ms = 0.0  # the measurements since the last reset (a halt)
+    avg_ms = 0.0
+    max_ms = 0.0
+    count = 0
 
     def tick(self) -> Any:
         if self.status != RUNNING:
@@ -357,13 +340,12 @@ class Profile(DecoratorNode):
         yield from nodes
         self.last_ms = ms
         self.count += 1
-        self.total_ms += ms
-        if ms > self.max_ms:
-            self.max_ms = ms
+        self.avg_ms += (ms - self.avg_ms) / self.count  # the running mean
+        self.max_ms = max(self.max_ms, ms)
         for name in self.OUTPUT_PORTS:
             self.write(name, getattr(self, name))  # written when wired
         yield end_as(self, self.decorated.status)
 
     def terminate(self, new_status: py_trees.common.Status) -> None:
-        if halted(self, new_status):
-            self.reset_stats()
+        if halted(self, new_status):  # forget every measurement
+            self.last_ms, self.avg_ms, self.max_ms, self.count = 0.0, 0.0, 0.0, 0

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import math
 import operator
-from collections.abc import Callable
-from typing import Any, ClassVar
+from collections.abc import Callable, Sequence
+from typing import ClassVar
 
 import py_trees
 from py_trees.blackboard import Blackboard
@@ -154,10 +154,7 @@ class ResetTimer(_TimerUser, py_trees.behaviour.Behaviour):
                                   "IsElapsedTimeCompare nodes without timer under this node's closest ancestor that "
                                   "has any", required=False),
     }
-
-    def __init__(self, *args: Any, **kwargs: Any) -> None:
-        super().__init__(*args, **kwargs)
-        self.targets: list[IsElapsedTimeCompare] = []  # whose own timers it restarts (no timer port)
+    targets: Sequence[IsElapsedTimeCompare] = ()  # whose own timers it restarts (no timer port)
 
     def bind(self) -> None:
         if self.timer_key is not None:
