@@ -29,8 +29,9 @@ SIGUSR1 dumps a snapshot now (``snap_usr1_<s>.pickle``).
 
 times the trip-to-stop path inside the daemon instead (no tracemalloc): ``canguard run`` on a
 udp_multicast group with the bundled config, the trials of ``benchmarks/live.py`` (an echo round trip,
-then a trip) in turns; for each trip, µs from the receive that returned the tripping frame to each
-stage, and from the stop's first send to the loop's next wait (what the measuring peer competes with).
+then a trip) in turns; for each trip, µs from the tripping frame's arrival (the kernel's stamp) to the
+receive that returned it, from there to each stage, and from the stop's first send to the loop's next wait
+(what the measuring peer competes with).
 Prints p50 / p99 of each stage and the wall times of trips and echoes.
 
     valgrind --tool=cachegrind --cache-sim=no python benchmarks/traced_daemon.py --count TRIALS
@@ -139,8 +140,8 @@ def compare(old: str, new: str, n: int = 15) -> None:
             print("      " + line)
 
 
-STAGES = ("receive → take", "take → edge tick", "edge tick → stop", "stop → send", "first frame's send",
-          "receive → send", "send → next wait")
+STAGES = ("arrival → receive", "receive → take", "take → edge tick", "edge tick → stop", "stop → send",
+          "first frame's send", "receive → send", "send → next wait")
 """The columns of a stage line: µs from one mark to the next (the marks of :func:`trace_stages`)."""
 MARKS = ("recv", "take", "edge", "halt", "send", "sent")
 
@@ -164,11 +165,14 @@ def trace_stages(out: Path) -> None:
             t = [marks[m] for m in MARKS] + [pc()]
             us = [(b - a) * 1e6 for a, b in itertools.pairwise(t)]
             us.insert(5, (t[4] - t[0]) * 1e6)
+            us.insert(0, (marks["recv"] - marks["arrived"]) * 1e6)
             with open(out, "a", encoding="ascii") as f:
                 f.write("\t".join(f"{x:.1f}" for x in us) + "\n")
         marks.clear()
         items = receive(self, *args)
         marks["recv"] = pc()
+        if items:  # the kernel's stamp of the last frame received, on the monotonic clock (perf_counter's here)
+            marks["arrived"] = items[-1][2]
         return items
 
     def take_(self, *args):  # type: ignore[no-untyped-def]
