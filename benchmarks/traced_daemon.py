@@ -31,7 +31,8 @@ times the trip-to-stop path inside the daemon instead (no tracemalloc): ``cangua
 udp_multicast group with the bundled config, the trials of ``benchmarks/live.py`` (an echo round trip,
 then a trip) in turns; for each trip, µs from the tripping frame's arrival (the kernel's stamp) to the
 receive that returned it, from there to each stage, and from the stop's first send to the loop's next wait
-(what the measuring peer competes with).
+(what the measuring peer competes with). The echo process joins the group after the daemon here, so it is
+woken first (benchmarks/live.py alternates the order): its round trips are context, not the floor.
 Prints p50 / p99 of each stage and the wall times of trips and echoes.
 
     valgrind --tool=cachegrind --cache-sim=no python benchmarks/traced_daemon.py --count TRIALS
