@@ -29,6 +29,7 @@ import yaml
 from canguard.service.daemon import Daemon
 from canguard.service.systemd import Notifier
 from checkout import REPO
+from waitkit import join_or_stacks
 
 DEMO = REPO / "config" / "examples" / "robot_guard.yaml"
 DBC = REPO / "dbc" / "robot.dbc"
@@ -225,14 +226,14 @@ def watched_daemon(tmp: Path, *, http: bool = True, groot2: bool = False, token:
     finally:
         logger.removeHandler(handler)
         daemon.request_stop("test over")
-        thread.join(10)
+        hung = join_or_stacks(thread)
         stop.set()
         if robot:
             sim.join(5)
         peer.shutdown()
         robot_bus.shutdown()
         py_trees.blackboard.Blackboard.clear()
-    assert not thread.is_alive(), "Daemon.run did not return after request_stop"
+    assert not hung, f"Daemon.run did not return after request_stop: {hung}"
     assert result == [0]
 
 

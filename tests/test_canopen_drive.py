@@ -27,6 +27,7 @@ from canguard.cli.main import main
 from canguard.service.daemon import Daemon
 from canguard.service.systemd import Notifier
 from test_canopen_config import EDS, NODE, TREE
+from waitkit import join_or_stacks
 
 WAIT_S = 20.0
 """Upper bound for anything a test waits for (a loaded machine is slow, never this slow)."""
@@ -170,12 +171,12 @@ def bench_factory(tmp_path: Path) -> Iterator[Callable[[list[dict[str, Any]]], B
     yield make
     for bench, thread, result in started:
         bench.daemon.request_stop("test over")
-        thread.join(10)
+        hung = join_or_stacks(thread)
         bench.tpdo.stop()
         bench.node.nmt.stop_heartbeat()
         bench.network.disconnect()
         bench.recorder.shutdown()
-        assert not thread.is_alive(), "Daemon.run did not return after request_stop"
+        assert not hung, f"Daemon.run did not return after request_stop: {hung}"
         assert result == [0]
 
 

@@ -38,7 +38,7 @@ import yaml
 from canguard.service.daemon import Daemon
 from canguard.service.systemd import Notifier
 from checkout import REPO, SRC
-from waitkit import WAIT_S, receive_until, wait_until
+from waitkit import WAIT_S, join_or_stacks, receive_until, wait_until
 
 BUNDLED = REPO / "config" / "canguard.yaml"
 DBC = REPO / "dbc" / "robot.dbc"
@@ -342,9 +342,9 @@ def inproc(tmp_path: Path) -> Iterator[InProcess]:
         yield InProcess(daemon, peer, tmp_path / "events.jsonl")
     finally:
         daemon.request_stop("test over")
-        thread.join(10)
+        hung = join_or_stacks(thread)
         peer.shutdown()
-    assert not thread.is_alive(), "Daemon.run did not return after request_stop"
+    assert not hung, f"Daemon.run did not return after request_stop: {hung}"
     assert result == [0]
 
 

@@ -8,7 +8,10 @@ never comes.
 
 from __future__ import annotations
 
+import sys
+import threading
 import time
+import traceback
 from collections.abc import Callable
 from typing import TypeVar
 
@@ -45,3 +48,16 @@ def receive_until(bus: can.BusABC, pred: Callable[[can.Message], bool], what: st
         if msg is not None and pred(msg):
             return msg
     pytest.fail(f"no {what} received within {timeout} s")
+
+
+
+def join_or_stacks(thread: threading.Thread, timeout: float = WAIT_S) -> str:
+    """Join ``thread``: "" once it ended, else (still alive after ``timeout``) every thread's stack, for the failure
+    to tell where it hangs, not only that it did. The caller cleans up first, then asserts on it."""
+    thread.join(timeout)
+    if not thread.is_alive():
+        return ""
+    names = {t.ident: t.name for t in threading.enumerate()}
+    return f"still running after {timeout} s; every thread's stack:\n" + "".join(
+        f"--- {names.get(ident, ident)}\n" + "".join(traceback.format_stack(frame))
+        for ident, frame in sys._current_frames().items())
