@@ -17,7 +17,10 @@ daemon's by ~17-38 µs, the other way, 2026-11-29):
   CPU per second, measured before, taken off), beside a process that only receives the same frames
   with python-can (``recv(0)`` until empty, every millisecond: python-can's cost of a frame, not of a
   wake-up; its count is the frames of the window: both read the same multicast datagrams). What
-  canguard adds per frame, its wake-ups included, is the difference;
+  canguard adds per frame, its wake-ups included, is the difference. Then a second window beside a
+  python-can process that waits in ``recv`` for each frame, as a reader that must not lag does (the
+  daemon must: the next frame may be the one that trips): what canguard adds to python-can's own
+  receive at the same wake-ups;
 * **a frame alone**: in a process of its own, the CPU of ``Engine.take`` per frame of a recorded log
   (examples/normal.log.gz on config/examples/robot_guard.yaml: each frame a block of one, as on a
   quiet bus), beside a plain cantools loop decoding the same frames' configured messages.
@@ -72,6 +75,11 @@ elif role == "background":
             bus.send(msgs[n % len(msgs)])
             n += 1
         time.sleep(0.001)
+elif role == "wake":  # python-can's blocking recv: woken by each datagram, as a reader that must not lag is
+    recv = bus.recv
+    while not stop.is_set():
+        if recv(0.1) is not None:
+            n += 1
 else:  # receive: drain what the kernel holds every millisecond (python-can's recv, not a wake-up per datagram)
     recv = bus.recv
     while not stop.is_set():
@@ -279,6 +287,16 @@ def running(children: list[Child]) -> Iterator[list[Child]]:
                 c.close()
 
 
+def ingest_window(daemon: Daemon, receiver: Child, window_s: float, idle_rate: float) -> tuple[int, float, float]:
+    """While ``receiver`` takes the background's frames for ``window_s``: (its frames, the daemon's CPU µs a frame
+    with ``idle_rate`` CPU seconds a second taken off, the receiver's CPU µs a frame)."""
+    cpu0, t0 = daemon.cpu_s(), time.perf_counter()
+    time.sleep(window_s)
+    cpu1, t1 = daemon.cpu_s(), time.perf_counter()
+    frames, got_cpu = receiver.close()
+    return frames, (cpu1 - cpu0 - idle_rate * (t1 - t0)) / max(1, frames) * 1e6, got_cpu / max(1, frames) * 1e6
+
+
 @contextlib.contextmanager
 def rig(tmp: Path, bus: dict[str, Any], src: Path, echo_first: bool) -> Iterator[tuple[Daemon, Peer]]:
     """The daemon and the echo process on ``bus`` in the order asked, the peer joined between them: (daemon, peer)
@@ -343,20 +361,19 @@ def run(opts: Options) -> Table:
                     for got, kept in zip(peer.turns(half), busy, strict=True):
                         kept.extend(got)
                     if echo_first:
-                        receiver = Child("receive", bus, opts.src)
-                        cpu0, t0 = daemon.cpu_s(), time.perf_counter()
-                        time.sleep(window_s)
-                        cpu1, t1 = daemon.cpu_s(), time.perf_counter()
-                        frames, got_cpu = receiver.close()
+                        ingest = [ingest_window(daemon, Child(role, bus, opts.src), window_s, idle_rate)
+                                  for role in ("receive", "wake")]
     quiet_row = latency_row("trip → stop, no background traffic", *quiet)
     busy_row = latency_row(f"trip → stop, {fps:,.0f} frames/s background", *busy)
-    own = (cpu1 - cpu0 - idle_rate * (t1 - t0)) / max(1, frames) * 1e6
-    pycan = got_cpu / max(1, frames) * 1e6
+    (frames, own, pycan), (woken_frames, woken_own, woken) = ingest
     rows = sorted([quiet_row, busy_row], key=lambda r: -(r[-1] if isinstance(r[-1], float) else 0.0))
     rows.append(["ingest: daemon CPU a frame, idle CPU taken off", frames, own, None,
                  "python-can receive alone (process)", pycan, None, None])
     rows.append(["ingest: canguard's own (daemon − python-can's receive)", frames, own - pycan, None,
                  "python-can receive alone (process)", pycan, None, kit.ratio(own - pycan, pycan)])
+    rows.append(["ingest: canguard's own beside a reader woken per frame (daemon − python-can's blocking recv)",
+                 woken_frames, woken_own - woken, None, "python-can blocking recv alone (process)", woken, None,
+                 kit.ratio(woken_own - woken, woken)])
     rows.append(alone_row(opts))
     table.rows = rows
     table.notes += [f"the daemon's idle CPU: {idle_rate * 100:.1f} % of a core (ticks, task frames), taken off "
