@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import contextlib
 import functools
-import gc
 import importlib.util
 import json
 import os
@@ -26,7 +25,6 @@ import tempfile
 import threading
 import time
 import uuid
-import weakref
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -37,7 +35,7 @@ import cantools
 import pytest
 import yaml
 
-from canguard.service.daemon import Daemon, collect_when_due
+from canguard.service.daemon import Daemon
 from canguard.service.systemd import Notifier
 from checkout import REPO, SRC
 from waitkit import WAIT_S, join_or_stacks, receive_until, wait_until
@@ -348,56 +346,6 @@ def inproc(tmp_path: Path) -> Iterator[InProcess]:
         peer.shutdown()
     assert not hung, f"Daemon.run did not return after request_stop: {hung}"
     assert result == [0]
-
-
-class _Cycle:
-    """An object that refers to itself: only the collector frees it."""
-
-    def __init__(self, freed: list[int]) -> None:
-        self.me = self
-        weakref.finalize(self, freed.append, 1)
-
-
-class TestCollector:
-    """The loop collects garbage where it waits, not when an allocation in a frame's way to the stop trips it."""
-
-    def test_the_young_generation_is_collected_once_due_and_not_before(self) -> None:
-        was = gc.isenabled()
-        gc.disable()
-        try:
-            gc.collect()
-            freed: list[int] = []
-            for _ in range(10):
-                _Cycle(freed)
-            collect_when_due((700, 10, 10))  # ~30 new objects: not due
-            assert freed == []
-            for _ in range(1000):
-                _Cycle(freed)
-            collect_when_due((700, 10, 10))
-            assert len(freed) == 1010
-        finally:
-            if was:
-                gc.enable()
-
-    def test_the_daemon_collects_while_it_runs_and_gives_automatic_collection_back(self, tmp_path: Path) -> None:
-        """Garbage made while the loop runs (automatic collection off) is freed by the loop; after run() the
-        collector is on again."""
-        channel = f"canguard-test-{uuid.uuid4().hex[:12]}"
-        daemon = Daemon(write_config(tmp_path, {"interface": "virtual", "channel": channel}),
-                        notifier=Notifier(env={}))
-        freed: list[int] = []
-        thread = threading.Thread(target=daemon.run, name="daemon", daemon=True)
-        thread.start()
-        try:
-            wait_until(lambda: not gc.isenabled(), what="the loop to take collection over")
-            for _ in range(2000):
-                _Cycle(freed)
-            wait_until(lambda: len(freed) == 2000, what="the loop to collect the cycles")
-        finally:
-            daemon.request_stop("test over")
-            hung = join_or_stacks(thread)
-        assert not hung, f"Daemon.run did not return after request_stop: {hung}"
-        assert gc.isenabled()
 
 
 class TestDaemonInProcess:

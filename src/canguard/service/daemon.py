@@ -50,17 +50,6 @@ LIVE_SKEW_S = 0.5
 """A frame timestamp further than this from the daemon's clock is replaced by the receive time."""
 OVERRUN_FLOOR_S = 0.05
 """The shortest wait between arrival and the engine that counts as falling behind (jitter is below it)."""
-def collect_when_due(thresholds: tuple[int, ...]) -> None:
-    """The collector's work, done where the loop is about to wait: the generation Python's own ``thresholds``
-    (``gc.get_threshold()``) say is due, if any. The loop runs with automatic collection off: allocations
-    trigger it, and a frame's way to the stop allocates, so a collection landed in the middle of a trip (one in
-    three trips at the live suite's pace, a young-generation pass ~60 µs, the middle one 1-2 ms)."""
-    counts = gc.get_count()
-    if counts[0] < thresholds[0]:
-        return
-    gc.collect(2 if counts[2] >= thresholds[2] else 1 if counts[1] >= thresholds[1] else 0)
-
-
 DRAIN = 512
 """Frames received after the first, at most, before the engine advances to now."""
 DRAIN_DIRECT = 32
@@ -181,20 +170,17 @@ class Daemon:
 
     # -- the loop --------------------------------------------------------------------------
     def run(self, duration_s: float | None = None) -> int:
-        """Run until SIGTERM (or ``duration_s``); returns the exit code. The collector runs where the loop waits
-        (:func:`collect_when_due`), on what was made after start: automatic collection is back on return."""
-        thresholds, collecting = gc.get_threshold(), gc.isenabled()
+        """Run until SIGTERM (or ``duration_s``); returns the exit code. What start built (engine, tree, DBC) is
+        collected once and frozen out of the collector's walks: a full collection in the loop then walks only
+        what came after (one took 13-20 ms, in the middle of whatever frame's allocation tripped it)."""
         gc.collect()  # before any bus is open: no frame waits for it
-        gc.freeze()  # the engine, tree and DBC built so far: out of every collection's walk
-        gc.disable()
+        gc.freeze()
         try:
-            return self._run(duration_s, thresholds)
+            return self._run(duration_s)
         finally:
             gc.unfreeze()
-            if collecting:
-                gc.enable()
 
-    def _run(self, duration_s: float | None, thresholds: tuple[int, ...]) -> int:
+    def _run(self, duration_s: float | None) -> int:
         engine = self.engine
         if self.monitor is not None:
             self.monitor.start()
@@ -214,7 +200,6 @@ class Daemon:
         sys.setswitchinterval(SWITCH_INTERVAL_S)
         try:
             while not self._stop.is_set() and time.monotonic() < end:
-                collect_when_due(thresholds)
                 engine = self.engine
                 now = self.clock.now()
                 items = receive(min(max(0.0, engine.next_due() - now), 0.05), batch)
