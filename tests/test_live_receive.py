@@ -24,7 +24,7 @@ from canguard.io.bus import BusReader, open_bus
 from canguard.service.daemon import Daemon
 from canguard.service.systemd import Notifier
 from test_daemon import BmsFeeder, is_stop, is_task, read_events, unique_udp, write_config
-from waitkit import receive_until, wait_until
+from waitkit import WAIT_S, receive_until, wait_until
 
 pytest.importorskip("msgpack")  # python-can's udp_multicast needs it
 
@@ -368,6 +368,34 @@ class TestJournalSyncsInBackground:
         assert fsyncs and fsyncs[-1] == threading.current_thread().name
         assert not threads_named("canguard-journal-fsync") - before
         assert [e["reason"] for e in read_events(tmp_path / "events.jsonl")] == [f"stop {k}" for k in range(5)]
+
+    def test_a_close_just_as_the_interval_ends_still_ends_the_thread(self, tmp_path: Path) -> None:
+        """close() while the sync thread has waited out its interval but not yet taken the flush's request: the
+        thread's clear drops close's request too, and the thread still ends. It used to wait for a next flush that
+        never came, and close() with it: a daemon that did not stop at SIGTERM (seen in the suite's teardowns)."""
+        journal = EventJournal(tmp_path / "events.jsonl", sync_in_background=True)
+        in_window, closed = threading.Event(), threading.Event()
+
+        class Window(threading.Event):
+            def clear(self) -> None:  # the sync thread's, after its interval
+                if not in_window.is_set():
+                    in_window.set()
+                    closed.wait(WAIT_S)  # close() asks meanwhile: this clear drops its request
+                super().clear()
+
+        asked = journal._sync_due
+        journal._sync_due = Window()
+        journal.write({"event": "stop", "reason": "estop"})
+        journal.flush()
+        asked.set()  # the thread waits on the flag it started with
+        wait_until(in_window.is_set, what="the sync thread between its interval and its clear")
+        closer = threading.Thread(target=journal.close, name="closer", daemon=True)
+        closer.start()
+        wait_until(lambda: journal._sync_stop.is_set() and journal._sync_due.is_set(), what="close() to ask")
+        closed.set()
+        closer.join(WAIT_S)
+        assert not closer.is_alive(), "close() waited for a sync thread that waited for another flush"
+        assert [e["reason"] for e in read_events(tmp_path / "events.jsonl")] == ["estop"]
 
     def test_flushes_within_the_interval_share_one_fsync_made_in_time(self, tmp_path: Path,
                                                                      monkeypatch: pytest.MonkeyPatch) -> None:

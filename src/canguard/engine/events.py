@@ -216,8 +216,10 @@ class EventJournal:
 
     def _sync_loop(self) -> None:
         """The sync thread: ``fsync`` a duplicate descriptor outside the lock ``SYNC_INTERVAL_S`` after the first flush
-        since the last one; never at once, so a stop's tick does not stall the disk while its frames travel."""
-        while True:
+        since the last one; never at once, so a stop's tick does not stall the disk while its frames travel. Ends
+        once :meth:`close` asked, at the latest after the ``fsync`` under way: a close between the interval's end and
+        the ``clear`` below sets the flag that ``clear`` then drops, so the wait must not be the only way out."""
+        while not self._sync_stop.is_set():
             self._sync_due.wait()
             if self._sync_stop.wait(SYNC_INTERVAL_S):
                 return  # close() syncs what is left itself
