@@ -338,7 +338,7 @@ def run(opts: Options) -> Table:
     """The live table: trip-to-stop rows worst (highest p99 / echo p99) first, then ingest."""
     trials, fps, window_s = (4, 1000.0, 0.5) if opts.quick else (1000, 8000.0, 10.0)
     table = Table("live", f"`canguard run` (bundled config, udp_multicast) beside python-can alone: trip to stop "
-                  f"against an echo process, {trials} trials of each in turns (half of them with the echo joined to "
+                  f"against an echo process, {trials:,} trials of each in turns (half of them with the echo joined to "
                   f"the group before the daemon); ingest CPU per frame at {fps:,.0f} frames/s",
                   ["measure", "trials / frames", "canguard p50 ms / µs a frame", "canguard p99 ms", "peer",
                    "peer p50 ms / µs a frame", "peer p99 ms", "canguard / peer (p99)"],
