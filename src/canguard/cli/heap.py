@@ -66,4 +66,3 @@ def keep_freed_memory() -> Iterator[None]:
                 libc.mallopt(M_MMAP_THRESHOLD, _env_bytes("MALLOC_MMAP_THRESHOLD_", DEFAULT_THRESHOLD))
                 libc.mallopt(M_TRIM_THRESHOLD, _env_bytes("MALLOC_TRIM_THRESHOLD_", DEFAULT_THRESHOLD))
                 libc.malloc_trim(0)
-

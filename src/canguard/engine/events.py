@@ -4,8 +4,8 @@ A line is whole and survives a crash of the daemon once :meth:`EventJournal.writ
 on an ``O_APPEND`` descriptor). A power cut loses at most the last ``SYNC_INTERVAL_S``: with
 ``sync_in_background`` (the daemon) a thread of its own ``fsync``s, ``SYNC_INTERVAL_S`` after the first flush
 since its last one, so the loop never waits for a disk (on a VM or an SD card one ``fsync`` can stall the
-machine for milliseconds) and no ``fsync`` starts while a stop's frames travel. Rotation never deletes by
-default (the highest number is the oldest file).
+machine for milliseconds) and no ``fsync`` starts while a stop's frames travel. Rotation never deletes a
+file (the highest number is the oldest).
 """
 
 from __future__ import annotations
@@ -272,4 +272,3 @@ class EventJournal:
             sys.stderr.flush()
         except (OSError, ValueError):
             log.error("event journal %s: %d line(s) lost (%s; stderr refused them too)", self.path, len(lines), why)
-

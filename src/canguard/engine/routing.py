@@ -39,5 +39,3 @@ class ChannelRouter:
         if len(self.channels) < 2 or all(c in self.table for c in self.channels):
             return {}
         return dict(sorted(self.channels.items()))
-
-

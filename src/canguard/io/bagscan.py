@@ -352,4 +352,3 @@ def _same_shape(buf: np.ndarray, size: int, pos: int, hlen: int, dlen: int,
     time_at = rec + 4 + fields[b"time"][0]
     ns = uint_at(buf, time_at, 4) * 1_000_000_000 + uint_at(buf, time_at + 4, 4)
     return Messages(conn, ns, buf, rec + 8 + hlen, np.full(rec.size, dlen, dtype=np.int64))
-

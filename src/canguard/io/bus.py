@@ -357,7 +357,6 @@ class BusReader:
         """Append the messages just received from bus ``name`` to ``out`` as ``(name, message, received)``: the
         kernel stamp on ``time.monotonic()``'s base (never after now) once the bus stamps with the wall clock
         (:data:`WALL_STAMP_S`), else now."""
-
         now = monotonic()
         offset = time.time() - now  # wall clock minus monotonic: a wall-clock stamp to monotonic's base
         wall = self._wall_stamps[name]
@@ -436,7 +435,6 @@ class BusReader:
         with self._lock:
             bus, self._buses[name] = self._buses[name], None
         _shutdown(bus, name)
-
 
     def _open_once(self, name: str, delay: float) -> can.BusABC | None:
         """Try once to reopen ``name``; the bus, or None (logged, saying when the next try is)."""

@@ -513,7 +513,6 @@ _VOIDS: dict[int, np.dtype] = {}
 def _buffer(name: str, count: int, dtype: type) -> np.ndarray:
     """This thread's scratch array ``name``, ``count`` items, kept from block to block (a process that gives freed
     memory back at once would fault a new block-sized array in page by page, every block)."""
-
     have: np.ndarray | None = getattr(_LOCAL, name, None)
     if have is None or have.size < count:
         have = np.empty(count + count // 4 + 64, dtype=dtype)

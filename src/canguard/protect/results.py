@@ -68,4 +68,3 @@ def edges(index: Sequence[int] | IndexArray, times: Sequence[float] | FloatArray
     import numpy as np
 
     return Run(np.array(index, dtype=np.intp), np.array(times, dtype=np.float64), np.array(states, dtype=bool), taken)
-

@@ -279,4 +279,3 @@ class SourceHealth:
     def latest_times(self) -> dict[str, float]:
         """Each role's latest sample time, valid or not (a copy)."""
         return dict(self._latest_t)
-

@@ -86,4 +86,3 @@ def assign_roles(root: py_trees.behaviour.Behaviour) -> bool:
             n.role = n.action.role if n.action.role != "auto" else ("recovery" if has_execute else "task")
             has_task = has_task or n.role == "task"
     return has_task
-

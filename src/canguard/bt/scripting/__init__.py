@@ -16,4 +16,3 @@ class ScriptError(ValueError):
             line, column = before.count("\n") + 1, pos - before.rfind("\n")
             where = f"line {line}, column {column}: " if "\n" in script else f"column {column}: "
         super().__init__(where + message)
-
