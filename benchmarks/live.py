@@ -298,10 +298,12 @@ def ingest_window(daemon: Daemon, receiver: Child, window_s: float, idle_rate: f
 
 
 @contextlib.contextmanager
-def rig(tmp: Path, bus: dict[str, Any], src: Path, echo_first: bool) -> Iterator[tuple[Daemon, Peer]]:
-    """The daemon and the echo process on ``bus`` in the order asked, the peer joined between them: (daemon, peer)
-    while the block runs, all stopped after it. The newest socket of the group is woken first (see the module
-    docstring): ``echo_first`` gives the daemon that place, else the echo."""
+def rig(tmp: Path, bus: dict[str, Any], src: Path, echo_first: bool, **daemon_args: Any
+        ) -> Iterator[tuple[Daemon, Peer]]:
+    """The daemon (``daemon_args``: :class:`Daemon`'s ``script``, ``env``) and the echo process on ``bus`` in the
+    order asked, the peer joined between them: (daemon, peer) while the block runs, all stopped after it. The
+    newest socket of the group is woken first (see the module docstring): ``echo_first`` gives the daemon that
+    place, else the echo."""
     daemon: Daemon | None = None
     peer: Peer | None = None
     echoes: list[Child] = []
@@ -310,10 +312,10 @@ def rig(tmp: Path, bus: dict[str, Any], src: Path, echo_first: bool) -> Iterator
             if echo_first:
                 echoes.append(Child("echo", bus, src))
             else:
-                daemon = Daemon(tmp, bus, src)
+                daemon = Daemon(tmp, bus, src, **daemon_args)
             peer = Peer(bus)
             if echo_first:
-                daemon = Daemon(tmp, bus, src)
+                daemon = Daemon(tmp, bus, src, **daemon_args)
             else:
                 echoes.append(Child("echo", bus, src))
             yield daemon, peer

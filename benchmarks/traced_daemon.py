@@ -213,21 +213,15 @@ def stages(trials: int) -> int:
     """``--stages``: the daemon's stages of ``trials`` trips (beside as many echo round trips), p50 / p99."""
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
     from benchmarks import kit
-    from benchmarks.live import Child, Daemon, Peer
+    from benchmarks.live import rig
 
     bus = kit.multicast_bus()
     with kit.scratch("stages") as d:
         tmp = Path(d)
         out = tmp / "stages.tsv"
-        daemon = Daemon(tmp, bus, kit.SRC, script=Path(__file__), env={"CANGUARD_TRACE_STAGES": str(out)})
-        peer = Peer(bus)
-        try:
-            echo = Child("echo", bus, kit.SRC)
+        with rig(tmp, bus, kit.SRC, False, script=Path(__file__), env={"CANGUARD_TRACE_STAGES": str(out)}) as (
+                _daemon, peer):
             trips, echoes = peer.turns(trials)
-            echo.close()
-        finally:
-            peer.close()
-            daemon.stop()
         rows = [[float(x) for x in line.split()] for line in out.read_text(encoding="ascii").splitlines()]
     print(f"{len(rows)} trips, µs p50 / p99 of each stage:")
     for i, name in enumerate(STAGES):
